@@ -1,0 +1,38 @@
+# Every target builds its own virtualenv first: a fresh clone needs only python3 and make.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: all demo test lint typecheck pytest bench soak clean
+
+all: test
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/ics35 demo
+
+lint: $(STAMP)
+	$(BIN)/ruff check ics35_async tests benchmarks
+
+typecheck: $(STAMP)
+	$(BIN)/mypy --strict ics35_async
+
+pytest: $(STAMP)
+	$(BIN)/pytest --cov=ics35_async --cov-branch --cov-report=term-missing:skip-covered
+
+test: lint typecheck pytest
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/run.py
+
+soak: $(STAMP)
+	$(BIN)/python benchmarks/soak.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage

@@ -1,0 +1,52 @@
+"""ics35_async: drive Kondo ICS 3.5 serial servos from asyncio code."""
+
+from __future__ import annotations
+
+from .eeprom import BaudRate, Eeprom, Flags
+from .errors import (
+    BadReply,
+    BusClosed,
+    EchoMismatch,
+    IcsError,
+    InvalidArgument,
+    MalformedEeprom,
+    PartialReply,
+    PortLost,
+    ReplyDataError,
+    ReplyError,
+    ReplyHeaderError,
+    ReplyLengthError,
+    ReplySubcommandError,
+    ReplyTimeout,
+    ReplyValueError,
+    UnsafeOperation,
+    VerifyError,
+)
+from .protocol import Param
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BadReply",
+    "BaudRate",
+    "BusClosed",
+    "EchoMismatch",
+    "Eeprom",
+    "Flags",
+    "IcsError",
+    "InvalidArgument",
+    "MalformedEeprom",
+    "Param",
+    "PartialReply",
+    "PortLost",
+    "ReplyDataError",
+    "ReplyError",
+    "ReplyHeaderError",
+    "ReplyLengthError",
+    "ReplySubcommandError",
+    "ReplyTimeout",
+    "ReplyValueError",
+    "UnsafeOperation",
+    "VerifyError",
+    "__version__",
+]

@@ -1,0 +1,287 @@
+"""The servo's 64-byte EEPROM image (spec section 7) as a frozen dataclass.
+
+Each wire byte carries one nibble; pairs of nibbles make 8-bit fields, four
+make the 16-bit pulse limits.  The factory calibration bytes are kept
+verbatim and no update path can change them.  Decoding is lenient about
+field ranges (a real servo's image is shown as it is); :meth:`Eeprom.replace`
+is strict about every field it changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import InvalidArgument, MalformedEeprom, UnsafeOperation
+from .units import check_int
+
+EEPROM_SIZE = 64
+HEADER = 0x5A
+
+
+class BaudRate(enum.IntEnum):
+    """The three line rates, with the code the EEPROM stores for each."""
+
+    B115200 = 115200
+    B625000 = 625000
+    B1250000 = 1250000
+
+    @property
+    def eeprom_code(self) -> int:
+        return _BAUD_TO_CODE[self]
+
+    @classmethod
+    def from_eeprom_code(cls, code: int) -> BaudRate:
+        try:
+            return _CODE_TO_BAUD[code]
+        except KeyError:
+            raise MalformedEeprom(f"unknown baud-rate code {code} (10, 1 or 0 expected)") from None
+
+    @classmethod
+    def parse(cls, value: object) -> BaudRate:
+        """A BaudRate from 115200 / 625000 / 1250000 (int or str)."""
+        try:
+            return cls(int(value))  # type: ignore[call-overload]
+        except (TypeError, ValueError):
+            raise InvalidArgument(
+                f"baud rate must be one of {', '.join(str(int(b)) for b in cls)}, got {value!r}"
+            ) from None
+
+
+_BAUD_TO_CODE = {BaudRate.B115200: 10, BaudRate.B625000: 1, BaudRate.B1250000: 0}
+_CODE_TO_BAUD = {code: baud for baud, code in _BAUD_TO_CODE.items()}
+
+
+class Flags(enum.IntFlag):
+    """EEPROM flags (bytes 15-16)."""
+
+    REVERSE = 0x01
+    FREE = 0x02
+    PCM = 0x04
+    PWMINH = 0x08
+    ROTATION = 0x10
+    SLAVE = 0x80
+
+
+READ_ONLY_FLAGS = Flags.FREE | Flags.PCM
+UNUSED_FLAG_BITS = 0x60
+
+# (0-based offset, nibble count) of each decoded field.
+_LAYOUT: dict[str, tuple[int, int]] = {
+    "stretch_gain": (2, 2),
+    "speed": (4, 2),
+    "punch": (6, 2),
+    "dead_band": (8, 2),
+    "damping": (10, 2),
+    "safe_timer": (12, 2),
+    "flags": (14, 2),
+    "pulse_limit_high": (16, 4),
+    "pulse_limit_low": (20, 4),
+    "baud_rate": (26, 2),
+    "temperature_limit": (28, 2),
+    "current_limit": (30, 2),
+    "response": (50, 2),
+    "user_offset": (52, 2),
+    "servo_id": (56, 2),
+    "stretch_1": (58, 2),
+    "stretch_2": (60, 2),
+    "stretch_3": (62, 2),
+}
+# Factory calibration: written back exactly as read, never edited.
+PROTECTED_RANGES: tuple[tuple[int, int], ...] = ((24, 26), (32, 50), (54, 56))
+PROTECTED_OFFSETS = frozenset(i for lo, hi in PROTECTED_RANGES for i in range(lo, hi))
+_CALIBRATION_LEN = sum(hi - lo for lo, hi in PROTECTED_RANGES)
+
+_RANGES: dict[str, tuple[int, int]] = {
+    "stretch_gain": (2, 254),
+    "speed": (1, 127),
+    "punch": (0, 10),
+    "dead_band": (0, 5),
+    "damping": (1, 255),
+    "safe_timer": (10, 255),
+    "pulse_limit_high": (3500, 11500),
+    "pulse_limit_low": (3500, 11500),
+    "temperature_limit": (1, 127),
+    "current_limit": (1, 63),
+    "response": (1, 5),
+    "user_offset": (-127, 127),
+    "servo_id": (0, 31),
+    "stretch_1": (2, 254),
+    "stretch_2": (2, 254),
+    "stretch_3": (2, 254),
+}
+_EVEN_FIELDS = frozenset({"stretch_gain", "stretch_1", "stretch_2", "stretch_3"})
+
+
+def _get(image: bytes, offset: int, nibbles: int) -> int:
+    value = 0
+    for b in image[offset : offset + nibbles]:
+        value = (value << 4) | b
+    return value
+
+
+def _put(image: bytearray, offset: int, nibbles: int, value: int) -> None:
+    for i in range(nibbles):
+        image[offset + i] = (value >> (4 * (nibbles - 1 - i))) & 0x0F
+
+
+@dataclass(frozen=True)
+class Eeprom:
+    """A decoded EEPROM image.  Build one with :meth:`from_bytes` or :meth:`factory`."""
+
+    stretch_gain: int
+    speed: int
+    punch: int
+    dead_band: int
+    damping: int
+    safe_timer: int
+    flags: Flags
+    pulse_limit_high: int
+    pulse_limit_low: int
+    baud_rate: BaudRate
+    temperature_limit: int
+    current_limit: int
+    response: int
+    user_offset: int
+    servo_id: int
+    stretch_1: int
+    stretch_2: int
+    stretch_3: int
+    calibration: bytes = field(repr=False)
+
+    @property
+    def header(self) -> int:
+        return HEADER
+
+    @classmethod
+    def from_bytes(cls, image: bytes | bytearray) -> Eeprom:
+        image = bytes(image)
+        if len(image) != EEPROM_SIZE:
+            raise MalformedEeprom(f"EEPROM image must be {EEPROM_SIZE} bytes, got {len(image)}")
+        bad = [i for i, b in enumerate(image) if b > 0x0F]
+        if bad:
+            raise MalformedEeprom(f"EEPROM byte {bad[0] + 1} is 0x{image[bad[0]]:02X}, not a nibble (0x00..0x0F)")
+        header = _get(image, 0, 2)
+        if header != HEADER:
+            raise MalformedEeprom(f"EEPROM header is 0x{header:02X}, expected 0x{HEADER:02X}")
+        values: dict[str, Any] = {name: _get(image, off, n) for name, (off, n) in _LAYOUT.items()}
+        values["flags"] = Flags(values["flags"])
+        values["baud_rate"] = BaudRate.from_eeprom_code(values["baud_rate"])
+        offset = values["user_offset"]
+        values["user_offset"] = offset - 256 if offset >= 128 else offset
+        values["calibration"] = b"".join(image[lo:hi] for lo, hi in PROTECTED_RANGES)
+        return cls(**values)
+
+    def to_bytes(self) -> bytes:
+        image = bytearray(EEPROM_SIZE)
+        _put(image, 0, 2, HEADER)
+        for name, (off, n) in _LAYOUT.items():
+            value = getattr(self, name)
+            if name == "baud_rate":
+                value = BaudRate(value).eeprom_code
+            elif name == "user_offset":
+                value &= 0xFF
+            _put(image, off, n, int(value))
+        pos = 0
+        for lo, hi in PROTECTED_RANGES:
+            image[lo:hi] = self.calibration[pos : pos + hi - lo]
+            pos += hi - lo
+        return bytes(image)
+
+    def __post_init__(self) -> None:
+        cal = self.calibration
+        if len(cal) != _CALIBRATION_LEN or any(b > 0x0F for b in cal):
+            raise MalformedEeprom(f"calibration must be {_CALIBRATION_LEN} nibbles")
+
+    def replace(self, **changes: Any) -> Eeprom:
+        """A copy with ``changes`` applied, each validated; protected bytes never change."""
+        if "calibration" in changes:
+            raise UnsafeOperation("the factory calibration bytes are protected and cannot be changed")
+        unknown = set(changes) - set(_LAYOUT)
+        if unknown:
+            raise InvalidArgument(f"unknown EEPROM field(s): {', '.join(sorted(unknown))}")
+        clean: dict[str, Any] = {}
+        for name, value in changes.items():
+            if name == "baud_rate":
+                clean[name] = BaudRate.parse(value)
+            elif name == "flags":
+                clean[name] = self._check_flags(value)
+            else:
+                low, high = _RANGES[name]
+                check_int(name, value, low, high)
+                if name in _EVEN_FIELDS and value % 2:
+                    raise InvalidArgument(f"{name} must be even, got {value}")
+                clean[name] = value
+        updated = dataclasses.replace(self, **clean)
+        if updated.pulse_limit_low > updated.pulse_limit_high:
+            raise InvalidArgument(
+                f"pulse_limit_low ({updated.pulse_limit_low}) must not exceed "
+                f"pulse_limit_high ({updated.pulse_limit_high})"
+            )
+        return updated
+
+    def _check_flags(self, value: object) -> Flags:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InvalidArgument(f"flags must be Flags or an int, not {type(value).__name__}")
+        check_int("flags", int(value), 0, 0xFF)
+        if value & UNUSED_FLAG_BITS:
+            raise InvalidArgument("flag bits 5-6 are unused and must stay 0")
+        if (value ^ self.flags) & READ_ONLY_FLAGS:
+            raise InvalidArgument("the FREE and PCM flags are read-only")
+        return Flags(value)
+
+    def diff(self, other: Eeprom) -> dict[str, tuple[Any, Any]]:
+        """Fields whose values differ, as ``{name: (self_value, other_value)}``."""
+        return {
+            name: (getattr(self, name), getattr(other, name))
+            for name in _LAYOUT
+            if getattr(self, name) != getattr(other, name)
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able fields; ``raw`` is the whole image as hex."""
+        out: dict[str, Any] = {name: int(getattr(self, name)) for name in _LAYOUT}
+        out["flags_names"] = [f.name for f in Flags if f in self.flags]
+        out["raw"] = self.to_bytes().hex()
+        return out
+
+    @classmethod
+    def factory(
+        cls,
+        servo_id: int = 0,
+        *,
+        baud_rate: BaudRate = BaudRate.B115200,
+        calibration: bytes | None = None,
+    ) -> Eeprom:
+        """The spec's factory example image (section 7), for a given ID and baud."""
+        check_int("servo_id", servo_id, 0, 31)
+        if calibration is None:
+            # Plausible, ID-dependent calibration nibbles: real ones differ per unit.
+            calibration = bytes((servo_id * 7 + i * 5 + 3) & 0x0F for i in range(_CALIBRATION_LEN))
+        return cls(
+            stretch_gain=60,
+            speed=127,
+            punch=1,
+            dead_band=2,
+            damping=40,
+            safe_timer=250,
+            flags=Flags(0),
+            pulse_limit_high=11500,
+            pulse_limit_low=3500,
+            baud_rate=BaudRate.parse(baud_rate),
+            temperature_limit=80,
+            current_limit=63,
+            response=3,
+            user_offset=0,
+            servo_id=servo_id,
+            stretch_1=120,
+            stretch_2=60,
+            stretch_3=254,
+            calibration=calibration,
+        )
+
+
+EEPROM_FIELDS: Mapping[str, tuple[int, int]] = _LAYOUT

@@ -1,0 +1,110 @@
+"""The error hierarchy, rooted at :class:`IcsError`.
+
+Argument errors also subclass :class:`ValueError` and are raised before any
+byte exists, so a bad call never reaches the wire.  Reply errors carry the
+command, the servo ID and the raw bytes, so a log line is enough to debug a
+wiring or baud problem.
+"""
+
+from __future__ import annotations
+
+
+class IcsError(Exception):
+    """Base of every error this library raises on purpose."""
+
+
+class InvalidArgument(IcsError, ValueError):
+    """An argument is out of range or of the wrong kind; nothing was sent."""
+
+
+class UnsafeOperation(InvalidArgument):
+    """A dangerous write (ID write, baud change) was not explicitly confirmed."""
+
+
+class MalformedEeprom(IcsError, ValueError):
+    """A 64-byte EEPROM image breaks the format (length, header, nibbles)."""
+
+
+class ReplyError(IcsError):
+    """A transaction did not produce a valid reply.
+
+    ``command`` names the command (e.g. ``"position"``), ``servo_id`` is the
+    addressed ID (``None`` for the ID command, which addresses the whole line)
+    and ``raw`` holds every byte received for the transaction, echo included.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        command: str,
+        servo_id: int | None,
+        raw: bytes = b"",
+    ) -> None:
+        self.command = command
+        self.servo_id = servo_id
+        self.raw = bytes(raw)
+        where = f"{command} to ID {servo_id}" if servo_id is not None else command
+        super().__init__(f"{where}: {message} (raw: {self.raw.hex(' ') or 'nothing'})")
+
+
+class ReplyTimeout(ReplyError):
+    """No byte of the reply arrived before the deadline."""
+
+
+class PartialReply(ReplyError):
+    """Only part of the reply arrived before the deadline."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        command: str,
+        servo_id: int | None,
+        raw: bytes = b"",
+        received: int = 0,
+        expected: int = 0,
+    ) -> None:
+        self.received = received
+        self.expected = expected
+        super().__init__(message, command=command, servo_id=servo_id, raw=raw)
+
+
+class EchoMismatch(ReplyError):
+    """The echo of our own bytes came back different: a collision or noise."""
+
+
+class BadReply(ReplyError):
+    """A complete reply arrived but breaks the protocol rules."""
+
+
+class ReplyLengthError(BadReply):
+    """The reply has the wrong number of bytes."""
+
+
+class ReplyHeaderError(BadReply):
+    """The reply's command byte (and so its ID) is not the expected one."""
+
+
+class ReplySubcommandError(BadReply):
+    """The reply does not echo the sub-command (or memory address/count)."""
+
+
+class ReplyValueError(BadReply):
+    """A parameter write's reply does not echo the value written."""
+
+
+class ReplyDataError(BadReply):
+    """A data byte breaks its encoding (MSB set, or a nibble above 0x0F)."""
+
+
+class VerifyError(IcsError):
+    """Reading back a write returned something other than what was written."""
+
+
+class BusClosed(IcsError):
+    """The bus is closed; the request was not (or no longer) carried out."""
+
+
+class PortLost(IcsError):
+    """The serial port failed or disappeared while the request was pending."""

@@ -1,0 +1,96 @@
+"""Unit conversions: position counts, degrees, radians, current, temperature.
+
+7500 counts is neutral and 3500..11500 spans 270 degrees, so one degree is
+8000 / 270 (about 29.63) counts.  The temperature conversion is a straight
+line through the reference's two points (parameter 80 at about 80 C, 25 at
+about 125 C): an approximation, good for warnings, not for measurement.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from .errors import InvalidArgument
+
+NEUTRAL = 7500
+POSITION_MIN = 1
+POSITION_MAX = 16383
+COUNTS_PER_DEGREE = 8000 / 270
+
+_TEMP_P1, _TEMP_C1 = 80, 80.0
+_TEMP_P2, _TEMP_C2 = 25, 125.0
+_CELSIUS_PER_STEP = (_TEMP_C2 - _TEMP_C1) / (_TEMP_P2 - _TEMP_P1)
+
+
+def check_int(name: str, value: object, low: int, high: int) -> int:
+    """Return ``value`` if it is an int in ``low..high``, else raise InvalidArgument."""
+    # bool is an int subclass; True as an ID or position is always a mistake.
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise InvalidArgument(f"{name} must be an int, not {type(value).__name__}")
+    if not low <= value <= high:
+        raise InvalidArgument(f"{name} must be in {low}..{high}, got {value}")
+    return value
+
+
+def position_to_degrees(position: int) -> float:
+    return (position - NEUTRAL) / COUNTS_PER_DEGREE
+
+
+def degrees_to_position(degrees: float) -> int:
+    if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees):
+        raise InvalidArgument(f"degrees must be a finite number, got {degrees!r}")
+    position = round(NEUTRAL + degrees * COUNTS_PER_DEGREE)
+    if not POSITION_MIN <= position <= POSITION_MAX:
+        raise InvalidArgument(f"{degrees} degrees is position {position}, outside {POSITION_MIN}..{POSITION_MAX}")
+    return position
+
+
+def position_to_radians(position: int) -> float:
+    return math.radians(position_to_degrees(position))
+
+
+def radians_to_position(radians: float) -> int:
+    if not isinstance(radians, (int, float)) or isinstance(radians, bool) or not math.isfinite(radians):
+        raise InvalidArgument(f"radians must be a finite number, got {radians!r}")
+    return degrees_to_position(math.degrees(radians))
+
+
+class Current(NamedTuple):
+    """A current reading split into magnitude 0..63 and direction."""
+
+    magnitude: int
+    reverse: bool
+
+
+def current_from_raw(raw: int) -> Current:
+    check_int("raw current", raw, 0, 127)
+    return Current(raw & 0x3F, bool(raw & 0x40))
+
+
+def current_to_raw(current: Current) -> int:
+    check_int("current magnitude", current.magnitude, 0, 63)
+    return current.magnitude | (0x40 if current.reverse else 0)
+
+
+def temperature_to_celsius(parameter: int) -> float:
+    """Approximate Celsius for a temperature parameter (smaller is hotter)."""
+    check_int("temperature parameter", parameter, 0, 127)
+    return _TEMP_C1 + (parameter - _TEMP_P1) * _CELSIUS_PER_STEP
+
+
+def celsius_to_temperature(celsius: float) -> int:
+    """The temperature parameter (1..127) closest to ``celsius``, clamped."""
+    if not isinstance(celsius, (int, float)) or not math.isfinite(celsius):
+        raise InvalidArgument(f"celsius must be a finite number, got {celsius!r}")
+    parameter = round(_TEMP_P1 + (celsius - _TEMP_C1) / _CELSIUS_PER_STEP)
+    return min(127, max(1, parameter))
+
+
+def stretch_to_eeprom(stretch: int) -> int:
+    """A stretch command value (1..127) as the EEPROM stores it (2..254)."""
+    return 2 * check_int("stretch", stretch, 1, 127)
+
+
+def stretch_from_eeprom(value: int) -> int:
+    return check_int("EEPROM stretch", value, 2, 255) // 2
