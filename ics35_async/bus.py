@@ -1,0 +1,783 @@
+"""The bus: the single owner of one half-duplex ICS line.
+
+Any number of coroutines submit commands; the bus runs them one at a time.
+For each it writes the command, consumes and checks the echo, reads exactly
+the reply length of that command type, validates it with the protocol codec
+and resolves the caller's future with the value or a typed error.
+
+The engine is driven by the event loop's I/O callbacks rather than by a task
+awaiting each reply: the callback that completes one transaction writes the
+next one straight away, so a transaction costs no task switch and no extra
+loop pass.  A small supervisor task handles what may wait (reopening a lost
+port).  Because the engine, not the caller, owns each transaction, a caller
+cancelled mid-transaction cannot desync the line: the engine still consumes
+that reply (and drops it).
+
+Resync: after a timeout, a partial reply, an echo mismatch, a bad reply or
+stray bytes, the engine discards input and waits for the line to stay quiet
+for ``quiet_time`` before the next transaction, so the late bytes of a failed
+transaction are never taken as the next reply.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import enum
+import logging
+from collections import deque
+from collections.abc import Callable, Generator, Iterable, Sequence
+from dataclasses import dataclass
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+
+from . import protocol
+from .errors import (
+    BadReply,
+    BusClosed,
+    EchoMismatch,
+    IcsError,
+    InvalidArgument,
+    PartialReply,
+    PortLost,
+    ReplyError,
+    ReplyTimeout,
+    UnsafeOperation,
+)
+from .protocol import Command, Timing
+from .stats import COUNTER_NAMES, BusStats, IdStats, LatencyHistogram
+from .transport import WireDevice, open_line
+
+if TYPE_CHECKING:  # servo.py builds on this module; imported lazily at run time
+    from .servo import Device, Servo
+    from .streaming import Stream
+
+log = logging.getLogger("ics35_async")
+
+T = TypeVar("T")
+
+
+class Priority(enum.IntEnum):
+    """Request priority: lower runs first; FIFO within a level."""
+
+    URGENT = 0  # e.g. free-all / emergency stop: before everything queued
+    HIGH = 1
+    NORMAL = 2
+    LOW = 3
+
+
+@dataclass(frozen=True)
+class BusTiming:
+    """Deadline and resync allowances, in seconds.
+
+    A transaction's deadline is its wire time ((TX + reply bytes) x 11 / baud)
+    plus ``turnaround`` plus ``adapter_latency`` plus, for the EEPROM write and
+    the ID command, their extra allowance.
+    """
+
+    turnaround: float = 0.0005
+    adapter_latency: float = 0.020  # USB adapters add 0.1-16 ms (FTDI latency timer)
+    eeprom_write: float = 0.200
+    id_command: float = 0.050
+    quiet_time: float = 0.010  # silence required before the next transaction after a fault
+    max_resync: float = 0.5  # a line that never goes quiet is used anyway after this
+
+    def __post_init__(self) -> None:
+        for name in ("turnaround", "adapter_latency", "eeprom_write", "id_command", "quiet_time", "max_resync"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not 0 <= value <= 60:
+                raise InvalidArgument(f"{name} must be a number of seconds in 0..60, got {value!r}")
+
+
+class BackgroundSource(Protocol):
+    """Something that fills the line's idle time (the position stream).
+
+    ``next_transaction`` returns ``(tx, reply_len, servo_id)`` or ``None`` when
+    it has nothing to send now.  ``complete`` gets the receive buffer and the
+    reply's offset in it (after the echo) and returns ``None`` or the error
+    that made the reply invalid.  ``fail`` is told of a timeout or echo fault.
+    """
+
+    def next_transaction(self) -> tuple[bytes, int, int] | None: ...
+
+    def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None: ...
+
+    def fail(self, exc: ReplyError, now: float) -> None: ...
+
+
+class _State(enum.Enum):
+    CLOSED = "closed"  # not opened yet, or closed for good
+    IDLE = "idle"
+    BUSY = "busy"  # a transaction is on the wire
+    QUIET = "quiet"  # resyncing: waiting for silence
+    LOST = "lost"  # port gone, reconnecting
+
+
+class _Request:
+    __slots__ = ("command", "future", "priority", "retries_left")
+
+    def __init__(self, command: Command[Any], future: asyncio.Future[Any], priority: int, retries: int) -> None:
+        self.command = command
+        self.future = future
+        self.priority = priority
+        self.retries_left = retries
+
+
+class _Line(asyncio.Protocol):
+    """Forwards the transport's callbacks to the bus."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.data_received = bus._on_data  # type: ignore[method-assign]
+        self._bus = bus
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._bus._on_connection_lost(self, exc)
+
+
+_NO_ID = 32  # counter slot for the ID command, which addresses the whole line
+
+
+class Bus:
+    """One ICS line.  Create with :func:`open_bus`."""
+
+    def __init__(
+        self,
+        port: str | WireDevice = "sim://",
+        *,
+        baudrate: int = 115200,
+        echo: bool = True,
+        transport: str = "auto",
+        timing: BusTiming | None = None,
+        retries: int = 0,
+        reconnect: bool = False,
+        reconnect_backoff: Sequence[float] = (0.05, 0.1, 0.2, 0.5, 1.0),
+        max_requests_between: int = 16,
+    ) -> None:
+        if not isinstance(port, (str, WireDevice)):
+            raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
+        self.port = port
+        self.baudrate = protocol.check_baud(baudrate)
+        self.echo = bool(echo)
+        self.transport_kind = transport
+        self.timing = timing or BusTiming()
+        if not isinstance(retries, int) or not 0 <= retries <= 10:
+            raise InvalidArgument(f"retries must be an int in 0..10, got {retries!r}")
+        self.retries = retries
+        self.reconnect = bool(reconnect)
+        self.reconnect_backoff = tuple(reconnect_backoff) or (0.5,)
+        if not isinstance(max_requests_between, int) or max_requests_between < 1:
+            raise InvalidArgument("max_requests_between must be a positive int")
+        self.max_requests_between = max_requests_between
+
+        self._state = _State.CLOSED
+        self._closing = False
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._transport: asyncio.Transport | None = None
+        self._line: _Line | None = None
+        self._queues: list[deque[_Request]] = [deque() for _ in Priority]
+        self._queued = 0
+        self._source: BackgroundSource | None = None
+        self._requests_in_row = 0
+
+        # The transaction on the wire.
+        self._buf = bytearray()
+        self._tx = b""
+        self._expect = 0
+        self._echo_len = 0
+        self._current: _Request | None = None  # None while a background transaction runs
+        self._current_id = _NO_ID
+        self._t_start = 0.0
+        self._deadline = 0.0
+        self._watchdog: asyncio.TimerHandle | None = None
+        self._quiet_until = 0.0
+        self._resync_limit = 0.0
+        self._idle_waiters: list[asyncio.Future[None]] = []
+        self._supervisor: asyncio.Task[None] | None = None
+        self._lost_event: asyncio.Event | None = None
+
+        # Counters: one list per counter name, indexed by ID (slot 32: the ID command).
+        self._counters: dict[str, list[int]] = {name: [0] * 33 for name in COUNTER_NAMES}
+        self._latency = LatencyHistogram()
+        self._resyncs = 0
+        self._stray = 0
+        self._reconnects = 0
+        self._by_command: dict[str, int] = {}
+        self._debug = log.isEnabledFor(logging.DEBUG)
+
+    # ------------------------------------------------------------------ opening / closing
+
+    def __await__(self) -> Generator[Any, None, Bus]:
+        return self.open().__await__()
+
+    async def __aenter__(self) -> Bus:
+        return await self.open()
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+    async def open(self) -> Bus:
+        """Open the line (idempotent)."""
+        if self._state is not _State.CLOSED or self._closing:
+            if self._closing:
+                raise BusClosed("bus is closed")
+            return self
+        self._loop = asyncio.get_running_loop()
+        await self._connect()
+        self._lost_event = asyncio.Event()
+        self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
+        return self
+
+    async def _connect(self) -> None:
+        transport, line = await open_line(
+            self.port, baudrate=self.baudrate, protocol_factory=lambda: _Line(self), transport=self.transport_kind
+        )
+        self._transport, self._line = transport, line
+        self._buf.clear()
+        self._state = _State.IDLE
+        log.info("opened %s at %d baud", self.port, self.baudrate)
+        self._start_next()
+
+    @property
+    def is_open(self) -> bool:
+        return self._state is not _State.CLOSED and not self._closing
+
+    async def aclose(self) -> None:
+        """Fail queued requests with BusClosed, finish the one on the wire, release the port."""
+        if self._closing:
+            return
+        self._closing = True
+        self._source = None
+        self._fail_queued(lambda: BusClosed("bus closed"))
+        if self._state in (_State.BUSY, _State.QUIET):
+            waiter = self._get_loop().create_future()
+            self._idle_waiters.append(waiter)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(waiter, self._transaction_allowance(200) + self.timing.max_resync + 1)
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._supervisor
+            self._supervisor = None
+        self._cancel_watchdog()
+        self._state = _State.CLOSED
+        transport, self._transport = self._transport, None
+        if transport is not None:
+            transport.close()
+            # Let the transport deliver connection_lost and release the fd.
+            await asyncio.sleep(0)
+        if self._current is not None:
+            self._settle(self._current, BusClosed("bus closed"))
+            self._current = None
+        log.info("closed %s", self.port)
+
+    def _get_loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is None:
+            raise BusClosed("bus is not open")
+        return self._loop
+
+    # ------------------------------------------------------------------ submitting
+
+    async def request(
+        self,
+        command: Command[T],
+        *,
+        priority: Priority = Priority.NORMAL,
+        retries: int | None = None,
+    ) -> T:
+        """Run one command and return its parsed reply.
+
+        ``retries`` (default: the bus's) applies only to idempotent commands.
+        Raises :class:`ReplyError` subclasses, :class:`BusClosed` or
+        :class:`PortLost`.
+        """
+        fut = self.submit(command, priority=priority, retries=retries)
+        return await fut
+
+    def submit(
+        self,
+        command: Command[T],
+        *,
+        priority: Priority = Priority.NORMAL,
+        retries: int | None = None,
+    ) -> asyncio.Future[T]:
+        """Queue ``command`` and return the future of its result (no await needed)."""
+        if not isinstance(command, Command):
+            raise InvalidArgument(f"not a command: {command!r}")
+        if not isinstance(priority, int) or not 0 <= priority <= Priority.LOW:
+            raise InvalidArgument(f"priority must be a Priority, got {priority!r}")
+        if retries is None:
+            retries = self.retries
+        elif not isinstance(retries, int) or not 0 <= retries <= 10:
+            raise InvalidArgument(f"retries must be an int in 0..10, got {retries!r}")
+        if self._closing or self._state is _State.CLOSED:
+            raise BusClosed("bus is closed" if self._closing else "bus is not open (use `async with open_bus(...)`)")
+        if self._state is _State.LOST:
+            raise PortLost(f"port {self.port} is lost; reconnecting")
+        loop = self._get_loop()
+        fut: asyncio.Future[T] = loop.create_future()
+        self._queues[priority].append(_Request(command, fut, priority, retries if command.idempotent else 0))
+        self._queued += 1
+        if self._state is _State.IDLE:
+            self._start_next()
+        return fut
+
+    def attach_source(self, source: BackgroundSource | None) -> None:
+        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
+        if source is not None and self._source is not None and source is not self._source:
+            raise InvalidArgument("this bus already runs a stream; close it first")
+        self._source = source
+        if source is not None and self._state is _State.IDLE:
+            self._start_next()
+
+    def kick(self) -> None:
+        """Tell an idle bus that the background source has work again."""
+        if self._state is _State.IDLE:
+            self._start_next()
+
+    async def wait_idle(self) -> None:
+        """Wait until nothing is queued or on the wire."""
+        while self._state in (_State.BUSY, _State.QUIET) or self._queued:
+            waiter = self._get_loop().create_future()
+            self._idle_waiters.append(waiter)
+            await waiter
+
+    # ------------------------------------------------------------------ the engine
+
+    def _pop_request(self) -> _Request | None:
+        if not self._queued:
+            return None
+        for queue in self._queues:
+            while queue:
+                req = queue.popleft()
+                self._queued -= 1
+                if not req.future.done():  # skip requests whose caller gave up
+                    return req
+        return None
+
+    def _start_next(self) -> None:
+        """Put the next transaction on the wire, if any.  Called only when IDLE."""
+        source = self._source
+        if self._queued and (source is None or self._requests_in_row < self.max_requests_between):
+            req = self._pop_request()
+            if req is not None:
+                self._requests_in_row += 1
+                self._begin(req.command.tx, req.command.reply_len, req.command.servo_id, req, req.command.timing)
+                return
+        self._requests_in_row = 0
+        if source is not None:
+            nxt = source.next_transaction()
+            if nxt is not None:
+                tx, reply_len, servo_id = nxt
+                self._begin(tx, reply_len, servo_id, None, Timing.NORMAL)
+                return
+            if self._queued:  # the source yielded its turn but requests still wait
+                self._start_next()
+                return
+        if self._idle_waiters and not self._queued:
+            waiters, self._idle_waiters = self._idle_waiters, []
+            for w in waiters:
+                if not w.done():
+                    w.set_result(None)
+
+    def _transaction_allowance(self, nbytes: int, timing: Timing = Timing.NORMAL) -> float:
+        t = self.timing
+        allowance = protocol.wire_time(nbytes, self.baudrate) + t.turnaround + t.adapter_latency
+        if timing is Timing.EEPROM_WRITE:
+            allowance += t.eeprom_write
+        elif timing is Timing.ID:
+            allowance += t.id_command
+        return allowance
+
+    def _begin(self, tx: bytes, reply_len: int, servo_id: int | None, req: _Request | None, timing: Timing) -> None:
+        transport = self._transport
+        assert transport is not None and self._loop is not None
+        self._state = _State.BUSY
+        self._current = req
+        self._current_id = _NO_ID if servo_id is None else servo_id
+        self._tx = tx
+        self._echo_len = len(tx) if self.echo else 0
+        self._expect = self._echo_len + reply_len
+        self._buf.clear()
+        now = self._loop.time()
+        self._t_start = now
+        self._deadline = now + self._transaction_allowance(len(tx) + reply_len, timing)
+        self._arm()
+        try:
+            transport.write(tx)
+        except Exception as exc:  # the port vanished under us
+            self._on_connection_lost(self._line, exc)
+
+    def _arm(self) -> None:
+        # One watchdog timer follows the moving deadline instead of a timer per
+        # transaction: transactions normally finish long before their deadline.
+        if self._watchdog is None:
+            assert self._loop is not None
+            self._watchdog = self._loop.call_at(self._deadline, self._on_watchdog)
+
+    def _cancel_watchdog(self) -> None:
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+            self._watchdog = None
+
+    def _on_watchdog(self) -> None:
+        self._watchdog = None
+        assert self._loop is not None
+        now = self._loop.time()
+        if self._state is _State.BUSY:
+            if now >= self._deadline:
+                self._on_timeout()
+            else:
+                self._arm()
+        elif self._state is _State.QUIET:
+            if now >= self._quiet_until or now >= self._resync_limit:
+                if now < self._quiet_until:
+                    log.warning("line on %s never went quiet; carrying on", self.port)
+                self._end_resync()
+            else:
+                self._deadline = self._quiet_until
+                self._arm()
+
+    def _on_data(self, data: bytes) -> None:
+        state = self._state
+        if state is _State.BUSY:
+            buf = self._buf
+            buf += data
+            if len(buf) >= self._expect:
+                self._finish()
+        elif state is _State.QUIET:
+            self._stray += len(data)
+            assert self._loop is not None
+            self._quiet_until = self._loop.time() + self.timing.quiet_time
+        elif state is _State.IDLE:
+            # Bytes on an idle line: a late reply or noise. Let it settle first.
+            self._stray += len(data)
+            if self._debug:
+                log.debug("stray bytes on idle line: %s", data.hex(" "))
+            self._resync()
+
+    def _finish(self) -> None:
+        buf = self._buf
+        assert self._loop is not None
+        now = self._loop.time()
+        sid = self._current_id
+        req = self._current
+        counters = self._counters
+        counters["transactions"][sid] += 1
+        counters["bytes_tx"][sid] += len(self._tx)
+        counters["bytes_rx"][sid] += len(buf)
+        self._latency.add(now - self._t_start)
+        if self._debug:
+            log.debug("id %s tx %s rx %s", sid, self._tx.hex(" "), buf.hex(" "))
+        error: ReplyError | None = None
+        command_name = req.command.name if req is not None else "position"
+        servo_id = None if sid == _NO_ID else sid
+        if len(buf) > self._expect:
+            error = BadReply(
+                f"{len(buf) - self._expect} unexpected extra byte(s) after the reply",
+                command=command_name,
+                servo_id=servo_id,
+                raw=bytes(buf),
+            )
+        elif self._echo_len and buf[: self._echo_len] != self._tx:
+            error = EchoMismatch(
+                f"echo differs from the bytes sent ({self._tx.hex(' ')})",
+                command=command_name,
+                servo_id=servo_id,
+                raw=bytes(buf),
+            )
+        if req is None:
+            source = self._source
+            if error is None and source is not None:
+                error = source.complete(buf, self._echo_len, now)
+            elif error is not None and source is not None:
+                source.fail(error, now)
+            self._after(error, sid)
+            return
+        if error is None:
+            try:
+                value = req.command.parse(bytes(buf[self._echo_len :]))
+            except ReplyError as exc:
+                error = exc
+            else:
+                counters["ok"][sid] += 1
+                self._by_command[req.command.name] = self._by_command.get(req.command.name, 0) + 1
+                self._current = None
+                if not req.future.done():
+                    req.future.set_result(value)
+                self._state = _State.IDLE
+                self._start_next()
+                return
+        self._current = None
+        self._fail_request(req, error, sid)
+
+    def _after(self, error: ReplyError | None, sid: int) -> None:
+        """Close a background transaction: count it and move on (or resync)."""
+        if error is None:
+            self._counters["ok"][sid] += 1
+            self._current = None
+            self._state = _State.IDLE
+            self._start_next()
+            return
+        self._count_error(error, sid)
+        self._current = None
+        self._resync()
+
+    def _count_error(self, error: ReplyError, sid: int) -> None:
+        if isinstance(error, ReplyTimeout):
+            name = "timeouts"
+        elif isinstance(error, PartialReply):
+            name = "partial_replies"
+        elif isinstance(error, EchoMismatch):
+            name = "echo_mismatches"
+        else:
+            name = "bad_replies"
+        self._counters[name][sid] += 1
+        log.debug("%s", error)
+
+    def _fail_request(self, req: _Request, error: ReplyError, sid: int) -> None:
+        self._count_error(error, sid)
+        if req.retries_left > 0 and not req.future.done():
+            req.retries_left -= 1
+            self._counters["retries"][sid] += 1
+            self._queues[req.priority].appendleft(req)
+            self._queued += 1
+        elif not req.future.done():
+            req.future.set_exception(error)
+        self._resync()
+
+    def _on_timeout(self) -> None:
+        buf = self._buf
+        sid = self._current_id
+        req = self._current
+        servo_id = None if sid == _NO_ID else sid
+        name = req.command.name if req is not None else "position"
+        self._counters["transactions"][sid] += 1
+        self._counters["bytes_tx"][sid] += len(self._tx)
+        self._counters["bytes_rx"][sid] += len(buf)
+        got = len(buf)
+        error: ReplyError
+        if self._echo_len and buf[: min(got, self._echo_len)] != self._tx[: min(got, self._echo_len)]:
+            error = EchoMismatch("echo differs from the bytes sent", command=name, servo_id=servo_id, raw=bytes(buf))
+        elif got == 0:
+            what = "no echo and no reply: is the adapter connected?" if self._echo_len else "no reply"
+            error = ReplyTimeout(what, command=name, servo_id=servo_id, raw=b"")
+        elif got <= self._echo_len:
+            error = ReplyTimeout(
+                "no reply (check ID, baud rate, power)", command=name, servo_id=servo_id, raw=bytes(buf)
+            )
+        else:
+            n, m = got - self._echo_len, self._expect - self._echo_len
+            error = PartialReply(
+                f"{n} of {m} reply bytes", command=name, servo_id=servo_id, raw=bytes(buf), received=n, expected=m
+            )
+        if req is None:
+            source = self._source
+            if source is not None:
+                assert self._loop is not None
+                source.fail(error, self._loop.time())
+            self._after(error, sid)
+        else:
+            self._current = None
+            self._fail_request(req, error, sid)
+
+    def _resync(self) -> None:
+        assert self._loop is not None
+        self._resyncs += 1
+        self._state = _State.QUIET
+        now = self._loop.time()
+        self._quiet_until = now + self.timing.quiet_time
+        self._resync_limit = now + self.timing.max_resync
+        self._buf.clear()
+        self._deadline = self._quiet_until
+        self._arm()
+
+    def _end_resync(self) -> None:
+        transport = self._transport
+        if transport is not None:
+            discard = getattr(transport, "discard_input", None)
+            if discard is not None:
+                discard()
+        self._state = _State.IDLE
+        self._start_next()
+
+    # ------------------------------------------------------------------ losing the port
+
+    def _on_connection_lost(self, line: _Line | None, exc: Exception | None) -> None:
+        if line is not self._line or self._state in (_State.CLOSED, _State.LOST):
+            return
+        self._cancel_watchdog()
+        self._line = None
+        transport, self._transport = self._transport, None
+        if transport is not None and not transport.is_closing():
+            transport.close()
+        if self._closing:
+            self._state = _State.CLOSED
+            self._release_idle_waiters()
+            return
+        reason = f"port {self.port} lost: {exc}" if exc else f"port {self.port} closed"
+        log.warning("%s", reason)
+        req, self._current = self._current, None
+        if req is not None:
+            self._settle(req, PortLost(reason))
+        self._fail_queued(lambda: PortLost(reason))
+        if self.reconnect:
+            self._state = _State.LOST
+            if self._lost_event is not None:
+                self._lost_event.set()
+        else:
+            self._state = _State.CLOSED
+            self._closing = True
+        self._release_idle_waiters()
+
+    def _release_idle_waiters(self) -> None:
+        waiters, self._idle_waiters = self._idle_waiters, []
+        for w in waiters:
+            if not w.done():
+                w.set_result(None)
+
+    def _settle(self, req: _Request, error: IcsError) -> None:
+        if not req.future.done():
+            req.future.set_exception(error)
+
+    def _fail_queued(self, make_error: Callable[[], IcsError]) -> None:
+        for queue in self._queues:
+            while queue:
+                self._settle(queue.popleft(), make_error())
+        self._queued = 0
+
+    async def _supervise(self) -> None:
+        assert self._lost_event is not None
+        while True:
+            await self._lost_event.wait()
+            self._lost_event.clear()
+            attempt = 0
+            while self._state is _State.LOST and not self._closing:
+                delay = self.reconnect_backoff[min(attempt, len(self.reconnect_backoff) - 1)]
+                await asyncio.sleep(delay)
+                attempt += 1
+                try:
+                    await self._connect()
+                except (OSError, IcsError) as exc:
+                    log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
+                else:
+                    self._reconnects += 1
+                    log.info("reconnected to %s after %d attempt(s)", self.port, attempt)
+
+    # ------------------------------------------------------------------ public conveniences
+
+    @property
+    def stats(self) -> BusStats:
+        per_id: dict[int | None, IdStats] = {}
+        total = IdStats()
+        for slot in range(33):
+            values = {name: self._counters[name][slot] for name in COUNTER_NAMES}
+            if any(values.values()):
+                s = IdStats(**values)
+                per_id[None if slot == _NO_ID else slot] = s
+                total.add(s)
+        return BusStats(
+            total=total,
+            per_id=per_id,
+            latency=self._latency,
+            resyncs=self._resyncs,
+            stray_bytes=self._stray,
+            reconnects=self._reconnects,
+            queued=self._queued,
+            by_command=dict(self._by_command),
+        )
+
+    def servo(self, servo_id: int) -> Servo:
+        from .servo import Servo  # servo.py builds on this module
+
+        return Servo(self, servo_id)
+
+    def device(self, device_id: int) -> Device:
+        from .servo import Device
+
+        return Device(self, device_id)
+
+    def servos(self, ids: Iterable[int]) -> list[Servo]:
+        return [self.servo(i) for i in ids]
+
+    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> Stream:
+        """A position :class:`~ics35_async.streaming.Stream` over ``ids``; use as ``async with``."""
+        from .streaming import Stream
+
+        return Stream(self, ids, rate_hz=rate_hz, **options)
+
+    async def read_id(self, *, exactly_one_device: bool = False) -> int:
+        """Read the ID of the only device on the line.
+
+        With several devices on the line every one answers at once and the
+        result is garbage, so the caller must confirm there is exactly one.
+        """
+        if exactly_one_device is not True:
+            raise UnsafeOperation(
+                "read_id() needs exactly one device on the line (every device answers the ID command); "
+                "pass exactly_one_device=True to confirm"
+            )
+        return await self.request(protocol.ReadId())
+
+    async def write_id(self, new_id: int, *, exactly_one_device: bool = False) -> int:
+        """Give the only device on the line the ID ``new_id`` (stored in its EEPROM).
+
+        Every device on the line takes the new ID, so this is refused unless
+        the caller confirms with ``exactly_one_device=True``.
+        """
+        command = protocol.WriteId(new_id)
+        if exactly_one_device is not True:
+            raise UnsafeOperation(
+                "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"
+            )
+        return await self.request(command)
+
+    async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:
+        """IDs that answer a stretch read (harmless: it moves nothing)."""
+        checked = [protocol.check_id(i) for i in ids]
+
+        async def probe(i: int) -> int | None:
+            try:
+                await self.request(protocol.ReadParam(i, protocol.Param.STRETCH), retries=1)
+            except ReplyError:
+                return None
+            return i
+
+        found = await asyncio.gather(*(probe(i) for i in checked))
+        return [i for i in found if i is not None]
+
+    def __repr__(self) -> str:
+        return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._state.value}>"
+
+
+def open_bus(
+    port: str | WireDevice = "sim://",
+    *,
+    baudrate: int = 115200,
+    echo: bool = True,
+    transport: str = "auto",
+    timing: BusTiming | None = None,
+    retries: int = 0,
+    reconnect: bool = False,
+    **timing_overrides: float,
+) -> Bus:
+    """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
+
+    ``port`` is a serial device path, a pyserial URL (``socket://``,
+    ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator,
+    or a :class:`~ics35_async.transport.WireDevice`.  Extra keyword
+    arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
+    """
+    if timing_overrides:
+        base = timing or BusTiming()
+        unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
+        if unknown:
+            raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
+        timing = BusTiming(**{**base.__dict__, **timing_overrides})
+    return Bus(
+        port, baudrate=baudrate, echo=echo, transport=transport, timing=timing, retries=retries, reconnect=reconnect
+    )
+
+
+__all__ = ["BackgroundSource", "Bus", "BusTiming", "Priority", "open_bus"]

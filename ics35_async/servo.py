@@ -1,0 +1,160 @@
+"""The friendly per-servo and per-device API on top of :class:`~ics35_async.bus.Bus`."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from . import protocol, units
+from .bus import Priority
+from .eeprom import Eeprom
+from .errors import InvalidArgument, UnsafeOperation, VerifyError
+from .protocol import Param
+
+if TYPE_CHECKING:
+    from .bus import Bus
+
+
+class Servo:
+    """One servo ID on a bus.  Every call is one transaction (two for verified writes).
+
+    Positions are counts (1..16383, 7500 neutral, 3500..11500 is -135..+135
+    degrees).  Each position command returns the position the servo reports.
+    Parameter writes change RAM only; :meth:`write_eeprom` persists.
+    """
+
+    __slots__ = ("_bus", "id", "priority")
+
+    def __init__(self, bus: Bus, servo_id: int, *, priority: Priority = Priority.NORMAL) -> None:
+        self._bus = bus
+        self.id = protocol.check_id(servo_id)
+        self.priority = priority
+
+    @property
+    def bus(self) -> Bus:
+        return self._bus
+
+    def __repr__(self) -> str:
+        return f"<Servo {self.id} on {self._bus!r}>"
+
+    async def set_position(self, position: int) -> int:
+        """Move to ``position`` (1..16383); returns the position the servo reports now."""
+        units.check_int("position", position, 1, protocol.POSITION_MAX)
+        cmd = protocol.Position(self.id, position, baudrate=self._bus.baudrate)
+        return await self._bus.request(cmd, priority=self.priority)
+
+    async def free(self, *, priority: Priority | None = None) -> int:
+        """Torque off; returns the current position (the only way to read it without moving)."""
+        cmd = protocol.Position(self.id, protocol.FREE, baudrate=self._bus.baudrate)
+        return await self._bus.request(cmd, priority=self.priority if priority is None else priority)
+
+    async def set_degrees(self, degrees: float) -> float:
+        """Move to ``degrees`` (0 = neutral); returns the reported angle in degrees."""
+        return units.position_to_degrees(await self.set_position(units.degrees_to_position(degrees)))
+
+    async def set_radians(self, radians: float) -> float:
+        return units.position_to_radians(await self.set_position(units.radians_to_position(radians)))
+
+    async def read_degrees(self) -> float:
+        """Go free and return the angle in degrees (there is no read-without-free in ICS 3.5)."""
+        return units.position_to_degrees(await self.free())
+
+    async def _read(self, param: Param) -> int:
+        return await self._bus.request(protocol.ReadParam(self.id, param), priority=self.priority)
+
+    async def _write(self, param: Param, value: int) -> int:
+        return await self._bus.request(protocol.WriteParam(self.id, param, value), priority=self.priority)
+
+    async def read_stretch(self) -> int:
+        return await self._read(Param.STRETCH)
+
+    async def read_speed(self) -> int:
+        return await self._read(Param.SPEED)
+
+    async def read_current(self) -> int:
+        """Raw current 0..127: bits 0-5 magnitude, bit 6 direction (see ``units.current_from_raw``)."""
+        return await self._read(Param.CURRENT)
+
+    async def read_temperature(self) -> int:
+        """Raw temperature 1..127; SMALLER is HOTTER (see ``units.temperature_to_celsius``)."""
+        return await self._read(Param.TEMPERATURE)
+
+    async def write_stretch(self, value: int) -> int:
+        """Holding gain 1..127 (RAM only)."""
+        return await self._write(Param.STRETCH, value)
+
+    async def write_speed(self, value: int) -> int:
+        """Speed 1..127 (RAM only)."""
+        return await self._write(Param.SPEED, value)
+
+    async def write_current_limit(self, value: int) -> int:
+        """Current limit 1..63 (RAM only)."""
+        return await self._write(Param.CURRENT, value)
+
+    async def write_temperature_limit(self, value: int) -> int:
+        """Temperature limit 1..127 (RAM only; smaller is hotter)."""
+        return await self._write(Param.TEMPERATURE, value)
+
+    async def read_eeprom(self) -> Eeprom:
+        return await self._bus.request(protocol.ReadEeprom(self.id), priority=self.priority)
+
+    async def write_eeprom(
+        self,
+        eeprom: Eeprom,
+        *,
+        verify: bool = True,
+        allow_baud_change: bool = False,
+        allow_id_change: bool = False,
+    ) -> None:
+        """Write the whole 64-byte EEPROM (persists) after checking it against the servo's.
+
+        The servo's current image is read first: the write is refused if it
+        would change the factory calibration bytes, the baud rate (unless
+        ``allow_baud_change``: the servo then only talks at the new rate) or
+        the ID (unless ``allow_id_change``).  With ``verify`` the image is
+        read back and compared (skipped after a baud change, which the servo
+        applies at once).
+        """
+        if not isinstance(eeprom, Eeprom):
+            raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
+        command = protocol.WriteEeprom(self.id, eeprom)
+        current = await self.read_eeprom()
+        if eeprom.calibration != current.calibration:
+            raise UnsafeOperation(
+                f"servo {self.id}: the image's factory calibration bytes differ from the servo's; "
+                "start from read_eeprom() and change fields with Eeprom.replace()"
+            )
+        if eeprom.baud_rate != current.baud_rate and not allow_baud_change:
+            raise UnsafeOperation(
+                f"servo {self.id}: changing the baud rate from {int(current.baud_rate)} to {int(eeprom.baud_rate)} "
+                "makes it answer only at the new rate (625k/1.25M need the HS adapter); "
+                "pass allow_baud_change=True to do it"
+            )
+        if eeprom.servo_id != current.servo_id and not allow_id_change:
+            raise UnsafeOperation(
+                f"servo {self.id}: the image changes the EEPROM ID to {eeprom.servo_id}; "
+                "pass allow_id_change=True to do it"
+            )
+        await self._bus.request(command, priority=self.priority)
+        if verify and eeprom.baud_rate == current.baud_rate and eeprom.servo_id == current.servo_id:
+            back = await self.read_eeprom()
+            if back != eeprom:
+                raise VerifyError(f"servo {self.id}: EEPROM read back differs: {back.diff(eeprom)}")
+
+
+class Device:
+    """A generic ICS device (not a servo) exposing a 128-byte virtual memory."""
+
+    __slots__ = ("_bus", "id")
+
+    def __init__(self, bus: Bus, device_id: int) -> None:
+        self._bus = bus
+        self.id = protocol.check_id(device_id)
+
+    def __repr__(self) -> str:
+        return f"<Device {self.id} on {self._bus!r}>"
+
+    async def read_memory(self, address: int, count: int) -> bytes:
+        return await self._bus.request(protocol.ReadMemory(self.id, address, count))
+
+    async def write_memory(self, address: int, data: bytes) -> None:
+        await self._bus.request(protocol.WriteMemory(self.id, address, data))

@@ -1,0 +1,98 @@
+"""Counters and a latency histogram for the bus, cheap enough for the hot path."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+# Log2-spaced latency buckets from 1 us: bucket k holds [2^k, 2^(k+1)) us.
+_BUCKETS = 26  # up to about 67 s
+
+
+class LatencyHistogram:
+    """Transaction latency (write to complete reply) in log2 buckets of microseconds."""
+
+    __slots__ = ("counts", "max_s", "sum_s", "total")
+
+    def __init__(self) -> None:
+        self.counts = [0] * _BUCKETS
+        self.total = 0
+        self.sum_s = 0.0
+        self.max_s = 0.0
+
+    def add(self, seconds: float) -> None:
+        us = seconds * 1e6
+        k = int(us).bit_length() - 1 if us >= 1 else 0
+        self.counts[k if k < _BUCKETS else _BUCKETS - 1] += 1
+        self.total += 1
+        self.sum_s += seconds
+        if seconds > self.max_s:
+            self.max_s = seconds
+
+    def percentile(self, p: float) -> float:
+        """Upper edge (seconds) of the bucket holding the ``p``-th percentile; 0 when empty."""
+        if not self.total:
+            return 0.0
+        rank = math.ceil(self.total * p / 100)
+        seen = 0
+        for k, n in enumerate(self.counts):
+            seen += n
+            if seen >= rank:
+                return min(2.0 ** (k + 1) * 1e-6, self.max_s)
+        return self.max_s
+
+    @property
+    def mean(self) -> float:
+        return self.sum_s / self.total if self.total else 0.0
+
+
+# Names of the per-ID counters, in slot order (see IdCounters).
+COUNTER_NAMES = (
+    "transactions",
+    "ok",
+    "timeouts",
+    "partial_replies",
+    "echo_mismatches",
+    "bad_replies",
+    "retries",
+    "bytes_tx",
+    "bytes_rx",
+)
+
+
+@dataclass
+class IdStats:
+    transactions: int = 0
+    ok: int = 0
+    timeouts: int = 0
+    partial_replies: int = 0
+    echo_mismatches: int = 0
+    bad_replies: int = 0
+    retries: int = 0
+    bytes_tx: int = 0
+    bytes_rx: int = 0
+
+    @property
+    def errors(self) -> int:
+        return self.timeouts + self.partial_replies + self.echo_mismatches + self.bad_replies
+
+    def add(self, other: IdStats) -> None:
+        for name in COUNTER_NAMES:
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+
+
+@dataclass
+class BusStats:
+    """A snapshot of ``bus.stats``: totals, per-ID counters and latency."""
+
+    total: IdStats
+    per_id: dict[int | None, IdStats]
+    latency: LatencyHistogram
+    resyncs: int
+    stray_bytes: int
+    reconnects: int
+    queued: int
+    by_command: dict[str, int] = field(default_factory=dict)
+
+    def latency_percentiles(self) -> dict[str, float]:
+        return {f"p{p}": self.latency.percentile(p) for p in (50, 90, 99)}

@@ -1,0 +1,571 @@
+"""Position streaming: one position transaction per servo per cycle, at the wire's pace.
+
+ICS 3.5 has no broadcast, so a cycle over N servos is N position
+transactions, each returning that servo's measured position.  A
+:class:`Stream` plugs into its bus as the *background source*: the I/O
+callback that completes one servo's reply writes the next servo's command,
+so the hot path has no task switch and no future per servo.
+
+Sharing policy: requests from other coroutines (any :class:`Servo` call) go
+before the stream's next position transaction, so such a request waits for
+at most the transaction already on the wire plus the requests queued ahead
+of it, and the stream loses only the line time those requests use.  To keep
+the stream alive under a flood, at most ``Bus.max_requests_between``
+(default 16) requests run between two position transactions.
+
+Dead IDs: an ID that fails ``offline_after`` cycles in a row is taken out of
+the cycle and probed every ``probe_interval`` seconds; it rejoins as soon as
+a probe answers.  Frames list the offline IDs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import itertools
+import math
+import statistics
+from collections import deque
+from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+from . import protocol, units
+from .bus import Bus, open_bus
+from .errors import BusClosed, InvalidArgument, ReplyError
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One completed cycle.
+
+    ``positions`` and ``timestamps`` (event-loop time of each reply) hold the
+    IDs that answered this cycle; ``failed`` the IDs tried that did not;
+    ``offline`` the IDs currently out of the cycle.  ``skipped`` counts the
+    frames this consumer missed since its previous one.
+    """
+
+    cycle: int
+    positions: dict[int, int]
+    timestamps: dict[int, float]
+    failed: frozenset[int]
+    offline: frozenset[int]
+    started: float
+    finished: float
+    skipped: int = 0
+
+    def degrees(self) -> dict[int, float]:
+        return {i: units.position_to_degrees(p) for i, p in self.positions.items()}
+
+
+@dataclass
+class StreamStats:
+    cycles: int = 0
+    rate_hz: float = 0.0
+    cycle_time_p50: float = 0.0
+    cycle_time_p90: float = 0.0
+    cycle_time_p99: float = 0.0
+    cycle_time_max: float = 0.0
+    jitter: float = 0.0  # standard deviation of the interval between cycle starts, seconds
+    overruns: int = 0
+    frames_dropped: int = 0  # frames no consumer looked at before the next one replaced them
+    failures: dict[int, int] = field(default_factory=dict)
+    offline: frozenset[int] = frozenset()
+
+
+def _percentile(sorted_values: Sequence[float], p: float) -> float:
+    if not sorted_values:
+        return 0.0
+    k = min(len(sorted_values) - 1, max(0, math.ceil(len(sorted_values) * p / 100) - 1))
+    return sorted_values[k]
+
+
+class Stream:
+    """Streams position targets to ``ids`` and publishes a :class:`Frame` per cycle.
+
+    Create with :meth:`Bus.stream` and use as ``async with``.  Every ID
+    starts free (torque off, position still read back) until it is given a
+    target: the safe start-up the reference recommends.
+    """
+
+    def __init__(
+        self,
+        bus: Bus,
+        ids: Iterable[int],
+        *,
+        rate_hz: float | None = None,
+        offline_after: int = 3,
+        probe_interval: float = 0.5,
+        free_on_close: bool = False,
+        history: int = 2000,
+    ) -> None:
+        id_list = [protocol.check_id(i) for i in ids]
+        if not id_list:
+            raise InvalidArgument("a stream needs at least one ID")
+        if len(set(id_list)) != len(id_list):
+            raise InvalidArgument(f"duplicate IDs in {id_list}")
+        if rate_hz is not None and (
+            not isinstance(rate_hz, (int, float)) or not math.isfinite(rate_hz) or not 0 < rate_hz <= 10000
+        ):
+            raise InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {rate_hz!r}")
+        if not isinstance(offline_after, int) or offline_after < 1:
+            raise InvalidArgument(f"offline_after must be a positive int, got {offline_after!r}")
+        if not isinstance(probe_interval, (int, float)) or not probe_interval > 0:
+            raise InvalidArgument(f"probe_interval must be a positive number, got {probe_interval!r}")
+        self.bus = bus
+        self.ids: tuple[int, ...] = tuple(id_list)
+        self.rate_hz = rate_hz
+        self.offline_after = offline_after
+        self.probe_interval = float(probe_interval)
+        self.free_on_close = free_on_close
+        n = len(id_list)
+        self._index = {sid: k for k, sid in enumerate(id_list)}
+        self._targets = [protocol.FREE] * n
+        self._jobs = [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in id_list]
+        self._headers = [protocol.position_reply_header(sid, bus.baudrate) for sid in id_list]
+        self._positions = [-1] * n
+        self._stamps = [0.0] * n
+        self._answered = [False] * n
+        self._tried = [False] * n
+        self._fail_run = [0] * n
+        self._failures = [0] * n
+        self._offline = [False] * n
+        self._next_probe = [0.0] * n
+        # The cycle in progress.
+        self._order: list[int] = []
+        self._pos = 0
+        self._cur = -1
+        self._cycle = 0
+        self._cycle_start = 0.0
+        self._t0 = 0.0
+        self._waiting_timer: asyncio.TimerHandle | None = None
+        self._running = False
+        self._closed = False
+        # Publishing.
+        self._latest: Frame | None = None
+        self._waiters: list[asyncio.Future[None]] = []
+        self._consumed_cycle = 0
+        self._dropped = 0
+        self._seen_latest = True
+        # Statistics.
+        self._cycle_times: deque[float] = deque(maxlen=history)
+        self._starts: deque[float] = deque(maxlen=history)
+        self._overruns = 0
+        self._first_start = 0.0
+
+    # ------------------------------------------------------------------ targets
+
+    def _slot(self, servo_id: int) -> int:
+        try:
+            return self._index[servo_id]
+        except (KeyError, TypeError):
+            raise InvalidArgument(f"ID {servo_id!r} is not in this stream {list(self.ids)}") from None
+
+    def set_target(self, servo_id: int, position: int) -> None:
+        """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
+        k = self._slot(servo_id)
+        units.check_int("position", position, 0, protocol.POSITION_MAX)
+        if self._targets[k] != position:
+            self._targets[k] = position
+            self._jobs[k] = (protocol.position_tx(servo_id, position), 3, servo_id)
+
+    def set_targets(self, targets: Mapping[int, int]) -> None:
+        """Several targets at once; all are checked before any is applied."""
+        checked = [
+            (self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()
+        ]
+        for k, p in checked:
+            if self._targets[k] != p:
+                self._targets[k] = p
+                sid = self.ids[k]
+                self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
+
+    def set_target_degrees(self, servo_id: int, degrees: float) -> None:
+        self.set_target(servo_id, units.degrees_to_position(degrees))
+
+    def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
+        self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
+
+    def free(self, ids: Iterable[int] | None = None) -> None:
+        """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
+        self.set_targets(dict.fromkeys(self.ids if ids is None else ids, protocol.FREE))
+
+    def target(self, servo_id: int) -> int:
+        return self._targets[self._slot(servo_id)]
+
+    @property
+    def offline(self) -> frozenset[int]:
+        return frozenset(sid for sid, off in zip(self.ids, self._offline, strict=True) if off)
+
+    # ------------------------------------------------------------------ BackgroundSource
+
+    def next_transaction(self) -> tuple[bytes, int, int] | None:
+        if not self._running:
+            return None
+        if self._pos >= len(self._order) and not self._start_cycle():
+            return None
+        k = self._order[self._pos]
+        self._cur = k
+        self._tried[k] = True
+        return self._jobs[k]
+
+    def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
+        k = self._cur
+        position = protocol.position_from_reply(buf, offset, self._headers[k])
+        if position < 0:  # let the codec name what is wrong
+            try:
+                command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)
+                position = command.parse(bytes(buf[offset:]))
+            except ReplyError as exc:
+                self.fail(exc, now)
+                return exc
+        self._positions[k] = position
+        self._stamps[k] = now
+        self._answered[k] = True
+        self._fail_run[k] = 0
+        self._offline[k] = False
+        self._advance(now)
+        return None
+
+    def fail(self, exc: ReplyError, now: float) -> None:
+        k = self._cur
+        self._failures[k] += 1
+        self._fail_run[k] += 1
+        if self._fail_run[k] >= self.offline_after and not self._offline[k]:
+            self._offline[k] = True
+        if self._offline[k]:
+            self._next_probe[k] = now + self.probe_interval
+        self._advance(now)
+
+    def _advance(self, now: float) -> None:
+        self._pos += 1
+        if self._pos >= len(self._order):
+            self._publish(now)
+
+    # ------------------------------------------------------------------ cycles
+
+    def _start_cycle(self) -> bool:
+        """Begin the next cycle if it is due; False while waiting for a fixed-rate slot."""
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        if self.rate_hz is not None and self._cycle:
+            due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
+            if now < due:
+                if self._waiting_timer is None:
+                    self._waiting_timer = loop.call_at(due, self._on_due)
+                return False
+            if now - due > 1 / self.rate_hz:
+                # More than a whole period late: count it and re-anchor instead of bursting to catch up.
+                self._overruns += 1
+                self._t0 = now - self._cycle / self.rate_hz
+        if not self._cycle:
+            self._t0 = now
+            self._first_start = now
+        self._cycle += 1
+        order = []
+        for k in range(len(self.ids)):
+            self._answered[k] = False
+            self._tried[k] = False
+            if not self._offline[k] or now >= self._next_probe[k]:
+                order.append(k)
+        self._order = order
+        self._pos = 0
+        self._cycle_start = now
+        self._starts.append(now)
+        if not order:
+            # Everything is offline: wait for the next probe instead of spinning.
+            self._publish(now)
+            wake = min(self._next_probe)
+            if self._waiting_timer is None:
+                self._waiting_timer = loop.call_at(wake, self._on_due)
+            return False
+        return True
+
+    def _on_due(self) -> None:
+        self._waiting_timer = None
+        if self._running:
+            self.bus.kick()
+
+    def _publish(self, now: float) -> None:
+        ids = self.ids
+        positions: dict[int, int] = {}
+        stamps: dict[int, float] = {}
+        failed = []
+        for k in self._order:
+            if self._answered[k]:
+                positions[ids[k]] = self._positions[k]
+                stamps[ids[k]] = self._stamps[k]
+            else:
+                failed.append(ids[k])
+        self._order = []
+        self._pos = 0
+        self._cycle_times.append(now - self._cycle_start)
+        if not self._seen_latest:
+            self._dropped += 1
+        self._seen_latest = False
+        self._latest = Frame(
+            cycle=self._cycle,
+            positions=positions,
+            timestamps=stamps,
+            failed=frozenset(failed),
+            offline=self.offline,
+            started=self._cycle_start,
+            finished=now,
+        )
+        waiters, self._waiters = self._waiters, []
+        for w in waiters:
+            if not w.done():
+                w.set_result(None)
+
+    # ------------------------------------------------------------------ consuming
+
+    async def next_frame(self) -> Frame:
+        """The newest frame not yet returned; waits for one if needed.
+
+        A slow consumer never slows the bus: it gets the latest frame, with
+        ``skipped`` telling how many it missed.
+        """
+        while self._latest is None or self._latest.cycle <= self._consumed_cycle:
+            if self._closed:
+                raise BusClosed("stream closed")
+            waiter = asyncio.get_running_loop().create_future()
+            self._waiters.append(waiter)
+            await waiter
+        frame = self._latest
+        skipped = frame.cycle - self._consumed_cycle - 1 if self._consumed_cycle else 0
+        self._consumed_cycle = frame.cycle
+        self._seen_latest = True
+        return dataclasses.replace(frame, skipped=skipped) if skipped else frame
+
+    @property
+    def latest(self) -> Frame | None:
+        """The newest published frame (does not mark it consumed)."""
+        return self._latest
+
+    def __aiter__(self) -> AsyncIterator[Frame]:
+        return self
+
+    async def __anext__(self) -> Frame:
+        try:
+            return await self.next_frame()
+        except BusClosed:
+            raise StopAsyncIteration from None
+
+    @property
+    def stats(self) -> StreamStats:
+        times = sorted(self._cycle_times)
+        starts = list(self._starts)
+        intervals = [b - a for a, b in itertools.pairwise(starts)]
+        elapsed = (self._latest.finished - self._first_start) if self._latest else 0.0
+        return StreamStats(
+            cycles=self._cycle,
+            rate_hz=self._cycle / elapsed if elapsed > 0 else 0.0,
+            cycle_time_p50=_percentile(times, 50),
+            cycle_time_p90=_percentile(times, 90),
+            cycle_time_p99=_percentile(times, 99),
+            cycle_time_max=times[-1] if times else 0.0,
+            jitter=statistics.pstdev(intervals) if len(intervals) > 1 else 0.0,
+            overruns=self._overruns,
+            frames_dropped=self._dropped,
+            failures={sid: n for sid, n in zip(self.ids, self._failures, strict=True) if n},
+            offline=self.offline,
+        )
+
+    # ------------------------------------------------------------------ lifetime
+
+    async def start(self) -> Stream:
+        if self._closed:
+            raise BusClosed("stream closed")
+        if not self._running:
+            self._running = True
+            self.bus.attach_source(self)
+        return self
+
+    async def aclose(self) -> None:
+        """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free."""
+        if self._closed:
+            return
+        self._running = False
+        self._closed = True
+        if self._waiting_timer is not None:
+            self._waiting_timer.cancel()
+            self._waiting_timer = None
+        if self.bus._source is self:
+            self.bus.attach_source(None)
+        for w in self._waiters:
+            if not w.done():
+                w.set_result(None)
+        if self.free_on_close and self.bus.is_open:
+            with contextlib.suppress(ReplyError, BusClosed):
+                await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
+
+    async def __aenter__(self) -> Stream:
+        return await self.start()
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+
+# ---------------------------------------------------------------------- several lines
+
+
+@dataclass(frozen=True)
+class GroupFrame:
+    """Merged frames of a :class:`GroupStream`, keyed by ``(line, id)``."""
+
+    cycle: int
+    positions: dict[tuple[str, int], int]
+    timestamps: dict[tuple[str, int], float]
+    failed: frozenset[tuple[str, int]]
+    offline: frozenset[tuple[str, int]]
+    line_cycles: dict[str, int]
+    skipped: int = 0
+
+
+class GroupStream:
+    """Streams on several lines at once, each at its own pace, publishing merged frames.
+
+    A merged frame is published each time every line has completed a new
+    cycle since the previous merged frame.
+    """
+
+    def __init__(self, streams: Mapping[str, Stream]) -> None:
+        self.streams = dict(streams)
+        self._cycle = 0
+        self._task: asyncio.Task[None] | None = None
+        self._latest: GroupFrame | None = None
+        self._consumed = 0
+        self._event = asyncio.Event()
+        self._closed = False
+
+    def set_target(self, line: str, servo_id: int, position: int) -> None:
+        self._stream(line).set_target(servo_id, position)
+
+    def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
+        by_line: dict[str, dict[int, int]] = {}
+        for (line, sid), pos in targets.items():
+            self._stream(line)
+            by_line.setdefault(line, {})[sid] = pos
+        for line, t in by_line.items():
+            self.streams[line].set_targets(t)
+
+    def free(self) -> None:
+        for s in self.streams.values():
+            s.free()
+
+    def _stream(self, line: str) -> Stream:
+        try:
+            return self.streams[line]
+        except KeyError:
+            raise InvalidArgument(f"no line named {line!r} (lines: {', '.join(self.streams)})") from None
+
+    async def _merge(self) -> None:
+        last = dict.fromkeys(self.streams, 0)
+        while True:
+            frames = await asyncio.gather(*(s.next_frame() for s in self.streams.values()))
+            self._cycle += 1
+            positions: dict[tuple[str, int], int] = {}
+            stamps: dict[tuple[str, int], float] = {}
+            failed: set[tuple[str, int]] = set()
+            offline: set[tuple[str, int]] = set()
+            for line, f in zip(self.streams, frames, strict=True):
+                last[line] = f.cycle
+                positions.update(((line, i), p) for i, p in f.positions.items())
+                stamps.update(((line, i), t) for i, t in f.timestamps.items())
+                failed.update((line, i) for i in f.failed)
+                offline.update((line, i) for i in f.offline)
+            self._latest = GroupFrame(self._cycle, positions, stamps, frozenset(failed), frozenset(offline), dict(last))
+            self._event.set()
+
+    async def next_frame(self) -> GroupFrame:
+        while self._latest is None or self._latest.cycle <= self._consumed:
+            if self._closed:
+                raise BusClosed("group stream closed")
+            self._event.clear()
+            await self._event.wait()
+        frame = self._latest
+        skipped = frame.cycle - self._consumed - 1 if self._consumed else 0
+        self._consumed = frame.cycle
+        return dataclasses.replace(frame, skipped=skipped) if skipped else frame
+
+    def __aiter__(self) -> AsyncIterator[GroupFrame]:
+        return self
+
+    async def __anext__(self) -> GroupFrame:
+        try:
+            return await self.next_frame()
+        except BusClosed:
+            raise StopAsyncIteration from None
+
+    @property
+    def stats(self) -> dict[str, StreamStats]:
+        return {line: s.stats for line, s in self.streams.items()}
+
+    async def __aenter__(self) -> GroupStream:
+        for s in self.streams.values():
+            await s.start()
+        self._task = asyncio.get_running_loop().create_task(self._merge(), name="ics35 group merge")
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        self._closed = True
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, BusClosed):
+                await self._task
+        await asyncio.gather(*(s.aclose() for s in self.streams.values()))
+        self._event.set()
+
+
+class BusGroup:
+    """Several ICS lines used together (e.g. left and right half of a humanoid).
+
+    ``BusGroup({"left": open_bus("/dev/ttyUSB0"), "right": open_bus("/dev/ttyUSB1")})``;
+    use as ``async with`` to open and close every line.
+    """
+
+    def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
+        if isinstance(buses, Mapping):
+            self.buses = dict(buses)
+        else:
+            self.buses = {str(k): b for k, b in enumerate(buses)}
+        if not self.buses:
+            raise InvalidArgument("a BusGroup needs at least one bus")
+        for name, bus in self.buses.items():
+            if not isinstance(bus, Bus):
+                raise InvalidArgument(f"line {name!r} is not a Bus")
+
+    @classmethod
+    def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
+        return cls({name: open_bus(port, **bus_options) for name, port in ports.items()})
+
+    def __getitem__(self, line: str) -> Bus:
+        return self.buses[line]
+
+    def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
+        unknown = set(ids) - set(self.buses)
+        if unknown:
+            raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")
+        return GroupStream({line: Stream(self.buses[line], i, **stream_options) for line, i in ids.items()})
+
+    async def __aenter__(self) -> BusGroup:
+        try:
+            for bus in self.buses.values():
+                await bus.open()
+        except BaseException:
+            await self.aclose()
+            raise
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await asyncio.gather(*(b.aclose() for b in self.buses.values()), return_exceptions=True)
