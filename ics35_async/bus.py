@@ -46,7 +46,7 @@ from .errors import (
 )
 from .protocol import Command, Timing
 from .stats import COUNTER_NAMES, BusStats, IdStats, LatencyHistogram
-from .transport import WireDevice, open_line
+from .transport import WireDevice, discard_input, open_line
 
 if TYPE_CHECKING:  # servo.py builds on this module; imported lazily at run time
     from .servo import Device, Servo
@@ -103,6 +103,9 @@ class BackgroundSource(Protocol):
     def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None: ...
 
     def fail(self, exc: ReplyError, now: float) -> None: ...
+
+    def bus_closed(self, exc: IcsError) -> None:
+        """The bus closed for good (or lost its port with reconnect off): stop."""
 
 
 class _State(enum.Enum):
@@ -248,7 +251,7 @@ class Bus:
         if self._closing:
             return
         self._closing = True
-        self._source = None
+        self._detach_source(BusClosed("bus closed"))
         self._fail_queued(lambda: BusClosed("bus closed"))
         if self._state in (_State.BUSY, _State.QUIET):
             waiter = self._get_loop().create_future()
@@ -330,6 +333,11 @@ class Bus:
         self._source = source
         if source is not None and self._state is _State.IDLE:
             self._start_next()
+
+    def detach_source(self, source: BackgroundSource) -> None:
+        """Stop ``source`` filling the line (no-op if it is not attached)."""
+        if self._source is source:
+            self._source = None
 
     def kick(self) -> None:
         """Tell an idle bus that the background source has work again."""
@@ -594,11 +602,8 @@ class Bus:
         self._arm()
 
     def _end_resync(self) -> None:
-        transport = self._transport
-        if transport is not None:
-            discard = getattr(transport, "discard_input", None)
-            if discard is not None:
-                discard()
+        if self._transport is not None:
+            discard_input(self._transport)
         self._state = _State.IDLE
         self._start_next()
 
@@ -629,7 +634,13 @@ class Bus:
         else:
             self._state = _State.CLOSED
             self._closing = True
+            self._detach_source(PortLost(reason))
         self._release_idle_waiters()
+
+    def _detach_source(self, exc: IcsError) -> None:
+        source, self._source = self._source, None
+        if source is not None:
+            source.bus_closed(exc)
 
     def _release_idle_waiters(self) -> None:
         waiters, self._idle_waiters = self._idle_waiters, []

@@ -34,7 +34,7 @@ from typing import Any
 
 from . import protocol, units
 from .bus import Bus, open_bus
-from .errors import BusClosed, InvalidArgument, ReplyError
+from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 
 
 @dataclass(frozen=True)
@@ -143,6 +143,7 @@ class Stream:
         self._waiting_timer: asyncio.TimerHandle | None = None
         self._running = False
         self._closed = False
+        self._end_error: IcsError = BusClosed("stream closed")
         # Publishing.
         self._latest: Frame | None = None
         self._waiters: list[asyncio.Future[None]] = []
@@ -239,6 +240,10 @@ class Stream:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
 
+    def bus_closed(self, exc: IcsError) -> None:
+        self._end_error = exc
+        self._stop()
+
     def _advance(self, now: float) -> None:
         self._pos += 1
         if self._pos >= len(self._order):
@@ -329,7 +334,7 @@ class Stream:
         """
         while self._latest is None or self._latest.cycle <= self._consumed_cycle:
             if self._closed:
-                raise BusClosed("stream closed")
+                raise self._end_error
             waiter = asyncio.get_running_loop().create_future()
             self._waiters.append(waiter)
             await waiter
@@ -350,8 +355,10 @@ class Stream:
     async def __anext__(self) -> Frame:
         try:
             return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
+        except IcsError:
+            if self._closed:
+                raise StopAsyncIteration from None
+            raise
 
     @property
     def stats(self) -> StreamStats:
@@ -387,19 +394,22 @@ class Stream:
         """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free."""
         if self._closed:
             return
+        self._stop()
+        if self.free_on_close and self.bus.is_open:
+            with contextlib.suppress(ReplyError, BusClosed):
+                await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
+
+    def _stop(self) -> None:
         self._running = False
         self._closed = True
         if self._waiting_timer is not None:
             self._waiting_timer.cancel()
             self._waiting_timer = None
-        if self.bus._source is self:
-            self.bus.attach_source(None)
-        for w in self._waiters:
+        self.bus.detach_source(self)
+        waiters, self._waiters = self._waiters, []
+        for w in waiters:
             if not w.done():
                 w.set_result(None)
-        if self.free_on_close and self.bus.is_open:
-            with contextlib.suppress(ReplyError, BusClosed):
-                await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
 
     async def __aenter__(self) -> Stream:
         return await self.start()
