@@ -44,7 +44,10 @@ class BaudRate(enum.IntEnum):
     def parse(cls, value: object) -> BaudRate:
         """A BaudRate from 115200 / 625000 / 1250000 (int or str)."""
         try:
-            return cls(int(value))  # type: ignore[call-overload]
+            # int() would silently truncate a float (115200.7) and take True as 1.
+            if isinstance(value, bool) or not isinstance(value, (int, str)):
+                raise TypeError
+            return cls(int(value))
         except (TypeError, ValueError):
             raise InvalidArgument(
                 f"baud rate must be one of {', '.join(str(int(b)) for b in cls)}, got {value!r}"
@@ -216,7 +219,9 @@ class Eeprom:
                     raise InvalidArgument(f"{name} must be even, got {value}")
                 clean[name] = value
         updated = dataclasses.replace(self, **clean)
-        if updated.pulse_limit_low > updated.pulse_limit_high:
+        # Only a change to a limit is checked: an image read as it is may already have them crossed.
+        limits_changed = "pulse_limit_low" in clean or "pulse_limit_high" in clean
+        if limits_changed and updated.pulse_limit_low > updated.pulse_limit_high:
             raise InvalidArgument(
                 f"pulse_limit_low ({updated.pulse_limit_low}) must not exceed "
                 f"pulse_limit_high ({updated.pulse_limit_high})"

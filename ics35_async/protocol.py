@@ -116,6 +116,17 @@ def join7(high: int, low: int) -> int:
     return (high << 7) | low
 
 
+def position_from_reply(buf: bytes | bytearray, offset: int, header: int) -> int:
+    """The position in a 3-byte position reply at ``buf[offset:]``, or -1 if invalid.
+
+    The streaming hot path's check; on -1, :meth:`Position.parse` gives the typed error.
+    """
+    high, low = buf[offset + 1], buf[offset + 2]
+    if buf[offset] != header or (high | low) & 0x80:
+        return -1
+    return (high << 7) | low
+
+
 def split7(value: int) -> tuple[int, int]:
     return (value >> 7) & 0x7F, value & 0x7F
 
@@ -431,6 +442,9 @@ class WriteMemory(_MemoryCommand[None]):
     def __init__(self, device_id: int, address: int, data: bytes | Sequence[int]) -> None:
         self.servo_id = check_id(device_id)
         try:
+            # bytes(5) would be five zero bytes, not an error.
+            if isinstance(data, int):
+                raise TypeError
             payload = bytes(data)
         except (TypeError, ValueError):
             raise InvalidArgument("data must be bytes or a sequence of ints 0..255") from None
@@ -451,6 +465,11 @@ class WriteMemory(_MemoryCommand[None]):
 AnyCommand = Command[int] | Command[Eeprom] | Command[None] | Command[bytes]
 
 
+def _msb_in(buf: bytes | bytearray, end: int) -> bool:
+    """Whether a data byte of the frame ``buf[:end]`` (as far as it has arrived) has its MSB set."""
+    return any(b & 0x80 for b in buf[1:end])
+
+
 def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[Any] | None, int] | None:
     """Frame one host command at the start of ``buf`` (device side).
 
@@ -458,24 +477,29 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
     where ``command`` is ``None`` for bytes a device ignores (a stray data
     byte, an unknown sub-command or an out-of-range value).
     """
+    baud = check_baud(baudrate)
     if not buf:
         return None
     first = buf[0]
     if not first & 0x80:
         return None, 1  # not a command byte: another device's reply or noise
+    # Data bytes never have the MSB set, so one that does starts the next
+    # command: drop only the broken frame's command byte, never swallow it.
     kind, sid = first & 0xE0, first & 0x1F
     if kind == CMD_POSITION:
+        if _msb_in(buf, 3):
+            return None, 1
         if len(buf) < 3:
             return None
-        if (buf[1] | buf[2]) & 0x80:
-            return None, 1
-        return Position(sid, join7(buf[1], buf[2]), baudrate=baudrate), 3
+        return Position(sid, join7(buf[1], buf[2]), baudrate=baud), 3
     if len(buf) < 2:
         return None
     sc = buf[1]
     if sc & 0x80:
         return None, 1
     if kind == CMD_ID:
+        if _msb_in(buf, 4):
+            return None, 1
         if len(buf) < 4:
             return None
         if buf[1] == buf[2] == buf[3] == 0:
@@ -484,6 +508,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
             return WriteId(sid), 4
         return None, 4
     if sc == SC_MEMORY:
+        if _msb_in(buf, 4):
+            return None, 1
         if len(buf) < 4:
             return None
         address, count = buf[2], buf[3]
@@ -494,6 +520,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
         if kind == CMD_READ:
             return ReadMemory(sid, address, count), 4
         total = 4 + 2 * count
+        if _msb_in(buf, total):
+            return None, 1
         if len(buf) < total:
             return None
         try:
@@ -510,6 +538,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
     # parameter write
     if sc == Param.EEPROM:
         total = 2 + EEPROM_SIZE
+        if _msb_in(buf, total):
+            return None, 1
         if len(buf) < total:
             return None
         try:
@@ -518,6 +548,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
             return None, total
     if sc not in WRITE_RANGES:
         return None, 2
+    if _msb_in(buf, 3):
+        return None, 1
     if len(buf) < 3:
         return None
     try:

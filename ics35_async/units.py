@@ -40,10 +40,11 @@ def position_to_degrees(position: int) -> float:
 def degrees_to_position(degrees: float) -> int:
     if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees):
         raise InvalidArgument(f"degrees must be a finite number, got {degrees!r}")
-    position = round(NEUTRAL + degrees * COUNTS_PER_DEGREE)
-    if not POSITION_MIN <= position <= POSITION_MAX:
-        raise InvalidArgument(f"{degrees} degrees is position {position}, outside {POSITION_MIN}..{POSITION_MAX}")
-    return position
+    exact = NEUTRAL + degrees * COUNTS_PER_DEGREE
+    # Checked before rounding: a huge finite angle overflows to inf, which round() cannot take.
+    if not POSITION_MIN - 0.5 < exact < POSITION_MAX + 0.5:
+        raise InvalidArgument(f"{degrees} degrees is position {exact:.0f}, outside {POSITION_MIN}..{POSITION_MAX}")
+    return round(exact)
 
 
 def position_to_radians(position: int) -> float:
@@ -81,10 +82,11 @@ def temperature_to_celsius(parameter: int) -> float:
 
 def celsius_to_temperature(celsius: float) -> int:
     """The temperature parameter (1..127) closest to ``celsius``, clamped."""
-    if not isinstance(celsius, (int, float)) or not math.isfinite(celsius):
+    if not isinstance(celsius, (int, float)) or isinstance(celsius, bool) or not math.isfinite(celsius):
         raise InvalidArgument(f"celsius must be a finite number, got {celsius!r}")
-    parameter = round(_TEMP_P1 + (celsius - _TEMP_C1) / _CELSIUS_PER_STEP)
-    return min(127, max(1, parameter))
+    # Clamped before rounding: an extreme finite input overflows to inf, which round() cannot take.
+    parameter = _TEMP_P1 + (celsius - _TEMP_C1) / _CELSIUS_PER_STEP
+    return round(min(127.0, max(1.0, parameter)))
 
 
 def stretch_to_eeprom(stretch: int) -> int:
