@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .bus import Bus, BusTiming, Priority, open_bus
 from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
     BadReply,
@@ -23,13 +24,27 @@ from .errors import (
     VerifyError,
 )
 from .protocol import Param
+from .servo import Device, Servo
+from .streaming import BusGroup, Frame, GroupFrame, GroupStream, Stream, StreamStats
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BadReply",
     "BaudRate",
+    "Bus",
     "BusClosed",
+    "BusGroup",
+    "BusTiming",
+    "Device",
+    "Frame",
+    "GroupFrame",
+    "GroupStream",
+    "Priority",
+    "Servo",
+    "Stream",
+    "StreamStats",
+    "open_bus",
     "EchoMismatch",
     "Eeprom",
     "Flags",
