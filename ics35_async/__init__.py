@@ -26,6 +26,7 @@ from .errors import (
 from .protocol import Param
 from .servo import Device, Servo
 from .streaming import BusGroup, Frame, GroupFrame, GroupStream, Stream, StreamStats
+from .transport import ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 
 __version__ = "0.1.0"
 
@@ -52,6 +53,11 @@ __all__ = [
     "InvalidArgument",
     "MalformedEeprom",
     "Param",
+    "ParityNotSupported",
+    "PortBusy",
+    "PortNotFound",
+    "PortPermissionDenied",
+    "SerialPortError",
     "PartialReply",
     "PortLost",
     "ReplyDataError",
