@@ -1,0 +1,119 @@
+"""Precise waiting for the real-time simulator.
+
+An event loop's timers (and a plain ``time.sleep``) overshoot by tens of
+microseconds, more than a whole byte time at 1.25 Mbit/s (8.8 us).  So the
+real-time simulator waits in two steps: a sleep that releases the GIL until
+:data:`SPIN_MARGIN` before the deadline, then a busy loop on
+``time.perf_counter``.  The waiting thread lowers its timer slack to 1 ns
+(``prctl(PR_SET_TIMERSLACK)``, Linux) so the sleep itself wakes closer to
+its target and the spin stays short.
+
+Measured figures are in the package docstring (:mod:`ics35_async.sim`) and
+are printed by ``benchmarks/sim_timing.py``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import heapq
+import itertools
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+SPIN_MARGIN = 250e-6
+"""Seconds before a deadline at which sleeping stops and spinning starts."""
+
+_PR_SET_TIMERSLACK = 29
+
+
+def lower_timer_slack(nanoseconds: int = 1) -> bool:
+    """Set the calling thread's timer slack (Linux only); True if it worked."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return bool(libc.prctl(_PR_SET_TIMERSLACK, nanoseconds, 0, 0, 0) == 0)
+    except (OSError, AttributeError):
+        return False
+
+
+def wait_until(deadline: float, spin_margin: float = SPIN_MARGIN) -> None:
+    """Return at ``time.perf_counter() >= deadline``: sleep, then spin."""
+    remaining = deadline - time.perf_counter()
+    if remaining > spin_margin:
+        time.sleep(remaining - spin_margin)
+    while time.perf_counter() < deadline:
+        pass
+
+
+class Deliverer:
+    """A thread that calls ``sink(data)`` for each scheduled chunk at its time.
+
+    Times are ``time.perf_counter()`` values.  Chunks are delivered in time
+    order (ties in scheduling order).  :meth:`cancel` drops everything not
+    yet delivered, e.g. when the port is unplugged.  While it waits the thread
+    holds no lock and no GIL except during the final spin.
+    """
+
+    def __init__(self, spin_margin: float = SPIN_MARGIN, name: str = "ics35-sim-delivery") -> None:
+        self.spin_margin = spin_margin
+        self._heap: list[tuple[float, int, int, Callable[[bytes], None], bytes]] = []
+        self._order = itertools.count()
+        self._generation = 0
+        self._cond = threading.Condition(threading.Lock())
+        self._closed = False
+        self.lateness_max = 0.0
+        self.delivered = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def schedule(self, when: float, data: bytes, sink: Callable[[bytes], None]) -> None:
+        with self._cond:
+            heapq.heappush(self._heap, (when, next(self._order), self._generation, sink, data))
+            self._cond.notify()
+
+    def cancel(self) -> None:
+        with self._cond:
+            self._heap.clear()
+            self._generation += 1
+
+    def pending(self) -> int:
+        with self._cond:
+            return len(self._heap)
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._heap.clear()
+            self._cond.notify()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=2)
+
+    def _run(self) -> None:
+        lower_timer_slack()
+        cond = self._cond
+        while True:
+            with cond:
+                while not self._closed and not self._heap:
+                    cond.wait()
+                if self._closed:
+                    return
+                when = self._heap[0][0]
+                remaining = when - time.perf_counter()
+                if remaining > self.spin_margin:
+                    # Wakes early if an earlier chunk is scheduled meanwhile.
+                    cond.wait(remaining - self.spin_margin)
+                    continue
+                _, _, generation, sink, data = heapq.heappop(self._heap)
+                stale = generation != self._generation
+            while time.perf_counter() < when:
+                pass
+            if stale:
+                continue
+            self.lateness_max = max(self.lateness_max, time.perf_counter() - when)
+            self.delivered += 1
+            with contextlib.suppress(Exception):  # a host gone away must not kill the thread
+                sink(data)

@@ -1,0 +1,339 @@
+"""The devices on the simulated line: :class:`VirtualServo` and :class:`MemoryDevice`.
+
+A device answers a decoded :class:`~ics35_async.protocol.Command` with a
+value; the line (:mod:`.line`) turns that value into bytes with the command's
+own ``encode_reply``, so no byte layout is repeated here.
+
+Model of a servo, in brief (all of it deliberately simple and deterministic):
+
+* **EEPROM vs RAM.**  The 64-byte image is kept as an :class:`Eeprom`.
+  Stretch, speed, current limit and temperature limit live in RAM, loaded
+  from the EEPROM at power-up; the parameter-write command changes RAM only.
+  The EEPROM write stores the image (protected calibration bytes included, as
+  written: the firmware does not guard them, the host must write them back
+  as read; :attr:`VirtualServo.calibration_intact` tells a test whether it did).
+  The ID, flags and pulse limits of a newly written image apply at once; the
+  RAM parameters and the baud rate only at the next :meth:`power_cycle`
+  (the reference: "from the next time on, talk at the new speed").
+* **Motion.**  The servo moves toward its target at ``speed / 127 *``
+  :data:`MAX_RATE` counts per second.  Targets are clamped to the EEPROM
+  pulse limits.  With the REVERSE flag the host's coordinates are mirrored
+  about neutral (7500): the host sees the position it asked for, the shaft
+  (:attr:`VirtualServo.shaft_position`) turns the other way.  The user offset
+  and continuous rotation are not modelled.
+* **Free.**  Position 0 turns the torque off: the servo stays where it is and
+  :meth:`VirtualServo.move_by_hand` may turn it.  A servo powers up free.
+* **Current** (0..63, bit 6 = direction): about 1 when holding, more while
+  moving (grows with speed), plus the external :attr:`VirtualServo.load`
+  (signed, in current units), capped by the RAM current limit; 0 when free.
+* **Temperature** follows the current with a first-order lag
+  (:data:`THERMAL_TIME_CONSTANT` seconds) from :data:`AMBIENT_CELSIUS` and is
+  reported as the spec's parameter (smaller = hotter).  A servo hotter than
+  its temperature limit drops its torque (goes free) until it cools down.
+
+Time is whatever the line says it is (simulated in fast mode, wall-clock in
+real-time mode); a servo's state is advanced lazily to the time it is asked.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..eeprom import BaudRate, Eeprom, Flags
+from ..protocol import (
+    FREE,
+    MEMORY_SIZE,
+    Param,
+    Position,
+    ReadEeprom,
+    ReadId,
+    ReadMemory,
+    ReadParam,
+    WriteEeprom,
+    WriteId,
+    WriteMemory,
+    WriteParam,
+)
+from ..units import NEUTRAL, POSITION_MAX, celsius_to_temperature, check_int, stretch_from_eeprom
+
+MAX_RATE = 12000.0
+"""Counts per second at speed 127 (KRS servos turn 60 degrees in about 0.14 s)."""
+AMBIENT_CELSIUS = 25.0
+THERMAL_TIME_CONSTANT = 60.0
+"""Seconds for the temperature to cover 63 % of the way to its steady state."""
+CELSIUS_PER_CURRENT = 1.6
+"""Steady-state temperature rise per unit of current (63 units: about 125 C)."""
+HOLDING_CURRENT = 1
+MOVING_CURRENT = 8
+"""Extra current while moving at full speed (scaled by speed / 127)."""
+
+
+class NoReply:
+    """Marker: the device heard the command but stays silent."""
+
+
+NO_REPLY = NoReply()
+
+
+class VirtualServo:
+    """One simulated ICS 3.5 servo.
+
+    ``servo_id`` and ``baud_rate`` build the spec's factory image
+    (:meth:`Eeprom.factory`, with a calibration that differs per ID) unless
+    ``eeprom`` is given.  ``position`` is where the shaft starts (host
+    coordinates); ``load`` is an external torque in current units (signed).
+    """
+
+    def __init__(
+        self,
+        servo_id: int = 0,
+        *,
+        eeprom: Eeprom | None = None,
+        baud_rate: int = BaudRate.B115200,
+        position: int = NEUTRAL,
+        load: int = 0,
+        ambient_celsius: float = AMBIENT_CELSIUS,
+    ) -> None:
+        if eeprom is None:
+            eeprom = Eeprom.factory(servo_id, baud_rate=BaudRate.parse(baud_rate))
+        elif not isinstance(eeprom, Eeprom):
+            raise TypeError(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
+        self._eeprom = eeprom
+        self.factory_calibration = eeprom.calibration
+        self._position = float(check_int("position", position, 1, POSITION_MAX))
+        self.load = load
+        self.ambient_celsius = ambient_celsius
+        self.temperature_celsius = ambient_celsius
+        self._target: int | None = None
+        self._time = 0.0
+        self.eeprom_writes = 0
+        self.power_cycles = 0
+        self._load_ram()
+
+    # -- identity and persistent state
+
+    @property
+    def eeprom(self) -> Eeprom:
+        return self._eeprom
+
+    @eeprom.setter
+    def eeprom(self, image: Eeprom) -> None:
+        """Replace the image directly (a test fixture; no wire traffic)."""
+        self._eeprom = image
+
+    @property
+    def servo_id(self) -> int:
+        return self._eeprom.servo_id
+
+    @property
+    def calibration_intact(self) -> bool:
+        """Whether the protected calibration bytes are still the factory ones."""
+        return self._eeprom.calibration == self.factory_calibration
+
+    def _load_ram(self) -> None:
+        image = self._eeprom
+        self.baud_rate = BaudRate(image.baud_rate)
+        self.stretch = max(1, stretch_from_eeprom(image.stretch_gain))
+        self.speed = image.speed
+        self.current_limit = image.current_limit
+        self.temperature_limit = image.temperature_limit
+
+    def power_cycle(self) -> None:
+        """Power off and on: RAM reloads from the EEPROM, the servo wakes up free."""
+        self._load_ram()
+        self._target = None
+        self.power_cycles += 1
+
+    # -- motion
+
+    @property
+    def position(self) -> int:
+        """The position the servo reports (host coordinates) at its last update."""
+        return round(self._position)
+
+    @property
+    def shaft_position(self) -> int:
+        """Where the output shaft physically is (mirrored when REVERSE is set)."""
+        return self._to_shaft(self.position)
+
+    def _to_shaft(self, position: int) -> int:
+        return 2 * NEUTRAL - position if self._eeprom.flags & Flags.REVERSE else position
+
+    @property
+    def target(self) -> int | None:
+        """The clamped target, or ``None`` when free."""
+        return self._target
+
+    @property
+    def free(self) -> bool:
+        return self._target is None
+
+    @property
+    def moving(self) -> bool:
+        return self._target is not None and self._position != self._target
+
+    @property
+    def rate(self) -> float:
+        """Counts per second the servo moves at, from the RAM speed."""
+        return MAX_RATE * self.speed / 127
+
+    def move_by_hand(self, position: int) -> None:
+        """Turn the horn by hand (host coordinates): a free servo stays there."""
+        self._position = float(check_int("position", position, 1, POSITION_MAX))
+
+    def command_position(self, position: int) -> None:
+        if position == FREE or self.overheated:
+            self._target = None
+            return
+        low, high = self._eeprom.pulse_limit_low, self._eeprom.pulse_limit_high
+        self._target = min(high, max(low, position))
+
+    # -- current and temperature
+
+    @property
+    def current(self) -> int:
+        """Current magnitude 0..63 (not counting the direction bit)."""
+        if self._target is None:
+            return 0
+        moving = MOVING_CURRENT * self.speed / 127 if self.moving else 0.0
+        return min(self.current_limit, round(HOLDING_CURRENT + moving + abs(self.load)))
+
+    @property
+    def current_raw(self) -> int:
+        """The current as the read command returns it (bit 6 set = reverse)."""
+        magnitude = self.current
+        if self.moving and self._target is not None:
+            reverse = self._to_shaft(self._target) < self._to_shaft(self.position)
+        else:
+            reverse = self.load < 0
+        return magnitude | (0x40 if reverse and magnitude else 0)
+
+    @property
+    def temperature(self) -> int:
+        """The temperature parameter (1..127, smaller is hotter)."""
+        return celsius_to_temperature(self.temperature_celsius)
+
+    @property
+    def overheated(self) -> bool:
+        return self.temperature < self.temperature_limit
+
+    def _steady_celsius(self) -> float:
+        return self.ambient_celsius + CELSIUS_PER_CURRENT * self.current
+
+    def _heat(self, dt: float) -> None:
+        steady = self._steady_celsius()
+        self.temperature_celsius = steady + (self.temperature_celsius - steady) * math.exp(-dt / THERMAL_TIME_CONSTANT)
+
+    def update(self, now: float) -> None:
+        """Advance motion and temperature to time ``now`` (seconds, the line's clock)."""
+        dt = now - self._time
+        if dt <= 0:
+            return
+        self._time = now
+        target = self._target
+        if target is not None and self._position != target:
+            distance = target - self._position
+            travel_time = abs(distance) / self.rate
+            if travel_time <= dt:
+                self._heat(travel_time)
+                self._position = float(target)
+                self._heat(dt - travel_time)
+            else:
+                self._heat(dt)
+                self._position += math.copysign(self.rate * dt, distance)
+        else:
+            self._heat(dt)
+        if self.overheated:
+            self._target = None
+
+    # -- the wire
+
+    def answers(self, baudrate: int) -> bool:
+        return self.baud_rate == baudrate
+
+    def handle(self, command: Any) -> Any:
+        """Carry out ``command`` (already addressed to this servo); return the reply value."""
+        if isinstance(command, Position):
+            reported = self.position
+            self.command_position(command.position)
+            return reported
+        if isinstance(command, ReadParam):
+            return self._read_param(command.param)
+        if isinstance(command, WriteParam):
+            self._write_param(command.param, command.value)
+            return command.value
+        if isinstance(command, ReadEeprom):
+            return self._eeprom
+        if isinstance(command, WriteEeprom):
+            self._eeprom = command.eeprom
+            self.eeprom_writes += 1
+            return None
+        if isinstance(command, ReadId):
+            return self.servo_id
+        if isinstance(command, WriteId):
+            self._eeprom = self._eeprom.replace(servo_id=command.new_id)
+            return command.new_id
+        return NO_REPLY  # generic memory commands: a servo has no such memory
+
+    def _read_param(self, param: Param) -> int:
+        if param == Param.STRETCH:
+            return self.stretch
+        if param == Param.SPEED:
+            return self.speed
+        if param == Param.CURRENT:
+            return self.current_raw
+        return self.temperature
+
+    def _write_param(self, param: Param, value: int) -> None:
+        if param == Param.STRETCH:
+            self.stretch = value
+        elif param == Param.SPEED:
+            self.speed = value
+        elif param == Param.CURRENT:
+            self.current_limit = value
+        else:
+            self.temperature_limit = value
+
+    def __repr__(self) -> str:
+        state = "free" if self._target is None else f"target={self._target}"
+        return f"<VirtualServo id={self.servo_id} pos={self.position} {state} baud={int(self.baud_rate)}>"
+
+
+class MemoryDevice:
+    """A generic (non-servo) device: 128 bytes of memory behind the generic commands.
+
+    It answers only the generic read and write (spec section 9), ignores the
+    servo and ID commands, and talks at ``baud_rate`` (``None``: any rate).
+    """
+
+    def __init__(
+        self, device_id: int, memory: bytes | bytearray | None = None, *, baud_rate: int | None = None
+    ) -> None:
+        self._device_id = check_int("device ID", device_id, 0, 31)
+        data = bytes(memory or b"")
+        if len(data) > MEMORY_SIZE:
+            raise ValueError(f"memory is {len(data)} bytes, at most {MEMORY_SIZE}")
+        self.memory = bytearray(data.ljust(MEMORY_SIZE, b"\0"))
+        self.baud_rate = None if baud_rate is None else BaudRate.parse(baud_rate)
+
+    @property
+    def servo_id(self) -> int:
+        return self._device_id
+
+    def update(self, now: float) -> None:
+        pass
+
+    def answers(self, baudrate: int) -> bool:
+        return self.baud_rate is None or self.baud_rate == baudrate
+
+    def handle(self, command: Any) -> Any:
+        if isinstance(command, ReadMemory):
+            return bytes(self.memory[command.address : command.address + command.count])
+        if isinstance(command, WriteMemory):
+            self.memory[command.address : command.address + command.count] = command.data
+            return None
+        return NO_REPLY
+
+    def __repr__(self) -> str:
+        return f"<MemoryDevice id={self._device_id}>"
