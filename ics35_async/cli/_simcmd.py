@@ -1,0 +1,23 @@
+"""``ics35 sim``: the simulator's own command line (``python -m ics35_async.sim``), mounted here."""
+
+from __future__ import annotations
+
+import click
+
+from ..sim import main as sim_main
+
+
+@click.command(
+    context_settings={"ignore_unknown_options": True, "allow_extra_args": True, "help_option_names": []},
+    add_help_option=False,
+)
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def sim(args: tuple[str, ...]) -> int:
+    """Serve simulated servos on a pseudo-terminal (ics35 sim --help lists its options).
+
+    Prints the device path on its first line; use it as --port in another terminal.
+    """
+    return sim_main(list(args), prog="ics35 sim")
+
+
+COMMANDS = [sim]
