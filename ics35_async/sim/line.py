@@ -64,8 +64,9 @@ class Transaction:
     """One host command as the simulated line saw and answered it.
 
     ``time`` is the line's clock when the command's last byte arrived;
-    ``servo_id`` the addressed ID (``None`` for the ID command and for bytes
-    no device understood, ``command == "unknown"``).  ``echo`` and ``reply``
+    ``servo_id`` the addressed ID (``None`` for the ID command; for bytes no
+    device understood, ``command == "unknown"``, the ID bits of their first
+    byte if it is a command byte, else ``None``).  ``echo`` and ``reply``
     are the bytes actually sent back (after faults; ``reply`` of a ``late``
     transaction arrives during a later one); ``clean_reply`` is what healthy
     devices would have sent; ``value`` the value answered (a position, a
@@ -340,7 +341,7 @@ class SimBus:
     def _transact(self, command: Any, frame: bytes, fresh: int, t: float, out: list[tuple[float, bytes]]) -> float:
         baud = self.baudrate
         byte_time = BITS_PER_BYTE / baud
-        servo_id = None if command is None else command.servo_id
+        servo_id = _addressed_id(command, frame)
         draw = self.faults.draw(servo_id)
         faults: list[str] = []
         rx_parts: list[bytes] = []
@@ -607,6 +608,12 @@ class SimBus:
     def __repr__(self) -> str:
         mode = "realtime" if self.realtime else "fast"
         return f"<SimBus {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
+
+
+def _addressed_id(command: Any, frame: bytes) -> int | None:
+    if command is not None:
+        return command.servo_id  # type: ignore[no-any-return]
+    return frame[0] & 0x1F if frame[0] & 0x80 else None
 
 
 _ICS_BAUDS = frozenset(int(b) for b in BaudRate)

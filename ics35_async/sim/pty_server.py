@@ -19,18 +19,23 @@ reports EINVAL when PARENB did not stick, except when the same call also
 changes the baud rate.  For pyserial this means:
 
 * ``serial.Serial(path, 115200, parity=serial.PARITY_EVEN, timeout=0.1)``
-  opens fine when the pty was at another speed (this server resets the
-  speed to 38400 whenever no client has it open, so every fresh open works);
+  succeeds when the pty was at another speed;
 * any later re-configuration at an unchanged speed (setting ``.timeout``,
   ``.write_timeout``, ``.parity``...; pyserial-asyncio does
   ``timeout = 0`` right after opening) raises ``termios.error`` (errno 22,
-  EINVAL) -- but the kernel did apply everything except PARENB, so a client
-  may catch that error and carry on; opening 8N1 avoids it altogether;
-* a second open while another client is connected at the same speed fails
-  the same way.
+  EINVAL) -- although the kernel applied everything except PARENB, so a
+  client may catch that error and carry on; opening 8N1 avoids it entirely;
+* so does a second open at the speed the pty is already at.
 
-So a plain pyserial client passes ``timeout`` (and ``parity``) to the
-constructor and never changes settings afterwards.
+To soften this the server "parks" the pty at 38400 bit/s (not an ICS rate;
+other settings untouched) as soon as it has read the client's speed, i.e.
+with the client's first bytes, and whenever the last client closes it.  A
+fresh open, and a re-configuration made after the client has sent
+something, then change the speed and pass.  A re-configuration straight
+after opening, before any byte, still races the server: do not rely on it.
+A plain pyserial client passes ``timeout`` (and ``parity``) to the
+constructor and changes nothing afterwards.  (A client that really runs at
+38400 is taken to be at the previous speed.)
 
 Timing: in fast mode answers are written at once.  In real-time mode the
 server's single thread waits for each chunk's wire time with sleep-then-spin
@@ -44,6 +49,7 @@ from __future__ import annotations
 import argparse
 import array
 import contextlib
+import ctypes
 import errno
 import fcntl
 import heapq
@@ -72,7 +78,28 @@ from .record import ReplayDevice
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
 _ABSENT_POLL = 0.02  # seconds between checks for a client while none has the pty open
+_ABSENT_POLL_NO_INOTIFY = 0.002
+_IN_OPEN = 0x20
 _IDLE_SPEED = termios.B38400  # the speed a fresh pty has; never one of the ICS rates
+_IDLE_BAUD = 38400
+
+
+def _watch_opens(path: str) -> int | None:
+    """An inotify fd that becomes readable when ``path`` is opened (None if unavailable).
+
+    Without it a new client would wait for the next poll before its first bytes are read.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd = int(libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC))
+    except (OSError, AttributeError):
+        return None
+    if fd < 0:
+        return None
+    if libc.inotify_add_watch(fd, path.encode(), _IN_OPEN) < 0:
+        os.close(fd)
+        return None
+    return fd
 
 
 def host_baudrate(fd: int) -> int | None:
@@ -107,6 +134,7 @@ class PtyServer:
             self.path = Path(link)
         self.pts_name: str | None = None
         self._master: int | None = None
+        self._opens: int | None = None
         self._client_present = False
         self._heap: list[tuple[float, int, bytes | None]] = []
         self._order = itertools.count()
@@ -126,6 +154,7 @@ class PtyServer:
         os.set_blocking(master, False)
         self._master = master
         self.pts_name = name
+        self._opens = _watch_opens(name)
         self._client_present = False
         self._reset_settings()
         tmp_link = self.path.with_name(self.path.name + ".new")
@@ -140,19 +169,33 @@ class PtyServer:
                 self.path.unlink()
         if self._master is not None:
             os.close(self._master)
+        if self._opens is not None:
+            os.close(self._opens)
         self._master = None
+        self._opens = None
         self.pts_name = None
         self._client_present = False
         self._heap.clear()
 
     def _reset_settings(self) -> None:
-        """Raw mode at a non-ICS speed: the next pyserial open then changes the speed and succeeds."""
+        """Raw mode (no echo by the pty itself) at the idle speed."""
         if self._master is None:
             return
         tty.setraw(self._master)
+        self._park_speed()
+
+    def _park_speed(self) -> None:
+        """Set the pty's speed to 38400, leaving the client's other settings alone.
+
+        A client's next open or re-configuration then changes the speed,
+        which is what lets glibc accept it despite the dropped PARENB.
+        """
+        if self._master is None:
+            return
         attrs = termios.tcgetattr(self._master)
         attrs[4] = attrs[5] = _IDLE_SPEED
-        termios.tcsetattr(self._master, termios.TCSANOW, attrs)
+        with contextlib.suppress(termios.error):
+            termios.tcsetattr(self._master, termios.TCSANOW, attrs)
 
     def open(self) -> Path:
         """Create the pty and the link; returns the path clients should open."""
@@ -195,11 +238,15 @@ class PtyServer:
                 if self._client_present:
                     watch.append(master)
                 else:
-                    timeout = _ABSENT_POLL if timeout is None else min(timeout, _ABSENT_POLL)
+                    if self._opens is not None:
+                        watch.append(self._opens)
+                    absent_poll = _ABSENT_POLL if self._opens is not None else _ABSENT_POLL_NO_INOTIFY
+                    timeout = absent_poll if timeout is None else min(timeout, absent_poll)
             readable, _, _ = select.select(watch, [], [], timeout)
-            if self._wake_r in readable:
-                with contextlib.suppress(BlockingIOError):
-                    os.read(self._wake_r, 1024)
+            for fd in (self._wake_r, self._opens):
+                if fd is not None and fd in readable:
+                    with contextlib.suppress(BlockingIOError):
+                        os.read(fd, 4096)
             if master is not None and (master in readable or (not self._client_present and self._check_client(master))):
                 self._read(master, realtime)
             self._deliver_due()
@@ -229,10 +276,13 @@ class PtyServer:
             self._reset_settings()
             return
         device = self.device
-        if self.follow_host_baud and isinstance(device, SimBus):
-            baud = host_baudrate(master)
-            if baud:
+        baud = host_baudrate(master)
+        if baud and baud != _IDLE_BAUD:
+            # The client set its speed since we last looked: note it, then park
+            # the pty at the idle speed again (see the module docstring).
+            if self.follow_host_baud and isinstance(device, SimBus):
                 device.baudrate = baud
+            self._park_speed()
         chunks = device.process(data)
         epoch = device.epoch
         for when, chunk in chunks:

@@ -38,9 +38,10 @@ real-time mode); a servo's state is advanced lazily to the time it is asked.
 from __future__ import annotations
 
 import math
+import random
 from typing import Any
 
-from ..eeprom import BaudRate, Eeprom, Flags
+from ..eeprom import PROTECTED_OFFSETS, BaudRate, Eeprom, Flags
 from ..protocol import (
     FREE,
     MEMORY_SIZE,
@@ -64,9 +65,16 @@ THERMAL_TIME_CONSTANT = 60.0
 """Seconds for the temperature to cover 63 % of the way to its steady state."""
 CELSIUS_PER_CURRENT = 1.6
 """Steady-state temperature rise per unit of current (63 units: about 125 C)."""
+CALIBRATION_NIBBLES = len(PROTECTED_OFFSETS)
 HOLDING_CURRENT = 1
 MOVING_CURRENT = 8
 """Extra current while moving at full speed (scaled by speed / 127)."""
+
+
+def factory_calibration(servo_id: int) -> bytes:
+    """Plausible calibration nibbles, fixed per ID and different for each of the 32 IDs."""
+    rng = random.Random(0x1C5 * 32 + servo_id)
+    return bytes(rng.randrange(16) for _ in range(CALIBRATION_NIBBLES))
 
 
 class NoReply:
@@ -96,7 +104,9 @@ class VirtualServo:
         ambient_celsius: float = AMBIENT_CELSIUS,
     ) -> None:
         if eeprom is None:
-            eeprom = Eeprom.factory(servo_id, baud_rate=BaudRate.parse(baud_rate))
+            eeprom = Eeprom.factory(
+                servo_id, baud_rate=BaudRate.parse(baud_rate), calibration=factory_calibration(servo_id)
+            )
         elif not isinstance(eeprom, Eeprom):
             raise TypeError(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
         self._eeprom = eeprom
