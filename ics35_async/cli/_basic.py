@@ -126,6 +126,12 @@ def scan_table(result: ScanResult) -> Table:
     table = Table(
         title="servos found", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
     )
+    if all(e is None for _, _, e in result.found):
+        table.add_column("ID", justify="right")
+        table.add_column("baud", justify="right")
+        for baud, i, _ in result.found:
+            table.add_row(str(i), str(baud))
+        return table
     for name in ("ID", "baud", "stretch", "speed", "I-limit", "T-limit", "pulse range", "offset"):
         table.add_column(name, justify="right")
     table.add_column("flags")

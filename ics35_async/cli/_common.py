@@ -289,6 +289,21 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
         if "://" in settings.port and "cannot open" in text:
             return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
         return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
+    # Every command byte has its MSB set and almost every reply header has it clear,
+    # so the first byte back tells an echo from a reply.
+    if isinstance(exc, ReplyError) and exc.raw:
+        if settings.echo and isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80:
+            return CliError(
+                ExitCode.COMMUNICATION,
+                f"{text}: the first byte back is a servo's reply, not the echo of the command sent",
+                "this interface does not loop TX back to RX: pass --no-echo",
+            )
+        if not settings.echo and exc.raw[0] >= 0x80:
+            return CliError(
+                ExitCode.COMMUNICATION,
+                f"{text}: the bytes sent came back before the reply (an echo)",
+                "this interface echoes what it sends (ICS adapters do): drop --no-echo",
+            )
     if isinstance(exc, EchoMismatch):
         return CliError(
             ExitCode.COMMUNICATION,

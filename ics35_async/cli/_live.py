@@ -414,6 +414,9 @@ def monitor(
     settings = settings_of(ctx)
     if plot is not None:
         require_matplotlib()
+    if settings.port == "sim://":
+        # Real-time mode paces replies at the modelled wire time, so the rate shown is the real one.
+        settings.port = f"sim://?realtime=1&baud={settings.baud}"
     options = LiveOptions(seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
@@ -489,6 +492,12 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     show_default=True,
     help="Servos whose current and temperature are read per cycle.",
 )
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False, writable=True),
+    default=None,
+    help="Record position traces and write a plot to FILE.png at the end (needs matplotlib).",
+)
 @click.pass_context
 def demo(
     ctx: click.Context,
@@ -498,6 +507,7 @@ def demo(
     frequency: float,
     rate: float | None,
     per_cycle: int,
+    plot: str | None,
 ) -> int:
     """A smooth wave streamed to every servo, with a live table; leaves the servos free.
 
@@ -506,11 +516,12 @@ def demo(
     Hardware:      ics35 --port /dev/ttyUSB0 demo --ids 1-12 --amplitude 20
     """
     settings = settings_of(ctx)
+    if plot is not None:
+        require_matplotlib()
     if settings.port == "sim://":
-        # Real-time mode paces replies at the modelled wire time, so the rate shown is the real one.
         settings.port = f"sim://?ids=0-31&realtime=1&baud={settings.baud}"
         ids = ids or list(range(32))
-    options = LiveOptions(seconds, rate, per_cycle, with_targets=True)
+    options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
@@ -522,7 +533,10 @@ def demo(
             return await run_live(bus, chosen, state, options, wave(chosen, amplitude, frequency, ramp=1.5))
 
     began = time.monotonic()
-    state, telemetry, _ = run(settings, body)
+    state, telemetry, recorder = run(settings, body)
+    if plot is not None:
+        recorder.write(plot, f"ics35 demo: {settings.port}")
+        err.print(f"plot written to {plot}")
     final_report(state, telemetry, options)
     out.print(
         f"demo done after {time.monotonic() - began:.1f} s: {state.cycle} cycles, "

@@ -1,0 +1,407 @@
+"""The ``ics35`` command, run in this process against named in-process simulated lines.
+
+Each test builds its own :class:`SimBus` and reaches it as ``sim://NAME``, so
+it can check what the command did to the servos (or that it sent nothing).
+The serial boundary (a real subprocess on a pty) is covered by test_cli_pty.py.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async import units
+from ics35_async.cli import ExitCode, main
+from ics35_async.cli._common import Settings, parse_id_list, translate
+from ics35_async.eeprom import BaudRate, Flags
+from ics35_async.errors import InvalidArgument
+from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.transport import PortPermissionDenied
+
+
+class Result:
+    def __init__(self, code: int, out: str, err: str) -> None:
+        self.code = code
+        self.out = out
+        self.err = err
+
+    def json(self) -> Any:
+        return json.loads(self.out)
+
+
+@pytest.fixture
+def ics35(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Any:
+    """Run ``ics35 ARGS...`` in-process; optional ``stdin`` text."""
+
+    def invoke(*args: str, stdin: str = "") -> Result:
+        import io
+
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            main(list(args))
+        captured = capsys.readouterr()
+        code = exited.value.code
+        result = Result(code if isinstance(code, int) else 1, captured.out, captured.err)
+        assert "Traceback" not in result.err, result.err
+        return result
+
+    return invoke
+
+
+_counter = iter(range(1_000_000))
+
+
+@pytest.fixture
+def line() -> Iterator[Any]:
+    """``line(servos)`` -> (SimBus, its URL); closed after the test."""
+    made: list[SimBus] = []
+
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+        name = f"cli-test-{next(_counter)}"
+        sim = SimBus(list(servos), name=name, **options)
+        made.append(sim)
+        return sim, f"sim://{name}"
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+# --------------------------------------------------------------------------- bad arguments
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["move", "32", "7500"],
+        ["move", "1", "20000"],
+        ["move", "1", "0"],
+        ["move", "1", "7500.5"],
+        ["move", "1", "400", "--deg"],
+        ["move", "1", "abc"],
+        ["get", "1", "voltage"],
+        ["get", "-1", "speed"],
+        ["set", "1", "speed", "0"],
+        ["set", "1", "current-limit", "64"],
+        ["set", "1", "current", "10"],
+        ["free", "1-40"],
+        ["info", "abc"],
+        ["eeprom", "set", "1", "colour=3"],
+        ["eeprom", "set", "1", "speed=300"],
+        ["eeprom", "set", "1", "stretch_gain=61"],
+        ["eeprom", "set", "1", "flags=0x20"],
+        ["eeprom", "set", "1", "flags=TURBO"],
+        ["eeprom", "set", "1", "baud=9600", "--change-baud", "--yes"],
+        ["eeprom", "set", "1", "speed"],
+        ["set-id", "32"],
+        ["scan", "--bauds", "9600"],
+        ["monitor", "0-40"],
+    ],
+)
+def test_bad_arguments_exit_2_and_send_nothing(ics35: Any, line: Any, args: list[str]) -> None:
+    sim, url = line()
+    result = ics35("--port", url, *args)
+    assert result.code == ExitCode.USAGE == 2
+    assert "Error" in result.err or "error" in result.err
+    assert sim.transactions == 0
+
+
+def test_unknown_param_names_the_choices(ics35: Any, line: Any) -> None:
+    _, url = line()
+    result = ics35("--port", url, "get", "1", "voltage")
+    for name in ("stretch", "speed", "current", "temperature"):
+        assert name in result.err
+
+
+def test_id_lists() -> None:
+    assert parse_id_list("1-3,7, 9") == [1, 2, 3, 7, 9]
+    assert parse_id_list("all") == list(range(32))
+    for bad in ("3-1", "x", "31-32", ""):
+        with pytest.raises(InvalidArgument):
+            parse_id_list(bad)
+
+
+# --------------------------------------------------------------------------- reads, with --json
+
+
+def test_scan_json_lists_exactly_the_servos(ics35: Any, line: Any) -> None:
+    _, url = line([4, 9, 30])
+    result = ics35("--port", url, "scan", "--bauds", "115200", "--timeout", "0.005", "--json")
+    assert result.code == 0
+    doc = result.json()
+    assert [(s["id"], s["baud"]) for s in doc["servos"]] == [(4, 115200), (9, 115200), (30, 115200)]
+    assert [s["eeprom"]["servo_id"] for s in doc["servos"]] == [4, 9, 30]
+    assert doc["garbled"] == []
+
+
+def test_scan_finds_servos_at_every_baud(ics35: Any, line: Any) -> None:
+    servos = [VirtualServo(1), VirtualServo(2, baud_rate=1250000), VirtualServo(3, baud_rate=625000)]
+    _, url = line(servos)
+    result = ics35("--port", url, "scan", "--ids", "0-4", "--timeout", "0.005")
+    assert result.code == 0
+    lines = [ln.split() for ln in result.out.splitlines()]
+    rows = {int(cols[0]): int(cols[1]) for cols in lines if len(cols) > 2 and cols[0].isdigit() and cols[1].isdigit()}
+    assert rows == {1: 115200, 2: 1250000, 3: 625000}
+    assert "servos at different baud rates" in result.err
+
+
+def test_scan_reports_a_shared_id_as_garbled(ics35: Any, line: Any) -> None:
+    _, url = line([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
+    result = ics35("--port", url, "scan", "--bauds", "115200", "--ids", "0-4", "--json")
+    doc = result.json()
+    assert [s["id"] for s in doc["servos"]] == [1]
+    assert doc["garbled"] == [{"id": 3, "baud": 115200}]
+
+
+def test_info_json_matches_the_servo(ics35: Any, line: Any) -> None:
+    sim, url = line([VirtualServo(7, position=9000)])
+    result = ics35("--port", url, "info", "7", "--json")
+    assert result.code == 0
+    doc = result.json()
+    assert doc["position"] == 9000
+    assert doc["degrees"] == pytest.approx(units.position_to_degrees(9000), abs=0.01)
+    assert doc["eeprom"]["servo_id"] == 7
+    assert doc["eeprom"]["raw"] == sim.servo(7).eeprom.to_bytes().hex()
+    assert doc["temperature"]["raw"] == sim.servo(7).temperature
+
+
+def test_info_no_position_keeps_the_servo_holding(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    assert ics35("--port", url, "move", "1", "8000").code == 0
+    result = ics35("--port", url, "info", "1", "--no-position")
+    assert result.code == 0
+    assert "not read" in result.out
+    assert not sim.servo(1).free
+    result = ics35("--port", url, "info", "1")
+    assert "torque now OFF" in result.out
+    assert sim.servo(1).free
+
+
+def test_move_counts_and_degrees(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "move", "1", "8200", "--json")
+    assert result.code == 0
+    assert result.json()["target"] == 8200
+    assert sim.servo(1).target == 8200
+    result = ics35("--port", url, "move", "1", "-30", "--deg")
+    assert result.code == 0
+    assert sim.servo(1).target == units.degrees_to_position(-30)
+
+
+def test_free_several(ics35: Any, line: Any) -> None:
+    sim, url = line([1, 2, 3])
+    for i in (1, 2, 3):
+        sim.servo(i).command_position(8000)
+    result = ics35("--port", url, "free", "1-2", "--json")
+    assert result.code == 0
+    assert set(result.json()["freed"]) == {"1", "2"}
+    assert sim.servo(1).free and sim.servo(2).free and not sim.servo(3).free
+
+
+def test_free_reports_the_missing_one(ics35: Any, line: Any) -> None:
+    _, url = line([1])
+    result = ics35("--port", url, "--timeout", "0.005", "free", "1", "2")
+    assert result.code == ExitCode.NO_REPLY
+    assert "servo 1: free at" in result.out
+    assert "2" in result.err
+
+
+def test_get_and_set_are_ram(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "set", "1", "speed", "50")
+    assert result.code == 0
+    assert "RAM" in result.out
+    assert sim.servo(1).speed == 50
+    assert sim.servo(1).eeprom.speed == 127  # RAM only
+    result = ics35("--port", url, "get", "1", "speed", "--json")
+    assert result.json() == {"id": 1, "param": "speed", "value": 50, "memory": "RAM"}
+    result = ics35("--port", url, "get", "1", "temperature")
+    assert "RAM" in result.out and "hotter" in result.out
+    result = ics35("--port", url, "set", "1", "current-limit", "20", "--json")
+    assert result.json()["value"] == 20
+    assert sim.servo(1).current_limit == 20
+
+
+# --------------------------------------------------------------------------- errors a person can act on
+
+
+def test_no_servo_answering(ics35: Any, line: Any) -> None:
+    _, url = line([])
+    result = ics35("--port", url, "--timeout", "0.005", "info", "1")
+    assert result.code == ExitCode.NO_REPLY
+    assert "power" in result.err and "scan" in result.err
+    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    assert result.code == ExitCode.NO_REPLY
+
+
+def test_wrong_baud_is_named(ics35: Any, line: Any) -> None:
+    _, url = line([VirtualServo(1, baud_rate=1250000)])
+    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+    assert result.code == ExitCode.WRONG_BAUD
+    assert "--baud 1250000" in result.err
+    assert ics35("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
+
+
+def test_missing_port(ics35: Any) -> None:
+    result = ics35("--port", "/dev/ics35-no-such-port", "info", "1")
+    assert result.code == ExitCode.PORT
+    assert "no serial port" in result.err
+
+
+def test_missing_echo_is_named(ics35: Any, line: Any) -> None:
+    _, url = line([1], echo=False)
+    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+    assert result.code == ExitCode.COMMUNICATION
+    assert "pass --no-echo" in result.err
+    assert ics35("--port", url, "--no-echo", "get", "1", "speed").code == 0
+
+
+def test_needless_no_echo_is_named(ics35: Any, line: Any) -> None:
+    _, url = line([1])
+    result = ics35("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
+    assert result.code == ExitCode.COMMUNICATION
+    assert "drop --no-echo" in result.err
+
+
+def test_permission_denied_points_at_dialout() -> None:
+    error = translate(Settings(port="/dev/ttyUSB0"), PortPermissionDenied(13, "permission denied opening it"))
+    assert error.code == ExitCode.PORT
+    assert any("dialout" in hint for hint in error.hints)
+
+
+# --------------------------------------------------------------------------- EEPROM
+
+
+def test_eeprom_set_shows_diff_and_needs_confirmation(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="n\n")
+    assert result.code == ExitCode.REFUSED
+    assert "speed" in result.out and "90" in result.out
+    assert sim.servo(1).eeprom.speed == 127 and sim.servo(1).eeprom_writes == 0
+    result = ics35("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="y\n")
+    assert result.code == 0
+    image = sim.servo(1).eeprom
+    assert image.speed == 90 and image.flags == Flags.PWMINH
+    assert sim.servo(1).calibration_intact
+
+
+def test_eeprom_set_without_terminal_or_yes_writes_nothing(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "set", "1", "punch=5")
+    assert result.code == ExitCode.REFUSED
+    assert "--yes" in result.err
+    assert sim.servo(1).eeprom_writes == 0
+
+
+def test_eeprom_baud_change_needs_its_own_flag(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "set", "1", "baud=1250000", "--yes")
+    assert result.code == ExitCode.REFUSED
+    assert "--change-baud" in result.err and "HS" in result.err and "ONLY at 1250000" in result.err
+    assert sim.servo(1).eeprom.baud_rate == BaudRate.B115200 and sim.servo(1).eeprom_writes == 0
+
+    result = ics35("--port", url, "eeprom", "set", "1", "baud=1250000", "--change-baud", "--yes", "--json")
+    assert result.code == 0
+    assert result.json()["changes"] == {"baud_rate": [115200, 1250000]}
+    assert sim.servo(1).eeprom.baud_rate == BaudRate.B1250000
+    assert sim.servo(1).calibration_intact
+    sim.servo(1).power_cycle()
+    assert ics35("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
+
+
+def test_eeprom_id_change_refused_on_collision(ics35: Any, line: Any) -> None:
+    sim, url = line([1, 2])
+    result = ics35("--port", url, "eeprom", "set", "1", "id=2", "--yes")
+    assert result.code == ExitCode.REFUSED
+    assert sim.servo(1).eeprom_writes == 0
+    result = ics35("--port", url, "eeprom", "set", "1", "id=5", "--yes")
+    assert result.code == 0
+    assert sorted(s.servo_id for s in sim.servos) == [2, 5]
+
+
+def test_restore_keeps_the_target_servos_calibration_and_id(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2])
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(speed=33, punch=4, user_offset=-5, flags=Flags.PWMINH)
+    backup = tmp_path / "one.json"
+    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+
+    result = ics35("--port", url, "eeprom", "restore", "2", str(backup), "--yes")
+    assert result.code == 0, result.err
+    two = sim.servo(2).eeprom
+    assert (two.speed, two.punch, two.user_offset, two.flags) == (33, 4, -5, Flags.PWMINH)
+    assert two.servo_id == 2
+    assert sim.servo(2).calibration_intact
+
+    # A backup carrying only the raw image (with servo 1's calibration) still leaves servo 3's alone.
+    doc = json.loads(backup.read_text())
+    del doc["fields"]
+    backup.write_text(json.dumps(doc))
+    sim.devices.append(VirtualServo(3))
+    sim._reindex()
+    assert ics35("--port", url, "eeprom", "restore", "3", str(backup), "--yes").code == 0
+    assert sim.servo(3).eeprom.speed == 33 and sim.servo(3).calibration_intact
+
+
+def test_restore_rejects_a_broken_backup(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1])
+    bad = tmp_path / "bad.json"
+    for content in ("not json", json.dumps({"fields": {"speed": 500}}), json.dumps([1, 2])):
+        bad.write_text(content)
+        result = ics35("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
+        assert result.code == ExitCode.USAGE
+    assert sim.transactions == 0
+
+
+# --------------------------------------------------------------------------- set-id, monitor, demo
+
+
+def test_set_id_refused_with_a_shared_id(ics35: Any, line: Any) -> None:
+    sim, url = line([VirtualServo(3), VirtualServo(3)])
+    result = ics35("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
+    assert result.code == ExitCode.REFUSED
+    assert [s.servo_id for s in sim.servos] == [3, 3]
+
+
+def test_demo_leaves_every_servo_free(ics35: Any, line: Any) -> None:
+    sim, url = line(range(4))
+    result = ics35("--port", url, "demo", "--ids", "0-3", "--seconds", "0.5")
+    assert result.code == 0, result.err
+    assert "left free" in result.out
+    assert all(s.free for s in sim.servos)
+    assert any(s.position != units.NEUTRAL for s in sim.servos)  # the wave moved them
+    assert all(s.eeprom_writes == 0 for s in sim.servos)
+
+
+def test_monitor_json_lines(ics35: Any, line: Any) -> None:
+    _, url = line([1, 2])
+    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--seconds", "0.3", "--json")
+    assert result.code == 0
+    docs = [json.loads(ln) for ln in result.out.splitlines()]
+    assert docs[-1]["final"] is True
+    assert set(docs[-1]["servos"]) == {"1", "2"}
+    assert docs[-1]["servos"]["1"]["position"] == units.NEUTRAL
+    assert docs[-1]["cycle"] > 0
+
+
+def test_monitor_plot_without_matplotlib(ics35: Any, line: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    sim, url = line([1])
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # makes `import matplotlib` fail
+    result = ics35("--port", url, "monitor", "1", "--seconds", "0.2", "--plot", "x.png")
+    assert result.code == ExitCode.USAGE
+    assert "pip install" in result.err
+    assert sim.transactions == 0
+
+
+def test_monitor_plot_writes_a_png(ics35: Any, line: Any, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    _, url = line([1, 2])
+    target = tmp_path / "trace.png"
+    result = ics35("--port", url, "monitor", "1,2", "--seconds", "0.3", "--plot", str(target))
+    assert result.code == 0, result.err
+    assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
