@@ -1,0 +1,204 @@
+"""The pty server as an outside program sees it: a plain blocking pyserial client, no code of ours.
+
+The client opens the port 8E1 with every setting in the constructor and never
+re-configures it (see ics35_async.sim.pty_server for why), then checks every
+byte of every command against the spec.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import sys
+import time
+from collections.abc import Iterator
+
+import pytest
+import serial
+
+from ics35_async.sim import start_subprocess, stop_subprocess
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
+
+
+def h(text: str) -> bytes:
+    return bytes.fromhex(text)
+
+
+@pytest.fixture(scope="module")
+def four_servos() -> Iterator[str]:
+    proc, path = start_subprocess(["--ids", "0-3", "--memory", "20"])
+    yield path
+    assert stop_subprocess(proc) == 0
+
+
+def open_port(path: str, baud: int = 115200, timeout: float = 2.0) -> serial.Serial:
+    return serial.Serial(path, baud, parity=serial.PARITY_EVEN, stopbits=1, bytesize=8, timeout=timeout)
+
+
+def transact(port: serial.Serial, tx: bytes, reply_len: int) -> bytes:
+    """Write, check the echo, return the reply (exactly ``reply_len`` bytes)."""
+    port.write(tx)
+    echo = port.read(len(tx))
+    assert echo == tx, f"echo of {tx.hex(' ')} was {echo.hex(' ')}"
+    reply = port.read(reply_len) if reply_len else b""
+    assert len(reply) == reply_len, f"reply to {tx.hex(' ')}: {reply.hex(' ')}"
+    return reply
+
+
+# The spec's factory example (section 7), nibble pairs, for ID 1 at 115200; None = calibration.
+FACTORY_ID1 = [
+    *h(
+        "05 0A 03 0C 07 0F 00 01 00 02 02 08 0F 0A 00 00"
+    ),  # 5A, stretch 60, speed 127, punch 1, dead 2, damp 40, safe 250, flags 0
+    *h("02 0C 0E 0C 00 0D 0A 0C"),  # pulse limits 11500, 3500
+    None,
+    None,
+    *h("00 0A 05 00 03 0F"),  # baud code 10, temperature limit 80, current limit 63
+    *[None] * 18,
+    *h("00 03 00 00"),  # response 3, user offset 0
+    None,
+    None,
+    *h("00 01 07 08 03 0C 0F 0E"),  # ID 1, stretch presets 120, 60, 254
+]
+
+
+def test_every_command_byte_for_byte(four_servos: str) -> None:
+    with open_port(four_servos) as port:
+        # Position: ID 0 at 115200 keeps the MSB; the others clear it.
+        assert transact(port, h("80 3A 4C"), 3) == h("80 3A 4C")
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+        assert transact(port, h("81 00 00"), 3) == h("01 3A 4C")  # free, still at 7500
+        # Parameter reads: the factory values.
+        assert transact(port, h("A1 01"), 3) == h("21 01 1E")  # stretch 30
+        assert transact(port, h("A1 02"), 3) == h("21 02 7F")  # speed 127
+        assert transact(port, h("A1 03"), 3) == h("21 03 00")  # free: no current
+        assert transact(port, h("A1 04"), 3) == h("21 04 7F")  # cold
+        # Parameter writes (RAM), read back.
+        assert transact(port, h("C1 01 14"), 3) == h("41 01 14")
+        assert transact(port, h("C1 02 32"), 3) == h("41 02 32")
+        assert transact(port, h("C1 03 1E"), 3) == h("41 03 1E")
+        assert transact(port, h("C1 04 3C"), 3) == h("41 04 3C")
+        assert transact(port, h("A1 01"), 3) == h("21 01 14")
+        assert transact(port, h("A1 02"), 3) == h("21 02 32")
+        # EEPROM read: the spec's factory image, unchanged by the RAM writes.
+        reply = transact(port, h("A1 00"), 66)
+        assert reply[:2] == h("21 00")
+        image = reply[2:]
+        for i, expected in enumerate(FACTORY_ID1):
+            if expected is None:
+                assert image[i] <= 0x0F
+            else:
+                assert image[i] == expected, f"EEPROM byte {i + 1}"
+        # EEPROM write (speed 100 = 0x64), then read back.
+        changed = bytearray(image)
+        changed[4:6] = h("06 04")
+        assert transact(port, h("C1 00") + changed, 2) == h("41 00")
+        assert transact(port, h("A1 00"), 66) == h("21 00") + changed
+        # Unknown sub-command and absent ID: echo only (the next exchange proves nothing followed).
+        assert transact(port, h("A1 05"), 0) == b""
+        assert transact(port, h("85 3A 4C"), 0) == b""
+        # Generic memory device 20: write two bytes, read them back.
+        write_reply = transact(port, h("D4 7F 00 02 0A 0B 0C 0D"), 4)
+        assert write_reply in (h("D4 7F 00 02"), h("54 7F 00 02"))
+        read_reply = transact(port, h("B4 7F 00 02"), 8)
+        assert read_reply[:4] in (h("B4 7F 00 02"), h("34 7F 00 02")) and read_reply[4:] == h("0A 0B 0C 0D")
+        # The ID command with four servos on the line: a garbled answer (wired-AND plus a glitch).
+        assert transact(port, h("FF 00 00 00"), 2) == bytes([0xE0 & 0xE1 & 0xE2 & 0xE3, 0x00])
+        # Motion: the reported position climbs toward the target.
+        positions = []
+        for _ in range(5):
+            reply = transact(port, h("82 46 50"), 3)  # ID 2 to 9000
+            positions.append((reply[1] << 7) | reply[2])
+        assert positions[0] == 7500
+        assert all(a < b for a, b in itertools.pairwise(positions))
+        assert positions[-1] < 9000
+        time.sleep(0.05)
+        assert port.in_waiting == 0
+
+
+def test_id_read_and_write_on_a_single_servo_line() -> None:
+    proc, path = start_subprocess(["--ids", "5"])
+    try:
+        with open_port(path) as port:
+            assert transact(port, h("FF 00 00 00"), 1) == h("E5")
+            assert transact(port, h("F4 01 01 01"), 1) == h("F4")
+            assert transact(port, h("FF 00 00 00"), 1) == h("F4")
+            assert transact(port, h("94 3A 4C"), 3) == h("14 3A 4C")  # answers as ID 20 now
+            assert transact(port, h("85 3A 4C"), 0) == b""
+    finally:
+        assert stop_subprocess(proc) == 0
+
+
+def test_line_runs_at_the_clients_baud(four_servos: str) -> None:
+    with open_port(four_servos, 1250000) as port:
+        assert transact(port, h("81 3A 4C"), 0) == b""  # servos at 115200 do not hear it
+        time.sleep(0.05)
+        assert port.in_waiting == 0
+    with open_port(four_servos, 115200) as port:
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+
+
+def test_reopening_at_the_same_speed_works(four_servos: str) -> None:
+    for _ in range(3):
+        with open_port(four_servos) as port:
+            assert transact(port, h("A3 02"), 3) == h("23 02 7F")
+
+
+def test_high_speed_servos() -> None:
+    proc, path = start_subprocess(["--ids", "1", "--baud", "1250000", "--realtime"])
+    try:
+        with open_port(path, 1250000) as port:
+            started = time.perf_counter()
+            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+            elapsed = time.perf_counter() - started
+            # Never faster than the wire (6 bytes at 1.25 Mbit/s + 100 us turnaround);
+            # the upper bound is only there to catch a hang.
+            assert 6 * 11 / 1250000 + 100e-6 <= elapsed < 1.0
+        with open_port(path, 115200, timeout=0.3) as port:
+            assert transact(port, h("81 3A 4C"), 0) == b""
+            assert port.read(1) == b""
+    finally:
+        assert stop_subprocess(proc) == 0
+
+
+def test_unplug_and_replug_keep_the_path() -> None:
+    proc, path = start_subprocess(["--ids", "1,7", "--faults", "unplug@7:1", "--replug-after", "0.3"])
+    try:
+        first_target = os.path.realpath(path)
+        assert first_target.startswith("/dev/pts/")
+        with open_port(path) as port:
+            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+            assert transact(port, h("87 3A 4C"), 3) == h("07 3A 4C")  # answered, then the port goes
+            with pytest.raises(serial.SerialException):
+                for _ in range(50):
+                    port.read(1)
+        deadline = time.monotonic() + 10
+        while not os.path.exists(path):
+            assert time.monotonic() < deadline, "the port did not come back"
+            time.sleep(0.02)
+        with open_port(path) as port:
+            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+    finally:
+        assert stop_subprocess(proc) == 0
+
+
+def test_bad_arguments_exit_with_usage_error() -> None:
+    with pytest.raises(RuntimeError):
+        start_subprocess(["--ids", "0-99"], timeout=10)
+
+
+def test_scheduled_unplug_from_the_command_line() -> None:
+    proc, path = start_subprocess(["--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4"])
+    try:
+        deadline = time.monotonic() + 10
+        while os.path.exists(path):
+            assert time.monotonic() < deadline, "the port was never unplugged"
+            time.sleep(0.01)
+        while not os.path.exists(path):
+            assert time.monotonic() < deadline, "the port did not come back"
+            time.sleep(0.01)
+        with open_port(path) as port:
+            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+    finally:
+        assert stop_subprocess(proc) == 0
