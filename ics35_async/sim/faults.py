@@ -162,9 +162,10 @@ class FaultInjector:
         self.config = config or FaultConfig()
         self.seed = seed
         self.rng = random.Random(seed)
+        self._enabled = bool(self.config)  # the config is not meant to change afterwards
 
     def draw(self, servo_id: int | None) -> Draw:
-        if not self.config:
+        if not self._enabled:
             return NO_FAULTS
         rng, cfg = self.rng, self.config
         # Always four draws, in this order, so the stream stays aligned with the traffic.

@@ -361,7 +361,6 @@ class SimBus:
             extra += late
         self._held.clear()
 
-        self._update_devices(t_end)
         responders: list[Device] = []
         values: list[Any] = []
         if command is not None and not draw.echo:
@@ -370,6 +369,9 @@ class SimBus:
             else:
                 candidates = self._by_id.get(command.servo_id, ())
             for device in candidates:
+                # Devices advance lazily: only the ones a command reaches (and
+                # all of them on advance() / sync()), which keeps a transaction cheap.
+                device.update(t_end)
                 if device.answers(baud):
                     value = device.handle(command)
                     if value is not NO_REPLY:
