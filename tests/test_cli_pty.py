@@ -1,0 +1,158 @@
+"""``ics35`` as a real process on a real serial boundary: the simulator served on a pty.
+
+Every command here is a subprocess (``python -m ics35_async.cli``) opening the
+pty the simulator subprocess prints, exactly as a user's shell would.  The
+servers run in fast mode; the reply allowance (``--timeout``) stays generous
+enough for a loaded CI machine, and ``--retries`` covers a rare late reply.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.sim import serving
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+
+SIM_IDS = [2, 5, 17]
+SIM_BAUD = 625000
+LINE = ["--timeout", "0.015", "--retries", "1"]
+
+
+def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", port, *args],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, "COLUMNS": "100"},
+    )
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+@pytest.fixture(scope="module")
+def port() -> Iterator[str]:
+    """Three servos at 625000 baud on a pty."""
+    with serving(["--ids", ",".join(map(str, SIM_IDS)), "--baud", str(SIM_BAUD)]) as path:
+        yield path
+
+
+def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
+    proc = ics35(port, *LINE, "scan", "--bauds", "115200,625000", "--json")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert [(s["id"], s["baud"]) for s in doc["servos"]] == [(i, SIM_BAUD) for i in SIM_IDS]
+    assert all(s["eeprom"]["baud_rate"] == SIM_BAUD for s in doc["servos"])
+    assert doc["garbled"] == []
+
+
+def test_json_read_commands_parse(port: str) -> None:
+    baud = ["--baud", str(SIM_BAUD), *LINE]
+    info = json.loads(ics35(port, *baud, "info", "5", "--json").stdout)
+    assert info["eeprom"]["servo_id"] == 5 and info["free"] is True
+    got = json.loads(ics35(port, *baud, "get", "17", "stretch", "--json").stdout)
+    assert got == {"id": 17, "param": "stretch", "value": 30, "memory": "RAM"}  # factory gain 60 = RAM 30
+    moved = json.loads(ics35(port, *baud, "move", "2", "--deg", "10", "--json").stdout)
+    assert moved["target"] == 7796
+
+
+def test_wrong_baud_exit_code(port: str) -> None:
+    proc = ics35(port, *LINE, "get", "5", "speed")
+    assert proc.returncode == 6
+    assert f"--baud {SIM_BAUD}" in proc.stderr
+
+
+def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
+    baud = ["--baud", str(SIM_BAUD), *LINE]
+    backup = tmp_path / "servo5.json"
+    proc = ics35(port, *baud, "eeprom", "dump", "5")
+    assert proc.returncode == 0, proc.stderr
+    backup.write_text(proc.stdout)
+    original = json.loads(proc.stdout)
+
+    proc = ics35(port, *baud, "eeprom", "set", "5", "speed=77", "punch=3", "flags=PWMINH", "--yes")
+    assert proc.returncode == 0, proc.stderr
+    changed = json.loads(ics35(port, *baud, "eeprom", "dump", "5").stdout)
+    assert (changed["fields"]["speed"], changed["fields"]["punch"], changed["fields"]["flags"]) == (77, 3, 8)
+
+    proc = ics35(port, *baud, "eeprom", "restore", "5", str(backup), "--yes")
+    assert proc.returncode == 0, proc.stderr
+    restored = json.loads(ics35(port, *baud, "eeprom", "dump", "5").stdout)
+    assert restored["fields"] == original["fields"]
+    assert restored["raw"] == original["raw"]  # calibration bytes included
+
+
+def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
+    baud = ["--baud", str(SIM_BAUD), *LINE]
+    proc = ics35(port, *baud, "monitor", "2,5,17", "--seconds", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert "answering 3/3" in proc.stdout
+
+    proc = ics35(port, *baud, "demo", "--ids", "2,5,17", "--seconds", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert "left free" in proc.stdout
+    # A free servo draws no current in the simulator; a holding one does.
+    for i in SIM_IDS:
+        got = json.loads(ics35(port, *baud, "get", str(i), "current", "--json").stdout)
+        assert got["current"]["magnitude"] == 0
+
+
+def test_demo_stops_on_ctrl_c_and_frees_the_servos(port: str) -> None:
+    baud = ["--baud", str(SIM_BAUD), *LINE]
+    # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--ids", "2,5", "--seconds", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()  # the title: the demo is running
+        assert "demo" in first
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "left free" in out
+    for i in (2, 5):
+        got = json.loads(ics35(port, *baud, "get", str(i), "current", "--json").stdout)
+        assert got["current"]["magnitude"] == 0
+
+
+def run_set_id(ids: str, new: int, *extra: str) -> tuple[subprocess.CompletedProcess[str], Any]:
+    with serving(["--ids", ids]) as path:
+        proc = ics35(path, *LINE, "set-id", str(new), *extra)
+        scan = json.loads(ics35(path, *LINE, "scan", "--bauds", "115200", "--ids", "0-12", "--quick", "--json").stdout)
+    return proc, [s["id"] for s in scan["servos"]]
+
+
+def test_set_id_refused_with_two_devices() -> None:
+    proc, ids_after = run_set_id("3,4", 9, "--yes")
+    assert proc.returncode == 5
+    assert "2 servos answer" in proc.stderr
+    assert ids_after == [3, 4]
+
+
+def test_set_id_works_with_one_device() -> None:
+    proc, ids_after = run_set_id("3", 9, "--yes", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == {"old": 3, "new": 9, "changed": True}
+    assert ids_after == [9]
