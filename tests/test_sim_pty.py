@@ -12,6 +12,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import serial
@@ -200,5 +201,30 @@ def test_scheduled_unplug_from_the_command_line() -> None:
             time.sleep(0.01)
         with open_port(path) as port:
             assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+    finally:
+        assert stop_subprocess(proc) == 0
+
+
+def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path) -> None:
+    recording = tmp_path / "session.txt"
+    script = [h("81 3A 4C"), h("A2 02"), h("C3 02 14"), h("A3 02"), h("85 3A 4C")]
+    proc, path = start_subprocess(["--ids", "1-3", "--record", str(recording), "--faults", "corrupt@2:1"])
+    try:
+        with open_port(path, timeout=0.3) as port:
+            live = []
+            for tx in script:
+                port.write(tx)
+                live.append(port.read(64))  # everything until the line goes quiet
+    finally:
+        assert stop_subprocess(proc) == 0
+    assert live[1][:2] == h("A2 02") and live[1][2:] != h("22 02 7F")  # the corrupted reply
+    assert len(recording.read_text().splitlines()) == 1 + len(script)
+
+    proc, path = start_subprocess(["--replay", str(recording)])
+    try:
+        with open_port(path, timeout=0.3) as port:
+            for tx, expected in zip(script, live, strict=True):
+                port.write(tx)
+                assert port.read(64) == expected
     finally:
         assert stop_subprocess(proc) == 0

@@ -168,3 +168,16 @@ def test_unplug_fault_after_the_reply_in_realtime() -> None:
         bus.connect(TimedHost(), 115200)
     finally:
         bus.close()
+
+
+def test_reconnecting_does_not_leak_delivery_threads() -> None:
+    bus = SimBus([1], realtime=True)
+    before = threading.active_count()
+    for _ in range(5):
+        host = TimedHost()
+        bus.connect(host, 115200)
+        bus.write(ReadParam(1, 2).tx)
+        host.wait_for(2)
+        bus.disconnect()
+    assert threading.active_count() <= before
+    bus.close()

@@ -488,8 +488,10 @@ class SimBus:
         if host is None:
             raise OSError(errno.EIO, "the simulated port is not open" if self.plugged else "the simulated port is gone")
         chunks = self.process(data)
-        deliverer = self._deliverer
-        if self.realtime and deliverer is not None:
+        if self.realtime:
+            deliverer = self._deliverer
+            if deliverer is None:
+                return  # unplugged or disconnected meanwhile: the bytes are lost
             for when, chunk in chunks:
                 deliverer.schedule(self.epoch + when, chunk, host.deliver)
             if self.take_unplug_request():
@@ -504,8 +506,14 @@ class SimBus:
     def disconnect(self) -> None:
         with self._lock:
             self._host = None
-            if self._deliverer is not None:
-                self._deliverer.cancel()
+        self._stop_deliverer()
+
+    def _stop_deliverer(self) -> None:
+        # Outside the lock: the delivery thread may be running an unplug that needs it.
+        with self._lock:
+            deliverer, self._deliverer = self._deliverer, None
+        if deliverer is not None:
+            deliverer.close()
 
     # ------------------------------------------------------------------ unplug / replug
 
@@ -524,12 +532,11 @@ class SimBus:
             self.plugged = False
             self.unplug_count += 1
             host, self._host = self._host, None
-            if self._deliverer is not None:
-                self._deliverer.cancel()
             self._held.clear()
             self._deferred.clear()
             self._rx.clear()
             self._rx_echoed = 0
+        self._stop_deliverer()
         if replug_after is not None:
             self._start_timer(replug_after, self.replug)
         if host is not None:
@@ -584,9 +591,7 @@ class SimBus:
         """Stop threads and timers, close a recording, forget the name."""
         for timer in self._timers:
             timer.cancel()
-        if self._deliverer is not None:
-            self._deliverer.close()
-            self._deliverer = None
+        self._stop_deliverer()
         self.stop_recording()
         if self.name is not None and _NAMED.get(self.name) is self:
             del _NAMED[self.name]
