@@ -156,3 +156,23 @@ def test_set_id_works_with_one_device() -> None:
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout) == {"old": 3, "new": 9, "changed": True}
     assert ids_after == [9]
+
+
+def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "4,6"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert sim.stdout is not None
+        path = sim.stdout.readline().strip()
+        assert path, sim.stderr.read() if sim.stderr else ""
+        proc = ics35(path, *LINE, "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+        assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4, 6]
+    finally:
+        sim.terminate()
+        sim.communicate(timeout=10)
+    assert sim.returncode == 0

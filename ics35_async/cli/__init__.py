@@ -88,6 +88,7 @@ def cli(
         echo=not no_echo,
         transport=transport,
         verbose=verbose,
+        port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
     )
 
 

@@ -75,6 +75,7 @@ class Settings:
     echo: bool = True
     transport: str = "auto"
     verbose: int = 0
+    port_defaulted: bool = False  # --port not given: say that this is the simulator
 
     @property
     def is_sim(self) -> bool:
@@ -250,6 +251,9 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
     """Run the command's coroutine; turn every expected failure into a :class:`CliError`."""
     if not settings.is_sim:
         advise(settings.port)
+    elif settings.port_defaulted:
+        settings.port_defaulted = False
+        err.print("[dim]note: this is the built-in simulator; pass --port /dev/ttyUSB0 (or COM3) for hardware[/dim]")
     try:
         return asyncio.run(_guarded(make))
     except KeyboardInterrupt:
@@ -266,7 +270,7 @@ async def _guarded(make: Callable[[], Awaitable[T]]) -> T:
 
 def translate(settings: Settings, exc: IcsError) -> CliError:
     """The person-facing form of a library error."""
-    text = str(exc)
+    text = str(exc).replace(settings.url, settings.port)
     if isinstance(exc, PortPermissionDenied):
         return CliError(
             ExitCode.PORT,
@@ -384,7 +388,15 @@ def fail(error: CliError) -> NoReturn:
     sys.exit(int(error.code))
 
 
+_QUIET = logging.NullHandler()
+
+
 def setup_logging(verbose: int) -> None:
+    if not verbose:
+        # The library logs a lost port as a warning, which Python's last-resort handler would
+        # print; the command reports it itself, once.  (Configured handlers still get records.)
+        logging.getLogger("ics35_async").addHandler(_QUIET)
+        return
     if verbose:
         logging.basicConfig(
             level=logging.DEBUG if verbose > 1 else logging.INFO,

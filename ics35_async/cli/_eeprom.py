@@ -54,8 +54,9 @@ def eeprom() -> None:
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.option("--output", "-o", type=click.Path(dir_okay=False, writable=True), help="Write to FILE, not stdout.")
 @click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
+@click.option("--json", "as_json", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
 @click.pass_context
-def dump(ctx: click.Context, servo_id: int, output: str | None, as_table: bool) -> int:
+def dump(ctx: click.Context, servo_id: int, output: str | None, as_table: bool, as_json: bool) -> int:
     """Print the servo's EEPROM as JSON (the backup format `eeprom restore` reads)."""
     settings = settings_of(ctx)
 

@@ -472,10 +472,13 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     type=click.FloatRange(min=0.1),
     default=10.0,
     show_default=True,
-    help="Run this long (Ctrl-C stops earlier); 0 < s.",
+    help="Run this long (Ctrl-C stops earlier).",
 )
 @click.option(
-    "--amplitude", type=click.FloatRange(1, 120), default=45.0, show_default=True, help="Wave amplitude in degrees."
+    "--amplitude",
+    type=click.FloatRange(1, 120),
+    default=None,
+    help="Wave amplitude in degrees (default: 45 on the simulator, 15 on hardware).",
 )
 @click.option("--frequency", type=click.FloatRange(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
 @click.option(
@@ -503,7 +506,7 @@ def demo(
     ctx: click.Context,
     ids: list[int] | None,
     seconds: float,
-    amplitude: float,
+    amplitude: float | None,
     frequency: float,
     rate: float | None,
     per_cycle: int,
@@ -520,7 +523,12 @@ def demo(
         require_matplotlib()
     if settings.port == "sim://":
         settings.port = f"sim://?ids=0-31&realtime=1&baud={settings.baud}"
+        settings.port_defaulted = False  # the simulator is the point here
         ids = ids or list(range(32))
+    if amplitude is None:
+        # A real robot's joints may hit each other or the frame: start small there.
+        amplitude = 45.0 if settings.is_sim else 15.0
+    swing = amplitude
     options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
@@ -530,7 +538,7 @@ def demo(
             state = LiveState(chosen, title, seconds)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
-            return await run_live(bus, chosen, state, options, wave(chosen, amplitude, frequency, ramp=1.5))
+            return await run_live(bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
     began = time.monotonic()
     state, telemetry, recorder = run(settings, body)
