@@ -28,7 +28,7 @@ from ics35_async.transport import open_line
 def summary(label: str, lateness: list[float]) -> str:
     us = sorted(x * 1e6 for x in lateness)
     p99 = us[min(len(us) - 1, int(len(us) * 0.99))]
-    return f"{label:<58} median {statistics.median(us):8.1f}  p99 {p99:8.1f}  max {us[-1]:8.1f}  (n={len(us)})"
+    return f"{label:<56} median {statistics.median(us):8.1f}  p99 {p99:8.1f}  max {us[-1]:8.1f}  (n={len(us)})"
 
 
 def bench_waits(n: int, delay: float) -> None:
@@ -175,11 +175,11 @@ def bench_asyncio(n: int) -> None:
     for baud in (115200, 1250000):
         print(
             summary(
-                f"fast mode @ {baud}: write -> reply (baseline, no wire model)",
+                f"fast @ {baud}: write -> reply (baseline, no model)",
                 asyncio.run(_asyncio_run(n, baud, False)),
             )
         )
-        print(summary(f"real-time @ {baud}: reply minus modelled reply time", asyncio.run(_asyncio_run(n, baud, True))))
+        print(summary(f"real-time @ {baud}: reply minus modelled time", asyncio.run(_asyncio_run(n, baud, True))))
 
 
 def bench_pty(n: int) -> None:

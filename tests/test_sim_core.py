@@ -421,7 +421,10 @@ def test_log_records_every_transaction_and_stays_bounded() -> None:
     assert (last.servo_id, last.command, last.tx) == (2, "position", Position(2, 7011, baudrate=115200).tx)
     assert last.reply == last.clean_reply and last.fault is None
     assert last.reply_time is not None and last.reply_time > last.time
-    assert SimBus([1], log_size=0).log.maxlen == 0
+    assert [t.seq for t in bus.log_since(10)] == [10, 11]
+    silent = SimBus([1], log_size=0)
+    xfer(silent, Position(1, 7000, baudrate=115200).tx)
+    assert silent.transactions == 1 and list(silent.log) == []
 
 
 def test_log_value_is_what_the_servo_reported() -> None:

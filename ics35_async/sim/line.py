@@ -239,6 +239,11 @@ class SimBus:
                 return device
         raise KeyError(f"no memory device with ID {device_id} on the simulated line")
 
+    def log_since(self, seq: int = 0) -> list[Transaction]:
+        """A copy of the logged transactions with ``seq >= seq`` (safe while the line runs)."""
+        with self._lock:
+            return [t for t in self.log if t.seq >= seq]
+
     def power_cycle(self) -> None:
         """Power-cycle every servo on the line (RAM reloads from EEPROM)."""
         with self._lock:
