@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from . import sim as sim  # importing the simulator registers the sim:// URL scheme
 from .bus import Bus, BusTiming, Priority, open_bus
 from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
