@@ -240,6 +240,13 @@ def test_no_servo_answering(ics35: Any, line: Any) -> None:
     assert result.code == ExitCode.NO_REPLY
 
 
+def test_a_silent_line_points_at_the_adapter(ics35: Any, line: Any) -> None:
+    _, url = line([], echo=False)
+    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    assert result.code == ExitCode.NO_REPLY
+    assert "not even the echo" in result.err
+
+
 def test_wrong_baud_is_named(ics35: Any, line: Any) -> None:
     _, url = line([VirtualServo(1, baud_rate=1250000)])
     result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")

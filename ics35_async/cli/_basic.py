@@ -18,6 +18,7 @@ from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import EchoMismatch, InvalidArgument, ReplyError, ReplyTimeout
 from ..protocol import Param
+from ..transport import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 from ._common import (
     ALL_BAUDS,
     BAUD_LIST,
@@ -35,6 +36,7 @@ from ._common import (
     fmt_degrees,
     ids_text,
     json_option,
+    nothing_answered,
     out,
     run,
     settings_of,
@@ -53,6 +55,8 @@ class ScanResult:
     found: list[tuple[int, int, Eeprom | None]] = field(default_factory=list)  # (baud, id, eeprom)
     garbled: list[tuple[int, int]] = field(default_factory=list)  # (baud, id)
     eeprom_errors: dict[tuple[int, int], str] = field(default_factory=dict)
+    skipped: dict[int, str] = field(default_factory=dict)  # baud -> why the port would not open at it
+    silent: list[int] = field(default_factory=list)  # bauds at which not a byte came back, not even the echo
 
 
 async def probe_ids(
@@ -103,8 +107,21 @@ async def scan_line(
         task = progress.add_task("scanning", total=len(bauds) * len(ids), found=0)
         for baud in bauds:
             progress.update(task, description=f"scanning {baud:>7} baud")
-            async with settings.bus(baud, timeout=timeout) as bus:
+            bus = settings.bus(baud, timeout=timeout)
+            try:
+                await bus.open()
+            except (InvalidArgument, SerialPortError) as exc:
+                # A missing port or a permission problem is the same at every rate: report it.
+                # A rate the adapter cannot do (625k/1.25M without the HS adapter) is skipped.
+                if isinstance(exc, (PortNotFound, PortPermissionDenied, PortBusy)):
+                    raise
+                result.skipped[baud] = str(exc)
+                progress.advance(task, len(ids))
+                continue
+            async with bus:
                 answered, garbled = await probe_ids(bus, ids, lambda: progress.advance(task))
+                if bus.stats.total.bytes_rx == 0:
+                    result.silent.append(baud)
                 result.garbled.extend((baud, i) for i in garbled)
                 for i in answered:
                     eeprom: Eeprom | None = None
@@ -194,11 +211,14 @@ def scan(
                     {"id": i, "baud": baud, "eeprom": None if e is None else e.to_dict()} for baud, i, e in result.found
                 ],
                 "garbled": [{"id": i, "baud": baud} for baud, i in result.garbled],
+                "skipped_bauds": {str(baud): why for baud, why in result.skipped.items()},
             }
         )
     else:
         if result.found:
             out.print(scan_table(result))
+        for baud, why in result.skipped.items():
+            err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {why}")
         for (baud, i), message in result.eeprom_errors.items():
             err.print(f"[yellow]warning:[/yellow] servo {i} at {baud} baud: EEPROM read failed: {message}")
         if result.garbled:
@@ -217,11 +237,9 @@ def scan(
             if len(by_baud) > 1:
                 err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")
     if not result.found:
-        raise CliError(
-            ExitCode.NO_REPLY,
-            f"no servo answered on {settings.port} at {', '.join(map(str, bauds))} baud",
-            *NO_REPLY_HINTS,
-        )
+        scanned = [b for b in bauds if b not in result.skipped]
+        where = f"{settings.port} at {', '.join(map(str, scanned))} baud"
+        raise nothing_answered(settings, where, silent=bool(scanned) and len(result.silent) == len(scanned))
     return 0
 
 
@@ -513,7 +531,8 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
                     "connect only the servo to renumber, then retry",
                 )
             if not answered:
-                raise CliError(ExitCode.NO_REPLY, f"no servo answered at {settings.baud} baud", *NO_REPLY_HINTS)
+                where = f"{settings.port} at {settings.baud} baud"
+                raise nothing_answered(settings, where, silent=bus.stats.total.bytes_rx == 0)
             if len(answered) > 1:
                 raise CliError(
                     ExitCode.REFUSED,

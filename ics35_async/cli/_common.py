@@ -193,22 +193,9 @@ class BaudListType(click.ParamType[list[int]]):
         return bauds
 
 
-class BaudType(click.ParamType[int]):
-    name = "BAUD"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = str(value)
-        try:
-            return int(BaudRate.parse(str(value).strip()))
-        except InvalidArgument as exc:
-            self.fail(str(exc), param, ctx)
-
-
 SERVO_ID = ServoIdType()
 ID_LIST = IdListType()
 BAUD_LIST = BaudListType()
-BAUD = BaudType()
 
 
 def json_option(f: Callable[..., T]) -> Callable[..., T]:
@@ -350,6 +337,18 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
     return CliError(
         ExitCode.NO_REPLY, f"{what} did not answer on {settings.port} at {settings.baud} baud", *NO_REPLY_HINTS
     )
+
+
+def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:
+    """The error for a line where no servo answered; ``silent``: not a single byte came back."""
+    if silent and settings.echo:
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"nothing came back from {where}, not even the echo of the bytes sent",
+            "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
+            "if your interface does not echo what it sends, pass --no-echo",
+        )
+    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *NO_REPLY_HINTS)
 
 
 NO_REPLY_HINTS = (

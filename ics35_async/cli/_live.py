@@ -39,6 +39,7 @@ from ._common import (
     err,
     ids_text,
     json_option,
+    nothing_answered,
     out,
     run,
     settings_of,
@@ -354,9 +355,8 @@ async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
         err.print(f"no IDs given: scanning {settings.port} at {settings.baud} baud ...")
     answered, _ = await probe_ids(bus, range(32))
     if not answered:
-        raise CliError(
-            ExitCode.NO_REPLY, f"no servo answered on {settings.port} at {settings.baud} baud", *NO_REPLY_HINTS
-        )
+        where = f"{settings.port} at {settings.baud} baud"
+        raise nothing_answered(settings, where, silent=bus.stats.total.bytes_rx == 0)
     return answered
 
 
