@@ -412,3 +412,10 @@ def test_monitor_plot_writes_a_png(ics35: Any, line: Any, tmp_path: Path) -> Non
     result = ics35("--port", url, "monitor", "1,2", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_each_command_gets_a_fresh_unnamed_simulator(ics35: Any) -> None:
+    first = ics35("--port", "sim://?ids=4", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+    second = ics35("--port", "sim://?ids=6", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+    assert [s["id"] for s in first.json()["servos"]] == [4]
+    assert [s["id"] for s in second.json()["servos"]] == [6]

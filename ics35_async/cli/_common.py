@@ -3,21 +3,26 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import enum
+import itertools
 import json
 import logging
 import os
 import sys
 from collections.abc import Awaitable, Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NoReturn, TypeVar
 from urllib.parse import urlsplit, urlunsplit
 
 import click
 from rich.console import Console
 
-from .. import protocol, units
-from .. import sim as _sim  # noqa: F401  (registers the sim:// URL scheme)
+from .. import (
+    protocol,
+    sim,  # registers the sim:// URL scheme
+    units,
+)
 from ..bus import Bus, open_bus
 from ..eeprom import BaudRate
 from ..errors import (
@@ -36,6 +41,8 @@ from ..errors import (
 from ..transport import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, adapter_advice
 
 T = TypeVar("T")
+
+_SIM_NAMES = itertools.count(1)
 
 DEFAULT_PORT = "sim://"
 ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
@@ -76,6 +83,7 @@ class Settings:
     transport: str = "auto"
     verbose: int = 0
     port_defaulted: bool = False  # --port not given: say that this is the simulator
+    _sim_name: str | None = field(default=None, init=False, repr=False)
 
     @property
     def is_sim(self) -> bool:
@@ -90,7 +98,16 @@ class Settings:
         parts = urlsplit(self.port)
         if parts.netloc or parts.path.strip("/"):
             return self.port
-        return urlunsplit(parts._replace(netloc=f"ics35-cli-{os.getpid()}"))
+        if self._sim_name is None:
+            self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
+        return urlunsplit(parts._replace(netloc=self._sim_name))
+
+    def release_sim(self) -> None:
+        """Close the simulated line :attr:`url` named, if any (it lives for one command)."""
+        name, self._sim_name = self._sim_name, None
+        if name is not None:
+            with contextlib.suppress(KeyError):
+                sim.named(name).close()
 
     def bus(self, baud: int | None = None, *, timeout: float | None = None, retries: int | None = None) -> Bus:
         """A not-yet-open bus with these settings (``async with`` it)."""
@@ -242,13 +259,16 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
         settings.port_defaulted = False
         err.print("[dim]note: this is the built-in simulator; pass --port /dev/ttyUSB0 (or COM3) for hardware[/dim]")
     try:
-        return asyncio.run(_guarded(make))
-    except KeyboardInterrupt:
-        raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
-    except ReplyTimeout as exc:
-        raise no_reply_error(settings, exc) from None
-    except IcsError as exc:
-        raise translate(settings, exc) from None
+        try:
+            return asyncio.run(_guarded(make))
+        except KeyboardInterrupt:
+            raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
+        except ReplyTimeout as exc:
+            raise no_reply_error(settings, exc) from None
+        except IcsError as exc:
+            raise translate(settings, exc) from None
+    finally:
+        settings.release_sim()
 
 
 async def _guarded(make: Callable[[], Awaitable[T]]) -> T:

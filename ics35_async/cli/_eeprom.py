@@ -365,7 +365,7 @@ def set_fields(
 
     \b
     Fields: stretch_gain (2..254 even), speed, punch, dead_band, damping, safe_timer,
-    flags (REVERSE|PWMINH|ROTATION|SLAVE or a number), pulse_limit_high, pulse_limit_low,
+    flags (names REVERSE,PWMINH,ROTATION,SLAVE joined by commas, or a number), pulse_limit_high, pulse_limit_low,
     baud_rate (needs --change-baud), temperature_limit, current_limit, response,
     user_offset (-127..127), servo_id (alias id), stretch_1..3.
     Factory calibration bytes cannot be changed.
