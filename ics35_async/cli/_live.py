@@ -304,27 +304,26 @@ async def run_live(
             live.start()
         async with stream:
             try:
-                while True:
-                    timeout = None if deadline is None else max(0.0, deadline - loop.time())
-                    try:
-                        frame = await asyncio.wait_for(stream.next_frame(), timeout)
-                    except TimeoutError:
-                        break
-                    now = loop.time()
-                    elapsed = now - start
-                    state.update(frame, elapsed, stream)
-                    if targets is not None:
-                        wanted = targets(elapsed, frame)
-                        stream.set_targets(wanted)
-                        state.targets.update(wanted)
-                    telemetry.after_frame()
-                    if options.plot:
-                        recorder.add(elapsed, frame)
-                    if now - last_render >= render_every:
-                        last_render = now
-                        render()
-                    if deadline is not None and now >= deadline:
-                        break
+                # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
+                # cancellation when a frame arrives at the same moment.
+                async with asyncio.timeout_at(deadline):
+                    while True:
+                        frame = await stream.next_frame()
+                        now = loop.time()
+                        elapsed = now - start
+                        state.update(frame, elapsed, stream)
+                        if targets is not None:
+                            wanted = targets(elapsed, frame)
+                            stream.set_targets(wanted)
+                            state.targets.update(wanted)
+                        telemetry.after_frame()
+                        if options.plot:
+                            recorder.add(elapsed, frame)
+                        if now - last_render >= render_every:
+                            last_render = now
+                            render()
+            except TimeoutError:
+                pass  # --seconds is up
             except asyncio.CancelledError:
                 # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
                 if not options.as_json:
