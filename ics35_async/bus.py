@@ -114,6 +114,7 @@ class _State(enum.Enum):
     BUSY = "busy"  # a transaction is on the wire
     QUIET = "quiet"  # resyncing: waiting for silence
     LOST = "lost"  # port gone, reconnecting
+    REOPENING = "reopening"  # closing and reopening on purpose (new baud rate); requests wait
 
 
 class _Request:
@@ -242,6 +243,36 @@ class Bus:
         log.info("opened %s at %d baud", self.port, self.baudrate)
         self._start_next()
 
+    async def reopen(self, *, baudrate: int | None = None) -> None:
+        """Close and reopen the port, optionally at a new line rate.
+
+        For a baud-rate change: write the servos' EEPROM (``allow_baud_change=True``),
+        power-cycle them, then ``await bus.reopen(baudrate=...)``.  Requests
+        submitted meanwhile wait and run after the reopen.
+        """
+        new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
+        if self._closing or self._state is _State.CLOSED:
+            raise BusClosed("bus is closed")
+        if self._source is not None:
+            raise InvalidArgument("stop the running stream before reopening the bus")
+        await self.wait_idle()
+        if self._state is not _State.IDLE:
+            raise PortLost(f"port {self.port} is lost; cannot reopen now")
+        self._state = _State.REOPENING
+        transport, self._transport, self._line = self._transport, None, None
+        if transport is not None:
+            transport.close()
+            await asyncio.sleep(0)
+        self.baudrate = new_baud
+        try:
+            await self._connect()
+        except BaseException as exc:
+            reason = f"reopening {self.port} failed: {exc}"
+            self._state = _State.CLOSED
+            self._closing = True
+            self._fail_queued(lambda: PortLost(reason))
+            raise
+
     @property
     def is_open(self) -> bool:
         return self._state is not _State.CLOSED and not self._closing
@@ -319,6 +350,8 @@ class Bus:
         if self._state is _State.LOST:
             raise PortLost(f"port {self.port} is lost; reconnecting")
         loop = self._get_loop()
+        # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
+        self._debug = log.isEnabledFor(logging.DEBUG)
         fut: asyncio.Future[T] = loop.create_future()
         self._queues[priority].append(_Request(command, fut, priority, retries if command.idempotent else 0))
         self._queued += 1
