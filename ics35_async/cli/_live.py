@@ -413,20 +413,22 @@ def monitor(
     settings = settings_of(ctx)
     if plot is not None:
         require_matplotlib()
+    shown = settings.port
     if settings.port == "sim://":
         # Real-time mode paces replies at the modelled wire time, so the rate shown is the real one.
         settings.port = f"sim://?realtime=1&baud={settings.baud}"
+        shown = "the built-in simulator"
     options = LiveOptions(seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, as_json)
-            state = LiveState(chosen, f"monitor {settings.port} at {settings.baud} baud (servos free)", seconds)
+            state = LiveState(chosen, f"monitor {shown} at {settings.baud} baud (servos free)", seconds)
             return await run_live(bus, chosen, state, options, None)
 
     state, telemetry, recorder = run(settings, body)
     if plot is not None:
-        recorder.write(plot, f"ics35 monitor: {settings.port}")
+        recorder.write(plot, f"ics35 monitor: {shown}")
         err.print(f"plot written to {plot}")
     final_report(state, telemetry, options)
     return 0
@@ -520,9 +522,11 @@ def demo(
     settings = settings_of(ctx)
     if plot is not None:
         require_matplotlib()
+    shown = settings.port
     if settings.port == "sim://":
         settings.port = f"sim://?ids=0-31&realtime=1&baud={settings.baud}"
         settings.port_defaulted = False  # the simulator is the point here
+        shown = "the built-in simulator"
         ids = ids or list(range(32))
     if amplitude is None:
         # A real robot's joints may hit each other or the frame: start small there.
@@ -533,7 +537,7 @@ def demo(
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, False)
-            title = f"demo: wave on {len(chosen)} servo(s), {settings.port} at {settings.baud} baud"
+            title = f"demo: wave on {len(chosen)} servo(s), {shown} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
@@ -542,7 +546,7 @@ def demo(
     began = time.monotonic()
     state, telemetry, recorder = run(settings, body)
     if plot is not None:
-        recorder.write(plot, f"ics35 demo: {settings.port}")
+        recorder.write(plot, f"ics35 demo: {shown}")
         err.print(f"plot written to {plot}")
     final_report(state, telemetry, options)
     out.print(
