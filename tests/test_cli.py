@@ -228,6 +228,15 @@ def test_get_and_set_are_ram(ics35: Any, line: Any) -> None:
     assert sim.servo(1).current_limit == 20
 
 
+def test_get_limit_reads_the_eeprom_and_says_so(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(temperature_limit=70)
+    result = ics35("--port", url, "get", "1", "temperature-limit", "--json")
+    assert result.json() == {"id": 1, "param": "temperature-limit", "value": 70, "memory": "EEPROM"}
+    result = ics35("--port", url, "get", "1", "current-limit")
+    assert "= 63" in result.out and "EEPROM" in result.out and "cannot be read back" in result.out
+
+
 # --------------------------------------------------------------------------- errors a person can act on
 
 

@@ -444,28 +444,47 @@ _EEPROM_TWIN = {
 }
 
 
+# The limits are write-only in RAM (reading SC 3/4 returns the measured values),
+# so `get` reports the EEPROM limit, which the servo loads into RAM at power-up.
+EEPROM_LIMITS = {"current-limit": "current_limit", "temperature-limit": "temperature_limit"}
+
+
 @click.command()
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
-@click.argument("param", metavar="PARAM", type=click.Choice(list(READ_PARAMS), case_sensitive=False))
+@click.argument("param", metavar="PARAM", type=click.Choice([*READ_PARAMS, *EEPROM_LIMITS], case_sensitive=False))
 @json_option
 @click.pass_context
 def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
-    """Read a RAM parameter: stretch, speed, current (measured) or temperature (measured)."""
+    """Read stretch, speed, current (measured) or temperature (measured) from RAM.
+
+    current-limit and temperature-limit cannot be read back from RAM over ICS 3.5:
+    for those, the EEPROM value (loaded into RAM at power-up) is shown, and says so.
+    """
     settings = settings_of(ctx)
     param = param.lower()
+    memory = "EEPROM" if param in EEPROM_LIMITS else "RAM"
 
     async def body() -> int:
         async with settings.bus() as bus:
+            if param in EEPROM_LIMITS:
+                image = await bus.servo(servo_id).read_eeprom()
+                return int(getattr(image, EEPROM_LIMITS[param]))
             return await bus.request(protocol.ReadParam(servo_id, READ_PARAMS[param]))
 
     value = run(settings, body)
     if as_json:
-        doc: dict[str, Any] = {"id": servo_id, "param": param, "value": value, "memory": "RAM"}
+        doc: dict[str, Any] = {"id": servo_id, "param": param, "value": value, "memory": memory}
         if param == "current":
             doc.update(current=current_json(value))
         elif param == "temperature":
             doc.update(temperature=temperature_json(value))
         emit_json(doc)
+        return 0
+    if memory == "EEPROM":
+        out.print(
+            f"servo {servo_id} {param} = {value}  (EEPROM value, loaded at power-up: the RAM limit cannot be "
+            f"read back, so a later `ics35 set {servo_id} {param} ...` is not reflected here)"
+        )
         return 0
     shown = {"current": current_text, "temperature": temperature_text}.get(param, str)(value)
     out.print(f"servo {servo_id} {param} = {shown}  (RAM; {_PARAM_NOTES[param]})")
