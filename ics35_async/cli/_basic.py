@@ -10,6 +10,7 @@ from typing import Any
 
 import click
 from rich import box
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
@@ -218,9 +219,9 @@ def scan(
         if result.found:
             out.print(scan_table(result))
         for baud, why in result.skipped.items():
-            err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {why}")
+            err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
         for (baud, i), message in result.eeprom_errors.items():
-            err.print(f"[yellow]warning:[/yellow] servo {i} at {baud} baud: EEPROM read failed: {message}")
+            err.print(f"[yellow]warning:[/yellow] servo {i} at {baud} baud: EEPROM read failed: {escape(message)}")
         if result.garbled:
             where = ", ".join(f"ID {i} at {baud}" for baud, i in result.garbled)
             err.print(
@@ -233,7 +234,7 @@ def scan(
             by_baud[baud] = by_baud.get(baud, 0) + 1
         if result.found:
             summary = ", ".join(f"{n} at {b} baud" for b, n in by_baud.items())
-            out.print(f"{len(result.found)} servo(s) found on {settings.port}: {summary}")
+            out.print(f"{len(result.found)} servo(s) found on {escape(settings.port)}: {summary}")
             if len(by_baud) > 1:
                 err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")
     if not result.found:
@@ -286,7 +287,9 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
         )
         return 0
     live = Table(
-        title=f"servo {servo_id} on {settings.port} at {settings.baud} baud", title_justify="left", show_header=False
+        title=f"servo {servo_id} on {escape(settings.port)} at {settings.baud} baud",
+        title_justify="left",
+        show_header=False,
     )
     live.add_column("what")
     live.add_column("value")
@@ -408,7 +411,7 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
             if isinstance(p, int):
                 out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
             else:
-                err.print(f"[red]servo {i}: no answer[/red] ({p})")
+                err.print(f"[red]servo {i}: no answer[/red] ({escape(str(p))})")
     if failed:
         timed_out = any(isinstance(e, ReplyTimeout) for e in failed.values())
         code = ExitCode.NO_REPLY if timed_out else ExitCode.COMMUNICATION

@@ -17,6 +17,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from .. import (
     protocol,
@@ -248,7 +249,7 @@ def advise(port: str) -> None:
         return
     _advised.add(port)
     for warning in adapter_advice(port):
-        err.print(f"[yellow]warning:[/yellow] {warning}", soft_wrap=True)
+        err.print(f"[yellow]warning:[/yellow] {escape(warning)}", soft_wrap=True)
 
 
 def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
@@ -401,9 +402,9 @@ def other_bauds(settings: Settings, servo_id: int) -> list[int]:
 
 
 def fail(error: CliError) -> NoReturn:
-    err.print(f"[bold red]error:[/bold red] {error.message}", soft_wrap=True)
+    err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
     for hint in error.hints:
-        err.print(f"  [cyan]hint:[/cyan] {hint}", soft_wrap=True)
+        err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
     sys.exit(int(error.code))
 
 

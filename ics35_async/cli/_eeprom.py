@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from .. import protocol
@@ -73,7 +74,7 @@ def dump(ctx: click.Context, servo_id: int, output: str | None, as_table: bool, 
         emit_json(doc)
     else:
         Path(output).write_text(json.dumps(doc, indent=2) + "\n")
-        err.print(f"EEPROM of servo {servo_id} saved to {output}")
+        err.print(f"EEPROM of servo {servo_id} saved to {escape(output)}")
     return 0
 
 

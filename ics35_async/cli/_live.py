@@ -20,6 +20,7 @@ import click
 from rich import box
 from rich.console import Group
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
@@ -351,7 +352,7 @@ async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> None:
 
 async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
     if not quiet:
-        err.print(f"no IDs given: scanning {settings.port} at {settings.baud} baud ...")
+        err.print(f"no IDs given: scanning {escape(settings.port)} at {settings.baud} baud ...")
     answered, _ = await probe_ids(bus, range(32))
     if not answered:
         where = f"{settings.port} at {settings.baud} baud"
@@ -423,13 +424,13 @@ def monitor(
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, as_json)
-            state = LiveState(chosen, f"monitor {shown} at {settings.baud} baud (servos free)", seconds)
+            state = LiveState(chosen, f"monitor {escape(shown)} at {settings.baud} baud (servos free)", seconds)
             return await run_live(bus, chosen, state, options, None)
 
     state, telemetry, recorder = run(settings, body)
     if plot is not None:
         recorder.write(plot, f"ics35 monitor: {shown}")
-        err.print(f"plot written to {plot}")
+        err.print(f"plot written to {escape(plot)}")
     final_report(state, telemetry, options)
     return 0
 
@@ -537,7 +538,7 @@ def demo(
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, False)
-            title = f"demo: wave on {len(chosen)} servo(s), {shown} at {settings.baud} baud"
+            title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
@@ -547,7 +548,7 @@ def demo(
     state, telemetry, recorder = run(settings, body)
     if plot is not None:
         recorder.write(plot, f"ics35 demo: {shown}")
-        err.print(f"plot written to {plot}")
+        err.print(f"plot written to {escape(plot)}")
     final_report(state, telemetry, options)
     out.print(
         f"demo done after {time.monotonic() - began:.1f} s: {state.cycle} cycles, "
