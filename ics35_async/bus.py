@@ -141,6 +141,10 @@ class _Line(asyncio.Protocol):
 _NO_ID = 32  # counter slot for the ID command, which addresses the whole line
 
 
+def _no_loop_time() -> float:
+    raise BusClosed("bus is not open")
+
+
 class Bus:
     """One ICS line.  Create with :func:`open_bus`."""
 
@@ -201,6 +205,13 @@ class Bus:
 
         # Counters: one list per counter name, indexed by ID (slot 32: the ID command).
         self._counters: dict[str, list[int]] = {name: [0] * 33 for name in COUNTER_NAMES}
+        # The hot path's counters, as direct references into _counters.
+        self._n_transactions = self._counters["transactions"]
+        self._n_ok = self._counters["ok"]
+        self._n_bytes_tx = self._counters["bytes_tx"]
+        self._n_bytes_rx = self._counters["bytes_rx"]
+        self._allowances: dict[int, float] = {}  # NORMAL deadline allowance by transaction size
+        self._time: Callable[[], float] = _no_loop_time
         self._latency = LatencyHistogram()
         self._resyncs = 0
         self._stray = 0
@@ -228,6 +239,7 @@ class Bus:
                 raise BusClosed("bus is closed")
             return self
         self._loop = asyncio.get_running_loop()
+        self._time = self._loop.time
         await self._connect()
         self._lost_event = asyncio.Event()
         self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
@@ -404,23 +416,20 @@ class Bus:
             req = self._pop_request()
             if req is not None:
                 self._requests_in_row += 1
-                self._begin(req.command.tx, req.command.reply_len, req.command.servo_id, req, req.command.timing)
+                cmd = req.command
+                self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing)
                 return
         self._requests_in_row = 0
         if source is not None:
-            nxt = source.next_transaction()
-            if nxt is not None:
-                tx, reply_len, servo_id = nxt
-                self._begin(tx, reply_len, servo_id, None, Timing.NORMAL)
+            job = source.next_transaction()
+            if job is not None:
+                self._begin(job[0], job[1], job[2], None, Timing.NORMAL)
                 return
             if self._queued:  # the source yielded its turn but requests still wait
                 self._start_next()
                 return
         if self._idle_waiters and not self._queued:
-            waiters, self._idle_waiters = self._idle_waiters, []
-            for w in waiters:
-                if not w.done():
-                    w.set_result(None)
+            self._release_idle_waiters()
 
     def _transaction_allowance(self, nbytes: int, timing: Timing = Timing.NORMAL) -> float:
         t = self.timing
@@ -438,13 +447,21 @@ class Bus:
         self._current = req
         self._current_id = _NO_ID if servo_id is None else servo_id
         self._tx = tx
-        self._echo_len = len(tx) if self.echo else 0
-        self._expect = self._echo_len + reply_len
+        echo_len = len(tx) if self.echo else 0
+        self._echo_len = echo_len
+        self._expect = echo_len + reply_len
         self._buf.clear()
-        now = self._loop.time()
+        now = self._time()
         self._t_start = now
-        self._deadline = now + self._transaction_allowance(len(tx) + reply_len, timing)
-        self._arm()
+        nbytes = len(tx) + reply_len
+        allowance = self._allowances.get(nbytes) if timing is Timing.NORMAL else None
+        if allowance is None:
+            allowance = self._transaction_allowance(nbytes, timing)
+            if timing is Timing.NORMAL:
+                self._allowances[nbytes] = allowance
+        self._deadline = now + allowance
+        if self._watchdog is None:
+            self._arm()
         try:
             transport.write(tx)
         except Exception as exc:  # the port vanished under us
@@ -500,69 +517,73 @@ class Bus:
 
     def _finish(self) -> None:
         buf = self._buf
-        assert self._loop is not None
-        now = self._loop.time()
+        now = self._time()
         sid = self._current_id
-        req = self._current
-        counters = self._counters
-        counters["transactions"][sid] += 1
-        counters["bytes_tx"][sid] += len(self._tx)
-        counters["bytes_rx"][sid] += len(buf)
+        self._n_transactions[sid] += 1
+        self._n_bytes_tx[sid] += len(self._tx)
+        self._n_bytes_rx[sid] += len(buf)
         self._latency.add(now - self._t_start)
         if self._debug:
             log.debug("id %s tx %s rx %s", sid, self._tx.hex(" "), buf.hex(" "))
-        error: ReplyError | None = None
-        command_name = req.command.name if req is not None else "position"
+        echo_len = self._echo_len
+        if len(buf) != self._expect or (echo_len and not buf.startswith(self._tx)):
+            self._framing_error(now, sid)
+            return
+        req = self._current
+        self._current = None
+        if req is None:
+            source = self._source
+            self._after(source.complete(buf, echo_len, now) if source is not None else None, sid)
+            return
+        try:
+            value = req.command.parse(bytes(buf[echo_len:]))
+        except ReplyError as exc:
+            self._fail_request(req, exc, sid)
+            return
+        self._n_ok[sid] += 1
+        name = req.command.name
+        self._by_command[name] = self._by_command.get(name, 0) + 1
+        if not req.future.done():
+            req.future.set_result(value)
+        self._state = _State.IDLE
+        self._start_next()
+
+    def _framing_error(self, now: float, sid: int) -> None:
+        """Extra bytes after the reply, or an echo that is not what we sent."""
+        buf = self._buf
+        req, self._current = self._current, None
+        name = req.command.name if req is not None else "position"
         servo_id = None if sid == _NO_ID else sid
+        error: ReplyError
         if len(buf) > self._expect:
             error = BadReply(
                 f"{len(buf) - self._expect} unexpected extra byte(s) after the reply",
-                command=command_name,
+                command=name,
                 servo_id=servo_id,
                 raw=bytes(buf),
             )
-        elif self._echo_len and buf[: self._echo_len] != self._tx:
+        else:
             error = EchoMismatch(
                 f"echo differs from the bytes sent ({self._tx.hex(' ')})",
-                command=command_name,
+                command=name,
                 servo_id=servo_id,
                 raw=bytes(buf),
             )
-        if req is None:
-            source = self._source
-            if error is None and source is not None:
-                error = source.complete(buf, self._echo_len, now)
-            elif error is not None and source is not None:
-                source.fail(error, now)
-            self._after(error, sid)
+        if req is not None:
+            self._fail_request(req, error, sid)
             return
-        if error is None:
-            try:
-                value = req.command.parse(bytes(buf[self._echo_len :]))
-            except ReplyError as exc:
-                error = exc
-            else:
-                counters["ok"][sid] += 1
-                self._by_command[req.command.name] = self._by_command.get(req.command.name, 0) + 1
-                self._current = None
-                if not req.future.done():
-                    req.future.set_result(value)
-                self._state = _State.IDLE
-                self._start_next()
-                return
-        self._current = None
-        self._fail_request(req, error, sid)
+        if self._source is not None:
+            self._source.fail(error, now)
+        self._after(error, sid)
 
     def _after(self, error: ReplyError | None, sid: int) -> None:
         """Close a background transaction: count it and move on (or resync)."""
         if error is None:
-            self._counters["ok"][sid] += 1
-            self._current = None
+            self._n_ok[sid] += 1
             self._state = _State.IDLE
             self._start_next()
             return
         self._count_error(error, sid)
-        self._current = None
         self._resync()
 
     def _count_error(self, error: ReplyError, sid: int) -> None:
