@@ -111,8 +111,9 @@ class Servo:
         would change the factory calibration bytes, the baud rate (unless
         ``allow_baud_change``: the servo then only talks at the new rate) or
         the ID (unless ``allow_id_change``).  With ``verify`` the image is
-        read back and compared (skipped after a baud change, which the servo
-        applies at once).
+        read back and compared; not after a baud or ID change, since the
+        servo may already answer only at its new rate or ID.  A new baud rate
+        takes effect at the servo's next power-up: then ``bus.reopen(baudrate=...)``.
         """
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
