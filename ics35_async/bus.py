@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import enum
 import logging
 from collections import deque
@@ -825,6 +826,8 @@ def open_bus(
     timing: BusTiming | None = None,
     retries: int = 0,
     reconnect: bool = False,
+    reconnect_backoff: Sequence[float] = (0.05, 0.1, 0.2, 0.5, 1.0),
+    max_requests_between: int = 16,
     **timing_overrides: float,
 ) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
@@ -835,13 +838,20 @@ def open_bus(
     arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
     """
     if timing_overrides:
-        base = timing or BusTiming()
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
         if unknown:
             raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
-        timing = BusTiming(**{**base.__dict__, **timing_overrides})
+        timing = dataclasses.replace(timing or BusTiming(), **timing_overrides)
     return Bus(
-        port, baudrate=baudrate, echo=echo, transport=transport, timing=timing, retries=retries, reconnect=reconnect
+        port,
+        baudrate=baudrate,
+        echo=echo,
+        transport=transport,
+        timing=timing,
+        retries=retries,
+        reconnect=reconnect,
+        reconnect_backoff=reconnect_backoff,
+        max_requests_between=max_requests_between,
     )
 
 

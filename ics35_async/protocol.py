@@ -194,6 +194,13 @@ class Command(Generic[T]):
                 reply,
             )
 
+    def _check_param_head(self, reply: bytes) -> None:
+        """Length, then ``CMD & 0x7F`` and the echoed sub-command: every parameter reply starts so."""
+        self._check_length(reply)
+        self._check_header(reply, self.tx[0] & 0x7F)
+        if reply[1] != self.tx[1]:
+            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected 0x{self.tx[1]:02X}", reply)
+
     def _check_7bit(self, reply: bytes, start: int) -> None:
         for i in range(start, len(reply)):
             if reply[i] & 0x80:
@@ -241,10 +248,7 @@ class ReadParam(Command[int]):
         self.reply_len = 3
 
     def parse(self, reply: bytes) -> int:
-        self._check_length(reply)
-        self._check_header(reply, self.tx[0] & 0x7F)
-        if reply[1] != self.param:
-            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected {self.param:#04x}", reply)
+        self._check_param_head(reply)
         self._check_7bit(reply, 2)
         return reply[2]
 
@@ -264,10 +268,7 @@ class ReadEeprom(Command[Eeprom]):
         self.reply_len = 2 + EEPROM_SIZE
 
     def parse(self, reply: bytes) -> Eeprom:
-        self._check_length(reply)
-        self._check_header(reply, self.tx[0] & 0x7F)
-        if reply[1] != Param.EEPROM:
-            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected 0x00", reply)
+        self._check_param_head(reply)
         try:
             return Eeprom.from_bytes(reply[2:])
         except MalformedEeprom as exc:
@@ -293,10 +294,7 @@ class WriteParam(Command[int]):
         self.reply_len = 3
 
     def parse(self, reply: bytes) -> int:
-        self._check_length(reply)
-        self._check_header(reply, self.tx[0] & 0x7F)
-        if reply[1] != self.param:
-            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected {self.param:#04x}", reply)
+        self._check_param_head(reply)
         self._check_7bit(reply, 2)
         if reply[2] != self.value:
             raise self._fail(ReplyValueError, f"reply value {reply[2]}, wrote {self.value}", reply)
@@ -323,10 +321,7 @@ class WriteEeprom(Command[None]):
         self.reply_len = 2
 
     def parse(self, reply: bytes) -> None:
-        self._check_length(reply)
-        self._check_header(reply, self.tx[0] & 0x7F)
-        if reply[1] != Param.EEPROM:
-            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected 0x00", reply)
+        self._check_param_head(reply)
 
     def encode_reply(self, value: None) -> bytes:
         return bytes((self.tx[0] & 0x7F, Param.EEPROM))

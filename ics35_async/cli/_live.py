@@ -14,7 +14,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import click
 from rich import box
@@ -368,32 +368,47 @@ def final_report(state: LiveState, telemetry: Telemetry, options: LiveOptions) -
         raise CliError(ExitCode.NO_REPLY, f"no servo among {ids_text(state.ids)} answered", *NO_REPLY_HINTS)
 
 
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def stream_options(command: F) -> F:
+    """--rate, --telemetry and --plot, shared by monitor and demo."""
+    for option in reversed(_STREAM_OPTIONS):
+        command = option(command)
+    return command
+
+
+_STREAM_OPTIONS = (
+    click.option(
+        "--rate",
+        type=click.FloatRange(0.1, 10000),
+        default=None,
+        help="Position cycles per second (default: as fast as the line allows).",
+    ),
+    click.option(
+        "--telemetry",
+        "per_cycle",
+        type=click.IntRange(0, 32),
+        default=2,
+        show_default=True,
+        help="Servos whose current and temperature are read per cycle.",
+    ),
+    click.option(
+        "--plot",
+        type=click.Path(dir_okay=False, writable=True),
+        default=None,
+        help="Record position traces and write a plot to FILE.png at the end (needs matplotlib).",
+    ),
+)
+
+
 # --------------------------------------------------------------------------- monitor
 
 
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
 @click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long (default: Ctrl-C).")
-@click.option(
-    "--rate",
-    type=click.FloatRange(0.1, 10000),
-    default=None,
-    help="Position cycles per second (default: as fast as the line allows).",
-)
-@click.option(
-    "--telemetry",
-    "per_cycle",
-    type=click.IntRange(0, 32),
-    default=2,
-    show_default=True,
-    help="Servos whose current and temperature are read per cycle.",
-)
-@click.option(
-    "--plot",
-    type=click.Path(dir_okay=False, writable=True),
-    default=None,
-    help="Record position traces and write a plot to FILE.png at the end (needs matplotlib).",
-)
+@stream_options
 @json_option
 @click.pass_context
 def monitor(
@@ -483,26 +498,7 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     help="Wave amplitude in degrees (default: 45 on the simulator, 15 on hardware).",
 )
 @click.option("--frequency", type=click.FloatRange(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
-@click.option(
-    "--rate",
-    type=click.FloatRange(0.1, 10000),
-    default=None,
-    help="Position cycles per second (default: as fast as the line allows).",
-)
-@click.option(
-    "--telemetry",
-    "per_cycle",
-    type=click.IntRange(0, 32),
-    default=2,
-    show_default=True,
-    help="Servos whose current and temperature are read per cycle.",
-)
-@click.option(
-    "--plot",
-    type=click.Path(dir_okay=False, writable=True),
-    default=None,
-    help="Record position traces and write a plot to FILE.png at the end (needs matplotlib).",
-)
+@stream_options
 @click.pass_context
 def demo(
     ctx: click.Context,
