@@ -154,6 +154,7 @@ class Stream:
         self._cycle_times: deque[float] = deque(maxlen=history)
         self._starts: deque[float] = deque(maxlen=history)
         self._overruns = 0
+        self._slot_checked = True
         self._first_start = 0.0
 
     # ------------------------------------------------------------------ targets
@@ -174,9 +175,12 @@ class Stream:
 
     def set_targets(self, targets: Mapping[int, int]) -> None:
         """Several targets at once; all are checked before any is applied."""
-        checked = [
-            (self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()
-        ]
+        self._apply(self._check_targets(targets))
+
+    def _check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
+        return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
+
+    def _apply(self, checked: list[tuple[int, int]]) -> None:
         for k, p in checked:
             if self._targets[k] != p:
                 self._targets[k] = p
@@ -257,13 +261,18 @@ class Stream:
         now = loop.time()
         if self.rate_hz is not None and self._cycle:
             due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
+            if not self._slot_checked:
+                # An overrun is a cycle whose own work ran past the next slot, not a
+                # timer that fired late (the loop's timers have ~1 ms resolution).
+                self._slot_checked = True
+                if now > due:
+                    self._overruns += 1
             if now < due:
                 if self._waiting_timer is None:
                     self._waiting_timer = loop.call_at(due, self._on_due)
                 return False
             if now - due > 1 / self.rate_hz:
-                # More than a whole period late: count it and re-anchor instead of bursting to catch up.
-                self._overruns += 1
+                # A whole slot missed: re-anchor instead of bursting to catch up.
                 self._t0 = now - self._cycle / self.rate_hz
         if not self._cycle:
             self._t0 = now
@@ -294,6 +303,7 @@ class Stream:
             self.bus.kick()
 
     def _publish(self, now: float) -> None:
+        self._slot_checked = False
         ids = self.ids
         positions: dict[int, int] = {}
         stamps: dict[int, float] = {}
@@ -385,6 +395,8 @@ class Stream:
     async def start(self) -> Stream:
         if self._closed:
             raise BusClosed("stream closed")
+        if not self.bus.is_open:
+            raise BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
         if not self._running:
             self._running = True
             self.bus.attach_source(self)
@@ -451,6 +463,7 @@ class GroupStream:
         self._consumed = 0
         self._event = asyncio.Event()
         self._closed = False
+        self._end_error: IcsError = BusClosed("group stream closed")
 
     def set_target(self, line: str, servo_id: int, position: int) -> None:
         self._stream(line).set_target(servo_id, position)
@@ -460,8 +473,9 @@ class GroupStream:
         for (line, sid), pos in targets.items():
             self._stream(line)
             by_line.setdefault(line, {})[sid] = pos
-        for line, t in by_line.items():
-            self.streams[line].set_targets(t)
+        checked = {line: self.streams[line]._check_targets(t) for line, t in by_line.items()}
+        for line, c in checked.items():
+            self.streams[line]._apply(c)
 
     def free(self) -> None:
         for s in self.streams.values():
@@ -474,6 +488,14 @@ class GroupStream:
             raise InvalidArgument(f"no line named {line!r} (lines: {', '.join(self.streams)})") from None
 
     async def _merge(self) -> None:
+        try:
+            await self._merge_frames()
+        except IcsError as exc:  # a line closed or lost its port: the group ends with that reason
+            self._end_error = exc
+            self._closed = True
+            self._event.set()
+
+    async def _merge_frames(self) -> None:
         last = dict.fromkeys(self.streams, 0)
         while True:
             frames = await asyncio.gather(*(s.next_frame() for s in self.streams.values()))
@@ -494,7 +516,7 @@ class GroupStream:
     async def next_frame(self) -> GroupFrame:
         while self._latest is None or self._latest.cycle <= self._consumed:
             if self._closed:
-                raise BusClosed("group stream closed")
+                raise self._end_error
             self._event.clear()
             await self._event.wait()
         frame = self._latest
@@ -508,8 +530,10 @@ class GroupStream:
     async def __anext__(self) -> GroupFrame:
         try:
             return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
+        except IcsError:
+            if self._closed:
+                raise StopAsyncIteration from None
+            raise
 
     @property
     def stats(self) -> dict[str, StreamStats]:
