@@ -197,6 +197,7 @@ class Bus:
         self._current_id = _NO_ID
         self._t_start = 0.0
         self._deadline = 0.0
+        self._grace_given = False
         self._watchdog: asyncio.TimerHandle | None = None
         self._quiet_until = 0.0
         self._resync_limit = 0.0
@@ -452,6 +453,7 @@ class Bus:
         self._echo_len = echo_len
         self._expect = echo_len + reply_len
         self._buf.clear()
+        self._grace_given = False
         now = self._time()
         self._t_start = now
         nbytes = len(tx) + reply_len
@@ -485,10 +487,17 @@ class Bus:
         assert self._loop is not None
         now = self._loop.time()
         if self._state is _State.BUSY:
-            if now >= self._deadline:
-                self._on_timeout()
-            else:
+            if now < self._deadline:
                 self._arm()
+            elif not self._grace_given:
+                # The loop may have stalled past the deadline with the reply already read
+                # or queued behind this callback: judge it after one more I/O poll. A timer
+                # (not call_soon) runs after that poll's I/O callbacks.
+                self._grace_given = True
+                assert self._loop is not None
+                self._watchdog = self._loop.call_at(now, self._on_watchdog)
+            else:
+                self._on_timeout()
         elif self._state is _State.QUIET:
             if now >= self._quiet_until or now >= self._resync_limit:
                 if now < self._quiet_until:

@@ -365,10 +365,9 @@ class Stream:
     async def __anext__(self) -> Frame:
         try:
             return await self.next_frame()
-        except IcsError:
-            if self._closed:
-                raise StopAsyncIteration from None
-            raise
+        except BusClosed:
+            # Closing ends the iteration; losing the port (PortLost) is raised.
+            raise StopAsyncIteration from None
 
     @property
     def stats(self) -> StreamStats:
@@ -398,8 +397,9 @@ class Stream:
         if not self.bus.is_open:
             raise BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
         if not self._running:
-            self._running = True
             self.bus.attach_source(self)
+            self._running = True
+            self.bus.kick()
         return self
 
     async def aclose(self) -> None:
@@ -530,10 +530,8 @@ class GroupStream:
     async def __anext__(self) -> GroupFrame:
         try:
             return await self.next_frame()
-        except IcsError:
-            if self._closed:
-                raise StopAsyncIteration from None
-            raise
+        except BusClosed:
+            raise StopAsyncIteration from None
 
     @property
     def stats(self) -> dict[str, StreamStats]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import random
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
@@ -451,3 +452,20 @@ async def test_errors_are_typed_and_carry_the_raw_bytes(line: tuple[SimBus, Bus]
         await bus.servo(3).read_stretch()
     assert isinstance(info.value, ReplyError)
     assert info.value.servo_id == 3 and info.value.raw
+
+
+async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(line: tuple[SimBus, Bus]) -> None:
+    _sim, bus = line
+    loop = asyncio.get_running_loop()
+    assert await bus.servo(1).read_stretch() == 11
+    time.sleep(0.01)  # the loop stalls past the watchdog's pending deadline
+    done: asyncio.Future[asyncio.Future[int]] = loop.create_future()
+
+    def submit() -> None:
+        request = bus.submit(protocol.ReadParam(2, protocol.Param.STRETCH))
+        request.add_done_callback(done.set_result)
+
+    loop.call_soon(submit)
+    loop.call_soon(time.sleep, 0.01)  # and stalls again with the reply queued behind
+    assert (await done).result() == 12
+    assert bus.stats.total.timeouts == 0
