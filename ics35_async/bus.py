@@ -41,6 +41,7 @@ from .errors import (
     InvalidArgument,
     PartialReply,
     PortLost,
+    ReplyDataError,
     ReplyError,
     ReplyTimeout,
     UnsafeOperation,
@@ -138,6 +139,10 @@ class _Line(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self._bus._on_connection_lost(self, exc)
 
+    def line_error(self, count: int) -> None:
+        """The transport saw ``count`` bytes arrive with parity or framing errors."""
+        self._bus._on_line_error(count)
+
 
 _NO_ID = 32  # counter slot for the ID command, which addresses the whole line
 
@@ -198,6 +203,8 @@ class Bus:
         self._t_start = 0.0
         self._deadline = 0.0
         self._grace_given = False
+        self._corrupted = False  # a byte of this transaction had a parity/framing error
+        self._line_errors = 0
         self._watchdog: asyncio.TimerHandle | None = None
         self._quiet_until = 0.0
         self._resync_limit = 0.0
@@ -454,6 +461,7 @@ class Bus:
         self._expect = echo_len + reply_len
         self._buf.clear()
         self._grace_given = False
+        self._corrupted = False
         now = self._time()
         self._t_start = now
         nbytes = len(tx) + reply_len
@@ -525,6 +533,11 @@ class Bus:
                 log.debug("stray bytes on idle line: %s", data.hex(" "))
             self._resync()
 
+    def _on_line_error(self, count: int) -> None:
+        self._line_errors += count
+        if self._state is _State.BUSY:
+            self._corrupted = True  # the transaction fails once its bytes are all in
+
     def _finish(self) -> None:
         buf = self._buf
         now = self._time()
@@ -536,7 +549,7 @@ class Bus:
         if self._debug:
             log.debug("id %s tx %s rx %s", sid, self._tx.hex(" "), buf.hex(" "))
         echo_len = self._echo_len
-        if len(buf) != self._expect or (echo_len and not buf.startswith(self._tx)):
+        if len(buf) != self._expect or (echo_len and not buf.startswith(self._tx)) or self._corrupted:
             self._framing_error(now, sid)
             return
         req = self._current
@@ -565,7 +578,14 @@ class Bus:
         name = req.command.name if req is not None else "position"
         servo_id = None if sid == _NO_ID else sid
         error: ReplyError
-        if len(buf) > self._expect:
+        if self._corrupted:
+            error = ReplyDataError(
+                "a byte arrived with a parity or framing error (noise on the line?)",
+                command=name,
+                servo_id=servo_id,
+                raw=bytes(buf),
+            )
+        elif len(buf) > self._expect:
             error = BadReply(
                 f"{len(buf) - self._expect} unexpected extra byte(s) after the reply",
                 command=name,
@@ -758,6 +778,7 @@ class Bus:
             latency=self._latency,
             resyncs=self._resyncs,
             stray_bytes=self._stray,
+            line_errors=self._line_errors,
             reconnects=self._reconnects,
             queued=self._queued,
             by_command=dict(self._by_command),

@@ -90,6 +90,7 @@ class BusStats:
     latency: LatencyHistogram
     resyncs: int
     stray_bytes: int
+    line_errors: int  # bytes the serial port received with parity/framing errors
     reconnects: int
     queued: int
     by_command: dict[str, int] = field(default_factory=dict)

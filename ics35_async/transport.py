@@ -328,6 +328,68 @@ class _ThreadedSerialDevice:
 # --------------------------------------------------------------------------- our own POSIX transport
 
 
+class ParityMarks:
+    """Undo the kernel's PARMRK marking of received bytes.
+
+    With INPCK and PARMRK set (and IGNPAR, ISTRIP clear), Linux passes a
+    byte that arrived with a parity or framing error as ``FF 00 x`` and a
+    genuine ``FF`` as ``FF FF``.  :meth:`decode` returns the bytes as they
+    were on the wire and how many of them were marked bad; a mark split
+    across two reads is completed by the next call.
+    """
+
+    __slots__ = ("_pending",)
+
+    def __init__(self) -> None:
+        self._pending = b""
+
+    def decode(self, data: bytes) -> tuple[bytes, int]:
+        if self._pending:
+            data = self._pending + data
+            self._pending = b""
+        elif 0xFF not in data:
+            return data, 0
+        out = bytearray()
+        errors = 0
+        i, n = 0, len(data)
+        while i < n:
+            j = data.find(b"\xff", i)
+            if j < 0:
+                out += data[i:]
+                break
+            out += data[i:j]
+            if j + 1 >= n:
+                self._pending = data[j:]
+                break
+            if data[j + 1] == 0xFF:
+                out.append(0xFF)
+                i = j + 2
+            elif data[j + 1] == 0x00:
+                if j + 2 >= n:
+                    self._pending = data[j:]
+                    break
+                out.append(data[j + 2])
+                errors += 1
+                i = j + 3
+            else:  # not a mark (PARMRK off after all): keep it as it came
+                out.append(0xFF)
+                i = j + 1
+        return bytes(out), errors
+
+
+def _enable_parity_marks(fd: int) -> bool:
+    """Ask the kernel to mark bytes received with parity/framing errors; True if set."""
+    try:
+        attrs = termios.tcgetattr(fd)
+        attrs[0] |= termios.INPCK | termios.PARMRK
+        attrs[0] &= ~(termios.IGNPAR | termios.ISTRIP)
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        return bool(termios.tcgetattr(fd)[0] & termios.PARMRK)
+    except termios.error:
+        log.debug("could not enable parity-error marks on fd %d", fd, exc_info=True)
+        return False
+
+
 class DirectSerialTransport(asyncio.Transport):
     """A minimal POSIX transport on the file descriptor of an open pyserial port.
 
@@ -348,6 +410,10 @@ class DirectSerialTransport(asyncio.Transport):
         # pyserial opens O_NONBLOCK; rely on it being so, since with VMIN=0 a
         # blocking read of an empty tty returns 0 bytes, which means hangup here.
         os.set_blocking(self._fd, False)
+        # pyserial turns input parity checking off; we want corrupted bytes reported
+        # (ICS has no checksum), so the kernel marks them and we unmark them here.
+        self._marks: ParityMarks | None = ParityMarks() if _enable_parity_marks(self._fd) else None
+        self._line_error = getattr(protocol, "line_error", None)
         self._buffer = bytearray()
         self._closing = False
         self._finish_scheduled = False
@@ -384,6 +450,13 @@ class DirectSerialTransport(asyncio.Transport):
             self._abort(exc)
             return
         if data:
+            marks = self._marks
+            if marks is not None:
+                data, errors = marks.decode(data)
+                if errors and self._line_error is not None:
+                    self._line_error(errors)
+                if not data:
+                    return
             self._protocol.data_received(data)
         else:
             # A tty reads 0 bytes only once the device is gone (hangup).

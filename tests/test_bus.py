@@ -23,6 +23,7 @@ from ics35_async import (
     InvalidArgument,
     PortLost,
     Priority,
+    ReplyDataError,
     ReplyError,
     ReplyTimeout,
     UnsafeOperation,
@@ -469,3 +470,23 @@ async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(lin
     loop.call_soon(time.sleep, 0.01)  # and stalls again with the reply queued behind
     assert (await done).result() == 12
     assert bus.stats.total.timeouts == 0
+
+
+async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tuple[SimBus, Bus]) -> None:
+    """A serial port with PARMRK reports bytes that arrived damaged: ICS has no checksum of its own."""
+    _sim, bus = line
+    request = bus.submit(protocol.ReadParam(3, protocol.Param.STRETCH))
+    assert bus._line is not None
+    bus._line.line_error(1)  # what DirectSerialTransport calls when the kernel marks a byte
+    with pytest.raises(ReplyDataError, match="parity"):
+        await request
+    assert bus.stats.line_errors == 1
+    assert await bus.servo(3).read_stretch() == 13
+
+
+async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
+    """The ID read's echo is FF 00 00 00; with parity marks on, the kernel sends FF FF."""
+    with serving(["--ids", "4"]) as path:
+        async with open_bus(path, adapter_latency=0.05) as bus:
+            assert await bus.read_id(exactly_one_device=True) == 4
+            assert bus.stats.total.errors == 0

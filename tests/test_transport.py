@@ -22,6 +22,7 @@ from typing import Any
 import pytest
 import serial
 
+from ics35_async import transport
 from ics35_async.errors import InvalidArgument
 from ics35_async.transport import (
     DirectSerialTransport,
@@ -628,3 +629,53 @@ def test_adapter_advice_does_not_apply_elsewhere(tmp_path: Path) -> None:
     assert adapter_advice("socket://ttyUSB0:1", sysfs_root=tmp_path / "sys") == []
     assert adapter_advice("sim://", sysfs_root=tmp_path / "sys") == []
     assert adapter_advice("/dev/pts/0") == []  # the real /sys: a pty is no USB adapter
+
+
+# --------------------------------------------------------------------------- parity-error marks (PARMRK)
+
+
+def test_parity_marks_pass_clean_data_through_untouched() -> None:
+    marks = transport.ParityMarks()
+    data = bytes([0x81, 0x3A, 0x4C, 0x01, 0x3A, 0x4C])
+    assert marks.decode(data) == (data, 0)
+
+
+def test_parity_marks_undo_doubled_ff_and_count_marked_bytes() -> None:
+    marks = transport.ParityMarks()
+    assert marks.decode(b"\xff\xff\x00\x00\x00\xff\xff") == (b"\xff\x00\x00\x00\xff", 0)
+    assert marks.decode(b"\x21\xff\x00\x41\x1e\xff\x00\x00") == (b"\x21\x41\x1e\x00", 2)
+
+
+def test_parity_marks_split_across_reads() -> None:
+    marks = transport.ParityMarks()
+    assert marks.decode(b"\x01\xff") == (b"\x01", 0)
+    assert marks.decode(b"\xff\x02\xff\x00") == (b"\xff\x02", 0)
+    assert marks.decode(b"\x33") == (b"\x33", 1)
+    assert marks.decode(b"\x44") == (b"\x44", 0)
+
+
+async def test_direct_transport_unmarks_ff_bytes_on_a_real_pty() -> None:
+    """The kernel doubles 0xFF once PARMRK is on: the host must still see one FF."""
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    try:
+        received: list[bytes] = []
+
+        class Collect(asyncio.Protocol):
+            def data_received(self, data: bytes) -> None:
+                received.append(data)
+
+        line, _ = await transport.open_line(path, baudrate=115200, protocol_factory=Collect, transport="direct")
+        try:
+            os.write(master, b"\xff\x00\x00\x00\xf4")
+            for _ in range(200):
+                if sum(map(len, received)) >= 5:
+                    break
+                await asyncio.sleep(0.005)
+            assert b"".join(received) == b"\xff\x00\x00\x00\xf4"
+        finally:
+            line.close()
+            await asyncio.sleep(0.01)
+    finally:
+        os.close(master)
+        os.close(slave)
