@@ -181,18 +181,30 @@ class PtyServer:
         """Raw mode (no echo by the pty itself) at the idle speed."""
         if self._master is None:
             return
+        if self._client_opened(self._master):
+            return  # a new client opened meanwhile: its settings are the ones to keep
         tty.setraw(self._master)
         self._park_speed()
 
-    def _park_speed(self) -> None:
+    @staticmethod
+    def _client_opened(master: int) -> bool:
+        poller = select.poll()
+        poller.register(master, select.POLLIN)
+        return not any(ev & select.POLLHUP for _, ev in poller.poll(0))
+
+    def _park_speed(self, only_if: int | None = None) -> None:
         """Set the pty's speed to 38400, leaving the client's other settings alone.
 
         A client's next open or re-configuration then changes the speed,
         which is what lets glibc accept it despite the dropped PARENB.
+        With ``only_if``, park only while the speed is still that one, so a
+        client that just re-opened at another rate is not overwritten.
         """
         if self._master is None:
             return
         attrs = termios.tcgetattr(self._master)
+        if only_if is not None and host_baudrate(self._master) != only_if:
+            return
         attrs[4] = attrs[5] = _IDLE_SPEED
         with contextlib.suppress(termios.error):
             termios.tcsetattr(self._master, termios.TCSANOW, attrs)
@@ -253,9 +265,7 @@ class PtyServer:
 
     def _check_client(self, master: int) -> bool:
         """Whether a client has opened the pty since we last looked (no more hang-up)."""
-        poller = select.poll()
-        poller.register(master, select.POLLIN)
-        if any(ev & select.POLLHUP for _, ev in poller.poll(0)):
+        if not self._client_opened(master):
             return False
         self._client_present = True
         return True
@@ -282,7 +292,7 @@ class PtyServer:
             # the pty at the idle speed again (see the module docstring).
             if self.follow_host_baud and isinstance(device, SimBus):
                 device.baudrate = baud
-            self._park_speed()
+            self._park_speed(only_if=baud)
         chunks = device.process(data)
         epoch = device.epoch
         for when, chunk in chunks:
