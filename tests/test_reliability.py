@@ -1,0 +1,237 @@
+"""Short versions of the reliability soak runs (benchmarks/soak.py does the full ones).
+
+The chaos check lines every outcome (each stream slot of each frame, each
+request) up with the simulator's own log entry of that transaction and with
+what the bytes the simulator sent call for; the first tests show that the
+checker does catch a misattributed reply, so a green run means something.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, open_bus, protocol
+from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import soak
+
+FAST = soak.FAST_TIMING
+linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+
+
+# --------------------------------------------------------------------------- the checker itself
+
+
+def run_line(sim: SimBus, txs: list[bytes]) -> None:
+    """Put commands on the simulated line directly, as a bus would (one at a time)."""
+    for tx in txs:
+        sim.process(tx)
+
+
+def test_the_wire_predictor_rebuilds_what_the_bus_received() -> None:
+    sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
+    ask1 = protocol.Position(1, protocol.FREE, baudrate=115200)
+    ask2 = protocol.Position(2, protocol.FREE, baudrate=115200)
+    predictor = soak.WirePredictor(sim.baudrate)
+    # A late reply lands after the echo of the next command: that one gets too many bytes.
+    sim.faults = FaultInjector(FaultConfig.parse("late@1:1.0"), 0)
+    run_line(sim, [ask1.tx])
+    sim.faults = FaultInjector(FaultConfig(), 0)
+    run_line(sim, [ask2.tx, ask2.tx])
+    late, spoiled, clean = (predictor.predict(t) for t in sim.log)
+    assert late == soak.Verdict(False, None, "ReplyTimeout", ask1.tx)
+    assert spoiled.error == "BadReply" and spoiled.received == ask2.tx + bytes([1, 39, 8]) + bytes([2, 46, 112])
+    assert clean.ok and clean.value == 6000
+
+
+def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
+    sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
+    sim.servo(2).stretch = 44
+    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1, 2])
+    read1, read2 = protocol.ReadParam(1, Param.STRETCH), protocol.ReadParam(2, Param.STRETCH)
+    run_line(sim, [read1.tx, protocol.position_tx(1, 5002), protocol.position_tx(2, 6002), read2.tx])
+    matcher.drain()
+    rec = soak.RequestRecord
+    # The two reads' values swapped, and a frame with the positions swapped.
+    matcher.add_request(rec(1, read1.tx, 1, True, 44, None, True, 0.0, sim.transactions))
+    matcher.add_request(rec(2, read2.tx, 1, True, 30, None, True, 0.0, sim.transactions))
+    matcher.add_frame(Frame(1, {1: 6000, 2: 5000}, {1: 0.0, 2: 0.0}, frozenset(), frozenset(), 0.0, 0.0))
+    matcher.match(final=True)
+    assert matcher.counts.misattributed == 4
+    assert matcher.counts.accepted == 4
+
+
+def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
+    sim = SimBus([VirtualServo(3)], faults="drop:1.0", log_size=None)
+    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [3])
+    read = protocol.ReadParam(3, Param.SPEED)
+    run_line(sim, [read.tx])
+    matcher.drain()
+    matcher.add_request(soak.RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
+    matcher.match(final=True)
+    assert matcher.counts.misattributed == 1 and "call for ReplyTimeout" in matcher.counts.examples[0]
+
+
+# --------------------------------------------------------------------------- the soaks, short
+
+
+async def test_chaos_short() -> None:
+    report = await soak.chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
+    assert report.transactions >= 12_000
+    assert 0.01 < report.faulted_fraction < 0.03
+    assert set(report.fault_kinds) == set(soak.FAULT_KINDS)
+    assert report.stream_outcomes > 5_000 and report.requests > 1_000
+    assert report.skipped_frames == 0
+    assert report.misattributed == 0, report.examples
+    assert report.requests_never_completed == 0, report.requests_never_completed
+    assert report.untyped_outcomes == 0, report.examples
+    assert report.valid_replies_rejected == 0, report.examples
+    assert report.error_class_differs == 0 and report.extra_attempts == 0, report.examples
+    assert report.undetectable_without_corrupt_fault == 0, report.examples
+    assert report.recovery["cut_off_at_end"] <= 3
+    assert report.recovery["failed_txns_max"] <= 6
+    assert report.post_check["consistent"], report.post_check["problems"]
+    assert 0 < report.throughput_ratio < 1.2
+
+
+async def test_cancellation_short() -> None:
+    report = await soak.cancellation_soak(cancellations=800, seed=9)
+    assert report.cancellations >= 800
+    assert report.requests_cancelled_queued > 50 and report.requests_cancelled_in_flight > 50
+    assert report.streams_cancelled >= 40 and report.stream_frames_seen > 0
+    assert report.requests_checked > 50
+    assert report.desyncs == 0, report.post_check["problems"] + report.examples
+    assert report.bus_errors == report.expected_errors and report.stray_bytes == 0
+    assert report.untyped_outcomes == 0
+
+
+# --------------------------------------------------------------------------- unplug and replug
+
+
+@linux_only
+async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
+    tasks0, fds0, threads0 = soak.other_tasks(), soak.open_fds(), soak.non_executor_threads()
+    tally = soak.new_unplug_tally()
+    await soak.reconnect_session([0.15], 2, 7, tally, unplug_rate=0.01)
+    await asyncio.sleep(0.05)
+    assert len(tally["cycles"]) == 2 and tally["reconnects"] >= 2
+    # The target is 1 s (measured by the soak); this is a loose bound for a busy CI machine.
+    assert all(c.resume_s < 3.0 for c in tally["cycles"]), tally["cycles"]
+    assert tally["port_lost"] > 0 and tally["ok"] > 100
+    assert tally["untyped"] == tally["hung"] == tally["wrong"] == 0 and not tally["other"]
+    assert (soak.other_tasks(), soak.open_fds(), soak.non_executor_threads()) == (tasks0, fds0, threads0)
+
+
+@linux_only
+async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
+    tally = soak.new_unplug_tally()
+    await soak.no_reconnect_session(tally)
+    assert tally["stream_end"] == "PortLost"
+    assert tally["pending"].get("PortLost", 0) > 0 and set(tally["pending"]) <= {"PortLost", "ReplyTimeout"}
+    assert tally["request_error"] == "BusClosed"
+
+
+async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
+    sim = SimBus([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
+    bus = await open_bus(sim, reconnect=True, timing=FAST)
+    try:
+        in_flight = bus.submit(protocol.ReadParam(2, Param.STRETCH))
+        queued = [bus.submit(protocol.ReadParam(1, Param.SPEED)) for _ in range(5)]
+        await asyncio.sleep(0)
+        sim.unplug(replug_after=0.05)
+        results = await asyncio.gather(in_flight, *queued, return_exceptions=True)
+        assert all(isinstance(r, PortLost) for r in results), results
+        with pytest.raises(PortLost):  # while it is gone, at once
+            await bus.servo(1).read_stretch()
+        for _ in range(300):
+            await asyncio.sleep(0.01)
+            if bus.stats.reconnects:
+                break
+        assert await bus.servo(1).read_stretch() == 30
+    finally:
+        await bus.aclose()
+        sim.close()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bus.py: after a port loss with reconnect=False the bus marks itself closing, so aclose() returns "
+    "at once and never cancels the supervisor task, which stays pending forever (one task leaked per lost bus)",
+)
+async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None:
+    sim = SimBus([VirtualServo(1)])
+    before = soak.other_tasks()
+    bus = await open_bus(sim, timing=FAST)
+    assert await bus.servo(1).read_stretch() == 30
+    sim.unplug()
+    await asyncio.sleep(0.01)
+    with pytest.raises(BusClosed):
+        await bus.servo(1).read_stretch()
+    await bus.aclose()
+    await asyncio.sleep(0.01)
+    assert soak.other_tasks() == before
+    sim.close()
+
+
+# --------------------------------------------------------------------------- a stalled event loop
+
+
+class ScriptedDevice:
+    """A WireDevice double: echoes and answers every command correctly, except the ones in ``garbage``
+    (answered with one byte too many), and lets a test put stray bytes on the line."""
+
+    def __init__(self) -> None:
+        self.host: Any = None
+        self.garbage: set[bytes] = set()
+        self.baudrate = 115200
+
+    def connect(self, host: Any, baudrate: int) -> None:
+        self.host, self.baudrate = host, baudrate
+
+    def disconnect(self) -> None:
+        self.host = None
+
+    def write(self, data: bytes) -> None:
+        framed = protocol.decode_request(data, baudrate=self.baudrate)
+        assert framed is not None and framed[0] is not None
+        command = framed[0]
+        reply = command.encode_reply(soak._valid_value(command, bytes([7, 7])))
+        self.host.deliver(data + reply + (b"\x00" if data in self.garbage else b""))
+
+
+async def test_a_reply_already_in_when_the_loop_stalls_is_not_a_timeout() -> None:
+    device = ScriptedDevice()
+    async with open_bus(device, timing=FAST) as bus:
+        loop = asyncio.get_running_loop()
+        first = bus.submit(protocol.ReadParam(1, Param.STRETCH))
+        second = bus.submit(protocol.ReadParam(2, Param.STRETCH))
+        time.sleep(0.01)  # the first deadline passes while its reply waits in the ready queue
+        loop.call_soon(time.sleep, 0.01)  # and a slow callback runs right after it is handled
+        assert list(await asyncio.gather(first, second)) == [7, 7]
+        assert bus.stats.total.errors == 0
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bus.py: the end of a resync has no second look: bytes that arrived during the quiet time but sit "
+    "behind the watchdog (the loop stalled) spill into the next transaction, which then fails",
+)
+async def test_bytes_that_arrive_during_a_resync_do_not_spill_into_the_next_reply() -> None:
+    device = ScriptedDevice()
+    async with open_bus(device, timing=FAST) as bus:
+        loop = asyncio.get_running_loop()
+        broken, fine = protocol.ReadParam(1, Param.STRETCH), protocol.ReadParam(2, Param.STRETCH)
+        device.garbage.add(broken.tx)
+        with pytest.raises(ReplyError):
+            await bus.request(broken)  # one byte too many: the bus resyncs
+        after = bus.submit(fine)
+        loop.call_soon(device.host.deliver, b"\x55\x55")  # late bytes arrive during the quiet time...
+        time.sleep(0.02)  # ...while the loop is stalled past its end
+        assert await after == 7
