@@ -49,6 +49,7 @@ from .errors import (
 from .protocol import Command, Timing
 from .stats import COUNTER_NAMES, BusStats, IdStats, LatencyHistogram
 from .transport import WireDevice, discard_input, open_line
+from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:  # servo.py builds on this module; imported lazily at run time
     from .servo import Device, Servo
@@ -86,9 +87,7 @@ class BusTiming:
 
     def __post_init__(self) -> None:
         for name in ("turnaround", "adapter_latency", "eeprom_write", "id_command", "quiet_time", "max_resync"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not 0 <= value <= 60:
-                raise InvalidArgument(f"{name} must be a number of seconds in 0..60, got {value!r}")
+            check_seconds(name, getattr(self, name))
 
 
 class BackgroundSource(Protocol):
@@ -169,22 +168,23 @@ class Bus:
     ) -> None:
         if not isinstance(port, (str, WireDevice)):
             raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
+        if timing is not None and not isinstance(timing, BusTiming):
+            raise InvalidArgument(f"timing must be a BusTiming, not {type(timing).__name__}")
+        if isinstance(reconnect_backoff, (str, bytes)) or not isinstance(reconnect_backoff, Iterable):
+            raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {reconnect_backoff!r}")
         self.port = port
         self.baudrate = protocol.check_baud(baudrate)
-        self.echo = bool(echo)
+        self.echo = check_bool("echo", echo)
         self.transport_kind = transport
         self.timing = timing or BusTiming()
-        if not isinstance(retries, int) or not 0 <= retries <= 10:
-            raise InvalidArgument(f"retries must be an int in 0..10, got {retries!r}")
-        self.retries = retries
-        self.reconnect = bool(reconnect)
-        self.reconnect_backoff = tuple(reconnect_backoff) or (0.5,)
-        if not isinstance(max_requests_between, int) or max_requests_between < 1:
-            raise InvalidArgument("max_requests_between must be a positive int")
-        self.max_requests_between = max_requests_between
+        self.retries = check_int("retries", retries, 0, 10)
+        self.reconnect = check_bool("reconnect", reconnect)
+        self.reconnect_backoff = tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,)
+        self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
 
         self._state = _State.CLOSED
         self._closing = False
+        self._released = False
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: asyncio.Transport | None = None
         self._line: _Line | None = None
@@ -300,8 +300,9 @@ class Bus:
 
     async def aclose(self) -> None:
         """Fail queued requests with BusClosed, finish the one on the wire, release the port."""
-        if self._closing:
+        if self._released:
             return
+        self._released = True  # also after a port loss, which closes the bus but leaves this to do
         self._closing = True
         self._detach_source(BusClosed("bus closed"))
         self._fail_queued(lambda: BusClosed("bus closed"))
@@ -360,12 +361,8 @@ class Bus:
         """Queue ``command`` and return the future of its result (no await needed)."""
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
-        if not isinstance(priority, int) or not 0 <= priority <= Priority.LOW:
-            raise InvalidArgument(f"priority must be a Priority, got {priority!r}")
-        if retries is None:
-            retries = self.retries
-        elif not isinstance(retries, int) or not 0 <= retries <= 10:
-            raise InvalidArgument(f"retries must be an int in 0..10, got {retries!r}")
+        check_int("priority", priority, Priority.URGENT, Priority.LOW)
+        retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         if self._closing or self._state is _State.CLOSED:
             raise BusClosed("bus is closed" if self._closing else "bus is not open (use `async with open_bus(...)`)")
         if self._state is _State.LOST:
@@ -507,13 +504,19 @@ class Bus:
             else:
                 self._on_timeout()
         elif self._state is _State.QUIET:
-            if now >= self._quiet_until or now >= self._resync_limit:
+            if now < self._quiet_until and now < self._resync_limit:
+                self._deadline = self._quiet_until
+                self._arm()
+            elif not self._grace_given and now < self._resync_limit:
+                # As for a deadline: bytes already read but queued behind this callback
+                # must extend the quiet time before the next transaction starts.
+                self._grace_given = True
+                assert self._loop is not None
+                self._watchdog = self._loop.call_at(now, self._on_watchdog)
+            else:
                 if now < self._quiet_until:
                     log.warning("line on %s never went quiet; carrying on", self.port)
                 self._end_resync()
-            else:
-                self._deadline = self._quiet_until
-                self._arm()
 
     def _on_data(self, data: bytes) -> None:
         state = self._state
@@ -524,8 +527,8 @@ class Bus:
                 self._finish()
         elif state is _State.QUIET:
             self._stray += len(data)
-            assert self._loop is not None
-            self._quiet_until = self._loop.time() + self.timing.quiet_time
+            self._quiet_until = self._time() + self.timing.quiet_time
+            self._grace_given = False
         elif state is _State.IDLE:
             # Bytes on an idle line: a late reply or noise. Let it settle first.
             self._stray += len(data)
@@ -682,6 +685,7 @@ class Bus:
         self._quiet_until = now + self.timing.quiet_time
         self._resync_limit = now + self.timing.max_resync
         self._buf.clear()
+        self._grace_given = False
         self._deadline = self._quiet_until
         self._arm()
 
@@ -795,12 +799,17 @@ class Bus:
         return Device(self, device_id)
 
     def servos(self, ids: Iterable[int]) -> list[Servo]:
-        return [self.servo(i) for i in ids]
+        return [self.servo(i) for i in check_ids("ids", ids)]
 
     def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> Stream:
         """A position :class:`~ics35_async.streaming.Stream` over ``ids``; use as ``async with``."""
+        import inspect
+
         from .streaming import Stream
 
+        unknown = set(options) - set(inspect.signature(Stream).parameters)
+        if unknown:
+            raise InvalidArgument(f"unknown stream option(s): {', '.join(sorted(unknown))}")
         return Stream(self, ids, rate_hz=rate_hz, **options)
 
     async def read_id(self, *, exactly_one_device: bool = False) -> int:
@@ -827,18 +836,32 @@ class Bus:
             raise UnsafeOperation(
                 "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"
             )
+        # Take the caller's word, but check it: several devices garble the (harmless) ID read.
+        try:
+            await self.request(protocol.ReadId())
+        except BadReply as exc:
+            raise UnsafeOperation(
+                f"the ID read came back garbled ({exc.raw.hex(' ')}): more than one device is on the line; "
+                "nothing was written"
+            ) from exc
         return await self.request(command)
 
     async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:
-        """IDs that answer a stretch read (harmless: it moves nothing)."""
-        checked = [protocol.check_id(i) for i in ids]
+        """IDs that answer a stretch read (harmless: it moves nothing).
+
+        ``concurrency`` bounds how many probes are queued at once (the line
+        still runs them one at a time), leaving room for other callers.
+        """
+        checked = check_ids("ids", ids)
+        gate = asyncio.Semaphore(check_int("concurrency", concurrency, 1, 32))
 
         async def probe(i: int) -> int | None:
-            try:
-                await self.request(protocol.ReadParam(i, protocol.Param.STRETCH), retries=1)
-            except ReplyError:
-                return None
-            return i
+            async with gate:
+                try:
+                    await self.request(protocol.ReadParam(i, protocol.Param.STRETCH), retries=1)
+                except ReplyError:
+                    return None
+                return i
 
         found = await asyncio.gather(*(probe(i) for i in checked))
         return [i for i in found if i is not None]

@@ -14,6 +14,14 @@ if TYPE_CHECKING:
     from .bus import Bus
 
 
+def _check_bus(bus: object) -> Bus:
+    from .bus import Bus  # bus.py imports this module lazily; the reverse is fine at call time
+
+    if not isinstance(bus, Bus):
+        raise InvalidArgument(f"bus must be a Bus (from open_bus), not {type(bus).__name__}")
+    return bus
+
+
 class Servo:
     """One servo ID on a bus.  Every call is one transaction (two for verified writes).
 
@@ -25,9 +33,9 @@ class Servo:
     __slots__ = ("_bus", "id", "priority")
 
     def __init__(self, bus: Bus, servo_id: int, *, priority: Priority = Priority.NORMAL) -> None:
-        self._bus = bus
+        self._bus = _check_bus(bus)
         self.id = protocol.check_id(servo_id)
-        self.priority = priority
+        self.priority = Priority(units.check_int("priority", priority, Priority.URGENT, Priority.LOW))
 
     @property
     def bus(self) -> Bus:
@@ -117,6 +125,9 @@ class Servo:
         """
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
+        units.check_bool("verify", verify)
+        units.check_bool("allow_baud_change", allow_baud_change)
+        units.check_bool("allow_id_change", allow_id_change)
         command = protocol.WriteEeprom(self.id, eeprom)
         current = await self.read_eeprom()
         if eeprom.calibration != current.calibration:
@@ -148,7 +159,7 @@ class Device:
     __slots__ = ("_bus", "id")
 
     def __init__(self, bus: Bus, device_id: int) -> None:
-        self._bus = bus
+        self._bus = _check_bus(bus)
         self.id = protocol.check_id(device_id)
 
     def __repr__(self) -> str:

@@ -101,7 +101,7 @@ class Stream:
         free_on_close: bool = False,
         history: int = 2000,
     ) -> None:
-        id_list = [protocol.check_id(i) for i in ids]
+        id_list = units.check_ids("ids", ids)
         if not id_list:
             raise InvalidArgument("a stream needs at least one ID")
         if len(set(id_list)) != len(id_list):
@@ -110,10 +110,10 @@ class Stream:
             not isinstance(rate_hz, (int, float)) or not math.isfinite(rate_hz) or not 0 < rate_hz <= 10000
         ):
             raise InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {rate_hz!r}")
-        if not isinstance(offline_after, int) or offline_after < 1:
-            raise InvalidArgument(f"offline_after must be a positive int, got {offline_after!r}")
-        if not isinstance(probe_interval, (int, float)) or not probe_interval > 0:
-            raise InvalidArgument(f"probe_interval must be a positive number, got {probe_interval!r}")
+        units.check_int("offline_after", offline_after, 1, 1_000_000)
+        units.check_seconds("probe_interval", probe_interval, 0.001, 3600)
+        units.check_int("history", history, 1, 10_000_000)
+        units.check_bool("free_on_close", free_on_close)
         self.bus = bus
         self.ids: tuple[int, ...] = tuple(id_list)
         self.rate_hz = rate_hz
@@ -178,6 +178,8 @@ class Stream:
         self._apply(self._check_targets(targets))
 
     def _check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
+        if not isinstance(targets, Mapping):
+            raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
 
     def _apply(self, checked: list[tuple[int, int]]) -> None:
@@ -191,11 +193,13 @@ class Stream:
         self.set_target(servo_id, units.degrees_to_position(degrees))
 
     def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
+        if not isinstance(targets, Mapping):
+            raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
         self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
 
     def free(self, ids: Iterable[int] | None = None) -> None:
         """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
-        self.set_targets(dict.fromkeys(self.ids if ids is None else ids, protocol.FREE))
+        self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 
     def target(self, servo_id: int) -> int:
         return self._targets[self._slot(servo_id)]
@@ -469,8 +473,13 @@ class GroupStream:
         self._stream(line).set_target(servo_id, position)
 
     def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
+        if not isinstance(targets, Mapping):
+            raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
         by_line: dict[str, dict[int, int]] = {}
-        for (line, sid), pos in targets.items():
+        for key, pos in targets.items():
+            if not isinstance(key, tuple) or len(key) != 2:
+                raise InvalidArgument(f"group targets are keyed by (line, id), not {key!r}")
+            line, sid = key
             self._stream(line)
             by_line.setdefault(line, {})[sid] = pos
         checked = {line: self.streams[line]._check_targets(t) for line, t in by_line.items()}
@@ -566,8 +575,10 @@ class BusGroup:
     def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
         if isinstance(buses, Mapping):
             self.buses = dict(buses)
-        else:
+        elif isinstance(buses, Sequence) and not isinstance(buses, (str, bytes)):
             self.buses = {str(k): b for k, b in enumerate(buses)}
+        else:
+            raise InvalidArgument(f"a BusGroup takes {{name: bus}} or a list of buses, not {type(buses).__name__}")
         if not self.buses:
             raise InvalidArgument("a BusGroup needs at least one bus")
         for name, bus in self.buses.items():
@@ -582,6 +593,8 @@ class BusGroup:
         return self.buses[line]
 
     def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
+        if not isinstance(ids, Mapping):
+            raise InvalidArgument(f"a group stream takes {{line: ids}}, not {type(ids).__name__}")
         unknown = set(ids) - set(self.buses)
         if unknown:
             raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")

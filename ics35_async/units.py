@@ -9,6 +9,7 @@ about 125 C): an approximation, good for warnings, not for measurement.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import NamedTuple
 
 from .errors import InvalidArgument
@@ -31,6 +32,29 @@ def check_int(name: str, value: object, low: int, high: int) -> int:
     if not low <= value <= high:
         raise InvalidArgument(f"{name} must be in {low}..{high}, got {value}")
     return value
+
+
+def check_bool(name: str, value: object) -> bool:
+    """``value`` if it is a real bool: a confirmation flag must not be a truthy string."""
+    if not isinstance(value, bool):
+        raise InvalidArgument(f"{name} must be True or False, not {value!r}")
+    return value
+
+
+def check_seconds(name: str, value: object, low: float = 0.0, high: float = 60.0) -> float:
+    """A finite number of seconds in ``low..high`` (not a bool)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise InvalidArgument(f"{name} must be a number of seconds, not {value!r}")
+    if not low <= value <= high:
+        raise InvalidArgument(f"{name} must be in {low}..{high} seconds, got {value}")
+    return float(value)
+
+
+def check_ids(name: str, ids: object) -> list[int]:
+    """A list of servo IDs 0..31 from an iterable of ints."""
+    if isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable):
+        raise InvalidArgument(f"{name} must be an iterable of IDs 0..31, not {ids!r}")
+    return [check_int("servo ID", i, 0, 31) for i in ids]
 
 
 def position_to_degrees(position: int) -> float:
