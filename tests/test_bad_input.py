@@ -5,8 +5,7 @@ BusGroup, GroupStream, Eeprom.replace) and every CLI command gets
 out-of-range, wrong-type and boundary arguments.  A bad one must raise
 :class:`InvalidArgument` (the CLI: a message, exit code 2, no traceback)
 before a single byte reaches the line (``sim.transactions`` unchanged); a
-value just inside a boundary must work.  Known gaps are strict xfails with
-the reason, so they turn red the day they are fixed.
+value just inside a boundary must work.
 """
 
 from __future__ import annotations
@@ -81,13 +80,6 @@ async def outcome(call: Callable[[Env], Any], env: Env) -> Any:
     return result
 
 
-def bug(reason: str) -> pytest.MarkDecorator:
-    return pytest.mark.xfail(strict=True, reason=reason)
-
-
-ITERABLE = "a non-iterable where IDs are expected raises TypeError, not InvalidArgument (bus.py/streaming.py)"
-BOOL = "True is taken for 1 (the library calls that a mistake for IDs and positions: check_int rejects bool)"
-
 # (label, call): every one must raise InvalidArgument and write nothing.
 BAD_CALLS: list[Any] = [
     # open_bus / Bus / BusTiming
@@ -108,33 +100,13 @@ BAD_CALLS: list[Any] = [
     ("open_bus sim url bad ids", lambda e: open_bus("sim://?ids=40").open()),
     ("BusTiming quiet -1", lambda e: BusTiming(quiet_time=-1)),
     ("BusTiming max_resync inf", lambda e: BusTiming(max_resync=math.inf)),
-    pytest.param(
-        "open_bus timing str",
-        lambda e: open_bus(e.sim, timing="x"),  # type: ignore[arg-type]
-        marks=bug("Bus accepts any object as timing; the first request then dies with AttributeError"),
-    ),
-    pytest.param(
-        "open_bus backoff int",
-        lambda e: open_bus(e.sim, reconnect_backoff=5),  # type: ignore[arg-type]
-        marks=bug("reconnect_backoff=5 raises TypeError"),
-    ),
-    pytest.param(
-        "open_bus backoff str",
-        lambda e: open_bus(e.sim, reconnect_backoff="ab"),  # type: ignore[arg-type]
-        marks=bug("reconnect_backoff='ab' is accepted; the supervisor task dies with TypeError at the first reconnect"),
-    ),
-    pytest.param(
-        "open_bus backoff negative",
-        lambda e: open_bus(e.sim, reconnect_backoff=(-1,)),
-        marks=bug("negative reconnect delays are accepted"),
-    ),
-    pytest.param("open_bus retries True", lambda e: open_bus(e.sim, retries=True), marks=bug(BOOL)),
-    pytest.param("open_bus latency True", lambda e: open_bus(e.sim, adapter_latency=True), marks=bug(BOOL)),
-    pytest.param(
-        "open_bus echo str",
-        lambda e: open_bus(e.sim, echo="no"),  # type: ignore[arg-type]
-        marks=bug("echo='no' is taken as True (bool() of any object)"),
-    ),
+    ("open_bus timing str", lambda e: open_bus(e.sim, timing="x")),  # type: ignore[arg-type]
+    ("open_bus backoff int", lambda e: open_bus(e.sim, reconnect_backoff=5)),  # type: ignore[arg-type]
+    ("open_bus backoff str", lambda e: open_bus(e.sim, reconnect_backoff="ab")),  # type: ignore[arg-type]
+    ("open_bus backoff negative", lambda e: open_bus(e.sim, reconnect_backoff=(-1,))),
+    ("open_bus retries True", lambda e: open_bus(e.sim, retries=True)),
+    ("open_bus latency True", lambda e: open_bus(e.sim, adapter_latency=True)),
+    ("open_bus echo str", lambda e: open_bus(e.sim, echo="no")),  # type: ignore[arg-type]
     # Bus methods
     ("request not a command", lambda e: e.bus.request("a1 01")),
     ("request priority 9", lambda e: e.bus.request(protocol.ReadParam(1, 1), priority=9)),
@@ -142,12 +114,8 @@ BAD_CALLS: list[Any] = [
     ("request priority float", lambda e: e.bus.request(protocol.ReadParam(1, 1), priority=2.0)),
     ("request retries 11", lambda e: e.bus.request(protocol.ReadParam(1, 1), retries=11)),
     ("submit retries str", lambda e: e.bus.submit(protocol.ReadParam(1, 1), retries="1")),
-    pytest.param(
-        "request priority True", lambda e: e.bus.request(protocol.ReadParam(1, 1), priority=True), marks=bug(BOOL)
-    ),
-    pytest.param(
-        "request retries True", lambda e: e.bus.request(protocol.ReadParam(1, 1), retries=True), marks=bug(BOOL)
-    ),
+    ("request priority True", lambda e: e.bus.request(protocol.ReadParam(1, 1), priority=True)),
+    ("request retries True", lambda e: e.bus.request(protocol.ReadParam(1, 1), retries=True)),
     ("servo id 32", lambda e: e.bus.servo(32)),
     ("servo id -1", lambda e: e.bus.servo(-1)),
     ("servo id str", lambda e: e.bus.servo("1")),
@@ -161,13 +129,9 @@ BAD_CALLS: list[Any] = [
     ("write_id 32", lambda e: e.bus.write_id(32, exactly_one_device=True)),
     ("write_id str", lambda e: e.bus.write_id("3", exactly_one_device=True)),
     ("reopen 9600", lambda e: e.bus.reopen(baudrate=9600)),
-    pytest.param("servos int", lambda e: e.bus.servos(5), marks=bug(ITERABLE)),
-    pytest.param("scan int", lambda e: e.bus.scan(5), marks=bug(ITERABLE)),
-    pytest.param(
-        "scan concurrency 0",
-        lambda e: e.bus.scan([1], concurrency=0),
-        marks=bug("scan(concurrency=...) is neither used nor checked"),
-    ),
+    ("servos int", lambda e: e.bus.servos(5)),
+    ("scan int", lambda e: e.bus.scan(5)),
+    ("scan concurrency 0", lambda e: e.bus.scan([1], concurrency=0)),
     # Servo
     ("set_position 0 (free is free())", lambda e: e.servo.set_position(0)),
     ("set_position 16384", lambda e: e.servo.set_position(16384)),
@@ -193,11 +157,7 @@ BAD_CALLS: list[Any] = [
     ("write_eeprom bytes", lambda e: e.servo.write_eeprom(e.image.to_bytes())),
     ("write_eeprom None", lambda e: e.servo.write_eeprom(None)),
     ("Servo priority 9 (at the request)", lambda e: Servo(e.bus, 1, priority=9).read_stretch()),  # type: ignore[arg-type]
-    pytest.param(
-        "Servo on a non-bus",
-        lambda e: Servo("bus", 1).read_stretch(),  # type: ignore[arg-type]
-        marks=bug("Servo(bus, id) does not check bus; the first call dies with AttributeError"),
-    ),
+    ("Servo on a non-bus", lambda e: Servo("bus", 1).read_stretch()),  # type: ignore[arg-type]
     # Device
     ("read_memory address -1", lambda e: e.bus.device(5).read_memory(-1, 1)),
     ("read_memory address 128", lambda e: e.bus.device(5).read_memory(128, 1)),
@@ -232,34 +192,14 @@ BAD_CALLS: list[Any] = [
     ("set_targets_degrees huge", lambda e: e.stream.set_targets_degrees({1: 1e308})),
     ("stream free id not in stream", lambda e: e.stream.free([9])),
     ("stream target id not in stream", lambda e: e.stream.target(9)),
-    pytest.param("stream ids int", lambda e: e.bus.stream(5), marks=bug(ITERABLE)),
-    pytest.param("stream free int", lambda e: e.stream.free(5), marks=bug(ITERABLE)),
-    pytest.param(
-        "set_targets str",
-        lambda e: e.stream.set_targets("abc"),
-        marks=bug("set_targets of a non-mapping raises AttributeError"),
-    ),
-    pytest.param(
-        "set_targets None",
-        lambda e: e.stream.set_targets(None),
-        marks=bug("set_targets(None) raises AttributeError"),
-    ),
-    pytest.param(
-        "stream history -1",
-        lambda e: e.bus.stream([1], history=-1),
-        marks=bug("Stream(history=-1) raises a plain ValueError from deque"),
-    ),
-    pytest.param(
-        "stream history str",
-        lambda e: e.bus.stream([1], history="x"),
-        marks=bug("Stream(history='x') raises TypeError"),
-    ),
-    pytest.param(
-        "stream unknown option",
-        lambda e: e.bus.stream([1], bogus=1),
-        marks=bug("bus.stream(bogus=1) raises TypeError (open_bus rejects unknown options with InvalidArgument)"),
-    ),
-    pytest.param("stream offline_after True", lambda e: e.bus.stream([1], offline_after=True), marks=bug(BOOL)),
+    ("stream ids int", lambda e: e.bus.stream(5)),
+    ("stream free int", lambda e: e.stream.free(5)),
+    ("set_targets str", lambda e: e.stream.set_targets("abc")),
+    ("set_targets None", lambda e: e.stream.set_targets(None)),
+    ("stream history -1", lambda e: e.bus.stream([1], history=-1)),
+    ("stream history str", lambda e: e.bus.stream([1], history="x")),
+    ("stream unknown option", lambda e: e.bus.stream([1], bogus=1)),
+    ("stream offline_after True", lambda e: e.bus.stream([1], offline_after=True)),
     # BusGroup / GroupStream
     ("group empty", lambda e: BusGroup({})),
     ("group not a bus", lambda e: BusGroup({"a": 1})),  # type: ignore[dict-item]
@@ -270,13 +210,9 @@ BAD_CALLS: list[Any] = [
     ("group set_target unknown line", lambda e: e.group.set_target("b", 1, 7500)),
     ("group set_target bad position", lambda e: e.group.set_target("a", 1, 0.5)),
     ("group set_targets bad position", lambda e: e.group.set_targets({("a", 1): "x"})),
-    pytest.param("group of an int", lambda e: BusGroup(5), marks=bug(ITERABLE)),  # type: ignore[arg-type]
-    pytest.param("group stream int", lambda e: BusGroup({"a": e.bus}).stream(5), marks=bug(ITERABLE)),  # type: ignore[arg-type]
-    pytest.param(
-        "group set_targets bad key",
-        lambda e: e.group.set_targets({"a": 1}),
-        marks=bug("a key that is not a (line, id) pair raises ValueError from tuple unpacking"),
-    ),
+    ("group of an int", lambda e: BusGroup(5)),  # type: ignore[arg-type]
+    ("group stream int", lambda e: BusGroup({"a": e.bus}).stream(5)),  # type: ignore[arg-type]
+    ("group set_targets bad key", lambda e: e.group.set_targets({"a": 1})),
     # Eeprom.replace
     ("eeprom calibration", lambda e: e.image.replace(calibration=bytes(22))),
     ("eeprom unknown field", lambda e: e.image.replace(colour=3)),
@@ -492,29 +428,18 @@ def test_cli_sim_server_refuses_bad_ids_without_serving() -> None:
 # --------------------------------------------------------------------------- dangerous writes
 
 
-async def test_id_write_refused_unless_confirmed_and_garbled_when_forced_on_a_shared_line() -> None:
+async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_answers() -> None:
     sim = SimBus([VirtualServo(1), VirtualServo(2)], log_size=None)
     async with open_bus(sim, timing=FAST) as bus:
         for confirm in (False, None, 1, "yes"):
             with pytest.raises(UnsafeOperation):
                 await bus.write_id(7, exactly_one_device=confirm)  # type: ignore[arg-type]
         assert sim.transactions == 0
-        # Forced anyway: every device answers at once; the garbled reply is caught, not believed.
-        with pytest.raises(ReplyError):
+        # Confirmed, but wrongly: every device answers the harmless ID read at once, and the
+        # garbled answer stops the write.
+        with pytest.raises((UnsafeOperation, ReplyError)):
             await bus.write_id(7, exactly_one_device=True)
-        assert len(sim.log[-1].responders) == 2 and sim.log[-1].value is None
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="missing (bus.py): write_id(exactly_one_device=True) takes the caller's word for it; it could first "
-    "send the harmless ID read and refuse when that reply is garbled (several devices), as `ics35 set-id` does",
-)
-async def test_a_forced_id_write_on_a_shared_line_renames_nobody() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)])
-    async with open_bus(sim, timing=FAST) as bus:
-        with pytest.raises((ReplyError, UnsafeOperation)):
-            await bus.write_id(7, exactly_one_device=True)
+        assert "write_id" not in [t.command for t in sim.log]
     assert [s.servo_id for s in sim.servos] == [1, 2]
 
 
@@ -571,6 +496,19 @@ def test_eeprom_writes_never_touch_the_factory_calibration(edits: list[dict[str,
             assert sim.servo(3).eeprom_writes == writes and sim.servo(3).calibration_intact
 
     asyncio.run(run())
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "flag"), [("baud_rate", 625000, "allow_baud_change"), ("servo_id", 9, "allow_id_change")]
+)
+async def test_a_dangerous_eeprom_change_needs_a_real_true(field: str, value: int, flag: str) -> None:
+    sim = SimBus([VirtualServo(1)])
+    async with open_bus(sim, timing=FAST) as bus:
+        servo = bus.servo(1)
+        image = (await servo.read_eeprom()).replace(**{field: value})
+        with pytest.raises(InvalidArgument):
+            await servo.write_eeprom(image, **{flag: "no"})  # type: ignore[arg-type]
+        assert sim.servo(1).eeprom_writes == 0
 
 
 async def test_baud_change_needs_confirmation_then_the_bus_reopens_at_the_new_rate() -> None:
