@@ -14,6 +14,10 @@ spread evenly over the period) and measures again (rate R1).  Reported:
   elapsed) against the stream's rate loss (1 - R1 / R0): a ratio of 1 means
   the stream lost exactly the line time the polls used and nothing more.
 
+For scale, ``stall_p99_tx``: how much longer than usual (p99 minus p50) the
+stream alone waited between two frames, in units of T: the host's own
+scheduling hiccups, which a poll waits through too.
+
 A flat-out variant (every poller loops without sleeping) shows the bus's
 fairness limit (``Bus.max_requests_between``) instead of typical use.
 
@@ -57,16 +61,20 @@ Figures = dict[str, Any]
 Mark = tuple[int, float]  # (cycle number, perf_counter when the consumer got the frame)
 
 
-async def _window(stream: Stream, duration: float) -> tuple[Mark, Mark]:
+async def _window(stream: Stream, duration: float, gaps: list[float] | None = None) -> tuple[Mark, Mark]:
     """First and last frame of a window of at least ``duration`` seconds.
 
     Timed with ``time.perf_counter`` rather than the frames' loop-time
-    stamps: uvloop's ``loop.time()`` has millisecond resolution.
+    stamps: uvloop's ``loop.time()`` has millisecond resolution.  ``gaps``
+    collects the time between consecutive frames, per cycle.
     """
     first = ((await stream.next_frame()).cycle, time.perf_counter())
     last = first
     while last[1] - first[1] < duration:
-        last = ((await stream.next_frame()).cycle, time.perf_counter())
+        frame = ((await stream.next_frame()).cycle, time.perf_counter())
+        if gaps is not None:
+            gaps.append((frame[1] - last[1]) / (frame[0] - last[0]))
+        last = frame
     return first, last
 
 
@@ -84,7 +92,8 @@ def measure(
                 stream.set_targets(dict.fromkeys(IDS, NEUTRAL))
                 while (await stream.next_frame()).cycle < 5:  # warm-up
                     pass
-                r0 = _rate(*await _window(stream, alone))
+                gaps: list[float] = []
+                r0 = _rate(*await _window(stream, alone, gaps))
                 polls: list[tuple[float, float]] = []  # (start, end) of each read
                 poll_errors: list[float] = []
                 period = 1 / POLL_HZ
@@ -130,6 +139,8 @@ def measure(
         used = len(in_window) * t_read / elapsed
         loss = 1 - r1 / r0
         return {
+            # host stalls seen by the stream alone: p99 minus p50 of the time between frames, in T
+            "stall_p99_tx": (percentile(gaps, 99) - percentile(gaps, 50)) / t_pos,
             "rate_alone_cycles_per_s": r0,
             "rate_shared_cycles_per_s": r1,
             "position_tx_us": t_pos * 1e6,

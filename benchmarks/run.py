@@ -155,16 +155,18 @@ def print_sharing(r: dict[str, Any]) -> None:
         f"real-time pty, direct transport (median of {r['runs']} runs)"
     )
     print("   T = one position transaction's time (measured, stream alone); wait = latency - own transaction;")
+    print("   stall = p99 - p50 of the stream's own time between frames with no pollers (host hiccups), in T;")
     print("   loss/used = stream rate loss over the share of line time the polls used (1.0 = no waste)")
     print(
         f"  {'baud':>8} {'loop':8} {'polling':9} {'T us':>6} {'polls/s':>8} {'lat p50':>8} {'lat p99':>8} "
-        f"{'wait p50':>9} {'wait p99':>9} {'used':>6} {'loss':>6} {'loss/used':>9}"
+        f"{'wait p50':>9} {'wait p99':>9} {'stall':>6} {'used':>6} {'loss':>6} {'loss/used':>9}"
     )
     for row in r["rows"]:
         print(
             f"  {row['baud']:8d} {row['loop']:8} {row['polling']:9} {row['position_tx_us']:6.0f} "
             f"{row['polls_per_s']:8.0f} {row['latency_p50_tx']:7.2f}T {row['latency_p99_tx']:7.2f}T "
-            f"{row['wait_p50_tx']:8.2f}T {row['wait_p99_tx']:8.2f}T {row['line_share_used_by_polls']:6.1%} "
+            f"{row['wait_p50_tx']:8.2f}T {row['wait_p99_tx']:8.2f}T {row['stall_p99_tx']:5.1f}T "
+            f"{row['line_share_used_by_polls']:6.1%} "
             f"{row['stream_rate_loss']:6.1%} {row['loss_per_line_time_used']:9.2f}"
         )
 
