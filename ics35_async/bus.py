@@ -144,6 +144,14 @@ class _Line(asyncio.Protocol):
 
 
 _NO_ID = 32  # counter slot for the ID command, which addresses the whole line
+# Delays between reopen attempts; capped well under 1 s so a returning port is found fast.
+RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
+
+
+def _consume_outcome(future: asyncio.Future[Any]) -> None:
+    """Nobody awaits a guard read: fetch its outcome so asyncio does not warn."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _no_loop_time() -> float:
@@ -163,7 +171,7 @@ class Bus:
         timing: BusTiming | None = None,
         retries: int = 0,
         reconnect: bool = False,
-        reconnect_backoff: Sequence[float] = (0.05, 0.1, 0.2, 0.5, 1.0),
+        reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
         max_requests_between: int = 16,
     ) -> None:
         if not isinstance(port, (str, WireDevice)):
@@ -204,7 +212,10 @@ class Bus:
         self._deadline = 0.0
         self._grace_given = False
         self._corrupted = False  # a byte of this transaction had a parity/framing error
+        # Command byte of a transaction that timed out while its reply may still come (-1: none).
+        self._suspect = -1
         self._line_errors = 0
+        self._guards = 0
         self._watchdog: asyncio.TimerHandle | None = None
         self._quiet_until = 0.0
         self._resync_limit = 0.0
@@ -447,6 +458,11 @@ class Bus:
         return allowance
 
     def _begin(self, tx: bytes, reply_len: int, servo_id: int | None, req: _Request | None, timing: Timing) -> None:
+        if self._suspect >= 0:
+            suspect, self._suspect = self._suspect, -1
+            if tx[0] == suspect and servo_id is not None:
+                self._guard(tx, servo_id, req)
+                return
         transport = self._transport
         assert transport is not None and self._loop is not None
         self._state = _State.BUSY
@@ -474,6 +490,26 @@ class Bus:
             transport.write(tx)
         except Exception as exc:  # the port vanished under us
             self._on_connection_lost(self._line, exc)
+
+    def _guard(self, tx: bytes, servo_id: int, req: _Request | None) -> None:
+        """Put a harmless read between a timed-out command and its twin.
+
+        A reply that missed its deadline can still arrive right after the echo
+        of the next command.  If that command has the same command byte, the
+        late reply has the right length and header and would be taken for the
+        new answer.  A parameter read with a different reply shape goes first
+        instead, so late bytes fail it, not the real request.
+        """
+        if req is not None:
+            self._queues[req.priority].appendleft(req)
+            self._queued += 1
+        param = protocol.Param.SPEED if tx[:2] == bytes((protocol.CMD_READ | servo_id, 1)) else protocol.Param.STRETCH
+        guard = protocol.ReadParam(servo_id, param)
+        assert self._loop is not None
+        future: asyncio.Future[Any] = self._loop.create_future()
+        future.add_done_callback(_consume_outcome)
+        self._guards += 1
+        self._begin(guard.tx, guard.reply_len, servo_id, _Request(guard, future, Priority.URGENT, 0), guard.timing)
 
     def _arm(self) -> None:
         # One watchdog timer follows the moving deadline instead of a timer per
@@ -667,6 +703,8 @@ class Bus:
             error = PartialReply(
                 f"{n} of {m} reply bytes", command=name, servo_id=servo_id, raw=bytes(buf), received=n, expected=m
             )
+        if not isinstance(error, EchoMismatch):
+            self._suspect = self._tx[0]  # the command was heard: its reply may still come
         if req is None:
             source = self._source
             if source is not None:
@@ -783,6 +821,7 @@ class Bus:
             resyncs=self._resyncs,
             stray_bytes=self._stray,
             line_errors=self._line_errors,
+            guards=self._guards,
             reconnects=self._reconnects,
             queued=self._queued,
             by_command=dict(self._by_command),
@@ -879,7 +918,7 @@ def open_bus(
     timing: BusTiming | None = None,
     retries: int = 0,
     reconnect: bool = False,
-    reconnect_backoff: Sequence[float] = (0.05, 0.1, 0.2, 0.5, 1.0),
+    reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
     max_requests_between: int = 16,
     **timing_overrides: float,
 ) -> Bus:

@@ -91,6 +91,7 @@ class BusStats:
     resyncs: int
     stray_bytes: int
     line_errors: int  # bytes the serial port received with parity/framing errors
+    guards: int  # harmless reads put between a timed-out command and its twin
     reconnects: int
     queued: int
     by_command: dict[str, int] = field(default_factory=dict)
