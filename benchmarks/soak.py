@@ -205,6 +205,9 @@ class WirePredictor:
 
 # ====================================================================== chaos: matching outcomes to the log
 
+_GUARD_TXS = frozenset(protocol.ReadParam(i, p).tx for i in range(32) for p in (Param.STRETCH, Param.SPEED))
+"""The bytes of the bus's guard reads; the workloads here never send them themselves."""
+
 
 @dataclass(slots=True)
 class RequestRecord:
@@ -236,7 +239,9 @@ class MatchCounts:
     error_class_differs: int = 0  # a request failed, but not with the error its bytes call for
     undetectable_corruptions: int = 0  # accepted, carried by the bytes, but differs from the servo's answer
     undetectable_without_corrupt_fault: int = 0
-    stale_accepted: int = 0  # an earlier transaction's late reply taken as this one's (same length and header)
+    stale_accepted: int = 0  # another transaction's late reply taken as this one's (same length and header)
+    late_reply_to_own_retry: int = 0  # a request's late first reply arriving during (and taken by) its retry
+    guards: int = 0  # guard reads the bus inserted after a timeout
     noise_accepted: int = 0  # a truncated reply completed by noise bytes into a valid-looking one
     untyped_outcomes: int = 0
     extra_attempts: int = 0  # more attempts than the request's retries allow
@@ -311,7 +316,13 @@ class LogMatcher:
             sid = t.servo_id
             if sid is None:
                 raise CheckError(f"seq {t.seq}: a transaction addressed to no servo ({t.command})")
-            if self.is_stream(t.tx):
+            if t.tx in _GUARD_TXS:
+                # A guard read the bus put between a timed-out command and its twin (see Bus._guard):
+                # no caller asked for it. Its outcome is what its bytes call for.
+                counts.guards += 1
+                if not verdict.ok:
+                    self.ok[-1] = 0  # a failed guard (it took the late bytes) counts as a failed transaction
+            elif self.is_stream(t.tx):
                 counts.stream_entries += 1
                 if self.track_stream:
                     self.stream_entries[sid].append((t.seq, verdict, t.value, t.fault))
@@ -340,7 +351,15 @@ class LogMatcher:
     # -- pairing
 
     def _settle(
-        self, seq: int, verdict: Verdict, clean: Any, fault: str | None, ok: bool, value: Any, when: float
+        self,
+        seq: int,
+        verdict: Verdict,
+        clean: Any,
+        fault: str | None,
+        ok: bool,
+        value: Any,
+        when: float,
+        retry_of_previous: bool = False,
     ) -> None:
         counts = self.counts
         k = seq - self.first_seq
@@ -354,9 +373,13 @@ class LogMatcher:
                     f"seq {seq}: bus returned {value!r}, the bytes {verdict.received.hex(' ')} "
                     f"call for {verdict.value if verdict.ok else verdict.error} (fault {fault})"
                 )
+            elif verdict.source == "stale" and retry_of_previous:
+                # The late reply of this request's previous attempt, taken by its retry: the same
+                # request's answer, correctly attributed.
+                counts.late_reply_to_own_retry += 1
             elif verdict.source == "stale":
-                # The bytes in the reply's place were an earlier transaction's late reply (this one's
-                # own reply was lost): the servo's earlier answer handed out as this one.
+                # The bytes in the reply's place were another transaction's late reply (this one's
+                # own reply was lost): the servo's answer to another command handed out as this one.
                 counts.stale_accepted += 1
                 counts.note(
                     f"seq {seq}: accepted {value!r} from an earlier, late reply; the servo answered {clean!r} "
@@ -424,7 +447,8 @@ class LogMatcher:
         for k, (seq, _tx, verdict, clean, fault) in enumerate(run):
             last = k == len(run) - 1
             if last and record.ok:
-                self._settle(seq, verdict, clean, fault, True, record.value, record.done_time)
+                retry_of_previous = k > 0 and run[k - 1][0] == seq - 1
+                self._settle(seq, verdict, clean, fault, True, record.value, record.done_time, retry_of_previous)
             else:
                 self._settle(seq, verdict, clean, fault, False, None, 0.0)
             if (
@@ -533,17 +557,14 @@ def random_request(
     if roll < 0.33:
         return protocol.Position(sid, protocol.FREE, baudrate=bus.baudrate), servo.free, default_attempts
     if roll < 0.55:
-        param = Param(rng.randrange(1, 5))
-        reader = {
-            Param.STRETCH: servo.read_stretch,
-            Param.SPEED: servo.read_speed,
-            Param.CURRENT: servo.read_current,
-            Param.TEMPERATURE: servo.read_temperature,
-        }[param]
+        # Current and temperature only: the bus's own guard reads (after a timeout) read stretch or
+        # speed, so those bytes in the log are always a guard, never a caller's request.
+        param = rng.choice((Param.CURRENT, Param.TEMPERATURE))
+        reader = servo.read_current if param is Param.CURRENT else servo.read_temperature
         return protocol.ReadParam(sid, param), reader, default_attempts
     if roll < 0.70:
         # Straight to the bus, with its own priority and retries.
-        cmd: Command[Any] = protocol.ReadParam(sid, rng.randrange(1, 5))
+        cmd: Command[Any] = protocol.ReadParam(sid, rng.choice((Param.CURRENT, Param.TEMPERATURE)))
         retries = rng.randrange(3)
         return cmd, lambda: bus.request(cmd, priority=priority, retries=retries), 1 + retries
     if roll < 0.88:
@@ -705,6 +726,8 @@ class ChaosReport:
     undetectable_corruptions: int
     undetectable_without_corrupt_fault: int
     stale_accepted: int
+    late_reply_to_own_retry: int
+    guard_reads: int
     noise_accepted: int
     extra_attempts: int
     accepted: int
@@ -793,6 +816,7 @@ async def chaos_run(
         elapsed = await workload.run(transactions)
         extra = workload.finish()
         extra["fault_spec"] = spec
+        extra["bus_guards"] = bus.stats.guards
         return workload, elapsed, sim, bus, extra
     except BaseException:
         await bus.aclose()
@@ -825,6 +849,11 @@ async def chaos_soak(
     finally:
         await bus.aclose()
         sim.close()
+    if extra["bus_guards"] != work.matcher.counts.guards:
+        post["consistent"] = False
+        post["problems"].append(
+            f"bus counted {extra['bus_guards']} guard reads, the log shows {work.matcher.counts.guards}"
+        )
     counts = work.matcher.counts
     recovery = work.matcher.recovery()
     n = counts.entries
@@ -853,6 +882,8 @@ async def chaos_soak(
         undetectable_corruptions=counts.undetectable_corruptions,
         undetectable_without_corrupt_fault=counts.undetectable_without_corrupt_fault,
         stale_accepted=counts.stale_accepted,
+        late_reply_to_own_retry=counts.late_reply_to_own_retry,
+        guard_reads=counts.guards,
         noise_accepted=counts.noise_accepted,
         extra_attempts=counts.extra_attempts,
         accepted=ok_entries,
@@ -1317,9 +1348,14 @@ def non_executor_threads() -> int:
 
 
 async def unplug_soak(
-    down_times: Sequence[float] = (0.05, 0.2, 0.5, 0.9, 1.4, 1.87, 2.4), cycles_each: int = 3, seed: int = 3
+    down_times: Sequence[float] = (0.05, 0.2, 0.5, 0.856, 1.4, 1.856, 2.4), cycles_each: int = 3, seed: int = 3
 ) -> UnplugReport:
-    """The pty simulator's device vanishes and returns (same path), again and again."""
+    """The pty simulator's device vanishes and returns (same path), again and again.
+
+    The down times include the worst case of the default reconnect backoff
+    (0.05, 0.1, 0.2, 0.5, 1.0 s): a device that returns just after the 4th or
+    5th attempt (0.85 s, 1.85 s after the loss) waits for the next one.
+    """
     t0 = time.perf_counter()
     await asyncio.sleep(0)
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
@@ -1483,6 +1519,7 @@ class FuzzDevice:
         self.script: deque[FuzzCase] = deque()
         self.clean = False
         self.writes = 0
+        self.guards = 0
         self.mismatched_writes = 0
 
     def connect(self, host: Any, baudrate: int) -> None:
@@ -1498,6 +1535,13 @@ class FuzzDevice:
             assert framed is not None and framed[0] is not None
             command = framed[0]
             answer = command.encode_reply(_valid_value(command, bytes([command.servo_id or 0, 5])))
+            out = (data if self.echo else b"") + answer
+        elif data in _GUARD_TXS and not (self.script and self.script[0].command.tx == data):
+            # The bus's guard read after a timeout (see Bus._guard): a healthy answer, no script used.
+            self.guards += 1
+            framed = decode_request(data, baudrate=self.baudrate)
+            assert framed is not None and framed[0] is not None
+            answer = framed[0].encode_reply(_valid_value(framed[0], b"\x05"))
             out = (data if self.echo else b"") + answer
         else:
             case = self.script.popleft()
@@ -1780,8 +1824,10 @@ def summarize_chaos(r: ChaosReport) -> list[tuple[str, str, bool | None]]:
         ("chaos: transactions (faulted)", f"{r.transactions:,} ({r.faulted_fraction:.2%}, every kind)", None),
         (
             "chaos: replies misattributed",
-            f"{r.misattributed + r.stale_accepted} ({r.misattributed} not carried by the bytes received; "
-            f"{r.stale_accepted} stale: an earlier late reply of the same servo filled a lost reply's place)",
+            f"{r.misattributed + r.stale_accepted} ({r.misattributed} not carried by the bytes received, "
+            f"{r.stale_accepted} another command's late reply in a lost reply's place; "
+            f"{r.late_reply_to_own_retry} late first replies taken by their own retry; "
+            f"{r.guard_reads:,} guard reads after timeouts)",
             r.misattributed + r.stale_accepted == 0,
         ),
         (

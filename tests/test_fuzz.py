@@ -8,6 +8,7 @@ intact echo, the codec's checks), else the error class they call for.
 
 from __future__ import annotations
 
+import asyncio
 import sys
 from pathlib import Path
 
@@ -58,7 +59,16 @@ def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: i
     assert not judge(command.tx, bytes([command.tx[0] ^ 1]) + command.tx[1:] + clean).ok
 
 
-@pytest.mark.parametrize("kind", soak.FAULT_KINDS)
+GUARD_LOOP = pytest.mark.xfail(
+    strict=True,
+    reason="bus.py (guard reads, 0d30287): a guard read that times out re-arms the guard, so a read after a "
+    "read to a servo that stays silent gets guard reads forever and never goes out (see test_reliability)",
+)
+
+
+@pytest.mark.parametrize(
+    "kind", [pytest.param(k, marks=GUARD_LOOP) if k in ("drop", "truncate") else k for k in soak.FAULT_KINDS]
+)
 async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the_bus_sound(kind: str) -> None:
     sim = SimBus(soak.chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
     async with open_bus(sim, timing=soak.FAST_TIMING) as bus:
@@ -71,7 +81,8 @@ async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the
                 lambda i=i: bus.servo(i).write_speed(60 + i),
             ):
                 try:
-                    outcomes.append(await call())
+                    async with asyncio.timeout(1):  # a hang is a failure, not a two-minute wait
+                        outcomes.append(await call())
                 except IcsError as exc:
                     outcomes.append(exc)
         errors = [o for o in outcomes if isinstance(o, ReplyError)]

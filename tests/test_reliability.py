@@ -18,6 +18,7 @@ import pytest
 
 from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo
+from ics35_async.sim.faults import NO_FAULTS, Draw
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import soak
@@ -53,15 +54,14 @@ def test_the_wire_predictor_rebuilds_what_the_bus_received() -> None:
 
 def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
     sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
-    sim.servo(2).stretch = 44
     matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1, 2])
-    read1, read2 = protocol.ReadParam(1, Param.STRETCH), protocol.ReadParam(2, Param.STRETCH)
-    run_line(sim, [read1.tx, protocol.position_tx(1, 5002), protocol.position_tx(2, 6002), read2.tx])
+    write1, write2 = protocol.WriteParam(1, Param.SPEED, 44), protocol.WriteParam(2, Param.SPEED, 55)
+    run_line(sim, [write1.tx, protocol.position_tx(1, 5002), protocol.position_tx(2, 6002), write2.tx])
     matcher.drain()
     rec = soak.RequestRecord
-    # The two reads' values swapped, and a frame with the positions swapped.
-    matcher.add_request(rec(1, read1.tx, 1, True, 44, None, True, 0.0, sim.transactions))
-    matcher.add_request(rec(2, read2.tx, 1, True, 30, None, True, 0.0, sim.transactions))
+    # The two writes' answers swapped, and a frame with the positions swapped.
+    matcher.add_request(rec(1, write1.tx, 1, True, 55, None, True, 0.0, sim.transactions))
+    matcher.add_request(rec(2, write2.tx, 1, True, 44, None, True, 0.0, sim.transactions))
     matcher.add_frame(Frame(1, {1: 6000, 2: 5000}, {1: 0.0, 2: 0.0}, frozenset(), frozenset(), 0.0, 0.0))
     matcher.match(final=True)
     assert matcher.counts.misattributed == 4
@@ -71,12 +71,71 @@ def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
 def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
     sim = SimBus([VirtualServo(3)], faults="drop:1.0", log_size=None)
     matcher = soak.LogMatcher(sim, soak.is_stream_tx, [3])
-    read = protocol.ReadParam(3, Param.SPEED)
+    read = protocol.ReadParam(3, Param.TEMPERATURE)
     run_line(sim, [read.tx])
     matcher.drain()
     matcher.add_request(soak.RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
     matcher.match(final=True)
     assert matcher.counts.misattributed == 1 and "call for ReplyTimeout" in matcher.counts.examples[0]
+
+
+class ScriptedFaults(FaultInjector):
+    """The simulator's fault injector, but each transaction's faults come from a script."""
+
+    def __init__(self, *draws: Draw) -> None:
+        super().__init__(FaultConfig(), 0)
+        self.script = list(draws)
+
+    def draw(self, servo_id: int | None) -> Draw:
+        return self.script.pop(0) if self.script else NO_FAULTS
+
+
+LATE, DROP = Draw(False, "late", False, False), Draw(False, "drop", False, False)
+
+
+def test_the_matcher_flags_another_commands_late_reply_taken_as_an_answer() -> None:
+    """Straight on the line (no bus, so no guard read): a late reply, then a lost one with the same header."""
+    sim = SimBus([VirtualServo(1, position=5000)], log_size=None)
+    sim.faults = ScriptedFaults(LATE, DROP)
+    free, move = protocol.Position(1, protocol.FREE, baudrate=115200), protocol.Position(1, 6001, baudrate=115200)
+    run_line(sim, [free.tx, move.tx])
+    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1])
+    matcher.drain()
+    matcher.add_request(soak.RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, 2))
+    matcher.add_request(soak.RequestRecord(1, move.tx, 1, True, 5000, None, True, 0.0, 2))  # free's answer
+    matcher.match(final=True)
+    assert matcher.counts.stale_accepted == 1 and matcher.counts.misattributed == 0
+
+
+@pytest.mark.parametrize("same_request", [True, False])
+async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_again(same_request: bool) -> None:
+    sim = SimBus([VirtualServo(1, position=5000)], log_size=None)
+    sim.faults = ScriptedFaults(LATE, DROP)  # the first answer comes late; the guard's own answer is lost
+    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1])
+    free = protocol.Position(1, protocol.FREE, baudrate=115200)
+    async with open_bus(sim, timing=FAST) as bus:
+        if same_request:  # a retry
+            value = await bus.request(free, retries=1)
+            records = [soak.RequestRecord(1, free.tx, 2, True, value, None, True, 0.0, sim.transactions)]
+        else:  # another request with the same command byte
+            with pytest.raises(ReplyTimeout):
+                await bus.request(free)
+            sim.servo(1).move_by_hand(6000)
+            move = protocol.Position(1, 6001, baudrate=115200)
+            value = await bus.request(move)
+            records = [
+                soak.RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, sim.transactions),
+                soak.RequestRecord(1, move.tx, 1, True, value, None, True, 0.0, sim.transactions),
+            ]
+        assert bus.stats.guards == 1
+    assert value == (5000 if same_request else 6000)  # the answer to this very transaction
+    matcher.drain()
+    for record in records:
+        matcher.add_request(record)
+    matcher.match(final=True)
+    counts = matcher.counts
+    assert counts.guards == 1
+    assert counts.misattributed == counts.stale_accepted == counts.late_reply_to_own_retry == 0
 
 
 # --------------------------------------------------------------------------- the soaks, short
@@ -138,6 +197,13 @@ async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
     assert tally["request_error"] == "BusClosed"
 
 
+def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -> None:
+    bus = open_bus(SimBus([VirtualServo(1)]), reconnect=True)
+    worst_wait = max(bus.reconnect_backoff)
+    reopen_and_first_frame = 0.05  # generous: measured 2-30 ms over a pty
+    assert worst_wait + reopen_and_first_frame < 1.0
+
+
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
     sim = SimBus([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
     bus = await open_bus(sim, reconnect=True, timing=FAST)
@@ -175,12 +241,6 @@ async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None
     sim.close()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bus.py (found by the chaos soak, 2 in 1,000,000): after a timeout, a late reply of that servo "
-    "lands in the next transaction; if that one expects the same reply header and its own reply is lost, "
-    "the stale reply has exactly the right length and header and is handed out as the current answer",
-)
 async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command() -> None:
     sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2)], faults="late@1:1.0")
     async with open_bus(sim, timing=FAST) as bus:
@@ -193,6 +253,23 @@ async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command
         except ReplyError:
             got = None
         assert got != 5000, "the position servo 1 reported to the previous command"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bus.py (guard reads, 0d30287): a guard read that times out sets the suspect command byte again, "
+    "so a read after a read to a silent servo gets guard read after guard read (375 in 2 s) and never goes "
+    "out; fix: a guard's own timeout must not re-arm the guard (mark the guard _Request, skip it in _on_timeout)",
+)
+async def test_a_silent_servo_gets_one_guard_read_not_endless_ones() -> None:
+    sim = SimBus([VirtualServo(1), VirtualServo(2)], faults="drop@1:1.0")
+    async with open_bus(sim, timing=FAST) as bus:
+        for _ in range(3):
+            with pytest.raises(ReplyTimeout):
+                async with asyncio.timeout(2):
+                    await bus.servo(1).read_stretch()
+        assert bus.stats.guards <= 2
+        assert await bus.servo(2).read_stretch() == 30
 
 
 # --------------------------------------------------------------------------- a stalled event loop
