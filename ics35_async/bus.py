@@ -121,11 +121,21 @@ class _State(enum.Enum):
 class _Request:
     __slots__ = ("command", "future", "priority", "retries_left")
 
+    is_guard = False
+
     def __init__(self, command: Command[Any], future: asyncio.Future[Any], priority: int, retries: int) -> None:
         self.command = command
         self.future = future
         self.priority = priority
         self.retries_left = retries
+
+
+class _GuardRequest(_Request):
+    """The harmless read the bus slips in after a timeout (see ``Bus._guard``)."""
+
+    __slots__ = ()
+
+    is_guard = True
 
 
 class _Line(asyncio.Protocol):
@@ -509,7 +519,7 @@ class Bus:
         future: asyncio.Future[Any] = self._loop.create_future()
         future.add_done_callback(_consume_outcome)
         self._guards += 1
-        self._begin(guard.tx, guard.reply_len, servo_id, _Request(guard, future, Priority.URGENT, 0), guard.timing)
+        self._begin(guard.tx, guard.reply_len, servo_id, _GuardRequest(guard, future, Priority.URGENT, 0), guard.timing)
 
     def _arm(self) -> None:
         # One watchdog timer follows the moving deadline instead of a timer per
@@ -703,8 +713,10 @@ class Bus:
             error = PartialReply(
                 f"{n} of {m} reply bytes", command=name, servo_id=servo_id, raw=bytes(buf), received=n, expected=m
             )
-        if not isinstance(error, EchoMismatch):
-            self._suspect = self._tx[0]  # the command was heard: its reply may still come
+        if not isinstance(error, EchoMismatch) and not (req is not None and req.is_guard):
+            # The command was heard: its reply may still come.  (A guard's late reply
+            # always differs in shape from the command it protects, so it needs none.)
+            self._suspect = self._tx[0]
         if req is None:
             source = self._source
             if source is not None:
