@@ -591,34 +591,46 @@ class Bus:
         buf = self._buf
         now = self._time()
         sid = self._current_id
-        self._n_transactions[sid] += 1
-        self._n_bytes_tx[sid] += len(self._tx)
-        self._n_bytes_rx[sid] += len(buf)
-        self._latency.add(now - self._t_start)
+        tx = self._tx
         if self._debug:
-            log.debug("id %s tx %s rx %s", sid, self._tx.hex(" "), buf.hex(" "))
+            log.debug("id %s tx %s rx %s", sid, tx.hex(" "), buf.hex(" "))
+        # Counted now (before the next _begin reuses these fields), recorded as ok later.
+        n_tx, n_rx, latency = len(tx), len(buf), now - self._t_start
+        self._n_transactions[sid] += 1
+        self._n_bytes_tx[sid] += n_tx
+        self._n_bytes_rx[sid] += n_rx
         echo_len = self._echo_len
-        if len(buf) != self._expect or (echo_len and not buf.startswith(self._tx)) or self._corrupted:
+        if n_rx != self._expect or (echo_len and not buf.startswith(tx)) or self._corrupted:
+            self._latency.add(latency)
             self._framing_error(now, sid)
             return
         req = self._current
         self._current = None
         if req is None:
             source = self._source
-            self._after(source.complete(buf, echo_len, now) if source is not None else None, sid)
-            return
-        try:
-            value = req.command.parse(bytes(buf[echo_len:]))
-        except ReplyError as exc:
-            self._fail_request(req, exc, sid)
-            return
+            error = source.complete(buf, echo_len, now) if source is not None else None
+            if error is not None:
+                self._latency.add(latency)
+                self._background_failed(error, sid)
+                return
+            # The next command goes on the wire first; the bookkeeping can wait.
+            self._state = _State.IDLE
+            self._start_next()
+        else:
+            try:
+                value = req.command.parse(bytes(buf[echo_len:]))
+            except ReplyError as exc:
+                self._latency.add(latency)
+                self._fail_request(req, exc, sid)
+                return
+            name = req.command.name
+            self._by_command[name] = self._by_command.get(name, 0) + 1
+            if not req.future.done():
+                req.future.set_result(value)
+            self._state = _State.IDLE
+            self._start_next()
         self._n_ok[sid] += 1
-        name = req.command.name
-        self._by_command[name] = self._by_command.get(name, 0) + 1
-        if not req.future.done():
-            req.future.set_result(value)
-        self._state = _State.IDLE
-        self._start_next()
+        self._latency.add(latency)
 
     def _framing_error(self, now: float, sid: int) -> None:
         """Extra bytes after the reply, or an echo that is not what we sent."""
@@ -653,15 +665,9 @@ class Bus:
             return
         if self._source is not None:
             self._source.fail(error, now)
-        self._after(error, sid)
+        self._background_failed(error, sid)
 
-    def _after(self, error: ReplyError | None, sid: int) -> None:
-        """Close a background transaction: count it and move on (or resync)."""
-        if error is None:
-            self._n_ok[sid] += 1
-            self._state = _State.IDLE
-            self._start_next()
-            return
+    def _background_failed(self, error: ReplyError, sid: int) -> None:
         self._count_error(error, sid)
         self._resync()
 
@@ -722,7 +728,7 @@ class Bus:
             if source is not None:
                 assert self._loop is not None
                 source.fail(error, self._loop.time())
-            self._after(error, sid)
+            self._background_failed(error, sid)
         else:
             self._current = None
             self._fail_request(req, error, sid)
