@@ -59,16 +59,7 @@ def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: i
     assert not judge(command.tx, bytes([command.tx[0] ^ 1]) + command.tx[1:] + clean).ok
 
 
-GUARD_LOOP = pytest.mark.xfail(
-    strict=True,
-    reason="bus.py (guard reads, 0d30287): a guard read that times out re-arms the guard, so a read after a "
-    "read to a servo that stays silent gets guard reads forever and never goes out (see test_reliability)",
-)
-
-
-@pytest.mark.parametrize(
-    "kind", [pytest.param(k, marks=GUARD_LOOP) if k in ("drop", "truncate") else k for k in soak.FAULT_KINDS]
-)
+@pytest.mark.parametrize("kind", soak.FAULT_KINDS)
 async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the_bus_sound(kind: str) -> None:
     sim = SimBus(soak.chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
     async with open_bus(sim, timing=soak.FAST_TIMING) as bus:
