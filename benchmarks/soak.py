@@ -1299,19 +1299,27 @@ async def no_reconnect_session(report: dict[str, Any]) -> None:
     try:
         bus = await open_bus(path, adapter_latency=0.02)
         pending: list[asyncio.Future[Any]] = []
+
+        async def keep_requests_queued() -> None:
+            # Reads nobody answers (each waits out its deadline on the wire) and ordinary reads,
+            # topped up all along: whenever the port goes, some are on the wire or queued.
+            with contextlib.suppress(IcsError):
+                while True:
+                    if sum(not f.done() for f in pending) < 6:
+                        pending.append(bus.submit(protocol.ReadMemory(3, 0, 4), priority=Priority.LOW))
+                        pending.append(bus.submit(protocol.ReadParam(1, Param.SPEED), priority=Priority.LOW))
+                    await asyncio.sleep(0.002)
+
         stream = bus.stream(range(8))
         stream.set_targets({i: 7000 + 100 * i for i in range(8)})
+        feeder = asyncio.create_task(keep_requests_queued())
         try:
             async with stream:
                 while True:
                     await stream.next_frame()
-                    # Keep requests queued all along, one of them a read nobody answers (it waits
-                    # out its deadline on the wire): some are sure to be pending at the loss.
-                    if sum(not f.done() for f in pending) < 4:
-                        pending.append(bus.submit(protocol.ReadMemory(3, 0, 4)))
-                        pending += [bus.submit(protocol.ReadParam(i, Param.SPEED)) for i in range(3)]
         except IcsError as exc:
             report["stream_end"] = type(exc).__name__
+        await feeder
         outcomes = await asyncio.gather(*pending, return_exceptions=True)
         report["pending"] = dict(Counter(type(o).__name__ for o in outcomes if isinstance(o, BaseException)))
         try:
