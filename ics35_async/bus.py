@@ -26,6 +26,7 @@ import contextlib
 import dataclasses
 import enum
 import logging
+import time
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import dataclass
@@ -164,8 +165,9 @@ def _consume_outcome(future: asyncio.Future[Any]) -> None:
         future.exception()
 
 
-def _no_loop_time() -> float:
-    raise BusClosed("bus is not open")
+# The bus's clock: the default event loop's own (time.monotonic); uvloop's loop.time() is
+# whole milliseconds cached per iteration, too coarse for latencies and reply timestamps.
+_now = time.monotonic
 
 
 class Bus:
@@ -241,7 +243,6 @@ class Bus:
         self._n_bytes_tx = self._counters["bytes_tx"]
         self._n_bytes_rx = self._counters["bytes_rx"]
         self._allowances: dict[int, float] = {}  # NORMAL deadline allowance by transaction size
-        self._time: Callable[[], float] = _no_loop_time
         self._latency = LatencyHistogram()
         self._resyncs = 0
         self._stray = 0
@@ -269,7 +270,6 @@ class Bus:
                 raise BusClosed("bus is closed")
             return self
         self._loop = asyncio.get_running_loop()
-        self._time = self._loop.time
         await self._connect()
         self._lost_event = asyncio.Event()
         self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
@@ -485,7 +485,7 @@ class Bus:
         self._buf.clear()
         self._grace_given = False
         self._corrupted = False
-        now = self._time()
+        now = _now()
         self._t_start = now
         nbytes = len(tx) + reply_len
         allowance = self._allowances.get(nbytes) if timing is Timing.NORMAL else None
@@ -536,7 +536,7 @@ class Bus:
     def _on_watchdog(self) -> None:
         self._watchdog = None
         assert self._loop is not None
-        now = self._loop.time()
+        now = _now()
         if self._state is _State.BUSY:
             if now < self._deadline:
                 self._arm()
@@ -573,7 +573,7 @@ class Bus:
                 self._finish()
         elif state is _State.QUIET:
             self._stray += len(data)
-            self._quiet_until = self._time() + self.timing.quiet_time
+            self._quiet_until = _now() + self.timing.quiet_time
             self._grace_given = False
         elif state is _State.IDLE:
             # Bytes on an idle line: a late reply or noise. Let it settle first.
@@ -589,7 +589,7 @@ class Bus:
 
     def _finish(self) -> None:
         buf = self._buf
-        now = self._time()
+        now = _now()
         sid = self._current_id
         tx = self._tx
         if self._debug:
@@ -727,7 +727,7 @@ class Bus:
             source = self._source
             if source is not None:
                 assert self._loop is not None
-                source.fail(error, self._loop.time())
+                source.fail(error, _now())
             self._background_failed(error, sid)
         else:
             self._current = None
@@ -737,7 +737,7 @@ class Bus:
         assert self._loop is not None
         self._resyncs += 1
         self._state = _State.QUIET
-        now = self._loop.time()
+        now = _now()
         self._quiet_until = now + self.timing.quiet_time
         self._resync_limit = now + self.timing.max_resync
         self._buf.clear()

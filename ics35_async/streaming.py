@@ -26,6 +26,7 @@ import dataclasses
 import itertools
 import math
 import statistics
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -41,7 +42,7 @@ from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 class Frame:
     """One completed cycle.
 
-    ``positions`` and ``timestamps`` (event-loop time of each reply) hold the
+    ``positions`` and ``timestamps`` (``time.monotonic()`` of each reply) hold the
     IDs that answered this cycle; ``failed`` the IDs tried that did not;
     ``offline`` the IDs currently out of the cycle.  ``skipped`` counts the
     frames this consumer missed since its previous one.
@@ -128,7 +129,6 @@ class Stream:
         self._positions = [-1] * n
         self._stamps = [0.0] * n
         self._answered = [False] * n
-        self._tried = [False] * n
         self._fail_run = [0] * n
         self._failures = [0] * n
         self._offline = [False] * n
@@ -217,7 +217,6 @@ class Stream:
             return None
         k = self._order[self._pos]
         self._cur = k
-        self._tried[k] = True
         return self._jobs[k]
 
     def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
@@ -262,7 +261,7 @@ class Stream:
     def _start_cycle(self) -> bool:
         """Begin the next cycle if it is due; False while waiting for a fixed-rate slot."""
         loop = asyncio.get_running_loop()
-        now = loop.time()
+        now = time.monotonic()  # the bus's clock (see Bus.open)
         if self.rate_hz is not None and self._cycle:
             due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
             if not self._slot_checked:
@@ -285,7 +284,6 @@ class Stream:
         order = []
         for k in range(len(self.ids)):
             self._answered[k] = False
-            self._tried[k] = False
             if not self._offline[k] or now >= self._next_probe[k]:
                 order.append(k)
         self._order = order
