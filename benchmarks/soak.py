@@ -224,7 +224,7 @@ class RequestRecord:
     value: Any
     error: str | None
     typed: bool  # a value or an IcsError (anything else escaped the library)
-    done_time: float
+    done_time: float  # time.monotonic(), the clock of frame timestamps
     log_mark: int  # sim.transactions when it finished: its entries are all below this
 
 
@@ -624,7 +624,6 @@ class ChaosWorkload:
 
     async def worker(self, k: int) -> None:
         rng = random.Random(self.seed * 1000 + k)
-        loop = asyncio.get_running_loop()
         stats = self.stats
         while not self.stop:
             free = [i for i in self.ids if i not in self.busy]
@@ -649,7 +648,7 @@ class ChaosWorkload:
             else:
                 stats.requests_failed[error or "?"] += 1
             self.matcher.add_request(
-                RequestRecord(sid, cmd.tx, attempts, ok, value, error, typed, loop.time(), self.sim.transactions)
+                RequestRecord(sid, cmd.tx, attempts, ok, value, error, typed, time.monotonic(), self.sim.transactions)
             )
             self.busy.discard(sid)
             if self.request_pause and rng.random() < 0.5:
@@ -959,13 +958,13 @@ async def cancellation_soak(
 
     def record(sid: int, cmd: Command[Any], attempts: int, outcome: BaseException | None, value: Any) -> None:
         if outcome is None:
-            rec = RequestRecord(sid, cmd.tx, attempts, True, value, None, True, loop.time(), sim.transactions)
+            rec = RequestRecord(sid, cmd.tx, attempts, True, value, None, True, time.monotonic(), sim.transactions)
             tally["completed"] += 1
         else:
             typed = isinstance(outcome, (IcsError, asyncio.CancelledError, TimeoutError))
             name = "CancelledError" if isinstance(outcome, (asyncio.CancelledError, TimeoutError)) else None
             name = name or type(outcome).__name__
-            rec = RequestRecord(sid, cmd.tx, attempts, False, None, name, typed, loop.time(), sim.transactions)
+            rec = RequestRecord(sid, cmd.tx, attempts, False, None, name, typed, time.monotonic(), sim.transactions)
             tally["cancelled" if name == "CancelledError" else "failed"] += 1
         matcher.add_request(rec)
 
@@ -1201,7 +1200,7 @@ class UnplugReport:
 
 
 class _PathWatch:
-    """Notes, in loop time, when the pty server's device path disappears and comes back."""
+    """Notes when the pty server's device path disappears and comes back (``time.monotonic()``)."""
 
     def __init__(self, path: str) -> None:
         self.path = path
@@ -1209,13 +1208,13 @@ class _PathWatch:
         self.task: asyncio.Task[None] | None = None
 
     async def run(self) -> None:
-        loop = asyncio.get_running_loop()
         present = True
         while True:
             exists = os.path.exists(self.path)
             if exists != present:
                 present = exists
-                self.events.append(("back" if exists else "gone", loop.time()))
+                # The clock of frame timestamps (see Bus.open).
+                self.events.append(("back" if exists else "gone", time.monotonic()))
             await asyncio.sleep(0.0005)
 
 
