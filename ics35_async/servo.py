@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from . import protocol, units
@@ -168,5 +169,5 @@ class Device:
     async def read_memory(self, address: int, count: int) -> bytes:
         return await self._bus.request(protocol.ReadMemory(self.id, address, count))
 
-    async def write_memory(self, address: int, data: bytes) -> None:
+    async def write_memory(self, address: int, data: bytes | Sequence[int]) -> None:
         await self._bus.request(protocol.WriteMemory(self.id, address, data))

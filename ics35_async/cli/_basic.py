@@ -494,7 +494,7 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
     return 0
 
 
-@click.command(name="set")
+@click.command(name="set", context_settings={"ignore_unknown_options": True})
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("param", metavar="PARAM", type=click.Choice(list(WRITE_PARAMS), case_sensitive=False))
 @click.argument("value", metavar="VALUE", type=int)
