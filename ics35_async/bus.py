@@ -205,6 +205,8 @@ class Bus:
         self._state = _State.CLOSED
         self._closing = False
         self._released = False
+        self._reopening = False
+        self._opening: asyncio.Future[None] | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: asyncio.Transport | None = None
         self._line: _Line | None = None
@@ -219,6 +221,7 @@ class Bus:
         self._expect = 0
         self._echo_len = 0
         self._current: _Request | None = None  # None while a background transaction runs
+        self._owner: BackgroundSource | None = None  # the source whose transaction is on the wire
         self._current_id = _NO_ID
         self._t_start = 0.0
         self._deadline = 0.0
@@ -269,8 +272,19 @@ class Bus:
             if self._closing:
                 raise BusClosed("bus is closed")
             return self
+        if self._opening is not None:  # another open() is under way: share it
+            await asyncio.shield(self._opening)
+            return self
         self._loop = asyncio.get_running_loop()
-        await self._connect()
+        self._opening = self._loop.create_future()
+        try:
+            await self._connect()
+        except BaseException as exc:
+            self._opening.set_exception(exc)
+            self._opening.exception()  # retrieved here; re-raised below
+            self._opening = None
+            raise
+        self._opening.set_result(None)
         self._lost_event = asyncio.Event()
         self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
         return self
@@ -295,9 +309,13 @@ class Bus:
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
         if self._closing or self._state is _State.CLOSED:
             raise BusClosed("bus is closed")
-        if self._source is not None:
-            raise InvalidArgument("stop the running stream before reopening the bus")
-        await self.wait_idle()
+        if self._source is not None or self._reopening:
+            raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
+        self._reopening = True  # attach_source refuses from here on
+        try:
+            await self.wait_idle()
+        finally:
+            self._reopening = False
         if self._state is not _State.IDLE:
             raise PortLost(f"port {self.port} is lost; cannot reopen now")
         self._state = _State.REOPENING
@@ -347,6 +365,7 @@ class Bus:
         if self._current is not None:
             self._settle(self._current, BusClosed("bus closed"))
             self._current = None
+        self._release_idle_waiters()
         log.info("closed %s", self.port)
 
     def _get_loop(self) -> asyncio.AbstractEventLoop:
@@ -402,6 +421,8 @@ class Bus:
         """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
         if source is not None and self._source is not None and source is not self._source:
             raise InvalidArgument("this bus already runs a stream; close it first")
+        if source is not None and (self._reopening or self._state is _State.REOPENING):
+            raise InvalidArgument("the bus is reopening; start the stream afterwards")
         self._source = source
         if source is not None and self._state is _State.IDLE:
             self._start_next()
@@ -450,6 +471,7 @@ class Bus:
         if source is not None:
             job = source.next_transaction()
             if job is not None:
+                self._owner = source
                 self._begin(job[0], job[1], job[2], None, Timing.NORMAL)
                 return
             if self._queued:  # the source yielded its turn but requests still wait
@@ -494,8 +516,7 @@ class Bus:
             if timing is Timing.NORMAL:
                 self._allowances[nbytes] = allowance
         self._deadline = now + allowance
-        if self._watchdog is None:
-            self._arm()
+        self._arm()
         try:
             transport.write(tx)
         except Exception as exc:  # the port vanished under us
@@ -523,10 +544,16 @@ class Bus:
 
     def _arm(self) -> None:
         # One watchdog timer follows the moving deadline instead of a timer per
-        # transaction: transactions normally finish long before their deadline.
-        if self._watchdog is None:
-            assert self._loop is not None
-            self._watchdog = self._loop.call_at(self._deadline, self._on_watchdog)
+        # transaction: transactions normally finish long before their deadline, and
+        # deadlines usually only move later.  When one moves earlier (after an EEPROM
+        # write's long allowance, or a resync's short quiet time), re-arm.
+        watchdog = self._watchdog
+        if watchdog is not None:
+            if watchdog.when() <= self._deadline:
+                return
+            watchdog.cancel()
+        assert self._loop is not None
+        self._watchdog = self._loop.call_at(self._deadline, self._on_watchdog)
 
     def _cancel_watchdog(self) -> None:
         if self._watchdog is not None:
@@ -607,7 +634,9 @@ class Bus:
         req = self._current
         self._current = None
         if req is None:
-            source = self._source
+            # Only the source that sent the command hears its reply (it may have been
+            # detached, and another attached, while the command was on the wire).
+            source = self._owner if self._owner is self._source else None
             error = source.complete(buf, echo_len, now) if source is not None else None
             if error is not None:
                 self._latency.add(latency)
@@ -663,8 +692,8 @@ class Bus:
         if req is not None:
             self._fail_request(req, error, sid)
             return
-        if self._source is not None:
-            self._source.fail(error, now)
+        if self._owner is not None and self._owner is self._source:
+            self._owner.fail(error, now)
         self._background_failed(error, sid)
 
     def _background_failed(self, error: ReplyError, sid: int) -> None:
@@ -685,13 +714,13 @@ class Bus:
 
     def _fail_request(self, req: _Request, error: ReplyError, sid: int) -> None:
         self._count_error(error, sid)
-        if req.retries_left > 0 and not req.future.done():
+        if req.retries_left > 0 and not req.future.done() and not self._closing:
             req.retries_left -= 1
             self._counters["retries"][sid] += 1
             self._queues[req.priority].appendleft(req)
             self._queued += 1
         elif not req.future.done():
-            req.future.set_exception(error)
+            req.future.set_exception(BusClosed("bus closed") if self._closing and req.retries_left else error)
         self._resync()
 
     def _on_timeout(self) -> None:
@@ -724,10 +753,8 @@ class Bus:
             # always differs in shape from the command it protects, so it needs none.)
             self._suspect = self._tx[0]
         if req is None:
-            source = self._source
-            if source is not None:
-                assert self._loop is not None
-                source.fail(error, _now())
+            if self._owner is not None and self._owner is self._source:
+                self._owner.fail(error, _now())
             self._background_failed(error, sid)
         else:
             self._current = None

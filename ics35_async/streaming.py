@@ -221,6 +221,8 @@ class Stream:
 
     def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
+        if k < 0:
+            return None  # not ours: the bus routes only our own, but stay safe
         position = protocol.position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
             try:
@@ -239,6 +241,8 @@ class Stream:
 
     def fail(self, exc: ReplyError, now: float) -> None:
         k = self._cur
+        if k < 0:
+            return
         self._failures[k] += 1
         self._fail_run[k] += 1
         if self._fail_run[k] >= self.offline_after and not self._offline[k]:
@@ -410,12 +414,12 @@ class Stream:
             return
         self._stop()
         if self.free_on_close and self.bus.is_open:
-            with contextlib.suppress(ReplyError, BusClosed):
-                await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
+            await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
 
     def _stop(self) -> None:
         self._running = False
         self._closed = True
+        self._cur = -1
         if self._waiting_timer is not None:
             self._waiting_timer.cancel()
             self._waiting_timer = None
@@ -545,8 +549,12 @@ class GroupStream:
         return {line: s.stats for line, s in self.streams.items()}
 
     async def __aenter__(self) -> GroupStream:
-        for s in self.streams.values():
-            await s.start()
+        try:
+            for s in self.streams.values():
+                await s.start()
+        except BaseException:
+            await self.aclose()  # the lines already started must not stay attached
+            raise
         self._task = asyncio.get_running_loop().create_task(self._merge(), name="ics35 group merge")
         return self
 

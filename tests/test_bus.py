@@ -491,3 +491,45 @@ async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
         async with open_bus(path, adapter_latency=0.05) as bus:
             assert await bus.read_id(exactly_one_device=True) == 4
             assert bus.stats.total.errors == 0
+
+
+# --------------------------------------------------------------------------- regressions found in review
+
+
+async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_allowance() -> None:
+    sim = SimBus([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
+    async with open_bus(sim, adapter_latency=0.005, quiet_time=0.001, eeprom_write=5.0) as bus:
+        image = await bus.servo(1).read_eeprom()
+        await bus.servo(1).write_eeprom(image.replace(speed=90), verify=False)
+        started = time.monotonic()
+        with pytest.raises(ReplyTimeout):
+            await bus.servo(5).read_speed()
+        # The watchdog was still armed for the write's 5 s allowance; it must follow the
+        # new, earlier deadline (~6 ms). The bound is loose on purpose.
+        assert time.monotonic() - started < 2.0
+
+
+async def test_closing_stops_retries_of_the_request_on_the_wire() -> None:
+    sim = SimBus([VirtualServo(1), VirtualServo(5)], faults="drop@5:1.0", log_size=None)
+    bus = await open_bus(sim, retries=5, **FAST)
+    request = bus.submit(protocol.ReadParam(5, protocol.Param.SPEED))
+    await asyncio.sleep(0)
+    assert sim.transactions == 1
+    await bus.aclose()
+    with pytest.raises((ReplyTimeout, BusClosed)):
+        await request
+    assert sim.transactions == 1  # no retry, no guard read after close began
+
+
+async def test_a_stream_cannot_start_while_the_bus_reopens() -> None:
+    sim = SimBus(make_servos(range(4)))
+    async with open_bus(sim, **FAST) as bus:
+        reopening = asyncio.ensure_future(bus.reopen())
+        await asyncio.sleep(0)
+        with pytest.raises(InvalidArgument):
+            async with bus.stream(range(4)):
+                pass
+        await asyncio.wait_for(reopening, 5)
+        async with bus.stream(range(4)) as stream:
+            frame = await stream.next_frame()
+        assert set(frame.positions) == set(range(4))

@@ -700,3 +700,29 @@ async def test_bad_input_raises_invalid_argument_and_writes_nothing() -> None:
         assert frames
         sent = {t.tx for t in position_log(sim, seq)}
         assert sent == {position_tx(1, 7500), position_tx(2, 7000), position_tx(3, 8000)}
+
+
+async def test_a_closed_streams_last_reply_never_reaches_the_next_stream() -> None:
+    """Close a stream with its command on the wire, start another: the old reply is not the new one's."""
+    sim = SimBus([VirtualServo(i) for i in (1, 2, 3, 4)], realtime=True)
+    async with open_bus(sim, adapter_latency=0.01, quiet_time=0.002) as bus:
+        async with bus.stream([1, 2]) as first:
+            await first.next_frame()
+        async with bus.stream([3, 4]) as second:
+            frame = await second.next_frame()
+            frame = await second.next_frame()
+            assert set(frame.positions) == {3, 4} and not frame.failed
+            assert second.stats.failures == {}
+            assert second.stats.cycle_time_max < 1.0  # no bogus cycle from the old stream's reply
+
+
+async def test_a_group_that_fails_to_start_leaves_no_line_streaming() -> None:
+    sims = [make_sim(range(4)), make_sim(range(4))]
+    group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
+    async with group:
+        await group["b"].aclose()
+        with pytest.raises(BusClosed):
+            async with group.stream({"a": [0, 1], "b": [2, 3]}):
+                pass
+        async with group["a"].stream([0, 1]) as stream:  # line a is free again
+            await stream.next_frame()
