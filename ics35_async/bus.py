@@ -534,8 +534,7 @@ class Bus:
         if req is not None:
             self._queues[req.priority].appendleft(req)
             self._queued += 1
-        param = protocol.Param.SPEED if tx[:2] == bytes((protocol.CMD_READ | servo_id, 1)) else protocol.Param.STRETCH
-        guard = protocol.ReadParam(servo_id, param)
+        guard = protocol.guard_read(tx, servo_id)
         assert self._loop is not None
         future: asyncio.Future[Any] = self._loop.create_future()
         future.add_done_callback(_consume_outcome)
@@ -920,14 +919,26 @@ class Bus:
             raise UnsafeOperation(
                 "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"
             )
-        # Take the caller's word, but check it: several devices garble the (harmless) ID read.
+        # Take the caller's word, but check it: exactly one ID may answer a harmless read,
+        # and the ID read (which every device answers) must agree with it.
+        found = await self.scan()
+        if len(found) != 1:
+            raise UnsafeOperation(
+                f"{len(found)} devices answer on this line (IDs {found}); write_id() needs exactly one; "
+                "nothing was written"
+            )
         try:
-            await self.request(protocol.ReadId())
+            current = await self.request(protocol.ReadId())
         except BadReply as exc:
             raise UnsafeOperation(
                 f"the ID read came back garbled ({exc.raw.hex(' ')}): more than one device is on the line; "
                 "nothing was written"
             ) from exc
+        if current != found[0]:
+            raise UnsafeOperation(
+                f"the ID read says {current} but ID {found[0]} answers: another device (at another baud "
+                "rate?) may share the line; nothing was written"
+            )
         return await self.request(command)
 
     async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:

@@ -256,6 +256,16 @@ class ReadParam(Command[int]):
         return bytes((self.tx[0] & 0x7F, self.param, value))
 
 
+def guard_read(tx: bytes, servo_id: int) -> ReadParam:
+    """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
+
+    A parameter read of another sub-command: a late reply to ``tx`` fails its
+    header, sub-command or length check.
+    """
+    same_as_stretch_read = tx[:2] == bytes((CMD_READ | servo_id, Param.STRETCH))
+    return ReadParam(servo_id, Param.SPEED if same_as_stretch_read else Param.STRETCH)
+
+
 class ReadEeprom(Command[Eeprom]):
     """Parameter read SC 0: the 64-byte EEPROM image."""
 

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ics35_async import protocol
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.errors import (
     BadReply,
@@ -809,3 +810,24 @@ def test_baud_rate_enum_values_match_the_line() -> None:
 def test_all_errors_are_ics_errors() -> None:
     for error in (ReplyLengthError, ReplyHeaderError, ReplySubcommandError, ReplyValueError, ReplyDataError):
         assert issubclass(error, BadReply) and issubclass(error, IcsError)
+
+
+def test_guard_read_differs_in_reply_shape_from_the_command_it_guards() -> None:
+    stretch = protocol.ReadParam(4, protocol.Param.STRETCH)
+    assert protocol.guard_read(stretch.tx, 4).tx == bytes.fromhex("a4 02")  # speed, not stretch again
+    for command in (
+        protocol.Position(4, 7500, baudrate=115200),
+        protocol.ReadParam(4, protocol.Param.SPEED),
+        protocol.ReadEeprom(4),
+    ):
+        guard = protocol.guard_read(command.tx, 4)
+        assert guard.tx == bytes.fromhex("a4 01")
+        late = command.encode_reply(command.parse(command.encode_reply(_sample_value(command))))
+        with pytest.raises(BadReply):  # the late reply never passes as the guard's answer
+            guard.parse(late)
+
+
+def _sample_value(command: protocol.Command[Any]) -> Any:
+    if isinstance(command, protocol.ReadEeprom):
+        return Eeprom.factory(4)
+    return 30
