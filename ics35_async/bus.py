@@ -861,7 +861,7 @@ class Bus:
         return BusStats(
             total=total,
             per_id=per_id,
-            latency=self._latency,
+            latency=self._latency.copy(),
             resyncs=self._resyncs,
             stray_bytes=self._stray,
             line_errors=self._line_errors,
@@ -890,7 +890,7 @@ class Bus:
 
         from .streaming import Stream
 
-        unknown = set(options) - set(inspect.signature(Stream).parameters)
+        unknown = set(options) - (set(inspect.signature(Stream).parameters) - {"bus", "ids"})
         if unknown:
             raise InvalidArgument(f"unknown stream option(s): {', '.join(sorted(unknown))}")
         return Stream(self, ids, rate_hz=rate_hz, **options)

@@ -29,6 +29,12 @@ class LatencyHistogram:
         if seconds > self.max_s:
             self.max_s = seconds
 
+    def copy(self) -> LatencyHistogram:
+        other = LatencyHistogram()
+        other.counts = list(self.counts)
+        other.total, other.sum_s, other.max_s = self.total, self.sum_s, self.max_s
+        return other
+
     def percentile(self, p: float) -> float:
         """Upper edge (seconds) of the bucket holding the ``p``-th percentile; 0 when empty."""
         if not self.total:
@@ -46,7 +52,7 @@ class LatencyHistogram:
         return self.sum_s / self.total if self.total else 0.0
 
 
-# Names of the per-ID counters, in slot order (see IdCounters).
+# Names of the per-ID counters (the fields of IdStats; the bus keeps one list per name).
 COUNTER_NAMES = (
     "transactions",
     "ok",

@@ -383,7 +383,7 @@ class Stream:
         elapsed = (self._latest.finished - self._first_start) if self._latest else 0.0
         return StreamStats(
             cycles=self._cycle,
-            rate_hz=self._cycle / elapsed if elapsed > 0 else 0.0,
+            rate_hz=self._latest.cycle / elapsed if self._latest and elapsed > 0 else 0.0,
             cycle_time_p50=_percentile(times, 50),
             cycle_time_p90=_percentile(times, 90),
             cycle_time_p99=_percentile(times, 99),

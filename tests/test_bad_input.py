@@ -192,6 +192,7 @@ BAD_CALLS: list[Any] = [
     ("stream free id not in stream", lambda e: e.stream.free([9])),
     ("stream target id not in stream", lambda e: e.stream.target(9)),
     ("stream ids int", lambda e: e.bus.stream(5)),
+    ("stream option bus", lambda e: e.bus.stream([1], bus=e.bus)),
     ("stream free int", lambda e: e.stream.free(5)),
     ("set_targets str", lambda e: e.stream.set_targets("abc")),
     ("set_targets None", lambda e: e.stream.set_targets(None)),

@@ -178,9 +178,7 @@ async def test_pty_split_chunks_arrive_in_order(pty: Pty, kind: str) -> None:
 
 
 @pytest.mark.parametrize("kind", SERIAL_KINDS)
-async def test_pty_parity_dropped_is_handled_at_debug(
-    pty: Pty, kind: str, caplog: pytest.LogCaptureFixture
-) -> None:
+async def test_pty_parity_dropped_is_handled_at_debug(pty: Pty, kind: str, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.DEBUG, logger="ics35_async.transport")
     line, rec = await open_recorder(pty.port, transport=kind)
     ser = line.get_extra_info("serial")

@@ -56,7 +56,15 @@ from ..protocol import (
     WriteMemory,
     WriteParam,
 )
-from ..units import NEUTRAL, POSITION_MAX, celsius_to_temperature, check_int, stretch_from_eeprom
+from ..units import (
+    NEUTRAL,
+    POSITION_MAX,
+    Current,
+    celsius_to_temperature,
+    check_int,
+    current_to_raw,
+    stretch_from_eeprom,
+)
 
 MAX_RATE = 12000.0
 """Counts per second at speed 127 (KRS servos turn 60 degrees in about 0.14 s)."""
@@ -217,7 +225,7 @@ class VirtualServo:
             reverse = self._to_shaft(self._target) < self._to_shaft(self.position)
         else:
             reverse = self.load < 0
-        return magnitude | (0x40 if reverse and magnitude else 0)
+        return current_to_raw(Current(magnitude, reverse and magnitude > 0))
 
     @property
     def temperature(self) -> int:
