@@ -64,7 +64,6 @@ import logging
 import math
 import os
 import random
-import select
 import statistics
 import subprocess
 import sys
@@ -90,7 +89,15 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.protocol import Command, Param, decode_request
-from ics35_async.sim import FaultConfig, FaultInjector, SimBus, Transaction, VirtualServo, stop_subprocess
+from ics35_async.sim import (
+    FaultConfig,
+    FaultInjector,
+    SimBus,
+    Transaction,
+    VirtualServo,
+    start_subprocess,
+    stop_subprocess,
+)
 
 FAULT_KINDS = ("drop", "truncate", "corrupt", "msb", "late", "noise", "echo")
 FAST_TIMING = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
@@ -1125,20 +1132,7 @@ async def cancellation_soak(
 
 def start_pty_server(args: Sequence[str], timeout: float = 15.0) -> tuple[subprocess.Popen[str], str]:
     """``python -m ics35_async.sim ARGS`` quietly (its notes go to /dev/null); returns it and its device path."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.sim", *args],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    assert proc.stdout is not None
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    line = proc.stdout.readline() if ready else ""
-    if not line.strip():
-        stop_subprocess(proc)
-        raise RuntimeError("the pty simulator did not print its device path")
-    return proc, line.strip()
+    return start_subprocess(args, timeout=timeout, quiet=True)
 
 
 def open_fds() -> int:

@@ -443,16 +443,18 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
 
 
 def start_subprocess(
-    args: Sequence[str] = (), *, timeout: float = 15.0, python: str | None = None
+    args: Sequence[str] = (), *, timeout: float = 15.0, python: str | None = None, quiet: bool = False
 ) -> tuple[subprocess.Popen[str], str]:
     """Launch the server in a subprocess; return it and the device path it printed.
 
-    Stop it with :func:`stop_subprocess` (or use :func:`serving`).
+    ``quiet`` sends its notes (stderr) to /dev/null.  Stop it with
+    :func:`stop_subprocess` (or use :func:`serving`).
     """
     proc = subprocess.Popen(
         [python or sys.executable, "-m", "ics35_async.sim", *args],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL if quiet else None,
         text=True,
     )
     assert proc.stdout is not None
