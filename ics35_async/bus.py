@@ -272,19 +272,18 @@ class Bus:
             if self._closing:
                 raise BusClosed("bus is closed")
             return self
-        if self._opening is not None:  # another open() is under way: share it
+        if self._opening is not None:  # another open() is under way: share its outcome
             await asyncio.shield(self._opening)
+            if self._state is _State.CLOSED:
+                raise BusClosed(f"opening {self.port} failed")
             return self
         self._loop = asyncio.get_running_loop()
-        self._opening = self._loop.create_future()
+        opening = self._opening = self._loop.create_future()
         try:
             await self._connect()
-        except BaseException as exc:
-            self._opening.set_exception(exc)
-            self._opening.exception()  # retrieved here; re-raised below
+        finally:
             self._opening = None
-            raise
-        self._opening.set_result(None)
+            opening.set_result(None)  # waiters look at the state, not at this result
         self._lost_event = asyncio.Event()
         self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
         return self
@@ -295,6 +294,7 @@ class Bus:
         )
         self._transport, self._line = transport, line
         self._buf.clear()
+        self._allowances.clear()  # wire times depend on the baud rate, which reopen() may change
         self._state = _State.IDLE
         log.info("opened %s at %d baud", self.port, self.baudrate)
         self._start_next()
