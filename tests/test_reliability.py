@@ -146,7 +146,8 @@ async def test_chaos_short() -> None:
     assert report.transactions >= 12_000
     assert 0.01 < report.faulted_fraction < 0.03
     assert set(report.fault_kinds) == set(soak.FAULT_KINDS)
-    assert report.stream_outcomes > 5_000 and report.requests > 1_000
+    # Both kinds of traffic ran (their split depends on scheduling, so only a floor).
+    assert report.stream_outcomes > 2_000 and report.requests > 500
     assert report.skipped_frames == 0
     assert report.misattributed == 0, report.examples
     assert report.requests_never_completed == 0, report.requests_never_completed
