@@ -662,32 +662,32 @@ class Bus:
 
     def _framing_error(self, now: float, sid: int) -> None:
         """Extra bytes after the reply, or an echo that is not what we sent."""
-        buf = self._buf
-        req, self._current = self._current, None
-        name = req.command.name if req is not None else "position"
-        servo_id = None if sid == _NO_ID else sid
-        error: ReplyError
         if self._corrupted:
-            error = ReplyDataError(
-                "a byte arrived with a parity or framing error (noise on the line?)",
-                command=name,
-                servo_id=servo_id,
-                raw=bytes(buf),
+            error = self._transaction_error(
+                ReplyDataError, "a byte arrived with a parity or framing error (noise on the line?)"
             )
-        elif len(buf) > self._expect:
-            error = BadReply(
-                f"{len(buf) - self._expect} unexpected extra byte(s) after the reply",
-                command=name,
-                servo_id=servo_id,
-                raw=bytes(buf),
+        elif len(self._buf) > self._expect:
+            error = self._transaction_error(
+                BadReply, f"{len(self._buf) - self._expect} unexpected extra byte(s) after the reply"
             )
         else:
-            error = EchoMismatch(
-                f"echo differs from the bytes sent ({self._tx.hex(' ')})",
-                command=name,
-                servo_id=servo_id,
-                raw=bytes(buf),
-            )
+            error = self._transaction_error(EchoMismatch, f"echo differs from the bytes sent ({self._tx.hex(' ')})")
+        self._transaction_failed(error, sid, now)
+
+    def _transaction_error(self, cls: type[ReplyError], message: str, **extra: int) -> ReplyError:
+        """A ``cls`` error about the transaction on the wire, carrying every byte received."""
+        req = self._current
+        return cls(
+            message,
+            command=req.command.name if req is not None else "position",
+            servo_id=None if self._current_id == _NO_ID else self._current_id,
+            raw=bytes(self._buf),
+            **extra,
+        )
+
+    def _transaction_failed(self, error: ReplyError, sid: int, now: float) -> None:
+        """Hand a failed transaction's error to its request, or to the stream that sent it."""
+        req, self._current = self._current, None
         if req is not None:
             self._fail_request(req, error, sid)
             return
@@ -725,39 +725,29 @@ class Bus:
     def _on_timeout(self) -> None:
         buf = self._buf
         sid = self._current_id
-        req = self._current
-        servo_id = None if sid == _NO_ID else sid
-        name = req.command.name if req is not None else "position"
-        self._counters["transactions"][sid] += 1
-        self._counters["bytes_tx"][sid] += len(self._tx)
-        self._counters["bytes_rx"][sid] += len(buf)
         got = len(buf)
+        self._n_transactions[sid] += 1
+        self._n_bytes_tx[sid] += len(self._tx)
+        self._n_bytes_rx[sid] += got
+        echo_len = self._echo_len
         error: ReplyError
-        if self._echo_len and buf[: min(got, self._echo_len)] != self._tx[: min(got, self._echo_len)]:
-            error = EchoMismatch("echo differs from the bytes sent", command=name, servo_id=servo_id, raw=bytes(buf))
+        if echo_len and buf[: min(got, echo_len)] != self._tx[: min(got, echo_len)]:
+            error = self._transaction_error(EchoMismatch, "echo differs from the bytes sent")
         elif got == 0:
-            what = "no echo and no reply: is the adapter connected?" if self._echo_len else "no reply"
-            error = ReplyTimeout(what, command=name, servo_id=servo_id, raw=b"")
-        elif got <= self._echo_len:
-            error = ReplyTimeout(
-                "no reply (check ID, baud rate, power)", command=name, servo_id=servo_id, raw=bytes(buf)
+            error = self._transaction_error(
+                ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply"
             )
+        elif got <= echo_len:
+            error = self._transaction_error(ReplyTimeout, "no reply (check ID, baud rate, power)")
         else:
-            n, m = got - self._echo_len, self._expect - self._echo_len
-            error = PartialReply(
-                f"{n} of {m} reply bytes", command=name, servo_id=servo_id, raw=bytes(buf), received=n, expected=m
-            )
+            n, m = got - echo_len, self._expect - echo_len
+            error = self._transaction_error(PartialReply, f"{n} of {m} reply bytes", received=n, expected=m)
+        req = self._current
         if not isinstance(error, EchoMismatch) and not (req is not None and req.is_guard):
             # The command was heard: its reply may still come.  (A guard's late reply
             # always differs in shape from the command it protects, so it needs none.)
             self._suspect = self._tx[0]
-        if req is None:
-            if self._owner is not None and self._owner is self._source:
-                self._owner.fail(error, _now())
-            self._background_failed(error, sid)
-        else:
-            self._current = None
-            self._fail_request(req, error, sid)
+        self._transaction_failed(error, sid, _now())
 
     def _resync(self) -> None:
         assert self._loop is not None

@@ -467,9 +467,6 @@ class WriteMemory(_MemoryCommand[None]):
         return self.tx[:4]
 
 
-AnyCommand = Command[int] | Command[Eeprom] | Command[None] | Command[bytes]
-
-
 def _msb_in(buf: bytes | bytearray, end: int) -> bool:
     """Whether a data byte of the frame ``buf[:end]`` (as far as it has arrived) has its MSB set."""
     return any(b & 0x80 for b in buf[1:end])

@@ -167,11 +167,7 @@ class Stream:
 
     def set_target(self, servo_id: int, position: int) -> None:
         """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
-        k = self._slot(servo_id)
-        units.check_int("position", position, 0, protocol.POSITION_MAX)
-        if self._targets[k] != position:
-            self._targets[k] = position
-            self._jobs[k] = (protocol.position_tx(servo_id, position), 3, servo_id)
+        self._apply([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
     def set_targets(self, targets: Mapping[int, int]) -> None:
         """Several targets at once; all are checked before any is applied."""

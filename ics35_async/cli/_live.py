@@ -59,7 +59,6 @@ class Telemetry:
         self.current: dict[int, int] = {}
         self.temperature: dict[int, int] = {}
         self.errors: dict[int, int] = dict.fromkeys(self.ids, 0)
-        self.reads = 0
         self._next = 0
         self._pending = 0
 
@@ -83,7 +82,6 @@ class Telemetry:
             exc = fut.exception()
             if exc is None:
                 store[sid] = fut.result()
-                self.reads += 1
             elif isinstance(exc, ReplyError):
                 self.errors[sid] = self.errors.get(sid, 0) + 1
 

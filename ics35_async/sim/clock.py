@@ -66,7 +66,6 @@ class Deliverer:
         self._cond = threading.Condition(threading.Lock())
         self._closed = False
         self.lateness_max = 0.0
-        self.delivered = 0
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
@@ -114,6 +113,5 @@ class Deliverer:
             if stale:
                 continue
             self.lateness_max = max(self.lateness_max, time.perf_counter() - when)
-            self.delivered += 1
             with contextlib.suppress(Exception):  # a host gone away must not kill the thread
                 sink(data)
