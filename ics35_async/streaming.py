@@ -26,7 +26,6 @@ import dataclasses
 import itertools
 import math
 import statistics
-import time
 from collections import deque
 from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -36,6 +35,8 @@ from typing import Any
 from . import protocol, units
 from .bus import Bus, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
+
+INF = math.inf
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,10 @@ def _percentile(sorted_values: Sequence[float], p: float) -> float:
         return 0.0
     k = min(len(sorted_values) - 1, max(0, math.ceil(len(sorted_values) * p / 100) - 1))
     return sorted_values[k]
+
+
+# Options of Stream beyond its IDs and rate (what Bus.stream passes through).
+STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "history"})
 
 
 class Stream:
@@ -140,7 +145,7 @@ class Stream:
         self._cycle = 0
         self._cycle_start = 0.0
         self._t0 = 0.0
-        self._waiting_timer: asyncio.TimerHandle | None = None
+        self.wake_at = INF  # when a cycle waiting for its fixed-rate slot (or a probe) is due
         self._running = False
         self._closed = False
         self._end_error: IcsError = BusClosed("stream closed")
@@ -206,10 +211,10 @@ class Stream:
 
     # ------------------------------------------------------------------ BackgroundSource
 
-    def next_transaction(self) -> tuple[bytes, int, int] | None:
+    def next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
         if not self._running:
             return None
-        if self._pos >= len(self._order) and not self._start_cycle():
+        if self._pos >= len(self._order) and not self._start_cycle(now):
             return None
         k = self._order[self._pos]
         self._cur = k
@@ -247,7 +252,7 @@ class Stream:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
 
-    def bus_closed(self, exc: IcsError) -> None:
+    def line_closed(self, exc: IcsError) -> None:
         self._end_error = exc
         self._stop()
 
@@ -258,10 +263,9 @@ class Stream:
 
     # ------------------------------------------------------------------ cycles
 
-    def _start_cycle(self) -> bool:
-        """Begin the next cycle if it is due; False while waiting for a fixed-rate slot."""
-        loop = asyncio.get_running_loop()
-        now = time.monotonic()  # the bus's clock (see Bus.open)
+    def _start_cycle(self, now: float) -> bool:
+        """Begin the next cycle if it is due; False (and ``wake_at`` set) while waiting for a slot."""
+        self.wake_at = INF
         if self.rate_hz is not None and self._cycle:
             due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
             if not self._slot_checked:
@@ -271,8 +275,7 @@ class Stream:
                 if now > due:
                     self._overruns += 1
             if now < due:
-                if self._waiting_timer is None:
-                    self._waiting_timer = loop.call_at(due, self._on_due)
+                self.wake_at = due
                 return False
             if now - due > 1 / self.rate_hz:
                 # A whole slot missed: re-anchor instead of bursting to catch up.
@@ -293,16 +296,9 @@ class Stream:
         if not order:
             # Everything is offline: wait for the next probe instead of spinning.
             self._publish(now)
-            wake = min(self._next_probe)
-            if self._waiting_timer is None:
-                self._waiting_timer = loop.call_at(wake, self._on_due)
+            self.wake_at = min(self._next_probe)
             return False
         return True
-
-    def _on_due(self) -> None:
-        self._waiting_timer = None
-        if self._running:
-            self.bus.kick()
 
     def _publish(self, now: float) -> None:
         self._slot_checked = False
@@ -399,9 +395,12 @@ class Stream:
         if not self.bus.is_open:
             raise BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
         if not self._running:
-            self.bus.attach_source(self)
             self._running = True
-            self.bus.kick()
+            try:
+                self.bus.attach_source(self)
+            except BaseException:
+                self._running = False
+                raise
         return self
 
     async def aclose(self) -> None:
@@ -416,9 +415,7 @@ class Stream:
         self._running = False
         self._closed = True
         self._cur = -1
-        if self._waiting_timer is not None:
-            self._waiting_timer.cancel()
-            self._waiting_timer = None
+        self.wake_at = INF
         self.bus.detach_source(self)
         waiters, self._waiters = self._waiters, []
         for w in waiters:

@@ -414,8 +414,7 @@ async def test_baud_change_then_reopen_at_the_new_rate() -> None:
         assert bus.baudrate == 625000
         assert await servo.read_stretch() == 30
         # Deadlines follow the new rate: the allowance cache was rebuilt at 625000.
-        expected = bus._transaction_allowance(5)
-        assert bus._allowances[5] == expected
+        assert bus._engine._allowances[5] == bus.timing.allowance(5, 625000)
 
 
 async def test_stats_and_debug_trace(line: tuple[SimBus, Bus], caplog: pytest.LogCaptureFixture) -> None:

@@ -1,0 +1,170 @@
+"""The asyncio driver: the engine fed from the event loop's I/O callbacks.
+
+The hot path is ``data_received``: the callback that completes one
+transaction writes the next one straight away, so a transaction costs no
+task switch and no extra loop pass.  One timer follows the engine's moving
+deadline instead of a timer per transaction: transactions normally finish
+long before their deadline, and deadlines usually only move later.
+
+The armed time is kept here, never read back from the timer handle: uvloop's
+``call_at`` with a time already past returns a plain ``Handle`` without
+``when()``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from ..engine import LineEngine, Request
+from ..errors import IcsError
+from ..protocol import Command
+
+log = logging.getLogger("ics35_async")
+
+T = TypeVar("T")
+INF = float("inf")
+
+# The engine's clock: the default event loop's own (time.monotonic); uvloop's loop.time()
+# is whole milliseconds cached per iteration, too coarse for latencies and reply timestamps.
+now = time.monotonic
+
+
+class FutureRequest(Request):
+    """A request whose outcome goes to an asyncio future."""
+
+    __slots__ = ("future",)
+
+    def __init__(self, command: Command[Any], future: asyncio.Future[Any], priority: int, retries: int) -> None:
+        super().__init__(command, priority, retries)
+        self.future = future
+
+    def abandoned(self) -> bool:
+        return self.future.done()
+
+    def resolve(self, value: Any) -> None:
+        if not self.future.done():
+            self.future.set_result(value)
+
+    def reject(self, error: IcsError) -> None:
+        if not self.future.done():
+            self.future.set_exception(error)
+
+
+class AsyncioLine(asyncio.Protocol):
+    """Moves bytes and time between one :class:`LineEngine` and an asyncio transport."""
+
+    def __init__(
+        self,
+        engine: LineEngine,
+        loop: asyncio.AbstractEventLoop,
+        on_lost: Callable[[AsyncioLine, Exception | None], None],
+        discard_input: Callable[[asyncio.BaseTransport], None],
+    ) -> None:
+        self.engine = engine
+        self.loop = loop
+        self.transport: asyncio.Transport | None = None
+        self._on_lost = on_lost
+        self._discard_input = discard_input
+        self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
+        self._armed = INF  # when the timer fires (INF: no timer)
+        self._grace = False  # the timer is giving the loop one more I/O poll before judging
+        self.idle_waiters: list[asyncio.Future[None]] = []
+
+    # ------------------------------------------------------------------ from the transport
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def data_received(self, data: bytes) -> None:
+        engine = self.engine
+        out = engine.receive(data, now())
+        if out is not None:
+            self.write(out)
+        if engine.deadline < self._armed:
+            self._arm()
+        if self.idle_waiters and engine.idle:
+            self.release_idle_waiters()
+
+    def line_error(self, count: int) -> None:
+        """The transport saw ``count`` bytes arrive with parity or framing errors."""
+        self.engine.line_error(count)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.cancel_timer()
+        self._on_lost(self, exc)
+
+    # ------------------------------------------------------------------ to the transport
+
+    def write(self, data: bytes) -> None:
+        transport = self.transport
+        if transport is None:
+            return
+        try:
+            transport.write(data)
+        except Exception as exc:  # the port vanished under us
+            self.transport = None
+            self.connection_lost(exc)
+
+    def pump(self, out: bytes | None) -> None:
+        """After any engine call from outside the I/O callbacks: write, arm, wake waiters."""
+        if out is not None:
+            self.write(out)
+        if self.engine.deadline < self._armed:
+            self._arm()
+        if self.idle_waiters and self.engine.idle:
+            self.release_idle_waiters()
+
+    # ------------------------------------------------------------------ time
+
+    def _arm(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        deadline = self.engine.deadline
+        self._armed = deadline
+        self._grace = False
+        self._timer = self.loop.call_at(deadline, self._on_timer)
+
+    def cancel_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._armed = INF
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._armed = INF
+        engine = self.engine
+        t = now()
+        if t < engine.deadline:
+            if engine.deadline < INF:
+                self._arm()
+            return
+        if not self._grace:
+            # The loop may have stalled past the deadline with the reply already read or
+            # queued behind this callback: judge after one more I/O poll.  A timer (not
+            # call_soon) runs after that poll's I/O callbacks.
+            self._grace = True
+            self._armed = t
+            self._timer = self.loop.call_at(t, self._on_timer)
+            return
+        self._grace = False
+        out = engine.tick(t)
+        if engine.flush_input:
+            engine.flush_input = False
+            if self.transport is not None:
+                self._discard_input(self.transport)
+        self.pump(out)
+        if self._timer is None and engine.deadline < INF:
+            self._arm()
+
+    # ------------------------------------------------------------------ waiting for quiet
+
+    def release_idle_waiters(self) -> None:
+        waiters, self.idle_waiters = self.idle_waiters, []
+        for w in waiters:
+            if not w.done():
+                w.set_result(None)

@@ -1,0 +1,433 @@
+"""The line engine: every rule of a half-duplex ICS line as a plain state machine.
+
+No event loop, no clock, no I/O (h11 is the model).  A driver feeds it what
+happens -- bytes received, the time, a deadline passed, the port lost -- and
+each call answers with the bytes to write next (or ``None``).  After any
+call, ``deadline`` is when the engine wants :meth:`tick` (``math.inf``: not
+until something else happens) and ``flush_input`` asks the driver to drop the
+OS input buffer before writing.  Requests learn their outcome through
+``Request.resolve``/``reject``; the stream (the background source) through
+its own plain methods.
+
+The rules, each in one place:
+
+* one transaction at a time: write, consume the echo (when the line echoes),
+  read exactly the reply length of that command, validate it;
+* outcome: a reply that does not arrive by the deadline is a timeout, a
+  partial reply, or an echo mismatch, by what did arrive; extra bytes, a
+  wrong echo, a byte with a parity error or a reply the codec rejects fail
+  it too;
+* resync: after any fault, wait until the line has been quiet for
+  ``quiet_time`` (at most ``max_resync``), so the late bytes of a failed
+  transaction are never taken for the next reply;
+* guard read: after a timeout, a command with the same command byte does not
+  go next (the late reply would fit it); a harmless read of another shape
+  goes first;
+* priorities, and the stream's share: at most ``max_requests_between``
+  requests between two stream transactions;
+* retries of idempotent commands; cancellation (a cancelled request's reply
+  is still consumed and dropped);
+* a slow link: late bytes raise every allowance (see :mod:`.link`).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+
+from .. import protocol
+from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
+from ..protocol import Timing
+from .counters import NO_ID, LineCounters, error_counter
+from .link import LinkLatency
+from .outcome import framing_error, timeout_error
+from .requests import GuardRequest, Priority, Request, RequestQueue
+from .source import BackgroundSource
+from .timing import BusTiming
+
+log = logging.getLogger("ics35_async")
+
+INF = math.inf
+
+
+class State(enum.Enum):
+    OFFLINE = "offline"  # no line yet, or reopening: requests wait
+    IDLE = "idle"
+    BUSY = "busy"  # a transaction is on the wire
+    QUIET = "quiet"  # resyncing: waiting for silence
+    DRAINING = "draining"  # closing: the transaction on the wire finishes, nothing new starts
+    LOST = "lost"  # the port is gone and the driver is reconnecting: requests fail at once
+    CLOSED = "closed"
+
+
+class LineEngine:
+    """The rules of one ICS line.  See the module docstring for the contract."""
+
+    def __init__(
+        self, *, baudrate: int, echo: bool = True, timing: BusTiming | None = None, max_requests_between: int = 16
+    ) -> None:
+        self.baudrate = baudrate
+        self.echo = echo
+        self.timing = timing or BusTiming()
+        self.max_requests_between = max_requests_between
+        self.state = State.OFFLINE
+        self.deadline = INF
+        self.flush_input = False
+        self.counters = LineCounters()
+        self.link = LinkLatency(bound=0.25)
+        self.debug = False
+        self.queue = RequestQueue()
+        self._source: BackgroundSource | None = None
+        self._in_row = 0  # requests run since the source's last transaction
+        self._allowances: dict[int, float] = {}  # NORMAL allowance by transaction size
+        # The transaction on the wire.
+        self._buf = bytearray()
+        self._tx = b""
+        self._expect = 0
+        self._echo_len = 0
+        self._current: Request | None = None  # None while the source's transaction runs
+        self._owner: BackgroundSource | None = None
+        self._current_id = NO_ID
+        self._t_start = 0.0
+        self._base = 0.0  # this transaction's allowance without the link's extra
+        self._corrupted = False  # a byte of this transaction had a parity/framing error
+        self._suspect = -1  # command byte of a timed-out command whose reply may still come
+        self._late_ref = INF  # when the timed-out transaction's reply was due, without the link's extra
+        self._quiet_until = 0.0
+        self._resync_limit = 0.0
+
+    # ------------------------------------------------------------------ life cycle
+
+    def connected(self, now: float) -> bytes | None:
+        """The port is open (first time, after a reopen, or reconnected)."""
+        if self.state not in (State.OFFLINE, State.LOST):
+            raise InvalidArgument(f"connected() while {self.state.value}")
+        self._buf.clear()
+        self._allowances.clear()  # wire times depend on the baud rate, which may have changed
+        self.state = State.IDLE
+        return self._start_next(now)
+
+    def disconnected(self) -> None:
+        """The driver closes the port on purpose (reopen); requests wait.  Only when idle."""
+        if self.state is not State.IDLE:
+            raise InvalidArgument(f"cannot take the line offline while {self.state.value}")
+        self.state = State.OFFLINE
+        self.deadline = INF
+
+    def lost(self, reason: str, *, reconnect: bool) -> None:
+        """The port went away: everything waiting fails with PortLost."""
+        if self.state in (State.CLOSED, State.LOST):
+            return
+        draining = self.state is State.DRAINING
+        current, self._current = self._current, None
+        if current is not None:
+            current.reject(PortLost(reason))
+        self.queue.fail_all(PortLost(reason))
+        self.deadline = INF
+        if reconnect and not draining:
+            self.state = State.LOST  # the source stays attached and resumes after the reconnect
+        else:
+            self.state = State.CLOSED
+            self._detach(PortLost(reason))
+
+    def close(self) -> None:
+        """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""
+        if self.state in (State.CLOSED, State.DRAINING):
+            return
+        self._detach(BusClosed("bus closed"))
+        self.queue.fail_all(BusClosed("bus closed"))
+        if self.state is State.BUSY:
+            self.state = State.DRAINING
+        else:
+            self.state = State.CLOSED
+            self.deadline = INF
+
+    def abort(self) -> None:
+        """Close now, even with a transaction on the wire (it fails with BusClosed)."""
+        self.close()
+        current, self._current = self._current, None
+        if current is not None:
+            current.reject(BusClosed("bus closed"))
+        self.state = State.CLOSED
+        self.deadline = INF
+
+    @property
+    def idle(self) -> bool:
+        """Nothing on the wire, resyncing or queued."""
+        return self.state not in (State.BUSY, State.QUIET, State.DRAINING) and not self.queue
+
+    # ------------------------------------------------------------------ work coming in
+
+    def submit(self, request: Request, now: float) -> bytes | None:
+        state = self.state
+        if state is State.IDLE:
+            self.queue.push(request)
+            return self._start_next(now)
+        if state is State.BUSY or state is State.QUIET or state is State.OFFLINE:
+            self.queue.push(request)
+            return None
+        if state is State.LOST:
+            raise PortLost("the port is lost; reconnecting")
+        raise BusClosed("bus is closed")
+
+    def attach_source(self, source: BackgroundSource, now: float) -> bytes | None:
+        """Let ``source`` fill the line's idle time (one at a time)."""
+        if self._source is not None and self._source is not source:
+            raise InvalidArgument("this bus already runs a stream; close it first")
+        if self.state is State.CLOSED or self.state is State.DRAINING:
+            raise BusClosed("bus is closed")
+        self._source = source
+        return self.kick(now)
+
+    def detach_source(self, source: BackgroundSource) -> None:
+        if self._source is source:
+            self._source = None
+
+    def kick(self, now: float) -> bytes | None:
+        """The source has work again (new targets, or it was just attached)."""
+        return self._start_next(now) if self.state is State.IDLE else None
+
+    # ------------------------------------------------------------------ the line talking
+
+    def receive(self, data: bytes, now: float) -> bytes | None:
+        state = self.state
+        if state is State.BUSY or state is State.DRAINING:
+            buf = self._buf
+            buf += data
+            if len(buf) >= self._expect:
+                return self._finish(now)
+        elif state is State.QUIET:
+            self.counters.stray += len(data)
+            if self._late_ref < now:  # the tail of the reply that timed out: learn how late it was
+                self.link.late_by(now - self._late_ref)
+                self._late_ref = INF
+            self._quiet_until = now + self.timing.quiet_time + self.link.extra
+            self.deadline = self._quiet_until
+        elif state is State.IDLE:
+            # Bytes on an idle line: a late reply or noise.  Let it settle first.
+            self.counters.stray += len(data)
+            if self.debug:
+                log.debug("stray bytes on idle line: %s", data.hex(" "))
+            self._resync(now)
+        return None
+
+    def line_error(self, count: int) -> None:
+        """The port saw ``count`` bytes arrive with parity or framing errors."""
+        self.counters.line_errors += count
+        if self.state is State.BUSY or self.state is State.DRAINING:
+            self._corrupted = True  # the transaction fails once its bytes are all in
+
+    def tick(self, now: float) -> bytes | None:
+        """Time has passed: a deadline, the end of a resync, or the source's wake-up.
+
+        A driver calls this only once input that arrived before ``now`` has
+        been fed through :meth:`receive` (after a stalled loop, a reply may be
+        waiting behind the timer).
+        """
+        if now < self.deadline:
+            return None
+        state = self.state
+        if state is State.BUSY or state is State.DRAINING:
+            return self._timeout(now)
+        if state is State.QUIET:
+            if now < self._quiet_until and now < self._resync_limit:
+                self.deadline = self._quiet_until
+                return None
+            if now < self._quiet_until:
+                log.warning("line never went quiet; carrying on")
+            self.flush_input = True
+            self._late_ref = INF  # late bytes count only during the resync right after the timeout
+            self.state = State.IDLE
+            return self._start_next(now)
+        if state is State.IDLE:
+            return self._start_next(now)
+        return None
+
+    # ------------------------------------------------------------------ transactions
+
+    def _start_next(self, now: float) -> bytes | None:
+        """Put the next transaction on the wire, if any.  Only when IDLE."""
+        source = self._source
+        queue = self.queue
+        if queue.count and (source is None or self._in_row < self.max_requests_between):
+            req = queue.pop()
+            if req is not None:
+                self._in_row += 1
+                cmd = req.command
+                return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
+        self._in_row = 0
+        if source is not None:
+            job = source.next_transaction(now)
+            if job is not None:
+                self._owner = source
+                return self._begin(job[0], job[1], job[2], None, Timing.NORMAL, now)
+            if queue.count:  # the source yielded its turn but requests still wait
+                return self._start_next(now)
+            self.deadline = source.wake_at
+        else:
+            self.deadline = INF
+        return None
+
+    def _begin(
+        self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
+    ) -> bytes:
+        if self._suspect >= 0:
+            suspect, self._suspect = self._suspect, -1
+            if tx[0] == suspect and servo_id is not None:
+                return self._guard(tx, servo_id, req, now)
+        self.state = State.BUSY
+        self._current = req
+        self._current_id = NO_ID if servo_id is None else servo_id
+        self._tx = tx
+        echo_len = len(tx) if self.echo else 0
+        self._echo_len = echo_len
+        self._expect = echo_len + reply_len
+        self._buf.clear()
+        self._corrupted = False
+        self._t_start = now
+        nbytes = len(tx) + reply_len
+        allowance = self._allowances.get(nbytes) if timing is Timing.NORMAL else None
+        if allowance is None:
+            allowance = self.timing.allowance(nbytes, self.baudrate, timing)
+            if timing is Timing.NORMAL:
+                self._allowances[nbytes] = allowance
+        self._base = allowance
+        self.deadline = now + allowance + self.link.extra
+        return tx
+
+    def _guard(self, tx: bytes, servo_id: int, req: Request | None, now: float) -> bytes:
+        """Put a harmless read between a timed-out command and its twin.
+
+        A reply that missed its deadline can still arrive right after the echo
+        of the next command.  If that command has the same command byte, the
+        late reply has the right length and header and would be taken for the
+        new answer.  A parameter read with a different reply shape goes first
+        instead, so late bytes fail it, not the real request.
+        """
+        if req is not None:
+            self.queue.push_front(req)
+        guard = protocol.guard_read(tx, servo_id)
+        self.counters.guards += 1
+        return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard, Priority.URGENT), guard.timing, now)
+
+    def _finish(self, now: float) -> bytes | None:
+        buf = self._buf
+        sid = self._current_id
+        tx = self._tx
+        counters = self.counters
+        if self.debug:
+            log.debug("id %s tx %s rx %s", sid, tx.hex(" "), buf.hex(" "))
+        latency = now - self._t_start
+        counters.transactions[sid] += 1
+        counters.bytes_tx[sid] += len(tx)
+        counters.bytes_rx[sid] += len(buf)
+        echo_len = self._echo_len
+        if len(buf) != self._expect or (echo_len and not buf.startswith(tx)) or self._corrupted:
+            counters.latency.add(latency)
+            error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
+            return self._failed(error, sid, now)
+        over = latency - self._base
+        req = self._current
+        self._current = None
+        if req is None:
+            # Only the source that sent the command hears its reply (it may have been
+            # detached, and another attached, while the command was on the wire).
+            source = self._owner if self._owner is self._source else None
+            rejected = source.complete(buf, echo_len, now) if source is not None else None
+            if rejected is not None:
+                counters.latency.add(latency)
+                return self._fault(rejected, sid, now)
+        else:
+            try:
+                value = req.command.parse(bytes(buf[echo_len:]))
+            except ReplyError as exc:
+                counters.latency.add(latency)
+                return self._fail_request(req, exc, sid, now)
+            name = req.command.name
+            counters.by_command[name] = counters.by_command.get(name, 0) + 1
+            req.resolve(value)
+        # The next command goes on the wire first; the bookkeeping can wait.
+        out = self._next_after_transaction(now)
+        counters.ok[sid] += 1
+        counters.latency.add(latency)
+        if self.link.extra:
+            self.link.succeeded(over)
+        return out
+
+    def _next_after_transaction(self, now: float) -> bytes | None:
+        if self.state is State.DRAINING:
+            self.state = State.CLOSED
+            self.deadline = INF
+            return None
+        self.state = State.IDLE
+        return self._start_next(now)
+
+    def _timeout(self, now: float) -> bytes | None:
+        buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
+        counters = self.counters
+        counters.transactions[sid] += 1
+        counters.bytes_tx[sid] += len(tx)
+        counters.bytes_rx[sid] += len(buf)
+        error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
+        req = self._current
+        heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
+        partial = len(buf) > echo_len
+        if heard and not (req is not None and req.is_guard):
+            # The command was heard: its reply may still come.  (A guard's late reply
+            # always differs in shape from the command it protects, so it needs none.)
+            self._suspect = tx[0]
+        if heard:
+            self._late_ref = self._t_start + self._base
+        out = self._failed(error, sid, now)
+        if partial and self.state is State.QUIET:
+            # The rest may be on its way (a link that holds a reply's tail): listen for it as
+            # long again as the transaction was allowed, so its arrival is seen and learnt.
+            self._quiet_until = max(self._quiet_until, now + self._base)
+            self.deadline = self._quiet_until
+        return out
+
+    def _failed(self, error: ReplyError, sid: int, now: float) -> bytes | None:
+        """Hand a failed transaction's error to its request, or to the source that sent it."""
+        req, self._current = self._current, None
+        if req is not None:
+            return self._fail_request(req, error, sid, now)
+        if self._owner is not None and self._owner is self._source:
+            self._owner.fail(error, now)
+        return self._fault(error, sid, now)
+
+    def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
+        self.counters.per_name[error_counter(error)][sid] += 1
+        log.debug("%s", error)
+        self._resync(now)
+        return None
+
+    def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:
+        self.counters.per_name[error_counter(error)][sid] += 1
+        log.debug("%s", error)
+        closing = self.state is State.DRAINING
+        if req.retries_left > 0 and not req.abandoned() and not closing:
+            req.retries_left -= 1
+            self.counters.per_name["retries"][sid] += 1
+            self.queue.push_front(req)
+        else:
+            req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
+        self._resync(now)
+        return None
+
+    def _resync(self, now: float) -> None:
+        if self.state is State.DRAINING:  # closing anyway: the port's buffers go with it
+            self.state = State.CLOSED
+            self.deadline = INF
+            return
+        self.counters.resyncs += 1
+        self.state = State.QUIET
+        self._quiet_until = now + self.timing.quiet_time + self.link.extra
+        self._resync_limit = now + self.timing.max_resync + self.link.extra
+        self._buf.clear()
+        self.deadline = self._quiet_until
+
+    def _detach(self, exc: IcsError) -> None:
+        source, self._source = self._source, None
+        if source is not None:
+            source.line_closed(exc)

@@ -1,0 +1,48 @@
+"""What went wrong with a transaction, judged from the bytes that did arrive."""
+
+from __future__ import annotations
+
+from ..errors import BadReply, EchoMismatch, PartialReply, ReplyDataError, ReplyError, ReplyTimeout
+from .counters import NO_ID
+from .requests import Request
+
+
+def _error(
+    cls: type[ReplyError], message: str, req: Request | None, sid: int, buf: bytes | bytearray, **extra: int
+) -> ReplyError:
+    """A ``cls`` error about the transaction on the wire, carrying every byte received."""
+    return cls(
+        message,
+        command=req.command.name if req is not None else "position",
+        servo_id=None if sid == NO_ID else sid,
+        raw=bytes(buf),
+        **extra,
+    )
+
+
+def framing_error(
+    req: Request | None, sid: int, tx: bytes, buf: bytearray, expect: int, corrupted: bool
+) -> ReplyError:
+    """All bytes are in but the transaction is wrong: a damaged byte, extra bytes, or a wrong echo."""
+    if corrupted:
+        message = "a byte arrived with a parity or framing error (noise on the line?)"
+        return _error(ReplyDataError, message, req, sid, buf)
+    if len(buf) > expect:
+        return _error(BadReply, f"{len(buf) - expect} unexpected extra byte(s) after the reply", req, sid, buf)
+    return _error(EchoMismatch, f"echo differs from the bytes sent ({tx.hex(' ')})", req, sid, buf)
+
+
+def timeout_error(
+    req: Request | None, sid: int, tx: bytes, buf: bytearray, echo_len: int, expect: int
+) -> ReplyError:
+    """The deadline passed: what arrived says whether the echo, the servo or the reply's tail is missing."""
+    got = len(buf)
+    if echo_len and buf[: min(got, echo_len)] != tx[: min(got, echo_len)]:
+        return _error(EchoMismatch, "echo differs from the bytes sent", req, sid, buf)
+    if got == 0:
+        return _error(ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply",
+                      req, sid, buf)
+    if got <= echo_len:
+        return _error(ReplyTimeout, "no reply (check ID, baud rate, power)", req, sid, buf)
+    n, m = got - echo_len, expect - echo_len
+    return _error(PartialReply, f"{n} of {m} reply bytes", req, sid, buf, received=n, expected=m)

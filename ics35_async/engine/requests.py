@@ -1,0 +1,118 @@
+"""What the engine queues: requests, their priority, and the queue's fairness rule."""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from typing import Any
+
+from ..errors import IcsError
+from ..protocol import Command
+
+
+class Priority(enum.IntEnum):
+    """Request priority: lower runs first; FIFO within a level."""
+
+    URGENT = 0  # e.g. free-all / emergency stop: before everything queued
+    HIGH = 1
+    NORMAL = 2
+    LOW = 3
+
+
+class Request:
+    """One command waiting for, or on, the line.
+
+    The engine never blocks and never calls out except through :meth:`resolve`
+    and :meth:`reject`, which a driver overrides to hand the outcome to its
+    caller (a future, a trio event...).  They must not call back into the
+    engine.  The base class keeps the outcome, which is what the engine's own
+    tests read.
+    """
+
+    __slots__ = ("command", "error", "priority", "retries_left", "state", "value")
+
+    is_guard = False
+
+    def __init__(self, command: Command[Any], priority: int = Priority.NORMAL, retries: int = 0) -> None:
+        self.command = command
+        self.priority = priority
+        # Retrying a command that moves or writes could act twice: only idempotent ones retry.
+        self.retries_left = retries if command.idempotent else 0
+        self.state = "queued"  # queued -> done | failed | cancelled
+        self.value: Any = None
+        self.error: IcsError | None = None
+
+    def abandoned(self) -> bool:
+        """True once nobody waits for the outcome (the caller was cancelled)."""
+        return self.state != "queued"
+
+    def cancel(self) -> None:
+        """The caller gave up.  A queued request is skipped; one on the wire still has its reply consumed."""
+        if self.state == "queued":
+            self.state = "cancelled"
+
+    def resolve(self, value: Any) -> None:
+        if self.state == "queued":
+            self.state, self.value = "done", value
+
+    def reject(self, error: IcsError) -> None:
+        if self.state == "queued":
+            self.state, self.error = "failed", error
+
+    def result(self) -> Any:
+        """The value, or raise the error (for plain-call tests and simple drivers)."""
+        if self.error is not None:
+            raise self.error
+        if self.state != "done":
+            raise RuntimeError(f"request is {self.state}")
+        return self.value
+
+    def __repr__(self) -> str:
+        return f"<Request {self.command!r} {Priority(self.priority).name} {self.state}>"
+
+
+class GuardRequest(Request):
+    """The harmless read the engine slips in after a timeout; nobody waits for it."""
+
+    __slots__ = ()
+
+    is_guard = True
+
+
+class RequestQueue:
+    """Priority levels, FIFO within each; skips requests whose caller gave up."""
+
+    __slots__ = ("_levels", "count")
+
+    def __init__(self) -> None:
+        self._levels: list[deque[Request]] = [deque() for _ in Priority]
+        self.count = 0
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+    def push(self, request: Request) -> None:
+        self._levels[request.priority].append(request)
+        self.count += 1
+
+    def push_front(self, request: Request) -> None:
+        """Put a request back at the head of its level (a retry, or a request a guard read goes before)."""
+        self._levels[request.priority].appendleft(request)
+        self.count += 1
+
+    def pop(self) -> Request | None:
+        if not self.count:
+            return None
+        for level in self._levels:
+            while level:
+                request = level.popleft()
+                self.count -= 1
+                if not request.abandoned():
+                    return request
+        return None
+
+    def fail_all(self, error: IcsError) -> None:
+        for level in self._levels:
+            while level:
+                level.popleft().reject(error)
+        self.count = 0

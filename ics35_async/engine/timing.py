@@ -1,0 +1,41 @@
+"""How long the engine waits: deadline and resync allowances."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..protocol import Timing, wire_time
+from ..units import check_seconds
+
+
+@dataclass(frozen=True)
+class BusTiming:
+    """Deadline and resync allowances, in seconds.
+
+    A transaction's deadline is its wire time ((TX + reply bytes) x 11 / baud)
+    plus ``turnaround`` plus ``adapter_latency`` plus, for the EEPROM write and
+    the ID command, their extra allowance.
+    """
+
+    turnaround: float = 0.0005
+    adapter_latency: float = 0.020  # USB adapters add 0.1-16 ms (FTDI latency timer)
+    eeprom_write: float = 0.200
+    id_command: float = 0.050
+    quiet_time: float = 0.010  # silence required before the next transaction after a fault
+    max_resync: float = 0.5  # a line that never goes quiet is used anyway after this
+
+    def __post_init__(self) -> None:
+        for name in ("turnaround", "adapter_latency", "eeprom_write", "id_command", "quiet_time", "max_resync"):
+            check_seconds(name, getattr(self, name))
+
+    def allowance(self, nbytes: int, baudrate: int, kind: Timing = Timing.NORMAL, extra: float = 0.0) -> float:
+        """Seconds from writing a command to the deadline for the last byte of its reply.
+
+        ``extra`` is what the engine has learnt a slow link adds (see LinkLatency).
+        """
+        allowance = wire_time(nbytes, baudrate) + self.turnaround + self.adapter_latency + extra
+        if kind is Timing.EEPROM_WRITE:
+            allowance += self.eeprom_write
+        elif kind is Timing.ID:
+            allowance += self.id_command
+        return allowance
