@@ -27,6 +27,7 @@ log = logging.getLogger("ics35_async")
 
 T = TypeVar("T")
 INF = float("inf")
+GRACE = 0.0005  # seconds between a deadline's first look and the verdict (see _on_timer)
 
 # The engine's clock: the default event loop's own (time.monotonic); uvloop's loop.time()
 # is whole milliseconds cached per iteration, too coarse for latencies and reply timestamps.
@@ -71,7 +72,7 @@ class AsyncioLine(asyncio.Protocol):
         self._discard_input = discard_input
         self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
         self._armed = INF  # when the timer fires (INF: no timer)
-        self._grace = False  # the timer is giving the loop one more I/O poll before judging
+        self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self.idle_waiters: list[asyncio.Future[None]] = []
 
     # ------------------------------------------------------------------ from the transport
@@ -125,7 +126,6 @@ class AsyncioLine(asyncio.Protocol):
             self._timer.cancel()
         deadline = self.engine.deadline
         self._armed = deadline
-        self._grace = False
         self._timer = self.loop.call_at(deadline, self._on_timer)
 
     def cancel_timer(self) -> None:
@@ -139,19 +139,21 @@ class AsyncioLine(asyncio.Protocol):
         self._armed = INF
         engine = self.engine
         t = now()
-        if t < engine.deadline:
-            if engine.deadline < INF:
+        deadline = engine.deadline
+        if t < deadline:
+            if deadline < INF:
                 self._arm()
             return
-        if not self._grace:
+        if self._second_look != deadline:
             # The loop may have stalled past the deadline with the reply already read or
-            # queued behind this callback: judge after one more I/O poll.  A timer (not
-            # call_soon) runs after that poll's I/O callbacks.
-            self._grace = True
-            self._armed = t
-            self._timer = self.loop.call_at(t, self._on_timer)
+            # queued behind this callback: judge after one more I/O poll.  The second look
+            # is a timer slightly in the future, not one at a time already past: uvloop
+            # runs a past-due timer in the same pass, before any I/O or call_soon callback.
+            # It belongs to this deadline only: a new transaction gets its own first look.
+            self._second_look = deadline
+            self._armed = t + GRACE
+            self._timer = self.loop.call_at(t + GRACE, self._on_timer)
             return
-        self._grace = False
         out = engine.tick(t)
         if engine.flush_input:
             engine.flush_input = False

@@ -1,0 +1,56 @@
+"""A stalled event loop (a slow callback, a GC pause) must not fake a timeout or crash the bus.
+
+On uvloop, ``call_at`` with a time already past returns a plain ``Handle``
+without ``when()``; the bus once read it back and raised inside its timer
+callback, so the next command was never written and timed out.  Run on both
+loops: the default one and uvloop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+import uvloop
+
+from ics35_async import open_bus, protocol
+from ics35_async.sim import SimBus, VirtualServo
+
+LOOPS: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {
+    "asyncio": asyncio.new_event_loop,
+    "uvloop": uvloop.new_event_loop,
+}
+
+
+def run_with_errors(make_loop: Callable[[], asyncio.AbstractEventLoop], main: Callable[[], Any]) -> list[str]:
+    """Run ``main()`` on a new loop; return what reached the loop's exception handler."""
+    errors: list[str] = []
+    loop = make_loop()
+    loop.set_exception_handler(lambda _loop, ctx: errors.append(str(ctx.get("exception") or ctx["message"])))
+    try:
+        loop.run_until_complete(main())
+    finally:
+        loop.close()
+    return errors
+
+
+@pytest.mark.parametrize("loop_name", sorted(LOOPS))
+def test_a_stalled_loop_gives_no_false_timeout_and_no_exception(loop_name: str) -> None:
+    sim = SimBus([VirtualServo(i) for i in range(4)], log_size=None)
+
+    async def main() -> None:
+        async with open_bus(sim, adapter_latency=0.002, quiet_time=0.001) as bus:
+            for _ in range(20):
+                # Several requests queued, then the loop stalls well past their deadlines
+                # before it polls for I/O: replies and the timer are due at the same time.
+                futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(4)]
+                time.sleep(0.02)
+                values = await asyncio.wait_for(asyncio.gather(*futures), 2)
+                assert values == [sim.servo(i).stretch for i in range(4)]
+            assert bus.stats.total.timeouts == 0
+
+    assert run_with_errors(LOOPS[loop_name], main) == []
+    sim.close()
