@@ -22,7 +22,7 @@ import serial
 
 from ics35_async.protocol import Position, wire_time
 from ics35_async.sim import Deliverer, SimBus, lower_timer_slack, start_subprocess, stop_subprocess, wait_until
-from ics35_async.transport import open_line
+from ics35_async.transports import open_line
 
 
 def summary(label: str, lateness: list[float]) -> str:

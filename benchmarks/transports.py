@@ -29,7 +29,7 @@ from typing import Any
 
 import serial
 
-from ics35_async.transport import HostSide, open_line
+from ics35_async.transports import HostSide, open_line
 
 COMMAND = b"\x80\x3a\x4c"  # position command to ID 0: 3 bytes out, 3 echoed, 3 back
 TX_LEN, RX_LEN = 3, 6

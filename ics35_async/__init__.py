@@ -1,8 +1,14 @@
-"""ics35_async: drive Kondo ICS 3.5 serial servos from asyncio code."""
+"""ics35_async: drive Kondo ICS 3.5 serial servos from async code.
+
+Importing the package loads no simulator: ``sim://`` ports and the
+``ics35_async.sim`` attribute import it on first use.
+"""
 
 from __future__ import annotations
 
-from . import sim as sim  # importing the simulator registers the sim:// URL scheme
+import importlib
+from types import ModuleType
+
 from .bus import Bus, BusTiming, Priority, open_bus
 from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
@@ -12,8 +18,12 @@ from .errors import (
     IcsError,
     InvalidArgument,
     MalformedEeprom,
+    ParityNotSupported,
     PartialReply,
+    PortBusy,
     PortLost,
+    PortNotFound,
+    PortPermissionDenied,
     ReplyDataError,
     ReplyError,
     ReplyHeaderError,
@@ -21,15 +31,23 @@ from .errors import (
     ReplySubcommandError,
     ReplyTimeout,
     ReplyValueError,
+    SerialPortError,
     UnsafeOperation,
     VerifyError,
 )
 from .protocol import Param
 from .servo import Device, Servo
 from .streaming import BusGroup, Frame, GroupFrame, GroupStream, Stream, StreamStats
-from .transport import ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> ModuleType:
+    # `ics35_async.sim` without importing it first: loaded on first use, never at import.
+    if name == "sim":
+        return importlib.import_module(".sim", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "BadReply",

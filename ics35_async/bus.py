@@ -23,7 +23,7 @@ from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
 from .errors import BusClosed, IcsError, InvalidArgument, PortLost
 from .protocol import Command
 from .stats import BusStats
-from .transport import WireDevice, discard_input, open_line
+from .transports import WireDevice, discard_input, open_line
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
@@ -381,7 +381,7 @@ def open_bus(
 
     ``port`` is a serial device path, a pyserial URL (``socket://``,
     ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator,
-    or a :class:`~ics35_async.transport.WireDevice`.  Extra keyword
+    or a :class:`~ics35_async.transports.WireDevice`.  Extra keyword
     arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
     """
     if timing_overrides:

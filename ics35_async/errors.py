@@ -108,3 +108,27 @@ class BusClosed(IcsError):
 
 class PortLost(IcsError):
     """The serial port failed or disappeared while the request was pending."""
+
+
+class SerialPortError(IcsError, OSError):
+    """The serial port could not be opened or set up as the ICS line needs.
+
+    Also an :class:`OSError`, so code that already handles I/O errors keeps
+    working; ``errno`` is set when the system gave one.
+    """
+
+
+class PortNotFound(SerialPortError, FileNotFoundError):
+    """No device exists at that path."""
+
+
+class PortPermissionDenied(SerialPortError, PermissionError):
+    """The device exists but this user may not open it."""
+
+
+class PortBusy(SerialPortError):
+    """Another program (or another line in this one) holds the port."""
+
+
+class ParityNotSupported(SerialPortError):
+    """The driver silently refused EVEN parity, which ICS 3.5 requires."""

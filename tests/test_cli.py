@@ -21,7 +21,7 @@ from ics35_async.cli._common import Settings, parse_id_list, translate
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
 from ics35_async.sim import SimBus, VirtualServo
-from ics35_async.transport import PortPermissionDenied
+from ics35_async.transports import PortPermissionDenied
 
 
 class Result:

@@ -10,7 +10,7 @@ from ics35_async.eeprom import BaudRate
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadParam
 from ics35_async.sim import FaultConfig, ReplayDevice, SimBus, named, open_url, parse_url
-from ics35_async.transport import open_line
+from ics35_async.transports import open_line
 
 
 def test_bare_url_is_32_servos_at_115200_in_fast_mode() -> None:

@@ -22,9 +22,9 @@ from typing import Any
 import pytest
 import serial
 
-from ics35_async import transport
+from ics35_async import transports as transport
 from ics35_async.errors import InvalidArgument
-from ics35_async.transport import (
+from ics35_async.transports import (
     DirectSerialTransport,
     HostSide,
     InProcessTransport,
@@ -179,7 +179,7 @@ async def test_pty_split_chunks_arrive_in_order(pty: Pty, kind: str) -> None:
 
 @pytest.mark.parametrize("kind", SERIAL_KINDS)
 async def test_pty_parity_dropped_is_handled_at_debug(pty: Pty, kind: str, caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.DEBUG, logger="ics35_async.transport")
+    caplog.set_level(logging.DEBUG, logger="ics35_async.transports")
     line, rec = await open_recorder(pty.port, transport=kind)
     ser = line.get_extra_info("serial")
     assert ser.parity == serial.PARITY_NONE
@@ -206,10 +206,10 @@ async def test_pty_already_raw_at_our_speed_still_opens(pty: Pty) -> None:
 async def test_parity_drop_on_a_non_pty_is_an_error(pty: Pty, monkeypatch: pytest.MonkeyPatch) -> None:
     # No real non-pty driver that drops PARENB is at hand, so a pty stands in
     # for one: only the pty detection is overridden.
-    import ics35_async.transport as transport_module
+    from ics35_async.transports import serial_port
 
-    monkeypatch.setattr(transport_module, "_is_pty", lambda fd: False)
-    monkeypatch.setattr(transport_module, "_is_pty_path", lambda path: False)
+    monkeypatch.setattr(serial_port, "is_pty", lambda fd: False)
+    monkeypatch.setattr(serial_port, "_is_pty_path", lambda path: False)
     with pytest.raises(ParityNotSupported, match="EVEN parity"):
         await open_recorder(pty.port)
     # The port was released: a normal open works again.
@@ -219,15 +219,15 @@ async def test_parity_drop_on_a_non_pty_is_an_error(pty: Pty, monkeypatch: pytes
 
 
 def test_pty_detection() -> None:
-    import ics35_async.transport as transport_module
+    from ics35_async.transports.serial_port import is_pty
 
     master, slave = os.openpty()
     read_end, write_end = os.pipe()
     try:
-        assert transport_module._is_pty(slave)
-        assert not transport_module._is_pty(read_end)
+        assert is_pty(slave)
+        assert not is_pty(read_end)
         with open(os.devnull, "rb") as null:
-            assert not transport_module._is_pty(null.fileno())
+            assert not is_pty(null.fileno())
     finally:
         for fd in (master, slave, read_end, write_end):
             os.close(fd)

@@ -19,7 +19,7 @@ from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import EchoMismatch, InvalidArgument, ReplyError, ReplyTimeout
 from ..protocol import Param
-from ..transport import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 from ._common import (
     ALL_BAUDS,
     BAUD_LIST,

@@ -39,7 +39,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..transport import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, adapter_advice
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, adapter_advice
 
 T = TypeVar("T")
 

@@ -2,7 +2,7 @@
 
 Two ways in:
 
-* **In process**: :class:`SimBus` is a :class:`~ics35_async.transport.WireDevice`;
+* **In process**: :class:`SimBus` is a :class:`~ics35_async.transports.WireDevice`;
   importing this package registers the ``sim://`` URL scheme, so
   ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
   Tests build one from Python objects
@@ -64,7 +64,7 @@ transactions/s (13 us each) through :meth:`SimBus.process`.
 
 from __future__ import annotations
 
-from ..transport import WireDevice, register_url_scheme
+from ..transports import WireDevice, register_url_scheme
 from .clock import Deliverer, lower_timer_slack, wait_until
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
 from .line import (

@@ -4,7 +4,7 @@
 written go in, the chunks the host receives (echo, replies, noise) and the
 earliest time each may be delivered come out.  Two drivers sit on top:
 
-* the :class:`~ics35_async.transport.WireDevice` face of :class:`SimBus`
+* the :class:`~ics35_async.transports.WireDevice` face of :class:`SimBus`
   (``connect`` / ``write`` / ``disconnect``) for in-process use, answering
   synchronously in fast mode and from a :class:`~.clock.Deliverer` thread at
   the modelled wire time in real-time mode;
@@ -36,7 +36,7 @@ from urllib.parse import parse_qs, urlsplit
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, ReadId, WriteEeprom, WriteId, decode_request
-from ..transport import HostSide
+from ..transports import HostSide
 from .clock import SPIN_MARGIN, Deliverer
 from .faults import FaultConfig, FaultInjector, parse_ids
 from .servo import NO_REPLY, MemoryDevice, VirtualServo

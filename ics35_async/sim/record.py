@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from ..errors import InvalidArgument
-from ..transport import HostSide
+from ..transports import HostSide
 
 if TYPE_CHECKING:
     from .line import Transaction

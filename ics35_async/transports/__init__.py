@@ -1,0 +1,29 @@
+"""Ports and transports: how bytes reach the line (serial ports, pyserial URLs, in-process devices)."""
+
+from ..errors import ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from .advice import adapter_advice
+from .direct import DirectSerialTransport, ParityMarks
+from .in_process import HostSide, InProcessTransport, WireDevice, WireDeviceFactory, register_url_scheme
+from .opening import TRANSPORT_KINDS, TransportKind, discard_input, open_line
+from .threaded import ThreadedSerialDevice
+
+__all__ = [
+    "TRANSPORT_KINDS",
+    "DirectSerialTransport",
+    "HostSide",
+    "InProcessTransport",
+    "ParityMarks",
+    "ParityNotSupported",
+    "PortBusy",
+    "PortNotFound",
+    "PortPermissionDenied",
+    "SerialPortError",
+    "ThreadedSerialDevice",
+    "TransportKind",
+    "WireDevice",
+    "WireDeviceFactory",
+    "adapter_advice",
+    "discard_input",
+    "open_line",
+    "register_url_scheme",
+]
