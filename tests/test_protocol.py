@@ -587,11 +587,24 @@ def commands(draw: st.DrawFn) -> Command[Any]:
         return ReadId(draw(sid))
     if kind == 6:
         return WriteId(draw(sid))
-    address = draw(st.integers(0, 127))
-    count = draw(st.integers(1, 128 - address))
+    address, count = draw(memory_spans())
     if kind == 7:
         return ReadMemory(draw(sid), address, count)
     return WriteMemory(draw(sid), address, draw(st.binary(min_size=count, max_size=count)))
+
+
+@st.composite
+def memory_spans(draw: st.DrawFn, addresses: st.SearchStrategy[int] | None = None) -> tuple[int, int]:
+    """An (address, count) the generic commands accept: count 1..127 and inside the 128-byte memory."""
+    address = draw(addresses if addresses is not None else st.integers(0, 127))
+    return address, draw(st.integers(1, min(127, 128 - address)))
+
+
+@given(memory_spans(st.just(0)) | memory_spans())
+def test_memory_span_strategy_draws_only_valid_spans(span: tuple[int, int]) -> None:
+    # Address 0 is where a count of 128 (one past the codec's limit) would come from.
+    address, count = span
+    assert ReadMemory(1, address, count).count == count
 
 
 @st.composite
