@@ -844,3 +844,61 @@ def _sample_value(command: protocol.Command[Any]) -> Any:
     if isinstance(command, protocol.ReadEeprom):
         return Eeprom.factory(4)
     return 30
+
+
+# --- the package's import surface ---
+
+# What the sans-IO engine, the bus, the simulator and the CLI import: the split into modules must not move them.
+PUBLIC_NAMES = [
+    "Command",
+    "Timing",
+    "wire_time",
+    "guard_read",
+    "position_tx",
+    "position_reply_header",
+    "position_from_reply",
+    "Position",
+    "ReadParam",
+    "ReadEeprom",
+    "WriteParam",
+    "WriteEeprom",
+    "ReadId",
+    "WriteId",
+    "ReadMemory",
+    "WriteMemory",
+    "check_baud",
+    "check_id",
+    "Param",
+    "FREE",
+    "POSITION_MAX",
+    "MAX_ID",
+    "MEMORY_SIZE",
+    "BITS_PER_BYTE",
+    "CMD_POSITION",
+    "CMD_READ",
+    "CMD_WRITE",
+    "CMD_ID",
+    "SC_MEMORY",
+    "WRITE_RANGES",
+    "decode_request",
+    "join7",
+    "split7",
+    "nibbles_from_bytes",
+    "bytes_from_nibbles",
+    "BaudRate",
+    "Eeprom",
+    "EEPROM_SIZE",
+]
+
+
+@pytest.mark.parametrize("name", PUBLIC_NAMES)
+def test_package_exports_every_name(name: str) -> None:
+    assert name in protocol.__all__
+    assert getattr(protocol, name) is not None
+
+
+def test_command_interface_the_engine_uses() -> None:
+    cmd: Command[Any] = ReadParam(3, Param.SPEED)
+    assert (cmd.tx, cmd.reply_len, cmd.echo_len, cmd.servo_id) == (h("A3 02"), 3, 2, 3)
+    assert (cmd.timing, cmd.idempotent, cmd.name) == (Timing.NORMAL, True, "read_speed")
+    assert cmd.parse(h("23 02 1E")) == 30
