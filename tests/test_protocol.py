@@ -542,12 +542,28 @@ def test_non_nibble_eeprom_byte(index: int) -> None:
     assert isinstance(exc.__cause__, MalformedEeprom)
 
 
-@pytest.mark.parametrize(("offset", "nibbles"), [(0, b"\x05\x0b"), (0, b"\x00\x00"), (26, b"\x00\x05")])
-def test_bad_eeprom_header_or_baud_code(offset: int, nibbles: bytes) -> None:
+UNKNOWN_CODES = [(0, b"\x05\x0b", "header"), (0, b"\x00\x00", "header"), (26, b"\x00\x05", "baud_rate")]
+
+
+@pytest.mark.parametrize(("offset", "nibbles", "field"), UNKNOWN_CODES)
+def test_read_eeprom_keeps_an_unknown_header_or_baud_code(offset: int, nibbles: bytes, field: str) -> None:
     image = bytearray(EEPROM.to_bytes())
     image[offset : offset + 2] = nibbles
-    exc = expect(ReplyDataError, ReadEeprom(1), h("21 00") + image)
-    assert isinstance(exc.__cause__, MalformedEeprom)
+    eeprom = ReadEeprom(1).parse(h("21 00") + image)
+    assert eeprom.to_bytes() == image
+    assert eeprom.unknown_codes == {field: (nibbles[0] << 4) | nibbles[1]}
+    assert ReadEeprom(1).encode_reply(eeprom) == h("21 00") + image
+
+
+@pytest.mark.parametrize(("offset", "nibbles", "field"), UNKNOWN_CODES)
+def test_write_eeprom_refuses_an_unknown_header_or_baud_code(offset: int, nibbles: bytes, field: str) -> None:
+    image = bytearray(EEPROM.to_bytes())
+    image[offset : offset + 2] = nibbles
+    eeprom = Eeprom.from_bytes(image)
+    with pytest.raises(InvalidArgument, match="reference does not define"):
+        WriteEeprom(1, eeprom)
+    if field == "baud_rate":
+        assert WriteEeprom(1, eeprom.replace(baud_rate=115200)).tx == h("C1 00") + EEPROM.to_bytes()
 
 
 @pytest.mark.parametrize("index", range(4, 20, 5))

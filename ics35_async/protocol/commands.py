@@ -236,6 +236,7 @@ class WriteEeprom(Command[None]):
         self.servo_id = check_id(servo_id)
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
+        eeprom.check_writable()  # an undefined header or baud code is read, never written
         self.eeprom = eeprom
         self.name = _WRITE_NAMES[Param.EEPROM]
         self.tx = bytes((CMD_WRITE | servo_id, Param.EEPROM)) + eeprom.to_bytes()

@@ -94,7 +94,7 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
             return None
         try:
             return WriteEeprom(sid, Eeprom.from_bytes(bytes(buf[2:total]))), total
-        except MalformedEeprom:
+        except (MalformedEeprom, InvalidArgument):  # InvalidArgument: a code the reference does not define
             return None, total
     if sc not in WRITE_RANGES:
         return None, 2
