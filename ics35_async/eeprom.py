@@ -5,6 +5,12 @@ make the 16-bit pulse limits.  The factory calibration bytes are kept
 verbatim and no update path can change them.  Decoding is lenient about
 field ranges (a real servo's image is shown as it is); :meth:`Eeprom.replace`
 is strict about every field it changes.
+
+Any 64 nibbles decode.  A header other than 0x5A or a baud-rate code other
+than 10/1/0 is kept as its raw value (so the image round-trips byte for byte)
+and listed in :attr:`Eeprom.unknown_codes`; :meth:`Eeprom.check_writable`
+(called by the EEPROM write command) refuses such an image, since what a
+servo makes of a value the reference does not define is unknown.
 """
 
 from __future__ import annotations
@@ -56,6 +62,24 @@ class BaudRate(enum.IntEnum):
 
 _BAUD_TO_CODE = {BaudRate.B115200: 10, BaudRate.B625000: 1, BaudRate.B1250000: 0}
 _CODE_TO_BAUD = {code: baud for baud, code in _BAUD_TO_CODE.items()}
+_RATES = frozenset(int(baud) for baud in BaudRate)
+_BYTE_MAX = 0xFF  # header and baud code are 8-bit fields (two nibbles)
+
+
+def _baud_field(value: object) -> BaudRate | int:
+    """The ``baud_rate`` field from a BaudRate, a rate in bit/s, or a raw EEPROM code 0..255.
+
+    A code the reference defines becomes its BaudRate; any other code stays a
+    plain int, so ``isinstance(baud_rate, BaudRate)`` tells a known rate.
+    """
+    if isinstance(value, BaudRate):
+        return value
+    if isinstance(value, int) and not isinstance(value, bool):
+        if value in _RATES:
+            return BaudRate(value)
+        if 0 <= value <= _BYTE_MAX:
+            return _CODE_TO_BAUD.get(value, value)
+    raise MalformedEeprom(f"baud_rate must be a BaudRate or an EEPROM code 0..255, got {value!r}")
 
 
 class Flags(enum.IntFlag):
@@ -144,7 +168,7 @@ class Eeprom:
     flags: Flags
     pulse_limit_high: int
     pulse_limit_low: int
-    baud_rate: BaudRate
+    baud_rate: BaudRate | int  # a plain int only for a code the reference does not define
     temperature_limit: int
     current_limit: int
     response: int
@@ -154,10 +178,45 @@ class Eeprom:
     stretch_2: int
     stretch_3: int
     calibration: bytes = field(repr=False)
+    header: int = HEADER  # 0x5A in every image the reference defines
 
     @property
-    def header(self) -> int:
-        return HEADER
+    def baud_code(self) -> int:
+        """The raw EEPROM baud-rate code (10, 1 or 0 for the three defined rates)."""
+        return self.baud_rate.eeprom_code if isinstance(self.baud_rate, BaudRate) else self.baud_rate
+
+    @property
+    def unknown_codes(self) -> dict[str, int]:
+        """Coded fields holding a value the reference does not define, as ``{name: raw value}``.
+
+        ``"header"`` (not 0x5A) and ``"baud_rate"`` (not code 10, 1 or 0); empty
+        for a well-formed image.  Such an image is shown and backed up as it is,
+        but not written (:meth:`check_writable`).
+        """
+        unknown: dict[str, int] = {}
+        if self.header != HEADER:
+            unknown["header"] = self.header
+        if not isinstance(self.baud_rate, BaudRate):
+            unknown["baud_rate"] = self.baud_rate
+        return unknown
+
+    def check_writable(self) -> None:
+        """Raise InvalidArgument if the image holds a value the reference does not define."""
+        unknown = self.unknown_codes
+        if not unknown:
+            return
+        problems = []
+        if "header" in unknown:
+            problems.append(f"header 0x{unknown['header']:02X} (must be 0x{HEADER:02X})")
+        if "baud_rate" in unknown:
+            known = ", ".join(f"{code} = {int(baud)}" for baud, code in _BAUD_TO_CODE.items())
+            problems.append(
+                f"baud-rate code 0x{unknown['baud_rate']:02X} ({known}; set baud_rate to one of those rates)"
+            )
+        raise InvalidArgument(
+            "refusing to write an EEPROM image holding values the ICS 3.5 reference does not define: "
+            + "; ".join(problems)
+        )
 
     @classmethod
     def from_bytes(cls, image: bytes | bytearray) -> Eeprom:
@@ -167,12 +226,9 @@ class Eeprom:
         bad = [i for i, b in enumerate(image) if b > 0x0F]
         if bad:
             raise MalformedEeprom(f"EEPROM byte {bad[0] + 1} is 0x{image[bad[0]]:02X}, not a nibble (0x00..0x0F)")
-        header = _get(image, 0, 2)
-        if header != HEADER:
-            raise MalformedEeprom(f"EEPROM header is 0x{header:02X}, expected 0x{HEADER:02X}")
         values: dict[str, Any] = {name: _get(image, off, n) for name, (off, n) in _LAYOUT.items()}
+        values["header"] = _get(image, 0, 2)
         values["flags"] = Flags(values["flags"])
-        values["baud_rate"] = BaudRate.from_eeprom_code(values["baud_rate"])
         offset = values["user_offset"]
         values["user_offset"] = offset - 256 if offset >= 128 else offset
         values["calibration"] = b"".join(image[lo:hi] for lo, hi in PROTECTED_RANGES)
@@ -180,11 +236,11 @@ class Eeprom:
 
     def to_bytes(self) -> bytes:
         image = bytearray(EEPROM_SIZE)
-        _put(image, 0, 2, HEADER)
+        _put(image, 0, 2, self.header)
         for name, (off, n) in _LAYOUT.items():
             value = getattr(self, name)
             if name == "baud_rate":
-                value = BaudRate(value).eeprom_code
+                value = self.baud_code
             elif name == "user_offset":
                 value &= 0xFF
             _put(image, off, n, int(value))
@@ -198,6 +254,11 @@ class Eeprom:
         cal = self.calibration
         if len(cal) != _CALIBRATION_LEN or any(b > 0x0F for b in cal):
             raise MalformedEeprom(f"calibration must be {_CALIBRATION_LEN} nibbles")
+        # Frozen: normalise through object.__setattr__, as dataclasses document for __post_init__.
+        object.__setattr__(self, "baud_rate", _baud_field(self.baud_rate))
+        header = self.header
+        if isinstance(header, bool) or not isinstance(header, int) or not 0 <= header <= _BYTE_MAX:
+            raise MalformedEeprom(f"header must be an int 0..255, got {header!r}")
 
     def replace(self, **changes: Any) -> Eeprom:
         """A copy with ``changes`` applied, each validated; protected bytes never change."""
@@ -247,10 +308,14 @@ class Eeprom:
         }
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able fields; ``raw`` is the whole image as hex."""
+        """Plain JSON-able fields; ``raw`` is the whole image as hex; ``unknown_codes`` as the attribute.
+
+        ``baud_rate`` is in bit/s, or the raw code when ``unknown_codes`` lists it.
+        """
         out: dict[str, Any] = {name: int(getattr(self, name)) for name in _LAYOUT}
         out["flags_names"] = [f.name for f in Flags if f in self.flags]
         out["raw"] = self.to_bytes().hex()
+        out["unknown_codes"] = self.unknown_codes
         return out
 
     @classmethod

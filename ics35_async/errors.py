@@ -22,7 +22,7 @@ class UnsafeOperation(InvalidArgument):
 
 
 class MalformedEeprom(IcsError, ValueError):
-    """A 64-byte EEPROM image breaks the format (length, header, nibbles)."""
+    """A 64-byte EEPROM image breaks the format (length, nibbles)."""
 
 
 class ReplyError(IcsError):

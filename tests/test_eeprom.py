@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import itertools
+import json
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ics35_async import open_bus
+from ics35_async.cli import ExitCode, main
 from ics35_async.eeprom import (
     EEPROM_FIELDS,
     EEPROM_SIZE,
@@ -17,6 +22,7 @@ from ics35_async.eeprom import (
     Flags,
 )
 from ics35_async.errors import InvalidArgument, MalformedEeprom, UnsafeOperation
+from ics35_async.sim import SimBus, VirtualServo
 
 # The spec's table (section 7), with its 1-based byte numbers, written out independently of the code.
 SPEC_LAYOUT: dict[str, tuple[int, int]] = {
@@ -246,18 +252,95 @@ def test_non_nibble_byte_anywhere(index: int, value: int) -> None:
         Eeprom.from_bytes(bytes(image))
 
 
-@pytest.mark.parametrize("header", [b"\x05\x0b", b"\x0a\x05", b"\x00\x00"])
-def test_wrong_header(header: bytes) -> None:
-    with pytest.raises(MalformedEeprom, match="header"):
-        Eeprom.from_bytes(_image_with(0, header))
+# --- codes the reference does not define: read and kept exactly, never written ---
+
+UNKNOWN_BAUD_CODES = [0x1A, 0x0B, 2, 9, 11, 0xFF]
+UNKNOWN_HEADERS = [0x5B, 0xA5, 0x00, 0xFF]
 
 
-@pytest.mark.parametrize("code", [2, 9, 11, 0xFF])
-def test_unknown_baud_code(code: int) -> None:
-    with pytest.raises(MalformedEeprom, match="baud"):
-        Eeprom.from_bytes(_image_with(26, bytes((code >> 4, code & 0x0F))))
+def _nibbles(value: int) -> bytes:
+    return bytes((value >> 4, value & 0x0F))
+
+
+@pytest.mark.parametrize("header", UNKNOWN_HEADERS)
+def test_unknown_header_is_kept_and_flagged(header: int) -> None:
+    image = _image_with(0, _nibbles(header))
+    eeprom = Eeprom.from_bytes(image)
+    assert eeprom.header == header
+    assert eeprom.unknown_codes == {"header": header}
+    assert eeprom.to_bytes() == image
+    assert eeprom.to_dict()["unknown_codes"] == {"header": header}
+    assert eeprom.baud_rate is BaudRate.B115200 and eeprom.speed == 127  # the rest decodes as usual
+
+
+@pytest.mark.parametrize("code", UNKNOWN_BAUD_CODES)
+def test_unknown_baud_code_is_kept_and_flagged(code: int) -> None:
+    image = _image_with(26, _nibbles(code))
+    eeprom = Eeprom.from_bytes(image)
+    assert eeprom.baud_rate == code and not isinstance(eeprom.baud_rate, BaudRate)
+    assert eeprom.baud_code == code
+    assert eeprom.unknown_codes == {"baud_rate": code}
+    assert eeprom.to_bytes() == image
+    out = eeprom.to_dict()
+    assert out["baud_rate"] == code and out["unknown_codes"] == {"baud_rate": code}
+    assert bytes.fromhex(out["raw"]) == image
     with pytest.raises(MalformedEeprom):
-        BaudRate.from_eeprom_code(code)
+        BaudRate.from_eeprom_code(code)  # the enum itself still knows only the three rates
+
+
+def test_defined_codes_are_not_flagged() -> None:
+    for baud in BaudRate:
+        eeprom = Eeprom.factory(baud_rate=baud)
+        assert eeprom.unknown_codes == {} and eeprom.baud_code == baud.eeprom_code
+        assert eeprom.to_dict()["unknown_codes"] == {}
+        eeprom.check_writable()
+
+
+def test_replace_keeps_unknown_codes_and_can_set_a_defined_rate() -> None:
+    eeprom = Eeprom.from_bytes(_image_with(0, _nibbles(0x5B) + FACTORY_IMAGE[2:26] + _nibbles(0x1A)))
+    assert eeprom.unknown_codes == {"header": 0x5B, "baud_rate": 0x1A}
+    slower = eeprom.replace(speed=10)
+    assert slower.unknown_codes == eeprom.unknown_codes and slower.speed == 10
+    assert slower.to_bytes()[:2] == b"\x05\x0b" and slower.to_bytes()[26:28] == b"\x01\x0a"
+    fixed = eeprom.replace(baud_rate=115200)
+    assert fixed.baud_rate is BaudRate.B115200 and fixed.unknown_codes == {"header": 0x5B}
+    assert eeprom.diff(fixed) == {"baud_rate": (0x1A, BaudRate.B115200)}
+
+
+@pytest.mark.parametrize(
+    ("image", "match"),
+    [
+        (_image_with(26, _nibbles(0x1A)), "baud-rate code 0x1A"),
+        (_image_with(0, _nibbles(0x5B)), "header 0x5B"),
+    ],
+    ids=["baud", "header"],
+)
+def test_check_writable_refuses_unknown_codes(image: bytes, match: str) -> None:
+    with pytest.raises(InvalidArgument, match=match):
+        Eeprom.from_bytes(image).check_writable()
+
+
+def test_constructor_takes_a_baud_rate_or_a_raw_code() -> None:
+    base = Eeprom.factory(calibration=CALIBRATION).__dict__
+    assert Eeprom(**{**base, "baud_rate": 625000}).baud_rate is BaudRate.B625000
+    assert Eeprom(**{**base, "baud_rate": 1}).baud_rate is BaudRate.B625000  # code 1
+    assert Eeprom(**{**base, "baud_rate": 0x1A}).unknown_codes == {"baud_rate": 0x1A}
+    for bad in (-1, 256, 9600, True, "115200", None):
+        with pytest.raises(MalformedEeprom, match="baud"):
+            Eeprom(**{**base, "baud_rate": bad})
+    for bad in (-1, 256, True, None):
+        with pytest.raises(MalformedEeprom, match="header"):
+            Eeprom(**{**base, "header": bad})
+
+
+@settings(max_examples=150)
+@given(st.lists(st.integers(0, 15), min_size=64, max_size=64).map(bytes))
+def test_every_nibble_image_reads_and_round_trips(image: bytes) -> None:
+    # Whatever 64 nibbles a servo returns, they are read and written out byte for byte.
+    eeprom = Eeprom.from_bytes(image)
+    assert eeprom.to_bytes() == image
+    assert Eeprom.from_bytes(eeprom.to_bytes()) == eeprom
+    assert set(eeprom.unknown_codes) <= {"header", "baud_rate"}
 
 
 def test_malformed_eeprom_is_a_value_error() -> None:
@@ -423,8 +506,99 @@ def test_diff() -> None:
 def test_to_dict() -> None:
     eeprom = FACTORY.replace(flags=Flags.PWMINH, user_offset=-5, baud_rate=625000)
     out = eeprom.to_dict()
-    assert set(out) == {*SPEC_LAYOUT, "flags_names", "raw"}
+    assert set(out) == {*SPEC_LAYOUT, "flags_names", "raw", "unknown_codes"}
     assert out["flags"] == 8 and out["flags_names"] == ["PWMINH"]
     assert out["baud_rate"] == 625000 and out["user_offset"] == -5 and out["servo_id"] == 3
     assert bytes.fromhex(out["raw"]) == eeprom.to_bytes()
     assert all(type(out[name]) is int for name in SPEC_LAYOUT)
+
+
+# --- a servo holding an image with unknown codes: the bus, the simulator and the CLI ---
+
+_lines = itertools.count()
+
+
+def _servo_image(servo_id: int = 1, *, header: int = 0x5B, baud_code: int = 0x1A) -> bytes:
+    image = bytearray(_image_with(56, _nibbles(servo_id)))
+    image[0:2] = _nibbles(header)
+    image[26:28] = _nibbles(baud_code)
+    return bytes(image)
+
+
+@pytest.fixture
+def odd_servo() -> Iterator[tuple[SimBus, str, bytes]]:
+    """A named in-process line with servo 1 holding an unknown header and baud code (it talks at 115200)."""
+    image = _servo_image()
+    sim = SimBus([VirtualServo(eeprom=Eeprom.from_bytes(image))], name=f"eeprom-odd-{next(_lines)}")
+    yield sim, f"sim://{sim.name}", image
+    sim.close()
+
+
+def test_the_simulator_holds_an_image_with_unknown_codes() -> None:
+    image = _servo_image(3, header=0x00, baud_code=0x0B)
+    servo = VirtualServo(eeprom=Eeprom.from_bytes(image), baud_rate=625000)
+    assert servo.eeprom.to_bytes() == image and servo.servo_id == 3
+    assert servo.baud_rate is BaudRate.B625000  # the code names no rate: the servo talks at the one it was given
+    servo.power_cycle()
+    assert servo.baud_rate is BaudRate.B625000
+
+
+async def test_the_bus_reads_such_a_servo_and_refuses_to_write_it(odd_servo: tuple[SimBus, str, bytes]) -> None:
+    sim, _, image = odd_servo
+    async with open_bus(sim) as bus:
+        servo = bus.servo(1)
+        eeprom = await servo.read_eeprom()
+        assert eeprom.to_bytes() == image
+        assert eeprom.unknown_codes == {"header": 0x5B, "baud_rate": 0x1A}
+        before = sim.transactions
+        with pytest.raises(InvalidArgument, match="reference does not define"):
+            await servo.write_eeprom(eeprom.replace(speed=50))
+        with pytest.raises(InvalidArgument, match="reference does not define"):
+            await servo.write_eeprom(eeprom.replace(baud_rate=115200), allow_baud_change=True)  # the header stays
+        assert sim.transactions == before  # refused before a byte went out
+        assert sim.servo(1).eeprom_writes == 0 and sim.servo(1).eeprom.to_bytes() == image
+
+
+class _Cli:
+    def __init__(self, capsys: pytest.CaptureFixture[str]) -> None:
+        self.capsys = capsys
+
+    def __call__(self, *args: str) -> tuple[int, str, str]:
+        self.capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            main(list(args))
+        out, err = self.capsys.readouterr()
+        assert "Traceback" not in err, err
+        code = exited.value.code
+        return (code if isinstance(code, int) else 1), out, err
+
+
+def test_cli_info_and_dump_show_and_flag_unknown_codes(
+    odd_servo: tuple[SimBus, str, bytes], capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, url, image = odd_servo
+    ics35 = _Cli(capsys)
+    code, out, _ = ics35("--port", url, "info", "1", "--no-position")
+    assert code == 0
+    assert "0x1A" in out and "0x5B" in out and "unknown" in out
+    code, out, _ = ics35("--port", url, "info", "1", "--json")
+    assert code == 0 and json.loads(out)["eeprom"]["unknown_codes"] == {"header": 0x5B, "baud_rate": 0x1A}
+    code, out, err = ics35("--port", url, "eeprom", "dump", "1")
+    assert code == 0
+    doc = json.loads(out)
+    assert bytes.fromhex(doc["raw"]) == image  # the backup holds the image exactly
+    assert doc["unknown_codes"] == {"header": 0x5B, "baud_rate": 0x1A}
+    assert "unknown" in err
+    code, out, _ = ics35("--port", url, "eeprom", "dump", "1", "--table")
+    assert code == 0 and "0x1A" in out and "unknown" in out
+    code, out, _ = ics35("--port", url, "scan", "--ids", "1", "--bauds", "115200", "--json")
+    assert code == 0 and json.loads(out)["servos"][0]["eeprom"]["unknown_codes"]["baud_rate"] == 0x1A
+
+
+def test_cli_refuses_to_write_an_image_with_unknown_codes(
+    odd_servo: tuple[SimBus, str, bytes], capsys: pytest.CaptureFixture[str]
+) -> None:
+    sim, url, image = odd_servo
+    code, _, err = _Cli(capsys)("--port", url, "eeprom", "set", "1", "speed=50", "--yes")
+    assert code == ExitCode.USAGE and "reference does not define" in err and "nothing was written" in err
+    assert sim.servo(1).eeprom_writes == 0 and sim.servo(1).eeprom.to_bytes() == image

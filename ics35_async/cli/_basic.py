@@ -16,7 +16,7 @@ from rich.table import Table
 
 from .. import protocol, units
 from ..bus import Bus
-from ..eeprom import Eeprom, Flags
+from ..eeprom import BaudRate, Eeprom, Flags
 from ..errors import EchoMismatch, InvalidArgument, ReplyError, ReplyTimeout
 from ..protocol import Param
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
@@ -157,7 +157,7 @@ def scan_table(result: ScanResult) -> Table:
         if e is None:
             table.add_row(str(i), str(baud), *["?"] * 6, "(EEPROM not read)")
             continue
-        note = "" if int(e.baud_rate) == baud else f" (EEPROM: {int(e.baud_rate)})"
+        note = "" if int(e.baud_rate) == baud else f" (EEPROM: {baud_text(e.baud_rate)})"
         table.add_row(
             str(i),
             f"{baud}{note}",
@@ -304,14 +304,31 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
     return 0
 
 
+def unknown_code_text(code: int) -> str:
+    return f"[yellow]0x{code:02X} (unknown code)[/yellow]"
+
+
+def baud_text(baud: int) -> str:
+    """A baud_rate field as shown: the rate, or the raw code the reference does not define."""
+    return str(int(baud)) if isinstance(baud, BaudRate) else f"unknown code 0x{baud:02X}"
+
+
 def eeprom_table(eeprom: Eeprom, title: str = "EEPROM") -> Table:
     table = Table(title=title, title_justify="left")
     table.add_column("field")
     table.add_column("value", justify="right")
+    unknown = eeprom.unknown_codes
+    if unknown:
+        table.caption = "unknown code: a value ICS 3.5 does not define, kept as read; such an image is not written"
+    if "header" in unknown:
+        table.add_row("header", unknown_code_text(unknown["header"]))
     for name, value in eeprom.to_dict().items():
-        if name in ("raw", "flags_names"):
+        if name in ("raw", "flags_names", "unknown_codes"):
             continue
-        shown = f"{value} ({flag_names(eeprom.flags)})" if name == "flags" else str(value)
+        if name in unknown:
+            shown = unknown_code_text(unknown[name])
+        else:
+            shown = f"{value} ({flag_names(eeprom.flags)})" if name == "flags" else str(value)
         table.add_row(name, shown)
     return table
 

@@ -23,7 +23,7 @@ from ..bus import Bus
 from ..eeprom import EEPROM_FIELDS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError, ReplyTimeout
 from ..protocol import Param
-from ._basic import eeprom_table, flag_names
+from ._basic import baud_text, eeprom_table, flag_names
 from ._common import (
     SERVO_ID,
     CliError,
@@ -66,6 +66,12 @@ def dump(ctx: click.Context, servo_id: int, output: str | None, as_table: bool, 
             return await bus.servo(servo_id).read_eeprom()
 
     image = run(settings, body)
+    if image.unknown_codes:
+        codes = ", ".join(f"{name} 0x{code:02X}" for name, code in image.unknown_codes.items())
+        err.print(
+            f"[yellow]warning:[/yellow] servo {servo_id}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
+            "kept exactly as read; an image holding them cannot be written back"
+        )
     if as_table:
         out.print(eeprom_table(image, f"EEPROM of servo {servo_id}"))
         return 0
@@ -89,6 +95,7 @@ def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str,
         "fields": {name: fields[name] for name in EEPROM_FIELDS},
         "flags_names": fields["flags_names"],
         "raw": fields["raw"],
+        "unknown_codes": fields["unknown_codes"],
     }
 
 
@@ -148,11 +155,11 @@ BAUD_CONSEQUENCE = (
 )
 
 
-def baud_refusal(current: BaudRate, new: BaudRate) -> CliError:
+def baud_refusal(current: BaudRate | int, new: BaudRate | int) -> CliError:
     hs = " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
     return CliError(
         ExitCode.REFUSED,
-        f"refused: this changes the baud rate from {int(current)} to {int(new)}; "
+        f"refused: this changes the baud rate from {baud_text(current)} to {int(new)}; "
         + BAUD_CONSEQUENCE.format(new=int(new), hs=hs)
         + ". Nothing was written",
         "to do it anyway, add --change-baud",
@@ -194,6 +201,7 @@ async def apply_changes(
         if not as_json:
             out.print(f"servo {servo_id}: EEPROM already matches, nothing to write")
         return report
+    wanted.check_writable()  # an unknown header or baud code: refuse before asking
     if wanted.baud_rate != current.baud_rate and not change_baud:
         raise baud_refusal(current.baud_rate, wanted.baud_rate)
     new_id = wanted.servo_id

@@ -97,7 +97,9 @@ class VirtualServo:
 
     ``servo_id`` and ``baud_rate`` build the spec's factory image
     (:meth:`Eeprom.factory`, with a calibration that differs per ID) unless
-    ``eeprom`` is given.  ``position`` is where the shaft starts (host
+    ``eeprom`` is given.  A given image whose baud-rate code the reference does
+    not define leaves the servo talking at ``baud_rate`` (what a real one does
+    is not documented).  ``position`` is where the shaft starts (host
     coordinates); ``load`` is an external torque in current units (signed).
     """
 
@@ -118,6 +120,7 @@ class VirtualServo:
         elif not isinstance(eeprom, Eeprom):
             raise TypeError(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
         self._eeprom = eeprom
+        self._undefined_code_baud = BaudRate.parse(baud_rate)
         self.factory_calibration = eeprom.calibration
         self._position = float(check_int("position", position, 1, POSITION_MAX))
         self.load = load
@@ -151,7 +154,7 @@ class VirtualServo:
 
     def _load_ram(self) -> None:
         image = self._eeprom
-        self.baud_rate = BaudRate(image.baud_rate)
+        self.baud_rate = image.baud_rate if isinstance(image.baud_rate, BaudRate) else self._undefined_code_baud
         self.stretch = max(1, stretch_from_eeprom(image.stretch_gain))
         self.speed = image.speed
         self.current_limit = image.current_limit

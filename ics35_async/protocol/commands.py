@@ -1,0 +1,295 @@
+"""The servo commands, host side: each one's bytes, reply length, reply check and parse.
+
+A command object knows the bytes the host sends (``tx``), how many echo bytes
+come back (``echo_len``, the length of ``tx``), the exact reply length, how to
+validate and parse a reply, and how a device would encode that reply
+(``encode_reply``, used by the simulator so the wire rules live only here).
+
+Nothing here does I/O or keeps state between calls.  The one baud-dependent
+rule (a position reply from ID 0 at 115200 keeps its MSB) takes the baud
+rate as an explicit argument.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Generic, TypeVar
+
+from ..eeprom import EEPROM_SIZE, Eeprom
+from ..errors import (
+    IcsError,
+    InvalidArgument,
+    MalformedEeprom,
+    ReplyDataError,
+    ReplyHeaderError,
+    ReplyLengthError,
+    ReplySubcommandError,
+    ReplyValueError,
+)
+from ..units import check_int
+from .hot_path import position_reply_header, position_tx
+from .wire import (
+    CMD_ID,
+    CMD_READ,
+    CMD_WRITE,
+    FREE,
+    MAX_ID,
+    POSITION_MAX,
+    WRITE_RANGES,
+    Param,
+    Timing,
+    check_baud,
+    check_id,
+    join7,
+    split7,
+)
+
+T = TypeVar("T")
+
+_READ_NAMES = {
+    Param.EEPROM: "read_eeprom",
+    Param.STRETCH: "read_stretch",
+    Param.SPEED: "read_speed",
+    Param.CURRENT: "read_current",
+    Param.TEMPERATURE: "read_temperature",
+}
+_WRITE_NAMES = {
+    Param.EEPROM: "write_eeprom",
+    Param.STRETCH: "write_stretch",
+    Param.SPEED: "write_speed",
+    Param.CURRENT: "write_current_limit",
+    Param.TEMPERATURE: "write_temperature_limit",
+}
+
+
+class Command(Generic[T]):
+    """One host command: its bytes, reply length, and reply parser.
+
+    ``servo_id`` is the addressed ID (``None`` for the ID command, which the
+    whole line hears).  ``idempotent`` commands may be retried by the bus.
+    """
+
+    __slots__ = ("name", "reply_len", "servo_id", "tx")
+
+    idempotent: ClassVar[bool] = True
+    timing: ClassVar[Timing] = Timing.NORMAL
+
+    servo_id: int | None
+    tx: bytes
+    reply_len: int
+    name: str
+
+    @property
+    def echo_len(self) -> int:
+        return len(self.tx)
+
+    def parse(self, reply: bytes) -> T:
+        """Validate a reply (echo already removed) and return its value."""
+        raise NotImplementedError
+
+    def encode_reply(self, value: T) -> bytes:
+        """The reply a well-behaved device sends for ``value`` (simulator side)."""
+        raise NotImplementedError
+
+    def _fail(self, cls: type[IcsError], message: str, reply: bytes) -> IcsError:
+        return cls(message, command=self.name, servo_id=self.servo_id, raw=reply)  # type: ignore[call-arg]
+
+    def _check_length(self, reply: bytes) -> None:
+        if len(reply) != self.reply_len:
+            raise self._fail(ReplyLengthError, f"reply is {len(reply)} bytes, expected {self.reply_len}", reply)
+
+    def _check_header(self, reply: bytes, expected: int) -> None:
+        if reply[0] != expected:
+            raise self._fail(
+                ReplyHeaderError,
+                f"reply command byte 0x{reply[0]:02X}, expected 0x{expected:02X}",
+                reply,
+            )
+
+    def _check_param_head(self, reply: bytes) -> None:
+        """Length, then ``CMD & 0x7F`` and the echoed sub-command: every parameter reply starts so."""
+        self._check_length(reply)
+        self._check_header(reply, self.tx[0] & 0x7F)
+        if reply[1] != self.tx[1]:
+            raise self._fail(ReplySubcommandError, f"reply SC 0x{reply[1]:02X}, expected 0x{self.tx[1]:02X}", reply)
+
+    def _check_7bit(self, reply: bytes, start: int) -> None:
+        for i in range(start, len(reply)):
+            if reply[i] & 0x80:
+                raise self._fail(ReplyDataError, f"reply byte {i + 1} is 0x{reply[i]:02X}, MSB set", reply)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name} id={self.servo_id} tx={self.tx.hex(' ')}>"
+
+
+class Position(Command[int]):
+    """Position set (0x80); position 0 is FREE.  Returns the reported position."""
+
+    __slots__ = ("baudrate", "position", "reply_header")
+
+    def __init__(self, servo_id: int, position: int, *, baudrate: int) -> None:
+        self.servo_id = check_id(servo_id)
+        self.position = check_int("position", position, 0, POSITION_MAX)
+        self.baudrate = check_baud(baudrate)
+        self.name = "free" if position == FREE else "position"
+        self.tx = position_tx(servo_id, position)
+        self.reply_len = 3
+        self.reply_header = position_reply_header(servo_id, self.baudrate)
+
+    def parse(self, reply: bytes) -> int:
+        self._check_length(reply)
+        self._check_header(reply, self.reply_header)
+        self._check_7bit(reply, 1)
+        return join7(reply[1], reply[2])
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((self.reply_header, *split7(value)))
+
+
+class ReadParam(Command[int]):
+    """Parameter read (0xA0), SC 1..4: one 7-bit value."""
+
+    __slots__ = ("param",)
+
+    def __init__(self, servo_id: int, param: Param | int) -> None:
+        self.servo_id = check_id(servo_id)
+        check_int("parameter", param, 1, 4)
+        self.param = Param(param)
+        self.name = _READ_NAMES[self.param]
+        self.tx = bytes((CMD_READ | servo_id, self.param))
+        self.reply_len = 3
+
+    def parse(self, reply: bytes) -> int:
+        self._check_param_head(reply)
+        self._check_7bit(reply, 2)
+        return reply[2]
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((self.tx[0] & 0x7F, self.param, value))
+
+
+def guard_read(tx: bytes, servo_id: int) -> ReadParam:
+    """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
+
+    A parameter read of another sub-command: a late reply to ``tx`` fails its
+    header, sub-command or length check.
+    """
+    same_as_stretch_read = tx[:2] == bytes((CMD_READ | servo_id, Param.STRETCH))
+    return ReadParam(servo_id, Param.SPEED if same_as_stretch_read else Param.STRETCH)
+
+
+class ReadEeprom(Command[Eeprom]):
+    """Parameter read SC 0: the 64-byte EEPROM image."""
+
+    __slots__ = ()
+
+    def __init__(self, servo_id: int) -> None:
+        self.servo_id = check_id(servo_id)
+        self.name = _READ_NAMES[Param.EEPROM]
+        self.tx = bytes((CMD_READ | servo_id, Param.EEPROM))
+        self.reply_len = 2 + EEPROM_SIZE
+
+    def parse(self, reply: bytes) -> Eeprom:
+        self._check_param_head(reply)
+        try:
+            return Eeprom.from_bytes(reply[2:])
+        except MalformedEeprom as exc:
+            raise self._fail(ReplyDataError, f"EEPROM image: {exc}", reply) from exc
+
+    def encode_reply(self, value: Eeprom) -> bytes:
+        return bytes((self.tx[0] & 0x7F, Param.EEPROM)) + value.to_bytes()
+
+
+class WriteParam(Command[int]):
+    """Parameter write (0xC0), SC 1..4, RAM only.  Returns the echoed value."""
+
+    __slots__ = ("param", "value")
+
+    def __init__(self, servo_id: int, param: Param | int, value: int) -> None:
+        self.servo_id = check_id(servo_id)
+        check_int("parameter", param, 1, 4)
+        self.param = Param(param)
+        self.name = _WRITE_NAMES[self.param]
+        low, high = WRITE_RANGES[self.param]
+        self.value = check_int(self.name.removeprefix("write_").replace("_", " "), value, low, high)
+        self.tx = bytes((CMD_WRITE | servo_id, self.param, value))
+        self.reply_len = 3
+
+    def parse(self, reply: bytes) -> int:
+        self._check_param_head(reply)
+        self._check_7bit(reply, 2)
+        if reply[2] != self.value:
+            raise self._fail(ReplyValueError, f"reply value {reply[2]}, wrote {self.value}", reply)
+        return reply[2]
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((self.tx[0] & 0x7F, self.param, value))
+
+
+class WriteEeprom(Command[None]):
+    """Parameter write SC 0: all 64 EEPROM bytes at once (persists; slow reply)."""
+
+    __slots__ = ("eeprom",)
+    idempotent = False
+    timing = Timing.EEPROM_WRITE
+
+    def __init__(self, servo_id: int, eeprom: Eeprom) -> None:
+        self.servo_id = check_id(servo_id)
+        if not isinstance(eeprom, Eeprom):
+            raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
+        eeprom.check_writable()  # an undefined header or baud code is read, never written
+        self.eeprom = eeprom
+        self.name = _WRITE_NAMES[Param.EEPROM]
+        self.tx = bytes((CMD_WRITE | servo_id, Param.EEPROM)) + eeprom.to_bytes()
+        self.reply_len = 2
+
+    def parse(self, reply: bytes) -> None:
+        self._check_param_head(reply)
+
+    def encode_reply(self, value: None) -> bytes:
+        return bytes((self.tx[0] & 0x7F, Param.EEPROM))
+
+
+class ReadId(Command[int]):
+    """ID read: only safe with exactly one device on the line."""
+
+    __slots__ = ()
+    timing = Timing.ID
+
+    def __init__(self, servo_id: int = MAX_ID) -> None:
+        # The ID bits are ignored by the servo; 0xFF is the reference's choice.
+        self.servo_id = None
+        self.name = "read_id"
+        self.tx = bytes((CMD_ID | check_id(servo_id), 0, 0, 0))
+        self.reply_len = 1
+
+    def parse(self, reply: bytes) -> int:
+        self._check_length(reply)
+        if reply[0] & 0xE0 != CMD_ID:
+            raise self._fail(ReplyHeaderError, f"ID reply 0x{reply[0]:02X} is not 0xE0 | id", reply)
+        return reply[0] & 0x1F
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((CMD_ID | value,))
+
+
+class WriteId(Command[int]):
+    """ID write: gives the new ID to every device on the line."""
+
+    __slots__ = ("new_id",)
+    idempotent = False
+    timing = Timing.ID
+
+    def __init__(self, new_id: int) -> None:
+        self.new_id = check_id(new_id)
+        self.servo_id = None
+        self.name = "write_id"
+        self.tx = bytes((CMD_ID | new_id, 1, 1, 1))
+        self.reply_len = 1
+
+    def parse(self, reply: bytes) -> int:
+        self._check_length(reply)
+        self._check_header(reply, self.tx[0])
+        return self.new_id
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((CMD_ID | value,))

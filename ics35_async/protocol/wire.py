@@ -1,0 +1,88 @@
+"""The line's constants and byte-level helpers: command bytes, sub-commands, 7-bit and nibble packing.
+
+Everything else in :mod:`ics35_async.protocol` builds on these; nothing here
+knows about a particular command's reply rules.
+"""
+
+from __future__ import annotations
+
+import enum
+
+from ..eeprom import BaudRate
+from ..units import check_int
+
+BITS_PER_BYTE = 11  # start + 8 data + even parity + stop
+MAX_ID = 31
+POSITION_MAX = 16383
+FREE = 0
+
+CMD_POSITION = 0x80
+CMD_READ = 0xA0
+CMD_WRITE = 0xC0
+CMD_ID = 0xE0
+SC_MEMORY = 0x7F
+MEMORY_SIZE = 128
+
+
+class Param(enum.IntEnum):
+    """Parameter sub-commands (SC) of the read and write commands."""
+
+    EEPROM = 0
+    STRETCH = 1
+    SPEED = 2
+    CURRENT = 3  # read: the measured current; write: the current limit
+    TEMPERATURE = 4  # read: the measured temperature; write: the limit
+
+
+# Valid write ranges for SC 1..4.
+WRITE_RANGES: dict[Param, tuple[int, int]] = {
+    Param.STRETCH: (1, 127),
+    Param.SPEED: (1, 127),
+    Param.CURRENT: (1, 63),
+    Param.TEMPERATURE: (1, 127),
+}
+
+
+class Timing(enum.Enum):
+    """Which deadline allowance a command needs (the bus maps these to seconds)."""
+
+    NORMAL = "normal"
+    EEPROM_WRITE = "eeprom_write"  # the servo answers noticeably later
+    ID = "id"
+
+
+def wire_time(nbytes: int, baudrate: int) -> float:
+    """Seconds the line needs for ``nbytes`` bytes at ``baudrate``."""
+    return nbytes * BITS_PER_BYTE / baudrate
+
+
+def check_id(servo_id: object) -> int:
+    return check_int("servo ID", servo_id, 0, MAX_ID)
+
+
+def check_baud(baudrate: object) -> BaudRate:
+    return BaudRate.parse(baudrate)
+
+
+def join7(high: int, low: int) -> int:
+    return (high << 7) | low
+
+
+def split7(value: int) -> tuple[int, int]:
+    return (value >> 7) & 0x7F, value & 0x7F
+
+
+def nibbles_from_bytes(data: bytes) -> bytes:
+    """Each memory byte as two wire bytes, high nibble first."""
+    out = bytearray()
+    for b in data:
+        out.append(b >> 4)
+        out.append(b & 0x0F)
+    return bytes(out)
+
+
+def bytes_from_nibbles(wire: bytes) -> bytes:
+    """Inverse of :func:`nibbles_from_bytes`; raises ValueError on a non-nibble."""
+    if len(wire) % 2 or any(b > 0x0F for b in wire):
+        raise ValueError("not a whole number of nibble pairs")
+    return bytes((wire[i] << 4) | wire[i + 1] for i in range(0, len(wire), 2))
