@@ -49,7 +49,7 @@ from bench_common import (
 
 from ics35_async import open_bus, protocol
 from ics35_async.errors import ReplyError
-from ics35_async.streaming import Stream
+from ics35_async.stream import Stream
 
 POLLERS = 16
 POLL_HZ = 10.0  # each poller: current + temperature, 10 times a second (320 reads/s in all)

@@ -35,9 +35,11 @@ from .errors import (
     UnsafeOperation,
     VerifyError,
 )
+from .frames import Frame, GroupFrame, StreamStats
+from .group import BusGroup, GroupStream
 from .protocol import Param
 from .servo import Device, Servo
-from .streaming import BusGroup, Frame, GroupFrame, GroupStream, Stream, StreamStats
+from .stream import Stream
 
 __version__ = "0.1.0"
 

@@ -10,25 +10,27 @@ driver that moves bytes and time between the engine and the event loop
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
 import logging
-from collections.abc import Generator, Iterable, Sequence
+from collections.abc import Awaitable, Generator, Iterable, Sequence
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from . import protocol
-from .drivers.asyncio_line import AsyncioLine, FutureRequest, now
+from .drivers.anyio_driver import AnyioDriver
+from .drivers.asyncio_driver import AsyncioDriver
+from .drivers.asyncio_line import now
+from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
-from .errors import BusClosed, IcsError, InvalidArgument, PortLost
+from .errors import BusClosed, InvalidArgument, PortLost
 from .protocol import Command
 from .stats import BusStats
-from .transports import WireDevice, discard_input, open_line
+from .transports import TRANSPORT_KINDS, WireDevice
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
     from .servo import Device, Servo
-    from .streaming import Stream
+    from .stream import Stream
 
 log = logging.getLogger("ics35_async")
 
@@ -36,6 +38,18 @@ T = TypeVar("T")
 
 # Delays between reopen attempts; capped well under 1 s so a returning port is found fast.
 RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
+
+
+def _running_asyncio() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
+
+
+
+DRIVERS = ("auto", "asyncio", "thread", "anyio")
 
 
 class Bus:
@@ -47,6 +61,7 @@ class Bus:
         *,
         baudrate: int = 115200,
         echo: bool = True,
+        driver: str = "auto",
         transport: str = "auto",
         timing: BusTiming | None = None,
         retries: int = 0,
@@ -60,25 +75,29 @@ class Bus:
             raise InvalidArgument(f"timing must be a BusTiming, not {type(timing).__name__}")
         if isinstance(reconnect_backoff, (str, bytes)) or not isinstance(reconnect_backoff, Iterable):
             raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {reconnect_backoff!r}")
+        if driver not in DRIVERS:
+            raise InvalidArgument(f"driver must be one of {', '.join(DRIVERS)}, not {driver!r}")
+        if transport not in TRANSPORT_KINDS:
+            raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
         self.port = port
         self.echo = check_bool("echo", echo)
-        self.transport_kind = transport
+        self.driver_kind = driver
         self.retries = check_int("retries", retries, 0, 10)
-        self.reconnect = check_bool("reconnect", reconnect)
-        self.reconnect_backoff = tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,)
         self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
+        self.settings = LineSettings(
+            transport="thread" if driver == "thread" else transport,
+            reconnect=check_bool("reconnect", reconnect),
+            reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,),
+        )
         self._engine = LineEngine(
             baudrate=protocol.check_baud(baudrate),
             echo=self.echo,
             timing=timing or BusTiming(),
             max_requests_between=self.max_requests_between,
         )
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._line: AsyncioLine | None = None
-        self._opening: asyncio.Future[None] | None = None
-        self._reopening: asyncio.Future[None] | None = None
-        self._supervisor: asyncio.Task[None] | None = None
-        self._lost_event: asyncio.Event | None = None
+        self._driver: AsyncioDriver | AnyioDriver | None = None
+        self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
+        self._reopening = False
 
     @property
     def baudrate(self) -> int:
@@ -89,9 +108,22 @@ class Bus:
         return self._engine.timing
 
     @property
+    def reconnect(self) -> bool:
+        return self.settings.reconnect
+
+    @property
+    def reconnect_backoff(self) -> tuple[float, ...]:
+        return self.settings.reconnect_backoff
+
+    @property
     def state(self) -> State:
         """The engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."""
         return self._engine.state
+
+    @property
+    def driver(self) -> str:
+        """The driver running the line once open: ``"asyncio"`` or ``"anyio"``."""
+        return self._driver.name if self._driver is not None else self.driver_kind
 
     # ------------------------------------------------------------------ opening / closing
 
@@ -106,44 +138,39 @@ class Bus:
     ) -> None:
         await self.aclose()
 
+    def _make_driver(self) -> AsyncioDriver | AnyioDriver:
+        kind = self.driver_kind
+        if kind == "auto":
+            kind = "asyncio" if _running_asyncio() else "anyio"
+        if kind == "anyio":
+            return AnyioDriver(self._engine, self.port, self.settings)
+        if not _running_asyncio():
+            raise InvalidArgument(f"driver={kind!r} needs a running asyncio loop; under trio use driver='anyio'")
+        return AsyncioDriver(self._engine, self.port, self.settings)
+
     async def open(self) -> Bus:
         """Open the line (idempotent)."""
         if self._engine.state is State.CLOSED or self._engine.state is State.DRAINING:
             raise BusClosed("bus is closed")
-        if self._loop is not None and self._opening is None:
-            return self
         if self._opening is not None:  # another open() is under way: share its outcome
-            await asyncio.shield(self._opening)
-            if self._line is None:
+            await self._opening.wait()
+            if self._driver is None:
                 raise BusClosed(f"opening {self.port} failed")
             return self
-        self._loop = asyncio.get_running_loop()
-        opening = self._opening = self._loop.create_future()
-        try:
-            await self._connect()
-        except BaseException:
-            self._loop = None
-            raise
-        finally:
-            self._opening = None
-            opening.set_result(None)  # waiters look at the line, not at this result
-        self._lost_event = asyncio.Event()
-        self._supervisor = self._loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
-        return self
+        if self._driver is not None:
+            return self
+        import anyio
 
-    async def _connect(self) -> None:
-        loop = self._loop
-        assert loop is not None
-        _, line = await open_line(
-            self.port,
-            baudrate=self.baudrate,
-            protocol_factory=lambda: AsyncioLine(self._engine, loop, self._on_connection_lost, discard_input),
-            transport=self.transport_kind,
-        )
-        self._line = line
-        self._engine.debug = log.isEnabledFor(logging.DEBUG)
-        log.info("opened %s at %d baud", self.port, self.baudrate)
-        line.pump(self._engine.connected(now()))
+        self._opening = anyio.Event()
+        try:
+            driver = self._make_driver()
+            self._engine.debug = log.isEnabledFor(logging.DEBUG)
+            await driver.open()
+            self._driver = driver
+        finally:
+            self._opening.set()
+            self._opening = None
+        return self
 
     async def reopen(self, *, baudrate: int | None = None) -> None:
         """Close and reopen the port, optionally at a new line rate.
@@ -153,102 +180,32 @@ class Bus:
         submitted meanwhile wait and run after the reopen.
         """
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
-        if not self.is_open:
+        driver = self._driver
+        if driver is None or not self.is_open:
             raise BusClosed("bus is closed")
-        if self._engine._source is not None or self._reopening is not None:
+        if self._engine._source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
-        self._reopening = self._get_loop().create_future()  # attach_source refuses from here on
+        self._reopening = True  # attach_source refuses from here on
         try:
-            await self.wait_idle()
+            await driver.wait_idle()
             if self._engine.state is not State.IDLE:
                 raise PortLost(f"port {self.port} is lost; cannot reopen now")
-            self._engine.disconnected()
-            line, self._line = self._line, None
-            if line is not None:
-                line.cancel_timer()
-                if line.transport is not None:
-                    line.transport.close()
-                await asyncio.sleep(0)
-            self._engine.baudrate = new_baud
-            try:
-                await self._connect()
-            except BaseException as exc:
-                self._engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
-                raise
+            await driver.reopen(new_baud)
         finally:
-            self._reopening.set_result(None)
-            self._reopening = None
+            self._reopening = False
 
     @property
     def is_open(self) -> bool:
-        return self._loop is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
+        return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
 
     async def aclose(self) -> None:
         """Fail queued requests with BusClosed, finish the one on the wire, release the port."""
-        engine = self._engine
-        if engine.state is State.CLOSED and self._line is None and self._supervisor is None:
+        driver, self._driver = self._driver, None
+        if driver is None:
+            self._engine.close()
             return
-        engine.close()
-        line = self._line
-        if engine.state is State.DRAINING and line is not None:
-            waiter = self._get_loop().create_future()
-            line.idle_waiters.append(waiter)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(waiter, engine.timing.allowance(200, self.baudrate) + 1)
-        engine.abort()
-        if self._supervisor is not None:
-            self._supervisor.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._supervisor
-            self._supervisor = None
-        self._line = None
-        if line is not None:
-            line.cancel_timer()
-            line.release_idle_waiters()
-            if line.transport is not None and not line.transport.is_closing():
-                line.transport.close()
-                await asyncio.sleep(0)  # let the transport deliver connection_lost and release the fd
+        await driver.aclose()
         log.info("closed %s", self.port)
-
-    def _get_loop(self) -> asyncio.AbstractEventLoop:
-        if self._loop is None:
-            raise BusClosed("bus is not open")
-        return self._loop
-
-    # ------------------------------------------------------------------ losing the port
-
-    def _on_connection_lost(self, line: AsyncioLine, exc: Exception | None) -> None:
-        if line is not self._line:
-            return
-        self._line = None
-        if line.transport is not None and not line.transport.is_closing():
-            line.transport.close()
-        engine = self._engine
-        reason = f"port {self.port} lost: {exc}" if exc else f"port {self.port} closed"
-        if engine.state not in (State.CLOSED, State.DRAINING):
-            log.warning("%s", reason)
-        engine.lost(reason, reconnect=self.reconnect)
-        line.release_idle_waiters()
-        if engine.state is State.LOST and self._lost_event is not None:
-            self._lost_event.set()
-
-    async def _supervise(self) -> None:
-        assert self._lost_event is not None
-        while True:
-            await self._lost_event.wait()
-            self._lost_event.clear()
-            attempt = 0
-            while self._engine.state is State.LOST:
-                delay = self.reconnect_backoff[min(attempt, len(self.reconnect_backoff) - 1)]
-                await asyncio.sleep(delay)
-                attempt += 1
-                try:
-                    await self._connect()
-                except (OSError, IcsError) as exc:
-                    log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
-                else:
-                    self._engine.counters.reconnects += 1
-                    log.info("reconnected to %s after %d attempt(s)", self.port, attempt)
 
     # ------------------------------------------------------------------ submitting
 
@@ -261,41 +218,38 @@ class Bus:
         Raises :class:`ReplyError` subclasses, :class:`BusClosed` or
         :class:`PortLost`.
         """
-        return await self.submit(command, priority=priority, retries=retries)
+        result: T = await self.submit(command, priority=priority, retries=retries)
+        return result
 
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
-    ) -> asyncio.Future[T]:
-        """Queue ``command`` and return the future of its result (no await needed)."""
+    ) -> Awaitable[T]:
+        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver)."""
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
         check_int("priority", priority, Priority.URGENT, Priority.LOW)
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
-        loop = self._loop
-        if loop is None:
+        driver = self._driver
+        if driver is None:
             if self._engine.state is State.CLOSED:
                 raise BusClosed("bus is closed")
             raise BusClosed("bus is not open (use `async with open_bus(...)`)")
-        engine = self._engine
         # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
-        engine.debug = log.isEnabledFor(logging.DEBUG)
-        fut: asyncio.Future[T] = loop.create_future()
-        out = engine.submit(FutureRequest(command, fut, priority, retries), now())
-        if out is not None and self._line is not None:
-            self._line.pump(out)
-        return fut
+        self._engine.debug = log.isEnabledFor(logging.DEBUG)
+        return driver.submit(command, priority, retries)
 
     def attach_source(self, source: BackgroundSource | None) -> None:
         """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
+        engine = self._engine
         if source is None:
-            if self._engine._source is not None:
-                self._engine.detach_source(self._engine._source)
+            if engine._source is not None:
+                engine.detach_source(engine._source)
             return
-        if self._reopening is not None or self._engine.state is State.OFFLINE:
+        if self._reopening or engine.state is State.OFFLINE:
             raise InvalidArgument("the bus is reopening; start the stream afterwards")
-        out = self._engine.attach_source(source, now())
-        if self._line is not None:
-            self._line.pump(out)
+        out = engine.attach_source(source, now())
+        if self._driver is not None:
+            self._driver.pump(out)
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""
@@ -303,16 +257,13 @@ class Bus:
 
     def kick(self) -> None:
         """Tell an idle bus that the background source has work again."""
-        line = self._line
-        if line is not None:
-            line.pump(self._engine.kick(now()))
+        if self._driver is not None:
+            self._driver.pump(self._engine.kick(now()))
 
     async def wait_idle(self) -> None:
         """Wait until nothing is queued or on the wire."""
-        while not self._engine.idle and self._line is not None:
-            waiter = self._get_loop().create_future()
-            self._line.idle_waiters.append(waiter)
-            await waiter
+        if self._driver is not None:
+            await self._driver.wait_idle()
 
     # ------------------------------------------------------------------ public conveniences
 
@@ -335,7 +286,7 @@ class Bus:
 
     def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> Stream:
         """A position :class:`~ics35_async.streaming.Stream` over ``ids``; use as ``async with``."""
-        from .streaming import STREAM_OPTIONS, Stream
+        from .stream import STREAM_OPTIONS, Stream
 
         unknown = set(options) - STREAM_OPTIONS
         if unknown:
@@ -369,6 +320,7 @@ def open_bus(
     *,
     baudrate: int = 115200,
     echo: bool = True,
+    driver: str = "auto",
     transport: str = "auto",
     timing: BusTiming | None = None,
     retries: int = 0,
@@ -381,8 +333,11 @@ def open_bus(
 
     ``port`` is a serial device path, a pyserial URL (``socket://``,
     ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator,
-    or a :class:`~ics35_async.transports.WireDevice`.  Extra keyword
-    arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
+    or a :class:`~ics35_async.transports.WireDevice`.  ``driver`` picks what
+    runs the line: ``"asyncio"`` (I/O callbacks; the default under asyncio),
+    ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (pyserial's
+    blocking reads in a thread, for any pyserial port), or ``"auto"``.  Extra
+    keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
     """
     if timing_overrides:
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
@@ -393,6 +348,7 @@ def open_bus(
         port,
         baudrate=baudrate,
         echo=echo,
+        driver=driver,
         transport=transport,
         timing=timing,
         retries=retries,

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
+
+import anyio
 
 from . import protocol
 from .errors import BadReply, ReplyError, UnsafeOperation
@@ -69,15 +70,18 @@ async def scan(bus: Bus, ids: Iterable[int] = range(32), *, concurrency: int = 3
     still runs them one at a time), leaving room for other callers.
     """
     checked = check_ids("ids", ids)
-    gate = asyncio.Semaphore(check_int("concurrency", concurrency, 1, 32))
+    gate = anyio.Semaphore(check_int("concurrency", concurrency, 1, 32))
+    answered: set[int] = set()
 
-    async def probe(i: int) -> int | None:
+    async def probe(i: int) -> None:
         async with gate:
             try:
                 await bus.request(protocol.ReadParam(i, protocol.Param.STRETCH), retries=1)
             except ReplyError:
-                return None
-            return i
+                return
+            answered.add(i)
 
-    found = await asyncio.gather(*(probe(i) for i in checked))
-    return [i for i in found if i is not None]
+    async with anyio.create_task_group() as group:
+        for i in checked:
+            group.start_soon(probe, i)
+    return [i for i in checked if i in answered]

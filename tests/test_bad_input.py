@@ -42,8 +42,9 @@ from ics35_async import (
 )
 from ics35_async.cli import main as cli_main
 from ics35_async.eeprom import EEPROM_FIELDS
+from ics35_async.group import GroupStream
 from ics35_async.sim import SimBus, VirtualServo
-from ics35_async.streaming import GroupStream, Stream
+from ics35_async.stream import Stream
 
 FAST = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
 

@@ -31,6 +31,7 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
+from ics35_async.drivers.asyncio_driver import AsyncioDriver
 from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo, serving
 from ics35_async.sim.servo import factory_calibration
 
@@ -479,8 +480,9 @@ async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tupl
     """A serial port with PARMRK reports bytes that arrived damaged: ICS has no checksum of its own."""
     _sim, bus = line
     request = bus.submit(protocol.ReadParam(3, protocol.Param.STRETCH))
-    assert bus._line is not None
-    bus._line.line_error(1)  # what DirectSerialTransport calls when the kernel marks a byte
+    driver = bus._driver
+    assert isinstance(driver, AsyncioDriver) and driver.line is not None
+    driver.line.line_error(1)  # what DirectSerialTransport calls when the kernel marks a byte
     with pytest.raises(ReplyDataError, match="parity"):
         await request
     assert bus.stats.line_errors == 1

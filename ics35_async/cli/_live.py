@@ -27,8 +27,9 @@ from rich.text import Text
 from .. import protocol, units
 from ..bus import Bus, Priority
 from ..errors import BusClosed, IcsError, PortLost, ReplyError
+from ..frames import Frame
 from ..protocol import Param
-from ..streaming import Frame, Stream
+from ..stream import Stream
 from ._basic import probe_ids
 from ._common import (
     ID_LIST,
@@ -70,7 +71,7 @@ class Telemetry:
             sid = self.ids[self._next % len(self.ids)]
             self._next += 1
             for param, store in ((Param.CURRENT, self.current), (Param.TEMPERATURE, self.temperature)):
-                fut = self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW)
+                fut = asyncio.ensure_future(self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW))
                 self._pending += 1
                 fut.add_done_callback(self._done_callback(sid, store))
 

@@ -27,16 +27,13 @@ import serial
 from ..errors import InvalidArgument
 from .direct import DirectSerialTransport
 from .in_process import InProcessTransport, WireDevice, device_factory
-from .serial_port import open_serial
+from .serial_port import TermiosError, open_serial
 from .threaded import ThreadedSerialDevice
-
-if sys.platform != "win32":
-    import termios
 
 log = logging.getLogger("ics35_async.transports")
 
 P = TypeVar("P", bound=asyncio.Protocol)
-TransportKind = Literal["auto", "fast", "stock", "direct"]
+TransportKind = Literal["auto", "fast", "stock", "direct", "thread"]
 TRANSPORT_KINDS: Final[tuple[str, ...]] = get_args(TransportKind)
 
 _SerialTransportClass = Callable[[asyncio.AbstractEventLoop, asyncio.Protocol, serial.SerialBase], asyncio.Transport]
@@ -59,6 +56,8 @@ def _stock_transport_class() -> _SerialTransportClass | None:
 
 def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
     """Resolve ``transport`` for an open port; ``"thread"`` for fd-less ports."""
+    if kind == "thread":
+        return "thread"
     fd_backed = isinstance(ser, serial.Serial)  # serialposix: a real tty or pty
     has_fileno = True
     try:
@@ -204,5 +203,5 @@ def discard_input(transport: asyncio.BaseTransport) -> None:
         ser = transport.get_extra_info("serial")
         if ser is not None:
             ser.reset_input_buffer()
-    except (OSError, termios.error) as exc:
+    except (OSError, TermiosError) as exc:
         log.debug("discarding input failed: %s", exc)

@@ -15,6 +15,10 @@ from ..errors import InvalidArgument, ParityNotSupported, PortBusy, PortNotFound
 if sys.platform != "win32":
     import termios
 
+    TermiosError: type[Exception] = termios.error
+else:  # pragma: no cover - no termios on Windows; nothing raises this there
+    TermiosError = OSError
+
 log = logging.getLogger("ics35_async.transports")
 
 
@@ -77,14 +81,16 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
         "parity": serial.PARITY_EVEN,
         "stopbits": serial.STOPBITS_ONE,
         "timeout": 0,
-        "write_timeout": 0,
+        # A device path never blocks a write; pyserial's RFC 2217 client refuses any
+        # write_timeout but None (and the socket handlers need none).
+        "write_timeout": 0 if is_device_path else None,
     }
     if is_device_path:
         settings["exclusive"] = True
     try:
         try:
             ser = serial.serial_for_url(port, **settings)
-        except termios.error as exc:
+        except TermiosError as exc:
             # A pty refuses a tcsetattr whose only change is PARENB (EINVAL),
             # which is what opening an already-raw pty at our speed asks for.
             if not (is_device_path and exc.args[0] == errno.EINVAL and _is_pty_path(port)):
@@ -96,6 +102,8 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
     except ValueError as exc:
         # Unknown URL scheme, or a baud rate the driver rejects.
         raise InvalidArgument(f"cannot open {port!r}: {exc}") from exc
+    except (OSError, NotImplementedError) as exc:  # a URL handler's own failure (a refused connection)
+        raise _translate_open_error(port, exc) from exc
 
     try:
         fd = ser.fileno() if isinstance(ser, serial.Serial) else None

@@ -20,68 +20,26 @@ a probe answers.  Frames list the offline IDs.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import dataclasses
 import itertools
 import math
 import statistics
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import AsyncIterator, Iterable, Mapping
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING
+
+import anyio
 
 from . import protocol, units
-from .bus import Bus, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
+from .frames import Frame, StreamStats, percentile
+
+if TYPE_CHECKING:
+    from .bus import Bus
 
 INF = math.inf
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One completed cycle.
-
-    ``positions`` and ``timestamps`` (``time.monotonic()`` of each reply) hold the
-    IDs that answered this cycle; ``failed`` the IDs tried that did not;
-    ``offline`` the IDs currently out of the cycle.  ``skipped`` counts the
-    frames this consumer missed since its previous one.
-    """
-
-    cycle: int
-    positions: dict[int, int]
-    timestamps: dict[int, float]
-    failed: frozenset[int]
-    offline: frozenset[int]
-    started: float
-    finished: float
-    skipped: int = 0
-
-    def degrees(self) -> dict[int, float]:
-        return {i: units.position_to_degrees(p) for i, p in self.positions.items()}
-
-
-@dataclass
-class StreamStats:
-    cycles: int = 0
-    rate_hz: float = 0.0
-    cycle_time_p50: float = 0.0
-    cycle_time_p90: float = 0.0
-    cycle_time_p99: float = 0.0
-    cycle_time_max: float = 0.0
-    jitter: float = 0.0  # standard deviation of the interval between cycle starts, seconds
-    overruns: int = 0
-    frames_dropped: int = 0  # frames no consumer looked at before the next one replaced them
-    failures: dict[int, int] = field(default_factory=dict)
-    offline: frozenset[int] = frozenset()
-
-
-def _percentile(sorted_values: Sequence[float], p: float) -> float:
-    if not sorted_values:
-        return 0.0
-    k = min(len(sorted_values) - 1, max(0, math.ceil(len(sorted_values) * p / 100) - 1))
-    return sorted_values[k]
 
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
@@ -151,7 +109,7 @@ class Stream:
         self._end_error: IcsError = BusClosed("stream closed")
         # Publishing.
         self._latest: Frame | None = None
-        self._waiters: list[asyncio.Future[None]] = []
+        self._new_frame: anyio.Event | None = None  # made by the first waiter, set by the next frame
         self._consumed_cycle = 0
         self._dropped = 0
         self._seen_latest = True
@@ -172,18 +130,20 @@ class Stream:
 
     def set_target(self, servo_id: int, position: int) -> None:
         """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
-        self._apply([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
+        self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
     def set_targets(self, targets: Mapping[int, int]) -> None:
         """Several targets at once; all are checked before any is applied."""
-        self._apply(self._check_targets(targets))
+        self.apply_targets(self.check_targets(targets))
 
-    def _check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
+    def check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
+        """Check every target (raising before anything changes) and return them ready for apply_targets."""
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
 
-    def _apply(self, checked: list[tuple[int, int]]) -> None:
+    def apply_targets(self, checked: list[tuple[int, int]]) -> None:
+        """Apply targets that :meth:`check_targets` returned."""
         for k, p in checked:
             if self._targets[k] != p:
                 self._targets[k] = p
@@ -327,10 +287,12 @@ class Stream:
             started=self._cycle_start,
             finished=now,
         )
-        waiters, self._waiters = self._waiters, []
-        for w in waiters:
-            if not w.done():
-                w.set_result(None)
+        self._wake_waiters()
+
+    def _wake_waiters(self) -> None:
+        event, self._new_frame = self._new_frame, None
+        if event is not None:
+            event.set()
 
     # ------------------------------------------------------------------ consuming
 
@@ -343,9 +305,9 @@ class Stream:
         while self._latest is None or self._latest.cycle <= self._consumed_cycle:
             if self._closed:
                 raise self._end_error
-            waiter = asyncio.get_running_loop().create_future()
-            self._waiters.append(waiter)
-            await waiter
+            if self._new_frame is None:
+                self._new_frame = anyio.Event()
+            await self._new_frame.wait()
         frame = self._latest
         skipped = frame.cycle - self._consumed_cycle - 1 if self._consumed_cycle else 0
         self._consumed_cycle = frame.cycle
@@ -376,9 +338,9 @@ class Stream:
         return StreamStats(
             cycles=self._cycle,
             rate_hz=self._latest.cycle / elapsed if self._latest and elapsed > 0 else 0.0,
-            cycle_time_p50=_percentile(times, 50),
-            cycle_time_p90=_percentile(times, 90),
-            cycle_time_p99=_percentile(times, 99),
+            cycle_time_p50=percentile(times, 50),
+            cycle_time_p90=percentile(times, 90),
+            cycle_time_p99=percentile(times, 99),
             cycle_time_max=times[-1] if times else 0.0,
             jitter=statistics.pstdev(intervals) if len(intervals) > 1 else 0.0,
             overruns=self._overruns,
@@ -409,7 +371,13 @@ class Stream:
             return
         self._stop()
         if self.free_on_close and self.bus.is_open:
-            await asyncio.gather(*(self.bus.servo(i).free() for i in self.ids), return_exceptions=True)
+            async with anyio.create_task_group() as group:
+                for i in self.ids:
+                    group.start_soon(self._free_quietly, i)
+
+    async def _free_quietly(self, servo_id: int) -> None:
+        with contextlib.suppress(IcsError):
+            await self.bus.servo(servo_id).free()
 
     def _stop(self) -> None:
         self._running = False
@@ -417,10 +385,7 @@ class Stream:
         self._cur = -1
         self.wake_at = INF
         self.bus.detach_source(self)
-        waiters, self._waiters = self._waiters, []
-        for w in waiters:
-            if not w.done():
-                w.set_result(None)
+        self._wake_waiters()
 
     async def __aenter__(self) -> Stream:
         return await self.start()
@@ -429,187 +394,3 @@ class Stream:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         await self.aclose()
-
-
-# ---------------------------------------------------------------------- several lines
-
-
-@dataclass(frozen=True)
-class GroupFrame:
-    """Merged frames of a :class:`GroupStream`, keyed by ``(line, id)``."""
-
-    cycle: int
-    positions: dict[tuple[str, int], int]
-    timestamps: dict[tuple[str, int], float]
-    failed: frozenset[tuple[str, int]]
-    offline: frozenset[tuple[str, int]]
-    line_cycles: dict[str, int]
-    skipped: int = 0
-
-
-class GroupStream:
-    """Streams on several lines at once, each at its own pace, publishing merged frames.
-
-    A merged frame is published each time every line has completed a new
-    cycle since the previous merged frame.
-    """
-
-    def __init__(self, streams: Mapping[str, Stream]) -> None:
-        self.streams = dict(streams)
-        self._cycle = 0
-        self._task: asyncio.Task[None] | None = None
-        self._latest: GroupFrame | None = None
-        self._consumed = 0
-        self._event = asyncio.Event()
-        self._closed = False
-        self._end_error: IcsError = BusClosed("group stream closed")
-
-    def set_target(self, line: str, servo_id: int, position: int) -> None:
-        self._stream(line).set_target(servo_id, position)
-
-    def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
-        if not isinstance(targets, Mapping):
-            raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
-        by_line: dict[str, dict[int, int]] = {}
-        for key, pos in targets.items():
-            if not isinstance(key, tuple) or len(key) != 2:
-                raise InvalidArgument(f"group targets are keyed by (line, id), not {key!r}")
-            line, sid = key
-            self._stream(line)
-            by_line.setdefault(line, {})[sid] = pos
-        checked = {line: self.streams[line]._check_targets(t) for line, t in by_line.items()}
-        for line, c in checked.items():
-            self.streams[line]._apply(c)
-
-    def free(self) -> None:
-        for s in self.streams.values():
-            s.free()
-
-    def _stream(self, line: str) -> Stream:
-        try:
-            return self.streams[line]
-        except KeyError:
-            raise InvalidArgument(f"no line named {line!r} (lines: {', '.join(self.streams)})") from None
-
-    async def _merge(self) -> None:
-        try:
-            await self._merge_frames()
-        except IcsError as exc:  # a line closed or lost its port: the group ends with that reason
-            self._end_error = exc
-            self._closed = True
-            self._event.set()
-
-    async def _merge_frames(self) -> None:
-        last = dict.fromkeys(self.streams, 0)
-        while True:
-            frames = await asyncio.gather(*(s.next_frame() for s in self.streams.values()))
-            self._cycle += 1
-            positions: dict[tuple[str, int], int] = {}
-            stamps: dict[tuple[str, int], float] = {}
-            failed: set[tuple[str, int]] = set()
-            offline: set[tuple[str, int]] = set()
-            for line, f in zip(self.streams, frames, strict=True):
-                last[line] = f.cycle
-                positions.update(((line, i), p) for i, p in f.positions.items())
-                stamps.update(((line, i), t) for i, t in f.timestamps.items())
-                failed.update((line, i) for i in f.failed)
-                offline.update((line, i) for i in f.offline)
-            self._latest = GroupFrame(self._cycle, positions, stamps, frozenset(failed), frozenset(offline), dict(last))
-            self._event.set()
-
-    async def next_frame(self) -> GroupFrame:
-        while self._latest is None or self._latest.cycle <= self._consumed:
-            if self._closed:
-                raise self._end_error
-            self._event.clear()
-            await self._event.wait()
-        frame = self._latest
-        skipped = frame.cycle - self._consumed - 1 if self._consumed else 0
-        self._consumed = frame.cycle
-        return dataclasses.replace(frame, skipped=skipped) if skipped else frame
-
-    def __aiter__(self) -> AsyncIterator[GroupFrame]:
-        return self
-
-    async def __anext__(self) -> GroupFrame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
-
-    @property
-    def stats(self) -> dict[str, StreamStats]:
-        return {line: s.stats for line, s in self.streams.items()}
-
-    async def __aenter__(self) -> GroupStream:
-        try:
-            for s in self.streams.values():
-                await s.start()
-        except BaseException:
-            await self.aclose()  # the lines already started must not stay attached
-            raise
-        self._task = asyncio.get_running_loop().create_task(self._merge(), name="ics35 group merge")
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.aclose()
-
-    async def aclose(self) -> None:
-        self._closed = True
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, BusClosed):
-                await self._task
-        await asyncio.gather(*(s.aclose() for s in self.streams.values()))
-        self._event.set()
-
-
-class BusGroup:
-    """Several ICS lines used together (e.g. left and right half of a humanoid).
-
-    ``BusGroup({"left": open_bus("/dev/ttyUSB0"), "right": open_bus("/dev/ttyUSB1")})``;
-    use as ``async with`` to open and close every line.
-    """
-
-    def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
-        if isinstance(buses, Mapping):
-            self.buses = dict(buses)
-        elif isinstance(buses, Sequence) and not isinstance(buses, (str, bytes)):
-            self.buses = {str(k): b for k, b in enumerate(buses)}
-        else:
-            raise InvalidArgument(f"a BusGroup takes {{name: bus}} or a list of buses, not {type(buses).__name__}")
-        if not self.buses:
-            raise InvalidArgument("a BusGroup needs at least one bus")
-        for name, bus in self.buses.items():
-            if not isinstance(bus, Bus):
-                raise InvalidArgument(f"line {name!r} is not a Bus")
-
-    @classmethod
-    def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
-        return cls({name: open_bus(port, **bus_options) for name, port in ports.items()})
-
-    def __getitem__(self, line: str) -> Bus:
-        return self.buses[line]
-
-    def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
-        if not isinstance(ids, Mapping):
-            raise InvalidArgument(f"a group stream takes {{line: ids}}, not {type(ids).__name__}")
-        unknown = set(ids) - set(self.buses)
-        if unknown:
-            raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")
-        return GroupStream({line: Stream(self.buses[line], i, **stream_options) for line, i in ids.items()})
-
-    async def __aenter__(self) -> BusGroup:
-        try:
-            for bus in self.buses.values():
-                await bus.open()
-        except BaseException:
-            await self.aclose()
-            raise
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.aclose()
-
-    async def aclose(self) -> None:
-        await asyncio.gather(*(b.aclose() for b in self.buses.values()), return_exceptions=True)

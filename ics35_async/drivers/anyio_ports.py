@@ -1,0 +1,167 @@
+"""The two kinds of port the anyio driver reads: a file descriptor, or an in-process device.
+
+Both offer the same small face to :class:`~.anyio_driver.AnyioDriver`:
+``wait_input()`` (returns when bytes may be there; the driver's cancel scope
+ends it early), ``read()`` (what has arrived, ``b""`` if nothing; raises
+:class:`OSError` when the port is gone), ``write()``, ``discard_input()``
+and ``close()``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import os
+import sys
+import threading
+from collections import deque
+from collections.abc import Callable
+
+import anyio
+import anyio.lowlevel
+import serial
+
+from ..transports import WireDevice
+from ..transports.serial_port import TermiosError
+
+if sys.platform != "win32":
+    import termios
+
+
+def soon_threadsafe() -> Callable[[Callable[[], None]], None]:
+    """A function that runs a callback on the running event loop's thread, callable from any thread."""
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:  # not asyncio: trio (the only other backend anyio has)
+        import trio
+
+        token = trio.lowlevel.current_trio_token()
+
+        def trio_soon(callback: Callable[[], None]) -> None:
+            token.run_sync_soon(callback)
+
+        return trio_soon
+
+    def asyncio_soon(callback: Callable[[], None]) -> None:
+        loop.call_soon_threadsafe(callback)
+
+    return asyncio_soon
+
+
+class FdPort:
+    """A pyserial port read and written on its file descriptor (device paths, ptys)."""
+
+    def __init__(self, ser: serial.Serial) -> None:
+        self.serial = ser
+        self.fd: int = ser.fileno()
+        os.set_blocking(self.fd, False)
+        self.pending = bytearray()  # what a partial write left
+
+    async def wait_input(self) -> None:
+        if self.pending:
+            await anyio.wait_writable(self.fd)
+            self.write(b"")
+        await anyio.wait_readable(self.fd)
+
+    def read(self) -> bytes:
+        try:
+            data = os.read(self.fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        if not data:
+            # A tty reads 0 bytes when readable only once the device is gone (hangup).
+            raise OSError(errno.EIO, "the serial port hung up (device disconnected?)")
+        return data
+
+    def write(self, data: bytes) -> None:
+        self.pending += data
+        try:
+            n = os.write(self.fd, self.pending)
+        except (BlockingIOError, InterruptedError):
+            return
+        del self.pending[:n]
+
+    def discard_input(self) -> None:
+        with contextlib.suppress(OSError, TermiosError):
+            termios.tcflush(self.fd, termios.TCIFLUSH)
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.serial.close()
+
+
+class DevicePort:
+    """An in-process device (the simulator, or a reader thread over a port with no descriptor).
+
+    The device answers through :meth:`deliver` from any thread; bytes are
+    queued and the driver's wait is ended through ``wake``.
+    """
+
+    def __init__(self, device: WireDevice, wake: Callable[[], None]) -> None:
+        self.device = device
+        self._wake = wake
+        self._soon = soon_threadsafe()
+        self._thread = threading.get_ident()
+        self._chunks: deque[bytes] = deque()
+        self._lost: Exception | None = None
+        self._gone = False
+
+    # -- the device's side (HostSide), any thread
+
+    def deliver(self, data: bytes) -> None:
+        if threading.get_ident() == self._thread:
+            self._arrived(bytes(data))
+        else:
+            with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
+                self._soon(lambda: self._arrived(bytes(data)))
+
+    def lost(self, exc: Exception | None) -> None:
+        def mark() -> None:
+            self._lost = exc or OSError(errno.EIO, "the device went away")
+            self._wake()
+
+        if threading.get_ident() == self._thread:
+            mark()
+        else:
+            with contextlib.suppress(RuntimeError):
+                self._soon(mark)
+
+    def _arrived(self, data: bytes) -> None:
+        if not self._gone:
+            self._chunks.append(data)
+            self._wake()
+
+    # -- the driver's side
+
+    async def wait_input(self) -> None:
+        if self._chunks or self._lost is not None:
+            # Already here (a fast simulator answers inside write): still let other tasks run,
+            # or a line that never waits would starve its own callers.
+            await anyio.lowlevel.checkpoint()
+            return
+        await anyio.sleep_forever()
+
+    def read(self) -> bytes:
+        if self._chunks:
+            data = b"".join(self._chunks)
+            self._chunks.clear()
+            return data
+        if self._lost is not None:
+            raise self._lost
+        return b""
+
+    def write(self, data: bytes) -> None:
+        if not self._gone:
+            self.device.write(data)
+
+    def discard_input(self) -> None:
+        discard = getattr(self.device, "discard_input", None)
+        if discard is not None:
+            discard()
+
+    def close(self) -> None:
+        if not self._gone:
+            self._gone = True
+            with contextlib.suppress(Exception):
+                self.device.disconnect()

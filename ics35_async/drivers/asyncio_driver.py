@@ -1,0 +1,150 @@
+"""The asyncio driver's life cycle: open, reopen, close, reconnect after a loss.
+
+The hot path is :class:`~.asyncio_line.AsyncioLine`; this class opens the
+port through :func:`~ics35_async.transports.open_line` (any transport:
+our direct one, pyserial-asyncio-fast, a reader thread for ports without a
+file descriptor, an in-process device) and keeps a supervisor task that
+reopens a lost port.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import Any, TypeVar
+
+from ..engine import LineEngine, State
+from ..errors import IcsError
+from ..protocol import Command
+from ..transports import WireDevice, discard_input, open_line
+from .asyncio_line import AsyncioLine, FutureRequest, now
+from .settings import LineSettings
+
+log = logging.getLogger("ics35_async")
+
+T = TypeVar("T")
+
+
+class AsyncioDriver:
+    """Runs one :class:`LineEngine` on the running asyncio loop."""
+
+    name = "asyncio"
+
+    def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
+        self.engine = engine
+        self.port = port
+        self.settings = settings
+        self.loop = asyncio.get_running_loop()
+        self.line: AsyncioLine | None = None
+        self._supervisor: asyncio.Task[None] | None = None
+        self._lost = asyncio.Event()
+
+    async def open(self) -> None:
+        await self._connect()
+        self._supervisor = self.loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
+
+    async def _connect(self) -> None:
+        loop = self.loop
+        _, line = await open_line(
+            self.port,
+            baudrate=self.engine.baudrate,
+            protocol_factory=lambda: AsyncioLine(self.engine, loop, self._on_connection_lost, discard_input),
+            transport=self.settings.transport,
+        )
+        self.line = line
+        log.info("opened %s at %d baud", self.port, self.engine.baudrate)
+        line.pump(self.engine.connected(now()))
+
+    async def reopen(self, baudrate: int) -> None:
+        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        self.engine.disconnected()
+        line, self.line = self.line, None
+        if line is not None:
+            line.cancel_timer()
+            if line.transport is not None:
+                line.transport.close()
+            await asyncio.sleep(0)
+        self.engine.baudrate = baudrate
+        try:
+            await self._connect()
+        except BaseException as exc:
+            self.engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
+            raise
+
+    async def aclose(self) -> None:
+        engine = self.engine
+        engine.close()
+        line = self.line
+        if engine.state is State.DRAINING and line is not None:
+            waiter = self.loop.create_future()
+            line.idle_waiters.append(waiter)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(waiter, engine.timing.allowance(200, engine.baudrate) + 1)
+        engine.abort()
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._supervisor
+            self._supervisor = None
+        self.line = None
+        if line is not None:
+            line.cancel_timer()
+            line.release_idle_waiters()
+            if line.transport is not None and not line.transport.is_closing():
+                line.transport.close()
+                await asyncio.sleep(0)  # let the transport deliver connection_lost and release the fd
+
+    # ------------------------------------------------------------------ losing the port
+
+    def _on_connection_lost(self, line: AsyncioLine, exc: Exception | None) -> None:
+        if line is not self.line:
+            return
+        self.line = None
+        if line.transport is not None and not line.transport.is_closing():
+            line.transport.close()
+        engine = self.engine
+        reason = f"port {self.port} lost: {exc}" if exc else f"port {self.port} closed"
+        if engine.state not in (State.CLOSED, State.DRAINING):
+            log.warning("%s", reason)
+        engine.lost(reason, reconnect=self.settings.reconnect)
+        line.release_idle_waiters()
+        if engine.state is State.LOST:
+            self._lost.set()
+
+    async def _supervise(self) -> None:
+        backoff = self.settings.reconnect_backoff
+        while True:
+            await self._lost.wait()
+            self._lost.clear()
+            attempt = 0
+            while self.engine.state is State.LOST:
+                await asyncio.sleep(backoff[min(attempt, len(backoff) - 1)])
+                attempt += 1
+                try:
+                    await self._connect()
+                except (OSError, IcsError) as exc:
+                    log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
+                else:
+                    self.engine.counters.reconnects += 1
+                    log.info("reconnected to %s after %d attempt(s)", self.port, attempt)
+
+    # ------------------------------------------------------------------ the user's side
+
+    def submit(self, command: Command[T], priority: int, retries: int) -> asyncio.Future[T]:
+        fut: asyncio.Future[T] = self.loop.create_future()
+        out = self.engine.submit(FutureRequest(command, fut, priority, retries), now())
+        if out is not None and self.line is not None:
+            self.line.pump(out)
+        return fut
+
+    def pump(self, out: bytes | None) -> None:
+        """Write what an engine call from the user's side answered, and follow its deadline."""
+        if self.line is not None:
+            self.line.pump(out)
+
+    async def wait_idle(self) -> None:
+        while not self.engine.idle and self.line is not None:
+            waiter: asyncio.Future[Any] = self.loop.create_future()
+            self.line.idle_waiters.append(waiter)
+            await waiter

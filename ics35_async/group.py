@@ -1,0 +1,193 @@
+"""Several lines used together: :class:`BusGroup` opens them, :class:`GroupStream` streams on all at once.
+
+A humanoid's two ICS lines cycle side by side, each at its own pace; a
+merged frame holds every line's newest cycle.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
+from typing import Any
+
+import anyio
+
+from .bus import Bus, open_bus
+from .errors import BusClosed, IcsError, InvalidArgument
+from .frames import Frame, GroupFrame, StreamStats
+from .stream import Stream
+
+
+class GroupStream:
+    """Streams on several lines at once, each at its own pace, giving merged frames.
+
+    :meth:`next_frame` waits until every line has completed a cycle newer
+    than the one in the previous merged frame, then merges the newest of
+    each; ``skipped`` is the most cycles any one line ran meanwhile unseen.
+    """
+
+    def __init__(self, streams: Mapping[str, Stream]) -> None:
+        self.streams = dict(streams)
+        self._cycle = 0
+        self._closed = False
+        self._end_error: IcsError = BusClosed("group stream closed")
+
+    def set_target(self, line: str, servo_id: int, position: int) -> None:
+        self._stream(line).set_target(servo_id, position)
+
+    def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
+        """Targets keyed by ``(line, id)``; all are checked, on every line, before any is applied."""
+        if not isinstance(targets, Mapping):
+            raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
+        by_line: dict[str, dict[int, int]] = {}
+        for key, pos in targets.items():
+            if not isinstance(key, tuple) or len(key) != 2:
+                raise InvalidArgument(f"group targets are keyed by (line, id), not {key!r}")
+            line, sid = key
+            self._stream(line)
+            by_line.setdefault(line, {})[sid] = pos
+        checked = {line: self.streams[line].check_targets(t) for line, t in by_line.items()}
+        for line, c in checked.items():
+            self.streams[line].apply_targets(c)
+
+    def free(self) -> None:
+        for s in self.streams.values():
+            s.free()
+
+    def _stream(self, line: str) -> Stream:
+        try:
+            return self.streams[line]
+        except KeyError:
+            raise InvalidArgument(f"no line named {line!r} (lines: {', '.join(self.streams)})") from None
+
+    async def next_frame(self) -> GroupFrame:
+        if self._closed:
+            raise self._end_error
+        frames: dict[str, Frame] = {}
+
+        async def take(line: str, stream: Stream) -> None:
+            frames[line] = await stream.next_frame()
+
+        try:
+            async with anyio.create_task_group() as group:
+                for line, stream in self.streams.items():
+                    group.start_soon(take, line, stream)
+        except BaseExceptionGroup as group_error:
+            # A line closed or lost its port: the group ends, with that line's reason.
+            ics_errors, _rest = group_error.split(IcsError)
+            if ics_errors is None:
+                raise
+            reason = ics_errors.exceptions[0]
+            while isinstance(reason, BaseExceptionGroup):
+                reason = reason.exceptions[0]
+            assert isinstance(reason, IcsError)
+            self._closed, self._end_error = True, reason
+            raise reason from None
+        self._cycle += 1
+        positions: dict[tuple[str, int], int] = {}
+        stamps: dict[tuple[str, int], float] = {}
+        failed: set[tuple[str, int]] = set()
+        offline: set[tuple[str, int]] = set()
+        for line in self.streams:
+            f = frames[line]
+            positions.update(((line, i), p) for i, p in f.positions.items())
+            stamps.update(((line, i), t) for i, t in f.timestamps.items())
+            failed.update((line, i) for i in f.failed)
+            offline.update((line, i) for i in f.offline)
+        return GroupFrame(
+            cycle=self._cycle,
+            positions=positions,
+            timestamps=stamps,
+            failed=frozenset(failed),
+            offline=frozenset(offline),
+            line_cycles={line: f.cycle for line, f in frames.items()},
+            skipped=max(f.skipped for f in frames.values()),
+        )
+
+    def __aiter__(self) -> AsyncIterator[GroupFrame]:
+        return self
+
+    async def __anext__(self) -> GroupFrame:
+        try:
+            return await self.next_frame()
+        except BusClosed:
+            raise StopAsyncIteration from None
+
+    @property
+    def stats(self) -> dict[str, StreamStats]:
+        return {line: s.stats for line, s in self.streams.items()}
+
+    async def __aenter__(self) -> GroupStream:
+        try:
+            for s in self.streams.values():
+                await s.start()
+        except BaseException:
+            await self.aclose()  # the lines already started must not stay attached
+            raise
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        self._closed = True
+        async with anyio.create_task_group() as group:
+            for s in self.streams.values():
+                group.start_soon(s.aclose)
+
+
+class BusGroup:
+    """Several ICS lines used together (e.g. left and right half of a humanoid).
+
+    ``BusGroup({"left": open_bus("/dev/ttyUSB0"), "right": open_bus("/dev/ttyUSB1")})``;
+    use as ``async with`` to open and close every line.
+    """
+
+    def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
+        if isinstance(buses, Mapping):
+            self.buses = dict(buses)
+        elif isinstance(buses, Sequence) and not isinstance(buses, (str, bytes)):
+            self.buses = {str(k): b for k, b in enumerate(buses)}
+        else:
+            raise InvalidArgument(f"a BusGroup takes {{name: bus}} or a list of buses, not {type(buses).__name__}")
+        if not self.buses:
+            raise InvalidArgument("a BusGroup needs at least one bus")
+        for name, bus in self.buses.items():
+            if not isinstance(bus, Bus):
+                raise InvalidArgument(f"line {name!r} is not a Bus")
+
+    @classmethod
+    def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
+        return cls({name: open_bus(port, **bus_options) for name, port in ports.items()})
+
+    def __getitem__(self, line: str) -> Bus:
+        return self.buses[line]
+
+    def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
+        if not isinstance(ids, Mapping):
+            raise InvalidArgument(f"a group stream takes {{line: ids}}, not {type(ids).__name__}")
+        unknown = set(ids) - set(self.buses)
+        if unknown:
+            raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")
+        return GroupStream({line: Stream(self.buses[line], i, **stream_options) for line, i in ids.items()})
+
+    async def __aenter__(self) -> BusGroup:
+        try:
+            for bus in self.buses.values():
+                await bus.open()
+        except BaseException:
+            await self.aclose()
+            raise
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        async def close(bus: Bus) -> None:
+            with contextlib.suppress(IcsError, OSError):
+                await bus.aclose()
+
+        async with anyio.create_task_group() as group:
+            for bus in self.buses.values():
+                group.start_soon(close, bus)
