@@ -23,7 +23,11 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="th
 @pytest.fixture
 def bench_copy(tmp_path: Path) -> Path:
     copy = tmp_path / "benchmarks"
-    shutil.copytree(BENCHMARKS, copy, ignore=shutil.ignore_patterns("__pycache__", "soak"))
+    shutil.copytree(
+        BENCHMARKS,
+        copy,
+        ignore=shutil.ignore_patterns("__pycache__", "soak", "results-quick.json", "results-partial.json"),
+    )
     return copy
 
 
