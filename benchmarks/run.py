@@ -1,24 +1,39 @@
-"""The benchmark suite (``make bench``): prints a table with ratios and writes benchmarks/results.json.
+"""The benchmark suite (``make bench``): prints one report with ratios and writes benchmarks/results.json.
 
 Sections (each a ``bench_*.py`` module that also runs on its own):
 
+A. cpu: client CPU per transaction and rate against a lean pty responder
+   (benchmarks/lean_responder.py): raw blocking pyserial, the os.write/poll/
+   os.read floor, and each driver x event loop, sequential and stream
+   (bench_cpu);
+B. lines: 4 lines x 32 servos streamed together, wire-timed at 1.25 Mbit/s,
+   against one line (bench_lines);
+C. startup: ``import ics35_async`` and ``ics35 --version`` (bench_tools);
+D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
+   the real-time pty simulator (bench_tools);
 1. host overhead over a pty, fast-mode simulator: sequential transactions
    and 32-ID stream against a raw blocking pyserial loop (bench_overhead);
 2. wire efficiency against the real-time simulator at 115200, 625000 and
    1250000 bit/s (bench_wire);
 3. sharing: stream plus 16 telemetry pollers (bench_sharing);
-4. cost: client CPU per transaction (from 1) and memory growth over
-   1,000,000 transactions (bench_memory);
+4. cost: memory growth over 1,000,000 transactions (bench_memory);
 5. event loops (asyncio, uvloop) x transports (direct, fast, stock): rows
    of 1 and 2;
 6. a peer: rcb4's ICSServoController (bench_peer).
 
-Every figure is a median of several runs; ratios are taken against a
+The report ends with one summary table (every headline figure, its goal
+from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
 baseline measured in the same run, next to the variant.  The machine is a
 shared, noisy one: compare ratios, not absolute rates.  Nothing here is
 asserted by the test suite.
 
-    .venv/bin/python benchmarks/run.py [--quick] [--sections overhead,wire,...] [--runs N] [--output FILE]
+Only a full run (every section, not ``--quick``) writes the tracked
+benchmarks/results.json by default; a ``--quick`` run writes
+benchmarks/results-quick.json and a run of some sections
+benchmarks/results-partial.json (both ignored by git), unless ``--out`` names
+a file.
+
+    .venv/bin/python benchmarks/run.py [--quick] [--sections cpu,lines,...] [--runs N] [--out FILE]
 """
 
 from __future__ import annotations
@@ -37,22 +52,19 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import bench_cpu
+import bench_lines
 import bench_memory
 import bench_overhead
 import bench_peer
 import bench_sharing
+import bench_tools
 import bench_wire
 from bench_common import progress
+from bench_targets import print_targets, targets
 
 HERE = Path(__file__).resolve().parent
-SECTIONS = ("overhead", "wire", "sharing", "memory", "peer")
-
-# The issue's targets (see /work/notes/bench_readme.md for the analysis).
-TARGET_STREAM_VS_RAW = 1.0
-TARGET_WIRE_PCT = {115200: 97.0, 1250000: 70.0}
-TARGET_P99_WAIT_TX = 3.0
-TARGET_CPU_US = 25.0
-TARGET_MEMORY_MIB = 2.0
+SECTIONS = ("cpu", "lines", "startup", "scan", "overhead", "wire", "sharing", "memory", "peer")
 
 
 def machine() -> dict[str, Any]:
@@ -202,90 +214,16 @@ def print_peer(r: dict[str, Any]) -> None:
     )
 
 
-# ---------------------------------------------------------------------- targets
-
-
-def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
-    out: list[dict[str, Any]] = []
-
-    def add(name: str, measured: str, target: str, met: bool | None) -> None:
-        out.append({"target": name, "measured": measured, "goal": target, "met": met})
-
-    ov = results.get("overhead")
-    if isinstance(ov, dict) and "variants" in ov:
-        by = {(v["loop"], v["transport"]): v for v in ov["variants"]}
-        default = by.get(("asyncio", "direct"))
-        best = max(ov["variants"], key=lambda v: v["stream_vs_raw"])
-        if default:
-            add(
-                "32-ID stream vs raw pyserial loop (fast pty)",
-                f"{default['stream_vs_raw']:.2f}x asyncio/direct; best {best['stream_vs_raw']:.2f}x "
-                f"{best['loop']}/{best['transport']}",
-                f">= {TARGET_STREAM_VS_RAW}x",
-                default["stream_vs_raw"] >= TARGET_STREAM_VS_RAW,
-            )
-            cpu = default["stream"]["cpu_us_per_tx"]
-            best_cpu = min(ov["variants"], key=lambda v: v["stream"]["cpu_us_per_tx"])
-            add(
-                "client CPU per position transaction (stream)",
-                f"{cpu:.1f} us asyncio/direct (sequential {default['sequential']['cpu_us_per_tx']:.1f}); best "
-                f"{best_cpu['stream']['cpu_us_per_tx']:.1f} us {best_cpu['loop']}/{best_cpu['transport']}; "
-                f"raw pyserial {ov['raw']['cpu_us_per_tx']:.1f} us",
-                f"<= {TARGET_CPU_US:g} us",
-                cpu <= TARGET_CPU_US,
-            )
-    wire = results.get("wire")
-    if isinstance(wire, dict) and "bauds" in wire:
-        for b in wire["bauds"]:
-            goal = TARGET_WIRE_PCT.get(b["baud"])
-            if goal is None:
-                continue
-            by = {(v["loop"], v["transport"]): v for v in b["variants"]}
-            d = by.get(("asyncio", "direct"))
-            best = max(b["variants"], key=lambda v: v["cycles_per_s"])
-            if d:
-                add(
-                    f"wire efficiency at {b['baud']} (real-time pty)",
-                    f"{d['pct_of_wire']:.1f}% of wire ({d['pct_of_wire_turnaround']:.1f}% of wire+turnaround) "
-                    f"asyncio/direct; best {best['pct_of_wire']:.1f}% ({best['pct_of_wire_turnaround']:.1f}%) "
-                    f"{best['loop']}/{best['transport']}; raw pyserial {b['raw']['pct_of_wire']:.1f}% "
-                    f"({b['raw']['pct_of_wire_turnaround']:.1f}%)",
-                    f">= {goal:g}% of wire",
-                    d["pct_of_wire"] >= goal,
-                )
-    sh = results.get("sharing")
-    if isinstance(sh, dict) and "rows" in sh:
-        paced = [r for r in sh["rows"] if r["polling"] == "paced"]
-        if paced:
-            worst = max(paced, key=lambda r: r["wait_p99_tx"])
-            summary = "; ".join(f"{r['baud']} {r['loop']}: {r['wait_p99_tx']:.2f}T" for r in paced)
-            add(
-                "telemetry p99 wait while streaming",
-                summary,
-                f"<= {TARGET_P99_WAIT_TX:g} position-transaction times",
-                worst["wait_p99_tx"] <= TARGET_P99_WAIT_TX,
-            )
-    mem = results.get("memory")
-    if isinstance(mem, dict) and "rows" in mem:
-        worst_mem = max(mem["rows"], key=lambda r: r["growth_mib"])
-        per_1m = worst_mem["growth_mib"] * 1e6 / worst_mem["transactions"]
-        add(
-            "memory growth per 1M transactions",
-            "; ".join(f"{r['case']} {r['loop']}: {r['growth_mib']:.2f} MiB" for r in mem["rows"]),
-            f"< {TARGET_MEMORY_MIB:g} MiB",
-            per_1m < TARGET_MEMORY_MIB,
-        )
-    return out
-
-
-def print_targets(rows: list[dict[str, Any]]) -> None:
-    print("\nTargets (issue 7)")
-    for r in rows:
-        status = {True: "MET", False: "NOT MET", None: "?"}[r["met"]]
-        print(f"  [{status:7}] {r['target']}: {r['measured']}  (goal {r['goal']})")
-
-
 # ---------------------------------------------------------------------- main
+
+
+def default_output(quick: bool, sections: list[str]) -> Path:
+    """The tracked results.json only for a full run: a smoke test or a subset must not replace its figures."""
+    if quick:
+        return HERE / "results-quick.json"
+    if set(sections) != set(SECTIONS):
+        return HERE / "results-partial.json"
+    return HERE / "results.json"
 
 
 def main() -> int:
@@ -295,7 +233,14 @@ def main() -> int:
         "--sections", default=",".join(SECTIONS), help=f"comma-separated subset of {','.join(SECTIONS)}"
     )
     parser.add_argument("--runs", type=int, default=None, help="runs per figure (default 5 for overhead, 3 elsewhere)")
-    parser.add_argument("--output", default=str(HERE / "results.json"), help="where to write the JSON results")
+    parser.add_argument(
+        "--out",
+        "--output",
+        dest="out",
+        default=None,
+        help="where to write the JSON results (default: results.json for a full run, else results-quick.json "
+        "or results-partial.json, both ignored by git)",
+    )
     args = parser.parse_args()
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = set(sections) - set(SECTIONS)
@@ -305,6 +250,10 @@ def main() -> int:
     quick = args.quick
     runs = args.runs
     plans: dict[str, Callable[[], dict[str, Any]]] = {
+        "cpu": lambda: bench_cpu.run(runs or (1 if quick else 3), 0.3 if quick else 1.0),
+        "lines": lambda: bench_lines.run(runs or (1 if quick else 3), 0.6 if quick else 1.5),
+        "startup": lambda: bench_tools.run(2 if quick else 5, ("imports",)),
+        "scan": lambda: bench_tools.run(1 if quick else 2, ("scan", "set_id")),
         "overhead": lambda: bench_overhead.run(runs or (2 if quick else 5), 0.3 if quick else 0.5),
         "wire": lambda: bench_wire.run(runs or (1 if quick else 3), 0.6 if quick else 1.0),
         "sharing": lambda: bench_sharing.run(runs or (1 if quick else 3), 1.0 if quick else 1.5, 1.5 if quick else 2.5),
@@ -338,7 +287,11 @@ def main() -> int:
         f"load average at start {m['load_average_at_start'][0]:.2f}, at end {m['load_average_at_end'][0]:.2f}; "
         "a shared, noisy machine: compare the ratios (measured side by side), not the absolute rates"
     )
-    printers = {
+    printers: dict[str, Callable[[dict[str, Any]], None]] = {
+        "cpu": bench_cpu.print_table,
+        "lines": bench_lines.print_table,
+        "startup": bench_tools.print_startup,
+        "scan": bench_tools.print_line_tools,
         "overhead": print_overhead,
         "wire": print_wire,
         "sharing": print_sharing,
@@ -351,8 +304,9 @@ def main() -> int:
         else:
             printers[name](results[name])
     print_targets(results["targets"])
-    Path(args.output).write_text(json.dumps(results, indent=2) + "\n")
-    print(f"\nwrote {args.output} in {m['seconds']:.0f} s")
+    out = Path(args.out) if args.out else default_output(quick, sections)
+    out.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"\nwrote {out} in {m['seconds']:.0f} s")
     return 1 if any("error" in results[s] for s in sections) else 0
 
 

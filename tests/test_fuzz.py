@@ -1,7 +1,7 @@
 """Fuzzing, short: random byte streams through every reply parser and through the bus's framing.
 
-benchmarks/soak.py runs the same at 1,000,000 byte streams.  The oracle
-(:class:`soak.WirePredictor`) says what the bus must conclude from the bytes
+``python -m benchmarks.soak`` runs the same at 1,000,000 byte streams.  The oracle
+(:class:`tests.support.oracle.WirePredictor`) says what the bus must conclude from the bytes
 it received: a value exactly when they form a valid reply (right length,
 intact echo, the codec's checks), else the error class they call for.
 """
@@ -9,24 +9,22 @@ intact echo, the codec's checks), else the error class they call for.
 from __future__ import annotations
 
 import asyncio
-import sys
-from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.soak.fuzz import fuzz_soak
 from ics35_async import IcsError, Param, ReplyError, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, SimBus
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import soak
+from tests.support.fuzzing import BAUDS, FuzzCase, FuzzCounts, FuzzDevice, FuzzRig, fuzz_case, fuzz_parsers, valid_value
+from tests.support.oracle import FAST_TIMING, FAULT_KINDS, WirePredictor, chaos_servos
 
 blobs = st.binary(min_size=6, max_size=80)
 
 
 def test_fuzz_short() -> None:
-    report = soak.fuzz_soak(streams=6_000, batch=200, lines=16, seed=11)
+    report = fuzz_soak(streams=6_000, batch=200, lines=16, seed=11)
     assert report.streams == 6_000 and report.bus_transactions == 6_000
     assert report.untyped == report.bus_untyped == report.loop_exceptions == 0, report.examples
     assert report.bus_wrong == 0, report.examples
@@ -38,20 +36,20 @@ def test_fuzz_short() -> None:
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(blob=blobs, baud=st.sampled_from(soak.BAUDS))
+@given(blob=blobs, baud=st.sampled_from(BAUDS))
 def test_every_parser_gives_a_value_or_a_reply_error(blob: bytes, baud: int) -> None:
-    counts = soak.FuzzCounts()
-    soak.fuzz_parsers(soak.fuzz_case(blob, baud), baud, counts)
+    counts = FuzzCounts()
+    fuzz_parsers(fuzz_case(blob, baud), baud, counts)
     assert counts.untyped == counts.fast_path_disagrees == counts.decode_problems == 0, counts.examples
 
 
 @settings(max_examples=200, deadline=None)
-@given(blob=blobs, baud=st.sampled_from(soak.BAUDS))
+@given(blob=blobs, baud=st.sampled_from(BAUDS))
 def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: int) -> None:
-    case = soak.fuzz_case(blob, baud)
+    case = fuzz_case(blob, baud)
     command = case.command
-    clean = command.encode_reply(soak._valid_value(command, blob[6:]))
-    judge = soak.WirePredictor(baud).judge
+    clean = command.encode_reply(valid_value(command, blob[6:]))
+    judge = WirePredictor(baud).judge
     verdict = judge(command.tx, command.tx + clean)
     assert verdict.ok and verdict.value == command.parse(clean)
     assert judge(command.tx, command.tx + clean[:-1]).error in ("ReplyTimeout", "PartialReply")
@@ -59,10 +57,10 @@ def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: i
     assert not judge(command.tx, bytes([command.tx[0] ^ 1]) + command.tx[1:] + clean).ok
 
 
-@pytest.mark.parametrize("kind", soak.FAULT_KINDS)
+@pytest.mark.parametrize("kind", FAULT_KINDS)
 async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the_bus_sound(kind: str) -> None:
-    sim = SimBus(soak.chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
-    async with open_bus(sim, timing=soak.FAST_TIMING) as bus:
+    sim = SimBus(chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         outcomes: list[object] = []
         for i in range(4):
             for call in (
@@ -92,17 +90,17 @@ async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the
         assert stats.total.ok + stats.total.errors == stats.total.transactions
 
 
-class TamperingDevice(soak.FuzzDevice):
+class TamperingDevice(FuzzDevice):
     """Sends something other than what the rig judged: one more flipped bit in a data byte."""
 
     def write(self, data: bytes) -> None:
         case = self.script[0]
-        self.script[0] = soak.FuzzCase(case.command, case.echo, case.reply[:-1] + bytes([case.reply[-1] ^ 1]))
+        self.script[0] = FuzzCase(case.command, case.echo, case.reply[:-1] + bytes([case.reply[-1] ^ 1]))
         super().write(data)
 
 
 async def test_the_fuzz_rig_notices_a_conclusion_the_bytes_do_not_support() -> None:
-    rig = soak.FuzzRig(lines=1)
+    rig = FuzzRig(lines=1)
     rig.devices[0] = TamperingDevice()
     await rig.open()
     try:

@@ -1,4 +1,4 @@
-"""Short versions of the reliability soak runs (benchmarks/soak.py does the full ones).
+"""Short versions of the reliability soak runs (``python -m benchmarks.soak`` does the full ones).
 
 The chaos check lines every outcome (each stream slot of each frame, each
 request) up with the simulator's own log entry of that transaction and with
@@ -11,19 +11,22 @@ from __future__ import annotations
 import asyncio
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import pytest
 
+from benchmarks.soak.cancellation import cancellation_soak
+from benchmarks.soak.chaos import chaos_soak
+from benchmarks.soak.unplug import new_unplug_tally, no_reconnect_session, reconnect_session
 from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw
+from tests.support.fuzzing import valid_value
+from tests.support.leaks import non_executor_threads, open_fds, other_tasks
+from tests.support.matcher import LogMatcher, RequestRecord
+from tests.support.oracle import FAST_TIMING, FAULT_KINDS, Verdict, WirePredictor, is_stream_tx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import soak
-
-FAST = soak.FAST_TIMING
+FAST = FAST_TIMING
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
 
 
@@ -40,25 +43,25 @@ def test_the_wire_predictor_rebuilds_what_the_bus_received() -> None:
     sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
     ask1 = protocol.Position(1, protocol.FREE, baudrate=115200)
     ask2 = protocol.Position(2, protocol.FREE, baudrate=115200)
-    predictor = soak.WirePredictor(sim.baudrate)
+    predictor = WirePredictor(sim.baudrate)
     # A late reply lands after the echo of the next command: that one gets too many bytes.
     sim.faults = FaultInjector(FaultConfig.parse("late@1:1.0"), 0)
     run_line(sim, [ask1.tx])
     sim.faults = FaultInjector(FaultConfig(), 0)
     run_line(sim, [ask2.tx, ask2.tx])
     late, spoiled, clean = (predictor.predict(t) for t in sim.log)
-    assert late == soak.Verdict(False, None, "ReplyTimeout", ask1.tx)
+    assert late == Verdict(False, None, "ReplyTimeout", ask1.tx)
     assert spoiled.error == "BadReply" and spoiled.received == ask2.tx + bytes([1, 39, 8]) + bytes([2, 46, 112])
     assert clean.ok and clean.value == 6000
 
 
 def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
     sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
-    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1, 2])
+    matcher = LogMatcher(sim, is_stream_tx, [1, 2])
     write1, write2 = protocol.WriteParam(1, Param.SPEED, 44), protocol.WriteParam(2, Param.SPEED, 55)
     run_line(sim, [write1.tx, protocol.position_tx(1, 5002), protocol.position_tx(2, 6002), write2.tx])
     matcher.drain()
-    rec = soak.RequestRecord
+    rec = RequestRecord
     # The two writes' answers swapped, and a frame with the positions swapped.
     matcher.add_request(rec(1, write1.tx, 1, True, 55, None, True, 0.0, sim.transactions))
     matcher.add_request(rec(2, write2.tx, 1, True, 44, None, True, 0.0, sim.transactions))
@@ -70,11 +73,11 @@ def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
 
 def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
     sim = SimBus([VirtualServo(3)], faults="drop:1.0", log_size=None)
-    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [3])
+    matcher = LogMatcher(sim, is_stream_tx, [3])
     read = protocol.ReadParam(3, Param.TEMPERATURE)
     run_line(sim, [read.tx])
     matcher.drain()
-    matcher.add_request(soak.RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
+    matcher.add_request(RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
     matcher.match(final=True)
     assert matcher.counts.misattributed == 1 and "call for ReplyTimeout" in matcher.counts.examples[0]
 
@@ -99,10 +102,10 @@ def test_the_matcher_flags_another_commands_late_reply_taken_as_an_answer() -> N
     sim.faults = ScriptedFaults(LATE, DROP)
     free, move = protocol.Position(1, protocol.FREE, baudrate=115200), protocol.Position(1, 6001, baudrate=115200)
     run_line(sim, [free.tx, move.tx])
-    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1])
+    matcher = LogMatcher(sim, is_stream_tx, [1])
     matcher.drain()
-    matcher.add_request(soak.RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, 2))
-    matcher.add_request(soak.RequestRecord(1, move.tx, 1, True, 5000, None, True, 0.0, 2))  # free's answer
+    matcher.add_request(RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, 2))
+    matcher.add_request(RequestRecord(1, move.tx, 1, True, 5000, None, True, 0.0, 2))  # free's answer
     matcher.match(final=True)
     assert matcher.counts.stale_accepted == 1 and matcher.counts.misattributed == 0
 
@@ -111,12 +114,12 @@ def test_the_matcher_flags_another_commands_late_reply_taken_as_an_answer() -> N
 async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_again(same_request: bool) -> None:
     sim = SimBus([VirtualServo(1, position=5000)], log_size=None)
     sim.faults = ScriptedFaults(LATE, DROP)  # the first answer comes late; the guard's own answer is lost
-    matcher = soak.LogMatcher(sim, soak.is_stream_tx, [1])
+    matcher = LogMatcher(sim, is_stream_tx, [1])
     free = protocol.Position(1, protocol.FREE, baudrate=115200)
     async with open_bus(sim, timing=FAST) as bus:
         if same_request:  # a retry
             value = await bus.request(free, retries=1)
-            records = [soak.RequestRecord(1, free.tx, 2, True, value, None, True, 0.0, sim.transactions)]
+            records = [RequestRecord(1, free.tx, 2, True, value, None, True, 0.0, sim.transactions)]
         else:  # another request with the same command byte
             with pytest.raises(ReplyTimeout):
                 await bus.request(free)
@@ -124,8 +127,8 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
             move = protocol.Position(1, 6001, baudrate=115200)
             value = await bus.request(move)
             records = [
-                soak.RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, sim.transactions),
-                soak.RequestRecord(1, move.tx, 1, True, value, None, True, 0.0, sim.transactions),
+                RequestRecord(1, free.tx, 1, False, None, "ReplyTimeout", True, 0.0, sim.transactions),
+                RequestRecord(1, move.tx, 1, True, value, None, True, 0.0, sim.transactions),
             ]
         assert bus.stats.guards == 1
     assert value == (5000 if same_request else 6000)  # the answer to this very transaction
@@ -142,10 +145,10 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
 
 
 async def test_chaos_short() -> None:
-    report = await soak.chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
+    report = await chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
     assert report.transactions >= 12_000
     assert 0.01 < report.faulted_fraction < 0.03
-    assert set(report.fault_kinds) == set(soak.FAULT_KINDS)
+    assert set(report.fault_kinds) == set(FAULT_KINDS)
     # Both kinds of traffic ran (their split depends on scheduling, so only a floor).
     assert report.stream_outcomes > 2_000 and report.requests > 500
     assert report.skipped_frames == 0
@@ -162,7 +165,7 @@ async def test_chaos_short() -> None:
 
 
 async def test_cancellation_short() -> None:
-    report = await soak.cancellation_soak(cancellations=800, seed=9)
+    report = await cancellation_soak(cancellations=800, seed=9)
     assert report.cancellations >= 800
     assert report.requests_cancelled_queued > 50 and report.requests_cancelled_in_flight > 50
     assert report.streams_cancelled >= 40 and report.stream_frames_seen > 0
@@ -177,22 +180,22 @@ async def test_cancellation_short() -> None:
 
 @linux_only
 async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
-    tasks0, fds0, threads0 = soak.other_tasks(), soak.open_fds(), soak.non_executor_threads()
-    tally = soak.new_unplug_tally()
-    await soak.reconnect_session([0.15], 2, 7, tally, unplug_rate=0.01)
+    tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
+    tally = new_unplug_tally()
+    await reconnect_session([0.15], 2, 7, tally, unplug_rate=0.01)
     await asyncio.sleep(0.05)
     assert len(tally["cycles"]) == 2 and tally["reconnects"] >= 2
     # The target is 1 s (measured by the soak); this is a loose bound for a busy CI machine.
     assert all(c.resume_s < 3.0 for c in tally["cycles"]), tally["cycles"]
     assert tally["port_lost"] > 0 and tally["ok"] > 100
     assert tally["untyped"] == tally["hung"] == tally["wrong"] == 0 and not tally["other"]
-    assert (soak.other_tasks(), soak.open_fds(), soak.non_executor_threads()) == (tasks0, fds0, threads0)
+    assert (other_tasks(), open_fds(), non_executor_threads()) == (tasks0, fds0, threads0)
 
 
 @linux_only
 async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
-    tally = soak.new_unplug_tally()
-    await soak.no_reconnect_session(tally)
+    tally = new_unplug_tally()
+    await no_reconnect_session(tally)
     assert tally["stream_end"] == "PortLost"
     assert tally["pending"].get("PortLost", 0) > 0 and set(tally["pending"]) <= {"PortLost", "ReplyTimeout"}
     assert tally["request_error"] == "BusClosed"
@@ -229,7 +232,7 @@ async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() ->
 
 async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None:
     sim = SimBus([VirtualServo(1)])
-    before = soak.other_tasks()
+    before = other_tasks()
     bus = await open_bus(sim, timing=FAST)
     assert await bus.servo(1).read_stretch() == 30
     sim.unplug()
@@ -238,7 +241,7 @@ async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None
         await bus.servo(1).read_stretch()
     await bus.aclose()
     await asyncio.sleep(0.01)
-    assert soak.other_tasks() == before
+    assert other_tasks() == before
     sim.close()
 
 
@@ -289,7 +292,7 @@ class ScriptedDevice:
         framed = protocol.decode_request(data, baudrate=self.baudrate)
         assert framed is not None and framed[0] is not None
         command = framed[0]
-        reply = command.encode_reply(soak._valid_value(command, bytes([7, 7])))
+        reply = command.encode_reply(valid_value(command, bytes([7, 7])))
         self.host.deliver(data + reply + (b"\x00" if data in self.garbage else b""))
 
 

@@ -1,0 +1,114 @@
+"""Run the reliability soaks and print one table: ``python -m benchmarks.soak`` (``make soak``).
+
+    .venv/bin/python -m benchmarks.soak             # every part at full size
+    .venv/bin/python -m benchmarks.soak --quick     # every part, small (about 20 s)
+    .venv/bin/python -m benchmarks.soak --only chaos,fuzz --transactions 200000 --seed 3
+
+Prints one markdown table (check, result, target met) and exits 1 if a
+target is missed; ``--json FILE`` keeps every figure (``make soak`` writes
+benchmarks/soak_results.json).  The full run takes about 6.5 minutes on two
+cores.  One module per part, registered in :data:`PARTS`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from typing import Any
+
+from . import cancellation, chaos, fuzz, unplug
+from .common import Row, markdown
+
+Part = Callable[[argparse.Namespace, Callable[[str], None]], tuple[Any, list[Row]]]
+"""One soak: (the parsed options, a progress printer) -> (its report, a dataclass; its table rows)."""
+
+
+def run_chaos(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    transactions = args.transactions or (50_000 if args.quick else 1_000_000)
+    report = asyncio.run(chaos.chaos_soak(transactions, args.fault_rate, args.seed, progress=say))
+    return report, chaos.summarize_chaos(report)
+
+
+def run_cancel(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    cancellations = args.cancellations or (1_000 if args.quick else 10_000)
+    say(f"cancel: {cancellations} cancellations")
+    report = asyncio.run(cancellation.cancellation_soak(cancellations, args.seed + 1))
+    return report, cancellation.summarize_cancel(report)
+
+
+def run_unplug(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    say("unplug: pty simulator, device unplugged and replugged")
+    soak = unplug.unplug_soak((0.05, 1.0), 1, args.seed + 2) if args.quick else unplug.unplug_soak(seed=args.seed + 2)
+    report = asyncio.run(soak)
+    return report, unplug.summarize_unplug(report)
+
+
+def run_fuzz(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    streams = args.fuzz_streams or (20_000 if args.quick else 1_000_000)
+    say(f"fuzz: {streams} byte streams")
+    report = fuzz.fuzz_soak(streams, seed=args.seed + 3)
+    return report, fuzz.summarize_fuzz(report)
+
+
+PARTS: dict[str, Part] = {"chaos": run_chaos, "cancel": run_cancel, "unplug": run_unplug, "fuzz": run_fuzz}
+"""Every soak, in the order ``make soak`` runs them; a new soak is a module plus one entry here."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="small sizes (about a minute in all)")
+    parser.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts: {', '.join(PARTS)}")
+    parser.add_argument("--transactions", type=int, default=None, help="chaos: transactions (default 1,000,000)")
+    parser.add_argument("--fault-rate", type=float, default=0.02, help="chaos: share of faulted transactions")
+    parser.add_argument("--cancellations", type=int, default=None, help="cancel: cancellations (default 10,000)")
+    parser.add_argument("--fuzz-streams", type=int, default=None, help="fuzz: byte streams (default 1,000,000)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--json", default=None, help="also write every figure to this JSON file")
+    args = parser.parse_args(argv)
+    # Port losses and resyncs are the point here: the library's warnings about them are expected.
+    logging.getLogger("ics35_async").setLevel(logging.ERROR)
+    parts = [p.strip() for p in args.only.split(",") if p.strip()]
+    unknown = set(parts) - set(PARTS)
+    if unknown:
+        parser.error(f"unknown part(s): {', '.join(sorted(unknown))}")
+
+    def say(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    rows: list[Row] = []
+    figures: dict[str, Any] = {"python": sys.version.split()[0], "cpus": os.cpu_count()}
+    started = time.perf_counter()
+    for name in parts:
+        report, part_rows = PARTS[name](args, say)
+        figures[name] = asdict(report)
+        rows += part_rows
+        say(f"{name}: {report.seconds:.0f} s")
+    figures["seconds"] = time.perf_counter() - started
+    print(markdown(rows))
+    print(f"\n{figures['seconds']:.0f} s in all, Python {figures['python']}, {figures['cpus']} CPUs")
+    for part in parts:
+        examples = figures.get(part, {}).get("examples")
+        if examples:
+            print(f"\n{part} examples:\n  " + "\n  ".join(examples))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(figures, f, indent=1, default=str)
+    failed = [name for name, _value, ok in rows if ok is False]
+    if failed:
+        print(f"\nFAILED: {', '.join(failed)}")
+        return 1
+    print("\nevery target met")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

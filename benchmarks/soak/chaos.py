@@ -1,0 +1,352 @@
+"""The chaos soak: a 32-servo stream plus concurrent mixed requests on a faulty line, checked entry by entry.
+
+A 32-servo position stream plus concurrent mixed requests (positions,
+parameter reads and writes, EEPROM reads and writes, a silent memory read)
+on the in-process simulator in fast mode, with about 2 % of the
+transactions faulted, every fault kind mixed.  Every outcome (each stream
+slot of each frame, each request) is matched to the simulator's own log
+entry of that transaction (:class:`tests.support.matcher.LogMatcher`) and
+checked against what the bus had to conclude from the bytes the simulator
+actually sent (:class:`tests.support.oracle.WirePredictor`).  Reports
+misattributed replies, requests that never completed, outcomes that were
+not a value or a typed error, the recovery after each fault, and
+throughput against a fault-free run of the same workload measured in the
+same process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import random
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from ics35_async import (
+    Bus,
+    IcsError,
+    open_bus,
+)
+from ics35_async.sim import (
+    SimBus,
+)
+from tests.support.matcher import LogMatcher, RequestRecord
+from tests.support.oracle import FAST_TIMING, CheckError, chaos_servos, is_stream_tx
+
+from .common import Row, consistency_check, fault_spec, random_request, stream_target
+
+
+@dataclass
+class WorkloadStats:
+    frames: int = 0
+    skipped_frames: int = 0
+    requests_issued: int = 0
+    requests_done: int = 0
+    requests_ok: int = 0
+    requests_failed: Counter[str] = field(default_factory=Counter)
+
+
+class ChaosWorkload:
+    """Stream + request workers on one bus, feeding a :class:`LogMatcher`."""
+
+    def __init__(self, sim: SimBus, bus: Bus, seed: int, workers: int, request_pause: float) -> None:
+        self.sim = sim
+        self.bus = bus
+        self.seed = seed
+        self.workers = workers
+        self.request_pause = request_pause
+        self.ids = list(range(32))
+        self.matcher = LogMatcher(sim, is_stream_tx, self.ids)
+        self.never_completed = 0
+        self.stats = WorkloadStats()
+        self.stop = False
+        self.busy: set[int] = set()
+        self.last_tx: dict[int, bytes] = {}
+        self.images = {i: sim.servo(i).eeprom for i in self.ids}
+
+    async def worker(self, k: int) -> None:
+        rng = random.Random(self.seed * 1000 + k)
+        stats = self.stats
+        while not self.stop:
+            free = [i for i in self.ids if i not in self.busy]
+            sid = rng.choice(free)
+            self.busy.add(sid)
+            cmd, call, attempts = random_request(rng, self.bus, sid, self.images[sid])
+            while cmd.tx == self.last_tx.get(sid):  # two requests in a row to one ID never look alike
+                cmd, call, attempts = random_request(rng, self.bus, sid, self.images[sid])
+            self.last_tx[sid] = cmd.tx
+            stats.requests_issued += 1
+            ok, value, error, typed = False, None, None, True
+            try:
+                value = await call()
+                ok = True
+            except IcsError as exc:
+                error = type(exc).__name__
+            except Exception as exc:  # an untyped error escaped the library: counted, reported
+                error, typed = f"{type(exc).__name__}: {exc}", False
+            stats.requests_done += 1
+            if ok:
+                stats.requests_ok += 1
+            else:
+                stats.requests_failed[error or "?"] += 1
+            self.matcher.add_request(
+                RequestRecord(sid, cmd.tx, attempts, ok, value, error, typed, time.monotonic(), self.sim.transactions)
+            )
+            self.busy.discard(sid)
+            if self.request_pause and rng.random() < 0.5:
+                await asyncio.sleep(rng.uniform(0, self.request_pause))
+
+    async def run(self, transactions: int, drain_every: int = 1) -> float:
+        """Run until the simulator has seen ``transactions`` more transactions; returns the seconds taken."""
+        sim, bus, matcher = self.sim, self.bus, self.matcher
+        stream = bus.stream(self.ids, offline_after=3, probe_interval=0.05)
+        stream.set_targets({i: stream_target(i, 0) for i in self.ids})
+        start_txns = sim.transactions
+        sim.log.clear()  # anything before the run is not ours
+        t0 = time.perf_counter()
+        async with stream:
+            tasks = [asyncio.create_task(self.worker(k), name=f"soak worker {k}") for k in range(self.workers)]
+            loop = asyncio.get_running_loop()
+            give_up = math.inf
+            try:
+                # Frames keep coming while the workers finish their last requests: take them all,
+                # so that only the cycle cut short by closing the stream has no frame.
+                while not (self.stop and all(t.done() for t in tasks)) and loop.time() < give_up:
+                    frame = await stream.next_frame()
+                    self.stats.frames += 1
+                    self.stats.skipped_frames += frame.skipped
+                    matcher.add_frame(frame)
+                    stream.set_targets({i: stream_target(i, frame.cycle) for i in self.ids})
+                    if frame.cycle % drain_every == 0:
+                        matcher.drain()
+                        matcher.match()
+                    if not self.stop and sim.transactions - start_txns >= transactions:
+                        self.stop = True
+                        give_up = loop.time() + 30
+            finally:
+                self.stop = True
+                pending = [t for t in tasks if not t.done()]
+                self.never_completed = len(pending)
+                for task in pending:
+                    task.cancel()
+                for task in tasks:
+                    if task.done() and not task.cancelled() and task.exception() is not None:
+                        raise task.exception()  # type: ignore[misc]
+        elapsed = time.perf_counter() - t0
+        matcher.drain()
+        matcher.match()
+        return elapsed
+
+    def finish(self) -> dict[str, Any]:
+        """Match the rest; the last, unfinished cycle of the stream has no frame."""
+        matcher = self.matcher
+        leftovers = {sid: len(e) for sid, e in matcher.stream_entries.items() if e}
+        if any(n > 1 for n in leftovers.values()):
+            raise CheckError(f"stream log entries with no frame: {leftovers}")
+        for entries in matcher.stream_entries.values():
+            entries.clear()
+        matcher.match(final=True)
+        return {"unfinished_cycle_entries": sum(leftovers.values())}
+
+
+@dataclass
+class ChaosReport:
+    transactions: int
+    seconds: float
+    fault_rate_target: float
+    fault_spec: str
+    faulted_fraction: float
+    fault_kinds: dict[str, int]
+    frames: int
+    skipped_frames: int
+    stream_outcomes: int
+    requests: int
+    requests_ok: int
+    requests_failed: dict[str, int]
+    requests_never_completed: int
+    untyped_outcomes: int
+    misattributed: int
+    valid_replies_rejected: int
+    error_class_differs: int
+    undetectable_corruptions: int
+    undetectable_without_corrupt_fault: int
+    stale_accepted: int
+    late_reply_to_own_retry: int
+    guard_reads: int
+    noise_accepted: int
+    extra_attempts: int
+    accepted: int
+    recovery: dict[str, Any]
+    txn_per_s: float
+    ok_txn_per_s: float
+    frames_per_s: float
+    baseline_txn_per_s: float
+    baseline_frames_per_s: float
+    throughput_ratio: float
+    ok_throughput_ratio: float
+    frames_ratio: float
+    post_check: dict[str, Any]
+    examples: list[str]
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.misattributed == 0
+            and self.requests_never_completed == 0
+            and self.untyped_outcomes == 0
+            and self.valid_replies_rejected == 0
+            and self.undetectable_without_corrupt_fault == 0
+            and self.stale_accepted == 0
+            and self.extra_attempts == 0
+            and self.error_class_differs == 0
+            and self.post_check["consistent"]
+        )
+
+
+async def chaos_run(
+    transactions: int, fault_rate: float, seed: int, workers: int = 4, request_pause: float = 0.002
+) -> tuple[ChaosWorkload, float, SimBus, Bus, dict[str, Any]]:
+    spec = fault_spec(fault_rate)
+    sim = SimBus(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
+    bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
+    try:
+        workload = ChaosWorkload(sim, bus, seed, workers, request_pause)
+        elapsed = await workload.run(transactions)
+        extra = workload.finish()
+        extra["fault_spec"] = spec
+        extra["bus_guards"] = bus.stats.guards
+        return workload, elapsed, sim, bus, extra
+    except BaseException:
+        await bus.aclose()
+        raise
+
+
+async def chaos_soak(
+    transactions: int = 1_000_000,
+    fault_rate: float = 0.02,
+    seed: int = 1,
+    baseline_transactions: int | None = None,
+    workers: int = 4,
+    progress: Callable[[str], None] | None = None,
+) -> ChaosReport:
+    """The chaos soak: a fault-free baseline, then the faulted run, checked entry by entry."""
+    base_n = baseline_transactions if baseline_transactions is not None else max(20_000, transactions // 5)
+    if progress:
+        progress(f"chaos: fault-free baseline, {base_n} transactions")
+    base, base_s, base_sim, base_bus, _ = await chaos_run(base_n, 0.0, seed, workers)
+    base_counts = base.matcher.counts
+    await base_bus.aclose()
+    base_sim.close()
+    if base_counts.misattributed or base_counts.valid_rejected:
+        raise CheckError(f"fault-free baseline: {base_counts.examples}")
+    if progress:
+        progress(f"chaos: {transactions} transactions, {fault_rate:.1%} faulted")
+    work, seconds, sim, bus, extra = await chaos_run(transactions, fault_rate, seed, workers)
+    try:
+        post = await consistency_check(sim, bus)
+    finally:
+        await bus.aclose()
+        sim.close()
+    if extra["bus_guards"] != work.matcher.counts.guards:
+        post["consistent"] = False
+        post["problems"].append(
+            f"bus counted {extra['bus_guards']} guard reads, the log shows {work.matcher.counts.guards}"
+        )
+    counts = work.matcher.counts
+    recovery = work.matcher.recovery()
+    n = counts.entries
+    ok_entries = counts.accepted
+    base_rate = base_counts.entries / base_s
+    base_ok_rate = base_counts.accepted / base_s
+    base_frames = base.stats.frames / base_s
+    return ChaosReport(
+        transactions=n,
+        seconds=seconds,
+        fault_rate_target=fault_rate,
+        fault_spec=extra["fault_spec"],
+        faulted_fraction=counts.faulted_entries / n if n else 0.0,
+        fault_kinds=dict(counts.fault_kinds),
+        frames=work.stats.frames,
+        skipped_frames=work.stats.skipped_frames,
+        stream_outcomes=counts.stream_outcomes,
+        requests=counts.requests,
+        requests_ok=work.stats.requests_ok,
+        requests_failed=dict(work.stats.requests_failed),
+        requests_never_completed=work.never_completed + (work.stats.requests_issued - work.stats.requests_done),
+        untyped_outcomes=counts.untyped_outcomes,
+        misattributed=counts.misattributed,
+        valid_replies_rejected=counts.valid_rejected,
+        error_class_differs=counts.error_class_differs,
+        undetectable_corruptions=counts.undetectable_corruptions,
+        undetectable_without_corrupt_fault=counts.undetectable_without_corrupt_fault,
+        stale_accepted=counts.stale_accepted,
+        late_reply_to_own_retry=counts.late_reply_to_own_retry,
+        guard_reads=counts.guards,
+        noise_accepted=counts.noise_accepted,
+        extra_attempts=counts.extra_attempts,
+        accepted=ok_entries,
+        recovery=recovery,
+        txn_per_s=n / seconds,
+        ok_txn_per_s=ok_entries / seconds,
+        frames_per_s=work.stats.frames / seconds,
+        baseline_txn_per_s=base_rate,
+        baseline_frames_per_s=base_frames,
+        throughput_ratio=(n / seconds) / base_rate,
+        ok_throughput_ratio=(ok_entries / seconds) / base_ok_rate,
+        frames_ratio=(work.stats.frames / seconds) / base_frames,
+        post_check=post,
+        examples=counts.examples,
+    )
+
+
+def summarize_chaos(r: ChaosReport) -> list[Row]:
+    rec = r.recovery
+    return [
+        ("chaos: transactions (faulted)", f"{r.transactions:,} ({r.faulted_fraction:.2%}, every kind)", None),
+        (
+            "chaos: replies misattributed",
+            f"{r.misattributed + r.stale_accepted} ({r.misattributed} not carried by the bytes received, "
+            f"{r.stale_accepted} another command's late reply in a lost reply's place; "
+            f"{r.late_reply_to_own_retry} late first replies taken by their own retry; "
+            f"{r.guard_reads:,} guard reads after timeouts)",
+            r.misattributed + r.stale_accepted == 0,
+        ),
+        (
+            "chaos: requests never completed",
+            f"{r.requests_never_completed} of {r.requests:,}",
+            r.requests_never_completed == 0,
+        ),
+        ("chaos: outcomes neither a value nor a typed error", f"{r.untyped_outcomes}", r.untyped_outcomes == 0),
+        ("chaos: valid replies the bus rejected", f"{r.valid_replies_rejected}", r.valid_replies_rejected == 0),
+        (
+            "chaos: damaged replies that look valid (no checksum in ICS 3.5)",
+            f"{r.undetectable_corruptions} bits flipped in place (corrupt fault), "
+            f"{r.noise_accepted} truncated and completed by noise",
+            r.undetectable_without_corrupt_fault == 0,
+        ),
+        (
+            "chaos: recovery per fault, failed transactions",
+            f"median {rec['failed_txns_median']}, max {rec['failed_txns_max']}",
+            None,
+        ),
+        (
+            "chaos: recovery per fault, line outage",
+            f"median {rec['outage_ms_median']:.1f} ms, p99 {rec['outage_ms_p99']:.1f} ms, "
+            f"max {rec['outage_ms_max']:.1f} ms",
+            None,
+        ),
+        (
+            "chaos: throughput vs fault-free",
+            f"{r.throughput_ratio:.2f} (transactions), {r.ok_throughput_ratio:.2f} (answered), "
+            f"{r.frames_ratio:.2f} (frames); {r.txn_per_s:,.0f} vs {r.baseline_txn_per_s:,.0f} txn/s",
+            None,
+        ),
+        (
+            "chaos: consistent afterwards",
+            "yes" if r.post_check["consistent"] else "; ".join(r.post_check["problems"]),
+            r.post_check["consistent"],
+        ),
+    ]

@@ -1,0 +1,144 @@
+"""Pieces the soaks share: the fault mix, the workloads' requests, the consistency check, the table."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import random
+from collections.abc import Awaitable, Callable, Sequence
+from typing import Any
+
+from ics35_async import (
+    Bus,
+    Eeprom,
+    Priority,
+    ReplyError,
+    Servo,
+    protocol,
+)
+from ics35_async.protocol import Command, Param
+from ics35_async.sim import (
+    FaultConfig,
+    FaultInjector,
+    SimBus,
+)
+from tests.support.oracle import FAULT_KINDS, band
+
+
+def fault_spec(rate: float, kinds: Sequence[str] = FAULT_KINDS) -> str:
+    """A spec giving every kind the same rate so that about ``rate`` of transactions get a fault."""
+    if rate <= 0:
+        return "none"
+    each = 1 - (1 - rate) ** (1 / len(kinds))
+    return ",".join(f"{kind}:{each:.6f}" for kind in kinds)
+
+
+def stream_target(i: int, cycle: int) -> int:
+    low, high = band(i)
+    middle, amplitude = (low + high) // 2, (high - low) // 2 - 2
+    return 2 * ((middle + round(amplitude * math.sin(cycle / 15 + i))) // 2)
+
+
+def random_request(
+    rng: random.Random, bus: Bus, sid: int, image: Eeprom
+) -> tuple[Command[Any], Callable[[], Awaitable[Any]], int]:
+    """A random request to ``sid``: its command (for the bytes), how to make it, attempts allowed."""
+    priority = rng.choice(list(Priority))
+    servo = Servo(bus, sid, priority=priority)
+    roll = rng.random()
+    default_attempts = 1 + bus.retries
+    if roll < 0.25:
+        low, high = band(sid)
+        position = rng.randrange(low + 1, high, 2)
+        return (
+            protocol.Position(sid, position, baudrate=bus.baudrate),
+            lambda: servo.set_position(position),
+            default_attempts,
+        )
+    if roll < 0.33:
+        return protocol.Position(sid, protocol.FREE, baudrate=bus.baudrate), servo.free, default_attempts
+    if roll < 0.55:
+        # Current and temperature only: the bus's own guard reads (after a timeout) read stretch or
+        # speed, so those bytes in the log are always a guard, never a caller's request.
+        param = rng.choice((Param.CURRENT, Param.TEMPERATURE))
+        reader = servo.read_current if param is Param.CURRENT else servo.read_temperature
+        return protocol.ReadParam(sid, param), reader, default_attempts
+    if roll < 0.70:
+        # Straight to the bus, with its own priority and retries.
+        cmd: Command[Any] = protocol.ReadParam(sid, rng.choice((Param.CURRENT, Param.TEMPERATURE)))
+        retries = rng.randrange(3)
+        return cmd, lambda: bus.request(cmd, priority=priority, retries=retries), 1 + retries
+    if roll < 0.88:
+        param = Param(rng.randrange(1, 5))
+        low, high = protocol.WRITE_RANGES[param]
+        if param is Param.TEMPERATURE:
+            high = 80  # a limit this hot (smaller is hotter) never trips: the servos keep their torque
+        value = rng.randint(low, high)
+        writer = {
+            Param.STRETCH: servo.write_stretch,
+            Param.SPEED: servo.write_speed,
+            Param.CURRENT: servo.write_current_limit,
+            Param.TEMPERATURE: servo.write_temperature_limit,
+        }[param]
+        return protocol.WriteParam(sid, param, value), lambda: writer(value), default_attempts
+    if roll < 0.97:
+        return protocol.ReadEeprom(sid), servo.read_eeprom, default_attempts
+    if roll < 0.995:
+        write = protocol.WriteEeprom(sid, image)  # not idempotent: never retried
+        return write, lambda: bus.request(write, priority=priority, retries=2), 1
+    # A servo has no generic memory: it stays silent, the caller gets a timeout.
+    silent = protocol.ReadMemory(sid, rng.randrange(100), rng.randrange(1, 8))
+    return silent, lambda: bus.request(silent, priority=priority, retries=0), 1
+
+
+async def consistency_check(sim: SimBus, bus: Bus) -> dict[str, Any]:
+    """Faults off; every servo must answer exactly what the simulator holds; the bus idle and its counters sane."""
+    sim.faults = FaultInjector(FaultConfig(), 0)
+    problems: list[str] = []
+    # A reply held back by a `late` fault of the very last transaction lands on the next one: let it.
+    with contextlib.suppress(ReplyError):
+        await bus.request(protocol.ReadParam(0, Param.STRETCH), retries=1)
+    before = bus.stats.total.errors
+    for servo in sim.servos:
+        i = servo.servo_id
+        s = bus.servo(i)
+        # Each expected value is read from the servo right after the transaction (left to right).
+        for what, got, want in (
+            ("stretch", await s.read_stretch(), servo.stretch),
+            ("speed", await s.read_speed(), servo.speed),
+            ("current limit", await s.write_current_limit(servo.current_limit), servo.current_limit),
+            ("eeprom", await s.read_eeprom(), servo.eeprom),
+            ("position", await s.free(), servo.position),
+        ):
+            if got != want:
+                problems.append(f"ID {i} {what}: bus says {got!r}, servo holds {want!r}")
+        if not servo.calibration_intact:
+            problems.append(f"ID {i}: factory calibration bytes changed")
+    await bus.wait_idle()
+    stats = bus.stats
+    if stats.total.errors != before:
+        problems.append(f"{stats.total.errors - before} errors on a fault-free line")
+    if stats.queued:
+        problems.append(f"{stats.queued} requests still queued")
+    if stats.total.transactions != sim.transactions:
+        problems.append(f"bus counted {stats.total.transactions} transactions, the line saw {sim.transactions}")
+    if stats.total.ok + stats.total.errors != stats.total.transactions:
+        problems.append(f"ok {stats.total.ok} + errors {stats.total.errors} != {stats.total.transactions}")
+    if sum(s.transactions for s in stats.per_id.values()) != stats.total.transactions:
+        problems.append("per-ID transaction counts do not add up")
+    return {"consistent": not problems, "problems": problems, "resyncs": stats.resyncs}
+
+
+def ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.1f} ms"
+
+
+Row = tuple[str, str, bool | None]
+"""One line of the table: check, result, whether its target is met (None: a figure, no target)."""
+
+
+def markdown(rows: Sequence[Row]) -> str:
+    lines = ["| check | result | target met |", "|---|---|---|"]
+    for name, value, ok in rows:
+        lines.append(f"| {name} | {value} | {'' if ok is None else 'yes' if ok else '**NO**'} |")
+    return "\n".join(lines)
