@@ -126,11 +126,19 @@ async def test_a_silent_line_and_a_wrong_echo_setting_are_told_apart(lines: Any)
     assert report.servos == () and report.silent
 
     echoing = lines([VirtualServo(1)])
-    report = await scan(opener(echoing, echo=False), ids=range(4))
-    assert report.servos == () and not report.silent
-    evidence = report.echo_evidence(echo=False)
-    assert isinstance(evidence, ReplyError) and evidence.raw[0] >= 0x80
-    assert report.echo_evidence(echo=True) is None
+    for ids in (range(4), range(32)):  # probed one by one / the ID read shows it at once
+        report = await scan(opener(echoing, echo=False), ids=ids)
+        assert report.servos == () and not report.silent
+        evidence = report.echo_evidence
+        assert isinstance(evidence, ReplyError) and evidence.raw[0] >= 0x80
+    assert echoing.transactions <= 3 * 4 + 3
+    report = await scan(opener(echoing), ids=range(4))
+    assert report.echo_evidence is None
+
+    not_echoing = lines([VirtualServo(1)], echo=False)
+    report = await scan(opener(not_echoing), bauds=[115200], ids=range(4))
+    assert report.servos == () and isinstance(report.echo_evidence, ReplyError)
+    assert report.echo_evidence.raw[0] < 0x80
 
 
 async def test_a_rate_the_port_cannot_open_is_skipped(lines: Any) -> None:

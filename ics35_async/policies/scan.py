@@ -48,6 +48,7 @@ class RateScan:
     garbled: Mapping[int, ReplyError] = field(default_factory=dict)  # ID -> the error of its last probe
     silent: bool = False  # not one byte came back at this rate, not even the echo of what was sent
     nobody: bool = False  # nothing answered the ID read, so no ID was probed one by one
+    echo_evidence: ReplyError | None = None  # an error showing the line's echo setting is wrong
 
 
 @dataclass(frozen=True)
@@ -88,12 +89,10 @@ class ScanReport:
         """Nothing came back at any rate probed, not even an echo: the adapter or its wiring."""
         return bool(self.rates) and all(r.silent for r in self.rates)
 
-    def echo_evidence(self, echo: bool) -> ReplyError | None:
-        """A probe error showing the echo setting is wrong for this interface, if any."""
-        for _, _, exc in self.garbled:
-            if echo_setting_wrong(exc, echo):
-                return exc
-        return None
+    @property
+    def echo_evidence(self) -> ReplyError | None:
+        """An error showing that the echo setting is wrong for this interface, if any."""
+        return next((r.echo_evidence for r in self.rates if r.echo_evidence is not None), None)
 
 
 def _done(on_probe: ProbeCallback | None, n: int) -> None:
@@ -109,13 +108,18 @@ async def _probe(line: Line, servo_id: int) -> ReplyError | None:
     return None
 
 
-async def anyone_there(line: Line) -> bool:
-    """Whether any device at the line's rate answers an ID read (garbled counts: several answer)."""
+async def _id_read(line: Line) -> ReplyError | None:
     try:
         await line.request(protocol.ReadId(), retries=0)
     except ReplyError as exc:
-        return not nothing_came_back(exc)
-    return True
+        return exc
+    return None
+
+
+async def anyone_there(line: Line) -> bool:
+    """Whether any device at the line's rate answers an ID read (garbled counts: several answer)."""
+    error = await _id_read(line)
+    return error is None or not nothing_came_back(error)
 
 
 async def probe_ids(
@@ -134,10 +138,14 @@ async def probe_ids(
     rx_before = line.stats.total.bytes_rx
     if id_read_first is None:
         id_read_first = len(wanted) >= ID_READ_MIN_IDS
-    if id_read_first and not await anyone_there(line):
-        _done(on_probe, len(wanted))
-        silent = line.stats.total.bytes_rx == rx_before
-        return RateScan(int(line.baudrate), silent=silent, nobody=True)
+    if id_read_first:
+        error = await _id_read(line)
+        nobody = error is not None and nothing_came_back(error)
+        if nobody or (error is not None and echo_setting_wrong(error, line.echo)):
+            # Nobody there, or every probe would fail the same way: the echo setting is wrong.
+            _done(on_probe, len(wanted))
+            silent = line.stats.total.bytes_rx == rx_before
+            return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
 
     async def probe(i: int) -> ReplyError | None:
         outcome = await _probe(line, i)
@@ -147,7 +155,8 @@ async def probe_ids(
     # All queued at once: the line runs them back to back in this order.
     outcomes = dict(zip(wanted, await asyncio.gather(*(probe(i) for i in wanted)), strict=True))
     garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
-    if garbled and not any(echo_setting_wrong(e, line.echo) for e in garbled.values()):
+    evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
+    if garbled and evidence is None:
         # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
         for i in sorted(garbled):
             outcomes[i] = await _probe(line, i)
@@ -157,6 +166,7 @@ async def probe_ids(
         answered=tuple(i for i, e in outcomes.items() if e is None),
         garbled=garbled,
         silent=line.stats.total.bytes_rx == rx_before,
+        echo_evidence=evidence,
     )
 
 
