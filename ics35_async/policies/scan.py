@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from .. import protocol
@@ -188,18 +188,18 @@ def _check_bauds(bauds: Iterable[int]) -> list[int]:
     return checked
 
 
-@contextlib.asynccontextmanager
-async def _open_or_skip(open_at: LineOpener, baud: int, skipped: dict[int, str]) -> AsyncIterator[Line | None]:
-    """The line at ``baud``, or None (and the reason in ``skipped``) when the adapter cannot do that rate."""
-    async with contextlib.AsyncExitStack() as stack:
-        try:
-            line: Line | None = await stack.enter_async_context(open_at(baud))
-        except (PortNotFound, PortPermissionDenied, PortBusy):
-            raise  # the same at every rate: the caller reports it
-        except (InvalidArgument, SerialPortError) as exc:
-            skipped[baud] = str(exc)
-            line = None
-        yield line
+async def _open_or_skip(
+    stack: contextlib.AsyncExitStack, open_at: LineOpener, baud: int, skipped: dict[int, str]
+) -> Line | None:
+    """The line at ``baud`` (closed with ``stack``), or None and the reason in ``skipped``
+    when the adapter cannot do that rate."""
+    try:
+        return await stack.enter_async_context(open_at(baud))
+    except (PortNotFound, PortPermissionDenied, PortBusy):
+        raise  # the same at every rate: the caller reports it
+    except (InvalidArgument, SerialPortError) as exc:
+        skipped[baud] = str(exc)
+        return None
 
 
 async def scan(
@@ -223,7 +223,8 @@ async def scan(
     skipped: dict[int, str] = {}
     images: dict[tuple[int, int], Eeprom | ReplyError] = {}
     for baud in rates_wanted:
-        async with _open_or_skip(open_at, baud, skipped) as line:
+        async with contextlib.AsyncExitStack() as stack:
+            line = await _open_or_skip(stack, open_at, baud, skipped)
             if line is None:
                 _done(on_probe, len(wanted))
                 continue
@@ -290,7 +291,8 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
     found: list[int] = []
     skipped: dict[int, str] = {}
     for baud in _check_bauds(bauds):
-        async with _open_or_skip(open_at, baud, skipped) as line:
+        async with contextlib.AsyncExitStack() as stack:
+            line = await _open_or_skip(stack, open_at, baud, skipped)
             if line is None:
                 continue
             try:
