@@ -142,6 +142,7 @@ async def plan_eeprom_write(
     (``id_taken``).
     """
     protocol.check_id(servo_id)
+    check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
     before = await line.request(protocol.ReadEeprom(servo_id))
     after = edit_image(before, changes, set_flags=set_flags, clear_flags=clear_flags)
     taken = after.servo_id not in (before.servo_id, servo_id) and await _answers(line, after.servo_id)
