@@ -39,6 +39,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
+from ..policies import servo_rates
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, adapter_advice
 
 T = TypeVar("T")
@@ -390,23 +391,10 @@ NO_REPLY_HINTS = (
 
 
 def other_bauds(settings: Settings, servo_id: int) -> list[int]:
-    """Bauds other than ``settings.baud`` at which ``servo_id`` answers a stretch read."""
-
-    async def probe() -> list[int]:
-        found = []
-        for baud in ALL_BAUDS:
-            if baud == settings.baud:
-                continue
-            async with settings.bus(baud, retries=1) as bus:
-                try:
-                    await bus.request(protocol.ReadParam(servo_id, protocol.Param.STRETCH))
-                except ReplyError:
-                    continue
-                found.append(baud)
-        return found
-
+    """Bauds other than ``settings.baud`` at which ``servo_id`` answers and its own EEPROM names that rate."""
+    others = [baud for baud in ALL_BAUDS if baud != settings.baud]
     try:
-        return run_loop(probe())
+        return list(run_loop(servo_rates(lambda baud: settings.bus(baud, retries=1), servo_id, others)))
     except (IcsError, OSError):
         return []
 

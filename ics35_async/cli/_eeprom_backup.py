@@ -1,0 +1,282 @@
+"""eeprom dump / restore: back up servos' EEPROMs to JSON files and write them back, one or many at a time."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.markup import escape
+
+from .. import protocol
+from ..eeprom import EEPROM_FIELDS, Eeprom
+from ..errors import InvalidArgument, MalformedEeprom, ReplyError
+from ..policies import check_changes, plan_eeprom_write, probe_ids
+from ._common import (
+    ID_LIST,
+    SERVO_ID,
+    CliError,
+    ExitCode,
+    Settings,
+    emit_json,
+    err,
+    ids_text,
+    json_option,
+    nothing_answered,
+    out,
+    run,
+    settings_of,
+    yes_option,
+)
+from ._eeprom_view import eeprom_table
+from ._eeprom_write import print_reports, write_plans
+
+DUMP_FORMAT = "ics35-eeprom/1"
+
+
+def backup_name(servo_id: int) -> str:
+    return f"servo-{servo_id:02d}.json"
+
+
+# --------------------------------------------------------------------------- dump
+
+
+def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[str, Path | None]:
+    """Where the dump goes ("stdout", "file" or "dir"), checked before the line is touched."""
+    if output is None:
+        if len(ids) > 1 and not as_table:
+            raise click.BadParameter("several servos need -o DIR/ (one file per servo)", param_hint="IDS")
+        return "stdout", None
+    path = Path(output)
+    is_dir = output.endswith(("/", os.sep)) or path.is_dir()
+    if not is_dir and len(ids) > 1:
+        raise click.BadParameter(f"several servos go to a directory: -o {output}/", param_hint="--output")
+    # The directory that must exist and take a new file: a file's own; for DIR/ (created when
+    # written) the nearest one that exists.
+    existing = path if is_dir else path.parent
+    while is_dir and not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise click.BadParameter(f"cannot write {output}: there is no directory {existing}", param_hint="--output")
+    if not os.access(existing, os.W_OK) or (path.is_file() and not os.access(path, os.W_OK)):
+        raise click.BadParameter(f"cannot write {output}: permission denied", param_hint="--output")
+    return ("dir" if is_dir else "file"), path
+
+
+def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
+    fields = image.to_dict()
+    return {
+        "format": DUMP_FORMAT,
+        "servo_id": servo_id,
+        "baud": settings.baud,
+        "port": settings.port,
+        "saved": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "fields": {name: fields[name] for name in EEPROM_FIELDS},
+        "flags_names": fields["flags_names"],
+        "raw": fields["raw"],
+        "unknown_codes": fields["unknown_codes"],
+    }
+
+
+async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
+    """One servo's image (its errors raise), or the images of those of several that answer."""
+    async with settings.bus() as bus:
+        if len(ids) == 1:
+            return {ids[0]: await bus.servo(ids[0]).read_eeprom()}
+        rate = await probe_ids(bus, ids)
+        images: dict[int, Eeprom] = {}
+        for i in rate.answered:
+            try:
+                images[i] = await bus.servo(i).read_eeprom()
+            except ReplyError as exc:
+                err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
+        if not images:
+            where = f"{settings.port} at {settings.baud} baud (IDs {ids_text(ids)})"
+            raise nothing_answered(settings, where, silent=rate.silent)
+        return images
+
+
+def write_backup(path: Path, doc: dict[str, Any]) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(doc, indent=2) + "\n")
+    except OSError as exc:
+        raise CliError(ExitCode.USAGE, f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+@click.command()
+@click.argument("ids", metavar="IDS", type=ID_LIST)
+@click.option("--output", "-o", metavar="FILE|DIR/", help="Write to FILE, or one file per servo into DIR/.")
+@click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
+@click.option("--json", "as_json", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
+@click.pass_context
+def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool, as_json: bool) -> int:
+    """Save EEPROMs as JSON (the backup format `eeprom restore` reads).
+
+    \b
+    One servo:   ics35 eeprom dump 1 > servo1.json    (or -o servo1.json)
+    Several:     ics35 eeprom dump 1-20 -o backup/    (backup/servo-01.json, ...)
+    """
+    settings = settings_of(ctx)
+    kind, path = output_target(ids, output, as_table)
+    images = run(settings, lambda: read_images(settings, ids))
+    for i, image in images.items():
+        if image.unknown_codes:
+            codes = ", ".join(f"{name} 0x{code:02X}" for name, code in image.unknown_codes.items())
+            err.print(
+                f"[yellow]warning:[/yellow] servo {i}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
+                "kept exactly as read; an image holding them cannot be written back"
+            )
+    missing = [i for i in ids if i not in images]
+    if missing and len(ids) > 1:
+        if len(ids) == 32:  # "all": the servos on the line, whichever they are
+            err.print(f"{len(images)} servo(s) answered: IDs {ids_text(images)}")
+        else:
+            err.print(f"[yellow]warning:[/yellow] no answer from ID(s) {ids_text(missing)}: not saved")
+    if as_table:
+        for i, image in images.items():
+            out.print(eeprom_table(image, f"EEPROM of servo {i}"))
+        return 0
+    for i, image in images.items():
+        doc = dump_document(image, i, settings)
+        if kind == "stdout":
+            emit_json(doc)
+            continue
+        assert path is not None
+        target = path / backup_name(i) if kind == "dir" else path
+        write_backup(target, doc)
+        err.print(f"EEPROM of servo {i} saved to {escape(str(target))}")
+    return 0
+
+
+# --------------------------------------------------------------------------- restore
+
+
+def fields_from_document(doc: object) -> dict[str, int]:
+    """The editable fields of a dump (``fields`` wins over ``raw`` when both are there)."""
+    if not isinstance(doc, dict):
+        raise InvalidArgument("an EEPROM backup is a JSON object (made by `ics35 eeprom dump`)")
+    fields = doc.get("fields")
+    if fields is None and isinstance(doc.get("raw"), str):
+        try:
+            image = Eeprom.from_bytes(bytes.fromhex(doc["raw"]))
+        except ValueError as exc:
+            raise InvalidArgument(f"the backup's raw image is unusable: {exc}") from None
+        fields = {name: int(getattr(image, name)) for name in EEPROM_FIELDS}
+    if not isinstance(fields, dict):
+        raise InvalidArgument("the backup has neither 'fields' nor 'raw' (was it made by `ics35 eeprom dump`?)")
+    unknown = set(fields) - set(EEPROM_FIELDS)
+    if unknown:
+        raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(sorted(unknown))}")
+    missing = set(EEPROM_FIELDS) - set(fields)
+    if missing:
+        raise InvalidArgument(f"the backup lacks field(s): {', '.join(sorted(missing))}")
+    for name, value in fields.items():
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InvalidArgument(f"field {name} must be an integer, got {value!r}")
+    return dict(fields)
+
+
+@dataclass
+class Backup:
+    """One checked backup file and the servo it goes to."""
+
+    source: str
+    target: int
+    fields: dict[str, int]
+    saved_id: int  # the ID the backup was saved from
+
+
+def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
+    """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
+    try:
+        text = sys.stdin.read() if source == "-" else Path(source).read_text()
+        doc = json.loads(text)
+        fields = fields_from_document(doc)
+        saved = doc.get("servo_id")
+        saved_id = saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
+        protocol.check_id(saved_id)
+        if target is None:
+            target = saved_id
+        if not restore_id:
+            del fields["servo_id"]
+        check_changes(fields)
+    except OSError as exc:
+        raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
+    except json.JSONDecodeError as exc:
+        raise click.BadParameter(f"{source}: not JSON: {exc}", param_hint="FILE") from None
+    except (InvalidArgument, MalformedEeprom) as exc:
+        raise click.BadParameter(f"{source}: {exc}", param_hint="FILE") from None
+    return Backup(source, target, fields, saved_id)
+
+
+def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
+    if len(args) == 2:
+        try:
+            target = SERVO_ID.convert(args[0], None, None)
+        except click.BadParameter as exc:
+            raise click.BadParameter(exc.message, param_hint="ID") from None
+        return [load_backup(args[1], target, restore_id)]
+    if len(args) != 1:
+        raise click.BadParameter("give ID FILE, FILE or DIR", param_hint="[ID] FILE|DIR")
+    if not Path(args[0]).is_dir():
+        return [load_backup(args[0], None, restore_id)]
+    files = sorted(str(p) for p in Path(args[0]).glob("*.json"))
+    if not files:
+        raise click.BadParameter(f"no *.json backups in {args[0]}", param_hint="DIR")
+    backups = [load_backup(name, None, restore_id) for name in files]
+    seen: dict[int, str] = {}
+    for backup in backups:
+        if backup.target in seen:
+            raise click.BadParameter(
+                f"{seen[backup.target]} and {backup.source} are both backups of servo {backup.target}", param_hint="DIR"
+            )
+        seen[backup.target] = backup.source
+    return backups
+
+
+@click.command()
+@click.argument("args", metavar="[ID] FILE|DIR", nargs=-1, required=True)
+@click.option("--restore-id", is_flag=True, help="Also write the ID stored in FILE (default: keep the servo's ID).")
+@click.option(
+    "--change-baud", is_flag=True, help="Allow a backup to change the baud rate (the servo then talks only at it)."
+)
+@yes_option
+@json_option
+@click.pass_context
+def restore(
+    ctx: click.Context, args: tuple[str, ...], restore_id: bool, change_baud: bool, yes: bool, as_json: bool
+) -> int:
+    """Write backups made by `eeprom dump` (shows every diff, asks once).
+
+    \b
+    ics35 eeprom restore 2 servo1.json   servo 2 gets servo 1's settings
+    ics35 eeprom restore servo1.json     back to the servo the file was saved from
+    ics35 eeprom restore backup/         every file in backup/ to its own servo
+
+    Each servo keeps its own factory calibration bytes and read-only flags, and
+    its ID unless --restore-id.  Use - as FILE for stdin (then pass --yes).
+    """
+    settings = settings_of(ctx)
+    backups = load_backups(args, restore_id)
+    for backup in backups:
+        if backup.saved_id != backup.target and not restore_id and not as_json:
+            err.print(
+                f"note: {escape(backup.source)} is a backup of ID {backup.saved_id}; servo {backup.target} keeps "
+                "its ID (--restore-id to write it)"
+            )
+
+    async def body() -> list[dict[str, Any]]:
+        async with settings.bus() as bus:
+            plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
+            return await write_plans(
+                bus, plans, yes=yes, change_baud=change_baud, allow_id_change=restore_id, as_json=as_json
+            )
+
+    print_reports(run(settings, body), as_json, bulk=len(args) == 1 and Path(args[0]).is_dir())
+    return 0

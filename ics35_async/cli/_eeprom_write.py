@@ -1,0 +1,155 @@
+"""The path every EEPROM write of the CLI takes: show the plan, refuse or confirm, write, report.
+
+The rules themselves (what may change, read-only flags, verification) are the
+library's (:mod:`ics35_async.policies.eeprom_write`); this module only puts
+them in front of a person.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from ..bus import Bus
+from ..eeprom import BaudRate, Flags
+from ..policies import EepromPlan, EepromWriteResult, write_eeprom_plan
+from ._common import CliError, ExitCode, confirm, emit_json, err, ids_text, out
+from ._eeprom_view import baud_text, diff_table, flag_names
+
+BAUD_CONSEQUENCE = (
+    "from its next power-up the servo answers ONLY at {new} baud: every later command needs --baud {new}"
+    "{hs}, and servos at different rates cannot share one bus session"
+)
+
+
+def _hs(new: int) -> str:
+    return " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
+
+
+def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool) -> None:
+    """Refuse (exit 5, nothing written) what the person did not ask for, with what to do instead."""
+    if plan.changes_baud and not change_baud:
+        new = int(plan.after.baud_rate)
+        raise CliError(
+            ExitCode.REFUSED,
+            f"refused: this changes servo {plan.servo_id}'s baud rate "
+            f"from {baud_text(plan.before.baud_rate)} to {new}; "
+            + BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))
+            + ". Nothing was written",
+            "to do it anyway, add --change-baud",
+        )
+    if plan.changes_id and plan.id_taken:
+        raise CliError(
+            ExitCode.REFUSED,
+            f"refused: ID {plan.after.servo_id} already answers on this line; two servos with one ID garble "
+            "every reply. Nothing was written",
+            "pick a free ID (see: ics35 scan)",
+        )
+    reason = plan.refusal(allow_baud_change=change_baud, allow_id_change=allow_id_change)
+    if reason:
+        raise CliError(ExitCode.REFUSED, f"refused: {reason}. Nothing was written")
+
+
+def show_plan(plan: EepromPlan, as_json: bool) -> None:
+    (err if as_json else out).print(diff_table(plan))
+    if plan.cleared_flags:
+        note = (
+            " (without PWMINH a servo may start in PWM mode after a brown-out)"
+            if plan.cleared_flags & Flags.PWMINH
+            else ""
+        )
+        err.print(
+            f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}; "
+            "to change one flag and keep the others use flags+=NAME / flags-=NAME",
+            soft_wrap=True,
+        )
+    if plan.changes_baud:
+        new = int(plan.after.baud_rate)
+        err.print(f"[yellow]warning:[/yellow] {BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))}", soft_wrap=True)
+
+
+def report_of(plan: EepromPlan, result: EepromWriteResult | None) -> dict[str, Any]:
+    """The JSON-able account of one servo's write."""
+    report: dict[str, Any] = {
+        "id": plan.servo_id,
+        "changes": {k: [int(a), int(b)] for k, (a, b) in plan.diff.items()},
+        "written": result is not None and result.written,
+    }
+    if result is not None and result.written:
+        report["verified"] = result.verified
+        if plan.changes_id:
+            report["answers_as"] = list(result.answering_ids)
+        if plan.changes_baud:
+            report["answers_at_new_rate"] = result.new_rate_answers
+            if result.new_rate_error:
+                report["new_rate_error"] = result.new_rate_error
+    return report
+
+
+async def write_plans(
+    bus: Bus,
+    plans: Sequence[EepromPlan],
+    *,
+    yes: bool,
+    change_baud: bool,
+    allow_id_change: bool,
+    as_json: bool,
+) -> list[dict[str, Any]]:
+    """Check every plan, show them, ask once, write them in order; one report per plan."""
+    for plan in plans:
+        check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change)
+    pending = [plan for plan in plans if plan.diff]
+    for plan in plans:
+        if plan.diff:
+            show_plan(plan, as_json)
+        elif not as_json:
+            out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
+    if not pending:
+        return [report_of(plan, None) for plan in plans]
+    count = sum(len(plan.diff) for plan in pending)
+    servos = (
+        f"servo {pending[0].servo_id}'s" if len(pending) == 1 else f"servos {ids_text(p.servo_id for p in pending)}'"
+    )
+    confirm(f"Write these {count} change(s) to {servos} EEPROM?", yes)
+    results: dict[int, EepromWriteResult] = {}
+    for plan in pending:
+        results[plan.servo_id] = await write_eeprom_plan(
+            bus, plan, allow_baud_change=change_baud, allow_id_change=allow_id_change
+        )
+    return [report_of(plan, results.get(plan.servo_id)) for plan in plans]
+
+
+def print_done(report: dict[str, Any]) -> None:
+    """What a person needs to know after one servo's write: verified, and where it answers now."""
+    if not report["written"]:
+        return
+    sid, changes = report["id"], report["changes"]
+    out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified")
+    if "baud_rate" in changes:
+        new = changes["baud_rate"][1]
+        if report.get("answers_at_new_rate"):
+            out.print(f"it already answers at {new} baud: use --baud {new}")
+        else:
+            checked = f" (not checked: {report['new_rate_error']})" if report.get("new_rate_error") else ""
+            out.print(f"power-cycle the servo: from then on it talks only at {new} baud (use --baud {new}){checked}")
+    if "servo_id" in changes:
+        old, new = changes["servo_id"]
+        answers = report.get("answers_as", [])
+        if answers == [new]:
+            out.print(f"the servo now answers as ID {new}")
+        elif answers == [old]:
+            out.print(
+                f"the servo still answers as ID {old}: its EEPROM holds ID {new}, which it takes at its next power-up"
+            )
+        elif answers:
+            out.print(f"both ID {new} and ID {old} answer now; after a power-cycle only ID {new} should")
+        else:
+            out.print(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)")
+
+
+def print_reports(reports: list[dict[str, Any]], as_json: bool, *, bulk: bool = False) -> None:
+    if as_json:
+        emit_json({"servos": reports} if bulk else reports[0])
+        return
+    for report in reports:
+        print_done(report)

@@ -1,0 +1,278 @@
+"""scan and set-id: the library's scan and safe ID write, put in front of a person."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import click
+from rich import box
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+from rich.table import Table
+
+from .. import policies
+from ..errors import ReplyError
+from ..policies import FoundServo, IdSurvey, Refusal, ScanReport, echo_setting_wrong
+from ._common import (
+    ALL_BAUDS,
+    BAUD_LIST,
+    ID_LIST,
+    SERVO_ID,
+    CliError,
+    ExitCode,
+    Settings,
+    confirm,
+    emit_json,
+    err,
+    ids_text,
+    json_option,
+    nothing_answered,
+    out,
+    run,
+    settings_of,
+    translate,
+    yes_option,
+)
+from ._eeprom_view import baud_text, flag_names
+
+# --------------------------------------------------------------------------- scan
+
+
+async def scan_with_progress(
+    settings: Settings,
+    bauds: Sequence[int],
+    ids: Sequence[int],
+    *,
+    read_eeprom: bool,
+    timeout: float | None,
+    show_progress: bool,
+) -> ScanReport:
+    """The library's scan, opening the port at each rate, with a progress bar on a terminal."""
+    progress = Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        console=err,
+        transient=True,
+        disable=not show_progress or not err.is_terminal,
+    )
+    with progress:
+        task = progress.add_task(f"scanning {bauds[0]:>7} baud", total=len(bauds) * len(ids))
+        done = 0
+
+        def advance(n: int) -> None:
+            nonlocal done
+            done += n
+            rate = bauds[min(done // len(ids), len(bauds) - 1)]
+            progress.update(task, advance=n, description=f"scanning {rate:>7} baud")
+
+        return await policies.scan(
+            lambda baud: settings.bus(baud, timeout=timeout),
+            bauds=bauds,
+            ids=ids,
+            read_eeprom=read_eeprom,
+            on_probe=advance,
+        )
+
+
+def scan_table(servos: Sequence[FoundServo]) -> Table:
+    table = Table(
+        title="servos found", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
+    )
+    if all(s.eeprom is None for s in servos):
+        table.add_column("ID", justify="right")
+        table.add_column("baud", justify="right")
+        for s in servos:
+            table.add_row(str(s.servo_id), str(s.baud))
+        return table
+    for name in ("ID", "baud", "stretch", "speed", "I-limit", "T-limit", "pulse range", "offset"):
+        table.add_column(name, justify="right")
+    table.add_column("flags")
+    for s in servos:
+        e = s.eeprom
+        if e is None:
+            table.add_row(str(s.servo_id), str(s.baud), *["?"] * 6, "(EEPROM not read)")
+            continue
+        note = f" (EEPROM: {baud_text(e.baud_rate)})" if s.baud_pending else ""
+        table.add_row(
+            str(s.servo_id),
+            f"{s.baud}{note}",
+            str(e.stretch_gain),
+            str(e.speed),
+            str(e.current_limit),
+            str(e.temperature_limit),
+            f"{e.pulse_limit_low}-{e.pulse_limit_high}",
+            f"{e.user_offset:+d}",
+            flag_names(e.flags),
+        )
+    return table
+
+
+def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> None:
+    emit_json(
+        {
+            "port": settings.port,
+            "bauds": list(bauds),
+            "servos": [
+                {
+                    "id": s.servo_id,
+                    "baud": s.baud,
+                    "answered_at": list(s.answered_at),
+                    "eeprom": None if s.eeprom is None else s.eeprom.to_dict(),
+                }
+                for s in report.servos
+            ],
+            "garbled": [{"id": i, "baud": baud} for baud, i, _ in report.garbled],
+            "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
+        }
+    )
+
+
+def scan_notes(settings: Settings, report: ScanReport) -> None:
+    for baud, why in report.skipped.items():
+        err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
+    for s in report.servos:
+        if s.eeprom_error is not None:
+            err.print(
+                f"[yellow]warning:[/yellow] servo {s.servo_id} at {s.baud} baud: EEPROM read failed: "
+                f"{escape(str(s.eeprom_error))}"
+            )
+    if report.garbled and report.echo_evidence is None:
+        where = ", ".join(f"ID {i} at {baud}" for baud, i, _ in report.garbled)
+        err.print(
+            f"[yellow]warning:[/yellow] garbled replies from {where}: two servos sharing an ID, "
+            "a servo at another baud rate, or noise",
+            soft_wrap=True,
+        )
+    several = [s for s in report.servos if len(s.answered_at) > 1]
+    if several:
+        err.print(
+            f"[yellow]note:[/yellow] servo(s) {ids_text(s.servo_id for s in several)} answered at several baud rates: "
+            "this line does not enforce rates (a pty or a bridge); each is listed once, at the rate its EEPROM names",
+            soft_wrap=True,
+        )
+    if not report.servos:
+        return
+    by_baud: dict[int, int] = {}
+    for s in report.servos:
+        by_baud[s.baud] = by_baud.get(s.baud, 0) + 1
+    summary = ", ".join(f"{n} at {b} baud" for b, n in by_baud.items())
+    out.print(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}")
+    if len(by_baud) > 1:
+        err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")
+
+
+@click.command()
+@click.option(
+    "--bauds",
+    type=BAUD_LIST,
+    default=",".join(map(str, ALL_BAUDS)),
+    show_default=True,
+    help="Baud rates to try, comma-separated.",
+)
+@click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help="IDs to try, e.g. 0-7 or 1,3,5.")
+@click.option(
+    "--timeout",
+    type=click.FloatRange(0.001, 5.0),
+    default=None,
+    help="Reply allowance per probe in seconds (default: the global --timeout).",
+)
+@click.option("--quick", is_flag=True, help="Do not read each servo's EEPROM.")
+@json_option
+@click.pass_context
+def scan(
+    ctx: click.Context, bauds: list[int], ids: list[int], timeout: float | None, quick: bool, as_json: bool
+) -> int:
+    """Find servos: try every baud rate x every ID (reopening the port at each rate).
+
+    Sends only harmless reads: an ID read per rate (a rate where nothing answers
+    it is done), then a stretch read per ID, then each servo's EEPROM.  A servo
+    that answers at several rates is listed once, at the rate its EEPROM names.
+    Exit code 4 when nothing answers.
+    """
+    settings = settings_of(ctx)
+    report = run(
+        settings,
+        lambda: scan_with_progress(
+            settings, bauds, ids, read_eeprom=not quick, timeout=timeout, show_progress=not as_json
+        ),
+    )
+    if as_json:
+        scan_json(settings, bauds, report)
+    else:
+        if report.servos:
+            out.print(scan_table(report.servos))
+        scan_notes(settings, report)
+    if not report.servos:
+        evidence = report.echo_evidence
+        if evidence is not None:
+            raise translate(settings, evidence)  # the same diagnosis `get` gives
+        scanned = [b for b in bauds if b not in report.skipped]
+        where = f"{settings.port} at {', '.join(map(str, scanned))} baud"
+        raise nothing_answered(settings, where, silent=report.silent)
+    return 0
+
+
+# --------------------------------------------------------------------------- set-id
+
+_REFUSAL_HINTS = {
+    Refusal.GARBLED: "connect only the servo to renumber, then retry",
+    Refusal.SEVERAL: "disconnect every servo but the one to renumber, then retry",
+    Refusal.ID_READ: "disconnect every device but the servo to renumber",
+}
+
+
+def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> int:
+    """The lone servo's ID, or the CliError that says why there is none."""
+    errors: list[ReplyError] = [*survey.garbled.values()]
+    if survey.id_read_error is not None:
+        errors.insert(0, survey.id_read_error)
+    for exc in errors:
+        if echo_setting_wrong(exc, settings.echo):
+            raise translate(settings, exc)  # the same diagnosis `get` gives
+    refusal = survey.refusal
+    if refusal is Refusal.NOBODY:
+        raise nothing_answered(settings, f"{settings.port} at {settings.baud} baud", silent=survey.silent)
+    if refusal is not None:
+        raise CliError(ExitCode.REFUSED, f"{survey.reason(new_id)}. Nothing was written", _REFUSAL_HINTS[refusal])
+    assert survey.lone_id is not None
+    return survey.lone_id
+
+
+@click.command(name="set-id")
+@click.argument("new_id", metavar="NEW", type=SERVO_ID)
+@yes_option
+@json_option
+@click.pass_context
+def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
+    """Give the ONLY servo on the line the ID NEW (stored in its EEPROM).
+
+    The ID command renames every device that hears it, so this first proves
+    that exactly one device is on the line (an ID read, then a stretch read per
+    ID) and refuses otherwise.
+    """
+    settings = settings_of(ctx)
+
+    async def body() -> tuple[int, int]:
+        async with settings.bus() as bus:
+            survey = await policies.survey_for_id_write(bus)
+            old = refuse_unless_alone(settings, survey, new_id)
+            if old == new_id:
+                return old, new_id
+            if not as_json:
+                out.print(f"one servo on the line: ID {old}")
+            confirm(f"Change servo ID {old} -> {new_id} (stored in its EEPROM)?", yes)
+            await policies.write_lone_id(bus, new_id, survey=survey)
+            return old, new_id
+
+    old, new = run(settings, body)
+    if as_json:
+        emit_json({"old": old, "new": new, "changed": old != new})
+    elif old == new:
+        out.print(f"servo already has ID {new}: nothing written")
+    else:
+        out.print(f"servo ID {old} -> {new}: done (verified: ID {new} answers)")
+    return 0
+
+
+COMMANDS = [scan, set_id]

@@ -1,0 +1,46 @@
+"""The line's policies: finding servos, renumbering the only one, changing an EEPROM safely.
+
+They sit above the bus and use only its public surface (:class:`~.line.Line`),
+so library users get the same rules the ``ics35`` command follows.
+"""
+
+from __future__ import annotations
+
+from .eeprom_write import (
+    EepromPlan,
+    EepromWriteResult,
+    check_changes,
+    edit_image,
+    plan_eeprom_write,
+    write_eeprom_plan,
+)
+from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
+from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
+from .scan import ALL_BAUDS, ALL_IDS, FoundServo, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
+
+__all__ = [
+    "ALL_BAUDS",
+    "ALL_IDS",
+    "EepromPlan",
+    "EepromWriteResult",
+    "FoundServo",
+    "IdChange",
+    "IdSurvey",
+    "Line",
+    "LineOpener",
+    "RateScan",
+    "Refusal",
+    "ScanReport",
+    "anyone_there",
+    "check_changes",
+    "echo_setting_wrong",
+    "edit_image",
+    "nothing_came_back",
+    "plan_eeprom_write",
+    "probe_ids",
+    "scan",
+    "servo_rates",
+    "survey_for_id_write",
+    "write_eeprom_plan",
+    "write_lone_id",
+]

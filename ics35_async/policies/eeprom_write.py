@@ -1,0 +1,249 @@
+"""Changing a servo's EEPROM safely: plan from its own image, write only what was asked, verify.
+
+The rules, in order:
+
+* the new image is the servo's own image with the requested fields changed
+  (``Eeprom.replace`` checks each), so the factory calibration bytes stay the
+  servo's;
+* the read-only flags (FREE, PCM) report the servo's state: they stay as the
+  servo has them whatever a ``flags`` value says, and naming them in a flag
+  edit is refused;
+* the ID and the baud rate change only when the caller allows it, and an ID
+  change is refused when the new ID already answers (two servos with one ID
+  garble every reply);
+* right before writing, the image is read again and must still be the one
+  planned from; after writing it is read back and compared.  After an ID
+  change both IDs are probed (the reference does not say when a new ID takes
+  effect); after a baud change the servo is also asked at the new rate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .. import protocol
+from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
+from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
+from ..protocol import Param
+from ..units import check_int
+from .line import Line
+
+NO_FLAGS = Flags(0)
+
+
+def _check_flag_edit(set_flags: int, clear_flags: int) -> None:
+    for what, value in (("set_flags", set_flags), ("clear_flags", clear_flags)):
+        check_int(what, value, 0, 0xFF)
+        if value & READ_ONLY_FLAGS:
+            names = "|".join(f.name or "" for f in Flags if f in Flags(value & READ_ONLY_FLAGS))
+            raise InvalidArgument(f"{names}: the FREE and PCM flags are read-only (they report the servo's state)")
+    both = set_flags & clear_flags
+    if both:
+        raise InvalidArgument(f"flag(s) {Flags(both)!r} both set and cleared")
+
+
+def edit_image(
+    current: Eeprom,
+    changes: Mapping[str, Any],
+    *,
+    set_flags: int = NO_FLAGS,
+    clear_flags: int = NO_FLAGS,
+) -> Eeprom:
+    """``current`` with ``changes`` applied, then ``set_flags`` set and ``clear_flags`` cleared.
+
+    A ``flags`` value replaces the writable flags only: the read-only ones
+    stay as ``current`` has them.  Every value is checked (InvalidArgument).
+    """
+    _check_flag_edit(set_flags, clear_flags)
+    fields = dict(changes)
+    if "flags" in fields or set_flags or clear_flags:
+        flags = fields.get("flags", int(current.flags))
+        if isinstance(flags, bool) or not isinstance(flags, int):
+            raise InvalidArgument(f"flags must be Flags or an int, not {type(flags).__name__}")
+        check_int("flags", flags, 0, 0xFF)
+        flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
+        fields["flags"] = (flags | set_flags) & ~clear_flags
+    return current.replace(**fields)
+
+
+def check_changes(changes: Mapping[str, Any], *, set_flags: int = NO_FLAGS, clear_flags: int = NO_FLAGS) -> None:
+    """Check values before any port opens (against a factory image; limits are checked again on the servo's)."""
+    edit_image(Eeprom.factory(), changes, set_flags=set_flags, clear_flags=clear_flags)
+
+
+@dataclass(frozen=True)
+class EepromPlan:
+    """A checked EEPROM change for one servo, not yet written."""
+
+    servo_id: int  # the ID the servo answers at now
+    baud: int  # the rate it answers at now
+    before: Eeprom
+    after: Eeprom
+    id_taken: bool = False  # the new ID already answers on this line
+
+    @property
+    def diff(self) -> dict[str, tuple[Any, Any]]:
+        return self.before.diff(self.after)
+
+    @property
+    def changes_baud(self) -> bool:
+        return self.after.baud_rate != self.before.baud_rate
+
+    @property
+    def changes_id(self) -> bool:
+        return self.after.servo_id != self.before.servo_id
+
+    @property
+    def cleared_flags(self) -> Flags:
+        """Flags the servo has now and loses with this write."""
+        return Flags(self.before.flags & ~self.after.flags & ~READ_ONLY_FLAGS)
+
+    @property
+    def added_flags(self) -> Flags:
+        return Flags(self.after.flags & ~self.before.flags & ~READ_ONLY_FLAGS)
+
+    def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
+        """Why this write must not happen ("" / None: it may)."""
+        if self.after.calibration != self.before.calibration:
+            return f"servo {self.servo_id}: the image's factory calibration bytes differ from the servo's"
+        if self.changes_baud and not allow_baud_change:
+            return (
+                f"servo {self.servo_id}: the write changes the baud rate from {int(self.before.baud_rate)} to "
+                f"{int(self.after.baud_rate)}, after which it answers only at the new rate"
+            )
+        if self.changes_id and not allow_id_change:
+            return f"servo {self.servo_id}: the write changes its ID to {self.after.servo_id}"
+        if self.changes_id and self.id_taken:
+            return f"ID {self.after.servo_id} already answers on this line; two servos with one ID garble every reply"
+        return None
+
+
+async def _answers(line: Line, servo_id: int) -> bool:
+    try:
+        await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
+    except ReplyError:
+        return False
+    return True
+
+
+async def plan_eeprom_write(
+    line: Line,
+    servo_id: int,
+    changes: Mapping[str, Any],
+    *,
+    set_flags: int = NO_FLAGS,
+    clear_flags: int = NO_FLAGS,
+) -> EepromPlan:
+    """Read servo ``servo_id``'s image and build the change (see :func:`edit_image`); nothing is written.
+
+    When the change gives the servo a new ID, that ID is probed first
+    (``id_taken``).
+    """
+    protocol.check_id(servo_id)
+    check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
+    before = await line.request(protocol.ReadEeprom(servo_id))
+    after = edit_image(before, changes, set_flags=set_flags, clear_flags=clear_flags)
+    taken = after.servo_id not in (before.servo_id, servo_id) and await _answers(line, after.servo_id)
+    return EepromPlan(servo_id, int(line.baudrate), before, after, id_taken=taken)
+
+
+@dataclass(frozen=True)
+class EepromWriteResult:
+    """What happened to a planned EEPROM write."""
+
+    plan: EepromPlan
+    written: bool  # False: the image already matched, nothing was sent
+    acknowledged: bool = False  # the servo answered the write itself
+    read_back: Eeprom | None = None  # the image read after the write
+    answering_ids: tuple[int, ...] = ()  # after an ID change: which of the new and old IDs answer now
+    new_rate_answers: bool | None = None  # after a baud change: it answered at the new rate at once
+    new_rate_error: str | None = None  # the port could not be reopened at the new rate
+
+    @property
+    def verified(self) -> bool:
+        return self.read_back is not None and self.read_back == self.plan.after
+
+
+async def _read_image(line: Line, servo_id: int) -> Eeprom | None:
+    try:
+        return await line.request(protocol.ReadEeprom(servo_id))
+    except ReplyError:
+        return None
+
+
+async def write_eeprom_plan(
+    line: Line,
+    plan: EepromPlan,
+    *,
+    allow_baud_change: bool = False,
+    allow_id_change: bool = False,
+) -> EepromWriteResult:
+    """Write ``plan`` (after the checks of :meth:`EepromPlan.refusal`) and verify it by reading back.
+
+    Raises UnsafeOperation (nothing written) when refused or when the servo's
+    image changed since the plan; VerifyError when the image read back
+    differs or the servo answers neither at its old nor its new ID / rate.
+    """
+    reason = plan.refusal(allow_baud_change=allow_baud_change, allow_id_change=allow_id_change)
+    if reason:
+        raise UnsafeOperation(f"{reason}; nothing was written")
+    if not plan.diff:
+        return EepromWriteResult(plan, written=False, read_back=plan.before)
+    now = await line.request(protocol.ReadEeprom(plan.servo_id))
+    if now != plan.before:
+        raise UnsafeOperation(
+            f"servo {plan.servo_id}'s EEPROM changed since it was read ({now.diff(plan.before)}); nothing was written"
+        )
+    acknowledged = True
+    try:
+        await line.request(protocol.WriteEeprom(plan.servo_id, plan.after))
+    except ReplyTimeout:
+        # A servo may take a new ID or rate before acknowledging; the read-back decides.
+        if not (plan.changes_id or plan.changes_baud):
+            raise
+        acknowledged = False
+    ids = (plan.after.servo_id, plan.servo_id) if plan.changes_id else (plan.servo_id,)
+    answering, read_back = await _ask(line, ids)
+    new_rate_answers: bool | None = None
+    new_rate_error: str | None = None
+    if plan.changes_baud:
+        new_rate_answers, at_new, new_rate_error = await _ask_at(line, int(plan.after.baud_rate), ids)
+        read_back = read_back if read_back is not None else at_new
+    result = EepromWriteResult(
+        plan, True, acknowledged, read_back, answering if plan.changes_id else (), new_rate_answers, new_rate_error
+    )
+    if read_back is None:
+        where = " or ".join(f"ID {i}" for i in ids)
+        rates = f" at {plan.baud} or {int(plan.after.baud_rate)} baud" if plan.changes_baud else ""
+        raise VerifyError(f"after the EEPROM write servo {plan.servo_id} answers as neither {where}{rates}")
+    if read_back != plan.after:
+        raise VerifyError(f"servo {plan.servo_id}: EEPROM read back differs: {read_back.diff(plan.after)}")
+    return result
+
+
+async def _ask(line: Line, ids: tuple[int, ...]) -> tuple[tuple[int, ...], Eeprom | None]:
+    """Which of ``ids`` answer an EEPROM read, and the first image read."""
+    answering: list[int] = []
+    first: Eeprom | None = None
+    for i in ids:
+        image = await _read_image(line, i)
+        if image is not None:
+            answering.append(i)
+            first = image if first is None else first
+    return tuple(answering), first
+
+
+async def _ask_at(line: Line, baud: int, ids: tuple[int, ...]) -> tuple[bool | None, Eeprom | None, str | None]:
+    """Ask ``ids`` at another rate, then return the line to its own rate."""
+    home = int(line.baudrate)
+    try:
+        await line.reopen(baudrate=int(BaudRate.parse(baud)))
+    except (IcsError, OSError) as exc:
+        return None, None, str(exc)
+    try:
+        answering, image = await _ask(line, ids)
+    finally:
+        await line.reopen(baudrate=home)
+    return bool(answering), image, None

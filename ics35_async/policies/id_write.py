@@ -1,0 +1,141 @@
+"""Renumbering the one servo on a line: prove it is alone, cheaply, then write and verify.
+
+The ID command renames every device that hears it, so an ID write is safe
+only with exactly one device on the line.  The proof, in 33 transactions:
+
+1. an ID read, which every device at this rate answers: silence means nobody
+   is there (one transaction, nothing more to do); a garbled answer means
+   several devices answered at once;
+2. one stretch read per ID (32): exactly one ID may answer, none garbled,
+   and it must be the ID the ID read reported.  The ID read alone is not
+   enough: two replies pulled onto one wire can combine into a clean-looking
+   third ID (a wired AND of 0xE1 and 0xE3 reads 0xE1).
+
+Then the write (1) and a stretch read at the new ID (1): 35 in all.  Silent
+IDs are probed once each; the bus already waits out each one's allowance.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from .. import protocol
+from ..errors import ReplyError, UnsafeOperation, VerifyError
+from ..protocol import Param
+from .line import Line, nothing_came_back
+from .scan import ALL_IDS, probe_ids
+
+
+class Refusal(enum.Enum):
+    """Why an ID write is not safe on this line."""
+
+    NOBODY = "nobody"  # no device answered
+    GARBLED = "garbled"  # some ID answered garbled: two servos sharing it, most likely
+    SEVERAL = "several"  # more than one ID answered
+    ID_READ = "id_read"  # the ID read came back garbled or names another ID
+
+
+@dataclass(frozen=True)
+class IdSurvey:
+    """What the line showed before an ID write."""
+
+    baud: int
+    id_read: int | None  # the ID read's answer; None when it failed
+    id_read_error: ReplyError | None = None
+    answered: tuple[int, ...] = ()  # IDs answering a stretch read
+    garbled: Mapping[int, ReplyError] = field(default_factory=dict)
+    silent: bool = False  # not one byte came back, not even the echo
+
+    @property
+    def refusal(self) -> Refusal | None:
+        quiet_id_read = self.id_read_error is None or nothing_came_back(self.id_read_error)
+        if not self.answered and not self.garbled and self.id_read is None and quiet_id_read:
+            return Refusal.NOBODY
+        if self.garbled:
+            return Refusal.GARBLED
+        if len(self.answered) > 1:
+            return Refusal.SEVERAL
+        if not self.answered or self.id_read != self.answered[0]:
+            return Refusal.ID_READ
+        return None
+
+    @property
+    def lone_id(self) -> int | None:
+        """The ID of the only device on the line, when that is proven."""
+        return self.answered[0] if self.refusal is None else None
+
+    def reason(self, new_id: int | None = None) -> str:
+        """Why the write is refused, for a person ("" when it is safe)."""
+        refusal = self.refusal
+        ids = ", ".join(map(str, self.answered))
+        if refusal is Refusal.NOBODY:
+            return f"no device answered at {self.baud} baud"
+        if refusal is Refusal.GARBLED:
+            shared = ", ".join(map(str, sorted(self.garbled)))
+            return f"garbled replies from ID(s) {shared}: probably two servos sharing an ID"
+        if refusal is Refusal.SEVERAL:
+            target = "the same ID" if new_id is None else f"ID {new_id}"
+            return f"{len(self.answered)} servos answer (IDs {ids}): an ID write would give ALL of them {target}"
+        if refusal is Refusal.ID_READ:
+            if self.id_read is None:
+                return f"the ID command got a garbled answer ({self.id_read_error}): another device is on the line"
+            if not self.answered:
+                return f"the ID command reports ID {self.id_read}, but no ID answers a stretch read"
+            return f"servo {ids} answers, but the ID command reports ID {self.id_read}: another device is on the line"
+        return ""
+
+
+@dataclass(frozen=True)
+class IdChange:
+    """The outcome of an ID write."""
+
+    old_id: int
+    new_id: int
+    written: bool  # False: the servo already had the ID
+
+
+async def _read_id(line: Line) -> tuple[int | None, ReplyError | None]:
+    try:
+        return await line.request(protocol.ReadId(), retries=0), None
+    except ReplyError as exc:
+        return None, exc
+
+
+async def survey_for_id_write(line: Line) -> IdSurvey:
+    """Find out, in at most 34 transactions, whether exactly one device is on the line."""
+    rx_before = line.stats.total.bytes_rx
+    seen, error = await _read_id(line)
+    baud = int(line.baudrate)
+    if error is not None and nothing_came_back(error):
+        return IdSurvey(baud, None, error, silent=line.stats.total.bytes_rx == rx_before)
+    rate = await probe_ids(line, ALL_IDS, id_read_first=False)
+    if seen is None and len(rate.answered) == 1 and not rate.garbled:
+        # One servo answers alone: the garbled ID read may have been noise.  Ask once more.
+        seen, error = await _read_id(line)
+    return IdSurvey(baud, seen, error, rate.answered, rate.garbled, line.stats.total.bytes_rx == rx_before)
+
+
+async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = None) -> IdChange:
+    """Give the only device on the line the ID ``new_id`` (stored in its EEPROM), then check it answers.
+
+    ``survey`` (from :func:`survey_for_id_write`, e.g. shown to a person
+    before confirming) saves proving it again.  Raises UnsafeOperation,
+    writing nothing, unless exactly one device is proven on the line; raises
+    VerifyError if the new ID does not answer after the write.
+    """
+    protocol.check_id(new_id)
+    if survey is None:
+        survey = await survey_for_id_write(line)
+    old_id = survey.lone_id
+    if old_id is None:
+        raise UnsafeOperation(f"{survey.reason(new_id)}; an ID write needs exactly one device; nothing was written")
+    if old_id == new_id:
+        return IdChange(old_id, new_id, written=False)
+    await line.request(protocol.WriteId(new_id), retries=0)
+    try:
+        await line.request(protocol.ReadParam(new_id, Param.STRETCH))
+    except ReplyError as exc:
+        raise VerifyError(f"the servo acknowledged ID {new_id}, but ID {new_id} does not answer: {exc}") from exc
+    return IdChange(old_id, new_id, written=True)

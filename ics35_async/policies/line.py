@@ -1,0 +1,65 @@
+"""What the policies need from a line: a small protocol the bus facade satisfies.
+
+The policies sit above the bus and use only its public surface, so they
+survive a rewrite of the core and can be driven by any object with these
+members (``Bus`` from :func:`ics35_async.open_bus` is the usual one).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import AbstractAsyncContextManager
+from typing import Protocol, TypeVar
+
+from ..errors import EchoMismatch, ReplyError, ReplyTimeout
+from ..protocol import Command
+from ..stats import BusStats
+
+T = TypeVar("T")
+
+
+class Line(Protocol):
+    """An open ICS line: one transaction at a time, with counters."""
+
+    @property
+    def baudrate(self) -> int: ...
+
+    @property
+    def echo(self) -> bool: ...
+
+    @property
+    def stats(self) -> BusStats: ...
+
+    async def request(self, command: Command[T], *, retries: int | None = None) -> T: ...
+
+    async def reopen(self, *, baudrate: int | None = None) -> None: ...
+
+
+# A not-yet-open line at the given baud rate, used as ``async with open_at(baud) as line``
+# (``lambda baud: open_bus(port, baudrate=baud)``).  Scans take this rather than one open
+# line because a rate the adapter cannot do must not cost the line for the other rates.
+LineOpener = Callable[[int], AbstractAsyncContextManager[Line]]
+
+
+def nothing_came_back(exc: ReplyError) -> bool:
+    """Whether a failed transaction is plain silence: no reply byte (the echo alone may have come).
+
+    The bus raises :class:`ReplyTimeout` only then; a reply cut short is a
+    ``PartialReply`` and an echo that came back changed an ``EchoMismatch``.
+    """
+    return isinstance(exc, ReplyTimeout)
+
+
+def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
+    """Whether ``exc`` shows that the line's echo setting does not match the interface.
+
+    Every command byte has its most significant bit set and almost every reply
+    header has it clear, so the first byte back tells an echo from a reply:
+    expecting an echo and getting a reply first means the interface does not
+    loop TX back; expecting none and getting a command byte first means it does.
+    """
+    if not exc.raw:
+        return False
+    if echo:
+        return isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80
+    return exc.raw[0] >= 0x80

@@ -1,0 +1,305 @@
+"""Finding servos: which IDs answer at which baud rates, told apart from garbled replies.
+
+A probe is a stretch *read* (harmless: it moves nothing).  Each ID is probed
+once: the bus already waits out a silent ID's allowance, so a policy-level
+retry would only double the cost of every empty slot.  Only an ID whose reply
+came back garbled is probed again, to tell noise (answers the second time)
+from two servos sharing the ID (garbled again).
+
+Before probing a rate's IDs one by one, an ID *read* (which every device at
+that rate answers) asks whether anyone is there at all: a rate where nothing
+answers costs one transaction instead of one per ID.
+
+On a line that does not enforce baud rates (a pty, some bridges) a servo
+answers at every rate.  Its EEPROM names its real rate, and the per-unit
+calibration bytes tell one servo heard at several rates from several servos,
+so each servo is listed once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from .. import protocol
+from ..eeprom import BaudRate, Eeprom
+from ..errors import InvalidArgument, ReplyError
+from ..protocol import Param
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
+
+ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
+ALL_IDS: tuple[int, ...] = tuple(range(32))
+
+# Below this many IDs the ID read's longer allowance costs more than the probes it can save.
+ID_READ_MIN_IDS = 8
+
+ProbeCallback = Callable[[int], None]  # called with the number of IDs just finished
+
+
+@dataclass(frozen=True)
+class RateScan:
+    """What probing some IDs at one baud rate found."""
+
+    baud: int
+    answered: tuple[int, ...] = ()
+    garbled: Mapping[int, ReplyError] = field(default_factory=dict)  # ID -> the error of its last probe
+    silent: bool = False  # not one byte came back at this rate, not even the echo of what was sent
+    nobody: bool = False  # nothing answered the ID read, so no ID was probed one by one
+    echo_evidence: ReplyError | None = None  # an error showing the line's echo setting is wrong
+
+
+@dataclass(frozen=True)
+class FoundServo:
+    """One servo a scan found, listed once."""
+
+    servo_id: int
+    baud: int  # the rate it is listed at: its EEPROM's rate when it answered at several
+    eeprom: Eeprom | None = None  # None: not read (quick scan) or the read failed
+    answered_at: tuple[int, ...] = ()  # every rate it answered at (several: the line ignores rates)
+    eeprom_error: ReplyError | None = None
+
+    @property
+    def eeprom_baud(self) -> int | None:
+        return None if self.eeprom is None else int(self.eeprom.baud_rate)
+
+    @property
+    def baud_pending(self) -> bool:
+        """Its EEPROM names another rate: a baud change that takes effect at its next power-up."""
+        return self.eeprom is not None and int(self.eeprom.baud_rate) != self.baud
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """What a scan over several baud rates found."""
+
+    servos: tuple[FoundServo, ...]
+    rates: tuple[RateScan, ...]  # the rates probed, in order
+    skipped: Mapping[int, str] = field(default_factory=dict)  # baud -> why the port would not open at it
+
+    @property
+    def garbled(self) -> list[tuple[int, int, ReplyError]]:
+        """(baud, ID, error) of every probe that stayed garbled."""
+        return [(r.baud, i, e) for r in self.rates for i, e in sorted(r.garbled.items())]
+
+    @property
+    def silent(self) -> bool:
+        """Nothing came back at any rate probed, not even an echo: the adapter or its wiring."""
+        return bool(self.rates) and all(r.silent for r in self.rates)
+
+    @property
+    def echo_evidence(self) -> ReplyError | None:
+        """An error showing that the echo setting is wrong for this interface, if any."""
+        return next((r.echo_evidence for r in self.rates if r.echo_evidence is not None), None)
+
+
+def _done(on_probe: ProbeCallback | None, n: int) -> None:
+    if on_probe is not None and n:
+        on_probe(n)
+
+
+async def _probe(line: Line, servo_id: int) -> ReplyError | None:
+    try:
+        await line.request(protocol.ReadParam(servo_id, Param.STRETCH), retries=0)
+    except ReplyError as exc:
+        return exc
+    return None
+
+
+async def _id_read(line: Line) -> ReplyError | None:
+    try:
+        await line.request(protocol.ReadId(), retries=0)
+    except ReplyError as exc:
+        return exc
+    return None
+
+
+async def anyone_there(line: Line) -> bool:
+    """Whether any device at the line's rate answers an ID read (garbled counts: several answer)."""
+    error = await _id_read(line)
+    return error is None or not nothing_came_back(error)
+
+
+async def probe_ids(
+    line: Line,
+    ids: Iterable[int] = ALL_IDS,
+    *,
+    id_read_first: bool | None = None,
+    on_probe: ProbeCallback | None = None,
+) -> RateScan:
+    """Probe ``ids`` at the line's current rate: which answer, which answer garbled.
+
+    ``id_read_first`` (default: when 8 or more IDs are probed) first asks the
+    whole line with an ID read and probes no ID when nothing answers it.
+    """
+    wanted = [protocol.check_id(i) for i in ids]
+    rx_before = line.stats.total.bytes_rx
+    if id_read_first is None:
+        id_read_first = len(wanted) >= ID_READ_MIN_IDS
+    if id_read_first:
+        error = await _id_read(line)
+        nobody = error is not None and nothing_came_back(error)
+        if nobody or (error is not None and echo_setting_wrong(error, line.echo)):
+            # Nobody there, or every probe would fail the same way: the echo setting is wrong.
+            _done(on_probe, len(wanted))
+            silent = line.stats.total.bytes_rx == rx_before
+            return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
+
+    async def probe(i: int) -> ReplyError | None:
+        outcome = await _probe(line, i)
+        _done(on_probe, 1)
+        return outcome
+
+    # All queued at once: the line runs them back to back in this order.
+    outcomes = dict(zip(wanted, await asyncio.gather(*(probe(i) for i in wanted)), strict=True))
+    garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
+    evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
+    if garbled and evidence is None:
+        # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
+        for i in sorted(garbled):
+            outcomes[i] = await _probe(line, i)
+        garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
+    return RateScan(
+        int(line.baudrate),
+        answered=tuple(i for i, e in outcomes.items() if e is None),
+        garbled=garbled,
+        silent=line.stats.total.bytes_rx == rx_before,
+        echo_evidence=evidence,
+    )
+
+
+async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
+    try:
+        return await line.request(protocol.ReadEeprom(servo_id))
+    except ReplyError as exc:
+        return exc
+
+
+def _check_bauds(bauds: Iterable[int]) -> list[int]:
+    checked: list[int] = []
+    for baud in bauds:
+        value = int(BaudRate.parse(baud))
+        if value not in checked:
+            checked.append(value)
+    if not checked:
+        raise InvalidArgument("no baud rate to scan")
+    return checked
+
+
+async def _open_or_skip(
+    stack: contextlib.AsyncExitStack, open_at: LineOpener, baud: int, skipped: dict[int, str]
+) -> Line | None:
+    """The line at ``baud`` (closed with ``stack``), or None and the reason in ``skipped``
+    when the adapter cannot do that rate."""
+    try:
+        return await stack.enter_async_context(open_at(baud))
+    except (PortNotFound, PortPermissionDenied, PortBusy):
+        raise  # the same at every rate: the caller reports it
+    except (InvalidArgument, SerialPortError) as exc:
+        skipped[baud] = str(exc)
+        return None
+
+
+async def scan(
+    open_at: LineOpener,
+    *,
+    bauds: Iterable[int] = ALL_BAUDS,
+    ids: Iterable[int] = ALL_IDS,
+    read_eeprom: bool = True,
+    on_probe: ProbeCallback | None = None,
+) -> ScanReport:
+    """Probe ``ids`` at each of ``bauds``, opening the line at each rate with ``open_at(baud)``.
+
+    With ``read_eeprom`` every servo found has its EEPROM read; without it,
+    only servos answering at several rates do (their EEPROM says which is
+    theirs).  A rate the port cannot be opened at is skipped (``skipped``);
+    a missing port, a denied permission or a busy port raises.
+    """
+    rates_wanted = _check_bauds(bauds)
+    wanted = [protocol.check_id(i) for i in ids]
+    rates: list[RateScan] = []
+    skipped: dict[int, str] = {}
+    images: dict[tuple[int, int], Eeprom | ReplyError] = {}
+    for baud in rates_wanted:
+        async with contextlib.AsyncExitStack() as stack:
+            line = await _open_or_skip(stack, open_at, baud, skipped)
+            if line is None:
+                _done(on_probe, len(wanted))
+                continue
+            rate = await probe_ids(line, wanted, on_probe=on_probe)
+            rates.append(rate)
+            if read_eeprom:
+                for i in rate.answered:
+                    images[(baud, i)] = await _read_eeprom(line, i)
+    hits: dict[int, list[int]] = {}
+    for rate in rates:
+        for i in rate.answered:
+            hits.setdefault(i, []).append(rate.baud)
+    await _read_missing_images(open_at, hits, images)
+    servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images)]
+    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), skipped)
+
+
+async def _read_missing_images(
+    open_at: LineOpener, hits: Mapping[int, Sequence[int]], images: dict[tuple[int, int], Eeprom | ReplyError]
+) -> None:
+    """Read the EEPROM wherever an ID answered at several rates and it is not read yet."""
+    todo: dict[int, list[int]] = {}
+    for i, at in hits.items():
+        if len(at) > 1:
+            for baud in at:
+                if (baud, i) not in images:
+                    todo.setdefault(baud, []).append(i)
+    for baud, servo_ids in todo.items():
+        async with open_at(baud) as line:
+            for i in servo_ids:
+                images[(baud, i)] = await _read_eeprom(line, i)
+
+
+def _servos_of(
+    servo_id: int, at: Sequence[int], images: Mapping[tuple[int, int], Eeprom | ReplyError]
+) -> list[FoundServo]:
+    """The servos behind one ID's answers: one per distinct EEPROM image (calibration differs per unit)."""
+    groups: dict[bytes | int, list[int]] = {}
+    for baud in at:
+        image = images.get((baud, servo_id))
+        # An unread image cannot be matched with another: a rate of its own.
+        key: bytes | int = image.to_bytes() if isinstance(image, Eeprom) else baud
+        groups.setdefault(key, []).append(baud)
+    found = []
+    for group in groups.values():
+        image = images.get((group[0], servo_id))
+        eeprom = image if isinstance(image, Eeprom) else None
+        listed = group[0]
+        if eeprom is not None and int(eeprom.baud_rate) in group:
+            listed = int(eeprom.baud_rate)
+        error = image if isinstance(image, ReplyError) else None
+        found.append(FoundServo(servo_id, listed, eeprom, tuple(group), error))
+    return found
+
+
+async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) -> tuple[int, ...]:
+    """The rates among ``bauds`` at which ``servo_id`` answers and its EEPROM names that rate.
+
+    For advice after a servo did not answer: a rate is offered only when the
+    servo's own EEPROM agrees with it, never one its EEPROM contradicts (on a
+    line that ignores rates a servo answers at all of them).
+    """
+    protocol.check_id(servo_id)
+    found: list[int] = []
+    skipped: dict[int, str] = {}
+    for baud in _check_bauds(bauds):
+        async with contextlib.AsyncExitStack() as stack:
+            line = await _open_or_skip(stack, open_at, baud, skipped)
+            if line is None:
+                continue
+            try:
+                await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
+            except ReplyError:
+                continue
+            image = await _read_eeprom(line, servo_id)
+            if isinstance(image, Eeprom) and int(image.baud_rate) == baud:
+                found.append(baud)
+    return tuple(found)

@@ -1,0 +1,61 @@
+"""`ics35 scan` and `set-id` as real processes on the pty simulator, including a line that ignores baud rates."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import pytest
+
+from ics35_async.sim import serving
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+
+LINE = ["--timeout", "0.015", "--retries", "1"]
+
+
+def ics35(port: str, *args: str) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", port, *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "100"},
+    )
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+@pytest.fixture(scope="module")
+def rate_blind_port() -> Iterator[str]:
+    """Three servos at 115200 on a pty whose line runs at 115200 whatever the client sets."""
+    with serving(["--ids", "2,5,17", "--fixed-baud"]) as path:
+        yield path
+
+
+@pytest.fixture
+def lone_servo_port() -> Iterator[str]:
+    with serving(["--ids", "0"]) as path:
+        yield path
+
+
+def test_scan_lists_each_servo_once_when_the_line_ignores_rates(rate_blind_port: str) -> None:
+    proc = ics35(rate_blind_port, *LINE, "scan", "--quick", "--json")
+    assert proc.returncode == 0, proc.stderr
+    servos = json.loads(proc.stdout)["servos"]
+    assert [(s["id"], s["baud"]) for s in servos] == [(2, 115200), (5, 115200), (17, 115200)]
+    assert all(s["answered_at"] == [115200, 625000, 1250000] for s in servos)
+
+
+def test_set_id_refuses_several_servos_and_renumbers_a_lone_one(rate_blind_port: str, lone_servo_port: str) -> None:
+    proc = ics35(rate_blind_port, *LINE, "set-id", "9", "--yes")
+    assert proc.returncode == 5 and "IDs 2, 5, 17" in proc.stderr
+
+    proc = ics35(lone_servo_port, *LINE, "set-id", "9", "--yes", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == {"old": 0, "new": 9, "changed": True}
+    proc = ics35(lone_servo_port, *LINE, "scan", "--bauds", "115200", "--quick", "--json")
+    assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [9]

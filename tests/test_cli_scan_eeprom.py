@@ -1,0 +1,289 @@
+"""`ics35 scan`, `set-id` and `eeprom`: the new user's findings (issue 14), in-process, on named simulators."""
+
+from __future__ import annotations
+
+import io
+import json
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import ExitCode, main
+from ics35_async.eeprom import BaudRate, Eeprom, Flags
+from ics35_async.sim import SimBus, VirtualServo
+
+
+class Result:
+    def __init__(self, code: int, out: str, err: str) -> None:
+        self.code = code
+        self.out = out
+        self.err = err
+
+    def json(self) -> Any:
+        return json.loads(self.out)
+
+
+@pytest.fixture
+def ics35(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Any:
+    """Run ``ics35 ARGS...`` in-process; optional ``stdin`` text."""
+
+    def invoke(*args: str, stdin: str = "") -> Result:
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            main(list(args))
+        captured = capsys.readouterr()
+        code = exited.value.code
+        result = Result(code if isinstance(code, int) else 1, captured.out, captured.err)
+        assert "Traceback" not in result.err, result.err
+        return result
+
+    return invoke
+
+
+_counter = iter(range(1_000_000))
+
+
+@pytest.fixture
+def line() -> Iterator[Any]:
+    """``line(servos, **SimBus options)`` -> (SimBus, its sim:// URL); closed after the test."""
+    made: list[SimBus] = []
+
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+        name = f"cli-policies-{next(_counter)}"
+        sim = SimBus(list(servos), name=name, log_size=None, **options)
+        made.append(sim)
+        return sim, f"sim://{name}"
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+def with_flags(servo: VirtualServo, flags: int) -> VirtualServo:
+    """Give ``servo`` an EEPROM flags byte as a real servo reports it (read-only bits included)."""
+    raw = bytearray(servo.eeprom.to_bytes())
+    raw[14], raw[15] = flags >> 4, flags & 0x0F
+    servo.eeprom = Eeprom.from_bytes(bytes(raw))
+    return servo
+
+
+class IdAtPowerUp(VirtualServo):
+    """A servo that takes a new EEPROM ID only at its next power-up (the reference leaves this open)."""
+
+    def __init__(self, servo_id: int, **options: Any) -> None:
+        self._live_id = servo_id
+        super().__init__(servo_id, **options)
+
+    @property
+    def servo_id(self) -> int:
+        return self._live_id
+
+
+class LossyAt115200(VirtualServo):
+    """A 115200 servo on a line that passes every rate, whose replies at 115200 are lost."""
+
+    def answers(self, baudrate: int) -> bool:
+        return baudrate != 115200
+
+
+# --------------------------------------------------------------------------- finding 4: flags
+
+
+def test_flags_plus_and_minus_keep_the_other_flags(ics35: Any, line: Any) -> None:
+    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH)])
+    result = ics35("--port", url, "eeprom", "set", "1", "flags+=REVERSE", "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.REVERSE
+    result = ics35("--port", url, "eeprom", "set", "1", "flags-=REVERSE", "flags+=ROTATION", "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.ROTATION
+
+
+def test_flags_replacement_names_every_flag_it_clears_before_asking(ics35: Any, line: Any) -> None:
+    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.ROTATION)])
+    result = ics35("--port", url, "eeprom", "set", "1", "flags=REVERSE", stdin="n\n")
+    assert result.code == ExitCode.REFUSED
+    cleared = [row for row in result.out.splitlines() if "flags CLEARED" in row]
+    assert len(cleared) == 1 and "PWMINH|ROTATION" in cleared[0]
+    assert "clears flag(s) PWMINH|ROTATION" in result.err
+    assert result.err.index("clears flag(s)") < result.err.index("Write these")
+    assert sim.servo(1).eeprom_writes == 0
+
+
+@pytest.mark.parametrize("assignment", ["flags=FREE", "flags+=PCM", "flags-=FREE", "flags=PWMINH,PCM", "flags=0x0A"])
+def test_read_only_flag_names_are_refused_before_the_wire(ics35: Any, line: Any, assignment: str) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "set", "1", assignment, "--yes")
+    assert result.code == ExitCode.USAGE
+    assert "read-only" in result.err
+    assert sim.transactions == 0
+
+
+def test_only_flags_take_plus_and_minus(ics35: Any, line: Any) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "set", "1", "speed+=5", "--yes")
+    assert result.code == ExitCode.USAGE and "only flags" in result.err
+    assert sim.transactions == 0
+
+
+def test_the_servos_read_only_flags_survive_a_replacement(ics35: Any, line: Any) -> None:
+    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.FREE)])
+    assert ics35("--port", url, "eeprom", "set", "1", "flags=REVERSE,PWMINH", "--yes").code == 0
+    assert sim.servo(1).eeprom.flags == Flags.REVERSE | Flags.PWMINH | Flags.FREE
+
+
+# --------------------------------------------------------------------------- finding 6: one listing per servo
+
+
+def test_scan_lists_each_servo_once_on_a_line_that_ignores_rates(ics35: Any, line: Any) -> None:
+    _, url = line([1, 2], follow_host_baud=False)
+    for quick in ([], ["--quick"]):
+        result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json", *quick)
+        assert result.code == 0, result.err
+        servos = result.json()["servos"]
+        assert [(s["id"], s["baud"]) for s in servos] == [(1, 115200), (2, 115200)]
+        assert all(s["answered_at"] == [115200, 625000, 1250000] for s in servos)
+    text = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    assert "2 servo(s) found" in text.out and "does not enforce rates" in text.err
+
+
+def test_no_advice_of_a_rate_the_eeprom_contradicts(ics35: Any, line: Any) -> None:
+    _, url = line([LossyAt115200(1)])
+    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+    assert result.code == ExitCode.NO_REPLY
+    assert "--baud" not in result.err and "625000" not in result.err
+    # A servo really at another rate still gets the advice.
+    _, url = line([VirtualServo(2, baud_rate=1250000)])
+    result = ics35("--port", url, "--timeout", "0.005", "get", "2", "speed")
+    assert result.code == ExitCode.WRONG_BAUD and "--baud 1250000" in result.err
+
+
+# --------------------------------------------------------------------------- finding 7: ID change
+
+
+def test_an_eeprom_id_change_reports_which_id_answers(ics35: Any, line: Any) -> None:
+    sim, url = line([IdAtPowerUp(20)])
+    result = ics35("--port", url, "eeprom", "set", "20", "id=21", "--yes")
+    assert result.code == 0, result.err
+    assert "still answers as ID 20" in result.out and "next power-up" in result.out
+    assert sim.servos[0].eeprom.servo_id == 21
+
+    sim, url = line([VirtualServo(20)])
+    result = ics35("--port", url, "eeprom", "set", "20", "id=21", "--yes", "--json")
+    assert result.code == 0, result.err
+    assert result.json()["answers_as"] == [21] and result.json()["verified"] is True
+
+
+# --------------------------------------------------------------------------- finding 11: the echo setting
+
+
+def test_no_echo_scan_says_drop_no_echo_like_get(ics35: Any, line: Any) -> None:
+    _, url = line([1, 2])
+    get = ics35("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
+    scan = ics35("--port", url, "--timeout", "0.005", "--no-echo", "scan")
+    set_id = ics35("--port", url, "--timeout", "0.005", "--no-echo", "set-id", "4", "--yes")
+    for result in (get, scan, set_id):
+        assert result.code == ExitCode.COMMUNICATION
+        assert "drop --no-echo" in result.err and "power" not in result.err
+
+
+def test_a_missing_echo_is_named_by_scan(ics35: Any, line: Any) -> None:
+    _, url = line([1], echo=False)
+    result = ics35("--port", url, "--timeout", "0.005", "scan", "--bauds", "115200")
+    assert result.code == ExitCode.COMMUNICATION and "pass --no-echo" in result.err
+
+
+# --------------------------------------------------------------------------- finding 12: bulk backup
+
+
+def test_bulk_dump_and_restore_each_servo_to_its_own_id(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2, 3])
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i, punch=i)
+    backup = tmp_path / "backup"
+    result = ics35("--port", url, "eeprom", "dump", "1-3", "-o", f"{backup}/")
+    assert result.code == 0, result.err
+    assert sorted(p.name for p in backup.iterdir()) == ["servo-01.json", "servo-02.json", "servo-03.json"]
+    assert json.loads((backup / "servo-02.json").read_text())["fields"]["speed"] == 20
+
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99, flags=Flags.PWMINH)
+    result = ics35("--port", url, "eeprom", "restore", str(backup), stdin="n\n")
+    assert result.code == ExitCode.REFUSED
+    assert all(sim.servo(i).eeprom_writes == 0 for i in (1, 2, 3))
+    assert result.err.count("[y/N]") == 1
+
+    result = ics35("--port", url, "eeprom", "restore", str(backup), stdin="y\n")
+    assert result.code == 0, result.err
+    assert result.err.count("[y/N]") == 1
+    for i in (1, 2, 3):
+        image = sim.servo(i).eeprom
+        assert (image.speed, image.punch, image.flags, image.servo_id) == (10 * i, i, Flags(0), i)
+        assert sim.servo(i).calibration_intact
+
+
+def test_bulk_dump_saves_the_servos_that_answer(ics35: Any, line: Any, tmp_path: Path) -> None:
+    _, url = line([2, 5])
+    result = ics35("--port", url, "--timeout", "0.005", "eeprom", "dump", "all", "-o", str(tmp_path) + "/")
+    assert result.code == 0, result.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["servo-02.json", "servo-05.json"]
+
+
+def test_bulk_restore_checks_every_file_before_writing_any(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2])
+    assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
+    doc = json.loads((tmp_path / "servo-02.json").read_text())
+    doc["fields"]["speed"] = 500
+    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    before = sim.transactions
+    result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
+    assert result.code == ExitCode.USAGE and "servo-02.json" in result.err
+    assert sim.transactions == before
+
+    doc["fields"]["speed"], doc["fields"]["baud_rate"] = 50, 1250000
+    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
+    assert result.code == ExitCode.REFUSED and "--change-baud" in result.err
+    assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
+
+
+def test_several_servos_need_a_directory(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2])
+    assert ics35("--port", url, "eeprom", "dump", "1-2").code == ExitCode.USAGE
+    assert ics35("--port", url, "eeprom", "dump", "1-2", "-o", str(tmp_path / "x.json")).code == ExitCode.USAGE
+    assert sim.transactions == 0
+
+
+def test_dump_checks_its_output_before_reading(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1])
+    result = ics35("--port", url, "eeprom", "dump", "1", "-o", str(tmp_path / "missing" / "x.json"))
+    assert result.code == ExitCode.USAGE and "no directory" in result.err
+    assert sim.transactions == 0
+
+
+def test_restore_one_file_to_the_servo_it_came_from(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2])
+    backup = tmp_path / "two.json"
+    assert ics35("--port", url, "eeprom", "dump", "2", "-o", str(backup)).code == 0
+    sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=3)
+    result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes", "--json")
+    assert result.code == 0, result.err
+    assert result.json()["id"] == 2 and sim.servo(2).eeprom.speed == 127
+    assert sim.servo(1).eeprom_writes == 0
+
+
+def test_restore_with_change_baud_verifies_at_both_rates(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1])
+    backup = tmp_path / "one.json"
+    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    doc = json.loads(backup.read_text())
+    doc["fields"]["baud_rate"] = 625000
+    backup.write_text(json.dumps(doc))
+    result = ics35("--port", url, "eeprom", "restore", "1", str(backup), "--change-baud", "--yes", "--json")
+    assert result.code == 0, result.err
+    assert result.json()["answers_at_new_rate"] is False  # the simulated servo switches at power-up
+    assert sim.servo(1).eeprom.baud_rate == BaudRate.B625000

@@ -1,0 +1,194 @@
+"""The EEPROM write rules against the in-process simulator: plan, refuse, write, verify."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import pytest
+
+from ics35_async import open_bus
+from ics35_async.bus import Bus
+from ics35_async.eeprom import BaudRate, Eeprom, Flags
+from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
+from ics35_async.policies import check_changes, edit_image, plan_eeprom_write, write_eeprom_plan
+from ics35_async.sim import SimBus, VirtualServo
+
+FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+
+
+@asynccontextmanager
+async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tuple[SimBus, Bus]]:
+    sim = SimBus(servos, log_size=None)
+    try:
+        async with open_bus(sim, **{**FAST, **options}) as bus:
+            yield sim, bus
+    finally:
+        sim.close()
+
+
+class IdAtPowerUp(VirtualServo):
+    """A servo that takes a new EEPROM ID only at its next power-up (the reference leaves this open)."""
+
+    def __init__(self, servo_id: int, **options: Any) -> None:
+        self._live_id = servo_id
+        super().__init__(servo_id, **options)
+
+    @property
+    def servo_id(self) -> int:
+        return self._live_id
+
+    def power_cycle(self) -> None:
+        super().power_cycle()
+        self._live_id = self.eeprom.servo_id
+
+
+def eeprom_writes(sim: SimBus) -> int:
+    return sum(s.eeprom_writes for s in sim.servos)
+
+
+async def test_a_field_change_is_written_and_read_back() -> None:
+    async with line([VirtualServo(1)]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {"speed": 90, "punch": 4})
+        assert set(plan.diff) == {"speed", "punch"} and not plan.changes_baud and not plan.changes_id
+        result = await write_eeprom_plan(bus, plan)
+        assert result.written and result.acknowledged and result.verified
+        assert (sim.servo(1).eeprom.speed, sim.servo(1).eeprom.punch) == (90, 4)
+        assert sim.servo(1).calibration_intact
+        # Read, read again right before writing, write, read back.
+        assert bus.stats.total.transactions == 4
+
+
+async def test_an_image_that_already_matches_is_not_written() -> None:
+    async with line([VirtualServo(1)]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {"speed": 127})
+        result = await write_eeprom_plan(bus, plan)
+        assert not result.written and eeprom_writes(sim) == 0
+
+
+async def test_flag_edits_keep_the_other_flags_and_the_read_only_ones() -> None:
+    servo = VirtualServo(1)
+    servo.eeprom = servo.eeprom.replace(flags=Flags.PWMINH)
+    servo.eeprom = Eeprom.from_bytes(servo.eeprom.to_bytes()[:15] + bytes([0x0A]) + servo.eeprom.to_bytes()[16:])
+    assert servo.eeprom.flags == Flags.PWMINH | Flags.FREE  # the servo reports itself free
+    async with line([servo]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {}, set_flags=Flags.REVERSE)
+        assert plan.after.flags == Flags.PWMINH | Flags.FREE | Flags.REVERSE and plan.cleared_flags == Flags(0)
+        plan = await plan_eeprom_write(bus, 1, {"flags": Flags.REVERSE})
+        assert plan.after.flags == Flags.REVERSE | Flags.FREE
+        assert plan.cleared_flags == Flags.PWMINH and plan.added_flags == Flags.REVERSE
+        plan = await plan_eeprom_write(bus, 1, {}, clear_flags=Flags.PWMINH)
+        assert plan.after.flags == Flags.FREE
+        await write_eeprom_plan(bus, plan)
+        assert sim.servo(1).eeprom.flags == Flags.FREE
+
+
+@pytest.mark.parametrize(
+    ("changes", "flags"),
+    [
+        ({}, {"set_flags": Flags.FREE}),
+        ({}, {"clear_flags": Flags.PCM}),
+        ({}, {"set_flags": Flags.REVERSE, "clear_flags": Flags.REVERSE}),
+        ({"flags": 0x20}, {}),
+        ({"flags": -1}, {}),
+        ({"flags": "REVERSE"}, {}),
+        ({"speed": 300}, {}),
+        ({"colour": 3}, {}),
+        ({"baud_rate": 9600}, {}),
+    ],
+)
+async def test_bad_changes_raise_before_the_wire(changes: dict[str, Any], flags: dict[str, Any]) -> None:
+    with pytest.raises(InvalidArgument):
+        check_changes(changes, **flags)
+    async with line([VirtualServo(1)]) as (sim, bus):
+        with pytest.raises(InvalidArgument):
+            await plan_eeprom_write(bus, 1, changes, **flags)
+        assert sim.transactions == 0
+
+
+def test_edit_image_never_touches_calibration() -> None:
+    image = Eeprom.factory(3)
+    with pytest.raises(UnsafeOperation):
+        edit_image(image, {"calibration": bytes(22)})
+    assert edit_image(image, {"speed": 5}).calibration == image.calibration
+
+
+async def test_a_baud_change_needs_permission_and_is_checked_at_both_rates() -> None:
+    async with line([VirtualServo(1)]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {"baud_rate": 1250000})
+        assert plan.changes_baud and plan.refusal()
+        with pytest.raises(UnsafeOperation, match="nothing was written"):
+            await write_eeprom_plan(bus, plan)
+        assert eeprom_writes(sim) == 0
+        result = await write_eeprom_plan(bus, plan, allow_baud_change=True)
+        assert result.verified
+        # The simulated servo takes the new rate at its next power-up: not at once.
+        assert result.new_rate_answers is False and result.new_rate_error is None
+        assert bus.baudrate == 115200  # the line is back at its own rate
+        sim.power_cycle()
+        await bus.reopen(baudrate=1250000)
+        assert (await bus.servo(1).read_eeprom()).baud_rate == BaudRate.B1250000
+
+
+async def test_a_baud_change_taken_at_once_is_verified_at_the_new_rate() -> None:
+    class BaudAtOnce(VirtualServo):
+        def handle(self, command: Any) -> Any:
+            value = super().handle(command)
+            self.baud_rate = self.eeprom.baud_rate
+            return value
+
+    async with line([BaudAtOnce(1)]) as (_, bus):
+        plan = await plan_eeprom_write(bus, 1, {"baud_rate": 625000, "speed": 10})
+        result = await write_eeprom_plan(bus, plan, allow_baud_change=True)
+        assert result.verified and result.new_rate_answers is True
+        assert bus.baudrate == 115200
+
+
+async def test_an_id_change_needs_permission_and_a_free_id() -> None:
+    async with line([VirtualServo(1), VirtualServo(2)]) as (sim, bus):
+        taken = await plan_eeprom_write(bus, 1, {"servo_id": 2})
+        assert taken.id_taken
+        with pytest.raises(UnsafeOperation, match="already answers"):
+            await write_eeprom_plan(bus, taken, allow_id_change=True)
+        plan = await plan_eeprom_write(bus, 1, {"servo_id": 5})
+        assert not plan.id_taken
+        with pytest.raises(UnsafeOperation):
+            await write_eeprom_plan(bus, plan)
+        assert eeprom_writes(sim) == 0
+        result = await write_eeprom_plan(bus, plan, allow_id_change=True)
+        assert result.verified and result.answering_ids == (5,)
+        assert sorted(s.servo_id for s in sim.servos) == [2, 5]
+
+
+async def test_an_id_taken_at_power_up_is_reported_as_the_old_id_answering() -> None:
+    async with line([IdAtPowerUp(20)]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 20, {"servo_id": 21})
+        result = await write_eeprom_plan(bus, plan, allow_id_change=True)
+        assert result.verified and result.answering_ids == (20,)
+        assert sim.servos[0].eeprom.servo_id == 21
+        sim.power_cycle()
+        assert sim.servos[0].servo_id == 21
+
+
+async def test_a_stale_plan_is_not_written() -> None:
+    async with line([VirtualServo(1)]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {"speed": 90})
+        sim.servo(1).eeprom = sim.servo(1).eeprom.replace(punch=7)  # someone else wrote meanwhile
+        with pytest.raises(UnsafeOperation, match="changed since"):
+            await write_eeprom_plan(bus, plan)
+        assert sim.servo(1).eeprom.speed == 127 and eeprom_writes(sim) == 0
+
+
+async def test_a_write_the_servo_does_not_keep_fails_verification() -> None:
+    class Forgetful(VirtualServo):
+        def handle(self, command: Any) -> Any:
+            before = self.eeprom
+            value = super().handle(command)
+            self.eeprom = before  # acknowledges, stores nothing
+            return value
+
+    async with line([Forgetful(1)]) as (_, bus):
+        plan = await plan_eeprom_write(bus, 1, {"speed": 90})
+        with pytest.raises(VerifyError, match="differs"):
+            await write_eeprom_plan(bus, plan)

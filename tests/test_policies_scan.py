@@ -1,0 +1,194 @@
+"""The scan policy against the in-process simulator: rates, garbled replies, one listing per servo, cost."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import AbstractAsyncContextManager
+from typing import Any
+
+import pytest
+
+from ics35_async import open_bus
+from ics35_async.bus import Bus
+from ics35_async.eeprom import BaudRate
+from ics35_async.errors import InvalidArgument, PartialReply, ReplyError
+from ics35_async.policies import ALL_BAUDS, Line, probe_ids, scan, servo_rates
+from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.transports import PortNotFound, SerialPortError
+
+FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+
+
+@pytest.fixture
+def lines() -> Iterator[Any]:
+    made: list[SimBus] = []
+
+    def make(servos: Any, **options: Any) -> SimBus:
+        sim = SimBus(list(servos), log_size=None, **options)
+        made.append(sim)
+        return sim
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+def opener(sim: SimBus, **options: Any) -> Any:
+    def open_at(baud: int) -> AbstractAsyncContextManager[Line]:
+        return open_bus(sim, baudrate=baud, **{**FAST, **options})
+
+    return open_at
+
+
+async def test_each_servo_is_found_at_its_rate_with_its_eeprom(lines: Any) -> None:
+    sim = lines([VirtualServo(1), VirtualServo(2, baud_rate=1250000), VirtualServo(3, baud_rate=625000)])
+    report = await scan(opener(sim), ids=range(6))
+    assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 1250000), (3, 625000)]
+    for found in report.servos:
+        assert found.eeprom is not None and found.eeprom == sim.servo(found.servo_id).eeprom
+        assert found.answered_at == (found.baud,) and not found.baud_pending
+    assert [r.baud for r in report.rates] == list(ALL_BAUDS)
+    assert report.garbled == [] and not report.silent
+
+
+async def test_a_rate_where_nobody_answers_costs_one_transaction(lines: Any) -> None:
+    sim = lines([VirtualServo(4), VirtualServo(9), VirtualServo(30)])
+    report = await scan(opener(sim), read_eeprom=False)
+    assert [s.servo_id for s in report.servos] == [4, 9, 30]
+    nobody = [r for r in report.rates if r.nobody]
+    assert [r.baud for r in nobody] == [625000, 1250000]
+    # 115200: the ID read, then each ID probed exactly once (silent ones are not retried).
+    stretch_reads = [t.servo_id for t in sim.log if t.command == "read_stretch"]
+    assert sorted(stretch_reads) == list(range(32))
+    assert [t.command for t in sim.log].count("read_id") == 3
+    assert sim.transactions == 3 + 32
+
+
+async def test_silent_ids_are_not_retried_even_when_the_bus_retries(lines: Any) -> None:
+    sim = lines([VirtualServo(2)])
+    async with open_bus(sim, retries=3, **FAST) as bus:
+        rate = await probe_ids(bus, range(8))
+        assert rate.answered == (2,)
+        assert bus.stats.total.transactions == 1 + 8
+        assert bus.stats.guards == 0
+
+
+async def test_a_shared_id_is_garbled_not_found(lines: Any) -> None:
+    sim = lines([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
+    report = await scan(opener(sim), bauds=[115200], ids=range(5))
+    assert [s.servo_id for s in report.servos] == [1]
+    assert [(baud, i) for baud, i, _ in report.garbled] == [(115200, 3)]
+    # Garbled twice: the first probe and the one after the line settled.
+    assert [t.servo_id for t in sim.log if t.command == "read_stretch"].count(3) == 2
+
+
+@pytest.mark.parametrize("seed", range(12))
+async def test_a_reply_garbled_once_is_found_on_the_second_probe(lines: Any, seed: int) -> None:
+    sim = lines([VirtualServo(1), VirtualServo(3)], faults="msb@3:0.5", seed=seed)
+    async with open_bus(sim, **FAST) as bus:
+        rate = await probe_ids(bus, range(5))
+    reads_of_3 = [t for t in sim.log if t.command == "read_stretch" and t.servo_id == 3]
+    last_clean = reads_of_3[-1].fault is None
+    assert (3 in rate.answered) == last_clean
+    assert (3 in rate.garbled) == (not last_clean)
+    assert len(reads_of_3) == (1 if reads_of_3[0].fault is None else 2)
+
+
+async def test_a_line_that_ignores_rates_lists_each_servo_once_at_its_eeprom_rate(lines: Any) -> None:
+    # The line runs at 625000 whatever the host sets: the servos answer at every rate.
+    sim = lines([VirtualServo(1, baud_rate=625000), VirtualServo(2, baud_rate=625000)], follow_host_baud=False)
+    sim.baudrate = 625000
+    for read_eeprom in (True, False):
+        report = await scan(opener(sim), read_eeprom=read_eeprom)
+        assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 625000), (2, 625000)]
+        assert all(s.answered_at == ALL_BAUDS for s in report.servos)
+        assert all(s.eeprom is not None for s in report.servos)
+
+
+async def test_two_servos_sharing_an_id_at_two_rates_are_both_listed(lines: Any) -> None:
+    sim = lines([VirtualServo(5), VirtualServo(5, baud_rate=1250000)])
+    sim.servos[1].eeprom = sim.servos[1].eeprom.replace(speed=50)  # another unit
+    report = await scan(opener(sim), ids=[5], read_eeprom=False)
+    assert [(s.servo_id, s.baud) for s in report.servos] == [(5, 115200), (5, 1250000)]
+
+
+async def test_a_pending_baud_change_is_listed_where_the_servo_answers(lines: Any) -> None:
+    sim = lines([VirtualServo(7)])
+    sim.servo(7).eeprom = sim.servo(7).eeprom.replace(baud_rate=BaudRate.B1250000)  # not power-cycled yet
+    report = await scan(opener(sim), ids=[7])
+    (found,) = report.servos
+    assert (found.baud, found.eeprom_baud, found.baud_pending) == (115200, 1250000, True)
+
+
+async def test_a_silent_line_and_a_wrong_echo_setting_are_told_apart(lines: Any) -> None:
+    dead = lines([], echo=False)
+    report = await scan(opener(dead), ids=range(4))
+    assert report.servos == () and report.silent
+
+    echoing = lines([VirtualServo(1)])
+    for ids in (range(4), range(32)):  # probed one by one / the ID read shows it at once
+        report = await scan(opener(echoing, echo=False), ids=ids)
+        assert report.servos == () and not report.silent
+        evidence = report.echo_evidence
+        assert isinstance(evidence, ReplyError) and evidence.raw[0] >= 0x80
+    assert echoing.transactions <= 3 * 4 + 3
+    report = await scan(opener(echoing), ids=range(4))
+    assert report.echo_evidence is None
+
+    not_echoing = lines([VirtualServo(1)], echo=False)
+    report = await scan(opener(not_echoing), bauds=[115200], ids=range(4))
+    assert report.servos == () and isinstance(report.echo_evidence, ReplyError)
+    assert report.echo_evidence.raw[0] < 0x80
+
+
+async def test_a_rate_the_port_cannot_open_is_skipped(lines: Any) -> None:
+    sim = lines([VirtualServo(1, baud_rate=1250000)])
+
+    def open_at(baud: int) -> Bus:
+        if baud == 625000:
+            raise SerialPortError("this adapter cannot do 625000 baud")
+        return open_bus(sim, baudrate=baud, **FAST)
+
+    report = await scan(open_at, ids=[1])
+    assert dict(report.skipped) == {625000: "this adapter cannot do 625000 baud"}
+    assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 1250000)]
+
+    def missing(baud: int) -> Bus:
+        raise PortNotFound(2, "no serial port /dev/nothing")
+
+    with pytest.raises(PortNotFound):
+        await scan(missing, ids=[1])
+
+
+async def test_bad_arguments_raise_before_the_line_opens(lines: Any) -> None:
+    sim = lines([VirtualServo(1)])
+    for kwargs in ({"bauds": [9600]}, {"bauds": []}, {"ids": [32]}):
+        with pytest.raises(InvalidArgument):
+            await scan(opener(sim), **kwargs)
+    assert sim.transactions == 0
+
+
+class LossyAt115200(VirtualServo):
+    """A 115200 servo on a line that passes every rate, whose replies at 115200 are lost."""
+
+    def answers(self, baudrate: int) -> bool:
+        return baudrate != 115200
+
+
+async def test_servo_rates_never_offers_a_rate_the_eeprom_contradicts(lines: Any) -> None:
+    sim = lines([LossyAt115200(1), VirtualServo(2, baud_rate=1250000)])
+    assert await servo_rates(opener(sim), 1, [625000, 1250000]) == ()
+    assert await servo_rates(opener(sim), 2, [115200, 625000, 1250000]) == (1250000,)
+
+
+@pytest.mark.parametrize("seed", range(4))
+async def test_a_cut_reply_is_garbled_and_no_reply_is_silence(lines: Any, seed: int) -> None:
+    sim = lines([VirtualServo(2)], faults="truncate@2:1.0", seed=seed)
+    async with open_bus(sim, **FAST) as bus:
+        rate = await probe_ids(bus, range(4), id_read_first=False)
+    assert rate.answered == ()
+    last = [t for t in sim.log if t.servo_id == 2][-1]
+    if last.reply:
+        assert isinstance(rate.garbled[2], PartialReply)
+    else:
+        assert 2 not in rate.garbled
