@@ -1,7 +1,9 @@
 """Unit conversions: position counts, degrees, radians, current, temperature.
 
 7500 counts is neutral and 3500..11500 spans 270 degrees, so one degree is
-8000 / 270 (about 29.63) counts.  The temperature conversion is a straight
+8000 / 270 (about 29.63) counts.  Angles are refused outside -135..+135
+degrees (the servo's whole travel): a larger angle is a unit mistake, not a
+target (positions beyond 3500..11500 can still be sent as counts).  The temperature conversion is a straight
 line through the reference's two points (parameter 80 at about 80 C, 25 at
 about 125 C): an approximation, good for warnings, not for measurement.
 """
@@ -18,6 +20,10 @@ NEUTRAL = 7500
 POSITION_MIN = 1
 POSITION_MAX = 16383
 COUNTS_PER_DEGREE = 8000 / 270
+TRAVEL_MIN = 3500  # -135 degrees
+TRAVEL_MAX = 11500  # +135 degrees
+DEGREES_MAX = 135.0
+_ANGLE_SLACK = 1e-9  # so that +-3*pi/4 radians (135.00000000000003 degrees) still converts
 
 _TEMP_P1, _TEMP_C1 = 80, 80.0
 _TEMP_P2, _TEMP_C2 = 25, 125.0
@@ -62,13 +68,14 @@ def position_to_degrees(position: int) -> float:
 
 
 def degrees_to_position(degrees: float) -> int:
+    """The position for an angle in -135..+135 degrees (0 = neutral); InvalidArgument outside it."""
     if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees):
         raise InvalidArgument(f"degrees must be a finite number, got {degrees!r}")
-    exact = NEUTRAL + degrees * COUNTS_PER_DEGREE
-    # Checked before rounding: a huge finite angle overflows to inf, which round() cannot take.
-    if not POSITION_MIN - 0.5 < exact < POSITION_MAX + 0.5:
-        raise InvalidArgument(f"{degrees} degrees is position {exact:.0f}, outside {POSITION_MIN}..{POSITION_MAX}")
-    return round(exact)
+    if not abs(degrees) <= DEGREES_MAX + _ANGLE_SLACK:
+        raise InvalidArgument(
+            f"{degrees:g} degrees is outside -135..+135, the servo's travel ({TRAVEL_MIN}..{TRAVEL_MAX} counts)"
+        )
+    return round(NEUTRAL + degrees * COUNTS_PER_DEGREE)
 
 
 def position_to_radians(position: int) -> float:
@@ -76,8 +83,11 @@ def position_to_radians(position: int) -> float:
 
 
 def radians_to_position(radians: float) -> int:
+    """The position for an angle in -3*pi/4..+3*pi/4 radians (0 = neutral); InvalidArgument outside it."""
     if not isinstance(radians, (int, float)) or isinstance(radians, bool) or not math.isfinite(radians):
         raise InvalidArgument(f"radians must be a finite number, got {radians!r}")
+    if not abs(math.degrees(radians)) <= DEGREES_MAX + _ANGLE_SLACK:
+        raise InvalidArgument(f"{radians:g} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
     return degrees_to_position(math.degrees(radians))
 
 

@@ -400,8 +400,8 @@ def test_cli_bad_argument_exits_2_with_a_message_and_sends_nothing(args: list[st
 @pytest.mark.parametrize(
     ("args", "check"),
     [
-        (["move", "1", "1"], lambda sim: sim.servo(1).target == 3500),
-        (["move", "1", "16383"], lambda sim: sim.servo(1).target == 11500),
+        (["move", "1", "1", "--force"], lambda sim: sim.servo(1).target == 3500),
+        (["move", "1", "16383", "--force"], lambda sim: sim.servo(1).target == 11500),
         (["move", "2", "-135", "--deg"], lambda sim: sim.servo(2).target == 3500),
         (["set", "1", "stretch", "1"], lambda sim: sim.servo(1).stretch == 1),
         (["set", "1", "stretch", "127"], lambda sim: sim.servo(1).stretch == 127),

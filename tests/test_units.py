@@ -8,7 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ics35_async import open_bus
 from ics35_async.errors import InvalidArgument
+from ics35_async.sim import SimBus
 from ics35_async.units import (
     COUNTS_PER_DEGREE,
     NEUTRAL,
@@ -75,22 +77,21 @@ def test_reference_radians() -> None:
 
 
 @settings(max_examples=200)
-@given(st.integers(1, 16383))
+@given(st.integers(3500, 11500))
 def test_position_degrees_radians_round_trip(position: int) -> None:
     assert degrees_to_position(position_to_degrees(position)) == position
     assert radians_to_position(position_to_radians(position)) == position
 
 
 def test_degrees_range_edges() -> None:
-    # Position 0 is FREE, not an angle; 16384 does not fit 14 bits.
-    assert degrees_to_position(position_to_degrees(1)) == 1
-    assert degrees_to_position(position_to_degrees(16383)) == 16383
-    with pytest.raises(InvalidArgument, match="outside"):
-        degrees_to_position(position_to_degrees(0))
-    with pytest.raises(InvalidArgument, match="outside"):
-        degrees_to_position(position_to_degrees(16384))
-    with pytest.raises(InvalidArgument, match="outside"):
-        radians_to_position(position_to_radians(16384))
+    # Angles cover the servo's travel, 3500..11500 counts (-135..+135 degrees); beyond is a unit mistake.
+    assert degrees_to_position(position_to_degrees(3500)) == 3500
+    assert degrees_to_position(position_to_degrees(11500)) == 11500
+    for outside in (3499, 11501, 1, 16383):
+        with pytest.raises(InvalidArgument, match="outside"):
+            degrees_to_position(position_to_degrees(outside))
+        with pytest.raises(InvalidArgument, match="outside"):
+            radians_to_position(position_to_radians(outside))
 
 
 @pytest.mark.parametrize("value", [1e307, -1e307, 1e300, -1e300, 1e308])
@@ -203,3 +204,31 @@ def test_stretch_to_eeprom_rejects(value: object) -> None:
 def test_stretch_from_eeprom_rejects(value: object) -> None:
     with pytest.raises(InvalidArgument):
         stretch_from_eeprom(value)  # type: ignore[arg-type]
+
+
+# --- angles beyond the travel, wherever degrees are taken ---
+
+
+@pytest.mark.parametrize("degrees", [135.01, -136, 200, 1e6])
+def test_units_refuse_degrees_beyond_135(degrees: float) -> None:
+    with pytest.raises(InvalidArgument, match="135"):
+        degrees_to_position(degrees)
+    with pytest.raises(InvalidArgument, match="135"):
+        radians_to_position(math.radians(degrees))
+
+
+async def test_servo_and_stream_refuse_degrees_beyond_135() -> None:
+    sim = SimBus([1], log_size=None)
+    async with open_bus(sim) as bus:
+        with pytest.raises(InvalidArgument):
+            await bus.servo(1).set_degrees(200)
+        with pytest.raises(InvalidArgument):
+            await bus.servo(1).set_radians(math.radians(-140))
+        assert sim.transactions == 0
+        assert await bus.servo(1).set_degrees(135) == pytest.approx(0.0)  # reports where it was: neutral
+        assert sim.servo(1).target == 11500
+        async with bus.stream([1]) as stream:
+            with pytest.raises(InvalidArgument):
+                stream.set_target_degrees(1, 136)
+            with pytest.raises(InvalidArgument):
+                stream.set_targets_degrees({1: -200.0})

@@ -4,96 +4,82 @@ Every command runs against ``--port`` (default: the built-in simulator,
 which lives only as long as the command; ``ics35 sim`` runs one on a pty
 for longer sessions).  Expected failures end with a message, hints and a
 documented exit code (:class:`ExitCode`), never a traceback.
+
+Only click and :mod:`._settings` load up front: the commands (and with them
+rich, the bus and the simulator) are imported when one is run or listed, so
+``ics35 --version`` stays quick.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 import click
 
-from . import _basic, _eeprom, _live, _simcmd
-from ._common import DEFAULT_PORT, ExitCode, Settings, fail, setup_logging
-from ._common import CliError as CliError
+from .. import __version__
+from ._line_options import add_line_options, group_line_options, settings_from
+from ._settings import CliError, ExitCode
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
+# Modules whose COMMANDS list is mounted on the group (imported on first use).
+COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd")
+# Commands that pass their arguments through untouched get no line options after them.
+PASS_THROUGH = frozenset({"sim"})
 
-@click.group(context_settings=CONTEXT_SETTINGS)
-@click.option(
-    "--port",
-    "-p",
-    default=DEFAULT_PORT,
-    show_default=True,
-    envvar="ICS35_PORT",
-    help="Serial device (/dev/ttyUSB0, COM3), pyserial URL, or sim://[?ids=..] for the built-in simulator.",
-)
-@click.option(
-    "--baud",
-    "-b",
-    type=click.Choice(["115200", "625000", "1250000"]),
-    default="115200",
-    show_default=True,
-    envvar="ICS35_BAUD",
-    help="Line baud rate (625000 and 1250000 need the ICS USB adapter HS).",
-)
-@click.option(
-    "--timeout",
-    type=click.FloatRange(0.0, 5.0),
-    default=0.020,
-    show_default=True,
-    help="Seconds allowed on top of the wire time for each reply (USB adapter latency).",
-)
-@click.option(
-    "--retries", type=click.IntRange(0, 10), default=1, show_default=True, help="Retries for reads and positions."
-)
-@click.option("--no-echo", is_flag=True, help="The interface does not loop sent bytes back (no echo to skip).")
-@click.option(
-    "--transport",
-    type=click.Choice(["auto", "fast", "stock", "direct"]),
-    default="auto",
-    show_default=True,
-    help="Serial driver for device paths.",
-)
-@click.option("--verbose", "-v", count=True, help="Log bus activity to stderr (-vv: every byte).")
-@click.version_option(package_name="ics35_async", prog_name="ics35")
+
+class LazyGroup(click.Group):
+    """A group that imports its command modules only when a command is looked up or listed."""
+
+    _loaded = False
+
+    def _load(self) -> None:
+        if self._loaded:
+            return
+        self._loaded = True
+        from ._runner import guard_writes
+
+        for name in COMMAND_MODULES:
+            module = importlib.import_module(f"{__name__}.{name}")
+            for command in module.COMMANDS:
+                if command.name not in PASS_THROUGH:
+                    add_line_options(command)
+                guard_writes(command)
+                self.add_command(command)
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        self._load()
+        return super().list_commands(ctx)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        self._load()
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
+@group_line_options
+# The version string, not package metadata: importlib.metadata alone costs ~15 ms at start-up.
+@click.version_option(__version__, prog_name="ics35")
 @click.pass_context
-def cli(
-    ctx: click.Context,
-    port: str,
-    baud: str,
-    timeout: float,
-    retries: int,
-    no_echo: bool,
-    transport: str,
-    verbose: int,
-) -> None:
+def cli(ctx: click.Context, /, **line_options: Any) -> None:
     """Drive Kondo ICS 3.5 serial servos (KRS series).
 
     \b
     Try it without hardware:   ics35 demo
     On hardware:               ics35 --port /dev/ttyUSB0 scan
 
+    The line options (--port, --baud, --timeout, ...) may also follow the command:
+    ics35 scan --port /dev/ttyUSB0.  Commands that change a servo need an explicit
+    --port (or ICS35_PORT): the default simulator would forget the change at once.
+
     Exit codes: 0 ok, 1 communication error, 2 bad argument (nothing sent), 3 port cannot be opened,
     4 no servo answered, 5 refused or not confirmed (nothing written), 6 servo answers at another baud,
     130 interrupted.
     """
-    setup_logging(verbose)
-    ctx.obj = Settings(
-        port=port,
-        baud=int(baud),
-        timeout=timeout,
-        retries=retries,
-        echo=not no_echo,
-        transport=transport,
-        verbose=verbose,
-        port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
-    )
-
-
-for _command in (*_basic.COMMANDS, *_eeprom.COMMANDS, *_live.COMMANDS, *_simcmd.COMMANDS):
-    cli.add_command(_command)
+    ctx.obj = settings_from(ctx, line_options)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -101,6 +87,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     try:
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
     except CliError as exc:
+        from ._console import fail
+
         fail(exc)
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
@@ -110,6 +98,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        # Ctrl-C outside a command's own handling (while loading, parsing): no traceback.
+        click.echo("interrupted", err=True)
+        sys.exit(int(ExitCode.INTERRUPTED))
     except BrokenPipeError:
         # `ics35 ... | head`: the reader left; not an error worth a traceback.
         sys.stderr.close()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -37,6 +36,7 @@ from ._common import (
 )
 from ._eeprom_view import eeprom_table
 from ._scan import scan, set_id
+from ._targets import check_pulse_limits, parse_target
 
 # --------------------------------------------------------------------------- probing
 
@@ -118,36 +118,30 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
 # --------------------------------------------------------------------------- move / free
 
 
-def parse_target(text: str, degrees: bool) -> int:
-    """A position (counts) from the command line; InvalidArgument when out of range."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise InvalidArgument(f"{text!r} is not a number") from None
-    if degrees:
-        return units.degrees_to_position(value)
-    if not math.isfinite(value) or value != int(value):
-        raise InvalidArgument(f"position must be a whole number of counts, got {text} (use --deg for degrees)")
-    return units.check_int("position", int(value), 1, protocol.POSITION_MAX)
-
-
 @click.command(context_settings={"ignore_unknown_options": True})
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("position", metavar="POS")
 @click.option("--deg", "degrees", is_flag=True, help="POS is in degrees (0 = neutral, -135..+135).")
+@click.option("--force", is_flag=True, help="Send counts outside 3500..11500 and the servo's EEPROM pulse limits.")
 @json_option
 @click.pass_context
-def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, as_json: bool) -> int:
-    """Move a servo to POS counts (3500..11500 is -135..+135 degrees, 7500 neutral), or degrees with --deg."""
+def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, force: bool, as_json: bool) -> int:
+    """Move a servo to POS counts (3500..11500 is -135..+135 degrees, 7500 neutral), or degrees with --deg.
+
+    A target outside the servo's EEPROM pulse limits is refused unless --force.
+    """
     settings = settings_of(ctx)
     try:
-        target = parse_target(position, degrees)
+        target = parse_target(position, servo_id, degrees=degrees, force=force)
     except InvalidArgument as exc:
         raise click.BadParameter(str(exc), param_hint="POS") from None
 
     async def body() -> int:
         async with settings.bus() as bus:
-            return await bus.servo(servo_id).set_position(target)
+            servo = bus.servo(servo_id)
+            if not force:
+                await check_pulse_limits(servo, target)
+            return await servo.set_position(target)
 
     reported = run(settings, body)
     if as_json:

@@ -1,0 +1,56 @@
+"""Output: the two consoles (results on stdout, everything else on stderr), JSON, and value formatting."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterable, Sequence
+from typing import Any, NoReturn
+
+from rich.console import Console
+from rich.markup import escape
+
+from .. import units
+from ._settings import CliError
+
+out = Console(highlight=False, soft_wrap=True)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def emit_json(value: Any) -> None:
+    """One JSON document on stdout (plain print: rich would wrap long lines)."""
+    sys.stdout.write(json.dumps(value, sort_keys=False) + "\n")
+    sys.stdout.flush()
+
+
+def fail(error: CliError) -> NoReturn:
+    err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
+    for hint in error.hints:
+        err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
+    sys.exit(int(error.code))
+
+
+def fmt_degrees(position: int) -> str:
+    return f"{units.position_to_degrees(position):+7.1f}°"
+
+
+def current_text(raw: int) -> str:
+    c = units.current_from_raw(raw)
+    return f"{'-' if c.reverse else '+'}{c.magnitude}"
+
+
+def temperature_text(raw: int) -> str:
+    return f"{raw} (~{units.temperature_to_celsius(raw):.0f} °C)"
+
+
+def current_json(raw: int) -> dict[str, Any]:
+    c = units.current_from_raw(raw)
+    return {"raw": raw, "magnitude": c.magnitude, "reverse": c.reverse}
+
+
+def temperature_json(raw: int) -> dict[str, Any]:
+    return {"raw": raw, "celsius_approx": round(units.temperature_to_celsius(raw), 1)}
+
+
+def ids_text(ids: Sequence[int] | Iterable[int]) -> str:
+    return ", ".join(str(i) for i in ids) or "none"

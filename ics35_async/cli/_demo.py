@@ -1,0 +1,126 @@
+"""ics35 demo: a smooth travelling wave streamed to every servo, with the live table; leaves them free."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import click
+from rich.markup import escape
+
+from .. import units
+from ..frames import Frame
+from ._common import ID_LIST, confirm, err, ids_text, out, run, settings_of, yes_option
+from ._live import LiveOptions, TargetFunction, discover, final_report, run_live, stream_options
+from ._live_view import LiveState
+from ._plot import Recorder, check_plot_path
+from ._telemetry import Telemetry
+
+
+def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) -> TargetFunction:
+    """A travelling sine wave across the servos, blended in from where each one starts."""
+    n = len(ids)
+    start: dict[int, int] = {}
+
+    def targets(t: float, frame: Frame) -> dict[int, int]:
+        for sid in ids:
+            if sid not in start and sid in frame.positions:
+                # Start from where the servo is, clamped into the safe range, so nothing jumps.
+                start[sid] = min(max(frame.positions[sid], 3500), 11500)
+        s = 1.0 if ramp <= 0 else min(1.0, t / ramp)
+        s = s * s * (3 - 2 * s)  # smoothstep: no jerk at either end of the blend
+        wanted = {}
+        for k, sid in enumerate(ids):
+            deg = amplitude * math.sin(2 * math.pi * (frequency * t - k / n))
+            goal = units.degrees_to_position(deg)
+            begin = start.get(sid, units.NEUTRAL)
+            wanted[sid] = round(begin + (goal - begin) * s)
+        return wanted
+
+    return targets
+
+
+@click.command()
+@click.option(
+    "--ids",
+    "ids",
+    type=ID_LIST,
+    default=None,
+    help="Servos to drive (default: 0-31 on the simulator; on hardware, the IDs a scan finds, after asking).",
+)
+@click.option(
+    "--seconds",
+    type=click.FloatRange(min=0.1),
+    default=10.0,
+    show_default=True,
+    help="Run this long (Ctrl-C stops earlier).",
+)
+@click.option(
+    "--amplitude",
+    type=click.FloatRange(1, 120),
+    default=None,
+    help="Wave amplitude in degrees (default: 45 on the simulator, 15 on hardware).",
+)
+@click.option("--frequency", type=click.FloatRange(0.01, 5), default=0.5, show_default=True, help="Wave frequency, Hz.")
+@stream_options
+@yes_option
+@click.pass_context
+def demo(
+    ctx: click.Context,
+    ids: list[int] | None,
+    seconds: float,
+    amplitude: float | None,
+    frequency: float,
+    rate: float | None,
+    per_cycle: int,
+    plot: str | None,
+    yes: bool,
+) -> int:
+    """A smooth wave streamed to every servo, with a live table; leaves the servos free.
+
+    \b
+    No hardware:   ics35 demo                      (built-in simulator, 32 servos)
+    Hardware:      ics35 --port /dev/ttyUSB0 demo --ids 1-12 --amplitude 20
+    Without --ids on hardware, demo scans and asks before moving every servo it finds (--yes skips that).
+    """
+    settings = settings_of(ctx)
+    if plot is not None:
+        check_plot_path(plot)
+    shown = settings.port
+    if settings.port == "sim://":
+        settings.port = f"sim://?ids=0-31&realtime=1&baud={settings.baud}"
+        shown = "the built-in simulator"
+        ids = ids or list(range(32))
+    if amplitude is None:
+        # A real robot's joints may hit each other or the frame: start small there.
+        amplitude = 45.0 if settings.is_sim else 15.0
+    swing = amplitude
+    options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
+
+    async def body() -> tuple[LiveState, Telemetry, Recorder]:
+        async with settings.bus() as bus:
+            chosen = ids or await discover(bus, settings, False)
+            if ids is None and not settings.is_sim:
+                # Nobody named these servos: a robot's joints may collide, so ask first.
+                confirm(f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave?", yes)
+            title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
+            state = LiveState(chosen, title, seconds)
+            if not out.is_terminal:
+                out.print(f"{title}; one line per second, table at the end")
+            return await run_live(bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
+
+    began = time.monotonic()
+    state, telemetry, recorder = run(settings, body)
+    if plot is not None:
+        recorder.write(plot, f"ics35 demo: {shown}")
+        err.print(f"plot written to {escape(plot)}")
+    final_report(state, telemetry, options)
+    out.print(
+        f"demo done after {time.monotonic() - began:.1f} s: {state.cycle} cycles, "
+        f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
+    )
+    return 0
+
+
+COMMANDS = [demo]

@@ -1,0 +1,132 @@
+"""Library errors in a person's words: what went wrong on the line, and what to check or pass."""
+
+from __future__ import annotations
+
+from ..errors import (
+    BadReply,
+    BusClosed,
+    EchoMismatch,
+    IcsError,
+    InvalidArgument,
+    PartialReply,
+    PortLost,
+    ReplyError,
+    ReplyTimeout,
+    UnsafeOperation,
+    VerifyError,
+)
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ._loop import run_loop
+from ._params import ALL_BAUDS
+from ._settings import CliError, ExitCode, Settings
+
+NO_REPLY_HINTS = (
+    "check the servo has power (6-12 V on the servo line, not just USB)",
+    "check the wiring and the servo ID (ics35 scan tries every ID at every baud rate)",
+    "a servo powered up with its signal line low starts in PWM mode: set its PWMINH flag and power-cycle",
+)
+
+
+def translate(settings: Settings, exc: IcsError) -> CliError:
+    """The person-facing form of a library error."""
+    text = str(exc).replace(settings.url, settings.port)
+    if isinstance(exc, PortPermissionDenied):
+        return CliError(
+            ExitCode.PORT,
+            text,
+            "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
+        )
+    if isinstance(exc, PortNotFound):
+        return CliError(ExitCode.PORT, text, "list ports with: ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/")
+    if isinstance(exc, PortBusy):
+        return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
+    if isinstance(exc, SerialPortError):
+        return CliError(ExitCode.PORT, text)
+    if isinstance(exc, PortLost):
+        return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")
+    if isinstance(exc, BusClosed):
+        return CliError(ExitCode.COMMUNICATION, text)
+    if isinstance(exc, UnsafeOperation):
+        return CliError(ExitCode.REFUSED, f"refused: {text}")
+    if isinstance(exc, InvalidArgument):
+        if "://" in settings.port and "cannot open" in text:
+            return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
+        return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
+    # Every command byte has its MSB set and almost every reply header has it clear,
+    # so the first byte back tells an echo from a reply.
+    if isinstance(exc, ReplyError) and exc.raw:
+        if settings.echo and isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80:
+            return CliError(
+                ExitCode.COMMUNICATION,
+                f"{text}: the first byte back is a servo's reply, not the echo of the command sent",
+                "this interface does not loop TX back to RX: pass --no-echo",
+            )
+        if not settings.echo and exc.raw[0] >= 0x80:
+            return CliError(
+                ExitCode.COMMUNICATION,
+                f"{text}: the bytes sent came back before the reply (an echo)",
+                "this interface echoes what it sends (ICS adapters do): drop --no-echo",
+            )
+    if isinstance(exc, EchoMismatch):
+        return CliError(
+            ExitCode.COMMUNICATION,
+            text,
+            "the bytes sent came back changed: two servos answering at once (duplicate ID), noise, or loose wiring",
+            "if your interface does not loop TX back to RX, pass --no-echo",
+        )
+    if isinstance(exc, (BadReply, PartialReply)):
+        return CliError(
+            ExitCode.COMMUNICATION,
+            text,
+            "a garbled reply: a wrong baud rate (try: ics35 scan), two servos sharing one ID, or noise on the line",
+        )
+    if isinstance(exc, VerifyError):
+        return CliError(ExitCode.COMMUNICATION, text, "the servo did not store what was written; check its power")
+    return CliError(ExitCode.COMMUNICATION, text)
+
+
+def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
+    """No answer: say whether the servo answers at another baud rate, else what to check."""
+    if exc.servo_id is not None and not exc.raw and settings.echo:
+        # Not even our own echo came back: the adapter or its wiring, not the servo.
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"no echo and no reply from {settings.port}: the bytes sent never came back",
+            "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
+            "if your interface does not echo what it sends, pass --no-echo",
+        )
+    if exc.servo_id is not None:
+        found = other_bauds(settings, exc.servo_id)
+        if found:
+            return CliError(
+                ExitCode.WRONG_BAUD,
+                f"servo {exc.servo_id} does not answer at {settings.baud} baud, but does at {found[0]} baud",
+                f"pass --baud {found[0]}",
+            )
+    what = f"servo {exc.servo_id}" if exc.servo_id is not None else "no device"
+    return CliError(
+        ExitCode.NO_REPLY, f"{what} did not answer on {settings.port} at {settings.baud} baud", *NO_REPLY_HINTS
+    )
+
+
+def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:
+    """The error for a line where no servo answered; ``silent``: not a single byte came back."""
+    if silent and settings.echo:
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"nothing came back from {where}, not even the echo of the bytes sent",
+            "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
+            "if your interface does not echo what it sends, pass --no-echo",
+        )
+    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *NO_REPLY_HINTS)
+
+
+def other_bauds(settings: Settings, servo_id: int) -> list[int]:
+    """Bauds other than ``settings.baud`` at which ``servo_id`` answers and its own EEPROM names that rate."""
+    from ..policies import servo_rates
+
+    others = [baud for baud in ALL_BAUDS if baud != settings.baud]
+    try:
+        return list(run_loop(servo_rates(lambda baud: settings.bus(baud, retries=1), servo_id, others)))
+    except (IcsError, OSError):
+        return []

@@ -1,0 +1,151 @@
+"""The line options (--port, --baud, --timeout, ...): taken before the command, and after it as well.
+
+The group declares them with their defaults and environment variables; every
+command gets a copy without a default, whose value (when given) overrides the
+group's in the shared :class:`Settings`, so ``ics35 scan --port X`` and
+``ics35 --port X scan`` mean the same.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import click
+
+from ._settings import DEFAULT_PORT, Settings, setup_logging
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+@dataclass(frozen=True)
+class LineOption:
+    name: str  # the Settings attribute (and the group callback's parameter)
+    decls: tuple[str, ...]
+    help: str
+    group_kwargs: dict[str, Any] = field(default_factory=dict)  # default, envvar, show_default
+    kwargs: dict[str, Any] = field(default_factory=dict)  # type, is_flag, count: the same before and after
+
+
+LINE_OPTIONS = (
+    LineOption(
+        "port",
+        ("--port", "-p"),
+        "Serial device (/dev/ttyUSB0, COM3), pyserial URL, or sim://[?ids=..] for the built-in simulator.",
+        {"default": DEFAULT_PORT, "show_default": True, "envvar": "ICS35_PORT"},
+    ),
+    LineOption(
+        "baud",
+        ("--baud", "-b"),
+        "Line baud rate (625000 and 1250000 need the ICS USB adapter HS).",
+        {"default": "115200", "show_default": True, "envvar": "ICS35_BAUD"},
+        {"type": click.Choice(["115200", "625000", "1250000"])},
+    ),
+    LineOption(
+        "timeout",
+        ("--timeout",),
+        "Seconds allowed on top of the wire time for each reply (USB adapter latency).",
+        {"default": 0.020, "show_default": True},
+        {"type": click.FloatRange(0.0, 5.0)},
+    ),
+    LineOption(
+        "retries",
+        ("--retries",),
+        "Retries for reads and positions.",
+        {"default": 1, "show_default": True},
+        {"type": click.IntRange(0, 10)},
+    ),
+    LineOption(
+        "no_echo",
+        ("--no-echo",),
+        "The interface does not loop sent bytes back (no echo to skip).",
+        kwargs={"is_flag": True},
+    ),
+    LineOption(
+        "transport",
+        ("--transport",),
+        "Serial driver for device paths.",
+        {"default": "auto", "show_default": True},
+        {"type": click.Choice(["auto", "fast", "stock", "direct"])},
+    ),
+    LineOption(
+        "verbose",
+        ("--verbose", "-v"),
+        "Log bus activity to stderr (-vv: every byte).",
+        kwargs={"count": True},
+    ),
+)
+
+
+def group_line_options(f: F) -> F:
+    """Decorate the group with the line options, defaults and environment variables included."""
+    for option in reversed(LINE_OPTIONS):
+        f = click.option(*option.decls, option.name, help=option.help, **option.group_kwargs, **option.kwargs)(f)
+    return f
+
+
+def settings_from(ctx: click.Context, values: dict[str, Any]) -> Settings:
+    """The group's Settings from its parsed line options."""
+    setup_logging(values["verbose"])
+    return Settings(
+        port=values["port"],
+        baud=int(values["baud"]),
+        timeout=values["timeout"],
+        retries=values["retries"],
+        echo=not values["no_echo"],
+        transport=values["transport"],
+        verbose=values["verbose"],
+        port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
+    )
+
+
+def _store(name: str) -> Callable[[click.Context, click.Parameter, Any], None]:
+    """The callback of a line option given after the command: override the group's value."""
+
+    def store(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+        if value is None or value is False or (name == "verbose" and not value):
+            return  # not given after the command: the group's value stands
+        settings = ctx.find_object(Settings)
+        if settings is None:
+            return
+        if name == "port":
+            settings.port = value
+            settings.port_defaulted = False
+        elif name == "baud":
+            settings.baud = int(value)
+        elif name == "no_echo":
+            settings.echo = False
+        elif name == "verbose":
+            settings.verbose = max(settings.verbose, value)
+            setup_logging(settings.verbose)
+        else:
+            setattr(settings, name, value)
+
+    return store
+
+
+def add_line_options(command: click.Command) -> None:
+    """Give ``command`` (and a group's subcommands) the line options it does not define itself.
+
+    A command's own option of the same name wins (``scan --timeout`` is the
+    reply allowance of the scan, which is what the line option means too).
+    """
+    taken = {opt for param in command.params for opt in (*param.opts, *param.secondary_opts)}
+    for option in LINE_OPTIONS:
+        if option.decls[0] in taken:
+            continue
+        decls = [d for d in option.decls if d not in taken]
+        command.params.append(
+            click.Option(
+                decls,
+                help=option.help,
+                default=None,
+                expose_value=False,
+                callback=_store(option.name),
+                **option.kwargs,
+            )
+        )
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            add_line_options(sub)

@@ -1,0 +1,136 @@
+"""What the live table of monitor and demo shows: positions, targets, telemetry, errors and the cycle rate."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from rich import box
+from rich.table import Table
+from rich.text import Text
+
+from .. import units
+from ..frames import Frame
+from ..stream import Stream
+from ._telemetry import Telemetry
+
+
+@dataclass
+class LiveState:
+    """Everything the table shows, updated per frame."""
+
+    ids: list[int]
+    title: str
+    seconds: float | None
+    positions: dict[int, int] = field(default_factory=dict)
+    targets: dict[int, int] = field(default_factory=dict)
+    failed: frozenset[int] = frozenset()
+    offline: frozenset[int] = frozenset()
+    position_errors: dict[int, int] = field(default_factory=dict)
+    cycle: int = 0
+    elapsed: float = 0.0
+    rate_now: float = 0.0
+    rate_avg: float = 0.0
+    answered_ever: set[int] = field(default_factory=set)
+    window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
+
+    def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
+        self.positions.update(frame.positions)
+        self.answered_ever.update(frame.positions)
+        self.failed = frame.failed
+        self.offline = frame.offline
+        self.cycle = frame.cycle
+        self.elapsed = elapsed
+        self.window.append((frame.finished, frame.cycle))
+        while len(self.window) > 2 and self.window[-1][0] - self.window[0][0] > 1.0:
+            self.window.popleft()
+        (t0, c0), (t1, c1) = self.window[0], self.window[-1]
+        self.rate_now = (c1 - c0) / (t1 - t0) if t1 > t0 else 0.0
+
+    def refresh_stats(self, stream: Stream) -> None:
+        stats = stream.stats
+        self.rate_avg = stats.rate_hz
+        self.position_errors = dict(stats.failures)
+
+    def summary(self, telemetry: Telemetry) -> str:
+        answering = len(self.ids) - len(self.failed | self.offline)
+        limit = f"/{self.seconds:g}" if self.seconds else ""
+        errors = sum(self.position_errors.values()) + sum(telemetry.errors.values())
+        return (
+            f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}  rate {self.rate_now:5.1f} Hz "
+            f"(avg {self.rate_avg:5.1f})  answering {answering}/{len(self.ids)}  errors {errors}"
+        )
+
+    def table(self, telemetry: Telemetry, with_targets: bool) -> Table:
+        per_row = 2 if len(self.ids) > 16 else 1
+        table = Table(
+            title=self.title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
+        )
+        names = (
+            ("ID", "target°", "pos°", "cur", "temp", "err")
+            if with_targets
+            else ("ID", "pos", "pos°", "cur", "temp", "err")
+        )
+        for k in range(per_row):
+            if k:
+                table.add_column("│", style="dim")
+            for name in names:
+                table.add_column(name, justify="right", style="bold" if name == "ID" else "")
+        rows = math.ceil(len(self.ids) / per_row)
+        for r in range(rows):
+            cells: list[str | Text] = []
+            for k in range(per_row):
+                if k:
+                    cells.append("│")
+                idx = r + k * rows
+                if idx >= len(self.ids):
+                    cells += [""] * len(names)
+                    continue
+                cells += self._cells(self.ids[idx], telemetry, with_targets)
+            table.add_row(*cells)
+        return table
+
+    def _cells(self, sid: int, telemetry: Telemetry, with_targets: bool) -> list[str | Text]:
+        pos = self.positions.get(sid)
+        cur = telemetry.current.get(sid)
+        temp = telemetry.temperature.get(sid)
+        errors = self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0)
+        if sid in self.offline:
+            state: str | Text = Text("off", style="red")
+        elif sid in self.failed:
+            state = Text(f"{errors}!", style="yellow")
+        else:
+            state = str(errors)
+        cells: list[str | Text] = [str(sid)]
+        if with_targets:
+            target = self.targets.get(sid)
+            cells.append("free" if not target else f"{units.position_to_degrees(target):+.1f}")
+        else:
+            cells.append("-" if pos is None else str(pos))
+        cells += [
+            "-" if pos is None else f"{units.position_to_degrees(pos):+.1f}",
+            "-" if cur is None else f"{'-' if cur & 0x40 else ''}{cur & 0x3F}",
+            "-" if temp is None else f"{units.temperature_to_celsius(temp):.0f}C",
+            state,
+        ]
+        return cells
+
+    def snapshot(self, telemetry: Telemetry) -> dict[str, Any]:
+        return {
+            "t": round(self.elapsed, 3),
+            "cycle": self.cycle,
+            "rate_hz": round(self.rate_now, 2),
+            "rate_avg_hz": round(self.rate_avg, 2),
+            "servos": {
+                str(sid): {
+                    "position": self.positions.get(sid),
+                    "current": telemetry.current.get(sid),
+                    "temperature": telemetry.temperature.get(sid),
+                    "errors": self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0),
+                    "offline": sid in self.offline,
+                }
+                for sid in self.ids
+            },
+        }

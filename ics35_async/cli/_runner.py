@@ -1,0 +1,114 @@
+"""Running a command's coroutine: checks before the line is touched, and every failure as a CliError."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Awaitable, Callable
+from typing import Any, TypeVar
+
+import click
+from rich.markup import escape
+
+from ..errors import IcsError, ReplyTimeout
+from ..transports import adapter_advice
+from ._console import err
+from ._errors import no_reply_error, translate
+from ._loop import run_loop
+from ._paths import check_line_files
+from ._settings import CliError, ExitCode, Settings, settings_of
+
+T = TypeVar("T")
+
+_advised: set[str] = set()
+
+SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
+
+
+def advise(port: str) -> None:
+    """Print the adapter warnings (FTDI latency timer) once per port."""
+    if port in _advised:
+        return
+    _advised.add(port)
+    for warning in adapter_advice(port):
+        err.print(f"[yellow]warning:[/yellow] {escape(warning)}", soft_wrap=True)
+
+
+def note_simulator(settings: Settings) -> None:
+    """Say once, on stderr, that the implicit default simulator is what the command talks to."""
+    if settings.port_defaulted:
+        settings.port_defaulted = False
+        err.print(f"[dim]{escape(SIMULATOR_NOTE)}[/dim]")
+
+
+def require_port(settings: Settings, action: str) -> None:
+    """Refuse a command that changes a servo when the port is the implicit simulator.
+
+    Without --port (and ICS35_PORT) a write would go to a simulator that is thrown
+    away when the command ends, and report a success nothing kept.
+    """
+    if settings.port_defaulted:
+        raise CliError(
+            ExitCode.USAGE,
+            f"no --port given: refusing to {action} on the built-in simulator, which forgets it at once "
+            "(nothing was sent)",
+            "on hardware: ics35 --port /dev/ttyUSB0 ...  (or COM3; or set ICS35_PORT)",
+            "to try it on the simulator anyway: ics35 --port sim:// ...",
+        )
+
+
+# Commands that change a servo, by their full name, and what they would do (for the refusal).
+WRITE_COMMANDS = {
+    "move": "move a servo",
+    "free": "turn servos' torque off",
+    "set": "change a servo's RAM parameter",
+    "set-id": "change a servo's ID",
+    "eeprom set": "write a servo's EEPROM",
+    "eeprom restore": "write a servo's EEPROM",
+}
+
+
+def guard_writes(command: click.Command, prefix: str = "") -> None:
+    """Make every command of WRITE_COMMANDS in ``command``'s tree call :func:`require_port` first.
+
+    One table, applied when the commands are mounted, so no write command can miss the rule.
+    """
+    name = f"{prefix}{command.name}"
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            guard_writes(sub, f"{name} ")
+        return
+    action = WRITE_COMMANDS.get(name)
+    inner = command.callback
+    if action is None or inner is None:
+        return
+
+    @functools.wraps(inner)
+    def guarded(*args: Any, **kwargs: Any) -> Any:
+        require_port(settings_of(click.get_current_context()), action)
+        return inner(*args, **kwargs)
+
+    command.callback = guarded
+
+
+def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
+    """Run the command's coroutine; turn every expected failure into a :class:`CliError`."""
+    check_line_files(settings)
+    if not settings.is_sim:
+        advise(settings.port)
+    note_simulator(settings)
+    try:
+        try:
+            return run_loop(make())
+        except KeyboardInterrupt:
+            raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
+        except ReplyTimeout as exc:
+            raise no_reply_error(settings, exc) from None
+        except IcsError as exc:
+            raise translate(settings, exc) from None
+        except BrokenPipeError:
+            raise  # `ics35 ... | head`: main() ends quietly
+        except OSError as exc:
+            # Anything the library did not type (a file a sim:// URL names, an odd driver error).
+            raise CliError(ExitCode.COMMUNICATION, f"{settings.port}: {exc}") from None
+    finally:
+        settings.release_sim()

@@ -1,0 +1,125 @@
+"""The group's options as one object every command reads, the exit codes, and the error type for a person.
+
+Kept free of heavy imports (rich, the bus, the simulator): ``ics35 --version``
+and ``--help`` load only this and click.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import itertools
+import logging
+import os
+import sys
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+from urllib.parse import urlsplit, urlunsplit
+
+if TYPE_CHECKING:
+    import click
+
+    from ..bus import Bus
+
+_SIM_NAMES = itertools.count(1)
+
+DEFAULT_PORT = "sim://"
+
+
+class ExitCode(enum.IntEnum):
+    """Process exit codes; documented in the README's CLI reference."""
+
+    OK = 0
+    COMMUNICATION = 1  # garbled reply, echo mismatch, verify failure, port lost mid-command
+    USAGE = 2  # bad argument (ID 32, position 20000, unknown field): nothing was sent
+    PORT = 3  # the port cannot be opened: missing, permission denied, busy, not a serial port
+    NO_REPLY = 4  # no servo answered: baud, power, wiring, ID
+    REFUSED = 5  # a dangerous operation was refused or not confirmed: nothing was written
+    WRONG_BAUD = 6  # the servo answers, but at another baud rate than --baud
+    INTERRUPTED = 130  # Ctrl-C during a command that is not meant to be stopped that way
+
+
+class CliError(Exception):
+    """An error for a person: a message, hints on what to do, and an exit code."""
+
+    def __init__(self, code: ExitCode, message: str, *hints: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+        self.hints = list(hints)
+
+
+@dataclass
+class Settings:
+    """The line options, shared with every command through ``ctx.obj``."""
+
+    port: str = DEFAULT_PORT
+    baud: int = 115200
+    timeout: float = 0.020
+    retries: int = 1
+    echo: bool = True
+    transport: str = "auto"
+    verbose: int = 0
+    port_defaulted: bool = False  # neither --port nor ICS35_PORT: the implicit, throwaway simulator
+    _sim_name: str | None = field(default=None, init=False, repr=False)
+
+    @property
+    def is_sim(self) -> bool:
+        return self.port.startswith("sim://")
+
+    @property
+    def url(self) -> str:
+        """The port to open.  An unnamed sim:// line gets a name, so that every reopening
+        within this command (scan at each baud, a read-back) finds the same simulated servos."""
+        if not self.is_sim:
+            return self.port
+        parts = urlsplit(self.port)
+        if parts.netloc or parts.path.strip("/"):
+            return self.port
+        if self._sim_name is None:
+            self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
+        return urlunsplit(parts._replace(netloc=self._sim_name))
+
+    def release_sim(self) -> None:
+        """Close the simulated line :attr:`url` named, if any (it lives for one command)."""
+        name, self._sim_name = self._sim_name, None
+        if name is not None:
+            from .. import sim
+
+            with contextlib.suppress(KeyError):
+                sim.named(name).close()
+
+    def bus(self, baud: int | None = None, *, timeout: float | None = None, retries: int | None = None) -> Bus:
+        """A not-yet-open bus with these settings (``async with`` it)."""
+        from .. import sim  # noqa: F401  (registers the sim:// URL scheme)
+        from ..bus import open_bus
+
+        return open_bus(
+            self.url,
+            baudrate=self.baud if baud is None else baud,
+            echo=self.echo,
+            transport=self.transport,
+            retries=self.retries if retries is None else retries,
+            adapter_latency=self.timeout if timeout is None else timeout,
+        )
+
+
+def settings_of(ctx: click.Context) -> Settings:
+    obj = ctx.find_object(Settings)
+    return obj if obj is not None else Settings()
+
+
+_QUIET = logging.NullHandler()
+
+
+def setup_logging(verbose: int) -> None:
+    if not verbose:
+        # The library logs a lost port as a warning, which Python's last-resort handler would
+        # print; the command reports it itself, once.  (Configured handlers still get records.)
+        logging.getLogger("ics35_async").addHandler(_QUIET)
+        return
+    logging.getLogger("ics35_async").removeHandler(_QUIET)
+    level = logging.DEBUG if verbose > 1 else logging.INFO
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    # -v may come again after the command (ics35 scan -vv): the last count wins.
+    logging.getLogger().setLevel(level)

@@ -1,0 +1,87 @@
+"""Current and temperature reads for the live table, fitted between a stream's position cycles.
+
+They follow the stream's offline marking: an ID the stream has taken out of
+its cycle (it stopped answering) is not read, since every read of a dead ID
+costs a full reply timeout and would slow every cycle; the stream probes it,
+and telemetry resumes when it rejoins.  An ID whose telemetry reads alone
+keep failing is read only once per ``probe_interval`` until one answers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Collection, Sequence
+
+from .. import protocol
+from ..bus import Bus, Priority
+from ..errors import ReplyError
+from ..protocol import Param
+
+
+class Telemetry:
+    """Current and temperature reads, a few servos per cycle, queued between position transactions."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        ids: Sequence[int],
+        per_cycle: int,
+        *,
+        probe_interval: float = 0.5,
+        fail_limit: int = 3,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.bus = bus
+        self.ids = list(ids)
+        self.per_cycle = per_cycle
+        self.probe_interval = probe_interval
+        self.fail_limit = fail_limit
+        self.clock = clock
+        self.current: dict[int, int] = {}
+        self.temperature: dict[int, int] = {}
+        self.errors: dict[int, int] = dict.fromkeys(self.ids, 0)
+        self._fail_run: dict[int, int] = dict.fromkeys(self.ids, 0)
+        self._next_probe: dict[int, float] = dict.fromkeys(self.ids, 0.0)
+        self._next = 0
+        self._pending = 0
+
+    def after_frame(self, offline: Collection[int] = ()) -> None:
+        """Queue the next round of reads, skipping the IDs in ``offline`` (the frame's)."""
+        # At most one round outstanding: telemetry must never starve the stream.
+        if self._pending or not self.per_cycle or not self.ids:
+            return
+        now = self.clock()
+        chosen: list[int] = []
+        for _ in range(len(self.ids)):
+            if len(chosen) >= self.per_cycle:
+                break
+            sid = self.ids[self._next % len(self.ids)]
+            self._next += 1
+            if sid in offline:
+                continue
+            if self._fail_run[sid] >= self.fail_limit:
+                if now < self._next_probe[sid]:
+                    continue
+                self._next_probe[sid] = now + self.probe_interval
+            chosen.append(sid)
+        for sid in chosen:
+            for param, store in ((Param.CURRENT, self.current), (Param.TEMPERATURE, self.temperature)):
+                fut = asyncio.ensure_future(self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW))
+                self._pending += 1
+                fut.add_done_callback(self._done_callback(sid, store))
+
+    def _done_callback(self, sid: int, store: dict[int, int]) -> Callable[[asyncio.Future[int]], None]:
+        def done(fut: asyncio.Future[int]) -> None:
+            self._pending -= 1
+            if fut.cancelled():
+                return
+            exc = fut.exception()
+            if exc is None:
+                store[sid] = fut.result()
+                self._fail_run[sid] = 0
+            elif isinstance(exc, ReplyError):
+                self.errors[sid] = self.errors.get(sid, 0) + 1
+                self._fail_run[sid] += 1
+
+        return done

@@ -1,0 +1,68 @@
+"""Fixtures for the CLI tests: ``ics35(*args)`` run in this process, ``line(servos)`` a named simulated line.
+
+Import them into a test module (``from _cli_fixtures import ics35, line``); pytest
+finds fixtures by name in the module's namespace.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import main
+from ics35_async.sim import SimBus
+
+
+class Result:
+    def __init__(self, code: int, out: str, err: str) -> None:
+        self.code = code
+        self.out = out
+        self.err = err
+
+    def json(self) -> Any:
+        return json.loads(self.out)
+
+
+@pytest.fixture
+def ics35(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Any:
+    """Run ``ics35 ARGS...`` in-process (no port in the environment); optional ``stdin`` text."""
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    monkeypatch.delenv("ICS35_BAUD", raising=False)
+
+    def invoke(*args: str, stdin: str = "") -> Result:
+        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            main(list(args))
+        captured = capsys.readouterr()
+        code = exited.value.code
+        result = Result(code if isinstance(code, int) else 1, captured.out, captured.err)
+        assert "Traceback" not in result.err, result.err
+        return result
+
+    return invoke
+
+
+_names = itertools.count()
+
+
+@pytest.fixture
+def line() -> Iterator[Any]:
+    """``line(servos, **SimBus options)`` -> (SimBus, its sim://NAME URL); closed after the test."""
+    made: list[SimBus] = []
+
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+        name = f"cli-user-test-{next(_names)}"
+        sim = SimBus(list(servos), name=name, **options)
+        made.append(sim)
+        return sim, f"sim://{name}"
+
+    yield make
+    for sim in made:
+        sim.close()

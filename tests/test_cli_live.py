@@ -1,0 +1,61 @@
+"""monitor and demo: telemetry that follows the stream's offline marking, and --plot checked up front."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import pytest
+from tests._cli_fixtures import ics35, line
+
+from ics35_async.cli import ExitCode
+
+__all__ = ["ics35", "line"]
+
+TELEMETRY_READS = ("read_current", "read_temperature")
+
+
+@pytest.mark.parametrize("command", [["monitor", "1-4"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
+def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
+    ics35: Any, line: Any, command: list[str]
+) -> None:
+    # ID 4 is listed but absent: the stream takes it out of its cycle after a few misses,
+    # and telemetry must follow, not spend a reply timeout on it every round.
+    sim, url = line([1, 2, 3], log_size=None)
+    result = ics35("--port", url, "--timeout", "0.005", *command, "--seconds", "1", "--telemetry", "4")
+    assert result.code == 0, result.err
+    reads = Counter(t.servo_id for t in sim.log_since(0) if t.command in TELEMETRY_READS)
+    # Only the reads queued before the stream marked ID 4 offline reach it.
+    assert reads[4] * 10 <= min(reads[1], reads[2], reads[3]), reads
+    assert min(reads[1], reads[2], reads[3]) >= 20, reads  # telemetry did run
+
+
+@pytest.mark.parametrize("command", [["monitor", "1"], ["demo", "--ids", "1"]], ids=["monitor", "demo"])
+@pytest.mark.parametrize(
+    ("plot", "says"),
+    [
+        ("/nonexistent/x.png", "does not exist"),
+        ("{tmp}/out.txt", "cannot write .txt files"),
+        ("{tmp}/noext", "without a suffix"),
+        ("{tmp}", "is a directory"),
+    ],
+)
+def test_plot_path_and_format_are_checked_before_the_line(
+    ics35: Any, line: Any, tmp_path: Path, command: list[str], plot: str, says: str
+) -> None:
+    pytest.importorskip("matplotlib")
+    sim, url = line([1])
+    result = ics35("--port", url, *command, "--seconds", "1", "--plot", plot.format(tmp=tmp_path))
+    assert result.code == ExitCode.USAGE
+    assert "--plot" in result.err and says in result.err, result.err
+    assert sim.transactions == 0
+
+
+def test_plot_in_another_format_is_written(ics35: Any, line: Any, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    _, url = line([1])
+    target = tmp_path / "trace.svg"
+    result = ics35("--port", url, "monitor", "1", "--seconds", "0.3", "--plot", str(target))
+    assert result.code == 0, result.err
+    assert b"<svg" in target.read_bytes()[:500]

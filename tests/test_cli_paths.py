@@ -1,0 +1,67 @@
+"""Files a command writes or reads are checked before the line is touched: exit 2, nothing sent, no traceback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from tests._cli_fixtures import ics35
+
+from ics35_async.cli import CliError, ExitCode
+from ics35_async.cli._paths import check_output_path
+
+__all__ = ["ics35"]
+
+
+def test_a_sim_record_file_in_a_missing_directory(ics35: Any) -> None:
+    result = ics35("--port", "sim://?record=/nonexistent/x.txt", "move", "1", "7500")
+    assert result.code == ExitCode.USAGE
+    assert "/nonexistent" in result.err and "does not exist" in result.err
+
+
+def test_a_sim_replay_file_that_is_not_there(ics35: Any, tmp_path: Path) -> None:
+    result = ics35("--port", f"sim://?replay={tmp_path}/missing.txt", "get", "1", "speed")
+    assert result.code == ExitCode.USAGE
+    assert "no such file" in result.err
+
+
+def test_a_sim_record_file_is_written(ics35: Any, tmp_path: Path) -> None:
+    target = tmp_path / "session.txt"
+    assert ics35("--port", f"sim://?record={target}", "move", "1", "7600").code == 0
+    assert "position" in target.read_text()
+
+
+def test_no_traceback_as_a_process() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", "sim://?record=/nonexistent/x.txt", "move", "1", "7500"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={k: v for k, v in os.environ.items() if k != "ICS35_PORT"},
+    )
+    assert done.returncode == ExitCode.USAGE
+    assert "Traceback" not in done.stderr and "error:" in done.stderr
+
+
+# ------------------------------------------------------------------- the helper itself (eeprom dump -o uses it too)
+
+
+def test_check_output_path(tmp_path: Path) -> None:
+    assert check_output_path(str(tmp_path / "a.json"), "-o") == tmp_path / "a.json"
+    cases = {
+        "/nonexistent/x.json": "does not exist",
+        str(tmp_path): "is a directory",
+        str(tmp_path / "a.txt"): "cannot write .txt files",
+    }
+    for path, says in cases.items():
+        with pytest.raises(CliError) as caught:
+            check_output_path(path, "-o", {"json"})
+        assert caught.value.code == ExitCode.USAGE
+        assert says in caught.value.message and "-o" in caught.value.message
+    (tmp_path / "file").write_text("")
+    with pytest.raises(CliError, match="not a directory"):
+        check_output_path(str(tmp_path / "file" / "x.json"), "-o")
