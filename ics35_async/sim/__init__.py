@@ -71,7 +71,6 @@ from .line import (
     DEFAULT_EEPROM_WRITE_DELAY,
     DEFAULT_TURNAROUND,
     SimBus,
-    Transaction,
     garble,
     named,
     parse_url,
@@ -80,6 +79,7 @@ from .pty_server import PtyServer, serving, start_subprocess, stop_subprocess
 from .pty_server import main as main
 from .record import Entry, Mismatch, Recorder, ReplayDevice, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
+from .transaction import Transaction
 
 
 def open_url(url: str) -> WireDevice:

@@ -29,8 +29,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from ..eeprom import BaudRate
@@ -39,10 +38,9 @@ from ..protocol import BITS_PER_BYTE, ReadId, WriteEeprom, WriteId, decode_reque
 from ..transport import HostSide
 from .clock import SPIN_MARGIN, Deliverer
 from .faults import FaultConfig, FaultInjector, parse_ids
+from .record import Recorder
 from .servo import NO_REPLY, MemoryDevice, VirtualServo
-
-if TYPE_CHECKING:
-    from .record import Recorder
+from .transaction import Transaction
 
 DEFAULT_TURNAROUND = 100e-6
 """Seconds a servo waits after a command before answering.  An assumption:
@@ -57,40 +55,6 @@ DEFAULT_FRAME_TIMEOUT = 10e-3
 DEFAULT_NOISE_GAP = 1e-3
 
 Device = VirtualServo | MemoryDevice
-
-
-@dataclass(frozen=True, slots=True)
-class Transaction:
-    """One host command as the simulated line saw and answered it.
-
-    ``time`` is the line's clock when the command's last byte arrived;
-    ``servo_id`` the addressed ID (``None`` for the ID command; for bytes no
-    device understood, ``command == "unknown"``, the ID bits of their first
-    byte if it is a command byte, else ``None``).  ``echo`` and ``reply``
-    are the bytes actually sent back (after faults; ``reply`` of a ``late``
-    transaction arrives during a later one); ``clean_reply`` is what healthy
-    devices would have sent; ``value`` the value answered (a position, a
-    parameter, an :class:`Eeprom`, an ID, memory bytes; ``None`` if none or
-    if several devices answered at once); ``responders`` the IDs of the
-    devices that answered; ``fault`` the injected faults joined with ``+``;
-    ``extra`` bytes sent during this transaction that do not belong to it
-    (an earlier late reply, noise); ``reply_time`` when the reply's last byte
-    is delivered (``None`` without a reply).
-    """
-
-    seq: int
-    time: float
-    servo_id: int | None
-    command: str
-    tx: bytes
-    echo: bytes
-    reply: bytes
-    clean_reply: bytes
-    value: Any
-    responders: tuple[int, ...]
-    fault: str | None
-    extra: bytes
-    reply_time: float | None
 
 
 def garble(replies: list[bytes]) -> bytes:
@@ -579,8 +543,6 @@ class SimBus:
 
     def record_to(self, target: Any) -> Recorder:
         """Record every following transaction to ``target`` (path or text stream)."""
-        from .record import Recorder
-
         recorder = target if isinstance(target, Recorder) else Recorder(target)
         with self._lock:
             self._recorder = recorder

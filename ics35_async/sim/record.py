@@ -30,13 +30,11 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import Any, TextIO
 
 from ..errors import InvalidArgument
 from ..transport import HostSide
-
-if TYPE_CHECKING:
-    from .line import Transaction
+from .transaction import Transaction
 
 HEADER = "# ics35 sim recording v1"
 
