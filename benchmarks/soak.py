@@ -92,8 +92,8 @@ from ics35_async.protocol import Command, Param, decode_request
 from ics35_async.sim import (
     FaultConfig,
     FaultInjector,
-    SimBus,
     Transaction,
+    VirtualLine,
     VirtualServo,
     start_subprocess,
     stop_subprocess,
@@ -276,7 +276,7 @@ class LogMatcher:
     """
 
     def __init__(
-        self, sim: SimBus, is_stream: Callable[[bytes], bool], ids: Iterable[int], track_stream: bool = True
+        self, sim: VirtualLine, is_stream: Callable[[bytes], bool], ids: Iterable[int], track_stream: bool = True
     ) -> None:
         self.sim = sim
         self.is_stream = is_stream
@@ -614,7 +614,7 @@ class WorkloadStats:
 class ChaosWorkload:
     """Stream + request workers on one bus, feeding a :class:`LogMatcher`."""
 
-    def __init__(self, sim: SimBus, bus: Bus, seed: int, workers: int, request_pause: float) -> None:
+    def __init__(self, sim: VirtualLine, bus: Bus, seed: int, workers: int, request_pause: float) -> None:
         self.sim = sim
         self.bus = bus
         self.seed = seed
@@ -768,7 +768,7 @@ class ChaosReport:
         )
 
 
-async def consistency_check(sim: SimBus, bus: Bus) -> dict[str, Any]:
+async def consistency_check(sim: VirtualLine, bus: Bus) -> dict[str, Any]:
     """Faults off; every servo must answer exactly what the simulator holds; the bus idle and its counters sane."""
     sim.faults = FaultInjector(FaultConfig(), 0)
     problems: list[str] = []
@@ -817,9 +817,9 @@ def chaos_servos() -> list[VirtualServo]:
 
 async def chaos_run(
     transactions: int, fault_rate: float, seed: int, workers: int = 4, request_pause: float = 0.002
-) -> tuple[ChaosWorkload, float, SimBus, Bus, dict[str, Any]]:
+) -> tuple[ChaosWorkload, float, VirtualLine, Bus, dict[str, Any]]:
     spec = fault_spec(fault_rate)
-    sim = SimBus(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
+    sim = VirtualLine(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
     bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
     try:
         workload = ChaosWorkload(sim, bus, seed, workers, request_pause)
@@ -951,7 +951,7 @@ async def cancellation_soak(
     to the log like in the chaos soak; stream frames are checked against
     the servos' disjoint position bands.
     """
-    sim = SimBus(chaos_servos(), log_size=200_000)
+    sim = VirtualLine(chaos_servos(), log_size=200_000)
     bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
     matcher = LogMatcher(sim, is_stream_tx, range(32), track_stream=False)
     images = {i: sim.servo(i).eeprom for i in range(32)}

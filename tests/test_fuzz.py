@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ics35_async import IcsError, Param, ReplyError, open_bus, protocol
-from ics35_async.sim import FaultConfig, FaultInjector, SimBus
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import soak
@@ -61,7 +61,7 @@ def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: i
 
 @pytest.mark.parametrize("kind", soak.FAULT_KINDS)
 async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the_bus_sound(kind: str) -> None:
-    sim = SimBus(soak.chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
+    sim = VirtualLine(soak.chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
     async with open_bus(sim, timing=soak.FAST_TIMING) as bus:
         outcomes: list[object] = []
         for i in range(4):

@@ -2,11 +2,11 @@
 
 Two ways in:
 
-* **In process**: :class:`SimBus` is a :class:`~ics35_async.transport.WireDevice`;
+* **In process**: :class:`VirtualLine` is a :class:`~ics35_async.transport.WireDevice`;
   importing this package registers the ``sim://`` URL scheme, so
   ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
   Tests build one from Python objects
-  (``SimBus([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
+  (``VirtualLine([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
   and reach it by name (``sim://t``).
 * **On a pseudo-terminal**: ``python -m ics35_async.sim --ids 0-31 [--baud B]
   [--realtime] [--faults SPEC] [--seed N]`` prints a device path on its first
@@ -31,7 +31,7 @@ differs stays silent.  ``baud=`` sets the servos' EEPROM rate.
 Modes and clocks.  Fast mode (default): answers are delivered at once, and
 the line keeps a simulated clock that advances by the modelled wire time of
 every transaction (11 bit times a byte, plus a 100 us turnaround, plus 20 ms
-for the EEPROM write) and by :meth:`SimBus.advance`, so motion is
+for the EEPROM write) and by :meth:`VirtualLine.advance`, so motion is
 deterministic whatever the host's speed.  Real-time mode: the clock is
 ``time.perf_counter()`` and each chunk is delivered no earlier than its wire
 time, by a delivery thread (in process) or the server's loop (pty) that
@@ -59,7 +59,7 @@ wake-up, the pty), the same as without the wire model.  Outliers of a few
 ms come from the machine (other processes, the GIL: a delivery thread that
 must wait for an event loop busy running Python code can be held up to
 ``sys.getswitchinterval()``, 5 ms).  Fast-mode throughput: about 75 000
-transactions/s (13 us each) through :meth:`SimBus.process`.
+transactions/s (13 us each) through :meth:`VirtualLine.process`.
 """
 
 from __future__ import annotations
@@ -70,14 +70,14 @@ from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
 from .line import (
     DEFAULT_EEPROM_WRITE_DELAY,
     DEFAULT_TURNAROUND,
-    SimBus,
+    VirtualLine,
     garble,
     named,
     parse_url,
 )
 from .pty_server import PtyServer, serving, start_subprocess, stop_subprocess
 from .pty_server import main as main
-from .record import Entry, Mismatch, Recorder, ReplayDevice, load_recording, parse_recording
+from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
 from .transaction import Transaction
 
@@ -99,7 +99,7 @@ def open_url(url: str) -> WireDevice:
         if options:
             raise ValueError(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
         return ReplayDevice(replay)
-    return SimBus(name=name, **options)
+    return VirtualLine(name=name, **options)
 
 
 register_url_scheme("sim", open_url)
@@ -115,10 +115,10 @@ __all__ = [
     "MemoryDevice",
     "Mismatch",
     "PtyServer",
-    "Recorder",
     "ReplayDevice",
-    "SimBus",
     "Transaction",
+    "TransactionRecorder",
+    "VirtualLine",
     "VirtualServo",
     "garble",
     "load_recording",

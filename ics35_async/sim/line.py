@@ -1,10 +1,10 @@
-"""The virtual ICS line: :class:`SimBus`, its transaction log and its URL.
+"""The virtual ICS line: :class:`VirtualLine`, its transaction log and its URL.
 
-:meth:`SimBus.feed` is the sans-IO core: host bytes and the time they were
+:meth:`VirtualLine.feed` is the sans-IO core: host bytes and the time they were
 written go in, the chunks the host receives (echo, replies, noise) and the
 earliest time each may be delivered come out.  Two drivers sit on top:
 
-* the :class:`~ics35_async.transport.WireDevice` face of :class:`SimBus`
+* the :class:`~ics35_async.transport.WireDevice` face of :class:`VirtualLine`
   (``connect`` / ``write`` / ``disconnect``) for in-process use, answering
   synchronously in fast mode and from a :class:`~.clock.Deliverer` thread at
   the modelled wire time in real-time mode;
@@ -38,7 +38,7 @@ from ..protocol import BITS_PER_BYTE, ReadId, WriteEeprom, WriteId, decode_reque
 from ..transport import HostSide
 from .clock import SPIN_MARGIN, Deliverer
 from .faults import FaultConfig, FaultInjector, parse_ids
-from .record import Recorder
+from .record import TransactionRecorder
 from .servo import NO_REPLY, MemoryDevice, VirtualServo
 from .transaction import Transaction
 
@@ -73,7 +73,7 @@ def garble(replies: list[bytes]) -> bytes:
     return anded + b"\x00"
 
 
-class SimBus:
+class VirtualLine:
     """A simulated ICS 3.5 line with up to 32 servos and optional memory devices.
 
     ``servos``: :class:`VirtualServo` objects or IDs (factory servos at
@@ -171,7 +171,7 @@ class SimBus:
         self._timers: list[threading.Timer] = []
         self._unplug_scheduled = False
         self._listeners: list[Callable[[bool], None]] = []
-        self._recorder: Recorder | None = None
+        self._recorder: TransactionRecorder | None = None
         self._reindex()
         if record is not None:
             self.record_to(record)
@@ -541,9 +541,9 @@ class SimBus:
 
     # ------------------------------------------------------------------ recording, lifetime
 
-    def record_to(self, target: Any) -> Recorder:
+    def record_to(self, target: Any) -> TransactionRecorder:
         """Record every following transaction to ``target`` (path or text stream)."""
-        recorder = target if isinstance(target, Recorder) else Recorder(target)
+        recorder = target if isinstance(target, TransactionRecorder) else TransactionRecorder(target)
         with self._lock:
             self._recorder = recorder
         return recorder
@@ -563,7 +563,7 @@ class SimBus:
         if self.name is not None and _NAMED.get(self.name) is self:
             del _NAMED[self.name]
 
-    def __enter__(self) -> SimBus:
+    def __enter__(self) -> VirtualLine:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -572,16 +572,16 @@ class SimBus:
     # ------------------------------------------------------------------ URLs
 
     @classmethod
-    def from_url(cls, url: str) -> SimBus:
+    def from_url(cls, url: str) -> VirtualLine:
         """Build a line from a ``sim://`` URL (see :func:`parse_url`)."""
         name, options = parse_url(url)
         if "replay" in options:
-            raise InvalidArgument("replay= makes a ReplayDevice, not a SimBus: use sim.open_url()")
+            raise InvalidArgument("replay= makes a ReplayDevice, not a VirtualLine: use sim.open_url()")
         return cls(name=name, **options)
 
     def __repr__(self) -> str:
         mode = "realtime" if self.realtime else "fast"
-        return f"<SimBus {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
+        return f"<VirtualLine {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
 
 
 def _addressed_id(command: Any, frame: bytes) -> int | None:
@@ -591,11 +591,11 @@ def _addressed_id(command: Any, frame: bytes) -> int | None:
 
 
 _ICS_BAUDS = frozenset(int(b) for b in BaudRate)
-_NAMED: dict[str, SimBus] = {}
+_NAMED: dict[str, VirtualLine] = {}
 
 
-def named(name: str) -> SimBus:
-    """The line registered under ``name`` (``SimBus(name=...)`` or ``sim://NAME``)."""
+def named(name: str) -> VirtualLine:
+    """The line registered under ``name`` (``VirtualLine(name=...)`` or ``sim://NAME``)."""
     return _NAMED[name]
 
 
@@ -637,7 +637,7 @@ def _int(key: str, text: str) -> int:
 
 
 def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
-    """Split a ``sim://[NAME][?key=value&...]`` URL into a name and SimBus options.
+    """Split a ``sim://[NAME][?key=value&...]`` URL into a name and VirtualLine options.
 
     Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``

@@ -73,7 +73,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from .clock import SPIN_MARGIN, lower_timer_slack, wait_until
 from .faults import FaultConfig, parse_ids
-from .line import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_REPLUG_AFTER, DEFAULT_TURNAROUND, SimBus, parse_seconds
+from .line import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_REPLUG_AFTER, DEFAULT_TURNAROUND, VirtualLine, parse_seconds
 from .record import ReplayDevice
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
@@ -113,11 +113,11 @@ def host_baudrate(fd: int) -> int | None:
 
 
 class PtyServer:
-    """Serves ``device`` (a :class:`SimBus` or :class:`ReplayDevice`) on a pty."""
+    """Serves ``device`` (a :class:`VirtualLine` or :class:`ReplayDevice`) on a pty."""
 
     def __init__(
         self,
-        device: SimBus | ReplayDevice,
+        device: VirtualLine | ReplayDevice,
         *,
         link: str | Path | None = None,
         follow_host_baud: bool = True,
@@ -290,14 +290,14 @@ class PtyServer:
         if baud and baud != _IDLE_BAUD:
             # The client set its speed since we last looked: note it, then park
             # the pty at the idle speed again (see the module docstring).
-            if self.follow_host_baud and isinstance(device, SimBus):
+            if self.follow_host_baud and isinstance(device, VirtualLine):
                 device.baudrate = baud
             self._park_speed(only_if=baud)
         chunks = device.process(data)
         epoch = device.epoch
         for when, chunk in chunks:
             heapq.heappush(self._heap, (epoch + when if realtime else 0.0, next(self._order), chunk))
-        if device.take_unplug_request() and isinstance(device, SimBus):
+        if device.take_unplug_request() and isinstance(device, VirtualLine):
             line_free = epoch + device._line_free if realtime else 0.0
             heapq.heappush(self._heap, (line_free, next(self._order), None))
 
@@ -308,7 +308,7 @@ class PtyServer:
             wait_until(when, self.spin_margin)
             if chunk is None:
                 device = self.device
-                if isinstance(device, SimBus):
+                if isinstance(device, VirtualLine):
                     device.unplug(replug_after=device.replug_after)
                 self._follow_plug_state()
                 return
@@ -375,7 +375,7 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     return parser
 
 
-def build_device(args: argparse.Namespace) -> SimBus | ReplayDevice:
+def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     if args.replay:
         return ReplayDevice(args.replay)
     ids = [] if args.ids.strip().lower() == "none" else parse_ids(args.ids)
@@ -387,7 +387,7 @@ def build_device(args: argparse.Namespace) -> SimBus | ReplayDevice:
         options["eeprom_write_delay"] = parse_seconds(args.eeprom_delay, "--eeprom-delay")
     if args.late_delay is not None:
         options["late_delay"] = parse_seconds(args.late_delay, "--late-delay")
-    bus = SimBus(
+    bus = VirtualLine(
         ids,
         baudrate=BaudRate.parse(args.baud),
         memory={i: b"" for i in parse_ids(args.memory)} if args.memory else None,
@@ -433,7 +433,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         server.close()
-        if isinstance(device, SimBus):
+        if isinstance(device, VirtualLine):
             device.close()
             print(f"ics35 sim: served {device.transactions} transactions", file=sys.stderr, flush=True)
     return 0

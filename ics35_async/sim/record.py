@@ -56,7 +56,7 @@ def describe(record: Transaction) -> str:
     return " ".join(parts)
 
 
-class Recorder:
+class TransactionRecorder:
     """Writes one line per transaction to a path or a text stream."""
 
     def __init__(self, target: str | Path | TextIO) -> None:
