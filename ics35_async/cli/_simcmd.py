@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import click
 
-from ..sim import main as sim_main
-
 
 @click.command(
     context_settings={"ignore_unknown_options": True, "allow_extra_args": True, "help_option_names": []},
@@ -17,7 +15,11 @@ def sim(args: tuple[str, ...]) -> int:
 
     Prints the device path on its first line; use it as --port in another terminal.
     """
-    return sim_main(list(args), prog="ics35 sim")
+    # Imported here, not at the top: the pty server needs termios/fcntl (POSIX only),
+    # and every other command must load on any platform.
+    from ..sim.pty_server import main
+
+    return main(list(args), prog="ics35 sim")
 
 
 COMMANDS = [sim]

@@ -64,6 +64,9 @@ transactions/s (13 us each) through :meth:`VirtualLine.process`.
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from ..transport import WireDevice, register_url_scheme
 from .clock import Deliverer, lower_timer_slack, wait_until
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
@@ -75,11 +78,31 @@ from .line import (
     named,
     parse_url,
 )
-from .pty_server import PtyServer, serving, start_subprocess, stop_subprocess
-from .pty_server import main as main
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
 from .transaction import Transaction
+
+if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
+    from .pty_server import PtyServer, main, serving, start_subprocess, stop_subprocess
+
+# The pty server needs termios, fcntl and tty (POSIX only): it is imported when one
+# of its names is first asked for, so the in-process simulator imports anywhere.
+_LAZY = {
+    "PtyServer": "pty_server",
+    "main": "pty_server",
+    "serving": "pty_server",
+    "start_subprocess": "pty_server",
+    "stop_subprocess": "pty_server",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
 
 
 def open_url(url: str) -> WireDevice:
