@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import pathlib
 
 import pytest
 
@@ -10,7 +11,8 @@ from ics35_async.eeprom import BaudRate
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadParam
 from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
-from ics35_async.transport import open_line
+from ics35_async.sim import url as sim_url
+from ics35_async.transport import WireDevice, open_line
 
 
 def test_bare_url_is_32_servos_at_115200_in_fast_mode() -> None:
@@ -92,6 +94,19 @@ def test_replay_url(tmp_path: object) -> None:
     path.write_text("0.0 81 3a 4c -> 81 3a 4c | 01 3a 4c\n")
     device = open_url(f"sim://?replay={path}")
     assert isinstance(device, ReplayDevice) and device.remaining == 1
+    with pytest.raises(InvalidArgument, match="replay= takes no other options"):
+        open_url(f"sim://?replay={path}&ids=1")
+
+
+@pytest.mark.parametrize("query", ["", "?ids=1&realtime=1", "?replay=REC"])
+def test_open_url_is_the_one_way_from_a_url_to_a_wire_device(query: str, tmp_path: pathlib.Path) -> None:
+    # What the core's scheme map points at: ics35_async.sim.url.open_url (re-exported as sim.open_url).
+    assert sim_url.open_url is open_url
+    recording = tmp_path / "r.txt"
+    recording.write_text("# nothing recorded\n")
+    device = sim_url.open_url("sim://" + query.replace("REC", str(recording)))
+    assert isinstance(device, WireDevice)
+    device.close()  # type: ignore[attr-defined]
 
 
 class Collect(asyncio.Protocol):

@@ -67,7 +67,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from ..transport import WireDevice, register_url_scheme
+from ..transport import register_url_scheme
 from .clock import Deliverer, lower_timer_slack, wait_until
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
 from .line import (
@@ -76,11 +76,11 @@ from .line import (
     VirtualLine,
     garble,
     named,
-    parse_url,
 )
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
 from .transaction import Transaction
+from .url import open_url, parse_url
 
 if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
     from .pty_server import PtyServer, main, serving, start_subprocess, stop_subprocess
@@ -103,26 +103,6 @@ def __getattr__(name: str) -> Any:
     value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
-
-
-def open_url(url: str) -> WireDevice:
-    """The device a ``sim://`` URL names (the registered URL-scheme factory).
-
-    A named line (``sim://NAME?...``) is created once and returned again by
-    later calls, so a bus that reconnects finds the same servos.
-    """
-    name, options = parse_url(url)
-    if name is not None:
-        try:
-            return named(name)
-        except KeyError:
-            pass
-    replay = options.pop("replay", None)
-    if replay is not None:
-        if options:
-            raise ValueError(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
-        return ReplayDevice(replay)
-    return VirtualLine(name=name, **options)
 
 
 register_url_scheme("sim", open_url)

@@ -73,8 +73,9 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from .clock import SPIN_MARGIN, lower_timer_slack, wait_until
 from .faults import FaultConfig, parse_ids
-from .line import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_REPLUG_AFTER, DEFAULT_TURNAROUND, VirtualLine, parse_seconds
+from .line import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_REPLUG_AFTER, DEFAULT_TURNAROUND, VirtualLine
 from .record import ReplayDevice
+from .url import parse_seconds
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
 _ABSENT_POLL = 0.02  # seconds between checks for a client while none has the pty open
