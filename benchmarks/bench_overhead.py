@@ -52,7 +52,7 @@ Figures = dict[str, Any]
 def raw_loop(path: str, duration: float, *, baud: int = 115200) -> Figures:
     """The blocking pyserial baseline: one position transaction after the other, IDs 0..31 in turn."""
     # 8N1 and every setting in the constructor: a pty has no parity, and a
-    # later re-configuration at an unchanged speed fails there (see sim.pty_server).
+    # later re-configuration at an unchanged speed fails there (see sim.pty_port).
     ser = serial.Serial(path, baud, parity=serial.PARITY_NONE, timeout=1)
     txs = POSITION_TXS
     write, read = ser.write, ser.read

@@ -358,8 +358,7 @@ def test_restore_keeps_the_target_servos_calibration_and_id(ics35: Any, line: An
     doc = json.loads(backup.read_text())
     del doc["fields"]
     backup.write_text(json.dumps(doc))
-    sim.devices.append(VirtualServo(3))
-    sim._reindex()
+    sim.add_device(VirtualServo(3))
     assert ics35("--port", url, "eeprom", "restore", "3", str(backup), "--yes").code == 0
     assert sim.servo(3).eeprom.speed == 33 and sim.servo(3).calibration_intact
 

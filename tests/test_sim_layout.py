@@ -70,3 +70,21 @@ def test_sim_modules_import_each_other_one_way() -> None:
         assert "__init__" not in deps and "__main__" not in deps, f"{name} imports the package itself"
     cycle = find_cycle(graph)
     assert cycle is None, "import circle: " + " -> ".join(cycle or [])
+
+
+def test_every_sim_module_is_under_400_lines() -> None:
+    sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in SIM_DIR.glob("*.py")}
+    assert {name: n for name, n in sizes.items() if n >= 400} == {}
+
+
+def test_only_the_pty_plumbing_imports_posix_tty_modules() -> None:
+    posix = {"termios", "fcntl", "tty", "pty"}
+    users = set()
+    for path in SIM_DIR.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            if posix & {n.split(".")[0] for n in names}:
+                users.add(path.stem)
+    assert users == {"pty_port"}

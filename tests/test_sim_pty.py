@@ -1,7 +1,7 @@
 """The pty server as an outside program sees it: a plain blocking pyserial client, no code of ours.
 
 The client opens the port 8E1 with every setting in the constructor and never
-re-configures it (see ics35_async.sim.pty_server for why), then checks every
+re-configures it (see ics35_async.sim.pty_port for why), then checks every
 byte of every command against the spec.
 """
 

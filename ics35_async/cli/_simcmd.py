@@ -17,7 +17,7 @@ def sim(args: tuple[str, ...]) -> int:
     """
     # Imported here, not at the top: the pty server needs termios/fcntl (POSIX only),
     # and every other command must load on any platform.
-    from ..sim.pty_server import main
+    from ..sim.server_cli import main
 
     return main(list(args), prog="ics35 sim")
 

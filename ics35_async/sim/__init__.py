@@ -1,4 +1,4 @@
-"""A virtual ICS 3.5 bus: up to 32 servos (and generic memory devices) on one line.
+"""A virtual ICS 3.5 line: up to 32 servos (and generic memory devices) behind one port.
 
 Two ways in:
 
@@ -10,8 +10,18 @@ Two ways in:
   and reach it by name (``sim://t``).
 * **On a pseudo-terminal**: ``python -m ics35_async.sim --ids 0-31 [--baud B]
   [--realtime] [--faults SPEC] [--seed N]`` prints a device path on its first
-  line; any serial program can open it (see :mod:`.pty_server` for pyserial's
+  line; any serial program can open it (see :mod:`.pty_port` for pyserial's
   parity quirk on ptys).
+
+Modules, each using only those listed before it: :mod:`.transaction` (a log
+entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
+waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
+answer a command), :mod:`.model` (the sans-IO wire model), :mod:`.line`
+(:class:`VirtualLine`: the model as an in-process port), :mod:`.url`
+(``sim://`` URLs; :func:`open_url` is what the core calls); then, POSIX
+only and loaded on demand, :mod:`.pty_port` (pty plumbing),
+:mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its command
+line); :mod:`.launch` runs that in a subprocess.
 
 URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
@@ -69,30 +79,26 @@ from typing import TYPE_CHECKING, Any
 
 from ..transport import register_url_scheme
 from .clock import Deliverer, lower_timer_slack, wait_until
+from .devices import garble
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
-from .line import (
-    DEFAULT_EEPROM_WRITE_DELAY,
-    DEFAULT_TURNAROUND,
-    VirtualLine,
-    garble,
-    named,
-)
+from .launch import serving, start_subprocess, stop_subprocess
+from .line import VirtualLine, named
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
 from .transaction import Transaction
 from .url import open_url, parse_url
 
 if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
-    from .pty_server import PtyServer, main, serving, start_subprocess, stop_subprocess
+    from .pty_server import PtyServer as PtyServer
+    from .server_cli import main as main
 
-# The pty server needs termios, fcntl and tty (POSIX only): it is imported when one
-# of its names is first asked for, so the in-process simulator imports anywhere.
+# The pty server and its command line need termios, fcntl and tty (POSIX only): they are
+# imported when one of their names is first asked for, so the in-process simulator imports anywhere
+# (and they stay out of __all__, so a star import works there too).
 _LAZY = {
     "PtyServer": "pty_server",
-    "main": "pty_server",
-    "serving": "pty_server",
-    "start_subprocess": "pty_server",
-    "stop_subprocess": "pty_server",
+    "main": "server_cli",
 }
 
 
@@ -115,9 +121,9 @@ __all__ = [
     "Entry",
     "FaultConfig",
     "FaultInjector",
+    "LineModel",
     "MemoryDevice",
     "Mismatch",
-    "PtyServer",
     "ReplayDevice",
     "Transaction",
     "TransactionRecorder",
@@ -126,7 +132,6 @@ __all__ = [
     "garble",
     "load_recording",
     "lower_timer_slack",
-    "main",
     "named",
     "open_url",
     "parse_ids",
