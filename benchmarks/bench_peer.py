@@ -101,7 +101,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
     ours: list[float] = []
     peer: list[dict[str, Any]] = []
     errors: list[str] = []
-    with pty_sim() as path:
+    with pty_sim("--fast") as path:
         for r in range(runs):
             progress(f"peer: run {r + 1}/{runs}")
             before = raw_loop(path, duration / 2)["tx_per_s"]

@@ -188,7 +188,7 @@ def bench_pty(n: int) -> None:
     for baud in (115200, 1250000):
         modelled = wire_time(6, baud) + 100e-6
         for realtime in (False, True):
-            args = ["--ids", "1", "--baud", str(baud)] + (["--realtime"] if realtime else [])
+            args = ["--ids", "1", "--baud", str(baud)] + (["--realtime"] if realtime else ["--fast"])
             proc, path = start_subprocess(args)
             try:
                 port = serial.Serial(path, baud, parity=serial.PARITY_EVEN, timeout=2)

@@ -11,7 +11,7 @@ import click
 )
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
 def sim(args: tuple[str, ...]) -> int:
-    """Serve simulated servos on a pseudo-terminal (ics35 sim --help lists its options).
+    """Serve simulated servos on a pseudo-terminal, in real time unless --fast (ics35 sim --help lists its options).
 
     Prints the device path on its first line; use it as --port in another terminal.
     """

@@ -9,9 +9,10 @@ Two ways in:
   (``VirtualLine([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
   and reach it by name (``sim://t``).
 * **On a pseudo-terminal**: ``python -m ics35_async.sim --ids 0-31 [--baud B]
-  [--realtime] [--faults SPEC] [--seed N]`` prints a device path on its first
+  [--fast] [--faults SPEC] [--seed N]`` prints a device path on its first
   line; any serial program can open it (see :mod:`.pty_port` for pyserial's
-  parity quirk on ptys).
+  parity quirk on ptys).  It runs in real time unless ``--fast``: programs
+  on the other end of a serial port expect time to pass between commands.
 
 Modules, each using only those listed before it: :mod:`.transaction` (a log
 entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
@@ -38,7 +39,7 @@ The line's baud rate is the host's: ``connect(host, baudrate)`` (or the
 pty client's settings) sets it, and a servo whose EEPROM (power-up) baud
 differs stays silent.  ``baud=`` sets the servos' EEPROM rate.
 
-Modes and clocks.  Fast mode (default): answers are delivered at once, and
+Modes and clocks.  Fast mode (the default in process; ``--fast`` on a pty): answers are delivered at once, and
 the line keeps a simulated clock that advances by the modelled wire time of
 every transaction (11 bit times a byte, plus a 100 us turnaround, plus 20 ms
 for the EEPROM write) and by :meth:`VirtualLine.advance`, so motion is

@@ -27,11 +27,27 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     parser = argparse.ArgumentParser(
         prog=prog,
         description="Serve a simulated ICS 3.5 servo line on a pseudo-terminal. "
-        "Prints the device path on the first line, then serves until SIGINT/SIGTERM.",
+        "Prints the device path on the first line, then serves until SIGINT/SIGTERM. "
+        "Runs in real time (wire timing) by default: replies take the modelled wire time "
+        "and servos keep moving between commands, as other programs expect of a serial port; "
+        "--fast answers at once and moves time only with each command's wire time.",
     )
+    parser.set_defaults(realtime=True)
     parser.add_argument("--ids", default="0-31", help="servo IDs, e.g. 0-31 or 1,3,5-7 ('none': no servos)")
     parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
-    parser.add_argument("--realtime", action="store_true", help="deliver at the modelled wire times")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--fast",
+        dest="realtime",
+        action="store_false",
+        help="fast mode: answer at once; the line's clock advances only by each command's wire time",
+    )
+    mode.add_argument(
+        "--realtime",
+        dest="realtime",
+        action="store_true",
+        help="real time: deliver at the modelled wire times (the default)",
+    )
     parser.add_argument("--faults", default=None, help="fault spec, e.g. drop:0.01,late@3:0.1 (see sim.faults)")
     parser.add_argument("--seed", type=int, default=0, help="fault random seed")
     parser.add_argument("--no-echo", action="store_true", help="do not echo the client's bytes")
