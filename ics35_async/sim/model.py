@@ -29,9 +29,10 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
-from ..protocol import BITS_PER_BYTE, WriteEeprom, decode_request
+from ..protocol import BITS_PER_BYTE, WriteEeprom
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
+from .framing import CommandFramer
 from .record import TransactionRecorder
 from .servo import VirtualServo
 from .transaction import Transaction
@@ -46,8 +47,6 @@ reference; 20 ms is an assumption that keeps real-time tests quick)."""
 DEFAULT_LOG_SIZE = 10_000
 DEFAULT_FRAME_TIMEOUT = 10e-3
 DEFAULT_NOISE_GAP = 1e-3
-
-_ICS_BAUDS = frozenset(int(b) for b in BaudRate)
 
 Chunks = list[tuple[float, bytes]]
 
@@ -65,8 +64,9 @@ class LineModel:
     :class:`FaultConfig` or a spec string (:mod:`.faults`), drawn from
     ``random.Random(seed)``.  ``log_size`` bounds the transaction log
     (``None``: unbounded, 0: no log; :attr:`transactions` counts
-    regardless).  ``record`` is a file path or text stream to record the
-    session to (:mod:`.record`).
+    regardless).  ``frame_timeout``: a half-received command is forgotten
+    after this pause (:mod:`.framing`).  ``record`` is a file path or text
+    stream to record the session to (:mod:`.record`).
     """
 
     def __init__(
@@ -99,7 +99,6 @@ class LineModel:
         self.eeprom_write_delay = eeprom_write_delay
         self.late_delay = late_delay
         self.noise_gap = noise_gap
-        self.frame_timeout = frame_timeout
         config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
         self.faults = FaultInjector(config, seed)
         self.log: deque[Transaction] = deque(maxlen=log_size)
@@ -111,9 +110,7 @@ class LineModel:
         self.epoch = time.perf_counter()
         self._clock = 0.0
         self._line_free = 0.0
-        self._rx = bytearray()
-        self._rx_echoed = 0
-        self._rx_time = 0.0
+        self._framer = CommandFramer(frame_timeout)
         self._held: list[bytes] = []
         self._deferred: list[tuple[float, int, bytes]] = []
         self._deferred_order = 0
@@ -178,47 +175,15 @@ class LineModel:
         while self._deferred and self._deferred[0][0] <= t:
             when, _, chunk = heapq.heappop(self._deferred)
             out.append((when, chunk))
-        if self._rx and now - self._rx_time > self.frame_timeout:
-            # A servo forgets a half-received command after a pause.
-            self._rx.clear()
-            self._rx_echoed = 0
-        self._rx_time = now
-        self._rx += data
         baud = self.baudrate
-        ics_baud = baud in _ICS_BAUDS
-        junk = bytearray()
-        junk_fresh = 0
-        rx = self._rx
-        while rx:
-            if ics_baud:
-                framed = decode_request(rx, baudrate=baud)
-                if framed is None:
-                    break
-                command, used = framed
-            else:
-                command, used = None, len(rx)  # no ICS device can make sense of this rate
-            frame = bytes(rx[:used])
-            fresh = max(0, used - self._rx_echoed)
-            del rx[:used]
-            self._rx_echoed = max(0, self._rx_echoed - used)
-            if command is None:
-                junk += frame
-                junk_fresh += fresh
-                continue
-            if junk:
-                t = self._transact(None, bytes(junk), junk_fresh, t, out)
-                junk.clear()
-                junk_fresh = 0
+        frames, in_flight = self._framer.feed(data, now, baud)
+        for command, frame, fresh in frames:
             t = self._transact(command, frame, fresh, t, out)
-        if junk:
-            t = self._transact(None, bytes(junk), junk_fresh, t, out)
-        fresh = len(rx) - self._rx_echoed
-        if fresh > 0:
+        if in_flight:
             # The start of a command still in flight: its bytes echo as they go.
-            t += fresh * BITS_PER_BYTE / baud
+            t += len(in_flight) * BITS_PER_BYTE / baud
             if self.echo:
-                out.append((t, bytes(rx[-fresh:])))
-            self._rx_echoed = len(rx)
+                out.append((t, in_flight))
             self._line_free = max(self._line_free, t)
         return out
 
@@ -338,8 +303,7 @@ class LineModel:
         with self._lock:
             self._held.clear()
             self._deferred.clear()
-            self._rx.clear()
-            self._rx_echoed = 0
+            self._framer.reset()
 
     # ------------------------------------------------------------------ recording
 
