@@ -28,9 +28,10 @@ URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
 ``ids`` (``0-31``, ``1,3,5-7``), ``baud``, ``realtime`` (1/0), ``echo``
 (1/0), ``follow_baud`` (1/0), ``seed``, ``faults`` (e.g.
-``drop:0.01,late@3:0.1``, see :mod:`.faults`), ``turnaround``,
-``eeprom_delay``, ``late_delay``, ``unplug_after``, ``replug_after``
-(seconds, or with ``us``/``ms``/``s``), ``memory`` (IDs of generic devices),
+``drop:0.01,late@3:0.1,tail:0.05``, see :mod:`.faults`), ``turnaround``,
+``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
+``replug_after`` (seconds, or with ``us``/``ms``/``s``), ``tail_bytes``
+(what the held-tail fault holds back), ``memory`` (IDs of generic devices),
 ``log`` (log size, ``all``), ``record`` (file), ``replay`` (file: serve a
 recording).  With a NAME, the first URL creates the line and later ones
 (reconnects) return the same object.

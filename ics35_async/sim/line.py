@@ -29,6 +29,8 @@ from .model import (
     DEFAULT_FRAME_TIMEOUT,
     DEFAULT_LOG_SIZE,
     DEFAULT_NOISE_GAP,
+    DEFAULT_TAIL_BYTES,
+    DEFAULT_TAIL_DELAY,
     DEFAULT_TURNAROUND,
     LineModel,
 )
@@ -43,7 +45,7 @@ class VirtualLine(LineModel):
     The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
     ``memory``, ``realtime``, ``echo``, ``turnaround``,
     ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
-    ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``), and:
+    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``), and:
     ``follow_host_baud``: the line runs at the rate the host connects with
     (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
     disappears that many wall-clock seconds after the first connect, and
@@ -65,6 +67,8 @@ class VirtualLine(LineModel):
         faults: FaultConfig | str | None = None,
         seed: int | None = 0,
         late_delay: float | None = None,
+        tail_bytes: int = DEFAULT_TAIL_BYTES,
+        tail_delay: float = DEFAULT_TAIL_DELAY,
         noise_gap: float = DEFAULT_NOISE_GAP,
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
@@ -86,6 +90,8 @@ class VirtualLine(LineModel):
             faults=faults,
             seed=seed,
             late_delay=late_delay,
+            tail_bytes=tail_bytes,
+            tail_delay=tail_delay,
             noise_gap=noise_gap,
             log_size=log_size,
             frame_timeout=frame_timeout,

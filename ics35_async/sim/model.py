@@ -47,6 +47,10 @@ reference; 20 ms is an assumption that keeps real-time tests quick)."""
 DEFAULT_LOG_SIZE = 10_000
 DEFAULT_FRAME_TIMEOUT = 10e-3
 DEFAULT_NOISE_GAP = 1e-3
+DEFAULT_TAIL_BYTES = 4
+DEFAULT_TAIL_DELAY = 40e-3
+"""The held-tail fault's defaults: what ser2net with Nagle's algorithm did to a
+68-byte EEPROM answer (64 bytes, then 4 about 40 ms later: a delayed ACK)."""
 
 Chunks = list[tuple[float, bytes]]
 
@@ -82,15 +86,23 @@ class LineModel:
         faults: FaultConfig | str | None = None,
         seed: int | None = 0,
         late_delay: float | None = None,
+        tail_bytes: int = DEFAULT_TAIL_BYTES,
+        tail_delay: float = DEFAULT_TAIL_DELAY,
         noise_gap: float = DEFAULT_NOISE_GAP,
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
     ) -> None:
         line_baud = BaudRate.parse(baudrate)
-        for value, what in ((turnaround, "turnaround"), (eeprom_write_delay, "eeprom_write_delay")):
+        for value, what in (
+            (turnaround, "turnaround"),
+            (eeprom_write_delay, "eeprom_write_delay"),
+            (tail_delay, "tail_delay"),
+        ):
             if value < 0:
                 raise InvalidArgument(f"{what} must not be negative")
+        if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
+            raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
         self.table = DeviceTable(build_devices(servos, memory, line_baud))
         self.baudrate: int = int(line_baud)
         self.realtime = realtime
@@ -98,6 +110,8 @@ class LineModel:
         self.turnaround = turnaround
         self.eeprom_write_delay = eeprom_write_delay
         self.late_delay = late_delay
+        self.tail_bytes = tail_bytes
+        self.tail_delay = tail_delay
         self.noise_gap = noise_gap
         config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
         self.faults = FaultInjector(config, seed)
@@ -114,6 +128,12 @@ class LineModel:
         self._held: list[bytes] = []
         self._deferred: list[tuple[float, int, bytes]] = []
         self._deferred_order = 0
+        # The held tail (see :mod:`.faults`).  Real time: nothing reaches the host before
+        # _hold_until.  Fast mode: tails wait in _tails for the host's next write; once
+        # delivered they are _carried into that transaction's record.
+        self._hold_until = 0.0
+        self._tails: list[tuple[float, bytes]] = []
+        self._carried = bytearray()
         self._unplug_requested = False
         self._recorder: TransactionRecorder | None = None
         if record is not None:
@@ -164,7 +184,7 @@ class LineModel:
         Chunks come in delivery order; each time is the earliest moment the
         whole chunk may be delivered (line clock).  In fast mode a reply
         delayed by ``late_delay`` is kept inside and released by the first
-        later call whose time has passed it.
+        later call whose time has passed it, and a held tail by the next call.
         """
         with self._lock:
             return self._feed(bytes(data), now)
@@ -172,9 +192,13 @@ class LineModel:
     def _feed(self, data: bytes, now: float) -> Chunks:
         out: Chunks = []
         t = max(now, self._line_free)
+        for when, tail in self._tails:
+            out.append((when, tail))
+            self._carried += tail
+        self._tails.clear()
         while self._deferred and self._deferred[0][0] <= t:
             when, _, chunk = heapq.heappop(self._deferred)
-            out.append((when, chunk))
+            self._emit(out, when, chunk)
         baud = self.baudrate
         frames, in_flight = self._framer.feed(data, now, baud)
         for command, frame, fresh in frames:
@@ -183,7 +207,7 @@ class LineModel:
             # The start of a command still in flight: its bytes echo as they go.
             t += len(in_flight) * BITS_PER_BYTE / baud
             if self.echo:
-                out.append((t, in_flight))
+                self._emit(out, t, in_flight)
             self._line_free = max(self._line_free, t)
         return out
 
@@ -194,18 +218,22 @@ class LineModel:
         draw = self.faults.draw(servo_id)
         faults: list[str] = []
         rx_parts: list[bytes] = []
+        extra = b""
+        if self._carried:  # a held tail delivered just before this command's echo
+            extra = bytes(self._carried)
+            rx_parts.append(extra)
+            self._carried.clear()
         t_end = t + fresh * byte_time
         echo = frame[len(frame) - fresh :] if fresh else b""
         if draw.echo and echo:
             echo = self.faults.damage_echo(echo)
             faults.append("echo")
         if self.echo and echo:
-            out.append((t_end, echo))
+            self._emit(out, t_end, echo)
             rx_parts.append(echo)
-        extra = b""
         for late in self._held:
             t_end += len(late) * byte_time
-            out.append((t_end, late))
+            self._emit(out, t_end, late)
             rx_parts.append(late)
             extra += late
         self._held.clear()
@@ -223,6 +251,8 @@ class LineModel:
             if isinstance(command, WriteEeprom):
                 start += self.eeprom_write_delay
             kind = draw.reply
+            if kind == "tail" and len(clean) <= self.tail_bytes:
+                kind = None  # all of it fits in the tail: a lone small segment is not held
             if kind is not None:
                 faults.append(kind)
             if kind == "drop":
@@ -233,17 +263,29 @@ class LineModel:
                 else:
                     reply_time = start + len(clean) * byte_time + self.late_delay
                     self._defer_or_emit(reply_time, clean, out)
+            elif kind == "tail":
+                head, tail = clean[: -self.tail_bytes], clean[-self.tail_bytes :]
+                self._emit(out, start + len(head) * byte_time, head)
+                rx_parts.append(head)
+                line_free = start + len(clean) * byte_time
+                reply_time = line_free + self.tail_delay
+                if self.realtime:
+                    self._emit(out, reply_time, tail)
+                    rx_parts.append(tail)
+                    self._hold_until = reply_time  # what follows queues behind it, as in a TCP stream
+                else:
+                    self._tails.append((reply_time, tail))
             else:
                 if kind is not None:
                     reply = self.faults.damage_reply(kind, clean)
                 if reply:
                     reply_time = line_free = start + len(reply) * byte_time
-                    out.append((reply_time, reply))
+                    self._emit(out, reply_time, reply)
                     rx_parts.append(reply)
         if draw.noise:
             noise = self.faults.noise()
             gap = self.faults.uniform(0.0, self.noise_gap) if self.realtime else 0.0
-            out.append((line_free + gap + len(noise) * byte_time, noise))
+            self._emit(out, line_free + gap + len(noise) * byte_time, noise)
             rx_parts.append(noise)
             extra += noise
             faults.append("noise")
@@ -277,9 +319,12 @@ class LineModel:
                 self._recorder.record(record, rx_parts, baud)
         return line_free
 
+    def _emit(self, out: Chunks, when: float, chunk: bytes) -> None:
+        out.append((max(when, self._hold_until), chunk))
+
     def _defer_or_emit(self, when: float, chunk: bytes, out: Chunks) -> None:
         if self.realtime:
-            out.append((when, chunk))
+            self._emit(out, when, chunk)
         else:
             self._deferred_order += 1
             heapq.heappush(self._deferred, (when, self._deferred_order, chunk))
@@ -303,6 +348,8 @@ class LineModel:
         with self._lock:
             self._held.clear()
             self._deferred.clear()
+            self._tails.clear()
+            self._carried.clear()
             self._framer.reset()
 
     # ------------------------------------------------------------------ recording

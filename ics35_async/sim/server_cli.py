@@ -17,7 +17,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from .faults import FaultConfig, parse_ids
 from .line import DEFAULT_REPLUG_AFTER, VirtualLine
-from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
 from .record import ReplayDevice
 from .url import parse_seconds
@@ -60,6 +60,17 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     parser.add_argument(
         "--late-delay", default=None, help="late replies arrive this long after (default: next command)"
     )
+    parser.add_argument(
+        "--tail-bytes",
+        type=int,
+        default=None,
+        help=f"bytes the 'tail' fault holds back at the end of a reply (default {DEFAULT_TAIL_BYTES})",
+    )
+    parser.add_argument(
+        "--tail-delay",
+        default=None,
+        help=f"how long the 'tail' fault holds them (default {DEFAULT_TAIL_DELAY * 1e3:g}ms)",
+    )
     parser.add_argument("--memory", default=None, help="IDs of generic 128-byte memory devices")
     parser.add_argument("--unplug-after", default=None, help="unplug the port this many seconds after start")
     parser.add_argument(
@@ -86,6 +97,10 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         options["eeprom_write_delay"] = parse_seconds(args.eeprom_delay, "--eeprom-delay")
     if args.late_delay is not None:
         options["late_delay"] = parse_seconds(args.late_delay, "--late-delay")
+    if args.tail_bytes is not None:
+        options["tail_bytes"] = args.tail_bytes
+    if args.tail_delay is not None:
+        options["tail_delay"] = parse_seconds(args.tail_delay, "--tail-delay")
     bus = VirtualLine(
         ids,
         baudrate=BaudRate.parse(args.baud),

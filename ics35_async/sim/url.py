@@ -85,11 +85,12 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
     (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
-    ``eeprom_delay``, ``late_delay``, ``unplug_after``, ``replug_after``
-    (seconds; ``20ms`` / ``100us`` suffixes allowed), ``memory`` (IDs of
-    zero-filled generic memory devices), ``log`` (log size, ``all`` for
-    unbounded), ``record`` (file to record to), ``replay`` (a recording to
-    serve instead of a simulated line).
+    ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
+    ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
+    ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
+    ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
+    size, ``all`` for unbounded), ``record`` (file to record to), ``replay``
+    (a recording to serve instead of a simulated line).
     """
     parts = urlsplit(url)
     if parts.scheme != "sim":
@@ -117,7 +118,9 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             options["turnaround"] = parse_seconds(value, key)
         elif key == "eeprom_delay":
             options["eeprom_write_delay"] = parse_seconds(value, key)
-        elif key in ("late_delay", "unplug_after", "replug_after"):
+        elif key == "tail_bytes":
+            options[key] = _int(key, value)
+        elif key in ("late_delay", "tail_delay", "unplug_after", "replug_after"):
             options[key] = parse_seconds(value, key)
         elif key == "memory":
             options["memory"] = {i: b"" for i in parse_ids(value)}
