@@ -2,7 +2,7 @@
 
 Runs in a fresh child process per case so that nothing else in the
 benchmark run shares its heap.  The far end is the in-process simulator in
-fast mode (``SimBus(log_size=0)``: no transaction log), not a pty: a million
+fast mode (``VirtualLine(log_size=0)``: no transaction log), not a pty: a million
 transactions over the pty server would take minutes, and memory growth is
 a property of the client, not of the line.  The CPU figure therefore
 includes the simulator's own work and is for scale only.
@@ -30,7 +30,7 @@ from typing import Any
 from bench_common import IDS, NEUTRAL, loop_names, run_on, vm_rss_kib
 
 from ics35_async import open_bus
-from ics35_async.sim import SimBus
+from ics35_async.sim import VirtualLine
 
 WARMUP = 20_000
 CASES = ("stream", "sequential")
@@ -38,7 +38,7 @@ CASES = ("stream", "sequential")
 
 def child(case: str, transactions: int, loop: str) -> dict[str, Any]:
     async def main() -> dict[str, Any]:
-        sim = SimBus(IDS, log_size=0)
+        sim = VirtualLine(IDS, log_size=0)
         async with open_bus(sim, adapter_latency=0.003, quiet_time=0.001) as bus:
             marks: dict[str, int] = {}
             tenth = transactions // 10

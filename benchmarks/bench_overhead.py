@@ -52,7 +52,7 @@ Figures = dict[str, Any]
 def raw_loop(path: str, duration: float, *, baud: int = 115200) -> Figures:
     """The blocking pyserial baseline: one position transaction after the other, IDs 0..31 in turn."""
     # 8N1 and every setting in the constructor: a pty has no parity, and a
-    # later re-configuration at an unchanged speed fails there (see sim.pty_server).
+    # later re-configuration at an unchanged speed fails there (see sim.pty_port).
     ser = serial.Serial(path, baud, parity=serial.PARITY_NONE, timeout=1)
     txs = POSITION_TXS
     write, read = ser.write, ser.read
@@ -194,7 +194,7 @@ def run(runs: int = 5, duration: float = 0.6) -> dict[str, Any]:
         v: {"sequential": [], "stream": []} for v in variants
     }
     ratios: dict[tuple[str, str], dict[str, list[float]]] = {v: {"sequential": [], "stream": []} for v in variants}
-    with pty_sim() as path:
+    with pty_sim("--fast") as path:
         for r in range(runs):
             progress(f"overhead: run {r + 1}/{runs}")
             # raw, variant, raw, variant, ..., raw: each variant against the mean of its two neighbours
@@ -220,7 +220,7 @@ def run(runs: int = 5, duration: float = 0.6) -> dict[str, Any]:
         return {k: median([f[k] for f in runs_]) for k in runs_[0]}
 
     out: dict[str, Any] = {
-        "server": "pty, fast mode (python -m ics35_async.sim --ids 0-31)",
+        "server": "pty, fast mode (python -m ics35_async.sim --ids 0-31 --fast)",
         "runs": runs,
         "raw": {**medians(raw_runs), "per_run": raw_runs},
         "lean": {**medians(lean_runs), "vs_raw": median(lean_ratios), "per_run": lean_runs},

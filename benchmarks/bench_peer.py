@@ -43,7 +43,7 @@ try:
     # What rcb4's _open_connection_pyserial does once it has found the adapter.
     controller.ics = serial.Serial(path, 115200, timeout=controller.timeout, parity=serial.PARITY_EVEN)
     controller.set_angle(7500, servo_id=0)
-except Exception as exc:  # a pty has no parity: see ics35_async.sim.pty_server
+except Exception as exc:  # a pty has no parity: see ics35_async.sim.pty_port
     parity = f"none (even failed on the pty: {exc!r})"
     if controller.ics is not None:
         controller.ics.close()
@@ -101,7 +101,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
     ours: list[float] = []
     peer: list[dict[str, Any]] = []
     errors: list[str] = []
-    with pty_sim() as path:
+    with pty_sim("--fast") as path:
         for r in range(runs):
             progress(f"peer: run {r + 1}/{runs}")
             before = raw_loop(path, duration / 2)["tx_per_s"]

@@ -21,7 +21,7 @@ from collections.abc import Callable
 import serial
 
 from ics35_async.protocol import Position, wire_time
-from ics35_async.sim import Deliverer, SimBus, lower_timer_slack, start_subprocess, stop_subprocess, wait_until
+from ics35_async.sim import Deliverer, VirtualLine, lower_timer_slack, start_subprocess, stop_subprocess, wait_until
 from ics35_async.transports import open_line
 
 
@@ -112,9 +112,9 @@ class _TimedHost:
 
 
 def bench_in_process(n: int) -> None:
-    print("\n-- SimBus real-time, in process: reply arrival minus modelled reply time (us)")
+    print("\n-- VirtualLine real-time, in process: reply arrival minus modelled reply time (us)")
     for baud in (115200, 1250000):
-        bus = SimBus([1], baudrate=baud, realtime=True)
+        bus = VirtualLine([1], baudrate=baud, realtime=True)
         host = _TimedHost()
         bus.connect(host, baud)
         lateness = []
@@ -188,7 +188,7 @@ def bench_pty(n: int) -> None:
     for baud in (115200, 1250000):
         modelled = wire_time(6, baud) + 100e-6
         for realtime in (False, True):
-            args = ["--ids", "1", "--baud", str(baud)] + (["--realtime"] if realtime else [])
+            args = ["--ids", "1", "--baud", str(baud)] + (["--realtime"] if realtime else ["--fast"])
             proc, path = start_subprocess(args)
             try:
                 port = serial.Serial(path, baud, parity=serial.PARITY_EVEN, timeout=2)
@@ -212,8 +212,8 @@ def bench_pty(n: int) -> None:
 
 
 def bench_throughput(n: int) -> None:
-    print("\n-- fast mode throughput (SimBus.process, position commands to 32 servos)")
-    bus = SimBus(log_size=1000)
+    print("\n-- fast mode throughput (VirtualLine.process, position commands to 32 servos)")
+    bus = VirtualLine(log_size=1000)
     commands = [Position(i, 7000 + i, baudrate=115200).tx for i in range(32)]
     start = time.perf_counter()
     for i in range(n):

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import main
-from ics35_async.sim import SimBus
+from ics35_async.sim import VirtualLine
 
 
 class Result:
@@ -54,12 +54,12 @@ _names = itertools.count()
 
 @pytest.fixture
 def line() -> Iterator[Any]:
-    """``line(servos, **SimBus options)`` -> (SimBus, its sim://NAME URL); closed after the test."""
-    made: list[SimBus] = []
+    """``line(servos, **VirtualLine options)`` -> (VirtualLine, its sim://NAME URL); closed after the test."""
+    made: list[VirtualLine] = []
 
-    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
         name = f"cli-user-test-{next(_names)}"
-        sim = SimBus(list(servos), name=name, **options)
+        sim = VirtualLine(list(servos), name=name, **options)
         made.append(sim)
         return sim, f"sim://{name}"
 

@@ -43,7 +43,7 @@ from ics35_async import (
 from ics35_async.cli import main as cli_main
 from ics35_async.eeprom import EEPROM_FIELDS
 from ics35_async.group import GroupStream
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.stream import Stream
 
 FAST = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
@@ -51,7 +51,7 @@ FAST = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
 
 @dataclass
 class Env:
-    sim: SimBus
+    sim: VirtualLine
     bus: Bus
     image: Eeprom
     stream: Stream
@@ -64,7 +64,7 @@ class Env:
 
 @pytest.fixture
 async def env() -> AsyncIterator[Env]:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)], memory={5: bytes(128)})
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)], memory={5: bytes(128)})
     async with open_bus(sim, timing=FAST) as bus:
         image = await bus.servo(1).read_eeprom()
         stream = bus.stream([1, 2])  # built, not started: argument checks need no traffic
@@ -95,7 +95,7 @@ BAD_CALLS: list[Any] = [
     ("open_bus latency 61", lambda e: open_bus(e.sim, adapter_latency=61)),
     ("open_bus latency str", lambda e: open_bus(e.sim, adapter_latency="1")),  # type: ignore[arg-type]
     ("open_bus max_requests_between 0", lambda e: open_bus(e.sim, max_requests_between=0)),
-    ("open_bus transport bogus", lambda e: open_bus(SimBus([1]), transport="bogus").open()),
+    ("open_bus transport bogus", lambda e: open_bus(VirtualLine([1]), transport="bogus").open()),
     ("open_bus empty port", lambda e: open_bus("").open()),
     ("open_bus sim url bad ids", lambda e: open_bus("sim://?ids=40").open()),
     ("BusTiming quiet -1", lambda e: BusTiming(quiet_time=-1)),
@@ -366,9 +366,9 @@ _names = (f"bad-input-{n}" for n in itertools.count())
 
 
 @contextlib.contextmanager
-def named_line(servos: Any = (1, 2)) -> Iterator[tuple[SimBus, str]]:
+def named_line(servos: Any = (1, 2)) -> Iterator[tuple[VirtualLine, str]]:
     name = next(_names)
-    sim = SimBus(list(servos), name=name)
+    sim = VirtualLine(list(servos), name=name)
     try:
         yield sim, f"sim://{name}"
     finally:
@@ -411,7 +411,7 @@ def test_cli_bad_argument_exits_2_with_a_message_and_sends_nothing(args: list[st
     ],
     ids=lambda v: " ".join(v) if isinstance(v, list) else "",
 )
-def test_cli_boundary_values_work(args: list[str], check: Callable[[SimBus], bool]) -> None:
+def test_cli_boundary_values_work(args: list[str], check: Callable[[VirtualLine], bool]) -> None:
     with named_line() as (sim, url):
         code, _out, err = run_cli("--port", url, *args)
         assert code == 0, err
@@ -430,7 +430,7 @@ def test_cli_sim_server_refuses_bad_ids_without_serving() -> None:
 
 
 async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_answers() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)], log_size=None)
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)], log_size=None)
     async with open_bus(sim, timing=FAST) as bus:
         for confirm in (False, None, 1, "yes"):
             with pytest.raises(UnsafeOperation):
@@ -445,7 +445,7 @@ async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_a
 
 
 async def test_id_write_with_exactly_one_device() -> None:
-    sim = SimBus([VirtualServo(4)])
+    sim = VirtualLine([VirtualServo(4)])
     async with open_bus(sim, timing=FAST) as bus:
         assert await bus.write_id(9, exactly_one_device=True) == 9
         assert sim.servos[0].servo_id == 9 and sim.servos[0].calibration_intact
@@ -478,7 +478,7 @@ def eeprom_edits(draw: st.DrawFn) -> dict[str, Any]:
 @given(edits=st.lists(eeprom_edits(), min_size=1, max_size=3))
 def test_eeprom_writes_never_touch_the_factory_calibration(edits: list[dict[str, Any]]) -> None:
     async def run() -> None:
-        sim = SimBus([VirtualServo(3)])
+        sim = VirtualLine([VirtualServo(3)])
         async with open_bus(sim, timing=FAST) as bus:
             servo = bus.servo(3)
             for change in edits:
@@ -503,7 +503,7 @@ def test_eeprom_writes_never_touch_the_factory_calibration(edits: list[dict[str,
     ("field", "value", "flag"), [("baud_rate", 625000, "allow_baud_change"), ("servo_id", 9, "allow_id_change")]
 )
 async def test_a_dangerous_eeprom_change_needs_a_real_true(field: str, value: int, flag: str) -> None:
-    sim = SimBus([VirtualServo(1)])
+    sim = VirtualLine([VirtualServo(1)])
     async with open_bus(sim, timing=FAST) as bus:
         servo = bus.servo(1)
         image = (await servo.read_eeprom()).replace(**{field: value})
@@ -513,7 +513,7 @@ async def test_a_dangerous_eeprom_change_needs_a_real_true(field: str, value: in
 
 
 async def test_baud_change_needs_confirmation_then_the_bus_reopens_at_the_new_rate() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)])
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)])
     async with open_bus(sim, timing=FAST) as bus:
         servo = bus.servo(1)
         image = await servo.read_eeprom()

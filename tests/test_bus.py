@@ -32,7 +32,7 @@ from ics35_async import (
 )
 from ics35_async.bus import Bus
 from ics35_async.drivers.asyncio_driver import AsyncioDriver
-from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo, serving
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.servo import factory_calibration
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
@@ -54,8 +54,8 @@ def make_servos(ids: range = range(32)) -> list[VirtualServo]:
 
 
 @pytest.fixture
-async def line() -> AsyncIterator[tuple[SimBus, Bus]]:
-    sim = SimBus(make_servos(), log_size=None)
+async def line() -> AsyncIterator[tuple[VirtualLine, Bus]]:
+    sim = VirtualLine(make_servos(), log_size=None)
     async with open_bus(sim, **FAST) as bus:
         yield sim, bus
     sim.close()
@@ -103,7 +103,7 @@ async def op_eeprom(bus: Bus, i: int, rng: random.Random) -> None:
 OPS: list[Op] = [op_position, op_free, op_stretch, op_speed, op_write, op_telemetry, op_eeprom]
 
 
-async def test_spec_example_bytes_on_the_wire(line: tuple[SimBus, Bus]) -> None:
+async def test_spec_example_bytes_on_the_wire(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     sim.servo(1).move_by_hand(7500)
     assert await bus.servo(1).set_position(7500) == 7500
@@ -116,13 +116,13 @@ async def test_spec_example_bytes_on_the_wire(line: tuple[SimBus, Bus]) -> None:
 
 
 async def test_id0_position_at_115200_keeps_the_msb() -> None:
-    sim = SimBus([VirtualServo(0, position=8000)])
+    sim = VirtualLine([VirtualServo(0, position=8000)])
     async with open_bus(sim, **FAST) as bus:
         assert await bus.servo(0).free() == 8000
         assert sim.log[-1].reply[0] == 0x80
 
 
-async def test_fifty_coroutines_every_result_belongs_to_its_caller(line: tuple[SimBus, Bus]) -> None:
+async def test_fifty_coroutines_every_result_belongs_to_its_caller(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     ops_done = 0
 
@@ -149,7 +149,7 @@ async def test_fifty_coroutines_every_result_belongs_to_its_caller(line: tuple[S
 async def test_faults_of_every_kind_end_in_a_value_or_a_typed_error() -> None:
     kinds = ("drop", "truncate", "corrupt", "msb", "late", "noise", "echo")
     spec = ",".join(f"{k}@1-31:0.007" for k in kinds)  # about 5% of transactions to IDs 1..31; ID 0 healthy
-    sim = SimBus(make_servos(), faults=spec, seed=11, log_size=None)
+    sim = VirtualLine(make_servos(), faults=spec, seed=11, log_size=None)
     outcomes: dict[str, int] = {"ok": 0, "error": 0}
     healthy = {"ok": 0, "error": 0}
     corrupted_ids: set[int] = set()
@@ -194,7 +194,7 @@ async def test_faults_of_every_kind_end_in_a_value_or_a_typed_error() -> None:
     assert healthy["ok"] > 0.85 * (healthy["ok"] + healthy["error"])
 
 
-async def test_cancellation_storm_never_desyncs(line: tuple[SimBus, Bus]) -> None:
+async def test_cancellation_storm_never_desyncs(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     rng = random.Random(5)
     cancelled = 0
@@ -224,7 +224,7 @@ async def test_cancellation_storm_never_desyncs(line: tuple[SimBus, Bus]) -> Non
     assert stats.total.transactions == sim.transactions
 
 
-async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line: tuple[SimBus, Bus]) -> None:
+async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     start = sim.transactions
     normal = [bus.submit(protocol.ReadParam(i % 32, protocol.Param.STRETCH)) for i in range(100)]
@@ -240,7 +240,7 @@ async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line:
 
 
 async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire() -> None:
-    sim = SimBus(make_servos())
+    sim = VirtualLine(make_servos())
     bus = await open_bus(sim, **FAST)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(20)]
     await bus.aclose()
@@ -257,7 +257,7 @@ async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire() 
 
 
 async def test_port_vanishing_fails_pending_requests_and_closes_the_bus() -> None:
-    sim = SimBus(make_servos(), faults="drop@0:1.0")  # servo 0 is silent: its request stays on the wire
+    sim = VirtualLine(make_servos(), faults="drop@0:1.0")  # servo 0 is silent: its request stays on the wire
     bus = await open_bus(sim, **FAST)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(10)]
     await asyncio.sleep(0)
@@ -270,7 +270,7 @@ async def test_port_vanishing_fails_pending_requests_and_closes_the_bus() -> Non
 
 
 async def test_reconnect_reopens_the_port_when_it_comes_back() -> None:
-    sim = SimBus(make_servos(), faults="drop@0:1.0")
+    sim = VirtualLine(make_servos(), faults="drop@0:1.0")
     async with open_bus(sim, reconnect=True, **FAST) as bus:
         assert await bus.servo(1).read_stretch() == 11
         pending = bus.submit(protocol.ReadParam(0, protocol.Param.STRETCH))  # never answered
@@ -288,7 +288,7 @@ async def test_reconnect_reopens_the_port_when_it_comes_back() -> None:
         assert await bus.servo(2).read_stretch() == 12
 
 
-async def test_argument_errors_come_before_the_wire(line: tuple[SimBus, Bus]) -> None:
+async def test_argument_errors_come_before_the_wire(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     before = sim.transactions
     servo = bus.servo(1)
@@ -330,7 +330,7 @@ async def test_argument_errors_come_before_the_wire(line: tuple[SimBus, Bus]) ->
     assert await servo.read_stretch() == 11  # and the bus is fine
 
 
-async def test_a_silent_servo_costs_its_callers_a_timeout_and_nothing_else(line: tuple[SimBus, Bus]) -> None:
+async def test_a_silent_servo_costs_its_callers_a_timeout_and_nothing_else(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     sim.servo(4).baud_rate = 625000  # wrong baud: it hears garbage and stays silent
     results = await asyncio.gather(*(bus.servo(i).read_stretch() for i in range(8)), return_exceptions=True)
@@ -341,7 +341,7 @@ async def test_a_silent_servo_costs_its_callers_a_timeout_and_nothing_else(line:
 
 
 async def test_retries_are_for_idempotent_commands_only() -> None:
-    sim = SimBus(make_servos(range(4)), faults="drop@3:0.6", seed=2, log_size=None)
+    sim = VirtualLine(make_servos(range(4)), faults="drop@3:0.6", seed=2, log_size=None)
     async with open_bus(sim, retries=8, **FAST) as bus:
         for _ in range(5):
             assert await bus.servo(3).read_stretch() == 13
@@ -355,20 +355,20 @@ async def test_retries_are_for_idempotent_commands_only() -> None:
 
 
 async def test_echo_off_for_hosts_that_do_not_hear_themselves() -> None:
-    sim = SimBus(make_servos(range(3)), echo=False)
+    sim = VirtualLine(make_servos(range(3)), echo=False)
     async with open_bus(sim, echo=False, **FAST) as bus:
         assert await bus.servo(2).read_stretch() == 12
         assert (await bus.servo(1).read_eeprom()).servo_id == 1
 
 
 async def test_id_commands_need_exactly_one_device() -> None:
-    single = SimBus([VirtualServo(4)])
+    single = VirtualLine([VirtualServo(4)])
     async with open_bus(single, **FAST) as bus:
         assert await bus.read_id(exactly_one_device=True) == 4
         assert await bus.write_id(9, exactly_one_device=True) == 9
         assert single.servos[0].servo_id == 9
         assert await bus.servo(9).read_stretch() == 30
-    crowd = SimBus([VirtualServo(1), VirtualServo(2)])
+    crowd = VirtualLine([VirtualServo(1), VirtualServo(2)])
     async with open_bus(crowd, **FAST) as bus:
         # Forcing it anyway on a shared line: the garbled reply is caught, not believed.
         with pytest.raises(ReplyError):
@@ -376,7 +376,7 @@ async def test_id_commands_need_exactly_one_device() -> None:
 
 
 async def test_generic_memory_device() -> None:
-    sim = SimBus([VirtualServo(0)], memory={3: bytes(range(128))})
+    sim = VirtualLine([VirtualServo(0)], memory={3: bytes(range(128))})
     async with open_bus(sim, **FAST) as bus:
         device = bus.device(3)
         assert await device.read_memory(0, 8) == bytes(range(8))
@@ -386,7 +386,7 @@ async def test_generic_memory_device() -> None:
             await bus.device(0).read_memory(0, 1)
 
 
-async def test_eeprom_write_is_checked_and_verified(line: tuple[SimBus, Bus]) -> None:
+async def test_eeprom_write_is_checked_and_verified(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     servo = bus.servo(6)
     image = await servo.read_eeprom()
@@ -403,7 +403,7 @@ async def test_eeprom_write_is_checked_and_verified(line: tuple[SimBus, Bus]) ->
 
 
 async def test_baud_change_then_reopen_at_the_new_rate() -> None:
-    sim = SimBus([VirtualServo(1)])
+    sim = VirtualLine([VirtualServo(1)])
     async with open_bus(sim, **FAST) as bus:
         servo = bus.servo(1)
         image = await servo.read_eeprom()
@@ -418,7 +418,7 @@ async def test_baud_change_then_reopen_at_the_new_rate() -> None:
         assert bus._engine._allowances[5] == bus.timing.allowance(5, 625000)
 
 
-async def test_stats_and_debug_trace(line: tuple[SimBus, Bus], caplog: pytest.LogCaptureFixture) -> None:
+async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pytest.LogCaptureFixture) -> None:
     _sim, bus = line
     with caplog.at_level(logging.DEBUG, logger="ics35_async"):
         await bus.servo(1).read_stretch()
@@ -450,7 +450,7 @@ async def test_over_a_pty_through_the_real_serial_transport() -> None:
                 assert set(frame.positions) == set(range(8))
 
 
-async def test_errors_are_typed_and_carry_the_raw_bytes(line: tuple[SimBus, Bus]) -> None:
+async def test_errors_are_typed_and_carry_the_raw_bytes(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     sim.faults = FaultInjector(FaultConfig.parse("corrupt@3:1.0"), seed=1)
     with pytest.raises(IcsError) as info:
@@ -459,7 +459,7 @@ async def test_errors_are_typed_and_carry_the_raw_bytes(line: tuple[SimBus, Bus]
     assert info.value.servo_id == 3 and info.value.raw
 
 
-async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(line: tuple[SimBus, Bus]) -> None:
+async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(line: tuple[VirtualLine, Bus]) -> None:
     _sim, bus = line
     loop = asyncio.get_running_loop()
     assert await bus.servo(1).read_stretch() == 11
@@ -476,7 +476,7 @@ async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(lin
     assert bus.stats.total.timeouts == 0
 
 
-async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tuple[SimBus, Bus]) -> None:
+async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tuple[VirtualLine, Bus]) -> None:
     """A serial port with PARMRK reports bytes that arrived damaged: ICS has no checksum of its own."""
     _sim, bus = line
     request = bus.submit(protocol.ReadParam(3, protocol.Param.STRETCH))
@@ -501,7 +501,7 @@ async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
 
 
 async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_allowance() -> None:
-    sim = SimBus([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
+    sim = VirtualLine([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
     async with open_bus(sim, adapter_latency=0.005, quiet_time=0.001, eeprom_write=5.0) as bus:
         image = await bus.servo(1).read_eeprom()
         await bus.servo(1).write_eeprom(image.replace(speed=90), verify=False)
@@ -514,7 +514,7 @@ async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_a
 
 
 async def test_closing_stops_retries_of_the_request_on_the_wire() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(5)], faults="drop@5:1.0", log_size=None)
+    sim = VirtualLine([VirtualServo(1), VirtualServo(5)], faults="drop@5:1.0", log_size=None)
     bus = await open_bus(sim, retries=5, **FAST)
     request = bus.submit(protocol.ReadParam(5, protocol.Param.SPEED))
     await asyncio.sleep(0)
@@ -526,7 +526,7 @@ async def test_closing_stops_retries_of_the_request_on_the_wire() -> None:
 
 
 async def test_a_stream_cannot_start_while_the_bus_reopens() -> None:
-    sim = SimBus(make_servos(range(4)))
+    sim = VirtualLine(make_servos(range(4)))
     async with open_bus(sim, **FAST) as bus:
         reopening = asyncio.ensure_future(bus.reopen())
         await asyncio.sleep(0)

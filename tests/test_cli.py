@@ -1,6 +1,6 @@
 """The ``ics35`` command, run in this process against named in-process simulated lines.
 
-Each test builds its own :class:`SimBus` and reaches it as ``sim://NAME``, so
+Each test builds its own :class:`VirtualLine` and reaches it as ``sim://NAME``, so
 it can check what the command did to the servos (or that it sent nothing).
 The serial boundary (a real subprocess on a pty) is covered by test_cli_pty.py.
 """
@@ -20,7 +20,7 @@ from ics35_async.cli import ExitCode, main
 from ics35_async.cli._common import Settings, parse_id_list, translate
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortPermissionDenied
 
 
@@ -59,12 +59,12 @@ _counter = iter(range(1_000_000))
 
 @pytest.fixture
 def line() -> Iterator[Any]:
-    """``line(servos)`` -> (SimBus, its URL); closed after the test."""
-    made: list[SimBus] = []
+    """``line(servos)`` -> (VirtualLine, its URL); closed after the test."""
+    made: list[VirtualLine] = []
 
-    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
         name = f"cli-test-{next(_counter)}"
-        sim = SimBus(list(servos), name=name, **options)
+        sim = VirtualLine(list(servos), name=name, **options)
         made.append(sim)
         return sim, f"sim://{name}"
 
@@ -358,8 +358,7 @@ def test_restore_keeps_the_target_servos_calibration_and_id(ics35: Any, line: An
     doc = json.loads(backup.read_text())
     del doc["fields"]
     backup.write_text(json.dumps(doc))
-    sim.devices.append(VirtualServo(3))
-    sim._reindex()
+    sim.add_device(VirtualServo(3))
     assert ics35("--port", url, "eeprom", "restore", "3", str(backup), "--yes").code == 0
     assert sim.servo(3).eeprom.speed == 33 and sim.servo(3).calibration_intact
 

@@ -7,9 +7,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from tests._cli_fixtures import ics35, line
 
 from ics35_async.cli import ExitCode
+from tests._cli_fixtures import ics35, line
 
 __all__ = ["ics35", "line"]
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from tests._cli_fixtures import ics35, line
 
 from ics35_async import units
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualServo
+from tests._cli_fixtures import ics35, line
 
 __all__ = ["ics35", "line"]
 

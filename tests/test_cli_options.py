@@ -9,10 +9,10 @@ import sys
 from typing import Any
 
 import pytest
-from tests._cli_fixtures import ics35, line
 
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualServo, serving
+from tests._cli_fixtures import ics35, line
 
 __all__ = ["ics35", "line"]
 

@@ -9,10 +9,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from tests._cli_fixtures import ics35
 
 from ics35_async.cli import CliError, ExitCode
 from ics35_async.cli._paths import check_output_path
+from tests._cli_fixtures import ics35
 
 __all__ = ["ics35"]
 

@@ -13,7 +13,7 @@ import pytest
 
 from ics35_async.cli import ExitCode, main
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 
 
 class Result:
@@ -49,12 +49,12 @@ _counter = iter(range(1_000_000))
 
 @pytest.fixture
 def line() -> Iterator[Any]:
-    """``line(servos, **SimBus options)`` -> (SimBus, its sim:// URL); closed after the test."""
-    made: list[SimBus] = []
+    """``line(servos, **VirtualLine options)`` -> (VirtualLine, its sim:// URL); closed after the test."""
+    made: list[VirtualLine] = []
 
-    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[SimBus, str]:
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
         name = f"cli-policies-{next(_counter)}"
-        sim = SimBus(list(servos), name=name, log_size=None, **options)
+        sim = VirtualLine(list(servos), name=name, log_size=None, **options)
         made.append(sim)
         return sim, f"sim://{name}"
 

@@ -22,7 +22,7 @@ from ics35_async.eeprom import (
     Flags,
 )
 from ics35_async.errors import InvalidArgument, MalformedEeprom, UnsafeOperation
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 
 # The spec's table (section 7), with its 1-based byte numbers, written out independently of the code.
 SPEC_LAYOUT: dict[str, tuple[int, int]] = {
@@ -526,10 +526,10 @@ def _servo_image(servo_id: int = 1, *, header: int = 0x5B, baud_code: int = 0x1A
 
 
 @pytest.fixture
-def odd_servo() -> Iterator[tuple[SimBus, str, bytes]]:
+def odd_servo() -> Iterator[tuple[VirtualLine, str, bytes]]:
     """A named in-process line with servo 1 holding an unknown header and baud code (it talks at 115200)."""
     image = _servo_image()
-    sim = SimBus([VirtualServo(eeprom=Eeprom.from_bytes(image))], name=f"eeprom-odd-{next(_lines)}")
+    sim = VirtualLine([VirtualServo(eeprom=Eeprom.from_bytes(image))], name=f"eeprom-odd-{next(_lines)}")
     yield sim, f"sim://{sim.name}", image
     sim.close()
 
@@ -543,7 +543,7 @@ def test_the_simulator_holds_an_image_with_unknown_codes() -> None:
     assert servo.baud_rate is BaudRate.B625000
 
 
-async def test_the_bus_reads_such_a_servo_and_refuses_to_write_it(odd_servo: tuple[SimBus, str, bytes]) -> None:
+async def test_the_bus_reads_such_a_servo_and_refuses_to_write_it(odd_servo: tuple[VirtualLine, str, bytes]) -> None:
     sim, _, image = odd_servo
     async with open_bus(sim) as bus:
         servo = bus.servo(1)
@@ -574,7 +574,7 @@ class _Cli:
 
 
 def test_cli_info_and_dump_show_and_flag_unknown_codes(
-    odd_servo: tuple[SimBus, str, bytes], capsys: pytest.CaptureFixture[str]
+    odd_servo: tuple[VirtualLine, str, bytes], capsys: pytest.CaptureFixture[str]
 ) -> None:
     _, url, image = odd_servo
     ics35 = _Cli(capsys)
@@ -596,7 +596,7 @@ def test_cli_info_and_dump_show_and_flag_unknown_codes(
 
 
 def test_cli_refuses_to_write_an_image_with_unknown_codes(
-    odd_servo: tuple[SimBus, str, bytes], capsys: pytest.CaptureFixture[str]
+    odd_servo: tuple[VirtualLine, str, bytes], capsys: pytest.CaptureFixture[str]
 ) -> None:
     sim, url, image = odd_servo
     code, _, err = _Cli(capsys)("--port", url, "eeprom", "set", "1", "speed=50", "--yes")

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from benchmarks.soak.fuzz import fuzz_soak
 from ics35_async import IcsError, Param, ReplyError, open_bus, protocol
-from ics35_async.sim import FaultConfig, FaultInjector, SimBus
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.fuzzing import BAUDS, FuzzCase, FuzzCounts, FuzzDevice, FuzzRig, fuzz_case, fuzz_parsers, valid_value
 from tests.support.oracle import FAST_TIMING, FAULT_KINDS, WirePredictor, chaos_servos
 
@@ -59,7 +59,7 @@ def test_a_clean_reply_is_judged_valid_and_a_cut_one_is_not(blob: bytes, baud: i
 
 @pytest.mark.parametrize("kind", FAULT_KINDS)
 async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the_bus_sound(kind: str) -> None:
-    sim = SimBus(chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
+    sim = VirtualLine(chaos_servos()[:4], faults=f"{kind}:1.0", seed=3)
     async with open_bus(sim, timing=FAST_TIMING) as bus:
         outcomes: list[object] = []
         for i in range(4):

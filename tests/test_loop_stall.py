@@ -17,7 +17,7 @@ import pytest
 import uvloop
 
 from ics35_async import open_bus, protocol
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 
 LOOPS: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {
     "asyncio": asyncio.new_event_loop,
@@ -39,7 +39,7 @@ def run_with_errors(make_loop: Callable[[], asyncio.AbstractEventLoop], main: Ca
 
 @pytest.mark.parametrize("loop_name", sorted(LOOPS))
 def test_a_stalled_loop_gives_no_false_timeout_and_no_exception(loop_name: str) -> None:
-    sim = SimBus([VirtualServo(i) for i in range(4)], log_size=None)
+    sim = VirtualLine([VirtualServo(i) for i in range(4)], log_size=None)
 
     async def main() -> None:
         async with open_bus(sim, adapter_latency=0.002, quiet_time=0.001) as bus:

@@ -13,14 +13,14 @@ from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
 from ics35_async.policies import check_changes, edit_image, plan_eeprom_write, write_eeprom_plan
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 
 
 @asynccontextmanager
-async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tuple[SimBus, Bus]]:
-    sim = SimBus(servos, log_size=None)
+async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tuple[VirtualLine, Bus]]:
+    sim = VirtualLine(servos, log_size=None)
     try:
         async with open_bus(sim, **{**FAST, **options}) as bus:
             yield sim, bus
@@ -44,7 +44,7 @@ class IdAtPowerUp(VirtualServo):
         self._live_id = self.eeprom.servo_id
 
 
-def eeprom_writes(sim: SimBus) -> int:
+def eeprom_writes(sim: VirtualLine) -> int:
     return sum(s.eeprom_writes for s in sim.servos)
 
 

@@ -12,14 +12,14 @@ from ics35_async import open_bus
 from ics35_async.bus import Bus
 from ics35_async.errors import InvalidArgument, UnsafeOperation
 from ics35_async.policies import Refusal, survey_for_id_write, write_lone_id
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 
 
 @asynccontextmanager
-async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tuple[SimBus, Bus]]:
-    sim = SimBus(servos, log_size=None)
+async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tuple[VirtualLine, Bus]]:
+    sim = VirtualLine(servos, log_size=None)
     try:
         async with open_bus(sim, **{**FAST, **options}) as bus:
             yield sim, bus
@@ -27,7 +27,7 @@ async def line(servos: list[VirtualServo], **options: Any) -> AsyncIterator[tupl
         sim.close()
 
 
-def writes(sim: SimBus) -> list[str]:
+def writes(sim: VirtualLine) -> list[str]:
     return [t.command for t in sim.log if t.command in ("write_id", "write_eeprom")]
 
 

@@ -13,7 +13,7 @@ from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate
 from ics35_async.errors import InvalidArgument, PartialReply, ReplyError
 from ics35_async.policies import ALL_BAUDS, Line, probe_ids, scan, servo_rates
-from ics35_async.sim import SimBus, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
@@ -21,10 +21,10 @@ FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 
 @pytest.fixture
 def lines() -> Iterator[Any]:
-    made: list[SimBus] = []
+    made: list[VirtualLine] = []
 
-    def make(servos: Any, **options: Any) -> SimBus:
-        sim = SimBus(list(servos), log_size=None, **options)
+    def make(servos: Any, **options: Any) -> VirtualLine:
+        sim = VirtualLine(list(servos), log_size=None, **options)
         made.append(sim)
         return sim
 
@@ -33,7 +33,7 @@ def lines() -> Iterator[Any]:
         sim.close()
 
 
-def opener(sim: SimBus, **options: Any) -> Any:
+def opener(sim: VirtualLine, **options: Any) -> Any:
     def open_at(baud: int) -> AbstractAsyncContextManager[Line]:
         return open_bus(sim, baudrate=baud, **{**FAST, **options})
 

@@ -19,7 +19,7 @@ from benchmarks.soak.cancellation import cancellation_soak
 from benchmarks.soak.chaos import chaos_soak
 from benchmarks.soak.unplug import new_unplug_tally, no_reconnect_session, reconnect_session
 from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, ReplyTimeout, open_bus, protocol
-from ics35_async.sim import FaultConfig, FaultInjector, SimBus, VirtualServo
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw
 from tests.support.fuzzing import valid_value
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
@@ -33,14 +33,14 @@ linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="th
 # --------------------------------------------------------------------------- the checker itself
 
 
-def run_line(sim: SimBus, txs: list[bytes]) -> None:
+def run_line(sim: VirtualLine, txs: list[bytes]) -> None:
     """Put commands on the simulated line directly, as a bus would (one at a time)."""
     for tx in txs:
         sim.process(tx)
 
 
 def test_the_wire_predictor_rebuilds_what_the_bus_received() -> None:
-    sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
+    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
     ask1 = protocol.Position(1, protocol.FREE, baudrate=115200)
     ask2 = protocol.Position(2, protocol.FREE, baudrate=115200)
     predictor = WirePredictor(sim.baudrate)
@@ -56,7 +56,7 @@ def test_the_wire_predictor_rebuilds_what_the_bus_received() -> None:
 
 
 def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
-    sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
+    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2, position=6000)], log_size=None)
     matcher = LogMatcher(sim, is_stream_tx, [1, 2])
     write1, write2 = protocol.WriteParam(1, Param.SPEED, 44), protocol.WriteParam(2, Param.SPEED, 55)
     run_line(sim, [write1.tx, protocol.position_tx(1, 5002), protocol.position_tx(2, 6002), write2.tx])
@@ -72,7 +72,7 @@ def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
 
 
 def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
-    sim = SimBus([VirtualServo(3)], faults="drop:1.0", log_size=None)
+    sim = VirtualLine([VirtualServo(3)], faults="drop:1.0", log_size=None)
     matcher = LogMatcher(sim, is_stream_tx, [3])
     read = protocol.ReadParam(3, Param.TEMPERATURE)
     run_line(sim, [read.tx])
@@ -98,7 +98,7 @@ LATE, DROP = Draw(False, "late", False, False), Draw(False, "drop", False, False
 
 def test_the_matcher_flags_another_commands_late_reply_taken_as_an_answer() -> None:
     """Straight on the line (no bus, so no guard read): a late reply, then a lost one with the same header."""
-    sim = SimBus([VirtualServo(1, position=5000)], log_size=None)
+    sim = VirtualLine([VirtualServo(1, position=5000)], log_size=None)
     sim.faults = ScriptedFaults(LATE, DROP)
     free, move = protocol.Position(1, protocol.FREE, baudrate=115200), protocol.Position(1, 6001, baudrate=115200)
     run_line(sim, [free.tx, move.tx])
@@ -112,7 +112,7 @@ def test_the_matcher_flags_another_commands_late_reply_taken_as_an_answer() -> N
 
 @pytest.mark.parametrize("same_request", [True, False])
 async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_again(same_request: bool) -> None:
-    sim = SimBus([VirtualServo(1, position=5000)], log_size=None)
+    sim = VirtualLine([VirtualServo(1, position=5000)], log_size=None)
     sim.faults = ScriptedFaults(LATE, DROP)  # the first answer comes late; the guard's own answer is lost
     matcher = LogMatcher(sim, is_stream_tx, [1])
     free = protocol.Position(1, protocol.FREE, baudrate=115200)
@@ -202,14 +202,14 @@ async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
 
 
 def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -> None:
-    bus = open_bus(SimBus([VirtualServo(1)]), reconnect=True)
+    bus = open_bus(VirtualLine([VirtualServo(1)]), reconnect=True)
     worst_wait = max(bus.reconnect_backoff)
     reopen_and_first_frame = 0.05  # generous: measured 2-30 ms over a pty
     assert worst_wait + reopen_and_first_frame < 1.0
 
 
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
     bus = await open_bus(sim, reconnect=True, timing=FAST)
     try:
         in_flight = bus.submit(protocol.ReadParam(2, Param.STRETCH))
@@ -231,7 +231,7 @@ async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() ->
 
 
 async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None:
-    sim = SimBus([VirtualServo(1)])
+    sim = VirtualLine([VirtualServo(1)])
     before = other_tasks()
     bus = await open_bus(sim, timing=FAST)
     assert await bus.servo(1).read_stretch() == 30
@@ -246,7 +246,7 @@ async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None
 
 
 async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command() -> None:
-    sim = SimBus([VirtualServo(1, position=5000), VirtualServo(2)], faults="late@1:1.0")
+    sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2)], faults="late@1:1.0")
     async with open_bus(sim, timing=FAST) as bus:
         with pytest.raises(ReplyTimeout):
             await bus.servo(1).free()  # servo 1 answers 5000, too late
@@ -260,7 +260,7 @@ async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command
 
 
 async def test_a_silent_servo_gets_one_guard_read_not_endless_ones() -> None:
-    sim = SimBus([VirtualServo(1), VirtualServo(2)], faults="drop@1:1.0")
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)], faults="drop@1:1.0")
     async with open_bus(sim, timing=FAST) as bus:
         for _ in range(3):
             with pytest.raises(ReplyTimeout):

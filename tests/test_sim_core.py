@@ -17,11 +17,11 @@ from ics35_async.protocol import (
     nibbles_from_bytes,
     wire_time,
 )
-from ics35_async.sim import MemoryDevice, SimBus, VirtualServo, garble
+from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo, garble
 from ics35_async.sim.servo import MAX_RATE
 
 
-def xfer(bus: SimBus, tx: bytes | str) -> bytes:
+def xfer(bus: VirtualLine, tx: bytes | str) -> bytes:
     """Everything the host receives for ``tx`` (fast mode delivers at once)."""
     data = bytes.fromhex(tx) if isinstance(tx, str) else tx
     return b"".join(chunk for _, chunk in bus.process(data))
@@ -35,23 +35,23 @@ def h(text: str) -> bytes:
 
 
 def test_spec_position_example() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     assert xfer(bus, "81 3A 4C") == h("81 3A 4C 01 3A 4C")
 
 
 def test_spec_read_stretch_example() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     assert xfer(bus, "A1 01") == h("A1 01 21 01 1E")
 
 
 def test_spec_write_temperature_limit_example() -> None:
-    bus = SimBus([2])
+    bus = VirtualLine([2])
     assert xfer(bus, "C2 04 0A") == h("C2 04 0A 42 04 0A")
     assert bus.servo(2).temperature_limit == 10
 
 
 def test_spec_id_examples_on_a_single_servo_line() -> None:
-    bus = SimBus([7])
+    bus = VirtualLine([7])
     assert xfer(bus, "F4 01 01 01") == h("F4 01 01 01 F4")
     assert xfer(bus, "FF 00 00 00") == h("FF 00 00 00 F4")
     assert bus.servo(20).servo_id == 20
@@ -60,16 +60,16 @@ def test_spec_id_examples_on_a_single_servo_line() -> None:
 
 
 def test_position_reply_from_id0_at_115200_keeps_its_msb() -> None:
-    assert xfer(SimBus([0]), "80 3A 4C") == h("80 3A 4C 80 3A 4C")
-    assert xfer(SimBus([0], baudrate=625000), "80 3A 4C") == h("80 3A 4C 00 3A 4C")
-    assert xfer(SimBus([1]), "81 3A 4C")[3] == 0x01
+    assert xfer(VirtualLine([0]), "80 3A 4C") == h("80 3A 4C 80 3A 4C")
+    assert xfer(VirtualLine([0], baudrate=625000), "80 3A 4C") == h("80 3A 4C 00 3A 4C")
+    assert xfer(VirtualLine([1]), "81 3A 4C")[3] == 0x01
 
 
 def test_spec_generic_read_example_four_analog_channels() -> None:
     # Channel k's upper 2 bits and lower 8 bits at addresses 2k-2 and 2k-1.
     channels = [0x3FF, 0x000, 0x155, 0x2AA]
     memory = bytes(b for value in channels for b in (value >> 8, value & 0xFF))
-    bus = SimBus([], memory={1: memory})
+    bus = VirtualLine([], memory={1: memory})
     received = xfer(bus, "A1 7F 00 08")
     assert received[:4] == h("A1 7F 00 08")
     reply = received[4:]
@@ -79,7 +79,7 @@ def test_spec_generic_read_example_four_analog_channels() -> None:
 
 
 def test_generic_write_then_read() -> None:
-    bus = SimBus([], memory=[MemoryDevice(9)])
+    bus = VirtualLine([], memory=[MemoryDevice(9)])
     write = WriteMemory(9, 10, b"\x12\xab")
     received = xfer(bus, write.tx)
     assert received == write.tx + write.encode_reply(None)
@@ -90,7 +90,7 @@ def test_generic_write_then_read() -> None:
 
 
 def test_servos_ignore_generic_commands_and_memory_devices_ignore_servo_commands() -> None:
-    bus = SimBus([3], memory={4: b""})
+    bus = VirtualLine([3], memory={4: b""})
     assert xfer(bus, ReadMemory(3, 0, 1).tx) == ReadMemory(3, 0, 1).tx
     assert xfer(bus, Position(4, 7500, baudrate=115200).tx) == Position(4, 7500, baudrate=115200).tx
 
@@ -99,7 +99,7 @@ def test_servos_ignore_generic_commands_and_memory_devices_ignore_servo_commands
 
 
 def test_only_the_addressed_servo_answers() -> None:
-    bus = SimBus()
+    bus = VirtualLine()
     command = ReadParam(17, 2)
     received = xfer(bus, command.tx)
     assert received[:2] == command.tx
@@ -108,20 +108,20 @@ def test_only_the_addressed_servo_answers() -> None:
 
 
 def test_unknown_subcommand_gets_echo_only_and_is_logged() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     assert xfer(bus, "A1 05") == h("A1 05")
     assert bus.log[-1].command == "unknown"
     assert bus.log[-1].reply == b""
 
 
 def test_absent_id_gets_echo_only() -> None:
-    bus = SimBus([1, 2])
+    bus = VirtualLine([1, 2])
     assert xfer(bus, "83 3A 4C") == h("83 3A 4C")
     assert bus.log[-1].responders == ()
 
 
 def test_command_split_across_writes_is_reassembled() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     assert xfer(bus, "81") == h("81")
     assert xfer(bus, "3A") == h("3A")
     assert xfer(bus, "4C") == h("4C 01 3A 4C")
@@ -130,25 +130,25 @@ def test_command_split_across_writes_is_reassembled() -> None:
 
 
 def test_two_commands_in_one_write_are_both_answered_in_order() -> None:
-    bus = SimBus([1, 2])
+    bus = VirtualLine([1, 2])
     assert xfer(bus, "A1 02 A2 02") == h("A1 02 21 02 7F A2 02 22 02 7F")
 
 
 def test_stray_bytes_before_a_command_are_echoed_and_skipped() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     assert xfer(bus, "05 06 81 3A 4C") == h("05 06 81 3A 4C 01 3A 4C")
     assert [t.command for t in list(bus.log)[-2:]] == ["unknown", "position"]
     assert bus.log[-2].tx == h("05 06")
 
 
 def test_echo_off() -> None:
-    bus = SimBus([1], echo=False)
+    bus = VirtualLine([1], echo=False)
     assert xfer(bus, "81 3A 4C") == h("01 3A 4C")
     assert xfer(bus, "83 3A 4C") == b""
 
 
 def test_eeprom_write_answer_and_persistence() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     image = Eeprom.factory(1).replace(speed=90, punch=5)
     command = WriteEeprom(1, image)
     assert len(command.tx) == 66
@@ -159,7 +159,7 @@ def test_eeprom_write_answer_and_persistence() -> None:
 
 
 def test_malformed_eeprom_write_is_ignored() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     bad = bytearray(WriteEeprom(1, Eeprom.factory(1)).tx)
     bad[2] = 0x00  # header nibble 0x5A -> 0x0A
     assert xfer(bus, bytes(bad)) == bytes(bad)
@@ -170,7 +170,7 @@ def test_malformed_eeprom_write_is_ignored() -> None:
 
 
 def test_factory_images_are_the_spec_example_with_distinct_calibration() -> None:
-    bus = SimBus()
+    bus = VirtualLine()
     images = [bus.servo(i).eeprom for i in range(32)]
     assert all(img.servo_id == i and img.baud_rate == BaudRate.B115200 for i, img in enumerate(images))
     assert images[5].stretch_gain == 60 and images[5].speed == 127 and images[5].pulse_limit_high == 11500
@@ -178,7 +178,7 @@ def test_factory_images_are_the_spec_example_with_distinct_calibration() -> None
 
 
 def test_motion_toward_target_at_the_speed_derived_rate() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     xfer(bus, Position(1, 9500, baudrate=115200).tx)
     start = bus.log[-1].time  # the servo starts when it has heard the command
@@ -194,7 +194,7 @@ def test_motion_toward_target_at_the_speed_derived_rate() -> None:
 
 
 def test_speed_parameter_slows_motion() -> None:
-    bus = SimBus([1, 2])
+    bus = VirtualLine([1, 2])
     xfer(bus, WriteParam(2, 2, 32).tx)  # speed 32 of 127
     xfer(bus, Position(1, 9000, baudrate=115200).tx)
     xfer(bus, Position(2, 9000, baudrate=115200).tx)
@@ -205,7 +205,7 @@ def test_speed_parameter_slows_motion() -> None:
 
 
 def test_targets_are_clamped_to_the_pulse_limits() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     xfer(bus, Position(1, 16000, baudrate=115200).tx)
     assert servo.target == 11500
@@ -215,21 +215,21 @@ def test_targets_are_clamped_to_the_pulse_limits() -> None:
 
 
 def test_reverse_flag_mirrors_the_shaft_not_the_host_view() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     xfer(bus, WriteEeprom(1, servo.eeprom.replace(flags=Flags.REVERSE | Flags.PWMINH)).tx)
     xfer(bus, Position(1, 9000, baudrate=115200).tx)
     bus.advance(1)
     assert servo.position == 9000
     assert servo.shaft_position == 6000
-    normal = SimBus([1])
+    normal = VirtualLine([1])
     xfer(normal, Position(1, 9000, baudrate=115200).tx)
     normal.advance(1)
     assert normal.servo(1).shaft_position == 9000
 
 
 def test_free_leaves_the_servo_where_it_is_and_lets_it_be_moved_by_hand() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     xfer(bus, Position(1, 8000, baudrate=115200).tx)
     bus.advance(1)
@@ -249,7 +249,7 @@ def test_free_leaves_the_servo_where_it_is_and_lets_it_be_moved_by_hand() -> Non
 
 
 def test_ram_parameters_versus_eeprom_and_power_cycle() -> None:
-    bus = SimBus([3])
+    bus = VirtualLine([3])
     servo = bus.servo(3)
     for param, value in ((1, 20), (2, 50), (3, 30), (4, 60)):
         command = WriteParam(3, param, value)
@@ -272,7 +272,7 @@ def test_ram_parameters_versus_eeprom_and_power_cycle() -> None:
 
 def test_baud_mismatch_answers_nothing() -> None:
     fast_servo = VirtualServo(1, baud_rate=1250000)
-    bus = SimBus([fast_servo, VirtualServo(2)])
+    bus = VirtualLine([fast_servo, VirtualServo(2)])
     assert xfer(bus, "81 3A 4C") == h("81 3A 4C")
     assert xfer(bus, "A2 02") == h("A2 02 22 02 7F")
     bus.baudrate = 1250000  # as a host reopening the line at 1.25 Mbit/s does
@@ -281,13 +281,13 @@ def test_baud_mismatch_answers_nothing() -> None:
 
 
 def test_line_at_a_non_ics_rate_only_echoes() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     bus.baudrate = 9600
     assert xfer(bus, "81 3A 4C") == h("81 3A 4C")
 
 
 def test_eeprom_baud_change_takes_effect_at_power_up() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     xfer(bus, WriteEeprom(1, servo.eeprom.replace(baud_rate=625000)).tx)
     assert xfer(bus, "A1 02") == h("A1 02 21 02 7F")
@@ -298,7 +298,7 @@ def test_eeprom_baud_change_takes_effect_at_power_up() -> None:
 
 
 def test_calibration_written_back_differently_is_detectable() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     assert servo.calibration_intact
     image = servo.eeprom
@@ -308,7 +308,7 @@ def test_calibration_written_back_differently_is_detectable() -> None:
 
 
 def test_current_rises_with_motion_and_load() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     read = ReadParam(1, 3)
 
@@ -335,7 +335,7 @@ def test_current_rises_with_motion_and_load() -> None:
 
 
 def test_temperature_follows_current_slowly_and_overheating_drops_torque() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     servo = bus.servo(1)
     read = ReadParam(1, 4)
 
@@ -363,7 +363,7 @@ def test_temperature_follows_current_slowly_and_overheating_drops_torque() -> No
 
 
 def test_id_read_with_several_servos_is_garbled() -> None:
-    bus = SimBus([3, 5])
+    bus = VirtualLine([3, 5])
     received = xfer(bus, "FF 00 00 00")
     assert received[:4] == h("FF 00 00 00")
     assert received[4:] == bytes([0xE3 & 0xE5, 0x00])
@@ -373,7 +373,7 @@ def test_id_read_with_several_servos_is_garbled() -> None:
 
 
 def test_id_write_renames_every_servo_on_the_line() -> None:
-    bus = SimBus([3, 5, 9])
+    bus = VirtualLine([3, 5, 9])
     received = xfer(bus, "EA 01 01 01")
     assert received[4:] != h("EA")  # three devices answering at once
     assert sorted(s.servo_id for s in bus.servos) == [10, 10, 10]
@@ -383,7 +383,7 @@ def test_id_write_renames_every_servo_on_the_line() -> None:
 
 
 def test_id_command_ignores_servos_at_another_baud() -> None:
-    bus = SimBus([VirtualServo(3), VirtualServo(5, baud_rate=625000)])
+    bus = VirtualLine([VirtualServo(3), VirtualServo(5, baud_rate=625000)])
     assert xfer(bus, "FF 00 00 00") == h("FF 00 00 00 E3")
     assert xfer(bus, "E1 01 01 01") == h("E1 01 01 01 E1")
     assert sorted(s.servo_id for s in bus.servos) == [1, 5]
@@ -394,7 +394,7 @@ def test_id_command_ignores_servos_at_another_baud() -> None:
 
 def test_fast_mode_clock_advances_by_the_wire_time() -> None:
     for baud in (115200, 625000, 1250000):
-        bus = SimBus([1], baudrate=baud, turnaround=50e-6)
+        bus = VirtualLine([1], baudrate=baud, turnaround=50e-6)
         (echo_at, echo), (reply_at, reply) = bus.process(Position(1, 7500, baudrate=baud).tx)
         assert (echo, reply) == (Position(1, 7500, baudrate=baud).tx, bytes.fromhex("01 3A 4C"))
         assert echo_at == pytest.approx(wire_time(3, baud))
@@ -405,14 +405,14 @@ def test_fast_mode_clock_advances_by_the_wire_time() -> None:
 
 
 def test_eeprom_write_answers_after_the_configured_delay() -> None:
-    bus = SimBus([1], eeprom_write_delay=0.05, turnaround=0.0)
+    bus = VirtualLine([1], eeprom_write_delay=0.05, turnaround=0.0)
     command = WriteEeprom(1, Eeprom.factory(1))
     (_, _), (reply_at, _) = bus.process(command.tx)
     assert reply_at == pytest.approx(wire_time(66 + 2, 115200) + 0.05)
 
 
 def test_log_records_every_transaction_and_stays_bounded() -> None:
-    bus = SimBus([1, 2], log_size=5)
+    bus = VirtualLine([1, 2], log_size=5)
     for i in range(12):
         xfer(bus, Position(1 + i % 2, 7000 + i, baudrate=115200).tx)
     assert bus.transactions == 12
@@ -422,13 +422,13 @@ def test_log_records_every_transaction_and_stays_bounded() -> None:
     assert last.reply == last.clean_reply and last.fault is None
     assert last.reply_time is not None and last.reply_time > last.time
     assert [t.seq for t in bus.log_since(10)] == [10, 11]
-    silent = SimBus([1], log_size=0)
+    silent = VirtualLine([1], log_size=0)
     xfer(silent, Position(1, 7000, baudrate=115200).tx)
     assert silent.transactions == 1 and list(silent.log) == []
 
 
 def test_log_value_is_what_the_servo_reported() -> None:
-    bus = SimBus([4])
+    bus = VirtualLine([4])
     bus.servo(4).move_by_hand(6123)
     xfer(bus, Position(4, 0, baudrate=115200).tx)
     assert bus.log[-1].value == 6123
@@ -438,16 +438,16 @@ def test_log_value_is_what_the_servo_reported() -> None:
 
 def test_constructor_validation() -> None:
     with pytest.raises(InvalidArgument):
-        SimBus(baudrate=9600)
+        VirtualLine(baudrate=9600)
     with pytest.raises(InvalidArgument):
-        SimBus(turnaround=-1)
+        VirtualLine(turnaround=-1)
     with pytest.raises(InvalidArgument):
-        SimBus(faults="explode:0.5")
+        VirtualLine(faults="explode:0.5")
     with pytest.raises(InvalidArgument):
         VirtualServo(1, position=0)
 
 
 def test_nibble_layout_of_memory_replies_uses_the_codec() -> None:
-    bus = SimBus([], memory={2: bytes(range(128))})
+    bus = VirtualLine([], memory={2: bytes(range(128))})
     reply = xfer(bus, ReadMemory(2, 100, 3).tx)[4:]
     assert reply[4:] == nibbles_from_bytes(bytes([100, 101, 102]))

@@ -8,14 +8,14 @@ import pytest
 
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadParam, WriteParam
-from ics35_async.sim import FaultConfig, SimBus, Transaction
+from ics35_async.sim import FaultConfig, Transaction, VirtualLine
 
 
 def pos(servo_id: int, position: int = 7500) -> bytes:
     return Position(servo_id, position, baudrate=115200).tx
 
 
-def xfer(bus: SimBus, tx: bytes) -> bytes:
+def xfer(bus: VirtualLine, tx: bytes) -> bytes:
     return b"".join(chunk for _, chunk in bus.process(tx))
 
 
@@ -44,7 +44,7 @@ class Host:
 
 
 def test_drop() -> None:
-    bus = SimBus([1, 2], faults="drop@1:1")
+    bus = VirtualLine([1, 2], faults="drop@1:1")
     assert xfer(bus, pos(1)) == pos(1)
     assert bus.log[-1].fault == "drop" and bus.log[-1].reply == b"" and bus.log[-1].clean_reply
     assert xfer(bus, pos(2)) == pos(2) + bytes.fromhex("02 3A 4C")  # other IDs unaffected
@@ -52,7 +52,7 @@ def test_drop() -> None:
 
 
 def test_truncate() -> None:
-    bus = SimBus([1], faults="truncate:1")
+    bus = VirtualLine([1], faults="truncate:1")
     for _ in range(20):
         received = xfer(bus, pos(1))
         record = bus.log[-1]
@@ -63,7 +63,7 @@ def test_truncate() -> None:
 
 
 def test_corrupt() -> None:
-    bus = SimBus([1], faults="corrupt:1", seed=5)
+    bus = VirtualLine([1], faults="corrupt:1", seed=5)
     for _ in range(20):
         received = xfer(bus, ReadParam(1, 2).tx)
         record = bus.log[-1]
@@ -75,7 +75,7 @@ def test_corrupt() -> None:
 
 
 def test_msb() -> None:
-    bus = SimBus([1], faults="msb:1")
+    bus = VirtualLine([1], faults="msb:1")
     for _ in range(10):
         xfer(bus, pos(1))
         record = bus.log[-1]
@@ -85,7 +85,7 @@ def test_msb() -> None:
 
 
 def test_late_reply_lands_after_the_next_echo() -> None:
-    bus = SimBus([1, 2], faults="late@1:1")
+    bus = VirtualLine([1, 2], faults="late@1:1")
     first = xfer(bus, pos(1, 8000))
     assert first == pos(1, 8000)
     late_record = bus.log[-1]
@@ -98,7 +98,7 @@ def test_late_reply_lands_after_the_next_echo() -> None:
 
 
 def test_late_reply_with_a_delay_waits_for_the_clock_in_fast_mode() -> None:
-    bus = SimBus([1, 2], faults="late@1:1", late_delay=0.01)
+    bus = VirtualLine([1, 2], faults="late@1:1", late_delay=0.01)
     assert xfer(bus, pos(1)) == pos(1)
     assert xfer(bus, pos(2)) == pos(2) + bytes.fromhex("02 3A 4C")  # 1 ms later: not yet
     bus.advance(0.02)
@@ -106,7 +106,7 @@ def test_late_reply_with_a_delay_waits_for_the_clock_in_fast_mode() -> None:
 
 
 def test_noise_on_the_idle_line() -> None:
-    bus = SimBus([1], faults="noise:1")
+    bus = VirtualLine([1], faults="noise:1")
     received = xfer(bus, pos(1))
     record = bus.log[-1]
     assert record.fault == "noise"
@@ -116,7 +116,7 @@ def test_noise_on_the_idle_line() -> None:
 
 
 def test_echo_collision_garbles_the_echo_and_the_command() -> None:
-    bus = SimBus([1], faults="collision:1")
+    bus = VirtualLine([1], faults="collision:1")
     servo = bus.servo(1)
     received = xfer(bus, pos(1, 9000))
     record = bus.log[-1]
@@ -127,7 +127,7 @@ def test_echo_collision_garbles_the_echo_and_the_command() -> None:
 
 
 def test_unplug_fault_disconnects_and_replugs() -> None:
-    bus = SimBus([1], faults="unplug:1", replug_after=0.05)
+    bus = VirtualLine([1], faults="unplug:1", replug_after=0.05)
     host = Host()
     replugged = threading.Event()
     bus.add_listener(lambda plugged: replugged.set() if plugged else None)
@@ -147,7 +147,7 @@ def test_unplug_fault_disconnects_and_replugs() -> None:
 
 
 def _session(seed: int) -> list[Transaction]:
-    bus = SimBus(
+    bus = VirtualLine(
         [1, 2, 3],
         faults="drop:0.1,truncate:0.1,corrupt:0.1,msb:0.1,late:0.1,noise:0.1,echo:0.05",
         seed=seed,
@@ -173,7 +173,7 @@ def test_same_seed_same_faults_different_seed_differs() -> None:
 
 
 def test_faults_are_per_id() -> None:
-    bus = SimBus([1, 2, 3], faults="drop:1,drop@2:0", seed=1)
+    bus = VirtualLine([1, 2, 3], faults="drop:1,drop@2:0", seed=1)
     for servo_id in (1, 2, 3):
         xfer(bus, pos(servo_id))
     assert [t.fault for t in bus.log] == ["drop", None, "drop"]
@@ -214,7 +214,7 @@ def test_bad_fault_specs(spec: str) -> None:
 
 
 def test_unplug_and_replug_by_hand() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     host = Host()
     bus.connect(host, 115200)
     bus.write(pos(1))
@@ -233,7 +233,7 @@ def test_unplug_and_replug_by_hand() -> None:
 
 
 def test_scheduled_unplug() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     events: list[bool] = []
     done = threading.Event()
 
@@ -252,7 +252,7 @@ def test_scheduled_unplug() -> None:
 
 
 def test_second_connect_while_open_is_refused_and_disconnect_frees_it() -> None:
-    bus = SimBus([1])
+    bus = VirtualLine([1])
     bus.connect(Host(), 115200)
     with pytest.raises(OSError):
         bus.connect(Host(), 115200)

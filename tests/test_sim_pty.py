@@ -1,7 +1,7 @@
 """The pty server as an outside program sees it: a plain blocking pyserial client, no code of ours.
 
 The client opens the port 8E1 with every setting in the constructor and never
-re-configures it (see ics35_async.sim.pty_server for why), then checks every
+re-configures it (see ics35_async.sim.pty_port for why), then checks every
 byte of every command against the spec.
 """
 
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import subprocess
 import sys
 import time
 from collections.abc import Iterator
@@ -28,7 +29,8 @@ def h(text: str) -> bytes:
 
 @pytest.fixture(scope="module")
 def four_servos() -> Iterator[str]:
-    proc, path = start_subprocess(["--ids", "0-3", "--memory", "20"])
+    # Fast mode: the motion check below counts on time moving only with commands.
+    proc, path = start_subprocess(["--ids", "0-3", "--memory", "20", "--fast"])
     yield path
     assert stop_subprocess(proc) == 0
 
@@ -109,11 +111,11 @@ def test_every_command_byte_for_byte(four_servos: str) -> None:
         # Motion: the reported position climbs toward the target.
         positions = []
         for _ in range(5):
-            reply = transact(port, h("82 46 50"), 3)  # ID 2 to 9000
+            reply = transact(port, h("82 46 50"), 3)  # ID 2 to 9040
             positions.append((reply[1] << 7) | reply[2])
         assert positions[0] == 7500
         assert all(a < b for a, b in itertools.pairwise(positions))
-        assert positions[-1] < 9000
+        assert positions[-1] < 9040
         time.sleep(0.05)
         assert port.in_waiting == 0
 
@@ -228,3 +230,37 @@ def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path) -> None:
                 assert port.read(64) == expected
     finally:
         assert stop_subprocess(proc) == 0
+
+
+def position_after_a_pause(args: list[str], pause: float = 0.5) -> int:
+    """Send servo 1 towards 9040, wait ``pause`` s of wall time, then free it: the position it reports."""
+    proc, path = start_subprocess(["--ids", "1", *args])
+    try:
+        with open_port(path) as port:
+            transact(port, h("81 46 50"), 3)
+            time.sleep(pause)  # 1540 counts at full speed take 0.13 s of real time
+            reply = transact(port, h("81 00 00"), 3)
+            return (reply[1] << 7) | reply[2]
+    finally:
+        assert stop_subprocess(proc) == 0
+
+
+def test_pty_server_runs_in_real_time_by_default() -> None:
+    # Other programs use the pty in real time: a servo must keep moving between their commands.
+    assert position_after_a_pause([]) == 9040
+
+
+def test_fast_opts_out_of_real_time() -> None:
+    # Fast mode: time moves only with the wire time of commands, so the servo has barely moved.
+    assert position_after_a_pause(["--fast"]) < 7600
+
+
+@pytest.mark.parametrize(
+    "command", [[sys.executable, "-m", "ics35_async.sim"], [sys.executable, "-m", "ics35_async.cli", "sim"]]
+)
+def test_help_says_real_time_is_the_default(command: list[str]) -> None:
+    proc = subprocess.run([*command, "--help"], capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 0, proc.stderr
+    text = " ".join(proc.stdout.split())
+    assert "--fast" in text
+    assert "real time (wire timing) by default" in text

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from ics35_async.protocol import Position, ReadParam, wire_time
-from ics35_async.sim import Deliverer, SimBus, wait_until
+from ics35_async.sim import Deliverer, VirtualLine, wait_until
 
 LOOSE = 0.25  # seconds: only catches "never delivered" or "delivered by the wrong clock"
 
@@ -80,7 +80,7 @@ def test_cancel_drops_pending_chunks() -> None:
 
 @pytest.mark.parametrize("baud", [115200, 625000, 1250000])
 def test_echo_and_reply_arrive_no_earlier_than_the_wire(baud: int) -> None:
-    bus = SimBus([1], baudrate=baud, realtime=True, turnaround=100e-6)
+    bus = VirtualLine([1], baudrate=baud, realtime=True, turnaround=100e-6)
     host = TimedHost()
     bus.connect(host, baud)
     try:
@@ -104,7 +104,7 @@ def test_eeprom_write_reply_waits_for_the_extra_delay() -> None:
     from ics35_async.eeprom import Eeprom
     from ics35_async.protocol import WriteEeprom
 
-    bus = SimBus([1], baudrate=1250000, realtime=True, eeprom_write_delay=0.03)
+    bus = VirtualLine([1], baudrate=1250000, realtime=True, eeprom_write_delay=0.03)
     host = TimedHost()
     bus.connect(host, 1250000)
     try:
@@ -118,7 +118,7 @@ def test_eeprom_write_reply_waits_for_the_extra_delay() -> None:
 
 
 def test_motion_follows_the_wall_clock() -> None:
-    bus = SimBus([1], realtime=True)
+    bus = VirtualLine([1], realtime=True)
     host = TimedHost()
     bus.connect(host, 115200)
     try:
@@ -133,7 +133,7 @@ def test_motion_follows_the_wall_clock() -> None:
 
 
 def test_late_reply_with_a_delay_arrives_that_much_later() -> None:
-    bus = SimBus([1, 2], realtime=True, faults="late@1:1", late_delay=0.05)
+    bus = VirtualLine([1, 2], realtime=True, faults="late@1:1", late_delay=0.05)
     host = TimedHost()
     bus.connect(host, 115200)
     try:
@@ -153,7 +153,7 @@ def test_late_reply_with_a_delay_arrives_that_much_later() -> None:
 
 
 def test_unplug_fault_after_the_reply_in_realtime() -> None:
-    bus = SimBus([1], realtime=True, faults="unplug:1", replug_after=0.05)
+    bus = VirtualLine([1], realtime=True, faults="unplug:1", replug_after=0.05)
     host = TimedHost()
     bus.connect(host, 115200)
     try:
@@ -171,7 +171,7 @@ def test_unplug_fault_after_the_reply_in_realtime() -> None:
 
 
 def test_reconnecting_does_not_leak_delivery_threads() -> None:
-    bus = SimBus([1], realtime=True)
+    bus = VirtualLine([1], realtime=True)
     before = threading.active_count()
     for _ in range(5):
         host = TimedHost()

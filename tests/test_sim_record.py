@@ -10,7 +10,7 @@ import pytest
 from ics35_async.eeprom import Eeprom
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadEeprom, ReadParam, WriteEeprom, WriteParam
-from ics35_async.sim import ReplayDevice, SimBus, load_recording, parse_recording
+from ics35_async.sim import ReplayDevice, VirtualLine, load_recording, parse_recording
 
 
 class Host:
@@ -38,7 +38,7 @@ def script() -> list[bytes]:
     ] * 3
 
 
-def run(device: SimBus | ReplayDevice, commands: list[bytes]) -> list[bytes]:
+def run(device: VirtualLine | ReplayDevice, commands: list[bytes]) -> list[bytes]:
     host = Host()
     device.connect(host, 115200)
     received = []
@@ -52,7 +52,7 @@ def run(device: SimBus | ReplayDevice, commands: list[bytes]) -> list[bytes]:
 
 def test_record_format_is_one_readable_line_per_transaction() -> None:
     stream = io.StringIO()
-    bus = SimBus([1], record=stream)
+    bus = VirtualLine([1], record=stream)
     run(bus, [Position(1, 7500, baudrate=115200).tx, bytes.fromhex("A1 05")])
     bus.stop_recording()
     lines = stream.getvalue().splitlines()
@@ -67,7 +67,7 @@ def test_record_format_is_one_readable_line_per_transaction() -> None:
 def test_replay_reproduces_a_recorded_session_with_faults(tmp_path: Path) -> None:
     path = tmp_path / "session.txt"
     commands = script()
-    bus = SimBus([1, 2, 3], faults="drop:0.1,late:0.1,corrupt:0.1,noise:0.1", seed=4, record=path)
+    bus = VirtualLine([1, 2, 3], faults="drop:0.1,late:0.1,corrupt:0.1,noise:0.1", seed=4, record=path)
     live = run(bus, commands)
     bus.close()
     assert len(load_recording(path)) == len(commands)

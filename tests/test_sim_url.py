@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import asyncio
+import pathlib
 
 import pytest
 
 from ics35_async.eeprom import BaudRate
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadParam
-from ics35_async.sim import FaultConfig, ReplayDevice, SimBus, named, open_url, parse_url
-from ics35_async.transports import open_line
+from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
+from ics35_async.sim import url as sim_url
+from ics35_async.transports import WireDevice, open_line
 
 
 def test_bare_url_is_32_servos_at_115200_in_fast_mode() -> None:
     bus = open_url("sim://")
-    assert isinstance(bus, SimBus)
+    assert isinstance(bus, VirtualLine)
     assert sorted(s.servo_id for s in bus.servos) == list(range(32))
     assert bus.baudrate == 115200 and not bus.realtime and bus.echo
     assert all(s.baud_rate == BaudRate.B115200 for s in bus.servos)
@@ -40,7 +42,7 @@ def test_full_query() -> None:
     assert options["unplug_after"] == pytest.approx(2.0) and options["replug_after"] == pytest.approx(0.5)
     assert options["memory"] == {20: b"", 21: b""}
     assert options["log_size"] is None
-    bus = SimBus(**options)
+    bus = VirtualLine(**options)
     assert bus.servo(5).baud_rate == 1250000
     assert bus.memory_device(21).memory == bytearray(128)
     bus.close()
@@ -67,7 +69,7 @@ def test_bad_urls(url: str) -> None:
 
 def test_named_line_is_shared_until_closed() -> None:
     bus = open_url("sim://robot?ids=1-2")
-    assert isinstance(bus, SimBus)
+    assert isinstance(bus, VirtualLine)
     try:
         assert open_url("sim://robot") is bus
         assert named("robot") is bus
@@ -76,12 +78,12 @@ def test_named_line_is_shared_until_closed() -> None:
     with pytest.raises(KeyError):
         named("robot")
     fresh = open_url("sim://robot?ids=4")
-    assert isinstance(fresh, SimBus) and fresh is not bus
+    assert isinstance(fresh, VirtualLine) and fresh is not bus
     fresh.close()
 
 
 def test_line_built_in_python_is_reachable_by_name() -> None:
-    with SimBus([9], name="from-python") as bus:
+    with VirtualLine([9], name="from-python") as bus:
         assert open_url("sim://from-python?ids=0-31") is bus
 
 
@@ -92,6 +94,19 @@ def test_replay_url(tmp_path: object) -> None:
     path.write_text("0.0 81 3a 4c -> 81 3a 4c | 01 3a 4c\n")
     device = open_url(f"sim://?replay={path}")
     assert isinstance(device, ReplayDevice) and device.remaining == 1
+    with pytest.raises(InvalidArgument, match="replay= takes no other options"):
+        open_url(f"sim://?replay={path}&ids=1")
+
+
+@pytest.mark.parametrize("query", ["", "?ids=1&realtime=1", "?replay=REC"])
+def test_open_url_is_the_one_way_from_a_url_to_a_wire_device(query: str, tmp_path: pathlib.Path) -> None:
+    # What the core's scheme map points at: ics35_async.sim.url.open_url (re-exported as sim.open_url).
+    assert sim_url.open_url is open_url
+    recording = tmp_path / "r.txt"
+    recording.write_text("# nothing recorded\n")
+    device = sim_url.open_url("sim://" + query.replace("REC", str(recording)))
+    assert isinstance(device, WireDevice)
+    device.close()  # type: ignore[attr-defined]
 
 
 class Collect(asyncio.Protocol):

@@ -34,7 +34,7 @@ from ics35_async import (
 )
 from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
-from ics35_async.sim import SimBus, Transaction, VirtualServo
+from ics35_async.sim import Transaction, VirtualLine, VirtualServo
 
 FAST: dict[str, Any] = {"adapter_latency": 0.003, "quiet_time": 0.001}
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
@@ -45,7 +45,7 @@ def start_position(i: int) -> int:
     return 4000 + 100 * i
 
 
-def make_sim(ids: Iterable[int] = range(32), **options: Any) -> SimBus:
+def make_sim(ids: Iterable[int] = range(32), **options: Any) -> VirtualLine:
     """Servos at distinct start positions with distinct RAM stretch values; an unbounded log."""
     servos = []
     for i in ids:
@@ -53,11 +53,11 @@ def make_sim(ids: Iterable[int] = range(32), **options: Any) -> SimBus:
         servo.stretch = 40 + i
         servos.append(servo)
     options.setdefault("log_size", None)
-    return SimBus(servos, **options)
+    return VirtualLine(servos, **options)
 
 
 @contextlib.asynccontextmanager
-async def streaming(sim: SimBus, ids: Sequence[int], **options: Any) -> AsyncIterator[tuple[Bus, Stream]]:
+async def streaming(sim: VirtualLine, ids: Sequence[int], **options: Any) -> AsyncIterator[tuple[Bus, Stream]]:
     async with open_bus(sim, **FAST) as bus, bus.stream(ids, **options) as stream:
         yield bus, stream
 
@@ -86,7 +86,7 @@ async def wait_for_sim(condition: Callable[[], bool], what: str) -> None:
         raise AssertionError(f"gave up waiting for: {what}") from None
 
 
-def position_log(sim: SimBus, since: int = 0) -> list[Transaction]:
+def position_log(sim: VirtualLine, since: int = 0) -> list[Transaction]:
     return [t for t in sim.log_since(since) if t.command in POSITION_COMMANDS]
 
 
@@ -114,7 +114,7 @@ def check_frame(frame: Frame, cycle_log: Sequence[Transaction]) -> None:
     assert max(frame.timestamps.values(), default=frame.finished) <= frame.finished
 
 
-def check_frames(frames: Iterable[Frame], sim: SimBus, ids: Sequence[int], since: int = 0) -> None:
+def check_frames(frames: Iterable[Frame], sim: VirtualLine, ids: Sequence[int], since: int = 0) -> None:
     """Check frames of a stream whose first cycle began at log seq ``since`` (no other position traffic)."""
     cycles = split_cycles(position_log(sim, since), ids)
     for frame in frames:
@@ -336,7 +336,7 @@ async def test_two_line_group_merges_frames_and_routes_targets_per_line() -> Non
     lines = {"left": list(range(12)), "right": list(range(12))}  # the same IDs on both lines
     sims = {
         "left": make_sim(range(12)),
-        "right": SimBus([VirtualServo(i, position=10000 + 50 * i) for i in range(12)], log_size=None),
+        "right": VirtualLine([VirtualServo(i, position=10000 + 50 * i) for i in range(12)], log_size=None),
     }
     group = BusGroup({name: open_bus(sim, **FAST) for name, sim in sims.items()})
     async with group, group.stream(lines) as gstream:
@@ -704,7 +704,7 @@ async def test_bad_input_raises_invalid_argument_and_writes_nothing() -> None:
 
 async def test_a_closed_streams_last_reply_never_reaches_the_next_stream() -> None:
     """Close a stream with its command on the wire, start another: the old reply is not the new one's."""
-    sim = SimBus([VirtualServo(i) for i in (1, 2, 3, 4)], realtime=True)
+    sim = VirtualLine([VirtualServo(i) for i in (1, 2, 3, 4)], realtime=True)
     async with open_bus(sim, adapter_latency=0.01, quiet_time=0.002) as bus:
         async with bus.stream([1, 2]) as first:
             await first.next_frame()

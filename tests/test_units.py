@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from ics35_async import open_bus
 from ics35_async.errors import InvalidArgument
-from ics35_async.sim import SimBus
+from ics35_async.sim import VirtualLine
 from ics35_async.units import (
     COUNTS_PER_DEGREE,
     NEUTRAL,
@@ -218,7 +218,7 @@ def test_units_refuse_degrees_beyond_135(degrees: float) -> None:
 
 
 async def test_servo_and_stream_refuse_degrees_beyond_135() -> None:
-    sim = SimBus([1], log_size=None)
+    sim = VirtualLine([1], log_size=None)
     async with open_bus(sim) as bus:
         with pytest.raises(InvalidArgument):
             await bus.servo(1).set_degrees(200)

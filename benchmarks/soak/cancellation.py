@@ -23,7 +23,7 @@ from ics35_async import (
 )
 from ics35_async.protocol import Command
 from ics35_async.sim import (
-    SimBus,
+    VirtualLine,
 )
 from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import FAST_TIMING, band, chaos_servos, is_stream_tx
@@ -68,7 +68,7 @@ async def cancellation_soak(
     to the log like in the chaos soak; stream frames are checked against
     the servos' disjoint position bands.
     """
-    sim = SimBus(chaos_servos(), log_size=200_000)
+    sim = VirtualLine(chaos_servos(), log_size=200_000)
     bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
     matcher = LogMatcher(sim, is_stream_tx, range(32), track_stream=False)
     images = {i: sim.servo(i).eeprom for i in range(32)}

@@ -31,7 +31,7 @@ from ics35_async import (
     open_bus,
 )
 from ics35_async.sim import (
-    SimBus,
+    VirtualLine,
 )
 from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import FAST_TIMING, CheckError, chaos_servos, is_stream_tx
@@ -52,7 +52,7 @@ class WorkloadStats:
 class ChaosWorkload:
     """Stream + request workers on one bus, feeding a :class:`LogMatcher`."""
 
-    def __init__(self, sim: SimBus, bus: Bus, seed: int, workers: int, request_pause: float) -> None:
+    def __init__(self, sim: VirtualLine, bus: Bus, seed: int, workers: int, request_pause: float) -> None:
         self.sim = sim
         self.bus = bus
         self.seed = seed
@@ -208,9 +208,9 @@ class ChaosReport:
 
 async def chaos_run(
     transactions: int, fault_rate: float, seed: int, workers: int = 4, request_pause: float = 0.002
-) -> tuple[ChaosWorkload, float, SimBus, Bus, dict[str, Any]]:
+) -> tuple[ChaosWorkload, float, VirtualLine, Bus, dict[str, Any]]:
     spec = fault_spec(fault_rate)
-    sim = SimBus(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
+    sim = VirtualLine(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
     bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
     try:
         workload = ChaosWorkload(sim, bus, seed, workers, request_pause)

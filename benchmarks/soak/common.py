@@ -20,7 +20,7 @@ from ics35_async.protocol import Command, Param
 from ics35_async.sim import (
     FaultConfig,
     FaultInjector,
-    SimBus,
+    VirtualLine,
 )
 from tests.support.oracle import FAULT_KINDS, band
 
@@ -91,7 +91,7 @@ def random_request(
     return silent, lambda: bus.request(silent, priority=priority, retries=0), 1
 
 
-async def consistency_check(sim: SimBus, bus: Bus) -> dict[str, Any]:
+async def consistency_check(sim: VirtualLine, bus: Bus) -> dict[str, Any]:
     """Faults off; every servo must answer exactly what the simulator holds; the bus idle and its counters sane."""
     sim.faults = FaultInjector(FaultConfig(), 0)
     problems: list[str] = []

@@ -124,6 +124,7 @@ async def reconnect_session(
     for n, down in enumerate(down_times):
         proc, path = start_pty_server(
             [
+                "--fast",
                 "--ids",
                 "0-7",
                 "--faults",
@@ -191,7 +192,7 @@ async def reconnect_session(
 
 async def no_reconnect_session(report: dict[str, Any]) -> None:
     """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get BusClosed."""
-    proc, path = start_pty_server(["--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
+    proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
         bus = await open_bus(path, adapter_latency=0.02)
         pending: list[asyncio.Future[Any]] = []

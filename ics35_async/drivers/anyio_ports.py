@@ -13,7 +13,6 @@ import asyncio
 import contextlib
 import errno
 import os
-import sys
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -25,8 +24,10 @@ import serial
 from ..transports import WireDevice
 from ..transports.serial_port import TermiosError
 
-if sys.platform != "win32":
+try:
     import termios
+except ImportError:  # no POSIX terminals (Windows): nothing here is chosen for a port there
+    termios = None  # type: ignore[assignment]
 
 
 def soon_threadsafe() -> Callable[[Callable[[], None]], None]:

@@ -1,25 +1,37 @@
-"""A virtual ICS 3.5 bus: up to 32 servos (and generic memory devices) on one line.
+"""A virtual ICS 3.5 line: up to 32 servos (and generic memory devices) behind one port.
 
 Two ways in:
 
-* **In process**: :class:`SimBus` is a :class:`~ics35_async.transports.WireDevice`;
+* **In process**: :class:`VirtualLine` is a :class:`~ics35_async.transport.WireDevice`;
   importing this package registers the ``sim://`` URL scheme, so
   ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
   Tests build one from Python objects
-  (``SimBus([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
+  (``VirtualLine([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
   and reach it by name (``sim://t``).
 * **On a pseudo-terminal**: ``python -m ics35_async.sim --ids 0-31 [--baud B]
-  [--realtime] [--faults SPEC] [--seed N]`` prints a device path on its first
-  line; any serial program can open it (see :mod:`.pty_server` for pyserial's
-  parity quirk on ptys).
+  [--fast] [--faults SPEC] [--seed N]`` prints a device path on its first
+  line; any serial program can open it (see :mod:`.pty_port` for pyserial's
+  parity quirk on ptys).  It runs in real time unless ``--fast``: programs
+  on the other end of a serial port expect time to pass between commands.
+
+Modules, each using only those listed before it: :mod:`.transaction` (a log
+entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
+waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
+answer a command), :mod:`.model` (the sans-IO wire model), :mod:`.line`
+(:class:`VirtualLine`: the model as an in-process port), :mod:`.url`
+(``sim://`` URLs; :func:`open_url` is what the core calls); then, POSIX
+only and loaded on demand, :mod:`.pty_port` (pty plumbing),
+:mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its command
+line); :mod:`.launch` runs that in a subprocess.
 
 URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
 ``ids`` (``0-31``, ``1,3,5-7``), ``baud``, ``realtime`` (1/0), ``echo``
 (1/0), ``follow_baud`` (1/0), ``seed``, ``faults`` (e.g.
-``drop:0.01,late@3:0.1``, see :mod:`.faults`), ``turnaround``,
-``eeprom_delay``, ``late_delay``, ``unplug_after``, ``replug_after``
-(seconds, or with ``us``/``ms``/``s``), ``memory`` (IDs of generic devices),
+``drop:0.01,late@3:0.1,tail:0.05``, see :mod:`.faults`), ``turnaround``,
+``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
+``replug_after`` (seconds, or with ``us``/``ms``/``s``), ``tail_bytes``
+(what the held-tail fault holds back), ``memory`` (IDs of generic devices),
 ``log`` (log size, ``all``), ``record`` (file), ``replay`` (file: serve a
 recording).  With a NAME, the first URL creates the line and later ones
 (reconnects) return the same object.
@@ -28,10 +40,10 @@ The line's baud rate is the host's: ``connect(host, baudrate)`` (or the
 pty client's settings) sets it, and a servo whose EEPROM (power-up) baud
 differs stays silent.  ``baud=`` sets the servos' EEPROM rate.
 
-Modes and clocks.  Fast mode (default): answers are delivered at once, and
+Modes and clocks.  Fast mode (the default in process; ``--fast`` on a pty): answers are delivered at once, and
 the line keeps a simulated clock that advances by the modelled wire time of
 every transaction (11 bit times a byte, plus a 100 us turnaround, plus 20 ms
-for the EEPROM write) and by :meth:`SimBus.advance`, so motion is
+for the EEPROM write) and by :meth:`VirtualLine.advance`, so motion is
 deterministic whatever the host's speed.  Real-time mode: the clock is
 ``time.perf_counter()`` and each chunk is delivered no earlier than its wire
 time, by a delivery thread (in process) or the server's loop (pty) that
@@ -59,50 +71,47 @@ wake-up, the pty), the same as without the wire model.  Outliers of a few
 ms come from the machine (other processes, the GIL: a delivery thread that
 must wait for an event loop busy running Python code can be held up to
 ``sys.getswitchinterval()``, 5 ms).  Fast-mode throughput: about 75 000
-transactions/s (13 us each) through :meth:`SimBus.process`.
+transactions/s (13 us each) through :meth:`VirtualLine.process`.
 """
 
 from __future__ import annotations
 
-from ..transports import WireDevice, register_url_scheme
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from .clock import Deliverer, lower_timer_slack, wait_until
+from .devices import garble
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
-from .line import (
-    DEFAULT_EEPROM_WRITE_DELAY,
-    DEFAULT_TURNAROUND,
-    SimBus,
-    Transaction,
-    garble,
-    named,
-    parse_url,
-)
-from .pty_server import PtyServer, serving, start_subprocess, stop_subprocess
-from .pty_server import main as main
-from .record import Entry, Mismatch, Recorder, ReplayDevice, load_recording, parse_recording
+from .launch import serving, start_subprocess, stop_subprocess
+from .line import VirtualLine, named
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel
+from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .servo import MemoryDevice, VirtualServo
+from .transaction import Transaction
+from .url import open_url, parse_url
+
+if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
+    from .pty_server import PtyServer as PtyServer
+    from .server_cli import main as main
+
+# The pty server and its command line need termios, fcntl and tty (POSIX only): they are
+# imported when one of their names is first asked for, so the in-process simulator imports anywhere
+# (and they stay out of __all__, so a star import works there too).
+_LAZY = {
+    "PtyServer": "pty_server",
+    "main": "server_cli",
+}
 
 
-def open_url(url: str) -> WireDevice:
-    """The device a ``sim://`` URL names (the registered URL-scheme factory).
-
-    A named line (``sim://NAME?...``) is created once and returned again by
-    later calls, so a bus that reconnects finds the same servos.
-    """
-    name, options = parse_url(url)
-    if name is not None:
-        try:
-            return named(name)
-        except KeyError:
-            pass
-    replay = options.pop("replay", None)
-    if replay is not None:
-        if options:
-            raise ValueError(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
-        return ReplayDevice(replay)
-    return SimBus(name=name, **options)
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
 
 
-register_url_scheme("sim", open_url)
 
 __all__ = [
     "DEFAULT_EEPROM_WRITE_DELAY",
@@ -112,18 +121,17 @@ __all__ = [
     "Entry",
     "FaultConfig",
     "FaultInjector",
+    "LineModel",
     "MemoryDevice",
     "Mismatch",
-    "PtyServer",
-    "Recorder",
     "ReplayDevice",
-    "SimBus",
     "Transaction",
+    "TransactionRecorder",
+    "VirtualLine",
     "VirtualServo",
     "garble",
     "load_recording",
     "lower_timer_slack",
-    "main",
     "named",
     "open_url",
     "parse_ids",

@@ -2,6 +2,6 @@
 
 import sys
 
-from .pty_server import main
+from .server_cli import main
 
 sys.exit(main())

@@ -13,20 +13,26 @@ Kinds (names as used in fault specs and in the transaction log):
 ``msb``       one reply data byte (the header if there is none) gets its MSB set
 ``late``      the reply is held back and delivered after the echo of the host's
               *next* command (or ``late_delay`` seconds later if one is set)
+``tail``      a held tail: the reply's last ``tail_bytes`` bytes reach the host
+              ``tail_delay`` seconds late, and nothing sent after them
+              overtakes them (a TCP bridge with Nagle's algorithm: ser2net
+              splits a 68-byte EEPROM answer 64 + 4, the 4 about 40 ms later);
+              a reply of ``tail_bytes`` bytes or fewer is not split.  In fast
+              mode the tail comes with the host's next write, before its echo
 ``noise``     1..3 random bytes reach the host on the idle line after the transaction
 ``echo``      a collision: one echo byte comes back changed, and the garbled
               command is not heard by any device (no reply, no effect)
 ``unplug``    after the transaction the port disappears, and comes back after
               the line's ``replug_after`` seconds
 
-The five reply faults exclude each other (one draw decides which, if any), so
+The six reply faults exclude each other (one draw decides which, if any), so
 their rates for one ID must add up to at most 1.
 
 Spec syntax (``sim://?faults=...``, ``--faults``): comma-separated
 ``kind:rate`` for every ID, ``kind@ID:rate`` or ``kind@LOW-HIGH:rate`` for
 some IDs (overriding the all-ID rate there), e.g.
 ``drop:0.01,late:0.005,corrupt@3:0.5,noise@0-7:0.02``; ``collision`` is an
-alias of ``echo``.  An empty spec or ``none`` means no faults.
+alias of ``echo``, ``held_tail`` of ``tail``.  An empty spec or ``none`` means no faults.
 """
 
 from __future__ import annotations
@@ -36,9 +42,10 @@ from dataclasses import dataclass, field
 
 from ..errors import InvalidArgument
 
-REPLY_FAULTS = ("drop", "truncate", "corrupt", "msb", "late")
+# New kinds go at the end: a draw walks this order, so the same seed keeps giving the same faults.
+REPLY_FAULTS = ("drop", "truncate", "corrupt", "msb", "late", "tail")
 FAULT_KINDS = (*REPLY_FAULTS, "noise", "echo", "unplug")
-_ALIASES = {"collision": "echo"}
+_ALIASES = {"collision": "echo", "held_tail": "tail"}
 
 
 def _rate(text: str, item: str) -> float:

@@ -1,130 +1,57 @@
-"""The virtual ICS line: :class:`SimBus`, its transaction log and its URL.
+"""The simulated line as a program sees it: :class:`VirtualLine`, a port with devices behind it.
 
-:meth:`SimBus.feed` is the sans-IO core: host bytes and the time they were
-written go in, the chunks the host receives (echo, replies, noise) and the
-earliest time each may be delivered come out.  Two drivers sit on top:
+:class:`VirtualLine` is the :class:`~.model.LineModel` (the wire timing,
+faults, log) plus what makes it a line one plugs into:
 
-* the :class:`~ics35_async.transports.WireDevice` face of :class:`SimBus`
-  (``connect`` / ``write`` / ``disconnect``) for in-process use, answering
-  synchronously in fast mode and from a :class:`~.clock.Deliverer` thread at
-  the modelled wire time in real-time mode;
-* the pseudo-terminal server (:mod:`.pty_server`).
-
-Wire model: a host byte occupies the line for 11 bit times; the echo of a
-write arrives when its last byte has been sent; the addressed device starts
-answering ``turnaround`` seconds after the end of the command (plus
-``eeprom_write_delay`` for the EEPROM write) and its reply arrives, whole,
-when its last byte has crossed the line.  Bytes the host writes while the
-line is still busy (an answer in progress) are sent after it: the simulator
-does not model electrical collisions except through the ``echo`` fault and
-the ID command on a multi-device line.
+* the :class:`~ics35_async.transport.WireDevice` face (``connect`` /
+  ``write`` / ``disconnect``) for in-process use, answering synchronously in
+  fast mode and from a :class:`~.clock.Deliverer` thread at the modelled wire
+  time in real-time mode (the pty server, :mod:`.pty_server`, is the other
+  driver of the same model);
+* the port's presence: unplug and replug, by fault, by timer or by hand;
+* access to its devices, and a name by which ``sim://NAME`` finds it.
 """
 
 from __future__ import annotations
 
 import errno
-import functools
-import heapq
 import threading
-import time
-from collections import Counter, deque
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
-from urllib.parse import parse_qs, urlsplit
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from ..eeprom import BaudRate
-from ..errors import InvalidArgument
-from ..protocol import BITS_PER_BYTE, ReadId, WriteEeprom, WriteId, decode_request
 from ..transports import HostSide
 from .clock import SPIN_MARGIN, Deliverer
-from .faults import FaultConfig, FaultInjector, parse_ids
-from .servo import NO_REPLY, MemoryDevice, VirtualServo
+from .devices import Device, MemorySpec
+from .faults import FaultConfig
+from .model import (
+    DEFAULT_EEPROM_WRITE_DELAY,
+    DEFAULT_FRAME_TIMEOUT,
+    DEFAULT_LOG_SIZE,
+    DEFAULT_NOISE_GAP,
+    DEFAULT_TAIL_BYTES,
+    DEFAULT_TAIL_DELAY,
+    DEFAULT_TURNAROUND,
+    LineModel,
+)
+from .servo import MemoryDevice, VirtualServo
 
-if TYPE_CHECKING:
-    from .record import Recorder
-
-DEFAULT_TURNAROUND = 100e-6
-"""Seconds a servo waits after a command before answering.  An assumption:
-the reference gives no figure; 100 us is a round value in the range hobby
-servo firmware achieves, and is easy to change (``turnaround=``)."""
-DEFAULT_EEPROM_WRITE_DELAY = 20e-3
-"""Extra seconds before the EEPROM-write reply ("noticeably longer" in the
-reference; 20 ms is an assumption that keeps real-time tests quick)."""
-DEFAULT_LOG_SIZE = 10_000
 DEFAULT_REPLUG_AFTER = 0.2
-DEFAULT_FRAME_TIMEOUT = 10e-3
-DEFAULT_NOISE_GAP = 1e-3
-
-Device = VirtualServo | MemoryDevice
 
 
-@dataclass(frozen=True, slots=True)
-class Transaction:
-    """One host command as the simulated line saw and answered it.
-
-    ``time`` is the line's clock when the command's last byte arrived;
-    ``servo_id`` the addressed ID (``None`` for the ID command; for bytes no
-    device understood, ``command == "unknown"``, the ID bits of their first
-    byte if it is a command byte, else ``None``).  ``echo`` and ``reply``
-    are the bytes actually sent back (after faults; ``reply`` of a ``late``
-    transaction arrives during a later one); ``clean_reply`` is what healthy
-    devices would have sent; ``value`` the value answered (a position, a
-    parameter, an :class:`Eeprom`, an ID, memory bytes; ``None`` if none or
-    if several devices answered at once); ``responders`` the IDs of the
-    devices that answered; ``fault`` the injected faults joined with ``+``;
-    ``extra`` bytes sent during this transaction that do not belong to it
-    (an earlier late reply, noise); ``reply_time`` when the reply's last byte
-    is delivered (``None`` without a reply).
-    """
-
-    seq: int
-    time: float
-    servo_id: int | None
-    command: str
-    tx: bytes
-    echo: bytes
-    reply: bytes
-    clean_reply: bytes
-    value: Any
-    responders: tuple[int, ...]
-    fault: str | None
-    extra: bytes
-    reply_time: float | None
-
-
-def garble(replies: list[bytes]) -> bytes:
-    """What the host hears when several devices answer at once.
-
-    The line idles high and any device pulling it low wins, so the bytes
-    combine as a wired-AND (a device that has finished contributes idle
-    0xFF).  The devices' slightly different turnarounds smear the frames; we
-    model that as one extra 0x00 byte (a glitch read as a start bit), so even
-    identical replies come out visibly wrong.
-    """
-    length = max(len(r) for r in replies)
-    anded = bytes(
-        functools.reduce(lambda a, b: a & b, (r[i] if i < len(r) else 0xFF for r in replies)) for i in range(length)
-    )
-    return anded + b"\x00"
-
-
-class SimBus:
+class VirtualLine(LineModel):
     """A simulated ICS 3.5 line with up to 32 servos and optional memory devices.
 
-    ``servos``: :class:`VirtualServo` objects or IDs (factory servos at
-    ``baudrate``); ``None`` means IDs 0..31.  ``memory``: generic devices,
-    ``{id: initial bytes}`` or :class:`MemoryDevice` objects.  ``baudrate``
-    is the line's rate until a host connects (then the host's rate is used
-    when ``follow_host_baud``), and the EEPROM rate of servos built from IDs.
-    ``realtime`` delivers at the modelled wire times; otherwise the line's
-    clock is simulated and advances only with wire time and :meth:`advance`.
-    ``faults`` is a :class:`FaultConfig` or a spec string (:mod:`.faults`),
-    drawn from ``random.Random(seed)``.  ``log_size`` bounds the
-    transaction log (``None``: unbounded, 0: no log; :attr:`transactions`
-    counts regardless).  ``name`` registers the line so ``sim://NAME``
-    reaches this object.  ``record`` is a file path or text stream to record
-    the session to (:mod:`.record`).
+    The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
+    ``memory``, ``realtime``, ``echo``, ``turnaround``,
+    ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
+    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``), and:
+    ``follow_host_baud``: the line runs at the rate the host connects with
+    (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
+    disappears that many wall-clock seconds after the first connect, and
+    comes back (also after an ``unplug`` fault) that long after;
+    ``spin_margin``: see :mod:`.clock`; ``name`` registers the line so
+    ``sim://NAME`` reaches this object.
     """
 
     def __init__(
@@ -132,7 +59,7 @@ class SimBus:
         servos: Iterable[VirtualServo | int] | None = None,
         *,
         baudrate: int = BaudRate.B115200,
-        memory: Mapping[int, bytes | bytearray | MemoryDevice] | Iterable[MemoryDevice] | None = None,
+        memory: MemorySpec | None = None,
         realtime: bool = False,
         echo: bool = True,
         turnaround: float = DEFAULT_TURNAROUND,
@@ -140,336 +67,79 @@ class SimBus:
         faults: FaultConfig | str | None = None,
         seed: int | None = 0,
         late_delay: float | None = None,
+        tail_bytes: int = DEFAULT_TAIL_BYTES,
+        tail_delay: float = DEFAULT_TAIL_DELAY,
         noise_gap: float = DEFAULT_NOISE_GAP,
         log_size: int | None = DEFAULT_LOG_SIZE,
+        frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
+        record: Any = None,
         follow_host_baud: bool = True,
         unplug_after: float | None = None,
         replug_after: float = DEFAULT_REPLUG_AFTER,
-        frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         spin_margin: float = SPIN_MARGIN,
         name: str | None = None,
-        record: Any = None,
     ) -> None:
-        line_baud = BaudRate.parse(baudrate)
-        built: list[Device] = []
-        for item in range(32) if servos is None else servos:
-            if isinstance(item, VirtualServo):
-                built.append(item)
-            else:
-                built.append(VirtualServo(item, baud_rate=line_baud))
-        if memory is not None:
-            if isinstance(memory, Mapping):
-                for device_id, content in memory.items():
-                    built.append(
-                        content if isinstance(content, MemoryDevice) else MemoryDevice(device_id, bytes(content))
-                    )
-            else:
-                built.extend(memory)
-        for value, what in ((turnaround, "turnaround"), (eeprom_write_delay, "eeprom_write_delay")):
-            if value < 0:
-                raise InvalidArgument(f"{what} must not be negative")
-        self.devices: list[Device] = built
-        self.baudrate: int = int(line_baud)
-        self.realtime = realtime
-        self.echo = echo
-        self.turnaround = turnaround
-        self.eeprom_write_delay = eeprom_write_delay
-        self.late_delay = late_delay
-        self.noise_gap = noise_gap
+        super().__init__(
+            servos,
+            baudrate=baudrate,
+            memory=memory,
+            realtime=realtime,
+            echo=echo,
+            turnaround=turnaround,
+            eeprom_write_delay=eeprom_write_delay,
+            faults=faults,
+            seed=seed,
+            late_delay=late_delay,
+            tail_bytes=tail_bytes,
+            tail_delay=tail_delay,
+            noise_gap=noise_gap,
+            log_size=log_size,
+            frame_timeout=frame_timeout,
+            record=record,
+        )
         self.follow_host_baud = follow_host_baud
         self.unplug_after = unplug_after
         self.replug_after = replug_after
-        self.frame_timeout = frame_timeout
         self.spin_margin = spin_margin
-        config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
-        self.faults = FaultInjector(config, seed)
-        self.log: deque[Transaction] = deque(maxlen=log_size)
-        self._log_enabled = log_size != 0
-        self.transactions = 0
-        self.fault_counts: Counter[str] = Counter()
-        self.unplug_count = 0
-        self.plugged = True
         self.name = name
-
-        self._lock = threading.RLock()
-        self.epoch = time.perf_counter()
-        self._clock = 0.0
-        self._line_free = 0.0
-        self._rx = bytearray()
-        self._rx_echoed = 0
-        self._rx_time = 0.0
-        self._held: list[bytes] = []
-        self._deferred: list[tuple[float, int, bytes]] = []
-        self._deferred_order = 0
-        self._unplug_requested = False
+        self.plugged = True
+        self.unplug_count = 0
         self._host: HostSide | None = None
         self._deliverer: Deliverer | None = None
         self._timers: list[threading.Timer] = []
         self._unplug_scheduled = False
         self._listeners: list[Callable[[bool], None]] = []
-        self._recorder: Recorder | None = None
-        self._reindex()
-        if record is not None:
-            self.record_to(record)
         if name is not None:
             _NAMED[name] = self
 
     # ------------------------------------------------------------------ devices
 
-    def _reindex(self) -> None:
-        index: dict[int, list[Device]] = {}
-        for device in self.devices:
-            index.setdefault(device.servo_id, []).append(device)
-        self._by_id = index
+    @property
+    def devices(self) -> list[Device]:
+        return self.table.devices
 
     @property
     def servos(self) -> list[VirtualServo]:
-        return [d for d in self.devices if isinstance(d, VirtualServo)]
+        return self.table.servos
 
     def servo(self, servo_id: int) -> VirtualServo:
         """The (first) servo whose current ID is ``servo_id``."""
-        for device in self._by_id.get(servo_id, ()):
-            if isinstance(device, VirtualServo):
-                return device
-        raise KeyError(f"no servo with ID {servo_id} on the simulated line")
+        return self.table.servo(servo_id)
 
     def memory_device(self, device_id: int) -> MemoryDevice:
-        for device in self._by_id.get(device_id, ()):
-            if isinstance(device, MemoryDevice):
-                return device
-        raise KeyError(f"no memory device with ID {device_id} on the simulated line")
+        return self.table.memory_device(device_id)
 
-    def log_since(self, seq: int = 0) -> list[Transaction]:
-        """A copy of the logged transactions with ``seq >= seq`` (safe while the line runs)."""
+    def add_device(self, device: Device) -> None:
+        """Put one more device on the line (as if plugged in while it runs)."""
         with self._lock:
-            return [t for t in self.log if t.seq >= seq]
+            self.table.add(device)
 
     def power_cycle(self) -> None:
         """Power-cycle every servo on the line (RAM reloads from EEPROM)."""
         with self._lock:
-            self._update_devices(self.now())
+            self.table.update(self.now())
             for servo in self.servos:
                 servo.power_cycle()
-
-    # ------------------------------------------------------------------ time
-
-    def now(self) -> float:
-        """The line's clock: simulated seconds (fast) or seconds since creation (real-time)."""
-        if self.realtime:
-            return time.perf_counter() - self.epoch
-        return self._clock
-
-    def advance(self, seconds: float) -> None:
-        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs)."""
-        if seconds < 0:
-            raise InvalidArgument("cannot go back in time")
-        with self._lock:
-            if not self.realtime:
-                self._clock += seconds
-            self._update_devices(self.now())
-
-    def sync(self) -> None:
-        """Bring every device's state up to the line's current time."""
-        with self._lock:
-            self._update_devices(self.now())
-
-    def byte_time(self, baudrate: int | None = None) -> float:
-        return BITS_PER_BYTE / (baudrate or self.baudrate)
-
-    def _update_devices(self, now: float) -> None:
-        for device in self.devices:
-            device.update(now)
-
-    # ------------------------------------------------------------------ the core
-
-    def feed(self, data: bytes, now: float) -> list[tuple[float, bytes]]:
-        """Host bytes written at ``now``: the chunks the host receives and when.
-
-        Chunks come in delivery order; each time is the earliest moment the
-        whole chunk may be delivered (line clock).  In fast mode a reply
-        delayed by ``late_delay`` is kept inside and released by the first
-        later call whose time has passed it.
-        """
-        with self._lock:
-            return self._feed(bytes(data), now)
-
-    def _feed(self, data: bytes, now: float) -> list[tuple[float, bytes]]:
-        out: list[tuple[float, bytes]] = []
-        t = max(now, self._line_free)
-        while self._deferred and self._deferred[0][0] <= t:
-            when, _, chunk = heapq.heappop(self._deferred)
-            out.append((when, chunk))
-        if self._rx and now - self._rx_time > self.frame_timeout:
-            # A servo forgets a half-received command after a pause.
-            self._rx.clear()
-            self._rx_echoed = 0
-        self._rx_time = now
-        self._rx += data
-        baud = self.baudrate
-        ics_baud = baud in _ICS_BAUDS
-        junk = bytearray()
-        junk_fresh = 0
-        rx = self._rx
-        while rx:
-            if ics_baud:
-                framed = decode_request(rx, baudrate=baud)
-                if framed is None:
-                    break
-                command, used = framed
-            else:
-                command, used = None, len(rx)  # no ICS device can make sense of this rate
-            frame = bytes(rx[:used])
-            fresh = max(0, used - self._rx_echoed)
-            del rx[:used]
-            self._rx_echoed = max(0, self._rx_echoed - used)
-            if command is None:
-                junk += frame
-                junk_fresh += fresh
-                continue
-            if junk:
-                t = self._transact(None, bytes(junk), junk_fresh, t, out)
-                junk.clear()
-                junk_fresh = 0
-            t = self._transact(command, frame, fresh, t, out)
-        if junk:
-            t = self._transact(None, bytes(junk), junk_fresh, t, out)
-        fresh = len(rx) - self._rx_echoed
-        if fresh > 0:
-            # The start of a command still in flight: its bytes echo as they go.
-            t += fresh * BITS_PER_BYTE / baud
-            if self.echo:
-                out.append((t, bytes(rx[-fresh:])))
-            self._rx_echoed = len(rx)
-            self._line_free = max(self._line_free, t)
-        return out
-
-    def _transact(self, command: Any, frame: bytes, fresh: int, t: float, out: list[tuple[float, bytes]]) -> float:
-        baud = self.baudrate
-        byte_time = BITS_PER_BYTE / baud
-        servo_id = _addressed_id(command, frame)
-        draw = self.faults.draw(servo_id)
-        faults: list[str] = []
-        rx_parts: list[bytes] = []
-        t_end = t + fresh * byte_time
-        echo = frame[len(frame) - fresh :] if fresh else b""
-        if draw.echo and echo:
-            echo = self.faults.damage_echo(echo)
-            faults.append("echo")
-        if self.echo and echo:
-            out.append((t_end, echo))
-            rx_parts.append(echo)
-        extra = b""
-        for late in self._held:
-            t_end += len(late) * byte_time
-            out.append((t_end, late))
-            rx_parts.append(late)
-            extra += late
-        self._held.clear()
-
-        responders: list[Device] = []
-        values: list[Any] = []
-        if command is not None and not draw.echo:
-            if isinstance(command, (ReadId, WriteId)):
-                candidates: Iterable[Device] = self.servos
-            else:
-                candidates = self._by_id.get(command.servo_id, ())
-            for device in candidates:
-                # Devices advance lazily: only the ones a command reaches (and
-                # all of them on advance() / sync()), which keeps a transaction cheap.
-                device.update(t_end)
-                if device.answers(baud):
-                    value = device.handle(command)
-                    if value is not NO_REPLY:
-                        responders.append(device)
-                        values.append(value)
-            if isinstance(command, (WriteId, WriteEeprom)) and responders:
-                self._reindex()
-        replies = [command.encode_reply(v) for v in values]
-        clean = b"" if not replies else replies[0] if len(replies) == 1 else garble(replies)
-        value_answered = values[0] if len(values) == 1 else None
-
-        reply = clean
-        reply_time: float | None = None
-        line_free = t_end
-        if clean:
-            start = t_end + self.turnaround
-            if isinstance(command, WriteEeprom):
-                start += self.eeprom_write_delay
-            kind = draw.reply
-            if kind is not None:
-                faults.append(kind)
-            if kind == "drop":
-                reply = b""
-            elif kind == "late":
-                if self.late_delay is None:
-                    self._held.append(clean)  # lands after the echo of the next command
-                else:
-                    reply_time = start + len(clean) * byte_time + self.late_delay
-                    self._defer_or_emit(reply_time, clean, out)
-            else:
-                if kind is not None:
-                    reply = self.faults.damage_reply(kind, clean)
-                if reply:
-                    reply_time = line_free = start + len(reply) * byte_time
-                    out.append((reply_time, reply))
-                    rx_parts.append(reply)
-        if draw.noise:
-            noise = self.faults.noise()
-            gap = self.faults.uniform(0.0, self.noise_gap) if self.realtime else 0.0
-            out.append((line_free + gap + len(noise) * byte_time, noise))
-            rx_parts.append(noise)
-            extra += noise
-            faults.append("noise")
-        if draw.unplug:
-            self._unplug_requested = True
-            faults.append("unplug")
-        self._line_free = line_free
-        self.fault_counts.update(faults)
-
-        seq = self.transactions
-        self.transactions = seq + 1
-        if self._log_enabled or self._recorder is not None:
-            record = Transaction(
-                seq=seq,
-                time=t_end,
-                servo_id=servo_id,
-                command="unknown" if command is None else command.name,
-                tx=frame,
-                echo=echo if self.echo else b"",
-                reply=reply,
-                clean_reply=clean,
-                value=value_answered,
-                responders=tuple(d.servo_id for d in responders),
-                fault="+".join(faults) or None,
-                extra=extra,
-                reply_time=reply_time,
-            )
-            if self._log_enabled:
-                self.log.append(record)
-            if self._recorder is not None:
-                self._recorder.record(record, rx_parts, baud)
-        return line_free
-
-    def _defer_or_emit(self, when: float, chunk: bytes, out: list[tuple[float, bytes]]) -> None:
-        if self.realtime:
-            out.append((when, chunk))
-        else:
-            self._deferred_order += 1
-            heapq.heappush(self._deferred, (when, self._deferred_order, chunk))
-
-    def process(self, data: bytes) -> list[tuple[float, bytes]]:
-        """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
-        with self._lock:
-            out = self._feed(bytes(data), self.now())
-            if not self.realtime:
-                self._clock = max(self._clock, self._line_free)
-            return out
-
-    def take_unplug_request(self) -> bool:
-        """True once after a transaction drew the ``unplug`` fault."""
-        with self._lock:
-            requested, self._unplug_requested = self._unplug_requested, False
-            return requested
 
     # ------------------------------------------------------------------ the WireDevice face
 
@@ -500,7 +170,7 @@ class SimBus:
             for when, chunk in chunks:
                 deliverer.schedule(self.epoch + when, chunk, host.deliver)
             if self.take_unplug_request():
-                when = self.epoch + self._line_free
+                when = self.epoch + self.line_free
                 deliverer.schedule(when, b"", lambda _: self.unplug(replug_after=self.replug_after))
         else:
             if chunks:
@@ -537,10 +207,7 @@ class SimBus:
             self.plugged = False
             self.unplug_count += 1
             host, self._host = self._host, None
-            self._held.clear()
-            self._deferred.clear()
-            self._rx.clear()
-            self._rx_echoed = 0
+            self.reset_wire()
         self._stop_deliverer()
         if replug_after is not None:
             self._start_timer(replug_after, self.replug)
@@ -575,22 +242,7 @@ class SimBus:
             self._timers.append(timer)
         timer.start()
 
-    # ------------------------------------------------------------------ recording, lifetime
-
-    def record_to(self, target: Any) -> Recorder:
-        """Record every following transaction to ``target`` (path or text stream)."""
-        from .record import Recorder
-
-        recorder = target if isinstance(target, Recorder) else Recorder(target)
-        with self._lock:
-            self._recorder = recorder
-        return recorder
-
-    def stop_recording(self) -> None:
-        with self._lock:
-            recorder, self._recorder = self._recorder, None
-        if recorder is not None:
-            recorder.close()
+    # ------------------------------------------------------------------ lifetime
 
     def close(self) -> None:
         """Stop threads and timers, close a recording, forget the name."""
@@ -601,125 +253,20 @@ class SimBus:
         if self.name is not None and _NAMED.get(self.name) is self:
             del _NAMED[self.name]
 
-    def __enter__(self) -> SimBus:
+    def __enter__(self) -> VirtualLine:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # ------------------------------------------------------------------ URLs
-
-    @classmethod
-    def from_url(cls, url: str) -> SimBus:
-        """Build a line from a ``sim://`` URL (see :func:`parse_url`)."""
-        name, options = parse_url(url)
-        if "replay" in options:
-            raise InvalidArgument("replay= makes a ReplayDevice, not a SimBus: use sim.open_url()")
-        return cls(name=name, **options)
-
     def __repr__(self) -> str:
         mode = "realtime" if self.realtime else "fast"
-        return f"<SimBus {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
+        return f"<VirtualLine {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
 
 
-def _addressed_id(command: Any, frame: bytes) -> int | None:
-    if command is not None:
-        return command.servo_id  # type: ignore[no-any-return]
-    return frame[0] & 0x1F if frame[0] & 0x80 else None
+_NAMED: dict[str, VirtualLine] = {}
 
 
-_ICS_BAUDS = frozenset(int(b) for b in BaudRate)
-_NAMED: dict[str, SimBus] = {}
-
-
-def named(name: str) -> SimBus:
-    """The line registered under ``name`` (``SimBus(name=...)`` or ``sim://NAME``)."""
+def named(name: str) -> VirtualLine:
+    """The line registered under ``name`` (``VirtualLine(name=...)`` or ``sim://NAME``)."""
     return _NAMED[name]
-
-
-_TRUE = {"1", "true", "yes", "on"}
-_FALSE = {"0", "false", "no", "off"}
-
-
-def _flag(key: str, text: str) -> bool:
-    low = text.strip().lower()
-    if low in _TRUE:
-        return True
-    if low in _FALSE:
-        return False
-    raise InvalidArgument(f"sim URL: {key}={text!r} is not a boolean (1/0)")
-
-
-def parse_seconds(text: str, what: str = "duration") -> float:
-    """``"0.02"``, ``"20ms"``, ``"100us"``, ``"1s"`` -> seconds."""
-    raw = text.strip().lower()
-    scale = 1.0
-    for suffix, factor in (("us", 1e-6), ("ms", 1e-3), ("s", 1.0)):
-        if raw.endswith(suffix):
-            raw, scale = raw[: -len(suffix)], factor
-            break
-    try:
-        value = float(raw) * scale
-    except ValueError:
-        raise InvalidArgument(f"{what} {text!r} is not a number of seconds (e.g. 0.02, 20ms, 100us)") from None
-    if value < 0:
-        raise InvalidArgument(f"{what} must not be negative")
-    return value
-
-
-def _int(key: str, text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise InvalidArgument(f"sim URL: {key}={text!r} is not an integer") from None
-
-
-def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
-    """Split a ``sim://[NAME][?key=value&...]`` URL into a name and SimBus options.
-
-    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
-    ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
-    (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
-    ``eeprom_delay``, ``late_delay``, ``unplug_after``, ``replug_after``
-    (seconds; ``20ms`` / ``100us`` suffixes allowed), ``memory`` (IDs of
-    zero-filled generic memory devices), ``log`` (log size, ``all`` for
-    unbounded), ``record`` (file to record to), ``replay`` (a recording to
-    serve instead of a simulated line).
-    """
-    parts = urlsplit(url)
-    if parts.scheme != "sim":
-        raise InvalidArgument(f"not a sim:// URL: {url!r}")
-    name = (parts.netloc + parts.path).strip("/") or None
-    query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
-    options: dict[str, Any] = {}
-    for key, values in query.items():
-        if len(values) != 1:
-            raise InvalidArgument(f"sim URL: {key} given more than once")
-        value = values[0]
-        if key == "ids":
-            options["servos"] = parse_ids(value)
-        elif key == "baud":
-            options["baudrate"] = BaudRate.parse(value)
-        elif key in ("realtime", "echo"):
-            options[key] = _flag(key, value)
-        elif key == "follow_baud":
-            options["follow_host_baud"] = _flag(key, value)
-        elif key == "seed":
-            options["seed"] = _int(key, value)
-        elif key == "faults":
-            options["faults"] = FaultConfig.parse(value)
-        elif key == "turnaround":
-            options["turnaround"] = parse_seconds(value, key)
-        elif key == "eeprom_delay":
-            options["eeprom_write_delay"] = parse_seconds(value, key)
-        elif key in ("late_delay", "unplug_after", "replug_after"):
-            options[key] = parse_seconds(value, key)
-        elif key == "memory":
-            options["memory"] = {i: b"" for i in parse_ids(value)}
-        elif key == "log":
-            options["log_size"] = None if value == "all" else _int(key, value)
-        elif key in ("record", "replay"):
-            options[key] = value
-        else:
-            raise InvalidArgument(f"sim URL: unknown option {key!r}")
-    return name, options

@@ -30,13 +30,11 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import Any, TextIO
 
 from ..errors import InvalidArgument
 from ..transports import HostSide
-
-if TYPE_CHECKING:
-    from .line import Transaction
+from .transaction import Transaction
 
 HEADER = "# ics35 sim recording v1"
 
@@ -58,7 +56,7 @@ def describe(record: Transaction) -> str:
     return " ".join(parts)
 
 
-class Recorder:
+class TransactionRecorder:
     """Writes one line per transaction to a path or a text stream."""
 
     def __init__(self, target: str | Path | TextIO) -> None:

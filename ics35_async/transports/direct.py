@@ -6,13 +6,14 @@ import asyncio
 import errno
 import logging
 import os
-import sys
 from typing import cast
 
 import serial
 
-if sys.platform != "win32":
+try:
     import termios
+except ImportError:  # no POSIX terminals (Windows): nothing here is chosen for a port there
+    termios = None  # type: ignore[assignment]
 
 log = logging.getLogger("ics35_async.transports")
 

@@ -59,7 +59,7 @@ def register_url_scheme(scheme: str, factory: WireDeviceFactory) -> None:
 
 
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
-_LAZY_SCHEMES = {"sim": "ics35_async.sim:open_url"}
+_LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
 
 
 def device_factory(scheme: str) -> WireDeviceFactory | None:

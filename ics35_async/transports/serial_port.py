@@ -12,11 +12,12 @@ import serial
 
 from ..errors import InvalidArgument, ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 
-if sys.platform != "win32":
+try:
     import termios
 
     TermiosError: type[Exception] = termios.error
-else:  # pragma: no cover - no termios on Windows; nothing raises this there
+except ImportError:  # no POSIX terminals (Windows): nothing raises termios.error there
+    termios = None  # type: ignore[assignment]
     TermiosError = OSError
 
 log = logging.getLogger("ics35_async.transports")

@@ -29,7 +29,7 @@ from ics35_async import (
     Frame,
 )
 from ics35_async.sim import (
-    SimBus,
+    VirtualLine,
 )
 
 from .oracle import GUARD_TXS, CheckError, Verdict, WirePredictor
@@ -99,7 +99,7 @@ class LogMatcher:
     """
 
     def __init__(
-        self, sim: SimBus, is_stream: Callable[[bytes], bool], ids: Iterable[int], track_stream: bool = True
+        self, sim: VirtualLine, is_stream: Callable[[bytes], bool], ids: Iterable[int], track_stream: bool = True
     ) -> None:
         self.sim = sim
         self.is_stream = is_stream

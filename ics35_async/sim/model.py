@@ -1,0 +1,374 @@
+"""The wire model of a simulated line: host bytes and their time in, what the host receives and when out.
+
+:class:`LineModel` is sans-IO: :meth:`LineModel.feed` takes the host's bytes
+and the time they were written, frames them with the library's codec, lets
+the devices answer (:mod:`.devices`), injects faults (:mod:`.faults`), logs
+and records each transaction, and returns the chunks the host receives
+(echo, replies, noise) with the earliest time each may be delivered.  The
+drivers on top, :class:`~.line.VirtualLine` (in process) and the pty server,
+only deliver those chunks.
+
+Wire model: a host byte occupies the line for 11 bit times; the echo of a
+write arrives when its last byte has been sent; the addressed device starts
+answering ``turnaround`` seconds after the end of the command (plus
+``eeprom_write_delay`` for the EEPROM write) and its reply arrives, whole,
+when its last byte has crossed the line.  Bytes the host writes while the
+line is still busy (an answer in progress) are sent after it: the simulator
+does not model electrical collisions except through the ``echo`` fault and
+the ID command on a multi-device line.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Iterable
+from typing import Any
+
+from ..eeprom import BaudRate
+from ..errors import InvalidArgument
+from ..protocol import BITS_PER_BYTE, WriteEeprom
+from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
+from .faults import FaultConfig, FaultInjector
+from .framing import CommandFramer
+from .record import TransactionRecorder
+from .servo import VirtualServo
+from .transaction import Transaction
+
+DEFAULT_TURNAROUND = 100e-6
+"""Seconds a servo waits after a command before answering.  An assumption:
+the reference gives no figure; 100 us is a round value in the range hobby
+servo firmware achieves, and is easy to change (``turnaround=``)."""
+DEFAULT_EEPROM_WRITE_DELAY = 20e-3
+"""Extra seconds before the EEPROM-write reply ("noticeably longer" in the
+reference; 20 ms is an assumption that keeps real-time tests quick)."""
+DEFAULT_LOG_SIZE = 10_000
+DEFAULT_FRAME_TIMEOUT = 10e-3
+DEFAULT_NOISE_GAP = 1e-3
+DEFAULT_TAIL_BYTES = 4
+DEFAULT_TAIL_DELAY = 40e-3
+"""The held-tail fault's defaults: what ser2net with Nagle's algorithm did to a
+68-byte EEPROM answer (64 bytes, then 4 about 40 ms later: a delayed ACK)."""
+
+Chunks = list[tuple[float, bytes]]
+
+
+class LineModel:
+    """The devices of one line and the timing of everything on its wire.
+
+    ``servos``: :class:`VirtualServo` objects or IDs (factory servos at
+    ``baudrate``); ``None`` means IDs 0..31.  ``memory``: generic devices,
+    ``{id: initial bytes}`` or :class:`MemoryDevice` objects.  ``baudrate``
+    is the line's rate (a driver may change it to the host's), and the
+    EEPROM rate of servos built from IDs.  ``realtime``: the clock is
+    ``time.perf_counter()``; otherwise it is simulated and advances only
+    with wire time and :meth:`advance`.  ``faults`` is a
+    :class:`FaultConfig` or a spec string (:mod:`.faults`), drawn from
+    ``random.Random(seed)``.  ``log_size`` bounds the transaction log
+    (``None``: unbounded, 0: no log; :attr:`transactions` counts
+    regardless).  ``frame_timeout``: a half-received command is forgotten
+    after this pause (:mod:`.framing`).  ``record`` is a file path or text
+    stream to record the session to (:mod:`.record`).
+    """
+
+    def __init__(
+        self,
+        servos: Iterable[VirtualServo | int] | None = None,
+        *,
+        baudrate: int = BaudRate.B115200,
+        memory: MemorySpec | None = None,
+        realtime: bool = False,
+        echo: bool = True,
+        turnaround: float = DEFAULT_TURNAROUND,
+        eeprom_write_delay: float = DEFAULT_EEPROM_WRITE_DELAY,
+        faults: FaultConfig | str | None = None,
+        seed: int | None = 0,
+        late_delay: float | None = None,
+        tail_bytes: int = DEFAULT_TAIL_BYTES,
+        tail_delay: float = DEFAULT_TAIL_DELAY,
+        noise_gap: float = DEFAULT_NOISE_GAP,
+        log_size: int | None = DEFAULT_LOG_SIZE,
+        frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
+        record: Any = None,
+    ) -> None:
+        line_baud = BaudRate.parse(baudrate)
+        for value, what in (
+            (turnaround, "turnaround"),
+            (eeprom_write_delay, "eeprom_write_delay"),
+            (tail_delay, "tail_delay"),
+        ):
+            if value < 0:
+                raise InvalidArgument(f"{what} must not be negative")
+        if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
+            raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
+        self.table = DeviceTable(build_devices(servos, memory, line_baud))
+        self.baudrate: int = int(line_baud)
+        self.realtime = realtime
+        self.echo = echo
+        self.turnaround = turnaround
+        self.eeprom_write_delay = eeprom_write_delay
+        self.late_delay = late_delay
+        self.tail_bytes = tail_bytes
+        self.tail_delay = tail_delay
+        self.noise_gap = noise_gap
+        config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
+        self.faults = FaultInjector(config, seed)
+        self.log: deque[Transaction] = deque(maxlen=log_size)
+        self._log_enabled = log_size != 0
+        self.transactions = 0
+        self.fault_counts: Counter[str] = Counter()
+
+        self._lock = threading.RLock()
+        self.epoch = time.perf_counter()
+        self._clock = 0.0
+        self._line_free = 0.0
+        self._framer = CommandFramer(frame_timeout)
+        self._held: list[bytes] = []
+        self._deferred: list[tuple[float, int, bytes]] = []
+        self._deferred_order = 0
+        # The held tail (see :mod:`.faults`).  Real time: nothing reaches the host before
+        # _hold_until.  Fast mode: tails wait in _tails for the host's next write; once
+        # delivered they are _carried into that transaction's record.
+        self._hold_until = 0.0
+        self._tails: list[tuple[float, bytes]] = []
+        self._carried = bytearray()
+        self._unplug_requested = False
+        self._recorder: TransactionRecorder | None = None
+        if record is not None:
+            self.record_to(record)
+
+    # ------------------------------------------------------------------ the log
+
+    def log_since(self, seq: int = 0) -> list[Transaction]:
+        """A copy of the logged transactions with ``seq >= seq`` (safe while the line runs)."""
+        with self._lock:
+            return [t for t in self.log if t.seq >= seq]
+
+    # ------------------------------------------------------------------ time
+
+    def now(self) -> float:
+        """The line's clock: simulated seconds (fast) or seconds since creation (real-time)."""
+        if self.realtime:
+            return time.perf_counter() - self.epoch
+        return self._clock
+
+    @property
+    def line_free(self) -> float:
+        """When (line clock) the wire is idle again after what has been fed so far."""
+        return self._line_free
+
+    def advance(self, seconds: float) -> None:
+        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs)."""
+        if seconds < 0:
+            raise InvalidArgument("cannot go back in time")
+        with self._lock:
+            if not self.realtime:
+                self._clock += seconds
+            self.table.update(self.now())
+
+    def sync(self) -> None:
+        """Bring every device's state up to the line's current time."""
+        with self._lock:
+            self.table.update(self.now())
+
+    def byte_time(self, baudrate: int | None = None) -> float:
+        return BITS_PER_BYTE / (baudrate or self.baudrate)
+
+    # ------------------------------------------------------------------ the core
+
+    def feed(self, data: bytes, now: float) -> Chunks:
+        """Host bytes written at ``now``: the chunks the host receives and when.
+
+        Chunks come in delivery order; each time is the earliest moment the
+        whole chunk may be delivered (line clock).  In fast mode a reply
+        delayed by ``late_delay`` is kept inside and released by the first
+        later call whose time has passed it, and a held tail by the next call.
+        """
+        with self._lock:
+            return self._feed(bytes(data), now)
+
+    def _feed(self, data: bytes, now: float) -> Chunks:
+        out: Chunks = []
+        t = max(now, self._line_free)
+        for when, tail in self._tails:
+            out.append((when, tail))
+            self._carried += tail
+        self._tails.clear()
+        while self._deferred and self._deferred[0][0] <= t:
+            when, _, chunk = heapq.heappop(self._deferred)
+            self._emit(out, when, chunk)
+        baud = self.baudrate
+        frames, in_flight = self._framer.feed(data, now, baud)
+        for command, frame, fresh in frames:
+            t = self._transact(command, frame, fresh, t, out)
+        if in_flight:
+            # The start of a command still in flight: its bytes echo as they go.
+            t += len(in_flight) * BITS_PER_BYTE / baud
+            if self.echo:
+                self._emit(out, t, in_flight)
+            self._line_free = max(self._line_free, t)
+        return out
+
+    def _transact(self, command: Any, frame: bytes, fresh: int, t: float, out: Chunks) -> float:
+        baud = self.baudrate
+        byte_time = BITS_PER_BYTE / baud
+        servo_id = _addressed_id(command, frame)
+        draw = self.faults.draw(servo_id)
+        faults: list[str] = []
+        rx_parts: list[bytes] = []
+        extra = b""
+        if self._carried:  # a held tail delivered just before this command's echo
+            extra = bytes(self._carried)
+            rx_parts.append(extra)
+            self._carried.clear()
+        t_end = t + fresh * byte_time
+        echo = frame[len(frame) - fresh :] if fresh else b""
+        if draw.echo and echo:
+            echo = self.faults.damage_echo(echo)
+            faults.append("echo")
+        if self.echo and echo:
+            self._emit(out, t_end, echo)
+            rx_parts.append(echo)
+        for late in self._held:
+            t_end += len(late) * byte_time
+            self._emit(out, t_end, late)
+            rx_parts.append(late)
+            extra += late
+        self._held.clear()
+
+        answer = NO_ANSWER
+        if command is not None and not draw.echo:  # a collision garbles the command: nobody hears it
+            answer = self.table.dispatch(command, t_end, baud)
+        clean = answer.reply
+
+        reply = clean
+        reply_time: float | None = None
+        line_free = t_end
+        if clean:
+            start = t_end + self.turnaround
+            if isinstance(command, WriteEeprom):
+                start += self.eeprom_write_delay
+            kind = draw.reply
+            if kind == "tail" and len(clean) <= self.tail_bytes:
+                kind = None  # all of it fits in the tail: a lone small segment is not held
+            if kind is not None:
+                faults.append(kind)
+            if kind == "drop":
+                reply = b""
+            elif kind == "late":
+                if self.late_delay is None:
+                    self._held.append(clean)  # lands after the echo of the next command
+                else:
+                    reply_time = start + len(clean) * byte_time + self.late_delay
+                    self._defer_or_emit(reply_time, clean, out)
+            elif kind == "tail":
+                head, tail = clean[: -self.tail_bytes], clean[-self.tail_bytes :]
+                self._emit(out, start + len(head) * byte_time, head)
+                rx_parts.append(head)
+                line_free = start + len(clean) * byte_time
+                reply_time = line_free + self.tail_delay
+                if self.realtime:
+                    self._emit(out, reply_time, tail)
+                    rx_parts.append(tail)
+                    self._hold_until = reply_time  # what follows queues behind it, as in a TCP stream
+                else:
+                    self._tails.append((reply_time, tail))
+            else:
+                if kind is not None:
+                    reply = self.faults.damage_reply(kind, clean)
+                if reply:
+                    reply_time = line_free = start + len(reply) * byte_time
+                    self._emit(out, reply_time, reply)
+                    rx_parts.append(reply)
+        if draw.noise:
+            noise = self.faults.noise()
+            gap = self.faults.uniform(0.0, self.noise_gap) if self.realtime else 0.0
+            self._emit(out, line_free + gap + len(noise) * byte_time, noise)
+            rx_parts.append(noise)
+            extra += noise
+            faults.append("noise")
+        if draw.unplug:
+            self._unplug_requested = True
+            faults.append("unplug")
+        self._line_free = line_free
+        self.fault_counts.update(faults)
+
+        seq = self.transactions
+        self.transactions = seq + 1
+        if self._log_enabled or self._recorder is not None:
+            record = Transaction(
+                seq=seq,
+                time=t_end,
+                servo_id=servo_id,
+                command="unknown" if command is None else command.name,
+                tx=frame,
+                echo=echo if self.echo else b"",
+                reply=reply,
+                clean_reply=clean,
+                value=answer.value,
+                responders=tuple(d.servo_id for d in answer.responders),
+                fault="+".join(faults) or None,
+                extra=extra,
+                reply_time=reply_time,
+            )
+            if self._log_enabled:
+                self.log.append(record)
+            if self._recorder is not None:
+                self._recorder.record(record, rx_parts, baud)
+        return line_free
+
+    def _emit(self, out: Chunks, when: float, chunk: bytes) -> None:
+        out.append((max(when, self._hold_until), chunk))
+
+    def _defer_or_emit(self, when: float, chunk: bytes, out: Chunks) -> None:
+        if self.realtime:
+            self._emit(out, when, chunk)
+        else:
+            self._deferred_order += 1
+            heapq.heappush(self._deferred, (when, self._deferred_order, chunk))
+
+    def process(self, data: bytes) -> Chunks:
+        """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
+        with self._lock:
+            out = self._feed(bytes(data), self.now())
+            if not self.realtime:
+                self._clock = max(self._clock, self._line_free)
+            return out
+
+    def take_unplug_request(self) -> bool:
+        """True once after a transaction drew the ``unplug`` fault."""
+        with self._lock:
+            requested, self._unplug_requested = self._unplug_requested, False
+            return requested
+
+    def reset_wire(self) -> None:
+        """Forget everything in flight (the port went away): partial commands, held and delayed replies."""
+        with self._lock:
+            self._held.clear()
+            self._deferred.clear()
+            self._tails.clear()
+            self._carried.clear()
+            self._framer.reset()
+
+    # ------------------------------------------------------------------ recording
+
+    def record_to(self, target: Any) -> TransactionRecorder:
+        """Record every following transaction to ``target`` (path, text stream or recorder)."""
+        recorder = target if isinstance(target, TransactionRecorder) else TransactionRecorder(target)
+        with self._lock:
+            self._recorder = recorder
+        return recorder
+
+    def stop_recording(self) -> None:
+        with self._lock:
+            recorder, self._recorder = self._recorder, None
+        if recorder is not None:
+            recorder.close()
+
+
+def _addressed_id(command: Any, frame: bytes) -> int | None:
+    if command is not None:
+        return command.servo_id  # type: ignore[no-any-return]
+    return frame[0] & 0x1F if frame[0] & 0x80 else None

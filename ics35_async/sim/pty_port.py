@@ -1,0 +1,225 @@
+"""A pseudo-terminal behind a stable path, for the pty server: the POSIX plumbing.
+
+The path is a symlink in a private temporary directory (or a given path) to
+the current ``/dev/pts/N``; it stays the same when the simulated port is
+unplugged (the link disappears and the pty closes, so an open client sees a
+hang-up) and plugged back in (a new pty, the link points at it again).
+
+Line speed: the client's baud rate is read from the pty settings (TCGETS2 on
+the master), so the simulated line can run at whatever the client opened it
+at.
+
+Parity on a Linux pty, as verified on kernel 6.18 with glibc 2.36 and
+pyserial 3.5: the pty driver silently clears PARENB (and forces CS8) on
+every settings change, and glibc's ``tcsetattr`` re-reads the settings and
+reports EINVAL when PARENB did not stick, except when the same call also
+changes the baud rate.  For pyserial this means:
+
+* ``serial.Serial(path, 115200, parity=serial.PARITY_EVEN, timeout=0.1)``
+  succeeds when the pty was at another speed;
+* any later re-configuration at an unchanged speed (setting ``.timeout``,
+  ``.write_timeout``, ``.parity``...; pyserial-asyncio does
+  ``timeout = 0`` right after opening) raises ``termios.error`` (errno 22,
+  EINVAL) -- although the kernel applied everything except PARENB, so a
+  client may catch that error and carry on; opening 8N1 avoids it entirely;
+* so does a second open at the speed the pty is already at.
+
+To soften this the server "parks" the pty at 38400 bit/s (not an ICS rate;
+other settings untouched) as soon as it has read the client's speed, i.e.
+with the client's first bytes, and whenever the last client closes it.  A
+fresh open, and a re-configuration made after the client has sent
+something, then change the speed and pass.  A re-configuration straight
+after opening, before any byte, still races the server: do not rely on it.
+A plain pyserial client passes ``timeout`` (and ``parity``) to the
+constructor and changes nothing afterwards.  (A client that really runs at
+38400 is taken to be at the previous speed.)
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import ctypes
+import errno
+import fcntl
+import os
+import select
+import shutil
+import tempfile
+import termios
+import tty
+from pathlib import Path
+
+_TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
+_IN_OPEN = 0x20
+_IDLE_SPEED = termios.B38400  # the speed a fresh pty has; never one of the ICS rates
+IDLE_BAUD = 38400
+
+
+def _watch_opens(path: str) -> int | None:
+    """An inotify fd that becomes readable when ``path`` is opened (None if unavailable).
+
+    Without it a new client would wait for the next poll before its first bytes are read.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd = int(libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC))
+    except (OSError, AttributeError):
+        return None
+    if fd < 0:
+        return None
+    if libc.inotify_add_watch(fd, path.encode(), _IN_OPEN) < 0:
+        os.close(fd)
+        return None
+    return fd
+
+
+def host_baudrate(fd: int) -> int | None:
+    """The output speed set on the pty (through its master), in bit/s."""
+    buf = array.array("I", [0] * 16)
+    try:
+        fcntl.ioctl(fd, _TCGETS2, buf)
+    except OSError:
+        return None
+    return int(buf[10])  # c_ospeed: after 4 flags, c_line and 19 c_cc bytes
+
+
+def _client_opened(master: int) -> bool:
+    """Whether a client has the pty open (the master sees no hang-up)."""
+    poller = select.poll()
+    poller.register(master, select.POLLIN)
+    return not any(ev & select.POLLHUP for _, ev in poller.poll(0))
+
+
+class PtyPort:
+    """The master side of a pty, reachable by clients at :attr:`path`.
+
+    ``master`` is ``None`` while the port is closed (unplugged).
+    ``client_present`` says whether a client had the pty open when last
+    looked at; ``opens`` is an inotify fd that wakes a ``select`` when a
+    client opens the pty (``None`` without inotify: poll instead).
+    """
+
+    def __init__(self, link: str | Path | None = None) -> None:
+        if link is None:
+            self._tmpdir: str | None = tempfile.mkdtemp(prefix="ics35-sim-")
+            self.path = Path(self._tmpdir) / "ttyICS0"
+        else:
+            self._tmpdir = None
+            self.path = Path(link)
+        self.pts_name: str | None = None
+        self.master: int | None = None
+        self.opens: int | None = None
+        self.client_present = False
+
+    def open(self) -> None:
+        """Create a new pty and point the link at it."""
+        master, slave = os.openpty()
+        name = os.ttyname(slave)
+        os.close(slave)  # so the master sees a hang-up whenever no client has it open
+        os.set_blocking(master, False)
+        self.master = master
+        self.pts_name = name
+        self.opens = _watch_opens(name)
+        self.client_present = False
+        self.reset_settings()
+        tmp_link = self.path.with_name(self.path.name + ".new")
+        with contextlib.suppress(FileNotFoundError):
+            tmp_link.unlink()
+        os.symlink(name, tmp_link)
+        os.replace(tmp_link, self.path)
+
+    def close(self) -> None:
+        """Remove the link and close the pty (an open client sees a hang-up)."""
+        with contextlib.suppress(FileNotFoundError):
+            if self.path.is_symlink():
+                self.path.unlink()
+        if self.master is not None:
+            os.close(self.master)
+        if self.opens is not None:
+            os.close(self.opens)
+        self.master = None
+        self.opens = None
+        self.pts_name = None
+        self.client_present = False
+
+    def dispose(self) -> None:
+        """Close, and remove the private directory of the link, if any."""
+        self.close()
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+
+    def reset_settings(self) -> None:
+        """Raw mode (no echo by the pty itself) at the idle speed."""
+        if self.master is None:
+            return
+        if _client_opened(self.master):
+            return  # a new client opened meanwhile: its settings are the ones to keep
+        tty.setraw(self.master)
+        self.park_speed()
+
+    def park_speed(self, only_if: int | None = None) -> None:
+        """Set the pty's speed to 38400, leaving the client's other settings alone.
+
+        A client's next open or re-configuration then changes the speed,
+        which is what lets glibc accept it despite the dropped PARENB.
+        With ``only_if``, park only while the speed is still that one, so a
+        client that just re-opened at another rate is not overwritten.
+        """
+        if self.master is None:
+            return
+        attrs = termios.tcgetattr(self.master)
+        if only_if is not None and host_baudrate(self.master) != only_if:
+            return
+        attrs[4] = attrs[5] = _IDLE_SPEED
+        with contextlib.suppress(termios.error):
+            termios.tcsetattr(self.master, termios.TCSANOW, attrs)
+
+    def check_client(self) -> bool:
+        """Whether a client has opened the pty since we last looked (no more hang-up)."""
+        if self.master is None or not _client_opened(self.master):
+            return False
+        self.client_present = True
+        return True
+
+    def client_baudrate(self) -> int | None:
+        """The speed the client set, if it set one since the pty was last parked."""
+        if self.master is None:
+            return None
+        baud = host_baudrate(self.master)
+        return baud if baud and baud != IDLE_BAUD else None
+
+    def drain_opens(self) -> None:
+        if self.opens is not None:
+            with contextlib.suppress(BlockingIOError):
+                os.read(self.opens, 4096)
+
+    def read(self) -> bytes | None:
+        """The client's bytes; ``None`` if there are none yet, ``b""`` when the last client closed."""
+        assert self.master is not None
+        try:
+            data = os.read(self.master, 4096)
+        except BlockingIOError:
+            return None
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            data = b""
+        if not data:
+            # Forget the client's settings (see the module docstring).
+            self.client_present = False
+            self.reset_settings()
+        return data
+
+    def write(self, chunk: bytes) -> int:
+        """Write to the client; returns how many bytes the pty took (none without a client)."""
+        if self.master is None or not self.client_present:
+            return 0
+        try:
+            return os.write(self.master, chunk)
+        except BlockingIOError:
+            return 0
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            return 0

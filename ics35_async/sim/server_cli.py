@@ -1,0 +1,153 @@
+"""The pty server's command line: ``python -m ics35_async.sim`` and ``ics35 sim``.
+
+Prints the device path on its first line, then serves until SIGINT or
+SIGTERM (see :mod:`.pty_server`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+from types import FrameType
+from typing import Any
+
+from ..eeprom import BaudRate
+from ..errors import InvalidArgument
+from .faults import FaultConfig, parse_ids
+from .line import DEFAULT_REPLUG_AFTER, VirtualLine
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
+from .pty_server import PtyServer
+from .record import ReplayDevice
+from .url import parse_seconds
+
+
+def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description="Serve a simulated ICS 3.5 servo line on a pseudo-terminal. "
+        "Prints the device path on the first line, then serves until SIGINT/SIGTERM. "
+        "Runs in real time (wire timing) by default: replies take the modelled wire time "
+        "and servos keep moving between commands, as other programs expect of a serial port; "
+        "--fast answers at once and moves time only with each command's wire time.",
+    )
+    parser.set_defaults(realtime=True)
+    parser.add_argument("--ids", default="0-31", help="servo IDs, e.g. 0-31 or 1,3,5-7 ('none': no servos)")
+    parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--fast",
+        dest="realtime",
+        action="store_false",
+        help="fast mode: answer at once; the line's clock advances only by each command's wire time",
+    )
+    mode.add_argument(
+        "--realtime",
+        dest="realtime",
+        action="store_true",
+        help="real time: deliver at the modelled wire times (the default)",
+    )
+    parser.add_argument("--faults", default=None, help="fault spec, e.g. drop:0.01,late@3:0.1 (see sim.faults)")
+    parser.add_argument("--seed", type=int, default=0, help="fault random seed")
+    parser.add_argument("--no-echo", action="store_true", help="do not echo the client's bytes")
+    parser.add_argument("--turnaround", default=None, help=f"servo turnaround (default {DEFAULT_TURNAROUND * 1e6:g}us)")
+    parser.add_argument(
+        "--eeprom-delay",
+        default=None,
+        help=f"extra EEPROM-write delay (default {DEFAULT_EEPROM_WRITE_DELAY * 1e3:g}ms)",
+    )
+    parser.add_argument(
+        "--late-delay", default=None, help="late replies arrive this long after (default: next command)"
+    )
+    parser.add_argument(
+        "--tail-bytes",
+        type=int,
+        default=None,
+        help=f"bytes the 'tail' fault holds back at the end of a reply (default {DEFAULT_TAIL_BYTES})",
+    )
+    parser.add_argument(
+        "--tail-delay",
+        default=None,
+        help=f"how long the 'tail' fault holds them (default {DEFAULT_TAIL_DELAY * 1e3:g}ms)",
+    )
+    parser.add_argument("--memory", default=None, help="IDs of generic 128-byte memory devices")
+    parser.add_argument("--unplug-after", default=None, help="unplug the port this many seconds after start")
+    parser.add_argument(
+        "--replug-after", default=None, help=f"plug it back in this long after (default {DEFAULT_REPLUG_AFTER:g}s)"
+    )
+    parser.add_argument("--record", default=None, help="record the session to this file")
+    parser.add_argument("--replay", default=None, help="serve this recording instead of a simulated line")
+    parser.add_argument("--link", default=None, help="path of the symlink to create (default: in a temp dir)")
+    parser.add_argument(
+        "--fixed-baud", action="store_true", help="ignore the client's baud rate; the line runs at --baud"
+    )
+    return parser
+
+
+def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
+    if args.replay:
+        return ReplayDevice(args.replay)
+    ids = [] if args.ids.strip().lower() == "none" else parse_ids(args.ids)
+    replug_after = parse_seconds(args.replug_after, "--replug-after") if args.replug_after else DEFAULT_REPLUG_AFTER
+    options: dict[str, Any] = {}
+    if args.turnaround is not None:
+        options["turnaround"] = parse_seconds(args.turnaround, "--turnaround")
+    if args.eeprom_delay is not None:
+        options["eeprom_write_delay"] = parse_seconds(args.eeprom_delay, "--eeprom-delay")
+    if args.late_delay is not None:
+        options["late_delay"] = parse_seconds(args.late_delay, "--late-delay")
+    if args.tail_bytes is not None:
+        options["tail_bytes"] = args.tail_bytes
+    if args.tail_delay is not None:
+        options["tail_delay"] = parse_seconds(args.tail_delay, "--tail-delay")
+    bus = VirtualLine(
+        ids,
+        baudrate=BaudRate.parse(args.baud),
+        memory={i: b"" for i in parse_ids(args.memory)} if args.memory else None,
+        realtime=args.realtime,
+        echo=not args.no_echo,
+        faults=FaultConfig.parse(args.faults),
+        seed=args.seed,
+        follow_host_baud=not args.fixed_baud,
+        replug_after=replug_after,
+        record=args.record,
+        **options,
+    )
+    if args.unplug_after is not None:
+        bus.schedule_unplug(parse_seconds(args.unplug_after, "--unplug-after"), replug_after)
+    return bus
+
+
+def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_async.sim") -> int:
+    """Entry point of ``python -m ics35_async.sim`` (and ``ics35 sim``); returns the exit status."""
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    try:
+        device = build_device(args)
+    except (InvalidArgument, OSError) as exc:
+        parser.error(str(exc))
+    server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud)
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        server.stop()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        path = server.open()
+        print(path, flush=True)
+        what = (
+            f"replaying {len(device.entries)} transactions"
+            if isinstance(device, ReplayDevice)
+            else f"{len(device.servos)} servos at {device.baudrate} bit/s, {'real-time' if device.realtime else 'fast'}"
+        )
+        print(f"ics35 sim: {what} on {server.pts_name} (link {path})", file=sys.stderr, flush=True)
+        server.serve()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        server.close()
+        if isinstance(device, VirtualLine):
+            device.close()
+            print(f"ics35 sim: served {device.transactions} transactions", file=sys.stderr, flush=True)
+    return 0

@@ -1,0 +1,133 @@
+"""``sim://`` URLs: their syntax, and the device one names.
+
+:func:`open_url` is what the core calls for a ``sim://`` port;
+:func:`parse_url` splits a URL into a line name and :class:`VirtualLine`
+options; :func:`parse_seconds` reads the durations both the URL and the pty
+server's command line take.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+from ..eeprom import BaudRate
+from ..errors import InvalidArgument
+from ..transports import WireDevice
+from .faults import FaultConfig, parse_ids
+from .line import VirtualLine, named
+from .record import ReplayDevice
+
+
+def open_url(url: str) -> WireDevice:
+    """The device a ``sim://`` URL names: what the core opens for a ``sim://`` port.
+
+    The one entry point from a URL to the simulator (registered as the
+    ``sim`` URL scheme's factory); see :func:`parse_url` for the keys.
+
+    A named line (``sim://NAME?...``) is created once and returned again by
+    later calls, so a bus that reconnects finds the same servos.
+    """
+    name, options = parse_url(url)
+    if name is not None:
+        try:
+            return named(name)
+        except KeyError:
+            pass
+    replay = options.pop("replay", None)
+    if replay is not None:
+        if options:
+            raise InvalidArgument(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
+        return ReplayDevice(replay)
+    return VirtualLine(name=name, **options)
+
+
+_TRUE = {"1", "true", "yes", "on"}
+_FALSE = {"0", "false", "no", "off"}
+
+
+def _flag(key: str, text: str) -> bool:
+    low = text.strip().lower()
+    if low in _TRUE:
+        return True
+    if low in _FALSE:
+        return False
+    raise InvalidArgument(f"sim URL: {key}={text!r} is not a boolean (1/0)")
+
+
+def parse_seconds(text: str, what: str = "duration") -> float:
+    """``"0.02"``, ``"20ms"``, ``"100us"``, ``"1s"`` -> seconds."""
+    raw = text.strip().lower()
+    scale = 1.0
+    for suffix, factor in (("us", 1e-6), ("ms", 1e-3), ("s", 1.0)):
+        if raw.endswith(suffix):
+            raw, scale = raw[: -len(suffix)], factor
+            break
+    try:
+        value = float(raw) * scale
+    except ValueError:
+        raise InvalidArgument(f"{what} {text!r} is not a number of seconds (e.g. 0.02, 20ms, 100us)") from None
+    if value < 0:
+        raise InvalidArgument(f"{what} must not be negative")
+    return value
+
+
+def _int(key: str, text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise InvalidArgument(f"sim URL: {key}={text!r} is not an integer") from None
+
+
+def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
+    """Split a ``sim://[NAME][?key=value&...]`` URL into a name and VirtualLine options.
+
+    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
+    ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
+    (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
+    ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
+    ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
+    ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
+    ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
+    size, ``all`` for unbounded), ``record`` (file to record to), ``replay``
+    (a recording to serve instead of a simulated line).
+    """
+    parts = urlsplit(url)
+    if parts.scheme != "sim":
+        raise InvalidArgument(f"not a sim:// URL: {url!r}")
+    name = (parts.netloc + parts.path).strip("/") or None
+    query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
+    options: dict[str, Any] = {}
+    for key, values in query.items():
+        if len(values) != 1:
+            raise InvalidArgument(f"sim URL: {key} given more than once")
+        value = values[0]
+        if key == "ids":
+            options["servos"] = parse_ids(value)
+        elif key == "baud":
+            options["baudrate"] = BaudRate.parse(value)
+        elif key in ("realtime", "echo"):
+            options[key] = _flag(key, value)
+        elif key == "follow_baud":
+            options["follow_host_baud"] = _flag(key, value)
+        elif key == "seed":
+            options["seed"] = _int(key, value)
+        elif key == "faults":
+            options["faults"] = FaultConfig.parse(value)
+        elif key == "turnaround":
+            options["turnaround"] = parse_seconds(value, key)
+        elif key == "eeprom_delay":
+            options["eeprom_write_delay"] = parse_seconds(value, key)
+        elif key == "tail_bytes":
+            options[key] = _int(key, value)
+        elif key in ("late_delay", "tail_delay", "unplug_after", "replug_after"):
+            options[key] = parse_seconds(value, key)
+        elif key == "memory":
+            options["memory"] = {i: b"" for i in parse_ids(value)}
+        elif key == "log":
+            options["log_size"] = None if value == "all" else _int(key, value)
+        elif key in ("record", "replay"):
+            options[key] = value
+        else:
+            raise InvalidArgument(f"sim URL: unknown option {key!r}")
+    return name, options
