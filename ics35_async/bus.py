@@ -22,7 +22,7 @@ from .drivers.asyncio_driver import AsyncioDriver
 from .drivers.asyncio_line import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
-from .errors import BusClosed, InvalidArgument, PortLost
+from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
 from .protocol import Command
 from .stats import BusStats
 from .transports import TRANSPORT_KINDS, WireDevice
@@ -294,22 +294,47 @@ class Bus:
         return Stream(self, ids, rate_hz=rate_hz, **options)
 
     async def read_id(self, *, exactly_one_device: bool = False) -> int:
-        """Read the ID of the only device on the line (every device answers: confirm there is one)."""
-        from .bus_ids import read_id
+        """Read the ID of the only device on the line.
 
-        return await read_id(self, exactly_one_device=exactly_one_device)
+        With several devices on the line every one answers at once and the
+        result is garbage, so the caller must confirm there is exactly one.
+        """
+        if exactly_one_device is not True:
+            raise UnsafeOperation(
+                "read_id() needs exactly one device on the line (every device answers the ID command); "
+                "pass exactly_one_device=True to confirm"
+            )
+        return await self.request(protocol.ReadId())
 
     async def write_id(self, new_id: int, *, exactly_one_device: bool = False) -> int:
-        """Give the only device on the line the ID ``new_id`` (refused unless exactly one device answers)."""
-        from .bus_ids import write_id
+        """Give the only device on the line the ID ``new_id`` (stored in its EEPROM).
 
-        return await write_id(self, new_id, exactly_one_device=exactly_one_device)
+        Every device on the line takes the new ID, so this is refused unless
+        the caller confirms with ``exactly_one_device=True`` -- and then still
+        unless exactly one device is proven on the line
+        (:func:`~ics35_async.policies.write_lone_id`).
+        """
+        protocol.check_id(new_id)
+        if exactly_one_device is not True:
+            raise UnsafeOperation(
+                "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"
+            )
+        from .policies import write_lone_id
+
+        return (await write_lone_id(self, new_id)).new_id
 
     async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:
-        """IDs that answer a stretch read (harmless: it moves nothing)."""
-        from .bus_ids import scan
+        """IDs that answer a harmless read (it moves nothing), in the order asked.
 
-        return await scan(self, ids, concurrency=concurrency)
+        ``concurrency`` bounds how many probes are queued at once (the line
+        still runs them one at a time), leaving room for other callers.  The
+        whole scan over baud rates, with EEPROM cross-checks, is
+        :func:`ics35_async.policies.scan`.
+        """
+        from .policies import probe_ids
+
+        checked = check_ids("ids", ids)
+        return list((await probe_ids(self, checked, id_read_first=False, concurrency=concurrency)).answered)
 
     def __repr__(self) -> str:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"

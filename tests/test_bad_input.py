@@ -438,7 +438,7 @@ async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_a
         assert sim.transactions == 0
         # Confirmed, but wrongly: a scan finds two devices (whatever the ID read would say
         # on a real wired-AND line), and the write is refused.
-        with pytest.raises(UnsafeOperation, match="2 devices"):
+        with pytest.raises(UnsafeOperation, match="2 servos answer"):
             await bus.write_id(7, exactly_one_device=True)
         assert "write_id" not in [t.command for t in sim.log]
     assert [s.servo_id for s in sim.servos] == [1, 2]

@@ -18,16 +18,18 @@ so each servo is listed once.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+
+import anyio
 
 from .. import protocol
 from ..eeprom import BaudRate, Eeprom
 from ..errors import InvalidArgument, ReplyError
 from ..protocol import Param
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..units import check_int
 from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
 
 ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
@@ -128,12 +130,16 @@ async def probe_ids(
     *,
     id_read_first: bool | None = None,
     on_probe: ProbeCallback | None = None,
+    concurrency: int = 32,
 ) -> RateScan:
     """Probe ``ids`` at the line's current rate: which answer, which answer garbled.
 
     ``id_read_first`` (default: when 8 or more IDs are probed) first asks the
     whole line with an ID read and probes no ID when nothing answers it.
+    ``concurrency`` bounds how many probes are queued at once (the line still
+    runs them one at a time), leaving room for other callers.
     """
+    gate = anyio.Semaphore(check_int("concurrency", concurrency, 1, 32))
     wanted = [protocol.check_id(i) for i in ids]
     rx_before = line.stats.total.bytes_rx
     if id_read_first is None:
@@ -147,13 +153,17 @@ async def probe_ids(
             silent = line.stats.total.bytes_rx == rx_before
             return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
 
-    async def probe(i: int) -> ReplyError | None:
-        outcome = await _probe(line, i)
-        _done(on_probe, 1)
-        return outcome
+    outcomes: dict[int, ReplyError | None] = dict.fromkeys(wanted)
 
-    # All queued at once: the line runs them back to back in this order.
-    outcomes = dict(zip(wanted, await asyncio.gather(*(probe(i) for i in wanted)), strict=True))
+    async def probe(i: int) -> None:
+        async with gate:
+            outcomes[i] = await _probe(line, i)
+        _done(on_probe, 1)
+
+    # All queued at once (up to ``concurrency``): the line runs them back to back in this order.
+    async with anyio.create_task_group() as group:
+        for i in wanted:
+            group.start_soon(probe, i)
     garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
     evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
     if garbled and evidence is None:
