@@ -142,10 +142,10 @@ class Bus:
         kind = self.driver_kind
         if kind == "auto":
             kind = "asyncio" if _running_asyncio() else "anyio"
-        if kind == "anyio":
+        if kind == "asyncio" and not _running_asyncio():
+            raise InvalidArgument("driver='asyncio' needs a running asyncio loop; under trio use driver='anyio'")
+        if kind == "anyio" or not _running_asyncio():  # "thread" under trio: the anyio driver's reader thread
             return AnyioDriver(self._engine, self.port, self.settings)
-        if not _running_asyncio():
-            raise InvalidArgument(f"driver={kind!r} needs a running asyncio loop; under trio use driver='anyio'")
         return AsyncioDriver(self._engine, self.port, self.settings)
 
     async def open(self) -> Bus:

@@ -184,10 +184,8 @@ class BusGroup:
         await self.aclose()
 
     async def aclose(self) -> None:
-        async def close(bus: Bus) -> None:
+        # One after another, in this task and in reverse order: under the anyio driver each bus
+        # holds a task group, which must be left by the task that entered it, innermost first.
+        for bus in reversed(self.buses.values()):
             with contextlib.suppress(IcsError, OSError):
                 await bus.aclose()
-
-        async with anyio.create_task_group() as group:
-            for bus in self.buses.values():
-                group.start_soon(close, bus)

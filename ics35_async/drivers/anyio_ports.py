@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import errno
 import os
+import select
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -58,14 +59,21 @@ class FdPort:
         self.fd: int = ser.fileno()
         os.set_blocking(self.fd, False)
         self.pending = bytearray()  # what a partial write left
+        self._ready = False  # the last wait ended because the fd became readable
 
     async def wait_input(self) -> None:
         if self.pending:
             await anyio.wait_writable(self.fd)
             self.write(b"")
         await anyio.wait_readable(self.fd)
+        self._ready = True
 
     def read(self) -> bytes:
+        ready, self._ready = self._ready, False
+        # With VMIN=0 (pyserial's timeout=0) a tty read with nothing waiting returns 0 bytes,
+        # not EAGAIN: read only what poll says is there, so 0 bytes can mean hangup alone.
+        if not ready and not select.select([self.fd], [], [], 0)[0]:
+            return b""
         try:
             data = os.read(self.fd, 4096)
         except (BlockingIOError, InterruptedError):
