@@ -1,15 +1,15 @@
 """ics35_async: drive Kondo ICS 3.5 serial servos from async code.
 
-Importing the package loads no simulator: ``sim://`` ports and the
-``ics35_async.sim`` attribute import it on first use.
+Importing the package is cheap: the bus, streams and groups load when first
+named (``from ics35_async import open_bus``), the event-loop drivers when a
+line opens, and the simulator only for ``sim://`` ports or ``ics35_async.sim``.
 """
 
 from __future__ import annotations
 
 import importlib
-from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
-from .bus import Bus, BusTiming, Priority, open_bus
 from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
     BadReply,
@@ -35,20 +35,44 @@ from .errors import (
     UnsafeOperation,
     VerifyError,
 )
-from .frames import Frame, GroupFrame, StreamStats
-from .group import BusGroup, GroupStream
 from .protocol import Param
-from .servo import Device, Servo
-from .stream import Stream
+
+if TYPE_CHECKING:
+    from . import sim as sim
+    from .bus import Bus, BusTiming, Priority, open_bus
+    from .frames import Frame, GroupFrame, StreamStats
+    from .group import BusGroup, GroupStream
+    from .servo import Device, Servo
+    from .stream import Stream
 
 __version__ = "0.1.0"
 
+# Loaded on first use: name -> module (relative to this package).
+_LAZY = {
+    "Bus": ".bus",
+    "BusTiming": ".bus",
+    "Priority": ".bus",
+    "open_bus": ".bus",
+    "Frame": ".frames",
+    "GroupFrame": ".frames",
+    "StreamStats": ".frames",
+    "BusGroup": ".group",
+    "GroupStream": ".group",
+    "Device": ".servo",
+    "Servo": ".servo",
+    "Stream": ".stream",
+}
 
-def __getattr__(name: str) -> ModuleType:
-    # `ics35_async.sim` without importing it first: loaded on first use, never at import.
+
+def __getattr__(name: str) -> Any:
     if name == "sim":
         return importlib.import_module(".sim", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # once: later lookups are plain attribute reads
+    return value
 
 
 __all__ = [

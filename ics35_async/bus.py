@@ -9,26 +9,26 @@ driver that moves bytes and time between the engine and the event loop
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import logging
+import sys
 from collections.abc import Awaitable, Generator, Iterable, Sequence
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from . import protocol
-from .drivers.anyio_driver import AnyioDriver
-from .drivers.asyncio_driver import AsyncioDriver
-from .drivers.asyncio_line import now
+from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
 from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
 from .protocol import Command
 from .stats import BusStats
-from .transports import TRANSPORT_KINDS, WireDevice
+from .transports.wire_device import TRANSPORT_KINDS, WireDevice
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
+    from .drivers.anyio_driver import AnyioDriver
+    from .drivers.asyncio_driver import AsyncioDriver
     from .servo import Device, Servo
     from .stream import Stream
 
@@ -41,11 +41,9 @@ RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
 def _running_asyncio() -> bool:
-    try:
-        asyncio.get_running_loop()
-    except RuntimeError:
-        return False
-    return True
+    # No asyncio imported: no asyncio loop can be running (and importing it costs ~40 ms).
+    asyncio = sys.modules.get("asyncio")
+    return asyncio is not None and asyncio.events._get_running_loop() is not None
 
 
 
@@ -144,8 +142,13 @@ class Bus:
             kind = "asyncio" if _running_asyncio() else "anyio"
         if kind == "asyncio" and not _running_asyncio():
             raise InvalidArgument("driver='asyncio' needs a running asyncio loop; under trio use driver='anyio'")
+        # Drivers load on first use: importing the library stays cheap.
         if kind == "anyio" or not _running_asyncio():  # "thread" under trio: the anyio driver's reader thread
+            from .drivers.anyio_driver import AnyioDriver
+
             return AnyioDriver(self._engine, self.port, self.settings)
+        from .drivers.asyncio_driver import AsyncioDriver
+
         return AsyncioDriver(self._engine, self.port, self.settings)
 
     async def open(self) -> Bus:

@@ -23,11 +23,11 @@ from ..engine import LineEngine, Request, State
 from ..errors import IcsError
 from ..protocol import Command
 from ..transports import WireDevice
-from ..transports.in_process import device_factory
 from ..transports.serial_port import open_serial
 from ..transports.threaded import ThreadedSerialDevice
+from ..transports.wire_device import device_factory
 from .anyio_ports import DevicePort, FdPort
-from .asyncio_line import now
+from .clock import now
 from .settings import LineSettings
 
 log = logging.getLogger("ics35_async")

@@ -18,7 +18,8 @@ from ..engine import LineEngine, State
 from ..errors import IcsError
 from ..protocol import Command
 from ..transports import WireDevice, discard_input, open_line
-from .asyncio_line import AsyncioLine, FutureRequest, now
+from .asyncio_line import AsyncioLine, FutureRequest
+from .clock import now
 from .settings import LineSettings
 
 log = logging.getLogger("ics35_async")

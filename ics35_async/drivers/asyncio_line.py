@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 from ..engine import LineEngine, Request
 from ..errors import IcsError
 from ..protocol import Command
+from .clock import now
 
 log = logging.getLogger("ics35_async")
 
@@ -29,9 +29,6 @@ T = TypeVar("T")
 INF = float("inf")
 GRACE = 0.0005  # seconds between a deadline's first look and the verdict (see _on_timer)
 
-# The engine's clock: the default event loop's own (time.monotonic); uvloop's loop.time()
-# is whole milliseconds cached per iteration, too coarse for latencies and reply timestamps.
-now = time.monotonic
 
 
 class FutureRequest(Request):

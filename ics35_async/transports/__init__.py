@@ -1,11 +1,49 @@
-"""Ports and transports: how bytes reach the line (serial ports, pyserial URLs, in-process devices)."""
+"""Ports and transports: how bytes reach the line (serial ports, pyserial URLs, in-process devices).
+
+The names that need asyncio or pyserial load on first use, so that importing
+the library (and the bus) stays cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
-from .advice import adapter_advice
-from .direct import DirectSerialTransport, ParityMarks
-from .in_process import HostSide, InProcessTransport, WireDevice, WireDeviceFactory, register_url_scheme
-from .opening import TRANSPORT_KINDS, TransportKind, discard_input, open_line
-from .threaded import ThreadedSerialDevice
+from .wire_device import (
+    TRANSPORT_KINDS,
+    HostSide,
+    TransportKind,
+    WireDevice,
+    WireDeviceFactory,
+    device_factory,
+    register_url_scheme,
+)
+
+if TYPE_CHECKING:
+    from .advice import adapter_advice
+    from .direct import DirectSerialTransport, ParityMarks
+    from .in_process import InProcessTransport
+    from .opening import discard_input, open_line
+    from .threaded import ThreadedSerialDevice
+
+_LAZY = {
+    "adapter_advice": ".advice",
+    "DirectSerialTransport": ".direct",
+    "ParityMarks": ".direct",
+    "InProcessTransport": ".in_process",
+    "discard_input": ".opening",
+    "open_line": ".opening",
+    "ThreadedSerialDevice": ".threaded",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(module, __name__), name)
+
 
 __all__ = [
     "TRANSPORT_KINDS",
@@ -23,6 +61,7 @@ __all__ = [
     "WireDevice",
     "WireDeviceFactory",
     "adapter_advice",
+    "device_factory",
     "discard_input",
     "open_line",
     "register_url_scheme",

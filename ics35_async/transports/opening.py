@@ -20,21 +20,20 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
-from typing import Any, Final, Literal, TypeVar, cast, get_args
+from typing import Any, TypeVar, cast
 
 import serial
 
 from ..errors import InvalidArgument
 from .direct import DirectSerialTransport
-from .in_process import InProcessTransport, WireDevice, device_factory
+from .in_process import InProcessTransport
 from .serial_port import TermiosError, open_serial
 from .threaded import ThreadedSerialDevice
+from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory
 
 log = logging.getLogger("ics35_async.transports")
 
 P = TypeVar("P", bound=asyncio.Protocol)
-TransportKind = Literal["auto", "fast", "stock", "direct", "thread"]
-TRANSPORT_KINDS: Final[tuple[str, ...]] = get_args(TransportKind)
 
 _SerialTransportClass = Callable[[asyncio.AbstractEventLoop, asyncio.Protocol, serial.SerialBase], asyncio.Transport]
 

@@ -8,7 +8,7 @@ import threading
 
 import serial
 
-from .in_process import HostSide
+from .wire_device import HostSide
 
 
 class ThreadedSerialDevice:

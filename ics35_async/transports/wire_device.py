@@ -1,0 +1,70 @@
+"""What an in-process device is (the simulator, a test double), and which URL schemes name one.
+
+No asyncio here: the package root and the bus import this, and the drivers
+that need an event loop are loaded only when a line opens.  A URL scheme
+maps to the function that builds a device; ``sim://`` is known from the
+start but its module (the simulator) is imported the first time a ``sim://``
+line opens, so importing the library loads no simulator.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Literal, Protocol, cast, get_args, runtime_checkable
+
+TransportKind = Literal["auto", "fast", "stock", "direct", "thread"]
+TRANSPORT_KINDS: tuple[str, ...] = get_args(TransportKind)
+
+
+class HostSide(Protocol):
+    """The host end of an in-process line, as a device sees it."""
+
+    def deliver(self, data: bytes) -> None:
+        """Bytes arriving at the host (echo, replies, noise).  Thread-safe."""
+
+    def lost(self, exc: Exception | None) -> None:
+        """The line went away (``exc`` says why).  Thread-safe."""
+
+
+@runtime_checkable
+class WireDevice(Protocol):
+    """An in-process device on the far end of the wire (e.g. the simulator).
+
+    ``connect`` raises :class:`OSError` when the device cannot be opened
+    (e.g. it is simulated as unplugged).  ``write`` is called with the host's
+    bytes; the device answers by calling ``host.deliver`` now or later, from
+    any thread.  ``disconnect`` detaches the host.
+
+    A device may also offer ``discard_input()``, which :func:`discard_input`
+    calls; it is optional.
+    """
+
+    def connect(self, host: HostSide, baudrate: int) -> None: ...
+
+    def write(self, data: bytes) -> None: ...
+
+    def disconnect(self) -> None: ...
+
+
+WireDeviceFactory = Callable[[str], WireDevice]
+_URL_SCHEMES: dict[str, WireDeviceFactory] = {}
+
+
+def register_url_scheme(scheme: str, factory: WireDeviceFactory) -> None:
+    """Make ``open_line("<scheme>://...")`` build its device with ``factory(url)``."""
+    _URL_SCHEMES[scheme] = factory
+
+
+# Schemes whose device factory lives in a module loaded on first use: "module:function".
+_LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
+
+
+def device_factory(scheme: str) -> WireDeviceFactory | None:
+    """The factory registered for ``scheme``, importing its module on first use; None if unknown."""
+    factory = _URL_SCHEMES.get(scheme)
+    if factory is None and scheme in _LAZY_SCHEMES:
+        module, _, name = _LAZY_SCHEMES[scheme].partition(":")
+        factory = cast(WireDeviceFactory, getattr(importlib.import_module(module), name))
+        _URL_SCHEMES[scheme] = factory
+    return factory
