@@ -186,7 +186,7 @@ class Bus:
         driver = self._driver
         if driver is None or not self.is_open:
             raise BusClosed("bus is closed")
-        if self._engine._source is not None or self._reopening:
+        if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
         self._reopening = True  # attach_source refuses from here on
         try:
@@ -245,8 +245,8 @@ class Bus:
         """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
         engine = self._engine
         if source is None:
-            if engine._source is not None:
-                engine.detach_source(engine._source)
+            if engine.source is not None:
+                engine.detach_source(engine.source)
             return
         if self._reopening or engine.state is State.OFFLINE:
             raise InvalidArgument("the bus is reopening; start the stream afterwards")

@@ -2,12 +2,33 @@
 
 Nothing here does I/O or reads a clock: drivers (:mod:`ics35_async.drivers`)
 move bytes and time between a :class:`LineEngine` and the world.
+
+The rules, each in one place:
+
+* one transaction at a time: write, consume the echo (when the line echoes),
+  read exactly the reply length of that command, validate it;
+* outcome: a reply that does not arrive by the deadline is a timeout, a
+  partial reply, or an echo mismatch, by what did arrive; extra bytes, a
+  wrong echo, a byte with a parity error or a reply the codec rejects fail
+  it too;
+* resync: after any fault, wait until the line has been quiet for
+  ``quiet_time`` (at most ``max_resync``), so the late bytes of a failed
+  transaction are never taken for the next reply;
+* guard read: after a timeout, a command with the same command byte does not
+  go next (the late reply would fit it); a harmless read of another shape
+  goes first;
+* priorities, and the stream's share: at most ``max_requests_between``
+  requests between two stream transactions;
+* retries of idempotent commands; cancellation (a cancelled request's reply
+  is still consumed and dropped);
+* a slow link: late bytes raise every allowance (see :mod:`.link`).
 """
 
 from .counters import LineCounters
-from .machine import LineEngine, State
+from .machine import LineEngine
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
+from .state import State
 from .timing import BusTiming
 
 __all__ = [

@@ -37,6 +37,12 @@ class LineCounters:
         self.reconnects = 0
         self.by_command: dict[str, int] = {}
 
+    def count(self, sid: int, n_tx: int, n_rx: int) -> None:
+        """One more transaction for ``sid`` (the hot path inlines this)."""
+        self.transactions[sid] += 1
+        self.bytes_tx[sid] += n_tx
+        self.bytes_rx[sid] += n_rx
+
     def snapshot(self, queued: int) -> BusStats:
         per_id: dict[int | None, IdStats] = {}
         total = IdStats()

@@ -8,31 +8,11 @@ until something else happens) and ``flush_input`` asks the driver to drop the
 OS input buffer before writing.  Requests learn their outcome through
 ``Request.resolve``/``reject``; the stream (the background source) through
 its own plain methods.
-
-The rules, each in one place:
-
-* one transaction at a time: write, consume the echo (when the line echoes),
-  read exactly the reply length of that command, validate it;
-* outcome: a reply that does not arrive by the deadline is a timeout, a
-  partial reply, or an echo mismatch, by what did arrive; extra bytes, a
-  wrong echo, a byte with a parity error or a reply the codec rejects fail
-  it too;
-* resync: after any fault, wait until the line has been quiet for
-  ``quiet_time`` (at most ``max_resync``), so the late bytes of a failed
-  transaction are never taken for the next reply;
-* guard read: after a timeout, a command with the same command byte does not
-  go next (the late reply would fit it); a harmless read of another shape
-  goes first;
-* priorities, and the stream's share: at most ``max_requests_between``
-  requests between two stream transactions;
-* retries of idempotent commands; cancellation (a cancelled request's reply
-  is still consumed and dropped);
-* a slow link: late bytes raise every allowance (see :mod:`.link`).
+The rules it holds are listed in the package docstring (:mod:`ics35_async.engine`).
 """
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
 
@@ -44,21 +24,12 @@ from .link import LinkLatency
 from .outcome import framing_error, timeout_error
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
+from .state import State
 from .timing import BusTiming
 
 log = logging.getLogger("ics35_async")
 
 INF = math.inf
-
-
-class State(enum.Enum):
-    OFFLINE = "offline"  # no line yet, or reopening: requests wait
-    IDLE = "idle"
-    BUSY = "busy"  # a transaction is on the wire
-    QUIET = "quiet"  # resyncing: waiting for silence
-    DRAINING = "draining"  # closing: the transaction on the wire finishes, nothing new starts
-    LOST = "lost"  # the port is gone and the driver is reconnecting: requests fail at once
-    CLOSED = "closed"
 
 
 class LineEngine:
@@ -161,12 +132,9 @@ class LineEngine:
 
     def submit(self, request: Request, now: float) -> bytes | None:
         state = self.state
-        if state is State.IDLE:
+        if state is State.IDLE or state is State.BUSY or state is State.QUIET or state is State.OFFLINE:
             self.queue.push(request)
-            return self._start_next(now)
-        if state is State.BUSY or state is State.QUIET or state is State.OFFLINE:
-            self.queue.push(request)
-            return None
+            return self._start_next(now) if state is State.IDLE else None
         if state is State.LOST:
             raise PortLost("the port is lost; reconnecting")
         raise BusClosed("bus is closed")
@@ -179,6 +147,11 @@ class LineEngine:
             raise BusClosed("bus is closed")
         self._source = source
         return self.kick(now)
+
+    @property
+    def source(self) -> BackgroundSource | None:
+        """The attached background source (the stream), if any."""
+        return self._source
 
     def detach_source(self, source: BackgroundSource) -> None:
         if self._source is source:
@@ -365,10 +338,7 @@ class LineEngine:
 
     def _timeout(self, now: float) -> bytes | None:
         buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
-        counters = self.counters
-        counters.transactions[sid] += 1
-        counters.bytes_tx[sid] += len(tx)
-        counters.bytes_rx[sid] += len(buf)
+        self.counters.count(sid, len(tx), len(buf))
         error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
         req = self._current
         heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
@@ -403,8 +373,6 @@ class LineEngine:
         return None
 
     def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:
-        self.counters.per_name[error_counter(error)][sid] += 1
-        log.debug("%s", error)
         closing = self.state is State.DRAINING
         if req.retries_left > 0 and not req.abandoned() and not closing:
             req.retries_left -= 1
@@ -412,8 +380,7 @@ class LineEngine:
             self.queue.push_front(req)
         else:
             req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
-        self._resync(now)
-        return None
+        return self._fault(error, sid, now)
 
     def _resync(self, now: float) -> None:
         if self.state is State.DRAINING:  # closing anyway: the port's buffers go with it
