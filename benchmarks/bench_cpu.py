@@ -39,7 +39,7 @@ from ics35_async import IcsError, open_bus
 
 Figures = dict[str, Any]
 
-DRIVERS: tuple[str | None, ...] = (None,)
+DRIVERS: tuple[str | None, ...] = ("asyncio", "thread", "anyio")
 """The drivers to measure.  ``None`` is ``open_bus``'s default (today the only one).  When ``open_bus``
 grows ``driver=``, list them here, e.g. ``("asyncio", "thread", "anyio")``: every row, table and ratio
 follows from this tuple."""
