@@ -1,24 +1,19 @@
-"""The friendly per-servo and per-device API on top of :class:`~ics35_async.bus.Bus`."""
+"""The friendly per-servo and per-device API on top of a line (:class:`~ics35_async.bus.Bus`)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 from . import protocol, units
-from .bus import Priority
 from .eeprom import Eeprom
+from .engine import Priority
 from .errors import InvalidArgument, UnsafeOperation, VerifyError
+from .line import Line
 from .protocol import Param
 
-if TYPE_CHECKING:
-    from .bus import Bus
 
-
-def _check_bus(bus: object) -> Bus:
-    from .bus import Bus  # bus.py imports this module lazily; the reverse is fine at call time
-
-    if not isinstance(bus, Bus):
+def _check_bus(bus: object) -> Line:
+    if not isinstance(bus, Line):
         raise InvalidArgument(f"bus must be a Bus (from open_bus), not {type(bus).__name__}")
     return bus
 
@@ -33,13 +28,13 @@ class Servo:
 
     __slots__ = ("_bus", "id", "priority")
 
-    def __init__(self, bus: Bus, servo_id: int, *, priority: Priority = Priority.NORMAL) -> None:
+    def __init__(self, bus: Line, servo_id: int, *, priority: Priority = Priority.NORMAL) -> None:
         self._bus = _check_bus(bus)
         self.id = protocol.check_id(servo_id)
         self.priority = Priority(units.check_int("priority", priority, Priority.URGENT, Priority.LOW))
 
     @property
-    def bus(self) -> Bus:
+    def bus(self) -> Line:
         return self._bus
 
     def __repr__(self) -> str:
@@ -159,7 +154,7 @@ class Device:
 
     __slots__ = ("_bus", "id")
 
-    def __init__(self, bus: Bus, device_id: int) -> None:
+    def __init__(self, bus: Line, device_id: int) -> None:
         self._bus = _check_bus(bus)
         self.id = protocol.check_id(device_id)
 

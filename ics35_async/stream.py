@@ -28,16 +28,13 @@ import statistics
 from collections import deque
 from collections.abc import AsyncIterator, Iterable, Mapping
 from types import TracebackType
-from typing import TYPE_CHECKING
 
 import anyio
 
 from . import protocol, units
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, StreamStats, percentile
-
-if TYPE_CHECKING:
-    from .bus import Bus
+from .line import Line
 
 INF = math.inf
 
@@ -56,7 +53,7 @@ class Stream:
 
     def __init__(
         self,
-        bus: Bus,
+        bus: Line,
         ids: Iterable[int],
         *,
         rate_hz: float | None = None,
@@ -377,7 +374,7 @@ class Stream:
 
     async def _free_quietly(self, servo_id: int) -> None:
         with contextlib.suppress(IcsError):
-            await self.bus.servo(servo_id).free()
+            await self.bus.request(protocol.Position(servo_id, protocol.FREE, baudrate=self.bus.baudrate))
 
     def _stop(self) -> None:
         self._running = False

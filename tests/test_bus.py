@@ -430,7 +430,7 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
 
 
 async def test_over_a_pty_through_the_real_serial_transport() -> None:
-    with serving(["--ids", "0-7"]) as path:
+    with serving(["--fast", "--ids", "0-7"]) as path:
         async with open_bus(path, adapter_latency=0.05) as bus:
             rng = random.Random(1)
 

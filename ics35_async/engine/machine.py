@@ -7,8 +7,7 @@ call, ``deadline`` is when the engine wants :meth:`tick` (``math.inf``: not
 until something else happens) and ``flush_input`` asks the driver to drop the
 OS input buffer before writing.  Requests learn their outcome through
 ``Request.resolve``/``reject``; the stream (the background source) through
-its own plain methods.
-The rules it holds are listed in the package docstring (:mod:`ics35_async.engine`).
+its own plain methods.  The rules it holds: see :mod:`ics35_async.engine`.
 """
 
 from __future__ import annotations

@@ -1,38 +1,20 @@
-"""What the policies need from a line: a small protocol the bus facade satisfies.
+"""What the policies need from a line (:class:`ics35_async.line.Line`), and how to tell its failures apart.
 
-The policies sit above the bus and use only its public surface, so they
-survive a rewrite of the core and can be driven by any object with these
-members (``Bus`` from :func:`ics35_async.open_bus` is the usual one).
+The policies sit above the bus and use only that protocol, so they survive a
+rewrite of the core and can be driven by any object with its members
+(``Bus`` from :func:`ics35_async.open_bus` is the usual one).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from contextlib import AbstractAsyncContextManager
-from typing import Protocol, TypeVar
+from typing import TypeVar
 
 from ..errors import EchoMismatch, ReplyError, ReplyTimeout
-from ..protocol import Command
-from ..stats import BusStats
+from ..line import Line as Line
 
 T = TypeVar("T")
-
-
-class Line(Protocol):
-    """An open ICS line: one transaction at a time, with counters."""
-
-    @property
-    def baudrate(self) -> int: ...
-
-    @property
-    def echo(self) -> bool: ...
-
-    @property
-    def stats(self) -> BusStats: ...
-
-    async def request(self, command: Command[T], *, retries: int | None = None) -> T: ...
-
-    async def reopen(self, *, baudrate: int | None = None) -> None: ...
 
 
 # A not-yet-open line at the given baud rate, used as ``async with open_at(baud) as line``
