@@ -46,7 +46,6 @@ def _running_asyncio() -> bool:
     return asyncio is not None and asyncio.events._get_running_loop() is not None
 
 
-
 DRIVERS = ("auto", "asyncio", "thread", "anyio")
 
 
@@ -234,7 +233,7 @@ class Bus:
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         driver = self._driver
         if driver is None:
-            if self._engine.state is State.CLOSED:
+            if self._engine.state in (State.CLOSED, State.DRAINING):
                 raise BusClosed("bus is closed")
             raise BusClosed("bus is not open (use `async with open_bus(...)`)")
         # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
