@@ -12,8 +12,9 @@
 
 The async :class:`~ics35_async.Bus` runs on an event loop in a background
 thread (one per bus); every blocking call hands its work to that loop and
-waits for the result, about 50-200 microseconds per call on top of the wire
-time.  Errors are the same typed :mod:`ics35_async.errors` classes, raised in
+waits for the result: 60-100 microseconds per call on top of the wire time
+when the loop is idle.  A stream runs on the loop, so a consumer pays that
+per frame it takes, not per transaction.  Errors are the same typed :mod:`ics35_async.errors` classes, raised in
 the calling thread.  Ctrl-C while a call waits cancels that call on the loop;
 leaving the ``with`` block then closes the bus and ends the thread.
 
