@@ -98,7 +98,8 @@ def run(runs: int = 5, duration: float = 1.0, before: str = BEFORE) -> dict[str,
 def print_table(r: dict[str, Any]) -> None:
     print(f"\nE. Stream CPU per transaction, landed bus ({r['before']}) vs today's asyncio driver (same run)")
     print("   32 IDs, free commands, lean responder; medians of alternating child processes")
-    print(f"  {'loop':10} {'before us/tx':>13} {'after us/tx':>12} {'after/before':>13} {'tx/s before':>12} {'after':>8}")
+    header = ("loop", "before us/tx", "after us/tx", "after/before", "tx/s before", "after")
+    print("  {:10} {:>13} {:>12} {:>13} {:>12} {:>8}".format(*header))
     for loop, row in r["rows"].items():
         b, a = row["before"], row["after"]
         print(

@@ -8,6 +8,7 @@ cancelled got a value its bytes did not carry.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import random
 import time
@@ -159,6 +160,8 @@ async def cancellation_soak(
         ids = sorted(rng.sample(stream_target_ids, rng.randrange(1, 33)))
         rate = rng.choice([None, None, 500.0, 2000.0])
 
+        first_frame = asyncio.Event()
+
         async def body() -> None:
             stream = bus.stream(ids, rate_hz=rate, probe_interval=0.01)
             # Targets first: a stream starts with every ID free, and a free command looks like a request.
@@ -166,6 +169,7 @@ async def cancellation_soak(
             async with stream:
                 async for frame in stream:
                     tally["frames"] += 1
+                    first_frame.set()
                     for i, position in frame.positions.items():
                         low, high = band(i)
                         if not low <= position <= high:
@@ -176,6 +180,11 @@ async def cancellation_soak(
             await asyncio.sleep(0)
         if rng.random() < 0.8:
             await asyncio.sleep(rng.uniform(0, 0.05))
+        elif rng.random() < 0.5:
+            # Some streams live until they have published: cancelling one mid-cycle is covered
+            # either way, and a loaded machine must not leave every stream frameless.
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(first_frame.wait(), 2.0)
         task.cancel()
         result = await asyncio.gather(task, return_exceptions=True)
         if isinstance(result[0], asyncio.CancelledError):

@@ -1,0 +1,31 @@
+"""The bus for programs without an event loop: plain scripts, Jupyter, ROS 1 nodes.
+
+::
+
+    from ics35_async import blocking
+
+    with blocking.open_bus("/dev/ttyUSB0", baudrate=1250000) as bus:
+        print(bus.servo(1).set_position(9000))
+        with bus.stream(range(12)) as stream:
+            for frame in stream:
+                stream.set_targets({i: 7500 for i in frame.positions})
+
+The async :class:`~ics35_async.Bus` runs on an event loop in a background
+thread (one per bus); every blocking call hands its work to that loop and
+waits for the result: 60-100 microseconds per call on top of the wire time
+when the loop is idle.  A stream runs on the loop, so a consumer pays that
+per frame it takes, not per transaction.  Errors are the same typed :mod:`ics35_async.errors` classes, raised in
+the calling thread.  Ctrl-C while a call waits cancels that call on the loop;
+leaving the ``with`` block then closes the bus and ends the thread.
+
+Called from a thread that already runs an event loop (a Jupyter cell, a
+coroutine), it works the same way and blocks that loop for the duration of
+each call; async code does better with the async API.
+"""
+
+from __future__ import annotations
+
+from .bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
+from .stream import BlockingStream
+
+__all__ = ["BlockingBus", "BlockingDevice", "BlockingServo", "BlockingStream", "open_bus"]

@@ -1,0 +1,241 @@
+"""The blocking bus, servo and device: the async API's objects, driven from a loop thread."""
+
+from __future__ import annotations
+
+import functools
+import threading
+import warnings
+import weakref
+from collections.abc import Awaitable, Callable, Iterable
+from types import TracebackType
+from typing import Any, ParamSpec, TypeVar
+
+from ..bus import Bus, Priority
+from ..bus import open_bus as open_async_bus
+from ..engine import State
+from ..errors import InvalidArgument
+from ..protocol import Command
+from ..servo import Device, Servo
+from ..stats import BusStats
+from ..transports import WireDevice
+from .forward import Wrapper, blocking
+from .loop_thread import LoopThread
+from .stream import BlockingStream
+
+P = ParamSpec("P")
+T = TypeVar("T")
+
+
+class BlockingServo(Wrapper[Servo]):
+    """:class:`~ics35_async.Servo` with blocking methods: ``servo.set_position(9000)`` returns the position."""
+
+    __slots__ = ("bus",)
+
+    def __init__(self, bus: BlockingBus, servo: Servo) -> None:
+        super().__init__(servo, bus._loop)
+        self.bus = bus
+
+    @property
+    def id(self) -> int:
+        return self._async.id
+
+    @property
+    def priority(self) -> Priority:
+        return self._async.priority
+
+    def __repr__(self) -> str:
+        return f"<BlockingServo {self.id} on {self.bus!r}>"
+
+    set_position = blocking(Servo.set_position)
+    free = blocking(Servo.free)
+    set_degrees = blocking(Servo.set_degrees)
+    set_radians = blocking(Servo.set_radians)
+    read_degrees = blocking(Servo.read_degrees)
+    read_stretch = blocking(Servo.read_stretch)
+    read_speed = blocking(Servo.read_speed)
+    read_current = blocking(Servo.read_current)
+    read_temperature = blocking(Servo.read_temperature)
+    write_stretch = blocking(Servo.write_stretch)
+    write_speed = blocking(Servo.write_speed)
+    write_current_limit = blocking(Servo.write_current_limit)
+    write_temperature_limit = blocking(Servo.write_temperature_limit)
+    read_eeprom = blocking(Servo.read_eeprom)
+    write_eeprom = blocking(Servo.write_eeprom)
+
+
+class BlockingDevice(Wrapper[Device]):
+    """:class:`~ics35_async.Device` (a generic memory device) with blocking methods."""
+
+    __slots__ = ("bus",)
+
+    def __init__(self, bus: BlockingBus, device: Device) -> None:
+        super().__init__(device, bus._loop)
+        self.bus = bus
+
+    @property
+    def id(self) -> int:
+        return self._async.id
+
+    def __repr__(self) -> str:
+        return f"<BlockingDevice {self.id} on {self.bus!r}>"
+
+    read_memory = blocking(Device.read_memory)
+    write_memory = blocking(Device.write_memory)
+
+
+class BlockingBus(Wrapper[Bus]):
+    """One ICS line for code without an event loop.  Create with :func:`open_bus`.
+
+    The async :class:`~ics35_async.Bus` runs on an event loop in a background
+    thread; each method call hands its work to that loop and waits for it.
+    Errors are the library's own typed errors, raised in the calling thread.
+    Several threads may share one bus (the bus serialises their requests).
+    """
+
+    __slots__ = ("__weakref__", "_finalizer")
+
+    def __init__(self, bus: Bus) -> None:
+        if not isinstance(bus, Bus):
+            raise InvalidArgument(f"bus must be a Bus (from ics35_async.open_bus), not {type(bus).__name__}")
+        super().__init__(bus, LoopThread(name=f"ics35 blocking bus {bus.port}"))
+        # Close at garbage collection or interpreter exit if the program never did (the thread is a
+        # daemon so that a forgotten bus cannot hang the exit; this releases the port cleanly first).
+        self._finalizer = weakref.finalize(self, _close_forgotten, bus, self._loop)
+        try:
+            self._loop.call(bus.open)
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ closing
+
+    def close(self) -> None:
+        """Close the bus (queued requests fail with BusClosed), release the port, end the loop thread.
+
+        Idempotent.  A Ctrl-C while closing is raised once everything is released.
+        """
+        if self._finalizer.detach() is not None:
+            _close(self._async, self._loop)
+
+    def __enter__(self) -> BlockingBus:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ what the bus is
+
+    @property
+    def async_bus(self) -> Bus:
+        """The async bus underneath, for :meth:`run` (use it only from code running on the bus's loop)."""
+        return self._async
+
+    @property
+    def thread(self) -> threading.Thread:
+        """The thread running the bus's event loop."""
+        return self._loop.thread
+
+    @property
+    def port(self) -> str | WireDevice:
+        return self._async.port
+
+    @property
+    def baudrate(self) -> int:
+        return self._async.baudrate
+
+    @property
+    def echo(self) -> bool:
+        return self._async.echo
+
+    @property
+    def driver(self) -> str:
+        return self._async.driver
+
+    @property
+    def state(self) -> State:
+        return self._async.state
+
+    @property
+    def is_open(self) -> bool:
+        return self._loop.is_running and self._async.is_open
+
+    @property
+    def stats(self) -> BusStats:
+        return self._loop.call_sync(_stats_of, self._async)
+
+    def __repr__(self) -> str:
+        return f"<BlockingBus {self._async!r}>"
+
+    # ------------------------------------------------------------------ requests
+
+    def request(self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None) -> T:
+        """Run one command (an ``ics35_async.protocol`` command object) and return its parsed reply."""
+        return self._loop.call(self._async.request, command, priority=priority, retries=retries)
+
+    def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        """Await ``fn(*args, **kwargs)`` on the bus's event loop and return its result.
+
+        For async helpers that take the async bus, e.g.
+        ``bus.run(plan_eeprom_write, bus.async_bus, 1, {"speed": 90})``.
+        """
+        return self._loop.call(fn, *args, **kwargs)
+
+    scan = blocking(Bus.scan)
+    read_id = blocking(Bus.read_id)
+    write_id = blocking(Bus.write_id)
+    reopen = blocking(Bus.reopen)
+    wait_idle = blocking(Bus.wait_idle)
+
+    # ------------------------------------------------------------------ objects on the bus
+
+    def servo(self, servo_id: int) -> BlockingServo:
+        # A Servo only checks its ID and keeps a reference: safe to make in this thread.
+        return BlockingServo(self, self._async.servo(servo_id))
+
+    def servos(self, ids: Iterable[int]) -> list[BlockingServo]:
+        return [BlockingServo(self, servo) for servo in self._async.servos(ids)]
+
+    def device(self, device_id: int) -> BlockingDevice:
+        return BlockingDevice(self, self._async.device(device_id))
+
+    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> BlockingStream:
+        """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``."""
+        stream = self._loop.call_sync(self._async.stream, ids, rate_hz=rate_hz, **options)
+        return BlockingStream(stream, self._loop)
+
+
+def _stats_of(bus: Bus) -> BusStats:
+    return bus.stats
+
+
+def _close(bus: Bus, loop: LoopThread) -> None:
+    try:
+        if loop.is_running:
+            loop.call_to_end(bus.aclose)
+    finally:
+        loop.stop()
+
+
+def _close_forgotten(bus: Bus, loop: LoopThread) -> None:
+    warnings.warn(f"blocking bus on {bus.port} was never closed; closing it now", ResourceWarning, stacklevel=1)
+    _close(bus, loop)
+
+
+def _blocking_opener(open_async: Callable[P, Bus]) -> Callable[P, BlockingBus]:
+    @functools.wraps(open_async)
+    def open_bus(*args: P.args, **kwargs: P.kwargs) -> BlockingBus:
+        return BlockingBus(open_async(*args, **kwargs))
+
+    open_bus.__doc__ = """Open a :class:`BlockingBus` on ``port``: use ``with open_bus(...) as bus:``.
+
+    Takes what :func:`ics35_async.open_bus` takes.  The bus is open when this
+    returns (port errors are raised here); leaving the ``with`` block, an
+    exception or Ctrl-C included, closes it and ends its loop thread.
+    """
+    return open_bus
+
+
+# The async open_bus's parameters, checked by mypy at each call, with a blocking bus as the result.
+open_bus = _blocking_opener(open_async_bus)

@@ -1,0 +1,100 @@
+"""Blocking methods made from the async API's own methods, signatures and all.
+
+``set_position = blocking(Servo.set_position)`` in a :class:`Wrapper` subclass
+gives a method that takes what ``Servo.set_position`` takes (mypy checks
+calls against the async signature) and returns what it returns, run on the
+wrapper's loop thread.  ``on_loop`` does the same for plain methods of
+objects that live on the loop (a stream's ``set_targets``), which must not
+be touched from another thread while the loop runs them.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Awaitable, Callable
+from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
+
+from .loop_thread import LoopThread
+
+A = TypeVar("A")  # the async object a wrapper stands for
+P = ParamSpec("P")
+T = TypeVar("T")
+
+
+class Wrapper(Generic[A]):
+    """A blocking stand-in for an async object: ``_async`` runs on ``_loop``."""
+
+    __slots__ = ("_async", "_loop")
+
+    def __init__(self, target: A, loop: LoopThread) -> None:
+        self._async = target
+        self._loop = loop
+
+
+class _Forward(Generic[A, P, T]):
+    def __init__(self, method: Callable[Concatenate[A, P], Any]) -> None:
+        self._method = method
+        self.__doc__ = method.__doc__
+        self.__name__ = self.__qualname__ = getattr(method, "__name__", "method")
+        # What help() and inspect.signature() show: the async method's signature without ``self``.
+        signature = inspect.signature(method)
+        self._signature = signature.replace(parameters=list(signature.parameters.values())[1:])
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.__name__, self.__qualname__, self.__module__ = name, f"{owner.__qualname__}.{name}", owner.__module__
+
+    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
+        raise NotImplementedError
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> _Forward[A, P, T]: ...
+
+    @overload
+    def __get__(self, obj: Wrapper[A], owner: type | None = None) -> Callable[P, T]: ...
+
+    def __get__(self, obj: Wrapper[A] | None, owner: type | None = None) -> _Forward[A, P, T] | Callable[P, T]:
+        if obj is None:
+            return self
+        call = self._bound(obj)
+        call.__name__, call.__qualname__, call.__module__ = self.__name__, self.__qualname__, self.__module__
+        call.__doc__ = self.__doc__
+        call.__signature__ = self._signature  # type: ignore[attr-defined]
+        return call
+
+
+class _Blocking(_Forward[A, P, T]):
+    def __init__(self, method: Callable[Concatenate[A, P], Awaitable[T]]) -> None:
+        super().__init__(method)
+        self._async_method = method
+
+    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
+        method, target, loop = self._async_method, obj._async, obj._loop
+
+        def call(*args: P.args, **kwargs: P.kwargs) -> T:
+            return loop.call(method, target, *args, **kwargs)
+
+        return call
+
+
+class _OnLoop(_Forward[A, P, T]):
+    def __init__(self, method: Callable[Concatenate[A, P], T]) -> None:
+        super().__init__(method)
+        self._sync_method = method
+
+    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
+        method, target, loop = self._sync_method, obj._async, obj._loop
+
+        def call(*args: P.args, **kwargs: P.kwargs) -> T:
+            return loop.call_sync(method, target, *args, **kwargs)
+
+        return call
+
+
+def blocking(method: Callable[Concatenate[A, P], Awaitable[T]]) -> _Forward[A, P, T]:
+    """A blocking method that awaits the async ``method`` on the wrapper's loop thread."""
+    return _Blocking(method)
+
+
+def on_loop(method: Callable[Concatenate[A, P], T]) -> _Forward[A, P, T]:
+    """A blocking method that runs the plain ``method`` on the wrapper's loop thread."""
+    return _OnLoop(method)

@@ -1,0 +1,116 @@
+"""The blocking position stream: the async :class:`~ics35_async.Stream` runs on the loop thread.
+
+The stream's cycles run entirely on the loop (the I/O callback that
+completes one servo's reply writes the next servo's command), so a blocking
+consumer costs one thread hop per *frame* it takes, never per transaction:
+the wire runs at the same pace as under asyncio.  A slow consumer gets the
+newest frame, with ``frame.skipped`` counting the ones it missed.
+"""
+
+from __future__ import annotations
+
+from types import TracebackType
+
+import anyio
+
+from .. import units
+from ..errors import BusClosed
+from ..frames import Frame, StreamStats
+from ..stream import Stream
+from .forward import Wrapper, on_loop
+
+
+class BlockingStream(Wrapper[Stream]):
+    """Position streaming for code without an event loop.  Create with :meth:`BlockingBus.stream`.
+
+    ``with bus.stream(ids) as stream:`` starts it and stops it on leaving;
+    ``for frame in stream:`` takes frames until the stream or bus closes.
+    Target setters take effect before they return and raise typed errors
+    (nothing is applied when one target is bad).
+    """
+
+    __slots__ = ()
+
+    set_target = on_loop(Stream.set_target)
+    set_targets = on_loop(Stream.set_targets)
+    set_target_degrees = on_loop(Stream.set_target_degrees)
+    set_targets_degrees = on_loop(Stream.set_targets_degrees)
+    free = on_loop(Stream.free)
+    target = on_loop(Stream.target)
+
+    @property
+    def ids(self) -> tuple[int, ...]:
+        return self._async.ids
+
+    @property
+    def rate_hz(self) -> float | None:
+        return self._async.rate_hz
+
+    @property
+    def latest(self) -> Frame | None:
+        """The newest frame (does not mark it taken; no thread hop: a frame is immutable)."""
+        return self._async.latest
+
+    @property
+    def stats(self) -> StreamStats:
+        return self._loop.call_sync(_stats_of, self._async)
+
+    @property
+    def offline(self) -> frozenset[int]:
+        return self._loop.call_sync(_offline_of, self._async)
+
+    def next_frame(self, timeout: float | None = None) -> Frame:
+        """The newest frame not yet taken; waits for one (at most ``timeout`` seconds: then ``TimeoutError``).
+
+        Raises :class:`~ics35_async.BusClosed` once the stream or bus is
+        closed, :class:`~ics35_async.PortLost` if the port is lost.
+        """
+        if timeout is not None:
+            units.check_seconds("timeout", timeout, 0.0, 1e9)
+        return self._loop.call(_next_frame, self._async, timeout)
+
+    def __iter__(self) -> BlockingStream:
+        return self
+
+    def __next__(self) -> Frame:
+        try:
+            return self.next_frame()
+        except BusClosed:
+            # Closing ends the iteration; losing the port (PortLost) is raised.
+            raise StopIteration from None
+
+    # ------------------------------------------------------------------ lifetime
+
+    def start(self) -> BlockingStream:
+        """Start streaming (``with`` does this)."""
+        self._loop.call(self._async.start)
+        return self
+
+    def close(self) -> None:
+        """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free first."""
+        if self._loop.is_running:
+            self._loop.call_to_end(self._async.aclose)
+
+    def __enter__(self) -> BlockingStream:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<BlockingStream {list(self.ids)} on {self._async.bus!r}>"
+
+
+async def _next_frame(stream: Stream, timeout: float | None) -> Frame:
+    with anyio.fail_after(timeout):
+        return await stream.next_frame()
+
+
+def _stats_of(stream: Stream) -> StreamStats:
+    return stream.stats
+
+
+def _offline_of(stream: Stream) -> frozenset[int]:
+    return stream.offline

@@ -1,0 +1,395 @@
+"""ics35_async.blocking: the async API driven from plain (loop-less) code, through the simulator."""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+import inspect
+import subprocess
+import sys
+import textwrap
+import threading
+from collections.abc import Iterator
+
+import pytest
+
+from ics35_async import (
+    BusClosed,
+    Device,
+    Eeprom,
+    InvalidArgument,
+    PortNotFound,
+    ReplyTimeout,
+    Servo,
+    Stream,
+    UnsafeOperation,
+    blocking,
+    protocol,
+)
+from ics35_async.bus import Bus
+from ics35_async.policies import plan_eeprom_write, write_eeprom_plan
+from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo
+from ics35_async.sim.launch import serving
+from tests.support.leaks import open_fds
+
+
+def threads() -> set[threading.Thread]:
+    return set(threading.enumerate())
+
+
+@pytest.fixture
+def no_leaks() -> Iterator[None]:
+    """The test leaves no thread and no file descriptor behind."""
+    gc.collect()
+    before_threads, before_fds = threads(), open_fds()
+    yield
+    gc.collect()
+    assert threads() - before_threads == set()
+    assert open_fds() == before_fds
+
+
+def public_coroutine_methods(cls: type) -> dict[str, inspect.Signature]:
+    return {
+        name: inspect.signature(member)
+        for name, member in vars(cls).items()
+        if not name.startswith("_") and inspect.iscoroutinefunction(member)
+    }
+
+
+def without_self(signature: inspect.Signature) -> inspect.Signature:
+    return signature.replace(parameters=list(signature.parameters.values())[1:])
+
+
+# ---------------------------------------------------------------------- same methods as the async API
+
+
+def test_every_async_method_has_a_blocking_twin_with_its_signature() -> None:
+    with blocking.open_bus("sim://?ids=1", echo=True) as bus:
+        pairs = [
+            (Servo, bus.servo(1), set()),
+            (Device, bus.device(1), set()),
+            (Bus, bus, {"open", "aclose", "request"}),  # open_bus and close() replace the first two
+        ]
+        for async_cls, twin, skipped in pairs:
+            expected = public_coroutine_methods(async_cls)
+            assert expected
+            for name, signature in expected.items():
+                if name in skipped:
+                    continue
+                method = getattr(twin, name, None)
+                assert method is not None, f"{type(twin).__name__} has no {name}"
+                assert inspect.signature(method) == without_self(signature), name
+                assert method.__doc__ == getattr(async_cls, name).__doc__
+        # request is written out (generic in its result); its parameters are the async one's
+        assert list(inspect.signature(bus.request).parameters) == ["command", "priority", "retries"]
+
+
+def test_every_stream_target_method_is_there() -> None:
+    for name in ("set_target", "set_targets", "set_target_degrees", "set_targets_degrees", "free", "target"):
+        assert name in vars(Stream) and name in vars(blocking.BlockingStream), name
+
+
+# ---------------------------------------------------------------------- servos, devices, the bus
+
+
+def test_servo_methods_reach_the_simulated_servo(no_leaks: None) -> None:
+    line = VirtualLine([VirtualServo(1, position=8000), VirtualServo(2)])
+    with blocking.open_bus(line) as bus:
+        servo = bus.servo(1)
+        assert servo.id == 1
+        assert servo.free() == 8000
+        line.servo(1).move_by_hand(9000)
+        assert servo.read_degrees() == pytest.approx((9000 - 7500) / (8000 / 270), abs=0.1)
+        servo.set_position(8500)
+        assert line.servo(1).target == 8500
+        servo.set_degrees(-30)
+        assert line.servo(1).target == 7500 - round(30 * 8000 / 270)
+        servo.write_speed(64)
+        assert servo.read_speed() == 64 == line.servo(1).speed
+        servo.write_stretch(50)
+        assert servo.read_stretch() == 50
+        assert servo.read_temperature() == line.servo(1).temperature
+        assert 0 <= servo.read_current() <= 127
+        eeprom = servo.read_eeprom()
+        assert isinstance(eeprom, Eeprom)
+        servo.write_eeprom(eeprom.replace(speed=99))
+        assert line.servo(1).eeprom.speed == 99
+        assert [s.id for s in bus.servos([1, 2])] == [1, 2]
+
+
+def test_device_memory_through_the_blocking_bus() -> None:
+    line = VirtualLine([VirtualServo(1)], memory={5: b"\x01\x02\x03"})
+    with blocking.open_bus(line) as bus:
+        device = bus.device(5)
+        assert device.read_memory(0, 3) == b"\x01\x02\x03"
+        device.write_memory(10, b"\x7f\x00")
+        assert line.memory_device(5).memory[10:12] == b"\x7f\x00"
+        assert isinstance(line.memory_device(5), MemoryDevice)
+
+
+def test_bus_scan_request_stats_and_properties() -> None:
+    with blocking.open_bus("sim://?ids=2,4,6", baudrate=115200) as bus:
+        assert bus.scan(range(8)) == [2, 4, 6]
+        assert bus.scan([4, 5], concurrency=1) == [4]
+        assert bus.request(protocol.ReadParam(4, protocol.Param.STRETCH)) == bus.servo(4).read_stretch()
+        before = bus.stats.total.transactions
+        bus.servo(2).free()
+        assert bus.stats.total.transactions == before + 1
+        assert bus.baudrate == 115200 and bus.echo and bus.is_open
+        assert bus.driver == "asyncio"
+        assert isinstance(bus.async_bus, Bus)
+        assert "sim://" in repr(bus)
+    assert not bus.is_open
+
+
+def test_errors_arrive_typed_in_the_callers_thread() -> None:
+    with blocking.open_bus("sim://?ids=1") as bus:
+        with pytest.raises(ReplyTimeout) as timeout:
+            bus.servo(20).read_speed()
+        assert timeout.value.servo_id == 20
+        with pytest.raises(InvalidArgument):
+            bus.servo(1).set_position(0)  # checked before anything reaches the wire
+        with pytest.raises(InvalidArgument):
+            bus.servo(32)
+        eeprom = bus.servo(1).read_eeprom()
+        with pytest.raises(UnsafeOperation):
+            bus.servo(1).write_eeprom(eeprom.replace(servo_id=3))
+        with pytest.raises(InvalidArgument):
+            blocking.open_bus("sim://", bogus_option=1.0)
+        # The bus carries on after each error.
+        assert bus.servo(1).free() == 7500
+
+
+def test_run_takes_async_helpers_that_want_the_async_bus() -> None:
+    line = VirtualLine([VirtualServo(1)])
+    with blocking.open_bus(line) as bus:
+        plan = bus.run(plan_eeprom_write, bus.async_bus, 1, {"speed": 90})
+        result = bus.run(write_eeprom_plan, bus.async_bus, plan)
+        assert result.verified and line.servo(1).eeprom.speed == 90
+
+
+def test_several_threads_share_one_bus_and_each_gets_its_own_answer() -> None:
+    line = VirtualLine([VirtualServo(i, position=5000 + 100 * i) for i in range(8)])
+    answers: dict[int, list[int]] = {}
+
+    def worker(servo: blocking.BlockingServo) -> None:
+        answers[servo.id] = [servo.free() for _ in range(25)]
+
+    with blocking.open_bus(line) as bus:
+        workers = [threading.Thread(target=worker, args=(bus.servo(i),)) for i in range(8)]
+        for t in workers:
+            t.start()
+        for t in workers:
+            t.join()
+    assert answers == {i: [5000 + 100 * i] * 25 for i in range(8)}
+
+
+def test_a_blocking_call_on_the_loop_thread_is_refused_not_deadlocked() -> None:
+    with blocking.open_bus("sim://?ids=1") as bus:
+
+        async def calls_blocking_inside() -> int:
+            return bus.servo(1).free()
+
+        with pytest.raises(RuntimeError, match="own event loop thread"):
+            bus.run(calls_blocking_inside)
+        assert bus.servo(1).free() == 7500
+
+
+# ---------------------------------------------------------------------- streams
+
+
+def test_stream_targets_reach_the_servos_and_frames_come_back() -> None:
+    line = VirtualLine([VirtualServo(i) for i in (1, 2, 3)])
+    with blocking.open_bus(line) as bus, bus.stream([1, 2, 3]) as stream:
+        assert stream.ids == (1, 2, 3) and stream.rate_hz is None
+        first = stream.next_frame()
+        assert set(first.positions) == {1, 2, 3}
+        assert all(line.servo(i).free for i in (1, 2, 3))  # every ID starts free
+        stream.set_target(1, 8000)
+        stream.set_targets({2: 7000, 3: 7600})
+        assert [stream.target(i) for i in (1, 2, 3)] == [8000, 7000, 7600]
+        stream.next_frame()
+        stream.next_frame()  # a whole cycle after the targets were set
+        assert [line.servo(i).target for i in (1, 2, 3)] == [8000, 7000, 7600]
+        stream.set_target_degrees(1, 10)
+        stream.set_targets_degrees({2: -10})
+        stream.next_frame()
+        stream.next_frame()
+        assert line.servo(1).target == stream.target(1) > 7500 > stream.target(2) == line.servo(2).target
+        stream.free([1])
+        stream.next_frame()
+        stream.next_frame()
+        assert line.servo(1).free and not line.servo(2).free
+        stream.free()
+        stream.next_frame()
+        stream.next_frame()
+        assert all(line.servo(i).free for i in (1, 2, 3))
+        latest = stream.latest
+        assert latest is not None and latest.cycle >= 10
+        stats = stream.stats
+        assert stats.cycles >= latest.cycle and stats.failures == {}
+        assert stream.offline == frozenset()
+
+
+def test_stream_errors_are_typed_and_a_bad_target_changes_nothing() -> None:
+    with blocking.open_bus("sim://?ids=1-2") as bus, bus.stream([1, 2]) as stream:
+        stream.set_targets({1: 8000, 2: 8000})
+        with pytest.raises(InvalidArgument):
+            stream.set_targets({1: 9000, 2: 99999})
+        assert (stream.target(1), stream.target(2)) == (8000, 8000)
+        with pytest.raises(InvalidArgument):
+            stream.set_target(7, 8000)  # not in this stream
+        with pytest.raises(InvalidArgument):
+            stream.set_target_degrees(1, 200)  # beyond the servo's travel
+        with pytest.raises(InvalidArgument):
+            stream.next_frame(timeout=-1)
+        with pytest.raises(InvalidArgument):
+            bus.stream([1, 1])
+        with pytest.raises(InvalidArgument):
+            bus.stream([1], bogus=3)
+
+
+def test_iteration_takes_every_frame_in_order_and_ends_when_the_stream_closes() -> None:
+    with blocking.open_bus("sim://?ids=1-4") as bus:
+        stream = bus.stream(range(1, 5)).start()
+        cycles = []
+        for frame in stream:
+            cycles.append(frame.cycle)
+            if len(cycles) == 20:
+                stream.close()  # the next step of the loop ends it
+        assert len(cycles) == 20 and cycles == sorted(set(cycles))
+        with pytest.raises(BusClosed):
+            stream.next_frame()
+        assert bus.servo(1).free() == 7500  # the bus stays usable
+
+
+def test_closing_the_bus_from_another_thread_ends_a_waiting_iteration() -> None:
+    frames: list[int] = []
+    with blocking.open_bus("sim://?ids=1") as bus:
+        stream = bus.stream([1]).start()
+
+        def consume() -> None:
+            frames.extend(frame.cycle for frame in stream)
+
+        consumer = threading.Thread(target=consume)
+        consumer.start()
+        stream.next_frame()
+    consumer.join(30)
+    assert not consumer.is_alive()
+
+
+def test_next_frame_timeout_raises_timeout_error() -> None:
+    # ID 5 is absent: after one failed cycle it goes offline and is probed again only in an hour,
+    # so after the first frames no new frame comes.
+    with blocking.open_bus("sim://?ids=1") as bus:
+        with bus.stream([5], offline_after=1, probe_interval=3600) as stream:
+            frame = stream.next_frame()
+            while frame.failed:
+                frame = stream.next_frame()
+            assert frame.offline == {5}
+            with pytest.raises(TimeoutError):
+                stream.next_frame(timeout=0.05)
+            assert stream.stats.failures == {5: 1}
+        assert bus.servo(1).free() == 7500
+
+
+def test_free_on_close_frees_every_id() -> None:
+    line = VirtualLine([VirtualServo(1), VirtualServo(2)])
+    with blocking.open_bus(line) as bus:
+        with bus.stream([1, 2], free_on_close=True) as stream:
+            stream.set_targets({1: 8000, 2: 8000})
+            stream.next_frame()
+            stream.next_frame()
+            assert not line.servo(1).free and not line.servo(2).free
+        assert line.servo(1).free and line.servo(2).free
+
+
+# ---------------------------------------------------------------------- opening and closing
+
+
+def test_closed_bus_raises_bus_closed_and_close_is_idempotent(no_leaks: None) -> None:
+    bus = blocking.open_bus("sim://?ids=1")
+    servo = bus.servo(1)
+    bus.close()
+    bus.close()
+    with pytest.raises(BusClosed):
+        servo.free()
+    with pytest.raises(BusClosed):
+        bus.scan()
+    with pytest.raises(BusClosed):
+        _ = bus.stats
+    assert not bus.thread.is_alive()
+
+
+def test_port_error_is_typed_and_leaves_no_thread(no_leaks: None) -> None:
+    with pytest.raises(PortNotFound):
+        blocking.open_bus("/dev/ttyUSB_no_such_port_here")
+
+
+def test_bad_option_fails_before_any_thread_starts(no_leaks: None) -> None:
+    with pytest.raises(InvalidArgument):
+        blocking.open_bus("sim://", driver="nonsense")
+
+
+def test_exception_in_the_block_closes_the_bus(no_leaks: None) -> None:
+    with pytest.raises(ZeroDivisionError), blocking.open_bus("sim://?ids=1-3") as bus, bus.stream([1, 2, 3]) as stream:
+        stream.next_frame()
+        _ = 1 / 0
+    assert not bus.is_open and not bus.thread.is_alive()
+
+
+def test_pty_simulator_round_trip_and_no_leaks() -> None:
+    with serving(["--ids", "1-3", "--fast"]) as path:
+        gc.collect()
+        before_threads, before_fds = threads(), open_fds()
+        for _ in range(2):  # twice: the second opening finds the port released
+            with blocking.open_bus(path) as bus:
+                assert bus.scan(range(5)) == [1, 2, 3]
+                with bus.stream([1, 2, 3]) as stream:
+                    stream.set_targets({1: 8000, 2: 7000})
+                    frames = [stream.next_frame(timeout=10) for _ in range(5)]
+                assert all(set(f.positions) == {1, 2, 3} for f in frames[1:])
+                with pytest.raises(RuntimeError), bus.stream([1]) as stream:
+                    raise RuntimeError("the program fails mid-stream")
+        gc.collect()
+        assert threads() == before_threads
+        assert open_fds() == before_fds
+
+
+def test_a_forgotten_bus_is_closed_at_garbage_collection(no_leaks: None) -> None:
+    bus = blocking.open_bus("sim://?ids=1")
+    thread = bus.thread
+    assert thread.is_alive()
+    with pytest.warns(ResourceWarning, match="never closed"):
+        del bus
+        gc.collect()
+    assert not thread.is_alive()
+
+
+def test_a_script_that_never_closes_its_bus_still_exits_cleanly() -> None:
+    script = textwrap.dedent(
+        """
+        from ics35_async import blocking
+        bus = blocking.open_bus("sim://?ids=1")
+        stream = bus.stream([1]).start()
+        stream.next_frame()
+        print(bus.servo(1).read_speed())
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().isdigit()
+    assert "Traceback" not in done.stderr
+
+
+# ---------------------------------------------------------------------- inside a running event loop (Jupyter)
+
+
+async def test_works_from_inside_a_running_asyncio_loop() -> None:
+    # A Jupyter cell runs in a thread whose asyncio loop is running: the blocking bus has its own
+    # loop in its own thread, so it works (and blocks the caller's loop while each call waits).
+    asyncio.get_running_loop()
+    with blocking.open_bus("sim://?ids=1-2") as bus:
+        assert bus.scan([1, 2, 3]) == [1, 2]
+        with bus.stream([1, 2]) as stream:
+            assert stream.next_frame().positions.keys() == {1, 2}
