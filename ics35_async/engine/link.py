@@ -38,7 +38,19 @@ MAX_BEHIND = 8  # commands remembered as sent while a reply was owed
 class LinkLatency:
     """The allowance a slow link needs (``extra``), and the owed reply that may prove it."""
 
-    __slots__ = ("_behind", "_needed", "_window", "bound", "extra", "late_replies", "owed", "owed_since", "window")
+    __slots__ = (
+        "_header",
+        "_missing",
+        "_needed",
+        "_unechoed",
+        "_window",
+        "bound",
+        "extra",
+        "late_replies",
+        "owed",
+        "owed_since",
+        "window",
+    )
 
     def __init__(self, bound: float, window: int = 100) -> None:
         self.bound = bound  # the most the engine ever adds: a dead servo must still time out in bounded time
@@ -47,29 +59,33 @@ class LinkLatency:
         self.late_replies = 0  # times late bytes were learnt from
         self.owed_since = math.inf  # when the earliest reply still owed was due, without extra (inf: none)
         self.owed = 0  # bytes of it that may still come in the resync right after its timeout
-        self._behind: list[bytes] = []  # commands that got no byte at all while a reply was owed
+        self._missing = 0  # bytes the owed reply lacks (0: unknown)
+        self._header = -1  # its 7-bit header, when none of it came (-1: no check)
+        self._unechoed: list[bytes] = []  # commands sent while a reply was owed whose echo has not come
         self._window = 0
         self._needed = False
 
     # ------------------------------------------------------------------ evidence
 
-    def owe(self, due: float, missing: int, echoed: bool) -> None:
-        """A heard transaction timed out ``missing`` bytes short; its reply was due at ``due``.
+    def owe(self, due: float, tx: bytes, got: int, echo_len: int, expect: int) -> None:
+        """A heard transaction timed out with ``got`` of its ``expect`` bytes; its reply was due at ``due``."""
+        if got or not echo_len:
+            # Its echo came (or the line has none to tell): this is the reply owed now.
+            self._owe(due, expect - got, tx[0] & 0x7F if got == echo_len else -1)
+        elif self.owed_since == math.inf:
+            self._owe(due, 0, -1)  # nothing came at all: only its echo, when it comes, will show it
+            self._unechoed.append(tx)
+        elif len(self._unechoed) < MAX_BEHIND:
+            self._unechoed.append(tx)  # held back behind the reply owed before
+        self.owed = expect - got
 
-        ``echoed``: bytes of its own echo came first (or the line has no echo to tell), so this
-        is the reply owed; else one owed from before still comes first.
-        """
-        if echoed or self.owed_since == math.inf:
-            self.owed_since = due
-            self._behind.clear()
-        self.owed = missing
-
-    def stray(self, count: int, now: float) -> None:
-        """``count`` bytes arrived in the resync right after the timeout (only while ``owed`` > 0)."""
-        owed = self.owed - count
+    def stray(self, data: bytes, now: float) -> None:
+        """Bytes arrived in the resync right after a timeout (only while ``owed`` > 0)."""
+        owed = self.owed - len(data)
+        if owed < 0 or (self._header >= 0 and self.owed == self._missing and data[0] & 0x7F != self._header):
+            self.owed = 0
+            return  # more than the reply lacked, or not its header: noise, not (only) a late reply
         self.owed = owed
-        if owed < 0:
-            return  # more than the reply was missing: noise, not (only) a late tail
         self.late_by(now - self.owed_since)
         if owed == 0:
             self.in_step()  # the owed reply is complete
@@ -81,28 +97,51 @@ class LinkLatency:
     def in_step(self) -> None:
         """A transaction's bytes began with its own echo (or formed a valid reply): nothing is owed."""
         self.owed_since = math.inf
-        self.owed = 0
-        self._behind.clear()
+        self.owed = self._missing = 0
+        self._unechoed.clear()
 
-    def judge(self, buf: bytearray, tx: bytes, echo_len: int, first_byte_at: float) -> None:
-        """A transaction failed while a reply was owed: did that reply land in front of this echo?"""
-        if not echo_len:
-            return  # without an echo nothing tells a late tail from this reply
-        if not buf:
-            self._remember(tx)  # held back behind the owed reply, perhaps: its echo may show later
-            return
+    def judge(self, buf: bytearray, tx: bytes, echo_len: int, expect: int, first_byte_at: float, due: float) -> None:
+        """A transaction failed while a reply was owed: did owed bytes land in front of its echo?
+
+        Owed bytes are recognised by where they sit: this command's echo after them, the
+        echo of a command that got nothing while the reply was owed, or exactly the bytes
+        the owed reply lacked (its header first, if none of it came) followed by an echo.
+        """
+        if not echo_len or not buf:
+            return  # without an echo nothing tells a late tail from this reply; no bytes, no news
         got = min(len(buf), echo_len)
         if buf[:got] == tx[:got]:
             self.in_step()
-        elif any(_echo_offset(buf, sent) > 0 for sent in (tx, *self._behind)):
-            self.late_by(first_byte_at - self.owed_since)
-            self.in_step()
+            return
+        ours = _echo_offset(buf, tx, 1)
+        if not (
+            ours > 0
+            or any(_echo_offset(buf, sent, 0) >= 0 for sent in self._unechoed)
+            or self._lacked_bytes_first(buf, tx)
+        ):
+            if len(self._unechoed) < MAX_BEHIND:
+                self._unechoed.append(tx)  # a damaged echo, noise... or held back: its echo may show later
+            return
+        self.late_by(first_byte_at - self.owed_since)
+        if 0 < ours <= len(buf) - echo_len:
+            self.in_step()  # everything before this echo has come
         else:
-            self._remember(tx)
+            self._owe(due, 0, -1)  # this command's own bytes are still behind what came
+            self._unechoed.append(tx)
+            self.owed = expect
 
-    def _remember(self, tx: bytes) -> None:
-        if len(self._behind) < MAX_BEHIND:
-            self._behind.append(tx)
+    def _owe(self, due: float, missing: int, header: int) -> None:
+        self.owed_since = due
+        self._missing = missing
+        self._header = header
+        self._unechoed.clear()
+
+    def _lacked_bytes_first(self, buf: bytearray, tx: bytes) -> bool:
+        m = self._missing
+        if not m or len(buf) < m or (self._header >= 0 and buf[0] & 0x7F != self._header):
+            return False
+        rest = bytes(buf[m:])
+        return any(sent[: len(rest)] == rest[: len(sent)] for sent in (tx, *self._unechoed))
 
     # ------------------------------------------------------------------ the allowance
 
@@ -133,13 +172,13 @@ class LinkLatency:
             self.extra = min(self.bound, wanted)
 
 
-def _echo_offset(buf: bytearray, tx: bytes) -> int:
-    """Where, after the first byte, ``tx``'s echo starts in ``buf`` (at least its first two bytes if cut off); -1."""
-    k = buf.find(tx, 1)
-    if k > 0:
+def _echo_offset(buf: bytearray, tx: bytes, start: int) -> int:
+    """Where, from ``start`` on, ``tx``'s echo starts in ``buf`` (at least its first two bytes if cut off); -1."""
+    k = buf.find(tx, start)
+    if k >= 0:
         return k
     n = len(buf)
-    for k in range(max(1, n - len(tx) + 1), n - 1):
+    for k in range(max(start, n - len(tx) + 1), n - 1):
         if buf[k:] == tx[: n - k]:
             return k
     return -1

@@ -204,7 +204,7 @@ class LineEngine:
         elif state is State.QUIET:
             self.counters.stray += len(data)
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
-                self.link.stray(len(data), now)
+                self.link.stray(data, now)
             self._quiet_until = now + self.timing.quiet_time + self.link.extra
             self.deadline = self._quiet_until
         elif state is State.IDLE:
@@ -331,7 +331,7 @@ class LineEngine:
             error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
             link = self.link
             if link.owed_since != INF:
-                link.judge(buf, tx, echo_len, self._t_first)
+                link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             return self._failed(error, sid, now)
         over = latency - self._base
         req = self._current
@@ -386,11 +386,11 @@ class LineEngine:
             # The command was heard: its reply may still come.  (A guard's late reply
             # always differs in shape from the command it protects, so it needs none.)
             self._suspect = tx[0]
-        link = self.link
+        link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
-            link.judge(buf, tx, echo_len, self._t_first)
+            link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
         if heard:  # its reply is owed from its base deadline on (see .link)
-            link.owe(self._t_start + self._base, self._expect - len(buf), not echo_len or bool(buf))
+            link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
