@@ -86,7 +86,7 @@ def socat_server(pty: str, nodelay: bool) -> Iterator[str]:
     """socat serving the pty on a TCP port (one client, then it exits)."""
     port = free_port()
     listen = f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr" + (",nodelay" if nodelay else "")
-    with process(["socat", listen, f"FILE:{pty},raw,echo=0"]):
+    with process(["socat", listen, f"FILE:{pty},raw,echo=0,b115200,parenb=1,parodd=0,cs8,cstopb=0"]):
         # socat must not be probed (one connection only): wait until its socket exists.
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and f":{port:04X} " not in Path("/proc/net/tcp").read_text():
@@ -100,7 +100,7 @@ def ser2net_config(pty: str, port: int, nodelay: bool) -> str:
     return (
         "connection: &servos\n"
         f"  accepter: {accepter}\n"
-        f"  connector: serialdev,{pty},115200n81,local\n"
+        f"  connector: serialdev,{pty},115200e81,local\n"
         "  options:\n"
         "    kickolduser: true\n"
         "    chardelay: false\n"
