@@ -101,6 +101,8 @@ class BusStats:
     reconnects: int
     queued: int
     by_command: dict[str, int] = field(default_factory=dict)
+    link_extra: float = 0.0  # seconds added to every deadline for a slow link (learnt; 0 on a fast link)
+    late_replies: int = 0  # replies that arrived past their deadline and taught the bus so
 
     def latency_percentiles(self) -> dict[str, float]:
         return {f"p{p}": self.latency.percentile(p) for p in (50, 90, 99)}

@@ -23,7 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from typing import Any
 
-from . import cancellation, chaos, fuzz, unplug
+from . import cancellation, chaos, fuzz, held_tail, unplug
 from .common import Row, markdown
 
 Part = Callable[[argparse.Namespace, Callable[[str], None]], tuple[Any, list[Row]]]
@@ -57,7 +57,19 @@ def run_fuzz(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any,
     return report, fuzz.summarize_fuzz(report)
 
 
-PARTS: dict[str, Part] = {"chaos": run_chaos, "cancel": run_cancel, "unplug": run_unplug, "fuzz": run_fuzz}
+def run_held_tail(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    held = args.held_tail_transactions or (400 if args.quick else 10_000)
+    report = asyncio.run(held_tail.held_tail_runs(held, fast=max(200, held // 10), seed=args.seed + 4, progress=say))
+    return report, held_tail.summarize_runs(report)
+
+
+PARTS: dict[str, Part] = {
+    "chaos": run_chaos,
+    "cancel": run_cancel,
+    "unplug": run_unplug,
+    "fuzz": run_fuzz,
+    "held_tail": run_held_tail,
+}
 """Every soak, in the order ``make soak`` runs them; a new soak is a module plus one entry here."""
 
 
@@ -71,6 +83,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--fault-rate", type=float, default=0.02, help="chaos: share of faulted transactions")
     parser.add_argument("--cancellations", type=int, default=None, help="cancel: cancellations (default 10,000)")
     parser.add_argument("--fuzz-streams", type=int, default=None, help="fuzz: byte streams (default 1,000,000)")
+    parser.add_argument(
+        "--held-tail-transactions", type=int, default=None, help="held_tail: transactions on the slow link, per run"
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", default=None, help="also write every figure to this JSON file")
     args = parser.parse_args(argv)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..errors import EchoMismatch, PartialReply, ReplyError, ReplyTimeout
 from ..stats import COUNTER_NAMES, BusStats, IdStats, LatencyHistogram
+from .link import LinkLatency
 
 NO_ID = 32  # counter slot for the ID command, which addresses the whole line
 
@@ -36,6 +37,7 @@ class LineCounters:
         self.guards = 0
         self.reconnects = 0
         self.by_command: dict[str, int] = {}
+        self.link: LinkLatency | None = None  # the engine's, for the snapshot
 
     def count(self, sid: int, n_tx: int, n_rx: int) -> None:
         """One more transaction for ``sid`` (the hot path inlines this)."""
@@ -63,4 +65,6 @@ class LineCounters:
             reconnects=self.reconnects,
             queued=queued,
             by_command=dict(self.by_command),
+            link_extra=self.link.extra if self.link is not None else 0.0,
+            late_replies=self.link.late_replies if self.link is not None else 0,
         )

@@ -46,6 +46,7 @@ class LineEngine:
         self.flush_input = False
         self.counters = LineCounters()
         self.link = LinkLatency(bound=0.25)
+        self.counters.link = self.link
         self.debug = False
         self.queue = RequestQueue()
         self._source: BackgroundSource | None = None
@@ -63,7 +64,7 @@ class LineEngine:
         self._base = 0.0  # this transaction's allowance without the link's extra
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._suspect = -1  # command byte of a timed-out command whose reply may still come
-        self._late_ref = INF  # when the timed-out transaction's reply was due, without the link's extra
+        self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
         self._quiet_until = 0.0
         self._resync_limit = 0.0
 
@@ -75,6 +76,7 @@ class LineEngine:
             raise InvalidArgument(f"connected() while {self.state.value}")
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
+        self.link.in_step()  # a fresh port: no reply from before can still arrive
         self.state = State.IDLE
         return self._start_next(now)
 
@@ -166,14 +168,15 @@ class LineEngine:
         state = self.state
         if state is State.BUSY or state is State.DRAINING:
             buf = self._buf
+            if not buf:
+                self._t_first = now
             buf += data
             if len(buf) >= self._expect:
                 return self._finish(now)
         elif state is State.QUIET:
             self.counters.stray += len(data)
-            if self._late_ref < now:  # the tail of the reply that timed out: learn how late it was
-                self.link.late_by(now - self._late_ref)
-                self._late_ref = INF
+            if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
+                self.link.stray(data, now)
             self._quiet_until = now + self.timing.quiet_time + self.link.extra
             self.deadline = self._quiet_until
         elif state is State.IDLE:
@@ -209,7 +212,7 @@ class LineEngine:
             if now < self._quiet_until:
                 log.warning("line never went quiet; carrying on")
             self.flush_input = True
-            self._late_ref = INF  # late bytes count only during the resync right after the timeout
+            self.link.resync_over()
             self.state = State.IDLE
             return self._start_next(now)
         if state is State.IDLE:
@@ -298,6 +301,9 @@ class LineEngine:
         if len(buf) != self._expect or (echo_len and not buf.startswith(tx)) or self._corrupted:
             counters.latency.add(latency)
             error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
+            link = self.link
+            if link.owed_since != INF:
+                link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             return self._failed(error, sid, now)
         over = latency - self._base
         req = self._current
@@ -323,8 +329,11 @@ class LineEngine:
         out = self._next_after_transaction(now)
         counters.ok[sid] += 1
         counters.latency.add(latency)
-        if self.link.extra:
-            self.link.succeeded(over)
+        link = self.link
+        if link.extra:
+            link.succeeded(over)
+        if link.owed_since != INF:
+            link.in_step()  # a valid reply: nothing earlier is still owed
         return out
 
     def _next_after_transaction(self, now: float) -> bytes | None:
@@ -346,8 +355,11 @@ class LineEngine:
             # The command was heard: its reply may still come.  (A guard's late reply
             # always differs in shape from the command it protects, so it needs none.)
             self._suspect = tx[0]
-        if heard:
-            self._late_ref = self._t_start + self._base
+        link, due = self.link, self._t_start + self._base
+        if link.owed_since != INF:
+            link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
+        if heard:  # its reply is owed from its base deadline on (see .link)
+            link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
