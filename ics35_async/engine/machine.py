@@ -15,13 +15,13 @@ from __future__ import annotations
 import logging
 import math
 
-from .. import protocol
 from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Timing
 from .counters import NO_ID, LineCounters, error_counter
+from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error, timeout_error
-from .requests import GuardRequest, Priority, Request, RequestQueue
+from .requests import GuardRequest, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
 from .timing import BusTiming
@@ -63,7 +63,7 @@ class LineEngine:
         self._t_start = 0.0
         self._base = 0.0  # this transaction's allowance without the link's extra
         self._corrupted = False  # a byte of this transaction had a parity/framing error
-        self._suspect = -1  # command byte of a timed-out command whose reply may still come
+        self.guard = GuardRule()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
         self._quiet_until = 0.0
         self._resync_limit = 0.0
@@ -247,10 +247,13 @@ class LineEngine:
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
     ) -> bytes:
-        if self._suspect >= 0:
-            suspect, self._suspect = self._suspect, -1
-            if tx[0] == suspect and servo_id is not None:
-                return self._guard(tx, servo_id, req, now)
+        if self.guard.suspect >= 0:
+            guard = self.guard.before(tx, servo_id)
+            if guard is not None:  # a read of another shape first (see .guard)
+                if req is not None:
+                    self.queue.push_front(req)
+                self.counters.guards += 1
+                return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard), guard.timing, now)
         self.state = State.BUSY
         self._current = req
         self._current_id = NO_ID if servo_id is None else servo_id
@@ -270,21 +273,6 @@ class LineEngine:
         self._base = allowance
         self.deadline = now + allowance + self.link.extra
         return tx
-
-    def _guard(self, tx: bytes, servo_id: int, req: Request | None, now: float) -> bytes:
-        """Put a harmless read between a timed-out command and its twin.
-
-        A reply that missed its deadline can still arrive right after the echo
-        of the next command.  If that command has the same command byte, the
-        late reply has the right length and header and would be taken for the
-        new answer.  A parameter read with a different reply shape goes first
-        instead, so late bytes fail it, not the real request.
-        """
-        if req is not None:
-            self.queue.push_front(req)
-        guard = protocol.guard_read(tx, servo_id)
-        self.counters.guards += 1
-        return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard, Priority.URGENT), guard.timing, now)
 
     def _finish(self, now: float) -> bytes | None:
         buf = self._buf
@@ -351,10 +339,7 @@ class LineEngine:
         req = self._current
         heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
         partial = len(buf) > echo_len
-        if heard and not (req is not None and req.is_guard):
-            # The command was heard: its reply may still come.  (A guard's late reply
-            # always differs in shape from the command it protects, so it needs none.)
-            self._suspect = tx[0]
+        self.guard.timed_out(tx, heard=heard, was_guard=req is not None and req.is_guard)
         link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
             link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
