@@ -12,19 +12,17 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from collections.abc import Generator
 from typing import Any, TypeVar
 
 import anyio
-import serial
 
 from ..engine import LineEngine, Request, State
 from ..errors import IcsError
 from ..protocol import Command
 from ..transports import WireDevice
 from ..transports.in_process import device_factory
-from ..transports.serial_port import open_serial
+from ..transports.serial_port import open_serial, posix_fd
 from ..transports.threaded import ThreadedSerialDevice
 from .anyio_ports import DevicePort, FdPort
 from .asyncio_line import now
@@ -95,7 +93,7 @@ class AnyioDriver:
             factory = device_factory(scheme) if sep else None
             if factory is None:
                 ser = await anyio.to_thread.run_sync(open_serial, port, self.engine.baudrate, True)
-                if isinstance(ser, serial.Serial) and sys.platform != "win32" and self.settings.transport != "thread":
+                if posix_fd(ser) is not None and self.settings.transport != "thread":
                     return FdPort(ser)
                 port = ThreadedSerialDevice(ser)
             else:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 from collections.abc import Callable
 from typing import Any, Final, Literal, TypeVar, cast, get_args
 
@@ -27,7 +26,7 @@ import serial
 from ..errors import InvalidArgument
 from .direct import DirectSerialTransport
 from .in_process import InProcessTransport, WireDevice, device_factory
-from .serial_port import TermiosError, open_serial
+from .serial_port import TermiosError, open_serial, posix_fd
 from .threaded import ThreadedSerialDevice
 
 log = logging.getLogger("ics35_async.transports")
@@ -55,15 +54,17 @@ def _stock_transport_class() -> _SerialTransportClass | None:
     return cast(_SerialTransportClass, serial_asyncio.SerialTransport)
 
 def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
-    """Resolve ``transport`` for an open port; ``"thread"`` for fd-less ports."""
+    """Resolve ``transport`` for an open port; ``"thread"`` for ports with no descriptor to wait on."""
     if kind == "thread":
         return "thread"
-    fd_backed = isinstance(ser, serial.Serial)  # serialposix: a real tty or pty
-    has_fileno = True
-    try:
-        ser.fileno()
-    except (OSError, AttributeError):
-        has_fileno = False
+    fd_backed = posix_fd(ser) is not None  # a POSIX tty or pty
+    has_fileno = fd_backed
+    if not fd_backed:
+        try:
+            ser.fileno()  # socket:// has the socket's
+            has_fileno = True
+        except (OSError, ValueError, AttributeError):
+            has_fileno = False
     if not has_fileno:
         if kind != "auto":
             raise InvalidArgument(
@@ -74,7 +75,7 @@ def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
     if kind == "direct" and not fd_backed:
         raise InvalidArgument(f"transport='direct' drives device paths only, not {ser.port!r}")
     if kind == "auto":
-        if fd_backed and sys.platform != "win32":
+        if fd_backed:
             return "direct"
         return "fast" if _fast_transport_class() is not None else "stock"
     return kind
