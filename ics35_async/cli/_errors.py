@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from ..errors import (
     BadReply,
     BusClosed,
@@ -16,6 +18,7 @@ from ..errors import (
     VerifyError,
 )
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
 from ._params import ALL_BAUDS
 from ._settings import CliError, ExitCode, Settings
@@ -31,13 +34,15 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
     """The person-facing form of a library error."""
     text = str(exc).replace(settings.url, settings.port)
     if isinstance(exc, PortPermissionDenied):
-        return CliError(
-            ExitCode.PORT,
-            text,
-            "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
-        )
+        if sys.platform.startswith("linux"):
+            return CliError(
+                ExitCode.PORT,
+                text,
+                "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
+            )
+        return CliError(ExitCode.PORT, text, permission_hint())
     if isinstance(exc, PortNotFound):
-        return CliError(ExitCode.PORT, text, "list ports with: ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/")
+        return CliError(ExitCode.PORT, text, f"list ports with: {port_names_hint()}")
     if isinstance(exc, PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, SerialPortError):

@@ -32,7 +32,8 @@ LINE_OPTIONS = (
     LineOption(
         "port",
         ("--port", "-p"),
-        "Serial device (/dev/ttyUSB0, COM3), pyserial URL, or sim://[?ids=..] for the built-in simulator.",
+        "Serial device (/dev/ttyUSB0, /dev/cu.usbserial-..., COM3; see: ics35 ports), pyserial URL "
+        "(rfc2217://host:port, socket://host:port), or sim://[?ids=..] for the built-in simulator.",
         {"default": DEFAULT_PORT, "show_default": True, "envvar": "ICS35_PORT"},
     ),
     LineOption(

@@ -61,8 +61,9 @@ def is_pty(fd: int) -> bool:
     return pty_major is not None and st.st_rdev != 0 and os.major(st.st_rdev) == pty_major
 
 
-def port_names_hint(platform: str = sys.platform) -> str:
-    """Where a person finds the name of their serial port on ``platform``."""
+def port_names_hint(platform: str | None = None) -> str:
+    """Where a person finds the name of their serial port on ``platform`` (default: this one)."""
+    platform = platform or sys.platform
     if platform == "win32":
         return "COM ports are listed in Device Manager under 'Ports (COM & LPT)', or by: ics35 ports"
     if platform == "darwin":
@@ -70,8 +71,9 @@ def port_names_hint(platform: str = sys.platform) -> str:
     return "ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/, or: ics35 ports"
 
 
-def permission_hint(platform: str = sys.platform) -> str:
-    """How to get the right to open a serial port on ``platform``."""
+def permission_hint(platform: str | None = None) -> str:
+    """How to get the right to open a serial port on ``platform`` (default: this one)."""
+    platform = platform or sys.platform
     if platform == "darwin":
         return "check the port's owner and mode (ls -l); macOS needs no group for USB serial ports"
     if platform == "win32":
@@ -82,13 +84,14 @@ def permission_hint(platform: str = sys.platform) -> str:
     )
 
 
-def latency_timer_advice(platform: str = sys.platform) -> str:
+def latency_timer_advice(platform: str | None = None) -> str:
     """How to set an FTDI-based adapter's latency timer (USB receive hold-back) to 1 ms on ``platform``.
 
     Kondo's ICS USB adapters are FTDI-based.  Only the Linux way is checked
     by the library (sysfs, see :func:`~.advice.adapter_advice`); the others
     are the vendor drivers' documented settings, untested here.
     """
+    platform = platform or sys.platform
     if platform == "win32":
         return (
             "Device Manager > Ports (COM & LPT) > the adapter's port > Properties > Port Settings > Advanced > "
