@@ -17,7 +17,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
 from ._params import ALL_BAUDS
@@ -46,8 +46,10 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
     if isinstance(exc, PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, SerialPortError):
-        return CliError(ExitCode.PORT, text)
+        return CliError(ExitCode.PORT, text, *bridge_hints(settings))
     if isinstance(exc, PortLost):
+        if is_network_link(settings.port):
+            return CliError(ExitCode.PORT, text, *bridge_hints(settings))
         return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")
     if isinstance(exc, BusClosed):
         return CliError(ExitCode.COMMUNICATION, text)
@@ -90,6 +92,31 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
     return CliError(ExitCode.COMMUNICATION, text)
 
 
+def is_network_link(port: str) -> bool:
+    """Whether ``port`` is a line on another machine (a TCP bridge or RFC 2217 server)."""
+    return port.partition("://")[0].lower() in ("socket", "rfc2217")
+
+
+def bridge_hints(settings: Settings) -> tuple[str, ...]:
+    """What to check when the connection to a bridge is refused or dropped (none for local ports)."""
+    if not is_network_link(settings.port):
+        return ()
+    return (
+        "is the bridge (ser2net, socat, an RFC 2217 server) running and listening there, "
+        "and is the serial port on that machine free (one client at a time)?",
+    )
+
+
+def link_hints(settings: Settings) -> tuple[str, ...]:
+    """What to check on a link that does not carry the baud rate and parity (none for other ports)."""
+    if carries_line_settings(settings.port):
+        return ()
+    return (
+        f"{settings.port} does not carry the baud rate or parity: set the bridge's serial side to "
+        f"{settings.baud} baud, 8 data bits, EVEN parity, 1 stop bit (or use rfc2217://)",
+    )
+
+
 def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
     """No answer: say whether the servo answers at another baud rate, else what to check."""
     if exc.servo_id is not None and not exc.raw and settings.echo:
@@ -97,6 +124,7 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
         return CliError(
             ExitCode.NO_REPLY,
             f"no echo and no reply from {settings.port}: the bytes sent never came back",
+            *link_hints(settings),
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
@@ -110,7 +138,10 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
             )
     what = f"servo {exc.servo_id}" if exc.servo_id is not None else "no device"
     return CliError(
-        ExitCode.NO_REPLY, f"{what} did not answer on {settings.port} at {settings.baud} baud", *NO_REPLY_HINTS
+        ExitCode.NO_REPLY,
+        f"{what} did not answer on {settings.port} at {settings.baud} baud",
+        *link_hints(settings),
+        *NO_REPLY_HINTS,
     )
 
 
@@ -120,10 +151,11 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
         return CliError(
             ExitCode.NO_REPLY,
             f"nothing came back from {where}, not even the echo of the bytes sent",
+            *link_hints(settings),
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
-    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *NO_REPLY_HINTS)
+    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
 
 
 def other_bauds(settings: Settings, servo_id: int) -> list[int]:

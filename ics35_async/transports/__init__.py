@@ -4,6 +4,7 @@ from ..errors import ParityNotSupported, PortBusy, PortNotFound, PortPermissionD
 from .advice import adapter_advice
 from .direct import DirectSerialTransport, ParityMarks
 from .in_process import HostSide, InProcessTransport, WireDevice, WireDeviceFactory, register_url_scheme
+from .links import carries_line_settings, rate_blind_note
 from .opening import TRANSPORT_KINDS, TransportKind, discard_input, open_line
 from .threaded import ThreadedSerialDevice
 
@@ -23,7 +24,9 @@ __all__ = [
     "WireDevice",
     "WireDeviceFactory",
     "adapter_advice",
+    "carries_line_settings",
     "discard_input",
     "open_line",
+    "rate_blind_note",
     "register_url_scheme",
 ]

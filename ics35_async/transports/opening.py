@@ -26,6 +26,7 @@ import serial
 from ..errors import InvalidArgument
 from .direct import DirectSerialTransport
 from .in_process import InProcessTransport, WireDevice, device_factory
+from .links import carries_line_settings
 from .serial_port import TermiosError, open_serial, posix_fd
 from .threaded import ThreadedSerialDevice
 
@@ -65,7 +66,11 @@ def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
             has_fileno = True
         except (OSError, ValueError, AttributeError):
             has_fileno = False
-    if not has_fileno:
+    if not has_fileno or (kind == "auto" and not fd_backed and not carries_line_settings(ser.port)):
+        # socket:// has a descriptor, but pyserial's socket handler reports a hang-up only after the
+        # 0.3 s sleep of its close, which pyserial-asyncio runs first; the reader thread tells at once.
+        if has_fileno:
+            return "thread"
         if kind != "auto":
             raise InvalidArgument(
                 f"transport={kind!r} needs a port with a file descriptor; {ser.port!r} has none "

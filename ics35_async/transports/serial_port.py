@@ -28,6 +28,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
     termios = None  # type: ignore[assignment]
     TermiosError = OSError
 
+from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, permission_hint, port_names_hint
 
 log = logging.getLogger("ics35_async.transports")
@@ -118,15 +119,23 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
 _PYSERIAL_SCHEMES = ("alt", "cp2110", "hwgrep", "loop", "rfc2217", "socket", "spy")
 
 
+# How long a reader thread's read blocks before it looks for shutdown (ports with no descriptor).
+READ_POLL = 0.05
+# URL schemes that never have a descriptor: opened with the reader thread's timeout at once, since
+# every later re-configuration of an RFC 2217 port is a network round trip.
+_THREAD_READ_SCHEMES = ("rfc2217", "loop")
+
+
 def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBase:
     """Open ``port`` 8E1 with pyserial (blocking; run it in an executor)."""
     is_device_path = "://" not in port
+    scheme = port.partition("://")[0].lower()
     settings: dict[str, Any] = {
         "baudrate": baudrate,
         "bytesize": serial.EIGHTBITS,
         "parity": serial.PARITY_EVEN,
         "stopbits": serial.STOPBITS_ONE,
-        "timeout": 0,
+        "timeout": READ_POLL if scheme in _THREAD_READ_SCHEMES else 0,
         # A device path never blocks a write; pyserial's RFC 2217 client refuses any
         # write_timeout but None (and the socket handlers need none).
         "write_timeout": 0 if is_device_path else None,
@@ -168,6 +177,9 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
             ser.parity = serial.PARITY_NONE
         if low_latency and fd is not None and not is_pty(fd):
             _try_low_latency(ser, port)
+        if not carries_line_settings(port):
+            warn_once_if_rate_blind(port)
+            set_no_delay(ser)
     except BaseException:
         ser.close()
         raise
