@@ -25,7 +25,7 @@ from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
 from .errors import BusClosed, InvalidArgument, PortLost
 from .protocol import Command
 from .stats import BusStats
-from .transports import TRANSPORT_KINDS, WireDevice
+from .transports import TRANSPORT_KINDS, WireDevice, check_direction
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
@@ -68,6 +68,7 @@ class Bus:
         reconnect: bool = False,
         reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
         max_requests_between: int = 16,
+        direction: str | None = None,
     ) -> None:
         if not isinstance(port, (str, WireDevice)):
             raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
@@ -86,6 +87,7 @@ class Bus:
         self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
         self.settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
+            direction=check_direction(direction, port),
             reconnect=check_bool("reconnect", reconnect),
             reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,),
         )
@@ -327,6 +329,7 @@ def open_bus(
     reconnect: bool = False,
     reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
     max_requests_between: int = 16,
+    direction: str | None = None,
     **timing_overrides: float,
 ) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
@@ -338,6 +341,9 @@ def open_bus(
     ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (pyserial's
     blocking reads in a thread, for any pyserial port), or ``"auto"``.  Extra
     keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
+    ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
+    RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
+    is on RTS (see :mod:`ics35_async.transports.direction`).
     """
     if timing_overrides:
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
@@ -355,6 +361,7 @@ def open_bus(
         reconnect=reconnect,
         reconnect_backoff=reconnect_backoff,
         max_requests_between=max_requests_between,
+        direction=direction,
     )
 
 

@@ -7,6 +7,7 @@ import sys
 from ..errors import (
     BadReply,
     BusClosed,
+    DirectionControlNotSupported,
     EchoMismatch,
     IcsError,
     InvalidArgument,
@@ -45,6 +46,13 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
         return CliError(ExitCode.PORT, text, f"list ports with: {port_names_hint()}")
     if isinstance(exc, PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
+    if isinstance(exc, DirectionControlNotSupported):
+        return CliError(
+            ExitCode.PORT,
+            text,
+            "an ICS adapter switches direction itself: drop --direction",
+            "a DIY interface on a UART without RS-485 mode: use a transceiver with automatic direction control",
+        )
     if isinstance(exc, SerialPortError):
         return CliError(ExitCode.PORT, text, *bridge_hints(settings))
     if isinstance(exc, PortLost):

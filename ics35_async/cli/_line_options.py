@@ -64,6 +64,14 @@ LINE_OPTIONS = (
         kwargs={"is_flag": True},
     ),
     LineOption(
+        "direction",
+        ("--direction",),
+        "DIY half-duplex interface: the serial driver raises RTS while sending (rts), or lowers it "
+        "(rts-inverted). Needs a driver with RS-485 mode; ICS adapters need none.",
+        {"default": "none", "show_default": True},
+        {"type": click.Choice(["none", "rts", "rts-inverted"])},
+    ),
+    LineOption(
         "transport",
         ("--transport",),
         "Serial driver for device paths.",
@@ -96,6 +104,7 @@ def settings_from(ctx: click.Context, values: dict[str, Any]) -> Settings:
         retries=values["retries"],
         echo=not values["no_echo"],
         transport=values["transport"],
+        direction=values["direction"],
         verbose=values["verbose"],
         port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
     )

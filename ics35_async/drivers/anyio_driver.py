@@ -92,7 +92,9 @@ class AnyioDriver:
             scheme, sep, _ = port.partition("://")
             factory = device_factory(scheme) if sep else None
             if factory is None:
-                ser = await anyio.to_thread.run_sync(open_serial, port, self.engine.baudrate, True)
+                ser = await anyio.to_thread.run_sync(
+                    open_serial, port, self.engine.baudrate, True, self.settings.direction
+                )
                 if posix_fd(ser) is not None and self.settings.transport != "thread":
                     return FdPort(ser)
                 port = ThreadedSerialDevice(ser)

@@ -63,6 +63,7 @@ class AsyncioDriver:
             baudrate=self.engine.baudrate,
             protocol_factory=lambda: AsyncioLine(self.engine, loop, self._on_connection_lost, discard_input),
             transport=self.settings.transport,
+            direction=self.settings.direction,
         )
         if line.closed.done():
             # Lost while opening (a bridge that hangs up at once), before this driver could hear of it.

@@ -93,6 +93,7 @@ async def open_line(
     protocol_factory: Callable[[], P],
     transport: str = "auto",
     low_latency: bool = True,
+    direction: str = "none",
 ) -> tuple[asyncio.Transport, P]:
     """Open the line to the servos and connect ``protocol_factory()`` to it.
 
@@ -109,7 +110,9 @@ async def open_line(
     a descriptor (``loop://``, ``rfc2217://``) are read by a thread.
     In-process devices ignore ``transport``.  ``low_latency`` asks the
     driver for ASYNC_LOW_LATENCY (sets FTDI's latency timer to 1 ms) where
-    it can.
+    it can.  ``direction`` (``"none"``, ``"rts"``, ``"rts-inverted"``) asks the
+    driver of a local serial port to toggle RTS while sending (see
+    :mod:`.direction`).
 
     ``protocol.connection_made`` has been called when this returns.
     Raises :class:`PortNotFound`, :class:`PortPermissionDenied`,
@@ -134,7 +137,7 @@ async def open_line(
     if not port:
         raise InvalidArgument("port must not be empty")
 
-    opening = loop.run_in_executor(None, open_serial, port, baudrate, low_latency)
+    opening = loop.run_in_executor(None, open_serial, port, baudrate, low_latency, direction)
     try:
         ser = await opening
     except asyncio.CancelledError:

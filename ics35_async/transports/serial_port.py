@@ -9,6 +9,7 @@ import re
 from typing import Any
 
 import serial
+from serial.rs485 import RS485Settings
 
 from ..errors import (
     IcsError,
@@ -28,6 +29,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
     termios = None  # type: ignore[assignment]
     TermiosError = OSError
 
+from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, permission_hint, port_names_hint
 
@@ -126,8 +128,22 @@ READ_POLL = 0.05
 _THREAD_READ_SCHEMES = ("rfc2217", "loop")
 
 
-def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBase:
-    """Open ``port`` 8E1 with pyserial (blocking; run it in an executor)."""
+def _serial_for_url(port: str, settings: dict[str, Any], rs485: RS485Settings | None) -> serial.SerialBase:
+    if rs485 is None:
+        return serial.serial_for_url(port, **settings)
+    ser = serial.serial_for_url(port, do_not_open=True, **settings)
+    ser.rs485_mode = rs485  # applied by the driver as the port opens
+    ser.open()
+    return ser
+
+
+def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "none") -> serial.SerialBase:
+    """Open ``port`` 8E1 with pyserial (blocking; run it in an executor).
+
+    ``direction`` (see :mod:`.direction`) asks the driver to toggle RTS while sending.
+    """
+    direction = check_direction(direction, port)
+    rs485 = rs485_settings(direction)
     is_device_path = "://" not in port
     scheme = port.partition("://")[0].lower()
     settings: dict[str, Any] = {
@@ -144,8 +160,8 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
         settings["exclusive"] = True
     try:
         try:
-            ser = serial.serial_for_url(port, **settings)
-        except (serial.SerialException, ValueError):
+            ser = _serial_for_url(port, settings, rs485)
+        except (serial.SerialException, ValueError, NotImplementedError):
             raise
         except Exception as exc:
             # termios.error (not an OSError) from pyserial's POSIX backend.  A pty refuses a
@@ -156,10 +172,14 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
             if not (is_device_path and exc.args[0] == errno.EINVAL and _is_pty_path(port)):
                 raise SerialPortError(exc.args[0], f"cannot configure {port!r} as 8E1: {exc.args[-1]}") from exc
             log.debug("%s is a pty, which has no parity: opening it 8N1", port)
-            ser = serial.serial_for_url(port, **{**settings, "parity": serial.PARITY_NONE})
+            ser = _serial_for_url(port, {**settings, "parity": serial.PARITY_NONE}, rs485)
     except serial.SerialException as exc:
         raise translate_open_error(port, exc) from exc
-    except ValueError as exc:
+    except (ValueError, NotImplementedError) as exc:
+        if rs485 is not None and is_rs485_refusal(exc):
+            raise refused(port, direction, exc) from exc
+        if isinstance(exc, NotImplementedError):
+            raise translate_open_error(port, exc) from exc
         # Unknown URL scheme, or a baud rate the driver rejects.
         raise InvalidArgument(f"cannot open {port!r}: {exc}") from exc
     except IcsError:
