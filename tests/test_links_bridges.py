@@ -59,6 +59,18 @@ def free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
+# --------------------------------------------------------------------------- the direct path, for comparison
+
+
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_direct_pty_runs_many_transactions(far_pty: str, driver: str) -> None:
+    """The path the bridges stand in front of, under every driver (the anyio driver once took an
+    empty read of the raw tty for a hangup)."""
+    async with open_bus(far_pty, driver=driver, retries=2) as bus:
+        for i in range(300):
+            assert await bus.servo(1 + i % 3).read_stretch() == 30
+
+
 # --------------------------------------------------------------------------- RFC 2217
 
 
