@@ -14,6 +14,7 @@ from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
     BadReply,
     BusClosed,
+    DirectionControlNotSupported,
     EchoMismatch,
     IcsError,
     InvalidArgument,
@@ -82,6 +83,7 @@ __all__ = [
     "BusClosed",
     "BusGroup",
     "BusTiming",
+    "DirectionControlNotSupported",
     "Device",
     "Frame",
     "GroupFrame",

@@ -23,6 +23,7 @@ from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
 from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
 from .protocol import Command
 from .stats import BusStats
+from .transports.direction import check_direction
 from .transports.wire_device import TRANSPORT_KINDS, WireDevice
 from .units import check_bool, check_ids, check_int, check_seconds
 
@@ -65,6 +66,7 @@ class Bus:
         reconnect: bool = False,
         reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
         max_requests_between: int = 16,
+        direction: str | None = None,
     ) -> None:
         if not isinstance(port, (str, WireDevice)):
             raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
@@ -83,6 +85,7 @@ class Bus:
         self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
         self.settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
+            direction=check_direction(direction, port),
             reconnect=check_bool("reconnect", reconnect),
             reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,),
         )
@@ -354,6 +357,7 @@ def open_bus(
     reconnect: bool = False,
     reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
     max_requests_between: int = 16,
+    direction: str | None = None,
     **timing_overrides: float,
 ) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
@@ -365,6 +369,9 @@ def open_bus(
     ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (pyserial's
     blocking reads in a thread, for any pyserial port), or ``"auto"``.  Extra
     keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
+    ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
+    RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
+    is on RTS (see :mod:`ics35_async.transports.direction`).
     """
     if timing_overrides:
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
@@ -382,6 +389,7 @@ def open_bus(
         reconnect=reconnect,
         reconnect_backoff=reconnect_backoff,
         max_requests_between=max_requests_between,
+        direction=direction,
     )
 
 

@@ -132,3 +132,7 @@ class PortBusy(SerialPortError):
 
 class ParityNotSupported(SerialPortError):
     """The driver silently refused EVEN parity, which ICS 3.5 requires."""
+
+
+class DirectionControlNotSupported(SerialPortError):
+    """The port's driver refused RS-485 direction control (RTS toggled while sending)."""

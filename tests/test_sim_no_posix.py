@@ -13,7 +13,7 @@ only on demand.  What it does not prove: that Windows' own ctypes, threading
 and timers behave (``clock.lower_timer_slack`` is a no-op off Linux).
 
 The package root imports under the blocker too (the whole-package stand-in
-for Windows is tests/test_windows_standin.py).
+for Windows is tests/test_platform_windows_standin.py).
 """
 
 from __future__ import annotations

@@ -26,9 +26,11 @@ from ._settings import CliError, ExitCode
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
 # Modules whose COMMANDS list is mounted on the group (imported on first use).
-COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd")
+COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports")
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
+# Commands that open no line: no line options after them either.
+NO_LINE = frozenset({"ports"})
 
 
 class LazyGroup(click.Group):
@@ -45,7 +47,7 @@ class LazyGroup(click.Group):
         for name in COMMAND_MODULES:
             module = importlib.import_module(f"{__name__}.{name}")
             for command in module.COMMANDS:
-                if command.name not in PASS_THROUGH:
+                if command.name not in PASS_THROUGH | NO_LINE:
                     add_line_options(command)
                 guard_writes(command)
                 self.add_command(command)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import sys
+
 from ..errors import (
     BadReply,
     BusClosed,
+    DirectionControlNotSupported,
     EchoMismatch,
     IcsError,
     InvalidArgument,
@@ -15,7 +18,8 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
+from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
 from ._params import ALL_BAUDS
 from ._settings import CliError, ExitCode, Settings
@@ -31,18 +35,29 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
     """The person-facing form of a library error."""
     text = str(exc).replace(settings.url, settings.port)
     if isinstance(exc, PortPermissionDenied):
+        if sys.platform.startswith("linux"):
+            return CliError(
+                ExitCode.PORT,
+                text,
+                "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
+            )
+        return CliError(ExitCode.PORT, text, permission_hint())
+    if isinstance(exc, PortNotFound):
+        return CliError(ExitCode.PORT, text, f"list ports with: {port_names_hint()}")
+    if isinstance(exc, PortBusy):
+        return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
+    if isinstance(exc, DirectionControlNotSupported):
         return CliError(
             ExitCode.PORT,
             text,
-            "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
+            "an ICS adapter switches direction itself: drop --direction",
+            "a DIY interface on a UART without RS-485 mode: use a transceiver with automatic direction control",
         )
-    if isinstance(exc, PortNotFound):
-        return CliError(ExitCode.PORT, text, "list ports with: ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/")
-    if isinstance(exc, PortBusy):
-        return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, SerialPortError):
-        return CliError(ExitCode.PORT, text)
+        return CliError(ExitCode.PORT, text, *bridge_hints(settings))
     if isinstance(exc, PortLost):
+        if is_network_link(settings.port):
+            return CliError(ExitCode.PORT, text, *bridge_hints(settings))
         return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")
     if isinstance(exc, BusClosed):
         return CliError(ExitCode.COMMUNICATION, text)
@@ -85,6 +100,31 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
     return CliError(ExitCode.COMMUNICATION, text)
 
 
+def is_network_link(port: str) -> bool:
+    """Whether ``port`` is a line on another machine (a TCP bridge or RFC 2217 server)."""
+    return port.partition("://")[0].lower() in ("socket", "rfc2217")
+
+
+def bridge_hints(settings: Settings) -> tuple[str, ...]:
+    """What to check when the connection to a bridge is refused or dropped (none for local ports)."""
+    if not is_network_link(settings.port):
+        return ()
+    return (
+        "is the bridge (ser2net, socat, an RFC 2217 server) running and listening there, "
+        "and is the serial port on that machine free (one client at a time)?",
+    )
+
+
+def link_hints(settings: Settings) -> tuple[str, ...]:
+    """What to check on a link that does not carry the baud rate and parity (none for other ports)."""
+    if carries_line_settings(settings.port):
+        return ()
+    return (
+        f"{settings.port} does not carry the baud rate or parity: set the bridge's serial side to "
+        f"{settings.baud} baud, 8 data bits, EVEN parity, 1 stop bit (or use rfc2217://)",
+    )
+
+
 def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
     """No answer: say whether the servo answers at another baud rate, else what to check."""
     if exc.servo_id is not None and not exc.raw and settings.echo:
@@ -92,6 +132,7 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
         return CliError(
             ExitCode.NO_REPLY,
             f"no echo and no reply from {settings.port}: the bytes sent never came back",
+            *link_hints(settings),
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
@@ -105,7 +146,10 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
             )
     what = f"servo {exc.servo_id}" if exc.servo_id is not None else "no device"
     return CliError(
-        ExitCode.NO_REPLY, f"{what} did not answer on {settings.port} at {settings.baud} baud", *NO_REPLY_HINTS
+        ExitCode.NO_REPLY,
+        f"{what} did not answer on {settings.port} at {settings.baud} baud",
+        *link_hints(settings),
+        *NO_REPLY_HINTS,
     )
 
 
@@ -115,10 +159,11 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
         return CliError(
             ExitCode.NO_REPLY,
             f"nothing came back from {where}, not even the echo of the bytes sent",
+            *link_hints(settings),
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
-    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *NO_REPLY_HINTS)
+    return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
 
 
 def other_bauds(settings: Settings, servo_id: int) -> list[int]:

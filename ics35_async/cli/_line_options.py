@@ -32,7 +32,8 @@ LINE_OPTIONS = (
     LineOption(
         "port",
         ("--port", "-p"),
-        "Serial device (/dev/ttyUSB0, COM3), pyserial URL, or sim://[?ids=..] for the built-in simulator.",
+        "Serial device (/dev/ttyUSB0, /dev/cu.usbserial-..., COM3; see: ics35 ports), pyserial URL "
+        "(rfc2217://host:port, socket://host:port), or sim://[?ids=..] for the built-in simulator.",
         {"default": DEFAULT_PORT, "show_default": True, "envvar": "ICS35_PORT"},
     ),
     LineOption(
@@ -61,6 +62,14 @@ LINE_OPTIONS = (
         ("--no-echo",),
         "The interface does not loop sent bytes back (no echo to skip).",
         kwargs={"is_flag": True},
+    ),
+    LineOption(
+        "direction",
+        ("--direction",),
+        "DIY half-duplex interface: the serial driver raises RTS while sending (rts), or lowers it "
+        "(rts-inverted). Needs a driver with RS-485 mode; ICS adapters need none.",
+        {"default": "none", "show_default": True},
+        {"type": click.Choice(["none", "rts", "rts-inverted"])},
     ),
     LineOption(
         "transport",
@@ -95,6 +104,7 @@ def settings_from(ctx: click.Context, values: dict[str, Any]) -> Settings:
         retries=values["retries"],
         echo=not values["no_echo"],
         transport=values["transport"],
+        direction=values["direction"],
         verbose=values["verbose"],
         port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
     )

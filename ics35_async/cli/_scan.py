@@ -13,6 +13,7 @@ from rich.table import Table
 from .. import policies
 from ..errors import ReplyError
 from ..policies import FoundServo, IdSurvey, Refusal, ScanReport, echo_setting_wrong
+from ..transports import rate_blind_note
 from ._common import (
     ALL_BAUDS,
     BAUD_LIST,
@@ -124,11 +125,18 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
             ],
             "garbled": [{"id": i, "baud": baud} for baud, i, _ in report.garbled],
             "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
+            "rate_blind": report.rate_blind,
         }
     )
 
 
 def scan_notes(settings: Settings, report: ScanReport) -> None:
+    if report.rate_blind:
+        err.print(
+            f"[yellow]note:[/yellow] {escape(rate_blind_note(settings.port))}; probed once. "
+            + ("Each servo's rate shown is its EEPROM's." if any(s.eeprom for s in report.servos) else ""),
+            soft_wrap=True,
+        )
     for baud, why in report.skipped.items():
         err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
     for s in report.servos:
@@ -207,8 +215,10 @@ def scan(
         evidence = report.echo_evidence
         if evidence is not None:
             raise translate(settings, evidence)  # the same diagnosis `get` gives
-        scanned = [b for b in bauds if b not in report.skipped]
+        scanned = [r.baud for r in report.rates]
         where = f"{settings.port} at {', '.join(map(str, scanned))} baud"
+        if report.rate_blind:
+            where = f"{settings.port} (at the bridge's own rate)"
         raise nothing_answered(settings, where, silent=report.silent)
     return 0
 

@@ -59,6 +59,7 @@ class Settings:
     retries: int = 1
     echo: bool = True
     transport: str = "auto"
+    direction: str = "none"  # RTS direction control for DIY half-duplex interfaces
     verbose: int = 0
     port_defaulted: bool = False  # neither --port nor ICS35_PORT: the implicit, throwaway simulator
     _sim_name: str | None = field(default=None, init=False, repr=False)
@@ -99,6 +100,7 @@ class Settings:
             baudrate=self.baud if baud is None else baud,
             echo=self.echo,
             transport=self.transport,
+            direction=self.direction,
             retries=self.retries if retries is None else retries,
             adapter_latency=self.timeout if timeout is None else timeout,
         )

@@ -12,18 +12,16 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from collections.abc import Generator
 from typing import Any, TypeVar
 
 import anyio
-import serial
 
 from ..engine import LineEngine, Request, State
 from ..errors import IcsError
 from ..protocol import Command
 from ..transports import WireDevice
-from ..transports.serial_port import open_serial
+from ..transports.serial_port import open_serial, posix_fd
 from ..transports.threaded import ThreadedSerialDevice
 from ..transports.wire_device import device_factory
 from .anyio_ports import DevicePort, FdPort
@@ -94,8 +92,10 @@ class AnyioDriver:
             scheme, sep, _ = port.partition("://")
             factory = device_factory(scheme) if sep else None
             if factory is None:
-                ser = await anyio.to_thread.run_sync(open_serial, port, self.engine.baudrate, True)
-                if isinstance(ser, serial.Serial) and sys.platform != "win32" and self.settings.transport != "thread":
+                ser = await anyio.to_thread.run_sync(
+                    open_serial, port, self.engine.baudrate, True, self.settings.direction
+                )
+                if posix_fd(ser) is not None and self.settings.transport != "thread":
                     return FdPort(ser)
                 port = ThreadedSerialDevice(ser)
             else:

@@ -51,6 +51,12 @@ def soon_threadsafe() -> Callable[[Callable[[], None]], None]:
     return asyncio_soon
 
 
+def _hung_up(fd: int) -> bool:
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
+
+
 class FdPort:
     """A pyserial port read and written on its file descriptor (device paths, ptys)."""
 
@@ -78,8 +84,9 @@ class FdPort:
             data = os.read(self.fd, 4096)
         except (BlockingIOError, InterruptedError):
             return b""
-        if not data:
-            # A tty reads 0 bytes when readable only once the device is gone (hangup).
+        # A raw tty (VMIN=0, VTIME=0) also reads 0 bytes when its input went away between the
+        # wake-up and the read (Linux returns 0 there even with O_NONBLOCK): only POLLHUP is a hangup.
+        if not data and _hung_up(self.fd):
             raise OSError(errno.EIO, "the serial port hung up (device disconnected?)")
         return data
 

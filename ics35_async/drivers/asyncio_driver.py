@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 from typing import Any, TypeVar
 
 from ..engine import LineEngine, State
-from ..errors import IcsError
+from ..errors import IcsError, SerialPortError
 from ..protocol import Command
 from ..transports import WireDevice, discard_input, open_line
 from .asyncio_line import AsyncioLine, FutureRequest
@@ -25,6 +26,17 @@ from .settings import LineSettings
 log = logging.getLogger("ics35_async")
 
 T = TypeVar("T")
+
+
+async def _released(line: AsyncioLine, timeout: float = 1.0) -> None:
+    """Wait until the transport has released the port (connection_lost), within ``timeout``.
+
+    pyserial-asyncio(-fast) close the port from an executor: returning before
+    that leaves it open -- a one-client TCP bridge (ser2net) then refuses the
+    next connection, and a loop that ends at once never closes it at all.
+    """
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(asyncio.shield(line.closed), timeout)
 
 
 class AsyncioDriver:
@@ -52,7 +64,11 @@ class AsyncioDriver:
             baudrate=self.engine.baudrate,
             protocol_factory=lambda: AsyncioLine(self.engine, loop, self._on_connection_lost, discard_input),
             transport=self.settings.transport,
+            direction=self.settings.direction,
         )
+        if line.closed.done():
+            # Lost while opening (a bridge that hangs up at once), before this driver could hear of it.
+            raise SerialPortError(errno.ECONNRESET, f"{self.port} closed the line as soon as it was opened")
         self.line = line
         log.info("opened %s at %d baud", self.port, self.engine.baudrate)
         line.pump(self.engine.connected(now()))
@@ -65,7 +81,7 @@ class AsyncioDriver:
             line.cancel_timer()
             if line.transport is not None:
                 line.transport.close()
-            await asyncio.sleep(0)
+            await _released(line)
         self.engine.baudrate = baudrate
         try:
             await self._connect()
@@ -94,7 +110,7 @@ class AsyncioDriver:
             line.release_idle_waiters()
             if line.transport is not None and not line.transport.is_closing():
                 line.transport.close()
-                await asyncio.sleep(0)  # let the transport deliver connection_lost and release the fd
+            await _released(line)
 
     # ------------------------------------------------------------------ losing the port
 

@@ -71,6 +71,8 @@ class AsyncioLine(asyncio.Protocol):
         self._armed = INF  # when the timer fires (INF: no timer)
         self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self.idle_waiters: list[asyncio.Future[None]] = []
+        # Done once the transport has released the port (some close it from an executor, later).
+        self.closed: asyncio.Future[None] = loop.create_future()
 
     # ------------------------------------------------------------------ from the transport
 
@@ -93,6 +95,8 @@ class AsyncioLine(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.cancel_timer()
+        if not self.closed.done():
+            self.closed.set_result(None)
         self._on_lost(self, exc)
 
     # ------------------------------------------------------------------ to the transport

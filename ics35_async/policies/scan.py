@@ -14,11 +14,17 @@ On a line that does not enforce baud rates (a pty, some bridges) a servo
 answers at every rate.  Its EEPROM names its real rate, and the per-unit
 calibration bytes tell one servo heard at several rates from several servos,
 so each servo is listed once.
+
+A link known not to carry the baud rate at all (``socket://``: the far end
+keeps its own settings) is probed once, at the first rate asked for: every
+other rate would be the same line again.  Its servos are listed at the rate
+their EEPROM names when it was read.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -28,7 +34,7 @@ from .. import protocol
 from ..eeprom import BaudRate, Eeprom
 from ..errors import InvalidArgument, ReplyError
 from ..protocol import Param
-from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
 from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
 
@@ -80,6 +86,7 @@ class ScanReport:
     servos: tuple[FoundServo, ...]
     rates: tuple[RateScan, ...]  # the rates probed, in order
     skipped: Mapping[int, str] = field(default_factory=dict)  # baud -> why the port would not open at it
+    rate_blind: bool = False  # the link does not carry the baud rate (socket://): probed once, at the first rate
 
     @property
     def garbled(self) -> list[tuple[int, int, ReplyError]]:
@@ -232,12 +239,17 @@ async def scan(
     rates: list[RateScan] = []
     skipped: dict[int, str] = {}
     images: dict[tuple[int, int], Eeprom | ReplyError] = {}
+    rate_blind = False
     for baud in rates_wanted:
+        if rate_blind:
+            _done(on_probe, len(wanted))  # the same line again: nothing to learn
+            continue
         async with contextlib.AsyncExitStack() as stack:
             line = await _open_or_skip(stack, open_at, baud, skipped)
             if line is None:
                 _done(on_probe, len(wanted))
                 continue
+            rate_blind = not carries_line_settings(getattr(line, "port", None))
             rate = await probe_ids(line, wanted, on_probe=on_probe)
             rates.append(rate)
             if read_eeprom:
@@ -249,7 +261,9 @@ async def scan(
             hits.setdefault(i, []).append(rate.baud)
     await _read_missing_images(open_at, hits, images)
     servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images)]
-    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), skipped)
+    if rate_blind:  # the rate opened at says nothing: the EEPROM's is the servo's own
+        servos = [dataclasses.replace(s, baud=s.eeprom_baud or s.baud) for s in servos]
+    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), skipped, rate_blind)
 
 
 async def _read_missing_images(
@@ -305,6 +319,8 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
             line = await _open_or_skip(stack, open_at, baud, skipped)
             if line is None:
                 continue
+            if not carries_line_settings(getattr(line, "port", None)):
+                return ()  # every rate is the far end's one rate: none to offer
             try:
                 await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
             except ReplyError:

@@ -9,7 +9,14 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..errors import (
+    DirectionControlNotSupported,
+    ParityNotSupported,
+    PortBusy,
+    PortNotFound,
+    PortPermissionDenied,
+    SerialPortError,
+)
 from .wire_device import (
     TRANSPORT_KINDS,
     HostSide,
@@ -23,7 +30,9 @@ from .wire_device import (
 if TYPE_CHECKING:
     from .advice import adapter_advice
     from .direct import DirectSerialTransport, ParityMarks
+    from .direction import DIRECTIONS, check_direction
     from .in_process import InProcessTransport
+    from .links import carries_line_settings, rate_blind_note
     from .opening import discard_input, open_line
     from .threaded import ThreadedSerialDevice
 
@@ -31,7 +40,11 @@ _LAZY = {
     "adapter_advice": ".advice",
     "DirectSerialTransport": ".direct",
     "ParityMarks": ".direct",
+    "DIRECTIONS": ".direction",
+    "check_direction": ".direction",
     "InProcessTransport": ".in_process",
+    "carries_line_settings": ".links",
+    "rate_blind_note": ".links",
     "discard_input": ".opening",
     "open_line": ".opening",
     "ThreadedSerialDevice": ".threaded",
@@ -46,6 +59,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "DIRECTIONS",
+    "DirectionControlNotSupported",
     "TRANSPORT_KINDS",
     "DirectSerialTransport",
     "HostSide",
@@ -62,7 +77,10 @@ __all__ = [
     "WireDeviceFactory",
     "adapter_advice",
     "device_factory",
+    "carries_line_settings",
+    "check_direction",
     "discard_input",
     "open_line",
+    "rate_blind_note",
     "register_url_scheme",
 ]

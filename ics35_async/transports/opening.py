@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
@@ -27,7 +26,8 @@ import serial
 from ..errors import InvalidArgument
 from .direct import DirectSerialTransport
 from .in_process import InProcessTransport
-from .serial_port import TermiosError, open_serial
+from .links import carries_line_settings
+from .serial_port import TermiosError, open_serial, posix_fd
 from .threaded import ThreadedSerialDevice
 from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory
 
@@ -54,16 +54,22 @@ def _stock_transport_class() -> _SerialTransportClass | None:
     return cast(_SerialTransportClass, serial_asyncio.SerialTransport)
 
 def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
-    """Resolve ``transport`` for an open port; ``"thread"`` for fd-less ports."""
+    """Resolve ``transport`` for an open port; ``"thread"`` for ports with no descriptor to wait on."""
     if kind == "thread":
         return "thread"
-    fd_backed = isinstance(ser, serial.Serial)  # serialposix: a real tty or pty
-    has_fileno = True
-    try:
-        ser.fileno()
-    except (OSError, AttributeError):
-        has_fileno = False
-    if not has_fileno:
+    fd_backed = posix_fd(ser) is not None  # a POSIX tty or pty
+    has_fileno = fd_backed
+    if not fd_backed:
+        try:
+            ser.fileno()  # socket:// has the socket's
+            has_fileno = True
+        except (OSError, ValueError, AttributeError):
+            has_fileno = False
+    if not has_fileno or (kind == "auto" and not fd_backed and not carries_line_settings(ser.port)):
+        # socket:// has a descriptor, but pyserial's socket handler reports a hang-up only after the
+        # 0.3 s sleep of its close, which pyserial-asyncio runs first; the reader thread tells at once.
+        if has_fileno:
+            return "thread"
         if kind != "auto":
             raise InvalidArgument(
                 f"transport={kind!r} needs a port with a file descriptor; {ser.port!r} has none "
@@ -73,7 +79,7 @@ def _choose_kind(kind: str, ser: serial.SerialBase) -> str:
     if kind == "direct" and not fd_backed:
         raise InvalidArgument(f"transport='direct' drives device paths only, not {ser.port!r}")
     if kind == "auto":
-        if fd_backed and sys.platform != "win32":
+        if fd_backed:
             return "direct"
         return "fast" if _fast_transport_class() is not None else "stock"
     return kind
@@ -86,6 +92,7 @@ async def open_line(
     protocol_factory: Callable[[], P],
     transport: str = "auto",
     low_latency: bool = True,
+    direction: str = "none",
 ) -> tuple[asyncio.Transport, P]:
     """Open the line to the servos and connect ``protocol_factory()`` to it.
 
@@ -102,7 +109,9 @@ async def open_line(
     a descriptor (``loop://``, ``rfc2217://``) are read by a thread.
     In-process devices ignore ``transport``.  ``low_latency`` asks the
     driver for ASYNC_LOW_LATENCY (sets FTDI's latency timer to 1 ms) where
-    it can.
+    it can.  ``direction`` (``"none"``, ``"rts"``, ``"rts-inverted"``) asks the
+    driver of a local serial port to toggle RTS while sending (see
+    :mod:`.direction`).
 
     ``protocol.connection_made`` has been called when this returns.
     Raises :class:`PortNotFound`, :class:`PortPermissionDenied`,
@@ -127,7 +136,7 @@ async def open_line(
     if not port:
         raise InvalidArgument("port must not be empty")
 
-    opening = loop.run_in_executor(None, open_serial, port, baudrate, low_latency)
+    opening = loop.run_in_executor(None, open_serial, port, baudrate, low_latency, direction)
     try:
         ser = await opening
     except asyncio.CancelledError:

@@ -5,12 +5,21 @@ from __future__ import annotations
 import errno
 import logging
 import os
-import sys
+import re
 from typing import Any
 
 import serial
+from serial.rs485 import RS485Settings
 
-from ..errors import InvalidArgument, ParityNotSupported, PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ..errors import (
+    IcsError,
+    InvalidArgument,
+    ParityNotSupported,
+    PortBusy,
+    PortNotFound,
+    PortPermissionDenied,
+    SerialPortError,
+)
 
 try:
     import termios
@@ -20,19 +29,35 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
     termios = None  # type: ignore[assignment]
     TermiosError = OSError
 
+from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
+from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
+from .platforms import is_pty, permission_hint, port_names_hint
+
 log = logging.getLogger("ics35_async.transports")
 
 
-def is_pty(fd: int) -> bool:
-    """Whether ``fd`` is the slave side of a pseudo-terminal."""
-    if sys.platform.startswith("linux"):
-        # 136-143: UNIX98 pty slaves (/dev/pts/N); 3: legacy BSD-style slaves.
-        major = os.major(os.fstat(fd).st_rdev)
-        return 136 <= major <= 143 or major == 3
+def posix_fd(ser: serial.SerialBase) -> int | None:
+    """The descriptor to wait on for ``ser``: a POSIX tty or pty that pyserial opened, else None.
+
+    None for ports with no descriptor (a Windows COM port, whose ``fileno()``
+    raises ``io.UnsupportedOperation``; ``rfc2217://``, ``loop://``) and for
+    URL handlers (``socket://`` has a descriptor, but of a socket), and
+    wherever there is no termios to set the port up.
+    """
+    if termios is None or not isinstance(ser, serial.Serial):
+        return None
     try:
-        return os.ttyname(fd).startswith("/dev/pts/")
-    except OSError:
-        return False
+        return int(ser.fileno())
+    except (OSError, ValueError, AttributeError):  # io.UnsupportedOperation is both OSError and ValueError
+        return None
+
+
+def _is_termios_error(exc: Exception) -> bool:
+    """Whether ``exc`` is a ``termios.error`` -- told by its shape where termios cannot be imported
+    by us (the Windows stand-in), though pyserial's POSIX backend raises it."""
+    if isinstance(exc, TermiosError) and not isinstance(exc, OSError):
+        return True
+    return type(exc).__module__ == "termios" and len(exc.args) == 2 and isinstance(exc.args[0], int)
 
 
 def _is_pty_path(path: str) -> bool:
@@ -46,25 +71,48 @@ def _is_pty_path(path: str) -> bool:
         os.close(fd)
 
 
-def _translate_open_error(port: str, exc: Exception) -> Exception:
+# pyserial's Windows backend puts the cause only in its message: "could not open port 'COM3':
+# FileNotFoundError(2, 'The system cannot find the file specified.', None, 2)" (the last number: winerror).
+_WINDOWS_ERROR = re.compile(r"(\w+)\((\d+), '(.*?)', None, (\d+)\)")
+_WINERROR_NOT_FOUND = (2, 3)  # ERROR_FILE_NOT_FOUND, ERROR_PATH_NOT_FOUND
+_WINERROR_ACCESS_DENIED = 5  # what Windows says for a COM port another program holds
+_WINERROR_GONE = (31, 433, 1167)  # ERROR_GEN_FAILURE, ERROR_NO_SUCH_DEVICE, ERROR_DEVICE_NOT_CONNECTED
+
+
+def _error_code(exc: BaseException) -> tuple[int | None, int | None]:
+    """(errno, winerror) of ``exc``, or of the OSError it was raised from (pyserial's URL handlers chain them)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        code = getattr(seen, "errno", None)
+        if isinstance(code, int):
+            return code, getattr(seen, "winerror", None)
+        seen = seen.__cause__ or seen.__context__
+    match = _WINDOWS_ERROR.search(str(exc))
+    if match:
+        return int(match.group(2)), int(match.group(4))
+    return None, None
+
+
+def translate_open_error(port: str, exc: Exception) -> Exception:
     """Turn what pyserial raised into an error that says what to do."""
-    code = getattr(exc, "errno", None)
-    if code == errno.ENOENT:
+    code, winerror = _error_code(exc)
+    if winerror in _WINERROR_NOT_FOUND or (winerror is None and code == errno.ENOENT):
         return PortNotFound(
-            code,
-            f"no serial port at {port!r}: check the cable/adapter is plugged in and the name "
-            "(ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/)",
+            errno.ENOENT,
+            f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",
+        )
+    if winerror == _WINERROR_ACCESS_DENIED:
+        return PortBusy(
+            errno.EBUSY, f"{port!r} is in use by another program (Windows says 'access denied' for that)"
         )
     if code in (errno.EACCES, errno.EPERM):
-        return PortPermissionDenied(
-            code,
-            f"permission denied opening {port!r}: add your user to the group owning the port "
-            "(usually 'dialout': sudo usermod -aG dialout $USER, then log in again)",
-        )
+        return PortPermissionDenied(code, f"permission denied opening {port!r}: {permission_hint()}")
     if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
         return PortBusy(code, f"{port!r} is in use by another program (or already open in this one)")
-    if code in (errno.ENXIO, errno.ENODEV):
-        return SerialPortError(code, f"{port!r} exists but no device answers behind it (unplugged?)")
+    if winerror in _WINERROR_GONE or code in (errno.ENXIO, errno.ENODEV):
+        return SerialPortError(code or errno.ENXIO, f"{port!r} exists but no device answers behind it (unplugged?)")
+    if code == errno.ECONNREFUSED:
+        return SerialPortError(code, f"cannot open {port!r}: the connection was refused (is the bridge running?)")
     if code is None and "Inappropriate ioctl" in str(exc):
         return SerialPortError(errno.ENOTTY, f"{port!r} is not a serial port")
     return SerialPortError(code if code is not None else errno.EIO, f"cannot open {port!r}: {exc}")
@@ -73,15 +121,37 @@ def _translate_open_error(port: str, exc: Exception) -> Exception:
 _PYSERIAL_SCHEMES = ("alt", "cp2110", "hwgrep", "loop", "rfc2217", "socket", "spy")
 
 
-def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBase:
-    """Open ``port`` 8E1 with pyserial (blocking; run it in an executor)."""
+# How long a reader thread's read blocks before it looks for shutdown (ports with no descriptor).
+READ_POLL = 0.05
+# URL schemes that never have a descriptor: opened with the reader thread's timeout at once, since
+# every later re-configuration of an RFC 2217 port is a network round trip.
+_THREAD_READ_SCHEMES = ("rfc2217", "loop")
+
+
+def _serial_for_url(port: str, settings: dict[str, Any], rs485: RS485Settings | None) -> serial.SerialBase:
+    if rs485 is None:
+        return serial.serial_for_url(port, **settings)
+    ser = serial.serial_for_url(port, do_not_open=True, **settings)
+    ser.rs485_mode = rs485  # applied by the driver as the port opens
+    ser.open()
+    return ser
+
+
+def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "none") -> serial.SerialBase:
+    """Open ``port`` 8E1 with pyserial (blocking; run it in an executor).
+
+    ``direction`` (see :mod:`.direction`) asks the driver to toggle RTS while sending.
+    """
+    direction = check_direction(direction, port)
+    rs485 = rs485_settings(direction)
     is_device_path = "://" not in port
+    scheme = port.partition("://")[0].lower()
     settings: dict[str, Any] = {
         "baudrate": baudrate,
         "bytesize": serial.EIGHTBITS,
         "parity": serial.PARITY_EVEN,
         "stopbits": serial.STOPBITS_ONE,
-        "timeout": 0,
+        "timeout": READ_POLL if scheme in _THREAD_READ_SCHEMES else 0,
         # A device path never blocks a write; pyserial's RFC 2217 client refuses any
         # write_timeout but None (and the socket handlers need none).
         "write_timeout": 0 if is_device_path else None,
@@ -90,28 +160,46 @@ def open_serial(port: str, baudrate: int, low_latency: bool) -> serial.SerialBas
         settings["exclusive"] = True
     try:
         try:
-            ser = serial.serial_for_url(port, **settings)
-        except TermiosError as exc:
-            # A pty refuses a tcsetattr whose only change is PARENB (EINVAL),
-            # which is what opening an already-raw pty at our speed asks for.
+            ser = _serial_for_url(port, settings, rs485)
+        except (serial.SerialException, ValueError, NotImplementedError):
+            raise
+        except Exception as exc:
+            # termios.error (not an OSError) from pyserial's POSIX backend.  A pty refuses a
+            # tcsetattr whose only change is PARENB (EINVAL), which is what opening an
+            # already-raw pty at our speed asks for.
+            if not _is_termios_error(exc):
+                raise
             if not (is_device_path and exc.args[0] == errno.EINVAL and _is_pty_path(port)):
                 raise SerialPortError(exc.args[0], f"cannot configure {port!r} as 8E1: {exc.args[-1]}") from exc
             log.debug("%s is a pty, which has no parity: opening it 8N1", port)
-            ser = serial.serial_for_url(port, **{**settings, "parity": serial.PARITY_NONE})
+            ser = _serial_for_url(port, {**settings, "parity": serial.PARITY_NONE}, rs485)
     except serial.SerialException as exc:
-        raise _translate_open_error(port, exc) from exc
-    except ValueError as exc:
+        raise translate_open_error(port, exc) from exc
+    except (ValueError, NotImplementedError) as exc:
+        if rs485 is not None and is_rs485_refusal(exc):
+            raise refused(port, direction, exc) from exc
+        if isinstance(exc, NotImplementedError):
+            raise translate_open_error(port, exc) from exc
         # Unknown URL scheme, or a baud rate the driver rejects.
         raise InvalidArgument(f"cannot open {port!r}: {exc}") from exc
-    except (OSError, NotImplementedError) as exc:  # a URL handler's own failure (a refused connection)
-        raise _translate_open_error(port, exc) from exc
+    except IcsError:
+        raise
+    except Exception as exc:  # a URL handler's own failure (a refused connection), or a driver's odd error
+        raise translate_open_error(port, exc) from exc
 
     try:
-        fd = ser.fileno() if isinstance(ser, serial.Serial) else None
+        fd = posix_fd(ser)
         if fd is not None and ser.parity == serial.PARITY_EVEN:
             _check_parity(ser, port, fd)
+        elif fd is None and is_device_path and os.name == "posix" and _is_pty_path(port):
+            # A pty with no usable descriptor here (the Windows stand-in): a pty drops PARENB,
+            # and any later re-configuration that asks for it fails, so run it 8N1 (no wire, no parity).
+            ser.parity = serial.PARITY_NONE
         if low_latency and fd is not None and not is_pty(fd):
             _try_low_latency(ser, port)
+        if not carries_line_settings(port):
+            warn_once_if_rate_blind(port)
+            set_no_delay(ser)
     except BaseException:
         ser.close()
         raise

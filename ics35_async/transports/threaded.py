@@ -5,9 +5,12 @@ from __future__ import annotations
 import contextlib
 import errno
 import threading
+import time
 
 import serial
+import serial.rfc2217
 
+from .serial_port import READ_POLL
 from .wire_device import HostSide
 
 
@@ -18,7 +21,7 @@ class ThreadedSerialDevice:
     ``read`` and hands the bytes over like any in-process device would.
     """
 
-    _POLL = 0.05  # how long the reader thread blocks before checking for shutdown
+    _POLL = READ_POLL  # how long the reader thread blocks before checking for shutdown
 
     def __init__(self, ser: serial.SerialBase) -> None:
         self._serial = ser
@@ -28,9 +31,12 @@ class ThreadedSerialDevice:
 
     def connect(self, host: HostSide, baudrate: int) -> None:
         self._host = host
-        # write_timeout=0 makes loop:// refuse every write; these ports buffer.
-        self._serial.write_timeout = None
-        self._serial.timeout = self._POLL
+        # write_timeout=0 makes loop:// refuse every write; these ports buffer.  Each setting is
+        # changed only when it must be: over RFC 2217 a change is a round trip to the far end.
+        if self._serial.write_timeout is not None:
+            self._serial.write_timeout = None
+        if self._serial.timeout != self._POLL:
+            self._serial.timeout = self._POLL
         self._thread = threading.Thread(target=self._read_loop, name=f"ics35-reader {self._serial.port}", daemon=True)
         self._thread.start()
 
@@ -45,6 +51,14 @@ class ThreadedSerialDevice:
         except Exception as exc:
             if not self._stop.is_set():
                 host.lost(exc if isinstance(exc, OSError) else OSError(errno.EIO, f"serial read failed: {exc}"))
+        finally:
+            self._close_port()
+
+    def _close_port(self) -> None:
+        # pyserial's socket and RFC 2217 handlers shut their socket, then sleep 0.3 s "to give the
+        # server time": done here, in the reader thread, that sleep holds no event loop up.
+        with contextlib.suppress(Exception):
+            self._serial.close()
 
     def write(self, data: bytes) -> None:
         try:
@@ -55,6 +69,11 @@ class ThreadedSerialDevice:
             raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
 
     def discard_input(self) -> None:
+        if isinstance(self._serial, serial.rfc2217.Serial):
+            # pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps), blocking the
+            # event loop past the next transaction's deadline.  The reader thread forwards bytes as
+            # they come, so nothing sits here to drop; the bus waits for a quiet line instead.
+            return
         self._serial.reset_input_buffer()
 
     def disconnect(self) -> None:
@@ -63,6 +82,14 @@ class ThreadedSerialDevice:
         if cancel_read is not None:
             with contextlib.suppress(Exception):
                 cancel_read()  # wakes the reader now rather than after its poll timeout
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=1.0)
-        self._serial.close()
+        thread = self._thread
+        if thread is None or not thread.is_alive():
+            self._close_port()
+            return
+        if thread is threading.current_thread():
+            return  # the reader closes the port on its way out
+        # Wait until the reader has shut the port (is_open drops before pyserial's closing sleep),
+        # so that it is free when this returns: a one-client bridge takes the next connection then.
+        deadline = time.monotonic() + 1.0
+        while self._serial.is_open and thread.is_alive() and time.monotonic() < deadline:
+            thread.join(0.005)

@@ -1,0 +1,90 @@
+"""ports: the serial ports this machine has, Kondo adapters marked, and how to make a missing one appear."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+from rich import box
+from rich.markup import escape
+from rich.table import Table
+
+from ..transports import adapter_advice
+from ..transports.listing import (
+    HS_ADAPTER_USB_ID,
+    SerialPortInfo,
+    kondo_usb_without_port,
+    linux_adapter_steps,
+    list_serial_ports,
+)
+from ..transports.platforms import latency_timer_advice, port_names_hint
+from ._common import CliError, ExitCode, emit_json, err, json_option, out
+
+UNTESTED = "untested here without the hardware"
+
+
+def ports_table(found: list[SerialPortInfo]) -> Table:
+    table = Table(box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
+    for name in ("port", "description", "USB ID", ""):
+        table.add_column(name)
+    for p in found:
+        table.add_row(
+            escape(p.device),
+            escape(p.description or "-"),
+            p.usb_id or "-",
+            "[bold green]Kondo adapter[/bold green]" if p.kondo else "",
+        )
+    return table
+
+
+def notes(found: list[SerialPortInfo], unbound: list[str]) -> list[str]:
+    """What to do next: a Kondo device with no port, or an FTDI latency timer to set."""
+    said = []
+    for usb_id in unbound:
+        said.append(
+            f"a Kondo USB device ({usb_id}) is plugged in but has no serial port: make Linux's ftdi_sio "
+            f"driver take it with: {' ; '.join(linux_adapter_steps(usb_id))}  ({UNTESTED})"
+        )
+    if not any(p.kondo for p in found) and not unbound and sys.platform.startswith("linux"):
+        said.append(
+            "no Kondo adapter listed: an ICS USB adapter HS that is plugged in may need Linux's ftdi_sio driver "
+            f"told its USB ID: {' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}  ({UNTESTED})"
+        )
+    for p in found:
+        if not p.ftdi_based:
+            continue
+        if sys.platform.startswith("linux"):
+            said.extend(adapter_advice(p.device))  # reads the timer itself: only when it is too long
+        else:
+            said.append(f"{p.device}: set the adapter's latency timer to 1 ms: {latency_timer_advice()}")
+    return said
+
+
+@click.command()
+@json_option
+def ports(as_json: bool) -> int:
+    """List serial ports with their USB IDs, marking Kondo adapters (USB vendor 165C).
+
+    Exit code 3 when there is no serial port at all.  On Linux, an ICS USB
+    adapter HS that gets no port needs the ftdi_sio driver told its USB ID
+    (the command is printed; untested without the hardware).
+    """
+    try:
+        found = list_serial_ports()
+    except Exception as exc:  # pyserial's platform backend failed: say so, no traceback
+        raise CliError(ExitCode.PORT, f"cannot list serial ports: {exc}") from None
+    unbound = kondo_usb_without_port()
+    said = notes(found, unbound)
+    if as_json:
+        emit_json({"ports": [p.to_dict() for p in found], "kondo_without_port": unbound, "notes": said})
+    elif found:
+        out.print(ports_table(found))
+    if not as_json:
+        for note in said:
+            err.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
+    if not found:
+        raise CliError(ExitCode.PORT, "no serial ports found", f"is the adapter plugged in? ({port_names_hint()})")
+    return 0
+
+
+COMMANDS = [ports]

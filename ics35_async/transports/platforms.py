@@ -1,0 +1,109 @@
+"""What differs between Linux, macOS and Windows at the port: pty detection, port names, and the advice we give.
+
+Needs nothing POSIX-only to import: the pty checks use :mod:`os` alone, and
+answer False where there are no ptys (Windows).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import sys
+
+# The names pty slaves get: Linux and FreeBSD /dev/pts/N, macOS /dev/ttysNNN (lower-case s:
+# Linux's /dev/ttyS0 is a real UART), and the legacy BSD /dev/tty[p-za-e][0-9a-f].
+_PTY_NAME = re.compile(r"/dev/(pts/\d+|ttys\d+|tty[p-za-e][0-9a-f])")
+
+
+def is_pty_name(name: str) -> bool:
+    """Whether ``name`` (a resolved device path, e.g. from ``os.ttyname``) is a pty slave's."""
+    return _PTY_NAME.fullmatch(name) is not None
+
+
+@functools.cache
+def _pty_major() -> int | None:
+    """The device major number of this system's pty slaves, learnt from a pty of our own (None: no ptys)."""
+    openpty = getattr(os, "openpty", None)
+    if openpty is None:
+        return None
+    try:
+        master, slave = openpty()
+    except OSError:
+        return None
+    try:
+        return os.major(os.fstat(slave).st_rdev)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def is_pty(fd: int) -> bool:
+    """Whether ``fd`` is the slave side of a pseudo-terminal.
+
+    Linux: by the device major (136-143 UNIX98 slaves, 3 legacy BSD-style).
+    Elsewhere: by the name ``os.ttyname`` gives (macOS ``/dev/ttysNNN``), or
+    failing that by the major number a fresh pty of our own has.
+    """
+    try:
+        st = os.fstat(fd)
+    except OSError:
+        return False
+    if sys.platform.startswith("linux"):
+        major = os.major(st.st_rdev)
+        return 136 <= major <= 143 or major == 3
+    try:
+        if is_pty_name(os.ttyname(fd)):
+            return True
+    except (OSError, AttributeError):
+        pass
+    pty_major = _pty_major()
+    return pty_major is not None and st.st_rdev != 0 and os.major(st.st_rdev) == pty_major
+
+
+def port_names_hint(platform: str | None = None) -> str:
+    """Where a person finds the name of their serial port on ``platform`` (default: this one)."""
+    platform = platform or sys.platform
+    if platform == "win32":
+        return "COM ports are listed in Device Manager under 'Ports (COM & LPT)', or by: ics35 ports"
+    if platform == "darwin":
+        return "ls /dev/cu.*  (use the /dev/cu. name, not /dev/tty.), or: ics35 ports"
+    return "ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/, or: ics35 ports"
+
+
+def permission_hint(platform: str | None = None) -> str:
+    """How to get the right to open a serial port on ``platform`` (default: this one)."""
+    platform = platform or sys.platform
+    if platform == "darwin":
+        return "check the port's owner and mode (ls -l); macOS needs no group for USB serial ports"
+    if platform == "win32":
+        return "Windows reports a port that another program holds as access denied: close that program"
+    return (
+        "add your user to the group owning the port "
+        "(usually 'dialout': sudo usermod -aG dialout $USER, then log in again)"
+    )
+
+
+def latency_timer_advice(platform: str | None = None) -> str:
+    """How to set an FTDI-based adapter's latency timer (USB receive hold-back) to 1 ms on ``platform``.
+
+    Kondo's ICS USB adapters are FTDI-based.  Only the Linux way is checked
+    by the library (sysfs, see :func:`~.advice.adapter_advice`); the others
+    are the vendor drivers' documented settings, untested here.
+    """
+    platform = platform or sys.platform
+    if platform == "win32":
+        return (
+            "Device Manager > Ports (COM & LPT) > the adapter's port > Properties > Port Settings > Advanced > "
+            "Latency Timer (msec): 1"
+        )
+    if platform == "darwin":
+        return (
+            "macOS offers no latency setting for the built-in FTDI driver; FTDI's own VCP driver takes "
+            "'LatencyTimer' in its configuration (FTDI application note AN_134). Otherwise give each reply "
+            "more time: --timeout / open_bus(adapter_latency=...)"
+        )
+    return (
+        "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer  (for good: a udev rule, "
+        'ATTR{latency_timer}="1")'
+    )

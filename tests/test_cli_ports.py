@@ -1,0 +1,134 @@
+"""``ics35 ports``: serial ports with description and USB IDs, Kondo adapters marked, the Linux ftdi_sio note.
+
+pyserial's ``list_ports.comports`` is replaced by a list of pyserial's own
+``ListPortInfo`` objects (this machine has no USB adapters); the sysfs tree
+a Kondo device without a port leaves is built under tmp_path.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from serial.tools import list_ports
+from serial.tools.list_ports_common import ListPortInfo
+
+from ics35_async.transports import listing
+from ics35_async.transports.listing import kondo_usb_without_port, list_serial_ports
+from tests._cli_fixtures import ics35
+
+__all__ = ["ics35"]
+
+
+def port_info(device: str, description: str, vid: int | None = None, pid: int | None = None) -> ListPortInfo:
+    info = ListPortInfo(device, skip_link_detection=True)
+    info.description = description
+    info.vid, info.pid = vid, pid
+    info.serial_number = "A10KZ9" if vid else None
+    return info
+
+
+@pytest.fixture
+def machine_ports(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[ListPortInfo]:
+    ports = [
+        port_info("/dev/ttyS0", "n/a"),
+        port_info("/dev/ttyUSB1", "FT232R USB UART", 0x0403, 0x6001),
+        port_info("/dev/ttyUSB0", "ICS USB ADAPTER HS", 0x165C, 0x0008),
+    ]
+    monkeypatch.setattr(list_ports, "comports", lambda include_links=False: list(ports))
+    monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))  # no sysfs: nothing unbound
+    return ports
+
+
+def usb_device(root: Path, name: str, vendor: str, product: str, tty: str | None) -> None:
+    devices = root / "bus" / "usb" / "devices"
+    (devices / name).mkdir(parents=True)
+    (devices / name / "idVendor").write_text(vendor + "\n")
+    (devices / name / "idProduct").write_text(product + "\n")
+    interface = devices / f"{name}:1.0"
+    interface.mkdir()
+    if tty:
+        (interface / tty).mkdir()
+
+
+def test_kondo_adapters_come_first_and_are_marked(machine_ports: list[ListPortInfo]) -> None:
+    found = list_serial_ports()
+    assert [p.device for p in found] == ["/dev/ttyUSB0", "/dev/ttyUSB1", "/dev/ttyS0"]
+    assert [p.kondo for p in found] == [True, False, False]
+    assert [p.usb_id for p in found] == ["165C:0008", "0403:6001", None]
+    assert found[2].description == ""  # pyserial's "n/a"
+
+
+def test_cli_table(machine_ports: list[ListPortInfo], ics35: Any) -> None:
+    result = ics35("ports")
+    assert result.code == 0, result.err
+    lines = result.out.splitlines()
+    kondo = next(line for line in lines if "/dev/ttyUSB0" in line)
+    assert "ICS USB ADAPTER HS" in kondo and "165C:0008" in kondo and "Kondo adapter" in kondo
+    ftdi = next(line for line in lines if "/dev/ttyUSB1" in line)
+    assert "0403:6001" in ftdi and "Kondo" not in ftdi
+    assert "/dev/ttyS0" in result.out
+
+
+def test_cli_json(machine_ports: list[ListPortInfo], ics35: Any) -> None:
+    result = ics35("ports", "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    assert [(p["device"], p["usb_id"], p["kondo"]) for p in data["ports"]] == [
+        ("/dev/ttyUSB0", "165C:0008", True),
+        ("/dev/ttyUSB1", "0403:6001", False),
+        ("/dev/ttyS0", None, False),
+    ]
+    assert data["kondo_without_port"] == []
+
+
+def test_cli_no_ports_exits_3(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, ics35: Any) -> None:
+    monkeypatch.setattr(list_ports, "comports", lambda include_links=False: [])
+    monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))
+    result = ics35("ports", "--json")
+    assert result.code == 3
+    assert result.json()["ports"] == []
+    assert "no serial ports found" in result.err
+    assert ics35("ports").code == 3
+
+
+def test_kondo_device_without_a_port_is_found_in_sysfs(tmp_path: Path) -> None:
+    root = tmp_path / "sys"
+    usb_device(root, "1-1", "165c", "0008", tty=None)  # the HS adapter, no driver took it
+    usb_device(root, "1-2", "165c", "0006", tty="ttyUSB3")  # another Kondo adapter with its port
+    usb_device(root, "1-3", "0403", "6001", tty=None)  # not Kondo
+    assert kondo_usb_without_port(root) == ["165C:0008"]
+    assert kondo_usb_without_port(tmp_path / "nothing") == []
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
+def test_cli_tells_how_to_make_the_hs_adapter_appear(
+    machine_ports: list[ListPortInfo], tmp_path: Path, ics35: Any
+) -> None:
+    usb_device(tmp_path / "sys", "1-1", "165c", "0008", tty=None)
+    result = ics35("ports")
+    assert result.code == 0
+    assert "sudo modprobe ftdi_sio" in result.err
+    assert "echo 165C 0008 | sudo tee /sys/bus/usb-serial/drivers/ftdi_sio/new_id" in result.err
+    assert "untested" in result.err
+    data = ics35("ports", "--json").json()
+    assert data["kondo_without_port"] == ["165C:0008"]
+    assert any("new_id" in note for note in data["notes"])
+
+
+def test_latency_advice_for_ftdi_ports_off_linux(
+    machine_ports: list[ListPortInfo], monkeypatch: pytest.MonkeyPatch, ics35: Any
+) -> None:
+    monkeypatch.setattr(sys, "platform", "win32")
+    result = ics35("ports")
+    assert result.code == 0
+    assert "Latency Timer" in result.err
+    assert "/dev/ttyS0: set" not in result.err  # only for FTDI-based adapters
+
+
+def test_this_machine(ics35: Any) -> None:
+    """Whatever this machine has: the listing and the exit code agree."""
+    result = ics35("ports", "--json")
+    assert result.code == (0 if result.json()["ports"] else 3)

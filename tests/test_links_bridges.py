@@ -1,0 +1,253 @@
+"""Lines on another machine: ``rfc2217://`` and ``socket://`` through loopback bridges to the simulator's pty.
+
+The simulator runs in another process (``python -m ics35_async.sim``, its
+servos at 115200 baud, following the rate its pty is set to); in front of its
+pty sit pyserial's own RFC 2217 server side (which applies the client's baud
+rate and parity) or a raw TCP forwarder (which carries neither, like ser2net's
+raw mode or socat).  See tests/support/links.py.  Every driver that can drive
+such a port runs: asyncio (auto), thread and anyio.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from ics35_async import open_bus, policies, protocol
+from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
+from ics35_async.protocol import Param
+from ics35_async.sim import start_subprocess, stop_subprocess
+from tests._cli_fixtures import ics35
+from tests.support.links import Rfc2217Bridge, TcpBridge
+
+__all__ = ["ics35"]
+
+DRIVERS = ("asyncio", "thread", "anyio")
+BRIDGES = {"rfc2217": Rfc2217Bridge, "socket": TcpBridge}
+
+
+@pytest.fixture(scope="module")
+def far_pty() -> Iterator[str]:
+    proc, path = start_subprocess(["--ids", "1-3"], quiet=True)
+    try:
+        yield path
+    finally:
+        stop_subprocess(proc)
+
+
+@pytest.fixture
+def rfc2217(far_pty: str) -> Iterator[Rfc2217Bridge]:
+    with Rfc2217Bridge(far_pty) as bridge:
+        yield bridge
+
+
+@pytest.fixture
+def tcp_bridge(far_pty: str) -> Iterator[TcpBridge]:
+    with TcpBridge(far_pty) as bridge:
+        yield bridge
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# --------------------------------------------------------------------------- the direct path, for comparison
+
+
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_direct_pty_runs_many_transactions(far_pty: str, driver: str) -> None:
+    """The path the bridges stand in front of, under every driver (the anyio driver once took an
+    empty read of the raw tty for a hangup)."""
+    async with open_bus(far_pty, driver=driver, retries=2) as bus:
+        for i in range(300):
+            assert await bus.servo(1 + i % 3).read_stretch() == 30
+
+
+# --------------------------------------------------------------------------- RFC 2217
+
+
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_rfc2217_opens_and_its_baud_and_parity_reach_the_far_end(rfc2217: Rfc2217Bridge, driver: str) -> None:
+    async with open_bus(rfc2217.url, driver=driver, retries=2) as bus:
+        assert await bus.servo(1).read_stretch() == 30
+        assert (115200, "E") in rfc2217.port_settings
+    # At 625000 the far end's port runs at 625000: the servos (115200) cannot hear it.
+    async with open_bus(rfc2217.url, baudrate=625000, driver=driver) as bus:
+        with pytest.raises(ReplyTimeout):
+            await bus.servo(1).read_stretch()
+    assert (625000, "E") in rfc2217.port_settings
+
+
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_rfc2217_answers_right_after_a_silent_id(rfc2217: Rfc2217Bridge, driver: str) -> None:
+    """A timeout makes the bus drop its input; over RFC 2217 that must not hold the next request up
+    (pyserial's purge waits for the far end in 50 ms sleeps, longer than a reply's allowance)."""
+    async with open_bus(rfc2217.url, driver=driver, retries=2) as bus:
+        await bus.servo(1).read_stretch()  # connected and settled
+        for _ in range(3):
+            with pytest.raises(ReplyTimeout):
+                await _stretch_once(bus, 9)  # nobody has ID 9
+            assert await _stretch_once(bus, 2) == 30
+
+
+async def _stretch_once(bus: Any, servo_id: int) -> int:
+    """One stretch read, no retry."""
+    value: int = await bus.request(protocol.ReadParam(servo_id, Param.STRETCH), retries=0)
+    return value
+
+
+async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
+    report = await policies.scan(lambda baud: open_bus(rfc2217.url, baudrate=baud), read_eeprom=False)
+    assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200), (3, 115200)]
+    assert len(report.rates) == 3 and not report.rate_blind
+
+
+# --------------------------------------------------------------------------- socket:// (a raw TCP bridge)
+
+
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
+    tcp_bridge: TcpBridge, driver: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.WARNING, logger="ics35_async")
+    for _ in range(2):
+        async with open_bus(tcp_bridge.url, driver=driver, retries=2) as bus:
+            assert await bus.servo(3).read_stretch() == 30
+            async with bus.stream([1, 2], rate_hz=100) as stream:
+                stream.set_targets({1: 7000, 2: 8000})
+                seen: set[int] = set()
+                for _ in range(5):
+                    seen.update((await stream.next_frame()).positions)
+            assert seen == {1, 2}
+    warnings = [r for r in caplog.records if "does not carry the baud rate" in r.getMessage()]
+    assert len(warnings) == 1, [r.getMessage() for r in caplog.records]
+    assert tcp_bridge.port_settings and all(s == (115200, "N") for s in tcp_bridge.port_settings)
+
+
+async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge: TcpBridge) -> None:
+    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud))
+    assert report.rate_blind
+    assert [r.baud for r in report.rates] == [115200]
+    assert [s.servo_id for s in report.servos] == [1, 2, 3]
+    assert all(s.baud == 115200 and s.eeprom is not None for s in report.servos)
+    assert tcp_bridge.connections == 1
+
+
+async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> None:
+    # Asked for 1250000 first: the bridge still runs at its own rate, and the servos say theirs.
+    report = await policies.scan(
+        lambda baud: open_bus(tcp_bridge.url, baudrate=baud), bauds=[625000, 115200], ids=[1, 2]
+    )
+    assert [r.baud for r in report.rates] == [625000]
+    assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200)]
+
+
+def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, ics35: Any) -> None:
+    result = ics35("--port", tcp_bridge.url, "scan", "--quick", "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    assert [s["id"] for s in data["servos"]] == [1, 2, 3]
+    assert data["rate_blind"] is True
+    result = ics35("--port", tcp_bridge.url, "scan", "--ids", "1-3")
+    assert result.code == 0, result.err
+    assert "does not carry the baud rate" in result.err
+    assert "3 servo(s) found" in result.out
+
+
+def test_cli_no_reply_over_socket_names_the_bridge_settings(tcp_bridge: TcpBridge, ics35: Any) -> None:
+    result = ics35("--port", tcp_bridge.url, "get", "9", "stretch")
+    assert result.code == 4
+    assert "bridge's serial side" in result.err
+    assert "does at" not in result.err  # no other baud rate offered: every rate is the bridge's one
+
+
+# --------------------------------------------------------------------------- refused and dropped
+
+
+@pytest.mark.parametrize("scheme", BRIDGES)
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_refused_connection_is_a_port_error(scheme: str, driver: str) -> None:
+    with pytest.raises(SerialPortError, match="refused"):
+        async with open_bus(f"{scheme}://127.0.0.1:{free_tcp_port()}", driver=driver):
+            pass
+
+
+@pytest.mark.parametrize("scheme", BRIDGES)
+def test_cli_refused_connection_exits_3(scheme: str, ics35: Any) -> None:
+    result = ics35("--port", f"{scheme}://127.0.0.1:{free_tcp_port()}", "get", "1", "stretch")
+    assert result.code == 3, result.err
+    assert "refused" in result.err
+
+
+@pytest.fixture
+def hang_up_server() -> Iterator[int]:
+    """A TCP port whose server accepts and hangs up at once (a bridge whose serial port is taken)."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    yield int(listener.getsockname()[1])
+    listener.close()
+    thread.join(5)
+
+
+def test_cli_dropped_connection_exits_3(hang_up_server: int, ics35: Any) -> None:
+    result = ics35("--port", f"socket://127.0.0.1:{hang_up_server}", "get", "1", "stretch")
+    assert result.code == 3, result.err
+    assert "bridge" in result.err
+
+
+async def _until_lost(bus: Any) -> None:
+    for _ in range(200):
+        try:
+            await _stretch_once(bus, 1)
+        except PortLost:
+            return
+        except ReplyTimeout:
+            pass
+        await asyncio.sleep(0.01)
+    pytest.fail("the dropped connection was never reported as PortLost")
+
+
+async def _until_answers(bus: Any) -> int:
+    for _ in range(500):
+        try:
+            return await _stretch_once(bus, 1)
+        except (PortLost, ReplyTimeout):
+            await asyncio.sleep(0.02)
+    pytest.fail("the bus did not recover after the far end came back")
+
+
+@pytest.mark.parametrize("scheme", BRIDGES)
+@pytest.mark.parametrize("driver", DRIVERS)
+async def test_dropped_connection_is_port_lost_and_reconnect_recovers(far_pty: str, scheme: str, driver: str) -> None:
+    bridge = BRIDGES[scheme](far_pty, tcp_port=free_tcp_port())
+    bridge.start()
+    try:
+        async with open_bus(bridge.url, driver=driver, reconnect=True, reconnect_backoff=(0.05,), retries=2) as bus:
+            assert await bus.servo(1).read_stretch() == 30
+            bridge.stop()  # the far end goes away: connection dropped, then refused
+            await _until_lost(bus)
+            bridge.start()  # back, on the same TCP port
+            assert await _until_answers(bus) == 30
+            assert bus.stats.reconnects >= 1
+    finally:
+        bridge.stop()
