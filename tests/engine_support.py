@@ -152,7 +152,8 @@ class Servos:
 
     Every answer carries a fresh value (position replies 1..16383, parameter
     reads 1..127), so a reply taken for the wrong request shows.
-    ``answers[k]`` is the value sent for write ``k`` (``None``: no reply).
+    ``answers[k]`` is the value sent for write ``k`` (``None``: no reply);
+    the writes numbered in ``mute`` get their echo but no reply.
     """
 
     def __init__(self, ids: Iterable[int], echo: bool = True, turnaround: float = TURNAROUND) -> None:
@@ -160,6 +161,7 @@ class Servos:
         self.echo = echo
         self.turnaround = turnaround
         self.answers: list[Any] = []
+        self.mute: set[int] = set()
         self._serial = itertools.count(1)
 
     def value_for(self, command: protocol.Command[Any]) -> Any:
@@ -184,7 +186,7 @@ class Servos:
         t = wire.now
         if self.echo:
             wire.schedule(t + wire_time(len(tx)), tx)
-        reply, value = self.reply_for(tx)
+        reply, value = self.reply_for(tx) if len(self.answers) not in self.mute else (None, None)
         self.answers.append(value)
         if reply is not None:
             self.deliver(wire, tx, reply)
