@@ -43,27 +43,48 @@ def position(sid: int, pos: int = 7500) -> Position:
 
 
 class Recorded(Request):
-    """A request that counts how often the engine hands it an outcome, and which write it was answering."""
+    """A request that counts how often the engine hands it an outcome.
 
-    __slots__ = ("calls", "on_resolve", "write_index")
+    With a ``wire``, it also notes the write its outcome came from (the last
+    write before the engine resolved or rejected it: one transaction at a
+    time) and how many arrivals the wire had delivered by then.
+    """
+
+    __slots__ = ("calls", "end_mark", "wire", "write_index")
 
     def __init__(self, command: protocol.Command[Any], priority: int = 2, retries: int = 0,
-                 on_resolve: Callable[[Recorded], None] | None = None) -> None:
+                 wire: Wire | None = None) -> None:
         super().__init__(command, priority, retries)
         self.calls = 0
+        self.wire = wire
         self.write_index = -1
-        self.on_resolve = on_resolve
+        self.end_mark = -1
+
+    def _ended(self) -> None:
+        self.calls += 1
+        if self.state == "queued" and self.wire is not None:
+            self.write_index = len(self.wire.writes) - 1
+            self.end_mark = len(self.wire.delivered)
 
     def resolve(self, value: Any) -> None:
-        self.calls += 1
-        was_waiting = self.state == "queued"
+        self._ended()
         super().resolve(value)
-        if was_waiting and self.on_resolve is not None:
-            self.on_resolve(self)
 
     def reject(self, error: IcsError) -> None:
-        self.calls += 1
+        self._ended()
         super().reject(error)
+
+
+def misattributed(req: Recorded, servos: Servos) -> str | None:
+    """Why ``req``'s value is not the reply to its own write (None when it is)."""
+    assert req.wire is not None and req.state == "done"
+    k = req.write_index
+    tx = req.wire.writes[k][1]
+    if tx != req.command.tx:
+        return f"{req!r} resolved while write {k} ({tx.hex(' ')}) was on the wire"
+    if req.value != servos.answers[k]:
+        return f"{req!r} got {req.value}, but write {k} was answered {servos.answers[k]}"
+    return None
 
 
 Answer = Callable[["Wire", bytes], None]
@@ -77,14 +98,19 @@ class Wire:
         self.answer = answer
         self.now = 0.0
         self.writes: list[tuple[float, bytes]] = []
-        self._arrivals: list[tuple[float, int, bytes, int]] = []  # (time, order, bytes, parity errors)
+        self.marks: list[int] = []  # per write: how many arrivals had been delivered before it
+        self.delivered: list[object] = []  # the tag of each arrival delivered, in order
+        self._arrivals: list[tuple[float, int, bytes, int, object]] = []  # (time, order, bytes, parity errors, tag)
         self._order = itertools.count()
 
     # -- what the world does
 
-    def schedule(self, at: float, data: bytes, parity_errors: int = 0) -> None:
-        """Bytes that reach the host's port at ``at`` (with ``parity_errors`` of them marked)."""
-        heapq.heappush(self._arrivals, (at, next(self._order), data, parity_errors))
+    def schedule(self, at: float, data: bytes, parity_errors: int = 0, tag: object = None) -> None:
+        """Bytes that reach the host's port at ``at`` (with ``parity_errors`` of them marked).
+
+        ``tag`` says whose bytes they are (e.g. the number of the write they answer).
+        """
+        heapq.heappush(self._arrivals, (at, next(self._order), data, parity_errors, tag))
 
     def clear_in_flight(self) -> None:
         """The port is gone: bytes still on their way to it are lost with it."""
@@ -99,6 +125,7 @@ class Wire:
     def emit(self, out: bytes | None) -> bytes | None:
         if out is not None:
             self.writes.append((self.now, out))
+            self.marks.append(len(self.delivered))
             if self.answer is not None:
                 self.answer(self, out)
         return out
@@ -115,8 +142,9 @@ class Wire:
             if min(arrival, deadline) > end:
                 break
             if arrival <= deadline:
-                at, _, data, errors = heapq.heappop(self._arrivals)
+                at, _, data, errors, tag = heapq.heappop(self._arrivals)
                 self.now = max(self.now, at)
+                self.delivered.append(tag)
                 if errors:
                     engine.line_error(errors)
                 self.emit(engine.receive(data, self.now))
@@ -185,27 +213,29 @@ class Servos:
     def __call__(self, wire: Wire, tx: bytes) -> None:
         t = wire.now
         if self.echo:
-            wire.schedule(t + wire_time(len(tx)), tx)
+            wire.schedule(t + wire_time(len(tx)), tx, tag=len(self.answers))
         reply, value = self.reply_for(tx) if len(self.answers) not in self.mute else (None, None)
         self.answers.append(value)
         if reply is not None:
             self.deliver(wire, tx, reply)
 
     def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
-        wire.schedule(wire.now + wire_time(len(tx) + len(reply)) + self.turnaround, reply)
+        wire.schedule(wire.now + wire_time(len(tx) + len(reply)) + self.turnaround, reply, tag=len(self.answers) - 1)
 
 
 class FakeSource:
     """A stream-like background source: position commands round the ``ids``, re-offering a job until told.
 
-    ``pending`` jobs are sent only while ``active``; with nothing to send it
-    waits for ``wake_at``.  Replies are judged with the codec.
+    It offers jobs only while ``active``, and with a ``period``, one per
+    period (as a fixed-rate stream does); with nothing to send it waits for
+    ``wake_at``.  Replies are judged with the codec.
     """
 
-    def __init__(self, ids: Iterable[int], *, wake_at: float = math.inf) -> None:
+    def __init__(self, ids: Iterable[int], *, wake_at: float = math.inf, period: float = 0.0) -> None:
         self.ids = list(ids)
         self.active = True
         self.wake_at = wake_at
+        self.period = period
         self.k = 0
         self.asked = 0
         self.offered: list[bytes] = []
@@ -221,6 +251,10 @@ class FakeSource:
         self.asked += 1
         if not self.active:
             return None
+        if self.period:
+            if now < self.wake_at:
+                return None
+            self.wake_at = now + self.period
         command = self.command()
         self.offered.append(command.tx)
         assert command.servo_id is not None
