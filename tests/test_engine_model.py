@@ -1,0 +1,288 @@
+"""The engine against a model of the line, driven by hypothesis: random submits, cancels, faults and time.
+
+The model: servos 1..3 answer (4 never does), each answer with a fresh value,
+so a reply taken for the wrong request shows; a fault per transaction (reply
+dropped, no echo either, reply split in chunks, late into the resync, so late
+it lands in the next transaction, its tail held, a parity-marked byte, a wrong
+echo, an extra byte); noise; a stream-like background source; the port lost and
+reconnected, or reopened.  Plain calls and simulated time only: no event loop.
+
+Late replies are kept to what the engine can tell apart: a late reply lands in
+the resync or in the first transaction after it (the guard read's window), and
+not after an early failure of the transaction it belongs to (noise is sent only
+when no late reply is in flight).  A guard read's reply is never very late:
+that case is ``test_a_timed_out_guards_late_reply_is_not_taken_for_the_next_commands_reply``
+(a known engine bug, xfail).  The stream leaves only between its transactions (see detach_stream).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import deque
+
+import pytest
+from engine_support import BAUD, TURNAROUND, FakeSource, Recorded, Servos, Wire, misattributed, ready_engine, wire_time
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import (
+    RuleBasedStateMachine,
+    initialize,
+    invariant,
+    precondition,
+    rule,
+    run_state_machine_as_test,
+)
+
+from ics35_async import protocol
+from ics35_async.engine import LineEngine, Priority, State
+from ics35_async.errors import PortLost, ReplyTimeout
+from ics35_async.protocol import Param
+
+PRESENT = (1, 2, 3)
+IDS = (1, 2, 3, 4)
+KINDS = ("clean", "split", "drop", "silent", "late", "very_late", "tail_late", "garble", "echo_garble", "extra_byte")
+LATE = {"late", "very_late", "tail_late"}
+
+# The faults that test the engine's judgement most (late replies) come up more often.
+faults = st.tuples(st.sampled_from([*KINDS, "late", "very_late", "tail_late", "very_late"]), st.floats(0.0, 1.0),
+                   st.lists(st.integers(1, 5), max_size=4))
+
+
+class FaultyServos(Servos):
+    """Servos whose next transactions suffer the queued faults."""
+
+    def __init__(self, echo: bool) -> None:
+        super().__init__(PRESENT, echo=echo)
+        self.faults: deque[tuple[str, float, list[int]]] = deque()
+        self.late_until = -math.inf  # when the last late reply in flight lands
+        self.guards_seen = 0
+        self.bad_writes: set[int] = set()  # writes whose answer the engine must not accept
+
+    def __call__(self, wire: Wire, tx: bytes) -> None:
+        engine = wire.engine
+        t = wire.now
+        guard = engine.counters.guards != self.guards_seen
+        self.guards_seen = engine.counters.guards
+        kind, u, cuts = self.faults.popleft() if self.faults else ("clean", 0.0, [])
+        if kind in LATE and (self.late_until > t or (guard and kind == "very_late")):
+            kind = "drop"  # see the module docstring: kept to what the engine can tell apart
+        if kind == "echo_garble" and not self.echo:
+            kind = "clean"
+        k = len(self.answers)  # this write's number, which tags its bytes
+        if self.echo and kind != "silent":
+            echo = bytes([tx[0] ^ 0x01]) + tx[1:] if kind == "echo_garble" else tx
+            wire.schedule(t + wire_time(len(tx)), echo, tag=k)
+        reply, value = self.reply_for(tx)
+        if kind not in ("clean", "split"):
+            self.bad_writes.add(k)
+        if reply is None or kind in ("drop", "silent"):
+            self.answers.append(None)
+            return
+        self.answers.append(value)
+        on_time = t + wire_time(len(tx) + len(reply)) + TURNAROUND
+        deadline, extra, quiet = engine.deadline, engine.link.extra, engine.timing.quiet_time
+        base = deadline - t - extra
+        if kind == "split":
+            for n, (start, end) in enumerate(pieces(len(reply), cuts)):
+                wire.schedule(on_time + n * u * 0.001, reply[start:end], tag=k)
+        elif kind == "late":  # lands in the resync after the timeout
+            self.late_until = deadline + (0.05 + 0.85 * u) * (quiet + extra)
+            wire.schedule(self.late_until, reply, tag=k)
+        elif kind == "very_late":  # lands just after that resync: in the next transaction, if any
+            self.late_until = deadline + quiet + extra + 0.0001 + 0.0001 * u
+            wire.schedule(self.late_until, reply, tag=k)
+        elif kind == "tail_late":  # the head in time, the tail in the resync after the partial reply
+            self.late_until = deadline + (0.05 + 0.85 * u) * max(quiet + extra, base)
+            wire.schedule(on_time, reply[:1], tag=k)
+            wire.schedule(self.late_until, reply[1:], tag=k)
+        elif kind == "garble":  # a byte damaged on the wire, which the port marks (mostly one the codec can't check)
+            i = len(reply) - 1 - min(int(u * 3), len(reply) - 1)
+            wire.schedule(on_time, reply[:i] + bytes([reply[i] ^ 0x01]) + reply[i + 1 :], parity_errors=1, tag=k)
+        elif kind == "extra_byte":
+            wire.schedule(on_time, reply + b"\xff", tag=k)
+        else:
+            wire.schedule(on_time, reply, tag=k)
+
+
+def pieces(n: int, cuts: list[int]) -> list[tuple[int, int]]:
+    points = sorted({c for c in cuts if 0 < c < n})
+    bounds = [0, *points, n]
+    return list(itertools.pairwise(bounds))
+
+
+class LineModel(RuleBasedStateMachine):
+    engine: LineEngine
+    wire: Wire
+    servos: FaultyServos
+
+    @initialize(echo=st.booleans(), share=st.integers(1, 4))
+    def open_line(self, echo: bool, share: int) -> None:
+        self.engine = ready_engine(echo, max_requests_between=share)
+        self.servos = FaultyServos(echo)
+        self.wire = Wire(self.engine, self.servos)
+        self.requests: list[Recorded] = []
+        self.source: FakeSource | None = None
+        self.source_errors: list[str] = []
+        self.uncounted = 0  # transactions a lost port took off the wire before they ended
+
+    # ---------------------------------------------------------------- rules
+
+    @rule(batch=st.lists(st.tuples(st.sampled_from(IDS), st.sampled_from(("position", "speed", "stretch", "current")),
+                                   st.integers(1, protocol.POSITION_MAX), st.sampled_from(list(Priority)),
+                                   st.integers(0, 2)), min_size=1, max_size=3))
+    def submit(self, batch: list[tuple[int, str, int, Priority, int]]) -> None:
+        for sid, what, pos, priority, retries in batch:
+            if what == "position":
+                command: protocol.Command[int] = protocol.Position(sid, pos, baudrate=BAUD)
+            else:
+                command = protocol.ReadParam(sid, Param[what.upper()])
+            req = Recorded(command, priority, retries, wire=self.wire)
+            self.requests.append(req)
+            self.wire.submit(req)
+
+    @precondition(lambda self: self.requests)
+    @rule(data=st.data())
+    def cancel(self, data: st.DataObject) -> None:
+        data.draw(st.sampled_from(self.requests)).cancel()
+
+    @rule(batch=st.lists(faults, min_size=1, max_size=4))
+    def inject(self, batch: list[tuple[str, float, list[int]]]) -> None:
+        """Faults for the next transactions, one each."""
+        self.servos.faults.extend(batch[: 8 - len(self.servos.faults)])
+
+    @rule(dt=st.one_of(st.floats(0.0, 0.03), st.sampled_from([0.0002, 0.001, 0.011, 0.3])))
+    def advance(self, dt: float) -> None:
+        self.wire.run_for(dt)
+
+    @precondition(lambda self: self.servos.late_until < self.wire.now)
+    @rule(n=st.integers(1, 4))
+    def noise(self, n: int) -> None:
+        self.wire.schedule(self.wire.now, b"\xff" * n, tag="noise")
+        self.wire.run_until(self.wire.now)  # now, before any later write can draw a late fault
+
+    @precondition(lambda self: self.source is None)
+    @rule(ids=st.lists(st.sampled_from(IDS), min_size=1, max_size=3))
+    def attach_stream(self, ids: list[int]) -> None:
+        source = FakeSource(ids, wake_at=self.wire.now, period=0.004)
+        source.on_value = self._check_source_value
+        self.source = source
+        self.wire.emit(self.engine.attach_source(source, self.wire.now))
+
+    @precondition(lambda self: self.source is not None)
+    @rule()
+    def detach_stream(self) -> None:
+        # The stream stops offering work and leaves once its own transaction is off the wire:
+        # a source detached mid-transaction is test_a_detached_sources_transaction_is_still_judged
+        # (a known engine bug, xfail).
+        source = self.source
+        assert source is not None
+        source.active, source.wake_at = False, math.inf
+        engine = self.engine
+        own = {protocol.position_tx(sid, protocol.FREE) for sid in source.ids}
+        while engine.state is State.BUSY and self.wire.writes[-1][1] in own:
+            self.wire.run_until(engine.deadline)
+        engine.detach_source(source)
+        self.source = None
+
+    @rule(event=st.sampled_from(["lost", "reopen", *["nothing"] * 6]))
+    def port(self, event: str) -> None:
+        """Now and then the port is lost and reconnected, or reopened (when idle)."""
+        engine = self.engine
+        if event == "lost":
+            if engine.state in (State.BUSY, State.DRAINING):
+                self.uncounted += 1
+            engine.lost("unplugged", reconnect=True)
+        elif event == "reopen" and engine.state is State.IDLE:
+            engine.disconnected()
+        else:
+            return
+        self.wire.clear_in_flight()
+        self.servos.late_until = -math.inf
+        self.wire.emit(engine.connected(self.wire.now))
+
+    def _check_source_value(self, sid: int, value: int) -> None:
+        k = len(self.wire.writes) - 1
+        if (self.wire.writes[k][1] != protocol.Position(sid, 0, baudrate=BAUD).tx or self.servos.answers[k] != value
+                or k in self.servos.bad_writes):
+            answered = self.servos.answers[k]
+            self.source_errors.append(f"stream got {value} for ID {sid}; write {k} was answered {answered}")
+
+    # ---------------------------------------------------------------- invariants
+
+    @invariant()
+    def state_and_deadline(self) -> None:
+        engine = self.engine
+        assert isinstance(engine.state, State)
+        if engine.state in (State.BUSY, State.QUIET, State.DRAINING):
+            assert math.isfinite(engine.deadline), engine.state
+        assert 0.0 <= engine.link.extra <= engine.link.bound
+
+    @invariant()
+    def each_request_ends_at_most_once_with_its_own_value(self) -> None:
+        for req in self.requests:
+            assert req.calls <= 1, req
+            if req.state == "done":
+                problem = misattributed(req, self.servos)
+                assert problem is None, problem
+                assert req.write_index not in self.servos.bad_writes, f"{req!r} took a faulty answer"
+            if req.state == "failed":
+                assert req.error is not None and req.value is None
+        assert not self.source_errors, self.source_errors
+
+    @invariant()
+    def an_undisturbed_clean_transaction_succeeds(self) -> None:
+        wire, servos = self.wire, self.servos
+        for req in self.requests:
+            k = req.write_index
+            if req.state != "failed" or isinstance(req.error, PortLost) or k in servos.bad_writes:
+                continue
+            if servos.answers[k] is None:
+                continue  # nobody there to answer
+            others = [tag for tag in wire.delivered[wire.marks[k] : req.end_mark] if tag != k]
+            assert others, f"{req!r} failed on write {k}, answered cleanly and alone: {req.error}"
+
+    @invariant()
+    def counters_add_up(self) -> None:
+        total = self.engine.counters.snapshot(0).total
+        errors = total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
+        assert total.ok + errors == total.transactions
+        on_the_wire = 1 if self.engine.state in (State.BUSY, State.DRAINING) else 0
+        assert total.transactions == len(self.wire.writes) - self.uncounted - on_the_wire
+
+    def teardown(self) -> None:
+        if not hasattr(self, "engine"):
+            return
+        if self.source is not None:
+            self.detach_stream()
+        self.wire.settle(limit=120.0)
+        for req in self.requests:
+            assert req.calls == 1 or (req.state == "cancelled" and req.calls == 0), req
+            assert req.state in ("done", "failed", "cancelled"), req
+        self.each_request_ends_at_most_once_with_its_own_value()
+        self.an_undisturbed_clean_transaction_succeeds()
+        self.counters_add_up()
+        # Whatever happened before, a quiet line works again, however the replies are cut up.
+        self.servos.faults.clear()
+        self.servos.faults.extend(("split", 0.5, [cut, cut + 1]) for cut in range(4) for _ in range(4))
+        fresh = [Recorded(command, wire=self.wire) for sid in IDS
+                 for command in (protocol.ReadParam(sid, Param.SPEED), protocol.Position(sid, 0, baudrate=BAUD))]
+        for req in fresh:
+            self.wire.submit(req)
+        self.wire.settle(limit=120.0)
+        for req in fresh:
+            if req.command.servo_id in PRESENT:
+                assert req.state == "done" and misattributed(req, self.servos) is None, req
+            else:
+                assert isinstance(req.error, ReplyTimeout), req
+        self.engine.close()
+        assert self.engine.state is State.CLOSED and self.engine.deadline == math.inf
+
+
+SETTINGS = settings(max_examples=200, stateful_step_count=50, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
+
+
+@pytest.mark.timeout(900)  # a pass takes seconds; shrinking a failure takes longer
+def test_engine_against_a_model_of_the_line() -> None:
+    run_state_machine_as_test(LineModel, settings=SETTINGS)

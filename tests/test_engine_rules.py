@@ -1,0 +1,303 @@
+"""The engine's rules between transactions: guard reads, priorities, the stream's share, retries, cancellation.
+
+Plain calls and simulated time only (see engine_support): no event loop.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
+
+from ics35_async import protocol
+from ics35_async.engine import Priority, State
+from ics35_async.errors import ReplyTimeout
+from ics35_async.protocol import Param
+
+
+def line(ids: set[int], **options: object) -> tuple[Wire, Servos]:
+    engine = ready_engine(**options)  # type: ignore[arg-type]
+    servos = Servos(ids, echo=engine.echo)
+    return Wire(engine, servos), servos
+
+
+# ---------------------------------------------------------------- the guard read
+
+
+def test_a_twin_of_a_timed_out_command_is_preceded_by_the_guard_read() -> None:
+    wire, servos = line({3})
+    servos.mute = {0}
+    first, twin = Recorded(read(3)), Recorded(read(3))
+    wire.submit(first)
+    wire.run_for(0.025)  # past the deadline: the resync is running
+    assert isinstance(first.error, ReplyTimeout) and wire.engine.state is State.QUIET
+    wire.submit(twin)
+    wire.settle()
+    guard = protocol.guard_read(read(3).tx, 3)
+    assert guard.tx == read(3, Param.STRETCH).tx
+    assert wire.sent() == [read(3).tx, guard.tx, read(3).tx]
+    assert twin.result() == servos.answers[2]
+    assert wire.engine.counters.guards == 1
+
+
+def test_the_guard_for_a_stretch_read_reads_the_speed() -> None:
+    wire, servos = line({3})
+    servos.mute = {0}
+    wire.submit(Recorded(read(3, Param.STRETCH)))
+    wire.run_for(0.025)
+    wire.submit(Recorded(read(3, Param.STRETCH)))
+    wire.settle()
+    assert wire.sent()[1] == read(3, Param.SPEED).tx
+
+
+def test_a_late_reply_lands_in_the_guard_and_the_twin_gets_its_own() -> None:
+    wire, servos = line({3})
+    servos.mute = {0}
+    first, twin = Recorded(read(3)), Recorded(read(3))
+    wire.submit(first)
+    wire.submit(twin)
+    deadline = wire.engine.deadline
+    wire.run_until(deadline)  # the first one timed out; the resync runs
+    resync_end = wire.engine.deadline
+    # The first command's reply, very late: just after the guard's echo, inside the guard's transaction.
+    wire.schedule(resync_end + 0.0003, read(3).encode_reply(99))
+    wire.settle()
+    assert wire.sent() == [read(3).tx, read(3, Param.STRETCH).tx, read(3).tx]
+    assert isinstance(first.error, ReplyTimeout)
+    assert twin.result() == servos.answers[2] != 99
+    assert wire.engine.counters.snapshot(0).per_id[3].bad_replies == 1  # the guard took the blow
+
+
+def test_a_guard_that_times_out_arms_no_further_guard() -> None:
+    wire, servos = line({3})
+    servos.mute = {0, 1}  # the command and its guard go unanswered
+    first, twin = Recorded(read(3)), Recorded(read(3))
+    wire.submit(first)
+    wire.submit(twin)
+    wire.settle()
+    assert wire.sent() == [read(3).tx, read(3, Param.STRETCH).tx, read(3).tx]
+    assert twin.result() == servos.answers[2]
+    assert wire.engine.counters.guards == 1
+
+
+@pytest.mark.parametrize("other", [position(3), read(4)], ids=["same servo, other command", "other servo"])
+def test_a_different_command_goes_straight_on(other: protocol.Command[int]) -> None:
+    wire, servos = line({3, 4})
+    servos.mute = {0}
+    wire.submit(Recorded(read(3)))
+    nxt = Recorded(other)
+    wire.submit(nxt)
+    wire.settle()
+    assert wire.sent() == [read(3).tx, other.tx]
+    assert nxt.result() == servos.answers[1] and wire.engine.counters.guards == 0
+
+
+def test_a_wrong_echo_at_the_deadline_arms_no_guard() -> None:
+    # The servo never heard the command (the echo came back wrong), so no reply can come late.
+    engine = ready_engine()
+    first = Recorded(read(3))
+    engine.submit(first, 0.0)
+    engine.receive(b"\xa3\x7f", 0.0002)
+    engine.tick(engine.deadline)
+    engine.submit(Recorded(read(3)), engine.deadline)
+    assert engine.tick(engine.deadline) == read(3).tx
+    assert engine.counters.guards == 0
+
+
+# ---------------------------------------------------------------- priorities and the stream's share
+
+
+def test_urgent_runs_first_and_each_level_is_fifo() -> None:
+    wire, _ = line({1, 2, 3, 4, 5, 6, 7})
+    wire.submit(Recorded(read(1)))  # on the wire while the others queue
+    queued = [(2, Priority.NORMAL), (3, Priority.NORMAL), (4, Priority.URGENT), (5, Priority.LOW),
+              (6, Priority.HIGH), (7, Priority.NORMAL)]
+    for sid, prio in queued:
+        wire.submit(Recorded(read(sid), prio))
+    wire.settle()
+    assert [tx[0] & 0x1F for tx in wire.sent()] == [1, 4, 6, 2, 3, 7, 5]
+
+
+def test_the_stream_gets_a_turn_after_at_most_max_requests_between() -> None:
+    wire, _ = line({1, 2, *range(10, 30)}, max_requests_between=3)
+    source = FakeSource([1, 2])
+    wire.emit(wire.engine.attach_source(source, wire.now))
+    requests = [Recorded(read(sid)) for sid in range(10, 30)]
+    for req in requests:
+        wire.submit(req)
+    wire.run_for(0.2)
+    assert all(req.state == "done" for req in requests)
+    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
+    assert max(len(run) for run in kinds.split("S")) <= 3
+    assert "RRRR" not in kinds and kinds.count("R") == 20
+    assert len(source.values) == kinds.count("S") - (wire.engine.state is State.BUSY)
+    assert {sid for sid, _ in source.values} == {1, 2}
+
+
+def test_the_sources_wake_at_becomes_the_deadline_when_it_has_nothing() -> None:
+    engine = ready_engine()
+    source = FakeSource([1], wake_at=5.0)
+    source.active = False
+    assert engine.attach_source(source, 0.0) is None
+    assert engine.deadline == 5.0 and engine.state is State.IDLE
+    assert engine.tick(4.9) is None
+    # A request still goes while the source has nothing.
+    req = Recorded(read(3))
+    assert engine.submit(req, 4.9) == read(3).tx
+    engine.receive(read(3).tx + read(3).encode_reply(7), 4.901)
+    assert req.result() == 7 and engine.deadline == 5.0
+    source.active = True
+    asked = source.asked
+    assert engine.tick(5.0) == position(1, 0).tx
+    assert source.asked == asked + 1
+
+
+def test_kick_starts_a_source_that_waits_for_no_time() -> None:
+    engine = ready_engine()
+    source = FakeSource([1])
+    source.active = False
+    engine.attach_source(source, 0.0)
+    assert engine.deadline == math.inf
+    source.active = True
+    assert engine.kick(1.0) == position(1, 0).tx
+    assert engine.kick(1.0) is None  # busy: the source is asked again once the line is free
+
+
+def test_a_source_transaction_displaced_by_a_guard_is_asked_for_again() -> None:
+    wire, servos = line({1})
+    servos.mute = {0}
+    wire.submit(Recorded(position(1, 0)))  # times out: a position twin must wait for a guard
+    wire.run_for(0.022)
+    source = FakeSource([1])
+    wire.emit(wire.engine.attach_source(source, wire.now))
+    wire.run_for(0.05)
+    assert wire.sent()[:3] == [position(1, 0).tx, read(1, Param.STRETCH).tx, position(1, 0).tx]
+    assert source.values and not source.failures
+
+
+# ---------------------------------------------------------------- retries
+
+
+def test_an_idempotent_command_is_retried_and_counted() -> None:
+    wire, servos = line({3})
+    servos.mute = {0}
+    req = Recorded(read(3), retries=2)
+    wire.submit(req)
+    wire.settle()
+    # the retry follows a timeout, so a guard goes first
+    assert wire.sent() == [read(3).tx, read(3, Param.STRETCH).tx, read(3).tx]
+    assert req.result() == servos.answers[2] and req.calls == 1
+    assert wire.engine.counters.snapshot(0).per_id[3].retries == 1
+
+
+def test_retries_run_out_with_the_last_error() -> None:
+    wire, _ = line(set())
+    req = Recorded(read(3), retries=2)
+    wire.submit(req)
+    wire.settle()
+    assert [tx for tx in wire.sent() if tx == read(3).tx] == [read(3).tx] * 3
+    assert isinstance(req.error, ReplyTimeout) and req.calls == 1
+    stats = wire.engine.counters.snapshot(0).per_id[3]
+    assert stats.retries == 2 and stats.timeouts == 5  # three tries and two guards
+
+
+def test_a_bad_reply_is_retried_without_a_guard() -> None:
+    engine = ready_engine()
+    req = Recorded(read(3), retries=1)
+    tx = engine.submit(req, 0.0)
+    reply = read(3).encode_reply(5)
+    engine.receive(tx + b"\x24" + reply[1:], 0.001)  # another servo's header
+    assert req.state == "queued" and engine.state is State.QUIET
+    assert engine.tick(engine.deadline) == read(3).tx
+    engine.receive(tx + reply, engine.deadline)
+    assert req.result() == 5 and engine.counters.snapshot(0).total.retries == 1
+
+
+def test_a_command_that_acts_is_never_retried() -> None:
+    wire, _ = line(set())
+    write = protocol.WriteMemory(3, 0x10, b"\x01")
+    assert not write.idempotent
+    req = Recorded(write, retries=3)
+    wire.submit(req)
+    wire.settle()
+    assert wire.sent() == [write.tx]
+    assert isinstance(req.error, ReplyTimeout)
+    assert wire.engine.counters.snapshot(0).total.retries == 0
+
+
+# ---------------------------------------------------------------- cancellation
+
+
+def test_a_cancelled_queued_request_is_skipped() -> None:
+    wire, servos = line({1, 2, 3})
+    a, b, c = Recorded(read(1)), Recorded(read(2)), Recorded(read(3))
+    for req in (a, b, c):
+        wire.submit(req)
+    b.cancel()
+    wire.settle()
+    assert wire.sent() == [read(1).tx, read(3).tx]
+    assert b.state == "cancelled" and b.calls == 0
+    assert a.result() == servos.answers[0] and c.result() == servos.answers[1]
+
+
+def test_a_request_cancelled_on_the_wire_has_its_reply_consumed_and_the_next_gets_its_own() -> None:
+    engine = ready_engine()
+    a, b = Recorded(read(3)), Recorded(read(3))
+    tx = engine.submit(a, 0.0)
+    engine.submit(b, 0.0)
+    engine.receive(tx + b"\x23", 0.0005)
+    a.cancel()
+    # The rest of a's reply: consumed and dropped, and b goes straight on.
+    assert engine.receive(b"\x02\x11", 0.001) == read(3).tx
+    assert a.state == "cancelled" and a.value is None
+    engine.receive(tx + read(3).encode_reply(0x22), 0.002)
+    assert b.result() == 0x22
+    assert engine.counters.stray == 0 and engine.counters.resyncs == 0
+    assert engine.counters.snapshot(0).total.ok == 2
+
+
+def test_a_request_cancelled_on_the_wire_that_times_out_is_not_retried() -> None:
+    wire, _ = line(set())
+    req = Recorded(read(3), retries=3)
+    wire.submit(req)
+    req.cancel()
+    wire.settle()
+    assert wire.sent() == [read(3).tx] and req.state == "cancelled"
+
+
+@pytest.mark.xfail(strict=True, reason="engine bug: a guard that times out arms no guard, so its own late reply "
+                   "is taken by the next command of the guard's shape when that is not the command it protected")
+def test_a_timed_out_guards_late_reply_is_not_taken_for_the_next_commands_reply() -> None:
+    wire, servos = line({3})
+    servos.mute = {0, 1}  # the read and its guard go unanswered in time
+    first, twin = Recorded(read(3)), Recorded(read(3))
+    wire.submit(first)
+    wire.submit(twin)
+    wire.run_until(wire.engine.deadline)  # the read timed out
+    wire.run_until(wire.engine.deadline)  # resync over: the guard is on the wire
+    assert wire.sent()[-1] == read(3, Param.STRETCH).tx
+    wire.run_until(wire.engine.deadline)  # the guard timed out too
+    resync_end = wire.engine.deadline
+    urgent = Recorded(read(3, Param.STRETCH), Priority.URGENT, wire=wire)  # the guard's shape, ahead of the twin
+    wire.submit(urgent)
+    # The guard's reply, exactly as late as the late reply a guard exists for: right after the next echo.
+    wire.schedule(resync_end + 0.0003, read(3, Param.STRETCH).encode_reply(99))
+    wire.settle()
+    assert urgent.state == "failed" or misattributed(urgent, servos) is None, urgent.value
+
+
+@pytest.mark.xfail(strict=True, reason="engine bug: the transaction of a source detached while it is on the wire "
+                   "is counted ok whatever its bytes (no check, no resync): its real reply lands in the next request")
+def test_a_detached_sources_transaction_is_still_judged() -> None:
+    engine = ready_engine(echo=False)
+    servos = Servos({1}, echo=False)
+    wire = Wire(engine, servos)
+    source = FakeSource([1])
+    assert wire.emit(engine.attach_source(source, 0.0)) == position(1, 0).tx
+    engine.detach_source(source)  # the stream closes with its transaction on the wire
+    req = Recorded(position(1, 0), wire=wire)
+    wire.submit(req)
+    wire.schedule(0.0001, b"\x02\x10\x10")  # before the reply: three bytes that are not it (ID 2's header)
+    wire.settle()
+    assert req.state == "failed" or misattributed(req, servos) is None, req.value
