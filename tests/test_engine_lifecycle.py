@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 import pytest
-from engine_support import FakeSource, Recorded, Servos, Wire, position, read, ready_engine
+from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, position, read, ready_engine
 
 from ics35_async import protocol
 from ics35_async.engine import LineEngine, State

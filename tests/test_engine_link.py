@@ -13,7 +13,7 @@ import math
 from collections.abc import Callable
 
 import pytest
-from engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
+from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
 
 from ics35_async.engine import LineEngine, State
 from ics35_async.errors import ReplyTimeout

@@ -22,7 +22,7 @@ import math
 from collections import deque
 
 import pytest
-from engine_support import BAUD, TURNAROUND, FakeSource, Recorded, Servos, Wire, misattributed, ready_engine, wire_time
+from tests.support.engine_support import BAUD, TURNAROUND, FakeSource, Recorded, Servos, Wire, misattributed, ready_engine, wire_time
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (

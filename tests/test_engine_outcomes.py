@@ -11,7 +11,7 @@ import itertools
 from typing import Any
 
 import pytest
-from engine_support import Recorded, Wire, position, read, ready_engine
+from tests.support.engine_support import Recorded, Wire, position, read, ready_engine
 
 from ics35_async.engine import State
 from ics35_async.errors import (
@@ -245,8 +245,6 @@ def test_bytes_during_a_resync_extend_it() -> None:
     assert engine.counters.resyncs == 1 and engine.counters.stray == 2
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug: a resync's deadline follows quiet_until past max_resync, "
-                   "so a line that never goes quiet keeps the engine in QUIET for ever")
 def test_max_resync_caps_a_resync_on_a_line_that_never_goes_quiet() -> None:
     engine = ready_engine()
     quiet, cap = engine.timing.quiet_time, engine.timing.max_resync

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
+from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
 
 from ics35_async import protocol
 from ics35_async.engine import Priority, State
@@ -287,8 +287,6 @@ def test_a_timed_out_guards_late_reply_is_not_taken_for_the_next_commands_reply(
     assert urgent.state == "failed" or misattributed(urgent, servos) is None, urgent.value
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug: the transaction of a source detached while it is on the wire "
-                   "is counted ok whatever its bytes (no check, no resync): its real reply lands in the next request")
 def test_a_detached_sources_transaction_is_still_judged() -> None:
     engine = ready_engine(echo=False)
     servos = Servos({1}, echo=False)

@@ -129,8 +129,6 @@ class LineEngine:
         """Nothing on the wire, resyncing or queued."""
         return self.state not in (State.BUSY, State.QUIET, State.DRAINING) and not self.queue
 
-    # ------------------------------------------------------------------ work coming in
-
     def submit(self, request: Request, now: float) -> bytes | None:
         state = self.state
         if state is State.IDLE or state is State.BUSY or state is State.QUIET or state is State.OFFLINE:
@@ -178,7 +176,7 @@ class LineEngine:
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
                 self.link.stray(data, now)
             self._quiet_until = now + self.timing.quiet_time + self.link.extra
-            self.deadline = self._quiet_until
+            self.deadline = min(self._quiet_until, self._resync_limit)
         elif state is State.IDLE:
             # Bytes on an idle line: a late reply or noise.  Let it settle first.
             self.counters.stray += len(data)
@@ -207,7 +205,7 @@ class LineEngine:
             return self._timeout(now)
         if state is State.QUIET:
             if now < self._quiet_until and now < self._resync_limit:
-                self.deadline = self._quiet_until
+                self.deadline = min(self._quiet_until, self._resync_limit)
                 return None
             if now < self._quiet_until:
                 log.warning("line never went quiet; carrying on")
@@ -300,7 +298,12 @@ class LineEngine:
             # Only the source that sent the command hears its reply (it may have been
             # detached, and another attached, while the command was on the wire).
             source = self._owner if self._owner is self._source else None
-            rejected = source.complete(buf, echo_len, now) if source is not None else None
+            if source is None:  # its stream left mid-transaction: nobody judges these bytes, so
+                counters.ok[sid] += 1  # let the line settle in case they were not its reply
+                counters.latency.add(latency)
+                self._resync(now)
+                return None
+            rejected = source.complete(buf, echo_len, now)
             if rejected is not None:
                 counters.latency.add(latency)
                 return self._fault(rejected, sid, now)
@@ -350,7 +353,7 @@ class LineEngine:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
             # long again as the transaction was allowed, so its arrival is seen and learnt.
             self._quiet_until = max(self._quiet_until, now + self._base)
-            self.deadline = self._quiet_until
+            self.deadline = min(self._quiet_until, self._resync_limit)
         return out
 
     def _failed(self, error: ReplyError, sid: int, now: float) -> bytes | None:
