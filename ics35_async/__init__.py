@@ -38,6 +38,7 @@ from .errors import (
 from .frames import Frame, GroupFrame, StreamStats
 from .group import BusGroup, GroupStream
 from .protocol import Param
+from .robot import Robot, RobotStream, SafetyStop, open_robot
 from .servo import Device, Servo
 from .stream import Stream
 
@@ -63,10 +64,14 @@ __all__ = [
     "GroupFrame",
     "GroupStream",
     "Priority",
+    "Robot",
+    "RobotStream",
+    "SafetyStop",
     "Servo",
     "Stream",
     "StreamStats",
     "open_bus",
+    "open_robot",
     "EchoMismatch",
     "Eeprom",
     "Flags",
