@@ -70,6 +70,7 @@ class _Plan:
         self.done = anyio.Event()
         self.error: IcsError | None = None
         self.ending: Replies | None = None  # once the final targets are set
+        self.segment = 0  # the segment the last targets came from
 
     def finish(self, error: IcsError | None = None) -> None:
         if not self.done.is_set():
@@ -318,8 +319,14 @@ class Robot:
                     plan.finish()
                     self._plans.remove(plan)
             else:
-                segment = trajectory.segments[trajectory.segment_at(t)]
-                pose, speed = segment.pose_at(t), segment.velocity_at(t)
+                k = trajectory.segment_at(t)
+                segment = trajectory.segments[k]
+                if k > plan.segment:
+                    # Into a new segment: first the keyframe that ended the last one, exactly.
+                    segment, plan.segment = trajectory.segments[k - 1], k
+                    pose, speed = dict(segment.end), trajectory.segments[k].velocity_at(t)
+                else:
+                    pose, speed = segment.pose_at(t), segment.velocity_at(t)
             for name in plan.joints:
                 if name in pose:
                     targets[name] = pose[name]
