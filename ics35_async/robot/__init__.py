@@ -4,6 +4,7 @@
 * :mod:`.profiles`: motion profiles (``minjerk``, ``linear``) and trajectories;
 * :mod:`.stream`: frames and targets in joint space;
 * :mod:`.safety`: the temperature / current / offline watch and :class:`SafetyStop`;
+* :mod:`.plans`: the running motions' bookkeeping;
 * :mod:`.robot`: :class:`Robot`, streaming to every joint while it is open;
 * :mod:`.opening`: :func:`open_robot`;
 * :mod:`.motion`: the keyframe motion file format and playing it.

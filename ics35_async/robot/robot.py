@@ -27,55 +27,12 @@ from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
 from .description import JointSpec, RobotDescription
 from .motion import Motion, play_motion
+from .plans import Plan, Replies
 from .profiles import Segment, Trajectory, check_profile
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
 from .stream import RobotFrame, RobotStream
 
 log = logging.getLogger("ics35_async.robot")
-
-
-class Replies:
-    """Counts each joint's replies that arrived after a moment (distinct reply times seen in frames).
-
-    A frame holds each line's newest cycle, which may have begun before that
-    moment; a reply after it may still answer a command sent before it (the
-    servo measures when the command reaches it), but a second one answers a
-    command sent after it.
-    """
-
-    def __init__(self, joints: Iterable[str], since: float) -> None:
-        self.since = since
-        self.counts = dict.fromkeys(joints, 0)
-        self._last: dict[str, float] = {}
-
-    def add(self, frame: RobotFrame) -> None:
-        for name, stamp in frame.stamps.items():
-            if name in self.counts and stamp > self.since and stamp != self._last.get(name):
-                self.counts[name] += 1
-                self._last[name] = stamp
-
-    def reached(self, replies: int, offline: Iterable[str]) -> bool:
-        skip = set(offline)
-        return all(n >= replies or name in skip for name, n in self.counts.items())
-
-
-class _Plan:
-    """A trajectory being played: which joints it still drives, and how it ends."""
-
-    def __init__(self, trajectory: Trajectory, t0: float, wait_on_wire: bool) -> None:
-        self.trajectory = trajectory
-        self.t0 = t0
-        self.wait_on_wire = wait_on_wire
-        self.joints = set(trajectory.joints)
-        self.done = anyio.Event()
-        self.error: IcsError | None = None
-        self.ending: Replies | None = None  # once the final targets are set
-        self.segment = 0  # the segment the last targets came from
-
-    def finish(self, error: IcsError | None = None) -> None:
-        if not self.done.is_set():
-            self.error = error
-            self.done.set()
 
 
 class Robot:
@@ -94,7 +51,7 @@ class Robot:
         self._positions: dict[str, float] = {}
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
-        self._plans: list[_Plan] = []
+        self._plans: list[Plan] = []
         self._latched: dict[str, SafetyStop] = {}
         self._end_error: IcsError | None = None
         self._gstream: GroupStream | None = None
@@ -272,7 +229,7 @@ class Robot:
 
     async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None:
         """Play a trajectory from now on; returns when it is done (its end on the wire, with ``wait_on_wire``)."""
-        plan = _Plan(trajectory, anyio.current_time(), wait_on_wire)
+        plan = Plan(trajectory, anyio.current_time(), wait_on_wire)
         self._release(plan.joints)
         self._plans.append(plan)
         try:
