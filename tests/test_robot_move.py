@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, open_robot, units
 from ics35_async.eeprom import Eeprom
-from ics35_async.robot import RobotWarning
+from ics35_async.robot import MotionStopped, RobotWarning
 
 from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
 
@@ -222,7 +222,7 @@ def test_move_to_under_trio() -> None:
     rig = make_rig()
 
     async def main() -> dict[str, float]:
-        async with open_robot(rig.description, driver="anyio", **FAST) as robot:
+        async with open_robot(rig.description, **FAST) as robot:  # the buses pick their anyio driver
             await robot.move_to({"neck": -30.0, "hip": 20.0}, duration=0.1)
             return await robot.read_pose()
 
@@ -263,3 +263,37 @@ def test_move_to_never_ends_early_and_returns_within_three_frames_of_its_end() -
 
     run_robot(rig, body)
     assert list(commanded(rig.lower, 2))[-1] == joint_position(JOINTS["knee"], 15.0)
+
+
+def test_stop_slows_a_running_motion_to_rest_without_turning_back() -> None:
+    rig = make_rig()
+    caught: list[BaseException] = []
+
+    async def body(robot: Robot) -> None:
+        async def mover() -> None:
+            try:
+                await robot.move_to({"neck": 55.0, "knee": -90.0}, duration=2.0, profile="linear")
+            except MotionStopped as exc:
+                caught.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(mover)
+            async with robot.stream() as stream:
+                while (await stream.next_frame()).targets["neck"] in (None, -10.0):
+                    pass
+            since = seq_now(rig)
+            await robot.stop(0.2)
+        await robot.on_wire()
+        for name in ("neck", "knee"):
+            spec = JOINTS[name]
+            sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
+            forward = joint_position(spec, -90.0 if name == "knee" else 55.0) > sent[0]
+            steps = list(itertools.pairwise(sent))
+            # On in the direction it was going, slowing down, never back; then at rest.
+            assert all((b >= a) if forward else (b <= a) for a, b in steps), (name, sent)
+            assert len(set(sent)) > 3, (name, sent)  # it went on moving: not frozen at once
+            assert sent[-1] != joint_position(spec, -90.0 if name == "knee" else 55.0)
+            assert robot.targets[name] == pytest.approx(joint_degrees(spec, sent[-1]), abs=HALF_COUNT)
+
+    run_robot(rig, body)
+    assert len(caught) == 1
