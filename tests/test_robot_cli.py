@@ -115,14 +115,17 @@ def test_a_safety_stop_is_exit_code_7(ics35: Any, tmp_path: Path) -> None:
     assert "hint:" in result.err
 
 
-def run_with_hands(args: list[str], steps: list[tuple[Callable[[], None] | None, str]], sims: list[VirtualLine]) -> (
-    Result
-):
-    """Run ``ics35 ARGS`` with a pipe as stdin; a helper thread does each step's hand move, lets the robot
-    see it (a few hundred transactions on every line), then types the step's text."""
+Step = tuple[str | None, Callable[[], None] | None, str]
+
+
+def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) -> Result:
+    """Run ``ics35 ARGS`` with a pipe as stdin.  For each ``(phrase, move, text)`` step a helper thread waits
+    until the command has printed ``phrase`` (it has done what came before), does the hand ``move``, lets
+    the robot see it (a few hundred transactions on every line), then types ``text``."""
     read_end, write_end = os.pipe()
     stdin = os.fdopen(read_end, "r")
     writer = os.fdopen(write_end, "w")
+    errors = io.StringIO()
 
     def settle() -> None:
         marks = [sim.transactions for sim in sims]
@@ -130,7 +133,9 @@ def run_with_hands(args: list[str], steps: list[tuple[Callable[[], None] | None,
             threading.Event().wait(0.005)
 
     def hands() -> None:
-        for move, text in steps:
+        for phrase, move, text in steps:
+            while phrase is not None and phrase not in errors.getvalue():
+                threading.Event().wait(0.005)
             settle()
             if move is not None:
                 move()
@@ -141,12 +146,12 @@ def run_with_hands(args: list[str], steps: list[tuple[Callable[[], None] | None,
 
     helper = threading.Thread(target=hands, daemon=True)
     old_stdin, old_out, old_err = sys.stdin, sys.stdout, sys.stderr
-    sys.stdin, sys.stdout, sys.stderr = stdin, io.StringIO(), io.StringIO()
+    sys.stdin, sys.stdout, sys.stderr = stdin, io.StringIO(), errors
     try:
         helper.start()
         with pytest.raises(SystemExit) as exited:
             main(args)
-        out, err = sys.stdout.getvalue(), sys.stderr.getvalue()  # type: ignore[attr-defined]
+        out, err = sys.stdout.getvalue(), errors.getvalue()  # type: ignore[attr-defined]
     finally:
         sys.stdin, sys.stdout, sys.stderr = old_stdin, old_out, old_err
         helper.join(10)
@@ -173,7 +178,7 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(rig: tuple[Rig, Pat
 
     result = run_with_hands(
         ["teach", str(robot_file), str(out_file), "--joints", "neck,hip"],
-        [(pose(first), "\n"), (pose(second), "\n"), (None, "q\n")],
+        [("Enter captures", pose(first), "\n"), ("pose 1 at", pose(second), "\n"), ("pose 2 at", None, "q\n")],
         [sims.upper, sims.lower],
     )
     assert result.code == 0, result.err
@@ -231,9 +236,9 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(rig: tuple[Rig
     result = run_with_hands(
         ["calibrate", str(robot_file)],
         [
-            (at({"neck": 12.0, "hip": -3.0}), "\n"),  # the neutral pose, in servo degrees
-            (at({"neck": -50.0, "hip": -60.0}), ""),  # one end of each range
-            (at({"neck": 70.0, "hip": 40.0}), "\n"),  # the other end; done
+            ("neutral (every joint at 0)", at({"neck": 12.0, "hip": -3.0}), "\n"),  # servo degrees
+            ("whole range", at({"neck": -50.0, "hip": -60.0}), ""),  # one end of each range
+            (None, at({"neck": 70.0, "hip": 40.0}), "\n"),  # the other end; done
         ],
         [sims.upper, sims.lower],
     )
@@ -260,8 +265,8 @@ def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(rig: tupl
         'joints.neck = {line = "upper", id = 1}   # inline: cannot be edited in place\n'
     )
     robot_file.write_text(original)
-    result = run_with_hands(["calibrate", str(robot_file), "--joints", "neck"], [(None, "\n"), (None, "\n")],
-                            [sims.upper])
+    result = run_with_hands(["calibrate", str(robot_file), "--joints", "neck"],
+                            [("neutral (every joint at 0)", None, "\n"), ("whole range", None, "\n")], [sims.upper])
     assert result.code == 0, result.err
     assert robot_file.read_text() == original
     beside = tmp_path / "inline.calibrated.toml"

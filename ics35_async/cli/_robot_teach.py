@@ -9,13 +9,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
-from ..robot import Keyframe, Motion, Robot, RobotDescription, open_robot, save_motion
+from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
 from ._common import CliError, ExitCode, check_output_path, err, out, settings_of
@@ -39,17 +39,13 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
     return names
 
 
-async def wait_for_line(lines: TypedLines, screen: Screen, hint: str, each: Callable[[], None] | None = None) -> (
-    str | None
-):
+async def wait_for_line(lines: TypedLines, screen: Screen, hint: str) -> str | None:
     """The next typed line (None at the end of input), redrawing the screen meanwhile."""
     pending = asyncio.ensure_future(lines.get())
     try:
         while not pending.done():
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(pending), 0.05)
-            if each is not None:
-                each()
             screen.update(hint)
         return pending.result()
     finally:
@@ -189,13 +185,18 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 return joint_table(robot, f"calibrate: {escape(robot_file)} (servo degrees on the right)", names,
                                    (("neutral°", "min°", "max°"), extra))
 
-            def track() -> None:
-                frame = robot.latest
+            def track(frame: RobotFrame | None) -> None:
                 for name, deg in (frame.positions.items() if frame else ()):
-                    if name in names and step[0] == "range":
+                    if name in names:
                         servo = robot.joints[name].servo_degrees(deg)
                         low[name] = min(servo, low.get(name, servo))
                         high[name] = max(servo, high.get(name, servo))
+
+            async def track_every_frame() -> None:
+                # Every frame, not the screen's ticks: a joint may touch its end only for a moment.
+                async with robot.stream() as stream:
+                    async for frame in stream:
+                        track(frame)
 
             with Screen(table, summary) as screen:
                 err.print("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
@@ -205,9 +206,15 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 neutral.update({n: robot.joints[n].servo_degrees(pose[n]) for n in names if n in pose})
                 step[0] = "range"
                 err.print("now move each joint through its whole range by hand, then Enter")
-                if await wait_for_line(lines, screen, "Enter: done", track) is None:
-                    raise CliError(ExitCode.REFUSED, "input ended before the ranges were done: nothing written")
-                track()
+                tracking = asyncio.ensure_future(track_every_frame())
+                try:
+                    if await wait_for_line(lines, screen, "Enter: done") is None:
+                        raise CliError(ExitCode.REFUSED, "input ended before the ranges were done: nothing written")
+                finally:
+                    tracking.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await tracking
+                track(robot.latest)
 
     run_robot(settings, description, body)
     calibrated: dict[str, JointSpec] = {}
