@@ -17,6 +17,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/ics35 demo
 
+# The robot layer on the simulator: a 17-joint humanoid on two lines plays a wave (live joint table).
+robot-demo: $(STAMP)
+	$(BIN)/ics35 play examples/humanoid.toml examples/wave.json
+
 lint: $(STAMP)
 	$(BIN)/ruff check ics35_async tests benchmarks
 

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from .bus import Bus, BusTiming, Priority, open_bus
     from .frames import Frame, GroupFrame, StreamStats
     from .group import BusGroup, GroupStream
+    from .robot import Robot, RobotStream, SafetyStop, open_robot
     from .servo import Device, Servo
     from .stream import Stream
 
@@ -62,6 +63,10 @@ _LAZY = {
     "Device": ".servo",
     "Servo": ".servo",
     "Stream": ".stream",
+    "Robot": ".robot",
+    "RobotStream": ".robot",
+    "SafetyStop": ".robot",
+    "open_robot": ".robot",
 }
 
 
@@ -89,10 +94,14 @@ __all__ = [
     "GroupFrame",
     "GroupStream",
     "Priority",
+    "Robot",
+    "RobotStream",
+    "SafetyStop",
     "Servo",
     "Stream",
     "StreamStats",
     "open_bus",
+    "open_robot",
     "EchoMismatch",
     "Eeprom",
     "Flags",

@@ -10,12 +10,12 @@ import math
 from pathlib import Path
 
 import pytest
-from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, position, read, ready_engine
 
 from ics35_async import protocol
 from ics35_async.engine import LineEngine, State
 from ics35_async.errors import BusClosed, InvalidArgument, PortLost, ReplyTimeout
 from ics35_async.protocol import Timing
+from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, position, read, ready_engine
 
 ENGINE_DIR = Path(__file__).resolve().parents[1] / "ics35_async" / "engine"
 REPLY = read(3).encode_reply(9)

@@ -13,10 +13,10 @@ import math
 from collections.abc import Callable
 
 import pytest
-from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
 
 from ics35_async.engine import LineEngine, State
 from ics35_async.errors import ReplyTimeout
+from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
 
 CMD = read(3)
 NBYTES = len(CMD.tx) + CMD.reply_len

@@ -22,7 +22,6 @@ import math
 from collections import deque
 
 import pytest
-from tests.support.engine_support import BAUD, TURNAROUND, FakeSource, Recorded, Servos, Wire, misattributed, ready_engine, wire_time
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
@@ -38,6 +37,17 @@ from ics35_async import protocol
 from ics35_async.engine import LineEngine, Priority, State
 from ics35_async.errors import PortLost, ReplyTimeout
 from ics35_async.protocol import Param
+from tests.support.engine_support import (
+    BAUD,
+    TURNAROUND,
+    FakeSource,
+    Recorded,
+    Servos,
+    Wire,
+    misattributed,
+    ready_engine,
+    wire_time,
+)
 
 PRESENT = (1, 2, 3)
 IDS = (1, 2, 3, 4)

@@ -11,7 +11,6 @@ import itertools
 from typing import Any
 
 import pytest
-from tests.support.engine_support import Recorded, Wire, position, read, ready_engine
 
 from ics35_async.engine import State
 from ics35_async.errors import (
@@ -25,6 +24,7 @@ from ics35_async.errors import (
     ReplyTimeout,
 )
 from ics35_async.protocol import Position
+from tests.support.engine_support import Recorded, Wire, position, read, ready_engine
 
 CMD = read(3)
 TX = CMD.tx

@@ -8,12 +8,12 @@ from __future__ import annotations
 import math
 
 import pytest
-from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
 
 from ics35_async import protocol
 from ics35_async.engine import Priority, State
 from ics35_async.errors import ReplyTimeout
 from ics35_async.protocol import Param
+from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
 
 
 def line(ids: set[int], **options: object) -> tuple[Wire, Servos]:

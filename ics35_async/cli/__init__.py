@@ -26,7 +26,7 @@ from ._settings import CliError, ExitCode
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
 # Modules whose COMMANDS list is mounted on the group (imported on first use).
-COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports")
+COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports", "_robot_play", "_robot_teach")
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
 # Commands that open no line: no line options after them either.
@@ -79,7 +79,7 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
 
     Exit codes: 0 ok, 1 communication error, 2 bad argument (nothing sent), 3 port cannot be opened,
     4 no servo answered, 5 refused or not confirmed (nothing written), 6 servo answers at another baud,
-    130 interrupted.
+    7 a robot's safety watch stopped the motion, 130 interrupted.
     """
     ctx.obj = settings_from(ctx, line_options)
 

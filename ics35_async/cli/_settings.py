@@ -36,6 +36,7 @@ class ExitCode(enum.IntEnum):
     NO_REPLY = 4  # no servo answered: baud, power, wiring, ID
     REFUSED = 5  # a dangerous operation was refused or not confirmed: nothing was written
     WRONG_BAUD = 6  # the servo answers, but at another baud rate than --baud
+    SAFETY_STOP = 7  # a robot's safety watch stopped the motion (too hot, too much current, a joint offline)
     INTERRUPTED = 130  # Ctrl-C during a command that is not meant to be stopped that way
 
 

@@ -1,0 +1,148 @@
+"""What play, teach and calibrate share: the robot file checked first, running a robot command, lines typed
+on stdin, and errors in a person's words.
+
+The ports come from the robot file, so these commands do not use --port or
+--baud; --timeout and --transport apply to every line of the robot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import sys
+import threading
+import warnings
+from collections.abc import Awaitable, Callable, Iterator
+from typing import Any, TypeVar
+
+from rich.markup import escape
+
+from ..errors import IcsError, InvalidArgument, ReplyTimeout
+from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
+from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
+
+T = TypeVar("T")
+
+SAFETY_HINTS = (
+    "let the servo cool down, and check nothing blocks the joint (a stalled servo draws its full current)",
+    "the thresholds are [safety] max_temperature_c and max_current in the robot file",
+)
+
+
+def load_robot_file(path: str) -> RobotDescription:
+    """The checked description, or a usage error (exit code 2) naming the file and key."""
+    check_input_path(path, "ROBOT.toml")
+    try:
+        return load_description(path)
+    except InvalidArgument as exc:
+        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+
+
+def robot_options(settings: Settings) -> dict[str, Any]:
+    """open_robot options from the line options that apply to every line of a robot."""
+    return {"adapter_latency": settings.timeout, "transport": settings.transport}
+
+
+def note_ports(settings: Settings, robot_file: str) -> None:
+    if not settings.port_defaulted:
+        err.print(f"[dim]note: the ports come from {escape(robot_file)}; --port and --baud are not used[/dim]")
+
+
+def safety_error(exc: SafetyStop) -> CliError:
+    if exc.reason == "offline":
+        return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", *NO_REPLY_HINTS[:2],
+                        "to carry on without it: [safety] continue_on_offline = true")
+    return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", *SAFETY_HINTS)
+
+
+def show_warnings(robot: Robot) -> None:
+    for warning in robot.warnings:
+        err.print(f"[yellow]warning:[/yellow] {escape(warning)}", soft_wrap=True)
+
+
+async def first_pose(robot: Robot) -> dict[str, float]:
+    """The pose after open; a robot whose servos all stay silent is exit code 4."""
+    pose = await robot.read_pose()
+    if not pose:
+        lines = ", ".join(f"{name} ({line.port})" for name, line in robot.description.lines.items())
+        raise CliError(ExitCode.NO_REPLY, f"no joint's servo answered on line(s) {lines}", *NO_REPLY_HINTS)
+    return pose
+
+
+@contextlib.contextmanager
+def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
+    """Simulated lines the robot file names live for this command only (unless they existed before it)."""
+    named = [line.port for line in description.lines.values() if line.port.startswith("sim://")]
+    if not named:
+        yield
+        return
+    from .. import sim
+
+    names = {sim.parse_url(port)[0] for port in named} - {None}
+    before = set()
+    for name in names:
+        with contextlib.suppress(KeyError):
+            sim.named(str(name))
+            before.add(name)
+    try:
+        yield
+    finally:
+        for name in names - before:
+            with contextlib.suppress(KeyError):
+                sim.named(str(name)).close()
+
+
+def run_robot(settings: Settings, description: RobotDescription, make: Callable[[], Awaitable[T]]) -> T:
+    """Run a robot command's coroutine; every expected failure becomes a :class:`CliError`."""
+    with _sim_lines_of(description), warnings.catch_warnings():
+        # The command prints robot.warnings itself, once, in its own words.
+        warnings.simplefilter("ignore", RobotWarning)
+        try:
+            return run_loop(make())
+        except KeyboardInterrupt:
+            raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
+        except SafetyStop as exc:
+            raise safety_error(exc) from None
+        except ReplyTimeout as exc:
+            raise CliError(ExitCode.NO_REPLY, str(exc), *NO_REPLY_HINTS) from None
+        except InvalidArgument as exc:
+            raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+        except IcsError as exc:
+            raise translate(settings, exc) from None
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise CliError(ExitCode.COMMUNICATION, str(exc)) from None
+
+
+class TypedLines:
+    """Lines typed on stdin, read by a daemon thread (a blocked read must not keep the process alive)."""
+
+    def __init__(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._queue: asyncio.Queue[str | None] = asyncio.Queue()
+        self._stdin = sys.stdin
+        threading.Thread(target=self._read, name="ics35 stdin", daemon=True).start()
+
+    def _read(self) -> None:
+        try:
+            while True:
+                line = self._stdin.readline()
+                self._put(line if line else None)
+                if not line:
+                    return
+        except (OSError, ValueError, RuntimeError):
+            with contextlib.suppress(RuntimeError):
+                self._put(None)
+
+    def _put(self, line: str | None) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody is listening any more
+            self._loop.call_soon_threadsafe(self._queue.put_nowait, line)
+
+    async def get(self) -> str | None:
+        """The next line (without its newline), or None at the end of input."""
+        line = await self._queue.get()
+        if line is None:
+            self._queue.put_nowait(None)  # every later call sees the end too
+            return None
+        return line.rstrip("\r\n")

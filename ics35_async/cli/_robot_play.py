@@ -1,0 +1,147 @@
+"""ics35 play ROBOT.toml MOTION.json: a keyframe motion on a robot, with the live joint table.
+
+Ctrl-C (or --seconds running out) stops smoothly: each moving joint slows
+to rest over --ramp seconds, then the joints hold (--on-stop hold, the
+default: a robot standing on its legs stays up) or go free.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+
+import click
+from rich.markup import escape
+
+from ..errors import IcsError
+from ..robot import Motion, MotionError, Robot, load_motion, open_robot
+from ..robot.motion import check_motion
+from ._common import CliError, ExitCode, check_input_path, err, out, settings_of
+from ._robot_common import first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
+from ._robot_view import Screen, joint_table
+
+
+def load_motion_file(path: str) -> Motion:
+    check_input_path(path, "MOTION.json")
+    try:
+        return load_motion(path)
+    except MotionError as exc:
+        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+
+
+async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
+    """Slow every moving joint to rest, then hold or free; shielded from a second Ctrl-C's cancellation."""
+    with contextlib.suppress(IcsError):
+        await asyncio.wait_for(robot.stop(ramp), ramp + 2.0)
+        if on_stop == "free":
+            await asyncio.wait_for(robot.free(), 2.0)
+
+
+@click.command()
+@click.argument("robot_file", metavar="ROBOT.toml")
+@click.argument("motion_file", metavar="MOTION.json")
+@click.option("--speed", type=click.FloatRange(0.05, 10), default=1.0, show_default=True,
+              help="Time scale: 0.5 plays at half speed.")
+@click.option("--loop", is_flag=True, help="Play again and again until Ctrl-C (or --seconds).")
+@click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long.")
+@click.option("--on-stop", type=click.Choice(["hold", "free"]), default="hold", show_default=True,
+              help="What the joints do once the motion ends or is stopped.")
+@click.option("--ramp", type=click.FloatRange(0, 5), default=0.3, show_default=True,
+              help="Seconds a stopped motion takes to come to rest.")
+@click.pass_context
+def play(
+    ctx: click.Context,
+    robot_file: str,
+    motion_file: str,
+    speed: float,
+    loop: bool,
+    seconds: float | None,
+    on_stop: str,
+    ramp: float,
+) -> int:
+    """Play a keyframe motion (MOTION.json) on the robot ROBOT.toml describes, with a live view.
+
+    \b
+    No hardware:   ics35 play examples/humanoid.toml examples/wave.json
+    Ctrl-C stops smoothly (--ramp), then the joints hold or go free (--on-stop).
+    Exit codes as for every command; 7: the safety watch stopped the motion.
+    """
+    settings = settings_of(ctx)
+    description = load_robot_file(robot_file)
+    motion = load_motion_file(motion_file)
+    note_ports(settings, robot_file)
+    name = description.name or robot_file
+    title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"
+    began = time.monotonic()
+    passes = 0
+
+    async def body() -> str:
+        nonlocal passes
+        async with open_robot(description, on_close=on_stop, **robot_options(settings)) as robot:
+            show_warnings(robot)
+            try:
+                check_motion(robot, motion, motion_file)
+            except MotionError as exc:
+                raise CliError(ExitCode.USAGE, f"{exc} (nothing moved)") from None
+            await first_pose(robot)
+            start = time.monotonic()
+            total = motion.duration / speed
+
+            def summary() -> str:
+                t = time.monotonic() - start
+                into = t % total if loop else min(t, total)
+                limit = f"/{seconds:g}" if seconds else ""
+                count = f"pass {passes + 1}  " if loop else ""
+                return f"t={t:5.1f}{limit} s  motion {into:4.1f}/{total:.1f} s  {count}" + (
+                    f"cycle {robot.latest.cycle}" if robot.latest else ""
+                )
+
+            with Screen(lambda: joint_table(robot, title, motion.joints), summary) as screen:
+                if not screen.tty:
+                    out.print(f"{title}; one line per second, table at the end")
+
+                async def player() -> None:
+                    nonlocal passes
+                    await robot.play(motion, speed=speed)
+                    passes += 1
+                    while loop:
+                        await robot.play(motion, speed=speed)
+                        passes += 1
+
+                task = asyncio.ensure_future(player())
+                how = "done"
+                try:
+                    async with asyncio.timeout(seconds):
+                        while not task.done():
+                            with contextlib.suppress(TimeoutError):
+                                await asyncio.wait_for(asyncio.shield(task), 0.05)
+                            screen.update("Ctrl-C to stop")
+                        task.result()
+                except TimeoutError:
+                    how = "time is up"
+                except asyncio.CancelledError:
+                    # Ctrl-C (asyncio.run cancels us): the normal way to stop; handled here, so the
+                    # command ends normally after the smooth stop.
+                    current = asyncio.current_task()
+                    if current is not None:
+                        current.uncancel()
+                    how = "stopped by Ctrl-C"
+                finally:
+                    if not task.done():
+                        task.cancel()
+                        with contextlib.suppress(asyncio.CancelledError, IcsError):
+                            await task
+                        err.print(f"{how}: slowing to rest, then the joints {on_stop}")
+                        await stop_smoothly(robot, ramp, on_stop)
+            return how
+
+    how = run_robot(settings, description, body)
+    out.print(
+        f"play {how} after {time.monotonic() - began:.1f} s: {passes} pass(es) of "
+        f"{motion.duration / speed:.1f} s; joints left {'free' if on_stop == 'free' else 'holding'}"
+    )
+    return 0
+
+
+COMMANDS = [play]

@@ -1,0 +1,239 @@
+"""ics35 teach (poses by hand -> a motion file) and ics35 calibrate (neutral and range by hand -> the robot file).
+
+Both free the joints, show them live, and wait for Enter on stdin (read by a
+daemon thread, so Ctrl-C and the end of input always get through).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Awaitable
+
+import click
+from rich.markup import escape
+from rich.table import Table
+
+from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
+from ..robot.calibration import calibrate_joint, write_calibration
+from ..robot.description import JointSpec
+from ._common import CliError, ExitCode, check_output_path, err, out, settings_of
+from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
+from ._robot_view import Screen, joint_table
+
+QUIT = ("q", "quit", "exit")
+
+
+def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
+    if text is None:
+        return list(description.joints)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in description.joints]
+    if unknown or not names:
+        raise CliError(
+            ExitCode.USAGE,
+            f"--joints: unknown joint(s) {', '.join(unknown) or '(none given)'} (nothing was sent)",
+            f"joints in the file: {', '.join(description.joints)}",
+        )
+    return names
+
+
+async def wait_for_line(lines: TypedLines, screen: Screen, hint: str) -> str | None:
+    """The next typed line (None at the end of input), redrawing the screen meanwhile."""
+    pending = asyncio.ensure_future(lines.get())
+    try:
+        while not pending.done():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(pending), 0.05)
+            screen.update(hint)
+        return pending.result()
+    finally:
+        pending.cancel()
+
+
+async def handled_ctrl_c(work: Awaitable[None]) -> bool:
+    """Run ``work``; True if Ctrl-C ended it (then handled: the command goes on to its end)."""
+    try:
+        await work
+    except asyncio.CancelledError:
+        current = asyncio.current_task()
+        if current is not None:
+            current.uncancel()
+        return True
+    return False
+
+
+joints_option = click.option("--joints", default=None, help="Comma-separated joint names (default: every joint).")
+
+
+@click.command()
+@click.argument("robot_file", metavar="ROBOT.toml")
+@click.argument("out_file", metavar="OUT.json")
+@joints_option
+@click.option("--profile", type=click.Choice(["minjerk", "linear"]), default="minjerk", show_default=True,
+              help="The profile the motion's segments use.")
+@click.option("--name", default=None, help="The motion's name (default: the file's).")
+@click.pass_context
+def teach(
+    ctx: click.Context, robot_file: str, out_file: str, joints: str | None, profile: str, name: str | None
+) -> int:
+    """Teach a motion by hand: the joints go free, Enter captures the pose with its time, q ends.
+
+    \b
+    ics35 teach examples/humanoid.toml mine.json --joints right_shoulder_pitch,right_elbow
+    The file plays back with: ics35 play ROBOT.toml OUT.json.  Ctrl-C ends like q.
+    """
+    settings = settings_of(ctx)
+    description = load_robot_file(robot_file)
+    target = check_output_path(out_file, "OUT.json", {"json"})
+    names = chosen_joints(description, joints)
+    note_ports(settings, robot_file)
+    keyframes: list[Keyframe] = []
+
+    async def body() -> None:
+        async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
+            show_warnings(robot)
+            await first_pose(robot)
+            await robot.free(names)
+            lines = TypedLines()
+            err.print("the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
+                      "[bold]q[/bold] then Enter ends (Ctrl-C too)")
+            start = time.monotonic()
+
+            def summary() -> str:
+                return f"t={time.monotonic() - start:5.1f} s  {len(keyframes)} pose(s) captured"
+
+            with Screen(lambda: joint_table(robot, f"teach: {escape(target.name)}", names), summary) as screen:
+
+                async def capture_loop() -> None:
+                    while True:
+                        line = await wait_for_line(lines, screen, "Enter: capture   q: end")
+                        if line is None or line.strip().lower() in QUIT:
+                            return
+                        await capture(robot, names, start, keyframes)
+                        screen.update(force=True)
+
+                await handled_ctrl_c(capture_loop())
+
+    run_robot(settings, description, body)
+    if not keyframes:
+        raise CliError(ExitCode.REFUSED, "no pose captured: nothing written", "press Enter to capture a pose")
+    motion = Motion(tuple(keyframes), profile, name or target.stem)
+    save_motion(motion, target)
+    out.print(
+        f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; "
+        f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
+    )
+    return 0
+
+
+async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe]) -> None:
+    pose = await robot.read_pose()
+    taken = {}
+    for name in names:
+        if name not in pose:
+            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: left out of this pose")
+            continue
+        spec = robot.joints[name]
+        if not spec.min <= pose[name] <= spec.max:
+            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
+                      f"{spec.min:g}..{spec.max:g}: recorded at the limit")
+        taken[name] = round(spec.clamp(pose[name]), 2)
+    previous = keyframes[-1].time if keyframes else 0.0
+    when = max(round(time.monotonic() - start, 3), round(previous + 0.001, 3))
+    keyframes.append(Keyframe(when, taken))
+    err.print(f"pose {len(keyframes)} at {when:.2f} s")
+
+
+@click.command()
+@click.argument("robot_file", metavar="ROBOT.toml")
+@joints_option
+@click.pass_context
+def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
+    """Calibrate joints by hand: their neutral (offset) and range (min, max), written back into ROBOT.toml.
+
+    \b
+    1. the joints go free: pose the robot at its neutral (every joint at 0 degrees), Enter;
+    2. move each joint through its whole range by hand, watching the table, Enter.
+    The file keeps its comments; where it cannot be edited in place, ROBOT.calibrated.toml is written beside it.
+    """
+    settings = settings_of(ctx)
+    description = load_robot_file(robot_file)
+    check_output_path(robot_file, "ROBOT.toml")
+    names = chosen_joints(description, joints)
+    note_ports(settings, robot_file)
+    neutral: dict[str, float] = {}
+    low: dict[str, float] = {}
+    high: dict[str, float] = {}
+
+    def extra(name: str) -> list[str]:
+        return [f"{v[name]:+.1f}" if name in v else "-" for v in (neutral, low, high)]
+
+    async def body() -> None:
+        async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
+            show_warnings(robot)
+            await first_pose(robot)
+            await robot.free(names)
+            lines = TypedLines()
+            step = ["neutral"]
+
+            def summary() -> str:
+                return "step 1/2: the neutral pose" if step[0] == "neutral" else "step 2/2: each joint's range"
+
+            def table() -> Table:
+                return joint_table(robot, f"calibrate: {escape(robot_file)} (servo degrees on the right)", names,
+                                   (("neutral°", "min°", "max°"), extra))
+
+            def track(frame: RobotFrame | None) -> None:
+                for name, deg in (frame.positions.items() if frame else ()):
+                    if name in names:
+                        servo = robot.joints[name].servo_degrees(deg)
+                        low[name] = min(servo, low.get(name, servo))
+                        high[name] = max(servo, high.get(name, servo))
+
+            async def track_every_frame() -> None:
+                # Every frame, not the screen's ticks: a joint may touch its end only for a moment.
+                async with robot.stream() as stream:
+                    async for frame in stream:
+                        track(frame)
+
+            with Screen(table, summary) as screen:
+                err.print("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
+                if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
+                    raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
+                pose = await robot.read_pose()
+                neutral.update({n: robot.joints[n].servo_degrees(pose[n]) for n in names if n in pose})
+                step[0] = "range"
+                err.print("now move each joint through its whole range by hand, then Enter")
+                tracking = asyncio.ensure_future(track_every_frame())
+                try:
+                    if await wait_for_line(lines, screen, "Enter: done") is None:
+                        raise CliError(ExitCode.REFUSED, "input ended before the ranges were done: nothing written")
+                finally:
+                    tracking.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await tracking
+                track(robot.latest)
+
+    run_robot(settings, description, body)
+    calibrated: dict[str, JointSpec] = {}
+    for name in names:
+        if name not in neutral or name not in low:
+            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
+            continue
+        calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
+    if not calibrated:
+        raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
+    for name, joint in calibrated.items():
+        out.print(f"{name}: offset {joint.offset:+.1f}, min {joint.min:+.1f}, max {joint.max:+.1f}")
+    written, kept = write_calibration(robot_file, description, calibrated)
+    if kept:
+        out.print(f"written into {escape(str(written))} (comments kept)")
+    else:
+        err.print(f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
+                  f"{escape(str(written))} (a complete file, without comments)")
+    return 0
+
+
+COMMANDS = [teach, calibrate]

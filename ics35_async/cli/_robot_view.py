@@ -1,0 +1,104 @@
+"""The live joint table of play, teach and calibrate.
+
+On a terminal it redraws in place (rich Live) ten times a second; anywhere
+else (CI, pipes) a one-line summary is printed every second and the table
+once at the end, so logs stay readable.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from types import TracebackType
+
+from rich import box
+from rich.console import Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from ..robot import Robot
+from ._common import out
+
+Extra = Callable[[str], Sequence[str]]
+
+
+def _deg(value: float | None) -> str:
+    return "-" if value is None else f"{value:+.1f}"
+
+
+def joint_table(
+    robot: Robot, title: str, joints: Sequence[str] | None = None, extra: tuple[Sequence[str], Extra] | None = None
+) -> Table:
+    """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns)."""
+    table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
+    for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
+        table.add_column(name, justify="left" if name == "joint" else "right", style="bold" if name == "joint" else "")
+    if extra is not None:
+        for name in extra[0]:
+            table.add_column(name, justify="right")
+    frame = robot.latest
+    positions = dict(frame.positions) if frame else {}
+    for name in joints or list(robot.joints):
+        spec = robot.joints[name]
+        seen = robot.telemetry.get(name)
+        target = robot.targets.get(name)
+        if name in robot.tripped:
+            state: str | Text = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
+        elif frame is not None and name in frame.offline:
+            state = Text("offline", style="red")
+        elif frame is not None and name in frame.failed:
+            state = Text("no reply", style="yellow")
+        else:
+            state = "free" if target is None else "held"
+        cells: list[str | Text] = [
+            name,
+            f"{spec.line}:{spec.id}",
+            "free" if target is None else _deg(target),
+            _deg(positions.get(name)),
+            "-" if seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
+            "-" if seen is None or seen.current is None else str(seen.current),
+            state,
+        ]
+        if extra is not None:
+            cells += list(extra[1](name))
+        table.add_row(*cells)
+    return table
+
+
+class Screen:
+    """Where the table goes: redrawn in place on a terminal, a summary line a second elsewhere."""
+
+    def __init__(self, render: Callable[[], Table], summary: Callable[[], str]) -> None:
+        self.render = render
+        self.summary = summary
+        self.tty = out.is_terminal
+        self._live = Live(console=out, auto_refresh=False, transient=False) if self.tty else None
+        self._last = time.monotonic()
+
+    def __enter__(self) -> Screen:
+        if self._live is not None:
+            self._live.start()
+        return self
+
+    def update(self, hint: str = "", *, force: bool = False) -> None:
+        now = time.monotonic()
+        if self._live is not None:
+            if force or now - self._last >= 0.1:
+                self._last = now
+                self._live.update(Group(self.render(), Text(f"{self.summary()}   {hint}".rstrip())))
+                self._live.refresh()
+        elif force or now - self._last >= 1.0:
+            self._last = now
+            out.print(self.summary())
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if self._live is not None:
+            self._live.update(Group(self.render(), Text(self.summary())))
+            self._live.refresh()
+            self._live.stop()
+        else:
+            out.print(self.render())
+            out.print(self.summary())

@@ -1,0 +1,58 @@
+"""Robots: named joints in degrees over one or more ICS lines, smooth motions, motion files, a safety watch.
+
+* :mod:`.description`: the TOML robot description, checked key by key;
+* :mod:`.profiles`: motion profiles (``minjerk``, ``linear``) and trajectories;
+* :mod:`.stream`: frames and targets in joint space;
+* :mod:`.safety`: the temperature / current / offline watch and :class:`SafetyStop`;
+* :mod:`.plans`: the running motions' bookkeeping;
+* :mod:`.robot`: :class:`Robot`, streaming to every joint while it is open;
+* :mod:`.opening`: :func:`open_robot`;
+* :mod:`.motion`: the keyframe motion file format and playing it.
+"""
+
+from __future__ import annotations
+
+from .description import (
+    DescriptionError,
+    JointSpec,
+    LineSpec,
+    RobotDescription,
+    SafetySpec,
+    load_description,
+    parse_description,
+)
+from .frame import RobotFrame
+from .motion import Keyframe, Motion, MotionError, load_motion, parse_motion, save_motion
+from .opening import RobotWarning, check_servo_limits, open_robot
+from .profiles import PROFILES, Segment, Trajectory
+from .robot import Robot
+from .safety import JointTelemetry, MotionStopped, SafetyStop
+from .stream import RobotStream
+
+__all__ = [
+    "PROFILES",
+    "DescriptionError",
+    "JointSpec",
+    "JointTelemetry",
+    "Keyframe",
+    "LineSpec",
+    "Motion",
+    "MotionError",
+    "MotionStopped",
+    "Robot",
+    "RobotDescription",
+    "RobotFrame",
+    "RobotStream",
+    "RobotWarning",
+    "SafetySpec",
+    "SafetyStop",
+    "Segment",
+    "Trajectory",
+    "check_servo_limits",
+    "load_description",
+    "load_motion",
+    "open_robot",
+    "parse_description",
+    "parse_motion",
+    "save_motion",
+]

@@ -1,0 +1,158 @@
+"""Calibration results written back into the robot file, comments kept where the file's shape allows.
+
+:func:`calibrate_joint` turns what a person showed by hand (the servo angle
+at the joint's neutral, and the extremes it was moved to) into ``offset``,
+``min`` and ``max``.  :func:`write_calibration` edits the ``offset`` /
+``min`` / ``max`` lines of each ``[joints.NAME]`` table in place, keeping
+every comment and every other line; when a joint is not written as such a
+table (an inline table, a dotted key) or the edit would not read back as
+intended, it writes a complete new file beside the original instead
+(``NAME.calibrated.toml``; comments are lost there) and says so.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+
+from .description import SERVO_DEGREES, JointSpec, RobotDescription, parse_description
+
+CALIBRATED_KEYS = ("offset", "min", "max")
+_HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
+_KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)([^#]*?)(\s*#.*)?$")
+
+
+def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -> JointSpec:
+    """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
+    ``low``..``high`` (servo degrees), rounded inward to 0.1 degree."""
+    offset = round(neutral, 1)
+    ends = sorted(((s - offset) * joint.sign) for s in (low, high))
+    lo = math.ceil(round(ends[0] * 10, 6)) / 10
+    hi = math.floor(round(ends[1] * 10, 6)) / 10
+    # Within the servo's travel whatever the rounding did.
+    bound = sorted(((e - offset) * joint.sign) for e in (-SERVO_DEGREES, SERVO_DEGREES))
+    lo, hi = max(lo, bound[0]), min(hi, bound[1])
+    if lo > hi:  # the joint was not moved at all: a zero-width range at its neutral
+        lo = hi = min(max(0.0, bound[0]), bound[1])
+    return replace(joint, offset=offset, min=lo, max=hi)
+
+
+def _number(value: float) -> str:
+    text = f"{round(value, 3):.3f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def _header_joint(header: str) -> str | None:
+    parts = header.split(".", 1)
+    if len(parts) != 2 or parts[0].strip() != "joints":
+        return None
+    name = parts[1].strip()
+    if len(name) >= 2 and name[0] == name[-1] and name[0] in "\"'":
+        name = name[1:-1]
+    return name
+
+
+def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> str | None:
+    """``text`` with the given keys of each ``[joints.NAME]`` table set; None if a joint has no such table."""
+    lines = text.splitlines(keepends=True)
+    out: list[str] = []
+    current: str | None = None
+    pending: dict[str, float] = {}
+    last_key_at = -1
+    found: set[str] = set()
+
+    def close_table() -> None:
+        # Keys the table did not have go after its last key line.
+        nonlocal pending
+        if pending:
+            added = [f"{key} = {_number(value)}\n" for key, value in pending.items()]
+            at = last_key_at + 1 if last_key_at >= 0 else len(out)
+            if at > 0 and not out[at - 1].endswith("\n"):
+                out[at - 1] += "\n"
+            out[at:at] = added
+        pending = {}
+
+    for line in lines:
+        header = _HEADER.match(line)
+        if header and not line.lstrip().startswith("[["):
+            close_table()
+            current = _header_joint(header.group(1))
+            if current is not None and current in values:
+                found.add(current)
+                pending = dict(values[current])
+                last_key_at = len(out)
+            else:
+                current = None
+            out.append(line)
+            continue
+        if current is not None:
+            match = _KEY.match(line.rstrip("\r\n"))
+            if match and match.group(2) in pending:
+                ending = line[len(line.rstrip("\r\n")) :]
+                indent, key, equals, _old, comment = match.groups()
+                line = f"{indent}{key}{equals}{_number(pending.pop(key))}{comment or ''}{ending}"
+            if match:
+                last_key_at = len(out)
+        out.append(line)
+    close_table()
+    if found != set(values):
+        return None
+    return "".join(out)
+
+
+def dump_description(description: RobotDescription) -> str:
+    """A complete TOML file for ``description`` (no comments)."""
+    text = []
+    if description.name is not None:
+        text.append(f"name = {json.dumps(description.name)}\n")
+    for line in description.lines.values():
+        text.append(f"\n[lines.{json.dumps(line.name)}]\nport = {json.dumps(line.port)}\nbaudrate = {line.baudrate}\n")
+        if not line.echo:
+            text.append("echo = false\n")
+        if line.rate_hz is not None:
+            text.append(f"rate_hz = {_number(line.rate_hz)}\n")
+        if line.retries:
+            text.append(f"retries = {line.retries}\n")
+    for joint in description.joints.values():
+        text.append(f"\n[joints.{json.dumps(joint.name)}]\nline = {json.dumps(joint.line)}\nid = {joint.id}\n")
+        text.append(f"offset = {_number(joint.offset)}\nreverse = {'true' if joint.reverse else 'false'}\n")
+        text.append(f"min = {_number(joint.min)}\nmax = {_number(joint.max)}\n")
+    safety = description.safety
+    text.append(f"\n[safety]\naction = {json.dumps(safety.action)}\n")
+    if safety.max_temperature_c is not None:
+        text.append(f"max_temperature_c = {_number(safety.max_temperature_c)}\n")
+    if safety.max_current is not None:
+        text.append(f"max_current = {safety.max_current}\n")
+    text.append(f"continue_on_offline = {'true' if safety.continue_on_offline else 'false'}\n")
+    text.append(f"telemetry_per_cycle = {safety.telemetry_per_cycle}\n")
+    return "".join(text).lstrip("\n")
+
+
+def _reads_back(text: str, source: str, joints: Mapping[str, JointSpec]) -> bool:
+    try:
+        again = parse_description(tomllib.loads(text), source)
+    except (tomllib.TOMLDecodeError, ValueError):
+        return False
+    return all(again.joints.get(name) == joint for name, joint in joints.items())
+
+
+def write_calibration(path: str | Path, description: RobotDescription, joints: Mapping[str, JointSpec]) -> tuple[
+    Path, bool
+]:
+    """Write the calibrated ``joints`` into the robot file; returns (the file written, comments kept)."""
+    target = Path(path)
+    text = target.read_text(encoding="utf-8")
+    values = {name: {key: float(getattr(j, key)) for key in CALIBRATED_KEYS} for name, j in joints.items()}
+    edited = edit_joint_values(text, values)
+    if edited is not None and _reads_back(edited, str(target), joints):
+        target.write_text(edited, encoding="utf-8")
+        return target, True
+    beside = target.with_name(f"{target.stem}.calibrated.toml")
+    whole = replace(description, joints={**description.joints, **joints})
+    beside.write_text(dump_description(whole), encoding="utf-8")
+    return beside, False

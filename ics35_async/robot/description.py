@@ -1,0 +1,325 @@
+"""The robot description: lines, joints and safety limits, read from TOML (or a mapping) and checked.
+
+Every mistake is a :class:`DescriptionError` naming the file and the key
+(``robot.toml: joints.left_elbow.line: ...``), raised before any port is
+opened.  A joint maps to its servo as ``servo degrees = offset + (-1 if
+reverse else +1) * joint degrees``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from .. import protocol, units
+from ..errors import InvalidArgument
+
+SAFETY_ACTIONS = ("free", "hold", "stop")
+SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
+
+
+class DescriptionError(InvalidArgument):
+    """A robot description breaks a rule; ``source`` is the file (or ``<mapping>``), ``key`` the dotted key."""
+
+    def __init__(self, source: str, key: str, message: str) -> None:
+        self.source = source
+        self.key = key
+        super().__init__(f"{source}: {key}: {message}" if key else f"{source}: {message}")
+
+
+@dataclass(frozen=True)
+class LineSpec:
+    """One ICS line: any port ``open_bus`` takes, its baud rate, and the stream's rate (None: the line's pace)."""
+
+    name: str
+    port: str
+    baudrate: int = 115200
+    echo: bool = True
+    rate_hz: float | None = None
+    retries: int = 0
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One joint: which servo drives it, how its degrees map to the servo's, and its limits (joint degrees)."""
+
+    name: str
+    line: str
+    id: int
+    offset: float = 0.0
+    reverse: bool = False
+    min: float = -SERVO_DEGREES
+    max: float = SERVO_DEGREES
+
+    @property
+    def sign(self) -> int:
+        return -1 if self.reverse else 1
+
+    def servo_degrees(self, joint_degrees: float) -> float:
+        return self.offset + self.sign * joint_degrees
+
+    def joint_degrees(self, servo_degrees: float) -> float:
+        return (servo_degrees - self.offset) * self.sign
+
+    def position(self, joint_degrees: float) -> int:
+        """The servo position (counts) for an angle of this joint."""
+        return units.degrees_to_position(self.servo_degrees(joint_degrees))
+
+    def degrees(self, position: int) -> float:
+        """This joint's angle for a servo position (counts)."""
+        return self.joint_degrees(units.position_to_degrees(position))
+
+    def clamp(self, joint_degrees: float) -> float:
+        return min(self.max, max(self.min, joint_degrees))
+
+    def check(self, joint_degrees: object) -> float:
+        """``joint_degrees`` as a float if it is a finite number within the limits, else InvalidArgument."""
+        if not isinstance(joint_degrees, (int, float)) or isinstance(joint_degrees, bool):
+            raise InvalidArgument(f"joint {self.name}: the target must be a number of degrees, not {joint_degrees!r}")
+        if not self.min <= joint_degrees <= self.max:
+            raise InvalidArgument(
+                f"joint {self.name}: {joint_degrees:g} degrees is outside its limits {self.min:g}..{self.max:g}"
+            )
+        return float(joint_degrees)
+
+
+@dataclass(frozen=True)
+class SafetySpec:
+    """``[safety]``: thresholds read in the line's gaps, and what crossing one does."""
+
+    max_temperature_c: float | None = None
+    max_current: int | None = None
+    action: str = "stop"
+    continue_on_offline: bool = False
+    telemetry_per_cycle: int = 2
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    source: str
+    lines: dict[str, LineSpec]
+    joints: dict[str, JointSpec]
+    safety: SafetySpec = field(default_factory=SafetySpec)
+    name: str | None = None
+
+    def joints_on(self, line: str) -> list[JointSpec]:
+        return [j for j in self.joints.values() if j.line == line]
+
+
+# ---------------------------------------------------------------------------------------- reading
+
+
+def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription:
+    """Read and check a robot description: a TOML file's path, or the same structure as a mapping."""
+    if isinstance(source, Mapping):
+        return parse_description(source, "<mapping>")
+    if not isinstance(source, (str, Path)):
+        raise InvalidArgument(f"a robot description is a TOML file's path or a mapping, not {type(source).__name__}")
+    path = Path(source)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DescriptionError(str(path), "", "no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DescriptionError(str(path), "", f"cannot read it ({exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise DescriptionError(str(path), "", f"not valid TOML: {exc}") from None
+    return parse_description(data, str(path))
+
+
+class _Reader:
+    """Takes the keys of one table, each checked, and refuses the ones nobody took."""
+
+    def __init__(self, source: str, key: str, table: object) -> None:
+        self.source = source
+        self.key = key
+        if not isinstance(table, Mapping):
+            raise self.error("", f"must be a table, not {_kind(table)}")
+        self.table = table
+        self.taken: set[str] = set()
+
+    def error(self, name: str, message: str) -> DescriptionError:
+        return DescriptionError(self.source, ".".join(k for k in (self.key, name) if k), message)
+
+    def get(self, name: str) -> object:
+        self.taken.add(name)
+        return self.table.get(name)
+
+    def text(self, name: str, *, required: bool = False) -> str | None:
+        value = self.get(name)
+        if value is None and not required:
+            return None
+        if not isinstance(value, str) or not value:
+            raise self.error(name, "is required" if value is None else f"must be a non-empty string, not {value!r}")
+        return value
+
+    def number(self, name: str, low: float, high: float) -> float | None:
+        value = self.get(name)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(name, f"must be a number, not {value!r}")
+        if not low <= value <= high:
+            raise self.error(name, f"must be in {low:g}..{high:g}, got {value:g}")
+        return float(value)
+
+    def integer(self, name: str, low: int, high: int, *, required: bool = False) -> int | None:
+        value = self.get(name)
+        if value is None:
+            if required:
+                raise self.error(name, "is required")
+            return None
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(name, f"must be a whole number, not {value!r}")
+        if not low <= value <= high:
+            raise self.error(name, f"must be in {low}..{high}, got {value}")
+        return value
+
+    def flag(self, name: str) -> bool | None:
+        value = self.get(name)
+        if value is None:
+            return None
+        if not isinstance(value, bool):
+            raise self.error(name, f"must be true or false, not {value!r}")
+        return value
+
+    def done(self) -> None:
+        unknown = [k for k in self.table if k not in self.taken]
+        if unknown:
+            raise self.error(str(unknown[0]), f"unknown key (known: {', '.join(sorted(self.taken))})")
+
+
+def _kind(value: object) -> str:
+    return {str: "a string", bool: "a boolean", int: "a number", float: "a number", list: "a list"}.get(
+        type(value), type(value).__name__
+    )
+
+
+def parse_description(data: Mapping[str, Any], source: str = "<mapping>") -> RobotDescription:
+    """Check a parsed description (what ``tomllib`` returns) and build a :class:`RobotDescription`."""
+    top = _Reader(source, "", data)
+    name = top.text("name")
+    lines = _lines(source, top.get("lines"))
+    joints = _joints(source, top.get("joints"), lines)
+    safety = _safety(source, top.get("safety"))
+    top.done()
+    return RobotDescription(source=source, lines=lines, joints=joints, safety=safety, name=name)
+
+
+def _tables(source: str, key: str, value: object) -> Mapping[str, Any]:
+    if value is None:
+        raise DescriptionError(source, key, f"is required: at least one [{key}.NAME] table")
+    if not isinstance(value, Mapping):
+        raise DescriptionError(source, key, f"must be a table of [{key}.NAME] tables, not {_kind(value)}")
+    if not value:
+        raise DescriptionError(source, key, f"needs at least one [{key}.NAME] table")
+    return value
+
+
+def _lines(source: str, value: object) -> dict[str, LineSpec]:
+    lines: dict[str, LineSpec] = {}
+    ports: dict[str, str] = {}
+    for name, table in _tables(source, "lines", value).items():
+        r = _Reader(source, f"lines.{name}", table)
+        port = r.text("port", required=True)
+        assert port is not None
+        baud = r.integer("baudrate", 0, 10_000_000)
+        if baud is not None:
+            try:
+                protocol.check_baud(baud)
+            except InvalidArgument:
+                raise r.error("baudrate", f"must be 115200, 625000 or 1250000, got {baud}") from None
+        echo = r.flag("echo")
+        rate = r.number("rate_hz", 0.1, 10_000)
+        retries = r.integer("retries", 0, 10)
+        r.done()
+        if port in ports and not _fresh_sim(port):
+            raise r.error("port", f"{port!r} is already the port of lines.{ports[port]}")
+        ports[port] = name
+        lines[name] = LineSpec(
+            name=name,
+            port=port,
+            baudrate=115200 if baud is None else baud,
+            echo=True if echo is None else echo,
+            rate_hz=rate,
+            retries=0 if retries is None else retries,
+        )
+    return lines
+
+
+def _fresh_sim(port: str) -> bool:
+    """An unnamed ``sim://`` URL opens a new simulated line each time, so two lines may share it."""
+    parts = urlsplit(port)
+    return parts.scheme == "sim" and not (parts.netloc + parts.path).strip("/")
+
+
+def _joints(source: str, value: object, lines: Mapping[str, LineSpec]) -> dict[str, JointSpec]:
+    joints: dict[str, JointSpec] = {}
+    owners: dict[tuple[str, int], str] = {}
+    for name, table in _tables(source, "joints", value).items():
+        r = _Reader(source, f"joints.{name}", table)
+        line = r.text("line", required=True)
+        assert line is not None
+        if line not in lines:
+            raise r.error("line", f"unknown line {line!r} (lines: {', '.join(lines)})")
+        sid = r.integer("id", 0, 31, required=True)
+        assert sid is not None
+        offset = r.number("offset", -SERVO_DEGREES, SERVO_DEGREES) or 0.0
+        reverse = bool(r.flag("reverse"))
+        low = r.number("min", -360, 360)
+        high = r.number("max", -360, 360)
+        r.done()
+        owner = owners.get((line, sid))
+        if owner is not None:
+            raise r.error("id", f"ID {sid} on line {line!r} is already joint {owner!r}")
+        owners[(line, sid)] = name
+        # The whole travel of the servo, in this joint's degrees: the default limits.
+        ends = sorted(((e - offset) * (-1 if reverse else 1)) for e in (-SERVO_DEGREES, SERVO_DEGREES))
+        low = ends[0] if low is None else low
+        high = ends[1] if high is None else high
+        if low > high:
+            raise r.error("min", f"min ({low:g}) is greater than max ({high:g})")
+        for key, limit in (("min", low), ("max", high)):
+            servo = offset + (-1 if reverse else 1) * limit
+            if abs(servo) > SERVO_DEGREES + 1e-9:
+                raise r.error(
+                    key,
+                    f"{limit:g} joint degrees is {servo:g} servo degrees (offset {offset:g}"
+                    f"{', reversed' if reverse else ''}), outside the servo's range -135..+135",
+                )
+        joints[name] = JointSpec(name=name, line=line, id=sid, offset=offset, reverse=reverse, min=low, max=high)
+    for line in lines:
+        if not any(j.line == line for j in joints.values()):
+            raise DescriptionError(source, f"lines.{line}", "no joint uses this line")
+    return joints
+
+
+def _safety(source: str, value: object) -> SafetySpec:
+    if value is None:
+        return SafetySpec()
+    r = _Reader(source, "safety", value)
+    temperature = r.number("max_temperature_c", 0, 150)
+    current = r.integer("max_current", 1, 63)
+    action = r.text("action") or "stop"
+    if action not in SAFETY_ACTIONS:
+        raise r.error("action", f"must be one of {', '.join(SAFETY_ACTIONS)}, not {action!r}")
+    on_offline = r.flag("continue_on_offline")
+    per_cycle = r.integer("telemetry_per_cycle", 0, 32)
+    r.done()
+    per_cycle = 2 if per_cycle is None else per_cycle
+    if per_cycle == 0 and (temperature is not None or current is not None):
+        raise r.error("telemetry_per_cycle", "is 0, so the temperature and current limits could never be checked")
+    return SafetySpec(
+        max_temperature_c=temperature,
+        max_current=current,
+        action=action,
+        continue_on_offline=bool(on_offline),
+        telemetry_per_cycle=per_cycle,
+    )

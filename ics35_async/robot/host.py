@@ -1,0 +1,38 @@
+"""What motions and the joint-space stream need from the robot: a small protocol.
+
+:class:`~.robot.Robot` is the one the library makes; ``motion`` and
+``stream`` depend on this, not on ``robot``, which builds on them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from .frame import RobotFrame
+    from .profiles import Trajectory
+    from .safety import SafetyStop
+
+
+class RobotHost(Protocol):
+    trips: list[SafetyStop]
+
+    @property
+    def latest(self) -> RobotFrame | None: ...
+
+    def joint_names(self, joints: Iterable[str] | None) -> list[str]: ...
+
+    def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]: ...
+
+    def check_ready(self, joints: Iterable[str]) -> None: ...
+
+    def start_pose(self, joints: Iterable[str]) -> dict[str, float]: ...
+
+    async def wait_frame(self, after: int) -> RobotFrame: ...
+
+    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None: ...
+
+    def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None: ...
+
+    def hold(self, joints: Iterable[str] | None = None) -> None: ...

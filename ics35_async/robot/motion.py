@@ -1,0 +1,207 @@
+"""Motion files: keyframes (poses with times) in a versioned JSON format, and playing them on a robot.
+
+Format (version 1)::
+
+    {
+      "format": "ics35-motion",
+      "version": 1,
+      "name": "wave",                      (optional)
+      "profile": "minjerk",                (optional: the default of every segment; or "linear")
+      "keyframes": [
+        {"time": 1.0, "pose": {"right_shoulder": -80, "right_elbow": 30}},
+        {"time": 1.6, "pose": {"right_elbow": 60}, "profile": "linear"}
+      ]
+    }
+
+``time`` is seconds from the start of the motion, strictly increasing and
+above 0: the first keyframe is reached from wherever the robot is when the
+motion starts, in that keyframe's time.  ``profile`` on a keyframe shapes
+the segment that ends there.  A pose names any of the robot's joints; a
+joint a keyframe leaves out keeps its angle from the keyframe before, and
+joints no keyframe names are not touched.  Every angle is checked against
+the robot's limits before anything moves.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .. import units
+from ..errors import InvalidArgument
+from .profiles import PROFILES, Trajectory
+
+if TYPE_CHECKING:
+    from .host import RobotHost as Robot
+
+FORMAT = "ics35-motion"
+VERSION = 1
+
+
+class MotionError(InvalidArgument):
+    """A motion file breaks the format; the message names the file and the key (``keyframes[2].time``)."""
+
+    def __init__(self, source: str, key: str, message: str) -> None:
+        self.source = source
+        self.key = key
+        super().__init__(f"{source}: {key}: {message}" if key else f"{source}: {message}")
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    time: float
+    pose: dict[str, float]
+    profile: str | None = None
+
+
+@dataclass(frozen=True)
+class Motion:
+    keyframes: tuple[Keyframe, ...]
+    profile: str = "minjerk"
+    name: str | None = None
+
+    @property
+    def duration(self) -> float:
+        return self.keyframes[-1].time
+
+    @property
+    def joints(self) -> list[str]:
+        seen: dict[str, None] = {}
+        for frame in self.keyframes:
+            seen.update(dict.fromkeys(frame.pose))
+        return list(seen)
+
+    def to_json(self) -> dict[str, Any]:
+        data: dict[str, Any] = {"format": FORMAT, "version": VERSION}
+        if self.name is not None:
+            data["name"] = self.name
+        data["profile"] = self.profile
+        frames = []
+        for frame in self.keyframes:
+            entry: dict[str, Any] = {"time": frame.time, "pose": dict(frame.pose)}
+            if frame.profile is not None:
+                entry["profile"] = frame.profile
+            frames.append(entry)
+        data["keyframes"] = frames
+        return data
+
+
+def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
+    """Read and check a motion: a JSON file's path, or the same structure as a mapping."""
+    if isinstance(source, Mapping):
+        return parse_motion(source, "<mapping>")
+    path = Path(source)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MotionError(str(path), "", "no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MotionError(str(path), "", f"cannot read it ({exc})") from None
+    except json.JSONDecodeError as exc:
+        raise MotionError(str(path), "", f"not valid JSON: {exc}") from None
+    return parse_motion(data, str(path))
+
+
+def save_motion(motion: Motion, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(motion.to_json(), indent=2) + "\n", encoding="utf-8")
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def parse_motion(data: object, source: str = "<mapping>") -> Motion:
+    """Check a parsed motion (what ``json.load`` returns) and build a :class:`Motion`."""
+    if not isinstance(data, Mapping):
+        raise MotionError(source, "", "a motion is a JSON object with format, version and keyframes")
+    unknown = set(data) - {"format", "version", "name", "profile", "keyframes"}
+    if unknown:
+        raise MotionError(source, sorted(unknown)[0], "unknown key (known: format, version, name, profile, keyframes)")
+    if data.get("format") != FORMAT:
+        raise MotionError(source, "format", f"must be {FORMAT!r}, got {data.get('format')!r}")
+    version = data.get("version")
+    if version != VERSION:
+        newer = isinstance(version, int) and not isinstance(version, bool) and version > VERSION
+        why = "written by a newer ics35_async" if newer else "not a version this library reads"
+        raise MotionError(source, "version", f"{version!r} is {why} (it reads version {VERSION})")
+    name = data.get("name")
+    if name is not None and not isinstance(name, str):
+        raise MotionError(source, "name", f"must be a string, not {name!r}")
+    profile = data.get("profile", "minjerk")
+    if profile not in PROFILES:
+        raise MotionError(source, "profile", f"must be one of {', '.join(PROFILES)}, not {profile!r}")
+    frames = data.get("keyframes")
+    if not isinstance(frames, list) or not frames:
+        raise MotionError(source, "keyframes", "must be a non-empty list of {time, pose} objects")
+    keyframes: list[Keyframe] = []
+    previous = 0.0
+    for k, frame in enumerate(frames):
+        key = f"keyframes[{k}]"
+        if not isinstance(frame, Mapping):
+            raise MotionError(source, key, "must be an object with time and pose")
+        extra = set(frame) - {"time", "pose", "profile"}
+        if extra:
+            raise MotionError(source, f"{key}.{sorted(extra)[0]}", "unknown key (known: time, pose, profile)")
+        time = frame.get("time")
+        if not _number(time):
+            raise MotionError(source, f"{key}.time", f"must be a number of seconds, not {time!r}")
+        assert isinstance(time, (int, float))
+        if time <= previous:
+            why = "above 0 (the time to reach it from where the robot is)" if k == 0 else f"after {previous:g}"
+            raise MotionError(source, f"{key}.time", f"{time:g} must be {why}")
+        previous = float(time)
+        pose = frame.get("pose")
+        if not isinstance(pose, Mapping):
+            raise MotionError(source, f"{key}.pose", "must be an object {joint: degrees}")
+        for joint, deg in pose.items():
+            if not _number(deg):
+                raise MotionError(source, f"{key}.pose.{joint}", f"must be a number of degrees, not {deg!r}")
+        shape = frame.get("profile")
+        if shape is not None and shape not in PROFILES:
+            raise MotionError(source, f"{key}.profile", f"must be one of {', '.join(PROFILES)}, not {shape!r}")
+        keyframes.append(Keyframe(float(time), {j: float(d) for j, d in pose.items()}, shape))
+    return Motion(tuple(keyframes), profile, name)
+
+
+def check_motion(robot: Robot, motion: Motion, source: str = "motion") -> None:
+    """Every joint known to ``robot`` and every angle within its limits (InvalidArgument naming the keyframe)."""
+    for k, frame in enumerate(motion.keyframes):
+        try:
+            robot.check_pose(frame.pose)
+        except InvalidArgument as exc:
+            raise MotionError(source, f"keyframes[{k}]", str(exc)) from None
+
+
+async def play_motion(
+    robot: Robot, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
+) -> None:
+    """Play ``motion`` on ``robot`` (``speed`` 2 plays twice as fast); with ``loop``, again and again until
+    cancelled, each pass reaching the first keyframe from the last in the first keyframe's time."""
+    if not isinstance(motion, Motion):
+        motion = load_motion(motion)
+    rate = units.check_seconds("speed", speed, 0.01, 100.0)
+    units.check_bool("loop", loop)
+    check_motion(robot, motion)
+    joints = motion.joints
+    robot.check_ready(joints)
+    if not joints:
+        return
+    first = motion.keyframes[0].pose
+    while True:
+        # A joint never read starts at its first angle in the motion (nothing to interpolate from).
+        start = {j: first.get(j, _first_angle(motion, j)) for j in joints}
+        start.update(robot.start_pose(joints))
+        keyframes: Sequence[tuple[float, Mapping[str, float], str]] = [
+            (f.time / rate, f.pose, f.profile or motion.profile) for f in motion.keyframes
+        ]
+        await robot.run(Trajectory.through(start, keyframes), wait_on_wire=not loop)
+        if not loop:
+            return
+
+
+def _first_angle(motion: Motion, joint: str) -> float:
+    return next(f.pose[joint] for f in motion.keyframes if joint in f.pose)

@@ -1,0 +1,145 @@
+"""Opening a robot: the file checked first, every line opened, the servos' EEPROM limits compared, the stream started.
+
+Nothing is opened before the description has passed every check, so a
+mistake in the file never reaches a port.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from collections.abc import AsyncIterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from .. import units
+from ..bus import open_bus
+from ..errors import IcsError, InvalidArgument, ReplyError
+from ..group import BusGroup, GroupStream
+from .description import JointSpec, RobotDescription, load_description
+from .robot import Robot
+
+ON_CLOSE = ("hold", "free")
+# open_bus options the description sets per line, so they may not be given to open_robot.
+_PER_LINE = frozenset({"baudrate", "echo", "retries"})
+
+
+class RobotWarning(UserWarning):
+    """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's)."""
+
+
+@contextlib.asynccontextmanager
+async def open_robot(
+    source: str | Path | Mapping[str, Any] | RobotDescription,
+    *,
+    on_close: str = "hold",
+    check_limits: bool = True,
+    offline_after: int = 3,
+    probe_interval: float = 0.5,
+    **bus_options: Any,
+) -> AsyncIterator[Robot]:
+    """Open every line of a robot and stream to all its joints: ``async with open_robot("robot.toml") as robot``.
+
+    ``source`` is a TOML file's path, the same structure as a mapping, or a
+    :class:`RobotDescription`.  ``on_close``: what the joints do when the
+    block ends, ``"hold"`` (keep their targets; a free joint stays free) or
+    ``"free"``.  With ``check_limits`` each joint's servo EEPROM is read at
+    open and a :class:`RobotWarning` is issued (and kept in
+    ``robot.warnings``) where the file allows more than the servo's pulse
+    limits.  ``offline_after`` and ``probe_interval`` go to every line's
+    stream; other keyword arguments to every :func:`open_bus` (e.g.
+    ``adapter_latency=0.005``, ``driver="anyio"``).
+    """
+    description = source if isinstance(source, RobotDescription) else load_description(source)
+    if on_close not in ON_CLOSE:
+        raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
+    units.check_bool("check_limits", check_limits)
+    clash = _PER_LINE & set(bus_options)
+    if clash:
+        raise InvalidArgument(f"{', '.join(sorted(clash))}: set per line in the robot description, not here")
+    buses = {
+        name: open_bus(line.port, baudrate=line.baudrate, echo=line.echo, retries=line.retries, **bus_options)
+        for name, line in description.lines.items()
+    }
+    streams_options = {"offline_after": offline_after, "probe_interval": probe_interval}
+    async with contextlib.AsyncExitStack() as stack:
+        # Each bus opened and closed by this task, one after the other: under trio a bus's
+        # task group must end in the task that began it (BusGroup closes its lines in child tasks).
+        for bus in buses.values():
+            await stack.enter_async_context(bus)
+        group = BusGroup(buses)
+        robot = Robot(description, group)
+        if check_limits:
+            await check_servo_limits(robot)
+        streams = {
+            line: group[line].stream(
+                [j.id for j in description.joints_on(line)], rate_hz=spec.rate_hz, **streams_options
+            )
+            for line, spec in description.lines.items()
+        }
+        async with GroupStream(streams) as gstream:
+            try:
+                async with anyio.create_task_group() as tasks:
+                    tasks.start_soon(robot.pump, gstream)
+                    tasks.start_soon(robot.watch.run, robot)
+                    try:
+                        await robot.wait_frame(0)
+                        yield robot
+                    finally:
+                        with anyio.CancelScope(shield=True), anyio.move_on_after(2.0):
+                            await _close_out(robot, on_close)
+                        tasks.cancel_scope.cancel()
+            except BaseExceptionGroup as group_error:
+                # The body's own error, not wrapped: the task group is an implementation detail.
+                raise _only(group_error) from None
+
+
+def _only(group_error: BaseExceptionGroup[BaseException]) -> BaseException:
+    error: BaseException = group_error
+    while isinstance(error, BaseExceptionGroup) and len(error.exceptions) == 1:
+        error = error.exceptions[0]
+    return error
+
+
+async def _close_out(robot: Robot, on_close: str) -> None:
+    with contextlib.suppress(IcsError):
+        if on_close == "free":
+            await robot.free()
+
+
+async def check_servo_limits(robot: Robot) -> list[str]:
+    """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
+    found: list[str] = []
+
+    async def check_line(line: str) -> None:
+        for joint in robot.description.joints_on(line):
+            message = await _limit_problem(robot, joint)
+            if message is not None:
+                found.append(message)
+
+    async with anyio.create_task_group() as tasks:
+        for line in robot.description.lines:
+            tasks.start_soon(check_line, line)
+    for message in found:
+        robot.warnings.append(message)
+        warnings.warn(message, RobotWarning, stacklevel=3)
+    return found
+
+
+async def _limit_problem(robot: Robot, joint: JointSpec) -> str | None:
+    where = f"{robot.description.source}: joints.{joint.name}"
+    try:
+        eeprom = await robot.group[joint.line].servo(joint.id).read_eeprom()
+    except ReplyError as exc:
+        return f"{where}: servo ID {joint.id} on line {joint.line} did not answer ({exc}); limits not checked"
+    low, high = sorted((joint.position(joint.min), joint.position(joint.max)))
+    if low >= eeprom.pulse_limit_low and high <= eeprom.pulse_limit_high:
+        return None
+    a, b = sorted((joint.degrees(eeprom.pulse_limit_low), joint.degrees(eeprom.pulse_limit_high)))
+    return (
+        f"{where}: the file allows {joint.min:g}..{joint.max:g} degrees, but servo ID {joint.id} on line "
+        f"{joint.line} stops at {a:.1f}..{b:.1f} (EEPROM pulse limits {eeprom.pulse_limit_low}.."
+        f"{eeprom.pulse_limit_high})"
+    )

@@ -1,0 +1,55 @@
+"""The bookkeeping of running motions: a plan (a trajectory being played) and the replies that prove its end sent."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import anyio
+
+from ..errors import IcsError
+from .frame import RobotFrame
+from .profiles import Trajectory
+
+
+class Replies:
+    """Counts each joint's replies that arrived after a moment (distinct reply times seen in frames).
+
+    A frame holds each line's newest cycle, which may have begun before that
+    moment; a reply after it may still answer a command sent before it (the
+    servo measures when the command reaches it), but a second one answers a
+    command sent after it.
+    """
+
+    def __init__(self, joints: Iterable[str], since: float) -> None:
+        self.since = since
+        self.counts = dict.fromkeys(joints, 0)
+        self._last: dict[str, float] = {}
+
+    def add(self, frame: RobotFrame) -> None:
+        for name, stamp in frame.stamps.items():
+            if name in self.counts and stamp > self.since and stamp != self._last.get(name):
+                self.counts[name] += 1
+                self._last[name] = stamp
+
+    def reached(self, replies: int, offline: Iterable[str]) -> bool:
+        skip = set(offline)
+        return all(n >= replies or name in skip for name, n in self.counts.items())
+
+
+class Plan:
+    """A trajectory being played: which joints it still drives, and how it ends."""
+
+    def __init__(self, trajectory: Trajectory, t0: float, wait_on_wire: bool) -> None:
+        self.trajectory = trajectory
+        self.t0 = t0
+        self.wait_on_wire = wait_on_wire
+        self.joints = set(trajectory.joints)
+        self.done = anyio.Event()
+        self.error: IcsError | None = None
+        self.ending: Replies | None = None  # once the final targets are set
+        self.segment = 0  # the segment the last targets came from
+
+    def finish(self, error: IcsError | None = None) -> None:
+        if not self.done.is_set():
+            self.error = error
+            self.done.set()

@@ -1,0 +1,367 @@
+"""The :class:`Robot`: named joints in degrees over every line of a :class:`BusGroup`, streaming all the time.
+
+While a robot is open its group stream runs on every line: one task (the
+*pump*) takes each merged frame, turns it into joint degrees, checks for
+offline joints, advances the running motions (computing every moving
+joint's next target from the time now) and publishes the frame.  Motions
+are *plans*: a :class:`~.profiles.Trajectory` and its start time.  A joint
+belongs to at most one plan; a new motion naming a joint takes it over.
+Joints no motion names keep their target (a held joint holds, a free one
+stays free).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from .. import protocol, units
+from ..errors import IcsError, InvalidArgument
+from ..frames import GroupFrame
+from ..group import BusGroup, GroupStream
+from .description import JointSpec, RobotDescription
+from .frame import RobotFrame
+from .motion import Motion, play_motion
+from .plans import Plan, Replies
+from .profiles import Segment, Trajectory, check_profile
+from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
+from .stream import RobotStream
+
+log = logging.getLogger("ics35_async.robot")
+
+
+class Robot:
+    """A robot over its lines; get one from :func:`~ics35_async.open_robot`."""
+
+    def __init__(self, description: RobotDescription, group: BusGroup) -> None:
+        self.description = description
+        self.joints: dict[str, JointSpec] = dict(description.joints)
+        self.group = group
+        self.warnings: list[str] = []
+        self.trips: list[SafetyStop] = []
+        self.watch = SafetyWatch(description.safety, group.buses, list(self.joints.values()))
+        self._by_key = {(j.line, j.id): name for name, j in self.joints.items()}
+        self._targets: dict[str, float | None] = dict.fromkeys(self.joints)
+        self._velocity: dict[str, float] = dict.fromkeys(self.joints, 0.0)
+        self._positions: dict[str, float] = {}
+        self._latest: RobotFrame | None = None
+        self._new_frame = anyio.Event()
+        self._plans: list[Plan] = []
+        self._latched: dict[str, SafetyStop] = {}
+        self._end_error: IcsError | None = None
+        self._gstream: GroupStream | None = None
+
+    def __repr__(self) -> str:
+        name = self.description.name or self.description.source
+        return f"<Robot {name}: {len(self.joints)} joints on {len(self.group.buses)} line(s)>"
+
+    # ------------------------------------------------------------------ what it knows
+
+    @property
+    def latest(self) -> RobotFrame | None:
+        return self._latest
+
+    @property
+    def targets(self) -> dict[str, float | None]:
+        """Every joint's target in degrees (``None``: free)."""
+        return dict(self._targets)
+
+    @property
+    def telemetry(self) -> dict[str, JointTelemetry]:
+        """The newest temperature and current of every joint (read by the safety watch)."""
+        return self.watch.telemetry
+
+    @property
+    def tripped(self) -> dict[str, SafetyStop]:
+        """Joints whose safety stop still stands (until a reading is back within limits, or it is back online)."""
+        return dict(self._latched)
+
+    def joint_names(self, joints: Iterable[str] | None) -> list[str]:
+        if joints is None:
+            return list(self.joints)
+        if isinstance(joints, str):
+            joints = [joints]
+        names = list(joints)
+        unknown = [n for n in names if n not in self.joints]
+        if unknown:
+            known = ", ".join(self.joints)
+            raise InvalidArgument(f"unknown joint(s): {', '.join(map(str, unknown))} (joints: {known})")
+        return names
+
+    def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]:
+        """Every name known and every angle a number within its joint's limits, else InvalidArgument."""
+        if not isinstance(pose, Mapping):
+            raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
+        self.joint_names(pose)
+        return {name: self.joints[name].check(deg) for name, deg in pose.items()}
+
+    # ------------------------------------------------------------------ frames
+
+    async def wait_frame(self, after: int) -> RobotFrame:
+        """The newest frame with a cycle number above ``after`` (waits for one)."""
+        while True:
+            if self._end_error is not None:
+                raise self._end_error
+            latest = self._latest
+            if latest is not None and latest.cycle > after:
+                return latest
+            await self._new_frame.wait()
+
+    async def read_pose(self) -> dict[str, float]:
+        """Every joint's angle as read after this call (an offline joint: its newest known angle)."""
+        # The servo measures when the command reaches it: the reply after a reply is a command sent after now.
+        await self.fresh_replies(self.joints, 2)
+        return {name: self._positions[name] for name in self.joints if name in self._positions}
+
+    async def fresh_replies(self, joints: Iterable[str], replies: int) -> None:
+        """Wait until each of ``joints`` (but the offline ones) has answered ``replies`` times from now on."""
+        counter = Replies(joints, time.monotonic())
+        frame = self._latest
+        while frame is None or not counter.reached(replies, frame.offline):
+            frame = await self.wait_frame(frame.cycle if frame else 0)
+            counter.add(frame)
+
+    def stream(self) -> RobotStream:
+        """Frames in joint space and targets by name; ``async with robot.stream() as s: async for frame in s``."""
+        return RobotStream(self)
+
+    async def on_wire(self, joints: Iterable[str] | None = None) -> None:
+        """Wait until the targets set so far have gone out to ``joints`` (default: all)."""
+        # The command in flight may predate the target; the one after its reply cannot.
+        await self.fresh_replies(self.joint_names(joints), 2)
+
+    # ------------------------------------------------------------------ targets
+
+    def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
+        """Targets in joint degrees (``None`` frees, with ``allow_free``), all checked first; they take over
+        those joints from any running motion."""
+        if not isinstance(pose, Mapping):
+            raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
+        self.joint_names(pose)
+        checked = {
+            n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()
+        }
+        self._release(checked)
+        self._apply(checked)
+
+    def hold(self, joints: Iterable[str] | None = None) -> None:
+        """Hold ``joints`` (default: all) where they are now (within their limits), torque on."""
+        names = self.joint_names(joints)
+        self._release(names)
+        self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions})
+
+    async def free(self, joints: Iterable[str] | None = None) -> None:
+        """Torque off for ``joints`` (default: all); returns once that has gone out on the wire."""
+        names = self.joint_names(joints)
+        self._release(names)
+        self._apply(dict.fromkeys(names))
+        await self.on_wire(names)
+
+    def _release(self, joints: Iterable[str]) -> None:
+        for name in joints:
+            self._velocity[name] = 0.0
+            for plan in self._plans:
+                plan.joints.discard(name)
+
+    def _apply(self, targets: Mapping[str, float | None]) -> None:
+        if not targets or self._gstream is None:
+            return
+        wanted: dict[tuple[str, int], int] = {}
+        for name, deg in targets.items():
+            joint = self.joints[name]
+            # Clamped again here: whatever computed it, no command leaves the joint's limits.
+            wanted[(joint.line, joint.id)] = protocol.FREE if deg is None else joint.position(joint.clamp(deg))
+        self._gstream.set_targets(wanted)
+        self._targets.update(targets)
+
+    # ------------------------------------------------------------------ motions
+
+    async def move_to(self, pose: Mapping[str, float], duration: float = 1.0, profile: str = "minjerk") -> None:
+        """Move the named joints to ``pose`` (joint degrees) in ``duration`` seconds; the others hold still.
+
+        Every target is checked against its joint's limits before anything is
+        sent (:class:`InvalidArgument`).  Returns when the final targets have
+        gone out on every line; raises :class:`SafetyStop` if the safety watch
+        stops the motion.
+        """
+        goal = self.check_pose(pose)
+        seconds = units.check_seconds("duration", duration, 0.0, 3600.0)
+        shape = check_profile(profile)
+        self.check_ready(goal)
+        if goal:
+            # A joint whose position was never read starts at its goal: nothing to interpolate from.
+            start = {**goal, **self.start_pose(goal)}
+            await self.run(Trajectory([Segment(0.0, seconds, start, goal, shape)]))
+
+    async def play(
+        self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
+    ) -> None:
+        """Play a motion (a :class:`~.motion.Motion`, a JSON file's path or its mapping); see :mod:`.motion`.
+
+        ``speed`` scales time (2: twice as fast); with ``loop`` it repeats
+        until cancelled.  Checked against the limits before anything moves.
+        """
+        await play_motion(self, motion, speed=speed, loop=loop)
+
+    def check_ready(self, joints: Iterable[str]) -> None:
+        """Raise why a motion of ``joints`` cannot start: the robot's end, or a safety stop that still stands."""
+        if self._end_error is not None:
+            raise self._end_error
+        for name in joints:
+            if name in self._latched:
+                raise self._latched[name]
+
+    def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
+        """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits)."""
+        start = {}
+        for name in joints:
+            target = self._targets[name]
+            if target is None and name in self._positions:
+                target = self.joints[name].clamp(self._positions[name])
+            if target is not None:
+                start[name] = target
+        return start
+
+    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None:
+        """Play a trajectory from now on; returns when it is done (its end on the wire, with ``wait_on_wire``)."""
+        plan = Plan(trajectory, anyio.current_time(), wait_on_wire)
+        self._release(plan.joints)
+        self._plans.append(plan)
+        try:
+            await plan.done.wait()
+        finally:
+            if plan in self._plans and not plan.done.is_set():
+                # Cancelled: the joints keep their last target (and speed, for a smooth stop()).
+                self._plans.remove(plan)
+        if plan.error is not None:
+            raise plan.error
+
+    async def stop(self, ramp: float = 0.3) -> None:
+        """End every motion smoothly: each moving joint slows to rest over ``ramp`` seconds, then holds."""
+        seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
+        for plan in self._plans:
+            plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
+        self._plans.clear()
+        start, end = {}, {}
+        for name, speed in self._velocity.items():
+            target = self._targets[name]
+            if speed and target is not None:
+                start[name] = target
+                end[name] = self.joints[name].clamp(target + speed * seconds / 2)
+        if start and seconds > 0:
+            await self.run(Trajectory([Segment(0.0, seconds, start, end, "decel")]))
+
+    def _step(self, frame: RobotFrame) -> None:
+        """Advance every running plan to the frame's time: the targets for the next cycle."""
+        targets: dict[str, float | None] = {}
+        for plan in list(self._plans):
+            if plan.ending is not None:
+                plan.ending.add(frame)
+            if not plan.joints or (plan.ending is not None and plan.ending.reached(2, frame.offline)):
+                plan.finish()
+                self._plans.remove(plan)
+                continue
+            if plan.ending is not None:
+                continue
+            trajectory, t = plan.trajectory, frame.time - plan.t0
+            if t >= trajectory.duration:
+                pose, speed = trajectory.final, {}
+                plan.ending = Replies(plan.joints, time.monotonic())
+                if not plan.wait_on_wire:
+                    plan.finish()
+                    self._plans.remove(plan)
+            else:
+                k = trajectory.segment_at(t)
+                segment = trajectory.segments[k]
+                if k > plan.segment:
+                    # Into a new segment: first the keyframe that ended the last one, exactly.
+                    segment, plan.segment = trajectory.segments[k - 1], k
+                    pose, speed = dict(segment.end), trajectory.segments[k].velocity_at(t)
+                else:
+                    pose, speed = segment.pose_at(t), segment.velocity_at(t)
+            for name in plan.joints:
+                if name in pose:
+                    targets[name] = pose[name]
+                    self._velocity[name] = speed.get(name, 0.0)
+        self._apply(targets)
+
+    # ------------------------------------------------------------------ the pump
+
+    async def pump(self, gstream: GroupStream) -> None:
+        """Take every merged frame until the stream ends (then every waiter gets the reason)."""
+        self._gstream = gstream
+        try:
+            while True:
+                self._on_frame(await gstream.next_frame())
+        except IcsError as exc:
+            self._end(exc)
+
+    def _on_frame(self, frame: GroupFrame) -> None:
+        now = anyio.current_time()
+        by_key, joints = self._by_key, self.joints
+        positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
+        self._positions.update(positions)
+        stamps = {by_key[k]: t for k, t in frame.timestamps.items() if k in by_key}
+        failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
+        offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
+        self._watch_offline(offline)
+        merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps)
+        self._step(merged)
+        self._latest = dataclasses.replace(merged, targets=dict(self._targets))
+        event, self._new_frame = self._new_frame, anyio.Event()
+        event.set()
+
+    def _end(self, error: IcsError) -> None:
+        self._end_error = error
+        for plan in self._plans:
+            plan.finish(error)
+        self._plans.clear()
+        self._new_frame.set()
+
+    # ------------------------------------------------------------------ safety
+
+    def _watch_offline(self, offline: frozenset[str]) -> None:
+        for name in list(self._latched):
+            if self._latched[name].reason == "offline" and name not in offline:
+                del self._latched[name]
+        if self.description.safety.continue_on_offline:
+            return
+        for name in offline:
+            joint = self.joints[name]
+            action = self.description.safety.action
+            self.trip(
+                SafetyStop(
+                    f"joint {name} (line {joint.line}, ID {joint.id}) went offline (no answer); action: {action}",
+                    joint=name,
+                    reason="offline",
+                    action=action,
+                )
+            )
+
+    def trip(self, stop: SafetyStop) -> None:
+        """A safety limit was crossed: end every motion, carry out the action, tell every waiter."""
+        if stop.joint in self._latched:
+            return  # already reported; it stands until the joint is back within limits
+        self._latched[stop.joint] = stop
+        self.trips.append(stop)
+        log.warning("safety stop: %s", stop)
+        for plan in self._plans:
+            plan.finish(stop)
+        self._plans.clear()
+        self._velocity = dict.fromkeys(self.joints, 0.0)
+        if stop.action == "free":
+            self._apply({stop.joint: None})
+        elif stop.action == "stop":
+            self._apply(dict.fromkeys(self.joints))
+        # "hold": every joint keeps its last target, the crossing one included.
+
+    def clear_trip(self, joint: str, reasons: Iterable[str]) -> None:
+        stop = self._latched.get(joint)
+        if stop is not None and stop.reason in reasons:
+            del self._latched[joint]

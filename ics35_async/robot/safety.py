@@ -1,0 +1,162 @@
+"""The safety watch: temperature and current read in the line's gaps, checked against ``[safety]``.
+
+Each line has its own watch task.  After every merged frame it reads the
+temperature and current of the next ``telemetry_per_cycle`` joints of its
+line (round robin), at low priority, so the reads slip in between the
+stream's position transactions.  A *telemetry round* is every joint of a
+line read once; a joint crossing a threshold is reported within one round.
+A joint the stream has marked offline is skipped (each read of a dead ID
+costs a whole reply timeout); the robot itself watches offline joints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import anyio
+
+from .. import units
+from ..bus import Bus, Priority
+from ..errors import IcsError, ReplyError
+from ..servo import Servo
+from .description import JointSpec, SafetySpec
+from .frame import RobotFrame
+
+REASONS = ("temperature", "current", "offline")
+
+
+class SafetyStop(IcsError):
+    """The safety watch stopped the motion: a joint got too hot, drew too much current, or went offline.
+
+    ``joint`` names it, ``reason`` is ``"temperature"``, ``"current"`` or
+    ``"offline"``, ``value`` and ``limit`` the reading and the threshold
+    (``None`` for offline), ``action`` what was done (``"free"``, ``"hold"``
+    or ``"stop"``, from ``[safety] action``).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        joint: str,
+        reason: str,
+        action: str,
+        value: float | None = None,
+        limit: float | None = None,
+    ) -> None:
+        self.joint = joint
+        self.reason = reason
+        self.action = action
+        self.value = value
+        self.limit = limit
+        super().__init__(message)
+
+
+class MotionStopped(IcsError):
+    """A motion ended early because :meth:`Robot.stop` was called (from another task)."""
+
+
+@dataclass
+class JointTelemetry:
+    """The newest temperature (approximate Celsius) and current (0..63) read from a joint's servo."""
+
+    temperature_c: float | None = None
+    current: int | None = None
+    reads: int = 0
+    errors: int = 0
+
+
+class WatchedRobot(Protocol):
+    """What the watch needs from the robot."""
+
+    async def wait_frame(self, after: int) -> RobotFrame: ...
+
+    def trip(self, stop: SafetyStop) -> None: ...
+
+    def clear_trip(self, joint: str, reasons: Sequence[str]) -> None: ...
+
+
+class SafetyWatch:
+    """Reads every joint's temperature and current between stream cycles and trips the robot's safety."""
+
+    def __init__(self, spec: SafetySpec, buses: Mapping[str, Bus], joints: Sequence[JointSpec]) -> None:
+        self.spec = spec
+        self.buses = dict(buses)
+        self.joints = list(joints)
+        self.telemetry: dict[str, JointTelemetry] = {j.name: JointTelemetry() for j in self.joints}
+        self.rounds: dict[str, int] = dict.fromkeys(self.buses, 0)
+
+    async def run(self, robot: WatchedRobot) -> None:
+        if not self.spec.telemetry_per_cycle:
+            return
+        async with anyio.create_task_group() as group:
+            for line, bus in self.buses.items():
+                joints = [j for j in self.joints if j.line == line]
+                if joints:
+                    group.start_soon(self._watch_line, robot, line, bus, joints)
+
+    async def _watch_line(self, robot: WatchedRobot, line: str, bus: Bus, joints: list[JointSpec]) -> None:
+        servos = {j.name: Servo(bus, j.id, priority=Priority.LOW) for j in joints}
+        per_cycle = min(self.spec.telemetry_per_cycle, len(joints))
+        cycle, k = 0, 0
+        try:
+            while True:
+                frame = await robot.wait_frame(cycle)
+                cycle = frame.cycle
+                for _ in range(per_cycle):
+                    joint = joints[k]
+                    k = (k + 1) % len(joints)
+                    if k == 0:
+                        self.rounds[line] += 1
+                    if joint.name not in frame.offline:
+                        await self._read(robot, joint, servos[joint.name])
+        except IcsError:
+            return  # the line closed or was lost: the robot reports that itself
+
+    async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
+        seen = self.telemetry[joint.name]
+        try:
+            raw_temperature = await servo.read_temperature()
+            raw_current = await servo.read_current()
+        except ReplyError:
+            seen.errors += 1
+            return
+        seen.reads += 1
+        seen.temperature_c = units.temperature_to_celsius(raw_temperature)
+        seen.current = units.current_from_raw(raw_current).magnitude
+        self.check(robot, joint, seen)
+
+    def check(self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry) -> None:
+        spec = self.spec
+        where = f"joint {joint.name} (line {joint.line}, ID {joint.id})"
+        crossed: list[SafetyStop] = []
+        celsius, hottest = seen.temperature_c, spec.max_temperature_c
+        if celsius is not None and hottest is not None and celsius > hottest:
+            crossed.append(
+                SafetyStop(
+                    f"{where} is at about {celsius:.0f} C, over max_temperature_c {hottest:g}; action: {spec.action}",
+                    joint=joint.name,
+                    reason="temperature",
+                    action=spec.action,
+                    value=celsius,
+                    limit=hottest,
+                )
+            )
+        if spec.max_current is not None and seen.current is not None and seen.current > spec.max_current:
+            crossed.append(
+                SafetyStop(
+                    f"{where} draws current {seen.current}, over max_current {spec.max_current}; "
+                    f"action: {spec.action}",
+                    joint=joint.name,
+                    reason="current",
+                    action=spec.action,
+                    value=seen.current,
+                    limit=spec.max_current,
+                )
+            )
+        if crossed:
+            robot.trip(crossed[0])
+        else:
+            robot.clear_trip(joint.name, ("temperature", "current"))

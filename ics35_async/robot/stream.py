@@ -1,0 +1,73 @@
+"""The robot's stream in joint space: frames keyed by joint name in degrees, targets set by name."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import AsyncIterator, Iterable, Mapping
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+from ..errors import BusClosed
+from .frame import RobotFrame
+
+if TYPE_CHECKING:
+    from .host import RobotHost as Robot
+
+
+class RobotStream:
+    """A view of the robot's stream: ``async for frame in robot.stream()`` and ``set_targets({joint: deg})``.
+
+    The robot streams all the time it is open; this view hands out its frames
+    (the newest one not seen yet) and raises :class:`SafetyStop` when the
+    safety watch trips after the view was opened.
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        self._cycle = robot.latest.cycle if robot.latest is not None else 0
+        self._trips = len(robot.trips)
+        self._closed = False
+
+    async def next_frame(self) -> RobotFrame:
+        if self._closed:
+            raise BusClosed("robot stream closed")
+        frame = await self.robot.wait_frame(self._cycle)
+        skipped = frame.cycle - self._cycle - 1 if self._cycle else 0
+        self._cycle = frame.cycle
+        if len(self.robot.trips) > self._trips:
+            self._trips = len(self.robot.trips)
+            raise self.robot.trips[-1]
+        return dataclasses.replace(frame, skipped=skipped) if skipped > 0 else frame
+
+    def set_target(self, joint: str, degrees: float) -> None:
+        self.robot.set_targets({joint: degrees})
+
+    def set_targets(self, pose: Mapping[str, float]) -> None:
+        """Targets in joint degrees, all checked (names, limits) before any is applied."""
+        self.robot.set_targets(pose)
+
+    def free(self, joints: Iterable[str] | None = None) -> None:
+        self.robot.set_targets(dict.fromkeys(self.robot.joint_names(joints)), allow_free=True)
+
+    def hold(self, joints: Iterable[str] | None = None) -> None:
+        self.robot.hold(joints)
+
+    def __aiter__(self) -> AsyncIterator[RobotFrame]:
+        return self
+
+    async def __anext__(self) -> RobotFrame:
+        try:
+            return await self.next_frame()
+        except BusClosed:
+            raise StopAsyncIteration from None
+
+    async def aclose(self) -> None:
+        self._closed = True
+
+    async def __aenter__(self) -> RobotStream:
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()

@@ -1,0 +1,88 @@
+"""Shared pieces of the robot tests: two simulated lines, a description over them, and the log read back.
+
+The simulator's transaction log is the ground truth: every position command
+the robot sent is decoded from the bytes on the wire, never taken from the
+robot's own bookkeeping.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from ics35_async import units
+from ics35_async.protocol import FREE
+from ics35_async.sim import VirtualLine, VirtualServo
+
+FAST: dict[str, Any] = {"adapter_latency": 0.003, "quiet_time": 0.001}
+GUARD = 10.0  # seconds: only against hangs, never a timing assertion
+
+_names = itertools.count()
+
+
+@dataclass
+class Rig:
+    """Two named simulated lines ("upper": IDs 1-3, "lower": IDs 1-2) and a description using them."""
+
+    upper: VirtualLine
+    lower: VirtualLine
+    description: dict[str, Any]
+
+    def sim(self, line: str) -> VirtualLine:
+        return self.upper if line == "upper" else self.lower
+
+    def servo(self, joint: str) -> VirtualServo:
+        spec = self.description["joints"][joint]
+        return self.sim(spec["line"]).servo(spec["id"])
+
+    def close(self) -> None:
+        self.upper.close()
+        self.lower.close()
+
+
+JOINTS: dict[str, dict[str, Any]] = {
+    # offset and reverse both ways, narrow and wide limits, on two lines with the same IDs.
+    "neck": {"line": "upper", "id": 1, "offset": 10.0, "min": -60.0, "max": 60.0},
+    "shoulder": {"line": "upper", "id": 2, "reverse": True, "min": -90.0, "max": 45.0},
+    "elbow": {"line": "upper", "id": 3, "offset": -20.0, "reverse": True, "min": 0.0, "max": 110.0},
+    "hip": {"line": "lower", "id": 1, "min": -30.0, "max": 30.0},
+    "knee": {"line": "lower", "id": 2, "offset": 5.5, "min": -100.0, "max": 20.0},
+}
+
+
+def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
+    n = next(_names)
+    line_options.setdefault("log_size", None)
+    upper = VirtualLine([1, 2, 3], name=f"robot-upper-{n}", **line_options)
+    lower = VirtualLine([1, 2], name=f"robot-lower-{n}", **line_options)
+    description: dict[str, Any] = {
+        "lines": {"upper": {"port": f"sim://robot-upper-{n}"}, "lower": {"port": f"sim://robot-lower-{n}"}},
+        "joints": {name: dict(spec) for name, spec in JOINTS.items()},
+    }
+    if safety is not None:
+        description["safety"] = safety
+    return Rig(upper, lower, description)
+
+
+def joint_degrees(spec: dict[str, Any], position: int) -> float:
+    sign = -1 if spec.get("reverse") else 1
+    return (units.position_to_degrees(position) - spec.get("offset", 0.0)) * sign
+
+
+def joint_position(spec: dict[str, Any], degrees: float) -> int:
+    sign = -1 if spec.get("reverse") else 1
+    return units.degrees_to_position(spec.get("offset", 0.0) + sign * degrees)
+
+
+def commanded(sim: VirtualLine, servo_id: int, since: int = 0) -> Iterator[int]:
+    """Every position target sent to ``servo_id`` (log seq >= ``since``), decoded from the wire bytes; 0 is free."""
+    for t in sim.log_since(since):
+        if t.command in ("position", "free") and t.servo_id == servo_id:
+            yield (t.tx[1] << 7) | t.tx[2]
+
+
+def targets_sent(sim: VirtualLine, servo_id: int, since: int = 0) -> list[int]:
+    """The non-free position targets sent to ``servo_id``."""
+    return [p for p in commanded(sim, servo_id, since) if p != FREE]

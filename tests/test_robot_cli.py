@@ -1,0 +1,287 @@
+"""ics35 play / teach / calibrate in this process, on named simulated lines (hands moved from a helper thread)."""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import os
+import sys
+import threading
+import tomllib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import main
+from ics35_async.robot import load_description
+from ics35_async.robot.calibration import dump_description
+from ics35_async.sim import VirtualLine
+
+from ._cli_fixtures import Result, ics35
+from ._robot_fixtures import JOINTS, Rig, joint_position, make_rig, targets_sent
+
+__all__ = ["ics35"]
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[Rig, Path]]:
+    """The two-line test robot, written out as a TOML file."""
+    made = make_rig()
+    path = tmp_path / "robot.toml"
+    path.write_text(dump_description(load_description(made.description)))
+    yield made, path
+    made.close()
+
+
+def write_motion(path: Path, *keyframes: dict[str, Any]) -> Path:
+    path.write_text(json.dumps({"format": "ics35-motion", "version": 1, "keyframes": list(keyframes)}))
+    return path
+
+
+def test_play_the_example_humanoid_with_no_hardware(ics35: Any) -> None:
+    result = ics35("play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"), "--speed", "3")
+    assert result.code == 0, result.err
+    assert "play done" in result.out and "joints left holding" in result.out
+    assert "right_elbow" in result.out  # the table at the end
+    assert "no --port given" not in result.err
+
+
+def test_the_example_files_are_valid() -> None:
+    robot = load_description(EXAMPLES / "humanoid.toml")
+    assert len(robot.joints) == 17 and len(robot.lines) == 2
+    assert all(line.port.startswith("sim://") for line in robot.lines.values())
+
+
+def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(ics35: Any, rig: tuple[Rig, Path],
+                                                                 tmp_path: Path) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
+                          {"time": 0.2, "pose": {"neck": -30, "hip": 20}})
+    result = ics35("play", str(robot_file), str(motion), "--on-stop", "free")
+    assert result.code == 0, result.err
+    assert "joints left free" in result.out
+    neck = targets_sent(sims.upper, 1)
+    assert neck[-1] == joint_position(JOINTS["neck"], -30)
+    assert sims.servo("neck").free
+    since = sims.upper.transactions
+    result = ics35("play", str(robot_file), str(motion), "--loop", "--seconds", "1")
+    assert result.code == 0, result.err
+    assert "time is up" in result.err
+    end = joint_position(JOINTS["neck"], -30)
+    runs = targets_sent(sims.upper, 1, since)
+    assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
+
+
+@pytest.mark.parametrize(
+    ("change", "code", "phrase"),
+    [
+        (lambda robot, motion: (robot.write_text("[lines.a]\nport = 3\n"), motion), 2, "lines.a.port"),
+        (lambda robot, motion: (robot, write_motion(motion, {"time": 1, "pose": {"neck": 99}})), 2,
+         "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing moved)"),
+        (lambda robot, motion: (robot, motion.write_text("{}")), 2, "format: must be 'ics35-motion'"),
+        (lambda robot, motion: (robot.unlink(), motion), 2, "ROBOT.toml"),
+    ],
+)
+def test_bad_files_are_usage_errors(
+    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, change: Callable[[Path, Path], Any], code: int, phrase: str
+) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    change(robot_file, motion)
+    result = ics35("play", str(robot_file), str(motion))
+    assert result.code == code, result.err
+    assert phrase in result.err
+    assert targets_sent(sims.upper, 1) == []
+
+
+def test_a_safety_stop_is_exit_code_7(ics35: Any, tmp_path: Path) -> None:
+    sims = make_rig(safety={"max_current": 20, "action": "free"})
+    try:
+        robot_file = tmp_path / "robot.toml"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        sims.servo("knee").load = 45  # a stalled knee: draws current as soon as it holds
+        motion = write_motion(tmp_path / "m.json", {"time": 1.0, "pose": {"knee": -50}},
+                              {"time": 2.0, "pose": {"knee": 0}})
+        result = ics35("play", str(robot_file), str(motion))
+    finally:
+        sims.close()
+    assert result.code == 7, result.err
+    assert "safety stop: joint knee (line lower, ID 2) draws current" in result.err
+    assert "hint:" in result.err
+
+
+Step = tuple[str | None, Callable[[], None] | None, str]
+
+
+def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) -> Result:
+    """Run ``ics35 ARGS`` with a pipe as stdin.  For each ``(phrase, move, text)`` step a helper thread waits
+    until the command has printed ``phrase`` (it has done what came before), does the hand ``move``, lets
+    the robot see it (a few hundred transactions on every line), then types ``text``."""
+    read_end, write_end = os.pipe()
+    stdin = os.fdopen(read_end, "r")
+    writer = os.fdopen(write_end, "w")
+    errors = io.StringIO()
+
+    def settle() -> None:
+        marks = [sim.transactions for sim in sims]
+        while any(sim.transactions < mark + 300 for sim, mark in zip(sims, marks, strict=True)):
+            threading.Event().wait(0.005)
+
+    def hands() -> None:
+        for phrase, move, text in steps:
+            while phrase is not None and phrase not in errors.getvalue():
+                threading.Event().wait(0.005)
+            settle()
+            if move is not None:
+                move()
+                settle()
+            writer.write(text)
+            writer.flush()
+        writer.close()
+
+    helper = threading.Thread(target=hands, daemon=True)
+    old_stdin, old_out, old_err = sys.stdin, sys.stdout, sys.stderr
+    sys.stdin, sys.stdout, sys.stderr = stdin, io.StringIO(), errors
+    try:
+        helper.start()
+        with pytest.raises(SystemExit) as exited:
+            main(args)
+        out, err = sys.stdout.getvalue(), errors.getvalue()  # type: ignore[attr-defined]
+    finally:
+        sys.stdin, sys.stdout, sys.stderr = old_stdin, old_out, old_err
+        helper.join(10)
+        stdin.close()
+    code = exited.value.code
+    return Result(code if isinstance(code, int) else 1, out, err)
+
+
+def test_teach_captures_hand_poses_and_play_brings_them_back(rig: tuple[Rig, Path], tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    out_file = tmp_path / "taught.json"
+    neck, hip = sims.servo("neck"), sims.servo("hip")
+    first = {"neck": 25.0, "hip": -15.0}
+    second = {"neck": -40.0, "hip": 22.0}
+
+    def pose(values: dict[str, float]) -> Callable[[], None]:
+        def move() -> None:
+            neck.move_by_hand(joint_position(JOINTS["neck"], values["neck"]))
+            hip.move_by_hand(joint_position(JOINTS["hip"], values["hip"]))
+
+        return move
+
+    result = run_with_hands(
+        ["teach", str(robot_file), str(out_file), "--joints", "neck,hip"],
+        [("Enter captures", pose(first), "\n"), ("pose 1 at", pose(second), "\n"), ("pose 2 at", None, "q\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    assert "wrote 2 pose(s)" in result.out
+    taught = json.loads(out_file.read_text())
+    assert [k["pose"] for k in taught["keyframes"]] == [
+        pytest.approx(first, abs=0.05), pytest.approx(second, abs=0.05)
+    ]
+    assert taught["keyframes"][0]["time"] < taught["keyframes"][1]["time"]
+    # Elsewhere by hand, then play it back: the robot ends at the second pose.
+    pose({"neck": 0.0, "hip": 0.0})()
+    result = run_with_hands(["play", str(robot_file), str(out_file)], [], [sims.upper, sims.lower])
+    assert result.code == 0, result.err
+    assert targets_sent(sims.upper, 1)[-1] == joint_position(JOINTS["neck"], taught["keyframes"][1]["pose"]["neck"])
+    assert targets_sent(sims.lower, 1)[-1] == joint_position(JOINTS["hip"], taught["keyframes"][1]["pose"]["hip"])
+
+
+CALIBRATE_FILE = """\
+# my arm
+[lines.upper]
+port = "{upper}"   # the left adapter
+
+[lines.lower]
+port = "{lower}"
+
+[joints.neck]      # the head
+line = "upper"
+id = 1
+offset = 0.0       # degrees: trimmed by calibrate
+min = -60
+max = 60
+
+[joints.hip]
+line = "lower"
+id = 1
+"""
+
+
+def test_calibrate_writes_neutral_and_range_back_keeping_comments(rig: tuple[Rig, Path], tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, _ = rig
+    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    neck, hip = sims.servo("neck"), sims.servo("hip")
+
+    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
+        def move() -> None:
+            neck.move_by_hand(7500 + round(servo_degrees["neck"] * 8000 / 270))
+            hip.move_by_hand(7500 + round(servo_degrees["hip"] * 8000 / 270))
+
+        return move
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 12.0, "hip": -3.0}), "\n"),  # servo degrees
+            ("whole range", at({"neck": -50.0, "hip": -60.0}), ""),  # one end of each range
+            (None, at({"neck": 70.0, "hip": 40.0}), "\n"),  # the other end; done
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    assert "comments kept" in result.out
+    text = robot_file.read_text()
+    assert "# my arm" in text and "# the left adapter" in text and "# degrees: trimmed by calibrate" in text
+    data = tomllib.loads(text)
+    neck_values = {k: data["joints"]["neck"][k] for k in ("offset", "min", "max")}
+    hip_values = {k: data["joints"]["hip"][k] for k in ("offset", "min", "max")}
+    assert neck_values == pytest.approx({"offset": 12.0, "min": -62.0, "max": 58.0}, abs=0.11)
+    assert hip_values == pytest.approx({"offset": -3.0, "min": -57.0, "max": 43.0}, abs=0.11)
+    load_description(robot_file)  # still a valid robot file
+
+
+def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(rig: tuple[Rig, Path], tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, _ = rig
+    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    robot_file = tmp_path / "inline.toml"
+    original = (
+        f'lines.upper.port = "{ports["upper"]}"\n'
+        'joints.neck = {line = "upper", id = 1}   # inline: cannot be edited in place\n'
+    )
+    robot_file.write_text(original)
+    result = run_with_hands(["calibrate", str(robot_file), "--joints", "neck"],
+                            [("neutral (every joint at 0)", None, "\n"), ("whole range", None, "\n")], [sims.upper])
+    assert result.code == 0, result.err
+    assert robot_file.read_text() == original
+    beside = tmp_path / "inline.calibrated.toml"
+    assert "inline.calibrated.toml" in result.err
+    assert load_description(beside).joints["neck"].offset == pytest.approx(0.0)
+
+
+def test_teach_and_calibrate_refuse_bad_arguments(ics35: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    _, robot_file = rig
+    result = ics35("teach", str(robot_file), str(tmp_path / "x.txt"))
+    assert result.code == 2 and "cannot write .txt files" in result.err
+    result = ics35("teach", str(robot_file), str(tmp_path / "x.json"), "--joints", "neck,tail")
+    assert result.code == 2 and "unknown joint(s) tail" in result.err
+    result = ics35("calibrate", str(robot_file), stdin="")
+    assert result.code == 5 and "nothing written" in result.err
+    result = ics35("teach", str(robot_file), str(tmp_path / "x.json"), stdin="q\n")
+    assert result.code == 5 and "no pose captured" in result.err
+    assert not (tmp_path / "x.json").exists()

@@ -1,0 +1,188 @@
+"""The robot description file: every rule, each mistake a clear error naming the file and key, opening nothing."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+
+from ics35_async import InvalidArgument, open_robot
+from ics35_async.robot import DescriptionError, load_description
+from ics35_async.sim import VirtualLine
+
+from ._robot_fixtures import FAST
+
+GOOD = """\
+name = "arm"
+
+[lines.main]              # one table per ICS line
+port = "sim://?ids=1-3"
+baudrate = 115200
+rate_hz = 200
+
+[joints.left_elbow]
+line = "main"
+id = 3
+offset = 2.5              # degrees: the servo angle at which the joint reads 0
+reverse = true
+min = -90
+max = 45
+
+[joints.wrist]
+line = "main"
+id = 1
+
+[safety]
+max_temperature_c = 70
+max_current = 30
+action = "hold"
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "robot.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_good_file_reads_with_its_defaults(tmp_path: Path) -> None:
+    robot = load_description(write(tmp_path, GOOD))
+    assert robot.name == "arm"
+    line = robot.lines["main"]
+    assert (line.port, line.baudrate, line.rate_hz, line.echo) == ("sim://?ids=1-3", 115200, 200.0, True)
+    elbow = robot.joints["left_elbow"]
+    assert (elbow.line, elbow.id, elbow.offset, elbow.reverse, elbow.min, elbow.max) == (
+        "main", 3, 2.5, True, -90.0, 45.0
+    )
+    # No limits given: the servo's whole travel, in the joint's degrees.
+    wrist = robot.joints["wrist"]
+    assert (wrist.offset, wrist.reverse, wrist.min, wrist.max) == (0.0, False, -135.0, 135.0)
+    assert (robot.safety.max_temperature_c, robot.safety.max_current, robot.safety.action) == (70.0, 30, "hold")
+    assert robot.safety.continue_on_offline is False
+
+
+def test_servo_degrees_are_offset_plus_signed_joint_degrees_both_ways(tmp_path: Path) -> None:
+    elbow = load_description(write(tmp_path, GOOD)).joints["left_elbow"]
+    for joint in (-90.0, -12.25, 0.0, 30.0, 45.0):
+        servo = elbow.servo_degrees(joint)
+        assert servo == pytest.approx(2.5 - joint)
+        assert elbow.joint_degrees(servo) == pytest.approx(joint)
+        # Through the counts and back: within half a count.
+        assert elbow.degrees(elbow.position(joint)) == pytest.approx(joint, abs=0.5 / 29.6)
+
+
+def test_default_limits_follow_the_offset() -> None:
+    robot = load_description(
+        {"lines": {"m": {"port": "sim://"}}, "joints": {"j": {"line": "m", "id": 0, "offset": 35, "reverse": True}}}
+    )
+    assert (robot.joints["j"].min, robot.joints["j"].max) == (-100.0, 170.0)
+
+
+BASE_LINES = '[lines.main]\nport = "sim://a"\n[lines.legs]\nport = "sim://b"\n'
+JOINT = '[joints.knee]\nline = "legs"\nid = 2\n'
+
+MISTAKES: list[tuple[str, str, str]] = [
+    # (file text, the key the error must name, a phrase of its message)
+    (BASE_LINES + '[joints.knee]\nline = "arms"\nid = 2\n[joints.x]\nline="main"\nid=1', "joints.knee.line",
+     "unknown line 'arms'"),
+    (BASE_LINES + JOINT + '[joints.hip]\nline = "legs"\nid = 2\n[joints.x]\nline="main"\nid=1', "joints.hip.id",
+     "already joint 'knee'"),
+    (BASE_LINES + JOINT + "min = 10\nmax = -10\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.min",
+     "greater than max"),
+    (BASE_LINES + JOINT + "offset = 100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.max",
+     "outside the servo's range"),
+    (BASE_LINES + JOINT + "reverse = true\noffset = -100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1',
+     "joints.knee.max", "outside the servo's range"),
+    (BASE_LINES + JOINT + "speed = 3\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.speed", "unknown key"),
+    (BASE_LINES + JOINT + "id = 40\n", "", ""),  # duplicate key: not valid TOML
+    ('[lines.main]\nport = "sim://a"\nbaud = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.baud",
+     "unknown key"),
+    ('[lines.main]\nport = "sim://a"\nbaudrate = 9600\n[joints.x]\nline="main"\nid=1', "lines.main.baudrate",
+     "115200, 625000 or 1250000"),
+    ('[lines.main]\nbaudrate = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.port", "is required"),
+    ('[lines.main]\nport = "sim://a"\n[lines.b]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n'
+     '[joints.y]\nline="b"\nid=1', "lines.b.port", "already the port of lines.main"),
+    ('[lines.main]\nport = "sim://a"\n[lines.spare]\nport = "sim://b"\n[joints.x]\nline="main"\nid=1',
+     "lines.spare", "no joint uses this line"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=32', "joints.x.id", "0..31"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"', "joints.x.id", "is required"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\noffset="2"', "joints.x.offset",
+     "must be a number"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\nreverse=1', "joints.x.reverse",
+     "true or false"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\naction="panic"', "safety.action",
+     "free, hold, stop"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_temp=50', "safety.max_temp",
+     "unknown key"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=80', "safety.max_current",
+     "1..63"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=30\n'
+     "telemetry_per_cycle=0", "safety.telemetry_per_cycle", "never be checked"),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[servos]\n', "servos", "unknown key"),
+    ('[lines.main]\nport = "sim://a"\n', "joints", "is required"),
+    ('joints = 3\n[lines.main]\nport = "sim://a"\n', "joints", "must be a table"),
+    ("this is = not toml [", "", "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize(("text", "key", "phrase"), MISTAKES, ids=[m[1] or "toml" for m in MISTAKES])
+def test_each_mistake_names_the_file_and_key_and_opens_nothing(
+    tmp_path: Path, text: str, key: str, phrase: str
+) -> None:
+    # Lines a and b exist: had anything been opened, their logs would show it.
+    sims = [VirtualLine([1, 2], name=n, log_size=None) for n in ("a", "b")]
+    try:
+        path = write(tmp_path, text)
+        with pytest.raises(DescriptionError) as caught:
+            load_description(path)
+        error = caught.value
+        assert isinstance(error, InvalidArgument) and isinstance(error, ValueError)
+        assert str(error).startswith(f"{path}: ")
+        assert error.source == str(path)
+        if key:
+            assert error.key == key
+            assert f": {key}: " in str(error)
+        assert phrase in str(error)
+
+        async def try_open() -> None:
+            async with open_robot(path, **FAST):
+                pytest.fail("opened a robot from a bad file")
+
+        with pytest.raises(DescriptionError):
+            anyio.run(try_open)
+        assert all(sim.transactions == 0 and not sim.log for sim in sims)
+    finally:
+        for sim in sims:
+            sim.close()
+
+
+def test_a_missing_file_is_a_description_error(tmp_path: Path) -> None:
+    with pytest.raises(DescriptionError, match=r"nothere\.toml: no such file"):
+        load_description(tmp_path / "nothere.toml")
+
+
+@pytest.mark.parametrize(
+    "value",
+    [True, math.inf, "3"],
+)
+def test_a_mapping_gets_the_same_checks(value: Any) -> None:
+    with pytest.raises(DescriptionError, match=r"^<mapping>: joints\.j\.min: must be a number"):
+        load_description({"lines": {"m": {"port": "sim://"}}, "joints": {"j": {"line": "m", "id": 1, "min": value}}})
+
+
+def test_open_robot_refuses_per_line_options_and_bad_on_close() -> None:
+    description = {"lines": {"m": {"port": "sim://"}}, "joints": {"j": {"line": "m", "id": 1}}}
+
+    async def attempt(**options: Any) -> None:
+        async with open_robot(description, **options):
+            pytest.fail("opened")
+
+    with pytest.raises(InvalidArgument, match="baudrate: set per line"):
+        anyio.run(lambda: attempt(baudrate=115200))
+    with pytest.raises(InvalidArgument, match="on_close must be one of hold, free"):
+        anyio.run(lambda: attempt(on_close="drop"))
+    with pytest.raises(InvalidArgument, match="unknown open_bus option"):
+        anyio.run(lambda: attempt(speed=3))

@@ -1,0 +1,180 @@
+"""Motion files: the format's checks, and playing keyframes on two simulated lines (read back from the log)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
+from ics35_async.robot import Motion, MotionError, load_motion, save_motion
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, joint_position, make_rig, targets_sent
+
+
+def motion(*keyframes: dict[str, Any], **top: Any) -> dict[str, Any]:
+    return {"format": "ics35-motion", "version": 1, **top, "keyframes": list(keyframes)}
+
+
+def play_on(rig: Rig, data: Any, **options: Any) -> dict[str, int]:
+    """Play ``data`` on a fresh robot; return the log seqs at the start."""
+    since: dict[str, int] = {}
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.read_pose()
+                since.update(upper=rig.upper.transactions, lower=rig.lower.transactions)
+                await robot.play(data, **options)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    return since
+
+
+def check_played(rig: Rig, since: dict[str, int], played: Motion) -> None:
+    """Within limits; direction changes only at keyframe angles; each joint ends at its last keyframe angle."""
+    for name, spec in JOINTS.items():
+        sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
+        low, high = sorted((joint_position(spec, spec["min"]), joint_position(spec, spec["max"])))
+        assert all(low <= p <= high for p in sent), name
+        angles = [f.pose[name] for f in played.keyframes if name in f.pose]
+        if not angles:
+            assert sent == [], name  # a joint the motion never names is not touched
+            continue
+        assert sent[-1] == joint_position(spec, angles[-1]), name
+        turns = {joint_position(spec, a) for a in angles}
+        path = [p for k, p in enumerate(sent) if k == 0 or p != sent[k - 1]]
+        for a, b, c in zip(path, path[1:], path[2:], strict=False):
+            if (b - a) * (c - b) < 0:
+                assert b in turns, (name, path)
+
+
+def test_play_goes_through_every_keyframe_and_leaves_unnamed_joints_alone(tmp_path: Path) -> None:
+    data = motion(
+        {"time": 0.15, "pose": {"neck": 30.0, "hip": -20.0}},
+        {"time": 0.3, "pose": {"neck": -30.0}, "profile": "linear"},
+        {"time": 0.5, "pose": {"neck": 10.0, "hip": 25.0}},
+        name="test",
+    )
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(data))
+    played = load_motion(path)
+    assert (played.name, played.duration, played.joints) == ("test", 0.5, ["neck", "hip"])
+    rig = make_rig()
+    since = play_on(rig, path, speed=2.0)
+    check_played(rig, since, played)
+    # hip is not in the second keyframe: it holds -20 through that segment, so it turns there only.
+    hip = targets_sent(rig.lower, 1, since["lower"])
+    assert joint_position(JOINTS["hip"], -20.0) in hip
+
+
+keyframe = st.fixed_dictionaries(
+    {
+        "pose": st.fixed_dictionaries(
+            {}, optional={n: st.floats(s["min"], s["max"], allow_nan=False) for n, s in JOINTS.items()}
+        ),
+        "profile": st.sampled_from(["minjerk", "linear"]),
+    }
+)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(frames=st.lists(keyframe, min_size=1, max_size=4), gaps=st.lists(st.floats(0.05, 0.15), min_size=4, max_size=4))
+def test_played_commands_stay_within_limits_and_turn_only_at_keyframes(
+    frames: list[dict[str, Any]], gaps: list[float]
+) -> None:
+    time = 0.0
+    for frame, gap in zip(frames, gaps, strict=False):
+        time += gap
+        frame["time"] = round(time, 6)
+    data = motion(*frames)
+    rig = make_rig()
+    since = play_on(rig, data)
+    check_played(rig, since, load_motion(data))
+
+
+def test_save_and_load_round_trip(tmp_path: Path) -> None:
+    original = load_motion(motion({"time": 1.0, "pose": {"neck": 5}}, {"time": 2, "pose": {}, "profile": "linear"}))
+    save_motion(original, tmp_path / "out.json")
+    assert load_motion(tmp_path / "out.json") == original
+    assert json.loads((tmp_path / "out.json").read_text())["version"] == 1
+
+
+BAD: list[tuple[Any, str, str]] = [
+    ({"version": 1, "keyframes": []}, "format", "must be 'ics35-motion'"),
+    (motion({"time": 1, "pose": {}}, version=2) | {"version": 2}, "version", "newer"),
+    (motion(), "keyframes", "non-empty list"),
+    (motion({"time": 0, "pose": {}}), "keyframes[0].time", "above 0"),
+    (motion({"time": 1, "pose": {}}, {"time": 1, "pose": {}}), "keyframes[1].time", "after 1"),
+    (motion({"time": "1", "pose": {}}), "keyframes[0].time", "number of seconds"),
+    (motion({"time": 1, "pose": {"neck": "up"}}), "keyframes[0].pose.neck", "number of degrees"),
+    (motion({"time": 1, "pose": {}, "profile": "cubic"}), "keyframes[0].profile", "minjerk, linear"),
+    (motion({"time": 1, "pose": {}, "speed": 3}), "keyframes[0].speed", "unknown key"),
+    (motion({"time": 1, "pose": {}}, loop=True), "loop", "unknown key"),
+]
+
+
+@pytest.mark.parametrize(("data", "key", "phrase"), BAD, ids=[b[1] for b in BAD])
+def test_each_format_mistake_names_the_file_and_key(tmp_path: Path, data: Any, key: str, phrase: str) -> None:
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(MotionError) as caught:
+        load_motion(path)
+    assert str(caught.value).startswith(f"{path}: {key}: ") and phrase in str(caught.value)
+    assert isinstance(caught.value, InvalidArgument)
+
+
+def test_not_json_and_missing_files(tmp_path: Path) -> None:
+    (tmp_path / "x.json").write_text("{nope")
+    with pytest.raises(MotionError, match="not valid JSON"):
+        load_motion(tmp_path / "x.json")
+    with pytest.raises(MotionError, match="no such file"):
+        load_motion(tmp_path / "y.json")
+
+
+@pytest.mark.parametrize(
+    ("data", "phrase"),
+    [
+        (motion({"time": 1, "pose": {"neck": 10}}, {"time": 2, "pose": {"hip": 45}}), r"keyframes\[1\]: .*hip: 45"),
+        (motion({"time": 1, "pose": {"tail": 10}}), r"keyframes\[0\]: unknown joint\(s\): tail"),
+    ],
+)
+def test_a_motion_outside_the_robot_moves_nothing(data: Any, phrase: str) -> None:
+    rig = make_rig()
+    with pytest.raises(MotionError, match=phrase):
+        play_on(rig, data)
+    for spec in JOINTS.values():
+        assert targets_sent(rig.sim(spec["line"]), spec["id"]) == []
+
+
+def test_a_safety_stop_reaches_plays_caller() -> None:
+    rig = make_rig(safety={"max_current": 20, "action": "free"})
+    data = motion({"time": 2.0, "pose": {"knee": -90.0}}, {"time": 4.0, "pose": {"knee": 0.0}})
+
+    async def main(robot: Robot) -> None:
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(robot.play, data)
+            async with robot.stream() as stream:
+                while (await stream.next_frame()).targets["knee"] is None:
+                    pass
+            rig.servo("knee").load = 50
+
+    async def run() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await main(robot)
+
+    try:
+        with pytest.raises(SafetyStop, match="joint knee"):
+            anyio.run(run)
+    finally:
+        rig.close()
+    assert rig.servo("knee").free

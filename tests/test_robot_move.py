@@ -1,0 +1,301 @@
+"""Robot motions against two simulated lines: limits, exact ends, monotonic segments, the joint mapping.
+
+Every check reads the position commands back from the simulator's log.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import anyio
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ics35_async import InvalidArgument, Robot, open_robot, units
+from ics35_async.eeprom import Eeprom
+from ics35_async.robot import MotionStopped, RobotWarning
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
+
+HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole counts
+# A real-time simulated line answers at wire time, late by whatever a busy machine adds: room for that.
+REAL_TIME: dict[str, Any] = {"adapter_latency": 0.05}
+
+
+def run_robot(rig: Rig, body: Callable[[Robot], Awaitable[Any]], **options: Any) -> Any:
+    async def main() -> Any:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **{**FAST, **options}) as robot:
+                return await body(robot)
+
+    try:
+        return anyio.run(main)
+    finally:
+        rig.close()
+
+
+def seq_now(rig: Rig) -> dict[str, int]:
+    return {"upper": rig.upper.transactions, "lower": rig.lower.transactions}
+
+
+def check_segment(rig: Rig, since: dict[str, int], start: dict[str, float], goal: dict[str, float]) -> None:
+    """Every command within limits, monotonic from start toward goal, the last one exactly the goal."""
+    for name, spec in JOINTS.items():
+        sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
+        low = joint_position(spec, spec["min"])
+        high = joint_position(spec, spec["max"])
+        assert all(min(low, high) <= p <= max(low, high) for p in sent), (name, sent)
+        if name not in goal:
+            continue
+        assert sent, name
+        assert sent[-1] == joint_position(spec, goal[name]), name
+        ahead = joint_position(spec, goal[name]) >= joint_position(spec, start[name])
+        steps = list(itertools.pairwise(sent))
+        assert all((b >= a) if ahead else (b <= a) for a, b in steps), (name, sent)
+
+
+pose_strategy = st.fixed_dictionaries(
+    {},
+    optional={name: st.floats(spec["min"], spec["max"], allow_nan=False) for name, spec in JOINTS.items()},
+)
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    first=pose_strategy,
+    second=pose_strategy,
+    durations=st.tuples(st.floats(0.0, 0.25), st.floats(0.0, 0.25)),
+    profiles=st.tuples(st.sampled_from(["minjerk", "linear"]), st.sampled_from(["minjerk", "linear"])),
+)
+def test_move_to_stays_within_limits_ends_exactly_and_moves_monotonically(
+    first: dict[str, float], second: dict[str, float], durations: tuple[float, float], profiles: tuple[str, str]
+) -> None:
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        for pose, duration, profile in zip((first, second), durations, profiles, strict=True):
+            start = {**robot.start_pose(pose)}
+            since = seq_now(rig)
+            await robot.move_to(pose, duration=duration, profile=profile)
+            check_segment(rig, since, start, pose)
+            await robot.read_pose()
+            for name, deg in robot.targets.items():
+                if deg is not None:
+                    assert robot.joints[name].min <= deg <= robot.joints[name].max
+
+    run_robot(rig, body)
+
+
+@pytest.mark.parametrize("profile", ["minjerk", "linear"])
+def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profile: str) -> None:
+    # Real time: the simulated servos move at their speed in wall-clock time, as the motion is timed.
+    rig = make_rig(realtime=True)
+    goal = {"neck": 33.3, "shoulder": -71.0, "elbow": 88.8, "knee": -45.5}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"hip": 12.5}, duration=0.1)
+        since = seq_now(rig)
+        await robot.move_to(goal, duration=0.3, profile=profile)
+        pose = await robot.read_pose()
+        for name, deg in {**goal, "hip": 12.5}.items():
+            assert pose[name] == pytest.approx(deg, abs=0.1), name
+        # hip was not named: every command it got meanwhile is its old target.
+        assert set(targets_sent(rig.lower, 1, since["lower"])) == {joint_position(JOINTS["hip"], 12.5)}
+
+    run_robot(rig, body, **REAL_TIME)
+
+
+def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
+    rig = make_rig(realtime=True)
+
+    async def body(robot: Robot) -> None:
+        # Joint -> servo: where the simulated servos end up.
+        goal = {"neck": 20.0, "shoulder": 30.0, "elbow": 50.0}
+        await robot.move_to(goal, duration=0.5)
+        pose = await robot.read_pose()
+        rig.upper.sync()
+        for name, deg in goal.items():
+            spec = JOINTS[name]
+            expected = spec.get("offset", 0.0) + (-1 if spec.get("reverse") else 1) * deg
+            assert units.position_to_degrees(rig.servo(name).target or 0) == pytest.approx(expected, abs=HALF_COUNT)
+            assert units.position_to_degrees(rig.servo(name).position) == pytest.approx(expected, abs=0.1)
+            assert pose[name] == pytest.approx(deg, abs=0.1)
+        # Servo -> joint: a free servo turned by hand reads back in joint degrees.
+        rig.servo("knee").move_by_hand(9000)
+        rig.servo("hip").move_by_hand(6500)
+        pose = await robot.read_pose()
+        assert pose["knee"] == pytest.approx(joint_degrees(JOINTS["knee"], 9000))
+        assert pose["hip"] == pytest.approx(units.position_to_degrees(6500))
+        assert pose["knee"] == pytest.approx(units.position_to_degrees(9000) - 5.5)
+
+    run_robot(rig, body, **REAL_TIME)
+
+
+@pytest.mark.parametrize(
+    ("pose", "message"),
+    [
+        ({"neck": 10.0, "hip": 31.0}, r"joint hip: 31 degrees is outside its limits -30\.\.30"),
+        ({"neck": 10.0, "elbow": -0.5}, r"joint elbow: -0\.5 degrees is outside"),
+        ({"neck": 10.0, "tail": 0.0}, r"unknown joint\(s\): tail"),
+        ({"neck": math.nan}, r"outside its limits"),
+        ({"neck": "10"}, r"must be a number of degrees"),
+    ],
+)
+def test_a_bad_target_raises_before_anything_is_sent(pose: dict[str, Any], message: str) -> None:
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        since = seq_now(rig)
+        with pytest.raises(InvalidArgument, match=message):
+            await robot.move_to(pose, duration=0.1)
+        await robot.read_pose()
+        await robot.read_pose()
+        for name, spec in JOINTS.items():
+            assert targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]]) == [], name
+        with pytest.raises(InvalidArgument, match="duration must be"):
+            await robot.move_to({"neck": 1.0}, duration=-1)
+        with pytest.raises(InvalidArgument, match="profile must be one of minjerk, linear"):
+            await robot.move_to({"neck": 1.0}, duration=1, profile="cubic")
+
+    run_robot(rig, body)
+
+
+def test_free_hold_and_the_joint_space_stream() -> None:
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"neck": 15.0, "knee": -10.0}, duration=0.05)
+        await robot.free(["neck"])
+        assert rig.servo("neck").free and not rig.servo("knee").free
+        rig.servo("neck").move_by_hand(joint_position(JOINTS["neck"], -25.0))
+        await robot.read_pose()
+        robot.hold(["neck"])
+        async with robot.stream() as stream:
+            frame = await stream.next_frame()
+            assert set(frame.positions) <= set(JOINTS) and frame.targets["neck"] == pytest.approx(-25.0, abs=HALF_COUNT)
+            assert rig.servo("neck").target == joint_position(JOINTS["neck"], -25.0)
+            stream.set_targets({"hip": -12.0})
+            with pytest.raises(InvalidArgument, match="outside its limits"):
+                stream.set_target("hip", 40.0)
+            await robot.on_wire(["hip"])
+            assert rig.servo("hip").target == joint_position(JOINTS["hip"], -12.0)
+            frame = await stream.next_frame()
+            assert frame.targets["hip"] == -12.0
+            stream.free()
+            await robot.on_wire()
+            assert all(rig.servo(name).free for name in JOINTS)
+        await robot.free()
+
+    run_robot(rig, body)
+
+
+def test_limits_wider_than_the_servos_eeprom_warn_at_open() -> None:
+    rig = make_rig()
+    narrowed = rig.servo("elbow").eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)
+    assert isinstance(narrowed, Eeprom)
+    rig.servo("elbow").eeprom = narrowed
+
+    async def body(robot: Robot) -> list[str]:
+        return list(robot.warnings)
+
+    with pytest.warns(RobotWarning, match=r"<mapping>: joints\.elbow: the file allows 0\.\.110 degrees") as caught:
+        found = run_robot(rig, body)
+    assert len(found) == 1 and len(caught) == 1
+    assert "EEPROM pulse limits 6000..9000" in found[0]
+
+
+def test_no_warning_when_the_servos_allow_the_limits() -> None:
+    rig = make_rig()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotWarning)
+        assert run_robot(rig, lambda robot: _warnings(robot)) == []
+
+
+async def _warnings(robot: Robot) -> list[str]:
+    return robot.warnings
+
+
+def test_move_to_under_trio() -> None:
+    rig = make_rig(realtime=True)
+
+    async def main() -> dict[str, float]:
+        async with open_robot(rig.description, **REAL_TIME) as robot:  # the buses pick their anyio driver
+            await robot.move_to({"neck": -30.0, "hip": 20.0}, duration=0.3)
+            return await robot.read_pose()
+
+    try:
+        pose = anyio.run(main, backend="trio")
+    finally:
+        rig.close()
+    assert pose["neck"] == pytest.approx(-30.0, abs=0.1) and pose["hip"] == pytest.approx(20.0, abs=0.1)
+
+
+def test_move_to_never_ends_early_and_returns_within_three_frames_of_its_end() -> None:
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        frames = []
+        done = anyio.Event()
+
+        async def watch() -> None:
+            async with robot.stream() as stream:
+                while not done.is_set():
+                    frames.append(await stream.next_frame())
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(watch)
+            await robot.read_pose()
+            began = anyio.current_time()
+            await robot.move_to({"knee": 15.0}, duration=0.2)
+            returned = robot.latest
+            done.set()
+        assert returned is not None
+        final = [f for f in frames if f.targets["knee"] == 15.0]
+        assert final and final[0].time - began >= 0.2
+        # The frame that set the final target; then two replies from each line prove it sent
+        # (a merged frame may carry a line's cycle that began before): at most three frames.
+        assert returned.cycle - final[0].cycle <= 3
+        moving = [f for f in frames if f.cycle < final[0].cycle and f.targets["knee"] is not None]
+        assert len(moving) >= 2  # interpolated, not a jump
+
+    run_robot(rig, body)
+    assert list(commanded(rig.lower, 2))[-1] == joint_position(JOINTS["knee"], 15.0)
+
+
+def test_stop_slows_a_running_motion_to_rest_without_turning_back() -> None:
+    rig = make_rig()
+    caught: list[BaseException] = []
+
+    async def body(robot: Robot) -> None:
+        async def mover() -> None:
+            try:
+                await robot.move_to({"neck": 55.0, "knee": -90.0}, duration=2.0, profile="linear")
+            except MotionStopped as exc:
+                caught.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(mover)
+            async with robot.stream() as stream:
+                while (await stream.next_frame()).targets["neck"] in (None, -10.0):
+                    pass
+            since = seq_now(rig)
+            await robot.stop(0.2)
+        await robot.on_wire()
+        for name in ("neck", "knee"):
+            spec = JOINTS[name]
+            sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
+            forward = joint_position(spec, -90.0 if name == "knee" else 55.0) > sent[0]
+            steps = list(itertools.pairwise(sent))
+            # On in the direction it was going, slowing down, never back; then at rest.
+            assert all((b >= a) if forward else (b <= a) for a, b in steps), (name, sent)
+            assert len(set(sent)) > 3, (name, sent)  # it went on moving: not frozen at once
+            assert sent[-1] != joint_position(spec, -90.0 if name == "knee" else 55.0)
+            assert robot.targets[name] == pytest.approx(joint_degrees(spec, sent[-1]), abs=HALF_COUNT)
+
+    run_robot(rig, body)
+    assert len(caught) == 1

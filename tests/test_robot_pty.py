@@ -1,0 +1,110 @@
+"""teach -> play round trip as real processes over the pty simulator (a real serial boundary, real time)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ics35_async import units
+from ics35_async.sim import serving
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+
+ROBOT = """\
+[lines.main]
+port = "{port}"
+
+[joints.a]
+line = "main"
+id = 1
+offset = 5
+
+[joints.b]
+line = "main"
+id = 2
+reverse = true
+min = -90
+max = 90
+
+[joints.c]
+line = "main"
+id = 3
+"""
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def ics35(*args: str, stdin: str = "") -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "100"},
+    )
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+@pytest.fixture
+def port() -> Iterator[str]:
+    with serving(["--ids", "1-3"]) as path:
+        yield path
+
+
+def servo_degrees(port: str) -> dict[int, float]:
+    proc = ics35("--port", port, "free", "1", "2", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    return {int(i): units.position_to_degrees(p) for i, p in json.loads(proc.stdout)["freed"].items()}
+
+
+def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
+    robot = tmp_path / "robot.toml"
+    robot.write_text(ROBOT.format(port=port))
+    for sid, deg in ((1, "25"), (2, "-40"), (3, "60")):
+        assert ics35("--port", port, "move", str(sid), deg, "--deg").returncode == 0
+    taught = tmp_path / "taught.json"
+    proc = ics35("teach", str(robot), str(taught), stdin="\nq\n")
+    assert proc.returncode == 0, proc.stderr
+    keyframes = json.loads(taught.read_text())["keyframes"]
+    assert len(keyframes) == 1
+    # Joint degrees of where the servos were put: a = servo - 5, b = -servo, c = servo.
+    assert keyframes[0]["pose"] == pytest.approx({"a": 20.0, "b": 40.0, "c": 60.0}, abs=0.1)
+    for sid in (1, 2, 3):
+        assert ics35("--port", port, "move", str(sid), "0", "--deg").returncode == 0
+    proc = ics35("play", str(robot), str(taught))
+    assert proc.returncode == 0, proc.stderr
+    assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
+
+
+def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
+    # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "play", str(EXAMPLES / "humanoid.toml"),
+         str(EXAMPLES / "wave.json"), "--loop", "--on-stop", "free"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        assert proc.stdout is not None
+        assert "play wave" in proc.stdout.readline()  # the title: playing
+        assert "t=" in proc.stdout.readline()  # a second into the motion
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "stopped by Ctrl-C: slowing to rest, then the joints free" in err
+    assert "joints left free" in out
+    assert "Traceback" not in err

@@ -1,0 +1,208 @@
+"""The safety watch: a simulated servo made hot, over-current or silent mid-motion stops the robot.
+
+The simulator's log shows when the watch read what, and what the robot
+sent after it tripped; nothing here depends on wall-clock timing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import anyio
+import pytest
+
+from ics35_async import Robot, SafetyStop, open_robot
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, make_rig, targets_sent
+
+FREE = 0
+
+
+def reads(sim: VirtualLine, command: str, since: int, until: int, servo_id: int | None = None) -> int:
+    return sum(
+        1
+        for t in sim.log_since(since)
+        if t.seq < until and t.command == command and (servo_id is None or t.servo_id == servo_id)
+    )
+
+
+def first_free(sim: VirtualLine, servo_id: int, since: int) -> int:
+    return next(t.seq for t in sim.log_since(since) if t.command == "free" and t.servo_id == servo_id)
+
+
+async def when_moving(robot: Robot, joint: str) -> None:
+    """Wait until ``joint`` is under way (its target has left where it started)."""
+    async with robot.stream() as stream:
+        first = (await stream.next_frame()).targets[joint]
+        while (await stream.next_frame()).targets[joint] in (None, first):
+            pass
+
+
+def run_with_fault(
+    rig: Rig, moves: dict[str, float], joint: str, fault: Callable[[], None], **options: Any
+) -> tuple[SafetyStop | None, dict[str, int], Robot]:
+    """Start a 3 s move, apply ``fault`` once ``joint`` moves; return the move's error and the log seqs then."""
+    caught: list[SafetyStop] = []
+    marks: dict[str, int] = {}
+
+    async def main() -> Robot:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST, **options) as robot:
+
+                async def mover() -> None:
+                    try:
+                        await robot.move_to(moves, duration=3.0)
+                    except SafetyStop as exc:
+                        caught.append(exc)
+
+                async with anyio.create_task_group() as tasks:
+                    tasks.start_soon(mover)
+                    await when_moving(robot, joint)
+                    marks.update(upper=rig.upper.transactions, lower=rig.lower.transactions)
+                    fault()
+                await robot.on_wire()
+                return robot
+
+    try:
+        robot = anyio.run(main)
+    finally:
+        rig.close()
+    return (caught[0] if caught else None), marks, robot
+
+
+def test_a_hot_servo_mid_motion_frees_its_joint_within_one_telemetry_round() -> None:
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+    neck = rig.servo("neck")
+
+    def heat() -> None:
+        neck.temperature_celsius = 70.0  # under the servo's own 80 C cut-out: only the watch can act
+
+    stop, marks, robot = run_with_fault(rig, {"neck": 50.0, "shoulder": -60.0}, "neck", heat)
+    assert isinstance(stop, SafetyStop)
+    assert (stop.joint, stop.reason, stop.action, stop.limit) == ("neck", "temperature", "free", 60.0)
+    assert stop.value is not None and stop.value > 60
+    assert "joint neck (line upper, ID 1)" in str(stop)
+    freed = first_free(rig.upper, 1, marks["upper"])
+    # Within one round: the neck's very next temperature read found it, and the line's three
+    # joints were read at most once each before the free command went out.
+    assert reads(rig.upper, "read_temperature", marks["upper"], freed, servo_id=1) == 1
+    assert reads(rig.upper, "read_temperature", marks["upper"], freed) <= len([j for j in JOINTS.values()
+                                                                               if j["line"] == "upper"])
+    assert neck.free
+    # Action "free": the other joints stopped where they were, torque on, and sent no new targets after.
+    shoulder = targets_sent(rig.upper, 2, freed)
+    assert shoulder and len(set(shoulder)) == 1 and not rig.servo("shoulder").free
+    assert robot.trips == [stop]
+
+
+def test_over_current_with_action_stop_frees_the_whole_robot() -> None:
+    rig = make_rig(safety={"max_current": 20, "action": "stop"})
+    knee = rig.servo("knee")
+
+    def overload() -> None:
+        knee.load = 40
+
+    stop, marks, _ = run_with_fault(rig, {"knee": -80.0, "neck": 40.0}, "knee", overload)
+    assert isinstance(stop, SafetyStop)
+    assert (stop.joint, stop.reason, stop.action) == ("knee", "current", "stop")
+    assert stop.value is not None and stop.value > 20
+    for name in JOINTS:
+        assert rig.servo(name).free, name
+    freed = first_free(rig.lower, 2, marks["lower"])
+    assert reads(rig.lower, "read_current", marks["lower"], freed, servo_id=2) == 1
+
+
+def test_action_hold_keeps_every_joint_at_its_last_target() -> None:
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "hold"})
+
+    def heat() -> None:
+        rig.servo("shoulder").temperature_celsius = 75.0
+
+    stop, marks, robot = run_with_fault(rig, {"shoulder": -80.0, "hip": 25.0}, "shoulder", heat)
+    assert isinstance(stop, SafetyStop) and stop.action == "hold"
+    # The read that found it hot; from the command after it on, the shoulder's target no longer changes.
+    found = next(
+        t.seq for t in rig.upper.log_since(marks["upper"]) if t.command == "read_temperature" and t.servo_id == 2
+    )
+    after = targets_sent(rig.upper, 2, found)
+    assert len(after) >= 2 and len(set(after[1:])) == 1
+    for name in ("shoulder", "hip"):
+        assert not rig.servo(name).free, name
+    assert robot.tripped["shoulder"] is stop
+
+
+def test_an_offline_servo_stops_the_motion_unless_continue_on_offline() -> None:
+    def silence(rig: Rig) -> Callable[[], None]:
+        # Every reply of ID 3 (the elbow) dropped from now on: the servo has gone quiet.
+        return lambda: setattr(rig.upper, "faults", FaultInjector(FaultConfig.parse("drop@3:1")))
+
+    rig = make_rig()
+    stop, _, _ = run_with_fault(rig, {"elbow": 80.0, "neck": 20.0}, "neck", silence(rig))
+    assert isinstance(stop, SafetyStop)
+    assert (stop.joint, stop.reason, stop.action) == ("elbow", "offline", "stop")
+    assert all(rig.servo(n).free for n in ("neck", "shoulder"))
+
+    rig = make_rig(safety={"continue_on_offline": True})
+    go_on = silence(rig)
+
+    caught: list[BaseException] = []
+
+    async def main() -> None:
+        async with open_robot(rig.description, **FAST) as robot:
+            async with anyio.create_task_group() as tasks:
+
+                async def mover() -> None:
+                    try:
+                        await robot.move_to({"neck": 20.0, "elbow": 80.0}, duration=0.5)
+                    except SafetyStop as exc:
+                        caught.append(exc)
+
+                tasks.start_soon(mover)
+                await when_moving(robot, "neck")
+                go_on()
+            assert robot.latest is not None and "elbow" in robot.latest.offline
+            assert robot.trips == []
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert caught == []
+    assert list(commanded(rig.upper, 1))[-1] == 7500 + round((10 + 20) * 8000 / 270)
+
+
+def test_the_stream_raises_the_stop_and_a_tripped_joint_refuses_motion_until_it_cools() -> None:
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+    hip = rig.servo("hip")
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"hip": 10.0}, duration=0.05)
+                async with robot.stream() as stream:
+                    await stream.next_frame()
+                    hip.temperature_celsius = 90.0
+                    hip.temperature_limit = 1  # the servo's own cut-out out of the way
+                    with pytest.raises(SafetyStop, match="joint hip"):
+                        while True:
+                            await stream.next_frame()
+                    await stream.next_frame()  # reported once; the stream goes on
+                since = rig.lower.transactions
+                with pytest.raises(SafetyStop, match="joint hip"):
+                    await robot.move_to({"hip": 20.0, "knee": 5.0}, duration=0.1)
+                await robot.on_wire()
+                assert targets_sent(rig.lower, 1, since) == [] and targets_sent(rig.lower, 2, since) == []
+                await robot.move_to({"knee": 5.0}, duration=0.05)  # other joints still move
+                hip.temperature_celsius = 25.0
+                while "hip" in robot.tripped:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await robot.move_to({"hip": 20.0}, duration=0.05)
+                assert robot.watch.rounds["lower"] > 0
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert not hip.free and hip.target == 7500 + round(20 * 8000 / 270)
