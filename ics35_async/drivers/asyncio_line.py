@@ -83,7 +83,10 @@ class AsyncioLine(asyncio.Protocol):
         engine = self.engine
         out = engine.receive(data, now())
         if out is not None:
-            self.write(out)
+            try:
+                self.transport.write(out)  # type: ignore[union-attr]
+            except Exception as exc:  # the port vanished under us (or was already gone: None)
+                self.write_failed(exc)
         if engine.deadline < self._armed:
             self._arm()
         if self.idle_waiters and engine.idle:
@@ -108,6 +111,10 @@ class AsyncioLine(asyncio.Protocol):
         try:
             transport.write(data)
         except Exception as exc:  # the port vanished under us
+            self.write_failed(exc)
+
+    def write_failed(self, exc: Exception) -> None:
+        if self.transport is not None:
             self.transport = None
             self.connection_lost(exc)
 

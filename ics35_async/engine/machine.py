@@ -291,7 +291,7 @@ class LineEngine:
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             return self._failed(error, sid, now)
-        over = latency - self._base
+        over = latency - self._base  # before the next transaction replaces _base
         req = self._current
         self._current = None
         if req is None:
@@ -317,7 +317,11 @@ class LineEngine:
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
             req.resolve(value)
         # The next command goes on the wire first; the bookkeeping can wait.
-        out = self._next_after_transaction(now)
+        if self.state is State.BUSY:
+            self.state = State.IDLE
+            out = self._start_next(now)
+        else:  # draining: that was the last transaction
+            self.state, self.deadline, out = State.CLOSED, INF, None
         counters.ok[sid] += 1
         counters.latency.add(latency)
         link = self.link
@@ -326,14 +330,6 @@ class LineEngine:
         if link.owed_since != INF:
             link.in_step()  # a valid reply: nothing earlier is still owed
         return out
-
-    def _next_after_transaction(self, now: float) -> bytes | None:
-        if self.state is State.DRAINING:
-            self.state = State.CLOSED
-            self.deadline = INF
-            return None
-        self.state = State.IDLE
-        return self._start_next(now)
 
     def _timeout(self, now: float) -> bytes | None:
         buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
