@@ -677,3 +677,23 @@ async def test_direct_transport_unmarks_ff_bytes_on_a_real_pty() -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+async def test_input_flushed_between_readiness_and_read_is_not_a_hangup(pty: Pty) -> None:
+    """The resync's flush can empty the input after the loop saw it readable and before our reader runs.
+
+    A raw tty (VMIN=0) then reads 0 bytes, which is not the device going away.
+    """
+    line, rec = await open_recorder(pty.port, transport="direct")
+    assert isinstance(line, DirectSerialTransport)
+    os.write(pty.master, b"\x55\xaa")
+    await asyncio.sleep(0.05)  # the bytes wait in the input queue; the reader callback is due
+    line.discard_input()  # what the bus does when a resync ends
+    line._read_ready()  # the reader callback that was already due
+    await asyncio.sleep(0.01)
+    assert not rec.lost.done(), "an emptied input was taken for a hangup"
+    os.write(pty.master, b"\x01")
+    async with asyncio.timeout(WAIT):
+        while b"\x01" not in rec.data:
+            await asyncio.sleep(0.005)
+    await close_line(line, rec)

@@ -23,7 +23,7 @@ import anyio.lowlevel
 import serial
 
 from ..transports import WireDevice
-from ..transports.serial_port import TermiosError
+from ..transports.serial_port import TermiosError, hung_up
 
 try:
     import termios
@@ -49,12 +49,6 @@ def soon_threadsafe() -> Callable[[Callable[[], None]], None]:
         loop.call_soon_threadsafe(callback)
 
     return asyncio_soon
-
-
-def _hung_up(fd: int) -> bool:
-    poller = select.poll()
-    poller.register(fd, select.POLLIN)
-    return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
 
 
 class FdPort:
@@ -86,7 +80,7 @@ class FdPort:
             return b""
         # A raw tty (VMIN=0, VTIME=0) also reads 0 bytes when its input went away between the
         # wake-up and the read (Linux returns 0 there even with O_NONBLOCK): only POLLHUP is a hangup.
-        if not data and _hung_up(self.fd):
+        if not data and hung_up(self.fd):
             raise OSError(errno.EIO, "the serial port hung up (device disconnected?)")
         return data
 

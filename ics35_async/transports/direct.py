@@ -10,6 +10,8 @@ from typing import cast
 
 import serial
 
+from .serial_port import hung_up
+
 try:
     import termios
 except ImportError:  # no POSIX terminals (Windows): nothing here is chosen for a port there
@@ -148,8 +150,9 @@ class DirectSerialTransport(asyncio.Transport):
                 if not data:
                     return
             self._protocol.data_received(data)
-        else:
-            # A tty reads 0 bytes only once the device is gone (hangup).
+        elif hung_up(self._fd):
+            # 0 bytes from a readable tty: the device is gone (hangup) -- or, with VMIN=0, the
+            # input was flushed (a resync) between the readiness event and this read: not an end.
             self._abort(OSError(errno.EIO, "the serial port hung up (device disconnected?)"))
 
     # -- writing

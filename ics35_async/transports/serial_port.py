@@ -6,6 +6,7 @@ import errno
 import logging
 import os
 import re
+import select
 from typing import Any
 
 import serial
@@ -240,3 +241,10 @@ def _try_low_latency(ser: serial.Serial, port: str) -> None:
         log.debug("low-latency mode not available on %s: %s", port, exc)
     else:
         log.debug("low-latency mode enabled on %s", port)
+
+
+def hung_up(fd: int) -> bool:
+    """Whether a tty whose read gave 0 bytes has really gone (POLLHUP), not just had its input flushed."""
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
