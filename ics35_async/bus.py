@@ -195,7 +195,11 @@ class Bus:
             await driver.wait_idle()
             if self._engine.state is not State.IDLE:
                 raise PortLost(f"port {self.port} is lost; cannot reopen now")
-            await driver.reopen(new_baud)
+            try:
+                await driver.reopen(new_baud)
+            except BaseException as exc:
+                self._engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
+                raise
         finally:
             self._reopening = False
 
@@ -269,8 +273,6 @@ class Bus:
         """Wait until nothing is queued or on the wire."""
         if self._driver is not None:
             await self._driver.wait_idle()
-
-    # ------------------------------------------------------------------ public conveniences
 
     @property
     def stats(self) -> BusStats:

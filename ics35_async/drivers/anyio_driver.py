@@ -115,11 +115,7 @@ class AnyioDriver:
         if line is not None:
             line.close()
         self.engine.baudrate = baudrate
-        try:
-            await self._connect()
-        except BaseException as exc:
-            self.engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
-            raise
+        await self._connect()  # a failure closes the line for good (the bus tells the engine)
 
     async def aclose(self) -> None:
         engine = self.engine

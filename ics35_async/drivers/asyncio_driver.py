@@ -83,11 +83,7 @@ class AsyncioDriver:
                 line.transport.close()
             await _released(line)
         self.engine.baudrate = baudrate
-        try:
-            await self._connect()
-        except BaseException as exc:
-            self.engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
-            raise
+        await self._connect()  # a failure closes the line for good (the bus tells the engine)
 
     async def aclose(self) -> None:
         engine = self.engine
