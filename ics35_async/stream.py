@@ -297,9 +297,10 @@ class Stream:
         """The newest frame not yet returned; waits for one if needed.
 
         A slow consumer never slows the bus: it gets the latest frame, with
-        ``skipped`` telling how many it missed.
+        ``skipped`` telling how many it missed.  Once the stream is closed
+        (or its bus closed or lost), it raises, even if a frame came meanwhile.
         """
-        while self._latest is None or self._latest.cycle <= self._consumed_cycle:
+        while self._closed or self._latest is None or self._latest.cycle <= self._consumed_cycle:
             if self._closed:
                 raise self._end_error
             if self._new_frame is None:
