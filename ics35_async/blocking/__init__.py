@@ -26,6 +26,15 @@ each call; async code does better with the async API.
 from __future__ import annotations
 
 from .bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
+from .robot import BlockingRobot, open_robot
 from .stream import BlockingStream
 
-__all__ = ["BlockingBus", "BlockingDevice", "BlockingServo", "BlockingStream", "open_bus"]
+__all__ = [
+    "BlockingBus",
+    "BlockingDevice",
+    "BlockingRobot",
+    "BlockingServo",
+    "BlockingStream",
+    "open_bus",
+    "open_robot",
+]

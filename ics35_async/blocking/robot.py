@@ -1,0 +1,294 @@
+"""The blocking robot: :func:`ics35_async.open_robot` held open by one task on a loop thread.
+
+The async ``open_robot`` is a context manager holding task groups (the pump,
+the safety watch, every line's stream), and a task group must end in the
+task that began it.  So one *holder* task on the loop thread enters it,
+hands the :class:`~ics35_async.Robot` back, waits for the close event and
+leaves it; every blocking call is a separate hop onto that loop.
+
+Ctrl-C during a blocking call cancels the call on the loop (a cancelled
+motion leaves its joints at their last target), then closes the robot the
+way :meth:`BlockingRobot.close` does (``on_close``: hold or free) and ends
+the thread, before the ``KeyboardInterrupt`` goes on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import copy
+import threading
+import warnings
+import weakref
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+from pathlib import Path
+from types import TracebackType
+from typing import Any, ParamSpec, TypeVar
+
+from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, SafetyStop
+from ..robot import open_robot as open_async_robot
+from ..robot.safety import JointTelemetry
+from .forward import Wrapper
+from .loop_thread import LoopThread
+
+P = ParamSpec("P")
+T = TypeVar("T")
+
+
+class _Holder:
+    """The task on the loop that keeps ``open_robot`` entered until asked to close (lives on the loop thread)."""
+
+    def __init__(self, opener: contextlib.AbstractAsyncContextManager[Robot]) -> None:
+        self._opener = opener
+        self.ready: asyncio.Future[Robot] | None = None
+        self.closing: asyncio.Event | None = None
+        self.task: asyncio.Task[None] | None = None
+        self.exit_error: BaseException | None = None
+
+    async def _hold(self, ready: asyncio.Future[Robot], closing: asyncio.Event) -> None:
+        try:
+            async with self._opener as robot:
+                ready.set_result(robot)
+                await closing.wait()
+        except asyncio.CancelledError:
+            if not ready.done():
+                ready.cancel()
+            raise
+        except BaseException as exc:  # kept for the caller, not left unretrieved on the task
+            if ready.done():
+                self.exit_error = exc
+            else:
+                ready.set_exception(exc)
+
+    async def open(self) -> Robot:
+        """Start the holder; return its robot once open (cancelled: the holder is cancelled and awaited)."""
+        self.ready = asyncio.get_running_loop().create_future()
+        self.closing = asyncio.Event()
+        self.task = asyncio.create_task(self._hold(self.ready, self.closing))
+        try:
+            return await asyncio.shield(self.ready)
+        except asyncio.CancelledError:
+            self.task.cancel()
+            await asyncio.wait([self.task])
+            raise
+
+    async def close(self) -> None:
+        """Ask the holder to leave ``open_robot`` (the robot's on_close action runs there) and wait for it."""
+        if self.task is None or self.closing is None:
+            return
+        self.closing.set()
+        await asyncio.wait([self.task])
+        error, self.exit_error = self.exit_error, None
+        if error is not None:
+            raise error
+
+
+class BlockingRobot(Wrapper[Robot]):
+    """A robot for code without an event loop.  Create with :func:`open_robot`.
+
+    Motions (:meth:`move_to`, :meth:`play`, :meth:`stop`) and :meth:`read_pose`
+    block until done; :meth:`set_targets` and :meth:`hold` take effect before
+    they return.  Properties are snapshots taken on the loop thread.  Errors
+    are the async robot's own typed errors (:class:`~ics35_async.InvalidArgument`,
+    :class:`~ics35_async.robot.SafetyStop`, ...), raised in the calling thread.
+    """
+
+    __slots__ = ("__weakref__", "_finalizer", "_holder")
+
+    def __init__(self, opener: contextlib.AbstractAsyncContextManager[Robot], name: str = "robot") -> None:
+        loop = LoopThread(name=f"ics35 blocking robot {name}")
+        holder = _Holder(opener)
+        self._holder = holder
+        self._finalizer = weakref.finalize(self, _close_forgotten, holder, loop)
+        try:
+            robot = loop.call(holder.open)
+        except BaseException:
+            self._finalizer.detach()
+            loop.stop()
+            raise
+        super().__init__(robot, loop)
+
+    # ------------------------------------------------------------------ closing
+
+    def close(self) -> None:
+        """Leave the robot as ``on_close`` says (hold or free), close every line, end the loop thread.
+
+        Idempotent.  A Ctrl-C while closing is raised once everything is released.
+        """
+        if self._finalizer.detach() is not None:
+            _close(self._holder, self._loop)
+
+    def __enter__(self) -> BlockingRobot:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    @property
+    def is_open(self) -> bool:
+        return self._loop.is_running
+
+    @property
+    def thread(self) -> threading.Thread:
+        """The thread running the robot's event loop."""
+        return self._loop.thread
+
+    @property
+    def async_robot(self) -> Robot:
+        """The async robot underneath (use it only from code running on the robot's loop, e.g. via :meth:`run`)."""
+        return self._async
+
+    def __repr__(self) -> str:
+        return f"<BlockingRobot {self._async!r}>"
+
+    def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        """Await ``fn(*args, **kwargs)`` on the robot's loop; Ctrl-C cancels it and closes the robot."""
+        try:
+            return self._loop.call(fn, *args, **kwargs)
+        except KeyboardInterrupt:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ blocking calls
+
+    def read_pose(self) -> dict[str, float]:
+        """Every joint's angle in degrees, as read after this call (see :meth:`Robot.read_pose`)."""
+        return self.run(self._async.read_pose)
+
+    def move_to(self, pose: Mapping[str, float], duration: float = 1.0, profile: str = "minjerk") -> None:
+        """Move the named joints to ``pose`` in ``duration`` seconds; returns when the goal is on the wire."""
+        self.run(self._async.move_to, pose, duration, profile)
+
+    def play(
+        self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
+    ) -> None:
+        """Play a motion (object, JSON file path or mapping); with ``loop`` until Ctrl-C."""
+        self.run(self._async.play, motion, speed=speed, loop=loop)
+
+    def free(self, joints: Iterable[str] | None = None) -> None:
+        """Torque off for ``joints`` (default: all); returns once that has gone out on the wire."""
+        self.run(self._async.free, joints)
+
+    def stop(self, ramp: float = 0.3) -> None:
+        """End every motion smoothly over ``ramp`` seconds, then hold."""
+        self.run(self._async.stop, ramp)
+
+    def on_wire(self, joints: Iterable[str] | None = None) -> None:
+        """Wait until the targets set so far have gone out to ``joints`` (default: all)."""
+        self.run(self._async.on_wire, joints)
+
+    # ------------------------------------------------------------------ plain calls, run on the loop thread
+
+    def hold(self, joints: Iterable[str] | None = None) -> None:
+        """Hold ``joints`` (default: all) where they are now, torque on."""
+        self._loop.call_sync(self._async.hold, joints)
+
+    def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
+        """Targets in joint degrees, all checked first (``None`` frees, with ``allow_free``)."""
+        self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free)
+
+    # ------------------------------------------------------------------ snapshots
+
+    @property
+    def description(self) -> RobotDescription:
+        return self._async.description  # immutable
+
+    @property
+    def joints(self) -> dict[str, JointSpec]:
+        return self._loop.call_sync(_joints_of, self._async)
+
+    @property
+    def targets(self) -> dict[str, float | None]:
+        """Every joint's target in degrees (``None``: free)."""
+        return self._loop.call_sync(_targets_of, self._async)
+
+    @property
+    def telemetry(self) -> dict[str, JointTelemetry]:
+        """The newest temperature and current of every joint."""
+        return self._loop.call_sync(_telemetry_of, self._async)
+
+    @property
+    def tripped(self) -> dict[str, SafetyStop]:
+        """Joints whose safety stop still stands."""
+        return self._loop.call_sync(_tripped_of, self._async)
+
+    @property
+    def warnings(self) -> list[str]:
+        """What opening found worth knowing (e.g. limits wider than a servo's EEPROM limits)."""
+        return self._loop.call_sync(_warnings_of, self._async)
+
+    @property
+    def latest(self) -> RobotFrame | None:
+        """The newest frame (immutable)."""
+        return self._loop.call_sync(_latest_of, self._async)
+
+
+def _joints_of(robot: Robot) -> dict[str, JointSpec]:
+    return dict(robot.joints)
+
+
+def _targets_of(robot: Robot) -> dict[str, float | None]:
+    return robot.targets
+
+
+def _telemetry_of(robot: Robot) -> dict[str, JointTelemetry]:
+    return {name: copy.copy(seen) for name, seen in robot.telemetry.items()}
+
+
+def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:
+    return robot.tripped
+
+
+def _warnings_of(robot: Robot) -> list[str]:
+    return list(robot.warnings)
+
+
+def _latest_of(robot: Robot) -> RobotFrame | None:
+    return robot.latest
+
+
+def _close(holder: _Holder, loop: LoopThread) -> None:
+    try:
+        if loop.is_running:
+            loop.call_to_end(holder.close)
+    finally:
+        loop.stop()
+
+
+def _close_forgotten(holder: _Holder, loop: LoopThread) -> None:
+    warnings.warn("blocking robot was never closed; closing it now", ResourceWarning, stacklevel=1)
+    _close(holder, loop)
+
+
+def open_robot(
+    source: str | Path | Mapping[str, Any] | RobotDescription,
+    *,
+    on_close: str = "hold",
+    check_limits: bool = True,
+    offline_after: int = 3,
+    probe_interval: float = 0.5,
+    **bus_options: Any,
+) -> BlockingRobot:
+    """Open a :class:`BlockingRobot`: ``with blocking.open_robot("robot.toml") as robot:``.
+
+    Takes what :func:`ics35_async.open_robot` takes.  The robot is open and
+    streaming when this returns (description and port errors are raised
+    here); leaving the ``with`` block, an exception or Ctrl-C included,
+    closes it as ``on_close`` says and ends its loop thread.
+    """
+    opener = open_async_robot(
+        source,
+        on_close=on_close,
+        check_limits=check_limits,
+        offline_after=offline_after,
+        probe_interval=probe_interval,
+        **bus_options,
+    )
+    if isinstance(source, RobotDescription):
+        name = source.name or str(source.source)
+    else:
+        name = str(source) if isinstance(source, str | Path) else "from a mapping"
+    return BlockingRobot(opener, name)
+

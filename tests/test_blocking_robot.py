@@ -1,0 +1,132 @@
+"""The blocking robot against simulated lines: opening, poses read back, typed errors before the wire, closing.
+
+Positions are checked against the simulator's servos and its transaction log, never the robot's bookkeeping.
+"""
+
+from __future__ import annotations
+
+import _thread
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from ics35_async import InvalidArgument, blocking
+from ics35_async.robot import DescriptionError
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, joint_position, make_rig, targets_sent
+
+HUMANOID = Path(__file__).resolve().parent.parent / "examples" / "humanoid.toml"
+
+
+def settled_pose(robot: blocking.BlockingRobot, goal: dict[str, float]) -> dict[str, float]:
+    """The pose once the simulated servos have reached ``goal`` (they move at a servo's speed; GUARD: hangs only)."""
+    deadline = time.monotonic() + GUARD
+    while True:
+        pose = robot.read_pose()
+        if all(abs(pose[n] - d) <= 0.1 for n, d in goal.items()) or time.monotonic() > deadline:
+            return pose
+
+
+def test_humanoid_file_opens_moves_and_reads_back() -> None:
+    before = set(threading.enumerate())
+    with blocking.open_robot(HUMANOID, adapter_latency=0.05) as robot:
+        assert robot.thread in threading.enumerate()
+        pose = robot.read_pose()
+        assert set(pose) == set(robot.joints)
+        robot.move_to({"head_yaw": 20.0}, duration=0.1)
+        assert settled_pose(robot, {"head_yaw": 20.0})["head_yaw"] == pytest.approx(20.0, abs=0.1)
+        assert robot.targets["head_yaw"] == 20.0
+    assert not robot.is_open
+    assert set(threading.enumerate()) <= before
+
+
+def test_move_free_hold_and_bad_poses_against_the_simulator() -> None:
+    rig = make_rig()
+    before = set(threading.enumerate())
+    try:
+        with blocking.open_robot(rig.description, **FAST) as robot:
+            robot.move_to({"neck": 15.0, "knee": -10.0}, duration=0.05)
+            pose = settled_pose(robot, {"neck": 15.0, "knee": -10.0})
+            assert pose["neck"] == pytest.approx(15.0, abs=0.1)
+            assert pose["knee"] == pytest.approx(-10.0, abs=0.1)
+            assert rig.servo("neck").target == joint_position(JOINTS["neck"], 15.0)
+
+            since = {"upper": rig.upper.transactions, "lower": rig.lower.transactions}
+            with pytest.raises(InvalidArgument, match=r"joint hip: 31 degrees is outside its limits"):
+                robot.move_to({"neck": 10.0, "hip": 31.0}, duration=0.1)
+            with pytest.raises(InvalidArgument, match="outside its limits"):
+                robot.set_targets({"elbow": -5.0})
+            with pytest.raises(InvalidArgument, match="unknown joint"):
+                robot.hold(["tail"])
+            robot.read_pose()
+            robot.read_pose()
+            for name, spec in JOINTS.items():
+                sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
+                # Only the held targets from before went out: nothing new from the refused calls.
+                target = robot.targets[name]
+                assert set(sent) <= (set() if target is None else {joint_position(spec, target)}), name
+
+            robot.free(["neck"])
+            assert rig.servo("neck").free and not rig.servo("knee").free
+            assert robot.targets["neck"] is None
+            robot.hold(["neck"])
+            robot.on_wire(["neck"])
+            assert not rig.servo("neck").free
+            robot.set_targets({"hip": -12.0})
+            robot.on_wire(["hip"])
+            assert rig.servo("hip").target == joint_position(JOINTS["hip"], -12.0)
+            assert robot.tripped == {} and robot.warnings == []
+            assert set(robot.telemetry) == set(JOINTS)
+            robot.stop()
+        with pytest.raises(Exception, match="closed"):
+            robot.read_pose()
+        robot.close()  # idempotent
+    finally:
+        rig.close()
+    assert set(threading.enumerate()) <= before
+
+
+def test_on_close_free_frees_every_joint() -> None:
+    rig = make_rig()
+    try:
+        with blocking.open_robot(rig.description, on_close="free", **FAST) as robot:
+            robot.move_to({"hip": 5.0}, duration=0.05)
+            assert not rig.servo("hip").free
+        assert all(rig.servo(name).free for name in JOINTS)
+    finally:
+        rig.close()
+
+
+def test_opening_errors_are_typed_and_leave_no_thread() -> None:
+    before = set(threading.enumerate())
+    with pytest.raises(DescriptionError):
+        blocking.open_robot({"lines": {}, "joints": {"x": {"line": "nowhere", "id": 1}}})
+    with pytest.raises(InvalidArgument, match="on_close"):
+        blocking.open_robot(HUMANOID, on_close="explode")
+    assert set(threading.enumerate()) <= before
+
+
+def test_ctrl_c_during_a_motion_cancels_it_and_closes_the_robot() -> None:
+    rig = make_rig()
+    before = set(threading.enumerate())
+    neck = rig.servo("neck")
+    start_target = neck.target
+
+    def interrupt_once_moving() -> None:
+        deadline = time.monotonic() + GUARD  # only against a hang
+        while neck.target == start_target and time.monotonic() < deadline:
+            time.sleep(0.005)
+        _thread.interrupt_main()
+
+    try:
+        with pytest.raises(KeyboardInterrupt), blocking.open_robot(rig.description, on_close="free", **FAST) as robot:
+            threading.Thread(target=interrupt_once_moving).start()
+            robot.move_to({"neck": 50.0}, duration=60.0)
+        assert not robot.is_open
+        assert all(rig.servo(name).free for name in JOINTS)  # on_close="free" ran
+    finally:
+        rig.close()
+    time.sleep(0)  # the helper thread has ended once interrupt_main returned
+    assert {t for t in set(threading.enumerate()) - before if t.name.startswith("ics35")} == set()
