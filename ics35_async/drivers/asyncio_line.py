@@ -87,7 +87,9 @@ class AsyncioLine(asyncio.Protocol):
                 self.transport.write(out)  # type: ignore[union-attr]
             except Exception as exc:  # the port vanished under us (or was already gone: None)
                 self.write_failed(exc)
-        if engine.deadline < self._armed:
+            if engine.deadline < self._armed:
+                self._arm()
+        elif engine.deadline < self._armed:  # a resync's quiet time, or the source's wake-up
             self._arm()
         if self.idle_waiters and engine.idle:
             self.release_idle_waiters()

@@ -325,10 +325,11 @@ class LineEngine:
         counters.ok[sid] += 1
         counters.latency.add(latency)
         link = self.link
-        if link.extra:
-            link.succeeded(over)
-        if link.owed_since != INF:
-            link.in_step()  # a valid reply: nothing earlier is still owed
+        if link.extra or link.owed_since != INF:
+            if link.extra:
+                link.succeeded(over)
+            if link.owed_since != INF:
+                link.in_step()  # a valid reply: nothing earlier is still owed
         return out
 
     def _timeout(self, now: float) -> bytes | None:
