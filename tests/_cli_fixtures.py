@@ -1,6 +1,6 @@
 """Fixtures for the CLI tests: ``ics35(*args)`` run in this process, ``line(servos)`` a named simulated line.
 
-Import them into a test module (``from _cli_fixtures import ics35, line``); pytest
+Import them into a test module (``from tests._cli_fixtures import ics35, line``); pytest
 finds fixtures by name in the module's namespace.
 """
 
@@ -59,6 +59,7 @@ def line() -> Iterator[Any]:
 
     def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
         name = f"cli-user-test-{next(_names)}"
+        options.setdefault("log_size", None)  # keep every transaction: tests read the whole log
         sim = VirtualLine(list(servos), name=name, **options)
         made.append(sim)
         return sim, f"sim://{name}"

@@ -2,65 +2,18 @@
 
 from __future__ import annotations
 
-import io
 import json
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from ics35_async.cli import ExitCode, main
+from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
-from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim import VirtualServo
+from tests._cli_fixtures import ics35, line
 
-
-class Result:
-    def __init__(self, code: int, out: str, err: str) -> None:
-        self.code = code
-        self.out = out
-        self.err = err
-
-    def json(self) -> Any:
-        return json.loads(self.out)
-
-
-@pytest.fixture
-def ics35(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Any:
-    """Run ``ics35 ARGS...`` in-process; optional ``stdin`` text."""
-
-    def invoke(*args: str, stdin: str = "") -> Result:
-        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
-        capsys.readouterr()
-        with pytest.raises(SystemExit) as exited:
-            main(list(args))
-        captured = capsys.readouterr()
-        code = exited.value.code
-        result = Result(code if isinstance(code, int) else 1, captured.out, captured.err)
-        assert "Traceback" not in result.err, result.err
-        return result
-
-    return invoke
-
-
-_counter = iter(range(1_000_000))
-
-
-@pytest.fixture
-def line() -> Iterator[Any]:
-    """``line(servos, **VirtualLine options)`` -> (VirtualLine, its sim:// URL); closed after the test."""
-    made: list[VirtualLine] = []
-
-    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
-        name = f"cli-policies-{next(_counter)}"
-        sim = VirtualLine(list(servos), name=name, log_size=None, **options)
-        made.append(sim)
-        return sim, f"sim://{name}"
-
-    yield make
-    for sim in made:
-        sim.close()
+__all__ = ["ics35", "line"]  # the shared fixtures, used by name
 
 
 def with_flags(servo: VirtualServo, flags: int) -> VirtualServo:
