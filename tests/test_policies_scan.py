@@ -73,6 +73,16 @@ async def test_silent_ids_are_not_retried_even_when_the_bus_retries(lines: Any) 
         assert bus.stats.guards == 0
 
 
+async def test_a_servo_slower_than_the_probes_wait_is_found_not_taken_for_empty(lines: Any) -> None:
+    # Servo 3 answers 12 ms late: within the normal allowance (30 ms), past a probe's (about 5 ms
+    # after servo 1 answered at once).  Its late bytes must send the silent IDs round again.
+    sim = lines([VirtualServo(1), VirtualServo(3)], faults="late@3:1.0", late_delay=0.012, realtime=True)
+    async with open_bus(sim, adapter_latency=0.030, quiet_time=0.010) as bus:
+        rate = await probe_ids(bus, range(8), id_read_first=False)
+    assert rate.answered == (1, 3)
+    assert rate.garbled == {}
+
+
 async def test_a_shared_id_is_garbled_not_found(lines: Any) -> None:
     sim = lines([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
     report = await scan(opener(sim), bauds=[115200], ids=range(5))

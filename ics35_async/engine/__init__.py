@@ -21,7 +21,10 @@ The rules, each in one place:
   requests between two stream transactions;
 * retries of idempotent commands; cancellation (a cancelled request's reply
   is still consumed and dropped);
-* a slow link: late bytes raise every allowance (see :mod:`.link`).
+* a slow link: late bytes raise every allowance (see :mod:`.link`);
+* probes: a ``Timing.PROBE`` read waits as long as this link's answers have
+  taken, not the adapter's worst case, and its silence resyncs as briefly
+  (see :mod:`.probe`).
 """
 
 from .counters import LineCounters

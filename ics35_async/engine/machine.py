@@ -16,11 +16,13 @@ import logging
 import math
 
 from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
-from ..protocol import Timing
-from .counters import NO_ID, LineCounters, error_counter
+from ..protocol import Timing, wire_time
+from .counters import NO_ID, LineCounters
+from .failures import FailureRules
 from .guard import GuardRule
 from .link import LinkLatency
-from .outcome import framing_error, timeout_error
+from .outcome import framing_error
+from .probe import ProbeAllowance
 from .requests import GuardRequest, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -31,7 +33,7 @@ log = logging.getLogger("ics35_async")
 INF = math.inf
 
 
-class LineEngine:
+class LineEngine(FailureRules):
     """The rules of one ICS line.  See the module docstring for the contract."""
 
     def __init__(
@@ -64,6 +66,7 @@ class LineEngine:
         self._base = 0.0  # this transaction's allowance without the link's extra
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self.guard = GuardRule()
+        self.probe = ProbeAllowance()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
         self._quiet_until = 0.0
         self._resync_limit = 0.0
@@ -77,6 +80,7 @@ class LineEngine:
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
         self.link.in_step()  # a fresh port: no reply from before can still arrive
+        self.probe.reset()
         self.state = State.IDLE
         return self._start_next(now)
 
@@ -265,12 +269,18 @@ class LineEngine:
         nbytes = len(tx) + reply_len
         allowance = self._allowances.get(nbytes) if timing is Timing.NORMAL else None
         if allowance is None:
-            allowance = self.timing.allowance(nbytes, self.baudrate, timing)
-            if timing is Timing.NORMAL:
-                self._allowances[nbytes] = allowance
+            allowance = self._allowance(nbytes, timing)
         self._base = allowance
         self.deadline = now + allowance + self.link.extra
         return tx
+
+    def _allowance(self, nbytes: int, timing: Timing) -> float:
+        allowance = self.timing.allowance(nbytes, self.baudrate, timing)
+        if timing is Timing.NORMAL:
+            self._allowances[nbytes] = allowance
+        elif timing is Timing.PROBE:
+            allowance = self.probe.allowance(allowance, wire_time(nbytes, self.baudrate))
+        return allowance
 
     def _finish(self, now: float) -> bytes | None:
         buf = self._buf
@@ -316,6 +326,7 @@ class LineEngine:
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
             req.resolve(value)
+            self.probe.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
         # The next command goes on the wire first; the bookkeeping can wait.
         if self.state is State.BUSY:
             self.state = State.IDLE
@@ -331,64 +342,6 @@ class LineEngine:
             if link.owed_since != INF:
                 link.in_step()  # a valid reply: nothing earlier is still owed
         return out
-
-    def _timeout(self, now: float) -> bytes | None:
-        buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
-        self.counters.count(sid, len(tx), len(buf))
-        error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
-        req = self._current
-        heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
-        partial = len(buf) > echo_len
-        self.guard.timed_out(tx, heard=heard, was_guard=req is not None and req.is_guard)
-        link, due = self.link, self._t_start + self._base
-        if link.owed_since != INF:
-            link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
-        if heard:  # its reply is owed from its base deadline on (see .link)
-            link.owe(due, tx, len(buf), echo_len, self._expect)
-        out = self._failed(error, sid, now)
-        if partial and self.state is State.QUIET:
-            # The rest may be on its way (a link that holds a reply's tail): listen for it as
-            # long again as the transaction was allowed, so its arrival is seen and learnt.
-            self._quiet_until = max(self._quiet_until, now + self._base)
-            self.deadline = min(self._quiet_until, self._resync_limit)
-        return out
-
-    def _failed(self, error: ReplyError, sid: int, now: float) -> bytes | None:
-        """Hand a failed transaction's error to its request, or to the source that sent it."""
-        req, self._current = self._current, None
-        if req is not None:
-            return self._fail_request(req, error, sid, now)
-        if self._owner is not None and self._owner is self._source:
-            self._owner.fail(error, now)
-        return self._fault(error, sid, now)
-
-    def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
-        self.counters.per_name[error_counter(error)][sid] += 1
-        log.debug("%s", error)
-        self._resync(now)
-        return None
-
-    def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:
-        closing = self.state is State.DRAINING
-        if req.retries_left > 0 and not req.abandoned() and not closing:
-            req.retries_left -= 1
-            self.counters.per_name["retries"][sid] += 1
-            self.queue.push_front(req)
-        else:
-            req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
-        return self._fault(error, sid, now)
-
-    def _resync(self, now: float) -> None:
-        if self.state is State.DRAINING:  # closing anyway: the port's buffers go with it
-            self.state = State.CLOSED
-            self.deadline = INF
-            return
-        self.counters.resyncs += 1
-        self.state = State.QUIET
-        self._quiet_until = now + self.timing.quiet_time + self.link.extra
-        self._resync_limit = now + self.timing.max_resync + self.link.extra
-        self._buf.clear()
-        self.deadline = self._quiet_until
 
     def _detach(self, exc: IcsError) -> None:
         source, self._source = self._source, None

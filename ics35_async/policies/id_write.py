@@ -12,7 +12,9 @@ only with exactly one device on the line.  The proof, in 33 transactions:
    third ID (a wired AND of 0xE1 and 0xE3 reads 0xE1).
 
 Then the write (1) and a stretch read at the new ID (1): 35 in all.  Silent
-IDs are probed once each; the bus already waits out each one's allowance.
+IDs are probed once each, with the bus's short probe allowance; a servo
+slower than that shows itself by late bytes, and the survey then probes
+the silent IDs again with the normal one (see :func:`.scan.probe_ids`).
 """
 
 from __future__ import annotations

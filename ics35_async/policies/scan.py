@@ -1,10 +1,16 @@
 """Finding servos: which IDs answer at which baud rates, told apart from garbled replies.
 
-A probe is a stretch *read* (harmless: it moves nothing).  Each ID is probed
-once: the bus already waits out a silent ID's allowance, so a policy-level
-retry would only double the cost of every empty slot.  Only an ID whose reply
-came back garbled is probed again, to tell noise (answers the second time)
-from two servos sharing the ID (garbled again).
+A probe is a stretch *read* (harmless: it moves nothing), sent as a
+:class:`~ics35_async.protocol.ProbeRead`: the bus waits for it only as long
+as this link's answers have taken (see :mod:`ics35_async.engine.probe`), not
+the adapter's worst case, since most probed IDs are empty.  Each ID is probed
+once; a policy-level retry would only double the cost of every empty slot.
+Two exceptions: an ID whose reply came back garbled is probed again, to tell
+noise (answers the second time) from two servos sharing the ID (garbled
+again); and if any reply came garbled or any bytes arrived after a probe
+had given up (a servo slower than the probes waited lands in the next
+probe, or between probes), every silent ID is probed again with the normal
+allowance first, so a slow servo is never taken for an empty ID.
 
 Before probing a rate's IDs one by one, an ID *read* (which every device at
 that rate answers) asks whether anyone is there at all: a rate where nothing
@@ -109,12 +115,24 @@ def _done(on_probe: ProbeCallback | None, n: int) -> None:
         on_probe(n)
 
 
-async def _probe(line: Line, servo_id: int) -> ReplyError | None:
+async def _probe(line: Line, servo_id: int, *, short: bool = True) -> ReplyError | None:
+    """A stretch read at ``servo_id``: with ``short``, the bus's probe allowance (see engine.probe)."""
+    command = protocol.ProbeRead(servo_id) if short else protocol.ReadParam(servo_id, Param.STRETCH)
     try:
-        await line.request(protocol.ReadParam(servo_id, Param.STRETCH), retries=0)
+        await line.request(command, retries=0)
     except ReplyError as exc:
         return exc
     return None
+
+
+def _answered(outcomes: Mapping[int, ReplyError | None]) -> int:
+    return sum(1 for e in outcomes.values() if e is None)
+
+
+def _late_evidence(line: Line) -> tuple[int, int]:
+    """Stray bytes and late replies so far: they grow when an answer comes after its wait."""
+    stats = line.stats
+    return stats.stray_bytes, stats.late_replies
 
 
 async def _id_read(line: Line) -> ReplyError | None:
@@ -161,6 +179,7 @@ async def probe_ids(
             return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
 
     outcomes: dict[int, ReplyError | None] = dict.fromkeys(wanted)
+    late_before = _late_evidence(line)
 
     async def probe(i: int) -> None:
         async with gate:
@@ -171,12 +190,19 @@ async def probe_ids(
     async with anyio.create_task_group() as group:
         for i in wanted:
             group.start_soon(probe, i)
+    silent_ids = [i for i, e in outcomes.items() if e is not None and nothing_came_back(e)]
+    if silent_ids and (_late_evidence(line) != late_before or len(silent_ids) + _answered(outcomes) < len(wanted)):
+        # Bytes came after a probe had given up (as strays, or garbling a later probe): some
+        # servo may answer slower than the probes waited.  Every silent ID once more with the
+        # normal allowance, so none is taken for empty.
+        for i in silent_ids:
+            outcomes[i] = await _probe(line, i, short=False)
     garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
     evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
     if garbled and evidence is None:
         # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
         for i in sorted(garbled):
-            outcomes[i] = await _probe(line, i)
+            outcomes[i] = await _probe(line, i, short=False)
         garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
     return RateScan(
         int(line.baudrate),

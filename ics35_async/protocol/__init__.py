@@ -16,6 +16,7 @@ from ..eeprom import EEPROM_SIZE, BaudRate, Eeprom
 from .commands import (
     Command,
     Position,
+    ProbeRead,
     ReadEeprom,
     ReadId,
     ReadParam,
@@ -71,6 +72,7 @@ __all__ = [
     "ReadEeprom",
     "ReadId",
     "ReadMemory",
+    "ProbeRead",
     "ReadParam",
     "Timing",
     "WriteEeprom",

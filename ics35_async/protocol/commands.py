@@ -167,6 +167,22 @@ class ReadParam(Command[int]):
         return bytes((self.tx[0] & 0x7F, self.param, value))
 
 
+class ProbeRead(ReadParam):
+    """A stretch read asking whether a servo is at ``servo_id`` (scans, the ID write's survey).
+
+    The same bytes as ``ReadParam(servo_id, Param.STRETCH)``; its ``Timing.PROBE``
+    lets the bus wait only as long as this link's answers have taken, not the
+    adapter's worst case, because most probed IDs are empty.
+    """
+
+    __slots__ = ()
+
+    timing = Timing.PROBE
+
+    def __init__(self, servo_id: int) -> None:
+        super().__init__(servo_id, Param.STRETCH)
+
+
 def guard_read(tx: bytes, servo_id: int) -> ReadParam:
     """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
 

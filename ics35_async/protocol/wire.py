@@ -49,6 +49,7 @@ class Timing(enum.Enum):
     NORMAL = "normal"
     EEPROM_WRITE = "eeprom_write"  # the servo answers noticeably later
     ID = "id"
+    PROBE = "probe"  # asks whether anybody is there: silence is the usual answer (see ProbeRead)
 
 
 def wire_time(nbytes: int, baudrate: int) -> float:

@@ -1,0 +1,116 @@
+"""What the engine does when a transaction fails: count it, tell its owner, retry, resync.
+
+A part of :class:`~.machine.LineEngine` kept in its own file: the engine
+inherits these methods, and the attributes below are the engine's.  A
+timeout also feeds the guard read (see .guard) and the slow-link learning
+(see .link); a probe's silence gets a short resync (see .probe).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from ..errors import BusClosed, ReplyError
+from ..protocol import Timing
+from .counters import LineCounters, error_counter
+from .guard import GuardRule
+from .link import LinkLatency
+from .outcome import timeout_error
+from .probe import ProbeAllowance
+from .requests import Request, RequestQueue
+from .source import BackgroundSource
+from .state import State
+from .timing import BusTiming
+
+log = logging.getLogger("ics35_async")
+
+INF = float("inf")
+
+
+class FailureRules:
+    """The failure half of the line's rules (mixed into LineEngine)."""
+
+    state: State
+    deadline: float
+    timing: BusTiming
+    counters: LineCounters
+    link: LinkLatency
+    guard: GuardRule
+    probe: ProbeAllowance
+    queue: RequestQueue
+    _source: BackgroundSource | None
+    _owner: BackgroundSource | None
+    _current: Request | None
+    _current_id: int
+    _buf: bytearray
+    _tx: bytes
+    _expect: int
+    _echo_len: int
+    _t_start: float
+    _t_first: float
+    _base: float
+    _quiet_until: float
+    _resync_limit: float
+
+    def _timeout(self, now: float) -> bytes | None:
+        buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
+        self.counters.count(sid, len(tx), len(buf))
+        error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
+        req = self._current
+        heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
+        partial = len(buf) > echo_len
+        self.guard.timed_out(tx, heard=heard, was_guard=req is not None and req.is_guard)
+        link, due = self.link, self._t_start + self._base
+        if link.owed_since != INF:
+            link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
+        if heard:  # its reply is owed from its base deadline on (see .link)
+            link.owe(due, tx, len(buf), echo_len, self._expect)
+        out = self._failed(error, sid, now)
+        probe_wait = self.probe.latency if req is not None and req.command.timing is Timing.PROBE else None
+        if probe_wait is not None and not partial and self.state is State.QUIET:
+            # Silence at a probed ID: a resync as short as the probe's own wait (see .probe).
+            self._quiet_until = min(self._quiet_until, now + probe_wait + self.link.extra)
+            self.deadline = self._quiet_until
+        if partial and self.state is State.QUIET:
+            # The rest may be on its way (a link that holds a reply's tail): listen for it as
+            # long again as the transaction was allowed, so its arrival is seen and learnt.
+            self._quiet_until = max(self._quiet_until, now + self._base)
+            self.deadline = min(self._quiet_until, self._resync_limit)
+        return out
+
+    def _failed(self, error: ReplyError, sid: int, now: float) -> bytes | None:
+        """Hand a failed transaction's error to its request, or to the source that sent it."""
+        req, self._current = self._current, None
+        if req is not None:
+            return self._fail_request(req, error, sid, now)
+        if self._owner is not None and self._owner is self._source:
+            self._owner.fail(error, now)
+        return self._fault(error, sid, now)
+
+    def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
+        self.counters.per_name[error_counter(error)][sid] += 1
+        log.debug("%s", error)
+        self._resync(now)
+        return None
+
+    def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:
+        closing = self.state is State.DRAINING
+        if req.retries_left > 0 and not req.abandoned() and not closing:
+            req.retries_left -= 1
+            self.counters.per_name["retries"][sid] += 1
+            self.queue.push_front(req)
+        else:
+            req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
+        return self._fault(error, sid, now)
+
+    def _resync(self, now: float) -> None:
+        if self.state is State.DRAINING:  # closing anyway: the port's buffers go with it
+            self.state = State.CLOSED
+            self.deadline = INF
+            return
+        self.counters.resyncs += 1
+        self.state = State.QUIET
+        self._quiet_until = now + self.timing.quiet_time + self.link.extra
+        self._resync_limit = now + self.timing.max_resync + self.link.extra
+        self._buf.clear()
+        self.deadline = self._quiet_until

@@ -1,0 +1,51 @@
+"""How long to wait at an ID that is probably empty: learnt from the answers this link has given.
+
+A scan or an ID write's survey probes 32 IDs, most of them empty, so a
+probe's usual outcome is silence and its cost is the whole wait.  The
+normal allowance covers the adapter's worst case (20 ms by default); a
+probe (``Timing.PROBE``) instead waits its wire time plus ``latency``:
+twice the slowest answer beyond wire time seen since the port opened, plus
+a millisecond, never under ``FLOOR`` and never over the normal allowance.
+Until something has answered (a fresh port, a new baud rate) a probe gets
+the normal allowance.
+
+A probe that timed out after its echo is followed by a resync of
+``latency`` too instead of the full quiet time.  A servo answering later
+than that is not lost silently: its bytes arrive as strays (or in front of
+the next echo, failing that probe), and the scan policy then probes its
+silent IDs again with the normal allowance (see
+:func:`ics35_async.policies.probe_ids`).
+"""
+
+from __future__ import annotations
+
+FLOOR = 0.004  # seconds: the least a probe waits beyond its wire time (a loop or VM hiccup)
+FACTOR = 2.0
+MARGIN = 0.001
+
+
+class ProbeAllowance:
+    __slots__ = ("slowest",)
+
+    def __init__(self) -> None:
+        self.slowest = -1.0  # the slowest answer beyond its wire time (s); negative: none seen yet
+
+    def reset(self) -> None:
+        """A fresh port or baud rate: what the old one showed proves nothing."""
+        self.slowest = -1.0
+
+    def answered(self, beyond_wire: float) -> None:
+        """A request was answered ``beyond_wire`` seconds after its bytes' wire time."""
+        if beyond_wire > self.slowest:
+            self.slowest = max(0.0, beyond_wire)  # a fast simulator can beat the wire time
+
+    @property
+    def latency(self) -> float | None:
+        """Seconds a probe waits beyond its wire time; None until something has answered."""
+        if self.slowest < 0:
+            return None
+        return max(FLOOR, FACTOR * self.slowest + MARGIN)
+
+    def allowance(self, normal: float, wire: float) -> float:
+        latency = self.latency
+        return normal if latency is None else min(normal, wire + latency)

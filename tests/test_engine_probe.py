@@ -1,0 +1,111 @@
+"""Probes (``Timing.PROBE``): a short wait at IDs that are probably empty, learnt from the link's answers.
+
+Plain calls and simulated time only (see engine_support): no event loop.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from ics35_async import protocol
+from ics35_async.engine import State
+from ics35_async.engine.probe import FLOOR
+from ics35_async.errors import InvalidArgument, ReplyTimeout
+from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
+
+NORMAL_WAIT = 0.0005 + 0.020  # BusTiming's turnaround + adapter latency
+
+
+def line(ids: set[int], turnaround: float = 0.0002) -> tuple[Wire, Servos]:
+    engine = ready_engine()
+    servos = Servos(ids, turnaround=turnaround)
+    return Wire(engine, servos), servos
+
+
+def probe_deadline(wire: Wire, sid: int) -> float:
+    """The deadline the engine gives a probe of ``sid`` sent now, measured from its write."""
+    start = wire.now
+    wire.submit(Recorded(protocol.ProbeRead(sid)))
+    return wire.engine.deadline - start
+
+
+def test_a_probe_is_a_stretch_read_with_the_probe_timing() -> None:
+    probe = protocol.ProbeRead(5)
+    assert probe.tx == read(5, protocol.Param.STRETCH).tx
+    assert probe.timing is protocol.Timing.PROBE and protocol.ReadParam.timing is protocol.Timing.NORMAL
+    with pytest.raises(InvalidArgument):
+        protocol.ProbeRead(32)
+
+
+def test_before_any_answer_a_probe_waits_the_normal_allowance() -> None:
+    wire, _ = line(set())
+    assert probe_deadline(wire, 4) == pytest.approx(wire_time(5) + NORMAL_WAIT)
+
+
+def test_after_an_answer_a_probe_waits_twice_the_slowest_answer_plus_a_millisecond() -> None:
+    wire, _ = line({1}, turnaround=0.003)  # a servo that answers 3 ms after its wire time
+    ok = Recorded(read(1))
+    wire.submit(ok)
+    wire.settle()
+    assert ok.state == "done"
+    assert probe_deadline(wire, 4) == pytest.approx(wire_time(5) + 2 * 0.003 + 0.001, abs=1e-6)
+
+
+def test_a_probe_waits_at_least_the_floor_and_at_most_the_normal_allowance() -> None:
+    fast, _ = line({1}, turnaround=0.0)
+    fast.submit(Recorded(read(1)))
+    fast.settle()
+    assert probe_deadline(fast, 4) == pytest.approx(wire_time(5) + FLOOR)
+    slow, _ = line({1}, turnaround=0.015)  # answered within the normal allowance, but late
+    slow.submit(Recorded(read(1)))
+    slow.settle()
+    assert probe_deadline(slow, 4) == pytest.approx(wire_time(5) + NORMAL_WAIT)
+
+
+def test_an_answer_faster_than_its_wire_time_counts_as_immediate() -> None:
+    # A fast-mode simulator answers before the bytes could have crossed a real wire.
+    wire, _ = line({1}, turnaround=-wire_time(2))  # the whole reply 2 byte times early
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    assert probe_deadline(wire, 4) == pytest.approx(wire_time(5) + FLOOR)
+
+
+def test_a_silent_probe_times_out_early_and_resyncs_for_as_long_as_it_waited() -> None:
+    wire, _ = line({1}, turnaround=0.0)
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    probe = Recorded(protocol.ProbeRead(4))
+    wire.submit(probe)
+    sent = wire.now
+    wire.settle()
+    assert isinstance(probe.error, ReplyTimeout)
+    # wait (wire + FLOOR) + the resync's quiet (FLOOR) instead of 20.5 ms + 10 ms
+    assert wire.now - sent == pytest.approx(wire_time(5) + 2 * FLOOR, abs=1e-6)
+    assert wire.engine.counters.resyncs == 1
+
+
+def test_a_plain_read_keeps_the_normal_wait_and_quiet_time() -> None:
+    wire, _ = line({1}, turnaround=0.0)
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    silent = Recorded(read(4))
+    wire.submit(silent)
+    sent = wire.now
+    wire.settle()
+    assert isinstance(silent.error, ReplyTimeout)
+    assert wire.now - sent == pytest.approx(wire_time(5) + NORMAL_WAIT + 0.010, abs=1e-6)
+
+
+def test_a_new_port_forgets_what_the_old_one_showed() -> None:
+    wire, _ = line({1}, turnaround=0.0)
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    engine = wire.engine
+    engine.disconnected()
+    engine.baudrate = 1250000
+    assert engine.connected(wire.now) is None
+    assert engine.state is State.IDLE
+    start = wire.now
+    wire.emit(engine.submit(Recorded(protocol.ProbeRead(4)), wire.now))
+    expected = protocol.wire_time(5, 1250000) + NORMAL_WAIT
+    assert engine.deadline - start == pytest.approx(expected)
