@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import sys
-from collections.abc import Awaitable, Generator, Iterable, Sequence
+from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from . import protocol
+from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
@@ -28,8 +28,6 @@ from .transports.wire_device import TRANSPORT_KINDS, WireDevice
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
-    from .drivers.anyio_driver import AnyioDriver
-    from .drivers.asyncio_driver import AsyncioDriver
     from .servo import Device, Servo
     from .stream import Stream
 
@@ -40,14 +38,6 @@ T = TypeVar("T")
 # Delays between reopen attempts; capped well under 1 s so a returning port is found fast.
 RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
-
-def _running_asyncio() -> bool:
-    # No asyncio imported: no asyncio loop can be running (and importing it costs ~40 ms).
-    asyncio = sys.modules.get("asyncio")
-    return asyncio is not None and asyncio.events._get_running_loop() is not None
-
-
-DRIVERS = ("auto", "asyncio", "thread", "anyio")
 
 
 class Bus:
@@ -95,7 +85,7 @@ class Bus:
             timing=timing or BusTiming(),
             max_requests_between=self.max_requests_between,
         )
-        self._driver: AsyncioDriver | AnyioDriver | None = None
+        self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
         self._reopening = False
 
@@ -122,7 +112,7 @@ class Bus:
 
     @property
     def driver(self) -> str:
-        """The driver running the line once open: ``"asyncio"`` or ``"anyio"``."""
+        """The driver running the line once open: ``"asyncio"``, ``"thread"`` or ``"anyio"``."""
         return self._driver.name if self._driver is not None else self.driver_kind
 
     # ------------------------------------------------------------------ opening / closing
@@ -137,21 +127,6 @@ class Bus:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         await self.aclose()
-
-    def _make_driver(self) -> AsyncioDriver | AnyioDriver:
-        kind = self.driver_kind
-        if kind == "auto":
-            kind = "asyncio" if _running_asyncio() else "anyio"
-        if kind == "asyncio" and not _running_asyncio():
-            raise InvalidArgument("driver='asyncio' needs a running asyncio loop; under trio use driver='anyio'")
-        # Drivers load on first use: importing the library stays cheap.
-        if kind == "anyio" or not _running_asyncio():  # "thread" under trio: the anyio driver's reader thread
-            from .drivers.anyio_driver import AnyioDriver
-
-            return AnyioDriver(self._engine, self.port, self.settings)
-        from .drivers.asyncio_driver import AsyncioDriver
-
-        return AsyncioDriver(self._engine, self.port, self.settings)
 
     async def open(self) -> Bus:
         """Open the line (idempotent)."""
@@ -168,7 +143,7 @@ class Bus:
 
         self._opening = anyio.Event()
         try:
-            driver = self._make_driver()
+            driver = make_driver(self.driver_kind, self._engine, self.port, self.settings)
             self._engine.debug = log.isEnabledFor(logging.DEBUG)
             await driver.open()
             self._driver = driver
@@ -252,22 +227,34 @@ class Bus:
         engine = self._engine
         if source is None:
             if engine.source is not None:
-                engine.detach_source(engine.source)
+                self.detach_source(engine.source)
             return
         if self._reopening or engine.state is State.OFFLINE:
             raise InvalidArgument("the bus is reopening; start the stream afterwards")
-        out = engine.attach_source(source, now())
-        if self._driver is not None:
-            self._driver.pump(out)
+        if self._driver is None:
+            engine.attach_source(source, now())
+        else:
+            self._driver.call(lambda t: engine.attach_source(source, t))
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""
-        self._engine.detach_source(source)
+        engine = self._engine
+        if self._driver is None:
+            engine.detach_source(source)
+        else:
+            self._driver.call(lambda t: engine.detach_source(source))
 
     def kick(self) -> None:
         """Tell an idle bus that the background source has work again."""
         if self._driver is not None:
-            self._driver.pump(self._engine.kick(now()))
+            self._driver.call(self._engine.kick)
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` on the caller's event loop: now, or soon when the engine runs in a thread."""
+        if self._driver is None:
+            callback()
+        else:
+            self._driver.notify(callback)
 
     async def wait_idle(self) -> None:
         """Wait until nothing is queued or on the wire."""
@@ -368,8 +355,10 @@ def open_bus(
     ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator,
     or a :class:`~ics35_async.transports.WireDevice`.  ``driver`` picks what
     runs the line: ``"asyncio"`` (I/O callbacks; the default under asyncio),
-    ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (pyserial's
-    blocking reads in a thread, for any pyserial port), or ``"auto"``.  Extra
+    ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (the engine
+    in an I/O thread that blocks on the port: the cheapest for streaming, and
+    for ports the loop cannot wait on; under trio, the anyio driver's reader
+    thread), or ``"auto"``.  Extra
     keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
     ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
     RTS while sending, for DIY half-duplex interfaces whose driver-enable pin

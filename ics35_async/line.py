@@ -7,7 +7,7 @@ bus, so the layers stay one-way and a test double or another driver fits.
 
 from __future__ import annotations
 
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Callable
 from typing import Protocol, TypeVar, runtime_checkable
 
 from .engine import BackgroundSource, Priority
@@ -48,3 +48,6 @@ class Line(Protocol):
     def detach_source(self, source: BackgroundSource) -> None: ...
 
     def kick(self) -> None: ...
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` on the caller's event loop (a driver may run the engine in its own thread)."""

@@ -284,7 +284,7 @@ class Stream:
             started=self._cycle_start,
             finished=now,
         )
-        self._wake_waiters()
+        self.bus.notify(self._wake_waiters)  # this may run in a driver's I/O thread
 
     def _wake_waiters(self) -> None:
         event, self._new_frame = self._new_frame, None
@@ -383,7 +383,7 @@ class Stream:
         self._cur = -1
         self.wake_at = INF
         self.bus.detach_source(self)
-        self._wake_waiters()
+        self.bus.notify(self._wake_waiters)
 
     async def __aenter__(self) -> Stream:
         return await self.start()

@@ -239,9 +239,10 @@ async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line:
     assert names[-1] == (7, "read_speed")
 
 
-async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(driver: str) -> None:
     sim = VirtualLine(make_servos())
-    bus = await open_bus(sim, **FAST)
+    bus = await open_bus(sim, driver=driver, **FAST)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(20)]
     await bus.aclose()
     results = await asyncio.gather(*futures, return_exceptions=True)
@@ -252,13 +253,14 @@ async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire() 
         await bus.servo(1).read_stretch()
     assert not bus.is_open
     # The port is released: the same simulated line opens again.
-    async with open_bus(sim, **FAST) as again:
+    async with open_bus(sim, driver=driver, **FAST) as again:
         assert await again.servo(3).read_stretch() == 13
 
 
-async def test_port_vanishing_fails_pending_requests_and_closes_the_bus() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_port_vanishing_fails_pending_requests_and_closes_the_bus(driver: str) -> None:
     sim = VirtualLine(make_servos(), faults="drop@0:1.0")  # servo 0 is silent: its request stays on the wire
-    bus = await open_bus(sim, **FAST)
+    bus = await open_bus(sim, driver=driver, **FAST)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(10)]
     await asyncio.sleep(0)
     sim.unplug()
@@ -269,9 +271,10 @@ async def test_port_vanishing_fails_pending_requests_and_closes_the_bus() -> Non
     await bus.aclose()
 
 
-async def test_reconnect_reopens_the_port_when_it_comes_back() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_reconnect_reopens_the_port_when_it_comes_back(driver: str) -> None:
     sim = VirtualLine(make_servos(), faults="drop@0:1.0")
-    async with open_bus(sim, reconnect=True, **FAST) as bus:
+    async with open_bus(sim, reconnect=True, driver=driver, **FAST) as bus:
         assert await bus.servo(1).read_stretch() == 11
         pending = bus.submit(protocol.ReadParam(0, protocol.Param.STRETCH))  # never answered
         await asyncio.sleep(0)

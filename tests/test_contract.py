@@ -1,7 +1,7 @@
 """One public-API contract, run on every driver and async library.
 
 The same scenarios drive the bus through the asyncio driver (I/O callbacks),
-the thread driver (pyserial's blocking reads in a thread) and the anyio driver
+the thread driver (the engine in an I/O thread blocking on the port) and the anyio driver
 (one bus task), under asyncio and under trio, against the in-process
 simulator and against the pty simulator in another process (asyncio also on
 uvloop).  Each test runs
@@ -34,6 +34,8 @@ CASES = [
     ("asyncio", "uvloop", "sim"),
     ("asyncio", "uvloop", "pty"),
     ("thread", "asyncio", "pty"),
+    ("thread", "asyncio", "sim"),
+    ("thread", "uvloop", "pty"),
     ("anyio", "trio", "pty"),
     ("thread", "trio", "pty"),
 ]
@@ -65,7 +67,7 @@ def run(request: pytest.FixtureRequest) -> Callable[[Callable[[Bus], Awaitable[N
         async def main() -> None:
             with anyio.fail_after(20):
                 async with open_bus(port, driver=driver, **FAST) as bus:
-                    assert bus.driver == ("anyio" if driver == "anyio" or library == "trio" else "asyncio")
+                    assert bus.driver == ("anyio" if driver == "anyio" or library == "trio" else driver)
                     await scenario(bus)
 
         run_on(library, main)

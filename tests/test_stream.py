@@ -527,10 +527,11 @@ async def test_losing_the_port_without_reconnect_ends_next_frame_with_port_lost(
     check_frames(frames, sim, ids)
 
 
-async def test_losing_the_port_with_reconnect_resumes_the_stream() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_losing_the_port_with_reconnect_resumes_the_stream(driver: str) -> None:
     ids = list(range(8))
     sim = make_sim(ids)
-    async with open_bus(sim, reconnect=True, **FAST) as bus, bus.stream(ids) as stream:
+    async with open_bus(sim, reconnect=True, driver=driver, **FAST) as bus, bus.stream(ids) as stream:
         before = await next_frame(stream)
         sim.unplug(replug_after=0.05)
         unplugged_at = sim.transactions

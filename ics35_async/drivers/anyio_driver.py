@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from typing import Any, TypeVar
 
 import anyio
@@ -221,6 +221,14 @@ class AnyioDriver:
         request = EventRequest(command, priority, retries)
         self.pump(self.engine.submit(request, now()))
         return request
+
+    def call(self, step: Callable[[float], bytes | None]) -> None:
+        """Run an engine call (given the time) and act on what it answers."""
+        self.pump(step(now()))
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` now: the engine runs on the caller's loop."""
+        callback()
 
     async def wait_idle(self) -> None:
         while not self.engine.idle and self.line is not None:

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import errno
 import logging
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from ..engine import LineEngine, State
@@ -155,6 +156,14 @@ class AsyncioDriver:
         """Write what an engine call from the user's side answered, and follow its deadline."""
         if self.line is not None:
             self.line.pump(out)
+
+    def call(self, step: Callable[[float], bytes | None]) -> None:
+        """Run an engine call (given the time) and act on what it answers."""
+        self.pump(step(now()))
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` now: the engine runs on the caller's loop."""
+        callback()
 
     async def wait_idle(self) -> None:
         while not self.engine.idle and self.line is not None:
