@@ -5,51 +5,54 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-# Log2-spaced latency buckets from 1 us: bucket k holds [2^k, 2^(k+1)) us.
-_BUCKETS = 26  # up to about 67 s
+# Log2-spaced latency buckets of microseconds: bucket k holds [2^(k-1), 2^k) us, bucket 0 under 1 us.
+# Indexed by int(us).bit_length(), which needs no clamp below 2^63 us (the engine inlines this).
+_BUCKETS = 64
 
 
 class LatencyHistogram:
     """Transaction latency (write to complete reply) in log2 buckets of microseconds."""
 
-    __slots__ = ("counts", "max_s", "sum_s", "total")
+    __slots__ = ("counts", "max_s", "sum_s")
 
     def __init__(self) -> None:
         self.counts = [0] * _BUCKETS
-        self.total = 0
         self.sum_s = 0.0
         self.max_s = 0.0
 
     def add(self, seconds: float) -> None:
-        us = seconds * 1e6
-        k = int(us).bit_length() - 1 if us >= 1 else 0
-        self.counts[k if k < _BUCKETS else _BUCKETS - 1] += 1
-        self.total += 1
+        self.counts[int(seconds * 1e6).bit_length()] += 1
         self.sum_s += seconds
         if seconds > self.max_s:
             self.max_s = seconds
 
+    @property
+    def total(self) -> int:
+        return sum(self.counts)
+
     def copy(self) -> LatencyHistogram:
         other = LatencyHistogram()
         other.counts = list(self.counts)
-        other.total, other.sum_s, other.max_s = self.total, self.sum_s, self.max_s
+        other.sum_s, other.max_s = self.sum_s, self.max_s
         return other
 
     def percentile(self, p: float) -> float:
         """Upper edge (seconds) of the bucket holding the ``p``-th percentile; 0 when empty."""
-        if not self.total:
+        total = self.total
+        if not total:
             return 0.0
-        rank = math.ceil(self.total * p / 100)
+        rank = math.ceil(total * p / 100)
         seen = 0
         for k, n in enumerate(self.counts):
             seen += n
             if seen >= rank:
-                return min(2.0 ** (k + 1) * 1e-6, self.max_s)
+                return min(2.0**k * 1e-6, self.max_s)
         return self.max_s
 
     @property
     def mean(self) -> float:
-        return self.sum_s / self.total if self.total else 0.0
+        total = self.total
+        return self.sum_s / total if total else 0.0
 
 
 # Names of the per-ID counters (the fields of IdStats; the bus keeps one list per name).

@@ -35,6 +35,7 @@ from . import protocol, units
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, StreamStats, percentile
 from .line import Line
+from .protocol.hot_path import position_from_reply
 
 INF = math.inf
 
@@ -181,7 +182,7 @@ class Stream:
         k = self._cur
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
-        position = protocol.position_from_reply(buf, offset, self._headers[k])
+        position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
             try:
                 command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)
@@ -192,9 +193,12 @@ class Stream:
         self._positions[k] = position
         self._stamps[k] = now
         self._answered[k] = True
-        self._fail_run[k] = 0
-        self._offline[k] = False
-        self._advance(now)
+        if self._fail_run[k]:  # only fail() marks an ID offline, always after a failure
+            self._fail_run[k] = 0
+            self._offline[k] = False
+        self._pos = pos = self._pos + 1  # _advance, inline: this runs once per transaction
+        if pos >= len(self._order):
+            self._publish(now)
         return None
 
     def fail(self, exc: ReplyError, now: float) -> None:

@@ -87,7 +87,8 @@ class ThreadDriver:
         self.lock = threading.Lock()
         self._io: ThreadPort | None = None
         self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._stop = threading.Event()  # ends the I/O thread (and its reconnect back-off)
+        self._stopping = False  # the same, as a plain flag for the hot loop
         self._waiting_until = INF  # when the I/O thread's current wait ends (it is woken for earlier)
         self._idle_waiters: list[asyncio.Future[None]] = []
 
@@ -114,6 +115,7 @@ class ThreadDriver:
     def _start(self, io: ThreadPort) -> None:
         self._io = io
         self._stop.clear()
+        self._stopping = False
         log.info("opened %s at %d baud", self.port, self.engine.baudrate)
         with self.lock:
             self._write(io, self.engine.connected(now()))
@@ -123,6 +125,7 @@ class ThreadDriver:
 
     async def _stop_thread(self) -> None:
         self._stop.set()
+        self._stopping = True
         io, thread, self._thread = self._io, self._thread, None
         if io is not None:
             io.wake()
@@ -175,13 +178,17 @@ class ThreadDriver:
                 return
 
     def _serve(self, io: ThreadPort) -> None:
-        engine, lock, stop = self.engine, self.lock, self._stop
+        engine, lock = self.engine, self.lock
         wait, write = io.wait, io.write
-        while not stop.is_set():
+        while not self._stopping:
             until = self._waiting_until
-            data = wait(None if until == INF else max(0.0, until - now()))
+            if until == INF:
+                data = wait(None)
+            else:
+                left = until - now()
+                data = wait(left if left > 0.0 else 0.0)
             with lock:
-                if stop.is_set():
+                if self._stopping:
                     return
                 t = now()
                 if not data and t >= engine.deadline:

@@ -31,6 +31,11 @@ from .timing import BusTiming
 log = logging.getLogger("ics35_async")
 
 INF = math.inf
+# The states and timing the hot path compares with, as plain names (no attribute lookup).
+# (An enum member looked up on its class costs more than the rest of a comparison.)
+BUSY, IDLE, QUIET, DRAINING, CLOSED = State.BUSY, State.IDLE, State.QUIET, State.DRAINING, State.CLOSED
+OFFLINE, LOST = State.OFFLINE, State.LOST
+NORMAL = Timing.NORMAL
 
 
 class LineEngine(FailureRules):
@@ -43,7 +48,7 @@ class LineEngine(FailureRules):
         self.echo = echo
         self.timing = timing or BusTiming()
         self.max_requests_between = max_requests_between
-        self.state = State.OFFLINE
+        self.state = OFFLINE
         self.deadline = INF
         self.flush_input = False
         self.counters = LineCounters()
@@ -75,48 +80,48 @@ class LineEngine(FailureRules):
 
     def connected(self, now: float) -> bytes | None:
         """The port is open (first time, after a reopen, or reconnected)."""
-        if self.state not in (State.OFFLINE, State.LOST):
+        if self.state not in (OFFLINE, LOST):
             raise InvalidArgument(f"connected() while {self.state.value}")
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
         self.link.in_step()  # a fresh port: no reply from before can still arrive
         self.probe.reset()
-        self.state = State.IDLE
+        self.state = IDLE
         return self._start_next(now)
 
     def disconnected(self) -> None:
         """The driver closes the port on purpose (reopen); requests wait.  Only when idle."""
-        if self.state is not State.IDLE:
+        if self.state is not IDLE:
             raise InvalidArgument(f"cannot take the line offline while {self.state.value}")
-        self.state = State.OFFLINE
+        self.state = OFFLINE
         self.deadline = INF
 
     def lost(self, reason: str, *, reconnect: bool) -> None:
         """The port went away: everything waiting fails with PortLost."""
-        if self.state in (State.CLOSED, State.LOST):
+        if self.state in (CLOSED, LOST):
             return
-        draining = self.state is State.DRAINING
+        draining = self.state is DRAINING
         current, self._current = self._current, None
         if current is not None:
             current.reject(PortLost(reason))
         self.queue.fail_all(PortLost(reason))
         self.deadline = INF
         if reconnect and not draining:
-            self.state = State.LOST  # the source stays attached and resumes after the reconnect
+            self.state = LOST  # the source stays attached and resumes after the reconnect
         else:
-            self.state = State.CLOSED
+            self.state = CLOSED
             self._detach(PortLost(reason))
 
     def close(self) -> None:
         """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""
-        if self.state in (State.CLOSED, State.DRAINING):
+        if self.state in (CLOSED, DRAINING):
             return
         self._detach(BusClosed("bus closed"))
         self.queue.fail_all(BusClosed("bus closed"))
-        if self.state is State.BUSY:
-            self.state = State.DRAINING
+        if self.state is BUSY:
+            self.state = DRAINING
         else:
-            self.state = State.CLOSED
+            self.state = CLOSED
             self.deadline = INF
 
     def abort(self) -> None:
@@ -125,20 +130,20 @@ class LineEngine(FailureRules):
         current, self._current = self._current, None
         if current is not None:
             current.reject(BusClosed("bus closed"))
-        self.state = State.CLOSED
+        self.state = CLOSED
         self.deadline = INF
 
     @property
     def idle(self) -> bool:
         """Nothing on the wire, resyncing or queued."""
-        return self.state not in (State.BUSY, State.QUIET, State.DRAINING) and not self.queue
+        return self.state not in (BUSY, QUIET, DRAINING) and not self.queue
 
     def submit(self, request: Request, now: float) -> bytes | None:
         state = self.state
-        if state is State.IDLE or state is State.BUSY or state is State.QUIET or state is State.OFFLINE:
+        if state is IDLE or state is BUSY or state is QUIET or state is OFFLINE:
             self.queue.push(request)
-            return self._start_next(now) if state is State.IDLE else None
-        if state is State.LOST:
+            return self._start_next(now) if state is IDLE else None
+        if state is LOST:
             raise PortLost("the port is lost; reconnecting")
         raise BusClosed("bus is closed")
 
@@ -146,7 +151,7 @@ class LineEngine(FailureRules):
         """Let ``source`` fill the line's idle time (one at a time)."""
         if self._source is not None and self._source is not source:
             raise InvalidArgument("this bus already runs a stream; close it first")
-        if self.state is State.CLOSED or self.state is State.DRAINING:
+        if self.state is CLOSED or self.state is DRAINING:
             raise BusClosed("bus is closed")
         self._source = source
         return self.kick(now)
@@ -162,26 +167,26 @@ class LineEngine(FailureRules):
 
     def kick(self, now: float) -> bytes | None:
         """The source has work again (new targets, or it was just attached)."""
-        return self._start_next(now) if self.state is State.IDLE else None
+        return self._start_next(now) if self.state is IDLE else None
 
     # ------------------------------------------------------------------ the line talking
 
     def receive(self, data: bytes, now: float) -> bytes | None:
         state = self.state
-        if state is State.BUSY or state is State.DRAINING:
+        if state is BUSY or state is DRAINING:
             buf = self._buf
             if not buf:
                 self._t_first = now
             buf += data
             if len(buf) >= self._expect:
                 return self._finish(now)
-        elif state is State.QUIET:
+        elif state is QUIET:
             self.counters.stray += len(data)
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
                 self.link.stray(data, now)
             self._quiet_until = now + self.timing.quiet_time + self.link.extra
             self.deadline = min(self._quiet_until, self._resync_limit)
-        elif state is State.IDLE:
+        elif state is IDLE:
             # Bytes on an idle line: a late reply or noise.  Let it settle first.
             self.counters.stray += len(data)
             if self.debug:
@@ -192,7 +197,7 @@ class LineEngine(FailureRules):
     def line_error(self, count: int) -> None:
         """The port saw ``count`` bytes arrive with parity or framing errors."""
         self.counters.line_errors += count
-        if self.state is State.BUSY or self.state is State.DRAINING:
+        if self.state is BUSY or self.state is DRAINING:
             self._corrupted = True  # the transaction fails once its bytes are all in
 
     def tick(self, now: float) -> bytes | None:
@@ -205,9 +210,9 @@ class LineEngine(FailureRules):
         if now < self.deadline:
             return None
         state = self.state
-        if state is State.BUSY or state is State.DRAINING:
+        if state is BUSY or state is DRAINING:
             return self._timeout(now)
-        if state is State.QUIET:
+        if state is QUIET:
             if now < self._quiet_until and now < self._resync_limit:
                 self.deadline = min(self._quiet_until, self._resync_limit)
                 return None
@@ -215,9 +220,9 @@ class LineEngine(FailureRules):
                 log.warning("line never went quiet; carrying on")
             self.flush_input = True
             self.link.resync_over()
-            self.state = State.IDLE
+            self.state = IDLE
             return self._start_next(now)
-        if state is State.IDLE:
+        if state is IDLE:
             return self._start_next(now)
         return None
 
@@ -238,7 +243,7 @@ class LineEngine(FailureRules):
             job = source.next_transaction(now)
             if job is not None:
                 self._owner = source
-                return self._begin(job[0], job[1], job[2], None, Timing.NORMAL, now)
+                return self._begin(job[0], job[1], job[2], None, NORMAL, now)
             if queue.count:  # the source yielded its turn but requests still wait
                 return self._start_next(now)
             self.deadline = source.wake_at
@@ -256,7 +261,7 @@ class LineEngine(FailureRules):
                     self.queue.push_front(req)
                 self.counters.guards += 1
                 return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard), guard.timing, now)
-        self.state = State.BUSY
+        self.state = BUSY
         self._current = req
         self._current_id = NO_ID if servo_id is None else servo_id
         self._tx = tx
@@ -267,7 +272,7 @@ class LineEngine(FailureRules):
         self._corrupted = False
         self._t_start = now
         nbytes = len(tx) + reply_len
-        allowance = self._allowances.get(nbytes) if timing is Timing.NORMAL else None
+        allowance = self._allowances.get(nbytes) if timing is NORMAL else None
         if allowance is None:
             allowance = self._allowance(nbytes, timing)
         self._base = allowance
@@ -276,7 +281,7 @@ class LineEngine(FailureRules):
 
     def _allowance(self, nbytes: int, timing: Timing) -> float:
         allowance = self.timing.allowance(nbytes, self.baudrate, timing)
-        if timing is Timing.NORMAL:
+        if timing is NORMAL:
             self._allowances[nbytes] = allowance
         elif timing is Timing.PROBE:
             allowance = self.probe.allowance(allowance, wire_time(nbytes, self.baudrate))
@@ -328,13 +333,17 @@ class LineEngine(FailureRules):
             req.resolve(value)
             self.probe.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
         # The next command goes on the wire first; the bookkeeping can wait.
-        if self.state is State.BUSY:
-            self.state = State.IDLE
+        if self.state is BUSY:
+            self.state = IDLE
             out = self._start_next(now)
         else:  # draining: that was the last transaction
-            self.state, self.deadline, out = State.CLOSED, INF, None
+            self.state, self.deadline, out = CLOSED, INF, None
         counters.ok[sid] += 1
-        counters.latency.add(latency)
+        hist = counters.latency  # LatencyHistogram.add, inline: this runs once per transaction
+        hist.counts[int(latency * 1e6).bit_length()] += 1
+        hist.sum_s += latency
+        if latency > hist.max_s:
+            hist.max_s = latency
         link = self.link
         if link.extra or link.owed_since != INF:
             if link.extra:

@@ -35,6 +35,11 @@ class ParityMarks:
     def __init__(self) -> None:
         self._pending = b""
 
+    @property
+    def pending(self) -> bool:
+        """A mark split across reads waits for its next byte: the next chunk must be decoded."""
+        return bool(self._pending)
+
     def decode(self, data: bytes) -> tuple[bytes, int]:
         if self._pending:
             data = self._pending + data
