@@ -7,6 +7,10 @@ position transaction (write 3 bytes, read 6) each:
 * ``raw``: a blocking pyserial ``write`` / ``read(6)`` loop, the baseline;
 * ``floor``: bare ``os.write`` / ``poll`` / ``os.read``, no checks: what the
   pty and the responder leave to any client;
+* per event loop, its own floors (:mod:`bench_floors`): ``loop floor stream``
+  (a reader callback that writes the next command: one loop pass per
+  transaction) and ``loop floor sequential`` (an awaited future per
+  transaction);
 * for each driver x event loop: ``sequential`` (``await servo.set_position``
   in a loop) and ``stream`` (``bus.stream(range(32))``, every ID free: each
   transaction a free command that reads the position back; a consumer awaits
@@ -31,6 +35,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import bench_floors
 from bench_common import IDS, NEUTRAL, loop_names, median, progress, run_on
 from bench_overhead import lean_loop, raw_loop
 from lean_responder import lean_lines
@@ -40,9 +45,8 @@ from ics35_async import IcsError, open_bus
 Figures = dict[str, Any]
 
 DRIVERS: tuple[str | None, ...] = ("asyncio", "thread", "anyio")
-"""The drivers to measure.  ``None`` is ``open_bus``'s default (today the only one).  When ``open_bus``
-grows ``driver=``, list them here, e.g. ``("asyncio", "thread", "anyio")``: every row, table and ratio
-follows from this tuple."""
+"""The drivers to measure (``None`` would be ``open_bus``'s default, asyncio under asyncio): every row,
+table and ratio in sections A and B follows from this tuple."""
 
 BUS_OPTIONS: dict[str, Any] = {"adapter_latency": 0.010}
 """A pty has no USB latency timer; 10 ms keeps false timeouts rare on a busy machine (they are counted)."""
@@ -109,6 +113,11 @@ def stream(path: str, driver: str | None, loop: str, duration: float, warmup_cyc
 def rows_to_measure() -> list[tuple[str, Callable[[str, float], Figures]]]:
     """(row name, measure(path, duration)) for the floor and every driver x loop x kind."""
     rows: list[tuple[str, Callable[[str, float], Figures]]] = [("floor", lean_loop)]
+    for loop in loop_names():
+        rows.append((f"loop floor stream {loop}", lambda path, d, loop=loop: bench_floors.loop_stream(path, loop, d)))
+        rows.append(
+            (f"loop floor sequential {loop}", lambda path, d, loop=loop: bench_floors.loop_sequential(path, loop, d))
+        )
     for driver, loop in itertools.product(DRIVERS, loop_names()):
         for kind, fn in (("sequential", sequential), ("stream", stream)):
             name = f"{kind} {driver_name(driver)}/{loop}"
@@ -123,6 +132,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
     figures: dict[str, list[Figures]] = {name: [] for name, _ in rows}
     rate_ratio: dict[str, list[float]] = {name: [] for name, _ in rows}
     cpu_ratio: dict[str, list[float]] = {name: [] for name, _ in rows}
+    engine_runs: list[Figures] = []
     with lean_lines(1) as (path,):
         for r in range(runs):
             progress(f"cpu: run {r + 1}/{runs}")
@@ -135,6 +145,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
                 rate_ratio[name].append(f["tx_per_s"] / ((a["tx_per_s"] + b["tx_per_s"]) / 2))
                 cpu_ratio[name].append(f["cpu_us_per_tx"] / ((a["cpu_us_per_tx"] + b["cpu_us_per_tx"]) / 2))
             raw_runs.append({k: statistics.mean(f[k] for f in raws) for k in ("tx_per_s", "cpu_us_per_tx")})
+            engine_runs.append(bench_floors.engine_alone())
 
     def medians(runs_: list[Figures]) -> Figures:
         return {k: median([f[k] for f in runs_]) for k in runs_[0]}
@@ -145,6 +156,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
         "duration_s": duration,
         "drivers": [driver_name(d) for d in DRIVERS],
         "raw": {**medians(raw_runs), "per_run": raw_runs},
+        "engine_alone": medians(engine_runs),
         "rows": [
             {
                 "row": name,
@@ -174,6 +186,48 @@ def print_table(r: dict[str, Any]) -> None:
         print(
             f"  {name:34} {row['tx_per_s']:8.0f} {row['cpu_us_per_tx']:10.1f} {row['rate_vs_raw']:9.2f} "
             f"{row['cpu_vs_raw']:8.2f}{fails}"
+        )
+    if "engine_alone" in r:
+        print_breakdown(r)
+
+
+def breakdown(r: dict[str, Any]) -> list[dict[str, Any]]:
+    """Where a stream transaction's CPU goes, per driver x loop: the layers under it, from this run's rows."""
+    rows = {row["row"]: row for row in r["rows"]}
+    floor = rows["floor"]["cpu_us_per_tx"]
+    engine = r["engine_alone"]["cpu_us_per_tx"]
+    out = []
+    for row in r["rows"]:
+        if not row["row"].startswith("stream "):
+            continue
+        driver, loop = row["row"][len("stream ") :].split("/")
+        loop_floor = rows.get(f"loop floor stream {loop}")
+        # The thread driver's hot loop is a poll loop of its own: its floor is the bare one.
+        below = floor if driver == "thread" or loop_floor is None else loop_floor["cpu_us_per_tx"]
+        out.append(
+            {
+                "row": row["row"],
+                "total": row["cpu_us_per_tx"],
+                "pty_and_syscalls": floor,
+                "event_loop": below - floor,
+                "engine_and_stream_alone": engine,
+                "ours_beyond_the_floors": row["cpu_us_per_tx"] - below,
+            }
+        )
+    return out
+
+
+def print_breakdown(r: dict[str, Any]) -> None:
+    print("\n   Where a stream transaction's CPU goes (us per transaction, this run's medians):")
+    print("   floor = the bare os.write/poll/os.read loop (the pty and the system calls any client pays);")
+    print("   loop = that event loop's own pass (its loop floor minus the floor; the thread driver has none);")
+    print("   ours = everything above those floors: engine, stream, driver, run between system calls;")
+    print(f"   engine alone = the engine and stream with no I/O at all: {r['engine_alone']['cpu_us_per_tx']:.1f} us")
+    print(f"  {'row':26} {'total':>6} {'floor':>6} {'loop':>6} {'ours':>6}")
+    for b in breakdown(r):
+        print(
+            f"  {b['row']:26} {b['total']:6.1f} {b['pty_and_syscalls']:6.1f} {b['event_loop']:6.1f} "
+            f"{b['ours_beyond_the_floors']:6.1f}"
         )
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from typing import Any
 
@@ -32,6 +33,15 @@ from lean_responder import lean_lines
 from ics35_async import BusGroup
 
 Figures = dict[str, Any]
+
+
+def cpu_ticks() -> tuple[int, int]:
+    """(busy, total) jiffies of every core together, from /proc/stat."""
+    with open("/proc/stat") as stat:
+        fields = [int(x) for x in stat.readline().split()[1:]]
+    idle = fields[3] + fields[4]  # idle + iowait
+    total = sum(fields[:8])  # guest time is already counted in user
+    return total - idle, total
 
 
 def group_stream(
@@ -49,11 +59,12 @@ def group_stream(
             first = await gs.next_frame()
             while time.perf_counter() < t_warm:
                 first = await gs.next_frame()
-            wall0, cpu0 = time.perf_counter(), time.process_time()
+            wall0, cpu0, ticks0 = time.perf_counter(), time.process_time(), cpu_ticks()
             frame = first
             while (now := time.perf_counter()) - wall0 < duration:
                 frame = await gs.next_frame()
             cpu = time.process_time() - cpu0
+            ticks1 = cpu_ticks()
             failures = sum(sum(s.failures.values()) for s in gs.stats.values())
         wall = now - wall0
         per_line = [(frame.line_cycles[k] - first.line_cycles[k]) / wall for k in ports]
@@ -64,6 +75,10 @@ def group_stream(
             "aggregate_cycles_per_s": total,
             "cpu_us_per_tx": cpu / (total * wall * len(IDS)) * 1e6 if total else float("nan"),
             "failures": failures,
+            # How busy the whole machine was (this client, the responder, the kernel, other tenants),
+            # and this client's share of all cores: 1.0 means no core had time to spare.
+            "machine_busy": (ticks1[0] - ticks0[0]) / max(1, ticks1[1] - ticks0[1]),
+            "client_share": cpu / (wall * (os.cpu_count() or 1)),
         }
 
     return run_on(loop, measure)
@@ -99,6 +114,8 @@ def run(runs: int = 3, duration: float = 1.5, lines: int = 4, baud: int = 125000
                 "aggregate_cycles_per_s": many_rate,
                 "aggregate_cpu_us_per_tx": median([f["cpu_us_per_tx"] for f in many[name]]),
                 "aggregate_vs_one_line": median(ratios),
+                "machine_busy_all_lines": median([f["machine_busy"] for f in many[name]]),
+                "client_share_all_lines": median([f["client_share"] for f in many[name]]),
                 "aggregate_vs_one_line_per_run": ratios,
                 "failures": sum(f["failures"] for f in one[name] + many[name]),
                 "per_run": {"one": one[name], "many": many[name]},
@@ -125,15 +142,20 @@ def print_table(r: dict[str, Any]) -> None:
         f"{r['raw_one_line_cycles_per_s']:.0f} cycles/s"
     )
     print(
+        "   busy = the whole machine's CPU use while all lines ran (every core; 100 % = none to spare); "
+        "client = this process's share of it"
+    )
+    print(
         f"  {'variant':20} {'1 line cyc/s':>12} {'CPU us/tx':>10} {'all lines cyc/s':>16} {'CPU us/tx':>10} "
-        f"{'x one':>6}"
+        f"{'x one':>6} {'busy':>6} {'client':>7}"
     )
     for row in r["rows"]:
         fails = f"  ({row['failures']} failed)" if row["failures"] else ""
         print(
             f"  {row['variant']:20} {row['one_line_cycles_per_s']:12.0f} {row['one_line_cpu_us_per_tx']:10.1f} "
             f"{row['aggregate_cycles_per_s']:16.0f} {row['aggregate_cpu_us_per_tx']:10.1f} "
-            f"{row['aggregate_vs_one_line']:6.2f}{fails}"
+            f"{row['aggregate_vs_one_line']:6.2f} {row.get('machine_busy_all_lines', float('nan')):6.0%} "
+            f"{row.get('client_share_all_lines', float('nan')):7.0%}{fails}"
         )
 
 
