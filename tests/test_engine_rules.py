@@ -69,7 +69,7 @@ def test_a_late_reply_lands_in_the_guard_and_the_twin_gets_its_own() -> None:
     assert wire.engine.counters.snapshot(0).per_id[3].bad_replies == 1  # the guard took the blow
 
 
-def test_a_guard_that_times_out_arms_no_further_guard() -> None:
+def test_a_guard_that_times_out_does_not_guard_the_command_it_protected_again() -> None:
     wire, servos = line({3})
     servos.mute = {0, 1}  # the command and its guard go unanswered
     first, twin = Recorded(read(3)), Recorded(read(3))
@@ -266,8 +266,6 @@ def test_a_request_cancelled_on_the_wire_that_times_out_is_not_retried() -> None
     assert wire.sent() == [read(3).tx] and req.state == "cancelled"
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug: a guard that times out arms no guard, so its own late reply "
-                   "is taken by the next command of the guard's shape when that is not the command it protected")
 def test_a_timed_out_guards_late_reply_is_not_taken_for_the_next_commands_reply() -> None:
     wire, servos = line({3})
     servos.mute = {0, 1}  # the read and its guard go unanswered in time

@@ -1,14 +1,18 @@
-"""The guard read: a harmless read between a timed-out command and its twin.
+"""The guard read: a harmless read between a timed-out command and the next command its reply would fit.
 
 A reply that missed its deadline can still arrive right after the echo of
 the next command.  If that command has the same command byte (a retry, a
-one-servo stream), the late reply has the right length and header and would
+one-servo stream), the late reply may have the right length and header and
 be taken for the new answer: no check can see it.  So after a timeout the
 engine remembers the command byte, and if the next command has it, a
 parameter read with a different reply shape goes first, so late bytes fail
-that read, not the real request.  A guard that times out arms no further
-guard: its own late reply always differs in shape from the command it
-protects.
+that read, not the real request.
+
+A guard that times out is remembered by its whole reply shape (command byte
+and sub-command) instead: the command it protects differs from it in
+sub-command and goes straight on (a silent servo never loops through
+guards), while another read of the guard's own shape gets a guard too, so
+the guard's late reply cannot pass for its answer.
 """
 
 from __future__ import annotations
@@ -20,16 +24,16 @@ class GuardRule:
     __slots__ = ("suspect",)
 
     def __init__(self) -> None:
-        self.suspect = -1  # command byte of a timed-out command whose reply may still come
+        self.suspect = b""  # what a command must start with to fit a reply that may still come
 
     def timed_out(self, tx: bytes, *, heard: bool, was_guard: bool) -> None:
         """A transaction timed out; ``heard``: its echo was right, so a servo may still answer."""
-        if heard and not was_guard:
-            self.suspect = tx[0]
+        if heard:
+            self.suspect = tx[:2] if was_guard else tx[:1]  # a guard is a parameter read: header + sub-command
 
     def before(self, tx: bytes, servo_id: int | None) -> ReadParam | None:
         """The guard read to send before ``tx``, if it needs one (the suspicion lasts one command)."""
-        suspect, self.suspect = self.suspect, -1
-        if tx[0] == suspect and servo_id is not None:
+        suspect, self.suspect = self.suspect, b""
+        if suspect and servo_id is not None and tx.startswith(suspect):
             return guard_read(tx, servo_id)
         return None

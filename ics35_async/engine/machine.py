@@ -254,7 +254,7 @@ class LineEngine(FailureRules):
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
     ) -> bytes:
-        if self.guard.suspect >= 0:
+        if self.guard.suspect:  # a reply may still come (see .guard)
             guard = self.guard.before(tx, servo_id)
             if guard is not None:  # a read of another shape first (see .guard)
                 if req is not None:
