@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 import threading
 from collections.abc import Callable
@@ -91,6 +92,7 @@ class ThreadDriver:
         self._stopping = False  # the same, as a plain flag for the hot loop
         self._waiting_until = INF  # when the I/O thread's current wait ends (it is woken for earlier)
         self._idle_waiters: list[asyncio.Future[None]] = []
+        self._write_error: OSError | None = None
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
 
@@ -165,8 +167,12 @@ class ThreadDriver:
         while True:
             try:
                 self._serve(io)
-            except OSError as exc:
+            except Exception as exc:
                 io.close()
+                if not isinstance(exc, OSError):  # a bug: callers must not wait for a thread that is gone
+                    log.error("the I/O thread of %s failed", self.port, exc_info=exc)
+                    self._lose(OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}"), reconnect=False)
+                    return
                 if not self._lose(exc):
                     return
                 reopened = self._reconnect()
@@ -190,6 +196,9 @@ class ThreadDriver:
             with lock:
                 if self._stopping:
                     return
+                if self._write_error is not None:  # a write from the caller's thread failed
+                    error, self._write_error = self._write_error, None
+                    raise error
                 t = now()
                 if not data and t >= engine.deadline:
                     # Bytes that came while this thread waited for the lock are not late.
@@ -212,14 +221,14 @@ class ThreadDriver:
                     self._release_idle()
                 self._waiting_until = engine.deadline
 
-    def _lose(self, exc: OSError) -> bool:
+    def _lose(self, exc: OSError, *, reconnect: bool = True) -> bool:
         """The port went away: tell the engine; True if it should be reopened."""
         with self.lock:
             engine = self.engine
             reason = f"port {self.port} lost: {exc}"
             if engine.state not in (State.CLOSED, State.DRAINING) and not self._stop.is_set():
                 log.warning("%s", reason)
-            engine.lost(reason, reconnect=self.settings.reconnect)
+            engine.lost(reason, reconnect=reconnect and self.settings.reconnect)
             self._release_idle()
             return engine.state is State.LOST and not self._stop.is_set()
 
@@ -252,8 +261,9 @@ class ThreadDriver:
             return
         try:
             io.write(out)
-        except OSError as exc:  # the I/O thread finds the port gone at its next wait
+        except Exception as exc:  # the port is gone: the I/O thread raises it at its next turn
             log.debug("write to %s failed: %s", self.port, exc)
+            self._write_error = exc if isinstance(exc, OSError) else OSError(errno.EIO, f"write failed: {exc!r}")
             io.wake()
 
     def _after_call(self, out: bytes | None) -> None:
