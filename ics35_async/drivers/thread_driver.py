@@ -92,7 +92,7 @@ class ThreadDriver:
         self._stopping = False  # the same, as a plain flag for the hot loop
         self._waiting_until = INF  # when the I/O thread's current wait ends (it is woken for earlier)
         self._idle_waiters: list[asyncio.Future[None]] = []
-        self._write_error: OSError | None = None
+        self._write_error: tuple[ThreadPort, OSError] | None = None  # from a write in the caller's thread
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
 
@@ -168,12 +168,14 @@ class ThreadDriver:
             try:
                 self._serve(io)
             except Exception as exc:
-                io.close()
                 if not isinstance(exc, OSError):  # a bug: callers must not wait for a thread that is gone
                     log.error("the I/O thread of %s failed", self.port, exc_info=exc)
                     self._lose(OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}"), reconnect=False)
+                    io.close()
                     return
-                if not self._lose(exc):
+                again = self._lose(exc)
+                io.close()  # after the engine knows: nothing is written to a closed port meanwhile
+                if not again:
                     return
                 reopened = self._reconnect()
                 if reopened is None:
@@ -197,8 +199,10 @@ class ThreadDriver:
                 if self._stopping:
                     return
                 if self._write_error is not None:  # a write from the caller's thread failed
-                    error, self._write_error = self._write_error, None
-                    raise error
+                    failed, error = self._write_error
+                    self._write_error = None
+                    if failed is io:  # not an error of a port already replaced
+                        raise error
                 t = now()
                 if not data and t >= engine.deadline:
                     # Bytes that came while this thread waited for the lock are not late.
@@ -228,6 +232,7 @@ class ThreadDriver:
             reason = f"port {self.port} lost: {exc}"
             if engine.state not in (State.CLOSED, State.DRAINING) and not self._stop.is_set():
                 log.warning("%s", reason)
+            self._io = None  # callers write nothing more to it
             engine.lost(reason, reconnect=reconnect and self.settings.reconnect)
             self._release_idle()
             return engine.state is State.LOST and not self._stop.is_set()
@@ -263,7 +268,8 @@ class ThreadDriver:
             io.write(out)
         except Exception as exc:  # the port is gone: the I/O thread raises it at its next turn
             log.debug("write to %s failed: %s", self.port, exc)
-            self._write_error = exc if isinstance(exc, OSError) else OSError(errno.EIO, f"write failed: {exc!r}")
+            error = exc if isinstance(exc, OSError) else OSError(errno.EIO, f"write failed: {exc!r}")
+            self._write_error = (io, error)
             io.wake()
 
     def _after_call(self, out: bytes | None) -> None:
