@@ -26,7 +26,14 @@ import serial.rfc2217
 
 from ..transports import WireDevice
 from ..transports.direct import ParityMarks, enable_parity_marks
-from ..transports.serial_port import TermiosError, hung_up, open_serial, posix_fd
+from ..transports.serial_port import (
+    TermiosError,
+    discard_blocking_input,
+    hung_up,
+    open_serial,
+    posix_fd,
+    write_blocking,
+)
 from ..transports.wire_device import device_factory
 
 try:
@@ -195,19 +202,11 @@ class SerialWait:
                 self._cancel()
 
     def write(self, data: bytes) -> None:
-        try:
-            self.serial.write(data)
-        except serial.SerialException:
-            raise
-        except Exception as exc:
-            raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
+        write_blocking(self.serial, data)
 
     def discard_input(self) -> None:
-        # pyserial's RFC 2217 purge waits for the far end (in 50 ms sleeps): the engine's quiet
-        # time does the job there instead.
-        if not isinstance(self.serial, serial.rfc2217.Serial):
-            with contextlib.suppress(Exception):
-                self.serial.reset_input_buffer()
+        with contextlib.suppress(Exception):
+            discard_blocking_input(self.serial)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

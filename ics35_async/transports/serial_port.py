@@ -10,6 +10,7 @@ import select
 from typing import Any
 
 import serial
+import serial.rfc2217
 from serial.rs485 import RS485Settings
 
 from ..errors import (
@@ -248,3 +249,24 @@ def hung_up(fd: int) -> bool:
     poller = select.poll()
     poller.register(fd, select.POLLIN)
     return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
+
+
+def write_blocking(ser: serial.SerialBase, data: bytes) -> None:
+    """Write on a pyserial port read by a thread; a URL handler's own error comes out as an OSError."""
+    try:
+        ser.write(data)
+    except serial.SerialException:
+        raise
+    except Exception as exc:
+        raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
+
+
+def discard_blocking_input(ser: serial.SerialBase) -> None:
+    """Drop a thread-read port's input, except over RFC 2217.
+
+    pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps),
+    past the next transaction's deadline; the engine's quiet time does the job
+    there instead.
+    """
+    if not isinstance(ser, serial.rfc2217.Serial):
+        ser.reset_input_buffer()

@@ -10,7 +10,7 @@ import time
 import serial
 import serial.rfc2217
 
-from .serial_port import READ_POLL
+from .serial_port import READ_POLL, discard_blocking_input, write_blocking
 from .wire_device import HostSide
 
 
@@ -61,20 +61,10 @@ class ThreadedSerialDevice:
             self._serial.close()
 
     def write(self, data: bytes) -> None:
-        try:
-            self._serial.write(data)
-        except serial.SerialException:
-            raise
-        except Exception as exc:
-            raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
+        write_blocking(self._serial, data)
 
     def discard_input(self) -> None:
-        if isinstance(self._serial, serial.rfc2217.Serial):
-            # pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps), blocking the
-            # event loop past the next transaction's deadline.  The reader thread forwards bytes as
-            # they come, so nothing sits here to drop; the bus waits for a quiet line instead.
-            return
-        self._serial.reset_input_buffer()
+        discard_blocking_input(self._serial)
 
     def disconnect(self) -> None:
         self._stop.set()
