@@ -35,6 +35,8 @@ log = logging.getLogger("ics35_async")
 
 T = TypeVar("T")
 
+_URGENT, _LOW = int(Priority.URGENT), int(Priority.LOW)  # per request: no enum lookups on the way
+
 # Delays between reopen attempts; capped well under 1 s so a returning port is found fast.
 RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
@@ -211,7 +213,7 @@ class Bus:
         """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver)."""
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
-        check_int("priority", priority, Priority.URGENT, Priority.LOW)
+        check_int("priority", priority, _URGENT, _LOW)
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         driver = self._driver
         if driver is None:

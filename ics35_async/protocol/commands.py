@@ -26,7 +26,7 @@ from ..errors import (
     ReplyValueError,
 )
 from ..units import check_int
-from .hot_path import position_reply_header, position_tx
+from .hot_path import position_from_reply, position_reply_header, position_tx
 from .wire import (
     CMD_ID,
     CMD_READ,
@@ -136,7 +136,11 @@ class Position(Command[int]):
         self.reply_header = position_reply_header(servo_id, self.baudrate)
 
     def parse(self, reply: bytes) -> int:
-        self._check_length(reply)
+        if len(reply) == 3:
+            position = position_from_reply(reply, 0, self.reply_header)
+            if position >= 0:
+                return position
+        self._check_length(reply)  # something is wrong: name it
         self._check_header(reply, self.reply_header)
         self._check_7bit(reply, 1)
         return join7(reply[1], reply[2])

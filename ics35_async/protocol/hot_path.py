@@ -15,10 +15,13 @@ def position_tx(servo_id: int, position: int) -> bytes:
     return bytes((CMD_POSITION | servo_id, (position >> 7) & 0x7F, position & 0x7F))
 
 
+_B115200 = int(BaudRate.B115200)
+
+
 def position_reply_header(servo_id: int, baudrate: int) -> int:
     """The first byte of a position reply; ID 0 at 115200 keeps the MSB (ICS 2.0)."""
     cmd = CMD_POSITION | servo_id
-    return cmd if (servo_id == 0 and baudrate == BaudRate.B115200) else cmd & 0x7F
+    return cmd if (servo_id == 0 and baudrate == _B115200) else cmd & 0x7F
 
 
 def position_from_reply(buf: bytes | bytearray, offset: int, header: int) -> int:

@@ -61,7 +61,14 @@ def check_id(servo_id: object) -> int:
     return check_int("servo ID", servo_id, 0, MAX_ID)
 
 
+_BAUD_BY_INT = {int(b): b for b in BaudRate}  # check_baud's common case, without building an enum member
+
+
 def check_baud(baudrate: object) -> BaudRate:
+    if type(baudrate) is int or type(baudrate) is BaudRate:
+        known = _BAUD_BY_INT.get(baudrate)
+        if known is not None:
+            return known
     return BaudRate.parse(baudrate)
 
 
