@@ -8,10 +8,14 @@ test_stream.py.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
+import tty
 
 import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
+from ics35_async.drivers.thread_ports import FdWait
 from ics35_async.sim import VirtualLine, VirtualServo
 
 FAST = {"adapter_latency": 0.02, "quiet_time": 0.002}
@@ -54,3 +58,42 @@ async def test_a_failure_in_the_io_thread_fails_its_callers_instead_of_leaving_t
             await asyncio.wait_for(bus.request(protocol.ReadParam(1, protocol.Param.STRETCH)), 5)
     finally:
         await asyncio.wait_for(bus.aclose(), 5)
+
+
+class _PtySlave:
+    """The least of a pyserial port FdWait needs: a descriptor, and closing it."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains() -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = FdWait(_PtySlave(slave))  # type: ignore[arg-type]
+    try:
+        filled = 0
+        while True:  # nobody reads the far end: fill the pty until it takes no more
+            try:
+                filled += os.write(slave, b"x" * 4096)
+            except BlockingIOError:
+                break
+        port.write(b"\x81\x3a\x4c")
+        assert port.wait(0.01) == b""  # still nowhere to put it
+        os.set_blocking(master, False)
+        drained = b""
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                drained += os.read(master, 65536)
+        assert len(drained) == filled
+        port.wait(1.0)  # room again: the wait sends what was left
+        assert os.read(master, 16) == b"\x81\x3a\x4c"
+    finally:
+        port.close()
+        os.close(master)

@@ -97,6 +97,7 @@ class FdWait:
         self._poll.register(self.fd, select.POLLIN)
         self._poll.register(self._wake_r, select.POLLIN)
         self._pending = bytearray()  # what a partial write left
+        self._pending_lock = threading.Lock()  # writes come from either thread; flushes from the I/O thread
 
     def wait(self, timeout: float | None) -> bytes:
         # poll counts whole milliseconds: round up, so a deadline is never judged early.
@@ -135,29 +136,33 @@ class FdWait:
         return data
 
     def wake(self) -> None:
-        with contextlib.suppress(BlockingIOError):  # a full pipe: a wake-up is pending anyway
+        # A full pipe: a wake-up is pending anyway.  A closed one: nobody is left to wake.
+        with contextlib.suppress(OSError):
             os.write(self._wake_w, b"\0")
 
     def write(self, data: bytes) -> None:
-        if self._pending:
-            self._pending += data
-            return
-        try:
-            n = os.write(self.fd, data)
-        except (BlockingIOError, InterruptedError):
-            n = 0
-        if n < len(data):
-            self._pending += data[n:]
-            self._poll.modify(self.fd, select.POLLIN | select.POLLOUT)
+        with self._pending_lock:
+            if self._pending:
+                self._pending += data
+                return
+            try:
+                n = os.write(self.fd, data)
+            except (BlockingIOError, InterruptedError):
+                n = 0
+            if n < len(data):
+                self._pending += data[n:]
+                self._poll.modify(self.fd, select.POLLIN | select.POLLOUT)
+                self.wake()  # a wait already under way does not watch for POLLOUT yet
 
     def _flush(self) -> None:
-        try:
-            n = os.write(self.fd, self._pending)
-        except (BlockingIOError, InterruptedError):
-            return
-        del self._pending[:n]
-        if not self._pending:
-            self._poll.modify(self.fd, select.POLLIN)
+        with self._pending_lock:
+            try:
+                n = os.write(self.fd, self._pending)
+            except (BlockingIOError, InterruptedError):
+                return
+            del self._pending[:n]
+            if not self._pending:
+                self._poll.modify(self.fd, select.POLLIN)
 
     def discard_input(self) -> None:
         with contextlib.suppress(OSError, TermiosError):
