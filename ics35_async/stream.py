@@ -213,14 +213,14 @@ class Stream:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
 
-    def line_closed(self, exc: IcsError) -> None:
-        self._end_error = exc
-        self._stop()
-
     def _advance(self, now: float) -> None:
         self._pos += 1
         if self._pos >= len(self._order):
             self._publish(now)
+
+    def line_closed(self, exc: IcsError) -> None:
+        self._end_error = exc
+        self._stop(detach=False)  # the engine has detached us already (and may hold its driver's lock)
 
     # ------------------------------------------------------------------ cycles
 
@@ -381,12 +381,13 @@ class Stream:
         with contextlib.suppress(IcsError):
             await self.bus.request(protocol.Position(servo_id, protocol.FREE, baudrate=self.bus.baudrate))
 
-    def _stop(self) -> None:
+    def _stop(self, *, detach: bool = True) -> None:
         self._running = False
         self._closed = True
         self._cur = -1
         self.wake_at = INF
-        self.bus.detach_source(self)
+        if detach:
+            self.bus.detach_source(self)
         self.bus.notify(self._wake_waiters)
 
     async def __aenter__(self) -> Stream:

@@ -512,10 +512,11 @@ async def test_a_stream_on_a_closed_or_unopened_bus_raises_bus_closed() -> None:
     assert sim.transactions == 0
 
 
-async def test_losing_the_port_without_reconnect_ends_next_frame_with_port_lost() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_losing_the_port_without_reconnect_ends_next_frame_with_port_lost(driver: str) -> None:
     ids = [0, 1, 2, 3]
     sim = make_sim(ids)
-    async with streaming(sim, ids) as (bus, stream):
+    async with open_bus(sim, driver=driver, **FAST) as bus, bus.stream(ids) as stream:
         frames = [await next_frame(stream)]
         sim.unplug()
         with pytest.raises(PortLost):
