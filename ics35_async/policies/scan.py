@@ -7,10 +7,12 @@ the adapter's worst case, since most probed IDs are empty.  Each ID is probed
 once; a policy-level retry would only double the cost of every empty slot.
 Two exceptions: an ID whose reply came back garbled is probed again, to tell
 noise (answers the second time) from two servos sharing the ID (garbled
-again); and if any reply came garbled or any bytes arrived after a probe
-had given up (a servo slower than the probes waited lands in the next
-probe, or between probes), every silent ID is probed again with the normal
-allowance first, so a slow servo is never taken for an empty ID.
+again); and if any reply came garbled or wrong, or any bytes arrived after
+a probe had given up (a servo slower than the probes waited lands in the
+next probe, or between probes), every silent ID is probed again with the
+normal allowance first, so a slow servo is never taken for an empty ID.
+The last probe has nothing after it to catch its late reply, so a silent
+last ID is always read once more with the normal allowance.
 
 Before probing a rate's IDs one by one, an ID *read* (which every device at
 that rate answers) asks whether anyone is there at all: a rate where nothing
@@ -129,10 +131,12 @@ def _answered(outcomes: Mapping[int, ReplyError | None]) -> int:
     return sum(1 for e in outcomes.values() if e is None)
 
 
-def _late_evidence(line: Line) -> tuple[int, int]:
-    """Stray bytes and late replies so far: they grow when an answer comes after its wait."""
+def _late_evidence(line: Line) -> tuple[int, int, int]:
+    """What grows when an answer comes after its wait: stray bytes, late replies, and replies that
+    came wrong (another transaction's, a guard's) rather than not at all."""
     stats = line.stats
-    return stats.stray_bytes, stats.late_replies
+    total = stats.total
+    return stats.stray_bytes, stats.late_replies, total.partial_replies + total.echo_mismatches + total.bad_replies
 
 
 async def _id_read(line: Line) -> ReplyError | None:
@@ -190,11 +194,16 @@ async def probe_ids(
     async with anyio.create_task_group() as group:
         for i in wanted:
             group.start_soon(probe, i)
+    last = wanted[-1] if wanted else None
+    if last is not None and outcomes[last] is not None and nothing_came_back(outcomes[last]):  # type: ignore[arg-type]
+        # The last probe's late reply would land after every other probe: wait for it with the
+        # normal allowance (a guard read goes first and takes any late bytes, see engine.guard).
+        outcomes[last] = await _probe(line, last, short=False)
     silent_ids = [i for i, e in outcomes.items() if e is not None and nothing_came_back(e)]
-    if silent_ids and (_late_evidence(line) != late_before or len(silent_ids) + _answered(outcomes) < len(wanted)):
-        # Bytes came after a probe had given up (as strays, or garbling a later probe): some
-        # servo may answer slower than the probes waited.  Every silent ID once more with the
-        # normal allowance, so none is taken for empty.
+    if silent_ids and (_late_evidence(line) != late_before or len(silent_ids) + _answered(outcomes) < len(outcomes)):
+        # Bytes came after a probe had given up (as strays, in a guard, or garbling a later
+        # probe): some servo may answer slower than the probes waited.  Every silent ID once
+        # more with the normal allowance, so none is taken for empty.
         for i in silent_ids:
             outcomes[i] = await _probe(line, i, short=False)
     garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
