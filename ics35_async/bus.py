@@ -175,7 +175,8 @@ class Bus:
             try:
                 await driver.reopen(new_baud)
             except BaseException as exc:
-                self._engine.lost(f"reopening {self.port} failed: {exc}", reconnect=False)
+                reason = f"reopening {self.port} failed: {exc}"
+                driver.call(lambda t: self._engine.lost(reason, reconnect=False))
                 raise
         finally:
             self._reopening = False

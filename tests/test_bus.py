@@ -405,9 +405,10 @@ async def test_eeprom_write_is_checked_and_verified(line: tuple[VirtualLine, Bus
     assert sim.servo(6).calibration_intact and sim.servo(6).eeprom.baud_rate == 115200
 
 
-async def test_baud_change_then_reopen_at_the_new_rate() -> None:
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_baud_change_then_reopen_at_the_new_rate(driver: str) -> None:
     sim = VirtualLine([VirtualServo(1)])
-    async with open_bus(sim, **FAST) as bus:
+    async with open_bus(sim, driver=driver, **FAST) as bus:
         servo = bus.servo(1)
         image = await servo.read_eeprom()
         await servo.write_eeprom(image.replace(baud_rate=625000), allow_baud_change=True)

@@ -75,6 +75,21 @@ class ThreadRequest(Request):
             self.loop.call_soon_threadsafe(_set_exception, self.future, error)
 
 
+class _Run:
+    """One I/O thread's stop signal: a reopen starts a new thread with a new one, so a thread
+    that outlived its join can never serve the new port alongside its successor."""
+
+    __slots__ = ("stop", "stopping")
+
+    def __init__(self) -> None:
+        self.stop = threading.Event()  # for the reconnect back-off's sleep
+        self.stopping = False  # the same, as a plain flag for the hot loop
+
+    def end(self) -> None:
+        self.stopping = True
+        self.stop.set()
+
+
 class ThreadDriver:
     """Runs one :class:`LineEngine` in an I/O thread, for callers on the running asyncio loop."""
 
@@ -88,8 +103,7 @@ class ThreadDriver:
         self.lock = threading.Lock()
         self._io: ThreadPort | None = None
         self._thread: threading.Thread | None = None
-        self._stop = threading.Event()  # ends the I/O thread (and its reconnect back-off)
-        self._stopping = False  # the same, as a plain flag for the hot loop
+        self._running = _Run()
         self._waiting_until = INF  # when the I/O thread's current wait ends (it is woken for earlier)
         self._idle_waiters: list[asyncio.Future[None]] = []
         self._write_error: tuple[ThreadPort, OSError] | None = None  # from a write in the caller's thread
@@ -116,18 +130,16 @@ class ThreadDriver:
 
     def _start(self, io: ThreadPort) -> None:
         self._io = io
-        self._stop.clear()
-        self._stopping = False
+        run = self._running = _Run()
         log.info("opened %s at %d baud", self.port, self.engine.baudrate)
         with self.lock:
             self._write(io, self.engine.connected(now()))
             self._waiting_until = self.engine.deadline
-        self._thread = threading.Thread(target=self._run, args=(io,), name=f"ics35 line {self.port}", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(io, run), name=f"ics35 line {self.port}", daemon=True)
         self._thread.start()
 
     async def _stop_thread(self) -> None:
-        self._stop.set()
-        self._stopping = True
+        self._running.end()
         io, thread, self._thread = self._io, self._thread, None
         if io is not None:
             io.wake()
@@ -140,8 +152,13 @@ class ThreadDriver:
 
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
-        with self.lock:
-            self.engine.disconnected()
+        while True:
+            await self.wait_idle()
+            with self.lock:
+                # A stray byte may have started a resync since the caller saw the line idle.
+                if self.engine.state not in (State.BUSY, State.QUIET):
+                    self.engine.disconnected()  # raises unless idle (a lost port, a closed bus)
+                    break
         await self._stop_thread()
         self.engine.baudrate = baudrate
         self._start(await self._open_port())  # a failure closes the line for good (the bus tells the engine)
@@ -153,31 +170,33 @@ class ThreadDriver:
             draining = engine.state is State.DRAINING
             waiter: asyncio.Future[None] = self.loop.create_future()
             self._idle_waiters.append(waiter)
-        if draining and self._thread is not None:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(waiter, engine.timing.allowance(200, engine.baudrate) + 1)
-        with self.lock:
-            engine.abort()
-        await self._stop_thread()
-        self._release_idle()
+        try:
+            if draining and self._thread is not None:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(waiter, engine.timing.allowance(200, engine.baudrate) + 1)
+        finally:  # even when cancelled: no I/O thread may keep the port
+            with self.lock:
+                engine.abort()
+            await self._stop_thread()
+            self._release_idle()
 
     # ------------------------------------------------------------------ the I/O thread
 
-    def _run(self, io: ThreadPort) -> None:
+    def _run(self, io: ThreadPort, run: _Run) -> None:
         while True:
             try:
-                self._serve(io)
+                self._serve(io, run)
             except Exception as exc:
                 if not isinstance(exc, OSError):  # a bug: callers must not wait for a thread that is gone
                     log.error("the I/O thread of %s failed", self.port, exc_info=exc)
-                    self._lose(OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}"), reconnect=False)
+                    self._lose(OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}"), run, reconnect=False)
                     io.close()
                     return
-                again = self._lose(exc)
+                again = self._lose(exc, run)
                 io.close()  # after the engine knows: nothing is written to a closed port meanwhile
                 if not again:
                     return
-                reopened = self._reconnect()
+                reopened = self._reconnect(run)
                 if reopened is None:
                     return
                 io = reopened
@@ -185,10 +204,10 @@ class ThreadDriver:
                 io.close()
                 return
 
-    def _serve(self, io: ThreadPort) -> None:
+    def _serve(self, io: ThreadPort, run: _Run) -> None:
         engine, lock = self.engine, self.lock
         wait, write = io.wait, io.write
-        while not self._stopping:
+        while not run.stopping:
             until = self._waiting_until
             if until == INF:
                 data = wait(None)
@@ -196,7 +215,7 @@ class ThreadDriver:
                 left = until - now()
                 data = wait(left if left > 0.0 else 0.0)
             with lock:
-                if self._stopping:
+                if run.stopping:
                     return
                 if self._write_error is not None:  # a write from the caller's thread failed
                     failed, error = self._write_error
@@ -225,30 +244,36 @@ class ThreadDriver:
                     self._release_idle()
                 self._waiting_until = engine.deadline
 
-    def _lose(self, exc: OSError, *, reconnect: bool = True) -> bool:
+    def _lose(self, exc: OSError, run: _Run, *, reconnect: bool = True) -> bool:
         """The port went away: tell the engine; True if it should be reopened."""
         with self.lock:
             engine = self.engine
             reason = f"port {self.port} lost: {exc}"
-            if engine.state not in (State.CLOSED, State.DRAINING) and not self._stop.is_set():
+            if engine.state not in (State.CLOSED, State.DRAINING) and not run.stopping:
                 log.warning("%s", reason)
             self._io = None  # callers write nothing more to it
             engine.lost(reason, reconnect=reconnect and self.settings.reconnect)
             self._release_idle()
-            return engine.state is State.LOST and not self._stop.is_set()
+            return engine.state is State.LOST and not run.stopping
 
-    def _reconnect(self) -> ThreadPort | None:
+    def _reconnect(self, run: _Run) -> ThreadPort | None:
         backoff = self.settings.reconnect_backoff
         attempt = 0
-        while not self._stop.wait(backoff[min(attempt, len(backoff) - 1)]):
+        while not run.stop.wait(backoff[min(attempt, len(backoff) - 1)]):
             attempt += 1
             try:
                 io = open_thread_port(self.port, self.engine.baudrate, self.settings.direction)
             except (OSError, IcsError) as exc:
                 log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
                 continue
+            except Exception as exc:  # a bug (a device factory's): stop trying, and say so
+                log.error("reopening %s failed", self.port, exc_info=exc)
+                with self.lock:
+                    self.engine.close()  # callers get BusClosed rather than "reconnecting" for ever
+                    self._release_idle()
+                return None
             with self.lock:
-                if self._stop.is_set() or self.engine.state is not State.LOST:
+                if run.stopping or self.engine.state is not State.LOST:
                     io.close()
                     return None
                 self._io = io

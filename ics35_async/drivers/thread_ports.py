@@ -97,7 +97,9 @@ class FdWait:
         self._poll.register(self.fd, select.POLLIN)
         self._poll.register(self._wake_r, select.POLLIN)
         self._pending = bytearray()  # what a partial write left
-        self._pending_lock = threading.Lock()  # writes come from either thread; flushes from the I/O thread
+        # Writes come from either thread, flushes from the I/O thread, wake-ups and closing from either.
+        self._pending_lock = threading.RLock()
+        self._closed = False
 
     def wait(self, timeout: float | None) -> bytes:
         # poll counts whole milliseconds: round up, so a deadline is never judged early.
@@ -136,9 +138,11 @@ class FdWait:
         return data
 
     def wake(self) -> None:
-        # A full pipe: a wake-up is pending anyway.  A closed one: nobody is left to wake.
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"\0")
+        with self._pending_lock:  # never into a descriptor that close() gave back (it may be reused)
+            if self._closed:
+                return
+            with contextlib.suppress(BlockingIOError):  # a full pipe: a wake-up is pending anyway
+                os.write(self._wake_w, b"\0")
 
     def write(self, data: bytes) -> None:
         with self._pending_lock:
@@ -169,9 +173,13 @@ class FdWait:
             termios.tcflush(self.fd, termios.TCIFLUSH)
 
     def close(self) -> None:
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        with self._pending_lock:
+            if self._closed:
+                return
+            self._closed = True
+            for fd in (self._wake_r, self._wake_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
         with contextlib.suppress(Exception):
             self.serial.close()
 

@@ -63,10 +63,13 @@ class FailureRules:
         link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
             link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
-        if heard:  # its reply is owed from its base deadline on (see .link)
+        probe = req is not None and req.command.timing is Timing.PROBE
+        if heard and not probe:  # its reply is owed from its base deadline on (see .link)
+            # (A probe's short wait says nothing of the link: its late reply must not raise the
+            # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
-        probe_wait = self.probe.latency if req is not None and req.command.timing is Timing.PROBE else None
+        probe_wait = self.probe.latency if probe else None
         if probe_wait is not None and not partial and self.state is State.QUIET:
             # Silence at a probed ID: a resync as short as the probe's own wait (see .probe).
             self._quiet_until = min(self._quiet_until, now + probe_wait + self.link.extra)
