@@ -82,10 +82,11 @@ async def test_silent_ids_are_not_retried_even_when_the_bus_retries(lines: Any) 
 
 @pytest.mark.parametrize("ids", [range(8), range(4)], ids=["probed before others", "probed last"])
 async def test_a_servo_slower_than_the_probes_wait_is_found_not_taken_for_empty(lines: Any, ids: range) -> None:
-    # Servo 3 answers 12 ms late: within the normal allowance (30 ms), past a probe's (about 5 ms
-    # after servo 1 answered at once).  Its late bytes must send the silent IDs round again.
+    # Servo 3 answers 12 ms late: well within the normal allowance (100 ms, so that a loaded machine
+    # cannot push it out) and the quiet time, past a probe's (about 5 ms after servo 1 answered at
+    # once).  Its late bytes must send the silent IDs round again.
     sim = lines([VirtualServo(1), VirtualServo(3)], faults="late@3:1.0", late_delay=0.012, realtime=True)
-    async with open_bus(sim, adapter_latency=0.030, quiet_time=0.010) as bus:
+    async with open_bus(sim, adapter_latency=0.100, quiet_time=0.030) as bus:
         rate = await probe_ids(bus, ids, id_read_first=False)
     assert rate.answered == (1, 3)
     assert rate.garbled == {}

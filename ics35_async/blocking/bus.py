@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import functools
-import threading
-import warnings
-import weakref
 from collections.abc import Awaitable, Callable, Iterable
-from types import TracebackType
 from typing import Any, ParamSpec, TypeVar
 
 from ..bus import Bus, Priority
@@ -20,6 +16,7 @@ from ..stats import BusStats
 from ..transports import WireDevice
 from .forward import Wrapper, blocking
 from .loop_thread import LoopThread
+from .owner import LoopOwner
 from .stream import BlockingStream
 
 P = ParamSpec("P")
@@ -83,7 +80,7 @@ class BlockingDevice(Wrapper[Device]):
     write_memory = blocking(Device.write_memory)
 
 
-class BlockingBus(Wrapper[Bus]):
+class BlockingBus(LoopOwner[Bus]):
     """One ICS line for code without an event loop.  Create with :func:`open_bus`.
 
     The async :class:`~ics35_async.Bus` runs on an event loop in a background
@@ -92,15 +89,13 @@ class BlockingBus(Wrapper[Bus]):
     Several threads may share one bus (the bus serialises their requests).
     """
 
-    __slots__ = ("__weakref__", "_finalizer")
+    __slots__ = ()
 
     def __init__(self, bus: Bus) -> None:
         if not isinstance(bus, Bus):
             raise InvalidArgument(f"bus must be a Bus (from ics35_async.open_bus), not {type(bus).__name__}")
         super().__init__(bus, LoopThread(name=f"ics35 blocking bus {bus.port}"))
-        # Close at garbage collection or interpreter exit if the program never did (the thread is a
-        # daemon so that a forgotten bus cannot hang the exit; this releases the port cleanly first).
-        self._finalizer = weakref.finalize(self, _close_forgotten, bus, self._loop)
+        self._own(self._loop, bus.aclose, f"blocking bus on {bus.port}")
         try:
             self._loop.call(bus.open)
         except BaseException:
@@ -114,16 +109,7 @@ class BlockingBus(Wrapper[Bus]):
 
         Idempotent.  A Ctrl-C while closing is raised once everything is released.
         """
-        if self._finalizer.detach() is not None:
-            _close(self._async, self._loop)
-
-    def __enter__(self) -> BlockingBus:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
+        super().close()
 
     # ------------------------------------------------------------------ what the bus is
 
@@ -131,11 +117,6 @@ class BlockingBus(Wrapper[Bus]):
     def async_bus(self) -> Bus:
         """The async bus underneath, for :meth:`run` (use it only from code running on the bus's loop)."""
         return self._async
-
-    @property
-    def thread(self) -> threading.Thread:
-        """The thread running the bus's event loop."""
-        return self._loop.thread
 
     @property
     def port(self) -> str | WireDevice:
@@ -208,19 +189,6 @@ class BlockingBus(Wrapper[Bus]):
 
 def _stats_of(bus: Bus) -> BusStats:
     return bus.stats
-
-
-def _close(bus: Bus, loop: LoopThread) -> None:
-    try:
-        if loop.is_running:
-            loop.call_to_end(bus.aclose)
-    finally:
-        loop.stop()
-
-
-def _close_forgotten(bus: Bus, loop: LoopThread) -> None:
-    warnings.warn(f"blocking bus on {bus.port} was never closed; closing it now", ResourceWarning, stacklevel=1)
-    _close(bus, loop)
 
 
 def _blocking_opener(open_async: Callable[P, Bus]) -> Callable[P, BlockingBus]:

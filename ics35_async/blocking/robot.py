@@ -17,19 +17,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import copy
-import threading
-import warnings
-import weakref
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from pathlib import Path
-from types import TracebackType
 from typing import Any, ParamSpec, TypeVar
 
 from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
-from .forward import Wrapper
 from .loop_thread import LoopThread
+from .owner import LoopOwner
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -83,7 +79,7 @@ class _Holder:
             raise error
 
 
-class BlockingRobot(Wrapper[Robot]):
+class BlockingRobot(LoopOwner[Robot]):
     """A robot for code without an event loop.  Create with :func:`open_robot`.
 
     Motions (:meth:`move_to`, :meth:`play`, :meth:`stop`) and :meth:`read_pose`
@@ -93,13 +89,13 @@ class BlockingRobot(Wrapper[Robot]):
     :class:`~ics35_async.robot.SafetyStop`, ...), raised in the calling thread.
     """
 
-    __slots__ = ("__weakref__", "_finalizer", "_holder")
+    __slots__ = ("_holder",)
 
     def __init__(self, opener: contextlib.AbstractAsyncContextManager[Robot], name: str = "robot") -> None:
         loop = LoopThread(name=f"ics35 blocking robot {name}")
         holder = _Holder(opener)
         self._holder = holder
-        self._finalizer = weakref.finalize(self, _close_forgotten, holder, loop)
+        self._own(loop, holder.close, "blocking robot")
         try:
             robot = loop.call(holder.open)
         except BaseException:
@@ -115,25 +111,11 @@ class BlockingRobot(Wrapper[Robot]):
 
         Idempotent.  A Ctrl-C while closing is raised once everything is released.
         """
-        if self._finalizer.detach() is not None:
-            _close(self._holder, self._loop)
-
-    def __enter__(self) -> BlockingRobot:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
+        super().close()
 
     @property
     def is_open(self) -> bool:
         return self._loop.is_running
-
-    @property
-    def thread(self) -> threading.Thread:
-        """The thread running the robot's event loop."""
-        return self._loop.thread
 
     @property
     def async_robot(self) -> Robot:
@@ -247,19 +229,6 @@ def _warnings_of(robot: Robot) -> list[str]:
 
 def _latest_of(robot: Robot) -> RobotFrame | None:
     return robot.latest
-
-
-def _close(holder: _Holder, loop: LoopThread) -> None:
-    try:
-        if loop.is_running:
-            loop.call_to_end(holder.close)
-    finally:
-        loop.stop()
-
-
-def _close_forgotten(holder: _Holder, loop: LoopThread) -> None:
-    warnings.warn("blocking robot was never closed; closing it now", ResourceWarning, stacklevel=1)
-    _close(holder, loop)
 
 
 def open_robot(

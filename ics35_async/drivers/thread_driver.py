@@ -325,10 +325,6 @@ class ThreadDriver:
         with self.lock:
             self._after_call(step(now()))
 
-    def pump(self, out: bytes | None) -> None:
-        with self.lock:
-            self._after_call(out)
-
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` on the loop's thread (the stream's frames are made in the I/O thread)."""
         with contextlib.suppress(RuntimeError):
