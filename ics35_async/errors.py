@@ -17,6 +17,18 @@ class InvalidArgument(IcsError, ValueError):
     """An argument is out of range or of the wrong kind; nothing was sent."""
 
 
+class FileContentError(InvalidArgument):
+    """A file (or mapping) breaks a rule of its format; ``source`` names it, ``key`` the dotted key.
+
+    The robot's description and motion errors are its kinds.
+    """
+
+    def __init__(self, source: str, key: str, message: str) -> None:
+        self.source = source
+        self.key = key
+        super().__init__(f"{source}: {key}: {message}" if key else f"{source}: {message}")
+
+
 class UnsafeOperation(InvalidArgument):
     """A dangerous write (ID write, baud change) was not explicitly confirmed."""
 

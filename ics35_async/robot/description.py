@@ -17,19 +17,14 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from .. import protocol, units
-from ..errors import InvalidArgument
+from ..errors import FileContentError, InvalidArgument
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
 
 
-class DescriptionError(InvalidArgument):
+class DescriptionError(FileContentError):
     """A robot description breaks a rule; ``source`` is the file (or ``<mapping>``), ``key`` the dotted key."""
-
-    def __init__(self, source: str, key: str, message: str) -> None:
-        self.source = source
-        self.key = key
-        super().__init__(f"{source}: {key}: {message}" if key else f"{source}: {message}")
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import units
-from ..errors import InvalidArgument
+from ..errors import FileContentError, InvalidArgument
 from .profiles import PROFILES, Trajectory
 
 if TYPE_CHECKING:
@@ -42,13 +42,8 @@ FORMAT = "ics35-motion"
 VERSION = 1
 
 
-class MotionError(InvalidArgument):
+class MotionError(FileContentError):
     """A motion file breaks the format; the message names the file and the key (``keyframes[2].time``)."""
-
-    def __init__(self, source: str, key: str, message: str) -> None:
-        self.source = source
-        self.key = key
-        super().__init__(f"{source}: {key}: {message}" if key else f"{source}: {message}")
 
 
 @dataclass(frozen=True)
