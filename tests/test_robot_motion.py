@@ -76,6 +76,22 @@ def test_play_goes_through_every_keyframe_and_leaves_unnamed_joints_alone(tmp_pa
     assert joint_position(JOINTS["hip"], -20.0) in hip
 
 
+def test_keyframes_closer_than_a_cycle_are_each_sent_in_order() -> None:
+    """Frames further apart than a segment: no keyframe is skipped, each one goes on the wire exactly, in order."""
+    data = motion(
+        {"time": 0.05, "pose": {"neck": 30.0}},
+        {"time": 0.1, "pose": {"neck": -30.0}},
+        {"time": 0.15, "pose": {"neck": 10.0}},
+        {"time": 0.2, "pose": {"neck": -20.0}},
+    )
+    rig = make_rig()
+    since = play_on(rig, data, speed=100.0)  # segments of 0.5 ms: several in every cycle of the line
+    sent = targets_sent(rig.upper, 1, since["upper"])
+    keys = [joint_position(JOINTS["neck"], a) for a in (30.0, -30.0, 10.0, -20.0)]
+    rest = iter(sent)
+    assert all(k in rest for k in keys), (keys, sent)  # each keyframe, in the motion's order
+
+
 keyframe = st.fixed_dictionaries(
     {
         "pose": st.fixed_dictionaries(

@@ -116,12 +116,6 @@ class Trajectory:
             previous_time, previous = time, end
         return cls(segments)
 
-    def segment_at(self, t: float) -> int:
-        for k, segment in enumerate(self.segments):
-            if t < segment.end_time:
-                return k
-        return len(self.segments) - 1
-
     @property
     def final(self) -> dict[str, float]:
         return dict(self.segments[-1].end)

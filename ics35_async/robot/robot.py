@@ -269,22 +269,22 @@ class Robot:
                 continue
             if plan.ending is not None:
                 continue
-            trajectory, t = plan.trajectory, frame.time - plan.t0
-            if t >= trajectory.duration:
-                pose, speed = trajectory.final, {}
+            segments, t = plan.trajectory.segments, frame.time - plan.t0
+            if plan.segment < len(segments) - 1 and t >= segments[plan.segment].end_time:
+                # Past the segment the last targets came from: its keyframe first, exactly, and
+                # one keyframe per frame, so a cycle longer than a segment skips none of them.
+                pose = dict(segments[plan.segment].end)
+                plan.segment += 1
+                speed = segments[plan.segment].velocity_at(t)
+            elif t >= plan.trajectory.duration:
+                pose, speed = plan.trajectory.final, {}
                 plan.ending = Replies(plan.joints, time.monotonic())
                 if not plan.wait_on_wire:
                     plan.finish()
                     self._plans.remove(plan)
             else:
-                k = trajectory.segment_at(t)
-                segment = trajectory.segments[k]
-                if k > plan.segment:
-                    # Into a new segment: first the keyframe that ended the last one, exactly.
-                    segment, plan.segment = trajectory.segments[k - 1], k
-                    pose, speed = dict(segment.end), trajectory.segments[k].velocity_at(t)
-                else:
-                    pose, speed = segment.pose_at(t), segment.velocity_at(t)
+                segment = segments[plan.segment]
+                pose, speed = segment.pose_at(t), segment.velocity_at(t)
             for name in plan.joints:
                 if name in pose:
                     targets[name] = pose[name]
