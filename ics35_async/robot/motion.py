@@ -19,7 +19,9 @@ motion starts, in that keyframe's time.  ``profile`` on a keyframe shapes
 the segment that ends there.  A pose names any of the robot's joints; a
 joint a keyframe leaves out keeps its angle from the keyframe before, and
 joints no keyframe names are not touched.  Every angle is checked against
-the robot's limits before anything moves.
+the robot's limits before anything moves.  Every keyframe's pose is sent
+exactly, in order: keyframes closer together than a cycle of the line each
+take a cycle (the motion runs late rather than cutting a corner).
 """
 
 from __future__ import annotations
