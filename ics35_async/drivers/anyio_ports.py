@@ -24,6 +24,7 @@ import serial
 
 from ..transports import WireDevice
 from ..transports.serial_port import TermiosError, hung_up
+from ..transports.wire_device import take_delivered
 
 try:
     import termios
@@ -153,13 +154,7 @@ class DevicePort:
         await anyio.sleep_forever()
 
     def read(self) -> bytes:
-        if self._chunks:
-            data = b"".join(self._chunks)
-            self._chunks.clear()
-            return data
-        if self._lost is not None:
-            raise self._lost
-        return b""
+        return take_delivered(self._chunks, self._lost)
 
     def write(self, data: bytes) -> None:
         if not self._gone:

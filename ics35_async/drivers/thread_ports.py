@@ -34,7 +34,7 @@ from ..transports.serial_port import (
     posix_fd,
     write_blocking,
 )
-from ..transports.wire_device import device_factory
+from ..transports.wire_device import device_factory, take_delivered
 
 try:
     import termios
@@ -263,13 +263,7 @@ class DeviceWait:
             if not self._chunks and self._lost is None and not self._woken:
                 self._cond.wait(timeout)
             self._woken = False
-            if self._chunks:
-                data = b"".join(self._chunks)
-                self._chunks.clear()
-                return data
-            if self._lost is not None:
-                raise self._lost
-            return b""
+            return take_delivered(self._chunks, self._lost)
 
     def wake(self) -> None:
         with self._cond:

@@ -10,6 +10,7 @@ line opens, so importing the library loads no simulator.
 from __future__ import annotations
 
 import importlib
+from collections import deque
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 
@@ -45,6 +46,18 @@ class WireDevice(Protocol):
     def write(self, data: bytes) -> None: ...
 
     def disconnect(self) -> None: ...
+
+
+def take_delivered(chunks: deque[bytes], lost: Exception | None) -> bytes:
+    """A host side's queue read once: what the device delivered, as one chunk; else why it went
+    away, raised; else ``b""``.  Bytes that came before the loss are read first."""
+    if chunks:
+        data = b"".join(chunks)
+        chunks.clear()
+        return data
+    if lost is not None:
+        raise lost
+    return b""
 
 
 WireDeviceFactory = Callable[[str], WireDevice]
