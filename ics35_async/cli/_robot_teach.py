@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import Awaitable
+from collections.abc import AsyncIterator, Awaitable
 
 import click
 from rich.markup import escape
@@ -18,7 +18,7 @@ from rich.table import Table
 from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
-from ._common import CliError, ExitCode, check_output_path, err, out, settings_of
+from ._common import CliError, ExitCode, Settings, check_output_path, err, out, settings_of
 from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
 from ._robot_view import Screen, joint_table
 
@@ -37,6 +37,16 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
             f"joints in the file: {', '.join(description.joints)}",
         )
     return names
+
+
+@contextlib.asynccontextmanager
+async def freed_robot(description: RobotDescription, settings: Settings, names: list[str]) -> AsyncIterator[Robot]:
+    """The robot open (freed again when it closes), its first pose read, ``names`` free to move by hand."""
+    async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
+        show_warnings(robot)
+        await first_pose(robot)
+        await robot.free(names)
+        yield robot
 
 
 async def wait_for_line(lines: TypedLines, screen: Screen, hint: str) -> str | None:
@@ -92,10 +102,7 @@ def teach(
     keyframes: list[Keyframe] = []
 
     async def body() -> None:
-        async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
-            show_warnings(robot)
-            await first_pose(robot)
-            await robot.free(names)
+        async with freed_robot(description, settings, names) as robot:
             lines = TypedLines()
             err.print("the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
                       "[bold]q[/bold] then Enter ends (Ctrl-C too)")
@@ -171,10 +178,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
         return [f"{v[name]:+.1f}" if name in v else "-" for v in (neutral, low, high)]
 
     async def body() -> None:
-        async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
-            show_warnings(robot)
-            await first_pose(robot)
-            await robot.free(names)
+        async with freed_robot(description, settings, names) as robot:
             lines = TypedLines()
             step = ["neutral"]
 
