@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -59,3 +60,28 @@ def test_set_id_refuses_several_servos_and_renumbers_a_lone_one(rate_blind_port:
     assert json.loads(proc.stdout) == {"old": 0, "new": 9, "changed": True}
     proc = ics35(lone_servo_port, *LINE, "scan", "--bauds", "115200", "--quick", "--json")
     assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [9]
+
+
+def _refusing_url(scheme: str) -> str:
+    """A local TCP port nobody listens on (bound, then let go): a connection there is refused."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"{scheme}://127.0.0.1:{s.getsockname()[1]}"
+
+
+@pytest.mark.parametrize("scheme", ["socket", "rfc2217"])
+def test_scan_of_a_port_that_never_opens_says_why_like_get_does(scheme: str) -> None:
+    url = _refusing_url(scheme)
+    proc = ics35(url, *LINE, "scan", "--quick")
+    got = ics35(url, *LINE, "get", "1", "stretch")
+    assert got.returncode == 3, got.stderr
+    # Not "no servo answered ... at  baud" (exit 4) after a warning per rate: the port's own error, once.
+    assert proc.returncode == 3, proc.stderr
+    assert "no servo answered" not in proc.stderr and "skipped" not in proc.stderr
+    assert "refused" in proc.stderr
+
+
+def test_scan_with_an_empty_port_is_a_usage_error() -> None:
+    proc = ics35("", "scan", "--quick")
+    assert proc.returncode == 2, proc.stderr
+    assert "port must not be empty" in proc.stderr and "skipped" not in proc.stderr

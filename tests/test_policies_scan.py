@@ -178,6 +178,13 @@ async def test_a_rate_the_port_cannot_open_is_skipped(lines: Any) -> None:
     with pytest.raises(PortNotFound):
         await scan(missing, ids=[1])
 
+    def refused(baud: int) -> Bus:
+        raise SerialPortError(111, f"the connection was refused (at {baud})")
+
+    # No rate opened at all: the port's own error (the first rate's), not an empty report.
+    with pytest.raises(SerialPortError, match=r"refused \(at 625000\)"):
+        await scan(refused, bauds=[625000, 115200], ids=[1])
+
 
 async def test_bad_arguments_raise_before_the_line_opens(lines: Any) -> None:
     sim = lines([VirtualServo(1)])

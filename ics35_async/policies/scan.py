@@ -40,7 +40,7 @@ import anyio
 
 from .. import protocol
 from ..eeprom import BaudRate, Eeprom
-from ..errors import InvalidArgument, ReplyError
+from ..errors import IcsError, InvalidArgument, ReplyError
 from ..protocol import Param
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
@@ -241,7 +241,7 @@ def _check_bauds(bauds: Iterable[int]) -> list[int]:
 
 
 async def _open_or_skip(
-    stack: contextlib.AsyncExitStack, open_at: LineOpener, baud: int, skipped: dict[int, str]
+    stack: contextlib.AsyncExitStack, open_at: LineOpener, baud: int, skipped: dict[int, IcsError]
 ) -> Line | None:
     """The line at ``baud`` (closed with ``stack``), or None and the reason in ``skipped``
     when the adapter cannot do that rate."""
@@ -250,7 +250,7 @@ async def _open_or_skip(
     except (PortNotFound, PortPermissionDenied, PortBusy):
         raise  # the same at every rate: the caller reports it
     except (InvalidArgument, SerialPortError) as exc:
-        skipped[baud] = str(exc)
+        skipped[baud] = exc
         return None
 
 
@@ -267,12 +267,14 @@ async def scan(
     With ``read_eeprom`` every servo found has its EEPROM read; without it,
     only servos answering at several rates do (their EEPROM says which is
     theirs).  A rate the port cannot be opened at is skipped (``skipped``);
-    a missing port, a denied permission or a busy port raises.
+    a missing port, a denied permission or a busy port raises, and so does
+    the first rate's error when no rate opened at all (a refused bridge, a
+    malformed port name: nothing about the rates).
     """
     rates_wanted = _check_bauds(bauds)
     wanted = [protocol.check_id(i) for i in ids]
     rates: list[RateScan] = []
-    skipped: dict[int, str] = {}
+    skipped: dict[int, IcsError] = {}
     images: dict[tuple[int, int], Eeprom | ReplyError] = {}
     rate_blind = False
     for baud in rates_wanted:
@@ -290,6 +292,8 @@ async def scan(
             if read_eeprom:
                 for i in rate.answered:
                     images[(baud, i)] = await _read_eeprom(line, i)
+    if len(skipped) == len(rates_wanted):
+        raise skipped[rates_wanted[0]]
     hits: dict[int, list[int]] = {}
     for rate in rates:
         for i in rate.answered:
@@ -298,7 +302,8 @@ async def scan(
     servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images)]
     if rate_blind:  # the rate opened at says nothing: the EEPROM's is the servo's own
         servos = [dataclasses.replace(s, baud=s.eeprom_baud or s.baud) for s in servos]
-    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), skipped, rate_blind)
+    reasons = {baud: str(exc) for baud, exc in skipped.items()}
+    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), reasons, rate_blind)
 
 
 async def _read_missing_images(
@@ -348,7 +353,7 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
     """
     protocol.check_id(servo_id)
     found: list[int] = []
-    skipped: dict[int, str] = {}
+    skipped: dict[int, IcsError] = {}
     for baud in _check_bauds(bauds):
         async with contextlib.AsyncExitStack() as stack:
             line = await _open_or_skip(stack, open_at, baud, skipped)
