@@ -220,6 +220,14 @@ def test_missing_port(ics35: Any) -> None:
     result = ics35("--port", "/dev/ics35-no-such-port", "info", "1")
     assert result.code == ExitCode.PORT
     assert "no serial port" in result.err
+    assert result.err.count("ics35 ports") == 1  # where to look, said once
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
+def test_a_windows_port_name_elsewhere_is_named_as_such(ics35: Any) -> None:
+    result = ics35("--port", "COM3", "info", "1")
+    assert result.code == ExitCode.PORT
+    assert "COM names are Windows'" in result.err
 
 
 def test_missing_echo_is_named(ics35: Any, line: Any) -> None:

@@ -43,7 +43,11 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
             )
         return CliError(ExitCode.PORT, text, permission_hint())
     if isinstance(exc, PortNotFound):
-        return CliError(ExitCode.PORT, text, f"list ports with: {port_names_hint()}")
+        # The library's message already says where to look, for callers who see no hints.
+        hints = [] if port_names_hint() in text else [f"list ports with: {port_names_hint()}"]
+        if settings.port.upper().startswith("COM") and sys.platform != "win32":
+            hints.insert(0, "COM names are Windows' own: here a serial port is a /dev/ path")
+        return CliError(ExitCode.PORT, text, *hints)
     if isinstance(exc, PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, DirectionControlNotSupported):
