@@ -150,3 +150,31 @@ def test_version_imports_none_of_the_heavy_parts() -> None:
     if "ics35_async.bus" not in package:
         # Once the package imports lazily, --version must not pull the bus or the simulator in either.
         assert not {"ics35_async.bus", "ics35_async.sim", "ics35_async.transport"} & after
+
+
+# --------------------------------------------------------------------------- the event loop
+
+
+def _run_with_loop(choice: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "-v", "--port", "sim://?ids=1", "get", "1", "stretch", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "ICS35_LOOP": choice},
+    )
+
+
+@pytest.mark.parametrize("choice", ["asyncio", "uvloop"])
+def test_ics35_loop_chooses_the_event_loop(choice: str) -> None:
+    proc = _run_with_loop(choice)
+    assert proc.returncode == 0, proc.stderr
+    assert f"event loop: {choice}" in proc.stderr
+    assert json.loads(proc.stdout)["value"] == 30  # the factory stretch gain, read through that loop
+
+
+def test_an_unknown_ics35_loop_is_a_usage_error_before_anything_runs() -> None:
+    proc = _run_with_loop("trio")
+    assert proc.returncode == ExitCode.USAGE
+    assert "ICS35_LOOP must be one of auto, asyncio, uvloop, not 'trio'" in proc.stderr
+    assert "Traceback" not in proc.stderr and "never awaited" not in proc.stderr
