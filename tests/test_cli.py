@@ -362,6 +362,16 @@ def test_monitor_json_lines(ics35: Any, line: Any) -> None:
     assert set(docs[-1]["servos"]) == {"1", "2"}
     assert docs[-1]["servos"]["1"]["position"] == units.NEUTRAL
     assert docs[-1]["cycle"] > 0
+    assert len(docs) == 1  # under a second: the final line only (one line per second)
+
+
+def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(ics35: Any, line: Any) -> None:
+    _, url = line([1, 2])
+    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--seconds", "1.3", "--json")
+    assert result.code == 0, result.err
+    docs = [json.loads(ln) for ln in result.out.splitlines()]
+    assert [d["final"] for d in docs] == [False, True]
+    assert all(d["rate_hz"] > 0 for d in docs), docs  # never a first line at t=0 with no rate yet
 
 
 def test_monitor_plot_without_matplotlib(ics35: Any, line: Any, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -60,8 +60,9 @@ async def run_live(
     render_every = 0.1 if tty else 1.0
     live = Live(console=out, auto_refresh=False, transient=False, vertical_overflow="visible") if tty else None
     start = loop.time()
-    # A terminal gets a table at once; a log gets its first line after a second, with a meaningful rate.
-    last_render = -math.inf if tty or options.as_json else start
+    # A terminal gets a table at once; a log or --json gets its first line after a second, with a
+    # measured rate (a line at t=0 would say 0 Hz).
+    last_render = -math.inf if tty else start
     deadline = None if options.seconds is None else start + options.seconds
 
     def render(final: bool = False) -> None:
