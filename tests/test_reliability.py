@@ -149,8 +149,10 @@ async def test_chaos_short() -> None:
     assert report.transactions >= 12_000
     assert 0.01 < report.faulted_fraction < 0.03
     assert set(report.fault_kinds) == set(FAULT_KINDS)
-    # Both kinds of traffic ran (their split depends on scheduling, so only a floor).
-    assert report.stream_outcomes > 2_000 and report.requests > 500
+    # Both kinds of traffic ran. Their split depends on scheduling (a loaded machine gave the stream 16 %),
+    # so only the floor the engine promises: at most 16 requests (max_requests_between) between two
+    # stream transactions, i.e. the stream gets at least 1 in 17 (1 in 20 leaves room for faults).
+    assert report.stream_outcomes >= report.transactions // 20 and report.requests > 500
     assert report.skipped_frames == 0
     assert report.misattributed == 0, report.examples
     assert report.requests_never_completed == 0, report.requests_never_completed
