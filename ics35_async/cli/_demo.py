@@ -117,7 +117,8 @@ def demo(
         err.print(f"plot written to {escape(plot)}")
     final_report(state, telemetry, options)
     out.print(
-        f"demo done after {time.monotonic() - began:.1f} s: {state.cycle} cycles, "
+        f"demo {'stopped by Ctrl-C' if state.stopped_by_ctrl_c else 'done'} after "
+        f"{time.monotonic() - began:.1f} s: {state.cycle} cycles, "
         f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
     )
     return 0

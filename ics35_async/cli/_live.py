@@ -103,6 +103,7 @@ async def run_live(
                 pass  # --seconds is up
             except asyncio.CancelledError:
                 # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
+                state.stopped_by_ctrl_c = True
                 if not options.as_json:
                     err.print("stopping: freeing the servos")
             finally:

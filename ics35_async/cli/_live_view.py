@@ -34,6 +34,7 @@ class LiveState:
     rate_now: float = 0.0
     rate_avg: float = 0.0
     answered_ever: set[int] = field(default_factory=set)
+    stopped_by_ctrl_c: bool = False
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
