@@ -144,6 +144,9 @@ def test_move_counts_and_degrees(ics35: Any, line: Any) -> None:
     result = ics35("--port", url, "move", "1", "-30", "--deg")
     assert result.code == 0
     assert sim.servo(1).target == units.degrees_to_position(-30)
+    result = ics35("--port", url, "move", "1", "7499")  # -0.03 degrees
+    assert result.code == 0
+    assert "target 7499 (+0.0°)" in result.out  # never "-0.0"
 
 
 def test_free_several(ics35: Any, line: Any) -> None:

@@ -30,8 +30,13 @@ def fail(error: CliError) -> NoReturn:
     sys.exit(int(error.code))
 
 
+def signed_tenths(value: float) -> str:
+    """``+12.3``; a value that rounds to zero is ``+0.0``, never ``-0.0``."""
+    return f"{round(value, 1) + 0.0:+.1f}"
+
+
 def fmt_degrees(position: int) -> str:
-    return f"{units.position_to_degrees(position):+7.1f}°"
+    return f"{signed_tenths(units.position_to_degrees(position)):>7}°"
 
 
 def current_text(raw: int) -> str:

@@ -14,6 +14,7 @@ from rich.text import Text
 from .. import units
 from ..frames import Frame
 from ..stream import Stream
+from ._console import signed_tenths
 from ._telemetry import Telemetry
 
 
@@ -107,11 +108,11 @@ class LiveState:
         cells: list[str | Text] = [str(sid)]
         if with_targets:
             target = self.targets.get(sid)
-            cells.append("free" if not target else f"{units.position_to_degrees(target):+.1f}")
+            cells.append("free" if not target else signed_tenths(units.position_to_degrees(target)))
         else:
             cells.append("-" if pos is None else str(pos))
         cells += [
-            "-" if pos is None else f"{units.position_to_degrees(pos):+.1f}",
+            "-" if pos is None else signed_tenths(units.position_to_degrees(pos)),
             "-" if cur is None else f"{'-' if cur & 0x40 else ''}{cur & 0x3F}",
             "-" if temp is None else f"{units.temperature_to_celsius(temp):.0f}C",
             state,

@@ -19,6 +19,7 @@ from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
 from ._common import CliError, ExitCode, Settings, check_output_path, err, out, settings_of
+from ._console import signed_tenths
 from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
 from ._robot_view import Screen, joint_table
 
@@ -175,7 +176,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     high: dict[str, float] = {}
 
     def extra(name: str) -> list[str]:
-        return [f"{v[name]:+.1f}" if name in v else "-" for v in (neutral, low, high)]
+        return [signed_tenths(v[name]) if name in v else "-" for v in (neutral, low, high)]
 
     async def body() -> None:
         async with freed_robot(description, settings, names) as robot:
@@ -230,7 +231,8 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     if not calibrated:
         raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
     for name, joint in calibrated.items():
-        out.print(f"{name}: offset {joint.offset:+.1f}, min {joint.min:+.1f}, max {joint.max:+.1f}")
+        offset, least, most = (signed_tenths(x) for x in (joint.offset, joint.min, joint.max))
+        out.print(f"{name}: offset {offset}, min {least}, max {most}")
     written, kept = write_calibration(robot_file, description, calibrated)
     if kept:
         out.print(f"written into {escape(str(written))} (comments kept)")

@@ -19,12 +19,13 @@ from rich.text import Text
 
 from ..robot import Robot
 from ._common import out
+from ._console import signed_tenths
 
 Extra = Callable[[str], Sequence[str]]
 
 
 def _deg(value: float | None) -> str:
-    return "-" if value is None else f"{value:+.1f}"
+    return "-" if value is None else signed_tenths(value)
 
 
 def joint_table(
