@@ -109,3 +109,19 @@ def test_a_new_port_forgets_what_the_old_one_showed() -> None:
     wire.emit(engine.submit(Recorded(protocol.ProbeRead(4)), wire.now))
     expected = protocol.wire_time(5, 1250000) + NORMAL_WAIT
     assert engine.deadline - start == pytest.approx(expected)
+
+
+def test_a_probe_answered_past_its_short_wait_does_not_teach_the_link_lateness() -> None:
+    # The link's extra allowance learns from answers past the *normal* allowance; a probe's wait is
+    # shorter only because empty IDs are expected, so an answer past it says nothing of the link.
+    wire, servos = line({1, 4}, turnaround=0.0)
+    wire.submit(Recorded(read(1)))
+    wire.settle()
+    engine = wire.engine
+    engine.link.extra = 0.010  # a link already known to be 10 ms slow
+    servos.turnaround = FLOOR + 0.009  # past the probe's own wait, inside its deadline and the normal wait
+    probe = Recorded(protocol.ProbeRead(4))
+    wire.submit(probe)
+    wire.settle()
+    assert probe.state == "done"
+    assert engine.link.extra == 0.010

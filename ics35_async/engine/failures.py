@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 
-from ..errors import BusClosed, ReplyError
+from ..errors import BusClosed, EchoMismatch, ReplyError
 from ..protocol import Timing
 from .counters import LineCounters, error_counter
 from .guard import GuardRule
@@ -57,7 +57,7 @@ class FailureRules:
         self.counters.count(sid, len(tx), len(buf))
         error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
         req = self._current
-        heard = not (echo_len and buf[: min(len(buf), echo_len)] != tx[: min(len(buf), echo_len)])
+        heard = not isinstance(error, EchoMismatch)  # the echo came, or as much of it as came matched
         partial = len(buf) > echo_len
         self.guard.timed_out(tx, heard=heard, was_guard=req is not None and req.is_guard)
         link, due = self.link, self._t_start + self._base
@@ -76,7 +76,7 @@ class FailureRules:
             self.deadline = self._quiet_until
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
-            # long again as the transaction was allowed, so its arrival is seen and learnt.
+            # long again as the transaction's full allowance, so its arrival is seen and learnt.
             self._quiet_until = max(self._quiet_until, now + self._base)
             self.deadline = min(self._quiet_until, self._resync_limit)
         return out

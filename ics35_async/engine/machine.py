@@ -36,6 +36,7 @@ INF = math.inf
 BUSY, IDLE, QUIET, DRAINING, CLOSED = State.BUSY, State.IDLE, State.QUIET, State.DRAINING, State.CLOSED
 OFFLINE, LOST = State.OFFLINE, State.LOST
 NORMAL = Timing.NORMAL
+PROBE = Timing.PROBE
 
 
 class LineEngine(FailureRules):
@@ -68,7 +69,7 @@ class LineEngine(FailureRules):
         self._owner: BackgroundSource | None = None
         self._current_id = NO_ID
         self._t_start = 0.0
-        self._base = 0.0  # this transaction's allowance without the link's extra
+        self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self.guard = GuardRule()
         self.probe = ProbeAllowance()
@@ -275,7 +276,11 @@ class LineEngine(FailureRules):
         allowance = self._allowances.get(nbytes) if timing is NORMAL else None
         if allowance is None:
             allowance = self._allowance(nbytes, timing)
+        # The link's bookkeeping (lateness learnt, replies owed) is measured against the full
+        # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
+        if timing is PROBE:
+            allowance = self.probe.allowance(allowance, wire_time(nbytes, self.baudrate))
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -283,8 +288,6 @@ class LineEngine(FailureRules):
         allowance = self.timing.allowance(nbytes, self.baudrate, timing)
         if timing is NORMAL:
             self._allowances[nbytes] = allowance
-        elif timing is Timing.PROBE:
-            allowance = self.probe.allowance(allowance, wire_time(nbytes, self.baudrate))
         return allowance
 
     def _finish(self, now: float) -> bytes | None:

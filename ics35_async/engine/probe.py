@@ -9,8 +9,10 @@ a millisecond, never under ``FLOOR`` and never over the normal allowance.
 Until something has answered (a fresh port, a new baud rate) a probe gets
 the normal allowance.
 
-A probe that timed out after its echo is followed by a resync of
-``latency`` too instead of the full quiet time.  A servo answering later
+A probe that timed out with no reply bytes is followed by a resync of
+``latency`` (plus the link's learnt extra) instead of the full quiet time.
+The link's own bookkeeping still measures against the normal allowance: a
+probe answered after its short wait but in time says nothing of the link.  A servo answering later
 than that is not lost silently: its bytes arrive as strays (or in front of
 the next echo, failing that probe), and the scan policy then probes its
 silent IDs again with the normal allowance (see
