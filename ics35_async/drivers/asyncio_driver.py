@@ -152,14 +152,11 @@ class AsyncioDriver:
             self.line.pump(out)
         return fut
 
-    def pump(self, out: bytes | None) -> None:
-        """Write what an engine call from the user's side answered, and follow its deadline."""
+    def call(self, step: Callable[[float], bytes | None]) -> None:
+        """Run an engine call (given the time): write what it answers and follow its deadline."""
+        out = step(now())
         if self.line is not None:
             self.line.pump(out)
-
-    def call(self, step: Callable[[float], bytes | None]) -> None:
-        """Run an engine call (given the time) and act on what it answers."""
-        self.pump(step(now()))
 
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` now: the engine runs on the caller's loop."""

@@ -1,7 +1,8 @@
 """Renumbering the one servo on a line: prove it is alone, cheaply, then write and verify.
 
 The ID command renames every device that hears it, so an ID write is safe
-only with exactly one device on the line.  The proof, in 33-35 transactions:
+only with exactly one device on the line.  The proof, in 33-35 transactions
+when every answer comes in time (more when some come late, see below):
 
 1. an ID read, which every device at this rate answers: silence means nobody
    is there (one transaction, nothing more to do); a garbled answer means
@@ -11,7 +12,8 @@ only with exactly one device on the line.  The proof, in 33-35 transactions:
    enough: two replies pulled onto one wire can combine into a clean-looking
    third ID (a wired AND of 0xE1 and 0xE3 reads 0xE1).
 
-Then the write (1) and a stretch read at the new ID (1): 35-37 in all.
+Then the write (1) and a stretch read at the new ID (1): 35-37 in all, plus
+the re-reads below.
 Silent IDs are probed once each, with the bus's short probe allowance; a
 servo slower than that shows itself by late bytes, and the survey then
 probes the silent IDs again with the normal one.  The last ID, when silent,

@@ -127,8 +127,9 @@ async def _probe(line: Line, servo_id: int, *, short: bool = True) -> ReplyError
     return None
 
 
-def _answered(outcomes: Mapping[int, ReplyError | None]) -> int:
-    return sum(1 for e in outcomes.values() if e is None)
+def _garbled(outcomes: Mapping[int, ReplyError | None]) -> dict[int, ReplyError]:
+    """The probes that got something back, but not a valid reply."""
+    return {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
 
 
 def _late_evidence(line: Line) -> tuple[int, int, int]:
@@ -200,19 +201,20 @@ async def probe_ids(
         # normal allowance (a guard read goes first and takes any late bytes, see engine.guard).
         outcomes[last] = await _probe(line, last, short=False)
     silent_ids = [i for i, e in outcomes.items() if e is not None and nothing_came_back(e)]
-    if silent_ids and (_late_evidence(line) != late_before or len(silent_ids) + _answered(outcomes) < len(outcomes)):
+    garbled = _garbled(outcomes)
+    if silent_ids and (garbled or _late_evidence(line) != late_before):
         # Bytes came after a probe had given up (as strays, in a guard, or garbling a later
         # probe): some servo may answer slower than the probes waited.  Every silent ID once
         # more with the normal allowance, so none is taken for empty.
         for i in silent_ids:
             outcomes[i] = await _probe(line, i, short=False)
-    garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
+        garbled = _garbled(outcomes)
     evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
     if garbled and evidence is None:
         # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
         for i in sorted(garbled):
             outcomes[i] = await _probe(line, i, short=False)
-        garbled = {i: e for i, e in outcomes.items() if e is not None and not nothing_came_back(e)}
+        garbled = _garbled(outcomes)
     return RateScan(
         int(line.baudrate),
         answered=tuple(i for i, e in outcomes.items() if e is None),

@@ -8,7 +8,6 @@ import threading
 import time
 
 import serial
-import serial.rfc2217
 
 from .serial_port import READ_POLL, discard_blocking_input, write_blocking
 from .wire_device import HostSide
