@@ -36,6 +36,9 @@ from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServ
 from ics35_async.sim.servo import factory_calibration
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+# For a silent ID's request that must still be on the wire when the port goes: a loaded machine can
+# stall the test for longer than FAST's allowance between the request and the unplug.
+HELD = {**FAST, "adapter_latency": 2.0}
 
 
 def band(i: int) -> tuple[int, int]:
@@ -260,7 +263,7 @@ async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(dr
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_port_vanishing_fails_pending_requests_and_closes_the_bus(driver: str) -> None:
     sim = VirtualLine(make_servos(), faults="drop@0:1.0")  # servo 0 is silent: its request stays on the wire
-    bus = await open_bus(sim, driver=driver, **FAST)
+    bus = await open_bus(sim, driver=driver, **HELD)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(10)]
     await asyncio.sleep(0)
     sim.unplug()
@@ -274,7 +277,7 @@ async def test_port_vanishing_fails_pending_requests_and_closes_the_bus(driver: 
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_reconnect_reopens_the_port_when_it_comes_back(driver: str) -> None:
     sim = VirtualLine(make_servos(), faults="drop@0:1.0")
-    async with open_bus(sim, reconnect=True, driver=driver, **FAST) as bus:
+    async with open_bus(sim, reconnect=True, driver=driver, **HELD) as bus:
         assert await bus.servo(1).read_stretch() == 11
         pending = bus.submit(protocol.ReadParam(0, protocol.Param.STRETCH))  # never answered
         await asyncio.sleep(0)

@@ -9,6 +9,7 @@ checker does catch a misattributed reply, so a green run means something.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import sys
 import time
 from typing import Any
@@ -212,7 +213,8 @@ def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -
 
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
-    bus = await open_bus(sim, reconnect=True, timing=FAST)
+    # A long allowance: the silent request must still be on the wire when the port goes, however loaded.
+    bus = await open_bus(sim, reconnect=True, timing=dataclasses.replace(FAST, adapter_latency=2.0))
     try:
         in_flight = bus.submit(protocol.ReadParam(2, Param.STRETCH))
         queued = [bus.submit(protocol.ReadParam(1, Param.SPEED)) for _ in range(5)]
