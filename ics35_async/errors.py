@@ -83,7 +83,22 @@ class PartialReply(ReplyError):
 
 
 class EchoMismatch(ReplyError):
-    """The echo of our own bytes came back different: a collision or noise."""
+    """The echo of our own bytes came back different: a collision, noise, or bytes ahead of it.
+
+    ``sent`` is what was written.  Found further on in ``raw``, the echo did come, behind
+    bytes that were already on their way (a late reply to an earlier command).
+    """
+
+    def __init__(
+        self, message: str, *, command: str, servo_id: int | None, raw: bytes = b"", sent: bytes = b""
+    ) -> None:
+        self.sent = bytes(sent)
+        super().__init__(message, command=command, servo_id=servo_id, raw=raw)
+
+    @property
+    def echo_behind(self) -> bool:
+        """The echo came whole, behind other bytes: not a collision, not an interface without echo."""
+        return bool(self.sent) and self.sent in self.raw[1:]
 
 
 class BadReply(ReplyError):

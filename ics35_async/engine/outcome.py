@@ -20,6 +20,22 @@ def _error(
     )
 
 
+def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearray) -> ReplyError:
+    """The echo is not the bytes sent: changed on the wire, missing, or behind other bytes."""
+    ahead = bytes(buf).find(tx, 1)
+    if ahead > 0:  # the echo came, behind bytes that were already on their way
+        message = f"{ahead} byte(s) ahead of the echo (a late reply to an earlier command?)"
+    else:
+        message = f"echo differs from the bytes sent ({tx.hex(' ')})"
+    return EchoMismatch(
+        message,
+        command=req.command.name if req is not None else "position",
+        servo_id=None if sid == NO_ID else sid,
+        raw=bytes(buf),
+        sent=tx,
+    )
+
+
 def framing_error(
     req: Request | None, sid: int, tx: bytes, buf: bytearray, expect: int, corrupted: bool
 ) -> ReplyError:
@@ -29,7 +45,7 @@ def framing_error(
         return _error(ReplyDataError, message, req, sid, buf)
     if len(buf) > expect:
         return _error(BadReply, f"{len(buf) - expect} unexpected extra byte(s) after the reply", req, sid, buf)
-    return _error(EchoMismatch, f"echo differs from the bytes sent ({tx.hex(' ')})", req, sid, buf)
+    return echo_mismatch(req, sid, tx, buf)
 
 
 def timeout_error(
@@ -38,7 +54,7 @@ def timeout_error(
     """The deadline passed: what arrived says whether the echo, the servo or the reply's tail is missing."""
     got = len(buf)
     if echo_len and buf[: min(got, echo_len)] != tx[: min(got, echo_len)]:
-        return _error(EchoMismatch, "echo differs from the bytes sent", req, sid, buf)
+        return echo_mismatch(req, sid, tx, buf)
     if got == 0:
         return _error(ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply",
                       req, sid, buf)

@@ -39,9 +39,10 @@ def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
     header has it clear, so the first byte back tells an echo from a reply:
     expecting an echo and getting a reply first means the interface does not
     loop TX back; expecting none and getting a command byte first means it does.
+    A reply ahead of an echo that did come whole is a late answer, not evidence.
     """
     if not exc.raw:
         return False
     if echo:
-        return isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80
+        return isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80 and not exc.echo_behind
     return exc.raw[0] >= 0x80
