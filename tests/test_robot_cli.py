@@ -6,6 +6,7 @@ import io
 import itertools
 import json
 import os
+import re
 import sys
 import threading
 import tomllib
@@ -75,6 +76,19 @@ def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(ics35: Any, rig:
     end = joint_position(JOINTS["neck"], -30)
     runs = targets_sent(sims.upper, 1, since)
     assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
+
+
+def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(ics35: Any, rig: tuple[Rig, Path],
+                                                                      tmp_path: Path) -> None:
+    _sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 5.0, "pose": {"neck": 30}})
+    result = ics35("play", str(robot_file), str(motion), "--seconds", "0.5")
+    assert result.code == 0, result.err
+    found = re.search(r"play time is up after [\d.]+ s: ([\d.]+) s of 5\.0 s played;", result.out)
+    assert found, result.out
+    assert 0.4 <= float(found[1]) <= 0.6  # the time is up at 0.5 s, whatever the smooth stop takes
+    shown = [float(t) for t in re.findall(r"t= *([\d.]+)/0\.5 s", result.out)]
+    assert shown and max(shown) <= 0.5  # the clock stops at the limit
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 
 import click
@@ -75,9 +76,10 @@ def play(
     title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"
     began = time.monotonic()
     passes = 0
+    played = 0.0  # seconds into the motion when it stopped
 
     async def body() -> str:
-        nonlocal passes
+        nonlocal passes, played
         async with open_robot(description, on_close=on_stop, **robot_options(settings)) as robot:
             show_warnings(robot)
             try:
@@ -90,6 +92,8 @@ def play(
 
             def summary() -> str:
                 t = time.monotonic() - start
+                if seconds:
+                    t = min(t, seconds)  # the smooth stop after the limit is not playing time
                 into = t % total if loop else min(t, total)
                 limit = f"/{seconds:g}" if seconds else ""
                 count = f"pass {passes + 1}  " if loop else ""
@@ -128,6 +132,8 @@ def play(
                         current.uncancel()
                     how = "stopped by Ctrl-C"
                 finally:
+                    # How far the motion got, for the closing line when no pass completed.
+                    played = min(time.monotonic() - start, seconds or math.inf, total)
                     if not task.done():
                         task.cancel()
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
@@ -137,9 +143,11 @@ def play(
             return how
 
     how = run_robot(settings, description, body)
+    length = f"{motion.duration / speed:.1f} s"
+    what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
     out.print(
-        f"play {how} after {time.monotonic() - began:.1f} s: {passes} pass(es) of "
-        f"{motion.duration / speed:.1f} s; joints left {'free' if on_stop == 'free' else 'holding'}"
+        f"play {how} after {time.monotonic() - began:.1f} s: {what}; "
+        f"joints left {'free' if on_stop == 'free' else 'holding'}"
     )
     return 0
 
