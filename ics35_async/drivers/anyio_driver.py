@@ -121,7 +121,7 @@ class AnyioDriver:
         engine = self.engine
         engine.close()
         if engine.state is State.DRAINING:
-            with anyio.move_on_after(engine.timing.allowance(200, engine.baudrate) + 1):
+            with anyio.move_on_after(engine.drain_bound):
                 await self.wait_idle()
         engine.abort()
         self._release_idle()

@@ -94,7 +94,7 @@ class AsyncioDriver:
             waiter = self.loop.create_future()
             line.idle_waiters.append(waiter)
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(waiter, engine.timing.allowance(200, engine.baudrate) + 1)
+                await asyncio.wait_for(waiter, engine.drain_bound)
         engine.abort()
         if self._supervisor is not None:
             self._supervisor.cancel()

@@ -173,7 +173,7 @@ class ThreadDriver:
         try:
             if draining and self._thread is not None:
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(waiter, engine.timing.allowance(200, engine.baudrate) + 1)
+                    await asyncio.wait_for(waiter, engine.drain_bound)
         finally:  # even when cancelled: no I/O thread may keep the port
             with self.lock:
                 engine.abort()

@@ -125,6 +125,12 @@ class LineEngine(FailureRules):
             self.state = CLOSED
             self.deadline = INF
 
+    @property
+    def drain_bound(self) -> float:
+        """How long a driver waits for a closing line's last transaction before :meth:`abort`:
+        the allowance of 200 bytes (more than the longest transaction, an EEPROM write) and a second."""
+        return self.timing.allowance(200, self.baudrate) + 1
+
     def abort(self) -> None:
         """Close now, even with a transaction on the wire (it fails with BusClosed)."""
         self.close()
