@@ -17,7 +17,7 @@ import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.thread_ports import FdWait
-from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo, start_subprocess, stop_subprocess
 
 FAST = {"adapter_latency": 0.02, "quiet_time": 0.002}
 
@@ -99,3 +99,21 @@ def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains() -> None:
     finally:
         port.close()
         os.close(master)
+
+
+
+async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
+    # The I/O thread hands the answer to the loop while it still holds the engine: whoever
+    # awaits it may look at the statistics at once, and must find the transaction counted ok.
+    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
+    try:
+        async with open_bus(path, driver="thread", **FAST) as bus:
+            behind = []
+            for n in range(1, 2001):
+                await bus.servo(1 + n % 2).read_stretch()
+                ok = bus.stats.total.ok
+                if ok < n:
+                    behind.append((n, ok))
+            assert behind == []
+    finally:
+        stop_subprocess(proc)

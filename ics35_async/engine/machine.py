@@ -339,14 +339,9 @@ class LineEngine(FailureRules):
                 return self._fail_request(req, exc, sid, now)
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
-            req.resolve(value)
             self.probe.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
-        # The next command goes on the wire first; the bookkeeping can wait.
-        if self.state is BUSY:
-            self.state = IDLE
-            out = self._start_next(now)
-        else:  # draining: that was the last transaction
-            self.state, self.deadline, out = CLOSED, INF, None
+        # Counted before the caller hears: the thread driver's caller runs on another thread and
+        # may read the statistics the moment its answer is set.
         counters.ok[sid] += 1
         hist = counters.latency  # LatencyHistogram.add, inline: this runs once per transaction
         hist.counts[int(latency * 1e6).bit_length()] += 1
@@ -359,7 +354,13 @@ class LineEngine(FailureRules):
                 link.succeeded(over)
             if link.owed_since != INF:
                 link.in_step()  # a valid reply: nothing earlier is still owed
-        return out
+        if req is not None:
+            req.resolve(value)
+        if self.state is BUSY:
+            self.state = IDLE
+            return self._start_next(now)
+        self.state, self.deadline = CLOSED, INF  # draining: that was the last transaction
+        return None
 
     def _detach(self, exc: IcsError) -> None:
         source, self._source = self._source, None
