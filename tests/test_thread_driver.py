@@ -117,3 +117,18 @@ async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
             assert behind == []
     finally:
         stop_subprocess(proc)
+
+
+async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
+    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
+    try:
+        async with open_bus(path, driver="thread", **FAST) as bus, bus.stream([1, 2]) as stream:
+            behind = []
+            for _ in range(1000):
+                frame = await stream.next_frame()
+                ok = bus.stats.total.ok
+                if ok < 2 * frame.cycle:
+                    behind.append((frame.cycle, ok))
+            assert behind == []
+    finally:
+        stop_subprocess(proc)

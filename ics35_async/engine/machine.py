@@ -327,8 +327,10 @@ class LineEngine(FailureRules):
                 counters.latency.add(latency)
                 self._resync(now)
                 return None
+            counters.ok[sid] += 1  # (taken back if the stream rejects the reply: counted first, as below)
             rejected = source.complete(buf, echo_len, now)
             if rejected is not None:
+                counters.ok[sid] -= 1
                 counters.latency.add(latency)
                 return self._fault(rejected, sid, now)
         else:
@@ -340,9 +342,9 @@ class LineEngine(FailureRules):
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
             self.probe.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
-        # Counted before the caller hears: the thread driver's caller runs on another thread and
-        # may read the statistics the moment its answer is set.
-        counters.ok[sid] += 1
+            # Counted before the caller hears (or the stream publishes a frame): under the thread
+            # driver the caller runs on another thread and may read the statistics at once.
+            counters.ok[sid] += 1
         hist = counters.latency  # LatencyHistogram.add, inline: this runs once per transaction
         hist.counts[int(latency * 1e6).bit_length()] += 1
         hist.sum_s += latency
