@@ -132,3 +132,4 @@ async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
             assert behind == []
     finally:
         stop_subprocess(proc)
+

@@ -102,9 +102,10 @@ class FailureRules:
             req.retries_left -= 1
             self.counters.per_name["retries"][sid] += 1
             self.queue.push_front(req)
-        else:
-            req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
-        return self._fault(error, sid, now)
+            return self._fault(error, sid, now)
+        out = self._fault(error, sid, now)  # counted before the caller hears, as a success is
+        req.reject(BusClosed("bus closed") if closing and req.retries_left else error)
+        return out
 
     def _resync(self, now: float) -> None:
         if self.state is State.DRAINING:  # closing anyway: the port's buffers go with it
