@@ -241,6 +241,16 @@ def test_missing_echo_is_named(ics35: Any, line: Any) -> None:
     assert ics35("--port", url, "--no-echo", "get", "1", "speed").code == 0
 
 
+def test_a_late_reply_ahead_of_the_echo_is_not_named_as_a_missing_echo(ics35: Any) -> None:
+    # Every reply's last 2 bytes come late (a TCP bridge holding a tail): the retry's echo arrives
+    # behind them.  The echo is there, so --no-echo would be the wrong advice.
+    result = ics35("--port", "sim://?ids=1&faults=tail@1:1.0&tail_bytes=2", "get", "1", "stretch")
+    assert result.code == ExitCode.COMMUNICATION
+    assert "ahead of the echo" in result.err
+    assert "--no-echo" not in result.err
+    assert "--timeout" in result.err
+
+
 def test_needless_no_echo_is_named(ics35: Any, line: Any) -> None:
     _, url = line([1])
     result = ics35("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")

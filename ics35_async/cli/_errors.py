@@ -18,6 +18,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
+from ..policies.line import echo_setting_wrong
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
@@ -71,21 +72,25 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
         if "://" in settings.port and "cannot open" in text:
             return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
         return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
-    # Every command byte has its MSB set and almost every reply header has it clear,
-    # so the first byte back tells an echo from a reply.
-    if isinstance(exc, ReplyError) and exc.raw:
-        if settings.echo and isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80:
+    if isinstance(exc, ReplyError) and echo_setting_wrong(exc, settings.echo):
+        if settings.echo:
             return CliError(
                 ExitCode.COMMUNICATION,
                 f"{text}: the first byte back is a servo's reply, not the echo of the command sent",
                 "this interface does not loop TX back to RX: pass --no-echo",
             )
-        if not settings.echo and exc.raw[0] >= 0x80:
-            return CliError(
-                ExitCode.COMMUNICATION,
-                f"{text}: the bytes sent came back before the reply (an echo)",
-                "this interface echoes what it sends (ICS adapters do): drop --no-echo",
-            )
+        return CliError(
+            ExitCode.COMMUNICATION,
+            f"{text}: the bytes sent came back before the reply (an echo)",
+            "this interface echoes what it sends (ICS adapters do): drop --no-echo",
+        )
+    if isinstance(exc, EchoMismatch) and exc.echo_behind:
+        return CliError(
+            ExitCode.COMMUNICATION,
+            text,
+            "a reply came after its allowance and landed in front of the next command's echo: a slow servo "
+            "or link (a TCP bridge can hold a reply's tail); raise --timeout",
+        )
     if isinstance(exc, EchoMismatch):
         return CliError(
             ExitCode.COMMUNICATION,

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from ..errors import BadReply, EchoMismatch, PartialReply, ReplyDataError, ReplyError, ReplyTimeout
 from .counters import NO_ID
 from .requests import Request
 
 
 def _error(
-    cls: type[ReplyError], message: str, req: Request | None, sid: int, buf: bytes | bytearray, **extra: int
+    cls: type[ReplyError], message: str, req: Request | None, sid: int, buf: bytes | bytearray, **extra: Any
 ) -> ReplyError:
     """A ``cls`` error about the transaction on the wire, carrying every byte received."""
     return cls(
@@ -27,13 +29,7 @@ def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearr
         message = f"{ahead} byte(s) ahead of the echo (a late reply to an earlier command?)"
     else:
         message = f"echo differs from the bytes sent ({tx.hex(' ')})"
-    return EchoMismatch(
-        message,
-        command=req.command.name if req is not None else "position",
-        servo_id=None if sid == NO_ID else sid,
-        raw=bytes(buf),
-        sent=tx,
-    )
+    return _error(EchoMismatch, message, req, sid, buf, sent=tx)
 
 
 def framing_error(
