@@ -112,12 +112,19 @@ class _PathWatch:
 
 
 async def reconnect_session(
-    down_times: Sequence[float], cycles_each: int, seed: int, report: dict[str, Any], unplug_rate: float = 0.002
+    down_times: Sequence[float],
+    cycles_each: int,
+    seed: int,
+    report: dict[str, Any],
+    unplug_rate: float = 0.002,
+    patience: float = 6.0,
 ) -> None:
     """reconnect=True: a stream plus requests across repeated unplugs, at several down times.
 
     The pty server unplugs after a transaction to ID 7 with probability
     ``unplug_rate`` (its ``unplug`` fault) and plugs back in after the down time.
+    Each down time gets ``patience`` seconds (plus the cycles' own time) for its
+    unplugs to come: on a loaded machine fewer transactions a second means later unplugs.
     """
     loop = asyncio.get_running_loop()
     ids = list(range(8))
@@ -168,7 +175,7 @@ async def reconnect_session(
                 async with stream:
                     workers = [asyncio.create_task(requests(k)) for k in range(3)]
                     seen_cycles = 0
-                    give_up = loop.time() + 6 + cycles_each * (down + 1.5)
+                    give_up = loop.time() + patience + cycles_each * (down + 1.5)
                     while seen_cycles < cycles_each and loop.time() < give_up:
                         frame = await stream.next_frame()
                         backs = [t for kind, t in watch.events if kind == "back"]
