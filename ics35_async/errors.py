@@ -85,20 +85,29 @@ class PartialReply(ReplyError):
 class EchoMismatch(ReplyError):
     """The echo of our own bytes came back different: a collision, noise, or bytes ahead of it.
 
-    ``sent`` is what was written.  Found further on in ``raw``, the echo did come, behind
-    bytes that were already on their way (a late reply to an earlier command).
+    ``sent`` is what was written; ``echo_at`` where its echo starts in ``raw`` (whole, or its
+    first bytes where ``raw`` ends), -1 if it is not there.  Further on than the first byte, the
+    echo did come, behind bytes that were already on their way (a late reply to an earlier command).
     """
 
     def __init__(
-        self, message: str, *, command: str, servo_id: int | None, raw: bytes = b"", sent: bytes = b""
+        self,
+        message: str,
+        *,
+        command: str,
+        servo_id: int | None,
+        raw: bytes = b"",
+        sent: bytes = b"",
+        echo_at: int = -1,
     ) -> None:
         self.sent = bytes(sent)
+        self.echo_at = echo_at
         super().__init__(message, command=command, servo_id=servo_id, raw=raw)
 
     @property
     def echo_behind(self) -> bool:
-        """The echo came whole, behind other bytes: not a collision, not an interface without echo."""
-        return bool(self.sent) and self.sent in self.raw[1:]
+        """The echo came, behind other bytes: not a collision, not an interface without echo."""
+        return self.echo_at > 0
 
 
 class BadReply(ReplyError):

@@ -13,9 +13,10 @@ from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate
 from ics35_async.errors import EchoMismatch, InvalidArgument, PartialReply, ReplyError
 from ics35_async.policies import ALL_BAUDS, Line, echo_setting_wrong, probe_ids, scan, servo_rates
-from ics35_async.protocol import Param, ReadParam
+from ics35_async.protocol import Param, Position, ReadParam
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
+from tests.support.engine_support import Recorded, Wire, ready_engine
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 
@@ -107,13 +108,32 @@ async def test_a_late_reply_ahead_of_the_next_echo_is_not_taken_for_a_wrong_echo
     assert [t.servo_id for t in sim.log if t.command == "read_stretch"].count(4) >= 2  # probed again
 
 
-def test_only_an_echo_missing_from_the_bytes_is_evidence_of_the_echo_setting() -> None:
-    probe = ReadParam(4, Param.STRETCH)
-    late = ReadParam(3, Param.STRETCH).encode_reply(30)
-    ahead = EchoMismatch("echo differs", command="read_stretch", servo_id=4, raw=late + probe.tx, sent=probe.tx)
-    no_echo = EchoMismatch("echo differs", command="read_stretch", servo_id=4, raw=late, sent=probe.tx)
-    assert not echo_setting_wrong(ahead, echo=True)
-    assert echo_setting_wrong(no_echo, echo=True)
+@pytest.mark.parametrize(
+    ("command", "ahead", "evidence"),
+    [
+        (ReadParam(4, Param.STRETCH), ReadParam(3, Param.STRETCH).encode_reply(30), False),  # a late reply, echo whole
+        (Position(2, 7482, baudrate=115200), b"\x05\x0a\x03\x01", False),  # a held tail: echo cut off
+        (ReadParam(4, Param.STRETCH), b"", True),  # only a reply: the interface does not echo
+    ],
+    ids=["late reply ahead", "echo cut off", "no echo"],
+)
+def test_only_an_echo_missing_from_the_bytes_is_evidence_of_the_echo_setting(
+    command: Any, ahead: bytes, evidence: bool
+) -> None:
+    # Through the engine: the bytes that arrive for one transaction, and the error it makes of them.
+    engine = ready_engine(True)
+    wire = Wire(engine)
+    req = Recorded(command)
+    assert wire.submit(req) == command.tx
+    arrived = ahead + command.tx if ahead else command.encode_reply(30)
+    expect = len(command.tx) + command.reply_len
+    wire.schedule(0.0005, arrived[:expect])  # the count is reached here: the rest comes as strays
+    wire.schedule(0.0006, arrived[expect:])
+    wire.run_until(engine.deadline + 0.001)
+    assert isinstance(req.error, EchoMismatch), req.error
+    assert req.error.raw == arrived[:expect]
+    assert echo_setting_wrong(req.error, echo=True) is evidence
+    assert req.error.echo_behind is (not evidence)
 
 
 async def test_a_shared_id_is_garbled_not_found(lines: Any) -> None:

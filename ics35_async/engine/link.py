@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import math
 
+from ..protocol.wire import echo_offset
+
 MARGIN = 1.5  # the allowance covers half as much again as the lateness seen...
 JITTER = 0.001  # ...plus a millisecond for the loop's own jitter
 MAX_BEHIND = 8  # commands remembered as sent while a reply was owed
@@ -113,10 +115,10 @@ class LinkLatency:
         if buf[:got] == tx[:got]:
             self.in_step()
             return
-        ours = _echo_offset(buf, tx, 1)
+        ours = echo_offset(buf, tx, 1)
         if not (
             ours > 0
-            or any(_echo_offset(buf, sent, 0) >= 0 for sent in self._unechoed)
+            or any(echo_offset(buf, sent, 0) >= 0 for sent in self._unechoed)
             or self._lacked_bytes_first(buf, tx)
         ):
             if len(self._unechoed) < MAX_BEHIND:
@@ -170,15 +172,3 @@ class LinkLatency:
         wanted = seconds * MARGIN + JITTER
         if wanted > self.extra:
             self.extra = min(self.bound, wanted)
-
-
-def _echo_offset(buf: bytearray, tx: bytes, start: int) -> int:
-    """Where, from ``start`` on, ``tx``'s echo starts in ``buf`` (at least its first two bytes if cut off); -1."""
-    k = buf.find(tx, start)
-    if k >= 0:
-        return k
-    n = len(buf)
-    for k in range(max(start, n - len(tx) + 1), n - 1):
-        if buf[k:] == tx[: n - k]:
-            return k
-    return -1

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import BadReply, EchoMismatch, PartialReply, ReplyDataError, ReplyError, ReplyTimeout
+from ..protocol.wire import echo_offset
 from .counters import NO_ID
 from .requests import Request
 
@@ -24,12 +25,12 @@ def _error(
 
 def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearray) -> ReplyError:
     """The echo is not the bytes sent: changed on the wire, missing, or behind other bytes."""
-    ahead = bytes(buf).find(tx, 1)
-    if ahead > 0:  # the echo came, behind bytes that were already on their way
+    ahead = echo_offset(buf, tx, 1)
+    if ahead > 0:  # the echo came (whole, or cut off by the byte count), behind bytes already on their way
         message = f"{ahead} byte(s) ahead of the echo (a late reply to an earlier command?)"
     else:
         message = f"echo differs from the bytes sent ({tx.hex(' ')})"
-    return _error(EchoMismatch, message, req, sid, buf, sent=tx)
+    return _error(EchoMismatch, message, req, sid, buf, sent=tx, echo_at=ahead)
 
 
 def framing_error(

@@ -72,6 +72,19 @@ def check_baud(baudrate: object) -> BaudRate:
     return BaudRate.parse(baudrate)
 
 
+def echo_offset(buf: bytes | bytearray, tx: bytes, start: int) -> int:
+    """Where, from ``start`` on, ``tx``'s echo starts in ``buf`` (at least its first two bytes if
+    ``buf`` ends before the rest); -1 if nowhere.  Bytes ahead of an echo were already on their way."""
+    k = buf.find(tx, start)
+    if k >= 0:
+        return k
+    n = len(buf)
+    for k in range(max(start, n - len(tx) + 1), n - 1):
+        if buf[k:] == tx[: n - k]:
+            return k
+    return -1
+
+
 def join7(high: int, low: int) -> int:
     return (high << 7) | low
 
