@@ -188,8 +188,7 @@ class Stream:
                 command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)
                 position = command.parse(bytes(buf[offset:]))
             except ReplyError as exc:
-                self.fail(exc, now)
-                return exc
+                return exc  # the engine counts it, then calls fail
         self._positions[k] = position
         self._stamps[k] = now
         self._answered[k] = True

@@ -102,7 +102,6 @@ def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains() -> None:
         os.close(master)
 
 
-
 async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
     # The I/O thread hands the answer to the loop while it still holds the engine: whoever
     # awaits it may look at the statistics at once, and must find the transaction counted ok.
@@ -127,10 +126,30 @@ async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
             behind = []
             for _ in range(1000):
                 frame = await stream.next_frame()
-                ok = bus.stats.total.ok
-                if ok < 2 * frame.cycle:
-                    behind.append((frame.cycle, ok))
+                total = bus.stats.total
+                ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
+                if ended < 2 * frame.cycle:
+                    behind.append((frame.cycle, ended))
             assert behind == []
     finally:
         stop_subprocess(proc)
 
+
+async def test_a_stream_reply_it_rejects_is_never_counted_ok() -> None:
+    # Every reply of servo 2 has a byte with its MSB set: the stream rejects it.  The engine counts
+    # a stream reply before the frame it ends is published; a rejected one must not show as ok even
+    # for the instant before it is taken back.  (Never taken offline: asked every cycle.)
+    proc, path = start_subprocess(["--fast", "--ids", "1-2", "--faults", "msb@2:1.0"], quiet=True)
+    try:
+        bus = await open_bus(path, driver="thread", **UNHURRIED)
+        async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
+            seen = []
+            for _ in range(1000):
+                frame = await stream.next_frame()
+                two = bus.stats.per_id.get(2)
+                if two is not None and two.ok:
+                    seen.append((frame.cycle, two.ok))
+            assert seen == []
+            assert bus.stats.per_id[2].bad_replies > 0
+    finally:
+        stop_subprocess(proc)

@@ -86,9 +86,11 @@ class FailureRules:
         req, self._current = self._current, None
         if req is not None:
             return self._fail_request(req, error, sid, now)
-        if self._owner is not None and self._owner is self._source:
-            self._owner.fail(error, now)
-        return self._fault(error, sid, now)
+        owner = self._owner if self._owner is self._source else None
+        out = self._fault(error, sid, now)  # counted before the stream hears (it may publish a frame)
+        if owner is not None:
+            owner.fail(error, now)
+        return out
 
     def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1

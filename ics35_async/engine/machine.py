@@ -128,8 +128,9 @@ class LineEngine(FailureRules):
     @property
     def drain_bound(self) -> float:
         """How long a driver waits for a closing line's last transaction before :meth:`abort`:
-        the allowance of 200 bytes (more than the longest transaction, an EEPROM write) and a second."""
-        return self.timing.allowance(200, self.baudrate) + 1
+        an EEPROM write's allowance for 200 bytes (more than any transaction has) on this link,
+        and a second more."""
+        return self.timing.allowance(200, self.baudrate, Timing.EEPROM_WRITE, self.link.extra) + 1
 
     def abort(self) -> None:
         """Close now, even with a transaction on the wire (it fails with BusClosed)."""
@@ -316,6 +317,7 @@ class LineEngine(FailureRules):
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             return self._failed(error, sid, now)
         over = latency - self._base  # before the next transaction replaces _base
+        value = None  # a request's answer, handed over once everything is counted
         req = self._current
         self._current = None
         if req is None:
@@ -327,12 +329,14 @@ class LineEngine(FailureRules):
                 counters.latency.add(latency)
                 self._resync(now)
                 return None
-            counters.ok[sid] += 1  # (taken back if the stream rejects the reply: counted first, as below)
+            counters.ok[sid] += 1  # before the frame this ends is published (counted first, as below)
             rejected = source.complete(buf, echo_len, now)
-            if rejected is not None:
+            if rejected is not None:  # (complete changed nothing: the stream hears once it is counted)
                 counters.ok[sid] -= 1
                 counters.latency.add(latency)
-                return self._fault(rejected, sid, now)
+                out = self._fault(rejected, sid, now)
+                source.fail(rejected, now)
+                return out
         else:
             try:
                 value = req.command.parse(bytes(buf[echo_len:]))

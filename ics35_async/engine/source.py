@@ -17,8 +17,10 @@ class BackgroundSource(Protocol):
     ``None`` when it has nothing to send now; then ``wake_at`` says when it
     will have (``math.inf``: only when told through the line's ``kick``).
     ``complete`` gets the receive buffer and the reply's offset in it (after
-    the echo) and returns ``None`` or the error that made the reply invalid.
-    ``fail`` is told of a timeout or echo fault.  ``line_closed`` is told when
+    the echo) and returns ``None`` or the error that made the reply invalid;
+    it changes nothing when it returns an error: the engine counts the fault,
+    then calls ``fail`` with it, as it does for a timeout or echo fault (so a
+    frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
     the line closes for good (or loses its port with reconnect off).
     """
 
