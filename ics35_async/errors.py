@@ -85,8 +85,8 @@ class PartialReply(ReplyError):
 class EchoMismatch(ReplyError):
     """The echo of our own bytes came back different: a collision, noise, or bytes ahead of it.
 
-    ``sent`` is what was written; ``echo_at`` where its echo starts in ``raw`` (whole, or its
-    first bytes where ``raw`` ends), -1 if it is not there.  Further on than the first byte, the
+    ``echo_at`` is where the echo of what was written starts in ``raw`` (whole, or its first
+    bytes where ``raw`` ends), -1 if it is not there.  Further on than the first byte, the
     echo did come, behind bytes that were already on their way (a late reply to an earlier command).
     """
 
@@ -97,10 +97,8 @@ class EchoMismatch(ReplyError):
         command: str,
         servo_id: int | None,
         raw: bytes = b"",
-        sent: bytes = b"",
         echo_at: int = -1,
     ) -> None:
-        self.sent = bytes(sent)
         self.echo_at = echo_at
         super().__init__(message, command=command, servo_id=servo_id, raw=raw)
 

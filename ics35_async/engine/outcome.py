@@ -30,7 +30,7 @@ def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearr
         message = f"{ahead} byte(s) ahead of the echo (a late reply to an earlier command?)"
     else:
         message = f"echo differs from the bytes sent ({tx.hex(' ')})"
-    return _error(EchoMismatch, message, req, sid, buf, sent=tx, echo_at=ahead)
+    return _error(EchoMismatch, message, req, sid, buf, echo_at=ahead)
 
 
 def framing_error(

@@ -39,7 +39,8 @@ def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
     header has it clear, so the first byte back tells an echo from a reply:
     expecting an echo and getting a reply first means the interface does not
     loop TX back; expecting none and getting a command byte first means it does.
-    A reply ahead of an echo that did come whole is a late answer, not evidence.
+    A reply ahead of an echo that did come (whole, or cut off by the byte count) is a late
+    answer, not evidence.
     """
     if not exc.raw:
         return False
