@@ -206,7 +206,7 @@ class AnyioDriver:
         if out is not None and line is not None:
             try:
                 line.write(out)
-            except OSError as exc:
+            except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
                 self._lose(line, exc)
 
     # ------------------------------------------------------------------ the user's side
