@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 import pytest
 
-from ics35_async.engine import LineEngine, State
-from ics35_async.errors import ReplyTimeout
+from ics35_async.engine import BusTiming, LineEngine, State
+from ics35_async.errors import InvalidArgument, ReplyTimeout
 from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
 
 CMD = read(3)
@@ -182,3 +182,21 @@ def test_bytes_in_a_later_resync_teach_nothing() -> None:
     engine.receive(b"\x23", 0.2)  # stray: starts another resync, long after the deadline
     engine.receive(b"\x02", 0.201)
     assert engine.link.extra == 0
+
+
+@pytest.mark.parametrize("bound", [0.0, 0.004, 0.1])
+def test_the_bound_is_the_timing_setting_link_extra_max(bound: float) -> None:
+    # A line whose bytes can look like late replies (noise, a fuzzing double) must not wait
+    # more than the program allows: the learnt extra stops at BusTiming.link_extra_max.
+    engine = ready_engine(timing=BusTiming(link_extra_max=bound))
+    wire = Wire(engine, HeldTail({3}, growing_tail))
+    for _ in range(30):
+        one(wire)
+        assert engine.link.extra <= bound
+    if bound == 0.1:  # tails within the bound are learnt up to it (later ones are not learnt at all)
+        assert engine.link.extra == bound
+
+
+def test_link_extra_max_is_checked_like_every_other_timing() -> None:
+    with pytest.raises(InvalidArgument, match="link_extra_max"):
+        BusTiming(link_extra_max=-0.1)

@@ -53,7 +53,7 @@ class LineEngine(FailureRules):
         self.deadline = INF
         self.flush_input = False
         self.counters = LineCounters()
-        self.link = LinkLatency(bound=0.25)
+        self.link = LinkLatency(bound=self.timing.link_extra_max)
         self.counters.link = self.link
         self.debug = False
         self.queue = RequestQueue()
@@ -140,6 +140,35 @@ class LineEngine(FailureRules):
             current.reject(BusClosed("bus closed"))
         self.state = CLOSED
         self.deadline = INF
+
+    def describe(self, now: float) -> dict[str, object]:
+        """What the line is doing at ``now``, as plain values: for a dump when something seems stuck.
+
+        The state, when the engine wants its next :meth:`tick` (seconds from ``now``; None: not
+        until something happens), the transaction on the wire (bytes sent and so far received,
+        who waits for it), every queued request in the order it would run, and the slow-link and
+        guard-read rules' state.
+        """
+        wire: dict[str, object] | None = None
+        if self.state in (BUSY, DRAINING):
+            wire = {
+                "tx": self._tx.hex(" "),
+                "received": bytes(self._buf).hex(" "),
+                "expect": self._expect,
+                "started_s_ago": round(now - self._t_start, 6),
+                "for": repr(self._current) if self._current is not None else "the stream",
+            }
+        source = self._source
+        return {
+            "state": self.state.value,
+            "deadline_in_s": None if self.deadline == INF else round(self.deadline - now, 6),
+            "on_the_wire": wire,
+            "queued": [repr(request) for request in self.queue.waiting()],
+            "stream": None if source is None else repr(source),
+            "link_extra_s": self.link.extra,
+            "reply_owed": self.link.owed_since != INF,
+            "guard_suspect": self.guard.suspect.hex(" "),
+        }
 
     @property
     def idle(self) -> bool:

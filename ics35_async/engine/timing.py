@@ -14,7 +14,8 @@ class BusTiming:
 
     A transaction's deadline is its wire time ((TX + reply bytes) x 11 / baud)
     plus ``turnaround`` plus ``adapter_latency`` plus, for the EEPROM write and
-    the ID command, their extra allowance.
+    the ID command, their extra allowance, plus what the engine has learnt a
+    slow link adds (never more than ``link_extra_max``).
     """
 
     turnaround: float = 0.0005
@@ -23,9 +24,20 @@ class BusTiming:
     id_command: float = 0.050
     quiet_time: float = 0.010  # silence required before the next transaction after a fault
     max_resync: float = 0.5  # a line that never goes quiet is used anyway after this
+    # The most a slow link's learnt lateness may add to a deadline (see engine.link): a dead servo
+    # still times out within its allowance plus this.  0 turns the learning off.
+    link_extra_max: float = 0.25
 
     def __post_init__(self) -> None:
-        for name in ("turnaround", "adapter_latency", "eeprom_write", "id_command", "quiet_time", "max_resync"):
+        for name in (
+            "turnaround",
+            "adapter_latency",
+            "eeprom_write",
+            "id_command",
+            "quiet_time",
+            "max_resync",
+            "link_extra_max",
+        ):
             check_seconds(name, getattr(self, name))
 
     def allowance(self, nbytes: int, baudrate: int, kind: Timing = Timing.NORMAL, extra: float = 0.0) -> float:
