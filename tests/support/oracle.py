@@ -124,8 +124,11 @@ class WirePredictor:
         return Verdict(False, None, "PartialReply", received)
 
 
-GUARD_TXS = frozenset(protocol.ReadParam(i, p).tx for i in range(32) for p in (Param.STRETCH, Param.SPEED))
-"""The bytes of the bus's guard reads; the workloads here never send them themselves."""
+GUARD_TXS = frozenset(
+    protocol.guard_read(tx, i).tx for i in range(32) for tx in (b"\x80", protocol.ReadParam(i, Param.STRETCH).tx)
+)
+"""Every guard read the engine can send (what :func:`ics35_async.protocol.guard_read` makes, for
+any command and ID); the workloads here never send these themselves."""
 
 
 def band(i: int) -> tuple[int, int]:
