@@ -112,6 +112,12 @@ class Bus:
         """The engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."""
         return self._engine.state
 
+    def describe(self) -> dict[str, object]:
+        """A snapshot of the line for a diagnostic dump: the port, the driver and what the engine is
+        doing (:meth:`LineEngine.describe <ics35_async.engine.LineEngine.describe>`: the transaction on
+        the wire, the queued requests, the next deadline).  Plain values; safe to call at any time."""
+        return {"port": str(self.port), "driver": self.driver, **self._engine.describe(now())}
+
     @property
     def driver(self) -> str:
         """The driver running the line once open: ``"asyncio"``, ``"thread"`` or ``"anyio"``."""

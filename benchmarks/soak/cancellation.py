@@ -30,6 +30,7 @@ from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import FAST_TIMING, band, chaos_servos, is_stream_tx
 
 from .common import Row, consistency_check, random_request, stream_target
+from .watchdog import under_watchdog, watched
 
 
 @dataclass
@@ -58,6 +59,7 @@ class CancelReport:
         return self.desyncs == 0 and self.misattributed == 0 and self.untyped_outcomes == 0
 
 
+@under_watchdog("cancel")
 async def cancellation_soak(
     cancellations: int = 10_000, seed: int = 2, concurrency: int = 6, stream_share: float = 0.05
 ) -> CancelReport:
@@ -70,7 +72,7 @@ async def cancellation_soak(
     the servos' disjoint position bands.
     """
     sim = VirtualLine(chaos_servos(), log_size=200_000)
-    bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
+    bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))
     matcher = LogMatcher(sim, is_stream_tx, range(32), track_stream=False)
     images = {i: sim.servo(i).eeprom for i in range(32)}
     loop = asyncio.get_running_loop()

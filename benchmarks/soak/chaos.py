@@ -37,6 +37,7 @@ from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import FAST_TIMING, CheckError, chaos_servos, is_stream_tx
 
 from .common import Row, consistency_check, fault_spec, random_request, stream_target
+from .watchdog import under_watchdog, watched
 
 
 @dataclass
@@ -211,7 +212,7 @@ async def chaos_run(
 ) -> tuple[ChaosWorkload, float, VirtualLine, Bus, dict[str, Any]]:
     spec = fault_spec(fault_rate)
     sim = VirtualLine(chaos_servos(), faults=spec, seed=seed, log_size=max(100_000, transactions // 4))
-    bus = await open_bus(sim, retries=1, timing=FAST_TIMING)
+    bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))
     try:
         workload = ChaosWorkload(sim, bus, seed, workers, request_pause)
         elapsed = await workload.run(transactions)
@@ -224,6 +225,7 @@ async def chaos_run(
         raise
 
 
+@under_watchdog("chaos")
 async def chaos_soak(
     transactions: int = 1_000_000,
     fault_rate: float = 0.02,

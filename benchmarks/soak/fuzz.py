@@ -18,6 +18,7 @@ from typing import Any
 from tests.support.fuzzing import FuzzRig
 
 from .common import Row
+from .watchdog import Watchdog
 
 
 @dataclass
@@ -61,8 +62,12 @@ def fuzz_soak(streams: int = 1_000_000, batch: int = 400, lines: int = 64, seed:
     loop.set_exception_handler(lambda _loop, context: loop_errors.append(context))
     rig = FuzzRig(lines)
     t0 = time.perf_counter()
+    dog = Watchdog("fuzz", progress=lambda: rig.counts.streams + rig.counts.finished, loop=loop)
     try:
+        dog.__enter__()
         loop.run_until_complete(rig.open())
+        for bus in rig.buses:
+            dog.watch(bus)
         batches = max(1, math.ceil(streams / batch))
 
         @settings(
@@ -80,6 +85,11 @@ def fuzz_soak(streams: int = 1_000_000, batch: int = 400, lines: int = 64, seed:
         drive()
         problems = loop.run_until_complete(rig.health_check())
         loop.run_until_complete(rig.close())
+    except BaseException as exc:
+        dog.__exit__(type(exc), exc, exc.__traceback__)
+        raise
+    else:
+        dog.__exit__(None, None, None)
     finally:
         loop.close()
     c = rig.counts

@@ -37,6 +37,7 @@ from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import band
 
 from .common import Row
+from .watchdog import under_watchdog, watched
 
 IDS = range(1, 7)
 RECOVERY_TARGET_S = 1.0
@@ -157,6 +158,7 @@ class HeldTailWorkload:
             self.drain()
 
 
+@under_watchdog("held tail")
 async def held_tail_soak(
     fast: int = 2_000,
     held: int = 20_000,
@@ -168,7 +170,7 @@ async def held_tail_soak(
 ) -> HeldTailReport:
     """Run the three phases (transaction counts ``fast``, ``held``, up to ``max_decay``) and report."""
     sim = VirtualLine(held_tail_servos(), realtime=True, tail_bytes=4, tail_delay=tail_delay, log_size=None)
-    bus = await open_bus(sim, retries=0)
+    bus = watched(await open_bus(sim, retries=0))
     work = HeldTailWorkload(sim, bus, seed, workers)
     t0 = time.perf_counter()
     tasks = [asyncio.create_task(work.worker(k), name=f"held-tail worker {k}") for k in range(workers)]
@@ -264,6 +266,7 @@ class HeldTailRuns:
     examples: list[str]
 
 
+@under_watchdog("held tail")
 async def held_tail_runs(
     held: int, fast: int, seed: int = 1, progress: Callable[[str], None] | None = None
 ) -> HeldTailRuns:

@@ -36,6 +36,7 @@ from ics35_async.sim import (
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 
 from .common import Row, ms
+from .watchdog import under_watchdog, watched
 
 
 def start_pty_server(args: Sequence[str], timeout: float = 15.0) -> tuple[subprocess.Popen[str], str]:
@@ -111,6 +112,7 @@ class _PathWatch:
             await asyncio.sleep(0.0005)
 
 
+@under_watchdog("unplug (reconnect)")
 async def reconnect_session(
     down_times: Sequence[float],
     cycles_each: int,
@@ -146,6 +148,7 @@ async def reconnect_session(
         stop = asyncio.Event()
         try:
             async with open_bus(path, reconnect=True, adapter_latency=0.02) as bus:
+                watched(bus)
                 watch.task = asyncio.create_task(watch.run())
 
                 async def requests(k: int, bus: Bus = bus, stop: asyncio.Event = stop) -> None:
@@ -197,11 +200,12 @@ async def reconnect_session(
             stop_subprocess(proc)
 
 
+@under_watchdog("unplug (no reconnect)")
 async def no_reconnect_session(report: dict[str, Any]) -> None:
     """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get BusClosed."""
     proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
-        bus = await open_bus(path, adapter_latency=0.02)
+        bus = watched(await open_bus(path, adapter_latency=0.02))
         pending: list[asyncio.Future[Any]] = []
 
         async def keep_requests_queued() -> None:
@@ -254,6 +258,7 @@ def new_unplug_tally() -> dict[str, Any]:
     }
 
 
+@under_watchdog("unplug")
 async def unplug_soak(
     down_times: Sequence[float] = (0.05, 0.2, 0.5, 0.856, 1.4, 1.856, 2.4), cycles_each: int = 3, seed: int = 3
 ) -> UnplugReport:

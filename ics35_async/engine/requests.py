@@ -111,6 +111,10 @@ class RequestQueue:
                     return request
         return None
 
+    def waiting(self) -> list[Request]:
+        """The requests queued, in the order they would go on the line (a copy, for diagnostics)."""
+        return [request for level in self._levels for request in level if not request.abandoned()]
+
     def fail_all(self, error: IcsError) -> None:
         for level in self._levels:
             while level:
