@@ -169,6 +169,13 @@ class Stream:
 
     # ------------------------------------------------------------------ BackgroundSource
 
+    def slot_due(self, now: float) -> float | None:
+        if self.rate_hz is None or not self._running:
+            return None
+        if self._pos < len(self._order) or not self._cycle:
+            return now  # a cycle runs (or the first one starts at once): its transactions go first
+        return self._t0 + self._cycle / self.rate_hz
+
     def next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
         if not self._running:
             return None

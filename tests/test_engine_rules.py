@@ -6,6 +6,7 @@ Plain calls and simulated time only (see engine_support): no event loop.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 
@@ -297,3 +298,79 @@ def test_a_detached_sources_transaction_is_still_judged() -> None:
     wire.schedule(0.0001, b"\x02\x10\x10")  # before the reply: three bytes that are not it (ID 2's header)
     wire.settle()
     assert req.state == "failed" or misattributed(req, servos) is None, req.value
+
+
+# ---------------------------------------------------------------- a stream with a rate is a deadline
+
+
+def paced_line(period: float = 0.004, **options: Any) -> tuple[Wire, FakeSource]:
+    wire, _ = line({1, *range(3, 32)}, **options)
+    source = FakeSource([1], wake_at=0.0, period=period, paced=True)
+    wire.emit(wire.engine.attach_source(source, wire.now))
+    return wire, source
+
+
+def teach_answer_times(wire: Wire) -> None:
+    """A few answered requests, so the engine knows what an answer takes on this line."""
+    for sid in (3, 4, 5):
+        req = Recorded(read(sid))
+        wire.submit(req)
+        wire.run_for(0.02)
+        assert req.state == "done"
+
+
+def test_requests_use_the_slack_of_a_paced_stream_and_never_delay_a_slot() -> None:
+    wire, source = paced_line()
+    teach_answer_times(wire)
+    requests = [Recorded(read(sid)) for sid in range(3, 32)] * 4
+    source.started.clear()
+    for req in requests:
+        wire.submit(req)
+    wire.run_for(0.3)
+    assert all(req.state == "done" for req in requests)
+    late = [began - slot for slot, began in source.started if began - slot > 1e-9]
+    # A slot may only wait for the stream's own previous transaction, never for a request.
+    assert not late, late
+    # ...and the requests did get the slack: several between two slots.
+    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
+    assert max(len(run) for run in kinds.split("S")[1:-1]) >= 3
+
+
+def test_an_urgent_request_outranks_a_due_slot() -> None:
+    wire, source = paced_line()
+    teach_answer_times(wire)
+    wire.run_until(source.wake_at - 1e-6)  # the slot is about to come: no slack left for a read
+    normal, urgent = Recorded(read(7)), Recorded(read(8), priority=Priority.URGENT)
+    wire.submit(normal)
+    wire.submit(urgent)
+    wire.run_for(0.001)
+    assert urgent.state == "done"  # went at once, ahead of the slot
+    assert normal.state == "queued"  # waits for the stream's transaction and the slack after it
+    wire.run_for(0.02)
+    assert normal.state == "done"
+
+
+def test_a_request_too_long_for_any_slack_still_runs_after_two_cycles() -> None:
+    wire, _ = paced_line(period=0.004)
+    teach_answer_times(wire)
+    write = Recorded(protocol.WriteEeprom(3, protocol.Eeprom.factory(3)))  # longer than a 4 ms period
+    wire.submit(write)
+    wire.run_for(0.1)
+    assert write.state == "done"
+    # It went only after being passed over in two slacks: two slots kept, then one delayed once.
+    position_writes = [t for t, tx in wire.writes if tx[0] & 0xE0 == protocol.CMD_POSITION]
+    eeprom_at = next(t for t, tx in wire.writes if tx[:2] == write.command.tx[:2])
+    assert sum(1 for t in position_writes if t < eeprom_at) >= 2 + 3  # 3 while learning answer times
+
+
+def test_without_a_rate_the_stream_shares_by_count() -> None:
+    wire, _ = line({1, *range(10, 30)}, max_requests_between=2)
+    source = FakeSource([1], wake_at=0.0, period=0.004)  # one per period, but keeps no schedule
+    wire.emit(wire.engine.attach_source(source, wire.now))
+    requests = [Recorded(read(sid)) for sid in range(10, 30)]
+    for req in requests:
+        wire.submit(req)
+    wire.run_for(0.3)
+    assert all(req.state == "done" for req in requests)
+    late = [began - slot for slot, began in source.started if began - slot > 1e-9]
+    assert late  # requests ran over its wishes: it has no slots to keep

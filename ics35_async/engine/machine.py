@@ -23,7 +23,7 @@ from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error
 from .probe import ProbeAllowance
-from .requests import GuardRequest, Request, RequestQueue
+from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
 from .timing import BusTiming
@@ -37,6 +37,8 @@ BUSY, IDLE, QUIET, DRAINING, CLOSED = State.BUSY, State.IDLE, State.QUIET, State
 OFFLINE, LOST = State.OFFLINE, State.LOST
 NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
+URGENT = Priority.URGENT
+FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
 
 
 class LineEngine(FailureRules):
@@ -59,6 +61,8 @@ class LineEngine(FailureRules):
         self.queue = RequestQueue()
         self._source: BackgroundSource | None = None
         self._in_row = 0  # requests run since the source's last transaction
+        self._passed_over = 0  # slacks of a paced stream the queue's head was too long for
+        self._passed_over_due = -INF  # the slot of the last slack it was counted for
         self._allowances: dict[int, float] = {}  # NORMAL allowance by transaction size
         # The transaction on the wire.
         self._buf = bytearray()
@@ -266,27 +270,68 @@ class LineEngine(FailureRules):
     # ------------------------------------------------------------------ transactions
 
     def _start_next(self, now: float) -> bytes | None:
-        """Put the next transaction on the wire, if any.  Only when IDLE."""
+        """Put the next transaction on the wire, if any.  Only when IDLE.
+
+        Who goes first (see :mod:`ics35_async.engine`, "sharing the line"): without a stream,
+        requests in priority order.  Beside a stream without a rate, at most
+        ``max_requests_between`` requests between two of its transactions.  Beside a stream with
+        a rate (a deadline), its cycle's transactions first; requests in the slack between
+        cycles, each only if it is expected to finish before the next cycle is due (its wire
+        time plus what answers on this line usually take); ``URGENT`` requests outrank the stream; and a request
+        too long for the slack it was passed over in still goes after the next cycle (it delays
+        that one cycle rather than waiting forever).
+        """
         source = self._source
         queue = self.queue
-        if queue.count and (source is None or self._in_row < self.max_requests_between):
-            req = queue.pop()
-            if req is not None:
-                self._in_row += 1
-                cmd = req.command
-                return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
+        if queue.count:
+            due = None if source is None else source.slot_due(now)
+            if due is None:
+                take = source is None or self._in_row < self.max_requests_between
+            else:
+                take = self._fits_before(due, now)
+            if take:
+                req = queue.pop()
+                if req is not None:
+                    self._in_row += 1
+                    self._passed_over = 0
+                    cmd = req.command
+                    return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
         self._in_row = 0
         if source is not None:
             job = source.next_transaction(now)
             if job is not None:
                 self._owner = source
                 return self._begin(job[0], job[1], job[2], None, NORMAL, now)
-            if queue.count:  # the source yielded its turn but requests still wait
+            if queue.count and source.slot_due(now) is None:  # the source yielded its turn; requests wait
                 return self._start_next(now)
             self.deadline = source.wake_at
         else:
             self.deadline = INF
         return None
+
+    def _fits_before(self, due: float, now: float) -> bool:
+        """May the queue's next request go now, beside a stream whose next transaction is due at ``due``?"""
+        head = self.queue.peek()
+        if head is None:
+            return True  # only abandoned requests: pop() drops them
+        if head.priority == URGENT:
+            return True
+        if due <= now:  # a cycle runs (or is due): the stream's transactions go first
+            return False
+        cmd = head.command
+        beyond_wire = self.probe.expected
+        if beyond_wire < 0:  # nothing answered yet on this port: expect the full allowance
+            expected = self._allowance(len(cmd.tx) + cmd.reply_len, cmd.timing)
+        else:
+            expected = wire_time(len(cmd.tx) + cmd.reply_len, self.baudrate) + beyond_wire + FIT_MARGIN
+        if now + expected <= due:
+            return True
+        # Too long for this slack.  Passed over in two slacks in a row: it goes now (delaying the
+        # next cycle once), rather than waiting forever for a slack it can never fit in.
+        if self._passed_over_due != due:
+            self._passed_over_due = due
+            self._passed_over += 1
+        return self._passed_over >= 2
 
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float

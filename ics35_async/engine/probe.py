@@ -26,21 +26,33 @@ FACTOR = 2.0
 MARGIN = 0.001
 
 
+RISE, FALL = 0.3, 0.05  # how fast the expected answer time follows slower / faster answers
+
+
 class ProbeAllowance:
-    __slots__ = ("slowest",)
+    __slots__ = ("expected", "slowest")
 
     def __init__(self) -> None:
         self.slowest = -1.0  # the slowest answer beyond its wire time (s); negative: none seen yet
+        self.expected = -1.0  # what an answer usually takes beyond its wire time, leaning high (see answered)
 
     def reset(self) -> None:
         """A fresh port or baud rate: what the old one showed proves nothing."""
-        self.slowest = -1.0
+        self.slowest = self.expected = -1.0
 
     def answered(self, beyond_wire: float) -> None:
         """A request was answered ``beyond_wire`` seconds after its bytes' wire time."""
+        beyond_wire = max(0.0, beyond_wire)  # a fast simulator can beat the wire time
         if beyond_wire > self.slowest:
-            self.slowest = max(0.0, beyond_wire)  # a fast simulator can beat the wire time
-
+            self.slowest = beyond_wire
+        # An average that follows slower answers quickly and faster ones slowly: it sits near the
+        # high end of what answers take, and a one-off hiccup fades within a few dozen answers.
+        # (The engine's guess whether a request fits before a paced stream's next cycle.)
+        expected = self.expected
+        if expected < 0:
+            self.expected = beyond_wire
+        else:
+            self.expected = expected + (beyond_wire - expected) * (RISE if beyond_wire > expected else FALL)
     @property
     def latency(self) -> float | None:
         """Seconds a probe waits beyond its wire time; None until something has answered."""

@@ -100,6 +100,16 @@ class RequestQueue:
         self._levels[request.priority].appendleft(request)
         self.count += 1
 
+    def peek(self) -> Request | None:
+        """The request :meth:`pop` would return, left in place (abandoned ones ahead of it are dropped)."""
+        for level in self._levels:
+            while level:
+                if not level[0].abandoned():
+                    return level[0]
+                level.popleft()
+                self.count -= 1
+        return None
+
     def pop(self) -> Request | None:
         if not self.count:
             return None

@@ -26,6 +26,12 @@ class BackgroundSource(Protocol):
 
     wake_at: float
 
+    def slot_due(self, now: float) -> float | None:
+        """When this source's next transaction must start, if it keeps a schedule (a stream with a
+        rate): ``now`` or earlier while a cycle runs, the next cycle's slot while it waits.  ``None``:
+        it keeps none, and requests share the line with it by count (``max_requests_between``)."""
+        ...
+
     def next_transaction(self, now: float) -> tuple[bytes, int, int] | None: ...
 
     def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None: ...

@@ -228,14 +228,20 @@ class FakeSource:
 
     It offers jobs only while ``active``, and with a ``period``, one per
     period (as a fixed-rate stream does); with nothing to send it waits for
-    ``wake_at``.  Replies are judged with the codec.
+    ``wake_at``.  ``paced``: it tells the engine its slots (``slot_due``), as a
+    stream with a rate does, so requests must fit between them.  Replies are
+    judged with the codec.
     """
 
-    def __init__(self, ids: Iterable[int], *, wake_at: float = math.inf, period: float = 0.0) -> None:
+    def __init__(
+        self, ids: Iterable[int], *, wake_at: float = math.inf, period: float = 0.0, paced: bool = False
+    ) -> None:
         self.ids = list(ids)
         self.active = True
         self.wake_at = wake_at
         self.period = period
+        self.paced = paced
+        self.started: list[tuple[float, float]] = []  # paced: (slot, when its transaction began)
         self.k = 0
         self.asked = 0
         self.offered: list[bytes] = []
@@ -247,6 +253,9 @@ class FakeSource:
     def command(self) -> Position:
         return position(self.ids[self.k % len(self.ids)], 0)  # free: reads the position, moves nothing
 
+    def slot_due(self, now: float) -> float | None:
+        return self.wake_at if self.paced and self.active else None
+
     def next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
         self.asked += 1
         if not self.active:
@@ -254,7 +263,8 @@ class FakeSource:
         if self.period:
             if now < self.wake_at:
                 return None
-            self.wake_at = now + self.period
+            self.started.append((self.wake_at, now))
+            self.wake_at = (self.wake_at if self.paced else now) + self.period
         command = self.command()
         self.offered.append(command.tx)
         assert command.servo_id is not None
