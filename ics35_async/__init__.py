@@ -40,7 +40,7 @@ from .protocol import Param
 
 if TYPE_CHECKING:
     from . import sim as sim
-    from .bus import Bus, BusTiming, Priority, open_bus
+    from .bus import Bus, BusTiming, Priority, State, open_bus
     from .frames import Frame, GroupFrame, StreamStats
     from .group import BusGroup, GroupStream
     from .robot import Robot, RobotStream, SafetyStop, open_robot
@@ -54,6 +54,7 @@ _LAZY = {
     "Bus": ".bus",
     "BusTiming": ".bus",
     "Priority": ".bus",
+    "State": ".bus",
     "open_bus": ".bus",
     "Frame": ".frames",
     "GroupFrame": ".frames",
@@ -98,6 +99,7 @@ __all__ = [
     "RobotStream",
     "SafetyStop",
     "Servo",
+    "State",
     "Stream",
     "StreamStats",
     "open_bus",

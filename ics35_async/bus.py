@@ -393,4 +393,4 @@ def open_bus(
     )
 
 
-__all__ = ["BackgroundSource", "Bus", "BusTiming", "Priority", "open_bus"]
+__all__ = ["BackgroundSource", "Bus", "BusTiming", "Priority", "State", "open_bus"]

@@ -60,8 +60,8 @@ class ReplyError(IcsError):
         super().__init__(f"{where}: {message} (raw: {self.raw.hex(' ') or 'nothing'})")
 
 
-class ReplyTimeout(ReplyError):
-    """No byte of the reply arrived before the deadline."""
+class ReplyTimeout(ReplyError, TimeoutError):
+    """No byte of the reply arrived before the deadline (also a :class:`TimeoutError`)."""
 
 
 class PartialReply(ReplyError):

@@ -544,3 +544,13 @@ async def test_a_stream_cannot_start_while_the_bus_reopens() -> None:
         async with bus.stream(range(4)) as stream:
             frame = await stream.next_frame()
         assert set(frame.positions) == set(range(4))
+
+
+async def test_a_reply_timeout_is_a_timeout_error_and_the_line_state_is_exported() -> None:
+    from ics35_async import ReplyTimeout, State
+
+    async with open_bus("sim://?ids=1", adapter_latency=0.005) as bus:
+        assert bus.state is State.IDLE
+        with pytest.raises(TimeoutError) as caught:  # what `except TimeoutError` in a program catches
+            await bus.servo(9).read_stretch()
+        assert isinstance(caught.value, ReplyTimeout)

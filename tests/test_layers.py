@@ -124,12 +124,6 @@ def test_arrows_only_go_down() -> None:
     assert wrong == []
 
 
-def test_every_module_is_under_400_lines() -> None:
-    files = PACKAGE.rglob("*.py")
-    big = {str(p.relative_to(PACKAGE)): n for p in files if (n := len(p.read_text().splitlines())) >= 400}
-    assert big == {}
-
-
 def test_importing_the_package_loads_no_simulator_and_no_event_loop() -> None:
     code = (
         "import sys, ics35_async\n"

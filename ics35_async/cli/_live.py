@@ -83,7 +83,8 @@ async def run_live(
             try:
                 # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
                 # cancellation when a frame arrives at the same moment.
-                async with asyncio.timeout_at(deadline):
+                timer = asyncio.timeout_at(deadline)
+                async with timer:
                     while True:
                         frame = await stream.next_frame()
                         now = loop.time()
@@ -100,7 +101,9 @@ async def run_live(
                             last_render = now
                             render()
             except TimeoutError:
-                pass  # --seconds is up
+                if not timer.expired():
+                    raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
+                # --seconds is up
             except asyncio.CancelledError:
                 # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
                 state.stopped_by_ctrl_c = True

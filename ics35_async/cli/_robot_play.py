@@ -115,14 +115,16 @@ def play(
 
                 task = asyncio.ensure_future(player())
                 how = "done"
+                timer = asyncio.timeout(seconds)
                 try:
-                    async with asyncio.timeout(seconds):
+                    async with timer:
                         while not task.done():
-                            with contextlib.suppress(TimeoutError):
-                                await asyncio.wait_for(asyncio.shield(task), 0.05)
+                            await asyncio.wait({task}, timeout=0.05)  # then redraw
                             screen.update("Ctrl-C to stop")
                         task.result()
                 except TimeoutError:
+                    if not timer.expired():
+                        raise  # the motion's own error (a ReplyTimeout is a TimeoutError too)
                     how = "time is up"
                 except asyncio.CancelledError:
                     # Ctrl-C (asyncio.run cancels us): the normal way to stop; handled here, so the
