@@ -18,7 +18,7 @@ import logging
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from ..engine import LineEngine, Request
+from ..engine import LineEngine, Request, State
 from ..errors import IcsError
 from ..protocol import Command
 from .clock import now
@@ -28,6 +28,7 @@ log = logging.getLogger("ics35_async")
 T = TypeVar("T")
 INF = float("inf")
 GRACE = 0.0005  # seconds between a deadline's first look and the verdict (see _on_timer)
+IDLE = State.IDLE
 
 
 
@@ -154,9 +155,11 @@ class AsyncioLine(asyncio.Protocol):
             if deadline < INF:
                 self._arm()
             return
-        if self._second_look != deadline:
+        if self._second_look != deadline and engine.state is not IDLE:
             # The loop may have stalled past the deadline with the reply already read or
-            # queued behind this callback: judge after one more I/O poll.  The second look
+            # queued behind this callback: judge after one more I/O poll.  (Not for an idle
+            # line's deadline, a paced stream's next slot: no reply can be waiting, and the
+            # second look would start every cycle half a millisecond late.)  The second look
             # is a timer slightly in the future, not one at a time already past: uvloop
             # runs a past-due timer in the same pass, before any I/O or call_soon callback.
             # It belongs to this deadline only: a new transaction gets its own first look.

@@ -11,12 +11,12 @@ from __future__ import annotations
 import logging
 
 from ..errors import BusClosed, EchoMismatch, ReplyError
-from ..protocol import Timing
+from ..protocol import Timing, wire_time
 from .counters import LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import timeout_error
-from .probe import ProbeAllowance
+from .probe import AnswerTimes
 from .requests import Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -36,7 +36,7 @@ class FailureRules:
     counters: LineCounters
     link: LinkLatency
     guard: GuardRule
-    probe: ProbeAllowance
+    answers: AnswerTimes
     queue: RequestQueue
     _source: BackgroundSource | None
     _owner: BackgroundSource | None
@@ -49,6 +49,11 @@ class FailureRules:
     _t_start: float
     _t_first: float
     _base: float
+    _short: bool
+    _late_since: float
+    _late_due: float
+    _late_id: int
+    baudrate: int
     _quiet_until: float
     _resync_limit: float
 
@@ -64,20 +69,28 @@ class FailureRules:
         if link.owed_since != INF:
             link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
         probe = req is not None and req.command.timing is Timing.PROBE
-        if heard and not probe:  # its reply is owed from its base deadline on (see .link)
-            # (A probe's short wait says nothing of the link: its late reply must not raise the
-            # allowance of every transaction; the scan treats it as a slow servo instead.)
+        short = self._short  # a probe, or a stream transaction that waited what answers here take
+        if heard and not short:  # its reply is owed from its base deadline on (see .link)
+            # (A short wait says nothing of the link: its late reply must not raise the allowance
+            # of every transaction.  The scan treats a probe's as a slow servo; a stream
+            # transaction's lengthens the stream's own wait, see .probe.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
-        probe_wait = self.probe.latency if probe else None
-        if probe_wait is not None and not partial and self.state is State.QUIET:
-            # Silence at a probed ID: a resync as short as the probe's own wait (see .probe).
-            self._quiet_until = min(self._quiet_until, now + probe_wait + self.link.extra)
+        short_wait = self.answers.latency if probe else self.answers.stream_latency(sid) if short else None
+        if short_wait is not None and not partial and self.state is State.QUIET:
+            # Silence after a short wait: a resync as short as that wait (see .probe).
+            self._quiet_until = min(self._quiet_until, now + short_wait + self.link.extra)
             self.deadline = self._quiet_until
+            if not probe:
+                self._late_since = self._t_start + wire_time(len(tx) + self._expect - echo_len, self.baudrate)
+                self._late_due = self._t_start + self._base
+                self._late_id = sid
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
-            # long again as the transaction's full allowance, so its arrival is seen and learnt.
-            self._quiet_until = max(self._quiet_until, now + self._base)
+            # long again as the transaction's allowance (the full one, unless it waited what this
+            # line's answers take), so its arrival is seen and learnt.
+            again = self._base if not short or probe else now - self._t_start
+            self._quiet_until = max(self._quiet_until, now + again)
             self.deadline = min(self._quiet_until, self._resync_limit)
         return out
 
@@ -87,15 +100,29 @@ class FailureRules:
         if req is not None:
             return self._fail_request(req, error, sid, now)
         owner = self._owner if self._owner is self._source else None
-        out = self._fault(error, sid, now)  # counted before the stream hears (it may publish a frame)
+        out = self._fault(error, sid, now, stream=True)  # counted before the stream hears (it may publish a frame)
         if owner is not None:
             owner.fail(error, now)
         return out
 
-    def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
+    def _heard_late(self, now: float) -> None:
+        """Bytes came that may be the reply a stream transaction gave up on early (see .probe)."""
+        if now <= self._late_due:
+            self.answers.late(now - self._late_since, self._late_id)
+        self._late_since = 0.0
+
+    def _fault(self, error: ReplyError, sid: int, now: float, *, stream: bool = False) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1
         log.debug("%s", error)
         self._resync(now)
+        if stream and self._short and self.state is State.QUIET:
+            # A stream transaction's fault on a line whose answers have been measured: the
+            # silence that proves the line quiet is what an answer here takes, not the
+            # configured quiet time (made for a line nothing is known of yet).
+            wait = self.answers.stream_latency(sid)
+            if wait is not None and now + wait + self.link.extra < self._quiet_until:
+                self._quiet_until = now + wait + self.link.extra
+                self.deadline = self._quiet_until
         return None
 
     def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:

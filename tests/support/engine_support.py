@@ -184,10 +184,13 @@ class Servos:
     the writes numbered in ``mute`` get their echo but no reply.
     """
 
-    def __init__(self, ids: Iterable[int], echo: bool = True, turnaround: float = TURNAROUND) -> None:
+    def __init__(
+        self, ids: Iterable[int], echo: bool = True, turnaround: float = TURNAROUND, baudrate: int = BAUD
+    ) -> None:
         self.ids = set(ids)
         self.echo = echo
         self.turnaround = turnaround
+        self.baudrate = baudrate
         self.answers: list[Any] = []
         self.mute: set[int] = set()
         self._serial = itertools.count(1)
@@ -203,7 +206,7 @@ class Servos:
         return None
 
     def reply_for(self, tx: bytes) -> tuple[bytes | None, Any]:
-        framed = protocol.decode_request(tx, baudrate=BAUD)
+        framed = protocol.decode_request(tx, baudrate=self.baudrate)
         command = framed[0] if framed is not None else None
         if command is None or command.servo_id not in self.ids:
             return None, None
@@ -213,14 +216,15 @@ class Servos:
     def __call__(self, wire: Wire, tx: bytes) -> None:
         t = wire.now
         if self.echo:
-            wire.schedule(t + wire_time(len(tx)), tx, tag=len(self.answers))
+            wire.schedule(t + protocol.wire_time(len(tx), self.baudrate), tx, tag=len(self.answers))
         reply, value = self.reply_for(tx) if len(self.answers) not in self.mute else (None, None)
         self.answers.append(value)
         if reply is not None:
             self.deliver(wire, tx, reply)
 
     def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
-        wire.schedule(wire.now + wire_time(len(tx) + len(reply)) + self.turnaround, reply, tag=len(self.answers) - 1)
+        at = wire.now + protocol.wire_time(len(tx) + len(reply), self.baudrate) + self.turnaround
+        wire.schedule(at, reply, tag=len(self.answers) - 1)
 
 
 class FakeSource:
