@@ -13,13 +13,13 @@ import dataclasses
 import logging
 from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar, Unpack
 
 from . import protocol
 from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
-from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
+from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, TimingOverrides
 from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
 from .protocol import Command
 from .stats import BusStats
@@ -29,7 +29,7 @@ from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
     from .servo import Device, Servo
-    from .stream import Stream
+    from .stream import Stream, StreamOptions
 
 log = logging.getLogger("ics35_async")
 
@@ -90,6 +90,8 @@ class Bus:
         self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
         self._reopening = False
+        self._state_event: Any = None  # an anyio.Event while someone waits in state_change()
+        self._engine.on_state_change = self._state_changed
 
     @property
     def baudrate(self) -> int:
@@ -111,6 +113,32 @@ class Bus:
     def state(self) -> State:
         """The engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."""
         return self._engine.state
+
+    async def state_change(self) -> State:
+        """Wait until the port is lost (``State.LOST`` while reconnecting, ``State.CLOSED`` without
+        ``reconnect``) or comes back (``State.IDLE``), or the bus closes; return the new state.
+
+        A controller can watch its line with it beside its loop::
+
+            while (state := await bus.state_change()) is not State.CLOSED:
+                log.warning("line %s: %s", bus.port, state.value)
+        """
+        import anyio
+
+        if self.state is State.CLOSED:
+            return State.CLOSED
+        if self._state_event is None:
+            self._state_event = anyio.Event()
+        await self._state_event.wait()
+        return self.state
+
+    def _state_changed(self, state: State) -> None:
+        self.notify(self._wake_state_waiters)  # the engine may run in a driver's I/O thread
+
+    def _wake_state_waiters(self) -> None:
+        event, self._state_event = self._state_event, None
+        if event is not None:
+            event.set()
 
     def describe(self) -> dict[str, object]:
         """A snapshot of the line for a diagnostic dump: the port, the driver and what the engine is
@@ -196,8 +224,10 @@ class Bus:
         driver, self._driver = self._driver, None
         if driver is None:
             self._engine.close()
+            self._wake_state_waiters()
             return
         await driver.aclose()
+        self._wake_state_waiters()
         log.info("closed %s", self.port)
 
     # ------------------------------------------------------------------ submitting
@@ -287,8 +317,12 @@ class Bus:
     def servos(self, ids: Iterable[int]) -> list[Servo]:
         return [self.servo(i) for i in check_ids("ids", ids)]
 
-    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> Stream:
-        """A position :class:`~ics35_async.streaming.Stream` over ``ids``; use as ``async with``."""
+    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Unpack[StreamOptions]) -> Stream:
+        """A position :class:`~ics35_async.Stream` over ``ids``; use as ``async with``.
+
+        ``options`` are :class:`~ics35_async.stream.StreamOptions` (``on_close``, ``on_resume``,
+        ``offline_after``, ``probe_interval``, ``history``); an unknown one raises
+        :class:`~ics35_async.InvalidArgument`."""
         from .stream import STREAM_OPTIONS, Stream
 
         unknown = set(options) - STREAM_OPTIONS
@@ -356,7 +390,7 @@ def open_bus(
     reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
     max_requests_between: int = 16,
     direction: str | None = None,
-    **timing_overrides: float,
+    **timing_overrides: Unpack[TimingOverrides],
 ) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
 
@@ -368,7 +402,8 @@ def open_bus(
     in an I/O thread that blocks on the port: the cheapest for streaming, and
     for ports the loop cannot wait on; under trio, the anyio driver's reader
     thread), or ``"auto"``.  Extra
-    keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``).
+    keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``; see
+    :class:`~ics35_async.engine.TimingOverrides`).
     ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
     RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
     is on RTS (see :mod:`ics35_async.transports.direction`).

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from . import units
 
@@ -13,10 +14,17 @@ from . import units
 class Frame:
     """One completed cycle.
 
-    ``positions`` and ``timestamps`` (``time.monotonic()`` of each reply) hold the
+    ``positions`` (0..16383) and ``timestamps`` (``time.monotonic()`` of each reply) hold the
     IDs that answered this cycle; ``failed`` the IDs tried that did not;
     ``offline`` the IDs currently out of the cycle.  ``skipped`` counts the
     frames this consumer missed since its previous one.
+
+    Trouble the stream itself went through shows here too: ``missed_slots``,
+    how many of a paced stream's slots passed with no cycle before this one
+    (a stalled program or line, a pause); ``resumed``, True on the first frame
+    after the line came back from a lost port; ``held``, the IDs that get no
+    command since then until the program sets their target again (see
+    ``Stream(on_resume=...)``).
     """
 
     cycle: int
@@ -27,24 +35,59 @@ class Frame:
     started: float
     finished: float
     skipped: int = 0
+    missed_slots: int = 0
+    resumed: bool = False
+    held: frozenset[int] = frozenset()
 
     def degrees(self) -> dict[int, float]:
+        """``positions`` in degrees (0 at the centre, 7500)."""
         return {i: units.position_to_degrees(p) for i, p in self.positions.items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The frame as plain JSON values (ID keys as strings, sets as sorted lists), for a log or a web page."""
+        return {
+            "cycle": self.cycle,
+            "positions": {str(i): p for i, p in self.positions.items()},
+            "degrees": {str(i): round(d, 2) for i, d in self.degrees().items()},
+            "timestamps": {str(i): t for i, t in self.timestamps.items()},
+            "failed": sorted(self.failed),
+            "offline": sorted(self.offline),
+            "started": self.started,
+            "finished": self.finished,
+            "skipped": self.skipped,
+            "missed_slots": self.missed_slots,
+            "resumed": self.resumed,
+            "held": sorted(self.held),
+        }
 
 
 @dataclass
 class StreamStats:
+    """What a stream has done so far (:attr:`Stream.stats <ics35_async.Stream.stats>`); times in seconds.
+
+    - ``cycles``: cycles started; ``rate_hz``: frames per second since the first cycle.
+    - ``cycle_time_p50`` .. ``cycle_time_max``: how long a cycle took, start to frame, over the
+      last ``history`` cycles.
+    - ``jitter``: standard deviation of the interval between cycle starts.
+    - ``overruns``: cycles whose own work ran past the next slot (a paced stream).
+    - ``missed_slots``: slots that passed with no cycle at all (the stream re-anchors rather than
+      bursting to catch up).
+    - ``frames_dropped``: frames no consumer looked at before the next one replaced them.
+    - ``failures``: failed transactions per ID; ``offline``: the IDs out of the cycle now.
+    """
+
     cycles: int = 0
     rate_hz: float = 0.0
     cycle_time_p50: float = 0.0
     cycle_time_p90: float = 0.0
     cycle_time_p99: float = 0.0
     cycle_time_max: float = 0.0
-    jitter: float = 0.0  # standard deviation of the interval between cycle starts, seconds
+    jitter: float = 0.0
     overruns: int = 0
-    frames_dropped: int = 0  # frames no consumer looked at before the next one replaced them
+    frames_dropped: int = 0
     failures: dict[int, int] = field(default_factory=dict)
     offline: frozenset[int] = frozenset()
+    missed_slots: int = 0
 
 
 def percentile(sorted_values: Sequence[float], p: float) -> float:

@@ -25,9 +25,11 @@ import dataclasses
 import itertools
 import math
 import statistics
+import warnings
 from collections import deque
 from collections.abc import AsyncIterator, Iterable, Mapping
 from types import TracebackType
+from typing import Literal, TypedDict
 
 import anyio
 
@@ -41,7 +43,24 @@ INF = math.inf
 
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
-STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "history"})
+STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history"})
+IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held
+ON_CLOSE = ("hold", "free")
+ON_RESUME = ("wait", "free")
+OnClose = Literal["hold", "free"]
+OnResume = Literal["wait", "free"]
+
+
+class StreamOptions(TypedDict, total=False):
+    """The options of :meth:`Bus.stream <ics35_async.Bus.stream>` beyond the IDs and ``rate_hz``
+    (see :class:`Stream`); a misspelt name is a type error."""
+
+    offline_after: int
+    probe_interval: float
+    on_close: OnClose
+    on_resume: OnResume
+    history: int
+    free_on_close: bool  # deprecated: on_close="free"
 
 
 class Stream:
@@ -60,8 +79,10 @@ class Stream:
         rate_hz: float | None = None,
         offline_after: int = 3,
         probe_interval: float = 0.5,
-        free_on_close: bool = False,
+        free_on_close: bool | None = None,
         history: int = 2000,
+        on_close: OnClose = "hold",
+        on_resume: OnResume = "wait",
     ) -> None:
         id_list = units.check_ids("ids", ids)
         if not id_list:
@@ -75,13 +96,21 @@ class Stream:
         units.check_int("offline_after", offline_after, 1, 1_000_000)
         units.check_seconds("probe_interval", probe_interval, 0.001, 3600)
         units.check_int("history", history, 1, 10_000_000)
-        units.check_bool("free_on_close", free_on_close)
+        if free_on_close is not None:
+            units.check_bool("free_on_close", free_on_close)
+            warnings.warn("free_on_close is deprecated: use on_close='free'", DeprecationWarning, stacklevel=2)
+            on_close = "free" if free_on_close else "hold"
+        if on_close not in ON_CLOSE:
+            raise InvalidArgument(f"on_close must be one of {ON_CLOSE}, not {on_close!r}")
+        if on_resume not in ON_RESUME:
+            raise InvalidArgument(f"on_resume must be one of {ON_RESUME}, not {on_resume!r}")
         self.bus = bus
         self.ids: tuple[int, ...] = tuple(id_list)
         self.rate_hz = rate_hz
         self.offline_after = offline_after
         self.probe_interval = float(probe_interval)
-        self.free_on_close = free_on_close
+        self.on_close = on_close
+        self.on_resume = on_resume
         n = len(id_list)
         self._index = {sid: k for k, sid in enumerate(id_list)}
         self._targets = [protocol.FREE] * n
@@ -94,6 +123,7 @@ class Stream:
         self._failures = [0] * n
         self._offline = [False] * n
         self._next_probe = [0.0] * n
+        self._held = [False] * n  # after a resume: no command until the program sets a target
         # The cycle in progress.
         self._order: list[int] = []
         self._pos = 0
@@ -117,6 +147,15 @@ class Stream:
         self._overruns = 0
         self._slot_checked = True
         self._first_start = 0.0
+        self._missed = 0  # slots passed with no cycle, in all...
+        self._frame_missed = 0  # ...and before the cycle in progress
+        self._resumed = False  # the cycle in progress is the first since the line came back
+        # Totals published with the latest frame (one tuple: the I/O thread may publish while the
+        # consumer reads), and what the consumer has seen of them: a consumer that skips frames
+        # still learns of every missed slot and every resume.
+        self._resumes = 0
+        self._published: tuple[int, int] = (0, 0)  # (missed slots, resumes) as of the latest frame
+        self._seen: tuple[int, int] = (0, 0)
 
     # ------------------------------------------------------------------ targets
 
@@ -142,11 +181,17 @@ class Stream:
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
         """Apply targets that :meth:`check_targets` returned."""
+        held = False
         for k, p in checked:
+            if self._held[k]:
+                self._held[k] = False
+                held = True
             if self._targets[k] != p:
                 self._targets[k] = p
                 sid = self.ids[k]
                 self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
+        if held and self._running:
+            self.bus.kick()  # a stream waiting with every ID held has work again
 
     def set_target_degrees(self, servo_id: int, degrees: float) -> None:
         self.set_target(servo_id, units.degrees_to_position(degrees))
@@ -224,6 +269,26 @@ class Stream:
         if self._pos >= len(self._order):
             self._publish(now)
 
+    def line_resumed(self, now: float) -> None:
+        # The servos may have lost power and restarted (free, somewhere else) while the port was
+        # gone: the old targets could throw them across their range.  A targeted ID gets no
+        # command until the program sets its target again ("wait"), or goes free ("free").
+        for k, target in enumerate(self._targets):
+            if target != protocol.FREE:
+                if self.on_resume == "free":
+                    self._targets[k] = protocol.FREE
+                    self._jobs[k] = (protocol.position_tx(self.ids[k], protocol.FREE), 3, self.ids[k])
+                else:
+                    self._held[k] = True
+        # The cycle the loss cut short is dropped; the next starts on a fresh schedule.
+        self._order = []
+        self._pos = 0
+        self._cur = -1
+        self._slot_checked = True
+        self._resumed = True
+        if self.rate_hz is not None and self._cycle:
+            self._t0 = now - self._cycle / self.rate_hz
+
     def line_closed(self, exc: IcsError) -> None:
         self._end_error = exc
         self._stop(detach=False)  # the engine has detached us already (and may hold its driver's lock)
@@ -246,6 +311,9 @@ class Stream:
                 return False
             if now - due > 1 / self.rate_hz:
                 # A whole slot missed: re-anchor instead of bursting to catch up.
+                missed = int((now - due) * self.rate_hz)
+                self._missed += missed
+                self._frame_missed += missed
                 self._t0 = now - self._cycle / self.rate_hz
         if not self._cycle:
             self._t0 = now
@@ -254,16 +322,23 @@ class Stream:
         order = []
         for k in range(len(self.ids)):
             self._answered[k] = False
-            if not self._offline[k] or now >= self._next_probe[k]:
+            if not self._held[k] and (not self._offline[k] or now >= self._next_probe[k]):
                 order.append(k)
         self._order = order
         self._pos = 0
         self._cycle_start = now
         self._starts.append(now)
         if not order:
-            # Everything is offline: wait for the next probe instead of spinning.
+            # Nothing to send (every ID offline or held): a frame says so; then wait for the next
+            # probe or slot (unpaced: frames keep coming at IDLE_FRAME_INTERVAL, so a program
+            # waiting for one sees what is held) instead of spinning.
             self._publish(now)
-            self.wake_at = min(self._next_probe)
+            probes = [t for k, t in enumerate(self._next_probe) if self._offline[k] and not self._held[k]]
+            if self.rate_hz is not None:
+                slot = self._t0 + self._cycle / self.rate_hz
+            else:
+                slot = now + IDLE_FRAME_INTERVAL if any(self._held) else INF
+            self.wake_at = min([*probes, slot])
             return False
         return True
 
@@ -293,7 +368,17 @@ class Stream:
             offline=self.offline,
             started=self._cycle_start,
             finished=now,
+            missed_slots=self._frame_missed,
+            resumed=self._resumed,
+            held=frozenset(sid for sid, held in zip(ids, self._held, strict=True) if held)
+            if any(self._held)
+            else frozenset(),
         )
+        if self._resumed:
+            self._resumes += 1
+        self._published = (self._missed, self._resumes)
+        self._frame_missed = 0
+        self._resumed = False
         self.bus.notify(self._wake_waiters)  # this may run in a driver's I/O thread
 
     def _wake_waiters(self) -> None:
@@ -320,7 +405,13 @@ class Stream:
         skipped = frame.cycle - self._consumed_cycle - 1 if self._consumed_cycle else 0
         self._consumed_cycle = frame.cycle
         self._seen_latest = True
-        return dataclasses.replace(frame, skipped=skipped) if skipped else frame
+        totals, seen = self._published, self._seen
+        self._seen = totals
+        missed, resumed = totals[0] - seen[0], totals[1] > seen[1]
+        if skipped or missed != frame.missed_slots or resumed != frame.resumed:
+            # What the skipped frames told is not lost: their missed slots add up, a resume sticks.
+            frame = dataclasses.replace(frame, skipped=skipped, missed_slots=missed, resumed=resumed)
+        return frame
 
     @property
     def latest(self) -> Frame | None:
@@ -355,6 +446,7 @@ class Stream:
             frames_dropped=self._dropped,
             failures={sid: n for sid, n in zip(self.ids, self._failures, strict=True) if n},
             offline=self.offline,
+            missed_slots=self._missed,
         )
 
     # ------------------------------------------------------------------ lifetime
@@ -373,12 +465,18 @@ class Stream:
                 raise
         return self
 
+    @property
+    def free_on_close(self) -> bool:
+        """Deprecated: ``on_close == "free"``."""
+        return self.on_close == "free"
+
     async def aclose(self) -> None:
-        """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free."""
+        """Stop streaming; the bus stays usable.  With ``on_close="free"`` every ID goes free
+        (torque off); with ``"hold"`` (the default) each servo keeps holding its last target."""
         if self._closed:
             return
         self._stop()
-        if self.free_on_close and self.bus.is_open:
+        if self.on_close == "free" and self.bus.is_open:
             async with anyio.create_task_group() as group:
                 for i in self.ids:
                     group.start_soon(self._free_quietly, i)

@@ -293,10 +293,10 @@ def test_next_frame_timeout_raises_timeout_error() -> None:
         assert bus.servo(1).free() == 7500
 
 
-def test_free_on_close_frees_every_id() -> None:
+def test_on_close_free_frees_every_id() -> None:
     line = VirtualLine([VirtualServo(1), VirtualServo(2)])
     with blocking.open_bus(line) as bus:
-        with bus.stream([1, 2], free_on_close=True) as stream:
+        with bus.stream([1, 2], on_close="free") as stream:
             stream.set_targets({1: 8000, 2: 8000})
             stream.next_frame()
             stream.next_frame()

@@ -554,3 +554,32 @@ async def test_a_reply_timeout_is_a_timeout_error_and_the_line_state_is_exported
         with pytest.raises(TimeoutError) as caught:  # what `except TimeoutError` in a program catches
             await bus.servo(9).read_stretch()
         assert isinstance(caught.value, ReplyTimeout)
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_state_change_tells_a_lost_port_its_return_and_the_close(driver: str) -> None:
+    from ics35_async import State
+
+    sim = VirtualLine(make_servos())
+    bus = await open_bus(sim, reconnect=True, driver=driver, **HELD)
+    try:
+        changes: list[State] = []
+
+        async def watch() -> None:
+            while (state := await bus.state_change()) is not State.CLOSED:
+                changes.append(state)
+            changes.append(state)
+
+        watcher = asyncio.ensure_future(watch())
+        await asyncio.sleep(0.01)
+        sim.unplug(replug_after=0.05)
+        for _ in range(300):
+            await asyncio.sleep(0.01)
+            if bus.stats.reconnects:
+                break
+        await asyncio.sleep(0.01)
+        assert changes == [State.LOST, State.IDLE]
+    finally:
+        await bus.aclose()
+    await asyncio.wait_for(watcher, 5)
+    assert changes == [State.LOST, State.IDLE, State.CLOSED]

@@ -76,6 +76,9 @@ class PacedCycle:
     def line_closed(self, exc: IcsError) -> None:
         pass
 
+    def line_resumed(self, now: float) -> None:
+        pass
+
 
 class FaultyServos(Servos):
     """Servos whose replies are dropped, cut short, garbled or late, each kind at ``rate / 4``."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import json
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from typing import Any
@@ -31,6 +32,7 @@ from ics35_async import (
     PortLost,
     Stream,
     open_bus,
+    protocol,
 )
 from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
@@ -575,11 +577,13 @@ async def test_free_mode_reads_back_a_servo_turned_by_hand() -> None:
     check_frames(frames, sim, ids)
 
 
-async def test_free_on_close_frees_every_servo() -> None:
+async def test_on_close_free_frees_every_servo() -> None:
     ids = [1, 2, 3]
     sim = make_sim(ids)
     async with open_bus(sim, **FAST) as bus:
-        async with bus.stream(ids, free_on_close=True) as stream:
+        with pytest.warns(DeprecationWarning, match="on_close='free'"):
+            assert bus.stream(ids, free_on_close=True).on_close == "free"  # the old name still works
+        async with bus.stream(ids, on_close="free") as stream:
             stream.set_targets(dict.fromkeys(ids, 8000))
             seq = sim.transactions
             await frames_until(stream, lambda f: (f.cycle - 1) * 3 >= seq)
@@ -728,3 +732,52 @@ async def test_a_group_that_fails_to_start_leaves_no_line_streaming() -> None:
                 pass
         async with group["a"].stream([0, 1]) as stream:  # line a is free again
             await stream.next_frame()
+
+
+# --------------------------------------------------------------------------- trouble a controller can see
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+@pytest.mark.parametrize("on_resume", ["wait", "free"])
+async def test_a_resumed_stream_sends_no_old_target_to_servos_that_restarted(driver: str, on_resume: str) -> None:
+    ids = [0, 1, 2, 3]
+    sim = make_sim(ids)
+    opened = open_bus(sim, reconnect=True, driver=driver, **FAST)
+    async with opened as bus, bus.stream(ids, on_resume="wait" if on_resume == "wait" else "free") as stream:
+        old = {i: start_position(i) + 900 for i in ids}
+        stream.set_targets(old)
+        await frames_until(stream, lambda f: all(abs(f.positions.get(i, 0) - old[i]) < 20 for i in ids))
+        sim.unplug(replug_after=0.05)
+        sim.power_cycle()  # the servos lost power too: they wake up free, where they are
+        for i in ids:
+            sim.servo(i).move_by_hand(start_position(i))  # ...and were moved by hand meanwhile
+        seq = sim.transactions
+        resumed = await frames_until(stream, lambda f: f.resumed)
+        frame = resumed[-1]
+        more = [await next_frame(stream) for _ in range(3)]
+        commands = [t for t in sim.log_since(seq) if t.command in POSITION_COMMANDS]
+        # No command after the resume moves a servo toward its old target.
+        assert all(t.tx[1:] == b"\x00\x00" or t.command == "free" for t in commands), commands[:3]
+        assert not any(f.resumed for f in more)
+        if on_resume == "wait":
+            assert frame.held == set(ids) and all(f.held == set(ids) for f in more)
+            assert not commands  # nothing at all goes to a held ID
+            stream.set_target(2, start_position(2) + 50)  # the program decides again: only that ID
+            await frames_until(stream, lambda f: 2 in f.positions)
+            assert stream.target(2) == start_position(2) + 50
+        else:
+            assert not frame.held
+            assert frame.positions == {i: start_position(i) for i in ids}  # read back, free
+            assert all(stream.target(i) == protocol.FREE for i in ids)
+
+
+async def test_a_stalled_loop_shows_as_missed_slots_on_the_frame_and_in_the_stats() -> None:
+    ids = [0, 1]
+    sim = make_sim(ids)
+    async with open_bus(sim, **FAST) as bus, bus.stream(ids, rate_hz=100) as stream:
+        await frames_until(stream, lambda f: f.cycle >= 3)
+        time.sleep(0.06)  # the program blocks its event loop: six slots pass with no cycle
+        after = await frames_until(stream, lambda f: f.missed_slots > 0, limit=20)
+        assert after[-1].missed_slots >= 3
+        assert stream.stats.missed_slots >= after[-1].missed_slots
+        assert json.loads(json.dumps(after[-1].to_dict()))["missed_slots"] == after[-1].missed_slots

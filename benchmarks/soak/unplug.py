@@ -174,13 +174,16 @@ async def reconnect_session(
                                 report["wrong"] += 1
 
                 stream = bus.stream(ids)
-                stream.set_targets({i: 7000 + 100 * i for i in ids})
+                targets = {i: 7000 + 100 * i for i in ids}
+                stream.set_targets(targets)
                 async with stream:
                     workers = [asyncio.create_task(requests(k)) for k in range(3)]
                     seen_cycles = 0
                     give_up = loop.time() + patience + cycles_each * (down + 1.5)
                     while seen_cycles < cycles_each and loop.time() < give_up:
                         frame = await stream.next_frame()
+                        if frame.resumed:  # as a controller does: targets again, once it knows where it is
+                            stream.set_targets(targets)
                         backs = [t for kind, t in watch.events if kind == "back"]
                         if len(backs) > seen_cycles and len(frame.positions) == len(ids):
                             gone = [t for kind, t in watch.events if kind == "gone"][len(backs) - 1]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Awaitable, Callable, Iterable
-from typing import Any, ParamSpec, TypeVar
+from typing import TYPE_CHECKING, ParamSpec, TypeVar, Unpack
 
 from ..bus import Bus, Priority
 from ..bus import open_bus as open_async_bus
@@ -18,6 +18,9 @@ from .forward import Wrapper, blocking
 from .loop_thread import LoopThread
 from .owner import LoopOwner
 from .stream import BlockingStream
+
+if TYPE_CHECKING:
+    from ..stream import StreamOptions
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -168,6 +171,7 @@ class BlockingBus(LoopOwner[Bus]):
     write_id = blocking(Bus.write_id)
     reopen = blocking(Bus.reopen)
     wait_idle = blocking(Bus.wait_idle)
+    state_change = blocking(Bus.state_change)
 
     # ------------------------------------------------------------------ objects on the bus
 
@@ -181,7 +185,9 @@ class BlockingBus(LoopOwner[Bus]):
     def device(self, device_id: int) -> BlockingDevice:
         return BlockingDevice(self, self._async.device(device_id))
 
-    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> BlockingStream:
+    def stream(
+        self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Unpack[StreamOptions]
+    ) -> BlockingStream:
         """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``."""
         stream = self._loop.call_sync(self._async.stream, ids, rate_hz=rate_hz, **options)
         return BlockingStream(stream, self._loop)

@@ -53,7 +53,7 @@ async def run_live(
 ) -> tuple[LiveState, Telemetry, Recorder]:
     """Stream to ``ids`` until the time is up or Ctrl-C; leave every servo free."""
     loop = asyncio.get_running_loop()
-    stream = bus.stream(ids, rate_hz=options.rate_hz, free_on_close=True)
+    stream = bus.stream(ids, rate_hz=options.rate_hz, on_close="free")
     telemetry = Telemetry(bus, ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json

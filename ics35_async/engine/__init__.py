@@ -32,11 +32,12 @@ from .machine import LineEngine
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
-from .timing import BusTiming
+from .timing import BusTiming, TimingOverrides
 
 __all__ = [
     "BackgroundSource",
     "BusTiming",
+    "TimingOverrides",
     "GuardRequest",
     "LineCounters",
     "LineEngine",

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 
 from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Timing, wire_time
@@ -58,6 +59,9 @@ class LineEngine(FailureRules):
         self.link = LinkLatency(bound=self.timing.link_extra_max)
         self.counters.link = self.link
         self.debug = False
+        # Told of the port's comings and goings: LOST or CLOSED when it is lost, IDLE when it
+        # is back after a loss.  Called from wherever the engine runs (see Bus.state_change).
+        self.on_state_change: Callable[[State], None] | None = None
         self.queue = RequestQueue()
         self._source: BackgroundSource | None = None
         self._in_row = 0  # requests run since the source's last transaction
@@ -92,12 +96,18 @@ class LineEngine(FailureRules):
         """The port is open (first time, after a reopen, or reconnected)."""
         if self.state not in (OFFLINE, LOST):
             raise InvalidArgument(f"connected() while {self.state.value}")
+        resumed = self.state is LOST
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
         self._wires.clear()
         self.link.in_step()  # a fresh port: no reply from before can still arrive
         self.answers.reset()
         self.state = IDLE
+        if resumed:
+            if self._source is not None:
+                self._source.line_resumed(now)
+            if self.on_state_change is not None:
+                self.on_state_change(IDLE)
         return self._start_next(now)
 
     def disconnected(self) -> None:
@@ -122,6 +132,8 @@ class LineEngine(FailureRules):
         else:
             self.state = CLOSED
             self._detach(PortLost(reason))
+        if self.on_state_change is not None:
+            self.on_state_change(self.state)
 
     def close(self) -> None:
         """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""

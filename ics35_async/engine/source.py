@@ -21,7 +21,8 @@ class BackgroundSource(Protocol):
     it changes nothing when it returns an error: the engine counts the fault,
     then calls ``fail`` with it, as it does for a timeout or echo fault (so a
     frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
-    the line closes for good (or loses its port with reconnect off).
+    the line closes for good (or loses its port with reconnect off); ``line_resumed`` when it
+    comes back after a lost port.
     """
 
     wake_at: float
@@ -39,3 +40,8 @@ class BackgroundSource(Protocol):
     def fail(self, exc: ReplyError, now: float) -> None: ...
 
     def line_closed(self, exc: IcsError) -> None: ...
+
+    def line_resumed(self, now: float) -> None:
+        """The line came back after a lost port (a reconnect): the servos may have restarted or
+        moved meanwhile."""
+        ...

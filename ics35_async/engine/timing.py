@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypedDict
 
 from ..protocol import Timing, wire_time
 from ..units import check_seconds
@@ -51,3 +52,21 @@ class BusTiming:
         elif kind is Timing.ID:
             allowance += self.id_command
         return allowance
+
+
+class TimingOverrides(TypedDict, total=False):
+    """:class:`BusTiming` fields as keyword arguments of ``open_bus`` (seconds each).
+
+    Annotate a dict of overrides with it and a type checker catches a misspelt name::
+
+        fast: TimingOverrides = {"adapter_latency": 0.002, "quiet_time": 0.002}
+        bus = await open_bus(port, **fast)
+    """
+
+    turnaround: float
+    adapter_latency: float
+    eeprom_write: float
+    id_command: float
+    quiet_time: float
+    max_resync: float
+    link_extra_max: float

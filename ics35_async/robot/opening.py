@@ -18,6 +18,7 @@ from .. import units
 from ..bus import open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
+from ..stream import StreamOptions
 from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
@@ -63,7 +64,7 @@ async def open_robot(
         name: open_bus(line.port, baudrate=line.baudrate, echo=line.echo, retries=line.retries, **bus_options)
         for name, line in description.lines.items()
     }
-    streams_options = {"offline_after": offline_after, "probe_interval": probe_interval}
+    streams_options: StreamOptions = {"offline_after": offline_after, "probe_interval": probe_interval}
     async with contextlib.AsyncExitStack() as stack:
         # Each bus opened and closed by this task, one after the other: under trio a bus's
         # task group must end in the task that began it (BusGroup closes its lines in child tasks).

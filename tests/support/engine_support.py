@@ -246,6 +246,7 @@ class FakeSource:
         self.period = period
         self.paced = paced
         self.started: list[tuple[float, float]] = []  # paced: (slot, when its transaction began)
+        self.resumed: list[float] = []  # when the line came back after a loss
         self.k = 0
         self.asked = 0
         self.offered: list[bytes] = []
@@ -293,3 +294,6 @@ class FakeSource:
 
     def line_closed(self, exc: IcsError) -> None:
         self.closed = exc
+
+    def line_resumed(self, now: float) -> None:
+        self.resumed.append(now)

@@ -1,0 +1,19 @@
+"""A user's program with mistakes a type checker must catch (tests/test_typing.py runs mypy on it)."""
+
+from ics35_async import ReplyTimeout, open_bus
+from ics35_async.engine import TimingOverrides
+
+
+async def main() -> None:
+    fast: TimingOverrides = {"adapter_latency": 0.002, "quiet_time": 0.002}
+    async with open_bus("sim://?ids=1", **fast) as bus:
+        bus.stream([1], free_on_clsoe=True)  # MISTAKE: misspelt option
+        bus.stream([1], on_close="limp")  # MISTAKE: not a close state
+        bus.stream([1], on_close="free", on_resume="wait")
+        try:
+            await bus.servo(1).read_stretch()
+        except TimeoutError as exc:
+            assert isinstance(exc, ReplyTimeout)
+    open_bus("sim://", adapter_latncy=0.1)  # MISTAKE: misspelt timing
+    slow: TimingOverrides = {"adapter_latency": "20 ms"}  # MISTAKE: not seconds
+    print(slow)
