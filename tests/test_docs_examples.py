@@ -42,8 +42,6 @@ def test_no_other_python_fences() -> None:
 def test_example_runs(name: str, code: str, tmp_path: Path) -> None:
     script = tmp_path / "example.py"
     script.write_text(code)
-    done = subprocess.run(
-        [sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path
-    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 0, f"{name}:\n{done.stderr}"
     assert "Traceback" not in done.stderr
