@@ -16,20 +16,20 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from . import protocol
+from .conveniences import LineConveniences
 from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State
-from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
+from .errors import BusClosed, InvalidArgument, PortLost
 from .protocol import Command
 from .stats import BusStats
 from .transports.direction import check_direction
 from .transports.wire_device import TRANSPORT_KINDS, WireDevice
-from .units import check_bool, check_ids, check_int, check_seconds
+from .units import check_bool, check_int, check_seconds
 
 if TYPE_CHECKING:
-    from .servo import Device, Servo
-    from .stream import Stream
+    pass
 
 log = logging.getLogger("ics35_async")
 
@@ -42,8 +42,17 @@ RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
 
-class Bus:
-    """One ICS line.  Create with :func:`open_bus`."""
+class Bus(LineConveniences):
+    """One ICS line.  Create it with [`open_bus`][ics35_async.bus.open_bus], which documents every option.
+
+    The options that shape the line (``port``, ``echo``, ``max_requests_between``,
+    the serial ``settings``) are read-only: the engine and the driver take them when
+    the bus is made.  ``retries`` (the default for requests that do not give their
+    own) may be changed at any time.
+
+    Raises:
+        InvalidArgument: an option has the wrong type or is out of range (nothing is opened).
+    """
 
     def __init__(
         self,
@@ -70,12 +79,11 @@ class Bus:
             raise InvalidArgument(f"driver must be one of {', '.join(DRIVERS)}, not {driver!r}")
         if transport not in TRANSPORT_KINDS:
             raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
-        self.port = port
-        self.echo = check_bool("echo", echo)
+        self._port = port
         self.driver_kind = driver
         self.retries = check_int("retries", retries, 0, 10)
-        self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
-        self.settings = LineSettings(
+        """Retries for idempotent requests that do not give their own (0..10); may be changed at any time."""
+        self._settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
             direction=check_direction(direction, port),
             reconnect=check_bool("reconnect", reconnect),
@@ -83,29 +91,53 @@ class Bus:
         )
         self._engine = LineEngine(
             baudrate=protocol.check_baud(baudrate),
-            echo=self.echo,
+            echo=check_bool("echo", echo),
             timing=timing or BusTiming(),
-            max_requests_between=self.max_requests_between,
+            max_requests_between=check_int("max_requests_between", max_requests_between, 1, 10_000),
         )
         self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
         self._reopening = False
 
     @property
+    def port(self) -> str | WireDevice:
+        """The port this bus opens: a path, a URL or a WireDevice (read-only)."""
+        return self._port
+
+    @property
+    def echo(self) -> bool:
+        """Whether the interface loops the host's bytes back (read-only: the engine frames replies by it)."""
+        return self._engine.echo
+
+    @property
+    def max_requests_between(self) -> int:
+        """At most this many requests run between two of a stream's transactions (read-only)."""
+        return self._engine.max_requests_between
+
+    @property
+    def settings(self) -> LineSettings:
+        """The serial settings the driver opens the port with: transport, direction, reconnection (read-only)."""
+        return self._settings
+
+    @property
     def baudrate(self) -> int:
+        """The line rate in bit/s; changed only by :meth:`reopen`."""
         return self._engine.baudrate
 
     @property
     def timing(self) -> BusTiming:
+        """The deadline and quiet-time allowances (a frozen :class:`BusTiming`)."""
         return self._engine.timing
 
     @property
     def reconnect(self) -> bool:
-        return self.settings.reconnect
+        """Whether a lost port is reopened with backoff (``open_bus(..., reconnect=True)``)."""
+        return self._settings.reconnect
 
     @property
     def reconnect_backoff(self) -> tuple[float, ...]:
-        return self.settings.reconnect_backoff
+        """Seconds between reopen attempts after a loss; the last repeats."""
+        return self._settings.reconnect_backoff
 
     @property
     def state(self) -> State:
@@ -145,7 +177,7 @@ class Bus:
 
         self._opening = anyio.Event()
         try:
-            driver = make_driver(self.driver_kind, self._engine, self.port, self.settings)
+            driver = make_driver(self.driver_kind, self._engine, self._port, self._settings)
             self._engine.debug = log.isEnabledFor(logging.DEBUG)
             await driver.open()
             self._driver = driver
@@ -183,6 +215,7 @@ class Bus:
 
     @property
     def is_open(self) -> bool:
+        """True from a successful :meth:`open` until :meth:`aclose` or the port's loss (without reconnect)."""
         return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
 
     async def aclose(self) -> None:
@@ -266,72 +299,8 @@ class Bus:
 
     @property
     def stats(self) -> BusStats:
+        """A snapshot of the line's counters: per bus and per ID, latency, what a slow link taught."""
         return self._engine.counters.snapshot(queued=self._engine.queue.count)
-
-    def servo(self, servo_id: int) -> Servo:
-        from .servo import Servo
-
-        return Servo(self, servo_id)
-
-    def device(self, device_id: int) -> Device:
-        from .servo import Device
-
-        return Device(self, device_id)
-
-    def servos(self, ids: Iterable[int]) -> list[Servo]:
-        return [self.servo(i) for i in check_ids("ids", ids)]
-
-    def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Any) -> Stream:
-        """A position :class:`~ics35_async.streaming.Stream` over ``ids``; use as ``async with``."""
-        from .stream import STREAM_OPTIONS, Stream
-
-        unknown = set(options) - STREAM_OPTIONS
-        if unknown:
-            raise InvalidArgument(f"unknown stream option(s): {', '.join(sorted(unknown))}")
-        return Stream(self, ids, rate_hz=rate_hz, **options)
-
-    async def read_id(self, *, exactly_one_device: bool = False) -> int:
-        """Read the ID of the only device on the line.
-
-        With several devices on the line every one answers at once and the
-        result is garbage, so the caller must confirm there is exactly one.
-        """
-        if exactly_one_device is not True:
-            raise UnsafeOperation(
-                "read_id() needs exactly one device on the line (every device answers the ID command); "
-                "pass exactly_one_device=True to confirm"
-            )
-        return await self.request(protocol.ReadId())
-
-    async def write_id(self, new_id: int, *, exactly_one_device: bool = False) -> int:
-        """Give the only device on the line the ID ``new_id`` (stored in its EEPROM).
-
-        Every device on the line takes the new ID, so this is refused unless
-        the caller confirms with ``exactly_one_device=True`` -- and then still
-        unless exactly one device is proven on the line
-        (:func:`~ics35_async.policies.write_lone_id`).
-        """
-        protocol.check_id(new_id)
-        if exactly_one_device is not True:
-            raise UnsafeOperation(
-                "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"
-            )
-        from .policies import write_lone_id
-
-        return (await write_lone_id(self, new_id)).new_id
-
-    async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:
-        """IDs that answer a harmless read (it moves nothing), in the order asked.
-
-        ``concurrency`` bounds how many probes are queued at once (the line
-        still runs them one at a time), leaving room for other callers.  The
-        whole scan over baud rates, with EEPROM cross-checks, is
-        :func:`ics35_async.policies.scan`.
-        """
-        from .policies import probe_ids
-
-        checked = check_ids("ids", ids)
-        return list((await probe_ids(self, checked, id_read_first=False, concurrency=concurrency)).answered)
 
     def __repr__(self) -> str:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"

@@ -29,6 +29,7 @@ class Frame:
     skipped: int = 0
 
     def degrees(self) -> dict[int, float]:
+        """The positions of this frame in degrees, by ID (7500 counts is 0 degrees)."""
         return {i: units.position_to_degrees(p) for i, p in self.positions.items()}
 
 

@@ -21,7 +21,7 @@ LAYERS = {
     "drivers": 3, "transports": 3,
     "line": 4, "frames": 4,
     "servo": 5, "stream": 5, "policies": 5,
-    "bus": 6,
+    "bus": 6, "conveniences": 6,
     "group": 7,
     "blocking": 8, "robot": 8,
     "sim": 9, "cli": 10,

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+import warnings
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from ..errors import IcsError, ReplyError
 
@@ -24,7 +26,9 @@ class BackgroundSource(Protocol):
     the line closes for good (or loses its port with reconnect off).
     """
 
-    wake_at: float
+    @property
+    def wake_at(self) -> float:
+        """When the source next has something to send (``math.inf``: only when kicked)."""
 
     def next_transaction(self, now: float) -> tuple[bytes, int, int] | None: ...
 
@@ -33,3 +37,57 @@ class BackgroundSource(Protocol):
     def fail(self, exc: ReplyError, now: float) -> None: ...
 
     def line_closed(self, exc: IcsError) -> None: ...
+
+
+class BoundSource:
+    """A :class:`BackgroundSource` made of callables, so an object can keep its hooks off its public face.
+
+    The callables are bound methods taken once: calling ``source.complete(...)``
+    costs what a method call on the object itself would.
+    """
+
+    __slots__ = ("_wake_at", "complete", "fail", "line_closed", "next_transaction")
+
+    def __init__(
+        self,
+        next_transaction: Callable[[float], tuple[bytes, int, int] | None],
+        complete: Callable[[bytearray, int, float], ReplyError | None],
+        fail: Callable[[ReplyError, float], None],
+        line_closed: Callable[[IcsError], None],
+        wake_at: Callable[[], float],
+    ) -> None:
+        self.next_transaction = next_transaction
+        self.complete = complete
+        self.fail = fail
+        self.line_closed = line_closed
+        self._wake_at = wake_at
+
+    @classmethod
+    def of(cls, owner: Any) -> BoundSource:
+        """``owner``'s hooks: ``_next_transaction``, ``_complete``, ``_fail``, ``_line_closed``, ``_wake_at``."""
+        return cls(owner._next_transaction, owner._complete, owner._fail, owner._line_closed, lambda: owner._wake_at)
+
+    @property
+    def wake_at(self) -> float:
+        return self._wake_at()
+
+
+HOOK_NAMES = ("next_transaction", "complete", "fail", "line_closed", "wake_at")
+
+
+def keep_old_hook_names(cls: type) -> None:
+    """Give ``cls`` its hooks' old public names for one release: each still works, with a DeprecationWarning.
+
+    ``cls`` keeps its :class:`BoundSource` in ``_hooks``.
+    """
+    for name in HOOK_NAMES:
+
+        def get(self: Any, name: str = name) -> Any:
+            warnings.warn(
+                f"{type(self).__name__}.{name} is the line engine's hook, not public API; it goes in the next release",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return getattr(self._hooks, name)
+
+        setattr(cls, name, property(get, doc="Deprecated: the line engine's hook (warns); goes in the next release."))

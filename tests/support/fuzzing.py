@@ -173,7 +173,7 @@ class FuzzDevice:
             answer = command.encode_reply(valid_value(command, bytes([command.servo_id or 0, 5])))
             out = (data if self.echo else b"") + answer
         elif data in GUARD_TXS and not (self.script and self.script[0].command.tx == data):
-            # The bus's guard read after a timeout (see Bus._guard): a healthy answer, no script used.
+            # The bus's guard read after a timeout (see ics35_async.engine.guard): a healthy answer, no script used.
             self.guards += 1
             framed = decode_request(data, baudrate=self.baudrate)
             assert framed is not None and framed[0] is not None
