@@ -14,6 +14,7 @@ import ast
 import copy
 import inspect
 import itertools
+import re
 import textwrap
 from collections.abc import Callable
 from typing import Any
@@ -107,11 +108,12 @@ def engine_transitions() -> dict[tuple[str, str], list[str]]:
 
 
 def engine_state_diagram() -> str:
-    """A Mermaid state diagram of the engine's transitions."""
+    """A Mermaid state diagram of the engine's transitions, and the same as a table (readable without JavaScript)."""
+    transitions = sorted(engine_transitions().items())
     lines = ["```mermaid", "stateDiagram-v2", "    [*] --> OFFLINE"]
-    for (before, after), names in sorted(engine_transitions().items()):
-        lines.append(f"    {before} --> {after}: {'; '.join(names)}")
-    lines += ["    CLOSED --> [*]", "```"]
+    lines += [f"    {before} --> {after}: {'; '.join(names)}" for (before, after), names in transitions]
+    lines += ["    CLOSED --> [*]", "```", "", "| from | event | to |", "|---|---|---|"]
+    lines += [f"| {before} | {'; '.join(names)} | {after} |" for (before, after), names in transitions]
     return "\n".join(lines)
 
 
@@ -119,6 +121,23 @@ GENERATORS: dict[str, Callable[[], str]] = {
     "exit-codes": exit_code_table,
     "engine-states": engine_state_diagram,
 }
+
+
+# Docstrings use Sphinx roles (:class:`Bus`), which Markdown renders as ':class:' before the code.
+_ROLE = re.compile(r":(?:class|meth|func|mod|attr|exc|data|obj):<code>~?([^<]*)</code>")
+
+
+def _role_text(match: re.Match[str]) -> str:
+    name = match.group(1)
+    if match.group(0).split("<code>", 1)[1].startswith("~"):
+        name = name.rpartition(".")[2]  # Sphinx's ~: show the last part only
+    return f"<code>{name}</code>"
+
+
+def on_page_content(html: str, **kwargs: Any) -> str:
+    html = _ROLE.sub(_role_text, html)
+    # click 8.2 marks an unset flag default with a sentinel, which mkdocs-click prints as is.
+    return html.replace("<code>Sentinel.UNSET</code>", "<code>False</code>")
 
 
 def on_page_markdown(markdown: str, **kwargs: Any) -> str:
