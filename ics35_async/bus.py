@@ -81,7 +81,7 @@ class Bus(LineConveniences):
             raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
         self._port = port
         self.driver_kind = driver
-        """The driver asked for (``"auto"``, ``"asyncio"``, ``"thread"``, ``"anyio"``); ``driver`` is the one running."""
+        """The driver asked for (``"auto"``, ``"asyncio"``, ``"thread"``, ``"anyio"``); ``driver``: the one running."""
         self.retries = check_int("retries", retries, 0, 10)
         """Retries for idempotent requests that do not give their own (0..10); may be changed at any time."""
         self._settings = LineSettings(
