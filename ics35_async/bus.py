@@ -336,6 +336,13 @@ def open_bus(
     ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
     RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
     is on RTS (see :mod:`ics35_async.transports.direction`).
+
+    Nothing is opened until ``async with`` (or ``await``); opening raises
+    ``PortNotFound``, ``PortPermissionDenied``, ``PortBusy`` or another
+    ``SerialPortError`` (``ParityNotSupported``, ``DirectionControlNotSupported``).
+
+    Raises:
+        InvalidArgument: an option has the wrong type or is out of range, before anything is opened.
     """
     if timing_overrides:
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)

@@ -24,6 +24,11 @@ class Servo:
     Positions are counts (1..16383, 7500 neutral, 3500..11500 is -135..+135
     degrees).  Each position command returns the position the servo reports.
     Parameter writes change RAM only; :meth:`write_eeprom` persists.
+
+    Every method raises the same errors, besides those it names: ``InvalidArgument``
+    for a bad argument, before anything is sent; a ``ReplyError`` (``ReplyTimeout``,
+    ``PartialReply``, ``EchoMismatch``, a ``BadReply``) when the servo does not answer
+    or answers wrongly; ``BusClosed`` or ``PortLost`` when the line is closed or gone.
     """
 
     __slots__ = ("_bus", "id", "priority")
