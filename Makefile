@@ -32,6 +32,7 @@ robot-demo: $(DEMO_STAMP)
 # ruff format is checked on the files listed in FORMATTED (new files start formatted;
 # the older tree is reformatted in one separate commit when no branch is open against it).
 FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_public_api.py tests/test_wheel.py \
+	tests/test_exit_codes_doc.py \
 	tools/mkdocs_hooks.py ics35_async/conveniences.py
 
 lint: $(STAMP)
