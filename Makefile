@@ -3,8 +3,10 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# make demo needs only the package itself (no test, lint or docs tools).
+DEMO_STAMP := $(VENV)/.demo-installed
 
-.PHONY: all demo test lint typecheck pytest bench soak clean
+.PHONY: all demo robot-demo test lint format format-check typecheck pytest docs docs-serve dist bench soak clean
 
 all: test
 
@@ -15,15 +17,35 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]' --config-settings editable_mode=compat
 	touch $(STAMP)
 
-demo: $(STAMP)
+$(DEMO_STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e .
+	touch $(DEMO_STAMP)
+
+demo: $(DEMO_STAMP)
 	$(BIN)/ics35 demo
 
 # The robot layer on the simulator: a 17-joint humanoid on two lines plays a wave (live joint table).
-robot-demo: $(STAMP)
+robot-demo: $(DEMO_STAMP)
 	$(BIN)/ics35 play examples/humanoid.toml examples/wave.json
 
+# ruff format is checked on the files listed in FORMATTED (new files start formatted;
+# the older tree is reformatted in one separate commit when no branch is open against it).
+FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_public_api.py tests/test_wheel.py \
+	tests/test_exit_codes_doc.py tests/test_engine_paced_faults.py tests/test_soak_watchdog.py tests/test_device_faults.py \
+	tests/test_typing.py benchmarks/soak/watchdog.py \
+	tools/mkdocs_hooks.py
+
 lint: $(STAMP)
-	$(BIN)/ruff check ics35_async tests benchmarks
+	$(BIN)/ruff check ics35_async tests benchmarks tools
+	$(BIN)/ruff format --check $(FORMATTED)
+
+format-check: $(STAMP)
+	$(BIN)/ruff format --check $(FORMATTED)
+
+format: $(STAMP)
+	$(BIN)/ruff format $(FORMATTED)
 
 typecheck: $(STAMP)
 	$(BIN)/mypy --strict ics35_async
@@ -31,7 +53,20 @@ typecheck: $(STAMP)
 pytest: $(STAMP)
 	$(BIN)/pytest --cov=ics35_async --cov-branch --cov-report=term-missing:skip-covered
 
-test: lint typecheck pytest
+test: lint typecheck docs pytest
+
+# The docs site (MkDocs Material + mkdocstrings): warnings, broken links and
+# unresolved cross-references fail the build.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir build/site
+
+docs-serve: $(STAMP)
+	$(BIN)/mkdocs serve
+
+# Wheel and sdist into dist/.
+dist: $(STAMP)
+	rm -rf dist
+	$(BIN)/python -m build --no-isolation --outdir dist
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
@@ -40,4 +75,4 @@ soak: $(STAMP)
 	$(BIN)/python -m benchmarks.soak --json benchmarks/soak_results.json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage build dist

@@ -43,11 +43,12 @@ if TYPE_CHECKING:
     from .bus import Bus, BusTiming, Priority, State, open_bus
     from .frames import Frame, GroupFrame, StreamStats
     from .group import BusGroup, GroupStream
+    from .line import Line
     from .robot import Robot, RobotStream, SafetyStop, open_robot
     from .servo import Device, Servo
     from .stream import Stream
 
-__version__ = "0.1.0"
+__version__ = "0.1.0"  # the one place the version is written (pyproject.toml reads it)
 
 # Loaded on first use: name -> module (relative to this package).
 _LAZY = {
@@ -61,6 +62,7 @@ _LAZY = {
     "StreamStats": ".frames",
     "BusGroup": ".group",
     "GroupStream": ".group",
+    "Line": ".line",
     "Device": ".servo",
     "Servo": ".servo",
     "Stream": ".stream",
@@ -94,6 +96,7 @@ __all__ = [
     "Frame",
     "GroupFrame",
     "GroupStream",
+    "Line",
     "Priority",
     "Robot",
     "RobotStream",

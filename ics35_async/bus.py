@@ -43,7 +43,16 @@ RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
 class Bus:
-    """One ICS line.  Create with :func:`open_bus`."""
+    """One ICS line.  Create it with [`open_bus`][ics35_async.bus.open_bus], which documents every option.
+
+    The options that shape the line (``port``, ``echo``, ``max_requests_between``,
+    the serial ``settings``) are read-only: the engine and the driver take them when
+    the bus is made.  ``retries`` (the default for requests that do not give their
+    own) may be changed at any time.
+
+    Raises:
+        InvalidArgument: an option has the wrong type or is out of range (nothing is opened).
+    """
 
     def __init__(
         self,
@@ -70,12 +79,12 @@ class Bus:
             raise InvalidArgument(f"driver must be one of {', '.join(DRIVERS)}, not {driver!r}")
         if transport not in TRANSPORT_KINDS:
             raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
-        self.port = port
-        self.echo = check_bool("echo", echo)
+        self._port = port
         self.driver_kind = driver
+        """The driver asked for (``"auto"``, ``"asyncio"``, ``"thread"``, ``"anyio"``); ``driver``: the one running."""
         self.retries = check_int("retries", retries, 0, 10)
-        self.max_requests_between = check_int("max_requests_between", max_requests_between, 1, 10_000)
-        self.settings = LineSettings(
+        """Retries for idempotent requests that do not give their own (0..10); may be changed at any time."""
+        self._settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
             direction=check_direction(direction, port),
             reconnect=check_bool("reconnect", reconnect),
@@ -83,9 +92,9 @@ class Bus:
         )
         self._engine = LineEngine(
             baudrate=protocol.check_baud(baudrate),
-            echo=self.echo,
+            echo=check_bool("echo", echo),
             timing=timing or BusTiming(),
-            max_requests_between=self.max_requests_between,
+            max_requests_between=check_int("max_requests_between", max_requests_between, 1, 10_000),
         )
         self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
@@ -94,20 +103,44 @@ class Bus:
         self._engine.on_state_change = self._state_changed
 
     @property
+    def port(self) -> str | WireDevice:
+        """The port this bus opens: a path, a URL or a WireDevice (read-only)."""
+        return self._port
+
+    @property
+    def echo(self) -> bool:
+        """Whether the interface loops the host's bytes back (read-only: the engine frames replies by it)."""
+        return self._engine.echo
+
+    @property
+    def max_requests_between(self) -> int:
+        """At most this many requests run between two of a stream's transactions (read-only)."""
+        return self._engine.max_requests_between
+
+    @property
+    def settings(self) -> LineSettings:
+        """The serial settings the driver opens the port with: transport, direction, reconnection (read-only)."""
+        return self._settings
+
+    @property
     def baudrate(self) -> int:
+        """The line rate in bit/s; changed only by :meth:`reopen`."""
         return self._engine.baudrate
 
     @property
     def timing(self) -> BusTiming:
+        """The deadline and quiet-time allowances (a frozen :class:`BusTiming`)."""
         return self._engine.timing
 
     @property
     def reconnect(self) -> bool:
-        return self.settings.reconnect
+        """Whether a lost port is reopened with backoff (``open_bus(..., reconnect=True)``)."""
+        return self._settings.reconnect
 
     @property
     def reconnect_backoff(self) -> tuple[float, ...]:
-        return self.settings.reconnect_backoff
+        """Seconds between reopen attempts after a loss; the last repeats."""
+        return self._settings.reconnect_backoff
 
     @property
     def state(self) -> State:
@@ -179,7 +212,7 @@ class Bus:
 
         self._opening = anyio.Event()
         try:
-            driver = make_driver(self.driver_kind, self._engine, self.port, self.settings)
+            driver = make_driver(self.driver_kind, self._engine, self._port, self._settings)
             self._engine.debug = log.isEnabledFor(logging.DEBUG)
             await driver.open()
             self._driver = driver
@@ -217,6 +250,7 @@ class Bus:
 
     @property
     def is_open(self) -> bool:
+        """True from a successful :meth:`open` until :meth:`aclose` or the port's loss (without reconnect)."""
         return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
 
     async def aclose(self) -> None:
@@ -302,27 +336,47 @@ class Bus:
 
     @property
     def stats(self) -> BusStats:
+        """A snapshot of the line's counters: per bus and per ID, latency, what a slow link taught."""
         return self._engine.counters.snapshot(queued=self._engine.queue.count)
 
     def servo(self, servo_id: int) -> Servo:
+        """A [`Servo`][ics35_async.servo.Servo] with ID ``servo_id`` (0..31) on this line; nothing is sent.
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not an ID 0..31.
+        """
         from .servo import Servo
 
         return Servo(self, servo_id)
 
     def device(self, device_id: int) -> Device:
+        """A generic memory [`Device`][ics35_async.servo.Device] with ID ``device_id`` (0..31); nothing is sent.
+
+        Raises:
+            InvalidArgument: ``device_id`` is not an ID 0..31.
+        """
         from .servo import Device
 
         return Device(self, device_id)
 
     def servos(self, ids: Iterable[int]) -> list[Servo]:
+        """One :class:`Servo` per ID in ``ids``, in order.
+
+        Raises:
+            InvalidArgument: an ID is not 0..31 or ``ids`` is not an iterable of IDs.
+        """
         return [self.servo(i) for i in check_ids("ids", ids)]
 
     def stream(self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Unpack[StreamOptions]) -> Stream:
-        """A position :class:`~ics35_async.Stream` over ``ids``; use as ``async with``.
+        """A position [`Stream`][ics35_async.stream.Stream] over ``ids``; use it as ``async with``.
 
-        ``options`` are :class:`~ics35_async.stream.StreamOptions` (``on_close``, ``on_resume``,
-        ``offline_after``, ``probe_interval``, ``history``); an unknown one raises
-        :class:`~ics35_async.InvalidArgument`."""
+        ``rate_hz`` (``None``: cycles back to back) and the options
+        ([`StreamOptions`][ics35_async.stream.StreamOptions]: ``on_close``, ``on_resume``,
+        ``offline_after``, ``probe_interval``, ``history``) are the stream's.
+
+        Raises:
+            InvalidArgument: an unknown option, a bad ID, a duplicate ID or an out-of-range value.
+        """
         from .stream import STREAM_OPTIONS, Stream
 
         unknown = set(options) - STREAM_OPTIONS
@@ -407,6 +461,13 @@ def open_bus(
     ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
     RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
     is on RTS (see :mod:`ics35_async.transports.direction`).
+
+    Nothing is opened until ``async with`` (or ``await``); opening raises
+    ``PortNotFound``, ``PortPermissionDenied``, ``PortBusy`` or another
+    ``SerialPortError`` (``ParityNotSupported``, ``DirectionControlNotSupported``).
+
+    Raises:
+        InvalidArgument: an option has the wrong type or is out of range, before anything is opened.
     """
     if timing_overrides:
         unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)

@@ -220,6 +220,11 @@ class Eeprom:
 
     @classmethod
     def from_bytes(cls, image: bytes | bytearray) -> Eeprom:
+        """Decode a 64-byte image as a servo returns it (one nibble per byte).
+
+        Raises:
+            MalformedEeprom: the image is not 64 bytes or a byte is not a nibble.
+        """
         image = bytes(image)
         if len(image) != EEPROM_SIZE:
             raise MalformedEeprom(f"EEPROM image must be {EEPROM_SIZE} bytes, got {len(image)}")
@@ -235,6 +240,7 @@ class Eeprom:
         return cls(**values)
 
     def to_bytes(self) -> bytes:
+        """The 64-byte image to write, calibration bytes and unknown codes kept as read."""
         image = bytearray(EEPROM_SIZE)
         _put(image, 0, 2, self.header)
         for name, (off, n) in _LAYOUT.items():

@@ -40,7 +40,7 @@ class Frame:
     held: frozenset[int] = frozenset()
 
     def degrees(self) -> dict[int, float]:
-        """``positions`` in degrees (0 at the centre, 7500)."""
+        """The positions of this frame in degrees, by ID (7500 counts is 0 degrees)."""
         return {i: units.position_to_degrees(p) for i, p in self.positions.items()}
 
     def to_dict(self) -> dict[str, Any]:

@@ -33,6 +33,11 @@ class GroupStream:
         self._end_error: IcsError = BusClosed("group stream closed")
 
     def set_target(self, line: str, servo_id: int, position: int) -> None:
+        """Latest-value target for one servo on one line (0 frees it).
+
+        Raises:
+            InvalidArgument: an unknown line, an ID not in that line's stream, a position out of range.
+        """
         self._stream(line).set_target(servo_id, position)
 
     def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
@@ -51,6 +56,7 @@ class GroupStream:
             self.streams[line].apply_targets(c)
 
     def free(self) -> None:
+        """Put every servo on every line in free mode (torque off, still read back)."""
         for s in self.streams.values():
             s.free()
 
@@ -61,6 +67,12 @@ class GroupStream:
             raise InvalidArgument(f"no line named {line!r} (lines: {', '.join(self.streams)})") from None
 
     async def next_frame(self) -> GroupFrame:
+        """Wait until every line has completed a newer cycle and return them merged.
+
+        Raises:
+            BusClosed: the stream or a bus was closed.
+            PortLost: a line lost its port (without ``reconnect``).
+        """
         if self._closed:
             raise self._end_error
         frames: dict[str, Frame] = {}
@@ -115,6 +127,7 @@ class GroupStream:
 
     @property
     def stats(self) -> dict[str, StreamStats]:
+        """Each line's stream statistics, by line name."""
         return {line: s.stats for line, s in self.streams.items()}
 
     async def __aenter__(self) -> GroupStream:
@@ -130,6 +143,7 @@ class GroupStream:
         await self.aclose()
 
     async def aclose(self) -> None:
+        """Stop every line's stream; the buses stay open."""
         self._closed = True
         async with anyio.create_task_group() as group:
             for s in self.streams.values():
@@ -158,12 +172,24 @@ class BusGroup:
 
     @classmethod
     def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
+        """A group of buses opened with the same options: ``{line name: port}``.
+
+        Raises:
+            InvalidArgument: a bad port or option (see ``open_bus``).
+        """
         return cls({name: open_bus(port, **bus_options) for name, port in ports.items()})
 
     def __getitem__(self, line: str) -> Bus:
         return self.buses[line]
 
     def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
+        """A [`GroupStream`][ics35_async.group.GroupStream] over ``{line: ids}``; use as ``async with``.
+
+        ``stream_options`` are each line's stream options (``rate_hz``, ``offline_after``...).
+
+        Raises:
+            InvalidArgument: an unknown line, a bad ID or option.
+        """
         if not isinstance(ids, Mapping):
             raise InvalidArgument(f"a group stream takes {{line: ids}}, not {type(ids).__name__}")
         unknown = set(ids) - set(self.buses)
@@ -184,6 +210,7 @@ class BusGroup:
         await self.aclose()
 
     async def aclose(self) -> None:
+        """Close every bus, in reverse order; errors while closing are suppressed."""
         # One after another, in this task and in reverse order: under the anyio driver each bus
         # holds a task group, which must be left by the task that entered it, innermost first.
         for bus in reversed(self.buses.values()):

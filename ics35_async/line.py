@@ -22,32 +22,42 @@ class Line(Protocol):
     """An ICS line: one transaction at a time, a background source (the stream), counters."""
 
     @property
-    def baudrate(self) -> int: ...
+    def baudrate(self) -> int:
+        """The line rate in bit/s."""
 
     @property
-    def echo(self) -> bool: ...
+    def echo(self) -> bool:
+        """Whether the interface loops the host's bytes back."""
 
     @property
-    def is_open(self) -> bool: ...
+    def is_open(self) -> bool:
+        """True while requests can be submitted."""
 
     @property
-    def stats(self) -> BusStats: ...
+    def stats(self) -> BusStats:
+        """A snapshot of the line's counters."""
 
     async def request(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
-    ) -> T: ...
+    ) -> T:
+        """Run one command and return its parsed reply (see ``Bus.request``)."""
 
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
-    ) -> Awaitable[T]: ...
+    ) -> Awaitable[T]:
+        """Queue one command and return an awaitable of its reply (see ``Bus.submit``)."""
 
-    async def reopen(self, *, baudrate: int | None = None) -> None: ...
+    async def reopen(self, *, baudrate: int | None = None) -> None:
+        """Close and reopen the port, optionally at a new rate."""
 
-    def attach_source(self, source: BackgroundSource | None) -> None: ...
+    def attach_source(self, source: BackgroundSource | None) -> None:
+        """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches."""
 
-    def detach_source(self, source: BackgroundSource) -> None: ...
+    def detach_source(self, source: BackgroundSource) -> None:
+        """Stop ``source`` filling the line."""
 
-    def kick(self) -> None: ...
+    def kick(self) -> None:
+        """Tell an idle line that its source has work again."""
 
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` on the caller's event loop (a driver may run the engine in its own thread)."""

@@ -24,6 +24,11 @@ class Servo:
     Positions are counts (1..16383, 7500 neutral, 3500..11500 is -135..+135
     degrees).  Each position command returns the position the servo reports.
     Parameter writes change RAM only; :meth:`write_eeprom` persists.
+
+    Every method raises the same errors, besides those it names: ``InvalidArgument``
+    for a bad argument, before anything is sent; a ``ReplyError`` (``ReplyTimeout``,
+    ``PartialReply``, ``EchoMismatch``, a ``BadReply``) when the servo does not answer
+    or answers wrongly; ``BusClosed`` or ``PortLost`` when the line is closed or gone.
     """
 
     __slots__ = ("_bus", "id", "priority")
@@ -35,6 +40,7 @@ class Servo:
 
     @property
     def bus(self) -> Line:
+        """The line this servo is on."""
         return self._bus
 
     def __repr__(self) -> str:
@@ -56,6 +62,13 @@ class Servo:
         return units.position_to_degrees(await self.set_position(units.degrees_to_position(degrees)))
 
     async def set_radians(self, radians: float) -> float:
+        """Move to ``radians`` (0 is neutral); returns where the servo was when the command arrived, in radians.
+
+        Raises:
+            InvalidArgument: the angle is outside -135..+135 degrees.
+            ReplyError: the servo did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return units.position_to_radians(await self.set_position(units.radians_to_position(radians)))
 
     async def read_degrees(self) -> float:
@@ -69,9 +82,21 @@ class Servo:
         return await self._bus.request(protocol.WriteParam(self.id, param, value), priority=self.priority)
 
     async def read_stretch(self) -> int:
+        """The stretch (holding gain, 1..127) from RAM.
+
+        Raises:
+            ReplyError: the servo did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return await self._read(Param.STRETCH)
 
     async def read_speed(self) -> int:
+        """The speed parameter (1..127) from RAM.
+
+        Raises:
+            ReplyError: the servo did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return await self._read(Param.SPEED)
 
     async def read_current(self) -> int:
@@ -99,6 +124,13 @@ class Servo:
         return await self._write(Param.TEMPERATURE, value)
 
     async def read_eeprom(self) -> Eeprom:
+        """Read the servo's 64-byte EEPROM, decoded.
+
+        Raises:
+            MalformedEeprom: the image has a bad length or a byte that is not a nibble.
+            ReplyError: the servo did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return await self._bus.request(protocol.ReadEeprom(self.id), priority=self.priority)
 
     async def write_eeprom(
@@ -162,7 +194,21 @@ class Device:
         return f"<Device {self.id} on {self._bus!r}>"
 
     async def read_memory(self, address: int, count: int) -> bytes:
+        """Read ``count`` bytes from ``address`` of a generic memory device.
+
+        Raises:
+            InvalidArgument: the address or count is out of range.
+            ReplyError: the device did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return await self._bus.request(protocol.ReadMemory(self.id, address, count))
 
     async def write_memory(self, address: int, data: bytes | Sequence[int]) -> None:
+        """Write ``data`` at ``address`` of a generic memory device (never retried).
+
+        Raises:
+            InvalidArgument: the address or data is out of range.
+            ReplyError: the device did not answer, or answered wrongly.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         await self._bus.request(protocol.WriteMemory(self.id, address, data))

@@ -1,21 +1,8 @@
 """Position streaming: one position transaction per servo per cycle, at the wire's pace.
 
-ICS 3.5 has no broadcast, so a cycle over N servos is N position
-transactions, each returning that servo's measured position.  A
-:class:`Stream` plugs into its bus as the *background source*: the I/O
-callback that completes one servo's reply writes the next servo's command,
-so the hot path has no task switch and no future per servo.
-
-Sharing policy: requests from other coroutines (any :class:`Servo` call) go
-before the stream's next position transaction, so such a request waits for
-at most the transaction already on the wire plus the requests queued ahead
-of it, and the stream loses only the line time those requests use.  To keep
-the stream alive under a flood, at most ``Bus.max_requests_between``
-(default 16) requests run between two position transactions.
-
-Dead IDs: an ID that fails ``offline_after`` cycles in a row is taken out of
-the cycle and probed every ``probe_interval`` seconds; it rejoins as soon as
-a probe answers.  Frames list the offline IDs.
+ICS 3.5 has no broadcast, so a cycle over N servos is N position transactions.  A
+:class:`Stream` is the line's background source: the I/O callback that completes one
+servo's reply writes the next servo's command, with no task switch per servo.
 """
 
 from __future__ import annotations
@@ -34,6 +21,7 @@ from typing import Literal, TypedDict
 import anyio
 
 from . import protocol, units
+from .engine.source import BoundSource, keep_old_hook_names
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, StreamStats, percentile
 from .line import Line
@@ -131,7 +119,7 @@ class Stream:
         self._cycle = 0
         self._cycle_start = 0.0
         self._t0 = 0.0
-        self.wake_at = INF  # when a cycle waiting for its fixed-rate slot (or a probe) is due
+        self._wake_at = INF  # when a cycle waiting for its fixed-rate slot (or a probe) is due
         self._running = False
         self._closed = False
         self._end_error: IcsError = BusClosed("stream closed")
@@ -156,6 +144,7 @@ class Stream:
         self._resumes = 0
         self._published: tuple[int, int] = (0, 0)  # (missed slots, resumes) as of the latest frame
         self._seen: tuple[int, int] = (0, 0)
+        self._hooks = BoundSource.of(self)  # what the engine calls, kept off the public face
 
     # ------------------------------------------------------------------ targets
 
@@ -194,9 +183,11 @@ class Stream:
             self.bus.kick()  # a stream waiting with every ID held has work again
 
     def set_target_degrees(self, servo_id: int, degrees: float) -> None:
+        """Like :meth:`set_target`, in degrees (-135..+135, 0 neutral); else InvalidArgument."""
         self.set_target(servo_id, units.degrees_to_position(degrees))
 
     def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
+        """Like :meth:`set_targets`, in degrees; InvalidArgument (nothing applied) for a bad one."""
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
         self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
@@ -206,22 +197,24 @@ class Stream:
         self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 
     def target(self, servo_id: int) -> int:
+        """The current target of ``servo_id`` (0: free); InvalidArgument if it is not in the stream."""
         return self._targets[self._slot(servo_id)]
 
     @property
     def offline(self) -> frozenset[int]:
+        """IDs out of the cycle after failing ``offline_after`` cycles in a row (probed every ``probe_interval``)."""
         return frozenset(sid for sid, off in zip(self.ids, self._offline, strict=True) if off)
 
-    # ------------------------------------------------------------------ BackgroundSource
+    # ------------------------------------------------------------------ the engine's hooks (BackgroundSource)
 
-    def slot_due(self, now: float) -> float | None:
+    def _slot_due(self, now: float) -> float | None:
         if self.rate_hz is None or not self._running:
             return None
         if self._pos < len(self._order) or not self._cycle:
             return now  # a cycle runs (or the first one starts at once): its transactions go first
         return self._t0 + self._cycle / self.rate_hz
 
-    def next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
+    def _next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
         if not self._running:
             return None
         if self._pos >= len(self._order) and not self._start_cycle(now):
@@ -230,7 +223,7 @@ class Stream:
         self._cur = k
         return self._jobs[k]
 
-    def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
+    def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
@@ -252,7 +245,7 @@ class Stream:
             self._publish(now)
         return None
 
-    def fail(self, exc: ReplyError, now: float) -> None:
+    def _fail(self, exc: ReplyError, now: float) -> None:
         k = self._cur
         if k < 0:
             return
@@ -269,7 +262,7 @@ class Stream:
         if self._pos >= len(self._order):
             self._publish(now)
 
-    def line_resumed(self, now: float) -> None:
+    def _line_resumed(self, now: float) -> None:
         # The servos may have lost power and restarted (free, somewhere else) while the port was
         # gone: the old targets could throw them across their range.  A targeted ID gets no
         # command until the program sets its target again ("wait"), or goes free ("free").
@@ -289,7 +282,7 @@ class Stream:
         if self.rate_hz is not None and self._cycle:
             self._t0 = now - self._cycle / self.rate_hz
 
-    def line_closed(self, exc: IcsError) -> None:
+    def _line_closed(self, exc: IcsError) -> None:
         self._end_error = exc
         self._stop(detach=False)  # the engine has detached us already (and may hold its driver's lock)
 
@@ -297,7 +290,7 @@ class Stream:
 
     def _start_cycle(self, now: float) -> bool:
         """Begin the next cycle if it is due; False (and ``wake_at`` set) while waiting for a slot."""
-        self.wake_at = INF
+        self._wake_at = INF
         if self.rate_hz is not None and self._cycle:
             due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
             if not self._slot_checked:
@@ -307,7 +300,7 @@ class Stream:
                 if now > due:
                     self._overruns += 1
             if now < due:
-                self.wake_at = due
+                self._wake_at = due
                 return False
             if now - due > 1 / self.rate_hz:
                 # A whole slot missed: re-anchor instead of bursting to catch up.
@@ -338,7 +331,7 @@ class Stream:
                 slot = self._t0 + self._cycle / self.rate_hz
             else:
                 slot = now + IDLE_FRAME_INTERVAL if any(self._held) else INF
-            self.wake_at = min([*probes, slot])
+            self._wake_at = min([*probes, slot])
             return False
         return True
 
@@ -430,6 +423,7 @@ class Stream:
 
     @property
     def stats(self) -> StreamStats:
+        """Achieved rate, cycle-time percentiles, jitter, overruns and per-ID failures so far."""
         times = sorted(self._cycle_times)
         starts = list(self._starts)
         intervals = [b - a for a, b in itertools.pairwise(starts)]
@@ -452,6 +446,7 @@ class Stream:
     # ------------------------------------------------------------------ lifetime
 
     async def start(self) -> Stream:
+        """Start streaming (``async with`` does); BusClosed if closed or the bus is not, InvalidArgument if busy."""
         if self._closed:
             raise BusClosed("stream closed")
         if not self.bus.is_open:
@@ -459,7 +454,7 @@ class Stream:
         if not self._running:
             self._running = True
             try:
-                self.bus.attach_source(self)
+                self.bus.attach_source(self._hooks)
             except BaseException:
                 self._running = False
                 raise
@@ -489,9 +484,9 @@ class Stream:
         self._running = False
         self._closed = True
         self._cur = -1
-        self.wake_at = INF
+        self._wake_at = INF
         if detach:
-            self.bus.detach_source(self)
+            self.bus.detach_source(self._hooks)
         self.bus.notify(self._wake_waiters)
 
     async def __aenter__(self) -> Stream:
@@ -501,3 +496,6 @@ class Stream:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         await self.aclose()
+
+
+keep_old_hook_names(Stream)  # the hooks had public names: they still work, with a warning, for one release

@@ -5,7 +5,7 @@ a reply written right after its echo waits for the echo's ACK, which the
 client delays (about 40 ms on Linux): every reply arrives some 40 ms after
 its command, past a USB adapter's allowance, and the bus used to stay one
 transaction behind for good.  It must learn the link and go on (slowly: the
-README says to configure ``nodelay``).  Needs ``socat`` (installed by
+docs (how-to/platforms.md) say to configure ``nodelay``).  Needs ``socat`` (installed by
 tests.support.tools where the suite may).
 """
 

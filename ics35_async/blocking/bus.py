@@ -37,10 +37,12 @@ class BlockingServo(Wrapper[Servo]):
 
     @property
     def id(self) -> int:
+        """The servo's ID (0..31)."""
         return self._async.id
 
     @property
     def priority(self) -> Priority:
+        """The priority this servo's requests are queued at."""
         return self._async.priority
 
     def __repr__(self) -> str:
@@ -74,6 +76,7 @@ class BlockingDevice(Wrapper[Device]):
 
     @property
     def id(self) -> int:
+        """The device's ID (0..31)."""
         return self._async.id
 
     def __repr__(self) -> str:
@@ -123,30 +126,41 @@ class BlockingBus(LoopOwner[Bus]):
 
     @property
     def port(self) -> str | WireDevice:
+        """The port the bus opened (read-only)."""
         return self._async.port
 
     @property
     def baudrate(self) -> int:
+        """The line rate in bit/s; changed only by ``reopen``."""
         return self._async.baudrate
 
     @property
     def echo(self) -> bool:
+        """Whether the interface loops the host's bytes back (read-only)."""
         return self._async.echo
 
     @property
     def driver(self) -> str:
+        """The driver running the line: ``"asyncio"``, ``"thread"`` or ``"anyio"``."""
         return self._async.driver
 
     @property
     def state(self) -> State:
+        """The line engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."""
         return self._async.state
 
     @property
     def is_open(self) -> bool:
+        """True while the bus and its loop thread run."""
         return self._loop.is_running and self._async.is_open
 
     @property
     def stats(self) -> BusStats:
+        """A snapshot of the line's counters, taken on the bus's loop.
+
+        Raises:
+            BusClosed: the bus's loop thread has ended.
+        """
         return self._loop.call_sync(_stats_of, self._async)
 
     def __repr__(self) -> str:
@@ -176,13 +190,28 @@ class BlockingBus(LoopOwner[Bus]):
     # ------------------------------------------------------------------ objects on the bus
 
     def servo(self, servo_id: int) -> BlockingServo:
+        """A blocking servo with ID ``servo_id`` (0..31); nothing is sent.
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not an ID 0..31.
+        """
         # A Servo only checks its ID and keeps a reference: safe to make in this thread.
         return BlockingServo(self, self._async.servo(servo_id))
 
     def servos(self, ids: Iterable[int]) -> list[BlockingServo]:
+        """One blocking servo per ID in ``ids``, in order.
+
+        Raises:
+            InvalidArgument: an ID is not 0..31.
+        """
         return [BlockingServo(self, servo) for servo in self._async.servos(ids)]
 
     def device(self, device_id: int) -> BlockingDevice:
+        """A blocking generic memory device with ID ``device_id`` (0..31); nothing is sent.
+
+        Raises:
+            InvalidArgument: ``device_id`` is not an ID 0..31.
+        """
         return BlockingDevice(self, self._async.device(device_id))
 
     def stream(

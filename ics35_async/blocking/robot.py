@@ -115,6 +115,7 @@ class BlockingRobot(LoopOwner[Robot]):
 
     @property
     def is_open(self) -> bool:
+        """True while the robot's loop thread runs (until ``close()``)."""
         return self._loop.is_running
 
     @property
@@ -175,10 +176,12 @@ class BlockingRobot(LoopOwner[Robot]):
 
     @property
     def description(self) -> RobotDescription:
+        """The checked robot description (lines, joints, safety); immutable."""
         return self._async.description  # immutable
 
     @property
     def joints(self) -> dict[str, JointSpec]:
+        """Joint name -> its ``JointSpec`` (line, ID, offset, reverse, limits)."""
         return self._loop.call_sync(_joints_of, self._async)
 
     @property

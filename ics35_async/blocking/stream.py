@@ -40,10 +40,12 @@ class BlockingStream(Wrapper[Stream]):
 
     @property
     def ids(self) -> tuple[int, ...]:
+        """The servo IDs this stream cycles over, in order."""
         return self._async.ids
 
     @property
     def rate_hz(self) -> float | None:
+        """Cycles per second asked for (``None``: as fast as the line allows)."""
         return self._async.rate_hz
 
     @property
@@ -53,10 +55,12 @@ class BlockingStream(Wrapper[Stream]):
 
     @property
     def stats(self) -> StreamStats:
+        """Achieved rate, cycle-time percentiles, jitter, overruns and per-ID failures so far."""
         return self._loop.call_sync(_stats_of, self._async)
 
     @property
     def offline(self) -> frozenset[int]:
+        """IDs currently out of the cycle after failing ``offline_after`` cycles in a row."""
         return self._loop.call_sync(_offline_of, self._async)
 
     def next_frame(self, timeout: float | None = None) -> Frame:

@@ -13,6 +13,7 @@ rich, the bus and the simulator) are imported when one is run or listed, so
 from __future__ import annotations
 
 import importlib
+import inspect  # click imports it already: no start-up cost
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -76,12 +77,13 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     The line options (--port, --baud, --timeout, ...) may also follow the command:
     ics35 scan --port /dev/ttyUSB0.  Commands that change a servo need an explicit
     --port (or ICS35_PORT): the default simulator would forget the change at once.
-
-    Exit codes: 0 ok, 1 communication error, 2 bad argument (nothing sent), 3 port cannot be opened,
-    4 no servo answered, 5 refused or not confirmed (nothing written), 6 servo answers at another baud,
-    7 a robot's safety watch stopped the motion, 130 interrupted.
     """
     ctx.obj = settings_from(ctx, line_options)
+
+
+# Written from the enum, the one place that defines the codes (the docs' table is generated from it too).
+_CODES = ", ".join(f"{int(code)} {code.name.lower().replace('_', ' ')}" for code in ExitCode)
+cli.help = f"{inspect.cleandoc(cli.help or '')}\n\nExit codes: {_CODES} (the docs' exit-code reference says more)."
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -27,17 +27,38 @@ DEFAULT_PORT = "sim://"
 
 
 class ExitCode(enum.IntEnum):
-    """Process exit codes; documented in the README's CLI reference."""
+    """Process exit codes of ``ics35``.
+
+    The docs' exit-code table is generated from these members and their docstrings.
+    """
 
     OK = 0
-    COMMUNICATION = 1  # garbled reply, echo mismatch, verify failure, port lost mid-command
-    USAGE = 2  # bad argument (ID 32, position 20000, unknown field): nothing was sent
-    PORT = 3  # the port cannot be opened: missing, permission denied, busy, not a serial port
-    NO_REPLY = 4  # no servo answered: baud, power, wiring, ID
-    REFUSED = 5  # a dangerous operation was refused or not confirmed: nothing was written
-    WRONG_BAUD = 6  # the servo answers, but at another baud rate than --baud
-    SAFETY_STOP = 7  # a robot's safety watch stopped the motion (too hot, too much current, a joint offline)
-    INTERRUPTED = 130  # Ctrl-C during a command that is not meant to be stopped that way
+    """Success; also `demo`, `monitor` or `play` stopped with Ctrl-C, and `teach` ended with Ctrl-C."""
+    COMMUNICATION = 1
+    """Communication error: a garbled reply, an echo mismatch, a verify failure, the port lost mid-command."""
+    USAGE = 2
+    """Bad argument, nothing sent: ID 32, position 20000 (or 90 without `--deg`), an unknown parameter or
+    field, a broken backup file, a `--plot` or `sim://?record=` file that cannot be written, `--plot` without
+    matplotlib, a mistake in a robot or motion file, a motion beyond the robot's limits, or a write without
+    `--port`."""
+    PORT = 3
+    """The port cannot be opened: missing, permission denied, busy, not a serial port, direction control
+    refused by its driver; a bridge (`socket://`, `rfc2217://`) that refuses or drops the connection (what
+    was sent before it dropped stands); `ports` found no serial port."""
+    NO_REPLY = 4
+    """No servo answered (or nothing came back at all, not even the echo): baud, power, wiring, ID."""
+    REFUSED = 5
+    """Refused or not confirmed, nothing written: a baud change without `--change-baud`, an ID already taken,
+    `set-id` with more or fewer than one servo, `move` outside the servo's EEPROM pulse limits, "no" (or end
+    of input) at the prompt, `teach` with no pose captured, `calibrate` with its input ended early."""
+    WRONG_BAUD = 6
+    """The servo answers, but at another baud rate than `--baud` (the message names it)."""
+    SAFETY_STOP = 7
+    """`play`: a robot's safety watch stopped the motion (a joint too hot, drawing too much current, or
+    offline)."""
+    INTERRUPTED = 130
+    """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
+    written)."""
 
 
 class CliError(Exception):

@@ -34,7 +34,7 @@ stream's slack (see ``LineEngine._start_next``).
 from __future__ import annotations
 
 FLOOR = 0.004  # seconds: the least a probe waits beyond its wire time (a loop or VM hiccup)
-STREAM_FLOOR = 0.005  # ...and a stream transaction: the stream's cycle must keep its slot
+STREAM_FLOOR = 0.002  # ...and a stream transaction: the stream's cycle must keep its slot
 FACTOR = 2.0
 MARGIN = 0.001
 RISE, FALL = 0.3, 0.05  # how fast an expected answer time follows slower / faster answers

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+import warnings
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from ..errors import IcsError, ReplyError
 
@@ -22,10 +24,13 @@ class BackgroundSource(Protocol):
     then calls ``fail`` with it, as it does for a timeout or echo fault (so a
     frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
     the line closes for good (or loses its port with reconnect off); ``line_resumed`` when it
-    comes back after a lost port.
+    comes back after a lost port.  ``slot_due`` says whether the source keeps a schedule
+    (see the engine's sharing rule).
     """
 
-    wake_at: float
+    @property
+    def wake_at(self) -> float:
+        """When the source next has something to send (``math.inf``: only when kicked)."""
 
     def slot_due(self, now: float) -> float | None:
         """When this source's next transaction must start, if it keeps a schedule (a stream with a
@@ -45,3 +50,70 @@ class BackgroundSource(Protocol):
         """The line came back after a lost port (a reconnect): the servos may have restarted or
         moved meanwhile."""
         ...
+
+
+class BoundSource:
+    """A :class:`BackgroundSource` made of callables, so an object can keep its hooks off its public face.
+
+    The callables are bound methods taken once: calling ``source.complete(...)``
+    costs what a method call on the object itself would.
+    """
+
+    __slots__ = ("_wake_at", "complete", "fail", "line_closed", "line_resumed", "next_transaction", "slot_due")
+
+    def __init__(
+        self,
+        next_transaction: Callable[[float], tuple[bytes, int, int] | None],
+        complete: Callable[[bytearray, int, float], ReplyError | None],
+        fail: Callable[[ReplyError, float], None],
+        line_closed: Callable[[IcsError], None],
+        wake_at: Callable[[], float],
+        slot_due: Callable[[float], float | None],
+        line_resumed: Callable[[float], None],
+    ) -> None:
+        self.next_transaction = next_transaction
+        self.complete = complete
+        self.fail = fail
+        self.line_closed = line_closed
+        self._wake_at = wake_at
+        self.slot_due = slot_due
+        self.line_resumed = line_resumed
+
+    @classmethod
+    def of(cls, owner: Any) -> BoundSource:
+        """``owner``'s hooks: ``_next_transaction``, ``_complete``, ``_fail``, ``_line_closed``, ``_wake_at``,
+        ``_slot_due``, ``_line_resumed``."""
+        return cls(
+            owner._next_transaction,
+            owner._complete,
+            owner._fail,
+            owner._line_closed,
+            lambda: owner._wake_at,
+            owner._slot_due,
+            owner._line_resumed,
+        )
+
+    @property
+    def wake_at(self) -> float:
+        return self._wake_at()
+
+
+HOOK_NAMES = ("next_transaction", "complete", "fail", "line_closed", "wake_at")
+
+
+def keep_old_hook_names(cls: type) -> None:
+    """Give ``cls`` its hooks' old public names for one release: each still works, with a DeprecationWarning.
+
+    ``cls`` keeps its :class:`BoundSource` in ``_hooks``.
+    """
+    for name in HOOK_NAMES:
+
+        def get(self: Any, name: str = name) -> Any:
+            warnings.warn(
+                f"{type(self).__name__}.{name} is the line engine's hook, not public API; it goes in the next release",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return getattr(self._hooks, name)
+
+        setattr(cls, name, property(get, doc="Deprecated: the line engine's hook (warns); goes in the next release."))

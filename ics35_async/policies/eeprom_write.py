@@ -85,14 +85,17 @@ class EepromPlan:
 
     @property
     def diff(self) -> dict[str, tuple[Any, Any]]:
+        """Field -> (before, after) for every field the write changes."""
         return self.before.diff(self.after)
 
     @property
     def changes_baud(self) -> bool:
+        """True if the write changes the baud rate (needs ``allow_baud_change``)."""
         return self.after.baud_rate != self.before.baud_rate
 
     @property
     def changes_id(self) -> bool:
+        """True if the write changes the servo's ID (needs ``allow_id_change``)."""
         return self.after.servo_id != self.before.servo_id
 
     @property
@@ -102,6 +105,7 @@ class EepromPlan:
 
     @property
     def added_flags(self) -> Flags:
+        """Flags the write sets that were clear (read-only flags excluded)."""
         return Flags(self.after.flags & ~self.before.flags & ~READ_ONLY_FLAGS)
 
     def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
@@ -163,6 +167,7 @@ class EepromWriteResult:
 
     @property
     def verified(self) -> bool:
+        """True if the image read back after the write equals the one planned."""
         return self.read_back is not None and self.read_back == self.plan.after
 
 

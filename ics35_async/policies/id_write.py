@@ -57,6 +57,7 @@ class IdSurvey:
 
     @property
     def refusal(self) -> Refusal | None:
+        """Why an ID write would be unsafe on this line (``None``: exactly one device, safe)."""
         quiet_id_read = self.id_read_error is None or nothing_came_back(self.id_read_error)
         if not self.answered and not self.garbled and self.id_read is None and quiet_id_read:
             return Refusal.NOBODY

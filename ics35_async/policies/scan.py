@@ -79,6 +79,7 @@ class FoundServo:
 
     @property
     def eeprom_baud(self) -> int | None:
+        """The baud rate the servo's EEPROM names (``None`` if it was not read)."""
         return None if self.eeprom is None else int(self.eeprom.baud_rate)
 
     @property

@@ -53,12 +53,15 @@ class JointSpec:
 
     @property
     def sign(self) -> int:
+        """-1 for a reversed joint, else +1."""
         return -1 if self.reverse else 1
 
     def servo_degrees(self, joint_degrees: float) -> float:
+        """The servo angle for an angle of this joint: ``offset + sign * joint_degrees``."""
         return self.offset + self.sign * joint_degrees
 
     def joint_degrees(self, servo_degrees: float) -> float:
+        """The joint angle for an angle of its servo (the inverse of ``servo_degrees``)."""
         return (servo_degrees - self.offset) * self.sign
 
     def position(self, joint_degrees: float) -> int:
@@ -70,6 +73,7 @@ class JointSpec:
         return self.joint_degrees(units.position_to_degrees(position))
 
     def clamp(self, joint_degrees: float) -> float:
+        """``joint_degrees`` brought within ``[min, max]``."""
         return min(self.max, max(self.min, joint_degrees))
 
     def check(self, joint_degrees: object) -> float:
@@ -103,6 +107,7 @@ class RobotDescription:
     name: str | None = None
 
     def joints_on(self, line: str) -> list[JointSpec]:
+        """The joints driven by servos on ``line``, in file order."""
         return [j for j in self.joints.values() if j.line == line]
 
 

@@ -63,16 +63,19 @@ class Motion:
 
     @property
     def duration(self) -> float:
+        """Seconds from the start to the last keyframe."""
         return self.keyframes[-1].time
 
     @property
     def joints(self) -> list[str]:
+        """Every joint some keyframe names, in order of first appearance."""
         seen: dict[str, None] = {}
         for frame in self.keyframes:
             seen.update(dict.fromkeys(frame.pose))
         return list(seen)
 
     def to_json(self) -> dict[str, Any]:
+        """The motion as the JSON document ``load_motion`` reads (format and version included)."""
         data: dict[str, Any] = {"format": FORMAT, "version": VERSION}
         if self.name is not None:
             data["name"] = self.name
@@ -104,6 +107,11 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
 
 
 def save_motion(motion: Motion, path: str | Path) -> None:
+    """Write ``motion`` to ``path`` as JSON (UTF-8, indented).
+
+    Raises:
+        OSError: the file cannot be written.
+    """
     Path(path).write_text(json.dumps(motion.to_json(), indent=2) + "\n", encoding="utf-8")
 
 

@@ -66,10 +66,12 @@ class Segment:
     profile: str = "minjerk"
 
     def fraction(self, t: float) -> float:
+        """How far through the segment time ``t`` is (0 at its start, 1 at its end or after)."""
         duration = self.end_time - self.start_time
         return 1.0 if duration <= 0 else (t - self.start_time) / duration
 
     def pose_at(self, t: float) -> dict[str, float]:
+        """The interpolated pose at time ``t``, shaped by the segment's profile."""
         s = self.fraction(t)
         if s >= 1.0:
             return dict(self.end)
@@ -118,4 +120,5 @@ class Trajectory:
 
     @property
     def final(self) -> dict[str, float]:
+        """The pose the trajectory ends in."""
         return dict(self.segments[-1].end)

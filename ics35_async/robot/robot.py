@@ -65,6 +65,7 @@ class Robot:
 
     @property
     def latest(self) -> RobotFrame | None:
+        """The newest frame in joint degrees (``None`` before the first cycle)."""
         return self._latest
 
     @property
@@ -83,6 +84,11 @@ class Robot:
         return dict(self._latched)
 
     def joint_names(self, joints: Iterable[str] | None) -> list[str]:
+        """``joints`` checked and as a list (``None``: every joint; a string: that one).
+
+        Raises:
+            InvalidArgument: an unknown joint name.
+        """
         if joints is None:
             return list(self.joints)
         if isinstance(joints, str):
@@ -362,6 +368,10 @@ class Robot:
         # "hold": every joint keeps its last target, the crossing one included.
 
     def clear_trip(self, joint: str, reasons: Iterable[str]) -> None:
+        """Clear ``joint``'s safety trip if it was for one of ``reasons``.
+
+        The safety watch calls this once a reading is back within the limits.
+        """
         stop = self._latched.get(joint)
         if stop is not None and stop.reason in reasons:
             del self._latched[joint]

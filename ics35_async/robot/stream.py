@@ -29,6 +29,12 @@ class RobotStream:
         self._closed = False
 
     async def next_frame(self) -> RobotFrame:
+        """The newest frame in joint degrees not yet returned; waits for one.
+
+        Raises:
+            BusClosed: the stream or the robot was closed.
+            SafetyStop: the safety watch stopped the robot.
+        """
         if self._closed:
             raise BusClosed("robot stream closed")
         frame = await self.robot.wait_frame(self._cycle)
@@ -40,6 +46,11 @@ class RobotStream:
         return dataclasses.replace(frame, skipped=skipped) if skipped > 0 else frame
 
     def set_target(self, joint: str, degrees: float) -> None:
+        """Latest-value target for one joint, in joint degrees.
+
+        Raises:
+            InvalidArgument: an unknown joint or an angle outside its limits.
+        """
         self.robot.set_targets({joint: degrees})
 
     def set_targets(self, pose: Mapping[str, float]) -> None:
@@ -47,9 +58,19 @@ class RobotStream:
         self.robot.set_targets(pose)
 
     def free(self, joints: Iterable[str] | None = None) -> None:
+        """Free ``joints`` (default: all): torque off, positions still read back.
+
+        Raises:
+            InvalidArgument: an unknown joint.
+        """
         self.robot.set_targets(dict.fromkeys(self.robot.joint_names(joints)), allow_free=True)
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
+        """Hold ``joints`` (default: all) where they are, torque on.
+
+        Raises:
+            InvalidArgument: an unknown joint.
+        """
         self.robot.hold(joints)
 
     def __aiter__(self) -> AsyncIterator[RobotFrame]:
@@ -62,6 +83,7 @@ class RobotStream:
             raise StopAsyncIteration from None
 
     async def aclose(self) -> None:
+        """Stop taking frames from this stream; the robot keeps streaming."""
         self._closed = True
 
     async def __aenter__(self) -> RobotStream:

@@ -12,7 +12,7 @@ simulator logs them, so:
   bytes, so the request log entries of ID ``i`` split into runs of equal
   ``tx``, one run per request (one entry per attempt: retries resend it);
 * the bus's own guard reads (a stretch or speed read after a timeout, see
-  ``Bus._guard``) are told by their bytes: the workloads never send those.
+  ``ics35_async.engine.guard``) are told by their bytes: the workloads never send those.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ class LogMatcher:
             if sid is None:
                 raise CheckError(f"seq {t.seq}: a transaction addressed to no servo ({t.command})")
             if t.tx in GUARD_TXS:
-                # A guard read the bus put between a timed-out command and its twin (see Bus._guard):
+                # A guard read the bus put between a timed-out command and its twin (see ics35_async.engine.guard):
                 # no caller asked for it. Its outcome is what its bytes call for.
                 counts.guards += 1
                 if not verdict.ok:

@@ -1,0 +1,75 @@
+"""The package as users get it: build the wheel and sdist, install the wheel into a clean
+virtualenv, and run the CLI and an API example from there against the simulator.
+
+This needs the ``build`` package and setuptools>=77 (both in the ``dev`` extra) and pip's
+access to the package index (or its cache) for the wheel's dependencies.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import tarfile
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLE = re.findall(r"^```python\n(.*?)^```", (ROOT / "README.md").read_text(), flags=re.S | re.M)[0]
+
+
+def _run(*args: str | Path, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    return subprocess.run([str(a) for a in args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    pytest.importorskip("build", reason="python -m build needs the build package (pip install -e '.[dev]')")
+    out = tmp_path_factory.mktemp("dist")
+    done = _run(sys.executable, "-m", "build", "--no-isolation", "--outdir", out, ROOT, cwd=ROOT)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return out
+
+
+def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dist: Path) -> None:
+    (wheel,) = dist.glob("*.whl")
+    (sdist,) = dist.glob("*.tar.gz")
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
+    assert "ics35_async/py.typed" in names
+    with tarfile.open(sdist) as archive:
+        members = [m.split("/", 1)[1] for m in archive.getnames() if "/" in m]
+    assert "LICENSE" in members and "CHANGELOG.md" in members
+    assert not [m for m in members if m.startswith("tests/")], "the sdist ships tests it cannot run"
+
+
+def test_wheel_installs_into_a_clean_virtualenv_and_runs(dist: Path, tmp_path: Path) -> None:
+    (wheel,) = dist.glob("*.whl")
+    env_dir = tmp_path / "venv"
+    venv.create(env_dir, with_pip=True)
+    bin_dir = env_dir / ("Scripts" if os.name == "nt" else "bin")
+    done = _run(bin_dir / "python", "-m", "pip", "install", "--quiet", wheel, cwd=tmp_path, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+    where = _run(bin_dir / "python", "-c", "import ics35_async; print(ics35_async.__file__)", cwd=tmp_path)
+    assert where.returncode == 0, where.stderr
+    assert Path(where.stdout.strip()).is_relative_to(env_dir), "imported the work tree, not the wheel"
+
+    scan = _run(bin_dir / "ics35", "--port", "sim://?ids=1-3", "scan", "--bauds", "115200", cwd=tmp_path)
+    assert scan.returncode == 0, scan.stderr
+    assert "3 servo(s) found" in scan.stdout + scan.stderr
+
+    version = _run(bin_dir / "ics35", "--version", cwd=tmp_path)
+    assert version.returncode == 0 and "0." in version.stdout
+
+    script = tmp_path / "example.py"
+    script.write_text(EXAMPLE)
+    example = _run(bin_dir / "python", script, cwd=tmp_path)
+    assert example.returncode == 0, example.stderr
+    assert "servos: [1, 2, 3]" in example.stdout
