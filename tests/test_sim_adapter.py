@@ -31,7 +31,7 @@ def test_an_echo_and_its_reply_wait_for_the_latency_timer_together() -> None:
 def test_the_timer_runs_from_the_last_packet() -> None:
     adapter = FtdiAdapter(16)
     adapter.inbound([(0.002, b"\x01")], BYTE_115200)  # a packet at 16 ms
-    (when, _), = adapter.inbound([(0.020, b"\x02")], BYTE_115200)
+    ((when, _),) = adapter.inbound([(0.020, b"\x02")], BYTE_115200)
     assert when == pytest.approx(0.032)  # not 20 + 16: the timer restarted at 16 ms
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..transports import HostSide
-from .adapter import FtdiAdapter
+from ..transports.usb_timing import FtdiAdapter
 from .clock import SPIN_MARGIN, Deliverer
 from .devices import Device, MemorySpec
 from .faults import FaultConfig

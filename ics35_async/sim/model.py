@@ -30,7 +30,7 @@ from typing import Any
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, WriteEeprom
-from .adapter import FtdiAdapter
+from ..transports.usb_timing import FtdiAdapter
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
 from .framing import CommandFramer
