@@ -239,17 +239,34 @@ def test_udev_install_writes_where_it_may_and_asks_before_sudo(tmp_path: Path, i
     result = ics35("udev", "--install", "--path", str(target))
     assert result.code == 0, result.err
     assert "ftdi_sio" in target.read_text() and "udevadm control --reload-rules" in result.err
-    if os.geteuid() == 0:
-        return  # root may write anywhere: no sudo question to test
-    locked = tmp_path / "locked"
-    locked.mkdir()
-    locked.chmod(0o500)
-    try:
-        refused = ics35("udev", "--install", "--path", str(locked / "x.rules"), stdin="n\n")
-    finally:
-        locked.chmod(0o700)
+    # A place we may not write (even as root: its directory does not exist): the sudo question.
+    elsewhere = tmp_path / "no-such-dir" / "x.rules"
+    refused = ics35("udev", "--install", "--path", str(elsewhere), stdin="n\n")
     if "no sudo here" in refused.err:
         assert refused.code == 3
     else:
-        assert refused.code == 5 and "sudo tee" in refused.err and "nothing was written" in refused.err
-    assert not (locked / "x.rules").exists()
+        assert refused.code == 5 and "sudo tee" in refused.err and "[y/N]" in refused.err
+        assert "nothing was written" in refused.err
+    assert not elsewhere.exists()
+    silent = ics35("udev", "--install", "--path", str(elsewhere), stdin="")  # no answer: no sudo
+    assert silent.code in (3, 5) and not elsewhere.exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ics35: Any) -> None:
+    # A stand-in for the system's sudo (not our code): it logs its arguments and runs them.
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    log = tmp_path / "sudo.log"
+    sudo = bin_dir / "sudo"
+    sudo.write_text(f'#!/bin/sh\necho "$@" >> {log}\nmkdir -p "$(dirname "$2")"\nexec "$@"\n')
+    sudo.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    target = tmp_path / "etc-udev" / "99-ics35-kondo.rules"  # its directory does not exist: not writable
+    refused = ics35("udev", "--install", "--path", str(target), stdin="n\n")
+    assert refused.code == 5 and "[y/N]" in refused.err
+    assert not log.exists() and not target.exists()  # sudo never ran
+    done = ics35("udev", "--install", "--path", str(target), stdin="y\n")
+    assert done.code == 0, done.err
+    assert log.read_text().split() == ["tee", str(target)]
+    assert "165c 0006" in target.read_text() and "udevadm trigger" in done.err
