@@ -13,7 +13,7 @@ from ..diagnose import Finding
 from ..diagnose.line import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
-from ._common import ID_LIST, CliError, ExitCode, emit_json, err, json_option, out, run, settings_of
+from ._common import ID_LIST, CliError, ExitCode, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -55,13 +55,14 @@ def print_report(system: SystemReport, line: LineReport | None, findings: list[F
     if line is not None and line.median is not None and line.p99 is not None:
         rates = line.cycle_hz()
         out.print(
-            f"[bold]line[/bold] at {line.baudrate} baud: servos {', '.join(map(str, line.servo_ids))}; "
+            f"[bold]line[/bold] at {line.baudrate} baud: servo(s) {ids_text(line.servo_ids)}; "
             f"round trip median {line.median * 1e3:.2f} ms, p99 {line.p99 * 1e3:.2f} ms "
             f"({len(line.all_samples)} reads)"
         )
         suspected = line.suspected_timer_ms
         out.print(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}")
-        out.print(f"cycle rate now: {rates['now']:.1f} Hz for these {rates['servos']}, {rates['now_32']:.1f} Hz for 32")
+        these = "" if rates["servos"] == 32 else f"{rates['now']:.1f} Hz for these {rates['servos']}, "
+        out.print(f"cycle rate now: {these}{rates['now_32']:.1f} Hz for 32")
         for fix in rates["after_fixes"]:
             out.print(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)")
         out.print(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32")
@@ -131,7 +132,9 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         )
         emit_json(report)
     else:
-        print_report(system, line, findings)
+        # The failure itself is printed last, as every command's error is: not twice.
+        shown = [f for f in findings if failure is None or f.problem != failure.message]
+        print_report(system, line, shown)
     if failure is not None:
         raise failure
     return 0
