@@ -190,9 +190,12 @@ class LineModel:
         whole chunk may be delivered (line clock).  In fast mode a reply
         delayed by ``late_delay`` is kept inside and released by the first
         later call whose time has passed it, and a held tail by the next call.
+        Behind an ``adapter`` the bytes reach the wire, and the host, when it lets them.
         """
         with self._lock:
-            return self._feed(bytes(data), now)
+            adapter = self.adapter
+            out = self._feed(bytes(data), now if adapter is None else adapter.outbound(now))
+            return out if adapter is None or not out else adapter.inbound(out, self.byte_time())
 
     def _feed(self, data: bytes, now: float) -> Chunks:
         out: Chunks = []
@@ -354,12 +357,9 @@ class LineModel:
     def process(self, data: bytes) -> Chunks:
         """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
         with self._lock:
-            adapter = self.adapter
-            out = self._feed(bytes(data), self.now() if adapter is None else adapter.outbound(self.now()))
-            if adapter is not None and out:
-                out = adapter.inbound(out, self.byte_time())
+            out = self.feed(data, self.now())
             if not self.realtime:  # behind an adapter, the host has the bytes only when its packet comes
-                self._clock = max(self._clock, self._line_free, out[-1][0] if adapter is not None and out else 0.0)
+                self._clock = max(self._clock, self._line_free, out[-1][0] if self.adapter is not None and out else 0.0)
             return out
 
     def take_unplug_request(self) -> bool:
