@@ -149,3 +149,22 @@ def test_a_tap_pty_passes_the_bytes_to_a_listener(tmp_path: object) -> None:
         finally:
             tap.close()
     assert got[:2] == TEMPERATURE_1 and got[2:4] == b"\x21\x04"
+
+
+def test_the_pty_server_command_line_takes_the_adapter_model() -> None:
+    from ics35_async.sim.server_cli import build_device, build_parser
+
+    parser = build_parser()
+    line = build_device(parser.parse_args(["--ids", "1", "--adapter", "ftdi", "--latency-timer", "8"]))
+    try:
+        assert isinstance(line, VirtualLine) and line.realtime
+        assert line.adapter is not None and line.adapter.latency_timer_ms == 8
+    finally:
+        line.close()
+    plain = build_device(parser.parse_args(["--ids", "1"]))
+    assert isinstance(plain, VirtualLine) and plain.adapter is None
+    plain.close()
+    with pytest.raises(InvalidArgument, match="cannot be used with --fast"):
+        build_device(parser.parse_args(["--adapter", "ftdi", "--fast"]))
+    with pytest.raises(InvalidArgument, match="needs an adapter model"):
+        build_device(parser.parse_args(["--latency-timer", "1"]))

@@ -17,7 +17,9 @@ def make_adapter(kind: str | None, latency_timer_ms: int | None = None) -> FtdiA
     """The adapter model ``kind`` names (``None``: the line reaches the host directly)."""
     if kind is None:
         if latency_timer_ms is not None:
-            raise InvalidArgument("latency_timer needs an adapter model: add adapter=ftdi")
+            raise InvalidArgument(
+                "a latency timer needs an adapter model: adapter=ftdi in a sim:// URL, --adapter ftdi for ics35 sim"
+            )
         return None
     if kind.strip().lower() not in ADAPTER_KINDS:
         raise InvalidArgument(f"unknown adapter model {kind!r} (known: {', '.join(ADAPTER_KINDS)})")
