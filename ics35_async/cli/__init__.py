@@ -84,6 +84,7 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     \b
     Try it without hardware:   ics35 demo
     On hardware:               ics35 --port /dev/ttyUSB0 scan
+    First day on hardware:     ics35 doctor --port /dev/ttyUSB0
 
     The line options (--port, --baud, --timeout, ...) may also follow the command:
     ics35 scan --port /dev/ttyUSB0.  Commands that change a servo need an explicit
