@@ -270,3 +270,18 @@ def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: py
     assert done.code == 0, done.err
     assert log.read_text().split() == ["tee", str(target)]
     assert "165c 0006" in target.read_text() and "udevadm trigger" in done.err
+
+
+def test_a_port_named_by_id_reads_the_timer_of_its_tty(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    by_id = root / "dev" / "serial" / "by-id"
+    by_id.mkdir(parents=True)
+    (by_id / "usb-Kondo_ICS_HS_A1B2-if00-port0").symlink_to("../../ttyUSB0")
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    port = "/dev/serial/by-id/usb-Kondo_ICS_HS_A1B2-if00-port0"
+    report = check_system([FTDI_PORT], port, root=root, platform="linux", uid=0, gids=set())
+    assert report.latency_timer_ms == 16
+    (finding,) = by_check(report, "latency_timer")
+    assert "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in finding.fix and port in finding.problem

@@ -164,10 +164,10 @@ def check_holders(root: Path, port: str, *, own_pid: int | None) -> list[Finding
     return found
 
 
-def check_latency_timer(root: Path, port: str, ms: int | None) -> list[Finding]:
+def check_latency_timer(port: str, tty: str, ms: int | None) -> list[Finding]:
+    """A warning when ``port`` (whose kernel name is ``tty``) holds received bytes more than 1 ms."""
     if ms is None or ms <= 1:
         return []
-    tty = os.path.basename(port)
     return [
         Finding(
             "latency_timer",
@@ -255,8 +255,9 @@ def check_system(
         gids = set(os.getgroups()) | {os.getegid()} if gids is None else gids
         report.findings += check_port_access(root, device, uid=uid, gids=gids)
         report.findings += check_holders(root, device, own_pid=own_pid)
-        report.latency_timer_ms = read_latency_timer(root, os.path.basename(os.path.realpath(_below(root, device))))
-        report.findings += check_latency_timer(root, device, report.latency_timer_ms)
+        tty = os.path.basename(os.path.realpath(_below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
+        report.latency_timer_ms = read_latency_timer(root, tty)
+        report.findings += check_latency_timer(device, tty, report.latency_timer_ms)
     elif not linux and any(p.ftdi_based for p in ports):
         report.findings.append(
             Finding(

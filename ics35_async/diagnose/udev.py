@@ -65,7 +65,8 @@ def rules_text(group: str = "dialout", latency_ms: int = 1) -> str:
         lines.append(
             f'ACTION=="add", SUBSYSTEM=="usb", ENV{{DEVTYPE}}=="usb_device", ATTR{{idVendor}}=="{vid}", '
             f'ATTR{{idProduct}}=="{pid}", RUN+="/sbin/modprobe ftdi_sio", '
-            f"RUN+=\"/bin/sh -c 'echo {vid} {pid} > /sys/bus/usb-serial/drivers/ftdi_sio/new_id'\""
+            # The ID stays known until reboot: a second write fails harmlessly (quiet for udev's log).
+            f"RUN+=\"/bin/sh -c 'echo {vid} {pid} > /sys/bus/usb-serial/drivers/ftdi_sio/new_id 2>/dev/null || true'\""
         )
     pids = "|".join(usb_id.partition(":")[2].lower() for usb_id in KONDO_ADAPTERS)
     lines += [
