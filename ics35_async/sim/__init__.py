@@ -17,14 +17,14 @@ Two ways in:
 Modules, each using only those listed before it: :mod:`.transaction` (a log
 entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
 waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
-answer a command), :mod:`.model` (the sans-IO wire model), :mod:`.line`
-(:class:`VirtualLine`: the model as an in-process port), :mod:`.url`
-(``sim://`` URLs; :func:`open_url` is what the core calls); :mod:`.adapter`
-(the USB adapter model the line model may put between itself and the host);
-then, POSIX only and loaded on demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap`
-(a pty that hears the line),
-:mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its command
-line); :mod:`.launch` runs that in a subprocess.
+answer a command), :mod:`.model` (the sans-IO wire model, optionally behind
+a USB adapter model from :mod:`ics35_async.transports.usb_timing`),
+:mod:`.line` (:class:`VirtualLine`: the model as an in-process port),
+:mod:`.adapter` (adapter models by name), :mod:`.url` (``sim://`` URLs;
+:func:`open_url` is what the core calls); then, POSIX only and loaded on
+demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap` (a pty that hears the
+line), :mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its
+command line); :mod:`.launch` runs that in a subprocess.
 
 URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
