@@ -67,6 +67,7 @@ def listen(
     except IcsError as exc:
         raise translate(settings, exc) from None
     fd = posix_fd(ser)
+    err.print(f"[dim]listening on {escape(settings.port)} at {settings.baud} baud; Ctrl-C stops[/dim]")
     start = time.monotonic()
     try:
         while True:
