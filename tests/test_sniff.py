@@ -181,3 +181,13 @@ def test_sniff_json_decodes_every_transaction_another_program_sent(tmp_path: Pat
 def test_sniff_refuses_the_simulator(ics35: Any) -> None:
     result = ics35("sniff")
     assert result.code == 2 and "listening adapter's --port" in result.err and "--tap" in result.err
+
+
+def test_the_text_line_names_the_value_or_why_there_is_none() -> None:
+    from ics35_async.cli._sniff import text_line
+
+    with VirtualLine([2], log_size=None) as line:
+        eeprom, temperature, absent = hear(line, [ReadEeprom(2).tx, ReadParam(2, 4).tx, ReadParam(9, 4).tx])
+    assert "read_eeprom" in text_line(eeprom) and "= EEPROM id 2, 115200 baud, stretch 60" in text_line(eeprom)
+    assert text_line(temperature).split()[1:4] == ["id", "2", "read_temperature"]
+    assert "! no reply" in text_line(absent) and text_line(absent).endswith("a9 04 | -")

@@ -25,7 +25,10 @@ def text_line(h: HeardTransaction) -> str:
     who = f"id {h.servo_id:>2}" if h.servo_id is not None else "     "
     if h.error is None:
         value = h.value_json()
-        shown = f"= {value}" if not isinstance(value, dict) else "= (EEPROM image)"
+        if isinstance(value, dict):  # an EEPROM image: the fields one looks for first
+            shown = f"= EEPROM id {value['servo_id']}, {value['baud_rate']} baud, stretch {value['stretch_gain']}"
+        else:
+            shown = f"= {value}"
     else:
         shown = f"! {h.error}"
     sent = h.sent.hex(" ")
