@@ -19,7 +19,9 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
 4. cost: memory growth over 1,000,000 transactions (bench_memory);
 5. event loops (asyncio, uvloop) x transports (direct, fast, stock): rows
    of 1 and 2;
-6. a peer: rcb4's ICSServoController (bench_peer).
+6. a peer: rcb4's ICSServoController (bench_peer);
+7. the USB adapter: 32-servo cycle rates behind the FTDI model at latency
+   timer 16 and 1 ms, next to the wire's limit, and the stream's (bench_adapter).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -52,6 +54,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import bench_adapter
 import bench_cpu
 import bench_lines
 import bench_memory
@@ -64,7 +67,7 @@ from bench_common import progress
 from bench_targets import print_targets, targets
 
 HERE = Path(__file__).resolve().parent
-SECTIONS = ("cpu", "lines", "startup", "scan", "overhead", "wire", "sharing", "memory", "peer")
+SECTIONS = ("cpu", "lines", "startup", "scan", "overhead", "wire", "sharing", "memory", "peer", "adapter")
 
 
 def machine() -> dict[str, Any]:
@@ -261,6 +264,7 @@ def main() -> int:
             100_000 if quick else 1_000_000, loops=None if quick else ["asyncio", "uvloop"]
         ),
         "peer": lambda: bench_peer.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
+        "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
     started = time.perf_counter()
@@ -297,6 +301,7 @@ def main() -> int:
         "sharing": print_sharing,
         "memory": print_memory,
         "peer": print_peer,
+        "adapter": bench_adapter.print_table,
     }
     for name in sections:
         if "error" in results[name]:

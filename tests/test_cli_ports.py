@@ -132,3 +132,22 @@ def test_this_machine(ics35: Any) -> None:
     """Whatever this machine has: the listing and the exit code agree."""
     result = ics35("ports", "--json")
     assert result.code == (0 if result.json()["ports"] else 3)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
+def test_the_common_hs_adapter_is_told_its_own_usb_id(
+    machine_ports: list[ListPortInfo], tmp_path: Path, ics35: Any
+) -> None:
+    usb_device(tmp_path / "sys", "1-1", "165c", "0006", tty=None)  # the ICS USB adapter HS (FT232R), unbound
+    result = ics35("ports")
+    assert "ICS USB adapter HS (165C:0006)" in result.err
+    assert "echo 165C 0006 | sudo tee /sys/bus/usb-serial/drivers/ftdi_sio/new_id" in result.err
+    assert "165C 0008" not in result.err
+
+
+def test_adapters_are_named_by_usb_id() -> None:
+    from ics35_async.transports.listing import adapter_name
+
+    assert adapter_name("165C:0006") == "ICS USB adapter HS"
+    assert adapter_name("165c:0008") == "Dual USB adapter HS"
+    assert adapter_name("0403:6001") is None and adapter_name(None) is None

@@ -22,7 +22,7 @@ LAYERS = {
     "line": 4, "frames": 4,
     "servo": 5, "stream": 5, "policies": 5,
     "bus": 6,
-    "group": 7,
+    "group": 7, "diagnose": 7,
     "blocking": 8, "robot": 8,
     "sim": 9, "cli": 10,
 }  # fmt: skip

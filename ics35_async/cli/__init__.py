@@ -27,11 +27,23 @@ from ._settings import CliError, ExitCode
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
 # Modules whose COMMANDS list is mounted on the group (imported on first use).
-COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports", "_robot_play", "_robot_teach")
+COMMAND_MODULES = (
+    "_basic",
+    "_eeprom",
+    "_monitor",
+    "_demo",
+    "_simcmd",
+    "_ports",
+    "_doctor",
+    "_udev",
+    "_sniff",
+    "_robot_play",
+    "_robot_teach",
+)
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
 # Commands that open no line: no line options after them either.
-NO_LINE = frozenset({"ports"})
+NO_LINE = frozenset({"ports", "udev"})
 
 
 class LazyGroup(click.Group):
@@ -73,6 +85,7 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     \b
     Try it without hardware:   ics35 demo
     On hardware:               ics35 --port /dev/ttyUSB0 scan
+    First day on hardware:     ics35 doctor --port /dev/ttyUSB0
 
     The line options (--port, --baud, --timeout, ...) may also follow the command:
     ics35 scan --port /dev/ttyUSB0.  Commands that change a servo need an explicit

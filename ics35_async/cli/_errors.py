@@ -18,7 +18,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..policies.line import echo_setting_wrong
+from ..policies.line import echo_setting_wrong, id0_top_bit_differs
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
@@ -98,6 +98,14 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
             "the bytes sent came back changed: two servos answering at once (duplicate ID), noise, or loose wiring",
             "if your interface does not loop TX back to RX, pass --no-echo",
         )
+    if isinstance(exc, ReplyError) and id0_top_bit_differs(exc, settings.baud):
+        return CliError(
+            ExitCode.COMMUNICATION,
+            f"{text}: only the top bit differs",
+            "an ICS 3.5 servo answers a position command to ID 0 with the reply's top bit set at 115200 baud "
+            "(ICS 2.0 compatibility) and clear at 625000 and 1250000; this device does the other: give it an ID "
+            "other than 0 (ics35 set-id), where the rule does not apply",
+        )
     if isinstance(exc, (BadReply, PartialReply)):
         return CliError(
             ExitCode.COMMUNICATION,
@@ -145,6 +153,15 @@ def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
+    if exc.servo_id is not None and exc.command == "read_eeprom" and answers_short_read(settings, exc.servo_id):
+        return CliError(
+            ExitCode.NO_REPLY,
+            f"servo {exc.servo_id} answers short reads on {settings.port} at {settings.baud} baud, "
+            "but not the EEPROM read",
+            "its reply is the longest on the line (66 bytes): an adapter or bridge that drops or holds back long "
+            "replies loses it; raise --timeout, and see what ics35 doctor measures on this line",
+            "a device that is not an ICS 3.5 servo (another firmware, a board) may not answer the EEPROM read",
+        )
     if exc.servo_id is not None:
         found = other_bauds(settings, exc.servo_id)
         if found:
@@ -173,6 +190,20 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
             "if your interface does not echo what it sends, pass --no-echo",
         )
     return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
+
+
+def answers_short_read(settings: Settings, servo_id: int) -> bool:
+    """Whether ``servo_id`` answers a temperature read at the line's rate (see policies.answers_short_read)."""
+    from ..policies import answers_short_read as ask
+
+    async def body() -> bool:
+        async with settings.bus(retries=1) as bus:
+            return await ask(bus, servo_id)
+
+    try:
+        return run_loop(body())
+    except (IcsError, OSError):
+        return False
 
 
 def other_bauds(settings: Settings, servo_id: int) -> list[int]:

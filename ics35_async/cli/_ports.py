@@ -11,8 +11,11 @@ from rich.table import Table
 
 from ..transports import adapter_advice
 from ..transports.listing import (
+    DUAL_ADAPTER_USB_ID,
     HS_ADAPTER_USB_ID,
+    KONDO_ADAPTERS,
     SerialPortInfo,
+    adapter_name,
     kondo_usb_without_port,
     linux_adapter_steps,
     list_serial_ports,
@@ -32,7 +35,10 @@ def ports_table(found: list[SerialPortInfo]) -> Table:
             escape(p.device),
             escape(p.description or "-"),
             p.usb_id or "-",
-            "[bold green]Kondo adapter[/bold green]" if p.kondo else "",
+            f"[bold green]Kondo adapter{escape(f' ({adapter_name(p.usb_id)})' if adapter_name(p.usb_id) else '')}"
+            "[/bold green]"
+            if p.kondo
+            else "",
         )
     return table
 
@@ -41,14 +47,18 @@ def notes(found: list[SerialPortInfo], unbound: list[str]) -> list[str]:
     """What to do next: a Kondo device with no port, or an FTDI latency timer to set."""
     said = []
     for usb_id in unbound:
+        what = KONDO_ADAPTERS.get(usb_id, "a Kondo USB device")
         said.append(
-            f"a Kondo USB device ({usb_id}) is plugged in but has no serial port: make Linux's ftdi_sio "
-            f"driver take it with: {' ; '.join(linux_adapter_steps(usb_id))}  ({UNTESTED})"
+            f"{what} ({usb_id}) is plugged in but has no serial port: make Linux's ftdi_sio "
+            f"driver take it with: {' ; '.join(linux_adapter_steps(usb_id))}  "
+            f"(for good: ics35 udev --install; {UNTESTED})"
         )
     if not any(p.kondo for p in found) and not unbound and sys.platform.startswith("linux"):
         said.append(
-            "no Kondo adapter listed: an ICS USB adapter HS that is plugged in may need Linux's ftdi_sio driver "
-            f"told its USB ID: {' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}  ({UNTESTED})"
+            f"no Kondo adapter listed: a Kondo adapter that is plugged in (lsusb shows 165c:0006 for the ICS USB "
+            f"adapter HS, 165c:0008 for the Dual USB adapter HS) needs Linux's ftdi_sio driver told its USB ID: "
+            f"{' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}  (for {DUAL_ADAPTER_USB_ID}: "
+            f"echo 165C 0008 instead; {UNTESTED})"
         )
     for p in found:
         if not p.ftdi_based:

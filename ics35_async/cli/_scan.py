@@ -126,6 +126,7 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
             "garbled": [{"id": i, "baud": baud} for baud, i, _ in report.garbled],
             "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
             "rate_blind": report.rate_blind,
+            "id_read_only": [{"baud": r.baud, "id": r.id_answer} for r in report.rates if r.only_id_read],
         }
     )
 
@@ -152,6 +153,15 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
             "a servo at another baud rate, or noise",
             soft_wrap=True,
         )
+    for rate in report.rates:
+        if rate.only_id_read:
+            err.print(
+                f"[yellow]note:[/yellow] at {rate.baud} baud a device answered the ID read (as ID {rate.id_answer}) "
+                "but no stretch read: if that ID was not scanned, try --ids "
+                f"{rate.id_answer}; otherwise it is not an ICS 3.5 servo (a board or sensor answers the ID "
+                "command and memory reads only) or its other replies are lost (wiring, power)",
+                soft_wrap=True,
+            )
     several = [s for s in report.servos if len(s.answered_at) > 1]
     if several:
         err.print(

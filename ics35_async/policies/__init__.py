@@ -15,10 +15,19 @@ from .eeprom_write import (
     write_eeprom_plan,
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
-from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
+from .line import (
+    Line,
+    LineOpener,
+    answers_short_read,
+    echo_setting_wrong,
+    id0_top_bit_differs,
+    nothing_came_back,
+)
 from .scan import ALL_BAUDS, ALL_IDS, FoundServo, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
 
 __all__ = [
+    "id0_top_bit_differs",
+    "answers_short_read",
     "ALL_BAUDS",
     "ALL_IDS",
     "EepromPlan",

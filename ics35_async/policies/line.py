@@ -11,8 +11,9 @@ from collections.abc import Callable
 from contextlib import AbstractAsyncContextManager
 from typing import TypeVar
 
-from ..errors import EchoMismatch, ReplyError, ReplyTimeout
+from ..errors import EchoMismatch, ReplyError, ReplyHeaderError, ReplyTimeout
 from ..line import Line as Line
+from ..protocol import Param, ReadParam, position_reply_header
 
 T = TypeVar("T")
 
@@ -47,3 +48,28 @@ def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
     if echo:
         return isinstance(exc, EchoMismatch) and exc.raw[0] < 0x80 and not exc.echo_behind
     return exc.raw[0] >= 0x80
+
+
+async def answers_short_read(line: Line, servo_id: int) -> bool:
+    """Whether ``servo_id`` answers a temperature read (2 bytes out, 3 back; nothing moves).
+
+    After a long command went unanswered (the EEPROM read's reply is 66
+    bytes), this tells a servo that is not there from one that half-answers.
+    """
+    try:
+        await line.request(ReadParam(servo_id, Param.TEMPERATURE), retries=1)
+    except ReplyError:
+        return False
+    return True
+
+
+def id0_top_bit_differs(exc: ReplyError, baudrate: int) -> bool:
+    """Whether ``exc`` is a position reply from ID 0 whose first byte is wrong in its top bit alone.
+
+    ICS 3.5 servos answer a position command to ID 0 with the top bit set at
+    115200 baud (ICS 2.0 compatibility) and clear at the other rates; a
+    device that follows the rule the other way round fails exactly so.
+    """
+    if not isinstance(exc, ReplyHeaderError) or exc.servo_id != 0 or exc.command not in ("position", "free"):
+        return False
+    return bool(exc.raw) and exc.raw[0] ^ position_reply_header(0, baudrate) == 0x80

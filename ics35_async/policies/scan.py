@@ -65,6 +65,12 @@ class RateScan:
     silent: bool = False  # not one byte came back at this rate, not even the echo of what was sent
     nobody: bool = False  # nothing answered the ID read, so no ID was probed one by one
     echo_evidence: ReplyError | None = None  # an error showing the line's echo setting is wrong
+    id_answer: int | None = None  # the ID a device gave to the ID read (None: not asked, or no clean answer)
+
+    @property
+    def only_id_read(self) -> bool:
+        """A device answered the ID read, but no probed ID the stretch read (nor garbled)."""
+        return self.id_answer is not None and not self.answered and not self.garbled
 
 
 @dataclass(frozen=True)
@@ -141,18 +147,17 @@ def _late_evidence(line: Line) -> tuple[int, int, int]:
     return stats.stray_bytes, stats.late_replies, total.partial_replies + total.echo_mismatches + total.bad_replies
 
 
-async def _id_read(line: Line) -> ReplyError | None:
+async def _id_read(line: Line) -> int | ReplyError:
     try:
-        await line.request(protocol.ReadId(), retries=0)
+        return await line.request(protocol.ReadId(), retries=0)
     except ReplyError as exc:
         return exc
-    return None
 
 
 async def anyone_there(line: Line) -> bool:
     """Whether any device at the line's rate answers an ID read (garbled counts: several answer)."""
-    error = await _id_read(line)
-    return error is None or not nothing_came_back(error)
+    result = await _id_read(line)
+    return not isinstance(result, ReplyError) or not nothing_came_back(result)
 
 
 async def probe_ids(
@@ -175,8 +180,11 @@ async def probe_ids(
     rx_before = line.stats.total.bytes_rx
     if id_read_first is None:
         id_read_first = len(wanted) >= ID_READ_MIN_IDS
+    id_answer: int | None = None
     if id_read_first:
-        error = await _id_read(line)
+        result = await _id_read(line)
+        error = result if isinstance(result, ReplyError) else None
+        id_answer = None if isinstance(result, ReplyError) else result
         nobody = error is not None and nothing_came_back(error)
         if nobody or (error is not None and echo_setting_wrong(error, line.echo)):
             # Nobody there, or every probe would fail the same way: the echo setting is wrong.
@@ -222,6 +230,7 @@ async def probe_ids(
         garbled=garbled,
         silent=line.stats.total.bytes_rx == rx_before,
         echo_evidence=evidence,
+        id_answer=id_answer,
     )
 
 

@@ -17,12 +17,14 @@ Two ways in:
 Modules, each using only those listed before it: :mod:`.transaction` (a log
 entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
 waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
-answer a command), :mod:`.model` (the sans-IO wire model), :mod:`.line`
-(:class:`VirtualLine`: the model as an in-process port), :mod:`.url`
-(``sim://`` URLs; :func:`open_url` is what the core calls); then, POSIX
-only and loaded on demand, :mod:`.pty_port` (pty plumbing),
-:mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its command
-line); :mod:`.launch` runs that in a subprocess.
+answer a command), :mod:`.model` (the sans-IO wire model, optionally behind
+a USB adapter model from :mod:`ics35_async.transports.usb_timing`),
+:mod:`.line` (:class:`VirtualLine`: the model as an in-process port),
+:mod:`.adapter` (adapter models by name), :mod:`.url` (``sim://`` URLs;
+:func:`open_url` is what the core calls); then, POSIX only and loaded on
+demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap` (a pty that hears the
+line), :mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its
+command line); :mod:`.launch` runs that in a subprocess.
 
 URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
@@ -33,8 +35,10 @@ factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
 ``replug_after`` (seconds, or with ``us``/``ms``/``s``), ``tail_bytes``
 (what the held-tail fault holds back), ``memory`` (IDs of generic devices),
 ``log`` (log size, ``all``), ``record`` (file), ``replay`` (file: serve a
-recording).  With a NAME, the first URL creates the line and later ones
-(reconnects) return the same object.
+recording), ``adapter=ftdi`` with ``latency_timer`` (ms): a USB adapter
+model between line and host (:mod:`.adapter`; implies real time).  With a
+NAME, the first URL creates the line and later ones (reconnects) return the
+same object.
 
 The line's baud rate is the host's: ``connect(host, baudrate)`` (or the
 pty client's settings) sets it, and a servo whose EEPROM (power-up) baud

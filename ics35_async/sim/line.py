@@ -21,6 +21,7 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..transports import HostSide
+from ..transports.usb_timing import FtdiAdapter
 from .clock import SPIN_MARGIN, Deliverer
 from .devices import Device, MemorySpec
 from .faults import FaultConfig
@@ -45,7 +46,7 @@ class VirtualLine(LineModel):
     The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
     ``memory``, ``realtime``, ``echo``, ``turnaround``,
     ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
-    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``), and:
+    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``, ``adapter``), and:
     ``follow_host_baud``: the line runs at the rate the host connects with
     (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
     disappears that many wall-clock seconds after the first connect, and
@@ -73,6 +74,7 @@ class VirtualLine(LineModel):
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
+        adapter: FtdiAdapter | None = None,
         follow_host_baud: bool = True,
         unplug_after: float | None = None,
         replug_after: float = DEFAULT_REPLUG_AFTER,
@@ -96,6 +98,7 @@ class VirtualLine(LineModel):
             log_size=log_size,
             frame_timeout=frame_timeout,
             record=record,
+            adapter=adapter,
         )
         self.follow_host_baud = follow_host_baud
         self.unplug_after = unplug_after
@@ -208,6 +211,8 @@ class VirtualLine(LineModel):
             self.unplug_count += 1
             host, self._host = self._host, None
             self.reset_wire()
+            if self.adapter is not None:
+                self.adapter.reset()  # a new chip's timer
         self._stop_deliverer()
         if replug_after is not None:
             self._start_timer(replug_after, self.replug)
@@ -261,7 +266,8 @@ class VirtualLine(LineModel):
 
     def __repr__(self) -> str:
         mode = "realtime" if self.realtime else "fast"
-        return f"<VirtualLine {len(self.devices)} devices @{self.baudrate} {mode} txns={self.transactions}>"
+        behind = f" behind {self.adapter!r}" if self.adapter is not None else ""
+        return f"<VirtualLine {len(self.devices)} devices @{self.baudrate} {mode}{behind} txns={self.transactions}>"
 
 
 _NAMED: dict[str, VirtualLine] = {}

@@ -24,12 +24,13 @@ import heapq
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, WriteEeprom
+from ..transports.usb_timing import FtdiAdapter
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
 from .framing import CommandFramer
@@ -70,7 +71,8 @@ class LineModel:
     (``None``: unbounded, 0: no log; :attr:`transactions` counts
     regardless).  ``frame_timeout``: a half-received command is forgotten
     after this pause (:mod:`.framing`).  ``record`` is a file path or text
-    stream to record the session to (:mod:`.record`).
+    stream to record the session to (:mod:`.record`).  ``adapter``: a USB
+    adapter model between line and host (:mod:`.adapter`; ``None``: a bare UART).
     """
 
     def __init__(
@@ -92,6 +94,7 @@ class LineModel:
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
+        adapter: FtdiAdapter | None = None,
     ) -> None:
         line_baud = BaudRate.parse(baudrate)
         for value, what in (
@@ -113,6 +116,7 @@ class LineModel:
         self.tail_bytes = tail_bytes
         self.tail_delay = tail_delay
         self.noise_gap = noise_gap
+        self.adapter = adapter
         config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
         self.faults = FaultInjector(config, seed)
         self.log: deque[Transaction] = deque(maxlen=log_size)
@@ -136,6 +140,7 @@ class LineModel:
         self._carried = bytearray()
         self._unplug_requested = False
         self._recorder: TransactionRecorder | None = None
+        self._taps: list[Callable[[bytes], None]] = []
         if record is not None:
             self.record_to(record)
 
@@ -185,9 +190,12 @@ class LineModel:
         whole chunk may be delivered (line clock).  In fast mode a reply
         delayed by ``late_delay`` is kept inside and released by the first
         later call whose time has passed it, and a held tail by the next call.
+        Behind an ``adapter`` the bytes reach the wire, and the host, when it lets them.
         """
         with self._lock:
-            return self._feed(bytes(data), now)
+            adapter = self.adapter
+            out = self._feed(bytes(data), now if adapter is None else adapter.outbound(now))
+            return out if adapter is None or not out else adapter.inbound(out, self.byte_time())
 
     def _feed(self, data: bytes, now: float) -> Chunks:
         out: Chunks = []
@@ -206,6 +214,7 @@ class LineModel:
         if in_flight:
             # The start of a command still in flight: its bytes echo as they go.
             t += len(in_flight) * BITS_PER_BYTE / baud
+            self._hear(in_flight)
             if self.echo:
                 self._emit(out, t, in_flight)
             self._line_free = max(self._line_free, t)
@@ -228,10 +237,12 @@ class LineModel:
         if draw.echo and echo:
             echo = self.faults.damage_echo(echo)
             faults.append("echo")
+        heard = bytearray(echo)  # what a listener on the wire hears, each byte once
         if self.echo and echo:
             self._emit(out, t_end, echo)
             rx_parts.append(echo)
         for late in self._held:
+            heard += late
             t_end += len(late) * byte_time
             self._emit(out, t_end, late)
             rx_parts.append(late)
@@ -263,8 +274,10 @@ class LineModel:
                 else:
                     reply_time = start + len(clean) * byte_time + self.late_delay
                     self._defer_or_emit(reply_time, clean, out)
+                    heard += clean
             elif kind == "tail":
                 head, tail = clean[: -self.tail_bytes], clean[-self.tail_bytes :]
+                heard += clean
                 self._emit(out, start + len(head) * byte_time, head)
                 rx_parts.append(head)
                 line_free = start + len(clean) * byte_time
@@ -282,11 +295,13 @@ class LineModel:
                     reply_time = line_free = start + len(reply) * byte_time
                     self._emit(out, reply_time, reply)
                     rx_parts.append(reply)
+                    heard += reply
         if draw.noise:
             noise = self.faults.noise()
             gap = self.faults.uniform(0.0, self.noise_gap) if self.realtime else 0.0
             self._emit(out, line_free + gap + len(noise) * byte_time, noise)
             rx_parts.append(noise)
+            heard += noise
             extra += noise
             faults.append("noise")
         if draw.unplug:
@@ -294,6 +309,7 @@ class LineModel:
             faults.append("unplug")
         self._line_free = line_free
         self.fault_counts.update(faults)
+        self._hear(bytes(heard))
 
         seq = self.transactions
         self.transactions = seq + 1
@@ -319,6 +335,15 @@ class LineModel:
                 self._recorder.record(record, rx_parts, baud)
         return line_free
 
+    def add_tap(self, listener: Callable[[bytes], None]) -> None:
+        """Call ``listener(bytes)``, under the lock, with every byte on the wire once (no echo; :mod:`.tap`)."""
+        with self._lock:
+            self._taps.append(listener)
+
+    def _hear(self, data: bytes) -> None:
+        for listener in self._taps if data else ():
+            listener(data)
+
     def _emit(self, out: Chunks, when: float, chunk: bytes) -> None:
         out.append((max(when, self._hold_until), chunk))
 
@@ -332,9 +357,9 @@ class LineModel:
     def process(self, data: bytes) -> Chunks:
         """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
         with self._lock:
-            out = self._feed(bytes(data), self.now())
-            if not self.realtime:
-                self._clock = max(self._clock, self._line_free)
+            out = self.feed(data, self.now())
+            if not self.realtime:  # behind an adapter, the host has the bytes only when its packet comes
+                self._clock = max(self._clock, self._line_free, out[-1][0] if self.adapter is not None and out else 0.0)
             return out
 
     def take_unplug_request(self) -> bool:

@@ -15,11 +15,13 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
 from .faults import FaultConfig, parse_ids
 from .line import DEFAULT_REPLUG_AFTER, VirtualLine
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
 from .record import ReplayDevice
+from .tap import LineTap
 from .url import parse_seconds
 
 
@@ -76,6 +78,22 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     parser.add_argument(
         "--replug-after", default=None, help=f"plug it back in this long after (default {DEFAULT_REPLUG_AFTER:g}s)"
     )
+    parser.add_argument(
+        "--adapter",
+        choices=ADAPTER_KINDS,
+        default=None,
+        help="put a USB adapter model between the line and the client: ftdi (62-byte packets, latency timer, "
+        "1 ms USB frames), as Kondo's ICS USB adapters are; needs real time",
+    )
+    parser.add_argument(
+        "--latency-timer",
+        type=int,
+        default=None,
+        metavar="MS",
+        help=f"the adapter model's latency timer in ms, 1..255 (default {DEFAULT_LATENCY_TIMER_MS})",
+    )
+    parser.add_argument("--tap", default=None, metavar="PATH", help="also serve the line's bytes, each once, "
+                        "on a second pty at PATH (a listening adapter, for ics35 sniff)")
     parser.add_argument("--record", default=None, help="record the session to this file")
     parser.add_argument("--replay", default=None, help="serve this recording instead of a simulated line")
     parser.add_argument("--link", default=None, help="path of the symlink to create (default: in a temp dir)")
@@ -101,6 +119,9 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         options["tail_bytes"] = args.tail_bytes
     if args.tail_delay is not None:
         options["tail_delay"] = parse_seconds(args.tail_delay, "--tail-delay")
+    adapter = make_adapter(args.adapter, args.latency_timer)
+    if adapter is not None and not args.realtime:
+        raise InvalidArgument("--adapter models the time the client waits: it cannot be used with --fast")
     bus = VirtualLine(
         ids,
         baudrate=BaudRate.parse(args.baud),
@@ -112,6 +133,7 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         follow_host_baud=not args.fixed_baud,
         replug_after=replug_after,
         record=args.record,
+        adapter=adapter,
         **options,
     )
     if args.unplug_after is not None:
@@ -127,7 +149,10 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         device = build_device(args)
     except (InvalidArgument, OSError) as exc:
         parser.error(str(exc))
+    if args.tap and not isinstance(device, VirtualLine):
+        parser.error("--tap needs a simulated line, not --replay")
     server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud)
+    tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         server.stop()
@@ -141,12 +166,19 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             if isinstance(device, ReplayDevice)
             else f"{len(device.servos)} servos at {device.baudrate} bit/s, {'real-time' if device.realtime else 'fast'}"
         )
+        if isinstance(device, VirtualLine) and device.adapter is not None:
+            what += f", behind a USB adapter model ({device.adapter.latency_timer_ms} ms latency timer)"
         print(f"ics35 sim: {what} on {server.pts_name} (link {path})", file=sys.stderr, flush=True)
+        if tap is not None:
+            print(f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})",
+                  file=sys.stderr, flush=True)
         server.serve()
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         server.close()
+        if tap is not None:
+            tap.close()
         if isinstance(device, VirtualLine):
             device.close()
             print(f"ics35 sim: served {device.transactions} transactions", file=sys.stderr, flush=True)

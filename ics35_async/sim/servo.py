@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Iterable
 from typing import Any
 
 from ..eeprom import PROTECTED_OFFSETS, BaudRate, Eeprom, Flags
@@ -101,6 +102,8 @@ class VirtualServo:
     not define leaves the servo talking at ``baud_rate`` (what a real one does
     is not documented).  ``position`` is where the shaft starts (host
     coordinates); ``load`` is an external torque in current units (signed).
+    ``ignores``: names of commands it leaves unanswered (``{"read_eeprom"}``),
+    as a device that half-answers does (another firmware, not a servo).
     """
 
     def __init__(
@@ -112,7 +115,9 @@ class VirtualServo:
         position: int = NEUTRAL,
         load: int = 0,
         ambient_celsius: float = AMBIENT_CELSIUS,
+        ignores: Iterable[str] = (),
     ) -> None:
+        self.ignores = frozenset(ignores)
         if eeprom is None:
             eeprom = Eeprom.factory(
                 servo_id, baud_rate=BaudRate.parse(baud_rate), calibration=factory_calibration(servo_id)
@@ -275,6 +280,8 @@ class VirtualServo:
 
     def handle(self, command: Any) -> Any:
         """Carry out ``command`` (already addressed to this servo); return the reply value."""
+        if command.name in self.ignores:
+            return NO_REPLY
         if isinstance(command, Position):
             reported = self.position
             self.command_position(command.position)

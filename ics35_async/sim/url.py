@@ -14,6 +14,7 @@ from urllib.parse import parse_qs, urlsplit
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..transports import WireDevice
+from .adapter import make_adapter
 from .faults import FaultConfig, parse_ids
 from .line import VirtualLine, named
 from .record import ReplayDevice
@@ -90,7 +91,10 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
     ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
     size, ``all`` for unbounded), ``record`` (file to record to), ``replay``
-    (a recording to serve instead of a simulated line).
+    (a recording to serve instead of a simulated line), ``adapter`` (``ftdi``:
+    the USB adapter model of :mod:`.adapter`; it implies ``realtime=1``, since
+    what it models is time the host waits) with ``latency_timer`` (ms,
+    1..255, default 16).
     """
     parts = urlsplit(url)
     if parts.scheme != "sim":
@@ -126,8 +130,16 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             options["memory"] = {i: b"" for i in parse_ids(value)}
         elif key == "log":
             options["log_size"] = None if value == "all" else _int(key, value)
-        elif key in ("record", "replay"):
+        elif key in ("record", "replay", "adapter"):
             options[key] = value
+        elif key == "latency_timer":
+            options[key] = _int(key, value.strip().lower().removesuffix("ms"))
         else:
             raise InvalidArgument(f"sim URL: unknown option {key!r}")
+    if "adapter" in options or "latency_timer" in options:
+        adapter = make_adapter(options.pop("adapter", None), options.pop("latency_timer", None))
+        if options.get("realtime") is False:
+            raise InvalidArgument("sim URL: adapter= models the time the host waits: it needs realtime=1")
+        options["adapter"] = adapter
+        options["realtime"] = True
     return name, options

@@ -1,12 +1,11 @@
 """Which serial ports this machine has, which are Kondo adapters, and a Kondo adapter that has no port yet.
 
-Kondo's USB devices carry USB vendor ID 0x165C.  Kondo's own command
-reference (the spec folder) names the adapters only by product number: the
-ICS USB adapter HS (No.02042, needed for 625000 and 1250000 baud) and the
-older ICS USB adapter (No.01106).  Both are FTDI-based.  On Linux the
-``ftdi_sio`` driver does not know the HS adapter's USB ID (165C:0008, as
-Kondo's Linux users report it), so it gets no ``/dev/ttyUSB*`` until told:
-:func:`linux_adapter_steps`.  Untested here without the hardware.
+Kondo's USB devices carry USB vendor ID 0x165C.  The ICS USB adapter HS
+(No.02042, needed for 625000 and 1250000 baud) is an FTDI FT232R with USB ID
+165C:0006, the common one (some of Kondo's pages give 0007 by mistake); the
+Dual USB adapter HS is 165C:0008.  Linux's ``ftdi_sio`` driver knows
+neither ID, so the adapter gets no ``/dev/ttyUSB*`` until told:
+:func:`linux_adapter_steps` (or the rules ``ics35 udev`` writes).
 """
 
 from __future__ import annotations
@@ -20,7 +19,18 @@ KONDO_VID = 0x165C
 FTDI_VID = 0x0403
 SYSFS_ROOT = "/sys"
 
-HS_ADAPTER_USB_ID = "165C:0008"
+HS_ADAPTER_USB_ID = "165C:0006"
+DUAL_ADAPTER_USB_ID = "165C:0008"
+KONDO_ADAPTERS = {
+    HS_ADAPTER_USB_ID: "ICS USB adapter HS",
+    DUAL_ADAPTER_USB_ID: "Dual USB adapter HS",
+}
+"""Kondo's USB serial adapters by USB ID (both FTDI chips that Linux's ftdi_sio must be told about)."""
+
+
+def adapter_name(usb_id: str | None) -> str | None:
+    """The Kondo adapter a USB ID (``VVVV:PPPP``) belongs to, or None."""
+    return KONDO_ADAPTERS.get((usb_id or "").upper())
 
 
 def linux_adapter_steps(usb_id: str = HS_ADAPTER_USB_ID) -> tuple[str, ...]:
@@ -57,7 +67,7 @@ class SerialPortInfo:
         return self.vid in (KONDO_VID, FTDI_VID)
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "usb_id": self.usb_id, "kondo": self.kondo}
+        return {**asdict(self), "usb_id": self.usb_id, "kondo": self.kondo, "adapter": adapter_name(self.usb_id)}
 
 
 def list_serial_ports() -> list[SerialPortInfo]:

@@ -1,0 +1,143 @@
+"""doctor: what stands between this machine and the servos, and how fast a cycle can be (library: diagnose)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+import click
+from rich.markup import escape
+
+from ..diagnose import Finding
+from ..diagnose.line import LineReport, measure_round_trips
+from ..diagnose.system import SystemReport, check_system
+from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
+from ._common import ID_LIST, CliError, ExitCode, emit_json, err, ids_text, json_option, out, run, settings_of
+from ._settings import Settings
+
+SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
+
+
+def machine_ports() -> list[SerialPortInfo]:
+    try:
+        return list_serial_ports()
+    except Exception:  # pyserial's platform backend failed: the other checks still help
+        return []
+
+
+def measure(settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport) -> LineReport:
+    async def body() -> LineReport:
+        async with settings.bus() as bus:
+            found = await bus.scan(ids)
+            samples, failed = await measure_round_trips(bus, found, per_servo=per_servo)
+            return LineReport(
+                baudrate=settings.baud,
+                samples=samples,
+                failed=failed,
+                system_latency_timer_ms=system.latency_timer_ms,
+                platform=sys.platform,
+            )
+
+    return run(settings, body)
+
+
+def print_report(system: SystemReport, line: LineReport | None, findings: list[Finding]) -> None:
+    if system.ports:
+        out.print("[bold]ports[/bold]")
+        for p in system.ports:
+            kind = adapter_name(p.usb_id) or ("Kondo adapter" if p.kondo else p.description or "-")
+            out.print(f"  {escape(p.device)}  {p.usb_id or '-'}  {escape(kind)}")
+    else:
+        out.print("[bold]ports[/bold]: none found")
+    if system.latency_timer_ms is not None:
+        out.print(f"latency timer (from the system): {system.latency_timer_ms} ms")
+    if line is not None and line.median is not None and line.p99 is not None:
+        rates = line.cycle_hz()
+        out.print(
+            f"[bold]line[/bold] at {line.baudrate} baud: servo(s) {ids_text(line.servo_ids)}; "
+            f"round trip median {line.median * 1e3:.2f} ms, p99 {line.p99 * 1e3:.2f} ms "
+            f"({len(line.all_samples)} reads)"
+        )
+        suspected = line.suspected_timer_ms
+        out.print(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}")
+        these = "" if rates["servos"] == 32 else f"{rates['now']:.1f} Hz for these {rates['servos']}, "
+        out.print(f"cycle rate now: {these}{rates['now_32']:.1f} Hz for 32")
+        for fix in rates["after_fixes"]:
+            out.print(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)")
+        out.print(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32")
+    for f in findings:
+        style = SEVERITY_STYLE[f.severity]
+        err.print(f"[{style}]{f.severity}:[/{style}] {escape(f.problem)}", soft_wrap=True)
+        if f.fix:
+            err.print(f"  [cyan]fix:[/cyan] {escape(f.fix)}", soft_wrap=True)
+
+
+@click.command()
+@click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help="IDs to look for on the line.")
+@click.option(
+    "--samples",
+    type=click.IntRange(1, 1000),
+    default=None,
+    help="Reads per servo (default: 200 in all, 5 or more each).",
+)
+@click.option("--system-root", default="/", hidden=True, help="Read system files below this directory (tests).")
+@json_option
+@click.pass_context
+def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root: str, as_json: bool) -> int:
+    """Check the machine and the line: adapters and their driver, rights on the port, who holds it,
+    the USB latency timer; then each answering servo's round trip, the latency timer it points to,
+    and the cycle rate for 32 servos now and after each fix.
+
+    Reads only (temperature reads: nothing moves, nothing is freed).  Without --port only the machine
+    is checked.  Exit codes: 0 checked (findings are advice), 3 the port cannot be opened, 4 no servo answered.
+    """
+    settings = settings_of(ctx)
+    port = None if settings.port_defaulted else settings.port
+    system = check_system(machine_ports(), port, root=system_root, own_pid=os.getpid())
+    findings = list(system.findings)
+    line: LineReport | None = None
+    failure: CliError | None = None
+    if port is None:
+        findings.append(
+            Finding("line", "info", "no --port given: the line was not measured", "ics35 doctor --port PORT")
+        )
+    else:
+        try:
+            line = measure(settings, ids, samples, system)
+        except CliError as exc:
+            failure = exc
+            findings.append(Finding("line", "error", exc.message, " ; ".join(exc.hints)))
+    if line is not None:
+        if not line.servo_ids:
+            failure = CliError(ExitCode.NO_REPLY, f"no servo answered on {settings.port} at {settings.baud} baud")
+            findings.append(
+                Finding("line", "error", failure.message, "check power and wiring; ics35 scan tries every baud")
+            )
+        findings += line.judge()
+    if as_json:
+        report: dict[str, Any] = {"port": port, **system.to_dict()}
+        line_part = line.to_dict() if line is not None else {}
+        report.update(
+            {
+                "baud": settings.baud,
+                "servos": line_part.get("servos", []),
+                "transactions": line_part.get("transactions", 0),
+                "failed": line_part.get("failed", 0),
+                "round_trip_ms": line_part.get("round_trip_ms", {"median": None, "p99": None}),
+                "latency_timer_suspected_ms": line_part.get("latency_timer_suspected_ms"),
+                "cycle_hz": line_part.get("cycle_hz"),
+                "findings": [f.to_dict() for f in findings],
+            }
+        )
+        emit_json(report)
+    else:
+        # The failure itself is printed last, as every command's error is: not twice.
+        shown = [f for f in findings if failure is None or f.problem != failure.message]
+        print_report(system, line, shown)
+    if failure is not None:
+        raise failure
+    return 0
+
+
+COMMANDS = [doctor]

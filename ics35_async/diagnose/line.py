@@ -1,0 +1,210 @@
+"""The line's side of a diagnosis: each answering servo's round trip, the latency timer it points to,
+and the cycle rate to expect now and after each fix.
+
+Measured with temperature reads (2 bytes out, 3 back: close to a position
+command's 3 and 3, and they neither move nor free a servo), one servo after
+another as a cycle runs.  A USB adapter's latency timer shows in the times:
+a host that waits for each reply locks onto the timer, so round trips sit
+near one timer period (16 ms, FTDI's default; 8 ms on some drivers) whatever
+the wire needs.  Where the system shows the timer (Linux sysfs) the caller
+passes it in; elsewhere (macOS, Windows, a remote bridge) the times alone
+say it.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..bus import Bus
+from ..errors import IcsError
+from ..protocol import wire_time
+from ..transports.platforms import latency_timer_advice
+from ..transports.usb_timing import FtdiAdapter, adapter_cycle_time
+from .findings import Finding
+
+PROBE_TX, PROBE_REPLY = 2, 3  # a temperature read
+CYCLE_SERVOS = 32  # the figure users compare: a full line
+SUSPECT_TIMERS_MS = (16, 8)
+"""Latency timers round trips are compared with: FTDI's default, and the 8 ms some drivers and hosts set."""
+SLOW_EXCESS = 3e-3
+"""Round trips this much above the wire's need point to something holding bytes back."""
+DEFAULT_BUDGET = 200
+MIN_PER_SERVO = 5
+
+
+def percentile(values: list[float], q: float) -> float:
+    """The ``q`` quantile (0..1) by the nearest-rank rule (a measured value, never an interpolation)."""
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
+
+
+async def measure_round_trips(
+    bus: Bus, servo_ids: list[int], *, per_servo: int | None = None, budget: int = DEFAULT_BUDGET
+) -> tuple[dict[int, list[float]], int]:
+    """Round trips (seconds) of ``servo_ids``, round robin; and how many transactions failed.
+
+    Without ``per_servo``: ``budget`` transactions in all, at least
+    :data:`MIN_PER_SERVO` each (32 servos at 16 ms: about 3 s).
+    """
+    count = per_servo or max(MIN_PER_SERVO, budget // max(1, len(servo_ids)))
+    samples: dict[int, list[float]] = {i: [] for i in servo_ids}
+    failed = 0
+    servos = [(i, bus.servo(i)) for i in servo_ids]
+    for _ in range(count):
+        for servo_id, servo in servos:
+            start = time.perf_counter()
+            try:
+                await servo.read_temperature()
+            except IcsError:
+                failed += 1
+                continue
+            samples[servo_id].append(time.perf_counter() - start)
+    return samples, failed
+
+
+def suspect_latency_timer(round_trips: list[float], baudrate: int) -> int | None:
+    """The latency timer (ms) the round trips point to, or None when nothing points to one."""
+    if not round_trips:
+        return None
+    median = statistics.median(round_trips)
+    if median - wire_time(PROBE_TX + PROBE_REPLY, baudrate) < SLOW_EXCESS:
+        return None
+    for timer_ms in SUSPECT_TIMERS_MS:
+        period = timer_ms * 1e-3
+        if abs(median - period) <= max(1.5e-3, 0.15 * period):
+            return timer_ms
+    return None
+
+
+@dataclass
+class LineReport:
+    """The measurement and what it means; times in seconds, shown in ms by :meth:`to_dict`."""
+
+    baudrate: int
+    samples: dict[int, list[float]]
+    failed: int = 0
+    system_latency_timer_ms: int | None = None
+    platform: str = "linux"
+    findings: list[Finding] = field(default_factory=list)
+
+    @property
+    def servo_ids(self) -> list[int]:
+        return [i for i, s in self.samples.items() if s]
+
+    @property
+    def all_samples(self) -> list[float]:
+        return [t for s in self.samples.values() for t in s]
+
+    @property
+    def median(self) -> float | None:
+        return statistics.median(self.all_samples) if self.all_samples else None
+
+    @property
+    def p99(self) -> float | None:
+        return percentile(self.all_samples, 0.99) if self.all_samples else None
+
+    @property
+    def suspected_timer_ms(self) -> int | None:
+        inferred = suspect_latency_timer(self.all_samples, self.baudrate)
+        if inferred is None and self.system_latency_timer_ms is not None and self.system_latency_timer_ms > 1:
+            return self.system_latency_timer_ms
+        return inferred
+
+    def cycle_hz(self) -> dict[str, Any]:
+        """Cycle rates: now (measured), after setting the timer to 1 ms (the adapter model), the wire's limit."""
+        n = len(self.servo_ids)
+        median = self.median
+        wire_32 = 1 / adapter_cycle_time(None, servos=CYCLE_SERVOS, baudrate=self.baudrate)
+        rates: dict[str, Any] = {
+            "servos": n,
+            "now": round(1 / (n * median), 2) if n and median else None,
+            "now_32": round(1 / (CYCLE_SERVOS * median), 2) if median else None,
+            "after_fixes": [],
+            "wire_limit_32": round(wire_32, 1),
+        }
+        if self.suspected_timer_ms is not None:
+            fixed = FtdiAdapter(1)
+            rates["after_fixes"].append(
+                {
+                    "fix": "latency timer 1 ms",
+                    "cycle_hz": round(1 / adapter_cycle_time(fixed, servos=max(n, 1), baudrate=self.baudrate), 2),
+                    "cycle_hz_32": round(
+                        1 / adapter_cycle_time(FtdiAdapter(1), servos=CYCLE_SERVOS, baudrate=self.baudrate), 2
+                    ),
+                }
+            )
+        return rates
+
+    def judge(self) -> list[Finding]:
+        """The findings the measurement supports (also kept in :attr:`findings`)."""
+        found: list[Finding] = []
+        median, p99 = self.median, self.p99
+        if median is None or p99 is None:
+            return found
+        timer = self.suspected_timer_ms
+        rates = self.cycle_hz()
+        if timer is not None:
+            fix = latency_timer_advice(self.platform)
+            if self.platform.startswith("linux"):
+                fix += "  (or: ics35 udev --install)"
+            after = rates["after_fixes"][0]["cycle_hz_32"]
+            found.append(
+                Finding(
+                    "latency_timer",
+                    "warning",
+                    f"round trips of {median * 1e3:.1f} ms (p99 {p99 * 1e3:.1f} ms) sit at a {timer} ms USB latency "
+                    f"timer: 32 servos would cycle at {rates['now_32']:.1f} Hz; with the timer at 1 ms, "
+                    f"about {after:.0f} Hz",
+                    fix,
+                )
+            )
+        elif median - wire_time(PROBE_TX + PROBE_REPLY, self.baudrate) >= SLOW_EXCESS:
+            found.append(
+                Finding(
+                    "round_trip",
+                    "warning",
+                    f"round trips of {median * 1e3:.1f} ms are {(median - wire_time(5, self.baudrate)) * 1e3:.1f} ms "
+                    "more than the wire needs, and no latency timer explains it: a network bridge, a slow adapter "
+                    "or a busy machine",
+                    "for a bridge: see its latency settings; otherwise try the adapter on another USB port",
+                )
+            )
+        if self.failed:
+            total = self.failed + len(self.all_samples)
+            found.append(
+                Finding(
+                    "round_trip",
+                    "warning",
+                    f"{self.failed} of {total} reads failed while measuring",
+                    "check the wiring and the servos' power; a garbled reply can mean two servos share one ID",
+                )
+            )
+        self.findings = found
+        return found
+
+    def to_dict(self) -> dict[str, Any]:
+        median, p99 = self.median, self.p99
+        return {
+            "baud": self.baudrate,
+            "servos": self.servo_ids,
+            "transactions": len(self.all_samples),
+            "failed": self.failed,
+            "round_trip_ms": {
+                "median": None if median is None else round(median * 1e3, 3),
+                "p99": None if p99 is None else round(p99 * 1e3, 3),
+                "per_servo": {
+                    str(i): {
+                        "median": round(statistics.median(s) * 1e3, 3),
+                        "p99": round(percentile(s, 0.99) * 1e3, 3),
+                    }
+                    for i, s in self.samples.items()
+                    if s
+                },
+            },
+            "latency_timer_suspected_ms": self.suspected_timer_ms,
+            "cycle_hz": self.cycle_hz(),
+        }

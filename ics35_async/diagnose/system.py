@@ -1,0 +1,271 @@
+"""The machine's side of a diagnosis: adapters and their driver, who may open the port, who holds it,
+the FTDI latency timer, programs known to grab serial ports, WSL2.
+
+Every check reads system files below ``root`` (``/``: ``sys``, ``dev``,
+``proc``, ``etc/group``), so a test can hand it a fake tree.  The port
+list comes from the caller (pyserial's, in ``ics35 doctor``).  Linux is
+checked from its files; on macOS and Windows only the advice applies.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..transports.listing import KONDO_ADAPTERS, SerialPortInfo, kondo_usb_without_port, linux_adapter_steps
+from ..transports.platforms import latency_timer_advice, port_names_hint
+from .findings import Finding
+from .udev import system_groups
+
+# Programs that open FTDI serial ports on their own (Ubuntu ships both).
+GRABBERS = {
+    "brltty": "the braille display daemon (brltty) claims FTDI serial adapters on Ubuntu",
+    "ModemManager": "ModemManager probes new serial ports for modems, holding them for seconds",
+}
+GRABBER_FIXES = {
+    "brltty": "sudo apt remove brltty   (if you use no braille display; or: sudo systemctl mask brltty-udev.service)",
+    "ModemManager": "sudo systemctl disable --now ModemManager   (if this machine has no modem)",
+}
+USBIPD_STEPS = (
+    "in Windows PowerShell as administrator: usbipd list ; usbipd bind --busid BUSID ; "
+    "usbipd attach --wsl --busid BUSID  (BUSID: the adapter's row in the list); then in WSL: ics35 doctor"
+)
+
+
+@dataclass
+class SystemReport:
+    """What the machine's side shows: the ports, Kondo devices without one, the port's latency timer."""
+
+    ports: list[SerialPortInfo] = field(default_factory=list)
+    kondo_without_port: list[str] = field(default_factory=list)
+    latency_timer_ms: int | None = None  # the checked port's, where the system shows it
+    findings: list[Finding] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "ports": [p.to_dict() for p in self.ports],
+            "kondo_without_port": self.kondo_without_port,
+            "latency_timer_ms": self.latency_timer_ms,
+        }
+
+
+def _below(root: Path, path: str) -> Path:
+    return root / path.lstrip("/")
+
+
+def read_latency_timer(root: Path, tty: str) -> int | None:
+    """The FTDI latency timer (ms) of ``tty`` (``ttyUSB0``) from sysfs, or None where the system shows none."""
+    try:
+        return int(_below(root, f"/sys/bus/usb-serial/devices/{tty}/latency_timer").read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def processes(root: Path) -> list[tuple[int, str]]:
+    """``(pid, name)`` of the processes ``root/proc`` lists."""
+    found = []
+    try:
+        entries = list(_below(root, "/proc").iterdir())
+    except OSError:
+        return []
+    for entry in entries:
+        if not entry.name.isdigit():
+            continue
+        try:
+            found.append((int(entry.name), (entry / "comm").read_text().strip()))
+        except OSError:
+            continue
+    return sorted(found)
+
+
+def holders(root: Path, device: str, *, own_pid: int | None = None) -> list[tuple[int, str]]:
+    """The processes with ``device`` open (from their ``/proc/PID/fd`` links; only those we may read)."""
+    targets = {device, os.path.realpath(device)}
+    held = []
+    for pid, name in processes(root):
+        if pid == own_pid:
+            continue
+        try:
+            fds = list(_below(root, f"/proc/{pid}/fd").iterdir())
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                if os.readlink(fd) in targets:
+                    held.append((pid, name))
+                    break
+            except OSError:
+                continue
+    return held
+
+
+def _may_open(st: os.stat_result, uid: int, gids: set[int]) -> bool:
+    mode = st.st_mode
+    if uid == 0:
+        return True
+    if st.st_uid == uid:
+        return mode & stat.S_IRUSR != 0 and mode & stat.S_IWUSR != 0
+    if st.st_gid in gids:
+        return mode & stat.S_IRGRP != 0 and mode & stat.S_IWGRP != 0
+    return mode & stat.S_IROTH != 0 and mode & stat.S_IWOTH != 0
+
+
+def _user_name() -> str:
+    for key in ("USER", "LOGNAME"):
+        if os.environ.get(key):
+            return os.environ[key]
+    return ""
+
+
+def check_port_access(root: Path, port: str, *, uid: int, gids: set[int]) -> list[Finding]:
+    """Whether the port exists, and whether this user may open it (with the group to join if not)."""
+    node = _below(root, port)
+    try:
+        st = node.stat()
+    except FileNotFoundError:
+        return [Finding("port", "error", f"{port} does not exist", f"find the adapter's port: {port_names_hint()}")]
+    except OSError as exc:
+        return [Finding("port", "error", f"{port} cannot be examined: {exc.strerror}")]
+    if _may_open(st, uid, gids):
+        return []
+    groups = system_groups(_below(root, "/etc/group"))
+    name = next((n for n, (gid, _) in groups.items() if gid == st.st_gid), str(st.st_gid))
+    members = groups.get(name, (0, ()))[1]
+    user = _user_name()
+    if user and user in members:
+        return [
+            Finding(
+                "permission",
+                "error",
+                f"you may not open {port} yet: you are in group {name} now, but this session started before",
+                f"log out and in again (or for this shell: newgrp {name}); check with: groups",
+            )
+        ]
+    return [
+        Finding(
+            "permission",
+            "error",
+            f"you may not open {port}: it belongs to group {name} (mode {stat.filemode(st.st_mode)}), "
+            "and you are not in it",
+            f"sudo usermod -aG {name} $USER, then log out and in again (check with: groups)",
+        )
+    ]
+
+
+def check_holders(root: Path, port: str, *, own_pid: int | None) -> list[Finding]:
+    found = []
+    for pid, name in holders(root, port, own_pid=own_pid):
+        fix = GRABBER_FIXES.get(name, f"close {name} (or: kill {pid}), then try again")
+        found.append(Finding("holder", "error", f"{port} is held open by {name} (process {pid})", fix))
+    return found
+
+
+def check_latency_timer(port: str, tty: str, ms: int | None) -> list[Finding]:
+    """A warning when ``port`` (whose kernel name is ``tty``) holds received bytes more than 1 ms."""
+    if ms is None or ms <= 1:
+        return []
+    return [
+        Finding(
+            "latency_timer",
+            "warning",
+            f"{port}'s USB adapter holds received bytes up to {ms} ms (its FTDI latency timer): every "
+            f"transaction waits that long",
+            f"now: echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer ; "
+            f"for good: ics35 udev --install",
+        )
+    ]
+
+
+def check_grabbers(root: Path) -> list[Finding]:
+    running = {name for _, name in processes(root)}
+    return [
+        Finding("grabber", "warning", f"{GRABBERS[name]}: it is running", GRABBER_FIXES[name])
+        for name in GRABBERS
+        if name in running
+    ]
+
+
+def is_wsl(root: Path) -> bool:
+    try:
+        version = _below(root, "/proc/version").read_text().lower()
+    except OSError:
+        return False
+    return "microsoft" in version or "wsl" in version
+
+
+def check_adapters(root: Path, ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
+    found = []
+    for usb_id in unbound:
+        name = KONDO_ADAPTERS.get(usb_id, "a Kondo USB device")
+        found.append(
+            Finding(
+                "adapter",
+                "error",
+                f"{name} ({usb_id}) is plugged in but has no serial port: Linux's ftdi_sio driver does not "
+                "know its USB ID",
+                f"{' ; '.join(linux_adapter_steps(usb_id))}   (for good: ics35 udev --install)",
+            )
+        )
+    if linux and not unbound and not any(p.kondo for p in ports):
+        found.append(
+            Finding(
+                "adapter",
+                "info",
+                "no Kondo adapter (USB vendor 165C) is plugged in, or the system does not show it",
+                "check with lsusb: 165c:0006 is the ICS USB adapter HS, 165c:0008 the Dual USB adapter HS",
+            )
+        )
+    return found
+
+
+def check_system(
+    ports: list[SerialPortInfo],
+    port: str | None = None,
+    *,
+    root: str | Path = "/",
+    uid: int | None = None,
+    gids: set[int] | None = None,
+    platform: str | None = None,
+    own_pid: int | None = None,
+) -> SystemReport:
+    """Every check of the machine's side, for ``port`` (a device path; None or a URL: the port checks are skipped).
+
+    ``uid``/``gids`` default to this process's; ``platform`` to ``sys.platform``.
+    """
+    root = Path(root)
+    platform = platform or sys.platform
+    linux = platform.startswith("linux")
+    report = SystemReport(ports=list(ports))
+    device = port if port and "://" not in port and not port.upper().startswith("COM") else None
+    if linux:
+        report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
+    report.findings += check_adapters(root, report.ports, report.kondo_without_port, linux=linux)
+    if linux and is_wsl(root) and not any(p.usb_id for p in ports):
+        report.findings.append(
+            Finding("wsl", "warning", "this is WSL2: it sees a USB adapter only once Windows attaches it", USBIPD_STEPS)
+        )
+    if linux:
+        report.findings += check_grabbers(root)
+    if device is not None and linux:
+        uid = os.geteuid() if uid is None else uid
+        gids = set(os.getgroups()) | {os.getegid()} if gids is None else gids
+        report.findings += check_port_access(root, device, uid=uid, gids=gids)
+        report.findings += check_holders(root, device, own_pid=own_pid)
+        tty = os.path.basename(os.path.realpath(_below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
+        report.latency_timer_ms = read_latency_timer(root, tty)
+        report.findings += check_latency_timer(device, tty, report.latency_timer_ms)
+    elif not linux and any(p.ftdi_based for p in ports):
+        report.findings.append(
+            Finding(
+                "latency_timer",
+                "info",
+                "this system does not show an FTDI adapter's latency timer (the line measurement below infers it)",
+                latency_timer_advice(platform),
+            )
+        )
+    return report
+

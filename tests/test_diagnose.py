@@ -1,0 +1,287 @@
+"""ics35 doctor and its library (ics35_async.diagnose): every system check against a fake system tree,
+the line part against the simulator's USB adapter model, and ics35 udev."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.diagnose.line import LineReport, suspect_latency_timer
+from ics35_async.diagnose.system import check_system, holders
+from ics35_async.diagnose.udev import rules_text, serial_group
+from ics35_async.transports.listing import SerialPortInfo
+from tests._cli_fixtures import ics35
+
+__all__ = ["ics35"]
+
+UID, GID = 1000, 1000
+DIALOUT = 20
+FTDI_PORT = SerialPortInfo("/dev/ttyUSB0", "ICS USB ADAPTER HS", 0x165C, 0x0006)
+
+
+def tree(tmp_path: Path, *, mode: int = 0o660, gid: int = DIALOUT, members: str = "") -> Path:
+    """A fake system: /dev/ttyUSB0 (owned by root, group ``gid``), /etc/group, an empty /proc and /sys."""
+    root = tmp_path / "root"
+    (root / "dev").mkdir(parents=True)
+    (root / "etc").mkdir()
+    (root / "proc").mkdir()
+    (root / "sys" / "bus" / "usb" / "devices").mkdir(parents=True)
+    node = root / "dev" / "ttyUSB0"
+    node.write_text("")
+    node.chmod(mode)
+    if os.geteuid() == 0:
+        os.chown(node, 0, gid)
+    (root / "etc" / "group").write_text(f"root:x:0:\ndialout:x:{DIALOUT}:{members}\nusers:x:100:\n")
+    return root
+
+
+def check(root: Path, ports: list[SerialPortInfo] | None = None, **kw: Any) -> Any:
+    st = (root / "dev" / "ttyUSB0").stat() if (root / "dev" / "ttyUSB0").exists() else None
+    # The node belongs to whoever runs the test: check as another user who is not in its group.
+    owner_gid = st.st_gid if st else DIALOUT
+    kw.setdefault("uid", (st.st_uid + 1) if st else UID)
+    kw.setdefault("gids", {owner_gid + 1})
+    return check_system([FTDI_PORT] if ports is None else ports, "/dev/ttyUSB0", root=root, platform="linux", **kw)
+
+
+def by_check(report: Any, name: str) -> list[Any]:
+    return [f for f in report.findings if f.check == name]
+
+
+def test_an_unbound_hs_adapter_gets_the_commands_for_its_own_usb_id(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    device = root / "sys" / "bus" / "usb" / "devices" / "1-1"
+    device.mkdir()
+    (device / "idVendor").write_text("165c\n")
+    (device / "idProduct").write_text("0006\n")
+    (root / "sys" / "bus" / "usb" / "devices" / "1-1:1.0").mkdir()  # its interface: no tty
+    report = check(root, ports=[])
+    assert report.kondo_without_port == ["165C:0006"]
+    (finding,) = by_check(report, "adapter")
+    assert finding.severity == "error" and "ICS USB adapter HS (165C:0006)" in finding.problem
+    assert "echo 165C 0006 | sudo tee /sys/bus/usb-serial/drivers/ftdi_sio/new_id" in finding.fix
+
+
+def test_a_port_the_user_may_not_open_names_the_group_to_join(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    st = (root / "dev" / "ttyUSB0").stat()
+    group_line = f"root:x:0:\nserialgrp:x:{st.st_gid}:\n"
+    (root / "etc" / "group").write_text(group_line)
+    (finding,) = by_check(check(root), "permission")
+    assert finding.severity == "error" and "group serialgrp" in finding.problem
+    assert finding.fix.startswith("sudo usermod -aG serialgrp $USER")
+    assert by_check(check(root, gids={st.st_gid}), "permission") == []  # in the group: fine
+    assert by_check(check(root, uid=0), "permission") == []  # root may
+
+
+def test_a_user_added_to_the_group_but_not_logged_in_again_is_told_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root = tree(tmp_path)
+    st = (root / "dev" / "ttyUSB0").stat()
+    (root / "etc" / "group").write_text(f"dialout:x:{st.st_gid}:alice,bob\n")
+    monkeypatch.setenv("USER", "bob")
+    (finding,) = by_check(check(root), "permission")
+    assert "this session started before" in finding.problem and "log out and in again" in finding.fix
+
+
+def test_a_missing_port_is_an_error(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    (root / "dev" / "ttyUSB0").unlink()
+    (finding,) = by_check(check(root), "port")
+    assert "/dev/ttyUSB0 does not exist" in finding.problem
+
+
+def test_the_process_holding_the_port_is_named(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    for pid, name, target in ((4242, "minicom", "/dev/ttyUSB0"), (77, "bash", "/dev/pts/1")):
+        fd = root / "proc" / str(pid) / "fd"
+        fd.mkdir(parents=True)
+        (root / "proc" / str(pid) / "comm").write_text(name + "\n")
+        os.symlink(target, fd / "3")
+    assert holders(root, "/dev/ttyUSB0") == [(4242, "minicom")]
+    (finding,) = by_check(check(root), "holder")
+    assert "held open by minicom (process 4242)" in finding.problem and "kill 4242" in finding.fix
+    assert by_check(check(root, own_pid=4242), "holder") == []  # doctor's own process does not count
+
+
+def test_brltty_and_modemmanager_are_named_with_their_fixes(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    for pid, name in ((10, "brltty"), (11, "ModemManager"), (12, "sshd")):
+        (root / "proc" / str(pid)).mkdir()
+        (root / "proc" / str(pid) / "comm").write_text(name + "\n")
+    found = by_check(check(root), "grabber")
+    assert [f.fix.split()[0:3] for f in found] == [["sudo", "apt", "remove"], ["sudo", "systemctl", "disable"]]
+
+
+def test_the_latency_timer_is_read_from_sysfs(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    report = check(root)
+    assert report.latency_timer_ms == 16
+    (finding,) = by_check(report, "latency_timer")
+    assert "up to 16 ms" in finding.problem
+    assert "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in finding.fix
+    timer.write_text("1\n")
+    report = check(root)
+    assert report.latency_timer_ms == 1 and by_check(report, "latency_timer") == []
+
+
+def test_wsl2_without_usb_ports_is_told_about_usbipd(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    (root / "proc" / "version").write_text("Linux version 5.15.153.1-microsoft-standard-WSL2\n")
+    (finding,) = by_check(check(root, ports=[]), "wsl")
+    assert "usbipd attach --wsl" in finding.fix
+    (root / "proc" / "version").write_text("Linux version 6.8.0-generic\n")
+    assert by_check(check(root, ports=[]), "wsl") == []
+
+
+def test_other_systems_get_the_latency_advice_for_ftdi_ports(tmp_path: Path) -> None:
+    report = check_system([FTDI_PORT], "/dev/cu.usbserial-1", root=tmp_path, platform="darwin")
+    (finding,) = by_check(report, "latency_timer")
+    assert finding.severity == "info" and "AN_134" in finding.fix
+
+
+def test_the_timer_is_inferred_from_round_trips() -> None:
+    assert suspect_latency_timer([0.016] * 20, 115200) == 16
+    assert suspect_latency_timer([0.0081] * 20, 115200) == 8
+    assert suspect_latency_timer([0.0007] * 20, 115200) is None  # the wire's own time: nothing held back
+    assert suspect_latency_timer([0.011] * 20, 115200) is None  # slow, but no timer explains it
+    report = LineReport(115200, {1: [0.0007] * 10}, system_latency_timer_ms=16)
+    assert report.suspected_timer_ms == 16  # the system shows one: it counts even if the times hide it
+
+
+def test_udev_rules_bind_both_adapters_and_set_the_timer() -> None:
+    text = rules_text("uucp")
+    for pid in ("0006", "0008"):
+        assert f'ATTR{{idProduct}}=="{pid}"' in text and f"echo 165c {pid} > /sys/bus/usb-serial/drivers" in text
+    assert 'ATTR{latency_timer}="1"' in text and 'GROUP="uucp"' in text and "$attr{serial}" in text
+
+
+def test_the_serial_group_is_one_the_user_is_in(tmp_path: Path) -> None:
+    group = tmp_path / "group"
+    group.write_text("uucp:x:14:\ndialout:x:20:\n")
+    assert serial_group(group, {14}) == "uucp"
+    assert serial_group(group, {99}) == "dialout"
+    group.write_text("uucp:x:14:\n")
+    assert serial_group(group, {99}) == "uucp"
+    assert serial_group(tmp_path / "nothing", set()) == "dialout"
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(ics35: Any) -> None:
+    result = ics35("doctor", "--port", "sim://?ids=1,2&adapter=ftdi&latency_timer=16", "--samples", "8", "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    assert data["servos"] == [1, 2] and data["transactions"] == 16
+    assert data["latency_timer_suspected_ms"] == 16
+    assert 14 <= data["round_trip_ms"]["median"] <= data["round_trip_ms"]["p99"]
+    fixes = data["cycle_hz"]["after_fixes"]
+    assert fixes[0]["fix"] == "latency timer 1 ms" and fixes[0]["cycle_hz_32"] > 5 * data["cycle_hz"]["now_32"]
+    (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
+    assert "16 ms USB latency timer" in finding["problem"] and finding["fix"]
+
+
+def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(ics35: Any) -> None:
+    result = ics35("doctor", "--port", "sim://?ids=3&realtime=1", "--samples", "20", "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    assert data["servos"] == [3] and data["round_trip_ms"]["median"] > 0
+    assert data["latency_timer_suspected_ms"] is None
+    assert data["cycle_hz"]["after_fixes"] == []
+    assert not [f for f in data["findings"] if f["check"] == "latency_timer"]
+
+
+def test_doctor_text_and_no_servo(ics35: Any) -> None:
+    result = ics35("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "5")
+    assert result.code == 0
+    assert "latency timer suspected: 16 ms" in result.out and "fix:" in result.err
+    none = ics35("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
+    assert none.code == 4
+    assert none.json()["servos"] == [] and "no servo answered" in none.err
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
+def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, ics35: Any) -> None:
+    root = tree(tmp_path)
+    (root / "dev" / "ttyUSB0").rename(root / "dev" / "ttyICS-missing")
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyICS-missing" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    result = ics35("doctor", "--port", "/dev/ttyICS-missing", "--system-root", str(root), "--json")
+    assert result.code == 3  # the port cannot be opened (it is not on this machine)
+    data = result.json()
+    assert data["latency_timer_ms"] == 16 and data["latency_timer_suspected_ms"] is None
+    checks = {f["check"] for f in data["findings"]}
+    assert {"latency_timer", "line"} <= checks
+
+
+def test_udev_prints_the_rules(ics35: Any) -> None:
+    if not sys.platform.startswith("linux"):
+        assert ics35("udev").code == 2
+        return
+    result = ics35("udev")
+    assert result.code == 0
+    assert "165c" in result.out and '"0006"' in result.out and '"0008"' in result.out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_install_writes_where_it_may_and_asks_before_sudo(tmp_path: Path, ics35: Any) -> None:
+    target = tmp_path / "99-ics35-kondo.rules"
+    result = ics35("udev", "--install", "--path", str(target))
+    assert result.code == 0, result.err
+    assert "ftdi_sio" in target.read_text() and "udevadm control --reload-rules" in result.err
+    # A place we may not write (even as root: its directory does not exist): the sudo question.
+    elsewhere = tmp_path / "no-such-dir" / "x.rules"
+    refused = ics35("udev", "--install", "--path", str(elsewhere), stdin="n\n")
+    if "no sudo here" in refused.err:
+        assert refused.code == 3
+    else:
+        assert refused.code == 5 and "sudo tee" in refused.err and "[y/N]" in refused.err
+        assert "nothing was written" in refused.err
+    assert not elsewhere.exists()
+    silent = ics35("udev", "--install", "--path", str(elsewhere), stdin="")  # no answer: no sudo
+    assert silent.code in (3, 5) and not elsewhere.exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ics35: Any) -> None:
+    # A stand-in for the system's sudo (not our code): it logs its arguments and runs them.
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    log = tmp_path / "sudo.log"
+    sudo = bin_dir / "sudo"
+    sudo.write_text(f'#!/bin/sh\necho "$@" >> {log}\nmkdir -p "$(dirname "$2")"\nexec "$@"\n')
+    sudo.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    target = tmp_path / "etc-udev" / "99-ics35-kondo.rules"  # its directory does not exist: not writable
+    refused = ics35("udev", "--install", "--path", str(target), stdin="n\n")
+    assert refused.code == 5 and "[y/N]" in refused.err
+    assert not log.exists() and not target.exists()  # sudo never ran
+    done = ics35("udev", "--install", "--path", str(target), stdin="y\n")
+    assert done.code == 0, done.err
+    assert log.read_text().split() == ["tee", str(target)]
+    assert "165c 0006" in target.read_text() and "udevadm trigger" in done.err
+
+
+def test_a_port_named_by_id_reads_the_timer_of_its_tty(tmp_path: Path) -> None:
+    root = tree(tmp_path)
+    by_id = root / "dev" / "serial" / "by-id"
+    by_id.mkdir(parents=True)
+    (by_id / "usb-Kondo_ICS_HS_A1B2-if00-port0").symlink_to("../../ttyUSB0")
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    port = "/dev/serial/by-id/usb-Kondo_ICS_HS_A1B2-if00-port0"
+    report = check_system([FTDI_PORT], port, root=root, platform="linux", uid=0, gids=set())
+    assert report.latency_timer_ms == 16
+    (finding,) = by_check(report, "latency_timer")
+    assert "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in finding.fix and port in finding.problem
