@@ -116,6 +116,16 @@ class Trajectory:
             previous_time, previous = time, end
         return cls(segments)
 
+    def envelope(self) -> dict[str, tuple[float, float]]:
+        """Per joint, the lowest and highest angle of any segment's ends: where the trajectory stays."""
+        spans: dict[str, tuple[float, float]] = {}
+        for segment in self.segments:
+            for pose in (segment.start, segment.end):
+                for joint, deg in pose.items():
+                    low, high = spans.get(joint, (deg, deg))
+                    spans[joint] = (min(low, deg), max(high, deg))
+        return spans
+
     @property
     def final(self) -> dict[str, float]:
         return dict(self.segments[-1].end)

@@ -49,6 +49,8 @@ class Robot:
         self._by_key = {(j.line, j.id): name for name, j in self.joints.items()}
         self._targets: dict[str, float | None] = dict.fromkeys(self.joints)
         self._velocity: dict[str, float] = dict.fromkeys(self.joints, 0.0)
+        # Per joint, the interval its newest motion may use: the pose it started from and its targets.
+        self._envelope: dict[str, tuple[float, float]] = {}
         self._positions: dict[str, float] = {}
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
@@ -232,6 +234,7 @@ class Robot:
         """Play a trajectory from now on; returns when it is done (its end on the wire, with ``wait_on_wire``)."""
         plan = Plan(trajectory, anyio.current_time(), wait_on_wire)
         self._release(plan.joints)
+        self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
         try:
             await plan.done.wait()
@@ -243,19 +246,49 @@ class Robot:
             raise plan.error
 
     async def stop(self, ramp: float = 0.3) -> None:
-        """End every motion smoothly: each moving joint slows to rest over ``ramp`` seconds, then holds."""
+        """End every motion smoothly: each moving joint slows to rest, then holds.
+
+        A joint slows down at the rate that would bring it to rest in ``ramp``
+        seconds, but never leaves its motion's envelope (the pose the motion
+        started from and the targets it was given): one that would pass its
+        target comes to rest on it, sooner.  Every motion stopped raises
+        :class:`MotionStopped` in its caller.
+        """
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         for plan in self._plans:
             plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
         self._plans.clear()
-        start, end = {}, {}
+        # Joints grouped by how long they take to rest: one decelerating segment per group.
+        groups: dict[float, tuple[dict[str, float], dict[str, float]]] = {}
         for name, speed in self._velocity.items():
             target = self._targets[name]
-            if speed and target is not None:
-                start[name] = target
-                end[name] = self.joints[name].clamp(target + speed * seconds / 2)
-        if start and seconds > 0:
-            await self.run(Trajectory([Segment(0.0, seconds, start, end, "decel")]))
+            if not speed or target is None or seconds <= 0:
+                continue
+            low, high = self._envelope.get(name, (target, target))
+            end = self.joints[name].clamp(min(max(target + speed * seconds / 2, low), high))
+            # The decel profile covers half the distance its initial speed would: a shorter
+            # distance at the same initial speed takes proportionally less time.
+            duration = 2 * abs(end - target) / abs(speed)
+            if duration <= 0:
+                continue
+            start, ends = groups.setdefault(round(duration, 4), ({}, {}))
+            start[name], ends[name] = target, end
+        self._velocity = dict.fromkeys(self.joints, 0.0)
+        if not groups:
+            return
+        errors: list[IcsError] = []
+
+        async def slow_down(trajectory: Trajectory) -> None:
+            try:
+                await self.run(trajectory)
+            except IcsError as exc:  # a later stop, a safety stop, the line's end: the caller hears it
+                errors.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            for duration, (start, ends) in groups.items():
+                tasks.start_soon(slow_down, Trajectory([Segment(0.0, duration, start, ends, "decel")]))
+        if errors:
+            raise errors[0]
 
     def _step(self, frame: RobotFrame) -> None:
         """Advance every running plan to the frame's time: the targets for the next cycle."""
