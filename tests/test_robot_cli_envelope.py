@@ -1,0 +1,90 @@
+"""ics35 play's ways to stop (Ctrl-C, --seconds during --loop) never carry a joint past the motion's poses.
+
+In this process, on named simulated lines; every command is read back from the simulator's log.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async import units
+from ics35_async.robot import load_description
+from ics35_async.robot.calibration import dump_description
+
+from ._cli_fixtures import ics35
+from ._robot_fixtures import JOINTS, Rig, joint_degrees, make_rig, targets_sent
+
+__all__ = ["ics35"]
+
+HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[Rig, Path]]:
+    made = make_rig()
+    path = tmp_path / "robot.toml"
+    path.write_text(dump_description(load_description(made.description)))
+    yield made, path
+    made.close()
+
+
+def write_motion(path: Path, *keyframes: dict[str, Any]) -> Path:
+    path.write_text(json.dumps({"format": "ics35-motion", "version": 1, "keyframes": list(keyframes)}))
+    return path
+
+
+def neutral(name: str) -> float:
+    """Where a joint starts: its servo powers up free at neutral (7500)."""
+    return joint_degrees(JOINTS[name], units.NEUTRAL)
+
+
+def sent(rig: Rig, name: str) -> list[float]:
+    spec = JOINTS[name]
+    return [joint_degrees(spec, p) for p in targets_sent(rig.sim(spec["line"]), spec["id"])]
+
+
+def inside(values: list[float], *ends: float) -> bool:
+    return all(min(ends) - HALF_COUNT <= v <= max(ends) + HALF_COUNT for v in values)
+
+
+@pytest.mark.parametrize("seconds", ["0.15", "0.3", "0.42", "0.55"])
+def test_loop_stopped_by_the_clock_stays_between_the_keyframes(
+    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, seconds: str
+) -> None:
+    """--loop --seconds: the smooth stop at any point of a fast back-and-forth stays within its poses."""
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
+                          {"time": 0.25, "pose": {"neck": -30, "hip": 20}})
+    result = ics35("play", str(robot_file), str(motion), "--loop", "--seconds", seconds, "--ramp", "0.3")
+    assert result.code == 0, result.err
+    assert "time is up" in result.err
+    neck, hip = sent(sims, "neck"), sent(sims, "hip")
+    assert neck and hip
+    assert inside(neck, neutral("neck"), 30, -30), (min(neck), max(neck))
+    assert inside(hip, neutral("hip"), -20, 20), (min(hip), max(hip))
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
+def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    """Ctrl-C while the joint moves fast toward its keyframe: it decelerates and rests at the keyframe at most."""
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"neck": 55, "knee": -90}})
+    timer = threading.Timer(0.45, os.kill, (os.getpid(), signal.SIGINT))  # about 0.3 s into the motion
+    timer.start()
+    try:
+        result = ics35("play", str(robot_file), str(motion), "--loop", "--ramp", "0.3")
+    finally:
+        timer.cancel()
+    assert result.code == 0, result.err
+    assert "stopped by Ctrl-C: slowing to rest, then the joints hold" in result.err
+    neck, knee = sent(sims, "neck"), sent(sims, "knee")
+    assert inside(neck, neutral("neck"), 55), max(neck)
+    assert inside(knee, neutral("knee"), -90), min(knee)
