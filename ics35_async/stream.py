@@ -26,7 +26,7 @@ import itertools
 import math
 import statistics
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import AsyncIterator, Iterable
 from types import TracebackType
 
 import anyio
@@ -36,20 +36,25 @@ from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
+from .stream_targets import WATCH as WATCH  # re-exported: Stream.target() returns it
+from .stream_targets import StreamTargets
 
 INF = math.inf
 
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
-STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "history"})
+STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "history", "watch"})
 
 
-class Stream:
+class Stream(StreamTargets):
     """Streams position targets to ``ids`` and publishes a :class:`Frame` per cycle.
 
     Create with :meth:`Bus.stream` and use as ``async with``.  Every ID
     starts free (torque off, position still read back) until it is given a
-    target: the safe start-up the reference recommends.
+    target: the safe start-up the reference recommends.  IDs in ``watch``
+    (ICS 3.6 servos only) start *watched* instead: each cycle reads their
+    position with ICS 3.6's position read, which neither moves nor frees
+    them, until they are given a target (:meth:`watch` returns an ID to it).
     """
 
     def __init__(
@@ -62,6 +67,7 @@ class Stream:
         probe_interval: float = 0.5,
         free_on_close: bool = False,
         history: int = 2000,
+        watch: Iterable[int] = (),
     ) -> None:
         id_list = units.check_ids("ids", ids)
         if not id_list:
@@ -86,6 +92,7 @@ class Stream:
         self._index = {sid: k for k, sid in enumerate(id_list)}
         self._targets = [protocol.FREE] * n
         self._jobs = [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in id_list]
+        self._readers: list[protocol.ReadPosition | None] = [None] * n
         self._headers = [protocol.position_reply_header(sid, bus.baudrate) for sid in id_list]
         self._positions = [-1] * n
         self._stamps = [0.0] * n
@@ -117,51 +124,7 @@ class Stream:
         self._overruns = 0
         self._slot_checked = True
         self._first_start = 0.0
-
-    # ------------------------------------------------------------------ targets
-
-    def _slot(self, servo_id: int) -> int:
-        try:
-            return self._index[servo_id]
-        except (KeyError, TypeError):
-            raise InvalidArgument(f"ID {servo_id!r} is not in this stream {list(self.ids)}") from None
-
-    def set_target(self, servo_id: int, position: int) -> None:
-        """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
-        self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
-
-    def set_targets(self, targets: Mapping[int, int]) -> None:
-        """Several targets at once; all are checked before any is applied."""
-        self.apply_targets(self.check_targets(targets))
-
-    def check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
-        """Check every target (raising before anything changes) and return them ready for apply_targets."""
-        if not isinstance(targets, Mapping):
-            raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
-        return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
-
-    def apply_targets(self, checked: list[tuple[int, int]]) -> None:
-        """Apply targets that :meth:`check_targets` returned."""
-        for k, p in checked:
-            if self._targets[k] != p:
-                self._targets[k] = p
-                sid = self.ids[k]
-                self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
-
-    def set_target_degrees(self, servo_id: int, degrees: float) -> None:
-        self.set_target(servo_id, units.degrees_to_position(degrees))
-
-    def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
-        if not isinstance(targets, Mapping):
-            raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
-        self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
-
-    def free(self, ids: Iterable[int] | None = None) -> None:
-        """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
-        self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
-
-    def target(self, servo_id: int) -> int:
-        return self._targets[self._slot(servo_id)]
+        self.watch(units.check_ids("watch", watch))
 
     @property
     def offline(self) -> frozenset[int]:
@@ -182,7 +145,14 @@ class Stream:
         k = self._cur
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
-        position = position_from_reply(buf, offset, self._headers[k])
+        reader = self._readers[k]
+        if reader is not None:  # a watched ID: ICS 3.6's position read
+            try:
+                position = reader.parse(bytes(buf[offset:]))
+            except ReplyError as exc:
+                return exc
+        else:
+            position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
             try:
                 command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)

@@ -129,3 +129,23 @@ class Trajectory:
     @property
     def final(self) -> dict[str, float]:
         return dict(self.segments[-1].end)
+
+
+def stopping(moving: Mapping[str, tuple[float, float, tuple[float, float]]], ramp: float) -> list[Segment]:
+    """Decelerating segments that bring ``{joint: (angle, speed, (low, high))}`` to rest, each inside its interval.
+
+    A joint slows at the rate that would bring it to rest in ``ramp``
+    seconds (``decel`` covers half the distance its initial speed would); one
+    that would leave its interval (its motion's envelope) rests on its edge,
+    sooner, having started at the same speed.  Joints taking as long share a segment.
+    """
+    groups: dict[float, tuple[dict[str, float], dict[str, float]]] = {}
+    for joint, (angle, speed, (low, high)) in moving.items():
+        if not speed or ramp <= 0:
+            continue
+        end = min(max(angle + speed * ramp / 2, low), high)
+        duration = 2 * abs(end - angle) / abs(speed)
+        if duration > 0:
+            start, ends = groups.setdefault(round(duration, 4), ({}, {}))
+            start[joint], ends[joint] = angle, end
+    return [Segment(0.0, duration, start, ends, "decel") for duration, (start, ends) in groups.items()]

@@ -29,7 +29,7 @@ from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
 from .motion import Motion, play_motion
 from .plans import Plan, Replies
-from .profiles import Segment, Trajectory, check_profile
+from .profiles import Segment, Trajectory, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
 from .stream import RobotStream
 
@@ -258,23 +258,15 @@ class Robot:
         for plan in self._plans:
             plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
         self._plans.clear()
-        # Joints grouped by how long they take to rest: one decelerating segment per group.
-        groups: dict[float, tuple[dict[str, float], dict[str, float]]] = {}
+        moving = {}
         for name, speed in self._velocity.items():
             target = self._targets[name]
-            if not speed or target is None or seconds <= 0:
-                continue
-            low, high = self._envelope.get(name, (target, target))
-            end = self.joints[name].clamp(min(max(target + speed * seconds / 2, low), high))
-            # The decel profile covers half the distance its initial speed would: a shorter
-            # distance at the same initial speed takes proportionally less time.
-            duration = 2 * abs(end - target) / abs(speed)
-            if duration <= 0:
-                continue
-            start, ends = groups.setdefault(round(duration, 4), ({}, {}))
-            start[name], ends[name] = target, end
+            if speed and target is not None:
+                low, high = self._envelope.get(name, (target, target))
+                moving[name] = (target, speed, (self.joints[name].clamp(low), self.joints[name].clamp(high)))
         self._velocity = dict.fromkeys(self.joints, 0.0)
-        if not groups:
+        segments = stopping(moving, seconds)
+        if not segments:
             return
         errors: list[IcsError] = []
 
@@ -285,8 +277,8 @@ class Robot:
                 errors.append(exc)
 
         async with anyio.create_task_group() as tasks:
-            for duration, (start, ends) in groups.items():
-                tasks.start_soon(slow_down, Trajectory([Segment(0.0, duration, start, ends, "decel")]))
+            for segment in segments:
+                tasks.start_soon(slow_down, Trajectory([segment]))
         if errors:
             raise errors[0]
 

@@ -45,7 +45,7 @@ class VirtualLine(LineModel):
     The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
     ``memory``, ``realtime``, ``echo``, ``turnaround``,
     ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
-    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``), and:
+    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``, ``ics36``), and:
     ``follow_host_baud``: the line runs at the rate the host connects with
     (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
     disappears that many wall-clock seconds after the first connect, and
@@ -73,6 +73,7 @@ class VirtualLine(LineModel):
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
+        ics36: Iterable[int] = (),
         follow_host_baud: bool = True,
         unplug_after: float | None = None,
         replug_after: float = DEFAULT_REPLUG_AFTER,
@@ -96,6 +97,7 @@ class VirtualLine(LineModel):
             log_size=log_size,
             frame_timeout=frame_timeout,
             record=record,
+            ics36=ics36,
         )
         self.follow_host_baud = follow_host_baud
         self.unplug_after = unplug_after

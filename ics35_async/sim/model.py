@@ -70,7 +70,8 @@ class LineModel:
     (``None``: unbounded, 0: no log; :attr:`transactions` counts
     regardless).  ``frame_timeout``: a half-received command is forgotten
     after this pause (:mod:`.framing`).  ``record`` is a file path or text
-    stream to record the session to (:mod:`.record`).
+    stream to record the session to (:mod:`.record`).  ``ics36``: the IDs
+    of servos built from IDs that speak ICS 3.6 (the others are ICS 3.5).
     """
 
     def __init__(
@@ -92,6 +93,7 @@ class LineModel:
         log_size: int | None = DEFAULT_LOG_SIZE,
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
+        ics36: Iterable[int] = (),
     ) -> None:
         line_baud = BaudRate.parse(baudrate)
         for value, what in (
@@ -103,7 +105,7 @@ class LineModel:
                 raise InvalidArgument(f"{what} must not be negative")
         if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
             raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
-        self.table = DeviceTable(build_devices(servos, memory, line_baud))
+        self.table = DeviceTable(build_devices(servos, memory, line_baud, ics36))
         self.baudrate: int = int(line_baud)
         self.realtime = realtime
         self.echo = echo
