@@ -113,10 +113,10 @@ def test_scan_reports_a_shared_id_as_garbled(ics35: Any, line: Any) -> None:
 
 def test_info_json_matches_the_servo(ics35: Any, line: Any) -> None:
     sim, url = line([VirtualServo(7, position=9000)])
-    result = ics35("--port", url, "info", "7", "--json")
+    result = ics35("--port", url, "info", "7", "--json", "--free")
     assert result.code == 0
     doc = result.json()
-    assert doc["position"] == 9000
+    assert doc["position"] == 9000 and doc["free"] is True and doc["protocol"] == "ICS 3.5"
     assert doc["degrees"] == pytest.approx(units.position_to_degrees(9000), abs=0.01)
     assert doc["eeprom"]["servo_id"] == 7
     assert doc["eeprom"]["raw"] == sim.servo(7).eeprom.to_bytes().hex()
@@ -131,6 +131,9 @@ def test_info_no_position_keeps_the_servo_holding(ics35: Any, line: Any) -> None
     assert "not read" in result.out
     assert not sim.servo(1).free
     result = ics35("--port", url, "info", "1")
+    assert "pass --free" in result.out
+    assert not sim.servo(1).free
+    result = ics35("--port", url, "info", "1", "--free")
     assert "torque now OFF" in result.out
     assert sim.servo(1).free
 
