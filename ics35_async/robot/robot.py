@@ -51,6 +51,7 @@ class Robot:
         self._velocity: dict[str, float] = dict.fromkeys(self.joints, 0.0)
         # Per joint, the interval its newest motion may use: the pose it started from and its targets.
         self._envelope: dict[str, tuple[float, float]] = {}
+        self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
         self._positions: dict[str, float] = {}
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
@@ -151,6 +152,11 @@ class Robot:
         }
         self._release(checked)
         self._apply(checked)
+
+    def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
+        """How the joints start (see :mod:`.opening`): ``stated`` angles already in the stream, ``read`` watched."""
+        self._targets.update(stated)
+        self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
         """Hold ``joints`` (default: all) where they are now (within their limits), torque on."""
