@@ -96,7 +96,7 @@ def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
 
 def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
     baud = ["--baud", str(SIM_BAUD), *LINE]
-    proc = ics35(port, *baud, "monitor", "2,5,17", "--seconds", "1")
+    proc = ics35(port, *baud, "monitor", "--free", "2,5,17", "--seconds", "1")
     assert proc.returncode == 0, proc.stderr
     assert "answering 3/3" in proc.stdout
 
