@@ -72,7 +72,7 @@ class Robot:
 
     @property
     def targets(self) -> dict[str, float | None]:
-        """Every joint's target in degrees (``None``: free)."""
+        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``)."""
         return dict(self._targets)
 
     @property
