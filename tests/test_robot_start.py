@@ -58,7 +58,9 @@ def test_a_motion_starts_from_the_pose_read() -> None:
     rig.servo("knee").move_by_hand(joint_position(JOINTS["knee"], -80.0))
 
     async def body(robot: Robot) -> None:
+        assert robot.untouched == set(JOINTS)  # torque as found, all of them
         await robot.move_to({"knee": 0.0}, duration=0.2)
+        assert robot.untouched == set(JOINTS) - {"knee"}
 
     run_robot(rig, body)
     sent = [joint_degrees(JOINTS["knee"], p) for p in torque_commands(rig, "knee")]

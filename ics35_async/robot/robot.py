@@ -52,6 +52,7 @@ class Robot:
         # Per joint, the interval its newest motion may use: the pose it started from and its targets.
         self._envelope: dict[str, tuple[float, float]] = {}
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
+        self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
@@ -156,6 +157,7 @@ class Robot:
     def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
         """How the joints start (see :mod:`.opening`): ``stated`` angles already in the stream, ``read`` watched."""
         self._targets.update(stated)
+        self.untouched = set(read)
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
@@ -187,6 +189,7 @@ class Robot:
             wanted[(joint.line, joint.id)] = protocol.FREE if deg is None else joint.position(joint.clamp(deg))
         self._gstream.set_targets(wanted)
         self._targets.update(targets)
+        self.untouched.difference_update(targets)
 
     # ------------------------------------------------------------------ motions
 
@@ -252,14 +255,10 @@ class Robot:
             raise plan.error
 
     async def stop(self, ramp: float = 0.3) -> None:
-        """End every motion smoothly: each moving joint slows to rest, then holds.
-
-        A joint slows down at the rate that would bring it to rest in ``ramp``
-        seconds, but never leaves its motion's envelope (the pose the motion
-        started from and the targets it was given): one that would pass its
-        target comes to rest on it, sooner.  Every motion stopped raises
-        :class:`MotionStopped` in its caller.
-        """
+        """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
+        seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
+        targets): one that would pass its target rests on it, sooner.  Each motion stopped raises
+        :class:`MotionStopped` in its caller."""
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         for plan in self._plans:
             plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
