@@ -175,3 +175,26 @@ def test_a_watched_id_is_read_without_a_target_until_it_gets_one() -> None:
 
     run(sim, body)
     assert not TORQUE_COMMANDS & set(commands(sim, 1)[1:])  # after its own set_position: reads only
+
+
+# ---------------------------------------------------------------- the policies info and monitor follow
+
+
+def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_command() -> None:
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> tuple[Any, Any, Any]:
+        safe = await policies.plan_position_stream(bus, [1, 2, 5])
+        limp = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
+        reading = await policies.read_position_without_freeing(bus.servo(1))
+        return safe, limp, reading
+
+    safe, limp, reading = run(sim, body)
+    # ID 5 is silent to everything: watched (a read never frees), or freed when the caller allows it.
+    assert (safe.watch, safe.free, list(safe.left_out)) == ([2, 5], [], [1])
+    assert "free command" in safe.left_out[1]
+    assert (limp.watch, limp.free, limp.left_out, limp.streamed) == ([2], [1, 5], {}, [1, 2, 5])
+    assert (reading.position, reading.how, reading.protocol) == (None, None, "ICS 3.5")
+    assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}

@@ -15,7 +15,6 @@ from ..bus import Bus
 from ..eeprom import Eeprom
 from ..errors import InvalidArgument, ReplyError, ReplyTimeout
 from ..protocol import Param
-from ..servo import Servo
 from ._common import (
     ID_LIST,
     NO_REPLY_HINTS,
@@ -59,21 +58,8 @@ async def probe_ids(
 # --------------------------------------------------------------------------- info
 
 
-NO_READ_35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp); pass --free"
-
-
-async def read_position_safely(servo: Servo, *, free: bool) -> dict[str, Any]:
-    """The position by ICS 3.6's read (torque left alone), else by the free command only if ``free``.
-
-    Returns ``position`` (or ``None``), ``how`` (``"read"``, ``"free"`` or
-    ``None``), ``protocol`` (``"ICS 3.6"`` / ``"ICS 3.5"``) and ``why`` (why
-    there is no position).
-    """
-    if await servo.has_position_read():
-        return {"position": await servo.read_position(), "how": "read", "protocol": "ICS 3.6", "why": None}
-    if free:
-        return {"position": await servo.free(), "how": "free", "protocol": "ICS 3.5", "why": None}
-    return {"position": None, "how": None, "protocol": "ICS 3.5", "why": NO_READ_35}
+# What info and monitor say of a servo with no position: the library's reason, and what to do.
+NO_READ_35 = f"{policies.NO_READ_ICS35}; pass --free"
 
 
 @click.command()
@@ -100,10 +86,13 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
             eeprom = await servo.read_eeprom()
             current = await servo.read_current()
             temperature = await servo.read_temperature()
+            where: dict[str, Any]
             if no_position:
                 where = {"position": None, "how": None, "protocol": None, "why": "not read (--no-position)"}
             else:
-                where = await read_position_safely(servo, free=free_servo)
+                reading = await policies.read_position_without_freeing(servo, free_ics35=free_servo)
+                where = {"position": reading.position, "how": reading.how, "protocol": reading.protocol,
+                         "why": None if reading.why is None else NO_READ_35}
             return {"eeprom": eeprom, "current": current, "temperature": temperature, **where}
 
     got = run(settings, body)

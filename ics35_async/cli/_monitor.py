@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 from rich.markup import escape
 
-from ..bus import Bus
-from ..errors import ReplyError
+from .. import policies
 from ._basic import NO_READ_35
 from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, settings_of
 from ._live import LiveOptions, discover, final_report, run_live, stream_options
@@ -56,8 +55,10 @@ def monitor(
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, as_json)
-            watch, freed, missing = await sort_by_position_read(bus, chosen, free_servos)
-            if not watch and not freed:
+            plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
+            watch, freed = plan.watch, plan.free
+            missing = dict.fromkeys(plan.left_out, NO_READ_35)
+            if not plan.streamed:
                 raise CliError(
                     ExitCode.REFUSED,
                     f"no servo among {ids_text(chosen)} can report its position without going limp: they speak "
@@ -71,7 +72,7 @@ def monitor(
             if missing and not as_json:
                 for sid, why in missing.items():
                     err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
-            return await run_live(bus, sorted(watch + freed), state, options, None, watch=watch)
+            return await run_live(bus, plan.streamed, state, options, None, watch=watch)
 
     state, telemetry, recorder = run(settings, body)
     if plot is not None:
@@ -79,32 +80,6 @@ def monitor(
         err.print(f"plot written to {escape(plot)}")
     final_report(state, telemetry, options)
     return 0
-
-
-async def sort_by_position_read(
-    bus: Bus, ids: list[int], free_servos: bool
-) -> tuple[list[int], list[int], dict[int, str]]:
-    """The IDs to watch (ICS 3.6's position read), to free (ICS 3.5, with ``free_servos``) and to leave out of
-    the stream (ICS 3.5 without it: why).  Probing sends nothing that moves or frees a servo.
-
-    An ID silent to everything is watched (or freed, with ``free_servos``): the
-    stream marks it offline and probes it, as any servo that stops answering.
-    """
-    watch: list[int] = []
-    freed: list[int] = []
-    missing: dict[int, str] = {}
-    for sid in ids:
-        try:
-            readable: bool | None = await bus.servo(sid).has_position_read()
-        except ReplyError:
-            readable = None
-        if readable or (readable is None and not free_servos):
-            watch.append(sid)
-        elif free_servos:
-            freed.append(sid)
-        else:
-            missing[sid] = NO_READ_35
-    return watch, freed, missing
 
 
 COMMANDS = [monitor]
