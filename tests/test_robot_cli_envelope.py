@@ -20,7 +20,7 @@ from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 
 from ._cli_fixtures import ics35
-from ._robot_fixtures import JOINTS, Rig, joint_degrees, make_rig, targets_sent
+from ._robot_fixtures import JOINTS, Rig, joint_degrees, joint_position, make_rig, targets_sent
 
 __all__ = ["ics35"]
 
@@ -88,3 +88,41 @@ def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tup
     neck, knee = sent(sims, "neck"), sent(sims, "knee")
     assert inside(neck, neutral("neck"), 55), max(neck)
     assert inside(knee, neutral("knee"), -90), min(knee)
+
+
+def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
+    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
+    pose = tmp_path / "pose.json"
+    pose.write_text(json.dumps({"hip": 10, "knee": -20}))
+    for given in ("shoulder=30,elbow=40", str(pose)):
+        since = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
+        result = ics35("play", str(robot_file), str(motion), "--start-pose", given)
+        assert result.code == 0, result.err
+        stated = {"shoulder": 30.0, "elbow": 40.0} if "=" in given else {"hip": 10.0, "knee": -20.0}
+        for name, deg in stated.items():
+            spec = JOINTS[name]
+            sent = [t for t in sims.sim(spec["line"]).log_since(since[spec["line"]]) if t.servo_id == spec["id"]]
+            torque = [t for t in sent if t.command in ("position", "free")]
+            assert torque and all(t.command == "position" for t in torque), name  # never freed
+            first = (torque[0].tx[1] << 7) | torque[0].tx[2]
+            assert first == joint_position(spec, deg), name  # holding the stated angle from the first command
+        assert "started free" in result.err  # the others did, and it says so
+
+
+@pytest.mark.parametrize(
+    ("given", "phrase"),
+    [("tail=3", "unknown joint(s) tail"), ("neck=99", "outside its limits"), ("neck=x", "joint=degrees"),
+     ("/nonexistent.json", "not a readable JSON file")],
+)
+def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
+    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, given: str, phrase: str
+) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
+    result = ics35("play", str(robot_file), str(motion), "--start-pose", given)
+    assert result.code == 2, result.err
+    assert phrase in result.err
+    assert sims.upper.transactions == sims.lower.transactions == 0
