@@ -77,12 +77,23 @@ def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tup
     """Ctrl-C while the joint moves fast toward its keyframe: it decelerates and rests at the keyframe at most."""
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"neck": 55, "knee": -90}})
-    timer = threading.Timer(0.45, os.kill, (os.getpid(), signal.SIGINT))  # about 0.3 s into the motion
-    timer.start()
+    done = threading.Event()
+
+    def press_ctrl_c() -> None:
+        # Once the motion has begun (the neck, free until then, gets a target), 0.25 s into it.
+        while sims.servo("neck").target is None:
+            if done.wait(0.005):
+                return
+        if not done.wait(0.25):
+            os.kill(os.getpid(), signal.SIGINT)
+
+    presser = threading.Thread(target=press_ctrl_c)
+    presser.start()
     try:
         result = ics35("play", str(robot_file), str(motion), "--loop", "--ramp", "0.3")
     finally:
-        timer.cancel()
+        done.set()
+        presser.join()
     assert result.code == 0, result.err
     assert "stopped by Ctrl-C: slowing to rest, then the joints hold" in result.err
     neck, knee = sent(sims, "neck"), sent(sims, "knee")
