@@ -20,7 +20,7 @@ from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 
 from ._cli_fixtures import ics35
-from ._robot_fixtures import JOINTS, Rig, joint_degrees, joint_position, make_rig, targets_sent
+from ._robot_fixtures import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
 
 __all__ = ["ics35"]
 
@@ -137,3 +137,21 @@ def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
     assert result.code == 2, result.err
     assert phrase in result.err
     assert sims.upper.transactions == sims.lower.transactions == 0
+
+
+def test_play_on_an_ics36_robot_frees_nothing(
+    ics35: Any, tmp_path: Path
+) -> None:
+    sims = make_rig(ics36=[1, 2, 3])
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    try:
+        motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
+        result = ics35("play", str(robot_file), str(motion))
+        assert result.code == 0, result.err
+        assert "started free" not in result.err
+        for name in JOINTS:
+            spec = JOINTS[name]
+            assert 0 not in commanded(sims.sim(spec["line"]), spec["id"]), name  # no free command
+    finally:
+        sims.close()

@@ -7,8 +7,10 @@ from typing import Any
 
 import anyio
 import pytest
+from rich.console import Console
 
 from ics35_async import InvalidArgument, Robot, open_robot
+from ics35_async.cli._robot_view import joint_table
 
 from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
 
@@ -61,6 +63,10 @@ def test_a_motion_starts_from_the_pose_read() -> None:
         assert robot.untouched == set(JOINTS)  # torque as found, all of them
         await robot.move_to({"knee": 0.0}, duration=0.2)
         assert robot.untouched == set(JOINTS) - {"knee"}
+        console = Console(record=True, width=120)
+        console.print(joint_table(robot, "t", None))
+        rows = {line.split()[0]: line for line in console.export_text().splitlines() if line.strip()}
+        assert "as found" in rows["shoulder"] and "held" in rows["knee"]  # not "free": its torque is unknown
 
     run_robot(rig, body)
     sent = [joint_degrees(JOINTS["knee"], p) for p in torque_commands(rig, "knee")]
