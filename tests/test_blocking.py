@@ -19,6 +19,7 @@ from ics35_async import (
     Eeprom,
     InvalidArgument,
     PortNotFound,
+    PositionReadUnsupported,
     ReplyTimeout,
     Servo,
     Stream,
@@ -101,6 +102,9 @@ def test_servo_methods_reach_the_simulated_servo(no_leaks: None) -> None:
         assert servo.free() == 8000
         line.servo(1).move_by_hand(9000)
         assert servo.free_and_read_degrees() == pytest.approx((9000 - 7500) / (8000 / 270), abs=0.1)
+        with pytest.raises(PositionReadUnsupported):
+            servo.read_position()  # an ICS 3.5 servo: nothing freed, a typed error
+        assert servo.known_position_read() is False and bus.servo(2).known_position_read() is None
         servo.set_position(8500)
         assert line.servo(1).target == 8500
         servo.set_degrees(-30)

@@ -43,6 +43,10 @@ class BlockingServo(Wrapper[Servo]):
     def __repr__(self) -> str:
         return f"<BlockingServo {self.id} on {self.bus!r}>"
 
+    def known_position_read(self) -> bool | None:
+        """Whether the servo answers ICS 3.6's position read, if already probed on this line (sends nothing)."""
+        return self._async.known_position_read()
+
     set_position = blocking(Servo.set_position)
     free = blocking(Servo.free)
     set_degrees = blocking(Servo.set_degrees)
