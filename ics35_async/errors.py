@@ -33,6 +33,18 @@ class UnsafeOperation(InvalidArgument):
     """A dangerous write (ID write, baud change) was not explicitly confirmed."""
 
 
+class PositionReadUnsupported(IcsError):
+    """The servo speaks ICS 3.5: it has no position read (ICS 3.6's ``0xA0|id, 0x05``); nothing was freed.
+
+    ``servo_id`` names it.  ICS 3.5 reads a position only with the free
+    command, which turns the torque off: :meth:`Servo.free` does that, and says so.
+    """
+
+    def __init__(self, message: str, *, servo_id: int) -> None:
+        self.servo_id = servo_id
+        super().__init__(message)
+
+
 class MalformedEeprom(IcsError, ValueError):
     """A 64-byte EEPROM image breaks the format (length, nibbles)."""
 

@@ -2,14 +2,28 @@
 
 from __future__ import annotations
 
+import warnings
+import weakref
 from collections.abc import Sequence
 
 from . import protocol, units
 from .eeprom import Eeprom
 from .engine import Priority
-from .errors import InvalidArgument, UnsafeOperation, VerifyError
+from .errors import (
+    BadReply,
+    InvalidArgument,
+    PartialReply,
+    PositionReadUnsupported,
+    ReplyError,
+    ReplyTimeout,
+    UnsafeOperation,
+    VerifyError,
+)
 from .line import Line
 from .protocol import Param
+
+# Per line, per ID: whether the servo answers ICS 3.6's position read (probed once, then remembered).
+_POSITION_READS: weakref.WeakKeyDictionary[Line, dict[int, bool]] = weakref.WeakKeyDictionary()
 
 
 def _check_bus(bus: object) -> Line:
@@ -23,7 +37,9 @@ class Servo:
 
     Positions are counts (1..16383, 7500 neutral, 3500..11500 is -135..+135
     degrees).  Each position command returns the position the servo reports.
-    Parameter writes change RAM only; :meth:`write_eeprom` persists.
+    Parameter writes change RAM only; :meth:`write_eeprom` persists.  A
+    method that turns the torque off says so in its name (``free...``);
+    :meth:`read_position` leaves it alone (ICS 3.6 servos only).
 
     Every method raises the same errors, besides those it names: ``InvalidArgument``
     for a bad argument, before anything is sent; a ``ReplyError`` (``ReplyTimeout``,
@@ -53,7 +69,7 @@ class Servo:
         return await self._bus.request(cmd, priority=self.priority)
 
     async def free(self, *, priority: Priority | None = None) -> int:
-        """Torque off; returns the current position (the only way to read it without moving)."""
+        """Torque off (the servo goes limp); returns the current position (ICS 3.5's only position read)."""
         cmd = protocol.Position(self.id, protocol.FREE, baudrate=self._bus.baudrate)
         return await self._bus.request(cmd, priority=self.priority if priority is None else priority)
 
@@ -71,9 +87,91 @@ class Servo:
         """
         return units.position_to_radians(await self.set_position(units.radians_to_position(radians)))
 
-    async def read_degrees(self) -> float:
-        """Go free and return the angle in degrees (there is no read-without-free in ICS 3.5)."""
+    async def free_and_read_degrees(self) -> float:
+        """Torque off (the servo goes limp) and return the angle in degrees: ICS 3.5's only position read."""
         return units.position_to_degrees(await self.free())
+
+    async def read_degrees(self) -> float:
+        """Deprecated: it turns the torque off.  Use :meth:`free_and_read_degrees` (the same) or
+        :meth:`read_position_degrees` (ICS 3.6: torque left alone)."""
+        warnings.warn(
+            "Servo.read_degrees() turns the torque off; call free_and_read_degrees() for that, or "
+            "read_position_degrees() to read without freeing (ICS 3.6 servos)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return await self.free_and_read_degrees()
+
+    # ------------------------------------------------------------------ ICS 3.6 position read
+
+    def known_position_read(self) -> bool | None:
+        """Whether this servo answers ICS 3.6's position read, if already probed on this line; else ``None``."""
+        return _POSITION_READS.get(self._bus, {}).get(self.id)
+
+    async def has_position_read(self) -> bool:
+        """Whether the servo speaks ICS 3.6 (answers the position read); probed once per line, then remembered.
+
+        Nothing it sends moves or frees the servo.  A servo silent to the
+        read but answering a parameter read speaks ICS 3.5 (``False``); a
+        servo silent to both raises :class:`ReplyTimeout` (and is probed
+        again next time).
+        """
+        known = self.known_position_read()
+        if known is None:
+            await self._probe_position()
+            known = self.known_position_read()
+        return bool(known)
+
+    async def read_position(self) -> int:
+        """The present position in counts, torque and target left alone (ICS 3.6's position read).
+
+        Raises :class:`PositionReadUnsupported` on an ICS 3.5 servo (nothing
+        was freed); ICS 3.5 reads a position only with :meth:`free`.
+        """
+        known = self.known_position_read()
+        if known is None:
+            position = await self._probe_position()
+            if position is not None:
+                return position
+            known = self.known_position_read()
+        if not known:
+            raise PositionReadUnsupported(
+                f"servo {self.id} speaks ICS 3.5: it has no position read (it stays silent to 0xA0|id, 0x05); "
+                "ICS 3.5 reads a position only with the free command, which turns the torque off (Servo.free)",
+                servo_id=self.id,
+            )
+        return await self._bus.request(protocol.ReadPosition(self.id), priority=self.priority)
+
+    async def read_position_degrees(self) -> float:
+        """:meth:`read_position` in degrees (0 = neutral): the torque is left alone."""
+        return units.position_to_degrees(await self.read_position())
+
+    async def _probe_position(self) -> int | None:
+        """Probe the position read: the position (ICS 3.6), or ``None`` (ICS 3.5); the answer is remembered."""
+        # A probe's short wait (Timing.PROBE) is what makes silence cheap and keeps it from teaching
+        # the link to wait longer. Silence twice, with a parameter read answered in between (so the
+        # servo is there), is ICS 3.5: one lost reply of an ICS 3.6 servo does not decide it.
+        silences = 0
+        garbled: ReplyError | None = None
+        for _ in range(4):
+            try:
+                position = await self._bus.request(
+                    protocol.ProbeReadPosition(self.id), priority=self.priority, retries=0
+                )
+            except ReplyTimeout:
+                silences += 1
+                if silences == 1:
+                    await self._read(Param.STRETCH)  # silent too: no servo here, and nothing remembered
+                    continue
+                _POSITION_READS.setdefault(self._bus, {})[self.id] = False
+                return None
+            except (PartialReply, BadReply) as exc:
+                garbled = exc  # something answered: try again
+                continue
+            _POSITION_READS.setdefault(self._bus, {})[self.id] = True
+            return position
+        assert garbled is not None
+        raise garbled
 
     async def _read(self, param: Param) -> int:
         return await self._bus.request(protocol.ReadParam(self.id, param), priority=self.priority)

@@ -31,7 +31,11 @@ INF = math.inf
 
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
-STREAM_OPTIONS = frozenset({"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history"})
+STREAM_OPTIONS = frozenset(
+    {"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history", "watch"}
+)
+WATCH = -1
+"""The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
 IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
@@ -48,6 +52,7 @@ class StreamOptions(TypedDict, total=False):
     on_close: OnClose
     on_resume: OnResume
     history: int
+    watch: Iterable[int]
     free_on_close: bool  # deprecated: on_close="free"
 
 
@@ -56,7 +61,10 @@ class Stream:
 
     Create with :meth:`Bus.stream` and use as ``async with``.  Every ID
     starts free (torque off, position still read back) until it is given a
-    target: the safe start-up the reference recommends.
+    target: the safe start-up the reference recommends.  IDs in ``watch``
+    (ICS 3.6 servos only) start *watched* instead: each cycle reads their
+    position with ICS 3.6's position read, which neither moves nor frees
+    them, until they are given a target (:meth:`watch` returns an ID to it).
     """
 
     def __init__(
@@ -71,6 +79,7 @@ class Stream:
         history: int = 2000,
         on_close: OnClose = "hold",
         on_resume: OnResume = "wait",
+        watch: Iterable[int] = (),
     ) -> None:
         id_list = units.check_ids("ids", ids)
         if not id_list:
@@ -103,6 +112,7 @@ class Stream:
         self._index = {sid: k for k, sid in enumerate(id_list)}
         self._targets = [protocol.FREE] * n
         self._jobs = [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in id_list]
+        self._readers: list[protocol.ReadPosition | None] = [None] * n
         self._headers = [protocol.position_reply_header(sid, bus.baudrate) for sid in id_list]
         self._positions = [-1] * n
         self._stamps = [0.0] * n
@@ -145,6 +155,7 @@ class Stream:
         self._published: tuple[int, int] = (0, 0)  # (missed slots, resumes) as of the latest frame
         self._seen: tuple[int, int] = (0, 0)
         self._hooks = BoundSource.of(self)  # what the engine calls, kept off the public face
+        self.watch(units.check_ids("watch", watch))
 
     # ------------------------------------------------------------------ targets
 
@@ -179,6 +190,7 @@ class Stream:
                 self._targets[k] = p
                 sid = self.ids[k]
                 self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
+                self._readers[k] = None
         if held and self._running:
             self.bus.kick()  # a stream waiting with every ID held has work again
 
@@ -196,8 +208,23 @@ class Stream:
         """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
         self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 
+    def watch(self, ids: Iterable[int] | None = None) -> None:
+        """Watch ``ids`` (default: all): read their position with ICS 3.6's read, sending no target.
+
+        For ICS 3.6 servos only (an ICS 3.5 servo stays silent to the read,
+        and goes offline in the stream); the torque is left as it is.
+        """
+        slots = [self._slot(i) for i in (self.ids if ids is None else units.check_ids("ids", ids))]
+        for k in slots:
+            reader = protocol.ReadPosition(self.ids[k])
+            self._targets[k] = WATCH
+            self._readers[k] = reader
+            self._jobs[k] = (reader.tx, reader.reply_len, self.ids[k])
+            self._held[k] = False
+
     def target(self, servo_id: int) -> int:
-        """The current target of ``servo_id`` (0: free); InvalidArgument if it is not in the stream."""
+        """The current target of ``servo_id``: a position, 0 (free) or :data:`WATCH`; InvalidArgument if it
+        is not in the stream."""
         return self._targets[self._slot(servo_id)]
 
     @property
@@ -227,7 +254,14 @@ class Stream:
         k = self._cur
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
-        position = position_from_reply(buf, offset, self._headers[k])
+        reader = self._readers[k]
+        if reader is not None:  # a watched ID: ICS 3.6's position read
+            try:
+                position = reader.parse(bytes(buf[offset:]))
+            except ReplyError as exc:
+                return exc
+        else:
+            position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
             try:
                 command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)
@@ -266,8 +300,9 @@ class Stream:
         # The servos may have lost power and restarted (free, somewhere else) while the port was
         # gone: the old targets could throw them across their range.  A targeted ID gets no
         # command until the program sets its target again ("wait"), or goes free ("free").
+        # Free and watched IDs carry on: neither command moves a servo.
         for k, target in enumerate(self._targets):
-            if target != protocol.FREE:
+            if target != protocol.FREE and target != WATCH:
                 if self.on_resume == "free":
                     self._targets[k] = protocol.FREE
                     self._jobs[k] = (protocol.position_tx(self.ids[k], protocol.FREE), 3, self.ids[k])

@@ -19,6 +19,7 @@ from ics35_async import (
     Eeprom,
     InvalidArgument,
     PortNotFound,
+    PositionReadUnsupported,
     ReplyTimeout,
     Servo,
     Stream,
@@ -85,8 +86,9 @@ def test_every_async_method_has_a_blocking_twin_with_its_signature() -> None:
 
 
 def test_every_stream_target_method_is_there() -> None:
-    for name in ("set_target", "set_targets", "set_target_degrees", "set_targets_degrees", "free", "target"):
-        assert name in vars(Stream) and name in vars(blocking.BlockingStream), name
+    names = ("set_target", "set_targets", "set_target_degrees", "set_targets_degrees", "free", "watch", "target")
+    for name in names:
+        assert hasattr(Stream, name) and name in vars(blocking.BlockingStream), name
 
 
 # ---------------------------------------------------------------------- servos, devices, the bus
@@ -99,7 +101,10 @@ def test_servo_methods_reach_the_simulated_servo(no_leaks: None) -> None:
         assert servo.id == 1
         assert servo.free() == 8000
         line.servo(1).move_by_hand(9000)
-        assert servo.read_degrees() == pytest.approx((9000 - 7500) / (8000 / 270), abs=0.1)
+        assert servo.free_and_read_degrees() == pytest.approx((9000 - 7500) / (8000 / 270), abs=0.1)
+        with pytest.raises(PositionReadUnsupported):
+            servo.read_position()  # an ICS 3.5 servo: nothing freed, a typed error
+        assert servo.known_position_read() is False and bus.servo(2).known_position_read() is None
         servo.set_position(8500)
         assert line.servo(1).target == 8500
         servo.set_degrees(-30)

@@ -113,10 +113,10 @@ def test_scan_reports_a_shared_id_as_garbled(ics35: Any, line: Any) -> None:
 
 def test_info_json_matches_the_servo(ics35: Any, line: Any) -> None:
     sim, url = line([VirtualServo(7, position=9000)])
-    result = ics35("--port", url, "info", "7", "--json")
+    result = ics35("--port", url, "info", "7", "--json", "--free")
     assert result.code == 0
     doc = result.json()
-    assert doc["position"] == 9000
+    assert doc["position"] == 9000 and doc["free"] is True and doc["protocol"] == "ICS 3.5"
     assert doc["degrees"] == pytest.approx(units.position_to_degrees(9000), abs=0.01)
     assert doc["eeprom"]["servo_id"] == 7
     assert doc["eeprom"]["raw"] == sim.servo(7).eeprom.to_bytes().hex()
@@ -131,6 +131,9 @@ def test_info_no_position_keeps_the_servo_holding(ics35: Any, line: Any) -> None
     assert "not read" in result.out
     assert not sim.servo(1).free
     result = ics35("--port", url, "info", "1")
+    assert "pass --free" in result.out
+    assert not sim.servo(1).free
+    result = ics35("--port", url, "info", "1", "--free")
     assert "torque now OFF" in result.out
     assert sim.servo(1).free
 
@@ -368,7 +371,7 @@ def test_demo_leaves_every_servo_free(ics35: Any, line: Any) -> None:
 
 def test_monitor_json_lines(ics35: Any, line: Any) -> None:
     _, url = line([1, 2])
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--seconds", "0.3", "--json")
+    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "0.3", "--json")
     assert result.code == 0
     docs = [json.loads(ln) for ln in result.out.splitlines()]
     assert docs[-1]["final"] is True
@@ -380,7 +383,7 @@ def test_monitor_json_lines(ics35: Any, line: Any) -> None:
 
 def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(ics35: Any, line: Any) -> None:
     _, url = line([1, 2])
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--seconds", "1.5", "--json")
+    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "1.5", "--json")
     assert result.code == 0, result.err
     docs = [json.loads(ln) for ln in result.out.splitlines()]
     assert [d["final"] for d in docs] == [False] * (len(docs) - 1) + [True]
@@ -401,7 +404,7 @@ def test_monitor_plot_writes_a_png(ics35: Any, line: Any, tmp_path: Path) -> Non
     pytest.importorskip("matplotlib")
     _, url = line([1, 2])
     target = tmp_path / "trace.png"
-    result = ics35("--port", url, "monitor", "1,2", "--seconds", "0.3", "--plot", str(target))
+    result = ics35("--port", url, "monitor", "--free", "1,2", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

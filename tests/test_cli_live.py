@@ -16,7 +16,7 @@ __all__ = ["ics35", "line"]
 TELEMETRY_READS = ("read_current", "read_temperature")
 
 
-@pytest.mark.parametrize("command", [["monitor", "1-4"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
+@pytest.mark.parametrize("command", [["monitor", "1-4", "--free"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
 def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
     ics35: Any, line: Any, command: list[str]
 ) -> None:
@@ -56,6 +56,6 @@ def test_plot_in_another_format_is_written(ics35: Any, line: Any, tmp_path: Path
     pytest.importorskip("matplotlib")
     _, url = line([1])
     target = tmp_path / "trace.svg"
-    result = ics35("--port", url, "monitor", "1", "--seconds", "0.3", "--plot", str(target))
+    result = ics35("--port", url, "monitor", "--free", "1", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert b"<svg" in target.read_bytes()[:500]

@@ -60,7 +60,7 @@ def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
 
 def test_json_read_commands_parse(port: str) -> None:
     baud = ["--baud", str(SIM_BAUD), *LINE]
-    info = json.loads(ics35(port, *baud, "info", "5", "--json").stdout)
+    info = json.loads(ics35(port, *baud, "info", "5", "--json", "--free").stdout)
     assert info["eeprom"]["servo_id"] == 5 and info["free"] is True
     got = json.loads(ics35(port, *baud, "get", "17", "stretch", "--json").stdout)
     assert got == {"id": 17, "param": "stretch", "value": 30, "memory": "RAM"}  # factory gain 60 = RAM 30
@@ -96,7 +96,7 @@ def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
 
 def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
     baud = ["--baud", str(SIM_BAUD), *LINE]
-    proc = ics35(port, *baud, "monitor", "2,5,17", "--seconds", "1")
+    proc = ics35(port, *baud, "monitor", "--free", "2,5,17", "--seconds", "1")
     assert proc.returncode == 0, proc.stderr
     assert "answering 3/3" in proc.stdout
 

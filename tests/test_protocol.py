@@ -761,7 +761,7 @@ def _summary(decoded: tuple[Command[Any] | None, int] | None) -> object:
         ("81 A1", (None, 1)),
         ("A1", None),
         ("A1 81", (None, 1)),
-        ("A1 05", (None, 2)),  # unknown SC
+        ("A1 06", (None, 2)),  # unknown SC (05 is ICS 3.6's position read)
         ("A1 7E", (None, 2)),
         ("C1 05 00", (None, 2)),
         ("F4", None),

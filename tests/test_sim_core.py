@@ -109,9 +109,18 @@ def test_only_the_addressed_servo_answers() -> None:
 
 def test_unknown_subcommand_gets_echo_only_and_is_logged() -> None:
     bus = VirtualLine([1])
-    assert xfer(bus, "A1 05") == h("A1 05")
+    assert xfer(bus, "A1 06") == h("A1 06")
     assert bus.log[-1].command == "unknown"
     assert bus.log[-1].reply == b""
+
+
+def test_ics35_servo_echoes_the_ics36_position_read_only_and_an_ics36_one_answers() -> None:
+    bus = VirtualLine([1, 2], ics36=[2])
+    assert xfer(bus, "A1 05") == h("A1 05")
+    assert (bus.log[-1].command, bus.log[-1].reply) == ("read_position", b"")
+    bus.servo(2).move_by_hand(9000)
+    assert xfer(bus, "A2 05") == h("A2 05") + bytes((0x22, 0x05, 9000 >> 7, 9000 & 0x7F))
+    assert bus.servo(2).free  # the read changed nothing
 
 
 def test_absent_id_gets_echo_only() -> None:

@@ -31,7 +31,7 @@ def script() -> list[bytes]:
         WriteParam(2, 2, 60).tx,
         ReadEeprom(1).tx,
         WriteEeprom(1, Eeprom.factory(1).replace(speed=99)).tx,
-        bytes.fromhex("A1 05"),  # unknown sub-command
+        bytes.fromhex("A1 06"),  # unknown sub-command
         Position(3, 9000, baudrate=115200).tx,
         bytes.fromhex("FF 00 00 00"),  # garbled: three servos
         Position(1, 0, baudrate=115200).tx,
@@ -53,14 +53,14 @@ def run(device: VirtualLine | ReplayDevice, commands: list[bytes]) -> list[bytes
 def test_record_format_is_one_readable_line_per_transaction() -> None:
     stream = io.StringIO()
     bus = VirtualLine([1], record=stream)
-    run(bus, [Position(1, 7500, baudrate=115200).tx, bytes.fromhex("A1 05")])
+    run(bus, [Position(1, 7500, baudrate=115200).tx, bytes.fromhex("A1 06")])
     bus.stop_recording()
     lines = stream.getvalue().splitlines()
     assert lines[0].startswith("# ics35 sim recording")
     stamp, rest = lines[1].split(" ", 1)
     assert float(stamp) > 0
     assert rest.startswith("81 3a 4c -> 81 3a 4c | 01 3a 4c  # id=1 position value=7500")
-    assert " a1 05 -> a1 05  # id=1 unknown" in lines[2]
+    assert " a1 06 -> a1 06  # id=1 unknown" in lines[2]
     assert len(lines) == 3
 
 

@@ -48,11 +48,19 @@ class BlockingServo(Wrapper[Servo]):
     def __repr__(self) -> str:
         return f"<BlockingServo {self.id} on {self.bus!r}>"
 
+    def known_position_read(self) -> bool | None:
+        """Whether the servo answers ICS 3.6's position read, if already probed on this line (sends nothing)."""
+        return self._async.known_position_read()
+
     set_position = blocking(Servo.set_position)
     free = blocking(Servo.free)
     set_degrees = blocking(Servo.set_degrees)
     set_radians = blocking(Servo.set_radians)
     read_degrees = blocking(Servo.read_degrees)
+    free_and_read_degrees = blocking(Servo.free_and_read_degrees)
+    has_position_read = blocking(Servo.has_position_read)
+    read_position = blocking(Servo.read_position)
+    read_position_degrees = blocking(Servo.read_position_degrees)
     read_stretch = blocking(Servo.read_stretch)
     read_speed = blocking(Servo.read_speed)
     read_current = blocking(Servo.read_current)

@@ -205,6 +205,11 @@ class BlockingRobot(LoopOwner[Robot]):
         return self._loop.call_sync(_warnings_of, self._async)
 
     @property
+    def start_modes(self) -> dict[str, str]:
+        """How each joint started: ``"read"`` (ICS 3.6), ``"stated"`` (start_pose) or ``"free"``."""
+        return self._loop.call_sync(_start_modes_of, self._async)
+
+    @property
     def latest(self) -> RobotFrame | None:
         """The newest frame (immutable)."""
         return self._loop.call_sync(_latest_of, self._async)
@@ -230,6 +235,10 @@ def _warnings_of(robot: Robot) -> list[str]:
     return list(robot.warnings)
 
 
+def _start_modes_of(robot: Robot) -> dict[str, str]:
+    return dict(robot.start_modes)
+
+
 def _latest_of(robot: Robot) -> RobotFrame | None:
     return robot.latest
 
@@ -241,6 +250,7 @@ def open_robot(
     check_limits: bool = True,
     offline_after: int = 3,
     probe_interval: float = 0.5,
+    start_pose: Mapping[str, float] | None = None,
     **bus_options: Any,
 ) -> BlockingRobot:
     """Open a :class:`BlockingRobot`: ``with blocking.open_robot("robot.toml") as robot:``.
@@ -256,6 +266,7 @@ def open_robot(
         check_limits=check_limits,
         offline_after=offline_after,
         probe_interval=probe_interval,
+        start_pose=start_pose,
         **bus_options,
     )
     if isinstance(source, RobotDescription):

@@ -36,6 +36,7 @@ class BlockingStream(Wrapper[Stream]):
     set_target_degrees = on_loop(Stream.set_target_degrees)
     set_targets_degrees = on_loop(Stream.set_targets_degrees)
     free = on_loop(Stream.free)
+    watch = on_loop(Stream.watch)
     target = on_loop(Stream.target)
 
     @property

@@ -58,18 +58,27 @@ async def probe_ids(
 # --------------------------------------------------------------------------- info
 
 
+# What info and monitor say of a servo with no position: the library's reason, and what to do.
+NO_READ_35 = f"{policies.NO_READ_ICS35}; pass --free"
+
+
 @click.command()
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
-@click.option("--no-position", is_flag=True, help="Do not read the position (reading it turns the torque off).")
+@click.option("--free", "free_servo", is_flag=True,
+              help="On an ICS 3.5 servo, read the position with the free command: the servo goes limp.")
+@click.option("--no-position", is_flag=True, help="Do not read the position at all.")
 @json_option
 @click.pass_context
-def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) -> int:
+def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool, as_json: bool) -> int:
     """Decoded EEPROM plus live position, current and temperature of one servo.
 
-    ICS 3.5 can only read a position by sending the free command, so this turns
-    the servo's torque off (use --no-position to keep it holding).
+    The torque is left alone: an ICS 3.6 servo reports its position with its
+    position read; an ICS 3.5 servo can only by the free command, which turns
+    its torque off, so its position is shown only with --free.
     """
     settings = settings_of(ctx)
+    if free_servo and no_position:
+        raise click.UsageError("--free and --no-position contradict each other")
 
     async def body() -> dict[str, Any]:
         async with settings.bus() as bus:
@@ -77,8 +86,14 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
             eeprom = await servo.read_eeprom()
             current = await servo.read_current()
             temperature = await servo.read_temperature()
-            position = None if no_position else await servo.free()
-            return {"eeprom": eeprom, "current": current, "temperature": temperature, "position": position}
+            where: dict[str, Any]
+            if no_position:
+                where = {"position": None, "how": None, "protocol": None, "why": "not read (--no-position)"}
+            else:
+                reading = await policies.read_position_without_freeing(servo, free_ics35=free_servo)
+                where = {"position": reading.position, "how": reading.how, "protocol": reading.protocol,
+                         "why": None if reading.why is None else NO_READ_35}
+            return {"eeprom": eeprom, "current": current, "temperature": temperature, **where}
 
     got = run(settings, body)
     eeprom: Eeprom = got["eeprom"]
@@ -88,9 +103,12 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
             {
                 "id": servo_id,
                 "baud": settings.baud,
+                "protocol": got["protocol"],
                 "position": position,
                 "degrees": None if position is None else round(units.position_to_degrees(position), 2),
-                "free": position is not None,
+                "position_read_by": got["how"],
+                "no_position_because": got["why"],
+                "free": got["how"] == "free",
                 "current": current_json(got["current"]),
                 "temperature": temperature_json(got["temperature"]),
                 "eeprom": eeprom.to_dict(),
@@ -104,10 +122,14 @@ def info(ctx: click.Context, servo_id: int, no_position: bool, as_json: bool) ->
     )
     live.add_column("what")
     live.add_column("value")
+    if got["protocol"] is not None:
+        live.add_row("protocol", got["protocol"])
     if position is None:
-        live.add_row("position", "not read (--no-position)")
+        live.add_row("position", f"not read: {got['why']}")
+    elif got["how"] == "free":
+        live.add_row("position", f"{position}  ({fmt_degrees(position).strip()})  - torque now OFF (free, --free)")
     else:
-        live.add_row("position", f"{position}  ({fmt_degrees(position).strip()})  - torque now OFF (free)")
+        live.add_row("position", f"{position}  ({fmt_degrees(position).strip()})  - torque left as it was")
     live.add_row("current", f"{current_text(got['current'])}  (magnitude 0..63, sign = direction)")
     live.add_row("temperature", f"{temperature_text(got['temperature'])}  (smaller is hotter)")
     out.print(live)

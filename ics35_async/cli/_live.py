@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -42,6 +42,7 @@ class LiveOptions:
     with_targets: bool
     as_json: bool = False
     plot: str | None = None
+    free_at_end: bool = True  # every streamed servo goes free at the end (not when they are only watched)
 
 
 async def run_live(
@@ -50,11 +51,16 @@ async def run_live(
     state: LiveState,
     options: LiveOptions,
     targets: TargetFunction | None,
+    watch: Sequence[int] = (),
 ) -> tuple[LiveState, Telemetry, Recorder]:
-    """Stream to ``ids`` until the time is up or Ctrl-C; leave every servo free."""
+    """Stream to ``ids`` (``watch``: read with ICS 3.6's read) until the time is up or Ctrl-C; then free every
+    streamed servo if ``options.free_at_end``.  Telemetry covers every ID of ``state``."""
     loop = asyncio.get_running_loop()
-    stream = bus.stream(ids, rate_hz=options.rate_hz, on_close="free")
-    telemetry = Telemetry(bus, ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
+    # A watched servo is never freed: on_close="free" would free every ID, so the end frees the others itself.
+    stream = bus.stream(
+        ids, rate_hz=options.rate_hz, on_close="free" if options.free_at_end and not watch else "hold", watch=watch
+    )
+    telemetry = Telemetry(bus, state.ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json
     render_every = 0.1 if tty else 1.0
@@ -108,9 +114,10 @@ async def run_live(
                 # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
                 state.stopped_by_ctrl_c = True
                 if not options.as_json:
-                    err.print("stopping: freeing the servos")
+                    err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
             finally:
-                await _free_all(stream, ids, state)
+                if options.free_at_end:
+                    await _free_all(stream, [i for i in ids if i not in watch], state)
         render(final=True)
     finally:
         if live is not None:
@@ -119,9 +126,9 @@ async def run_live(
 
 
 async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> None:
-    """Send free to everyone through the stream and wait for one full cycle to carry it."""
+    """Send free to ``ids`` through the stream and wait for one full cycle to carry it."""
     with contextlib.suppress(IcsError):
-        stream.free()
+        stream.free(ids)
         state.targets.update(dict.fromkeys(ids, protocol.FREE))
         with contextlib.suppress(TimeoutError, BusClosed, PortLost, asyncio.CancelledError):
             first = await asyncio.wait_for(stream.next_frame(), 1.0)

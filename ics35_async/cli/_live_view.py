@@ -35,6 +35,7 @@ class LiveState:
     rate_now: float = 0.0
     rate_avg: float = 0.0
     answered_ever: set[int] = field(default_factory=set)
+    no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_ctrl_c: bool = False
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
 
@@ -111,8 +112,10 @@ class LiveState:
             cells.append("free" if not target else signed_tenths(units.position_to_degrees(target)))
         else:
             cells.append("-" if pos is None else str(pos))
+        if sid in self.no_position:
+            cells[-1] = Text("n/a", style="dim")
         cells += [
-            "-" if pos is None else signed_tenths(units.position_to_degrees(pos)),
+            "n/a" if sid in self.no_position else "-" if pos is None else signed_tenths(units.position_to_degrees(pos)),
             "-" if cur is None else f"{'-' if cur & 0x40 else ''}{cur & 0x3F}",
             "-" if temp is None else f"{units.temperature_to_celsius(temp):.0f}C",
             state,
@@ -132,6 +135,7 @@ class LiveState:
                     "temperature": telemetry.temperature.get(sid),
                     "errors": self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0),
                     "offline": sid in self.offline,
+                    "no_position_because": self.no_position.get(sid),
                 }
                 for sid in self.ids
             },

@@ -1,11 +1,13 @@
-"""ics35 monitor: watch servos live (they go free: ICS 3.5 reads a position only with the free command)."""
+"""ics35 monitor: watch servos live, leaving the torque alone (ICS 3.5 servos go free only with --free)."""
 
 from __future__ import annotations
 
 import click
 from rich.markup import escape
 
-from ._common import ID_LIST, err, json_option, run, settings_of
+from .. import policies
+from ._basic import NO_READ_35
+from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, settings_of
 from ._live import LiveOptions, discover, final_report, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
@@ -15,6 +17,8 @@ from ._telemetry import Telemetry
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
 @click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long (default: Ctrl-C).")
+@click.option("--free", "free_servos", is_flag=True,
+              help="Read ICS 3.5 servos with the free command: they go limp (and stay free at the end).")
 @stream_options
 @json_option
 @click.pass_context
@@ -22,6 +26,7 @@ def monitor(
     ctx: click.Context,
     ids: list[int] | None,
     seconds: float | None,
+    free_servos: bool,
     rate: float | None,
     per_cycle: int,
     plot: str | None,
@@ -29,9 +34,11 @@ def monitor(
 ) -> int:
     """Watch servos live: position, current, temperature, per-ID errors and the cycle rate.
 
-    Positions are read with the free command (the only position read ICS 3.5 has),
-    so the monitored servos go limp: move them by hand and watch.  IDS: 1-12, 0,3,5, all
-    (default: the IDs that answer a scan).  --json prints one JSON line per second.
+    The torque is left alone: ICS 3.6 servos report their position with their
+    position read; ICS 3.5 servos can only by the free command, so with --free
+    they go limp (move them by hand and watch), and without it they show
+    current and temperature but no position.  IDS: 1-12, 0,3,5, all (default:
+    the IDs that answer a scan).  --json prints one JSON line per second.
     """
     settings = settings_of(ctx)
     if plot is not None:
@@ -41,13 +48,31 @@ def monitor(
         # Real-time mode paces replies at the modelled wire time, so the rate shown is the real one.
         settings.port = f"sim://?realtime=1&baud={settings.baud}"
         shown = "the built-in simulator"
-    options = LiveOptions(seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot)
+    options = LiveOptions(
+        seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot, free_at_end=free_servos
+    )
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids or await discover(bus, settings, as_json)
-            state = LiveState(chosen, f"monitor {escape(shown)} at {settings.baud} baud (servos free)", seconds)
-            return await run_live(bus, chosen, state, options, None)
+            plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
+            watch, freed = plan.watch, plan.free
+            missing = dict.fromkeys(plan.left_out, NO_READ_35)
+            if not plan.streamed:
+                raise CliError(
+                    ExitCode.REFUSED,
+                    f"no servo among {ids_text(chosen)} can report its position without going limp: they speak "
+                    "ICS 3.5, which reads a position only with the free command (nothing was sent that moves or "
+                    "frees them)",
+                    "pass --free to read ICS 3.5 servos with the free command (they go limp)",
+                )
+            how = "ICS 3.5 servos free" if freed else "torque left alone"
+            state = LiveState(chosen, f"monitor {escape(shown)} at {settings.baud} baud ({how})", seconds)
+            state.no_position = missing
+            if missing and not as_json:
+                for sid, why in missing.items():
+                    err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
+            return await run_live(bus, plan.streamed, state, options, None, watch=watch)
 
     state, telemetry, recorder = run(settings, body)
     if plot is not None:

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import math
 import time
+from pathlib import Path
 
 import click
 from rich.markup import escape
@@ -31,6 +33,29 @@ def load_motion_file(path: str) -> Motion:
         raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
 
 
+def parse_start_pose(text: str | None) -> dict[str, float] | None:
+    """``joint=deg,joint=deg`` or a JSON file ``{joint: degrees}`` (the joints' names and limits are checked
+    when the robot opens, before any port is)."""
+    if text is None:
+        return None
+    if "=" not in text:
+        try:
+            data = json.loads(Path(text).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise click.BadParameter(f"{text}: not a readable JSON file {{joint: degrees}} ({exc})") from None
+        if not isinstance(data, dict) or not all(isinstance(v, (int, float)) for v in data.values()):
+            raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}")
+        return {str(k): float(v) for k, v in data.items()}
+    pose = {}
+    for item in text.split(","):
+        joint, _, deg = item.partition("=")
+        try:
+            pose[joint.strip()] = float(deg)
+        except ValueError:
+            raise click.BadParameter(f"{item!r} is not joint=degrees (e.g. knee=30,hip=-10)") from None
+    return pose
+
+
 async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     """Slow every moving joint to rest, then hold or free; shielded from a second Ctrl-C's cancellation."""
     with contextlib.suppress(IcsError):
@@ -49,7 +74,10 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @click.option("--on-stop", type=click.Choice(["hold", "free"]), default="hold", show_default=True,
               help="What the joints do once the motion ends or is stopped.")
 @click.option("--ramp", type=click.FloatRange(0, 5), default=0.3, show_default=True,
-              help="Seconds a stopped motion takes to come to rest.")
+              help="Seconds a stopped motion takes to come to rest (never past the motion's keyframes).")
+@click.option("--start-pose", "start_pose_text", metavar="POSE", default=None,
+              help="Where the robot is now (joint=deg,... or a JSON file): those joints hold it from the first "
+                   "command instead of going limp (ICS 3.5 servos are read by freeing them).")
 @click.pass_context
 def play(
     ctx: click.Context,
@@ -60,6 +88,7 @@ def play(
     seconds: float | None,
     on_stop: str,
     ramp: float,
+    start_pose_text: str | None,
 ) -> int:
     """Play a keyframe motion (MOTION.json) on the robot ROBOT.toml describes, with a live view.
 
@@ -69,6 +98,7 @@ def play(
     Exit codes as for every command; 7: the safety watch stopped the motion.
     """
     settings = settings_of(ctx)
+    start_pose = parse_start_pose(start_pose_text)
     description = load_robot_file(robot_file)
     motion = load_motion_file(motion_file)
     note_ports(settings, robot_file)
@@ -80,8 +110,14 @@ def play(
 
     async def body() -> str:
         nonlocal passes, played
-        async with open_robot(description, on_close=on_stop, **robot_options(settings)) as robot:
+        options = robot_options(settings)
+        async with open_robot(description, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
+            limp = [name for name, mode in robot.start_modes.items() if mode == "free"]
+            if limp:
+                which = "every joint" if len(limp) == len(robot.joints) else escape(", ".join(limp))
+                err.print(f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
+                          "--start-pose states where they are instead[/dim]")
             try:
                 check_motion(robot, motion, motion_file)
             except MotionError as exc:

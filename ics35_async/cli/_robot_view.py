@@ -51,11 +51,11 @@ def joint_table(
         elif frame is not None and name in frame.failed:
             state = Text("no reply", style="yellow")
         else:
-            state = "free" if target is None else "held"
+            state = "as found" if name in robot.untouched else "free" if target is None else "held"
         cells: list[str | Text] = [
             name,
             f"{spec.line}:{spec.id}",
-            "free" if target is None else _deg(target),
+            "-" if name in robot.untouched else "free" if target is None else _deg(target),
             _deg(positions.get(name)),
             "-" if seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
             "-" if seen is None or seen.current is None else str(seen.current),

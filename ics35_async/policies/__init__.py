@@ -1,4 +1,5 @@
-"""The line's policies: finding servos, renumbering the only one, changing an EEPROM safely.
+"""The line's policies: finding servos, renumbering the only one, changing an EEPROM safely, reading positions
+without freeing what may not go limp.
 
 They sit above the bus and use only its public surface (:class:`~.line.Line`),
 so library users get the same rules the ``ics35`` command follows.
@@ -23,6 +24,13 @@ from .line import (
     id0_top_bit_differs,
     nothing_came_back,
 )
+from .position_read import (
+    NO_READ_ICS35,
+    PositionReading,
+    StreamPlan,
+    plan_position_stream,
+    read_position_without_freeing,
+)
 from .scan import ALL_BAUDS, ALL_IDS, FoundServo, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
 
 __all__ = [
@@ -30,6 +38,7 @@ __all__ = [
     "answers_short_read",
     "ALL_BAUDS",
     "ALL_IDS",
+    "NO_READ_ICS35",
     "EepromPlan",
     "EepromWriteResult",
     "FoundServo",
@@ -37,16 +46,20 @@ __all__ = [
     "IdSurvey",
     "Line",
     "LineOpener",
+    "PositionReading",
     "RateScan",
     "Refusal",
     "ScanReport",
+    "StreamPlan",
     "anyone_there",
     "check_changes",
     "echo_setting_wrong",
     "edit_image",
     "nothing_came_back",
     "plan_eeprom_write",
+    "plan_position_stream",
     "probe_ids",
+    "read_position_without_freeing",
     "scan",
     "servo_rates",
     "survey_for_id_write",

@@ -1,4 +1,4 @@
-"""ICS 3.5 wire codec, sans-IO: every command's bytes, lengths and reply rules.
+"""ICS 3.5 wire codec (and ICS 3.6's position read), sans-IO: every command's bytes, lengths and reply rules.
 
 The package's modules, each with one job:
 
@@ -17,9 +17,11 @@ from .commands import (
     Command,
     Position,
     ProbeRead,
+    ProbeReadPosition,
     ReadEeprom,
     ReadId,
     ReadParam,
+    ReadPosition,
     WriteEeprom,
     WriteId,
     WriteParam,
@@ -39,6 +41,7 @@ from .wire import (
     MEMORY_SIZE,
     POSITION_MAX,
     SC_MEMORY,
+    SC_POSITION,
     WRITE_RANGES,
     Param,
     Timing,
@@ -63,6 +66,7 @@ __all__ = [
     "MEMORY_SIZE",
     "POSITION_MAX",
     "SC_MEMORY",
+    "SC_POSITION",
     "WRITE_RANGES",
     "BaudRate",
     "Command",
@@ -73,7 +77,9 @@ __all__ = [
     "ReadId",
     "ReadMemory",
     "ProbeRead",
+    "ProbeReadPosition",
     "ReadParam",
+    "ReadPosition",
     "Timing",
     "WriteEeprom",
     "WriteId",

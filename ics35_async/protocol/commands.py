@@ -34,6 +34,7 @@ from .wire import (
     FREE,
     MAX_ID,
     POSITION_MAX,
+    SC_POSITION,
     WRITE_RANGES,
     Param,
     Timing,
@@ -185,6 +186,43 @@ class ProbeRead(ReadParam):
 
     def __init__(self, servo_id: int) -> None:
         super().__init__(servo_id, Param.STRETCH)
+
+
+class ReadPosition(Command[int]):
+    """ICS 3.6 position read (0xA0, SC 5): the present position, without moving or freeing the servo.
+
+    The reply is ``0x20|id, 0x05, pos_hi, pos_lo`` (7 bits each).  An ICS 3.5
+    servo does not answer it (see :class:`ProbeReadPosition`).
+    """
+
+    __slots__ = ()
+
+    def __init__(self, servo_id: int) -> None:
+        self.servo_id = check_id(servo_id)
+        self.name = "read_position"
+        self.tx = bytes((CMD_READ | servo_id, SC_POSITION))
+        self.reply_len = 4
+
+    def parse(self, reply: bytes) -> int:
+        self._check_param_head(reply)
+        self._check_7bit(reply, 2)
+        return join7(reply[2], reply[3])
+
+    def encode_reply(self, value: int) -> bytes:
+        return bytes((self.tx[0] & 0x7F, SC_POSITION, *split7(value)))
+
+
+class ProbeReadPosition(ReadPosition):
+    """The position read asking whether a servo speaks ICS 3.6: silence (ICS 3.5) is a usual answer.
+
+    The same bytes as :class:`ReadPosition`; ``Timing.PROBE`` waits only as long
+    as this link's answers have taken, and a silent probe gets the probe's short
+    resync, so an ICS 3.5 servo costs little and does not make the line look slow.
+    """
+
+    __slots__ = ()
+
+    timing = Timing.PROBE
 
 
 def guard_read(tx: bytes, servo_id: int) -> ReadParam:

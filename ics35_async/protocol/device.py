@@ -10,9 +10,30 @@ from typing import Any
 
 from ..eeprom import EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, MalformedEeprom
-from .commands import Command, Position, ReadEeprom, ReadId, ReadParam, WriteEeprom, WriteId, WriteParam
+from .commands import (
+    Command,
+    Position,
+    ReadEeprom,
+    ReadId,
+    ReadParam,
+    ReadPosition,
+    WriteEeprom,
+    WriteId,
+    WriteParam,
+)
 from .memory import ReadMemory, WriteMemory, check_span
-from .wire import CMD_ID, CMD_POSITION, CMD_READ, SC_MEMORY, WRITE_RANGES, Param, bytes_from_nibbles, check_baud, join7
+from .wire import (
+    CMD_ID,
+    CMD_POSITION,
+    CMD_READ,
+    SC_MEMORY,
+    SC_POSITION,
+    WRITE_RANGES,
+    Param,
+    bytes_from_nibbles,
+    check_baud,
+    join7,
+)
 
 
 def _msb_in(buf: bytes | bytearray, end: int) -> bool:
@@ -84,6 +105,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
             return ReadEeprom(sid), 2
         if sc in WRITE_RANGES:
             return ReadParam(sid, sc), 2
+        if sc == SC_POSITION:
+            return ReadPosition(sid), 2
         return None, 2
     # parameter write
     if sc == Param.EEPROM:

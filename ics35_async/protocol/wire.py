@@ -34,6 +34,9 @@ class Param(enum.IntEnum):
     TEMPERATURE = 4  # read: the measured temperature; write: the limit
 
 
+# ICS 3.6's position read: 0xA0|id, SC_POSITION -> 0x20|id, SC_POSITION, pos_hi, pos_lo (ICS 3.5 stays silent).
+SC_POSITION = 0x05
+
 # Valid write ranges for SC 1..4.
 WRITE_RANGES: dict[Param, tuple[int, int]] = {
     Param.STRETCH: (1, 127),

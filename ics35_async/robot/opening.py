@@ -2,13 +2,20 @@
 
 Nothing is opened before the description has passed every check, so a
 mistake in the file never reaches a port.
+
+How each joint starts (``Robot.start_modes``): a joint whose servo speaks
+ICS 3.6 is *read* (its position read each cycle, torque left as it was);
+a joint the caller gives in ``start_pose`` is *stated* (it holds that
+angle from the first cycle on: the caller says the robot is there); any
+other joint (ICS 3.5, or a servo that did not answer) starts *free*, since
+ICS 3.5 reads a position only with the free command.
 """
 
 from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +25,6 @@ from .. import units
 from ..bus import open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
-from ..stream import StreamOptions
 from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
@@ -39,6 +45,7 @@ async def open_robot(
     check_limits: bool = True,
     offline_after: int = 3,
     probe_interval: float = 0.5,
+    start_pose: Mapping[str, float] | None = None,
     **bus_options: Any,
 ) -> AsyncIterator[Robot]:
     """Open every line of a robot and stream to all its joints: ``async with open_robot("robot.toml") as robot``.
@@ -52,8 +59,16 @@ async def open_robot(
     limits.  ``offline_after`` and ``probe_interval`` go to every line's
     stream; other keyword arguments to every :func:`open_bus` (e.g.
     ``adapter_latency=0.005``, ``driver="anyio"``).
+
+    The robot opens without moving or freeing a joint whose servo speaks
+    ICS 3.6 (its position read).  An ICS 3.5 joint starts free (its only
+    position read), unless ``start_pose`` ``{joint: degrees}`` names it: it
+    then holds that angle from the first command on, so state where the
+    robot really is (a joint elsewhere jumps there).  ``robot.start_modes``
+    tells how each joint started.
     """
     description = source if isinstance(source, RobotDescription) else load_description(source)
+    stated = _check_start_pose(description, start_pose)
     if on_close not in ON_CLOSE:
         raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
     units.check_bool("check_limits", check_limits)
@@ -64,7 +79,6 @@ async def open_robot(
         name: open_bus(line.port, baudrate=line.baudrate, echo=line.echo, retries=line.retries, **bus_options)
         for name, line in description.lines.items()
     }
-    streams_options: StreamOptions = {"offline_after": offline_after, "probe_interval": probe_interval}
     async with contextlib.AsyncExitStack() as stack:
         # Each bus opened and closed by this task, one after the other: under trio a bus's
         # task group must end in the task that began it (BusGroup closes its lines in child tasks).
@@ -74,12 +88,21 @@ async def open_robot(
         robot = Robot(description, group)
         if check_limits:
             await check_servo_limits(robot)
+        readable = await _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated))
         streams = {
             line: group[line].stream(
-                [j.id for j in description.joints_on(line)], rate_hz=spec.rate_hz, **streams_options
+                [j.id for j in description.joints_on(line)],
+                rate_hz=spec.rate_hz,
+                watch=[j.id for j in description.joints_on(line) if j.name in readable],
+                offline_after=offline_after,
+                probe_interval=probe_interval,
             )
             for line, spec in description.lines.items()
         }
+        for name, deg in stated.items():
+            joint = robot.joints[name]
+            streams[joint.line].set_target(joint.id, joint.position(deg))  # before the first cycle
+        robot.started(stated, readable)
         async with GroupStream(streams) as gstream:
             try:
                 async with anyio.create_task_group() as tasks:
@@ -95,6 +118,37 @@ async def open_robot(
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
                 raise _only(group_error) from None
+
+
+def _check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
+    if pose is None:
+        return {}
+    if not isinstance(pose, Mapping):
+        raise InvalidArgument(f"start_pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
+    unknown = [str(n) for n in pose if n not in description.joints]
+    if unknown:
+        known = ", ".join(description.joints)
+        raise InvalidArgument(f"start_pose: unknown joint(s) {', '.join(unknown)} (joints: {known})")
+    return {name: description.joints[name].check(deg) for name, deg in pose.items()}
+
+
+async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]:
+    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything)."""
+    found: set[str] = set()
+    by_line: dict[str, list[JointSpec]] = {}
+    for joint in joints:
+        by_line.setdefault(joint.line, []).append(joint)
+
+    async def probe_line(line: str) -> None:
+        for joint in by_line[line]:
+            with contextlib.suppress(ReplyError):  # silent or garbled: it starts free, as ICS 3.5 does
+                if await robot.group[line].servo(joint.id).has_position_read():
+                    found.add(joint.name)
+
+    async with anyio.create_task_group() as tasks:
+        for line in by_line:
+            tasks.start_soon(probe_line, line)
+    return found
 
 
 def _only(group_error: BaseExceptionGroup[BaseException]) -> BaseException:

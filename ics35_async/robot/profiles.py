@@ -118,7 +118,37 @@ class Trajectory:
             previous_time, previous = time, end
         return cls(segments)
 
+    def envelope(self) -> dict[str, tuple[float, float]]:
+        """Per joint, the lowest and highest angle of any segment's ends: where the trajectory stays."""
+        spans: dict[str, tuple[float, float]] = {}
+        for segment in self.segments:
+            for pose in (segment.start, segment.end):
+                for joint, deg in pose.items():
+                    low, high = spans.get(joint, (deg, deg))
+                    spans[joint] = (min(low, deg), max(high, deg))
+        return spans
+
     @property
     def final(self) -> dict[str, float]:
         """The pose the trajectory ends in."""
         return dict(self.segments[-1].end)
+
+
+def stopping(moving: Mapping[str, tuple[float, float, tuple[float, float]]], ramp: float) -> list[Segment]:
+    """Decelerating segments that bring ``{joint: (angle, speed, (low, high))}`` to rest, each inside its interval.
+
+    A joint slows at the rate that would bring it to rest in ``ramp``
+    seconds (``decel`` covers half the distance its initial speed would); one
+    that would leave its interval (its motion's envelope) rests on its edge,
+    sooner, having started at the same speed.  Joints taking as long share a segment.
+    """
+    groups: dict[float, tuple[dict[str, float], dict[str, float]]] = {}
+    for joint, (angle, speed, (low, high)) in moving.items():
+        if not speed or ramp <= 0:
+            continue
+        end = min(max(angle + speed * ramp / 2, low), high)
+        duration = 2 * abs(end - angle) / abs(speed)
+        if duration > 0:
+            start, ends = groups.setdefault(round(duration, 4), ({}, {}))
+            start[joint], ends[joint] = angle, end
+    return [Segment(0.0, duration, start, ends, "decel") for duration, (start, ends) in groups.items()]

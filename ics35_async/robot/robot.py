@@ -29,7 +29,7 @@ from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
 from .motion import Motion, play_motion
 from .plans import Plan, Replies
-from .profiles import Segment, Trajectory, check_profile
+from .profiles import Segment, Trajectory, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
 from .stream import RobotStream
 
@@ -49,6 +49,10 @@ class Robot:
         self._by_key = {(j.line, j.id): name for name, j in self.joints.items()}
         self._targets: dict[str, float | None] = dict.fromkeys(self.joints)
         self._velocity: dict[str, float] = dict.fromkeys(self.joints, 0.0)
+        # Per joint, the interval its newest motion may use: the pose it started from and its targets.
+        self._envelope: dict[str, tuple[float, float]] = {}
+        self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
+        self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
@@ -70,7 +74,7 @@ class Robot:
 
     @property
     def targets(self) -> dict[str, float | None]:
-        """Every joint's target in degrees (``None``: free)."""
+        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``)."""
         return dict(self._targets)
 
     @property
@@ -156,6 +160,12 @@ class Robot:
         self._release(checked)
         self._apply(checked)
 
+    def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
+        """How the joints start (see :mod:`.opening`): ``stated`` angles already in the stream, ``read`` watched."""
+        self._targets.update(stated)
+        self.untouched = set(read)
+        self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
+
     def hold(self, joints: Iterable[str] | None = None) -> None:
         """Hold ``joints`` (default: all) where they are now (within their limits), torque on."""
         names = self.joint_names(joints)
@@ -185,6 +195,7 @@ class Robot:
             wanted[(joint.line, joint.id)] = protocol.FREE if deg is None else joint.position(joint.clamp(deg))
         self._gstream.set_targets(wanted)
         self._targets.update(targets)
+        self.untouched.difference_update(targets)
 
     # ------------------------------------------------------------------ motions
 
@@ -238,6 +249,7 @@ class Robot:
         """Play a trajectory from now on; returns when it is done (its end on the wire, with ``wait_on_wire``)."""
         plan = Plan(trajectory, anyio.current_time(), wait_on_wire)
         self._release(plan.joints)
+        self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
         try:
             await plan.done.wait()
@@ -249,19 +261,37 @@ class Robot:
             raise plan.error
 
     async def stop(self, ramp: float = 0.3) -> None:
-        """End every motion smoothly: each moving joint slows to rest over ``ramp`` seconds, then holds."""
+        """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
+        seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
+        targets): one that would pass its target rests on it, sooner.  Each motion stopped raises
+        :class:`MotionStopped` in its caller."""
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         for plan in self._plans:
             plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
         self._plans.clear()
-        start, end = {}, {}
+        moving = {}
         for name, speed in self._velocity.items():
             target = self._targets[name]
             if speed and target is not None:
-                start[name] = target
-                end[name] = self.joints[name].clamp(target + speed * seconds / 2)
-        if start and seconds > 0:
-            await self.run(Trajectory([Segment(0.0, seconds, start, end, "decel")]))
+                low, high = self._envelope.get(name, (target, target))
+                moving[name] = (target, speed, (self.joints[name].clamp(low), self.joints[name].clamp(high)))
+        self._velocity = dict.fromkeys(self.joints, 0.0)
+        segments = stopping(moving, seconds)
+        if not segments:
+            return
+        errors: list[IcsError] = []
+
+        async def slow_down(trajectory: Trajectory) -> None:
+            try:
+                await self.run(trajectory)
+            except IcsError as exc:  # a later stop, a safety stop, the line's end: the caller hears it
+                errors.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            for segment in segments:
+                tasks.start_soon(slow_down, Trajectory([segment]))
+        if errors:
+            raise errors[0]
 
     def _step(self, frame: RobotFrame) -> None:
         """Advance every running plan to the frame's time: the targets for the next cycle."""

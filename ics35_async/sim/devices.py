@@ -21,12 +21,21 @@ MemorySpec = Mapping[int, bytes | bytearray | MemoryDevice] | Iterable[MemoryDev
 
 
 def build_devices(
-    servos: Iterable[VirtualServo | int] | None, memory: MemorySpec | None, baudrate: int
+    servos: Iterable[VirtualServo | int] | None,
+    memory: MemorySpec | None,
+    baudrate: int,
+    ics36: Iterable[int] = (),
 ) -> list[Device]:
-    """Servos (objects, or IDs for factory servos at ``baudrate``; ``None``: IDs 0..31) and memory devices."""
+    """Servos (objects, or IDs for factory servos at ``baudrate``; ``None``: IDs 0..31) and memory devices.
+
+    Servos built from an ID in ``ics36`` speak ICS 3.6 (they answer the position read).
+    """
+    newer = frozenset(ics36)
     built: list[Device] = []
     for item in range(32) if servos is None else servos:
-        built.append(item if isinstance(item, VirtualServo) else VirtualServo(item, baud_rate=baudrate))
+        if not isinstance(item, VirtualServo):
+            item = VirtualServo(item, baud_rate=baudrate, ics36=item in newer)
+        built.append(item)
     if isinstance(memory, Mapping):
         for device_id, content in memory.items():
             built.append(content if isinstance(content, MemoryDevice) else MemoryDevice(device_id, bytes(content)))

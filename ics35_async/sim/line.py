@@ -46,7 +46,8 @@ class VirtualLine(LineModel):
     The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
     ``memory``, ``realtime``, ``echo``, ``turnaround``,
     ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
-    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``, ``adapter``), and:
+    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``, ``adapter``,
+    ``ics36``), and:
     ``follow_host_baud``: the line runs at the rate the host connects with
     (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
     disappears that many wall-clock seconds after the first connect, and
@@ -75,6 +76,7 @@ class VirtualLine(LineModel):
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
         adapter: FtdiAdapter | None = None,
+        ics36: Iterable[int] = (),
         follow_host_baud: bool = True,
         unplug_after: float | None = None,
         replug_after: float = DEFAULT_REPLUG_AFTER,
@@ -99,6 +101,7 @@ class VirtualLine(LineModel):
             frame_timeout=frame_timeout,
             record=record,
             adapter=adapter,
+            ics36=ics36,
         )
         self.follow_host_baud = follow_host_baud
         self.unplug_after = unplug_after

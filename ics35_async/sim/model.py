@@ -73,6 +73,8 @@ class LineModel:
     after this pause (:mod:`.framing`).  ``record`` is a file path or text
     stream to record the session to (:mod:`.record`).  ``adapter``: a USB
     adapter model between line and host (:mod:`.adapter`; ``None``: a bare UART).
+    ``ics36``: the IDs of servos built from IDs that speak ICS 3.6 (the others
+    are ICS 3.5).
     """
 
     def __init__(
@@ -95,6 +97,7 @@ class LineModel:
         frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
         record: Any = None,
         adapter: FtdiAdapter | None = None,
+        ics36: Iterable[int] = (),
     ) -> None:
         line_baud = BaudRate.parse(baudrate)
         for value, what in (
@@ -106,7 +109,7 @@ class LineModel:
                 raise InvalidArgument(f"{what} must not be negative")
         if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
             raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
-        self.table = DeviceTable(build_devices(servos, memory, line_baud))
+        self.table = DeviceTable(build_devices(servos, memory, line_baud, ics36))
         self.baudrate: int = int(line_baud)
         self.realtime = realtime
         self.echo = echo

@@ -4,7 +4,7 @@ Format: UTF-8 text, one transaction a line, ``#`` starts a comment::
 
     # ics35 sim recording v1
     0.000573 81 3a 4c -> 81 3a 4c | 01 3a 4c  # id=1 position value=7500
-    0.001200 a1 05 -> a1 05  # id=1 unknown
+    0.001200 a1 06 -> a1 06  # id=1 unknown
     0.002000 ff 00 00 00 -> ff 00 00 00 | e1 00  # read_id responders=1,2
 
 Fields: the line's clock in seconds when the command ended, the bytes the

@@ -36,6 +36,8 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     )
     parser.set_defaults(realtime=True)
     parser.add_argument("--ids", default="0-31", help="servo IDs, e.g. 0-31 or 1,3,5-7 ('none': no servos)")
+    parser.add_argument("--ics36", default=None, metavar="IDS",
+                        help="IDs of servos that speak ICS 3.6 (answer its position read); default: none")
     parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
@@ -134,6 +136,7 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         replug_after=replug_after,
         record=args.record,
         adapter=adapter,
+        ics36=parse_ids(args.ics36) if args.ics36 else (),
         **options,
     )
     if args.unplug_after is not None:

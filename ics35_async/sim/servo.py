@@ -21,6 +21,9 @@ Model of a servo, in brief (all of it deliberately simple and deterministic):
   about neutral (7500): the host sees the position it asked for, the shaft
   (:attr:`VirtualServo.shaft_position`) turns the other way.  The user offset
   and continuous rotation are not modelled.
+* **ICS 3.6.**  With ``ics36`` the servo also answers the position read
+  (:class:`~ics35_async.protocol.ReadPosition`) with where it is, torque
+  and target unchanged; an ICS 3.5 servo (the default) stays silent to it.
 * **Free.**  Position 0 turns the torque off: the servo stays where it is and
   :meth:`VirtualServo.move_by_hand` may turn it.  A servo powers up free.
 * **Current** (0..63, bit 6 = direction): about 1 when holding, more while
@@ -52,6 +55,7 @@ from ..protocol import (
     ReadId,
     ReadMemory,
     ReadParam,
+    ReadPosition,
     WriteEeprom,
     WriteId,
     WriteMemory,
@@ -94,7 +98,7 @@ NO_REPLY = NoReply()
 
 
 class VirtualServo:
-    """One simulated ICS 3.5 servo.
+    """One simulated ICS 3.5 servo (ICS 3.6 with ``ics36``: it also answers the position read).
 
     ``servo_id`` and ``baud_rate`` build the spec's factory image
     (:meth:`Eeprom.factory`, with a calibration that differs per ID) unless
@@ -116,6 +120,7 @@ class VirtualServo:
         load: int = 0,
         ambient_celsius: float = AMBIENT_CELSIUS,
         ignores: Iterable[str] = (),
+        ics36: bool = False,
     ) -> None:
         self.ignores = frozenset(ignores)
         if eeprom is None:
@@ -129,6 +134,7 @@ class VirtualServo:
         self.factory_calibration = eeprom.calibration
         self._position = float(check_int("position", position, 1, POSITION_MAX))
         self.load = load
+        self.ics36 = bool(ics36)
         self.ambient_celsius = ambient_celsius
         self.temperature_celsius = ambient_celsius
         self._target: int | None = None
@@ -286,6 +292,8 @@ class VirtualServo:
             reported = self.position
             self.command_position(command.position)
             return reported
+        if isinstance(command, ReadPosition):
+            return self.position if self.ics36 else NO_REPLY
         if isinstance(command, ReadParam):
             return self._read_param(command.param)
         if isinstance(command, WriteParam):
@@ -325,7 +333,8 @@ class VirtualServo:
 
     def __repr__(self) -> str:
         state = "free" if self._target is None else f"target={self._target}"
-        return f"<VirtualServo id={self.servo_id} pos={self.position} {state} baud={int(self.baud_rate)}>"
+        version = " ICS 3.6" if self.ics36 else ""
+        return f"<VirtualServo id={self.servo_id}{version} pos={self.position} {state} baud={int(self.baud_rate)}>"
 
 
 class MemoryDevice:

@@ -89,7 +89,8 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
     ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
     ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
-    ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
+    ``ics36`` (IDs of servos that speak ICS 3.6 and answer its position
+    read; the others are ICS 3.5), ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
     size, ``all`` for unbounded), ``record`` (file to record to), ``replay``
     (a recording to serve instead of a simulated line), ``adapter`` (``ftdi``:
     the USB adapter model of :mod:`.adapter`; it implies ``realtime=1``, since
@@ -126,6 +127,11 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             options[key] = _int(key, value)
         elif key in ("late_delay", "tail_delay", "unplug_after", "replug_after"):
             options[key] = parse_seconds(value, key)
+        elif key == "ics36":
+            try:
+                options["ics36"] = parse_ids(value)
+            except (InvalidArgument, ValueError) as exc:
+                raise InvalidArgument(f"sim URL: ics36={value!r}: {exc}") from None
         elif key == "memory":
             options["memory"] = {i: b"" for i in parse_ids(value)}
         elif key == "log":

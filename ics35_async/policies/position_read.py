@@ -1,0 +1,79 @@
+"""Reading positions without letting go: ICS 3.6's position read where a servo has it, the free command only
+where the caller says the servo may go limp.
+
+``ics35 info`` and ``ics35 monitor`` follow these rules; a program gets the
+same ones.  Nothing here sends a position or free command to a servo unless
+``free_ics35`` says it may go limp.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from ..errors import ReplyError
+from ..line import Line
+from ..servo import Servo
+
+NO_READ_ICS35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp)"
+
+
+@dataclass(frozen=True)
+class PositionReading:
+    """One servo's position, how it was read (``"read"``: ICS 3.6, torque left alone; ``"free"``: the free
+    command, torque now off; ``None``: not read), its protocol, and why there is no position."""
+
+    position: int | None
+    how: str | None
+    protocol: str
+    why: str | None = None
+
+
+async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = False) -> PositionReading:
+    """The servo's position by ICS 3.6's read; on an ICS 3.5 servo by the free command only with ``free_ics35``."""
+    if await servo.has_position_read():
+        return PositionReading(await servo.read_position(), "read", "ICS 3.6")
+    if free_ics35:
+        return PositionReading(await servo.free(), "free", "ICS 3.5")
+    return PositionReading(None, None, "ICS 3.5", NO_READ_ICS35)
+
+
+@dataclass
+class StreamPlan:
+    """How to stream a set of IDs without freeing what may not go limp.
+
+    ``watch``: IDs read with ICS 3.6's read (``Stream(watch=...)``), torque
+    left alone; ``free``: ICS 3.5 IDs read with the free command (only with
+    ``free_ics35``); ``left_out``: IDs not to stream, and why.
+    """
+
+    watch: list[int] = field(default_factory=list)
+    free: list[int] = field(default_factory=list)
+    left_out: dict[int, str] = field(default_factory=dict)
+
+    @property
+    def streamed(self) -> list[int]:
+        """Every ID the stream carries (watched or freed), sorted."""
+        return sorted(self.watch + self.free)
+
+
+async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bool = False) -> StreamPlan:
+    """Probe each ID's position read (nothing sent moves or frees a servo) and sort the IDs into a plan.
+
+    An ID silent to everything is watched (freed, with ``free_ics35``): a
+    stream marks it offline and probes it, as any servo that stops answering,
+    and a read never frees it.
+    """
+    plan = StreamPlan()
+    for sid in ids:
+        try:
+            readable: bool | None = await Servo(line, sid).has_position_read()
+        except ReplyError:
+            readable = None
+        if readable or (readable is None and not free_ics35):
+            plan.watch.append(sid)
+        elif free_ics35:
+            plan.free.append(sid)
+        else:
+            plan.left_out[sid] = NO_READ_ICS35
+    return plan

@@ -1,0 +1,200 @@
+"""ICS 3.6's position read: the codec, the simulator's ICS 3.6 servos, Servo.read_position and its detection,
+and the stream's watched IDs.  What went on the wire is read back from the simulator's log."""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import anyio
+import pytest
+
+from ics35_async import PositionReadUnsupported, ReplyTimeout, open_bus, protocol, units
+from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcommandError
+from ics35_async.sim import VirtualLine, parse_url
+from ics35_async.stream import WATCH
+
+from ._robot_fixtures import GUARD
+
+TORQUE_COMMANDS = {"position", "free"}
+
+
+def run(sim: VirtualLine, body: Callable[[Any], Awaitable[Any]]) -> Any:
+    async def main() -> Any:
+        with anyio.fail_after(GUARD):
+            async with open_bus(sim) as bus:
+                return await body(bus)
+
+    try:
+        return anyio.run(main)
+    finally:
+        sim.close()
+
+
+def commands(sim: VirtualLine, servo_id: int) -> list[str]:
+    return [t.command for t in sim.log_since(0) if t.servo_id == servo_id]
+
+
+# ---------------------------------------------------------------- codec
+
+
+def test_the_read_is_two_bytes_and_its_reply_four() -> None:
+    command = protocol.ReadPosition(3)
+    assert command.tx == bytes((0xA3, 0x05)) and command.reply_len == 4
+    assert command.encode_reply(9000) == bytes((0x23, 0x05, 9000 >> 7, 9000 & 0x7F))
+    assert command.parse(bytes((0x23, 0x05, 0x46, 0x2C))) == (0x46 << 7) | 0x2C
+    decoded = protocol.decode_request(bytes((0xA3, 0x05)), baudrate=115200)
+    assert decoded is not None and isinstance(decoded[0], protocol.ReadPosition) and decoded[1] == 2
+    assert protocol.ProbeReadPosition(3).tx == command.tx
+    assert protocol.ProbeReadPosition(3).timing is protocol.Timing.PROBE
+
+
+@pytest.mark.parametrize(
+    ("reply", "error"),
+    [
+        (bytes((0x23, 0x05, 0x46)), ReplyLengthError),
+        (bytes((0x24, 0x05, 0x46, 0x2C)), ReplyHeaderError),
+        (bytes((0x23, 0x01, 0x46, 0x2C)), ReplySubcommandError),
+    ],
+)
+def test_a_wrong_reply_is_named(reply: bytes, error: type[Exception]) -> None:
+    with pytest.raises(error):
+        protocol.ReadPosition(3).parse(reply)
+
+
+# ---------------------------------------------------------------- the simulator
+
+
+def test_ics36_is_a_per_id_option_and_ics35_the_default() -> None:
+    _name, options = parse_url("sim://?ids=1-4&ics36=2,4")
+    sim = VirtualLine(**options, log_size=None)
+    assert [s.ics36 for s in sim.servos] == [False, True, False, True]
+    assert not VirtualLine([1]).servo(1).ics36
+    with pytest.raises(Exception, match="ics36"):
+        parse_url("sim://?ics36=x")
+    sim.close()
+
+
+# ---------------------------------------------------------------- Servo.read_position
+
+
+def test_an_ics36_servo_reports_its_position_and_keeps_its_torque() -> None:
+    sim = VirtualLine([1], ics36=[1], log_size=None)
+
+    async def body(bus: Any) -> list[float]:
+        servo = bus.servo(1)
+        await servo.set_position(9000)
+        held = sim.servo(1).target
+        seq = sim.transactions
+        got = [await servo.read_position(), await servo.read_position(), await servo.read_position_degrees()]
+        assert sim.servo(1).target == held == 9000  # still holding its target: not freed, not moved
+        reads = list(sim.log_since(seq))
+        assert {t.command for t in reads} == {"read_position"}
+        # What the servo answered on the wire, each time (it is still on its way to 9000).
+        assert got == [reads[0].value, reads[1].value, units.position_to_degrees(reads[2].value)]
+        return got
+
+    run(sim, body)
+
+
+def test_an_ics35_servo_raises_a_typed_error_and_is_probed_once() -> None:
+    sim = VirtualLine([1], log_size=None)
+
+    async def body(bus: Any) -> None:
+        servo = bus.servo(1)
+        assert await servo.has_position_read() is False
+        for _ in range(2):
+            with pytest.raises(PositionReadUnsupported, match=r"servo 1 speaks ICS 3\.5") as caught:
+                await servo.read_position()
+            assert caught.value.servo_id == 1
+        assert bus.servo(1).known_position_read() is False  # remembered for the line, not the object
+
+    run(sim, body)
+    sent = commands(sim, 1)
+    assert not TORQUE_COMMANDS & set(sent), sent  # nothing freed or moved it
+    assert sent.count("read_position") == 2  # two silences decide it, once
+
+
+def test_an_absent_id_is_not_taken_for_an_ics35_servo() -> None:
+    sim = VirtualLine([1], ics36=[1], log_size=None)
+
+    async def body(bus: Any) -> None:
+        with pytest.raises(ReplyTimeout):
+            await bus.servo(7).read_position()
+        assert bus.servo(7).known_position_read() is None  # probed again next time
+        assert await bus.servo(1).has_position_read() is True
+
+    run(sim, body)
+
+
+def test_one_lost_reply_does_not_make_an_ics36_servo_look_like_ics35() -> None:
+    """A reply dropped on a noisy line: the probe asks again before it decides."""
+    for seed in range(6):
+        sim = VirtualLine([1], ics36=[1], faults="drop:0.3", seed=seed, log_size=None)
+
+        async def body(bus: Any) -> bool | None:
+            try:
+                return bool(await bus.servo(1).has_position_read())
+            except ReplyTimeout:
+                return None  # silent to everything this time: undecided, never "ICS 3.5"
+
+        assert run(sim, body) in (True, None), seed
+
+
+def test_read_degrees_is_deprecated_and_says_it_frees() -> None:
+    sim = VirtualLine([1], log_size=None)
+
+    async def body(bus: Any) -> float:
+        with pytest.warns(DeprecationWarning, match="free_and_read_degrees"):
+            return float(await bus.servo(1).read_degrees())
+
+    assert run(sim, body) == pytest.approx(0.0, abs=0.1)
+    assert commands(sim, 1) == ["free"]
+
+
+# ---------------------------------------------------------------- the stream's watched IDs
+
+
+def test_a_watched_id_is_read_without_a_target_until_it_gets_one() -> None:
+    sim = VirtualLine([1, 2], ics36=[1, 2], log_size=None)
+    sim.servo(2).move_by_hand(8123)
+
+    async def body(bus: Any) -> None:
+        await bus.servo(1).set_position(7000)
+        async with bus.stream([1, 2], watch=[1, 2]) as stream:
+            for _ in range(3):
+                frame = await stream.next_frame()
+            assert frame.positions[2] == 8123 and not frame.failed
+            assert stream.target(1) == WATCH
+            assert sim.servo(1).target == 7000 and sim.servo(2).free  # each as it was
+            seq = sim.transactions
+            stream.set_target(2, 9000)
+            for _ in range(3):
+                await stream.next_frame()
+            assert "position" in {t.command for t in sim.log_since(seq) if t.servo_id == 2}
+
+    run(sim, body)
+    assert not TORQUE_COMMANDS & set(commands(sim, 1)[1:])  # after its own set_position: reads only
+
+
+# ---------------------------------------------------------------- the policies info and monitor follow
+
+
+def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_command() -> None:
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> tuple[Any, Any, Any]:
+        safe = await policies.plan_position_stream(bus, [1, 2, 5])
+        limp = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
+        reading = await policies.read_position_without_freeing(bus.servo(1))
+        return safe, limp, reading
+
+    safe, limp, reading = run(sim, body)
+    # ID 5 is silent to everything: watched (a read never frees), or freed when the caller allows it.
+    assert (safe.watch, safe.free, list(safe.left_out)) == ([2, 5], [], [1])
+    assert "free command" in safe.left_out[1]
+    assert (limp.watch, limp.free, limp.left_out, limp.streamed) == ([2], [1, 5], {}, [1, 2, 5])
+    assert (reading.position, reading.how, reading.protocol) == (None, None, "ICS 3.5")
+    assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}

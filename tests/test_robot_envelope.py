@@ -1,0 +1,171 @@
+"""Motions never leave their envelope: every command a motion, a stop or a cancelled motion sends lies, per joint,
+between the pose the motion started from and the targets it was given (and inside the joint's limits).
+
+The commands are decoded from the simulator's transaction log, never taken from the robot's bookkeeping.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+from typing import Any
+
+import anyio
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ics35_async import Robot, open_robot, units
+from ics35_async.robot import MotionStopped
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, joint_degrees, make_rig, targets_sent
+
+# Degrees: a command is rounded to whole counts, so it may sit this far outside the exact interval.
+HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9
+
+
+def seq_now(rig: Rig) -> dict[str, int]:
+    return {"upper": rig.upper.transactions, "lower": rig.lower.transactions}
+
+
+def sent_degrees(rig: Rig, name: str, since: dict[str, int]) -> list[float]:
+    spec = JOINTS[name]
+    return [joint_degrees(spec, p) for p in targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])]
+
+
+def check_envelope(rig: Rig, since: dict[str, int], start: dict[str, float], targets: list[dict[str, float]]) -> None:
+    """Every command to a joint the motion names lies between its start and its targets, and within its limits."""
+    for name, spec in JOINTS.items():
+        sent = sent_degrees(rig, name, since)
+        # A joint the motion never names holds its start (the stream repeats its target every cycle).
+        named = [pose[name] for pose in targets if name in pose] or [start[name]]
+        low = max(min(start[name], *named), spec["min"]) - HALF_COUNT
+        high = min(max(start[name], *named), spec["max"]) + HALF_COUNT
+        outside = [d for d in sent if not low <= d <= high]
+        assert not outside, (name, low, high, outside)
+
+
+def run_robot(rig: Rig, body: Any) -> None:
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await body(robot)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
+def test_a_stop_ends_at_or_before_the_motions_target() -> None:
+    """move_to shoulder -60 in 0.5 s, stop(ramp=0.3) 0.3 s in: the joint slows down and rests at -60 at most."""
+    rig = make_rig()
+    caught: list[BaseException] = []
+    since: dict[str, int] = {}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"shoulder": 0.0}, duration=0.0)
+        since.update(seq_now(rig))
+
+        async def mover() -> None:
+            try:
+                await robot.move_to({"shoulder": -60.0}, duration=0.5)
+            except MotionStopped as exc:
+                caught.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(mover)
+            await anyio.sleep(0.3)
+            await robot.stop(ramp=0.3)
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "shoulder", since)
+    assert len(caught) == 1
+    assert min(sent) >= -60.0 - HALF_COUNT, min(sent)
+    # It kept going the way it went (no jump back), and came to rest.
+    assert all(b <= a + HALF_COUNT for a, b in itertools.pairwise(sent)), sent
+
+
+def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
+    """Far from its target, a stopped joint goes on for a while (not frozen) and rests short of the target."""
+    rig = make_rig()
+    since: dict[str, int] = {}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"knee": -90.0}, duration=0.0)
+        since.update(seq_now(rig))
+        async with anyio.create_task_group() as tasks:
+
+            async def mover() -> None:
+                with pytest.raises(MotionStopped):
+                    await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
+
+            tasks.start_soon(mover)
+            await anyio.sleep(0.2)
+            await robot.stop(ramp=0.3)
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "knee", since)
+    assert sent[-1] < 15.0 - 10.0  # at about 52 degrees/s, 0.3 s of ramp covers some 8 degrees
+    rest = [d for d in sent if d > sent[-1] - 10.0]
+    assert len(set(rest)) > 3  # it went on moving while slowing down
+
+
+angles = {name: st.floats(spec["min"], spec["max"], allow_nan=False) for name, spec in JOINTS.items()}
+pose_strategy = st.fixed_dictionaries({}, optional=angles)
+start_strategy = st.fixed_dictionaries(angles)
+
+
+@st.composite
+def motions(draw: st.DrawFn) -> list[dict[str, Any]]:
+    count = draw(st.integers(1, 3))
+    keyframes, time = [], 0.0
+    for _ in range(count):
+        time += draw(st.floats(0.03, 0.25))
+        frame: dict[str, Any] = {"time": round(time, 3), "pose": draw(pose_strategy.filter(bool))}
+        if draw(st.booleans()):
+            frame["profile"] = draw(st.sampled_from(["minjerk", "linear"]))
+        keyframes.append(frame)
+    return keyframes
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    start=start_strategy,
+    keyframes=motions(),
+    profile=st.sampled_from(["minjerk", "linear"]),
+    stop_after=st.floats(0.0, 0.6),
+    ramp=st.floats(0.0, 0.8),
+    how=st.sampled_from(["stop", "cancel then stop", "loop then stop"]),
+)
+def test_no_command_leaves_the_motions_envelope(
+    start: dict[str, float], keyframes: list[dict[str, Any]], profile: str, stop_after: float, ramp: float, how: str
+) -> None:
+    """Random motions (both profiles, reversed joints, offsets), stopped, cancelled or looped at random times."""
+    rig = make_rig()
+    since: dict[str, int] = {}
+    data = {"format": "ics35-motion", "version": 1, "profile": profile, "keyframes": keyframes}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to(start, duration=0.0)
+        since.update(seq_now(rig))
+        playing = anyio.CancelScope()
+
+        async def player() -> None:
+            with playing, contextlib.suppress(MotionStopped):
+                await robot.play(data, loop=how == "loop then stop")
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(player)
+            await anyio.sleep(stop_after)
+            if how == "cancel then stop":
+                playing.cancel()  # the play's task is cancelled (as Ctrl-C does): then the smooth stop
+                await anyio.sleep(0)
+            await robot.stop(ramp=ramp)
+            playing.cancel()  # a player that had not begun when stop() came would never end
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    check_envelope(rig, since, start, [frame["pose"] for frame in keyframes])

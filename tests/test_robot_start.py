@@ -1,0 +1,129 @@
+"""How a robot learns its starting pose: ICS 3.6 joints by the position read (nothing freed, nothing moved),
+ICS 3.5 joints free unless the caller states their pose.  What went on the wire is read from the simulator's log."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import anyio
+import pytest
+from rich.console import Console
+
+from ics35_async import InvalidArgument, Robot, open_robot
+from ics35_async.cli._robot_view import joint_table
+
+from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
+
+HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
+
+
+def run_robot(rig: Rig, body: Any, **options: Any) -> Any:
+    async def main() -> Any:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **{**FAST, **options}) as robot:
+                return await body(robot)
+
+    try:
+        return anyio.run(main)
+    finally:
+        rig.close()
+
+
+def torque_commands(rig: Rig, name: str) -> list[int]:
+    spec = JOINTS[name]
+    return list(commanded(rig.sim(spec["line"]), spec["id"]))
+
+
+def test_a_standing_robot_of_ics36_servos_opens_without_freeing_or_moving_a_joint() -> None:
+    rig = make_rig(ics36=[1, 2, 3])
+    standing = {"neck": 20.0, "shoulder": -45.0, "elbow": 80.0, "hip": -10.0, "knee": -60.0}
+    for name, deg in standing.items():
+        servo = rig.servo(name)
+        servo.move_by_hand(joint_position(JOINTS[name], deg))
+        servo.command_position(servo.position)  # holding there, torque on: a robot standing
+
+    async def body(robot: Robot) -> dict[str, float]:
+        assert robot.start_modes == dict.fromkeys(JOINTS, "read")
+        pose = await robot.read_pose()
+        assert robot.targets == dict.fromkeys(JOINTS)  # nothing commanded yet
+        return pose
+
+    pose = run_robot(rig, body)
+    assert pose == pytest.approx(standing, abs=HALF_COUNT)
+    for name in JOINTS:
+        assert torque_commands(rig, name) == [], name  # no position, no free command
+        assert not rig.servo(name).free, name  # still holding
+
+
+def test_a_motion_starts_from_the_pose_read() -> None:
+    rig = make_rig(ics36=[1, 2, 3])
+    rig.servo("knee").move_by_hand(joint_position(JOINTS["knee"], -80.0))
+
+    async def body(robot: Robot) -> None:
+        assert robot.untouched == set(JOINTS)  # torque as found, all of them
+        await robot.move_to({"knee": 0.0}, duration=0.2)
+        assert robot.untouched == set(JOINTS) - {"knee"}
+        console = Console(record=True, width=120)
+        console.print(joint_table(robot, "t", None))
+        rows = {line.split()[0]: line for line in console.export_text().splitlines() if line.strip()}
+        assert "as found" in rows["shoulder"] and "held" in rows["knee"]  # not "free": its torque is unknown
+
+    run_robot(rig, body)
+    sent = [joint_degrees(JOINTS["knee"], p) for p in torque_commands(rig, "knee")]
+    assert sent[0] == pytest.approx(-80.0, abs=2.0)  # from where it was, not a jump from elsewhere
+    assert all(-80.0 - HALF_COUNT <= d <= 0.0 + HALF_COUNT for d in sent)
+    assert sent[-1] == pytest.approx(0.0, abs=HALF_COUNT)
+
+
+def test_ics35_joints_start_free_unless_their_pose_is_stated() -> None:
+    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+
+    async def body(robot: Robot) -> None:
+        await robot.read_pose()
+        assert robot.start_modes == {
+            "neck": "read", "shoulder": "stated", "elbow": "free", "hip": "read", "knee": "stated",
+        }
+        assert robot.targets["shoulder"] == 30.0 and robot.targets["elbow"] is None
+
+    run_robot(rig, body, start_pose={"shoulder": 30.0, "knee": -5.0})
+    for name, deg in (("shoulder", 30.0), ("knee", -5.0)):
+        sent = torque_commands(rig, name)
+        assert sent and set(sent) == {joint_position(JOINTS[name], deg)}, name  # held from the first command
+    assert set(torque_commands(rig, "elbow")) == {0}  # ICS 3.5, not stated: read by freeing it
+    assert torque_commands(rig, "neck") == torque_commands(rig, "hip") == []
+
+
+@pytest.mark.parametrize(
+    ("pose", "phrase"),
+    [
+        ({"tail": 0.0}, "unknown joint(s) tail"),
+        ({"neck": 99.0}, "outside its limits"),
+        ([("neck", 0.0)], "mapping"),
+    ],
+)
+def test_a_bad_start_pose_is_refused_before_anything_is_sent(pose: Any, phrase: str) -> None:
+    rig = make_rig()
+
+    async def main() -> None:
+        async with open_robot(rig.description, start_pose=pose, **FAST):
+            pass
+
+    try:
+        with pytest.raises(InvalidArgument, match=phrase.replace("(", r"\(").replace(")", r"\)")):
+            anyio.run(main)
+        assert rig.upper.transactions == rig.lower.transactions == 0
+    finally:
+        rig.close()
+
+
+def test_the_blocking_robot_takes_a_start_pose_and_tells_the_start_modes() -> None:
+    from ics35_async import blocking
+
+    rig = make_rig(ics36=[2, 3])
+    try:
+        with blocking.open_robot(rig.description, start_pose={"neck": 0.0}, **FAST) as robot:
+            assert robot.start_modes == {
+                "neck": "stated", "shoulder": "read", "elbow": "read", "hip": "free", "knee": "read",
+            }
+    finally:
+        rig.close()
