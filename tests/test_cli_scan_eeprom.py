@@ -11,7 +11,7 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.sim import VirtualServo
-from tests._cli_fixtures import ics35, line
+from tests._cli_fixtures import edit_backup, ics35, line
 
 __all__ = ["ics35", "line"]  # the shared fixtures, used by name
 
@@ -189,16 +189,13 @@ def test_bulk_dump_saves_the_servos_that_answer(ics35: Any, line: Any, tmp_path:
 def test_bulk_restore_checks_every_file_before_writing_any(ics35: Any, line: Any, tmp_path: Path) -> None:
     sim, url = line([1, 2])
     assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
-    doc = json.loads((tmp_path / "servo-02.json").read_text())
-    doc["fields"]["speed"] = 500
-    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    edit_backup(tmp_path / "servo-02.json", speed=500)
     before = sim.transactions
     result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.USAGE and "servo-02.json" in result.err
     assert sim.transactions == before
 
-    doc["fields"]["speed"], doc["fields"]["baud_rate"] = 50, 1250000
-    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    edit_backup(tmp_path / "servo-02.json", speed=50, baud_rate=BaudRate.B1250000)
     result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.REFUSED and "--change-baud" in result.err
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
@@ -233,9 +230,7 @@ def test_restore_with_change_baud_verifies_at_both_rates(ics35: Any, line: Any, 
     sim, url = line([1])
     backup = tmp_path / "one.json"
     assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
-    doc = json.loads(backup.read_text())
-    doc["fields"]["baud_rate"] = 625000
-    backup.write_text(json.dumps(doc))
+    edit_backup(backup, baud_rate=BaudRate.B625000)
     result = ics35("--port", url, "eeprom", "restore", "1", str(backup), "--change-baud", "--yes", "--json")
     assert result.code == 0, result.err
     assert result.json()["answers_at_new_rate"] is False  # the simulated servo switches at power-up

@@ -1,0 +1,112 @@
+"""`eeprom restore` checks a backup whole before anything goes on the wire: each damaged backup is exit 2,
+names the file and what is wrong, and the line sees no transaction at all."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import ExitCode
+from tests._cli_fixtures import edit_backup, ics35, line
+
+__all__ = ["ics35", "line"]  # the shared fixtures, used by name
+
+Damage = Callable[[dict[str, Any]], None]
+
+
+def _set(key: str, value: Any) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc[key] = value
+
+    return damage
+
+
+def _raw(change: Callable[[str], str]) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc["raw"] = change(doc["raw"])
+
+    return damage
+
+
+def _field(name: str, value: Any) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc["fields"][name] = value
+
+    return damage
+
+
+def _drop(key: str) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        del doc[key]
+
+    return damage
+
+
+def _both(*damages: Damage) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        for one in damages:
+            one(doc)
+
+    return damage
+
+
+DAMAGED: dict[str, tuple[Damage, str]] = {
+    "unknown format": (_set("format", "something/9"), "'something/9' is not an ics35 EEPROM backup"),
+    "newer version": (_set("format", "ics35-eeprom/2"), "reads version 1 of EEPROM backups only"),
+    "no format": (_drop("format"), "no 'format'"),
+    "raw cut short": (_raw(lambda raw: raw[:100]), "'raw' has 100 hex digits, not 128"),
+    "raw too long": (_raw(lambda raw: raw + "00"), "'raw' has 130 hex digits, not 128"),
+    "raw starting with zz": (_raw(lambda raw: "zz" + raw[2:]), "'z' at character 1, which is not a hex digit"),
+    "a non-nibble byte": (_raw(lambda raw: raw[:20] + "7f" + raw[22:]), "'raw' byte 11 is 7f, not a nibble"),
+    "raw deleted": (_drop("raw"), "no 'raw' image"),
+    "raw not a string": (_set("raw", 5), "'raw' must be a string"),
+    "fields deleted": (_drop("fields"), "no 'fields' object"),
+    "a changed field": (_field("speed", 12), "field speed is 12 but the raw image holds 127"),
+    "unknown format and a changed field": (
+        _both(_set("format", "something/9"), _field("punch", 9)),
+        "'something/9' is not an ics35 EEPROM backup",
+    ),
+    "flags_names disagree": (_set("flags_names", ["REVERSE"]), "'flags_names' is ['REVERSE']"),
+    "a field missing": (lambda doc: doc["fields"].pop("damping"), "lacks field(s): damping"),
+    "a field not a number": (_field("speed", "fast"), "field speed must be an integer"),
+    "saved ID out of range": (_set("servo_id", 40), "'servo_id' must be an ID 0..31"),
+}
+
+
+@pytest.mark.parametrize("damage", DAMAGED, ids=list(DAMAGED))
+@pytest.mark.parametrize("how", ["to its own servo", "to a named servo", "from a directory"])
+def test_each_damaged_backup_is_refused_before_anything_is_sent(
+    ics35: Any, line: Any, tmp_path: Path, damage: str, how: str
+) -> None:
+    sim, url = line([1, 2])
+    folder = tmp_path / "backup"
+    assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{folder}/").code == 0
+    for i in (1, 2):  # the servos drift from their backups: a restore would write
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    bad = folder / "servo-02.json"
+    doc = json.loads(bad.read_text())
+    change, expected = DAMAGED[damage]
+    change(doc)
+    bad.write_text(json.dumps(doc))
+    before = sim.transactions
+    args = {"to its own servo": [str(bad)], "to a named servo": ["2", str(bad)], "from a directory": [str(folder)]}
+    result = ics35("--port", url, "eeprom", "restore", *args[how], "--yes")
+    assert result.code == ExitCode.USAGE, result.err
+    assert "servo-02.json" in result.err and expected in " ".join(result.err.split()), result.err
+    assert sim.transactions == before  # nothing sent, so nothing written either
+    assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
+
+
+def test_a_backup_edited_whole_is_restored(ics35: Any, line: Any, tmp_path: Path) -> None:
+    """Raw image and fields changed together is a backup that agrees with itself: it is written."""
+    sim, url = line([1])
+    backup = tmp_path / "one.json"
+    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    edit_backup(backup, speed=40)
+    result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
