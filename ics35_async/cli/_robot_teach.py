@@ -15,6 +15,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
+from ..errors import InvalidArgument
 from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
@@ -164,7 +165,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     \b
     1. the joints go free: pose the robot at its neutral (every joint at 0 degrees), Enter;
     2. move each joint through its whole range by hand, watching the table, Enter.
-    The file keeps its comments; where it cannot be edited in place, ROBOT.calibrated.toml is written beside it.
+    The file keeps its comments and its previous content as ROBOT.toml.bak; where it cannot be edited
+    in place, ROBOT.calibrated.toml is written beside it.  A joint moved over less than 5 degrees
+    is refused, and then nothing is written.
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
@@ -223,22 +226,35 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
 
     run_robot(settings, description, body)
     calibrated: dict[str, JointSpec] = {}
+    narrow: list[str] = []
     for name in names:
         if name not in neutral or name not in low:
             err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
             continue
-        calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
+        try:
+            calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
+        except InvalidArgument as exc:
+            narrow.append(str(exc))
+    if narrow:
+        raise CliError(
+            ExitCode.REFUSED,
+            "; ".join(narrow) + f". Nothing was written to {robot_file}",
+            "run calibrate again and, at step 2, move each joint to both ends of its range by hand",
+            "to calibrate some joints only: --joints NAME,NAME",
+        )
     if not calibrated:
         raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
     for name, joint in calibrated.items():
         offset, least, most = (signed_tenths(x) for x in (joint.offset, joint.min, joint.max))
         out.print(f"{name}: offset {offset}, min {least}, max {most}")
-    written, kept = write_calibration(robot_file, description, calibrated)
-    if kept:
-        out.print(f"written into {escape(str(written))} (comments kept)")
+    written = write_calibration(robot_file, description, calibrated)
+    if written.comments_kept:
+        out.print(f"written into {escape(str(written.path))} (comments kept)")
     else:
         err.print(f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
-                  f"{escape(str(written))} (a complete file, without comments)")
+                  f"{escape(str(written.path))} (a complete file, without comments)")
+    if written.backup is not None:
+        out.print(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}")
     return 0
 
 
