@@ -10,12 +10,13 @@ import asyncio
 import contextlib
 import time
 from collections.abc import AsyncIterator, Awaitable
+from pathlib import Path
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
-from ..errors import InvalidArgument
+from ..errors import IcsError, InvalidArgument
 from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
@@ -51,17 +52,28 @@ async def freed_robot(description: RobotDescription, settings: Settings, names: 
         yield robot
 
 
-async def wait_for_line(lines: TypedLines, screen: Screen, hint: str) -> str | None:
-    """The next typed line (None at the end of input), redrawing the screen meanwhile."""
+async def wait_for_line(
+    lines: TypedLines, screen: Screen, hint: str, until: asyncio.Future[None] | None = None
+) -> str | None:
+    """The next typed line (None at the end of input, or once ``until`` is done), redrawing the screen meanwhile."""
     pending = asyncio.ensure_future(lines.get())
     try:
         while not pending.done():
+            if until is not None and until.done():
+                return None
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(pending), 0.05)
             screen.update(hint)
         return pending.result()
     finally:
         pending.cancel()
+
+
+async def watch_lines(robot: Robot) -> None:
+    """Return never while the robot's lines run; raise what ended them (a lost port) at once."""
+    cycle = 0
+    while True:
+        cycle = (await robot.wait_frame(cycle)).cycle
 
 
 async def handled_ctrl_c(work: Awaitable[None]) -> bool:
@@ -109,32 +121,70 @@ def teach(
             err.print("the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
                       "[bold]q[/bold] then Enter ends (Ctrl-C too)")
             start = time.monotonic()
+            watcher = asyncio.ensure_future(watch_lines(robot))
+            lost: list[bool] = []
 
             def summary() -> str:
-                return f"t={time.monotonic() - start:5.1f} s  {len(keyframes)} pose(s) captured"
+                captured = f"{len(keyframes)} pose(s) captured"
+                if lost:
+                    return f"LINE LOST: no more poses; the {captured} are being saved"
+                return f"t={time.monotonic() - start:5.1f} s  {captured}"
 
-            with Screen(lambda: joint_table(robot, f"teach: {escape(target.name)}", names), summary) as screen:
+            def table() -> Table:
+                return joint_table(robot, f"teach: {escape(target.name)}", names, lost=bool(lost))
+
+            with Screen(table, summary) as screen:
 
                 async def capture_loop() -> None:
                     while True:
-                        line = await wait_for_line(lines, screen, "Enter: capture   q: end")
+                        line = await wait_for_line(lines, screen, "Enter: capture   q: end", until=watcher)
+                        if watcher.done():
+                            lost.append(True)
+                            screen.update(force=True)
+                            await watcher  # raises what ended the lines
                         if line is None or line.strip().lower() in QUIT:
                             return
                         await capture(robot, names, start, keyframes)
                         screen.update(force=True)
 
-                await handled_ctrl_c(capture_loop())
+                try:
+                    await handled_ctrl_c(capture_loop())
+                finally:
+                    watcher.cancel()
+                    with contextlib.suppress(asyncio.CancelledError, IcsError):
+                        await watcher
 
-    run_robot(settings, description, body)
+    try:
+        run_robot(settings, description, body)
+    except CliError:
+        # Lost port, error or Ctrl-C: the poses captured so far are written before the error is told.
+        if keyframes:
+            save_taught(keyframes, profile, name, target, robot_file, on_error=True)
+        raise
     if not keyframes:
         raise CliError(ExitCode.REFUSED, "no pose captured: nothing written", "press Enter to capture a pose")
-    motion = Motion(tuple(keyframes), profile, name or target.stem)
-    save_motion(motion, target)
-    out.print(
-        f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; "
-        f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
-    )
+    save_taught(keyframes, profile, name, target, robot_file)
     return 0
+
+
+def save_taught(
+    keyframes: list[Keyframe], profile: str, name: str | None, target: Path, robot_file: str, *, on_error: bool = False
+) -> None:
+    """Write the captured poses to ``target`` and say where (after an error: that they are kept, on stderr)."""
+    motion = Motion(tuple(keyframes), profile, name or target.stem)
+    try:
+        save_motion(motion, target)
+    except OSError as exc:
+        raise CliError(
+            ExitCode.USAGE, f"cannot write {target}: {exc.strerror or exc}; the {len(keyframes)} pose(s) are lost"
+        ) from None
+    play = f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
+    if on_error:
+        err.print(f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "
+                  f"({motion.duration:.1f} s); {play}", soft_wrap=True)
+    else:
+        out.print(f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}",
+                  soft_wrap=True)
 
 
 async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe]) -> None:

@@ -29,9 +29,18 @@ def _deg(value: float | None) -> str:
 
 
 def joint_table(
-    robot: Robot, title: str, joints: Sequence[str] | None = None, extra: tuple[Sequence[str], Extra] | None = None
+    robot: Robot,
+    title: str,
+    joints: Sequence[str] | None = None,
+    extra: tuple[Sequence[str], Extra] | None = None,
+    *,
+    lost: bool = False,
 ) -> Table:
-    """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns)."""
+    """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns).
+
+    ``lost``: the robot's lines stopped (a port lost); every state says so, since the positions shown
+    are only the last ones read.
+    """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
         table.add_column(name, justify="left" if name == "joint" else "right", style="bold" if name == "joint" else "")
@@ -44,8 +53,10 @@ def joint_table(
         spec = robot.joints[name]
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
-        if name in robot.tripped:
-            state: str | Text = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
+        if lost:
+            state: str | Text = Text("LINE LOST", style="bold red")
+        elif name in robot.tripped:
+            state = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
         elif frame is not None and name in frame.offline:
             state = Text("offline", style="red")
         elif frame is not None and name in frame.failed:

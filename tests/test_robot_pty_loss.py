@@ -1,0 +1,131 @@
+"""No lost work over a real serial boundary: teach, and the port pulled away (the pty simulator stopped)
+or Ctrl-C, as real processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from ics35_async.sim.launch import start_subprocess, stop_subprocess
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+
+ROBOT = """\
+[lines.main]
+port = "{port}"
+
+[joints.a]
+line = "main"
+id = 1
+
+[joints.b]
+line = "main"
+id = 2
+"""
+
+
+class Command:
+    """``ics35 ARGS`` as a process: stdin a pipe, stderr read line by line as it comes."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "ics35_async.cli", *args],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "COLUMNS": "200"},
+            # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
+        self.err_lines: queue.Queue[str] = queue.Queue()
+        self.err_seen: list[str] = []
+        threading.Thread(target=self._read_err, daemon=True).start()
+
+    def _read_err(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.err_lines.put(line)
+
+    def wait_for(self, phrase: str, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not any(phrase in line for line in self.err_seen):
+            left = deadline - time.monotonic()
+            assert left > 0, f"{phrase!r} never came; stderr so far: {''.join(self.err_seen)}"
+            try:
+                self.err_seen.append(self.err_lines.get(timeout=left))
+            except queue.Empty:
+                continue
+
+    def type(self, text: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(text)
+        self.proc.stdin.flush()
+
+    def finish(self, timeout: float = 30.0) -> tuple[int, str, str]:
+        assert self.proc.stdout is not None
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"still running after {timeout} s; stderr: {''.join(self.err_seen)}") from None
+        out = self.proc.stdout.read()
+        time.sleep(0.05)
+        while not self.err_lines.empty():
+            self.err_seen.append(self.err_lines.get())
+        err = "".join(self.err_seen)
+        assert "Traceback" not in err, err
+        return code, out, err
+
+
+def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) -> None:
+    server, port = start_subprocess(["--ids", "1-2"], quiet=True)
+    try:
+        robot = tmp_path / "robot.toml"
+        robot.write_text(ROBOT.format(port=port))
+        taught = tmp_path / "taught.json"
+        teach = Command("teach", str(robot), str(taught))
+        teach.wait_for("Enter")
+        teach.type("\n")
+        teach.wait_for("pose 1 at")
+        teach.type("\n")
+        teach.wait_for("pose 2 at")
+        stop_subprocess(server)  # the adapter is pulled out: the pty goes away
+        code, out, err = teach.finish()  # ends on its own: no Enter, no q typed
+    finally:
+        stop_subprocess(server)
+    assert code == 1, err
+    assert "LINE LOST" in out  # the live view said so (the table printed at the end off a terminal)
+    assert "lost" in err and "the 2 pose(s) captured so far are kept" in err
+    assert str(taught) in " ".join(err.split())
+    keyframes = json.loads(taught.read_text())["keyframes"]
+    assert len(keyframes) == 2 and set(keyframes[0]["pose"]) == {"a", "b"}
+
+
+def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
+    server, port = start_subprocess(["--ids", "1-2"], quiet=True)
+    try:
+        robot = tmp_path / "robot.toml"
+        robot.write_text(ROBOT.format(port=port))
+        taught = tmp_path / "taught.json"
+        teach = Command("teach", str(robot), str(taught))
+        teach.wait_for("Enter")
+        teach.type("\n")
+        teach.wait_for("pose 1 at")
+        teach.proc.send_signal(signal.SIGINT)
+        code, out, err = teach.finish()
+    finally:
+        stop_subprocess(server)
+    assert code == 0, err
+    assert "wrote 1 pose(s)" in out and str(taught) in " ".join(out.split())
+    assert len(json.loads(taught.read_text())["keyframes"]) == 1
