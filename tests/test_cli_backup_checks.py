@@ -10,7 +10,9 @@ from typing import Any
 
 import pytest
 
-from ics35_async.cli import ExitCode
+from ics35_async.cli import ExitCode, main
+from ics35_async.protocol import ReadEeprom, WriteEeprom
+from ics35_async.sim import VirtualLine, VirtualServo
 from tests._cli_fixtures import edit_backup, ics35, line
 
 __all__ = ["ics35", "line"]  # the shared fixtures, used by name
@@ -110,3 +112,86 @@ def test_a_backup_edited_whole_is_restored(ics35: Any, line: Any, tmp_path: Path
     result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes")
     assert result.code == 0, result.err
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
+
+
+# --------------------------------------------------------------------------- the account of every servo
+
+
+class PullsThePlug(VirtualServo):
+    """A servo at whose EEPROM write (``when="write"``) or at whose read-back after it (``"read-back"``)
+    the adapter is pulled out: the servo has done what it was told, no reply gets back."""
+
+    def __init__(self, servo_id: int, when: str) -> None:
+        super().__init__(servo_id)
+        self.when = when
+        self.line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        written = self.eeprom_writes > 0
+        if self.line is not None and (
+            (self.when == "write" and isinstance(command, WriteEeprom))
+            or (self.when == "read-back" and written and isinstance(command, ReadEeprom))
+        ):
+            self.line.unplug()
+        return reply
+
+
+def drifted_line(line: Any, tmp_path: Path, when: str) -> tuple[VirtualLine, str, Path, PullsThePlug]:
+    """Servos 1-3 backed up into DIR, then changed; servo 2 pulls the plug ``when``."""
+    plug = PullsThePlug(2, when)
+    sim, url = line([VirtualServo(1), plug, VirtualServo(3)])
+    folder = tmp_path / "backup"
+    assert ics35_cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/") == 0
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    plug.line = sim
+    return sim, url, folder, plug
+
+
+def ics35_cli(*args: str) -> int:
+    with pytest.raises(SystemExit) as exited:
+        main(list(args))
+    return int(exited.value.code or 0)
+
+
+def test_restore_lost_mid_write_says_what_each_servo_holds(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(line, tmp_path, "write")
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    out = " ".join(result.out.split())
+    assert "servo 1: 1 EEPROM field(s) written and verified" in out
+    assert "servo 2: unknown: the line failed while the write was on its way" in out
+    assert "ics35 eeprom dump 2 --table" in out
+    assert "servo 3: not written (its EEPROM is as it was)" in out
+    err = " ".join(result.err.split())
+    assert "lost" in err or "unplugged" in err
+    assert f"run it again: ics35 --port {url} eeprom restore {folder}" in err
+    # What the report says is what the servos hold.
+    assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [127, 127, 99]
+    assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
+
+
+def test_restore_lost_before_the_read_back_in_json(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(line, tmp_path, "read-back")
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    servos = {s["id"]: s for s in result.json()["servos"]}
+    assert {i: s["outcome"] for i, s in servos.items()} == {1: "verified", 2: "unverified", 3: "not_written"}
+    assert [servos[i]["written"] for i in (1, 2, 3)] == [True, True, False]
+    assert "error" in servos[2] and "error" not in servos[1]
+    assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
+
+
+def test_restore_that_succeeds_reports_every_servo(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2, 3])
+    folder = tmp_path / "backup"
+    assert ics35("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/").code == 0
+    for i in (1, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+    assert result.code == 0, result.err
+    outcomes = {s["id"]: s["outcome"] for s in result.json()["servos"]}
+    assert outcomes == {1: "verified", 2: "unchanged", 3: "verified"}
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+    assert result.code == 0 and "servo 2: EEPROM already matches" in result.out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +35,7 @@ from ._common import (
     yes_option,
 )
 from ._eeprom_view import eeprom_table
-from ._eeprom_write import print_reports, write_plans
+from ._eeprom_write import WriteBatch, finish, write_plans
 
 DUMP_FORMAT = "ics35-eeprom/1"
 
@@ -329,12 +330,15 @@ def restore(
                 "its ID (--restore-id to write it)"
             )
 
-    async def body() -> list[dict[str, Any]]:
+    async def body() -> WriteBatch:
         async with settings.bus() as bus:
             plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
             return await write_plans(
                 bus, plans, yes=yes, change_baud=change_baud, allow_id_change=restore_id, as_json=as_json
             )
 
-    print_reports(run(settings, body), as_json, bulk=len(args) == 1 and Path(args[0]).is_dir())
+    again = ["ics35", *([] if settings.port_defaulted else ["--port", settings.port]), "eeprom", "restore", *args]
+    again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
+    bulk = len(args) == 1 and Path(args[0]).is_dir()
+    finish(settings, run(settings, body), as_json, bulk=bulk, again=shlex.join(again))
     return 0

@@ -9,10 +9,13 @@ from __future__ import annotations
 from .eeprom_write import (
     EepromPlan,
     EepromWriteResult,
+    ServoWriteReport,
+    WriteOutcome,
     check_changes,
     edit_image,
     plan_eeprom_write,
     write_eeprom_plan,
+    write_eeprom_plans,
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
 from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
@@ -31,6 +34,8 @@ __all__ = [
     "RateScan",
     "Refusal",
     "ScanReport",
+    "ServoWriteReport",
+    "WriteOutcome",
     "anyone_there",
     "check_changes",
     "echo_setting_wrong",
@@ -42,5 +47,6 @@ __all__ = [
     "servo_rates",
     "survey_for_id_write",
     "write_eeprom_plan",
+    "write_eeprom_plans",
     "write_lone_id",
 ]

@@ -1,5 +1,5 @@
-"""No lost work over a real serial boundary: teach, and the port pulled away (the pty simulator stopped)
-or Ctrl-C, as real processes."""
+"""No lost work over a real serial boundary: teach and eeprom restore as real processes, with the port pulled
+away (the pty simulator stopped or unplugged) or Ctrl-C."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
+from tests._cli_fixtures import edit_backup
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
 
@@ -129,3 +130,60 @@ def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
     assert code == 0, err
     assert "wrote 1 pose(s)" in out and str(taught) in " ".join(out.split())
     assert len(json.loads(taught.read_text())["keyframes"]) == 1
+
+
+def run_ics35(*args: str) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run([sys.executable, "-m", "ics35_async.cli", *args], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "COLUMNS": "200"})
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+def wait_plugged(port: str, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not Path(port).exists():
+        assert time.monotonic() < deadline, f"{port} never came back"
+        time.sleep(0.05)
+
+
+def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) -> None:
+    """Over many seeds the port disappears somewhere in a restore of three servos; whatever each servo is
+    reported as, reading it afterwards agrees: verified and unverified hold the backup, not written the old."""
+    backup = tmp_path / "backup"
+    with_backup = start_subprocess(["--ids", "1-3"], quiet=True)
+    try:
+        assert run_ics35("--port", with_backup[1], "eeprom", "dump", "1-3", "-o", f"{backup}/").returncode == 0
+    finally:
+        stop_subprocess(with_backup[0])
+    for i in (1, 2, 3):  # the backups differ from the fresh servos below: a restore writes all three
+        edit_backup(backup / f"servo-{i:02d}.json", speed=50)
+    seen: set[str] = set()
+    for seed in range(6):
+        server, port = start_subprocess(
+            ["--ids", "1-3", "--faults", "unplug@2-3:0.3", "--seed", str(seed), "--replug-after", "0.3"], quiet=True
+        )
+        try:
+            proc = run_ics35("--port", port, "eeprom", "restore", str(backup), "--yes", "--json")
+            if proc.returncode == 0:
+                outcomes = {s["id"]: s["outcome"] for s in json.loads(proc.stdout)["servos"]}
+                assert set(outcomes.values()) == {"verified"}, proc.stdout
+            elif not proc.stdout:
+                assert "nothing was written" in proc.stderr or "lost" in proc.stderr, proc.stderr
+                continue  # lost while reading the servos, before anything was written
+            else:
+                outcomes = {s["id"]: s["outcome"] for s in json.loads(proc.stdout)["servos"]}
+                assert proc.returncode == 1 and "lost" in proc.stderr, proc.stderr
+                assert f"run it again: ics35 --port {port} eeprom restore {backup}" in " ".join(proc.stderr.split())
+            seen.update(outcomes.values())
+            wait_plugged(port)
+            time.sleep(0.5)
+            for sid, outcome in outcomes.items():
+                dumped = run_ics35("--port", port, "eeprom", "dump", str(sid))
+                if dumped.returncode != 0:  # a dump can meet the unplug fault too
+                    continue
+                speed = json.loads(dumped.stdout)["fields"]["speed"]
+                expected = {"verified": 50, "unverified": 50, "not_written": 127}.get(outcome)
+                assert expected is None or speed == expected, (seed, sid, outcome, speed)
+        finally:
+            stop_subprocess(server)
+    assert {"verified", "not_written"} <= seen and seen & {"unknown", "unverified"}, seen
