@@ -21,7 +21,15 @@ answers costs one transaction instead of one per ID.
 On a line that does not enforce baud rates (a pty, some bridges) a servo
 answers at every rate.  Its EEPROM names its real rate, and the per-unit
 calibration bytes tell one servo heard at several rates from several servos,
-so each servo is listed once.
+so each servo is listed once.  An EEPROM reply carries no checksum, so an
+image counts only when two reads agree (a flipped bit would otherwise make
+one servo look like two), and reads are retried on a noisy line.  Where a
+servo's EEPROM names a rate it was not heard at, it is asked there again
+(the probes at its own rate may all have been lost).  Once one servo has
+answered at two rates, the line is known to ignore rates: a servo is then
+listed at its EEPROM's rate only, and an answer whose image could not be
+read adds no entry beside the servo read under that ID.  An ID none of
+whose images could be read is listed once, ``rate_unconfirmed``.
 
 A link known not to carry the baud rate at all (``socket://``: the far end
 keeps its own settings) is probed once, at the first rate asked for: every
@@ -76,6 +84,7 @@ class FoundServo:
     eeprom: Eeprom | None = None  # None: not read (quick scan) or the read failed
     answered_at: tuple[int, ...] = ()  # every rate it answered at (several: the line ignores rates)
     eeprom_error: ReplyError | None = None
+    rate_unconfirmed: bool = False  # its EEPROM was wanted but could not be read: ``baud`` is only where it answered
 
     @property
     def eeprom_baud(self) -> int | None:
@@ -224,11 +233,26 @@ async def probe_ids(
     )
 
 
+EEPROM_READ_ATTEMPTS = 5  # a servo that answered a probe is there: a noisy line gets more than one go
+
+
 async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
-    try:
-        return await line.request(protocol.ReadEeprom(servo_id))
-    except ReplyError as exc:
-        return exc
+    """The servo's image, read until two reads agree (an EEPROM reply carries no checksum: a flipped bit
+    that leaves a nibble a nibble reads as a valid, wrong image, and would look like another servo)."""
+    seen: list[Eeprom] = []
+    error: ReplyError | None = None
+    for _ in range(EEPROM_READ_ATTEMPTS):
+        try:
+            image = await line.request(protocol.ReadEeprom(servo_id), retries=0)
+        except ReplyError as exc:
+            error = exc
+            continue
+        if image in seen:
+            return image
+        seen.append(image)
+    if error is None:
+        error = ReplyError(f"{len(seen)} reads, no two alike (a noisy line)", command="EEPROM read", servo_id=servo_id)
+    return error
 
 
 def _check_bauds(bauds: Iterable[int]) -> list[int]:
@@ -301,7 +325,10 @@ async def scan(
         for i in rate.answered:
             hits.setdefault(i, []).append(rate.baud)
     await _read_missing_images(open_at, hits, images)
-    servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images)]
+    if not rate_blind:
+        await _confirm_eeprom_rates(open_at, hits, images, [r.baud for r in rates])
+    ignores_rates = rate_blind or _one_unit_at_several_rates(hits, images)
+    servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images, ignores_rates)]
     if rate_blind:  # the rate opened at says nothing: the EEPROM's is the servo's own
         servos = [dataclasses.replace(s, baud=s.eeprom_baud or s.baud) for s in servos]
     reasons = {baud: str(exc) for baud, exc in skipped.items()}
@@ -324,25 +351,89 @@ async def _read_missing_images(
                 images[(baud, i)] = await _read_eeprom(line, i)
 
 
+async def _confirm_eeprom_rates(
+    open_at: LineOpener,
+    hits: dict[int, list[int]],
+    images: dict[tuple[int, int], Eeprom | ReplyError],
+    probed: Sequence[int],
+) -> None:
+    """Ask a servo again at the rate its EEPROM names, where it was probed but not heard.
+
+    On a noisy line the probes (or the ID read before them) at a servo's own rate can all be lost
+    while it is heard at another: a line that ignores rates.  Read there, the same image proves it,
+    and the servo is heard at its own rate; silent there, the EEPROM holds a rate change that waits
+    for the next power-up.
+    """
+    todo: dict[int, list[tuple[int, Eeprom]]] = {}
+    for servo_id, at in hits.items():
+        for baud in at:
+            image = images.get((baud, servo_id))
+            if isinstance(image, Eeprom):
+                own = int(image.baud_rate)
+                if own in probed and own not in at and all(sid != servo_id for sid, _ in todo.get(own, [])):
+                    todo.setdefault(own, []).append((servo_id, image))
+    for baud, wanted in todo.items():
+        async with open_at(baud) as line:
+            for servo_id, image in wanted:
+                again = await _read_eeprom(line, servo_id)
+                if again == image:
+                    hits[servo_id] = sorted([*hits[servo_id], baud], key=list(probed).index)
+                    images[(baud, servo_id)] = again
+
+
+def _one_unit_at_several_rates(
+    hits: Mapping[int, Sequence[int]], images: Mapping[tuple[int, int], Eeprom | ReplyError]
+) -> bool:
+    """Whether one servo (one image, calibration bytes included) answered at two rates: then the line
+    does not enforce rates (a pty, some bridges), and every servo on it answers at every rate."""
+    for servo_id, at in hits.items():
+        read = [images.get((baud, servo_id)) for baud in at]
+        units = [image.to_bytes() for image in read if isinstance(image, Eeprom)]
+        if len(units) != len(set(units)):
+            return True
+    return False
+
+
 def _servos_of(
-    servo_id: int, at: Sequence[int], images: Mapping[tuple[int, int], Eeprom | ReplyError]
+    servo_id: int,
+    at: Sequence[int],
+    images: Mapping[tuple[int, int], Eeprom | ReplyError],
+    ignores_rates: bool = False,
 ) -> list[FoundServo]:
-    """The servos behind one ID's answers: one per distinct EEPROM image (calibration differs per unit)."""
+    """The servos behind one ID's answers: one per distinct EEPROM image (calibration differs per unit).
+
+    On a line that ignores rates (``ignores_rates``) a servo is listed at the rate its EEPROM names,
+    never at another it merely answered at, and an answer whose image could not be read makes no entry
+    of its own when a servo with this ID was read (it is that servo, heard at one more rate).  An ID
+    none of whose images could be read is listed once, its rate unconfirmed.
+    """
     groups: dict[bytes | int, list[int]] = {}
+    unread: list[int] = []
     for baud in at:
         image = images.get((baud, servo_id))
-        # An unread image cannot be matched with another: a rate of its own.
-        key: bytes | int = image.to_bytes() if isinstance(image, Eeprom) else baud
-        groups.setdefault(key, []).append(baud)
+        if isinstance(image, Eeprom):
+            groups.setdefault(image.to_bytes(), []).append(baud)
+        else:
+            unread.append(baud)
+    if unread and (ignores_rates or not groups):
+        if groups:  # the servo already read, heard again at another rate
+            first = next(iter(groups))
+            groups[first] = sorted([*groups[first], *unread], key=list(at).index)
+        else:  # one entry: which of these rates is its own, no EEPROM says
+            groups[unread[0]] = list(unread)
+    else:
+        for baud in unread:  # a line that keeps rates apart: another servo may answer there
+            groups[baud] = [baud]
     found = []
     for group in groups.values():
-        image = images.get((group[0], servo_id))
+        image = next((images.get((b, servo_id)) for b in group if isinstance(images.get((b, servo_id)), Eeprom)),
+                     images.get((group[0], servo_id)))
         eeprom = image if isinstance(image, Eeprom) else None
         listed = group[0]
-        if eeprom is not None and int(eeprom.baud_rate) in group:
+        if eeprom is not None and (int(eeprom.baud_rate) in group or ignores_rates):
             listed = int(eeprom.baud_rate)
         error = image if isinstance(image, ReplyError) else None
-        found.append(FoundServo(servo_id, listed, eeprom, tuple(group), error))
+        found.append(FoundServo(servo_id, listed, eeprom, tuple(group), error, rate_unconfirmed=error is not None))
     return found
 
 
