@@ -63,6 +63,8 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
 @group_line_options
+@click.option("--json", "json_output", is_flag=True,
+              help="Print machine-readable JSON on stdout (as the command's own --json).")
 # The version string, not package metadata: importlib.metadata alone costs ~15 ms at start-up.
 @click.version_option(__version__, prog_name="ics35")
 @click.pass_context
@@ -81,7 +83,15 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     4 no servo answered, 5 refused or not confirmed (nothing written), 6 servo answers at another baud,
     7 a robot's safety watch stopped the motion, 130 interrupted.
     """
+    json_output = line_options.pop("json_output")
     ctx.obj = settings_from(ctx, line_options)
+    ctx.obj.json_output = json_output
+    name = ctx.invoked_subcommand
+    command = cli.get_command(ctx, name) if json_output and name else None
+    if command is not None and not isinstance(command, click.Group) and not any(
+        "--json" in getattr(param, "opts", ()) for param in command.params
+    ):
+        raise click.UsageError(f"--json: `ics35 {name}` has no JSON output")
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -103,7 +103,7 @@ def parse_assignment(text: str, edit: Edit) -> None:
     edit.changes[name] = number
 
 
-@eeprom.command(name="set")
+@eeprom.command(name="set", short_help="Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH.")
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("assignments", metavar="FIELD=VALUE...", nargs=-1, required=True)
 @click.option("--change-baud", is_flag=True, help="Allow baud_rate=... (the servo then talks only at that rate).")

@@ -114,9 +114,10 @@ def write_backup(path: Path, doc: dict[str, Any]) -> None:
 @click.argument("ids", metavar="IDS", type=ID_LIST)
 @click.option("--output", "-o", metavar="FILE|DIR/", help="Write to FILE, or one file per servo into DIR/.")
 @click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
-@click.option("--json", "as_json", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
+# Not "as_json": JSON is this command's default output, not a choice made with the flag.
+@click.option("--json", "json_default", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
 @click.pass_context
-def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool, as_json: bool) -> int:
+def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool, json_default: bool) -> int:
     """Save EEPROMs as JSON (the backup format `eeprom restore` reads).
 
     \b
@@ -299,7 +300,7 @@ def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
     return backups
 
 
-@click.command()
+@click.command(short_help="Write backups made by `eeprom dump`, checked first (every diff shown, one question).")
 @click.argument("args", metavar="[ID] FILE|DIR", nargs=-1, required=True)
 @click.option("--restore-id", is_flag=True, help="Also write the ID stored in FILE (default: keep the servo's ID).")
 @click.option(
@@ -340,5 +341,15 @@ def restore(
     again = ["ics35", *([] if settings.port_defaulted else ["--port", settings.port]), "eeprom", "restore", *args]
     again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
     bulk = len(args) == 1 and Path(args[0]).is_dir()
-    finish(settings, run(settings, body), as_json, bulk=bulk, again=shlex.join(again))
+    try:
+        batch = run(settings, body)
+    except CliError as exc:
+        if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
+            source = backups[0].source
+            exc.hints.append(
+                f"{source} is a backup of servo {backups[0].saved_id}; to write it to another servo: "
+                f"ics35 eeprom restore ID {shlex.quote(source)}"
+            )
+        raise
+    finish(settings, batch, as_json, bulk=bulk, again=shlex.join(again))
     return 0

@@ -64,7 +64,10 @@ async def wait_for_line(
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(pending), 0.05)
             screen.update(hint)
-        return pending.result()
+        line = pending.result()
+        if line is not None:
+            screen.typed()
+        return line
     finally:
         pending.cancel()
 
@@ -144,8 +147,7 @@ def teach(
                             await watcher  # raises what ended the lines
                         if line is None or line.strip().lower() in QUIT:
                             return
-                        await capture(robot, names, start, keyframes)
-                        screen.update(force=True)
+                        await capture(robot, names, start, keyframes, screen)
 
                 try:
                     await handled_ctrl_c(capture_loop())
@@ -187,7 +189,7 @@ def save_taught(
                   soft_wrap=True)
 
 
-async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe]) -> None:
+async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe], screen: Screen) -> None:
     pose = await robot.read_pose()
     taken = {}
     for name in names:
@@ -202,7 +204,7 @@ async def capture(robot: Robot, names: list[str], start: float, keyframes: list[
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(round(time.monotonic() - start, 3), round(previous + 0.001, 3))
     keyframes.append(Keyframe(when, taken))
-    err.print(f"pose {len(keyframes)} at {when:.2f} s")
+    screen.say(f"pose {len(keyframes)} at {when:.2f} s")
 
 
 @click.command()

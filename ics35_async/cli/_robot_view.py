@@ -7,6 +7,7 @@ once at the end, so logs stay readable.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Sequence
 from types import TracebackType
@@ -18,7 +19,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ..robot import Robot
-from ._common import out
+from ._common import err, out
 from ._console import signed_tenths
 
 Extra = Callable[[str], Sequence[str]]
@@ -87,6 +88,27 @@ class Screen:
         self.tty = out.is_terminal
         self._live = Live(console=out, auto_refresh=False, transient=False) if self.tty else None
         self._last = time.monotonic()
+        self._said = ""
+
+    def say(self, message: str) -> None:
+        """A note for the person (on stderr); on a terminal, a line of the live view instead, since a line
+        printed beside it garbles the redraw (the table's title twice on the screen)."""
+        if self._live is None:
+            err.print(message)
+            return
+        self._said = message
+        self.update(force=True)
+
+    def typed(self) -> None:
+        """A line was typed on the terminal: its echoed newline moved the cursor below the live view, so the
+        next redraw would start one line low and leave the old title on the screen; step back up."""
+        if self._live is not None and sys.stdin.isatty():
+            out.file.write("\x1b[1A")
+            out.file.flush()
+
+    def _lines(self, hint: str) -> Group:
+        said = [Text.from_markup(self._said)] if self._said else []
+        return Group(self.render(), *said, Text(f"{self.summary()}   {hint}".rstrip()))
 
     def __enter__(self) -> Screen:
         if self._live is not None:
@@ -98,7 +120,7 @@ class Screen:
         if self._live is not None:
             if force or now - self._last >= 0.1:
                 self._last = now
-                self._live.update(Group(self.render(), Text(f"{self.summary()}   {hint}".rstrip())))
+                self._live.update(self._lines(hint))
                 self._live.refresh()
         elif force or now - self._last >= 1.0:
             self._last = now
@@ -108,7 +130,7 @@ class Screen:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         if self._live is not None:
-            self._live.update(Group(self.render(), Text(self.summary())))
+            self._live.update(self._lines(""))
             self._live.refresh()
             self._live.stop()
         else:
