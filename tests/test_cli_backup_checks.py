@@ -195,3 +195,19 @@ def test_restore_that_succeeds_reports_every_servo(ics35: Any, line: Any, tmp_pa
     assert outcomes == {1: "verified", 2: "unchanged", 3: "verified"}
     result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
     assert result.code == 0 and "servo 2: EEPROM already matches" in result.out
+
+
+def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(ics35: Any, line: Any, tmp_path: Path) -> None:
+    """An EEPROM reply has no checksum: a corrupted nibble reads as a valid image.  A backup is saved only
+    from two reads that agree, so it is the servo's image or no backup at all."""
+    saved = 0
+    for seed in range(12):
+        sim, url = line([1], faults="corrupt@1:0.4", seed=seed)
+        backup = tmp_path / f"servo-{seed}.json"
+        result = ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup))
+        if result.code != 0:
+            assert not backup.exists()
+            continue
+        saved += 1
+        assert json.loads(backup.read_text())["raw"] == sim.servo(1).eeprom.to_bytes().hex(), seed
+    assert saved >= 8

@@ -17,7 +17,7 @@ from rich.markup import escape
 from .. import protocol
 from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError
-from ..policies import check_changes, plan_eeprom_write, probe_ids
+from ..policies import check_changes, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -86,14 +86,15 @@ def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str,
 
 async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
     """One servo's image (its errors raise), or the images of those of several that answer."""
+    # Read until two reads agree: an EEPROM reply has no checksum, and a backup is written back one day.
     async with settings.bus() as bus:
         if len(ids) == 1:
-            return {ids[0]: await bus.servo(ids[0]).read_eeprom()}
+            return {ids[0]: await read_eeprom_agreed(bus, ids[0])}
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
         for i in rate.answered:
             try:
-                images[i] = await bus.servo(i).read_eeprom()
+                images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
         if not images:

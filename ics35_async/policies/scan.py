@@ -236,12 +236,17 @@ async def probe_ids(
 EEPROM_READ_ATTEMPTS = 5  # a servo that answered a probe is there: a noisy line gets more than one go
 
 
-async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
-    """The servo's image, read until two reads agree (an EEPROM reply carries no checksum: a flipped bit
-    that leaves a nibble a nibble reads as a valid, wrong image, and would look like another servo)."""
+async def read_eeprom_agreed(line: Line, servo_id: int, *, attempts: int = EEPROM_READ_ATTEMPTS) -> Eeprom:
+    """Servo ``servo_id``'s EEPROM image, read until two reads agree (at most ``attempts`` reads).
+
+    An EEPROM reply carries no checksum: a flipped bit that leaves a nibble a nibble reads as a valid,
+    wrong image (in a scan it would look like another servo; in a backup it would be written back
+    one day).  Raises the last read's ReplyError, or a ReplyError saying no two reads agreed.
+    """
+    check_int("attempts", attempts, 2, 20)
     seen: list[Eeprom] = []
     error: ReplyError | None = None
-    for _ in range(EEPROM_READ_ATTEMPTS):
+    for _ in range(attempts):
         try:
             image = await line.request(protocol.ReadEeprom(servo_id), retries=0)
         except ReplyError as exc:
@@ -250,9 +255,16 @@ async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
         if image in seen:
             return image
         seen.append(image)
-    if error is None:
-        error = ReplyError(f"{len(seen)} reads, no two alike (a noisy line)", command="EEPROM read", servo_id=servo_id)
-    return error
+    if error is None or len(seen) > 1:
+        error = ReplyError(f"{len(seen)} reads, no two alike (a noisy line)", command="read_eeprom", servo_id=servo_id)
+    raise error
+
+
+async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
+    try:
+        return await read_eeprom_agreed(line, servo_id)
+    except ReplyError as exc:
+        return exc
 
 
 def _check_bauds(bauds: Iterable[int]) -> list[int]:
