@@ -1,5 +1,7 @@
-"""`eeprom restore` checks a backup whole before anything goes on the wire: each damaged backup is exit 2,
-names the file and what is wrong, and the line sees no transaction at all."""
+"""No lost work on the command line: `eeprom restore` checks a backup whole before anything goes on the wire
+(each damaged backup is exit 2, names the file and what is wrong, and the line sees no transaction at all);
+`eeprom dump` saves only an image two reads agree on; and a write to several servos (restore, free) says,
+servo by servo, what happened, also when the line is lost half-way."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode, main
-from ics35_async.protocol import ReadEeprom, WriteEeprom
+from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests._cli_fixtures import edit_backup, ics35, line
 
@@ -211,3 +213,28 @@ def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(ics35: Any, line: An
         saved += 1
         assert json.loads(backup.read_text())["raw"] == sim.servo(1).eeprom.to_bytes().hex(), seed
     assert saved >= 8
+
+
+class UnpluggedWhenFreed(VirtualServo):
+    """A servo at whose free command the adapter is pulled out: it goes free, its reply never gets back."""
+
+    line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if self.line is not None and isinstance(command, Position) and command.position == 0:
+            self.line.unplug()
+        return reply
+
+
+def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(ics35: Any, line: Any) -> None:
+    puller = UnpluggedWhenFreed(2)
+    sim, url = line([VirtualServo(1), puller, VirtualServo(3)])
+    puller.line = sim
+    result = ics35("--port", url, "free", "1-3")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "servo 1: free at 7500" in result.out
+    assert "servo 2: unknown: the line was lost before it answered" in " ".join(result.out.split())
+    assert "servo 3: unknown" in result.out
+    assert "lost" in result.err or "unplugged" in result.err
+    assert [t.servo_id for t in sim.log] == [1, 2]  # servo 3 never heard its free: unknown is right
