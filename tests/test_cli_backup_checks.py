@@ -163,7 +163,7 @@ def test_restore_lost_mid_write_says_what_each_servo_holds(ics35: Any, line: Any
     assert result.code == ExitCode.COMMUNICATION, result.err
     out = " ".join(result.out.split())
     assert "servo 1: 1 EEPROM field(s) written and verified" in out
-    assert "servo 2: unknown: the line failed while the write was on its way" in out
+    assert "servo 2: unknown: the command stopped while the write was on its way" in out
     assert "ics35 eeprom dump 2 --table" in out
     assert "servo 3: not written (its EEPROM is as it was)" in out
     err = " ".join(result.err.split())

@@ -7,6 +7,8 @@ them in front of a person.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -113,6 +115,7 @@ class WriteBatch:
 
     reports: list[dict[str, Any]]
     error: IcsError | None = None
+    interrupted: bool = False  # Ctrl-C ended the writes
 
 
 async def write_plans(
@@ -140,10 +143,20 @@ async def write_plans(
         f"servo {pending[0].servo_id}'s" if len(pending) == 1 else f"servos {ids_text(p.servo_id for p in pending)}'"
     )
     confirm(f"Write these {count} change(s) to {servos} EEPROM?", yes)
-    done = await write_eeprom_plans(bus, pending, allow_baud_change=change_baud, allow_id_change=allow_id_change)
+    done: list[ServoWriteReport] = []
+    task = asyncio.current_task()
+    with contextlib.suppress(asyncio.CancelledError):
+        await write_eeprom_plans(
+            bus, pending, allow_baud_change=change_baud, allow_id_change=allow_id_change, on_report=done.append
+        )
+    # Ctrl-C (the task cancelled; a request it cut short may have ended as a timeout instead): the account of
+    # every servo is printed before the command ends with exit code 130.
+    interrupted = task is not None and task.cancelling() > 0
+    while task is not None and task.cancelling():
+        task.uncancel()
     by_id = {report.plan.servo_id: report for report in done}
     error = next((report.error for report in done if report.error is not None), None)
-    return WriteBatch([report_of(plan, by_id.get(plan.servo_id)) for plan in plans], error)
+    return WriteBatch([report_of(plan, by_id.get(plan.servo_id)) for plan in plans], error, interrupted)
 
 
 def print_done(report: dict[str, Any], *, whole: bool) -> None:
@@ -158,12 +171,12 @@ def print_done(report: dict[str, Any], *, whole: bool) -> None:
         out.print(f"servo {sid}: [bold]not written[/bold] (its EEPROM is as it was)")
         return
     if outcome is WriteOutcome.UNKNOWN:
-        out.print(f"servo {sid}: [bold red]unknown[/bold red]: the line failed while the write was on its way, so "
-                  f"the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table")
+        out.print(f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
+                  f"so the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table")
         return
     if outcome is WriteOutcome.UNVERIFIED:
-        out.print(f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the line failed "
-                  f"before the read-back; check with: ics35 eeprom dump {sid} --table")
+        out.print(f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
+                  f"stopped before the read-back; check with: ics35 eeprom dump {sid} --table")
         return
     if outcome is WriteOutcome.DIFFERS:
         out.print(f"servo {sid}: [bold red]written, but the image read back differs[/bold red]")
@@ -200,12 +213,16 @@ def finish(settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool =
         emit_json({"servos": batch.reports} if bulk else batch.reports[0])
     else:
         for report in batch.reports:
-            print_done(report, whole=batch.error is not None)
-    if batch.error is None:
+            print_done(report, whole=batch.error is not None or batch.interrupted)
+    if batch.interrupted:
+        failure = CliError(ExitCode.INTERRUPTED, "interrupted: the servos above say what each holds")
+    elif batch.error is None:
         return
-    failure = no_reply_error(settings, batch.error) if isinstance(batch.error, ReplyTimeout) else translate(
-        settings, batch.error
-    )
+    elif isinstance(batch.error, ReplyTimeout):
+        failure = no_reply_error(settings, batch.error)
+    else:
+        failure = translate(settings, batch.error)
     if again:
-        failure.hints.append(f"when the line is back, run it again: {again} (servos already written are skipped)")
+        when = "to finish" if batch.interrupted else "when the line is back"
+        failure.hints.append(f"{when}, run it again: {again} (servos already written are skipped)")
     raise failure

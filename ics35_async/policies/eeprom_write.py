@@ -20,7 +20,7 @@ The rules, in order:
 from __future__ import annotations
 
 import enum
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -274,8 +274,8 @@ class WriteOutcome(enum.Enum):
     VERIFIED = "written and verified"
     UNCHANGED = "already matched: nothing written"
     NOT_WRITTEN = "not written"
-    UNKNOWN = "unknown: the line failed while the write was on its way"
-    UNVERIFIED = "written, not verified: the line failed before the read-back"
+    UNKNOWN = "unknown: the line failed (or Ctrl-C came) while the write was on its way"
+    UNVERIFIED = "written, not verified: the line failed (or Ctrl-C came) before the read-back"
     DIFFERS = "written, but the image read back differs"
 
 
@@ -295,33 +295,47 @@ async def write_eeprom_plans(
     *,
     allow_baud_change: bool = False,
     allow_id_change: bool = False,
+    on_report: Callable[[ServoWriteReport], None] | None = None,
 ) -> list[ServoWriteReport]:
     """Write ``plans`` in order (each as :func:`write_eeprom_plan`), one report per plan.
 
     A servo's failure is not raised: it ends the batch, its report says how
     far that write got and carries the error, and every later servo is
     NOT_WRITTEN.  So a line lost in the middle of a restore still tells which
-    servos hold their new image.
+    servos hold their new image.  ``on_report`` hears each report as it is
+    made; when the batch is cancelled (Ctrl-C) it still hears every servo's
+    (the one being written: as far as it got) before the cancellation goes on.
     """
     reports: list[ServoWriteReport] = []
+
+    def add(report: ServoWriteReport) -> None:
+        reports.append(report)
+        if on_report is not None:
+            on_report(report)
+
     failed = False
-    for plan in plans:
+    for n, plan in enumerate(plans):
         if failed:
-            reports.append(ServoWriteReport(plan, WriteOutcome.NOT_WRITTEN))
+            add(ServoWriteReport(plan, WriteOutcome.NOT_WRITTEN))
             continue
         progress = _Progress()
         try:
             result = await _write(line, plan, allow_baud_change, allow_id_change, progress)
         except IcsError as exc:
             failed = True
-            reports.append(ServoWriteReport(plan, _failed_outcome(exc, progress), error=exc))
+            add(ServoWriteReport(plan, _failed_outcome(progress), error=exc))
             continue
+        except BaseException:  # cancelled mid-write: account for every servo, then stay cancelled
+            add(ServoWriteReport(plan, _failed_outcome(progress)))
+            for rest in plans[n + 1 :]:
+                add(ServoWriteReport(rest, WriteOutcome.NOT_WRITTEN))
+            raise
         outcome = WriteOutcome.VERIFIED if result.written else WriteOutcome.UNCHANGED
-        reports.append(ServoWriteReport(plan, outcome, result))
+        add(ServoWriteReport(plan, outcome, result))
     return reports
 
 
-def _failed_outcome(exc: IcsError, progress: _Progress) -> WriteOutcome:
+def _failed_outcome(progress: _Progress) -> WriteOutcome:
     if progress.acknowledged:
         # The read-back answered and differs, or the line failed before it could.
         return WriteOutcome.DIFFERS if progress.read_back is not None else WriteOutcome.UNVERIFIED
