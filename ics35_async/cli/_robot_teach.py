@@ -147,7 +147,12 @@ def teach(
                             await watcher  # raises what ended the lines
                         if line is None or line.strip().lower() in QUIT:
                             return
-                        await capture(robot, names, start, keyframes, screen)
+                        try:
+                            await capture(robot, names, start, keyframes, screen)
+                        except IcsError:
+                            lost.append(True)  # the lines ended while the pose was read
+                            screen.update(force=True)
+                            raise
 
                 try:
                     await handled_ctrl_c(capture_loop())
@@ -158,7 +163,7 @@ def teach(
 
     try:
         run_robot(settings, description, body)
-    except CliError:
+    except BaseException:
         # Lost port, error or Ctrl-C: the poses captured so far are written before the error is told.
         if keyframes:
             save_taught(keyframes, profile, name, target, robot_file, on_error=True)
