@@ -19,18 +19,8 @@ from .eeprom_write import (
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
 from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
-from .scan import (
-    ALL_BAUDS,
-    ALL_IDS,
-    FoundServo,
-    RateScan,
-    ScanReport,
-    anyone_there,
-    probe_ids,
-    read_eeprom_agreed,
-    scan,
-    servo_rates,
-)
+from .scan import ALL_BAUDS, ALL_IDS, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
+from .scan_units import FoundServo, read_eeprom_agreed
 
 __all__ = [
     "ALL_BAUDS",
