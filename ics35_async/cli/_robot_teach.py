@@ -264,13 +264,13 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                         track(frame)
 
             with Screen(table, summary) as screen:
-                err.print("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
+                screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                 if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
                     raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
                 pose = await robot.read_pose()
                 neutral.update({n: robot.joints[n].servo_degrees(pose[n]) for n in names if n in pose})
                 step[0] = "range"
-                err.print("now move each joint through its whole range by hand, then Enter")
+                screen.say("now move each joint through its whole range by hand, then Enter")
                 tracking = asyncio.ensure_future(track_every_frame())
                 try:
                     if await wait_for_line(lines, screen, "Enter: done") is None:
