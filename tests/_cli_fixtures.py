@@ -6,16 +6,19 @@ finds fixtures by name in the module's namespace.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import itertools
 import json
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from ics35_async.cli import main
+from ics35_async.eeprom import EEPROM_FIELDS, Eeprom
 from ics35_async.sim import VirtualLine
 
 
@@ -67,3 +70,16 @@ def line() -> Iterator[Any]:
     yield make
     for sim in made:
         sim.close()
+
+
+def edit_backup(path: Path, **changes: Any) -> dict[str, Any]:
+    """Change fields of an `eeprom dump` backup as a careful person would: the raw image and the fields
+    together (a backup whose halves disagree is refused).  Values go in unchecked, as a hand edit would."""
+    doc: dict[str, Any] = json.loads(path.read_text())
+    image = dataclasses.replace(Eeprom.from_bytes(bytes.fromhex(doc["raw"])), **changes)
+    stated = image.to_dict()
+    doc["raw"] = stated["raw"]
+    doc["fields"] = {name: stated[name] for name in EEPROM_FIELDS}
+    doc["flags_names"] = stated["flags_names"]
+    path.write_text(json.dumps(doc, indent=2))
+    return doc

@@ -10,8 +10,10 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
+from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
-from tests._cli_fixtures import ics35, line
+from ics35_async.sim.servo import NO_REPLY
+from tests._cli_fixtures import edit_backup, ics35, line
 
 __all__ = ["ics35", "line"]  # the shared fixtures, used by name
 
@@ -104,6 +106,47 @@ def test_scan_lists_each_servo_once_on_a_line_that_ignores_rates(ics35: Any, lin
     assert "2 servo(s) found" in text.out and "does not enforce rates" in text.err
 
 
+class EepromUnreadable(VirtualServo):
+    """A servo that answers probes but whose EEPROM reads never come back (a reply too long for a bad line)."""
+
+    def handle(self, command: Any) -> Any:
+        return NO_REPLY if isinstance(command, ReadEeprom) else super().handle(command)
+
+
+def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(ics35: Any, line: Any) -> None:
+    sim, url = line([VirtualServo(1), EepromUnreadable(2)], follow_host_baud=False)
+    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json")
+    assert result.code == 0, result.err
+    servos = {s["id"]: s for s in result.json()["servos"]}
+    assert sorted(servos) == [1, 2]  # servo 2 once, though it answered at three rates and was never read
+    assert servos[1]["rate_confirmed"] and servos[1]["baud"] == 115200
+    assert not servos[2]["rate_confirmed"] and servos[2]["eeprom"] is None
+    assert servos[2]["answered_at"] == [115200, 625000, 1250000]
+    reads = [t for t in sim.log if t.command == "read_eeprom" and t.servo_id == 2]
+    assert len(reads) >= 3  # retried before giving up
+    text = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    assert "rate unconfirmed" in " ".join(text.out.split()) and " 115200? " in text.out
+    assert "servo 2: its EEPROM could not be read (after retries), so its rate is unconfirmed" in " ".join(
+        text.err.split()
+    )
+
+
+@pytest.mark.parametrize("level", [0.15, 0.30])
+def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(ics35: Any, line: Any, level: float) -> None:
+    each = level / 4
+    for seed in range(6):
+        faults = f"drop:{each},truncate:{each},corrupt:{each},late:{each}"
+        _, url = line([1, 2, 5], follow_host_baud=False, faults=faults, seed=seed)
+        result = ics35("--port", url, "scan", "--ids", "0-7", "--timeout", "0.005", "--json")
+        assert result.code == 0, result.err
+        listed = [(s["id"], s["baud"], s["rate_confirmed"]) for s in result.json()["servos"]]
+        ids = [i for i, _, _ in listed]
+        assert len(ids) == len(set(ids)), (seed, listed)
+        assert all(baud == 115200 for _, baud, confirmed in listed if confirmed), (seed, listed)
+        if level == 0.15:
+            assert listed == [(1, 115200, True), (2, 115200, True), (5, 115200, True)], (seed, listed)
+
+
 def test_no_advice_of_a_rate_the_eeprom_contradicts(ics35: Any, line: Any) -> None:
     _, url = line([LossyAt115200(1)])
     result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
@@ -189,16 +232,13 @@ def test_bulk_dump_saves_the_servos_that_answer(ics35: Any, line: Any, tmp_path:
 def test_bulk_restore_checks_every_file_before_writing_any(ics35: Any, line: Any, tmp_path: Path) -> None:
     sim, url = line([1, 2])
     assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
-    doc = json.loads((tmp_path / "servo-02.json").read_text())
-    doc["fields"]["speed"] = 500
-    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    edit_backup(tmp_path / "servo-02.json", speed=500)
     before = sim.transactions
     result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.USAGE and "servo-02.json" in result.err
     assert sim.transactions == before
 
-    doc["fields"]["speed"], doc["fields"]["baud_rate"] = 50, 1250000
-    (tmp_path / "servo-02.json").write_text(json.dumps(doc))
+    edit_backup(tmp_path / "servo-02.json", speed=50, baud_rate=BaudRate.B1250000)
     result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.REFUSED and "--change-baud" in result.err
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
@@ -233,9 +273,7 @@ def test_restore_with_change_baud_verifies_at_both_rates(ics35: Any, line: Any, 
     sim, url = line([1])
     backup = tmp_path / "one.json"
     assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
-    doc = json.loads(backup.read_text())
-    doc["fields"]["baud_rate"] = 625000
-    backup.write_text(json.dumps(doc))
+    edit_backup(backup, baud_rate=BaudRate.B625000)
     result = ics35("--port", url, "eeprom", "restore", "1", str(backup), "--change-baud", "--yes", "--json")
     assert result.code == 0, result.err
     assert result.json()["answers_at_new_rate"] is False  # the simulated servo switches at power-up

@@ -192,3 +192,29 @@ async def test_a_write_the_servo_does_not_keep_fails_verification() -> None:
         plan = await plan_eeprom_write(bus, 1, {"speed": 90})
         with pytest.raises(VerifyError, match="differs"):
             await write_eeprom_plan(bus, plan)
+
+
+async def test_a_batch_cancelled_mid_write_still_accounts_for_every_servo() -> None:
+    """Ctrl-C while the second of three writes waits for its answer: the report says written / unknown / not
+    written, then the cancellation goes on; what the servos hold agrees."""
+    import asyncio
+
+    from ics35_async.policies import ServoWriteReport, WriteOutcome, write_eeprom_plans
+
+    sim = VirtualLine([1, 2, 3], realtime=True, eeprom_write_delay=0.1, log_size=None)
+    heard: list[ServoWriteReport] = []
+    try:
+        async with open_bus(sim) as bus:
+            plans = [await plan_eeprom_write(bus, i, {"speed": 40}) for i in (1, 2, 3)]
+            batch = asyncio.ensure_future(write_eeprom_plans(bus, plans, on_report=heard.append))
+            while sim.servo(2).eeprom_writes == 0:  # servo 2 has taken the write; its answer is 0.1 s away
+                await asyncio.sleep(0.001)
+            batch.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await batch
+    finally:
+        sim.close()
+    assert [(r.plan.servo_id, r.outcome, r.error) for r in heard] == [
+        (1, WriteOutcome.VERIFIED, None), (2, WriteOutcome.UNKNOWN, None), (3, WriteOutcome.NOT_WRITTEN, None)
+    ]
+    assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [40, 40, 127]  # 2 got it: unknown was honest

@@ -262,3 +262,34 @@ async def test_a_cut_reply_is_garbled_and_no_reply_is_silence(lines: Any, seed: 
         assert isinstance(rate.garbled[2], PartialReply)
     else:
         assert 2 not in rate.garbled
+
+
+def noisy_rate_blind_line(lines: Any, level: float, seed: int) -> VirtualLine:
+    """Servos 1, 2 and 5 (EEPROM: 115200) on a line that answers at every rate, like a pty, with ``level``
+    of the replies dropped, truncated, corrupted or late."""
+    each = level / 4
+    faults = f"drop:{each},truncate:{each},corrupt:{each},late:{each}"
+    return lines([VirtualServo(1), VirtualServo(2), VirtualServo(5)], follow_host_baud=False, faults=faults,
+                 seed=seed)
+
+
+@pytest.mark.parametrize("level", [0.15, 0.30])
+async def test_a_noisy_line_that_ignores_rates_never_lists_a_servo_twice_or_at_a_contradicted_rate(
+    lines: Any, level: float
+) -> None:
+    listed_once = 0
+    for seed in range(16):
+        sim = noisy_rate_blind_line(lines, level, seed)
+        report = await scan(opener(sim), ids=range(8))
+        ids = [s.servo_id for s in report.servos]
+        assert len(ids) == len(set(ids)), (seed, report.servos)  # never twice
+        assert set(ids) <= {1, 2, 5}, (seed, report.servos)
+        for found in report.servos:
+            if found.rate_unconfirmed:  # the entry says so: its EEPROM could not be read
+                assert found.eeprom is None and found.eeprom_error is not None, (seed, found)
+            else:  # a listed rate is the one its EEPROM names
+                assert found.eeprom is not None and found.baud == found.eeprom_baud == 115200, (seed, found)
+        listed_once += sorted(ids) == [1, 2, 5] and not any(s.rate_unconfirmed for s in report.servos)
+        if level == 0.15:  # with reads retried, every servo is found and confirmed
+            assert sorted(ids) == [1, 2, 5] and not any(s.rate_unconfirmed for s in report.servos), (seed, report)
+    assert listed_once >= 8  # most scans find every servo even at 30%

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async.cli import main
+from ics35_async.cli import ExitCode, main
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
@@ -258,6 +258,8 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(rig: tuple[Rig
     )
     assert result.code == 0, result.err
     assert "comments kept" in result.out
+    assert f"kept as {robot_file}.bak" in " ".join(result.out.split())
+    assert Path(f"{robot_file}.bak").read_text() == CALIBRATE_FILE.format(**ports)  # the file as it was
     text = robot_file.read_text()
     assert "# my arm" in text and "# the left adapter" in text and "# degrees: trimmed by calibrate" in text
     data = tomllib.loads(text)
@@ -279,13 +281,56 @@ def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(rig: tupl
         'joints.neck = {line = "upper", id = 1}   # inline: cannot be edited in place\n'
     )
     robot_file.write_text(original)
+    neck = sims.servo("neck")
+
+    def swing() -> None:
+        neck.move_by_hand(6000)
+        settle_on(sims.upper)
+        neck.move_by_hand(9000)
+
     result = run_with_hands(["calibrate", str(robot_file), "--joints", "neck"],
-                            [("neutral (every joint at 0)", None, "\n"), ("whole range", None, "\n")], [sims.upper])
+                            [("neutral (every joint at 0)", None, "\n"), ("whole range", swing, "\n")], [sims.upper])
     assert result.code == 0, result.err
     assert robot_file.read_text() == original
     beside = tmp_path / "inline.calibrated.toml"
     assert "inline.calibrated.toml" in result.err
     assert load_description(beside).joints["neck"].offset == pytest.approx(0.0)
+    assert not Path(f"{robot_file}.bak").exists()  # the robot file itself was not touched
+
+
+def settle_on(sim: VirtualLine) -> None:
+    """Let the robot see a hand move: a few hundred transactions on its line."""
+    mark = sim.transactions
+    while sim.transactions < mark + 300:
+        threading.Event().wait(0.005)
+
+
+def test_calibrate_refuses_a_joint_not_moved_through_its_range(rig: tuple[Rig, Path], tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """Enter twice without moving: a zero-width range would forbid every motion; nothing is written."""
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, _ = rig
+    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    neck, hip = sims.servo("neck"), sims.servo("hip")
+
+    def hip_only() -> None:  # the hip swings 40 degrees, the neck moves 3
+        neck.move_by_hand(7500 + round(3 * 8000 / 270))
+        hip.move_by_hand(7500 - round(20 * 8000 / 270))
+        settle_on(sims.lower)
+        hip.move_by_hand(7500 + round(20 * 8000 / 270))
+
+    result = run_with_hands(["calibrate", str(robot_file)],
+                            [("neutral (every joint at 0)", None, "\n"), ("whole range", hip_only, "\n")],
+                            [sims.upper, sims.lower])
+    assert result.code == ExitCode.REFUSED, result.err
+    message = " ".join(result.err.split())
+    assert "joint neck moved over 3.0 degrees only, less than the 5" in message
+    assert "hip" not in message.split("hint")[0]  # the hip's range was fine
+    assert f"Nothing was written to {robot_file}" in message
+    assert robot_file.read_text() == CALIBRATE_FILE.format(**ports)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "robot.toml"]  # no backup, no side file
 
 
 def test_teach_and_calibrate_refuse_bad_arguments(ics35: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:

@@ -76,6 +76,8 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
 @group_line_options
+@click.option("--json", "json_output", is_flag=True,
+              help="Print machine-readable JSON on stdout (as the command's own --json).")
 # The version string, not package metadata: importlib.metadata alone costs ~15 ms at start-up.
 @click.version_option(__version__, prog_name="ics35")
 @click.pass_context
@@ -91,7 +93,15 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     ics35 scan --port /dev/ttyUSB0.  Commands that change a servo need an explicit
     --port (or ICS35_PORT): the default simulator would forget the change at once.
     """
+    json_output = line_options.pop("json_output")
     ctx.obj = settings_from(ctx, line_options)
+    ctx.obj.json_output = json_output
+    name = ctx.invoked_subcommand
+    command = cli.get_command(ctx, name) if json_output and name else None
+    if command is not None and not isinstance(command, click.Group) and not any(
+        "--json" in getattr(param, "opts", ()) for param in command.params
+    ):
+        raise click.UsageError(f"--json: `ics35 {name}` has no JSON output")
 
 
 # Written from the enum, the one place that defines the codes (the docs' table is generated from it too).

@@ -13,7 +13,7 @@ from rich.table import Table
 from .. import policies, protocol, units
 from ..bus import Bus
 from ..eeprom import Eeprom
-from ..errors import InvalidArgument, ReplyError, ReplyTimeout
+from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout
 from ..protocol import Param
 from ._common import (
     ID_LIST,
@@ -33,6 +33,7 @@ from ._common import (
     settings_of,
     temperature_json,
     temperature_text,
+    translate,
 )
 from ._eeprom_view import eeprom_table
 from ._scan import scan, set_id
@@ -195,38 +196,47 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
     except click.BadParameter as exc:
         raise click.BadParameter(exc.message, param_hint="IDS") from None
 
-    async def body() -> dict[int, int | ReplyError]:
+    async def body() -> tuple[dict[int, int | IcsError], IcsError | None]:
         async with settings.bus() as bus:
             results = await asyncio.gather(*(bus.servo(i).free() for i in wanted), return_exceptions=True)
-        done: dict[int, int | ReplyError] = {}
+        done: dict[int, int | IcsError] = {}
         for i, r in zip(wanted, results, strict=True):
-            if isinstance(r, ReplyError):
+            if isinstance(r, IcsError):
                 done[i] = r
             elif isinstance(r, BaseException):
                 raise r
             else:
                 done[i] = r
-        if all(isinstance(r, ReplyError) for r in done.values()):
+        # A line lost half-way: the servos freed before it are told apart from the rest, then the loss.
+        lost = next((r for r in done.values() if isinstance(r, IcsError) and not isinstance(r, ReplyError)), None)
+        if lost is None and all(isinstance(r, ReplyError) for r in done.values()):
             first = next(iter(done.values()))
             assert isinstance(first, ReplyError)
             raise first
-        return done
+        return done, lost
 
-    done = run(settings, body)
+    done, lost = run(settings, body)
     failed = {i: r for i, r in done.items() if isinstance(r, ReplyError)}
+    unknown = [i for i, r in done.items() if isinstance(r, IcsError) and not isinstance(r, ReplyError)]
     if as_json:
         emit_json(
             {
                 "freed": {str(i): p for i, p in done.items() if isinstance(p, int)},
                 "failed": {str(i): str(e) for i, e in failed.items()},
+                **({"unknown": [str(i) for i in unknown]} if unknown else {}),
             }
         )
     else:
         for i, p in done.items():
             if isinstance(p, int):
                 out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
+            elif i in unknown:
+                out.print(f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still "
+                          "holding)")
             else:
                 err.print(f"[red]servo {i}: no answer[/red] ({escape(str(p))})")
+    if lost is not None:
+        raise translate(settings, lost)
     if failed:
         timed_out = any(isinstance(e, ReplyTimeout) for e in failed.values())
         code = ExitCode.NO_REPLY if timed_out else ExitCode.COMMUNICATION

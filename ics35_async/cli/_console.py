@@ -7,18 +7,30 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
+import click
 from rich.console import Console
 from rich.markup import escape
 
 from .. import units
-from ._settings import CliError
+from ._settings import CliError, Settings
 
 out = Console(highlight=False, soft_wrap=True)
 err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
+SIMULATED_KEY = "simulated"  # in a JSON result read from the implicit built-in simulator
+
+
 def emit_json(value: Any) -> None:
-    """One JSON document on stdout (plain print: rich would wrap long lines)."""
+    """One JSON document on stdout (plain print: rich would wrap long lines).
+
+    A result read from the implicit built-in simulator says so (``"simulated": true``): plausible fake
+    data must not pass for a robot's.
+    """
+    context = click.get_current_context(silent=True)
+    settings = context.find_object(Settings) if context is not None else None
+    if settings is not None and settings.simulated and isinstance(value, dict):
+        value = {**value, SIMULATED_KEY: True}
     sys.stdout.write(json.dumps(value, sort_keys=False) + "\n")
     sys.stdout.flush()
 

@@ -11,7 +11,6 @@ already answers.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import click
 
@@ -20,7 +19,7 @@ from ..errors import InvalidArgument, MalformedEeprom
 from ..policies import check_changes, plan_eeprom_write
 from ._common import SERVO_ID, json_option, run, settings_of, yes_option
 from ._eeprom_backup import dump, restore
-from ._eeprom_write import print_reports, write_plans
+from ._eeprom_write import WriteBatch, finish, write_plans
 
 FIELD_ALIASES = {"baud": "baud_rate", "id": "servo_id", "stretch": "stretch_gain"}
 
@@ -104,7 +103,7 @@ def parse_assignment(text: str, edit: Edit) -> None:
     edit.changes[name] = number
 
 
-@eeprom.command(name="set")
+@eeprom.command(name="set", short_help="Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH.")
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("assignments", metavar="FIELD=VALUE...", nargs=-1, required=True)
 @click.option("--change-baud", is_flag=True, help="Allow baud_rate=... (the servo then talks only at that rate).")
@@ -140,7 +139,7 @@ def set_fields(
     except (InvalidArgument, MalformedEeprom) as exc:
         raise click.BadParameter(str(exc), param_hint="FIELD=VALUE") from None
 
-    async def body() -> list[dict[str, Any]]:
+    async def body() -> WriteBatch:
         async with settings.bus() as bus:
             plan = await plan_eeprom_write(
                 bus, servo_id, edit.changes, set_flags=edit.set_flags, clear_flags=edit.clear_flags
@@ -154,7 +153,7 @@ def set_fields(
                 as_json=as_json,
             )
 
-    print_reports(run(settings, body), as_json)
+    finish(settings, run(settings, body), as_json)
     return 0
 
 

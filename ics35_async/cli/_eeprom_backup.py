@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,9 +15,9 @@ import click
 from rich.markup import escape
 
 from .. import protocol
-from ..eeprom import EEPROM_FIELDS, Eeprom
+from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError
-from ..policies import check_changes, plan_eeprom_write, probe_ids
+from ..policies import check_changes, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -34,7 +35,7 @@ from ._common import (
     yes_option,
 )
 from ._eeprom_view import eeprom_table
-from ._eeprom_write import print_reports, write_plans
+from ._eeprom_write import WriteBatch, finish, write_plans
 
 DUMP_FORMAT = "ics35-eeprom/1"
 
@@ -85,14 +86,15 @@ def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str,
 
 async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
     """One servo's image (its errors raise), or the images of those of several that answer."""
+    # Read until two reads agree: an EEPROM reply has no checksum, and a backup is written back one day.
     async with settings.bus() as bus:
         if len(ids) == 1:
-            return {ids[0]: await bus.servo(ids[0]).read_eeprom()}
+            return {ids[0]: await read_eeprom_agreed(bus, ids[0])}
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
         for i in rate.answered:
             try:
-                images[i] = await bus.servo(i).read_eeprom()
+                images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
         if not images:
@@ -113,9 +115,10 @@ def write_backup(path: Path, doc: dict[str, Any]) -> None:
 @click.argument("ids", metavar="IDS", type=ID_LIST)
 @click.option("--output", "-o", metavar="FILE|DIR/", help="Write to FILE, or one file per servo into DIR/.")
 @click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
-@click.option("--json", "as_json", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
+# Not "as_json": JSON is this command's default output, not a choice made with the flag.
+@click.option("--json", "json_default", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
 @click.pass_context
-def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool, as_json: bool) -> int:
+def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool, json_default: bool) -> int:
     """Save EEPROMs as JSON (the backup format `eeprom restore` reads).
 
     \b
@@ -157,29 +160,87 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
 # --------------------------------------------------------------------------- restore
 
 
+DUMP_NAME, _, DUMP_VERSION = DUMP_FORMAT.partition("/")
+RAW_HEX_LENGTH = 2 * EEPROM_SIZE  # two hex digits per wire byte
+
+
+def _raw_image(raw: object) -> Eeprom:
+    """The image ``raw`` holds: 64 bytes as 128 hex digits, each byte one nibble (0x00..0x0F)."""
+    if not isinstance(raw, str):
+        raise InvalidArgument(f"'raw' must be a string of {RAW_HEX_LENGTH} hex digits, got {type(raw).__name__}")
+    if len(raw) != RAW_HEX_LENGTH:
+        raise InvalidArgument(
+            f"'raw' has {len(raw)} hex digits, not {RAW_HEX_LENGTH} ({EEPROM_SIZE} bytes): the image is cut short"
+            if len(raw) < RAW_HEX_LENGTH
+            else f"'raw' has {len(raw)} hex digits, not {RAW_HEX_LENGTH} ({EEPROM_SIZE} bytes)"
+        )
+    bad = next((i for i, c in enumerate(raw) if c not in "0123456789abcdefABCDEF"), None)
+    if bad is not None:
+        raise InvalidArgument(f"'raw' holds {raw[bad]!r} at character {bad + 1}, which is not a hex digit")
+    image = bytes.fromhex(raw)
+    wide = next((i for i, b in enumerate(image) if b > 0x0F), None)
+    if wide is not None:
+        raise InvalidArgument(
+            f"'raw' byte {wide + 1} is {raw[2 * wide : 2 * wide + 2]}, not a nibble (00..0f): "
+            "every EEPROM byte carries 4 bits"
+        )
+    return Eeprom.from_bytes(image)
+
+
+def _check_format(doc: dict[str, Any]) -> None:
+    fmt = doc.get("format")
+    if fmt is None:
+        raise InvalidArgument(f"no 'format' (a backup made by `ics35 eeprom dump` says {DUMP_FORMAT!r})")
+    if not isinstance(fmt, str) or fmt.partition("/")[0] != DUMP_NAME:
+        raise InvalidArgument(f"format {fmt!r} is not an ics35 EEPROM backup ({DUMP_FORMAT!r})")
+    if fmt != DUMP_FORMAT:
+        raise InvalidArgument(
+            f"format {fmt!r}: this ics35 reads version {DUMP_VERSION} of EEPROM backups only ({DUMP_FORMAT!r})"
+        )
+
+
 def fields_from_document(doc: object) -> dict[str, int]:
-    """The editable fields of a dump (``fields`` wins over ``raw`` when both are there)."""
+    """The editable fields of a backup, after checking the whole document.
+
+    A backup is refused unless its format and version are this program's, its
+    ``raw`` image is whole (64 nibbles as hex), and every field it states (and
+    ``flags_names``, ``unknown_codes``) agrees with that image: a backup that
+    disagrees with itself was damaged or edited by hand, and which half is
+    right cannot be told.
+    """
     if not isinstance(doc, dict):
         raise InvalidArgument("an EEPROM backup is a JSON object (made by `ics35 eeprom dump`)")
+    _check_format(doc)
+    if "raw" not in doc:
+        raise InvalidArgument("no 'raw' image (the whole EEPROM, which every backup carries)")
+    image = _raw_image(doc["raw"])
+    stated = image.to_dict()
     fields = doc.get("fields")
-    if fields is None and isinstance(doc.get("raw"), str):
-        try:
-            image = Eeprom.from_bytes(bytes.fromhex(doc["raw"]))
-        except ValueError as exc:
-            raise InvalidArgument(f"the backup's raw image is unusable: {exc}") from None
-        fields = {name: int(getattr(image, name)) for name in EEPROM_FIELDS}
     if not isinstance(fields, dict):
-        raise InvalidArgument("the backup has neither 'fields' nor 'raw' (was it made by `ics35 eeprom dump`?)")
+        raise InvalidArgument("no 'fields' object (every backup carries the fields its raw image decodes to)")
     unknown = set(fields) - set(EEPROM_FIELDS)
     if unknown:
         raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(sorted(unknown))}")
     missing = set(EEPROM_FIELDS) - set(fields)
     if missing:
         raise InvalidArgument(f"the backup lacks field(s): {', '.join(sorted(missing))}")
-    for name, value in fields.items():
+    for name in EEPROM_FIELDS:
+        value = fields[name]
         if isinstance(value, bool) or not isinstance(value, int):
             raise InvalidArgument(f"field {name} must be an integer, got {value!r}")
-    return dict(fields)
+        if value != stated[name]:
+            raise InvalidArgument(
+                f"field {name} is {value} but the raw image holds {stated[name]}: the backup disagrees with "
+                "itself (edited or damaged); make a new one with `ics35 eeprom dump`, or change the servo "
+                "with `ics35 eeprom set`"
+            )
+    for key in ("flags_names", "unknown_codes"):
+        if key in doc and doc[key] != stated[key]:
+            raise InvalidArgument(f"'{key}' is {doc[key]!r} but the raw image gives {stated[key]!r}")
+    saved = doc.get("servo_id")
+    if saved is not None and (isinstance(saved, bool) or not isinstance(saved, int) or not 0 <= saved <= 31):
+        raise InvalidArgument(f"'servo_id' must be an ID 0..31, got {saved!r}")
+    return {name: int(stated[name]) for name in EEPROM_FIELDS}
 
 
 @dataclass
@@ -240,7 +301,7 @@ def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
     return backups
 
 
-@click.command()
+@click.command(short_help="Write backups made by `eeprom dump`, checked first (every diff shown, one question).")
 @click.argument("args", metavar="[ID] FILE|DIR", nargs=-1, required=True)
 @click.option("--restore-id", is_flag=True, help="Also write the ID stored in FILE (default: keep the servo's ID).")
 @click.option(
@@ -271,12 +332,25 @@ def restore(
                 "its ID (--restore-id to write it)"
             )
 
-    async def body() -> list[dict[str, Any]]:
+    async def body() -> WriteBatch:
         async with settings.bus() as bus:
             plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
             return await write_plans(
                 bus, plans, yes=yes, change_baud=change_baud, allow_id_change=restore_id, as_json=as_json
             )
 
-    print_reports(run(settings, body), as_json, bulk=len(args) == 1 and Path(args[0]).is_dir())
+    again = ["ics35", *([] if settings.port_defaulted else ["--port", settings.port]), "eeprom", "restore", *args]
+    again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
+    bulk = len(args) == 1 and Path(args[0]).is_dir()
+    try:
+        batch = run(settings, body)
+    except CliError as exc:
+        if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
+            source = backups[0].source
+            exc.hints.append(
+                f"{source} is a backup of servo {backups[0].saved_id}; to write it to another servo: "
+                f"ics35 eeprom restore ID {shlex.quote(source)}"
+            )
+        raise
+    finish(settings, batch, as_json, bulk=bulk, again=shlex.join(again))
     return 0

@@ -7,13 +7,28 @@ them in front of a person.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from ..bus import Bus
 from ..eeprom import BaudRate, Flags
-from ..policies import EepromPlan, EepromWriteResult, write_eeprom_plan
-from ._common import CliError, ExitCode, confirm, emit_json, err, ids_text, out
+from ..errors import IcsError, ReplyTimeout
+from ..policies import EepromPlan, ServoWriteReport, WriteOutcome, write_eeprom_plans
+from ._common import (
+    CliError,
+    ExitCode,
+    Settings,
+    confirm,
+    emit_json,
+    err,
+    ids_text,
+    no_reply_error,
+    out,
+    translate,
+)
 from ._eeprom_view import baud_text, diff_table, flag_names
 
 BAUD_CONSEQUENCE = (
@@ -68,22 +83,39 @@ def show_plan(plan: EepromPlan, as_json: bool) -> None:
         err.print(f"[yellow]warning:[/yellow] {BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))}", soft_wrap=True)
 
 
-def report_of(plan: EepromPlan, result: EepromWriteResult | None) -> dict[str, Any]:
-    """The JSON-able account of one servo's write."""
-    report: dict[str, Any] = {
+def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, Any]:
+    """The JSON-able account of one servo's write (``report`` None: nothing was asked of the servo)."""
+    outcome = WriteOutcome.UNCHANGED if report is None and not plan.diff else WriteOutcome.NOT_WRITTEN
+    if report is not None:
+        outcome = report.outcome
+    result = report.result if report is not None else None
+    written = {WriteOutcome.UNKNOWN: None, WriteOutcome.UNCHANGED: False, WriteOutcome.NOT_WRITTEN: False}
+    out: dict[str, Any] = {
         "id": plan.servo_id,
         "changes": {k: [int(a), int(b)] for k, (a, b) in plan.diff.items()},
-        "written": result is not None and result.written,
+        "outcome": outcome.name.lower(),
+        "written": written.get(outcome, True),
     }
+    if report is not None and report.error is not None:
+        out["error"] = str(report.error)
     if result is not None and result.written:
-        report["verified"] = result.verified
+        out["verified"] = result.verified
         if plan.changes_id:
-            report["answers_as"] = list(result.answering_ids)
+            out["answers_as"] = list(result.answering_ids)
         if plan.changes_baud:
-            report["answers_at_new_rate"] = result.new_rate_answers
+            out["answers_at_new_rate"] = result.new_rate_answers
             if result.new_rate_error:
-                report["new_rate_error"] = result.new_rate_error
-    return report
+                out["new_rate_error"] = result.new_rate_error
+    return out
+
+
+@dataclass
+class WriteBatch:
+    """Every servo's account, and the failure that ended the writes (None: none did)."""
+
+    reports: list[dict[str, Any]]
+    error: IcsError | None = None
+    interrupted: bool = False  # Ctrl-C ended the writes
 
 
 async def write_plans(
@@ -94,8 +126,8 @@ async def write_plans(
     change_baud: bool,
     allow_id_change: bool,
     as_json: bool,
-) -> list[dict[str, Any]]:
-    """Check every plan, show them, ask once, write them in order; one report per plan."""
+) -> WriteBatch:
+    """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure."""
     for plan in plans:
         check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change)
     pending = [plan for plan in plans if plan.diff]
@@ -105,25 +137,50 @@ async def write_plans(
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
     if not pending:
-        return [report_of(plan, None) for plan in plans]
+        return WriteBatch([report_of(plan, None) for plan in plans])
     count = sum(len(plan.diff) for plan in pending)
     servos = (
         f"servo {pending[0].servo_id}'s" if len(pending) == 1 else f"servos {ids_text(p.servo_id for p in pending)}'"
     )
     confirm(f"Write these {count} change(s) to {servos} EEPROM?", yes)
-    results: dict[int, EepromWriteResult] = {}
-    for plan in pending:
-        results[plan.servo_id] = await write_eeprom_plan(
-            bus, plan, allow_baud_change=change_baud, allow_id_change=allow_id_change
+    done: list[ServoWriteReport] = []
+    task = asyncio.current_task()
+    with contextlib.suppress(asyncio.CancelledError):
+        await write_eeprom_plans(
+            bus, pending, allow_baud_change=change_baud, allow_id_change=allow_id_change, on_report=done.append
         )
-    return [report_of(plan, results.get(plan.servo_id)) for plan in plans]
+    # Ctrl-C (the task cancelled; a request it cut short may have ended as a timeout instead): the account of
+    # every servo is printed before the command ends with exit code 130.
+    interrupted = task is not None and task.cancelling() > 0
+    while task is not None and task.cancelling():
+        task.uncancel()
+    by_id = {report.plan.servo_id: report for report in done}
+    error = next((report.error for report in done if report.error is not None), None)
+    return WriteBatch([report_of(plan, by_id.get(plan.servo_id)) for plan in plans], error, interrupted)
 
 
-def print_done(report: dict[str, Any]) -> None:
-    """What a person needs to know after one servo's write: verified, and where it answers now."""
-    if not report["written"]:
+def print_done(report: dict[str, Any], *, whole: bool) -> None:
+    """What a person needs to know after one servo's write: verified, and where it answers now; or what the
+    servo may hold after a failure.  ``whole``: a servo with nothing to write is listed too."""
+    sid, changes, outcome = report["id"], report["changes"], WriteOutcome[report["outcome"].upper()]
+    if outcome is WriteOutcome.UNCHANGED:
+        if whole:
+            out.print(f"servo {sid}: {outcome.value}")
         return
-    sid, changes = report["id"], report["changes"]
+    if outcome is WriteOutcome.NOT_WRITTEN:
+        out.print(f"servo {sid}: [bold]not written[/bold] (its EEPROM is as it was)")
+        return
+    if outcome is WriteOutcome.UNKNOWN:
+        out.print(f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
+                  f"so the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table")
+        return
+    if outcome is WriteOutcome.UNVERIFIED:
+        out.print(f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
+                  f"stopped before the read-back; check with: ics35 eeprom dump {sid} --table")
+        return
+    if outcome is WriteOutcome.DIFFERS:
+        out.print(f"servo {sid}: [bold red]written, but the image read back differs[/bold red]")
+        return
     out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified")
     if "baud_rate" in changes:
         new = changes["baud_rate"][1]
@@ -147,9 +204,25 @@ def print_done(report: dict[str, Any]) -> None:
             out.print(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)")
 
 
-def print_reports(reports: list[dict[str, Any]], as_json: bool, *, bulk: bool = False) -> None:
+def finish(settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool = False, again: str = "") -> None:
+    """Print every servo's account (after a failure too), then raise the failure, if any, as the exit code.
+
+    ``again``: the command to run once the line is back (servos already written have nothing left to write).
+    """
     if as_json:
-        emit_json({"servos": reports} if bulk else reports[0])
+        emit_json({"servos": batch.reports} if bulk else batch.reports[0])
+    else:
+        for report in batch.reports:
+            print_done(report, whole=batch.error is not None or batch.interrupted)
+    if batch.interrupted:
+        failure = CliError(ExitCode.INTERRUPTED, "interrupted: the servos above say what each holds")
+    elif batch.error is None:
         return
-    for report in reports:
-        print_done(report)
+    elif isinstance(batch.error, ReplyTimeout):
+        failure = no_reply_error(settings, batch.error)
+    else:
+        failure = translate(settings, batch.error)
+    if again:
+        when = "to finish" if batch.interrupted else "when the line is back"
+        failure.hints.append(f"{when}, run it again: {again} (servos already written are skipped)")
+    raise failure

@@ -87,10 +87,36 @@ LINE_OPTIONS = (
 )
 
 
+class _NamesItsVariable(click.ParamType):  # type: ignore[type-arg]  # generic from click 8.3 on
+    """A line option's type that, for a bad value from the environment, names the variable it came from."""
+
+    def __init__(self, inner: click.ParamType, envvar: str) -> None:  # type: ignore[type-arg]
+        self.inner = inner
+        self.envvar = envvar
+        self.name = inner.name
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        try:
+            return self.inner.convert(value, param, ctx)
+        except click.BadParameter as exc:
+            source = ctx.get_parameter_source(param.name) if ctx is not None and param is not None else None
+            if source is click.core.ParameterSource.ENVIRONMENT and param is not None:
+                message = f"{exc.message.rstrip('.')} (from {self.envvar}={value})"
+                raise click.BadParameter(message, ctx, param) from None
+            raise
+
+    def get_metavar(self, param: click.Parameter, ctx: click.Context) -> str | None:
+        return self.inner.get_metavar(param, ctx)
+
+
 def group_line_options(f: F) -> F:
     """Decorate the group with the line options, defaults and environment variables included."""
     for option in reversed(LINE_OPTIONS):
-        f = click.option(*option.decls, option.name, help=option.help, **option.group_kwargs, **option.kwargs)(f)
+        kwargs = dict(option.kwargs)
+        envvar = option.group_kwargs.get("envvar")
+        if envvar and isinstance(kwargs.get("type"), click.ParamType):
+            kwargs["type"] = _NamesItsVariable(kwargs["type"], envvar)
+        f = click.option(*option.decls, option.name, help=option.help, **option.group_kwargs, **kwargs)(f)
     return f
 
 
@@ -107,6 +133,12 @@ def settings_from(ctx: click.Context, values: dict[str, Any]) -> Settings:
         direction=values["direction"],
         verbose=values["verbose"],
         port_defaulted=ctx.get_parameter_source("port") is click.core.ParameterSource.DEFAULT,
+        from_environment=tuple(
+            f"{option.group_kwargs['envvar']}={values[option.name]}"
+            for option in LINE_OPTIONS
+            if option.group_kwargs.get("envvar")
+            and ctx.get_parameter_source(option.name) is click.core.ParameterSource.ENVIRONMENT
+        ),
     )
 
 
@@ -122,8 +154,10 @@ def _store(name: str) -> Callable[[click.Context, click.Parameter, Any], None]:
         if name == "port":
             settings.port = value
             settings.port_defaulted = False
+            settings.from_environment = tuple(v for v in settings.from_environment if not v.startswith("ICS35_PORT="))
         elif name == "baud":
             settings.baud = int(value)
+            settings.from_environment = tuple(v for v in settings.from_environment if not v.startswith("ICS35_BAUD="))
         elif name == "no_echo":
             settings.echo = False
         elif name == "verbose":

@@ -71,12 +71,12 @@ async def run_live(
     last_render = -math.inf if tty else start
     deadline = None if options.seconds is None else start + options.seconds
 
-    def render(final: bool = False) -> None:
+    def render(final: bool = False, hint: str = "   Ctrl-C to stop") -> None:
         state.refresh_stats(stream)
         if options.as_json:
             emit_json({**state.snapshot(telemetry), "final": final})
         elif live is not None:
-            hint = "" if final else "   Ctrl-C to stop"
+            hint = "" if final else hint
             live.update(Group(state.table(telemetry, options.with_targets), Text(state.summary(telemetry) + hint)))
             live.refresh()
         elif not final:
@@ -113,7 +113,11 @@ async def run_live(
             except asyncio.CancelledError:
                 # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
                 state.stopped_by_ctrl_c = True
-                if not options.as_json:
+                if live is not None:
+                    # In the live view itself: a line printed beside it (stderr) garbles the redraw,
+                    # leaving the table's title twice on the screen.
+                    render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
+                elif not options.as_json:
                     err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
             finally:
                 if options.free_at_end:

@@ -10,6 +10,7 @@ import click
 from .. import protocol
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from ._settings import Settings
 
 T = TypeVar("T")
 
@@ -92,8 +93,20 @@ ID_LIST = IdListType()
 BAUD_LIST = BaudListType()
 
 
+def _json_before_the_command(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    """``ics35 --json get 1 speed`` means ``ics35 get 1 speed --json``, as the line options do."""
+    settings = ctx.find_object(Settings)
+    return value or (settings is not None and settings.json_output)
+
+
 def json_option(f: Callable[..., T]) -> Callable[..., T]:
-    return click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON on stdout.")(f)
+    return click.option(
+        "--json",
+        "as_json",
+        is_flag=True,
+        callback=_json_before_the_command,
+        help="Print machine-readable JSON on stdout.",
+    )(f)
 
 
 def yes_option(f: Callable[..., T]) -> Callable[..., T]:

@@ -10,11 +10,13 @@ import asyncio
 import contextlib
 import time
 from collections.abc import AsyncIterator, Awaitable
+from pathlib import Path
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
+from ..errors import IcsError, InvalidArgument
 from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
@@ -50,17 +52,31 @@ async def freed_robot(description: RobotDescription, settings: Settings, names: 
         yield robot
 
 
-async def wait_for_line(lines: TypedLines, screen: Screen, hint: str) -> str | None:
-    """The next typed line (None at the end of input), redrawing the screen meanwhile."""
+async def wait_for_line(
+    lines: TypedLines, screen: Screen, hint: str, until: asyncio.Future[None] | None = None
+) -> str | None:
+    """The next typed line (None at the end of input, or once ``until`` is done), redrawing the screen meanwhile."""
     pending = asyncio.ensure_future(lines.get())
     try:
         while not pending.done():
+            if until is not None and until.done():
+                return None
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(pending), 0.05)
             screen.update(hint)
-        return pending.result()
+        line = pending.result()
+        if line is not None:
+            screen.typed()
+        return line
     finally:
         pending.cancel()
+
+
+async def watch_lines(robot: Robot) -> None:
+    """Return never while the robot's lines run; raise what ended them (a lost port) at once."""
+    cycle = 0
+    while True:
+        cycle = (await robot.wait_frame(cycle)).cycle
 
 
 async def handled_ctrl_c(work: Awaitable[None]) -> bool:
@@ -108,35 +124,77 @@ def teach(
             err.print("the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
                       "[bold]q[/bold] then Enter ends (Ctrl-C too)")
             start = time.monotonic()
+            watcher = asyncio.ensure_future(watch_lines(robot))
+            lost: list[bool] = []
 
             def summary() -> str:
-                return f"t={time.monotonic() - start:5.1f} s  {len(keyframes)} pose(s) captured"
+                captured = f"{len(keyframes)} pose(s) captured"
+                if lost:
+                    return f"LINE LOST: no more poses; the {captured} are being saved"
+                return f"t={time.monotonic() - start:5.1f} s  {captured}"
 
-            with Screen(lambda: joint_table(robot, f"teach: {escape(target.name)}", names), summary) as screen:
+            def table() -> Table:
+                return joint_table(robot, f"teach: {escape(target.name)}", names, lost=bool(lost))
+
+            with Screen(table, summary) as screen:
 
                 async def capture_loop() -> None:
                     while True:
-                        line = await wait_for_line(lines, screen, "Enter: capture   q: end")
+                        line = await wait_for_line(lines, screen, "Enter: capture   q: end", until=watcher)
+                        if watcher.done():
+                            lost.append(True)
+                            screen.update(force=True)
+                            await watcher  # raises what ended the lines
                         if line is None or line.strip().lower() in QUIT:
                             return
-                        await capture(robot, names, start, keyframes)
-                        screen.update(force=True)
+                        try:
+                            await capture(robot, names, start, keyframes, screen)
+                        except IcsError:
+                            lost.append(True)  # the lines ended while the pose was read
+                            screen.update(force=True)
+                            raise
 
-                await handled_ctrl_c(capture_loop())
+                try:
+                    await handled_ctrl_c(capture_loop())
+                finally:
+                    watcher.cancel()
+                    with contextlib.suppress(asyncio.CancelledError, IcsError):
+                        await watcher
 
-    run_robot(settings, description, body)
+    try:
+        run_robot(settings, description, body)
+    except BaseException:
+        # Lost port, error or Ctrl-C: the poses captured so far are written before the error is told.
+        if keyframes:
+            save_taught(keyframes, profile, name, target, robot_file, on_error=True)
+        raise
     if not keyframes:
         raise CliError(ExitCode.REFUSED, "no pose captured: nothing written", "press Enter to capture a pose")
-    motion = Motion(tuple(keyframes), profile, name or target.stem)
-    save_motion(motion, target)
-    out.print(
-        f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; "
-        f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
-    )
+    save_taught(keyframes, profile, name, target, robot_file)
     return 0
 
 
-async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe]) -> None:
+def save_taught(
+    keyframes: list[Keyframe], profile: str, name: str | None, target: Path, robot_file: str, *, on_error: bool = False
+) -> None:
+    """Write the captured poses to ``target`` and say where (after an error: that they are kept, on stderr)."""
+    motion = Motion(tuple(keyframes), profile, name or target.stem)
+    try:
+        save_motion(motion, target)
+    except OSError as exc:
+        raise CliError(
+            ExitCode.USAGE, f"cannot write {target}: {exc.strerror or exc}; the {len(keyframes)} pose(s) are lost"
+        ) from None
+    play = f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
+    if on_error:
+        err.print(f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "
+                  f"({motion.duration:.1f} s); {play}", soft_wrap=True)
+    else:
+        out.print(f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}",
+                  soft_wrap=True)
+
+
+async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe], screen: Screen) -> None:
     pose = await robot.read_pose()
     taken = {}
     for name in names:
@@ -151,7 +209,7 @@ async def capture(robot: Robot, names: list[str], start: float, keyframes: list[
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(round(time.monotonic() - start, 3), round(previous + 0.001, 3))
     keyframes.append(Keyframe(when, taken))
-    err.print(f"pose {len(keyframes)} at {when:.2f} s")
+    screen.say(f"pose {len(keyframes)} at {when:.2f} s")
 
 
 @click.command()
@@ -164,7 +222,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     \b
     1. the joints go free: pose the robot at its neutral (every joint at 0 degrees), Enter;
     2. move each joint through its whole range by hand, watching the table, Enter.
-    The file keeps its comments; where it cannot be edited in place, ROBOT.calibrated.toml is written beside it.
+    The file keeps its comments and its previous content as ROBOT.toml.bak; where it cannot be edited
+    in place, ROBOT.calibrated.toml is written beside it.  A joint moved over less than 5 degrees
+    is refused, and then nothing is written.
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
@@ -204,13 +264,13 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                         track(frame)
 
             with Screen(table, summary) as screen:
-                err.print("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
+                screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                 if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
                     raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
                 pose = await robot.read_pose()
                 neutral.update({n: robot.joints[n].servo_degrees(pose[n]) for n in names if n in pose})
                 step[0] = "range"
-                err.print("now move each joint through its whole range by hand, then Enter")
+                screen.say("now move each joint through its whole range by hand, then Enter")
                 tracking = asyncio.ensure_future(track_every_frame())
                 try:
                     if await wait_for_line(lines, screen, "Enter: done") is None:
@@ -223,22 +283,35 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
 
     run_robot(settings, description, body)
     calibrated: dict[str, JointSpec] = {}
+    narrow: list[str] = []
     for name in names:
         if name not in neutral or name not in low:
             err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
             continue
-        calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
+        try:
+            calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
+        except InvalidArgument as exc:
+            narrow.append(str(exc))
+    if narrow:
+        raise CliError(
+            ExitCode.REFUSED,
+            "; ".join(narrow) + f". Nothing was written to {robot_file}",
+            "run calibrate again and, at step 2, move each joint to both ends of its range by hand",
+            "to calibrate some joints only: --joints NAME,NAME",
+        )
     if not calibrated:
         raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
     for name, joint in calibrated.items():
         offset, least, most = (signed_tenths(x) for x in (joint.offset, joint.min, joint.max))
         out.print(f"{name}: offset {offset}, min {least}, max {most}")
-    written, kept = write_calibration(robot_file, description, calibrated)
-    if kept:
-        out.print(f"written into {escape(str(written))} (comments kept)")
+    written = write_calibration(robot_file, description, calibrated)
+    if written.comments_kept:
+        out.print(f"written into {escape(str(written.path))} (comments kept)")
     else:
         err.print(f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
-                  f"{escape(str(written))} (a complete file, without comments)")
+                  f"{escape(str(written.path))} (a complete file, without comments)")
+    if written.backup is not None:
+        out.print(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}")
     return 0
 
 

@@ -7,6 +7,7 @@ once at the end, so logs stay readable.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Sequence
 from types import TracebackType
@@ -18,7 +19,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ..robot import Robot
-from ._common import out
+from ._common import err, out
 from ._console import signed_tenths
 
 Extra = Callable[[str], Sequence[str]]
@@ -29,9 +30,18 @@ def _deg(value: float | None) -> str:
 
 
 def joint_table(
-    robot: Robot, title: str, joints: Sequence[str] | None = None, extra: tuple[Sequence[str], Extra] | None = None
+    robot: Robot,
+    title: str,
+    joints: Sequence[str] | None = None,
+    extra: tuple[Sequence[str], Extra] | None = None,
+    *,
+    lost: bool = False,
 ) -> Table:
-    """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns)."""
+    """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns).
+
+    ``lost``: the robot's lines stopped (a port lost); every state says so, since the positions shown
+    are only the last ones read.
+    """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
         table.add_column(name, justify="left" if name == "joint" else "right", style="bold" if name == "joint" else "")
@@ -44,8 +54,10 @@ def joint_table(
         spec = robot.joints[name]
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
-        if name in robot.tripped:
-            state: str | Text = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
+        if lost:
+            state: str | Text = Text("LINE LOST", style="bold red")
+        elif name in robot.tripped:
+            state = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
         elif frame is not None and name in frame.offline:
             state = Text("offline", style="red")
         elif frame is not None and name in frame.failed:
@@ -76,6 +88,27 @@ class Screen:
         self.tty = out.is_terminal
         self._live = Live(console=out, auto_refresh=False, transient=False) if self.tty else None
         self._last = time.monotonic()
+        self._said = ""
+
+    def say(self, message: str) -> None:
+        """A note for the person (on stderr); on a terminal, a line of the live view instead, since a line
+        printed beside it garbles the redraw (the table's title twice on the screen)."""
+        if self._live is None:
+            err.print(message)
+            return
+        self._said = message
+        self.update(force=True)
+
+    def typed(self) -> None:
+        """A line was typed on the terminal: its echoed newline moved the cursor below the live view, so the
+        next redraw would start one line low and leave the old title on the screen; step back up."""
+        if self._live is not None and sys.stdin.isatty():
+            out.file.write("\x1b[1A")
+            out.file.flush()
+
+    def _lines(self, hint: str) -> Group:
+        said = [Text.from_markup(self._said)] if self._said else []
+        return Group(self.render(), *said, Text(f"{self.summary()}   {hint}".rstrip()))
 
     def __enter__(self) -> Screen:
         if self._live is not None:
@@ -87,7 +120,7 @@ class Screen:
         if self._live is not None:
             if force or now - self._last >= 0.1:
                 self._last = now
-                self._live.update(Group(self.render(), Text(f"{self.summary()}   {hint}".rstrip())))
+                self._live.update(self._lines(hint))
                 self._live.refresh()
         elif force or now - self._last >= 1.0:
             self._last = now
@@ -97,7 +130,7 @@ class Screen:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         if self._live is not None:
-            self._live.update(Group(self.render(), Text(self.summary())))
+            self._live.update(self._lines(""))
             self._live.refresh()
             self._live.stop()
         else:

@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
-from ._console import err
+from ._console import err, out
 from ._errors import no_reply_error, translate
 from ._loop import run_loop
 from ._paths import check_line_files
@@ -22,6 +22,7 @@ T = TypeVar("T")
 _advised: set[str] = set()
 
 SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
+SIMULATED_LINE = "[bold]simulated servos[/bold] (the built-in simulator: no --port given)"
 
 
 def advise(port: str) -> None:
@@ -34,10 +35,16 @@ def advise(port: str) -> None:
 
 
 def note_simulator(settings: Settings) -> None:
-    """Say once, on stderr, that the implicit default simulator is what the command talks to."""
+    """Say once, on stderr, that the implicit default simulator is what the command talks to; and in the
+    command's own output too (a line on stdout, ``"simulated": true`` in JSON), since its plausible fake
+    data, read with a robot plugged in, would pass for the robot's."""
     if settings.port_defaulted:
         settings.port_defaulted = False
         err.print(f"[dim]{escape(SIMULATOR_NOTE)}[/dim]")
+        settings.simulated = True
+        params = context.params if (context := click.get_current_context(silent=True)) is not None else {}
+        if params.get("as_json") is False or params.get("as_table") is True:  # text on stdout
+            out.print(SIMULATED_LINE)
 
 
 def require_port(settings: Settings, action: str) -> None:
@@ -90,6 +97,15 @@ def guard_writes(command: click.Command, prefix: str = "") -> None:
     command.callback = guarded
 
 
+def name_the_environment(settings: Settings, error: CliError) -> CliError:
+    """A line error when the port or rate came from ICS35_PORT / ICS35_BAUD: say so, or the person
+    looks for a --port they never typed."""
+    if settings.from_environment and error.code in (ExitCode.PORT, ExitCode.NO_REPLY, ExitCode.WRONG_BAUD):
+        used = ", ".join(settings.from_environment)
+        error.hints.append(f"from the environment: {used} (--port and --baud override it)")
+    return error
+
+
 def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
     """Run the command's coroutine; turn every expected failure into a :class:`CliError`."""
     check_line_files(settings)
@@ -102,9 +118,9 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         except ReplyTimeout as exc:
-            raise no_reply_error(settings, exc) from None
+            raise name_the_environment(settings, no_reply_error(settings, exc)) from None
         except IcsError as exc:
-            raise translate(settings, exc) from None
+            raise name_the_environment(settings, translate(settings, exc)) from None
         except BrokenPipeError:
             raise  # `ics35 ... | head`: main() ends quietly
         except OSError as exc:

@@ -76,6 +76,11 @@ async def scan_with_progress(
         )
 
 
+def baud_cell(s: FoundServo) -> str:
+    """The rate as known: with a ? when the servo answered there but its EEPROM could not be read."""
+    return f"{s.baud}?" if s.rate_unconfirmed else str(s.baud)
+
+
 def scan_table(servos: Sequence[FoundServo]) -> Table:
     table = Table(
         title="servos found", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
@@ -83,8 +88,9 @@ def scan_table(servos: Sequence[FoundServo]) -> Table:
     if all(s.eeprom is None for s in servos):
         table.add_column("ID", justify="right")
         table.add_column("baud", justify="right")
+        table.add_column("")
         for s in servos:
-            table.add_row(str(s.servo_id), str(s.baud))
+            table.add_row(str(s.servo_id), baud_cell(s), "rate unconfirmed" if s.rate_unconfirmed else "")
         return table
     for name in ("ID", "baud", "stretch", "speed", "I-limit", "T-limit", "pulse range", "offset"):
         table.add_column(name, justify="right")
@@ -92,7 +98,8 @@ def scan_table(servos: Sequence[FoundServo]) -> Table:
     for s in servos:
         e = s.eeprom
         if e is None:
-            table.add_row(str(s.servo_id), str(s.baud), *["?"] * 6, "(EEPROM not read)")
+            why = "rate unconfirmed (EEPROM not read)" if s.rate_unconfirmed else "(EEPROM not read)"
+            table.add_row(str(s.servo_id), baud_cell(s), *["?"] * 6, why)
             continue
         note = f" (EEPROM: {baud_text(e.baud_rate)})" if s.baud_pending else ""
         table.add_row(
@@ -119,6 +126,7 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
                     "id": s.servo_id,
                     "baud": s.baud,
                     "answered_at": list(s.answered_at),
+                    "rate_confirmed": not s.rate_unconfirmed,
                     "eeprom": None if s.eeprom is None else s.eeprom.to_dict(),
                 }
                 for s in report.servos
@@ -140,11 +148,15 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         )
     for baud, why in report.skipped.items():
         err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
+    port = "" if settings.port_defaulted else f" --port {escape(settings.port)}"
     for s in report.servos:
         if s.eeprom_error is not None:
+            heard = ", ".join(str(b) for b in s.answered_at)
             err.print(
-                f"[yellow]warning:[/yellow] servo {s.servo_id} at {s.baud} baud: EEPROM read failed: "
-                f"{escape(str(s.eeprom_error))}"
+                f"[yellow]warning:[/yellow] servo {s.servo_id}: its EEPROM could not be read (after retries), so its "
+                f"rate is unconfirmed: it answered at {heard} baud; read it again with: ics35{port} --baud {s.baud} "
+                f"eeprom dump {s.servo_id} --table  (last error: {escape(str(s.eeprom_error))})",
+                soft_wrap=True,
             )
     if report.garbled and report.echo_evidence is None:
         where = ", ".join(f"ID {i} at {baud}" for baud, i, _ in report.garbled)
@@ -166,15 +178,19 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     if several:
         err.print(
             f"[yellow]note:[/yellow] servo(s) {ids_text(s.servo_id for s in several)} answered at several baud rates: "
-            "this line does not enforce rates (a pty or a bridge); each is listed once, at the rate its EEPROM names",
+            "this line does not enforce rates (a pty or a bridge); each is listed once, at the rate its EEPROM names "
+            "(where it could be read)",
             soft_wrap=True,
         )
     if not report.servos:
         return
     by_baud: dict[int, int] = {}
     for s in report.servos:
-        by_baud[s.baud] = by_baud.get(s.baud, 0) + 1
-    summary = ", ".join(f"{n} at {b} baud" for b, n in by_baud.items())
+        if not s.rate_unconfirmed:
+            by_baud[s.baud] = by_baud.get(s.baud, 0) + 1
+    unconfirmed = sum(s.rate_unconfirmed for s in report.servos)
+    summary = ", ".join([f"{n} at {b} baud" for b, n in by_baud.items()]
+                        + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else []))
     out.print(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}")
     if len(by_baud) > 1:
         err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")

@@ -10,10 +10,13 @@ from __future__ import annotations
 from .eeprom_write import (
     EepromPlan,
     EepromWriteResult,
+    ServoWriteReport,
+    WriteOutcome,
     check_changes,
     edit_image,
     plan_eeprom_write,
     write_eeprom_plan,
+    write_eeprom_plans,
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
 from .line import (
@@ -31,7 +34,8 @@ from .position_read import (
     plan_position_stream,
     read_position_without_freeing,
 )
-from .scan import ALL_BAUDS, ALL_IDS, FoundServo, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
+from .scan import ALL_BAUDS, ALL_IDS, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
+from .scan_units import FoundServo, read_eeprom_agreed
 
 __all__ = [
     "id0_top_bit_differs",
@@ -51,6 +55,8 @@ __all__ = [
     "Refusal",
     "ScanReport",
     "StreamPlan",
+    "ServoWriteReport",
+    "WriteOutcome",
     "anyone_there",
     "check_changes",
     "echo_setting_wrong",
@@ -60,9 +66,11 @@ __all__ = [
     "plan_position_stream",
     "probe_ids",
     "read_position_without_freeing",
+    "read_eeprom_agreed",
     "scan",
     "servo_rates",
     "survey_for_id_write",
     "write_eeprom_plan",
+    "write_eeprom_plans",
     "write_lone_id",
 ]

@@ -19,7 +19,8 @@ The rules, in order:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import enum
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -178,6 +179,15 @@ async def _read_image(line: Line, servo_id: int) -> Eeprom | None:
         return None
 
 
+class _Progress:
+    """How far one write got, for telling what a failure left behind."""
+
+    def __init__(self) -> None:
+        self.sending = False  # the write command has gone (or is going) out
+        self.acknowledged = False  # the servo answered it (or did not have to): the read-back is next
+        self.read_back: Eeprom | None = None  # the image read back, when one was
+
+
 async def write_eeprom_plan(
     line: Line,
     plan: EepromPlan,
@@ -191,6 +201,12 @@ async def write_eeprom_plan(
     image changed since the plan; VerifyError when the image read back
     differs or the servo answers neither at its old nor its new ID / rate.
     """
+    return await _write(line, plan, allow_baud_change, allow_id_change, _Progress())
+
+
+async def _write(
+    line: Line, plan: EepromPlan, allow_baud_change: bool, allow_id_change: bool, progress: _Progress
+) -> EepromWriteResult:
     reason = plan.refusal(allow_baud_change=allow_baud_change, allow_id_change=allow_id_change)
     if reason:
         raise UnsafeOperation(f"{reason}; nothing was written")
@@ -202,6 +218,7 @@ async def write_eeprom_plan(
             f"servo {plan.servo_id}'s EEPROM changed since it was read ({now.diff(plan.before)}); nothing was written"
         )
     acknowledged = True
+    progress.sending = True
     try:
         await line.request(protocol.WriteEeprom(plan.servo_id, plan.after))
     except ReplyTimeout:
@@ -209,6 +226,7 @@ async def write_eeprom_plan(
         if not (plan.changes_id or plan.changes_baud):
             raise
         acknowledged = False
+    progress.acknowledged = True
     ids = (plan.after.servo_id, plan.servo_id) if plan.changes_id else (plan.servo_id,)
     answering, read_back = await _ask(line, ids)
     new_rate_answers: bool | None = None
@@ -219,6 +237,7 @@ async def write_eeprom_plan(
     result = EepromWriteResult(
         plan, True, acknowledged, read_back, answering if plan.changes_id else (), new_rate_answers, new_rate_error
     )
+    progress.read_back = read_back
     if read_back is None:
         where = " or ".join(f"ID {i}" for i in ids)
         rates = f" at {plan.baud} or {int(plan.after.baud_rate)} baud" if plan.changes_baud else ""
@@ -252,3 +271,79 @@ async def _ask_at(line: Line, baud: int, ids: tuple[int, ...]) -> tuple[bool | N
     finally:
         await line.reopen(baudrate=home)
     return bool(answering), image, None
+
+
+class WriteOutcome(enum.Enum):
+    """What one servo's EEPROM holds after a write of several, as far as can be told."""
+
+    VERIFIED = "written and verified"
+    UNCHANGED = "already matched: nothing written"
+    NOT_WRITTEN = "not written"
+    UNKNOWN = "unknown: the line failed (or Ctrl-C came) while the write was on its way"
+    UNVERIFIED = "written, not verified: the line failed (or Ctrl-C came) before the read-back"
+    DIFFERS = "written, but the image read back differs"
+
+
+@dataclass(frozen=True)
+class ServoWriteReport:
+    """One servo's part in :func:`write_eeprom_plans`."""
+
+    plan: EepromPlan
+    outcome: WriteOutcome
+    result: EepromWriteResult | None = None  # the finished write (VERIFIED, UNCHANGED)
+    error: IcsError | None = None  # what stopped this servo's write (the first failure only)
+
+
+async def write_eeprom_plans(
+    line: Line,
+    plans: Sequence[EepromPlan],
+    *,
+    allow_baud_change: bool = False,
+    allow_id_change: bool = False,
+    on_report: Callable[[ServoWriteReport], None] | None = None,
+) -> list[ServoWriteReport]:
+    """Write ``plans`` in order (each as :func:`write_eeprom_plan`), one report per plan.
+
+    A servo's failure is not raised: it ends the batch, its report says how
+    far that write got and carries the error, and every later servo is
+    NOT_WRITTEN.  So a line lost in the middle of a restore still tells which
+    servos hold their new image.  ``on_report`` hears each report as it is
+    made; when the batch is cancelled (Ctrl-C) it still hears every servo's
+    (the one being written: as far as it got) before the cancellation goes on.
+    """
+    reports: list[ServoWriteReport] = []
+
+    def add(report: ServoWriteReport) -> None:
+        reports.append(report)
+        if on_report is not None:
+            on_report(report)
+
+    failed = False
+    for n, plan in enumerate(plans):
+        if failed:
+            add(ServoWriteReport(plan, WriteOutcome.NOT_WRITTEN))
+            continue
+        progress = _Progress()
+        try:
+            result = await _write(line, plan, allow_baud_change, allow_id_change, progress)
+        except IcsError as exc:
+            failed = True
+            add(ServoWriteReport(plan, _failed_outcome(progress), error=exc))
+            continue
+        except BaseException:  # cancelled mid-write: account for every servo, then stay cancelled
+            add(ServoWriteReport(plan, _failed_outcome(progress)))
+            for rest in plans[n + 1 :]:
+                add(ServoWriteReport(rest, WriteOutcome.NOT_WRITTEN))
+            raise
+        outcome = WriteOutcome.VERIFIED if result.written else WriteOutcome.UNCHANGED
+        add(ServoWriteReport(plan, outcome, result))
+    return reports
+
+
+def _failed_outcome(progress: _Progress) -> WriteOutcome:
+    if progress.acknowledged:
+        # The read-back answered and differs, or the line failed before it could.
+        return WriteOutcome.DIFFERS if progress.read_back is not None else WriteOutcome.UNVERIFIED
+    if progress.sending:
+        return WriteOutcome.UNKNOWN
+    return WriteOutcome.NOT_WRITTEN

@@ -21,7 +21,15 @@ answers costs one transaction instead of one per ID.
 On a line that does not enforce baud rates (a pty, some bridges) a servo
 answers at every rate.  Its EEPROM names its real rate, and the per-unit
 calibration bytes tell one servo heard at several rates from several servos,
-so each servo is listed once.
+so each servo is listed once.  An EEPROM reply carries no checksum, so an
+image counts only when two reads agree (a flipped bit would otherwise make
+one servo look like two), and reads are retried on a noisy line.  Where a
+servo's EEPROM names a rate it was not heard at, it is asked there again
+(the probes at its own rate may all have been lost).  Once one servo has
+answered at two rates, the line is known to ignore rates: a servo is then
+listed at its EEPROM's rate only, and an answer whose image could not be
+read adds no entry beside the servo read under that ID.  An ID none of
+whose images could be read is listed once, ``rate_unconfirmed``.
 
 A link known not to carry the baud rate at all (``socket://``: the far end
 keeps its own settings) is probed once, at the first rate asked for: every
@@ -33,7 +41,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import anyio
@@ -45,6 +53,14 @@ from ..protocol import Param
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
 from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
+from .scan_units import (
+    FoundServo,
+    confirm_eeprom_rates,
+    one_unit_at_several_rates,
+    read_eeprom_or_error,
+    read_missing_images,
+    servos_of,
+)
 
 ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
 ALL_IDS: tuple[int, ...] = tuple(range(32))
@@ -71,27 +87,6 @@ class RateScan:
     def only_id_read(self) -> bool:
         """A device answered the ID read, but no probed ID the stretch read (nor garbled)."""
         return self.id_answer is not None and not self.answered and not self.garbled
-
-
-@dataclass(frozen=True)
-class FoundServo:
-    """One servo a scan found, listed once."""
-
-    servo_id: int
-    baud: int  # the rate it is listed at: its EEPROM's rate when it answered at several
-    eeprom: Eeprom | None = None  # None: not read (quick scan) or the read failed
-    answered_at: tuple[int, ...] = ()  # every rate it answered at (several: the line ignores rates)
-    eeprom_error: ReplyError | None = None
-
-    @property
-    def eeprom_baud(self) -> int | None:
-        """The baud rate the servo's EEPROM names (``None`` if it was not read)."""
-        return None if self.eeprom is None else int(self.eeprom.baud_rate)
-
-    @property
-    def baud_pending(self) -> bool:
-        """Its EEPROM names another rate: a baud change that takes effect at its next power-up."""
-        return self.eeprom is not None and int(self.eeprom.baud_rate) != self.baud
 
 
 @dataclass(frozen=True)
@@ -234,13 +229,6 @@ async def probe_ids(
     )
 
 
-async def _read_eeprom(line: Line, servo_id: int) -> Eeprom | ReplyError:
-    try:
-        return await line.request(protocol.ReadEeprom(servo_id))
-    except ReplyError as exc:
-        return exc
-
-
 def _check_bauds(bauds: Iterable[int]) -> list[int]:
     checked: list[int] = []
     for baud in bauds:
@@ -303,57 +291,22 @@ async def scan(
             rates.append(rate)
             if read_eeprom:
                 for i in rate.answered:
-                    images[(baud, i)] = await _read_eeprom(line, i)
+                    images[(baud, i)] = await read_eeprom_or_error(line, i)
     if len(skipped) == len(rates_wanted):
         raise skipped[rates_wanted[0]]
     hits: dict[int, list[int]] = {}
     for rate in rates:
         for i in rate.answered:
             hits.setdefault(i, []).append(rate.baud)
-    await _read_missing_images(open_at, hits, images)
-    servos = [servo for i, at in sorted(hits.items()) for servo in _servos_of(i, at, images)]
+    await read_missing_images(open_at, hits, images)
+    if not rate_blind:
+        await confirm_eeprom_rates(open_at, hits, images, [r.baud for r in rates])
+    ignores_rates = rate_blind or one_unit_at_several_rates(hits, images)
+    servos = [servo for i, at in sorted(hits.items()) for servo in servos_of(i, at, images, ignores_rates)]
     if rate_blind:  # the rate opened at says nothing: the EEPROM's is the servo's own
         servos = [dataclasses.replace(s, baud=s.eeprom_baud or s.baud) for s in servos]
     reasons = {baud: str(exc) for baud, exc in skipped.items()}
     return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), reasons, rate_blind)
-
-
-async def _read_missing_images(
-    open_at: LineOpener, hits: Mapping[int, Sequence[int]], images: dict[tuple[int, int], Eeprom | ReplyError]
-) -> None:
-    """Read the EEPROM wherever an ID answered at several rates and it is not read yet."""
-    todo: dict[int, list[int]] = {}
-    for i, at in hits.items():
-        if len(at) > 1:
-            for baud in at:
-                if (baud, i) not in images:
-                    todo.setdefault(baud, []).append(i)
-    for baud, servo_ids in todo.items():
-        async with open_at(baud) as line:
-            for i in servo_ids:
-                images[(baud, i)] = await _read_eeprom(line, i)
-
-
-def _servos_of(
-    servo_id: int, at: Sequence[int], images: Mapping[tuple[int, int], Eeprom | ReplyError]
-) -> list[FoundServo]:
-    """The servos behind one ID's answers: one per distinct EEPROM image (calibration differs per unit)."""
-    groups: dict[bytes | int, list[int]] = {}
-    for baud in at:
-        image = images.get((baud, servo_id))
-        # An unread image cannot be matched with another: a rate of its own.
-        key: bytes | int = image.to_bytes() if isinstance(image, Eeprom) else baud
-        groups.setdefault(key, []).append(baud)
-    found = []
-    for group in groups.values():
-        image = images.get((group[0], servo_id))
-        eeprom = image if isinstance(image, Eeprom) else None
-        listed = group[0]
-        if eeprom is not None and int(eeprom.baud_rate) in group:
-            listed = int(eeprom.baud_rate)
-        error = image if isinstance(image, ReplyError) else None
-        found.append(FoundServo(servo_id, listed, eeprom, tuple(group), error))
-    return found
 
 
 async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) -> tuple[int, ...]:
@@ -377,7 +330,7 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
                 await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
             except ReplyError:
                 continue
-            image = await _read_eeprom(line, servo_id)
+            image = await read_eeprom_or_error(line, servo_id)
             if isinstance(image, Eeprom) and int(image.baud_rate) == baud:
                 found.append(baud)
     return tuple(found)

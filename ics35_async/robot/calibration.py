@@ -7,19 +7,24 @@ at the joint's neutral, and the extremes it was moved to) into ``offset``,
 every comment and every other line; when a joint is not written as such a
 table (an inline table, a dotted key) or the edit would not read back as
 intended, it writes a complete new file beside the original instead
-(``NAME.calibrated.toml``; comments are lost there) and says so.
+(``NAME.calibrated.toml``; comments are lost there) and says so.  A file it
+overwrites is kept as ``NAME.bak`` first, and the new content is written whole
+before it replaces the old (a crash mid-write leaves the old file).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import re
+import shutil
 import tomllib
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..errors import InvalidArgument
 from .description import SERVO_DEGREES, JointSpec, RobotDescription, parse_description
 
 CALIBRATED_KEYS = ("offset", "min", "max")
@@ -27,9 +32,16 @@ _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
 _KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)([^#]*?)(\s*#.*)?$")
 
 
+MIN_RANGE_DEGREES = 5.0  # narrower, the joint was not moved through its range: limits that would lock it
+
+
 def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -> JointSpec:
     """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
-    ``low``..``high`` (servo degrees), rounded inward to 0.1 degree."""
+    ``low``..``high`` (servo degrees), rounded inward to 0.1 degree.
+
+    Raises InvalidArgument when the range is narrower than :data:`MIN_RANGE_DEGREES`: a joint not
+    moved by hand (Enter pressed twice) would otherwise get limits that forbid every motion.
+    """
     offset = round(neutral, 1)
     ends = sorted(((s - offset) * joint.sign) for s in (low, high))
     lo = math.ceil(round(ends[0] * 10, 6)) / 10
@@ -37,8 +49,12 @@ def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -
     # Within the servo's travel whatever the rounding did.
     bound = sorted(((e - offset) * joint.sign) for e in (-SERVO_DEGREES, SERVO_DEGREES))
     lo, hi = max(lo, bound[0]), min(hi, bound[1])
-    if lo > hi:  # the joint was not moved at all: a zero-width range at its neutral
-        lo = hi = min(max(0.0, bound[0]), bound[1])
+    if hi - lo < MIN_RANGE_DEGREES:
+        span = max(0.0, high - low)
+        raise InvalidArgument(
+            f"joint {joint.name} moved over {span:.1f} degrees only, less than the {MIN_RANGE_DEGREES:g} a range "
+            "needs (was it moved to both ends of its range?)"
+        )
     return replace(joint, offset=offset, min=lo, max=hi)
 
 
@@ -141,18 +157,38 @@ def _reads_back(text: str, source: str, joints: Mapping[str, JointSpec]) -> bool
     return all(again.joints.get(name) == joint for name, joint in joints.items())
 
 
-def write_calibration(path: str | Path, description: RobotDescription, joints: Mapping[str, JointSpec]) -> tuple[
-    Path, bool
-]:
-    """Write the calibrated ``joints`` into the robot file; returns (the file written, comments kept)."""
+def _replace_keeping_backup(target: Path, text: str) -> Path | None:
+    """Write ``text`` to ``target`` whole (a new file renamed over it), the old content kept as
+    ``NAME.bak`` beside it; returns that backup (None when there was no file to keep)."""
+    backup: Path | None = None
+    if target.exists():
+        backup = target.with_name(f"{target.name}.bak")
+        shutil.copy2(target, backup)
+    fresh = target.with_name(f".{target.name}.new")
+    fresh.write_text(text, encoding="utf-8")
+    os.replace(fresh, target)
+    return backup
+
+
+@dataclass(frozen=True)
+class CalibrationWritten:
+    """Where :func:`write_calibration` put its result."""
+
+    path: Path  # the file written: the robot file itself, or NAME.calibrated.toml beside it
+    comments_kept: bool  # False: a complete new file, written beside the robot file
+    backup: Path | None  # the previous content of ``path`` (None: there was no such file)
+
+
+def write_calibration(
+    path: str | Path, description: RobotDescription, joints: Mapping[str, JointSpec]
+) -> CalibrationWritten:
+    """Write the calibrated ``joints`` into the robot file, keeping its previous content as ``NAME.bak``."""
     target = Path(path)
     text = target.read_text(encoding="utf-8")
     values = {name: {key: float(getattr(j, key)) for key in CALIBRATED_KEYS} for name, j in joints.items()}
     edited = edit_joint_values(text, values)
     if edited is not None and _reads_back(edited, str(target), joints):
-        target.write_text(edited, encoding="utf-8")
-        return target, True
+        return CalibrationWritten(target, True, _replace_keeping_backup(target, edited))
     beside = target.with_name(f"{target.stem}.calibrated.toml")
     whole = replace(description, joints={**description.joints, **joints})
-    beside.write_text(dump_description(whole), encoding="utf-8")
-    return beside, False
+    return CalibrationWritten(beside, False, _replace_keeping_backup(beside, dump_description(whole)))

@@ -21,6 +21,8 @@ from ..errors import FileContentError, InvalidArgument
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
+# A count is 270/8000 = 0.03375 degree exactly: an angle a servo reports has 5 decimals (plus the offset's).
+COUNT_DECIMALS = 5
 
 
 class DescriptionError(FileContentError):
@@ -69,8 +71,12 @@ class JointSpec:
         return units.degrees_to_position(self.servo_degrees(joint_degrees))
 
     def degrees(self, position: int) -> float:
-        """This joint's angle for a servo position (counts)."""
-        return self.joint_degrees(units.position_to_degrees(position))
+        """This joint's angle for a servo position (counts), to the servo's resolution.
+
+        Rounding to :data:`COUNT_DECIMALS` drops the float noise an offset leaves (-0.004999... for
+        -0.005) and changes no real reading; + 0.0 turns -0.0 into 0.0.
+        """
+        return round(self.joint_degrees(units.position_to_degrees(position)), COUNT_DECIMALS) + 0.0
 
     def clamp(self, joint_degrees: float) -> float:
         """``joint_degrees`` brought within ``[min, max]``."""

@@ -115,6 +115,8 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
         return SerialPortError(code or errno.ENXIO, f"{port!r} exists but no device answers behind it (unplugged?)")
     if code == errno.ECONNREFUSED:
         return SerialPortError(code, f"cannot open {port!r}: the connection was refused (is the bridge running?)")
+    if code == errno.EISDIR:  # pyserial's own text repeats the errno thrice
+        return SerialPortError(code, f"{port!r} is a directory, not a serial port")
     if code is None and "Inappropriate ioctl" in str(exc):
         return SerialPortError(errno.ENOTTY, f"{port!r} is not a serial port")
     return SerialPortError(code if code is not None else errno.EIO, f"cannot open {port!r}: {exc}")

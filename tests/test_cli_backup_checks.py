@@ -1,0 +1,240 @@
+"""No lost work on the command line: `eeprom restore` checks a backup whole before anything goes on the wire
+(each damaged backup is exit 2, names the file and what is wrong, and the line sees no transaction at all);
+`eeprom dump` saves only an image two reads agree on; and a write to several servos (restore, free) says,
+servo by servo, what happened, also when the line is lost half-way."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import ExitCode, main
+from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
+from ics35_async.sim import VirtualLine, VirtualServo
+from tests._cli_fixtures import edit_backup, ics35, line
+
+__all__ = ["ics35", "line"]  # the shared fixtures, used by name
+
+Damage = Callable[[dict[str, Any]], None]
+
+
+def _set(key: str, value: Any) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc[key] = value
+
+    return damage
+
+
+def _raw(change: Callable[[str], str]) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc["raw"] = change(doc["raw"])
+
+    return damage
+
+
+def _field(name: str, value: Any) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        doc["fields"][name] = value
+
+    return damage
+
+
+def _drop(key: str) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        del doc[key]
+
+    return damage
+
+
+def _both(*damages: Damage) -> Damage:
+    def damage(doc: dict[str, Any]) -> None:
+        for one in damages:
+            one(doc)
+
+    return damage
+
+
+DAMAGED: dict[str, tuple[Damage, str]] = {
+    "unknown format": (_set("format", "something/9"), "'something/9' is not an ics35 EEPROM backup"),
+    "newer version": (_set("format", "ics35-eeprom/2"), "reads version 1 of EEPROM backups only"),
+    "no format": (_drop("format"), "no 'format'"),
+    "raw cut short": (_raw(lambda raw: raw[:100]), "'raw' has 100 hex digits, not 128"),
+    "raw too long": (_raw(lambda raw: raw + "00"), "'raw' has 130 hex digits, not 128"),
+    "raw starting with zz": (_raw(lambda raw: "zz" + raw[2:]), "'z' at character 1, which is not a hex digit"),
+    "a non-nibble byte": (_raw(lambda raw: raw[:20] + "7f" + raw[22:]), "'raw' byte 11 is 7f, not a nibble"),
+    "raw deleted": (_drop("raw"), "no 'raw' image"),
+    "raw not a string": (_set("raw", 5), "'raw' must be a string"),
+    "fields deleted": (_drop("fields"), "no 'fields' object"),
+    "a changed field": (_field("speed", 12), "field speed is 12 but the raw image holds 127"),
+    "unknown format and a changed field": (
+        _both(_set("format", "something/9"), _field("punch", 9)),
+        "'something/9' is not an ics35 EEPROM backup",
+    ),
+    "flags_names disagree": (_set("flags_names", ["REVERSE"]), "'flags_names' is ['REVERSE']"),
+    "a field missing": (lambda doc: doc["fields"].pop("damping"), "lacks field(s): damping"),
+    "a field not a number": (_field("speed", "fast"), "field speed must be an integer"),
+    "saved ID out of range": (_set("servo_id", 40), "'servo_id' must be an ID 0..31"),
+}
+
+
+@pytest.mark.parametrize("damage", DAMAGED, ids=list(DAMAGED))
+@pytest.mark.parametrize("how", ["to its own servo", "to a named servo", "from a directory"])
+def test_each_damaged_backup_is_refused_before_anything_is_sent(
+    ics35: Any, line: Any, tmp_path: Path, damage: str, how: str
+) -> None:
+    sim, url = line([1, 2])
+    folder = tmp_path / "backup"
+    assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{folder}/").code == 0
+    for i in (1, 2):  # the servos drift from their backups: a restore would write
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    bad = folder / "servo-02.json"
+    doc = json.loads(bad.read_text())
+    change, expected = DAMAGED[damage]
+    change(doc)
+    bad.write_text(json.dumps(doc))
+    before = sim.transactions
+    args = {"to its own servo": [str(bad)], "to a named servo": ["2", str(bad)], "from a directory": [str(folder)]}
+    result = ics35("--port", url, "eeprom", "restore", *args[how], "--yes")
+    assert result.code == ExitCode.USAGE, result.err
+    assert "servo-02.json" in result.err and expected in " ".join(result.err.split()), result.err
+    assert sim.transactions == before  # nothing sent, so nothing written either
+    assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
+
+
+def test_a_backup_edited_whole_is_restored(ics35: Any, line: Any, tmp_path: Path) -> None:
+    """Raw image and fields changed together is a backup that agrees with itself: it is written."""
+    sim, url = line([1])
+    backup = tmp_path / "one.json"
+    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    edit_backup(backup, speed=40)
+    result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
+
+
+# --------------------------------------------------------------------------- the account of every servo
+
+
+class PullsThePlug(VirtualServo):
+    """A servo at whose EEPROM write (``when="write"``) or at whose read-back after it (``"read-back"``)
+    the adapter is pulled out: the servo has done what it was told, no reply gets back."""
+
+    def __init__(self, servo_id: int, when: str) -> None:
+        super().__init__(servo_id)
+        self.when = when
+        self.line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        written = self.eeprom_writes > 0
+        if self.line is not None and (
+            (self.when == "write" and isinstance(command, WriteEeprom))
+            or (self.when == "read-back" and written and isinstance(command, ReadEeprom))
+        ):
+            self.line.unplug()
+        return reply
+
+
+def drifted_line(line: Any, tmp_path: Path, when: str) -> tuple[VirtualLine, str, Path, PullsThePlug]:
+    """Servos 1-3 backed up into DIR, then changed; servo 2 pulls the plug ``when``."""
+    plug = PullsThePlug(2, when)
+    sim, url = line([VirtualServo(1), plug, VirtualServo(3)])
+    folder = tmp_path / "backup"
+    assert ics35_cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/") == 0
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    plug.line = sim
+    return sim, url, folder, plug
+
+
+def ics35_cli(*args: str) -> int:
+    with pytest.raises(SystemExit) as exited:
+        main(list(args))
+    return int(exited.value.code or 0)
+
+
+def test_restore_lost_mid_write_says_what_each_servo_holds(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(line, tmp_path, "write")
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    out = " ".join(result.out.split())
+    assert "servo 1: 1 EEPROM field(s) written and verified" in out
+    assert "servo 2: unknown: the command stopped while the write was on its way" in out
+    assert "ics35 eeprom dump 2 --table" in out
+    assert "servo 3: not written (its EEPROM is as it was)" in out
+    err = " ".join(result.err.split())
+    assert "lost" in err or "unplugged" in err
+    assert f"run it again: ics35 --port {url} eeprom restore {folder}" in err
+    # What the report says is what the servos hold.
+    assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [127, 127, 99]
+    assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
+
+
+def test_restore_lost_before_the_read_back_in_json(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(line, tmp_path, "read-back")
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    servos = {s["id"]: s for s in result.json()["servos"]}
+    assert {i: s["outcome"] for i, s in servos.items()} == {1: "verified", 2: "unverified", 3: "not_written"}
+    assert [servos[i]["written"] for i in (1, 2, 3)] == [True, True, False]
+    assert "error" in servos[2] and "error" not in servos[1]
+    assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
+
+
+def test_restore_that_succeeds_reports_every_servo(ics35: Any, line: Any, tmp_path: Path) -> None:
+    sim, url = line([1, 2, 3])
+    folder = tmp_path / "backup"
+    assert ics35("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/").code == 0
+    for i in (1, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+    assert result.code == 0, result.err
+    outcomes = {s["id"]: s["outcome"] for s in result.json()["servos"]}
+    assert outcomes == {1: "verified", 2: "unchanged", 3: "verified"}
+    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+    assert result.code == 0 and "servo 2: EEPROM already matches" in result.out
+
+
+def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(ics35: Any, line: Any, tmp_path: Path) -> None:
+    """An EEPROM reply has no checksum: a corrupted nibble reads as a valid image.  A backup is saved only
+    from two reads that agree, so it is the servo's image or no backup at all."""
+    saved = 0
+    for seed in range(12):
+        sim, url = line([1], faults="corrupt@1:0.4", seed=seed)
+        backup = tmp_path / f"servo-{seed}.json"
+        result = ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup))
+        if result.code != 0:
+            assert not backup.exists()
+            continue
+        saved += 1
+        assert json.loads(backup.read_text())["raw"] == sim.servo(1).eeprom.to_bytes().hex(), seed
+    assert saved >= 8
+
+
+class UnpluggedWhenFreed(VirtualServo):
+    """A servo at whose free command the adapter is pulled out: it goes free, its reply never gets back."""
+
+    line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if self.line is not None and isinstance(command, Position) and command.position == 0:
+            self.line.unplug()
+        return reply
+
+
+def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(ics35: Any, line: Any) -> None:
+    puller = UnpluggedWhenFreed(2)
+    sim, url = line([VirtualServo(1), puller, VirtualServo(3)])
+    puller.line = sim
+    result = ics35("--port", url, "free", "1-3")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "servo 1: free at 7500" in result.out
+    assert "servo 2: unknown: the line was lost before it answered" in " ".join(result.out.split())
+    assert "servo 3: unknown" in result.out
+    assert "lost" in result.err or "unplugged" in result.err
+    assert [t.servo_id for t in sim.log] == [1, 2]  # servo 3 never heard its free: unknown is right

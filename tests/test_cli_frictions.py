@@ -1,0 +1,129 @@
+"""Small things a new user tripped over: the simulator named in the output, help texts, --json before the
+command, the environment named in errors, a directory as a port, joint angles without float noise."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ics35_async.cli import ExitCode
+from ics35_async.robot import load_description, open_robot
+from ics35_async.sim import VirtualLine, VirtualServo
+from tests._cli_fixtures import ics35, line
+
+__all__ = ["ics35", "line"]  # the shared fixtures, used by name
+
+
+@pytest.mark.parametrize("command", [["get", "1", "speed"], ["info", "1"], ["scan", "--ids", "1-2"]])
+def test_a_read_without_port_says_in_its_own_output_that_it_is_the_simulator(ics35: Any, command: list[str]) -> None:
+    result = ics35(*command)
+    assert result.code == 0, result.err
+    assert result.out.splitlines()[0].startswith("simulated servos (the built-in simulator")
+    as_json = ics35(*command[:1], *command[1:], "--json") if command[0] != "info" else None
+    if as_json is not None:
+        assert as_json.code == 0 and as_json.json()["simulated"] is True
+
+
+def test_a_read_with_a_port_is_not_marked(ics35: Any, line: Any) -> None:
+    _, url = line([1])
+    result = ics35("--port", url, "get", "1", "speed", "--json")
+    assert result.code == 0 and "simulated" not in result.json()
+    assert "simulated servos" not in ics35("--port", url, "get", "1", "speed").out
+
+
+def test_a_dump_without_port_stays_a_valid_backup_and_says_so(ics35: Any) -> None:
+    result = ics35("eeprom", "dump", "1")
+    assert result.code == 0, result.err
+    assert result.json()["simulated"] is True and result.json()["format"] == "ics35-eeprom/1"
+
+
+def test_eeprom_help_shows_the_summary_of_set_whole(ics35: Any) -> None:
+    result = ics35("eeprom", "--help")
+    assert result.code == 0
+    text = " ".join(result.out.split())
+    assert "Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH." in text
+    assert "e.g.\n" not in result.out and "asks..." not in text
+
+
+def test_json_before_the_command_is_accepted_like_the_line_options(ics35: Any, line: Any) -> None:
+    _, url = line([1])
+    result = ics35("--json", "--port", url, "get", "1", "speed")
+    assert result.code == 0, result.err
+    assert result.json()["value"] == 127
+    result = ics35("--json", "teach", "robot.toml", "out.json")
+    assert result.code == ExitCode.USAGE and "--json: `ics35 teach` has no JSON output" in result.err
+
+
+def test_a_bad_baud_from_the_environment_names_the_variable(ics35: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ICS35_BAUD", "12")
+    result = ics35("get", "1", "speed")
+    assert result.code == ExitCode.USAGE and "(from ICS35_BAUD=12)" in result.err
+
+
+def test_a_port_from_the_environment_is_named_when_it_fails(
+    ics35: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    missing = str(tmp_path / "ttyUSB9")
+    monkeypatch.setenv("ICS35_PORT", missing)
+    result = ics35("get", "1", "speed")
+    assert result.code == ExitCode.PORT
+    assert f"from the environment: ICS35_PORT={missing}" in result.err
+    result = ics35("--port", str(tmp_path / "other"), "get", "1", "speed")  # --port wins: not named
+    assert result.code == ExitCode.PORT and "ICS35_PORT" not in result.err
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a POSIX directory")
+def test_a_directory_as_a_port_says_so_once(ics35: Any, tmp_path: Path) -> None:
+    result = ics35("--port", str(tmp_path), "get", "1", "speed")
+    assert result.code == ExitCode.PORT
+    assert result.err.lower().count("is a directory") == 1 and result.err.count("Errno") == 1, result.err
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="the pty simulator is POSIX only")
+def test_sim_help_is_laid_out_like_every_other_command(ics35: Any) -> None:
+    theirs = ics35("scan", "--help").out
+    result = ics35("sim", "--help")
+    assert result.code == 0
+    assert result.out.startswith("Usage: ics35 sim [OPTIONS]") and theirs.startswith("Usage: ics35 scan [OPTIONS]")
+    assert "\nOptions:\n" in result.out and "\nOptions:\n" in theirs
+    assert "  --ids TEXT " in result.out and "Servo IDs, e.g. 0-31" in result.out  # click's metavars, capitals
+    assert "  -h, --help " in result.out and "Show this message and exit." in result.out
+    assert "usage:" not in result.out and "options:" not in result.out  # argparse's own layout
+
+
+def test_restore_to_a_silent_servo_names_restores_own_syntax(ics35: Any, line: Any, tmp_path: Path) -> None:
+    _, url = line([1])
+    backup = tmp_path / "one.json"
+    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    _, other = line([2])
+    result = ics35("--port", other, "--timeout", "0.005", "eeprom", "restore", str(backup), "--yes")
+    assert result.code == ExitCode.NO_REPLY
+    assert f"to write it to another servo: ics35 eeprom restore ID {backup}" in " ".join(result.err.split())
+
+
+def test_read_pose_has_no_float_noise_and_no_negative_zero(tmp_path: Path) -> None:
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)], name="frictions-pose")
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(
+        '[lines.main]\nport = "sim://frictions-pose"\n\n'
+        '[joints.a]\nline = "main"\nid = 1\noffset = 5\n\n'
+        '[joints.b]\nline = "main"\nid = 2\nreverse = true\n'
+    )
+    sim.servo(1).move_by_hand(7648)  # 4.995 servo degrees: joint -0.005, not -0.004999999999999893
+    sim.servo(2).move_by_hand(7500)  # neutral, reversed: 0.0, not -0.0
+
+    async def pose() -> dict[str, float]:
+        async with open_robot(load_description(robot_file), on_close="free") as robot:
+            return await robot.read_pose()
+
+    try:
+        got = asyncio.run(pose())
+    finally:
+        sim.close()
+    assert json.dumps(got) == json.dumps({"a": round((148 * 270 / 8000) - 5, 5), "b": 0.0})
+    assert str(got["b"]) == "0.0"
