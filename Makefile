@@ -34,7 +34,7 @@ robot-demo: $(DEMO_STAMP)
 # the older tree is reformatted in one separate commit when no branch is open against it).
 FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_public_api.py tests/test_wheel.py \
 	tests/test_exit_codes_doc.py tests/test_engine_paced_faults.py tests/test_soak_watchdog.py tests/test_device_faults.py \
-	tests/test_typing.py benchmarks/soak/watchdog.py \
+	tests/test_typing.py tests/test_running.py benchmarks/soak/watchdog.py ics35_async/running.py \
 	tools/mkdocs_hooks.py
 
 lint: $(STAMP)

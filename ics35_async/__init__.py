@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from .group import BusGroup, GroupStream
     from .line import Line
     from .robot import Robot, RobotStream, SafetyStop, open_robot
+    from .running import run
     from .servo import Device, Servo
     from .stream import Stream
 
@@ -71,6 +72,7 @@ _LAZY = {
     "RobotStream": ".robot",
     "SafetyStop": ".robot",
     "open_robot": ".robot",
+    "run": ".running",
 }
 
 
@@ -108,6 +110,7 @@ __all__ = [
     "StreamStats",
     "open_bus",
     "open_robot",
+    "run",
     "EchoMismatch",
     "Eeprom",
     "Flags",

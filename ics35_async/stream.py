@@ -37,6 +37,7 @@ STREAM_OPTIONS = frozenset(
 WATCH = -1
 """The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
 IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held
+FREE_ON_CLOSE_BOUND = 2.0  # seconds on_close="free" may take when the stream closes
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
 OnClose = Literal["hold", "free"]
@@ -507,9 +508,12 @@ class Stream:
             return
         self._stop()
         if self.on_close == "free" and self.bus.is_open:
-            async with anyio.create_task_group() as group:
-                for i in self.ids:
-                    group.start_soon(self._free_quietly, i)
+            # Shielded: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
+            # ics35_async.run) must still free its servos; bounded, in case the line is gone.
+            with anyio.CancelScope(shield=True), anyio.move_on_after(FREE_ON_CLOSE_BOUND):
+                async with anyio.create_task_group() as group:
+                    for i in self.ids:
+                        group.start_soon(self._free_quietly, i)
 
     async def _free_quietly(self, servo_id: int) -> None:
         with contextlib.suppress(IcsError):

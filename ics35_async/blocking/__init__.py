@@ -25,6 +25,7 @@ each call; async code does better with the async API.
 
 from __future__ import annotations
 
+from ..running import stop_on_signals
 from .bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
 from .robot import BlockingRobot, open_robot
 from .stream import BlockingStream
@@ -37,4 +38,5 @@ __all__ = [
     "BlockingStream",
     "open_bus",
     "open_robot",
+    "stop_on_signals",
 ]

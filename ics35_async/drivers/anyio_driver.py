@@ -77,6 +77,7 @@ class AnyioDriver:
         self._scope: anyio.CancelScope | None = None
         self._waiting_until = INF  # the engine deadline the task's current wait ends at
         self._idle: list[anyio.Event] = []
+        self._task_scope = anyio.CancelScope()  # the bus task's own, shielded scope (see _run_shielded)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -84,7 +85,7 @@ class AnyioDriver:
         await self._connect()
         self._group = anyio.create_task_group()
         await self._group.__aenter__()
-        self._group.start_soon(self._run, name=f"ics35 bus {self.port}")
+        self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.port}")
 
     async def _open_port(self) -> FdPort | DevicePort:
         port = self.port
@@ -120,20 +121,33 @@ class AnyioDriver:
     async def aclose(self) -> None:
         engine = self.engine
         engine.close()
-        if engine.state is State.DRAINING:
-            with anyio.move_on_after(engine.drain_bound):
-                await self.wait_idle()
-        engine.abort()
-        self._release_idle()
-        if self._group is not None:
-            self._group.cancel_scope.cancel()
-            await self._group.__aexit__(None, None, None)
-            self._group = None
-        line, self.line = self.line, None
-        if line is not None:
-            line.close()
+        try:
+            if engine.state is State.DRAINING:
+                with anyio.move_on_after(engine.drain_bound):
+                    await self.wait_idle()
+        finally:
+            # Even when the closing task is cancelled (Ctrl-C, a timeout around the program): the
+            # bus task's group must end here, in the task that began it, or trio's nursery stack
+            # is corrupted and the program dies with a traceback instead of closing.
+            engine.abort()
+            self._release_idle()
+            if self._group is not None:
+                group, self._group = self._group, None
+                self._task_scope.cancel()
+                group.cancel_scope.cancel()
+                await group.__aexit__(None, None, None)  # no scope around it: it closes the group's own
+            line, self.line = self.line, None
+            if line is not None:
+                line.close()
 
     # ------------------------------------------------------------------ the bus task
+
+    async def _run_shielded(self) -> None:
+        # Shielded from the opening task's cancellation: a program cancelled inside ``async with
+        # open_bus(...)`` (Ctrl-C, SIGTERM, a timeout) still has its line while it puts its servos
+        # to rest on the way out (a stream's on_close, a robot's stop); aclose() ends it.
+        with anyio.CancelScope(shield=True) as self._task_scope:
+            await self._run()
 
     async def _run(self) -> None:
         engine = self.engine
