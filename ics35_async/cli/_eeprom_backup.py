@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import datetime
 import json
 import os
 import sys
@@ -13,10 +12,10 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from .. import protocol
-from ..eeprom import EEPROM_FIELDS, Eeprom
+from ..eeprom import Eeprom
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError
-from ..policies import check_changes, plan_eeprom_write, probe_ids
+from ..policies import plan_eeprom_write, probe_ids
+from ..policies.eeprom_backup import backup_changes, backup_document
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -35,8 +34,6 @@ from ._common import (
 )
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import print_reports, write_plans
-
-DUMP_FORMAT = "ics35-eeprom/1"
 
 
 def backup_name(servo_id: int) -> str:
@@ -69,18 +66,7 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
 
 
 def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
-    fields = image.to_dict()
-    return {
-        "format": DUMP_FORMAT,
-        "servo_id": servo_id,
-        "baud": settings.baud,
-        "port": settings.port,
-        "saved": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "fields": {name: fields[name] for name in EEPROM_FIELDS},
-        "flags_names": fields["flags_names"],
-        "raw": fields["raw"],
-        "unknown_codes": fields["unknown_codes"],
-    }
+    return backup_document(image, servo_id, baud=settings.baud, port=settings.port)
 
 
 async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
@@ -157,31 +143,6 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
 # --------------------------------------------------------------------------- restore
 
 
-def fields_from_document(doc: object) -> dict[str, int]:
-    """The editable fields of a dump (``fields`` wins over ``raw`` when both are there)."""
-    if not isinstance(doc, dict):
-        raise InvalidArgument("an EEPROM backup is a JSON object (made by `ics35 eeprom dump`)")
-    fields = doc.get("fields")
-    if fields is None and isinstance(doc.get("raw"), str):
-        try:
-            image = Eeprom.from_bytes(bytes.fromhex(doc["raw"]))
-        except ValueError as exc:
-            raise InvalidArgument(f"the backup's raw image is unusable: {exc}") from None
-        fields = {name: int(getattr(image, name)) for name in EEPROM_FIELDS}
-    if not isinstance(fields, dict):
-        raise InvalidArgument("the backup has neither 'fields' nor 'raw' (was it made by `ics35 eeprom dump`?)")
-    unknown = set(fields) - set(EEPROM_FIELDS)
-    if unknown:
-        raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(sorted(unknown))}")
-    missing = set(EEPROM_FIELDS) - set(fields)
-    if missing:
-        raise InvalidArgument(f"the backup lacks field(s): {', '.join(sorted(missing))}")
-    for name, value in fields.items():
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InvalidArgument(f"field {name} must be an integer, got {value!r}")
-    return dict(fields)
-
-
 @dataclass
 class Backup:
     """One checked backup file and the servo it goes to."""
@@ -196,16 +157,10 @@ def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         text = sys.stdin.read() if source == "-" else Path(source).read_text()
-        doc = json.loads(text)
-        fields = fields_from_document(doc)
-        saved = doc.get("servo_id")
-        saved_id = saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
-        protocol.check_id(saved_id)
+        changes = backup_changes(json.loads(text), restore_id=restore_id)
+        fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
-        if not restore_id:
-            del fields["servo_id"]
-        check_changes(fields)
     except OSError as exc:
         raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
     except json.JSONDecodeError as exc:
