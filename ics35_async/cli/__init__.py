@@ -26,7 +26,9 @@ from ._settings import CliError, ExitCode
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
 # Modules whose COMMANDS list is mounted on the group (imported on first use).
-COMMAND_MODULES = ("_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports", "_robot_play", "_robot_teach")
+COMMAND_MODULES = (
+    "_basic", "_eeprom", "_monitor", "_demo", "_simcmd", "_ports", "_robot_play", "_robot_teach", "_web",
+)  # fmt: skip
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
 # Commands that open no line: no line options after them either.

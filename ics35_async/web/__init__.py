@@ -1,0 +1,18 @@
+"""``ics35 web``: the servo configurator in the browser (install with ``pip install 'ics35_async[web]'``).
+
+A Starlette app served by uvicorn, with a front end of our own (plain
+HTML, CSS and JavaScript in ``static/``).  Modules: :mod:`.security` (the
+token, the cookie, the Origin and Host checks), :mod:`.traffic` (the last
+transactions), :mod:`.views` (results as JSON), :mod:`.live` (the plotted
+stream), :mod:`.session` (the line and every action, through the library's
+policies), :mod:`.api` (HTTP and WebSocket handlers), :mod:`.server`
+(the app and running it).  Nothing imports this package but ``ics35 web``.
+"""
+
+from __future__ import annotations
+
+from .security import load_token, new_token
+from .server import Listen, create_app, serve
+from .session import LineConfig, LineSession
+
+__all__ = ["LineConfig", "LineSession", "Listen", "create_app", "load_token", "new_token", "serve"]

@@ -1,0 +1,119 @@
+"""The configurator's server: the Starlette app (pages, API, WebSocket, behind the token guard) and
+running it with uvicorn on a socket bound before the URL is printed."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import webbrowser
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from starlette.applications import Starlette
+from starlette.middleware import Middleware
+from starlette.responses import FileResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from ..errors import InvalidArgument
+from .api import ROUTES
+from .security import TokenGuard, is_loopback
+from .session import LineConfig, LineSession
+
+STATIC = Path(__file__).with_name("static")
+
+
+@dataclass(frozen=True)
+class Listen:
+    host: str = "127.0.0.1"
+    port: int = 0  # 0: a free port
+
+    @classmethod
+    def parse(cls, text: str) -> Listen:
+        """``HOST:PORT``, ``HOST`` or ``:PORT`` (IPv6 in brackets: ``[::1]:8080``)."""
+        text = text.strip()
+        host, port = text, ""
+        if text.startswith("["):
+            host, _, rest = text[1:].partition("]")
+            port = rest.removeprefix(":")
+        elif text.count(":") == 1:
+            host, port = text.split(":")
+        if port and not (port.isdigit() and int(port) <= 65535):
+            raise InvalidArgument(f"--listen {text}: the port must be a number 0..65535")
+        return cls(host or "127.0.0.1", int(port or 0))
+
+    @property
+    def loopback(self) -> bool:
+        return is_loopback(self.host)
+
+
+async def _index(request: object) -> Response:
+    return FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
+
+
+def create_app(session: LineSession, token: str, *, loopback: bool = True) -> Starlette:
+    """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`)."""
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        with contextlib.suppress(Exception):
+            await session.connect()  # a port that fails is shown on the Line page
+        try:
+            yield
+        finally:
+            await session.close()
+
+    app = Starlette(
+        routes=[Route("/", _index), *ROUTES, Mount("/static", StaticFiles(directory=STATIC), name="static")],
+        middleware=[Middleware(TokenGuard, token=token, loopback_only_hosts=loopback)],
+        lifespan=lifespan,
+    )
+    app.state.session = session
+    return app
+
+
+def bind(listen: Listen) -> socket.socket:
+    family = socket.AF_INET6 if ":" in listen.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((listen.host, listen.port))
+    except OSError as exc:
+        sock.close()
+        raise InvalidArgument(f"cannot listen on {listen.host}:{listen.port}: {exc.strerror or exc}") from None
+    sock.listen(64)
+    return sock
+
+
+def url_of(sock: socket.socket, token: str) -> str:
+    host, port = sock.getsockname()[:2]
+    shown = f"[{host}]" if ":" in host else host
+    if host in ("0.0.0.0", "::"):
+        shown = "127.0.0.1" if host == "0.0.0.0" else "[::1]"
+    return f"http://{shown}:{port}/?token={token}"
+
+
+def serve(
+    config: LineConfig,
+    token: str,
+    listen: Listen,
+    *,
+    open_browser: bool = True,
+    announce: Callable[[str], None] = print,
+) -> None:
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it)."""
+    import uvicorn
+
+    sock = bind(listen)
+    app = create_app(LineSession(config), token, loopback=listen.loopback)
+    url = url_of(sock, token)
+    announce(url)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
+    if open_browser:
+        with contextlib.suppress(Exception):
+            webbrowser.open(url)
+    try:
+        server.run(sockets=[sock])
+    finally:
+        sock.close()

@@ -1,0 +1,90 @@
+"""The Traffic page's record: the last transactions on the line, taken from the engine's own debug log.
+
+The engine logs every finished transaction (``id tx rx``) and every failure
+at DEBUG on the ``ics35_async`` logger; while someone watches the Traffic
+page this handler is attached and the level lowered, so nothing is added to
+the hot path when nobody looks.  A failure is logged right after its
+transaction, and is attached to it as its outcome.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections import deque
+from typing import Any
+
+LOGGER = logging.getLogger("ics35_async")
+COMMANDS = {0x80: "position", 0xA0: "read", 0xC0: "write", 0xE0: "id"}
+SUBCOMMANDS = {0: "eeprom", 1: "stretch", 2: "speed", 3: "current", 4: "temperature", 5: "position (3.6)"}
+
+
+def describe(tx: bytes) -> tuple[int | None, str]:
+    """(servo ID, command name) of a command's bytes, for a person."""
+    if not tx:
+        return None, "-"
+    kind = tx[0] & 0xE0
+    name = COMMANDS.get(kind, f"0x{tx[0]:02X}")
+    if kind == 0xE0:
+        return None, "id read" if len(tx) > 1 and tx[1] == 0 else "id write"
+    if kind in (0xA0, 0xC0) and len(tx) > 1:
+        name = f"{name} {SUBCOMMANDS.get(tx[1], f'sc {tx[1]}')}"
+    if kind == 0x80 and len(tx) >= 3 and tx[1] == 0 and tx[2] == 0:
+        name = "free"
+    return tx[0] & 0x1F, name
+
+
+class TrafficLog(logging.Handler):
+    """A ring of the last ``size`` transactions (dicts ready for JSON), each with a sequence number."""
+
+    def __init__(self, size: int = 2000) -> None:
+        super().__init__(logging.DEBUG)
+        self.entries: deque[dict[str, Any]] = deque(maxlen=size)
+        self._seq = itertools.count(1)
+        self._watchers = 0
+        self._level_before = LOGGER.level
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.msg == "id %s tx %s rx %s" and len(record.args or ()) == 3:
+            _, tx_hex, rx_hex = record.args  # type: ignore[misc]
+            tx = bytes.fromhex(str(tx_hex))
+            servo_id, command = describe(tx)
+            rx = bytes.fromhex(str(rx_hex))
+            echo = rx[: len(tx)] == tx
+            self.entries.append(
+                {
+                    "seq": next(self._seq),
+                    "time": record.created,
+                    "id": servo_id,
+                    "command": command,
+                    "sent": str(tx_hex),
+                    "received": str(rx_hex),
+                    "outcome": "ok" if len(rx) > len(tx) or (rx and not echo) else "no reply",
+                }
+            )
+        elif record.levelno == logging.DEBUG and record.msg == "%s" and self.entries:
+            # A failure of the transaction just logged (see engine.failures).
+            self.entries[-1]["outcome"] = str(record.getMessage())
+        elif record.levelno >= logging.WARNING:
+            self.entries.append(
+                {"seq": next(self._seq), "time": record.created, "id": None, "command": "line",
+                 "sent": "", "received": "", "outcome": record.getMessage()}
+            )  # fmt: skip
+
+    def since(self, seq: int) -> list[dict[str, Any]]:
+        return [e for e in self.entries if e["seq"] > seq]
+
+    def watch(self) -> None:
+        """Someone opened the Traffic page: start recording."""
+        self._watchers += 1
+        if self._watchers == 1:
+            self._level_before = LOGGER.level
+            LOGGER.addHandler(self)
+            LOGGER.setLevel(logging.DEBUG)
+
+    def unwatch(self) -> None:
+        self._watchers = max(0, self._watchers - 1)
+        if self._watchers == 0:
+            LOGGER.removeHandler(self)
+            LOGGER.setLevel(self._level_before)
+
