@@ -12,15 +12,12 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from starlette.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
 
-pytest.importorskip("starlette", reason="the web extra is part of the dev install (make)")
-
-from starlette.testclient import TestClient  # noqa: E402
-from starlette.websockets import WebSocketDisconnect  # noqa: E402
-
-from ics35_async.sim import VirtualLine, VirtualServo  # noqa: E402
-from ics35_async.web import LineConfig, LineSession, create_app  # noqa: E402
-from ics35_async.web.security import COOKIE  # noqa: E402
+from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.web import LineConfig, LineSession, create_app
+from ics35_async.web.security import COOKIE
 
 TOKEN = "test-token-0123456789abcdef"
 BASE = "http://127.0.0.1:8765"
@@ -86,7 +83,9 @@ def test_state_changes_from_another_site_or_not_as_json_are_refused_and_nothing_
     client, sim = serve()
     before = sim.servo(1).eeprom
     changes = {"changes": {"speed": 50}}
-    evil = client.post("/api/servo/1/write", content=json.dumps(changes), headers={**JSON, "origin": "http://evil.example"})
+    evil = client.post(
+        "/api/servo/1/write", content=json.dumps(changes), headers={**JSON, "origin": "http://evil.example"}
+    )
     assert evil.status_code == 403
     form = client.post("/api/servo/1/write", data={"changes": "x"})  # what a cross-site <form> can send
     assert form.status_code == 415
@@ -128,7 +127,8 @@ def test_eeprom_fields_carry_their_unit_range_and_meaning(serve: Any) -> None:
     view = client.get("/api/servo/3/eeprom").json()
     fields = {f["name"]: f for f in view["fields"]}
     assert fields["speed"]["value"] == sim.servo(3).eeprom.speed
-    assert (fields["stretch_gain"]["low"], fields["stretch_gain"]["high"], fields["stretch_gain"]["even"]) == (2, 254, True)
+    gain = fields["stretch_gain"]
+    assert (gain["low"], gain["high"], gain["even"]) == (2, 254, True)
     assert fields["safe_timer"]["unit"] and fields["punch"]["meaning"]
     assert {f["name"] for f in fields["flags"]["flags"] if f["read_only"]} == {"FREE", "PCM"}
 

@@ -12,6 +12,7 @@ import contextlib
 import functools
 import json
 import logging
+import sys
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -32,7 +33,12 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..transports.listing import kondo_usb_without_port, linux_adapter_steps, list_serial_ports
+from ..transports.listing import (
+    HS_ADAPTER_USB_ID,
+    kondo_usb_without_port,
+    linux_adapter_steps,
+    list_serial_ports,
+)
 from .session import LineSession
 
 log = logging.getLogger("ics35_async.web")
@@ -127,6 +133,11 @@ async def ports(request: Request, session: LineSession) -> Any:
         + " ; ".join(linux_adapter_steps(usb_id))
         for usb_id in kondo_usb_without_port()
     ]
+    if not any(p["kondo"] for p in found) and not notes and sys.platform.startswith("linux"):
+        notes.append(
+            "no Kondo adapter listed: an ICS USB adapter HS that is plugged in may need Linux's ftdi_sio driver "
+            f"told its USB ID: {' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}"
+        )
     return {"ports": found, "notes": notes}
 
 

@@ -59,7 +59,7 @@ class LineConfig:
     def url(self) -> str:
         """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos."""
         if self.port == "sim://" or self.port.startswith("sim://?"):
-            return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://'):]}"
+            return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://') :]}"
         return self.port
 
 

@@ -87,4 +87,3 @@ class TrafficLog(logging.Handler):
         if self._watchers == 0:
             LOGGER.removeHandler(self)
             LOGGER.setLevel(self._level_before)
-

@@ -72,7 +72,7 @@ function showStatus(s) {
   $("#lost-banner").hidden = !s.lost;
   const where = `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
-  if (!$("#port-input").value) $("#port-input").value = s.port;
+  if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
 
 // ---- Line
@@ -393,8 +393,11 @@ function drawTraffic() {
 
 let socket = null;
 
+// Recording starts when the Traffic page is first opened (it costs the line a little), and goes on
+// while this page is open, so what other pages do can be looked at afterwards.
 function socketSend() {
-  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ traffic: location.hash.startsWith("#traffic") }));
+  if (location.hash.startsWith("#traffic")) state.trafficWanted = true;
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ traffic: !!state.trafficWanted }));
 }
 
 function connectSocket() {
