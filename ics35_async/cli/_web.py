@@ -65,8 +65,11 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
         click.echo(url)
         sys.stdout.flush()
 
+    def warn(text: str) -> None:
+        err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
+
     try:
-        serve(config, token, where, open_browser=not no_browser, announce=announce)
+        serve(config, token, where, open_browser=not no_browser, announce=announce, warn=warn)
     except InvalidArgument as exc:
         raise CliError(ExitCode.USAGE, str(exc)) from None
     except KeyboardInterrupt:

@@ -11,8 +11,9 @@ policies), :mod:`.api` (HTTP and WebSocket handlers), :mod:`.server`
 
 from __future__ import annotations
 
+from .config import LineConfig
 from .security import load_token, new_token
 from .server import Listen, create_app, serve
-from .session import LineConfig, LineSession
+from .session import LineSession
 
 __all__ = ["LineConfig", "LineSession", "Listen", "create_app", "load_token", "new_token", "serve"]

@@ -39,6 +39,7 @@ from ..transports.listing import (
     linux_adapter_steps,
     list_serial_ports,
 )
+from .config import error_text
 from .session import LineSession
 
 log = logging.getLogger("ics35_async.web")
@@ -73,7 +74,7 @@ def error_response(exc: BaseException) -> JSONResponse:
     elif isinstance(exc, KeyError):
         message = f"missing {exc}"
     else:
-        message = str(exc) or type(exc).__name__
+        message = error_text(exc)
     return JSONResponse({"error": message, "kind": type(exc).__name__}, status_code=status)
 
 
@@ -247,6 +248,10 @@ async def live_stop(request: Request, session: LineSession) -> Any:
     return session.status()
 
 
+async def live(request: Request, session: LineSession) -> Any:
+    return None if session.live is None else session.live.snapshot()
+
+
 async def traffic(request: Request, session: LineSession) -> Any:
     since = request.query_params.get("since", "0")
     return {"entries": session.traffic.since(int(since) if since.isdigit() else 0)}
@@ -321,6 +326,7 @@ ROUTES = [
     Route("/api/many/apply", endpoint(many_apply), methods=["POST"]),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
+    Route("/api/live", endpoint(live)),
     Route("/api/traffic", endpoint(traffic)),
     WebSocketRoute("/ws", updates),
 ]

@@ -18,8 +18,9 @@ from starlette.staticfiles import StaticFiles
 
 from ..errors import InvalidArgument
 from .api import ROUTES
+from .config import LineConfig, error_text
 from .security import TokenGuard, is_loopback
-from .session import LineConfig, LineSession
+from .session import LineSession
 
 STATIC = Path(__file__).with_name("static")
 
@@ -52,13 +53,22 @@ async def _index(request: object) -> Response:
     return FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
 
 
-def create_app(session: LineSession, token: str, *, loopback: bool = True) -> Starlette:
-    """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`)."""
+def create_app(
+    session: LineSession, token: str, *, loopback: bool = True, warn: Callable[[str], None] | None = None
+) -> Starlette:
+    """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`).
+
+    The line opens when the server starts; a port that cannot be opened is
+    shown on the Line page (and given to ``warn``), where another can be chosen.
+    """
 
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
-        with contextlib.suppress(Exception):
-            await session.connect()  # a port that fails is shown on the Line page
+        try:
+            await session.connect()
+        except Exception as exc:
+            if warn is not None:
+                warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
         try:
             yield
         finally:
@@ -101,12 +111,13 @@ def serve(
     *,
     open_browser: bool = True,
     announce: Callable[[str], None] = print,
+    warn: Callable[[str], None] | None = None,
 ) -> None:
-    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it)."""
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong."""
     import uvicorn
 
     sock = bind(listen)
-    app = create_app(LineSession(config), token, loopback=listen.loopback)
+    app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn)
     url = url_of(sock, token)
     announce(url)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -34,33 +33,10 @@ from ..policies import (
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
 from ..units import current_from_raw, temperature_to_celsius
+from .config import LineConfig, error_text
 from .live import LiveView
 from .traffic import TrafficLog
 from .views import eeprom_view, plan_view, result_view, survey_view
-
-
-@dataclass(frozen=True)
-class LineConfig:
-    """How to open the line (the CLI's line options)."""
-
-    port: str = "sim://"
-    baud: int = 115200
-    echo: bool = True
-    adapter_latency: float = 0.020
-    retries: int = 1
-    transport: str = "auto"
-    direction: str = "none"
-
-    @property
-    def is_sim(self) -> bool:
-        return self.port.startswith("sim://")
-
-    @property
-    def url(self) -> str:
-        """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos."""
-        if self.port == "sim://" or self.port.startswith("sim://?"):
-            return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://') :]}"
-        return self.port
 
 
 @dataclass
@@ -122,7 +98,7 @@ class LineSession:
             try:
                 await bus.open()
             except (OSError, InvalidArgument) as exc:
-                self.error = str(exc)
+                self.error = error_text(exc)
                 raise
             self.bus = bus
             self.error = None
@@ -217,7 +193,11 @@ class LineSession:
         """Temperature and current of the servos found (reads that move nothing); skipped while busy."""
         if self.exclusive.locked() or self.bus is None or not self.bus.is_open or self.live is not None:
             return self.telemetry
-        bus = self.bus
+        async with self.exclusive:  # a scan that starts meanwhile waits for this round, not the other way
+            await self._read_telemetry(self.bus)
+        return self.telemetry
+
+    async def _read_telemetry(self, bus: Bus) -> None:
         for servo in list(self.found):
             sid = servo.servo_id
             if servo.baud != bus.baudrate:
@@ -237,7 +217,6 @@ class LineSession:
             except ReplyError as exc:
                 entry = {"telemetry_error": str(exc)}
             self.telemetry[sid] = entry
-        return self.telemetry
 
     # ------------------------------------------------------------------ one servo's EEPROM
 
