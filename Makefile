@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: all demo test lint typecheck pytest bench soak clean browser web-demo
+.PHONY: all demo test lint typecheck pytest bench soak clean browser web-demo bench-web
 
 all: test
 
@@ -49,6 +49,10 @@ test: lint typecheck pytest
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
+
+# The web configurator's cost: stream rate with the Live plots page open vs none, server CPU per update (~25 s).
+bench-web: $(STAMP)
+	$(BIN)/python benchmarks/bench_web.py
 
 soak: $(STAMP)
 	$(BIN)/python -m benchmarks.soak --json benchmarks/soak_results.json
