@@ -114,12 +114,12 @@ def serve(
     warn: Callable[[str], None] | None = None,
 ) -> None:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong."""
-    import uvicorn
-
     sock = bind(listen)
     app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn)
     url = url_of(sock, token)
-    announce(url)
+    announce(url)  # the socket listens already: a browser that comes now waits in its backlog
+    import uvicorn  # after the URL: it is the slower half of the start-up
+
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
     if open_browser:
         with contextlib.suppress(Exception):
