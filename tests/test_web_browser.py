@@ -33,7 +33,8 @@ CHROMIUM_ARGS = [
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]  # fmt: skip
 IMAGES = Path(__file__).resolve().parents[1] / "docs" / "images"
-WAIT_MS = 20_000
+WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
+expect.set_options(timeout=WAIT_MS)
 
 
 class PtyLine:
@@ -114,6 +115,35 @@ def base_of(url: str) -> str:
     return url.split("/?")[0]
 
 
+@pytest.fixture(scope="module")
+def simulator_server() -> Iterator[str]:
+    """``ics35 web --no-browser`` with no port: the built-in simulator."""
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=environment,
+    )
+    assert proc.stdout is not None
+    yield proc.stdout.readline().strip()
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+
+
+def test_the_built_in_simulator_is_labelled_on_every_page(browser: Browser, simulator_server: str) -> None:
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(simulator_server)
+    for name in ("line", "servo", "id", "many", "live", "traffic"):
+        p.click(f"a[href='#{name}']")
+        expect(p.locator("#sim-banner")).to_be_visible()
+        expect(p.locator("#sim-banner")).to_contain_text("SIMULATOR")
+    context.close()
+
+
 def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:
     context = browser.new_context()
     refused = context.new_page().goto(base_of(server) + "/")
@@ -135,6 +165,7 @@ def test_scan_lists_the_servos_with_live_temperature(page: Page, lines: Any) -> 
     page.click("#scan-btn")
     expect(page.locator("#servo-table tbody tr")).to_have_count(2)
     expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
+    expect(page.locator("#scan-progress")).to_have_js_property("value", 32)  # every ID, as it went
     expect(page.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
     shot(page, "line")
 
