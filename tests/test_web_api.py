@@ -272,3 +272,17 @@ def test_bad_input_is_answered_in_words(serve: Any) -> None:
     assert not_json.status_code == 400 and "not JSON" in not_json.json()["error"]
     wrong_port = post(client, "/api/connect", {"port": "/dev/does-not-exist"})
     assert wrong_port.status_code == 503 and "does-not-exist" in wrong_port.json()["error"]
+
+
+def test_restoring_with_its_id_renumbers_only_when_asked_and_the_new_id_is_free(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    doc = client.get("/api/servo/1/backup").json()
+    doc["servo_id"] = doc["fields"]["servo_id"] = 6
+    plan = post(client, "/api/servo/3/restore/plan", {"doc": doc, "restore_id": True}).json()
+    assert plan["refusal"] is None and plan["changes_id"] and plan["saved_id"] == 6
+    result = post(client, "/api/servo/3/restore", {"doc": doc, "restore_id": True, "before": plan["before"]}).json()
+    assert result["verified"] and sorted(s.servo_id for s in sim.servos) == [1, 6]
+    doc["servo_id"] = doc["fields"]["servo_id"] = 1  # taken: servo 1 answers
+    taken = post(client, "/api/servo/6/restore", {"doc": doc, "restore_id": True})
+    assert taken.status_code == 409 and "already answers" in taken.json()["error"]
+    assert sorted(s.servo_id for s in sim.servos) == [1, 6]

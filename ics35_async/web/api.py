@@ -188,8 +188,6 @@ async def restore_plan(request: Request, session: LineSession) -> Any:
 async def restore(request: Request, session: LineSession) -> Any:
     data = await body(request)
     edit = {**data, **session.restore_edit(data.get("doc"), restore_id=data.get("restore_id") is True)}
-    if edit.get("restore_id") is True:
-        edit["allow_id_change"] = True
     return await session.write(servo_id(request), edit)
 
 

@@ -254,8 +254,10 @@ class LineSession:
                 )
             result = await write_eeprom_plan(self.line(), plan, **_allowances(edit))
         after = result.read_back or plan.after
-        new_id = after.servo_id if servo_id in result.answering_ids or not result.answering_ids else servo_id
-        self._limits[new_id] = (after.pulse_limit_low, after.pulse_limit_high)
+        if plan.changes_id:
+            self._limits.pop(servo_id, None)
+            self.motion_enabled.discard(servo_id)
+        self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
         return result_view(result)
 
     async def backup(self, servo_id: int) -> dict[str, Any]:
@@ -265,7 +267,8 @@ class LineSession:
     def restore_edit(self, doc: object, *, restore_id: bool) -> dict[str, Any]:
         """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`."""
         changes = backup_changes(doc, restore_id=restore_id)
-        return {"changes": changes.fields, "saved_id": changes.saved_id}
+        # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.
+        return {"changes": changes.fields, "saved_id": changes.saved_id, "allow_id_change": restore_id}
 
     async def apply_to_many(self, ids: list[Any], edit: Mapping[str, Any]) -> list[dict[str, Any]]:
         """The same edit (a profile of chosen fields) written to each servo in turn; an outcome per servo."""

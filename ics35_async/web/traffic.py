@@ -72,7 +72,8 @@ class TrafficLog(logging.Handler):
             )  # fmt: skip
 
     def since(self, seq: int) -> list[dict[str, Any]]:
-        return [e for e in self.entries if e["seq"] > seq]
+        # list() copies without letting another thread in (a thread driver logs from its I/O thread).
+        return [e for e in list(self.entries) if e["seq"] > seq]
 
     def watch(self) -> None:
         """Someone opened the Traffic page: start recording."""
