@@ -200,11 +200,13 @@ def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limit
     off = post(client, "/api/servo/1/move", {"position": 8000})
     assert off.status_code == 409 and "enable motion" in off.json()["error"]
     assert sim.servo(1).target is None
+    sim.servo(1).move_by_hand(7000)
     enabled = post(client, "/api/servo/1/motion", {"enabled": True}).json()
-    assert enabled == {"enabled": True, "limits": [6000, 9000]}
+    assert enabled == {"enabled": True, "limits": [6000, 9000], "position": 7000}
+    assert sim.servo(1).target == 7000  # held where it stood, not moved
     outside = post(client, "/api/servo/1/move", {"position": 9500})
     assert outside.status_code == 400 and "6000..9000" in outside.json()["error"]
-    assert sim.servo(1).target is None
+    assert sim.servo(1).target == 7000
     assert post(client, "/api/servo/1/move", {"position": 8000}).status_code == 200
     assert sim.servo(1).target == 8000
     post(client, "/api/servo/1/free")

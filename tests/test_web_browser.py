@@ -207,12 +207,15 @@ def test_backup_then_restore_from_the_file(page: Page, lines: Any, tmp_path: Pat
 def test_jog_moves_the_servo_only_with_motion_enabled(page: Page, lines: Any) -> None:
     sim = lines[0].sim
     expect(page.locator("#jog-plus")).to_be_disabled()
+    sim.servo(1).move_by_hand(8200)
     page.check("#motion-switch")
     expect(page.locator("#jog-plus")).to_be_enabled()
+    expect(page.locator("#jog-target")).to_have_text("8200")  # held where it stands
+    assert sim.servo(1).target == 8200
     page.click("#jog-plus")
-    expect(page.locator("#jog-target")).to_have_text("7600")
+    expect(page.locator("#jog-target")).to_have_text("8300")
     expect(page.locator("#jog-position")).not_to_have_text("-")
-    assert sim.servo(1).target == 7600
+    assert sim.servo(1).target == 8300
     page.click("#free-btn")
     expect(page.locator("#jog-plus")).to_be_disabled()
     expect(page.locator("#message")).to_contain_text("free")

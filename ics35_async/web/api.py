@@ -201,12 +201,8 @@ async def hold(request: Request, session: LineSession) -> Any:
 
 async def motion(request: Request, session: LineSession) -> Any:
     sid, data = servo_id(request), await body(request)
-    if data.get("enabled") is True:
-        await session.read_eeprom(sid)  # the limits every jog is checked against
-        session.motion_enabled.add(sid)
-    else:
-        session.motion_enabled.discard(sid)
-    return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid)}
+    position = await session.enable_motion(sid) if data.get("enabled") is True else session.disable_motion(sid)
+    return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid), "position": position}
 
 
 async def move(request: Request, session: LineSession) -> Any:

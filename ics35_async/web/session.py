@@ -301,6 +301,18 @@ class LineSession:
         position = await servo.free()
         return await servo.set_position(self.check_target(servo_id, position))
 
+    async def enable_motion(self, servo_id: int) -> int:
+        """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
+        steps from there rather than jumping to wherever the slider happened to be."""
+        await self.read_eeprom(servo_id)
+        position = await self.hold(servo_id)
+        self.motion_enabled.add(servo_id)
+        return position
+
+    def disable_motion(self, servo_id: int) -> None:
+        """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
+        self.motion_enabled.discard(servo_id)
+
     def check_limits(self, servo_id: int) -> list[int] | None:
         limits = self._limits.get(servo_id)
         return None if limits is None else list(limits)

@@ -243,6 +243,11 @@ async function toggleMotion() {
   try {
     const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
     setMotion(reply.enabled);
+    if (reply.enabled) {  // held where it stands: the slider starts there
+      $("#jog-slider").value = reply.position;
+      $("#jog-target").textContent = reply.position;
+      $("#jog-position").textContent = reply.position;
+    }
   } catch (e) { $("#motion-switch").checked = false; setMotion(false); }
 }
 
