@@ -201,7 +201,11 @@ async def hold(request: Request, session: LineSession) -> Any:
 
 async def motion(request: Request, session: LineSession) -> Any:
     sid, data = servo_id(request), await body(request)
-    position = await session.enable_motion(sid) if data.get("enabled") is True else session.disable_motion(sid)
+    position = None
+    if data.get("enabled") is True:
+        position = await session.enable_motion(sid)
+    else:
+        session.disable_motion(sid)
     return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid), "position": position}
 
 
