@@ -27,8 +27,14 @@ INSTALL_HINT = "install it with: pip install 'ics35_async[web]'"
     metavar="FILE",
     help="Read the access token from FILE (default: $ICS35_WEB_TOKEN, else a new random one).",
 )
+@click.option(
+    "--robot",
+    "robot_file",
+    metavar="ROBOT.toml",
+    help="Also serve a Robot page for this robot description (its lines are its own; see ics35 play).",
+)
 @click.pass_context
-def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | None) -> int:
+def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | None, robot_file: str | None) -> int:
     """Serve the servo configurator in the browser: scan, EEPROM, backup, renumber, jog, live plots, traffic.
 
     Prints the page's URL (with its access token) on the first line of stdout.
@@ -69,8 +75,8 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
         err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
 
     try:
-        serve(config, token, where, open_browser=not no_browser, announce=announce, warn=warn)
-    except InvalidArgument as exc:
+        serve(config, token, where, open_browser=not no_browser, announce=announce, warn=warn, robot_file=robot_file)
+    except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
         raise CliError(ExitCode.USAGE, str(exc)) from None
     except KeyboardInterrupt:
         pass

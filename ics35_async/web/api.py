@@ -40,6 +40,7 @@ from ..transports.listing import (
     list_serial_ports,
 )
 from .config import error_text
+from .joints import RobotSession
 from .session import LineSession
 
 log = logging.getLogger("ics35_async.web")
@@ -250,6 +251,51 @@ async def live(request: Request, session: LineSession) -> Any:
     return None if session.live is None else session.live.snapshot()
 
 
+def joints_of(request: Request) -> RobotSession:
+    robot: RobotSession | None = request.app.state.robot
+    if robot is None:
+        raise InvalidArgument("no robot: start with `ics35 web --robot ROBOT.toml`")
+    return robot
+
+
+async def robot_view(request: Request, session: LineSession) -> Any:
+    robot: RobotSession | None = request.app.state.robot
+    return None if robot is None else robot.view()
+
+
+async def robot_motion(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    robot.set_motion((await body(request)).get("enabled") is True)
+    return robot.view()
+
+
+async def robot_move(request: Request, session: LineSession) -> Any:
+    robot, data = joints_of(request), await body(request)
+    pose = data.get("pose")
+    if not isinstance(pose, dict):
+        raise InvalidArgument("pose must be an object of joint: degrees")
+    await robot.move(pose, data.get("duration", 0.5))
+    return robot.view()
+
+
+async def robot_play(request: Request, session: LineSession) -> Any:
+    robot, data = joints_of(request), await body(request)
+    await robot.play(data.get("motion"), data.get("speed", 1.0))
+    return robot.view()
+
+
+async def robot_stop(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    await robot.stop()
+    return robot.view()
+
+
+async def robot_free(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    await robot.free()
+    return robot.view()
+
+
 async def traffic(request: Request, session: LineSession) -> Any:
     since = request.query_params.get("since", "0")
     return {"entries": session.traffic.since(int(since) if since.isdigit() else 0)}
@@ -279,6 +325,8 @@ async def updates(ws: WebSocket) -> None:
             update: dict[str, Any] = {"status": session.status()}
             if session.progress.running or session.progress.total:
                 update["progress"] = {"done": session.progress.done, "total": session.progress.total}
+            if ws.app.state.robot is not None:
+                update["robot"] = ws.app.state.robot.view()
             if session.live is not None:
                 update["live"] = session.live.snapshot()
             elif loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
@@ -326,5 +374,11 @@ ROUTES = [
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),
     Route("/api/traffic", endpoint(traffic)),
+    Route("/api/robot", endpoint(robot_view)),
+    Route("/api/robot/motion", endpoint(robot_motion), methods=["POST"]),
+    Route("/api/robot/move", endpoint(robot_move), methods=["POST"]),
+    Route("/api/robot/play", endpoint(robot_play), methods=["POST"]),
+    Route("/api/robot/stop", endpoint(robot_stop), methods=["POST"]),
+    Route("/api/robot/free", endpoint(robot_free), methods=["POST"]),
     WebSocketRoute("/ws", updates),
 ]

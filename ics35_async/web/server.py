@@ -19,6 +19,7 @@ from starlette.staticfiles import StaticFiles
 from ..errors import InvalidArgument
 from .api import ROUTES
 from .config import LineConfig, error_text
+from .joints import RobotSession
 from .security import TokenGuard, is_loopback
 from .session import LineSession
 
@@ -54,7 +55,12 @@ async def _index(request: object) -> Response:
 
 
 def create_app(
-    session: LineSession, token: str, *, loopback: bool = True, warn: Callable[[str], None] | None = None
+    session: LineSession,
+    token: str,
+    *,
+    loopback: bool = True,
+    warn: Callable[[str], None] | None = None,
+    robot: RobotSession | None = None,
 ) -> Starlette:
     """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`).
 
@@ -69,9 +75,15 @@ def create_app(
         except Exception as exc:
             if warn is not None:
                 warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
+        if robot is not None:
+            await robot.open()
+            if robot.error and warn is not None:
+                warn(robot.error)
         try:
             yield
         finally:
+            if robot is not None:
+                await robot.close()
             await session.close()
 
     app = Starlette(
@@ -80,6 +92,7 @@ def create_app(
         lifespan=lifespan,
     )
     app.state.session = session
+    app.state.robot = robot
     return app
 
 
@@ -112,10 +125,12 @@ def serve(
     open_browser: bool = True,
     announce: Callable[[str], None] = print,
     warn: Callable[[str], None] | None = None,
+    robot_file: str | None = None,
 ) -> None:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong."""
+    robot = None if robot_file is None else RobotSession(robot_file)  # a bad file: refused before binding
     sock = bind(listen)
-    app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn)
+    app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot)
     url = url_of(sock, token)
     announce(url)  # the socket listens already: a browser that comes now waits in its backlog
     import uvicorn  # after the URL: it is the slower half of the start-up

@@ -394,6 +394,54 @@ function drawTraffic() {
   $("#traffic-count").textContent = `${rows.length} shown of ${state.traffic.length}`;
 }
 
+// ---- Robot
+
+function onRobot(r) {
+  state.robot = r;
+  $("#robot-link").hidden = false;
+  $("#robot-name").textContent = r.name;
+  $("#robot-error").textContent = r.error || "";
+  $("#robot-cycle").textContent = r.cycle ?? "-";
+  $("#robot-motion").checked = r.motion_enabled;
+  $("#robot-play").disabled = !r.motion_enabled || !$("#robot-motion-file").files.length;
+  const tripped = r.joints.filter((j) => j.tripped);
+  $("#robot-state").textContent = (r.playing ? `playing ${r.playing}` : r.outcome || "idle") +
+    (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
+  const body = $("#robot-table tbody");
+  if (body.children.length !== r.joints.length) {
+    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name), el("td", {}, `${j.line} / ${j.id}`),
+      el("td", { class: "angle" }), el("td", { class: "target" }),
+      el("td", {}, el("input", { type: "range", min: j.min, max: j.max, step: 1, value: 0, name: `joint-${j.name}`, title: `${j.min}..${j.max}°` })),
+      el("td", { class: "temp" }), el("td", { class: "current" }), el("td", { class: "safety" }))));
+    for (const slider of body.querySelectorAll("input[type=range]")) {
+      slider.addEventListener("change", () => moveJoint(slider.name.slice(6), +slider.value).catch(() => {}));
+    }
+  }
+  for (const j of r.joints) {
+    const row = body.querySelector(`tr[data-joint="${j.name}"]`);
+    row.querySelector(".angle").textContent = j.offline ? "offline" : j.position ?? "-";
+    row.querySelector(".target").textContent = j.target ?? "free";
+    row.querySelector(".temp").textContent = j.temperature_c ?? "-";
+    row.querySelector(".current").textContent = j.current ?? "-";
+    row.querySelector(".safety").textContent = j.tripped || "ok";
+    row.querySelector(".safety").className = j.tripped ? "safety bad" : "safety";
+    const slider = row.querySelector("input[type=range]");
+    slider.disabled = !r.motion_enabled;
+    if (document.activeElement !== slider && j.target !== null) slider.value = j.target;
+  }
+}
+
+async function moveJoint(name, degrees) {
+  await api("/api/robot/move", { pose: { [name]: degrees }, duration: +$("#robot-duration").value });
+}
+
+async function playMotion() {
+  const file = $("#robot-motion-file").files[0];
+  let motion;
+  try { motion = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
+  onRobot(await api("/api/robot/play", { motion, speed: +$("#robot-speed").value }));
+}
+
 // ---------------------------------------------------------------- the WebSocket
 
 let socket = null;
@@ -416,6 +464,7 @@ function connectSocket() {
     if (u.servos) showServos(u.servos);
     if (u.live) onLive(u.live);
     if (u.traffic) onTraffic(u.traffic);
+    if (u.robot) onRobot(u.robot);
   };
   socket.onclose = () => {
     $("#line-status").textContent = "the configurator's server is gone: reconnecting…";
@@ -459,6 +508,13 @@ on("#live-export", "click", exportCsv);
 on("#live-what", "change", drawPlot);
 on("#traffic-filter", "input", drawTraffic);
 on("#traffic-pause", "click", () => { state.trafficPaused = !state.trafficPaused; $("#traffic-pause").textContent = state.trafficPaused ? "Resume" : "Pause"; if (!state.trafficPaused) drawTraffic(); });
+on("#robot-motion", "change", async () => {
+  try { onRobot(await api("/api/robot/motion", { enabled: $("#robot-motion").checked })); } catch (e) { $("#robot-motion").checked = false; }
+});
+on("#robot-motion-file", "change", () => { $("#robot-play").disabled = !(state.robot && state.robot.motion_enabled); });
+on("#robot-play", "click", playMotion);
+on("#robot-stop", "click", async () => onRobot(await api("/api/robot/stop", {})));
+on("#robot-free", "click", async () => onRobot(await api("/api/robot/free", {})));
 window.addEventListener("hashchange", show);
 
 api("/api/status").then(showStatus).catch(() => {});
