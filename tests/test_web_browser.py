@@ -32,7 +32,8 @@ CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]  # fmt: skip
-IMAGES = Path(__file__).resolve().parents[1] / "docs" / "images"
+ROOT = Path(__file__).resolve().parents[1]
+IMAGES = ROOT / "docs" / "images"
 WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
 expect.set_options(timeout=WAIT_MS)
 
@@ -283,3 +284,50 @@ def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     expect(page.locator("#traffic-table tbody tr").first).to_contain_text("a1 00")
     page.fill("#traffic-filter", "")
     shot(page, "traffic")
+
+
+@pytest.fixture(scope="module")
+def robot_server() -> Iterator[str]:
+    """``ics35 web --robot examples/humanoid.toml``: a 17-joint humanoid on two simulated lines."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ics35_async.cli",
+            "web",
+            "--no-browser",
+            "--robot",
+            str(ROOT / "examples" / "humanoid.toml"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    assert proc.stdout is not None
+    yield proc.stdout.readline().strip()
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+
+
+def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot_server: str) -> None:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    p = context.new_page()
+    p.goto(robot_server)
+    p.click("#robot-link")
+    expect(p.locator("#robot-table tbody tr")).to_have_count(17)
+    elbow = p.locator("tr[data-joint='right_elbow']")
+    expect(elbow.locator("input[type=range]")).to_be_disabled()
+    p.check("#robot-motion")
+    expect(elbow.locator("input[type=range]")).to_be_enabled()
+    elbow.locator("input[type=range]").fill("60")  # a slider's change event
+    expect(elbow.locator(".target")).to_have_text("60")
+    expect(elbow.locator(".angle")).to_have_text(re.compile(r"^(59\.\d|60(\.\d)?)$"))  # the servo got there
+    p.set_input_files("#robot-motion-file", str(ROOT / "examples/wave.json"))
+    p.click("#robot-play")
+    expect(p.locator("#robot-state")).to_contain_text("playing wave")
+    p.wait_for_timeout(1500)  # mid-wave, for the picture
+    shot(p, "robot")
+    expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
+    expect(p.locator("#robot-state")).to_contain_text("all within limits")
+    context.close()

@@ -76,7 +76,7 @@ class RobotSession:
                     "max": spec.max,
                     "position": None if frame is None else _round(frame.positions.get(name)),
                     "target": _round(targets.get(name)),
-                    "temperature_c": None if t is None else t.temperature_c,
+                    "temperature_c": None if t is None else _round(t.temperature_c),
                     "current": None if t is None else t.current,
                     "offline": frame is not None and name in frame.offline,
                     "tripped": None if stop is None else str(stop),
