@@ -76,7 +76,8 @@ def test_the_token_in_the_url_becomes_a_strict_httponly_cookie_and_leaves_the_ad
     assert first.status_code == 303 and first.headers["location"] == "/"
     cookie = first.headers["set-cookie"]
     assert f"{COOKIE}={TOKEN}" in cookie and "HttpOnly" in cookie and "SameSite=Strict" in cookie
-    assert client_with(bare, TOKEN).get("/").status_code == 200
+    page = client_with(bare, TOKEN).get("/")
+    assert page.status_code == 200 and "frame-ancestors 'none'" in page.headers["content-security-policy"]
 
 
 def test_state_changes_from_another_site_or_not_as_json_are_refused_and_nothing_is_sent(serve: Any) -> None:

@@ -50,8 +50,20 @@ class Listen:
         return is_loopback(self.host)
 
 
+# The page runs only its own scripts and talks only to this server; no other site may frame it
+# (a framed page could be clicked through by another site) or learn its address.
+PAGE_HEADERS = {
+    "cache-control": "no-store",
+    "content-security-policy": "default-src 'self'; connect-src 'self'; img-src 'self' data: blob:; "
+    "frame-ancestors 'none'; form-action 'self'; base-uri 'none'",
+    "x-frame-options": "DENY",
+    "referrer-policy": "no-referrer",
+    "x-content-type-options": "nosniff",
+}
+
+
 async def _index(request: object) -> Response:
-    return FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
+    return FileResponse(STATIC / "index.html", headers=PAGE_HEADERS)
 
 
 def create_app(

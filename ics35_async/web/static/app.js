@@ -192,6 +192,8 @@ function resultText(result) {
 }
 
 async function planWrite() {
+  $("#write-result").replaceChildren();  // an earlier write's outcome is not this one's
+  $("#write-btn").disabled = true;
   state.plan = await api(`/api/servo/${servoId()}/plan`, { changes: editedFields(), ...allowances() });
   $("#diff").replaceChildren(diffTable(state.plan));
   $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
@@ -216,6 +218,7 @@ async function backupServo() {
 async function planRestore() {
   const file = $("#restore-file").files[0];
   $("#restore-btn").disabled = true;
+  $("#restore-result").replaceChildren();
   if (!file) return;
   let doc;
   try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
@@ -270,6 +273,7 @@ async function torque(what) {
 // ---- ID
 
 async function survey() {
+  $("#survey-result").replaceChildren();
   const s = await api("/api/id/survey", {});
   $("#survey-result").replaceChildren(s.refusal
     ? el("p", { class: "refusal" }, `not safe to renumber: ${s.refusal}`)
@@ -277,6 +281,7 @@ async function survey() {
 }
 
 async function renumber() {
+  $("#id-result").replaceChildren();
   try {
     const r = await api("/api/id/write", { new_id: +$("#new-id").value });
     $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
@@ -302,6 +307,7 @@ async function applyMany() {
   const changes = {};
   for (const name of PROFILE_FIELDS) if (document.querySelector(`[name=use-${name}]`).checked) changes[name] = +document.querySelector(`[name=value-${name}]`).value;
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
+  $("#many-results tbody").replaceChildren();
   const reply = await api("/api/many/apply", { ids, changes });
   $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
     el("td", { class: r.error ? "bad" : "good" }, r.error ? r.error : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so"),
@@ -364,7 +370,8 @@ function drawPlot() {
     }
     g.stroke();
   });
-  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}` }, `■ ${id}`)));
+  const now = frames[frames.length - 1][what];
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${now[id] ?? "-"}`)));
 }
 
 function exportCsv() {
