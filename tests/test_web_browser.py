@@ -330,3 +330,16 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
     expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
     expect(p.locator("#robot-state")).to_contain_text("all within limits")
     context.close()
+
+
+def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    expect(page.locator("#line-status")).to_contain_text("LOST")
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    page.click("#scan-btn")
+    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
