@@ -34,6 +34,7 @@ from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
 from ..units import current_from_raw, temperature_to_celsius
 from .config import LineConfig, error_text
+from .edits import allowances, edit_of
 from .live import LiveView
 from .traffic import TrafficLog
 from .views import eeprom_view, plan_view, result_view, survey_view
@@ -139,6 +140,13 @@ class LineSession:
             raise BusClosed("not connected: choose a port and press Connect on the Line page")
         return self.bus
 
+    @contextlib.asynccontextmanager
+    async def _quiet(self) -> AsyncIterator[Bus]:
+        """The line at its own rate for one action: it waits while a scan (which reopens the port at
+        other rates), an EEPROM write or a renumbering has the line."""
+        async with self.exclusive:
+            yield self.line()
+
     # ------------------------------------------------------------------ scan
 
     @contextlib.asynccontextmanager
@@ -221,22 +229,27 @@ class LineSession:
     # ------------------------------------------------------------------ one servo's EEPROM
 
     async def read_eeprom(self, servo_id: int) -> dict[str, Any]:
-        image: Eeprom = await self.line().request(protocol.ReadEeprom(protocol.check_id(servo_id)))
+        async with self._quiet() as bus:
+            image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
         self._limits[servo_id] = (image.pulse_limit_low, image.pulse_limit_high)
         return eeprom_view(image)
 
     async def read_ram(self, servo_id: int) -> dict[str, Any]:
-        bus = self.line()
         protocol.check_id(servo_id)
         values = {}
-        for param in (Param.STRETCH, Param.SPEED, Param.CURRENT, Param.TEMPERATURE):
-            values[param.name.lower()] = await bus.request(protocol.ReadParam(servo_id, param))
+        async with self._quiet() as bus:
+            for param in (Param.STRETCH, Param.SPEED, Param.CURRENT, Param.TEMPERATURE):
+                values[param.name.lower()] = await bus.request(protocol.ReadParam(servo_id, param))
         return values
 
     async def plan(self, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
-        changes, set_flags, clear_flags = _edit_of(edit)
-        plan = await plan_eeprom_write(self.line(), servo_id, changes, set_flags=set_flags, clear_flags=clear_flags)
-        allow = _allowances(edit)
+        async with self._quiet() as bus:
+            return await self._plan(bus, servo_id, edit)
+
+    async def _plan(self, bus: Bus, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
+        changes, set_flags, clear_flags = edit_of(edit)
+        plan = await plan_eeprom_write(bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags)
+        allow = allowances(edit)
         return plan, plan_view(plan, plan.refusal(**allow))
 
     async def write(self, servo_id: int, edit: Mapping[str, Any]) -> dict[str, Any]:
@@ -245,14 +258,14 @@ class LineSession:
         ``edit["before"]`` (the raw image the person saw the diff against) must
         still be the servo's, so what is written is what was shown.
         """
-        async with self.exclusive:
-            plan, _ = await self.plan(servo_id, edit)
+        async with self._quiet() as bus:
+            plan, _ = await self._plan(bus, servo_id, edit)
             seen = edit.get("before")
             if seen is not None and seen != plan.before.to_bytes().hex():
                 raise UnsafeOperation(
                     f"servo {servo_id}'s EEPROM changed since the diff was shown; look again; nothing was written"
                 )
-            result = await write_eeprom_plan(self.line(), plan, **_allowances(edit))
+            result = await write_eeprom_plan(bus, plan, **allowances(edit))
         after = result.read_back or plan.after
         if plan.changes_id:
             self._limits.pop(servo_id, None)
@@ -261,8 +274,9 @@ class LineSession:
         return result_view(result)
 
     async def backup(self, servo_id: int) -> dict[str, Any]:
-        image: Eeprom = await self.line().request(protocol.ReadEeprom(protocol.check_id(servo_id)))
-        return backup_document(image, servo_id, baud=self.line().baudrate, port=self.config.port)
+        async with self._quiet() as bus:
+            image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
+            return backup_document(image, servo_id, baud=bus.baudrate, port=self.config.port)
 
     def restore_edit(self, doc: object, *, restore_id: bool) -> dict[str, Any]:
         """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`."""
@@ -289,17 +303,20 @@ class LineSession:
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
             return self.live.position(servo_id)
-        return await self.line().servo(protocol.check_id(servo_id)).free()
+        async with self._quiet() as bus:
+            return await bus.servo(protocol.check_id(servo_id)).free()
 
     async def hold(self, servo_id: int) -> int:
         """Torque on where the servo stands now (the free command reads the position, then it is held there)."""
-        servo = self.line().servo(protocol.check_id(servo_id))
+        protocol.check_id(servo_id)
         if self.live is not None and servo_id in self.live.ids:
             position = self.live.position(servo_id)
             self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
             return position
-        position = await servo.free()
-        return await servo.set_position(self.check_target(servo_id, position))
+        async with self._quiet() as bus:
+            servo = bus.servo(servo_id)
+            position = await servo.free()
+            return await servo.set_position(self.check_target(servo_id, position))
 
     async def enable_motion(self, servo_id: int) -> int:
         """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
@@ -337,7 +354,8 @@ class LineSession:
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.set_target(servo_id, target)
             return self.live.position(servo_id)
-        return await self.line().servo(servo_id).set_position(target)
+        async with self._quiet() as bus:
+            return await bus.servo(servo_id).set_position(target)
 
     # ------------------------------------------------------------------ renumbering
 
@@ -370,20 +388,3 @@ class LineSession:
         live, self.live = self.live, None
         if live is not None:
             await live.stop()
-
-
-def _edit_of(edit: Mapping[str, Any]) -> tuple[dict[str, Any], int, int]:
-    changes = edit.get("changes", {})
-    if not isinstance(changes, dict):
-        raise InvalidArgument("changes must be an object of field: value")
-    set_flags, clear_flags = edit.get("set_flags", 0), edit.get("clear_flags", 0)
-    if "baud_rate" in changes:
-        changes = {**changes, "baud_rate": BaudRate.parse(changes["baud_rate"])}
-    return changes, set_flags, clear_flags
-
-
-def _allowances(edit: Mapping[str, Any]) -> dict[str, bool]:
-    return {
-        "allow_baud_change": edit.get("allow_baud_change") is True,
-        "allow_id_change": edit.get("allow_id_change") is True,
-    }
