@@ -8,18 +8,21 @@ phases of ``--seconds`` each, ``--rounds`` times:
 * ``no page``: nobody is connected; the benchmark reads the newest frame's
   cycle number twice a second over HTTP;
 * ``page open``: a WebSocket client takes every update the Live plots page
-  gets (the browser's drawing costs the browser, not the server).
+  gets (the browser's drawing costs the browser, not the server);
+* ``traffic on``: the same, with the Traffic page's recording on (every
+  transaction logged and kept), which a page asks for once it has shown the
+  Traffic page.
 
 Rate: stream cycles per second (the frame's cycle counter over wall time).
 CPU: the server process's user + system time (/proc, Linux), all threads,
 the simulator's included, which is the same in both phases; the difference
 over the updates sent is the server's CPU per update.  Medians over rounds;
-the ratio is taken against the ``no page`` phases of the same run.  The
+the ratios are taken against the ``no page`` phases of the same run.  The
 simulator runs in real time (wire-timed, 1.25 Mbit/s) unless ``--fast``,
 where the stream is CPU-bound and every cycle the server spends on the page
 is a cycle the stream loses: the worst case.
 
-    .venv/bin/python benchmarks/bench_web.py [--seconds 3] [--rounds 3] [--fast]
+    .venv/bin/python benchmarks/bench_web.py [--seconds 3] [--rounds 3] [--fast]     (about 35 s)
 """
 
 from __future__ import annotations
@@ -76,7 +79,7 @@ class Server:
         self.proc.wait(10)
 
 
-def phase(server: Server, seconds: float, page: bool) -> dict[str, float]:
+def phase(server: Server, seconds: float, page: bool, traffic: bool = False) -> dict[str, float]:
     updates = 0
     stop = threading.Event()
 
@@ -84,6 +87,7 @@ def phase(server: Server, seconds: float, page: bool) -> dict[str, float]:
         nonlocal updates
         ws_url = server.base.replace("http://", "ws://") + "/ws"
         with connect(ws_url, additional_headers=server.headers) as ws:
+            ws.send(json.dumps({"traffic": traffic}))
             while not stop.is_set():
                 if json.loads(ws.recv(timeout=2)).get("live"):
                     updates += 1
@@ -115,10 +119,11 @@ def main() -> None:
     try:
         server.call("/api/live/start", {"ids": list(range(32))})
         time.sleep(1.0)
-        none, open_ = [], []
+        none, open_, traced = [], [], []
         for _ in range(args.rounds):
             none.append(phase(server, args.seconds, page=False))
             open_.append(phase(server, args.seconds, page=True))
+            traced.append(phase(server, args.seconds, page=True, traffic=True))
     finally:
         server.close()
 
@@ -131,6 +136,8 @@ def main() -> None:
     print(f"32 streaming servos, {mode} simulator; medians of {args.rounds} rounds of {args.seconds:g} s")
     print(f"  stream rate, no page      {rate_none:8.1f} cycles/s")
     print(f"  stream rate, page open    {rate_open:8.1f} cycles/s   ({rate_open / rate_none:.1%} of no page)")
+    rate_traced = med(traced, "rate")
+    print(f"  stream rate, traffic on   {rate_traced:8.1f} cycles/s   ({rate_traced / rate_none:.1%} of no page)")
     print(f"  page updates              {ups:8.1f} /s")
     print(f"  server CPU, no page       {cpu_none:8.1%} of a core")
     print(f"  server CPU, page open     {cpu_open:8.1%} of a core")

@@ -453,11 +453,12 @@ async function playMotion() {
 
 let socket = null;
 
-// Recording starts when the Traffic page is first opened (it costs the line a little), and goes on
-// while this page is open, so what other pages do can be looked at afterwards.
+// Recording starts when the Traffic page is first opened and goes on while this page is open, so what
+// other pages do can be looked at afterwards; Pause stops it (it slows a streaming line).
 function socketSend() {
-  if (location.hash.startsWith("#traffic")) state.trafficWanted = true;
-  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ traffic: !!state.trafficWanted }));
+  if (location.hash.startsWith("#traffic")) state.trafficVisited = true;
+  const wanted = !!state.trafficVisited && !state.trafficPaused;
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ traffic: wanted }));
 }
 
 function connectSocket() {
@@ -514,7 +515,11 @@ on("#live-pause", "click", () => { state.livePaused = !state.livePaused; $("#liv
 on("#live-export", "click", exportCsv);
 on("#live-what", "change", drawPlot);
 on("#traffic-filter", "input", drawTraffic);
-on("#traffic-pause", "click", () => { state.trafficPaused = !state.trafficPaused; $("#traffic-pause").textContent = state.trafficPaused ? "Resume" : "Pause"; if (!state.trafficPaused) drawTraffic(); });
+on("#traffic-pause", "click", () => {
+  state.trafficPaused = !state.trafficPaused;
+  $("#traffic-pause").textContent = state.trafficPaused ? "Resume" : "Pause";
+  socketSend();
+});
 on("#robot-motion", "change", async () => {
   try { onRobot(await api("/api/robot/motion", { enabled: $("#robot-motion").checked })); } catch (e) { $("#robot-motion").checked = false; }
 });
