@@ -2,8 +2,9 @@
 and the server's CPU per page update.
 
 Runs ``ics35 web`` (a subprocess, as a user runs it) on a simulated line of
-32 servos, starts the live stream on all of them, then alternates two
-phases of ``--seconds`` each, ``--rounds`` times:
+32 servos served on a pty by another process (``python -m ics35_async.sim``,
+so the server's CPU is its own), starts the live stream on all of them,
+then alternates three phases of ``--seconds`` each, ``--rounds`` times:
 
 * ``no page``: nobody is connected; the benchmark reads the newest frame's
   cycle number twice a second over HTTP;
@@ -14,13 +15,13 @@ phases of ``--seconds`` each, ``--rounds`` times:
   Traffic page.
 
 Rate: stream cycles per second (the frame's cycle counter over wall time).
-CPU: the server process's user + system time (/proc, Linux), all threads,
-the simulator's included, which is the same in both phases; the difference
-over the updates sent is the server's CPU per update.  Medians over rounds;
-the ratios are taken against the ``no page`` phases of the same run.  The
-simulator runs in real time (wire-timed, 1.25 Mbit/s) unless ``--fast``,
-where the stream is CPU-bound and every cycle the server spends on the page
-is a cycle the stream loses: the worst case.
+CPU: the server process's user + system time (/proc, Linux), all threads;
+the difference between ``page open`` and ``no page`` over the updates sent
+is the server's CPU per update.  Medians over rounds; the ratios are taken
+against the ``no page`` phases of the same run.  The simulator runs in real
+time (wire-timed, 1.25 Mbit/s) unless ``--fast``, where the stream is bound
+by the CPU and every cycle the server spends on the page is a cycle the
+stream loses: the worst case.
 
     .venv/bin/python benchmarks/bench_web.py [--seconds 3] [--rounds 3] [--fast]     (about 35 s)
 """
@@ -40,6 +41,8 @@ from typing import Any
 
 from websockets.sync.client import connect
 
+from ics35_async.sim.launch import start_subprocess, stop_subprocess
+
 TICK = os.sysconf("SC_CLK_TCK")
 
 
@@ -51,7 +54,8 @@ def cpu_seconds(pid: int) -> float:
 
 class Server:
     def __init__(self, fast: bool) -> None:
-        port = f"sim://bench-web?ids=0-31&baud=1250000&realtime={0 if fast else 1}"
+        sim_args = ["--ids", "0-31", "--baud", "1250000", "--fast" if fast else "--realtime"]
+        self.sim, port = start_subprocess(sim_args, quiet=True)
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", "--port", port, "--baud", "1250000"],
             stdout=subprocess.PIPE,
@@ -77,6 +81,7 @@ class Server:
     def close(self) -> None:
         self.proc.terminate()
         self.proc.wait(10)
+        stop_subprocess(self.sim)
 
 
 def phase(server: Server, seconds: float, page: bool, traffic: bool = False) -> dict[str, float]:
@@ -133,7 +138,7 @@ def main() -> None:
     rate_none, rate_open = med(none, "rate"), med(open_, "rate")
     cpu_none, cpu_open, ups = med(none, "cpu"), med(open_, "cpu"), med(open_, "updates")
     mode = "fast-mode (CPU-bound)" if args.fast else "real-time, 1.25 Mbit/s"
-    print(f"32 streaming servos, {mode} simulator; medians of {args.rounds} rounds of {args.seconds:g} s")
+    print(f"32 streaming servos, {mode} simulator on a pty; medians of {args.rounds} rounds of {args.seconds:g} s")
     print(f"  stream rate, no page      {rate_none:8.1f} cycles/s")
     print(f"  stream rate, page open    {rate_open:8.1f} cycles/s   ({rate_open / rate_none:.1%} of no page)")
     rate_traced = med(traced, "rate")

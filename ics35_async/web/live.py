@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections import deque
 from typing import Any
 
 from .. import protocol
@@ -34,6 +35,7 @@ class LiveView:
         self.current: dict[int, int] = {}
         self.temperature: dict[int, float] = {}
         self._task: asyncio.Task[None] | None = None
+        self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
 
     @classmethod
     async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float | None = None) -> LiveView:
@@ -66,7 +68,14 @@ class LiveView:
         frame = self.stream.latest
         if frame is None:
             return None
-        stats = self.stream.stats
+        # The rate over the last second, from the frames themselves: Stream.stats sorts and takes the
+        # deviation of its whole history, too much to do 25 times a second next to a streaming line.
+        marks = self._marks
+        marks.append((frame.finished, frame.cycle))
+        while len(marks) > 2 and frame.finished - marks[0][0] > 1.0:
+            marks.popleft()
+        span = marks[-1][0] - marks[0][0]
+        rate = (marks[-1][1] - marks[0][1]) / span if span > 0 else 0.0
         return {
             "cycle": frame.cycle,
             "t": frame.finished,
@@ -75,7 +84,7 @@ class LiveView:
             "current": {str(k): v for k, v in self.current.items()},
             "temperature": {str(k): v for k, v in self.temperature.items()},
             "offline": sorted(frame.offline),
-            "rate_hz": round(stats.rate_hz, 1),
+            "rate_hz": round(rate, 1),
         }
 
     async def stop(self) -> None:

@@ -35,45 +35,38 @@ def describe(tx: bytes) -> tuple[int | None, str]:
 
 
 class TrafficLog(logging.Handler):
-    """A ring of the last ``size`` transactions (dicts ready for JSON), each with a sequence number."""
+    """A ring of the last ``size`` transactions, each with a sequence number.
+
+    Recording keeps the log record's own strings (the engine's thread pays
+    for nothing more); decoding them for a page happens in :meth:`since`.
+    """
 
     def __init__(self, size: int = 2000) -> None:
         super().__init__(logging.DEBUG)
-        self.entries: deque[dict[str, Any]] = deque(maxlen=size)
+        # [seq, time, tx hex, rx hex, failure or None]; a list, so a failure logged next can fill it in.
+        self.entries: deque[list[Any]] = deque(maxlen=size)
         self._seq = itertools.count(1)
         self._watchers = 0
         self._level_before = LOGGER.level
 
+    def handle(self, record: logging.LogRecord) -> bool:
+        self.emit(record)  # no handler lock: the deque's append is atomic, and emit only appends
+        return True
+
     def emit(self, record: logging.LogRecord) -> None:
-        if record.msg == "id %s tx %s rx %s" and len(record.args or ()) == 3:
-            _, tx_hex, rx_hex = record.args  # type: ignore[misc]
-            tx = bytes.fromhex(str(tx_hex))
-            servo_id, command = describe(tx)
-            rx = bytes.fromhex(str(rx_hex))
-            echo = rx[: len(tx)] == tx
-            self.entries.append(
-                {
-                    "seq": next(self._seq),
-                    "time": record.created,
-                    "id": servo_id,
-                    "command": command,
-                    "sent": str(tx_hex),
-                    "received": str(rx_hex),
-                    "outcome": "ok" if len(rx) > len(tx) or (rx and not echo) else "no reply",
-                }
-            )
-        elif record.levelno == logging.DEBUG and record.msg == "%s" and self.entries:
+        args = record.args
+        if record.msg == "id %s tx %s rx %s" and isinstance(args, tuple) and len(args) == 3:
+            self.entries.append([next(self._seq), record.created, args[1], args[2], None])
+        elif record.msg == "%s" and record.levelno == logging.DEBUG and self.entries:
             # A failure of the transaction just logged (see engine.failures).
-            self.entries[-1]["outcome"] = str(record.getMessage())
+            self.entries[-1][4] = record.getMessage()
         elif record.levelno >= logging.WARNING:
-            self.entries.append(
-                {"seq": next(self._seq), "time": record.created, "id": None, "command": "line",
-                 "sent": "", "received": "", "outcome": record.getMessage()}
-            )  # fmt: skip
+            self.entries.append([next(self._seq), record.created, "", "", record.getMessage()])
 
     def since(self, seq: int) -> list[dict[str, Any]]:
+        """The transactions after ``seq``, decoded for a page."""
         # list() copies without letting another thread in (a thread driver logs from its I/O thread).
-        return [e for e in list(self.entries) if e["seq"] > seq]
+        return [_decoded(*e) for e in list(self.entries) if e[0] > seq]
 
     def watch(self) -> None:
         """Someone opened the Traffic page: start recording."""
@@ -88,3 +81,15 @@ class TrafficLog(logging.Handler):
         if self._watchers == 0:
             LOGGER.removeHandler(self)
             LOGGER.setLevel(self._level_before)
+
+
+def _decoded(seq: int, created: float, tx_hex: str, rx_hex: str, failure: str | None) -> dict[str, Any]:
+    if not tx_hex:  # the line itself (a lost port)
+        return {"seq": seq, "time": created, "id": None, "command": "line", "sent": "", "received": "",
+                "outcome": failure}  # fmt: skip
+    tx, rx = bytes.fromhex(tx_hex), bytes.fromhex(rx_hex)
+    servo_id, command = describe(tx)
+    answered = len(rx) > len(tx) or (rx and rx[: len(tx)] != tx)
+    outcome = failure or ("ok" if answered else "no reply")
+    return {"seq": seq, "time": created, "id": servo_id, "command": command, "sent": tx_hex, "received": rx_hex,
+            "outcome": outcome}  # fmt: skip
