@@ -289,3 +289,13 @@ def test_restoring_with_its_id_renumbers_only_when_asked_and_the_new_id_is_free(
     taken = post(client, "/api/servo/6/restore", {"doc": doc, "restore_id": True})
     assert taken.status_code == 409 and "already answers" in taken.json()["error"]
     assert sorted(s.servo_id for s in sim.servos) == [1, 6]
+
+
+def test_a_ram_parameter_is_written_to_the_servo_and_a_bad_one_refused(serve: Any) -> None:
+    client, sim = serve((1,))
+    assert post(client, "/api/servo/1/ram/write", {"param": "speed", "value": 33}).json()["value"] == 33
+    assert sim.servo(1).speed == 33
+    bad = post(client, "/api/servo/1/ram/write", {"param": "speed", "value": 300})
+    assert bad.status_code == 400 and "300" in bad.json()["error"]
+    assert post(client, "/api/servo/1/ram/write", {"param": "torque", "value": 1}).status_code == 400
+    assert sim.servo(1).speed == 33

@@ -164,6 +164,12 @@ async def ram(request: Request, session: LineSession) -> Any:
     return await session.read_ram(servo_id(request))
 
 
+async def ram_write(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    name = data.get("param")
+    return {"param": name, "value": await session.write_ram(servo_id(request), str(name), int_of(data, "value"))}
+
+
 async def plan(request: Request, session: LineSession) -> Any:
     _, view = await session.plan(servo_id(request), await body(request))
     return view
@@ -358,6 +364,7 @@ ROUTES = [
     Route("/api/scan", endpoint(scan), methods=["POST"]),
     Route("/api/servo/{servo_id}/eeprom", endpoint(eeprom)),
     Route("/api/servo/{servo_id}/ram", endpoint(ram)),
+    Route("/api/servo/{servo_id}/ram/write", endpoint(ram_write), methods=["POST"]),
     Route("/api/servo/{servo_id}/plan", endpoint(plan), methods=["POST"]),
     Route("/api/servo/{servo_id}/write", endpoint(write), methods=["POST"]),
     Route("/api/servo/{servo_id}/backup", endpoint(backup)),

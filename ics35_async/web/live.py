@@ -25,6 +25,17 @@ from ..units import current_from_raw, temperature_to_celsius
 TELEMETRY_PERIOD = 0.1
 
 
+async def read_health(bus: Bus, servo_id: int) -> dict[str, Any]:
+    """A servo's temperature and current (reads that move nothing), in the line's gaps."""
+    temp = await bus.request(protocol.ReadParam(servo_id, Param.TEMPERATURE), priority=Priority.LOW)
+    current = await bus.request(protocol.ReadParam(servo_id, Param.CURRENT), priority=Priority.LOW)
+    return {
+        "temperature": temp,
+        "temperature_c": round(temperature_to_celsius(temp), 1),
+        "current": current_from_raw(current).magnitude,
+    }
+
+
 class LiveView:
     """A running stream and the latest readings of its servos."""
 
@@ -54,10 +65,9 @@ class LiveView:
             if sid in self.stream.offline:
                 continue  # a dead ID costs a full timeout per read: the stream probes it
             with contextlib.suppress(IcsError):
-                temp = await self.bus.request(protocol.ReadParam(sid, Param.TEMPERATURE), priority=Priority.LOW)
-                self.temperature[sid] = round(temperature_to_celsius(temp), 1)
-                raw = await self.bus.request(protocol.ReadParam(sid, Param.CURRENT), priority=Priority.LOW)
-                self.current[sid] = current_from_raw(raw).magnitude
+                health = await read_health(self.bus, sid)
+                self.temperature[sid] = health["temperature_c"]
+                self.current[sid] = health["current"]
 
     def position(self, servo_id: int) -> int:
         frame = self.stream.latest

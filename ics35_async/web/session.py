@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from .. import protocol
-from ..bus import Bus, Priority, open_bus
+from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
 from ..errors import BusClosed, IcsError, InvalidArgument, ReplyError, UnsafeOperation
@@ -32,12 +32,20 @@ from ..policies import (
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
-from ..units import current_from_raw, temperature_to_celsius
 from .config import LineConfig, error_text
 from .edits import allowances, edit_of
-from .live import LiveView
+from .live import LiveView, read_health
 from .traffic import TrafficLog
 from .views import eeprom_view, plan_view, result_view, survey_view
+
+# The RAM parameters a page may write, as `ics35 set` names them (read back: current and temperature
+# are the measured values, not the limits written).
+RAM_PARAMS = {
+    "stretch": Param.STRETCH,
+    "speed": Param.SPEED,
+    "current_limit": Param.CURRENT,
+    "temperature_limit": Param.TEMPERATURE,
+}
 
 
 @dataclass
@@ -210,18 +218,8 @@ class LineSession:
             sid = servo.servo_id
             if servo.baud != bus.baudrate:
                 continue
-            entry: dict[str, Any] = {}
             try:
-                temp = await bus.request(protocol.ReadParam(sid, Param.TEMPERATURE), priority=Priority.LOW)
-                current = current_from_raw(
-                    await bus.request(protocol.ReadParam(sid, Param.CURRENT), priority=Priority.LOW)
-                )
-                entry = {
-                    "temperature": temp,
-                    "temperature_c": round(temperature_to_celsius(temp), 1),
-                    "current": current.magnitude,
-                    "telemetry_error": None,
-                }
+                entry = {**await read_health(bus, sid), "telemetry_error": None}
             except ReplyError as exc:
                 entry = {"telemetry_error": str(exc)}
             self.telemetry[sid] = entry
@@ -241,6 +239,16 @@ class LineSession:
             for param in (Param.STRETCH, Param.SPEED, Param.CURRENT, Param.TEMPERATURE):
                 values[param.name.lower()] = await bus.request(protocol.ReadParam(servo_id, param))
         return values
+
+    async def write_ram(self, servo_id: int, name: str, value: int) -> int:
+        """Write a RAM parameter (lost at power-off); the command checks the value's range."""
+        param = RAM_PARAMS.get(name)
+        if param is None:
+            raise InvalidArgument(f"RAM parameter {name!r}: one of {', '.join(RAM_PARAMS)}")
+        command = protocol.WriteParam(protocol.check_id(servo_id), param, value)
+        async with self._quiet() as bus:
+            written: int = await bus.request(command)
+        return written
 
     async def plan(self, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
         async with self._quiet() as bus:

@@ -237,6 +237,14 @@ async function restoreServo() {
   $("#restore-result").replaceChildren(resultText(result));
 }
 
+async function writeRam() {
+  const param = $("#ram-param").value;
+  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: +$("#ram-value").value });
+  $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
+  const ram = await api(`/api/servo/${servoId()}/ram`);
+  $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+}
+
 function setMotion(on) {
   for (const id of ["#jog-minus", "#jog-plus", "#jog-slider"]) $(id).disabled = !on;
 }
@@ -500,6 +508,7 @@ on("#backup-btn", "click", backupServo);
 on("#restore-file", "change", planRestore);
 on("#restore-id", "change", planRestore);
 on("#restore-btn", "click", restoreServo);
+on("#ram-write", "click", writeRam);
 on("#free-btn", "click", () => torque("free"));
 on("#hold-btn", "click", () => torque("hold"));
 on("#motion-switch", "change", toggleMotion);
