@@ -115,3 +115,13 @@ def test_without_the_web_extra_the_command_says_how_to_install_it(
     monkeypatch.setitem(sys.modules, "starlette", None)
     result = ics35("web", "--no-browser")
     assert result.code == 2 and "pip install 'ics35_async[web]'" in result.err
+
+
+def test_listen_takes_host_and_port_in_the_usual_spellings() -> None:
+    from ics35_async.web import Listen
+
+    assert Listen.parse("8080") == Listen("127.0.0.1", 8080)
+    assert Listen.parse(":8080") == Listen("127.0.0.1", 8080)
+    assert Listen.parse("0.0.0.0:80") == Listen("0.0.0.0", 80)
+    assert Listen.parse("[::1]:9000") == Listen("::1", 9000)
+    assert Listen.parse("localhost").loopback and not Listen.parse("192.168.1.5:80").loopback

@@ -33,9 +33,11 @@ class Listen:
 
     @classmethod
     def parse(cls, text: str) -> Listen:
-        """``HOST:PORT``, ``HOST`` or ``:PORT`` (IPv6 in brackets: ``[::1]:8080``)."""
+        """``HOST:PORT``, ``HOST``, ``:PORT`` or ``PORT`` (IPv6 in brackets: ``[::1]:8080``)."""
         text = text.strip()
         host, port = text, ""
+        if text.isdigit():
+            host, port = "", text
         if text.startswith("["):
             host, _, rest = text[1:].partition("]")
             port = rest.removeprefix(":")
