@@ -2,11 +2,14 @@
 
 A Starlette app served by uvicorn, with a front end of our own (plain
 HTML, CSS and JavaScript in ``static/``).  Modules: :mod:`.security` (the
-token, the cookie, the Origin and Host checks), :mod:`.traffic` (the last
-transactions), :mod:`.views` (results as JSON), :mod:`.live` (the plotted
-stream), :mod:`.session` (the line and every action, through the library's
-policies), :mod:`.api` (HTTP and WebSocket handlers), :mod:`.server`
-(the app and running it).  Nothing imports this package but ``ics35 web``.
+token, the cookie, the Origin and Host checks), :mod:`.config` (how the
+line opens), :mod:`.traffic` (the last transactions), :mod:`.views`
+(results as JSON), :mod:`.edits` (what a page asks a write to do),
+:mod:`.live` (the plotted stream), :mod:`.session` (the line and every
+action, through the library's policies), :mod:`.joints` (the Robot page,
+through :class:`~ics35_async.robot.Robot`), :mod:`.api` (HTTP and WebSocket
+handlers), :mod:`.server` (the app and running it).  Nothing imports this
+package but ``ics35 web``.
 """
 
 from __future__ import annotations
