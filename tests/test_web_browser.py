@@ -109,9 +109,16 @@ def page(browser: Browser, server: str) -> Iterator[Page]:
     context.close()
 
 
-def shot(page: Page, name: str) -> None:
+def shot(page: Page, name: str, height: int = 1000) -> None:
+    """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls)."""
     IMAGES.mkdir(parents=True, exist_ok=True)
+    size = page.viewport_size
+    page.set_viewport_size({"width": 1280, "height": height})
+    page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
+    page.locator("main h1:visible").scroll_into_view_if_needed()
     page.screenshot(path=str(IMAGES / f"web-{name}.png"))
+    if size is not None:
+        page.set_viewport_size(size)
 
 
 def base_of(url: str) -> str:
@@ -182,10 +189,10 @@ def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines:
     page.click("#plan-btn")
     expect(page.locator("#diff tr.changed")).to_contain_text("77")
     assert sim.servo(1).eeprom.speed != 77  # the diff is shown, nothing written yet
+    shot(page, "servo", height=1660)
     page.click("#write-btn")
     expect(page.locator("#write-result")).to_contain_text("verified")
     assert sim.servo(1).eeprom.speed == 77
-    shot(page, "servo")
 
 
 def test_backup_then_restore_from_the_file(page: Page, lines: Any, tmp_path: Path) -> None:
