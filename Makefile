@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # make demo needs only the package itself (no test, lint or docs tools).
 DEMO_STAMP := $(VENV)/.demo-installed
 
-.PHONY: all demo robot-demo test lint format format-check typecheck pytest docs docs-serve dist bench soak clean
+.PHONY: all demo robot-demo test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser web-demo bench-web
 
 all: test
 
@@ -14,8 +14,19 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does
-	$(BIN)/python -m pip install --quiet -e '.[dev]' --config-settings editable_mode=compat
+	$(BIN)/python -m pip install --quiet -e '.[dev,web]' --config-settings editable_mode=compat
+	$(MAKE) --no-print-directory browser
 	touch $(STAMP)
+
+# The web configurator's browser tests drive Debian's chromium through Playwright (Playwright's own
+# browser download is not used).  Installed here when missing and we are root on a Debian-like
+# machine; otherwise the tests fail, naming what to install (ICS35_CHROMIUM points at another binary).
+CHROMIUM ?= /usr/bin/chromium
+browser:
+	@if [ -x "$${ICS35_CHROMIUM:-$(CHROMIUM)}" ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
+	else echo "note: the browser tests need chromium: sudo apt-get install chromium (or set ICS35_CHROMIUM)" >&2; fi
 
 $(DEMO_STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -36,6 +47,10 @@ FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_pub
 	tests/test_exit_codes_doc.py tests/test_engine_paced_faults.py tests/test_soak_watchdog.py tests/test_device_faults.py \
 	tests/test_typing.py tests/test_running.py benchmarks/soak/watchdog.py ics35_async/running.py \
 	tools/mkdocs_hooks.py
+
+# The servo configurator in the browser, on the simulator (prints its URL; Ctrl-C stops it).
+web-demo: $(STAMP)
+	$(BIN)/ics35 web
 
 lint: $(STAMP)
 	$(BIN)/ruff check ics35_async tests benchmarks tools
@@ -70,6 +85,10 @@ dist: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
+
+# The web configurator's cost: stream rate with the Live plots page open vs none, server CPU per update (~25 s).
+bench-web: $(STAMP)
+	$(BIN)/python benchmarks/bench_web.py
 
 soak: $(STAMP)
 	$(BIN)/python -m benchmarks.soak --json benchmarks/soak_results.json

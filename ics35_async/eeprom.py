@@ -143,6 +143,12 @@ _RANGES: dict[str, tuple[int, int]] = {
 _EVEN_FIELDS = frozenset({"stretch_gain", "stretch_1", "stretch_2", "stretch_3"})
 
 
+def field_range(name: str) -> tuple[int, int, bool] | None:
+    """``(low, high, even_only)`` of a numeric EEPROM field; None for flags and baud_rate (coded values)."""
+    bounds = _RANGES.get(name)
+    return None if bounds is None else (*bounds, name in _EVEN_FIELDS)
+
+
 def _get(image: bytes, offset: int, nibbles: int) -> int:
     value = 0
     for b in image[offset : offset + nibbles]:

@@ -24,7 +24,7 @@ LAYERS = {
     "bus": 6,
     "group": 7, "diagnose": 7,
     "blocking": 8, "robot": 8,
-    "sim": 9, "cli": 10,
+    "sim": 9, "cli": 10, "web": 10,
 }  # fmt: skip
 
 
@@ -129,6 +129,19 @@ def test_importing_the_package_loads_no_simulator_and_no_event_loop() -> None:
         "import sys, ics35_async\n"
         "from ics35_async import open_bus, Servo, Stream, BusGroup\n"
         "heavy = ('ics35_async.sim', 'ics35_async.drivers.a', 'asyncio', 'trio')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(heavy)))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_package_and_the_cli_start_up_without_the_web_configurator() -> None:
+    """``ics35 web``'s server (and Starlette, uvicorn) load only when that command runs."""
+    code = (
+        "import sys, ics35_async\n"
+        "from ics35_async.cli import cli\n"
+        "cli.list_commands(None)\n"
+        "heavy = ('ics35_async.web', 'starlette', 'uvicorn')\n"
         "print(sorted(m for m in sys.modules if m.startswith(heavy)))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -39,6 +39,7 @@ COMMAND_MODULES = (
     "_sniff",
     "_robot_play",
     "_robot_teach",
+    "_web",
 )
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})

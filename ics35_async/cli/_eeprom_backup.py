@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import datetime
 import json
 import os
 import shlex
@@ -14,10 +13,10 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from .. import protocol
-from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
+from ..eeprom import Eeprom
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError
-from ..policies import check_changes, plan_eeprom_write, probe_ids, read_eeprom_agreed
+from ..policies import plan_eeprom_write, probe_ids, read_eeprom_agreed
+from ..policies.eeprom_backup import backup_changes, backup_document
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -36,8 +35,6 @@ from ._common import (
 )
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, write_plans
-
-DUMP_FORMAT = "ics35-eeprom/1"
 
 
 def backup_name(servo_id: int) -> str:
@@ -70,18 +67,7 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
 
 
 def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
-    fields = image.to_dict()
-    return {
-        "format": DUMP_FORMAT,
-        "servo_id": servo_id,
-        "baud": settings.baud,
-        "port": settings.port,
-        "saved": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "fields": {name: fields[name] for name in EEPROM_FIELDS},
-        "flags_names": fields["flags_names"],
-        "raw": fields["raw"],
-        "unknown_codes": fields["unknown_codes"],
-    }
+    return backup_document(image, servo_id, baud=settings.baud, port=settings.port)
 
 
 async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
@@ -160,89 +146,6 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
 # --------------------------------------------------------------------------- restore
 
 
-DUMP_NAME, _, DUMP_VERSION = DUMP_FORMAT.partition("/")
-RAW_HEX_LENGTH = 2 * EEPROM_SIZE  # two hex digits per wire byte
-
-
-def _raw_image(raw: object) -> Eeprom:
-    """The image ``raw`` holds: 64 bytes as 128 hex digits, each byte one nibble (0x00..0x0F)."""
-    if not isinstance(raw, str):
-        raise InvalidArgument(f"'raw' must be a string of {RAW_HEX_LENGTH} hex digits, got {type(raw).__name__}")
-    if len(raw) != RAW_HEX_LENGTH:
-        raise InvalidArgument(
-            f"'raw' has {len(raw)} hex digits, not {RAW_HEX_LENGTH} ({EEPROM_SIZE} bytes): the image is cut short"
-            if len(raw) < RAW_HEX_LENGTH
-            else f"'raw' has {len(raw)} hex digits, not {RAW_HEX_LENGTH} ({EEPROM_SIZE} bytes)"
-        )
-    bad = next((i for i, c in enumerate(raw) if c not in "0123456789abcdefABCDEF"), None)
-    if bad is not None:
-        raise InvalidArgument(f"'raw' holds {raw[bad]!r} at character {bad + 1}, which is not a hex digit")
-    image = bytes.fromhex(raw)
-    wide = next((i for i, b in enumerate(image) if b > 0x0F), None)
-    if wide is not None:
-        raise InvalidArgument(
-            f"'raw' byte {wide + 1} is {raw[2 * wide : 2 * wide + 2]}, not a nibble (00..0f): "
-            "every EEPROM byte carries 4 bits"
-        )
-    return Eeprom.from_bytes(image)
-
-
-def _check_format(doc: dict[str, Any]) -> None:
-    fmt = doc.get("format")
-    if fmt is None:
-        raise InvalidArgument(f"no 'format' (a backup made by `ics35 eeprom dump` says {DUMP_FORMAT!r})")
-    if not isinstance(fmt, str) or fmt.partition("/")[0] != DUMP_NAME:
-        raise InvalidArgument(f"format {fmt!r} is not an ics35 EEPROM backup ({DUMP_FORMAT!r})")
-    if fmt != DUMP_FORMAT:
-        raise InvalidArgument(
-            f"format {fmt!r}: this ics35 reads version {DUMP_VERSION} of EEPROM backups only ({DUMP_FORMAT!r})"
-        )
-
-
-def fields_from_document(doc: object) -> dict[str, int]:
-    """The editable fields of a backup, after checking the whole document.
-
-    A backup is refused unless its format and version are this program's, its
-    ``raw`` image is whole (64 nibbles as hex), and every field it states (and
-    ``flags_names``, ``unknown_codes``) agrees with that image: a backup that
-    disagrees with itself was damaged or edited by hand, and which half is
-    right cannot be told.
-    """
-    if not isinstance(doc, dict):
-        raise InvalidArgument("an EEPROM backup is a JSON object (made by `ics35 eeprom dump`)")
-    _check_format(doc)
-    if "raw" not in doc:
-        raise InvalidArgument("no 'raw' image (the whole EEPROM, which every backup carries)")
-    image = _raw_image(doc["raw"])
-    stated = image.to_dict()
-    fields = doc.get("fields")
-    if not isinstance(fields, dict):
-        raise InvalidArgument("no 'fields' object (every backup carries the fields its raw image decodes to)")
-    unknown = set(fields) - set(EEPROM_FIELDS)
-    if unknown:
-        raise InvalidArgument(f"unknown EEPROM field(s) in the backup: {', '.join(sorted(unknown))}")
-    missing = set(EEPROM_FIELDS) - set(fields)
-    if missing:
-        raise InvalidArgument(f"the backup lacks field(s): {', '.join(sorted(missing))}")
-    for name in EEPROM_FIELDS:
-        value = fields[name]
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InvalidArgument(f"field {name} must be an integer, got {value!r}")
-        if value != stated[name]:
-            raise InvalidArgument(
-                f"field {name} is {value} but the raw image holds {stated[name]}: the backup disagrees with "
-                "itself (edited or damaged); make a new one with `ics35 eeprom dump`, or change the servo "
-                "with `ics35 eeprom set`"
-            )
-    for key in ("flags_names", "unknown_codes"):
-        if key in doc and doc[key] != stated[key]:
-            raise InvalidArgument(f"'{key}' is {doc[key]!r} but the raw image gives {stated[key]!r}")
-    saved = doc.get("servo_id")
-    if saved is not None and (isinstance(saved, bool) or not isinstance(saved, int) or not 0 <= saved <= 31):
-        raise InvalidArgument(f"'servo_id' must be an ID 0..31, got {saved!r}")
-    return {name: int(stated[name]) for name in EEPROM_FIELDS}
-
-
 @dataclass
 class Backup:
     """One checked backup file and the servo it goes to."""
@@ -257,16 +160,10 @@ def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         text = sys.stdin.read() if source == "-" else Path(source).read_text()
-        doc = json.loads(text)
-        fields = fields_from_document(doc)
-        saved = doc.get("servo_id")
-        saved_id = saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
-        protocol.check_id(saved_id)
+        changes = backup_changes(json.loads(text), restore_id=restore_id)
+        fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
-        if not restore_id:
-            del fields["servo_id"]
-        check_changes(fields)
     except OSError as exc:
         raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
     except json.JSONDecodeError as exc:

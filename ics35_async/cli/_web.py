@@ -1,0 +1,86 @@
+"""``ics35 web``: serve the servo configurator to a browser (the ``web`` extra; imported only when run)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+from rich.markup import escape
+
+from ..errors import InvalidArgument
+from ._common import CliError, ExitCode, err, settings_of
+
+INSTALL_HINT = "install it with: pip install 'ics35_async[web]'"
+
+
+@click.command()
+@click.option(
+    "--listen",
+    metavar="HOST:PORT",
+    default="127.0.0.1:0",
+    show_default=True,
+    help="Address to serve on (port 0: a free one). Anything but loopback lets other machines reach the page.",
+)
+@click.option("--no-browser", is_flag=True, help="Do not open the default browser (print the URL only).")
+@click.option(
+    "--token-file",
+    metavar="FILE",
+    help="Read the access token from FILE (default: $ICS35_WEB_TOKEN, else a new random one).",
+)
+@click.option(
+    "--robot",
+    "robot_file",
+    metavar="ROBOT.toml",
+    help="Also serve a Robot page for this robot description (its lines are its own; see ics35 play).",
+)
+@click.pass_context
+def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | None, robot_file: str | None) -> int:
+    """Serve the servo configurator in the browser: scan, EEPROM, backup, renumber, jog, live plots, traffic.
+
+    Prints the page's URL (with its access token) on the first line of stdout.
+    Without --port it serves the built-in simulator, labelled as such on every page.
+    """
+    settings = settings_of(ctx)
+    try:
+        from ..web import LineConfig, Listen, load_token, serve
+    except ImportError as exc:
+        raise CliError(ExitCode.USAGE, f"ics35 web needs the web extra ({exc.name} is missing)", INSTALL_HINT) from None
+    try:
+        where = Listen.parse(listen)
+        token = load_token(token_file)
+    except InvalidArgument as exc:
+        raise click.BadParameter(str(exc), param_hint="--listen" if "listen" in str(exc) else "--token-file") from None
+    if not where.loopback:
+        err.print(
+            f"[yellow]warning:[/yellow] serving on {escape(where.host)}: any machine that can reach it and "
+            "knows the token can move these servos; keep the URL private"
+        )
+    if settings.port_defaulted:
+        err.print("[dim]note: no --port given: the page serves the built-in simulator[/dim]")
+    config = LineConfig(
+        port=settings.port,
+        baud=settings.baud,
+        echo=settings.echo,
+        adapter_latency=settings.timeout,
+        retries=settings.retries,
+        transport=settings.transport,
+        direction=settings.direction,
+    )
+
+    def announce(url: str) -> None:
+        click.echo(url)
+        sys.stdout.flush()
+
+    def warn(text: str) -> None:
+        err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
+
+    try:
+        serve(config, token, where, open_browser=not no_browser, announce=announce, warn=warn, robot_file=robot_file)
+    except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
+        raise CliError(ExitCode.USAGE, str(exc)) from None
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+COMMANDS = [web]

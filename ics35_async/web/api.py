@@ -1,0 +1,391 @@
+"""The configurator's HTTP API and its WebSocket: thin handlers over :class:`.session.LineSession`.
+
+Every failure is answered as JSON ``{"error": "...", "kind": "..."}`` with a
+status that says whose it is (400 bad input, 409 refused, 502/504 the servo,
+503 the port), never a traceback.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import json
+import logging
+import sys
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route, WebSocketRoute
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from ..errors import (
+    BusClosed,
+    IcsError,
+    InvalidArgument,
+    MalformedEeprom,
+    PortLost,
+    ReplyError,
+    ReplyTimeout,
+    SerialPortError,
+    UnsafeOperation,
+    VerifyError,
+)
+from ..transports.listing import (
+    HS_ADAPTER_USB_ID,
+    kondo_usb_without_port,
+    linux_adapter_steps,
+    list_serial_ports,
+)
+from .config import error_text
+from .joints import RobotSession
+from .session import LineSession
+
+log = logging.getLogger("ics35_async.web")
+
+Handler = Callable[[Request, LineSession], Awaitable[Any]]
+
+# Page refresh over the WebSocket: fast while plotting, slow otherwise.
+LIVE_PERIOD = 0.04
+IDLE_PERIOD = 0.25
+TELEMETRY_PERIOD = 1.0
+
+
+def _status_of(exc: BaseException) -> int:
+    if isinstance(exc, UnsafeOperation):
+        return 409
+    if isinstance(exc, (InvalidArgument, MalformedEeprom, ValueError, TypeError, KeyError)):
+        return 400
+    if isinstance(exc, ReplyTimeout):
+        return 504
+    if isinstance(exc, (ReplyError, VerifyError)):
+        return 502
+    if isinstance(exc, (PortLost, BusClosed, SerialPortError, OSError)):
+        return 503
+    return 500
+
+
+def error_response(exc: BaseException) -> JSONResponse:
+    status = _status_of(exc)
+    if status == 500:
+        log.error("internal error: %s: %s", type(exc).__name__, exc)
+        message = f"internal error ({type(exc).__name__}: {exc}); the line is unchanged by this request"
+    elif isinstance(exc, KeyError):
+        message = f"missing {exc}"
+    else:
+        message = error_text(exc)
+    return JSONResponse({"error": message, "kind": type(exc).__name__}, status_code=status)
+
+
+def endpoint(handler: Handler) -> Callable[[Request], Awaitable[Response]]:
+    @functools.wraps(handler)
+    async def run(request: Request) -> Response:
+        session: LineSession = request.app.state.session
+        try:
+            result = await handler(request, session)
+        except (IcsError, OSError, ValueError, TypeError, KeyError) as exc:
+            return error_response(exc)
+        except Exception as exc:  # the page shows words, the terminal one line; never a traceback
+            return error_response(exc)
+        return result if isinstance(result, Response) else JSONResponse(result)
+
+    return run
+
+
+async def body(request: Request) -> dict[str, Any]:
+    try:
+        data = await request.json()
+    except json.JSONDecodeError as exc:
+        raise InvalidArgument(f"the request is not JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise InvalidArgument("the request must be a JSON object")
+    return data
+
+
+def servo_id(request: Request) -> int:
+    text = request.path_params["servo_id"]
+    if not text.isdigit() or not 0 <= int(text) <= 31:
+        raise InvalidArgument(f"servo ID {text!r} is not 0..31")
+    return int(text)
+
+
+def int_of(data: dict[str, Any], key: str) -> int:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InvalidArgument(f"{key} must be an integer, got {value!r}")
+    return value
+
+
+# --------------------------------------------------------------------------- the line
+
+
+async def status(request: Request, session: LineSession) -> Any:
+    return session.status()
+
+
+async def ports(request: Request, session: LineSession) -> Any:
+    try:
+        found = [p.to_dict() for p in list_serial_ports()]
+    except Exception as exc:  # pyserial's platform backend failed: say so
+        return {"ports": [], "notes": [f"cannot list serial ports: {exc}"]}
+    notes = [
+        f"a Kondo USB device ({usb_id}) is plugged in but has no serial port; on Linux: "
+        + " ; ".join(linux_adapter_steps(usb_id))
+        for usb_id in kondo_usb_without_port()
+    ]
+    if not any(p["kondo"] for p in found) and not notes and sys.platform.startswith("linux"):
+        notes.append(
+            "no Kondo adapter listed: an ICS USB adapter HS that is plugged in may need Linux's ftdi_sio driver "
+            f"told its USB ID: {' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}"
+        )
+    return {"ports": found, "notes": notes}
+
+
+async def connect(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    return await session.connect(data.get("port"), data.get("baud"))
+
+
+async def scan(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    return await session.scan(data.get("bauds"), data.get("ids"))
+
+
+# --------------------------------------------------------------------------- one servo
+
+
+async def eeprom(request: Request, session: LineSession) -> Any:
+    return await session.read_eeprom(servo_id(request))
+
+
+async def ram(request: Request, session: LineSession) -> Any:
+    return await session.read_ram(servo_id(request))
+
+
+async def ram_write(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    name = data.get("param")
+    return {"param": name, "value": await session.write_ram(servo_id(request), str(name), int_of(data, "value"))}
+
+
+async def plan(request: Request, session: LineSession) -> Any:
+    _, view = await session.plan(servo_id(request), await body(request))
+    return view
+
+
+async def write(request: Request, session: LineSession) -> Any:
+    return await session.write(servo_id(request), await body(request))
+
+
+async def backup(request: Request, session: LineSession) -> Any:
+    sid = servo_id(request)
+    doc = await session.backup(sid)
+    return JSONResponse(doc, headers={"content-disposition": f'attachment; filename="servo-{sid:02d}.json"'})
+
+
+async def restore_plan(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    edit = {**data, **session.restore_edit(data.get("doc"), restore_id=data.get("restore_id") is True)}
+    _, view = await session.plan(servo_id(request), edit)
+    return {**view, "saved_id": edit["saved_id"]}
+
+
+async def restore(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    edit = {**data, **session.restore_edit(data.get("doc"), restore_id=data.get("restore_id") is True)}
+    return await session.write(servo_id(request), edit)
+
+
+async def free(request: Request, session: LineSession) -> Any:
+    return {"position": await session.free(servo_id(request))}
+
+
+async def hold(request: Request, session: LineSession) -> Any:
+    return {"position": await session.hold(servo_id(request))}
+
+
+async def motion(request: Request, session: LineSession) -> Any:
+    sid, data = servo_id(request), await body(request)
+    position = None
+    if data.get("enabled") is True:
+        position = await session.enable_motion(sid)
+    else:
+        session.disable_motion(sid)
+    return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid), "position": position}
+
+
+async def move(request: Request, session: LineSession) -> Any:
+    return {"position": await session.move(servo_id(request), int_of(await body(request), "position"))}
+
+
+# --------------------------------------------------------------------------- ID, many, live, traffic
+
+
+async def id_survey(request: Request, session: LineSession) -> Any:
+    return await session.survey()
+
+
+async def id_write(request: Request, session: LineSession) -> Any:
+    return await session.renumber(int_of(await body(request), "new_id"))
+
+
+async def many_apply(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    ids = data.get("ids")
+    if not isinstance(ids, list) or not ids:
+        raise InvalidArgument("choose at least one servo")
+    return {"results": await session.apply_to_many(ids, data)}
+
+
+async def live_start(request: Request, session: LineSession) -> Any:
+    data = await body(request)
+    ids = data.get("ids")
+    if not isinstance(ids, list) or not ids:
+        raise InvalidArgument("choose at least one servo to plot")
+    await session.start_live(ids, data.get("rate_hz"))
+    return session.status()
+
+
+async def live_stop(request: Request, session: LineSession) -> Any:
+    await session.stop_live()
+    return session.status()
+
+
+async def live(request: Request, session: LineSession) -> Any:
+    return None if session.live is None else session.live.snapshot()
+
+
+def joints_of(request: Request) -> RobotSession:
+    robot: RobotSession | None = request.app.state.robot
+    if robot is None:
+        raise InvalidArgument("no robot: start with `ics35 web --robot ROBOT.toml`")
+    return robot
+
+
+async def robot_view(request: Request, session: LineSession) -> Any:
+    robot: RobotSession | None = request.app.state.robot
+    return None if robot is None else robot.view()
+
+
+async def robot_motion(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    robot.set_motion((await body(request)).get("enabled") is True)
+    return robot.view()
+
+
+async def robot_move(request: Request, session: LineSession) -> Any:
+    robot, data = joints_of(request), await body(request)
+    pose = data.get("pose")
+    if not isinstance(pose, dict):
+        raise InvalidArgument("pose must be an object of joint: degrees")
+    await robot.move(pose, data.get("duration", 0.5))
+    return robot.view()
+
+
+async def robot_play(request: Request, session: LineSession) -> Any:
+    robot, data = joints_of(request), await body(request)
+    await robot.play(data.get("motion"), data.get("speed", 1.0))
+    return robot.view()
+
+
+async def robot_stop(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    await robot.stop()
+    return robot.view()
+
+
+async def robot_free(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    await robot.free()
+    return robot.view()
+
+
+async def traffic(request: Request, session: LineSession) -> Any:
+    since = request.query_params.get("since", "0")
+    return {"entries": session.traffic.since(int(since) if since.isdigit() else 0)}
+
+
+async def updates(ws: WebSocket) -> None:
+    """Push the line's status, scan progress, telemetry, live frames and traffic to one page."""
+    session: LineSession = ws.app.state.session
+    await ws.accept()
+    watching_traffic = False
+    seen = 0
+    last_telemetry = 0.0
+    loop = asyncio.get_running_loop()
+
+    async def listen() -> None:
+        nonlocal watching_traffic
+        while True:
+            message = await ws.receive_json()
+            want = bool(isinstance(message, dict) and message.get("traffic"))
+            if want != watching_traffic:
+                watching_traffic = want
+                (session.traffic.watch if want else session.traffic.unwatch)()
+
+    listener = asyncio.create_task(listen())
+    try:
+        while not listener.done():
+            update: dict[str, Any] = {"status": session.status()}
+            if session.progress.running or session.progress.total:
+                update["progress"] = {"done": session.progress.done, "total": session.progress.total}
+            if ws.app.state.robot is not None:
+                update["robot"] = ws.app.state.robot.view()
+            if session.live is not None:
+                update["live"] = session.live.snapshot()
+            elif loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
+                last_telemetry = loop.time()
+                with contextlib.suppress(IcsError):
+                    await session.read_telemetry()
+                update["servos"] = [session.found_view(s) for s in session.found]
+            if watching_traffic:
+                entries = session.traffic.since(seen)
+                if entries:
+                    seen = entries[-1]["seq"]
+                    update["traffic"] = entries[-500:]
+            await ws.send_json(update)
+            await asyncio.sleep(LIVE_PERIOD if session.live is not None else IDLE_PERIOD)
+    except (WebSocketDisconnect, RuntimeError):
+        pass
+    finally:
+        listener.cancel()
+        with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
+            await listener
+        if watching_traffic:
+            session.traffic.unwatch()
+
+
+ROUTES = [
+    Route("/api/status", endpoint(status)),
+    Route("/api/ports", endpoint(ports)),
+    Route("/api/connect", endpoint(connect), methods=["POST"]),
+    Route("/api/scan", endpoint(scan), methods=["POST"]),
+    Route("/api/servo/{servo_id}/eeprom", endpoint(eeprom)),
+    Route("/api/servo/{servo_id}/ram", endpoint(ram)),
+    Route("/api/servo/{servo_id}/ram/write", endpoint(ram_write), methods=["POST"]),
+    Route("/api/servo/{servo_id}/plan", endpoint(plan), methods=["POST"]),
+    Route("/api/servo/{servo_id}/write", endpoint(write), methods=["POST"]),
+    Route("/api/servo/{servo_id}/backup", endpoint(backup)),
+    Route("/api/servo/{servo_id}/restore/plan", endpoint(restore_plan), methods=["POST"]),
+    Route("/api/servo/{servo_id}/restore", endpoint(restore), methods=["POST"]),
+    Route("/api/servo/{servo_id}/free", endpoint(free), methods=["POST"]),
+    Route("/api/servo/{servo_id}/hold", endpoint(hold), methods=["POST"]),
+    Route("/api/servo/{servo_id}/motion", endpoint(motion), methods=["POST"]),
+    Route("/api/servo/{servo_id}/move", endpoint(move), methods=["POST"]),
+    Route("/api/id/survey", endpoint(id_survey), methods=["POST"]),
+    Route("/api/id/write", endpoint(id_write), methods=["POST"]),
+    Route("/api/many/apply", endpoint(many_apply), methods=["POST"]),
+    Route("/api/live/start", endpoint(live_start), methods=["POST"]),
+    Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
+    Route("/api/live", endpoint(live)),
+    Route("/api/traffic", endpoint(traffic)),
+    Route("/api/robot", endpoint(robot_view)),
+    Route("/api/robot/motion", endpoint(robot_motion), methods=["POST"]),
+    Route("/api/robot/move", endpoint(robot_move), methods=["POST"]),
+    Route("/api/robot/play", endpoint(robot_play), methods=["POST"]),
+    Route("/api/robot/stop", endpoint(robot_stop), methods=["POST"]),
+    Route("/api/robot/free", endpoint(robot_free), methods=["POST"]),
+    WebSocketRoute("/ws", updates),
+]

@@ -1,0 +1,38 @@
+"""How the configurator opens its line, and an error's words for a page."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LineConfig:
+    """How to open the line (the CLI's line options)."""
+
+    port: str = "sim://"
+    baud: int = 115200
+    echo: bool = True
+    adapter_latency: float = 0.020
+    retries: int = 1
+    transport: str = "auto"
+    direction: str = "none"
+
+    @property
+    def is_sim(self) -> bool:
+        return self.port.startswith("sim://")
+
+    @property
+    def url(self) -> str:
+        """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos."""
+        if self.port == "sim://" or self.port.startswith("sim://?"):
+            return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://') :]}"
+        return self.port
+
+
+def error_text(exc: BaseException) -> str:
+    """An error's words, without the ``[Errno 2]`` an OSError puts in front of them."""
+    if isinstance(exc, OSError) and exc.strerror:
+        named = exc.filename is None or str(exc.filename) in exc.strerror
+        return exc.strerror if named else f"{exc.strerror}: {exc.filename}"
+    return str(exc) or type(exc).__name__

@@ -1,0 +1,155 @@
+"""The Robot page's side: a robot opened from its description file, its joints by name, motions played.
+
+Everything goes through :class:`~ics35_async.robot.Robot`: poses are checked
+against the joints' limits there, motions are checked and played there, and
+its safety watch trips there; this module only keeps the robot open while the
+server runs, refuses to move joints until the page switches motion on, and
+runs a motion in the background so the page stays live while it plays.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Mapping
+from typing import Any
+
+from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
+from ..errors import IcsError, InvalidArgument, UnsafeOperation
+from ..robot import Robot, load_description, open_robot, parse_motion
+from ..robot.motion import check_motion
+from ..units import check_seconds
+
+
+class RobotSession:
+    """The robot ``ics35 web --robot FILE`` serves (open from :meth:`open` to :meth:`close`)."""
+
+    def __init__(self, path: str) -> None:
+        self.description = load_description(path)  # checked before the server starts
+        self.path = path
+        self.robot: Robot | None = None
+        self.error: str | None = None
+        self.motion_enabled = False
+        self.playing: str | None = None  # the motion's name while one plays
+        self.outcome: str | None = None  # how the last motion ended
+        self._stack = contextlib.AsyncExitStack()
+        self._task: asyncio.Task[None] | None = None
+
+    async def open(self) -> None:
+        try:
+            self.robot = await self._stack.enter_async_context(open_robot(self.description, on_close="hold"))
+        except (IcsError, OSError) as exc:
+            self.error = f"the robot's lines could not be opened: {exc}"
+
+    async def close(self) -> None:
+        await self.stop()
+        await self._stack.aclose()
+        self.robot = None
+
+    def _robot(self) -> Robot:
+        if self.robot is None:
+            raise UnsafeOperation(self.error or "the robot is not open")
+        return self.robot
+
+    def _moving_allowed(self) -> Robot:
+        robot = self._robot()
+        if not self.motion_enabled:
+            raise UnsafeOperation("motion is not enabled: switch on 'enable motion' first")
+        return robot
+
+    def view(self) -> dict[str, Any]:
+        robot = self.robot
+        frame = None if robot is None else robot.latest
+        telemetry = {} if robot is None else robot.telemetry
+        tripped = {} if robot is None else robot.tripped
+        targets = {} if robot is None else robot.targets
+        joints = []
+        for name, spec in self.description.joints.items():
+            t = telemetry.get(name)
+            stop = tripped.get(name)
+            joints.append(
+                {
+                    "name": name,
+                    "line": spec.line,
+                    "id": spec.id,
+                    "min": spec.min,
+                    "max": spec.max,
+                    "position": None if frame is None else _round(frame.positions.get(name)),
+                    "target": _round(targets.get(name)),
+                    "temperature_c": None if t is None else _round(t.temperature_c),
+                    "current": None if t is None else t.current,
+                    "offline": frame is not None and name in frame.offline,
+                    "tripped": None if stop is None else str(stop),
+                }
+            )
+        return {
+            "name": self.description.name or self.path,
+            "open": robot is not None,
+            "error": self.error,
+            "cycle": None if frame is None else frame.cycle,
+            "motion_enabled": self.motion_enabled,
+            "playing": self.playing,
+            "outcome": self.outcome,
+            "joints": joints,
+        }
+
+    def set_motion(self, enabled: bool) -> None:
+        """Motion on: the joints hold where they stand (their targets become their positions)."""
+        robot = self._robot()
+        if enabled:
+            robot.hold()
+        self.motion_enabled = enabled
+
+    async def move(self, pose: Mapping[str, Any], duration: float) -> None:
+        """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves)."""
+        robot = self._moving_allowed()
+        checked = robot.check_pose(pose)
+        seconds = check_seconds("duration", duration, 0.0, 30.0)
+        await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}")
+
+    async def play(self, doc: object, speed: float = 1.0) -> None:
+        """Play a motion file's content (``parse_motion`` checks it; ``Robot.play`` checks it against the robot)."""
+        robot = self._moving_allowed()
+        motion = parse_motion(doc, "the uploaded motion")
+        if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0.05 <= speed <= 10:
+            raise InvalidArgument(f"speed must be 0.05..10, got {speed!r}")
+        check_motion(robot, motion, "the uploaded motion")  # unknown joints, limits: before anything moves
+        await self._run(robot.play(motion, speed=speed), motion.name or "motion")
+
+    async def _run(self, job: Any, name: str) -> None:
+        await self.stop()
+        self.playing, self.outcome = name, None
+
+        async def run() -> None:
+            try:
+                await job
+                self.outcome = f"{name}: done"
+            except asyncio.CancelledError:
+                self.outcome = f"{name}: stopped"
+                raise
+            except IcsError as exc:
+                self.outcome = f"{name}: {exc}"
+            finally:
+                self.playing = None
+
+        self._task = asyncio.create_task(run())
+
+    async def stop(self, ramp: float = 0.3) -> None:
+        """Stop a motion smoothly (``Robot.stop``); the joints hold."""
+        task, self._task = self._task, None
+        if task is not None and not task.done():
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            if self.robot is not None:
+                with contextlib.suppress(IcsError):
+                    await self.robot.stop(ramp)
+
+    async def free(self) -> None:
+        await self.stop(ramp=0.0)
+        self.motion_enabled = False
+        await self._robot().free()
+
+
+def _round(value: float | None) -> float | None:
+    return None if value is None else round(value, 1)

@@ -1,0 +1,105 @@
+"""The Live plots page's data: a position stream over the chosen servos, with current and temperature
+read in its gaps, sampled for the page at a fixed rate (the stream never waits for the page).
+
+Servos start free, as every stream does (the free command is how ICS 3.5
+reads a position without moving): they are held, or moved, only when a page
+with motion switched on gives them a target.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections import deque
+from typing import Any
+
+from .. import protocol
+from ..bus import Bus, Priority
+from ..errors import IcsError
+from ..protocol import Param
+from ..stream import Stream
+from ..units import current_from_raw, temperature_to_celsius
+
+# One servo's current and temperature every this many seconds: 32 servos in about 3 s,
+# about 20 transactions a second taken from the stream.
+TELEMETRY_PERIOD = 0.1
+
+
+async def read_health(bus: Bus, servo_id: int) -> dict[str, Any]:
+    """A servo's temperature and current (reads that move nothing), in the line's gaps."""
+    temp = await bus.request(protocol.ReadParam(servo_id, Param.TEMPERATURE), priority=Priority.LOW)
+    current = await bus.request(protocol.ReadParam(servo_id, Param.CURRENT), priority=Priority.LOW)
+    return {
+        "temperature": temp,
+        "temperature_c": round(temperature_to_celsius(temp), 1),
+        "current": current_from_raw(current).magnitude,
+    }
+
+
+class LiveView:
+    """A running stream and the latest readings of its servos."""
+
+    def __init__(self, bus: Bus, stream: Stream) -> None:
+        self.bus = bus
+        self.stream = stream
+        self.ids = stream.ids
+        self.current: dict[int, int] = {}
+        self.temperature: dict[int, float] = {}
+        self._task: asyncio.Task[None] | None = None
+        self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
+
+    @classmethod
+    async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float | None = None) -> LiveView:
+        stream = bus.stream([protocol.check_id(i) for i in ids], rate_hz=rate_hz)
+        await stream.start()
+        view = cls(bus, stream)
+        view._task = asyncio.create_task(view._read_telemetry())
+        return view
+
+    async def _read_telemetry(self) -> None:
+        k = 0
+        while True:
+            await asyncio.sleep(TELEMETRY_PERIOD)
+            sid = self.ids[k % len(self.ids)]
+            k += 1
+            if sid in self.stream.offline:
+                continue  # a dead ID costs a full timeout per read: the stream probes it
+            with contextlib.suppress(IcsError):
+                health = await read_health(self.bus, sid)
+                self.temperature[sid] = health["temperature_c"]
+                self.current[sid] = health["current"]
+
+    def position(self, servo_id: int) -> int:
+        frame = self.stream.latest
+        return -1 if frame is None else frame.positions.get(servo_id, -1)
+
+    def snapshot(self) -> dict[str, Any] | None:
+        """The newest frame for the page, or None before the first."""
+        frame = self.stream.latest
+        if frame is None:
+            return None
+        # The rate over the last second, from the frames themselves: Stream.stats sorts and takes the
+        # deviation of its whole history, too much to do 25 times a second next to a streaming line.
+        marks = self._marks
+        marks.append((frame.finished, frame.cycle))
+        while len(marks) > 2 and frame.finished - marks[0][0] > 1.0:
+            marks.popleft()
+        span = marks[-1][0] - marks[0][0]
+        rate = (marks[-1][1] - marks[0][1]) / span if span > 0 else 0.0
+        return {
+            "cycle": frame.cycle,
+            "t": frame.finished,
+            "positions": {str(k): v for k, v in frame.positions.items()},
+            "targets": {str(i): self.stream.target(i) for i in self.ids},
+            "current": {str(k): v for k, v in self.current.items()},
+            "temperature": {str(k): v for k, v in self.temperature.items()},
+            "offline": sorted(frame.offline),
+            "rate_hz": round(rate, 1),
+        }
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        await self.stream.aclose()

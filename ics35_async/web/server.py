@@ -1,0 +1,159 @@
+"""The configurator's server: the Starlette app (pages, API, WebSocket, behind the token guard) and
+running it with uvicorn on a socket bound before the URL is printed."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import webbrowser
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from starlette.applications import Starlette
+from starlette.middleware import Middleware
+from starlette.responses import FileResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from ..errors import InvalidArgument
+from .api import ROUTES
+from .config import LineConfig, error_text
+from .joints import RobotSession
+from .security import TokenGuard, is_loopback
+from .session import LineSession
+
+STATIC = Path(__file__).with_name("static")
+
+
+@dataclass(frozen=True)
+class Listen:
+    host: str = "127.0.0.1"
+    port: int = 0  # 0: a free port
+
+    @classmethod
+    def parse(cls, text: str) -> Listen:
+        """``HOST:PORT``, ``HOST``, ``:PORT`` or ``PORT`` (IPv6 in brackets: ``[::1]:8080``)."""
+        text = text.strip()
+        host, port = text, ""
+        if text.isdigit():
+            host, port = "", text
+        if text.startswith("["):
+            host, _, rest = text[1:].partition("]")
+            port = rest.removeprefix(":")
+        elif text.count(":") == 1:
+            host, port = text.split(":")
+        if port and not (port.isdigit() and int(port) <= 65535):
+            raise InvalidArgument(f"--listen {text}: the port must be a number 0..65535")
+        return cls(host or "127.0.0.1", int(port or 0))
+
+    @property
+    def loopback(self) -> bool:
+        return is_loopback(self.host)
+
+
+# The page runs only its own scripts and talks only to this server; no other site may frame it
+# (a framed page could be clicked through by another site) or learn its address.
+PAGE_HEADERS = {
+    "cache-control": "no-store",
+    "content-security-policy": "default-src 'self'; connect-src 'self'; img-src 'self' data: blob:; "
+    "frame-ancestors 'none'; form-action 'self'; base-uri 'none'",
+    "x-frame-options": "DENY",
+    "referrer-policy": "no-referrer",
+    "x-content-type-options": "nosniff",
+}
+
+
+async def _index(request: object) -> Response:
+    return FileResponse(STATIC / "index.html", headers=PAGE_HEADERS)
+
+
+def create_app(
+    session: LineSession,
+    token: str,
+    *,
+    loopback: bool = True,
+    warn: Callable[[str], None] | None = None,
+    robot: RobotSession | None = None,
+) -> Starlette:
+    """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`).
+
+    The line opens when the server starts; a port that cannot be opened is
+    shown on the Line page (and given to ``warn``), where another can be chosen.
+    """
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        try:
+            await session.connect()
+        except Exception as exc:
+            if warn is not None:
+                warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
+        if robot is not None:
+            await robot.open()
+            if robot.error and warn is not None:
+                warn(robot.error)
+        try:
+            yield
+        finally:
+            if robot is not None:
+                await robot.close()
+            await session.close()
+
+    app = Starlette(
+        routes=[Route("/", _index), *ROUTES, Mount("/static", StaticFiles(directory=STATIC), name="static")],
+        middleware=[Middleware(TokenGuard, token=token, loopback_only_hosts=loopback)],
+        lifespan=lifespan,
+    )
+    app.state.session = session
+    app.state.robot = robot
+    return app
+
+
+def bind(listen: Listen) -> socket.socket:
+    family = socket.AF_INET6 if ":" in listen.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((listen.host, listen.port))
+    except OSError as exc:
+        sock.close()
+        raise InvalidArgument(f"cannot listen on {listen.host}:{listen.port}: {exc.strerror or exc}") from None
+    sock.listen(64)
+    return sock
+
+
+def url_of(sock: socket.socket, token: str) -> str:
+    host, port = sock.getsockname()[:2]
+    shown = f"[{host}]" if ":" in host else host
+    if host in ("0.0.0.0", "::"):
+        shown = "127.0.0.1" if host == "0.0.0.0" else "[::1]"
+    return f"http://{shown}:{port}/?token={token}"
+
+
+def serve(
+    config: LineConfig,
+    token: str,
+    listen: Listen,
+    *,
+    open_browser: bool = True,
+    announce: Callable[[str], None] = print,
+    warn: Callable[[str], None] | None = None,
+    robot_file: str | None = None,
+) -> None:
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong."""
+    robot = None if robot_file is None else RobotSession(robot_file)  # a bad file: refused before binding
+    sock = bind(listen)
+    app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot)
+    url = url_of(sock, token)
+    announce(url)  # the socket listens already: a browser that comes now waits in its backlog
+    import uvicorn  # after the URL: it is the slower half of the start-up
+
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
+    if open_browser:
+        with contextlib.suppress(Exception):
+            webbrowser.open(url)
+    try:
+        server.run(sockets=[sock])
+    finally:
+        sock.close()

@@ -1,0 +1,398 @@
+"""The configurator's one line: the open bus, what a scan found, and every action a page asks for.
+
+Each action is a call into the library's policies (scan, EEPROM plan and
+write, backup, the guarded ID write) with the bus this session holds; the
+web layer adds no rule of its own beyond refusing motion until a page has
+switched it on.  Actions that reopen the port or must be alone on the line
+(scan, EEPROM write, renumbering) take :attr:`LineSession.exclusive`; the
+Line page's temperature/current reads skip a round while it is held.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from .. import protocol
+from ..bus import Bus, open_bus
+from ..eeprom import BaudRate, Eeprom
+from ..engine import State
+from ..errors import BusClosed, IcsError, InvalidArgument, ReplyError, UnsafeOperation
+from ..policies import (
+    EepromPlan,
+    FoundServo,
+    plan_eeprom_write,
+    scan,
+    survey_for_id_write,
+    write_eeprom_plan,
+    write_lone_id,
+)
+from ..policies.eeprom_backup import backup_changes, backup_document
+from ..protocol import Param
+from .config import LineConfig, error_text
+from .edits import allowances, edit_of
+from .live import LiveView, read_health
+from .traffic import TrafficLog
+from .views import eeprom_view, plan_view, result_view, survey_view
+
+# The RAM parameters a page may write, as `ics35 set` names them (read back: current and temperature
+# are the measured values, not the limits written).
+RAM_PARAMS = {
+    "stretch": Param.STRETCH,
+    "speed": Param.SPEED,
+    "current_limit": Param.CURRENT,
+    "temperature_limit": Param.TEMPERATURE,
+}
+
+
+@dataclass
+class ScanProgress:
+    done: int = 0
+    total: int = 0
+    running: bool = False
+
+
+class LineSession:
+    """The line the pages work on (one per server)."""
+
+    def __init__(self, config: LineConfig) -> None:
+        self.config = config
+        self.bus: Bus | None = None
+        self.error: str | None = None  # why the last connect failed
+        self.found: list[FoundServo] = []
+        self.progress = ScanProgress()
+        self.exclusive = asyncio.Lock()
+        self.traffic = TrafficLog()
+        self.live: LiveView | None = None
+        self.telemetry: dict[int, dict[str, Any]] = {}
+        self.motion_enabled: set[int] = set()  # servos a page switched motion on for
+        self._limits: dict[int, tuple[int, int]] = {}
+
+    # ------------------------------------------------------------------ the line
+
+    def status(self) -> dict[str, Any]:
+        bus = self.bus
+        state = "closed" if bus is None else bus.state.value
+        return {
+            "port": self.config.port,
+            "baud": self.config.baud,
+            "simulator": self.config.is_sim,
+            "connected": bus is not None and bus.is_open,
+            "state": state,
+            "lost": bus is not None and bus.state is State.LOST,
+            "error": self.error,
+            "live": None if self.live is None else list(self.live.ids),
+            "scanning": self.progress.running,
+        }
+
+    async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
+        """Open the line (closing the one open before); a refused port is reported, not raised."""
+        config = self.config
+        if port is not None:
+            if not isinstance(port, str) or not port.strip():
+                raise InvalidArgument("name a port (see the list) or sim://")
+            config = replace(config, port=port.strip())
+        if baud is not None:
+            config = replace(config, baud=int(BaudRate.parse(baud)))
+        async with self.exclusive:
+            await self.disconnect()
+            self.config = config
+            self.found = []
+            self.telemetry = {}
+            self._limits = {}
+            bus = self._open(config.baud)
+            try:
+                await bus.open()
+            except (OSError, InvalidArgument) as exc:
+                self.error = error_text(exc)
+                raise
+            self.bus = bus
+            self.error = None
+        return self.status()
+
+    def _open(self, baud: int) -> Bus:
+        from .. import sim  # noqa: F401  (registers the sim:// URL scheme)
+
+        c = self.config
+        return open_bus(
+            c.url,
+            baudrate=baud,
+            echo=c.echo,
+            transport=c.transport,
+            direction=c.direction,
+            retries=c.retries,
+            reconnect=True,
+            adapter_latency=c.adapter_latency,
+        )
+
+    async def disconnect(self) -> None:
+        await self.stop_live()
+        bus, self.bus = self.bus, None
+        self.motion_enabled.clear()
+        if bus is not None:
+            await bus.aclose()
+
+    async def close(self) -> None:
+        await self.disconnect()
+        if self.config.is_sim and self.config.url != self.config.port:
+            from .. import sim
+
+            with contextlib.suppress(KeyError):
+                sim.named(self.config.url.removeprefix("sim://").split("?")[0]).close()
+
+    def line(self) -> Bus:
+        if self.bus is None or not self.bus.is_open:
+            raise BusClosed("not connected: choose a port and press Connect on the Line page")
+        return self.bus
+
+    @contextlib.asynccontextmanager
+    async def _quiet(self) -> AsyncIterator[Bus]:
+        """The line at its own rate for one action: it waits while a scan (which reopens the port at
+        other rates), an EEPROM write or a renumbering has the line."""
+        async with self.exclusive:
+            yield self.line()
+
+    # ------------------------------------------------------------------ scan
+
+    @contextlib.asynccontextmanager
+    async def _at_rate(self, baud: int) -> AsyncIterator[Bus]:
+        bus = self.line()
+        if baud != bus.baudrate:
+            await bus.reopen(baudrate=baud)
+        yield bus
+
+    async def scan(self, bauds: list[int] | None = None, ids: list[int] | None = None) -> dict[str, Any]:
+        """Probe ``ids`` at ``bauds`` (policies.scan), then return the line to its own rate."""
+        bauds = bauds or [self.config.baud]
+        wanted = list(range(32)) if ids is None else [protocol.check_id(i) for i in ids]
+        checked = [int(BaudRate.parse(b)) for b in bauds]
+        await self.stop_live()
+        async with self.exclusive:
+            bus = self.line()
+            self.progress = ScanProgress(0, len(wanted) * len(checked), True)
+
+            def step(n: int) -> None:
+                self.progress.done += n
+
+            try:
+                report = await scan(self._at_rate, bauds=checked, ids=wanted, on_probe=step)
+            finally:
+                self.progress.running = False
+                if bus.is_open and bus.baudrate != self.config.baud:
+                    await bus.reopen(baudrate=self.config.baud)
+        self.found = list(report.servos)
+        for servo in report.servos:
+            if servo.eeprom is not None:
+                self._limits[servo.servo_id] = (servo.eeprom.pulse_limit_low, servo.eeprom.pulse_limit_high)
+        return {
+            "servos": [self.found_view(s) for s in self.found],
+            "skipped": {str(b): why for b, why in report.skipped.items()},
+            "garbled": [{"baud": b, "id": i, "error": str(e)} for b, i, e in report.garbled],
+            "silent": report.silent,
+            "echo_wrong": None if report.echo_evidence is None else str(report.echo_evidence),
+        }
+
+    def found_view(self, servo: FoundServo) -> dict[str, Any]:
+        return {
+            "id": servo.servo_id,
+            "baud": servo.baud,
+            "answered_at": list(servo.answered_at),
+            "baud_pending": servo.baud_pending,
+            "eeprom_error": None if servo.eeprom_error is None else str(servo.eeprom_error),
+            **self.telemetry.get(servo.servo_id, {}),
+        }
+
+    async def read_telemetry(self) -> dict[int, dict[str, Any]]:
+        """Temperature and current of the servos found (reads that move nothing); skipped while busy."""
+        if self.exclusive.locked() or self.bus is None or not self.bus.is_open or self.live is not None:
+            return self.telemetry
+        async with self.exclusive:  # a scan that starts meanwhile waits for this round, not the other way
+            await self._read_telemetry(self.bus)
+        return self.telemetry
+
+    async def _read_telemetry(self, bus: Bus) -> None:
+        for servo in list(self.found):
+            sid = servo.servo_id
+            if servo.baud != bus.baudrate:
+                continue
+            try:
+                entry = {**await read_health(bus, sid), "telemetry_error": None}
+            except ReplyError as exc:
+                entry = {"telemetry_error": str(exc)}
+            self.telemetry[sid] = entry
+
+    # ------------------------------------------------------------------ one servo's EEPROM
+
+    async def read_eeprom(self, servo_id: int) -> dict[str, Any]:
+        async with self._quiet() as bus:
+            image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
+        self._limits[servo_id] = (image.pulse_limit_low, image.pulse_limit_high)
+        return eeprom_view(image)
+
+    async def read_ram(self, servo_id: int) -> dict[str, Any]:
+        protocol.check_id(servo_id)
+        values = {}
+        async with self._quiet() as bus:
+            for param in (Param.STRETCH, Param.SPEED, Param.CURRENT, Param.TEMPERATURE):
+                values[param.name.lower()] = await bus.request(protocol.ReadParam(servo_id, param))
+        return values
+
+    async def write_ram(self, servo_id: int, name: str, value: int) -> int:
+        """Write a RAM parameter (lost at power-off); the command checks the value's range."""
+        param = RAM_PARAMS.get(name)
+        if param is None:
+            raise InvalidArgument(f"RAM parameter {name!r}: one of {', '.join(RAM_PARAMS)}")
+        command = protocol.WriteParam(protocol.check_id(servo_id), param, value)
+        async with self._quiet() as bus:
+            written: int = await bus.request(command)
+        return written
+
+    async def plan(self, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
+        async with self._quiet() as bus:
+            return await self._plan(bus, servo_id, edit)
+
+    async def _plan(self, bus: Bus, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
+        changes, set_flags, clear_flags = edit_of(edit)
+        plan = await plan_eeprom_write(bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags)
+        allow = allowances(edit)
+        return plan, plan_view(plan, plan.refusal(**allow))
+
+    async def write(self, servo_id: int, edit: Mapping[str, Any]) -> dict[str, Any]:
+        """Plan and write ``edit`` (policies.eeprom_write: refusals, the re-read before, the read-back after).
+
+        ``edit["before"]`` (the raw image the person saw the diff against) must
+        still be the servo's, so what is written is what was shown.
+        """
+        async with self._quiet() as bus:
+            plan, _ = await self._plan(bus, servo_id, edit)
+            seen = edit.get("before")
+            if seen is not None and seen != plan.before.to_bytes().hex():
+                raise UnsafeOperation(
+                    f"servo {servo_id}'s EEPROM changed since the diff was shown; look again; nothing was written"
+                )
+            result = await write_eeprom_plan(bus, plan, **allowances(edit))
+        after = result.read_back or plan.after
+        if plan.changes_id:
+            self._limits.pop(servo_id, None)
+            self.motion_enabled.discard(servo_id)
+        self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
+        return result_view(result)
+
+    async def backup(self, servo_id: int) -> dict[str, Any]:
+        async with self._quiet() as bus:
+            image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
+            return backup_document(image, servo_id, baud=bus.baudrate, port=self.config.port)
+
+    def restore_edit(self, doc: object, *, restore_id: bool) -> dict[str, Any]:
+        """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`."""
+        changes = backup_changes(doc, restore_id=restore_id)
+        # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.
+        return {"changes": changes.fields, "saved_id": changes.saved_id, "allow_id_change": restore_id}
+
+    async def apply_to_many(self, ids: list[Any], edit: Mapping[str, Any]) -> list[dict[str, Any]]:
+        """The same edit (a profile of chosen fields) written to each servo in turn; an outcome per servo."""
+        checked = [protocol.check_id(i) for i in ids]
+        profile = {k: v for k, v in edit.items() if k in ("changes", "set_flags", "clear_flags")}
+        results: list[dict[str, Any]] = []
+        for sid in checked:
+            try:
+                results.append({"id": sid, **await self.write(sid, profile)})
+            except IcsError as exc:
+                results.append({"id": sid, "error": str(exc), "kind": type(exc).__name__})
+        return results
+
+    # ------------------------------------------------------------------ torque and motion
+
+    async def free(self, servo_id: int) -> int:
+        self.motion_enabled.discard(servo_id)
+        if self.live is not None and servo_id in self.live.ids:
+            self.live.stream.free([servo_id])
+            return self.live.position(servo_id)
+        async with self._quiet() as bus:
+            return await bus.servo(protocol.check_id(servo_id)).free()
+
+    async def hold(self, servo_id: int) -> int:
+        """Torque on where the servo stands now (the free command reads the position, then it is held there)."""
+        protocol.check_id(servo_id)
+        if self.live is not None and servo_id in self.live.ids:
+            position = self.live.position(servo_id)
+            self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
+            return position
+        async with self._quiet() as bus:
+            servo = bus.servo(servo_id)
+            position = await servo.free()
+            return await servo.set_position(self.check_target(servo_id, position))
+
+    async def enable_motion(self, servo_id: int) -> int:
+        """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
+        steps from there rather than jumping to wherever the slider happened to be."""
+        await self.read_eeprom(servo_id)
+        position = await self.hold(servo_id)
+        self.motion_enabled.add(servo_id)
+        return position
+
+    def disable_motion(self, servo_id: int) -> None:
+        """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
+        self.motion_enabled.discard(servo_id)
+
+    def check_limits(self, servo_id: int) -> list[int] | None:
+        limits = self._limits.get(servo_id)
+        return None if limits is None else list(limits)
+
+    def check_target(self, servo_id: int, position: int) -> int:
+        limits = self._limits.get(servo_id)
+        if limits is None:
+            raise InvalidArgument(f"servo {servo_id}'s limits are not known yet: open its page (reads its EEPROM)")
+        low, high = limits
+        if isinstance(position, bool) or not isinstance(position, int) or not low <= position <= high:
+            raise InvalidArgument(f"position {position} is outside servo {servo_id}'s limits {low}..{high}")
+        return position
+
+    async def move(self, servo_id: int, position: int) -> int:
+        """Move (jog) a servo whose motion a page switched on, within its EEPROM pulse limits."""
+        protocol.check_id(servo_id)
+        if servo_id not in self.motion_enabled:
+            raise UnsafeOperation(f"motion is not enabled for servo {servo_id}: switch on 'enable motion' first")
+        if servo_id not in self._limits:
+            await self.read_eeprom(servo_id)
+        target = self.check_target(servo_id, position)
+        if self.live is not None and servo_id in self.live.ids:
+            self.live.stream.set_target(servo_id, target)
+            return self.live.position(servo_id)
+        async with self._quiet() as bus:
+            return await bus.servo(servo_id).set_position(target)
+
+    # ------------------------------------------------------------------ renumbering
+
+    async def survey(self) -> dict[str, Any]:
+        await self.stop_live()
+        async with self.exclusive:
+            return survey_view(await survey_for_id_write(self.line()))
+
+    async def renumber(self, new_id: int) -> dict[str, Any]:
+        """The guarded one-servo ID write (policies.id_write): refused unless exactly one device answers."""
+        protocol.check_id(new_id)
+        await self.stop_live()
+        async with self.exclusive:
+            bus = self.line()
+            survey = await survey_for_id_write(bus)
+            change = await write_lone_id(bus, new_id, survey=survey)
+        if change.written and change.old_id in self._limits:
+            self._limits[new_id] = self._limits.pop(change.old_id)
+        return {"old_id": change.old_id, "new_id": change.new_id, "written": change.written}
+
+    # ------------------------------------------------------------------ live
+
+    async def start_live(self, ids: list[int], rate_hz: float | None = None) -> LiveView:
+        await self.stop_live()
+        async with self.exclusive:
+            self.live = await LiveView.start(self.line(), ids, rate_hz=rate_hz)
+        return self.live
+
+    async def stop_live(self) -> None:
+        live, self.live = self.live, None
+        if live is not None:
+            await live.stop()

@@ -1,0 +1,544 @@
+// ics35 configurator: pages over the JSON API and one WebSocket. Our own code, no framework.
+"use strict";
+
+const $ = (sel) => document.querySelector(sel);
+const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
+  history: [], livePaused: false, updates: [], limits: null };
+
+// ---------------------------------------------------------------- talking to the server
+
+function say(text, kind = "error") {
+  const box = $("#message");
+  box.textContent = text;
+  box.className = kind;
+  box.hidden = !text;
+}
+
+async function api(path, data) {
+  const options = data === undefined ? {} : { method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify(data) };
+  let response;
+  try {
+    response = await fetch(path, options);
+  } catch (e) {
+    say("the configurator's server does not answer (was `ics35 web` stopped?)");
+    throw e;
+  }
+  const text = await response.text();
+  let body = null;
+  try { body = JSON.parse(text); } catch (e) { body = { error: text.trim() }; }
+  if (!response.ok) {
+    say(body && body.error ? body.error : `error ${response.status}`);
+    throw new Error(body.error);
+  }
+  return body;
+}
+
+function el(tag, props = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(props)) {
+    if (k === "class") node.className = v; else if (k in node) node[k] = v; else node.setAttribute(k, v);
+  }
+  for (const c of children) node.append(c instanceof Node ? c : document.createTextNode(c == null ? "" : String(c)));
+  return node;
+}
+
+function parseIds(text) {
+  const ids = new Set();
+  for (const part of text.split(",").map((s) => s.trim()).filter(Boolean)) {
+    if (part === "all") { for (let i = 0; i < 32; i++) ids.add(i); continue; }
+    const m = part.match(/^(\d+)(?:-(\d+))?$/);
+    if (!m) throw new Error(`${part} is not an ID or a range like 1-5`);
+    const a = +m[1], b = m[2] === undefined ? a : +m[2];
+    for (let i = Math.min(a, b); i <= Math.max(a, b); i++) ids.add(i);
+  }
+  return [...ids].sort((a, b) => a - b);
+}
+
+// ---------------------------------------------------------------- pages
+
+function show() {
+  const [page, arg] = (location.hash.slice(1) || "line").split("/");
+  for (const section of document.querySelectorAll(".page")) section.hidden = section.id !== `page-${page}`;
+  for (const a of document.querySelectorAll("nav a")) a.classList.toggle("active", a.getAttribute("href") === `#${page}`);
+  say("");
+  if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo(); }
+  if (page === "many") fillManyFields();
+  socketSend();
+}
+
+function showStatus(s) {
+  state.status = s;
+  $("#sim-banner").hidden = !s.simulator;
+  $("#lost-banner").hidden = !s.lost;
+  const where = `${s.port} at ${s.baud} baud`;
+  $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
+  if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
+}
+
+// ---- Line
+
+async function loadPorts() {
+  const found = await api("/api/ports");
+  const list = $("#port-list"), body = $("#ports-table tbody");
+  list.replaceChildren(el("option", { value: "sim://" }, "built-in simulator"));
+  body.replaceChildren();
+  for (const p of found.ports) {
+    list.append(el("option", { value: p.device }, p.description));
+    const pick = el("button", { type: "button", onclick: () => { $("#port-input").value = p.device; } }, "use");
+    body.append(el("tr", {}, el("td", {}, p.device), el("td", {}, p.description || "-"), el("td", {}, p.usb_id || "-"),
+      el("td", {}, p.kondo ? el("strong", {}, "Kondo adapter ") : "", pick)));
+  }
+  if (!found.ports.length) body.append(el("tr", {}, el("td", { colSpan: 4 }, "no serial port on this machine")));
+  $("#port-notes").replaceChildren(...found.notes.map((n) => el("li", {}, n)));
+}
+
+function showServos(servos) {
+  state.servos = servos;
+  const body = $("#servo-table tbody");
+  body.replaceChildren();
+  for (const s of servos) {
+    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C (${s.temperature})`;
+    const current = s.current === undefined ? "…" : String(s.current);
+    body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
+      el("td", { class: "temp" }, temp), el("td", { class: "current" }, current),
+      el("td", {}, el("a", { href: `#servo/${s.id}` }, "open"))));
+  }
+}
+
+async function scanLine() {
+  const bauds = $("#scan-all-bauds").checked ? [115200, 625000, 1250000] : null;
+  $("#scan-btn").disabled = true;
+  $("#scan-summary").textContent = "scanning…";
+  try {
+    const report = await api("/api/scan", { bauds });
+    showServos(report.servos);
+    const notes = [];
+    if (report.silent) notes.push("nothing came back at all, not even the echo: check power, wiring and the adapter");
+    if (report.echo_wrong) notes.push(`the echo setting looks wrong for this interface (${report.echo_wrong})`);
+    for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
+    for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
+    $("#scan-summary").textContent = `${report.servos.length} servo(s) found. ${notes.join("; ")}`;
+  } finally { $("#scan-btn").disabled = false; }
+}
+
+// ---- Servo
+
+function servoId() { return +$("#servo-id").value; }
+
+async function loadServo() {
+  const id = servoId();
+  $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
+  state.eeprom = await api(`/api/servo/${id}/eeprom`);
+  const body = $("#eeprom-table tbody");
+  body.replaceChildren();
+  for (const f of state.eeprom.fields) {
+    let input;
+    if (f.flags) {
+      input = el("span", {}, ...f.flags.map((flag) => el("label", { title: flag.read_only ? "read-only: reports the servo's state" : "" },
+        el("input", { type: "checkbox", name: `flag-${flag.name}`, checked: flag.on, disabled: flag.read_only }), ` ${flag.name} `)));
+    } else if (f.choices) {
+      input = el("select", { name: f.name }, ...f.choices.map((c) => el("option", { value: c, selected: c === f.value }, c)));
+    } else {
+      input = el("input", { type: "number", name: f.name, value: f.value, min: f.low, max: f.high, step: f.even ? 2 : 1 });
+    }
+    const range = f.low === undefined ? "" : `${f.low}..${f.high}${f.even ? " even" : ""}`;
+    body.append(el("tr", { "data-field": f.name }, el("td", {}, f.name), el("td", {}, input), el("td", {}, f.unit), el("td", {}, range), el("td", { class: "meaning" }, f.meaning)));
+  }
+  const ram = await api(`/api/servo/${id}/ram`);
+  $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+  const limits = state.eeprom.fields.filter((f) => f.name.startsWith("pulse_limit")).map((f) => f.value);
+  state.limits = [Math.min(...limits), Math.max(...limits)];
+  $("#jog-slider").min = state.limits[0]; $("#jog-slider").max = state.limits[1];
+  $("#jog-limits").textContent = `${state.limits[0]}..${state.limits[1]}`;
+  $("#motion-switch").checked = false; setMotion(false);
+}
+
+function editedFields() {
+  const changes = {};
+  let flags = 0;
+  for (const f of state.eeprom.fields) {
+    if (f.flags) {
+      for (const flag of f.flags) if (!flag.read_only && document.querySelector(`[name=flag-${flag.name}]`).checked) flags |= flag.bit;
+      const writable = f.flags.filter((x) => !x.read_only).reduce((a, x) => a | (x.on ? x.bit : 0), 0);
+      if (flags !== writable) changes.flags = flags;
+      continue;
+    }
+    const value = +document.querySelector(`#eeprom-table [name=${f.name}]`).value;
+    if (value !== f.value) changes[f.name] = value;
+  }
+  return changes;
+}
+
+function allowances() {
+  return { allow_id_change: $("#allow-id-change").checked, allow_baud_change: $("#allow-baud-change").checked };
+}
+
+function diffTable(plan) {
+  if (!plan.diff.length) return el("p", {}, "no change: the servo already has these values");
+  const rows = plan.diff.map((d) => el("tr", { class: "changed" }, el("td", {}, d.name), el("td", {}, d.now), el("td", {}, d.new)));
+  const extra = [];
+  if (plan.flags_set.length) extra.push(el("p", {}, `flags set: ${plan.flags_set.join(", ")}`));
+  if (plan.flags_cleared.length) extra.push(el("p", { class: "bad" }, `flags CLEARED: ${plan.flags_cleared.join(", ")}`));
+  if (plan.refusal) extra.push(el("p", { class: "refusal" }, `refused: ${plan.refusal}`));
+  return el("div", {}, el("table", { class: "grid diff" }, el("thead", {}, el("tr", {}, el("th", {}, "field"), el("th", {}, "now"), el("th", {}, "new"))), el("tbody", {}, ...rows)), ...extra);
+}
+
+function resultText(result) {
+  if (!result.written) return el("p", { class: "good" }, "nothing written: the servo already had these values");
+  const parts = [result.verified ? "written and verified by reading it back" : "written, but the read-back differs"];
+  if (result.answering_ids.length) parts.push(`answering IDs now: ${result.answering_ids.join(", ")}`);
+  if (result.new_rate_answers !== null) parts.push(result.new_rate_answers ? "it answers at the new rate" : "not at the new rate yet (power-cycle it)");
+  return el("p", { class: result.verified ? "good" : "bad" }, parts.join("; "));
+}
+
+async function planWrite() {
+  $("#write-result").replaceChildren();  // an earlier write's outcome is not this one's
+  $("#write-btn").disabled = true;
+  state.plan = await api(`/api/servo/${servoId()}/plan`, { changes: editedFields(), ...allowances() });
+  $("#diff").replaceChildren(diffTable(state.plan));
+  $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
+}
+
+async function writeEeprom() {
+  const result = await api(`/api/servo/${servoId()}/write`, { changes: editedFields(), ...allowances(), before: state.plan.before });
+  $("#write-btn").disabled = true;
+  await loadServo();
+  $("#write-result").replaceChildren(resultText(result));
+  say(`servo ${servoId()}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}`, result.verified || !result.written ? "info" : "error");
+}
+
+async function backupServo() {
+  const doc = await api(`/api/servo/${servoId()}/backup`);
+  const blob = new Blob([JSON.stringify(doc, null, 2) + "\n"], { type: "application/json" });
+  const link = el("a", { href: URL.createObjectURL(blob), download: `servo-${String(servoId()).padStart(2, "0")}.json` });
+  document.body.append(link); link.click(); link.remove();
+  say(`servo ${servoId()}'s EEPROM saved as ${link.download}`, "info");
+}
+
+async function planRestore() {
+  const file = $("#restore-file").files[0];
+  $("#restore-btn").disabled = true;
+  $("#restore-result").replaceChildren();
+  if (!file) return;
+  let doc;
+  try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
+  const request = { doc, restore_id: $("#restore-id").checked, allow_baud_change: $("#allow-baud-change").checked };
+  const plan = await api(`/api/servo/${servoId()}/restore/plan`, request);
+  state.restore = { ...request, before: plan.before };
+  const note = plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
+  $("#restore-diff").replaceChildren(note, diffTable(plan));
+  $("#restore-btn").disabled = !plan.diff.length || !!plan.refusal;
+}
+
+async function restoreServo() {
+  const result = await api(`/api/servo/${servoId()}/restore`, state.restore);
+  $("#restore-btn").disabled = true;
+  await loadServo();
+  $("#restore-result").replaceChildren(resultText(result));
+}
+
+async function writeRam() {
+  const param = $("#ram-param").value;
+  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: +$("#ram-value").value });
+  $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
+  const ram = await api(`/api/servo/${servoId()}/ram`);
+  $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+}
+
+function setMotion(on) {
+  for (const id of ["#jog-minus", "#jog-plus", "#jog-slider"]) $(id).disabled = !on;
+}
+
+async function toggleMotion() {
+  const on = $("#motion-switch").checked;
+  try {
+    const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
+    setMotion(reply.enabled);
+    if (reply.enabled) {  // held where it stands: the slider starts there
+      $("#jog-slider").value = reply.position;
+      $("#jog-target").textContent = reply.position;
+      $("#jog-position").textContent = reply.position;
+    }
+  } catch (e) { $("#motion-switch").checked = false; setMotion(false); }
+}
+
+async function jog(position) {
+  const [low, high] = state.limits;
+  position = Math.max(low, Math.min(high, Math.round(position)));
+  $("#jog-slider").value = position;
+  $("#jog-target").textContent = position;
+  const reply = await api(`/api/servo/${servoId()}/move`, { position });
+  $("#jog-position").textContent = reply.position;
+}
+
+async function torque(what) {
+  const reply = await api(`/api/servo/${servoId()}/${what}`, {});
+  $("#jog-position").textContent = reply.position;
+  if (what === "free") { $("#motion-switch").checked = false; setMotion(false); }
+  say(`servo ${servoId()}: ${what === "free" ? "free (torque off)" : "holding"} at ${reply.position}`, "info");
+}
+
+// ---- ID
+
+async function survey() {
+  $("#survey-result").replaceChildren();
+  const s = await api("/api/id/survey", {});
+  $("#survey-result").replaceChildren(s.refusal
+    ? el("p", { class: "refusal" }, `not safe to renumber: ${s.refusal}`)
+    : el("p", { class: "good" }, `exactly one servo on the line, at ID ${s.lone_id} (${s.baud} baud)`));
+}
+
+async function renumber() {
+  $("#id-result").replaceChildren();
+  try {
+    const r = await api("/api/id/write", { new_id: +$("#new-id").value });
+    $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
+  } catch (e) { $("#id-result").replaceChildren(el("p", { class: "refusal" }, e.message)); }
+}
+
+// ---- Many
+
+const PROFILE_FIELDS = ["stretch_gain", "speed", "punch", "dead_band", "damping", "safe_timer", "temperature_limit", "current_limit", "response", "stretch_1", "stretch_2", "stretch_3"];
+
+function fillManyFields() {
+  const body = $("#many-fields tbody");
+  if (body.children.length) return;
+  if (!$("#many-ids").value && state.servos.length) $("#many-ids").value = state.servos.map((s) => s.id).join(",");
+  for (const name of PROFILE_FIELDS) {
+    body.append(el("tr", {}, el("td", {}, el("input", { type: "checkbox", name: `use-${name}` })), el("td", {}, name), el("td", {}, el("input", { type: "number", name: `value-${name}` }))));
+  }
+}
+
+async function applyMany() {
+  let ids;
+  try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
+  const changes = {};
+  for (const name of PROFILE_FIELDS) if (document.querySelector(`[name=use-${name}]`).checked) changes[name] = +document.querySelector(`[name=value-${name}]`).value;
+  if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
+  $("#many-results tbody").replaceChildren();
+  const reply = await api("/api/many/apply", { ids, changes });
+  $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
+    el("td", { class: r.error ? "bad" : "good" }, r.error ? r.error : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so"),
+    el("td", {}, r.diff ? r.diff.map((d) => `${d.name} ${d.now}→${d.new}`).join(", ") : ""))));
+}
+
+// ---- Live
+
+const COLORS = ["#0b63c5", "#b3261e", "#1e7b34", "#8a5a00", "#6a1b9a", "#00838f", "#c2185b", "#455a64"];
+
+async function startLive() {
+  let ids;
+  const text = $("#live-ids").value.trim();
+  try { ids = text ? parseIds(text) : state.servos.map((s) => s.id); } catch (e) { say(e.message); return; }
+  if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
+  state.history = [];
+  await api("/api/live/start", { ids });
+}
+
+function onLive(frame) {
+  if (!frame) return;
+  const now = performance.now();
+  state.updates.push(now);
+  while (state.updates.length && now - state.updates[0] > 1000) state.updates.shift();
+  $("#live-cycle").textContent = frame.cycle;
+  $("#live-rate").textContent = frame.rate_hz;
+  $("#live-updates").textContent = state.updates.length;
+  $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
+  if (state.livePaused) return;
+  const last = state.history[state.history.length - 1];
+  if (last && last.cycle === frame.cycle) return;
+  state.history.push(frame);
+  if (state.history.length > 3000) state.history.shift();
+  if (!$("#page-live").hidden) drawPlot();
+}
+
+function drawPlot() {
+  const canvas = $("#plot"), g = canvas.getContext("2d");
+  const what = $("#live-what").value;
+  const frames = state.history.slice(-600);
+  g.clearRect(0, 0, canvas.width, canvas.height);
+  if (frames.length < 2) return;
+  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  let lo = Infinity, hi = -Infinity;
+  for (const f of frames) for (const id of ids) { const v = f[what][id]; if (v !== undefined && v >= 0) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
+  if (lo === Infinity) return;
+  if (hi - lo < 1) { hi += 1; lo -= 1; }
+  const t0 = frames[0].t, t1 = frames[frames.length - 1].t || t0 + 1;
+  const x = (t) => 40 + (canvas.width - 50) * (t - t0) / Math.max(1e-9, t1 - t0);
+  const y = (v) => canvas.height - 20 - (canvas.height - 30) * (v - lo) / (hi - lo);
+  g.fillStyle = "#5b6570"; g.font = "12px sans-serif";
+  g.fillText(String(Math.round(hi)), 2, 14); g.fillText(String(Math.round(lo)), 2, canvas.height - 22);
+  ids.forEach((id, k) => {
+    g.strokeStyle = COLORS[k % COLORS.length]; g.beginPath();
+    let started = false;
+    for (const f of frames) {
+      const v = f[what][id];
+      if (v === undefined || v < 0) continue;
+      if (started) g.lineTo(x(f.t), y(v)); else { g.moveTo(x(f.t), y(v)); started = true; }
+    }
+    g.stroke();
+  });
+  const now = frames[frames.length - 1][what];
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${now[id] ?? "-"}`)));
+}
+
+function exportCsv() {
+  const frames = state.history;
+  if (!frames.length) { say("nothing recorded yet: start the stream first"); return; }
+  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  const head = ["t", "cycle", ...ids.flatMap((id) => [`pos_${id}`, `target_${id}`, `current_${id}`, `temp_${id}`])];
+  const lines = [head.join(",")];
+  for (const f of frames) lines.push([f.t.toFixed(4), f.cycle, ...ids.flatMap((id) => [f.positions[id] ?? "", f.targets[id] ?? "", f.current[id] ?? "", f.temperature[id] ?? ""])].join(","));
+  const link = el("a", { href: URL.createObjectURL(new Blob([lines.join("\n") + "\n"], { type: "text/csv" })), download: "ics35-live.csv" });
+  document.body.append(link); link.click(); link.remove();
+}
+
+// ---- Traffic
+
+function onTraffic(entries) {
+  state.traffic.push(...entries);
+  if (state.traffic.length > 2000) state.traffic.splice(0, state.traffic.length - 2000);
+  if (!state.trafficPaused) drawTraffic();
+}
+
+function drawTraffic() {
+  const filter = $("#traffic-filter").value.trim().toLowerCase();
+  const rows = state.traffic.filter((e) => !filter || `${e.id} ${e.command} ${e.outcome}`.toLowerCase().includes(filter)).slice(-300).reverse();
+  $("#traffic-table tbody").replaceChildren(...rows.map((e) => el("tr", {}, el("td", {}, new Date(e.time * 1000).toISOString().slice(11, 23)),
+    el("td", {}, e.id ?? "-"), el("td", {}, e.command), el("td", {}, e.sent), el("td", {}, e.received || "-"), el("td", { class: e.outcome === "ok" ? "" : "bad" }, e.outcome))));
+  $("#traffic-count").textContent = `${rows.length} shown of ${state.traffic.length}`;
+}
+
+// ---- Robot
+
+function onRobot(r) {
+  state.robot = r;
+  $("#robot-link").hidden = false;
+  $("#robot-name").textContent = r.name;
+  $("#robot-error").textContent = r.error || "";
+  $("#robot-cycle").textContent = r.cycle ?? "-";
+  $("#robot-motion").checked = r.motion_enabled;
+  $("#robot-play").disabled = !r.motion_enabled || !$("#robot-motion-file").files.length;
+  const tripped = r.joints.filter((j) => j.tripped);
+  $("#robot-state").textContent = (r.playing ? `playing ${r.playing}` : r.outcome || "idle") +
+    (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
+  const body = $("#robot-table tbody");
+  if (body.children.length !== r.joints.length) {
+    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name), el("td", {}, `${j.line} / ${j.id}`),
+      el("td", { class: "angle" }), el("td", { class: "target" }),
+      el("td", {}, el("input", { type: "range", min: j.min, max: j.max, step: 1, value: 0, name: `joint-${j.name}`, title: `${j.min}..${j.max}°` })),
+      el("td", { class: "temp" }), el("td", { class: "current" }), el("td", { class: "safety" }))));
+    for (const slider of body.querySelectorAll("input[type=range]")) {
+      slider.addEventListener("change", () => moveJoint(slider.name.slice(6), +slider.value).catch(() => {}));
+    }
+  }
+  for (const j of r.joints) {
+    const row = body.querySelector(`tr[data-joint="${j.name}"]`);
+    row.querySelector(".angle").textContent = j.offline ? "offline" : j.position ?? "-";
+    row.querySelector(".target").textContent = j.target ?? "free";
+    row.querySelector(".temp").textContent = j.temperature_c ?? "-";
+    row.querySelector(".current").textContent = j.current ?? "-";
+    row.querySelector(".safety").textContent = j.tripped || "ok";
+    row.querySelector(".safety").className = j.tripped ? "safety bad" : "safety";
+    const slider = row.querySelector("input[type=range]");
+    slider.disabled = !r.motion_enabled;
+    if (document.activeElement !== slider && j.target !== null) slider.value = j.target;
+  }
+}
+
+async function moveJoint(name, degrees) {
+  await api("/api/robot/move", { pose: { [name]: degrees }, duration: +$("#robot-duration").value });
+}
+
+async function playMotion() {
+  const file = $("#robot-motion-file").files[0];
+  let motion;
+  try { motion = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
+  onRobot(await api("/api/robot/play", { motion, speed: +$("#robot-speed").value }));
+}
+
+// ---------------------------------------------------------------- the WebSocket
+
+let socket = null;
+
+// Recording starts when the Traffic page is first opened and goes on while this page is open, so what
+// other pages do can be looked at afterwards; Pause stops it (it slows a streaming line).
+function socketSend() {
+  if (location.hash.startsWith("#traffic")) state.trafficVisited = true;
+  const wanted = !!state.trafficVisited && !state.trafficPaused;
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify({ traffic: wanted }));
+}
+
+function connectSocket() {
+  socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  socket.onopen = socketSend;
+  socket.onmessage = (event) => {
+    const u = JSON.parse(event.data);
+    showStatus(u.status);
+    const bar = $("#scan-progress");
+    if (u.progress) { bar.hidden = !u.status.scanning; bar.max = u.progress.total || 1; bar.value = u.progress.done; }
+    if (u.servos) showServos(u.servos);
+    if (u.live) onLive(u.live);
+    if (u.traffic) onTraffic(u.traffic);
+    if (u.robot) onRobot(u.robot);
+  };
+  socket.onclose = () => {
+    $("#line-status").textContent = "the configurator's server is gone: reconnecting…";
+    setTimeout(connectSocket, 1000);
+  };
+}
+
+// ---------------------------------------------------------------- wiring
+
+function on(sel, event, handler) {
+  $(sel).addEventListener(event, (e) => { Promise.resolve(handler(e)).catch(() => {}); });
+}
+
+on("#connect-form", "submit", async (e) => {
+  e.preventDefault();
+  const s = await api("/api/connect", { port: $("#port-input").value, baud: +$("#baud-select").value });
+  showStatus(s); showServos([]);
+  say(`connected to ${s.port}`, "info");
+});
+on("#scan-btn", "click", scanLine);
+on("#servo-load", "click", loadServo);
+on("#plan-btn", "click", planWrite);
+on("#write-btn", "click", writeEeprom);
+on("#backup-btn", "click", backupServo);
+on("#restore-file", "change", planRestore);
+on("#restore-id", "change", planRestore);
+on("#restore-btn", "click", restoreServo);
+on("#ram-write", "click", writeRam);
+on("#free-btn", "click", () => torque("free"));
+on("#hold-btn", "click", () => torque("hold"));
+on("#motion-switch", "change", toggleMotion);
+on("#jog-slider", "change", () => jog(+$("#jog-slider").value));
+on("#jog-minus", "click", () => jog(+$("#jog-slider").value - 100));
+on("#jog-plus", "click", () => jog(+$("#jog-slider").value + 100));
+on("#survey-btn", "click", survey);
+on("#renumber-btn", "click", renumber);
+on("#many-apply", "click", applyMany);
+on("#live-start", "click", startLive);
+on("#live-stop", "click", () => api("/api/live/stop", {}));
+on("#live-pause", "click", () => { state.livePaused = !state.livePaused; $("#live-pause").textContent = state.livePaused ? "Resume" : "Pause"; });
+on("#live-export", "click", exportCsv);
+on("#live-what", "change", drawPlot);
+on("#traffic-filter", "input", drawTraffic);
+on("#traffic-pause", "click", () => {
+  state.trafficPaused = !state.trafficPaused;
+  $("#traffic-pause").textContent = state.trafficPaused ? "Resume" : "Pause";
+  socketSend();
+});
+on("#robot-motion", "change", async () => {
+  try { onRobot(await api("/api/robot/motion", { enabled: $("#robot-motion").checked })); } catch (e) { $("#robot-motion").checked = false; }
+});
+on("#robot-motion-file", "change", () => { $("#robot-play").disabled = !(state.robot && state.robot.motion_enabled); });
+on("#robot-play", "click", playMotion);
+on("#robot-stop", "click", async () => onRobot(await api("/api/robot/stop", {})));
+on("#robot-free", "click", async () => onRobot(await api("/api/robot/free", {})));
+window.addEventListener("hashchange", show);
+
+api("/api/status").then(showStatus).catch(() => {});
+loadPorts().catch(() => {});
+connectSocket();
+show();

@@ -1,0 +1,309 @@
+"""The configurator's server through Starlette's test client, against named simulated lines.
+
+Every change is checked on the simulated servo itself, not on what the API
+answered; every refusal is checked to have left the servo as it was.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from starlette.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+
+from ics35_async import Eeprom
+from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.web import LineConfig, LineSession, create_app
+from ics35_async.web.security import COOKIE
+
+TOKEN = "test-token-0123456789abcdef"
+BASE = "http://127.0.0.1:8765"
+JSON = {"content-type": "application/json"}
+WS = "ws://127.0.0.1:8765/ws"
+_names = itertools.count()
+
+
+@pytest.fixture
+def serve() -> Iterator[Any]:
+    """``serve(servo_ids) -> (client with the token cookie, VirtualLine)``; closed after the test."""
+    opened: list[tuple[TestClient, VirtualLine]] = []
+
+    def make(ids: tuple[int, ...] = (1, 3), **options: Any) -> tuple[TestClient, VirtualLine]:
+        name = f"web-api-{next(_names)}"
+        sim = VirtualLine([VirtualServo(i) for i in ids], name=name, **options)
+        app = create_app(LineSession(LineConfig(port=f"sim://{name}")), TOKEN)
+        client = TestClient(app, base_url=BASE)
+        client.__enter__()
+        client.cookies.set(COOKIE, TOKEN)
+        opened.append((client, sim))
+        return client, sim
+
+    yield make
+    for client, sim in opened:
+        client.__exit__(None, None, None)
+        sim.close()
+
+
+def client_with(client: TestClient, token: str) -> TestClient:
+    client.cookies.set(COOKIE, token)
+    return client
+
+
+def post(client: TestClient, path: str, data: Any = None) -> Any:
+    return client.post(path, content=json.dumps({} if data is None else data), headers=JSON)
+
+
+# --------------------------------------------------------------------------- security
+
+
+def test_requests_without_the_token_are_refused_with_401_and_a_wrong_one_with_403(serve: Any) -> None:
+    client, _ = serve()
+    bare = TestClient(client.app, base_url=BASE)
+    assert bare.get("/api/status").status_code == 401
+    assert bare.get("/").status_code == 401
+    assert client_with(TestClient(client.app, base_url=BASE), "x" * 30).get("/api/status").status_code == 403
+    assert bare.get("/api/status?token=wrong-token-wrong-token").status_code == 403
+    assert post(bare, "/api/scan").status_code == 401
+
+
+def test_the_token_in_the_url_becomes_a_strict_httponly_cookie_and_leaves_the_address_bar(serve: Any) -> None:
+    client, _ = serve()
+    bare = TestClient(client.app, base_url=BASE, follow_redirects=False)
+    first = bare.get(f"/?token={TOKEN}")
+    assert first.status_code == 303 and first.headers["location"] == "/"
+    cookie = first.headers["set-cookie"]
+    assert f"{COOKIE}={TOKEN}" in cookie and "HttpOnly" in cookie and "SameSite=Strict" in cookie
+    page = client_with(bare, TOKEN).get("/")
+    assert page.status_code == 200 and "frame-ancestors 'none'" in page.headers["content-security-policy"]
+
+
+def test_state_changes_from_another_site_or_not_as_json_are_refused_and_nothing_is_sent(serve: Any) -> None:
+    client, sim = serve()
+    before = sim.servo(1).eeprom
+    changes = {"changes": {"speed": 50}}
+    evil = client.post(
+        "/api/servo/1/write", content=json.dumps(changes), headers={**JSON, "origin": "http://evil.example"}
+    )
+    assert evil.status_code == 403
+    form = client.post("/api/servo/1/write", data={"changes": "x"})  # what a cross-site <form> can send
+    assert form.status_code == 415
+    assert sim.servo(1).eeprom == before
+    same = client.post("/api/servo/1/write", content=json.dumps(changes), headers={**JSON, "origin": BASE})
+    assert same.status_code == 200 and sim.servo(1).eeprom.speed == 50
+
+
+def test_a_host_header_that_is_not_loopback_is_refused_when_serving_on_loopback(serve: Any) -> None:
+    client, _ = serve()
+    rebound = TestClient(client.app, base_url="http://attacker.example:8765")
+    assert client_with(rebound, TOKEN).get("/api/status").status_code == 403
+
+
+def test_the_websocket_needs_the_token_and_this_sites_origin(serve: Any) -> None:
+    client, _ = serve()
+    bare = TestClient(client.app, base_url=BASE)
+    with pytest.raises(WebSocketDisconnect), bare.websocket_connect(WS, headers={"origin": BASE}):
+        pass
+    with pytest.raises(WebSocketDisconnect), client.websocket_connect(WS, headers={"origin": "http://evil.example"}):
+        pass
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        update = ws.receive_json()
+    assert update["status"]["simulator"] is True and update["status"]["connected"] is True
+
+
+# --------------------------------------------------------------------------- the pages' actions
+
+
+def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> None:
+    client, _ = serve((2, 7, 30))
+    report = post(client, "/api/scan").json()
+    assert [s["id"] for s in report["servos"]] == [2, 7, 30]
+    assert client.get("/api/status").json()["scanning"] is False
+
+
+def test_eeprom_fields_carry_their_unit_range_and_meaning(serve: Any) -> None:
+    client, sim = serve()
+    view = client.get("/api/servo/3/eeprom").json()
+    fields = {f["name"]: f for f in view["fields"]}
+    assert fields["speed"]["value"] == sim.servo(3).eeprom.speed
+    gain = fields["stretch_gain"]
+    assert (gain["low"], gain["high"], gain["even"]) == (2, 254, True)
+    assert fields["safe_timer"]["unit"] and fields["punch"]["meaning"]
+    assert {f["name"] for f in fields["flags"]["flags"] if f["read_only"]} == {"FREE", "PCM"}
+
+
+def test_a_write_shows_its_diff_then_writes_and_is_verified_on_the_servo(serve: Any) -> None:
+    client, sim = serve()
+    edit = {"changes": {"speed": 77, "punch": 3}}
+    plan = post(client, "/api/servo/1/plan", edit).json()
+    assert {d["name"]: d["new"] for d in plan["diff"]} == {"speed": 77, "punch": 3}
+    assert sim.servo(1).eeprom.speed != 77  # planning sends no write
+    result = post(client, "/api/servo/1/write", {**edit, "before": plan["before"]}).json()
+    assert result["written"] and result["verified"]
+    assert (sim.servo(1).eeprom.speed, sim.servo(1).eeprom.punch) == (77, 3)
+
+
+def test_a_write_against_a_stale_diff_or_with_a_bad_value_is_refused_in_words(serve: Any) -> None:
+    client, sim = serve()
+    plan = post(client, "/api/servo/1/plan", {"changes": {"speed": 77}}).json()
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(punch=9)  # someone else changed it meanwhile
+    stale = post(client, "/api/servo/1/write", {"changes": {"speed": 77}, "before": plan["before"]})
+    assert stale.status_code == 409 and "changed since" in stale.json()["error"]
+    bad = post(client, "/api/servo/1/write", {"changes": {"speed": 500}})
+    assert bad.status_code == 400 and "speed" in bad.json()["error"]
+    assert sim.servo(1).eeprom.speed != 77 and sim.servo(1).eeprom.speed != 500
+    baud = post(client, "/api/servo/1/write", {"changes": {"baud_rate": 1250000}})
+    assert baud.status_code == 409 and "baud" in baud.json()["error"]
+    assert "Traceback" not in stale.text + bad.text + baud.text
+
+
+def test_backup_then_restore_brings_the_settings_back_and_keeps_the_servos_id(serve: Any) -> None:
+    client, sim = serve()
+    doc = client.get("/api/servo/1/backup").json()
+    assert doc["format"] == "ics35-eeprom/1" and doc["fields"]["servo_id"] == 1
+    original = sim.servo(1).eeprom
+    post(client, "/api/servo/1/write", {"changes": {"speed": 11, "damping": 99}})
+    plan = post(client, "/api/servo/1/restore/plan", {"doc": doc}).json()
+    assert {d["name"] for d in plan["diff"]} == {"speed", "damping"}
+    result = post(client, "/api/servo/1/restore", {"doc": doc, "before": plan["before"]}).json()
+    assert result["verified"] and sim.servo(1).eeprom == original
+    # Servo 3 gets servo 1's settings and keeps ID 3 (as `eeprom restore 3 servo-01.json` does).
+    assert post(client, "/api/servo/3/restore", {"doc": doc}).json()["verified"]
+    assert sim.servo(3).eeprom.servo_id == 3
+
+
+def test_a_broken_backup_is_refused_before_anything_is_sent(serve: Any) -> None:
+    client, sim = serve()
+    before = sim.servo(1).eeprom
+    missing = post(client, "/api/servo/1/restore", {"doc": {"fields": {"speed": 1}}})
+    assert missing.status_code == 400 and "format" in missing.json()["error"]  # checked whole, first
+    assert post(client, "/api/servo/1/restore", {"doc": [1, 2]}).status_code == 400
+    assert sim.servo(1).eeprom == before
+
+
+def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    survey = post(client, "/api/id/survey").json()
+    assert survey["lone_id"] is None and "1, 3" in survey["refusal"]
+    refused = post(client, "/api/id/write", {"new_id": 5})
+    assert refused.status_code == 409 and "exactly one" in refused.json()["error"]
+    assert sorted(s.servo_id for s in sim.servos) == [1, 3]
+    lone, sim1 = serve((4,))
+    assert post(lone, "/api/id/write", {"new_id": 9}).json() == {"old_id": 4, "new_id": 9, "written": True}
+    assert [s.servo_id for s in sim1.servos] == [9]
+
+
+def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limits(serve: Any) -> None:
+    client, sim = serve()
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)
+    off = post(client, "/api/servo/1/move", {"position": 8000})
+    assert off.status_code == 409 and "enable motion" in off.json()["error"]
+    assert sim.servo(1).target is None
+    sim.servo(1).move_by_hand(7000)
+    enabled = post(client, "/api/servo/1/motion", {"enabled": True}).json()
+    assert enabled == {"enabled": True, "limits": [6000, 9000], "position": 7000}
+    assert sim.servo(1).target == 7000  # held where it stood, not moved
+    outside = post(client, "/api/servo/1/move", {"position": 9500})
+    assert outside.status_code == 400 and "6000..9000" in outside.json()["error"]
+    assert sim.servo(1).target == 7000
+    assert post(client, "/api/servo/1/move", {"position": 8000}).status_code == 200
+    assert sim.servo(1).target == 8000
+    post(client, "/api/servo/1/free")
+    assert sim.servo(1).free
+    assert post(client, "/api/servo/1/move", {"position": 8000}).status_code == 409  # free switches motion off
+
+
+def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    results = post(client, "/api/many/apply", {"ids": [1, 3, 5], "changes": {"speed": 40}}).json()["results"]
+    assert [r["id"] for r in results] == [1, 3, 5]
+    assert results[0]["verified"] and results[1]["verified"] and "error" in results[2]
+    assert sim.servo(1).eeprom.speed == 40 and sim.servo(3).eeprom.speed == 40
+
+
+def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None:
+    client, _ = serve((1, 3))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        cycles = []
+        for _ in range(50):
+            update = ws.receive_json()
+            if update.get("live"):
+                cycles.append(update["live"]["cycle"])
+                assert set(update["live"]["positions"]) == {"1", "3"}
+            if len(set(cycles)) >= 3:
+                break
+    assert len(set(cycles)) >= 3
+    post(client, "/api/live/stop")
+    assert client.get("/api/status").json()["live"] is None
+
+
+def test_the_traffic_page_sees_each_transaction_with_its_bytes(serve: Any) -> None:
+    client, _ = serve((1,))
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        ws.send_json({"traffic": True})
+        ws.receive_json()
+        client.get("/api/servo/1/ram")
+        entries: list[dict[str, Any]] = []
+        for _ in range(40):
+            entries += ws.receive_json().get("traffic", [])
+            if any(e["command"] == "read temperature" for e in entries):
+                break
+    reads = [e for e in entries if e["command"] == "read temperature" and e["id"] == 1]
+    assert reads and reads[0]["sent"] == "a1 04" and reads[0]["outcome"] == "ok"
+
+
+def test_a_lost_port_is_reported_at_once_and_the_line_comes_back(serve: Any) -> None:
+    client, sim = serve((1,))
+    sim.unplug()
+    failed = client.get("/api/servo/1/ram")
+    assert failed.status_code in (503, 504) and failed.json()["error"]
+    assert client.get("/api/status").json()["lost"] is True
+    sim.replug()
+    for _ in range(200):
+        if client.get("/api/servo/1/ram").status_code == 200:
+            break
+    assert client.get("/api/status").json()["lost"] is False
+
+
+def test_bad_input_is_answered_in_words(serve: Any) -> None:
+    client, _ = serve()
+    assert client.get("/api/servo/40/eeprom").json()["error"] == "servo ID '40' is not 0..31"
+    not_json = client.post("/api/scan", content="{", headers=JSON)
+    assert not_json.status_code == 400 and "not JSON" in not_json.json()["error"]
+    wrong_port = post(client, "/api/connect", {"port": "/dev/does-not-exist"})
+    assert wrong_port.status_code == 503 and "does-not-exist" in wrong_port.json()["error"]
+
+
+def with_saved_id(doc: dict[str, Any], servo_id: int) -> dict[str, Any]:
+    """The backup as if saved from ``servo_id``: raw image and fields changed together (a backup whose
+    halves disagree is refused)."""
+    stated = Eeprom.from_bytes(bytes.fromhex(doc["raw"])).replace(servo_id=servo_id).to_dict()
+    return {**doc, "servo_id": servo_id, "raw": stated["raw"], "fields": {**doc["fields"], "servo_id": servo_id}}
+
+
+def test_restoring_with_its_id_renumbers_only_when_asked_and_the_new_id_is_free(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    doc = client.get("/api/servo/1/backup").json()
+    doc = with_saved_id(doc, 6)
+    plan = post(client, "/api/servo/3/restore/plan", {"doc": doc, "restore_id": True}).json()
+    assert plan["refusal"] is None and plan["changes_id"] and plan["saved_id"] == 6
+    result = post(client, "/api/servo/3/restore", {"doc": doc, "restore_id": True, "before": plan["before"]}).json()
+    assert result["verified"] and sorted(s.servo_id for s in sim.servos) == [1, 6]
+    doc = with_saved_id(doc, 1)  # taken: servo 1 answers
+    taken = post(client, "/api/servo/6/restore", {"doc": doc, "restore_id": True})
+    assert taken.status_code == 409 and "already answers" in taken.json()["error"]
+    assert sorted(s.servo_id for s in sim.servos) == [1, 6]
+
+
+def test_a_ram_parameter_is_written_to_the_servo_and_a_bad_one_refused(serve: Any) -> None:
+    client, sim = serve((1,))
+    assert post(client, "/api/servo/1/ram/write", {"param": "speed", "value": 33}).json()["value"] == 33
+    assert sim.servo(1).speed == 33
+    bad = post(client, "/api/servo/1/ram/write", {"param": "speed", "value": 300})
+    assert bad.status_code == 400 and "300" in bad.json()["error"]
+    assert post(client, "/api/servo/1/ram/write", {"param": "torque", "value": 1}).status_code == 400
+    assert sim.servo(1).speed == 33

@@ -1,0 +1,364 @@
+"""The configurator in a real browser: headless Chromium (Debian's ``chromium``, installed by ``make``)
+driven by Playwright, against ``ics35 web`` run as a user runs it, on simulated servos behind a pty.
+
+The simulated line lives in this process (served on a pty by a thread), so
+every change the page makes is checked on the simulated servo itself.  Each
+page's screenshot goes to ``docs/images/web-*.png`` (the docs show them).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+if not sys.platform.startswith("linux"):
+    pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
+
+from playwright.sync_api import Browser, Page, expect, sync_playwright
+
+from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.pty_server import PtyServer
+
+CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]  # fmt: skip
+ROOT = Path(__file__).resolve().parents[1]
+IMAGES = ROOT / "docs" / "images"
+WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
+expect.set_options(timeout=WAIT_MS)
+
+
+class PtyLine:
+    """A simulated line served on a pty by a thread of this process."""
+
+    def __init__(self, ids: tuple[int, ...]) -> None:
+        self.sim = VirtualLine([VirtualServo(i) for i in ids])
+        self.server = PtyServer(self.sim)
+        self.path = str(self.server.open())
+        self.thread = threading.Thread(target=self.server.serve, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.server.stop()
+        self.thread.join(5)
+        self.server.close()
+        self.sim.close()
+
+
+@pytest.fixture(scope="module")
+def lines() -> Iterator[tuple[PtyLine, PtyLine]]:
+    two, lone = PtyLine((1, 3)), PtyLine((4,))
+    yield two, lone
+    two.close()
+    lone.close()
+
+
+@pytest.fixture(scope="module")
+def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
+    """``ics35 web --port PTY --no-browser``; yields the URL it printed on its first line."""
+    proc = subprocess.Popen(
+        # --timeout: the simulated servos answer from a thread of this busy process (pytest, Playwright),
+        # later than an adapter would; a scan must not take them for empty IDs.
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", "--port", lines[0].path, "--timeout", "0.1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "ICS35_WEB_TOKEN": ""},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    url = proc.stdout.readline().strip()
+    try:
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\?token=[\w-]{20,}", url), url
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        errors = proc.stderr.read()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert "Traceback" not in errors, errors
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: `make` installs Debian's chromium (as root), or set ICS35_CHROMIUM")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser: Browser, server: str) -> Iterator[Page]:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000}, accept_downloads=True)
+    p = context.new_page()
+    p.set_default_timeout(WAIT_MS)
+    p.goto(server)
+    yield p
+    context.close()
+
+
+def shot(page: Page, name: str, height: int = 1000) -> None:
+    """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls)."""
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    size = page.viewport_size
+    page.set_viewport_size({"width": 1280, "height": height})
+    page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
+    page.locator("main h1:visible").scroll_into_view_if_needed()
+    page.screenshot(path=str(IMAGES / f"web-{name}.png"))
+    if size is not None:
+        page.set_viewport_size(size)
+
+
+def base_of(url: str) -> str:
+    return url.split("/?")[0]
+
+
+@pytest.fixture(scope="module")
+def simulator_server() -> Iterator[str]:
+    """``ics35 web --no-browser`` with no port: the built-in simulator."""
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=environment,
+    )
+    assert proc.stdout is not None
+    yield proc.stdout.readline().strip()
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+
+
+def test_the_built_in_simulator_is_labelled_on_every_page(browser: Browser, simulator_server: str) -> None:
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(simulator_server)
+    for name in ("line", "servo", "id", "many", "live", "traffic"):
+        p.click(f"a[href='#{name}']")
+        expect(p.locator("#sim-banner")).to_be_visible()
+        expect(p.locator("#sim-banner")).to_contain_text("SIMULATOR")
+    context.close()
+
+
+def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:
+    context = browser.new_context()
+    refused = context.new_page().goto(base_of(server) + "/")
+    assert refused is not None and refused.status == 401
+    assert "no token" in refused.text()
+    wrong = context.new_page().goto(base_of(server) + "/?token=not-the-token-at-all")
+    assert wrong is not None and wrong.status == 403
+    context.close()
+
+
+def test_the_token_url_lands_on_the_line_page_without_the_token_in_the_address_bar(page: Page, server: str) -> None:
+    assert "token" not in page.url
+    expect(page.locator("#line-status")).to_contain_text("115200 baud")
+    expect(page.locator("#sim-banner")).to_be_hidden()  # a pty port: real as far as the page knows
+
+
+def test_scan_lists_the_servos_with_live_temperature(page: Page, lines: Any) -> None:
+    page.click("a[href='#line']")
+    page.click("#scan-btn")
+    expect(page.locator("#servo-table tbody tr")).to_have_count(2)
+    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
+    expect(page.locator("#scan-progress")).to_have_js_property("value", 32)  # every ID, as it went
+    expect(page.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
+    shot(page, "line")
+
+
+def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines: Any) -> None:
+    sim = lines[0].sim
+    page.click("#servo-table tr[data-id='1'] a")
+    field = page.locator("#eeprom-table [name=speed]")
+    expect(field).to_have_value(str(sim.servo(1).eeprom.speed))
+    field.fill("77")
+    page.click("#plan-btn")
+    expect(page.locator("#diff tr.changed")).to_contain_text("77")
+    assert sim.servo(1).eeprom.speed != 77  # the diff is shown, nothing written yet
+    shot(page, "servo", height=1660)
+    page.click("#write-btn")
+    expect(page.locator("#write-result")).to_contain_text("verified")
+    assert sim.servo(1).eeprom.speed == 77
+
+
+def test_backup_then_restore_from_the_file(page: Page, lines: Any, tmp_path: Path) -> None:
+    sim = lines[0].sim
+    with page.expect_download() as download:
+        page.click("#backup-btn")
+    backup = tmp_path / download.value.suggested_filename
+    download.value.save_as(backup)
+    assert backup.name == "servo-01.json" and '"speed": 77' in backup.read_text()
+    page.locator("#eeprom-table [name=speed]").fill("20")
+    page.click("#plan-btn")
+    page.click("#write-btn")
+    expect(page.locator("#write-result")).to_contain_text("verified")
+    assert sim.servo(1).eeprom.speed == 20
+    page.set_input_files("#restore-file", str(backup))
+    expect(page.locator("#restore-diff")).to_contain_text("speed")
+    page.click("#restore-btn")
+    expect(page.locator("#restore-result")).to_contain_text("verified")
+    assert sim.servo(1).eeprom.speed == 77
+
+
+def test_jog_moves_the_servo_only_with_motion_enabled(page: Page, lines: Any) -> None:
+    sim = lines[0].sim
+    expect(page.locator("#jog-plus")).to_be_disabled()
+    sim.servo(1).move_by_hand(8200)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-plus")).to_be_enabled()
+    expect(page.locator("#jog-target")).to_have_text("8200")  # held where it stands
+    assert sim.servo(1).target == 8200
+    page.click("#jog-plus")
+    expect(page.locator("#jog-target")).to_have_text("8300")
+    expect(page.locator("#jog-position")).not_to_have_text("-")
+    assert sim.servo(1).target == 8300
+    page.click("#free-btn")
+    expect(page.locator("#jog-plus")).to_be_disabled()
+    expect(page.locator("#message")).to_contain_text("free")
+
+
+def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page: Page, lines: Any) -> None:
+    two, lone = lines
+    page.click("a[href='#id']")
+    page.click("#survey-btn")
+    expect(page.locator("#survey-result")).to_contain_text("not safe to renumber")
+    page.fill("#new-id", "9")
+    page.click("#renumber-btn")
+    expect(page.locator("#id-result")).to_contain_text("exactly one device")
+    assert sorted(s.servo_id for s in two.sim.servos) == [1, 3]
+    shot(page, "id")
+    page.click("a[href='#line']")
+    page.fill("#port-input", lone.path)
+    page.click("#connect-btn")
+    expect(page.locator("#line-status")).to_contain_text(lone.path)
+    page.click("a[href='#id']")
+    page.click("#renumber-btn")
+    expect(page.locator("#id-result")).to_contain_text("ID 4 is now ID 9")
+    assert [s.servo_id for s in lone.sim.servos] == [9]
+    page.click("a[href='#line']")
+    page.fill("#port-input", two.path)
+    page.click("#connect-btn")
+    expect(page.locator("#line-status")).to_contain_text(two.path)
+
+
+def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any) -> None:
+    sim = lines[0].sim
+    page.click("a[href='#many']")
+    page.fill("#many-ids", "1,3")
+    page.check("[name=use-punch]")
+    page.fill("[name=value-punch]", "4")
+    page.click("#many-apply")
+    expect(page.locator("#many-results tbody tr")).to_have_count(2)
+    expect(page.locator("#many-results tr[data-id='3']")).to_contain_text("verified")
+    assert sim.servo(1).eeprom.punch == 4 and sim.servo(3).eeprom.punch == 4
+    shot(page, "many")
+
+
+def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) -> None:
+    servo = lines[0].sim.servo(3)
+    page.click("a[href='#live']")
+    page.fill("#live-ids", "1,3")
+    page.click("#live-start")
+    expect(page.locator("#legend span[data-id='3']")).to_be_visible()  # the page's CSP allows no eval: DOM waits
+    for position in (8000, 9000, 10000, 8500, 6000):
+        servo.move_by_hand(position)
+        expect(page.locator("#legend span[data-id='3']")).to_have_text(f"■ 3: {position}")
+        page.wait_for_timeout(150)  # a visible step on the plot
+    shot(page, "live")
+    page.click("#live-stop")
+
+
+def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
+    page.click("a[href='#traffic']")  # recording starts with the page, and goes on while away from it
+    page.click("a[href='#servo']")
+    page.click("#servo-load")
+    page.click("a[href='#traffic']")
+    expect(page.locator("#traffic-table tbody tr").first).to_be_visible()
+    page.fill("#traffic-filter", "read eeprom")
+    expect(page.locator("#traffic-table tbody tr").first).to_contain_text("a1 00")
+    page.fill("#traffic-filter", "")
+    shot(page, "traffic")
+    page.click("#traffic-pause")  # stops the recording on the server: what the line does now is not kept
+    page.wait_for_timeout(600)  # the WebSocket's message has arrived
+    base = page.url.split("/#")[0]
+    last = page.request.get(f"{base}/api/traffic").json()["entries"][-1]["seq"]
+    page.click("a[href='#servo']")
+    with page.expect_response(lambda r: r.url.endswith("/ram")):  # its reads are done on the line
+        page.click("#servo-load")
+    assert page.request.get(f"{base}/api/traffic?since={last}").json()["entries"] == []
+    page.click("a[href='#traffic']")
+    page.click("#traffic-pause")
+
+
+@pytest.fixture(scope="module")
+def robot_server() -> Iterator[str]:
+    """``ics35 web --robot examples/humanoid.toml``: a 17-joint humanoid on two simulated lines."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ics35_async.cli",
+            "web",
+            "--no-browser",
+            "--robot",
+            str(ROOT / "examples" / "humanoid.toml"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    assert proc.stdout is not None
+    yield proc.stdout.readline().strip()
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+
+
+def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot_server: str) -> None:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    p = context.new_page()
+    p.goto(robot_server)
+    p.click("#robot-link")
+    expect(p.locator("#robot-table tbody tr")).to_have_count(17)
+    elbow = p.locator("tr[data-joint='right_elbow']")
+    expect(elbow.locator("input[type=range]")).to_be_disabled()
+    p.check("#robot-motion")
+    expect(elbow.locator("input[type=range]")).to_be_enabled()
+    elbow.locator("input[type=range]").fill("60")  # a slider's change event
+    expect(elbow.locator(".target")).to_have_text("60")
+    expect(elbow.locator(".angle")).to_have_text(re.compile(r"^(59\.\d|60(\.\d)?)$"))  # the servo got there
+    p.set_input_files("#robot-motion-file", str(ROOT / "examples/wave.json"))
+    p.click("#robot-play")
+    expect(p.locator("#robot-state")).to_contain_text("playing wave")
+    p.wait_for_timeout(1500)  # mid-wave, for the picture
+    shot(p, "robot")
+    expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
+    expect(p.locator("#robot-state")).to_contain_text("all within limits")
+    context.close()
+
+
+def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    expect(page.locator("#line-status")).to_contain_text("LOST")
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    page.click("#scan-btn")
+    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")

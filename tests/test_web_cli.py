@@ -1,0 +1,127 @@
+"""``ics35 web`` as a user starts it: the URL on stdout's first line, the simulator named, --listen,
+the token from the environment or a file, Ctrl-C, and the missing extra, all without a traceback."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests._cli_fixtures import ics35  # noqa: F401  (fixture)
+
+
+@contextmanager
+def web(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**environment, **(env or {})},
+    )
+    assert proc.stdout is not None
+    url = proc.stdout.readline().strip()
+    try:
+        yield proc, url
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+        proc.wait(10)
+        assert proc.stdout is not None and proc.stderr is not None
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def get(url: str, token: str | None = None) -> tuple[int, Any]:
+    request = urllib.request.Request(url, headers={"cookie": f"ics35_token={token}"} if token else {})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read().decode()
+
+
+def split(url: str) -> tuple[str, str]:
+    base, _, token = url.partition("/?token=")
+    return base, token
+
+
+def test_the_url_comes_first_and_the_default_port_is_the_simulator_said_so() -> None:
+    with web() as (proc, url):
+        base, token = split(url)
+        assert base.startswith("http://127.0.0.1:") and len(token) >= 20
+        status, body = get(f"{base}/api/status", token)
+        assert status == 200 and body["simulator"] is True and body["connected"] is True
+        assert get(f"{base}/api/status")[0] == 401
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        assert proc.wait(10) == 0
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+    assert "built-in simulator" in err and "Traceback" not in err
+
+
+def test_a_token_from_the_environment_or_a_file_is_the_one_asked_for(tmp_path: Path) -> None:
+    token = "robot-board-token-1234567890"
+    with web(env={"ICS35_WEB_TOKEN": token}) as (_, url):
+        base, printed = split(url)
+        assert printed == token and get(f"{base}/api/status", token)[0] == 200
+    path = tmp_path / "token"
+    path.write_text("from-a-file-token-0987654321\n")
+    with web("--token-file", str(path)) as (_, url):
+        assert split(url)[1] == "from-a-file-token-0987654321"
+
+
+def test_listening_beyond_loopback_needs_listen_and_warns() -> None:
+    with web("--listen", "0.0.0.0:0") as (proc, url):
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200
+        proc.terminate()
+        proc.wait(10)
+        assert proc.stderr is not None
+        assert "warning: serving on 0.0.0.0" in proc.stderr.read()
+
+
+def test_bad_options_are_refused_in_words(ics35: Any, tmp_path: Path) -> None:  # noqa: F811
+    short = tmp_path / "short"
+    short.write_text("abc")
+    for args, words in (
+        (("--listen", "127.0.0.1:99999"), "0..65535"),
+        (("--token-file", str(tmp_path / "missing")), "cannot read the token file"),
+        (("--token-file", str(short)), "at least 16"),
+    ):
+        result = ics35("web", "--no-browser", *args)
+        assert result.code == 2 and words in result.err, result.err
+    busy = ics35("web", "--no-browser", "--listen", "203.0.113.9:0")  # an address this machine does not have
+    assert busy.code == 2 and "cannot listen on 203.0.113.9" in busy.err
+
+
+def test_without_the_web_extra_the_command_says_how_to_install_it(
+    ics35: Any,  # noqa: F811
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    for name in [m for m in sys.modules if m.startswith(("ics35_async.web", "starlette"))]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "starlette", None)
+    result = ics35("web", "--no-browser")
+    assert result.code == 2 and "pip install 'ics35_async[web]'" in result.err
+
+
+def test_listen_takes_host_and_port_in_the_usual_spellings() -> None:
+    from ics35_async.web import Listen
+
+    assert Listen.parse("8080") == Listen("127.0.0.1", 8080)
+    assert Listen.parse(":8080") == Listen("127.0.0.1", 8080)
+    assert Listen.parse("0.0.0.0:80") == Listen("0.0.0.0", 80)
+    assert Listen.parse("[::1]:9000") == Listen("::1", 9000)
+    assert Listen.parse("localhost").loopback and not Listen.parse("192.168.1.5:80").loopback

@@ -1,0 +1,112 @@
+"""The Robot page's API (``ics35 web --robot``): joints by name, motion only when switched on, limits,
+a motion played and stopped, the safety state; checked on the simulated servos."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from starlette.testclient import TestClient
+
+from ics35_async import sim
+from ics35_async.web import LineConfig, LineSession, create_app
+from ics35_async.web.joints import RobotSession
+from ics35_async.web.security import COOKIE
+
+TOKEN = "robot-test-token-0123456789"
+BASE = "http://127.0.0.1:8766"
+JSON = {"content-type": "application/json"}
+_names = itertools.count()
+
+
+@pytest.fixture
+def robot(tmp_path: Path) -> Iterator[tuple[TestClient, Any]]:
+    """A two-joint arm on a simulated line; yields the client and the simulated line."""
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f"""name = "arm"
+[lines.arm]
+port = "sim://{name}?ids=1-2"
+[joints.shoulder]
+line = "arm"
+id = 1
+min = -30
+max = 60
+[joints.elbow]
+line = "arm"
+id = 2
+min = 0
+max = 90
+"""
+    )
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        yield client, sim.named(name)
+    sim.named(name).close()
+
+
+def post(client: TestClient, path: str, data: Any = None) -> Any:
+    return client.post(path, content=json.dumps({} if data is None else data), headers=JSON)
+
+
+def wait_for(check: Any, seconds: float = 10.0) -> None:
+    end = time.monotonic() + seconds
+    while not check():
+        assert time.monotonic() < end, "the condition never came true"
+        time.sleep(0.02)
+
+
+def test_joints_move_only_with_motion_on_and_within_their_limits(robot: Any) -> None:
+    client, line = robot
+    view = client.get("/api/robot").json()
+    assert [j["name"] for j in view["joints"]] == ["shoulder", "elbow"] and view["open"]
+    refused = post(client, "/api/robot/move", {"pose": {"elbow": 45}})
+    assert refused.status_code == 409 and "enable motion" in refused.json()["error"]
+    assert line.servo(2).target is None
+    assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]
+    outside = post(client, "/api/robot/move", {"pose": {"elbow": 120}})
+    assert outside.status_code == 400 and "0..90" in outside.json()["error"]
+    unknown = post(client, "/api/robot/move", {"pose": {"knee": 10}})
+    assert unknown.status_code == 400 and "unknown joint" in unknown.json()["error"]
+    start = line.servo(2).target
+    assert post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": 0.2}).status_code == 200
+    wait_for(lambda: client.get("/api/robot").json()["joints"][1]["target"] == 45.0)
+    assert line.servo(2).target != start
+    post(client, "/api/robot/free")
+    wait_for(lambda: line.servo(1).free and line.servo(2).free)
+    assert client.get("/api/robot").json()["motion_enabled"] is False
+
+
+def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: Any) -> None:
+    client, line = robot
+    nod = [{"time": 0.3, "pose": {"shoulder": 20}}, {"time": 0.6, "pose": {"shoulder": 0}}]
+    motion = {"format": "ics35-motion", "version": 1, "name": "nod", "keyframes": nod}
+    assert post(client, "/api/robot/play", {"motion": motion}).status_code == 409  # motion not on
+    post(client, "/api/robot/motion", {"enabled": True})
+    held = line.servo(1).target
+    too_far = {**motion, "keyframes": [{"time": 0.3, "pose": {"shoulder": 99}}]}
+    bad = post(client, "/api/robot/play", {"motion": too_far})
+    assert bad.status_code == 400 and "shoulder" in bad.json()["error"]
+    time.sleep(0.2)
+    assert line.servo(1).target == held
+    assert post(client, "/api/robot/play", {"motion": motion}).json()["playing"] == "nod"
+    wait_for(lambda: client.get("/api/robot").json()["outcome"] == "nod: done")
+    long = {**motion, "keyframes": [{"time": 5.0, "pose": {"shoulder": 50}}]}
+    assert post(client, "/api/robot/play", {"motion": long}).json()["playing"]
+    stopped = post(client, "/api/robot/stop").json()
+    assert stopped["playing"] is None and stopped["outcome"].endswith("stopped")
+
+
+def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:
+    client, _ = robot
+    with client.websocket_connect("ws://127.0.0.1:8766/ws", headers={"origin": BASE}) as ws:
+        update = ws.receive_json()
+    assert [j["name"] for j in update["robot"]["joints"]] == ["shoulder", "elbow"]
+    assert all(j["tripped"] is None for j in update["robot"]["joints"])
