@@ -27,7 +27,6 @@ log = logging.getLogger("ics35_async")
 
 T = TypeVar("T")
 INF = float("inf")
-GRACE = 0.0005  # seconds between a deadline's first look and the verdict (see _on_timer)
 IDLE = State.IDLE
 
 
@@ -158,14 +157,15 @@ class AsyncioLine(asyncio.Protocol):
         if self._second_look != deadline and engine.state is not IDLE:
             # The loop may have stalled past the deadline with the reply already read or
             # queued behind this callback: judge after one more I/O poll.  (Not for an idle
-            # line's deadline, a paced stream's next slot: no reply can be waiting, and the
-            # second look would start every cycle half a millisecond late.)  The second look
-            # is a timer slightly in the future, not one at a time already past: uvloop
-            # runs a past-due timer in the same pass, before any I/O or call_soon callback.
-            # It belongs to this deadline only: a new transaction gets its own first look.
+            # line's deadline, a paced stream's next slot: no reply can be waiting.)  Two
+            # call_soon hops, not a timer: a timer comes back a millisecond later at best
+            # (epoll's resolution), which every failed transaction of a paced stream would pay.
+            # One hop is not enough: asyncio runs it before the I/O callbacks of the next poll,
+            # uvloop before its next poll; the second hop runs after that poll's callbacks on
+            # both.  It belongs to this deadline only: a new transaction gets its own first look.
             self._second_look = deadline
-            self._armed = t + GRACE
-            self._timer = self.loop.call_at(t + GRACE, self._on_timer)
+            self._armed = t  # already passed: a new transaction's later deadline arms its own timer
+            self._timer = self.loop.call_soon(self._hop)
             return
         out = engine.tick(t)
         if engine.flush_input:
@@ -175,6 +175,9 @@ class AsyncioLine(asyncio.Protocol):
         self.pump(out)
         if self._timer is None and engine.deadline < INF:
             self._arm()
+
+    def _hop(self) -> None:
+        self._timer = self.loop.call_soon(self._on_timer)
 
     # ------------------------------------------------------------------ waiting for quiet
 

@@ -53,8 +53,10 @@ class FailureRules:
     _late_since: float
     _late_due: float
     _late_id: int
+    _late_header: int
     baudrate: int
     _quiet_until: float
+    _quiet_span: float
     _resync_limit: float
 
     def _timeout(self, now: float) -> bytes | None:
@@ -79,12 +81,14 @@ class FailureRules:
         short_wait = self.answers.latency if probe else self.answers.stream_latency(sid) if short else None
         if short_wait is not None and not partial and self.state is State.QUIET:
             # Silence after a short wait: a resync as short as that wait (see .probe).
+            self._quiet_span = min(self._quiet_span, short_wait)
             self._quiet_until = min(self._quiet_until, now + short_wait + self.link.extra)
             self.deadline = self._quiet_until
             if not probe:
                 self._late_since = self._t_start + wire_time(len(tx) + self._expect - echo_len, self.baudrate)
                 self._late_due = self._t_start + self._base
                 self._late_id = sid
+                self._late_header = tx[0] & 0x7F  # its reply's first byte: the command byte, MSB clear
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
             # long again as the transaction's allowance (the full one, unless it waited what this
@@ -105,11 +109,16 @@ class FailureRules:
             owner.fail(error, now)
         return out
 
-    def _heard_late(self, now: float) -> None:
-        """Bytes came that may be the reply a stream transaction gave up on early (see .probe)."""
-        if now <= self._late_due:
+    def _heard_late(self, first_byte: int, now: float) -> None:
+        """Bytes came, ``first_byte`` first: the reply a stream transaction gave up on early (see .probe)?
+
+        Only if they start as that reply does (another servo's late reply, or noise, says nothing
+        of this servo) and came within its full allowance (later, it would have failed anyway)."""
+        if now > self._late_due:
+            self._late_since = 0.0
+        elif first_byte == self._late_header:
             self.answers.late(now - self._late_since, self._late_id)
-        self._late_since = 0.0
+            self._late_since = 0.0
 
     def _fault(self, error: ReplyError, sid: int, now: float, *, stream: bool = False) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1
@@ -121,6 +130,7 @@ class FailureRules:
             # configured quiet time (made for a line nothing is known of yet).
             wait = self.answers.stream_latency(sid)
             if wait is not None and now + wait + self.link.extra < self._quiet_until:
+                self._quiet_span = wait
                 self._quiet_until = now + wait + self.link.extra
                 self.deadline = self._quiet_until
         return None
@@ -143,6 +153,7 @@ class FailureRules:
             return
         self.counters.resyncs += 1
         self.state = State.QUIET
+        self._quiet_span = self.timing.quiet_time  # the silence that ends it (a short wait's fault: less)
         self._quiet_until = now + self.timing.quiet_time + self.link.extra
         self._resync_limit = now + self.timing.max_resync + self.link.extra
         self._buf.clear()

@@ -83,11 +83,13 @@ class LineEngine(FailureRules):
         self._late_since = 0.0  # after such a transaction heard nothing: when its reply was due on the wire
         self._late_due = 0.0  # ...and when its full allowance would have run out
         self._late_id = NO_ID  # ...and whose it was
+        self._late_header = -1  # ...and the first byte its reply would start with
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self.guard = GuardRule()
         self.answers = AnswerTimes()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
         self._quiet_until = 0.0
+        self._quiet_span = self.timing.quiet_time  # the silence that ends the resync in progress
         self._resync_limit = 0.0
 
     # ------------------------------------------------------------------ life cycle
@@ -242,16 +244,16 @@ class LineEngine(FailureRules):
         elif state is QUIET:
             self.counters.stray += len(data)
             if self._late_since:  # perhaps the reply a stream transaction gave up on (see .probe)
-                self._heard_late(now)
+                self._heard_late(data[0], now)
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
                 self.link.stray(data, now)
-            self._quiet_until = now + self.timing.quiet_time + self.link.extra
+            self._quiet_until = now + self._quiet_span + self.link.extra
             self.deadline = min(self._quiet_until, self._resync_limit)
         elif state is IDLE:
             # Bytes on an idle line: a late reply or noise.  Let it settle first.
             self.counters.stray += len(data)
             if self._late_since:  # perhaps the reply a stream transaction gave up on (see .probe)
-                self._heard_late(now)
+                self._heard_late(data[0], now)
             if self.debug:
                 log.debug("stray bytes on idle line: %s", data.hex(" "))
             self._resync(now)
@@ -420,7 +422,7 @@ class LineEngine(FailureRules):
             counters.latency.add(latency)
             error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
             if self._late_since and echo_len and not buf.startswith(tx):
-                self._heard_late(self._t_first)  # bytes ahead of the echo: perhaps that late reply
+                self._heard_late(buf[0], self._t_first)  # bytes ahead of the echo: perhaps that late reply
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
