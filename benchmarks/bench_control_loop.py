@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import json
 import time
 from typing import Any
@@ -77,7 +78,7 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
             await asyncio.gather(*pollers)
             elapsed = starts[-1] - starts[0]
             cycles = frame.cycle - first.cycle
-    gaps = sorted(b - a for a, b in zip(starts, starts[1:], strict=False))
+    gaps = sorted(b - a for a, b in itertools.pairwise(starts))
     return {
         "rate_hz": cycles / elapsed,
         "interval_p99_ms": gaps[min(len(gaps) - 1, int(len(gaps) * 0.99))] * 1e3,

@@ -72,11 +72,6 @@ def test_sim_modules_import_each_other_one_way() -> None:
     assert cycle is None, "import circle: " + " -> ".join(cycle or [])
 
 
-def test_every_sim_module_is_under_400_lines() -> None:
-    sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in SIM_DIR.glob("*.py")}
-    assert {name: n for name, n in sizes.items() if n >= 400} == {}
-
-
 def test_only_the_pty_plumbing_imports_posix_tty_modules() -> None:
     posix = {"termios", "fcntl", "tty", "pty"}
     users = set()
