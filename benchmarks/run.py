@@ -21,7 +21,10 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    of 1 and 2;
 6. a peer: rcb4's ICSServoController (bench_peer);
 7. the USB adapter: 32-servo cycle rates behind the FTDI model at latency
-   timer 16 and 1 ms, next to the wire's limit, and the stream's (bench_adapter).
+   timer 16 and 1 ms, next to the wire's limit, and the stream's (bench_adapter);
+8. the control loop: a 12-servo stream at 100 Hz on a wire-timed 1.25 Mbit/s
+   line, alone, with four flat-out pollers, at 5% faults and with a servo
+   offline, in real time and in simulated time (bench_control_loop).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -55,6 +58,7 @@ from pathlib import Path
 from typing import Any
 
 import bench_adapter
+import bench_control_loop
 import bench_cpu
 import bench_lines
 import bench_memory
@@ -67,7 +71,19 @@ from bench_common import progress
 from bench_targets import print_targets, targets
 
 HERE = Path(__file__).resolve().parent
-SECTIONS = ("cpu", "lines", "startup", "scan", "overhead", "wire", "sharing", "memory", "peer", "adapter")
+SECTIONS = (
+    "cpu",
+    "lines",
+    "startup",
+    "scan",
+    "overhead",
+    "wire",
+    "sharing",
+    "memory",
+    "peer",
+    "adapter",
+    "control_loop",
+)
 
 
 def machine() -> dict[str, Any]:
@@ -265,6 +281,7 @@ def main() -> int:
         ),
         "peer": lambda: bench_peer.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
         "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
+        "control_loop": lambda: bench_control_loop.run(2.0 if quick else 5.0),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
     started = time.perf_counter()
@@ -302,6 +319,7 @@ def main() -> int:
         "memory": print_memory,
         "peer": print_peer,
         "adapter": bench_adapter.print_table,
+        "control_loop": bench_control_loop.print_table,
     }
     for name in sections:
         if "error" in results[name]:
