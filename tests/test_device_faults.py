@@ -8,6 +8,7 @@ driver and async library.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import anyio
@@ -16,6 +17,11 @@ import pytest
 from ics35_async import IcsError, PortLost, open_bus, protocol
 from ics35_async.protocol import decode_request
 from tests.support.fuzzing import valid_value
+
+try:
+    import termios
+except ImportError:  # Windows: no ttys to check
+    termios = None  # type: ignore[assignment]
 
 FAST = {"adapter_latency": 0.05, "quiet_time": 0.002}
 CASES = [("asyncio", "asyncio"), ("thread", "asyncio"), ("anyio", "asyncio"), ("anyio", "trio")]
@@ -73,5 +79,40 @@ def test_a_device_whose_write_raises_ends_every_request_typed(driver: str, libra
                 assert str(error.args[-1]) in str(lost[0])
                 with pytest.raises(IcsError):
                     await bus.request(protocol.ReadParam(1, protocol.Param.STRETCH))
+
+    anyio.run(main, backend=library)
+
+
+# ---------------------------------------------------------------------------- parity marks on every driver
+
+PARITY_CASES = [("asyncio", "asyncio"), ("thread", "asyncio"), ("anyio", "asyncio"), ("anyio", "trio")]
+
+
+@pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
+@pytest.mark.parametrize(("driver", "library"), PARITY_CASES, ids=[f"{d}-{lib}" for d, lib in PARITY_CASES])
+def test_every_driver_asks_the_kernel_to_mark_parity_errors(driver: str, library: str) -> None:
+    # ICS replies carry no checksum: a byte damaged on the wire is caught only if the tty marks it.
+    # termios flags belong to the tty, so the slave side shows what the driver set.
+    master, slave = os.openpty()
+    try:
+
+        async def main() -> None:
+            async with open_bus(os.ttyname(slave), driver=driver, **FAST):
+                flags = termios.tcgetattr(slave)[0]
+                assert flags & termios.PARMRK and flags & termios.INPCK, (driver, library)
+
+        anyio.run(main, backend=library)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize("library", ["asyncio", "trio"])
+def test_a_bus_opened_and_closed_at_once_under_the_anyio_driver_closes(library: str) -> None:
+    # aclose() can come before the bus task has started: it must still end it (it hung).
+    async def main() -> None:
+        with anyio.fail_after(10):
+            async with open_bus("sim://?ids=1", driver="anyio", **FAST):
+                pass
 
     anyio.run(main, backend=library)

@@ -85,6 +85,8 @@ class AnyioDriver:
         await self._connect()
         self._group = anyio.create_task_group()
         await self._group.__aenter__()
+        # Made here, not in the task: aclose() may cancel it before the task has even started.
+        self._task_scope = anyio.CancelScope(shield=True)
         self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.port}")
 
     async def _open_port(self) -> FdPort | DevicePort:
@@ -146,7 +148,7 @@ class AnyioDriver:
         # Shielded from the opening task's cancellation: a program cancelled inside ``async with
         # open_bus(...)`` (Ctrl-C, SIGTERM, a timeout) still has its line while it puts its servos
         # to rest on the way out (a stream's on_close, a robot's stop); aclose() ends it.
-        with anyio.CancelScope(shield=True) as self._task_scope:
+        with self._task_scope:
             await self._run()
 
     async def _run(self) -> None:
@@ -174,6 +176,9 @@ class AnyioDriver:
         data = line.read()
         t = now()
         if data:
+            if line.bad:  # bytes the kernel marked damaged: their transaction fails once complete
+                engine.line_error(line.bad)
+                line.bad = 0
             self._write(engine.receive(data, t))
         elif t >= engine.deadline:
             # Nothing more has arrived by the deadline (read just now, after the wait): judge it.

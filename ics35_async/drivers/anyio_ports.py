@@ -23,6 +23,7 @@ import anyio.lowlevel
 import serial
 
 from ..transports import WireDevice
+from ..transports.direct import ParityMarks, enable_parity_marks
 from ..transports.serial_port import TermiosError, hung_up
 from ..transports.wire_device import take_delivered
 
@@ -59,6 +60,10 @@ class FdPort:
         self.serial = ser
         self.fd: int = ser.fileno()
         os.set_blocking(self.fd, False)
+        # Bytes with parity/framing errors are marked by the kernel (see transports.direct):
+        # ICS replies carry no checksum, so a damaged byte is caught only this way.
+        self._marks: ParityMarks | None = ParityMarks() if enable_parity_marks(self.fd) else None
+        self.bad = 0  # bytes marked damaged since the driver last took the count
         self.pending = bytearray()  # what a partial write left
         self._ready = False  # the last wait ended because the fd became readable
 
@@ -83,6 +88,10 @@ class FdPort:
         # wake-up and the read (Linux returns 0 there even with O_NONBLOCK): only POLLHUP is a hangup.
         if not data and hung_up(self.fd):
             raise OSError(errno.EIO, "the serial port hung up (device disconnected?)")
+        marks = self._marks
+        if marks is not None and (0xFF in data or marks.pending):
+            data, errors = marks.decode(data)
+            self.bad += errors
         return data
 
     def write(self, data: bytes) -> None:
@@ -108,6 +117,8 @@ class DevicePort:
     The device answers through :meth:`deliver` from any thread; bytes are
     queued and the driver's wait is ended through ``wake``.
     """
+
+    bad = 0  # an in-process device marks no bytes damaged
 
     def __init__(self, device: WireDevice, wake: Callable[[], None]) -> None:
         self.device = device
