@@ -5,7 +5,8 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
 
 * clean: the stream alone (the baseline of this run);
 * pollers: four coroutines reading temperatures flat out at default priority;
-* faults: 5% of replies dropped, cut short, held back or garbled;
+* faults: 5% of replies dropped, cut short, held back or garbled (with the default 10 ms
+  quiet time after a fault, and with ``quiet_time=0.005``);
 * offline: one of the 12 servos missing.
 
 Each prints the stream's frame rate (Hz), the p99 and largest interval
@@ -30,7 +31,7 @@ from typing import Any
 
 from bench_common import progress
 
-from ics35_async import open_bus
+from ics35_async import BusTiming, open_bus
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.paced_line import IDS, intervals
 from tests.support.paced_line import run as run_simulated
@@ -38,7 +39,8 @@ from tests.support.paced_line import run as run_simulated
 BAUD = 1_250_000
 RATE_HZ = 100.0
 FAULTS = "drop:0.0125,truncate:0.0125,late:0.0125,corrupt:0.0125"  # 5% in all
-SCENARIOS = ("clean", "pollers", "faults", "offline")
+SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline")
+QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
 async def measure(scenario: str, seconds: float) -> dict[str, float]:
@@ -48,12 +50,13 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
         baudrate=BAUD,
         realtime=True,
         turnaround=0.0001,
-        faults=FAULTS if scenario == "faults" else None,
+        faults=FAULTS if scenario.startswith("faults") else None,
         seed=1,
     )
     reads = 0
     stop = False
-    async with open_bus(sim, baudrate=BAUD) as bus:
+    timing = {"quiet_time": 0.005} if scenario == QUIET_5MS else {}
+    async with open_bus(sim, baudrate=BAUD, **timing) as bus:
 
         async def poll(k: int) -> None:
             nonlocal reads
@@ -88,9 +91,10 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
 
 
 def simulated(scenario: str) -> dict[str, float]:
-    rate = 0.05 if scenario == "faults" else 0.0
+    rate = 0.05 if scenario.startswith("faults") else 0.0
     present = IDS[:-1] if scenario == "offline" else IDS
-    source = run_simulated(rate, 1, present=present, seconds=10.0)
+    timing = BusTiming(quiet_time=0.005) if scenario == QUIET_5MS else None
+    source = run_simulated(rate, 1, present=present, seconds=10.0, timing=timing)
     gaps = sorted(intervals(source))
     return {
         "rate_hz": (len(source.starts) - 1) / (source.starts[-1] - source.starts[0]),

@@ -78,17 +78,20 @@ class FailureRules:
             # transaction's lengthens the stream's own wait, see .probe.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
-        short_wait = self.answers.latency if probe else self.answers.stream_latency(sid) if short else None
-        if short_wait is not None and not partial and self.state is State.QUIET:
-            # Silence after a short wait: a resync as short as that wait (see .probe).
-            self._quiet_span = min(self._quiet_span, short_wait)
-            self._quiet_until = min(self._quiet_until, now + short_wait + self.link.extra)
+        if probe and not partial and self.state is State.QUIET and self.answers.latency is not None:
+            # Silence at a probed ID: a resync as short as the probe's own wait (see .probe).
+            self._quiet_span = min(self._quiet_span, self.answers.latency)
+            self._quiet_until = min(self._quiet_until, now + self.answers.latency + self.link.extra)
             self.deadline = self._quiet_until
-            if not probe:
-                self._late_since = self._t_start + wire_time(len(tx) + self._expect - echo_len, self.baudrate)
-                self._late_due = self._t_start + self._base
-                self._late_id = sid
-                self._late_header = tx[0] & 0x7F  # its reply's first byte: the command byte, MSB clear
+        elif short and not partial and self.state is State.QUIET:
+            # Silence after a stream transaction's short wait.  The resync keeps the configured
+            # quiet time: a reply later than the short wait must still land in it, or in the guard
+            # read after it, never in a later transaction of the same shape (where nothing could
+            # tell it from that transaction's own answer).  If it lands in time, it is learnt from.
+            self._late_since = self._t_start + wire_time(len(tx) + self._expect - echo_len, self.baudrate)
+            self._late_due = self._t_start + self._base
+            self._late_id = sid
+            self._late_header = tx[0] & 0x7F  # its reply's first byte: the command byte, MSB clear
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
             # long again as the transaction's allowance (the full one, unless it waited what this
@@ -104,7 +107,7 @@ class FailureRules:
         if req is not None:
             return self._fail_request(req, error, sid, now)
         owner = self._owner if self._owner is self._source else None
-        out = self._fault(error, sid, now, stream=True)  # counted before the stream hears (it may publish a frame)
+        out = self._fault(error, sid, now)  # counted before the stream hears (it may publish a frame)
         if owner is not None:
             owner.fail(error, now)
         return out
@@ -120,19 +123,10 @@ class FailureRules:
             self.answers.late(now - self._late_since, self._late_id)
             self._late_since = 0.0
 
-    def _fault(self, error: ReplyError, sid: int, now: float, *, stream: bool = False) -> bytes | None:
+    def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1
         log.debug("%s", error)
         self._resync(now)
-        if stream and self._short and self.state is State.QUIET:
-            # A stream transaction's fault on a line whose answers have been measured: the
-            # silence that proves the line quiet is what an answer here takes, not the
-            # configured quiet time (made for a line nothing is known of yet).
-            wait = self.answers.stream_latency(sid)
-            if wait is not None and now + wait + self.link.extra < self._quiet_until:
-                self._quiet_span = wait
-                self._quiet_until = now + wait + self.link.extra
-                self.deadline = self._quiet_until
         return None
 
     def _fail_request(self, req: Request, error: ReplyError, sid: int, now: float) -> bytes | None:

@@ -446,7 +446,7 @@ class LineEngine(FailureRules):
             if rejected is not None:  # (complete changed nothing: the stream hears once it is counted)
                 counters.ok[sid] -= 1
                 counters.latency.add(latency)
-                out = self._fault(rejected, sid, now, stream=True)
+                out = self._fault(rejected, sid, now)
                 source.fail(rejected, now)
                 return out
         else:

@@ -26,7 +26,9 @@ never under ``STREAM_FLOOR``.  A reply that comes after that short wait but
 within the full allowance is taken as an answer (:meth:`AnswerTimes.late`), so
 a servo that is always slower soon has a wait that covers it; one later than
 the full allowance is a fault and teaches nothing.  The resync after such a
-failure lasts what an answer here takes, not the configured quiet time.
+failure keeps the configured quiet time: a reply later than the short wait must
+land in it (or in the guard read after it), never in a later transaction of the
+same shape, where nothing could tell it from that transaction's own answer.
 The same averages tell the engine whether a request fits in a paced
 stream's slack (see ``LineEngine._start_next``).
 """

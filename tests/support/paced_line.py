@@ -100,8 +100,16 @@ class FaultyServos(Servos):
             wire.schedule(at, reply)
 
 
-def run(rate: float, seed: int, ids: list[int] = IDS, present: list[int] = IDS, seconds: float = 10.0) -> PacedCycle:
-    engine = LineEngine(baudrate=BAUD, timing=BusTiming())  # the default allowances: a 20 ms adapter
+def run(
+    rate: float,
+    seed: int,
+    ids: list[int] = IDS,
+    present: list[int] = IDS,
+    seconds: float = 10.0,
+    timing: BusTiming | None = None,
+) -> PacedCycle:
+    """The paced stream over ``seconds`` of simulated time; default timing: a 20 ms adapter allowance."""
+    engine = LineEngine(baudrate=BAUD, timing=timing or BusTiming())
     assert engine.connected(0.0) is None
     servos = FaultyServos(present, rate, seed)
     wire = Wire(engine, servos)
