@@ -260,8 +260,10 @@ class Bus:
             self._engine.close()
             self._wake_state_waiters()
             return
-        await driver.aclose()
-        self._wake_state_waiters()
+        try:
+            await driver.aclose()
+        finally:
+            self._wake_state_waiters()
         log.info("closed %s", self.port)
 
     # ------------------------------------------------------------------ submitting

@@ -153,7 +153,7 @@ class Stream:
         # consumer reads), and what the consumer has seen of them: a consumer that skips frames
         # still learns of every missed slot and every resume.
         self._resumes = 0
-        self._published: tuple[int, int] = (0, 0)  # (missed slots, resumes) as of the latest frame
+        self._published: tuple[Frame | None, int, int] = (None, 0, 0)  # the latest frame, its totals
         self._seen: tuple[int, int] = (0, 0)
         self._hooks = BoundSource.of(self)  # what the engine calls, kept off the public face
         self.watch(units.check_ids("watch", watch))
@@ -405,7 +405,7 @@ class Stream:
         )
         if self._resumed:
             self._resumes += 1
-        self._published = (self._missed, self._resumes)
+        self._published = (self._latest, self._missed, self._resumes)  # one write: read whole
         self._frame_missed = 0
         self._resumed = False
         self.bus.notify(self._wake_waiters)  # this may run in a driver's I/O thread
@@ -430,13 +430,15 @@ class Stream:
             if self._new_frame is None:
                 self._new_frame = anyio.Event()
             await self._new_frame.wait()
-        frame = self._latest
+        published, missed_total, resumes = self._published  # the frame and its totals, together
+        # (the I/O thread may have set _latest and not yet _published: then the totals lag one frame)
+        frame = published if published is not None and published.cycle > self._consumed_cycle else self._latest
         skipped = frame.cycle - self._consumed_cycle - 1 if self._consumed_cycle else 0
         self._consumed_cycle = frame.cycle
         self._seen_latest = True
-        totals, seen = self._published, self._seen
-        self._seen = totals
-        missed, resumed = totals[0] - seen[0], totals[1] > seen[1]
+        seen = self._seen
+        self._seen = (missed_total, resumes)
+        missed, resumed = missed_total - seen[0], resumes > seen[1]
         if skipped or missed != frame.missed_slots or resumed != frame.resumed:
             # What the skipped frames told is not lost: their missed slots add up, a resume sticks.
             frame = dataclasses.replace(frame, skipped=skipped, missed_slots=missed, resumed=resumed)

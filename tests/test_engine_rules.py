@@ -374,3 +374,24 @@ def test_without_a_rate_the_stream_shares_by_count() -> None:
     assert all(req.state == "done" for req in requests)
     late = [began - slot for slot, began in source.started if began - slot > 1e-9]
     assert late  # requests ran over its wishes: it has no slots to keep
+
+
+class EmptyCycles(FakeSource):
+    """A paced source whose cycles have nothing to send (every ID held after a reconnect, or offline)."""
+
+    def next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
+        while self.wake_at <= now:
+            self.wake_at += self.period  # the slot passes with an empty cycle
+        return None
+
+
+def test_a_request_beside_a_paced_stream_with_nothing_to_send_still_runs() -> None:
+    # A request whose expected time is unknown (a fresh port: the full allowance, longer than a
+    # slot) must still get the line when the stream's cycles are empty, not wait for ever.
+    wire, _ = line({1, 3})
+    source = EmptyCycles([1], wake_at=0.0, period=0.004, paced=True)
+    wire.emit(wire.engine.attach_source(source, wire.now))
+    req = Recorded(read(3))
+    wire.submit(req)
+    wire.run_for(0.1)
+    assert req.state == "done"

@@ -133,14 +133,16 @@ class AnyioDriver:
             # is corrupted and the program dies with a traceback instead of closing.
             engine.abort()
             self._release_idle()
-            if self._group is not None:
-                group, self._group = self._group, None
-                self._task_scope.cancel()
-                group.cancel_scope.cancel()
-                await group.__aexit__(None, None, None)  # no scope around it: it closes the group's own
-            line, self.line = self.line, None
-            if line is not None:
-                line.close()
+            try:
+                if self._group is not None:
+                    group, self._group = self._group, None
+                    self._task_scope.cancel()
+                    group.cancel_scope.cancel()
+                    await group.__aexit__(None, None, None)  # no scope around it: it closes the group's own
+            finally:  # even if that raised (the closing task is cancelled): the port is released
+                line, self.line = self.line, None
+                if line is not None:
+                    line.close()
 
     # ------------------------------------------------------------------ the bus task
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 
 from ..errors import BusClosed, EchoMismatch, ReplyError
-from ..protocol import Timing, wire_time
 from .counters import LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
@@ -50,10 +49,6 @@ class FailureRules:
     _t_first: float
     _base: float
     _short: bool
-    _late_since: float
-    _late_due: float
-    _late_id: int
-    _late_header: int
     baudrate: int
     _quiet_until: float
     _quiet_span: float
@@ -70,12 +65,10 @@ class FailureRules:
         link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
             link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
-        probe = req is not None and req.command.timing is Timing.PROBE
-        short = self._short  # a probe, or a stream transaction that waited what answers here take
-        if heard and not short:  # its reply is owed from its base deadline on (see .link)
-            # (A short wait says nothing of the link: its late reply must not raise the allowance
-            # of every transaction.  The scan treats a probe's as a slow servo; a stream
-            # transaction's lengthens the stream's own wait, see .probe.)
+        probe = self._short  # a probe: it waited less than the full allowance
+        if heard and not probe:  # its reply is owed from its base deadline on (see .link)
+            # (A probe's short wait says nothing of the link: its late reply must not raise the
+            # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
         if probe and not partial and self.state is State.QUIET and self.answers.latency is not None:
@@ -83,21 +76,10 @@ class FailureRules:
             self._quiet_span = min(self._quiet_span, self.answers.latency)
             self._quiet_until = min(self._quiet_until, now + self.answers.latency + self.link.extra)
             self.deadline = self._quiet_until
-        elif short and not partial and self.state is State.QUIET:
-            # Silence after a stream transaction's short wait.  The resync keeps the configured
-            # quiet time: a reply later than the short wait must still land in it, or in the guard
-            # read after it, never in a later transaction of the same shape (where nothing could
-            # tell it from that transaction's own answer).  If it lands in time, it is learnt from.
-            self._late_since = self._t_start + wire_time(len(tx) + self._expect - echo_len, self.baudrate)
-            self._late_due = self._t_start + self._base
-            self._late_id = sid
-            self._late_header = tx[0] & 0x7F  # its reply's first byte: the command byte, MSB clear
         if partial and self.state is State.QUIET:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
-            # long again as the transaction's allowance (the full one, unless it waited what this
-            # line's answers take), so its arrival is seen and learnt.
-            again = self._base if not short or probe else now - self._t_start
-            self._quiet_until = max(self._quiet_until, now + again)
+            # long again as the transaction's full allowance, so its arrival is seen and learnt.
+            self._quiet_until = max(self._quiet_until, now + self._base)
             self.deadline = min(self._quiet_until, self._resync_limit)
         return out
 
@@ -111,17 +93,6 @@ class FailureRules:
         if owner is not None:
             owner.fail(error, now)
         return out
-
-    def _heard_late(self, first_byte: int, now: float) -> None:
-        """Bytes came, ``first_byte`` first: the reply a stream transaction gave up on early (see .probe)?
-
-        Only if they start as that reply does (another servo's late reply, or noise, says nothing
-        of this servo) and came within its full allowance (later, it would have failed anyway)."""
-        if now > self._late_due:
-            self._late_since = 0.0
-        elif first_byte == self._late_header:
-            self.answers.late(now - self._late_since, self._late_id)
-            self._late_since = 0.0
 
     def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1

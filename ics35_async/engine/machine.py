@@ -68,7 +68,6 @@ class LineEngine(FailureRules):
         self._passed_over = 0  # slacks of a paced stream the queue's head was too long for
         self._passed_over_due = -INF  # the slot of the last slack it was counted for
         self._allowances: dict[int, float] = {}  # NORMAL allowance by transaction size
-        self._wires: dict[int, float] = {}  # wire time by transaction size (stream transactions)
         # The transaction on the wire.
         self._buf = bytearray()
         self._tx = b""
@@ -79,11 +78,7 @@ class LineEngine(FailureRules):
         self._current_id = NO_ID
         self._t_start = 0.0
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
-        self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
-        self._late_since = 0.0  # after such a transaction heard nothing: when its reply was due on the wire
-        self._late_due = 0.0  # ...and when its full allowance would have run out
-        self._late_id = NO_ID  # ...and whose it was
-        self._late_header = -1  # ...and the first byte its reply would start with
+        self._short = False  # this transaction waits less than its full allowance (a probe)
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self.guard = GuardRule()
         self.answers = AnswerTimes()
@@ -101,7 +96,6 @@ class LineEngine(FailureRules):
         resumed = self.state is LOST
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
-        self._wires.clear()
         self.link.in_step()  # a fresh port: no reply from before can still arrive
         self.answers.reset()
         self.state = IDLE
@@ -243,8 +237,6 @@ class LineEngine(FailureRules):
                 return self._finish(now)
         elif state is QUIET:
             self.counters.stray += len(data)
-            if self._late_since:  # perhaps the reply a stream transaction gave up on (see .probe)
-                self._heard_late(data[0], now)
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
                 self.link.stray(data, now)
             self._quiet_until = now + self._quiet_span + self.link.extra
@@ -252,8 +244,6 @@ class LineEngine(FailureRules):
         elif state is IDLE:
             # Bytes on an idle line: a late reply or noise.  Let it settle first.
             self.counters.stray += len(data)
-            if self._late_since:  # perhaps the reply a stream transaction gave up on (see .probe)
-                self._heard_late(data[0], now)
             if self.debug:
                 log.debug("stray bytes on idle line: %s", data.hex(" "))
             self._resync(now)
@@ -326,8 +316,17 @@ class LineEngine(FailureRules):
             if job is not None:
                 self._owner = source
                 return self._begin(job[0], job[1], job[2], None, NORMAL, now)
-            if queue.count and source.slot_due(now) is None:  # the source yielded its turn; requests wait
-                return self._start_next(now)
+            if queue.count:
+                # The source has nothing now (between slots, every ID held or offline): a request
+                # may take the time, by the same rule as above, judged against the next slot.
+                due = source.slot_due(now)
+                if due is None or self._fits_before(due, now):
+                    req = queue.pop()
+                    if req is not None:
+                        self._in_row += 1
+                        self._passed_over = 0
+                        cmd = req.command
+                        return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
             self.deadline = source.wake_at
         else:
             self.deadline = INF
@@ -382,21 +381,11 @@ class LineEngine(FailureRules):
         if allowance is None:
             allowance = self._allowance(nbytes, timing)
         # The link's bookkeeping (lateness learnt, replies owed) is measured against the full
-        # allowance; a probe only gives up sooner, since silence is its usual answer, and a stream
-        # transaction gives up once it is later than this line's answers have been (see .probe).
+        # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
-        if timing is PROBE:
+        self._short = timing is PROBE
+        if self._short:
             allowance = self.answers.allowance(allowance, wire_time(nbytes, self.baudrate))
-            self._short = True
-        elif req is None:
-            wire = self._wires.get(nbytes)
-            if wire is None:
-                wire = self._wires[nbytes] = wire_time(nbytes, self.baudrate)
-            short = self.answers.stream_allowance(allowance, wire, self._current_id)
-            self._short = short < allowance
-            allowance = short
-        else:
-            self._short = False
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -421,8 +410,6 @@ class LineEngine(FailureRules):
         if len(buf) != self._expect or (echo_len and not buf.startswith(tx)) or self._corrupted:
             counters.latency.add(latency)
             error = framing_error(self._current, sid, tx, buf, self._expect, self._corrupted)
-            if self._late_since and echo_len and not buf.startswith(tx):
-                self._heard_late(buf[0], self._t_first)  # bytes ahead of the echo: perhaps that late reply
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
@@ -441,7 +428,6 @@ class LineEngine(FailureRules):
                 self._resync(now)
                 return None
             counters.ok[sid] += 1  # before the frame this ends is published (counted first, as below)
-            self.answers.answered(latency - self._wires[len(tx) + self._expect - echo_len], sid)
             rejected = source.complete(buf, echo_len, now)
             if rejected is not None:  # (complete changed nothing: the stream hears once it is counted)
                 counters.ok[sid] -= 1
@@ -457,7 +443,7 @@ class LineEngine(FailureRules):
                 return self._fail_request(req, exc, sid, now)
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
-            self.answers.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate), sid)
+            self.answers.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
             # Counted before the caller hears (or the stream publishes a frame): under the thread
             # driver the caller runs on another thread and may read the statistics at once.
             counters.ok[sid] += 1

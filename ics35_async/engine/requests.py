@@ -123,7 +123,8 @@ class RequestQueue:
 
     def waiting(self) -> list[Request]:
         """The requests queued, in the order they would go on the line (a copy, for diagnostics)."""
-        return [request for level in self._levels for request in level if not request.abandoned()]
+        # list() copies each deque at once (the I/O thread may pop from it meanwhile)
+        return [request for level in self._levels for request in list(level) if not request.abandoned()]
 
     def fail_all(self, error: IcsError) -> None:
         for level in self._levels:
