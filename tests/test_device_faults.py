@@ -15,8 +15,7 @@ import anyio
 import pytest
 
 from ics35_async import IcsError, PortLost, open_bus, protocol
-from ics35_async.protocol import decode_request
-from tests.support.fuzzing import valid_value
+from tests.support.fuzzing import healthy_answer
 
 try:
     import termios
@@ -45,10 +44,7 @@ class BrokenDevice:
         self.writes += 1
         if self.broken is not None:
             raise self.broken
-        framed = decode_request(data, baudrate=self.baudrate)
-        assert framed is not None and framed[0] is not None
-        command = framed[0]
-        self.host.deliver(data + command.encode_reply(valid_value(command, b"\x05")))
+        self.host.deliver(data + healthy_answer(data, self.baudrate, b"\x05"))
 
 
 @pytest.mark.parametrize(("driver", "library"), CASES, ids=[f"{d}-{lib}" for d, lib in CASES])

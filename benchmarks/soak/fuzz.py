@@ -62,34 +62,28 @@ def fuzz_soak(streams: int = 1_000_000, batch: int = 400, lines: int = 64, seed:
     loop.set_exception_handler(lambda _loop, context: loop_errors.append(context))
     rig = FuzzRig(lines)
     t0 = time.perf_counter()
-    dog = Watchdog("fuzz", progress=lambda: rig.counts.streams + rig.counts.finished, loop=loop)
     try:
-        dog.__enter__()
-        loop.run_until_complete(rig.open())
-        for bus in rig.buses:
-            dog.watch(bus)
-        batches = max(1, math.ceil(streams / batch))
+        with Watchdog("fuzz", progress=lambda: rig.counts.streams + rig.counts.finished, loop=loop) as dog:
+            loop.run_until_complete(rig.open())
+            for bus in rig.buses:
+                dog.watch(bus)
+            batches = max(1, math.ceil(streams / batch))
 
-        @settings(
-            max_examples=batches,
-            database=None,
-            deadline=None,
-            derandomize=seed is not None,
-            suppress_health_check=list(HealthCheck),
-            phases=[Phase.generate],
-        )
-        @given(st.lists(st.binary(min_size=6, max_size=80), min_size=batch, max_size=batch))
-        def drive(blobs: list[bytes]) -> None:
-            loop.run_until_complete(rig.run(blobs))
+            @settings(
+                max_examples=batches,
+                database=None,
+                deadline=None,
+                derandomize=seed is not None,
+                suppress_health_check=list(HealthCheck),
+                phases=[Phase.generate],
+            )
+            @given(st.lists(st.binary(min_size=6, max_size=80), min_size=batch, max_size=batch))
+            def drive(blobs: list[bytes]) -> None:
+                loop.run_until_complete(rig.run(blobs))
 
-        drive()
-        problems = loop.run_until_complete(rig.health_check())
-        loop.run_until_complete(rig.close())
-    except BaseException as exc:
-        dog.__exit__(type(exc), exc, exc.__traceback__)
-        raise
-    else:
-        dog.__exit__(None, None, None)
+            drive()
+            problems = loop.run_until_complete(rig.health_check())
+            loop.run_until_complete(rig.close())
     finally:
         loop.close()
     c = rig.counts

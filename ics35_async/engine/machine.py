@@ -304,12 +304,9 @@ class LineEngine(FailureRules):
             else:
                 take = self._fits_before(due, now)
             if take:
-                req = queue.pop()
-                if req is not None:
-                    self._in_row += 1
-                    self._passed_over = 0
-                    cmd = req.command
-                    return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
+                out = self._begin_request(now)
+                if out is not None:
+                    return out
         self._in_row = 0
         if source is not None:
             job = source.next_transaction(now)
@@ -321,16 +318,23 @@ class LineEngine(FailureRules):
                 # may take the time, by the same rule as above, judged against the next slot.
                 due = source.slot_due(now)
                 if due is None or self._fits_before(due, now):
-                    req = queue.pop()
-                    if req is not None:
-                        self._in_row += 1
-                        self._passed_over = 0
-                        cmd = req.command
-                        return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
+                    out = self._begin_request(now)
+                    if out is not None:
+                        return out
             self.deadline = source.wake_at
         else:
             self.deadline = INF
         return None
+
+    def _begin_request(self, now: float) -> bytes | None:
+        """Put the queue's next request on the wire; None if only abandoned ones were left."""
+        req = self.queue.pop()
+        if req is None:
+            return None
+        self._in_row += 1
+        self._passed_over = 0
+        cmd = req.command
+        return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
 
     def _fits_before(self, due: float, now: float) -> bool:
         """May the queue's next request go now, beside a stream whose next transaction is due at ``due``?"""

@@ -90,6 +90,14 @@ def valid_value(command: Command[Any], payload: bytes) -> Any:
     return None
 
 
+def healthy_answer(data: bytes, baudrate: int, payload: bytes | None = None) -> bytes:
+    """A healthy servo's reply to the command ``data`` (its value from ``payload``, default: the ID, then 5)."""
+    framed = decode_request(data, baudrate=baudrate)
+    assert framed is not None and framed[0] is not None
+    command = framed[0]
+    return command.encode_reply(valid_value(command, bytes([command.servo_id or 0, 5]) if payload is None else payload))
+
+
 def fuzz_case(blob: bytes, baudrate: int) -> FuzzCase:
     """Turn a hypothesis-drawn blob into a command and the (mostly broken) bytes answering it.
 
@@ -167,18 +175,11 @@ class FuzzDevice:
     def write(self, data: bytes) -> None:
         self.writes += 1
         if self.clean:
-            framed = decode_request(data, baudrate=self.baudrate)
-            assert framed is not None and framed[0] is not None
-            command = framed[0]
-            answer = command.encode_reply(valid_value(command, bytes([command.servo_id or 0, 5])))
-            out = (data if self.echo else b"") + answer
+            out = (data if self.echo else b"") + healthy_answer(data, self.baudrate)
         elif data in GUARD_TXS and not (self.script and self.script[0].command.tx == data):
             # The engine's guard read after a timeout (see engine.guard): a healthy answer, no script used.
             self.guards += 1
-            framed = decode_request(data, baudrate=self.baudrate)
-            assert framed is not None and framed[0] is not None
-            answer = framed[0].encode_reply(valid_value(framed[0], b"\x05"))
-            out = (data if self.echo else b"") + answer
+            out = (data if self.echo else b"") + healthy_answer(data, self.baudrate, b"\x05")
         elif not self.script:
             # Nothing scripted: the bus wrote a command nobody submitted.  Counted (the health
             # check reports it) and left unanswered, like a servo that is not there.
