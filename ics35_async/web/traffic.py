@@ -58,7 +58,7 @@ class TrafficLog(logging.Handler):
         if record.msg == "id %s tx %s rx %s" and isinstance(args, tuple) and len(args) == 3:
             self.entries.append([next(self._seq), record.created, args[1], args[2], None])
         elif record.msg == "%s" and record.levelno == logging.DEBUG and self.entries:
-            # A failure of the transaction just logged (see engine.failures).
+            # A failure of the transaction just logged (see engine.machine, LineEngine._failed).
             self.entries[-1][4] = record.getMessage()
         elif record.levelno >= logging.WARNING:
             self.entries.append([next(self._seq), record.created, "", "", record.getMessage()])
