@@ -33,7 +33,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.drivers.asyncio_driver import AsyncioDriver
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
-from ics35_async.sim.servo import factory_calibration
+from ics35_async.sim.virtual_servo import factory_calibration
 
 FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 # For a silent ID's request that must still be on the wire when the port goes: a loaded machine can

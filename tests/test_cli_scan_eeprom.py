@@ -12,7 +12,7 @@ from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
-from ics35_async.sim.servo import NO_REPLY
+from ics35_async.sim.virtual_servo import NO_REPLY
 from tests._cli_fixtures import edit_backup, ics35, line
 
 __all__ = ["ics35", "line"]  # the shared fixtures, used by name

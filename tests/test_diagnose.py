@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async.diagnose.line import LineReport, suspect_latency_timer
+from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
 from ics35_async.diagnose.system import check_system, holders
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo

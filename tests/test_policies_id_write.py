@@ -86,7 +86,7 @@ class NotAServo(VirtualServo):
 
     def handle(self, command: Any) -> Any:
         from ics35_async.protocol import ReadId
-        from ics35_async.sim.servo import NO_REPLY
+        from ics35_async.sim.virtual_servo import NO_REPLY
 
         return 12 if isinstance(command, ReadId) else NO_REPLY
 

@@ -18,7 +18,7 @@ from ics35_async.protocol import (
     wire_time,
 )
 from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo, garble
-from ics35_async.sim.servo import MAX_RATE
+from ics35_async.sim.virtual_servo import MAX_RATE
 
 
 def xfer(bus: VirtualLine, tx: bytes | str) -> bytes:

@@ -26,9 +26,9 @@ each call; async code does better with the async API.
 from __future__ import annotations
 
 from ..running import stop_on_signals
-from .bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
-from .robot import BlockingRobot, open_robot
-from .stream import BlockingStream
+from .blocking_bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
+from .blocking_robot import BlockingRobot, open_robot
+from .blocking_stream import BlockingStream
 
 __all__ = [
     "BlockingBus",

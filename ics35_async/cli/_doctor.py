@@ -10,7 +10,7 @@ import click
 from rich.markup import escape
 
 from ..diagnose import Finding
-from ..diagnose.line import LineReport, measure_round_trips
+from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ._common import ID_LIST, CliError, ExitCode, emit_json, err, ids_text, json_option, out, run, settings_of

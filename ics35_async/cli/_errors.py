@@ -18,7 +18,7 @@ from ..errors import (
     UnsafeOperation,
     VerifyError,
 )
-from ..policies.line import echo_setting_wrong, id0_top_bit_differs
+from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop

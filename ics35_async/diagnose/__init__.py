@@ -2,7 +2,7 @@
 adapter's latency timer) and the line's (round trips, what they say about the adapter, the cycle rate).
 
 :mod:`.system` reads system files from a root directory (``/`` by default,
-a fake tree in tests); :mod:`.line` measures a line through a bus;
+a fake tree in tests); :mod:`.line_report` measures a line through a bus;
 :mod:`.udev` writes the udev rules.  ``ics35 doctor`` and ``ics35 udev``
 print what these find.
 """

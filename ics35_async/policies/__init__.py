@@ -1,7 +1,7 @@
 """The line's policies: finding servos, renumbering the only one, changing an EEPROM safely, reading positions
 without freeing what may not go limp.
 
-They sit above the bus and use only its public surface (:class:`~.line.Line`),
+They sit above the bus and use only its public surface (:class:`~.failure_kinds.Line`),
 so library users get the same rules the ``ics35`` command follows.
 """
 
@@ -18,8 +18,7 @@ from .eeprom_write import (
     write_eeprom_plan,
     write_eeprom_plans,
 )
-from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
-from .line import (
+from .failure_kinds import (
     Line,
     LineOpener,
     answers_short_read,
@@ -27,6 +26,7 @@ from .line import (
     id0_top_bit_differs,
     nothing_came_back,
 )
+from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
 from .position_read import (
     NO_READ_ICS35,
     PositionReading,

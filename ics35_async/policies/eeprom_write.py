@@ -29,7 +29,7 @@ from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
 from ..protocol import Param
 from ..units import check_int
-from .line import Line
+from .failure_kinds import Line
 
 NO_FLAGS = Flags(0)
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from .. import protocol
 from ..errors import ReplyError, UnsafeOperation, VerifyError
 from ..protocol import Param
-from .line import Line, nothing_came_back
+from .failure_kinds import Line, nothing_came_back
 from .scan import ALL_IDS, probe_ids
 
 

@@ -52,7 +52,7 @@ from ..errors import IcsError, InvalidArgument, ReplyError
 from ..protocol import Param
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
-from .line import Line, LineOpener, echo_setting_wrong, nothing_came_back
+from .failure_kinds import Line, LineOpener, echo_setting_wrong, nothing_came_back
 from .scan_units import (
     FoundServo,
     confirm_eeprom_rates,

@@ -17,7 +17,7 @@ from .. import protocol
 from ..eeprom import Eeprom
 from ..errors import ReplyError
 from ..units import check_int
-from .line import Line, LineOpener
+from .failure_kinds import Line, LineOpener
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,11 @@
 
 * :mod:`.description`: the TOML robot description, checked key by key;
 * :mod:`.profiles`: motion profiles (``minjerk``, ``linear``) and trajectories;
-* :mod:`.stream`: frames and targets in joint space;
+* :mod:`.joint_stream`: frames and targets in joint space;
 * :mod:`.safety`: the temperature / current / offline watch and :class:`SafetyStop`;
 * :mod:`.plans`: the running motions' bookkeeping;
 * :mod:`.robot`: :class:`Robot`, streaming to every joint while it is open;
-* :mod:`.opening`: :func:`open_robot`;
+* :mod:`.startup`: :func:`open_robot`;
 * :mod:`.motion`: the keyframe motion file format and playing it.
 """
 
@@ -22,12 +22,12 @@ from .description import (
     parse_description,
 )
 from .frame import RobotFrame
+from .joint_stream import RobotStream
 from .motion import Keyframe, Motion, MotionError, load_motion, parse_motion, save_motion
-from .opening import RobotWarning, check_servo_limits, open_robot
 from .profiles import PROFILES, Segment, Trajectory
 from .robot import Robot
 from .safety import JointTelemetry, MotionStopped, SafetyStop
-from .stream import RobotStream
+from .startup import RobotWarning, check_servo_limits, open_robot
 
 __all__ = [
     "PROFILES",

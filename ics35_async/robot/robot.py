@@ -27,11 +27,11 @@ from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
 from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
+from .joint_stream import RobotStream
 from .motion import Motion, play_motion
 from .plans import Plan, Replies
 from .profiles import Segment, Trajectory, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
-from .stream import RobotStream
 
 log = logging.getLogger("ics35_async.robot")
 
@@ -161,7 +161,7 @@ class Robot:
         self._apply(checked)
 
     def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
-        """How the joints start (see :mod:`.opening`): ``stated`` angles already in the stream, ``read`` watched."""
+        """How the joints start (see :mod:`.startup`): ``stated`` angles already in the stream, ``read`` watched."""
         self._targets.update(stated)
         self.untouched = set(read)
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})

@@ -15,11 +15,11 @@ Two ways in:
   on the other end of a serial port expect time to pass between commands.
 
 Modules, each using only those listed before it: :mod:`.transaction` (a log
-entry), :mod:`.servo` (the devices), :mod:`.faults`, :mod:`.clock` (precise
+entry), :mod:`.virtual_servo` (the devices), :mod:`.faults`, :mod:`.precise_wait` (precise
 waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
 answer a command), :mod:`.model` (the sans-IO wire model, optionally behind
 a USB adapter model from :mod:`ics35_async.transports.usb_timing`),
-:mod:`.line` (:class:`VirtualLine`: the model as an in-process port),
+:mod:`.virtual_line` (:class:`VirtualLine`: the model as an in-process port),
 :mod:`.adapter` (adapter models by name), :mod:`.url` (``sim://`` URLs;
 :func:`open_url` is what the core calls); then, POSIX only and loaded on
 demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap` (a pty that hears the
@@ -83,16 +83,16 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from .clock import Deliverer, lower_timer_slack, wait_until
 from .devices import garble
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
 from .launch import serving, start_subprocess, stop_subprocess
-from .line import VirtualLine, named
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel
+from .precise_wait import Deliverer, lower_timer_slack, wait_until
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
-from .servo import MemoryDevice, VirtualServo
 from .transaction import Transaction
 from .url import open_url, parse_url
+from .virtual_line import VirtualLine, named
+from .virtual_servo import MemoryDevice, VirtualServo
 
 if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
     from .pty_server import PtyServer as PtyServer

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from ..protocol import ReadId, WriteEeprom, WriteId
-from .servo import NO_REPLY, MemoryDevice, VirtualServo
+from .virtual_servo import NO_REPLY, MemoryDevice, VirtualServo
 
 Device = VirtualServo | MemoryDevice
 MemorySpec = Mapping[int, bytes | bytearray | MemoryDevice] | Iterable[MemoryDevice]

@@ -5,7 +5,7 @@ and the time they were written, frames them with the library's codec, lets
 the devices answer (:mod:`.devices`), injects faults (:mod:`.faults`), logs
 and records each transaction, and returns the chunks the host receives
 (echo, replies, noise) with the earliest time each may be delivered.  The
-drivers on top, :class:`~.line.VirtualLine` (in process) and the pty server,
+drivers on top, :class:`~.virtual_line.VirtualLine` (in process) and the pty server,
 only deliver those chunks.
 
 Wire model: a host byte occupies the line for 11 bit times; the echo of a
@@ -35,8 +35,8 @@ from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
 from .framing import CommandFramer
 from .record import TransactionRecorder
-from .servo import VirtualServo
 from .transaction import Transaction
+from .virtual_servo import VirtualServo
 
 DEFAULT_TURNAROUND = 100e-6
 """Seconds a servo waits after a command before answering.  An assumption:

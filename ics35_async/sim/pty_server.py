@@ -1,7 +1,7 @@
 """Serve a simulated line on a pseudo-terminal, for any program that opens a serial port.
 
 :class:`PtyServer` is the second driver of the line model (the first is
-:class:`~.line.VirtualLine`'s in-process face): one thread reads what the
+:class:`~.virtual_line.VirtualLine`'s in-process face): one thread reads what the
 client writes to the pty (:mod:`.pty_port`), feeds it to the device with the
 time it was read, and writes each chunk of the answer back when it is due.
 Its command line is :mod:`.server_cli` (``python -m ics35_async.sim``,
@@ -9,7 +9,7 @@ Its command line is :mod:`.server_cli` (``python -m ics35_async.sim``,
 
 Timing: in fast mode answers are written at once.  In real-time mode the
 server waits for each chunk's wire time with sleep-then-spin
-(:func:`.clock.wait_until`) and then writes it to the master.  The pty adds
+(:func:`.precise_wait.wait_until`) and then writes it to the master.  The pty adds
 its own latency on top (see the figures in :mod:`ics35_async.sim`).
 
 Line speed: the line runs at the speed the client set on the pty, so servos
@@ -27,10 +27,10 @@ import select
 import time
 from pathlib import Path
 
-from .clock import SPIN_MARGIN, lower_timer_slack, wait_until
-from .line import VirtualLine
+from .precise_wait import SPIN_MARGIN, lower_timer_slack, wait_until
 from .pty_port import PtyPort
 from .record import ReplayDevice
+from .virtual_line import VirtualLine
 
 _ABSENT_POLL = 0.02  # seconds between checks for a client while none has the pty open
 _ABSENT_POLL_NO_INOTIFY = 0.002

@@ -17,12 +17,12 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
 from .faults import FaultConfig, parse_ids
-from .line import DEFAULT_REPLUG_AFTER, VirtualLine
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
 from .record import ReplayDevice
 from .tap import LineTap
 from .url import parse_seconds
+from .virtual_line import DEFAULT_REPLUG_AFTER, VirtualLine
 
 
 def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentParser:

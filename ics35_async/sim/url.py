@@ -16,8 +16,8 @@ from ..errors import InvalidArgument
 from ..transports import WireDevice
 from .adapter import make_adapter
 from .faults import FaultConfig, parse_ids
-from .line import VirtualLine, named
 from .record import ReplayDevice
+from .virtual_line import VirtualLine, named
 
 
 def open_url(url: str) -> WireDevice:

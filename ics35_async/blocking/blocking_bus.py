@@ -14,10 +14,10 @@ from ..protocol import Command
 from ..servo import Device, Servo
 from ..stats import BusStats
 from ..transports import WireDevice
+from .blocking_stream import BlockingStream
 from .forward import Wrapper, blocking
 from .loop_thread import LoopThread
 from .owner import LoopOwner
-from .stream import BlockingStream
 
 if TYPE_CHECKING:
     from ..stream import StreamOptions

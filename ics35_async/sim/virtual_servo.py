@@ -1,7 +1,7 @@
 """The devices on the simulated line: :class:`VirtualServo` and :class:`MemoryDevice`.
 
 A device answers a decoded :class:`~ics35_async.protocol.Command` with a
-value; the line (:mod:`.line`) turns that value into bytes with the command's
+value; the line (:mod:`.virtual_line`) turns that value into bytes with the command's
 own ``encode_reply``, so no byte layout is repeated here.
 
 Model of a servo, in brief (all of it deliberately simple and deterministic):

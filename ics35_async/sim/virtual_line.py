@@ -5,7 +5,7 @@ faults, log) plus what makes it a line one plugs into:
 
 * the :class:`~ics35_async.transport.WireDevice` face (``connect`` /
   ``write`` / ``disconnect``) for in-process use, answering synchronously in
-  fast mode and from a :class:`~.clock.Deliverer` thread at the modelled wire
+  fast mode and from a :class:`~.precise_wait.Deliverer` thread at the modelled wire
   time in real-time mode (the pty server, :mod:`.pty_server`, is the other
   driver of the same model);
 * the port's presence: unplug and replug, by fault, by timer or by hand;
@@ -22,7 +22,6 @@ from typing import Any
 from ..eeprom import BaudRate
 from ..transports import HostSide
 from ..transports.usb_timing import FtdiAdapter
-from .clock import SPIN_MARGIN, Deliverer
 from .devices import Device, MemorySpec
 from .faults import FaultConfig
 from .model import (
@@ -35,7 +34,8 @@ from .model import (
     DEFAULT_TURNAROUND,
     LineModel,
 )
-from .servo import MemoryDevice, VirtualServo
+from .precise_wait import SPIN_MARGIN, Deliverer
+from .virtual_servo import MemoryDevice, VirtualServo
 
 DEFAULT_REPLUG_AFTER = 0.2
 
@@ -52,7 +52,7 @@ class VirtualLine(LineModel):
     (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
     disappears that many wall-clock seconds after the first connect, and
     comes back (also after an ``unplug`` fault) that long after;
-    ``spin_margin``: see :mod:`.clock`; ``name`` registers the line so
+    ``spin_margin``: see :mod:`.precise_wait`; ``name`` registers the line so
     ``sim://NAME`` reaches this object.
     """
 
