@@ -252,6 +252,7 @@ class FakeSource:
         self.offered: list[bytes] = []
         self.values: list[tuple[int, int]] = []
         self.failures: list[ReplyError] = []
+        self.skipped = 0
         self.closed: IcsError | None = None
         self.on_value: Callable[[int, int], None] | None = None
 
@@ -290,6 +291,10 @@ class FakeSource:
 
     def fail(self, exc: ReplyError, now: float) -> None:
         self.failures.append(exc)
+        self.k += 1
+
+    def skip(self, now: float) -> None:
+        self.skipped += 1
         self.k += 1
 
     def line_closed(self, exc: IcsError) -> None:
