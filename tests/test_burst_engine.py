@@ -1,0 +1,140 @@
+"""The burst path, engine side, in simulated time: the same line with and without bursts, compared.
+
+A burst runs the stream's next transactions away from the engine and feeds their bytes back
+afterwards (ics35_async.drivers.burst).  The engine keeps every rule, so on the same wire, with
+the same servos, faults and requests at the same times, every write (its bytes and its time), every
+outcome and every counter must be the same as on the ordinary path.  tests/support/burst_wire.py
+plays the compiled executor's part on the simulated wire; the executor itself is tested on a pty in
+tests/test_burst_executor.py.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+import pytest
+
+from ics35_async.engine import LineEngine, Priority
+from ics35_async.protocol import Position
+
+from .support.burst_wire import BurstWire
+from .support.engine_support import FakeSource, Recorded, Servos, Wire, read, ready_engine
+from .support.paced_line import BAUD as PACED_BAUD
+from .support.paced_line import PERIOD, PacedCycle
+
+IDS = list(range(1, 9))
+
+
+def summary(wire: Wire, requests: list[Recorded]) -> dict[str, Any]:
+    """Everything the line did, in values that compare exactly."""
+    engine = wire.engine
+    stats = engine.counters.snapshot(len(engine.queue.waiting()))
+    return {
+        "writes": wire.writes,
+        "delivered": wire.delivered,
+        "requests": [(r.state, r.value, type(r.error).__name__, r.write_index) for r in requests],
+        "per_id": stats.per_id,
+        "resyncs": stats.resyncs,
+        "stray": stats.stray_bytes,
+        "guards": stats.guards,
+        "latency": (stats.latency.counts, stats.latency.sum_s),
+        "state": engine.state,
+    }
+
+
+def run_line(
+    wire_class: type[Wire],
+    *,
+    seed: int,
+    mute_every: int = 0,
+    paced: bool = False,
+    requests: int = 40,
+    duration: float = 0.5,
+) -> tuple[dict[str, Any], Wire]:
+    """A stream over 8 servos with ``requests`` reads and position commands at random times."""
+    rng = random.Random(seed)
+    engine = ready_engine(baudrate=PACED_BAUD) if paced else ready_engine()
+    servos = Servos(IDS, baudrate=engine.baudrate)
+    if mute_every:
+        servos.mute = {k for k in range(5, 100_000) if k % mute_every == 0}
+    wire = wire_class(engine, servos)
+    source: Any = PacedCycle(IDS, PERIOD) if paced else FakeSource(IDS)
+    wire.emit(engine.attach_source(source, wire.now))
+    recorded = []
+    for _ in range(requests):
+        sid = rng.choice([*IDS, 20])  # ID 20 is not on the line: its requests time out
+        command = read(sid) if rng.random() < 0.7 else Position(sid, 7500, baudrate=engine.baudrate)
+        priority = rng.choice([Priority.URGENT, Priority.HIGH, Priority.NORMAL, Priority.LOW])
+        request = Recorded(command, priority, retries=rng.choice([0, 1]), wire=wire)
+        recorded.append(request)
+        wire.at(rng.uniform(0, duration * 0.8), lambda request=request: wire.submit(request))
+    wire.run_for(duration)
+    return summary(wire, recorded), wire
+
+
+@pytest.mark.parametrize("paced", [False, True], ids=["unpaced", "paced"])
+@pytest.mark.parametrize("mute_every", [0, 29], ids=["healthy", "faults"])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_burst_line_does_exactly_what_the_ordinary_line_does(paced: bool, mute_every: int, seed: int) -> None:
+    plain, _ = run_line(Wire, seed=seed, mute_every=mute_every, paced=paced)
+    burst, wire = run_line(BurstWire, seed=seed, mute_every=mute_every, paced=paced)
+    assert isinstance(wire, BurstWire)
+    assert wire.runner.bursts > 5 and wire.runner.transactions > len(plain["writes"]) / 3  # bursts ran
+    assert burst["requests"] == plain["requests"]
+    assert burst["writes"] == plain["writes"]
+    assert burst == plain
+
+
+def test_a_request_arriving_mid_burst_takes_the_next_boundary_beside_an_unpaced_stream() -> None:
+    engine = ready_engine()
+    wire = BurstWire(engine, Servos(IDS))
+    wire.emit(engine.attach_source(FakeSource(IDS), wire.now))
+    request = Recorded(read(3), wire=wire)
+    wire.at(0.0101, lambda: wire.submit(request))
+    wire.run_for(0.02)
+    assert request.state == "done"
+    k = request.write_index
+    submitted_in = max(i for i, (t, _) in enumerate(wire.writes) if t <= 0.0101)
+    assert k == submitted_in + 1  # the transaction after the one on the wire when it came
+    assert wire.executor.runs > 2
+
+
+def test_beside_a_paced_stream_a_normal_request_waits_for_the_slack_and_an_urgent_one_does_not() -> None:
+    engine = ready_engine(baudrate=PACED_BAUD)
+    wire = BurstWire(engine, Servos(IDS, baudrate=PACED_BAUD))
+    source = PacedCycle(IDS, PERIOD)
+    wire.emit(engine.attach_source(source, wire.now))
+    normal = Recorded(read(2), wire=wire)
+    urgent = Recorded(read(3), Priority.URGENT, wire=wire)
+    t = 0.0001  # inside the first cycle (8 transactions of 52.8 us each)
+    wire.at(t, lambda: wire.submit(normal))
+    wire.at(t, lambda: wire.submit(urgent))
+    wire.run_for(0.03)
+    cycle_end = 8  # writes 0..7: the first cycle, unless something goes between them
+    assert urgent.write_index < cycle_end  # at the first boundary after it came
+    assert normal.write_index == cycle_end + 1  # after the whole cycle (with the urgent one in it)
+
+
+def test_the_burst_stops_at_the_first_fault_and_the_engine_judges_it() -> None:
+    engine = ready_engine()
+    servos = Servos(IDS)
+    servos.mute = {4}
+    wire = BurstWire(engine, servos)
+    source = FakeSource(IDS)
+    wire.emit(engine.attach_source(source, wire.now))
+    wire.run_for(0.05)
+    assert len(source.failures) == 1 and type(source.failures[0]).__name__ == "ReplyTimeout"
+    assert engine.counters.resyncs == 1
+
+
+def test_no_plan_while_a_reply_is_owed_or_the_link_is_slow() -> None:
+    engine: LineEngine = ready_engine()
+    wire = Wire(engine, Servos(IDS))
+    engine.link.extra = 0.002
+    wire.emit(engine.attach_source(FakeSource(IDS), wire.now))
+    assert engine.plan_burst() is None
+    engine.link.extra = 0.0
+    planned = engine.plan_burst()
+    assert planned is not None and len(planned[1]) == len(IDS)
+    engine.burst_over()
