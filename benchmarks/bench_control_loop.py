@@ -5,8 +5,10 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
 
 * clean: the stream alone (the baseline of this run);
 * pollers: four coroutines reading temperatures flat out at default priority;
-* faults: 5% of replies dropped, cut short, held back or garbled (with the default 10 ms
-  quiet time after a fault, and with ``quiet_time=0.005``);
+* faults: 5% of replies dropped, cut short, held back 30 ms or garbled (with the default
+  10 ms quiet time after a fault, and with ``quiet_time=0.005``); "held back" is the
+  simulator's ``late`` fault with ``late_delay=0.03``, as in the simulated-time column (its
+  default, a reply held until the host's next command, ties the reply to what the host does);
 * offline: one of the 12 servos missing.
 
 Each prints the stream's frame rate (Hz), the p99 and largest interval
@@ -51,6 +53,7 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
         realtime=True,
         turnaround=0.0001,
         faults=FAULTS if scenario.startswith("faults") else None,
+        late_delay=0.03,
         seed=1,
     )
     reads = 0

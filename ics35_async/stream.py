@@ -330,6 +330,12 @@ class Stream:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
 
+    def _skip(self, now: float) -> None:
+        # The engine held this ID's transaction back (its reply to a failed command may still
+        # come): the frame shows it unanswered this cycle; nothing failed, so nothing is counted.
+        if self._cur >= 0:
+            self._advance(now)
+
     def _advance(self, now: float) -> None:
         self._pos += 1
         if self._pos >= len(self._order):

@@ -104,6 +104,7 @@ class Wire:
         self._calls: list[tuple[float, int, Callable[[], object]]] = []  # what the program does, when
         self.end = -math.inf  # where the run in progress stops (none yet)
         self._order = itertools.count()
+        self.on_write: Callable[[], None] | None = None  # called as each write goes out
 
     # -- what the world does
 
@@ -149,6 +150,8 @@ class Wire:
 
     def emit(self, out: bytes | None) -> bytes | None:
         if out is not None:
+            if self.on_write is not None:
+                self.on_write()
             self.writes.append((self.now, out))
             self.marks.append(len(self.delivered))
             if self.answer is not None:
@@ -281,6 +284,7 @@ class FakeSource:
         self.offered: list[bytes] = []
         self.values: list[tuple[int, int]] = []
         self.failures: list[ReplyError] = []
+        self.skipped = 0
         self.closed: IcsError | None = None
         self.on_value: Callable[[int, int], None] | None = None
 
@@ -319,6 +323,10 @@ class FakeSource:
 
     def fail(self, exc: ReplyError, now: float) -> None:
         self.failures.append(exc)
+        self.k += 1
+
+    def skip(self, now: float) -> None:
+        self.skipped += 1
         self.k += 1
 
     def line_closed(self, exc: IcsError) -> None:
