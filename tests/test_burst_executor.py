@@ -172,7 +172,7 @@ def test_a_wake_stops_it_at_the_next_boundary_and_other_threads_run_meanwhile() 
 
         counter = threading.Thread(target=count)
         counter.start()
-        burst.start(time.monotonic() + ALLOWANCE, plan(64))
+        burst.start(time.monotonic() + 0.5, plan(64, allowance=0.5))  # a loaded machine is no fault here
         time.sleep(0.05)
         progress = counted[0]
         burst.wake()
