@@ -66,13 +66,17 @@ def feed(
     result: Result,
     decode: Callable[[bytes], tuple[bytes, int]] | None,
     before_last: Callable[[], None],
+    now: float,
 ) -> bytes | None:
     """Hand a burst's bytes to ``engine`` with their times; return what the engine wants written next.
 
-    Every transaction but the last ended at a boundary the engine had planned: fed its bytes, the
-    engine must start the next planned one.  Before the last one's bytes, the engine's source may
-    change its plan again and ``before_last`` runs what waited for the burst to stop.  ``decode``
-    undoes the port's parity marks (see ``transports.direct.ParityMarks``).
+    Every transaction but the last ended at a boundary the engine had planned: fed its bytes with
+    the time they came, the engine must start the next planned one, which the executor did write
+    then.  Before the last one's bytes, the engine's source may change its plan again and
+    ``before_last`` runs what waited for the burst to stop.  The last one's bytes are fed at
+    ``now``, as the ordinary path feeds bytes when it reads them: what the engine starts then is
+    written now, and its deadline must count from now (the loop may have been slow to come back).
+    ``decode`` undoes the port's parity marks (see ``transports.direct.ParityMarks``).
     """
     _status, _errno, records = result
     last = len(records) - 1
@@ -87,7 +91,7 @@ def feed(
             if errors:
                 engine.line_error(errors)
         if data:
-            out = engine.receive(data, at)
+            out = engine.receive(data, at if i < last else max(at, now))
         if in_step and i < last and out != plan[i + 1][0]:
             if out is not None:
                 raise BurstDiverged(
@@ -168,10 +172,17 @@ class BurstRunner:
     def wake(self) -> None:
         self.executor.wake()
 
-    def finish(self, now: Callable[[], float]) -> tuple[bool, bytes | None]:
+    def finish(self, now: Callable[[], float], *, wait: bool = False) -> tuple[bool, bytes | None]:
         """After ``done_fd`` turned readable: (False, None) if the burst still runs; else feed it to the
-        engine and return (True, what to write next).  ``status``/``errno`` say why it stopped."""
-        result: Result | None = self.executor.result()
+        engine and return (True, what to write next).  ``status``/``errno`` say why it stopped.
+
+        ``wait``: stop it at its next boundary and block until it has (at most one transaction).
+        """
+        if wait:
+            self.executor.wake()
+            result: Result | None = self.executor.wait()
+        else:
+            result = self.executor.result()
         if result is None:
             return False, None
         plan, self.plan = self.plan, None
@@ -179,13 +190,14 @@ class BurstRunner:
         self.status, self.errno = result[0], result[1]
         self.transactions += len(result[2])
 
+        t = now()
+
         def run_held() -> None:
             held, self.held = self.held, []
-            t = now()
             for step in held:
                 step(t)
 
-        return True, feed(self.engine, plan, result, self.decode, run_held)
+        return True, feed(self.engine, plan, result, self.decode, run_held, t)
 
     def close(self) -> None:
         """Stop the executor's thread (waiting for a running burst to end: at most one transaction)."""
