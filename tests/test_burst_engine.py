@@ -15,8 +15,10 @@ from typing import Any
 
 import pytest
 
+from ics35_async import protocol
 from ics35_async.engine import LineEngine, Priority
 from ics35_async.protocol import Position
+from ics35_async.stream import Stream
 
 from .support.burst_wire import BurstWire
 from .support.engine_support import TURNAROUND, FakeSource, Recorded, Servos, Wire, read, ready_engine
@@ -188,3 +190,43 @@ def test_a_reply_only_the_engine_refuses_stops_nothing_but_nothing_after_it_is_t
     taken = {write_of[value] for _, value in source.values}
     assert 21 not in taken and 22 not in taken  # the burst ran on past it: none of those was taken
     assert max(taken) > 40  # and the stream carries on
+
+
+class QuietLine:
+    """Just enough of a line for a stream's hooks to be called by hand."""
+
+    baudrate = 115200
+    echo = True
+
+    def __init__(self) -> None:
+        self.kicks = 0
+
+    def kick(self) -> None:
+        self.kicks += 1
+
+    def notify(self, callback: Any) -> None:
+        callback()
+
+
+def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_the_stop() -> None:
+    line = QuietLine()
+    stream = Stream(line, [1, 2, 3])  # type: ignore[arg-type]
+    stream._running = True
+    hooks = stream._hooks
+    assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
+    assert hooks.upcoming(10) == [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in (2, 3)]
+    stream.set_target(2, 8000)  # planned: the burst sends the old command; the stream asks it to stop
+    assert line.kicks == 1 and stream.target(2) == 8000
+    stream.set_target(1, 9000)  # on the wire already, not planned: next cycle's command, no stop needed
+    assert line.kicks == 1
+    stream.watch([3])
+    assert line.kicks == 2
+    reply = bytearray(protocol.position_tx(1, protocol.FREE) + bytes((1, 58, 76)))
+    assert hooks.complete(reply, 3, 0.001) is None
+    assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)  # as planned
+    hooks.upcoming_done()
+    reply = bytearray(protocol.position_tx(2, protocol.FREE) + bytes((2, 58, 76)))
+    assert hooks.complete(reply, 3, 0.002) is None  # read as the command that was sent
+    job = hooks.next_transaction(0.002)
+    assert job == (protocol.ReadPosition(3).tx, protocol.ReadPosition(3).reply_len, 3)  # the change applies now
+    assert stream._jobs[1] == (protocol.position_tx(2, 8000), 3, 2)

@@ -53,7 +53,7 @@ def burst_path() -> tuple[bool, str]:
         return False, f"off ({ENV}={os.environ[ENV]})"
     if _burst is None:
         return False, f"not built ({_IMPORT_ERROR}): every port takes the ordinary path"
-    return True, "compiled executor (ics35_async._burst) on tty ports; ordinary path elsewhere"
+    return True, "compiled executor (ics35_async._burst) for streams on tty ports under the asyncio driver"
 
 
 class BurstDiverged(RuntimeError):
