@@ -199,6 +199,7 @@ class LineEngine:
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
             "guard_suspect": self.guard.suspect.hex(" "),
+            "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
         }
 
     @property
