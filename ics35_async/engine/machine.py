@@ -91,6 +91,7 @@ class LineEngine:
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
         self._settling = False  # this transaction's reply is in; waiting to see no more comes
         self._t_done = 0.0  # when it came in
+        self._due = 0.0  # its deadline, while it settles
         self.guard = GuardRule()
         self.answers = AnswerTimes()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
@@ -580,10 +581,10 @@ class LineEngine:
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
-            stream = self._current is None
+            req = self._current
+            due = self._due if self._settling else self.deadline
             out = self._failed(error, sid, now)
-            if stream and self._short:
-                self._hold(now)
+            self._after_early_failure(req, due, now)
             return out
         over = latency - self._base  # before the next transaction replaces _base
         value = None  # a request's answer, handed over once everything is counted
@@ -603,9 +604,9 @@ class LineEngine:
             if rejected is not None:  # (complete changed nothing: the stream hears once it is counted)
                 counters.ok[sid] -= 1
                 counters.latency.add(latency)
+                due = self._due if self._settling else self.deadline
                 out = self._fault(rejected, sid, now)
-                if self._short:
-                    self._hold(now)
+                self._after_early_failure(None, due, now)
                 source.fail(rejected, now)
                 return out
             if over <= 0:  # (a reply later than the full allowance is a fault the link's extra caught, not a norm)
@@ -615,7 +616,10 @@ class LineEngine:
                 value = req.command.parse(bytes(buf[echo_len:]))
             except ReplyError as exc:
                 counters.latency.add(latency)
-                return self._fail_request(req, exc, sid, now)
+                due = self._due if self._settling else self.deadline
+                out = self._fail_request(req, exc, sid, now)
+                self._after_early_failure(req, due, now)
+                return out
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
             self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
@@ -661,6 +665,7 @@ class LineEngine:
         """
         self._settling = True
         self._t_done = now
+        self._due = self.deadline
         self.deadline = now + self._wire_time(self._expect - self._echo_len) + 0.001
 
     def _timeout(self, now: float) -> bytes | None:
@@ -705,6 +710,26 @@ class LineEngine:
         if owner is not None:
             owner.fail(error, now)
         return out
+
+    def _after_early_failure(self, req: Request | None, due: float, now: float) -> None:
+        """A transaction failed on what came before its deadline (after the resync began).
+
+        What came may not have been its reply at all (another command's late reply, noise), so
+        its own may still come, as late as it could after a timeout.  The stream's short wait
+        holds its servo back (see _hold); anything else gets the resync and the guard read a
+        timeout would have: quiet until a quiet time after its deadline, then, if the next
+        command has the same command byte (a retry), a guard read first (see .guard).
+        """
+        if req is None and self._short:
+            self._hold(now)
+            return
+        if self.state is not QUIET:
+            return
+        self.guard.timed_out(self._tx, heard=True, was_guard=req is not None and req.is_guard)
+        extra = self.link.extra
+        self._quiet_until = max(self._quiet_until, due + self.timing.quiet_time + extra)
+        self._resync_limit = max(self._resync_limit, due + self.timing.max_resync + extra)
+        self.deadline = min(self._quiet_until, self._resync_limit)
 
     def _hold(self, now: float) -> None:
         """A stream transaction that waited less than its full allowance failed (after the resync began).
