@@ -17,7 +17,9 @@ The rules, each in one place:
   transaction are never taken for the next reply;
 * guard read: after a timeout, a command with the same command byte does not
   go next (the late reply would fit it); a harmless read of another shape
-  goes first;
+  goes first.  A transaction that fails on what came before its deadline
+  (another's late bytes, noise) may still get its own reply: it gets the
+  resync and the guard read a timeout would have;
 * priorities, and the stream's share: at most ``max_requests_between``
   requests between two stream transactions;
 * retries of idempotent commands; cancellation (a cancelled request's reply
