@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import anyio
 
-from .bus import Bus, open_bus
+from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, GroupFrame, StreamStats
 from .stream import Stream
@@ -171,7 +171,7 @@ class BusGroup:
                 raise InvalidArgument(f"line {name!r} is not a Bus")
 
     @classmethod
-    def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
+    def open(cls, ports: Mapping[str, str], **bus_options: Unpack[BusOptions]) -> BusGroup:
         """A group of buses opened with the same options: ``{line name: port}``.
 
         Raises:

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Awaitable, Callable, Iterable
 from typing import TYPE_CHECKING, ParamSpec, TypeVar, Unpack
 
-from ..bus import Bus, Priority
+from ..bus import Bus, BusOptions, Priority
 from ..bus import open_bus as open_async_bus
 from ..engine import State
 from ..errors import InvalidArgument
@@ -234,19 +233,21 @@ def _stats_of(bus: Bus) -> BusStats:
     return bus.stats
 
 
-def _blocking_opener(open_async: Callable[P, Bus]) -> Callable[P, BlockingBus]:
-    @functools.wraps(open_async)
-    def open_bus(*args: P.args, **kwargs: P.kwargs) -> BlockingBus:
-        return BlockingBus(open_async(*args, **kwargs))
+def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> BlockingBus:
+    """Open a [`BlockingBus`][ics35_async.blocking.BlockingBus] on ``port``: use ``with open_bus(...) as bus:``.
 
-    open_bus.__doc__ = """Open a :class:`BlockingBus` on ``port``: use ``with open_bus(...) as bus:``.
+    Takes what [`ics35_async.open_bus`][ics35_async.bus.open_bus] takes.  The bus is open when this
+    returns; leaving the ``with`` block, an exception or Ctrl-C included, closes it and ends its
+    loop thread.
 
-    Takes what :func:`ics35_async.open_bus` takes.  The bus is open when this
-    returns (port errors are raised here); leaving the ``with`` block, an
-    exception or Ctrl-C included, closes it and ends its loop thread.
+    Args:
+        port: a serial device path, a pyserial URL, ``sim://?...`` or a ``WireDevice``.
+        **options: the line's options, each described in [`BusOptions`][ics35_async.bus.BusOptions].
+
+    Raises:
+        InvalidArgument: an unknown option, or one with the wrong type or out of range (nothing is opened).
+        SerialPortError: the port cannot be opened: [`PortNotFound`][ics35_async.errors.PortNotFound],
+            [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
+            [`PortBusy`][ics35_async.errors.PortBusy] and the others.
     """
-    return open_bus
-
-
-# The async open_bus's parameters, checked by mypy at each call, with a blocking bus as the result.
-open_bus = _blocking_opener(open_async_bus)
+    return BlockingBus(open_async_bus(port, **options))

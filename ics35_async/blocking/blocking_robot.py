@@ -19,9 +19,9 @@ import contextlib
 import copy
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar, Unpack
 
-from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, SafetyStop
+from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from .loop_thread import LoopThread
@@ -244,31 +244,26 @@ def _latest_of(robot: Robot) -> RobotFrame | None:
 
 
 def open_robot(
-    source: str | Path | Mapping[str, Any] | RobotDescription,
-    *,
-    on_close: str = "hold",
-    check_limits: bool = True,
-    offline_after: int = 3,
-    probe_interval: float = 0.5,
-    start_pose: Mapping[str, float] | None = None,
-    **bus_options: Any,
+    source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
 ) -> BlockingRobot:
-    """Open a :class:`BlockingRobot`: ``with blocking.open_robot("robot.toml") as robot:``.
+    """A [`BlockingRobot`][ics35_async.blocking.BlockingRobot]: ``with blocking.open_robot("robot.toml") as robot:``.
 
-    Takes what :func:`ics35_async.open_robot` takes.  The robot is open and
-    streaming when this returns (description and port errors are raised
-    here); leaving the ``with`` block, an exception or Ctrl-C included,
+    Takes what [`ics35_async.open_robot`][ics35_async.robot.open_robot] takes.  The robot is open and
+    streaming when this returns; leaving the ``with`` block, an exception or Ctrl-C included,
     closes it as ``on_close`` says and ends its loop thread.
+
+    Args:
+        source: a TOML file's path, the same structure as a mapping, or a
+            [`RobotDescription`][ics35_async.robot.RobotDescription].
+        **options: the robot's options and every line's bus options, each described in
+            [`RobotOptions`][ics35_async.robot.RobotOptions].
+
+    Raises:
+        DescriptionError: the description is not valid (nothing is opened).
+        InvalidArgument: an unknown or bad option (see [`ics35_async.open_robot`][ics35_async.robot.open_robot]).
+        SerialPortError: a line's port cannot be opened.
     """
-    opener = open_async_robot(
-        source,
-        on_close=on_close,
-        check_limits=check_limits,
-        offline_after=offline_after,
-        probe_interval=probe_interval,
-        start_pose=start_pose,
-        **bus_options,
-    )
+    opener = open_async_robot(source, **options)
     if isinstance(source, RobotDescription):
         name = source.name or str(source.source)
     else:
