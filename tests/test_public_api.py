@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import pytest
@@ -43,8 +44,6 @@ async def test_stream_engine_hooks_are_private_and_the_old_names_warn() -> None:
 
 def test_bus_options_are_declared_once_and_every_opener_takes_them() -> None:
     """open_bus, Bus, blocking.open_bus, BusGroup.open and open_robot take the one BusOptions."""
-    import inspect
-
     from ics35_async import BusGroup, BusOptions, blocking
     from ics35_async.bus import Bus
     from ics35_async.robot import RobotOptions, open_robot
@@ -84,3 +83,16 @@ async def test_open_robot_passes_bus_options_to_every_line_and_refuses_unknown_o
     with pytest.raises(ics35_async.InvalidArgument, match="baudrate: set per line"):
         async with open_robot(description, baudrate=115200):
             pass
+
+
+def test_the_simulated_line_options_are_declared_once() -> None:
+    from ics35_async.sim import LineModel, LineModelOptions, VirtualLine
+
+    for cls in (LineModel, VirtualLine):
+        (options,) = [p for p in inspect.signature(cls).parameters.values() if p.kind is p.VAR_KEYWORD]
+        assert options.annotation == "Unpack[LineModelOptions]", cls
+    line = VirtualLine([1], turnaround=0.0002, tail_bytes=2, log_size=0, name=None)
+    assert (line.turnaround, line.tail_bytes, line.echo, line.baudrate) == (0.0002, 2, True, 115200)
+    assert {"faults", "seed", "realtime", "adapter", "ics36"} <= LineModelOptions.__optional_keys__
+    with pytest.raises(ics35_async.InvalidArgument, match=r"unknown simulated line option.*turnarond"):
+        VirtualLine([1], turnarond=0.1)  # type: ignore[call-arg]

@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Any
 from .devices import garble
 from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
 from .launch import serving, start_subprocess, stop_subprocess
-from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel, LineModelOptions
 from .precise_wait import Deliverer, lower_timer_slack, wait_until
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .transaction import Transaction
@@ -126,6 +126,7 @@ __all__ = [
     "FaultConfig",
     "FaultInjector",
     "LineModel",
+    "LineModelOptions",
     "MemoryDevice",
     "Mismatch",
     "ReplayDevice",
