@@ -26,9 +26,20 @@ from ..errors import BusClosed, IcsError, PortLost
 from ..frames import Frame
 from ..stream import Stream
 from ._basic import probe_ids
-from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
+from ._common import (
+    NO_REPLY_HINTS,
+    CliError,
+    ExitCode,
+    Settings,
+    emit_json,
+    err,
+    ids_text,
+    nothing_answered,
+    out,
+    settings_of,
+)
 from ._live_view import LiveState
-from ._plot import Recorder
+from ._plot import Recorder, check_plot_path
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]
@@ -151,7 +162,31 @@ async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
     return answered
 
 
-def final_report(state: LiveState, telemetry: Telemetry, options: LiveOptions) -> None:
+BUILT_IN_SIM = "the built-in simulator"  # the port as shown when the default sim:// runs
+
+
+def live_settings(ctx: click.Context, plot: str | None, sim_query: str = "") -> tuple[Settings, str]:
+    """A live command's settings and its port as shown; a --plot path is checked first (nothing sent).
+
+    The default ``sim://`` becomes a real-time simulator (``sim_query`` adds to its URL): real time
+    paces replies at the modelled wire time, so the rate shown is the real one.
+    """
+    settings = settings_of(ctx)
+    if plot is not None:
+        check_plot_path(plot)
+    if settings.port != "sim://":
+        return settings, settings.port
+    settings.port = f"sim://?{sim_query}realtime=1&baud={settings.baud}"
+    return settings, BUILT_IN_SIM
+
+
+def final_report(
+    state: LiveState, telemetry: Telemetry, recorder: Recorder, options: LiveOptions, plot_title: str
+) -> None:
+    """The plot (with --plot), the table and summary where no live table was drawn; no answer at all is an error."""
+    if options.plot is not None:
+        recorder.write(options.plot, plot_title)
+        err.print(f"plot written to {escape(options.plot)}")
     if not options.as_json and not out.is_terminal:
         out.print(state.table(telemetry, options.with_targets))
         out.print(state.summary(telemetry))

@@ -80,7 +80,6 @@ transactions/s (13 us each) through :meth:`VirtualLine.process`.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
 
 from .devices import garble
@@ -98,23 +97,19 @@ if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type 
     from .pty_server import PtyServer as PtyServer
     from .server_cli import main as main
 
-# The pty server and its command line need termios, fcntl and tty (POSIX only): they are
-# imported when one of their names is first asked for, so the in-process simulator imports anywhere
-# (and they stay out of __all__, so a star import works there too).
-_LAZY = {
-    "PtyServer": "pty_server",
-    "main": "server_cli",
-}
-
-
 def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
+    # The pty server and its command line need termios, fcntl and tty (POSIX only): they are
+    # imported when one of their names is first asked for, so the in-process simulator imports anywhere
+    # (and they stay out of __all__, so a star import works there too).
+    value: Any
+    if name == "PtyServer":
+        from .pty_server import PtyServer as value
+    elif name == "main":
+        from .server_cli import main as value
+    else:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
-
 
 
 __all__ = [
