@@ -242,7 +242,14 @@ class Bus:
         await self.aclose()
 
     async def open(self) -> Bus:
-        """Open the line (idempotent)."""
+        """Open the line (idempotent); ``async with bus`` and ``await bus`` call it.
+
+        Raises:
+            BusClosed: the bus was closed, or an ``open()`` running at the same time failed.
+            SerialPortError: the port cannot be opened ([`PortNotFound`][ics35_async.errors.PortNotFound],
+                [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
+                [`PortBusy`][ics35_async.errors.PortBusy], ...).
+        """
         if self._engine.state is State.CLOSED or self._engine.state is State.DRAINING:
             raise BusClosed("bus is closed")
         if self._opening is not None:  # another open() is under way: share its outcome
@@ -271,6 +278,15 @@ class Bus:
         For a baud-rate change: write the servos' EEPROM (``allow_baud_change=True``),
         power-cycle them, then ``await bus.reopen(baudrate=...)``.  Requests
         submitted meanwhile wait and run after the reopen.
+
+        Args:
+            baudrate: the new line rate in bit/s (``None``: the current one).
+
+        Raises:
+            InvalidArgument: a bad ``baudrate``, or a stream (or another reopen) is running.
+            BusClosed: the bus is not open.
+            PortLost: the port is lost (reconnecting), so it cannot be reopened now.
+            SerialPortError: the port cannot be opened again (the bus is then closed).
         """
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
         driver = self._driver
@@ -317,9 +333,17 @@ class Bus:
     ) -> T:
         """Run one command and return its parsed reply.
 
-        ``retries`` (default: the bus's) applies only to idempotent commands.
-        Raises :class:`ReplyError` subclasses, :class:`BusClosed` or
-        :class:`PortLost`.
+        Args:
+            command: an ``ics35_async.protocol`` command object.
+            priority: where the request queues (a [`Priority`][ics35_async.engine.requests.Priority]).
+            retries: retries after a failure (0..10; default: the bus's), for idempotent commands only.
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            ReplyError: no valid reply ([`ReplyTimeout`][ics35_async.errors.ReplyTimeout],
+                [`PartialReply`][ics35_async.errors.PartialReply], [`BadReply`][ics35_async.errors.BadReply], ...).
+            BusClosed: the bus is not open, or closed before the reply.
+            PortLost: the port went away before the reply.
         """
         result: T = await self.submit(command, priority=priority, retries=retries)
         return result
@@ -327,7 +351,15 @@ class Bus:
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
     ) -> Awaitable[T]:
-        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver)."""
+        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver).
+
+        ``priority`` and ``retries`` are as in [`request`][ics35_async.bus.Bus.request]; awaiting the
+        result raises what ``request`` raises.
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            BusClosed: the bus is not open.
+        """
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
         check_int("priority", priority, _URGENT, _LOW)
@@ -342,7 +374,11 @@ class Bus:
         return driver.submit(command, priority, retries)
 
     def attach_source(self, source: BackgroundSource | None) -> None:
-        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
+        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches.
+
+        Raises:
+            InvalidArgument: the bus is reopening.
+        """
         engine = self._engine
         if source is None:
             if engine.source is not None:
@@ -434,7 +470,12 @@ class Bus:
         """Read the ID of the only device on the line.
 
         With several devices on the line every one answers at once and the
-        result is garbage, so the caller must confirm there is exactly one.
+        result is garbage, so the caller must confirm there is exactly one
+        (``exactly_one_device=True``).
+
+        Raises:
+            UnsafeOperation: ``exactly_one_device`` is not ``True`` (nothing is sent).
+            ReplyError: no valid reply.
         """
         if exactly_one_device is not True:
             raise UnsafeOperation(
@@ -450,6 +491,13 @@ class Bus:
         the caller confirms with ``exactly_one_device=True`` -- and then still
         unless exactly one device is proven on the line
         (:func:`~ics35_async.policies.write_lone_id`).
+
+        Raises:
+            InvalidArgument: ``new_id`` is not 0..31.
+            UnsafeOperation: ``exactly_one_device`` is not ``True``, or not exactly one device
+                answers (nothing is written).
+            VerifyError: the device took the ID but does not answer at it.
+            ReplyError: the device stops answering during the change.
         """
         protocol.check_id(new_id)
         if exactly_one_device is not True:
@@ -467,6 +515,14 @@ class Bus:
         still runs them one at a time), leaving room for other callers.  The
         whole scan over baud rates, with EEPROM cross-checks, is
         :func:`ics35_async.policies.scan`.
+
+        Args:
+            ids: the IDs to probe (0..31 each).
+            concurrency: how many probes are queued at once.
+
+        Raises:
+            InvalidArgument: an ID is not 0..31.
+            BusClosed: the bus is not open.
         """
         from .policies import probe_ids
 

@@ -273,7 +273,12 @@ class Eeprom:
             raise MalformedEeprom(f"header must be an int 0..255, got {header!r}")
 
     def replace(self, **changes: Any) -> Eeprom:
-        """A copy with ``changes`` applied, each validated; protected bytes never change."""
+        """A copy with ``changes`` (``field=value``) applied, each validated; protected bytes never change.
+
+        Raises:
+            UnsafeOperation: ``calibration`` is among the changes (the factory bytes are protected).
+            InvalidArgument: an unknown field or a value out of its range.
+        """
         if "calibration" in changes:
             raise UnsafeOperation("the factory calibration bytes are protected and cannot be changed")
         unknown = set(changes) - set(_LAYOUT)
@@ -338,7 +343,13 @@ class Eeprom:
         baud_rate: BaudRate = BaudRate.B115200,
         calibration: bytes | None = None,
     ) -> Eeprom:
-        """The spec's factory example image (section 7), for a given ID and baud."""
+        """The spec's factory example image (section 7) for ``servo_id`` at ``baud_rate``.
+
+        ``calibration``: the 8 factory calibration nibbles (default: plausible ones made from the ID).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not 0..31.
+        """
         check_int("servo_id", servo_id, 0, 31)
         if calibration is None:
             # Plausible, ID-dependent calibration nibbles: real ones differ per unit.

@@ -24,6 +24,9 @@ class GroupStream:
     :meth:`next_frame` waits until every line has completed a cycle newer
     than the one in the previous merged frame, then merges the newest of
     each; ``skipped`` is the most cycles any one line ran meanwhile unseen.
+
+    Args:
+        streams: ``{line name: stream}``; [`BusGroup.stream`][ics35_async.group.BusGroup.stream] makes them.
     """
 
     def __init__(self, streams: Mapping[str, Stream]) -> None:
@@ -33,7 +36,7 @@ class GroupStream:
         self._end_error: IcsError = BusClosed("group stream closed")
 
     def set_target(self, line: str, servo_id: int, position: int) -> None:
-        """Latest-value target for one servo on one line (0 frees it).
+        """Latest-value target ``position`` for servo ``servo_id`` on ``line`` (0 frees it).
 
         Raises:
             InvalidArgument: an unknown line, an ID not in that line's stream, a position out of range.
@@ -41,7 +44,12 @@ class GroupStream:
         self._stream(line).set_target(servo_id, position)
 
     def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
-        """Targets keyed by ``(line, id)``; all are checked, on every line, before any is applied."""
+        """``targets`` keyed by ``(line, id)``; all are checked, on every line, before any is applied.
+
+        Raises:
+            InvalidArgument: not a mapping, a key that is not ``(line, id)``, an unknown line, an ID not
+                in that line's stream or a position out of range (nothing applied).
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
         by_line: dict[str, dict[int, int]] = {}
@@ -155,6 +163,12 @@ class BusGroup:
 
     ``BusGroup({"left": open_bus("/dev/ttyUSB0"), "right": open_bus("/dev/ttyUSB1")})``;
     use as ``async with`` to open and close every line.
+
+    Args:
+        buses: ``{line name: bus}``, or a list of buses (named ``"0"``, ``"1"``, ...).
+
+    Raises:
+        InvalidArgument: no bus, or something that is not a bus.
     """
 
     def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
@@ -172,7 +186,11 @@ class BusGroup:
 
     @classmethod
     def open(cls, ports: Mapping[str, str], **bus_options: Unpack[BusOptions]) -> BusGroup:
-        """A group of buses opened with the same options: ``{line name: port}``.
+        """A group of buses opened with the same options.
+
+        Args:
+            ports: ``{line name: port}``.
+            **bus_options: every line's options ([`BusOptions`][ics35_async.bus.BusOptions]).
 
         Raises:
             InvalidArgument: a bad port or option (see ``open_bus``).

@@ -66,6 +66,23 @@ class Stream:
     (ICS 3.6 servos only) start *watched* instead: each cycle reads their
     position with ICS 3.6's position read, which neither moves nor frees
     them, until they are given a target (:meth:`watch` returns an ID to it).
+
+    Args:
+        bus: the line to stream on (a [`Bus`][ics35_async.bus.Bus] or another [`Line`][ics35_async.line.Line]).
+        ids: the servo IDs of each cycle, in order (0..31, at least one, no repeats).
+        rate_hz: cycles per second, paced (``None``: cycles back to back, as fast as the line allows).
+        offline_after: failed cycles in a row before an ID leaves the cycle (it is probed meanwhile).
+        probe_interval: seconds between probes of an offline ID.
+        free_on_close: deprecated: ``on_close="free"``.
+        history: how many cycles the statistics look back over.
+        on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target)
+            or ``"free"`` (torque off).
+        on_resume: after a lost port comes back: ``"wait"`` (hold every ID, sending no command,
+            until the program sets its target again) or ``"free"``.
+        watch: IDs (ICS 3.6 servos) read with the position read instead of starting free.
+
+    Raises:
+        InvalidArgument: a bad, duplicate or missing ID, or an option out of range.
     """
 
     def __init__(
@@ -167,21 +184,33 @@ class Stream:
             raise InvalidArgument(f"ID {servo_id!r} is not in this stream {list(self.ids)}") from None
 
     def set_target(self, servo_id: int, position: int) -> None:
-        """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
+        """Latest-value target ``position`` for ``servo_id``: 1..16383, or 0 for free (torque off, still read back).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not in the stream or ``position`` is out of range.
+        """
         self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
     def set_targets(self, targets: Mapping[int, int]) -> None:
-        """Several targets at once; all are checked before any is applied."""
+        """Several ``targets`` ``{id: position}`` at once; all are checked before any is applied.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or a position out of range (nothing applied).
+        """
         self.apply_targets(self.check_targets(targets))
 
     def check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
-        """Check every target (raising before anything changes) and return them ready for apply_targets."""
+        """Check every target (raising before anything changes) and return them ready for apply_targets.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or a position out of range.
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
-        """Apply targets that :meth:`check_targets` returned."""
+        """Apply the targets ``checked`` that :meth:`check_targets` returned."""
         held = False
         for k, p in checked:
             if self._held[k]:
@@ -196,17 +225,29 @@ class Stream:
             self.bus.kick()  # a stream waiting with every ID held has work again
 
     def set_target_degrees(self, servo_id: int, degrees: float) -> None:
-        """Like :meth:`set_target`, in degrees (-135..+135, 0 neutral); else InvalidArgument."""
+        """Like :meth:`set_target`: ``servo_id`` to ``degrees`` (-135..+135, 0 neutral).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not in the stream or the angle is out of range.
+        """
         self.set_target(servo_id, units.degrees_to_position(degrees))
 
     def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
-        """Like :meth:`set_targets`, in degrees; InvalidArgument (nothing applied) for a bad one."""
+        """Like :meth:`set_targets`, in degrees.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or an angle out of range (nothing applied).
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
         self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
 
     def free(self, ids: Iterable[int] | None = None) -> None:
-        """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
+        """Put ``ids`` (default: all) in free mode: torque off, positions still read back.
+
+        Raises:
+            InvalidArgument: an ID is not in the stream (nothing changes).
+        """
         self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 
     def watch(self, ids: Iterable[int] | None = None) -> None:
@@ -214,6 +255,9 @@ class Stream:
 
         For ICS 3.6 servos only (an ICS 3.5 servo stays silent to the read,
         and goes offline in the stream); the torque is left as it is.
+
+        Raises:
+            InvalidArgument: an ID is not in the stream (nothing changes).
         """
         slots = [self._slot(i) for i in (self.ids if ids is None else units.check_ids("ids", ids))]
         for k in slots:

@@ -26,7 +26,11 @@ T = TypeVar("T")
 
 
 class BlockingServo(Wrapper[Servo]):
-    """:class:`~ics35_async.Servo` with blocking methods: ``servo.set_position(9000)`` returns the position."""
+    """:class:`~ics35_async.Servo` with blocking methods: ``servo.set_position(9000)`` returns the position.
+
+    Made by ``bus.servo(servo_id)`` of a blocking ``bus``, around the async ``servo``; each method
+    raises what the async one raises.
+    """
 
     __slots__ = ("bus",)
 
@@ -73,7 +77,10 @@ class BlockingServo(Wrapper[Servo]):
 
 
 class BlockingDevice(Wrapper[Device]):
-    """:class:`~ics35_async.Device` (a generic memory device) with blocking methods."""
+    """:class:`~ics35_async.Device` (a generic memory device) with blocking methods.
+
+    Made by ``bus.device(device_id)`` of a blocking ``bus``, around the async ``device``.
+    """
 
     __slots__ = ("bus",)
 
@@ -100,6 +107,13 @@ class BlockingBus(LoopOwner[Bus]):
     thread; each method call hands its work to that loop and waits for it.
     Errors are the library's own typed errors, raised in the calling thread.
     Several threads may share one bus (the bus serialises their requests).
+
+    Args:
+        bus: the async bus to open and run (``open_bus`` makes it).
+
+    Raises:
+        InvalidArgument: ``bus`` is not a [`Bus`][ics35_async.bus.Bus].
+        SerialPortError: the port cannot be opened.
     """
 
     __slots__ = ()
@@ -176,7 +190,15 @@ class BlockingBus(LoopOwner[Bus]):
     # ------------------------------------------------------------------ requests
 
     def request(self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None) -> T:
-        """Run one command (an ``ics35_async.protocol`` command object) and return its parsed reply."""
+        """Run one command (an ``ics35_async.protocol`` command object) and return its parsed reply.
+
+        ``priority`` and ``retries`` are as in [`Bus.request`][ics35_async.bus.Bus.request].
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            ReplyError: no valid reply.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return self._loop.call(self._async.request, command, priority=priority, retries=retries)
 
     def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
@@ -224,7 +246,13 @@ class BlockingBus(LoopOwner[Bus]):
     def stream(
         self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Unpack[StreamOptions]
     ) -> BlockingStream:
-        """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``."""
+        """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``.
+
+        ``rate_hz`` and the ``options`` ([`StreamOptions`][ics35_async.stream.StreamOptions]) are the stream's.
+
+        Raises:
+            InvalidArgument: an unknown option, a bad or duplicate ID or an out-of-range value.
+        """
         stream = self._loop.call_sync(self._async.stream, ids, rate_hz=rate_hz, **options)
         return BlockingStream(stream, self._loop)
 

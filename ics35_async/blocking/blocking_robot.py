@@ -87,6 +87,10 @@ class BlockingRobot(LoopOwner[Robot]):
     they return.  Properties are snapshots taken on the loop thread.  Errors
     are the async robot's own typed errors (:class:`~ics35_async.InvalidArgument`,
     :class:`~ics35_async.robot.SafetyStop`, ...), raised in the calling thread.
+
+    Args:
+        opener: the async robot's opener (what ``ics35_async.open_robot(...)`` returns), entered on the loop thread.
+        name: the loop thread's name.
     """
 
     __slots__ = ("_holder",)
@@ -141,13 +145,26 @@ class BlockingRobot(LoopOwner[Robot]):
         return self.run(self._async.read_pose)
 
     def move_to(self, pose: Mapping[str, float], duration: float = 1.0, profile: str = "minjerk") -> None:
-        """Move the named joints to ``pose`` in ``duration`` seconds; returns when the goal is on the wire."""
+        """Move the named joints to ``pose`` in ``duration`` seconds; returns when the goal is on the wire.
+
+        ``profile``: ``"minjerk"`` or ``"linear"``.
+
+        Raises:
+            InvalidArgument: an unknown joint, an angle outside its limits, a bad duration or profile.
+            SafetyStop: the safety watch stopped the motion.
+        """
         self.run(self._async.move_to, pose, duration, profile)
 
     def play(
         self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
     ) -> None:
-        """Play a motion (object, JSON file path or mapping); with ``loop`` until Ctrl-C."""
+        """Play a motion (object, JSON file path or mapping) at ``speed`` (2: twice as fast); ``loop``: until Ctrl-C.
+
+        Raises:
+            MotionError: the motion file breaks its format.
+            InvalidArgument: an unknown joint, an angle outside its limits or a bad ``speed``.
+            SafetyStop: the safety watch stopped the motion.
+        """
         self.run(self._async.play, motion, speed=speed, loop=loop)
 
     def free(self, joints: Iterable[str] | None = None) -> None:
@@ -169,7 +186,11 @@ class BlockingRobot(LoopOwner[Robot]):
         self._loop.call_sync(self._async.hold, joints)
 
     def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
-        """Targets in joint degrees, all checked first (``None`` frees, with ``allow_free``)."""
+        """Targets ``pose`` ``{joint: degrees}``, all checked first (``None`` frees, with ``allow_free``).
+
+        Raises:
+            InvalidArgument: an unknown joint, an angle outside its limits or a ``None`` without ``allow_free``.
+        """
         self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free)
 
     # ------------------------------------------------------------------ snapshots

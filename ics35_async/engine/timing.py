@@ -44,6 +44,8 @@ class BusTiming:
     def allowance(self, nbytes: int, baudrate: int, kind: Timing = Timing.NORMAL, extra: float = 0.0) -> float:
         """Seconds from writing a command to the deadline for the last byte of its reply.
 
+        ``nbytes``: command and reply bytes on the wire; ``baudrate``: the line rate; ``kind``: the
+        command's timing class (the EEPROM write and the ID command get their extra allowance);
         ``extra`` is what the engine has learnt a slow link adds (see LinkLatency).
         """
         allowance = wire_time(nbytes, baudrate) + self.turnaround + self.adapter_latency + extra

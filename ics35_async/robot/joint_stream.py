@@ -54,7 +54,11 @@ class RobotStream:
         self.robot.set_targets({joint: degrees})
 
     def set_targets(self, pose: Mapping[str, float]) -> None:
-        """Targets in joint degrees, all checked (names, limits) before any is applied."""
+        """Targets ``pose`` ``{joint: degrees}``, all checked (names, limits) before any is applied.
+
+        Raises:
+            InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
+        """
         self.robot.set_targets(pose)
 
     def free(self, joints: Iterable[str] | None = None) -> None:

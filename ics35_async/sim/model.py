@@ -198,7 +198,11 @@ class LineModel:
         return self._line_free
 
     def advance(self, seconds: float) -> None:
-        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs)."""
+        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs).
+
+        Raises:
+            InvalidArgument: ``seconds`` is negative.
+        """
         if seconds < 0:
             raise InvalidArgument("cannot go back in time")
         with self._lock:
@@ -212,12 +216,13 @@ class LineModel:
             self.table.update(self.now())
 
     def byte_time(self, baudrate: int | None = None) -> float:
+        """Seconds one byte occupies the wire at ``baudrate`` (default: the line's)."""
         return BITS_PER_BYTE / (baudrate or self.baudrate)
 
     # ------------------------------------------------------------------ the core
 
     def feed(self, data: bytes, now: float) -> Chunks:
-        """Host bytes written at ``now``: the chunks the host receives and when.
+        """Host bytes ``data`` written at ``now``: the chunks the host receives and when.
 
         Chunks come in delivery order; each time is the earliest moment the
         whole chunk may be delivered (line clock).  In fast mode a reply
@@ -388,7 +393,7 @@ class LineModel:
             heapq.heappush(self._deferred, (when, self._deferred_order, chunk))
 
     def process(self, data: bytes) -> Chunks:
-        """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
+        """:meth:`feed` ``data`` at the line's own clock (fast mode: then advance it)."""
         with self._lock:
             out = self.feed(data, self.now())
             if not self.realtime:  # behind an adapter, the host has the bytes only when its packet comes
@@ -420,6 +425,7 @@ class LineModel:
         return recorder
 
     def stop_recording(self) -> None:
+        """Stop recording and close the recording (see :meth:`record_to`)."""
         with self._lock:
             recorder, self._recorder = self._recorder, None
         if recorder is not None:

@@ -77,10 +77,12 @@ class VirtualLine(LineModel):
 
     @property
     def devices(self) -> list[Device]:
+        """Every device on the line, servos and memory devices."""
         return self.table.devices
 
     @property
     def servos(self) -> list[VirtualServo]:
+        """The servos on the line."""
         return self.table.servos
 
     def servo(self, servo_id: int) -> VirtualServo:
@@ -88,6 +90,7 @@ class VirtualLine(LineModel):
         return self.table.servo(servo_id)
 
     def memory_device(self, device_id: int) -> MemoryDevice:
+        """The (first) memory device whose ID is ``device_id``."""
         return self.table.memory_device(device_id)
 
     def add_device(self, device: Device) -> None:
@@ -105,6 +108,12 @@ class VirtualLine(LineModel):
     # ------------------------------------------------------------------ the WireDevice face
 
     def connect(self, host: HostSide, baudrate: int) -> None:
+        """Open the port for ``host`` at ``baudrate`` (the WireDevice face; the line follows the rate
+        with ``follow_host_baud``).
+
+        Raises:
+            OSError: the port is unplugged (``ENOENT``) or already open (``EBUSY``).
+        """
         with self._lock:
             if not self.plugged:
                 raise OSError(errno.ENOENT, "the simulated port is unplugged")
@@ -120,6 +129,12 @@ class VirtualLine(LineModel):
                 self.schedule_unplug(self.unplug_after, self.replug_after)
 
     def write(self, data: bytes) -> None:
+        """The host writes ``data``: the answers are delivered to it, at once (fast mode) or at their
+        wire time (real time).
+
+        Raises:
+            OSError: the port is not open or is gone (``EIO``).
+        """
         host = self._host
         if host is None:
             raise OSError(errno.EIO, "the simulated port is not open" if self.plugged else "the simulated port is gone")
@@ -140,6 +155,7 @@ class VirtualLine(LineModel):
                 self.unplug(replug_after=self.replug_after)
 
     def disconnect(self) -> None:
+        """Close the port for its host (what is still to be delivered is dropped)."""
         with self._lock:
             self._host = None
         self._stop_deliverer()
@@ -160,7 +176,8 @@ class VirtualLine(LineModel):
     def unplug(self, exc: Exception | None = None, *, replug_after: float | None = None) -> None:
         """The port disappears: the host loses the line, connect() fails until :meth:`replug`.
 
-        With ``replug_after`` (wall-clock seconds) the port comes back by itself.
+        The host's port is lost with ``exc`` (default: an ``ENODEV`` OSError).  With ``replug_after``
+        (wall-clock seconds) the port comes back by itself.
         """
         with self._lock:
             if not self.plugged:
@@ -180,6 +197,7 @@ class VirtualLine(LineModel):
             callback(False)
 
     def replug(self) -> None:
+        """The port comes back: ``connect`` works again."""
         with self._lock:
             if self.plugged:
                 return
