@@ -77,8 +77,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``position`` is not 1..16383.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         units.check_int("position", position, 1, protocol.POSITION_MAX)
         cmd = protocol.Position(self.id, position, baudrate=self._bus.baudrate)
@@ -91,8 +90,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``priority`` is not a priority.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         cmd = protocol.Position(self.id, protocol.FREE, baudrate=self._bus.baudrate)
         return await self._bus.request(cmd, priority=self.priority if priority is None else priority)
@@ -102,8 +100,7 @@ class Servo:
 
         Raises:
             InvalidArgument: the angle is outside -135..+135 degrees.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return units.position_to_degrees(await self.set_position(units.degrees_to_position(degrees)))
 
@@ -112,8 +109,7 @@ class Servo:
 
         Raises:
             InvalidArgument: the angle is outside -135..+135 degrees.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return units.position_to_radians(await self.set_position(units.radians_to_position(radians)))
 
@@ -121,8 +117,7 @@ class Servo:
         """Torque off (the servo goes limp) and return the angle in degrees: ICS 3.5's only position read.
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return units.position_to_degrees(await self.free())
 
@@ -131,8 +126,7 @@ class Servo:
         :meth:`read_position_degrees` (ICS 3.6: torque left alone).
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         warnings.warn(
             "Servo.read_degrees() turns the torque off; call free_and_read_degrees() for that, or "
@@ -157,8 +151,7 @@ class Servo:
         again next time).
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         known = self.known_position_read()
         if known is None:
@@ -173,8 +166,7 @@ class Servo:
 
         Raises:
             PositionReadUnsupported: the servo speaks ICS 3.5 (nothing was freed).
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         known = self.known_position_read()
         if known is None:
@@ -195,8 +187,7 @@ class Servo:
 
         Raises:
             PositionReadUnsupported: the servo speaks ICS 3.5 (nothing was freed).
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return units.position_to_degrees(await self.read_position())
 
@@ -237,8 +228,7 @@ class Servo:
         """The stretch (holding gain, 1..127) from RAM.
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.STRETCH)
 
@@ -246,8 +236,7 @@ class Servo:
         """The speed parameter (1..127) from RAM.
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.SPEED)
 
@@ -255,8 +244,7 @@ class Servo:
         """Raw current 0..127: bits 0-5 magnitude, bit 6 direction (see ``units.current_from_raw``).
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.CURRENT)
 
@@ -264,8 +252,7 @@ class Servo:
         """Raw temperature 1..127; SMALLER is HOTTER (see ``units.temperature_to_celsius``).
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.TEMPERATURE)
 
@@ -274,8 +261,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``value`` is not 1..127.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._write(Param.STRETCH, value)
 
@@ -284,8 +270,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``value`` is not 1..127.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._write(Param.SPEED, value)
 
@@ -294,8 +279,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``value`` is not 1..63.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._write(Param.CURRENT, value)
 
@@ -304,8 +288,7 @@ class Servo:
 
         Raises:
             InvalidArgument: ``value`` is not 1..127.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._write(Param.TEMPERATURE, value)
 
@@ -314,8 +297,7 @@ class Servo:
 
         Raises:
             MalformedEeprom: the image has a bad length or a byte that is not a nibble.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._bus.request(protocol.ReadEeprom(self.id), priority=self.priority)
 
@@ -349,8 +331,7 @@ class Servo:
                 ``allow_...`` flag (nothing is written).
             VerifyError: the image read back differs from the one written.
             MalformedEeprom: the servo's current image has a bad length or a byte that is not a nibble.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
