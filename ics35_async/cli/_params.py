@@ -10,6 +10,7 @@ import click
 from .. import protocol
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from ..units import parse_ids
 from ._settings import Settings
 
 T = TypeVar("T")
@@ -18,28 +19,13 @@ ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
 
 
 def parse_id_list(text: str) -> list[int]:
-    """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else."""
-    text = text.strip().lower()
-    if text in ("all", "*"):
+    """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else (or nothing)."""
+    if text.strip().lower() in ("all", "*"):
         return list(range(32))
-    ids: set[int] = set()
-    for part in text.replace(" ", ",").split(","):
-        if not part:
-            continue
-        low_s, dash, high_s = part.partition("-")
-        try:
-            low = int(low_s)
-            high = int(high_s) if dash else low
-        except ValueError:
-            raise InvalidArgument(f"{part!r} is not an ID or a range like 1-12") from None
-        if low > high:
-            raise InvalidArgument(f"range {part!r} runs backwards")
-        for i in (low, high):
-            protocol.check_id(i)
-        ids.update(range(low, high + 1))
+    ids = parse_ids(text)
     if not ids:
         raise InvalidArgument("no IDs given")
-    return sorted(ids)
+    return ids
 
 
 class ServoIdType(click.ParamType[int]):

@@ -82,8 +82,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ..units import parse_ids
 from .devices import garble
-from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
+from .faults import FAULT_KINDS, FaultConfig, FaultInjector
 from .launch import serving, start_subprocess, stop_subprocess
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel, LineModelOptions
 from .precise_wait import Deliverer, lower_timer_slack, wait_until

@@ -41,6 +41,7 @@ import random
 from dataclasses import dataclass, field
 
 from ..errors import InvalidArgument
+from ..units import parse_ids
 
 # New kinds go at the end: a draw walks this order, so the same seed keeps giving the same faults.
 REPLY_FAULTS = ("drop", "truncate", "corrupt", "msb", "late", "tail")
@@ -56,28 +57,6 @@ def _rate(text: str, item: str) -> float:
     if not 0.0 <= value <= 1.0:
         raise InvalidArgument(f"fault rate in {item!r} must be in 0..1")
     return value
-
-
-def parse_ids(text: str) -> list[int]:
-    """``text`` such as ``"0-31"`` or ``"1,3,5-7"`` -> sorted unique IDs 0..31.
-
-    Raises:
-        InvalidArgument: an item is not an ID or a range within 0..31.
-    """
-    ids: set[int] = set()
-    for part in text.replace(" ", "").split(","):
-        if not part:
-            continue
-        low_text, dash, high_text = part.partition("-")
-        try:
-            low = int(low_text)
-            high = int(high_text) if dash else low
-        except ValueError:
-            raise InvalidArgument(f"bad ID list item {part!r} (use e.g. 0-31 or 1,3,5-7)") from None
-        if not 0 <= low <= high <= 31:
-            raise InvalidArgument(f"ID range {part!r} must lie within 0..31")
-        ids.update(range(low, high + 1))
-    return sorted(ids)
 
 
 @dataclass

@@ -14,8 +14,9 @@ from urllib.parse import parse_qs, urlsplit
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..transports import WireDevice
+from ..units import parse_ids
 from .adapter import make_adapter
-from .faults import FaultConfig, parse_ids
+from .faults import FaultConfig
 from .record import ReplayDevice
 from .virtual_line import VirtualLine, named
 
