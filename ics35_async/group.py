@@ -7,18 +7,18 @@ merged frame holds every line's newest cycle.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Unpack
 
 import anyio
 
 from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
-from .frames import Frame, GroupFrame, StreamStats
+from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream
 
 
-class GroupStream:
+class GroupStream(FrameIterator[GroupFrame]):
     """Streams on several lines at once, each at its own pace, giving merged frames.
 
     :meth:`next_frame` waits until every line has completed a cycle newer
@@ -123,15 +123,6 @@ class GroupStream:
             line_cycles={line: f.cycle for line, f in frames.items()},
             skipped=max(f.skipped for f in frames.values()),
         )
-
-    def __aiter__(self) -> AsyncIterator[GroupFrame]:
-        return self
-
-    async def __anext__(self) -> GroupFrame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
 
     @property
     def stats(self) -> dict[str, StreamStats]:

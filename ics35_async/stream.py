@@ -14,7 +14,7 @@ import math
 import statistics
 import warnings
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import Literal, TypedDict
 
@@ -23,7 +23,7 @@ import anyio
 from . import protocol, units
 from .engine.source import BoundSource, keep_old_hook_names
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
-from .frames import Frame, StreamStats, percentile
+from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
 
@@ -57,7 +57,7 @@ class StreamOptions(TypedDict, total=False):
     free_on_close: bool  # deprecated: on_close="free"
 
 
-class Stream:
+class Stream(FrameIterator[Frame]):
     """Streams position targets to ``ids`` and publishes a :class:`Frame` per cycle.
 
     Create with :meth:`Bus.stream` and use as ``async with``.  Every ID
@@ -502,16 +502,6 @@ class Stream:
     def latest(self) -> Frame | None:
         """The newest published frame (does not mark it consumed)."""
         return self._latest
-
-    def __aiter__(self) -> AsyncIterator[Frame]:
-        return self
-
-    async def __anext__(self) -> Frame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            # Closing ends the iteration; losing the port (PortLost) is raised.
-            raise StopAsyncIteration from None
 
     @property
     def stats(self) -> StreamStats:
