@@ -11,17 +11,8 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ._common import ID_LIST, confirm, ids_text, out, run, yes_option
-from ._live import (
-    BUILT_IN_SIM,
-    LiveOptions,
-    TargetFunction,
-    discover,
-    final_report,
-    live_settings,
-    run_live,
-    stream_options,
-)
+from ._common import ID_LIST, confirm, ids_text, out, run, settings_of, yes_option
+from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._telemetry import Telemetry
@@ -93,9 +84,10 @@ def demo(
     Hardware:      ics35 --port /dev/ttyUSB0 demo --ids 1-12 --amplitude 20
     Without --ids on hardware, demo scans and asks before moving every servo it finds (--yes skips that).
     """
-    settings, shown = live_settings(ctx, plot, "ids=0-31&")
-    if shown == BUILT_IN_SIM:
+    settings = settings_of(ctx)
+    if settings.port == "sim://":
         ids = ids or list(range(32))
+    shown = live_port(settings, plot, "ids=0-31&")
     if amplitude is None:
         # A real robot's joints may hit each other or the frame: start small there.
         amplitude = 45.0 if settings.is_sim else 15.0

@@ -26,18 +26,7 @@ from ..errors import BusClosed, IcsError, PortLost
 from ..frames import Frame
 from ..stream import Stream
 from ._basic import probe_ids
-from ._common import (
-    NO_REPLY_HINTS,
-    CliError,
-    ExitCode,
-    Settings,
-    emit_json,
-    err,
-    ids_text,
-    nothing_answered,
-    out,
-    settings_of,
-)
+from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._telemetry import Telemetry
@@ -162,22 +151,18 @@ async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
     return answered
 
 
-BUILT_IN_SIM = "the built-in simulator"  # the port as shown when the default sim:// runs
-
-
-def live_settings(ctx: click.Context, plot: str | None, sim_query: str = "") -> tuple[Settings, str]:
-    """A live command's settings and its port as shown; a --plot path is checked first (nothing sent).
+def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:
+    """A live command's port as shown; a --plot path is checked first (nothing sent).
 
     The default ``sim://`` becomes a real-time simulator (``sim_query`` adds to its URL): real time
     paces replies at the modelled wire time, so the rate shown is the real one.
     """
-    settings = settings_of(ctx)
     if plot is not None:
         check_plot_path(plot)
     if settings.port != "sim://":
-        return settings, settings.port
+        return settings.port
     settings.port = f"sim://?{sim_query}realtime=1&baud={settings.baud}"
-    return settings, BUILT_IN_SIM
+    return "the built-in simulator"
 
 
 def final_report(

@@ -7,8 +7,8 @@ from rich.markup import escape
 
 from .. import policies
 from ._basic import NO_READ_35
-from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run
-from ._live import LiveOptions, discover, final_report, live_settings, run_live, stream_options
+from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, settings_of
+from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._telemetry import Telemetry
@@ -40,7 +40,8 @@ def monitor(
     current and temperature but no position.  IDS: 1-12, 0,3,5, all (default:
     the IDs that answer a scan).  --json prints one JSON line per second.
     """
-    settings, shown = live_settings(ctx, plot)
+    settings = settings_of(ctx)
+    shown = live_port(settings, plot)
     options = LiveOptions(
         seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot, free_at_end=free_servos
     )
