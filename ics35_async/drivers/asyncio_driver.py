@@ -76,6 +76,8 @@ class AsyncioDriver:
 
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        if self.line is not None:
+            self.line.stop_burst()
         self.engine.disconnected()
         line, self.line = self.line, None
         if line is not None:
@@ -88,8 +90,10 @@ class AsyncioDriver:
 
     async def aclose(self) -> None:
         engine = self.engine
-        engine.close()
         line = self.line
+        if line is not None:
+            line.stop_burst()  # the engine hears the burst's bytes first (one transaction at most)
+        engine.close()
         if engine.state is State.DRAINING and line is not None:
             waiter = self.loop.create_future()
             line.idle_waiters.append(waiter)
@@ -147,16 +151,25 @@ class AsyncioDriver:
 
     def submit(self, command: Command[T], priority: int, retries: int) -> asyncio.Future[T]:
         fut: asyncio.Future[T] = self.loop.create_future()
-        out = self.engine.submit(FutureRequest(command, fut, priority, retries), now())
-        if out is not None and self.line is not None:
-            self.line.pump(out)
+        request = FutureRequest(command, fut, priority, retries)
+        line = self.line
+        if line is not None and line.burst is not None and line.burst.running:
+            line.burst.submit(request, now())  # it joins the queue where the burst stops
+            return fut
+        out = self.engine.submit(request, now())
+        if out is not None and line is not None:
+            line.pump(out)
         return fut
 
     def call(self, step: Callable[[float], bytes | None]) -> None:
         """Run an engine call (given the time): write what it answers and follow its deadline."""
+        line = self.line
+        if line is not None and line.burst is not None and line.burst.running:
+            line.burst.hold(step)  # where the burst stops (it is mid-transaction then: nothing to write)
+            return
         out = step(now())
-        if self.line is not None:
-            self.line.pump(out)
+        if line is not None:
+            line.pump(out)
 
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` now: the engine runs on the caller's loop."""

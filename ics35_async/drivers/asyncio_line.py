@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 from ..engine import LineEngine, Request, State
 from ..errors import IcsError
 from ..protocol import Command
+from .burst import FAILED, BurstRunner, open_runner
 from .clock import now
 
 log = logging.getLogger("ics35_async")
@@ -73,16 +75,28 @@ class AsyncioLine(asyncio.Protocol):
         self.idle_waiters: list[asyncio.Future[None]] = []
         # Done once the transport has released the port (some close it from an executor, later).
         self.closed: asyncio.Future[None] = loop.create_future()
+        # The burst path (see .burst), on ports with a descriptor when the executor is built.
+        self.burst: BurstRunner | None = None
 
     # ------------------------------------------------------------------ from the transport
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
+        fd = getattr(transport, "burst_fd", None)
+        if fd is not None:
+            marks = getattr(transport, "marks", None)
+            decode = marks.decode if marks is not None else None
+            self.burst = open_runner(self.engine, fd, decode, transport.in_between)  # type: ignore[attr-defined]
+            if self.burst is not None:
+                self.loop.add_reader(self.burst.done_fd, self._burst_done)
 
     def data_received(self, data: bytes) -> None:
         engine = self.engine
         out = engine.receive(data, now())
         if out is not None:
+            burst = self.burst
+            if burst is not None and self._start_burst(burst):
+                return
             try:
                 self.transport.write(out)  # type: ignore[union-attr]
             except Exception as exc:  # the port vanished under us (or was already gone: None)
@@ -100,6 +114,7 @@ class AsyncioLine(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.cancel_timer()
+        self.close_burst()
         if not self.closed.done():
             self.closed.set_result(None)
         self._on_lost(self, exc)
@@ -109,6 +124,9 @@ class AsyncioLine(asyncio.Protocol):
     def write(self, data: bytes) -> None:
         transport = self.transport
         if transport is None:
+            return
+        burst = self.burst
+        if burst is not None and self._start_burst(burst):
             return
         try:
             transport.write(data)
@@ -124,14 +142,67 @@ class AsyncioLine(asyncio.Protocol):
         """After any engine call from outside the I/O callbacks: write, arm, wake waiters."""
         if out is not None:
             self.write(out)
-        if self.engine.deadline < self._armed:
+        if self.engine.deadline < self._armed and not self.bursting:
             self._arm()
         if self.idle_waiters and self.engine.idle:
             self.release_idle_waiters()
 
+    # ------------------------------------------------------------------ the burst path
+
+    @property
+    def bursting(self) -> bool:
+        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
+        return self.burst is not None and self.burst.running
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        """The engine just put a stream transaction on the wire: run it and the rest of the plan as a burst."""
+        if not burst.start():
+            return False
+        self.transport.pause_reading()  # type: ignore[union-attr]  # the executor reads the port now
+        self.cancel_timer()  # and keeps the deadlines
+        return True
+
+    def _burst_done(self, *, wait: bool = False) -> None:
+        burst = self.burst
+        if burst is None or not burst.running:
+            return
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if wait:
+            self.close_burst()  # closing or reopening: the rest goes the ordinary way
+        transport = self.transport
+        if burst.status == FAILED:
+            self.write_failed(OSError(burst.errno, os.strerror(burst.errno)))
+            return
+        if transport is None or transport.is_closing():
+            return
+        transport.resume_reading()  # a hang-up or what came after the burst: the ordinary read sees it
+        self.pump(out)
+
+    def stop_burst(self) -> None:
+        """Stop a running burst at its next boundary, feed its bytes to the engine, now, and take
+        the ordinary path from then on.
+
+        Blocks for at most one transaction (closing or reopening the port): no await, so a
+        cancelled close still leaves the engine knowing what was on the wire.
+        """
+        if self.bursting:
+            self._burst_done(wait=True)
+        else:
+            self.close_burst()
+
+    def close_burst(self) -> None:
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            self.loop.remove_reader(burst.done_fd)
+            burst.close()
+
     # ------------------------------------------------------------------ time
 
     def _arm(self) -> None:
+        if self.bursting:  # the executor keeps the deadlines until the burst is fed
+            return
         if self._timer is not None:
             self._timer.cancel()
         deadline = self.engine.deadline

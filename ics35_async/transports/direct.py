@@ -126,6 +126,22 @@ class DirectSerialTransport(asyncio.Transport):
     def serial(self) -> serial.Serial | None:
         return self._serial
 
+    # -- the burst path (ics35_async.drivers.burst): a compiled executor reads and writes the descriptor
+
+    @property
+    def burst_fd(self) -> int:
+        """The descriptor a burst executor may run transactions on while reading is paused."""
+        return self._fd
+
+    @property
+    def marks(self) -> ParityMarks | None:
+        """The decoder of the kernel's parity marks, when the port marks them."""
+        return self._marks
+
+    def in_between(self) -> bool:
+        """Bytes still to write, or half a parity mark read: the ordinary path must finish them first."""
+        return bool(self._buffer) or (self._marks is not None and self._marks.pending)
+
     # -- reading
 
     def _start_reading(self) -> None:
