@@ -75,10 +75,10 @@ def stream_over(servos: Servos, ids: list[int]) -> tuple[Wire, FakeSource, list[
 def test_a_reply_later_than_the_streams_short_wait_is_never_taken_for_another_answer(
     ids: list[int], delay: float
 ) -> None:
-    # Write 30 is answered late: after the stream's short wait (a few ms here), within the full
+    # Write 60 is answered late: after the stream's short wait (a few ms here), within the full
     # 20 ms allowance.  The stream gives up on it and goes on; that reply must fail whatever it
     # lands in (or land in a resync), never pass for the same servo's next answer or another's.
-    servos = LateOnce(ids, late_write=30, delay=delay)
+    servos = LateOnce(ids, late_write=60, delay=delay)
     wire, source, taken = stream_over(servos, ids)
     wire.run_for(0.2)
     assert source.failures, "the stream waited the full allowance: the short wait was not used"
@@ -88,12 +88,12 @@ def test_a_reply_later_than_the_streams_short_wait_is_never_taken_for_another_an
 
 
 def test_the_same_servo_is_held_back_until_its_late_reply_can_no_longer_come() -> None:
-    servos = LateOnce([1, 2], late_write=30, delay=0.012)
+    servos = LateOnce([1, 2], late_write=60, delay=0.012)
     wire, source, _ = stream_over(servos, [1, 2])
     wire.run_for(0.2)
     engine = wire.engine
-    t_late, tx_late = wire.writes[30]
-    later = [t for t, tx in wire.writes[31:] if tx[0] == tx_late[0]]
+    t_late, tx_late = wire.writes[60]
+    later = [t for t, tx in wire.writes[61:] if tx[0] == tx_late[0]]
     hold = engine.timing.allowance(6, engine.baudrate, protocol.Timing.NORMAL) + engine.timing.quiet_time
     assert later[0] >= t_late + hold - 1e-9
     assert source.skipped > 0 and engine.counters.held_back == source.skipped
@@ -101,11 +101,11 @@ def test_the_same_servo_is_held_back_until_its_late_reply_can_no_longer_come() -
 
 
 def test_a_request_to_a_held_servo_waits_for_the_hold_and_gets_its_own_answer() -> None:
-    servos = LateOnce([1, 2], late_write=30, delay=0.012)
+    servos = LateOnce([1, 2], late_write=60, delay=0.012)
     wire, _, _ = stream_over(servos, [1, 2])
-    while len(wire.writes) <= 31:
+    while len(wire.writes) <= 61:
         wire.run_for(0.0005)
-    t_late, tx_late = wire.writes[30]
+    t_late, tx_late = wire.writes[60]
     req = Recorded(position(tx_late[0] & 0x1F), wire=wire)
     wire.submit(req)
     wire.run_for(0.2)
@@ -146,10 +146,10 @@ class TailAfterAnotherEcho(Servos):
 def test_a_partial_replys_tail_after_another_commands_echo_does_not_pass_for_its_reply() -> None:
     # The tail has no header to tell it by: with the other reply's first byte it fits that reply's
     # length and header.  The rest of the real reply right behind it shows the mix-up.
-    servos = TailAfterAnotherEcho(cut=20)
+    servos = TailAfterAnotherEcho(cut=60)
     wire, _, taken = stream_over(servos, [1, 5])
     wire.run_for(0.1)
-    assert servos.answers[20] is not None and not servos.tail  # the scene happened
+    assert servos.answers[60] is not None and not servos.tail  # the scene happened
     wrong = [(k, v, servos.answers[k]) for k, v in taken if v != servos.answers[k]]
     assert not wrong, f"(write, value taken, value that write was answered) {wrong}"
     assert len(taken) > 50

@@ -23,7 +23,7 @@ from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error, timeout_error
-from .probe import AnswerTimes
+from .probe import STREAM_RESYNC, AnswerTimes
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -108,6 +108,7 @@ class LineEngine:
         # First bytes (command and ID) whose reply may still come after a short wait: no command
         # that starts with one goes on the wire before its time here (see _hold).
         self._held: dict[int, float] = {}
+        self._hold_wake = INF
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
         self._settling = False  # this transaction's reply is in; waiting to see no more comes
@@ -220,6 +221,7 @@ class LineEngine:
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
             "guard_suspect": self.guard.suspect.hex(" "),
+            "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
         }
 
     @property
@@ -333,6 +335,7 @@ class LineEngine:
         """
         source = self._source
         queue = self.queue
+        self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
         if queue.count:
             due = None if source is None else source.slot_due(now)
             if due is None:
@@ -362,12 +365,12 @@ class LineEngine:
             self.deadline = source.wake_at
         else:
             self.deadline = INF
-        if self._held:  # something may be waiting for a hold to end (see _hold)
+        if self._held:
             held = self._held
             for first in [b for b, until in held.items() if until <= now]:
                 del held[first]
-            if held:
-                self.deadline = min(self.deadline, min(held.values()))
+            if self._hold_wake < self.deadline:
+                self.deadline = self._hold_wake
         return None
 
     def _skip_held(
@@ -390,6 +393,7 @@ class LineEngine:
                 del held[first]
                 return offer
             if first in skipped:
+                self._hold_wake = min(self._hold_wake, until)
                 return None
             skipped.add(first)
             self.counters.held_back += 1
@@ -401,7 +405,9 @@ class LineEngine:
         """Put the queue's next request on the wire; None if only abandoned ones were left."""
         if self._held:  # a request whose reply a held one could pass for waits for the hold to end
             head = self.queue.peek()
-            if head is not None and self._held.get(head.command.tx[0], 0.0) > now:
+            until = 0.0 if head is None else self._held.get(head.command.tx[0], 0.0)
+            if until > now:
+                self._hold_wake = min(self._hold_wake, until)
                 return None
         req = self.queue.pop()
         if req is None:
@@ -463,17 +469,16 @@ class LineEngine:
         # The link's bookkeeping (lateness learnt, replies owed) is measured against the full
         # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
-        if timing is PROBE:
-            self._short = True
+        self._short = timing is PROBE
+        if self._short:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
-        elif req is None and self.answers.slowest >= 0:
-            # The stream waits what this line's answers have taken, not the adapter's worst case: a
+        elif req is None and self.answers.stream_latency is not None:
+            # The stream waits what this line's answers take, not the adapter's worst case: a
             # failure then costs the control loop little.  Its reply may still come later: see _hold.
-            short = self.answers.allowance(allowance, self._wire_time(nbytes))
-            self._short = short < allowance
-            allowance = short
-        else:
-            self._short = False
+            short = self._wire_time(nbytes) + self.answers.stream_latency
+            if short < allowance:
+                self._short = True
+                allowance = short
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -535,7 +540,8 @@ class LineEngine:
                     self._hold(now)
                 source.fail(rejected, now)
                 return out
-            self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
+            if over <= 0:  # (a reply later than the full allowance is a fault the link's extra caught, not a norm)
+                self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
         else:
             try:
                 value = req.command.parse(bytes(buf[echo_len:]))
@@ -613,7 +619,7 @@ class LineEngine:
             if partial:
                 self._tail_until = self._held[tx[0]]  # see _settle
         elif probe and not partial:
-            self._short_resync(now)  # silence at a probed ID (see .probe)
+            self._short_resync(now, self.answers.latency)  # silence at a probed ID (see .probe)
         if partial and self.state is State.QUIET and req is not None:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
             # long again as the transaction's full allowance, so its arrival is seen and learnt.
@@ -644,10 +650,9 @@ class LineEngine:
         partial reply has no header to tell it by: see _settle.
         """
         self._held[self._tx[0]] = self._t_start + self._base + self.link.extra + self.timing.quiet_time
-        self._short_resync(now)
+        self._short_resync(now, STREAM_RESYNC)
 
-    def _short_resync(self, now: float) -> None:
-        latency = self.answers.latency
+    def _short_resync(self, now: float, latency: float | None) -> None:
         if self.state is QUIET and latency is not None:
             self._quiet_span = min(self._quiet_span, latency)
             self._quiet_until = min(self._quiet_until, now + latency + self.link.extra)

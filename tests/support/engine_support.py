@@ -103,6 +103,7 @@ class Wire:
         self.delivered: list[object] = []  # the tag of each arrival delivered, in order
         self._arrivals: list[tuple[float, int, bytes, int, object]] = []  # (time, order, bytes, parity errors, tag)
         self._order = itertools.count()
+        self.on_write: Callable[[], None] | None = None  # called as each write goes out
 
     # -- what the world does
 
@@ -128,6 +129,8 @@ class Wire:
             self.flushes += 1
             out = out.then
         if out is not None:
+            if self.on_write is not None:
+                self.on_write()
             self.writes.append((self.now, out))
             self.marks.append(len(self.delivered))
             if self.answer is not None:
