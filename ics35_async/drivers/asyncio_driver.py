@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from ..engine import LineEngine, State
@@ -52,6 +53,10 @@ class AsyncioDriver(DriverCore):
         self._supervisor: asyncio.Task[None] | None = None
 
     # ------------------------------------------------------------------ life cycle
+
+    async def _in_thread(self, call: Callable[[], Port]) -> Port:
+        return await self.loop.run_in_executor(None, call)  # the loop's own executor, kept for its lifetime
+
 
     async def open(self) -> None:
         port = await self._open()

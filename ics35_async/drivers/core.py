@@ -27,6 +27,7 @@ import contextlib
 import itertools
 import logging
 import math
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
@@ -190,6 +191,8 @@ class DriverCore:
     async def _open(self) -> Port:
         """Open the port in a worker thread (closed again if the caller is cancelled meanwhile)."""
         opened: list[Port] = []
+        abandoned: list[bool] = []
+        lock = threading.Lock()
 
         def opening() -> Port:
             port = open_port(
@@ -199,15 +202,25 @@ class DriverCore:
                 direction=self.settings.direction,
                 blocking_reads=self.blocking_reads,
             )
-            opened.append(port)
+            with lock:
+                if abandoned:  # the caller gave up while this thread was opening it
+                    port.close()
+                else:
+                    opened.append(port)
             return port
 
         try:
-            return await anyio.to_thread.run_sync(opening)
+            return await self._in_thread(opening)
         except BaseException:
+            with lock:
+                abandoned.append(True)
             for port in opened:
                 port.close()
             raise
+
+    async def _in_thread(self, call: Callable[[], Port]) -> Port:
+        """Run a blocking ``call`` in a worker thread of the running event loop's library."""
+        return await anyio.to_thread.run_sync(call)
 
     def _connected(self, port: Port) -> None:
         """``port`` is open: wait on it, and tell the engine (which may have work at once).  Under the lock."""
