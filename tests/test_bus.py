@@ -23,7 +23,6 @@ from ics35_async import (
     InvalidArgument,
     PortLost,
     Priority,
-    ReplyDataError,
     ReplyError,
     ReplyTimeout,
     UnsafeOperation,

@@ -57,7 +57,6 @@ class AsyncioDriver(DriverCore):
     async def _in_thread(self, call: Callable[[], Port]) -> Port:
         return await self.loop.run_in_executor(None, call)  # the loop's own executor, kept for its lifetime
 
-
     async def open(self) -> None:
         port = await self._open()
         self._connected(port)

@@ -8,7 +8,6 @@ which reads them on its own side, never from inside ``write``.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import logging
 from collections import deque
@@ -93,5 +92,5 @@ class DevicePort:
         self._gone = True
         try:
             self.device.disconnect()
-        except Exception:  # noqa: BLE001 -- a device that fails to let go is gone all the same
+        except Exception:
             log.debug("device %r failed to disconnect", self.device, exc_info=True)

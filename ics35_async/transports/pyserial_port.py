@@ -18,14 +18,12 @@ import time
 import serial
 import serial.rfc2217
 
-from .serial_port import READ_POLL
 from .wire_device import HostSide
 
 SERIAL_POLL = 0.005
 """Seconds the thread driver's read of such a port blocks: its deadlines are judged up to this late,
 since such a read cannot be woken everywhere.  A reader thread's reads block for ``READ_POLL`` before it
 looks whether it should stop (most ports wake it at once through ``cancel_read``)."""
-
 
 
 class SerialPort:

@@ -183,5 +183,5 @@ class TtyPort:
         self.pending.clear()
         try:
             self.serial.close()
-        except Exception:  # noqa: BLE001 -- a port that is gone may refuse even this
+        except Exception:
             log.debug("closing %s failed", self.serial.port, exc_info=True)
