@@ -82,10 +82,6 @@ def _set_event(request: CallerRequest) -> None:
     request.waiter.event.set()  # type: ignore[attr-defined]
 
 
-def _nobody() -> None:
-    pass
-
-
 class AnyioDriver(DriverCore):
     """Runs one :class:`LineEngine` in a task of its own, under any anyio backend."""
 
@@ -186,7 +182,7 @@ class AnyioDriver(DriverCore):
 
     def _unwatch(self, port: Port) -> None:
         if isinstance(port, DevicePort):
-            port.on_input = _nobody
+            port.stop_telling()
         self._rewait()
 
     def _input_came(self) -> None:

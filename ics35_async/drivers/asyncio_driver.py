@@ -19,48 +19,39 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-from collections.abc import Callable
 from typing import Any
 
 from ..engine import LineEngine, State
 from ..protocol import Command
+from ..transports.device_port import DevicePort
 from ..transports.opening import Port
+from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .clock import now
-from .core import INF, CallerRequest, DriverCore, settle_future
+from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
 
 IDLE = State.IDLE
 
 
-def _nobody() -> None:
-    pass
-
-
-class AsyncioDriver(DriverCore):
+class AsyncioDriver(LoopDriver):
     """Runs one :class:`LineEngine` on the running asyncio loop."""
 
     name = "asyncio"
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
         super().__init__(engine, port, settings)
-        self.loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
         self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
         self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self._writing = False  # a writer waits for a tty to take what a partial write left
-        self._lost = asyncio.Event()
-        self._supervisor: asyncio.Task[None] | None = None
 
     # ------------------------------------------------------------------ life cycle
-
-    async def _in_thread(self, call: Callable[[], Port]) -> Port:
-        return await self.loop.run_in_executor(None, call)  # the loop's own executor, kept for its lifetime
 
     async def open(self) -> None:
         port = await self._open()
         self._connected(port)
-        self._supervisor = self.loop.create_task(self._supervise(), name=f"ics35 bus {self.target}")
+        self._supervise()
 
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
@@ -73,11 +64,7 @@ class AsyncioDriver(DriverCore):
         try:
             await self._drain()
         finally:
-            if self._supervisor is not None:
-                self._supervisor.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await self._supervisor
-                self._supervisor = None
+            await self._end_supervisor()
             self._drop_port()
             self._release_idle()
 
@@ -87,31 +74,25 @@ class AsyncioDriver(DriverCore):
             self._lost.set()
         return again
 
-    async def _supervise(self) -> None:
-        while True:
-            await self._lost.wait()
-            self._lost.clear()
-            await self._reconnect()
-
     # ------------------------------------------------------------------ waiting on the port
 
     def _watch(self, port: Port) -> None:
-        if port.kind == "tty":
-            self.loop.add_reader(port.fd, self._readable)  # type: ignore[union-attr]
-        else:
-            port.on_input = self._input_came  # type: ignore[union-attr]
-            if port.has_input:  # type: ignore[union-attr]
+        if isinstance(port, TtyPort):
+            self.loop.add_reader(port.fd, self._readable)
+        elif isinstance(port, DevicePort):  # (a port without a descriptor comes behind a reader thread)
+            port.on_input = self._input_came
+            if port.has_input:
                 self._input_came()  # delivered while it opened
 
     def _unwatch(self, port: Port) -> None:
         self.cancel_timer()
-        if port.kind == "tty":
-            self.loop.remove_reader(port.fd)  # type: ignore[union-attr]
+        if isinstance(port, TtyPort):
+            self.loop.remove_reader(port.fd)
             if self._writing:
-                self.loop.remove_writer(port.fd)  # type: ignore[union-attr]
+                self.loop.remove_writer(port.fd)
                 self._writing = False
-        else:
-            port.on_input = _nobody  # type: ignore[union-attr]
+        elif isinstance(port, DevicePort):
+            port.stop_telling()
 
     def _input_came(self) -> None:
         # Never read from inside the device's call: the engine may be in the middle of a write.
@@ -136,21 +117,21 @@ class AsyncioDriver(DriverCore):
                 self._arm()
 
     def _write_blocked(self, port: Port) -> None:
-        if not self._writing:
+        if not self._writing and isinstance(port, TtyPort):
             self._writing = True
-            self.loop.add_writer(port.fd, self._writable)  # type: ignore[union-attr]
+            self.loop.add_writer(port.fd, self._writable)
 
     def _writable(self) -> None:
         port = self.port
-        if port is None:
+        if not isinstance(port, TtyPort):
             return
         try:
-            done = port.write_pending()  # type: ignore[union-attr]
+            done = port.write_pending()
         except OSError as exc:
             self._lose(port, exc)
             return
         if done:
-            self.loop.remove_writer(port.fd)  # type: ignore[union-attr]
+            self.loop.remove_writer(port.fd)
             self._writing = False
 
     # ------------------------------------------------------------------ time

@@ -23,6 +23,7 @@ where the engine runs on another thread than its callers, ``notify``.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import itertools
 import logging
@@ -325,3 +326,37 @@ class DriverCore:
             with self.lock:
                 engine.abort()
                 self._release_idle()
+
+
+class LoopDriver(DriverCore):
+    """A driver whose callers run on an asyncio loop: ports open in the loop's own executor (kept for
+    its lifetime), and a supervisor task on the loop reopens a lost port."""
+
+    def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
+        super().__init__(engine, port, settings)
+        self.loop = asyncio.get_running_loop()
+        self._lost = asyncio.Event()  # set (on the loop) when a lost port is to be reopened
+        self._supervisor: asyncio.Task[None] | None = None
+
+    async def _in_thread(self, call: Callable[[], Port]) -> Port:
+        return await self.loop.run_in_executor(None, call)
+
+    def _supervise(self) -> None:
+        self._supervisor = self.loop.create_task(self._supervisor_task(), name=f"ics35 bus {self.target}")
+
+    async def _supervisor_task(self) -> None:
+        while True:
+            await self._lost.wait()
+            self._lost.clear()
+            await self._before_reconnect()
+            await self._reconnect()
+
+    async def _before_reconnect(self) -> None:
+        """Anything to end before the port is reopened."""
+
+    async def _end_supervisor(self) -> None:
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._supervisor
+            self._supervisor = None

@@ -18,7 +18,6 @@ reopens it with the bus's back-off and starts a new one.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import errno
 import logging
@@ -38,7 +37,7 @@ from ..transports.pyserial_port import SerialPort
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .clock import now
-from .core import INF, CallerRequest, DriverCore, settle_future
+from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
 
 log = logging.getLogger("ics35_async")
@@ -145,7 +144,7 @@ class _DeviceWait:
         pass
 
     def close(self) -> None:
-        self.port.on_input = _nobody
+        self.port.stop_telling()
 
 
 class _SerialWait:
@@ -169,14 +168,10 @@ class _SerialWait:
         pass
 
 
-def _nobody() -> None:
-    pass
-
-
 _Wait = _TtyWait | _DeviceWait | _SerialWait
 
 
-class ThreadDriver(DriverCore):
+class ThreadDriver(LoopDriver):
     """Runs one :class:`LineEngine` in an I/O thread, for callers on the running asyncio loop."""
 
     name = "thread"
@@ -184,32 +179,22 @@ class ThreadDriver(DriverCore):
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
         super().__init__(engine, port, settings)
-        self.loop = asyncio.get_running_loop()
         self.lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._wait: _Wait | None = None
         self._running = _Run()
         self._write_error: tuple[Port, OSError] | None = None  # from a write in the caller's thread
-        self._lost = asyncio.Event()
-        self._supervisor: asyncio.Task[None] | None = None
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
-
-    async def _in_thread(self, call: Callable[[], Port]) -> Port:
-        return await self.loop.run_in_executor(None, call)  # the loop's own executor, kept for its lifetime
 
     async def open(self) -> None:
         port = await self._open()
         with self.lock:
             self._connected(port)
-        self._supervisor = self.loop.create_task(self._supervise(), name=f"ics35 bus {self.target}")
+        self._supervise()
 
-    async def _supervise(self) -> None:
-        while True:
-            await self._lost.wait()
-            self._lost.clear()
-            await self._stop_thread()  # the lost port's thread has ended, or is about to
-            await self._reconnect()
+    async def _before_reconnect(self) -> None:
+        await self._stop_thread()  # the lost port's thread has ended, or is about to
 
     async def _stop_thread(self) -> None:
         with self.lock:
@@ -242,11 +227,7 @@ class ThreadDriver(DriverCore):
         try:
             await self._drain()
         finally:  # even when cancelled: no I/O thread may keep the port
-            if self._supervisor is not None:
-                self._supervisor.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await self._supervisor
-                self._supervisor = None
+            await self._end_supervisor()
             await self._stop_thread()
             with self.lock:
                 self._release_idle()

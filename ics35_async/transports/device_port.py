@@ -37,6 +37,10 @@ class DevicePort:
         self._lost: Exception | None = None
         self._gone = False
 
+    def stop_telling(self) -> None:
+        """Tell nobody of input from now on (the driver stops waiting on this port)."""
+        self.on_input = _nobody
+
     def connect(self, baudrate: int) -> None:
         """Attach to the device (raises :class:`OSError` when it cannot be opened)."""
         self.device.connect(self, baudrate)
