@@ -105,12 +105,6 @@ class AnyioDriver(DriverCore):
         self._task_scope = anyio.CancelScope(shield=True)
         self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.target}")
 
-    async def reopen(self, baudrate: int) -> None:
-        self.engine.disconnected()
-        self._drop_port()
-        self.engine.baudrate = baudrate
-        self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
-
     async def aclose(self) -> None:
         try:
             await self._drain()

@@ -53,13 +53,6 @@ class AsyncioDriver(LoopDriver):
         self._connected(port)
         self._supervise()
 
-    async def reopen(self, baudrate: int) -> None:
-        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
-        self.engine.disconnected()
-        self._drop_port()
-        self.engine.baudrate = baudrate
-        self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
-
     async def aclose(self) -> None:
         try:
             await self._drain()

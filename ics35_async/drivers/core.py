@@ -245,6 +245,13 @@ class DriverCore:
         self._release_idle()
         return engine.state is LOST
 
+    async def reopen(self, baudrate: int) -> None:
+        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        self.engine.disconnected()
+        self._drop_port()
+        self.engine.baudrate = baudrate
+        self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+
     def _drop_port(self) -> None:
         """Stop waiting on the port and close it (a reopen, or the bus closing)."""
         port, self.port = self.port, None
