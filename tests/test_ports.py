@@ -454,10 +454,10 @@ def test_in_process_loss_is_read_after_the_bytes_before_it() -> None:
     assert device.host is not None
     host = device.host
     gone = OSError(errno.EIO, "unplugged")
-    thread = threading.Thread(target=lambda: (host.deliver(b"last words"), host.lost(gone)))
+    thread = threading.Thread(target=lambda: (host.deliver(b"last words"), host.lost(gone), host.deliver(b"x")))
     thread.start()
     thread.join()
-    assert port.read() == b"hellolast words"
+    assert port.read() == b"hellolast words"  # and nothing said after the loss
     with pytest.raises(OSError) as info:
         port.read()
     assert info.value is gone

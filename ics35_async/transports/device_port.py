@@ -48,7 +48,7 @@ class DevicePort:
     # -- the device's side (HostSide), any thread
 
     def deliver(self, data: bytes) -> None:
-        if not self._gone:
+        if not self._gone and self._lost is None:  # nothing arrives after the line went away
             self._chunks.append(data if type(data) is bytes else bytes(data))
             self.on_input()
 
