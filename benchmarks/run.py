@@ -24,7 +24,10 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    timer 16 and 1 ms, next to the wire's limit, and the stream's (bench_adapter);
 8. the control loop: a 12-servo stream at 100 Hz on a wire-timed 1.25 Mbit/s
    line, alone, with four flat-out pollers, at 5% faults and with a servo
-   offline, in real time and in simulated time (bench_control_loop).
+   offline, in real time and in simulated time (bench_control_loop);
+9. the burst path (compiled executor) against the ordinary path, blocking pyserial and the
+   bare loop: stream CPU and wire-timed rate, four lines, a CPU-bound thread beside a stream,
+   sequential and batched requests (bench_burst).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -58,6 +61,7 @@ from pathlib import Path
 from typing import Any
 
 import bench_adapter
+import bench_burst
 import bench_control_loop
 import bench_cpu
 import bench_lines
@@ -83,6 +87,7 @@ SECTIONS = (
     "peer",
     "adapter",
     "control_loop",
+    "burst",
 )
 
 
@@ -282,6 +287,7 @@ def main() -> int:
         "peer": lambda: bench_peer.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
         "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
         "control_loop": lambda: bench_control_loop.run(2.0 if quick else 5.0),
+        "burst": lambda: bench_burst.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
     started = time.perf_counter()
@@ -320,6 +326,7 @@ def main() -> int:
         "peer": print_peer,
         "adapter": bench_adapter.print_table,
         "control_loop": bench_control_loop.print_table,
+        "burst": bench_burst.print_table,
     }
     for name in sections:
         if "error" in results[name]:

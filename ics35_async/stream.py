@@ -123,6 +123,10 @@ class Stream:
         self._offline = [False] * n
         self._next_probe = [0.0] * n
         self._held = [False] * n  # after a resume: no command until the program sets a target
+        # A burst (see the engine's plan_burst) runs the cycle's next transactions as planned: a new
+        # target for one of them is held back (its slot in _stale) until the burst is over.
+        self._frozen: set[int] = set()
+        self._stale: set[int] = set()
         # The cycle in progress.
         self._order: list[int] = []
         self._pos = 0
@@ -183,18 +187,21 @@ class Stream:
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
         """Apply targets that :meth:`check_targets` returned."""
-        held = False
+        kick = False
+        frozen = self._frozen
         for k, p in checked:
             if self._held[k]:
                 self._held[k] = False
-                held = True
+                kick = True  # a stream waiting with every ID held has work again
             if self._targets[k] != p:
                 self._targets[k] = p
-                sid = self.ids[k]
-                self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
-                self._readers[k] = None
-        if held and self._running:
-            self.bus.kick()  # a stream waiting with every ID held has work again
+                if frozen and k in frozen:
+                    self._stale.add(k)
+                    kick = True  # a burst runs the old target: it stops at its next boundary
+                else:
+                    self._renew_job(k)
+        if kick and self._running:
+            self.bus.kick()
 
     def set_target_degrees(self, servo_id: int, degrees: float) -> None:
         """Like :meth:`set_target`, in degrees (-135..+135, 0 neutral); else InvalidArgument."""
@@ -217,12 +224,28 @@ class Stream:
         and goes offline in the stream); the torque is left as it is.
         """
         slots = [self._slot(i) for i in (self.ids if ids is None else units.check_ids("ids", ids))]
+        kick = False
         for k in slots:
-            reader = protocol.ReadPosition(self.ids[k])
             self._targets[k] = WATCH
-            self._readers[k] = reader
-            self._jobs[k] = (reader.tx, reader.reply_len, self.ids[k])
             self._held[k] = False
+            if k in self._frozen:
+                self._stale.add(k)
+                kick = True
+            else:
+                self._renew_job(k)
+        if kick and self._running:
+            self.bus.kick()
+
+    def _renew_job(self, k: int) -> None:
+        """The command that carries ID slot ``k``'s target, and how its reply is read."""
+        sid, target = self.ids[k], self._targets[k]
+        if target == WATCH:
+            reader = protocol.ReadPosition(sid)
+            self._readers[k] = reader
+            self._jobs[k] = (reader.tx, reader.reply_len, sid)
+        else:
+            self._readers[k] = None
+            self._jobs[k] = (protocol.position_tx(sid, target), 3, sid)
 
     def target(self, servo_id: int) -> int:
         """The current target of ``servo_id``: a position, 0 (free) or :data:`WATCH`; InvalidArgument if it
@@ -253,6 +276,19 @@ class Stream:
         # The reply is read as the command sent (set_targets or watch may change it meanwhile).
         self._cur_reader = self._readers[k]
         return self._jobs[k]
+
+    def _upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
+        start = self._pos + 1  # after the one on the wire
+        slots = self._order[start : start + limit] if limit > 0 else []
+        self._frozen.update(slots)
+        jobs = self._jobs
+        return [jobs[k] for k in slots]
+
+    def _upcoming_done(self) -> None:
+        self._frozen.clear()
+        stale, self._stale = self._stale, set()
+        for k in stale:
+            self._renew_job(k)
 
     def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
@@ -316,7 +352,7 @@ class Stream:
             if target != protocol.FREE and target != WATCH:
                 if self.on_resume == "free":
                     self._targets[k] = protocol.FREE
-                    self._jobs[k] = (protocol.position_tx(self.ids[k], protocol.FREE), 3, self.ids[k])
+                    self._renew_job(k)
                 else:
                     self._held[k] = True
         # The cycle the loss cut short is dropped; the next starts on a fresh schedule.

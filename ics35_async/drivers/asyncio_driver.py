@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import threading
 from typing import Any
 
@@ -27,6 +28,7 @@ from ..transports.device_port import DevicePort
 from ..transports.opening import Port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
+from .burst import FAILED, BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
@@ -72,6 +74,9 @@ class AsyncioDriver(LoopDriver):
     def _watch(self, port: Port) -> None:
         if isinstance(port, TtyPort):
             self.loop.add_reader(port.fd, self._readable)
+            self.burst = open_runner(self.engine, port.fd, port.decode_marks, port.in_between)
+            if self.burst is not None:
+                self.loop.add_reader(self.burst.done_fd, self._burst_done)
         elif isinstance(port, DevicePort):  # (a port without a descriptor comes behind a reader thread)
             port.on_input = self._input_came
             if port.has_input:
@@ -79,6 +84,7 @@ class AsyncioDriver(LoopDriver):
 
     def _unwatch(self, port: Port) -> None:
         self.cancel_timer()
+        self._close_burst()
         if isinstance(port, TtyPort):
             self.loop.remove_reader(port.fd)
             if self._writing:
@@ -127,12 +133,61 @@ class AsyncioDriver(LoopDriver):
             self.loop.remove_writer(port.fd)
             self._writing = False
 
+    # ------------------------------------------------------------------ the burst path
+
+    @property
+    def bursting(self) -> bool:
+        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
+        return self.burst is not None and self.burst.running
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        port = self.port
+        if not isinstance(port, TtyPort) or not burst.start():
+            return False
+        self.loop.remove_reader(port.fd)  # the executor reads the port now
+        self.cancel_timer()  # and keeps the deadlines
+        return True
+
+    def _burst_done(self, *, wait: bool = False) -> None:
+        burst = self.burst
+        if burst is None or not burst.running:
+            return
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if wait:
+            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+        port = self.port
+        if not isinstance(port, TtyPort):
+            return
+        if burst.status == FAILED:
+            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))
+            return
+        self.loop.add_reader(port.fd, self._readable)  # a hang-up or what came after: the ordinary read sees it
+        self._after(out)
+
+    def _stop_burst(self) -> None:
+        # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
+        # knowing what was on the wire.
+        if self.bursting:
+            self._burst_done(wait=True)
+        else:
+            self._close_burst()
+
+    def _close_burst(self) -> None:
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            self.loop.remove_reader(burst.done_fd)
+            burst.close()
+
     # ------------------------------------------------------------------ time
 
     def _rewait(self) -> None:
         self._arm()
 
     def _arm(self) -> None:
+        if self.bursting:  # the executor keeps the deadlines until the burst is fed
+            return
         if self._timer is not None:
             self._timer.cancel()
         deadline = self.engine.deadline

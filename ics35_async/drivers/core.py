@@ -39,6 +39,7 @@ from ..errors import IcsError
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
+from .burst import BurstRunner
 from .clock import now
 from .settings import LineSettings
 
@@ -114,6 +115,9 @@ class DriverCore:
         self.port: Port | None = None
         self._waiting_until = INF  # when the driver's current wait ends (it is re-aimed for earlier)
         self._idle: list[anyio.Event] = []
+        # The burst path (see .burst), where the driver runs it: while a burst runs, the executor's
+        # thread has the port and the engine waits to be fed.
+        self.burst: BurstRunner | None = None
         # Held around every engine call where the engine may run on two threads (the thread driver's
         # lock); the other drivers run it on one and hold nothing.
         self.lock: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
@@ -165,11 +169,20 @@ class DriverCore:
             if out.then is None:
                 return
             out = out.then
+        if self.burst is not None and self._start_burst(self.burst):
+            return  # the executor writes it, and the rest of the plan
         try:
             if not port.write(out):
                 self._write_blocked(port)
         except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
             self._write_failed(port, exc)
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        """The engine just put a transaction on the wire: run it (and its plan) as a burst; False: write it."""
+        return False
+
+    def _stop_burst(self) -> None:
+        """Closing or reopening: a running burst stops at its next boundary and is fed to the engine."""
 
     def _write_blocked(self, port: Port) -> None:
         """Part of a write waits in the tty's ``pending``: wait for the port to take it."""
@@ -247,6 +260,7 @@ class DriverCore:
 
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        self._stop_burst()
         self.engine.disconnected()
         self._drop_port()
         self.engine.baudrate = baudrate
@@ -291,13 +305,21 @@ class DriverCore:
         """Queue ``command``; returns what the caller awaits for its outcome."""
         request, awaited = self._new_request(command, priority, retries)
         with self.lock:
-            self._after(self.engine.submit(request, now()))
+            burst = self.burst
+            if burst is not None and burst.running:
+                burst.submit(request, now())  # it joins the queue where the burst stops
+            else:
+                self._after(self.engine.submit(request, now()))
         return awaited
 
     def call(self, step: Callable[[float], Output]) -> None:
         """Run an engine call (given the time) and act on what it answers."""
         with self.lock:
-            self._after(step(now()))
+            burst = self.burst
+            if burst is not None and burst.running:
+                burst.hold(step)  # where the burst stops (mid-transaction then: nothing to write)
+            else:
+                self._after(step(now()))
 
     # ------------------------------------------------------------------ waiting for quiet; closing
 
@@ -322,6 +344,7 @@ class DriverCore:
     async def _drain(self) -> None:
         """Close the engine; let a transaction on the wire finish (bounded); then abort what is left."""
         engine = self.engine
+        self._stop_burst()  # the engine hears the burst's bytes first (one transaction at most)
         with self.lock:
             engine.close()
             draining = engine.state is DRAINING

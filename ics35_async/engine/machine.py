@@ -23,6 +23,7 @@ from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error, timeout_error
+from .probe import FLOOR as STREAM_WAIT_FLOOR
 from .probe import STREAM_RESYNC, AnswerTimes
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
@@ -40,6 +41,9 @@ NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
 URGENT = Priority.URGENT
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
+BURST_LIMIT = 64  # transactions in one burst at most (a 32-servo cycle fits; a wake still stops it sooner)
+PlannedTransaction = tuple[bytes, int, int, float]
+"""One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s)."""
 
 
 class FlushInput:
@@ -260,6 +264,81 @@ class LineEngine:
         """The source has work again (new targets, or it was just attached)."""
         return self._start_next(now) if self.state is IDLE else None
 
+    # ------------------------------------------------------------------ bursts
+
+    def plan_burst(self, limit: int = BURST_LIMIT) -> tuple[float, list[PlannedTransaction]] | None:
+        """The transactions a burst executor may run from the one just put on the wire, or None.
+
+        A burst is the source's transaction on the wire (returned by the last call) followed by
+        the source's next ones, as far as the sharing rule lets the source keep the line (to the
+        end of its cycle; not past a boundary where a queued request would go instead), at most
+        ``limit`` in all.  Each entry is ``(tx, expect, echo, allowance)``: the bytes to write,
+        how many come back (echo included), how many of them are the echo, and the seconds from
+        the transaction's start (when the previous one's last byte came) to its deadline; the
+        first one's deadline is the one returned with the plan.
+
+        Only while the line is in step (no reply owed or held back, no slow-link allowance
+        learnt, nothing received yet of the transaction on the wire): after a fault the ordinary
+        path runs until a late reply can no longer come.  A transaction's wait is the one the
+        engine would give it; where the stream's wait may be recomputed before it (see
+        :mod:`.probe`), the least it can become: the executor then gives up no later than the
+        engine would, and the engine waits on for the rest.  The
+        source keeps the planned transactions as they are until :meth:`burst_over`.
+
+        The executor runs the plan, stops at the first transaction that is late, short or not
+        echoed as sent, or at a boundary when woken; the driver then feeds every byte through
+        :meth:`receive` (and the deadline through :meth:`tick`) with the times they came, so the
+        engine judges them exactly as if they had come one by one.
+        """
+        source = self._source
+        if (
+            self.state is not BUSY
+            or self._current is not None
+            or source is None
+            or self._owner is not source
+            or self._buf
+            or self.link.extra
+            or self.link.owed_since != INF
+            or self._tail_until > self._t_start
+        ):
+            return None
+        if self._held and max(self._held.values()) > self._t_start:
+            return None  # a late reply may still land in any transaction (see _hold)
+        plan: list[PlannedTransaction] = [(self._tx, self._expect, self._echo_len, self.deadline - self._t_start)]
+        queue = self.queue
+        if queue.count and self._request_goes(queue.peek(), self._t_start, note=False):
+            return None  # a request takes the line at the next boundary
+        echo = self.echo
+        latency = self.answers.stream_latency
+        steady = self.answers.answers_before_change()
+        for j, (tx, reply_len, _sid) in enumerate(source.upcoming(limit - 1), 1):
+            nbytes = len(tx) + reply_len
+            allowance = self._allowances.get(nbytes)
+            if allowance is None:
+                allowance = self._allowance(nbytes, NORMAL)
+            allowance = self._stream_wait(nbytes, allowance, latency if j < steady else STREAM_WAIT_FLOOR)
+            echo_len = len(tx) if echo else 0
+            plan.append((tx, echo_len + reply_len, echo_len, allowance))
+        return self.deadline, plan
+
+    def would_take(self, request: Request, now: float) -> bool:
+        """Would ``request``, queued now, get the line at the next transaction boundary, before the
+        source's next transaction?  (What a driver asks of a request that arrives during a burst:
+        if so, it wakes the burst, which stops at that boundary.)"""
+        head = self.queue.peek()
+        if head is None or request.priority < head.priority:
+            head = request
+        return self._source is None or self._request_goes(head, now, note=False)
+
+    def burst_over(self) -> None:
+        """The burst's bytes are fed up to its last transaction: the source may change its plan again.
+
+        Called before the last transaction's bytes are fed, so that what goes on the line next
+        is what the source wants now.
+        """
+        if self._source is not None:
+            self._source.upcoming_done()
+
     # ------------------------------------------------------------------ the line talking
 
     def receive(self, data: bytes, now: float) -> bytes | None:
@@ -336,16 +415,10 @@ class LineEngine:
         source = self._source
         queue = self.queue
         self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
-        if queue.count:
-            due = None if source is None else source.slot_due(now)
-            if due is None:
-                take = source is None or self._in_row < self.max_requests_between
-            else:
-                take = self._fits_before(due, now)
-            if take:
-                out = self._begin_request(now)
-                if out is not None:
-                    return out
+        if queue.count and self._request_goes(queue.peek(), now, note=True):
+            out = self._begin_request(now)
+            if out is not None:
+                return out
         self._in_row = 0
         if source is not None:
             job = source.next_transaction(now)
@@ -358,7 +431,7 @@ class LineEngine:
                 # The source has nothing now (between slots, every ID held or offline): a request
                 # may take the time, by the same rule as above, judged against the next slot.
                 due = source.slot_due(now)
-                if due is None or self._fits_before(due, now):
+                if due is None or self._fits_before(queue.peek(), due, now, note=True):
                     out = self._begin_request(now)
                     if out is not None:
                         return out
@@ -417,9 +490,20 @@ class LineEngine:
         cmd = req.command
         return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
 
-    def _fits_before(self, due: float, now: float) -> bool:
-        """May the queue's next request go now, beside a stream whose next transaction is due at ``due``?"""
-        head = self.queue.peek()
+    def _request_goes(self, head: Request | None, now: float, *, note: bool) -> bool:
+        """Does ``head`` (the queue's next request) go before the source's next transaction at ``now``?"""
+        source = self._source
+        due = None if source is None else source.slot_due(now)
+        if due is None:
+            return source is None or self._in_row < self.max_requests_between
+        return self._fits_before(head, due, now, note=note)
+
+    def _fits_before(self, head: Request | None, due: float, now: float, *, note: bool) -> bool:
+        """May ``head`` go now, beside a stream whose next transaction is due at ``due``?
+
+        ``note``: this is the engine's decision, so a request too long for this slack is counted
+        as passed over in it (not when only asked, as :meth:`would_take` does).
+        """
         if head is None:
             return True  # only abandoned requests: pop() drops them
         if head.priority == URGENT:
@@ -436,10 +520,10 @@ class LineEngine:
             return True
         # Too long for this slack.  Passed over in two slacks in a row: it goes now (delaying the
         # next cycle once), rather than waiting forever for a slack it can never fit in.
-        if self._passed_over_due != due:
-            self._passed_over_due = due
-            self._passed_over += 1
-        return self._passed_over >= 2
+        passed = self._passed_over if self._passed_over_due == due else self._passed_over + 1
+        if note:
+            self._passed_over_due, self._passed_over = due, passed
+        return passed >= 2
 
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
@@ -472,15 +556,24 @@ class LineEngine:
         self._short = timing is PROBE
         if self._short:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
-        elif req is None and self.answers.stream_latency is not None:
-            # The stream waits what this line's answers take, not the adapter's worst case: a
-            # failure then costs the control loop little.  Its reply may still come later: see _hold.
-            short = self._wire_time(nbytes) + self.answers.stream_latency
-            if short < allowance:
+        elif req is None:
+            wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
+            if wait < allowance:
                 self._short = True
-                allowance = short
+                allowance = wait
         self.deadline = now + allowance + self.link.extra
         return tx
+
+    def _stream_wait(self, nbytes: int, allowance: float, latency: float | None) -> float:
+        """How long a stream transaction of ``nbytes`` waits, given its full allowance.
+
+        What this line's answers take beyond the wire time (``latency``, see .probe), not the
+        adapter's worst case: a failure then costs the control loop little.  Its reply may still
+        come later: see _hold.
+        """
+        if latency is None:
+            return allowance
+        return min(allowance, self._wire_time(nbytes) + latency)
 
     def _wire_time(self, nbytes: int) -> float:
         wire = self._wire.get(nbytes)

@@ -87,6 +87,15 @@ class AnswerTimes:
         else:
             self.expected = expected + (beyond_wire - expected) * (RISE if beyond_wire > expected else FALL)
 
+    def answers_before_change(self) -> int:
+        """How many more answers leave :attr:`stream_latency` as it is: the one after that many may
+        recompute it (never below ``FLOOR``)."""
+        n = self._n
+        change = (n // REFRESH + 1) * REFRESH
+        if n < RECENT_MIN:
+            change = min(change, RECENT_MIN)
+        return change - n
+
     @property
     def latency(self) -> float | None:
         """Seconds a probe waits beyond its wire time; None until something has answered."""

@@ -14,6 +14,7 @@ import errno
 import logging
 import os
 import select
+from collections.abc import Callable
 
 import serial
 
@@ -128,6 +129,16 @@ class TtyPort:
         self.bad = 0  # bytes marked damaged since the driver last took the count
         self.pending = bytearray()  # what a partial write left
         self.closed = False
+
+    @property
+    def decode_marks(self) -> Callable[[bytes], tuple[bytes, int]] | None:
+        """The decoder of the kernel's parity marks, when the port marks them (for the burst path,
+        whose executor reads the descriptor itself)."""
+        return self._marks.decode if self._marks is not None else None
+
+    def in_between(self) -> bool:
+        """Bytes still to write, or half a parity mark read: the ordinary path must finish them first."""
+        return bool(self.pending) or (self._marks is not None and self._marks.pending)
 
     def read(self) -> bytes:
         try:
