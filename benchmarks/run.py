@@ -17,7 +17,7 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    1250000 bit/s (bench_wire);
 3. sharing: stream plus 16 telemetry pollers (bench_sharing);
 4. cost: memory growth over 1,000,000 transactions (bench_memory);
-5. event loops (asyncio, uvloop) x transports (direct, fast, stock): rows
+5. event loops (asyncio, uvloop) x transports (direct, thread): rows
    of 1 and 2;
 6. a peer: rcb4's ICSServoController (bench_peer);
 7. the USB adapter: 32-servo cycle rates behind the FTDI model at latency

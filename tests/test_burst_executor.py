@@ -25,7 +25,7 @@ import serial
 from benchmarks.lean_responder import lean_lines
 from ics35_async import protocol
 from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRUN, WOKEN, burst_path
-from ics35_async.transports.direct import ParityMarks, enable_parity_marks
+from ics35_async.transports.tty_port import ParityMarks, enable_parity_marks
 
 _burst = pytest.importorskip("ics35_async._burst", reason="the executor is not built (no C compiler?)")
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs a pty")

@@ -79,7 +79,7 @@ def run(request: pytest.FixtureRequest) -> Callable[[Callable[[Bus], Awaitable[N
                 async with open_bus(port, driver=driver, **FAST) as bus:
                     assert bus.driver == ("anyio" if driver == "anyio" or library == "trio" else driver)
                     if driver == "asyncio":
-                        assert (bus._driver.line.burst is not None) == bursts  # type: ignore[union-attr]
+                        assert (bus._driver.burst is not None) == bursts  # type: ignore[union-attr]
                     await scenario(bus)
 
         run_on(library, main)

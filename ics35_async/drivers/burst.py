@@ -76,7 +76,7 @@ def feed(
     ``before_last`` runs what waited for the burst to stop.  The last one's bytes are fed at
     ``now``, as the ordinary path feeds bytes when it reads them: what the engine starts then is
     written now, and its deadline must count from now (the loop may have been slow to come back).
-    ``decode`` undoes the port's parity marks (see ``transports.direct.ParityMarks``).
+    ``decode`` undoes the port's parity marks (see ``transports.tty_port.ParityMarks``).
     """
     _status, _errno, records = result
     last = len(records) - 1

@@ -36,7 +36,7 @@ The rules, each in one place:
 """
 
 from .counters import LineCounters
-from .machine import LineEngine
+from .machine import FlushInput, LineEngine, Output
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -45,10 +45,12 @@ from .timing import BusTiming, TimingOverrides
 __all__ = [
     "BackgroundSource",
     "BusTiming",
+    "FlushInput",
     "TimingOverrides",
     "GuardRequest",
     "LineCounters",
     "LineEngine",
+    "Output",
     "Priority",
     "Request",
     "RequestQueue",

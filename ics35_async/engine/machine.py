@@ -4,8 +4,9 @@ No event loop, no clock, no I/O (h11 is the model).  A driver feeds it what
 happens -- bytes received, the time, a deadline passed, the port lost -- and
 each call answers with the bytes to write next (or ``None``).  After any
 call, ``deadline`` is when the engine wants :meth:`tick` (``math.inf``: not
-until something else happens) and ``flush_input`` asks the driver to drop the
-OS input buffer before writing.  Requests learn their outcome through
+until something else happens).  When a resync ends, :meth:`tick` answers
+with a :class:`FlushInput` instead of bytes: drop what the port has buffered,
+then write its ``then``.  Requests learn their outcome through
 ``Request.resolve``/``reject``; the stream (the background source) through
 its own plain methods.  The rules it holds: see :mod:`ics35_async.engine`.
 """
@@ -45,6 +46,32 @@ PlannedTransaction = tuple[bytes, int, int, float]
 """One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s)."""
 
 
+class FlushInput:
+    """What :meth:`LineEngine.tick` answers when a resync ends: drop the port's input, then write ``then``.
+
+    Whatever the OS still buffers from before the resync is stale (the late
+    bytes of a failed transaction).  An answer rather than a flag, as h11
+    returns events: a driver cannot forget to look at it.
+    """
+
+    __slots__ = ("then",)
+
+    def __init__(self, then: bytes | None) -> None:
+        self.then = then
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, FlushInput) and other.then == self.then
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"FlushInput(then={self.then!r})"
+
+
+Output = bytes | FlushInput | None
+"""What an engine call answers: bytes to write, a :class:`FlushInput`, or nothing."""
+
+
 class LineEngine:
     """The rules of one ICS line.  See the module docstring for the contract."""
 
@@ -57,7 +84,6 @@ class LineEngine:
         self.max_requests_between = max_requests_between
         self.state = OFFLINE
         self.deadline = INF
-        self.flush_input = False
         self.counters = LineCounters()
         self.link = LinkLatency(bound=self.timing.link_extra_max)
         self.counters.link = self.link
@@ -348,7 +374,7 @@ class LineEngine:
         if self.state is BUSY or self.state is DRAINING:
             self._corrupted = True  # the transaction fails once its bytes are all in
 
-    def tick(self, now: float) -> bytes | None:
+    def tick(self, now: float) -> Output:
         """Time has passed: a deadline, the end of a resync, or the source's wake-up.
 
         A driver calls this only once input that arrived before ``now`` has
@@ -366,10 +392,9 @@ class LineEngine:
                 return None
             if now < self._quiet_until:
                 log.warning("line never went quiet; carrying on")
-            self.flush_input = True
             self.link.resync_over()
             self.state = IDLE
-            return self._start_next(now)
+            return FlushInput(self._start_next(now))
         if state is IDLE:
             return self._start_next(now)
         return None

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ics35_async import protocol
-from ics35_async.engine import LineEngine, Request
+from ics35_async.engine import FlushInput, LineEngine, Output, Request
 from ics35_async.errors import IcsError, ReplyError
 from ics35_async.protocol import Param, Position, ReadParam
 
@@ -98,6 +98,7 @@ class Wire:
         self.answer = answer
         self.now = 0.0
         self.writes: list[tuple[float, bytes]] = []
+        self.flushes = 0  # FlushInput answers (resyncs ended)
         self.marks: list[int] = []  # per write: how many arrivals had been delivered before it
         self.delivered: list[object] = []  # the tag of each arrival delivered, in order
         self._arrivals: list[tuple[float, int, bytes, int, object]] = []  # (time, order, bytes, parity errors, tag)
@@ -148,7 +149,10 @@ class Wire:
 
     # -- what the driver does
 
-    def emit(self, out: bytes | None) -> bytes | None:
+    def emit(self, out: Output) -> bytes | None:
+        if isinstance(out, FlushInput):  # nothing waits in a simulated OS buffer: only counted
+            self.flushes += 1
+            out = out.then
         if out is not None:
             if self.on_write is not None:
                 self.on_write()
@@ -184,7 +188,6 @@ class Wire:
                 self.now = max(self.now, deadline)
                 before = (engine.state, engine.deadline)
                 self.emit(engine.tick(self.now))
-                engine.flush_input = False  # nothing waits in a simulated OS buffer
                 if (engine.state, engine.deadline) == before and engine.deadline <= self.now:
                     raise AssertionError(f"tick({self.now}) left the engine {before}: it would spin")
         else:
