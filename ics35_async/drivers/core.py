@@ -233,8 +233,31 @@ class DriverCore:
             raise
 
     async def _in_thread(self, call: Callable[[], Port]) -> Port:
-        """Run a blocking ``call`` in a worker thread of the running event loop's library."""
-        return await anyio.to_thread.run_sync(call)
+        """Run a blocking ``call`` in a thread of its own, which ends with it.
+
+        Not the event loop library's worker threads: trio keeps an idle one alive for seconds,
+        so a program that opened a port would end with a thread still running.  Opening a port
+        takes milliseconds; the wait polls, doubling from 0.5 ms to 20 ms.  If the wait is
+        cancelled the thread runs on, and the caller closes the port it opens (see ``_open``).
+        """
+        opened: list[Port] = []
+        failed: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                opened.append(call())
+            except BaseException as exc:  # handed to the waiting task
+                failed.append(exc)
+
+        thread = threading.Thread(target=run, name=f"ics35 open {self.target}", daemon=True)
+        thread.start()
+        delay = 0.0005
+        while thread.is_alive():
+            await anyio.sleep(delay)
+            delay = min(delay * 2, 0.02)
+        if failed:
+            raise failed[0]
+        return opened[0]
 
     def _connected(self, port: Port) -> None:
         """``port`` is open: wait on it, and tell the engine (which may have work at once).  Under the lock."""
