@@ -65,8 +65,9 @@ class BusOptions(TimingOverrides, total=False):
     driver: str
     """What runs the line (default ``"auto"``): ``"asyncio"`` (I/O callbacks; the default under
     asyncio), ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (the engine in an I/O
-    thread that blocks on the port: the cheapest for streaming, and for ports the loop cannot wait
-    on; under trio, the anyio driver's reader thread)."""
+    thread that blocks on the port: the cheapest for streaming beside a quiet event loop (a loop
+    kept busy with Python work can keep the GIL from it for seconds), and for ports the loop cannot
+    wait on; under trio, the anyio driver's reader thread)."""
     transport: str
     """How a device path is opened (default ``"auto"``): ``"fast"`` (pyserial-asyncio-fast),
     ``"stock"`` (pyserial-asyncio), ``"direct"`` (the tty's descriptor on the loop)."""

@@ -6,8 +6,10 @@ device's condition) up to the engine's deadline, feeds it what came, and
 writes what it answers at once.  A stream's transactions therefore never
 touch the event loop: the loop is told once per frame, and a request only
 when it ends (``call_soon_threadsafe``).  That makes it the cheapest driver
-for streaming, and the one for ports the loop cannot wait on (Windows COM
-ports, ``rfc2217://``).
+for streaming beside a quiet event loop, and the one for ports the loop
+cannot wait on (Windows COM ports, ``rfc2217://``).  Beside a loop kept busy
+with Python work it is not: this thread needs the GIL after every system
+call, and such a loop can keep it for seconds (see the control-loop docs).
 
 Every engine call, from either thread, holds ``lock``.  Requests are put
 on the wire by the caller's thread (no hand-over when the line is idle);
