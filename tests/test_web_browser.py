@@ -41,8 +41,8 @@ expect.set_options(timeout=WAIT_MS)
 class PtyLine:
     """A simulated line served on a pty by a thread of this process."""
 
-    def __init__(self, ids: tuple[int, ...]) -> None:
-        self.sim = VirtualLine([VirtualServo(i) for i in ids])
+    def __init__(self, ids: tuple[int, ...], ics36: tuple[int, ...] = ()) -> None:
+        self.sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids])
         self.server = PtyServer(self.sim)
         self.path = str(self.server.open())
         self.thread = threading.Thread(target=self.server.serve, daemon=True)
@@ -57,7 +57,7 @@ class PtyLine:
 
 @pytest.fixture(scope="module")
 def lines() -> Iterator[tuple[PtyLine, PtyLine]]:
-    two, lone = PtyLine((1, 3)), PtyLine((4,))
+    two, lone = PtyLine((1, 3), ics36=(3,)), PtyLine((4,))
     yield two, lone
     two.close()
     lone.close()
@@ -170,13 +170,23 @@ def test_the_token_url_lands_on_the_line_page_without_the_token_in_the_address_b
     expect(page.locator("#sim-banner")).to_be_hidden()  # a pty port: real as far as the page knows
 
 
-def test_scan_lists_the_servos_with_live_temperature(page: Page, lines: Any) -> None:
+def test_scan_lists_the_servos_with_protocol_live_temperature_and_position(page: Page, lines: Any) -> None:
+    sim = lines[0].sim
+    sim.servo(3).command_position(8100)  # holding: the page's reads must leave it so
     page.click("a[href='#line']")
     page.click("#scan-btn")
     expect(page.locator("#servo-table tbody tr")).to_have_count(2)
     expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
     expect(page.locator("#scan-progress")).to_have_js_property("value", 32)  # every ID, as it went
-    expect(page.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
+    ics36, ics35 = page.locator("#servo-table tr[data-id='3']"), page.locator("#servo-table tr[data-id='1']")
+    expect(ics36.locator("td.temp")).to_contain_text("°C")
+    expect(ics36.locator("td.ics")).to_have_text("3.6")
+    expect(ics36.locator("td.position")).to_have_text(re.compile(r"^\d+$"))
+    expect(ics35.locator("td.ics")).to_have_text("3.5")
+    expect(ics35.locator("td.position")).to_have_text("not read")
+    page.wait_for_timeout(1200)  # another round of reads
+    assert sim.servo(3).target == 8100 and sim.servo(1).free  # nothing moved, nothing went limp
+    sim.servo(3).command_position(0)  # free again, as the later tests expect
     shot(page, "line")
 
 

@@ -25,6 +25,7 @@ from ..policies import (
     EepromPlan,
     FoundServo,
     plan_eeprom_write,
+    read_position_without_freeing,
     scan,
     survey_for_id_write,
     write_eeprom_plan,
@@ -206,7 +207,12 @@ class LineSession:
         }
 
     async def read_telemetry(self) -> dict[int, dict[str, Any]]:
-        """Temperature and current of the servos found (reads that move nothing); skipped while busy."""
+        """Temperature, current, protocol and (ICS 3.6) position of the servos found; skipped while busy.
+
+        Nothing sent moves a servo or turns its torque off: the position is
+        read only with ICS 3.6's position read (policies.position_read); an
+        ICS 3.5 servo, which reads a position only by going free, shows none.
+        """
         if self.exclusive.locked() or self.bus is None or not self.bus.is_open or self.live is not None:
             return self.telemetry
         async with self.exclusive:  # a scan that starts meanwhile waits for this round, not the other way
@@ -219,10 +225,18 @@ class LineSession:
             if servo.baud != bus.baudrate:
                 continue
             try:
-                entry = {**await read_health(bus, sid), "telemetry_error": None}
+                health = await read_health(bus, sid)
+                reading = await read_position_without_freeing(bus.servo(sid))
             except ReplyError as exc:
-                entry = {"telemetry_error": str(exc)}
-            self.telemetry[sid] = entry
+                self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": str(exc)}
+                continue
+            self.telemetry[sid] = {
+                **health,
+                "protocol": reading.protocol,
+                "position": reading.position,
+                "position_note": reading.why,
+                "telemetry_error": None,
+            }
 
     # ------------------------------------------------------------------ one servo's EEPROM
 

@@ -94,12 +94,16 @@ async function loadPorts() {
 
 function showServos(servos) {
   state.servos = servos;
+  $("#servo-notes").hidden = !servos.length;
   const body = $("#servo-table tbody");
   body.replaceChildren();
   for (const s of servos) {
     const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C (${s.temperature})`;
     const current = s.current === undefined ? "…" : String(s.current);
+    const ics = s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
+    const position = s.protocol === undefined ? "…" : s.position ?? "not read";
     body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
+      el("td", { class: "ics" }, ics), el("td", { class: "position", title: s.position_note || "" }, position),
       el("td", { class: "temp" }, temp), el("td", { class: "current" }, current),
       el("td", {}, el("a", { href: `#servo/${s.id}` }, "open"))));
   }
@@ -344,6 +348,7 @@ function onLive(frame) {
   $("#live-rate").textContent = frame.rate_hz;
   $("#live-updates").textContent = state.updates.length;
   $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
+  $("#live-watched").textContent = frame.watched.length ? frame.watched.join(",") : "none";
   if (state.livePaused) return;
   const last = state.history[state.history.length - 1];
   if (last && last.cycle === frame.cycle) return;
