@@ -361,6 +361,41 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
     context.close()
 
 
+def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_the_robot_page(
+    browser: Browser, robot_server: str
+) -> None:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    p = context.new_page()
+    p.goto(robot_server)
+    pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
+    for here in pages:
+        p.click(f"nav a[href='#{here}']")
+        expect(p.locator(f"#page-{here}")).to_be_visible()
+        for there in pages:
+            expect(p.locator(f"nav a[href='#{there}']")).to_be_visible()
+    p.click("nav a[href='#line']")
+    expect(p.locator("#robot-lines-table tbody tr")).to_have_count(2)
+    p.click("#robot-lines-table tr[data-line='upper'] button")
+    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")
+    expect(p.locator("#servo-table tbody tr")).to_have_count(7)  # found on the robot's own line
+    p.click("#servo-table tr[data-id='4'] a")
+    expect(p.locator("#servo-robot-note")).to_contain_text("right_elbow")
+    expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
+    p.click("nav a[href='#robot']")
+    p.click("tr[data-joint='right_knee'] a")  # a joint's servo, on the other line
+    expect(p.locator("#page-servo")).to_be_visible()
+    expect(p.locator("#line-status")).to_contain_text("the robot's line legs")
+    expect(p.locator("#servo-robot-note")).to_contain_text("right_knee")
+    expect(p.locator("#servo-id")).to_have_value("3")
+    p.click("#free-btn")  # refused in words: the robot moves and frees its joints
+    expect(p.locator("#message")).to_contain_text("Robot page")
+    p.click("nav a[href='#robot']")
+    p.click("#robot-line-links button[data-line='legs']")
+    expect(p.locator("#page-line")).to_be_visible()
+    expect(p.locator("#servo-table tbody tr")).to_have_count(10)
+    context.close()
+
+
 def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, lines: Any) -> None:
     two = lines[0]
     page.click("a[href='#line']")

@@ -145,6 +145,8 @@ async def ports(request: Request, session: LineSession) -> Any:
 
 async def connect(request: Request, session: LineSession) -> Any:
     data = await body(request)
+    if data.get("robot_line") is not None:
+        return await session.use_robot_line(data["robot_line"])
     return await session.connect(data.get("port"), data.get("baud"))
 
 

@@ -105,6 +105,7 @@ def create_app(
         middleware=[Middleware(TokenGuard, token=token, loopback_only_hosts=loopback)],
         lifespan=lifespan,
     )
+    session.robot = robot
     app.state.session = session
     app.state.robot = robot
     return app

@@ -70,12 +70,41 @@ function showStatus(s) {
   state.status = s;
   $("#sim-banner").hidden = !s.simulator;
   $("#lost-banner").hidden = !s.lost;
-  const where = `${s.port} at ${s.baud} baud`;
+  showRobotLines(s.robot);
+  const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
 
 // ---- Line
+
+// With --robot: the robot's lines on the Line page and the Robot page, so either leads to the other.
+function showRobotLines(robot) {
+  $("#robot-link").hidden = !robot;
+  $("#robot-lines").hidden = !robot;
+  const key = robot ? JSON.stringify(robot.lines) : "";
+  if (!robot || state.robotLinesShown === key) return;
+  state.robotLinesShown = key;
+  $("#robot-lines-table tbody").replaceChildren(...robot.lines.map((l) => el("tr", { "data-line": l.name }, el("td", {}, l.name),
+    el("td", {}, l.port), el("td", {}, l.baud),
+    el("td", {}, el("button", { type: "button", onclick: () => useRobotLine(l.name, true).catch(() => {}) }, "use")))));
+  $("#robot-line-links").replaceChildren("Its lines:", ...robot.lines.map((l) => el("button", { type: "button", "data-line": l.name,
+    title: `${l.port} at ${l.baud} baud`, onclick: () => { location.hash = "#line"; useRobotLine(l.name, true).catch(() => {}); } },
+    `${l.name}: its servos on the Line page`)));
+}
+
+async function useRobotLine(name, scan = false) {
+  const s = await api("/api/connect", { robot_line: name });
+  showStatus(s); showServos([]);
+  $("#port-input").value = s.port; $("#baud-select").value = String(s.baud);
+  say(`working on the robot's line ${name} (${s.port}); the robot keeps streaming it`, "info");
+  if (scan) await scanLine();
+}
+
+async function openJoint(line, id) {
+  if (!state.status || state.status.robot_line !== line) await useRobotLine(line);
+  location.hash = `#servo/${id}`;
+}
 
 async function loadPorts() {
   const found = await api("/api/ports");
@@ -129,8 +158,17 @@ async function scanLine() {
 
 function servoId() { return +$("#servo-id").value; }
 
+function robotNote(id) {
+  const line = state.status && state.status.robot_line;
+  const joint = line && state.robot ? state.robot.joints.find((j) => j.line === line && j.id === id) : null;
+  $("#servo-robot-note").hidden = !line;
+  $("#servo-robot-note").textContent = line ? `Servo ${id} ${joint ? `drives the joint ${joint.name}` : "is"} on the robot's line ${line}, which the robot keeps streaming: ` +
+    "read and configure it here; move or free it on the Robot page." : "";
+}
+
 async function loadServo() {
   const id = servoId();
+  robotNote(id);
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   state.eeprom = await api(`/api/servo/${id}/eeprom`);
   const body = $("#eeprom-table tbody");
@@ -418,7 +456,6 @@ function drawTraffic() {
 
 function onRobot(r) {
   state.robot = r;
-  $("#robot-link").hidden = false;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
   $("#robot-cycle").textContent = r.cycle ?? "-";
@@ -429,7 +466,8 @@ function onRobot(r) {
     (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
   const body = $("#robot-table tbody");
   if (body.children.length !== r.joints.length) {
-    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name), el("td", {}, `${j.line} / ${j.id}`),
+    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name),
+      el("td", {}, el("a", { href: `#servo/${j.id}`, title: "this servo on the Servo page", onclick: (e) => { e.preventDefault(); openJoint(j.line, j.id).catch(() => {}); } }, `${j.line} / ${j.id}`)),
       el("td", { class: "angle" }), el("td", { class: "target" }),
       el("td", {}, el("input", { type: "range", min: j.min, max: j.max, step: 1, value: 0, name: `joint-${j.name}`, title: `${j.min}..${j.max}°` })),
       el("td", { class: "temp" }), el("td", { class: "current" }), el("td", { class: "safety" }))));
