@@ -24,7 +24,10 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    timer 16 and 1 ms, next to the wire's limit, and the stream's (bench_adapter);
 8. the control loop: a 12-servo stream at 100 Hz on a wire-timed 1.25 Mbit/s
    line, alone, with four flat-out pollers, at 5% faults and with a servo
-   offline, in real time and in simulated time (bench_control_loop).
+   offline, in real time and in simulated time (bench_control_loop);
+9. the web configurator: a 32-servo stream's rate with the Live plots page
+   open against none, and the server's CPU per page update (bench_web; needs
+   the ``web`` extra).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -66,6 +69,7 @@ import bench_overhead
 import bench_peer
 import bench_sharing
 import bench_tools
+import bench_web
 import bench_wire
 from bench_common import progress
 from bench_targets import print_targets, targets
@@ -83,6 +87,7 @@ SECTIONS = (
     "peer",
     "adapter",
     "control_loop",
+    "web",
 )
 
 
@@ -282,6 +287,7 @@ def main() -> int:
         "peer": lambda: bench_peer.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
         "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
         "control_loop": lambda: bench_control_loop.run(2.0 if quick else 5.0),
+        "web": lambda: bench_web.run(1.0 if quick else 2.0, runs or (1 if quick else 4)),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
     started = time.perf_counter()
@@ -320,6 +326,7 @@ def main() -> int:
         "peer": print_peer,
         "adapter": bench_adapter.print_table,
         "control_loop": bench_control_loop.print_table,
+        "web": bench_web.print_table,
     }
     for name in sections:
         if "error" in results[name]:

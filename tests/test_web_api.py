@@ -32,7 +32,9 @@ def serve() -> Iterator[Any]:
     """``serve(servo_ids) -> (client with the token cookie, VirtualLine)``; closed after the test."""
     opened: list[tuple[TestClient, VirtualLine]] = []
 
-    def make(ids: tuple[int, ...] = (1, 3), ics36: tuple[int, ...] = (), **options: Any) -> tuple[TestClient, VirtualLine]:
+    def make(
+        ids: tuple[int, ...] = (1, 3), ics36: tuple[int, ...] = (), **options: Any
+    ) -> tuple[TestClient, VirtualLine]:
         name = f"web-api-{next(_names)}"
         sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids], name=name, **options)
         app = create_app(LineSession(LineConfig(port=f"sim://{name}")), TOKEN)
