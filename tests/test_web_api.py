@@ -278,6 +278,21 @@ def test_the_live_stream_leaves_an_ics36_servos_torque_alone_and_frees_only_ics3
     assert sim.servo(3).target == 8200
 
 
+def test_while_a_live_stream_runs_the_line_pages_table_shows_its_values(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    post(client, "/api/scan")
+    sim.servo(1).move_by_hand(9100)
+    post(client, "/api/live/start", {"ids": [1]})
+    rows: dict[int, dict[str, Any]] = {}
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        for _ in range(80):
+            rows = {s["id"]: s for s in ws.receive_json().get("servos", [])}
+            if rows.get(1, {}).get("position") == 9100:
+                break
+    assert rows[1]["position"] == 9100 and rows[1]["position_note"] == "from the live stream"
+    assert rows[3].get("position") is None  # not streamed, and an ICS 3.5 servo read without freeing has none
+
+
 def test_the_traffic_page_sees_each_transaction_with_its_bytes(serve: Any) -> None:
     client, _ = serve((1,))
     with client.websocket_connect(WS, headers={"origin": BASE}) as ws:

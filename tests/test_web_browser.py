@@ -109,11 +109,11 @@ def page(browser: Browser, server: str) -> Iterator[Page]:
     context.close()
 
 
-def shot(page: Page, name: str, height: int = 1000) -> None:
+def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
     """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls)."""
     IMAGES.mkdir(parents=True, exist_ok=True)
     size = page.viewport_size
-    page.set_viewport_size({"width": 1280, "height": height})
+    page.set_viewport_size({"width": width, "height": height})
     page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
     page.locator("main h1:visible").scroll_into_view_if_needed()
     page.screenshot(path=str(IMAGES / f"web-{name}.png"))
@@ -195,9 +195,13 @@ def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines:
     page.click("#servo-table tr[data-id='1'] a")
     field = page.locator("#eeprom-table [name=speed]")
     expect(field).to_have_value(str(sim.servo(1).eeprom.speed))
+    field.fill("500")
+    page.click("#plan-btn")
+    expect(page.locator("#message")).to_have_text("speed must be in 1..127, got 500")  # words, nothing sent
     field.fill("77")
     page.click("#plan-btn")
     expect(page.locator("#diff tr.changed")).to_contain_text("77")
+    expect(page.locator("#message")).to_be_hidden()  # the last try's error goes with the next try
     assert sim.servo(1).eeprom.speed != 77  # the diff is shown, nothing written yet
     shot(page, "servo", height=1660)
     page.click("#write-btn")
@@ -393,6 +397,26 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     p.click("#robot-line-links button[data-line='legs']")
     expect(p.locator("#page-line")).to_be_visible()
     expect(p.locator("#servo-table tbody tr")).to_have_count(10)
+    context.close()
+
+
+def png_width(png: bytes) -> int:
+    return int.from_bytes(png[16:20], "big")  # the IHDR chunk: width, then height
+
+
+def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: str) -> None:
+    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
+    p = context.new_page()
+    p.goto(server)
+    p.click("#scan-btn")
+    expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+    for name in ("line", "servo/1", "id", "many", "live", "traffic"):
+        p.goto(base_of(server) + f"/#{name}")
+        if name == "servo/1":
+            expect(p.locator("#eeprom-table tbody tr").first).to_be_visible()
+            shot(p, "phone", height=844, width=390)
+        width = png_width(p.screenshot(full_page=True))
+        assert width == 390, f"the {name} page is {width} px wide on a 390 px screen: it scrolls sideways"
     context.close()
 
 

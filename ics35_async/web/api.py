@@ -337,11 +337,11 @@ async def updates(ws: WebSocket) -> None:
                 update["robot"] = ws.app.state.robot.view()
             if session.live is not None:
                 update["live"] = session.live.snapshot()
-            elif loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
+            if loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
                 last_telemetry = loop.time()
                 with contextlib.suppress(IcsError):
-                    await session.read_telemetry()
-                update["servos"] = [session.found_view(s) for s in session.found]
+                    await session.read_telemetry()  # none while a live stream runs: the table shows its values
+                update["servos"] = session.servos_view()
             if watching_traffic:
                 entries = session.traffic.since(seen)
                 if entries:

@@ -255,6 +255,26 @@ class LineSession:
             **self.telemetry.get(servo.servo_id, {}),
         }
 
+    def servos_view(self) -> list[dict[str, Any]]:
+        """The Line page's table: the servos found with their last reads, or, for those a live stream
+        carries, the stream's newest position, temperature and current."""
+        rows = [self.found_view(s) for s in self.found]
+        live = self.live
+        if live is None:
+            return rows
+        for row in rows:
+            sid = row["id"]
+            if sid not in live.ids:
+                continue
+            position = live.position(sid)
+            row["position"] = None if position < 0 else position
+            row["position_note"] = "from the live stream" if position >= 0 else "not yet read by the live stream"
+            if sid in live.temperature:
+                row["temperature_c"], row["temperature"] = live.temperature[sid], None
+            if sid in live.current:
+                row["current"] = live.current[sid]
+        return rows
+
     async def read_telemetry(self) -> dict[int, dict[str, Any]]:
         """Temperature, current, protocol and (ICS 3.6) position of the servos found; skipped while busy.
 

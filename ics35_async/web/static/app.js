@@ -71,6 +71,7 @@ function showStatus(s) {
   $("#sim-banner").hidden = !s.simulator;
   $("#lost-banner").hidden = !s.lost;
   showRobotLines(s.robot);
+  $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
@@ -127,7 +128,7 @@ function showServos(servos) {
   const body = $("#servo-table tbody");
   body.replaceChildren();
   for (const s of servos) {
-    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C (${s.temperature})`;
+    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
     const current = s.current === undefined ? "…" : String(s.current);
     const ics = s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
     const position = s.protocol === undefined ? "…" : s.position ?? "not read";
@@ -170,6 +171,10 @@ async function loadServo() {
   const id = servoId();
   robotNote(id);
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
+  // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
+  state.eeprom = null;
+  $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren();
+  $("#restore-diff").replaceChildren(); $("#restore-result").replaceChildren(); $("#restore-btn").disabled = true;
   state.eeprom = await api(`/api/servo/${id}/eeprom`);
   const body = $("#eeprom-table tbody");
   body.replaceChildren();
@@ -397,6 +402,9 @@ function onLive(frame) {
 
 function drawPlot() {
   const canvas = $("#plot"), g = canvas.getContext("2d");
+  // Drawn at the size it is shown (a phone's is a third of a laptop's), so the labels stay readable.
+  const width = Math.round(canvas.clientWidth);
+  if (width && canvas.width !== width) { canvas.width = width; canvas.height = Math.max(220, Math.round(width * 0.4)); }
   const what = $("#live-what").value;
   const frames = state.history.slice(-600);
   g.clearRect(0, 0, canvas.width, canvas.height);
@@ -533,12 +541,17 @@ function connectSocket() {
 
 // ---------------------------------------------------------------- wiring
 
+// A person's action: the words about the last one go (its error stays only until the next try).
 function on(sel, event, handler) {
-  $(sel).addEventListener(event, (e) => { Promise.resolve(handler(e)).catch(() => {}); });
+  $(sel).addEventListener(event, (e) => {
+    if (event === "click" || event === "submit" || e.target.type === "checkbox" || e.target.type === "file") say("");
+    Promise.resolve(handler(e)).catch(() => {});
+  });
 }
 
 on("#connect-form", "submit", async (e) => {
   e.preventDefault();
+  showServos([]); $("#scan-summary").textContent = "";  // the servos found were the line before's
   const s = await api("/api/connect", { port: $("#port-input").value, baud: +$("#baud-select").value });
   showStatus(s); showServos([]);
   say(`connected to ${s.port}`, "info");
