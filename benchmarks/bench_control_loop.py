@@ -5,9 +5,17 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
 
 * clean: the stream alone (the baseline of this run);
 * pollers: four coroutines reading temperatures flat out at default priority;
-* faults: 5% of replies dropped, cut short, held back or garbled (with the default 10 ms
-  quiet time after a fault, and with ``quiet_time=0.005``);
-* offline: one of the 12 servos missing.
+* faults: 5% of replies dropped, cut short, held back 30 ms or garbled (with the default
+  10 ms quiet time after a fault, and with ``quiet_time=0.005``); "held back" is the
+  simulator's ``late`` fault with ``late_delay=0.03``, as in the simulated-time column (its
+  default, a reply held until the host's next command, ties the reply to what the host does);
+* offline: one of the 12 servos missing;
+* busy loop: two coroutines doing ~0.1 ms of Python work between yields (a web server
+  under load), beside the stream on the asyncio driver, on the thread driver, and on the
+  thread driver with ``sys.setswitchinterval(0.0005)``: the thread driver's I/O thread needs
+  the GIL after every system call, and a busy thread holds it for up to the switch interval
+  (5 ms by default).  These rows use the simulator in its own process on a pty (``python -m
+  ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too.
 
 Each prints the stream's frame rate (Hz), the p99 and largest interval
 between cycle starts (ms; 10 ms is one period) and, with pollers, their reads
@@ -26,20 +34,23 @@ import argparse
 import asyncio
 import itertools
 import json
+import sys
 import time
 from typing import Any
 
 from bench_common import progress
 
-from ics35_async import BusTiming, open_bus
+from ics35_async import Bus, BusTiming, open_bus
 from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.launch import serving
 from tests.support.paced_line import IDS, intervals
 from tests.support.paced_line import run as run_simulated
 
 BAUD = 1_250_000
 RATE_HZ = 100.0
 FAULTS = "drop:0.0125,truncate:0.0125,late:0.0125,corrupt:0.0125"  # 5% in all
-SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline")
+BUSY = ("busy loop, asyncio driver", "busy loop, thread driver", "busy loop, thread driver, switch 0.5 ms")
+SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
@@ -51,42 +62,70 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
         realtime=True,
         turnaround=0.0001,
         faults=FAULTS if scenario.startswith("faults") else None,
+        late_delay=0.03,
         seed=1,
     )
-    reads = 0
-    stop = False
     timing = {"quiet_time": 0.005} if scenario == QUIET_5MS else {}
-    async with open_bus(sim, baudrate=BAUD, **timing) as bus:
+    driver = "thread" if "thread driver" in scenario else "asyncio"
+    switch = sys.getswitchinterval()
+    if scenario.endswith("switch 0.5 ms"):
+        sys.setswitchinterval(0.0005)
+    try:
+        if scenario in BUSY:
+            with serving(["--ids", f"{IDS[0]}-{IDS[-1]}", "--baud", str(BAUD)]) as pty:
+                async with open_bus(pty, baudrate=BAUD, driver=driver) as bus:
+                    return await measure_on(bus, scenario, present, seconds)
+        async with open_bus(sim, baudrate=BAUD, driver=driver, **timing) as bus:
+            return await measure_on(bus, scenario, present, seconds)
+    finally:
+        sys.setswitchinterval(switch)
 
-        async def poll(k: int) -> None:
-            nonlocal reads
-            servo = bus.servo(IDS[k % len(present)])
-            while not stop:
-                try:
-                    await servo.read_temperature()
-                    reads += 1
-                except Exception:
-                    await asyncio.sleep(0)
 
-        async with bus.stream(IDS, rate_hz=RATE_HZ) as stream:
-            stream.set_targets(dict.fromkeys(IDS, 7500))
-            first = await stream.next_frame()
-            pollers = [asyncio.ensure_future(poll(k)) for k in range(4 if scenario == "pollers" else 0)]
-            starts = [first.started]
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < seconds:
-                frame = await stream.next_frame()
-                starts.append(frame.started)
-            stop = True
-            await asyncio.gather(*pollers)
-            elapsed = starts[-1] - starts[0]
-            cycles = frame.cycle - first.cycle
+async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float) -> dict[str, float]:
+    reads = work = 0
+    stop = False
+
+    async def poll(k: int) -> None:
+        nonlocal reads
+        servo = bus.servo(IDS[k % len(present)])
+        while not stop:
+            try:
+                await servo.read_temperature()
+                reads += 1
+            except Exception:
+                await asyncio.sleep(0)
+
+    async def busy() -> None:
+        nonlocal work
+        while not stop:
+            x = 0
+            for i in range(2000):  # about 0.1 ms of Python: a request served
+                x += i
+            work += 1
+            await asyncio.sleep(0)
+
+    async with bus.stream(IDS, rate_hz=RATE_HZ) as stream:
+        stream.set_targets(dict.fromkeys(IDS, 7500))
+        first = await stream.next_frame()
+        tasks = [asyncio.ensure_future(poll(k)) for k in range(4 if scenario == "pollers" else 0)]
+        if scenario in BUSY:
+            tasks += [asyncio.ensure_future(busy()) for _ in range(2)]
+        starts = [first.started]
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            frame = await stream.next_frame()
+            starts.append(frame.started)
+        stop = True
+        await asyncio.gather(*tasks)
+        elapsed = starts[-1] - starts[0]
+        cycles = frame.cycle - first.cycle
     gaps = sorted(b - a for a, b in itertools.pairwise(starts))
     return {
         "rate_hz": cycles / elapsed,
         "interval_p99_ms": gaps[min(len(gaps) - 1, int(len(gaps) * 0.99))] * 1e3,
         "interval_max_ms": gaps[-1] * 1e3,
         "reads_per_s": reads / elapsed,
+        "work_per_s": work / elapsed,
     }
 
 
@@ -108,7 +147,7 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
     for scenario in SCENARIOS:
         progress(f"control loop: {scenario}, {seconds:g} s")
         row: dict[str, Any] = {"scenario": scenario, "measured": asyncio.run(measure(scenario, seconds))}
-        if scenario != "pollers":  # the simulated line has no pollers: the engine tests cover them
+        if scenario != "pollers" and scenario not in BUSY:  # (no pollers nor loop in simulated time)
             row["simulated"] = simulated(scenario)
         rows.append(row)
     return {"servos": len(IDS), "rate_hz": RATE_HZ, "baud": BAUD, "seconds": seconds, "rows": rows}
@@ -116,13 +155,15 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
 
 def print_table(result: dict[str, Any]) -> None:
     print(f"\n## Control loop: {result['servos']} servos at {result['rate_hz']:g} Hz, {result['baud']} bit/s\n")
-    print("| scenario | rate (Hz) | interval p99 / max (ms) | poller reads/s | simulated time: rate, p99 / max |")
+    print("| scenario | rate (Hz) | interval p99 / max (ms) | reads/s, loop work/s | simulated: rate, p99 / max |")
     print("|---|---|---|---|---|")
     for row in result["rows"]:
         m = row["measured"]
         s = row.get("simulated")
         sim = f"{s['rate_hz']:.1f} Hz, {s['interval_p99_ms']:.1f} / {s['interval_max_ms']:.1f} ms" if s else "-"
         reads = f"{m['reads_per_s']:,.0f}" if row["scenario"] == "pollers" else "-"
+        if row["scenario"] in BUSY:
+            reads = f"{m['work_per_s']:,.0f} work/s"
         print(
             f"| {row['scenario']} | {m['rate_hz']:.1f} | {m['interval_p99_ms']:.1f} / {m['interval_max_ms']:.1f} "
             f"| {reads} | {sim} |"

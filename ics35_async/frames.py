@@ -15,7 +15,8 @@ class Frame:
     """One completed cycle.
 
     ``positions`` (0..16383) and ``timestamps`` (``time.monotonic()`` of each reply) hold the
-    IDs that answered this cycle; ``failed`` the IDs tried that did not;
+    IDs that answered this cycle; ``failed`` the IDs in the cycle that did not (their
+    transaction failed, or was held back after a failure while its late reply could still come);
     ``offline`` the IDs currently out of the cycle.  ``skipped`` counts the
     frames this consumer missed since its previous one.
 

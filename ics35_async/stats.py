@@ -106,6 +106,7 @@ class BusStats:
     by_command: dict[str, int] = field(default_factory=dict)
     link_extra: float = 0.0  # seconds added to every deadline for a slow link (learnt; 0 on a fast link)
     late_replies: int = 0  # replies that arrived past their deadline and taught the bus so
+    held_back: int = 0  # stream transactions skipped: their servo's reply to a failed command could still come
 
     def latency_percentiles(self) -> dict[str, float]:
         return {f"p{p}": self.latency.percentile(p) for p in (50, 90, 99)}

@@ -127,6 +127,7 @@ class Stream:
         self._order: list[int] = []
         self._pos = 0
         self._cur = -1
+        self._cur_reader: protocol.ReadPosition | None = None  # how the reply on the wire is read
         self._cycle = 0
         self._cycle_start = 0.0
         self._t0 = 0.0
@@ -249,13 +250,15 @@ class Stream:
             return None
         k = self._order[self._pos]
         self._cur = k
+        # The reply is read as the command sent (set_targets or watch may change it meanwhile).
+        self._cur_reader = self._readers[k]
         return self._jobs[k]
 
     def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
-        reader = self._readers[k]
+        reader = self._cur_reader
         if reader is not None:  # a watched ID: ICS 3.6's position read
             try:
                 position = reader.parse(bytes(buf[offset:]))
@@ -265,7 +268,8 @@ class Stream:
             position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
             try:
-                command = protocol.Position(self.ids[k], self._targets[k], baudrate=self.bus.baudrate)
+                # (any target: a position reply's shape is the same; the target may be WATCH by now)
+                command = protocol.Position(self.ids[k], protocol.FREE, baudrate=self.bus.baudrate)
                 position = command.parse(bytes(buf[offset:]))
             except ReplyError as exc:
                 return exc  # the engine counts it, then calls fail
@@ -291,6 +295,12 @@ class Stream:
         if self._offline[k]:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
+
+    def _skip(self, now: float) -> None:
+        # The engine held this ID's transaction back (its reply to a failed command may still
+        # come): the frame shows it unanswered this cycle; nothing failed, so nothing is counted.
+        if self._cur >= 0:
+            self._advance(now)
 
     def _advance(self, now: float) -> None:
         self._pos += 1

@@ -131,6 +131,7 @@ class LineModel(RuleBasedStateMachine):
         self.engine = ready_engine(echo, max_requests_between=share)
         self.servos = FaultyServos(echo)
         self.wire = Wire(self.engine, self.servos)
+        self.wire.on_write = self._check_no_request_delays_a_due_slot
         self.requests: list[Recorded] = []
         self.source: FakeSource | None = None
         self.source_errors: list[str] = []
@@ -172,9 +173,10 @@ class LineModel(RuleBasedStateMachine):
         self.wire.run_until(self.wire.now)  # now, before any later write can draw a late fault
 
     @precondition(lambda self: self.source is None)
-    @rule(ids=st.lists(st.sampled_from(IDS), min_size=1, max_size=3))
-    def attach_stream(self, ids: list[int]) -> None:
-        source = FakeSource(ids, wake_at=self.wire.now, period=0.004)
+    @rule(ids=st.lists(st.sampled_from(IDS), min_size=1, max_size=3), paced=st.booleans())
+    def attach_stream(self, ids: list[int], paced: bool = False) -> None:
+        # paced: a stream with a rate, whose slots are deadlines (see _check_no_request_delays_a_due_slot)
+        source = FakeSource(ids, wake_at=self.wire.now, period=0.004, paced=paced)
         source.on_value = self._check_source_value
         self.source = source
         self.wire.emit(self.engine.attach_source(source, self.wire.now))
@@ -210,6 +212,14 @@ class LineModel(RuleBasedStateMachine):
         self.wire.clear_in_flight()
         self.servos.late_until = -math.inf
         self.wire.emit(engine.connected(self.wire.now))
+
+    def _check_no_request_delays_a_due_slot(self) -> None:
+        # Beside a paced stream, a request starts only while no slot is due, unless it is URGENT.
+        source, current = self.source, self.engine._current
+        if source is None or not source.paced or not source.active or not isinstance(current, Recorded):
+            return
+        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now:
+            self.source_errors.append(f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}")
 
     def _check_source_value(self, sid: int, value: int) -> None:
         k = len(self.wire.writes) - 1

@@ -781,3 +781,20 @@ async def test_a_stalled_loop_shows_as_missed_slots_on_the_frame_and_in_the_stat
         assert after[-1].missed_slots >= 3
         assert stream.stats.missed_slots >= after[-1].missed_slots
         assert json.loads(json.dumps(after[-1].to_dict()))["missed_slots"] == after[-1].missed_slots
+
+
+async def test_switching_an_id_between_watch_and_a_target_mid_transaction_fails_nothing() -> None:
+    # A program's set_targets and watch run while the stream's transaction is on the wire: the
+    # reply in flight answers the command that was sent, and must be read as that command's.
+    servos = [VirtualServo(i, position=start_position(i), ics36=True) for i in (1, 2)]
+    sim = VirtualLine(servos, realtime=True)
+    async with open_bus(sim, **FAST) as bus, bus.stream([1, 2]) as stream:
+        switches = 0
+        for _ in range(60):
+            stream.watch([1, 2])
+            await next_frame(stream)
+            stream.set_targets({1: 7500, 2: 7500})
+            await next_frame(stream)
+            switches += 2
+        assert stream.stats.failures == {}, stream.stats.failures
+        assert bus.stats.total.ok > switches

@@ -161,6 +161,7 @@ async def reconnect_session(
                                 value = await bus.servo(sid).read_stretch()
                         except TimeoutError:
                             report["hung"] += 1
+                            report.setdefault("hung_lines", []).append(bus.describe())  # what the line was doing
                         except PortLost:
                             report["port_lost"] += 1
                             await asyncio.sleep(0.01)

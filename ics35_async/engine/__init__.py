@@ -12,7 +12,8 @@ The rules, each in one place:
   wrong echo, a byte with a parity error or a reply the codec rejects fail
   it too;
 * resync: after any fault, wait until the line has been quiet for
-  ``quiet_time`` (at most ``max_resync``), so the late bytes of a failed
+  ``quiet_time`` (at most ``max_resync``; less after a probe's or the
+  stream's short wait), so the late bytes of a failed
   transaction are never taken for the next reply;
 * guard read: after a timeout, a command with the same command byte does not
   go next (the late reply would fit it); a harmless read of another shape
@@ -24,7 +25,12 @@ The rules, each in one place:
 * a slow link: late bytes raise every allowance (see :mod:`.link`);
 * probes: a ``Timing.PROBE`` read waits as long as this link's answers have
   taken, not the adapter's worst case, and its silence resyncs as briefly
-  (see :mod:`.probe`).
+  (see :mod:`.probe`);
+* the stream's wait: its transactions wait what this link's answers take
+  too; after such a short wait fails, its servo is held back (the stream
+  skips it, a request to it waits) until the reply could no longer come,
+  and while a cut-short reply's tail could still come a reply arriving in
+  pieces is taken only once nothing more follows (``LineEngine._hold``).
 """
 
 from .counters import LineCounters

@@ -35,6 +35,7 @@ class LineCounters:
         self.stray = 0
         self.line_errors = 0
         self.guards = 0
+        self.held_back = 0  # stream transactions skipped (see LineEngine._hold)
         self.reconnects = 0
         self.by_command: dict[str, int] = {}
         self.link: LinkLatency | None = None  # the engine's, for the snapshot
@@ -67,4 +68,5 @@ class LineCounters:
             by_command=dict(self.by_command),
             link_extra=self.link.extra if self.link is not None else 0.0,
             late_replies=self.link.late_replies if self.link is not None else 0,
+            held_back=self.held_back,
         )

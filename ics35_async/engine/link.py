@@ -19,8 +19,10 @@ deadline on.  The evidence is the owed bytes turning up:
 
 A transaction whose bytes start with its own echo shows the line is in step
 again: nothing is owed any more.  ``extra`` is set to half as much again as
-the lateness seen, and lowered by half after each window of transactions
-that finished within their base allowance.  It never exceeds ``bound``, so a
+the lateness seen, and lowered by half after each window of transactions in
+which fewer than one in ``RARE`` needed it: a slow link delays most replies,
+while a servo that answers late now and then (a faulty line) must not keep
+every deadline and resync longer for good.  It never exceeds ``bound``, so a
 dead servo still times out within its base allowance plus ``bound``; bytes
 later than ``bound`` are not learnt from at all (no allowance within the
 bound would have caught them, so raising it would only slow the line).
@@ -35,6 +37,7 @@ from ..protocol.wire import echo_offset
 MARGIN = 1.5  # the allowance covers half as much again as the lateness seen...
 JITTER = 0.001  # ...plus a millisecond for the loop's own jitter
 MAX_BEHIND = 8  # commands remembered as sent while a reply was owed
+RARE = 10  # fewer than one in RARE transactions of a window needing the extra: it is halved
 
 
 class LinkLatency:
@@ -65,7 +68,7 @@ class LinkLatency:
         self._header = -1  # its 7-bit header, when none of it came (-1: no check)
         self._unechoed: list[bytes] = []  # commands sent while a reply was owed whose echo has not come
         self._window = 0
-        self._needed = False
+        self._needed = 0  # transactions of this window that needed the extra
 
     # ------------------------------------------------------------------ evidence
 
@@ -154,19 +157,19 @@ class LinkLatency:
         self.late_replies += 1
         self._raise(seconds)
         self._window = 0
-        self._needed = True
+        self._needed = 1
 
     def succeeded(self, over_base: float) -> None:
         """A transaction finished ``over_base`` seconds past what it would have been allowed without ``extra``."""
         if over_base > 0:
-            self._needed = True
+            self._needed += 1
             self._raise(over_base)  # keep the margin as the link's lateness creeps up
         self._window += 1
         if self._window >= self.window:
-            if not self._needed:
+            if self._needed * RARE < self.window:
                 self.extra = 0.0 if self.extra < 2 * JITTER else self.extra / 2
             self._window = 0
-            self._needed = False
+            self._needed = 0
 
     def _raise(self, seconds: float) -> None:
         wanted = seconds * MARGIN + JITTER

@@ -22,7 +22,7 @@ from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error, timeout_error
-from .probe import AnswerTimes
+from .probe import STREAM_RESYNC, AnswerTimes
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -77,8 +77,16 @@ class LineEngine:
         self._current_id = NO_ID
         self._t_start = 0.0
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
-        self._short = False  # this transaction waits less than its full allowance (a probe)
+        self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
+        self._wire: dict[int, float] = {}  # wire time by transaction size
+        # First bytes (command and ID) whose reply may still come after a short wait: no command
+        # that starts with one goes on the wire before its time here (see _hold).
+        self._held: dict[int, float] = {}
+        self._hold_wake = INF
         self._corrupted = False  # a byte of this transaction had a parity/framing error
+        self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
+        self._settling = False  # this transaction's reply is in; waiting to see no more comes
+        self._t_done = 0.0  # when it came in
         self.guard = GuardRule()
         self.answers = AnswerTimes()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
@@ -97,6 +105,8 @@ class LineEngine:
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
         self.link.in_step()  # a fresh port: no reply from before can still arrive
         self.answers.reset()
+        self._wire.clear()
+        self._held.clear()
         self.state = IDLE
         if resumed:
             if self._source is not None:
@@ -185,6 +195,7 @@ class LineEngine:
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
             "guard_suspect": self.guard.suspect.hex(" "),
+            "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
         }
 
     @property
@@ -233,6 +244,9 @@ class LineEngine:
                 self._t_first = now
             buf += data
             if len(buf) >= self._expect:
+                if self._tail_until > now and len(buf) - len(data) > self._echo_len and not self._settling:
+                    self._settle(now)
+                    return None
                 return self._finish(now)
         elif state is QUIET:
             self.counters.stray += len(data)
@@ -296,6 +310,7 @@ class LineEngine:
         """
         source = self._source
         queue = self.queue
+        self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
         if queue.count:
             due = None if source is None else source.slot_due(now)
             if due is None:
@@ -309,6 +324,8 @@ class LineEngine:
         self._in_row = 0
         if source is not None:
             job = source.next_transaction(now)
+            if job is not None and self._held:
+                job = self._skip_held(source, job, now)
             if job is not None:
                 self._owner = source
                 return self._begin(job[0], job[1], job[2], None, NORMAL, now)
@@ -323,10 +340,50 @@ class LineEngine:
             self.deadline = source.wake_at
         else:
             self.deadline = INF
+        if self._held:
+            held = self._held
+            for first in [b for b, until in held.items() if until <= now]:
+                del held[first]
+            if self._hold_wake < self.deadline:
+                self.deadline = self._hold_wake
+        return None
+
+    def _skip_held(
+        self, source: BackgroundSource, job: tuple[bytes, int, int], now: float
+    ) -> tuple[bytes, int, int] | None:
+        """The source's offer, or the next one it makes, that no hold keeps off the wire (None: none now).
+
+        A held offer is skipped (the source moves on without counting a failure); an offer the
+        source comes back to within this call is left pending, offered again once its hold ends.
+        """
+        held = self._held
+        skipped: set[int] = set()
+        offer: tuple[bytes, int, int] | None = job
+        while offer is not None:
+            first = offer[0][0]
+            until = held.get(first)
+            if until is None:
+                return offer
+            if until <= now:
+                del held[first]
+                return offer
+            if first in skipped:
+                self._hold_wake = min(self._hold_wake, until)
+                return None
+            skipped.add(first)
+            self.counters.held_back += 1
+            source.skip(now)
+            offer = source.next_transaction(now)
         return None
 
     def _begin_request(self, now: float) -> bytes | None:
         """Put the queue's next request on the wire; None if only abandoned ones were left."""
+        if self._held:  # a request whose reply a held one could pass for waits for the hold to end
+            head = self.queue.peek()
+            until = 0.0 if head is None else self._held.get(head.command.tx[0], 0.0)
+            if until > now:
+                self._hold_wake = min(self._hold_wake, until)
+                return None
         req = self.queue.pop()
         if req is None:
             return None
@@ -378,6 +435,7 @@ class LineEngine:
         self._expect = echo_len + reply_len
         self._buf.clear()
         self._corrupted = False
+        self._settling = False
         self._t_start = now
         nbytes = len(tx) + reply_len
         allowance = self._allowances.get(nbytes) if timing is NORMAL else None
@@ -388,9 +446,22 @@ class LineEngine:
         self._base = allowance
         self._short = timing is PROBE
         if self._short:
-            allowance = self.answers.allowance(allowance, wire_time(nbytes, self.baudrate))
+            allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
+        elif req is None and self.answers.stream_latency is not None:
+            # The stream waits what this line's answers take, not the adapter's worst case: a
+            # failure then costs the control loop little.  Its reply may still come later: see _hold.
+            short = self._wire_time(nbytes) + self.answers.stream_latency
+            if short < allowance:
+                self._short = True
+                allowance = short
         self.deadline = now + allowance + self.link.extra
         return tx
+
+    def _wire_time(self, nbytes: int) -> float:
+        wire = self._wire.get(nbytes)
+        if wire is None:
+            wire = self._wire[nbytes] = wire_time(nbytes, self.baudrate)
+        return wire
 
     def _allowance(self, nbytes: int, timing: Timing) -> float:
         allowance = self.timing.allowance(nbytes, self.baudrate, timing)
@@ -405,7 +476,7 @@ class LineEngine:
         counters = self.counters
         if self.debug:
             log.debug("id %s tx %s rx %s", sid, tx.hex(" "), buf.hex(" "))
-        latency = now - self._t_start
+        latency = (self._t_done if self._settling else now) - self._t_start
         counters.transactions[sid] += 1
         counters.bytes_tx[sid] += len(tx)
         counters.bytes_rx[sid] += len(buf)
@@ -416,7 +487,11 @@ class LineEngine:
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
-            return self._failed(error, sid, now)
+            stream = self._current is None
+            out = self._failed(error, sid, now)
+            if stream and self._short:
+                self._hold(now)
+            return out
         over = latency - self._base  # before the next transaction replaces _base
         value = None  # a request's answer, handed over once everything is counted
         req = self._current
@@ -436,8 +511,12 @@ class LineEngine:
                 counters.ok[sid] -= 1
                 counters.latency.add(latency)
                 out = self._fault(rejected, sid, now)
+                if self._short:
+                    self._hold(now)
                 source.fail(rejected, now)
                 return out
+            if over <= 0:  # (a reply later than the full allowance is a fault the link's extra caught, not a norm)
+                self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
         else:
             try:
                 value = req.command.parse(bytes(buf[echo_len:]))
@@ -446,7 +525,7 @@ class LineEngine:
                 return self._fail_request(req, exc, sid, now)
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
-            self.answers.answered(latency - wire_time(len(tx) + self._expect - echo_len, self.baudrate))
+            self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
             # Counted before the caller hears (or the stream publishes a frame): under the thread
             # driver the caller runs on another thread and may read the statistics at once.
             counters.ok[sid] += 1
@@ -478,7 +557,22 @@ class LineEngine:
     # A timeout also feeds the guard read (see .guard) and the slow-link learning (see .link);
     # a probe's silence gets a short resync (see .probe).
 
+    def _settle(self, now: float) -> None:
+        """A reply came in more than one piece while a stream reply's tail may still come (see _hold).
+
+        If that tail landed after this command's echo, it and the first bytes of this command's
+        own reply could fill the reply's length and pass for it; the rest of the real reply is
+        then right behind.  So the reply is taken only if nothing more arrives for the rest of a
+        reply's wire time and a millisecond (one more USB frame).  Rare: only in pieces, and only
+        within a failed stream transaction's full allowance.
+        """
+        self._settling = True
+        self._t_done = now
+        self.deadline = now + self._wire_time(self._expect - self._echo_len) + 0.001
+
     def _timeout(self, now: float) -> bytes | None:
+        if self._settling:  # nothing more came: the reply is this command's own (see _settle)
+            return self._finish(now)
         buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
         self.counters.count(sid, len(tx), len(buf))
         error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
@@ -495,12 +589,13 @@ class LineEngine:
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
-        if probe and not partial and self.state is State.QUIET and self.answers.latency is not None:
-            # Silence at a probed ID: a resync as short as the probe's own wait (see .probe).
-            self._quiet_span = min(self._quiet_span, self.answers.latency)
-            self._quiet_until = min(self._quiet_until, now + self.answers.latency + self.link.extra)
-            self.deadline = self._quiet_until
-        if partial and self.state is State.QUIET:
+        if probe and req is None:
+            self._hold(now)
+            if partial:
+                self._tail_until = self._held[tx[0]]  # see _settle
+        elif probe and not partial:
+            self._short_resync(now, self.answers.latency)  # silence at a probed ID (see .probe)
+        if partial and self.state is State.QUIET and req is not None:
             # The rest may be on its way (a link that holds a reply's tail): listen for it as
             # long again as the transaction's full allowance, so its arrival is seen and learnt.
             self._quiet_until = max(self._quiet_until, now + self._base)
@@ -517,6 +612,26 @@ class LineEngine:
         if owner is not None:
             owner.fail(error, now)
         return out
+
+    def _hold(self, now: float) -> None:
+        """A stream transaction that waited less than its full allowance failed (after the resync began).
+
+        Its reply may still come, as late as the full allowance (and the link's extra) allows, and
+        a quiet time more.  Until then no command with its first byte (its command and ID) goes on
+        the wire: the stream skips that servo, and a request to it waits.  A reply from it landing
+        in another command's transaction cannot pass for that one's answer (another ID or command
+        in its header), so it costs a failure there, never a value taken for another; and the
+        resync after this failure can be as short as a probe's (see .probe).  The tail of a
+        partial reply has no header to tell it by: see _settle.
+        """
+        self._held[self._tx[0]] = self._t_start + self._base + self.link.extra + self.timing.quiet_time
+        self._short_resync(now, STREAM_RESYNC)
+
+    def _short_resync(self, now: float, latency: float | None) -> None:
+        if self.state is QUIET and latency is not None:
+            self._quiet_span = min(self._quiet_span, latency)
+            self._quiet_until = min(self._quiet_until, now + latency + self.link.extra)
+            self.deadline = self._quiet_until
 
     def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1

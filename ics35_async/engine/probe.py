@@ -21,6 +21,13 @@ silent IDs again with the normal allowance (see
 The same answers tell the engine whether a request fits in a paced stream's
 slack (see ``LineEngine._start_next``): ``expected`` is what an answer usually
 takes beyond its wire time, an average that leans high.
+
+And they set the stream's wait (``stream_latency``): like a probe's, but from
+the 99th percentile of the last ``RECENT`` answers instead of the slowest
+ever, so one hiccup of the host (a garbage collection, a loaded machine) does
+not cost the control loop the full allowance at every failure for the rest of
+the session; and only once ``RECENT_MIN`` answers have been seen.  A stream
+transaction that gave up early is held back (see ``LineEngine._hold``).
 """
 
 from __future__ import annotations
@@ -29,20 +36,34 @@ FLOOR = 0.004  # seconds: the least a probe waits beyond its wire time (a loop o
 FACTOR = 2.0
 MARGIN = 0.001
 RISE, FALL = 0.3, 0.05  # how fast the expected answer time follows slower / faster answers
+RECENT = 256  # answers the stream's wait is measured from
+RECENT_MIN = 8  # answers seen before the stream waits less than the full allowance
+REFRESH = 32  # answers between two updates of the stream's wait (a sort of RECENT floats)
+# The silence that ends the resync after a stream transaction that gave up early: its reply, had it
+# been coming, would most likely have come by then (it waited twice what answers take), and if it
+# comes later it can only fail what it lands in (see LineEngine._hold).  A millisecond lets bytes
+# already on their way (one more USB frame) arrive inside the resync.
+STREAM_RESYNC = 0.001
 
 
 class AnswerTimes:
     """What answers on this line take beyond their wire time: the slowest, and what is usual."""
 
-    __slots__ = ("expected", "slowest")
+    __slots__ = ("_n", "_recent", "expected", "slowest", "stream_latency")
 
     def __init__(self) -> None:
         self.slowest = -1.0  # the slowest answer beyond its wire time (s); negative: none seen yet
         self.expected = -1.0  # what an answer usually takes beyond its wire time, leaning high
+        self.stream_latency: float | None = None  # seconds the stream waits beyond wire time (None: full)
+        self._recent: list[float] = []
+        self._n = 0
 
     def reset(self) -> None:
         """A fresh port or baud rate: what the old one showed proves nothing."""
         self.slowest = self.expected = -1.0
+        self.stream_latency = None
+        self._recent.clear()
+        self._n = 0
 
     def answered(self, beyond_wire: float) -> None:
         """A request was answered ``beyond_wire`` seconds after its bytes' wire time."""
@@ -51,6 +72,15 @@ class AnswerTimes:
             self.slowest = beyond_wire
         # An average that follows slower answers quickly and faster ones slowly: it sits near the
         # high end of what answers take, and a one-off hiccup fades within a few dozen answers.
+        recent = self._recent
+        if len(recent) < RECENT:
+            recent.append(beyond_wire)
+        else:
+            recent[self._n % RECENT] = beyond_wire
+        self._n += 1
+        if self._n % REFRESH == 0 or self._n == RECENT_MIN:
+            p99 = sorted(recent)[int(len(recent) * 0.99)]
+            self.stream_latency = max(FLOOR, FACTOR * p99 + MARGIN)
         expected = self.expected
         if expected < 0:
             self.expected = beyond_wire

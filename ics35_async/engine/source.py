@@ -17,7 +17,10 @@ class BackgroundSource(Protocol):
 
     ``next_transaction(now)`` returns ``(tx, reply_len, servo_id)``, or
     ``None`` when it has nothing to send now; then ``wake_at`` says when it
-    will have (``math.inf``: only when told through the line's ``kick``).
+    will have (``math.inf``: only when told through the line's ``kick``).  The
+    engine either puts an offer on the wire or passes it over with ``skip``
+    (its servo's reply to an earlier command may still come); an offer it does
+    neither with is made again on the next call.
     ``complete`` gets the receive buffer and the reply's offset in it (after
     the echo) and returns ``None`` or the error that made the reply invalid;
     it changes nothing when it returns an error: the engine counts the fault,
@@ -44,6 +47,10 @@ class BackgroundSource(Protocol):
 
     def fail(self, exc: ReplyError, now: float) -> None: ...
 
+    def skip(self, now: float) -> None:
+        """The transaction just offered was not sent (see above): move on as after a failure, counting none."""
+        ...
+
     def line_closed(self, exc: IcsError) -> None: ...
 
     def line_resumed(self, now: float) -> None:
@@ -59,7 +66,7 @@ class BoundSource:
     costs what a method call on the object itself would.
     """
 
-    __slots__ = ("_wake_at", "complete", "fail", "line_closed", "line_resumed", "next_transaction", "slot_due")
+    __slots__ = ("_wake_at", "complete", "fail", "line_closed", "line_resumed", "next_transaction", "skip", "slot_due")
 
     def __init__(
         self,
@@ -70,6 +77,7 @@ class BoundSource:
         wake_at: Callable[[], float],
         slot_due: Callable[[float], float | None],
         line_resumed: Callable[[float], None],
+        skip: Callable[[float], None],
     ) -> None:
         self.next_transaction = next_transaction
         self.complete = complete
@@ -78,11 +86,12 @@ class BoundSource:
         self._wake_at = wake_at
         self.slot_due = slot_due
         self.line_resumed = line_resumed
+        self.skip = skip
 
     @classmethod
     def of(cls, owner: Any) -> BoundSource:
         """``owner``'s hooks: ``_next_transaction``, ``_complete``, ``_fail``, ``_line_closed``, ``_wake_at``,
-        ``_slot_due``, ``_line_resumed``."""
+        ``_slot_due``, ``_line_resumed``, ``_skip``."""
         return cls(
             owner._next_transaction,
             owner._complete,
@@ -91,6 +100,7 @@ class BoundSource:
             lambda: owner._wake_at,
             owner._slot_due,
             owner._line_resumed,
+            owner._skip,
         )
 
     @property

@@ -102,6 +102,7 @@ class Wire:
         self.delivered: list[object] = []  # the tag of each arrival delivered, in order
         self._arrivals: list[tuple[float, int, bytes, int, object]] = []  # (time, order, bytes, parity errors, tag)
         self._order = itertools.count()
+        self.on_write: Callable[[], None] | None = None  # called as each write goes out
 
     # -- what the world does
 
@@ -124,6 +125,8 @@ class Wire:
 
     def emit(self, out: bytes | None) -> bytes | None:
         if out is not None:
+            if self.on_write is not None:
+                self.on_write()
             self.writes.append((self.now, out))
             self.marks.append(len(self.delivered))
             if self.answer is not None:
@@ -252,6 +255,7 @@ class FakeSource:
         self.offered: list[bytes] = []
         self.values: list[tuple[int, int]] = []
         self.failures: list[ReplyError] = []
+        self.skipped = 0
         self.closed: IcsError | None = None
         self.on_value: Callable[[int, int], None] | None = None
 
@@ -290,6 +294,10 @@ class FakeSource:
 
     def fail(self, exc: ReplyError, now: float) -> None:
         self.failures.append(exc)
+        self.k += 1
+
+    def skip(self, now: float) -> None:
+        self.skipped += 1
         self.k += 1
 
     def line_closed(self, exc: IcsError) -> None:

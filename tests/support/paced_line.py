@@ -69,6 +69,9 @@ class PacedCycle:
         self.failed += 1
         self.pos += 1
 
+    def skip(self, now: float) -> None:
+        self.pos += 1
+
     def line_closed(self, exc: IcsError) -> None:
         pass
 
