@@ -274,6 +274,8 @@ def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any
     page.click("a[href='#many']")
     page.fill("#many-ids", "1,3")
     page.check("[name=use-punch]")
+    page.click("#many-apply")
+    expect(page.locator("#message")).to_have_text("give punch a value, or untick it")  # not taken as 0
     page.fill("[name=value-punch]", "4")
     page.click("#many-apply")
     expect(page.locator("#many-results tbody tr")).to_have_count(2)

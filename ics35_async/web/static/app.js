@@ -360,7 +360,12 @@ async function applyMany() {
   let ids;
   try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
   const changes = {};
-  for (const name of PROFILE_FIELDS) if (document.querySelector(`[name=use-${name}]`).checked) changes[name] = +document.querySelector(`[name=value-${name}]`).value;
+  for (const name of PROFILE_FIELDS) {
+    if (!document.querySelector(`[name=use-${name}]`).checked) continue;
+    const text = document.querySelector(`[name=value-${name}]`).value.trim();
+    if (text === "") { say(`give ${name} a value, or untick it`); return; }  // an empty box is not 0
+    changes[name] = +text;
+  }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
   $("#many-results tbody").replaceChildren();
   const reply = await api("/api/many/apply", { ids, changes });
