@@ -373,6 +373,7 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     context = browser.new_context(viewport={"width": 1280, "height": 1000})
     p = context.new_page()
     p.goto(robot_server)
+    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")  # no --port: the robot's line
     pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
     for here in pages:
         p.click(f"nav a[href='#{here}']")

@@ -143,3 +143,17 @@ def test_the_pages_work_on_a_robot_line_without_fighting_the_robot_for_its_servo
     assert back["robot_line"] is None and back["connected"]
     wait_for(lambda: client.get("/api/robot").json()["cycle"] > cycle + 5)  # the robot streams on, its line open
     assert post(client, "/api/robot/move", {"pose": {"shoulder": 10}, "duration": 0.1}).status_code == 200
+
+
+def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tmp_path: Path) -> None:
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "one.toml"
+    path.write_text(f'[lines.arm]\nport = "sim://{name}?ids=1"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    session = LineSession(LineConfig(port=f"sim://{name}-unused"))
+    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        status = client.get("/api/status").json()
+        assert status["robot_line"] == "arm" and status["port"] == f"sim://{name}?ids=1" and status["connected"]
+        assert [s["id"] for s in post(client, "/api/scan").json()["servos"]] == [1]
+    sim.named(name).close()
