@@ -154,6 +154,28 @@ def test_the_built_in_simulator_is_labelled_on_every_page(browser: Browser, simu
     context.close()
 
 
+def test_a_stopped_server_is_said_in_words_at_once(browser: Browser) -> None:
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=environment,
+    )
+    assert proc.stdout is not None
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(proc.stdout.readline().strip())
+    expect(p.locator("#line-status")).to_contain_text("115200 baud")
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+    expect(p.locator("#message")).to_contain_text("server is gone")
+    expect(p.locator("#line-status")).to_have_text("server gone")
+    context.close()
+
+
 def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:
     context = browser.new_context()
     refused = context.new_page().goto(base_of(server) + "/")

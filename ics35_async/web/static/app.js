@@ -527,7 +527,10 @@ function socketSend() {
 
 function connectSocket() {
   socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
-  socket.onopen = socketSend;
+  socket.onopen = () => {
+    if (state.serverGone) { state.serverGone = false; say("the configurator's server is back", "info"); }
+    socketSend();
+  };
   socket.onmessage = (event) => {
     const u = JSON.parse(event.data);
     showStatus(u.status);
@@ -539,7 +542,10 @@ function connectSocket() {
     if (u.robot) onRobot(u.robot);
   };
   socket.onclose = () => {
-    $("#line-status").textContent = "the configurator's server is gone: reconnecting…";
+    const gone = "the configurator's server is gone (was `ics35 web` stopped?): trying again every second";
+    $("#line-status").textContent = "server gone";
+    if (!state.serverGone) say(gone);  // once: the box stays until the server is back or another action
+    state.serverGone = true;
     setTimeout(connectSocket, 1000);
   };
 }
