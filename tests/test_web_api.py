@@ -262,6 +262,21 @@ def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None
     assert client.get("/api/status").json()["live"] is None
 
 
+def test_a_live_frames_slow_parts_are_sent_to_a_page_only_when_they_change(serve: Any) -> None:
+    client, _ = serve((1, 3), ics36=(3,))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        frames = [u["live"] for u in (ws.receive_json() for _ in range(60)) if u.get("live")][:6]
+        assert frames[0]["watched"] == [3] and frames[0]["targets"] == {"1": 0, "3": -1}
+        assert all("targets" not in f and "watched" not in f and "positions" in f for f in frames[1:])
+        post(client, "/api/servo/3/free")  # watched -> free: both parts change
+        for _ in range(60):
+            frame = ws.receive_json().get("live") or {}
+            if "targets" in frame:
+                break
+    assert frame["targets"] == {"1": 0, "3": 0} and frame["watched"] == []
+
+
 def test_the_live_stream_leaves_an_ics36_servos_torque_alone_and_frees_only_ics35_ones(serve: Any) -> None:
     client, sim = serve((1, 3), ics36=(3,))
     for sid in (1, 3):

@@ -317,6 +317,13 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
         expect(page.locator("#legend span[data-id='3']")).to_have_text(f"■ 3: {position}")
         page.wait_for_timeout(150)  # a visible step on the plot
     shot(page, "live")
+    with page.expect_download() as download:
+        page.click("#live-export")
+    csv = Path(download.value.path()).read_text().splitlines()
+    assert csv[0].startswith("t,cycle,pos_1,target_1,current_1,temp_1,pos_3,target_3")
+    rows = [dict(zip(csv[0].split(","), line.split(","), strict=True)) for line in csv[1:]]
+    assert [r["pos_3"] for r in rows if r["pos_3"]][-1] == "6000"  # a frame lacks an ID that missed its cycle
+    assert rows[-1]["target_3"] == "-1" and rows[-1]["target_1"] == "0"  # watched (ICS 3.6), free (ICS 3.5)
     page.click("#live-stop")
 
 

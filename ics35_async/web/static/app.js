@@ -3,7 +3,7 @@
 
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
-  history: [], livePaused: false, updates: [], limits: null };
+  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set() };
 
 // ---------------------------------------------------------------- talking to the server
 
@@ -71,6 +71,7 @@ function showStatus(s) {
   $("#sim-banner").hidden = !s.simulator;
   $("#lost-banner").hidden = !s.lost;
   showRobotLines(s.robot);
+  $("#scan-progress").hidden = !s.scanning;
   $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
@@ -383,12 +384,17 @@ async function startLive() {
   const text = $("#live-ids").value.trim();
   try { ids = text ? parseIds(text) : state.servos.map((s) => s.id); } catch (e) { say(e.message); return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
-  state.history = [];
+  state.history = []; state.liveIds = new Set();
   await api("/api/live/start", { ids });
 }
 
 function onLive(frame) {
   if (!frame) return;
+  // The server sends these only when they change: each frame is filled in from the last ones sent.
+  for (const part of ["targets", "current", "temperature", "watched", "offline"]) {
+    if (frame[part] === undefined) frame[part] = state.liveParts[part]; else state.liveParts[part] = frame[part];
+  }
+  for (const id of Object.keys(frame.positions)) state.liveIds.add(id);  // a frame lacks an ID that missed its cycle
   const now = performance.now();
   state.updates.push(now);
   while (state.updates.length && now - state.updates[0] > 1000) state.updates.shift();
@@ -414,7 +420,7 @@ function drawPlot() {
   const frames = state.history.slice(-600);
   g.clearRect(0, 0, canvas.width, canvas.height);
   if (frames.length < 2) return;
-  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  const ids = [...state.liveIds].sort((a, b) => a - b);
   let lo = Infinity, hi = -Infinity;
   for (const f of frames) for (const id of ids) { const v = f[what][id]; if (v !== undefined && v >= 0) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
   if (lo === Infinity) return;
@@ -434,14 +440,14 @@ function drawPlot() {
     }
     g.stroke();
   });
-  const now = frames[frames.length - 1][what];
-  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${now[id] ?? "-"}`)));
+  const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${latest(id)}`)));
 }
 
 function exportCsv() {
   const frames = state.history;
   if (!frames.length) { say("nothing recorded yet: start the stream first"); return; }
-  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  const ids = [...state.liveIds].sort((a, b) => a - b);
   const head = ["t", "cycle", ...ids.flatMap((id) => [`pos_${id}`, `target_${id}`, `current_${id}`, `temp_${id}`])];
   const lines = [head.join(",")];
   for (const f of frames) lines.push([f.t.toFixed(4), f.cycle, ...ids.flatMap((id) => [f.positions[id] ?? "", f.targets[id] ?? "", f.current[id] ?? "", f.temperature[id] ?? ""])].join(","));
@@ -533,9 +539,9 @@ function connectSocket() {
   };
   socket.onmessage = (event) => {
     const u = JSON.parse(event.data);
-    showStatus(u.status);
+    if (u.status) showStatus(u.status);  // sent when it changes, as the scan's progress is
     const bar = $("#scan-progress");
-    if (u.progress) { bar.hidden = !u.status.scanning; bar.max = u.progress.total || 1; bar.value = u.progress.done; }
+    if (u.progress) { bar.max = u.progress.total || 1; bar.value = u.progress.done; }
     if (u.servos) showServos(u.servos);
     if (u.live) onLive(u.live);
     if (u.traffic) onTraffic(u.traffic);
