@@ -485,11 +485,12 @@ function onRobot(r) {
     (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
   const body = $("#robot-table tbody");
   if (body.children.length !== r.joints.length) {
+    // The slider and the angles first: on a phone the columns to the right scroll out of sight.
     body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name),
-      el("td", {}, el("a", { href: `#servo/${j.id}`, title: "this servo on the Servo page", onclick: (e) => { e.preventDefault(); openJoint(j.line, j.id).catch(() => {}); } }, `${j.line} / ${j.id}`)),
-      el("td", { class: "angle" }), el("td", { class: "target" }),
       el("td", {}, el("input", { type: "range", min: j.min, max: j.max, step: 1, value: 0, name: `joint-${j.name}`, title: `${j.min}..${j.max}°` })),
-      el("td", { class: "temp" }), el("td", { class: "current" }), el("td", { class: "safety" }))));
+      el("td", { class: "angle" }), el("td", { class: "target" }), el("td", { class: "safety" }),
+      el("td", { class: "temp" }), el("td", { class: "current" }),
+      el("td", {}, el("a", { href: `#servo/${j.id}`, title: "this servo on the Servo page", onclick: (e) => { e.preventDefault(); openJoint(j.line, j.id).catch(() => {}); } }, `${j.line} / ${j.id}`)))));
     for (const slider of body.querySelectorAll("input[type=range]")) {
       slider.addEventListener("change", () => moveJoint(slider.name.slice(6), +slider.value).catch(() => {}));
     }
