@@ -26,7 +26,7 @@ NEUTRAL = 7500
 POSITION_TXS = tuple(protocol.position_tx(i, NEUTRAL) for i in IDS)
 POSITION_BYTES = 6  # 3 command bytes + 3 reply bytes on the wire (the echo is the command itself)
 READ_PARAM_BYTES = 5  # 2 command bytes + 3 reply bytes
-TRANSPORTS = ("direct", "fast", "stock")
+TRANSPORTS = ("direct", "thread")  # the tty read on its descriptor by the loop, or by a reader thread
 SIM_TURNAROUND = DEFAULT_TURNAROUND
 
 # A pty has no USB latency timer (the default 20 ms allowance is for FTDI

@@ -187,7 +187,7 @@ def _spread(values: list[float]) -> str:
 def print_table(r: dict[str, Any]) -> None:
     mode = "fast-mode (CPU-bound)" if r["mode"] == "fast" else "real-time, 1.25 Mbit/s"
     rounds = f"{r['rounds']} rounds of {r['phase_seconds']:g} s"
-    print(f"\n9. Web configurator: 32 streaming servos, {mode} simulator on a pty, {rounds}")
+    print(f"\n10. Web configurator: 32 streaming servos, {mode} simulator on a pty, {rounds}")
     print("   each phase against the mean of the 'no page' phases either side of it; medians (spread)")
     print(f"  stream rate, no page       {r['no_page_cycles_per_s']:8.1f} cycles/s")
     each = r["page_vs_no_page_each"]

@@ -17,7 +17,7 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    1250000 bit/s (bench_wire);
 3. sharing: stream plus 16 telemetry pollers (bench_sharing);
 4. cost: memory growth over 1,000,000 transactions (bench_memory);
-5. event loops (asyncio, uvloop) x transports (direct, fast, stock): rows
+5. event loops (asyncio, uvloop) x transports (direct, thread): rows
    of 1 and 2;
 6. a peer: rcb4's ICSServoController (bench_peer);
 7. the USB adapter: 32-servo cycle rates behind the FTDI model at latency
@@ -25,9 +25,12 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
 8. the control loop: a 12-servo stream at 100 Hz on a wire-timed 1.25 Mbit/s
    line, alone, with four flat-out pollers, at 5% faults and with a servo
    offline, in real time and in simulated time (bench_control_loop);
-9. the web configurator: a 32-servo stream's rate with the Live plots page
-   open against none, and the server's CPU per page update (bench_web; needs
-   the ``web`` extra).
+9. the burst path (compiled executor) against the ordinary path, blocking pyserial and the
+   bare loop: stream CPU and wire-timed rate, four lines, a CPU-bound thread beside a stream,
+   sequential and batched requests (bench_burst);
+10. the web configurator: a 32-servo stream's rate with the Live plots page
+    open against none, and the server's CPU per page update (bench_web; needs
+    the ``web`` extra).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -61,6 +64,7 @@ from pathlib import Path
 from typing import Any
 
 import bench_adapter
+import bench_burst
 import bench_control_loop
 import bench_cpu
 import bench_lines
@@ -87,6 +91,7 @@ SECTIONS = (
     "peer",
     "adapter",
     "control_loop",
+    "burst",
     "web",
 )
 
@@ -287,6 +292,7 @@ def main() -> int:
         "peer": lambda: bench_peer.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
         "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
         "control_loop": lambda: bench_control_loop.run(2.0 if quick else 5.0),
+        "burst": lambda: bench_burst.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
         "web": lambda: bench_web.run(1.0 if quick else 2.0, runs or (1 if quick else 4)),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
@@ -326,6 +332,7 @@ def main() -> int:
         "peer": print_peer,
         "adapter": bench_adapter.print_table,
         "control_loop": bench_control_loop.print_table,
+        "burst": bench_burst.print_table,
         "web": bench_web.print_table,
     }
     for name in sections:

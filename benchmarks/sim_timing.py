@@ -22,7 +22,7 @@ import serial
 
 from ics35_async.protocol import Position, wire_time
 from ics35_async.sim import Deliverer, VirtualLine, lower_timer_slack, start_subprocess, stop_subprocess, wait_until
-from ics35_async.transports import open_line
+from ics35_async.transports import DevicePort, open_port
 
 
 def summary(label: str, lateness: list[float]) -> str:
@@ -131,47 +131,45 @@ def bench_in_process(n: int) -> None:
         print(summary(f"host.deliver, position @ {baud}", lateness))
 
 
-class _Waiter(asyncio.Protocol):
-    def __init__(self) -> None:
-        self.count = 0
-        self.want = 0
-        self.done: asyncio.Future[float] | None = None
-
-    def data_received(self, data: bytes) -> None:
-        self.count += len(data)
-        if self.done is not None and self.count >= self.want and not self.done.done():
-            self.done.set_result(time.perf_counter())
-
-
 async def _asyncio_run(n: int, baud: int, realtime: bool) -> list[float]:
     name = f"bench-{baud}-{realtime}"
-    transport, protocol = await open_line(
-        f"sim://{name}?ids=1&baud={baud}&realtime={int(realtime)}", baudrate=baud, protocol_factory=_Waiter
-    )
+    port = open_port(f"sim://{name}?ids=1&baud={baud}&realtime={int(realtime)}", baud)
+    assert isinstance(port, DevicePort)
     from ics35_async.sim import named
 
     bus = named(name)
     loop = asyncio.get_running_loop()
+    got = bytearray()
+    want = 0
+    done: asyncio.Future[float] = loop.create_future()
+
+    def readable() -> None:  # as the asyncio driver reads an in-process device: on the loop, told by on_input
+        got.extend(port.read())
+        if len(got) >= want and not done.done():
+            done.set_result(time.perf_counter())
+
+    port.on_input = lambda: loop.call_soon_threadsafe(readable)
     lateness = []
     for i in range(n):
-        protocol.count, protocol.want = 0, 6
-        protocol.done = loop.create_future()
+        got.clear()
+        want = 6
+        done = loop.create_future()
         written = time.perf_counter()
-        transport.write(Position(1, 7000 + i % 1000, baudrate=baud).tx)
-        arrived = await protocol.done
+        port.write(Position(1, 7000 + i % 1000, baudrate=baud).tx)
+        arrived = await done
         if realtime:
             modelled = bus.log[-1].reply_time
             assert modelled is not None
             lateness.append(arrived - (bus.epoch + modelled))
         else:
             lateness.append(arrived - written)
-    transport.close()
+    port.close()
     bus.close()
     return lateness
 
 
 def bench_asyncio(n: int) -> None:
-    print("\n-- through open_line + asyncio (InProcessTransport): data_received minus modelled time (us)")
+    print("\n-- through open_port + asyncio (a DevicePort read on the loop): reply minus modelled time (us)")
     for baud in (115200, 1250000):
         print(
             summary(

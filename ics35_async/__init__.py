@@ -41,7 +41,7 @@ from .protocol import Param
 
 if TYPE_CHECKING:
     from . import sim as sim
-    from .bus import Bus, BusTiming, Priority, State, open_bus
+    from .bus import Bus, BusOptions, BusTiming, Priority, State, open_bus
     from .frames import Frame, GroupFrame, StreamStats
     from .group import BusGroup, GroupStream
     from .line import Line
@@ -55,6 +55,7 @@ __version__ = "0.1.0"  # the one place the version is written (pyproject.toml re
 # Loaded on first use: name -> module (relative to this package).
 _LAZY = {
     "Bus": ".bus",
+    "BusOptions": ".bus",
     "BusTiming": ".bus",
     "Priority": ".bus",
     "State": ".bus",
@@ -93,6 +94,7 @@ __all__ = [
     "Bus",
     "BusClosed",
     "BusGroup",
+    "BusOptions",
     "BusTiming",
     "DirectionControlNotSupported",
     "Device",

@@ -42,6 +42,53 @@ RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
 
+class BusOptions(TimingOverrides, total=False):
+    """The options of [`open_bus`][ics35_async.bus.open_bus] (and ``Bus``) beyond the port, every one optional.
+
+    The [`BusTiming`][ics35_async.engine.timing.BusTiming] fields (``turnaround``,
+    ``adapter_latency``, ``eeprom_write``, ``id_command``, ``quiet_time``, ``max_resync``,
+    ``link_extra_max``; seconds each) are options too: each replaces that field of ``timing``.
+    Annotate a dict of options with it and a type checker catches a misspelt name or a wrong type:
+
+    ```python
+    line: BusOptions = {"baudrate": 1250000, "adapter_latency": 0.002, "retries": 1}
+    bus = await open_bus("/dev/ttyUSB0", **line)
+    ```
+    """
+
+    baudrate: int
+    """The line rate in bit/s: 115200 (the default), 625000 or 1250000 (the last two need the ICS USB
+    adapter HS).  Changed later only by [`Bus.reopen`][ics35_async.bus.Bus.reopen]."""
+    echo: bool
+    """Whether the interface loops the host's bytes back, as Kondo's adapters do (default ``True``).
+    The engine frames replies by it, so it is fixed for the bus's life."""
+    driver: str
+    """What runs the line (default ``"auto"``): ``"asyncio"`` (I/O callbacks; the default under
+    asyncio), ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (the engine in an I/O
+    thread that blocks on the port: the cheapest for streaming, and for ports the loop cannot wait
+    on; under trio, the anyio driver's reader thread)."""
+    transport: str
+    """How a device path is opened (default ``"auto"``): ``"fast"`` (pyserial-asyncio-fast),
+    ``"stock"`` (pyserial-asyncio), ``"direct"`` (the tty's descriptor on the loop)."""
+    timing: BusTiming | None
+    """The deadline and quiet-time allowances (default ``BusTiming()``); the timing fields given as
+    options replace its fields."""
+    retries: int
+    """Retries (0..10, default 0) for idempotent requests that do not give their own; the bus's
+    ``retries`` may be changed later."""
+    reconnect: bool
+    """Reopen a lost port with backoff (default ``False``: a loss closes the bus); requests wait
+    meanwhile, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
+    reconnect_backoff: Sequence[float]
+    """Seconds between reopen attempts after a loss; the last repeats (default 0.05, 0.1, 0.2, 0.4)."""
+    max_requests_between: int
+    """At most this many requests (1..10000, default 16) run between two of a stream's transactions."""
+    direction: str | None
+    """``"rts"`` (or ``"rts-inverted"``): the serial driver raises (lowers) RTS while sending, for DIY
+    half-duplex interfaces whose driver-enable pin is on RTS (default ``None``: RTS left alone; see
+    ``ics35_async.transports.direction``)."""
+
+
 class Bus:
     """One ICS line.  Create it with [`open_bus`][ics35_async.bus.open_bus], which documents every option.
 
@@ -54,47 +101,44 @@ class Bus:
         InvalidArgument: an option has the wrong type or is out of range (nothing is opened).
     """
 
-    def __init__(
-        self,
-        port: str | WireDevice,
-        *,
-        baudrate: int = 115200,
-        echo: bool = True,
-        driver: str = "auto",
-        transport: str = "auto",
-        timing: BusTiming | None = None,
-        retries: int = 0,
-        reconnect: bool = False,
-        reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
-        max_requests_between: int = 16,
-        direction: str | None = None,
-    ) -> None:
+    def __init__(self, port: str | WireDevice, **options: Unpack[BusOptions]) -> None:
         if not isinstance(port, (str, WireDevice)):
             raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
+        unknown = set(options) - BusOptions.__optional_keys__
+        if unknown:
+            raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
+        timing = options.get("timing")
         if timing is not None and not isinstance(timing, BusTiming):
             raise InvalidArgument(f"timing must be a BusTiming, not {type(timing).__name__}")
-        if isinstance(reconnect_backoff, (str, bytes)) or not isinstance(reconnect_backoff, Iterable):
-            raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {reconnect_backoff!r}")
+        timing_fields = TimingOverrides.__optional_keys__
+        overrides: dict[str, Any] = {name: value for name, value in options.items() if name in timing_fields}
+        if overrides:
+            timing = dataclasses.replace(timing or BusTiming(), **overrides)
+        backoff = options.get("reconnect_backoff", RECONNECT_BACKOFF)
+        if isinstance(backoff, (str, bytes)) or not isinstance(backoff, Iterable):
+            raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {backoff!r}")
+        driver = options.get("driver", "auto")
         if driver not in DRIVERS:
             raise InvalidArgument(f"driver must be one of {', '.join(DRIVERS)}, not {driver!r}")
+        transport = options.get("transport", "auto")
         if transport not in TRANSPORT_KINDS:
             raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
         self._port = port
         self.driver_kind = driver
         """The driver asked for (``"auto"``, ``"asyncio"``, ``"thread"``, ``"anyio"``); ``driver``: the one running."""
-        self.retries = check_int("retries", retries, 0, 10)
+        self.retries = check_int("retries", options.get("retries", 0), 0, 10)
         """Retries for idempotent requests that do not give their own (0..10); may be changed at any time."""
         self._settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
-            direction=check_direction(direction, port),
-            reconnect=check_bool("reconnect", reconnect),
-            reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in reconnect_backoff) or (0.5,),
+            direction=check_direction(options.get("direction"), port),
+            reconnect=check_bool("reconnect", options.get("reconnect", False)),
+            reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in backoff) or (0.5,),
         )
         self._engine = LineEngine(
-            baudrate=protocol.check_baud(baudrate),
-            echo=check_bool("echo", echo),
+            baudrate=protocol.check_baud(options.get("baudrate", 115200)),
+            echo=check_bool("echo", options.get("echo", True)),
             timing=timing or BusTiming(),
-            max_requests_between=check_int("max_requests_between", max_requests_between, 1, 10_000),
+            max_requests_between=check_int("max_requests_between", options.get("max_requests_between", 16), 1, 10_000),
         )
         self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
@@ -198,7 +242,14 @@ class Bus:
         await self.aclose()
 
     async def open(self) -> Bus:
-        """Open the line (idempotent)."""
+        """Open the line (idempotent); ``async with bus`` and ``await bus`` call it.
+
+        Raises:
+            BusClosed: the bus was closed, or an ``open()`` running at the same time failed.
+            SerialPortError: the port cannot be opened ([`PortNotFound`][ics35_async.errors.PortNotFound],
+                [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
+                [`PortBusy`][ics35_async.errors.PortBusy], ...).
+        """
         if self._engine.state is State.CLOSED or self._engine.state is State.DRAINING:
             raise BusClosed("bus is closed")
         if self._opening is not None:  # another open() is under way: share its outcome
@@ -227,6 +278,15 @@ class Bus:
         For a baud-rate change: write the servos' EEPROM (``allow_baud_change=True``),
         power-cycle them, then ``await bus.reopen(baudrate=...)``.  Requests
         submitted meanwhile wait and run after the reopen.
+
+        Args:
+            baudrate: the new line rate in bit/s (``None``: the current one).
+
+        Raises:
+            InvalidArgument: a bad ``baudrate``, or a stream (or another reopen) is running.
+            BusClosed: the bus is not open.
+            PortLost: the port is lost (reconnecting), so it cannot be reopened now.
+            SerialPortError: the port cannot be opened again (the bus is then closed).
         """
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
         driver = self._driver
@@ -273,9 +333,17 @@ class Bus:
     ) -> T:
         """Run one command and return its parsed reply.
 
-        ``retries`` (default: the bus's) applies only to idempotent commands.
-        Raises :class:`ReplyError` subclasses, :class:`BusClosed` or
-        :class:`PortLost`.
+        Args:
+            command: an ``ics35_async.protocol`` command object.
+            priority: where the request queues (a [`Priority`][ics35_async.engine.requests.Priority]).
+            retries: retries after a failure (0..10; default: the bus's), for idempotent commands only.
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            ReplyError: no valid reply ([`ReplyTimeout`][ics35_async.errors.ReplyTimeout],
+                [`PartialReply`][ics35_async.errors.PartialReply], [`BadReply`][ics35_async.errors.BadReply], ...).
+            BusClosed: the bus is not open, or closed before the reply.
+            PortLost: the port went away before the reply.
         """
         result: T = await self.submit(command, priority=priority, retries=retries)
         return result
@@ -283,7 +351,15 @@ class Bus:
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
     ) -> Awaitable[T]:
-        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver)."""
+        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver).
+
+        ``priority`` and ``retries`` are as in [`request`][ics35_async.bus.Bus.request]; awaiting the
+        result raises what ``request`` raises.
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            BusClosed: the bus is not open.
+        """
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
         check_int("priority", priority, _URGENT, _LOW)
@@ -298,7 +374,11 @@ class Bus:
         return driver.submit(command, priority, retries)
 
     def attach_source(self, source: BackgroundSource | None) -> None:
-        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches."""
+        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches.
+
+        Raises:
+            InvalidArgument: the bus is reopening.
+        """
         engine = self._engine
         if source is None:
             if engine.source is not None:
@@ -390,7 +470,12 @@ class Bus:
         """Read the ID of the only device on the line.
 
         With several devices on the line every one answers at once and the
-        result is garbage, so the caller must confirm there is exactly one.
+        result is garbage, so the caller must confirm there is exactly one
+        (``exactly_one_device=True``).
+
+        Raises:
+            UnsafeOperation: ``exactly_one_device`` is not ``True`` (nothing is sent).
+            ReplyError: no valid reply.
         """
         if exactly_one_device is not True:
             raise UnsafeOperation(
@@ -406,6 +491,13 @@ class Bus:
         the caller confirms with ``exactly_one_device=True`` -- and then still
         unless exactly one device is proven on the line
         (:func:`~ics35_async.policies.write_lone_id`).
+
+        Raises:
+            InvalidArgument: ``new_id`` is not 0..31.
+            UnsafeOperation: ``exactly_one_device`` is not ``True``, or not exactly one device
+                answers (nothing is written).
+            VerifyError: the device took the ID but does not answer at it.
+            ReplyError: the device stops answering during the change.
         """
         protocol.check_id(new_id)
         if exactly_one_device is not True:
@@ -423,6 +515,14 @@ class Bus:
         still runs them one at a time), leaving room for other callers.  The
         whole scan over baud rates, with EEPROM cross-checks, is
         :func:`ics35_async.policies.scan`.
+
+        Args:
+            ids: the IDs to probe (0..31 each).
+            concurrency: how many probes are queued at once.
+
+        Raises:
+            InvalidArgument: an ID is not 0..31.
+            BusClosed: the bus is not open.
         """
         from .policies import probe_ids
 
@@ -433,62 +533,30 @@ class Bus:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"
 
 
-def open_bus(
-    port: str | WireDevice,
-    *,
-    baudrate: int = 115200,
-    echo: bool = True,
-    driver: str = "auto",
-    transport: str = "auto",
-    timing: BusTiming | None = None,
-    retries: int = 0,
-    reconnect: bool = False,
-    reconnect_backoff: Sequence[float] = RECONNECT_BACKOFF,
-    max_requests_between: int = 16,
-    direction: str | None = None,
-    **timing_overrides: Unpack[TimingOverrides],
-) -> Bus:
+def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
 
-    ``port`` is a serial device path, a pyserial URL (``socket://``,
-    ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator,
-    or a :class:`~ics35_async.transports.WireDevice`.  ``driver`` picks what
-    runs the line: ``"asyncio"`` (I/O callbacks; the default under asyncio),
-    ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (the engine
-    in an I/O thread that blocks on the port: the cheapest for streaming, and
-    for ports the loop cannot wait on; under trio, the anyio driver's reader
-    thread), or ``"auto"``.  Extra
-    keyword arguments set :class:`BusTiming` fields (e.g. ``adapter_latency=0.002``; see
-    :class:`~ics35_async.engine.TimingOverrides`).
-    ``direction="rts"`` (or ``"rts-inverted"``) has the serial driver raise
-    RTS while sending, for DIY half-duplex interfaces whose driver-enable pin
-    is on RTS (see :mod:`ics35_async.transports.direction`).
+    Nothing is opened until ``async with`` (or ``await``).  ``Bus(port, **options)`` is the same.
 
-    Nothing is opened until ``async with`` (or ``await``); opening raises
-    ``PortNotFound``, ``PortPermissionDenied``, ``PortBusy`` or another
-    ``SerialPortError`` (``ParityNotSupported``, ``DirectionControlNotSupported``).
+    Args:
+        port: a serial device path (``/dev/ttyUSB0``, ``COM3``), a pyserial URL (``socket://``,
+            ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator, or a
+            ``WireDevice`` (``ics35_async.transports``: a device in this process).
+        **options: the line's options, each described in [`BusOptions`][ics35_async.bus.BusOptions]
+            (``baudrate``, ``echo``, ``driver``, ``retries``, ``reconnect``, ... and the
+            [`BusTiming`][ics35_async.engine.timing.BusTiming] fields such as ``adapter_latency``).
 
     Raises:
-        InvalidArgument: an option has the wrong type or is out of range, before anything is opened.
+        InvalidArgument: an unknown option, or one with the wrong type or out of range (nothing is opened).
+            Opening (``async with`` or ``await``) raises
+            [`PortNotFound`][ics35_async.errors.PortNotFound],
+            [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
+            [`PortBusy`][ics35_async.errors.PortBusy] or another
+            [`SerialPortError`][ics35_async.errors.SerialPortError]
+            ([`ParityNotSupported`][ics35_async.errors.ParityNotSupported],
+            [`DirectionControlNotSupported`][ics35_async.errors.DirectionControlNotSupported]).
     """
-    if timing_overrides:
-        unknown = set(timing_overrides) - set(BusTiming.__dataclass_fields__)
-        if unknown:
-            raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
-        timing = dataclasses.replace(timing or BusTiming(), **timing_overrides)
-    return Bus(
-        port,
-        baudrate=baudrate,
-        echo=echo,
-        driver=driver,
-        transport=transport,
-        timing=timing,
-        retries=retries,
-        reconnect=reconnect,
-        reconnect_backoff=reconnect_backoff,
-        max_requests_between=max_requests_between,
-        direction=direction,
-    )
+    return Bus(port, **options)
 
 
-__all__ = ["BackgroundSource", "Bus", "BusTiming", "Priority", "State", "open_bus"]
+__all__ = ["BackgroundSource", "Bus", "BusOptions", "BusTiming", "Priority", "State", "open_bus"]

@@ -19,7 +19,7 @@ import dataclasses
 import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from .errors import InvalidArgument, MalformedEeprom, UnsafeOperation
 from .units import check_int
@@ -96,57 +96,52 @@ class Flags(enum.IntFlag):
 READ_ONLY_FLAGS = Flags.FREE | Flags.PCM
 UNUSED_FLAG_BITS = 0x60
 
-# (0-based offset, nibble count) of each decoded field.
-_LAYOUT: dict[str, tuple[int, int]] = {
-    "stretch_gain": (2, 2),
-    "speed": (4, 2),
-    "punch": (6, 2),
-    "dead_band": (8, 2),
-    "damping": (10, 2),
-    "safe_timer": (12, 2),
-    "flags": (14, 2),
-    "pulse_limit_high": (16, 4),
-    "pulse_limit_low": (20, 4),
-    "baud_rate": (26, 2),
-    "temperature_limit": (28, 2),
-    "current_limit": (30, 2),
-    "response": (50, 2),
-    "user_offset": (52, 2),
-    "servo_id": (56, 2),
-    "stretch_1": (58, 2),
-    "stretch_2": (60, 2),
-    "stretch_3": (62, 2),
+
+class _Field(NamedTuple):
+    offset: int  # 0-based, in the 64-byte image (a byte holds one nibble)
+    nibbles: int
+    low: int | None = None  # a numeric field's range; None: a coded value (flags, baud_rate)
+    high: int | None = None
+    even: bool = False  # the stretch values step by 2
+
+
+# Every decoded field once: where it lies and what it may hold.
+_FIELDS: dict[str, _Field] = {
+    "stretch_gain": _Field(2, 2, 2, 254, even=True),
+    "speed": _Field(4, 2, 1, 127),
+    "punch": _Field(6, 2, 0, 10),
+    "dead_band": _Field(8, 2, 0, 5),
+    "damping": _Field(10, 2, 1, 255),
+    "safe_timer": _Field(12, 2, 10, 255),
+    "flags": _Field(14, 2),
+    "pulse_limit_high": _Field(16, 4, 3500, 11500),
+    "pulse_limit_low": _Field(20, 4, 3500, 11500),
+    "baud_rate": _Field(26, 2),
+    "temperature_limit": _Field(28, 2, 1, 127),
+    "current_limit": _Field(30, 2, 1, 63),
+    "response": _Field(50, 2, 1, 5),
+    "user_offset": _Field(52, 2, -127, 127),
+    "servo_id": _Field(56, 2, 0, 31),
+    "stretch_1": _Field(58, 2, 2, 254, even=True),
+    "stretch_2": _Field(60, 2, 2, 254, even=True),
+    "stretch_3": _Field(62, 2, 2, 254, even=True),
 }
+# (offset, nibble count) of each field, and the range of each numeric one.
+_LAYOUT: dict[str, tuple[int, int]] = {name: (f.offset, f.nibbles) for name, f in _FIELDS.items()}
+_RANGES: dict[str, tuple[int, int]] = {
+    name: (f.low, f.high) for name, f in _FIELDS.items() if f.low is not None and f.high is not None
+}
+
 # Factory calibration: written back exactly as read, never edited.
 PROTECTED_RANGES: tuple[tuple[int, int], ...] = ((24, 26), (32, 50), (54, 56))
 PROTECTED_OFFSETS = frozenset(i for lo, hi in PROTECTED_RANGES for i in range(lo, hi))
 _CALIBRATION_LEN = sum(hi - lo for lo, hi in PROTECTED_RANGES)
 
-_RANGES: dict[str, tuple[int, int]] = {
-    "stretch_gain": (2, 254),
-    "speed": (1, 127),
-    "punch": (0, 10),
-    "dead_band": (0, 5),
-    "damping": (1, 255),
-    "safe_timer": (10, 255),
-    "pulse_limit_high": (3500, 11500),
-    "pulse_limit_low": (3500, 11500),
-    "temperature_limit": (1, 127),
-    "current_limit": (1, 63),
-    "response": (1, 5),
-    "user_offset": (-127, 127),
-    "servo_id": (0, 31),
-    "stretch_1": (2, 254),
-    "stretch_2": (2, 254),
-    "stretch_3": (2, 254),
-}
-_EVEN_FIELDS = frozenset({"stretch_gain", "stretch_1", "stretch_2", "stretch_3"})
-
 
 def field_range(name: str) -> tuple[int, int, bool] | None:
     """``(low, high, even_only)`` of a numeric EEPROM field; None for flags and baud_rate (coded values)."""
     bounds = _RANGES.get(name)
-    return None if bounds is None else (*bounds, name in _EVEN_FIELDS)
+    return None if bounds is None else (*bounds, _FIELDS[name].even)
 
 
 def _get(image: bytes, offset: int, nibbles: int) -> int:
@@ -273,7 +268,12 @@ class Eeprom:
             raise MalformedEeprom(f"header must be an int 0..255, got {header!r}")
 
     def replace(self, **changes: Any) -> Eeprom:
-        """A copy with ``changes`` applied, each validated; protected bytes never change."""
+        """A copy with ``changes`` (``field=value``) applied, each validated; protected bytes never change.
+
+        Raises:
+            UnsafeOperation: ``calibration`` is among the changes (the factory bytes are protected).
+            InvalidArgument: an unknown field or a value out of its range.
+        """
         if "calibration" in changes:
             raise UnsafeOperation("the factory calibration bytes are protected and cannot be changed")
         unknown = set(changes) - set(_LAYOUT)
@@ -288,7 +288,7 @@ class Eeprom:
             else:
                 low, high = _RANGES[name]
                 check_int(name, value, low, high)
-                if name in _EVEN_FIELDS and value % 2:
+                if _FIELDS[name].even and value % 2:
                     raise InvalidArgument(f"{name} must be even, got {value}")
                 clean[name] = value
         updated = dataclasses.replace(self, **clean)
@@ -338,7 +338,13 @@ class Eeprom:
         baud_rate: BaudRate = BaudRate.B115200,
         calibration: bytes | None = None,
     ) -> Eeprom:
-        """The spec's factory example image (section 7), for a given ID and baud."""
+        """The spec's factory example image (section 7) for ``servo_id`` at ``baud_rate``.
+
+        ``calibration``: the 8 factory calibration nibbles (default: plausible ones made from the ID).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not 0..31.
+        """
         check_int("servo_id", servo_id, 0, 31)
         if calibration is None:
             # Plausible, ID-dependent calibration nibbles: real ones differ per unit.

@@ -8,6 +8,8 @@ wiring or baud problem.
 
 from __future__ import annotations
 
+from typing import Required, TypedDict, Unpack
+
 
 class IcsError(Exception):
     """Base of every error this library raises on purpose."""
@@ -49,6 +51,17 @@ class MalformedEeprom(IcsError, ValueError):
     """A 64-byte EEPROM image breaks the format (length, nibbles)."""
 
 
+class ReplyErrorFields(TypedDict, total=False):
+    """The failed transaction a [`ReplyError`][ics35_async.errors.ReplyError] is about (its keyword arguments)."""
+
+    command: Required[str]
+    """The command's name, e.g. ``"position"``."""
+    servo_id: Required[int | None]
+    """The addressed ID; ``None`` for the ID command, which addresses the whole line."""
+    raw: bytes
+    """Every byte received for the transaction, echo included (default none)."""
+
+
 class ReplyError(IcsError):
     """A transaction did not produce a valid reply.
 
@@ -57,17 +70,11 @@ class ReplyError(IcsError):
     and ``raw`` holds every byte received for the transaction, echo included.
     """
 
-    def __init__(
-        self,
-        message: str,
-        *,
-        command: str,
-        servo_id: int | None,
-        raw: bytes = b"",
-    ) -> None:
+    def __init__(self, message: str, **fields: Unpack[ReplyErrorFields]) -> None:
+        command, servo_id = fields["command"], fields["servo_id"]
         self.command = command
         self.servo_id = servo_id
-        self.raw = bytes(raw)
+        self.raw = bytes(fields.get("raw", b""))
         where = f"{command} to ID {servo_id}" if servo_id is not None else command
         super().__init__(f"{where}: {message} (raw: {self.raw.hex(' ') or 'nothing'})")
 
@@ -80,18 +87,11 @@ class PartialReply(ReplyError):
     """Only part of the reply arrived before the deadline."""
 
     def __init__(
-        self,
-        message: str,
-        *,
-        command: str,
-        servo_id: int | None,
-        raw: bytes = b"",
-        received: int = 0,
-        expected: int = 0,
+        self, message: str, *, received: int = 0, expected: int = 0, **fields: Unpack[ReplyErrorFields]
     ) -> None:
         self.received = received
         self.expected = expected
-        super().__init__(message, command=command, servo_id=servo_id, raw=raw)
+        super().__init__(message, **fields)
 
 
 class EchoMismatch(ReplyError):
@@ -102,17 +102,9 @@ class EchoMismatch(ReplyError):
     echo did come, behind bytes that were already on their way (a late reply to an earlier command).
     """
 
-    def __init__(
-        self,
-        message: str,
-        *,
-        command: str,
-        servo_id: int | None,
-        raw: bytes = b"",
-        echo_at: int = -1,
-    ) -> None:
+    def __init__(self, message: str, *, echo_at: int = -1, **fields: Unpack[ReplyErrorFields]) -> None:
         self.echo_at = echo_at
-        super().__init__(message, command=command, servo_id=servo_id, raw=raw)
+        super().__init__(message, **fields)
 
     @property
     def echo_behind(self) -> bool:

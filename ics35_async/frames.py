@@ -5,9 +5,32 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic, Self, TypeVar
 
 from . import units
+from .errors import BusClosed
+
+F = TypeVar("F")
+
+
+class FrameIterator(Generic[F]):
+    """``async for frame in stream``: every frame :meth:`next_frame` returns, until the stream closes.
+
+    Closing ends the iteration; a lost port (``PortLost``) is raised from it.
+    """
+
+    async def next_frame(self) -> F:
+        """The next frame (each stream says which); raises ``BusClosed`` once the stream is closed."""
+        raise NotImplementedError
+
+    def __aiter__(self) -> Self:
+        return self
+
+    async def __anext__(self) -> F:
+        try:
+            return await self.next_frame()
+        except BusClosed:
+            raise StopAsyncIteration from None
 
 
 @dataclass(frozen=True)

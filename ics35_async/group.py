@@ -7,23 +7,26 @@ merged frame holds every line's newest cycle.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
-from typing import Any
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, Unpack
 
 import anyio
 
-from .bus import Bus, open_bus
+from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
-from .frames import Frame, GroupFrame, StreamStats
+from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream
 
 
-class GroupStream:
+class GroupStream(FrameIterator[GroupFrame]):
     """Streams on several lines at once, each at its own pace, giving merged frames.
 
     :meth:`next_frame` waits until every line has completed a cycle newer
     than the one in the previous merged frame, then merges the newest of
     each; ``skipped`` is the most cycles any one line ran meanwhile unseen.
+
+    Args:
+        streams: ``{line name: stream}``; [`BusGroup.stream`][ics35_async.group.BusGroup.stream] makes them.
     """
 
     def __init__(self, streams: Mapping[str, Stream]) -> None:
@@ -33,7 +36,7 @@ class GroupStream:
         self._end_error: IcsError = BusClosed("group stream closed")
 
     def set_target(self, line: str, servo_id: int, position: int) -> None:
-        """Latest-value target for one servo on one line (0 frees it).
+        """Latest-value target ``position`` for servo ``servo_id`` on ``line`` (0 frees it).
 
         Raises:
             InvalidArgument: an unknown line, an ID not in that line's stream, a position out of range.
@@ -41,7 +44,12 @@ class GroupStream:
         self._stream(line).set_target(servo_id, position)
 
     def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
-        """Targets keyed by ``(line, id)``; all are checked, on every line, before any is applied."""
+        """``targets`` keyed by ``(line, id)``; all are checked, on every line, before any is applied.
+
+        Raises:
+            InvalidArgument: not a mapping, a key that is not ``(line, id)``, an unknown line, an ID not
+                in that line's stream or a position out of range (nothing applied).
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
         by_line: dict[str, dict[int, int]] = {}
@@ -116,15 +124,6 @@ class GroupStream:
             skipped=max(f.skipped for f in frames.values()),
         )
 
-    def __aiter__(self) -> AsyncIterator[GroupFrame]:
-        return self
-
-    async def __anext__(self) -> GroupFrame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
-
     @property
     def stats(self) -> dict[str, StreamStats]:
         """Each line's stream statistics, by line name."""
@@ -155,6 +154,12 @@ class BusGroup:
 
     ``BusGroup({"left": open_bus("/dev/ttyUSB0"), "right": open_bus("/dev/ttyUSB1")})``;
     use as ``async with`` to open and close every line.
+
+    Args:
+        buses: ``{line name: bus}``, or a list of buses (named ``"0"``, ``"1"``, ...).
+
+    Raises:
+        InvalidArgument: no bus, or something that is not a bus.
     """
 
     def __init__(self, buses: Mapping[str, Bus] | Sequence[Bus]) -> None:
@@ -171,8 +176,12 @@ class BusGroup:
                 raise InvalidArgument(f"line {name!r} is not a Bus")
 
     @classmethod
-    def open(cls, ports: Mapping[str, str], **bus_options: Any) -> BusGroup:
-        """A group of buses opened with the same options: ``{line name: port}``.
+    def open(cls, ports: Mapping[str, str], **bus_options: Unpack[BusOptions]) -> BusGroup:
+        """A group of buses opened with the same options.
+
+        Args:
+            ports: ``{line name: port}``.
+            **bus_options: every line's options ([`BusOptions`][ics35_async.bus.BusOptions]).
 
         Raises:
             InvalidArgument: a bad port or option (see ``open_bus``).

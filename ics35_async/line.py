@@ -40,15 +40,15 @@ class Line(Protocol):
     async def request(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
     ) -> T:
-        """Run one command and return its parsed reply (see ``Bus.request``)."""
+        """Run ``command`` at ``priority`` (``retries``: after a failure) and return its reply (see ``Bus.request``)."""
 
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
     ) -> Awaitable[T]:
-        """Queue one command and return an awaitable of its reply (see ``Bus.submit``)."""
+        """Queue ``command`` at ``priority`` (``retries``: as ``request``); an awaitable of its reply."""
 
     async def reopen(self, *, baudrate: int | None = None) -> None:
-        """Close and reopen the port, optionally at a new rate."""
+        """Close and reopen the port, optionally at a new rate ``baudrate`` (see ``Bus.reopen``)."""
 
     def attach_source(self, source: BackgroundSource | None) -> None:
         """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches."""

@@ -45,6 +45,16 @@ class Servo:
     for a bad argument, before anything is sent; a ``ReplyError`` (``ReplyTimeout``,
     ``PartialReply``, ``EchoMismatch``, a ``BadReply``) when the servo does not answer
     or answers wrongly; ``BusClosed`` or ``PortLost`` when the line is closed or gone.
+    Each method's "Raises" section lists them.
+
+    Args:
+        bus: the line the servo is on (a [`Bus`][ics35_async.bus.Bus] or another
+            [`Line`][ics35_async.line.Line]); ``bus.servo(servo_id)`` is the usual way to make one.
+        servo_id: the servo's ID, 0..31.
+        priority: the [`Priority`][ics35_async.engine.requests.Priority] its requests queue at.
+
+    Raises:
+        InvalidArgument: ``bus`` is not a line, ``servo_id`` is not 0..31 or ``priority`` is not a priority.
     """
 
     __slots__ = ("_bus", "id", "priority")
@@ -63,18 +73,35 @@ class Servo:
         return f"<Servo {self.id} on {self._bus!r}>"
 
     async def set_position(self, position: int) -> int:
-        """Move to ``position`` (1..16383); returns the position the servo reports now."""
+        """Move to ``position`` (1..16383); returns the position the servo reports now.
+
+        Raises:
+            InvalidArgument: ``position`` is not 1..16383.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         units.check_int("position", position, 1, protocol.POSITION_MAX)
         cmd = protocol.Position(self.id, position, baudrate=self._bus.baudrate)
         return await self._bus.request(cmd, priority=self.priority)
 
     async def free(self, *, priority: Priority | None = None) -> int:
-        """Torque off (the servo goes limp); returns the current position (ICS 3.5's only position read)."""
+        """Torque off (the servo goes limp); returns the current position (ICS 3.5's only position read).
+
+        ``priority``: this request's priority (default: the servo's).
+
+        Raises:
+            InvalidArgument: ``priority`` is not a priority.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         cmd = protocol.Position(self.id, protocol.FREE, baudrate=self._bus.baudrate)
         return await self._bus.request(cmd, priority=self.priority if priority is None else priority)
 
     async def set_degrees(self, degrees: float) -> float:
-        """Move to ``degrees`` (0 = neutral); returns the reported angle in degrees."""
+        """Move to ``degrees`` (0 = neutral); returns the reported angle in degrees.
+
+        Raises:
+            InvalidArgument: the angle is outside -135..+135 degrees.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return units.position_to_degrees(await self.set_position(units.degrees_to_position(degrees)))
 
     async def set_radians(self, radians: float) -> float:
@@ -82,18 +109,25 @@ class Servo:
 
         Raises:
             InvalidArgument: the angle is outside -135..+135 degrees.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return units.position_to_radians(await self.set_position(units.radians_to_position(radians)))
 
     async def free_and_read_degrees(self) -> float:
-        """Torque off (the servo goes limp) and return the angle in degrees: ICS 3.5's only position read."""
+        """Torque off (the servo goes limp) and return the angle in degrees: ICS 3.5's only position read.
+
+        Raises:
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return units.position_to_degrees(await self.free())
 
     async def read_degrees(self) -> float:
         """Deprecated: it turns the torque off.  Use :meth:`free_and_read_degrees` (the same) or
-        :meth:`read_position_degrees` (ICS 3.6: torque left alone)."""
+        :meth:`read_position_degrees` (ICS 3.6: torque left alone).
+
+        Raises:
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         warnings.warn(
             "Servo.read_degrees() turns the torque off; call free_and_read_degrees() for that, or "
             "read_position_degrees() to read without freeing (ICS 3.6 servos)",
@@ -115,6 +149,9 @@ class Servo:
         read but answering a parameter read speaks ICS 3.5 (``False``); a
         servo silent to both raises :class:`ReplyTimeout` (and is probed
         again next time).
+
+        Raises:
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         known = self.known_position_read()
         if known is None:
@@ -125,8 +162,11 @@ class Servo:
     async def read_position(self) -> int:
         """The present position in counts, torque and target left alone (ICS 3.6's position read).
 
-        Raises :class:`PositionReadUnsupported` on an ICS 3.5 servo (nothing
-        was freed); ICS 3.5 reads a position only with :meth:`free`.
+        ICS 3.5 reads a position only with :meth:`free`.
+
+        Raises:
+            PositionReadUnsupported: the servo speaks ICS 3.5 (nothing was freed).
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         known = self.known_position_read()
         if known is None:
@@ -143,7 +183,12 @@ class Servo:
         return await self._bus.request(protocol.ReadPosition(self.id), priority=self.priority)
 
     async def read_position_degrees(self) -> float:
-        """:meth:`read_position` in degrees (0 = neutral): the torque is left alone."""
+        """:meth:`read_position` in degrees (0 = neutral): the torque is left alone.
+
+        Raises:
+            PositionReadUnsupported: the servo speaks ICS 3.5 (nothing was freed).
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return units.position_to_degrees(await self.read_position())
 
     async def _probe_position(self) -> int | None:
@@ -183,8 +228,7 @@ class Servo:
         """The stretch (holding gain, 1..127) from RAM.
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.STRETCH)
 
@@ -192,33 +236,60 @@ class Servo:
         """The speed parameter (1..127) from RAM.
 
         Raises:
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._read(Param.SPEED)
 
     async def read_current(self) -> int:
-        """Raw current 0..127: bits 0-5 magnitude, bit 6 direction (see ``units.current_from_raw``)."""
+        """Raw current 0..127: bits 0-5 magnitude, bit 6 direction (see ``units.current_from_raw``).
+
+        Raises:
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._read(Param.CURRENT)
 
     async def read_temperature(self) -> int:
-        """Raw temperature 1..127; SMALLER is HOTTER (see ``units.temperature_to_celsius``)."""
+        """Raw temperature 1..127; SMALLER is HOTTER (see ``units.temperature_to_celsius``).
+
+        Raises:
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._read(Param.TEMPERATURE)
 
     async def write_stretch(self, value: int) -> int:
-        """Holding gain 1..127 (RAM only)."""
+        """Set the holding gain (stretch) to ``value``, 1..127 (RAM only); returns the value the servo echoes.
+
+        Raises:
+            InvalidArgument: ``value`` is not 1..127.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._write(Param.STRETCH, value)
 
     async def write_speed(self, value: int) -> int:
-        """Speed 1..127 (RAM only)."""
+        """Set the speed to ``value``, 1..127 (RAM only); returns the value the servo echoes.
+
+        Raises:
+            InvalidArgument: ``value`` is not 1..127.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._write(Param.SPEED, value)
 
     async def write_current_limit(self, value: int) -> int:
-        """Current limit 1..63 (RAM only)."""
+        """Set the current limit to ``value``, 1..63 (RAM only); returns the value the servo echoes.
+
+        Raises:
+            InvalidArgument: ``value`` is not 1..63.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._write(Param.CURRENT, value)
 
     async def write_temperature_limit(self, value: int) -> int:
-        """Temperature limit 1..127 (RAM only; smaller is hotter)."""
+        """Set the temperature limit to ``value``, 1..127 (RAM only; smaller is hotter); returns the value echoed.
+
+        Raises:
+            InvalidArgument: ``value`` is not 1..127.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
+        """
         return await self._write(Param.TEMPERATURE, value)
 
     async def read_eeprom(self) -> Eeprom:
@@ -226,8 +297,7 @@ class Servo:
 
         Raises:
             MalformedEeprom: the image has a bad length or a byte that is not a nibble.
-            ReplyError: the servo did not answer, or answered wrongly.
-            BusClosed, PortLost: the bus is closed or its port is gone.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         return await self._bus.request(protocol.ReadEeprom(self.id), priority=self.priority)
 
@@ -248,6 +318,20 @@ class Servo:
         read back and compared; not after a baud or ID change, since the
         servo may already answer only at its new rate or ID.  A new baud rate
         takes effect at the servo's next power-up: then ``bus.reopen(baudrate=...)``.
+
+        Args:
+            eeprom: the whole new image, e.g. ``(await servo.read_eeprom()).replace(speed=90)``.
+            verify: read the image back and compare (default ``True``).
+            allow_baud_change: allow an image that changes the servo's baud rate.
+            allow_id_change: allow an image that changes the servo's ID.
+
+        Raises:
+            InvalidArgument: ``eeprom`` is not an ``Eeprom`` or a flag is not a bool.
+            UnsafeOperation: the image changes the calibration bytes, or the baud rate or ID without its
+                ``allow_...`` flag (nothing is written).
+            VerifyError: the image read back differs from the one written.
+            MalformedEeprom: the servo's current image has a bad length or a byte that is not a nibble.
+            ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
@@ -280,7 +364,15 @@ class Servo:
 
 
 class Device:
-    """A generic ICS device (not a servo) exposing a 128-byte virtual memory."""
+    """A generic ICS device (not a servo) exposing a 128-byte virtual memory.
+
+    Args:
+        bus: the line the device is on; ``bus.device(device_id)`` is the usual way to make one.
+        device_id: the device's ID, 0..31.
+
+    Raises:
+        InvalidArgument: ``bus`` is not a line or ``device_id`` is not 0..31.
+    """
 
     __slots__ = ("_bus", "id")
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 # Log2-spaced latency buckets of microseconds: bucket k holds [2^(k-1), 2^k) us, bucket 0 under 1 us.
 # Indexed by int(us).bit_length(), which needs no clamp below 2^63 us (the engine inlines this).
@@ -55,31 +55,28 @@ class LatencyHistogram:
         return self.sum_s / total if total else 0.0
 
 
-# Names of the per-ID counters (the fields of IdStats; the bus keeps one list per name).
-COUNTER_NAMES = (
-    "transactions",
-    "ok",
-    "timeouts",
-    "partial_replies",
-    "echo_mismatches",
-    "bad_replies",
-    "retries",
-    "bytes_tx",
-    "bytes_rx",
-)
-
-
 @dataclass
 class IdStats:
+    """Counters of one ID (or of the whole bus): transactions, their outcomes, retries and bytes."""
+
     transactions: int = 0
+    """Transactions written (a retry is one more)."""
     ok: int = 0
+    """Transactions answered with a good reply."""
     timeouts: int = 0
+    """Transactions with no reply by their deadline."""
     partial_replies: int = 0
+    """Transactions whose reply stopped short."""
     echo_mismatches: int = 0
+    """Transactions whose echo differed from the bytes sent (a collision or a damaged line)."""
     bad_replies: int = 0
+    """Transactions whose reply was whole but wrong (header, length, checksum or value)."""
     retries: int = 0
+    """Retries of idempotent requests after a failure."""
     bytes_tx: int = 0
+    """Bytes written."""
     bytes_rx: int = 0
+    """Bytes received."""
 
     @property
     def errors(self) -> int:
@@ -88,6 +85,10 @@ class IdStats:
     def add(self, other: IdStats) -> None:
         for name in COUNTER_NAMES:
             setattr(self, name, getattr(self, name) + getattr(other, name))
+
+
+# Names of the per-ID counters (the fields of IdStats; the bus keeps one list per name).
+COUNTER_NAMES = tuple(f.name for f in fields(IdStats))
 
 
 @dataclass

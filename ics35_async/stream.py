@@ -14,7 +14,7 @@ import math
 import statistics
 import warnings
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import Literal, TypedDict
 
@@ -23,7 +23,7 @@ import anyio
 from . import protocol, units
 from .engine.source import BoundSource, keep_old_hook_names
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
-from .frames import Frame, StreamStats, percentile
+from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
 
@@ -57,7 +57,7 @@ class StreamOptions(TypedDict, total=False):
     free_on_close: bool  # deprecated: on_close="free"
 
 
-class Stream:
+class Stream(FrameIterator[Frame]):
     """Streams position targets to ``ids`` and publishes a :class:`Frame` per cycle.
 
     Create with :meth:`Bus.stream` and use as ``async with``.  Every ID
@@ -66,6 +66,23 @@ class Stream:
     (ICS 3.6 servos only) start *watched* instead: each cycle reads their
     position with ICS 3.6's position read, which neither moves nor frees
     them, until they are given a target (:meth:`watch` returns an ID to it).
+
+    Args:
+        bus: the line to stream on (a [`Bus`][ics35_async.bus.Bus] or another [`Line`][ics35_async.line.Line]).
+        ids: the servo IDs of each cycle, in order (0..31, at least one, no repeats).
+        rate_hz: cycles per second, paced (``None``: cycles back to back, as fast as the line allows).
+        offline_after: failed cycles in a row before an ID leaves the cycle (it is probed meanwhile).
+        probe_interval: seconds between probes of an offline ID.
+        free_on_close: deprecated: ``on_close="free"``.
+        history: how many cycles the statistics look back over.
+        on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target)
+            or ``"free"`` (torque off).
+        on_resume: after a lost port comes back: ``"wait"`` (hold every ID, sending no command,
+            until the program sets its target again) or ``"free"``.
+        watch: IDs (ICS 3.6 servos) read with the position read instead of starting free.
+
+    Raises:
+        InvalidArgument: a bad, duplicate or missing ID, or an option out of range.
     """
 
     def __init__(
@@ -123,6 +140,10 @@ class Stream:
         self._offline = [False] * n
         self._next_probe = [0.0] * n
         self._held = [False] * n  # after a resume: no command until the program sets a target
+        # A burst (see the engine's plan_burst) runs the cycle's next transactions as planned: a new
+        # target for one of them is held back (its slot in _stale) until the burst is over.
+        self._frozen: set[int] = set()
+        self._stale: set[int] = set()
         # The cycle in progress.
         self._order: list[int] = []
         self._pos = 0
@@ -168,46 +189,73 @@ class Stream:
             raise InvalidArgument(f"ID {servo_id!r} is not in this stream {list(self.ids)}") from None
 
     def set_target(self, servo_id: int, position: int) -> None:
-        """Latest-value target for one ID: 1..16383, or 0 for free (torque off, still read back)."""
+        """Latest-value target ``position`` for ``servo_id``: 1..16383, or 0 for free (torque off, still read back).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not in the stream or ``position`` is out of range.
+        """
         self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
     def set_targets(self, targets: Mapping[int, int]) -> None:
-        """Several targets at once; all are checked before any is applied."""
+        """Several ``targets`` ``{id: position}`` at once; all are checked before any is applied.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or a position out of range (nothing applied).
+        """
         self.apply_targets(self.check_targets(targets))
 
     def check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
-        """Check every target (raising before anything changes) and return them ready for apply_targets."""
+        """Check every target (raising before anything changes) and return them ready for apply_targets.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or a position out of range.
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
-        """Apply targets that :meth:`check_targets` returned."""
-        held = False
+        """Apply the targets ``checked`` that :meth:`check_targets` returned."""
+        kick = False
+        frozen = self._frozen
         for k, p in checked:
             if self._held[k]:
                 self._held[k] = False
-                held = True
+                kick = True  # a stream waiting with every ID held has work again
             if self._targets[k] != p:
                 self._targets[k] = p
-                sid = self.ids[k]
-                self._jobs[k] = (protocol.position_tx(sid, p), 3, sid)
-                self._readers[k] = None
-        if held and self._running:
-            self.bus.kick()  # a stream waiting with every ID held has work again
+                if frozen and k in frozen:
+                    self._stale.add(k)
+                    kick = True  # a burst runs the old target: it stops at its next boundary
+                else:
+                    self._renew_job(k)
+        if kick and self._running:
+            self.bus.kick()
 
     def set_target_degrees(self, servo_id: int, degrees: float) -> None:
-        """Like :meth:`set_target`, in degrees (-135..+135, 0 neutral); else InvalidArgument."""
+        """Like :meth:`set_target`: ``servo_id`` to ``degrees`` (-135..+135, 0 neutral).
+
+        Raises:
+            InvalidArgument: ``servo_id`` is not in the stream or the angle is out of range.
+        """
         self.set_target(servo_id, units.degrees_to_position(degrees))
 
     def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
-        """Like :meth:`set_targets`, in degrees; InvalidArgument (nothing applied) for a bad one."""
+        """Like :meth:`set_targets`, in degrees.
+
+        Raises:
+            InvalidArgument: not a mapping, an ID not in the stream or an angle out of range (nothing applied).
+        """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
         self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
 
     def free(self, ids: Iterable[int] | None = None) -> None:
-        """Put ``ids`` (default: all) in free mode: torque off, positions still read back."""
+        """Put ``ids`` (default: all) in free mode: torque off, positions still read back.
+
+        Raises:
+            InvalidArgument: an ID is not in the stream (nothing changes).
+        """
         self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 
     def watch(self, ids: Iterable[int] | None = None) -> None:
@@ -215,14 +263,33 @@ class Stream:
 
         For ICS 3.6 servos only (an ICS 3.5 servo stays silent to the read,
         and goes offline in the stream); the torque is left as it is.
+
+        Raises:
+            InvalidArgument: an ID is not in the stream (nothing changes).
         """
         slots = [self._slot(i) for i in (self.ids if ids is None else units.check_ids("ids", ids))]
+        kick = False
         for k in slots:
-            reader = protocol.ReadPosition(self.ids[k])
             self._targets[k] = WATCH
-            self._readers[k] = reader
-            self._jobs[k] = (reader.tx, reader.reply_len, self.ids[k])
             self._held[k] = False
+            if k in self._frozen:
+                self._stale.add(k)
+                kick = True
+            else:
+                self._renew_job(k)
+        if kick and self._running:
+            self.bus.kick()
+
+    def _renew_job(self, k: int) -> None:
+        """The command that carries ID slot ``k``'s target, and how its reply is read."""
+        sid, target = self.ids[k], self._targets[k]
+        if target == WATCH:
+            reader = protocol.ReadPosition(sid)
+            self._readers[k] = reader
+            self._jobs[k] = (reader.tx, reader.reply_len, sid)
+        else:
+            self._readers[k] = None
+            self._jobs[k] = (protocol.position_tx(sid, target), 3, sid)
 
     def target(self, servo_id: int) -> int:
         """The current target of ``servo_id``: a position, 0 (free) or :data:`WATCH`; InvalidArgument if it
@@ -253,6 +320,19 @@ class Stream:
         # The reply is read as the command sent (set_targets or watch may change it meanwhile).
         self._cur_reader = self._readers[k]
         return self._jobs[k]
+
+    def _upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
+        start = self._pos + 1  # after the one on the wire
+        slots = self._order[start : start + limit] if limit > 0 else []
+        self._frozen.update(slots)
+        jobs = self._jobs
+        return [jobs[k] for k in slots]
+
+    def _upcoming_done(self) -> None:
+        self._frozen.clear()
+        stale, self._stale = self._stale, set()
+        for k in stale:
+            self._renew_job(k)
 
     def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
@@ -316,7 +396,7 @@ class Stream:
             if target != protocol.FREE and target != WATCH:
                 if self.on_resume == "free":
                     self._targets[k] = protocol.FREE
-                    self._jobs[k] = (protocol.position_tx(self.ids[k], protocol.FREE), 3, self.ids[k])
+                    self._renew_job(k)
                 else:
                     self._held[k] = True
         # The cycle the loss cut short is dropped; the next starts on a fresh schedule.
@@ -458,16 +538,6 @@ class Stream:
     def latest(self) -> Frame | None:
         """The newest published frame (does not mark it consumed)."""
         return self._latest
-
-    def __aiter__(self) -> AsyncIterator[Frame]:
-        return self
-
-    async def __anext__(self) -> Frame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            # Closing ends the iteration; losing the port (PortLost) is raised.
-            raise StopAsyncIteration from None
 
     @property
     def stats(self) -> StreamStats:

@@ -11,6 +11,7 @@ about 125 C): an approximation, good for warnings, not for measurement.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable
 from typing import NamedTuple
 
@@ -61,6 +62,30 @@ def check_ids(name: str, ids: object) -> list[int]:
     if isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable):
         raise InvalidArgument(f"{name} must be an iterable of IDs 0..31, not {ids!r}")
     return [check_int("servo ID", i, 0, 31) for i in ids]
+
+
+def parse_ids(text: str) -> list[int]:
+    """``text`` such as ``"0-31"``, ``"1,3,5-7"`` or ``"1 2 5-7"`` -> the sorted unique IDs it names (none for ``""``).
+
+    Raises:
+        InvalidArgument: an item is not an ID or a range, a range runs backwards, or an ID is outside 0..31.
+    """
+    ids: set[int] = set()
+    for part in re.split(r"[,\s]+", re.sub(r"\s*-\s*", "-", text.strip())):
+        if not part:
+            continue
+        low_text, dash, high_text = part.partition("-")
+        try:
+            low = int(low_text)
+            high = int(high_text) if dash else low
+        except ValueError:
+            raise InvalidArgument(f"{part!r} is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7)") from None
+        if low > high:
+            raise InvalidArgument(f"the range {part!r} runs backwards")
+        if not 0 <= low <= high <= 31:
+            raise InvalidArgument(f"the IDs {part!r} must lie within 0..31")
+        ids.update(range(low, high + 1))
+    return sorted(ids)
 
 
 def position_to_degrees(position: int) -> float:

@@ -23,7 +23,6 @@ from ics35_async import (
     InvalidArgument,
     PortLost,
     Priority,
-    ReplyDataError,
     ReplyError,
     ReplyTimeout,
     UnsafeOperation,
@@ -31,7 +30,6 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
-from ics35_async.drivers.asyncio_driver import AsyncioDriver
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
 
@@ -481,19 +479,6 @@ async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(lin
     loop.call_soon(time.sleep, 0.01)  # and stalls again with the reply queued behind
     assert (await done).result() == 12
     assert bus.stats.total.timeouts == 0
-
-
-async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tuple[VirtualLine, Bus]) -> None:
-    """A serial port with PARMRK reports bytes that arrived damaged: ICS has no checksum of its own."""
-    _sim, bus = line
-    request = bus.submit(protocol.ReadParam(3, protocol.Param.STRETCH))
-    driver = bus._driver
-    assert isinstance(driver, AsyncioDriver) and driver.line is not None
-    driver.line.line_error(1)  # what DirectSerialTransport calls when the kernel marks a byte
-    with pytest.raises(ReplyDataError, match="parity"):
-        await request
-    assert bus.stats.line_errors == 1
-    assert await bus.servo(3).read_stretch() == 13
 
 
 async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:

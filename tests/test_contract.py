@@ -20,6 +20,7 @@ import pytest
 import uvloop
 
 from ics35_async import Bus, BusClosed, BusGroup, ReplyTimeout, open_bus, protocol
+from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
 
 IDS = range(8)
@@ -31,8 +32,10 @@ CASES = [
     ("anyio", "asyncio", "sim"),
     ("anyio", "trio", "sim"),
     ("asyncio", "asyncio", "pty"),
+    ("asyncio", "asyncio", "pty-ordinary"),
     ("asyncio", "uvloop", "sim"),
     ("asyncio", "uvloop", "pty"),
+    ("asyncio", "uvloop", "pty-ordinary"),
     ("thread", "asyncio", "pty"),
     ("thread", "asyncio", "sim"),
     ("thread", "uvloop", "pty"),
@@ -61,13 +64,22 @@ def pty_port() -> Iterator[str]:
 @pytest.fixture(params=CASES, ids=CASE_IDS)
 def run(request: pytest.FixtureRequest) -> Callable[[Callable[[Bus], Awaitable[None]]], None]:
     driver, library, far = request.param
-    port = request.getfixturevalue("pty_port") if far == "pty" else "sim://?ids=0-7"
+    port = request.getfixturevalue("pty_port") if far.startswith("pty") else "sim://?ids=0-7"
+    # The asyncio driver on a pty takes the burst path where it is built; "pty-ordinary" turns it off.
+    monkeypatch = request.getfixturevalue("monkeypatch")
+    if far == "pty-ordinary":
+        monkeypatch.setenv(ENV, "0")
+    else:
+        monkeypatch.delenv(ENV, raising=False)
+    bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
 
     def run_scenario(scenario: Callable[[Bus], Awaitable[None]]) -> None:
         async def main() -> None:
             with anyio.fail_after(20):
                 async with open_bus(port, driver=driver, **FAST) as bus:
                     assert bus.driver == ("anyio" if driver == "anyio" or library == "trio" else driver)
+                    if driver == "asyncio":
+                        assert (bus._driver.burst is not None) == bursts  # type: ignore[union-attr]
                     await scenario(bus)
 
         run_on(library, main)

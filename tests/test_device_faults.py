@@ -9,12 +9,15 @@ driver and async library.
 from __future__ import annotations
 
 import os
+import select
+import threading
+import tty
 from typing import Any
 
 import anyio
 import pytest
 
-from ics35_async import IcsError, PortLost, open_bus, protocol
+from ics35_async import IcsError, PortLost, ReplyDataError, open_bus, protocol
 from tests.support.fuzzing import healthy_answer
 
 try:
@@ -99,6 +102,59 @@ def test_every_driver_asks_the_kernel_to_mark_parity_errors(driver: str, library
 
         anyio.run(main, backend=library)
     finally:
+        os.close(master)
+        os.close(slave)
+
+
+class MarkingServo:
+    """The far end of a pty: answers every command as a healthy servo would, except that the
+    ``damaged``-th answer comes with one reply byte as the kernel marks a byte received with a
+    parity error (``FF 00 x``).  A pty has no wire and so no parity errors of its own; with PARMRK
+    cleared on the tty after the driver opened it, the marks the port decodes are these."""
+
+    def __init__(self, master: int, damaged: int) -> None:
+        self.master, self.damaged, self.answers = master, damaged, 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.serve, daemon=True)
+        self.thread.start()
+
+    def serve(self) -> None:
+        while not self.stop.is_set():
+            if not select.select([self.master], [], [], 0.05)[0]:
+                continue
+            data = os.read(self.master, 64)
+            reply = healthy_answer(data, 115200, b"\x05")
+            self.answers += 1
+            if self.answers == self.damaged:
+                reply = reply[:1] + b"\xff\x00" + reply[1:]  # the second reply byte arrived damaged
+            os.write(self.master, data + reply)
+
+
+@pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
+@pytest.mark.parametrize(("driver", "library"), PARITY_CASES, ids=[f"{d}-{lib}" for d, lib in PARITY_CASES])
+def test_on_every_driver_a_marked_byte_fails_its_transaction_and_is_counted(driver: str, library: str) -> None:
+    master, slave = os.openpty()
+    tty.setraw(master)
+    far = MarkingServo(master, damaged=2)
+    try:
+
+        async def main() -> None:
+            with anyio.fail_after(10):
+                async with open_bus(os.ttyname(slave), driver=driver, **FAST) as bus:
+                    attrs = termios.tcgetattr(slave)
+                    assert attrs[0] & termios.PARMRK  # the driver asked for marks
+                    attrs[0] &= ~termios.PARMRK  # now let the far end's marks through as they are
+                    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+                    assert await bus.servo(3).read_stretch() == 5
+                    with pytest.raises(ReplyDataError, match="parity"):
+                        await bus.servo(3).read_stretch()
+                    assert bus.stats.line_errors == 1
+                    assert await bus.servo(3).read_stretch() == 5  # the line carries on
+
+        anyio.run(main, backend=library)
+    finally:
+        far.stop.set()
+        far.thread.join()
         os.close(master)
         os.close(slave)
 

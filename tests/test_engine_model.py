@@ -320,3 +320,21 @@ def test_a_very_late_reply_after_a_streams_short_wait_is_not_taken_by_its_next_t
     state.advance(dt=0.3)
     state.each_request_ends_at_most_once_with_its_own_value()
     state.teardown()
+
+
+def test_a_reply_that_failed_on_anothers_late_bytes_is_not_taken_by_its_retry() -> None:
+    # Found by the model above: a guard read takes a timed-out read's very late reply; the guard's
+    # own reply then lands in the next command (a read of the same servo), which fails on it at
+    # once, with its own reply still to come, late.  The resync after that early failure must last
+    # as long as after a timeout, and its retry must get a guard read first, else the retry (the
+    # same command) takes that late reply for its own.
+    state = LineModel()
+    state.open_line(echo=False, share=1)
+    state.advance(dt=0.0)
+    state.inject(batch=[("clean", 0.0, []), ("clean", 0.0, []), ("very_late", 0.0, [])])
+    state.inject(batch=[("clean", 0.0, []), ("late", 0.0, []), ("drop", 0.0, [])])
+    state.submit(batch=[(1, "position", 1, Priority.URGENT, 0), (2, "stretch", 1, Priority.HIGH, 0)])
+    state.submit(batch=[(1, "position", 1, Priority.URGENT, 0), (2, "speed", 1, Priority.HIGH, 1)])
+    state.advance(dt=0.3)
+    state.each_request_ends_at_most_once_with_its_own_value()
+    state.teardown()

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async.engine import State
+from ics35_async.engine import FlushInput, State
 from ics35_async.errors import (
     BadReply,
     EchoMismatch,
@@ -132,7 +132,10 @@ def test_a_complete_wrong_transaction_fails_at_once_and_resyncs() -> None:
     assert engine.receive(BAD_ECHO + REPLY, 0.001) is None
     assert isinstance(req.error, EchoMismatch)
     assert engine.state is State.QUIET
-    assert engine.deadline == pytest.approx(0.001 + engine.timing.quiet_time)
+    # What came may not have been its reply: its own may still come, as late as after a timeout,
+    # so the resync lasts as long as a timeout's would (a quiet time past its deadline).
+    due = engine.timing.allowance(len(CMD.tx) + CMD.reply_len, engine.baudrate, CMD.timing)
+    assert engine.deadline == pytest.approx(due + engine.timing.quiet_time)
 
 
 def compositions(n: int) -> list[list[int]]:
@@ -227,8 +230,8 @@ def test_stray_bytes_on_an_idle_line_start_a_resync_and_the_queue_waits() -> Non
     req = Recorded(CMD)
     assert engine.submit(req, 1.001) is None  # waits for the silence
     assert engine.tick(1.0 + quiet / 2) is None
-    assert engine.tick(engine.deadline) == TX
-    assert engine.flush_input  # the driver drops whatever the OS still buffers before writing
+    # The driver drops whatever the OS still buffers, then writes.
+    assert engine.tick(engine.deadline) == FlushInput(TX)
     assert engine.state is State.BUSY
 
 
@@ -240,8 +243,8 @@ def test_bytes_during_a_resync_extend_it() -> None:
     engine.receive(b"\x55", 1.0 + quiet * 0.8)
     assert engine.deadline == pytest.approx(1.0 + quiet * 1.8)
     assert engine.tick(first) is None and engine.state is State.QUIET
-    engine.tick(engine.deadline)
-    assert engine.state is State.IDLE and engine.flush_input
+    assert engine.tick(engine.deadline) == FlushInput(None)
+    assert engine.state is State.IDLE
     assert engine.counters.resyncs == 1 and engine.counters.stray == 2
 
 
@@ -255,9 +258,8 @@ def test_max_resync_caps_a_resync_on_a_line_that_never_goes_quiet() -> None:
     while t < 1.0 + 4 * cap and written_at is None:
         t += quiet / 2
         # A driver ticks at the engine's deadline, before later input.
-        if engine.deadline <= t and engine.tick(engine.deadline) == TX:
+        if engine.deadline <= t and engine.tick(engine.deadline) == FlushInput(TX):
             written_at = t
-            assert engine.flush_input
         engine.receive(b"\x55", t)  # noise, faster than the quiet time
     assert written_at is not None and written_at <= 1.0 + cap + quiet
 
@@ -266,11 +268,10 @@ def test_flush_input_is_asked_when_a_fault_resync_ends() -> None:
     req, wire = play(True, [])
     engine = wire.engine
     assert isinstance(req.error, ReplyTimeout) and engine.state is State.QUIET
-    engine.flush_input = False
-    engine.tick(engine.deadline)
-    assert engine.state is State.IDLE and engine.flush_input
+    assert engine.tick(engine.deadline) == FlushInput(None)
+    assert engine.state is State.IDLE
 
 
 def test_a_clean_transaction_asks_no_flush() -> None:
     req, wire = play(True, [(0.001, TX + REPLY)])
-    assert req.result() == 42 and not wire.engine.flush_input
+    assert req.result() == 42 and wire.flushes == 0

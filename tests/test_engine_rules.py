@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 
 from ics35_async import protocol
-from ics35_async.engine import Priority, State
+from ics35_async.engine import FlushInput, Priority, State
 from ics35_async.errors import ReplyTimeout
-from ics35_async.protocol import Param
+from ics35_async.protocol import Param, guard_read
 from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
 
 
@@ -102,7 +102,7 @@ def test_a_wrong_echo_at_the_deadline_arms_no_guard() -> None:
     engine.receive(b"\xa3\x7f", 0.0002)
     engine.tick(engine.deadline)
     engine.submit(Recorded(read(3)), engine.deadline)
-    assert engine.tick(engine.deadline) == read(3).tx
+    assert engine.tick(engine.deadline) == FlushInput(read(3).tx)  # after the resync: no guard read first
     assert engine.counters.guards == 0
 
 
@@ -203,15 +203,22 @@ def test_retries_run_out_with_the_last_error() -> None:
     assert stats.retries == 2 and stats.timeouts == 5  # three tries and two guards
 
 
-def test_a_bad_reply_is_retried_without_a_guard() -> None:
+def test_a_bad_reply_is_retried_after_a_timeouts_resync_and_a_guard_read() -> None:
+    # The bytes were another servo's: this one's reply may still come, as late as after a timeout.
     engine = ready_engine()
     req = Recorded(read(3), retries=1)
     tx = engine.submit(req, 0.0)
     reply = read(3).encode_reply(5)
+    due = engine.deadline
     engine.receive(tx + b"\x24" + reply[1:], 0.001)  # another servo's header
     assert req.state == "queued" and engine.state is State.QUIET
-    assert engine.tick(engine.deadline) == read(3).tx
-    engine.receive(tx + reply, engine.deadline)
+    assert engine.deadline == pytest.approx(due + engine.timing.quiet_time)
+    guard = guard_read(read(3).tx, 3)
+    t = engine.deadline
+    # The retry has the same command byte: a guard read first (after the input is dropped).
+    assert engine.tick(t) == FlushInput(guard.tx)
+    assert engine.receive(guard.tx + guard.encode_reply(1), t + 0.001) == tx  # then the retry
+    engine.receive(tx + reply, t + 0.002)
     assert req.result() == 5 and engine.counters.snapshot(0).total.retries == 1
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import pytest
@@ -39,3 +40,59 @@ async def test_stream_engine_hooks_are_private_and_the_old_names_warn() -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # the stream itself never goes through the deprecated names
             await stream.next_frame()
+
+
+def test_bus_options_are_declared_once_and_every_opener_takes_them() -> None:
+    """open_bus, Bus, blocking.open_bus, BusGroup.open and open_robot take the one BusOptions."""
+    from ics35_async import BusGroup, BusOptions, blocking
+    from ics35_async.bus import Bus
+    from ics35_async.robot import RobotOptions, open_robot
+
+    for opener in (open_bus, Bus, blocking.open_bus, BusGroup.open):
+        (options,) = [p for p in inspect.signature(opener).parameters.values() if p.kind is p.VAR_KEYWORD]
+        assert options.annotation == "Unpack[BusOptions]", opener
+    robot_options = inspect.signature(open_robot).parameters["options"].annotation
+    assert robot_options == "Unpack[RobotOptions]"
+    assert BusOptions.__optional_keys__ < RobotOptions.__optional_keys__
+    assert {"baudrate", "reconnect", "adapter_latency", "quiet_time"} <= BusOptions.__optional_keys__
+
+
+async def test_bus_takes_timing_fields_as_open_bus_does_and_refuses_unknown_options() -> None:
+    from ics35_async.bus import Bus
+
+    bus = Bus("sim://?ids=1", adapter_latency=0.004, retries=2)
+    assert bus.timing.adapter_latency == 0.004 and bus.retries == 2
+    assert open_bus("sim://", quiet_time=0.002).timing.quiet_time == 0.002
+    for opener in (Bus, open_bus):
+        with pytest.raises(ics35_async.InvalidArgument, match=r"unknown open_bus option.*baudrat"):
+            opener("sim://", baudrat=115200)  # type: ignore[call-arg]
+
+
+async def test_open_robot_passes_bus_options_to_every_line_and_refuses_unknown_ones() -> None:
+    from ics35_async.robot import open_robot
+
+    description = {
+        "lines": {"a": {"port": "sim://?ids=1"}, "b": {"port": "sim://?ids=2"}},
+        "joints": {"x": {"line": "a", "id": 1}, "y": {"line": "b", "id": 2}},
+    }
+    async with open_robot(description, check_limits=False, adapter_latency=0.007, on_close="hold") as robot:
+        assert [bus.timing.adapter_latency for bus in robot.group.buses.values()] == [0.007, 0.007]
+    with pytest.raises(ics35_async.InvalidArgument, match=r"unknown open_bus option.*colour"):
+        async with open_robot(description, colour="red"):  # type: ignore[call-arg]
+            pass
+    with pytest.raises(ics35_async.InvalidArgument, match="baudrate: set per line"):
+        async with open_robot(description, baudrate=115200):
+            pass
+
+
+def test_the_simulated_line_options_are_declared_once() -> None:
+    from ics35_async.sim import LineModel, LineModelOptions, VirtualLine
+
+    for cls in (LineModel, VirtualLine):
+        (options,) = [p for p in inspect.signature(cls).parameters.values() if p.kind is p.VAR_KEYWORD]
+        assert options.annotation == "Unpack[LineModelOptions]", cls
+    line = VirtualLine([1], turnaround=0.0002, tail_bytes=2, log_size=0, name=None)
+    assert (line.turnaround, line.tail_bytes, line.echo, line.baudrate) == (0.0002, 2, True, 115200)
+    assert {"faults", "seed", "realtime", "adapter", "ics36"} <= LineModelOptions.__optional_keys__
+    with pytest.raises(ics35_async.InvalidArgument, match=r"unknown simulated line option.*turnarond"):
+        VirtualLine([1], turnarond=0.1)  # type: ignore[call-arg]

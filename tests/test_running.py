@@ -115,3 +115,35 @@ def test_a_blocking_program_under_stop_on_signals_ends_cleanly(signum: int, code
     assert proc.returncode == code, err
     assert out.strip() == "free"
     assert "Traceback" not in err, err
+
+
+THREADS_AT_EXIT = textwrap.dedent(
+    """
+    import sys, threading
+    import ics35_async
+    from ics35_async import open_bus
+
+    async def main() -> None:
+        async with open_bus(sys.argv[2]) as bus, bus.stream([1, 2, 3]) as stream:
+            for _ in range(3):
+                await stream.next_frame()
+
+    code = ics35_async.run(main, backend=sys.argv[1])
+    print(sorted(t.name for t in threading.enumerate() if t is not threading.main_thread()), flush=True)
+    sys.exit(code)
+    """
+)
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "uvloop", "trio"])
+def test_no_thread_is_left_when_the_program_ends(backend: str) -> None:
+    # A port the loop opens in a worker thread: that worker must not outlive the program's run
+    # (trio keeps idle workers of its own thread cache alive for seconds).
+    from ics35_async.sim.launch import serving
+
+    with serving(["--ids", "1-3"]) as path:
+        done = subprocess.run(
+            [sys.executable, "-c", THREADS_AT_EXIT, backend, path], capture_output=True, text=True, timeout=60
+        )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout

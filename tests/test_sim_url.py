@@ -1,9 +1,10 @@
-"""sim:// URLs: parsing, defaults, named lines, and the in-process transport opened from a URL."""
+"""sim:// URLs: parsing, defaults, named lines, and the in-process port opened from a URL."""
 
 from __future__ import annotations
 
-import asyncio
 import pathlib
+import threading
+import time
 
 import pytest
 
@@ -12,7 +13,7 @@ from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import Position, ReadParam
 from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
 from ics35_async.sim import url as sim_url
-from ics35_async.transports import WireDevice, open_line
+from ics35_async.transports import DevicePort, WireDevice, open_port
 
 
 def test_bare_url_is_32_servos_at_115200_in_fast_mode() -> None:
@@ -109,77 +110,79 @@ def test_open_url_is_the_one_way_from_a_url_to_a_wire_device(query: str, tmp_pat
     device.close()  # type: ignore[attr-defined]
 
 
-class Collect(asyncio.Protocol):
-    def __init__(self) -> None:
+class Collect:
+    """The host end as a driver holds it: the DevicePort open_port gives, read when it says so."""
+
+    def __init__(self, url: str, baudrate: int) -> None:
+        port = open_port(url, baudrate)
+        assert isinstance(port, DevicePort)
+        self.port = port
         self.data = bytearray()
-        self.arrived = asyncio.Event()
-        self.lost: list[Exception | None] = []
+        self.arrived = threading.Event()
+        port.on_input = self.arrived.set
 
-    def data_received(self, data: bytes) -> None:
-        self.data += data
-        self.arrived.set()
+    def write(self, data: bytes) -> None:
+        self.port.write(data)
 
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.lost.append(exc)
-
-    async def expect(self, count: int) -> bytes:
+    def expect(self, count: int) -> bytes:
+        deadline = time.monotonic() + 5
         while len(self.data) < count:
+            assert time.monotonic() < deadline, bytes(self.data)
+            self.arrived.wait(0.05)
             self.arrived.clear()
-            await asyncio.wait_for(self.arrived.wait(), 5)
+            self.data += self.port.read()
         out = bytes(self.data[:count])
         del self.data[:count]
         return out
 
 
-async def test_open_line_with_a_sim_url_talks_to_the_simulator() -> None:
-    transport, protocol = await open_line("sim://url-e2e?ids=1-3", baudrate=115200, protocol_factory=Collect)
+def test_open_port_with_a_sim_url_talks_to_the_simulator() -> None:
+    line = Collect("sim://url-e2e?ids=1-3", 115200)
     bus = named("url-e2e")
     try:
         command = Position(2, 8000, baudrate=115200)
-        transport.write(command.tx)
-        received = await protocol.expect(6)
+        line.write(command.tx)
+        received = line.expect(6)
         assert received[:3] == command.tx
         assert command.parse(received[3:]) == 7500
         assert bus.log[-1].servo_id == 2
         bus.unplug()
-        await asyncio.sleep(0.01)
-        assert protocol.lost and isinstance(protocol.lost[0], OSError)
+        with pytest.raises(OSError):
+            line.expect(1)
     finally:
-        transport.close()
+        line.port.close()
         bus.close()
 
 
-async def test_host_baud_sets_the_line_rate_in_process() -> None:
-    transport, protocol = await open_line("sim://baud-e2e?ids=1&baud=625000", baudrate=115200, protocol_factory=Collect)
+def test_host_baud_sets_the_line_rate_in_process() -> None:
+    line = Collect("sim://baud-e2e?ids=1&baud=625000", 115200)
     bus = named("baud-e2e")
     try:
-        transport.write(ReadParam(1, 2).tx)
-        assert await protocol.expect(2) == ReadParam(1, 2).tx
-        await asyncio.sleep(0.01)
-        assert protocol.data == b""  # servos at 625000 do not hear a 115200 host
+        line.write(ReadParam(1, 2).tx)
+        assert line.expect(2) == ReadParam(1, 2).tx
+        time.sleep(0.01)
+        assert line.port.read() == b""  # servos at 625000 do not hear a 115200 host
     finally:
-        transport.close()
-    transport, protocol = await open_line("sim://baud-e2e", baudrate=625000, protocol_factory=Collect)
+        line.port.close()
+    line = Collect("sim://baud-e2e", 625000)
     try:
-        transport.write(ReadParam(1, 2).tx)
-        assert (await protocol.expect(5))[2:] == bytes.fromhex("21 02 7F")
+        line.write(ReadParam(1, 2).tx)
+        assert line.expect(5)[2:] == bytes.fromhex("21 02 7F")
     finally:
-        transport.close()
+        line.port.close()
         bus.close()
 
 
-async def test_realtime_line_through_open_line() -> None:
-    transport, protocol = await open_line(
-        "sim://rt-e2e?ids=1&baud=1250000&realtime=1", baudrate=1250000, protocol_factory=Collect
-    )
+def test_realtime_line_through_open_port() -> None:
+    line = Collect("sim://rt-e2e?ids=1&baud=1250000&realtime=1", 1250000)
     bus = named("rt-e2e")
     try:
         for target in (7000, 8000, 9000):
             command = Position(1, target, baudrate=1250000)
-            transport.write(command.tx)
-            received = await protocol.expect(6)
+            line.write(command.tx)
+            received = line.expect(6)
             assert received[:3] == command.tx and received[3] == 0x01
         assert bus.transactions == 3
     finally:
-        transport.close()
+        line.port.close()
         bus.close()

@@ -8,15 +8,10 @@ test_stream.py.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import os
-import time
-import tty
 
 import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
-from ics35_async.drivers.thread_ports import FdWait
 from ics35_async.sim import VirtualLine, VirtualServo, start_subprocess, stop_subprocess
 
 FAST = {"adapter_latency": 0.02, "quiet_time": 0.002}
@@ -60,46 +55,6 @@ async def test_a_failure_in_the_io_thread_fails_its_callers_instead_of_leaving_t
             await asyncio.wait_for(bus.request(protocol.ReadParam(1, protocol.Param.STRETCH)), 5)
     finally:
         await asyncio.wait_for(bus.aclose(), 5)
-
-
-class _PtySlave:
-    """The least of a pyserial port FdWait needs: a descriptor, and closing it."""
-
-    def __init__(self, fd: int) -> None:
-        self.fd = fd
-
-    def fileno(self) -> int:
-        return self.fd
-
-    def close(self) -> None:
-        os.close(self.fd)
-
-
-def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains() -> None:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    port = FdWait(_PtySlave(slave))  # type: ignore[arg-type]
-    try:
-        filled = 0
-        for size in (4096, 1):  # nobody reads the far end: fill the pty until it takes not one byte more
-            with contextlib.suppress(BlockingIOError):
-                while True:
-                    filled += os.write(slave, b"x" * size)
-        port.write(b"\x81\x3a\x4c")
-        assert port.wait(0.01) == b""  # still nowhere to put it
-        os.set_blocking(master, False)
-        expected = b"x" * filled + b"\x81\x3a\x4c"
-        drained = b""
-        deadline = time.monotonic() + 5.0
-        while len(drained) < len(expected) and time.monotonic() < deadline:
-            port.wait(0.01)  # room again: a wait sends what was left
-            with contextlib.suppress(BlockingIOError):
-                drained += os.read(master, 65536)
-        # Everything, once, in order (the kernel may have made room for part of it at once).
-        assert drained == expected
-    finally:
-        port.close()
-        os.close(master)
 
 
 async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:

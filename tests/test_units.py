@@ -232,3 +232,18 @@ async def test_servo_and_stream_refuse_degrees_beyond_135() -> None:
                 stream.set_target_degrees(1, 136)
             with pytest.raises(InvalidArgument):
                 stream.set_targets_degrees({1: -200.0})
+
+
+def test_id_lists_are_parsed_in_one_place_for_the_cli_and_the_simulator() -> None:
+    from ics35_async.cli._common import parse_id_list
+    from ics35_async.sim import parse_ids as sim_parse_ids
+    from ics35_async.units import parse_ids
+
+    assert sim_parse_ids is parse_ids
+    assert parse_ids("5-7, 1 3,1") == [1, 3, 5, 6, 7] and parse_ids("2 - 4") == [2, 3, 4] and parse_ids("") == []
+    assert parse_id_list("all") == list(range(32)) and parse_id_list("0,31") == [0, 31]
+    for bad in ("3-1", "x", "31-32", "-1", "1-"):
+        with pytest.raises(InvalidArgument):
+            parse_ids(bad)
+    with pytest.raises(InvalidArgument, match="no IDs"):
+        parse_id_list(" ")

@@ -43,6 +43,13 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
         names = archive.namelist()
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
     assert "ics35_async/py.typed" in names
+    with zipfile.ZipFile(wheel) as archive:
+        (metadata_name,) = [n for n in names if n.endswith(".dist-info/METADATA")]
+        metadata = archive.read(metadata_name).decode()
+    for label in ("Homepage", "Documentation", "Changelog", "Issues"):
+        assert f"Project-URL: {label}, https://" in metadata, label
+    for classifier in ("Typing :: Typed", "Framework :: AsyncIO", "Framework :: Trio", "Framework :: AnyIO"):
+        assert f"Classifier: {classifier}" in metadata, classifier
     with tarfile.open(sdist) as archive:
         members = [m.split("/", 1)[1] for m in archive.getnames() if "/" in m]
     assert "LICENSE" in members and "CHANGELOG.md" in members

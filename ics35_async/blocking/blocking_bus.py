@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Awaitable, Callable, Iterable
 from typing import TYPE_CHECKING, ParamSpec, TypeVar, Unpack
 
-from ..bus import Bus, Priority
+from ..bus import Bus, BusOptions, Priority
 from ..bus import open_bus as open_async_bus
 from ..engine import State
 from ..errors import InvalidArgument
@@ -27,7 +26,11 @@ T = TypeVar("T")
 
 
 class BlockingServo(Wrapper[Servo]):
-    """:class:`~ics35_async.Servo` with blocking methods: ``servo.set_position(9000)`` returns the position."""
+    """:class:`~ics35_async.Servo` with blocking methods: ``servo.set_position(9000)`` returns the position.
+
+    Made by ``bus.servo(servo_id)`` of a blocking ``bus``, around the async ``servo``; each method
+    raises what the async one raises.
+    """
 
     __slots__ = ("bus",)
 
@@ -74,7 +77,10 @@ class BlockingServo(Wrapper[Servo]):
 
 
 class BlockingDevice(Wrapper[Device]):
-    """:class:`~ics35_async.Device` (a generic memory device) with blocking methods."""
+    """:class:`~ics35_async.Device` (a generic memory device) with blocking methods.
+
+    Made by ``bus.device(device_id)`` of a blocking ``bus``, around the async ``device``.
+    """
 
     __slots__ = ("bus",)
 
@@ -101,6 +107,13 @@ class BlockingBus(LoopOwner[Bus]):
     thread; each method call hands its work to that loop and waits for it.
     Errors are the library's own typed errors, raised in the calling thread.
     Several threads may share one bus (the bus serialises their requests).
+
+    Args:
+        bus: the async bus to open and run (``open_bus`` makes it).
+
+    Raises:
+        InvalidArgument: ``bus`` is not a [`Bus`][ics35_async.bus.Bus].
+        SerialPortError: the port cannot be opened.
     """
 
     __slots__ = ()
@@ -177,7 +190,15 @@ class BlockingBus(LoopOwner[Bus]):
     # ------------------------------------------------------------------ requests
 
     def request(self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None) -> T:
-        """Run one command (an ``ics35_async.protocol`` command object) and return its parsed reply."""
+        """Run one command (an ``ics35_async.protocol`` command object) and return its parsed reply.
+
+        ``priority`` and ``retries`` are as in [`Bus.request`][ics35_async.bus.Bus.request].
+
+        Raises:
+            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            ReplyError: no valid reply.
+            BusClosed, PortLost: the bus is closed or its port is gone.
+        """
         return self._loop.call(self._async.request, command, priority=priority, retries=retries)
 
     def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
@@ -225,7 +246,13 @@ class BlockingBus(LoopOwner[Bus]):
     def stream(
         self, ids: Iterable[int], *, rate_hz: float | None = None, **options: Unpack[StreamOptions]
     ) -> BlockingStream:
-        """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``."""
+        """A position stream over ``ids`` (see :meth:`Bus.stream`); use as ``with bus.stream(ids) as stream:``.
+
+        ``rate_hz`` and the ``options`` ([`StreamOptions`][ics35_async.stream.StreamOptions]) are the stream's.
+
+        Raises:
+            InvalidArgument: an unknown option, a bad or duplicate ID or an out-of-range value.
+        """
         stream = self._loop.call_sync(self._async.stream, ids, rate_hz=rate_hz, **options)
         return BlockingStream(stream, self._loop)
 
@@ -234,19 +261,21 @@ def _stats_of(bus: Bus) -> BusStats:
     return bus.stats
 
 
-def _blocking_opener(open_async: Callable[P, Bus]) -> Callable[P, BlockingBus]:
-    @functools.wraps(open_async)
-    def open_bus(*args: P.args, **kwargs: P.kwargs) -> BlockingBus:
-        return BlockingBus(open_async(*args, **kwargs))
+def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> BlockingBus:
+    """Open a [`BlockingBus`][ics35_async.blocking.BlockingBus] on ``port``: use ``with open_bus(...) as bus:``.
 
-    open_bus.__doc__ = """Open a :class:`BlockingBus` on ``port``: use ``with open_bus(...) as bus:``.
+    Takes what [`ics35_async.open_bus`][ics35_async.bus.open_bus] takes.  The bus is open when this
+    returns; leaving the ``with`` block, an exception or Ctrl-C included, closes it and ends its
+    loop thread.
 
-    Takes what :func:`ics35_async.open_bus` takes.  The bus is open when this
-    returns (port errors are raised here); leaving the ``with`` block, an
-    exception or Ctrl-C included, closes it and ends its loop thread.
+    Args:
+        port: a serial device path, a pyserial URL, ``sim://?...`` or a ``WireDevice``.
+        **options: the line's options, each described in [`BusOptions`][ics35_async.bus.BusOptions].
+
+    Raises:
+        InvalidArgument: an unknown option, or one with the wrong type or out of range (nothing is opened).
+        SerialPortError: the port cannot be opened: [`PortNotFound`][ics35_async.errors.PortNotFound],
+            [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
+            [`PortBusy`][ics35_async.errors.PortBusy] and the others.
     """
-    return open_bus
-
-
-# The async open_bus's parameters, checked by mypy at each call, with a blocking bus as the result.
-open_bus = _blocking_opener(open_async_bus)
+    return BlockingBus(open_async_bus(port, **options))

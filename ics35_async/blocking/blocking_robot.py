@@ -19,9 +19,9 @@ import contextlib
 import copy
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar, Unpack
 
-from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, SafetyStop
+from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from .loop_thread import LoopThread
@@ -87,6 +87,10 @@ class BlockingRobot(LoopOwner[Robot]):
     they return.  Properties are snapshots taken on the loop thread.  Errors
     are the async robot's own typed errors (:class:`~ics35_async.InvalidArgument`,
     :class:`~ics35_async.robot.SafetyStop`, ...), raised in the calling thread.
+
+    Args:
+        opener: the async robot's opener (what ``ics35_async.open_robot(...)`` returns), entered on the loop thread.
+        name: the loop thread's name.
     """
 
     __slots__ = ("_holder",)
@@ -141,13 +145,26 @@ class BlockingRobot(LoopOwner[Robot]):
         return self.run(self._async.read_pose)
 
     def move_to(self, pose: Mapping[str, float], duration: float = 1.0, profile: str = "minjerk") -> None:
-        """Move the named joints to ``pose`` in ``duration`` seconds; returns when the goal is on the wire."""
+        """Move the named joints to ``pose`` in ``duration`` seconds; returns when the goal is on the wire.
+
+        ``profile``: ``"minjerk"`` or ``"linear"``.
+
+        Raises:
+            InvalidArgument: an unknown joint, an angle outside its limits, a bad duration or profile.
+            SafetyStop: the safety watch stopped the motion.
+        """
         self.run(self._async.move_to, pose, duration, profile)
 
     def play(
         self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
     ) -> None:
-        """Play a motion (object, JSON file path or mapping); with ``loop`` until Ctrl-C."""
+        """Play a motion (object, JSON file path or mapping) at ``speed`` (2: twice as fast); ``loop``: until Ctrl-C.
+
+        Raises:
+            MotionError: the motion file breaks its format.
+            InvalidArgument: an unknown joint, an angle outside its limits or a bad ``speed``.
+            SafetyStop: the safety watch stopped the motion.
+        """
         self.run(self._async.play, motion, speed=speed, loop=loop)
 
     def free(self, joints: Iterable[str] | None = None) -> None:
@@ -169,7 +186,11 @@ class BlockingRobot(LoopOwner[Robot]):
         self._loop.call_sync(self._async.hold, joints)
 
     def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
-        """Targets in joint degrees, all checked first (``None`` frees, with ``allow_free``)."""
+        """Targets ``pose`` ``{joint: degrees}``, all checked first (``None`` frees, with ``allow_free``).
+
+        Raises:
+            InvalidArgument: an unknown joint, an angle outside its limits or a ``None`` without ``allow_free``.
+        """
         self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free)
 
     # ------------------------------------------------------------------ snapshots
@@ -244,31 +265,26 @@ def _latest_of(robot: Robot) -> RobotFrame | None:
 
 
 def open_robot(
-    source: str | Path | Mapping[str, Any] | RobotDescription,
-    *,
-    on_close: str = "hold",
-    check_limits: bool = True,
-    offline_after: int = 3,
-    probe_interval: float = 0.5,
-    start_pose: Mapping[str, float] | None = None,
-    **bus_options: Any,
+    source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
 ) -> BlockingRobot:
-    """Open a :class:`BlockingRobot`: ``with blocking.open_robot("robot.toml") as robot:``.
+    """A [`BlockingRobot`][ics35_async.blocking.BlockingRobot]: ``with blocking.open_robot("robot.toml") as robot:``.
 
-    Takes what :func:`ics35_async.open_robot` takes.  The robot is open and
-    streaming when this returns (description and port errors are raised
-    here); leaving the ``with`` block, an exception or Ctrl-C included,
+    Takes what [`ics35_async.open_robot`][ics35_async.robot.open_robot] takes.  The robot is open and
+    streaming when this returns; leaving the ``with`` block, an exception or Ctrl-C included,
     closes it as ``on_close`` says and ends its loop thread.
+
+    Args:
+        source: a TOML file's path, the same structure as a mapping, or a
+            [`RobotDescription`][ics35_async.robot.RobotDescription].
+        **options: the robot's options and every line's bus options, each described in
+            [`RobotOptions`][ics35_async.robot.RobotOptions].
+
+    Raises:
+        DescriptionError: the description is not valid (nothing is opened).
+        InvalidArgument: an unknown or bad option (see [`ics35_async.open_robot`][ics35_async.robot.open_robot]).
+        SerialPortError: a line's port cannot be opened.
     """
-    opener = open_async_robot(
-        source,
-        on_close=on_close,
-        check_limits=check_limits,
-        offline_after=offline_after,
-        probe_interval=probe_interval,
-        start_pose=start_pose,
-        **bus_options,
-    )
+    opener = open_async_robot(source, **options)
     if isinstance(source, RobotDescription):
         name = source.name or str(source.source)
     else:

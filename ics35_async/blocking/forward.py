@@ -32,8 +32,12 @@ class Wrapper(Generic[A]):
 
 
 class _Forward(Generic[A, P, T]):
-    def __init__(self, method: Callable[Concatenate[A, P], Any]) -> None:
+    """The descriptor ``blocking`` and ``on_loop`` make: ``awaits`` says whether ``method`` is a coroutine
+    function (awaited on the loop) or a plain one (called on the loop thread)."""
+
+    def __init__(self, method: Callable[Concatenate[A, P], Any], *, awaits: bool) -> None:
         self._method = method
+        self._awaits = awaits
         self.__doc__ = method.__doc__
         self.__name__ = self.__qualname__ = getattr(method, "__name__", "method")
         # What help() and inspect.signature() show: the async method's signature without ``self``.
@@ -42,9 +46,6 @@ class _Forward(Generic[A, P, T]):
 
     def __set_name__(self, owner: type, name: str) -> None:
         self.__name__, self.__qualname__, self.__module__ = name, f"{owner.__qualname__}.{name}", owner.__module__
-
-    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
-        raise NotImplementedError
 
     @overload
     def __get__(self, obj: None, owner: type | None = None) -> _Forward[A, P, T]: ...
@@ -55,46 +56,23 @@ class _Forward(Generic[A, P, T]):
     def __get__(self, obj: Wrapper[A] | None, owner: type | None = None) -> _Forward[A, P, T] | Callable[P, T]:
         if obj is None:
             return self
-        call = self._bound(obj)
+        method, target, loop = self._method, obj._async, obj._loop
+        run: Callable[..., T] = loop.call if self._awaits else loop.call_sync
+
+        def call(*args: P.args, **kwargs: P.kwargs) -> T:
+            return run(method, target, *args, **kwargs)
+
         call.__name__, call.__qualname__, call.__module__ = self.__name__, self.__qualname__, self.__module__
         call.__doc__ = self.__doc__
         call.__signature__ = self._signature  # type: ignore[attr-defined]
         return call
 
 
-class _Blocking(_Forward[A, P, T]):
-    def __init__(self, method: Callable[Concatenate[A, P], Awaitable[T]]) -> None:
-        super().__init__(method)
-        self._async_method = method
-
-    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
-        method, target, loop = self._async_method, obj._async, obj._loop
-
-        def call(*args: P.args, **kwargs: P.kwargs) -> T:
-            return loop.call(method, target, *args, **kwargs)
-
-        return call
-
-
-class _OnLoop(_Forward[A, P, T]):
-    def __init__(self, method: Callable[Concatenate[A, P], T]) -> None:
-        super().__init__(method)
-        self._sync_method = method
-
-    def _bound(self, obj: Wrapper[A]) -> Callable[P, T]:
-        method, target, loop = self._sync_method, obj._async, obj._loop
-
-        def call(*args: P.args, **kwargs: P.kwargs) -> T:
-            return loop.call_sync(method, target, *args, **kwargs)
-
-        return call
-
-
 def blocking(method: Callable[Concatenate[A, P], Awaitable[T]]) -> _Forward[A, P, T]:
     """A blocking method that awaits the async ``method`` on the wrapper's loop thread."""
-    return _Blocking(method)
+    return _Forward(method, awaits=True)
 
 
 def on_loop(method: Callable[Concatenate[A, P], T]) -> _Forward[A, P, T]:
     """A blocking method that runs the plain ``method`` on the wrapper's loop thread."""
-    return _OnLoop(method)
+    return _Forward(method, awaits=False)

@@ -52,6 +52,10 @@ class LazyGroup(click.Group):
 
     _loaded = False
 
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        ctx.meta["ics35.argv"] = list(args)  # what --version -v looks at (it runs before -v is parsed)
+        return super().parse_args(ctx, args)
+
     def _load(self) -> None:
         if self._loaded:
             return
@@ -75,12 +79,29 @@ class LazyGroup(click.Group):
         return super().get_command(ctx, cmd_name)
 
 
+def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    """The version; with -v also the Python, the platform and the I/O path that runs."""
+    if not value or ctx.resilient_parsing:
+        return
+    click.echo(f"ics35, version {__version__}")
+    argv = ctx.meta.get("ics35.argv", [])
+    if any(a == "--verbose" or (a.startswith("-v") and set(a[1:]) == {"v"}) for a in argv):
+        import platform
+
+        from ..drivers.burst import burst_path
+
+        click.echo(f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}")
+        click.echo(f"burst path: {burst_path()[1]}")
+    ctx.exit()
+
+
 @click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
 @group_line_options
 @click.option("--json", "json_output", is_flag=True,
               help="Print machine-readable JSON on stdout (as the command's own --json).")
 # The version string, not package metadata: importlib.metadata alone costs ~15 ms at start-up.
-@click.version_option(__version__, prog_name="ics35")
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True, callback=_print_version,
+              help="Show the version and exit (with -v: the Python, the platform and the burst path).")
 @click.pass_context
 def cli(ctx: click.Context, /, **line_options: Any) -> None:
     """Drive Kondo ICS 3.5 serial servos (KRS series).

@@ -11,10 +11,10 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ._common import ID_LIST, confirm, err, ids_text, out, run, settings_of, yes_option
-from ._live import LiveOptions, TargetFunction, discover, final_report, run_live, stream_options
+from ._common import ID_LIST, confirm, ids_text, out, run, settings_of, yes_option
+from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
-from ._plot import Recorder, check_plot_path
+from ._plot import Recorder
 from ._telemetry import Telemetry
 
 
@@ -85,13 +85,9 @@ def demo(
     Without --ids on hardware, demo scans and asks before moving every servo it finds (--yes skips that).
     """
     settings = settings_of(ctx)
-    if plot is not None:
-        check_plot_path(plot)
-    shown = settings.port
     if settings.port == "sim://":
-        settings.port = f"sim://?ids=0-31&realtime=1&baud={settings.baud}"
-        shown = "the built-in simulator"
         ids = ids or list(range(32))
+    shown = live_port(settings, plot, "ids=0-31&")
     if amplitude is None:
         # A real robot's joints may hit each other or the frame: start small there.
         amplitude = 45.0 if settings.is_sim else 15.0
@@ -112,10 +108,7 @@ def demo(
 
     began = time.monotonic()
     state, telemetry, recorder = run(settings, body)
-    if plot is not None:
-        recorder.write(plot, f"ics35 demo: {shown}")
-        err.print(f"plot written to {escape(plot)}")
-    final_report(state, telemetry, options)
+    final_report(state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
         f"demo {'stopped by Ctrl-C' if state.stopped_by_ctrl_c else 'done'} after "
         f"{time.monotonic() - began:.1f} s: {state.cycle} cycles, "

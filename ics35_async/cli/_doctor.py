@@ -12,6 +12,7 @@ from rich.markup import escape
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
+from ..drivers.burst import burst_path
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ._common import ID_LIST, CliError, ExitCode, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
@@ -115,8 +116,9 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
                 Finding("line", "error", failure.message, "check power and wiring; ics35 scan tries every baud")
             )
         findings += line.judge()
+    burst_on, burst_text = burst_path()
     if as_json:
-        report: dict[str, Any] = {"port": port, **system.to_dict()}
+        report: dict[str, Any] = {"port": port, **system.to_dict(), "burst_path": burst_on, "io_path": burst_text}
         line_part = line.to_dict() if line is not None else {}
         report.update(
             {
@@ -134,6 +136,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     else:
         # The failure itself is printed last, as every command's error is: not twice.
         shown = [f for f in findings if failure is None or f.problem != failure.message]
+        out.print(f"burst path: {escape(burst_text)}")
         print_report(system, line, shown)
     if failure is not None:
         raise failure

@@ -74,9 +74,9 @@ LINE_OPTIONS = (
     LineOption(
         "transport",
         ("--transport",),
-        "Serial driver for device paths.",
+        "How a serial port is read: on its descriptor (auto, direct: device paths) or by a thread.",
         {"default": "auto", "show_default": True},
-        {"type": click.Choice(["auto", "fast", "stock", "direct"])},
+        {"type": click.Choice(["auto", "direct", "thread"])},
     ),
     LineOption(
         "verbose",

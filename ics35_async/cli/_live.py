@@ -28,7 +28,7 @@ from ..stream import Stream
 from ._basic import probe_ids
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
 from ._live_view import LiveState
-from ._plot import Recorder
+from ._plot import Recorder, check_plot_path
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]
@@ -151,7 +151,27 @@ async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
     return answered
 
 
-def final_report(state: LiveState, telemetry: Telemetry, options: LiveOptions) -> None:
+def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:
+    """A live command's port as shown; a --plot path is checked first (nothing sent).
+
+    The default ``sim://`` becomes a real-time simulator (``sim_query`` adds to its URL): real time
+    paces replies at the modelled wire time, so the rate shown is the real one.
+    """
+    if plot is not None:
+        check_plot_path(plot)
+    if settings.port != "sim://":
+        return settings.port
+    settings.port = f"sim://?{sim_query}realtime=1&baud={settings.baud}"
+    return "the built-in simulator"
+
+
+def final_report(
+    state: LiveState, telemetry: Telemetry, recorder: Recorder, options: LiveOptions, plot_title: str
+) -> None:
+    """The plot (with --plot), the table and summary where no live table was drawn; no answer at all is an error."""
+    if options.plot is not None:
+        recorder.write(options.plot, plot_title)
+        err.print(f"plot written to {escape(options.plot)}")
     if not options.as_json and not out.is_terminal:
         out.print(state.table(telemetry, options.with_targets))
         out.print(state.summary(telemetry))

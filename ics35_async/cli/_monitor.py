@@ -8,9 +8,9 @@ from rich.markup import escape
 from .. import policies
 from ._basic import NO_READ_35
 from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, settings_of
-from ._live import LiveOptions, discover, final_report, run_live, stream_options
+from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
-from ._plot import Recorder, check_plot_path
+from ._plot import Recorder
 from ._telemetry import Telemetry
 
 
@@ -41,13 +41,7 @@ def monitor(
     the IDs that answer a scan).  --json prints one JSON line per second.
     """
     settings = settings_of(ctx)
-    if plot is not None:
-        check_plot_path(plot)
-    shown = settings.port
-    if settings.port == "sim://":
-        # Real-time mode paces replies at the modelled wire time, so the rate shown is the real one.
-        settings.port = f"sim://?realtime=1&baud={settings.baud}"
-        shown = "the built-in simulator"
+    shown = live_port(settings, plot)
     options = LiveOptions(
         seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot, free_at_end=free_servos
     )
@@ -75,10 +69,7 @@ def monitor(
             return await run_live(bus, plan.streamed, state, options, None, watch=watch)
 
     state, telemetry, recorder = run(settings, body)
-    if plot is not None:
-        recorder.write(plot, f"ics35 monitor: {shown}")
-        err.print(f"plot written to {escape(plot)}")
-    final_report(state, telemetry, options)
+    final_report(state, telemetry, recorder, options, f"ics35 monitor: {shown}")
     return 0
 
 

@@ -10,6 +10,7 @@ import click
 from .. import protocol
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from ..units import parse_ids
 from ._settings import Settings
 
 T = TypeVar("T")
@@ -18,28 +19,13 @@ ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
 
 
 def parse_id_list(text: str) -> list[int]:
-    """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else."""
-    text = text.strip().lower()
-    if text in ("all", "*"):
+    """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else (or nothing)."""
+    if text.strip().lower() in ("all", "*"):
         return list(range(32))
-    ids: set[int] = set()
-    for part in text.replace(" ", ",").split(","):
-        if not part:
-            continue
-        low_s, dash, high_s = part.partition("-")
-        try:
-            low = int(low_s)
-            high = int(high_s) if dash else low
-        except ValueError:
-            raise InvalidArgument(f"{part!r} is not an ID or a range like 1-12") from None
-        if low > high:
-            raise InvalidArgument(f"range {part!r} runs backwards")
-        for i in (low, high):
-            protocol.check_id(i)
-        ids.update(range(low, high + 1))
+    ids = parse_ids(text)
     if not ids:
         raise InvalidArgument("no IDs given")
-    return sorted(ids)
+    return ids
 
 
 class ServoIdType(click.ParamType[int]):
@@ -59,38 +45,36 @@ class ServoIdType(click.ParamType[int]):
             self.fail(f"servo ID must be 0..31, got {candidate}", param, ctx)
 
 
-class IdListType(click.ParamType[list[int]]):
-    name = "IDS"
+def parse_baud_list(text: str) -> list[int]:
+    """``"115200,1250000"`` -> the rates, in order, each once; InvalidArgument for one that is not a rate."""
+    bauds: list[int] = []
+    for part in text.split(","):
+        baud = int(BaudRate.parse(part.strip()))
+        if baud not in bauds:
+            bauds.append(baud)
+    return bauds
+
+
+class ListType(click.ParamType[list[int]]):
+    """A list option: ``parse`` reads its text; an item it refuses fails the option with its error and ``hint``."""
+
+    def __init__(self, name: str, parse: Callable[[str], list[int]], hint: str = "") -> None:
+        self.name = name
+        self._parse = parse
+        self._hint = hint
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> list[int]:
         if isinstance(value, list):
             return value
         try:
-            return parse_id_list(str(value))
+            return self._parse(str(value))
         except InvalidArgument as exc:
-            self.fail(f"{exc} (IDs are 0..31; write e.g. 3, 1-12, 0,4,7 or all)", param, ctx)
-
-
-class BaudListType(click.ParamType[list[int]]):
-    name = "BAUDS"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> list[int]:
-        if isinstance(value, list):
-            return value
-        bauds: list[int] = []
-        for part in str(value).split(","):
-            try:
-                baud = int(BaudRate.parse(part.strip()))
-            except InvalidArgument as exc:
-                self.fail(str(exc), param, ctx)
-            if baud not in bauds:
-                bauds.append(baud)
-        return bauds
+            self.fail(f"{exc}{self._hint}", param, ctx)
 
 
 SERVO_ID = ServoIdType()
-ID_LIST = IdListType()
-BAUD_LIST = BaudListType()
+ID_LIST = ListType("IDS", parse_id_list, " (IDs are 0..31; write e.g. 3, 1-12, 0,4,7 or all)")
+BAUD_LIST = ListType("BAUDS", parse_baud_list)
 
 
 def _json_before_the_command(ctx: click.Context, param: click.Parameter, value: bool) -> bool:

@@ -29,13 +29,19 @@ SAFETY_HINTS = (
 )
 
 
-def load_robot_file(path: str) -> RobotDescription:
-    """The checked description, or a usage error (exit code 2) naming the file and key."""
-    check_input_path(path, "ROBOT.toml")
+def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
+    """``load(path)`` of a checked input file; one that breaks its format (a FileContentError, which
+    names the file and key) is a usage error (exit code 2)."""
+    check_input_path(path, placeholder)
     try:
-        return load_description(path)
+        return load(path)
     except InvalidArgument as exc:
         raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+
+
+def load_robot_file(path: str) -> RobotDescription:
+    """The checked description, or a usage error (exit code 2) naming the file and key."""
+    return load_input_file(path, "ROBOT.toml", load_description)
 
 
 def robot_options(settings: Settings) -> dict[str, Any]:

@@ -20,17 +20,22 @@ from rich.markup import escape
 from ..errors import IcsError
 from ..robot import Motion, MotionError, Robot, load_motion, open_robot
 from ..robot.motion import check_motion
-from ._common import CliError, ExitCode, check_input_path, err, out, settings_of
-from ._robot_common import first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
+from ._common import CliError, ExitCode, err, out, settings_of
+from ._robot_common import (
+    first_pose,
+    load_input_file,
+    load_robot_file,
+    note_ports,
+    robot_options,
+    run_robot,
+    show_warnings,
+)
 from ._robot_view import Screen, joint_table
 
 
 def load_motion_file(path: str) -> Motion:
-    check_input_path(path, "MOTION.json")
-    try:
-        return load_motion(path)
-    except MotionError as exc:
-        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+    """The checked motion, or a usage error (exit code 2) naming the file and key."""
+    return load_input_file(path, "MOTION.json", load_motion)
 
 
 def parse_start_pose(text: str | None) -> dict[str, float] | None:

@@ -1,138 +1,117 @@
 """The anyio driver: one bus task in a task group owns the line (trio, or asyncio by choice).
 
-The task waits for input or the engine's deadline inside a cancel scope;
-anything that changes what it waits for (bytes from an in-process device, a
-request that starts a transaction and so an earlier deadline) cancels that
-scope so the task looks again.  Requests wait on an ``anyio.Event``.  This
-costs a little more per transaction than the asyncio driver's I/O callbacks,
-so asyncio programs get the asyncio driver unless they ask for this one.
+Its way of waiting: the task waits for input (``anyio.wait_readable`` on a
+tty's descriptor, or a cancel scope that an in-process device's delivery
+cancels) or the engine's deadline inside a cancel scope; anything that
+changes what it waits for (a request that starts a transaction and so an
+earlier deadline) cancels that scope so the task looks again.  Requests wait
+on an ``anyio.Event``.  This costs a little more per transaction than the
+asyncio driver's I/O callbacks, so asyncio programs get the asyncio driver
+unless they ask for this one.
 """
 
 from __future__ import annotations
 
-import logging
-import math
+import asyncio
+import contextlib
+import threading
 from collections.abc import Callable, Generator
-from typing import Any, TypeVar
+from typing import Any
 
 import anyio
+import anyio.lowlevel
 
-from ..engine import LineEngine, Request, State
-from ..errors import IcsError
+from ..engine import LineEngine, State
 from ..protocol import Command
-from ..transports import WireDevice
-from ..transports.serial_port import open_serial, posix_fd
-from ..transports.threaded import ThreadedSerialDevice
-from ..transports.wire_device import device_factory
-from .anyio_ports import DevicePort, FdPort
+from ..transports.device_port import DevicePort
+from ..transports.opening import Port
+from ..transports.tty_port import TtyPort
+from ..transports.wire_device import WireDevice
 from .clock import now
+from .core import INF, CallerRequest, DriverCore
 from .settings import LineSettings
 
-log = logging.getLogger("ics35_async")
 
-T = TypeVar("T")
-INF = math.inf
+def soon_threadsafe() -> Callable[[Callable[[], None]], None]:
+    """A function that runs a callback on the running event loop's thread, callable from any thread."""
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:  # not asyncio: trio (the only other backend anyio has)
+        import trio
+
+        token = trio.lowlevel.current_trio_token()
+
+        def trio_soon(callback: Callable[[], None]) -> None:
+            token.run_sync_soon(callback)
+
+        return trio_soon
+
+    def asyncio_soon(callback: Callable[[], None]) -> None:
+        loop.call_soon_threadsafe(callback)
+
+    return asyncio_soon
 
 
-class EventRequest(Request):
-    """A request whose caller awaits an ``anyio.Event``; ``await request`` gives the value."""
+class EventWaiter:
+    """What a caller of the anyio driver awaits: ``await waiter`` gives the request's value."""
 
-    __slots__ = ("event",)
+    __slots__ = ("event", "request")
 
-    def __init__(self, command: Command[Any], priority: int, retries: int) -> None:
-        super().__init__(command, priority, retries)
+    def __init__(self) -> None:
         self.event = anyio.Event()
+        self.request: CallerRequest | None = None
 
-    def resolve(self, value: Any) -> None:
-        super().resolve(value)
-        self.event.set()
-
-    def reject(self, error: IcsError) -> None:
-        super().reject(error)
-        self.event.set()
+    def done(self) -> bool:
+        return False  # a caller that gives up cancels its request (see wait)
 
     async def wait(self) -> Any:
+        request = self.request
+        assert request is not None
         try:
             await self.event.wait()
         except BaseException:
-            self.cancel()  # queued: skipped; on the wire: its reply is consumed and dropped
+            request.cancel()  # queued: skipped; on the wire: its reply is consumed and dropped
             raise
-        return self.result()
+        return request.result()
 
     def __await__(self) -> Generator[Any, None, Any]:
         return self.wait().__await__()
 
 
-class AnyioDriver:
+def _set_event(request: CallerRequest) -> None:
+    request.waiter.event.set()  # type: ignore[attr-defined]
+
+
+class AnyioDriver(DriverCore):
     """Runs one :class:`LineEngine` in a task of its own, under any anyio backend."""
 
     name = "anyio"
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
-        self.engine = engine
-        self.port = port
-        self.settings = settings
-        self.line: FdPort | DevicePort | None = None
+        super().__init__(engine, port, settings)
         self._group: Any = None
         self._scope: anyio.CancelScope | None = None
-        self._waiting_until = INF  # the engine deadline the task's current wait ends at
-        self._idle: list[anyio.Event] = []
         self._task_scope = anyio.CancelScope()  # the bus task's own, shielded scope (see _run_shielded)
+        self._soon = soon_threadsafe()
+        self._thread = threading.get_ident()
 
     # ------------------------------------------------------------------ life cycle
 
     async def open(self) -> None:
-        await self._connect()
+        self._connected(await self._open())
         self._group = anyio.create_task_group()
         await self._group.__aenter__()
         # Made here, not in the task: aclose() may cancel it before the task has even started.
         self._task_scope = anyio.CancelScope(shield=True)
-        self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.port}")
-
-    async def _open_port(self) -> FdPort | DevicePort:
-        port = self.port
-        if isinstance(port, str):
-            scheme, sep, _ = port.partition("://")
-            factory = device_factory(scheme) if sep else None
-            if factory is None:
-                ser = await anyio.to_thread.run_sync(
-                    open_serial, port, self.engine.baudrate, True, self.settings.direction
-                )
-                if posix_fd(ser) is not None and self.settings.transport != "thread":
-                    return FdPort(ser)
-                port = ThreadedSerialDevice(ser)
-            else:
-                port = factory(port)
-        line = DevicePort(port, self._wake)
-        port.connect(line, self.engine.baudrate)
-        return line
-
-    async def _connect(self) -> None:
-        self.line = await self._open_port()
-        log.info("opened %s at %d baud (anyio)", self.port, self.engine.baudrate)
-        self.pump(self.engine.connected(now()))
-
-    async def reopen(self, baudrate: int) -> None:
-        self.engine.disconnected()
-        line, self.line = self.line, None
-        if line is not None:
-            line.close()
-        self.engine.baudrate = baudrate
-        await self._connect()  # a failure closes the line for good (the bus tells the engine)
+        self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.target}")
 
     async def aclose(self) -> None:
-        engine = self.engine
-        engine.close()
         try:
-            if engine.state is State.DRAINING:
-                with anyio.move_on_after(engine.drain_bound):
-                    await self.wait_idle()
+            await self._drain()
         finally:
             # Even when the closing task is cancelled (Ctrl-C, a timeout around the program): the
             # bus task's group must end here, in the task that began it, or trio's nursery stack
             # is corrupted and the program dies with a traceback instead of closing.
-            engine.abort()
-            self._release_idle()
             try:
                 if self._group is not None:
                     group, self._group = self._group, None
@@ -140,9 +119,7 @@ class AnyioDriver:
                     group.cancel_scope.cancel()
                     await group.__aexit__(None, None, None)  # no scope around it: it closes the group's own
             finally:  # even if that raised (the closing task is cancelled): the port is released
-                line, self.line = self.line, None
-                if line is not None:
-                    line.close()
+                self._drop_port()
 
     # ------------------------------------------------------------------ the bus task
 
@@ -156,108 +133,66 @@ class AnyioDriver:
     async def _run(self) -> None:
         engine = self.engine
         while True:
-            line = self.line
-            if line is None or engine.state is State.LOST:
+            port = self.port
+            if port is None or engine.state is State.LOST:
+                if engine.state is not State.LOST:
+                    await anyio.sleep_forever()  # closed for good: aclose() cancels this task
                 await self._reconnect()
                 continue
             deadline = engine.deadline
             self._waiting_until = deadline
-            wait = None if deadline == INF else anyio.current_time() + max(0.0, deadline - now())
-            with anyio.CancelScope(deadline=INF if wait is None else wait) as scope:
+            wait = INF if deadline == INF else anyio.current_time() + max(0.0, deadline - now())
+            with anyio.CancelScope(deadline=wait) as scope:
                 self._scope = scope
-                await line.wait_input()
+                await self._wait_input(port)
             self._scope = None
             self._waiting_until = INF
             try:
-                self._step(line)
+                data = port.read()
             except OSError as exc:
-                self._lose(line, exc)
+                self._lose(port, exc)
+                continue
+            self._step(port, data, now())
 
-    def _step(self, line: FdPort | DevicePort) -> None:
-        engine = self.engine
-        data = line.read()
-        t = now()
-        if data:
-            if line.bad:  # bytes the kernel marked damaged: their transaction fails once complete
-                engine.line_error(line.bad)
-                line.bad = 0
-            self._write(engine.receive(data, t))
-        elif t >= engine.deadline:
-            # Nothing more has arrived by the deadline (read just now, after the wait): judge it.
-            out = engine.tick(t)
-            if engine.flush_input:
-                engine.flush_input = False
-                line.discard_input()
-            self._write(out)
-        if self._idle and engine.idle:
-            self._release_idle()
+    async def _wait_input(self, port: Port) -> None:
+        if isinstance(port, TtyPort):
+            if port.pending:
+                await anyio.wait_writable(port.fd)
+                port.write_pending()
+            await anyio.wait_readable(port.fd)
+        elif isinstance(port, DevicePort) and port.has_input:
+            # Already here (a fast simulator answers inside write): still let other tasks run,
+            # or a line that never waits would starve its own callers.
+            await anyio.lowlevel.checkpoint()
+        else:
+            await anyio.sleep_forever()
 
-    def _lose(self, line: FdPort | DevicePort, exc: Exception) -> None:
-        if line is not self.line:
-            return
-        self.line = None
-        line.close()
-        reason = f"port {self.port} lost: {exc}"
-        if self.engine.state not in (State.CLOSED, State.DRAINING):
-            log.warning("%s", reason)
-        self.engine.lost(reason, reconnect=self.settings.reconnect)
-        self._release_idle()
+    # ------------------------------------------------------------------ waking the bus task
 
-    async def _reconnect(self) -> None:
-        if self.engine.state is not State.LOST:
-            await anyio.sleep_forever()  # closed for good: aclose() cancels this task
-        backoff = self.settings.reconnect_backoff
-        attempt = 0
-        while self.engine.state is State.LOST:
-            await anyio.sleep(backoff[min(attempt, len(backoff) - 1)])
-            attempt += 1
-            try:
-                await self._connect()
-            except (OSError, IcsError) as exc:
-                log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
-            else:
-                self.engine.counters.reconnects += 1
+    def _watch(self, port: Port) -> None:
+        if isinstance(port, DevicePort):
+            port.on_input = self._input_came
+        self._rewait()
 
-    def _wake(self) -> None:
+    def _unwatch(self, port: Port) -> None:
+        if isinstance(port, DevicePort):
+            port.stop_telling()
+        self._rewait()
+
+    def _input_came(self) -> None:
+        if threading.get_ident() == self._thread:
+            self._rewait()
+        else:
+            with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
+                self._soon(self._rewait)
+
+    def _rewait(self) -> None:
         if self._scope is not None:
             self._scope.cancel()
 
-    def _write(self, out: bytes | None) -> None:
-        line = self.line
-        if out is not None and line is not None:
-            try:
-                line.write(out)
-            except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
-                self._lose(line, exc)
-
     # ------------------------------------------------------------------ the user's side
 
-    def pump(self, out: bytes | None) -> None:
-        """Write what an engine call from the user's side answered; re-aim the bus task's wait."""
-        self._write(out)
-        if self.engine.deadline < self._waiting_until:
-            self._wake()
-
-    def submit(self, command: Command[T], priority: int, retries: int) -> EventRequest:
-        request = EventRequest(command, priority, retries)
-        self.pump(self.engine.submit(request, now()))
-        return request
-
-    def call(self, step: Callable[[float], bytes | None]) -> None:
-        """Run an engine call (given the time) and act on what it answers."""
-        self.pump(step(now()))
-
-    def notify(self, callback: Callable[[], None]) -> None:
-        """Run ``callback`` now: the engine runs on the caller's loop."""
-        callback()
-
-    async def wait_idle(self) -> None:
-        while not self.engine.idle and self.line is not None:
-            event = anyio.Event()
-            self._idle.append(event)
-            await event.wait()
-
-    def _release_idle(self) -> None:
-        waiters, self._idle = self._idle, []
-        for event in waiters:
-            event.set()
+    def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
+        waiter = EventWaiter()
+        waiter.request = CallerRequest(command, priority, retries, waiter, _set_event)
+        return waiter.request, waiter

@@ -1,169 +1,240 @@
-"""The asyncio driver's life cycle: open, reopen, close, reconnect after a loss.
+"""The asyncio driver: the engine fed from the event loop's I/O callbacks.
 
-The hot path is :class:`~.asyncio_line.AsyncioLine`; this class opens the
-port through :func:`~ics35_async.transports.open_line` (any transport:
-our direct one, pyserial-asyncio-fast, a reader thread for ports without a
-file descriptor, an in-process device) and keeps a supervisor task that
-reopens a lost port.
+Its way of waiting: a reader on a tty's descriptor (``loop.add_reader``), a
+``call_soon`` from an in-process device (or from the reader thread of a
+port without a descriptor), and one timer that follows the engine's moving
+deadline.  The callback that completes one transaction writes the next one
+straight away, so a transaction costs no task switch and no extra loop
+pass; one timer rather than one per transaction, since transactions
+normally finish long before their deadline and deadlines usually only move
+later.  A supervisor task reopens a lost port.
+
+The armed time is kept here, never read back from the timer handle:
+uvloop's ``call_at`` with a time already past returns a plain ``Handle``
+without ``when()``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
-import logging
-from collections.abc import Callable
-from typing import Any, TypeVar
+import os
+import threading
+from typing import Any
 
 from ..engine import LineEngine, State
-from ..errors import IcsError, SerialPortError
 from ..protocol import Command
-from ..transports import WireDevice, discard_input, open_line
-from .asyncio_line import AsyncioLine, FutureRequest
+from ..transports.device_port import DevicePort
+from ..transports.opening import Port
+from ..transports.tty_port import TtyPort
+from ..transports.wire_device import WireDevice
+from .burst import FAILED, BurstRunner, open_runner
 from .clock import now
+from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
 
-log = logging.getLogger("ics35_async")
-
-T = TypeVar("T")
+IDLE = State.IDLE
 
 
-async def _released(line: AsyncioLine, timeout: float = 1.0) -> None:
-    """Wait until the transport has released the port (connection_lost), within ``timeout``.
-
-    pyserial-asyncio(-fast) close the port from an executor: returning before
-    that leaves it open -- a one-client TCP bridge (ser2net) then refuses the
-    next connection, and a loop that ends at once never closes it at all.
-    """
-    with contextlib.suppress(TimeoutError):
-        await asyncio.wait_for(asyncio.shield(line.closed), timeout)
-
-
-class AsyncioDriver:
+class AsyncioDriver(LoopDriver):
     """Runs one :class:`LineEngine` on the running asyncio loop."""
 
     name = "asyncio"
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
-        self.engine = engine
-        self.port = port
-        self.settings = settings
-        self.loop = asyncio.get_running_loop()
-        self.line: AsyncioLine | None = None
-        self._supervisor: asyncio.Task[None] | None = None
-        self._lost = asyncio.Event()
+        super().__init__(engine, port, settings)
+        self._loop_thread = threading.get_ident()
+        self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
+        self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
+        self._writing = False  # a writer waits for a tty to take what a partial write left
+
+    # ------------------------------------------------------------------ life cycle
 
     async def open(self) -> None:
-        await self._connect()
-        self._supervisor = self.loop.create_task(self._supervise(), name=f"ics35 bus {self.port}")
-
-    async def _connect(self) -> None:
-        loop = self.loop
-        _, line = await open_line(
-            self.port,
-            baudrate=self.engine.baudrate,
-            protocol_factory=lambda: AsyncioLine(self.engine, loop, self._on_connection_lost, discard_input),
-            transport=self.settings.transport,
-            direction=self.settings.direction,
-        )
-        if line.closed.done():
-            # Lost while opening (a bridge that hangs up at once), before this driver could hear of it.
-            raise SerialPortError(errno.ECONNRESET, f"{self.port} closed the line as soon as it was opened")
-        self.line = line
-        log.info("opened %s at %d baud", self.port, self.engine.baudrate)
-        line.pump(self.engine.connected(now()))
-
-    async def reopen(self, baudrate: int) -> None:
-        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
-        self.engine.disconnected()
-        line, self.line = self.line, None
-        if line is not None:
-            line.cancel_timer()
-            if line.transport is not None:
-                line.transport.close()
-            await _released(line)
-        self.engine.baudrate = baudrate
-        await self._connect()  # a failure closes the line for good (the bus tells the engine)
+        port = await self._open()
+        self._connected(port)
+        self._supervise()
 
     async def aclose(self) -> None:
-        engine = self.engine
-        engine.close()
-        line = self.line
-        if engine.state is State.DRAINING and line is not None:
-            waiter = self.loop.create_future()
-            line.idle_waiters.append(waiter)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(waiter, engine.drain_bound)
-        engine.abort()
-        if self._supervisor is not None:
-            self._supervisor.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._supervisor
-            self._supervisor = None
-        self.line = None
-        if line is not None:
-            line.cancel_timer()
-            line.release_idle_waiters()
-            if line.transport is not None and not line.transport.is_closing():
-                line.transport.close()
-            await _released(line)
+        try:
+            await self._drain()
+        finally:
+            await self._end_supervisor()
+            self._drop_port()
+            self._release_idle()
 
-    # ------------------------------------------------------------------ losing the port
-
-    def _on_connection_lost(self, line: AsyncioLine, exc: Exception | None) -> None:
-        if line is not self.line:
-            return
-        self.line = None
-        if line.transport is not None and not line.transport.is_closing():
-            line.transport.close()
-        engine = self.engine
-        reason = f"port {self.port} lost: {exc}" if exc else f"port {self.port} closed"
-        if engine.state not in (State.CLOSED, State.DRAINING):
-            log.warning("%s", reason)
-        engine.lost(reason, reconnect=self.settings.reconnect)
-        line.release_idle_waiters()
-        if engine.state is State.LOST:
+    def _lose(self, port: Port, exc: Exception | None, *, reconnect: bool = True) -> bool:
+        again = super()._lose(port, exc, reconnect=reconnect)
+        if again:
             self._lost.set()
+        return again
 
-    async def _supervise(self) -> None:
-        backoff = self.settings.reconnect_backoff
-        while True:
-            await self._lost.wait()
-            self._lost.clear()
-            attempt = 0
-            while self.engine.state is State.LOST:
-                await asyncio.sleep(backoff[min(attempt, len(backoff) - 1)])
-                attempt += 1
-                try:
-                    await self._connect()
-                except (OSError, IcsError) as exc:
-                    log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
-                else:
-                    self.engine.counters.reconnects += 1
-                    log.info("reconnected to %s after %d attempt(s)", self.port, attempt)
+    # ------------------------------------------------------------------ waiting on the port
+
+    def _watch(self, port: Port) -> None:
+        if isinstance(port, TtyPort):
+            self.loop.add_reader(port.fd, self._readable)
+            self.burst = open_runner(self.engine, port.fd, port.decode_marks, port.in_between)
+            if self.burst is not None:
+                self.loop.add_reader(self.burst.done_fd, self._burst_done)
+        elif isinstance(port, DevicePort):  # (a port without a descriptor comes behind a reader thread)
+            port.on_input = self._input_came
+            if port.has_input:
+                self._input_came()  # delivered while it opened
+
+    def _unwatch(self, port: Port) -> None:
+        self.cancel_timer()
+        self._close_burst()
+        if isinstance(port, TtyPort):
+            self.loop.remove_reader(port.fd)
+            if self._writing:
+                self.loop.remove_writer(port.fd)
+                self._writing = False
+        elif isinstance(port, DevicePort):
+            port.stop_telling()
+
+    def _input_came(self) -> None:
+        # Never read from inside the device's call: the engine may be in the middle of a write.
+        if threading.get_ident() == self._loop_thread:
+            self.loop.call_soon(self._readable)
+        else:
+            with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
+                self.loop.call_soon_threadsafe(self._readable)
+
+    def _readable(self) -> None:
+        port = self.port
+        if port is None:
+            return
+        try:
+            data = port.read()
+        except OSError as exc:
+            self._lose(port, exc)
+            return
+        if data:
+            self._step(port, data, now())
+            if self.engine.deadline < self._waiting_until:  # a resync's quiet time, or the source's wake-up
+                self._arm()
+
+    def _write_blocked(self, port: Port) -> None:
+        if not self._writing and isinstance(port, TtyPort):
+            self._writing = True
+            self.loop.add_writer(port.fd, self._writable)
+
+    def _writable(self) -> None:
+        port = self.port
+        if not isinstance(port, TtyPort):
+            return
+        try:
+            done = port.write_pending()
+        except OSError as exc:
+            self._lose(port, exc)
+            return
+        if done:
+            self.loop.remove_writer(port.fd)
+            self._writing = False
+
+    # ------------------------------------------------------------------ the burst path
+
+    @property
+    def bursting(self) -> bool:
+        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
+        return self.burst is not None and self.burst.running
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        port = self.port
+        if not isinstance(port, TtyPort) or not burst.start():
+            return False
+        self.loop.remove_reader(port.fd)  # the executor reads the port now
+        self.cancel_timer()  # and keeps the deadlines
+        return True
+
+    def _burst_done(self, *, wait: bool = False) -> None:
+        burst = self.burst
+        if burst is None or not burst.running:
+            return
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if wait:
+            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+        port = self.port
+        if not isinstance(port, TtyPort):
+            return
+        if burst.status == FAILED:
+            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))
+            return
+        self.loop.add_reader(port.fd, self._readable)  # a hang-up or what came after: the ordinary read sees it
+        self._after(out)
+
+    def _stop_burst(self) -> None:
+        # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
+        # knowing what was on the wire.
+        if self.bursting:
+            self._burst_done(wait=True)
+        else:
+            self._close_burst()
+
+    def _close_burst(self) -> None:
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            self.loop.remove_reader(burst.done_fd)
+            burst.close()
+
+    # ------------------------------------------------------------------ time
+
+    def _rewait(self) -> None:
+        self._arm()
+
+    def _arm(self) -> None:
+        if self.bursting:  # the executor keeps the deadlines until the burst is fed
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        deadline = self.engine.deadline
+        self._waiting_until = deadline
+        self._timer = self.loop.call_at(deadline, self._on_timer)
+
+    def cancel_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._waiting_until = INF
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._waiting_until = INF
+        engine = self.engine
+        port = self.port
+        if port is None:
+            return
+        t = now()
+        deadline = engine.deadline
+        if t < deadline:
+            if deadline < INF:
+                self._arm()
+            return
+        if self._second_look != deadline and engine.state is not IDLE:
+            # The loop may have stalled past the deadline with the reply already read or
+            # queued behind this callback: judge after one more I/O poll.  (Not for an idle
+            # line's deadline, a paced stream's next slot: no reply can be waiting.)  Two
+            # call_soon hops, not a timer: a timer comes back a millisecond later at best
+            # (epoll's resolution), which every failed transaction of a paced stream would pay.
+            # One hop is not enough: asyncio runs it before the I/O callbacks of the next poll,
+            # uvloop before its next poll; the second hop runs after that poll's callbacks on
+            # both.  It belongs to this deadline only: a new transaction gets its own first look.
+            self._second_look = deadline
+            self._waiting_until = t  # already passed: a new transaction's later deadline arms its own timer
+            self._timer = self.loop.call_soon(self._hop)
+            return
+        self._step(port, b"", t)
+        if self._timer is None and engine.deadline < INF:
+            self._arm()
+
+    def _hop(self) -> None:
+        self._timer = self.loop.call_soon(self._on_timer)
 
     # ------------------------------------------------------------------ the user's side
 
-    def submit(self, command: Command[T], priority: int, retries: int) -> asyncio.Future[T]:
-        fut: asyncio.Future[T] = self.loop.create_future()
-        out = self.engine.submit(FutureRequest(command, fut, priority, retries), now())
-        if out is not None and self.line is not None:
-            self.line.pump(out)
-        return fut
-
-    def call(self, step: Callable[[float], bytes | None]) -> None:
-        """Run an engine call (given the time): write what it answers and follow its deadline."""
-        out = step(now())
-        if self.line is not None:
-            self.line.pump(out)
-
-    def notify(self, callback: Callable[[], None]) -> None:
-        """Run ``callback`` now: the engine runs on the caller's loop."""
-        callback()
-
-    async def wait_idle(self) -> None:
-        while not self.engine.idle and self.line is not None:
-            waiter: asyncio.Future[Any] = self.loop.create_future()
-            self.line.idle_waiters.append(waiter)
-            await waiter
+    def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
+        future = self.loop.create_future()
+        return CallerRequest(command, priority, retries, future, settle_future), future

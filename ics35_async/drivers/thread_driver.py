@@ -1,154 +1,212 @@
 """The thread driver: the engine runs in an I/O thread that blocks on the port; the event loop sees outcomes.
 
-The I/O thread waits on the port (``poll`` on a descriptor, a blocking
-pyserial read, or an in-process device's queue) up to the engine's
-deadline, feeds it what came, and writes what it answers at once.  A
-stream's transactions therefore never touch the event loop: the loop is
-told once per frame, and a request only when it ends
-(``call_soon_threadsafe``).  That makes it the cheapest driver for
-streaming, and the one for ports the loop cannot wait on (Windows COM
+Its way of waiting: the I/O thread blocks on the port (``poll`` on a tty's
+descriptor and a wake-up pipe, a blocking pyserial read, or an in-process
+device's condition) up to the engine's deadline, feeds it what came, and
+writes what it answers at once.  A stream's transactions therefore never
+touch the event loop: the loop is told once per frame, and a request only
+when it ends (``call_soon_threadsafe``).  That makes it the cheapest driver
+for streaming, and the one for ports the loop cannot wait on (Windows COM
 ports, ``rfc2217://``).
 
 Every engine call, from either thread, holds ``lock``.  Requests are put
 on the wire by the caller's thread (no hand-over when the line is idle);
 the I/O thread is woken only when its wait would outlast the engine's new
-deadline.  A lost port is reopened by the I/O thread itself, with the
-bus's back-off.
+deadline.  A lost port ends its I/O thread; the supervisor task on the loop
+reopens it with the bus's back-off and starts a new one.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import errno
 import logging
+import math
+import os
+import select
 import threading
+import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
-from ..engine import LineEngine, Request, State
-from ..errors import IcsError
+from ..engine import LineEngine, State
 from ..protocol import Command
-from ..transports import WireDevice
+from ..transports.device_port import DevicePort
+from ..transports.opening import Port
+from ..transports.pyserial_port import SerialPort
+from ..transports.tty_port import TtyPort
+from ..transports.wire_device import WireDevice
 from .clock import now
+from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
-from .thread_ports import ThreadPort, open_thread_port
 
 log = logging.getLogger("ics35_async")
 
-T = TypeVar("T")
-INF = float("inf")
-
-
-def _set_result(future: asyncio.Future[Any], value: Any) -> None:
-    if not future.done():
-        future.set_result(value)
-
-
-def _set_exception(future: asyncio.Future[Any], error: BaseException) -> None:
-    if not future.done():
-        future.set_exception(error)
-
-
-class ThreadRequest(Request):
-    """A request whose outcome goes to an asyncio future on another thread's loop."""
-
-    __slots__ = ("future", "loop")
-
-    def __init__(
-        self, command: Command[Any], future: asyncio.Future[Any], loop: asyncio.AbstractEventLoop, priority: int,
-        retries: int,
-    ) -> None:
-        super().__init__(command, priority, retries)
-        self.future = future
-        self.loop = loop
-
-    def abandoned(self) -> bool:
-        return self.future.done()
-
-    def resolve(self, value: Any) -> None:
-        with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
-            self.loop.call_soon_threadsafe(_set_result, self.future, value)
-
-    def reject(self, error: IcsError) -> None:
-        with contextlib.suppress(RuntimeError):
-            self.loop.call_soon_threadsafe(_set_exception, self.future, error)
+INLINE_PAUSE = 50e-6
+"""Seconds the I/O thread sleeps when an in-process device answered inside ``write`` (it never waits
+otherwise); about a position transaction's time on the wire at 1.25 Mbit/s."""
 
 
 class _Run:
     """One I/O thread's stop signal: a reopen starts a new thread with a new one, so a thread
     that outlived its join can never serve the new port alongside its successor."""
 
-    __slots__ = ("stop", "stopping")
+    __slots__ = ("stopping",)
 
     def __init__(self) -> None:
-        self.stop = threading.Event()  # for the reconnect back-off's sleep
-        self.stopping = False  # the same, as a plain flag for the hot loop
+        self.stopping = False
 
     def end(self) -> None:
         self.stopping = True
-        self.stop.set()
 
 
-class ThreadDriver:
+class _TtyWait:
+    """Waits on a tty: ``poll`` on its descriptor and a wake-up pipe (and POLLOUT while a write is pending)."""
+
+    def __init__(self, port: TtyPort) -> None:
+        self.port = port
+        self.writable = False  # the tty can take what a partial write left
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._poll = select.poll()
+        self._poll.register(port.fd, select.POLLIN)
+        self._poll.register(self._wake_r, select.POLLIN)
+        self._closed = False
+
+    def wait(self, timeout: float | None) -> bytes:
+        # poll counts whole milliseconds: round up, so a deadline is never judged early.
+        events = self._poll.poll(None if timeout is None else math.ceil(timeout * 1000))
+        fd = self.port.fd
+        if len(events) == 1 and events[0][1] == select.POLLIN and events[0][0] == fd:
+            return self.port.read()  # the usual case: the reply, and nothing else
+        data = b""
+        for polled, mask in events:
+            if polled == fd:
+                if mask & select.POLLNVAL:
+                    raise OSError(errno.EBADF, "the serial port was closed")
+                if mask & select.POLLOUT:
+                    self.writable = True
+                if mask & (select.POLLIN | select.POLLHUP | select.POLLERR):
+                    data = self.port.read()
+            else:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 512)
+        return data
+
+    def want_writable(self, want: bool) -> None:
+        self._poll.modify(self.port.fd, select.POLLIN | select.POLLOUT if want else select.POLLIN)
+        if want:
+            self.wake()  # a wait already under way does not watch for POLLOUT yet
+
+    def wake(self) -> None:  # under the driver's lock: never into a pipe that close() gave back
+        if not self._closed:
+            with contextlib.suppress(BlockingIOError):  # a full pipe: a wake-up is pending anyway
+                os.write(self._wake_w, b"\0")
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            for fd in (self._wake_r, self._wake_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+
+class _DeviceWait:
+    """Waits on an in-process device: its answers come from whatever thread it runs on."""
+
+    writable = False
+
+    def __init__(self, port: DevicePort) -> None:
+        self.port = port
+        self._cond = threading.Condition()
+        self._woken = False
+        port.on_input = self.wake
+
+    def wait(self, timeout: float | None) -> bytes:
+        port = self.port
+        if port.has_input and timeout != 0:
+            # The device answered inside write (a fast simulator): pause as a wire would.  A thread
+            # that never blocks would keep the engine's lock from the loop's callers for good.
+            time.sleep(INLINE_PAUSE)
+        with self._cond:
+            if not port.has_input and not self._woken:
+                self._cond.wait(timeout)
+            self._woken = False
+        return port.read()
+
+    def wake(self) -> None:
+        with self._cond:
+            self._woken = True
+            self._cond.notify()
+
+    def want_writable(self, want: bool) -> None:
+        pass
+
+    def close(self) -> None:
+        self.port.stop_telling()
+
+
+class _SerialWait:
+    """Waits on a pyserial port with no descriptor: by reading it (up to its short read timeout)."""
+
+    writable = False
+
+    def __init__(self, port: SerialPort) -> None:
+        self.port = port
+
+    def wait(self, timeout: float | None) -> bytes:
+        return self.port.read(block=timeout is None or timeout > 0)  # a look, not a wait, at 0
+
+    def wake(self) -> None:
+        self.port.wake()
+
+    def want_writable(self, want: bool) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+_Wait = _TtyWait | _DeviceWait | _SerialWait
+
+
+class ThreadDriver(LoopDriver):
     """Runs one :class:`LineEngine` in an I/O thread, for callers on the running asyncio loop."""
 
     name = "thread"
+    blocking_reads = True
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
-        self.engine = engine
-        self.port = port
-        self.settings = settings
-        self.loop = asyncio.get_running_loop()
+        super().__init__(engine, port, settings)
         self.lock = threading.Lock()
-        self._io: ThreadPort | None = None
         self._thread: threading.Thread | None = None
+        self._wait: _Wait | None = None
         self._running = _Run()
-        self._waiting_until = INF  # when the I/O thread's current wait ends (it is woken for earlier)
-        self._idle_waiters: list[asyncio.Future[None]] = []
-        self._write_error: tuple[ThreadPort, OSError] | None = None  # from a write in the caller's thread
+        self._write_error: tuple[Port, OSError] | None = None  # from a write in the caller's thread
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
 
     async def open(self) -> None:
-        self._start(await self._open_port())
-
-    async def _open_port(self) -> ThreadPort:
-        opening = self.loop.run_in_executor(
-            None, open_thread_port, self.port, self.engine.baudrate, self.settings.direction
-        )
-        try:
-            return await opening
-        except asyncio.CancelledError:
-
-            def close_late(f: asyncio.Future[ThreadPort]) -> None:
-                if not f.cancelled() and f.exception() is None:
-                    f.result().close()
-
-            opening.add_done_callback(close_late)
-            raise
-
-    def _start(self, io: ThreadPort) -> None:
-        self._io = io
-        run = self._running = _Run()
-        log.info("opened %s at %d baud", self.port, self.engine.baudrate)
+        port = await self._open()
         with self.lock:
-            self._write(io, self.engine.connected(now()))
-            self._waiting_until = self.engine.deadline
-        self._thread = threading.Thread(target=self._run, args=(io, run), name=f"ics35 line {self.port}", daemon=True)
-        self._thread.start()
+            self._connected(port)
+        self._supervise()
+
+    async def _before_reconnect(self) -> None:
+        await self._stop_thread()  # the lost port's thread has ended, or is about to
 
     async def _stop_thread(self) -> None:
-        self._running.end()
-        io, thread, self._thread = self._io, self._thread, None
-        if io is not None:
-            io.wake()
+        with self.lock:
+            port, self.port = self.port, None
+            if port is not None:
+                self._unwatch(port)
+        thread, self._thread = self._thread, None
         if thread is not None and thread is not threading.current_thread():
             # The thread closes its port on the way out (pyserial's RFC 2217 close sleeps 0.3 s).
             await self.loop.run_in_executor(None, thread.join, 2.0)
-        elif io is not None:
-            io.close()
-        self._io = None
+        elif port is not None:
+            port.close()
 
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
@@ -161,180 +219,116 @@ class ThreadDriver:
                     break
         await self._stop_thread()
         self.engine.baudrate = baudrate
-        self._start(await self._open_port())  # a failure closes the line for good (the bus tells the engine)
+        port = await self._open()  # a failure closes the line for good (the bus tells the engine)
+        with self.lock:
+            self._connected(port)
 
     async def aclose(self) -> None:
-        engine = self.engine
-        with self.lock:
-            engine.close()
-            draining = engine.state is State.DRAINING
-            waiter: asyncio.Future[None] = self.loop.create_future()
-            self._idle_waiters.append(waiter)
         try:
-            if draining and self._thread is not None:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(waiter, engine.drain_bound)
+            await self._drain()
         finally:  # even when cancelled: no I/O thread may keep the port
-            with self.lock:
-                engine.abort()
+            await self._end_supervisor()
             await self._stop_thread()
-            self._release_idle()
+            with self.lock:
+                self._release_idle()
+
+    # ------------------------------------------------------------------ waiting on the port (under the lock)
+
+    def _watch(self, port: Port) -> None:
+        wait: _Wait
+        if isinstance(port, TtyPort):
+            wait = _TtyWait(port)
+        elif isinstance(port, DevicePort):
+            wait = _DeviceWait(port)
+        else:
+            wait = _SerialWait(port)
+        self._wait = wait
+        run = self._running = _Run()
+        self._waiting_until = INF  # the new thread reads the deadline afresh before it waits
+        self._thread = threading.Thread(
+            target=self._run, args=(port, wait, run), name=f"ics35 line {self.target}", daemon=True
+        )
+        self._thread.start()
+
+    def _unwatch(self, port: Port) -> None:
+        self._running.end()
+        if self._wait is not None:
+            self._wait.wake()
+
+    def _rewait(self) -> None:
+        if self._wait is not None:
+            self._wait.wake()  # its wait would outlast the new deadline
+
+    def _write_blocked(self, port: Port) -> None:
+        if self._wait is not None:
+            self._wait.want_writable(True)
+
+    def _write_failed(self, port: Port, exc: Exception) -> None:
+        # The I/O thread takes the loss at its next turn: it is the one waiting on the port.
+        log.debug("write to %s failed: %s", self.target, exc)
+        error = exc if isinstance(exc, OSError) else OSError(errno.EIO, f"write failed: {exc!r}")
+        self._write_error = (port, error)
+        if self._wait is not None:
+            self._wait.wake()
 
     # ------------------------------------------------------------------ the I/O thread
 
-    def _run(self, io: ThreadPort, run: _Run) -> None:
-        while True:
-            try:
-                self._serve(io, run)
-            except Exception as exc:
-                if not isinstance(exc, OSError):  # a bug: callers must not wait for a thread that is gone
-                    log.error("the I/O thread of %s failed", self.port, exc_info=exc)
-                    self._lose(OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}"), run, reconnect=False)
-                    io.close()
-                    return
-                again = self._lose(exc, run)
-                io.close()  # after the engine knows: nothing is written to a closed port meanwhile
-                if not again:
-                    return
-                reopened = self._reconnect(run)
-                if reopened is None:
-                    return
-                io = reopened
-            else:
-                io.close()
-                return
+    def _run(self, port: Port, wait: _Wait, run: _Run) -> None:
+        try:
+            self._serve(port, wait, run)
+        except Exception as exc:
+            reconnect = isinstance(exc, OSError)
+            if not reconnect:  # a bug: callers must not wait for a thread that is gone
+                log.error("the I/O thread of %s failed", self.target, exc_info=exc)
+                exc = OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}")
+            with self.lock:
+                if not run.stopping and self._lose(port, exc, reconnect=reconnect):
+                    self.notify(self._lost.set)
+        finally:
+            with self.lock:
+                wait.close()
+            port.close()  # after the engine knows: nothing is written to a closed port meanwhile
 
-    def _serve(self, io: ThreadPort, run: _Run) -> None:
-        engine, lock = self.engine, self.lock
-        wait, write = io.wait, io.write
+    def _serve(self, port: Port, wait: _Wait, run: _Run) -> None:
+        engine, lock, step = self.engine, self.lock, self._step
+        waiting = wait.wait
         while not run.stopping:
             until = self._waiting_until
             if until == INF:
-                data = wait(None)
+                data = waiting(None)
             else:
                 left = until - now()
-                data = wait(left if left > 0.0 else 0.0)
+                data = waiting(left if left > 0.0 else 0.0)
             with lock:
                 if run.stopping:
                     return
                 if self._write_error is not None:  # a write from the caller's thread failed
                     failed, error = self._write_error
                     self._write_error = None
-                    if failed is io:  # not an error of a port already replaced
+                    if failed is port:  # not an error of a port already replaced
                         raise error
+                if wait.writable:
+                    wait.writable = False
+                    if isinstance(port, TtyPort) and port.write_pending():
+                        wait.want_writable(False)
                 t = now()
                 if not data and t >= engine.deadline:
                     # Bytes that came while this thread waited for the lock are not late.
-                    data = wait(0)
-                if data:
-                    if io.bad:
-                        engine.line_error(io.bad)
-                        io.bad = 0
-                    out = engine.receive(data, t)
-                elif t >= engine.deadline:
-                    out = engine.tick(t)
-                    if engine.flush_input:
-                        engine.flush_input = False
-                        io.discard_input()
-                else:
-                    out = None
-                if out is not None:
-                    write(out)
-                if self._idle_waiters and engine.idle:
-                    self._release_idle()
+                    data = waiting(0)
+                step(port, data, t)
                 self._waiting_until = engine.deadline
-
-    def _lose(self, exc: OSError, run: _Run, *, reconnect: bool = True) -> bool:
-        """The port went away: tell the engine; True if it should be reopened."""
-        with self.lock:
-            engine = self.engine
-            reason = f"port {self.port} lost: {exc}"
-            if engine.state not in (State.CLOSED, State.DRAINING) and not run.stopping:
-                log.warning("%s", reason)
-            self._io = None  # callers write nothing more to it
-            engine.lost(reason, reconnect=reconnect and self.settings.reconnect)
-            self._release_idle()
-            return engine.state is State.LOST and not run.stopping
-
-    def _reconnect(self, run: _Run) -> ThreadPort | None:
-        backoff = self.settings.reconnect_backoff
-        attempt = 0
-        while not run.stop.wait(backoff[min(attempt, len(backoff) - 1)]):
-            attempt += 1
-            try:
-                io = open_thread_port(self.port, self.engine.baudrate, self.settings.direction)
-            except (OSError, IcsError) as exc:
-                log.debug("reconnect %d to %s failed: %s", attempt, self.port, exc)
-                continue
-            except Exception as exc:  # a bug (a device factory's): stop trying, and say so
-                log.error("reopening %s failed", self.port, exc_info=exc)
-                with self.lock:
-                    self.engine.close()  # callers get BusClosed rather than "reconnecting" for ever
-                    self._release_idle()
-                return None
-            with self.lock:
-                if run.stopping or self.engine.state is not State.LOST:
-                    io.close()
-                    return None
-                self._io = io
-                self._write(io, self.engine.connected(now()))
-                self.engine.counters.reconnects += 1
-                self._waiting_until = self.engine.deadline
-            log.info("reconnected to %s after %d attempt(s)", self.port, attempt)
-            return io
-        return None
-
-    # ------------------------------------------------------------------ either thread, under the lock
-
-    def _write(self, io: ThreadPort | None, out: bytes | None) -> None:
-        if out is None or io is None:
-            return
-        try:
-            io.write(out)
-        except Exception as exc:  # the port is gone: the I/O thread raises it at its next turn
-            log.debug("write to %s failed: %s", self.port, exc)
-            error = exc if isinstance(exc, OSError) else OSError(errno.EIO, f"write failed: {exc!r}")
-            self._write_error = (io, error)
-            io.wake()
-
-    def _after_call(self, out: bytes | None) -> None:
-        io = self._io
-        self._write(io, out)
-        if io is not None and self.engine.deadline < self._waiting_until:
-            io.wake()  # its wait would outlast the new deadline
-        if self._idle_waiters and self.engine.idle:
-            self._release_idle()
-
-    def _release_idle(self) -> None:
-        waiters, self._idle_waiters = self._idle_waiters, []
-        for w in waiters:
-            with contextlib.suppress(RuntimeError):
-                self.loop.call_soon_threadsafe(_set_result, w, None)
 
     # ------------------------------------------------------------------ the user's side
 
-    def submit(self, command: Command[T], priority: int, retries: int) -> asyncio.Future[T]:
-        fut: asyncio.Future[T] = self.loop.create_future()
-        request = ThreadRequest(command, fut, self.loop, priority, retries)
-        with self.lock:
-            self._after_call(self.engine.submit(request, now()))
-        return fut
-
-    def call(self, step: Callable[[float], bytes | None]) -> None:
-        """Run an engine call (given the time) and act on what it answers."""
-        with self.lock:
-            self._after_call(step(now()))
-
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` on the loop's thread (the stream's frames are made in the I/O thread)."""
-        with contextlib.suppress(RuntimeError):
+        with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
             self.loop.call_soon_threadsafe(callback)
 
-    async def wait_idle(self) -> None:
-        while True:
-            with self.lock:
-                if self.engine.idle or self._thread is None:
-                    return
-                waiter: asyncio.Future[None] = self.loop.create_future()
-                self._idle_waiters.append(waiter)
-            await waiter
+    def _deliver(self, request: CallerRequest) -> None:
+        with contextlib.suppress(RuntimeError):
+            self.loop.call_soon_threadsafe(settle_future, request)
+
+    def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
+        future = self.loop.create_future()
+        return CallerRequest(command, priority, retries, future, self._deliver), future

@@ -17,7 +17,9 @@ The rules, each in one place:
   transaction are never taken for the next reply;
 * guard read: after a timeout, a command with the same command byte does not
   go next (the late reply would fit it); a harmless read of another shape
-  goes first;
+  goes first.  A transaction that fails on what came before its deadline
+  (another's late bytes, noise) may still get its own reply: it gets the
+  resync and the guard read a timeout would have;
 * priorities, and the stream's share: at most ``max_requests_between``
   requests between two stream transactions;
 * retries of idempotent commands; cancellation (a cancelled request's reply
@@ -34,7 +36,7 @@ The rules, each in one place:
 """
 
 from .counters import LineCounters
-from .machine import LineEngine
+from .machine import FlushInput, LineEngine, Output
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
 from .state import State
@@ -43,10 +45,12 @@ from .timing import BusTiming, TimingOverrides
 __all__ = [
     "BackgroundSource",
     "BusTiming",
+    "FlushInput",
     "TimingOverrides",
     "GuardRequest",
     "LineCounters",
     "LineEngine",
+    "Output",
     "Priority",
     "Request",
     "RequestQueue",

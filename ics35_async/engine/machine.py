@@ -4,8 +4,9 @@ No event loop, no clock, no I/O (h11 is the model).  A driver feeds it what
 happens -- bytes received, the time, a deadline passed, the port lost -- and
 each call answers with the bytes to write next (or ``None``).  After any
 call, ``deadline`` is when the engine wants :meth:`tick` (``math.inf``: not
-until something else happens) and ``flush_input`` asks the driver to drop the
-OS input buffer before writing.  Requests learn their outcome through
+until something else happens).  When a resync ends, :meth:`tick` answers
+with a :class:`FlushInput` instead of bytes: drop what the port has buffered,
+then write its ``then``.  Requests learn their outcome through
 ``Request.resolve``/``reject``; the stream (the background source) through
 its own plain methods.  The rules it holds: see :mod:`ics35_async.engine`.
 """
@@ -22,6 +23,7 @@ from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
 from .outcome import framing_error, timeout_error
+from .probe import FLOOR as STREAM_WAIT_FLOOR
 from .probe import STREAM_RESYNC, AnswerTimes
 from .requests import GuardRequest, Priority, Request, RequestQueue
 from .source import BackgroundSource
@@ -39,6 +41,35 @@ NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
 URGENT = Priority.URGENT
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
+BURST_LIMIT = 64  # transactions in one burst at most (a 32-servo cycle fits; a wake still stops it sooner)
+PlannedTransaction = tuple[bytes, int, int, float]
+"""One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s)."""
+
+
+class FlushInput:
+    """What :meth:`LineEngine.tick` answers when a resync ends: drop the port's input, then write ``then``.
+
+    Whatever the OS still buffers from before the resync is stale (the late
+    bytes of a failed transaction).  An answer rather than a flag, as h11
+    returns events: a driver cannot forget to look at it.
+    """
+
+    __slots__ = ("then",)
+
+    def __init__(self, then: bytes | None) -> None:
+        self.then = then
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, FlushInput) and other.then == self.then
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"FlushInput(then={self.then!r})"
+
+
+Output = bytes | FlushInput | None
+"""What an engine call answers: bytes to write, a :class:`FlushInput`, or nothing."""
 
 
 class LineEngine:
@@ -53,7 +84,6 @@ class LineEngine:
         self.max_requests_between = max_requests_between
         self.state = OFFLINE
         self.deadline = INF
-        self.flush_input = False
         self.counters = LineCounters()
         self.link = LinkLatency(bound=self.timing.link_extra_max)
         self.counters.link = self.link
@@ -87,6 +117,7 @@ class LineEngine:
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
         self._settling = False  # this transaction's reply is in; waiting to see no more comes
         self._t_done = 0.0  # when it came in
+        self._due = 0.0  # its deadline, while it settles
         self.guard = GuardRule()
         self.answers = AnswerTimes()
         self._t_first = 0.0  # when this transaction's first byte arrived (a slow link's evidence)
@@ -234,6 +265,81 @@ class LineEngine:
         """The source has work again (new targets, or it was just attached)."""
         return self._start_next(now) if self.state is IDLE else None
 
+    # ------------------------------------------------------------------ bursts
+
+    def plan_burst(self, limit: int = BURST_LIMIT) -> tuple[float, list[PlannedTransaction]] | None:
+        """The transactions a burst executor may run from the one just put on the wire, or None.
+
+        A burst is the source's transaction on the wire (returned by the last call) followed by
+        the source's next ones, as far as the sharing rule lets the source keep the line (to the
+        end of its cycle; not past a boundary where a queued request would go instead), at most
+        ``limit`` in all.  Each entry is ``(tx, expect, echo, allowance)``: the bytes to write,
+        how many come back (echo included), how many of them are the echo, and the seconds from
+        the transaction's start (when the previous one's last byte came) to its deadline; the
+        first one's deadline is the one returned with the plan.
+
+        Only while the line is in step (no reply owed or held back, no slow-link allowance
+        learnt, nothing received yet of the transaction on the wire): after a fault the ordinary
+        path runs until a late reply can no longer come.  A transaction's wait is the one the
+        engine would give it; where the stream's wait may be recomputed before it (see
+        :mod:`.probe`), the least it can become: the executor then gives up no later than the
+        engine would, and the engine waits on for the rest.  The
+        source keeps the planned transactions as they are until :meth:`burst_over`.
+
+        The executor runs the plan, stops at the first transaction that is late, short or not
+        echoed as sent, or at a boundary when woken; the driver then feeds every byte through
+        :meth:`receive` (and the deadline through :meth:`tick`) with the times they came, so the
+        engine judges them exactly as if they had come one by one.
+        """
+        source = self._source
+        if (
+            self.state is not BUSY
+            or self._current is not None
+            or source is None
+            or self._owner is not source
+            or self._buf
+            or self.link.extra
+            or self.link.owed_since != INF
+            or self._tail_until > self._t_start
+        ):
+            return None
+        if self._held and max(self._held.values()) > self._t_start:
+            return None  # a late reply may still land in any transaction (see _hold)
+        plan: list[PlannedTransaction] = [(self._tx, self._expect, self._echo_len, self.deadline - self._t_start)]
+        queue = self.queue
+        if queue.count and self._request_goes(queue.peek(), self._t_start, note=False):
+            return None  # a request takes the line at the next boundary
+        echo = self.echo
+        latency = self.answers.stream_latency
+        steady = self.answers.answers_before_change()
+        for j, (tx, reply_len, _sid) in enumerate(source.upcoming(limit - 1), 1):
+            nbytes = len(tx) + reply_len
+            allowance = self._allowances.get(nbytes)
+            if allowance is None:
+                allowance = self._allowance(nbytes, NORMAL)
+            allowance = self._stream_wait(nbytes, allowance, latency if j < steady else STREAM_WAIT_FLOOR)
+            echo_len = len(tx) if echo else 0
+            plan.append((tx, echo_len + reply_len, echo_len, allowance))
+        return self.deadline, plan
+
+    def would_take(self, request: Request, now: float) -> bool:
+        """Would ``request``, queued now, get the line at the next transaction boundary, before the
+        source's next transaction?  (What a driver asks of a request that arrives during a burst:
+        if so, it wakes the burst, which stops at that boundary.)"""
+        head = self.queue.peek()
+        if head is None or request.priority < head.priority:
+            head = request
+        return self._source is None or self._request_goes(head, now, note=False)
+
+    def burst_over(self) -> None:
+        """The burst's bytes are fed up to its last transaction: the source may change its plan again.
+
+        Called before the last transaction's bytes are fed, so that what goes on the line next
+        is what the source wants now.
+        """
+        if self._source is not None:
+            self._source.upcoming_done()
+
     # ------------------------------------------------------------------ the line talking
 
     def receive(self, data: bytes, now: float) -> bytes | None:
@@ -268,7 +374,7 @@ class LineEngine:
         if self.state is BUSY or self.state is DRAINING:
             self._corrupted = True  # the transaction fails once its bytes are all in
 
-    def tick(self, now: float) -> bytes | None:
+    def tick(self, now: float) -> Output:
         """Time has passed: a deadline, the end of a resync, or the source's wake-up.
 
         A driver calls this only once input that arrived before ``now`` has
@@ -286,10 +392,9 @@ class LineEngine:
                 return None
             if now < self._quiet_until:
                 log.warning("line never went quiet; carrying on")
-            self.flush_input = True
             self.link.resync_over()
             self.state = IDLE
-            return self._start_next(now)
+            return FlushInput(self._start_next(now))
         if state is IDLE:
             return self._start_next(now)
         return None
@@ -311,16 +416,10 @@ class LineEngine:
         source = self._source
         queue = self.queue
         self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
-        if queue.count:
-            due = None if source is None else source.slot_due(now)
-            if due is None:
-                take = source is None or self._in_row < self.max_requests_between
-            else:
-                take = self._fits_before(due, now)
-            if take:
-                out = self._begin_request(now)
-                if out is not None:
-                    return out
+        if queue.count and self._request_goes(queue.peek(), now, note=True):
+            out = self._begin_request(now)
+            if out is not None:
+                return out
         self._in_row = 0
         if source is not None:
             job = source.next_transaction(now)
@@ -333,7 +432,7 @@ class LineEngine:
                 # The source has nothing now (between slots, every ID held or offline): a request
                 # may take the time, by the same rule as above, judged against the next slot.
                 due = source.slot_due(now)
-                if due is None or self._fits_before(due, now):
+                if due is None or self._fits_before(queue.peek(), due, now, note=True):
                     out = self._begin_request(now)
                     if out is not None:
                         return out
@@ -392,9 +491,20 @@ class LineEngine:
         cmd = req.command
         return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
 
-    def _fits_before(self, due: float, now: float) -> bool:
-        """May the queue's next request go now, beside a stream whose next transaction is due at ``due``?"""
-        head = self.queue.peek()
+    def _request_goes(self, head: Request | None, now: float, *, note: bool) -> bool:
+        """Does ``head`` (the queue's next request) go before the source's next transaction at ``now``?"""
+        source = self._source
+        due = None if source is None else source.slot_due(now)
+        if due is None:
+            return source is None or self._in_row < self.max_requests_between
+        return self._fits_before(head, due, now, note=note)
+
+    def _fits_before(self, head: Request | None, due: float, now: float, *, note: bool) -> bool:
+        """May ``head`` go now, beside a stream whose next transaction is due at ``due``?
+
+        ``note``: this is the engine's decision, so a request too long for this slack is counted
+        as passed over in it (not when only asked, as :meth:`would_take` does).
+        """
         if head is None:
             return True  # only abandoned requests: pop() drops them
         if head.priority == URGENT:
@@ -411,10 +521,10 @@ class LineEngine:
             return True
         # Too long for this slack.  Passed over in two slacks in a row: it goes now (delaying the
         # next cycle once), rather than waiting forever for a slack it can never fit in.
-        if self._passed_over_due != due:
-            self._passed_over_due = due
-            self._passed_over += 1
-        return self._passed_over >= 2
+        passed = self._passed_over if self._passed_over_due == due else self._passed_over + 1
+        if note:
+            self._passed_over_due, self._passed_over = due, passed
+        return passed >= 2
 
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
@@ -447,15 +557,24 @@ class LineEngine:
         self._short = timing is PROBE
         if self._short:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
-        elif req is None and self.answers.stream_latency is not None:
-            # The stream waits what this line's answers take, not the adapter's worst case: a
-            # failure then costs the control loop little.  Its reply may still come later: see _hold.
-            short = self._wire_time(nbytes) + self.answers.stream_latency
-            if short < allowance:
+        elif req is None:
+            wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
+            if wait < allowance:
                 self._short = True
-                allowance = short
+                allowance = wait
         self.deadline = now + allowance + self.link.extra
         return tx
+
+    def _stream_wait(self, nbytes: int, allowance: float, latency: float | None) -> float:
+        """How long a stream transaction of ``nbytes`` waits, given its full allowance.
+
+        What this line's answers take beyond the wire time (``latency``, see .probe), not the
+        adapter's worst case: a failure then costs the control loop little.  Its reply may still
+        come later: see _hold.
+        """
+        if latency is None:
+            return allowance
+        return min(allowance, self._wire_time(nbytes) + latency)
 
     def _wire_time(self, nbytes: int) -> float:
         wire = self._wire.get(nbytes)
@@ -487,10 +606,10 @@ class LineEngine:
             link = self.link
             if link.owed_since != INF:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
-            stream = self._current is None
+            req = self._current
+            due = self._due if self._settling else self.deadline
             out = self._failed(error, sid, now)
-            if stream and self._short:
-                self._hold(now)
+            self._after_early_failure(req, due, now)
             return out
         over = latency - self._base  # before the next transaction replaces _base
         value = None  # a request's answer, handed over once everything is counted
@@ -510,9 +629,9 @@ class LineEngine:
             if rejected is not None:  # (complete changed nothing: the stream hears once it is counted)
                 counters.ok[sid] -= 1
                 counters.latency.add(latency)
+                due = self._due if self._settling else self.deadline
                 out = self._fault(rejected, sid, now)
-                if self._short:
-                    self._hold(now)
+                self._after_early_failure(None, due, now)
                 source.fail(rejected, now)
                 return out
             if over <= 0:  # (a reply later than the full allowance is a fault the link's extra caught, not a norm)
@@ -522,7 +641,10 @@ class LineEngine:
                 value = req.command.parse(bytes(buf[echo_len:]))
             except ReplyError as exc:
                 counters.latency.add(latency)
-                return self._fail_request(req, exc, sid, now)
+                due = self._due if self._settling else self.deadline
+                out = self._fail_request(req, exc, sid, now)
+                self._after_early_failure(req, due, now)
+                return out
             name = req.command.name
             counters.by_command[name] = counters.by_command.get(name, 0) + 1
             self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
@@ -568,6 +690,7 @@ class LineEngine:
         """
         self._settling = True
         self._t_done = now
+        self._due = self.deadline
         self.deadline = now + self._wire_time(self._expect - self._echo_len) + 0.001
 
     def _timeout(self, now: float) -> bytes | None:
@@ -612,6 +735,26 @@ class LineEngine:
         if owner is not None:
             owner.fail(error, now)
         return out
+
+    def _after_early_failure(self, req: Request | None, due: float, now: float) -> None:
+        """A transaction failed on what came before its deadline (after the resync began).
+
+        What came may not have been its reply at all (another command's late reply, noise), so
+        its own may still come, as late as it could after a timeout.  The stream's short wait
+        holds its servo back (see _hold); anything else gets the resync and the guard read a
+        timeout would have: quiet until a quiet time after its deadline, then, if the next
+        command has the same command byte (a retry), a guard read first (see .guard).
+        """
+        if req is None and self._short:
+            self._hold(now)
+            return
+        if self.state is not QUIET:
+            return
+        self.guard.timed_out(self._tx, heard=True, was_guard=req is not None and req.is_guard)
+        extra = self.link.extra
+        self._quiet_until = max(self._quiet_until, due + self.timing.quiet_time + extra)
+        self._resync_limit = max(self._resync_limit, due + self.timing.max_resync + extra)
+        self.deadline = min(self._quiet_until, self._resync_limit)
 
     def _hold(self, now: float) -> None:
         """A stream transaction that waited less than its full allowance failed (after the resync began).

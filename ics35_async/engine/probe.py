@@ -23,11 +23,13 @@ slack (see ``LineEngine._start_next``): ``expected`` is what an answer usually
 takes beyond its wire time, an average that leans high.
 
 And they set the stream's wait (``stream_latency``): like a probe's, but from
-the 99th percentile of the last ``RECENT`` answers instead of the slowest
-ever, so one hiccup of the host (a garbage collection, a loaded machine) does
-not cost the control loop the full allowance at every failure for the rest of
-the session; and only once ``RECENT_MIN`` answers have been seen.  A stream
-transaction that gave up early is held back (see ``LineEngine._hold``).
+the slowest of the last ``RECENT`` answers instead of the slowest ever, so one
+hiccup of the host (a garbage collection, a loaded machine) does not cost the
+control loop the full allowance at every failure for the rest of the session;
+and only once ``RECENT_MIN`` answers have been seen.  Twice the slowest recent
+answer (not a percentile) keeps a healthy servo's failing for being slow rare:
+a stream transaction that gave up early holds its servo back, with no
+command, for the rest of its allowance (see ``LineEngine._hold``).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ MARGIN = 0.001
 RISE, FALL = 0.3, 0.05  # how fast the expected answer time follows slower / faster answers
 RECENT = 256  # answers the stream's wait is measured from
 RECENT_MIN = 8  # answers seen before the stream waits less than the full allowance
-REFRESH = 32  # answers between two updates of the stream's wait (a sort of RECENT floats)
+REFRESH = 32  # answers between two updates of the stream's wait (a max of RECENT floats)
 # The silence that ends the resync after a stream transaction that gave up early: its reply, had it
 # been coming, would most likely have come by then (it waited twice what answers take), and if it
 # comes later it can only fail what it lands in (see LineEngine._hold).  A millisecond lets bytes
@@ -79,13 +81,21 @@ class AnswerTimes:
             recent[self._n % RECENT] = beyond_wire
         self._n += 1
         if self._n % REFRESH == 0 or self._n == RECENT_MIN:
-            p99 = sorted(recent)[int(len(recent) * 0.99)]
-            self.stream_latency = max(FLOOR, FACTOR * p99 + MARGIN)
+            self.stream_latency = max(FLOOR, FACTOR * max(recent) + MARGIN)
         expected = self.expected
         if expected < 0:
             self.expected = beyond_wire
         else:
             self.expected = expected + (beyond_wire - expected) * (RISE if beyond_wire > expected else FALL)
+
+    def answers_before_change(self) -> int:
+        """How many more answers leave :attr:`stream_latency` as it is: the one after that many may
+        recompute it (never below ``FLOOR``)."""
+        n = self._n
+        change = (n // REFRESH + 1) * REFRESH
+        if n < RECENT_MIN:
+            change = min(change, RECENT_MIN)
+        return change - n
 
     @property
     def latency(self) -> float | None:

@@ -28,7 +28,8 @@ class BackgroundSource(Protocol):
     frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
     the line closes for good (or loses its port with reconnect off); ``line_resumed`` when it
     comes back after a lost port.  ``slot_due`` says whether the source keeps a schedule
-    (see the engine's sharing rule).
+    (see the engine's sharing rule).  ``upcoming`` and ``upcoming_done`` serve a burst (see
+    :meth:`LineEngine.plan_burst <ics35_async.engine.LineEngine.plan_burst>`).
     """
 
     @property
@@ -58,6 +59,16 @@ class BackgroundSource(Protocol):
         moved meanwhile."""
         ...
 
+    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
+        """The transactions it will ask for after the one on the wire, if each succeeds, without
+        waiting for a slot (the rest of its cycle), at most ``limit``.  It keeps them as they are
+        (a new target for one of them waits) until :meth:`upcoming_done`."""
+        ...
+
+    def upcoming_done(self) -> None:
+        """The planned transactions are over: changes held back meanwhile apply now."""
+        ...
+
 
 class BoundSource:
     """A :class:`BackgroundSource` made of callables, so an object can keep its hooks off its public face.
@@ -66,7 +77,18 @@ class BoundSource:
     costs what a method call on the object itself would.
     """
 
-    __slots__ = ("_wake_at", "complete", "fail", "line_closed", "line_resumed", "next_transaction", "skip", "slot_due")
+    __slots__ = (
+        "_wake_at",
+        "complete",
+        "fail",
+        "line_closed",
+        "line_resumed",
+        "next_transaction",
+        "skip",
+        "slot_due",
+        "upcoming",
+        "upcoming_done",
+    )
 
     def __init__(
         self,
@@ -78,6 +100,8 @@ class BoundSource:
         slot_due: Callable[[float], float | None],
         line_resumed: Callable[[float], None],
         skip: Callable[[float], None],
+        upcoming: Callable[[int], list[tuple[bytes, int, int]]],
+        upcoming_done: Callable[[], None],
     ) -> None:
         self.next_transaction = next_transaction
         self.complete = complete
@@ -87,11 +111,13 @@ class BoundSource:
         self.slot_due = slot_due
         self.line_resumed = line_resumed
         self.skip = skip
+        self.upcoming = upcoming
+        self.upcoming_done = upcoming_done
 
     @classmethod
     def of(cls, owner: Any) -> BoundSource:
         """``owner``'s hooks: ``_next_transaction``, ``_complete``, ``_fail``, ``_line_closed``, ``_wake_at``,
-        ``_slot_due``, ``_line_resumed``, ``_skip``."""
+        ``_slot_due``, ``_line_resumed``, ``_skip``, ``_upcoming``, ``_upcoming_done``."""
         return cls(
             owner._next_transaction,
             owner._complete,
@@ -101,6 +127,8 @@ class BoundSource:
             owner._slot_due,
             owner._line_resumed,
             owner._skip,
+            owner._upcoming,
+            owner._upcoming_done,
         )
 
     @property

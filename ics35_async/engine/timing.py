@@ -44,6 +44,8 @@ class BusTiming:
     def allowance(self, nbytes: int, baudrate: int, kind: Timing = Timing.NORMAL, extra: float = 0.0) -> float:
         """Seconds from writing a command to the deadline for the last byte of its reply.
 
+        ``nbytes``: command and reply bytes on the wire; ``baudrate``: the line rate; ``kind``: the
+        command's timing class (the EEPROM write and the ID command get their extra allowance);
         ``extra`` is what the engine has learnt a slow link adds (see LinkLatency).
         """
         allowance = wire_time(nbytes, baudrate) + self.turnaround + self.adapter_latency + extra
@@ -57,16 +59,25 @@ class BusTiming:
 class TimingOverrides(TypedDict, total=False):
     """:class:`BusTiming` fields as keyword arguments of ``open_bus`` (seconds each).
 
-    Annotate a dict of overrides with it and a type checker catches a misspelt name::
+    Annotate a dict of overrides with it and a type checker catches a misspelt name:
 
-        fast: TimingOverrides = {"adapter_latency": 0.002, "quiet_time": 0.002}
-        bus = await open_bus(port, **fast)
+    ```python
+    fast: TimingOverrides = {"adapter_latency": 0.002, "quiet_time": 0.002}
+    bus = await open_bus(port, **fast)
+    ```
     """
 
     turnaround: float
+    """Seconds a servo may take to start its reply after the command (default 0.0005)."""
     adapter_latency: float
+    """Seconds the interface may add to a reply: USB adapters add 0.1-16 ms (default 0.020)."""
     eeprom_write: float
+    """Extra seconds allowed for the EEPROM write's reply (default 0.200)."""
     id_command: float
+    """Extra seconds allowed for the ID command's reply (default 0.050)."""
     quiet_time: float
+    """Silence required on the line before the next transaction after a fault (default 0.010)."""
     max_resync: float
+    """A line that never goes quiet is used anyway after this many seconds (default 0.5)."""
     link_extra_max: float
+    """The most a slow link's learnt lateness may add to a deadline (default 0.25; 0 turns learning off)."""

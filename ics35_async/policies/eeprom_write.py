@@ -70,7 +70,12 @@ def edit_image(
 
 
 def check_changes(changes: Mapping[str, Any], *, set_flags: int = NO_FLAGS, clear_flags: int = NO_FLAGS) -> None:
-    """Check values before any port opens (against a factory image; limits are checked again on the servo's)."""
+    """Check ``changes``, ``set_flags`` and ``clear_flags`` (as :func:`edit_image` takes them) before any
+    port opens, against a factory image; limits are checked again on the servo's.
+
+    Raises:
+        InvalidArgument: an unknown field, a value out of range, or a flag both set and cleared.
+    """
     edit_image(Eeprom.factory(), changes, set_flags=set_flags, clear_flags=clear_flags)
 
 
@@ -110,7 +115,8 @@ class EepromPlan:
         return Flags(self.after.flags & ~self.before.flags & ~READ_ONLY_FLAGS)
 
     def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
-        """Why this write must not happen ("" / None: it may)."""
+        """Why this write must not happen (``None``: it may), given whether a baud change
+        (``allow_baud_change``) and an ID change (``allow_id_change``) are allowed."""
         if self.after.calibration != self.before.calibration:
             return f"servo {self.servo_id}: the image's factory calibration bytes differ from the servo's"
         if self.changes_baud and not allow_baud_change:
@@ -141,10 +147,16 @@ async def plan_eeprom_write(
     set_flags: int = NO_FLAGS,
     clear_flags: int = NO_FLAGS,
 ) -> EepromPlan:
-    """Read servo ``servo_id``'s image and build the change (see :func:`edit_image`); nothing is written.
+    """Read servo ``servo_id``'s image on ``line`` and build the change (``changes``, ``set_flags``,
+    ``clear_flags``: see :func:`edit_image`); nothing is written.
 
     When the change gives the servo a new ID, that ID is probed first
     (``id_taken``).
+
+    Raises:
+        InvalidArgument: an unknown field, a value out of range, or a flag both set and cleared.
+        ReplyError: the servo does not answer the EEPROM read, or answers wrongly.
+        BusClosed, PortLost: the line is closed or its port is gone.
     """
     protocol.check_id(servo_id)
     check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
@@ -195,11 +207,14 @@ async def write_eeprom_plan(
     allow_baud_change: bool = False,
     allow_id_change: bool = False,
 ) -> EepromWriteResult:
-    """Write ``plan`` (after the checks of :meth:`EepromPlan.refusal`) and verify it by reading back.
+    """Write ``plan`` on ``line`` (after the checks of :meth:`EepromPlan.refusal`, with
+    ``allow_baud_change`` and ``allow_id_change``) and verify it by reading back.
 
-    Raises UnsafeOperation (nothing written) when refused or when the servo's
-    image changed since the plan; VerifyError when the image read back
-    differs or the servo answers neither at its old nor its new ID / rate.
+    Raises:
+        UnsafeOperation: the write is refused, or the servo's image changed since the plan (nothing written).
+        VerifyError: the image read back differs, or the servo answers neither at its old nor its new ID / rate.
+        ReplyError: the servo does not answer the write.
+        BusClosed, PortLost: the line is closed or its port is gone.
     """
     return await _write(line, plan, allow_baud_change, allow_id_change, _Progress())
 
@@ -310,6 +325,7 @@ async def write_eeprom_plans(
     servos hold their new image.  ``on_report`` hears each report as it is
     made; when the batch is cancelled (Ctrl-C) it still hears every servo's
     (the one being written: as far as it got) before the cancellation goes on.
+    ``allow_baud_change`` and ``allow_id_change`` apply to every plan.
     """
     reports: list[ServoWriteReport] = []
 

@@ -25,7 +25,7 @@ LineOpener = Callable[[int], AbstractAsyncContextManager[Line]]
 
 
 def nothing_came_back(exc: ReplyError) -> bool:
-    """Whether a failed transaction is plain silence: no reply byte (the echo alone may have come).
+    """Whether the failed transaction of ``exc`` is plain silence: no reply byte (the echo alone may have come).
 
     The bus raises :class:`ReplyTimeout` only then; a reply cut short is a
     ``PartialReply`` and an echo that came back changed an ``EchoMismatch``.
@@ -51,7 +51,7 @@ def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
 
 
 async def answers_short_read(line: Line, servo_id: int) -> bool:
-    """Whether ``servo_id`` answers a temperature read (2 bytes out, 3 back; nothing moves).
+    """Whether ``servo_id`` answers a temperature read on ``line`` (2 bytes out, 3 back; nothing moves).
 
     After a long command went unanswered (the EEPROM read's reply is 66
     bytes), this tells a servo that is not there from one that half-answers.
@@ -64,7 +64,8 @@ async def answers_short_read(line: Line, servo_id: int) -> bool:
 
 
 def id0_top_bit_differs(exc: ReplyError, baudrate: int) -> bool:
-    """Whether ``exc`` is a position reply from ID 0 whose first byte is wrong in its top bit alone.
+    """Whether ``exc`` is a position reply from ID 0 whose first byte is wrong in its top bit alone
+    (``baudrate``: the line's rate, which decides the reply's form).
 
     ICS 3.5 servos answer a position command to ID 0 with the top bit set at
     115200 baud (ICS 2.0 compatibility) and clear at the other rates; a

@@ -75,7 +75,7 @@ class IdSurvey:
         return self.answered[0] if self.refusal is None else None
 
     def reason(self, new_id: int | None = None) -> str:
-        """Why the write is refused, for a person ("" when it is safe)."""
+        """Why the write (of ``new_id``, when given) is refused, for a person ("" when it is safe)."""
         refusal = self.refusal
         ids = ", ".join(map(str, self.answered))
         if refusal is Refusal.NOBODY:

@@ -58,7 +58,8 @@ class StreamPlan:
 
 
 async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bool = False) -> StreamPlan:
-    """Probe each ID's position read (nothing sent moves or frees a servo) and sort the IDs into a plan.
+    """Probe the position read of each of ``ids`` on ``line`` (nothing sent moves or frees a servo) and
+    sort the IDs into a plan.
 
     An ID silent to everything is watched (freed, with ``free_ics35``): a
     stream marks it offline and probes it, as any servo that stops answering,

@@ -168,7 +168,12 @@ async def probe_ids(
     ``id_read_first`` (default: when 8 or more IDs are probed) first asks the
     whole line with an ID read and probes no ID when nothing answers it.
     ``concurrency`` bounds how many probes are queued at once (the line still
-    runs them one at a time), leaving room for other callers.
+    runs them one at a time), leaving room for other callers.  ``on_probe``
+    hears each probe's outcome as it comes (for a progress display).
+
+    Raises:
+        InvalidArgument: an ID is not 0..31 or ``concurrency`` is not 1..32.
+        BusClosed, PortLost: the line is closed or its port is gone.
     """
     gate = anyio.Semaphore(check_int("concurrency", concurrency, 1, 32))
     wanted = [protocol.check_id(i) for i in ids]
@@ -269,7 +274,12 @@ async def scan(
     theirs).  A rate the port cannot be opened at is skipped (``skipped``);
     a missing port, a denied permission or a busy port raises, and so does
     the first rate's error when no rate opened at all (a refused bridge, a
-    malformed port name: nothing about the rates).
+    malformed port name: nothing about the rates).  ``on_probe`` hears each
+    probe's outcome as it comes.
+
+    Raises:
+        InvalidArgument: a bad baud rate or ID.
+        SerialPortError: the port is missing, denied or busy, or no rate could be opened.
     """
     rates_wanted = _check_bauds(bauds)
     wanted = [protocol.check_id(i) for i in ids]
@@ -314,7 +324,11 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
 
     For advice after a servo did not answer: a rate is offered only when the
     servo's own EEPROM agrees with it, never one its EEPROM contradicts (on a
-    line that ignores rates a servo answers at all of them).
+    line that ignores rates a servo answers at all of them).  ``open_at(baud)``
+    opens the line at a rate, as for :func:`scan`.
+
+    Raises:
+        InvalidArgument: ``servo_id`` is not 0..31.
     """
     protocol.check_id(servo_id)
     found: list[int] = []

@@ -46,7 +46,7 @@ EEPROM_READ_ATTEMPTS = 5  # a servo that answered a probe is there: a noisy line
 
 
 async def read_eeprom_agreed(line: Line, servo_id: int, *, attempts: int = EEPROM_READ_ATTEMPTS) -> Eeprom:
-    """Servo ``servo_id``'s EEPROM image, read until two reads agree (at most ``attempts`` reads).
+    """Servo ``servo_id``'s EEPROM image on ``line``, read until two reads agree (at most ``attempts`` reads).
 
     An EEPROM reply carries no checksum: a flipped bit that leaves a nibble a nibble reads as a valid,
     wrong image (in a scan it would look like another servo; in a backup it would be written back

@@ -6,7 +6,7 @@ The simulator answers what :func:`decode_request` frames with each command's
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from ..eeprom import EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, MalformedEeprom
@@ -36,9 +36,17 @@ from .wire import (
 )
 
 
-def _msb_in(buf: bytes | bytearray, end: int) -> bool:
-    """Whether a data byte of the frame ``buf[:end]`` (as far as it has arrived) has its MSB set."""
-    return any(b & 0x80 for b in buf[1:end])
+def _not_whole(buf: bytes | bytearray, end: int) -> tuple[None, int] | Literal[False] | None:
+    """What to answer until the frame ``buf[:end]`` is whole; ``False`` once it is.
+
+    A data byte with its MSB set (as far as the frame has arrived) starts the next command:
+    drop only this frame's command byte.  Bytes still missing: wait (``None``).
+    """
+    if any(b & 0x80 for b in buf[1:end]):
+        return None, 1
+    if len(buf) < end:
+        return None
+    return False
 
 
 def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[Any] | None, int] | None:
@@ -58,10 +66,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
     # command: drop only the broken frame's command byte, never swallow it.
     kind, sid = first & 0xE0, first & 0x1F
     if kind == CMD_POSITION:
-        if _msb_in(buf, 3):
-            return None, 1
-        if len(buf) < 3:
-            return None
+        if (early := _not_whole(buf, 3)) is not False:
+            return early
         return Position(sid, join7(buf[1], buf[2]), baudrate=baud), 3
     if len(buf) < 2:
         return None
@@ -69,20 +75,16 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
     if sc & 0x80:
         return None, 1
     if kind == CMD_ID:
-        if _msb_in(buf, 4):
-            return None, 1
-        if len(buf) < 4:
-            return None
+        if (early := _not_whole(buf, 4)) is not False:
+            return early
         if buf[1] == buf[2] == buf[3] == 0:
             return ReadId(sid), 4
         if buf[1] == buf[2] == buf[3] == 1:
             return WriteId(sid), 4
         return None, 4
     if sc == SC_MEMORY:
-        if _msb_in(buf, 4):
-            return None, 1
-        if len(buf) < 4:
-            return None
+        if (early := _not_whole(buf, 4)) is not False:
+            return early
         address, count = buf[2], buf[3]
         try:
             check_span(address, count)
@@ -91,10 +93,8 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
         if kind == CMD_READ:
             return ReadMemory(sid, address, count), 4
         total = 4 + 2 * count
-        if _msb_in(buf, total):
-            return None, 1
-        if len(buf) < total:
-            return None
+        if (early := _not_whole(buf, total)) is not False:
+            return early
         try:
             data = bytes_from_nibbles(bytes(buf[4:total]))
         except ValueError:
@@ -111,20 +111,16 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
     # parameter write
     if sc == Param.EEPROM:
         total = 2 + EEPROM_SIZE
-        if _msb_in(buf, total):
-            return None, 1
-        if len(buf) < total:
-            return None
+        if (early := _not_whole(buf, total)) is not False:
+            return early
         try:
             return WriteEeprom(sid, Eeprom.from_bytes(bytes(buf[2:total]))), total
         except (MalformedEeprom, InvalidArgument):  # InvalidArgument: a code the reference does not define
             return None, total
     if sc not in WRITE_RANGES:
         return None, 2
-    if _msb_in(buf, 3):
-        return None, 1
-    if len(buf) < 3:
-        return None
+    if (early := _not_whole(buf, 3)) is not False:
+        return early
     try:
         return WriteParam(sid, sc, buf[2]), 3
     except InvalidArgument:

@@ -67,7 +67,7 @@ class JointSpec:
         return (servo_degrees - self.offset) * self.sign
 
     def position(self, joint_degrees: float) -> int:
-        """The servo position (counts) for an angle of this joint."""
+        """The servo position (counts) for ``joint_degrees``, an angle of this joint."""
         return units.degrees_to_position(self.servo_degrees(joint_degrees))
 
     def degrees(self, position: int) -> float:
@@ -121,7 +121,12 @@ class RobotDescription:
 
 
 def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription:
-    """Read and check a robot description: a TOML file's path, or the same structure as a mapping."""
+    """Read and check a robot description: ``source`` is a TOML file's path, or the same structure as a mapping.
+
+    Raises:
+        DescriptionError: the file cannot be read, is not TOML, or breaks a rule of the format.
+        InvalidArgument: ``source`` is neither a path nor a mapping.
+    """
     if isinstance(source, Mapping):
         return parse_description(source, "<mapping>")
     if not isinstance(source, (str, Path)):
@@ -209,7 +214,13 @@ def _kind(value: object) -> str:
 
 
 def parse_description(data: Mapping[str, Any], source: str = "<mapping>") -> RobotDescription:
-    """Check a parsed description (what ``tomllib`` returns) and build a :class:`RobotDescription`."""
+    """Check ``data``, a parsed description (what ``tomllib`` returns), and build a :class:`RobotDescription`.
+
+    ``source`` names where it came from in error messages.
+
+    Raises:
+        DescriptionError: ``data`` breaks a rule of the format (the error names the key).
+    """
     top = _Reader(source, "", data)
     name = top.text("name")
     lines = _lines(source, top.get("lines"))

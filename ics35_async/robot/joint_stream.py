@@ -3,18 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import TYPE_CHECKING
 
 from ..errors import BusClosed
+from ..frames import FrameIterator
 from .frame import RobotFrame
 
 if TYPE_CHECKING:
     from .host import RobotHost as Robot
 
 
-class RobotStream:
+class RobotStream(FrameIterator[RobotFrame]):
     """A view of the robot's stream: ``async for frame in robot.stream()`` and ``set_targets({joint: deg})``.
 
     The robot streams all the time it is open; this view hands out its frames
@@ -54,7 +55,11 @@ class RobotStream:
         self.robot.set_targets({joint: degrees})
 
     def set_targets(self, pose: Mapping[str, float]) -> None:
-        """Targets in joint degrees, all checked (names, limits) before any is applied."""
+        """Targets ``pose`` ``{joint: degrees}``, all checked (names, limits) before any is applied.
+
+        Raises:
+            InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
+        """
         self.robot.set_targets(pose)
 
     def free(self, joints: Iterable[str] | None = None) -> None:
@@ -72,15 +77,6 @@ class RobotStream:
             InvalidArgument: an unknown joint.
         """
         self.robot.hold(joints)
-
-    def __aiter__(self) -> AsyncIterator[RobotFrame]:
-        return self
-
-    async def __anext__(self) -> RobotFrame:
-        try:
-            return await self.next_frame()
-        except BusClosed:
-            raise StopAsyncIteration from None
 
     async def aclose(self) -> None:
         """Stop taking frames from this stream; the robot keeps streaming."""

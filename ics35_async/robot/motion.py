@@ -91,7 +91,11 @@ class Motion:
 
 
 def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
-    """Read and check a motion: a JSON file's path, or the same structure as a mapping."""
+    """Read and check a motion: ``source`` is a JSON file's path, or the same structure as a mapping.
+
+    Raises:
+        MotionError: the file cannot be read, is not JSON, or breaks a rule of the format.
+    """
     if isinstance(source, Mapping):
         return parse_motion(source, "<mapping>")
     path = Path(source)
@@ -120,7 +124,13 @@ def _number(value: object) -> bool:
 
 
 def parse_motion(data: object, source: str = "<mapping>") -> Motion:
-    """Check a parsed motion (what ``json.load`` returns) and build a :class:`Motion`."""
+    """Check ``data``, a parsed motion (what ``json.load`` returns), and build a :class:`Motion`.
+
+    ``source`` names where it came from in error messages.
+
+    Raises:
+        MotionError: ``data`` breaks a rule of the format (the error names the key).
+    """
     if not isinstance(data, Mapping):
         raise MotionError(source, "", "a motion is a JSON object with format, version and keyframes")
     unknown = set(data) - {"format", "version", "name", "profile", "keyframes"}

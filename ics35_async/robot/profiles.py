@@ -93,7 +93,11 @@ class Segment:
 
 
 class Trajectory:
-    """Segments back to back; each joint moves along the current segment, then holds its last angle."""
+    """``segments`` back to back; each joint moves along the current segment, then holds its last angle.
+
+    Raises:
+        InvalidArgument: no segment.
+    """
 
     def __init__(self, segments: Sequence[Segment]) -> None:
         if not segments:

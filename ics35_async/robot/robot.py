@@ -37,7 +37,12 @@ log = logging.getLogger("ics35_async.robot")
 
 
 class Robot:
-    """A robot over its lines; get one from :func:`~ics35_async.open_robot`."""
+    """A robot over its lines; get one from :func:`~ics35_async.open_robot`.
+
+    Args:
+        description: the checked robot description.
+        group: its lines, open, one bus per line of the description.
+    """
 
     def __init__(self, description: RobotDescription, group: BusGroup) -> None:
         self.description = description
@@ -105,7 +110,11 @@ class Robot:
         return names
 
     def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]:
-        """Every name known and every angle a number within its joint's limits, else InvalidArgument."""
+        """``pose`` ``{joint: degrees}`` checked: every name known and every angle a number within its limits.
+
+        Raises:
+            InvalidArgument: not a mapping, an unknown joint or an angle outside its limits.
+        """
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
@@ -149,8 +158,13 @@ class Robot:
     # ------------------------------------------------------------------ targets
 
     def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
-        """Targets in joint degrees (``None`` frees, with ``allow_free``), all checked first; they take over
-        those joints from any running motion."""
+        """Targets ``pose`` ``{joint: degrees}`` (``None`` frees, with ``allow_free``), all checked first;
+        they take over those joints from any running motion.
+
+        Raises:
+            InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
+                without ``allow_free`` (nothing applied).
+        """
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
@@ -203,9 +217,13 @@ class Robot:
         """Move the named joints to ``pose`` (joint degrees) in ``duration`` seconds; the others hold still.
 
         Every target is checked against its joint's limits before anything is
-        sent (:class:`InvalidArgument`).  Returns when the final targets have
-        gone out on every line; raises :class:`SafetyStop` if the safety watch
-        stops the motion.
+        sent.  Returns when the final targets have gone out on every line.
+        ``profile``: ``"minjerk"`` (smooth start and stop) or ``"linear"``.
+
+        Raises:
+            InvalidArgument: an unknown joint, an angle outside its limits, a bad duration or profile.
+            SafetyStop: the safety watch stopped the motion (or a stop still stands for a joint).
+            BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         goal = self.check_pose(pose)
         seconds = units.check_seconds("duration", duration, 0.0, 3600.0)
@@ -223,6 +241,12 @@ class Robot:
 
         ``speed`` scales time (2: twice as fast); with ``loop`` it repeats
         until cancelled.  Checked against the limits before anything moves.
+
+        Raises:
+            MotionError: the motion file breaks its format.
+            InvalidArgument: a keyframe names an unknown joint or an angle outside its limits, or a bad ``speed``.
+            SafetyStop: the safety watch stopped the motion.
+            BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         await play_motion(self, motion, speed=speed, loop=loop)
 
@@ -330,7 +354,7 @@ class Robot:
     # ------------------------------------------------------------------ the pump
 
     async def pump(self, gstream: GroupStream) -> None:
-        """Take every merged frame until the stream ends (then every waiter gets the reason)."""
+        """Take every merged frame of ``gstream`` until it ends (then every waiter gets the reason)."""
         self._gstream = gstream
         try:
             while True:
@@ -381,7 +405,8 @@ class Robot:
             )
 
     def trip(self, stop: SafetyStop) -> None:
-        """A safety limit was crossed: end every motion, carry out the action, tell every waiter."""
+        """A safety limit was crossed (``stop`` says which and why): end every motion, carry out the
+        action, tell every waiter."""
         if stop.joint in self._latched:
             return  # already reported; it stands until the joint is back within limits
         self._latched[stop.joint] = stop

@@ -17,12 +17,12 @@ import contextlib
 import warnings
 from collections.abc import AsyncIterator, Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import anyio
 
 from .. import units
-from ..bus import open_bus
+from ..bus import BusOptions, open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from .description import JointSpec, RobotDescription, load_description
@@ -37,36 +37,58 @@ class RobotWarning(UserWarning):
     """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's)."""
 
 
+class RobotOptions(BusOptions, total=False):
+    """The options of [`open_robot`][ics35_async.robot.open_robot], every one optional: the robot's own,
+    and the [`BusOptions`][ics35_async.bus.BusOptions] every line is opened with (but ``baudrate``,
+    ``echo`` and ``retries``, which the description sets per line)."""
+
+    on_close: str
+    """What the joints do when the block ends: ``"hold"`` (the default: keep their targets; a free
+    joint stays free) or ``"free"``."""
+    check_limits: bool
+    """Read each joint's servo EEPROM at open and issue a [`RobotWarning`][ics35_async.robot.RobotWarning]
+    (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits (default ``True``)."""
+    offline_after: int
+    """Every line's stream: failed cycles before a servo counts as offline (default 3)."""
+    probe_interval: float
+    """Every line's stream: seconds between probes of an offline servo (default 0.5)."""
+    start_pose: Mapping[str, float] | None
+    """``{joint: degrees}``: where the named joints are, so they hold that angle from the first
+    command on (default ``None``)."""
+
+
 @contextlib.asynccontextmanager
 async def open_robot(
-    source: str | Path | Mapping[str, Any] | RobotDescription,
-    *,
-    on_close: str = "hold",
-    check_limits: bool = True,
-    offline_after: int = 3,
-    probe_interval: float = 0.5,
-    start_pose: Mapping[str, float] | None = None,
-    **bus_options: Any,
+    source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
 ) -> AsyncIterator[Robot]:
     """Open every line of a robot and stream to all its joints: ``async with open_robot("robot.toml") as robot``.
 
-    ``source`` is a TOML file's path, the same structure as a mapping, or a
-    :class:`RobotDescription`.  ``on_close``: what the joints do when the
-    block ends, ``"hold"`` (keep their targets; a free joint stays free) or
-    ``"free"``.  With ``check_limits`` each joint's servo EEPROM is read at
-    open and a :class:`RobotWarning` is issued (and kept in
-    ``robot.warnings``) where the file allows more than the servo's pulse
-    limits.  ``offline_after`` and ``probe_interval`` go to every line's
-    stream; other keyword arguments to every :func:`open_bus` (e.g.
-    ``adapter_latency=0.005``, ``driver="anyio"``).
-
     The robot opens without moving or freeing a joint whose servo speaks
     ICS 3.6 (its position read).  An ICS 3.5 joint starts free (its only
-    position read), unless ``start_pose`` ``{joint: degrees}`` names it: it
+    position read), unless ``start_pose`` names it: it
     then holds that angle from the first command on, so state where the
     robot really is (a joint elsewhere jumps there).  ``robot.start_modes``
     tells how each joint started.
+
+    Args:
+        source: a TOML file's path, the same structure as a mapping, or a
+            [`RobotDescription`][ics35_async.robot.RobotDescription].
+        **options: the robot's options and every line's bus options (e.g. ``adapter_latency=0.005``,
+            ``driver="anyio"``), each described in [`RobotOptions`][ics35_async.robot.RobotOptions].
+
+    Raises:
+        DescriptionError: the description is not valid (nothing is opened).
+        InvalidArgument: an unknown or bad option, a ``start_pose`` naming an unknown joint or an
+            angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here.
+        SerialPortError: a line's port cannot be opened (a servo that does not answer is not an error:
+            its joint starts free and, with ``check_limits``, gets a warning).
     """
+    on_close = options.pop("on_close", "hold")
+    check_limits = options.pop("check_limits", True)
+    offline_after = options.pop("offline_after", 3)
+    probe_interval = options.pop("probe_interval", 0.5)
+    start_pose = options.pop("start_pose", None)
+    bus_options: BusOptions = options
     description = source if isinstance(source, RobotDescription) else load_description(source)
     stated = _check_start_pose(description, start_pose)
     if on_close not in ON_CLOSE:
@@ -76,7 +98,7 @@ async def open_robot(
     if clash:
         raise InvalidArgument(f"{', '.join(sorted(clash))}: set per line in the robot description, not here")
     buses = {
-        name: open_bus(line.port, baudrate=line.baudrate, echo=line.echo, retries=line.retries, **bus_options)
+        name: open_bus(line.port, **_line_options(bus_options, line.baudrate, line.echo, line.retries))
         for name, line in description.lines.items()
     }
     async with contextlib.AsyncExitStack() as stack:
@@ -118,6 +140,10 @@ async def open_robot(
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
                 raise _only(group_error) from None
+
+
+def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -> BusOptions:
+    return {**shared, "baudrate": baudrate, "echo": echo, "retries": retries}
 
 
 def _check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:

@@ -80,13 +80,13 @@ transactions/s (13 us each) through :meth:`VirtualLine.process`.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
 
+from ..units import parse_ids
 from .devices import garble
-from .faults import FAULT_KINDS, FaultConfig, FaultInjector, parse_ids
+from .faults import FAULT_KINDS, FaultConfig, FaultInjector
 from .launch import serving, start_subprocess, stop_subprocess
-from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel
+from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TURNAROUND, LineModel, LineModelOptions
 from .precise_wait import Deliverer, lower_timer_slack, wait_until
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .transaction import Transaction
@@ -98,23 +98,19 @@ if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type 
     from .pty_server import PtyServer as PtyServer
     from .server_cli import main as main
 
-# The pty server and its command line need termios, fcntl and tty (POSIX only): they are
-# imported when one of their names is first asked for, so the in-process simulator imports anywhere
-# (and they stay out of __all__, so a star import works there too).
-_LAZY = {
-    "PtyServer": "pty_server",
-    "main": "server_cli",
-}
-
-
 def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
+    # The pty server and its command line need termios, fcntl and tty (POSIX only): they are
+    # imported when one of their names is first asked for, so the in-process simulator imports anywhere
+    # (and they stay out of __all__, so a star import works there too).
+    value: Any
+    if name == "PtyServer":
+        from .pty_server import PtyServer as value
+    elif name == "main":
+        from .server_cli import main as value
+    else:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value
     return value
-
 
 
 __all__ = [
@@ -126,6 +122,7 @@ __all__ = [
     "FaultConfig",
     "FaultInjector",
     "LineModel",
+    "LineModelOptions",
     "MemoryDevice",
     "Mismatch",
     "ReplayDevice",

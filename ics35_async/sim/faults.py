@@ -41,6 +41,7 @@ import random
 from dataclasses import dataclass, field
 
 from ..errors import InvalidArgument
+from ..units import parse_ids
 
 # New kinds go at the end: a draw walks this order, so the same seed keeps giving the same faults.
 REPLY_FAULTS = ("drop", "truncate", "corrupt", "msb", "late", "tail")
@@ -56,24 +57,6 @@ def _rate(text: str, item: str) -> float:
     if not 0.0 <= value <= 1.0:
         raise InvalidArgument(f"fault rate in {item!r} must be in 0..1")
     return value
-
-
-def parse_ids(text: str) -> list[int]:
-    """``"0-31"``, ``"1,3,5-7"`` -> sorted unique IDs 0..31."""
-    ids: set[int] = set()
-    for part in text.replace(" ", "").split(","):
-        if not part:
-            continue
-        low_text, dash, high_text = part.partition("-")
-        try:
-            low = int(low_text)
-            high = int(high_text) if dash else low
-        except ValueError:
-            raise InvalidArgument(f"bad ID list item {part!r} (use e.g. 0-31 or 1,3,5-7)") from None
-        if not 0 <= low <= high <= 31:
-            raise InvalidArgument(f"ID range {part!r} must lie within 0..31")
-        ids.update(range(low, high + 1))
-    return sorted(ids)
 
 
 @dataclass
@@ -98,6 +81,13 @@ class FaultConfig:
 
     @classmethod
     def parse(cls, spec: str | None) -> FaultConfig:
+        """The configuration a ``spec`` string gives: ``kind[@ids]:rate`` items, comma-separated
+        (e.g. ``"drop:0.01,late@3:0.1"``); ``None``, ``""`` or ``"none"``: no faults.
+
+        Raises:
+            InvalidArgument: an unknown kind, a missing rate, a rate outside 0..1, a bad ID list, or
+                reply fault rates adding up to more than 1.
+        """
         rates: dict[str, float] = {}
         per_id: dict[int, dict[str, float]] = {}
         if spec is None or spec.strip().lower() in ("", "none"):
@@ -122,6 +112,7 @@ class FaultConfig:
         return cls(rates, per_id)
 
     def rate(self, kind: str, servo_id: int | None) -> float:
+        """The rate of fault ``kind`` for a transaction to ``servo_id`` (``None``: the ID command)."""
         if servo_id is not None:
             table = self.per_id.get(servo_id)
             if table is not None and kind in table:
@@ -163,7 +154,12 @@ NO_FAULTS = Draw(False, None, False, False)
 
 
 class FaultInjector:
-    """Draws faults for each transaction and applies them to bytes."""
+    """Draws faults for each transaction and applies them to bytes.
+
+    Args:
+        config: the fault rates (default: none).
+        seed: the seed of its ``random.Random`` (``None``: a fresh one).
+    """
 
     def __init__(self, config: FaultConfig | None = None, seed: int | None = 0) -> None:
         self.config = config or FaultConfig()
@@ -172,6 +168,7 @@ class FaultInjector:
         self._enabled = bool(self.config)  # the config is not meant to change afterwards
 
     def draw(self, servo_id: int | None) -> Draw:
+        """The faults for one transaction to ``servo_id`` (always four draws, so a seed replays the same faults)."""
         if not self._enabled:
             return NO_FAULTS
         rng, cfg = self.rng, self.config
@@ -189,7 +186,7 @@ class FaultInjector:
         return Draw(echo, reply, noise, unplug)
 
     def damage_reply(self, kind: str, reply: bytes) -> bytes:
-        """``reply`` after a truncate, corrupt or msb fault."""
+        """``reply`` after a fault of ``kind``: ``"truncate"``, ``"corrupt"`` or ``"msb"``."""
         if not reply:
             return reply
         rng = self.rng
@@ -203,6 +200,7 @@ class FaultInjector:
         return bytes(data)
 
     def damage_echo(self, echo: bytes) -> bytes:
+        """``echo`` with one byte changed (the ``echo`` fault: a collision)."""
         if not echo:
             return echo
         data = bytearray(echo)
@@ -210,7 +208,9 @@ class FaultInjector:
         return bytes(data)
 
     def noise(self) -> bytes:
+        """One to three random bytes (the ``noise`` fault)."""
         return bytes(self.rng.randrange(0x100) for _ in range(self.rng.randrange(1, 4)))
 
     def uniform(self, low: float, high: float) -> float:
+        """A random number between ``low`` and ``high`` from the injector's own generator."""
         return self.rng.uniform(low, high)

@@ -19,6 +19,8 @@ def start_subprocess(
 ) -> tuple[subprocess.Popen[str], str]:
     """Launch the server in a subprocess; return it and the device path it printed.
 
+    ``args`` are the server's command-line arguments (``python -m ics35_async.sim --help``);
+    ``timeout``: seconds to wait for the path; ``python``: the interpreter (default: this one);
     ``quiet`` sends its notes (stderr) to /dev/null.  Stop it with
     :func:`stop_subprocess` (or use :func:`serving`).
     """
@@ -41,7 +43,7 @@ def start_subprocess(
 
 
 def stop_subprocess(proc: subprocess.Popen[str], timeout: float = 5.0) -> int:
-    """SIGTERM the server, wait for it (kill after ``timeout``), return its exit code."""
+    """SIGTERM the server ``proc``, wait for it (kill after ``timeout``), return its exit code."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -56,7 +58,10 @@ def stop_subprocess(proc: subprocess.Popen[str], timeout: float = 5.0) -> int:
 
 @contextlib.contextmanager
 def serving(args: Sequence[str] = (), *, timeout: float = 15.0) -> Iterator[str]:
-    """``with serving(["--ids", "1-3"]) as path:`` a server subprocess for the block."""
+    """``with serving(["--ids", "1-3"]) as path:`` a server subprocess for the block.
+
+    ``args`` and ``timeout`` are :func:`start_subprocess`'s.
+    """
     proc, path = start_subprocess(args, timeout=timeout)
     try:
         yield path

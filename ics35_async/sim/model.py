@@ -25,7 +25,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
@@ -56,50 +56,77 @@ DEFAULT_TAIL_DELAY = 40e-3
 Chunks = list[tuple[float, bytes]]
 
 
+class LineModelOptions(TypedDict, total=False):
+    """The options of a simulated line's wire and devices, every one optional:
+    [`LineModel`][ics35_async.sim.LineModel] and [`VirtualLine`][ics35_async.sim.VirtualLine] take them
+    as keyword arguments after ``servos``."""
+
+    baudrate: int
+    """The line's rate in bit/s (default 115200; a driver may change it to the host's) and the EEPROM
+    rate of servos built from IDs."""
+    memory: MemorySpec | None
+    """Generic memory devices: ``{id: initial bytes}`` or [`MemoryDevice`][ics35_async.sim.MemoryDevice]
+    objects (default none)."""
+    realtime: bool
+    """The clock is ``time.perf_counter()`` (default ``False``: simulated, advancing only with wire time
+    and [`advance`][ics35_async.sim.LineModel.advance])."""
+    echo: bool
+    """The line loops the host's bytes back, as Kondo's adapters do (default ``True``)."""
+    turnaround: float
+    """Seconds a servo waits after a command before answering (default
+    [`DEFAULT_TURNAROUND`][ics35_async.sim.DEFAULT_TURNAROUND])."""
+    eeprom_write_delay: float
+    """Extra seconds before the EEPROM-write reply (default
+    [`DEFAULT_EEPROM_WRITE_DELAY`][ics35_async.sim.DEFAULT_EEPROM_WRITE_DELAY])."""
+    faults: FaultConfig | str | None
+    """A [`FaultConfig`][ics35_async.sim.FaultConfig] or a spec string such as ``"drop:0.01,late@3:0.1"``
+    (default none; see ``ics35_async.sim.faults``)."""
+    seed: int | None
+    """The seed of the faults' ``random.Random`` (default 0; ``None``: a fresh one each run)."""
+    late_delay: float | None
+    """Seconds a ``late`` reply comes after its due time (default ``None``: after the echo of the next command)."""
+    tail_bytes: int
+    """Bytes the held-tail fault holds back (default 4)."""
+    tail_delay: float
+    """Seconds the held tail comes after the rest of the reply (default 0.040)."""
+    noise_gap: float
+    """In real time, the most seconds between a reply and the noise fault's bytes (default 0.001)."""
+    log_size: int | None
+    """The most transactions kept in the log (default 10 000; ``None``: unbounded, 0: no log;
+    ``transactions`` counts regardless)."""
+    frame_timeout: float
+    """A half-received command is forgotten after this pause in seconds (default 0.010)."""
+    record: Any
+    """A file path or text stream to record the session to (default none; see ``ics35_async.sim.record``)."""
+    adapter: FtdiAdapter | None
+    """A USB adapter model between line and host (default ``None``: a bare UART; see
+    ``ics35_async.sim.adapter``)."""
+    ics36: Iterable[int]
+    """The IDs of servos built from IDs that speak ICS 3.6 (default none: all ICS 3.5)."""
+
+
 class LineModel:
     """The devices of one line and the timing of everything on its wire.
 
-    ``servos``: :class:`VirtualServo` objects or IDs (factory servos at
-    ``baudrate``); ``None`` means IDs 0..31.  ``memory``: generic devices,
-    ``{id: initial bytes}`` or :class:`MemoryDevice` objects.  ``baudrate``
-    is the line's rate (a driver may change it to the host's), and the
-    EEPROM rate of servos built from IDs.  ``realtime``: the clock is
-    ``time.perf_counter()``; otherwise it is simulated and advances only
-    with wire time and :meth:`advance`.  ``faults`` is a
-    :class:`FaultConfig` or a spec string (:mod:`.faults`), drawn from
-    ``random.Random(seed)``.  ``log_size`` bounds the transaction log
-    (``None``: unbounded, 0: no log; :attr:`transactions` counts
-    regardless).  ``frame_timeout``: a half-received command is forgotten
-    after this pause (:mod:`.framing`).  ``record`` is a file path or text
-    stream to record the session to (:mod:`.record`).  ``adapter``: a USB
-    adapter model between line and host (:mod:`.adapter`; ``None``: a bare UART).
-    ``ics36``: the IDs of servos built from IDs that speak ICS 3.6 (the others
-    are ICS 3.5).
+    Args:
+        servos: [`VirtualServo`][ics35_async.sim.VirtualServo] objects or IDs (factory servos at
+            ``baudrate``); ``None`` means IDs 0..31.
+        **options: the wire's and devices' options, each described in
+            [`LineModelOptions`][ics35_async.sim.LineModelOptions].
+
+    Raises:
+        InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.
     """
 
-    def __init__(
-        self,
-        servos: Iterable[VirtualServo | int] | None = None,
-        *,
-        baudrate: int = BaudRate.B115200,
-        memory: MemorySpec | None = None,
-        realtime: bool = False,
-        echo: bool = True,
-        turnaround: float = DEFAULT_TURNAROUND,
-        eeprom_write_delay: float = DEFAULT_EEPROM_WRITE_DELAY,
-        faults: FaultConfig | str | None = None,
-        seed: int | None = 0,
-        late_delay: float | None = None,
-        tail_bytes: int = DEFAULT_TAIL_BYTES,
-        tail_delay: float = DEFAULT_TAIL_DELAY,
-        noise_gap: float = DEFAULT_NOISE_GAP,
-        log_size: int | None = DEFAULT_LOG_SIZE,
-        frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
-        record: Any = None,
-        adapter: FtdiAdapter | None = None,
-        ics36: Iterable[int] = (),
-    ) -> None:
-        line_baud = BaudRate.parse(baudrate)
+    def __init__(self, servos: Iterable[VirtualServo | int] | None = None, **options: Unpack[LineModelOptions]) -> None:
+        unknown = set(options) - LineModelOptions.__optional_keys__
+        if unknown:
+            raise InvalidArgument(f"unknown simulated line option(s): {', '.join(sorted(unknown))}")
+        line_baud = BaudRate.parse(options.get("baudrate", BaudRate.B115200))
+        turnaround = options.get("turnaround", DEFAULT_TURNAROUND)
+        eeprom_write_delay = options.get("eeprom_write_delay", DEFAULT_EEPROM_WRITE_DELAY)
+        tail_delay = options.get("tail_delay", DEFAULT_TAIL_DELAY)
+        tail_bytes = options.get("tail_bytes", DEFAULT_TAIL_BYTES)
         for value, what in (
             (turnaround, "turnaround"),
             (eeprom_write_delay, "eeprom_write_delay"),
@@ -109,19 +136,22 @@ class LineModel:
                 raise InvalidArgument(f"{what} must not be negative")
         if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
             raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
+        memory, ics36 = options.get("memory"), options.get("ics36", ())
         self.table = DeviceTable(build_devices(servos, memory, line_baud, ics36))
         self.baudrate: int = int(line_baud)
-        self.realtime = realtime
-        self.echo = echo
+        self.realtime = options.get("realtime", False)
+        self.echo = options.get("echo", True)
         self.turnaround = turnaround
         self.eeprom_write_delay = eeprom_write_delay
-        self.late_delay = late_delay
+        self.late_delay = options.get("late_delay")
         self.tail_bytes = tail_bytes
         self.tail_delay = tail_delay
-        self.noise_gap = noise_gap
-        self.adapter = adapter
+        self.noise_gap = options.get("noise_gap", DEFAULT_NOISE_GAP)
+        self.adapter = options.get("adapter")
+        faults = options.get("faults")
         config = faults if isinstance(faults, FaultConfig) else FaultConfig.parse(faults)
-        self.faults = FaultInjector(config, seed)
+        self.faults = FaultInjector(config, options.get("seed", 0))
+        log_size = options.get("log_size", DEFAULT_LOG_SIZE)
         self.log: deque[Transaction] = deque(maxlen=log_size)
         self._log_enabled = log_size != 0
         self.transactions = 0
@@ -131,7 +161,7 @@ class LineModel:
         self.epoch = time.perf_counter()
         self._clock = 0.0
         self._line_free = 0.0
-        self._framer = CommandFramer(frame_timeout)
+        self._framer = CommandFramer(options.get("frame_timeout", DEFAULT_FRAME_TIMEOUT))
         self._held: list[bytes] = []
         self._deferred: list[tuple[float, int, bytes]] = []
         self._deferred_order = 0
@@ -144,8 +174,8 @@ class LineModel:
         self._unplug_requested = False
         self._recorder: TransactionRecorder | None = None
         self._taps: list[Callable[[bytes], None]] = []
-        if record is not None:
-            self.record_to(record)
+        if options.get("record") is not None:
+            self.record_to(options["record"])
 
     # ------------------------------------------------------------------ the log
 
@@ -168,7 +198,11 @@ class LineModel:
         return self._line_free
 
     def advance(self, seconds: float) -> None:
-        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs)."""
+        """Let ``seconds`` of idle time pass (fast mode; in real-time mode just syncs).
+
+        Raises:
+            InvalidArgument: ``seconds`` is negative.
+        """
         if seconds < 0:
             raise InvalidArgument("cannot go back in time")
         with self._lock:
@@ -182,12 +216,13 @@ class LineModel:
             self.table.update(self.now())
 
     def byte_time(self, baudrate: int | None = None) -> float:
+        """Seconds one byte occupies the wire at ``baudrate`` (default: the line's)."""
         return BITS_PER_BYTE / (baudrate or self.baudrate)
 
     # ------------------------------------------------------------------ the core
 
     def feed(self, data: bytes, now: float) -> Chunks:
-        """Host bytes written at ``now``: the chunks the host receives and when.
+        """Host bytes ``data`` written at ``now``: the chunks the host receives and when.
 
         Chunks come in delivery order; each time is the earliest moment the
         whole chunk may be delivered (line clock).  In fast mode a reply
@@ -358,7 +393,7 @@ class LineModel:
             heapq.heappush(self._deferred, (when, self._deferred_order, chunk))
 
     def process(self, data: bytes) -> Chunks:
-        """:meth:`feed` at the line's own clock (fast mode: then advance it)."""
+        """:meth:`feed` ``data`` at the line's own clock (fast mode: then advance it)."""
         with self._lock:
             out = self.feed(data, self.now())
             if not self.realtime:  # behind an adapter, the host has the bytes only when its packet comes
@@ -390,6 +425,7 @@ class LineModel:
         return recorder
 
     def stop_recording(self) -> None:
+        """Stop recording and close the recording (see :meth:`record_to`)."""
         with self._lock:
             recorder, self._recorder = self._recorder, None
         if recorder is not None:

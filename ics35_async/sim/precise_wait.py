@@ -30,7 +30,7 @@ _PR_SET_TIMERSLACK = 29
 
 
 def lower_timer_slack(nanoseconds: int = 1) -> bool:
-    """Set the calling thread's timer slack (Linux only); True if it worked."""
+    """Set the calling thread's timer slack to ``nanoseconds`` (Linux only); True if it worked."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -41,7 +41,7 @@ def lower_timer_slack(nanoseconds: int = 1) -> bool:
 
 
 def wait_until(deadline: float, spin_margin: float = SPIN_MARGIN) -> None:
-    """Return at ``time.perf_counter() >= deadline``: sleep, then spin."""
+    """Return at ``time.perf_counter() >= deadline``: sleep, then spin the last ``spin_margin`` seconds."""
     remaining = deadline - time.perf_counter()
     if remaining > spin_margin:
         time.sleep(remaining - spin_margin)
@@ -56,6 +56,10 @@ class Deliverer:
     order (ties in scheduling order).  :meth:`cancel` drops everything not
     yet delivered, e.g. when the port is unplugged.  While it waits the thread
     holds no lock and no GIL except during the final spin.
+
+    Args:
+        spin_margin: seconds spun (not slept) before each chunk's time.
+        name: the thread's name.
     """
 
     def __init__(self, spin_margin: float = SPIN_MARGIN, name: str = "ics35-sim-delivery") -> None:
@@ -70,20 +74,24 @@ class Deliverer:
         self._thread.start()
 
     def schedule(self, when: float, data: bytes, sink: Callable[[bytes], None]) -> None:
+        """Call ``sink(data)`` at ``when`` (a ``time.perf_counter()`` value)."""
         with self._cond:
             heapq.heappush(self._heap, (when, next(self._order), self._generation, sink, data))
             self._cond.notify()
 
     def cancel(self) -> None:
+        """Drop every chunk not yet delivered."""
         with self._cond:
             self._heap.clear()
             self._generation += 1
 
     def pending(self) -> int:
+        """How many chunks wait to be delivered."""
         with self._cond:
             return len(self._heap)
 
     def close(self) -> None:
+        """Drop what is pending and end the thread."""
         with self._cond:
             self._closed = True
             self._heap.clear()

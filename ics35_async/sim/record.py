@@ -24,7 +24,6 @@ and answered with silence, so a regression test ends with
 from __future__ import annotations
 
 import errno
-import io
 import threading
 import time
 from collections.abc import Iterable
@@ -57,7 +56,7 @@ def describe(record: Transaction) -> str:
 
 
 class TransactionRecorder:
-    """Writes one line per transaction to a path or a text stream."""
+    """Writes one line per transaction to ``target``, a path (created, and closed by :meth:`close`) or a text stream."""
 
     def __init__(self, target: str | Path | TextIO) -> None:
         if isinstance(target, (str, Path)):
@@ -71,6 +70,8 @@ class TransactionRecorder:
         self.lines = 0
 
     def record(self, record: Transaction, rx_parts: list[bytes], baudrate: int) -> None:
+        """Write the line of ``record``: its time, TX, and ``rx_parts`` (what the host received, in
+        pieces) at ``baudrate``."""
         rx = " | ".join(_hex(p) for p in rx_parts if p) or "-"
         line = f"{record.time:.6f} {_hex(record.tx)} -> {rx}  # {describe(record)}\n"
         with self._lock:
@@ -78,10 +79,12 @@ class TransactionRecorder:
             self.lines += 1
 
     def flush(self) -> None:
+        """Flush the stream."""
         with self._lock:
             self._stream.flush()
 
     def close(self) -> None:
+        """Close a file it opened; flush a stream it was given."""
         with self._lock:
             if self._owned:
                 self._stream.close()
@@ -108,6 +111,11 @@ def _parse_hex(text: str, where: str) -> bytes:
 
 
 def parse_recording(lines: Iterable[str]) -> list[Entry]:
+    """The entries of a recording's ``lines`` (``TIME TX -> RX  # comment``; blank and comment lines skipped).
+
+    Raises:
+        InvalidArgument: a line without ``->``, a bad time, an empty TX or a bad hex byte (the error names the line).
+    """
     entries: list[Entry] = []
     for number, raw in enumerate(lines, 1):
         body, _, comment = raw.partition("#")
@@ -132,12 +140,15 @@ def parse_recording(lines: Iterable[str]) -> list[Entry]:
 
 
 def load_recording(source: str | Path | TextIO | Iterable[str]) -> list[Entry]:
-    """Entries of a recording given as a path, a text stream or lines."""
+    """Entries of a recording; ``source`` is a path, a text stream or lines.
+
+    Raises:
+        InvalidArgument: a line breaks the format (see :func:`parse_recording`).
+        OSError: the file cannot be read.
+    """
     if isinstance(source, (str, Path)):
         with open(source, encoding="utf-8") as stream:
             return parse_recording(stream)
-    if isinstance(source, io.TextIOBase):
-        return parse_recording(source)
     return parse_recording(source)
 
 
@@ -154,6 +165,12 @@ class ReplayDevice:
     """A scripted device that plays a recording back (a :class:`WireDevice`).
 
     Also usable sans-IO via :meth:`feed`, which the pty server calls.
+
+    Args:
+        source: the recording: entries, a path, a text stream or lines.
+
+    Raises:
+        InvalidArgument: the recording breaks the format.
     """
 
     realtime = False
@@ -173,9 +190,14 @@ class ReplayDevice:
 
     @property
     def remaining(self) -> int:
+        """Entries not yet played."""
         return len(self.entries) - self.index
 
     def feed(self, data: bytes, now: float = 0.0) -> list[tuple[float, bytes]]:
+        """Host bytes ``data`` written at ``now``: the recorded replies they complete, each at ``now``.
+
+        Bytes that differ from the recording are kept in :attr:`mismatches` and dropped.
+        """
         out: list[tuple[float, bytes]] = []
         with self._lock:
             self._buffer += data
@@ -199,26 +221,40 @@ class ReplayDevice:
         return out
 
     def process(self, data: bytes) -> list[tuple[float, bytes]]:
+        """:meth:`feed` ``data`` at the device's own clock."""
         return self.feed(data, self.now())
 
     def now(self) -> float:
+        """Seconds since the device was made."""
         return time.perf_counter() - self.epoch
 
     def take_unplug_request(self) -> bool:
+        """Always False: a recording is never unplugged (the pty server asks every device)."""
         return False
 
     def add_listener(self, callback: Any) -> None:
+        """Ignored: a replay never unplugs, so ``callback`` would never be called."""
         pass
 
     # -- WireDevice
 
     def connect(self, host: HostSide, baudrate: int) -> None:
+        """Open the device for ``host`` at ``baudrate`` (the WireDevice face).
+
+        Raises:
+            OSError: it is already open (``EBUSY``).
+        """
         if self._host is not None:
             raise OSError(errno.EBUSY, "the replay device is already open")
         self._host = host
         self.baudrate = baudrate
 
     def write(self, data: bytes) -> None:
+        """Take the host's ``data``; the replies it completes are delivered at once.
+
+        Raises:
+            OSError: the device is not open (``EIO``).
+        """
         host = self._host
         if host is None:
             raise OSError(errno.EIO, "the replay device is not open")
@@ -227,9 +263,11 @@ class ReplayDevice:
             host.deliver(b"".join(c for _, c in chunks))
 
     def disconnect(self) -> None:
+        """Close the device for its host."""
         self._host = None
 
     def close(self) -> None:
+        """The same as :meth:`disconnect`."""
         self._host = None
 
     def __repr__(self) -> str:

@@ -15,8 +15,9 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
-from .faults import FaultConfig, parse_ids
+from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
 from .record import ReplayDevice

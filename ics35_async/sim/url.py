@@ -14,8 +14,9 @@ from urllib.parse import parse_qs, urlsplit
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..transports import WireDevice
+from ..units import parse_ids
 from .adapter import make_adapter
-from .faults import FaultConfig, parse_ids
+from .faults import FaultConfig
 from .record import ReplayDevice
 from .virtual_line import VirtualLine, named
 
@@ -28,6 +29,9 @@ def open_url(url: str) -> WireDevice:
 
     A named line (``sim://NAME?...``) is created once and returned again by
     later calls, so a bus that reconnects finds the same servos.
+
+    Raises:
+        InvalidArgument: the URL is not a ``sim://`` URL, or a key or value is bad.
     """
     name, options = parse_url(url)
     if name is not None:
@@ -81,7 +85,7 @@ def _int(key: str, text: str) -> int:
 
 
 def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
-    """Split a ``sim://[NAME][?key=value&...]`` URL into a name and VirtualLine options.
+    """Split ``url``, a ``sim://[NAME][?key=value&...]`` URL, into a name and VirtualLine options.
 
     Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
@@ -96,6 +100,9 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     the USB adapter model of :mod:`.adapter`; it implies ``realtime=1``, since
     what it models is time the host waits) with ``latency_timer`` (ms,
     1..255, default 16).
+
+    Raises:
+        InvalidArgument: not a ``sim://`` URL, an unknown key, or a value that is not what its key takes.
     """
     parts = urlsplit(url)
     if parts.scheme != "sim":

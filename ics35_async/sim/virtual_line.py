@@ -17,23 +17,11 @@ from __future__ import annotations
 import errno
 import threading
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Unpack
 
-from ..eeprom import BaudRate
 from ..transports import HostSide
-from ..transports.usb_timing import FtdiAdapter
-from .devices import Device, MemorySpec
-from .faults import FaultConfig
-from .model import (
-    DEFAULT_EEPROM_WRITE_DELAY,
-    DEFAULT_FRAME_TIMEOUT,
-    DEFAULT_LOG_SIZE,
-    DEFAULT_NOISE_GAP,
-    DEFAULT_TAIL_BYTES,
-    DEFAULT_TAIL_DELAY,
-    DEFAULT_TURNAROUND,
-    LineModel,
-)
+from .devices import Device
+from .model import LineModel, LineModelOptions
 from .precise_wait import SPIN_MARGIN, Deliverer
 from .virtual_servo import MemoryDevice, VirtualServo
 
@@ -43,66 +31,33 @@ DEFAULT_REPLUG_AFTER = 0.2
 class VirtualLine(LineModel):
     """A simulated ICS 3.5 line with up to 32 servos and optional memory devices.
 
-    The options of :class:`~.model.LineModel` (``servos``, ``baudrate``,
-    ``memory``, ``realtime``, ``echo``, ``turnaround``,
-    ``eeprom_write_delay``, ``faults``, ``seed``, ``late_delay``,
-    ``tail_bytes``, ``tail_delay``, ``noise_gap``, ``log_size``, ``frame_timeout``, ``record``, ``adapter``,
-    ``ics36``), and:
-    ``follow_host_baud``: the line runs at the rate the host connects with
-    (else at ``baudrate``); ``unplug_after`` / ``replug_after``: the port
-    disappears that many wall-clock seconds after the first connect, and
-    comes back (also after an ``unplug`` fault) that long after;
-    ``spin_margin``: see :mod:`.precise_wait`; ``name`` registers the line so
-    ``sim://NAME`` reaches this object.
+    Args:
+        servos: [`VirtualServo`][ics35_async.sim.VirtualServo] objects or IDs (factory servos);
+            ``None`` means IDs 0..31.
+        follow_host_baud: the line runs at the rate the host connects with (else at ``baudrate``).
+        unplug_after: the port disappears that many wall-clock seconds after the first connect.
+        replug_after: it comes back (also after an ``unplug`` fault) that many seconds later.
+        spin_margin: seconds the delivery thread spins before a chunk is due (see ``ics35_async.sim.precise_wait``).
+        name: registers the line so ``sim://NAME`` reaches this object.
+        **options: the wire's and devices' options (``baudrate``, ``realtime``, ``faults``, ...), each
+            described in [`LineModelOptions`][ics35_async.sim.LineModelOptions].
+
+    Raises:
+        InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.
     """
 
     def __init__(
         self,
         servos: Iterable[VirtualServo | int] | None = None,
         *,
-        baudrate: int = BaudRate.B115200,
-        memory: MemorySpec | None = None,
-        realtime: bool = False,
-        echo: bool = True,
-        turnaround: float = DEFAULT_TURNAROUND,
-        eeprom_write_delay: float = DEFAULT_EEPROM_WRITE_DELAY,
-        faults: FaultConfig | str | None = None,
-        seed: int | None = 0,
-        late_delay: float | None = None,
-        tail_bytes: int = DEFAULT_TAIL_BYTES,
-        tail_delay: float = DEFAULT_TAIL_DELAY,
-        noise_gap: float = DEFAULT_NOISE_GAP,
-        log_size: int | None = DEFAULT_LOG_SIZE,
-        frame_timeout: float = DEFAULT_FRAME_TIMEOUT,
-        record: Any = None,
-        adapter: FtdiAdapter | None = None,
-        ics36: Iterable[int] = (),
         follow_host_baud: bool = True,
         unplug_after: float | None = None,
         replug_after: float = DEFAULT_REPLUG_AFTER,
         spin_margin: float = SPIN_MARGIN,
         name: str | None = None,
+        **options: Unpack[LineModelOptions],
     ) -> None:
-        super().__init__(
-            servos,
-            baudrate=baudrate,
-            memory=memory,
-            realtime=realtime,
-            echo=echo,
-            turnaround=turnaround,
-            eeprom_write_delay=eeprom_write_delay,
-            faults=faults,
-            seed=seed,
-            late_delay=late_delay,
-            tail_bytes=tail_bytes,
-            tail_delay=tail_delay,
-            noise_gap=noise_gap,
-            log_size=log_size,
-            frame_timeout=frame_timeout,
-            record=record,
-            adapter=adapter,
-            ics36=ics36,
-        )
+        super().__init__(servos, **options)
         self.follow_host_baud = follow_host_baud
         self.unplug_after = unplug_after
         self.replug_after = replug_after
@@ -122,10 +77,12 @@ class VirtualLine(LineModel):
 
     @property
     def devices(self) -> list[Device]:
+        """Every device on the line, servos and memory devices."""
         return self.table.devices
 
     @property
     def servos(self) -> list[VirtualServo]:
+        """The servos on the line."""
         return self.table.servos
 
     def servo(self, servo_id: int) -> VirtualServo:
@@ -133,6 +90,7 @@ class VirtualLine(LineModel):
         return self.table.servo(servo_id)
 
     def memory_device(self, device_id: int) -> MemoryDevice:
+        """The (first) memory device whose ID is ``device_id``."""
         return self.table.memory_device(device_id)
 
     def add_device(self, device: Device) -> None:
@@ -150,6 +108,12 @@ class VirtualLine(LineModel):
     # ------------------------------------------------------------------ the WireDevice face
 
     def connect(self, host: HostSide, baudrate: int) -> None:
+        """Open the port for ``host`` at ``baudrate`` (the WireDevice face; the line follows the rate
+        with ``follow_host_baud``).
+
+        Raises:
+            OSError: the port is unplugged (``ENOENT``) or already open (``EBUSY``).
+        """
         with self._lock:
             if not self.plugged:
                 raise OSError(errno.ENOENT, "the simulated port is unplugged")
@@ -165,6 +129,12 @@ class VirtualLine(LineModel):
                 self.schedule_unplug(self.unplug_after, self.replug_after)
 
     def write(self, data: bytes) -> None:
+        """The host writes ``data``: the answers are delivered to it, at once (fast mode) or at their
+        wire time (real time).
+
+        Raises:
+            OSError: the port is not open or is gone (``EIO``).
+        """
         host = self._host
         if host is None:
             raise OSError(errno.EIO, "the simulated port is not open" if self.plugged else "the simulated port is gone")
@@ -185,6 +155,7 @@ class VirtualLine(LineModel):
                 self.unplug(replug_after=self.replug_after)
 
     def disconnect(self) -> None:
+        """Close the port for its host (what is still to be delivered is dropped)."""
         with self._lock:
             self._host = None
         self._stop_deliverer()
@@ -205,7 +176,8 @@ class VirtualLine(LineModel):
     def unplug(self, exc: Exception | None = None, *, replug_after: float | None = None) -> None:
         """The port disappears: the host loses the line, connect() fails until :meth:`replug`.
 
-        With ``replug_after`` (wall-clock seconds) the port comes back by itself.
+        The host's port is lost with ``exc`` (default: an ``ENODEV`` OSError).  With ``replug_after``
+        (wall-clock seconds) the port comes back by itself.
         """
         with self._lock:
             if not self.plugged:
@@ -225,6 +197,7 @@ class VirtualLine(LineModel):
             callback(False)
 
     def replug(self) -> None:
+        """The port comes back: ``connect`` works again."""
         with self._lock:
             if self.plugged:
                 return

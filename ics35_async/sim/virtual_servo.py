@@ -46,6 +46,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from ..eeprom import PROTECTED_OFFSETS, BaudRate, Eeprom, Flags
+from ..errors import InvalidArgument
 from ..protocol import (
     FREE,
     MEMORY_SIZE,
@@ -108,6 +109,10 @@ class VirtualServo:
     coordinates); ``load`` is an external torque in current units (signed).
     ``ignores``: names of commands it leaves unanswered (``{"read_eeprom"}``),
     as a device that half-answers does (another firmware, not a servo).
+    ``ambient_celsius`` is the temperature it starts at and cools towards.
+
+    Raises:
+        InvalidArgument: a bad ID, baud rate, position or image.
     """
 
     def __init__(
@@ -147,6 +152,7 @@ class VirtualServo:
 
     @property
     def eeprom(self) -> Eeprom:
+        """The servo's EEPROM image (it persists across power cycles)."""
         return self._eeprom
 
     @eeprom.setter
@@ -156,6 +162,7 @@ class VirtualServo:
 
     @property
     def servo_id(self) -> int:
+        """The ID it answers to (its EEPROM's)."""
         return self._eeprom.servo_id
 
     @property
@@ -199,10 +206,12 @@ class VirtualServo:
 
     @property
     def free(self) -> bool:
+        """Torque off: no target."""
         return self._target is None
 
     @property
     def moving(self) -> bool:
+        """It has a target and is not there yet."""
         return self._target is not None and self._position != self._target
 
     @property
@@ -211,10 +220,15 @@ class VirtualServo:
         return MAX_RATE * self.speed / 127
 
     def move_by_hand(self, position: int) -> None:
-        """Turn the horn by hand (host coordinates): a free servo stays there."""
+        """Turn the horn by hand to ``position`` (host coordinates): a free servo stays there.
+
+        Raises:
+            InvalidArgument: ``position`` is not 1..16383.
+        """
         self._position = float(check_int("position", position, 1, POSITION_MAX))
 
     def command_position(self, position: int) -> None:
+        """Take a position command's ``position`` (0 frees): the target, within the EEPROM's pulse limits."""
         if position == FREE or self.overheated:
             self._target = None
             return
@@ -248,6 +262,7 @@ class VirtualServo:
 
     @property
     def overheated(self) -> bool:
+        """Hotter than its temperature limit: it frees itself, as a real one does."""
         return self.temperature < self.temperature_limit
 
     def _steady_celsius(self) -> float:
@@ -282,6 +297,7 @@ class VirtualServo:
     # -- the wire
 
     def answers(self, baudrate: int) -> bool:
+        """Whether it hears a line at ``baudrate`` (its EEPROM's rate)."""
         return self.baud_rate == baudrate
 
     def handle(self, command: Any) -> Any:
@@ -342,6 +358,10 @@ class MemoryDevice:
 
     It answers only the generic read and write (spec section 9), ignores the
     servo and ID commands, and talks at ``baud_rate`` (``None``: any rate).
+    ``device_id`` is its ID (0..31), ``memory`` the memory's first bytes (the rest is zero).
+
+    Raises:
+        InvalidArgument: a bad ID or baud rate, or more than 128 bytes of memory.
     """
 
     def __init__(
@@ -350,21 +370,24 @@ class MemoryDevice:
         self._device_id = check_int("device ID", device_id, 0, 31)
         data = bytes(memory or b"")
         if len(data) > MEMORY_SIZE:
-            raise ValueError(f"memory is {len(data)} bytes, at most {MEMORY_SIZE}")
+            raise InvalidArgument(f"memory is {len(data)} bytes, at most {MEMORY_SIZE}")
         self.memory = bytearray(data.ljust(MEMORY_SIZE, b"\0"))
         self.baud_rate = None if baud_rate is None else BaudRate.parse(baud_rate)
 
     @property
     def servo_id(self) -> int:
+        """Its ID (the name every device on a line shares)."""
         return self._device_id
 
     def update(self, now: float) -> None:
-        pass
+        """Nothing changes with time (``now``) in a memory."""
 
     def answers(self, baudrate: int) -> bool:
+        """Whether it hears a line at ``baudrate``."""
         return self.baud_rate is None or self.baud_rate == baudrate
 
     def handle(self, command: Any) -> Any:
+        """Carry out ``command`` (addressed to it): the generic read's bytes, or no reply to anything else."""
         if isinstance(command, ReadMemory):
             return bytes(self.memory[command.address : command.address + command.count])
         if isinstance(command, WriteMemory):

@@ -29,25 +29,26 @@ from .wire_device import (
 
 if TYPE_CHECKING:
     from .advice import adapter_advice
-    from .direct import DirectSerialTransport, ParityMarks
+    from .device_port import DevicePort
     from .direction import DIRECTIONS, check_direction
-    from .in_process import InProcessTransport
     from .links import carries_line_settings, rate_blind_note
-    from .opening import discard_input, open_line
-    from .threaded import ThreadedSerialDevice
+    from .opening import Port, open_port
+    from .pyserial_port import ReaderThread, SerialPort
+    from .tty_port import ParityMarks, TtyPort
 
 _LAZY = {
     "adapter_advice": ".advice",
-    "DirectSerialTransport": ".direct",
-    "ParityMarks": ".direct",
+    "DevicePort": ".device_port",
     "DIRECTIONS": ".direction",
     "check_direction": ".direction",
-    "InProcessTransport": ".in_process",
     "carries_line_settings": ".links",
     "rate_blind_note": ".links",
-    "discard_input": ".opening",
-    "open_line": ".opening",
-    "ThreadedSerialDevice": ".threaded",
+    "Port": ".opening",
+    "open_port": ".opening",
+    "ReaderThread": ".pyserial_port",
+    "SerialPort": ".pyserial_port",
+    "ParityMarks": ".tty_port",
+    "TtyPort": ".tty_port",
 }
 
 
@@ -62,16 +63,18 @@ __all__ = [
     "DIRECTIONS",
     "DirectionControlNotSupported",
     "TRANSPORT_KINDS",
-    "DirectSerialTransport",
+    "DevicePort",
     "HostSide",
-    "InProcessTransport",
     "ParityMarks",
     "ParityNotSupported",
     "PortBusy",
     "PortNotFound",
     "PortPermissionDenied",
+    "Port",
+    "ReaderThread",
+    "SerialPort",
     "SerialPortError",
-    "ThreadedSerialDevice",
+    "TtyPort",
     "TransportKind",
     "WireDevice",
     "WireDeviceFactory",
@@ -79,8 +82,7 @@ __all__ = [
     "device_factory",
     "carries_line_settings",
     "check_direction",
-    "discard_input",
-    "open_line",
+    "open_port",
     "rate_blind_note",
     "register_url_scheme",
 ]

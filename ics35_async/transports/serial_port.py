@@ -6,7 +6,6 @@ import errno
 import logging
 import os
 import re
-import select
 from typing import Any
 
 import serial
@@ -244,31 +243,3 @@ def _try_low_latency(ser: serial.Serial, port: str) -> None:
         log.debug("low-latency mode not available on %s: %s", port, exc)
     else:
         log.debug("low-latency mode enabled on %s", port)
-
-
-def hung_up(fd: int) -> bool:
-    """Whether a tty whose read gave 0 bytes has really gone (POLLHUP), not just had its input flushed."""
-    poller = select.poll()
-    poller.register(fd, select.POLLIN)
-    return any(events & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, events in poller.poll(0))
-
-
-def write_blocking(ser: serial.SerialBase, data: bytes) -> None:
-    """Write on a pyserial port read by a thread; a URL handler's own error comes out as an OSError."""
-    try:
-        ser.write(data)
-    except serial.SerialException:
-        raise
-    except Exception as exc:
-        raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
-
-
-def discard_blocking_input(ser: serial.SerialBase) -> None:
-    """Drop a thread-read port's input, except over RFC 2217.
-
-    pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps),
-    past the next transaction's deadline; the engine's quiet time does the job
-    there instead.
-    """
-    if not isinstance(ser, serial.rfc2217.Serial):
-        ser.reset_input_buffer()

@@ -10,11 +10,10 @@ line opens, so importing the library loads no simulator.
 from __future__ import annotations
 
 import importlib
-from collections import deque
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 
-TransportKind = Literal["auto", "fast", "stock", "direct", "thread"]
+TransportKind = Literal["auto", "direct", "thread"]
 TRANSPORT_KINDS: tuple[str, ...] = get_args(TransportKind)
 
 
@@ -37,8 +36,8 @@ class WireDevice(Protocol):
     bytes; the device answers by calling ``host.deliver`` now or later, from
     any thread.  ``disconnect`` detaches the host.
 
-    A device may also offer ``discard_input()``, which :func:`discard_input`
-    calls; it is optional.
+    A device may also offer ``discard_input()`` (drop what it has not
+    delivered yet), called when the line resyncs; it is optional.
     """
 
     def connect(self, host: HostSide, baudrate: int) -> None: ...
@@ -48,24 +47,12 @@ class WireDevice(Protocol):
     def disconnect(self) -> None: ...
 
 
-def take_delivered(chunks: deque[bytes], lost: Exception | None) -> bytes:
-    """A host side's queue read once: what the device delivered, as one chunk; else why it went
-    away, raised; else ``b""``.  Bytes that came before the loss are read first."""
-    if chunks:
-        data = b"".join(chunks)
-        chunks.clear()
-        return data
-    if lost is not None:
-        raise lost
-    return b""
-
-
 WireDeviceFactory = Callable[[str], WireDevice]
 _URL_SCHEMES: dict[str, WireDeviceFactory] = {}
 
 
 def register_url_scheme(scheme: str, factory: WireDeviceFactory) -> None:
-    """Make ``open_line("<scheme>://...")`` build its device with ``factory(url)``."""
+    """Make ``open_port("<scheme>://...")`` (and so ``open_bus``) build its device with ``factory(url)``."""
     _URL_SCHEMES[scheme] = factory
 
 

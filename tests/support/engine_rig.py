@@ -14,7 +14,7 @@ from __future__ import annotations
 import heapq
 from typing import Any
 
-from ics35_async.engine import BusTiming, LineEngine, Request
+from ics35_async.engine import BusTiming, FlushInput, LineEngine, Request
 from ics35_async.protocol import Command
 from ics35_async.sim.model import LineModel
 
@@ -33,7 +33,7 @@ class EngineRig:
         self._pending: list[tuple[float, int, bytes]] = []
         self._order = 0
         self.writes: list[tuple[float, bytes]] = []  # (time, bytes) of every write the engine made
-        self.flushed = 0  # bytes dropped by the engine's flush_input requests
+        self.flushed = 0  # bytes dropped by the engine's FlushInput answers
         self._write(self.engine.connected(self.now))
 
     def _write(self, out: bytes | None) -> None:
@@ -62,9 +62,9 @@ class EngineRig:
             return False
         self.now = max(self.now, engine.deadline)
         out = engine.tick(self.now)
-        if engine.flush_input:
+        if isinstance(out, FlushInput):
             # The OS input buffer holds only what has already arrived: chunks due by now.
-            engine.flush_input = False
+            out = out.then
             while pending and pending[0][0] <= self.now:
                 self.flushed += len(heapq.heappop(pending)[2])
         self._write(out)

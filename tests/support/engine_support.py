@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ics35_async import protocol
-from ics35_async.engine import LineEngine, Request
+from ics35_async.engine import FlushInput, LineEngine, Output, Request
 from ics35_async.errors import IcsError, ReplyError
 from ics35_async.protocol import Param, Position, ReadParam
 
@@ -98,9 +98,12 @@ class Wire:
         self.answer = answer
         self.now = 0.0
         self.writes: list[tuple[float, bytes]] = []
+        self.flushes = 0  # FlushInput answers (resyncs ended)
         self.marks: list[int] = []  # per write: how many arrivals had been delivered before it
         self.delivered: list[object] = []  # the tag of each arrival delivered, in order
         self._arrivals: list[tuple[float, int, bytes, int, object]] = []  # (time, order, bytes, parity errors, tag)
+        self._calls: list[tuple[float, int, Callable[[], object]]] = []  # what the program does, when
+        self.end = -math.inf  # where the run in progress stops (none yet)
         self._order = itertools.count()
         self.on_write: Callable[[], None] | None = None  # called as each write goes out
 
@@ -113,6 +116,29 @@ class Wire:
         """
         heapq.heappush(self._arrivals, (at, next(self._order), data, parity_errors, tag))
 
+    def at(self, when: float, call: Callable[[], object]) -> None:
+        """The program does ``call()`` at ``when`` (before bytes that arrive at the same time)."""
+        heapq.heappush(self._calls, (when, next(self._order), call))
+
+    def _run_calls(self, until: float) -> None:
+        while self._calls and self._calls[0][0] <= until:
+            when, _, call = heapq.heappop(self._calls)
+            self.now = max(self.now, when)
+            call()
+
+    def next_arrival(self, limit: float) -> tuple[bytes, int] | None:
+        """The next bytes to arrive by ``limit`` (the program's calls due by then run first), or None
+        with the time moved on to ``limit``: what a burst executor waiting on the port sees."""
+        arrival = self._arrivals[0][0] if self._arrivals else math.inf
+        self._run_calls(min(arrival, limit))
+        if arrival > limit:
+            self.now = max(self.now, limit)
+            return None
+        at, _, data, errors, tag = heapq.heappop(self._arrivals)
+        self.now = max(self.now, at)
+        self.delivered.append(tag)
+        return data, errors
+
     def clear_in_flight(self) -> None:
         """The port is gone: bytes still on their way to it are lost with it."""
         self._arrivals.clear()
@@ -123,7 +149,10 @@ class Wire:
 
     # -- what the driver does
 
-    def emit(self, out: bytes | None) -> bytes | None:
+    def emit(self, out: Output) -> bytes | None:
+        if isinstance(out, FlushInput):  # nothing waits in a simulated OS buffer: only counted
+            self.flushes += 1
+            out = out.then
         if out is not None:
             if self.on_write is not None:
                 self.on_write()
@@ -139,9 +168,13 @@ class Wire:
     def run_until(self, end: float, *, max_steps: int = 100_000) -> None:
         """Deliver arrivals and deadlines in time order up to ``end`` (arrivals first on a tie)."""
         engine = self.engine
+        self.end = end
         for _ in range(max_steps):
             arrival = self._arrivals[0][0] if self._arrivals else math.inf
             deadline = engine.deadline
+            if self._calls and self._calls[0][0] <= min(arrival, deadline, end):
+                self._run_calls(self._calls[0][0])
+                continue
             if min(arrival, deadline) > end:
                 break
             if arrival <= deadline:
@@ -155,7 +188,6 @@ class Wire:
                 self.now = max(self.now, deadline)
                 before = (engine.state, engine.deadline)
                 self.emit(engine.tick(self.now))
-                engine.flush_input = False  # nothing waits in a simulated OS buffer
                 if (engine.state, engine.deadline) == before and engine.deadline <= self.now:
                     raise AssertionError(f"tick({self.now}) left the engine {before}: it would spin")
         else:
@@ -305,3 +337,18 @@ class FakeSource:
 
     def line_resumed(self, now: float) -> None:
         self.resumed.append(now)
+
+    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
+        """The rest of this round of the IDs (none with a period: each transaction waits for its own)."""
+        if self.period or not self.active:
+            return []
+        n = len(self.ids)
+        jobs = []
+        for k in range(self.k + 1, min((self.k // n + 1) * n, self.k + 1 + limit)):
+            command = position(self.ids[k % n], 0)
+            assert command.servo_id is not None
+            jobs.append((command.tx, command.reply_len, command.servo_id))
+        return jobs
+
+    def upcoming_done(self) -> None:
+        pass

@@ -78,6 +78,12 @@ class PacedCycle:
     def line_resumed(self, now: float) -> None:
         pass
 
+    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
+        return [(protocol.position_tx(sid, 7500), 3, sid) for sid in self.ids[self.pos + 1 : self.pos + 1 + limit]]
+
+    def upcoming_done(self) -> None:
+        pass
+
 
 class FaultyServos(Servos):
     """Servos whose replies are dropped, cut short, garbled or late, each kind at ``rate / 4``."""

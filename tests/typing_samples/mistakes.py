@@ -1,6 +1,6 @@
 """A user's program with mistakes a type checker must catch (tests/test_typing.py runs mypy on it)."""
 
-from ics35_async import ReplyTimeout, open_bus
+from ics35_async import BusGroup, BusOptions, ReplyTimeout, blocking, open_bus
 from ics35_async.engine import TimingOverrides
 
 
@@ -17,3 +17,11 @@ async def main() -> None:
     open_bus("sim://", adapter_latncy=0.1)  # MISTAKE: misspelt timing
     slow: TimingOverrides = {"adapter_latency": "20 ms"}  # MISTAKE: not seconds
     print(slow)
+    open_bus("sim://", reconect=True)  # MISTAKE: misspelt option
+    open_bus("sim://", baudrate="115200")  # MISTAKE: not a number
+    line: BusOptions = {"baudrate": 1250000, "echo": "yes"}  # MISTAKE: not a bool
+    open_bus("sim://", **line)
+    BusGroup.open({"legs": "sim://"}, retries=1, adapter_latency=0.002)
+    BusGroup.open({"legs": "sim://"}, retry=1)  # MISTAKE: misspelt option
+    blocking.open_bus("sim://", max_requests_between=8, quiet_time=0.002)
+    blocking.open_bus("sim://", drivr="thread")  # MISTAKE: misspelt option

@@ -1,0 +1,248 @@
+"""The burst path (compiled executor) against the ordinary path, blocking pyserial and the bare loop.
+
+Rows, every one alternated with its baseline in each run, medians of the ratios:
+
+* CPU per transaction of a 32-ID stream on the default driver and loop, burst path and
+  ordinary path (``ICS35_BURST=0``), against blocking pyserial on the same lean responder
+  (answers at once): the issue's goal is at most 0.7x;
+* the same stream against a responder holding every reply to its 1.25 Mbit/s wire time, rate
+  against the bare ``os.write``/``poll``/``os.read`` loop on the same line: goal at least 1.0x;
+* four such lines streamed together against one: CPU per transaction, goal at most 1.1x;
+* a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
+  alone (how much of the program's time the servo line leaves it);
+* sequential awaited ``set_position`` against raw pyserial, and the batched forms (``gather`` of
+  one cycle's 32 commands; a stream) that replace it.
+
+CPU is ``time.process_time()`` of this process (every thread, the executor's included).
+
+    .venv/bin/python benchmarks/bench_burst.py [--runs 3] [--duration 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from bench_common import IDS, NEUTRAL, median, progress, run_on
+from bench_cpu import BUS_OPTIONS, sequential, stream
+from bench_lines import group_stream
+from bench_overhead import lean_loop, raw_loop
+from lean_responder import lean_lines
+
+from ics35_async import IcsError, open_bus
+from ics35_async.drivers.burst import ENV, burst_path
+
+Figures = dict[str, Any]
+BAUD = 1_250_000
+
+
+@contextlib.contextmanager
+def ordinary_path() -> Iterator[None]:
+    """The burst path turned off (for buses opened inside)."""
+    before = os.environ.get(ENV)
+    os.environ[ENV] = "0"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[ENV]
+        else:
+            os.environ[ENV] = before
+
+
+def on_path(burst: bool, fn: Callable[[], Figures]) -> Figures:
+    if burst:
+        return fn()
+    with ordinary_path():
+        return fn()
+
+
+def gathered(path: str, duration: float) -> Figures:
+    """One cycle's 32 ``set_position`` commands queued together (``asyncio.gather``), cycle after cycle."""
+
+    async def measure() -> Figures:
+        async with open_bus(path, **BUS_OPTIONS) as bus:
+            servos = bus.servos(IDS)
+            await asyncio.gather(*(s.set_position(NEUTRAL) for s in servos), return_exceptions=True)
+            n = failures = 0
+            wall0, cpu0 = time.perf_counter(), time.process_time()
+            while (now := time.perf_counter()) - wall0 < duration:
+                got = await asyncio.gather(*(s.set_position(NEUTRAL) for s in servos), return_exceptions=True)
+                failures += sum(isinstance(g, IcsError) for g in got)  # counted, not fatal (a loaded machine)
+                n += len(servos)
+            cpu = time.process_time() - cpu0
+        return {"tx_per_s": n / (now - wall0), "cpu_us_per_tx": cpu / n * 1e6, "failures": failures}
+
+    return run_on("asyncio", measure)
+
+
+def thread_progress(path: str | None, burst: bool, duration: float) -> Figures:
+    """Iterations per second of a pure-Python counting thread, alone (``path`` None) or beside a stream."""
+    done = threading.Event()
+    count = [0]
+
+    def spin() -> None:
+        n = 0
+        while not done.is_set():
+            n += 1
+            if n % 4096 == 0:
+                count[0] = n
+
+    async def beside_stream() -> Figures:
+        assert path is not None
+        async with open_bus(path, baudrate=BAUD, **BUS_OPTIONS) as bus, bus.stream(IDS) as st:
+            first = await st.next_frame()
+            c0, t0 = count[0], time.perf_counter()
+            frame = first
+            while (now := time.perf_counter()) - t0 < duration:
+                frame = await st.next_frame()
+            c1 = count[0]
+        wall = now - t0
+        return {"spins_per_s": (c1 - c0) / wall, "stream_tx_per_s": (frame.cycle - first.cycle) * len(IDS) / wall}
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        if path is None:
+            c0, t0 = count[0], time.perf_counter()
+            time.sleep(duration)
+            return {"spins_per_s": (count[0] - c0) / (time.perf_counter() - t0)}
+        return on_path(burst, lambda: run_on("asyncio", beside_stream))
+    finally:
+        done.set()
+        thread.join()
+
+
+def ratio(value: float, a: float, b: float) -> float:
+    return value / ((a + b) / 2)
+
+
+def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
+    rows: dict[str, list[float]] = {}
+    figures: dict[str, list[Figures]] = {}
+
+    def note(name: str, value: float, f: Figures | None = None) -> None:
+        rows.setdefault(name, []).append(value)
+        if f is not None:
+            figures.setdefault(name, []).append(f)
+
+    with lean_lines(1) as (path,):
+        for r in range(runs):
+            progress(f"burst: run {r + 1}/{runs} (answers at once)")
+            raw0 = raw_loop(path, duration)
+            burst = on_path(True, lambda: stream(path, None, "asyncio", duration))
+            raw1 = raw_loop(path, duration)
+            plain = on_path(False, lambda: stream(path, None, "asyncio", duration))
+            raw2 = raw_loop(path, duration)
+            seq = sequential(path, None, "asyncio", duration)
+            raw3 = raw_loop(path, duration)
+            gath = gathered(path, duration)
+            raw4 = raw_loop(path, duration)
+            floor = lean_loop(path, duration)
+            raw5 = raw_loop(path, duration)
+            for name, f, a, b in (
+                ("stream burst", burst, raw0, raw1),
+                ("stream ordinary", plain, raw1, raw2),
+                ("sequential awaited set_position", seq, raw2, raw3),
+                ("gather of one cycle's set_position", gath, raw3, raw4),
+                ("floor: os.write/poll/os.read", floor, raw4, raw5),
+            ):
+                note(f"cpu_vs_raw {name}", ratio(f["cpu_us_per_tx"], a["cpu_us_per_tx"], b["cpu_us_per_tx"]), f)
+                note(f"rate_vs_raw {name}", ratio(f["tx_per_s"], a["tx_per_s"], b["tx_per_s"]))
+            note("raw cpu_us_per_tx", (raw0["cpu_us_per_tx"] + raw5["cpu_us_per_tx"]) / 2)
+    with lean_lines(4, baud=BAUD, wire=True) as paths:
+        for r in range(runs):
+            progress(f"burst: run {r + 1}/{runs} (wire-timed at {BAUD} bit/s)")
+            bare0 = lean_loop(paths[0], duration, baud=BAUD)
+            one = on_path(True, lambda: group_stream(paths[:1], None, "asyncio", BAUD, duration))
+            bare1 = lean_loop(paths[0], duration, baud=BAUD)
+            one_plain = on_path(False, lambda: group_stream(paths[:1], None, "asyncio", BAUD, duration))
+            bare2 = lean_loop(paths[0], duration, baud=BAUD)
+            four = on_path(True, lambda: group_stream(paths, None, "asyncio", BAUD, duration))
+            four_plain = on_path(False, lambda: group_stream(paths, None, "asyncio", BAUD, duration))
+            for name, f, a, b in (("burst", one, bare0, bare1), ("ordinary", one_plain, bare1, bare2)):
+                rate = f["aggregate_cycles_per_s"] * len(IDS)
+                note(f"wire rate_vs_bare {name}", ratio(rate, a["tx_per_s"], b["tx_per_s"]), f)
+            note("four_vs_one cpu burst", four["cpu_us_per_tx"] / one["cpu_us_per_tx"], four)
+            note("four_vs_one cpu ordinary", four_plain["cpu_us_per_tx"] / one_plain["cpu_us_per_tx"], four_plain)
+            alone = thread_progress(None, True, duration)
+            beside_burst = thread_progress(paths[0], True, duration)
+            beside_plain = thread_progress(paths[0], False, duration)
+            alone2 = thread_progress(None, True, duration)
+            base = (alone["spins_per_s"] + alone2["spins_per_s"]) / 2
+            note("thread progress beside burst", beside_burst["spins_per_s"] / base, beside_burst)
+            note("thread progress beside ordinary", beside_plain["spins_per_s"] / base, beside_plain)
+    return {
+        "path": burst_path()[1],
+        "runs": runs,
+        "duration_s": duration,
+        "medians": {name: median(values) for name, values in rows.items()},
+        "per_run": rows,
+        "figures": {name: fs for name, fs in figures.items()},
+    }
+
+
+ROWS = (
+    ("stream, default driver and loop, burst path", "cpu_vs_raw stream burst", "rate_vs_raw stream burst"),
+    ("stream, default driver and loop, ordinary path", "cpu_vs_raw stream ordinary", "rate_vs_raw stream ordinary"),
+    (
+        "sequential awaited set_position",
+        "cpu_vs_raw sequential awaited set_position",
+        "rate_vs_raw sequential awaited set_position",
+    ),
+    (
+        "gather of one cycle's set_position",
+        "cpu_vs_raw gather of one cycle's set_position",
+        "rate_vs_raw gather of one cycle's set_position",
+    ),
+    (
+        "bare os.write/poll/os.read loop",
+        "cpu_vs_raw floor: os.write/poll/os.read",
+        "rate_vs_raw floor: os.write/poll/os.read",
+    ),
+)
+
+
+def print_table(r: dict[str, Any]) -> None:
+    m = r["medians"]
+    print(f"\nE. The burst path ({r['path']}); medians of {r['runs']} runs, ratios against baselines run alongside")
+    raw = m["raw cpu_us_per_tx"]
+    print(f"   against blocking pyserial on a lean responder that answers at once (raw: {raw:.1f} us/tx)")
+    print(f"  {'row':48} {'CPU/raw':>8} {'rate/raw':>9}")
+    for label, cpu, rate in ROWS:
+        print(f"  {label:48} {m[cpu]:8.2f} {m[rate]:9.2f}")
+    print(f"   wire-timed at {BAUD} bit/s: stream rate against the bare loop on the same line")
+    print(f"  {'burst path':48} {m['wire rate_vs_bare burst']:8.2f}")
+    print(f"  {'ordinary path':48} {m['wire rate_vs_bare ordinary']:8.2f}")
+    print("   four lines streamed together against one: CPU per transaction")
+    print(f"  {'burst path':48} {m['four_vs_one cpu burst']:8.2f}")
+    print(f"  {'ordinary path':48} {m['four_vs_one cpu ordinary']:8.2f}")
+    print("   a CPU-bound Python thread beside a wire-timed stream: its progress against the thread alone,")
+    print("   and the stream's rate meanwhile (each burst's end waits for the GIL: sys.getswitchinterval())")
+    for name in ("burst", "ordinary"):
+        rate = median([f["stream_tx_per_s"] for f in r["figures"][f"thread progress beside {name}"]])
+        print(f"  {name + ' path':48} {m[f'thread progress beside {name}']:8.2f}   stream {rate:7.0f} tx/s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--duration", type=float, default=1.0)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    result = run(args.runs, args.duration)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print_table(result)
+
+
+if __name__ == "__main__":
+    main()

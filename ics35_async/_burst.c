@@ -1,0 +1,575 @@
+/* The burst executor: runs a plan of half-duplex transactions on a file descriptor, without the GIL.
+ *
+ * The line engine (ics35_async.engine) makes the plan and keeps every rule; this only moves bytes
+ * and reads the clock.  For each transaction of the plan: write its bytes, read until exactly its
+ * expected count has come or its deadline passes, and note when its first and last bytes came.  It
+ * stops, handing back what it has, at the first transaction that is late, whose bytes differ from
+ * the echo of what was sent, that brings more bytes than expected, or that brings a 0xFF while the
+ * port marks parity errors (PARMRK: the bytes go to the engine as they came, through the usual
+ * decoder); at a transaction boundary once woken; on a hang-up or an error.  It never judges a
+ * reply: the engine is fed the bytes and times afterwards and classifies them as it always does.
+ *
+ * Deadlines follow the engine's own arithmetic: the first transaction's deadline is given; each
+ * later one starts when the previous one's last byte came (the time the engine is fed with it) and
+ * has its allowance from then.  Times are CLOCK_MONOTONIC seconds (Python's time.monotonic).
+ *
+ * A Burst runs a plan either in the calling thread (run) or in a thread of its own (start, then
+ * result once done_fd is readable), so an event loop can wait for it as for any descriptor.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+#ifdef __linux__
+#include <sys/eventfd.h>
+#endif
+
+enum { DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED };
+#define READ_CHUNK 4096
+
+typedef struct {
+    Py_ssize_t tx_off, tx_len;  /* the transaction's bytes in plan_tx */
+    Py_ssize_t expect, echo;    /* bytes expected back (echo + reply), of which the echo */
+    double allowance;           /* seconds from its start to its deadline (the first: unused) */
+    /* results */
+    Py_ssize_t rx_off, rx_len;  /* its bytes in rx */
+    double t_first, t_last;
+} Tx;
+
+typedef struct {
+    PyObject_HEAD
+    int fd;
+    int marks;
+    int wake_r, wake_w;  /* wakes a poll in progress (eventfd: both ends the same) */
+    int done_r, done_w;  /* readable once a started plan is done */
+    atomic_int woken;
+    /* the plan and its results */
+    Tx *txs;
+    Py_ssize_t n, cap;
+    unsigned char *plan_tx;
+    Py_ssize_t plan_tx_len, plan_tx_cap;
+    unsigned char *rx;
+    Py_ssize_t rx_cap;
+    double first_deadline;
+    int status, err;
+    Py_ssize_t ran;  /* transactions written */
+    /* the thread of start() */
+    pthread_t thread;
+    int has_thread, quit, job, busy;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+} Burst;
+
+static double monotonic(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+static void drain(int fd) {
+    unsigned char sink[64];
+    while (read(fd, sink, sizeof sink) > 0) {
+    }
+}
+
+/* Wait for fd (events) or the wake descriptor until the deadline: >0 ready, 0 timed out, -1 error. */
+static int wait_for(Burst *self, short events, double deadline, int *woke, short *revents) {
+    struct pollfd p[2];
+    p[0].fd = self->fd;
+    p[0].events = events;
+    p[0].revents = 0;
+    p[1].fd = self->wake_r;
+    p[1].events = POLLIN;
+    p[1].revents = 0;
+    for (;;) {
+        double left = deadline - monotonic();
+        if (left < 0) left = 0;
+        nfds_t count = *woke ? 1 : 2;
+#ifdef __linux__
+        struct timespec ts;
+        ts.tv_sec = (time_t)left;
+        ts.tv_nsec = (long)((left - (double)ts.tv_sec) * 1e9);
+        int r = ppoll(p, count, &ts, NULL);
+#else
+        int r = poll(p, count, (int)(left * 1000.0 + 0.999));
+#endif
+        if (r < 0) {
+            if (errno == EINTR) continue;
+            return -1;
+        }
+        if (count == 2 && (p[1].revents & POLLIN)) {
+            drain(self->wake_r);
+            *woke = 1;
+            if (!(p[0].revents)) continue;  /* finish the transaction on the wire first */
+        }
+        *revents = p[0].revents;
+        return p[0].revents ? 1 : 0;
+    }
+}
+
+/* Run the plan (no Python objects touched: called without the GIL). */
+static void run_plan(Burst *self) {
+    int woke = 0;
+    Py_ssize_t rx_len = 0;
+    double t_start = 0, deadline = self->first_deadline;
+    self->status = DONE;
+    self->err = 0;
+    self->ran = 0;
+    for (Py_ssize_t i = 0; i < self->n; i++) {
+        Tx *t = &self->txs[i];
+        if (i > 0) {
+            if (woke || atomic_load(&self->woken)) {
+                self->status = WOKEN;
+                return;
+            }
+            deadline = t_start + t->allowance;
+        }
+        t->rx_off = rx_len;
+        t->rx_len = 0;
+        t->t_first = t->t_last = 0;
+        self->ran = i + 1;
+        /* write the whole command (a tty takes it at once; otherwise wait until it can) */
+        const unsigned char *tx = self->plan_tx + t->tx_off;
+        Py_ssize_t sent = 0;
+        while (sent < t->tx_len) {
+            ssize_t w = write(self->fd, tx + sent, (size_t)(t->tx_len - sent));
+            if (w > 0) {
+                sent += w;
+                continue;
+            }
+            if (w < 0 && errno == EINTR) continue;
+            if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
+                self->status = FAILED;
+                self->err = errno;
+                return;
+            }
+            short rev = 0;
+            int r = wait_for(self, POLLOUT, deadline, &woke, &rev);
+            if (r < 0) {
+                self->status = FAILED;
+                self->err = errno;
+                return;
+            }
+            if (r == 0) {
+                self->status = LATE;
+                return;
+            }
+            if (rev & (POLLERR | POLLNVAL)) {
+                self->status = FAILED;
+                self->err = EIO;
+                return;
+            }
+        }
+        /* read until the expected count has come */
+        while (t->rx_len < t->expect) {
+            short rev = 0;
+            int r = wait_for(self, POLLIN, deadline, &woke, &rev);
+            if (r < 0) {
+                self->status = FAILED;
+                self->err = errno;
+                return;
+            }
+            if (r == 0) {
+                self->status = LATE;
+                return;
+            }
+            Py_ssize_t room = self->rx_cap - rx_len;
+            if (room > READ_CHUNK) room = READ_CHUNK;
+            ssize_t got = read(self->fd, self->rx + rx_len, (size_t)room);
+            double now = monotonic();
+            if (got < 0) {
+                if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) continue;
+                self->status = FAILED;
+                self->err = errno;
+                return;
+            }
+            if (got == 0) {
+                /* a readable tty with nothing to read: hung up (the usual read path tells the
+                   hang-up from a flushed input) */
+                if (rev & (POLLHUP | POLLERR | POLLNVAL)) {
+                    self->status = HANGUP;
+                    return;
+                }
+                continue;
+            }
+            const unsigned char *chunk = self->rx + rx_len;
+            if (!t->rx_len) t->t_first = now;
+            t->t_last = now;
+            Py_ssize_t before = t->rx_len;
+            rx_len += got;
+            t->rx_len += got;
+            if (self->marks && memchr(chunk, 0xFF, (size_t)got)) {
+                self->status = MARK;
+                return;
+            }
+            Py_ssize_t echo_end = t->echo < t->rx_len ? t->echo : t->rx_len;
+            if (before < echo_end && memcmp(chunk, tx + before, (size_t)(echo_end - before))) {
+                self->status = MISMATCH;
+                return;
+            }
+            if (t->rx_len > t->expect) {
+                self->status = OVERRUN;
+                return;
+            }
+        }
+        t_start = t->t_last;
+    }
+}
+
+/* ---------------------------------------------------------------- the Python face */
+
+static int make_pipe(int *r, int *w) {
+#ifdef __linux__
+    int fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    if (fd < 0) return -1;
+    *r = *w = fd;
+    return 0;
+#else
+    int p[2];
+    if (pipe(p) < 0) return -1;
+    for (int k = 0; k < 2; k++) {
+        fcntl(p[k], F_SETFL, fcntl(p[k], F_GETFL) | O_NONBLOCK);
+        fcntl(p[k], F_SETFD, FD_CLOEXEC);
+    }
+    *r = p[0];
+    *w = p[1];
+    return 0;
+#endif
+}
+
+static void signal_fd(int fd) {
+#ifdef __linux__
+    uint64_t one = 1;
+    ssize_t ignored = write(fd, &one, sizeof one);
+#else
+    unsigned char one = 1;
+    ssize_t ignored = write(fd, &one, 1);
+#endif
+    (void)ignored;
+}
+
+static void close_pipe(int *r, int *w) {
+    if (*r >= 0) close(*r);
+    if (*w >= 0 && *w != *r) close(*w);
+    *r = *w = -1;
+}
+
+static int Burst_init(Burst *self, PyObject *args, PyObject *kwds) {
+    static char *kwlist[] = {"fd", "marks", NULL};
+    int fd, marks = 0;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "i|$p", kwlist, &fd, &marks)) return -1;
+    if (fd < 0) {
+        PyErr_SetString(PyExc_ValueError, "fd must be an open descriptor");
+        return -1;
+    }
+    self->fd = fd;
+    self->marks = marks;
+    if (self->wake_r < 0 && make_pipe(&self->wake_r, &self->wake_w) < 0) {
+        PyErr_SetFromErrno(PyExc_OSError);
+        return -1;
+    }
+    if (self->done_r < 0 && make_pipe(&self->done_r, &self->done_w) < 0) {
+        PyErr_SetFromErrno(PyExc_OSError);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *Burst_new(PyTypeObject *type, PyObject *args, PyObject *kwds) {
+    Burst *self = (Burst *)type->tp_alloc(type, 0);
+    if (!self) return NULL;
+    self->fd = self->wake_r = self->wake_w = self->done_r = self->done_w = -1;
+    atomic_init(&self->woken, 0);
+    pthread_mutex_init(&self->lock, NULL);
+    pthread_cond_init(&self->cond, NULL);
+    return (PyObject *)self;
+}
+
+static void stop_thread(Burst *self) {
+    if (!self->has_thread) return;
+    atomic_store(&self->woken, 1);
+    if (self->wake_w >= 0) signal_fd(self->wake_w);
+    pthread_mutex_lock(&self->lock);
+    self->quit = 1;
+    pthread_cond_signal(&self->cond);
+    pthread_mutex_unlock(&self->lock);
+    Py_BEGIN_ALLOW_THREADS
+    pthread_join(self->thread, NULL);
+    Py_END_ALLOW_THREADS
+    self->has_thread = 0;
+}
+
+static PyObject *Burst_close(Burst *self, PyObject *unused) {
+    stop_thread(self);
+    close_pipe(&self->wake_r, &self->wake_w);
+    close_pipe(&self->done_r, &self->done_w);
+    Py_RETURN_NONE;
+}
+
+static void Burst_dealloc(Burst *self) {
+    stop_thread(self);
+    close_pipe(&self->wake_r, &self->wake_w);
+    close_pipe(&self->done_r, &self->done_w);
+    PyMem_RawFree(self->txs);
+    PyMem_RawFree(self->plan_tx);
+    PyMem_RawFree(self->rx);
+    pthread_mutex_destroy(&self->lock);
+    pthread_cond_destroy(&self->cond);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* Copy a plan, [(tx, expect, echo, allowance), ...], into the object's buffers (with the GIL). */
+static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
+    if (self->wake_r < 0) {
+        PyErr_SetString(PyExc_ValueError, "the burst executor is closed");
+        return -1;
+    }
+    PyObject *seq = PySequence_Fast(plan, "the plan must be a sequence of (tx, expect, echo, allowance)");
+    if (!seq) return -1;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    if (n < 1) {
+        Py_DECREF(seq);
+        PyErr_SetString(PyExc_ValueError, "the plan is empty");
+        return -1;
+    }
+    if (n > self->cap) {
+        Tx *txs = PyMem_RawRealloc(self->txs, (size_t)n * sizeof(Tx));
+        if (!txs) goto nomem;
+        self->txs = txs;
+        self->cap = n;
+    }
+    Py_ssize_t tx_total = 0, rx_total = READ_CHUNK;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const char *bytes;
+        Py_ssize_t len, expect, echo;
+        double allowance;
+        PyObject *item = PySequence_Fast_GET_ITEM(seq, i);
+        if (!PyTuple_Check(item) || !PyArg_ParseTuple(item, "y#nnd", &bytes, &len, &expect, &echo, &allowance)) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "a plan entry is (tx, expect, echo, allowance)");
+            Py_DECREF(seq);
+            return -1;
+        }
+        if (len < 1 || expect < 0 || echo < 0 || echo > len || echo > expect) {
+            Py_DECREF(seq);
+            PyErr_SetString(PyExc_ValueError, "a plan entry needs 0 <= echo <= len(tx), echo <= expect");
+            return -1;
+        }
+        if (tx_total + len > self->plan_tx_cap) {
+            Py_ssize_t cap = (tx_total + len) * 2;
+            unsigned char *b = PyMem_RawRealloc(self->plan_tx, (size_t)cap);
+            if (!b) goto nomem_seq;
+            self->plan_tx = b;
+            self->plan_tx_cap = cap;
+        }
+        memcpy(self->plan_tx + tx_total, bytes, (size_t)len);
+        Tx *t = &self->txs[i];
+        t->tx_off = tx_total;
+        t->tx_len = len;
+        t->expect = expect;
+        t->echo = echo;
+        t->allowance = allowance;
+        tx_total += len;
+        rx_total += expect;
+    }
+    Py_DECREF(seq);
+    if (rx_total > self->rx_cap) {
+        unsigned char *b = PyMem_RawRealloc(self->rx, (size_t)rx_total);
+        if (!b) goto nomem;
+        self->rx = b;
+        self->rx_cap = rx_total;
+    }
+    self->n = n;
+    self->first_deadline = first_deadline;
+    /* a wake meant for an earlier burst must not cut this one short */
+    atomic_store(&self->woken, 0);
+    drain(self->wake_r);
+    return 0;
+nomem_seq:
+    Py_DECREF(seq);
+nomem:
+    PyErr_NoMemory();
+    return -1;
+}
+
+static PyObject *make_result(Burst *self) {
+    PyObject *records = PyList_New(self->ran);
+    if (!records) return NULL;
+    for (Py_ssize_t i = 0; i < self->ran; i++) {
+        Tx *t = &self->txs[i];
+        PyObject *rec = Py_BuildValue("(y#dd)", (const char *)self->rx + t->rx_off, t->rx_len, t->t_first, t->t_last);
+        if (!rec) {
+            Py_DECREF(records);
+            return NULL;
+        }
+        PyList_SET_ITEM(records, i, rec);
+    }
+    return Py_BuildValue("(iiN)", self->status, self->err, records);
+}
+
+static PyObject *Burst_run(Burst *self, PyObject *args) {
+    double first_deadline;
+    PyObject *plan;
+    if (!PyArg_ParseTuple(args, "dO", &first_deadline, &plan)) return NULL;
+    if (self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "a burst is already running");
+        return NULL;
+    }
+    if (take_plan(self, first_deadline, plan) < 0) return NULL;
+    self->busy = 1;
+    Py_BEGIN_ALLOW_THREADS
+    run_plan(self);
+    Py_END_ALLOW_THREADS
+    self->busy = 0;
+    return make_result(self);
+}
+
+static void *worker(void *arg) {
+    Burst *self = arg;
+    pthread_mutex_lock(&self->lock);
+    for (;;) {
+        while (!self->job && !self->quit) pthread_cond_wait(&self->cond, &self->lock);
+        if (self->quit) break;
+        pthread_mutex_unlock(&self->lock);
+        run_plan(self);
+        pthread_mutex_lock(&self->lock);
+        self->job = 0;
+        signal_fd(self->done_w);
+    }
+    pthread_mutex_unlock(&self->lock);
+    return NULL;
+}
+
+static PyObject *Burst_start(Burst *self, PyObject *args) {
+    double first_deadline;
+    PyObject *plan;
+    if (!PyArg_ParseTuple(args, "dO", &first_deadline, &plan)) return NULL;
+    if (self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "a burst is already running");
+        return NULL;
+    }
+    if (take_plan(self, first_deadline, plan) < 0) return NULL;
+    if (!self->has_thread) {
+        self->quit = 0;
+        int rc = pthread_create(&self->thread, NULL, worker, self);
+        if (rc) {
+            errno = rc;
+            return PyErr_SetFromErrno(PyExc_OSError);
+        }
+        self->has_thread = 1;
+    }
+    drain(self->done_r);
+    self->busy = 1;
+    pthread_mutex_lock(&self->lock);
+    self->job = 1;
+    pthread_cond_signal(&self->cond);
+    pthread_mutex_unlock(&self->lock);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Burst_result(Burst *self, PyObject *unused) {
+    if (!self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "no burst was started");
+        return NULL;
+    }
+    pthread_mutex_lock(&self->lock);
+    int running = self->job;
+    pthread_mutex_unlock(&self->lock);
+    if (running) Py_RETURN_NONE;
+    drain(self->done_r);
+    self->busy = 0;
+    return make_result(self);
+}
+
+static PyObject *Burst_wait(Burst *self, PyObject *unused) {
+    /* Block (without the GIL) until a started burst is done; then its result. */
+    if (!self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "no burst was started");
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    pthread_mutex_lock(&self->lock);
+    while (self->job) {
+        pthread_mutex_unlock(&self->lock);
+        struct pollfd p = {self->done_r, POLLIN, 0};
+        poll(&p, 1, 100);
+        pthread_mutex_lock(&self->lock);
+    }
+    pthread_mutex_unlock(&self->lock);
+    Py_END_ALLOW_THREADS
+    return Burst_result(self, NULL);
+}
+
+static PyObject *Burst_wake(Burst *self, PyObject *unused) {
+    atomic_store(&self->woken, 1);
+    if (self->wake_w >= 0) signal_fd(self->wake_w);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Burst_get_done_fd(Burst *self, void *closure) { return PyLong_FromLong(self->done_r); }
+static PyObject *Burst_get_busy(Burst *self, void *closure) { return PyBool_FromLong(self->busy); }
+
+static PyMethodDef Burst_methods[] = {
+    {"run", (PyCFunction)Burst_run, METH_VARARGS,
+     "run(first_deadline, plan) -> (status, errno, records): run the plan in this thread, without the GIL."},
+    {"start", (PyCFunction)Burst_start, METH_VARARGS,
+     "start(first_deadline, plan): run the plan in the executor's own thread; done_fd turns readable when done."},
+    {"result", (PyCFunction)Burst_result, METH_NOARGS,
+     "result() -> (status, errno, records), or None while the started burst still runs."},
+    {"wait", (PyCFunction)Burst_wait, METH_NOARGS, "wait() -> (status, errno, records): block until done."},
+    {"wake", (PyCFunction)Burst_wake, METH_NOARGS,
+     "wake(): from any thread, stop the running burst at its next transaction boundary."},
+    {"close", (PyCFunction)Burst_close, METH_NOARGS, "close(): end the executor's thread and its descriptors."},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyGetSetDef Burst_getset[] = {
+    {"done_fd", (getter)Burst_get_done_fd, NULL, "readable once a started burst is done", NULL},
+    {"busy", (getter)Burst_get_busy, NULL, "a burst was started and its result not yet taken", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject BurstType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "ics35_async._burst.Burst",
+    .tp_basicsize = sizeof(Burst),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "Burst(fd, *, marks=False): runs plans of transactions on fd (see the module docstring).",
+    .tp_new = Burst_new,
+    .tp_init = (initproc)Burst_init,
+    .tp_dealloc = (destructor)Burst_dealloc,
+    .tp_methods = Burst_methods,
+    .tp_getset = Burst_getset,
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT,
+    .m_name = "ics35_async._burst",
+    .m_doc = "The burst executor: a plan of transactions run on a descriptor without the GIL.",
+    .m_size = -1,
+};
+
+PyMODINIT_FUNC PyInit__burst(void) {
+    if (PyType_Ready(&BurstType) < 0) return NULL;
+    PyObject *m = PyModule_Create(&module);
+    if (!m) return NULL;
+    Py_INCREF(&BurstType);
+    if (PyModule_AddObject(m, "Burst", (PyObject *)&BurstType) < 0) {
+        Py_DECREF(&BurstType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    const char *names[] = {"DONE", "WOKEN", "LATE", "MISMATCH", "MARK", "OVERRUN", "HANGUP", "FAILED"};
+    for (int k = 0; k < 8; k++) {
+        if (PyModule_AddIntConstant(m, names[k], k) < 0) {
+            Py_DECREF(m);
+            return NULL;
+        }
+    }
+    return m;
+}

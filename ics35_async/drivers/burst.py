@@ -1,0 +1,218 @@
+"""The burst path: a stream's transactions run by the compiled executor, then fed to the engine.
+
+The engine makes the plan (:meth:`LineEngine.plan_burst <ics35_async.engine.LineEngine.plan_burst>`):
+the stream's transaction just put on the wire and its next ones, as far as the sharing rule lets
+the stream keep the line.  The executor (:mod:`ics35_async._burst`, C, in a thread of its own and
+without the GIL) writes each command and reads its echo and reply, and stops at the first one that
+is late, short or not echoed as sent, or at a boundary once woken.  :func:`feed` then hands every
+byte to the engine with the time it came, so the engine judges each transaction as if the bytes
+had come one by one: no rule lives in the executor.
+
+What arrives from the program during a burst waits for the boundary where the burst stops: a
+request (the burst is woken when the sharing rule would give it the line at the next boundary),
+a new target, a detached stream (each wakes it).  They reach the engine before the last
+transaction's bytes, so the engine decides at that boundary exactly as it would have without the
+burst.
+
+Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
+without a file descriptor -- or when ``ICS35_BURST=0`` is set, every transaction takes the
+ordinary path.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable
+from typing import Any
+
+from ..engine import LineEngine, Request
+from ..engine.machine import PlannedTransaction
+
+try:
+    from .. import _burst
+except ImportError as exc:  # not built (no compiler at install time) or not for this platform
+    _burst = None  # type: ignore[assignment]
+    _IMPORT_ERROR: str = str(exc)
+else:
+    _IMPORT_ERROR = ""
+
+# What the executor hands back: why it stopped, an errno, and per transaction written its raw bytes
+# and when the first and the last of them came.
+DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED = range(8)
+Record = tuple[bytes, float, float]
+Result = tuple[int, int, list[Record]]
+log = logging.getLogger("ics35_async")
+MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
+ENV = "ICS35_BURST"
+
+
+def burst_path() -> tuple[bool, str]:
+    """Whether the burst path can run on ports with a descriptor, and why (for ``--version -v`` and doctor)."""
+    if os.environ.get(ENV, "").strip().lower() in ("0", "off", "no", "false"):
+        return False, f"off ({ENV}={os.environ[ENV]})"
+    if _burst is None:
+        return False, f"not built ({_IMPORT_ERROR}): every port takes the ordinary path"
+    return True, "compiled executor (ics35_async._burst) for streams on tty ports under the asyncio driver"
+
+
+class BurstDiverged(RuntimeError):
+    """The engine asked for a different transaction than the burst ran (a bug: never expected)."""
+
+
+def feed(
+    engine: LineEngine,
+    plan: list[PlannedTransaction],
+    result: Result,
+    decode: Callable[[bytes], tuple[bytes, int]] | None,
+    before_last: Callable[[], None],
+    now: float,
+) -> bytes | None:
+    """Hand a burst's bytes to ``engine`` with their times; return what the engine wants written next.
+
+    Every transaction but the last ended at a boundary the engine had planned: fed its bytes with
+    the time they came, the engine must start the next planned one, which the executor did write
+    then.  Before the last one's bytes, the engine's source may change its plan again and
+    ``before_last`` runs what waited for the burst to stop.  The last one's bytes are fed at
+    ``now``, as the ordinary path feeds bytes when it reads them: what the engine starts then is
+    written now, and its deadline must count from now (the loop may have been slow to come back).
+    ``decode`` undoes the port's parity marks (see ``transports.tty_port.ParityMarks``).
+    """
+    _status, _errno, records = result
+    last = len(records) - 1
+    out = None
+    in_step = True
+    for i, (data, _first, at) in enumerate(records):
+        if i == last:
+            engine.burst_over()
+            before_last()
+        if decode is not None and data:
+            data, errors = decode(data)
+            if errors:
+                engine.line_error(errors)
+        if data:
+            out = engine.receive(data, at if i < last else max(at, now))
+        if in_step and i < last and out != plan[i + 1][0]:
+            if out is not None:
+                raise BurstDiverged(
+                    f"burst transaction {i + 1}: the engine wants {out!r}, the burst sent {plan[i + 1][0]!r}"
+                )
+            # The engine failed this transaction for what its reply said (echo and length were
+            # right, so the executor ran on): the burst's later commands are on the line already.
+            # Their bytes reach the engine as what they are to it now, bytes of no transaction:
+            # strays that keep its resync waiting for quiet.  None is taken for a reply.
+            log.debug("burst ran %d transaction(s) past a reply the engine refused", last - i)
+            in_step = False
+    return out
+
+
+class BurstRunner:
+    """The burst path of one open port: plans, the executor, what waits for a burst to stop.
+
+    Driver-neutral: a driver asks :meth:`start` after the engine put a transaction on the wire
+    (instead of writing it), waits for ``done_fd`` to turn readable, then calls :meth:`finish`.
+    """
+
+    def __init__(
+        self,
+        engine: LineEngine,
+        executor: Any,
+        decode: Callable[[bytes], tuple[bytes, int]] | None,
+        pending: Callable[[], bool] = lambda: False,
+    ) -> None:
+        self.engine = engine
+        self.executor = executor  # an ics35_async._burst.Burst (tests: the same contract on a simulated wire)
+        self.decode = decode
+        self._pending = pending  # the port holds half a parity mark: the ordinary read must finish it
+        self.plan: list[PlannedTransaction] | None = None
+        self.held: list[Callable[[float], object]] = []
+        self.status = DONE
+        self.errno = 0
+        self.bursts = 0
+        self.transactions = 0
+
+    @property
+    def done_fd(self) -> int:
+        fd: int = self.executor.done_fd
+        return fd
+
+    @property
+    def running(self) -> bool:
+        return self.plan is not None
+
+    def start(self) -> bool:
+        """Run a burst from the transaction the engine just put on the wire (the executor writes it);
+        False: write it the ordinary way."""
+        if self._pending():
+            return False
+        planned = self.engine.plan_burst()
+        if planned is None:
+            return False
+        deadline, plan = planned
+        if len(plan) < MIN_PLAN:
+            self.engine.burst_over()
+            return False
+        self.executor.start(deadline, plan)
+        self.plan = plan
+        self.bursts += 1
+        return True
+
+    def hold(self, step: Callable[[float], object], *, wake: bool = True) -> None:
+        """Run ``step(now)`` on the engine where the burst stops; ``wake``: stop it at its next boundary."""
+        self.held.append(step)
+        if wake:
+            self.executor.wake()
+
+    def submit(self, request: Request, now: float) -> None:
+        """A request arrived during the burst: it joins the queue where the burst stops, which is the
+        next boundary if the sharing rule gives it the line there."""
+        engine = self.engine
+        self.hold(lambda t: engine.submit(request, t), wake=engine.would_take(request, now))
+
+    def wake(self) -> None:
+        self.executor.wake()
+
+    def finish(self, now: Callable[[], float], *, wait: bool = False) -> tuple[bool, bytes | None]:
+        """After ``done_fd`` turned readable: (False, None) if the burst still runs; else feed it to the
+        engine and return (True, what to write next).  ``status``/``errno`` say why it stopped.
+
+        ``wait``: stop it at its next boundary and block until it has (at most one transaction).
+        """
+        if wait:
+            self.executor.wake()
+            result: Result | None = self.executor.wait()
+        else:
+            result = self.executor.result()
+        if result is None:
+            return False, None
+        plan, self.plan = self.plan, None
+        assert plan is not None
+        self.status, self.errno = result[0], result[1]
+        self.transactions += len(result[2])
+
+        t = now()
+
+        def run_held() -> None:
+            held, self.held = self.held, []
+            for step in held:
+                step(t)
+
+        return True, feed(self.engine, plan, result, self.decode, run_held, t)
+
+    def close(self) -> None:
+        """Stop the executor's thread (waiting for a running burst to end: at most one transaction)."""
+        if self.plan is not None:
+            self.executor.wake()
+            self.executor.wait()
+            self.plan = None
+        self.executor.close()
+
+
+def open_runner(
+    engine: LineEngine, fd: int, decode: Callable[[bytes], tuple[bytes, int]] | None, pending: Callable[[], bool]
+) -> BurstRunner | None:
+    """The burst path for a port with descriptor ``fd`` (``decode``: it marks parity errors), or None
+    where it cannot run (see :func:`burst_path`)."""
+    if not burst_path()[0] or _burst is None:
+        return None
+    return BurstRunner(engine, _burst.Burst(fd, marks=decode is not None), decode, pending)

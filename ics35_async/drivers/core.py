@@ -1,0 +1,415 @@
+"""What every driver shares; each driver (asyncio, thread, anyio) adds only its own way of waiting.
+
+A driver moves bytes and time between one :class:`~ics35_async.engine.LineEngine`
+and one port from :func:`~ics35_async.transports.opening.open_port`.  The
+core holds the rest, once:
+
+* :meth:`DriverCore._step`: what came from the port (or that time passed)
+  fed to the engine, and :meth:`DriverCore._act`: the engine's answer acted
+  on (bytes written, the input flushed first when a resync ended);
+* :meth:`DriverCore._after`: the same for an engine call from the user's
+  side, with the driver's wait re-aimed when the deadline moved earlier;
+* lost-port handling, the reconnect schedule, idle waiters, the drain on
+  close, and the opening of a port in a worker thread;
+* :class:`CallerRequest`: one request type whose outcome reaches its caller
+  through a small callback (a future's setter, a hand-over to the loop's
+  thread, an event set).
+
+A driver subclasses :class:`DriverCore` and provides ``_watch``/``_unwatch``
+(start and stop waiting on a port), ``_rewait`` (end a wait that would
+outlast the engine's new deadline), ``_new_request`` (a request and what its caller awaits) and,
+where the engine runs on another thread than its callers, ``notify``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any, Protocol
+
+import anyio
+
+from ..engine import FlushInput, LineEngine, Output, Request, State
+from ..errors import IcsError
+from ..protocol import Command
+from ..transports.opening import Port, open_port
+from ..transports.wire_device import WireDevice
+from .burst import BurstRunner
+from .clock import now
+from .settings import LineSettings
+
+log = logging.getLogger("ics35_async")
+
+INF = math.inf
+LOST, CLOSED, DRAINING = State.LOST, State.CLOSED, State.DRAINING
+
+
+class Waiter(Protocol):
+    """What a caller waits on (an asyncio future, or an event's holder)."""
+
+    def done(self) -> bool:
+        """True once the caller has given up (or has its outcome)."""
+
+
+class CallerRequest(Request):
+    """A request whose outcome reaches its caller through ``deliver(request)``.
+
+    The outcome is stored first (``value`` or ``error``); ``deliver`` hands
+    it on once.  A request whose ``waiter`` is done (a cancelled future) is
+    abandoned: the engine skips it in the queue.
+    """
+
+    __slots__ = ("deliver", "waiter")
+
+    def __init__(
+        self,
+        command: Command[Any],
+        priority: int,
+        retries: int,
+        waiter: Waiter,
+        deliver: Callable[[CallerRequest], None],
+    ) -> None:
+        super().__init__(command, priority, retries)
+        self.waiter = waiter
+        self.deliver = deliver
+
+    def abandoned(self) -> bool:
+        return self.state != "queued" or self.waiter.done()
+
+    def resolve(self, value: Any) -> None:
+        if self.state == "queued":
+            self.state, self.value = "done", value
+            self.deliver(self)
+
+    def reject(self, error: IcsError) -> None:
+        if self.state == "queued":
+            self.state, self.error = "failed", error
+            self.deliver(self)
+
+
+def settle_future(request: CallerRequest) -> None:
+    """Hand ``request``'s outcome to its asyncio future (on the future's loop's thread)."""
+    future: Any = request.waiter
+    if not future.done():
+        if request.error is not None:
+            future.set_exception(request.error)
+        else:
+            future.set_result(request.value)
+
+
+class DriverCore:
+    """The shared half of a driver: see the module docstring."""
+
+    name = "core"
+    blocking_reads = False  # whether this driver reads a port without a descriptor itself
+
+    def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
+        self.engine = engine
+        self.target = port  # what the caller asked to open (the open port is ``port``)
+        self.settings = settings
+        self.port: Port | None = None
+        self._waiting_until = INF  # when the driver's current wait ends (it is re-aimed for earlier)
+        self._idle: list[anyio.Event] = []
+        # The burst path (see .burst), where the driver runs it: while a burst runs, the executor's
+        # thread has the port and the engine waits to be fed.
+        self.burst: BurstRunner | None = None
+        # Held around every engine call where the engine may run on two threads (the thread driver's
+        # lock); the other drivers run it on one and hold nothing.
+        self.lock: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
+
+    # ------------------------------------------------------------------ a driver's own part
+
+    def _watch(self, port: Port) -> None:
+        """Start waiting on ``port`` (it has just opened)."""
+        raise NotImplementedError
+
+    def _unwatch(self, port: Port) -> None:
+        """Stop waiting on ``port`` (it is about to close)."""
+
+    def _rewait(self) -> None:
+        """The engine's deadline moved earlier than the current wait's end: wait again."""
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` on the callers' event loop thread (here: now, the engine runs there)."""
+        callback()
+
+    def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
+        """A request for ``command``, and what its caller awaits."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ the engine's answers, in one place
+
+    def _step(self, port: Port, data: bytes, t: float) -> None:
+        """What came from ``port`` at ``t`` (``b""``: nothing): feed the engine and act on its answer."""
+        engine = self.engine
+        out: Output
+        if data:
+            if port.bad:  # bytes the kernel marked damaged: their transaction fails once complete
+                engine.line_error(port.bad)
+                port.bad = 0
+            out = engine.receive(data, t)
+        elif t >= engine.deadline:  # nothing more came by the deadline (read just now): judge it
+            out = engine.tick(t)
+        else:
+            out = None
+        if out is not None:
+            self._act(port, out)
+        if self._idle and engine.idle:
+            self._release_idle()
+
+    def _act(self, port: Port, out: bytes | FlushInput) -> None:
+        """Do what the engine answered: write its bytes, after dropping stale input if it asks."""
+        if isinstance(out, FlushInput):
+            port.discard_input()
+            if out.then is None:
+                return
+            out = out.then
+        if self.burst is not None and self._start_burst(self.burst):
+            return  # the executor writes it, and the rest of the plan
+        try:
+            if not port.write(out):
+                self._write_blocked(port)
+        except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
+            self._write_failed(port, exc)
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        """The engine just put a transaction on the wire: run it (and its plan) as a burst; False: write it."""
+        return False
+
+    def _stop_burst(self) -> None:
+        """Closing or reopening: a running burst stops at its next boundary and is fed to the engine."""
+
+    def _write_blocked(self, port: Port) -> None:
+        """Part of a write waits in the tty's ``pending``: wait for the port to take it."""
+
+    def _write_failed(self, port: Port, exc: Exception) -> None:
+        self._lose(port, exc)
+
+    def _after(self, out: Output) -> None:
+        """After an engine call from the user's side: act on the answer, re-aim the wait, wake idle waiters."""
+        port = self.port
+        if out is not None and port is not None:
+            self._act(port, out)
+        if self.engine.deadline < self._waiting_until:
+            self._rewait()
+        if self._idle and self.engine.idle:
+            self._release_idle()
+
+    # ------------------------------------------------------------------ the port coming and going
+
+    async def _open(self) -> Port:
+        """Open the port in a worker thread (closed again if the caller is cancelled meanwhile)."""
+        opened: list[Port] = []
+        abandoned: list[bool] = []
+        lock = threading.Lock()
+
+        def opening() -> Port:
+            port = open_port(
+                self.target,
+                self.engine.baudrate,
+                transport=self.settings.transport,
+                direction=self.settings.direction,
+                blocking_reads=self.blocking_reads,
+            )
+            with lock:
+                if abandoned:  # the caller gave up while this thread was opening it
+                    port.close()
+                else:
+                    opened.append(port)
+            return port
+
+        try:
+            return await self._in_thread(opening)
+        except BaseException:
+            with lock:
+                abandoned.append(True)
+            for port in opened:
+                port.close()
+            raise
+
+    async def _in_thread(self, call: Callable[[], Port]) -> Port:
+        """Run a blocking ``call`` in a thread of its own, which ends with it.
+
+        Not the event loop library's worker threads: trio keeps an idle one alive for seconds,
+        so a program that opened a port would end with a thread still running.  Opening a port
+        takes milliseconds; the wait polls, doubling from 0.5 ms to 20 ms.  If the wait is
+        cancelled the thread runs on, and the caller closes the port it opens (see ``_open``).
+        """
+        opened: list[Port] = []
+        failed: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                opened.append(call())
+            except BaseException as exc:  # handed to the waiting task
+                failed.append(exc)
+
+        thread = threading.Thread(target=run, name=f"ics35 open {self.target}", daemon=True)
+        thread.start()
+        delay = 0.0005
+        while thread.is_alive():
+            await anyio.sleep(delay)
+            delay = min(delay * 2, 0.02)
+        if failed:
+            raise failed[0]
+        return opened[0]
+
+    def _connected(self, port: Port) -> None:
+        """``port`` is open: wait on it, and tell the engine (which may have work at once).  Under the lock."""
+        self.port = port
+        log.info("opened %s at %d baud (%s driver)", self.target, self.engine.baudrate, self.name)
+        self._watch(port)
+        self._after(self.engine.connected(now()))
+
+    def _lose(self, port: Port, exc: Exception | None, *, reconnect: bool = True) -> bool:
+        """``port`` went away: close it, tell the engine; True if it is to be reopened."""
+        if port is not self.port:
+            return False  # already replaced (or closed on purpose)
+        self.port = None
+        self._unwatch(port)
+        port.close()
+        engine = self.engine
+        reason = f"port {self.target} lost: {exc}" if exc else f"port {self.target} closed"
+        if engine.state not in (CLOSED, DRAINING):
+            log.warning("%s", reason)
+        engine.lost(reason, reconnect=reconnect and self.settings.reconnect)
+        self._release_idle()
+        return engine.state is LOST
+
+    async def reopen(self, baudrate: int) -> None:
+        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        self._stop_burst()
+        self.engine.disconnected()
+        self._drop_port()
+        self.engine.baudrate = baudrate
+        self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+
+    def _drop_port(self) -> None:
+        """Stop waiting on the port and close it (a reopen, or the bus closing)."""
+        port, self.port = self.port, None
+        if port is not None:
+            self._unwatch(port)
+            port.close()
+
+    def _backoff(self) -> Iterator[tuple[int, float]]:
+        """The reconnect schedule: (attempt, seconds to wait before it), for ever."""
+        backoff = self.settings.reconnect_backoff
+        for attempt in itertools.count():
+            yield attempt + 1, backoff[min(attempt, len(backoff) - 1)]
+
+    async def _reconnect(self) -> None:
+        """Reopen a lost port on the reconnect schedule, until it opens or the line closes."""
+        for attempt, delay in self._backoff():
+            await anyio.sleep(delay)
+            if self.engine.state is not LOST:
+                return
+            try:
+                port = await self._open()
+            except (OSError, IcsError) as exc:
+                log.debug("reconnect %d to %s failed: %s", attempt, self.target, exc)
+                continue
+            with self.lock:
+                if self.engine.state is not LOST:  # closed meanwhile
+                    port.close()
+                    return
+                self.engine.counters.reconnects += 1
+                self._connected(port)
+            log.info("reconnected to %s after %d attempt(s)", self.target, attempt)
+            return
+
+    # ------------------------------------------------------------------ the user's side
+
+    def submit(self, command: Command[Any], priority: int, retries: int) -> Any:
+        """Queue ``command``; returns what the caller awaits for its outcome."""
+        request, awaited = self._new_request(command, priority, retries)
+        with self.lock:
+            burst = self.burst
+            if burst is not None and burst.running:
+                burst.submit(request, now())  # it joins the queue where the burst stops
+            else:
+                self._after(self.engine.submit(request, now()))
+        return awaited
+
+    def call(self, step: Callable[[float], Output]) -> None:
+        """Run an engine call (given the time) and act on what it answers."""
+        with self.lock:
+            burst = self.burst
+            if burst is not None and burst.running:
+                burst.hold(step)  # where the burst stops (mid-transaction then: nothing to write)
+            else:
+                self._after(step(now()))
+
+    # ------------------------------------------------------------------ waiting for quiet; closing
+
+    def _idle_now(self) -> bool:
+        return self.engine.idle or self.port is None
+
+    async def wait_idle(self) -> None:
+        """Return once nothing is on the wire, resyncing or queued (or the port is gone)."""
+        while True:
+            with self.lock:
+                if self._idle_now():
+                    return
+                event = anyio.Event()
+                self._idle.append(event)
+            await event.wait()
+
+    def _release_idle(self) -> None:
+        waiters, self._idle = self._idle, []
+        for event in waiters:
+            self.notify(event.set)
+
+    async def _drain(self) -> None:
+        """Close the engine; let a transaction on the wire finish (bounded); then abort what is left."""
+        engine = self.engine
+        self._stop_burst()  # the engine hears the burst's bytes first (one transaction at most)
+        with self.lock:
+            engine.close()
+            draining = engine.state is DRAINING
+        try:
+            if draining:
+                with anyio.move_on_after(engine.drain_bound):
+                    await self.wait_idle()
+        finally:
+            with self.lock:
+                engine.abort()
+                self._release_idle()
+
+
+class LoopDriver(DriverCore):
+    """A driver whose callers run on an asyncio loop: ports open in the loop's own executor (kept for
+    its lifetime), and a supervisor task on the loop reopens a lost port."""
+
+    def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
+        super().__init__(engine, port, settings)
+        self.loop = asyncio.get_running_loop()
+        self._lost = asyncio.Event()  # set (on the loop) when a lost port is to be reopened
+        self._supervisor: asyncio.Task[None] | None = None
+
+    async def _in_thread(self, call: Callable[[], Port]) -> Port:
+        return await self.loop.run_in_executor(None, call)
+
+    def _supervise(self) -> None:
+        self._supervisor = self.loop.create_task(self._supervisor_task(), name=f"ics35 bus {self.target}")
+
+    async def _supervisor_task(self) -> None:
+        while True:
+            await self._lost.wait()
+            self._lost.clear()
+            await self._before_reconnect()
+            await self._reconnect()
+
+    async def _before_reconnect(self) -> None:
+        """Anything to end before the port is reopened."""
+
+    async def _end_supervisor(self) -> None:
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._supervisor
+            self._supervisor = None

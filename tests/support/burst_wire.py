@@ -1,0 +1,107 @@
+"""The burst path on the simulated wire: the compiled executor's contract in simulated time.
+
+:class:`SimExecutor` does on a :class:`~.engine_support.Wire` what ``ics35_async._burst`` does on
+a real port (write each planned command, take the bytes that arrive until its expected count or
+its deadline, stop at a late, short, overlong or wrongly echoed transaction, or at a boundary once
+woken); :class:`BurstWire` is the Wire with the library's own :class:`BurstRunner` between the
+engine and the wire, so the same scenario can be run with and without bursts and compared.
+"""
+
+from __future__ import annotations
+
+from ics35_async.drivers.burst import DONE, LATE, MISMATCH, OVERRUN, WOKEN, BurstRunner, Record, Result
+from ics35_async.engine import LineEngine, Request
+from ics35_async.engine.machine import PlannedTransaction
+
+from .engine_support import Answer, Wire
+
+
+class SimExecutor:
+    """``ics35_async._burst.Burst``'s contract on a simulated wire (run by :class:`BurstWire`)."""
+
+    done_fd = -1
+
+    def __init__(self, wire: Wire) -> None:
+        self.wire = wire
+        self.woken = False
+        self.plan: tuple[float, list[PlannedTransaction]] | None = None
+        self._result: Result | None = None
+        self.runs = 0
+
+    def start(self, deadline: float, plan: list[PlannedTransaction]) -> None:
+        self.woken = False
+        self.plan = (deadline, plan)
+        self._result = None
+
+    def wake(self) -> None:
+        self.woken = True
+
+    def result(self) -> Result | None:
+        result, self._result = self._result, None
+        return result
+
+    def run(self) -> None:
+        assert self.plan is not None
+        wire = self.wire
+        deadline, plan = self.plan
+        self.runs += 1
+        records: list[Record] = []
+        t_start = 0.0
+        status = DONE
+        for i, (tx, expect, echo, allowance) in enumerate(plan):
+            if i:
+                if self.woken:
+                    status = WOKEN
+                    break
+                deadline = t_start + allowance
+            Wire.emit(wire, tx)  # the servos hear it (the base class's write: no burst inside a burst)
+            buf = bytearray()
+            first = last = 0.0
+            stop = DONE
+            while len(buf) < expect:
+                got = wire.next_arrival(min(deadline, wire.end))
+                if got is None:  # late (or the simulated run ends here: fed as far as it came)
+                    stop = LATE
+                    break
+                data = got[0]
+                before = len(buf)
+                if not buf:
+                    first = wire.now
+                last = wire.now
+                buf += data
+                end = min(echo, len(buf))
+                if before < end and buf[before:end] != tx[before:end]:
+                    stop = MISMATCH
+                    break
+                if len(buf) > expect:
+                    stop = OVERRUN
+                    break
+            records.append((bytes(buf), first, last))
+            if stop != DONE:
+                status = stop
+                break
+            t_start = last
+        self._result = (status, 0, records)
+
+
+class BurstWire(Wire):
+    """A :class:`Wire` whose driver takes the burst path: every transaction of the engine's source that
+    a burst can run, the simulated executor runs and :class:`BurstRunner` feeds back."""
+
+    def __init__(self, engine: LineEngine, answer: Answer | None = None) -> None:
+        super().__init__(engine, answer)
+        self.executor = SimExecutor(self)
+        self.runner = BurstRunner(engine, self.executor, None)
+
+    def emit(self, out: bytes | None) -> bytes | None:
+        runner = self.runner
+        while out is not None and self.now < self.end and not runner.running and runner.start():
+            self.executor.run()
+            _, out = runner.finish(lambda: self.now)
+        return super().emit(out)
+
+    def submit(self, request: Request) -> bytes | None:
+        if self.runner.running:
+            self.runner.submit(request, self.now)
+            return None
+        return super().submit(request)

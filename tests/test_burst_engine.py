@@ -1,0 +1,232 @@
+"""The burst path, engine side, in simulated time: the same line with and without bursts, compared.
+
+A burst runs the stream's next transactions away from the engine and feeds their bytes back
+afterwards (ics35_async.drivers.burst).  The engine keeps every rule, so on the same wire, with
+the same servos, faults and requests at the same times, every write (its bytes and its time), every
+outcome and every counter must be the same as on the ordinary path.  tests/support/burst_wire.py
+plays the compiled executor's part on the simulated wire; the executor itself is tested on a pty in
+tests/test_burst_executor.py.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+import pytest
+
+from ics35_async import protocol
+from ics35_async.engine import LineEngine, Priority
+from ics35_async.protocol import Position
+from ics35_async.stream import Stream
+
+from .support.burst_wire import BurstWire
+from .support.engine_support import TURNAROUND, FakeSource, Recorded, Servos, Wire, read, ready_engine
+from .support.paced_line import BAUD as PACED_BAUD
+from .support.paced_line import PERIOD, PacedCycle
+
+IDS = list(range(1, 9))
+
+
+def summary(wire: Wire, requests: list[Recorded]) -> dict[str, Any]:
+    """Everything the line did, in values that compare exactly."""
+    engine = wire.engine
+    stats = engine.counters.snapshot(len(engine.queue.waiting()))
+    return {
+        "writes": wire.writes,
+        "delivered": wire.delivered,
+        "requests": [(r.state, r.value, type(r.error).__name__, r.write_index) for r in requests],
+        "per_id": stats.per_id,
+        "resyncs": stats.resyncs,
+        "stray": stats.stray_bytes,
+        "guards": stats.guards,
+        "latency": (stats.latency.counts, stats.latency.sum_s),
+        "held_back": engine.counters.held_back,
+        "state": engine.state,
+    }
+
+
+class SlowAtTimes(Servos):
+    """Servos that now and then answer late (2-12 ms beyond the usual turnaround): the stream's
+    wait, learnt from the answers, moves up and down while bursts run."""
+
+    def __init__(self, ids: list[int], baudrate: int, seed: int) -> None:
+        super().__init__(ids, baudrate=baudrate)
+        self.rng = random.Random(seed)
+
+    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
+        self.turnaround = self.rng.uniform(0.002, 0.012) if self.rng.random() < 0.02 else TURNAROUND
+        super().deliver(wire, tx, reply)
+
+
+def run_line(
+    wire_class: type[Wire],
+    *,
+    seed: int,
+    mute_every: int = 0,
+    paced: bool = False,
+    requests: int = 40,
+    duration: float = 0.5,
+) -> tuple[dict[str, Any], Wire]:
+    """A stream over 8 servos with ``requests`` reads and position commands at random times."""
+    rng = random.Random(seed)
+    engine = ready_engine(baudrate=PACED_BAUD) if paced else ready_engine()
+    servos = SlowAtTimes(IDS, engine.baudrate, seed)
+    if mute_every:
+        servos.mute = {k for k in range(5, 100_000) if k % mute_every == 0}
+    wire = wire_class(engine, servos)
+    source: Any = PacedCycle(IDS, PERIOD) if paced else FakeSource(IDS)
+    wire.emit(engine.attach_source(source, wire.now))
+    recorded = []
+    for _ in range(requests):
+        sid = rng.choice([*IDS, 20])  # ID 20 is not on the line: its requests time out
+        command = read(sid) if rng.random() < 0.7 else Position(sid, 7500, baudrate=engine.baudrate)
+        priority = rng.choice([Priority.URGENT, Priority.HIGH, Priority.NORMAL, Priority.LOW])
+        request = Recorded(command, priority, retries=rng.choice([0, 1]), wire=wire)
+        recorded.append(request)
+        wire.at(rng.uniform(0, duration * 0.8), lambda request=request: wire.submit(request))
+    wire.run_for(duration)
+    return summary(wire, recorded), wire
+
+
+@pytest.mark.parametrize("paced", [False, True], ids=["unpaced", "paced"])
+@pytest.mark.parametrize("mute_every", [0, 61], ids=["healthy", "faults"])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_burst_line_does_exactly_what_the_ordinary_line_does(paced: bool, mute_every: int, seed: int) -> None:
+    plain, _ = run_line(Wire, seed=seed, mute_every=mute_every, paced=paced)
+    burst, wire = run_line(BurstWire, seed=seed, mute_every=mute_every, paced=paced)
+    assert isinstance(wire, BurstWire)
+    # Bursts ran (after a fault the ordinary path runs until a late reply can no longer come).
+    assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every else 3)
+    assert burst["requests"] == plain["requests"]
+    assert burst["writes"] == plain["writes"]
+    assert burst == plain
+
+
+def test_a_request_arriving_mid_burst_takes_the_next_boundary_beside_an_unpaced_stream() -> None:
+    engine = ready_engine()
+    wire = BurstWire(engine, Servos(IDS))
+    wire.emit(engine.attach_source(FakeSource(IDS), wire.now))
+    request = Recorded(read(3), wire=wire)
+    wire.at(0.0101, lambda: wire.submit(request))
+    wire.run_for(0.02)
+    assert request.state == "done"
+    k = request.write_index
+    submitted_in = max(i for i, (t, _) in enumerate(wire.writes) if t <= 0.0101)
+    assert k == submitted_in + 1  # the transaction after the one on the wire when it came
+    assert wire.executor.runs > 2
+
+
+def test_beside_a_paced_stream_a_normal_request_waits_for_the_slack_and_an_urgent_one_does_not() -> None:
+    engine = ready_engine(baudrate=PACED_BAUD)
+    wire = BurstWire(engine, Servos(IDS, baudrate=PACED_BAUD))
+    source = PacedCycle(IDS, PERIOD)
+    wire.emit(engine.attach_source(source, wire.now))
+    normal = Recorded(read(2), wire=wire)
+    urgent = Recorded(read(3), Priority.URGENT, wire=wire)
+    t = 0.0001  # inside the first cycle (8 transactions of 52.8 us each)
+    wire.at(t, lambda: wire.submit(normal))
+    wire.at(t, lambda: wire.submit(urgent))
+    wire.run_for(0.03)
+    cycle_end = 8  # writes 0..7: the first cycle, unless something goes between them
+    assert urgent.write_index < cycle_end  # at the first boundary after it came
+    assert normal.write_index == cycle_end + 1  # after the whole cycle (with the urgent one in it)
+
+
+def test_the_burst_stops_at_the_first_fault_and_the_engine_judges_it() -> None:
+    engine = ready_engine()
+    servos = Servos(IDS)
+    servos.mute = {4}
+    wire = BurstWire(engine, servos)
+    source = FakeSource(IDS)
+    wire.emit(engine.attach_source(source, wire.now))
+    wire.run_for(0.05)
+    assert len(source.failures) == 1 and type(source.failures[0]).__name__ == "ReplyTimeout"
+    assert engine.counters.resyncs == 1
+
+
+def test_no_plan_while_a_reply_is_owed_or_the_link_is_slow() -> None:
+    engine: LineEngine = ready_engine()
+    wire = Wire(engine, Servos(IDS))
+    engine.link.extra = 0.002
+    wire.emit(engine.attach_source(FakeSource(IDS), wire.now))
+    assert engine.plan_burst() is None
+    engine.link.extra = 0.0
+    planned = engine.plan_burst()
+    assert planned is not None and len(planned[1]) == len(IDS)
+    engine.burst_over()
+
+
+class GarbledOnce(Servos):
+    """Servos whose answer to one write has a data byte with its top bit set (the echo and the
+    length right, no parity error): only the engine's check of the reply can tell."""
+
+    def __init__(self, ids: list[int], garbled: int) -> None:
+        super().__init__(ids)
+        self.garbled = garbled
+
+    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
+        if len(self.answers) - 1 == self.garbled:
+            reply = reply[:1] + bytes((reply[1] | 0x80,)) + reply[2:]
+        super().deliver(wire, tx, reply)
+
+
+def test_a_reply_only_the_engine_refuses_stops_nothing_but_nothing_after_it_is_taken() -> None:
+    engine = ready_engine()
+    servos = GarbledOnce(IDS, garbled=20)
+    wire = BurstWire(engine, servos)
+    source = FakeSource(IDS)
+    wire.emit(engine.attach_source(source, wire.now))
+    wire.run_for(0.001)
+    warm = len(wire.writes)
+    wire.run_for(0.2)
+    assert warm < 20 < len(wire.writes) - 10 and wire.runner.bursts > 2
+    assert [type(f).__name__ for f in source.failures] == ["ReplyDataError"]
+    # The burst ran on past it: those replies arrived as strays, and no value was taken from them.
+    assert engine.counters.stray > 0
+    write_of = {value: k for k, value in enumerate(servos.answers) if value is not None}
+    for sid, value in source.values:  # every value taken is the answer to its own servo's command
+        assert wire.writes[write_of[value]][1][0] & 0x1F == sid
+    taken = {write_of[value] for _, value in source.values}
+    assert 21 not in taken and 22 not in taken  # the burst ran on past it: none of those was taken
+    assert max(taken) > 40  # and the stream carries on
+
+
+class QuietLine:
+    """Just enough of a line for a stream's hooks to be called by hand."""
+
+    baudrate = 115200
+    echo = True
+
+    def __init__(self) -> None:
+        self.kicks = 0
+
+    def kick(self) -> None:
+        self.kicks += 1
+
+    def notify(self, callback: Any) -> None:
+        callback()
+
+
+def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_the_stop() -> None:
+    line = QuietLine()
+    stream = Stream(line, [1, 2, 3])  # type: ignore[arg-type]
+    stream._running = True
+    hooks = stream._hooks
+    assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
+    assert hooks.upcoming(10) == [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in (2, 3)]
+    stream.set_target(2, 8000)  # planned: the burst sends the old command; the stream asks it to stop
+    assert line.kicks == 1 and stream.target(2) == 8000
+    stream.set_target(1, 9000)  # on the wire already, not planned: next cycle's command, no stop needed
+    assert line.kicks == 1
+    stream.watch([3])
+    assert line.kicks == 2
+    reply = bytearray(protocol.position_tx(1, protocol.FREE) + bytes((1, 58, 76)))
+    assert hooks.complete(reply, 3, 0.001) is None
+    assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)  # as planned
+    hooks.upcoming_done()
+    reply = bytearray(protocol.position_tx(2, protocol.FREE) + bytes((2, 58, 76)))
+    assert hooks.complete(reply, 3, 0.002) is None  # read as the command that was sent
+    job = hooks.next_transaction(0.002)
+    assert job == (protocol.ReadPosition(3).tx, protocol.ReadPosition(3).reply_len, 3)  # the change applies now
+    assert stream._jobs[1] == (protocol.position_tx(2, 8000), 3, 2)

@@ -1,0 +1,231 @@
+"""The compiled burst executor (ics35_async._burst) on a real pty, against a responder thread.
+
+The executor only moves bytes and notes times; what it must get right is where it stops: at the
+end of the plan, at a late transaction, at an echo that differs from what was sent, at more bytes
+than expected, at a 0xFF while the port marks parity errors, at a boundary once woken, on a
+hang-up.  The engine's side (what it plans and how it judges the bytes) is in
+tests/test_burst_engine.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import sys
+import termios
+import threading
+import time
+import tty
+from collections.abc import Callable, Iterator
+
+import pytest
+import serial
+
+from benchmarks.lean_responder import lean_lines
+from ics35_async import protocol
+from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRUN, WOKEN, burst_path
+from ics35_async.transports.tty_port import ParityMarks, enable_parity_marks
+
+_burst = pytest.importorskip("ics35_async._burst", reason="the executor is not built (no C compiler?)")
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs a pty")
+
+ALLOWANCE = 0.05  # a thread on a loaded machine answers within this, or the test says which was late
+Reply = Callable[[int, bytes], bytes | None]  # (index of the command, its bytes) -> what goes back
+
+
+def answer(k: int, tx: bytes) -> bytes | None:
+    """A well-behaved servo: the echo, then the position reply."""
+    return tx + bytes((tx[0] & 0x7F, 7500 >> 7, 7500 & 0x7F))
+
+
+class Responder:
+    """The far end of a pty: reads 3-byte commands and answers each as ``reply`` says."""
+
+    def __init__(self, master: int, reply: Reply) -> None:
+        self.master = master
+        self.reply = reply
+        self.commands: list[bytes] = []
+        self._stop = False
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        pending = b""
+        while not self._stop:
+            try:
+                ready, _, _ = select.select([self.master], [], [], 0.05)
+                if not ready:
+                    continue
+                pending += os.read(self.master, 4096)
+            except (OSError, ValueError):  # closed: a hang-up the test made
+                return
+            while len(pending) >= 3:
+                tx, pending = pending[:3], pending[3:]
+                out = self.reply(len(self.commands), tx)
+                self.commands.append(tx)
+                if out:
+                    os.write(self.master, out)
+
+    def stop(self) -> None:
+        self._stop = True
+        self._thread.join()
+
+
+@pytest.fixture
+def pty_pair() -> Iterator[tuple[int, int]]:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    attrs = termios.tcgetattr(slave)
+    attrs[3] &= ~termios.ECHO
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+    os.set_blocking(slave, False)
+    yield master, slave
+    for fd in (master, slave):
+        with contextlib.suppress(OSError):
+            os.close(fd)
+
+
+def plan(n: int = 32, allowance: float = ALLOWANCE) -> list[tuple[bytes, int, int, float]]:
+    return [(protocol.position_tx(i % 32, 7500), 6, 3, allowance) for i in range(n)]
+
+
+def serve(master: int, reply: Reply = answer) -> Responder:
+    return Responder(master, reply)
+
+
+def test_the_path_reports_itself_built() -> None:
+    assert burst_path() == (True, burst_path()[1]) and "compiled" in burst_path()[1]
+
+
+def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    responder = serve(master)
+    burst = _burst.Burst(slave)
+    t0 = time.monotonic()
+    status, err, records = burst.run(t0 + ALLOWANCE, plan())
+    responder.stop()
+    assert (status, err) == (DONE, 0)
+    assert [data for data, _, _ in records] == [answer(k, tx) for k, (tx, *_) in enumerate(plan())]
+    times = [t for _, first, last in records for t in (first, last)]
+    assert times == sorted(times) and t0 < times[0] and times[-1] <= time.monotonic()
+    assert responder.commands == [tx for tx, *_ in plan()]  # one command at a time, each after its reply
+    burst.close()
+
+
+def test_it_stops_at_a_silent_servo_at_its_deadline(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    responder = serve(master, lambda k, tx: tx if k == 5 else answer(k, tx))  # ID 5 only echoes
+    burst = _burst.Burst(slave)
+    status, _, records = burst.run(time.monotonic() + ALLOWANCE, plan(allowance=0.02))
+    ended = time.monotonic()
+    responder.stop()
+    assert status == LATE and len(records) == 6
+    data = records[5][0]
+    assert data == plan()[5][0]  # its echo came; its reply did not
+    assert ended - records[4][2] >= 0.02  # it waited the whole allowance from the previous reply
+    assert len(responder.commands) == 6  # nothing was sent after it
+
+
+def test_it_stops_at_an_echo_that_differs(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    responder = serve(master, lambda k, tx: b"\x00" + answer(k, tx)[1:] if k == 3 else answer(k, tx))
+    status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, plan())
+    responder.stop()
+    assert status == MISMATCH and len(records) == 4
+    assert records[3][0].startswith(b"\x00")
+
+
+def test_it_stops_at_more_bytes_than_expected(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    responder = serve(master, lambda k, tx: answer(k, tx) + b"\x01\x02" if k == 2 else answer(k, tx))
+    status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, plan())
+    responder.stop()
+    assert status == OVERRUN and len(records) == 3 and len(records[2][0]) == 8
+
+
+def test_a_marked_byte_ends_the_burst_and_comes_as_it_came(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    assert enable_parity_marks(slave)  # a genuine 0xFF now arrives doubled: FF FF
+    reply = answer(0, protocol.position_tx(1, 7500))[:5] + b"\xff"
+    responder = serve(master, lambda k, tx: reply if k == 1 else answer(k, tx))
+    status, _, records = _burst.Burst(slave, marks=True).run(time.monotonic() + ALLOWANCE, plan())
+    responder.stop()
+    assert status == MARK and len(records) == 2
+    assert records[1][0].endswith(b"\xff\xff")
+    assert ParityMarks().decode(records[1][0]) == (reply, 0)  # the usual decoder reads it as the wire had it
+
+
+def test_a_wake_stops_it_at_the_next_boundary_and_other_threads_run_meanwhile() -> None:
+    # The far end in its own process, answering at the wire time of 9600 bit/s (7 ms a
+    # transaction): the burst lasts long enough to wake, and no thread of ours answers.
+    with lean_lines(1, baud=9600, wire=True) as (path,):
+        ser = serial.Serial(path, 9600, timeout=0)
+        os.set_blocking(ser.fileno(), False)
+        burst = _burst.Burst(ser.fileno())
+        counted = [0]
+        done = threading.Event()
+
+        def count() -> None:  # pure Python: it runs only while the burst has let go of the GIL
+            while not done.is_set():
+                counted[0] += 1
+
+        counter = threading.Thread(target=count)
+        counter.start()
+        burst.start(time.monotonic() + 0.5, plan(64, allowance=0.5))  # a loaded machine is no fault here
+        time.sleep(0.05)
+        progress = counted[0]
+        burst.wake()
+        status, _, records = burst.wait()
+        done.set()
+        counter.join()
+        burst.close()
+        ser.close()
+    assert status == WOKEN and 3 <= len(records) < 64
+    assert all(data == answer(k, tx) for k, ((data, _, _), (tx, *_)) in enumerate(zip(records, plan(64), strict=False)))
+    assert progress > 1000  # the counting thread ran while the burst did
+
+
+def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+    responder = serve(master)
+    burst = _burst.Burst(slave)
+    for _ in range(3):  # the executor's thread serves burst after burst
+        burst.start(time.monotonic() + ALLOWANCE, plan(8))
+        ready, _, _ = select.select([burst.done_fd], [], [], 2)
+        assert ready
+        result = burst.result()
+        assert result is not None and result[0] == DONE and len(result[2]) == 8
+    assert burst.result is not None
+    with pytest.raises(RuntimeError):
+        burst.result()  # nothing started
+    responder.stop()
+    burst.close()
+
+
+def test_a_hang_up_ends_the_burst(pty_pair: tuple[int, int]) -> None:
+    master, slave = pty_pair
+
+    def hang_up(k: int, tx: bytes) -> bytes | None:
+        if k == 2:
+            os.close(master)
+            return None
+        return answer(k, tx)
+
+    responder = serve(master, hang_up)
+    status, _, records = _burst.Burst(slave).run(time.monotonic() + 1.0, plan())
+    responder.stop()
+    assert status == HANGUP and len(records) == 3
+
+
+def test_bad_plans_are_refused_before_anything_is_written(pty_pair: tuple[int, int]) -> None:
+    _, slave = pty_pair
+    burst = _burst.Burst(slave)
+    for bad in ([], [(b"", 6, 3, 0.1)], [(b"\x80\x00\x00", 6, 7, 0.1)], [("text", 6, 3, 0.1)], [(b"\x80", 1)]):
+        with pytest.raises((ValueError, TypeError)):
+            burst.run(time.monotonic() + 1, bad)
+    with pytest.raises(ValueError):
+        _burst.Burst(-1)
+    burst.close()
+    with pytest.raises(ValueError):
+        burst.run(time.monotonic() + 1, plan(1))

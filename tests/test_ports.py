@@ -1,0 +1,560 @@
+"""The port layer: open_port and its three kinds of port, on real ptys and a small fake far end.
+
+The pty tests play the device on the master side from the test itself (no
+timing games): what the host writes is read from the master, and replies
+are written to it, piece by piece when the test needs split chunks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import os
+import socket
+import termios
+import threading
+import time
+import tty
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import serial
+
+from ics35_async import transports as transport
+from ics35_async.errors import InvalidArgument
+from ics35_async.transports import (
+    DevicePort,
+    HostSide,
+    ParityNotSupported,
+    Port,
+    PortBusy,
+    PortNotFound,
+    PortPermissionDenied,
+    SerialPort,
+    SerialPortError,
+    TtyPort,
+    WireDevice,
+    adapter_advice,
+    open_port,
+    register_url_scheme,
+)
+
+WAIT = 5.0  # generous: only ever reached when something is broken
+
+
+def read_until(port: Port, n: int) -> bytes:
+    """Read from ``port`` until ``n`` bytes in all have come (a port never waits: poll it)."""
+    data = b""
+    deadline = time.monotonic() + WAIT
+    while len(data) < n:
+        assert time.monotonic() < deadline, data
+        data += port.read()
+        time.sleep(0.001)
+    return data
+
+
+class Pty:
+    """A pty pair; the test plays the device on ``master``."""
+
+    def __init__(self) -> None:
+        self.master, slave = os.openpty()
+        self.port = os.ttyname(slave)
+        os.close(slave)  # the host opens it by name
+        os.set_blocking(self.master, False)
+
+    def read(self, n: int) -> bytes:
+        """Read exactly ``n`` bytes the host wrote."""
+        buf = b""
+        deadline = time.monotonic() + WAIT
+        while len(buf) < n:
+            assert time.monotonic() < deadline, buf
+            with contextlib.suppress(BlockingIOError):
+                buf += os.read(self.master, n - len(buf))
+            time.sleep(0.001)
+        return buf
+
+    def write(self, data: bytes) -> None:
+        assert os.write(self.master, data) == len(data)
+
+    def close(self) -> None:
+        if self.master >= 0:
+            os.close(self.master)
+            self.master = -1
+
+
+@pytest.fixture
+def pty() -> Iterator[Pty]:
+    p = Pty()
+    yield p
+    p.close()
+
+
+def open_at(port: Any, **kwargs: Any) -> Port:
+    return open_port(port, kwargs.pop("baudrate", 115200), **kwargs)
+
+
+# --------------------------------------------------------------------------- a tty with a descriptor
+
+
+@pytest.mark.parametrize("kind", ["auto", "direct"])
+def test_pty_round_trip(pty: Pty, kind: str) -> None:
+    port = open_at(pty.port, transport=kind)
+    assert isinstance(port, TtyPort)
+    try:
+        for command in [b"\x80\x3a\x4c", b"\xa5\x01", bytes(range(255))]:
+            assert port.write(command)
+            assert pty.read(len(command)) == command
+            reply = bytes(b ^ 0x55 for b in command)
+            pty.write(command + reply)  # echo, then the reply
+            assert read_until(port, 2 * len(command)) == command + reply
+    finally:
+        port.close()
+
+
+def test_pty_split_chunks_arrive_in_order(pty: Pty) -> None:
+    port = open_at(pty.port)
+    try:
+        sent = b""
+        got = b""
+        for piece in [b"\x80\x3a\x4c", b"\x00", b"\x3a", b"\x4c"]:  # echo, then the reply byte by byte
+            pty.write(piece)
+            sent += piece
+            got += read_until(port, len(piece))
+            assert got == sent  # each piece lands before the next is written
+    finally:
+        port.close()
+
+
+def test_pty_parity_dropped_is_handled_at_debug(pty: Pty, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG, logger="ics35_async.transports")
+    port = open_at(pty.port)
+    assert isinstance(port, TtyPort)
+    try:
+        assert port.serial.parity == serial.PARITY_NONE
+        assert not termios.tcgetattr(port.fd)[2] & termios.PARENB
+        assert any("pty" in r.getMessage() and r.levelno == logging.DEBUG for r in caplog.records)
+        assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+        port.serial.timeout = 0  # re-configuring works (it failed with EINVAL once)
+    finally:
+        port.close()
+
+
+def test_pty_already_raw_at_our_speed_still_opens(pty: Pty) -> None:
+    # A slave already raw at 115200 makes pyserial's opening tcsetattr ask for
+    # PARENB alone, which a pty refuses with EINVAL at open time.
+    serial.serial_for_url(pty.port, baudrate=115200, parity=serial.PARITY_NONE).close()
+    with pytest.raises(termios.error):
+        serial.serial_for_url(pty.port, baudrate=115200, parity=serial.PARITY_EVEN).close()
+    port = open_at(pty.port)
+    try:
+        port.write(b"\x01")
+        assert pty.read(1) == b"\x01"
+    finally:
+        port.close()
+
+
+def test_parity_drop_on_a_non_pty_is_an_error(pty: Pty, monkeypatch: pytest.MonkeyPatch) -> None:
+    # No real non-pty driver that drops PARENB is at hand, so a pty stands in
+    # for one: only the pty detection is overridden.
+    from ics35_async.transports import serial_port
+
+    monkeypatch.setattr(serial_port, "is_pty", lambda fd: False)
+    monkeypatch.setattr(serial_port, "_is_pty_path", lambda path: False)
+    with pytest.raises(ParityNotSupported, match="EVEN parity"):
+        open_at(pty.port)
+    monkeypatch.undo()
+    open_at(pty.port).close()  # the port was released: a normal open works again
+
+
+def test_pty_detection() -> None:
+    from ics35_async.transports.serial_port import is_pty
+
+    master, slave = os.openpty()
+    read_end, write_end = os.pipe()
+    try:
+        assert is_pty(slave)
+        assert not is_pty(read_end)
+        with open(os.devnull, "rb") as null:
+            assert not is_pty(null.fileno())
+    finally:
+        for fd in (master, slave, read_end, write_end):
+            os.close(fd)
+
+
+def test_pty_master_closed_is_a_hangup(pty: Pty) -> None:
+    port = open_at(pty.port)
+    try:
+        port.write(b"\x80")
+        pty.read(1)
+        pty.close()
+        with pytest.raises(OSError, match="hung up"):
+            read_until(port, 1)
+    finally:
+        port.close()
+
+
+def test_input_flushed_between_readiness_and_read_is_not_a_hangup(pty: Pty) -> None:
+    """The resync's flush can empty the input after the driver saw it readable and before it reads.
+
+    A raw tty (VMIN=0) then reads 0 bytes, which is not the device going away.
+    """
+    port = open_at(pty.port)
+    try:
+        pty.write(b"\x55\xaa")
+        time.sleep(0.05)  # the bytes wait in the input queue
+        port.discard_input()  # what a driver does when a resync ends
+        assert port.read() == b""  # the read that was already due: nothing, and no hangup
+        pty.write(b"\x01")
+        assert read_until(port, 1) == b"\x01"
+    finally:
+        port.close()
+
+
+def test_discard_input_drops_pending_bytes(pty: Pty) -> None:
+    port = open_at(pty.port)
+    assert isinstance(port, TtyPort)
+    try:
+        pty.write(b"late bytes of a failed transaction")
+        deadline = time.monotonic() + WAIT
+        while port.serial.in_waiting == 0:
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+        port.discard_input()
+        assert port.serial.in_waiting == 0
+        pty.write(b"fresh")
+        assert read_until(port, 5) == b"fresh"
+    finally:
+        port.close()
+
+
+def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains(pty: Pty) -> None:
+    port = open_at(pty.port)
+    assert isinstance(port, TtyPort)
+    try:
+        tty.setraw(port.fd)
+        filled = 0
+        for size in (4096, 1):  # nobody reads the far end: fill the pty until it takes not one byte more
+            with contextlib.suppress(BlockingIOError):
+                while True:
+                    filled += os.write(port.fd, b"x" * size)
+        assert port.write(b"\x81\x3a\x4c") is False  # the rest waits for room
+        assert port.write_pending() is False  # still nowhere to put it
+        expected = b"x" * filled + b"\x81\x3a\x4c"
+        drained = b""
+        deadline = time.monotonic() + WAIT
+        while len(drained) < len(expected) and time.monotonic() < deadline:
+            port.write_pending()  # room again: what was left goes out
+            with contextlib.suppress(BlockingIOError):
+                drained += os.read(pty.master, 65536)
+        assert drained == expected  # everything, once, in order
+        assert port.write_pending() is True
+    finally:
+        port.close()
+
+
+def test_same_port_twice_is_busy(pty: Pty) -> None:
+    port = open_at(pty.port)
+    try:
+        with pytest.raises(PortBusy, match="in use"):
+            open_at(pty.port)
+    finally:
+        port.close()
+
+
+def test_missing_port_is_a_clear_error() -> None:
+    with pytest.raises(PortNotFound, match="no serial port at '/dev/ttyUSB-nonexistent'") as info:
+        open_at("/dev/ttyUSB-nonexistent")
+    assert isinstance(info.value, FileNotFoundError) and info.value.errno == errno.ENOENT
+
+
+def test_not_a_tty_is_a_clear_error() -> None:
+    with pytest.raises(SerialPortError, match="not a serial port"):
+        open_at(os.devnull)
+
+
+def _open_error_as(port: str) -> tuple[str, str]:
+    try:
+        open_at(port).close()
+    except Exception as exc:
+        return type(exc).__name__, str(exc)
+    return "no error", ""
+
+
+def test_permission_denied_mentions_dialout(pty: Pty) -> None:
+    if os.geteuid() != 0:
+        os.chmod(pty.port, 0)
+        name, message = _open_error_as(pty.port)
+    else:
+        # root opens anything: try as 'nobody' in a child process instead.
+        read_end, write_end = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - child
+            try:
+                os.close(read_end)
+                os.setgid(65534)
+                os.setuid(65534)
+                os.write(write_end, "\n".join(_open_error_as(pty.port)).encode())
+            finally:
+                os._exit(0)
+        os.close(write_end)
+        with os.fdopen(read_end, "rb") as pipe:
+            name, message = pipe.read().decode().split("\n", 1)
+        os.waitpid(pid, 0)
+    assert name == PortPermissionDenied.__name__
+    assert "dialout" in message and pty.port in message
+
+
+def test_bad_arguments_are_invalid_argument(pty: Pty) -> None:
+    with pytest.raises(InvalidArgument, match="transport"):
+        open_at(pty.port, transport="turbo")
+    with pytest.raises(InvalidArgument, match="baudrate"):
+        open_at(pty.port, baudrate=0)
+    with pytest.raises(InvalidArgument, match="port"):
+        open_at(42)
+    with pytest.raises(InvalidArgument):
+        open_at("nosuchscheme://x")
+    with pytest.raises(InvalidArgument, match="direct"):
+        open_at("loop://", transport="direct")
+    open_at(pty.port).close()  # none of these left the pty open
+
+
+def test_unmarks_ff_bytes_on_a_real_pty() -> None:
+    """The kernel doubles 0xFF once PARMRK is on: the host must still see one FF."""
+    master, slave = os.openpty()
+    try:
+        port = open_at(os.ttyname(slave))
+        try:
+            os.write(master, b"\xff\x00\x00\x00\xf4")
+            assert read_until(port, 5) == b"\xff\x00\x00\x00\xf4"
+            assert port.bad == 0
+        finally:
+            port.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+# --------------------------------------------------------------------------- pyserial ports without a descriptor
+
+
+def test_loop_url_behind_a_reader_thread() -> None:
+    port = open_at("loop://")
+    assert isinstance(port, DevicePort)  # no descriptor: a reader thread hands the bytes over
+    try:
+        port.write(b"\x80\x3a\x4c")
+        port.write(b"\x01\x02")
+        assert read_until(port, 5) == b"\x80\x3a\x4c\x01\x02"
+        port.discard_input()
+    finally:
+        port.close()
+
+
+def test_loop_url_read_with_blocking_reads() -> None:
+    port = open_at("loop://", blocking_reads=True)
+    assert isinstance(port, SerialPort)
+    try:
+        assert port.read() == b""  # a look, not a wait
+        port.write(b"\x80\x3a\x4c")
+        assert port.read(block=True) == b"\x80\x3a\x4c"
+    finally:
+        port.close()
+
+
+@pytest.mark.parametrize("blocking_reads", [False, True])
+def test_socket_url_round_trip_and_hangup(blocking_reads: bool) -> None:
+    async def scenario() -> None:
+        async def echo(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            while data := await reader.read(100):
+                writer.write(data + b"!")
+            writer.close()
+
+        server = await asyncio.start_server(echo, "127.0.0.1", 0, family=socket.AF_INET)
+        number = server.sockets[0].getsockname()[1]
+        async with server:
+            port = await asyncio.to_thread(open_at, f"socket://127.0.0.1:{number}", blocking_reads=blocking_reads)
+            try:
+                port.write(b"\x80\x3a\x4c")
+                assert await asyncio.to_thread(read_until, port, 4) == b"\x80\x3a\x4c!"
+            finally:
+                await asyncio.to_thread(port.close)
+
+    asyncio.run(scenario())
+
+
+# --------------------------------------------------------------------------- in-process devices
+
+
+class FakeDevice:
+    """A stand-in for the simulator: answers from write(), or from its own thread."""
+
+    def __init__(self, *, threaded: bool = False, refuse: bool = False) -> None:
+        self.threaded = threaded
+        self.refuse = refuse
+        self.host: HostSide | None = None
+        self.written: list[bytes] = []
+        self.disconnected = False
+        self.baudrate = 0
+
+    def connect(self, host: HostSide, baudrate: int) -> None:
+        if self.refuse:
+            raise OSError(errno.ENODEV, "simulated unplugged")
+        self.host, self.baudrate = host, baudrate
+        host.deliver(b"hello")  # said while connecting
+
+    def write(self, data: bytes) -> None:
+        assert self.host is not None
+        self.written.append(data)
+        if self.threaded:
+            host = self.host
+            threading.Thread(target=lambda: [host.deliver(bytes([b])) for b in data * 2]).start()
+        else:
+            self.host.deliver(data)  # echo, synchronously: the transport must defer it
+            self.host.deliver(bytes(b ^ 0xFF for b in data))
+
+    def disconnect(self) -> None:
+        self.disconnected = True
+
+
+def test_fake_device_matches_the_protocol() -> None:
+    assert isinstance(FakeDevice(), WireDevice)
+
+
+def test_an_in_process_device_answers_are_read_on_the_drivers_side() -> None:
+    device = FakeDevice()
+    port = open_at(device, baudrate=1250000)
+    assert isinstance(port, DevicePort)
+    told: list[bool] = []
+    port.on_input = lambda: told.append(True)
+    assert device.baudrate == 1250000
+    assert port.read() == b"hello"  # said while connecting: kept for the driver
+    port.write(b"\x80")
+    assert told == [True, True]  # the driver is told; it reads when it chooses, never inside write
+    assert port.read() == b"\x80\x7f"
+    port.close()
+    assert device.disconnected
+
+
+def test_in_process_delivery_from_another_thread_keeps_order() -> None:
+    port = open_at(FakeDevice(threaded=True))
+    try:
+        payload = bytes(range(200))
+        port.write(payload)
+        assert read_until(port, 5 + 400) == b"hello" + payload * 2
+    finally:
+        port.close()
+
+
+def test_in_process_loss_is_read_after_the_bytes_before_it() -> None:
+    device = FakeDevice()
+    port = open_at(device)
+    assert device.host is not None
+    host = device.host
+    gone = OSError(errno.EIO, "unplugged")
+    thread = threading.Thread(target=lambda: (host.deliver(b"last words"), host.lost(gone), host.deliver(b"x")))
+    thread.start()
+    thread.join()
+    assert port.read() == b"hellolast words"  # and nothing said after the loss
+    with pytest.raises(OSError) as info:
+        port.read()
+    assert info.value is gone
+    port.close()
+
+
+def test_in_process_close_drops_late_data() -> None:
+    device = FakeDevice()
+    port = open_at(device)
+    assert device.host is not None
+    port.read()
+    port.close()
+    device.host.deliver(b"too late")
+    port.close()  # harmless twice
+    assert port.read() == b""
+    port.write(b"ignored after close")
+    assert device.written == []
+
+
+def test_in_process_connect_failure_propagates() -> None:
+    with pytest.raises(OSError, match="unplugged"):
+        open_at(FakeDevice(refuse=True))
+
+
+def test_registered_url_scheme_builds_the_device() -> None:
+    devices: dict[str, FakeDevice] = {}
+
+    def factory(url: str) -> WireDevice:
+        devices[url] = FakeDevice()
+        return devices[url]
+
+    register_url_scheme("faketest", factory)
+    port = open_at("faketest://bus0?servos=3", transport="thread")  # transport is for serial ports
+    assert isinstance(port, DevicePort)
+    assert port.device is devices["faketest://bus0?servos=3"]
+    assert port.read() == b"hello"
+    port.close()
+
+
+# --------------------------------------------------------------------------- adapter advice
+
+
+def _fake_sysfs(root: Path, tty: str, latency: str) -> Path:
+    device = root / "bus" / "usb-serial" / "devices" / tty
+    device.mkdir(parents=True)
+    (device / "latency_timer").write_text(latency)
+    return device / "latency_timer"
+
+
+def test_adapter_advice_warns_about_a_slow_latency_timer(tmp_path: Path) -> None:
+    timer = _fake_sysfs(tmp_path / "sys", "ttyUSB0", "16\n")
+    [advice] = adapter_advice("/dev/ttyUSB0", sysfs_root=tmp_path / "sys")
+    assert "16 ms" in advice
+    assert f"echo 1 | sudo tee {timer}" in advice
+    assert "udev" in advice
+
+
+def test_adapter_advice_follows_symlinks_to_the_tty(tmp_path: Path) -> None:
+    _fake_sysfs(tmp_path / "sys", "ttyUSB3", "16")
+    (tmp_path / "dev").mkdir()
+    (tmp_path / "dev" / "ttyUSB3").touch()
+    (tmp_path / "dev" / "usb-FTDI_FT232R-if00-port0").symlink_to(tmp_path / "dev" / "ttyUSB3")
+    assert len(adapter_advice(str(tmp_path / "dev" / "usb-FTDI_FT232R-if00-port0"), sysfs_root=tmp_path / "sys")) == 1
+
+
+@pytest.mark.parametrize("latency", ["1", "0", "garbage"])
+def test_adapter_advice_is_quiet_when_fine(tmp_path: Path, latency: str) -> None:
+    _fake_sysfs(tmp_path / "sys", "ttyUSB0", latency)
+    assert adapter_advice("/dev/ttyUSB0", sysfs_root=tmp_path / "sys") == []
+
+
+def test_adapter_advice_does_not_apply_elsewhere(tmp_path: Path) -> None:
+    _fake_sysfs(tmp_path / "sys", "ttyUSB0", "16")
+    assert adapter_advice("/dev/ttyACM0", sysfs_root=tmp_path / "sys") == []
+    assert adapter_advice("socket://ttyUSB0:1", sysfs_root=tmp_path / "sys") == []
+    assert adapter_advice("sim://", sysfs_root=tmp_path / "sys") == []
+    assert adapter_advice("/dev/pts/0") == []  # the real /sys: a pty is no USB adapter
+
+
+# --------------------------------------------------------------------------- parity-error marks (PARMRK)
+
+
+def test_parity_marks_pass_clean_data_through_untouched() -> None:
+    marks = transport.ParityMarks()
+    data = bytes([0x81, 0x3A, 0x4C, 0x01, 0x3A, 0x4C])
+    assert marks.decode(data) == (data, 0)
+
+
+def test_parity_marks_undo_doubled_ff_and_count_marked_bytes() -> None:
+    marks = transport.ParityMarks()
+    assert marks.decode(b"\xff\xff\x00\x00\x00\xff\xff") == (b"\xff\x00\x00\x00\xff", 0)
+    assert marks.decode(b"\x21\xff\x00\x41\x1e\xff\x00\x00") == (b"\x21\x41\x1e\x00", 2)
+
+
+def test_parity_marks_split_across_reads() -> None:
+    marks = transport.ParityMarks()
+    assert marks.decode(b"\x01\xff") == (b"\x01", 0)
+    assert marks.decode(b"\xff\x02\xff\x00") == (b"\xff\x02", 0)
+    assert marks.decode(b"\x33") == (b"\x33", 1)
+    assert marks.decode(b"\x44") == (b"\x44", 0)
