@@ -50,7 +50,7 @@ FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_pub
 	benchmarks/bench_burst.py ics35_async/transports/opening.py ics35_async/transports/tty_port.py \
 	ics35_async/transports/pyserial_port.py ics35_async/transports/device_port.py ics35_async/drivers/core.py \
 	ics35_async/drivers/asyncio_driver.py ics35_async/drivers/thread_driver.py ics35_async/drivers/anyio_driver.py \
-	tests/test_ports.py
+	tests/test_ports.py benchmarks/bench_web.py
 
 # The servo configurator in the browser, on the simulator (prints its URL; Ctrl-C stops it).
 web-demo: $(STAMP)

@@ -21,6 +21,7 @@ IMPORT_S = 0.060
 VERSION_S = 0.150
 P99_WAIT_TX = 1.5
 MEMORY_MIB_PER_1M = 2.0
+WEB_PAGE_VS_NO_PAGE = 0.90  # issue 21: the stream with the Live plots page open, over no page open
 STREAM_VS_ADAPTER_BOUND = 0.95  # issue 20: the stream behind the FTDI model, over the model's ideal-host rate
 
 DEFAULT_ROW = "asyncio/asyncio"  # the driver x loop a user gets without choosing (open_bus under asyncio.run)
@@ -155,6 +156,16 @@ def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
                 f">= {STREAM_VS_ADAPTER_BOUND:.0%} of the adapter bound",
                 row["stream_vs_bound"] >= STREAM_VS_ADAPTER_BOUND,
             )
+    web = results.get("web")
+    if isinstance(web, dict) and "page_vs_no_page" in web:
+        noise = web["noise_floor_each"]
+        add(
+            "32-servo stream with the Live plots page open",
+            f"{web['page_vs_no_page']:.0%} of no page (server CPU {web['server_cpu_ms_per_update'] or 0:.2f} ms per "
+            f"update; no page vs no page: {min(noise, default=1):.0%}..{max(noise, default=1):.0%})",
+            f">= {WEB_PAGE_VS_NO_PAGE:.0%} of no page",
+            web["page_vs_no_page"] >= WEB_PAGE_VS_NO_PAGE,
+        )
     return out
 
 

@@ -27,7 +27,10 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
    offline, in real time and in simulated time (bench_control_loop);
 9. the burst path (compiled executor) against the ordinary path, blocking pyserial and the
    bare loop: stream CPU and wire-timed rate, four lines, a CPU-bound thread beside a stream,
-   sequential and batched requests (bench_burst).
+   sequential and batched requests (bench_burst);
+10. the web configurator: a 32-servo stream's rate with the Live plots page
+    open against none, and the server's CPU per page update (bench_web; needs
+    the ``web`` extra).
 
 The report ends with one summary table (every headline figure, its goal
 from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
@@ -70,6 +73,7 @@ import bench_overhead
 import bench_peer
 import bench_sharing
 import bench_tools
+import bench_web
 import bench_wire
 from bench_common import progress
 from bench_targets import print_targets, targets
@@ -88,6 +92,7 @@ SECTIONS = (
     "adapter",
     "control_loop",
     "burst",
+    "web",
 )
 
 
@@ -288,6 +293,7 @@ def main() -> int:
         "adapter": lambda: bench_adapter.run(runs or (1 if quick else 2)),
         "control_loop": lambda: bench_control_loop.run(2.0 if quick else 5.0),
         "burst": lambda: bench_burst.run(runs or (1 if quick else 3), 0.5 if quick else 1.0),
+        "web": lambda: bench_web.run(1.0 if quick else 2.0, runs or (1 if quick else 4)),
     }
     results: dict[str, Any] = {"meta": {**machine(), "quick": quick, "sections": sections}}
     started = time.perf_counter()
@@ -327,6 +333,7 @@ def main() -> int:
         "adapter": bench_adapter.print_table,
         "control_loop": bench_control_loop.print_table,
         "burst": bench_burst.print_table,
+        "web": bench_web.print_table,
     }
     for name in sections:
         if "error" in results[name]:

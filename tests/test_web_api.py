@@ -32,9 +32,11 @@ def serve() -> Iterator[Any]:
     """``serve(servo_ids) -> (client with the token cookie, VirtualLine)``; closed after the test."""
     opened: list[tuple[TestClient, VirtualLine]] = []
 
-    def make(ids: tuple[int, ...] = (1, 3), **options: Any) -> tuple[TestClient, VirtualLine]:
+    def make(
+        ids: tuple[int, ...] = (1, 3), ics36: tuple[int, ...] = (), **options: Any
+    ) -> tuple[TestClient, VirtualLine]:
         name = f"web-api-{next(_names)}"
-        sim = VirtualLine([VirtualServo(i) for i in ids], name=name, **options)
+        sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids], name=name, **options)
         app = create_app(LineSession(LineConfig(port=f"sim://{name}")), TOKEN)
         client = TestClient(app, base_url=BASE)
         client.__enter__()
@@ -122,6 +124,25 @@ def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> Non
     report = post(client, "/api/scan").json()
     assert [s["id"] for s in report["servos"]] == [2, 7, 30]
     assert client.get("/api/status").json()["scanning"] is False
+
+
+def test_the_line_page_shows_each_servos_protocol_and_reads_positions_without_freeing_or_moving(serve: Any) -> None:
+    client, sim = serve((1, 3), ics36=(3,))
+    for sid, where in ((1, 7000), (3, 8200)):  # both holding: a free command or a target would show
+        sim.servo(sid).move_by_hand(where)
+        sim.servo(sid).command_position(where)
+    post(client, "/api/scan")
+    seen: dict[str, dict[str, Any]] = {}
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        for _ in range(40):
+            seen = {str(s["id"]): s for s in ws.receive_json().get("servos", [])}
+            if all("protocol" in s for s in seen.values()) and len(seen) == 2:
+                break
+    assert seen["3"]["protocol"] == "ICS 3.6" and seen["3"]["position"] == 8200
+    assert seen["1"]["protocol"] == "ICS 3.5" and seen["1"]["position"] is None
+    assert "free command" in seen["1"]["position_note"]
+    assert seen["1"]["temperature_c"] and seen["3"]["current"] is not None
+    assert (sim.servo(1).target, sim.servo(3).target) == (7000, 8200)  # neither went limp nor moved
 
 
 def test_eeprom_fields_carry_their_unit_range_and_meaning(serve: Any) -> None:
@@ -239,6 +260,52 @@ def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None
     assert len(set(cycles)) >= 3
     post(client, "/api/live/stop")
     assert client.get("/api/status").json()["live"] is None
+
+
+def test_a_live_frames_slow_parts_are_sent_to_a_page_only_when_they_change(serve: Any) -> None:
+    client, _ = serve((1, 3), ics36=(3,))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        frames = [u["live"] for u in (ws.receive_json() for _ in range(60)) if u.get("live")][:6]
+        assert frames[0]["watched"] == [3] and frames[0]["targets"] == {"1": 0, "3": -1}
+        assert all("targets" not in f and "watched" not in f and "positions" in f for f in frames[1:])
+        post(client, "/api/servo/3/free")  # watched -> free: both parts change
+        for _ in range(60):
+            frame = ws.receive_json().get("live") or {}
+            if "targets" in frame:
+                break
+    assert frame["targets"] == {"1": 0, "3": 0} and frame["watched"] == []
+
+
+def test_the_live_stream_leaves_an_ics36_servos_torque_alone_and_frees_only_ics35_ones(serve: Any) -> None:
+    client, sim = serve((1, 3), ics36=(3,))
+    for sid in (1, 3):
+        sim.servo(sid).command_position(8200)
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    frame: dict[str, Any] = {}
+    for _ in range(200):
+        frame = client.get("/api/live").json() or {}
+        if frame.get("positions", {}).get("3", -1) > 0:
+            break
+    assert frame["watched"] == [3] and frame["positions"]["3"] > 0
+    assert sim.servo(3).target == 8200 and sim.servo(1).free  # ICS 3.5 reads a position only by going free
+    post(client, "/api/live/stop")
+    assert sim.servo(3).target == 8200
+
+
+def test_while_a_live_stream_runs_the_line_pages_table_shows_its_values(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    post(client, "/api/scan")
+    sim.servo(1).move_by_hand(9100)
+    post(client, "/api/live/start", {"ids": [1]})
+    rows: dict[int, dict[str, Any]] = {}
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        for _ in range(80):
+            rows = {s["id"]: s for s in ws.receive_json().get("servos", [])}
+            if rows.get(1, {}).get("position") == 9100:
+                break
+    assert rows[1]["position"] == 9100 and rows[1]["position_note"] == "from the live stream"
+    assert rows[3].get("position") is None  # not streamed, and an ICS 3.5 servo read without freeing has none
 
 
 def test_the_traffic_page_sees_each_transaction_with_its_bytes(serve: Any) -> None:

@@ -41,8 +41,8 @@ expect.set_options(timeout=WAIT_MS)
 class PtyLine:
     """A simulated line served on a pty by a thread of this process."""
 
-    def __init__(self, ids: tuple[int, ...]) -> None:
-        self.sim = VirtualLine([VirtualServo(i) for i in ids])
+    def __init__(self, ids: tuple[int, ...], ics36: tuple[int, ...] = ()) -> None:
+        self.sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids])
         self.server = PtyServer(self.sim)
         self.path = str(self.server.open())
         self.thread = threading.Thread(target=self.server.serve, daemon=True)
@@ -57,7 +57,7 @@ class PtyLine:
 
 @pytest.fixture(scope="module")
 def lines() -> Iterator[tuple[PtyLine, PtyLine]]:
-    two, lone = PtyLine((1, 3)), PtyLine((4,))
+    two, lone = PtyLine((1, 3), ics36=(3,)), PtyLine((4,))
     yield two, lone
     two.close()
     lone.close()
@@ -109,11 +109,11 @@ def page(browser: Browser, server: str) -> Iterator[Page]:
     context.close()
 
 
-def shot(page: Page, name: str, height: int = 1000) -> None:
+def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
     """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls)."""
     IMAGES.mkdir(parents=True, exist_ok=True)
     size = page.viewport_size
-    page.set_viewport_size({"width": 1280, "height": height})
+    page.set_viewport_size({"width": width, "height": height})
     page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
     page.locator("main h1:visible").scroll_into_view_if_needed()
     page.screenshot(path=str(IMAGES / f"web-{name}.png"))
@@ -154,6 +154,28 @@ def test_the_built_in_simulator_is_labelled_on_every_page(browser: Browser, simu
     context.close()
 
 
+def test_a_stopped_server_is_said_in_words_at_once(browser: Browser) -> None:
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=environment,
+    )
+    assert proc.stdout is not None
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(proc.stdout.readline().strip())
+    expect(p.locator("#line-status")).to_contain_text("115200 baud")
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+    expect(p.locator("#message")).to_contain_text("server is gone")
+    expect(p.locator("#line-status")).to_have_text("server gone")
+    context.close()
+
+
 def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:
     context = browser.new_context()
     refused = context.new_page().goto(base_of(server) + "/")
@@ -170,13 +192,23 @@ def test_the_token_url_lands_on_the_line_page_without_the_token_in_the_address_b
     expect(page.locator("#sim-banner")).to_be_hidden()  # a pty port: real as far as the page knows
 
 
-def test_scan_lists_the_servos_with_live_temperature(page: Page, lines: Any) -> None:
+def test_scan_lists_the_servos_with_protocol_live_temperature_and_position(page: Page, lines: Any) -> None:
+    sim = lines[0].sim
+    sim.servo(3).command_position(8100)  # holding: the page's reads must leave it so
     page.click("a[href='#line']")
     page.click("#scan-btn")
     expect(page.locator("#servo-table tbody tr")).to_have_count(2)
     expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
     expect(page.locator("#scan-progress")).to_have_js_property("value", 32)  # every ID, as it went
-    expect(page.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
+    ics36, ics35 = page.locator("#servo-table tr[data-id='3']"), page.locator("#servo-table tr[data-id='1']")
+    expect(ics36.locator("td.temp")).to_contain_text("°C")
+    expect(ics36.locator("td.ics")).to_have_text("3.6")
+    expect(ics36.locator("td.position")).to_have_text(re.compile(r"^\d+$"))
+    expect(ics35.locator("td.ics")).to_have_text("3.5")
+    expect(ics35.locator("td.position")).to_have_text("not read")
+    page.wait_for_timeout(1200)  # another round of reads
+    assert sim.servo(3).target == 8100 and sim.servo(1).free  # nothing moved, nothing went limp
+    sim.servo(3).command_position(0)  # free again, as the later tests expect
     shot(page, "line")
 
 
@@ -185,9 +217,13 @@ def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines:
     page.click("#servo-table tr[data-id='1'] a")
     field = page.locator("#eeprom-table [name=speed]")
     expect(field).to_have_value(str(sim.servo(1).eeprom.speed))
+    field.fill("500")
+    page.click("#plan-btn")
+    expect(page.locator("#message")).to_have_text("speed must be in 1..127, got 500")  # words, nothing sent
     field.fill("77")
     page.click("#plan-btn")
     expect(page.locator("#diff tr.changed")).to_contain_text("77")
+    expect(page.locator("#message")).to_be_hidden()  # the last try's error goes with the next try
     assert sim.servo(1).eeprom.speed != 77  # the diff is shown, nothing written yet
     shot(page, "servo", height=1660)
     page.click("#write-btn")
@@ -260,6 +296,8 @@ def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any
     page.click("a[href='#many']")
     page.fill("#many-ids", "1,3")
     page.check("[name=use-punch]")
+    page.click("#many-apply")
+    expect(page.locator("#message")).to_have_text("give punch a value, or untick it")  # not taken as 0
     page.fill("[name=value-punch]", "4")
     page.click("#many-apply")
     expect(page.locator("#many-results tbody tr")).to_have_count(2)
@@ -279,6 +317,13 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
         expect(page.locator("#legend span[data-id='3']")).to_have_text(f"■ 3: {position}")
         page.wait_for_timeout(150)  # a visible step on the plot
     shot(page, "live")
+    with page.expect_download() as download:
+        page.click("#live-export")
+    csv = Path(download.value.path()).read_text().splitlines()
+    assert csv[0].startswith("t,cycle,pos_1,target_1,current_1,temp_1,pos_3,target_3")
+    rows = [dict(zip(csv[0].split(","), line.split(","), strict=True)) for line in csv[1:]]
+    assert [r["pos_3"] for r in rows if r["pos_3"]][-1] == "6000"  # a frame lacks an ID that missed its cycle
+    assert rows[-1]["target_3"] == "-1" and rows[-1]["target_1"] == "0"  # watched (ICS 3.6), free (ICS 3.5)
     page.click("#live-stop")
 
 
@@ -348,6 +393,62 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
     shot(p, "robot")
     expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
     expect(p.locator("#robot-state")).to_contain_text("all within limits")
+    context.close()
+
+
+def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_the_robot_page(
+    browser: Browser, robot_server: str
+) -> None:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    p = context.new_page()
+    p.goto(robot_server)
+    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")  # no --port: the robot's line
+    pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
+    for here in pages:
+        p.click(f"nav a[href='#{here}']")
+        expect(p.locator(f"#page-{here}")).to_be_visible()
+        for there in pages:
+            expect(p.locator(f"nav a[href='#{there}']")).to_be_visible()
+    p.click("nav a[href='#line']")
+    expect(p.locator("#robot-lines-table tbody tr")).to_have_count(2)
+    p.click("#robot-lines-table tr[data-line='upper'] button")
+    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")
+    expect(p.locator("#servo-table tbody tr")).to_have_count(7)  # found on the robot's own line
+    p.click("#servo-table tr[data-id='4'] a")
+    expect(p.locator("#servo-robot-note")).to_contain_text("right_elbow")
+    expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
+    p.click("nav a[href='#robot']")
+    p.click("tr[data-joint='right_knee'] a")  # a joint's servo, on the other line
+    expect(p.locator("#page-servo")).to_be_visible()
+    expect(p.locator("#line-status")).to_contain_text("the robot's line legs")
+    expect(p.locator("#servo-robot-note")).to_contain_text("right_knee")
+    expect(p.locator("#servo-id")).to_have_value("3")
+    p.click("#free-btn")  # refused in words: the robot moves and frees its joints
+    expect(p.locator("#message")).to_contain_text("Robot page")
+    p.click("nav a[href='#robot']")
+    p.click("#robot-line-links button[data-line='legs']")
+    expect(p.locator("#page-line")).to_be_visible()
+    expect(p.locator("#servo-table tbody tr")).to_have_count(10)
+    context.close()
+
+
+def png_width(png: bytes) -> int:
+    return int.from_bytes(png[16:20], "big")  # the IHDR chunk: width, then height
+
+
+def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: str) -> None:
+    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
+    p = context.new_page()
+    p.goto(server)
+    p.click("#scan-btn")
+    expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+    for name in ("line", "servo/1", "id", "many", "live", "traffic"):
+        p.goto(base_of(server) + f"/#{name}")
+        if name == "servo/1":
+            expect(p.locator("#eeprom-table tbody tr").first).to_be_visible()
+            shot(p, "phone", height=844, width=390)
+        width = png_width(p.screenshot(full_page=True))
+        assert width == 390, f"the {name} page is {width} px wide on a 390 px screen: it scrolls sideways"
     context.close()
 
 

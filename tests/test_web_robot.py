@@ -110,3 +110,50 @@ def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:
         update = ws.receive_json()
     assert [j["name"] for j in update["robot"]["joints"]] == ["shoulder", "elbow"]
     assert all(j["tripped"] is None for j in update["robot"]["joints"])
+
+
+def test_the_pages_work_on_a_robot_line_without_fighting_the_robot_for_its_servos(robot: Any) -> None:
+    client, line = robot
+    status = client.get("/api/status").json()
+    assert status["robot"]["lines"][0]["name"] == "arm" and status["robot_line"] is None
+    assert post(client, "/api/connect", {"robot_line": "hand"}).status_code == 400  # no such line
+    used = post(client, "/api/connect", {"robot_line": "arm"}).json()
+    assert used["robot_line"] == "arm" and used["port"].startswith("sim://web-robot-") and used["connected"]
+    assert [s["id"] for s in post(client, "/api/scan").json()["servos"]] == [1, 2]
+    refused_rates = post(client, "/api/scan", {"bauds": [115200, 1250000]})
+    assert refused_rates.status_code == 409 and "its own rate" in refused_rates.json()["error"]
+    plan = post(client, "/api/servo/2/plan", {"changes": {"speed": 55}}).json()
+    assert post(client, "/api/servo/2/write", {"changes": {"speed": 55}, "before": plan["before"]}).json()["verified"]
+    assert line.servo(2).eeprom.speed == 55
+    renumber = post(client, "/api/servo/2/plan", {"changes": {"servo_id": 5}, "allow_id_change": True}).json()
+    assert "robot's line 'arm'" in renumber["refusal"]
+    written = post(client, "/api/servo/2/write", {"changes": {"servo_id": 5}, "allow_id_change": True})
+    assert written.status_code == 409 and line.servo(2).eeprom.servo_id == 2
+    post(client, "/api/robot/motion", {"enabled": True})  # the robot holds its joints
+    wait_for(lambda: line.servo(1).target is not None)
+    held = line.servo(1).target
+    for path, data in (("free", {}), ("motion", {"enabled": True}), ("move", {"position": 8000})):
+        answer = post(client, f"/api/servo/1/{path}", data)
+        assert answer.status_code == 409 and "joint shoulder" in answer.json()["error"], path
+    assert post(client, "/api/id/survey").status_code == 409
+    assert post(client, "/api/live/start", {"ids": [1]}).status_code == 409
+    assert line.servo(1).target == held
+    cycle = client.get("/api/robot").json()["cycle"]
+    back = post(client, "/api/connect", {"port": "sim://", "baud": 115200}).json()
+    assert back["robot_line"] is None and back["connected"]
+    wait_for(lambda: client.get("/api/robot").json()["cycle"] > cycle + 5)  # the robot streams on, its line open
+    assert post(client, "/api/robot/move", {"pose": {"shoulder": 10}, "duration": 0.1}).status_code == 200
+
+
+def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tmp_path: Path) -> None:
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "one.toml"
+    path.write_text(f'[lines.arm]\nport = "sim://{name}?ids=1"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    session = LineSession(LineConfig(port=f"sim://{name}-unused"))
+    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        status = client.get("/api/status").json()
+        assert status["robot_line"] == "arm" and status["port"] == f"sim://{name}?ids=1" and status["connected"]
+        assert [s["id"] for s in post(client, "/api/scan").json()["servos"]] == [1]
+    sim.named(name).close()

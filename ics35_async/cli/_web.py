@@ -55,7 +55,10 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
             f"[yellow]warning:[/yellow] serving on {escape(where.host)}: any machine that can reach it and "
             "knows the token can move these servos; keep the URL private"
         )
-    if settings.port_defaulted:
+    line_from_robot = settings.port_defaulted and robot_file is not None
+    if line_from_robot:
+        err.print("[dim]note: no --port given: the pages start on the robot's first line[/dim]")
+    elif settings.port_defaulted:
         err.print("[dim]note: no --port given: the page serves the built-in simulator[/dim]")
     config = LineConfig(
         port=settings.port,
@@ -75,7 +78,16 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
         err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
 
     try:
-        serve(config, token, where, open_browser=not no_browser, announce=announce, warn=warn, robot_file=robot_file)
+        serve(
+            config,
+            token,
+            where,
+            open_browser=not no_browser,
+            announce=announce,
+            warn=warn,
+            robot_file=robot_file,
+            line_from_robot=line_from_robot,
+        )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
         raise CliError(ExitCode.USAGE, str(exc)) from None
     except KeyboardInterrupt:

@@ -51,6 +51,9 @@ Handler = Callable[[Request, LineSession], Awaitable[Any]]
 LIVE_PERIOD = 0.04
 IDLE_PERIOD = 0.25
 TELEMETRY_PERIOD = 1.0
+# A live frame's parts that change at most a few times a second: sent when they change (the page keeps
+# the last), so the 25 updates a second carry little more than the positions.
+LIVE_SLOW_PARTS = ("targets", "current", "temperature", "watched", "offline")
 
 
 def _status_of(exc: BaseException) -> int:
@@ -145,6 +148,8 @@ async def ports(request: Request, session: LineSession) -> Any:
 
 async def connect(request: Request, session: LineSession) -> Any:
     data = await body(request)
+    if data.get("robot_line") is not None:
+        return await session.use_robot_line(data["robot_line"])
     return await session.connect(data.get("port"), data.get("baud"))
 
 
@@ -308,13 +313,25 @@ async def traffic(request: Request, session: LineSession) -> Any:
 
 
 async def updates(ws: WebSocket) -> None:
-    """Push the line's status, scan progress, telemetry, live frames and traffic to one page."""
+    """Push the line's status, scan progress, telemetry, live frames and traffic to one page.
+
+    The status, the scan's progress and a live frame's slow parts are sent
+    to a page when they differ from what it was last sent.
+    """
     session: LineSession = ws.app.state.session
     await ws.accept()
     watching_traffic = False
     seen = 0
     last_telemetry = 0.0
     loop = asyncio.get_running_loop()
+    sent: dict[object, Any] = {}  # what this page was sent last, by part
+    live_sent: object = None  # the live view those parts came from (a new one sends them all)
+
+    def fresh(part: object, value: Any) -> bool:
+        if part in sent and sent[part] == value:
+            return False
+        sent[part] = value
+        return True
 
     async def listen() -> None:
         nonlocal watching_traffic
@@ -328,24 +345,39 @@ async def updates(ws: WebSocket) -> None:
     listener = asyncio.create_task(listen())
     try:
         while not listener.done():
-            update: dict[str, Any] = {"status": session.status()}
-            if session.progress.running or session.progress.total:
-                update["progress"] = {"done": session.progress.done, "total": session.progress.total}
+            update: dict[str, Any] = {}
+            status = session.status()
+            if fresh("status", status):
+                update["status"] = status
+            progress = {"done": session.progress.done, "total": session.progress.total}
+            if session.progress.total and fresh("progress", progress):
+                update["progress"] = progress
             if ws.app.state.robot is not None:
                 update["robot"] = ws.app.state.robot.view()
-            if session.live is not None:
-                update["live"] = session.live.snapshot()
-            elif loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
+            live = session.live
+            if live is not None:
+                if live is not live_sent:
+                    live_sent = live
+                    for part in LIVE_SLOW_PARTS:
+                        sent.pop(("live", part), None)
+                frame = live.snapshot()
+                if frame is not None:
+                    for part in LIVE_SLOW_PARTS:
+                        if not fresh(("live", part), frame[part]):
+                            del frame[part]
+                update["live"] = frame
+            if loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
                 last_telemetry = loop.time()
                 with contextlib.suppress(IcsError):
-                    await session.read_telemetry()
-                update["servos"] = [session.found_view(s) for s in session.found]
+                    await session.read_telemetry()  # none while a live stream runs: the table shows its values
+                update["servos"] = session.servos_view()
             if watching_traffic:
                 entries = session.traffic.since(seen)
                 if entries:
                     seen = entries[-1]["seq"]
                     update["traffic"] = entries[-500:]
-            await ws.send_json(update)
+            if update:
+                await ws.send_json(update)
             await asyncio.sleep(LIVE_PERIOD if session.live is not None else IDLE_PERIOD)
     except (WebSocketDisconnect, RuntimeError):
         pass

@@ -15,8 +15,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
+from ..bus import Bus
 from ..errors import IcsError, InvalidArgument, UnsafeOperation
 from ..robot import Robot, load_description, open_robot, parse_motion
+from ..robot.description import LineSpec
 from ..robot.motion import check_motion
 from ..units import check_seconds
 
@@ -50,6 +52,26 @@ class RobotSession:
         if self.robot is None:
             raise UnsafeOperation(self.error or "the robot is not open")
         return self.robot
+
+    def line(self, name: object) -> tuple[Bus, LineSpec]:
+        """The robot's open bus for line ``name``, and the line as the file describes it."""
+        spec = self.description.lines.get(name) if isinstance(name, str) else None
+        if spec is None:
+            raise InvalidArgument(f"the robot has no line {name!r} (its lines: {', '.join(self.description.lines)})")
+        return self._robot().group.buses[spec.name], spec
+
+    def line_named_by_port(self, port: str) -> LineSpec | None:
+        """The robot's line on ``port``, if one is."""
+        return next((spec for spec in self.description.lines.values() if spec.port == port), None)
+
+    def joint_at(self, line: str, servo_id: int) -> str | None:
+        """The joint driven by servo ``servo_id`` on ``line``, if any."""
+        return next((j.name for j in self.description.joints_on(line) if j.id == servo_id), None)
+
+    def lines_view(self) -> dict[str, Any]:
+        """The robot's name and lines, for every page's navigation."""
+        lines = [{"name": s.name, "port": s.port, "baud": s.baudrate} for s in self.description.lines.values()]
+        return {"name": self.description.name or self.path, "open": self.robot is not None, "lines": lines}
 
     def _moving_allowed(self) -> Robot:
         robot = self._robot()

@@ -1,9 +1,11 @@
 """The Live plots page's data: a position stream over the chosen servos, with current and temperature
 read in its gaps, sampled for the page at a fixed rate (the stream never waits for the page).
 
-Servos start free, as every stream does (the free command is how ICS 3.5
-reads a position without moving): they are held, or moved, only when a page
-with motion switched on gives them a target.
+Which servo is read how is the library's policy (policies.plan_position_stream):
+an ICS 3.6 servo is watched with its position read, its torque left as it
+was; an ICS 3.5 servo starts free (the free command is how ICS 3.5 reads a
+position without moving).  They are held, or moved, only when a page with
+motion switched on gives them a target.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from typing import Any
 from .. import protocol
 from ..bus import Bus, Priority
 from ..errors import IcsError
+from ..policies import plan_position_stream
 from ..protocol import Param
-from ..stream import Stream
+from ..stream import WATCH, Stream
 from ..units import current_from_raw, temperature_to_celsius
 
 # One servo's current and temperature every this many seconds: 32 servos in about 3 s,
@@ -50,7 +53,8 @@ class LiveView:
 
     @classmethod
     async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float | None = None) -> LiveView:
-        stream = bus.stream([protocol.check_id(i) for i in ids], rate_hz=rate_hz)
+        plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
+        stream = bus.stream(plan.streamed, rate_hz=rate_hz, watch=plan.watch)
         await stream.start()
         view = cls(bus, stream)
         view._task = asyncio.create_task(view._read_telemetry())
@@ -94,6 +98,7 @@ class LiveView:
             "current": {str(k): v for k, v in self.current.items()},
             "temperature": {str(k): v for k, v in self.temperature.items()},
             "offline": sorted(frame.offline),
+            "watched": [i for i in self.ids if self.stream.target(i) == WATCH],
             "rate_hz": round(rate, 1),
         }
 

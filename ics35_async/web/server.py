@@ -75,24 +75,29 @@ def create_app(
     loopback: bool = True,
     warn: Callable[[str], None] | None = None,
     robot: RobotSession | None = None,
+    line_from_robot: bool = False,
 ) -> Starlette:
     """The app for ``session``; every request and WebSocket needs ``token`` (see :mod:`.security`).
 
     The line opens when the server starts; a port that cannot be opened is
     shown on the Line page (and given to ``warn``), where another can be chosen.
+    With ``line_from_robot`` the pages start on the robot's first line instead.
     """
 
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
-        try:
-            await session.connect()
-        except Exception as exc:
-            if warn is not None:
-                warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
         if robot is not None:
             await robot.open()
             if robot.error and warn is not None:
                 warn(robot.error)
+        try:
+            if robot is not None and robot.robot is not None and line_from_robot:
+                await session.use_robot_line(next(iter(robot.description.lines)))
+            else:
+                await session.connect()
+        except Exception as exc:
+            if warn is not None:
+                warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
         try:
             yield
         finally:
@@ -105,6 +110,7 @@ def create_app(
         middleware=[Middleware(TokenGuard, token=token, loopback_only_hosts=loopback)],
         lifespan=lifespan,
     )
+    session.robot = robot
     app.state.session = session
     app.state.robot = robot
     return app
@@ -140,11 +146,17 @@ def serve(
     announce: Callable[[str], None] = print,
     warn: Callable[[str], None] | None = None,
     robot_file: str | None = None,
+    line_from_robot: bool = False,
 ) -> None:
-    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong."""
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong.
+
+    ``line_from_robot``: the pages start on the robot's first line rather than ``config``'s port.
+    """
     robot = None if robot_file is None else RobotSession(robot_file)  # a bad file: refused before binding
     sock = bind(listen)
-    app = create_app(LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot)
+    app = create_app(
+        LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot, line_from_robot=line_from_robot
+    )
     url = url_of(sock, token)
     announce(url)  # the socket listens already: a browser that comes now waits in its backlog
     import uvicorn  # after the URL: it is the slower half of the start-up

@@ -6,6 +6,12 @@ web layer adds no rule of its own beyond refusing motion until a page has
 switched it on.  Actions that reopen the port or must be alone on the line
 (scan, EEPROM write, renumbering) take :attr:`LineSession.exclusive`; the
 Line page's temperature/current reads skip a round while it is held.
+
+With ``--robot`` the pages can also work on one of the robot's lines: the
+session then uses the robot's own open bus (the robot keeps streaming on it)
+and refuses what would fight the robot for its servos: moving or freeing
+one, a live stream of its own, renumbering, another baud rate, and a write
+that changes a servo's ID or rate (the robot file names both).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .. import protocol
 from ..bus import Bus, open_bus
@@ -25,6 +31,7 @@ from ..policies import (
     EepromPlan,
     FoundServo,
     plan_eeprom_write,
+    read_position_without_freeing,
     scan,
     survey_for_id_write,
     write_eeprom_plan,
@@ -37,6 +44,9 @@ from .edits import allowances, edit_of
 from .live import LiveView, read_health
 from .traffic import TrafficLog
 from .views import eeprom_view, plan_view, result_view, survey_view
+
+if TYPE_CHECKING:
+    from .joints import RobotSession
 
 # The RAM parameters a page may write, as `ics35 set` names them (read back: current and temperature
 # are the measured values, not the limits written).
@@ -70,6 +80,8 @@ class LineSession:
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
         self._limits: dict[int, tuple[int, int]] = {}
+        self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
+        self.robot_line: str | None = None  # the robot's line the pages work on (its bus is the robot's)
 
     # ------------------------------------------------------------------ the line
 
@@ -86,11 +98,20 @@ class LineSession:
             "error": self.error,
             "live": None if self.live is None else list(self.live.ids),
             "scanning": self.progress.running,
+            "robot_line": self.robot_line,
+            "robot": None if self.robot is None else self.robot.lines_view(),
         }
 
     async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
-        """Open the line (closing the one open before); a refused port is reported, not raised."""
+        """Open the line (closing the one open before); a refused port is reported, not raised.
+
+        A port that is one of the robot's lines is that line (:meth:`use_robot_line`): the robot holds it open.
+        """
         config = self.config
+        if self.robot is not None and isinstance(port, str):
+            named = self.robot.line_named_by_port(port.strip())
+            if named is not None and baud in (None, named.baudrate):
+                return await self.use_robot_line(named.name)
         if port is not None:
             if not isinstance(port, str) or not port.strip():
                 raise InvalidArgument("name a port (see the list) or sim://")
@@ -113,6 +134,32 @@ class LineSession:
             self.error = None
         return self.status()
 
+    async def use_robot_line(self, name: str) -> dict[str, Any]:
+        """Work on the robot's line ``name``: its bus, open and streamed by the robot, not reopened here."""
+        if self.robot is None:
+            raise InvalidArgument("no robot: start with `ics35 web --robot ROBOT.toml`")
+        bus, spec = self.robot.line(name)
+        async with self.exclusive:
+            await self.disconnect()
+            self.config = replace(self.config, port=spec.port, baud=spec.baudrate)
+            self.found = []
+            self.telemetry = {}
+            self._limits = {}
+            self.bus = bus
+            self.robot_line = name
+            self.error = None
+        return self.status()
+
+    def _refuse_on_robot_line(self, what: str, instead: str) -> None:
+        if self.robot_line is not None:
+            raise UnsafeOperation(f"{what}: the robot streams its line {self.robot_line!r}; {instead}")
+
+    def _refuse_joint_motion(self, servo_id: int) -> None:
+        if self.robot_line is not None:
+            joint = self.robot.joint_at(self.robot_line, servo_id) if self.robot is not None else None
+            who = f"servo {servo_id} is the robot's joint {joint}" if joint else f"servo {servo_id} is on it"
+            self._refuse_on_robot_line(who, "move or free it on the Robot page")
+
     def _open(self, baud: int) -> Bus:
         from .. import sim  # noqa: F401  (registers the sim:// URL scheme)
 
@@ -131,8 +178,9 @@ class LineSession:
     async def disconnect(self) -> None:
         await self.stop_live()
         bus, self.bus = self.bus, None
+        borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
-        if bus is not None:
+        if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
     async def close(self) -> None:
@@ -169,6 +217,8 @@ class LineSession:
         bauds = bauds or [self.config.baud]
         wanted = list(range(32)) if ids is None else [protocol.check_id(i) for i in ids]
         checked = [int(BaudRate.parse(b)) for b in bauds]
+        if checked != [self.config.baud]:
+            self._refuse_on_robot_line("a scan at other baud rates", f"scan it at its own rate ({self.config.baud})")
         await self.stop_live()
         async with self.exclusive:
             bus = self.line()
@@ -205,8 +255,33 @@ class LineSession:
             **self.telemetry.get(servo.servo_id, {}),
         }
 
+    def servos_view(self) -> list[dict[str, Any]]:
+        """The Line page's table: the servos found with their last reads, or, for those a live stream
+        carries, the stream's newest position, temperature and current."""
+        rows = [self.found_view(s) for s in self.found]
+        live = self.live
+        if live is None:
+            return rows
+        for row in rows:
+            sid = row["id"]
+            if sid not in live.ids:
+                continue
+            position = live.position(sid)
+            row["position"] = None if position < 0 else position
+            row["position_note"] = "from the live stream" if position >= 0 else "not yet read by the live stream"
+            if sid in live.temperature:
+                row["temperature_c"], row["temperature"] = live.temperature[sid], None
+            if sid in live.current:
+                row["current"] = live.current[sid]
+        return rows
+
     async def read_telemetry(self) -> dict[int, dict[str, Any]]:
-        """Temperature and current of the servos found (reads that move nothing); skipped while busy."""
+        """Temperature, current, protocol and (ICS 3.6) position of the servos found; skipped while busy.
+
+        Nothing sent moves a servo or turns its torque off: the position is
+        read only with ICS 3.6's position read (policies.position_read); an
+        ICS 3.5 servo, which reads a position only by going free, shows none.
+        """
         if self.exclusive.locked() or self.bus is None or not self.bus.is_open or self.live is not None:
             return self.telemetry
         async with self.exclusive:  # a scan that starts meanwhile waits for this round, not the other way
@@ -219,10 +294,18 @@ class LineSession:
             if servo.baud != bus.baudrate:
                 continue
             try:
-                entry = {**await read_health(bus, sid), "telemetry_error": None}
+                health = await read_health(bus, sid)
+                reading = await read_position_without_freeing(bus.servo(sid))
             except ReplyError as exc:
-                entry = {"telemetry_error": str(exc)}
-            self.telemetry[sid] = entry
+                self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": str(exc)}
+                continue
+            self.telemetry[sid] = {
+                **health,
+                "protocol": reading.protocol,
+                "position": reading.position,
+                "position_note": reading.why,
+                "telemetry_error": None,
+            }
 
     # ------------------------------------------------------------------ one servo's EEPROM
 
@@ -258,7 +341,15 @@ class LineSession:
         changes, set_flags, clear_flags = edit_of(edit)
         plan = await plan_eeprom_write(bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags)
         allow = allowances(edit)
-        return plan, plan_view(plan, plan.refusal(**allow))
+        return plan, plan_view(plan, self._robot_line_refusal(plan) or plan.refusal(**allow))
+
+    def _robot_line_refusal(self, plan: EepromPlan) -> str | None:
+        if self.robot_line is None or not (plan.changes_id or plan.changes_baud):
+            return None
+        return (
+            f"servo {plan.servo_id} is on the robot's line {self.robot_line!r}, whose file names its ID and the "
+            "line's rate: change them with the robot stopped (start `ics35 web` on that port without --robot)"
+        )
 
     async def write(self, servo_id: int, edit: Mapping[str, Any]) -> dict[str, Any]:
         """Plan and write ``edit`` (policies.eeprom_write: refusals, the re-read before, the read-back after).
@@ -273,6 +364,9 @@ class LineSession:
                 raise UnsafeOperation(
                     f"servo {servo_id}'s EEPROM changed since the diff was shown; look again; nothing was written"
                 )
+            refusal = self._robot_line_refusal(plan)
+            if refusal:
+                raise UnsafeOperation(f"{refusal}; nothing was written")
             result = await write_eeprom_plan(bus, plan, **allowances(edit))
         after = result.read_back or plan.after
         if plan.changes_id:
@@ -307,6 +401,7 @@ class LineSession:
     # ------------------------------------------------------------------ torque and motion
 
     async def free(self, servo_id: int) -> int:
+        self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
@@ -317,6 +412,7 @@ class LineSession:
     async def hold(self, servo_id: int) -> int:
         """Torque on where the servo stands now (the free command reads the position, then it is held there)."""
         protocol.check_id(servo_id)
+        self._refuse_joint_motion(servo_id)
         if self.live is not None and servo_id in self.live.ids:
             position = self.live.position(servo_id)
             self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
@@ -329,6 +425,7 @@ class LineSession:
     async def enable_motion(self, servo_id: int) -> int:
         """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
         steps from there rather than jumping to wherever the slider happened to be."""
+        self._refuse_joint_motion(servo_id)
         await self.read_eeprom(servo_id)
         position = await self.hold(servo_id)
         self.motion_enabled.add(servo_id)
@@ -354,6 +451,7 @@ class LineSession:
     async def move(self, servo_id: int, position: int) -> int:
         """Move (jog) a servo whose motion a page switched on, within its EEPROM pulse limits."""
         protocol.check_id(servo_id)
+        self._refuse_joint_motion(servo_id)
         if servo_id not in self.motion_enabled:
             raise UnsafeOperation(f"motion is not enabled for servo {servo_id}: switch on 'enable motion' first")
         if servo_id not in self._limits:
@@ -368,6 +466,7 @@ class LineSession:
     # ------------------------------------------------------------------ renumbering
 
     async def survey(self) -> dict[str, Any]:
+        self._refuse_on_robot_line("renumbering", "it needs one servo alone on a line of its own")
         await self.stop_live()
         async with self.exclusive:
             return survey_view(await survey_for_id_write(self.line()))
@@ -375,6 +474,7 @@ class LineSession:
     async def renumber(self, new_id: int) -> dict[str, Any]:
         """The guarded one-servo ID write (policies.id_write): refused unless exactly one device answers."""
         protocol.check_id(new_id)
+        self._refuse_on_robot_line("renumbering", "it needs one servo alone on a line of its own")
         await self.stop_live()
         async with self.exclusive:
             bus = self.line()
@@ -387,6 +487,7 @@ class LineSession:
     # ------------------------------------------------------------------ live
 
     async def start_live(self, ids: list[int], rate_hz: float | None = None) -> LiveView:
+        self._refuse_on_robot_line("a live stream of the page's own", "its joints' angles are on the Robot page")
         await self.stop_live()
         async with self.exclusive:
             self.live = await LiveView.start(self.line(), ids, rate_hz=rate_hz)

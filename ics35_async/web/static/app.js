@@ -3,7 +3,7 @@
 
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
-  history: [], livePaused: false, updates: [], limits: null };
+  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set() };
 
 // ---------------------------------------------------------------- talking to the server
 
@@ -70,12 +70,43 @@ function showStatus(s) {
   state.status = s;
   $("#sim-banner").hidden = !s.simulator;
   $("#lost-banner").hidden = !s.lost;
-  const where = `${s.port} at ${s.baud} baud`;
+  showRobotLines(s.robot);
+  $("#scan-progress").hidden = !s.scanning;
+  $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
+  const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
 
 // ---- Line
+
+// With --robot: the robot's lines on the Line page and the Robot page, so either leads to the other.
+function showRobotLines(robot) {
+  $("#robot-link").hidden = !robot;
+  $("#robot-lines").hidden = !robot;
+  const key = robot ? JSON.stringify(robot.lines) : "";
+  if (!robot || state.robotLinesShown === key) return;
+  state.robotLinesShown = key;
+  $("#robot-lines-table tbody").replaceChildren(...robot.lines.map((l) => el("tr", { "data-line": l.name }, el("td", {}, l.name),
+    el("td", {}, l.port), el("td", {}, l.baud),
+    el("td", {}, el("button", { type: "button", onclick: () => useRobotLine(l.name, true).catch(() => {}) }, "use")))));
+  $("#robot-line-links").replaceChildren("Its lines:", ...robot.lines.map((l) => el("button", { type: "button", "data-line": l.name,
+    title: `${l.port} at ${l.baud} baud`, onclick: () => { location.hash = "#line"; useRobotLine(l.name, true).catch(() => {}); } },
+    `${l.name}: its servos on the Line page`)));
+}
+
+async function useRobotLine(name, scan = false) {
+  const s = await api("/api/connect", { robot_line: name });
+  showStatus(s); showServos([]);
+  $("#port-input").value = s.port; $("#baud-select").value = String(s.baud);
+  say(`working on the robot's line ${name} (${s.port}); the robot keeps streaming it`, "info");
+  if (scan) await scanLine();
+}
+
+async function openJoint(line, id) {
+  if (!state.status || state.status.robot_line !== line) await useRobotLine(line);
+  location.hash = `#servo/${id}`;
+}
 
 async function loadPorts() {
   const found = await api("/api/ports");
@@ -94,12 +125,16 @@ async function loadPorts() {
 
 function showServos(servos) {
   state.servos = servos;
+  $("#servo-notes").hidden = !servos.length;
   const body = $("#servo-table tbody");
   body.replaceChildren();
   for (const s of servos) {
-    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C (${s.temperature})`;
+    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
     const current = s.current === undefined ? "…" : String(s.current);
+    const ics = s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
+    const position = s.protocol === undefined ? "…" : s.position ?? "not read";
     body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
+      el("td", { class: "ics" }, ics), el("td", { class: "position", title: s.position_note || "" }, position),
       el("td", { class: "temp" }, temp), el("td", { class: "current" }, current),
       el("td", {}, el("a", { href: `#servo/${s.id}` }, "open"))));
   }
@@ -125,9 +160,22 @@ async function scanLine() {
 
 function servoId() { return +$("#servo-id").value; }
 
+function robotNote(id) {
+  const line = state.status && state.status.robot_line;
+  const joint = line && state.robot ? state.robot.joints.find((j) => j.line === line && j.id === id) : null;
+  $("#servo-robot-note").hidden = !line;
+  $("#servo-robot-note").textContent = line ? `Servo ${id} ${joint ? `drives the joint ${joint.name}` : "is"} on the robot's line ${line}, which the robot keeps streaming: ` +
+    "read and configure it here; move or free it on the Robot page." : "";
+}
+
 async function loadServo() {
   const id = servoId();
+  robotNote(id);
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
+  // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
+  state.eeprom = null;
+  $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren();
+  $("#restore-diff").replaceChildren(); $("#restore-result").replaceChildren(); $("#restore-btn").disabled = true;
   state.eeprom = await api(`/api/servo/${id}/eeprom`);
   const body = $("#eeprom-table tbody");
   body.replaceChildren();
@@ -313,7 +361,12 @@ async function applyMany() {
   let ids;
   try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
   const changes = {};
-  for (const name of PROFILE_FIELDS) if (document.querySelector(`[name=use-${name}]`).checked) changes[name] = +document.querySelector(`[name=value-${name}]`).value;
+  for (const name of PROFILE_FIELDS) {
+    if (!document.querySelector(`[name=use-${name}]`).checked) continue;
+    const text = document.querySelector(`[name=value-${name}]`).value.trim();
+    if (text === "") { say(`give ${name} a value, or untick it`); return; }  // an empty box is not 0
+    changes[name] = +text;
+  }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
   $("#many-results tbody").replaceChildren();
   const reply = await api("/api/many/apply", { ids, changes });
@@ -331,12 +384,17 @@ async function startLive() {
   const text = $("#live-ids").value.trim();
   try { ids = text ? parseIds(text) : state.servos.map((s) => s.id); } catch (e) { say(e.message); return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
-  state.history = [];
+  state.history = []; state.liveIds = new Set();
   await api("/api/live/start", { ids });
 }
 
 function onLive(frame) {
   if (!frame) return;
+  // The server sends these only when they change: each frame is filled in from the last ones sent.
+  for (const part of ["targets", "current", "temperature", "watched", "offline"]) {
+    if (frame[part] === undefined) frame[part] = state.liveParts[part]; else state.liveParts[part] = frame[part];
+  }
+  for (const id of Object.keys(frame.positions)) state.liveIds.add(id);  // a frame lacks an ID that missed its cycle
   const now = performance.now();
   state.updates.push(now);
   while (state.updates.length && now - state.updates[0] > 1000) state.updates.shift();
@@ -344,6 +402,7 @@ function onLive(frame) {
   $("#live-rate").textContent = frame.rate_hz;
   $("#live-updates").textContent = state.updates.length;
   $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
+  $("#live-watched").textContent = frame.watched.length ? frame.watched.join(",") : "none";
   if (state.livePaused) return;
   const last = state.history[state.history.length - 1];
   if (last && last.cycle === frame.cycle) return;
@@ -354,11 +413,14 @@ function onLive(frame) {
 
 function drawPlot() {
   const canvas = $("#plot"), g = canvas.getContext("2d");
+  // Drawn at the size it is shown (a phone's is a third of a laptop's), so the labels stay readable.
+  const width = Math.round(canvas.clientWidth);
+  if (width && canvas.width !== width) { canvas.width = width; canvas.height = Math.max(220, Math.round(width * 0.4)); }
   const what = $("#live-what").value;
   const frames = state.history.slice(-600);
   g.clearRect(0, 0, canvas.width, canvas.height);
   if (frames.length < 2) return;
-  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  const ids = [...state.liveIds].sort((a, b) => a - b);
   let lo = Infinity, hi = -Infinity;
   for (const f of frames) for (const id of ids) { const v = f[what][id]; if (v !== undefined && v >= 0) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
   if (lo === Infinity) return;
@@ -378,14 +440,14 @@ function drawPlot() {
     }
     g.stroke();
   });
-  const now = frames[frames.length - 1][what];
-  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${now[id] ?? "-"}`)));
+  const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${latest(id)}`)));
 }
 
 function exportCsv() {
   const frames = state.history;
   if (!frames.length) { say("nothing recorded yet: start the stream first"); return; }
-  const ids = Object.keys(frames[frames.length - 1].positions).sort((a, b) => a - b);
+  const ids = [...state.liveIds].sort((a, b) => a - b);
   const head = ["t", "cycle", ...ids.flatMap((id) => [`pos_${id}`, `target_${id}`, `current_${id}`, `temp_${id}`])];
   const lines = [head.join(",")];
   for (const f of frames) lines.push([f.t.toFixed(4), f.cycle, ...ids.flatMap((id) => [f.positions[id] ?? "", f.targets[id] ?? "", f.current[id] ?? "", f.temperature[id] ?? ""])].join(","));
@@ -413,7 +475,6 @@ function drawTraffic() {
 
 function onRobot(r) {
   state.robot = r;
-  $("#robot-link").hidden = false;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
   $("#robot-cycle").textContent = r.cycle ?? "-";
@@ -424,10 +485,12 @@ function onRobot(r) {
     (tripped.length ? `; SAFETY STOP: ${tripped.map((j) => j.tripped).join("; ")}` : "; safety watch: all within limits");
   const body = $("#robot-table tbody");
   if (body.children.length !== r.joints.length) {
-    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name), el("td", {}, `${j.line} / ${j.id}`),
-      el("td", { class: "angle" }), el("td", { class: "target" }),
+    // The slider and the angles first: on a phone the columns to the right scroll out of sight.
+    body.replaceChildren(...r.joints.map((j) => el("tr", { "data-joint": j.name }, el("td", {}, j.name),
       el("td", {}, el("input", { type: "range", min: j.min, max: j.max, step: 1, value: 0, name: `joint-${j.name}`, title: `${j.min}..${j.max}°` })),
-      el("td", { class: "temp" }), el("td", { class: "current" }), el("td", { class: "safety" }))));
+      el("td", { class: "angle" }), el("td", { class: "target" }), el("td", { class: "safety" }),
+      el("td", { class: "temp" }), el("td", { class: "current" }),
+      el("td", {}, el("a", { href: `#servo/${j.id}`, title: "this servo on the Servo page", onclick: (e) => { e.preventDefault(); openJoint(j.line, j.id).catch(() => {}); } }, `${j.line} / ${j.id}`)))));
     for (const slider of body.querySelectorAll("input[type=range]")) {
       slider.addEventListener("change", () => moveJoint(slider.name.slice(6), +slider.value).catch(() => {}));
     }
@@ -471,31 +534,42 @@ function socketSend() {
 
 function connectSocket() {
   socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
-  socket.onopen = socketSend;
+  socket.onopen = () => {
+    if (state.serverGone) { state.serverGone = false; say("the configurator's server is back", "info"); }
+    socketSend();
+  };
   socket.onmessage = (event) => {
     const u = JSON.parse(event.data);
-    showStatus(u.status);
+    if (u.status) showStatus(u.status);  // sent when it changes, as the scan's progress is
     const bar = $("#scan-progress");
-    if (u.progress) { bar.hidden = !u.status.scanning; bar.max = u.progress.total || 1; bar.value = u.progress.done; }
+    if (u.progress) { bar.max = u.progress.total || 1; bar.value = u.progress.done; }
     if (u.servos) showServos(u.servos);
     if (u.live) onLive(u.live);
     if (u.traffic) onTraffic(u.traffic);
     if (u.robot) onRobot(u.robot);
   };
   socket.onclose = () => {
-    $("#line-status").textContent = "the configurator's server is gone: reconnecting…";
+    const gone = "the configurator's server is gone (was `ics35 web` stopped?): trying again every second";
+    $("#line-status").textContent = "server gone";
+    if (!state.serverGone) say(gone);  // once: the box stays until the server is back or another action
+    state.serverGone = true;
     setTimeout(connectSocket, 1000);
   };
 }
 
 // ---------------------------------------------------------------- wiring
 
+// A person's action: the words about the last one go (its error stays only until the next try).
 function on(sel, event, handler) {
-  $(sel).addEventListener(event, (e) => { Promise.resolve(handler(e)).catch(() => {}); });
+  $(sel).addEventListener(event, (e) => {
+    if (event === "click" || event === "submit" || e.target.type === "checkbox" || e.target.type === "file") say("");
+    Promise.resolve(handler(e)).catch(() => {});
+  });
 }
 
 on("#connect-form", "submit", async (e) => {
   e.preventDefault();
+  showServos([]); $("#scan-summary").textContent = "";  // the servos found were the line before's
   const s = await api("/api/connect", { port: $("#port-input").value, baud: +$("#baud-select").value });
   showStatus(s); showServos([]);
   say(`connected to ${s.port}`, "info");
