@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # make demo needs only the package itself (no test, lint or docs tools).
 DEMO_STAMP := $(VENV)/.demo-installed
 
-.PHONY: all demo robot-demo test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser web-demo bench-web
+.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser web-demo bench-web
 
 all: test
 
@@ -51,6 +51,10 @@ FORMATTED := tests/test_docs_examples.py tests/test_docstrings.py tests/test_pub
 	ics35_async/transports/pyserial_port.py ics35_async/transports/device_port.py ics35_async/drivers/core.py \
 	ics35_async/drivers/asyncio_driver.py ics35_async/drivers/thread_driver.py ics35_async/drivers/anyio_driver.py \
 	tests/test_ports.py benchmarks/bench_web.py
+
+# The configurator's screenshots in docs/images, taken by its browser tests (a plain test run leaves them alone).
+screenshots: $(STAMP)
+	ICS35_SCREENSHOTS=1 $(BIN)/pytest -q -p no:cacheprovider tests/test_web_browser.py
 
 # The servo configurator in the browser, on the simulator (prints its URL; Ctrl-C stops it).
 web-demo: $(STAMP)

@@ -3,7 +3,9 @@ driven by Playwright, against ``ics35 web`` run as a user runs it, on simulated 
 
 The simulated line lives in this process (served on a pty by a thread), so
 every change the page makes is checked on the simulated servo itself.  Each
-page's screenshot goes to ``docs/images/web-*.png`` (the docs show them).
+page's screenshot is taken; with ``ICS35_SCREENSHOTS=1`` (``make screenshots``)
+it goes to ``docs/images/web-*.png``, which the docs show (a plain test run
+leaves the tracked pictures alone).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ CHROMIUM_ARGS = [
 ]  # fmt: skip
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
+KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
 WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
 expect.set_options(timeout=WAIT_MS)
 
@@ -110,13 +113,17 @@ def page(browser: Browser, server: str) -> Iterator[Page]:
 
 
 def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
-    """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls)."""
-    IMAGES.mkdir(parents=True, exist_ok=True)
+    """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls);
+    into docs/images with ICS35_SCREENSHOTS=1."""
     size = page.viewport_size
     page.set_viewport_size({"width": width, "height": height})
     page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
     page.locator("main h1:visible").scroll_into_view_if_needed()
-    page.screenshot(path=str(IMAGES / f"web-{name}.png"))
+    picture = page.screenshot()
+    assert picture.startswith(b"\x89PNG")
+    if KEEP_SHOTS:
+        IMAGES.mkdir(parents=True, exist_ok=True)
+        (IMAGES / f"web-{name}.png").write_bytes(picture)
     if size is not None:
         page.set_viewport_size(size)
 
