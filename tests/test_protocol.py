@@ -438,7 +438,11 @@ GOOD_PARSED: list[tuple[Command[Any], bytes, object]] = [
     (WriteEeprom(1, EEPROM), h("41 00"), None),
     (ReadId(), h("F4"), 20),
     (WriteId(20), h("F4"), 20),
-    (ReadMemory(1, 0, 8), h("21 7F 00 08 00 03 0F 0F 00 00 00 00 00 01 05 05 00 02 0A 0A"), h("03 FF 00 00 01 55 02 AA")),
+    (
+        ReadMemory(1, 0, 8),
+        h("21 7F 00 08 00 03 0F 0F 00 00 00 00 00 01 05 05 00 02 0A 0A"),
+        h("03 FF 00 00 01 55 02 AA"),
+    ),
     (WriteMemory(1, 4, b"\x12\xab"), h("41 7F 04 02"), None),
 ]
 GOOD: list[tuple[Command[Any], bytes]] = [(cmd, reply) for cmd, reply, _ in GOOD_PARSED]

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
-from tests._cli_fixtures import edit_backup
+from tests.support.cli_runs import edit_backup
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
 

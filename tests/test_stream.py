@@ -37,10 +37,9 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
+from tests.support.timing import FAST, GUARD, REAL_TIME
 
-FAST: dict[str, Any] = {"adapter_latency": 0.003, "quiet_time": 0.001}
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
-GUARD = 5.0  # seconds: only against hangs, never a timing assertion
 
 
 def start_position(i: int) -> int:
@@ -635,7 +634,7 @@ async def test_an_impossible_rate_counts_overruns() -> None:
     sim = make_sim(ids, realtime=True)
     try:
         async with (
-            open_bus(sim, adapter_latency=0.05, quiet_time=0.001) as bus,
+            open_bus(sim, **REAL_TIME) as bus,
             bus.stream(ids, rate_hz=5000) as stream,
         ):
             frames = [await next_frame(stream) for _ in range(3)]

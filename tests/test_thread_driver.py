@@ -18,9 +18,7 @@ import pytest
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.thread_ports import FdWait
 from ics35_async.sim import VirtualLine, VirtualServo, start_subprocess, stop_subprocess
-
-FAST = {"adapter_latency": 0.02, "quiet_time": 0.002}
-UNHURRIED = {"adapter_latency": 0.5, "quiet_time": 0.002}  # a loaded machine cannot time these replies out
+from tests.support.timing import FAST, NO_TIMEOUTS
 
 
 async def test_a_request_to_a_silent_servo_times_out_while_the_line_idles() -> None:
@@ -107,7 +105,7 @@ async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
     # awaits it may look at the statistics at once, and must find the transaction counted ok.
     proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
     try:
-        async with open_bus(path, driver="thread", **UNHURRIED) as bus:
+        async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
             behind = []
             for n in range(1, 2001):
                 await bus.servo(1 + n % 2).read_stretch()
@@ -122,7 +120,7 @@ async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
 async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
     proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
     try:
-        async with open_bus(path, driver="thread", **UNHURRIED) as bus, bus.stream([1, 2]) as stream:
+        async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
             behind = []
             for _ in range(1000):
                 frame = await stream.next_frame()
@@ -141,7 +139,7 @@ async def test_a_stream_reply_it_rejects_is_never_counted_ok() -> None:
     # for the instant before it is taken back.  (Never taken offline: asked every cycle.)
     proc, path = start_subprocess(["--fast", "--ids", "1-2", "--faults", "msb@2:1.0"], quiet=True)
     try:
-        bus = await open_bus(path, driver="thread", **UNHURRIED)
+        bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
         async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
             seen = []
             for _ in range(1000):
