@@ -101,7 +101,8 @@ class PtySim:
 @pytest.fixture
 def pty_sim() -> Iterator[Callable[..., PtySim]]:
     """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS`` (notes to /dev/null);
-    ``.path`` is its pty.  Every server still running is stopped after the test."""
+    ``.path`` is its pty.  Every server still running is stopped after the test, and each must have exited
+    cleanly (0) on SIGTERM."""
     started: list[PtySim] = []
 
     def start(*args: str) -> PtySim:
@@ -110,5 +111,30 @@ def pty_sim() -> Iterator[Callable[..., PtySim]]:
         return started[-1]
 
     yield start
-    for server in started:
-        server.stop()
+    codes = [server.stop() for server in started]
+    assert codes == [0] * len(started), f"a simulator server did not exit cleanly on SIGTERM: {codes}"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so."""
+    for item in items:
+        if "pty_sim" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.pty)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--fail-on-skip",
+        action="store_true",
+        help="exit non-zero if any test was skipped (make test: CI must not pass by skipping)",
+    )
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if not session.config.getoption("--fail-on-skip") or reporter is None or hasattr(session.config, "workerinput"):
+        return
+    skipped = reporter.stats.get("skipped", [])
+    if skipped and exitstatus == 0:
+        reporter.write_line(f"--fail-on-skip: {len(skipped)} test(s) skipped; every test must run here", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

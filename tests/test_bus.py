@@ -436,6 +436,7 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
     assert 0 < stats.latency.percentile(50) <= stats.latency.max_s
 
 
+@pytest.mark.pty
 async def test_over_a_pty_through_the_real_serial_transport() -> None:
     with serving(["--fast", "--ids", "0-7"]) as path:
         async with open_bus(path, **REAL_TIME) as bus:
@@ -496,6 +497,7 @@ async def test_a_parity_error_on_the_wire_fails_that_transaction_only(line: tupl
     assert await bus.servo(3).read_stretch() == 13
 
 
+@pytest.mark.pty
 async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
     """The ID read's echo is FF 00 00 00; with parity marks on, the kernel sends FF FF."""
     with serving(["--ids", "4"]) as path:
@@ -507,6 +509,7 @@ async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
 # --------------------------------------------------------------------------- regressions found in review
 
 
+@pytest.mark.realtime
 async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_allowance() -> None:
     sim = VirtualLine([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
     async with open_bus(sim, adapter_latency=0.005, quiet_time=0.001, eeprom_write=5.0) as bus:

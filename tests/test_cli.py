@@ -375,6 +375,7 @@ def test_monitor_json_lines(cli: Any, sim_line: Any) -> None:
     assert len(docs) == 1  # under a second: the final line only (one line per second)
 
 
+@pytest.mark.realtime
 def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([1, 2])
     result = cli("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "1.5", "--json")

@@ -24,6 +24,7 @@ from tests.support.timing import FAST_TIMING
 blobs = st.binary(min_size=6, max_size=80)
 
 
+@pytest.mark.slow
 def test_fuzz_short() -> None:
     report = fuzz_soak(streams=6_000, batch=200, lines=16, seed=11)
     assert report.streams == 6_000 and report.bus_transactions == 6_000

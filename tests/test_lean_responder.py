@@ -10,7 +10,10 @@ from benchmarks.lean_responder import lean_lines
 from ics35_async import BusGroup, ReplyTimeout, open_bus, protocol
 from tests.support.timing import REAL_TIME
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the responder needs a pty")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the responder needs a pty"),
+]
 
 
 @pytest.mark.parametrize("baud", [115200, 1250000])

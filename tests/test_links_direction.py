@@ -22,7 +22,10 @@ from ics35_async import DirectionControlNotSupported, open_bus
 from ics35_async.errors import InvalidArgument, SerialPortError
 from ics35_async.sim import start_subprocess, stop_subprocess
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux ptys and RS-485 ioctls")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux ptys and RS-485 ioctls"),
+]
 
 DRIVERS = ("asyncio", "thread", "anyio")
 TIOCGRS485, TIOCSRS485 = 0x542E, 0x542F

@@ -146,6 +146,7 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
 
 
 @pytest.mark.timeout(300)  # 7 s here; about 50 s under four CPU burners with coverage
+@pytest.mark.slow
 async def test_chaos_short() -> None:
     report = await chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
     assert report.transactions >= 12_000
@@ -168,6 +169,7 @@ async def test_chaos_short() -> None:
     assert 0 < report.throughput_ratio < 1.2
 
 
+@pytest.mark.slow
 async def test_cancellation_short() -> None:
     report = await cancellation_soak(cancellations=800, seed=9)
     assert report.cancellations >= 800
@@ -183,6 +185,8 @@ async def test_cancellation_short() -> None:
 
 
 @linux_only
+@pytest.mark.realtime
+@pytest.mark.pty
 async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
     tally = new_unplug_tally()
@@ -199,6 +203,7 @@ async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
 
 
 @linux_only
+@pytest.mark.pty
 async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
     tally = new_unplug_tally()
     await no_reconnect_session(tally)

@@ -257,6 +257,7 @@ async def test_a_flood_of_requests_lets_a_position_transaction_through_every_max
 # --------------------------------------------------------------------------- dead IDs
 
 
+@pytest.mark.realtime
 async def test_dead_id_goes_offline_is_probed_at_a_low_rate_and_rejoins() -> None:
     ids = list(range(32))
     dead = 5
@@ -608,6 +609,7 @@ async def test_slow_consumer_gets_the_latest_frame_and_a_skip_count_without_slow
     check_frames(frames, sim, ids)
 
 
+@pytest.mark.realtime
 async def test_fixed_rate_never_runs_faster_than_asked_and_leaves_the_line_to_requests() -> None:
     ids = [0, 1, 2, 3]
     rate = 50.0
@@ -628,6 +630,7 @@ async def test_fixed_rate_never_runs_faster_than_asked_and_leaves_the_line_to_re
     check_frames(frames, sim, ids)
 
 
+@pytest.mark.realtime
 async def test_an_impossible_rate_counts_overruns() -> None:
     ids = list(range(32))
     # Real time: 32 position transactions at 115200 take > 20 ms, a 5000 Hz period is 0.2 ms.
@@ -707,6 +710,7 @@ async def test_bad_input_raises_invalid_argument_and_writes_nothing() -> None:
         assert sent == {position_tx(1, 7500), position_tx(2, 7000), position_tx(3, 8000)}
 
 
+@pytest.mark.realtime
 async def test_a_closed_streams_last_reply_never_reaches_the_next_stream() -> None:
     """Close a stream with its command on the wire, start another: the old reply is not the new one's."""
     sim = VirtualLine([VirtualServo(i) for i in (1, 2, 3, 4)], realtime=True)

@@ -12,12 +12,13 @@ import contextlib
 import os
 import time
 import tty
+from typing import Any
 
 import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.thread_ports import FdWait
-from ics35_async.sim import VirtualLine, VirtualServo, start_subprocess, stop_subprocess
+from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.timing import FAST, NO_TIMEOUTS
 
 
@@ -100,54 +101,47 @@ def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains() -> None:
         os.close(master)
 
 
-async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
+async def test_a_caller_that_hears_its_answer_sees_it_counted(pty_sim: Any) -> None:
     # The I/O thread hands the answer to the loop while it still holds the engine: whoever
     # awaits it may look at the statistics at once, and must find the transaction counted ok.
-    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
-    try:
-        async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
-            behind = []
-            for n in range(1, 2001):
-                await bus.servo(1 + n % 2).read_stretch()
-                ok = bus.stats.total.ok
-                if ok < n:
-                    behind.append((n, ok))
-            assert behind == []
-    finally:
-        stop_subprocess(proc)
+    path = pty_sim("--fast", "--ids", "1-2").path
+    async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
+        behind = []
+        for n in range(1, 2001):
+            await bus.servo(1 + n % 2).read_stretch()
+            ok = bus.stats.total.ok
+            if ok < n:
+                behind.append((n, ok))
+        assert behind == []
 
 
-async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
-    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
-    try:
-        async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
-            behind = []
-            for _ in range(1000):
-                frame = await stream.next_frame()
-                total = bus.stats.total
-                ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
-                if ended < 2 * frame.cycle:
-                    behind.append((frame.cycle, ended))
-            assert behind == []
-    finally:
-        stop_subprocess(proc)
+@pytest.mark.pty
+async def test_a_stream_frame_comes_with_its_transactions_counted(pty_sim: Any) -> None:
+    path = pty_sim("--fast", "--ids", "1-2").path
+    async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
+        behind = []
+        for _ in range(1000):
+            frame = await stream.next_frame()
+            total = bus.stats.total
+            ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
+            if ended < 2 * frame.cycle:
+                behind.append((frame.cycle, ended))
+        assert behind == []
 
 
-async def test_a_stream_reply_it_rejects_is_never_counted_ok() -> None:
+@pytest.mark.pty
+async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> None:
     # Every reply of servo 2 has a byte with its MSB set: the stream rejects it.  The engine counts
     # a stream reply before the frame it ends is published; a rejected one must not show as ok even
     # for the instant before it is taken back.  (Never taken offline: asked every cycle.)
-    proc, path = start_subprocess(["--fast", "--ids", "1-2", "--faults", "msb@2:1.0"], quiet=True)
-    try:
-        bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
-        async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
-            seen = []
-            for _ in range(1000):
-                frame = await stream.next_frame()
-                two = bus.stats.per_id.get(2)
-                if two is not None and two.ok:
-                    seen.append((frame.cycle, two.ok))
-            assert seen == []
-            assert bus.stats.per_id[2].bad_replies > 0
-    finally:
-        stop_subprocess(proc)
+    path = pty_sim("--fast", "--ids", "1-2", "--faults", "msb@2:1.0").path
+    bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
+    async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
+        seen = []
+        for _ in range(1000):
+            frame = await stream.next_frame()
+            two = bus.stats.per_id.get(2)
+            if two is not None and two.ok:
+                seen.append((frame.cycle, two.ok))
+        assert seen == []
+        assert bus.stats.per_id[2].bad_replies > 0

@@ -34,6 +34,9 @@ CHROMIUM_ARGS = [
 ]  # fmt: skip
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
+# The tests walk one page in order (a servo opened, then backed up, ...): `make test` hands each module
+# whole to one xdist worker (--dist loadfile).
+pytestmark = [pytest.mark.slow, pytest.mark.pty]
 WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
 expect.set_options(timeout=WAIT_MS)
 

@@ -3,14 +3,13 @@
 Every test that talks to a simulator through a bus uses :data:`FAST` (``open_bus(sim, **FAST)``) or
 :data:`FAST_TIMING` (``open_bus(sim, timing=FAST_TIMING)``), the same allowances either way, or
 :data:`REAL_TIME` when the reply comes from a pty or a real-time simulator, or :data:`NO_TIMEOUTS` when
-no reply may time out at all.  A test
-that sets a timing value itself does so because that value is what it tests (a reply held past the
-allowance, a real-time pace), never for speed or slack.
+no reply may time out at all.  A test that sets a timing value itself does so because that value is what
+it tests (a reply held past the allowance, a real-time pace), never for speed or slack.
 
-The allowances are how long a bus waits for a reply beyond its wire time.  The in-process simulator
-answers at once, so they matter only when the machine is so loaded that a reply is late: raise
-``ICS35_TEST_TIME_SCALE`` (``ICS35_TEST_TIME_SCALE=3 make test``) and every allowance and guard
-grows by that factor.  A test never asserts that something was fast.
+The allowances are how long a bus waits for a reply beyond its wire time.  Across a pty or from a
+real-time simulator a reply can be late when the machine is loaded: raise ``ICS35_TEST_TIME_SCALE``
+(``ICS35_TEST_TIME_SCALE=3 make test``) and every allowance and guard grows by that factor.  A test
+never asserts that something was fast.
 """
 
 from __future__ import annotations
@@ -39,9 +38,10 @@ def scaled(seconds: float) -> float:
     return seconds * SCALE
 
 
-# In process, fast mode: the reply is there as soon as the bus writes.  20 ms is the library's own adapter
-# allowance, ample on a busy 2-core machine.
-FAST: TimingOverrides = {"adapter_latency": scaled(0.020), "eeprom_write": scaled(0.020), "quiet_time": 0.001}
+# In process, fast mode: the simulator queues its reply on the bus's loop as the bus writes, ahead of any
+# deadline, so no load makes a reply late here; the allowance is what each expected timeout costs (a scan's
+# empty IDs, an offline servo): short.
+FAST: TimingOverrides = {"adapter_latency": scaled(0.003), "eeprom_write": scaled(0.005), "quiet_time": 0.001}
 FAST_TIMING = BusTiming(**FAST)
 # Across a real-time boundary: a pty served by another process, or a real-time simulator's delivery thread,
 # where the reply waits for another process or thread to be scheduled.
