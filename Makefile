@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # make demo needs only the package itself (no test, lint or docs tools).
 DEMO_STAMP := $(VENV)/.demo-installed
 
-.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser web-demo bench-web
+.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser tools web-demo bench-web stress
 
 all: test
 
@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does
 	$(BIN)/python -m pip install --quiet -e '.[dev,web]' --config-settings editable_mode=compat
-	$(MAKE) --no-print-directory browser
+	$(MAKE) --no-print-directory browser tools
 	touch $(STAMP)
 
 # The web configurator's browser tests drive Debian's chromium through Playwright (Playwright's own
@@ -27,6 +27,17 @@ browser:
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
 	else echo "note: the browser tests need chromium: sudo apt-get install chromium (or set ICS35_CHROMIUM)" >&2; fi
+
+# Programs the tests drive besides Python: socat (a TCP serial bridge in front of the pty simulator).
+# Installed here, as root on a Debian-like machine, never by a test; a test that finds one missing
+# fails and names this target.
+TOOLS := socat
+tools:
+	@missing=""; for t in $(TOOLS); do command -v $$t >/dev/null || missing="$$missing $$t"; done; \
+	if [ -z "$$missing" ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
+	else echo "note: the tests need$$missing: sudo apt-get install$$missing" >&2; fi
 
 $(DEMO_STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -73,10 +84,35 @@ format: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy --strict ics35_async
 
+# pytest in two passes.  First everything but the real-time tests on PYTEST_WORKERS processes (pytest-xdist):
+# most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so twice the
+# cores pays; --dist loadfile keeps each module on one worker (module-scoped servers started once, the
+# browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names).
+# Then the tests marked realtime, one at a time, alone: they judge real elapsed time.  One coverage report.
+PYTEST_WORKERS ?= 4
+COV := --cov=ics35_async --cov-branch
 pytest: $(STAMP)
-	$(BIN)/pytest --cov=ics35_async --cov-branch --cov-report=term-missing:skip-covered
+	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile -m "not realtime" $(COV) --cov-report=
+	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered
 
-test: lint typecheck docs pytest
+# The quick checks run beside pytest (make -j): they use the CPU while the tests mostly wait.
+test: $(STAMP)
+	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck docs pytest
+
+# Flakiness measured: the whole suite five times in a row under two CPU-burning processes (this target
+# starts them and stops them, also on Ctrl-C); fails on the first failing run.  Last result: the
+# Reliability page.
+STRESS_RUNS ?= 5
+stress: $(STAMP)
+	@mkdir -p build; burners=""; trap 'kill $$burners 2>/dev/null' EXIT INT TERM; \
+	for n in 1 2; do $(BIN)/python -c "while True: pass" & burners="$$burners $$!"; done; \
+	echo "stress: $(STRESS_RUNS) runs of make pytest beside two CPU burners (pids$$burners) on $$(nproc) cores"; \
+	for run in $$(seq $(STRESS_RUNS)); do \
+		start=$$(date +%s); \
+		$(MAKE) --no-print-directory pytest > build/stress-$$run.log 2>&1; code=$$?; \
+		echo "stress: run $$run: exit $$code, $$(( $$(date +%s) - start )) s, $$(grep -E '(passed|failed)' build/stress-$$run.log | tail -2 | tr '\n' ' ')"; \
+		[ $$code -eq 0 ] || { echo "stress: run $$run failed, see build/stress-$$run.log"; exit 1; }; \
+	done; echo "stress: $(STRESS_RUNS) of $(STRESS_RUNS) runs passed"
 
 # The docs site (MkDocs Material + mkdocstrings): warnings, broken links and
 # unresolved cross-references fail the build.

@@ -45,8 +45,7 @@ from ics35_async.eeprom import EEPROM_FIELDS
 from ics35_async.group import GroupStream
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.stream import Stream
-
-FAST = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
+from tests.support.timing import FAST_TIMING
 
 
 @dataclass
@@ -65,7 +64,7 @@ class Env:
 @pytest.fixture
 async def env() -> AsyncIterator[Env]:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], memory={5: bytes(128)})
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         image = await bus.servo(1).read_eeprom()
         stream = bus.stream([1, 2])  # built, not started: argument checks need no traffic
         group = BusGroup({"a": bus}).stream({"a": [1, 2]})
@@ -431,7 +430,7 @@ def test_cli_sim_server_refuses_bad_ids_without_serving() -> None:
 
 async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_answers() -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], log_size=None)
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         for confirm in (False, None, 1, "yes"):
             with pytest.raises(UnsafeOperation):
                 await bus.write_id(7, exactly_one_device=confirm)  # type: ignore[arg-type]
@@ -446,7 +445,7 @@ async def test_id_write_refused_unless_confirmed_and_when_more_than_one_device_a
 
 async def test_id_write_with_exactly_one_device() -> None:
     sim = VirtualLine([VirtualServo(4)])
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         assert await bus.write_id(9, exactly_one_device=True) == 9
         assert sim.servos[0].servo_id == 9 and sim.servos[0].calibration_intact
         assert await bus.read_id(exactly_one_device=True) == 9
@@ -479,7 +478,7 @@ def eeprom_edits(draw: st.DrawFn) -> dict[str, Any]:
 def test_eeprom_writes_never_touch_the_factory_calibration(edits: list[dict[str, Any]]) -> None:
     async def run() -> None:
         sim = VirtualLine([VirtualServo(3)])
-        async with open_bus(sim, timing=FAST) as bus:
+        async with open_bus(sim, timing=FAST_TIMING) as bus:
             servo = bus.servo(3)
             for change in edits:
                 try:
@@ -504,7 +503,7 @@ def test_eeprom_writes_never_touch_the_factory_calibration(edits: list[dict[str,
 )
 async def test_a_dangerous_eeprom_change_needs_a_real_true(field: str, value: int, flag: str) -> None:
     sim = VirtualLine([VirtualServo(1)])
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         servo = bus.servo(1)
         image = (await servo.read_eeprom()).replace(**{field: value})
         with pytest.raises(InvalidArgument):
@@ -514,7 +513,7 @@ async def test_a_dangerous_eeprom_change_needs_a_real_true(field: str, value: in
 
 async def test_baud_change_needs_confirmation_then_the_bus_reopens_at_the_new_rate() -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)])
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         servo = bus.servo(1)
         image = await servo.read_eeprom()
         for rate in (625000, 1250000):

@@ -32,6 +32,7 @@ from ics35_async.policies import plan_eeprom_write, write_eeprom_plan
 from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
 from tests.support.leaks import open_fds
+from tests.support.timing import REAL_TIME
 
 
 def threads() -> set[threading.Thread]:
@@ -343,12 +344,13 @@ def test_exception_in_the_block_closes_the_bus(no_leaks: None) -> None:
     assert not bus.is_open and not bus.thread.is_alive()
 
 
+@pytest.mark.pty
 def test_pty_simulator_round_trip_and_no_leaks() -> None:
     with serving(["--ids", "1-3", "--fast"]) as path:
         gc.collect()
         before_threads, before_fds = threads(), open_fds()
         for _ in range(2):  # twice: the second opening finds the port released
-            with blocking.open_bus(path) as bus:
+            with blocking.open_bus(path, **REAL_TIME) as bus:
                 assert bus.scan(range(5)) == [1, 2, 3]
                 with bus.stream([1, 2, 3]) as stream:
                     stream.set_targets({1: 8000, 2: 7000})

@@ -23,6 +23,8 @@ import pytest
 
 from ics35_async.sim.launch import serving
 
+pytestmark = pytest.mark.realtime
+
 CHILD = textwrap.dedent(
     """
     import json, os, sys, threading, traceback

@@ -32,8 +32,8 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
+from tests.support.timing import FAST, REAL_TIME
 
-FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
 # For a silent ID's request that must still be on the wire when the port goes: a loaded machine can
 # stall the test for longer than FAST's allowance between the request and the unplug.
 HELD = {**FAST, "adapter_latency": 2.0}
@@ -434,9 +434,10 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
     assert 0 < stats.latency.percentile(50) <= stats.latency.max_s
 
 
+@pytest.mark.pty
 async def test_over_a_pty_through_the_real_serial_transport() -> None:
     with serving(["--fast", "--ids", "0-7"]) as path:
-        async with open_bus(path, adapter_latency=0.05) as bus:
+        async with open_bus(path, **REAL_TIME) as bus:
             rng = random.Random(1)
 
             async def worker(seed: int) -> None:
@@ -481,10 +482,11 @@ async def test_a_stalled_loop_does_not_time_out_a_reply_that_already_arrived(lin
     assert bus.stats.total.timeouts == 0
 
 
+@pytest.mark.pty
 async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
     """The ID read's echo is FF 00 00 00; with parity marks on, the kernel sends FF FF."""
     with serving(["--ids", "4"]) as path:
-        async with open_bus(path, adapter_latency=0.05) as bus:
+        async with open_bus(path, **REAL_TIME) as bus:
             assert await bus.read_id(exactly_one_device=True) == 4
             assert bus.stats.total.errors == 0
 
@@ -492,6 +494,7 @@ async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
 # --------------------------------------------------------------------------- regressions found in review
 
 
+@pytest.mark.realtime
 async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_allowance() -> None:
     sim = VirtualLine([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
     async with open_bus(sim, adapter_latency=0.005, quiet_time=0.001, eeprom_write=5.0) as bus:

@@ -21,9 +21,6 @@ from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied
-from tests._cli_fixtures import ics35, line
-
-__all__ = ["ics35", "line"]  # the shared fixtures, used by name
 
 # --------------------------------------------------------------------------- bad arguments
 
@@ -56,17 +53,17 @@ __all__ = ["ics35", "line"]  # the shared fixtures, used by name
         ["monitor", "0-40"],
     ],
 )
-def test_bad_arguments_exit_2_and_send_nothing(ics35: Any, line: Any, args: list[str]) -> None:
-    sim, url = line()
-    result = ics35("--port", url, *args)
+def test_bad_arguments_exit_2_and_send_nothing(cli: Any, sim_line: Any, args: list[str]) -> None:
+    sim, url = sim_line()
+    result = cli("--port", url, *args)
     assert result.code == ExitCode.USAGE == 2
     assert "Error" in result.err or "error" in result.err
     assert sim.transactions == 0
 
 
-def test_unknown_param_names_the_choices(ics35: Any, line: Any) -> None:
-    _, url = line()
-    result = ics35("--port", url, "get", "1", "voltage")
+def test_unknown_param_names_the_choices(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line()
+    result = cli("--port", url, "get", "1", "voltage")
     for name in ("stretch", "speed", "current", "temperature"):
         assert name in result.err
 
@@ -82,9 +79,9 @@ def test_id_lists() -> None:
 # --------------------------------------------------------------------------- reads, with --json
 
 
-def test_scan_json_lists_exactly_the_servos(ics35: Any, line: Any) -> None:
-    _, url = line([4, 9, 30])
-    result = ics35("--port", url, "scan", "--bauds", "115200", "--timeout", "0.005", "--json")
+def test_scan_json_lists_exactly_the_servos(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([4, 9, 30])
+    result = cli("--port", url, "scan", "--bauds", "115200", "--timeout", "0.005", "--json")
     assert result.code == 0
     doc = result.json()
     assert [(s["id"], s["baud"]) for s in doc["servos"]] == [(4, 115200), (9, 115200), (30, 115200)]
@@ -92,10 +89,10 @@ def test_scan_json_lists_exactly_the_servos(ics35: Any, line: Any) -> None:
     assert doc["garbled"] == []
 
 
-def test_scan_finds_servos_at_every_baud(ics35: Any, line: Any) -> None:
+def test_scan_finds_servos_at_every_baud(cli: Any, sim_line: Any) -> None:
     servos = [VirtualServo(1), VirtualServo(2, baud_rate=1250000), VirtualServo(3, baud_rate=625000)]
-    _, url = line(servos)
-    result = ics35("--port", url, "scan", "--ids", "0-4", "--timeout", "0.005")
+    _, url = sim_line(servos)
+    result = cli("--port", url, "scan", "--ids", "0-4", "--timeout", "0.005")
     assert result.code == 0
     lines = [ln.split() for ln in result.out.splitlines()]
     rows = {int(cols[0]): int(cols[1]) for cols in lines if len(cols) > 2 and cols[0].isdigit() and cols[1].isdigit()}
@@ -103,17 +100,17 @@ def test_scan_finds_servos_at_every_baud(ics35: Any, line: Any) -> None:
     assert "servos at different baud rates" in result.err
 
 
-def test_scan_reports_a_shared_id_as_garbled(ics35: Any, line: Any) -> None:
-    _, url = line([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
-    result = ics35("--port", url, "scan", "--bauds", "115200", "--ids", "0-4", "--json")
+def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
+    result = cli("--port", url, "scan", "--bauds", "115200", "--ids", "0-4", "--json")
     doc = result.json()
     assert [s["id"] for s in doc["servos"]] == [1]
     assert doc["garbled"] == [{"id": 3, "baud": 115200}]
 
 
-def test_info_json_matches_the_servo(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(7, position=9000)])
-    result = ics35("--port", url, "info", "7", "--json", "--free")
+def test_info_json_matches_the_servo(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(7, position=9000)])
+    result = cli("--port", url, "info", "7", "--json", "--free")
     assert result.code == 0
     doc = result.json()
     assert doc["position"] == 9000 and doc["free"] is True and doc["protocol"] == "ICS 3.5"
@@ -123,140 +120,140 @@ def test_info_json_matches_the_servo(ics35: Any, line: Any) -> None:
     assert doc["temperature"]["raw"] == sim.servo(7).temperature
 
 
-def test_info_no_position_keeps_the_servo_holding(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    assert ics35("--port", url, "move", "1", "8000").code == 0
-    result = ics35("--port", url, "info", "1", "--no-position")
+def test_info_no_position_keeps_the_servo_holding(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    assert cli("--port", url, "move", "1", "8000").code == 0
+    result = cli("--port", url, "info", "1", "--no-position")
     assert result.code == 0
     assert "not read" in result.out
     assert not sim.servo(1).free
-    result = ics35("--port", url, "info", "1")
+    result = cli("--port", url, "info", "1")
     assert "pass --free" in result.out
     assert not sim.servo(1).free
-    result = ics35("--port", url, "info", "1", "--free")
+    result = cli("--port", url, "info", "1", "--free")
     assert "torque now OFF" in result.out
     assert sim.servo(1).free
 
 
-def test_move_counts_and_degrees(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "move", "1", "8200", "--json")
+def test_move_counts_and_degrees(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "move", "1", "8200", "--json")
     assert result.code == 0
     assert result.json()["target"] == 8200
     assert sim.servo(1).target == 8200
-    result = ics35("--port", url, "move", "1", "-30", "--deg")
+    result = cli("--port", url, "move", "1", "-30", "--deg")
     assert result.code == 0
     assert sim.servo(1).target == units.degrees_to_position(-30)
-    result = ics35("--port", url, "move", "1", "7499")  # -0.03 degrees
+    result = cli("--port", url, "move", "1", "7499")  # -0.03 degrees
     assert result.code == 0
     assert "target 7499 (+0.0°)" in result.out  # never "-0.0"
 
 
-def test_free_several(ics35: Any, line: Any) -> None:
-    sim, url = line([1, 2, 3])
+def test_free_several(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1, 2, 3])
     for i in (1, 2, 3):
         sim.servo(i).command_position(8000)
-    result = ics35("--port", url, "free", "1-2", "--json")
+    result = cli("--port", url, "free", "1-2", "--json")
     assert result.code == 0
     assert set(result.json()["freed"]) == {"1", "2"}
     assert sim.servo(1).free and sim.servo(2).free and not sim.servo(3).free
 
 
-def test_free_reports_the_missing_one(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("--port", url, "--timeout", "0.005", "free", "1", "2")
+def test_free_reports_the_missing_one(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("--port", url, "--timeout", "0.005", "free", "1", "2")
     assert result.code == ExitCode.NO_REPLY
     assert "servo 1: free at" in result.out
     assert "2" in result.err
 
 
-def test_get_and_set_are_ram(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "set", "1", "speed", "50")
+def test_get_and_set_are_ram(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "set", "1", "speed", "50")
     assert result.code == 0
     assert "RAM" in result.out
     assert sim.servo(1).speed == 50
     assert sim.servo(1).eeprom.speed == 127  # RAM only
-    result = ics35("--port", url, "get", "1", "speed", "--json")
+    result = cli("--port", url, "get", "1", "speed", "--json")
     assert result.json() == {"id": 1, "param": "speed", "value": 50, "memory": "RAM"}
-    result = ics35("--port", url, "get", "1", "temperature")
+    result = cli("--port", url, "get", "1", "temperature")
     assert "RAM" in result.out and "hotter" in result.out
-    result = ics35("--port", url, "set", "1", "current-limit", "20", "--json")
+    result = cli("--port", url, "set", "1", "current-limit", "20", "--json")
     assert result.json()["value"] == 20
     assert sim.servo(1).current_limit == 20
 
 
-def test_get_limit_reads_the_eeprom_and_says_so(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
+def test_get_limit_reads_the_eeprom_and_says_so(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
     sim.servo(1).eeprom = sim.servo(1).eeprom.replace(temperature_limit=70)
-    result = ics35("--port", url, "get", "1", "temperature-limit", "--json")
+    result = cli("--port", url, "get", "1", "temperature-limit", "--json")
     assert result.json() == {"id": 1, "param": "temperature-limit", "value": 70, "memory": "EEPROM"}
-    result = ics35("--port", url, "get", "1", "current-limit")
+    result = cli("--port", url, "get", "1", "current-limit")
     assert "= 63" in result.out and "EEPROM" in result.out and "cannot be read back" in result.out
 
 
 # --------------------------------------------------------------------------- errors a person can act on
 
 
-def test_no_servo_answering(ics35: Any, line: Any) -> None:
-    _, url = line([])
-    result = ics35("--port", url, "--timeout", "0.005", "info", "1")
+def test_no_servo_answering(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([])
+    result = cli("--port", url, "--timeout", "0.005", "info", "1")
     assert result.code == ExitCode.NO_REPLY
     assert "power" in result.err and "scan" in result.err
-    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    result = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
     assert result.code == ExitCode.NO_REPLY
 
 
-def test_a_silent_line_points_at_the_adapter(ics35: Any, line: Any) -> None:
-    _, url = line([], echo=False)
-    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+def test_a_silent_line_points_at_the_adapter(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([], echo=False)
+    result = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
     assert result.code == ExitCode.NO_REPLY
     assert "not even the echo" in result.err
 
 
-def test_wrong_baud_is_named(ics35: Any, line: Any) -> None:
-    _, url = line([VirtualServo(1, baud_rate=1250000)])
-    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+def test_wrong_baud_is_named(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([VirtualServo(1, baud_rate=1250000)])
+    result = cli("--port", url, "--timeout", "0.005", "get", "1", "speed")
     assert result.code == ExitCode.WRONG_BAUD
     assert "--baud 1250000" in result.err
-    assert ics35("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
+    assert cli("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
 
 
-def test_missing_port(ics35: Any) -> None:
-    result = ics35("--port", "/dev/ics35-no-such-port", "info", "1")
+def test_missing_port(cli: Any) -> None:
+    result = cli("--port", "/dev/ics35-no-such-port", "info", "1")
     assert result.code == ExitCode.PORT
     assert "no serial port" in result.err
     assert result.err.count("ics35 ports") == 1  # where to look, said once
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
-def test_a_windows_port_name_elsewhere_is_named_as_such(ics35: Any) -> None:
-    result = ics35("--port", "COM3", "info", "1")
+def test_a_windows_port_name_elsewhere_is_named_as_such(cli: Any) -> None:
+    result = cli("--port", "COM3", "info", "1")
     assert result.code == ExitCode.PORT
     assert "COM names are Windows'" in result.err
 
 
-def test_missing_echo_is_named(ics35: Any, line: Any) -> None:
-    _, url = line([1], echo=False)
-    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+def test_missing_echo_is_named(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1], echo=False)
+    result = cli("--port", url, "--timeout", "0.005", "get", "1", "speed")
     assert result.code == ExitCode.COMMUNICATION
     assert "pass --no-echo" in result.err
-    assert ics35("--port", url, "--no-echo", "get", "1", "speed").code == 0
+    assert cli("--port", url, "--no-echo", "get", "1", "speed").code == 0
 
 
-def test_a_late_reply_ahead_of_the_echo_is_not_named_as_a_missing_echo(ics35: Any) -> None:
+def test_a_late_reply_ahead_of_the_echo_is_not_named_as_a_missing_echo(cli: Any) -> None:
     # Every reply's last 2 bytes come late (a TCP bridge holding a tail): the retry's echo arrives
     # behind them.  The echo is there, so --no-echo would be the wrong advice.
-    result = ics35("--port", "sim://?ids=1&faults=tail@1:1.0&tail_bytes=2", "get", "1", "stretch")
+    result = cli("--port", "sim://?ids=1&faults=tail@1:1.0&tail_bytes=2", "get", "1", "stretch")
     assert result.code == ExitCode.COMMUNICATION
     assert "ahead of the echo" in result.err
     assert "--no-echo" not in result.err
     assert "--timeout" in result.err
 
 
-def test_needless_no_echo_is_named(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
+def test_needless_no_echo_is_named(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
     assert result.code == ExitCode.COMMUNICATION
     assert "drop --no-echo" in result.err
 
@@ -270,60 +267,60 @@ def test_permission_denied_points_at_dialout() -> None:
 # --------------------------------------------------------------------------- EEPROM
 
 
-def test_eeprom_set_shows_diff_and_needs_confirmation(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="n\n")
+def test_eeprom_set_shows_diff_and_needs_confirmation(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="n\n")
     assert result.code == ExitCode.REFUSED
     assert "speed" in result.out and "90" in result.out
     assert sim.servo(1).eeprom.speed == 127 and sim.servo(1).eeprom_writes == 0
-    result = ics35("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="y\n")
+    result = cli("--port", url, "eeprom", "set", "1", "speed=90", "flags=PWMINH", stdin="y\n")
     assert result.code == 0
     image = sim.servo(1).eeprom
     assert image.speed == 90 and image.flags == Flags.PWMINH
     assert sim.servo(1).calibration_intact
 
 
-def test_eeprom_set_without_terminal_or_yes_writes_nothing(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "set", "1", "punch=5")
+def test_eeprom_set_without_terminal_or_yes_writes_nothing(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", "punch=5")
     assert result.code == ExitCode.REFUSED
     assert "--yes" in result.err
     assert sim.servo(1).eeprom_writes == 0
 
 
-def test_eeprom_baud_change_needs_its_own_flag(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "set", "1", "baud=1250000", "--yes")
+def test_eeprom_baud_change_needs_its_own_flag(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", "baud=1250000", "--yes")
     assert result.code == ExitCode.REFUSED
     assert "--change-baud" in result.err and "HS" in result.err and "ONLY at 1250000" in result.err
     assert sim.servo(1).eeprom.baud_rate == BaudRate.B115200 and sim.servo(1).eeprom_writes == 0
 
-    result = ics35("--port", url, "eeprom", "set", "1", "baud=1250000", "--change-baud", "--yes", "--json")
+    result = cli("--port", url, "eeprom", "set", "1", "baud=1250000", "--change-baud", "--yes", "--json")
     assert result.code == 0
     assert result.json()["changes"] == {"baud_rate": [115200, 1250000]}
     assert sim.servo(1).eeprom.baud_rate == BaudRate.B1250000
     assert sim.servo(1).calibration_intact
     sim.servo(1).power_cycle()
-    assert ics35("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
+    assert cli("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
 
 
-def test_eeprom_id_change_refused_on_collision(ics35: Any, line: Any) -> None:
-    sim, url = line([1, 2])
-    result = ics35("--port", url, "eeprom", "set", "1", "id=2", "--yes")
+def test_eeprom_id_change_refused_on_collision(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1, 2])
+    result = cli("--port", url, "eeprom", "set", "1", "id=2", "--yes")
     assert result.code == ExitCode.REFUSED
     assert sim.servo(1).eeprom_writes == 0
-    result = ics35("--port", url, "eeprom", "set", "1", "id=5", "--yes")
+    result = cli("--port", url, "eeprom", "set", "1", "id=5", "--yes")
     assert result.code == 0
     assert sorted(s.servo_id for s in sim.servos) == [2, 5]
 
 
-def test_restore_keeps_the_target_servos_calibration_and_id(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2])
+def test_restore_keeps_the_target_servos_calibration_and_id(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2])
     sim.servo(1).eeprom = sim.servo(1).eeprom.replace(speed=33, punch=4, user_offset=-5, flags=Flags.PWMINH)
     backup = tmp_path / "one.json"
-    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
 
-    result = ics35("--port", url, "eeprom", "restore", "2", str(backup), "--yes")
+    result = cli("--port", url, "eeprom", "restore", "2", str(backup), "--yes")
     assert result.code == 0, result.err
     two = sim.servo(2).eeprom
     assert (two.speed, two.punch, two.user_offset, two.flags) == (33, 4, -5, Flags.PWMINH)
@@ -332,16 +329,16 @@ def test_restore_keeps_the_target_servos_calibration_and_id(ics35: Any, line: An
 
     # Servo 1's backup (with servo 1's calibration in its raw image) leaves servo 3's alone too.
     sim.add_device(VirtualServo(3))
-    assert ics35("--port", url, "eeprom", "restore", "3", str(backup), "--yes").code == 0
+    assert cli("--port", url, "eeprom", "restore", "3", str(backup), "--yes").code == 0
     assert sim.servo(3).eeprom.speed == 33 and sim.servo(3).calibration_intact
 
 
-def test_restore_rejects_a_broken_backup(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1])
+def test_restore_rejects_a_broken_backup(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1])
     bad = tmp_path / "bad.json"
     for content in ("not json", json.dumps({"fields": {"speed": 500}}), json.dumps([1, 2])):
         bad.write_text(content)
-        result = ics35("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
+        result = cli("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
         assert result.code == ExitCode.USAGE
     assert sim.transactions == 0
 
@@ -349,16 +346,16 @@ def test_restore_rejects_a_broken_backup(ics35: Any, line: Any, tmp_path: Path) 
 # --------------------------------------------------------------------------- set-id, monitor, demo
 
 
-def test_set_id_refused_with_a_shared_id(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(3), VirtualServo(3)])
-    result = ics35("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
+def test_set_id_refused_with_a_shared_id(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(3), VirtualServo(3)])
+    result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
     assert result.code == ExitCode.REFUSED
     assert [s.servo_id for s in sim.servos] == [3, 3]
 
 
-def test_demo_leaves_every_servo_free(ics35: Any, line: Any) -> None:
-    sim, url = line(range(4))
-    result = ics35("--port", url, "demo", "--ids", "0-3", "--seconds", "0.5")
+def test_demo_leaves_every_servo_free(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line(range(4))
+    result = cli("--port", url, "demo", "--ids", "0-3", "--seconds", "0.5")
     assert result.code == 0, result.err
     assert "left free" in result.out
     assert all(s.free for s in sim.servos)
@@ -366,9 +363,9 @@ def test_demo_leaves_every_servo_free(ics35: Any, line: Any) -> None:
     assert all(s.eeprom_writes == 0 for s in sim.servos)
 
 
-def test_monitor_json_lines(ics35: Any, line: Any) -> None:
-    _, url = line([1, 2])
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "0.3", "--json")
+def test_monitor_json_lines(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2])
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "0.3", "--json")
     assert result.code == 0
     docs = [json.loads(ln) for ln in result.out.splitlines()]
     assert docs[-1]["final"] is True
@@ -378,9 +375,10 @@ def test_monitor_json_lines(ics35: Any, line: Any) -> None:
     assert len(docs) == 1  # under a second: the final line only (one line per second)
 
 
-def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(ics35: Any, line: Any) -> None:
-    _, url = line([1, 2])
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "1.5", "--json")
+@pytest.mark.realtime
+def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2])
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "1.5", "--json")
     assert result.code == 0, result.err
     docs = [json.loads(ln) for ln in result.out.splitlines()]
     assert [d["final"] for d in docs] == [False] * (len(docs) - 1) + [True]
@@ -388,26 +386,26 @@ def test_monitor_json_lines_come_once_a_second_each_with_a_measured_rate(ics35: 
     assert docs[0]["t"] >= 1.0 and all(d["rate_hz"] > 0 for d in docs), docs
 
 
-def test_monitor_plot_without_matplotlib(ics35: Any, line: Any, monkeypatch: pytest.MonkeyPatch) -> None:
-    sim, url = line([1])
+def test_monitor_plot_without_matplotlib(cli: Any, sim_line: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    sim, url = sim_line([1])
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # makes `import matplotlib` fail
-    result = ics35("--port", url, "monitor", "1", "--seconds", "0.2", "--plot", "x.png")
+    result = cli("--port", url, "monitor", "1", "--seconds", "0.2", "--plot", "x.png")
     assert result.code == ExitCode.USAGE
     assert "pip install" in result.err
     assert sim.transactions == 0
 
 
-def test_monitor_plot_writes_a_png(ics35: Any, line: Any, tmp_path: Path) -> None:
+def test_monitor_plot_writes_a_png(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
-    _, url = line([1, 2])
+    _, url = sim_line([1, 2])
     target = tmp_path / "trace.png"
-    result = ics35("--port", url, "monitor", "--free", "1,2", "--seconds", "0.3", "--plot", str(target))
+    result = cli("--port", url, "monitor", "--free", "1,2", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_each_command_gets_a_fresh_unnamed_simulator(ics35: Any) -> None:
-    first = ics35("--port", "sim://?ids=4", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
-    second = ics35("--port", "sim://?ids=6", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+def test_each_command_gets_a_fresh_unnamed_simulator(cli: Any) -> None:
+    first = cli("--port", "sim://?ids=4", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+    second = cli("--port", "sim://?ids=6", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
     assert [s["id"] for s in first.json()["servos"]] == [4]
     assert [s["id"] for s in second.json()["servos"]] == [6]

@@ -15,9 +15,7 @@ import pytest
 from ics35_async.cli import ExitCode, main
 from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
-from tests._cli_fixtures import edit_backup, ics35, line
-
-__all__ = ["ics35", "line"]  # the shared fixtures, used by name
+from tests.support.cli_runs import edit_backup
 
 Damage = Callable[[dict[str, Any]], None]
 
@@ -84,11 +82,11 @@ DAMAGED: dict[str, tuple[Damage, str]] = {
 @pytest.mark.parametrize("damage", DAMAGED, ids=list(DAMAGED))
 @pytest.mark.parametrize("how", ["to its own servo", "to a named servo", "from a directory"])
 def test_each_damaged_backup_is_refused_before_anything_is_sent(
-    ics35: Any, line: Any, tmp_path: Path, damage: str, how: str
+    cli: Any, sim_line: Any, tmp_path: Path, damage: str, how: str
 ) -> None:
-    sim, url = line([1, 2])
+    sim, url = sim_line([1, 2])
     folder = tmp_path / "backup"
-    assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{folder}/").code == 0
+    assert cli("--port", url, "eeprom", "dump", "1,2", "-o", f"{folder}/").code == 0
     for i in (1, 2):  # the servos drift from their backups: a restore would write
         sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
     bad = folder / "servo-02.json"
@@ -98,20 +96,20 @@ def test_each_damaged_backup_is_refused_before_anything_is_sent(
     bad.write_text(json.dumps(doc))
     before = sim.transactions
     args = {"to its own servo": [str(bad)], "to a named servo": ["2", str(bad)], "from a directory": [str(folder)]}
-    result = ics35("--port", url, "eeprom", "restore", *args[how], "--yes")
+    result = cli("--port", url, "eeprom", "restore", *args[how], "--yes")
     assert result.code == ExitCode.USAGE, result.err
     assert "servo-02.json" in result.err and expected in " ".join(result.err.split()), result.err
     assert sim.transactions == before  # nothing sent, so nothing written either
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
 
 
-def test_a_backup_edited_whole_is_restored(ics35: Any, line: Any, tmp_path: Path) -> None:
+def test_a_backup_edited_whole_is_restored(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     """Raw image and fields changed together is a backup that agrees with itself: it is written."""
-    sim, url = line([1])
+    sim, url = sim_line([1])
     backup = tmp_path / "one.json"
-    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
     edit_backup(backup, speed=40)
-    result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes")
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
     assert result.code == 0, result.err
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
 
@@ -139,10 +137,10 @@ class PullsThePlug(VirtualServo):
         return reply
 
 
-def drifted_line(line: Any, tmp_path: Path, when: str) -> tuple[VirtualLine, str, Path, PullsThePlug]:
+def drifted_line(sim_line: Any, tmp_path: Path, when: str) -> tuple[VirtualLine, str, Path, PullsThePlug]:
     """Servos 1-3 backed up into DIR, then changed; servo 2 pulls the plug ``when``."""
     plug = PullsThePlug(2, when)
-    sim, url = line([VirtualServo(1), plug, VirtualServo(3)])
+    sim, url = sim_line([VirtualServo(1), plug, VirtualServo(3)])
     folder = tmp_path / "backup"
     assert ics35_cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/") == 0
     for i in (1, 2, 3):
@@ -157,9 +155,9 @@ def ics35_cli(*args: str) -> int:
     return int(exited.value.code or 0)
 
 
-def test_restore_lost_mid_write_says_what_each_servo_holds(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url, folder, _ = drifted_line(line, tmp_path, "write")
-    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(sim_line, tmp_path, "write")
+    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes")
     assert result.code == ExitCode.COMMUNICATION, result.err
     out = " ".join(result.out.split())
     assert "servo 1: 1 EEPROM field(s) written and verified" in out
@@ -174,9 +172,9 @@ def test_restore_lost_mid_write_says_what_each_servo_holds(ics35: Any, line: Any
     assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
 
 
-def test_restore_lost_before_the_read_back_in_json(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url, folder, _ = drifted_line(line, tmp_path, "read-back")
-    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+def test_restore_lost_before_the_read_back_in_json(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url, folder, _ = drifted_line(sim_line, tmp_path, "read-back")
+    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
     assert result.code == ExitCode.COMMUNICATION, result.err
     servos = {s["id"]: s for s in result.json()["servos"]}
     assert {i: s["outcome"] for i, s in servos.items()} == {1: "verified", 2: "unverified", 3: "not_written"}
@@ -185,28 +183,28 @@ def test_restore_lost_before_the_read_back_in_json(ics35: Any, line: Any, tmp_pa
     assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
 
 
-def test_restore_that_succeeds_reports_every_servo(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2, 3])
+def test_restore_that_succeeds_reports_every_servo(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2, 3])
     folder = tmp_path / "backup"
-    assert ics35("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/").code == 0
+    assert cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/").code == 0
     for i in (1, 3):
         sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
-    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
+    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes", "--json")
     assert result.code == 0, result.err
     outcomes = {s["id"]: s["outcome"] for s in result.json()["servos"]}
     assert outcomes == {1: "verified", 2: "unchanged", 3: "verified"}
-    result = ics35("--port", url, "eeprom", "restore", str(folder), "--yes")
+    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes")
     assert result.code == 0 and "servo 2: EEPROM already matches" in result.out
 
 
-def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(ics35: Any, line: Any, tmp_path: Path) -> None:
+def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     """An EEPROM reply has no checksum: a corrupted nibble reads as a valid image.  A backup is saved only
     from two reads that agree, so it is the servo's image or no backup at all."""
     saved = 0
     for seed in range(12):
-        sim, url = line([1], faults="corrupt@1:0.4", seed=seed)
+        sim, url = sim_line([1], faults="corrupt@1:0.4", seed=seed)
         backup = tmp_path / f"servo-{seed}.json"
-        result = ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup))
+        result = cli("--port", url, "eeprom", "dump", "1", "-o", str(backup))
         if result.code != 0:
             assert not backup.exists()
             continue
@@ -227,11 +225,11 @@ class UnpluggedWhenFreed(VirtualServo):
         return reply
 
 
-def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(ics35: Any, line: Any) -> None:
+def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: Any, sim_line: Any) -> None:
     puller = UnpluggedWhenFreed(2)
-    sim, url = line([VirtualServo(1), puller, VirtualServo(3)])
+    sim, url = sim_line([VirtualServo(1), puller, VirtualServo(3)])
     puller.line = sim
-    result = ics35("--port", url, "free", "1-3")
+    result = cli("--port", url, "free", "1-3")
     assert result.code == ExitCode.COMMUNICATION, result.err
     assert "servo 1: free at 7500" in result.out
     assert "servo 2: unknown: the line was lost before it answered" in " ".join(result.out.split())

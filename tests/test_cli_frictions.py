@@ -14,80 +14,77 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.robot import load_description, open_robot
 from ics35_async.sim import VirtualLine, VirtualServo
-from tests._cli_fixtures import ics35, line
-
-__all__ = ["ics35", "line"]  # the shared fixtures, used by name
 
 
 @pytest.mark.parametrize("command", [["get", "1", "speed"], ["info", "1"], ["scan", "--ids", "1-2"]])
-def test_a_read_without_port_says_in_its_own_output_that_it_is_the_simulator(ics35: Any, command: list[str]) -> None:
-    result = ics35(*command)
+def test_a_read_without_port_says_in_its_own_output_that_it_is_the_simulator(cli: Any, command: list[str]) -> None:
+    result = cli(*command)
     assert result.code == 0, result.err
     assert result.out.splitlines()[0].startswith("simulated servos (the built-in simulator")
-    as_json = ics35(*command[:1], *command[1:], "--json") if command[0] != "info" else None
+    as_json = cli(*command[:1], *command[1:], "--json") if command[0] != "info" else None
     if as_json is not None:
         assert as_json.code == 0 and as_json.json()["simulated"] is True
 
 
-def test_a_read_with_a_port_is_not_marked(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("--port", url, "get", "1", "speed", "--json")
+def test_a_read_with_a_port_is_not_marked(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("--port", url, "get", "1", "speed", "--json")
     assert result.code == 0 and "simulated" not in result.json()
-    assert "simulated servos" not in ics35("--port", url, "get", "1", "speed").out
+    assert "simulated servos" not in cli("--port", url, "get", "1", "speed").out
 
 
-def test_a_dump_without_port_stays_a_valid_backup_and_says_so(ics35: Any) -> None:
-    result = ics35("eeprom", "dump", "1")
+def test_a_dump_without_port_stays_a_valid_backup_and_says_so(cli: Any) -> None:
+    result = cli("eeprom", "dump", "1")
     assert result.code == 0, result.err
     assert result.json()["simulated"] is True and result.json()["format"] == "ics35-eeprom/1"
 
 
-def test_eeprom_help_shows_the_summary_of_set_whole(ics35: Any) -> None:
-    result = ics35("eeprom", "--help")
+def test_eeprom_help_shows_the_summary_of_set_whole(cli: Any) -> None:
+    result = cli("eeprom", "--help")
     assert result.code == 0
     text = " ".join(result.out.split())
     assert "Change EEPROM fields: eeprom set 1 speed=100 flags+=PWMINH." in text
     assert "e.g.\n" not in result.out and "asks..." not in text
 
 
-def test_json_before_the_command_is_accepted_like_the_line_options(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("--json", "--port", url, "get", "1", "speed")
+def test_json_before_the_command_is_accepted_like_the_line_options(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("--json", "--port", url, "get", "1", "speed")
     assert result.code == 0, result.err
     assert result.json()["value"] == 127
-    result = ics35("--json", "teach", "robot.toml", "out.json")
+    result = cli("--json", "teach", "robot.toml", "out.json")
     assert result.code == ExitCode.USAGE and "--json: `ics35 teach` has no JSON output" in result.err
 
 
-def test_a_bad_baud_from_the_environment_names_the_variable(ics35: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_bad_baud_from_the_environment_names_the_variable(cli: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ICS35_BAUD", "12")
-    result = ics35("get", "1", "speed")
+    result = cli("get", "1", "speed")
     assert result.code == ExitCode.USAGE and "(from ICS35_BAUD=12)" in result.err
 
 
 def test_a_port_from_the_environment_is_named_when_it_fails(
-    ics35: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+    cli: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
     missing = str(tmp_path / "ttyUSB9")
     monkeypatch.setenv("ICS35_PORT", missing)
-    result = ics35("get", "1", "speed")
+    result = cli("get", "1", "speed")
     assert result.code == ExitCode.PORT
     assert f"from the environment: ICS35_PORT={missing}" in result.err
-    result = ics35("--port", str(tmp_path / "other"), "get", "1", "speed")  # --port wins: not named
+    result = cli("--port", str(tmp_path / "other"), "get", "1", "speed")  # --port wins: not named
     assert result.code == ExitCode.PORT and "ICS35_PORT" not in result.err
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="a POSIX directory")
-def test_a_directory_as_a_port_says_so_once(ics35: Any, tmp_path: Path) -> None:
-    result = ics35("--port", str(tmp_path), "get", "1", "speed")
+def test_a_directory_as_a_port_says_so_once(cli: Any, tmp_path: Path) -> None:
+    result = cli("--port", str(tmp_path), "get", "1", "speed")
     assert result.code == ExitCode.PORT
     assert result.err.lower().count("is a directory") == 1 and result.err.count("Errno") == 1, result.err
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="the pty simulator is POSIX only")
-def test_sim_help_is_laid_out_like_every_other_command(ics35: Any) -> None:
-    theirs = ics35("scan", "--help").out
-    result = ics35("sim", "--help")
+def test_sim_help_is_laid_out_like_every_other_command(cli: Any) -> None:
+    theirs = cli("scan", "--help").out
+    result = cli("sim", "--help")
     assert result.code == 0
     assert result.out.startswith("Usage: ics35 sim [OPTIONS]") and theirs.startswith("Usage: ics35 scan [OPTIONS]")
     assert "\nOptions:\n" in result.out and "\nOptions:\n" in theirs
@@ -96,12 +93,12 @@ def test_sim_help_is_laid_out_like_every_other_command(ics35: Any) -> None:
     assert "usage:" not in result.out and "options:" not in result.out  # argparse's own layout
 
 
-def test_restore_to_a_silent_servo_names_restores_own_syntax(ics35: Any, line: Any, tmp_path: Path) -> None:
-    _, url = line([1])
+def test_restore_to_a_silent_servo_names_restores_own_syntax(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    _, url = sim_line([1])
     backup = tmp_path / "one.json"
-    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
-    _, other = line([2])
-    result = ics35("--port", other, "--timeout", "0.005", "eeprom", "restore", str(backup), "--yes")
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    _, other = sim_line([2])
+    result = cli("--port", other, "--timeout", "0.005", "eeprom", "restore", str(backup), "--yes")
     assert result.code == ExitCode.NO_REPLY
     assert f"to write it to another servo: ics35 eeprom restore ID {backup}" in " ".join(result.err.split())
 

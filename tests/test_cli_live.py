@@ -9,21 +9,18 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode
-from tests._cli_fixtures import ics35, line
-
-__all__ = ["ics35", "line"]
 
 TELEMETRY_READS = ("read_current", "read_temperature")
 
 
 @pytest.mark.parametrize("command", [["monitor", "1-4", "--free"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
 def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
-    ics35: Any, line: Any, command: list[str]
+    cli: Any, sim_line: Any, command: list[str]
 ) -> None:
     # ID 4 is listed but absent: the stream takes it out of its cycle after a few misses,
     # and telemetry must follow, not spend a reply timeout on it every round.
-    sim, url = line([1, 2, 3], log_size=None)
-    result = ics35("--port", url, "--timeout", "0.005", *command, "--seconds", "1", "--telemetry", "4")
+    sim, url = sim_line([1, 2, 3], log_size=None)
+    result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "1", "--telemetry", "4")
     assert result.code == 0, result.err
     reads = Counter(t.servo_id for t in sim.log_since(0) if t.command in TELEMETRY_READS)
     # Only the reads queued before the stream marked ID 4 offline reach it.
@@ -42,20 +39,20 @@ def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
     ],
 )
 def test_plot_path_and_format_are_checked_before_the_line(
-    ics35: Any, line: Any, tmp_path: Path, command: list[str], plot: str, says: str
+    cli: Any, sim_line: Any, tmp_path: Path, command: list[str], plot: str, says: str
 ) -> None:
     pytest.importorskip("matplotlib")
-    sim, url = line([1])
-    result = ics35("--port", url, *command, "--seconds", "1", "--plot", plot.format(tmp=tmp_path))
+    sim, url = sim_line([1])
+    result = cli("--port", url, *command, "--seconds", "1", "--plot", plot.format(tmp=tmp_path))
     assert result.code == ExitCode.USAGE
     assert "--plot" in result.err and says in result.err, result.err
     assert sim.transactions == 0
 
 
-def test_plot_in_another_format_is_written(ics35: Any, line: Any, tmp_path: Path) -> None:
+def test_plot_in_another_format_is_written(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
-    _, url = line([1])
+    _, url = sim_line([1])
     target = tmp_path / "trace.svg"
-    result = ics35("--port", url, "monitor", "--free", "1", "--seconds", "0.3", "--plot", str(target))
+    result = cli("--port", url, "monitor", "--free", "1", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert b"<svg" in target.read_bytes()[:500]

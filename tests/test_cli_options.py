@@ -12,52 +12,49 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualServo, serving
-from tests._cli_fixtures import ics35, line
-
-__all__ = ["ics35", "line"]
 
 # --------------------------------------------------------------------------- line options after the command
 
 
-def test_port_after_the_command(ics35: Any, line: Any) -> None:
-    _, url = line([4, 9])
-    result = ics35("scan", "--port", url, "--bauds", "115200", "--ids", "0-10", "--quick", "--json")
+def test_port_after_the_command(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([4, 9])
+    result = cli("scan", "--port", url, "--bauds", "115200", "--ids", "0-10", "--quick", "--json")
     assert result.code == 0, result.err
     assert [s["id"] for s in result.json()["servos"]] == [4, 9]
 
 
-def test_short_port_and_baud_after_the_command(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1, baud_rate=1250000)])
-    result = ics35("move", "1", "8000", "-p", url, "-b", "1250000", "--json")
+def test_short_port_and_baud_after_the_command(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1, baud_rate=1250000)])
+    result = cli("move", "1", "8000", "-p", url, "-b", "1250000", "--json")
     assert result.code == 0, result.err
     assert sim.servo(1).target == 8000
 
 
-def test_long_baud_after_the_positional_arguments(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1, baud_rate=625000)])
-    result = ics35("--port", url, "move", "1", "8000", "--baud", "625000")
+def test_long_baud_after_the_positional_arguments(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1, baud_rate=625000)])
+    result = cli("--port", url, "move", "1", "8000", "--baud", "625000")
     assert result.code == 0, result.err
     assert sim.servo(1).target == 8000
 
 
-def test_flags_and_timeouts_after_the_command_take_effect(ics35: Any, line: Any) -> None:
-    _, url = line([1])
+def test_flags_and_timeouts_after_the_command_take_effect(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
     # --no-echo on an echoing line is diagnosed: proof that the flag reached the bus.
-    result = ics35("get", "1", "speed", "--port", url, "--no-echo", "--timeout", "0.005", "--retries", "0")
+    result = cli("get", "1", "speed", "--port", url, "--no-echo", "--timeout", "0.005", "--retries", "0")
     assert result.code == ExitCode.COMMUNICATION
     assert "drop --no-echo" in result.err
 
 
-def test_options_after_a_subcommand_of_a_group(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("eeprom", "dump", "1", "--port", url)
+def test_options_after_a_subcommand_of_a_group(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("eeprom", "dump", "1", "--port", url)
     assert result.code == 0, result.err
     assert json.loads(result.out)["servo_id"] == 1
 
 
-def test_an_option_after_the_command_wins_over_the_same_before(ics35: Any, line: Any) -> None:
-    _, url = line([1])
-    result = ics35("--port", "/dev/ics35-no-such-port", "get", "1", "speed", "--port", url, "--json")
+def test_an_option_after_the_command_wins_over_the_same_before(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1])
+    result = cli("--port", "/dev/ics35-no-such-port", "get", "1", "speed", "--port", url, "--json")
     assert result.code == 0, result.err
     assert result.json()["value"] == 127
 
@@ -77,30 +74,30 @@ def test_an_option_after_the_command_wins_over_the_same_before(ics35: Any, line:
     ],
     ids=lambda a: " ".join(a[:2]),
 )
-def test_a_write_on_the_implicit_simulator_is_refused(ics35: Any, args: list[str]) -> None:
-    backup = ics35("eeprom", "dump", "1").out  # a read: the implicit simulator is fine for it
-    result = ics35(*args, stdin=backup)
+def test_a_write_on_the_implicit_simulator_is_refused(cli: Any, args: list[str]) -> None:
+    backup = cli("eeprom", "dump", "1").out  # a read: the implicit simulator is fine for it
+    result = cli(*args, stdin=backup)
     assert result.code == ExitCode.USAGE, result.err
     assert "--port /dev/ttyUSB0" in result.err and "--port sim://" in result.err
     assert "written" not in result.out and "target" not in result.out
 
 
-def test_a_write_on_an_explicit_simulator_runs(ics35: Any, monkeypatch: pytest.MonkeyPatch) -> None:
-    assert ics35("--port", "sim://", "move", "1", "7600").code == 0
-    assert ics35("move", "1", "7600", "--port", "sim://").code == 0
+def test_a_write_on_an_explicit_simulator_runs(cli: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert cli("--port", "sim://", "move", "1", "7600").code == 0
+    assert cli("move", "1", "7600", "--port", "sim://").code == 0
     monkeypatch.setenv("ICS35_PORT", "sim://")
-    assert ics35("move", "1", "7600").code == 0
+    assert cli("move", "1", "7600").code == 0
 
 
-def test_a_read_on_the_implicit_simulator_says_so_once(ics35: Any) -> None:
-    result = ics35("get", "1", "speed", "--json")
+def test_a_read_on_the_implicit_simulator_says_so_once(cli: Any) -> None:
+    result = cli("get", "1", "speed", "--json")
     assert result.code == 0
     notes = [ln for ln in result.err.splitlines() if "simulator" in ln]
     assert len(notes) == 1 and "--port" in notes[0]
 
 
-def test_demo_on_the_implicit_simulator_says_so(ics35: Any) -> None:
-    result = ics35("demo", "--ids", "0-1", "--seconds", "0.2", "--telemetry", "0")
+def test_demo_on_the_implicit_simulator_says_so(cli: Any) -> None:
+    result = cli("demo", "--ids", "0-1", "--seconds", "0.2", "--telemetry", "0")
     assert result.code == 0, result.err
     assert [ln for ln in result.err.splitlines() if "built-in simulator" in ln]
 
@@ -112,12 +109,12 @@ def pty_port() -> Any:
         yield path
 
 
-def test_demo_on_hardware_without_ids_asks_first(ics35: Any, pty_port: str) -> None:
-    result = ics35("--port", pty_port, "demo", "--seconds", "0.2", stdin="n\n")
+def test_demo_on_hardware_without_ids_asks_first(cli: Any, pty_port: str) -> None:
+    result = cli("--port", pty_port, "demo", "--seconds", "0.2", stdin="n\n")
     assert result.code == ExitCode.REFUSED, result.err
     assert "1, 2" in result.err and "[y/N]" in result.err
     assert "demo done" not in result.out
-    result = ics35("--port", pty_port, "demo", "--seconds", "0.2", "--telemetry", "0", stdin="y\n")
+    result = cli("--port", pty_port, "demo", "--seconds", "0.2", "--telemetry", "0", stdin="y\n")
     assert result.code == 0, result.err
     assert "demo done" in result.out
 

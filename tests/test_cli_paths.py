@@ -12,26 +12,23 @@ import pytest
 
 from ics35_async.cli import CliError, ExitCode
 from ics35_async.cli._paths import check_output_path
-from tests._cli_fixtures import ics35
-
-__all__ = ["ics35"]
 
 
-def test_a_sim_record_file_in_a_missing_directory(ics35: Any) -> None:
-    result = ics35("--port", "sim://?record=/nonexistent/x.txt", "move", "1", "7500")
+def test_a_sim_record_file_in_a_missing_directory(cli: Any) -> None:
+    result = cli("--port", "sim://?record=/nonexistent/x.txt", "move", "1", "7500")
     assert result.code == ExitCode.USAGE
     assert "/nonexistent" in result.err and "does not exist" in result.err
 
 
-def test_a_sim_replay_file_that_is_not_there(ics35: Any, tmp_path: Path) -> None:
-    result = ics35("--port", f"sim://?replay={tmp_path}/missing.txt", "get", "1", "speed")
+def test_a_sim_replay_file_that_is_not_there(cli: Any, tmp_path: Path) -> None:
+    result = cli("--port", f"sim://?replay={tmp_path}/missing.txt", "get", "1", "speed")
     assert result.code == ExitCode.USAGE
     assert "no such file" in result.err
 
 
-def test_a_sim_record_file_is_written(ics35: Any, tmp_path: Path) -> None:
+def test_a_sim_record_file_is_written(cli: Any, tmp_path: Path) -> None:
     target = tmp_path / "session.txt"
-    assert ics35("--port", f"sim://?record={target}", "move", "1", "7600").code == 0
+    assert cli("--port", f"sim://?record={target}", "move", "1", "7600").code == 0
     assert "position" in target.read_text()
 
 

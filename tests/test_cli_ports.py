@@ -17,9 +17,6 @@ from serial.tools.list_ports_common import ListPortInfo
 
 from ics35_async.transports import listing
 from ics35_async.transports.listing import kondo_usb_without_port, list_serial_ports
-from tests._cli_fixtures import ics35
-
-__all__ = ["ics35"]
 
 
 def port_info(device: str, description: str, vid: int | None = None, pid: int | None = None) -> ListPortInfo:
@@ -61,8 +58,8 @@ def test_kondo_adapters_come_first_and_are_marked(machine_ports: list[ListPortIn
     assert found[2].description == ""  # pyserial's "n/a"
 
 
-def test_cli_table(machine_ports: list[ListPortInfo], ics35: Any) -> None:
-    result = ics35("ports")
+def test_cli_table(machine_ports: list[ListPortInfo], cli: Any) -> None:
+    result = cli("ports")
     assert result.code == 0, result.err
     lines = result.out.splitlines()
     kondo = next(line for line in lines if "/dev/ttyUSB0" in line)
@@ -72,8 +69,8 @@ def test_cli_table(machine_ports: list[ListPortInfo], ics35: Any) -> None:
     assert "/dev/ttyS0" in result.out
 
 
-def test_cli_json(machine_ports: list[ListPortInfo], ics35: Any) -> None:
-    result = ics35("ports", "--json")
+def test_cli_json(machine_ports: list[ListPortInfo], cli: Any) -> None:
+    result = cli("ports", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert [(p["device"], p["usb_id"], p["kondo"]) for p in data["ports"]] == [
@@ -84,14 +81,14 @@ def test_cli_json(machine_ports: list[ListPortInfo], ics35: Any) -> None:
     assert data["kondo_without_port"] == []
 
 
-def test_cli_no_ports_exits_3(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, ics35: Any) -> None:
+def test_cli_no_ports_exits_3(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, cli: Any) -> None:
     monkeypatch.setattr(list_ports, "comports", lambda include_links=False: [])
     monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))
-    result = ics35("ports", "--json")
+    result = cli("ports", "--json")
     assert result.code == 3
     assert result.json()["ports"] == []
     assert "no serial ports found" in result.err
-    assert ics35("ports").code == 3
+    assert cli("ports").code == 3
 
 
 def test_kondo_device_without_a_port_is_found_in_sysfs(tmp_path: Path) -> None:
@@ -105,41 +102,41 @@ def test_kondo_device_without_a_port_is_found_in_sysfs(tmp_path: Path) -> None:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
 def test_cli_tells_how_to_make_the_hs_adapter_appear(
-    machine_ports: list[ListPortInfo], tmp_path: Path, ics35: Any
+    machine_ports: list[ListPortInfo], tmp_path: Path, cli: Any
 ) -> None:
     usb_device(tmp_path / "sys", "1-1", "165c", "0008", tty=None)
-    result = ics35("ports")
+    result = cli("ports")
     assert result.code == 0
     assert "sudo modprobe ftdi_sio" in result.err
     assert "echo 165C 0008 | sudo tee /sys/bus/usb-serial/drivers/ftdi_sio/new_id" in result.err
     assert "untested" in result.err
-    data = ics35("ports", "--json").json()
+    data = cli("ports", "--json").json()
     assert data["kondo_without_port"] == ["165C:0008"]
     assert any("new_id" in note for note in data["notes"])
 
 
 def test_latency_advice_for_ftdi_ports_off_linux(
-    machine_ports: list[ListPortInfo], monkeypatch: pytest.MonkeyPatch, ics35: Any
+    machine_ports: list[ListPortInfo], monkeypatch: pytest.MonkeyPatch, cli: Any
 ) -> None:
     monkeypatch.setattr(sys, "platform", "win32")
-    result = ics35("ports")
+    result = cli("ports")
     assert result.code == 0
     assert "Latency Timer" in result.err
     assert "/dev/ttyS0: set" not in result.err  # only for FTDI-based adapters
 
 
-def test_this_machine(ics35: Any) -> None:
+def test_this_machine(cli: Any) -> None:
     """Whatever this machine has: the listing and the exit code agree."""
-    result = ics35("ports", "--json")
+    result = cli("ports", "--json")
     assert result.code == (0 if result.json()["ports"] else 3)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
 def test_the_common_hs_adapter_is_told_its_own_usb_id(
-    machine_ports: list[ListPortInfo], tmp_path: Path, ics35: Any
+    machine_ports: list[ListPortInfo], tmp_path: Path, cli: Any
 ) -> None:
     usb_device(tmp_path / "sys", "1-1", "165c", "0006", tty=None)  # the ICS USB adapter HS (FT232R), unbound
-    result = ics35("ports")
+    result = cli("ports")
     assert "ICS USB adapter HS (165C:0006)" in result.err
     assert "echo 165C 0006 | sudo tee /sys/bus/usb-serial/drivers/ftdi_sio/new_id" in result.err
     assert "165C 0008" not in result.err

@@ -8,10 +8,6 @@ from typing import Any
 
 from ics35_async.sim import VirtualLine, VirtualServo
 
-from ._cli_fixtures import ics35, line
-
-__all__ = ["ics35", "line"]
-
 TORQUE_COMMANDS = {"position", "free"}
 
 
@@ -19,46 +15,46 @@ def sent(sim: VirtualLine, servo_id: int) -> list[str]:
     return [t.command for t in sim.log_since(0) if t.servo_id == servo_id]
 
 
-def test_info_sends_an_ics35_servo_no_position_or_free_command(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    assert ics35("--port", url, "move", "1", "8000").code == 0
+def test_info_sends_an_ics35_servo_no_position_or_free_command(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    assert cli("--port", url, "move", "1", "8000").code == 0
     seq = sim.transactions
-    result = ics35("--port", url, "info", "1")
+    result = cli("--port", url, "info", "1")
     assert result.code == 0, result.err
     assert "ICS 3.5" in result.out and "not read" in result.out and "--free" in result.out
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(seq)}
     assert sim.servo(1).target == 8000  # still holding
-    doc = ics35("--port", url, "info", "1", "--json").json()
+    doc = cli("--port", url, "info", "1", "--json").json()
     assert doc["position"] is None and doc["free"] is False and doc["protocol"] == "ICS 3.5"
     assert "free command" in doc["no_position_because"]
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(seq)}
 
 
-def test_info_shows_an_ics36_servos_position_without_freeing_it(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1, position=9000, ics36=True)])
-    result = ics35("--port", url, "info", "1", "--json")
+def test_info_shows_an_ics36_servos_position_without_freeing_it(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1, position=9000, ics36=True)])
+    result = cli("--port", url, "info", "1", "--json")
     assert result.code == 0, result.err
     doc = result.json()
     assert (doc["position"], doc["position_read_by"], doc["free"]) == (9000, "read", False)
     assert doc["protocol"] == "ICS 3.6" and doc["no_position_because"] is None
     assert not TORQUE_COMMANDS & set(sent(sim, 1))
-    assert "torque left as it was" in ics35("--port", url, "info", "1").out
+    assert "torque left as it was" in cli("--port", url, "info", "1").out
     assert not TORQUE_COMMANDS & set(sent(sim, 1))
 
 
-def test_info_free_reads_an_ics35_servo_by_freeing_it_and_says_so(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1, position=8200)])
-    result = ics35("--port", url, "info", "1", "--free")
+def test_info_free_reads_an_ics35_servo_by_freeing_it_and_says_so(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1, position=8200)])
+    result = cli("--port", url, "info", "1", "--free")
     assert result.code == 0, result.err
     assert "8200" in result.out and "torque now OFF" in result.out
     assert sent(sim, 1).count("free") == 1
-    assert ics35("--port", url, "info", "1", "--free", "--no-position").code == 2
+    assert cli("--port", url, "info", "1", "--free", "--no-position").code == 2
 
 
-def test_monitor_watches_ics36_servos_and_names_the_ics35_ones_without_touching_either(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1), VirtualServo(2, position=9000, ics36=True), VirtualServo(3)])
+def test_monitor_watches_ics36_servos_and_names_the_ics35_ones_without_touching_either(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2, position=9000, ics36=True), VirtualServo(3)])
     sim.servo(2).command_position(9000)  # holding: a joint of a standing robot
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "1-3", "--seconds", "0.3", "--json")
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "1-3", "--seconds", "0.3", "--json")
     assert result.code == 0, result.err
     final = [json.loads(ln) for ln in result.out.splitlines()][-1]["servos"]
     assert final["2"]["position"] == 9000 and final["2"]["no_position_because"] is None
@@ -70,18 +66,18 @@ def test_monitor_watches_ics36_servos_and_names_the_ics35_ones_without_touching_
     assert sim.servo(2).target == 9000  # still holding
 
 
-def test_monitor_refuses_when_every_servo_would_have_to_go_limp(ics35: Any, line: Any) -> None:
-    sim, url = line([1, 2])
-    result = ics35("--port", url, "monitor", "1,2", "--seconds", "0.3")
+def test_monitor_refuses_when_every_servo_would_have_to_go_limp(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1, 2])
+    result = cli("--port", url, "monitor", "1,2", "--seconds", "0.3")
     assert result.code == 5, result.err
     assert "ICS 3.5" in result.err and "--free" in result.err
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
 
 
-def test_monitor_free_frees_only_the_ics35_servos(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1, position=8000), VirtualServo(2, ics36=True)])
+def test_monitor_free_frees_only_the_ics35_servos(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1, position=8000), VirtualServo(2, ics36=True)])
     sim.servo(2).command_position(7000)
-    result = ics35("--port", url, "--timeout", "0.005", "monitor", "1,2", "--free", "--seconds", "0.3", "--json")
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "1,2", "--free", "--seconds", "0.3", "--json")
     assert result.code == 0, result.err
     final = [json.loads(ln) for ln in result.out.splitlines()][-1]["servos"]
     assert final["1"]["position"] == 8000

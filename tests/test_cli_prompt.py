@@ -19,7 +19,10 @@ import pytest
 
 from ics35_async.sim import serving
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 LOOPS = {
     "asyncio": "import sys; sys.modules['uvloop'] = None; from ics35_async.cli import main; main()",

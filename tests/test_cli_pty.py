@@ -22,7 +22,10 @@ import pytest
 
 from ics35_async.sim import serving
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 SIM_IDS = [2, 5, 17]
 SIM_BAUD = 625000

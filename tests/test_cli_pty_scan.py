@@ -13,7 +13,10 @@ import pytest
 
 from ics35_async.sim import serving
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 LINE = ["--timeout", "0.015", "--retries", "1"]
 

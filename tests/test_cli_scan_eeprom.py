@@ -13,9 +13,7 @@ from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
-from tests._cli_fixtures import edit_backup, ics35, line
-
-__all__ = ["ics35", "line"]  # the shared fixtures, used by name
+from tests.support.cli_runs import edit_backup
 
 
 def with_flags(servo: VirtualServo, flags: int) -> VirtualServo:
@@ -48,19 +46,19 @@ class LossyAt115200(VirtualServo):
 # --------------------------------------------------------------------------- finding 4: flags
 
 
-def test_flags_plus_and_minus_keep_the_other_flags(ics35: Any, line: Any) -> None:
-    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH)])
-    result = ics35("--port", url, "eeprom", "set", "1", "flags+=REVERSE", "--yes")
+def test_flags_plus_and_minus_keep_the_other_flags(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH)])
+    result = cli("--port", url, "eeprom", "set", "1", "flags+=REVERSE", "--yes")
     assert result.code == 0, result.err
     assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.REVERSE
-    result = ics35("--port", url, "eeprom", "set", "1", "flags-=REVERSE", "flags+=ROTATION", "--yes")
+    result = cli("--port", url, "eeprom", "set", "1", "flags-=REVERSE", "flags+=ROTATION", "--yes")
     assert result.code == 0, result.err
     assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.ROTATION
 
 
-def test_flags_replacement_names_every_flag_it_clears_before_asking(ics35: Any, line: Any) -> None:
-    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.ROTATION)])
-    result = ics35("--port", url, "eeprom", "set", "1", "flags=REVERSE", stdin="n\n")
+def test_flags_replacement_names_every_flag_it_clears_before_asking(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.ROTATION)])
+    result = cli("--port", url, "eeprom", "set", "1", "flags=REVERSE", stdin="n\n")
     assert result.code == ExitCode.REFUSED
     cleared = [row for row in result.out.splitlines() if "flags CLEARED" in row]
     assert len(cleared) == 1 and "PWMINH|ROTATION" in cleared[0]
@@ -70,39 +68,39 @@ def test_flags_replacement_names_every_flag_it_clears_before_asking(ics35: Any, 
 
 
 @pytest.mark.parametrize("assignment", ["flags=FREE", "flags+=PCM", "flags-=FREE", "flags=PWMINH,PCM", "flags=0x0A"])
-def test_read_only_flag_names_are_refused_before_the_wire(ics35: Any, line: Any, assignment: str) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "set", "1", assignment, "--yes")
+def test_read_only_flag_names_are_refused_before_the_wire(cli: Any, sim_line: Any, assignment: str) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", assignment, "--yes")
     assert result.code == ExitCode.USAGE
     assert "read-only" in result.err
     assert sim.transactions == 0
 
 
-def test_only_flags_take_plus_and_minus(ics35: Any, line: Any) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "set", "1", "speed+=5", "--yes")
+def test_only_flags_take_plus_and_minus(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", "speed+=5", "--yes")
     assert result.code == ExitCode.USAGE and "only flags" in result.err
     assert sim.transactions == 0
 
 
-def test_the_servos_read_only_flags_survive_a_replacement(ics35: Any, line: Any) -> None:
-    sim, url = line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.FREE)])
-    assert ics35("--port", url, "eeprom", "set", "1", "flags=REVERSE,PWMINH", "--yes").code == 0
+def test_the_servos_read_only_flags_survive_a_replacement(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.FREE)])
+    assert cli("--port", url, "eeprom", "set", "1", "flags=REVERSE,PWMINH", "--yes").code == 0
     assert sim.servo(1).eeprom.flags == Flags.REVERSE | Flags.PWMINH | Flags.FREE
 
 
 # --------------------------------------------------------------------------- finding 6: one listing per servo
 
 
-def test_scan_lists_each_servo_once_on_a_line_that_ignores_rates(ics35: Any, line: Any) -> None:
-    _, url = line([1, 2], follow_host_baud=False)
+def test_scan_lists_each_servo_once_on_a_line_that_ignores_rates(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2], follow_host_baud=False)
     for quick in ([], ["--quick"]):
-        result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json", *quick)
+        result = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json", *quick)
         assert result.code == 0, result.err
         servos = result.json()["servos"]
         assert [(s["id"], s["baud"]) for s in servos] == [(1, 115200), (2, 115200)]
         assert all(s["answered_at"] == [115200, 625000, 1250000] for s in servos)
-    text = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    text = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
     assert "2 servo(s) found" in text.out and "does not enforce rates" in text.err
 
 
@@ -113,9 +111,9 @@ class EepromUnreadable(VirtualServo):
         return NO_REPLY if isinstance(command, ReadEeprom) else super().handle(command)
 
 
-def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(ics35: Any, line: Any) -> None:
-    sim, url = line([VirtualServo(1), EepromUnreadable(2)], follow_host_baud=False)
-    result = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json")
+def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(1), EepromUnreadable(2)], follow_host_baud=False)
+    result = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005", "--json")
     assert result.code == 0, result.err
     servos = {s["id"]: s for s in result.json()["servos"]}
     assert sorted(servos) == [1, 2]  # servo 2 once, though it answered at three rates and was never read
@@ -124,7 +122,7 @@ def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(ics35: A
     assert servos[2]["answered_at"] == [115200, 625000, 1250000]
     reads = [t for t in sim.log if t.command == "read_eeprom" and t.servo_id == 2]
     assert len(reads) >= 3  # retried before giving up
-    text = ics35("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
+    text = cli("--port", url, "scan", "--ids", "0-3", "--timeout", "0.005")
     assert "rate unconfirmed" in " ".join(text.out.split()) and " 115200? " in text.out
     assert "servo 2: its EEPROM could not be read (after retries), so its rate is unconfirmed" in " ".join(
         text.err.split()
@@ -132,12 +130,12 @@ def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(ics35: A
 
 
 @pytest.mark.parametrize("level", [0.15, 0.30])
-def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(ics35: Any, line: Any, level: float) -> None:
+def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(cli: Any, sim_line: Any, level: float) -> None:
     each = level / 4
     for seed in range(6):
         faults = f"drop:{each},truncate:{each},corrupt:{each},late:{each}"
-        _, url = line([1, 2, 5], follow_host_baud=False, faults=faults, seed=seed)
-        result = ics35("--port", url, "scan", "--ids", "0-7", "--timeout", "0.005", "--json")
+        _, url = sim_line([1, 2, 5], follow_host_baud=False, faults=faults, seed=seed)
+        result = cli("--port", url, "scan", "--ids", "0-7", "--timeout", "0.005", "--json")
         assert result.code == 0, result.err
         listed = [(s["id"], s["baud"], s["rate_confirmed"]) for s in result.json()["servos"]]
         ids = [i for i, _, _ in listed]
@@ -147,29 +145,29 @@ def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(ics35: Any, 
             assert listed == [(1, 115200, True), (2, 115200, True), (5, 115200, True)], (seed, listed)
 
 
-def test_no_advice_of_a_rate_the_eeprom_contradicts(ics35: Any, line: Any) -> None:
-    _, url = line([LossyAt115200(1)])
-    result = ics35("--port", url, "--timeout", "0.005", "get", "1", "speed")
+def test_no_advice_of_a_rate_the_eeprom_contradicts(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([LossyAt115200(1)])
+    result = cli("--port", url, "--timeout", "0.005", "get", "1", "speed")
     assert result.code == ExitCode.NO_REPLY
     assert "--baud" not in result.err and "625000" not in result.err
     # A servo really at another rate still gets the advice.
-    _, url = line([VirtualServo(2, baud_rate=1250000)])
-    result = ics35("--port", url, "--timeout", "0.005", "get", "2", "speed")
+    _, url = sim_line([VirtualServo(2, baud_rate=1250000)])
+    result = cli("--port", url, "--timeout", "0.005", "get", "2", "speed")
     assert result.code == ExitCode.WRONG_BAUD and "--baud 1250000" in result.err
 
 
 # --------------------------------------------------------------------------- finding 7: ID change
 
 
-def test_an_eeprom_id_change_reports_which_id_answers(ics35: Any, line: Any) -> None:
-    sim, url = line([IdAtPowerUp(20)])
-    result = ics35("--port", url, "eeprom", "set", "20", "id=21", "--yes")
+def test_an_eeprom_id_change_reports_which_id_answers(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([IdAtPowerUp(20)])
+    result = cli("--port", url, "eeprom", "set", "20", "id=21", "--yes")
     assert result.code == 0, result.err
     assert "still answers as ID 20" in result.out and "next power-up" in result.out
     assert sim.servos[0].eeprom.servo_id == 21
 
-    sim, url = line([VirtualServo(20)])
-    result = ics35("--port", url, "eeprom", "set", "20", "id=21", "--yes", "--json")
+    sim, url = sim_line([VirtualServo(20)])
+    result = cli("--port", url, "eeprom", "set", "20", "id=21", "--yes", "--json")
     assert result.code == 0, result.err
     assert result.json()["answers_as"] == [21] and result.json()["verified"] is True
 
@@ -177,43 +175,43 @@ def test_an_eeprom_id_change_reports_which_id_answers(ics35: Any, line: Any) -> 
 # --------------------------------------------------------------------------- finding 11: the echo setting
 
 
-def test_no_echo_scan_says_drop_no_echo_like_get(ics35: Any, line: Any) -> None:
-    _, url = line([1, 2])
-    get = ics35("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
-    scan = ics35("--port", url, "--timeout", "0.005", "--no-echo", "scan")
-    set_id = ics35("--port", url, "--timeout", "0.005", "--no-echo", "set-id", "4", "--yes")
+def test_no_echo_scan_says_drop_no_echo_like_get(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2])
+    get = cli("--port", url, "--timeout", "0.005", "--no-echo", "get", "1", "speed")
+    scan = cli("--port", url, "--timeout", "0.005", "--no-echo", "scan")
+    set_id = cli("--port", url, "--timeout", "0.005", "--no-echo", "set-id", "4", "--yes")
     for result in (get, scan, set_id):
         assert result.code == ExitCode.COMMUNICATION
         assert "drop --no-echo" in result.err and "power" not in result.err
 
 
-def test_a_missing_echo_is_named_by_scan(ics35: Any, line: Any) -> None:
-    _, url = line([1], echo=False)
-    result = ics35("--port", url, "--timeout", "0.005", "scan", "--bauds", "115200")
+def test_a_missing_echo_is_named_by_scan(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1], echo=False)
+    result = cli("--port", url, "--timeout", "0.005", "scan", "--bauds", "115200")
     assert result.code == ExitCode.COMMUNICATION and "pass --no-echo" in result.err
 
 
 # --------------------------------------------------------------------------- finding 12: bulk backup
 
 
-def test_bulk_dump_and_restore_each_servo_to_its_own_id(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2, 3])
+def test_bulk_dump_and_restore_each_servo_to_its_own_id(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2, 3])
     for i in (1, 2, 3):
         sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i, punch=i)
     backup = tmp_path / "backup"
-    result = ics35("--port", url, "eeprom", "dump", "1-3", "-o", f"{backup}/")
+    result = cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{backup}/")
     assert result.code == 0, result.err
     assert sorted(p.name for p in backup.iterdir()) == ["servo-01.json", "servo-02.json", "servo-03.json"]
     assert json.loads((backup / "servo-02.json").read_text())["fields"]["speed"] == 20
 
     for i in (1, 2, 3):
         sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99, flags=Flags.PWMINH)
-    result = ics35("--port", url, "eeprom", "restore", str(backup), stdin="n\n")
+    result = cli("--port", url, "eeprom", "restore", str(backup), stdin="n\n")
     assert result.code == ExitCode.REFUSED
     assert all(sim.servo(i).eeprom_writes == 0 for i in (1, 2, 3))
     assert result.err.count("[y/N]") == 1
 
-    result = ics35("--port", url, "eeprom", "restore", str(backup), stdin="y\n")
+    result = cli("--port", url, "eeprom", "restore", str(backup), stdin="y\n")
     assert result.code == 0, result.err
     assert result.err.count("[y/N]") == 1
     for i in (1, 2, 3):
@@ -222,59 +220,59 @@ def test_bulk_dump_and_restore_each_servo_to_its_own_id(ics35: Any, line: Any, t
         assert sim.servo(i).calibration_intact
 
 
-def test_bulk_dump_saves_the_servos_that_answer(ics35: Any, line: Any, tmp_path: Path) -> None:
-    _, url = line([2, 5])
-    result = ics35("--port", url, "--timeout", "0.005", "eeprom", "dump", "all", "-o", str(tmp_path) + "/")
+def test_bulk_dump_saves_the_servos_that_answer(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    _, url = sim_line([2, 5])
+    result = cli("--port", url, "--timeout", "0.005", "eeprom", "dump", "all", "-o", str(tmp_path) + "/")
     assert result.code == 0, result.err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["servo-02.json", "servo-05.json"]
 
 
-def test_bulk_restore_checks_every_file_before_writing_any(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2])
-    assert ics35("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
+def test_bulk_restore_checks_every_file_before_writing_any(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2])
+    assert cli("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
     edit_backup(tmp_path / "servo-02.json", speed=500)
     before = sim.transactions
-    result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
+    result = cli("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.USAGE and "servo-02.json" in result.err
     assert sim.transactions == before
 
     edit_backup(tmp_path / "servo-02.json", speed=50, baud_rate=BaudRate.B1250000)
-    result = ics35("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
+    result = cli("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.REFUSED and "--change-baud" in result.err
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
 
 
-def test_several_servos_need_a_directory(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2])
-    assert ics35("--port", url, "eeprom", "dump", "1-2").code == ExitCode.USAGE
-    assert ics35("--port", url, "eeprom", "dump", "1-2", "-o", str(tmp_path / "x.json")).code == ExitCode.USAGE
+def test_several_servos_need_a_directory(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2])
+    assert cli("--port", url, "eeprom", "dump", "1-2").code == ExitCode.USAGE
+    assert cli("--port", url, "eeprom", "dump", "1-2", "-o", str(tmp_path / "x.json")).code == ExitCode.USAGE
     assert sim.transactions == 0
 
 
-def test_dump_checks_its_output_before_reading(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1])
-    result = ics35("--port", url, "eeprom", "dump", "1", "-o", str(tmp_path / "missing" / "x.json"))
+def test_dump_checks_its_output_before_reading(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "dump", "1", "-o", str(tmp_path / "missing" / "x.json"))
     assert result.code == ExitCode.USAGE and "no directory" in result.err
     assert sim.transactions == 0
 
 
-def test_restore_one_file_to_the_servo_it_came_from(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1, 2])
+def test_restore_one_file_to_the_servo_it_came_from(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1, 2])
     backup = tmp_path / "two.json"
-    assert ics35("--port", url, "eeprom", "dump", "2", "-o", str(backup)).code == 0
+    assert cli("--port", url, "eeprom", "dump", "2", "-o", str(backup)).code == 0
     sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=3)
-    result = ics35("--port", url, "eeprom", "restore", str(backup), "--yes", "--json")
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes", "--json")
     assert result.code == 0, result.err
     assert result.json()["id"] == 2 and sim.servo(2).eeprom.speed == 127
     assert sim.servo(1).eeprom_writes == 0
 
 
-def test_restore_with_change_baud_verifies_at_both_rates(ics35: Any, line: Any, tmp_path: Path) -> None:
-    sim, url = line([1])
+def test_restore_with_change_baud_verifies_at_both_rates(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1])
     backup = tmp_path / "one.json"
-    assert ics35("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
     edit_backup(backup, baud_rate=BaudRate.B625000)
-    result = ics35("--port", url, "eeprom", "restore", "1", str(backup), "--change-baud", "--yes", "--json")
+    result = cli("--port", url, "eeprom", "restore", "1", str(backup), "--change-baud", "--yes", "--json")
     assert result.code == 0, result.err
     assert result.json()["answers_at_new_rate"] is False  # the simulated servo switches at power-up
     assert sim.servo(1).eeprom.baud_rate == BaudRate.B625000

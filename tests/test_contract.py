@@ -2,29 +2,26 @@
 
 The same scenarios drive the bus through the asyncio driver (I/O callbacks),
 the thread driver (the engine in an I/O thread blocking on the port) and the anyio driver
-(one bus task), under asyncio and under trio, against the in-process
-simulator and against the pty simulator in another process (asyncio also on
-uvloop).  Each test runs
-its scenario with ``anyio.run`` on the named backend (pytest-asyncio's auto
-mode would otherwise claim every coroutine test for asyncio).
+(one bus task), under asyncio (also on uvloop) and under trio, against the in-process
+simulator and against the pty simulator in another process.  anyio's pytest plugin runs
+each test on the case's library (``anyio_backend``); the ``bus`` fixture opens the case's bus.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Awaitable, Callable, Iterator
-from typing import Any
+from collections.abc import AsyncIterator, Iterator
 
 import anyio
 import pytest
-import uvloop
 
 from ics35_async import Bus, BusClosed, BusGroup, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
+from tests.conftest import every_backend
+from tests.support.timing import FAST, REAL_TIME
 
 IDS = range(8)
-FAST = {"adapter_latency": 0.05, "quiet_time": 0.002}  # generous: a loaded machine must not fake a timeout
 
 # (driver, async library, far end)
 CASES = [
@@ -42,14 +39,12 @@ CASES = [
     ("anyio", "trio", "pty"),
     ("thread", "trio", "pty"),
 ]
-CASE_IDS = [f"{d}-{lib}-{far}" for d, lib, far in CASES]
-
-
-def run_on(library: str, main: Callable[[], Awaitable[Any]]) -> None:
-    if library == "uvloop":
-        anyio.run(main, backend="asyncio", backend_options={"loop_factory": uvloop.new_event_loop})
-    else:
-        anyio.run(main, backend=library)
+every_case = pytest.mark.parametrize(
+    ("driver", "anyio_backend", "far"),
+    CASES,
+    ids=[f"{d}-{lib}-{far}" for d, lib, far in CASES],
+    indirect=["anyio_backend"],
+)
 
 
 @pytest.fixture(scope="module")
@@ -61,132 +56,110 @@ def pty_port() -> Iterator[str]:
         stop_subprocess(proc)
 
 
-@pytest.fixture(params=CASES, ids=CASE_IDS)
-def run(request: pytest.FixtureRequest) -> Callable[[Callable[[Bus], Awaitable[None]]], None]:
-    driver, library, far = request.param
+@pytest.fixture
+async def bus(
+    driver: str, far: str, anyio_backend_name: str, request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch
+) -> AsyncIterator[Bus]:
+    """The case's bus on IDs 0-7: its driver, under its library, to its far end.
+
+    The asyncio driver on a pty takes the burst path where it is built; "pty-ordinary" turns it off.
+    """
     port = request.getfixturevalue("pty_port") if far.startswith("pty") else "sim://?ids=0-7"
-    # The asyncio driver on a pty takes the burst path where it is built; "pty-ordinary" turns it off.
-    monkeypatch = request.getfixturevalue("monkeypatch")
     if far == "pty-ordinary":
         monkeypatch.setenv(ENV, "0")
     else:
         monkeypatch.delenv(ENV, raising=False)
     bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
-
-    def run_scenario(scenario: Callable[[Bus], Awaitable[None]]) -> None:
-        async def main() -> None:
-            with anyio.fail_after(20):
-                async with open_bus(port, driver=driver, **FAST) as bus:
-                    assert bus.driver == ("anyio" if driver == "anyio" or library == "trio" else driver)
-                    if driver == "asyncio":
-                        assert (bus._driver.burst is not None) == bursts  # type: ignore[union-attr]
-                    await scenario(bus)
-
-        run_on(library, main)
-
-    return run_scenario
+    async with open_bus(port, driver=driver, **REAL_TIME) as opened:
+        assert opened.driver == ("anyio" if driver == "anyio" or anyio_backend_name == "trio" else driver)
+        if driver == "asyncio":
+            assert (opened._driver.burst is not None) == bursts  # type: ignore[union-attr]
+        yield opened
 
 
-def test_every_caller_gets_its_own_reply(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        got: dict[int, int] = {}
+@every_case
+async def test_every_caller_gets_its_own_reply(bus: Bus) -> None:
+    got: dict[int, int] = {}
 
-        async def ask(i: int) -> None:
-            got[i] = (await bus.servo(i).read_eeprom()).servo_id
+    async def ask(i: int) -> None:
+        got[i] = (await bus.servo(i).read_eeprom()).servo_id
 
-        async with anyio.create_task_group() as group:
-            for i in IDS:
-                group.start_soon(ask, i)
-        assert got == {i: i for i in IDS}
-        assert isinstance(await bus.servo(3).read_stretch(), int)
-        assert 3500 <= await bus.servo(2).free() <= 11500
-        assert bus.stats.total.ok >= len(IDS) + 2
-
-    run(scenario)
+    async with anyio.create_task_group() as group:
+        for i in IDS:
+            group.start_soon(ask, i)
+    assert got == {i: i for i in IDS}
+    assert isinstance(await bus.servo(3).read_stretch(), int)
+    assert 3500 <= await bus.servo(2).free() <= 11500
+    assert bus.stats.total.ok >= len(IDS) + 2
 
 
-def test_a_missing_servo_times_out_and_the_line_carries_on(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        with pytest.raises(ReplyTimeout):
-            await bus.servo(20).read_speed()
-        assert (await bus.servo(1).read_eeprom()).servo_id == 1
-        assert bus.stats.per_id[20].timeouts == 1
-
-    run(scenario)
+@every_case
+async def test_a_missing_servo_times_out_and_the_line_carries_on(bus: Bus) -> None:
+    with pytest.raises(ReplyTimeout):
+        await bus.servo(20).read_speed()
+    assert (await bus.servo(1).read_eeprom()).servo_id == 1
+    assert bus.stats.per_id[20].timeouts == 1
 
 
-def test_a_cancelled_request_does_not_desync_the_line(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        for _ in range(5):
-            with anyio.move_on_after(0):
-                await bus.servo(4).read_eeprom()  # cancelled at once: queued or on the wire
-            assert (await bus.servo(5).read_eeprom()).servo_id == 5
-
-    run(scenario)
+@every_case
+async def test_a_cancelled_request_does_not_desync_the_line(bus: Bus) -> None:
+    for _ in range(5):
+        with anyio.move_on_after(0):
+            await bus.servo(4).read_eeprom()  # cancelled at once: queued or on the wire
+        assert (await bus.servo(5).read_eeprom()).servo_id == 5
 
 
-def test_stream_frames_targets_and_offline_ids(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        async with bus.stream([*IDS, 20], offline_after=2) as stream:
-            stream.set_targets_degrees({i: 10.0 * i - 30 for i in IDS})
+@every_case
+async def test_stream_frames_targets_and_offline_ids(bus: Bus) -> None:
+    async with bus.stream([*IDS, 20], offline_after=2) as stream:
+        stream.set_targets_degrees({i: 10.0 * i - 30 for i in IDS})
+        frame = await stream.next_frame()
+        # ID 20 fails offline_after times, then is out of the cycle.  (After a failure it is held
+        # back until its reply could no longer come: cycles in that time do not count.)
+        for _ in range(500):
             frame = await stream.next_frame()
-            # ID 20 fails offline_after times, then is out of the cycle.  (After a failure it is held
-            # back until its reply could no longer come: cycles in that time do not count.)
-            for _ in range(500):
-                frame = await stream.next_frame()
-                if 20 in frame.offline:
-                    break
-            assert 20 in frame.offline
+            if 20 in frame.offline:
+                break
+        assert 20 in frame.offline
+        frame = await stream.next_frame()
+        assert set(frame.positions) == set(IDS)
+        assert all(not math.isnan(d) for d in frame.degrees().values())
+    with pytest.raises(BusClosed):
+        await stream.next_frame()
+    assert (await bus.servo(0).read_eeprom()).servo_id == 0  # the bus outlives its stream
+
+
+@every_case
+async def test_requests_share_the_line_with_a_stream(bus: Bus) -> None:
+    async with bus.stream(IDS) as stream:
+        await stream.next_frame()
+        for i in IDS:
+            assert (await bus.servo(i).read_eeprom()).servo_id == i
+        before = (await stream.next_frame()).cycle
+        assert (await stream.next_frame()).cycle > before
+
+
+@every_case
+async def test_scan_and_close(bus: Bus) -> None:
+    assert await bus.scan(range(12)) == list(IDS)
+    await bus.aclose()
+    await bus.aclose()  # idempotent
+    with pytest.raises(BusClosed):
+        await bus.servo(1).read_stretch()
+
+
+@every_backend
+async def test_a_group_streams_two_lines_together() -> None:
+    group = BusGroup.open({"left": "sim://?ids=1-3", "right": "sim://?ids=4-6"}, driver="auto", **FAST)
+    async with group, group.stream({"left": [1, 2, 3], "right": [4, 5, 6]}) as stream:
+        for _ in range(3):
             frame = await stream.next_frame()
-            assert set(frame.positions) == set(IDS) and not frame.failed
-            assert all(not math.isnan(d) for d in frame.degrees().values())
-        with pytest.raises(BusClosed):
-            await stream.next_frame()
-        assert (await bus.servo(0).read_eeprom()).servo_id == 0  # the bus outlives its stream
-
-    run(scenario)
+        assert set(frame.positions) == {("left", i) for i in (1, 2, 3)} | {("right", i) for i in (4, 5, 6)}
+        assert all(n >= 3 for n in frame.line_cycles.values())
 
 
-def test_requests_share_the_line_with_a_stream(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        async with bus.stream(IDS) as stream:
-            await stream.next_frame()
-            for i in IDS:
-                assert (await bus.servo(i).read_eeprom()).servo_id == i
-            before = (await stream.next_frame()).cycle
-            assert (await stream.next_frame()).cycle > before
-
-    run(scenario)
-
-
-def test_scan_and_close(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        assert await bus.scan(range(12)) == list(IDS)
-        await bus.aclose()
-        await bus.aclose()  # idempotent
-        with pytest.raises(BusClosed):
-            await bus.servo(1).read_stretch()
-
-    run(scenario)
-
-
-@pytest.mark.parametrize("library", ["asyncio", "uvloop", "trio"])
-def test_a_group_streams_two_lines_together(library: str) -> None:
-    async def main() -> Any:
-        group = BusGroup.open({"left": "sim://?ids=1-3", "right": "sim://?ids=4-6"}, driver="auto", **FAST)
-        async with group, group.stream({"left": [1, 2, 3], "right": [4, 5, 6]}) as stream:
-            for _ in range(3):
-                frame = await stream.next_frame()
-            assert set(frame.positions) == {("left", i) for i in (1, 2, 3)} | {("right", i) for i in (4, 5, 6)}
-            assert all(n >= 3 for n in frame.line_cycles.values())
-
-    run_on(library, main)
-
-
-def test_protocol_commands_through_request(run: Callable[..., None]) -> None:
-    async def scenario(bus: Bus) -> None:
-        assert await bus.request(protocol.ReadParam(6, protocol.Param.STRETCH)) == await bus.servo(6).read_stretch()
-        assert await bus.request(protocol.WriteParam(6, protocol.Param.SPEED, 77)) == 77
-        assert await bus.servo(6).read_speed() == 77
-
-    run(scenario)
+@every_case
+async def test_protocol_commands_through_request(bus: Bus) -> None:
+    assert await bus.request(protocol.ReadParam(6, protocol.Param.STRETCH)) == await bus.servo(6).read_stretch()
+    assert await bus.request(protocol.WriteParam(6, protocol.Param.SPEED, 77)) == 77
+    assert await bus.servo(6).read_speed() == 77

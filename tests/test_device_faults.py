@@ -19,13 +19,13 @@ import pytest
 
 from ics35_async import IcsError, PortLost, ReplyDataError, open_bus, protocol
 from tests.support.fuzzing import healthy_answer
+from tests.support.timing import REAL_TIME
 
 try:
     import termios
 except ImportError:  # Windows: no ttys to check
     termios = None  # type: ignore[assignment]
 
-FAST = {"adapter_latency": 0.05, "quiet_time": 0.002}
 CASES = [("asyncio", "asyncio"), ("thread", "asyncio"), ("anyio", "asyncio"), ("anyio", "trio")]
 
 
@@ -57,7 +57,7 @@ def test_a_device_whose_write_raises_ends_every_request_typed(driver: str, libra
 
     async def main() -> None:
         with anyio.fail_after(10):  # a hang is the failure this test is about
-            async with open_bus(device, driver=driver, **FAST) as bus:
+            async with open_bus(device, driver=driver, **REAL_TIME) as bus:
                 assert await bus.servo(3).read_stretch() == 5
                 device.broken = error
                 outcomes: list[BaseException | Any] = []
@@ -96,7 +96,7 @@ def test_every_driver_asks_the_kernel_to_mark_parity_errors(driver: str, library
     try:
 
         async def main() -> None:
-            async with open_bus(os.ttyname(slave), driver=driver, **FAST):
+            async with open_bus(os.ttyname(slave), driver=driver, **REAL_TIME):
                 flags = termios.tcgetattr(slave)[0]
                 assert flags & termios.PARMRK and flags & termios.INPCK, (driver, library)
 
@@ -140,7 +140,7 @@ def test_on_every_driver_a_marked_byte_fails_its_transaction_and_is_counted(driv
 
         async def main() -> None:
             with anyio.fail_after(10):
-                async with open_bus(os.ttyname(slave), driver=driver, **FAST) as bus:
+                async with open_bus(os.ttyname(slave), driver=driver, **REAL_TIME) as bus:
                     attrs = termios.tcgetattr(slave)
                     assert attrs[0] & termios.PARMRK  # the driver asked for marks
                     attrs[0] &= ~termios.PARMRK  # now let the far end's marks through as they are
@@ -164,7 +164,7 @@ def test_a_bus_opened_and_closed_at_once_under_the_anyio_driver_closes(library: 
     # aclose() can come before the bus task has started: it must still end it (it hung).
     async def main() -> None:
         with anyio.fail_after(10):
-            async with open_bus("sim://?ids=1", driver="anyio", **FAST):
+            async with open_bus("sim://?ids=1", driver="anyio", **REAL_TIME):
                 pass
 
     anyio.run(main, backend=library)

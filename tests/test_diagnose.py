@@ -14,9 +14,6 @@ from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
 from ics35_async.diagnose.system import check_system, holders
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo
-from tests._cli_fixtures import ics35
-
-__all__ = ["ics35"]
 
 UID, GID = 1000, 1000
 DIALOUT = 20
@@ -177,8 +174,8 @@ def test_the_serial_group_is_one_the_user_is_in(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- the command
 
 
-def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(ics35: Any) -> None:
-    result = ics35("doctor", "--port", "sim://?ids=1,2&adapter=ftdi&latency_timer=16", "--samples", "8", "--json")
+def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(cli: Any) -> None:
+    result = cli("doctor", "--port", "sim://?ids=1,2&adapter=ftdi&latency_timer=16", "--samples", "8", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert data["servos"] == [1, 2] and data["transactions"] == 16
@@ -190,8 +187,8 @@ def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(ics35: Any) -> 
     assert "16 ms USB latency timer" in finding["problem"] and finding["fix"]
 
 
-def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(ics35: Any) -> None:
-    result = ics35("doctor", "--port", "sim://?ids=3&realtime=1", "--samples", "20", "--json")
+def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(cli: Any) -> None:
+    result = cli("doctor", "--port", "sim://?ids=3&realtime=1", "--samples", "20", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert data["servos"] == [3] and data["round_trip_ms"]["median"] > 0
@@ -200,23 +197,23 @@ def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(ics35: Any
     assert not [f for f in data["findings"] if f["check"] == "latency_timer"]
 
 
-def test_doctor_text_and_no_servo(ics35: Any) -> None:
-    result = ics35("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "5")
+def test_doctor_text_and_no_servo(cli: Any) -> None:
+    result = cli("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "5")
     assert result.code == 0
     assert "latency timer suspected: 16 ms" in result.out and "fix:" in result.err
-    none = ics35("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
+    none = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
     assert none.code == 4
     assert none.json()["servos"] == [] and "no servo answered" in none.err
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
-def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, ics35: Any) -> None:
+def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, cli: Any) -> None:
     root = tree(tmp_path)
     (root / "dev" / "ttyUSB0").rename(root / "dev" / "ttyICS-missing")
     timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyICS-missing" / "latency_timer"
     timer.parent.mkdir(parents=True)
     timer.write_text("16\n")
-    result = ics35("doctor", "--port", "/dev/ttyICS-missing", "--system-root", str(root), "--json")
+    result = cli("doctor", "--port", "/dev/ttyICS-missing", "--system-root", str(root), "--json")
     assert result.code == 3  # the port cannot be opened (it is not on this machine)
     data = result.json()
     assert data["latency_timer_ms"] == 16 and data["latency_timer_suspected_ms"] is None
@@ -224,36 +221,36 @@ def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, ics35: Any)
     assert {"latency_timer", "line"} <= checks
 
 
-def test_udev_prints_the_rules(ics35: Any) -> None:
+def test_udev_prints_the_rules(cli: Any) -> None:
     if not sys.platform.startswith("linux"):
-        assert ics35("udev").code == 2
+        assert cli("udev").code == 2
         return
-    result = ics35("udev")
+    result = cli("udev")
     assert result.code == 0
     assert "165c" in result.out and '"0006"' in result.out and '"0008"' in result.out
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
-def test_udev_install_writes_where_it_may_and_asks_before_sudo(tmp_path: Path, ics35: Any) -> None:
+def test_udev_install_writes_where_it_may_and_asks_before_sudo(tmp_path: Path, cli: Any) -> None:
     target = tmp_path / "99-ics35-kondo.rules"
-    result = ics35("udev", "--install", "--path", str(target))
+    result = cli("udev", "--install", "--path", str(target))
     assert result.code == 0, result.err
     assert "ftdi_sio" in target.read_text() and "udevadm control --reload-rules" in result.err
     # A place we may not write (even as root: its directory does not exist): the sudo question.
     elsewhere = tmp_path / "no-such-dir" / "x.rules"
-    refused = ics35("udev", "--install", "--path", str(elsewhere), stdin="n\n")
+    refused = cli("udev", "--install", "--path", str(elsewhere), stdin="n\n")
     if "no sudo here" in refused.err:
         assert refused.code == 3
     else:
         assert refused.code == 5 and "sudo tee" in refused.err and "[y/N]" in refused.err
         assert "nothing was written" in refused.err
     assert not elsewhere.exists()
-    silent = ics35("udev", "--install", "--path", str(elsewhere), stdin="")  # no answer: no sudo
+    silent = cli("udev", "--install", "--path", str(elsewhere), stdin="")  # no answer: no sudo
     assert silent.code in (3, 5) and not elsewhere.exists()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
-def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ics35: Any) -> None:
+def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cli: Any) -> None:
     # A stand-in for the system's sudo (not our code): it logs its arguments and runs them.
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
@@ -263,10 +260,10 @@ def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: py
     sudo.chmod(0o755)
     monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
     target = tmp_path / "etc-udev" / "99-ics35-kondo.rules"  # its directory does not exist: not writable
-    refused = ics35("udev", "--install", "--path", str(target), stdin="n\n")
+    refused = cli("udev", "--install", "--path", str(target), stdin="n\n")
     assert refused.code == 5 and "[y/N]" in refused.err
     assert not log.exists() and not target.exists()  # sudo never ran
-    done = ics35("udev", "--install", "--path", str(target), stdin="y\n")
+    done = cli("udev", "--install", "--path", str(target), stdin="y\n")
     assert done.code == 0, done.err
     assert log.read_text().split() == ["tee", str(target)]
     assert "165c 0006" in target.read_text() and "udevadm trigger" in done.err

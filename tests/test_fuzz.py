@@ -18,11 +18,13 @@ from benchmarks.soak.fuzz import fuzz_soak
 from ics35_async import IcsError, Param, ReplyError, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.fuzzing import BAUDS, FuzzCase, FuzzCounts, FuzzDevice, FuzzRig, fuzz_case, fuzz_parsers, valid_value
-from tests.support.oracle import FAST_TIMING, FAULT_KINDS, WirePredictor, chaos_servos
+from tests.support.oracle import FAULT_KINDS, WirePredictor, chaos_servos
+from tests.support.timing import FAST_TIMING
 
 blobs = st.binary(min_size=6, max_size=80)
 
 
+@pytest.mark.slow
 def test_fuzz_short() -> None:
     report = fuzz_soak(streams=6_000, batch=200, lines=16, seed=11)
     assert report.streams == 6_000 and report.bus_transactions == 6_000

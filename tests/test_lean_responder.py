@@ -8,15 +8,18 @@ import pytest
 
 from benchmarks.lean_responder import lean_lines
 from ics35_async import BusGroup, ReplyTimeout, open_bus, protocol
+from tests.support.timing import REAL_TIME
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the responder needs a pty")
-FAST = {"adapter_latency": 0.05}
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the responder needs a pty"),
+]
 
 
 @pytest.mark.parametrize("baud", [115200, 1250000])
 async def test_every_id_answers_positions_and_parameter_reads(baud: int) -> None:
     with lean_lines(1, baud=baud) as (path,):
-        async with open_bus(path, baudrate=baud, **FAST) as bus:
+        async with open_bus(path, baudrate=baud, **REAL_TIME) as bus:
             assert await bus.scan() == list(range(32))
             assert await bus.servo(0).set_position(9000) == 9000  # ID 0 at 115200 keeps the header's MSB
             assert await bus.servo(0).free() == 9000  # free reads back the last target
@@ -32,7 +35,7 @@ async def test_every_id_answers_positions_and_parameter_reads(baud: int) -> None
 
 async def test_wire_mode_serves_several_lines_from_one_process() -> None:
     with lean_lines(3, baud=1250000, wire=True) as paths:
-        group = BusGroup.open({str(k): p for k, p in enumerate(paths)}, baudrate=1250000, **FAST)
+        group = BusGroup.open({str(k): p for k, p in enumerate(paths)}, baudrate=1250000, **REAL_TIME)
         async with group, group.stream({str(k): range(4) for k in range(3)}) as gs:
             for _ in range(3):
                 frame = await gs.next_frame()

@@ -23,10 +23,10 @@ from ics35_async import open_bus, policies, protocol
 from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
-from tests._cli_fixtures import ics35
 from tests.support.links import Rfc2217Bridge, TcpBridge
+from tests.support.timing import NO_TIMEOUTS, REAL_TIME
 
-__all__ = ["ics35"]
+pytestmark = pytest.mark.pty
 
 DRIVERS = ("asyncio", "thread", "anyio")
 BRIDGES = {"rfc2217": Rfc2217Bridge, "socket": TcpBridge}
@@ -105,7 +105,7 @@ async def _stretch_once(bus: Any, servo_id: int) -> int:
 
 
 async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
-    report = await policies.scan(lambda baud: open_bus(rfc2217.url, baudrate=baud), read_eeprom=False)
+    report = await policies.scan(lambda baud: open_bus(rfc2217.url, baudrate=baud, **REAL_TIME), read_eeprom=False)
     assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200), (3, 115200)]
     assert len(report.rates) == 3 and not report.rate_blind
 
@@ -133,7 +133,7 @@ async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
 
 
 async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge: TcpBridge) -> None:
-    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud))
+    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **REAL_TIME))
     assert report.rate_blind
     assert [r.baud for r in report.rates] == [115200]
     assert [s.servo_id for s in report.servos] == [1, 2, 3]
@@ -142,28 +142,29 @@ async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge
 
 
 async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> None:
-    # Asked for 1250000 first: the bridge still runs at its own rate, and the servos say theirs.
+    # Asked for 625000 first: the bridge still runs at its own rate, and the servos say theirs.  Both servos
+    # answer at every rate, so no reply may time out (a real-time pty behind a bridge thread, on a busy machine).
     report = await policies.scan(
-        lambda baud: open_bus(tcp_bridge.url, baudrate=baud), bauds=[625000, 115200], ids=[1, 2]
+        lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **NO_TIMEOUTS), bauds=[625000, 115200], ids=[1, 2]
     )
     assert [r.baud for r in report.rates] == [625000]
     assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200)]
 
 
-def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, ics35: Any) -> None:
-    result = ics35("--port", tcp_bridge.url, "scan", "--quick", "--json")
+def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, cli: Any) -> None:
+    result = cli("--port", tcp_bridge.url, "scan", "--quick", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert [s["id"] for s in data["servos"]] == [1, 2, 3]
     assert data["rate_blind"] is True
-    result = ics35("--port", tcp_bridge.url, "scan", "--ids", "1-3")
+    result = cli("--port", tcp_bridge.url, "scan", "--ids", "1-3")
     assert result.code == 0, result.err
     assert "does not carry the baud rate" in result.err
     assert "3 servo(s) found" in result.out
 
 
-def test_cli_no_reply_over_socket_names_the_bridge_settings(tcp_bridge: TcpBridge, ics35: Any) -> None:
-    result = ics35("--port", tcp_bridge.url, "get", "9", "stretch")
+def test_cli_no_reply_over_socket_names_the_bridge_settings(tcp_bridge: TcpBridge, cli: Any) -> None:
+    result = cli("--port", tcp_bridge.url, "get", "9", "stretch")
     assert result.code == 4
     assert "bridge's serial side" in result.err
     assert "does at" not in result.err  # no other baud rate offered: every rate is the bridge's one
@@ -181,8 +182,8 @@ async def test_refused_connection_is_a_port_error(scheme: str, driver: str) -> N
 
 
 @pytest.mark.parametrize("scheme", BRIDGES)
-def test_cli_refused_connection_exits_3(scheme: str, ics35: Any) -> None:
-    result = ics35("--port", f"{scheme}://127.0.0.1:{free_tcp_port()}", "get", "1", "stretch")
+def test_cli_refused_connection_exits_3(scheme: str, cli: Any) -> None:
+    result = cli("--port", f"{scheme}://127.0.0.1:{free_tcp_port()}", "get", "1", "stretch")
     assert result.code == 3, result.err
     assert "refused" in result.err
 
@@ -209,8 +210,8 @@ def hang_up_server() -> Iterator[int]:
     thread.join(5)
 
 
-def test_cli_dropped_connection_exits_3(hang_up_server: int, ics35: Any) -> None:
-    result = ics35("--port", f"socket://127.0.0.1:{hang_up_server}", "get", "1", "stretch")
+def test_cli_dropped_connection_exits_3(hang_up_server: int, cli: Any) -> None:
+    result = cli("--port", f"socket://127.0.0.1:{hang_up_server}", "get", "1", "stretch")
     assert result.code == 3, result.err
     assert "bridge" in result.err
 

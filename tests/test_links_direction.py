@@ -21,11 +21,11 @@ import serial.serialposix as serialposix
 from ics35_async import DirectionControlNotSupported, open_bus
 from ics35_async.errors import InvalidArgument, SerialPortError
 from ics35_async.sim import start_subprocess, stop_subprocess
-from tests._cli_fixtures import ics35
 
-__all__ = ["ics35"]
-
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux ptys and RS-485 ioctls")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux ptys and RS-485 ioctls"),
+]
 
 DRIVERS = ("asyncio", "thread", "anyio")
 TIOCGRS485, TIOCSRS485 = 0x542E, 0x542F
@@ -107,20 +107,20 @@ def test_bad_direction_is_refused_before_opening(port: str, direction: str) -> N
         open_bus(port, direction=direction)
 
 
-def test_cli_direction_on_a_port_without_rs485_mode_exits_3(far_pty: str, ics35: Any) -> None:
-    result = ics35("--port", far_pty, "--direction", "rts", "get", "1", "stretch")
+def test_cli_direction_on_a_port_without_rs485_mode_exits_3(far_pty: str, cli: Any) -> None:
+    result = cli("--port", far_pty, "--direction", "rts", "get", "1", "stretch")
     assert result.code == 3
     assert "refused direction control" in result.err
     assert "drop --direction" in result.err
 
 
-def test_cli_direction_after_the_command_reaches_the_driver(far_pty: str, rs485_driver: list[int], ics35: Any) -> None:
-    result = ics35("--port", far_pty, "get", "1", "stretch", "--direction", "rts-inverted")
+def test_cli_direction_after_the_command_reaches_the_driver(far_pty: str, rs485_driver: list[int], cli: Any) -> None:
+    result = cli("--port", far_pty, "get", "1", "stretch", "--direction", "rts-inverted")
     assert result.code == 0, result.err
     assert rs485_driver[-1] & 0b111 == ENABLED | RTS_AFTER_SEND
 
 
-def test_cli_direction_on_the_simulator_is_a_usage_error(ics35: Any) -> None:
-    result = ics35("--port", "sim://?ids=1", "--direction", "rts", "get", "1", "stretch")
+def test_cli_direction_on_the_simulator_is_a_usage_error(cli: Any) -> None:
+    result = cli("--port", "sim://?ids=1", "--direction", "rts", "get", "1", "stretch")
     assert result.code == 2
     assert "direction" in result.err

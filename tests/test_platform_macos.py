@@ -19,9 +19,6 @@ from ics35_async.errors import PortPermissionDenied
 from ics35_async.transports import platforms, serial_port
 from ics35_async.transports.platforms import is_pty_name, latency_timer_advice, port_names_hint
 from ics35_async.transports.serial_port import is_pty, translate_open_error
-from tests._cli_fixtures import ics35
-
-__all__ = ["ics35"]
 
 
 @pytest.fixture
@@ -115,9 +112,9 @@ def test_latency_advice_fits_the_platform(platform: str, wanted: str, unwanted: 
     assert unwanted not in advice
 
 
-def test_cli_missing_port_hint_on_macos(ics35: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_cli_missing_port_hint_on_macos(cli: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sys, "platform", "darwin")
-    result = ics35("--port", "/dev/cu.usbserial-nothere", "get", "1", "stretch")
+    result = cli("--port", "/dev/cu.usbserial-nothere", "get", "1", "stretch")
     assert result.code == 3
     assert "ls /dev/cu.*" in result.err
     assert "/dev/ttyUSB" not in result.err

@@ -14,8 +14,7 @@ from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
 from ics35_async.policies import check_changes, edit_image, plan_eeprom_write, write_eeprom_plan
 from ics35_async.sim import VirtualLine, VirtualServo
-
-FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+from tests.support.timing import FAST
 
 
 @asynccontextmanager

@@ -13,8 +13,7 @@ from ics35_async.bus import Bus
 from ics35_async.errors import InvalidArgument, UnsafeOperation
 from ics35_async.policies import Refusal, survey_for_id_write, write_lone_id
 from ics35_async.sim import VirtualLine, VirtualServo
-
-FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+from tests.support.timing import FAST
 
 
 @asynccontextmanager

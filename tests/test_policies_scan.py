@@ -17,8 +17,7 @@ from ics35_async.protocol import Param, Position, ReadParam
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 from tests.support.engine_support import Recorded, Wire, ready_engine
-
-FAST = {"adapter_latency": 0.005, "quiet_time": 0.001}
+from tests.support.timing import FAST
 
 
 @pytest.fixture

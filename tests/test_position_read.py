@@ -13,8 +13,7 @@ from ics35_async import PositionReadUnsupported, ReplyTimeout, open_bus, protoco
 from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcommandError
 from ics35_async.sim import VirtualLine, parse_url
 from ics35_async.stream import WATCH
-
-from ._robot_fixtures import GUARD
+from tests.support.timing import GUARD
 
 TORQUE_COMMANDS = {"position", "free"}
 

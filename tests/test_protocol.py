@@ -427,18 +427,25 @@ def test_invalid_argument_is_a_value_error() -> None:
 
 # --- malformed replies: each class raises its typed error ---
 
-GOOD: list[tuple[Command[Any], bytes]] = [
-    (Position(1, 7500, baudrate=115200), h("01 3A 4C")),
-    (Position(0, 7500, baudrate=115200), h("80 3A 4C")),
-    (ReadParam(1, Param.STRETCH), h("21 01 1E")),
-    (ReadEeprom(1), h("21 00") + EEPROM.to_bytes()),
-    (WriteParam(2, Param.TEMPERATURE, 10), h("42 04 0A")),
-    (WriteEeprom(1, EEPROM), h("41 00")),
-    (ReadId(), h("F4")),
-    (WriteId(20), h("F4")),
-    (ReadMemory(1, 0, 8), h("21 7F 00 08") + bytes(16)),
-    (WriteMemory(1, 4, b"\x12\xab"), h("41 7F 04 02")),
+# Each good reply with the value it must parse to (data chosen so that a parser reading the wrong bytes,
+# or the right bytes in the wrong order, returns something else).
+GOOD_PARSED: list[tuple[Command[Any], bytes, object]] = [
+    (Position(1, 7500, baudrate=115200), h("01 3A 4C"), 7500),
+    (Position(0, 7500, baudrate=115200), h("80 1B 58"), 3544),
+    (ReadParam(1, Param.STRETCH), h("21 01 1E"), 30),
+    (ReadEeprom(1), h("21 00") + EEPROM.to_bytes(), EEPROM),
+    (WriteParam(2, Param.TEMPERATURE, 10), h("42 04 0A"), 10),
+    (WriteEeprom(1, EEPROM), h("41 00"), None),
+    (ReadId(), h("F4"), 20),
+    (WriteId(20), h("F4"), 20),
+    (
+        ReadMemory(1, 0, 8),
+        h("21 7F 00 08 00 03 0F 0F 00 00 00 00 00 01 05 05 00 02 0A 0A"),
+        h("03 FF 00 00 01 55 02 AA"),
+    ),
+    (WriteMemory(1, 4, b"\x12\xab"), h("41 7F 04 02"), None),
 ]
+GOOD: list[tuple[Command[Any], bytes]] = [(cmd, reply) for cmd, reply, _ in GOOD_PARSED]
 GOOD_IDS = [f"{cmd.name}-{cmd.tx[:2].hex()}" for cmd, _ in GOOD]
 
 
@@ -453,9 +460,9 @@ def expect(error: type[BadReply], cmd: Command[Any], reply: bytes) -> BadReply:
     return exc
 
 
-@pytest.mark.parametrize(("cmd", "reply"), GOOD, ids=GOOD_IDS)
-def test_good_replies_parse(cmd: Command[Any], reply: bytes) -> None:
-    cmd.parse(reply)
+@pytest.mark.parametrize(("cmd", "reply", "value"), GOOD_PARSED, ids=GOOD_IDS)
+def test_good_replies_parse(cmd: Command[Any], reply: bytes, value: object) -> None:
+    assert cmd.parse(reply) == value
 
 
 @pytest.mark.parametrize(("cmd", "reply"), GOOD, ids=GOOD_IDS)

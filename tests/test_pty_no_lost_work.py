@@ -16,9 +16,13 @@ from pathlib import Path
 import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
-from tests._cli_fixtures import edit_backup
+from tests.support.cli_runs import edit_backup
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.slow,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 ROBOT = """\
 [lines.main]

@@ -25,9 +25,9 @@ from ics35_async.sim.faults import NO_FAULTS, Draw
 from tests.support.fuzzing import valid_value
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 from tests.support.matcher import LogMatcher, RequestRecord
-from tests.support.oracle import FAST_TIMING, FAULT_KINDS, Verdict, WirePredictor, is_stream_tx
+from tests.support.oracle import FAULT_KINDS, Verdict, WirePredictor, is_stream_tx
+from tests.support.timing import FAST_TIMING
 
-FAST = FAST_TIMING
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
 
 
@@ -117,7 +117,7 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
     sim.faults = ScriptedFaults(LATE, DROP)  # the first answer comes late; the guard's own answer is lost
     matcher = LogMatcher(sim, is_stream_tx, [1])
     free = protocol.Position(1, protocol.FREE, baudrate=115200)
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         if same_request:  # a retry
             value = await bus.request(free, retries=1)
             records = [RequestRecord(1, free.tx, 2, True, value, None, True, 0.0, sim.transactions)]
@@ -146,6 +146,7 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
 
 
 @pytest.mark.timeout(300)  # 7 s here; about 50 s under four CPU burners with coverage
+@pytest.mark.slow
 async def test_chaos_short() -> None:
     report = await chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
     assert report.transactions >= 12_000
@@ -168,6 +169,7 @@ async def test_chaos_short() -> None:
     assert 0 < report.throughput_ratio < 1.2
 
 
+@pytest.mark.slow
 async def test_cancellation_short() -> None:
     report = await cancellation_soak(cancellations=800, seed=9)
     assert report.cancellations >= 800
@@ -183,6 +185,8 @@ async def test_cancellation_short() -> None:
 
 
 @linux_only
+@pytest.mark.realtime
+@pytest.mark.pty
 async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
     tally = new_unplug_tally()
@@ -199,6 +203,7 @@ async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
 
 
 @linux_only
+@pytest.mark.pty
 async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
     tally = new_unplug_tally()
     await no_reconnect_session(tally)
@@ -217,7 +222,7 @@ def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], faults="drop@2:1.0")  # ID 2 silent: its request waits
     # A long allowance: the silent request must still be on the wire when the port goes, however loaded.
-    bus = await open_bus(sim, reconnect=True, timing=dataclasses.replace(FAST, adapter_latency=2.0))
+    bus = await open_bus(sim, reconnect=True, timing=dataclasses.replace(FAST_TIMING, adapter_latency=2.0))
     try:
         in_flight = bus.submit(protocol.ReadParam(2, Param.STRETCH))
         queued = [bus.submit(protocol.ReadParam(1, Param.SPEED)) for _ in range(5)]
@@ -240,7 +245,7 @@ async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() ->
 async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None:
     sim = VirtualLine([VirtualServo(1)])
     before = other_tasks()
-    bus = await open_bus(sim, timing=FAST)
+    bus = await open_bus(sim, timing=FAST_TIMING)
     assert await bus.servo(1).read_stretch() == 30
     sim.unplug()
     await asyncio.sleep(0.01)
@@ -254,7 +259,7 @@ async def test_losing_the_port_without_reconnect_leaves_no_task_behind() -> None
 
 async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command() -> None:
     sim = VirtualLine([VirtualServo(1, position=5000), VirtualServo(2)], faults="late@1:1.0")
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         with pytest.raises(ReplyTimeout):
             await bus.servo(1).free()  # servo 1 answers 5000, too late
         sim.servo(1).move_by_hand(6000)
@@ -268,7 +273,7 @@ async def test_a_late_reply_is_never_handed_out_as_the_answer_to_a_later_command
 
 async def test_a_silent_servo_gets_one_guard_read_not_endless_ones() -> None:
     sim = VirtualLine([VirtualServo(1), VirtualServo(2)], faults="drop@1:1.0")
-    async with open_bus(sim, timing=FAST) as bus:
+    async with open_bus(sim, timing=FAST_TIMING) as bus:
         for _ in range(3):
             with pytest.raises(ReplyTimeout):
                 async with asyncio.timeout(2):
@@ -305,7 +310,7 @@ class ScriptedDevice:
 
 async def test_a_reply_already_in_when_the_loop_stalls_is_not_a_timeout() -> None:
     device = ScriptedDevice()
-    async with open_bus(device, timing=FAST) as bus:
+    async with open_bus(device, timing=FAST_TIMING) as bus:
         loop = asyncio.get_running_loop()
         first = bus.submit(protocol.ReadParam(1, Param.STRETCH))
         second = bus.submit(protocol.ReadParam(2, Param.STRETCH))
@@ -317,7 +322,7 @@ async def test_a_reply_already_in_when_the_loop_stalls_is_not_a_timeout() -> Non
 
 async def test_bytes_that_arrive_during_a_resync_do_not_spill_into_the_next_reply() -> None:
     device = ScriptedDevice()
-    async with open_bus(device, timing=FAST) as bus:
+    async with open_bus(device, timing=FAST_TIMING) as bus:
         loop = asyncio.get_running_loop()
         broken, fine = protocol.ReadParam(1, Param.STRETCH), protocol.ReadParam(2, Param.STRETCH)
         device.garbage.add(broken.tx)

@@ -20,11 +20,8 @@ from ics35_async.cli import ExitCode, main
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
-
-from ._cli_fixtures import Result, ics35
-from ._robot_fixtures import JOINTS, Rig, joint_position, make_rig, targets_sent
-
-__all__ = ["ics35"]
+from tests.support.cli_runs import CliResult
+from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, targets_sent
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -44,8 +41,8 @@ def write_motion(path: Path, *keyframes: dict[str, Any]) -> Path:
     return path
 
 
-def test_play_the_example_humanoid_with_no_hardware(ics35: Any) -> None:
-    result = ics35("play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"), "--speed", "3")
+def test_play_the_example_humanoid_with_no_hardware(cli: Any) -> None:
+    result = cli("play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"), "--speed", "3")
     assert result.code == 0, result.err
     assert "play done" in result.out and "joints left holding" in result.out
     assert "right_elbow" in result.out  # the table at the end
@@ -58,19 +55,19 @@ def test_the_example_files_are_valid() -> None:
     assert all(line.port.startswith("sim://") for line in robot.lines.values())
 
 
-def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(ics35: Any, rig: tuple[Rig, Path],
+def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(cli: Any, rig: tuple[Rig, Path],
                                                                  tmp_path: Path) -> None:
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
                           {"time": 0.2, "pose": {"neck": -30, "hip": 20}})
-    result = ics35("play", str(robot_file), str(motion), "--on-stop", "free")
+    result = cli("play", str(robot_file), str(motion), "--on-stop", "free")
     assert result.code == 0, result.err
     assert "joints left free" in result.out
     neck = targets_sent(sims.upper, 1)
     assert neck[-1] == joint_position(JOINTS["neck"], -30)
     assert sims.servo("neck").free
     since = sims.upper.transactions
-    result = ics35("play", str(robot_file), str(motion), "--loop", "--seconds", "1")
+    result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", "1")
     assert result.code == 0, result.err
     assert "time is up" in result.err
     end = joint_position(JOINTS["neck"], -30)
@@ -78,11 +75,11 @@ def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(ics35: Any, rig:
     assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
 
 
-def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(ics35: Any, rig: tuple[Rig, Path],
+def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(cli: Any, rig: tuple[Rig, Path],
                                                                       tmp_path: Path) -> None:
     _sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 5.0, "pose": {"neck": 30}})
-    result = ics35("play", str(robot_file), str(motion), "--seconds", "0.5")
+    result = cli("play", str(robot_file), str(motion), "--seconds", "0.5")
     assert result.code == 0, result.err
     found = re.search(r"play time is up after [\d.]+ s: ([\d.]+) s of 5\.0 s played;", result.out)
     assert found, result.out
@@ -102,18 +99,18 @@ def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(ics35: Any,
     ],
 )
 def test_bad_files_are_usage_errors(
-    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, change: Callable[[Path, Path], Any], code: int, phrase: str
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, change: Callable[[Path, Path], Any], code: int, phrase: str
 ) -> None:
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
     change(robot_file, motion)
-    result = ics35("play", str(robot_file), str(motion))
+    result = cli("play", str(robot_file), str(motion))
     assert result.code == code, result.err
     assert phrase in result.err
     assert targets_sent(sims.upper, 1) == []
 
 
-def test_a_safety_stop_is_exit_code_7(ics35: Any, tmp_path: Path) -> None:
+def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(safety={"max_current": 20, "action": "free"})
     try:
         robot_file = tmp_path / "robot.toml"
@@ -121,7 +118,7 @@ def test_a_safety_stop_is_exit_code_7(ics35: Any, tmp_path: Path) -> None:
         sims.servo("knee").load = 45  # a stalled knee: draws current as soon as it holds
         motion = write_motion(tmp_path / "m.json", {"time": 1.0, "pose": {"knee": -50}},
                               {"time": 2.0, "pose": {"knee": 0}})
-        result = ics35("play", str(robot_file), str(motion))
+        result = cli("play", str(robot_file), str(motion))
     finally:
         sims.close()
     assert result.code == 7, result.err
@@ -132,7 +129,7 @@ def test_a_safety_stop_is_exit_code_7(ics35: Any, tmp_path: Path) -> None:
 Step = tuple[str | None, Callable[[], None] | None, str]
 
 
-def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) -> Result:
+def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) -> CliResult:
     """Run ``ics35 ARGS`` with a pipe as stdin.  For each ``(phrase, move, text)`` step a helper thread waits
     until the command has printed ``phrase`` (it has done what came before), does the hand ``move``, lets
     the robot see it (a few hundred transactions on every line), then types ``text``."""
@@ -171,7 +168,7 @@ def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) 
         helper.join(10)
         stdin.close()
     code = exited.value.code
-    return Result(code if isinstance(code, int) else 1, out, err)
+    return CliResult(code if isinstance(code, int) else 1, out, err)
 
 
 def test_teach_captures_hand_poses_and_play_brings_them_back(rig: tuple[Rig, Path], tmp_path: Path,
@@ -333,14 +330,14 @@ def test_calibrate_refuses_a_joint_not_moved_through_its_range(rig: tuple[Rig, P
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "robot.toml"]  # no backup, no side file
 
 
-def test_teach_and_calibrate_refuse_bad_arguments(ics35: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
     _, robot_file = rig
-    result = ics35("teach", str(robot_file), str(tmp_path / "x.txt"))
+    result = cli("teach", str(robot_file), str(tmp_path / "x.txt"))
     assert result.code == 2 and "cannot write .txt files" in result.err
-    result = ics35("teach", str(robot_file), str(tmp_path / "x.json"), "--joints", "neck,tail")
+    result = cli("teach", str(robot_file), str(tmp_path / "x.json"), "--joints", "neck,tail")
     assert result.code == 2 and "unknown joint(s) tail" in result.err
-    result = ics35("calibrate", str(robot_file), stdin="")
+    result = cli("calibrate", str(robot_file), stdin="")
     assert result.code == 5 and "nothing written" in result.err
-    result = ics35("teach", str(robot_file), str(tmp_path / "x.json"), stdin="q\n")
+    result = cli("teach", str(robot_file), str(tmp_path / "x.json"), stdin="q\n")
     assert result.code == 5 and "no pose captured" in result.err
     assert not (tmp_path / "x.json").exists()

@@ -18,11 +18,7 @@ import pytest
 from ics35_async import units
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
-
-from ._cli_fixtures import ics35
-from ._robot_fixtures import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
-
-__all__ = ["ics35"]
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9
 
@@ -57,13 +53,13 @@ def inside(values: list[float], *ends: float) -> bool:
 
 @pytest.mark.parametrize("seconds", ["0.15", "0.3", "0.42", "0.55"])
 def test_loop_stopped_by_the_clock_stays_between_the_keyframes(
-    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, seconds: str
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, seconds: str
 ) -> None:
     """--loop --seconds: the smooth stop at any point of a fast back-and-forth stays within its poses."""
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
                           {"time": 0.25, "pose": {"neck": -30, "hip": 20}})
-    result = ics35("play", str(robot_file), str(motion), "--loop", "--seconds", seconds, "--ramp", "0.3")
+    result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", seconds, "--ramp", "0.3")
     assert result.code == 0, result.err
     assert "time is up" in result.err
     neck, hip = sent(sims, "neck"), sent(sims, "hip")
@@ -73,7 +69,7 @@ def test_loop_stopped_by_the_clock_stays_between_the_keyframes(
 
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
-def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
     """Ctrl-C while the joint moves fast toward its keyframe: it decelerates and rests at the keyframe at most."""
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"neck": 55, "knee": -90}})
@@ -90,7 +86,7 @@ def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tup
     presser = threading.Thread(target=press_ctrl_c)
     presser.start()
     try:
-        result = ics35("play", str(robot_file), str(motion), "--loop", "--ramp", "0.3")
+        result = cli("play", str(robot_file), str(motion), "--loop", "--ramp", "0.3")
     finally:
         done.set()
         presser.join()
@@ -102,7 +98,7 @@ def test_ctrl_c_mid_motion_slows_down_short_of_the_keyframe(ics35: Any, rig: tup
 
 
 def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
-    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
@@ -110,7 +106,7 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
     pose.write_text(json.dumps({"hip": 10, "knee": -20}))
     for given in ("shoulder=30,elbow=40", str(pose)):
         since = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
-        result = ics35("play", str(robot_file), str(motion), "--start-pose", given)
+        result = cli("play", str(robot_file), str(motion), "--start-pose", given)
         assert result.code == 0, result.err
         stated = {"shoulder": 30.0, "elbow": 40.0} if "=" in given else {"hip": 10.0, "knee": -20.0}
         for name, deg in stated.items():
@@ -129,25 +125,25 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
      ("/nonexistent.json", "not a readable JSON file")],
 )
 def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
-    ics35: Any, rig: tuple[Rig, Path], tmp_path: Path, given: str, phrase: str
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, given: str, phrase: str
 ) -> None:
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
-    result = ics35("play", str(robot_file), str(motion), "--start-pose", given)
+    result = cli("play", str(robot_file), str(motion), "--start-pose", given)
     assert result.code == 2, result.err
     assert phrase in result.err
     assert sims.upper.transactions == sims.lower.transactions == 0
 
 
 def test_play_on_an_ics36_robot_frees_nothing(
-    ics35: Any, tmp_path: Path
+    cli: Any, tmp_path: Path
 ) -> None:
     sims = make_rig(ics36=[1, 2, 3])
     robot_file = tmp_path / "robot.toml"
     robot_file.write_text(dump_description(load_description(sims.description)))
     try:
         motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
-        result = ics35("play", str(robot_file), str(motion))
+        result = cli("play", str(robot_file), str(motion))
         assert result.code == 0, result.err
         assert "started free" not in result.err
         for name in JOINTS:

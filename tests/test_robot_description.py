@@ -12,8 +12,7 @@ import pytest
 from ics35_async import InvalidArgument, open_robot
 from ics35_async.robot import DescriptionError, load_description
 from ics35_async.sim import VirtualLine
-
-from ._robot_fixtures import FAST
+from tests.support.timing import FAST
 
 GOOD = """\
 name = "arm"

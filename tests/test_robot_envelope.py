@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 
 from ics35_async import Robot, open_robot, units
 from ics35_async.robot import MotionStopped
-
-from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, joint_degrees, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, joint_degrees, make_rig, targets_sent
+from tests.support.timing import FAST, GUARD
 
 # Degrees: a command is rounded to whole counts, so it may sit this far outside the exact interval.
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9

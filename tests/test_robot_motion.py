@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
 from ics35_async.robot import Motion, MotionError, load_motion, save_motion
-
-from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, targets_sent
+from tests.support.timing import FAST, GUARD
 
 
 def motion(*keyframes: dict[str, Any], **top: Any) -> dict[str, Any]:

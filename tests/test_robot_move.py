@@ -19,12 +19,10 @@ from hypothesis import strategies as st
 from ics35_async import InvalidArgument, Robot, open_robot, units
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import MotionStopped, RobotWarning
-
-from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
+from tests.support.timing import FAST, GUARD, REAL_TIME
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole counts
-# A real-time simulated line answers at wire time, late by whatever a busy machine adds: room for that.
-REAL_TIME: dict[str, Any] = {"adapter_latency": 0.05}
 
 
 def run_robot(rig: Rig, body: Callable[[Robot], Awaitable[Any]], **options: Any) -> Any:

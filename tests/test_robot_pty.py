@@ -15,7 +15,11 @@ import pytest
 from ics35_async import units
 from ics35_async.sim import serving
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.pty,
+    pytest.mark.slow,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 ROBOT = """\
 [lines.main]

@@ -14,8 +14,8 @@ import pytest
 
 from ics35_async import Robot, SafetyStop, open_robot
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
-
-from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
+from tests.support.timing import FAST, GUARD
 
 FREE = 0
 

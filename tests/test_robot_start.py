@@ -11,8 +11,8 @@ from rich.console import Console
 
 from ics35_async import InvalidArgument, Robot, open_robot
 from ics35_async.cli._robot_view import joint_table
-
-from ._robot_fixtures import FAST, GUARD, JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
+from tests.support.timing import FAST, GUARD
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
 

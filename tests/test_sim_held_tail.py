@@ -95,6 +95,7 @@ class TimedHost:
             return list(self.arrivals)
 
 
+@pytest.mark.realtime
 def test_in_process_real_time_the_tail_arrives_separately_and_late() -> None:
     delay = 0.1
     line = VirtualLine([1, 2], realtime=True, faults="tail@1:1", tail_bytes=4, tail_delay=delay)
@@ -137,6 +138,8 @@ def test_url_and_defaults() -> None:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
+@pytest.mark.realtime
+@pytest.mark.pty
 def test_pty_server_holds_the_tail() -> None:
     import serial
 

@@ -14,13 +14,14 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import serial
 
 from ics35_async.sim import start_subprocess, stop_subprocess
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
+pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
 
 
 def h(text: str) -> bytes:
@@ -120,17 +121,14 @@ def test_every_command_byte_for_byte(four_servos: str) -> None:
         assert port.in_waiting == 0
 
 
-def test_id_read_and_write_on_a_single_servo_line() -> None:
-    proc, path = start_subprocess(["--ids", "5"])
-    try:
-        with open_port(path) as port:
-            assert transact(port, h("FF 00 00 00"), 1) == h("E5")
-            assert transact(port, h("F4 01 01 01"), 1) == h("F4")
-            assert transact(port, h("FF 00 00 00"), 1) == h("F4")
-            assert transact(port, h("94 3A 4C"), 3) == h("14 3A 4C")  # answers as ID 20 now
-            assert transact(port, h("85 3A 4C"), 0) == b""
-    finally:
-        assert stop_subprocess(proc) == 0
+def test_id_read_and_write_on_a_single_servo_line(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "5").path
+    with open_port(path) as port:
+        assert transact(port, h("FF 00 00 00"), 1) == h("E5")
+        assert transact(port, h("F4 01 01 01"), 1) == h("F4")
+        assert transact(port, h("FF 00 00 00"), 1) == h("F4")
+        assert transact(port, h("94 3A 4C"), 3) == h("14 3A 4C")  # answers as ID 20 now
+        assert transact(port, h("85 3A 4C"), 0) == b""
 
 
 def test_line_runs_at_the_clients_baud(four_servos: str) -> None:
@@ -148,42 +146,38 @@ def test_reopening_at_the_same_speed_works(four_servos: str) -> None:
             assert transact(port, h("A3 02"), 3) == h("23 02 7F")
 
 
-def test_high_speed_servos() -> None:
-    proc, path = start_subprocess(["--ids", "1", "--baud", "1250000", "--realtime"])
-    try:
-        with open_port(path, 1250000) as port:
-            started = time.perf_counter()
-            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
-            elapsed = time.perf_counter() - started
-            # Never faster than the wire (6 bytes at 1.25 Mbit/s + 100 us turnaround);
-            # the upper bound is only there to catch a hang.
-            assert 6 * 11 / 1250000 + 100e-6 <= elapsed < 1.0
-        with open_port(path, 115200, timeout=0.3) as port:
-            assert transact(port, h("81 3A 4C"), 0) == b""
-            assert port.read(1) == b""
-    finally:
-        assert stop_subprocess(proc) == 0
+@pytest.mark.realtime
+def test_high_speed_servos(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1", "--baud", "1250000", "--realtime").path
+    with open_port(path, 1250000) as port:
+        started = time.perf_counter()
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+        elapsed = time.perf_counter() - started
+        # Never faster than the wire (6 bytes at 1.25 Mbit/s + 100 us turnaround);
+        # the upper bound is only there to catch a hang.
+        assert 6 * 11 / 1250000 + 100e-6 <= elapsed < 1.0
+    with open_port(path, 115200, timeout=0.3) as port:
+        assert transact(port, h("81 3A 4C"), 0) == b""
+        assert port.read(1) == b""
 
 
-def test_unplug_and_replug_keep_the_path() -> None:
-    proc, path = start_subprocess(["--ids", "1,7", "--faults", "unplug@7:1", "--replug-after", "0.3"])
-    try:
-        first_target = os.path.realpath(path)
-        assert first_target.startswith("/dev/pts/")
-        with open_port(path) as port:
-            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
-            assert transact(port, h("87 3A 4C"), 3) == h("07 3A 4C")  # answered, then the port goes
-            with pytest.raises(serial.SerialException):
-                for _ in range(50):
-                    port.read(1)
-        deadline = time.monotonic() + 10
-        while not os.path.exists(path):
-            assert time.monotonic() < deadline, "the port did not come back"
-            time.sleep(0.02)
-        with open_port(path) as port:
-            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
-    finally:
-        assert stop_subprocess(proc) == 0
+@pytest.mark.realtime
+def test_unplug_and_replug_keep_the_path(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1,7", "--faults", "unplug@7:1", "--replug-after", "0.3").path
+    first_target = os.path.realpath(path)
+    assert first_target.startswith("/dev/pts/")
+    with open_port(path) as port:
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+        assert transact(port, h("87 3A 4C"), 3) == h("07 3A 4C")  # answered, then the port goes
+        with pytest.raises(serial.SerialException):
+            for _ in range(50):
+                port.read(1)
+    deadline = time.monotonic() + 10
+    while not os.path.exists(path):
+        assert time.monotonic() < deadline, "the port did not come back"
+        time.sleep(0.02)
+    with open_port(path) as port:
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
 
 
 def test_bad_arguments_exit_with_usage_error() -> None:
@@ -191,68 +185,59 @@ def test_bad_arguments_exit_with_usage_error() -> None:
         start_subprocess(["--ids", "0-99"], timeout=10)
 
 
-def test_scheduled_unplug_from_the_command_line() -> None:
-    proc, path = start_subprocess(["--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4"])
-    try:
-        deadline = time.monotonic() + 10
-        while os.path.exists(path):
-            assert time.monotonic() < deadline, "the port was never unplugged"
-            time.sleep(0.01)
-        while not os.path.exists(path):
-            assert time.monotonic() < deadline, "the port did not come back"
-            time.sleep(0.01)
-        with open_port(path) as port:
-            assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
-    finally:
-        assert stop_subprocess(proc) == 0
+@pytest.mark.realtime
+def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4").path
+    deadline = time.monotonic() + 10
+    while os.path.exists(path):
+        assert time.monotonic() < deadline, "the port was never unplugged"
+        time.sleep(0.01)
+    while not os.path.exists(path):
+        assert time.monotonic() < deadline, "the port did not come back"
+        time.sleep(0.01)
+    with open_port(path) as port:
+        assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
 
 
-def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path) -> None:
+def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path, pty_sim: Any) -> None:
     recording = tmp_path / "session.txt"
     script = [h("81 3A 4C"), h("A2 02"), h("C3 02 14"), h("A3 02"), h("85 3A 4C")]
-    proc, path = start_subprocess(["--ids", "1-3", "--record", str(recording), "--faults", "corrupt@2:1"])
-    try:
-        with open_port(path, timeout=0.3) as port:
-            live = []
-            for tx in script:
-                port.write(tx)
-                live.append(port.read(64))  # everything until the line goes quiet
-    finally:
-        assert stop_subprocess(proc) == 0
+    recorder = pty_sim("--ids", "1-3", "--record", str(recording), "--faults", "corrupt@2:1")
+    with open_port(recorder.path, timeout=0.3) as port:
+        live = []
+        for tx in script:
+            port.write(tx)
+            live.append(port.read(64))  # everything until the line goes quiet
+    assert recorder.stop() == 0  # the recording is complete once the server has stopped
     assert live[1][:2] == h("A2 02") and live[1][2:] != h("22 02 7F")  # the corrupted reply
     assert len(recording.read_text().splitlines()) == 1 + len(script)
 
-    proc, path = start_subprocess(["--replay", str(recording)])
-    try:
-        with open_port(path, timeout=0.3) as port:
-            for tx, expected in zip(script, live, strict=True):
-                port.write(tx)
-                assert port.read(64) == expected
-    finally:
-        assert stop_subprocess(proc) == 0
+    path = pty_sim("--replay", str(recording)).path
+    with open_port(path, timeout=0.3) as port:
+        for tx, expected in zip(script, live, strict=True):
+            port.write(tx)
+            assert port.read(64) == expected
 
 
-def position_after_a_pause(args: list[str], pause: float = 0.5) -> int:
+def position_after_a_pause(pty_sim: Any, args: list[str], pause: float = 0.5) -> int:
     """Send servo 1 towards 9040, wait ``pause`` s of wall time, then free it: the position it reports."""
-    proc, path = start_subprocess(["--ids", "1", *args])
-    try:
-        with open_port(path) as port:
-            transact(port, h("81 46 50"), 3)
-            time.sleep(pause)  # 1540 counts at full speed take 0.13 s of real time
-            reply = transact(port, h("81 00 00"), 3)
-            return (reply[1] << 7) | reply[2]
-    finally:
-        assert stop_subprocess(proc) == 0
+    path = pty_sim("--ids", "1", *args).path
+    with open_port(path) as port:
+        transact(port, h("81 46 50"), 3)
+        time.sleep(pause)  # 1540 counts at full speed take 0.13 s of real time
+        reply = transact(port, h("81 00 00"), 3)
+        return (reply[1] << 7) | reply[2]
 
 
-def test_pty_server_runs_in_real_time_by_default() -> None:
+@pytest.mark.realtime
+def test_pty_server_runs_in_real_time_by_default(pty_sim: Any) -> None:
     # Other programs use the pty in real time: a servo must keep moving between their commands.
-    assert position_after_a_pause([]) == 9040
+    assert position_after_a_pause(pty_sim, []) == 9040
 
 
-def test_fast_opts_out_of_real_time() -> None:
+def test_fast_opts_out_of_real_time(pty_sim: Any) -> None:
     # Fast mode: time moves only with the wire time of commands, so the servo has barely moved.
-    assert position_after_a_pause(["--fast"]) < 7600
+    assert position_after_a_pause(pty_sim, ["--fast"]) < 7600
 
 
 @pytest.mark.parametrize(

@@ -14,6 +14,8 @@ import pytest
 from ics35_async.protocol import Position, ReadParam, wire_time
 from ics35_async.sim import Deliverer, VirtualLine, wait_until
 
+pytestmark = pytest.mark.realtime
+
 LOOSE = 0.25  # seconds: only catches "never delivered" or "delivered by the wrong clock"
 
 

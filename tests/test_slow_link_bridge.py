@@ -5,8 +5,7 @@ a reply written right after its echo waits for the echo's ACK, which the
 client delays (about 40 ms on Linux): every reply arrives some 40 ms after
 its command, past a USB adapter's allowance, and the bus used to stay one
 transaction behind for good.  It must learn the link and go on (slowly: the
-docs (how-to/platforms.md) say to configure ``nodelay``).  Needs ``socat`` (installed by
-tests.support.tools where the suite may).
+docs (how-to/platforms.md) say to configure ``nodelay``).  Needs ``socat`` (``make tools`` installs it).
 """
 
 from __future__ import annotations
@@ -18,14 +17,18 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from ics35_async import IcsError, open_bus
-from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.support.tools import require_tool
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.realtime,
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 SPEEDS = {1: 11, 2: 22}
 
@@ -55,33 +58,30 @@ def socat_bridge(pty: str) -> Iterator[str]:
             proc.stderr.close()
 
 
-async def test_through_socat_with_nagle_on_the_bus_learns_the_link_and_goes_on() -> None:
-    proc, pty = start_subprocess(["--ids", "1-2"], quiet=True)
-    try:
-        with socat_bridge(pty) as url:
-            async with open_bus(url, retries=0) as bus:
-                failed: list[tuple[int, str]] = []
-                wrong: list[str] = []
-                n = 0
-                for _ in range(12):
-                    for i in SPEEDS:
-                        for action in ("write", "eeprom", "read"):
-                            servo = bus.servo(i)
-                            try:
-                                if action == "write":
-                                    await servo.write_speed(SPEEDS[i])
-                                elif action == "eeprom":
-                                    image = await servo.read_eeprom()
-                                    if image.servo_id != i:
-                                        wrong.append(f"#{n}: EEPROM of ID {image.servo_id} for ID {i}")
-                                elif (speed := await servo.read_speed()) != SPEEDS[i]:
-                                    wrong.append(f"#{n}: speed {speed} for ID {i}")
-                            except IcsError as exc:
-                                failed.append((n, type(exc).__name__))
-                            n += 1
-                stats = bus.stats
-    finally:
-        stop_subprocess(proc)
+async def test_through_socat_with_nagle_on_the_bus_learns_the_link_and_goes_on(pty_sim: Any) -> None:
+    pty = pty_sim("--ids", "1-2").path
+    with socat_bridge(pty) as url:
+        async with open_bus(url, retries=0) as bus:
+            failed: list[tuple[int, str]] = []
+            wrong: list[str] = []
+            n = 0
+            for _ in range(12):
+                for i in SPEEDS:
+                    for action in ("write", "eeprom", "read"):
+                        servo = bus.servo(i)
+                        try:
+                            if action == "write":
+                                await servo.write_speed(SPEEDS[i])
+                            elif action == "eeprom":
+                                image = await servo.read_eeprom()
+                                if image.servo_id != i:
+                                    wrong.append(f"#{n}: EEPROM of ID {image.servo_id} for ID {i}")
+                            elif (speed := await servo.read_speed()) != SPEEDS[i]:
+                                wrong.append(f"#{n}: speed {speed} for ID {i}")
+                        except IcsError as exc:
+                            failed.append((n, type(exc).__name__))
+                        n += 1
+            stats = bus.stats
     assert wrong == []
     # Before the bus learnt links, all but a handful of these failed.  Now: the first few, and on a
     # loaded machine perhaps one more now and then.

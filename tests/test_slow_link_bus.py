@@ -12,45 +12,46 @@ may happen, most may not.
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import pytest
 
 from ics35_async import IcsError, open_bus
-from ics35_async.sim import start_subprocess, stop_subprocess
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+pytestmark = [
+    pytest.mark.realtime,
+    pytest.mark.pty,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
+]
 
 SPEEDS = {1: 11, 2: 22, 3: 33}  # a distinct value per servo: a reply handed to the wrong request shows
 ROUNDS = 30
 
 
-async def test_through_a_held_tail_link_the_bus_adapts_and_no_reply_goes_to_the_wrong_request() -> None:
-    proc, path = start_subprocess(["--ids", "1-3", "--faults", "tail@1:1", "--tail-delay", "40ms"], quiet=True)
-    try:
-        async with open_bus(path, retries=0) as bus:
-            servos = {i: bus.servo(i) for i in SPEEDS}
-            for i, speed in SPEEDS.items():
-                await servos[i].write_speed(speed)  # short replies: never split
-            failed: list[tuple[int, str]] = []
-            wrong: list[str] = []
-            n = 0
-            for _ in range(ROUNDS):
-                for i, action in ((1, "eeprom"), (2, "speed"), (3, "eeprom"), (1, "speed"), (2, "eeprom")):
-                    try:
-                        if action == "eeprom":
-                            image = await servos[i].read_eeprom()
-                            if image.servo_id != i:
-                                wrong.append(f"#{n}: EEPROM of ID {image.servo_id} for ID {i}")
-                        else:
-                            speed = await servos[i].read_speed()
-                            if speed != SPEEDS[i]:
-                                wrong.append(f"#{n}: speed {speed} for ID {i} (it has {SPEEDS[i]})")
-                    except IcsError as exc:
-                        failed.append((n, type(exc).__name__))
-                    n += 1
-            extra = bus.stats.link_extra
-    finally:
-        stop_subprocess(proc)
+async def test_through_a_held_tail_link_the_bus_adapts_and_no_reply_goes_to_the_wrong_request(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1-3", "--faults", "tail@1:1", "--tail-delay", "40ms").path
+    async with open_bus(path, retries=0) as bus:
+        servos = {i: bus.servo(i) for i in SPEEDS}
+        for i, speed in SPEEDS.items():
+            await servos[i].write_speed(speed)  # short replies: never split
+        failed: list[tuple[int, str]] = []
+        wrong: list[str] = []
+        n = 0
+        for _ in range(ROUNDS):
+            for i, action in ((1, "eeprom"), (2, "speed"), (3, "eeprom"), (1, "speed"), (2, "eeprom")):
+                try:
+                    if action == "eeprom":
+                        image = await servos[i].read_eeprom()
+                        if image.servo_id != i:
+                            wrong.append(f"#{n}: EEPROM of ID {image.servo_id} for ID {i}")
+                    else:
+                        speed = await servos[i].read_speed()
+                        if speed != SPEEDS[i]:
+                            wrong.append(f"#{n}: speed {speed} for ID {i} (it has {SPEEDS[i]})")
+                except IcsError as exc:
+                    failed.append((n, type(exc).__name__))
+                n += 1
+        extra = bus.stats.link_extra
     assert wrong == []
     # The first held tail fails its read (and maybe one more); after that, at least 95% succeed.
     later = [k for k, _ in failed if k >= 5]

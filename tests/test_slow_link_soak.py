@@ -12,7 +12,11 @@ the figures.
 
 from __future__ import annotations
 
+import pytest
+
 from benchmarks.soak.held_tail import SUCCESS_TARGET, held_tail_soak
+
+pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
 
 async def test_held_tail_soak_short() -> None:

@@ -20,9 +20,6 @@ from ics35_async.eeprom import Eeprom
 from ics35_async.protocol import Position, ReadEeprom, ReadId, ReadMemory, ReadParam, WriteEeprom, WriteParam
 from ics35_async.protocol.listening import HeardTransaction, LineListener
 from ics35_async.sim import VirtualLine, load_recording, serving
-from tests._cli_fixtures import ics35
-
-__all__ = ["ics35"]
 
 PAUSE = 0.02  # between transactions, as a controller leaves (longer than the listener's 5 ms gap)
 
@@ -178,8 +175,8 @@ def test_sniff_json_decodes_every_transaction_another_program_sent(tmp_path: Pat
     assert [g["kind"] for g in lines][-1] == "free" and lines[-1]["id"] == 1
 
 
-def test_sniff_refuses_the_simulator(ics35: Any) -> None:
-    result = ics35("sniff")
+def test_sniff_refuses_the_simulator(cli: Any) -> None:
+    result = cli("sniff")
     assert result.code == 2 and "listening adapter's --port" in result.err and "--tap" in result.err
 
 

@@ -37,10 +37,9 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
+from tests.support.timing import FAST, GUARD, REAL_TIME
 
-FAST: dict[str, Any] = {"adapter_latency": 0.003, "quiet_time": 0.001}
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
-GUARD = 5.0  # seconds: only against hangs, never a timing assertion
 
 
 def start_position(i: int) -> int:
@@ -258,6 +257,7 @@ async def test_a_flood_of_requests_lets_a_position_transaction_through_every_max
 # --------------------------------------------------------------------------- dead IDs
 
 
+@pytest.mark.realtime
 async def test_dead_id_goes_offline_is_probed_at_a_low_rate_and_rejoins() -> None:
     ids = list(range(32))
     dead = 5
@@ -609,6 +609,7 @@ async def test_slow_consumer_gets_the_latest_frame_and_a_skip_count_without_slow
     check_frames(frames, sim, ids)
 
 
+@pytest.mark.realtime
 async def test_fixed_rate_never_runs_faster_than_asked_and_leaves_the_line_to_requests() -> None:
     ids = [0, 1, 2, 3]
     rate = 50.0
@@ -629,13 +630,14 @@ async def test_fixed_rate_never_runs_faster_than_asked_and_leaves_the_line_to_re
     check_frames(frames, sim, ids)
 
 
+@pytest.mark.realtime
 async def test_an_impossible_rate_counts_overruns() -> None:
     ids = list(range(32))
     # Real time: 32 position transactions at 115200 take > 20 ms, a 5000 Hz period is 0.2 ms.
     sim = make_sim(ids, realtime=True)
     try:
         async with (
-            open_bus(sim, adapter_latency=0.05, quiet_time=0.001) as bus,
+            open_bus(sim, **REAL_TIME) as bus,
             bus.stream(ids, rate_hz=5000) as stream,
         ):
             frames = [await next_frame(stream) for _ in range(3)]
@@ -708,6 +710,7 @@ async def test_bad_input_raises_invalid_argument_and_writes_nothing() -> None:
         assert sent == {position_tx(1, 7500), position_tx(2, 7000), position_tx(3, 8000)}
 
 
+@pytest.mark.realtime
 async def test_a_closed_streams_last_reply_never_reaches_the_next_stream() -> None:
     """Close a stream with its command on the wire, start another: the old reply is not the new one's."""
     sim = VirtualLine([VirtualServo(i) for i in (1, 2, 3, 4)], realtime=True)

@@ -8,14 +8,13 @@ test_stream.py.
 from __future__ import annotations
 
 import asyncio
+from typing import Any
 
 import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
-from ics35_async.sim import VirtualLine, VirtualServo, start_subprocess, stop_subprocess
-
-FAST = {"adapter_latency": 0.02, "quiet_time": 0.002}
-UNHURRIED = {"adapter_latency": 0.5, "quiet_time": 0.002}  # a loaded machine cannot time these replies out
+from ics35_async.sim import VirtualLine, VirtualServo
+from tests.support.timing import FAST, NO_TIMEOUTS
 
 
 async def test_a_request_to_a_silent_servo_times_out_while_the_line_idles() -> None:
@@ -57,54 +56,47 @@ async def test_a_failure_in_the_io_thread_fails_its_callers_instead_of_leaving_t
         await asyncio.wait_for(bus.aclose(), 5)
 
 
-async def test_a_caller_that_hears_its_answer_sees_it_counted() -> None:
+async def test_a_caller_that_hears_its_answer_sees_it_counted(pty_sim: Any) -> None:
     # The I/O thread hands the answer to the loop while it still holds the engine: whoever
     # awaits it may look at the statistics at once, and must find the transaction counted ok.
-    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
-    try:
-        async with open_bus(path, driver="thread", **UNHURRIED) as bus:
-            behind = []
-            for n in range(1, 2001):
-                await bus.servo(1 + n % 2).read_stretch()
-                ok = bus.stats.total.ok
-                if ok < n:
-                    behind.append((n, ok))
-            assert behind == []
-    finally:
-        stop_subprocess(proc)
+    path = pty_sim("--fast", "--ids", "1-2").path
+    async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
+        behind = []
+        for n in range(1, 2001):
+            await bus.servo(1 + n % 2).read_stretch()
+            ok = bus.stats.total.ok
+            if ok < n:
+                behind.append((n, ok))
+        assert behind == []
 
 
-async def test_a_stream_frame_comes_with_its_transactions_counted() -> None:
-    proc, path = start_subprocess(["--fast", "--ids", "1-2"], quiet=True)
-    try:
-        async with open_bus(path, driver="thread", **UNHURRIED) as bus, bus.stream([1, 2]) as stream:
-            behind = []
-            for _ in range(1000):
-                frame = await stream.next_frame()
-                total = bus.stats.total
-                ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
-                if ended < 2 * frame.cycle:
-                    behind.append((frame.cycle, ended))
-            assert behind == []
-    finally:
-        stop_subprocess(proc)
+@pytest.mark.pty
+async def test_a_stream_frame_comes_with_its_transactions_counted(pty_sim: Any) -> None:
+    path = pty_sim("--fast", "--ids", "1-2").path
+    async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
+        behind = []
+        for _ in range(1000):
+            frame = await stream.next_frame()
+            total = bus.stats.total
+            ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
+            if ended < 2 * frame.cycle:
+                behind.append((frame.cycle, ended))
+        assert behind == []
 
 
-async def test_a_stream_reply_it_rejects_is_never_counted_ok() -> None:
+@pytest.mark.pty
+async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> None:
     # Every reply of servo 2 has a byte with its MSB set: the stream rejects it.  The engine counts
     # a stream reply before the frame it ends is published; a rejected one must not show as ok even
     # for the instant before it is taken back.  (Never taken offline: asked every cycle.)
-    proc, path = start_subprocess(["--fast", "--ids", "1-2", "--faults", "msb@2:1.0"], quiet=True)
-    try:
-        bus = await open_bus(path, driver="thread", **UNHURRIED)
-        async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
-            seen = []
-            for _ in range(1000):
-                frame = await stream.next_frame()
-                two = bus.stats.per_id.get(2)
-                if two is not None and two.ok:
-                    seen.append((frame.cycle, two.ok))
-            assert seen == []
-            assert bus.stats.per_id[2].bad_replies > 0
-    finally:
-        stop_subprocess(proc)
+    path = pty_sim("--fast", "--ids", "1-2", "--faults", "msb@2:1.0").path
+    bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
+    async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
+        seen = []
+        for _ in range(1000):
+            frame = await stream.next_frame()
+            two = bus.stats.per_id.get(2)
+            if two is not None and two.ok:
+                seen.append((frame.cycle, two.ok))
+        assert seen == []
+        assert bus.stats.per_id[2].bad_replies > 0

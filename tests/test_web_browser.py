@@ -37,6 +37,9 @@ CHROMIUM_ARGS = [
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
 KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
+# The tests walk one page in order (a servo opened, then backed up, ...): `make test` hands each module
+# whole to one xdist worker (--dist loadfile).
+pytestmark = [pytest.mark.slow, pytest.mark.pty]
 WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
 expect.set_options(timeout=WAIT_MS)
 

@@ -17,8 +17,6 @@ from typing import Any
 
 import pytest
 
-from tests._cli_fixtures import ics35  # noqa: F401  (fixture)
-
 
 @contextmanager
 def web(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[subprocess.Popen[str], str]]:
@@ -92,7 +90,7 @@ def test_listening_beyond_loopback_needs_listen_and_warns() -> None:
         assert "warning: serving on 0.0.0.0" in proc.stderr.read()
 
 
-def test_bad_options_are_refused_in_words(ics35: Any, tmp_path: Path) -> None:  # noqa: F811
+def test_bad_options_are_refused_in_words(cli: Any, tmp_path: Path) -> None:
     short = tmp_path / "short"
     short.write_text("abc")
     for args, words in (
@@ -100,20 +98,20 @@ def test_bad_options_are_refused_in_words(ics35: Any, tmp_path: Path) -> None:  
         (("--token-file", str(tmp_path / "missing")), "cannot read the token file"),
         (("--token-file", str(short)), "at least 16"),
     ):
-        result = ics35("web", "--no-browser", *args)
+        result = cli("web", "--no-browser", *args)
         assert result.code == 2 and words in result.err, result.err
-    busy = ics35("web", "--no-browser", "--listen", "203.0.113.9:0")  # an address this machine does not have
+    busy = cli("web", "--no-browser", "--listen", "203.0.113.9:0")  # an address this machine does not have
     assert busy.code == 2 and "cannot listen on 203.0.113.9" in busy.err
 
 
 def test_without_the_web_extra_the_command_says_how_to_install_it(
-    ics35: Any,  # noqa: F811
+    cli: Any,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     for name in [m for m in sys.modules if m.startswith(("ics35_async.web", "starlette"))]:
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, "starlette", None)
-    result = ics35("web", "--no-browser")
+    result = cli("web", "--no-browser")
     assert result.code == 2 and "pip install 'ics35_async[web]'" in result.err
 
 

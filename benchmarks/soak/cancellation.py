@@ -27,7 +27,8 @@ from ics35_async.sim import (
     VirtualLine,
 )
 from tests.support.matcher import LogMatcher, RequestRecord
-from tests.support.oracle import FAST_TIMING, band, chaos_servos, is_stream_tx
+from tests.support.oracle import band, chaos_servos, is_stream_tx
+from tests.support.timing import FAST_TIMING
 
 from .common import Row, consistency_check, random_request, stream_target
 from .watchdog import under_watchdog, watched

@@ -34,7 +34,8 @@ from ics35_async.sim import (
     VirtualLine,
 )
 from tests.support.matcher import LogMatcher, RequestRecord
-from tests.support.oracle import FAST_TIMING, CheckError, chaos_servos, is_stream_tx
+from tests.support.oracle import CheckError, chaos_servos, is_stream_tx
+from tests.support.timing import FAST_TIMING
 
 from .common import Row, consistency_check, fault_spec, random_request, stream_target
 from .watchdog import under_watchdog, watched

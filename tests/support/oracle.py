@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from ics35_async import (
-    BusTiming,
     ReplyError,
     protocol,
 )
@@ -26,8 +25,6 @@ from ics35_async.sim import (
 )
 
 FAULT_KINDS = ("drop", "truncate", "corrupt", "msb", "late", "noise", "echo")
-FAST_TIMING = BusTiming(adapter_latency=0.003, quiet_time=0.001, eeprom_write=0.005)
-"""Bus timing for the fast-mode simulator: replies arrive at once, so a short allowance is enough."""
 
 
 class CheckError(AssertionError):

@@ -1,44 +1,26 @@
-"""System tools some tests drive (TCP serial bridges): found on PATH, or installed where the test suite may.
+"""System tools some tests drive (a TCP serial bridge): found on PATH, or the test fails naming the fix.
 
-A test that needs ``socat`` calls :func:`require_tool`.  When the tool is
-missing and the suite runs as root or under CI (``CI=true``) on a Debian-like
-system, it is installed with apt-get, as CI does for every run; otherwise the
-test fails and says how to install it.  Never skipped: a skipped bridge test
-would hide exactly the links it is there for.
+``make tools`` installs them (``make``'s setup does, like the browser), never a test: a test that
+installs software changes the machine it is checking and makes its own time depend on a package mirror.
+Never skipped either: a skipped bridge test would hide exactly the links it is there for.
 """
 
 from __future__ import annotations
 
-import os
 import shutil
-import subprocess
 
 import pytest
 
-PACKAGES = {"socat": "socat", "ser2net": "ser2net"}  # tool -> Debian package
-
-
-def _apt_install(package: str) -> str:
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    command = ["apt-get", "install", "-y", "-q", "--no-install-recommends", package]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
-    if done.returncode != 0:  # no package lists yet (a fresh container): fetch them once, try again
-        subprocess.run(["apt-get", "update", "-q"], env=env, capture_output=True, timeout=600)
-        done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
-    return done.stderr[-500:] if done.returncode else ""
+PACKAGES = {"socat": "socat"}  # tool -> Debian package
 
 
 def require_tool(tool: str) -> str:
-    """The path of ``tool``, installing its package first if the suite may; else the test fails."""
+    """The path of ``tool``; if it is missing, the test fails and says how to install it."""
     path = shutil.which(tool)
-    if path is not None:
-        return path
-    package = PACKAGES[tool]
-    may_install = os.environ.get("CI", "").lower() == "true" or (hasattr(os, "geteuid") and os.geteuid() == 0)
-    problem = f"{tool} is not installed"
-    if may_install and shutil.which("apt-get"):
-        problem = _apt_install(package) or problem
-        path = shutil.which(tool)
-        if path is not None:
-            return path
-    pytest.fail(f"{problem}: this test needs it (Debian/Ubuntu: sudo apt-get install {package})", pytrace=False)
+    if path is None:
+        pytest.fail(
+            f"{tool} is not installed and this test needs it: run `make tools` "
+            f"(as root on Debian/Ubuntu; or sudo apt-get install {PACKAGES[tool]})",
+            pytrace=False,
+        )
+    return path

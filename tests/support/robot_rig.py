@@ -1,4 +1,4 @@
-"""Shared pieces of the robot tests: two simulated lines, a description over them, and the log read back.
+"""The robot tests' rig: two simulated lines, a description over them, and the log read back.
 
 The simulator's transaction log is the ground truth: every position command
 the robot sent is decoded from the bytes on the wire, never taken from the
@@ -15,9 +15,6 @@ from typing import Any
 from ics35_async import units
 from ics35_async.protocol import FREE
 from ics35_async.sim import VirtualLine, VirtualServo
-
-FAST: dict[str, Any] = {"adapter_latency": 0.003, "quiet_time": 0.001}
-GUARD = 10.0  # seconds: only against hangs, never a timing assertion
 
 _names = itertools.count()
 

@@ -1,0 +1,140 @@
+"""The fixtures every test module shares, found by pytest by name.
+
+* ``cli``: ``cli(*args, stdin="")`` runs ``ics35`` in this process and returns a
+  :class:`~tests.support.cli_runs.CliResult` (exit code, stdout, stderr);
+* ``cli_process``: ``cli_process(*args, stdin="", timeout=60)`` runs it as a real process
+  (:func:`~tests.support.cli_runs.run_process`);
+* ``sim_line``: ``sim_line(servos, **VirtualLine options)`` a named in-process simulated line and its
+  ``sim://NAME`` URL, closed after the test;
+* ``pty_sim``: ``pty_sim(*server args)`` the simulator served on a pty by a subprocess, stopped after the test;
+* ``anyio_backend``: the async library an ``async def`` test runs on (anyio's pytest plugin runs every
+  coroutine test); asyncio unless the test is marked :data:`every_backend`.
+
+Timing: the one profile is :mod:`tests.support.timing` (``ICS35_TEST_TIME_SCALE`` scales it).
+Markers (``pyproject.toml``): ``slow``, ``pty`` and ``realtime``; see the testing section of CONTRIBUTING.md.
+"""
+
+from __future__ import annotations
+
+import itertools
+import subprocess
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+import uvloop
+
+from ics35_async.sim import VirtualLine, start_subprocess, stop_subprocess
+from tests.support.cli_runs import CliResult, run_in_process, run_process
+
+# The async libraries a test can run on, as anyio's plugin names them: asyncio on its default loop and on
+# uvloop, and trio.
+BACKENDS: dict[str, object] = {
+    "asyncio": "asyncio",
+    "uvloop": ("asyncio", {"loop_factory": uvloop.new_event_loop}),
+    "trio": "trio",
+}
+
+every_backend = pytest.mark.parametrize("anyio_backend", list(BACKENDS), indirect=True)
+
+
+@pytest.fixture(scope="module")
+def anyio_backend(request: pytest.FixtureRequest) -> object:
+    """asyncio by default; ``@every_backend`` (or an indirect parametrization by name) picks another."""
+    return BACKENDS[getattr(request, "param", "asyncio")]
+
+
+@pytest.fixture
+def cli(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Callable[..., CliResult]:
+    """Run ``ics35 ARGS...`` in-process (no port in the environment); optional ``stdin`` text."""
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    monkeypatch.delenv("ICS35_BAUD", raising=False)
+
+    def invoke(*args: str, stdin: str = "") -> CliResult:
+        return run_in_process(capsys, monkeypatch, *args, stdin=stdin)
+
+    return invoke
+
+
+@pytest.fixture
+def cli_process() -> Callable[..., subprocess.CompletedProcess[str]]:
+    """Run ``python -m ics35_async.cli ARGS...`` as a separate process."""
+    return run_process
+
+
+_line_names = itertools.count()
+
+
+@pytest.fixture
+def sim_line() -> Iterator[Callable[..., tuple[VirtualLine, str]]]:
+    """``sim_line(servos, **VirtualLine options)`` -> (VirtualLine, its sim://NAME URL); closed after the test."""
+    made: list[VirtualLine] = []
+
+    def make(servos: Any = (1, 2, 3), **options: Any) -> tuple[VirtualLine, str]:
+        name = f"test-line-{next(_line_names)}"
+        options.setdefault("log_size", None)  # keep every transaction: tests read the whole log
+        sim = VirtualLine(list(servos), name=name, **options)
+        made.append(sim)
+        return sim, f"sim://{name}"
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+@dataclass
+class PtySim:
+    """A simulator server subprocess and the pty it serves."""
+
+    proc: subprocess.Popen[str]
+    path: str
+    code: int | None = field(default=None)
+
+    def stop(self) -> int:
+        """SIGTERM it (a pulled adapter: the pty goes away); its exit code.  Safe to call twice."""
+        if self.code is None:
+            self.code = stop_subprocess(self.proc)
+        return self.code
+
+
+@pytest.fixture
+def pty_sim() -> Iterator[Callable[..., PtySim]]:
+    """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS`` (notes to /dev/null);
+    ``.path`` is its pty.  Every server still running is stopped after the test, and each must have exited
+    cleanly (0) on SIGTERM."""
+    started: list[PtySim] = []
+
+    def start(*args: str) -> PtySim:
+        proc, path = start_subprocess(list(args), quiet=True)
+        started.append(PtySim(proc, path))
+        return started[-1]
+
+    yield start
+    codes = [server.stop() for server in started]
+    assert codes == [0] * len(started), f"a simulator server did not exit cleanly on SIGTERM: {codes}"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so."""
+    for item in items:
+        if "pty_sim" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.pty)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--fail-on-skip",
+        action="store_true",
+        help="exit non-zero if any test was skipped (make test: CI must not pass by skipping)",
+    )
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if not session.config.getoption("--fail-on-skip") or reporter is None or hasattr(session.config, "workerinput"):
+        return
+    skipped = reporter.stats.get("skipped", [])
+    if skipped and exitstatus == 0:
+        reporter.write_line(f"--fail-on-skip: {len(skipped)} test(s) skipped; every test must run here", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

@@ -1,0 +1,52 @@
+"""The test suite's one timing profile, scaled for slow machines by ``ICS35_TEST_TIME_SCALE``.
+
+Every test that talks to a simulator through a bus uses :data:`FAST` (``open_bus(sim, **FAST)``) or
+:data:`FAST_TIMING` (``open_bus(sim, timing=FAST_TIMING)``), the same allowances either way, or
+:data:`REAL_TIME` when the reply comes from a pty or a real-time simulator, or :data:`NO_TIMEOUTS` when
+no reply may time out at all.  A test that sets a timing value itself does so because that value is what
+it tests (a reply held past the allowance, a real-time pace), never for speed or slack.
+
+The allowances are how long a bus waits for a reply beyond its wire time.  Across a pty or from a
+real-time simulator a reply can be late when the machine is loaded: raise ``ICS35_TEST_TIME_SCALE``
+(``ICS35_TEST_TIME_SCALE=3 make test``) and every allowance and guard grows by that factor.  A test
+never asserts that something was fast.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ics35_async.engine import BusTiming, TimingOverrides
+
+
+def _scale() -> float:
+    text = os.environ.get("ICS35_TEST_TIME_SCALE", "1")
+    try:
+        value = float(text)
+    except ValueError:
+        value = 0.0
+    if not 0.1 <= value <= 100:
+        raise ValueError(f"ICS35_TEST_TIME_SCALE must be a number from 0.1 to 100, not {text!r}")
+    return value
+
+
+SCALE = _scale()
+
+
+def scaled(seconds: float) -> float:
+    """An allowance or guard of ``seconds`` on this machine."""
+    return seconds * SCALE
+
+
+# In process, fast mode: the simulator queues its reply on the bus's loop as the bus writes, ahead of any
+# deadline, so no load makes a reply late here; the allowance is what each expected timeout costs (a scan's
+# empty IDs, an offline servo): short.
+FAST: TimingOverrides = {"adapter_latency": scaled(0.003), "eeprom_write": scaled(0.005), "quiet_time": 0.001}
+FAST_TIMING = BusTiming(**FAST)
+# Across a real-time boundary: a pty served by another process, or a real-time simulator's delivery thread,
+# where the reply waits for another process or thread to be scheduled.
+REAL_TIME: TimingOverrides = {**FAST, "adapter_latency": scaled(0.050)}
+# For a test that expects every reply and counts them: an allowance costs nothing when no reply times out,
+# so this one is long enough for a machine stalled for half a second.
+NO_TIMEOUTS: TimingOverrides = {**FAST, "adapter_latency": scaled(0.5)}
+GUARD = scaled(10.0)  # seconds: only against hangs, never a timing assertion
