@@ -1,4 +1,4 @@
-"""The performance goals (issue 15, and the ones it keeps from earlier) checked against one run's figures.
+"""The performance goals checked against one run's figures.
 
 Each goal is a ratio or a time from the same ``make bench`` run; a section
 that did not run leaves its goals out.  The stream and sequential goals
@@ -21,8 +21,8 @@ IMPORT_S = 0.060
 VERSION_S = 0.150
 P99_WAIT_TX = 1.5
 MEMORY_MIB_PER_1M = 2.0
-WEB_PAGE_VS_NO_PAGE = 0.90  # issue 21: the stream with the Live plots page open, over no page open
-STREAM_VS_ADAPTER_BOUND = 0.95  # issue 20: the stream behind the FTDI model, over the model's ideal-host rate
+WEB_PAGE_VS_NO_PAGE = 0.90  # the stream with the Live plots page open, over no page open
+STREAM_VS_ADAPTER_BOUND = 0.95  # the stream behind the FTDI model, over the model's ideal-host rate
 
 DEFAULT_ROW = "asyncio/asyncio"  # the driver x loop a user gets without choosing (open_bus under asyncio.run)
 
@@ -171,7 +171,7 @@ def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
 
 def print_targets(rows: list[dict[str, Any]]) -> None:
     """The one summary table of the run: every headline figure, its goal, and whether it is met."""
-    print("\nSummary and goals (issue 15; ratios and times from this run)\n")
+    print("\nSummary and goals (ratios and times from this run)\n")
     print("| figure | measured | goal | met |")
     print("|---|---|---|---|")
     for r in rows:

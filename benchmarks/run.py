@@ -33,7 +33,7 @@ D. scan: ``ics35 scan`` (3 rates x 32 IDs, 3 servos) and ``ics35 set-id`` on
     the ``web`` extra).
 
 The report ends with one summary table (every headline figure, its goal
-from issue 15, met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
+met or not; bench_targets).  Every figure is a median of several runs; ratios are taken against a
 baseline measured in the same run, next to the variant.  The machine is a
 shared, noisy one: compare ratios, not absolute rates.  Nothing here is
 asserted by the test suite.
