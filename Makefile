@@ -92,8 +92,7 @@ test: $(STAMP)
 	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck docs pytest
 
 # Flakiness measured: the whole suite five times in a row under two CPU-burning processes (this target
-# starts them and stops them, also on Ctrl-C); fails on the first failing run.  Last result: the
-# Reliability page.
+# starts them and stops them, also on Ctrl-C); fails on the first failing run (its log: build/stress-N.log).
 STRESS_RUNS ?= 5
 stress: $(STAMP)
 	@mkdir -p build; burners=""; trap 'kill $$burners 2>/dev/null' EXIT INT TERM; \
