@@ -30,11 +30,11 @@ import sys
 import textwrap
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from ics35_async.errors import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
+from ics35_async.sim import start_subprocess, stop_subprocess
 from ics35_async.transports.serial_port import translate_open_error
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the stand-in runs on Linux ptys")
@@ -152,10 +152,13 @@ SCRIPT = textwrap.dedent(
 
 
 @pytest.fixture(scope="module")
-def far_pty(pty_sim: Any) -> Iterator[str]:
+def far_pty() -> Iterator[str]:
     """The simulator's pty, served by another process."""
-    path = pty_sim("--ids", "1-3").path
-    yield path
+    proc, path = start_subprocess(["--ids", "1-3"], quiet=True)
+    try:
+        yield path
+    finally:
+        stop_subprocess(proc)
 
 
 def test_package_runs_without_posix_terminal_modules_or_port_descriptors(far_pty: str) -> None:

@@ -205,11 +205,14 @@ async def reconnect_session(
 
 
 @under_watchdog("unplug (no reconnect)")
-async def no_reconnect_session(report: dict[str, Any]) -> None:
-    """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get BusClosed."""
+async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 0.02) -> None:
+    """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get BusClosed.
+
+    ``adapter_latency``: the bus's reply allowance; a reply later than that (a loaded machine) is a timeout
+    and its bytes spoil the next transaction's echo."""
     proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
-        bus = watched(await open_bus(path, adapter_latency=0.02))
+        bus = watched(await open_bus(path, adapter_latency=adapter_latency))
         pending: list[asyncio.Future[Any]] = []
 
         async def keep_requests_queued() -> None:
