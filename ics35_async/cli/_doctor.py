@@ -14,7 +14,7 @@ from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..drivers.burst import burst_path
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
-from ._common import ID_LIST, CliError, ExitCode, emit_json, err, ids_text, json_option, out, run, settings_of
+from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -75,7 +75,7 @@ def print_report(system: SystemReport, line: LineReport | None, findings: list[F
 
 
 @click.command()
-@click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help="IDs to look for on the line.")
+@all_ids_option("IDs to look for on the line.")
 @click.option(
     "--samples",
     type=click.IntRange(1, 1000),

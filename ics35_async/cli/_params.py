@@ -95,3 +95,8 @@ def json_option(f: Callable[..., T]) -> Callable[..., T]:
 
 def yes_option(f: Callable[..., T]) -> Callable[..., T]:
     return click.option("--yes", "-y", is_flag=True, help="Do not ask for confirmation.")(f)
+
+
+def all_ids_option(text: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
+    """``--ids`` for a command that looks along the whole line: every ID unless told fewer; ``text`` is the help."""
+    return click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help=text)

@@ -17,11 +17,11 @@ from ..transports import rate_blind_note
 from ._common import (
     ALL_BAUDS,
     BAUD_LIST,
-    ID_LIST,
     SERVO_ID,
     CliError,
     ExitCode,
     Settings,
+    all_ids_option,
     confirm,
     emit_json,
     err,
@@ -206,7 +206,7 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     show_default=True,
     help="Baud rates to try, comma-separated.",
 )
-@click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help="IDs to try, e.g. 0-7 or 1,3,5.")
+@all_ids_option("IDs to try, e.g. 0-7 or 1,3,5.")
 @click.option(
     "--timeout",
     type=click.FloatRange(0.001, 5.0),

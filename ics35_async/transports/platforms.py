@@ -61,27 +61,42 @@ def is_pty(fd: int) -> bool:
     return pty_major is not None and st.st_rdev != 0 and os.major(st.st_rdev) == pty_major
 
 
+# What a person is told, per platform: sys.platform's value, or "" for every other (Linux and the BSDs).
+_PORT_NAMES = {
+    "win32": "COM ports are listed in Device Manager under 'Ports (COM & LPT)', or by: ics35 ports",
+    "darwin": "ls /dev/cu.*  (use the /dev/cu. name, not /dev/tty.), or: ics35 ports",
+    "": "ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/, or: ics35 ports",
+}
+_PERMISSION = {
+    "darwin": "check the port's owner and mode (ls -l); macOS needs no group for USB serial ports",
+    "win32": "Windows reports a port that another program holds as access denied: close that program",
+    "": "add your user to the group owning the port "
+    "(usually 'dialout': sudo usermod -aG dialout $USER, then log in again)",
+}
+_LATENCY_TIMER = {
+    "win32": "Device Manager > Ports (COM & LPT) > the adapter's port > Properties > Port Settings > Advanced > "
+    "Latency Timer (msec): 1",
+    "darwin": "macOS offers no latency setting for the built-in FTDI driver; FTDI's own VCP driver takes "
+    "'LatencyTimer' in its configuration (FTDI application note AN_134). Otherwise give each reply "
+    "more time: --timeout / open_bus(adapter_latency=...)",
+    "": "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer  (for good: a udev rule, "
+    'ATTR{latency_timer}="1")',
+}
+
+
+def _for_platform(texts: dict[str, str], platform: str | None) -> str:
+    platform = platform or sys.platform
+    return texts.get(platform, texts[""])
+
+
 def port_names_hint(platform: str | None = None) -> str:
     """Where a person finds the name of their serial port on ``platform`` (default: this one)."""
-    platform = platform or sys.platform
-    if platform == "win32":
-        return "COM ports are listed in Device Manager under 'Ports (COM & LPT)', or by: ics35 ports"
-    if platform == "darwin":
-        return "ls /dev/cu.*  (use the /dev/cu. name, not /dev/tty.), or: ics35 ports"
-    return "ls /dev/ttyUSB* /dev/ttyACM* /dev/serial/by-id/, or: ics35 ports"
+    return _for_platform(_PORT_NAMES, platform)
 
 
 def permission_hint(platform: str | None = None) -> str:
     """How to get the right to open a serial port on ``platform`` (default: this one)."""
-    platform = platform or sys.platform
-    if platform == "darwin":
-        return "check the port's owner and mode (ls -l); macOS needs no group for USB serial ports"
-    if platform == "win32":
-        return "Windows reports a port that another program holds as access denied: close that program"
-    return (
-        "add your user to the group owning the port "
-        "(usually 'dialout': sudo usermod -aG dialout $USER, then log in again)"
-    )
+    return _for_platform(_PERMISSION, platform)
 
 
 def latency_timer_advice(platform: str | None = None) -> str:
@@ -91,19 +106,4 @@ def latency_timer_advice(platform: str | None = None) -> str:
     by the library (sysfs, see :func:`~.advice.adapter_advice`); the others
     are the vendor drivers' documented settings, untested here.
     """
-    platform = platform or sys.platform
-    if platform == "win32":
-        return (
-            "Device Manager > Ports (COM & LPT) > the adapter's port > Properties > Port Settings > Advanced > "
-            "Latency Timer (msec): 1"
-        )
-    if platform == "darwin":
-        return (
-            "macOS offers no latency setting for the built-in FTDI driver; FTDI's own VCP driver takes "
-            "'LatencyTimer' in its configuration (FTDI application note AN_134). Otherwise give each reply "
-            "more time: --timeout / open_bus(adapter_latency=...)"
-        )
-    return (
-        "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer  (for good: a udev rule, "
-        'ATTR{latency_timer}="1")'
-    )
+    return _for_platform(_LATENCY_TIMER, platform)
