@@ -44,10 +44,10 @@ BAUD = 1_250_000
 
 
 @contextlib.contextmanager
-def ordinary_path() -> Iterator[None]:
-    """The burst path turned off (for buses opened inside)."""
+def burst_setting(value: str) -> Iterator[None]:
+    """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one)."""
     before = os.environ.get(ENV)
-    os.environ[ENV] = "0"
+    os.environ[ENV] = value
     try:
         yield
     finally:
@@ -58,9 +58,7 @@ def ordinary_path() -> Iterator[None]:
 
 
 def on_path(burst: bool, fn: Callable[[], Figures]) -> Figures:
-    if burst:
-        return fn()
-    with ordinary_path():
+    with burst_setting("1" if burst else "0"):
         return fn()
 
 
@@ -180,7 +178,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             note("thread progress beside burst", beside_burst["spins_per_s"] / base, beside_burst)
             note("thread progress beside ordinary", beside_plain["spins_per_s"] / base, beside_plain)
     return {
-        "path": burst_path()[1],
+        "path": on_path(True, lambda: {"path": burst_path()[1]})["path"],
         "runs": runs,
         "duration_s": duration,
         "medians": {name: median(values) for name, values in rows.items()},

@@ -41,7 +41,6 @@ _URGENT, _LOW = int(Priority.URGENT), int(Priority.LOW)  # per request: no enum 
 RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
-
 class BusOptions(TimingOverrides, total=False):
     """The options of [`open_bus`][ics35_async.bus.open_bus] (and ``Bus``) beyond the port, every one optional.
 

@@ -94,8 +94,11 @@ def serve(master: int, reply: Reply = answer) -> Responder:
     return Responder(master, reply)
 
 
-def test_the_path_reports_itself_built() -> None:
+def test_the_path_reports_itself_built_and_is_off_unless_asked(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("ICS35_BURST", "1")
     assert burst_path() == (True, burst_path()[1]) and "compiled" in burst_path()[1]
+    monkeypatch.delenv("ICS35_BURST")
+    assert burst_path()[0] is False
 
 
 def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: tuple[int, int]) -> None:

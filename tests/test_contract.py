@@ -62,13 +62,14 @@ async def bus(
 ) -> AsyncIterator[Bus]:
     """The case's bus on IDs 0-7: its driver, under its library, to its far end.
 
-    The asyncio driver on a pty takes the burst path where it is built; "pty-ordinary" turns it off.
+    The asyncio driver on a pty takes the burst path where it is built ("pty" turns it on, as
+    ICS35_BURST=1 does); "pty-ordinary" leaves it off (the default).
     """
     port = request.getfixturevalue("pty_port") if far.startswith("pty") else "sim://?ids=0-7"
     if far == "pty-ordinary":
-        monkeypatch.setenv(ENV, "0")
-    else:
         monkeypatch.delenv(ENV, raising=False)
+    else:
+        monkeypatch.setenv(ENV, "1")
     bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
     # NO_TIMEOUTS: on a machine loaded by parallel tests a pty server can answer 50 ms late; the few
     # timeouts the scenarios expect (an absent ID) cost their half second each.

@@ -55,8 +55,11 @@ KINDS = ("clean", "split", "drop", "silent", "late", "very_late", "tail_late", "
 LATE = {"late", "very_late", "tail_late"}
 
 # The faults that test the engine's judgement most (late replies) come up more often.
-faults = st.tuples(st.sampled_from([*KINDS, "late", "very_late", "tail_late", "very_late"]), st.floats(0.0, 1.0),
-                   st.lists(st.integers(1, 5), max_size=4))
+faults = st.tuples(
+    st.sampled_from([*KINDS, "late", "very_late", "tail_late", "very_late"]),
+    st.floats(0.0, 1.0),
+    st.lists(st.integers(1, 5), max_size=4),
+)
 
 
 class FaultyServos(Servos):
@@ -139,9 +142,19 @@ class LineModel(RuleBasedStateMachine):
 
     # ---------------------------------------------------------------- rules
 
-    @rule(batch=st.lists(st.tuples(st.sampled_from(IDS), st.sampled_from(("position", "speed", "stretch", "current")),
-                                   st.integers(1, protocol.POSITION_MAX), st.sampled_from(list(Priority)),
-                                   st.integers(0, 2)), min_size=1, max_size=3))
+    @rule(
+        batch=st.lists(
+            st.tuples(
+                st.sampled_from(IDS),
+                st.sampled_from(("position", "speed", "stretch", "current")),
+                st.integers(1, protocol.POSITION_MAX),
+                st.sampled_from(list(Priority)),
+                st.integers(0, 2),
+            ),
+            min_size=1,
+            max_size=3,
+        )
+    )
     def submit(self, batch: list[tuple[int, str, int, Priority, int]]) -> None:
         for sid, what, pos, priority, retries in batch:
             if what == "position":
@@ -223,8 +236,11 @@ class LineModel(RuleBasedStateMachine):
 
     def _check_source_value(self, sid: int, value: int) -> None:
         k = len(self.wire.writes) - 1
-        if (self.wire.writes[k][1] != protocol.Position(sid, 0, baudrate=BAUD).tx or self.servos.answers[k] != value
-                or k in self.servos.bad_writes):
+        if (
+            self.wire.writes[k][1] != protocol.Position(sid, 0, baudrate=BAUD).tx
+            or self.servos.answers[k] != value
+            or k in self.servos.bad_writes
+        ):
             answered = self.servos.answers[k]
             self.source_errors.append(f"stream got {value} for ID {sid}; write {k} was answered {answered}")
 
@@ -285,8 +301,11 @@ class LineModel(RuleBasedStateMachine):
         # Whatever happened before, a quiet line works again, however the replies are cut up.
         self.servos.faults.clear()
         self.servos.faults.extend(("split", 0.5, [cut, cut + 1]) for cut in range(4) for _ in range(4))
-        fresh = [Recorded(command, wire=self.wire) for sid in IDS
-                 for command in (protocol.ReadParam(sid, Param.SPEED), protocol.Position(sid, 0, baudrate=BAUD))]
+        fresh = [
+            Recorded(command, wire=self.wire)
+            for sid in IDS
+            for command in (protocol.ReadParam(sid, Param.SPEED), protocol.Position(sid, 0, baudrate=BAUD))
+        ]
         for req in fresh:
             self.wire.submit(req)
         self.wire.settle(limit=120.0)
@@ -299,8 +318,9 @@ class LineModel(RuleBasedStateMachine):
         assert self.engine.state is State.CLOSED and self.engine.deadline == math.inf
 
 
-SETTINGS = settings(max_examples=200, stateful_step_count=50, deadline=None,
-                    suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(
+    max_examples=200, stateful_step_count=50, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
 
 
 @pytest.mark.timeout(900)  # a pass takes seconds; shrinking a failure takes longer

@@ -112,8 +112,14 @@ def test_a_wrong_echo_at_the_deadline_arms_no_guard() -> None:
 def test_urgent_runs_first_and_each_level_is_fifo() -> None:
     wire, _ = line({1, 2, 3, 4, 5, 6, 7})
     wire.submit(Recorded(read(1)))  # on the wire while the others queue
-    queued = [(2, Priority.NORMAL), (3, Priority.NORMAL), (4, Priority.URGENT), (5, Priority.LOW),
-              (6, Priority.HIGH), (7, Priority.NORMAL)]
+    queued = [
+        (2, Priority.NORMAL),
+        (3, Priority.NORMAL),
+        (4, Priority.URGENT),
+        (5, Priority.LOW),
+        (6, Priority.HIGH),
+        (7, Priority.NORMAL),
+    ]
     for sid, prio in queued:
         wire.submit(Recorded(read(sid), prio))
     wire.settle()

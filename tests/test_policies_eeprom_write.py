@@ -214,6 +214,8 @@ async def test_a_batch_cancelled_mid_write_still_accounts_for_every_servo() -> N
     finally:
         sim.close()
     assert [(r.plan.servo_id, r.outcome, r.error) for r in heard] == [
-        (1, WriteOutcome.VERIFIED, None), (2, WriteOutcome.UNKNOWN, None), (3, WriteOutcome.NOT_WRITTEN, None)
+        (1, WriteOutcome.VERIFIED, None),
+        (2, WriteOutcome.UNKNOWN, None),
+        (3, WriteOutcome.NOT_WRITTEN, None),
     ]
     assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [40, 40, 127]  # 2 got it: unknown was honest

@@ -268,8 +268,7 @@ def noisy_rate_blind_line(lines: Any, level: float, seed: int) -> VirtualLine:
     of the replies dropped, truncated, corrupted or late."""
     each = level / 4
     faults = f"drop:{each},truncate:{each},corrupt:{each},late:{each}"
-    return lines([VirtualServo(1), VirtualServo(2), VirtualServo(5)], follow_host_baud=False, faults=faults,
-                 seed=seed)
+    return lines([VirtualServo(1), VirtualServo(2), VirtualServo(5)], follow_host_baud=False, faults=faults, seed=seed)
 
 
 @pytest.mark.parametrize("level", [0.15, 0.30])

@@ -137,8 +137,13 @@ def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
 
 
 def run_ics35(*args: str) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run([sys.executable, "-m", "ics35_async.cli", *args], capture_output=True, text=True,
-                          timeout=60, env={**os.environ, "COLUMNS": "200"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "200"},
+    )
     assert "Traceback" not in proc.stderr, proc.stderr
     return proc
 

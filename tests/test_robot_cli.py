@@ -55,11 +55,15 @@ def test_the_example_files_are_valid() -> None:
     assert all(line.port.startswith("sim://") for line in robot.lines.values())
 
 
-def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(cli: Any, rig: tuple[Rig, Path],
-                                                                 tmp_path: Path) -> None:
+def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
     sims, robot_file = rig
-    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
-                          {"time": 0.2, "pose": {"neck": -30, "hip": 20}})
+    motion = write_motion(
+        tmp_path / "m.json",
+        {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
+        {"time": 0.2, "pose": {"neck": -30, "hip": 20}},
+    )
     result = cli("play", str(robot_file), str(motion), "--on-stop", "free")
     assert result.code == 0, result.err
     assert "joints left free" in result.out
@@ -75,8 +79,9 @@ def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(cli: Any, rig: t
     assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
 
 
-def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(cli: Any, rig: tuple[Rig, Path],
-                                                                      tmp_path: Path) -> None:
+def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
     _sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 5.0, "pose": {"neck": 30}})
     result = cli("play", str(robot_file), str(motion), "--seconds", "0.5")
@@ -92,8 +97,11 @@ def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(cli: Any, r
     ("change", "code", "phrase"),
     [
         (lambda robot, motion: (robot.write_text("[lines.a]\nport = 3\n"), motion), 2, "lines.a.port"),
-        (lambda robot, motion: (robot, write_motion(motion, {"time": 1, "pose": {"neck": 99}})), 2,
-         "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing moved)"),
+        (
+            lambda robot, motion: (robot, write_motion(motion, {"time": 1, "pose": {"neck": 99}})),
+            2,
+            "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing moved)",
+        ),
         (lambda robot, motion: (robot, motion.write_text("{}")), 2, "format: must be 'ics35-motion'"),
         (lambda robot, motion: (robot.unlink(), motion), 2, "ROBOT.toml"),
     ],
@@ -116,8 +124,9 @@ def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
         robot_file = tmp_path / "robot.toml"
         robot_file.write_text(dump_description(load_description(sims.description)))
         sims.servo("knee").load = 45  # a stalled knee: draws current as soon as it holds
-        motion = write_motion(tmp_path / "m.json", {"time": 1.0, "pose": {"knee": -50}},
-                              {"time": 2.0, "pose": {"knee": 0}})
+        motion = write_motion(
+            tmp_path / "m.json", {"time": 1.0, "pose": {"knee": -50}}, {"time": 2.0, "pose": {"knee": 0}}
+        )
         result = cli("play", str(robot_file), str(motion))
     finally:
         sims.close()
@@ -171,8 +180,9 @@ def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) 
     return CliResult(code if isinstance(code, int) else 1, out, err)
 
 
-def test_teach_captures_hand_poses_and_play_brings_them_back(rig: tuple[Rig, Path], tmp_path: Path,
-                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+def test_teach_captures_hand_poses_and_play_brings_them_back(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.delenv("ICS35_PORT", raising=False)
     sims, robot_file = rig
     out_file = tmp_path / "taught.json"
@@ -195,9 +205,7 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(rig: tuple[Rig, Pat
     assert result.code == 0, result.err
     assert "wrote 2 pose(s)" in result.out
     taught = json.loads(out_file.read_text())
-    assert [k["pose"] for k in taught["keyframes"]] == [
-        pytest.approx(first, abs=0.05), pytest.approx(second, abs=0.05)
-    ]
+    assert [k["pose"] for k in taught["keyframes"]] == [pytest.approx(first, abs=0.05), pytest.approx(second, abs=0.05)]
     assert taught["keyframes"][0]["time"] < taught["keyframes"][1]["time"]
     # Elsewhere by hand, then play it back: the robot ends at the second pose.
     pose({"neck": 0.0, "hip": 0.0})()
@@ -228,8 +236,9 @@ id = 1
 """
 
 
-def test_calibrate_writes_neutral_and_range_back_keeping_comments(rig: tuple[Rig, Path], tmp_path: Path,
-                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+def test_calibrate_writes_neutral_and_range_back_keeping_comments(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.delenv("ICS35_PORT", raising=False)
     sims, _ = rig
     ports = {name: line["port"] for name, line in sims.description["lines"].items()}
@@ -267,8 +276,9 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(rig: tuple[Rig
     load_description(robot_file)  # still a valid robot file
 
 
-def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(rig: tuple[Rig, Path], tmp_path: Path,
-                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.delenv("ICS35_PORT", raising=False)
     sims, _ = rig
     ports = {name: line["port"] for name, line in sims.description["lines"].items()}
@@ -285,8 +295,11 @@ def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(rig: tupl
         settle_on(sims.upper)
         neck.move_by_hand(9000)
 
-    result = run_with_hands(["calibrate", str(robot_file), "--joints", "neck"],
-                            [("neutral (every joint at 0)", None, "\n"), ("whole range", swing, "\n")], [sims.upper])
+    result = run_with_hands(
+        ["calibrate", str(robot_file), "--joints", "neck"],
+        [("neutral (every joint at 0)", None, "\n"), ("whole range", swing, "\n")],
+        [sims.upper],
+    )
     assert result.code == 0, result.err
     assert robot_file.read_text() == original
     beside = tmp_path / "inline.calibrated.toml"
@@ -302,8 +315,9 @@ def settle_on(sim: VirtualLine) -> None:
         threading.Event().wait(0.005)
 
 
-def test_calibrate_refuses_a_joint_not_moved_through_its_range(rig: tuple[Rig, Path], tmp_path: Path,
-                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+def test_calibrate_refuses_a_joint_not_moved_through_its_range(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Enter twice without moving: a zero-width range would forbid every motion; nothing is written."""
     monkeypatch.delenv("ICS35_PORT", raising=False)
     sims, _ = rig
@@ -318,9 +332,11 @@ def test_calibrate_refuses_a_joint_not_moved_through_its_range(rig: tuple[Rig, P
         settle_on(sims.lower)
         hip.move_by_hand(7500 + round(20 * 8000 / 270))
 
-    result = run_with_hands(["calibrate", str(robot_file)],
-                            [("neutral (every joint at 0)", None, "\n"), ("whole range", hip_only, "\n")],
-                            [sims.upper, sims.lower])
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", None, "\n"), ("whole range", hip_only, "\n")],
+        [sims.upper, sims.lower],
+    )
     assert result.code == ExitCode.REFUSED, result.err
     message = " ".join(result.err.split())
     assert "joint neck moved over 3.0 degrees only, less than the 5" in message

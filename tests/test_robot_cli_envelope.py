@@ -57,8 +57,11 @@ def test_loop_stopped_by_the_clock_stays_between_the_keyframes(
 ) -> None:
     """--loop --seconds: the smooth stop at any point of a fast back-and-forth stays within its poses."""
     sims, robot_file = rig
-    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
-                          {"time": 0.25, "pose": {"neck": -30, "hip": 20}})
+    motion = write_motion(
+        tmp_path / "m.json",
+        {"time": 0.1, "pose": {"neck": 30, "hip": -20}},
+        {"time": 0.25, "pose": {"neck": -30, "hip": 20}},
+    )
     result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", seconds, "--ramp", "0.3")
     assert result.code == 0, result.err
     assert "time is up" in result.err
@@ -121,8 +124,12 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
 
 @pytest.mark.parametrize(
     ("given", "phrase"),
-    [("tail=3", "unknown joint(s) tail"), ("neck=99", "outside its limits"), ("neck=x", "joint=degrees"),
-     ("/nonexistent.json", "not a readable JSON file")],
+    [
+        ("tail=3", "unknown joint(s) tail"),
+        ("neck=99", "outside its limits"),
+        ("neck=x", "joint=degrees"),
+        ("/nonexistent.json", "not a readable JSON file"),
+    ],
 )
 def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path, given: str, phrase: str
@@ -135,9 +142,7 @@ def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
     assert sims.upper.transactions == sims.lower.transactions == 0
 
 
-def test_play_on_an_ics36_robot_frees_nothing(
-    cli: Any, tmp_path: Path
-) -> None:
+def test_play_on_an_ics36_robot_frees_nothing(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(ics36=[1, 2, 3])
     robot_file = tmp_path / "robot.toml"
     robot_file.write_text(dump_description(load_description(sims.description)))

@@ -54,7 +54,12 @@ def test_a_good_file_reads_with_its_defaults(tmp_path: Path) -> None:
     assert (line.port, line.baudrate, line.rate_hz, line.echo) == ("sim://?ids=1-3", 115200, 200.0, True)
     elbow = robot.joints["left_elbow"]
     assert (elbow.line, elbow.id, elbow.offset, elbow.reverse, elbow.min, elbow.max) == (
-        "main", 3, 2.5, True, -90.0, 45.0
+        "main",
+        3,
+        2.5,
+        True,
+        -90.0,
+        45.0,
     )
     # No limits given: the servo's whole travel, in the joint's degrees.
     wrist = robot.joints["wrist"]
@@ -85,41 +90,80 @@ JOINT = '[joints.knee]\nline = "legs"\nid = 2\n'
 
 MISTAKES: list[tuple[str, str, str]] = [
     # (file text, the key the error must name, a phrase of its message)
-    (BASE_LINES + '[joints.knee]\nline = "arms"\nid = 2\n[joints.x]\nline="main"\nid=1', "joints.knee.line",
-     "unknown line 'arms'"),
-    (BASE_LINES + JOINT + '[joints.hip]\nline = "legs"\nid = 2\n[joints.x]\nline="main"\nid=1', "joints.hip.id",
-     "already joint 'knee'"),
-    (BASE_LINES + JOINT + "min = 10\nmax = -10\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.min",
-     "greater than max"),
-    (BASE_LINES + JOINT + "offset = 100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.max",
-     "outside the servo's range"),
-    (BASE_LINES + JOINT + "reverse = true\noffset = -100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1',
-     "joints.knee.max", "outside the servo's range"),
+    (
+        BASE_LINES + '[joints.knee]\nline = "arms"\nid = 2\n[joints.x]\nline="main"\nid=1',
+        "joints.knee.line",
+        "unknown line 'arms'",
+    ),
+    (
+        BASE_LINES + JOINT + '[joints.hip]\nline = "legs"\nid = 2\n[joints.x]\nline="main"\nid=1',
+        "joints.hip.id",
+        "already joint 'knee'",
+    ),
+    (
+        BASE_LINES + JOINT + "min = 10\nmax = -10\n" + '[joints.x]\nline="main"\nid=1',
+        "joints.knee.min",
+        "greater than max",
+    ),
+    (
+        BASE_LINES + JOINT + "offset = 100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1',
+        "joints.knee.max",
+        "outside the servo's range",
+    ),
+    (
+        BASE_LINES + JOINT + "reverse = true\noffset = -100\nmax = 50\n" + '[joints.x]\nline="main"\nid=1',
+        "joints.knee.max",
+        "outside the servo's range",
+    ),
     (BASE_LINES + JOINT + "speed = 3\n" + '[joints.x]\nline="main"\nid=1', "joints.knee.speed", "unknown key"),
     (BASE_LINES + JOINT + "id = 40\n", "", ""),  # duplicate key: not valid TOML
-    ('[lines.main]\nport = "sim://a"\nbaud = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.baud",
-     "unknown key"),
-    ('[lines.main]\nport = "sim://a"\nbaudrate = 9600\n[joints.x]\nline="main"\nid=1', "lines.main.baudrate",
-     "115200, 625000 or 1250000"),
+    ('[lines.main]\nport = "sim://a"\nbaud = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.baud", "unknown key"),
+    (
+        '[lines.main]\nport = "sim://a"\nbaudrate = 9600\n[joints.x]\nline="main"\nid=1',
+        "lines.main.baudrate",
+        "115200, 625000 or 1250000",
+    ),
     ('[lines.main]\nbaudrate = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.port", "is required"),
-    ('[lines.main]\nport = "sim://a"\n[lines.b]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n'
-     '[joints.y]\nline="b"\nid=1', "lines.b.port", "already the port of lines.main"),
-    ('[lines.main]\nport = "sim://a"\n[lines.spare]\nport = "sim://b"\n[joints.x]\nline="main"\nid=1',
-     "lines.spare", "no joint uses this line"),
+    (
+        '[lines.main]\nport = "sim://a"\n[lines.b]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n'
+        '[joints.y]\nline="b"\nid=1',
+        "lines.b.port",
+        "already the port of lines.main",
+    ),
+    (
+        '[lines.main]\nport = "sim://a"\n[lines.spare]\nport = "sim://b"\n[joints.x]\nline="main"\nid=1',
+        "lines.spare",
+        "no joint uses this line",
+    ),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=32', "joints.x.id", "0..31"),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"', "joints.x.id", "is required"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\noffset="2"', "joints.x.offset",
-     "must be a number"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\nreverse=1', "joints.x.reverse",
-     "true or false"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\naction="panic"', "safety.action",
-     "free, hold, stop"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_temp=50', "safety.max_temp",
-     "unknown key"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=80', "safety.max_current",
-     "1..63"),
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=30\n'
-     "telemetry_per_cycle=0", "safety.telemetry_per_cycle", "never be checked"),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\noffset="2"',
+        "joints.x.offset",
+        "must be a number",
+    ),
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\nreverse=1', "joints.x.reverse", "true or false"),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\naction="panic"',
+        "safety.action",
+        "free, hold, stop",
+    ),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_temp=50',
+        "safety.max_temp",
+        "unknown key",
+    ),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=80',
+        "safety.max_current",
+        "1..63",
+    ),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[safety]\nmax_current=30\n'
+        "telemetry_per_cycle=0",
+        "safety.telemetry_per_cycle",
+        "never be checked",
+    ),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[servos]\n', "servos", "unknown key"),
     ('[lines.main]\nport = "sim://a"\n', "joints", "is required"),
     ('joints = 3\n[lines.main]\nport = "sim://a"\n', "joints", "must be a table"),

@@ -91,8 +91,17 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
 def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
     # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "play", str(EXAMPLES / "humanoid.toml"),
-         str(EXAMPLES / "wave.json"), "--loop", "--on-stop", "free"],
+        [
+            sys.executable,
+            "-m",
+            "ics35_async.cli",
+            "play",
+            str(EXAMPLES / "humanoid.toml"),
+            str(EXAMPLES / "wave.json"),
+            "--loop",
+            "--on-stop",
+            "free",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

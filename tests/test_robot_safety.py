@@ -88,8 +88,9 @@ def test_a_hot_servo_mid_motion_frees_its_joint_within_one_telemetry_round() -> 
     # Within one round: the neck's very next temperature read found it, and the line's three
     # joints were read at most once each before the free command went out.
     assert reads(rig.upper, "read_temperature", marks["upper"], freed, servo_id=1) == 1
-    assert reads(rig.upper, "read_temperature", marks["upper"], freed) <= len([j for j in JOINTS.values()
-                                                                               if j["line"] == "upper"])
+    assert reads(rig.upper, "read_temperature", marks["upper"], freed) <= len(
+        [j for j in JOINTS.values() if j["line"] == "upper"]
+    )
     assert neck.free
     # Action "free": the other joints stopped where they were, torque on, and sent no new targets after.
     shoulder = targets_sent(rig.upper, 2, freed)

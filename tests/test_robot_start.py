@@ -81,7 +81,11 @@ def test_ics35_joints_start_free_unless_their_pose_is_stated() -> None:
     async def body(robot: Robot) -> None:
         await robot.read_pose()
         assert robot.start_modes == {
-            "neck": "read", "shoulder": "stated", "elbow": "free", "hip": "read", "knee": "stated",
+            "neck": "read",
+            "shoulder": "stated",
+            "elbow": "free",
+            "hip": "read",
+            "knee": "stated",
         }
         assert robot.targets["shoulder"] == 30.0 and robot.targets["elbow"] is None
 
@@ -123,7 +127,11 @@ def test_the_blocking_robot_takes_a_start_pose_and_tells_the_start_modes() -> No
     try:
         with blocking.open_robot(rig.description, start_pose={"neck": 0.0}, **FAST) as robot:
             assert robot.start_modes == {
-                "neck": "stated", "shoulder": "read", "elbow": "read", "hip": "free", "knee": "read",
+                "neck": "stated",
+                "shoulder": "read",
+                "elbow": "read",
+                "hip": "free",
+                "knee": "read",
             }
     finally:
         rig.close()

@@ -155,9 +155,7 @@ class BlockingRobot(LoopOwner[Robot]):
         """
         self.run(self._async.move_to, pose, duration, profile)
 
-    def play(
-        self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
-    ) -> None:
+    def play(self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False) -> None:
         """Play a motion (object, JSON file path or mapping) at ``speed`` (2: twice as fast); ``loop``: until Ctrl-C.
 
         Raises:
@@ -290,4 +288,3 @@ def open_robot(
     else:
         name = str(source) if isinstance(source, str | Path) else "from a mapping"
     return BlockingRobot(opener, name)
-

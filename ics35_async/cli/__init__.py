@@ -97,11 +97,18 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
 
 @click.group(cls=LazyGroup, context_settings=CONTEXT_SETTINGS)
 @group_line_options
-@click.option("--json", "json_output", is_flag=True,
-              help="Print machine-readable JSON on stdout (as the command's own --json).")
+@click.option(
+    "--json", "json_output", is_flag=True, help="Print machine-readable JSON on stdout (as the command's own --json)."
+)
 # The version string, not package metadata: importlib.metadata alone costs ~15 ms at start-up.
-@click.option("--version", is_flag=True, expose_value=False, is_eager=True, callback=_print_version,
-              help="Show the version and exit (with -v: the Python, the platform and the burst path).")
+@click.option(
+    "--version",
+    is_flag=True,
+    expose_value=False,
+    is_eager=True,
+    callback=_print_version,
+    help="Show the version and exit (with -v: the Python, the platform and the burst path).",
+)
 @click.pass_context
 def cli(ctx: click.Context, /, **line_options: Any) -> None:
     """Drive Kondo ICS 3.5 serial servos (KRS series).
@@ -120,8 +127,10 @@ def cli(ctx: click.Context, /, **line_options: Any) -> None:
     ctx.obj.json_output = json_output
     name = ctx.invoked_subcommand
     command = cli.get_command(ctx, name) if json_output and name else None
-    if command is not None and not isinstance(command, click.Group) and not any(
-        "--json" in getattr(param, "opts", ()) for param in command.params
+    if (
+        command is not None
+        and not isinstance(command, click.Group)
+        and not any("--json" in getattr(param, "opts", ()) for param in command.params)
     ):
         raise click.UsageError(f"--json: `ics35 {name}` has no JSON output")
 

@@ -65,8 +65,12 @@ NO_READ_35 = f"{policies.NO_READ_ICS35}; pass --free"
 
 @click.command()
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
-@click.option("--free", "free_servo", is_flag=True,
-              help="On an ICS 3.5 servo, read the position with the free command: the servo goes limp.")
+@click.option(
+    "--free",
+    "free_servo",
+    is_flag=True,
+    help="On an ICS 3.5 servo, read the position with the free command: the servo goes limp.",
+)
 @click.option("--no-position", is_flag=True, help="Do not read the position at all.")
 @json_option
 @click.pass_context
@@ -92,8 +96,12 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
                 where = {"position": None, "how": None, "protocol": None, "why": "not read (--no-position)"}
             else:
                 reading = await policies.read_position_without_freeing(servo, free_ics35=free_servo)
-                where = {"position": reading.position, "how": reading.how, "protocol": reading.protocol,
-                         "why": None if reading.why is None else NO_READ_35}
+                where = {
+                    "position": reading.position,
+                    "how": reading.how,
+                    "protocol": reading.protocol,
+                    "why": None if reading.why is None else NO_READ_35,
+                }
             return {"eeprom": eeprom, "current": current, "temperature": temperature, **where}
 
     got = run(settings, body)
@@ -231,8 +239,9 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
             if isinstance(p, int):
                 out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
             elif i in unknown:
-                out.print(f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still "
-                          "holding)")
+                out.print(
+                    f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still holding)"
+                )
             else:
                 err.print(f"[red]servo {i}: no answer[/red] ({escape(str(p))})")
     if lost is not None:

@@ -171,12 +171,16 @@ def print_done(report: dict[str, Any], *, whole: bool) -> None:
         out.print(f"servo {sid}: [bold]not written[/bold] (its EEPROM is as it was)")
         return
     if outcome is WriteOutcome.UNKNOWN:
-        out.print(f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
-                  f"so the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table")
+        out.print(
+            f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
+            f"so the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table"
+        )
         return
     if outcome is WriteOutcome.UNVERIFIED:
-        out.print(f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
-                  f"stopped before the read-back; check with: ics35 eeprom dump {sid} --table")
+        out.print(
+            f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
+            f"stopped before the read-back; check with: ics35 eeprom dump {sid} --table"
+        )
         return
     if outcome is WriteOutcome.DIFFERS:
         out.print(f"servo {sid}: [bold red]written, but the image read back differs[/bold red]")

@@ -17,8 +17,12 @@ from ._telemetry import Telemetry
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
 @click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long (default: Ctrl-C).")
-@click.option("--free", "free_servos", is_flag=True,
-              help="Read ICS 3.5 servos with the free command: they go limp (and stay free at the end).")
+@click.option(
+    "--free",
+    "free_servos",
+    is_flag=True,
+    help="Read ICS 3.5 servos with the free command: they go limp (and stay free at the end).",
+)
 @stream_options
 @json_option
 @click.pass_context

@@ -56,8 +56,12 @@ def note_ports(settings: Settings, robot_file: str) -> None:
 
 def safety_error(exc: SafetyStop) -> CliError:
     if exc.reason == "offline":
-        return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", *NO_REPLY_HINTS[:2],
-                        "to carry on without it: [safety] continue_on_offline = true")
+        return CliError(
+            ExitCode.SAFETY_STOP,
+            f"safety stop: {exc}",
+            *NO_REPLY_HINTS[:2],
+            "to carry on without it: [safety] continue_on_offline = true",
+        )
     return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", *SAFETY_HINTS)
 
 

@@ -72,17 +72,37 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @click.command()
 @click.argument("robot_file", metavar="ROBOT.toml")
 @click.argument("motion_file", metavar="MOTION.json")
-@click.option("--speed", type=click.FloatRange(0.05, 10), default=1.0, show_default=True,
-              help="Time scale: 0.5 plays at half speed.")
+@click.option(
+    "--speed",
+    type=click.FloatRange(0.05, 10),
+    default=1.0,
+    show_default=True,
+    help="Time scale: 0.5 plays at half speed.",
+)
 @click.option("--loop", is_flag=True, help="Play again and again until Ctrl-C (or --seconds).")
 @click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long.")
-@click.option("--on-stop", type=click.Choice(["hold", "free"]), default="hold", show_default=True,
-              help="What the joints do once the motion ends or is stopped.")
-@click.option("--ramp", type=click.FloatRange(0, 5), default=0.3, show_default=True,
-              help="Seconds a stopped motion takes to come to rest (never past the motion's keyframes).")
-@click.option("--start-pose", "start_pose_text", metavar="POSE", default=None,
-              help="Where the robot is now (joint=deg,... or a JSON file): those joints hold it from the first "
-                   "command instead of going limp (ICS 3.5 servos are read by freeing them).")
+@click.option(
+    "--on-stop",
+    type=click.Choice(["hold", "free"]),
+    default="hold",
+    show_default=True,
+    help="What the joints do once the motion ends or is stopped.",
+)
+@click.option(
+    "--ramp",
+    type=click.FloatRange(0, 5),
+    default=0.3,
+    show_default=True,
+    help="Seconds a stopped motion takes to come to rest (never past the motion's keyframes).",
+)
+@click.option(
+    "--start-pose",
+    "start_pose_text",
+    metavar="POSE",
+    default=None,
+    help="Where the robot is now (joint=deg,... or a JSON file): those joints hold it from the first "
+    "command instead of going limp (ICS 3.5 servos are read by freeing them).",
+)
 @click.pass_context
 def play(
     ctx: click.Context,
@@ -121,8 +141,10 @@ def play(
             limp = [name for name, mode in robot.start_modes.items() if mode == "free"]
             if limp:
                 which = "every joint" if len(limp) == len(robot.joints) else escape(", ".join(limp))
-                err.print(f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
-                          "--start-pose states where they are instead[/dim]")
+                err.print(
+                    f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
+                    "--start-pose states where they are instead[/dim]"
+                )
             try:
                 check_motion(robot, motion, motion_file)
             except MotionError as exc:

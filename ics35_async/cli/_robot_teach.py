@@ -98,8 +98,13 @@ joints_option = click.option("--joints", default=None, help="Comma-separated joi
 @click.argument("robot_file", metavar="ROBOT.toml")
 @click.argument("out_file", metavar="OUT.json")
 @joints_option
-@click.option("--profile", type=click.Choice(["minjerk", "linear"]), default="minjerk", show_default=True,
-              help="The profile the motion's segments use.")
+@click.option(
+    "--profile",
+    type=click.Choice(["minjerk", "linear"]),
+    default="minjerk",
+    show_default=True,
+    help="The profile the motion's segments use.",
+)
 @click.option("--name", default=None, help="The motion's name (default: the file's).")
 @click.pass_context
 def teach(
@@ -121,8 +126,10 @@ def teach(
     async def body() -> None:
         async with freed_robot(description, settings, names) as robot:
             lines = TypedLines()
-            err.print("the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
-                      "[bold]q[/bold] then Enter ends (Ctrl-C too)")
+            err.print(
+                "the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
+                "[bold]q[/bold] then Enter ends (Ctrl-C too)"
+            )
             start = time.monotonic()
             watcher = asyncio.ensure_future(watch_lines(robot))
             lost: list[bool] = []
@@ -187,11 +194,16 @@ def save_taught(
         ) from None
     play = f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
     if on_error:
-        err.print(f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "
-                  f"({motion.duration:.1f} s); {play}", soft_wrap=True)
+        err.print(
+            f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "
+            f"({motion.duration:.1f} s); {play}",
+            soft_wrap=True,
+        )
     else:
-        out.print(f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}",
-                  soft_wrap=True)
+        out.print(
+            f"wrote {len(keyframes)} pose(s) over {motion.duration:.1f} s to {escape(str(target))}; {play}",
+            soft_wrap=True,
+        )
 
 
 async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe], screen: Screen) -> None:
@@ -203,8 +215,10 @@ async def capture(robot: Robot, names: list[str], start: float, keyframes: list[
             continue
         spec = robot.joints[name]
         if not spec.min <= pose[name] <= spec.max:
-            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
-                      f"{spec.min:g}..{spec.max:g}: recorded at the limit")
+            err.print(
+                f"[yellow]warning:[/yellow] joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
+                f"{spec.min:g}..{spec.max:g}: recorded at the limit"
+            )
         taken[name] = round(spec.clamp(pose[name]), 2)
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(round(time.monotonic() - start, 3), round(previous + 0.001, 3))
@@ -247,11 +261,15 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 return "step 1/2: the neutral pose" if step[0] == "neutral" else "step 2/2: each joint's range"
 
             def table() -> Table:
-                return joint_table(robot, f"calibrate: {escape(robot_file)} (servo degrees on the right)", names,
-                                   (("neutral°", "min°", "max°"), extra))
+                return joint_table(
+                    robot,
+                    f"calibrate: {escape(robot_file)} (servo degrees on the right)",
+                    names,
+                    (("neutral°", "min°", "max°"), extra),
+                )
 
             def track(frame: RobotFrame | None) -> None:
-                for name, deg in (frame.positions.items() if frame else ()):
+                for name, deg in frame.positions.items() if frame else ():
                     if name in names:
                         servo = robot.joints[name].servo_degrees(deg)
                         low[name] = min(servo, low.get(name, servo))
@@ -308,8 +326,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     if written.comments_kept:
         out.print(f"written into {escape(str(written.path))} (comments kept)")
     else:
-        err.print(f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
-                  f"{escape(str(written.path))} (a complete file, without comments)")
+        err.print(
+            f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "
+            f"{escape(str(written.path))} (a complete file, without comments)"
+        )
     if written.backup is not None:
         out.print(f"the previous {escape(written.path.name)} is kept as {escape(str(written.backup))}")
     return 0

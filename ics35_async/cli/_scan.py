@@ -189,8 +189,10 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         if not s.rate_unconfirmed:
             by_baud[s.baud] = by_baud.get(s.baud, 0) + 1
     unconfirmed = sum(s.rate_unconfirmed for s in report.servos)
-    summary = ", ".join([f"{n} at {b} baud" for b, n in by_baud.items()]
-                        + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else []))
+    summary = ", ".join(
+        [f"{n} at {b} baud" for b, n in by_baud.items()]
+        + ([f"{unconfirmed} at a rate unconfirmed"] if unconfirmed else [])
+    )
     out.print(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}")
     if len(by_baud) > 1:
         err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")

@@ -174,8 +174,7 @@ def check_latency_timer(port: str, tty: str, ms: int | None) -> list[Finding]:
             "warning",
             f"{port}'s USB adapter holds received bytes up to {ms} ms (its FTDI latency timer): every "
             f"transaction waits that long",
-            f"now: echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer ; "
-            f"for good: ics35 udev --install",
+            f"now: echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer ; for good: ics35 udev --install",
         )
     ]
 
@@ -268,4 +267,3 @@ def check_system(
             )
         )
     return report
-

@@ -33,9 +33,7 @@ def echo_mismatch(req: Request | None, sid: int, tx: bytes, buf: bytes | bytearr
     return _error(EchoMismatch, message, req, sid, buf, echo_at=ahead)
 
 
-def framing_error(
-    req: Request | None, sid: int, tx: bytes, buf: bytearray, expect: int, corrupted: bool
-) -> ReplyError:
+def framing_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, expect: int, corrupted: bool) -> ReplyError:
     """All bytes are in but the transaction is wrong: a damaged byte, extra bytes, or a wrong echo."""
     if corrupted:
         message = "a byte arrived with a parity or framing error (noise on the line?)"
@@ -45,16 +43,15 @@ def framing_error(
     return echo_mismatch(req, sid, tx, buf)
 
 
-def timeout_error(
-    req: Request | None, sid: int, tx: bytes, buf: bytearray, echo_len: int, expect: int
-) -> ReplyError:
+def timeout_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, echo_len: int, expect: int) -> ReplyError:
     """The deadline passed: what arrived says whether the echo, the servo or the reply's tail is missing."""
     got = len(buf)
     if echo_len and buf[: min(got, echo_len)] != tx[: min(got, echo_len)]:
         return echo_mismatch(req, sid, tx, buf)
     if got == 0:
-        return _error(ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply",
-                      req, sid, buf)
+        return _error(
+            ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply", req, sid, buf
+        )
     if got <= echo_len:
         return _error(ReplyTimeout, "no reply (check ID, baud rate, power)", req, sid, buf)
     n, m = got - echo_len, expect - echo_len

@@ -167,8 +167,10 @@ def servos_of(
             groups[baud] = [baud]
     found = []
     for group in groups.values():
-        image = next((images.get((b, servo_id)) for b in group if isinstance(images.get((b, servo_id)), Eeprom)),
-                     images.get((group[0], servo_id)))
+        image = next(
+            (images.get((b, servo_id)) for b in group if isinstance(images.get((b, servo_id)), Eeprom)),
+            images.get((group[0], servo_id)),
+        )
         eeprom = image if isinstance(image, Eeprom) else None
         listed = group[0]
         if eeprom is not None and (int(eeprom.baud_rate) in group or ignores_rates):

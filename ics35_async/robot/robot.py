@@ -168,9 +168,7 @@ class Robot:
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
-        checked = {
-            n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()
-        }
+        checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
         self._release(checked)
         self._apply(checked)
 

@@ -147,8 +147,7 @@ class SafetyWatch:
         if spec.max_current is not None and seen.current is not None and seen.current > spec.max_current:
             crossed.append(
                 SafetyStop(
-                    f"{where} draws current {seen.current}, over max_current {spec.max_current}; "
-                    f"action: {spec.action}",
+                    f"{where} draws current {seen.current}, over max_current {spec.max_current}; action: {spec.action}",
                     joint=joint.name,
                     reason="current",
                     action=spec.action,

@@ -98,6 +98,7 @@ if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type 
     from .pty_server import PtyServer as PtyServer
     from .server_cli import main as main
 
+
 def __getattr__(name: str) -> Any:
     # The pty server and its command line need termios, fcntl and tty (POSIX only): they are
     # imported when one of their names is first asked for, so the in-process simulator imports anywhere

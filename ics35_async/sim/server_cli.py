@@ -37,8 +37,12 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     )
     parser.set_defaults(realtime=True)
     parser.add_argument("--ids", default="0-31", help="servo IDs, e.g. 0-31 or 1,3,5-7 ('none': no servos)")
-    parser.add_argument("--ics36", default=None, metavar="IDS",
-                        help="IDs of servos that speak ICS 3.6 (answer its position read); default: none")
+    parser.add_argument(
+        "--ics36",
+        default=None,
+        metavar="IDS",
+        help="IDs of servos that speak ICS 3.6 (answer its position read); default: none",
+    )
     parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
@@ -95,8 +99,12 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
         metavar="MS",
         help=f"the adapter model's latency timer in ms, 1..255 (default {DEFAULT_LATENCY_TIMER_MS})",
     )
-    parser.add_argument("--tap", default=None, metavar="PATH", help="also serve the line's bytes, each once, "
-                        "on a second pty at PATH (a listening adapter, for ics35 sniff)")
+    parser.add_argument(
+        "--tap",
+        default=None,
+        metavar="PATH",
+        help="also serve the line's bytes, each once, on a second pty at PATH (a listening adapter, for ics35 sniff)",
+    )
     parser.add_argument("--record", default=None, help="record the session to this file")
     parser.add_argument("--replay", default=None, help="serve this recording instead of a simulated line")
     parser.add_argument("--link", default=None, help="path of the symlink to create (default: in a temp dir)")
@@ -174,8 +182,11 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             what += f", behind a USB adapter model ({device.adapter.latency_timer_ms} ms latency timer)"
         print(f"ics35 sim: {what} on {server.pts_name} (link {path})", file=sys.stderr, flush=True)
         if tap is not None:
-            print(f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})",
-                  file=sys.stderr, flush=True)
+            print(
+                f"ics35 sim: the line's bytes, each once, on {tap.path} (ics35 sniff --port {tap.path})",
+                file=sys.stderr,
+                flush=True,
+            )
         server.serve()
     finally:
         for sig, handler in previous.items():

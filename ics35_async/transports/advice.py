@@ -8,7 +8,7 @@ from pathlib import Path
 _LATENCY_FIX = (
     "{path} is {ms} ms: a USB adapter holds received bytes up to that long, which slows every "
     "transaction. Set it to 1 ms now with: echo 1 | sudo tee {path}  -- or for good with the udev rules "
-    "ics35 udev --install writes (or your own: ACTION==\"add\", SUBSYSTEM==\"usb-serial\", "
+    'ics35 udev --install writes (or your own: ACTION=="add", SUBSYSTEM=="usb-serial", '
     'DRIVER=="ftdi_sio", ATTR{{latency_timer}}="1")'
 )
 

@@ -103,9 +103,7 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
             f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",
         )
     if winerror == _WINERROR_ACCESS_DENIED:
-        return PortBusy(
-            errno.EBUSY, f"{port!r} is in use by another program (Windows says 'access denied' for that)"
-        )
+        return PortBusy(errno.EBUSY, f"{port!r} is in use by another program (Windows says 'access denied' for that)")
     if code in (errno.EACCES, errno.EPERM):
         return PortPermissionDenied(code, f"permission denied opening {port!r}: {permission_hint()}")
     if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):

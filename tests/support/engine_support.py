@@ -52,8 +52,9 @@ class Recorded(Request):
 
     __slots__ = ("calls", "end_mark", "wire", "write_index")
 
-    def __init__(self, command: protocol.Command[Any], priority: int = 2, retries: int = 0,
-                 wire: Wire | None = None) -> None:
+    def __init__(
+        self, command: protocol.Command[Any], priority: int = 2, retries: int = 0, wire: Wire | None = None
+    ) -> None:
         super().__init__(command, priority, retries)
         self.calls = 0
         self.wire = wire
