@@ -114,6 +114,27 @@ static int wait_for(Burst *self, short events, double deadline, int *woke, short
     }
 }
 
+/* End the plan on an OS error. */
+static void stop_failed(Burst *self, int err) {
+    self->status = FAILED;
+    self->err = err;
+}
+
+/* Wait for the line; on an error or a passed deadline, end the plan (status set) and
+   return 0, so both the write and the read loop stop the same way. */
+static int ready_or_stop(Burst *self, short events, double deadline, int *woke, short *rev) {
+    int r = wait_for(self, events, deadline, woke, rev);
+    if (r < 0) {
+        stop_failed(self, errno);
+        return 0;
+    }
+    if (r == 0) {
+        self->status = LATE;
+        return 0;
+    }
+    return 1;
+}
+
 /* Run the plan (no Python objects touched: called without the GIL). */
 static void run_plan(Burst *self) {
     int woke = 0;
@@ -146,48 +167,27 @@ static void run_plan(Burst *self) {
             }
             if (w < 0 && errno == EINTR) continue;
             if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
-                self->status = FAILED;
-                self->err = errno;
+                stop_failed(self, errno);
                 return;
             }
             short rev = 0;
-            int r = wait_for(self, POLLOUT, deadline, &woke, &rev);
-            if (r < 0) {
-                self->status = FAILED;
-                self->err = errno;
-                return;
-            }
-            if (r == 0) {
-                self->status = LATE;
-                return;
-            }
+            if (!ready_or_stop(self, POLLOUT, deadline, &woke, &rev)) return;
             if (rev & (POLLERR | POLLNVAL)) {
-                self->status = FAILED;
-                self->err = EIO;
+                stop_failed(self, EIO);
                 return;
             }
         }
         /* read until the expected count has come */
         while (t->rx_len < t->expect) {
             short rev = 0;
-            int r = wait_for(self, POLLIN, deadline, &woke, &rev);
-            if (r < 0) {
-                self->status = FAILED;
-                self->err = errno;
-                return;
-            }
-            if (r == 0) {
-                self->status = LATE;
-                return;
-            }
+            if (!ready_or_stop(self, POLLIN, deadline, &woke, &rev)) return;
             Py_ssize_t room = self->rx_cap - rx_len;
             if (room > READ_CHUNK) room = READ_CHUNK;
             ssize_t got = read(self->fd, self->rx + rx_len, (size_t)room);
             double now = monotonic();
             if (got < 0) {
                 if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) continue;
-                self->status = FAILED;
-                self->err = errno;
+                stop_failed(self, errno);
                 return;
             }
             if (got == 0) {
