@@ -413,15 +413,21 @@ static PyObject *make_result(Burst *self) {
     return Py_BuildValue("(iiN)", self->status, self->err, records);
 }
 
-static PyObject *Burst_run(Burst *self, PyObject *args) {
+/* The arguments of run() and start(): (first_deadline, plan), taken in while no burst runs.
+   Returns -1 with an exception set. */
+static int accept_plan(Burst *self, PyObject *args) {
     double first_deadline;
     PyObject *plan;
-    if (!PyArg_ParseTuple(args, "dO", &first_deadline, &plan)) return NULL;
+    if (!PyArg_ParseTuple(args, "dO", &first_deadline, &plan)) return -1;
     if (self->busy) {
         PyErr_SetString(PyExc_RuntimeError, "a burst is already running");
-        return NULL;
+        return -1;
     }
-    if (take_plan(self, first_deadline, plan) < 0) return NULL;
+    return take_plan(self, first_deadline, plan);
+}
+
+static PyObject *Burst_run(Burst *self, PyObject *args) {
+    if (accept_plan(self, args) < 0) return NULL;
     self->busy = 1;
     Py_BEGIN_ALLOW_THREADS
     run_plan(self);
@@ -447,14 +453,7 @@ static void *worker(void *arg) {
 }
 
 static PyObject *Burst_start(Burst *self, PyObject *args) {
-    double first_deadline;
-    PyObject *plan;
-    if (!PyArg_ParseTuple(args, "dO", &first_deadline, &plan)) return NULL;
-    if (self->busy) {
-        PyErr_SetString(PyExc_RuntimeError, "a burst is already running");
-        return NULL;
-    }
-    if (take_plan(self, first_deadline, plan) < 0) return NULL;
+    if (accept_plan(self, args) < 0) return NULL;
     if (!self->has_thread) {
         self->quit = 0;
         int rc = pthread_create(&self->thread, NULL, worker, self);

@@ -175,7 +175,9 @@ def final_report(
     if not options.as_json and not out.is_terminal:
         out.print(state.table(telemetry, options.with_targets))
         out.print(state.summary(telemetry))
-    if not state.answered_ever:
+    # Stopped by Ctrl-C before any cycle ended, nothing is known of the servos: no error for that.
+    asked = state.cycle > 0 or not state.stopped_by_ctrl_c
+    if asked and not state.answered_ever:
         raise CliError(ExitCode.NO_REPLY, f"no servo among {ids_text(state.ids)} answered", *NO_REPLY_HINTS)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..errors import IcsError, ReplyError
@@ -70,6 +71,7 @@ class BackgroundSource(Protocol):
         ...
 
 
+@dataclass(slots=True, eq=False)
 class BoundSource:
     """A :class:`BackgroundSource` made of callables, so an object can keep its hooks off its public face.
 
@@ -77,42 +79,16 @@ class BoundSource:
     costs what a method call on the object itself would.
     """
 
-    __slots__ = (
-        "_wake_at",
-        "complete",
-        "fail",
-        "line_closed",
-        "line_resumed",
-        "next_transaction",
-        "skip",
-        "slot_due",
-        "upcoming",
-        "upcoming_done",
-    )
-
-    def __init__(
-        self,
-        next_transaction: Callable[[float], tuple[bytes, int, int] | None],
-        complete: Callable[[bytearray, int, float], ReplyError | None],
-        fail: Callable[[ReplyError, float], None],
-        line_closed: Callable[[IcsError], None],
-        wake_at: Callable[[], float],
-        slot_due: Callable[[float], float | None],
-        line_resumed: Callable[[float], None],
-        skip: Callable[[float], None],
-        upcoming: Callable[[int], list[tuple[bytes, int, int]]],
-        upcoming_done: Callable[[], None],
-    ) -> None:
-        self.next_transaction = next_transaction
-        self.complete = complete
-        self.fail = fail
-        self.line_closed = line_closed
-        self._wake_at = wake_at
-        self.slot_due = slot_due
-        self.line_resumed = line_resumed
-        self.skip = skip
-        self.upcoming = upcoming
-        self.upcoming_done = upcoming_done
+    next_transaction: Callable[[float], tuple[bytes, int, int] | None]
+    complete: Callable[[bytearray, int, float], ReplyError | None]
+    fail: Callable[[ReplyError, float], None]
+    line_closed: Callable[[IcsError], None]
+    _wake_at: Callable[[], float]
+    slot_due: Callable[[float], float | None]
+    line_resumed: Callable[[float], None]
+    skip: Callable[[float], None]
+    upcoming: Callable[[int], list[tuple[bytes, int, int]]]
+    upcoming_done: Callable[[], None]
 
     @classmethod
     def of(cls, owner: Any) -> BoundSource:

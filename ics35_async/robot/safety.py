@@ -131,30 +131,28 @@ class SafetyWatch:
     def check(self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry) -> None:
         spec = self.spec
         where = f"joint {joint.name} (line {joint.line}, ID {joint.id})"
-        crossed: list[SafetyStop] = []
-        celsius, hottest = seen.temperature_c, spec.max_temperature_c
-        if celsius is not None and hottest is not None and celsius > hottest:
-            crossed.append(
-                SafetyStop(
-                    f"{where} is at about {celsius:.0f} C, over max_temperature_c {hottest:g}; action: {spec.action}",
-                    joint=joint.name,
-                    reason="temperature",
-                    action=spec.action,
-                    value=celsius,
-                    limit=hottest,
-                )
+        # (reason, what is seen, its limit, how the stop words it); the first crossed trips
+        checks = (
+            (
+                "temperature",
+                seen.temperature_c,
+                spec.max_temperature_c,
+                "is at about {:.0f} C, over max_temperature_c {:g}",
+            ),
+            ("current", seen.current, spec.max_current, "draws current {}, over max_current {}"),
+        )
+        crossed = [
+            SafetyStop(
+                f"{where} {words.format(value, limit)}; action: {spec.action}",
+                joint=joint.name,
+                reason=reason,
+                action=spec.action,
+                value=value,
+                limit=limit,
             )
-        if spec.max_current is not None and seen.current is not None and seen.current > spec.max_current:
-            crossed.append(
-                SafetyStop(
-                    f"{where} draws current {seen.current}, over max_current {spec.max_current}; action: {spec.action}",
-                    joint=joint.name,
-                    reason="current",
-                    action=spec.action,
-                    value=seen.current,
-                    limit=spec.max_current,
-                )
-            )
+            for reason, value, limit, words in checks
+            if value is not None and limit is not None and value > limit
+        ]
         if crossed:
             robot.trip(crossed[0])
         else:
