@@ -157,7 +157,6 @@ def test_no_plan_while_a_reply_is_owed_or_the_link_is_slow() -> None:
     engine.burst_over()
 
 
-
 class HeldByAdapter(Servos):
     """Echo and reply handed over together 16 ms after the write: a USB adapter's latency timer
     (an FTDI chip holds received bytes until 62 are buffered or its timer runs out)."""
@@ -188,6 +187,7 @@ def test_a_planned_transaction_given_up_early_is_waited_for_by_the_engine_and_no
     assert sum(s.ok for s in plain["per_id"].values()) > 60
     assert burst["writes"] == plain["writes"]
     assert burst == plain
+
 
 class GarbledOnce(Servos):
     """Servos whose answer to one write has a data byte with its top bit set (the echo and the
