@@ -192,7 +192,11 @@ class Bus:
 
     async def state_change(self) -> State:
         """Wait until the port is lost (``State.LOST`` while reconnecting, ``State.CLOSED`` without
-        ``reconnect``) or comes back (``State.IDLE``), or the bus closes; return the new state.
+        ``reconnect``) or comes back (``State.IDLE``), or the bus closes; return the state then.
+
+        It wakes on a change, not per change: a loss and a reconnect that both happen while your
+        code is not waiting are one wake that returns ``State.IDLE``; ``stats.reconnects`` counts
+        every reconnection, and a stream's first frame after one has ``resumed`` set.
 
         A controller can watch its line with it beside its loop::
 
