@@ -18,7 +18,7 @@ import pytest
 
 from benchmarks.soak.cancellation import cancellation_soak
 from benchmarks.soak.chaos import chaos_soak
-from benchmarks.soak.unplug import new_unplug_tally, no_reconnect_session, reconnect_session
+from benchmarks.soak.unplug import new_unplug_tally, no_reconnect_session, reconnect_session, tally_request
 from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw
@@ -200,6 +200,28 @@ async def test_unplug_and_replug_with_reconnect_over_a_pty() -> None:
     assert tally["port_lost"] > 0 and tally["ok"] > 100
     assert tally["untyped"] == tally["hung"] == tally["wrong"] == 0 and not tally["other"], tally.get("hung_lines")
     assert (other_tasks(), open_fds(), non_executor_threads()) == (tasks0, fds0, threads0)
+
+
+async def test_the_unplug_tally_counts_a_reply_timeout_as_a_typed_error_and_a_stuck_read_as_hung() -> None:
+    # ReplyTimeout is a TimeoutError too: it must not pass for a read that never came back.
+    async def times_out() -> int:
+        raise ReplyTimeout("no reply", command="position", servo_id=1)
+
+    async def never() -> int:
+        await asyncio.sleep(10)
+        return 30
+
+    async def answers(value: int) -> int:
+        return value
+
+    tally = new_unplug_tally()
+    async with open_bus("sim://?ids=1") as bus:
+        assert await tally_request(tally, times_out(), bus) == "other"
+        assert await tally_request(tally, never(), bus, patience=0.01) == "hung"
+        assert await tally_request(tally, answers(30), bus) == "ok"
+        assert await tally_request(tally, answers(31), bus) == "ok"
+    assert dict(tally["other"]) == {"ReplyTimeout": 1}
+    assert (tally["hung"], tally["ok"], tally["wrong"], tally["requests"]) == (1, 2, 1, 4)
 
 
 @linux_only

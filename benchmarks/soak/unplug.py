@@ -16,7 +16,7 @@ import statistics
 import subprocess
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -155,24 +155,8 @@ async def reconnect_session(
                     rng = random.Random(seed * 100 + k)
                     while not stop.is_set():
                         sid = rng.choice(ids)
-                        report["requests"] += 1
-                        try:
-                            async with asyncio.timeout(5):
-                                value = await bus.servo(sid).read_stretch()
-                        except TimeoutError:
-                            report["hung"] += 1
-                            report.setdefault("hung_lines", []).append(bus.describe())  # what the line was doing
-                        except PortLost:
-                            report["port_lost"] += 1
+                        if await tally_request(report, bus.servo(sid).read_stretch(), bus) == "port_lost":
                             await asyncio.sleep(0.01)
-                        except IcsError as exc:
-                            report["other"][type(exc).__name__] += 1
-                        except Exception:
-                            report["untyped"] += 1
-                        else:
-                            report["ok"] += 1
-                            if value != 30:  # factory RAM stretch
-                                report["wrong"] += 1
 
                 stream = bus.stream(ids)
                 targets = {i: 7000 + 100 * i for i in ids}
@@ -248,6 +232,34 @@ async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 
         report["tasks_after_close"] = other_tasks()
     finally:
         stop_subprocess(proc)
+
+
+async def tally_request(report: dict[str, Any], read: Awaitable[int], bus: Bus, patience: float = 5.0) -> str:
+    """Await a stretch read and count its outcome in ``report``; returns the key counted.
+
+    A library error is typed, whatever its bases: ``ReplyTimeout`` is also a ``TimeoutError``,
+    and is counted as the typed error it is, not as a read that hung past ``patience``.
+    """
+    report["requests"] += 1
+    try:
+        async with asyncio.timeout(patience):
+            value = await read
+    except PortLost:
+        key = "port_lost"
+    except IcsError as exc:
+        report["other"][type(exc).__name__] += 1
+        return "other"
+    except TimeoutError:
+        key = "hung"
+        report.setdefault("hung_lines", []).append(bus.describe())  # what the line was doing
+    except Exception:
+        key = "untyped"
+    else:
+        key = "ok"
+        if value != 30:  # factory RAM stretch: answered, but not with the servo's value
+            report["wrong"] += 1
+    report[key] += 1
+    return key
 
 
 def new_unplug_tally() -> dict[str, Any]:
