@@ -18,8 +18,9 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too.
 
 Each prints the stream's frame rate (Hz), the p99 and largest interval
-between cycle starts (ms; 10 ms is one period) and, with pollers, their reads
-a second.  Beside them, the same scenarios in simulated time
+between cycle starts (ms; 10 ms is one period), how long after its slot a cycle
+starts (median, ms; "-" where a missed slot moved the schedule) and, with
+pollers, their reads a second.  Beside them, the same scenarios in simulated time
 (tests/support/paced_line.py: the engine with no event loop and no clock),
 which shows the engine's rules alone, free of this machine's load: the goals
 (at least 97 Hz with pollers, 95 Hz at 5% faults, no interval over 1.5
@@ -34,6 +35,7 @@ import argparse
 import asyncio
 import itertools
 import json
+import statistics
 import sys
 import time
 from typing import Any
@@ -54,7 +56,7 @@ SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUS
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
-async def measure(scenario: str, seconds: float) -> dict[str, float]:
+async def measure(scenario: str, seconds: float) -> dict[str, Any]:
     present = IDS[:-1] if scenario == "offline" else IDS
     sim = VirtualLine(
         [VirtualServo(i, baud_rate=BAUD) for i in present],
@@ -81,7 +83,7 @@ async def measure(scenario: str, seconds: float) -> dict[str, float]:
         sys.setswitchinterval(switch)
 
 
-async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float) -> dict[str, float]:
+async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float) -> dict[str, Any]:
     reads = work = 0
     stop = False
 
@@ -111,10 +113,16 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
         if scenario in BUSY:
             tasks += [asyncio.ensure_future(busy()) for _ in range(2)]
         starts = [first.started]
+        # Where each cycle started on the slot grid (start - cycle / rate): the grid is anchored
+        # at the earliest of them, as no cycle starts before its slot.
+        on_grid = [first.started - first.cycle / RATE_HZ]
+        missed = 0
         t0 = time.monotonic()
         while time.monotonic() - t0 < seconds:
             frame = await stream.next_frame()
             starts.append(frame.started)
+            on_grid.append(frame.started - frame.cycle / RATE_HZ)
+            missed += frame.missed_slots
         stop = True
         await asyncio.gather(*tasks)
         elapsed = starts[-1] - starts[0]
@@ -126,10 +134,12 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
         "interval_max_ms": gaps[-1] * 1e3,
         "reads_per_s": reads / elapsed,
         "work_per_s": work / elapsed,
+        # A missed slot moves the grid (the stream re-anchors): then there is no one grid to measure.
+        "slot_lag_p50_ms": (statistics.median(on_grid) - min(on_grid)) * 1e3 if not missed else None,
     }
 
 
-def simulated(scenario: str) -> dict[str, float]:
+def simulated(scenario: str) -> dict[str, Any]:
     rate = 0.05 if scenario.startswith("faults") else 0.0
     present = IDS[:-1] if scenario == "offline" else IDS
     timing = BusTiming(quiet_time=0.005) if scenario == QUIET_5MS else None
@@ -155,8 +165,11 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
 
 def print_table(result: dict[str, Any]) -> None:
     print(f"\n## Control loop: {result['servos']} servos at {result['rate_hz']:g} Hz, {result['baud']} bit/s\n")
-    print("| scenario | rate (Hz) | interval p99 / max (ms) | reads/s, loop work/s | simulated: rate, p99 / max |")
-    print("|---|---|---|---|---|")
+    print(
+        "| scenario | rate (Hz) | interval p99 / max (ms) | start after slot, median (ms) | reads/s, loop work/s "
+        "| simulated: rate, p99 / max |"
+    )
+    print("|---|---|---|---|---|---|")
     for row in result["rows"]:
         m = row["measured"]
         s = row.get("simulated")
@@ -164,9 +177,10 @@ def print_table(result: dict[str, Any]) -> None:
         reads = f"{m['reads_per_s']:,.0f}" if row["scenario"] == "pollers" else "-"
         if row["scenario"] in BUSY:
             reads = f"{m['work_per_s']:,.0f} work/s"
+        lag = "-" if m["slot_lag_p50_ms"] is None else f"{m['slot_lag_p50_ms']:.2f}"
         print(
             f"| {row['scenario']} | {m['rate_hz']:.1f} | {m['interval_p99_ms']:.1f} / {m['interval_max_ms']:.1f} "
-            f"| {reads} | {sim} |"
+            f"| {lag} | {reads} | {sim} |"
         )
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
-from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar, Unpack
 
 from . import protocol
@@ -193,7 +192,11 @@ class Bus:
 
     async def state_change(self) -> State:
         """Wait until the port is lost (``State.LOST`` while reconnecting, ``State.CLOSED`` without
-        ``reconnect``) or comes back (``State.IDLE``), or the bus closes; return the new state.
+        ``reconnect``) or comes back (``State.IDLE``), or the bus closes; return the state then.
+
+        It wakes on a change, not per change: a loss and a reconnect that both happen while your
+        code is not waiting are one wake that returns ``State.IDLE``; ``stats.reconnects`` counts
+        every reconnection, and a stream's first frame after one has ``resumed`` set.
 
         A controller can watch its line with it beside its loop::
 
@@ -236,9 +239,7 @@ class Bus:
     async def __aenter__(self) -> Bus:
         return await self.open()
 
-    async def __aexit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
     async def open(self) -> Bus:

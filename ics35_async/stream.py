@@ -15,7 +15,6 @@ import statistics
 import warnings
 from collections import deque
 from collections.abc import Iterable, Mapping
-from types import TracebackType
 from typing import Literal, TypedDict
 
 import anyio
@@ -613,9 +612,7 @@ class Stream(FrameIterator[Frame]):
     async def __aenter__(self) -> Stream:
         return await self.start()
 
-    async def __aexit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
 

@@ -147,13 +147,13 @@ def test_demo_stops_on_ctrl_c_and_frees_the_servos(port: str) -> None:
         assert got["current"]["magnitude"] == 0
 
 
-
 def test_demo_stopped_before_its_first_frame_is_no_error(port: str) -> None:
     # Ctrl-C before any cycle ended (at once, or on a slow machine): nothing is known of the
     # servos, so no "no servo answered"; the stop is the one the user asked for.
     proc, out, err = demo_interrupted(port, 0.0)
     assert proc.returncode == 0, err
     assert "demo stopped by Ctrl-C after" in out and "no servo" not in err
+
 
 def run_set_id(ids: str, new: int, *extra: str) -> tuple[subprocess.CompletedProcess[str], Any]:
     with serving(["--ids", ids]) as path:

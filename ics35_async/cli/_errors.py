@@ -4,22 +4,9 @@ from __future__ import annotations
 
 import sys
 
-from ..errors import (
-    BadReply,
-    BusClosed,
-    DirectionControlNotSupported,
-    EchoMismatch,
-    IcsError,
-    InvalidArgument,
-    PartialReply,
-    PortLost,
-    ReplyError,
-    ReplyTimeout,
-    UnsafeOperation,
-    VerifyError,
-)
+from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
-from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
+from ..transports import carries_line_settings
 from ..transports.platforms import permission_hint, port_names_hint
 from ._loop import run_loop
 from ._params import ALL_BAUDS
@@ -32,10 +19,10 @@ NO_REPLY_HINTS = (
 )
 
 
-def translate(settings: Settings, exc: IcsError) -> CliError:
+def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     """The person-facing form of a library error."""
     text = str(exc).replace(settings.url, settings.port)
-    if isinstance(exc, PortPermissionDenied):
+    if isinstance(exc, errors.PortPermissionDenied):
         if sys.platform.startswith("linux"):
             return CliError(
                 ExitCode.PORT,
@@ -43,36 +30,36 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
                 "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
             )
         return CliError(ExitCode.PORT, text, permission_hint())
-    if isinstance(exc, PortNotFound):
+    if isinstance(exc, errors.PortNotFound):
         # The library's message already says where to look, for callers who see no hints.
         hints = [] if port_names_hint() in text else [f"list ports with: {port_names_hint()}"]
         if settings.port.upper().startswith("COM") and sys.platform != "win32":
             hints.insert(0, "COM names are Windows' own: here a serial port is a /dev/ path")
         return CliError(ExitCode.PORT, text, *hints)
-    if isinstance(exc, PortBusy):
+    if isinstance(exc, errors.PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
-    if isinstance(exc, DirectionControlNotSupported):
+    if isinstance(exc, errors.DirectionControlNotSupported):
         return CliError(
             ExitCode.PORT,
             text,
             "an ICS adapter switches direction itself: drop --direction",
             "a DIY interface on a UART without RS-485 mode: use a transceiver with automatic direction control",
         )
-    if isinstance(exc, SerialPortError):
+    if isinstance(exc, errors.SerialPortError):
         return CliError(ExitCode.PORT, text, *bridge_hints(settings))
-    if isinstance(exc, PortLost):
+    if isinstance(exc, errors.PortLost):
         if is_network_link(settings.port):
             return CliError(ExitCode.PORT, text, *bridge_hints(settings))
         return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")
-    if isinstance(exc, BusClosed):
+    if isinstance(exc, errors.BusClosed):
         return CliError(ExitCode.COMMUNICATION, text)
-    if isinstance(exc, UnsafeOperation):
+    if isinstance(exc, errors.UnsafeOperation):
         return CliError(ExitCode.REFUSED, f"refused: {text}")
-    if isinstance(exc, InvalidArgument):
+    if isinstance(exc, errors.InvalidArgument):
         if "://" in settings.port and "cannot open" in text:
             return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
         return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
-    if isinstance(exc, ReplyError) and echo_setting_wrong(exc, settings.echo):
+    if isinstance(exc, errors.ReplyError) and echo_setting_wrong(exc, settings.echo):
         if settings.echo:
             return CliError(
                 ExitCode.COMMUNICATION,
@@ -84,21 +71,21 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
             f"{text}: the bytes sent came back before the reply (an echo)",
             "this interface echoes what it sends (ICS adapters do): drop --no-echo",
         )
-    if isinstance(exc, EchoMismatch) and exc.echo_behind:
+    if isinstance(exc, errors.EchoMismatch) and exc.echo_behind:
         return CliError(
             ExitCode.COMMUNICATION,
             text,
             "a reply came after its allowance and landed in front of the next command's echo: a slow servo "
             "or link (a TCP bridge can hold a reply's tail); raise --timeout",
         )
-    if isinstance(exc, EchoMismatch):
+    if isinstance(exc, errors.EchoMismatch):
         return CliError(
             ExitCode.COMMUNICATION,
             text,
             "the bytes sent came back changed: two servos answering at once (duplicate ID), noise, or loose wiring",
             "if your interface does not loop TX back to RX, pass --no-echo",
         )
-    if isinstance(exc, ReplyError) and id0_top_bit_differs(exc, settings.baud):
+    if isinstance(exc, errors.ReplyError) and id0_top_bit_differs(exc, settings.baud):
         return CliError(
             ExitCode.COMMUNICATION,
             f"{text}: only the top bit differs",
@@ -106,13 +93,13 @@ def translate(settings: Settings, exc: IcsError) -> CliError:
             "(ICS 2.0 compatibility) and clear at 625000 and 1250000; this device does the other: give it an ID "
             "other than 0 (ics35 set-id), where the rule does not apply",
         )
-    if isinstance(exc, (BadReply, PartialReply)):
+    if isinstance(exc, (errors.BadReply, errors.PartialReply)):
         return CliError(
             ExitCode.COMMUNICATION,
             text,
             "a garbled reply: a wrong baud rate (try: ics35 scan), two servos sharing one ID, or noise on the line",
         )
-    if isinstance(exc, VerifyError):
+    if isinstance(exc, errors.VerifyError):
         return CliError(ExitCode.COMMUNICATION, text, "the servo did not store what was written; check its power")
     return CliError(ExitCode.COMMUNICATION, text)
 
@@ -142,7 +129,7 @@ def link_hints(settings: Settings) -> tuple[str, ...]:
     )
 
 
-def no_reply_error(settings: Settings, exc: ReplyTimeout) -> CliError:
+def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     """No answer: say whether the servo answers at another baud rate, else what to check."""
     if exc.servo_id is not None and not exc.raw and settings.echo:
         # Not even our own echo came back: the adapter or its wiring, not the servo.
@@ -202,7 +189,7 @@ def answers_short_read(settings: Settings, servo_id: int) -> bool:
 
     try:
         return run_loop(body())
-    except (IcsError, OSError):
+    except (errors.IcsError, OSError):
         return False
 
 
@@ -213,5 +200,5 @@ def other_bauds(settings: Settings, servo_id: int) -> list[int]:
     others = [baud for baud in ALL_BAUDS if baud != settings.baud]
     try:
         return list(run_loop(servo_rates(lambda baud: settings.bus(baud, retries=1), servo_id, others)))
-    except (IcsError, OSError):
+    except (errors.IcsError, OSError):
         return []

@@ -147,12 +147,9 @@ class AnyioDriver(DriverCore):
                 await self._wait_input(port)
             self._scope = None
             self._waiting_until = INF
-            try:
-                data = port.read()
-            except OSError as exc:
-                self._lose(port, exc)
-                continue
-            self._step(port, data, now())
+            data = self._read(port)
+            if data is not None:
+                self._step(port, data, now())
 
     async def _wait_input(self, port: Port) -> None:
         if isinstance(port, TtyPort):

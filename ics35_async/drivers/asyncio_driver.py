@@ -105,11 +105,7 @@ class AsyncioDriver(LoopDriver):
         port = self.port
         if port is None:
             return
-        try:
-            data = port.read()
-        except OSError as exc:
-            self._lose(port, exc)
-            return
+        data = self._read(port)
         if data:
             self._step(port, data, now())
             if self.engine.deadline < self._waiting_until:  # a resync's quiet time, or the source's wake-up

@@ -95,8 +95,9 @@ def feed(
             data, errors = decode(data)
             if errors:
                 engine.line_error(errors)
-        if data:
-            out = engine.receive(data, at if i < last else max(at, now))
+        # What the engine wants written after these bytes: only the last transaction's answer is
+        # for the driver (the executor wrote the others'); one stopped with nothing read has none.
+        out = engine.receive(data, at if i < last else max(at, now)) if data else None
         if in_step and i < last and out != plan[i + 1][0]:
             if out is not None:
                 raise BurstDiverged(

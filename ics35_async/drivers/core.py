@@ -144,6 +144,14 @@ class DriverCore:
 
     # ------------------------------------------------------------------ the engine's answers, in one place
 
+    def _read(self, port: Port) -> bytes | None:
+        """What ``port`` has now (``b""``: nothing); ``None`` once the read failed and the port is lost."""
+        try:
+            return port.read()
+        except OSError as exc:
+            self._lose(port, exc)
+            return None
+
     def _step(self, port: Port, data: bytes, t: float) -> None:
         """What came from ``port`` at ``t`` (``b""``: nothing): feed the engine and act on its answer."""
         engine = self.engine
