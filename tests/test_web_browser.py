@@ -28,6 +28,7 @@ from playwright.sync_api import Browser, Page, expect, sync_playwright
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
+from tests.support.timing import NO_TIMEOUTS
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -40,6 +41,7 @@ KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
 # The tests walk one page in order (a servo opened, then backed up, ...): `make test` hands each module
 # whole to one xdist worker (--dist loadfile).
 pytestmark = [pytest.mark.slow, pytest.mark.pty]
+WEB = [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"]
 WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
 expect.set_options(timeout=WAIT_MS)
 
@@ -74,8 +76,10 @@ def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
     """``ics35 web --port PTY --no-browser``; yields the URL it printed on its first line."""
     proc = subprocess.Popen(
         # --timeout: the simulated servos answer from a thread of this busy process (pytest, Playwright),
-        # later than an adapter would; a scan must not take them for empty IDs.
-        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", "--port", lines[0].path, "--timeout", "0.1"],
+        # and on a loaded machine that thread waits for a core for 100 ms and more.  Every present
+        # servo must answer (a reply later than the allowance would also teach the line a slow-link
+        # extra, and a scan's 30 empty IDs would each wait it out): the no-timeouts allowance.
+        [*WEB, "--port", lines[0].path, "--timeout", str(NO_TIMEOUTS["adapter_latency"])],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
