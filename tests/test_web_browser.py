@@ -473,3 +473,20 @@ def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, 
     expect(page.locator("#lost-banner")).to_be_hidden()
     page.click("#scan-btn")
     expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
+
+
+def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    page.click("#scan-btn")
+    expect(page.locator("#message")).to_contain_text("lost")
+    expect(page.locator("#scan-summary")).not_to_contain_text("scanning")  # the failed scan is not still going
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    # The banner and the message follow the same status update: no wait beyond the one for the banner.
+    expect(page.locator("#message")).not_to_contain_text("lost", timeout=500)
+    expect(page.locator("#message")).to_contain_text("the line is back", timeout=500)
+    page.click("#scan-btn")
+    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")

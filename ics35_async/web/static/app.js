@@ -3,11 +3,12 @@
 
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
-  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set() };
+  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false };
 
 // ---------------------------------------------------------------- talking to the server
 
 function say(text, kind = "error") {
+  state.sayingLost = false;  // set by api() when this is the words of a lost port
   const box = $("#message");
   box.textContent = text;
   box.className = kind;
@@ -28,6 +29,8 @@ async function api(path, data) {
   try { body = JSON.parse(text); } catch (e) { body = { error: text.trim() }; }
   if (!response.ok) {
     say(body && body.error ? body.error : `error ${response.status}`);
+    // The port's words (503) while it is gone: showStatus replaces them when the line is back.
+    state.sayingLost = response.status === 503 && (body.kind === "PortLost" || !!(state.status && state.status.lost));
     throw new Error(body.error);
   }
   return body;
@@ -75,6 +78,7 @@ function showStatus(s) {
   $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
+  if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
 
@@ -153,6 +157,9 @@ async function scanLine() {
     for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
     for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
     $("#scan-summary").textContent = `${report.servos.length} servo(s) found. ${notes.join("; ")}`;
+  } catch (e) {
+    $("#scan-summary").textContent = "the scan did not finish (the message above says why)";
+    throw e;
   } finally { $("#scan-btn").disabled = false; }
 }
 
