@@ -178,6 +178,8 @@ function robotNote(id) {
 async function loadServo() {
   const id = servoId();
   robotNote(id);
+  state.servoLoaded = null;  // no position reads until this servo's page is shown
+  $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
@@ -206,6 +208,33 @@ async function loadServo() {
   $("#jog-slider").min = state.limits[0]; $("#jog-slider").max = state.limits[1];
   $("#jog-limits").textContent = `${state.limits[0]}..${state.limits[1]}`;
   $("#motion-switch").checked = false; setMotion(false);
+  state.servoLoaded = id;
+  pollPosition();
+}
+
+// "reported": the servo's position read again while its page is open. A position command's reply is where
+// the servo stood when the command arrived, before it moved; the server reads the position without moving
+// or freeing it (ICS 3.6), or says what the number is when it cannot (ICS 3.5).
+const POSITION_PERIOD_MS = 500;
+
+async function pollPosition() {
+  const id = state.servoLoaded;
+  if (id === null || id === undefined || id !== servoId() || $("#page-servo").hidden) return;
+  let response, body;
+  try {
+    response = await fetch(`/api/servo/${id}/position`);
+    body = await response.json();
+  } catch (e) { return; }  // the server is gone: the WebSocket says so
+  if (id !== state.servoLoaded) return;  // another servo's page meanwhile
+  if (!response.ok) { $("#jog-position-note").textContent = `not read now: ${body.error}`; return; }
+  state.positionHow = body.how;
+  if (body.position !== null) $("#jog-position").textContent = body.position;
+  $("#jog-position-note").textContent = body.note;
+}
+
+async function positionLoop() {
+  await pollPosition();
+  setTimeout(positionLoop, POSITION_PERIOD_MS);  // one read at a time: a slow line is not queued up
 }
 
 function editedFields() {
@@ -323,7 +352,8 @@ async function jog(position) {
   $("#jog-slider").value = position;
   $("#jog-target").textContent = position;
   const reply = await api(`/api/servo/${servoId()}/move`, { position });
-  $("#jog-position").textContent = reply.position;
+  // The reply is where it stood before this move: shown only for a servo whose position is not read again.
+  if (state.positionHow !== "read") $("#jog-position").textContent = reply.position;
 }
 
 async function torque(what) {
@@ -623,3 +653,4 @@ api("/api/status").then(showStatus).catch(() => {});
 loadPorts().catch(() => {});
 connectSocket();
 show();
+positionLoop();
