@@ -374,3 +374,27 @@ def test_a_ram_parameter_is_written_to_the_servo_and_a_bad_one_refused(serve: An
     assert bad.status_code == 400 and "300" in bad.json()["error"]
     assert post(client, "/api/servo/1/ram/write", {"param": "torque", "value": 1}).status_code == 400
     assert sim.servo(1).speed == 33
+
+
+def test_the_servo_pages_position_is_read_without_moving_or_freeing_and_ics35_says_what_it_shows(serve: Any) -> None:
+    client, sim = serve((1, 3), ics36=(3,))
+    sim.servo(3).move_by_hand(7300)
+    read = client.get("/api/servo/3/position").json()
+    assert read["position"] == 7300 and read["how"] == "read" and "ICS 3.6" in read["note"]
+    assert sim.servo(3).free  # read, not freed by the free command, not held
+    sim.servo(3).command_position(8200)
+    assert client.get("/api/servo/3/position").status_code == 200
+    assert sim.servo(3).target == 8200
+    sim.servo(1).command_position(7700)
+    ics35 = client.get("/api/servo/1/position").json()
+    assert ics35["position"] is None and ics35["how"] is None and "before it moved" in ics35["note"]
+    assert sim.servo(1).target == 7700  # ICS 3.5 reads a position only by going free: it was not
+    post(client, "/api/live/start", {"ids": [3]})
+    streamed: dict[str, Any] = {}
+    for _ in range(200):
+        streamed = client.get("/api/servo/3/position").json()
+        if streamed["position"] is not None:
+            break
+    assert streamed["how"] == "stream" and streamed["position"] > 0
+    post(client, "/api/live/stop")
+    assert client.get("/api/servo/40/position").status_code == 400

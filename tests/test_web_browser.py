@@ -488,3 +488,60 @@ def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, 
     two.sim.replug()
     expect(page.locator("#lost-banner")).to_be_hidden()
     scan_finds(page, 2)
+
+
+def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    page.click("#scan-btn")
+    expect(page.locator("#message")).to_contain_text("lost")
+    expect(page.locator("#scan-summary")).not_to_contain_text("scanning")  # the failed scan is not still going
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    # The banner and the message follow the same status update: no wait beyond the one for the banner.
+    expect(page.locator("#message")).not_to_contain_text("lost", timeout=500)
+    expect(page.locator("#message")).to_contain_text("the line is back", timeout=500)
+    scan_finds(page, 2)
+
+
+def open_servo_page(page: Page, servo_id: int) -> None:
+    """The Servo page of ``servo_id``, its reads done (its ID in the EEPROM table, then its RAM shown)."""
+    page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
+    expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
+    expect(page.locator("#ram-table tbody tr").first).to_be_visible()
+
+
+def test_the_servo_page_reports_the_position_read_after_a_jog_not_the_one_before(page: Page, lines: Any) -> None:
+    servo = lines[0].sim.servo(3)  # ICS 3.6: its position is read without moving or freeing it
+    servo.move_by_hand(8000)
+    open_servo_page(page, 3)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-target")).to_have_text("8000")
+    for target in (8100, 8200):
+        page.click("#jog-plus")
+        expect(page.locator("#jog-target")).to_have_text(str(target))
+    expect(page.locator("#jog-position")).to_have_text("8200")  # where the servo got to, not where it set off from
+    expect(page.locator("#jog-position-note")).to_contain_text("read")
+    assert servo.target == 8200  # the reads moved nothing
+    page.click("#free-btn")
+    expect(page.locator("#jog-plus")).to_be_disabled()
+    servo.move_by_hand(9100)  # turned by hand while the page is open: the page follows
+    expect(page.locator("#jog-position")).to_have_text("9100")
+    assert servo.free  # the reads took no hold of it
+
+
+def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(page: Page, lines: Any) -> None:
+    servo = lines[0].sim.servo(1)  # ICS 3.5: reads a position only by going free, so none is read
+    servo.move_by_hand(7600)
+    open_servo_page(page, 1)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-target")).to_have_text("7600")
+    page.click("#jog-plus")
+    expect(page.locator("#jog-target")).to_have_text("7700")
+    expect(page.locator("#jog-position-note")).to_contain_text("before")
+    page.wait_for_timeout(1200)  # several rounds of the page's reads
+    assert servo.target == 7700  # held where it was sent: nothing freed it
+    page.click("#free-btn")
+    expect(page.locator("#jog-plus")).to_be_disabled()

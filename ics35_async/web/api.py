@@ -221,6 +221,10 @@ async def motion(request: Request, session: LineSession) -> Any:
     return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid), "position": position}
 
 
+async def position(request: Request, session: LineSession) -> Any:
+    return await session.read_position(servo_id(request))
+
+
 async def move(request: Request, session: LineSession) -> Any:
     return {"position": await session.move(servo_id(request), int_of(await body(request), "position"))}
 
@@ -405,6 +409,7 @@ ROUTES = [
     Route("/api/servo/{servo_id}/free", endpoint(free), methods=["POST"]),
     Route("/api/servo/{servo_id}/hold", endpoint(hold), methods=["POST"]),
     Route("/api/servo/{servo_id}/motion", endpoint(motion), methods=["POST"]),
+    Route("/api/servo/{servo_id}/position", endpoint(position)),
     Route("/api/servo/{servo_id}/move", endpoint(move), methods=["POST"]),
     Route("/api/id/survey", endpoint(id_survey), methods=["POST"]),
     Route("/api/id/write", endpoint(id_write), methods=["POST"]),

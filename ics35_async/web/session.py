@@ -57,6 +57,12 @@ RAM_PARAMS = {
     "temperature_limit": Param.TEMPERATURE,
 }
 
+# What the Servo page shows of a servo that reads no position without going free (ICS 3.5).
+POSITION_AT_COMMAND = (
+    "ICS 3.5: where the servo stood when the last command reached it, before it moved "
+    "(it reads its position only by going free, so it is not read again)"
+)
+
 
 @dataclass
 class ScanProgress:
@@ -447,6 +453,25 @@ class LineSession:
         if isinstance(position, bool) or not isinstance(position, int) or not low <= position <= high:
             raise InvalidArgument(f"position {position} is outside servo {servo_id}'s limits {low}..{high}")
         return position
+
+    async def read_position(self, servo_id: int) -> dict[str, Any]:
+        """The Servo page's "reported" position: read now, moving and freeing nothing (policies.position_read).
+
+        A position command's reply is where the servo stood when the command
+        arrived, before it moved, so the page reads the position again while
+        it is open.  A live stream's servo: the stream's newest reading.  An
+        ICS 3.5 servo reads a position only by going free: none is read, and
+        ``note`` says what the page shows instead.
+        """
+        protocol.check_id(servo_id)
+        live = self.live
+        if live is not None and servo_id in live.ids:
+            position = live.position(servo_id)
+            return {"position": None if position < 0 else position, "how": "stream", "note": "from the live stream"}
+        async with self._quiet() as bus:
+            reading = await read_position_without_freeing(bus.servo(servo_id))
+        note = "read now (ICS 3.6 position read)" if reading.how == "read" else POSITION_AT_COMMAND
+        return {"position": reading.position, "how": reading.how, "note": note}
 
     async def move(self, servo_id: int, position: int) -> int:
         """Move (jog) a servo whose motion a page switched on, within its EEPROM pulse limits."""

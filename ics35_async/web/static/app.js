@@ -3,11 +3,12 @@
 
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
-  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set() };
+  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false };
 
 // ---------------------------------------------------------------- talking to the server
 
 function say(text, kind = "error") {
+  state.sayingLost = false;  // set by api() when this is the words of a lost port
   const box = $("#message");
   box.textContent = text;
   box.className = kind;
@@ -28,6 +29,8 @@ async function api(path, data) {
   try { body = JSON.parse(text); } catch (e) { body = { error: text.trim() }; }
   if (!response.ok) {
     say(body && body.error ? body.error : `error ${response.status}`);
+    // The port's words (503) while it is gone: showStatus replaces them when the line is back.
+    state.sayingLost = response.status === 503 && (body.kind === "PortLost" || !!(state.status && state.status.lost));
     throw new Error(body.error);
   }
   return body;
@@ -75,6 +78,7 @@ function showStatus(s) {
   $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
+  if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
 
@@ -153,6 +157,9 @@ async function scanLine() {
     for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
     for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
     $("#scan-summary").textContent = `${report.servos.length} servo(s) found. ${notes.join("; ")}`;
+  } catch (e) {
+    $("#scan-summary").textContent = "the scan did not finish (the message above says why)";
+    throw e;
   } finally { $("#scan-btn").disabled = false; }
 }
 
@@ -171,6 +178,8 @@ function robotNote(id) {
 async function loadServo() {
   const id = servoId();
   robotNote(id);
+  state.servoLoaded = null;  // no position reads until this servo's page is shown
+  $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
@@ -199,6 +208,33 @@ async function loadServo() {
   $("#jog-slider").min = state.limits[0]; $("#jog-slider").max = state.limits[1];
   $("#jog-limits").textContent = `${state.limits[0]}..${state.limits[1]}`;
   $("#motion-switch").checked = false; setMotion(false);
+  state.servoLoaded = id;
+  pollPosition();
+}
+
+// "reported": the servo's position read again while its page is open. A position command's reply is where
+// the servo stood when the command arrived, before it moved; the server reads the position without moving
+// or freeing it (ICS 3.6), or says what the number is when it cannot (ICS 3.5).
+const POSITION_PERIOD_MS = 500;
+
+async function pollPosition() {
+  const id = state.servoLoaded;
+  if (id === null || id === undefined || id !== servoId() || $("#page-servo").hidden) return;
+  let response, body;
+  try {
+    response = await fetch(`/api/servo/${id}/position`);
+    body = await response.json();
+  } catch (e) { return; }  // the server is gone: the WebSocket says so
+  if (id !== state.servoLoaded) return;  // another servo's page meanwhile
+  if (!response.ok) { $("#jog-position-note").textContent = `not read now: ${body.error}`; return; }
+  state.positionHow = body.how;
+  if (body.position !== null) $("#jog-position").textContent = body.position;
+  $("#jog-position-note").textContent = body.note;
+}
+
+async function positionLoop() {
+  await pollPosition();
+  setTimeout(positionLoop, POSITION_PERIOD_MS);  // one read at a time: a slow line is not queued up
 }
 
 function editedFields() {
@@ -316,7 +352,8 @@ async function jog(position) {
   $("#jog-slider").value = position;
   $("#jog-target").textContent = position;
   const reply = await api(`/api/servo/${servoId()}/move`, { position });
-  $("#jog-position").textContent = reply.position;
+  // The reply is where it stood before this move: shown only for a servo whose position is not read again.
+  if (state.positionHow !== "read") $("#jog-position").textContent = reply.position;
 }
 
 async function torque(what) {
@@ -616,3 +653,4 @@ api("/api/status").then(showStatus).catch(() => {});
 loadPorts().catch(() => {});
 connectSocket();
 show();
+positionLoop();
