@@ -63,7 +63,7 @@ def print_report(system: SystemReport, line: LineReport | None, findings: list[F
         suspected = line.suspected_timer_ms
         out.print(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}")
         these = "" if rates["servos"] == 32 else f"{rates['now']:.1f} Hz for these {rates['servos']}, "
-        out.print(f"cycle rate now: {these}{rates['now_32']:.1f} Hz for 32")
+        out.print(f"position cycle rate now (estimated from the reads): {these}{rates['now_32']:.1f} Hz for 32")
         for fix in rates["after_fixes"]:
             out.print(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)")
         out.print(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32")
