@@ -17,6 +17,7 @@ import pytest
 from ics35_async import units
 from ics35_async.cli import ExitCode
 from ics35_async.cli._common import Settings, parse_id_list, translate
+from ics35_async.cli._extras import install_command, installed_from
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
 from ics35_async.sim import VirtualServo
@@ -391,7 +392,7 @@ def test_monitor_plot_without_matplotlib(cli: Any, sim_line: Any, monkeypatch: p
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # makes `import matplotlib` fail
     result = cli("--port", url, "monitor", "1", "--seconds", "0.2", "--plot", "x.png")
     assert result.code == ExitCode.USAGE
-    assert "pip install" in result.err
+    assert install_command("plot", installed_from()) in result.err and "pip install matplotlib" in result.err
     assert sim.transactions == 0
 
 

@@ -159,11 +159,11 @@ def test_version_with_verbose_and_doctor_say_which_path_runs(env: str) -> None:
             [sys.executable, "-m", "ics35_async.cli", *args], capture_output=True, text=True, timeout=60, env=environ
         )
         assert done.returncode == 0, done.stderr
-        (said,) = [ln for ln in done.stdout.splitlines() if ln.startswith("burst path:")]
+        (said,) = [ln for ln in done.stdout.splitlines() if ln.startswith("compiled stream path:")]
         if env:
-            assert "compiled executor" in said or "not built" in said
+            assert said.startswith(("compiled stream path: on (", "compiled stream path: off, not built ("))
         else:
-            assert said == "burst path: off (the ordinary path; ICS35_BURST=1 turns the compiled executor on)"
+            assert said == "compiled stream path: off (optional; ICS35_BURST=1 turns it on)"
     plain = subprocess.run([sys.executable, "-m", "ics35_async.cli", "--version"], capture_output=True, text=True)
     assert plain.stdout.strip().startswith("ics35, version") and "burst" not in plain.stdout
 

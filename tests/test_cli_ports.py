@@ -32,7 +32,7 @@ def machine_ports(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[ListP
     ports = [
         port_info("/dev/ttyS0", "n/a"),
         port_info("/dev/ttyUSB1", "FT232R USB UART", 0x0403, 0x6001),
-        port_info("/dev/ttyUSB0", "ICS USB ADAPTER HS", 0x165C, 0x0008),
+        port_info("/dev/ttyUSB0", "DUAL USB ADAPTER HS", 0x165C, 0x0008),
     ]
     monkeypatch.setattr(list_ports, "comports", lambda include_links=False: list(ports))
     monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))  # no sysfs: nothing unbound
@@ -63,7 +63,7 @@ def test_cli_table(machine_ports: list[ListPortInfo], cli: Any) -> None:
     assert result.code == 0, result.err
     lines = result.out.splitlines()
     kondo = next(line for line in lines if "/dev/ttyUSB0" in line)
-    assert "ICS USB ADAPTER HS" in kondo and "165C:0008" in kondo and "Kondo adapter" in kondo
+    assert "DUAL USB ADAPTER HS" in kondo and "165C:0008" in kondo and "Kondo adapter" in kondo
     ftdi = next(line for line in lines if "/dev/ttyUSB1" in line)
     assert "0403:6001" in ftdi and "Kondo" not in ftdi
     assert "/dev/ttyS0" in result.out
@@ -93,7 +93,7 @@ def test_cli_no_ports_exits_3(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, c
 
 def test_kondo_device_without_a_port_is_found_in_sysfs(tmp_path: Path) -> None:
     root = tmp_path / "sys"
-    usb_device(root, "1-1", "165c", "0008", tty=None)  # the HS adapter, no driver took it
+    usb_device(root, "1-1", "165c", "0008", tty=None)  # the Dual USB adapter HS, no driver took it
     usb_device(root, "1-2", "165c", "0006", tty="ttyUSB3")  # another Kondo adapter with its port
     usb_device(root, "1-3", "0403", "6001", tty=None)  # not Kondo
     assert kondo_usb_without_port(root) == ["165C:0008"]
@@ -101,7 +101,7 @@ def test_kondo_device_without_a_port_is_found_in_sysfs(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
-def test_cli_tells_how_to_make_the_hs_adapter_appear(
+def test_cli_tells_how_to_make_the_dual_adapter_appear(
     machine_ports: list[ListPortInfo], tmp_path: Path, cli: Any
 ) -> None:
     usb_device(tmp_path / "sys", "1-1", "165c", "0008", tty=None)

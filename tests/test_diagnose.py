@@ -197,6 +197,32 @@ def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(cli: Any) 
     assert not [f for f in data["findings"] if f["check"] == "latency_timer"]
 
 
+def position_cycle_hz(read_round_trip: float, baud: int, servos: int) -> float:
+    """A position cycle's rate from a read's round trip: the read's own wire time (2 bytes out, 3 back) swapped
+    for a position command's (3 out, 3 back), capped at the wire's limit (100 us turnaround per transaction)."""
+    byte = 11 / baud
+    position = read_round_trip - 5 * byte + 6 * byte
+    return 1 / (servos * max(position, 6 * byte + 100e-6))
+
+
+def test_doctor_expects_a_position_cycle_and_never_above_the_wire(cli: Any) -> None:
+    result = cli("doctor", "--port", "sim://?ids=3&realtime=1", "--samples", "40", "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    rates, median = data["cycle_hz"], data["round_trip_ms"]["median"] * 1e-3
+    assert rates["now_32"] <= rates["wire_limit_32"]
+    assert rates["now_32"] == pytest.approx(position_cycle_hz(median, 115200, 32), rel=0.01)
+    assert rates["now"] == pytest.approx(position_cycle_hz(median, 115200, 1), rel=0.01)
+
+
+def test_round_trips_faster_than_the_wire_give_the_wire_limit() -> None:
+    report = LineReport(1250000, {1: [5 * 11 / 1250000] * 5})  # a read exactly its wire time: no turnaround
+    rates = report.cycle_hz()
+    assert rates["now_32"] == pytest.approx(rates["wire_limit_32"], rel=0.01)
+    slow = LineReport(115200, {1: [16e-3] * 5}).cycle_hz()  # a 16 ms timer
+    assert slow["now_32"] == pytest.approx(position_cycle_hz(16e-3, 115200, 32), rel=0.01)
+
+
 def test_doctor_text_and_no_servo(cli: Any) -> None:
     result = cli("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "5")
     assert result.code == 0

@@ -45,3 +45,15 @@ def test_example_runs(name: str, code: str, tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 0, f"{name}:\n{done.stderr}"
     assert "Traceback" not in done.stderr
+
+
+def test_the_quick_start_servo_gets_where_its_comments_say() -> None:
+    """The quick start moves a servo to +30 degrees, waits and prints where it is: the simulated servo must
+    have moved in that real wait (a fast-mode simulator's clock does not follow sleeps), so it prints about
+    7500 + 30 * 8000 / 270 counts."""
+    (code,) = [code for name, code in BLOCKS if name.startswith("docs/getting-started/quick-start.md")]
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    found = re.search(r"^now at (\d+)", done.stdout, flags=re.M)
+    assert found, done.stdout
+    assert abs(int(found.group(1)) - 8389) <= 30, done.stdout

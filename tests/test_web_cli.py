@@ -17,6 +17,8 @@ from typing import Any
 
 import pytest
 
+from ics35_async.cli._extras import install_command, installed_from
+
 
 @contextmanager
 def web(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[subprocess.Popen[str], str]]:
@@ -112,7 +114,20 @@ def test_without_the_web_extra_the_command_says_how_to_install_it(
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, "starlette", None)
     result = cli("web", "--no-browser")
-    assert result.code == 2 and "pip install 'ics35_async[web]'" in result.err
+    assert result.code == 2 and install_command("web", installed_from()) in result.err
+    # This checkout is installed editable (make .venv/.installed): the hint installs the extra into it.
+    if installed_from()[0] == "editable":
+        root = Path(__file__).resolve().parent.parent
+        assert f"pip install -e '{root}[web]'" in result.err
+
+
+def test_the_install_hint_fits_how_the_package_was_installed(tmp_path: Path) -> None:
+    assert install_command("web", ("editable", tmp_path)) == f"pip install -e '{tmp_path}[web]'"
+    assert install_command("plot", ("package", None)) == "pip install 'ics35_async[plot]'"
+    either = install_command("web", ("unknown", None))
+    assert "pip install 'ics35_async[web]'" in either and "pip install -e '.[web]'" in either
+    spaced = tmp_path / "my clone"
+    assert install_command("web", ("editable", spaced)) == f"pip install -e '{spaced}[web]'"
 
 
 def test_listen_takes_host_and_port_in_the_usual_spellings() -> None:

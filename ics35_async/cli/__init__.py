@@ -88,10 +88,10 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
     if any(a == "--verbose" or (a.startswith("-v") and set(a[1:]) == {"v"}) for a in argv):
         import platform
 
-        from ..drivers.burst import burst_path
+        from ..drivers.burst import PATH_NAME, burst_path
 
         click.echo(f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}")
-        click.echo(f"burst path: {burst_path()[1]}")
+        click.echo(f"{PATH_NAME}: {burst_path()[1]}")
     ctx.exit()
 
 
@@ -107,7 +107,7 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
     expose_value=False,
     is_eager=True,
     callback=_print_version,
-    help="Show the version and exit (with -v: the Python, the platform and the burst path).",
+    help="Show the version and exit (with -v: the Python, the platform and whether the compiled stream path is on).",
 )
 @click.pass_context
 def cli(ctx: click.Context, /, **line_options: Any) -> None:

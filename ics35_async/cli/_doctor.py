@@ -12,7 +12,7 @@ from rich.markup import escape
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
-from ..drivers.burst import burst_path
+from ..drivers.burst import PATH_NAME, burst_path
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
@@ -63,7 +63,7 @@ def print_report(system: SystemReport, line: LineReport | None, findings: list[F
         suspected = line.suspected_timer_ms
         out.print(f"latency timer suspected: {f'{suspected} ms' if suspected is not None else 'none'}")
         these = "" if rates["servos"] == 32 else f"{rates['now']:.1f} Hz for these {rates['servos']}, "
-        out.print(f"cycle rate now: {these}{rates['now_32']:.1f} Hz for 32")
+        out.print(f"position cycle rate now (estimated from the reads): {these}{rates['now_32']:.1f} Hz for 32")
         for fix in rates["after_fixes"]:
             out.print(f"  after '{fix['fix']}': about {fix['cycle_hz_32']:.1f} Hz for 32 (the adapter's own limit)")
         out.print(f"  the wire's limit at {line.baudrate} baud: {rates['wire_limit_32']:.1f} Hz for 32")
@@ -136,7 +136,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     else:
         # The failure itself is printed last, as every command's error is: not twice.
         shown = [f for f in findings if failure is None or f.problem != failure.message]
-        out.print(f"burst path: {escape(burst_text)}")
+        out.print(f"{PATH_NAME}: {escape(burst_text)}")
         print_report(system, line, shown)
     if failure is not None:
         raise failure

@@ -10,6 +10,7 @@ import math
 
 from .. import units
 from ..frames import Frame
+from ._extras import extra_hint
 from ._paths import check_output_path
 from ._settings import CliError, ExitCode
 
@@ -21,7 +22,7 @@ def require_matplotlib() -> None:
         raise CliError(
             ExitCode.USAGE,
             "--plot needs matplotlib, which is not installed",
-            "pip install 'ics35_async[plot]'  (or: pip install matplotlib)",
+            f"{extra_hint('plot')}  (or: pip install matplotlib)",
         ) from None
 
 

@@ -9,8 +9,7 @@ from rich.markup import escape
 
 from ..errors import InvalidArgument
 from ._common import CliError, ExitCode, err, settings_of
-
-INSTALL_HINT = "install it with: pip install 'ics35_async[web]'"
+from ._extras import extra_hint
 
 
 @click.command()
@@ -44,7 +43,11 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
     try:
         from ..web import LineConfig, Listen, load_token, serve
     except ImportError as exc:
-        raise CliError(ExitCode.USAGE, f"ics35 web needs the web extra ({exc.name} is missing)", INSTALL_HINT) from None
+        raise CliError(
+            ExitCode.USAGE,
+            f"ics35 web needs the web extra ({exc.name} is missing)",
+            f"install it with: {extra_hint('web')}",
+        ) from None
     try:
         where = Listen.parse(listen)
         token = load_token(token_file)

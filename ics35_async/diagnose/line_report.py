@@ -27,6 +27,7 @@ from ..transports.usb_timing import FtdiAdapter, adapter_cycle_time
 from .findings import Finding
 
 PROBE_TX, PROBE_REPLY = 2, 3  # a temperature read
+POSITION_TX, POSITION_REPLY = 3, 3  # the transaction a control cycle repeats; the host also hears its own 3 (echo)
 CYCLE_SERVOS = 32  # the figure users compare: a full line
 SUSPECT_TIMERS_MS = (16, 8)
 """Latency timers round trips are compared with: FTDI's default, and the 8 ms some drivers and hosts set."""
@@ -114,17 +115,40 @@ class LineReport:
             return self.system_latency_timer_ms
         return inferred
 
-    def cycle_hz(self) -> dict[str, Any]:
-        """Cycle rates: now (measured), after setting the timer to 1 ms (the adapter model), the wire's limit."""
-        n = len(self.servo_ids)
+    def position_round_trip(self) -> float | None:
+        """Seconds a position command's round trip is expected to take, from the measured reads.
+
+        A cycle sends position commands (3 bytes out, 3 back), not reads: the
+        read's own wire time is taken out of its measured round trip (what is
+        left is the servo's turnaround and the host's and adapter's delays) and
+        the position command's put in.  Never shorter than the wire allows.
+        """
         median = self.median
-        wire_32 = 1 / adapter_cycle_time(None, servos=CYCLE_SERVOS, baudrate=self.baudrate)
+        if median is None:
+            return None
+        estimate = (
+            median
+            - wire_time(PROBE_TX + PROBE_REPLY, self.baudrate)
+            + wire_time(POSITION_TX + POSITION_REPLY, self.baudrate)
+        )
+        return max(estimate, self._wire_cycle() / CYCLE_SERVOS)
+
+    def _wire_cycle(self) -> float:
+        return adapter_cycle_time(
+            None, servos=CYCLE_SERVOS, baudrate=self.baudrate, tx_bytes=POSITION_TX, reply_bytes=POSITION_REPLY
+        )
+
+    def cycle_hz(self) -> dict[str, Any]:
+        """Position-cycle rates: now (estimated from the measured reads), after setting the timer to 1 ms (the
+        adapter model), and the wire's limit."""
+        n = len(self.servo_ids)
+        each = self.position_round_trip()
         rates: dict[str, Any] = {
             "servos": n,
-            "now": round(1 / (n * median), 2) if n and median else None,
-            "now_32": round(1 / (CYCLE_SERVOS * median), 2) if median else None,
+            "now": round(1 / (n * each), 2) if n and each else None,
+            "now_32": round(1 / (CYCLE_SERVOS * each), 2) if each else None,
             "after_fixes": [],
-            "wire_limit_32": round(wire_32, 1),
+            "wire_limit_32": round(1 / self._wire_cycle(), 1),
         }
         if self.suspected_timer_ms is not None:
             fixed = FtdiAdapter(1)

@@ -47,18 +47,23 @@ MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
 ENV = "ICS35_BURST"
 
 
+PATH_NAME = "compiled stream path"
+"""What ``--version -v`` and doctor call the burst path: a reader needs to know it is optional, not how it works."""
+
+
 def burst_path() -> tuple[bool, str]:
-    """Whether the burst path runs on ports with a descriptor, and why (for ``--version -v`` and doctor).
+    """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
+    doctor, after :data:`PATH_NAME`).
 
     Opt-in (``ICS35_BURST=1``): it has not yet met its CPU goal, and behind an FTDI adapter at its
     default 16 ms latency timer it loses some transactions the ordinary path keeps (its plan gives
     a transaction whose wait may be recomputed mid-burst the least wait it could get).
     """
     if os.environ.get(ENV, "").strip().lower() not in ("1", "on", "yes", "true"):
-        return False, f"off (the ordinary path; {ENV}=1 turns the compiled executor on)"
+        return False, f"off (optional; {ENV}=1 turns it on)"
     if _burst is None:
-        return False, f"not built ({_IMPORT_ERROR}): every port takes the ordinary path"
-    return True, "compiled executor (ics35_async._burst) for streams on tty ports under the asyncio driver"
+        return False, f"off, not built ({_IMPORT_ERROR}): streams run without it"
+    return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
 
 
 class BurstDiverged(RuntimeError):
