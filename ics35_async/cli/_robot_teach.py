@@ -32,14 +32,14 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
     if text is None:
         return list(description.joints)
     names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in description.joints]
-    if unknown or not names:
+    if not names:
         raise CliError(
-            ExitCode.USAGE,
-            f"--joints: unknown joint(s) {', '.join(unknown) or '(none given)'} (nothing was sent)",
-            f"joints in the file: {', '.join(description.joints)}",
+            ExitCode.USAGE, "--joints: no joint named (nothing was sent)", f"joints: {', '.join(description.joints)}"
         )
-    return names
+    try:
+        return description.known_joints(names)
+    except InvalidArgument as exc:
+        raise CliError(ExitCode.USAGE, f"--joints: {exc} (nothing was sent)") from None
 
 
 @contextlib.asynccontextmanager
