@@ -157,16 +157,17 @@ def ics35_cli(*args: str) -> int:
 
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url, folder, _ = drifted_line(sim_line, tmp_path, "write")
-    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes")
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "restore", str(folder), "--yes")
     assert result.code == ExitCode.COMMUNICATION, result.err
     out = " ".join(result.out.split())
     assert "servo 1: 1 EEPROM field(s) written and verified" in out
     assert "servo 2: unknown: the command stopped while the write was on its way" in out
-    assert "ics35 eeprom dump 2 --table" in out
+    # Every command a hint names carries the line options of the one that ran (else: the simulator).
+    assert f"see which with: ics35 --port {url} --timeout 0.05 eeprom dump 2 --table" in out
     assert "servo 3: not written (its EEPROM is as it was)" in out
     err = " ".join(result.err.split())
     assert "lost" in err or "unplugged" in err
-    assert f"run it again: ics35 --port {url} eeprom restore {folder}" in err
+    assert f"run it again: ics35 --port {url} --timeout 0.05 eeprom restore {folder}" in err
     # What the report says is what the servos hold.
     assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [127, 127, 99]
     assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -236,7 +235,7 @@ def restore(
                 bus, plans, yes=yes, change_baud=change_baud, allow_id_change=restore_id, as_json=as_json
             )
 
-    again = ["ics35", *([] if settings.port_defaulted else ["--port", settings.port]), "eeprom", "restore", *args]
+    again = ["eeprom", "restore", *args]
     again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
     bulk = len(args) == 1 and Path(args[0]).is_dir()
     try:
@@ -246,8 +245,8 @@ def restore(
             source = backups[0].source
             exc.hints.append(
                 f"{source} is a backup of servo {backups[0].saved_id}; to write it to another servo: "
-                f"ics35 eeprom restore ID {shlex.quote(source)}"
+                + settings.command_line("eeprom", "restore", "ID", source)
             )
         raise
-    finish(settings, batch, as_json, bulk=bulk, again=shlex.join(again))
+    finish(settings, batch, as_json, bulk=bulk, again=again)
     return 0
