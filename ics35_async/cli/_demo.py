@@ -104,7 +104,7 @@ def demo(
             state = LiveState(chosen, title, seconds)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
-            return await run_live(bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
+            return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
     began = time.monotonic()
     state, telemetry, recorder = run(settings, body)
