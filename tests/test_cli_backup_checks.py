@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode, main
+from ics35_async.eeprom import Flags
 from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
@@ -237,3 +238,19 @@ def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: 
     assert "servo 3: unknown" in result.out
     assert "lost" in result.err or "unplugged" in result.err
     assert [t.servo_id for t in sim.log] == [1, 2]  # servo 3 never heard its free: unknown is right
+
+
+def test_restore_clearing_pwminh_advises_what_fits_restore(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    """restore writes the backup's flags as saved: eeprom set's flags+= syntax is no advice for it; the
+    command that sets the flag again afterwards (on this line) is."""
+    sim, url = sim_line([1])
+    backup = tmp_path / "one.json"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    assert not json.loads(backup.read_text())["fields"]["flags"] & Flags.PWMINH
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(flags=sim.servo(1).eeprom.flags | Flags.PWMINH)
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    err = " ".join(result.err.split())
+    assert "use flags+=NAME / flags-=NAME" not in err
+    assert "this clears flag(s) PWMINH" in err
+    assert f"ics35 --port {url} eeprom set 1 flags+=PWMINH" in err, err

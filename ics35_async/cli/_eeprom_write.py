@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,7 +67,10 @@ def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool)
         raise CliError(ExitCode.REFUSED, f"refused: {reason}. Nothing was written")
 
 
-def show_plan(plan: EepromPlan, as_json: bool) -> None:
+SET_FLAG_ADVICE = "to change one flag and keep the others use flags+=NAME / flags-=NAME"
+
+
+def show_plan(plan: EepromPlan, as_json: bool, flag_advice: Callable[[EepromPlan], str]) -> None:
     (err if as_json else out).print(diff_table(plan))
     if plan.cleared_flags:
         note = (
@@ -77,7 +80,7 @@ def show_plan(plan: EepromPlan, as_json: bool) -> None:
         )
         err.print(
             f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}; "
-            "to change one flag and keep the others use flags+=NAME / flags-=NAME",
+            + escape(flag_advice(plan)),
             soft_wrap=True,
         )
     if plan.changes_baud:
@@ -128,14 +131,17 @@ async def write_plans(
     change_baud: bool,
     allow_id_change: bool,
     as_json: bool,
+    flag_advice: Callable[[EepromPlan], str] = lambda plan: SET_FLAG_ADVICE,
 ) -> WriteBatch:
-    """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure."""
+    """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure.
+
+    ``flag_advice``: what to do instead of clearing a plan's flags, in the command's own terms."""
     for plan in plans:
         check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change)
     pending = [plan for plan in plans if plan.diff]
     for plan in plans:
         if plan.diff:
-            show_plan(plan, as_json)
+            show_plan(plan, as_json, flag_advice)
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
     if not pending:

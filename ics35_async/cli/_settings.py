@@ -28,7 +28,8 @@ DEFAULT_PORT = "sim://"
 
 
 class ExitCode(enum.IntEnum):
-    """Process exit codes of ``ics35``.
+    """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
+    written or moved)."""Process exit codes of ``ics35``.
 
     The docs' exit-code table is generated from these members and their docstrings.
     """
