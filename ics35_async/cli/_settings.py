@@ -28,8 +28,7 @@ DEFAULT_PORT = "sim://"
 
 
 class ExitCode(enum.IntEnum):
-    """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
-    written or moved)."""Process exit codes of ``ics35``.
+    """Process exit codes of ``ics35``.
 
     The docs' exit-code table is generated from these members and their docstrings.
     """
@@ -60,7 +59,7 @@ class ExitCode(enum.IntEnum):
     offline)."""
     INTERRUPTED = 130
     """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
-    written)."""
+    written or moved)."""
 
 
 class CliError(Exception):
