@@ -16,6 +16,7 @@ from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream
+from .tasks import first_library_error
 
 
 class GroupStream(FrameIterator[GroupFrame]):
@@ -94,13 +95,9 @@ class GroupStream(FrameIterator[GroupFrame]):
                     group.start_soon(take, line, stream)
         except BaseExceptionGroup as group_error:
             # A line closed or lost its port: the group ends, with that line's reason.
-            ics_errors, _rest = group_error.split(IcsError)
-            if ics_errors is None:
+            reason = first_library_error(group_error)
+            if not isinstance(reason, IcsError):
                 raise
-            reason = ics_errors.exceptions[0]
-            while isinstance(reason, BaseExceptionGroup):
-                reason = reason.exceptions[0]
-            assert isinstance(reason, IcsError)
             self._closed, self._end_error = True, reason
             raise reason from None
         self._cycle += 1

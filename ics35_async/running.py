@@ -21,6 +21,7 @@ from types import FrameType
 from typing import Literal
 
 from .errors import IcsError
+from .tasks import only_error
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # main raised an IcsError (printed as one line)
@@ -79,7 +80,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     try:
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
-        error = _only(exc)
+        error = only_error(exc)
         if isinstance(error, IcsError):
             print(f"error: {error}", file=sys.stderr)
             return EXIT_ERROR
@@ -119,13 +120,6 @@ def stop_on_signals() -> Iterator[None]:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-
-
-def _only(exc: BaseException) -> BaseException:
-    """The one exception inside (nested) exception groups of one, else ``exc`` itself."""
-    while isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1:
-        exc = exc.exceptions[0]
-    return exc
 
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "stop_on_signals"]

@@ -194,3 +194,31 @@ def test_an_unknown_ics35_loop_is_a_usage_error_before_anything_runs() -> None:
     assert proc.returncode == ExitCode.USAGE
     assert "ICS35_LOOP must be one of auto, asyncio, uvloop, not 'trio'" in proc.stderr
     assert "Traceback" not in proc.stderr and "never awaited" not in proc.stderr
+
+
+def test_verbose_names_each_failed_transaction_and_only_double_verbose_dumps_bytes() -> None:
+    # What the live table's error column counts must be findable with -v, without every byte.
+    def demo(flag: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "ics35_async.cli",
+                flag,
+                "--port",
+                "sim://?ids=1,2",
+                "demo",
+                "--ids",
+                "1-3",
+                "--seconds",
+                "0.5",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    once, twice = demo("-v"), demo("-vv")
+    assert "position to ID 3: no reply" in once.stderr, once.stderr[-2000:]
+    assert " tx 81 " not in once.stderr  # the byte dumps are -vv's
+    assert " tx 81 " in twice.stderr and "position to ID 3: no reply" in twice.stderr

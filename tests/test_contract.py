@@ -123,8 +123,13 @@ async def test_stream_frames_targets_and_offline_ids(bus: Bus) -> None:
             while 20 not in frame.offline:
                 frame = await stream.next_frame()
         assert 20 in frame.offline
-        frame = await stream.next_frame()
-        assert set(frame.positions) == set(IDS)
+        # Every present servo answers in a cycle (on a loaded machine a reply now and then outlasts
+        # the stream's short wait, and its servo sits out a cycle or two: not what is tested here).
+        with anyio.fail_after(GUARD):
+            frame = await stream.next_frame()
+            while set(frame.positions) != set(IDS):
+                frame = await stream.next_frame()
+        assert 20 in frame.offline
         assert all(not math.isnan(d) for d in frame.degrees().values())
     with pytest.raises(BusClosed):
         await stream.next_frame()

@@ -291,3 +291,19 @@ async def test_a_noisy_line_that_ignores_rates_never_lists_a_servo_twice_or_at_a
         if level == 0.15:  # with reads retried, every servo is found and confirmed
             assert sorted(ids) == [1, 2, 5] and not any(s.rate_unconfirmed for s in report.servos), (seed, report)
     assert listed_once >= 8  # most scans find every servo even at 30%
+
+
+@pytest.mark.parametrize("ids_from", [0, 1])
+async def test_a_scan_on_a_lost_port_raises_port_lost_itself_not_a_group_of_them(ids_from: int) -> None:
+    # The probes run concurrently; the caller asked for one scan and gets the one error it documents.
+    # (ids_from=1 skips the ID read a full scan starts with: the probes are the first to fail.)
+    from ics35_async import PortLost, State
+
+    sim = VirtualLine([VirtualServo(1)])
+    async with open_bus(sim, reconnect=True) as bus:
+        sim.unplug()
+        while bus.state is not State.LOST:
+            await bus.state_change()
+        with pytest.raises(PortLost):
+            await bus.scan(range(ids_from, 32))
+    sim.close()

@@ -131,6 +131,21 @@ def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
         page.set_viewport_size(size)
 
 
+SCAN_OUTCOME = {"scan summary": "#scan-summary", "message": "#message", "line": "#line-status"}
+
+
+def scan_finds(p: Page, count: int) -> None:
+    """Scan the line from ``p``'s Line page: ``count`` servos found and listed.  A failure says what the page
+    showed (the scan's summary, the message box, the line's status), not only that the table stayed empty."""
+    p.click("#scan-btn")
+    try:
+        expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found")
+        expect(p.locator("#servo-table tbody tr")).to_have_count(count)
+    except AssertionError as exc:
+        shown = {name: p.locator(sel).text_content() for name, sel in SCAN_OUTCOME.items()}
+        raise AssertionError(f"a scan did not list {count} servos; the page showed {shown}") from exc
+
+
 def base_of(url: str) -> str:
     return url.split("/?")[0]
 
@@ -206,9 +221,7 @@ def test_scan_lists_the_servos_with_protocol_live_temperature_and_position(page:
     sim = lines[0].sim
     sim.servo(3).command_position(8100)  # holding: the page's reads must leave it so
     page.click("a[href='#line']")
-    page.click("#scan-btn")
-    expect(page.locator("#servo-table tbody tr")).to_have_count(2)
-    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
+    scan_finds(page, 2)
     expect(page.locator("#scan-progress")).to_have_js_property("value", 32)  # every ID, as it went
     ics36, ics35 = page.locator("#servo-table tr[data-id='3']"), page.locator("#servo-table tr[data-id='1']")
     expect(ics36.locator("td.temp")).to_contain_text("°C")
@@ -450,8 +463,7 @@ def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: s
     context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
     p = context.new_page()
     p.goto(server)
-    p.click("#scan-btn")
-    expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+    scan_finds(p, 2)
     for name in ("line", "servo/1", "id", "many", "live", "traffic"):
         p.goto(base_of(server) + f"/#{name}")
         if name == "servo/1":
@@ -471,5 +483,4 @@ def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, 
     expect(page.locator("#line-status")).to_contain_text("LOST")
     two.sim.replug()
     expect(page.locator("#lost-banner")).to_be_hidden()
-    page.click("#scan-btn")
-    expect(page.locator("#scan-summary")).to_contain_text("2 servo(s) found")
+    scan_finds(page, 2)

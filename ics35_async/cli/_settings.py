@@ -179,3 +179,5 @@ def setup_logging(verbose: int) -> None:
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     # -v may come again after the command (ics35 scan -vv): the last count wins.
     logging.getLogger().setLevel(level)
+    # Every failed transaction in words at -v (what the live tables' error columns count).
+    logging.getLogger("ics35_async.faults").setLevel(logging.DEBUG)

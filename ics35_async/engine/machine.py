@@ -31,6 +31,9 @@ from .state import State
 from .timing import BusTiming
 
 log = logging.getLogger("ics35_async")
+# Each failed transaction, in words (DEBUG: a faulty line fails many a second).  Its own logger so
+# that it can be turned on without the byte dumps (the CLI's -v does).
+fault_log = logging.getLogger("ics35_async.faults")
 
 INF = math.inf
 # The states and timing the hot path compares with, as plain names (no attribute lookup).
@@ -778,7 +781,7 @@ class LineEngine:
 
     def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1
-        log.debug("%s", error)
+        fault_log.debug("%s", error)
         self._resync(now)
         return None
 

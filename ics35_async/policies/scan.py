@@ -50,6 +50,7 @@ from .. import protocol
 from ..eeprom import BaudRate, Eeprom
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..protocol import Param
+from ..tasks import task_group
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
 from .failure_kinds import Line, LineOpener, echo_setting_wrong, nothing_came_back
@@ -201,7 +202,7 @@ async def probe_ids(
         _done(on_probe, 1)
 
     # All queued at once (up to ``concurrency``): the line runs them back to back in this order.
-    async with anyio.create_task_group() as group:
+    async with task_group() as group:
         for i in wanted:
             group.start_soon(probe, i)
     last = wanted[-1] if wanted else None

@@ -25,6 +25,7 @@ from .. import units
 from ..bus import BusOptions, open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
+from ..tasks import only_error, task_group
 from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
@@ -139,7 +140,7 @@ async def open_robot(
                         tasks.cancel_scope.cancel()
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
-                raise _only(group_error) from None
+                raise only_error(group_error) from None
 
 
 def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -> BusOptions:
@@ -168,17 +169,10 @@ async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]
                 if await robot.group[line].servo(joint.id).has_position_read():
                     found.add(joint.name)
 
-    async with anyio.create_task_group() as tasks:
+    async with task_group() as tasks:
         for line in by_line:
             tasks.start_soon(probe_line, line)
     return found
-
-
-def _only(group_error: BaseExceptionGroup[BaseException]) -> BaseException:
-    error: BaseException = group_error
-    while isinstance(error, BaseExceptionGroup) and len(error.exceptions) == 1:
-        error = error.exceptions[0]
-    return error
 
 
 async def _close_out(robot: Robot, on_close: str) -> None:
@@ -197,7 +191,7 @@ async def check_servo_limits(robot: Robot) -> list[str]:
             if message is not None:
                 found.append(message)
 
-    async with anyio.create_task_group() as tasks:
+    async with task_group() as tasks:
         for line in robot.description.lines:
             tasks.start_soon(check_line, line)
     for message in found:

@@ -1,0 +1,53 @@
+"""Concurrent work that fails the way one call does.
+
+The library runs some of its work concurrently: a scan's probes, a robot's lines, a group's
+streams.  An anyio task group wraps its tasks' errors in an exception group, but whoever called
+``bus.scan()`` made one call and expects the library error it documents (``PortLost``,
+``BusClosed``...), not a group of 32 of them.  :func:`task_group` raises the first library error
+as itself; anything else in the group (a bug, a cancellation) is raised as the group was, so
+nothing is hidden.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import AsyncIterator
+from typing import TYPE_CHECKING
+
+from .errors import IcsError
+
+if TYPE_CHECKING:
+    from anyio.abc import TaskGroup
+
+
+def only_error(exc: BaseException) -> BaseException:
+    """The one exception inside (nested) exception groups of one, else ``exc`` itself."""
+    while isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1:
+        exc = exc.exceptions[0]
+    return exc
+
+
+def first_library_error(group: BaseExceptionGroup[BaseException]) -> BaseException:
+    """The first library error in ``group`` when it holds nothing else; else ``group`` itself."""
+    errors, rest = group.split(IcsError)
+    if errors is None or rest is not None:
+        return group
+    error: BaseException = errors
+    while isinstance(error, BaseExceptionGroup):
+        error = error.exceptions[0]
+    return error
+
+
+@contextlib.asynccontextmanager
+async def task_group() -> AsyncIterator[TaskGroup]:
+    """An anyio task group whose failure is the first library error itself (see the module)."""
+    import anyio  # not at module level: ``import ics35_async`` stays cheap
+
+    try:
+        async with anyio.create_task_group() as group:
+            yield group
+    except BaseExceptionGroup as exc:
+        error = first_library_error(exc)
+        if error is exc:
+            raise
+        raise error from None
