@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode, main
+from ics35_async.eeprom import Flags
 from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
@@ -157,16 +158,17 @@ def ics35_cli(*args: str) -> int:
 
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url, folder, _ = drifted_line(sim_line, tmp_path, "write")
-    result = cli("--port", url, "eeprom", "restore", str(folder), "--yes")
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "restore", str(folder), "--yes")
     assert result.code == ExitCode.COMMUNICATION, result.err
     out = " ".join(result.out.split())
     assert "servo 1: 1 EEPROM field(s) written and verified" in out
     assert "servo 2: unknown: the command stopped while the write was on its way" in out
-    assert "ics35 eeprom dump 2 --table" in out
+    # Every command a hint names carries the line options of the one that ran (else: the simulator).
+    assert f"see which with: ics35 --port {url} --timeout 0.05 eeprom dump 2 --table" in out
     assert "servo 3: not written (its EEPROM is as it was)" in out
     err = " ".join(result.err.split())
     assert "lost" in err or "unplugged" in err
-    assert f"run it again: ics35 --port {url} eeprom restore {folder}" in err
+    assert f"run it again: ics35 --port {url} --timeout 0.05 eeprom restore {folder}" in err
     # What the report says is what the servos hold.
     assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [127, 127, 99]
     assert [sim.servo(i).eeprom_writes for i in (1, 2, 3)] == [1, 1, 0]
@@ -236,3 +238,19 @@ def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: 
     assert "servo 3: unknown" in result.out
     assert "lost" in result.err or "unplugged" in result.err
     assert [t.servo_id for t in sim.log] == [1, 2]  # servo 3 never heard its free: unknown is right
+
+
+def test_restore_clearing_pwminh_advises_what_fits_restore(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    """restore writes the backup's flags as saved: eeprom set's flags+= syntax is no advice for it; the
+    command that sets the flag again afterwards (on this line) is."""
+    sim, url = sim_line([1])
+    backup = tmp_path / "one.json"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    assert not json.loads(backup.read_text())["fields"]["flags"] & Flags.PWMINH
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(flags=sim.servo(1).eeprom.flags | Flags.PWMINH)
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    err = " ".join(result.err.split())
+    assert "use flags+=NAME / flags-=NAME" not in err
+    assert "this clears flag(s) PWMINH" in err
+    assert f"ics35 --port {url} eeprom set 1 flags+=PWMINH" in err, err

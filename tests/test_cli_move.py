@@ -20,7 +20,17 @@ def test_a_small_count_suggests_degrees_and_sends_nothing(cli: Any, sim_line: An
     sim, url = sim_line([1])
     result = cli("--port", url, "move", "1", "90")
     assert result.code == ExitCode.USAGE
-    assert "ics35 move 1 90 --deg" in result.err and "3500..11500" in result.err
+    assert f"ics35 --port {url} move 1 90 --deg" in result.err and "3500..11500" in result.err
+    assert sim.transactions == 0
+
+
+def test_the_degrees_hint_is_the_same_command_line_with_its_line_options(cli: Any, sim_line: Any) -> None:
+    """Run as given, the hint must reach the same line: without --port it would refuse (or read the simulator)."""
+    sim, url = sim_line([1])
+    result = cli("--port", url, "move", "1", "90", "--timeout", "0.05", "--no-echo")
+    assert result.code == ExitCode.USAGE
+    hint = " ".join(result.err.split())
+    assert f"ics35 --port {url} --timeout 0.05 --no-echo move 1 90 --deg" in hint, result.err
     assert sim.transactions == 0
 
 

@@ -112,6 +112,25 @@ def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
         assert got["current"]["magnitude"] == 0
 
 
+def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(pty_sim: Any) -> None:
+    """demo promises free servos at its end; with the port gone it could not send free: the error says so and
+    gives the free command for this very line (its --port and line options), which works once it is back."""
+    server = pty_sim("--ids", "1-3", "--unplug-after", "1.0", "--replug-after", "1.0")
+    proc = ics35(server.path, *LINE, "demo", "--ids", "1-3", "--seconds", "10")
+    assert proc.returncode == 1, proc.stderr
+    text = " ".join(proc.stderr.split())
+    assert "may still be holding" in text, proc.stderr
+    command = f"ics35 --port {server.path} --timeout 0.015 free 1,2,3"
+    assert command in text, proc.stderr
+    deadline = time.monotonic() + 10
+    while not Path(server.path).exists():
+        assert time.monotonic() < deadline, "the port never came back"
+        time.sleep(0.05)
+    time.sleep(0.3)
+    freed = subprocess.run([sys.executable, "-m", "ics35_async.cli", *command.split()[1:]], capture_output=True)
+    assert freed.returncode == 0, freed.stderr
+
+
 def demo_interrupted(port: str, after: float) -> tuple[subprocess.Popen[str], str, str]:
     """``ics35 demo`` on ``port``, sent Ctrl-C ``after`` seconds past its title line."""
     baud = ["--baud", str(SIM_BAUD), *LINE]

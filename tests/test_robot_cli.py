@@ -100,7 +100,7 @@ def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
         (
             lambda robot, motion: (robot, write_motion(motion, {"time": 1, "pose": {"neck": 99}})),
             2,
-            "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing moved)",
+            "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing was sent)",
         ),
         (lambda robot, motion: (robot, motion.write_text("{}")), 2, "format: must be 'ics35-motion'"),
         (lambda robot, motion: (robot.unlink(), motion), 2, "ROBOT.toml"),
@@ -116,6 +116,26 @@ def test_bad_files_are_usage_errors(
     assert result.code == code, result.err
     assert phrase in result.err
     assert targets_sent(sims.upper, 1) == []
+
+
+@pytest.mark.parametrize(
+    ("pose", "phrase"),
+    [
+        ({"nose": 2}, "keyframes[1]: unknown joint(s): nose"),
+        ({"neck": 200}, "keyframes[1]: joint neck: 200 degrees is outside its limits -60..60"),
+    ],
+)
+def test_a_motion_that_does_not_fit_the_robot_is_refused_before_any_port_opens(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, pose: dict[str, float], phrase: str
+) -> None:
+    """A typo'd joint or an angle past its limits must not free the robot first (a standing robot falls)."""
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"hip": 5}}, {"time": 0.2, "pose": pose})
+    result = cli("play", str(robot_file), str(motion))
+    assert result.code == 2, result.err
+    assert phrase in result.err and "(nothing was sent)" in result.err
+    assert "started free" not in result.err
+    assert sims.upper.transactions == 0 and sims.lower.transactions == 0  # not even a free or a read
 
 
 def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
@@ -206,7 +226,9 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(
     assert "wrote 2 pose(s)" in result.out
     taught = json.loads(out_file.read_text())
     assert [k["pose"] for k in taught["keyframes"]] == [pytest.approx(first, abs=0.05), pytest.approx(second, abs=0.05)]
-    assert taught["keyframes"][0]["time"] < taught["keyframes"][1]["time"]
+    # The first pose is reached in the lead time whenever it was captured; the rest keep their spacing.
+    assert taught["keyframes"][0]["time"] == 1.0
+    assert taught["keyframes"][1]["time"] > 1.0
     # Elsewhere by hand, then play it back: the robot ends at the second pose.
     pose({"neck": 0.0, "hip": 0.0})()
     result = run_with_hands(["play", str(robot_file), str(out_file)], [], [sims.upper, sims.lower])
@@ -351,7 +373,7 @@ def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path
     result = cli("teach", str(robot_file), str(tmp_path / "x.txt"))
     assert result.code == 2 and "cannot write .txt files" in result.err
     result = cli("teach", str(robot_file), str(tmp_path / "x.json"), "--joints", "neck,tail")
-    assert result.code == 2 and "unknown joint(s) tail" in result.err
+    assert result.code == 2 and "unknown joint(s): tail" in result.err
     result = cli("calibrate", str(robot_file), stdin="")
     assert result.code == 5 and "nothing written" in result.err
     result = cli("teach", str(robot_file), str(tmp_path / "x.json"), stdin="q\n")

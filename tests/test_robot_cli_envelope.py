@@ -125,7 +125,7 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
 @pytest.mark.parametrize(
     ("given", "phrase"),
     [
-        ("tail=3", "unknown joint(s) tail"),
+        ("tail=3", "unknown joint(s): tail"),
         ("neck=99", "outside its limits"),
         ("neck=x", "joint=degrees"),
         ("/nonexistent.json", "not a readable JSON file"),

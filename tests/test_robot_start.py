@@ -100,7 +100,7 @@ def test_ics35_joints_start_free_unless_their_pose_is_stated() -> None:
 @pytest.mark.parametrize(
     ("pose", "phrase"),
     [
-        ({"tail": 0.0}, "unknown joint(s) tail"),
+        ({"tail": 0.0}, "unknown joint(s): tail"),
         ({"neck": 99.0}, "outside its limits"),
         ([("neck", 0.0)], "mapping"),
     ],

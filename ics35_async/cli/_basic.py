@@ -163,7 +163,7 @@ def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, force:
     """
     settings = settings_of(ctx)
     try:
-        target = parse_target(position, servo_id, degrees=degrees, force=force)
+        target = parse_target(settings, position, servo_id, degrees=degrees, force=force)
     except InvalidArgument as exc:
         raise click.BadParameter(str(exc), param_hint="POS") from None
 
@@ -354,10 +354,8 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
     if as_json:
         emit_json({"id": servo_id, "param": param, "value": written, "memory": "RAM"})
     else:
-        out.print(
-            f"servo {servo_id} {param} = {written} (RAM only: lost at power-off; "
-            f"to keep it: ics35 eeprom set {servo_id} {_EEPROM_TWIN[param].split()[0]}=...)"
-        )
+        keep = settings.command_line("eeprom", "set", str(servo_id), _EEPROM_TWIN[param].split()[0] + "=...")
+        out.print(f"servo {servo_id} {param} = {written} (RAM only: lost at power-off; to keep it: {escape(keep)})")
     return 0
 
 

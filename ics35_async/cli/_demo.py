@@ -99,12 +99,13 @@ def demo(
             chosen = ids or await discover(bus, settings, False)
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
-                confirm(f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave?", yes)
+                question = f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave?"
+                confirm(question, yes, "nothing moved")
             title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
-            return await run_live(bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
+            return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
     began = time.monotonic()
     state, telemetry, recorder = run(settings, body)

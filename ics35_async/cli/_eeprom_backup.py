@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,9 +12,9 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from ..eeprom import Eeprom
+from ..eeprom import Eeprom, Flags
 from ..errors import InvalidArgument, MalformedEeprom, ReplyError
-from ..policies import plan_eeprom_write, probe_ids, read_eeprom_agreed
+from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ._common import (
     ID_LIST,
@@ -198,6 +197,13 @@ def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
     return backups
 
 
+def restore_flag_advice(settings: Settings, plan: EepromPlan) -> str:
+    """restore writes the backup's flags as saved: to keep a flag it clears, decline, or set it again after."""
+    names = [flag.name for flag in Flags if flag.name and flag in Flags(plan.cleared_flags)]
+    again = settings.command_line("eeprom", "set", str(plan.servo_id), *(f"flags+={name}" for name in names))
+    return f"restore writes the backup's flags as saved: to keep them, answer no, or set them again after: {again}"
+
+
 @click.command(short_help="Write backups made by `eeprom dump`, checked first (every diff shown, one question).")
 @click.argument("args", metavar="[ID] FILE|DIR", nargs=-1, required=True)
 @click.option("--restore-id", is_flag=True, help="Also write the ID stored in FILE (default: keep the servo's ID).")
@@ -233,10 +239,16 @@ def restore(
         async with settings.bus() as bus:
             plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
             return await write_plans(
-                bus, plans, yes=yes, change_baud=change_baud, allow_id_change=restore_id, as_json=as_json
+                bus,
+                plans,
+                yes=yes,
+                change_baud=change_baud,
+                allow_id_change=restore_id,
+                as_json=as_json,
+                flag_advice=lambda plan: restore_flag_advice(settings, plan),
             )
 
-    again = ["ics35", *([] if settings.port_defaulted else ["--port", settings.port]), "eeprom", "restore", *args]
+    again = ["eeprom", "restore", *args]
     again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
     bulk = len(args) == 1 and Path(args[0]).is_dir()
     try:
@@ -246,8 +258,8 @@ def restore(
             source = backups[0].source
             exc.hints.append(
                 f"{source} is a backup of servo {backups[0].saved_id}; to write it to another servo: "
-                f"ics35 eeprom restore ID {shlex.quote(source)}"
+                + settings.command_line("eeprom", "restore", "ID", source)
             )
         raise
-    finish(settings, batch, as_json, bulk=bulk, again=shlex.join(again))
+    finish(settings, batch, as_json, bulk=bulk, again=again)
     return 0

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+from rich.markup import escape
 
 from ..bus import Bus
 from ..eeprom import BaudRate, Flags
@@ -65,7 +67,10 @@ def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool)
         raise CliError(ExitCode.REFUSED, f"refused: {reason}. Nothing was written")
 
 
-def show_plan(plan: EepromPlan, as_json: bool) -> None:
+SET_FLAG_ADVICE = "to change one flag and keep the others use flags+=NAME / flags-=NAME"
+
+
+def show_plan(plan: EepromPlan, as_json: bool, flag_advice: Callable[[EepromPlan], str]) -> None:
     (err if as_json else out).print(diff_table(plan))
     if plan.cleared_flags:
         note = (
@@ -75,7 +80,7 @@ def show_plan(plan: EepromPlan, as_json: bool) -> None:
         )
         err.print(
             f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}; "
-            "to change one flag and keep the others use flags+=NAME / flags-=NAME",
+            + escape(flag_advice(plan)),
             soft_wrap=True,
         )
     if plan.changes_baud:
@@ -126,14 +131,17 @@ async def write_plans(
     change_baud: bool,
     allow_id_change: bool,
     as_json: bool,
+    flag_advice: Callable[[EepromPlan], str] = lambda plan: SET_FLAG_ADVICE,
 ) -> WriteBatch:
-    """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure."""
+    """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure.
+
+    ``flag_advice``: what to do instead of clearing a plan's flags, in the command's own terms."""
     for plan in plans:
         check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change)
     pending = [plan for plan in plans if plan.diff]
     for plan in plans:
         if plan.diff:
-            show_plan(plan, as_json)
+            show_plan(plan, as_json, flag_advice)
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
     if not pending:
@@ -159,7 +167,7 @@ async def write_plans(
     return WriteBatch([report_of(plan, by_id.get(plan.servo_id)) for plan in plans], error, interrupted)
 
 
-def print_done(report: dict[str, Any], *, whole: bool) -> None:
+def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> None:
     """What a person needs to know after one servo's write: verified, and where it answers now; or what the
     servo may hold after a failure.  ``whole``: a servo with nothing to write is listed too."""
     sid, changes, outcome = report["id"], report["changes"], WriteOutcome[report["outcome"].upper()]
@@ -173,13 +181,15 @@ def print_done(report: dict[str, Any], *, whole: bool) -> None:
     if outcome is WriteOutcome.UNKNOWN:
         out.print(
             f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
-            f"so the servo holds its old or its new EEPROM; see which with: ics35 eeprom dump {sid} --table"
+            "so the servo holds its old or its new EEPROM; see which with: "
+            + escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
         )
         return
     if outcome is WriteOutcome.UNVERIFIED:
         out.print(
             f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
-            f"stopped before the read-back; check with: ics35 eeprom dump {sid} --table"
+            "stopped before the read-back; check with: "
+            + escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
         )
         return
     if outcome is WriteOutcome.DIFFERS:
@@ -208,16 +218,19 @@ def print_done(report: dict[str, Any], *, whole: bool) -> None:
             out.print(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)")
 
 
-def finish(settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool = False, again: str = "") -> None:
+def finish(
+    settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool = False, again: Sequence[str] = ()
+) -> None:
     """Print every servo's account (after a failure too), then raise the failure, if any, as the exit code.
 
-    ``again``: the command to run once the line is back (servos already written have nothing left to write).
+    ``again``: the command's words to run once the line is back (servos already written have nothing left
+    to write); the hint gives them with this command's line options.
     """
     if as_json:
         emit_json({"servos": batch.reports} if bulk else batch.reports[0])
     else:
         for report in batch.reports:
-            print_done(report, whole=batch.error is not None or batch.interrupted)
+            print_done(settings, report, whole=batch.error is not None or batch.interrupted)
     if batch.interrupted:
         failure = CliError(ExitCode.INTERRUPTED, "interrupted: the servos above say what each holds")
     elif batch.error is None:
@@ -228,5 +241,7 @@ def finish(settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool =
         failure = translate(settings, batch.error)
     if again:
         when = "to finish" if batch.interrupted else "when the line is back"
-        failure.hints.append(f"{when}, run it again: {again} (servos already written are skipped)")
+        failure.hints.append(
+            f"{when}, run it again: {settings.command_line(*again)} (servos already written are skipped)"
+        )
     raise failure

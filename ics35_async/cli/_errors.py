@@ -97,7 +97,8 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
         return CliError(
             ExitCode.COMMUNICATION,
             text,
-            "a garbled reply: a wrong baud rate (try: ics35 scan), two servos sharing one ID, or noise on the line",
+            f"a garbled reply: a wrong baud rate (try: {settings.command_line('scan')}), two servos sharing one ID, "
+            "or noise on the line",
         )
     if isinstance(exc, errors.VerifyError):
         return CliError(ExitCode.COMMUNICATION, text, "the servo did not store what was written; check its power")

@@ -29,6 +29,7 @@ from ._basic import probe_ids
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
+from ._runner import line_error
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]
@@ -46,6 +47,7 @@ class LiveOptions:
 
 
 async def run_live(
+    settings: Settings,
     bus: Bus,
     ids: list[int],
     state: LiveState,
@@ -54,7 +56,10 @@ async def run_live(
     watch: Sequence[int] = (),
 ) -> tuple[LiveState, Telemetry, Recorder]:
     """Stream to ``ids`` (``watch``: read with ICS 3.6's read) until the time is up or Ctrl-C; then free every
-    streamed servo if ``options.free_at_end``.  Telemetry covers every ID of ``state``."""
+    streamed servo if ``options.free_at_end``.  Telemetry covers every ID of ``state``.
+
+    Servos sent targets that could not be freed at the end (the port lost) may still hold them: the
+    command then fails saying so, with the command that frees them (:func:`still_holding`)."""
     loop = asyncio.get_running_loop()
     # A watched servo is never freed: on_close="free" would free every ID, so the end frees the others itself.
     stream = bus.stream(
@@ -82,46 +87,58 @@ async def run_live(
         elif not final:
             out.print(state.summary(telemetry))
 
+    # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
+    commanded = [i for i in ids if i not in watch] if options.with_targets and options.free_at_end else []
+    freed = not commanded
     try:
         if live is not None:
             live.start()
-        async with stream:
-            try:
-                # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
-                # cancellation when a frame arrives at the same moment.
-                timer = asyncio.timeout_at(deadline)
-                async with timer:
-                    while True:
-                        frame = await stream.next_frame()
-                        now = loop.time()
-                        elapsed = now - start
-                        state.update(frame, elapsed, stream)
-                        if targets is not None:
-                            wanted = targets(elapsed, frame)
-                            stream.set_targets(wanted)
-                            state.targets.update(wanted)
-                        telemetry.after_frame(frame.offline)
-                        if options.plot:
-                            recorder.add(elapsed, frame)
-                        if now - last_render >= render_every:
-                            last_render = now
-                            render()
-            except TimeoutError:
-                if not timer.expired():
-                    raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
-                # --seconds is up
-            except asyncio.CancelledError:
-                # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
-                state.stopped_by_ctrl_c = True
-                if live is not None:
-                    # In the live view itself: a line printed beside it (stderr) garbles the redraw,
-                    # leaving the table's title twice on the screen.
-                    render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
-                elif not options.as_json:
-                    err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
-            finally:
-                if options.free_at_end:
-                    await _free_all(stream, [i for i in ids if i not in watch], state)
+        try:
+            async with stream:
+                try:
+                    # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
+                    # cancellation when a frame arrives at the same moment.
+                    timer = asyncio.timeout_at(deadline)
+                    async with timer:
+                        while True:
+                            frame = await stream.next_frame()
+                            now = loop.time()
+                            elapsed = now - start
+                            state.update(frame, elapsed, stream)
+                            if targets is not None:
+                                wanted = targets(elapsed, frame)
+                                stream.set_targets(wanted)
+                                state.targets.update(wanted)
+                            telemetry.after_frame(frame.offline)
+                            if options.plot:
+                                recorder.add(elapsed, frame)
+                            if now - last_render >= render_every:
+                                last_render = now
+                                render()
+                except TimeoutError:
+                    if not timer.expired():
+                        raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
+                    # --seconds is up
+                except asyncio.CancelledError:
+                    # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
+                    state.stopped_by_ctrl_c = True
+                    if live is not None:
+                        # In the live view itself: a line printed beside it (stderr) garbles the redraw,
+                        # leaving the table's title twice on the screen.
+                        render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
+                    elif not options.as_json:
+                        err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
+                finally:
+                    if options.free_at_end:
+                        done = await _free_all(stream, [i for i in ids if i not in watch], state)
+                        freed = freed or done
+        except (IcsError, OSError) as exc:
+            if not freed:
+                raise still_holding(settings, commanded, line_error(settings, exc)) from None
+            raise
+        if not freed:
+            failure = CliError(ExitCode.COMMUNICATION, "the servos did not confirm the free command at the end")
+            raise still_holding(settings, commanded, failure)
         render(final=True)
     finally:
         if live is not None:
@@ -129,8 +146,8 @@ async def run_live(
     return state, telemetry, recorder
 
 
-async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> None:
-    """Send free to ``ids`` through the stream and wait for one full cycle to carry it."""
+async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> bool:
+    """Send free to ``ids`` through the stream and wait for one full cycle to carry it; whether one did."""
     with contextlib.suppress(IcsError):
         stream.free(ids)
         state.targets.update(dict.fromkeys(ids, protocol.FREE))
@@ -139,6 +156,17 @@ async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> None:
             # The cycle in flight may have started before free(); the next one certainly did not.
             if first is not None:
                 await asyncio.wait_for(stream.next_frame(), 1.0)
+                return True
+    return False
+
+
+def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> CliError:
+    """``error``, saying that servos ``ids`` were sent targets and may still hold them (torque on), with the
+    command that frees them on this same line."""
+    error.message += f"; servo(s) {ids_text(ids)} may still be holding their last target (torque on)"
+    free = settings.command_line("free", ",".join(map(str, ids)))
+    error.hints.append(f"once the line is back, free them with: {free}")
+    return error
 
 
 async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:

@@ -70,7 +70,7 @@ def monitor(
             if missing and not as_json:
                 for sid, why in missing.items():
                     err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
-            return await run_live(bus, plan.streamed, state, options, None, watch=watch)
+            return await run_live(settings, bus, plan.streamed, state, options, None, watch=watch)
 
     state, telemetry, recorder = run(settings, body)
     final_report(state, telemetry, recorder, options, f"ics35 monitor: {shown}")

@@ -1,4 +1,4 @@
-"""The [y/N] question before a write: 'no', end of input or Ctrl-C, and nothing gets written."""
+"""The [y/N] question before a write or a move: 'no', end of input or Ctrl-C, and nothing gets written or moved."""
 
 from __future__ import annotations
 
@@ -30,15 +30,15 @@ def _ctrl_c_raises() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def ask_yes_no(question: str) -> bool:
-    """Ask on stderr, read stdin.  Ctrl-C raises a CliError with exit code 130."""
+def ask_yes_no(question: str, nothing: str = "nothing was written") -> bool:
+    """Ask on stderr, read stdin.  Ctrl-C raises a CliError with exit code 130 saying ``nothing`` happened."""
     try:
         with _ctrl_c_raises():
             return _ask(question)
     except KeyboardInterrupt:
         # Anywhere in the question (even between writing it and reading), not just in the read.
         sys.stderr.write("\n")
-        raise CliError(ExitCode.INTERRUPTED, "interrupted at the question: nothing was written") from None
+        raise CliError(ExitCode.INTERRUPTED, f"interrupted at the question: {nothing}") from None
 
 
 def _ask(question: str) -> bool:
@@ -57,9 +57,10 @@ def _ask(question: str) -> bool:
         sys.stderr.write("please answer y or n\n")
 
 
-def confirm(question: str, yes: bool) -> None:
-    """Go on only on 'y' (or with --yes); a 'no' or end of input is exit code 5, Ctrl-C 130."""
+def confirm(question: str, yes: bool, nothing: str = "nothing was written") -> None:
+    """Go on only on 'y' (or with --yes); a 'no' or end of input is exit code 5, Ctrl-C 130, each saying
+    ``nothing`` happened (in the words of what the command would have done)."""
     if yes:
         return
-    if not ask_yes_no(question):
-        raise CliError(ExitCode.REFUSED, "not confirmed: nothing was written", "pass --yes to skip the question")
+    if not ask_yes_no(question, nothing):
+        raise CliError(ExitCode.REFUSED, f"not confirmed: {nothing}", "pass --yes to skip the question")

@@ -18,9 +18,9 @@ import click
 from rich.markup import escape
 
 from ..errors import IcsError
-from ..robot import Motion, MotionError, Robot, load_motion, open_robot
+from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
-from ._common import CliError, ExitCode, err, out, settings_of
+from ._common import err, out, settings_of
 from ._robot_common import (
     first_pose,
     load_input_file,
@@ -33,9 +33,16 @@ from ._robot_common import (
 from ._robot_view import Screen, joint_table
 
 
-def load_motion_file(path: str) -> Motion:
-    """The checked motion, or a usage error (exit code 2) naming the file and key."""
-    return load_input_file(path, "MOTION.json", load_motion)
+def load_motion_file(path: str, description: RobotDescription) -> Motion:
+    """The motion, checked against the robot's joints and limits before any port opens (a robot that
+    starts frees its joints), or a usage error (exit code 2) naming the file and key."""
+
+    def load(source: str) -> Motion:
+        motion = load_motion(source)
+        check_motion(description, motion, source)
+        return motion
+
+    return load_input_file(path, "MOTION.json", load)
 
 
 def parse_start_pose(text: str | None) -> dict[str, float] | None:
@@ -125,7 +132,7 @@ def play(
     settings = settings_of(ctx)
     start_pose = parse_start_pose(start_pose_text)
     description = load_robot_file(robot_file)
-    motion = load_motion_file(motion_file)
+    motion = load_motion_file(motion_file, description)
     note_ports(settings, robot_file)
     name = description.name or robot_file
     title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"
@@ -145,10 +152,6 @@ def play(
                     f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
                     "--start-pose states where they are instead[/dim]"
                 )
-            try:
-                check_motion(robot, motion, motion_file)
-            except MotionError as exc:
-                raise CliError(ExitCode.USAGE, f"{exc} (nothing moved)") from None
             await first_pose(robot)
             start = time.monotonic()
             total = motion.duration / speed

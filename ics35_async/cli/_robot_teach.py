@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import time
 from collections.abc import AsyncIterator, Awaitable
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -32,14 +33,14 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
     if text is None:
         return list(description.joints)
     names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in description.joints]
-    if unknown or not names:
+    if not names:
         raise CliError(
-            ExitCode.USAGE,
-            f"--joints: unknown joint(s) {', '.join(unknown) or '(none given)'} (nothing was sent)",
-            f"joints in the file: {', '.join(description.joints)}",
+            ExitCode.USAGE, "--joints: no joint named (nothing was sent)", f"joints: {', '.join(description.joints)}"
         )
-    return names
+    try:
+        return description.known_joints(names)
+    except InvalidArgument as exc:
+        raise CliError(ExitCode.USAGE, f"--joints: {exc} (nothing was sent)") from None
 
 
 @contextlib.asynccontextmanager
@@ -106,14 +107,28 @@ joints_option = click.option("--joints", default=None, help="Comma-separated joi
     help="The profile the motion's segments use.",
 )
 @click.option("--name", default=None, help="The motion's name (default: the file's).")
+@click.option(
+    "--lead",
+    type=click.FloatRange(0.1, 30),
+    default=1.0,
+    show_default=True,
+    help="Seconds playback takes to reach the first pose (from wherever the robot is then).",
+)
 @click.pass_context
 def teach(
-    ctx: click.Context, robot_file: str, out_file: str, joints: str | None, profile: str, name: str | None
+    ctx: click.Context,
+    robot_file: str,
+    out_file: str,
+    joints: str | None,
+    profile: str,
+    name: str | None,
+    lead: float,
 ) -> int:
-    """Teach a motion by hand: the joints go free, Enter captures the pose with its time, q ends.
+    """Teach a motion by hand: the joints go free, Enter captures the pose with its time, q then Enter ends.
 
     \b
     ics35 teach examples/humanoid.toml mine.json --joints right_shoulder_pitch,right_elbow
+    The first pose is at --lead seconds (1 s); each later pose keeps its time after the first capture.
     The file plays back with: ics35 play ROBOT.toml OUT.json.  Ctrl-C ends like q.
     """
     settings = settings_of(ctx)
@@ -122,6 +137,7 @@ def teach(
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
     keyframes: list[Keyframe] = []
+    times = TaughtTimes(lead)
 
     async def body() -> None:
         async with freed_robot(description, settings, names) as robot:
@@ -147,7 +163,8 @@ def teach(
 
                 async def capture_loop() -> None:
                     while True:
-                        line = await wait_for_line(lines, screen, "Enter: capture   q: end", until=watcher)
+                        hint = "Enter: capture   q then Enter (or Ctrl-C): end"
+                        line = await wait_for_line(lines, screen, hint, until=watcher)
                         if watcher.done():
                             lost.append(True)
                             screen.update(force=True)
@@ -155,7 +172,7 @@ def teach(
                         if line is None or line.strip().lower() in QUIT:
                             return
                         try:
-                            await capture(robot, names, start, keyframes, screen)
+                            await capture(robot, names, times, keyframes, screen)
                         except IcsError:
                             lost.append(True)  # the lines ended while the pose was read
                             screen.update(force=True)
@@ -206,7 +223,25 @@ def save_taught(
         )
 
 
-async def capture(robot: Robot, names: list[str], start: float, keyframes: list[Keyframe], screen: Screen) -> None:
+@dataclass
+class TaughtTimes:
+    """A taught keyframe's time: the first at ``lead`` seconds (how long playback takes to reach it from
+    wherever the robot is, however long the posing took), each later one its time after the first capture."""
+
+    lead: float
+    first: float | None = None
+
+    def at(self, now: float) -> float:
+        if self.first is None:
+            self.first = now
+        return round(self.lead + now - self.first, 3)
+
+
+async def capture(
+    robot: Robot, names: list[str], times: TaughtTimes, keyframes: list[Keyframe], screen: Screen
+) -> None:
+    """Read the pose and add it as a keyframe, timed by ``times``."""
+    now = time.monotonic()
     pose = await robot.read_pose()
     taken = {}
     for name in names:
@@ -221,7 +256,7 @@ async def capture(robot: Robot, names: list[str], start: float, keyframes: list[
             )
         taken[name] = round(spec.clamp(pose[name]), 2)
     previous = keyframes[-1].time if keyframes else 0.0
-    when = max(round(time.monotonic() - start, 3), round(previous + 0.001, 3))
+    when = max(times.at(now), round(previous + 0.001, 3))
     keyframes.append(Keyframe(when, taken))
     screen.say(f"pose {len(keyframes)} at {when:.2f} s")
 

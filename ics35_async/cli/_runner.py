@@ -117,14 +117,19 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
             return run_loop(make())
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
-        except ReplyTimeout as exc:
-            raise name_the_environment(settings, no_reply_error(settings, exc)) from None
-        except IcsError as exc:
-            raise name_the_environment(settings, translate(settings, exc)) from None
         except BrokenPipeError:
             raise  # `ics35 ... | head`: main() ends quietly
-        except OSError as exc:
-            # Anything the library did not type (a file a sim:// URL names, an odd driver error).
-            raise CliError(ExitCode.COMMUNICATION, f"{settings.port}: {exc}") from None
+        except (IcsError, OSError) as exc:
+            raise line_error(settings, exc) from None
     finally:
         settings.release_sim()
+
+
+def line_error(settings: Settings, exc: IcsError | OSError) -> CliError:
+    """A library error (or one the library did not type: a file a sim:// URL names, an odd driver error) in a
+    person's words."""
+    if isinstance(exc, ReplyTimeout):
+        return name_the_environment(settings, no_reply_error(settings, exc))
+    if isinstance(exc, IcsError):
+        return name_the_environment(settings, translate(settings, exc))
+    return CliError(ExitCode.COMMUNICATION, f"{settings.port}: {exc}")

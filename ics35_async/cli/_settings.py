@@ -11,6 +11,7 @@ import enum
 import itertools
 import logging
 import os
+import shlex
 import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -58,7 +59,7 @@ class ExitCode(enum.IntEnum):
     offline)."""
     INTERRUPTED = 130
     """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
-    written)."""
+    written or moved)."""
 
 
 class CliError(Exception):
@@ -105,6 +106,34 @@ class Settings:
         if self._sim_name is None:
             self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
         return urlunsplit(parts._replace(netloc=self._sim_name))
+
+    def line_args(self) -> list[str]:
+        """The line options that reach this line again, as arguments: --port unless the implicit simulator,
+        and every other option that differs from its default."""
+        args = [] if self.port_defaulted else ["--port", self.port]
+        defaults = Settings()
+        for flag, name in (
+            ("--baud", "baud"),
+            ("--timeout", "timeout"),
+            ("--retries", "retries"),
+            ("--no-echo", "echo"),
+            ("--direction", "direction"),
+            ("--transport", "transport"),
+        ):
+            value = getattr(self, name)
+            if value == getattr(defaults, name):
+                continue
+            if isinstance(value, bool):
+                args.append(flag)  # --no-echo: echo off
+            else:
+                args += [flag, f"{value:g}" if isinstance(value, float) else str(value)]
+        return args
+
+    def command_line(self, *words: str) -> str:
+        """``ics35 [the line options of this command] WORDS...``, quoted for a shell: every hint that names a
+        command to run renders it here, so it reaches the same line (without --port it would read the
+        simulator, or refuse to write)."""
+        return shlex.join(["ics35", *self.line_args(), *words])
 
     def release_sim(self) -> None:
         """Close the simulated line :attr:`url` named, if any (it lives for one command)."""

@@ -13,12 +13,12 @@ from .. import protocol, units
 from ..errors import InvalidArgument, MalformedEeprom, ReplyDataError
 from ..servo import Servo
 from ._console import err
-from ._settings import CliError, ExitCode
+from ._settings import CliError, ExitCode, Settings
 
 FORCE_HINT = "to send it anyway (the servo may run into its end stop), add --force"
 
 
-def parse_target(text: str, servo_id: int, *, degrees: bool, force: bool) -> int:
+def parse_target(settings: Settings, text: str, servo_id: int, *, degrees: bool, force: bool) -> int:
     """A position in counts from POS; CliError (exit code 2, nothing sent) when it is refused."""
     try:
         value = float(text)
@@ -31,7 +31,8 @@ def parse_target(text: str, servo_id: int, *, degrees: bool, force: bool) -> int
     counts = int(value)
     looks_like_degrees = abs(value) <= units.DEGREES_MAX
     if not force and not units.TRAVEL_MIN <= counts <= units.TRAVEL_MAX:
-        hints = [f"did you mean {text} degrees? ics35 move {servo_id} {text} --deg"] if looks_like_degrees else []
+        again = settings.command_line("move", str(servo_id), text, "--deg")
+        hints = [f"did you mean {text} degrees? {again}"] if looks_like_degrees else []
         raise CliError(
             ExitCode.USAGE,
             f"position {counts} is outside the servo's travel {units.TRAVEL_MIN}..{units.TRAVEL_MAX} counts "

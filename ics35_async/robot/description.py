@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -115,6 +115,31 @@ class RobotDescription:
     def joints_on(self, line: str) -> list[JointSpec]:
         """The joints driven by servos on ``line``, in file order."""
         return [j for j in self.joints.values() if j.line == line]
+
+    def known_joints(self, names: Iterable[object]) -> list[str]:
+        """``names`` as a list, each one of this robot's joints.
+
+        Raises:
+            InvalidArgument: an unknown joint name (the message lists the robot's joints).
+        """
+        names = list(names)
+        unknown = [str(n) for n in names if n not in self.joints]
+        if unknown:
+            raise InvalidArgument(f"unknown joint(s): {', '.join(unknown)} (joints: {', '.join(self.joints)})")
+        return [str(n) for n in names]
+
+    def check_pose(self, pose: Mapping[str, object]) -> dict[str, float]:
+        """``pose`` ``{joint: degrees}`` checked: every name one of this robot's joints, every angle a number
+        within its joint's limits.  Needs no open port: a pose (or a motion's every keyframe) is checked
+        before a line opens, so a typo or an angle past a limit frees and moves nothing.
+
+        Raises:
+            InvalidArgument: not a mapping, an unknown joint or an angle outside its limits.
+        """
+        if not isinstance(pose, Mapping):
+            raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
+        self.known_joints(pose)
+        return {name: self.joints[name].check(deg) for name, deg in pose.items()}
 
 
 # ---------------------------------------------------------------------------------------- reading

@@ -15,15 +15,20 @@ if TYPE_CHECKING:
     from .safety import SafetyStop
 
 
-class RobotHost(Protocol):
+class PoseChecker(Protocol):
+    """What checks a pose against a robot's joints: a :class:`~.description.RobotDescription` (before any
+    port opens) or an open robot."""
+
+    def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]: ...
+
+
+class RobotHost(PoseChecker, Protocol):
     trips: list[SafetyStop]
 
     @property
     def latest(self) -> RobotFrame | None: ...
 
     def joint_names(self, joints: Iterable[str] | None) -> list[str]: ...
-
-    def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]: ...
 
     def check_ready(self, joints: Iterable[str]) -> None: ...
 

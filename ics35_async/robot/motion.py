@@ -38,6 +38,7 @@ from ..errors import FileContentError, InvalidArgument
 from .profiles import PROFILES, Trajectory
 
 if TYPE_CHECKING:
+    from .host import PoseChecker
     from .host import RobotHost as Robot
 
 FORMAT = "ics35-motion"
@@ -182,8 +183,13 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
     return Motion(tuple(keyframes), profile, name)
 
 
-def check_motion(robot: Robot, motion: Motion, source: str = "motion") -> None:
-    """Every joint known to ``robot`` and every angle within its limits (InvalidArgument naming the keyframe)."""
+def check_motion(robot: PoseChecker, motion: Motion, source: str = "motion") -> None:
+    """Every joint known to ``robot`` and every angle within its limits (a MotionError naming the keyframe).
+
+    ``robot`` is a :class:`~.description.RobotDescription` or an open robot: checked against the
+    description, a motion that does not fit the robot is refused before any port opens (a robot
+    would otherwise start, freeing its joints, only to refuse the motion).
+    """
     for k, frame in enumerate(motion.keyframes):
         try:
             robot.check_pose(frame.pose)

@@ -102,23 +102,16 @@ class Robot:
             return list(self.joints)
         if isinstance(joints, str):
             joints = [joints]
-        names = list(joints)
-        unknown = [n for n in names if n not in self.joints]
-        if unknown:
-            known = ", ".join(self.joints)
-            raise InvalidArgument(f"unknown joint(s): {', '.join(map(str, unknown))} (joints: {known})")
-        return names
+        return self.description.known_joints(joints)
 
     def check_pose(self, pose: Mapping[str, float]) -> dict[str, float]:
-        """``pose`` ``{joint: degrees}`` checked: every name known and every angle a number within its limits.
+        """``pose`` ``{joint: degrees}`` checked: every name known and every angle a number within its limits
+        (the description's :meth:`~.description.RobotDescription.check_pose`).
 
         Raises:
             InvalidArgument: not a mapping, an unknown joint or an angle outside its limits.
         """
-        if not isinstance(pose, Mapping):
-            raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
-        self.joint_names(pose)
-        return {name: self.joints[name].check(deg) for name, deg in pose.items()}
+        return self.description.check_pose(pose)
 
     # ------------------------------------------------------------------ frames
 

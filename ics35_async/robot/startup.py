@@ -150,13 +150,10 @@ def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -
 def _check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
     if pose is None:
         return {}
-    if not isinstance(pose, Mapping):
-        raise InvalidArgument(f"start_pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
-    unknown = [str(n) for n in pose if n not in description.joints]
-    if unknown:
-        known = ", ".join(description.joints)
-        raise InvalidArgument(f"start_pose: unknown joint(s) {', '.join(unknown)} (joints: {known})")
-    return {name: description.joints[name].check(deg) for name, deg in pose.items()}
+    try:
+        return description.check_pose(pose)
+    except InvalidArgument as exc:
+        raise InvalidArgument(f"start_pose: {exc}") from None
 
 
 async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]:

@@ -135,7 +135,8 @@ class RobotSession:
         motion = parse_motion(doc, "the uploaded motion")
         if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0.05 <= speed <= 10:
             raise InvalidArgument(f"speed must be 0.05..10, got {speed!r}")
-        check_motion(robot, motion, "the uploaded motion")  # unknown joints, limits: before anything moves
+        # Unknown joints, limits: against the description, as `ics35 play` does, before anything moves.
+        check_motion(self.description, motion, "the uploaded motion")
         await self._run(robot.play(motion, speed=speed), motion.name or "motion")
 
     async def _run(self, job: Any, name: str) -> None:
