@@ -63,12 +63,14 @@ class BusOptions(TimingOverrides, total=False):
     driver: str
     """What runs the line (default ``"auto"``): ``"asyncio"`` (I/O callbacks; the default under
     asyncio), ``"anyio"`` (one bus task; the default under trio), ``"thread"`` (the engine in an I/O
-    thread that blocks on the port: the cheapest for streaming beside a quiet event loop (a loop
-    kept busy with Python work can keep the GIL from it for seconds), and for ports the loop cannot
+    thread that blocks on the port: the cheapest for streaming beside a quiet event loop (beside a
+    loop kept busy with Python work its stream all but stops: the thread waits for the GIL after
+    every system call), and for ports the loop cannot
     wait on; under trio, the anyio driver's reader thread)."""
     transport: str
-    """How a device path is opened (default ``"auto"``): ``"fast"`` (pyserial-asyncio-fast),
-    ``"stock"`` (pyserial-asyncio), ``"direct"`` (the tty's descriptor on the loop)."""
+    """How a serial port is read (default ``"auto"``): ``"auto"`` and ``"direct"`` read a port
+    with a descriptor on it (``"direct"`` refuses one without), ``"thread"`` reads any serial port
+    with blocking reads in a thread."""
     timing: BusTiming | None
     """The deadline and quiet-time allowances (default ``BusTiming()``); the timing fields given as
     options replace its fields."""
