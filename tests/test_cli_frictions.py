@@ -102,6 +102,7 @@ def test_restore_to_a_silent_servo_names_restores_own_syntax(cli: Any, sim_line:
     assert result.code == ExitCode.NO_REPLY
     hint = f"to write it to another servo: ics35 --port {other} --timeout 0.005 eeprom restore ID {backup}"
     assert hint in " ".join(result.err.split())
+    assert "nothing was written" in result.err  # it stopped reading the servo, before any write
 
 
 def test_read_pose_has_no_float_noise_and_no_negative_zero(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
 from tests.support.cli_runs import edit_backup
+from tests.support.timing import NO_TIMEOUTS
 
 pytestmark = [
     pytest.mark.pty,
@@ -171,8 +172,11 @@ def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) 
         server, port = start_subprocess(
             ["--ids", "1-3", "--faults", "unplug@2-3:0.3", "--seed", str(seed), "--replug-after", "0.3"], quiet=True
         )
+        # Replies in time (the no-timeouts allowance): what is tested is the unplug, not a loaded
+        # machine's late reply landing in front of the next echo.
+        line = ["--port", port, "--timeout", str(NO_TIMEOUTS["adapter_latency"])]
         try:
-            proc = run_ics35("--port", port, "eeprom", "restore", str(backup), "--yes", "--json")
+            proc = run_ics35(*line, "eeprom", "restore", str(backup), "--yes", "--json")
             if proc.returncode == 0:
                 outcomes = {s["id"]: s["outcome"] for s in json.loads(proc.stdout)["servos"]}
                 assert set(outcomes.values()) == {"verified"}, proc.stdout
@@ -182,12 +186,12 @@ def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) 
             else:
                 outcomes = {s["id"]: s["outcome"] for s in json.loads(proc.stdout)["servos"]}
                 assert proc.returncode == 1 and "lost" in proc.stderr, proc.stderr
-                assert f"run it again: ics35 --port {port} eeprom restore {backup}" in " ".join(proc.stderr.split())
+                assert f"run it again: ics35 {' '.join(line)} eeprom restore {backup}" in " ".join(proc.stderr.split())
             seen.update(outcomes.values())
             wait_plugged(port)
             time.sleep(0.5)
             for sid, outcome in outcomes.items():
-                dumped = run_ics35("--port", port, "eeprom", "dump", str(sid))
+                dumped = run_ics35(*line, "eeprom", "dump", str(sid))
                 if dumped.returncode != 0:  # a dump can meet the unplug fault too
                     continue
                 speed = json.loads(dumped.stdout)["fields"]["speed"]
