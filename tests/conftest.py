@@ -10,7 +10,8 @@
 * ``anyio_backend``: the async library an ``async def`` test runs on (anyio's pytest plugin runs every
   coroutine test); asyncio unless the test is marked :data:`every_backend`.
 
-Timing: the one profile is :mod:`tests.support.timing` (``ICS35_TEST_TIME_SCALE`` scales it).
+Timing: the one profile is :mod:`tests.support.timing` (``ICS35_TEST_TIME_SCALE`` scales it); Hypothesis
+runs without its per-example deadline.
 Markers (``pyproject.toml``): ``slow``, ``pty`` and ``realtime``; see the testing section of CONTRIBUTING.md.
 """
 
@@ -24,9 +25,15 @@ from typing import Any
 
 import pytest
 import uvloop
+from hypothesis import HealthCheck, settings
 
 from ics35_async.sim import VirtualLine, start_subprocess, stop_subprocess
 from tests.support.cli_runs import CliResult, run_in_process, run_process
+
+# Property tests run without Hypothesis' per-example deadline (200 ms) and its too-slow check: a test never
+# asserts that something was fast, and on a loaded machine one example can take longer than that.
+settings.register_profile("suite", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("suite")
 
 # The async libraries a test can run on, as anyio's plugin names them: asyncio on its default loop and on
 # uvloop, and trio.
