@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from ics35_async.sim import serving
+from tests.support.timing import REAL_TIME
 
 pytestmark = [
     pytest.mark.pty,
@@ -29,7 +30,8 @@ pytestmark = [
 
 SIM_IDS = [2, 5, 17]
 SIM_BAUD = 625000
-LINE = ["--timeout", "0.015", "--retries", "1"]
+# The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
+LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
 
 
 def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:
@@ -120,7 +122,7 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     assert proc.returncode == 1, proc.stderr
     text = " ".join(proc.stderr.split())
     assert "may still be holding" in text, proc.stderr
-    command = f"ics35 --port {server.path} --timeout 0.015 free 1,2,3"
+    command = f"ics35 --port {server.path} {' '.join(LINE[:2])} free 1,2,3"
     assert command in text, proc.stderr
     deadline = time.monotonic() + 10
     while not Path(server.path).exists():
