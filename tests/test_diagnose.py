@@ -152,9 +152,6 @@ def test_the_timer_is_inferred_from_round_trips() -> None:
     assert suspect_latency_timer([0.011] * 20, 115200) is None  # slow, but no timer explains it
     report = LineReport(115200, {1: [0.0007] * 10}, system_latency_timer_ms=16)
     assert report.suspected_timer_ms == 16  # the system shows one: it counts even if the times hide it
-    # A busy host adds to most round trips (median 23 ms); the quickest still sit on the timer.
-    assert suspect_latency_timer([0.0163] * 4 + [0.023] * 36, 115200) == 16
-    assert suspect_latency_timer([0.023] * 40, 115200) is None
 
 
 def test_udev_rules_bind_both_adapters_and_set_the_timer() -> None:

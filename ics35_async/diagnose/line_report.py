@@ -74,13 +74,9 @@ def suspect_latency_timer(round_trips: list[float], baudrate: int) -> int | None
     median = statistics.median(round_trips)
     if median - wire_time(PROBE_TX + PROBE_REPLY, baudrate) < SLOW_EXCESS:
         return None
-    # The quickest round trips show the timer best: a busy host only ever adds to a round trip, so
-    # on a loaded machine the median sits well past the timer while the fastest tenth stays on it.
-    quick = sorted(round_trips)[: max(1, len(round_trips) // 10)]
-    typical = statistics.median(quick)
     for timer_ms in SUSPECT_TIMERS_MS:
         period = timer_ms * 1e-3
-        if abs(typical - period) <= max(1.5e-3, 0.15 * period):
+        if abs(median - period) <= max(1.5e-3, 0.15 * period):
             return timer_ms
     return None
 
