@@ -224,7 +224,7 @@ def test_round_trips_faster_than_the_wire_give_the_wire_limit() -> None:
 
 
 def test_doctor_text_and_no_servo(cli: Any) -> None:
-    result = cli("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "5")
+    result = cli("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "20")
     assert result.code == 0
     assert "latency timer suspected: 16 ms" in result.out and "fix:" in result.err
     none = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
