@@ -9,7 +9,6 @@ enough for a loaded CI machine, and ``--retries`` covers a rare late reply.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from typing import Any
 import pytest
 
 from ics35_async.sim import serving
+from tests.support.cli_runs import run_process
 from tests.support.timing import REAL_TIME
 
 pytestmark = [
@@ -35,16 +35,7 @@ LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
 
 
 def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run(
-        [sys.executable, "-m", "ics35_async.cli", "--port", port, *args],
-        input=stdin,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env={**os.environ, "COLUMNS": "100"},
-    )
-    assert "Traceback" not in proc.stderr, proc.stderr
-    return proc
+    return run_process("--port", port, *args, stdin=stdin, timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +108,9 @@ def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
 def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(pty_sim: Any) -> None:
     """demo promises free servos at its end; with the port gone it could not send free: the error says so and
     gives the free command for this very line (its --port and line options), which works once it is back."""
-    server = pty_sim("--ids", "1-3", "--unplug-after", "1.0", "--replug-after", "1.0")
+    # Unplugged by the traffic (after a few dozen transactions), not by the clock: a loaded machine can take
+    # longer than any fixed delay to start the command.
+    server = pty_sim("--ids", "1-3", "--faults", "unplug@1-3:0.02", "--seed", "1", "--replug-after", "1.0")
     proc = ics35(server.path, *LINE, "demo", "--ids", "1-3", "--seconds", "10")
     assert proc.returncode == 1, proc.stderr
     text = " ".join(proc.stderr.split())
