@@ -10,9 +10,9 @@ import pytest
 
 from ics35_async import open_bus
 from ics35_async.bus import Bus
-from ics35_async.errors import InvalidArgument, UnsafeOperation
+from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
 from ics35_async.policies import Refusal, survey_for_id_write, write_lone_id
-from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from tests.support.timing import FAST
 
 
@@ -106,3 +106,41 @@ async def test_bad_new_id_raises_before_the_wire() -> None:
             with pytest.raises(InvalidArgument):
                 await call()
         assert sim.transactions == 0
+
+
+# The ID command is sent once (it renames every device that hears it); when its reply goes missing the
+# policy asks who answers now instead of guessing.  Fault specs: the all-ID rate applies to the ID command
+# (it names no servo), the per-ID override keeps every servo's own transactions clean.
+ID_COMMAND_REPLY_LOST = "drop:1,drop@0-31:0"  # the servo hears the write and takes the ID; its ack is lost
+ID_COMMAND_NOT_HEARD = "echo:1,echo@0-31:0"  # a collision garbles the write: no servo hears it
+
+
+def fault_the_id_command(sim: VirtualLine, spec: str) -> None:
+    """From now on, the line's faults are ``spec`` (the survey before it ran on a clean line)."""
+    sim.faults = FaultInjector(FaultConfig.parse(spec))
+
+
+async def test_a_lost_acknowledgement_is_settled_by_asking_the_new_id() -> None:
+    async with line([VirtualServo(0)]) as (sim, bus):
+        survey = await survey_for_id_write(bus)
+        fault_the_id_command(sim, ID_COMMAND_REPLY_LOST)
+        change = await write_lone_id(bus, 17, survey=survey)
+        assert (change.old_id, change.new_id, change.written) == (0, 17, True)
+        assert [s.servo_id for s in sim.servos] == [17]
+
+
+async def test_an_id_write_nobody_heard_says_the_id_is_unchanged() -> None:
+    async with line([VirtualServo(4)]) as (sim, bus):
+        survey = await survey_for_id_write(bus)
+        fault_the_id_command(sim, ID_COMMAND_NOT_HEARD)
+        with pytest.raises(VerifyError, match="still answers as ID 4: its ID is unchanged"):
+            await write_lone_id(bus, 17, survey=survey)
+        assert [s.servo_id for s in sim.servos] == [4]
+
+
+async def test_an_id_write_after_which_nothing_answers_says_to_scan() -> None:
+    async with line([VirtualServo(4)]) as (sim, bus):
+        survey = await survey_for_id_write(bus)
+        fault_the_id_command(sim, "drop:1")
+        with pytest.raises(VerifyError, match="neither ID 4 nor ID 17 answers"):
+            await write_lone_id(bus, 17, survey=survey)

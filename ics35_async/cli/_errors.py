@@ -101,7 +101,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
             "or noise on the line",
         )
     if isinstance(exc, errors.VerifyError):
-        return CliError(ExitCode.COMMUNICATION, text, "the servo did not store what was written; check its power")
+        return CliError(ExitCode.COMMUNICATION, text, "the servo may not hold what was written; check its power")
     return CliError(ExitCode.COMMUNICATION, text)
 
 
@@ -158,10 +158,11 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
                 f"servo {exc.servo_id} does not answer at {settings.baud} baud, but does at {found[0]} baud",
                 f"pass --baud {found[0]}",
             )
-    what = f"servo {exc.servo_id}" if exc.servo_id is not None else "no device"
+    # An ID command names no servo: whatever is on the line may answer it.
+    what = f"servo {exc.servo_id} did not answer" if exc.servo_id is not None else "nothing answered the ID command"
     return CliError(
         ExitCode.NO_REPLY,
-        f"{what} did not answer on {settings.port} at {settings.baud} baud",
+        f"{what} on {settings.port} at {settings.baud} baud",
         *link_hints(settings),
         *NO_REPLY_HINTS,
     )

@@ -131,7 +131,10 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
     ``survey`` (from :func:`survey_for_id_write`, e.g. shown to a person
     before confirming) saves proving it again.  Raises UnsafeOperation,
     writing nothing, unless exactly one device is proven on the line; raises
-    VerifyError if the new ID does not answer after the write.
+    VerifyError if the new ID does not answer after the write.  A write whose
+    acknowledgement is lost is settled by asking who answers now: the new ID
+    (the write took: returned as written), else the old one (VerifyError: the
+    ID is unchanged), else neither (VerifyError: scan the line).
     """
     protocol.check_id(new_id)
     if survey is None:
@@ -141,9 +144,33 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
         raise UnsafeOperation(f"{survey.reason(new_id)}; an ID write needs exactly one device; nothing was written")
     if old_id == new_id:
         return IdChange(old_id, new_id, written=False)
-    await line.request(protocol.WriteId(new_id), retries=0)
+    try:
+        # Sent once: the ID command renames every device that hears it, so it is never retried blindly.
+        await line.request(protocol.WriteId(new_id), retries=0)
+    except ReplyError as exc:
+        # The write may have been heard with only its acknowledgement lost: who answers now settles it.
+        if not await _answers(line, new_id):
+            if await _answers(line, old_id):
+                raise VerifyError(
+                    f"the ID write got no acknowledgement ({exc}) and the servo still answers as ID {old_id}: "
+                    "its ID is unchanged"
+                ) from exc
+            raise VerifyError(
+                f"the ID write got no acknowledgement ({exc}) and neither ID {old_id} nor ID {new_id} answers "
+                "now: scan the line to find the servo"
+            ) from exc
+        return IdChange(old_id, new_id, written=True)
     try:
         await line.request(protocol.ReadParam(new_id, Param.STRETCH))
     except ReplyError as exc:
         raise VerifyError(f"the servo acknowledged ID {new_id}, but ID {new_id} does not answer: {exc}") from exc
     return IdChange(old_id, new_id, written=True)
+
+
+async def _answers(line: Line, servo_id: int) -> bool:
+    """Whether ``servo_id`` answers a stretch read (a read that moves and frees nothing)."""
+    try:
+        await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
+    except ReplyError:
+        return False
+    return True
