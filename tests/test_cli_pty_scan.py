@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -12,25 +11,20 @@ from collections.abc import Iterator
 import pytest
 
 from ics35_async.sim import serving
+from tests.support.cli_runs import run_process
+from tests.support.timing import REAL_TIME
 
 pytestmark = [
     pytest.mark.pty,
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
 ]
 
-LINE = ["--timeout", "0.015", "--retries", "1"]
+# The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
+LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
 
 
 def ics35(port: str, *args: str) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run(
-        [sys.executable, "-m", "ics35_async.cli", "--port", port, *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**os.environ, "COLUMNS": "100"},
-    )
-    assert "Traceback" not in proc.stderr, proc.stderr
-    return proc
+    return run_process("--port", port, *args)
 
 
 @pytest.fixture(scope="module")
