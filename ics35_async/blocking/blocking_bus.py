@@ -14,7 +14,7 @@ from ..servo import Device, Servo
 from ..stats import BusStats
 from ..transports import WireDevice
 from .blocking_stream import BlockingStream
-from .forward import Wrapper, blocking
+from .forward import ReadThrough, Wrapper, blocking
 from .loop_thread import LoopThread
 from .owner import LoopOwner
 
@@ -38,15 +38,8 @@ class BlockingServo(Wrapper[Servo]):
         super().__init__(servo, bus._loop)
         self.bus = bus
 
-    @property
-    def id(self) -> int:
-        """The servo's ID (0..31)."""
-        return self._async.id
-
-    @property
-    def priority(self) -> Priority:
-        """The priority this servo's requests are queued at."""
-        return self._async.priority
+    id = ReadThrough[int]("The servo's ID (0..31).")
+    priority = ReadThrough[Priority]("The priority this servo's requests are queued at.")
 
     def __repr__(self) -> str:
         return f"<BlockingServo {self.id} on {self.bus!r}>"
@@ -88,10 +81,7 @@ class BlockingDevice(Wrapper[Device]):
         super().__init__(device, bus._loop)
         self.bus = bus
 
-    @property
-    def id(self) -> int:
-        """The device's ID (0..31)."""
-        return self._async.id
+    id = ReadThrough[int]("The device's ID (0..31).")
 
     def __repr__(self) -> str:
         return f"<BlockingDevice {self.id} on {self.bus!r}>"
@@ -145,30 +135,13 @@ class BlockingBus(LoopOwner[Bus]):
         """The async bus underneath, for :meth:`run` (use it only from code running on the bus's loop)."""
         return self._async
 
-    @property
-    def port(self) -> str | WireDevice:
-        """The port the bus opened (read-only)."""
-        return self._async.port
-
-    @property
-    def baudrate(self) -> int:
-        """The line rate in bit/s; changed only by ``reopen``."""
-        return self._async.baudrate
-
-    @property
-    def echo(self) -> bool:
-        """Whether the interface loops the host's bytes back (read-only)."""
-        return self._async.echo
-
-    @property
-    def driver(self) -> str:
-        """The driver running the line: ``"asyncio"``, ``"thread"`` or ``"anyio"``."""
-        return self._async.driver
-
-    @property
-    def state(self) -> State:
-        """The line engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."""
-        return self._async.state
+    port = ReadThrough[str | WireDevice]("The port the bus opened (read-only).")
+    baudrate = ReadThrough[int]("The line rate in bit/s; changed only by ``reopen``.")
+    echo = ReadThrough[bool]("Whether the interface loops the host's bytes back (read-only).")
+    driver = ReadThrough[str]('The driver running the line: ``"asyncio"``, ``"thread"`` or ``"anyio"``.')
+    state = ReadThrough[State](
+        "The line engine's state (``State.IDLE``, ``BUSY``, ``QUIET``, ``LOST``, ``CLOSED``...)."
+    )
 
     @property
     def is_open(self) -> bool:

@@ -17,7 +17,7 @@ from .. import units
 from ..errors import BusClosed
 from ..frames import Frame, StreamStats
 from ..stream import Stream
-from .forward import Wrapper, on_loop
+from .forward import ReadThrough, Wrapper, on_loop
 
 
 class BlockingStream(Wrapper[Stream]):
@@ -39,20 +39,9 @@ class BlockingStream(Wrapper[Stream]):
     watch = on_loop(Stream.watch)
     target = on_loop(Stream.target)
 
-    @property
-    def ids(self) -> tuple[int, ...]:
-        """The servo IDs this stream cycles over, in order."""
-        return self._async.ids
-
-    @property
-    def rate_hz(self) -> float | None:
-        """Cycles per second asked for (``None``: as fast as the line allows)."""
-        return self._async.rate_hz
-
-    @property
-    def latest(self) -> Frame | None:
-        """The newest frame (does not mark it taken; no thread hop: a frame is immutable)."""
-        return self._async.latest
+    ids = ReadThrough[tuple[int, ...]]("The servo IDs this stream cycles over, in order.")
+    rate_hz = ReadThrough[float | None]("Cycles per second asked for (``None``: as fast as the line allows).")
+    latest = ReadThrough[Frame | None]("The newest frame (does not mark it taken; a frame is immutable).")
 
     @property
     def stats(self) -> StreamStats:

@@ -5,14 +5,15 @@ gives a method that takes what ``Servo.set_position`` takes (mypy checks
 calls against the async signature) and returns what it returns, run on the
 wrapper's loop thread.  ``on_loop`` does the same for plain methods of
 objects that live on the loop (a stream's ``set_targets``), which must not
-be touched from another thread while the loop runs them.
+be touched from another thread while the loop runs them.  ``ReadThrough``
+makes a read-only attribute that reads the async object's own.
 """
 
 from __future__ import annotations
 
 import inspect
 from collections.abc import Awaitable, Callable
-from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
+from typing import Any, Concatenate, Generic, Never, ParamSpec, TypeVar, overload
 
 from .loop_thread import LoopThread
 
@@ -76,3 +77,31 @@ def blocking(method: Callable[Concatenate[A, P], Awaitable[T]]) -> _Forward[A, P
 def on_loop(method: Callable[Concatenate[A, P], T]) -> _Forward[A, P, T]:
     """A blocking method that runs the plain ``method`` on the wrapper's loop thread."""
     return _Forward(method, awaits=False)
+
+
+class ReadThrough(Generic[T]):
+    """A read-only attribute of a wrapper that reads the async object's attribute of the same name:
+    ``id = ReadThrough[int]("The servo's ID (0..31).")``.  Read from the caller's thread with no hop to the
+    loop: only for attributes that hold an immutable value, read in one step (an ID, a state, a frame)."""
+
+    def __init__(self, doc: str) -> None:
+        self.__doc__ = doc
+        self._name = ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._name = name
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> ReadThrough[T]: ...
+
+    @overload
+    def __get__(self, obj: Wrapper[Any], owner: type | None = None) -> T: ...
+
+    def __get__(self, obj: Wrapper[Any] | None, owner: type | None = None) -> ReadThrough[T] | T:
+        if obj is None:
+            return self
+        value: T = getattr(obj._async, self._name)
+        return value
+
+    def __set__(self, obj: Wrapper[Any], value: Never) -> None:  # Never: type checkers refuse any assignment
+        raise AttributeError(f"{self._name} is read-only")

@@ -175,25 +175,18 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         if whole:
             out.print(f"servo {sid}: {outcome.value}")
         return
-    if outcome is WriteOutcome.NOT_WRITTEN:
-        out.print(f"servo {sid}: [bold]not written[/bold] (its EEPROM is as it was)")
-        return
-    if outcome is WriteOutcome.UNKNOWN:
-        out.print(
-            f"servo {sid}: [bold red]unknown[/bold red]: the command stopped while the write was on its way, "
-            "so the servo holds its old or its new EEPROM; see which with: "
-            + escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
-        )
-        return
-    if outcome is WriteOutcome.UNVERIFIED:
-        out.print(
-            f"servo {sid}: {len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
-            "stopped before the read-back; check with: "
-            + escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
-        )
-        return
-    if outcome is WriteOutcome.DIFFERS:
-        out.print(f"servo {sid}: [bold red]written, but the image read back differs[/bold red]")
+    # The outcomes short of a verified write: one line each, naming what the servo may hold.
+    check = escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
+    short_of_verified = {
+        WriteOutcome.NOT_WRITTEN: "[bold]not written[/bold] (its EEPROM is as it was)",
+        WriteOutcome.UNKNOWN: "[bold red]unknown[/bold red]: the command stopped while the write was on its way, "
+        f"so the servo holds its old or its new EEPROM; see which with: {check}",
+        WriteOutcome.UNVERIFIED: f"{len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
+        f"stopped before the read-back; check with: {check}",
+        WriteOutcome.DIFFERS: "[bold red]written, but the image read back differs[/bold red]",
+    }
+    if outcome in short_of_verified:
+        out.print(f"servo {sid}: {short_of_verified[outcome]}")
         return
     out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified")
     if "baud_rate" in changes:
