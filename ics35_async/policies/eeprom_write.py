@@ -27,9 +27,8 @@ from typing import Any
 from .. import protocol
 from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
-from ..protocol import Param
 from ..units import check_int
-from .failure_kinds import Line
+from .failure_kinds import Line, answers_short_read
 
 NO_FLAGS = Flags(0)
 
@@ -131,14 +130,6 @@ class EepromPlan:
         return None
 
 
-async def _answers(line: Line, servo_id: int) -> bool:
-    try:
-        await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
-    except ReplyError:
-        return False
-    return True
-
-
 async def plan_eeprom_write(
     line: Line,
     servo_id: int,
@@ -162,7 +153,7 @@ async def plan_eeprom_write(
     check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
     before = await line.request(protocol.ReadEeprom(servo_id))
     after = edit_image(before, changes, set_flags=set_flags, clear_flags=clear_flags)
-    taken = after.servo_id not in (before.servo_id, servo_id) and await _answers(line, after.servo_id)
+    taken = after.servo_id not in (before.servo_id, servo_id) and await answers_short_read(line, after.servo_id)
     return EepromPlan(servo_id, int(line.baudrate), before, after, id_taken=taken)
 
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from .. import protocol
 from ..errors import ReplyError, UnsafeOperation, VerifyError
 from ..protocol import Param
-from .failure_kinds import Line, nothing_came_back
+from .failure_kinds import Line, answers_short_read, nothing_came_back
 from .scan import ALL_IDS, probe_ids
 
 
@@ -149,8 +149,8 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
         await line.request(protocol.WriteId(new_id), retries=0)
     except ReplyError as exc:
         # The write may have been heard with only its acknowledgement lost: who answers now settles it.
-        if not await _answers(line, new_id):
-            if await _answers(line, old_id):
+        if not await answers_short_read(line, new_id):
+            if await answers_short_read(line, old_id):
                 raise VerifyError(
                     f"the ID write got no acknowledgement ({exc}) and the servo still answers as ID {old_id}: "
                     "its ID is unchanged"
@@ -165,12 +165,3 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
     except ReplyError as exc:
         raise VerifyError(f"the servo acknowledged ID {new_id}, but ID {new_id} does not answer: {exc}") from exc
     return IdChange(old_id, new_id, written=True)
-
-
-async def _answers(line: Line, servo_id: int) -> bool:
-    """Whether ``servo_id`` answers a stretch read (a read that moves and frees nothing)."""
-    try:
-        await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
-    except ReplyError:
-        return False
-    return True
