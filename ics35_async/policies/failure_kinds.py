@@ -53,9 +53,9 @@ def echo_setting_wrong(exc: ReplyError, echo: bool) -> bool:
 async def answers_short_read(line: Line, servo_id: int) -> bool:
     """Whether ``servo_id`` answers a temperature read on ``line`` (2 bytes out, 3 back; nothing moves or frees).
 
-    Where an ID answers now (after an ID write whose acknowledgement was lost, before an EEPROM write
-    that takes an ID); and after a long command went unanswered (the EEPROM read's reply is 66 bytes),
-    this tells a servo that is not there from one that half-answers.
+    It tells whether an ID answers now (after an ID write whose acknowledgement was lost, before an
+    EEPROM write gives a servo an ID); after a long command went unanswered (the EEPROM read's reply
+    is 66 bytes), it tells a servo that is not there from one that half-answers.
     """
     try:
         await line.request(ReadParam(servo_id, Param.TEMPERATURE), retries=1)
