@@ -137,7 +137,8 @@ class ReplyDataError(BadReply):
 
 
 class VerifyError(IcsError):
-    """Reading back a write returned something other than what was written."""
+    """A write could not be confirmed: what was read back, or the ID that answers afterwards, is not what was
+    written (the message says what is known of what the servo holds)."""
 
 
 class BusClosed(IcsError):
