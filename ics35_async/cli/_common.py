@@ -33,6 +33,7 @@ from ._params import (
     all_ids_option,
     json_option,
     parse_id_list,
+    seconds_option,
     yes_option,
 )
 from ._paths import check_input_path, check_line_files, check_output_path
@@ -76,6 +77,7 @@ __all__ = [
     "require_port",
     "run",
     "run_loop",
+    "seconds_option",
     "settings_of",
     "setup_logging",
     "temperature_json",

@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ._common import ID_LIST, confirm, ids_text, out, run, settings_of, yes_option
+from ._common import ID_LIST, confirm, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -49,13 +49,7 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     default=None,
     help="Servos to drive (default: 0-31 on the simulator; on hardware, the IDs a scan finds, after asking).",
 )
-@click.option(
-    "--seconds",
-    type=click.FloatRange(min=0.1),
-    default=10.0,
-    show_default=True,
-    help="Run this long (Ctrl-C stops earlier).",
-)
+@seconds_option("--seconds", "Run this long (Ctrl-C stops earlier).", low=0.1, default=10.0)
 @click.option(
     "--amplitude",
     type=click.FloatRange(1, 120),

@@ -48,7 +48,7 @@ LINE_OPTIONS = (
         ("--timeout",),
         "Seconds allowed on top of the wire time for each reply (USB adapter latency).",
         {"default": 0.020, "show_default": True},
-        {"type": click.FloatRange(0.0, 5.0)},
+        {"type": click.FloatRange(0.0, 5.0), "metavar": "SECONDS"},
     ),
     LineOption(
         "retries",

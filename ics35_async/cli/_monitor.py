@@ -7,7 +7,7 @@ from rich.markup import escape
 
 from .. import policies
 from ._basic import NO_READ_35
-from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, settings_of
+from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, seconds_option, settings_of
 from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -16,7 +16,7 @@ from ._telemetry import Telemetry
 
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
-@click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long (default: Ctrl-C).")
+@seconds_option("--seconds", "Stop after this long (default: Ctrl-C).", low=0.1)
 @click.option(
     "--free",
     "free_servos",

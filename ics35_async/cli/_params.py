@@ -100,3 +100,18 @@ def yes_option(f: Callable[..., T]) -> Callable[..., T]:
 def all_ids_option(text: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
     """``--ids`` for a command that looks along the whole line: every ID unless told fewer; ``text`` is the help."""
     return click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help=text)
+
+
+def seconds_option(
+    flag: str, text: str, *, low: float, high: float | None = None, default: float | None = None
+) -> Callable[[Callable[..., T]], Callable[..., T]]:
+    """``flag SECONDS``: a duration in ``low``..``high`` (``low`` itself excluded when 0: no zero-length run);
+    ``text`` is the help; a default, when there is one, is shown."""
+    return click.option(
+        flag,
+        type=click.FloatRange(low, high, min_open=low == 0 and high is None),
+        default=default,
+        show_default=default is not None,
+        metavar="SECONDS",
+        help=text,
+    )

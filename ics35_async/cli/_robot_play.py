@@ -20,7 +20,7 @@ from rich.markup import escape
 from ..errors import IcsError
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
-from ._common import err, out, settings_of
+from ._common import err, out, seconds_option, settings_of
 from ._robot_common import (
     first_pose,
     load_input_file,
@@ -87,7 +87,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     help="Time scale: 0.5 plays at half speed.",
 )
 @click.option("--loop", is_flag=True, help="Play again and again until Ctrl-C (or --seconds).")
-@click.option("--seconds", type=click.FloatRange(min=0.1), default=None, help="Stop after this long.")
+@seconds_option("--seconds", "Stop after this long.", low=0.1)
 @click.option(
     "--on-stop",
     type=click.Choice(["hold", "free"]),
@@ -95,12 +95,8 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     show_default=True,
     help="What the joints do once the motion ends or is stopped.",
 )
-@click.option(
-    "--ramp",
-    type=click.FloatRange(0, 5),
-    default=0.3,
-    show_default=True,
-    help="Seconds a stopped motion takes to come to rest (never past the motion's keyframes).",
+@seconds_option(
+    "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )
 @click.option(
     "--start-pose",

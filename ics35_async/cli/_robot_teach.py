@@ -21,7 +21,7 @@ from ..errors import IcsError, InvalidArgument
 from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
-from ._common import CliError, ExitCode, Settings, check_output_path, err, out, settings_of
+from ._common import CliError, ExitCode, Settings, check_output_path, err, out, seconds_option, settings_of
 from ._console import signed_tenths
 from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
 from ._robot_view import Screen, joint_table
@@ -107,12 +107,12 @@ joints_option = click.option("--joints", default=None, help="Comma-separated joi
     help="The profile the motion's segments use.",
 )
 @click.option("--name", default=None, help="The motion's name (default: the file's).")
-@click.option(
+@seconds_option(
     "--lead",
-    type=click.FloatRange(0.1, 30),
+    "How long playback takes to reach the first pose (from wherever the robot is then).",
+    low=0.1,
+    high=30,
     default=1.0,
-    show_default=True,
-    help="Seconds playback takes to reach the first pose (from wherever the robot is then).",
 )
 @click.pass_context
 def teach(

@@ -30,6 +30,7 @@ from ._common import (
     nothing_answered,
     out,
     run,
+    seconds_option,
     settings_of,
     translate,
     yes_option,
@@ -207,12 +208,7 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     help="Baud rates to try, comma-separated.",
 )
 @all_ids_option("IDs to try, e.g. 0-7 or 1,3,5.")
-@click.option(
-    "--timeout",
-    type=click.FloatRange(0.001, 5.0),
-    default=None,
-    help="Reply allowance per probe in seconds (default: the global --timeout).",
-)
+@seconds_option("--timeout", "Reply allowance per probe (default: the global --timeout).", low=0.001, high=5.0)
 @click.option("--quick", is_flag=True, help="Do not read each servo's EEPROM.")
 @json_option
 @click.pass_context

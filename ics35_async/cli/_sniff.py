@@ -15,7 +15,7 @@ from rich.markup import escape
 from ..errors import IcsError
 from ..protocol.listening import DEFAULT_GAP, HeardTransaction, LineListener
 from ..transports.serial_port import open_serial, posix_fd
-from ._common import CliError, ExitCode, check_output_path, err, out, settings_of, translate
+from ._common import CliError, ExitCode, check_output_path, err, out, seconds_option, settings_of, translate
 from ._settings import Settings
 
 POLL = 0.05  # seconds between looks at the clock while the line is silent
@@ -105,7 +105,7 @@ def listen(
 
 @click.command()
 @click.option("--output", "-o", "output_path", default=None, help="Also write every line to this file.")
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None, help="Stop after this many s.")
+@seconds_option("--duration", "Stop after this long.", low=0)
 @click.option("--count", type=click.IntRange(min=1), default=None, help="Stop after this many transactions.")
 @click.option(
     "--gap",
