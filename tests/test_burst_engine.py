@@ -21,7 +21,7 @@ from ics35_async.protocol import Position
 from ics35_async.stream import Stream
 
 from .support.burst_wire import BurstWire
-from .support.engine_support import TURNAROUND, FakeSource, Recorded, Servos, Wire, read, ready_engine
+from .support.engine_support import TURNAROUND, FakeSource, Recorded, Servos, StalledOnce, Wire, read, ready_engine
 from .support.paced_line import BAUD as PACED_BAUD
 from .support.paced_line import PERIOD, PacedCycle
 
@@ -186,6 +186,25 @@ def test_a_planned_transaction_given_up_early_is_waited_for_by_the_engine_and_no
     assert isinstance(wire, BurstWire) and wire.runner.bursts > 2
     assert sum(s.ok for s in plain["per_id"].values()) > 60
     assert burst["writes"] == plain["writes"]
+    assert burst == plain
+
+
+def test_a_planned_transaction_whose_echo_comes_round_late_is_waited_for_in_full_and_fails_nothing() -> None:
+    # The executor stops at the transaction's planned (short) wait with nothing read; the engine, seeing
+    # not even the echo, waits the full allowance, takes the reply, and the stream goes on: the same
+    # line as without bursts, with no failure on either.
+    def line(wire_class: type[Wire]) -> tuple[dict[str, Any], Wire, FakeSource]:
+        engine = ready_engine()
+        wire = wire_class(engine, StalledOnce(IDS, stalled=100, delay=0.012))
+        source = FakeSource(IDS)
+        wire.emit(engine.attach_source(source, wire.now))
+        wire.run_for(0.3)
+        return summary(wire, []), wire, source
+
+    plain, _, plain_source = line(Wire)
+    burst, wire, burst_source = line(BurstWire)
+    assert isinstance(wire, BurstWire) and wire.runner.bursts > 2
+    assert not plain_source.failures and not burst_source.failures
     assert burst == plain
 
 

@@ -19,7 +19,16 @@ import pytest
 
 from ics35_async import protocol
 from ics35_async.engine import BusTiming
-from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, ready_engine
+from tests.support.engine_support import (
+    FakeSource,
+    Recorded,
+    Servos,
+    StalledOnce,
+    Wire,
+    misattributed,
+    position,
+    ready_engine,
+)
 from tests.support.paced_line import IDS, PERIOD, intervals, run
 
 
@@ -111,6 +120,18 @@ def test_a_request_to_a_held_servo_waits_for_the_hold_and_gets_its_own_answer() 
     wire.run_for(0.2)
     assert req.state == "done" and misattributed(req, servos) is None
     assert wire.writes[req.write_index][0] >= t_late + 0.020
+
+
+@pytest.mark.parametrize("delay", [0.006, 0.012, 0.019])
+def test_a_transaction_whose_echo_has_not_come_round_waits_its_full_allowance(delay: float) -> None:
+    # A servo that does not answer still echoes: the short wait is for silence after the echo.  Without
+    # the echo the bytes have not gone round yet, and giving up would only fail whatever they land in.
+    servos = StalledOnce([1, 2], stalled=60, delay=delay)
+    wire, source, taken = stream_over(servos, [1, 2])
+    wire.run_for(0.2)
+    assert not source.failures, source.failures
+    assert (60, servos.answers[60]) in taken
+    assert not wire.engine.counters.held_back
 
 
 class TailAfterAnotherEcho(Servos):

@@ -699,6 +699,15 @@ class LineEngine:
     def _timeout(self, now: float) -> bytes | None:
         if self._settling:  # nothing more came: the reply is this command's own (see _settle)
             return self._finish(now)
+        if self._short and self._current is None and len(self._buf) < self._echo_len:
+            # A stream transaction's short wait is for silence after the echo: a servo that does not
+            # answer still echoes.  With the echo not yet round, the host or the link is late, and
+            # giving up would only fail whatever the bytes land in: wait the full allowance.
+            self._short = False
+            full = self._t_start + self._base + self.link.extra
+            if now < full:
+                self.deadline = full
+                return None
         buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
         self.counters.count(sid, len(tx), len(buf))
         error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)

@@ -29,7 +29,9 @@ control loop the full allowance at every failure for the rest of the session;
 and only once ``RECENT_MIN`` answers have been seen.  Twice the slowest recent
 answer (not a percentile) keeps a healthy servo's failing for being slow rare:
 a stream transaction that gave up early holds its servo back, with no
-command, for the rest of its allowance (see ``LineEngine._hold``).
+command, for the rest of its allowance (see ``LineEngine._hold``).  It gives
+up early only once its echo has come round: until then the host or the link is
+late, not the servo (a silent servo still echoes), and it waits the full allowance.
 """
 
 from __future__ import annotations

@@ -353,3 +353,23 @@ class FakeSource:
 
     def upcoming_done(self) -> None:
         pass
+
+
+class StalledOnce(Servos):
+    """Write ``stalled`` comes round ``delay`` seconds late, its echo and reply together: the host or the
+    link stalled (a loaded machine, a pty server not yet scheduled), not the servo."""
+
+    def __init__(self, ids: list[int], stalled: int, delay: float) -> None:
+        super().__init__(ids)
+        self.stalled = stalled
+        self.delay = delay
+
+    def __call__(self, wire: Wire, tx: bytes) -> None:
+        if len(self.answers) != self.stalled:
+            super().__call__(wire, tx)
+            return
+        reply, value = self.reply_for(tx)
+        self.answers.append(value)
+        assert reply is not None
+        at = wire.now + protocol.wire_time(len(tx) + len(reply), self.baudrate) + self.turnaround + self.delay
+        wire.schedule(at, tx + reply, tag=len(self.answers) - 1)
