@@ -3,6 +3,7 @@ ICS 3.5 joints free unless the caller states their pose.  What went on the wire 
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import anyio
@@ -71,6 +72,26 @@ def test_a_motion_starts_from_the_pose_read() -> None:
     run_robot(rig, body)
     sent = [joint_degrees(JOINTS["knee"], p) for p in torque_commands(rig, "knee")]
     assert sent[0] == pytest.approx(-80.0, abs=2.0)  # from where it was, not a jump from elsewhere
+    assert all(-80.0 - HALF_COUNT <= d <= 0.0 + HALF_COUNT for d in sent)
+    assert sent[-1] == pytest.approx(0.0, abs=HALF_COUNT)
+
+
+def test_a_host_stall_before_a_motions_first_frame_does_not_skip_its_start() -> None:
+    # The motion's clock starts with the first frame that carries it: a host that stalls (a loaded
+    # machine, a garbage collection) between the call and that frame must not send the joint a
+    # target already far along its path, a jump the servo makes at full speed.
+    rig = make_rig(ics36=[1, 2, 3])
+    rig.servo("knee").move_by_hand(joint_position(JOINTS["knee"], -80.0))
+
+    async def body(robot: Robot) -> None:
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(lambda: robot.move_to({"knee": 0.0}, duration=0.2))
+            await anyio.sleep(0)  # the motion is planned...
+            time.sleep(0.15)  # ...and the host stalls before its first frame
+
+    run_robot(rig, body)
+    sent = [joint_degrees(JOINTS["knee"], p) for p in torque_commands(rig, "knee")]
+    assert sent[0] == pytest.approx(-80.0, abs=2.0)
     assert all(-80.0 - HALF_COUNT <= d <= 0.0 + HALF_COUNT for d in sent)
     assert sent[-1] == pytest.approx(0.0, abs=HALF_COUNT)
 

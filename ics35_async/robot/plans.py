@@ -39,9 +39,11 @@ class Replies:
 class Plan:
     """A trajectory being played: which joints it still drives, and how it ends."""
 
-    def __init__(self, trajectory: Trajectory, t0: float, wait_on_wire: bool) -> None:
+    def __init__(self, trajectory: Trajectory, wait_on_wire: bool) -> None:
         self.trajectory = trajectory
-        self.t0 = t0
+        # The trajectory's time zero: the first frame that carries it (not the call), so a host that
+        # stalls before that frame delays the motion instead of sending a target far along its path.
+        self.t0: float | None = None
         self.wait_on_wire = wait_on_wire
         self.joints = set(trajectory.joints)
         self.done = anyio.Event()

@@ -261,8 +261,10 @@ class Robot:
         return start
 
     async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None:
-        """Play a trajectory from now on; returns when it is done (its end on the wire, with ``wait_on_wire``)."""
-        plan = Plan(trajectory, anyio.current_time(), wait_on_wire)
+        """Play a trajectory from the next frame on; returns when it is done (its end on the wire, with
+        ``wait_on_wire``).  Its time zero is that frame's: a host stall before it delays the motion rather
+        than skipping its start."""
+        plan = Plan(trajectory, wait_on_wire)
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
@@ -320,6 +322,8 @@ class Robot:
                 continue
             if plan.ending is not None:
                 continue
+            if plan.t0 is None:
+                plan.t0 = frame.time
             segments, t = plan.trajectory.segments, frame.time - plan.t0
             if plan.segment < len(segments) - 1 and t >= segments[plan.segment].end_time:
                 # Past the segment the last targets came from: its keyframe first, exactly, and
