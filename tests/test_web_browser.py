@@ -28,7 +28,7 @@ from playwright.sync_api import Browser, Page, expect, sync_playwright
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
-from tests.support.timing import NO_TIMEOUTS
+from tests.support.timing import NO_TIMEOUTS, scaled
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -42,7 +42,10 @@ KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
 # whole to one xdist worker (--dist loadfile).
 pytestmark = [pytest.mark.slow, pytest.mark.pty]
 WEB = [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"]
-WAIT_MS = 20_000  # a busy machine: every wait is for an outcome, never a measure of speed
+WAIT_MS = int(scaled(20.0) * 1000)  # a busy machine: every wait is for an outcome, never a measure of speed
+# A scan with the no-timeouts allowance: a reply late past a probe's short wait (a loaded machine) has
+# the scan probe every silent ID again with the full half second, so it can take half a minute.
+SCAN_WAIT_MS = int(scaled(60.0) * 1000)
 expect.set_options(timeout=WAIT_MS)
 
 
@@ -143,7 +146,7 @@ def scan_finds(p: Page, count: int) -> None:
     showed (the scan's summary, the message box, the line's status), not only that the table stayed empty."""
     p.click("#scan-btn")
     try:
-        expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found")
+        expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found", timeout=SCAN_WAIT_MS)
         expect(p.locator("#servo-table tbody tr")).to_have_count(count)
     except AssertionError as exc:
         shown = {name: p.locator(sel).text_content() for name, sel in SCAN_OUTCOME.items()}
