@@ -103,13 +103,19 @@ def all_ids_option(text: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
 
 
 def seconds_option(
-    flag: str, text: str, *, low: float, high: float | None = None, default: float | None = None
+    flag: str,
+    text: str,
+    *,
+    low: float,
+    high: float | None = None,
+    default: float | None = None,
+    above_low: bool = False,
 ) -> Callable[[Callable[..., T]], Callable[..., T]]:
-    """``flag SECONDS``: a duration in ``low``..``high`` (``low`` itself excluded when 0: no zero-length run);
-    ``text`` is the help; a default, when there is one, is shown."""
+    """``flag SECONDS``: a duration from ``low`` (or above it, with ``above_low``) to ``high``; ``text`` is
+    the help; a default, when there is one, is shown."""
     return click.option(
         flag,
-        type=click.FloatRange(low, high, min_open=low == 0 and high is None),
+        type=click.FloatRange(low, high, min_open=above_low),
         default=default,
         show_default=default is not None,
         metavar="SECONDS",

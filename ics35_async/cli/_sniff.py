@@ -105,7 +105,7 @@ def listen(
 
 @click.command()
 @click.option("--output", "-o", "output_path", default=None, help="Also write every line to this file.")
-@seconds_option("--duration", "Stop after this long.", low=0)
+@seconds_option("--duration", "Stop after this long.", low=0, above_low=True)
 @click.option("--count", type=click.IntRange(min=1), default=None, help="Stop after this many transactions.")
 @click.option(
     "--gap",
