@@ -21,7 +21,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import REAL_TIME
+from tests.support.timing import NO_TIMEOUTS, REAL_TIME
 
 pytestmark = [
     pytest.mark.pty,
@@ -32,10 +32,20 @@ SIM_IDS = [2, 5, 17]
 SIM_BAUD = 625000
 # The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
 LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
+# For commands to servos that are there, every one expected to answer: long enough for a machine stalled
+# for half a second (a timeout costs it only where a reply never comes).
+ANSWERED = ["--timeout", str(NO_TIMEOUTS["adapter_latency"]), "--retries", "1"]
 
 
 def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:
     return run_process("--port", port, *args, stdin=stdin, timeout=timeout)
+
+
+def json_of(port: str, *args: str) -> Any:
+    """What ``ics35 ... --json`` printed; a failed command fails the test with what it said."""
+    proc = ics35(port, *args, "--json")
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
 
 
 @pytest.fixture(scope="module")
@@ -55,12 +65,12 @@ def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
 
 
 def test_json_read_commands_parse(port: str) -> None:
-    baud = ["--baud", str(SIM_BAUD), *LINE]
-    info = json.loads(ics35(port, *baud, "info", "5", "--json", "--free").stdout)
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
+    info = json_of(port, *baud, "info", "5", "--free")
     assert info["eeprom"]["servo_id"] == 5 and info["free"] is True
-    got = json.loads(ics35(port, *baud, "get", "17", "stretch", "--json").stdout)
+    got = json_of(port, *baud, "get", "17", "stretch")
     assert got == {"id": 17, "param": "stretch", "value": 30, "memory": "RAM"}  # factory gain 60 = RAM 30
-    moved = json.loads(ics35(port, *baud, "move", "2", "--deg", "10", "--json").stdout)
+    moved = json_of(port, *baud, "move", "2", "--deg", "10")
     assert moved["target"] == 7796
 
 
@@ -101,7 +111,7 @@ def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
     assert "left free" in proc.stdout
     # A free servo draws no current in the simulator; a holding one does.
     for i in SIM_IDS:
-        got = json.loads(ics35(port, *baud, "get", str(i), "current", "--json").stdout)
+        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
         assert got["current"]["magnitude"] == 0
 
 
@@ -152,12 +162,11 @@ def demo_interrupted(port: str, after: float) -> tuple[subprocess.Popen[str], st
 
 
 def test_demo_stops_on_ctrl_c_and_frees_the_servos(port: str) -> None:
-    baud = ["--baud", str(SIM_BAUD), *LINE]
     proc, out, err = demo_interrupted(port, 0.3)
     assert proc.returncode == 0, err
     assert "demo stopped by Ctrl-C after" in out and "left free" in out
     for i in (2, 5):
-        got = json.loads(ics35(port, *baud, "get", str(i), "current", "--json").stdout)
+        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
         assert got["current"]["magnitude"] == 0
 
 
