@@ -169,7 +169,13 @@ def test_unplug_and_replug_keep_the_path(pty_sim: Any) -> None:
     assert first_target.startswith("/dev/pts/")
     with open_port(path) as port:
         assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
-        assert transact(port, h("87 3A 4C"), 3) == h("07 3A 4C")  # answered, then the port goes
+        # Answered, then the port goes.  A client slower than the hang-up (a loaded machine) loses the
+        # reply with the port, as it would with a real adapter's tty: the hang-up discards unread input.
+        try:
+            answered: bytes | None = transact(port, h("87 3A 4C"), 3)
+        except serial.SerialException:
+            answered = None
+        assert answered in (h("07 3A 4C"), None)
         with pytest.raises(serial.SerialException):
             for _ in range(50):
                 port.read(1)
