@@ -81,7 +81,7 @@ def test_wrong_baud_exit_code(port: str) -> None:
 
 
 def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
-    baud = ["--baud", str(SIM_BAUD), *LINE]
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     backup = tmp_path / "servo5.json"
     proc = ics35(port, *baud, "eeprom", "dump", "5")
     assert proc.returncode == 0, proc.stderr
@@ -101,7 +101,7 @@ def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
 
 
 def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
-    baud = ["--baud", str(SIM_BAUD), *LINE]
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     proc = ics35(port, *baud, "monitor", "--free", "2,5,17", "--seconds", "1")
     assert proc.returncode == 0, proc.stderr
     assert "answering 3/3" in proc.stdout
@@ -111,7 +111,7 @@ def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
     assert "left free" in proc.stdout
     # A free servo draws no current in the simulator; a holding one does.
     for i in SIM_IDS:
-        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
+        got = json_of(port, *baud, "get", str(i), "current")
         assert got["current"]["magnitude"] == 0
 
 
@@ -138,7 +138,7 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
 
 def demo_interrupted(port: str, after: float) -> tuple[subprocess.Popen[str], str, str]:
     """``ics35 demo`` on ``port``, sent Ctrl-C ``after`` seconds past its title line."""
-    baud = ["--baud", str(SIM_BAUD), *LINE]
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
     proc = subprocess.Popen(
         [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--ids", "2,5", "--seconds", "60"],
