@@ -149,17 +149,17 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
         await line.request(protocol.WriteId(new_id), retries=0)
     except ReplyError as exc:
         # The write may have been heard with only its acknowledgement lost: who answers now settles it.
-        if not await answers_short_read(line, new_id):
-            if await answers_short_read(line, old_id):
-                raise VerifyError(
-                    f"the ID write got no acknowledgement ({exc}) and the servo still answers as ID {old_id}: "
-                    "its ID is unchanged"
-                ) from exc
+        if await answers_short_read(line, new_id):
+            return IdChange(old_id, new_id, written=True)
+        if await answers_short_read(line, old_id):
             raise VerifyError(
-                f"the ID write got no acknowledgement ({exc}) and neither ID {old_id} nor ID {new_id} answers "
-                "now: scan the line to find the servo"
+                f"the ID write got no acknowledgement ({exc}) and the servo still answers as ID {old_id}: "
+                "its ID is unchanged"
             ) from exc
-        return IdChange(old_id, new_id, written=True)
+        raise VerifyError(
+            f"the ID write got no acknowledgement ({exc}) and neither ID {old_id} nor ID {new_id} answers "
+            "now: scan the line to find the servo"
+        ) from exc
     try:
         await line.request(protocol.ReadParam(new_id, Param.STRETCH))
     except ReplyError as exc:
