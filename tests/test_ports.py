@@ -13,6 +13,7 @@ import errno
 import logging
 import os
 import socket
+import sys
 import termios
 import threading
 import time
@@ -348,6 +349,31 @@ def test_unmarks_ff_bytes_on_a_real_pty() -> None:
 
 
 # --------------------------------------------------------------------------- pyserial ports without a descriptor
+
+
+def test_a_tty_read_by_a_thread_survives_input_discards_while_bytes_arrive(pty: Pty) -> None:
+    # The reader thread waits for input, then reads it; a discard from the driver's thread can empty the
+    # input in between, and pyserial then says "readiness to read but returned no data", as it does for
+    # a device that went away.  The port is fine: it must not be reported lost.  Switching threads as
+    # often as the interpreter can makes that window come round within a second here.
+    port = open_at(pty.port, transport="thread")
+    assert isinstance(port, DevicePort)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        until = time.monotonic() + 1.5
+        while time.monotonic() < until:
+            pty.write(b"\x80\x01\x02")
+            port.discard_input()
+            port.read()  # raises what the reader thread reported, if it gave up on the port
+    finally:
+        sys.setswitchinterval(interval)
+    try:
+        port.discard_input()
+        pty.write(b"\x21\x22")  # and it still reads
+        assert read_until(port, 2)[-2:] == b"\x21\x22"
+    finally:
+        port.close()
 
 
 def test_loop_url_behind_a_reader_thread() -> None:

@@ -41,16 +41,25 @@ class SerialPort:
         if ser.timeout != poll:
             ser.timeout = poll
         self._cancel = getattr(ser, "cancel_read", None)
+        # Counts up as each input discard starts and again as it ends (odd: one is under way).
+        self._discards = 0
 
     def read(self, block: bool = False) -> bytes:
         """What has arrived; with ``block``, wait up to the port's read timeout for a first byte."""
         ser = self.serial
+        discards = self._discards
         try:
             waiting = ser.in_waiting
             if not waiting and not block:
                 return b""
             return bytes(ser.read(waiting or 1))
         except serial.SerialException:
+            if discards % 2 or discards != self._discards:
+                # A discard from another thread (a reader thread's driver) emptied the input between
+                # pyserial's wait and its read, which then says "readiness to read but returned no
+                # data", as for a device that went away.  The port is fine; what was read is dropped,
+                # as the discard asked.  A port that did go away fails the next read too.
+                return b""
             raise
         except Exception as exc:  # a URL handler's socket error
             raise OSError(errno.EIO, f"serial read failed: {exc}") from exc
@@ -74,8 +83,12 @@ class SerialPort:
         # pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps), past the
         # next transaction's deadline; the engine's quiet time does the job there instead.
         if not isinstance(self.serial, serial.rfc2217.Serial):
-            with contextlib.suppress(Exception):
-                self.serial.reset_input_buffer()
+            self._discards += 1
+            try:
+                with contextlib.suppress(Exception):
+                    self.serial.reset_input_buffer()
+            finally:
+                self._discards += 1
 
     def close(self) -> None:
         # pyserial's socket and RFC 2217 handlers shut their socket, then sleep 0.3 s "to give
