@@ -18,6 +18,7 @@ Markers (``pyproject.toml``): ``slow``, ``pty`` and ``realtime``; see the testin
 from __future__ import annotations
 
 import itertools
+import signal
 import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -34,6 +35,14 @@ from tests.support.cli_runs import CliResult, run_in_process, run_process
 # asserts that something was fast, and on a loaded machine one example can take longer than that.
 settings.register_profile("suite", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("suite")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as a terminal gives it, however the suite was started.  A shell without job control starts a
+    background command with SIGINT ignored, and that is inherited: the Ctrl-C tests (a SIGINT to a
+    subprocess or to this process, ``_thread.interrupt_main``) would then test nothing and wait forever."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # The async libraries a test can run on, as anyio's plugin names them: asyncio on its default loop and on
 # uvloop, and trio.

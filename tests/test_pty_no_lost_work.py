@@ -50,8 +50,6 @@ class Command:
             stderr=subprocess.PIPE,
             text=True,
             env={**os.environ, "COLUMNS": "200"},
-            # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )
         self.err_lines: queue.Queue[str] = queue.Queue()
         self.err_seen: list[str] = []

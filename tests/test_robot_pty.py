@@ -105,7 +105,6 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         assert proc.stdout is not None
