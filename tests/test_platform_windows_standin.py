@@ -36,6 +36,7 @@ import pytest
 from ics35_async.errors import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError
 from ics35_async.sim import start_subprocess, stop_subprocess
 from ics35_async.transports.serial_port import translate_open_error
+from tests.support.timing import NO_TIMEOUTS
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the stand-in runs on Linux ptys")
 
@@ -52,6 +53,7 @@ SCRIPT = textwrap.dedent(
 
     BLOCKED = {blocked!r}
     PTY = sys.argv[1]
+    LATENCY = {latency!r}  # the no-timeouts allowance: a server in another process, on a loaded machine
 
 
     class Blocker:
@@ -87,7 +89,7 @@ SCRIPT = textwrap.dedent(
 
 
     async def on_the_pty(driver):
-        async with open_bus(PTY, driver=driver, retries=2) as bus:
+        async with open_bus(PTY, driver=driver, retries=2, adapter_latency=LATENCY) as bus:
             out = {{"stretch": await bus.servo(1).read_stretch(), "scan": await bus.scan(range(4))}}
             seen = set()
             frames = 0
@@ -139,7 +141,8 @@ SCRIPT = textwrap.dedent(
 
     from ics35_async.cli import main
 
-    for name, argv in (("help", ["--help"]), ("read", ["--port", PTY, "get", "1", "stretch"])):
+    read = ["--port", PTY, "--timeout", str(LATENCY), "get", "1", "stretch"]
+    for name, argv in (("help", ["--help"]), ("read", read)):
         try:
             main(argv)
         except SystemExit as exc:
@@ -148,7 +151,7 @@ SCRIPT = textwrap.dedent(
     results["loaded"] = sorted(m for m in BLOCKED if m in sys.modules)
     print(json.dumps(results))
     """
-).format(blocked=BLOCKED)
+).format(blocked=BLOCKED, latency=NO_TIMEOUTS["adapter_latency"])
 
 
 @pytest.fixture(scope="module")

@@ -799,7 +799,9 @@ async def test_switching_an_id_between_watch_and_a_target_mid_transaction_fails_
             stream.set_targets({1: 7500, 2: 7500})
             await next_frame(stream)
             switches += 2
-        # A reply read with the other command's parser is a bad reply.  (Timeouts are not asserted:
-        # on a loaded machine the real-time simulator's thread can answer late.)
-        assert bus.stats.total.bad_replies == 0, stream.stats.failures
+        # A reply read with the other command's parser is a bad reply.  On a loaded machine the real-time
+        # simulator's thread can answer late: a timeout, and its late reply may then fail the next
+        # transaction as a bad one.  Only those are allowed: the parser's mistake would fail many switches.
+        total = bus.stats.total
+        assert total.bad_replies <= total.timeouts, (total, stream.stats.failures)
         assert bus.stats.total.ok > switches
