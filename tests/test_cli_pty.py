@@ -178,9 +178,12 @@ def test_demo_stopped_before_its_first_frame_is_no_error(port: str) -> None:
 
 
 def run_set_id(ids: str, new: int, *extra: str) -> tuple[subprocess.CompletedProcess[str], Any]:
+    # Every reply counted: the no-timeouts allowance, and the scan after asks only the IDs involved.
     with serving(["--ids", ids]) as path:
-        proc = ics35(path, *LINE, "set-id", str(new), *extra)
-        scan = json.loads(ics35(path, *LINE, "scan", "--bauds", "115200", "--ids", "0-12", "--quick", "--json").stdout)
+        proc = ics35(path, *ANSWERED, "set-id", str(new), *extra)
+        scan = json.loads(
+            ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", f"{ids},{new}", "--quick", "--json").stdout
+        )
     return proc, [s["id"] for s in scan["servos"]]
 
 
