@@ -56,7 +56,9 @@ def port() -> Iterator[str]:
 
 
 def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
-    proc = ics35(port, *LINE, "scan", "--bauds", "115200,625000", "--json")
+    # Every present servo must answer (the no-timeouts allowance); two IDs nobody has are asked too.
+    ids = ",".join(str(i) for i in sorted({0, 31, *SIM_IDS}))
+    proc = ics35(port, *ANSWERED, "scan", "--bauds", "115200,625000", "--ids", ids, "--json")
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
     assert [(s["id"], s["baud"]) for s in doc["servos"]] == [(i, SIM_BAUD) for i in SIM_IDS]
@@ -213,7 +215,7 @@ def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
         assert sim.stdout is not None
         path = sim.stdout.readline().strip()
         assert path, sim.stderr.read() if sim.stderr else ""
-        proc = ics35(path, *LINE, "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
+        proc = ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", "4-6", "--quick", "--json")
         assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4, 6]
     finally:
         sim.terminate()
