@@ -44,6 +44,7 @@ def pytest_configure(config: pytest.Config) -> None:
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
+
 # The async libraries a test can run on, as anyio's plugin names them: asyncio on its default loop and on
 # uvloop, and trio.
 BACKENDS: dict[str, object] = {
