@@ -126,6 +126,20 @@ def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> Non
     assert client.get("/api/status").json()["scanning"] is False
 
 
+def test_a_scan_of_chosen_ids_asks_only_those_and_a_bad_choice_is_refused_in_words(serve: Any) -> None:
+    client, sim = serve((2, 7, 30))
+    heard: list[bytes] = []
+    sim.add_tap(heard.append)
+    report = post(client, "/api/scan", {"ids": [7, 8]}).json()
+    assert [s["id"] for s in report["servos"]] == [7]
+    # Command bytes have their top bit set and carry the ID in their low five (0xFF: the ID read, to all).
+    asked = {b & 0x1F for b in b"".join(heard) if b & 0x80 and b != 0xFF}
+    assert asked == {7, 8}, asked
+    for ids, words in (([40], "40"), (5, "list"), ([], "list")):
+        refused = post(client, "/api/scan", {"ids": ids})
+        assert refused.status_code == 400 and words in refused.json()["error"], refused.text
+
+
 def test_the_line_page_shows_each_servos_protocol_and_reads_positions_without_freeing_or_moving(serve: Any) -> None:
     client, sim = serve((1, 3), ics36=(3,))
     for sid, where in ((1, 7000), (3, 8200)):  # both holding: a free command or a target would show

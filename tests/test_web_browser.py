@@ -141,9 +141,11 @@ def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
 SCAN_OUTCOME = {"scan summary": "#scan-summary", "message": "#message", "line": "#line-status"}
 
 
-def scan_finds(p: Page, count: int) -> None:
-    """Scan the line from ``p``'s Line page: ``count`` servos found and listed.  A failure says what the page
-    showed (the scan's summary, the message box, the line's status), not only that the table stayed empty."""
+def scan_finds(p: Page, count: int, ids: str = "") -> None:
+    """Scan the line from ``p``'s Line page (``ids``: the IDs to ask, as typed; all 32 if empty): ``count``
+    servos found and listed.  A failure says what the page showed (the scan's summary, the message box, the
+    line's status), not only that the table stayed empty."""
+    p.fill("#scan-ids", ids)
     p.click("#scan-btn")
     try:
         expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found", timeout=SCAN_WAIT_MS)
@@ -470,7 +472,7 @@ def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: s
     context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
     p = context.new_page()
     p.goto(server)
-    scan_finds(p, 2)
+    scan_finds(p, 2, ids="0-4")
     for name in ("line", "servo/1", "id", "many", "live", "traffic"):
         p.goto(base_of(server) + f"/#{name}")
         if name == "servo/1":
@@ -490,7 +492,8 @@ def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, 
     expect(page.locator("#line-status")).to_contain_text("LOST")
     two.sim.replug()
     expect(page.locator("#lost-banner")).to_be_hidden()
-    scan_finds(page, 2)
+    scan_finds(page, 2, ids="0-4")
+    expect(page.locator("#scan-progress")).to_have_js_property("value", 5)  # the five IDs typed, no more
 
 
 def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, lines: Any) -> None:
@@ -506,7 +509,7 @@ def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, 
     # The banner and the message follow the same status update: no wait beyond the one for the banner.
     expect(page.locator("#message")).not_to_contain_text("lost", timeout=500)
     expect(page.locator("#message")).to_contain_text("the line is back", timeout=500)
-    scan_finds(page, 2)
+    scan_finds(page, 2, ids="0-4")
 
 
 def open_servo_page(page: Page, servo_id: int) -> None:

@@ -155,7 +155,10 @@ async def connect(request: Request, session: LineSession) -> Any:
 
 async def scan(request: Request, session: LineSession) -> Any:
     data = await body(request)
-    return await session.scan(data.get("bauds"), data.get("ids"))
+    ids = data.get("ids")
+    if ids is not None and (not isinstance(ids, list) or not ids):
+        raise InvalidArgument("name the IDs to scan as a list, e.g. [1, 2, 3], or none for all 32")
+    return await session.scan(data.get("bauds"), ids)
 
 
 # --------------------------------------------------------------------------- one servo

@@ -146,10 +146,13 @@ function showServos(servos) {
 
 async function scanLine() {
   const bauds = $("#scan-all-bauds").checked ? [115200, 625000, 1250000] : null;
+  const text = $("#scan-ids").value.trim();
+  let ids = null;  // every ID
+  try { if (text) ids = parseIds(text); } catch (e) { say(e.message); return; }
   $("#scan-btn").disabled = true;
   $("#scan-summary").textContent = "scanning…";
   try {
-    const report = await api("/api/scan", { bauds });
+    const report = await api("/api/scan", { bauds, ids });
     showServos(report.servos);
     const notes = [];
     if (report.silent) notes.push("nothing came back at all, not even the echo: check power, wiring and the adapter");
