@@ -14,7 +14,7 @@ import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import VirtualLine, VirtualServo
-from tests.support.timing import FAST, NO_TIMEOUTS
+from tests.support.timing import FAST, NO_TIMEOUTS, or_describe
 
 
 async def test_a_request_to_a_silent_servo_times_out_while_the_line_idles() -> None:
@@ -63,7 +63,7 @@ async def test_a_caller_that_hears_its_answer_sees_it_counted(pty_sim: Any) -> N
     async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
         behind = []
         for n in range(1, 2001):
-            await bus.servo(1 + n % 2).read_stretch()
+            await or_describe(bus.servo(1 + n % 2).read_stretch(), bus)
             ok = bus.stats.total.ok
             if ok < n:
                 behind.append((n, ok))
@@ -76,7 +76,7 @@ async def test_a_stream_frame_comes_with_its_transactions_counted(pty_sim: Any) 
     async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
         behind = []
         for _ in range(1000):
-            frame = await stream.next_frame()
+            frame = await or_describe(stream.next_frame(), bus)
             stats = bus.stats
             total = stats.total
             ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
@@ -96,7 +96,7 @@ async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> No
     async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
         seen = []
         for _ in range(1000):
-            frame = await stream.next_frame()
+            frame = await or_describe(stream.next_frame(), bus)
             two = bus.stats.per_id.get(2)
             if two is not None and two.ok:
                 seen.append((frame.cycle, two.ok))

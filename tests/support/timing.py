@@ -14,9 +14,17 @@ never asserts that something was fast.
 
 from __future__ import annotations
 
+import asyncio
 import os
+from collections.abc import Awaitable
+from typing import TypeVar
 
+import pytest
+
+from ics35_async import Bus
 from ics35_async.engine import BusTiming, TimingOverrides
+
+T = TypeVar("T")
 
 
 def _scale() -> float:
@@ -50,3 +58,13 @@ REAL_TIME: TimingOverrides = {**FAST, "adapter_latency": scaled(0.050)}
 # so this one is long enough for a machine stalled for half a second.
 NO_TIMEOUTS: TimingOverrides = {**FAST, "adapter_latency": scaled(0.5)}
 GUARD = scaled(10.0)  # seconds: only against hangs, never a timing assertion
+
+
+async def or_describe(awaitable: Awaitable[T], bus: Bus, seconds: float = GUARD) -> T:
+    """``await awaitable``; if it takes ``seconds`` (a guard against a hang, never a timing assertion) or a
+    reply never comes, fail the test with what the line was doing then (``bus.describe()``) and its counters."""
+    try:
+        return await asyncio.wait_for(awaitable, seconds)
+    except TimeoutError as exc:  # the guard's, or a ReplyTimeout (a TimeoutError too)
+        what = str(exc) or f"nothing after {seconds} s"
+        pytest.fail(f"{what}; the line: {bus.describe()}; {bus.stats.total}")
