@@ -14,7 +14,11 @@ import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import VirtualLine, VirtualServo
-from tests.support.timing import FAST, NO_TIMEOUTS, or_describe
+from tests.support.timing import FAST, NO_TIMEOUTS, or_describe, scaled
+
+# A few seconds' work against a fast simulator: a run this long means a reply or a frame stopped coming
+# (then the failure says what the line was doing, rather than pytest's timeout giving only the stacks).
+RUN_GUARD = scaled(60.0)
 
 
 async def test_a_request_to_a_silent_servo_times_out_while_the_line_idles() -> None:
@@ -62,11 +66,15 @@ async def test_a_caller_that_hears_its_answer_sees_it_counted(pty_sim: Any) -> N
     path = pty_sim("--fast", "--ids", "1-2").path
     async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus:
         behind = []
-        for n in range(1, 2001):
-            await or_describe(bus.servo(1 + n % 2).read_stretch(), bus)
-            ok = bus.stats.total.ok
-            if ok < n:
-                behind.append((n, ok))
+
+        async def reads() -> None:
+            for n in range(1, 2001):
+                await bus.servo(1 + n % 2).read_stretch()
+                ok = bus.stats.total.ok
+                if ok < n:
+                    behind.append((n, ok))
+
+        await or_describe(reads(), bus, RUN_GUARD)
         assert behind == []
 
 
@@ -75,14 +83,18 @@ async def test_a_stream_frame_comes_with_its_transactions_counted(pty_sim: Any) 
     path = pty_sim("--fast", "--ids", "1-2").path
     async with open_bus(path, driver="thread", **NO_TIMEOUTS) as bus, bus.stream([1, 2]) as stream:
         behind = []
-        for _ in range(1000):
-            frame = await or_describe(stream.next_frame(), bus)
-            stats = bus.stats
-            total = stats.total
-            ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
-            # (A transaction held back after a failure is skipped, not sent: counted in held_back.)
-            if ended + stats.held_back < 2 * frame.cycle:
-                behind.append((frame.cycle, ended))
+
+        async def frames() -> None:
+            for _ in range(1000):
+                frame = await stream.next_frame()
+                stats = bus.stats
+                total = stats.total
+                ended = total.ok + total.timeouts + total.partial_replies + total.echo_mismatches + total.bad_replies
+                # (A transaction held back after a failure is skipped, not sent: counted in held_back.)
+                if ended + stats.held_back < 2 * frame.cycle:
+                    behind.append((frame.cycle, ended))
+
+        await or_describe(frames(), bus, RUN_GUARD)
         assert behind == []
 
 
@@ -95,10 +107,14 @@ async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> No
     bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
     async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
         seen = []
-        for _ in range(1000):
-            frame = await or_describe(stream.next_frame(), bus)
-            two = bus.stats.per_id.get(2)
-            if two is not None and two.ok:
-                seen.append((frame.cycle, two.ok))
+
+        async def frames() -> None:
+            for _ in range(1000):
+                frame = await stream.next_frame()
+                two = bus.stats.per_id.get(2)
+                if two is not None and two.ok:
+                    seen.append((frame.cycle, two.ok))
+
+        await or_describe(frames(), bus, RUN_GUARD)
         assert seen == []
         assert bus.stats.per_id[2].bad_replies > 0
