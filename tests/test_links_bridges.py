@@ -24,11 +24,12 @@ from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.support.links import Rfc2217Bridge, TcpBridge
-from tests.support.timing import NO_TIMEOUTS, REAL_TIME
+from tests.support.timing import NO_TIMEOUTS
 
 pytestmark = pytest.mark.pty
 
 DRIVERS = ("asyncio", "thread", "anyio")
+ASKED = range(5)  # the far pty's servos (1-3) and an ID either side: a scan that counts them asks these
 BRIDGES = {"rfc2217": Rfc2217Bridge, "socket": TcpBridge}
 
 
@@ -105,7 +106,10 @@ async def _stretch_once(bus: Any, servo_id: int) -> int:
 
 
 async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
-    report = await policies.scan(lambda baud: open_bus(rfc2217.url, baudrate=baud, **REAL_TIME), read_eeprom=False)
+    # Every present servo must answer at its rate: the no-timeouts allowance, and only their IDs asked.
+    report = await policies.scan(
+        lambda baud: open_bus(rfc2217.url, baudrate=baud, **NO_TIMEOUTS), ids=[1, 2, 3], read_eeprom=False
+    )
     assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200), (3, 115200)]
     assert len(report.rates) == 3 and not report.rate_blind
 
@@ -133,7 +137,7 @@ async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
 
 
 async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge: TcpBridge) -> None:
-    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **REAL_TIME))
+    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **NO_TIMEOUTS), ids=ASKED)
     assert report.rate_blind
     assert [r.baud for r in report.rates] == [115200]
     assert [s.servo_id for s in report.servos] == [1, 2, 3]
@@ -152,12 +156,13 @@ async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> 
 
 
 def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, cli: Any) -> None:
-    result = cli("--port", tcp_bridge.url, "scan", "--quick", "--json")
+    answered = ["--timeout", str(NO_TIMEOUTS["adapter_latency"])]
+    result = cli("--port", tcp_bridge.url, *answered, "scan", "--ids", "0-4", "--quick", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert [s["id"] for s in data["servos"]] == [1, 2, 3]
     assert data["rate_blind"] is True
-    result = cli("--port", tcp_bridge.url, "scan", "--ids", "1-3")
+    result = cli("--port", tcp_bridge.url, *answered, "scan", "--ids", "1-3")
     assert result.code == 0, result.err
     assert "does not carry the baud rate" in result.err
     assert "3 servo(s) found" in result.out
