@@ -21,6 +21,7 @@ import serial.serialposix as serialposix
 from ics35_async import DirectionControlNotSupported, open_bus
 from ics35_async.errors import InvalidArgument, SerialPortError
 from ics35_async.sim import start_subprocess, stop_subprocess
+from tests.support.timing import NO_TIMEOUTS
 
 pytestmark = [
     pytest.mark.pty,
@@ -75,7 +76,7 @@ async def test_a_driver_without_rs485_mode_is_a_typed_error(far_pty: str, driver
             pass
     assert isinstance(caught.value, SerialPortError)
     # The port was released: it opens normally at once.
-    async with open_bus(far_pty, driver=driver, retries=2) as bus:
+    async with open_bus(far_pty, driver=driver, retries=2, **NO_TIMEOUTS) as bus:
         assert await bus.servo(1).read_stretch() == 30
 
 
@@ -87,13 +88,13 @@ async def test_a_driver_without_rs485_mode_is_a_typed_error(far_pty: str, driver
 async def test_the_setting_reaches_the_driver(
     far_pty: str, rs485_driver: list[int], driver: str, direction: str, expected: int
 ) -> None:
-    async with open_bus(far_pty, direction=direction, driver=driver, retries=2) as bus:
+    async with open_bus(far_pty, direction=direction, driver=driver, retries=2, **NO_TIMEOUTS) as bus:
         assert await bus.servo(2).read_stretch() == 30
     assert rs485_driver and rs485_driver[-1] & 0b111 == expected
 
 
 async def test_no_direction_leaves_rts_alone(far_pty: str, rs485_driver: list[int]) -> None:
-    async with open_bus(far_pty, retries=2) as bus:
+    async with open_bus(far_pty, retries=2, **NO_TIMEOUTS) as bus:
         assert await bus.servo(1).read_stretch() == 30
     assert rs485_driver == []
 
@@ -115,7 +116,9 @@ def test_cli_direction_on_a_port_without_rs485_mode_exits_3(far_pty: str, cli: A
 
 
 def test_cli_direction_after_the_command_reaches_the_driver(far_pty: str, rs485_driver: list[int], cli: Any) -> None:
-    result = cli("--port", far_pty, "get", "1", "stretch", "--direction", "rts-inverted")
+    # The reply is expected (a pty served by another process answers late on a loaded machine).
+    answered = ["--timeout", str(NO_TIMEOUTS["adapter_latency"])]
+    result = cli("--port", far_pty, *answered, "get", "1", "stretch", "--direction", "rts-inverted")
     assert result.code == 0, result.err
     assert rs485_driver[-1] & 0b111 == ENABLED | RTS_AFTER_SEND
 
