@@ -133,10 +133,16 @@ def pty_sim() -> Iterator[Callable[..., PtySim]]:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so."""
+    """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so.
+
+    Modules with a test marked ``slow`` go first, each kept whole and in its own order: pytest-xdist
+    (``--dist loadfile``) hands modules to its workers in this order, and a long one handed out last
+    would run on alone after the others have finished."""
     for item in items:
         if "pty_sim" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.pty)
+    slow_modules = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_modules)  # stable: the rest keep their order
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
