@@ -9,7 +9,9 @@ it tests (a reply held past the allowance, a real-time pace), never for speed or
 The allowances are how long a bus waits for a reply beyond its wire time.  Across a pty or from a
 real-time simulator a reply can be late when the machine is loaded: raise ``ICS35_TEST_TIME_SCALE``
 (``ICS35_TEST_TIME_SCALE=3 make test``) and every allowance and guard grows by that factor.  A test
-never asserts that something was fast.
+never asserts that something was fast.  A test that counts the replies of servos that are there uses
+:data:`NO_TIMEOUTS` (and asks only the IDs involved: a silent one costs a whole allowance).
+:func:`or_describe` guards a wait against a hang and, if it trips, says what the line was doing.
 """
 
 from __future__ import annotations
