@@ -187,7 +187,9 @@ def test_a_wake_stops_it_at_the_next_boundary_and_other_threads_run_meanwhile() 
         counter.join()
         burst.close()
         ser.close()
-    assert status == WOKEN and 3 <= len(records) < 64
+    # Stopped at a boundary before the plan's end, every transaction whole.  (How many went before the wake
+    # depends on how soon the far end's process got a core: under load, one.)
+    assert status == WOKEN and 1 <= len(records) < 64
     assert all(data == answer(k, tx) for k, ((data, _, _), (tx, *_)) in enumerate(zip(records, plan(64), strict=False)))
     assert progress > 1000  # the counting thread ran while the burst did
 
