@@ -21,7 +21,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import NO_TIMEOUTS, REAL_TIME
+from tests.support.timing import NO_TIMEOUTS_OPTION, REAL_TIME_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -31,10 +31,10 @@ pytestmark = [
 SIM_IDS = [2, 5, 17]
 SIM_BAUD = 625000
 # The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
-LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
+LINE = [*REAL_TIME_OPTION, "--retries", "1"]
 # For commands to servos that are there, every one expected to answer: long enough for a machine stalled
 # for half a second (a timeout costs it only where a reply never comes).
-ANSWERED = ["--timeout", str(NO_TIMEOUTS["adapter_latency"]), "--retries", "1"]
+ANSWERED = [*NO_TIMEOUTS_OPTION, "--retries", "1"]
 
 
 def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:

@@ -12,7 +12,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import NO_TIMEOUTS, REAL_TIME
+from tests.support.timing import NO_TIMEOUTS_OPTION, REAL_TIME_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -20,10 +20,10 @@ pytestmark = [
 ]
 
 # The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
-LINE = ["--timeout", str(REAL_TIME["adapter_latency"]), "--retries", "1"]
+LINE = [*REAL_TIME_OPTION, "--retries", "1"]
 # Where the test counts replies and none may be missed: an allowance no loaded machine runs out of, so only
 # the IDs that should answer (and one that should not) are probed.
-ANSWERED = ["--timeout", str(NO_TIMEOUTS["adapter_latency"]), "--retries", "1"]
+ANSWERED = [*NO_TIMEOUTS_OPTION, "--retries", "1"]
 
 
 def ics35(port: str, *args: str) -> subprocess.CompletedProcess[str]:

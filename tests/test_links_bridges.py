@@ -24,7 +24,7 @@ from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.support.links import Rfc2217Bridge, TcpBridge
-from tests.support.timing import NO_TIMEOUTS
+from tests.support.timing import NO_TIMEOUTS, NO_TIMEOUTS_OPTION
 
 pytestmark = pytest.mark.pty
 
@@ -156,13 +156,12 @@ async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> 
 
 
 def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, cli: Any) -> None:
-    answered = ["--timeout", str(NO_TIMEOUTS["adapter_latency"])]
-    result = cli("--port", tcp_bridge.url, *answered, "scan", "--ids", "0-4", "--quick", "--json")
+    result = cli("--port", tcp_bridge.url, *NO_TIMEOUTS_OPTION, "scan", "--ids", "0-4", "--quick", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert [s["id"] for s in data["servos"]] == [1, 2, 3]
     assert data["rate_blind"] is True
-    result = cli("--port", tcp_bridge.url, *answered, "scan", "--ids", "1-3")
+    result = cli("--port", tcp_bridge.url, *NO_TIMEOUTS_OPTION, "scan", "--ids", "1-3")
     assert result.code == 0, result.err
     assert "does not carry the baud rate" in result.err
     assert "3 servo(s) found" in result.out

@@ -21,7 +21,7 @@ import serial.serialposix as serialposix
 from ics35_async import DirectionControlNotSupported, open_bus
 from ics35_async.errors import InvalidArgument, SerialPortError
 from ics35_async.sim import start_subprocess, stop_subprocess
-from tests.support.timing import NO_TIMEOUTS
+from tests.support.timing import NO_TIMEOUTS, NO_TIMEOUTS_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -117,8 +117,7 @@ def test_cli_direction_on_a_port_without_rs485_mode_exits_3(far_pty: str, cli: A
 
 def test_cli_direction_after_the_command_reaches_the_driver(far_pty: str, rs485_driver: list[int], cli: Any) -> None:
     # The reply is expected (a pty served by another process answers late on a loaded machine).
-    answered = ["--timeout", str(NO_TIMEOUTS["adapter_latency"])]
-    result = cli("--port", far_pty, *answered, "get", "1", "stretch", "--direction", "rts-inverted")
+    result = cli("--port", far_pty, *NO_TIMEOUTS_OPTION, "get", "1", "stretch", "--direction", "rts-inverted")
     assert result.code == 0, result.err
     assert rs485_driver[-1] & 0b111 == ENABLED | RTS_AFTER_SEND
 

@@ -60,6 +60,9 @@ REAL_TIME: TimingOverrides = {**FAST, "adapter_latency": scaled(0.050)}
 # so this one is long enough for a machine stalled for half a second.
 NO_TIMEOUTS: TimingOverrides = {**FAST, "adapter_latency": scaled(0.5)}
 GUARD = scaled(10.0)  # seconds: only against hangs, never a timing assertion
+# The same allowances as ``ics35`` options, for a test that runs the CLI across a real-time boundary.
+REAL_TIME_OPTION = ("--timeout", str(REAL_TIME["adapter_latency"]))
+NO_TIMEOUTS_OPTION = ("--timeout", str(NO_TIMEOUTS["adapter_latency"]))
 
 
 async def or_describe(awaitable: Awaitable[T], bus: Bus, seconds: float = GUARD) -> T:
