@@ -81,11 +81,15 @@ typecheck: $(STAMP)
 # cores pays; --dist loadfile keeps each module on one worker (module-scoped servers started once, the
 # browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names).
 # Then the tests marked realtime, one at a time, alone: they judge real elapsed time.  One coverage report.
+# The second pass collects only the modules that mark a test realtime (collecting every module takes
+# seconds); tests/conftest.py stops the run if a realtime test is marked where this list cannot see it.
 PYTEST_WORKERS ?= 4
 COV := --cov=ics35_async --cov-branch
+REALTIME_MODULES = $(shell grep -l "mark\.realtime" tests/test_*.py)
 pytest: $(STAMP)
 	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile -m "not realtime" $(COV) --cov-report=
-	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered
+	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
+		$(REALTIME_MODULES)
 
 # The quick checks run beside pytest (make -j): they use the CPU while the tests mostly wait.
 test: $(STAMP)

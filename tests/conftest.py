@@ -17,11 +17,13 @@ Markers (``pyproject.toml``): ``slow``, ``pty`` and ``realtime``; see the testin
 
 from __future__ import annotations
 
+import functools
 import itertools
 import signal
 import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -130,6 +132,18 @@ def pty_sim() -> Iterator[Callable[..., PtySim]]:
     yield start
     codes = [server.stop() for server in started]
     assert codes == [0] * len(started), f"a simulator server did not exit cleanly on SIGTERM: {codes}"
+
+
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """make test's real-time pass collects only the modules whose text marks a test realtime (see the
+    Makefile): a realtime test marked elsewhere (a conftest, a helper) would run in neither pass."""
+    if item.get_closest_marker("realtime") and "mark.realtime" not in _module_text(item.path):
+        raise pytest.UsageError(f"{item.nodeid}: mark realtime tests in their own module (pytest.mark.realtime)")
+
+
+@functools.cache
+def _module_text(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

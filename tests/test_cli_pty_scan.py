@@ -53,8 +53,9 @@ def test_scan_lists_each_servo_once_when_the_line_ignores_rates(rate_blind_port:
 
 
 def test_set_id_refuses_several_servos_and_renumbers_a_lone_one(rate_blind_port: str, lone_servo_port: str) -> None:
-    proc = ics35(rate_blind_port, *ANSWERED, "set-id", "9", "--yes")
-    assert proc.returncode == 5 and "IDs 2, 5, 17" in proc.stderr
+    # -v: should a servo be missed, the failure shows each transaction that failed and how.
+    proc = ics35(rate_blind_port, *ANSWERED, "set-id", "9", "--yes", "-v")
+    assert proc.returncode == 5 and "IDs 2, 5, 17" in proc.stderr, proc.stderr
 
     proc = ics35(lone_servo_port, *ANSWERED, "set-id", "9", "--yes", "--json")
     assert proc.returncode == 0, proc.stderr

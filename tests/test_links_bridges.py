@@ -11,6 +11,7 @@ such a port runs: asyncio (auto), thread and anyio.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import socket
 import threading
@@ -210,8 +211,12 @@ def hang_up_server() -> Iterator[int]:
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     yield int(listener.getsockname()[1])
+    # close() alone does not wake a thread blocked in accept() on Linux; shutdown() does.
+    with contextlib.suppress(OSError):
+        listener.shutdown(socket.SHUT_RDWR)
     listener.close()
     thread.join(5)
+    assert not thread.is_alive()
 
 
 def test_cli_dropped_connection_exits_3(hang_up_server: int, cli: Any) -> None:

@@ -145,10 +145,10 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
 # --------------------------------------------------------------------------- the soaks, short
 
 
-@pytest.mark.timeout(300)  # 7 s here; about 50 s under four CPU burners with coverage
+@pytest.mark.timeout(300)  # 3 s alone on two cores; many times that under CPU burners with coverage
 @pytest.mark.slow
 async def test_chaos_short() -> None:
-    report = await chaos_soak(transactions=12_000, baseline_transactions=4_000, seed=5)
+    report = await chaos_soak(transactions=12_000, baseline_transactions=1_000, seed=5)
     assert report.transactions >= 12_000
     assert 0.01 < report.faulted_fraction < 0.03
     assert set(report.fault_kinds) == set(FAULT_KINDS)
