@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 import click
@@ -100,6 +100,13 @@ def yes_option(f: Callable[..., T]) -> Callable[..., T]:
 def all_ids_option(text: str) -> Callable[[Callable[..., T]], Callable[..., T]]:
     """``--ids`` for a command that looks along the whole line: every ID unless told fewer; ``text`` is the help."""
     return click.option("--ids", "ids", type=ID_LIST, default="all", show_default=True, help=text)
+
+
+def choice_option(
+    flag: str, choices: Sequence[str], default: str, text: str
+) -> Callable[[Callable[..., T]], Callable[..., T]]:
+    """``flag CHOICE``: one of the library's ``choices``, ``default`` shown; ``text`` is the help."""
+    return click.option(flag, type=click.Choice(list(choices)), default=default, show_default=True, help=text)
 
 
 def seconds_option(

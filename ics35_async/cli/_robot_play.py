@@ -20,7 +20,8 @@ from rich.markup import escape
 from ..errors import IcsError
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
-from ._common import err, out, seconds_option, settings_of
+from ..stream import ON_CLOSE
+from ._common import choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
     first_pose,
     load_input_file,
@@ -88,13 +89,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 )
 @click.option("--loop", is_flag=True, help="Play again and again until Ctrl-C (or --seconds).")
 @seconds_option("--seconds", "Stop after this long.", low=0.1)
-@click.option(
-    "--on-stop",
-    type=click.Choice(["hold", "free"]),
-    default="hold",
-    show_default=True,
-    help="What the joints do once the motion ends or is stopped.",
-)
+@choice_option("--on-stop", ON_CLOSE, "hold", "What the joints do once the motion ends or is stopped.")
 @seconds_option(
     "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )

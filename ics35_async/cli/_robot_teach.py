@@ -18,10 +18,20 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..errors import IcsError, InvalidArgument
-from ..robot import Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
+from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
-from ._common import CliError, ExitCode, Settings, check_output_path, err, out, seconds_option, settings_of
+from ._common import (
+    CliError,
+    ExitCode,
+    Settings,
+    check_output_path,
+    choice_option,
+    err,
+    out,
+    seconds_option,
+    settings_of,
+)
 from ._console import signed_tenths
 from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
 from ._robot_view import Screen, joint_table
@@ -99,13 +109,7 @@ joints_option = click.option("--joints", default=None, help="Comma-separated joi
 @click.argument("robot_file", metavar="ROBOT.toml")
 @click.argument("out_file", metavar="OUT.json")
 @joints_option
-@click.option(
-    "--profile",
-    type=click.Choice(["minjerk", "linear"]),
-    default="minjerk",
-    show_default=True,
-    help="The profile the motion's segments use.",
-)
+@choice_option("--profile", PROFILES, "minjerk", "The profile the motion's segments use.")
 @click.option("--name", default=None, help="The motion's name (default: the file's).")
 @seconds_option(
     "--lead",

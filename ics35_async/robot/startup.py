@@ -25,11 +25,11 @@ from .. import units
 from ..bus import BusOptions, open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
+from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
 from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
-ON_CLOSE = ("hold", "free")
 # open_bus options the description sets per line, so they may not be given to open_robot.
 _PER_LINE = frozenset({"baudrate", "echo", "retries"})
 
