@@ -394,7 +394,13 @@ def test_loop_url_read_with_blocking_reads() -> None:
     try:
         assert port.read() == b""  # a look, not a wait
         port.write(b"\x80\x3a\x4c")
-        assert port.read(block=True) == b"\x80\x3a\x4c"
+        # A blocking read returns what has come (at least a byte), not a whole command: read by count.
+        got = b""
+        while len(got) < 3:
+            chunk = port.read(block=True)
+            assert chunk, got  # nothing came within the port's read timeout
+            got += chunk
+        assert got == b"\x80\x3a\x4c"
     finally:
         port.close()
 
