@@ -2,8 +2,9 @@
 
 Every command here is a subprocess (``python -m ics35_async.cli``) opening the
 pty the simulator subprocess prints, exactly as a user's shell would.  The
-servers run in fast mode; the reply allowance (``--timeout``) stays generous
-enough for a loaded CI machine, and ``--retries`` covers a rare late reply.
+servers run in real time (the pty server's default); the reply allowance
+(``--timeout``) is the timing profile's no-timeouts one, long enough for a
+loaded CI machine, and ``--retries`` covers a rare late reply.
 """
 
 from __future__ import annotations
