@@ -123,7 +123,7 @@ def test_it_stops_at_a_silent_servo_at_its_deadline(pty_pair: tuple[int, int]) -
     master, slave = pty_pair
     responder = serve(master, lambda k, tx: tx if k == 5 else answer(k, tx))  # ID 5 only echoes
     burst = _burst.Burst(slave)
-    # The allowance every answer gets from a responder thread of this busy process; ID 5's silence waits it out.
+    # ID 5's silence waits out the whole allowance (ALLOWANCE: every other answer is expected).
     status, _, records = burst.run(time.monotonic() + ALLOWANCE, plan())
     ended = time.monotonic()
     responder.stop()
