@@ -8,9 +8,11 @@ driver and async library.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
+import time
 import tty
 from typing import Any
 
@@ -19,7 +21,7 @@ import pytest
 
 from ics35_async import IcsError, PortLost, ReplyDataError, open_bus, protocol
 from tests.support.fuzzing import healthy_answer
-from tests.support.timing import NO_TIMEOUTS, REAL_TIME
+from tests.support.timing import GUARD, NO_TIMEOUTS, REAL_TIME
 
 try:
     import termios
@@ -169,3 +171,88 @@ def test_a_bus_opened_and_closed_at_once_under_the_anyio_driver_closes(library: 
                 pass
 
     anyio.run(main, backend=library)
+
+
+# ---------------------------------------------------------------------------- late replies at a resync's end
+
+
+class LateReplies:
+    """The far end of a pty: echoes each command at once and sends its reply ``delays[k]`` seconds
+    later, past the allowance, so that it lands in the resync that follows the timeout, at its end,
+    or just after it.  Counts every byte it sends."""
+
+    def __init__(self, master: int, delays: list[float]) -> None:
+        self.master, self.delays, self.sent = master, delays, 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.serve, daemon=True)
+        self.thread.start()
+
+    def serve(self) -> None:
+        k = 0
+        while not self.stop.is_set():
+            if not select.select([self.master], [], [], 0.05)[0]:
+                continue
+            data = os.read(self.master, 64)
+            self.sent += os.write(self.master, data)
+            if k < len(self.delays):
+                time.sleep(self.delays[k])
+                k += 1
+            self.sent += os.write(self.master, healthy_answer(data, 115200, b"\x05"))
+
+
+async def _busy_neighbour() -> None:
+    # Another part of the program that holds the event loop for a moment at every turn (a web
+    # server, a planner): the time between the loop's look at the port and a timer's callback grows.
+    while True:
+        time.sleep(0.002)
+        await anyio.sleep(0)
+
+
+@pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
+@pytest.mark.parametrize(("driver", "library"), PARITY_CASES, ids=[f"{d}-{lib}" for d, lib in PARITY_CASES])
+def test_a_late_reply_that_lands_as_a_resync_ends_is_counted_not_silently_dropped(driver: str, library: str) -> None:
+    # A resync ends by dropping what the port still holds.  Bytes that came but were never read (the
+    # loop was busy) are a late reply all the same: a scan takes a servo whose late reply left no trace
+    # for absent.  Whatever the far end sent must show in the statistics: in a transaction, or as
+    # stray bytes.
+    master, slave = os.openpty()
+    tty.setraw(master)
+    # A short allowance and no learning of a slow link (which would soon wait for these replies).
+    allowance, quiet = 0.004, 0.002
+    # Each reply comes later by a step, from the allowance's end to well past the resync's.
+    far = LateReplies(master, [allowance + 0.0002 * k for k in range(80)])
+    try:
+
+        async def main() -> None:
+            with anyio.fail_after(60):
+                async with (
+                    open_bus(
+                        os.ttyname(slave),
+                        driver=driver,
+                        adapter_latency=allowance,
+                        quiet_time=quiet,
+                        link_extra_max=0.0,
+                    ) as bus,
+                    anyio.create_task_group() as group,
+                ):
+                    group.start_soon(_busy_neighbour)
+                    for _ in far.delays:
+                        with contextlib.suppress(IcsError):
+                            await bus.request(protocol.ReadParam(3, protocol.Param.STRETCH), retries=0)
+
+                    def counted() -> int:
+                        stats = bus.stats
+                        return stats.total.bytes_rx + stats.stray_bytes
+
+                    with anyio.move_on_after(GUARD):  # the last late reply comes and is read
+                        while counted() != far.sent:
+                            await anyio.sleep(0.01)
+                    assert counted() == far.sent, (far.sent, bus.stats)
+                    group.cancel_scope.cancel()
+
+        anyio.run(main, backend=library)
+    finally:
+        far.stop.set()
+        far.thread.join()
+        os.close(master)
+        os.close(slave)

@@ -219,12 +219,13 @@ def test_discard_input_drops_pending_bytes(pty: Pty) -> None:
     port = open_at(pty.port)
     assert isinstance(port, TtyPort)
     try:
-        pty.write(b"late bytes of a failed transaction")
+        late = b"late bytes of a failed transaction"
+        pty.write(late)
         deadline = time.monotonic() + WAIT
-        while port.serial.in_waiting == 0:
+        while port.serial.in_waiting < len(late):
             assert time.monotonic() < deadline
             time.sleep(0.001)
-        port.discard_input()
+        assert port.discard_input() == len(late)  # counted, as the engine counts them (stray bytes)
         assert port.serial.in_waiting == 0
         pty.write(b"fresh")
         assert read_until(port, 5) == b"fresh"

@@ -173,7 +173,9 @@ class DriverCore:
     def _act(self, port: Port, out: bytes | FlushInput) -> None:
         """Do what the engine answered: write its bytes, after dropping stale input if it asks."""
         if isinstance(out, FlushInput):
-            port.discard_input()
+            dropped = port.discard_input()
+            if dropped:
+                self.engine.input_dropped(dropped)
             if out.then is None:
                 return
             out = out.then

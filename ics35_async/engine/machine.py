@@ -371,6 +371,14 @@ class LineEngine:
             self._resync(now)
         return None
 
+    def input_dropped(self, count: int) -> None:
+        """The driver, told to drop the port's input as a resync ended (:class:`FlushInput`), found
+        ``count`` bytes there unread: bytes of no transaction (a late reply that came as the resync
+        ended), counted as stray so that nothing that came leaves no trace."""
+        self.counters.stray += count
+        if self.debug:
+            log.debug("%d byte(s) dropped as a resync ended", count)
+
     def line_error(self, count: int) -> None:
         """The port saw ``count`` bytes arrive with parity or framing errors."""
         self.counters.line_errors += count

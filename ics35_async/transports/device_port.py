@@ -83,12 +83,18 @@ class DevicePort:
             self.device.write(data)
         return True
 
-    def discard_input(self) -> None:
-        """Drop what arrived but was not read (a real port's OS buffer), and the device's own if it can."""
-        self._chunks.clear()
+    def discard_input(self) -> int:
+        """Drop what arrived but was not read (a real port's OS buffer), and the device's own if it can;
+        return how many bytes that was (the device's count where it gives one)."""
+        chunks = self._chunks
+        dropped = sum(map(len, chunks))
+        chunks.clear()
         discard = getattr(self.device, "discard_input", None)
         if discard is not None:
-            discard()
+            more = discard()
+            if isinstance(more, int):
+                dropped += more
+        return dropped
 
     def close(self) -> None:
         if self._gone:

@@ -14,7 +14,8 @@ Each kind offers ``read()`` (what has arrived, ``b""`` if nothing; raises
 :class:`OSError` when the port is gone -- a hang-up, never a flushed input),
 ``bad`` (bytes that arrived damaged since the driver last took the count),
 ``write(data)`` (False when part of it waits for the port: a tty's
-``pending``), ``discard_input()`` and ``close()``.  How to wait for input
+``pending``), ``discard_input()`` (drop what arrived unread, and say how
+many bytes that was) and ``close()``.  How to wait for input
 is the driver's own business.
 """
 

@@ -79,16 +79,24 @@ class SerialPort:
             raise OSError(errno.EIO, f"serial write failed: {exc}") from exc
         return True
 
-    def discard_input(self) -> None:
+    def discard_input(self) -> int:
+        """Drop what pyserial holds unread; return how many bytes it said were waiting just before.
+
+        (pyserial has no way to drop and count at once: bytes that come in between go uncounted.)
+        """
         # pyserial's RFC 2217 purge waits for the far end's answer (in 50 ms sleeps), past the
         # next transaction's deadline; the engine's quiet time does the job there instead.
-        if not isinstance(self.serial, serial.rfc2217.Serial):
+        if isinstance(self.serial, serial.rfc2217.Serial):
+            return 0
+        waiting = 0
+        self._discards += 1
+        try:
+            with contextlib.suppress(Exception):
+                waiting = self.serial.in_waiting
+                self.serial.reset_input_buffer()
+        finally:
             self._discards += 1
-            try:
-                with contextlib.suppress(Exception):
-                    self.serial.reset_input_buffer()
-            finally:
-                self._discards += 1
+        return waiting
 
     def close(self) -> None:
         # pyserial's socket and RFC 2217 handlers shut their socket, then sleep 0.3 s "to give
@@ -128,8 +136,8 @@ class ReaderThread:
     def write(self, data: bytes) -> None:
         self.port.write(data)
 
-    def discard_input(self) -> None:
-        self.port.discard_input()
+    def discard_input(self) -> int:
+        return self.port.discard_input()
 
     def disconnect(self) -> None:
         self._stop.set()

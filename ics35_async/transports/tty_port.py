@@ -28,6 +28,8 @@ except ImportError:  # no POSIX terminals (Windows): nothing here is chosen for 
 log = logging.getLogger("ics35_async.transports")
 
 READ_SIZE = 4096
+DISCARD_READS = 16
+"""Reads a discard makes at most before it flushes the rest unread (a line that never stops talking)."""
 
 
 class ParityMarks:
@@ -49,6 +51,10 @@ class ParityMarks:
     def pending(self) -> bool:
         """A mark split across reads waits for its next byte: the next chunk must be decoded."""
         return bool(self._pending)
+
+    def forget(self) -> None:
+        """Drop half a mark (the input it belonged to was discarded)."""
+        self._pending = b""
 
     def decode(self, data: bytes) -> tuple[bytes, int]:
         if self._pending:
@@ -182,10 +188,29 @@ class TtyPort:
             del self.pending[:n]
         return not self.pending
 
-    def discard_input(self) -> None:
-        """Drop what sits in the OS input buffer (a port that is gone says so at its next read)."""
-        with contextlib.suppress(OSError, TermiosError):
-            termios.tcflush(self.fd, termios.TCIFLUSH)
+    def discard_input(self) -> int:
+        """Drop what sits in the OS input buffer; return how many bytes that was.
+
+        Read, not flushed with ``tcflush``: bytes that came while the driver was not looking
+        (a late reply landing as a resync ends) are counted, never lost without a trace.  A
+        port that is gone says so at its next read.
+        """
+        dropped = 0
+        marks = self._marks
+        with contextlib.suppress(OSError):
+            for _ in range(DISCARD_READS):
+                data = os.read(self.fd, READ_SIZE)
+                if not data:
+                    break
+                if marks is not None:
+                    data, _ = marks.decode(data)  # bytes of no transaction: their damage is nobody's
+                dropped += len(data)
+            else:  # still talking: what is left goes unread
+                with contextlib.suppress(TermiosError):
+                    termios.tcflush(self.fd, termios.TCIFLUSH)
+        if marks is not None:
+            marks.forget()
+        return dropped
 
     def close(self) -> None:
         if self.closed:

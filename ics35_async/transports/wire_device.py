@@ -37,7 +37,8 @@ class WireDevice(Protocol):
     any thread.  ``disconnect`` detaches the host.
 
     A device may also offer ``discard_input()`` (drop what it has not
-    delivered yet), called when the line resyncs; it is optional.
+    delivered yet, returning how many bytes that was if it knows), called
+    when the line resyncs; it is optional.
     """
 
     def connect(self, host: HostSide, baudrate: int) -> None: ...
