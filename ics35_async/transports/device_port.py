@@ -8,6 +8,7 @@ which reads them on its own side, never from inside ``write``.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 from collections import deque
@@ -87,8 +88,10 @@ class DevicePort:
         """Drop what arrived but was not read (a real port's OS buffer), and the device's own if it can;
         return how many bytes that was (the device's count where it gives one)."""
         chunks = self._chunks
-        dropped = sum(map(len, chunks))
-        chunks.clear()
+        dropped = 0
+        with contextlib.suppress(IndexError):  # a device's thread may deliver meanwhile: one chunk at a time
+            while chunks:
+                dropped += len(chunks.popleft())
         discard = getattr(self.device, "discard_input", None)
         if discard is not None:
             more = discard()
