@@ -9,7 +9,6 @@ tests/test_burst_engine.py.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import select
 import sys
@@ -75,18 +74,36 @@ class Responder:
         self._thread.join()
 
 
+class PtyPair:
+    """A raw pty: ``master, slave = pair``; :meth:`hang_up` closes the master (once: a descriptor
+    number closed twice may by then be another thread's)."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        attrs = termios.tcgetattr(self.slave)
+        attrs[3] &= ~termios.ECHO
+        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+        os.set_blocking(self.slave, False)
+        self._open = [self.master, self.slave]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter((self.master, self.slave))
+
+    def hang_up(self) -> None:
+        self._open.remove(self.master)
+        os.close(self.master)
+
+    def close(self) -> None:
+        while self._open:
+            os.close(self._open.pop())
+
+
 @pytest.fixture
-def pty_pair() -> Iterator[tuple[int, int]]:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    attrs = termios.tcgetattr(slave)
-    attrs[3] &= ~termios.ECHO
-    termios.tcsetattr(slave, termios.TCSANOW, attrs)
-    os.set_blocking(slave, False)
-    yield master, slave
-    for fd in (master, slave):
-        with contextlib.suppress(OSError):
-            os.close(fd)
+def pty_pair() -> Iterator[PtyPair]:
+    pair = PtyPair()
+    yield pair
+    pair.close()
 
 
 def plan(n: int = 32, allowance: float = ALLOWANCE) -> list[tuple[bytes, int, int, float]]:
@@ -104,7 +121,7 @@ def test_the_path_reports_itself_built_and_is_off_unless_asked(monkeypatch: pyte
     assert burst_path()[0] is False
 
 
-def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: tuple[int, int]) -> None:
+def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master)
     burst = _burst.Burst(slave)
@@ -119,7 +136,7 @@ def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: tuple[int, i
     burst.close()
 
 
-def test_it_stops_at_a_silent_servo_at_its_deadline(pty_pair: tuple[int, int]) -> None:
+def test_it_stops_at_a_silent_servo_at_its_deadline(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master, lambda k, tx: tx if k == 5 else answer(k, tx))  # ID 5 only echoes
     burst = _burst.Burst(slave)
@@ -134,7 +151,7 @@ def test_it_stops_at_a_silent_servo_at_its_deadline(pty_pair: tuple[int, int]) -
     assert len(responder.commands) == 6  # nothing was sent after it
 
 
-def test_it_stops_at_an_echo_that_differs(pty_pair: tuple[int, int]) -> None:
+def test_it_stops_at_an_echo_that_differs(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master, lambda k, tx: b"\x00" + answer(k, tx)[1:] if k == 3 else answer(k, tx))
     status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, plan())
@@ -143,7 +160,7 @@ def test_it_stops_at_an_echo_that_differs(pty_pair: tuple[int, int]) -> None:
     assert records[3][0].startswith(b"\x00")
 
 
-def test_it_stops_at_more_bytes_than_expected(pty_pair: tuple[int, int]) -> None:
+def test_it_stops_at_more_bytes_than_expected(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master, lambda k, tx: answer(k, tx) + b"\x01\x02" if k == 2 else answer(k, tx))
     status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, plan())
@@ -151,7 +168,7 @@ def test_it_stops_at_more_bytes_than_expected(pty_pair: tuple[int, int]) -> None
     assert status == OVERRUN and len(records) == 3 and len(records[2][0]) == 8
 
 
-def test_a_marked_byte_ends_the_burst_and_comes_as_it_came(pty_pair: tuple[int, int]) -> None:
+def test_a_marked_byte_ends_the_burst_and_comes_as_it_came(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     assert enable_parity_marks(slave)  # a genuine 0xFF now arrives doubled: FF FF
     reply = answer(0, protocol.position_tx(1, 7500))[:5] + b"\xff"
@@ -195,7 +212,7 @@ def test_a_wake_stops_it_at_the_next_boundary_and_other_threads_run_meanwhile() 
     assert progress > 1000  # the counting thread ran while the burst did
 
 
-def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: tuple[int, int]) -> None:
+def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master)
     burst = _burst.Burst(slave)
@@ -212,12 +229,12 @@ def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: tuple[int, i
     burst.close()
 
 
-def test_a_hang_up_ends_the_burst(pty_pair: tuple[int, int]) -> None:
+def test_a_hang_up_ends_the_burst(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
 
     def hang_up(k: int, tx: bytes) -> bytes | None:
         if k == 2:
-            os.close(master)
+            pty_pair.hang_up()
             return None
         return answer(k, tx)
 
@@ -227,7 +244,7 @@ def test_a_hang_up_ends_the_burst(pty_pair: tuple[int, int]) -> None:
     assert status == HANGUP and len(records) == 3
 
 
-def test_bad_plans_are_refused_before_anything_is_written(pty_pair: tuple[int, int]) -> None:
+def test_bad_plans_are_refused_before_anything_is_written(pty_pair: PtyPair) -> None:
     _, slave = pty_pair
     burst = _burst.Burst(slave)
     for bad in ([], [(b"", 6, 3, 0.1)], [(b"\x80\x00\x00", 6, 7, 0.1)], [("text", 6, 3, 0.1)], [(b"\x80", 1)]):
