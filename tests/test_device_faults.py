@@ -108,36 +108,55 @@ def test_every_driver_asks_the_kernel_to_mark_parity_errors(driver: str, library
         os.close(slave)
 
 
-class MarkingServo:
-    """The far end of a pty: answers every command as a healthy servo would, except that the
-    ``damaged``-th answer comes with one reply byte as the kernel marks a byte received with a
-    parity error (``FF 00 x``).  A pty has no wire and so no parity errors of its own; with PARMRK
-    cleared on the tty after the driver opened it, the marks the port decodes are these."""
+class FarEnd:
+    """The far end of a pty (its master side, raw), served by a thread: :meth:`answer` is what it
+    does with each command.  :meth:`close` stops the thread, then closes both ends."""
 
-    def __init__(self, master: int, damaged: int) -> None:
-        self.master, self.damaged, self.answers = master, damaged, 0
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.master)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.serve, daemon=True)
         self.thread.start()
 
     def serve(self) -> None:
         while not self.stop.is_set():
-            if not select.select([self.master], [], [], 0.05)[0]:
-                continue
-            data = os.read(self.master, 64)
-            reply = healthy_answer(data, 115200, b"\x05")
-            self.answers += 1
-            if self.answers == self.damaged:
-                reply = reply[:1] + b"\xff\x00" + reply[1:]  # the second reply byte arrived damaged
-            os.write(self.master, data + reply)
+            if select.select([self.master], [], [], 0.05)[0]:
+                self.answer(os.read(self.master, 64))
+
+    def answer(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        os.close(self.master)
+        os.close(self.slave)
+
+
+class MarkingServo(FarEnd):
+    """Answers every command as a healthy servo would, except that the ``damaged``-th answer comes
+    with one reply byte as the kernel marks a byte received with a parity error (``FF 00 x``).  A
+    pty has no wire and so no parity errors of its own; with PARMRK cleared on the tty after the
+    driver opened it, the marks the port decodes are these."""
+
+    def __init__(self, damaged: int) -> None:
+        self.damaged, self.answers = damaged, 0
+        super().__init__()
+
+    def answer(self, data: bytes) -> None:
+        reply = healthy_answer(data, 115200, b"\x05")
+        self.answers += 1
+        if self.answers == self.damaged:
+            reply = reply[:1] + b"\xff\x00" + reply[1:]  # the second reply byte arrived damaged
+        os.write(self.master, data + reply)
 
 
 @pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
 @pytest.mark.parametrize(("driver", "library"), PARITY_CASES, ids=[f"{d}-{lib}" for d, lib in PARITY_CASES])
 def test_on_every_driver_a_marked_byte_fails_its_transaction_and_is_counted(driver: str, library: str) -> None:
-    master, slave = os.openpty()
-    tty.setraw(master)
-    far = MarkingServo(master, damaged=2)
+    far = MarkingServo(damaged=2)
+    slave = far.slave
     try:
 
         async def main() -> None:
@@ -156,10 +175,7 @@ def test_on_every_driver_a_marked_byte_fails_its_transaction_and_is_counted(driv
 
         anyio.run(main, backend=library)
     finally:
-        far.stop.set()
-        far.thread.join()
-        os.close(master)
-        os.close(slave)
+        far.close()
 
 
 @pytest.mark.parametrize("library", ["asyncio", "trio"])
@@ -176,28 +192,21 @@ def test_a_bus_opened_and_closed_at_once_under_the_anyio_driver_closes(library: 
 # ---------------------------------------------------------------------------- late replies at a resync's end
 
 
-class LateReplies:
-    """The far end of a pty: echoes each command at once and sends its reply ``delays[k]`` seconds
-    later, past the allowance, so that it lands in the resync that follows the timeout, at its end,
-    or just after it.  Counts every byte it sends."""
+class LateReplies(FarEnd):
+    """Echoes each command at once and sends its reply ``delays[k]`` seconds later, past the
+    allowance, so that it lands in the resync that follows the timeout, at its end, or just after
+    it.  Counts every byte it sends."""
 
-    def __init__(self, master: int, delays: list[float]) -> None:
-        self.master, self.delays, self.sent = master, delays, 0
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.serve, daemon=True)
-        self.thread.start()
+    def __init__(self, delays: list[float]) -> None:
+        self.delays, self.sent, self.answers = delays, 0, 0
+        super().__init__()
 
-    def serve(self) -> None:
-        k = 0
-        while not self.stop.is_set():
-            if not select.select([self.master], [], [], 0.05)[0]:
-                continue
-            data = os.read(self.master, 64)
-            self.sent += os.write(self.master, data)
-            if k < len(self.delays):
-                time.sleep(self.delays[k])
-                k += 1
-            self.sent += os.write(self.master, healthy_answer(data, 115200, b"\x05"))
+    def answer(self, data: bytes) -> None:
+        self.sent += os.write(self.master, data)
+        if self.answers < len(self.delays):
+            time.sleep(self.delays[self.answers])
+        self.answers += 1
+        self.sent += os.write(self.master, healthy_answer(data, 115200, b"\x05"))
 
 
 async def _busy_neighbour() -> None:
@@ -215,19 +224,17 @@ def test_a_late_reply_that_lands_as_a_resync_ends_is_counted_not_silently_droppe
     # loop was busy) are a late reply all the same: a scan takes a servo whose late reply left no trace
     # for absent.  Whatever the far end sent must show in the statistics: in a transaction, or as
     # stray bytes.
-    master, slave = os.openpty()
-    tty.setraw(master)
     # A short allowance and no learning of a slow link (which would soon wait for these replies).
     allowance, quiet = 0.004, 0.002
     # Each reply comes later by a step, from the allowance's end to well past the resync's.
-    far = LateReplies(master, [allowance + 0.0002 * k for k in range(80)])
+    far = LateReplies([allowance + 0.0002 * k for k in range(80)])
     try:
 
         async def main() -> None:
             with anyio.fail_after(60):
                 async with (
                     open_bus(
-                        os.ttyname(slave),
+                        os.ttyname(far.slave),
                         driver=driver,
                         adapter_latency=allowance,
                         quiet_time=quiet,
@@ -252,7 +259,4 @@ def test_a_late_reply_that_lands_as_a_resync_ends_is_counted_not_silently_droppe
 
         anyio.run(main, backend=library)
     finally:
-        far.stop.set()
-        far.thread.join()
-        os.close(master)
-        os.close(slave)
+        far.close()
