@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import re
 import signal
 import subprocess
 from collections.abc import Callable, Iterator
@@ -117,20 +118,30 @@ class PtySim:
         return self.code
 
 
+SIM_NOTES = Path(__file__).resolve().parent.parent / "build" / "pty-sim-notes"
+
+
 @pytest.fixture
-def pty_sim() -> Iterator[Callable[..., PtySim]]:
-    """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS`` (notes to /dev/null);
-    ``.path`` is its pty.  Every server still running is stopped after the test, and each must have exited
-    cleanly (0) on SIGTERM."""
+def pty_sim(request: pytest.FixtureRequest) -> Iterator[Callable[..., PtySim]]:
+    """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS``; ``.path`` is its pty.
+    Every server still running is stopped after the test, and each must have exited cleanly (0) on
+    SIGTERM.  Their notes (what each served, and on exit how many transactions and any bytes no
+    client took) go to ``build/pty-sim-notes/``, one file per test: when a test fails, they say
+    which side of the pty lost what."""
     started: list[PtySim] = []
+    SIM_NOTES.mkdir(parents=True, exist_ok=True)
+    name = re.sub(r"[^\w.-]+", "_", request.node.nodeid)[-150:]
+    with open(SIM_NOTES / f"{name}.log", "w", encoding="utf-8") as notes:
 
-    def start(*args: str) -> PtySim:
-        proc, path = start_subprocess(list(args), quiet=True)
-        started.append(PtySim(proc, path))
-        return started[-1]
+        def start(*args: str) -> PtySim:
+            notes.write(f"started with {list(args)}\n")
+            notes.flush()
+            proc, path = start_subprocess(list(args), notes=notes)
+            started.append(PtySim(proc, path))
+            return started[-1]
 
-    yield start
-    codes = [server.stop() for server in started]
+        yield start
+        codes = [server.stop() for server in started]
     assert codes == [0] * len(started), f"a simulator server did not exit cleanly on SIGTERM: {codes}"
 
 

@@ -12,23 +12,30 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
+from typing import IO
 
 
 def start_subprocess(
-    args: Sequence[str] = (), *, timeout: float = 15.0, python: str | None = None, quiet: bool = False
+    args: Sequence[str] = (),
+    *,
+    timeout: float = 15.0,
+    python: str | None = None,
+    quiet: bool = False,
+    notes: IO[str] | None = None,
 ) -> tuple[subprocess.Popen[str], str]:
     """Launch the server in a subprocess; return it and the device path it printed.
 
     ``args`` are the server's command-line arguments (``python -m ics35_async.sim --help``);
     ``timeout``: seconds to wait for the path; ``python``: the interpreter (default: this one);
-    ``quiet`` sends its notes (stderr) to /dev/null.  Stop it with
+    ``quiet`` sends its notes (stderr: what it serves, and on exit how many transactions and
+    any bytes no client took) to /dev/null, ``notes`` to that file instead.  Stop it with
     :func:`stop_subprocess` (or use :func:`serving`).
     """
     proc = subprocess.Popen(
         [python or sys.executable, "-m", "ics35_async.sim", *args],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL if quiet else None,
+        stderr=notes if notes is not None else subprocess.DEVNULL if quiet else None,
         text=True,
     )
     assert proc.stdout is not None

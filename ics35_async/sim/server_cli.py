@@ -196,5 +196,6 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             tap.close()
         if isinstance(device, VirtualLine):
             device.close()
-            print(f"ics35 sim: served {device.transactions} transactions", file=sys.stderr, flush=True)
+            lost = f"; {server.dropped_bytes} bytes no client took" if server.dropped_bytes else ""
+            print(f"ics35 sim: served {device.transactions} transactions{lost}", file=sys.stderr, flush=True)
     return 0
