@@ -17,6 +17,7 @@ Markers (``pyproject.toml``): ``slow``, ``pty`` and ``realtime``; see the testin
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 import re
@@ -25,7 +26,7 @@ import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import pytest
 import uvloop
@@ -121,6 +122,14 @@ class PtySim:
 SIM_NOTES = Path(__file__).resolve().parent.parent / "build" / "pty-sim-notes"
 
 
+@contextlib.contextmanager
+def sim_notes(name: str) -> Iterator[TextIO]:
+    """``build/pty-sim-notes/NAME.log``, open for a pty simulator's notes (see ``pty_sim``)."""
+    SIM_NOTES.mkdir(parents=True, exist_ok=True)
+    with open(SIM_NOTES / f"{name}.log", "w", encoding="utf-8") as notes:
+        yield notes
+
+
 @pytest.fixture
 def pty_sim(request: pytest.FixtureRequest) -> Iterator[Callable[..., PtySim]]:
     """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS``; ``.path`` is its pty.
@@ -129,9 +138,7 @@ def pty_sim(request: pytest.FixtureRequest) -> Iterator[Callable[..., PtySim]]:
     client took) go to ``build/pty-sim-notes/``, one file per test: when a test fails, they say
     which side of the pty lost what."""
     started: list[PtySim] = []
-    SIM_NOTES.mkdir(parents=True, exist_ok=True)
-    name = re.sub(r"[^\w.-]+", "_", request.node.nodeid)[-150:]
-    with open(SIM_NOTES / f"{name}.log", "w", encoding="utf-8") as notes:
+    with sim_notes(re.sub(r"[^\w.-]+", "_", request.node.nodeid)[-150:]) as notes:
 
         def start(*args: str) -> PtySim:
             notes.write(f"started with {list(args)}\n")
