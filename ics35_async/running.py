@@ -16,9 +16,10 @@ from __future__ import annotations
 import contextlib
 import signal
 import sys
+import threading
 from collections.abc import Awaitable, Callable, Iterator
 from types import FrameType
-from typing import Literal
+from typing import Any, Literal, Protocol
 
 from .errors import IcsError
 from .tasks import only_error
@@ -98,28 +99,103 @@ class _Stopped(BaseException):
         self.signum = signum
 
 
+class Wakeable(Protocol):
+    def wake(self) -> None: ...
+
+
+class _StopSignals:
+    """Where :func:`stop_on_signals` raises its stop, given what the main thread is doing.
+
+    An exception from a signal handler lands between any two bytecodes of the
+    main thread: inside a finalizer or weakref callback it is printed and
+    dropped (the program would go on), and inside library code it can cut a
+    step in half.  So while the main thread waits for a blocking call
+    (:mod:`ics35_async.blocking.loop_thread` registers each wait), the signal
+    is deferred: the wait is woken and raises the stop itself, at a point
+    where nothing is half done; a wait that closes something (``holding``)
+    raises it once the close is over.  Elsewhere, in the program's own code,
+    the handler raises at once, as Ctrl-C does; if a finalizer or weakref
+    callback it landed in drops it, the program's next blocking call raises it.
+    """
+
+    def __init__(self) -> None:
+        self.active = False
+        self.signum: int | None = None  # the first stop signal; later ones are ignored
+        self.delivered = False  # stop_on_signals has caught the stop
+        self.deferred = False  # a wait took the signal and owes the raise
+        self._wait: Wakeable | None = None
+        self._holding = False
+        self.unraisablehook = sys.unraisablehook
+
+    def start(self) -> None:
+        self.active, self.signum, self.delivered, self.deferred = True, None, False, False
+
+    def handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum is not None:
+            return  # a second signal while the with blocks close (servos being put to rest): ignored
+        self.signum = signum
+        if self._wait is None:
+            raise _Stopped(signum)
+        self.deferred = True
+        if not self._holding:
+            self._wait.wake()
+
+    @contextlib.contextmanager
+    def waiting(self, wait: Wakeable, *, holding: bool) -> Iterator[None]:
+        """Around a blocking wait: a stop signal meanwhile wakes it (or, ``holding``, waits for it to end)."""
+        if not self.active or threading.current_thread() is not threading.main_thread():
+            yield  # signals run in the main thread only
+            return
+        outer = self._wait, self._holding
+        self._wait, self._holding = wait, holding or self._holding
+        try:
+            yield
+        finally:
+            self._wait, self._holding = outer
+
+    def take(self) -> None:
+        """At a safe point of a blocking wait: raise the stop that wait owes (or one a finalizer dropped)."""
+        if self.deferred and threading.current_thread() is threading.main_thread():
+            self.deferred = False
+            raise _Stopped(self.signum or signal.SIGTERM)
+
+    def dropped(self, unraisable: Any) -> None:
+        """``sys.unraisablehook`` meanwhile: a stop raised inside a finalizer was dropped; the next wait owes it."""
+        if isinstance(unraisable.exc_value, _Stopped):
+            self.deferred = True
+        else:
+            self.unraisablehook(unraisable)
+
+
+stop_signals = _StopSignals()
+
+
 @contextlib.contextmanager
 def stop_on_signals() -> Iterator[None]:
     """For programs without an event loop: SIGINT (Ctrl-C) and SIGTERM end the ``with`` block like an
     exception, so the ``with`` blocks inside it close in order (a blocking stream frees or holds as its
     ``on_close`` says, a bus releases its port), then the program exits with 130 or 143 and no
-    traceback (``SystemExit``).  Use it around everything, in the main thread::
+    traceback (``SystemExit``).  A second signal while they close is ignored.  Use it around
+    everything, in the main thread::
 
         with stop_on_signals(), blocking.open_bus(port) as bus, bus.stream(ids, on_close="free") as s:
             ...
     """
-
-    def stop(signum: int, frame: FrameType | None) -> None:
-        raise _Stopped(signum)
-
-    previous = {signum: signal.signal(signum, stop) for signum in (signal.SIGINT, signal.SIGTERM)}
+    stop_signals.start()
+    previous: dict[int, object] = {}
+    stop_signals.unraisablehook, sys.unraisablehook = sys.unraisablehook, stop_signals.dropped
     try:
+        for stopping in (signal.SIGINT, signal.SIGTERM):
+            previous[stopping] = signal.signal(stopping, stop_signals.handle)
         yield
     except _Stopped as stopped:
+        stop_signals.delivered = True
         raise SystemExit(EXIT_SIGINT if stopped.signum == signal.SIGINT else EXIT_SIGTERM) from None
     finally:
+        stop_signals.active = False
+        sys.unraisablehook = stop_signals.unraisablehook
         for signum, handler in previous.items():
-            signal.signal(signum, handler)
+            signal.signal(signum, handler)  # type: ignore[arg-type]
 
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "stop_on_signals"]

@@ -147,3 +147,95 @@ def test_no_thread_is_left_when_the_program_ends(backend: str) -> None:
         )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]", done.stdout
+
+
+# A signal's exception lands between any two bytecodes of the main thread.  This program stops a
+# blocking stream with SIGTERM at each of the main thread's first calls and returns in turn (a
+# profile hook sends the signal), under stop_on_signals: each time, the program must stop with 143,
+# the servos free and the bus's thread gone, and nothing may print (a lock left held hangs the
+# loop thread; a Condition's lock released twice raises RuntimeError; a stop dropped inside a
+# weakref callback prints "Exception ignored").
+SIGNAL_EVERYWHERE = textwrap.dedent(
+    """
+    import faulthandler, os, signal, sys, threading
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    faulthandler.dump_traceback_later(float(sys.argv[2]), exit=True)  # a hang: the stacks, then exit 1
+    bad = []
+    for n in range(1, int(sys.argv[1])):
+        events = 0
+
+        def hook(frame, event, arg):
+            global events
+            events += 1
+            if events == n:
+                sys.setprofile(None)
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        sim = VirtualLine([1, 2], realtime=True)
+        outcome = "not stopped"
+        try:
+            with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
+                s.set_targets({1: 8000, 2: 7000})
+                for k, frame in enumerate(s):
+                    if k == 2:
+                        sys.setprofile(hook)
+                    if k == 200:
+                        break
+        except SystemExit as stop:
+            outcome = f"exit {stop.code}"
+        except BaseException as exc:
+            outcome = repr(exc)
+        sys.setprofile(None)
+        if outcome == "exit 143" and not all(sim.servo(i).free for i in (1, 2)):
+            outcome = "servos holding"
+        left = [t.name for t in threading.enumerate() if t.name.startswith("ics35 blocking")]
+        if outcome == "exit 143" and left:
+            outcome = f"threads left: {left}"
+        if outcome != "exit 143":
+            bad.append((n, outcome))
+    print(bad, flush=True)
+    """
+)
+
+
+@pytest.mark.slow
+def test_a_stop_signal_at_any_point_of_a_blocking_wait_stops_the_program_cleanly() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", SIGNAL_EVERYWHERE, "150", "60"], capture_output=True, text=True, timeout=90
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip() == "[]"
+    assert done.stderr == ""
+
+
+FINALIZER_PROGRAM = textwrap.dedent(
+    """
+    import os, signal, sys
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    class SignalsWhenCollected:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler's stop is raised inside __del__
+
+    sim = VirtualLine([1, 2], realtime=True)
+    try:
+        with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
+            for k, frame in enumerate(s):
+                if k == 2:
+                    SignalsWhenCollected()
+                if k == 200:
+                    print("not stopped", flush=True)
+                    break
+    finally:
+        print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    """
+)
+
+
+def test_a_stop_signal_that_lands_in_a_finalizer_still_stops_the_program() -> None:
+    # Python prints and drops an exception raised in __del__; the stop must not be lost with it.
+    done = subprocess.run([sys.executable, "-c", FINALIZER_PROGRAM], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout.strip(), done.stderr) == (143, "free", "")

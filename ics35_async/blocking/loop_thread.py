@@ -1,9 +1,9 @@
 """An asyncio event loop in a background thread, and blocking calls into it.
 
 Every blocking call is one hop: the caller's thread hands a function to the
-loop thread (``call_soon_threadsafe``) and waits for its result on a
-:class:`concurrent.futures.Future`.  Whatever the function raises is raised
-in the caller's thread, as it was, so typed errors stay typed.
+loop thread (``call_soon_threadsafe``) and waits for its result on an
+:class:`Outcome`.  Whatever the function raises is raised in the caller's
+thread, as it was, so typed errors stay typed.
 
 This is what anyio's ``BlockingPortal`` does, minus its task group and
 cancel scopes: a portal call measured about 400 us on the development
@@ -16,6 +16,17 @@ nothing it started still runs behind the caller's back.  Closing
 (:meth:`LoopThread.call_to_end`, :meth:`LoopThread.stop`) holds a further
 Ctrl-C until it is done, so an impatient second Ctrl-C still leaves the
 port released and the thread gone.
+
+Signals: a signal handler's exception (Ctrl-C's ``KeyboardInterrupt``,
+:func:`~ics35_async.blocking.stop_on_signals`' stop) is raised in the main
+thread between any two bytecodes.  ``concurrent.futures.Future`` and
+``threading.Event`` wait on a ``threading.Condition``, which such an
+exception can leave holding its lock (the loop thread then hangs settling
+the call) or releasing one it no longer holds (``RuntimeError``).  An
+:class:`Outcome` is waited on with one bare lock acquire, which a signal
+interrupts cleanly, and is read from plain attributes.  Under
+``stop_on_signals`` a stop signal during a wait wakes it, and the wait raises
+the stop itself (see :class:`ics35_async.running._StopSignals`).
 """
 
 from __future__ import annotations
@@ -24,11 +35,10 @@ import asyncio
 import contextlib
 import threading
 from collections.abc import Awaitable, Callable
-from concurrent import futures
-from concurrent.futures import Future
-from typing import Any, Generic, ParamSpec, TypeVar
+from typing import Any, Generic, ParamSpec, TypeVar, cast
 
 from ..errors import BusClosed
+from ..running import stop_signals
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -38,24 +48,79 @@ T = TypeVar("T")
 _ALIVE_CHECK = 0.5
 
 
-class _Call(Generic[T]):
-    """One coroutine call on the loop: its result for the caller, its task for cancelling."""
+class Outcome(Generic[T]):
+    """A result or exception handed from the loop thread to a waiting thread, safe to wait on in a signal's path.
 
-    __slots__ = ("ended", "future", "task")
+    The loop thread settles it once (:meth:`set_result`, :meth:`set_exception`);
+    the waiting thread only reads ``done`` and acquires ``_wake``, a lock held
+    from birth until the outcome is settled.
+    """
+
+    __slots__ = ("_exception", "_result", "_wake", "done")
 
     def __init__(self) -> None:
-        self.future: Future[T] = Future()
-        self.ended = threading.Event()  # the task has finished, whatever the future says
+        self.done = False
+        self._result: T | None = None
+        self._exception: BaseException | None = None
+        self._wake = threading.Lock()
+        self._wake.acquire()
+
+    def set_result(self, result: T) -> None:
+        self._result = result
+        self._settle()
+
+    def set_exception(self, exception: BaseException) -> None:
+        self._exception = exception
+        self._settle()
+
+    def _settle(self) -> None:
+        if not self.done:
+            self.done = True  # before the release: a waiter that wakes sees it
+            _release(self._wake)
+
+    def wake(self) -> None:
+        """End a wait in progress early (a stop signal's handler, in the waiting thread)."""
+        _release(self._wake)
+
+    def wait(self, timeout: float) -> bool:
+        """True once settled; waits at most ``timeout`` seconds for it (less if woken)."""
+        if not self.done and self._wake.acquire(timeout=timeout):
+            # A signal between the acquire and this release leaves the lock held: harmless,
+            # since ``done`` is already true and is read first (or the signal's stop ends the wait).
+            _release(self._wake)
+        return self.done
+
+    def result(self) -> T:
+        """The result, or the exception raised (call once settled)."""
+        if self._exception is not None:
+            raise self._exception
+        return cast(T, self._result)
+
+
+def _release(lock: threading.Lock) -> None:
+    # The settling thread, a waker and the waiter may each release the wake lock once.
+    with contextlib.suppress(RuntimeError):
+        lock.release()
+
+
+class _Call(Generic[T]):
+    """One coroutine call on the loop: its outcome for the caller, its task for cancelling."""
+
+    __slots__ = ("ended", "outcome", "task")
+
+    def __init__(self) -> None:
+        self.outcome: Outcome[T] = Outcome()
+        self.ended: Outcome[None] = Outcome()  # the task has finished, whatever the outcome says
         self.task: asyncio.Task[T] | None = None
 
     def settle(self, task: asyncio.Task[T]) -> None:
         if task.cancelled():
-            self.future.set_exception(BusClosed("bus closed while the call was waiting"))
+            self.outcome.set_exception(BusClosed("bus closed while the call was waiting"))
         elif (exc := task.exception()) is not None:
-            self.future.set_exception(exc)
+            self.outcome.set_exception(exc)
         else:
-            self.future.set_result(task.result())
-        self.ended.set()
+            self.outcome.set_result(task.result())
+        self.ended.set_result(None)
 
     def spawn(self, fn: Callable[..., Awaitable[T]], args: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
         """Start the call's task (on the loop; ``fn`` is called there, not in the caller's thread)."""
@@ -65,7 +130,7 @@ class _Call(Generic[T]):
     def cancel(self) -> None:
         # Callbacks run in the order they were scheduled: a spawn scheduled before us has run.
         if self.task is None:
-            self.ended.set()  # never scheduled (Ctrl-C came first): nothing runs
+            self.ended.set_result(None)  # never scheduled (Ctrl-C came first): nothing runs
         else:
             self.task.cancel()
 
@@ -82,7 +147,7 @@ class LoopThread:
     """
 
     def __init__(self, name: str) -> None:
-        started: Future[asyncio.AbstractEventLoop] = Future()
+        started: Outcome[asyncio.AbstractEventLoop] = Outcome()
         self._stop: asyncio.Event | None = None
         self._closed = False
         self._thread = threading.Thread(target=self._main, args=(started,), name=name, daemon=True)
@@ -90,11 +155,12 @@ class LoopThread:
         try:
             self._loop = _result_holding_interrupts(started, self._thread)
         except KeyboardInterrupt:  # Ctrl-C while the thread started: end it before going on
+            _wait_holding_interrupts(started, self._thread)
             self._loop = started.result()
             self.stop()
             raise
 
-    def _main(self, started: Future[asyncio.AbstractEventLoop]) -> None:
+    def _main(self, started: Outcome[asyncio.AbstractEventLoop]) -> None:
         async def serve() -> None:
             self._stop = asyncio.Event()
             started.set_result(asyncio.get_running_loop())
@@ -119,9 +185,9 @@ class LoopThread:
         call: _Call[T] = _Call()
         try:
             self._schedule(call.spawn, fn, args, kwargs)
-            return _result(call.future, self._thread)
+            return _result(call.outcome, self._thread)
         except BaseException:
-            if not call.future.done():  # our wait was interrupted (Ctrl-C), not the call: end it first
+            if not call.outcome.done:  # our wait was interrupted (Ctrl-C), not the call: end it first
                 with contextlib.suppress(BusClosed):  # closed meanwhile: the loop cancels it itself
                     self._schedule(call.cancel)
                 _wait_holding_interrupts(call.ended, self._thread)
@@ -132,26 +198,25 @@ class LoopThread:
         self._check_caller()
         call: _Call[T] = _Call()
         self._schedule(call.spawn, fn, args, kwargs)
-        return _result_holding_interrupts(call.future, self._thread)
+        return _result_holding_interrupts(call.outcome, self._thread)
 
     def call_sync(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
         """Run the plain function ``fn(*args, **kwargs)`` on the loop thread, where the bus's objects live."""
-        future: Future[T] = Future()
+        outcome: Outcome[T] = Outcome()
 
         def run() -> None:
-            if future.set_running_or_notify_cancel():
-                try:
-                    future.set_result(fn(*args, **kwargs))
-                except BaseException as exc:  # whatever it is, the caller's thread gets it
-                    future.set_exception(exc)
+            try:
+                outcome.set_result(fn(*args, **kwargs))
+            except BaseException as exc:  # whatever it is, the caller's thread gets it
+                outcome.set_exception(exc)
 
         self._check_caller()
         self._schedule(run)
         try:
-            return _result(future, self._thread)
+            return _result(outcome, self._thread)
         except BaseException:
-            if not future.cancel():  # it has begun: a plain function ends at once
-                _wait_holding_interrupts(future, self._thread)
+            if not outcome.done:  # interrupted: a plain function ends at once, let it
+                _wait_holding_interrupts(outcome, self._thread)
             raise
 
     def _check_caller(self) -> None:
@@ -192,40 +257,34 @@ class LoopThread:
             raise interrupted
 
 
-def _done_within(waitable: Future[T] | threading.Event, timeout: float) -> bool:
-    if isinstance(waitable, threading.Event):
-        return waitable.wait(timeout)
-    try:
-        waitable.exception(timeout)  # returns the call's own exception; raises only if it is not done
-    except TimeoutError:
-        return False
-    except futures.CancelledError:
-        pass
-    return True
+def _result(outcome: Outcome[T], thread: threading.Thread) -> T:
+    """The outcome's result, or BusClosed if the loop thread ends first (never expected: a safety net)."""
+    with stop_signals.waiting(outcome, holding=False):
+        while not outcome.wait(_ALIVE_CHECK):
+            stop_signals.take()
+            if not thread.is_alive() and not outcome.done:
+                raise BusClosed("the bus's event loop thread has ended")
+        stop_signals.take()
+    return outcome.result()
 
 
-def _result(future: Future[T], thread: threading.Thread) -> T:
-    """``future.result()``, or BusClosed if the loop thread ends first (never expected: a safety net)."""
-    while not _done_within(future, _ALIVE_CHECK):
-        if not thread.is_alive() and not future.done():
-            raise BusClosed("the bus's event loop thread has ended")
-    return future.result()
-
-
-def _wait_holding_interrupts(waitable: Future[T] | threading.Event, thread: threading.Thread) -> None:
-    """Wait until ``waitable`` is done (or the loop thread ends); a KeyboardInterrupt meanwhile is raised after."""
+def _wait_holding_interrupts(outcome: Outcome[Any], thread: threading.Thread) -> None:
+    """Wait until ``outcome`` is settled (or the loop thread ends); a KeyboardInterrupt or a stop signal
+    meanwhile is raised after."""
     interrupted: KeyboardInterrupt | None = None
-    while True:
-        try:
-            if _done_within(waitable, _ALIVE_CHECK) or not thread.is_alive():
-                break
-        except KeyboardInterrupt as exc:
-            interrupted = exc
+    with stop_signals.waiting(outcome, holding=True):
+        while True:
+            try:
+                if outcome.wait(_ALIVE_CHECK) or not thread.is_alive():
+                    break
+            except KeyboardInterrupt as exc:
+                interrupted = exc
     if interrupted is not None:
         raise interrupted
+    stop_signals.take()
 
 
-def _result_holding_interrupts(future: Future[T], thread: threading.Thread) -> T:
-    """``future.result()``; a KeyboardInterrupt meanwhile is raised once the future is done."""
-    _wait_holding_interrupts(future, thread)
-    return _result(future, thread)
+def _result_holding_interrupts(outcome: Outcome[T], thread: threading.Thread) -> T:
+    """The outcome's result; a KeyboardInterrupt or a stop signal meanwhile is raised once it is settled."""
+    _wait_holding_interrupts(outcome, thread)
+    return _result(outcome, thread)
