@@ -122,6 +122,9 @@ class PtySim:
 SIM_NOTES = Path(__file__).resolve().parent.parent / "build" / "pty-sim-notes"
 
 
+SIM_LAST = ("--last", "24")  # the simulators' notes end with their last reads and writes, timed
+
+
 @contextlib.contextmanager
 def sim_notes(name: str) -> Iterator[TextIO]:
     """``build/pty-sim-notes/NAME.log``, open for a pty simulator's notes (see ``pty_sim``)."""
@@ -134,16 +137,17 @@ def sim_notes(name: str) -> Iterator[TextIO]:
 def pty_sim(request: pytest.FixtureRequest) -> Iterator[Callable[..., PtySim]]:
     """``pty_sim("--ids", "1-3", ...)`` starts ``python -m ics35_async.sim ARGS``; ``.path`` is its pty.
     Every server still running is stopped after the test, and each must have exited cleanly (0) on
-    SIGTERM.  Their notes (what each served, and on exit how many transactions and any bytes no
-    client took) go to ``build/pty-sim-notes/``, one file per test: when a test fails, they say
-    which side of the pty lost what."""
+    SIGTERM.  Their notes (what each served, and on exit how many transactions, any bytes no
+    client took, and the last reads and writes with their ``time.monotonic()``) go to
+    ``build/pty-sim-notes/``, one file per test: when a test fails, they say which side of the pty
+    lost what."""
     started: list[PtySim] = []
     with sim_notes(re.sub(r"[^\w.-]+", "_", request.node.nodeid)[-150:]) as notes:
 
         def start(*args: str) -> PtySim:
             notes.write(f"started with {list(args)}\n")
             notes.flush()
-            proc, path = start_subprocess(list(args), notes=notes)
+            proc, path = start_subprocess([*args, *SIM_LAST], notes=notes)
             started.append(PtySim(proc, path))
             return started[-1]
 

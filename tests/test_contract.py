@@ -18,7 +18,7 @@ import pytest
 from ics35_async import Bus, BusClosed, BusGroup, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
-from tests.conftest import every_backend, sim_notes
+from tests.conftest import SIM_LAST, every_backend, sim_notes
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 IDS = range(8)
@@ -50,7 +50,7 @@ every_case = pytest.mark.parametrize(
 @pytest.fixture(scope="module")
 def pty_port() -> Iterator[str]:
     with sim_notes("test_contract") as notes:
-        proc, path = start_subprocess(["--fast", "--ids", "0-7"], notes=notes)
+        proc, path = start_subprocess(["--fast", "--ids", "0-7", *SIM_LAST], notes=notes)
         try:
             yield path
         finally:

@@ -19,6 +19,7 @@ keeps the line at its own rate instead).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import heapq
 import itertools
@@ -46,6 +47,7 @@ class PtyServer:
         link: str | Path | None = None,
         follow_host_baud: bool = True,
         spin_margin: float = SPIN_MARGIN,
+        keep_last: int = 0,
     ) -> None:
         self.device = device
         self.follow_host_baud = follow_host_baud
@@ -59,6 +61,9 @@ class PtyServer:
         os.set_blocking(self._wake_w, False)
         self._stopping = False
         self.dropped_bytes = 0
+        # The last reads and writes on the pty, (time.monotonic(), "read" or "wrote", bytes): the
+        # library's drivers stamp with the same clock, so a client's log lines up with these.
+        self.last: collections.deque[tuple[float, str, bytes]] = collections.deque(maxlen=keep_last)
         device.add_listener(lambda plugged: self.wake())
 
     @property
@@ -131,6 +136,8 @@ class PtyServer:
         if not data:
             self._heap.clear()  # the last client closed the pty: nobody to answer
             return
+        if self.last.maxlen:
+            self.last.append((time.monotonic(), "read", data))
         device = self.device
         baud = self.port.client_baudrate()
         if baud:
@@ -161,6 +168,8 @@ class PtyServer:
                 return
             # A client that does not read (or is gone) loses bytes.
             self.dropped_bytes += len(chunk) - self.port.write(chunk)
+            if self.last.maxlen:
+                self.last.append((time.monotonic(), "wrote", chunk))
 
     def _follow_plug_state(self) -> None:
         plugged = getattr(self.device, "plugged", True)

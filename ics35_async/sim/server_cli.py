@@ -111,6 +111,13 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
     parser.add_argument(
         "--fixed-baud", action="store_true", help="ignore the client's baud rate; the line runs at --baud"
     )
+    parser.add_argument(
+        "--last",
+        type=int,
+        default=0,
+        metavar="N",
+        help="on exit, list the last N reads and writes on the pty with their times (time.monotonic)",
+    )
     return parser
 
 
@@ -163,7 +170,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         parser.error(str(exc))
     if args.tap and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
-    server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud)
+    server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud, keep_last=max(0, args.last))
     tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -198,4 +205,6 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             device.close()
             lost = f"; {server.dropped_bytes} bytes no client took" if server.dropped_bytes else ""
             print(f"ics35 sim: served {device.transactions} transactions{lost}", file=sys.stderr, flush=True)
+        for when, what, data in server.last:
+            print(f"ics35 sim: at {when:.6f} {what:5} {data.hex(' ')}", file=sys.stderr, flush=True)
     return 0

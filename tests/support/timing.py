@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import time
 from collections.abc import Awaitable
 from typing import TypeVar
 
@@ -72,4 +73,5 @@ async def or_describe(awaitable: Awaitable[T], bus: Bus, seconds: float = GUARD)
         return await asyncio.wait_for(awaitable, seconds)
     except TimeoutError as exc:  # the guard's, or a ReplyTimeout (a TimeoutError too)
         what = str(exc) or f"nothing after {seconds} s"
-        pytest.fail(f"{what}; the line: {bus.describe()}; {bus.stats.total}")
+        # The time, on the clock a pty simulator's notes use, to find this moment in them.
+        pytest.fail(f"{what}; the line: {bus.describe()}; {bus.stats.total}; at {time.monotonic():.6f}")
