@@ -25,7 +25,7 @@ import pytest
 if not sys.platform.startswith("linux"):
     pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
 
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Browser, Page, Route, expect, sync_playwright
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
@@ -433,6 +433,34 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
     shot(p, "robot")
     expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
     expect(p.locator("#robot-state")).to_contain_text("all within limits")
+    context.close()
+
+
+def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
+    browser: Browser, robot_server: str
+) -> None:
+    # The robot's state comes pushed several times a second, saying motion is off until the server
+    # has taken the tick: the box must not flip back meanwhile (a user would see it untick itself).
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(robot_server)
+    p.click("#robot-link")
+    box = p.locator("#robot-motion")
+    p.uncheck("#robot-motion")  # a test before this one may have left motion on
+    held: list[Route] = []
+    p.route("**/api/robot/motion", lambda route: held.append(route))  # the request waits here until continued
+    p.click("#robot-motion")
+    for _ in range(3):  # pushed states, each saying motion is still off
+        cycle = p.locator("#robot-cycle").text_content() or ""
+        expect(p.locator("#robot-cycle")).not_to_have_text(cycle)
+        expect(box).to_be_checked()
+    assert len(held) == 1
+    held[0].continue_()
+    elbow = p.locator("tr[data-joint='right_elbow'] input[type=range]")
+    expect(elbow).to_be_enabled()  # the server's answer: motion on
+    p.unroute("**/api/robot/motion")
+    p.uncheck("#robot-motion")  # as the other robot tests expect to find it
+    expect(elbow).to_be_disabled()
     context.close()
 
 

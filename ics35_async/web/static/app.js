@@ -3,7 +3,8 @@
 
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
-  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false };
+  history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false,
+  motionAsked: 0 };
 
 // ---------------------------------------------------------------- talking to the server
 
@@ -518,7 +519,7 @@ function onRobot(r) {
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
   $("#robot-cycle").textContent = r.cycle ?? "-";
-  $("#robot-motion").checked = r.motion_enabled;
+  if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
   $("#robot-play").disabled = !r.motion_enabled || !$("#robot-motion-file").files.length;
   const tripped = r.joints.filter((j) => j.tripped);
   $("#robot-state").textContent = (r.playing ? `playing ${r.playing}` : r.outcome || "idle") +
@@ -644,7 +645,12 @@ on("#traffic-pause", "click", () => {
   socketSend();
 });
 on("#robot-motion", "change", async () => {
-  try { onRobot(await api("/api/robot/motion", { enabled: $("#robot-motion").checked })); } catch (e) { $("#robot-motion").checked = false; }
+  // Until the server answers, the states it pushes still say what motion was: they leave the box alone.
+  state.motionAsked += 1;
+  let answer = null;
+  try { answer = await api("/api/robot/motion", { enabled: $("#robot-motion").checked }); } catch (e) { $("#robot-motion").checked = false; }
+  state.motionAsked -= 1;
+  if (answer) onRobot(answer);
 });
 on("#robot-motion-file", "change", () => { $("#robot-play").disabled = !(state.robot && state.robot.motion_enabled); });
 on("#robot-play", "click", playMotion);
