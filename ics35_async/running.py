@@ -121,14 +121,13 @@ class _StopSignals:
     def __init__(self) -> None:
         self.active = False
         self.signum: int | None = None  # the first stop signal; later ones are ignored
-        self.delivered = False  # stop_on_signals has caught the stop
         self.deferred = False  # a wait took the signal and owes the raise
         self._wait: Wakeable | None = None
         self._holding = False
         self.unraisablehook = sys.unraisablehook
 
     def start(self) -> None:
-        self.active, self.signum, self.delivered, self.deferred = True, None, False, False
+        self.active, self.signum, self.deferred = True, None, False
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:
@@ -189,7 +188,6 @@ def stop_on_signals() -> Iterator[None]:
             previous[stopping] = signal.signal(stopping, stop_signals.handle)
         yield
     except _Stopped as stopped:
-        stop_signals.delivered = True
         raise SystemExit(EXIT_SIGINT if stopped.signum == signal.SIGINT else EXIT_SIGTERM) from None
     finally:
         stop_signals.active = False
