@@ -23,15 +23,20 @@ slack (see ``LineEngine._start_next``): ``expected`` is what an answer usually
 takes beyond its wire time, an average that leans high.
 
 And they set the stream's wait (``stream_latency``): like a probe's, but from
-the slowest of the last ``RECENT`` answers instead of the slowest ever, so one
-hiccup of the host (a garbage collection, a loaded machine) does not cost the
-control loop the full allowance at every failure for the rest of the session;
-and only once ``RECENT_MIN`` answers have been seen.  Twice the slowest recent
-answer (not a percentile) keeps a healthy servo's failing for being slow rare:
-a stream transaction that gave up early holds its servo back, with no
-command, for the rest of its allowance (see ``LineEngine._hold``).  It gives
-up early only once its echo has come round: until then the host or the link is
-late, not the servo (a silent servo still echoes), and it waits the full allowance.
+the last ``RECENT`` answers instead of all, and from the ``OUTLIERS + 1``-th
+slowest of them rather than the slowest, and only once ``RECENT_MIN`` answers
+have been seen.  A hiccup of the host (a garbage collection, a loaded
+machine) makes one answer slow, and its echo with it; taken as the norm it
+would set the wait past the full allowance, and every failure would then cost
+the control loop the full allowance until 256 answers had passed: minutes,
+when a servo fails every time it is asked and each failure costs that much.
+Twice a slow recent answer (not a median) keeps a healthy servo's failing
+for being slow rare: a stream transaction that gave up early holds its servo
+back, with no command, for the rest of its allowance (see
+``LineEngine._hold``); a reply later than the wait fails whatever it lands in,
+never passes for another answer.  It gives up early only once its echo has
+come round: until then the host or the link is late, not the servo (a silent
+servo still echoes), and it waits the full allowance.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ MARGIN = 0.001
 RISE, FALL = 0.3, 0.05  # how fast the expected answer time follows slower / faster answers
 RECENT = 256  # answers the stream's wait is measured from
 RECENT_MIN = 8  # answers seen before the stream waits less than the full allowance
+OUTLIERS = 2  # the slowest recent answers the stream's wait leaves out (host hiccups)
 REFRESH = 32  # answers between two updates of the stream's wait (a max of RECENT floats)
 # The silence that ends the resync after a stream transaction that gave up early: its reply, had it
 # been coming, would most likely have come by then (it waited twice what answers take), and if it
@@ -83,7 +89,8 @@ class AnswerTimes:
             recent[self._n % RECENT] = beyond_wire
         self._n += 1
         if self._n % REFRESH == 0 or self._n == RECENT_MIN:
-            self.stream_latency = max(FLOOR, FACTOR * max(recent) + MARGIN)
+            slow = sorted(recent)[-1 - OUTLIERS] if len(recent) >= 4 * OUTLIERS else max(recent)
+            self.stream_latency = max(FLOOR, FACTOR * slow + MARGIN)
         expected = self.expected
         if expected < 0:
             self.expected = beyond_wire
