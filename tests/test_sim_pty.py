@@ -262,3 +262,26 @@ def test_help_says_real_time_is_the_default(command: list[str]) -> None:
     text = " ".join(proc.stdout.split())
     assert "--fast" in text
     assert "real time (wire timing) by default" in text
+
+
+def test_on_exit_the_server_says_what_it_served_and_its_last_reads_and_writes(tmp_path: Path) -> None:
+    # The notes a failing test is read against: the transaction count, and with --last the last
+    # reads and writes stamped with time.monotonic(), the clock this process reads too.
+    notes_path = tmp_path / "notes.txt"
+    with open(notes_path, "w", encoding="utf-8") as notes:
+        proc, path = start_subprocess(["--fast", "--ids", "1", "--last", "4"], notes=notes)
+        try:
+            before = time.monotonic()
+            with open_port(path) as port:
+                assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+                assert transact(port, h("A1 01"), 1) != b""
+            after = time.monotonic()
+        finally:
+            assert stop_subprocess(proc) == 0
+    lines = notes_path.read_text(encoding="utf-8").splitlines()
+    assert "ics35 sim: served 2 transactions" in lines
+    last = [line.split(maxsplit=4)[3:] for line in lines if line.startswith("ics35 sim: at ")]
+    assert [what for _, what in last] == ["wrote 01 3a 4c", "read  a1 01", "wrote a1 01", last[3][1]]
+    assert last[3][1].startswith("wrote 21 01 ")  # the stretch read's reply (its value: what the servo has)
+    times = [float(when) for when, _ in last]
+    assert before <= times[0] <= times[-1] <= after

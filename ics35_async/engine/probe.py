@@ -41,6 +41,8 @@ servo still echoes), and it waits the full allowance.
 
 from __future__ import annotations
 
+import heapq
+
 FLOOR = 0.004  # seconds: the least a probe waits beyond its wire time (a loop or VM hiccup)
 FACTOR = 2.0
 MARGIN = 0.001
@@ -48,7 +50,7 @@ RISE, FALL = 0.3, 0.05  # how fast the expected answer time follows slower / fas
 RECENT = 256  # answers the stream's wait is measured from
 RECENT_MIN = 8  # answers seen before the stream waits less than the full allowance
 OUTLIERS = 2  # the slowest recent answers the stream's wait leaves out (host hiccups)
-REFRESH = 32  # answers between two updates of the stream's wait (a max of RECENT floats)
+REFRESH = 32  # answers between two updates of the stream's wait (a pass over RECENT floats)
 # The silence that ends the resync after a stream transaction that gave up early: its reply, had it
 # been coming, would most likely have come by then (it waited twice what answers take), and if it
 # comes later it can only fail what it lands in (see LineEngine._hold).  A millisecond lets bytes
@@ -89,7 +91,7 @@ class AnswerTimes:
             recent[self._n % RECENT] = beyond_wire
         self._n += 1
         if self._n % REFRESH == 0 or self._n == RECENT_MIN:
-            slow = sorted(recent)[-1 - OUTLIERS] if len(recent) >= 4 * OUTLIERS else max(recent)
+            slow = heapq.nlargest(OUTLIERS + 1, recent)[-1] if len(recent) >= 4 * OUTLIERS else max(recent)
             self.stream_latency = max(FLOOR, FACTOR * slow + MARGIN)
         expected = self.expected
         if expected < 0:
