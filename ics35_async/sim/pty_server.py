@@ -62,7 +62,8 @@ class PtyServer:
         self._stopping = False
         self.dropped_bytes = 0
         # The last reads and writes on the pty, (time.monotonic(), "read" or "wrote", bytes): the
-        # library's drivers stamp with the same clock, so a client's log lines up with these.
+        # library's drivers stamp with the same clock, so a client's log lines up with these.  A read
+        # is stamped once done, a write as it starts: each stamp lies between the client's own.
         self.last: collections.deque[tuple[float, str, bytes]] = collections.deque(maxlen=keep_last)
         device.add_listener(lambda plugged: self.wake())
 
@@ -166,10 +167,10 @@ class PtyServer:
                     device.unplug(replug_after=device.replug_after)
                 self._follow_plug_state()
                 return
+            if self.last.maxlen:  # stamped before the write: the client may have read it before we run again
+                self.last.append((time.monotonic(), "wrote", chunk))
             # A client that does not read (or is gone) loses bytes.
             self.dropped_bytes += len(chunk) - self.port.write(chunk)
-            if self.last.maxlen:
-                self.last.append((time.monotonic(), "wrote", chunk))
 
     def _follow_plug_state(self) -> None:
         plugged = getattr(self.device, "plugged", True)
