@@ -131,6 +131,9 @@ class _StopSignals:
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:
+            if self.deferred and self._wait is None:  # the first is still owed (a finalizer dropped it)
+                self.deferred = False
+                raise _Stopped(self.signum)
             return  # a second signal while the with blocks close (servos being put to rest): ignored
         self.signum = signum
         if self._wait is None:
@@ -151,6 +154,8 @@ class _StopSignals:
             yield
         finally:
             self._wait, self._holding = outer
+            if outer[0] is None:
+                self.take()  # a signal that came as the wait ended: raised now, not at the next call
 
     def take(self) -> None:
         """At a safe point of a blocking wait: raise the stop that wait owes (or one a finalizer dropped)."""
@@ -180,6 +185,9 @@ def stop_on_signals() -> Iterator[None]:
         with stop_on_signals(), blocking.open_bus(port) as bus, bus.stream(ids, on_close="free") as s:
             ...
     """
+    if stop_signals.active:  # inside another stop_on_signals: that one stops the program
+        yield
+        return
     stop_signals.start()
     previous: dict[int, object] = {}
     stop_signals.unraisablehook, sys.unraisablehook = sys.unraisablehook, stop_signals.dropped

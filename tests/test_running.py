@@ -239,3 +239,29 @@ def test_a_stop_signal_that_lands_in_a_finalizer_still_stops_the_program() -> No
     # Python prints and drops an exception raised in __del__; the stop must not be lost with it.
     done = subprocess.run([sys.executable, "-c", FINALIZER_PROGRAM], capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stdout.strip(), done.stderr) == (143, "free", "")
+
+
+def test_stop_on_signals_inside_another_leaves_the_outer_one_in_charge() -> None:
+    from ics35_async.blocking import stop_on_signals
+    from ics35_async.running import stop_signals
+
+    hook, handler = sys.unraisablehook, signal.getsignal(signal.SIGTERM)
+    with stop_on_signals():
+        with stop_on_signals():
+            pass
+        assert stop_signals.active  # the outer block still defers a signal during a blocking wait
+        assert signal.getsignal(signal.SIGTERM) is not handler
+    assert sys.unraisablehook is hook and signal.getsignal(signal.SIGTERM) is handler
+
+
+def test_a_wait_woken_early_blocks_again_until_its_outcome_is_settled() -> None:
+    # A stop signal wakes the main thread's wait; the wait that follows (for a call to end) must
+    # block again, not find the lock free and spin until the loop thread settles the outcome.
+    from ics35_async.blocking.loop_thread import Outcome
+
+    outcome: Outcome[int] = Outcome()
+    outcome.wake()
+    assert outcome.wait(0.0) is False
+    assert outcome.wait(0.0) is False and outcome._wake.locked()  # taken again: a timed wait would block
+    outcome.set_result(7)
+    assert outcome.wait(0.0) is True and outcome.result() == 7

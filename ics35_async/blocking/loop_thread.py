@@ -84,9 +84,10 @@ class Outcome(Generic[T]):
 
     def wait(self, timeout: float) -> bool:
         """True once settled; waits at most ``timeout`` seconds for it (less if woken)."""
-        if not self.done and self._wake.acquire(timeout=timeout):
-            # A signal between the acquire and this release leaves the lock held: harmless,
-            # since ``done`` is already true and is read first (or the signal's stop ends the wait).
+        if not self.done and self._wake.acquire(timeout=timeout) and self.done:
+            # Settled: free again for any later wait.  Woken early instead (a stop signal), the lock
+            # stays taken, so that a later wait blocks until the outcome is settled.  A signal between
+            # the acquire and this release leaves it held: harmless, ``done`` is read first.
             _release(self._wake)
         return self.done
 
@@ -154,7 +155,7 @@ class LoopThread:
         self._thread.start()
         try:
             self._loop = _result_holding_interrupts(started, self._thread)
-        except KeyboardInterrupt:  # Ctrl-C while the thread started: end it before going on
+        except BaseException:  # Ctrl-C or a stop signal while the thread started: end it before going on
             _wait_holding_interrupts(started, self._thread)
             self._loop = started.result()
             self.stop()
@@ -197,8 +198,9 @@ class LoopThread:
         """Like :meth:`call`, but a Ctrl-C does not cancel: it is raised once ``fn`` has finished."""
         self._check_caller()
         call: _Call[T] = _Call()
-        self._schedule(call.spawn, fn, args, kwargs)
-        return _result_holding_interrupts(call.outcome, self._thread)
+        with stop_signals.waiting(call.outcome, holding=True):  # a stop signal from here on waits for the end
+            self._schedule(call.spawn, fn, args, kwargs)
+            return _result_holding_interrupts(call.outcome, self._thread)
 
     def call_sync(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
         """Run the plain function ``fn(*args, **kwargs)`` on the loop thread, where the bus's objects live."""
