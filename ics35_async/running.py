@@ -144,7 +144,8 @@ class _StopSignals:
 
     @contextlib.contextmanager
     def waiting(self, wait: Wakeable, *, holding: bool) -> Iterator[None]:
-        """Around a blocking wait: a stop signal meanwhile wakes it (or, ``holding``, waits for it to end)."""
+        """Around a blocking wait: a stop signal meanwhile wakes it (or, ``holding``, waits for it to end);
+        the outermost raises, as it ends, a stop still owed."""
         if not self.active or threading.current_thread() is not threading.main_thread():
             yield  # signals run in the main thread only
             return

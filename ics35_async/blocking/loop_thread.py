@@ -261,12 +261,12 @@ class LoopThread:
 
 def _result(outcome: Outcome[T], thread: threading.Thread) -> T:
     """The outcome's result, or BusClosed if the loop thread ends first (never expected: a safety net)."""
+    # A stop signal wakes the wait and is raised here; one that comes as it ends, by ``waiting`` itself.
     with stop_signals.waiting(outcome, holding=False):
         while not outcome.wait(_ALIVE_CHECK):
             stop_signals.take()
             if not thread.is_alive() and not outcome.done:
                 raise BusClosed("the bus's event loop thread has ended")
-        stop_signals.take()
     return outcome.result()
 
 
@@ -283,7 +283,6 @@ def _wait_holding_interrupts(outcome: Outcome[Any], thread: threading.Thread) ->
                 interrupted = exc
     if interrupted is not None:
         raise interrupted
-    stop_signals.take()
 
 
 def _result_holding_interrupts(outcome: Outcome[T], thread: threading.Thread) -> T:
