@@ -41,6 +41,18 @@ def seq_now(rig: Rig) -> dict[str, int]:
     return {"upper": rig.upper.transactions, "lower": rig.lower.transactions}
 
 
+async def settled_pose(robot: Robot, expected: dict[str, float]) -> dict[str, float]:
+    """The pose once the named joints are there: move_to returns once its end is on the wire, and a
+    simulated servo a busy machine left behind the motion still has to get there at its own speed.
+    A few reads until it has, or 2 s; the caller's checks then fail on what was read last."""
+    for _ in range(100):
+        pose = await robot.read_pose()
+        if all(pose[name] == pytest.approx(deg, abs=0.1) for name, deg in expected.items()):
+            break
+        await anyio.sleep(0.02)
+    return pose
+
+
 def check_segment(rig: Rig, since: dict[str, int], start: dict[str, float], goal: dict[str, float]) -> None:
     """Every command within limits, monotonic from start toward goal, the last one exactly the goal."""
     for name, spec in JOINTS.items():
@@ -99,14 +111,8 @@ def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profi
         await robot.move_to({"hip": 12.5}, duration=0.1)
         since = seq_now(rig)
         await robot.move_to(goal, duration=0.3, profile=profile)
-        # move_to returns once its end is on the wire; a servo a busy machine left behind the motion
-        # still has to get there at its own speed: a few reads, until it has (or 2 s, then the check fails).
         expected = {**goal, "hip": 12.5}
-        for _ in range(100):
-            pose = await robot.read_pose()
-            if all(pose[name] == pytest.approx(deg, abs=0.1) for name, deg in expected.items()):
-                break
-            await anyio.sleep(0.02)
+        pose = await settled_pose(robot, expected)
         for name, deg in expected.items():
             assert pose[name] == pytest.approx(deg, abs=0.1), name
         # hip was not named: every command it got meanwhile is its old target.
@@ -122,7 +128,7 @@ def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
         # Joint -> servo: where the simulated servos end up.
         goal = {"neck": 20.0, "shoulder": 30.0, "elbow": 50.0}
         await robot.move_to(goal, duration=0.5)
-        pose = await robot.read_pose()
+        pose = await settled_pose(robot, goal)
         rig.upper.sync()
         for name, deg in goal.items():
             spec = JOINTS[name]
