@@ -11,6 +11,7 @@ import itertools
 import os
 import subprocess
 import sys
+import termios
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +21,7 @@ import pytest
 import serial
 
 from ics35_async.sim import start_subprocess, stop_subprocess
+from ics35_async.sim.pty_port import PtyPort
 from tests.support.timing import GUARD
 
 pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
@@ -285,3 +287,40 @@ def test_on_exit_the_server_says_what_it_served_and_its_last_reads_and_writes(tm
     assert last[3][1].startswith("wrote 21 01 ")  # the stretch read's reply (its value: what the servo has)
     times = [float(when) for when, _ in last]
     assert before <= times[0] <= times[-1] <= after
+
+
+def test_a_client_opening_as_the_last_one_closes_keeps_its_speed() -> None:
+    # The server resets the pty when its last client closes.  A client that opens and sets its speed
+    # while that reset runs must not have its speed overwritten: the server would take it to run at
+    # the last client's speed and answer bytes sent at another.  The new client opens here at the
+    # worst moment, the instant the reset has read the pty's settings, from a profile hook.
+    port = PtyPort()
+    port.open()
+    try:
+        with open_port(str(port.path), 1250000) as first:
+            first.write(b"\x81")
+            while port.read() is None:
+                time.sleep(0.001)
+            assert port.client_baudrate() == 1250000
+            port.park_speed(only_if=1250000)  # as the server does at a client's first bytes
+        second: list[serial.Serial] = []
+
+        def hook(frame: Any, event: str, arg: Any) -> None:
+            if event == "c_return" and arg is termios.tcgetattr and not second:
+                second.append(open_port(str(port.path), 115200))
+
+        while True:  # the hang-up: the last client closed
+            sys.setprofile(hook)
+            try:
+                closed = port.read() == b""
+            finally:
+                sys.setprofile(None)
+            if closed or second:
+                break
+            time.sleep(0.001)
+        assert second, "the reset never read the pty's settings"
+        with second[0]:
+            second[0].write(b"\x81")
+            assert port.client_baudrate() == 115200
+    finally:
+        port.dispose()

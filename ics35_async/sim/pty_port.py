@@ -47,8 +47,8 @@ import select
 import shutil
 import tempfile
 import termios
-import tty
 from pathlib import Path
+from typing import Any
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
 _IN_OPEN = 0x20
@@ -82,6 +82,27 @@ def host_baudrate(fd: int) -> int | None:
     except OSError:
         return None
     return int(buf[10])  # c_ospeed: after 4 flags, c_line and 19 c_cc bytes
+
+
+def _raw_and_parked(attrs: list[Any]) -> list[Any]:
+    """``attrs`` in raw mode (as ``tty.setraw`` makes it) at the idle speed.
+
+    INPCK stays as the client left it: a pty has no parity to check, and the
+    ICS drivers set it (with PARMRK) on every port they open.
+    """
+    iflag, oflag, cflag, lflag, _, _, cc = attrs
+    wanted = [
+        iflag & ~(termios.BRKINT | termios.ICRNL | termios.ISTRIP | termios.IXON),
+        oflag & ~termios.OPOST,
+        (cflag & ~(termios.CSIZE | termios.PARENB)) | termios.CS8,
+        lflag & ~(termios.ECHO | termios.ICANON | termios.IEXTEN | termios.ISIG),
+        _IDLE_SPEED,
+        _IDLE_SPEED,
+        list(cc),
+    ]
+    wanted[6][termios.VMIN] = 1
+    wanted[6][termios.VTIME] = 0
+    return wanted
 
 
 def _client_opened(master: int) -> bool:
@@ -150,13 +171,22 @@ class PtyPort:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
 
     def reset_settings(self) -> None:
-        """Raw mode (no echo by the pty itself) at the idle speed."""
+        """Raw mode (no echo by the pty itself) at the idle speed.
+
+        Written only when something differs: the usual client (pyserial) left the pty raw, and
+        the server parked its speed at its first bytes, so nothing is written.  A write races a
+        client that opens right after the last one closed: setting its speed between our read
+        of the settings and our write, it would have it overwritten with the idle speed and be
+        taken to run at the last client's.
+        """
         if self.master is None:
             return
-        if _client_opened(self.master):
-            return  # a new client opened meanwhile: its settings are the ones to keep
-        tty.setraw(self.master)
-        self.park_speed()
+        attrs = termios.tcgetattr(self.master)
+        wanted = _raw_and_parked(attrs)
+        if wanted == attrs or _client_opened(self.master):
+            return  # nothing to change, or a new client opened: its settings are the ones to keep
+        with contextlib.suppress(termios.error):
+            termios.tcsetattr(self.master, termios.TCSANOW, wanted)
 
     def park_speed(self, only_if: int | None = None) -> None:
         """Set the pty's speed to 38400, leaving the client's other settings alone.
