@@ -22,7 +22,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import NO_TIMEOUTS_OPTION
+from tests.support.timing import PATIENT_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -33,7 +33,7 @@ SIM_IDS = [2, 5, 17]
 SIM_BAUD = 625000
 # For commands to servos that are there, every one expected to answer: long enough for a machine stalled
 # for half a second (a timeout costs it only where a reply never comes).
-ANSWERED = [*NO_TIMEOUTS_OPTION, "--retries", "1"]
+ANSWERED = [*PATIENT_OPTION, "--retries", "1"]
 
 
 def ics35(port: str, *args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:

@@ -12,7 +12,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import NO_TIMEOUTS_OPTION, REAL_TIME_OPTION
+from tests.support.timing import PATIENT_OPTION, REAL_TIME_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -23,7 +23,7 @@ pytestmark = [
 LINE = [*REAL_TIME_OPTION, "--retries", "1"]
 # Where the test counts replies and none may be missed: an allowance no loaded machine runs out of, so only
 # the IDs that should answer (and one that should not) are probed.
-ANSWERED = [*NO_TIMEOUTS_OPTION, "--retries", "1"]
+ANSWERED = [*PATIENT_OPTION, "--retries", "1"]
 
 
 def ics35(port: str, *args: str) -> subprocess.CompletedProcess[str]:

@@ -19,7 +19,7 @@ from ics35_async import Bus, BusClosed, BusGroup, ReplyTimeout, open_bus, protoc
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.conftest import SIM_LAST, every_backend, sim_notes
-from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
+from tests.support.timing import FAST, GUARD, PATIENT
 
 IDS = range(8)
 
@@ -72,9 +72,9 @@ async def bus(
     else:
         monkeypatch.setenv(ENV, "1")
     bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
-    # NO_TIMEOUTS: on a machine loaded by parallel tests a pty server can answer 50 ms late; the few
+    # PATIENT: on a machine loaded by parallel tests a pty server can answer 50 ms late; the few
     # timeouts the scenarios expect (an absent ID) cost their half second each.
-    async with open_bus(port, driver=driver, **NO_TIMEOUTS) as opened:
+    async with open_bus(port, driver=driver, **PATIENT) as opened:
         assert opened.driver == ("anyio" if driver == "anyio" or anyio_backend_name == "trio" else driver)
         if driver == "asyncio":
             assert (opened._driver.burst is not None) == bursts  # type: ignore[union-attr]

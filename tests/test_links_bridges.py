@@ -25,7 +25,7 @@ from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.support.links import Rfc2217Bridge, TcpBridge
-from tests.support.timing import NO_TIMEOUTS, NO_TIMEOUTS_OPTION
+from tests.support.timing import PATIENT, PATIENT_OPTION
 
 pytestmark = pytest.mark.pty
 
@@ -109,7 +109,7 @@ async def _stretch_once(bus: Any, servo_id: int) -> int:
 async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
     # Every present servo must answer at its rate: the no-timeouts allowance, and only their IDs asked.
     report = await policies.scan(
-        lambda baud: open_bus(rfc2217.url, baudrate=baud, **NO_TIMEOUTS), ids=[1, 2, 3], read_eeprom=False
+        lambda baud: open_bus(rfc2217.url, baudrate=baud, **PATIENT), ids=[1, 2, 3], read_eeprom=False
     )
     assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200), (3, 115200)]
     assert len(report.rates) == 3 and not report.rate_blind
@@ -138,7 +138,7 @@ async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
 
 
 async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge: TcpBridge) -> None:
-    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **NO_TIMEOUTS), ids=ASKED)
+    report = await policies.scan(lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **PATIENT), ids=ASKED)
     assert report.rate_blind
     assert [r.baud for r in report.rates] == [115200]
     assert [s.servo_id for s in report.servos] == [1, 2, 3]
@@ -150,19 +150,19 @@ async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> 
     # Asked for 625000 first: the bridge still runs at its own rate, and the servos say theirs.  Both servos
     # answer at every rate, so no reply may time out (a real-time pty behind a bridge thread, on a busy machine).
     report = await policies.scan(
-        lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **NO_TIMEOUTS), bauds=[625000, 115200], ids=[1, 2]
+        lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **PATIENT), bauds=[625000, 115200], ids=[1, 2]
     )
     assert [r.baud for r in report.rates] == [625000]
     assert [(s.servo_id, s.baud) for s in report.servos] == [(1, 115200), (2, 115200)]
 
 
 def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, cli: Any) -> None:
-    result = cli("--port", tcp_bridge.url, *NO_TIMEOUTS_OPTION, "scan", "--ids", "0-4", "--quick", "--json")
+    result = cli("--port", tcp_bridge.url, *PATIENT_OPTION, "scan", "--ids", "0-4", "--quick", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert [s["id"] for s in data["servos"]] == [1, 2, 3]
     assert data["rate_blind"] is True
-    result = cli("--port", tcp_bridge.url, *NO_TIMEOUTS_OPTION, "scan", "--ids", "1-3")
+    result = cli("--port", tcp_bridge.url, *PATIENT_OPTION, "scan", "--ids", "1-3")
     assert result.code == 0, result.err
     assert "does not carry the baud rate" in result.err
     assert "3 servo(s) found" in result.out

@@ -17,7 +17,7 @@ import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
 from tests.support.cli_runs import edit_backup
-from tests.support.timing import NO_TIMEOUTS_OPTION
+from tests.support.timing import PATIENT_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -172,7 +172,7 @@ def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) 
         )
         # Replies in time (the no-timeouts allowance): what is tested is the unplug, not a loaded
         # machine's late reply landing in front of the next echo.
-        line = ["--port", port, *NO_TIMEOUTS_OPTION]
+        line = ["--port", port, *PATIENT_OPTION]
         try:
             proc = run_ics35(*line, "eeprom", "restore", str(backup), "--yes", "--json")
             if proc.returncode == 0:

@@ -20,7 +20,7 @@ from ics35_async.eeprom import Eeprom
 from ics35_async.protocol import Position, ReadEeprom, ReadId, ReadMemory, ReadParam, WriteEeprom, WriteParam
 from ics35_async.protocol.listening import HeardTransaction, LineListener
 from ics35_async.sim import VirtualLine, load_recording, serving
-from tests.support.timing import NO_TIMEOUTS_OPTION
+from tests.support.timing import PATIENT_OPTION
 
 PAUSE = 0.02  # between transactions, as a controller leaves (longer than the listener's 5 ms gap)
 
@@ -152,7 +152,7 @@ def test_sniff_json_decodes_every_transaction_another_program_sent(tmp_path: Pat
             # Every reply expected (a pty server on a loaded machine answers late): the no-timeouts allowance.
             for args in (["info", "2", "--no-position"], ["get", "3", "temperature"], ["free", "1"]):
                 done = subprocess.run(
-                    [sys.executable, "-m", "ics35_async.cli", *NO_TIMEOUTS_OPTION, *args],
+                    [sys.executable, "-m", "ics35_async.cli", *PATIENT_OPTION, *args],
                     env=env,
                     capture_output=True,
                     text=True,

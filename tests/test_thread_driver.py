@@ -14,7 +14,7 @@ import pytest
 
 from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
 from ics35_async.sim import VirtualLine, VirtualServo
-from tests.support.timing import FAST, NO_TIMEOUTS, or_describe, scaled
+from tests.support.timing import FAST, NO_TIMEOUTS, PATIENT, or_describe, scaled
 
 # A few seconds' work against a fast simulator: a run this long means a reply or a frame stopped coming
 # (then the failure says what the line was doing, rather than pytest's timeout giving only the stacks).
@@ -104,7 +104,7 @@ async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> No
     # a stream reply before the frame it ends is published; a rejected one must not show as ok even
     # for the instant before it is taken back.  (Never taken offline: asked every cycle.)
     path = pty_sim("--fast", "--ids", "1-2", "--faults", "msb@2:1.0").path
-    bus = await open_bus(path, driver="thread", **NO_TIMEOUTS)
+    bus = await open_bus(path, driver="thread", **PATIENT)
     async with bus, bus.stream([1, 2], offline_after=10**6) as stream:
         seen = []
 

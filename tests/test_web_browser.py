@@ -29,7 +29,7 @@ from playwright.sync_api import Browser, Page, Route, expect, sync_playwright
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
-from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION, scaled
+from tests.support.timing import GUARD, PATIENT_OPTION, scaled
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -83,7 +83,7 @@ def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
         # and on a loaded machine that thread waits for a core for 100 ms and more.  Every present
         # servo must answer (a reply later than the allowance would also teach the line a slow-link
         # extra, and a scan's 30 empty IDs would each wait it out): the no-timeouts allowance.
-        [*WEB, "--port", lines[0].path, *NO_TIMEOUTS_OPTION],
+        [*WEB, "--port", lines[0].path, *PATIENT_OPTION],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
