@@ -491,6 +491,8 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     expect(p.locator("#line-status")).to_contain_text("the robot's line legs")
     expect(p.locator("#servo-robot-note")).to_contain_text("right_knee")
     expect(p.locator("#servo-id")).to_have_value("3")
+    # The page has read the servo (a read still under way could end after the refusal and say its own words).
+    expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
     p.click("#free-btn")  # refused in words: the robot moves and frees its joints
     expect(p.locator("#message")).to_contain_text("Robot page")
     p.click("nav a[href='#robot']")
