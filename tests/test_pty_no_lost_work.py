@@ -170,8 +170,8 @@ def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) 
         server, port = start_subprocess(
             ["--ids", "1-3", "--faults", "unplug@2-3:0.3", "--seed", str(seed), "--replug-after", "0.3"], quiet=True
         )
-        # Replies in time (the no-timeouts allowance): what is tested is the unplug, not a loaded
-        # machine's late reply landing in front of the next echo.
+        # Replies in time (the patient allowance: a reply lost with the port costs it whole): what is
+        # tested is the unplug, not a loaded machine's late reply landing in front of the next echo.
         line = ["--port", port, *PATIENT_OPTION]
         try:
             proc = run_ics35(*line, "eeprom", "restore", str(backup), "--yes", "--json")
