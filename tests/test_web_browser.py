@@ -148,6 +148,12 @@ def scan_finds(p: Page, count: int, ids: str = "") -> None:
     line's status), not only that the table stayed empty."""
     p.fill("#scan-ids", ids)
     p.click("#scan-btn")
+    scan_lists(p, count)
+
+
+def scan_lists(p: Page, count: int) -> None:
+    """The scan under way on ``p``'s Line page ends with ``count`` servos found and listed (a failure says
+    what the page showed)."""
     try:
         expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found", timeout=SCAN_WAIT_MS)
         expect(p.locator("#servo-table tbody tr")).to_have_count(count)
@@ -481,7 +487,7 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     expect(p.locator("#robot-lines-table tbody tr")).to_have_count(2)
     p.click("#robot-lines-table tr[data-line='upper'] button")
     expect(p.locator("#line-status")).to_contain_text("the robot's line upper")
-    expect(p.locator("#servo-table tbody tr")).to_have_count(7)  # found on the robot's own line
+    scan_lists(p, 7)  # found on the robot's own line
     p.click("#servo-table tr[data-id='4'] a")
     expect(p.locator("#servo-robot-note")).to_contain_text("right_elbow")
     expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
@@ -498,7 +504,7 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     p.click("nav a[href='#robot']")
     p.click("#robot-line-links button[data-line='legs']")
     expect(p.locator("#page-line")).to_be_visible()
-    expect(p.locator("#servo-table tbody tr")).to_have_count(10)
+    scan_lists(p, 10)
     context.close()
 
 
