@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import subprocess
@@ -10,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async.cli import ExitCode
+from ics35_async.cli import COMMAND_MODULES, ExitCode
 from ics35_async.sim import VirtualServo, serving
 
 # --------------------------------------------------------------------------- line options after the command
@@ -147,6 +148,37 @@ def test_version_imports_none_of_the_heavy_parts() -> None:
     if "ics35_async.bus" not in package:
         # Once the package imports lazily, --version must not pull the bus or the simulator in either.
         assert not {"ics35_async.bus", "ics35_async.sim", "ics35_async.transport"} & after
+
+
+COMMAND_PROBE = """
+import json, sys
+from ics35_async.cli import main
+try:
+    main(["get", "1", "stretch"])
+except SystemExit:
+    pass
+print(json.dumps(sorted(sys.modules)))
+"""
+
+
+def test_a_command_imports_its_own_module_and_not_the_others() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", COMMAND_PROBE], capture_output=True, text=True, timeout=60, env=os.environ
+    )
+    assert done.returncode == 0, done.stderr
+    assert "stretch = " in done.stdout
+    loaded = {m.rsplit(".", 1)[1] for m in json.loads(done.stdout.splitlines()[-1]) if m.startswith("ics35_async.cli.")}
+    others = set(COMMAND_MODULES.values()) - {"_basic"}
+    assert "_basic" in loaded and not loaded & others, loaded & others
+    assert "ics35_async.robot" not in done.stdout and "ics35_async.web" not in done.stdout
+
+
+def test_the_table_of_command_modules_names_every_command_where_it_is() -> None:
+    found = {}
+    for module_name in set(COMMAND_MODULES.values()):
+        module = importlib.import_module(f"ics35_async.cli.{module_name}")
+        found.update({command.name: module_name for command in module.COMMANDS})
+    assert found == COMMAND_MODULES
 
 
 @pytest.mark.parametrize("env", ["1", ""], ids=["burst", "ordinary"])

@@ -26,21 +26,30 @@ from ._settings import CliError, ExitCode
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 110}
 
-# Modules whose COMMANDS list is mounted on the group (imported on first use).
-COMMAND_MODULES = (
-    "_basic",
-    "_eeprom",
-    "_monitor",
-    "_demo",
-    "_simcmd",
-    "_ports",
-    "_doctor",
-    "_udev",
-    "_sniff",
-    "_robot_play",
-    "_robot_teach",
-    "_web",
-)
+# Each command's module (its COMMANDS list is mounted on the group): running a command imports only its
+# own module, so `ics35 get` does not pay for the robot, the plot or the web server; listing them (help)
+# imports them all.  tests/test_cli_options.py checks this table against the modules' COMMANDS.
+COMMAND_MODULES = {
+    "scan": "_basic",
+    "info": "_basic",
+    "move": "_basic",
+    "free": "_basic",
+    "get": "_basic",
+    "set": "_basic",
+    "set-id": "_basic",
+    "eeprom": "_eeprom",
+    "monitor": "_monitor",
+    "demo": "_demo",
+    "sim": "_simcmd",
+    "ports": "_ports",
+    "doctor": "_doctor",
+    "udev": "_udev",
+    "sniff": "_sniff",
+    "play": "_robot_play",
+    "teach": "_robot_teach",
+    "calibrate": "_robot_teach",
+    "web": "_web",
+}
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
 # Commands that open no line: no line options after them either.
@@ -48,34 +57,39 @@ NO_LINE = frozenset({"ports", "udev"})
 
 
 class LazyGroup(click.Group):
-    """A group that imports its command modules only when a command is looked up or listed."""
+    """A group that imports a command's module only when that command is looked up (all when listed)."""
 
-    _loaded = False
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._loaded: set[str] = set()
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         ctx.meta["ics35.argv"] = list(args)  # what --version -v looks at (it runs before -v is parsed)
         return super().parse_args(ctx, args)
 
-    def _load(self) -> None:
-        if self._loaded:
+    def _load(self, module_name: str) -> None:
+        if module_name in self._loaded:
             return
-        self._loaded = True
+        self._loaded.add(module_name)
         from ._runner import guard_writes
 
-        for name in COMMAND_MODULES:
-            module = importlib.import_module(f"{__name__}.{name}")
-            for command in module.COMMANDS:
-                if command.name not in PASS_THROUGH | NO_LINE:
-                    add_line_options(command)
-                guard_writes(command)
-                self.add_command(command)
+        module = importlib.import_module(f"{__name__}.{module_name}")
+        for command in module.COMMANDS:
+            if command.name not in PASS_THROUGH | NO_LINE:
+                add_line_options(command)
+            guard_writes(command)
+            self.add_command(command)
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        self._load()
+        for module_name in dict.fromkeys(COMMAND_MODULES.values()):
+            self._load(module_name)
         return super().list_commands(ctx)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        self._load()
+        module_name = COMMAND_MODULES.get(cmd_name)
+        if module_name is None:
+            return None  # no such command: click says so (and lists them with --help)
+        self._load(module_name)
         return super().get_command(ctx, cmd_name)
 
 
