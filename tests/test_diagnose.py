@@ -14,6 +14,7 @@ from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
 from ics35_async.diagnose.system import check_system, holders
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo
+from tests.support.timing import NO_TIMEOUTS_OPTION
 
 UID, GID = 1000, 1000
 DIALOUT = 20
@@ -178,7 +179,9 @@ def test_the_serial_group_is_one_the_user_is_in(tmp_path: Path) -> None:
 # machine busy with other tests stretches past the timer (see CONTRIBUTING).
 @pytest.mark.realtime
 def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(cli: Any) -> None:
-    result = cli("doctor", "--port", "sim://?ids=1,2&adapter=ftdi&latency_timer=16", "--samples", "8", "--json")
+    # Only the IDs there, each reply waited for (the timer's 16 ms plus whatever a busy machine adds).
+    line = ("--port", "sim://?ids=1,2&adapter=ftdi&latency_timer=16", "--ids", "1,2", *NO_TIMEOUTS_OPTION)
+    result = cli("doctor", *line, "--samples", "8", "--json")
     assert result.code == 0, result.err
     data = result.json()
     assert data["servos"] == [1, 2] and data["transactions"] == 16
@@ -230,7 +233,8 @@ def test_round_trips_faster_than_the_wire_give_the_wire_limit() -> None:
 # machine busy with other tests stretches past the timer (see CONTRIBUTING).
 @pytest.mark.realtime
 def test_doctor_text_and_no_servo(cli: Any) -> None:
-    result = cli("doctor", "--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--samples", "20")
+    line = ("--port", "sim://?ids=1&adapter=ftdi&latency_timer=16", "--ids", "1", *NO_TIMEOUTS_OPTION)
+    result = cli("doctor", *line, "--samples", "20")
     assert result.code == 0
     assert "latency timer suspected: 16 ms" in result.out and "fix:" in result.err
     none = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3", "--json")
