@@ -293,7 +293,7 @@ def test_a_client_opening_as_the_last_one_closes_keeps_its_speed() -> None:
     # The server resets the pty when its last client closes.  A client that opens and sets its speed
     # while that reset runs must not have its speed overwritten: the server would take it to run at
     # the last client's speed and answer bytes sent at another.  The new client opens here at the
-    # worst moment, the instant the reset has read the pty's settings, from a profile hook.
+    # worst moment, the instant the reset has first looked at the pty, from a profile hook.
     port = PtyPort()
     port.open()
     try:
@@ -304,23 +304,42 @@ def test_a_client_opening_as_the_last_one_closes_keeps_its_speed() -> None:
             assert port.client_baudrate() == 1250000
             port.park_speed(only_if=1250000)  # as the server does at a client's first bytes
         second: list[serial.Serial] = []
+        writes: list[object] = []
 
         def hook(frame: Any, event: str, arg: Any) -> None:
-            if event == "c_return" and arg is termios.tcgetattr and not second:
+            # The reset's first look at the pty (its settings, or whether a client is there): open then.
+            looked = arg is termios.tcgetattr or getattr(arg, "__name__", "") == "poll"
+            if event == "c_return" and looked and not second:
                 second.append(open_port(str(port.path), 115200))
+            elif event == "c_call" and arg is termios.tcsetattr:
+                writes.append(arg)
 
-        while True:  # the hang-up: the last client closed
-            sys.setprofile(hook)
-            try:
-                closed = port.read() == b""
-            finally:
-                sys.setprofile(None)
-            if closed or second:
-                break
-            time.sleep(0.001)
-        assert second, "the reset never read the pty's settings"
+        def hang_up() -> None:
+            """Read until the server sees the last client gone (and resets the pty), under the hook."""
+            deadline = time.monotonic() + GUARD
+            while time.monotonic() < deadline:
+                sys.setprofile(hook)
+                try:
+                    closed = port.read() == b""
+                finally:
+                    sys.setprofile(None)
+                if closed:
+                    return
+                time.sleep(0.001)
+            pytest.fail("the server never saw the client go")
+
+        hang_up()
+        assert second, "the reset never looked at the pty"
         with second[0]:
             second[0].write(b"\x81")
             assert port.client_baudrate() == 115200
+            assert port.read() == b"\x81"
+            port.park_speed(only_if=115200)
+        writes.clear()
+        # With no one opening now, the reset after a pyserial client writes nothing at all (it left the
+        # pty raw, and its speed was parked at its first bytes): no write, no window for the race.
+        second.append(second[0])  # the hook opens no more clients
+        hang_up()
+        assert writes == []
     finally:
         port.dispose()

@@ -85,10 +85,12 @@ def host_baudrate(fd: int) -> int | None:
 
 
 def _raw_and_parked(attrs: list[Any]) -> list[Any]:
-    """``attrs`` in raw mode (as ``tty.setraw`` makes it) at the idle speed.
+    """``attrs`` in raw mode (Python 3.11's ``tty.setraw``) at the idle speed.
 
-    INPCK stays as the client left it: a pty has no parity to check, and the
-    ICS drivers set it (with PARMRK) on every port they open.
+    Left as the client left them: INPCK and PARMRK (a pty has no parity to
+    check; the ICS drivers set both on every port they open) and, when the
+    client was already non-canonical, VMIN and VTIME (they shape only the
+    client's own reads; pyserial sets 0 and 0).
     """
     iflag, oflag, cflag, lflag, _, _, cc = attrs
     wanted = [
@@ -100,8 +102,9 @@ def _raw_and_parked(attrs: list[Any]) -> list[Any]:
         _IDLE_SPEED,
         list(cc),
     ]
-    wanted[6][termios.VMIN] = 1
-    wanted[6][termios.VTIME] = 0
+    if lflag & termios.ICANON:
+        wanted[6][termios.VMIN] = 1
+        wanted[6][termios.VTIME] = 0
     return wanted
 
 
@@ -177,7 +180,8 @@ class PtyPort:
         the server parked its speed at its first bytes, so nothing is written.  A write races a
         client that opens right after the last one closed: setting its speed between our read
         of the settings and our write, it would have it overwritten with the idle speed and be
-        taken to run at the last client's.
+        taken to run at the last client's.  (Nothing flushes here what the last client left
+        unread: pyserial discards it as it opens a port, as the library's ports do.)
         """
         if self.master is None:
             return
@@ -185,8 +189,7 @@ class PtyPort:
         wanted = _raw_and_parked(attrs)
         if wanted == attrs or _client_opened(self.master):
             return  # nothing to change, or a new client opened: its settings are the ones to keep
-        with contextlib.suppress(termios.error):
-            termios.tcsetattr(self.master, termios.TCSANOW, wanted)
+        termios.tcsetattr(self.master, termios.TCSANOW, wanted)
 
     def park_speed(self, only_if: int | None = None) -> None:
         """Set the pty's speed to 38400, leaving the client's other settings alone.
