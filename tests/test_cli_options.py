@@ -173,6 +173,12 @@ def test_a_command_imports_its_own_module_and_not_the_others() -> None:
     assert "ics35_async.robot" not in done.stdout and "ics35_async.web" not in done.stdout
 
 
+def test_a_mistyped_command_is_answered_with_the_one_meant(cli: Any) -> None:
+    result = cli("sacn")
+    assert result.code == ExitCode.USAGE
+    assert "No such command 'sacn'" in result.err and "Did you mean 'scan'" in result.err
+
+
 def test_the_table_of_command_modules_names_every_command_where_it_is() -> None:
     found = {}
     for module_name in set(COMMAND_MODULES.values()):

@@ -88,7 +88,9 @@ class LazyGroup(click.Group):
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         module_name = COMMAND_MODULES.get(cmd_name)
         if module_name is None:
-            return None  # no such command: click says so (and lists them with --help)
+            if not ctx.resilient_parsing:  # a typo: click's "Did you mean" looks among every command
+                self.list_commands(ctx)
+            return None
         self._load(module_name)
         return super().get_command(ctx, cmd_name)
 
