@@ -55,7 +55,7 @@ def port() -> Iterator[str]:
 
 
 def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
-    # Every present servo must answer (the no-timeouts allowance); two IDs nobody has are asked too.
+    # Every present servo must answer (the patient allowance); two IDs nobody has are asked too.
     ids = ",".join(str(i) for i in sorted({0, 31, *SIM_IDS}))
     proc = ics35(port, *ANSWERED, "scan", "--bauds", "115200,625000", "--ids", ids, "--json")
     assert proc.returncode == 0, proc.stderr
@@ -128,7 +128,7 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     # Unplugged by the traffic (after a few dozen transactions), not by the clock: a loaded machine can take
     # longer than any fixed delay to start the command.
     server = pty_sim("--ids", "1-3", "--faults", "unplug@1-3:0.02", "--seed", "1", "--replug-after", "1.0")
-    # The no-timeouts allowance: the free that follows the replug must be answered on a loaded machine too.
+    # The patient allowance: the free that follows the replug must be answered on a loaded machine too.
     proc = ics35(server.path, *ANSWERED, "demo", "--ids", "1-3", "--seconds", "10")
     assert proc.returncode == 1, proc.stderr
     text = " ".join(proc.stderr.split())
@@ -186,7 +186,7 @@ def test_demo_stopped_before_its_first_frame_is_no_error(port: str) -> None:
 
 
 def run_set_id(ids: str, new: int, *extra: str) -> tuple[subprocess.CompletedProcess[str], Any]:
-    # Every reply counted: the no-timeouts allowance, and the scan after asks only the IDs involved.
+    # Every reply counted: the patient allowance, and the scan after asks only the IDs involved.
     with serving(["--ids", ids]) as path:
         proc = ics35(path, *ANSWERED, "set-id", str(new), *extra)
         scan = json.loads(

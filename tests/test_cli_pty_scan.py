@@ -21,8 +21,8 @@ pytestmark = [
 
 # The timing profile's allowance for replies across a pty: a loaded machine answers later than an adapter.
 LINE = [*REAL_TIME_OPTION, "--retries", "1"]
-# Where the test counts replies and none may be missed: an allowance no loaded machine runs out of, so only
-# the IDs that should answer (and one that should not) are probed.
+# Where the test counts replies and none may be missed: the patient allowance, long for a loaded machine, so
+# only the IDs that should answer (and one that should not) are probed.
 ANSWERED = [*PATIENT_OPTION, "--retries", "1"]
 
 

@@ -107,7 +107,8 @@ async def _stretch_once(bus: Any, servo_id: int) -> int:
 
 
 async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
-    # Every present servo must answer at its rate: the no-timeouts allowance, and only their IDs asked.
+    # Every present servo must answer at its rate, and only their IDs are asked; at the other rates each
+    # waits its allowance out: the patient one.
     report = await policies.scan(
         lambda baud: open_bus(rfc2217.url, baudrate=baud, **PATIENT), ids=[1, 2, 3], read_eeprom=False
     )
@@ -148,7 +149,8 @@ async def test_scan_over_socket_probes_once_and_lists_each_servo_once(tcp_bridge
 
 async def test_scan_over_socket_lists_the_eeprom_rate(tcp_bridge: TcpBridge) -> None:
     # Asked for 625000 first: the bridge still runs at its own rate, and the servos say theirs.  Both servos
-    # answer at every rate, so no reply may time out (a real-time pty behind a bridge thread, on a busy machine).
+    # answer at every rate, so no reply may time out (a real-time pty behind a bridge thread, on a busy machine):
+    # the patient allowance, as the other scans over a bridge.
     report = await policies.scan(
         lambda baud: open_bus(tcp_bridge.url, baudrate=baud, **PATIENT), bauds=[625000, 115200], ids=[1, 2]
     )

@@ -149,7 +149,7 @@ def test_sniff_json_decodes_every_transaction_another_program_sent(tmp_path: Pat
             assert sniffer.stderr is not None
             assert "listening on" in sniffer.stderr.readline()  # the port is open: nothing sent from now is lost
             env = {**os.environ, "ICS35_PORT": port}
-            # Every reply expected (a pty server on a loaded machine answers late): the no-timeouts allowance.
+            # Every reply expected (a pty server on a loaded machine answers late): the patient allowance.
             for args in (["info", "2", "--no-position"], ["get", "3", "temperature"], ["free", "1"]):
                 done = subprocess.run(
                     [sys.executable, "-m", "ics35_async.cli", *PATIENT_OPTION, *args],

@@ -44,7 +44,7 @@ KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
 pytestmark = [pytest.mark.slow, pytest.mark.pty]
 WEB = [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"]
 WAIT_MS = int(scaled(20.0) * 1000)  # a busy machine: every wait is for an outcome, never a measure of speed
-# A scan with the no-timeouts allowance: a reply late past a probe's short wait (a loaded machine) has
+# A scan with the patient allowance: a reply late past a probe's short wait (a loaded machine) has
 # the scan probe every silent ID again with the full half second, so it can take half a minute.
 SCAN_WAIT_MS = int(scaled(60.0) * 1000)
 expect.set_options(timeout=WAIT_MS)
@@ -82,7 +82,7 @@ def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
         # --timeout: the simulated servos answer from a thread of this busy process (pytest, Playwright),
         # and on a loaded machine that thread waits for a core for 100 ms and more.  Every present
         # servo must answer (a reply later than the allowance would also teach the line a slow-link
-        # extra, and a scan's 30 empty IDs would each wait it out): the no-timeouts allowance.
+        # extra), yet a scan's 30 empty IDs each wait it out: the patient allowance.
         [*WEB, "--port", lines[0].path, *PATIENT_OPTION],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
