@@ -91,7 +91,7 @@ class AnswerTimes:
             recent[self._n % RECENT] = beyond_wire
         self._n += 1
         if self._n % REFRESH == 0 or self._n == RECENT_MIN:
-            slow = heapq.nlargest(OUTLIERS + 1, recent)[-1] if len(recent) >= 4 * OUTLIERS else max(recent)
+            slow = heapq.nlargest(OUTLIERS + 1, recent)[-1]  # RECENT_MIN answers at least: more than OUTLIERS
             self.stream_latency = max(FLOOR, FACTOR * slow + MARGIN)
         expected = self.expected
         if expected < 0:
