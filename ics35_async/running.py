@@ -122,25 +122,28 @@ class _StopSignals:
         self.active = False
         self.signum: int | None = None  # the first stop signal; later ones are ignored
         self.deferred = False  # a wait took the signal and owes the raise
-        self._wait: Wakeable | None = None
-        self._holding = False
+        # The wait under way and whether it holds signals till it ends: one value, so that a handler
+        # running between two stores never sees half of a change.
+        self._current: tuple[Wakeable | None, bool] = (None, False)
         self.unraisablehook = sys.unraisablehook
 
     def start(self) -> None:
         self.active, self.signum, self.deferred = True, None, False
+        self._current = (None, False)
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
+        wait, holding = self._current
         if self.signum is not None:
-            if self.deferred and self._wait is None:  # the first is still owed (a finalizer dropped it)
+            if self.deferred and wait is None:  # the first is still owed (a finalizer dropped it)
                 self.deferred = False
                 raise _Stopped(self.signum)
             return  # a second signal while the with blocks close (servos being put to rest): ignored
         self.signum = signum
-        if self._wait is None:
+        if wait is None:
             raise _Stopped(signum)
         self.deferred = True
-        if not self._holding:
-            self._wait.wake()
+        if not holding:
+            wait.wake()
 
     @contextlib.contextmanager
     def waiting(self, wait: Wakeable, *, holding: bool) -> Iterator[None]:
@@ -149,18 +152,18 @@ class _StopSignals:
         if not self.active or threading.current_thread() is not threading.main_thread():
             yield  # signals run in the main thread only
             return
-        outer = self._wait, self._holding
-        self._wait, self._holding = wait, holding or self._holding
+        outer = self._current
+        self._current = (wait, holding or outer[1])
         try:
             yield
         finally:
-            self._wait, self._holding = outer
+            self._current = outer
             if outer[0] is None:
                 self.take()  # a signal that came as the wait ended: raised now, not at the next call
 
     def take(self) -> None:
         """At a safe point of a blocking wait: raise the stop that wait owes (or one a finalizer dropped)."""
-        if self.deferred and threading.current_thread() is threading.main_thread():
+        if self.active and self.deferred and threading.current_thread() is threading.main_thread():
             self.deferred = False
             raise _Stopped(self.signum or signal.SIGTERM)
 
@@ -196,10 +199,12 @@ def stop_on_signals() -> Iterator[None]:
         for stopping in (signal.SIGINT, signal.SIGTERM):
             previous[stopping] = signal.signal(stopping, stop_signals.handle)
         yield
+        if stop_signals.deferred:  # a finalizer dropped the stop after the block's last blocking call
+            raise _Stopped(stop_signals.signum or signal.SIGTERM)
     except _Stopped as stopped:
         raise SystemExit(EXIT_SIGINT if stopped.signum == signal.SIGINT else EXIT_SIGTERM) from None
     finally:
-        stop_signals.active = False
+        stop_signals.active = stop_signals.deferred = False
         sys.unraisablehook = stop_signals.unraisablehook
         for signum, handler in previous.items():
             signal.signal(signum, handler)  # type: ignore[arg-type]

@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+from tests.support.timing import scaled
+
 PROGRAM = textwrap.dedent(
     """
     import sys
@@ -179,7 +181,7 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
             with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
                 s.set_targets({1: 8000, 2: 7000})
                 for k, frame in enumerate(s):
-                    if k == 2:
+                    if k == int(sys.argv[3]):  # from this frame on, the n-th call is signalled
                         sys.setprofile(hook)
                     if k == 200:
                         break
@@ -202,8 +204,13 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
 
 @pytest.mark.slow
 def test_a_stop_signal_at_any_point_of_a_blocking_wait_stops_the_program_cleanly() -> None:
+    # From the third frame on: the calls of a stream running.  (From frame 200, where the loop breaks, the
+    # calls of the closes: a signal there can still leave the servos holding; not mended yet.)
     done = subprocess.run(
-        [sys.executable, "-c", SIGNAL_EVERYWHERE, "150", "60"], capture_output=True, text=True, timeout=90
+        [sys.executable, "-c", SIGNAL_EVERYWHERE, "150", str(scaled(60)), "2"],
+        capture_output=True,
+        text=True,
+        timeout=scaled(90),
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip() == "[]"
@@ -239,6 +246,32 @@ def test_a_stop_signal_that_lands_in_a_finalizer_still_stops_the_program() -> No
     # Python prints and drops an exception raised in __del__; the stop must not be lost with it.
     done = subprocess.run([sys.executable, "-c", FINALIZER_PROGRAM], capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stdout.strip(), done.stderr) == (143, "free", "")
+
+
+DROPPED_LAST = textwrap.dedent(
+    """
+    import os, signal
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    class SignalsWhenCollected:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler's stop is raised inside __del__
+
+    sim = VirtualLine([1], realtime=True)
+    with blocking.stop_on_signals():
+        with blocking.open_bus(sim) as bus:
+            bus.servo(1).read_stretch()
+        SignalsWhenCollected()  # after the last blocking call: no later call raises the dropped stop
+        print("went on", flush=True)
+    print("not stopped", flush=True)
+    """
+)
+
+
+def test_a_stop_a_finalizer_drops_after_the_last_blocking_call_still_ends_the_program() -> None:
+    done = subprocess.run([sys.executable, "-c", DROPPED_LAST], capture_output=True, text=True, timeout=scaled(60))
+    assert (done.returncode, done.stdout.split(), done.stderr) == (143, ["went", "on"], "")
 
 
 def test_stop_on_signals_inside_another_leaves_the_outer_one_in_charge() -> None:

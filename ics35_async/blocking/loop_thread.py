@@ -249,14 +249,26 @@ class LoopThread:
         if stop is not None:
             with contextlib.suppress(RuntimeError):  # RuntimeError: the loop has already ended
                 self._loop.call_soon_threadsafe(stop.set)
+        # A stop signal meanwhile is raised once the thread has ended (a close is not cut in half).
         interrupted: KeyboardInterrupt | None = None
-        while self._thread.is_alive():
-            try:
-                self._thread.join()
-            except KeyboardInterrupt as exc:
-                interrupted = exc
+        with stop_signals.waiting(_UNWAKEABLE, holding=True):
+            while self._thread.is_alive():
+                try:
+                    self._thread.join()
+                except KeyboardInterrupt as exc:
+                    interrupted = exc
         if interrupted is not None:
             raise interrupted
+
+
+class _Unwakeable:
+    """The wait of a join: a holding wait, never woken."""
+
+    def wake(self) -> None:
+        pass
+
+
+_UNWAKEABLE = _Unwakeable()
 
 
 def _result(outcome: Outcome[T], thread: threading.Thread) -> T:
