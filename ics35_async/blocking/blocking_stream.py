@@ -16,8 +16,10 @@ import anyio
 from .. import units
 from ..errors import BusClosed
 from ..frames import Frame, StreamStats
+from ..running import stop_signals
 from ..stream import Stream
 from .forward import ReadThrough, Wrapper, on_loop
+from .loop_thread import UNWAKEABLE
 
 
 class BlockingStream(Wrapper[Stream]):
@@ -82,8 +84,10 @@ class BlockingStream(Wrapper[Stream]):
 
     def close(self) -> None:
         """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free first."""
-        if self._loop.is_running:
-            self._loop.call_to_end(self._async.aclose)
+        # A stop signal meanwhile is raised once the stream is closed: never half closed, servos as asked.
+        with stop_signals.waiting(UNWAKEABLE, holding=True):
+            if self._loop.is_running:
+                self._loop.call_to_end(self._async.aclose)
 
     def __enter__(self) -> BlockingStream:
         return self.start()

@@ -251,7 +251,7 @@ class LoopThread:
                 self._loop.call_soon_threadsafe(stop.set)
         # A stop signal meanwhile is raised once the thread has ended (a close is not cut in half).
         interrupted: KeyboardInterrupt | None = None
-        with stop_signals.waiting(_UNWAKEABLE, holding=True):
+        with stop_signals.waiting(UNWAKEABLE, holding=True):
             while self._thread.is_alive():
                 try:
                     self._thread.join()
@@ -262,13 +262,13 @@ class LoopThread:
 
 
 class _Unwakeable:
-    """The wait of a join: a holding wait, never woken."""
+    """The wait of a close: a holding wait, never woken (a stop signal meanwhile is raised once it is over)."""
 
     def wake(self) -> None:
         pass
 
 
-_UNWAKEABLE = _Unwakeable()
+UNWAKEABLE = _Unwakeable()
 
 
 def _result(outcome: Outcome[T], thread: threading.Thread) -> T:

@@ -17,8 +17,9 @@ from collections.abc import Awaitable, Callable
 from types import TracebackType
 from typing import Self, TypeVar
 
+from ..running import stop_signals
 from .forward import Wrapper
-from .loop_thread import LoopThread
+from .loop_thread import UNWAKEABLE, LoopThread
 
 A = TypeVar("A")
 
@@ -39,10 +40,12 @@ class LoopOwner(Wrapper[A]):
 
         Idempotent.  A Ctrl-C while closing is raised once everything is released.
         """
-        detached = self._finalizer.detach()
-        if detached is not None:
-            _, _, (_, aclose, loop), _ = detached
-            _close(aclose, loop)
+        # A stop signal meanwhile is raised once all is closed (the port released, the thread ended).
+        with stop_signals.waiting(UNWAKEABLE, holding=True):
+            detached = self._finalizer.detach()
+            if detached is not None:
+                _, _, (_, aclose, loop), _ = detached
+                _close(aclose, loop)
 
     def __enter__(self) -> Self:
         return self
