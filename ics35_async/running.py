@@ -103,6 +103,16 @@ class Wakeable(Protocol):
     def wake(self) -> None: ...
 
 
+class _NeverWoken:
+    """The wait of :meth:`_StopSignals.held`: a stop signal waits for its end, nothing wakes it."""
+
+    def wake(self) -> None:
+        pass
+
+
+_NEVER_WOKEN = _NeverWoken()
+
+
 class _StopSignals:
     """Where :func:`stop_on_signals` raises its stop, given what the main thread is doing.
 
@@ -112,7 +122,7 @@ class _StopSignals:
     step in half.  So while the main thread waits for a blocking call
     (:mod:`ics35_async.blocking.loop_thread` registers each wait), the signal
     is deferred: the wait is woken and raises the stop itself, at a point
-    where nothing is half done; a wait that closes something (``holding``)
+    where nothing is half done; a close (:meth:`held`)
     raises it once the close is over.  Elsewhere, in the program's own code,
     the handler raises at once, as Ctrl-C does; if a finalizer or weakref
     callback it landed in drops it, the program's next blocking call raises it.
@@ -145,10 +155,17 @@ class _StopSignals:
         if not holding:
             wait.wake()
 
+    def waiting(self, wait: Wakeable) -> contextlib.AbstractContextManager[None]:
+        """Around a blocking wait: a stop signal meanwhile wakes it (``wait.wake()``), and the wait raises it."""
+        return self._around(wait, holding=False)
+
+    def held(self) -> contextlib.AbstractContextManager[None]:
+        """Around a close (or a wait that must not be cut short): a stop signal meanwhile is raised once it ends."""
+        return self._around(_NEVER_WOKEN, holding=True)
+
     @contextlib.contextmanager
-    def waiting(self, wait: Wakeable, *, holding: bool) -> Iterator[None]:
-        """Around a blocking wait: a stop signal meanwhile wakes it (or, ``holding``, waits for it to end);
-        the outermost raises, as it ends, a stop still owed."""
+    def _around(self, wait: Wakeable, *, holding: bool) -> Iterator[None]:
+        """The outermost raises, as it ends, a stop still owed."""
         if not self.active or threading.current_thread() is not threading.main_thread():
             yield  # signals run in the main thread only
             return

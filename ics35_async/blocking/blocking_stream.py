@@ -19,7 +19,6 @@ from ..frames import Frame, StreamStats
 from ..running import stop_signals
 from ..stream import Stream
 from .forward import ReadThrough, Wrapper, on_loop
-from .loop_thread import UNWAKEABLE
 
 
 class BlockingStream(Wrapper[Stream]):
@@ -85,7 +84,7 @@ class BlockingStream(Wrapper[Stream]):
     def close(self) -> None:
         """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free first."""
         # A stop signal meanwhile is raised once the stream is closed: never half closed, servos as asked.
-        with stop_signals.waiting(UNWAKEABLE, holding=True):
+        with stop_signals.held():
             if self._loop.is_running:
                 self._loop.call_to_end(self._async.aclose)
 

@@ -198,7 +198,7 @@ class LoopThread:
         """Like :meth:`call`, but a Ctrl-C does not cancel: it is raised once ``fn`` has finished."""
         self._check_caller()
         call: _Call[T] = _Call()
-        with stop_signals.waiting(call.outcome, holding=True):  # a stop signal from here on waits for the end
+        with stop_signals.held():  # a stop signal from here on waits for the end
             self._schedule(call.spawn, fn, args, kwargs)
             return _result_holding_interrupts(call.outcome, self._thread)
 
@@ -249,32 +249,20 @@ class LoopThread:
         if stop is not None:
             with contextlib.suppress(RuntimeError):  # RuntimeError: the loop has already ended
                 self._loop.call_soon_threadsafe(stop.set)
-        # A stop signal meanwhile is raised once the thread has ended (a close is not cut in half).
-        interrupted: KeyboardInterrupt | None = None
-        with stop_signals.waiting(UNWAKEABLE, holding=True):
-            while self._thread.is_alive():
-                try:
-                    self._thread.join()
-                except KeyboardInterrupt as exc:
-                    interrupted = exc
-        if interrupted is not None:
-            raise interrupted
+        thread = self._thread
 
+        def joined() -> bool:
+            if thread.is_alive():  # (never started: nothing to join)
+                thread.join()
+            return True
 
-class _Unwakeable:
-    """The wait of a close: a holding wait, never woken (a stop signal meanwhile is raised once it is over)."""
-
-    def wake(self) -> None:
-        pass
-
-
-UNWAKEABLE = _Unwakeable()
+        _hold_interrupts_until(joined)  # a close is not cut in half
 
 
 def _result(outcome: Outcome[T], thread: threading.Thread) -> T:
     """The outcome's result, or BusClosed if the loop thread ends first (never expected: a safety net)."""
     # A stop signal wakes the wait and is raised here; one that comes as it ends, by ``waiting`` itself.
-    with stop_signals.waiting(outcome, holding=False):
+    with stop_signals.waiting(outcome):
         while not outcome.wait(_ALIVE_CHECK):
             stop_signals.take()
             if not thread.is_alive() and not outcome.done:
@@ -282,19 +270,24 @@ def _result(outcome: Outcome[T], thread: threading.Thread) -> T:
     return outcome.result()
 
 
-def _wait_holding_interrupts(outcome: Outcome[Any], thread: threading.Thread) -> None:
-    """Wait until ``outcome`` is settled (or the loop thread ends); a KeyboardInterrupt or a stop signal
-    meanwhile is raised after."""
+def _hold_interrupts_until(done: Callable[[], bool]) -> None:
+    """Call ``done()`` until it says True; a KeyboardInterrupt or a stop signal meanwhile is raised after."""
     interrupted: KeyboardInterrupt | None = None
-    with stop_signals.waiting(outcome, holding=True):
+    with stop_signals.held():
         while True:
             try:
-                if outcome.wait(_ALIVE_CHECK) or not thread.is_alive():
+                if done():
                     break
             except KeyboardInterrupt as exc:
                 interrupted = exc
     if interrupted is not None:
         raise interrupted
+
+
+def _wait_holding_interrupts(outcome: Outcome[Any], thread: threading.Thread) -> None:
+    """Wait until ``outcome`` is settled (or the loop thread ends); a KeyboardInterrupt or a stop signal
+    meanwhile is raised after."""
+    _hold_interrupts_until(lambda: outcome.wait(_ALIVE_CHECK) or not thread.is_alive())
 
 
 def _result_holding_interrupts(outcome: Outcome[T], thread: threading.Thread) -> T:

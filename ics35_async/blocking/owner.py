@@ -19,7 +19,7 @@ from typing import Self, TypeVar
 
 from ..running import stop_signals
 from .forward import Wrapper
-from .loop_thread import UNWAKEABLE, LoopThread
+from .loop_thread import LoopThread
 
 A = TypeVar("A")
 
@@ -41,7 +41,7 @@ class LoopOwner(Wrapper[A]):
         Idempotent.  A Ctrl-C while closing is raised once everything is released.
         """
         # A stop signal meanwhile is raised once all is closed (the port released, the thread ended).
-        with stop_signals.waiting(UNWAKEABLE, holding=True):
+        with stop_signals.held():
             detached = self._finalizer.detach()
             if detached is not None:
                 _, _, (_, aclose, loop), _ = detached
