@@ -18,8 +18,8 @@ import signal
 import sys
 import threading
 from collections.abc import Awaitable, Callable, Iterator
-from types import FrameType
-from typing import Any, Literal, Protocol
+from types import CodeType, FrameType
+from typing import Any, Literal, Protocol, TypeVar
 
 from .errors import IcsError
 from .tasks import only_error
@@ -91,12 +91,20 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
 
 
-class _Stopped(BaseException):
-    """Raised in the main thread by a signal inside :func:`stop_on_signals` (not an error: a stop)."""
+class _Stopped(SystemExit):
+    """Raised in the main thread by a signal inside :func:`stop_on_signals` (not an error: a stop).
+
+    A ``SystemExit`` with the signal's exit code: :func:`stop_on_signals` hands the program a plain one,
+    and should a signal land in its own last steps, this one ends the program as cleanly.
+    """
 
     def __init__(self, signum: int) -> None:
-        super().__init__(signum)
+        super().__init__(_exit_code(signum))
         self.signum = signum
+
+
+def _exit_code(signum: int) -> int:
+    return EXIT_SIGINT if signum == signal.SIGINT else EXIT_SIGTERM
 
 
 class Wakeable(Protocol):
@@ -122,8 +130,9 @@ class _StopSignals:
     step in half.  So while the main thread waits for a blocking call
     (:mod:`ics35_async.blocking.loop_thread` registers each wait), the signal
     is deferred: the wait is woken and raises the stop itself, at a point
-    where nothing is half done; a close (:meth:`held`)
-    raises it once the close is over.  Elsewhere, in the program's own code,
+    where nothing is half done; inside a close (a function marked
+    :func:`close_step`, or anything it calls) the signal is deferred too and
+    raised once the close is over (:meth:`held`).  Elsewhere, in the program's own code,
     the handler raises at once, as Ctrl-C does; if a finalizer or weakref
     callback it landed in drops it, the program's next blocking call raises it.
     """
@@ -142,15 +151,21 @@ class _StopSignals:
         self._current = (None, False)
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
+        if not self.active:  # stop_on_signals is ending: noted, and raised once its handlers are given back
+            self.signum = self.signum or signum
+            return
         wait, holding = self._current
-        if self.signum is not None:
-            if self.deferred and wait is None:  # the first is still owed (a finalizer dropped it)
-                self.deferred = False
-                raise _Stopped(self.signum)
+        if self.signum is None:
+            self.signum = signum
+        elif not (self.deferred and wait is None):
             return  # a second signal while the with blocks close (servos being put to rest): ignored
-        self.signum = signum
+        # (else the first is still owed: a finalizer dropped it)
         if wait is None:
-            raise _Stopped(signum)
+            if _inside_a_close(frame):  # a close begun (before or after its held()) is not cut in half
+                self.deferred = True
+                return
+            self.deferred = False
+            raise _Stopped(self.signum)
         self.deferred = True
         if not holding:
             wait.wake()
@@ -194,6 +209,28 @@ class _StopSignals:
 
 stop_signals = _StopSignals()
 
+F = TypeVar("F", bound=Callable[..., Any])
+
+# The code of the functions that put servos to rest and release ports (a blocking stream's and bus's
+# close and ``__exit__``): a stop signal landing anywhere in one, or in anything it calls, is deferred
+# until the close's end instead of raised there.  ``held()`` alone cannot do this: a signal can land in
+# the few calls before a close enters it, and the close would then never run.
+_CLOSES: set[CodeType] = set()
+
+
+def close_step(function: F) -> F:
+    """Mark ``function`` as part of a close that a stop signal must not cut short (see ``_CLOSES``)."""
+    _CLOSES.add(function.__code__)
+    return function
+
+
+def _inside_a_close(frame: FrameType | None) -> bool:
+    while frame is not None:
+        if frame.f_code in _CLOSES:
+            return True
+        frame = frame.f_back
+    return False
+
 
 @contextlib.contextmanager
 def stop_on_signals() -> Iterator[None]:
@@ -219,12 +256,16 @@ def stop_on_signals() -> Iterator[None]:
         if stop_signals.deferred:  # a finalizer dropped the stop after the block's last blocking call
             raise _Stopped(stop_signals.signum or signal.SIGTERM)
     except _Stopped as stopped:
-        raise SystemExit(EXIT_SIGINT if stopped.signum == signal.SIGINT else EXIT_SIGTERM) from None
+        raise SystemExit(stopped.code) from None
     finally:
-        stop_signals.active = stop_signals.deferred = False
-        sys.unraisablehook = stop_signals.unraisablehook
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)  # type: ignore[arg-type]
+        try:
+            stop_signals.active = False  # a signal from here on is only noted (see _StopSignals.handle)
+        finally:  # (a stop raised on the line above must not leave the handlers installed)
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)  # type: ignore[arg-type]
+            sys.unraisablehook = stop_signals.unraisablehook
+    if stop_signals.signum is not None:  # the block ended, and a signal came as this took its handlers back
+        raise SystemExit(_exit_code(stop_signals.signum))
 
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "stop_on_signals"]

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import textwrap
 import time
+from typing import Any
 
 import pytest
 
@@ -152,27 +154,34 @@ def test_no_thread_is_left_when_the_program_ends(backend: str) -> None:
 
 
 # A signal's exception lands between any two bytecodes of the main thread.  This program stops a
-# blocking stream with SIGTERM at each of the main thread's first calls and returns in turn (a
-# profile hook sends the signal), under stop_on_signals: each time, the program must stop with 143,
-# the servos free and the bus's thread gone, and nothing may print (a lock left held hangs the
-# loop thread; a Condition's lock released twice raises RuntimeError; a stop dropped inside a
-# weakref callback prints "Exception ignored").
+# blocking stream with SIGTERM at each of the main thread's calls and returns in turn (a profile hook
+# sends the signal), from a given frame on, under stop_on_signals: each time, the program must stop
+# with 143, the servos free and the bus's thread gone, and nothing may print (a lock left held hangs
+# the loop thread; a Condition's lock released twice raises RuntimeError; a stop dropped inside a
+# weakref callback prints "Exception ignored").  It prints the points it got wrong and how many it
+# tried (it stops early once the signal would come after the whole ``with`` block).
 SIGNAL_EVERYWHERE = textwrap.dedent(
     """
-    import faulthandler, os, signal, sys, threading
+    import faulthandler, json, os, signal, sys, threading
     from ics35_async import blocking
     from ics35_async.sim import VirtualLine
 
-    faulthandler.dump_traceback_later(float(sys.argv[2]), exit=True)  # a hang: the stacks, then exit 1
+    calls, hang_after, first_frame, break_frame = int(sys.argv[1]), float(sys.argv[2]), *map(int, sys.argv[3:5])
+    faulthandler.dump_traceback_later(hang_after, exit=True)  # a hang: the stacks, then exit 1
+    after = []  # a signal after stop_on_signals has handed SIGTERM back (the sweep is past the block's end)
+    signal.signal(signal.SIGTERM, lambda signum, frame: after.append(signum))
     bad = []
-    for n in range(1, int(sys.argv[1])):
+    tried = 0
+    for n in range(1, calls + 1):
         events = 0
+        fired = False
 
         def hook(frame, event, arg):
-            global events
+            global events, fired
             events += 1
             if events == n:
                 sys.setprofile(None)
+                fired = True
                 os.kill(os.getpid(), signal.SIGTERM)
 
         sim = VirtualLine([1, 2], realtime=True)
@@ -181,15 +190,18 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
             with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
                 s.set_targets({1: 8000, 2: 7000})
                 for k, frame in enumerate(s):
-                    if k == int(sys.argv[3]):  # from this frame on, the n-th call is signalled
+                    if k == first_frame:  # from this frame on, the n-th call is signalled
                         sys.setprofile(hook)
-                    if k == 200:
+                    if k == break_frame:
                         break
         except SystemExit as stop:
             outcome = f"exit {stop.code}"
         except BaseException as exc:
             outcome = repr(exc)
         sys.setprofile(None)
+        if not fired or after:
+            break  # the n-th call comes after the with block: every point before it was tried
+        tried = n
         if outcome == "exit 143" and not all(sim.servo(i).free for i in (1, 2)):
             outcome = "servos holding"
         left = [t.name for t in threading.enumerate() if t.name.startswith("ics35 blocking")]
@@ -197,24 +209,37 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
             outcome = f"threads left: {left}"
         if outcome != "exit 143":
             bad.append((n, outcome))
-    print(bad, flush=True)
+    print(json.dumps({"bad": bad, "tried": tried}), flush=True)
     """
 )
 
 
-@pytest.mark.slow
-def test_a_stop_signal_at_any_point_of_a_blocking_wait_stops_the_program_cleanly() -> None:
-    # From the third frame on: the calls of a stream running.  (From frame 200, where the loop breaks, the
-    # calls of the closes: a signal there can still leave the servos holding; not mended yet.)
+def signal_everywhere(calls: int, first_frame: int, break_frame: int) -> dict[str, Any]:
     done = subprocess.run(
-        [sys.executable, "-c", SIGNAL_EVERYWHERE, "150", str(scaled(60)), "2"],
+        [sys.executable, "-c", SIGNAL_EVERYWHERE, str(calls), str(scaled(60)), str(first_frame), str(break_frame)],
         capture_output=True,
         text=True,
         timeout=scaled(90),
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    assert done.stdout.strip() == "[]"
     assert done.stderr == ""
+    result: dict[str, Any] = json.loads(done.stdout)
+    return result
+
+
+@pytest.mark.slow
+def test_a_stop_signal_at_any_point_of_a_blocking_wait_stops_the_program_cleanly() -> None:
+    # From the third frame on: the calls of a stream running.
+    assert signal_everywhere(150, first_frame=2, break_frame=200) == {"bad": [], "tried": 150}
+
+
+@pytest.mark.slow
+def test_a_stop_signal_at_any_point_of_the_closes_stops_the_program_with_servos_free() -> None:
+    # From the loop's break on: the calls of the stream's close (servos freed), then the bus's (its thread
+    # joined), to the end of the with block.
+    result = signal_everywhere(2000, first_frame=3, break_frame=3)
+    assert result["bad"] == []
+    assert 150 < result["tried"] < 2000  # it swept the closes to their end
 
 
 FINALIZER_PROGRAM = textwrap.dedent(

@@ -24,6 +24,7 @@ from typing import Any, ParamSpec, TypeVar, Unpack
 from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
+from ..running import close_step
 from .loop_thread import LoopThread
 from .owner import LoopOwner
 
@@ -110,6 +111,7 @@ class BlockingRobot(LoopOwner[Robot]):
 
     # ------------------------------------------------------------------ closing
 
+    @close_step
     def close(self) -> None:
         """Leave the robot as ``on_close`` says (hold or free), close every line, end the loop thread.
 

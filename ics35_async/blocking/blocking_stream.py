@@ -16,7 +16,7 @@ import anyio
 from .. import units
 from ..errors import BusClosed
 from ..frames import Frame, StreamStats
-from ..running import stop_signals
+from ..running import close_step, stop_signals
 from ..stream import Stream
 from .forward import ReadThrough, Wrapper, on_loop
 
@@ -81,6 +81,7 @@ class BlockingStream(Wrapper[Stream]):
         self._loop.call(self._async.start)
         return self
 
+    @close_step
     def close(self) -> None:
         """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free first."""
         # A stop signal meanwhile is raised once the stream is closed: never half closed, servos as asked.
@@ -91,6 +92,7 @@ class BlockingStream(Wrapper[Stream]):
     def __enter__(self) -> BlockingStream:
         return self.start()
 
+    @close_step
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:

@@ -17,7 +17,7 @@ from collections.abc import Awaitable, Callable
 from types import TracebackType
 from typing import Self, TypeVar
 
-from ..running import stop_signals
+from ..running import close_step, stop_signals
 from .forward import Wrapper
 from .loop_thread import LoopThread
 
@@ -35,6 +35,7 @@ class LoopOwner(Wrapper[A]):
         """From now on, closing (or forgetting) this object runs ``aclose`` on ``loop``, then ends it."""
         self._finalizer = weakref.finalize(self, _close_forgotten, what, aclose, loop)
 
+    @close_step
     def close(self) -> None:
         """Close, release the port, end the loop thread.
 
@@ -50,6 +51,7 @@ class LoopOwner(Wrapper[A]):
     def __enter__(self) -> Self:
         return self
 
+    @close_step
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
