@@ -355,7 +355,12 @@ def test_pty_simulator_round_trip_and_no_leaks() -> None:
                 with bus.stream([1, 2, 3]) as stream:
                     stream.set_targets({1: 8000, 2: 7000})
                     frames = [stream.next_frame(timeout=10) for _ in range(5)]
-                assert all(set(f.positions) == {1, 2, 3} for f in frames[1:])
+                    # A stream gives up on a late answer early (a loaded machine can hold the simulator
+                    # between echo and reply): every ID is in each frame, answered or failed, and whole
+                    # frames come.
+                    assert all(set(f.positions) | f.failed == {1, 2, 3} for f in frames[1:])
+                    whole = next(f for f in stream if set(f.positions) == {1, 2, 3} or f.cycle > 200)
+                    assert set(whole.positions) == {1, 2, 3}
                 with pytest.raises(RuntimeError), bus.stream([1]) as stream:
                     raise RuntimeError("the program fails mid-stream")
         gc.collect()
