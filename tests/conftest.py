@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import coverage
 import pytest
 import uvloop
 from hypothesis import HealthCheck, settings
@@ -171,14 +172,39 @@ def _module_text(path: Path) -> str:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so.
 
+    Property tests (hypothesis) run their code hundreds of times; coverage's tracer makes each pass about
+    three times slower and finds no line the first pass did not, so they run untraced (``no_cover``, as the
+    soaks are marked by hand).  Their lines are covered by the example tests beside them.
+
     Modules with a test marked ``slow`` go first, each kept whole and in its own order: pytest-xdist
     (``--dist loadfile``) hands modules to its workers in this order, and a long one handed out last
     would run on alone after the others have finished."""
     for item in items:
         if "pty_sim" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.pty)
+        if getattr(getattr(item, "obj", None), "is_hypothesis_test", False):
+            item.add_marker(pytest.mark.no_cover)
     slow_modules = {item.path for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.path not in slow_modules)  # stable: the rest keep their order
+
+
+@pytest.hookimpl(wrapper=True, trylast=True)
+def pytest_runtest_call(item: pytest.Item) -> Iterator[object]:
+    """A ``no_cover`` test runs untraced under pytest-xdist too.  pytest-cov pauses its own coverage for it,
+    but an xdist worker runs a second one beneath (started as the plugin loads, before the worker's own),
+    and pausing the top one resumes that: so every coverage still tracing is stopped here, innermost, and
+    started again after."""
+    if not item.get_closest_marker("no_cover"):
+        return (yield)
+    stopped = []
+    while (running := coverage.Coverage.current()) is not None:
+        running.stop()
+        stopped.append(running)
+    try:
+        return (yield)
+    finally:
+        for running in reversed(stopped):
+            running.start()
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

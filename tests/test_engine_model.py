@@ -323,6 +323,7 @@ SETTINGS = settings(
 )
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 @pytest.mark.slow
 @pytest.mark.timeout(900)  # a pass takes seconds; shrinking a failure takes longer
 def test_engine_against_a_model_of_the_line() -> None:

@@ -24,6 +24,7 @@ from tests.support.timing import FAST_TIMING
 blobs = st.binary(min_size=6, max_size=80)
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 @pytest.mark.slow
 def test_fuzz_short() -> None:
     report = fuzz_soak(streams=6_000, batch=200, lines=16, seed=11)

@@ -146,6 +146,7 @@ async def test_a_guard_read_takes_a_late_reply_before_the_same_command_goes_agai
 
 
 @pytest.mark.timeout(300)  # 3 s alone on two cores; many times that under CPU burners with coverage
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 @pytest.mark.slow
 async def test_chaos_short() -> None:
     report = await chaos_soak(transactions=12_000, baseline_transactions=1_000, seed=5)
@@ -169,6 +170,7 @@ async def test_chaos_short() -> None:
     assert report.throughput_ratio > 0  # (its size is a benchmark's business: make soak reports it)
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 @pytest.mark.slow
 async def test_cancellation_short() -> None:
     report = await cancellation_soak(cancellations=800, seed=9)
