@@ -24,15 +24,17 @@ $(STAMP): pyproject.toml
 	$(MAKE) --no-print-directory browser tools
 	touch $(STAMP)
 
-# The web configurator's browser tests drive Debian's chromium through Playwright (Playwright's own
-# browser download is not used).  Installed here when missing and we are root on a Debian-like
-# machine; otherwise the tests fail, naming what to install (ICS35_CHROMIUM points at another binary).
-CHROMIUM ?= /usr/bin/chromium
+# The web configurator's browser tests drive Debian's chromium-headless-shell through Playwright: Chromium's
+# own headless build, which Playwright itself uses for headless runs (its browser download is not used); it
+# costs the suite a quarter less CPU than the full chromium.  Installed here when missing and we are root on
+# a Debian-like machine; otherwise the tests fail, naming what to install (ICS35_CHROMIUM points at another
+# Chromium binary, the full browser included).
+CHROMIUM ?= /usr/bin/chromium-headless-shell
 browser:
 	@if [ -x "$${ICS35_CHROMIUM:-$(CHROMIUM)}" ]; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
-	else echo "note: the browser tests need chromium: sudo apt-get install chromium (or set ICS35_CHROMIUM)" >&2; fi
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium-headless-shell; \
+	else echo "note: the browser tests need chromium-headless-shell: sudo apt-get install chromium-headless-shell (or set ICS35_CHROMIUM)" >&2; fi
 
 # Programs the tests drive besides Python: socat (a TCP serial bridge in front of the pty simulator).
 # Installed here, as root on a Debian-like machine, never by a test; a test that finds one missing

@@ -31,7 +31,7 @@ from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
 from tests.support.timing import GUARD, PATIENT_OPTION, scaled
 
-CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium-headless-shell")  # see the Makefile's browser target
 CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -106,7 +106,9 @@ def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
     if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: `make` installs Debian's chromium (as root), or set ICS35_CHROMIUM")
+        pytest.fail(
+            f"{CHROMIUM} is missing: `make` installs Debian's chromium-headless-shell (as root), or set ICS35_CHROMIUM"
+        )
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield b
