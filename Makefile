@@ -64,7 +64,7 @@ robot-demo: $(DEMO_STAMP)
 FORMATTED := ics35_async tests benchmarks tools setup.py
 
 # The configurator's screenshots in docs/images, taken by its browser tests (a plain test run leaves them alone).
-screenshots: $(STAMP)
+screenshots: $(STAMP) browser
 	ICS35_SCREENSHOTS=1 $(BIN)/pytest -q -p no:cacheprovider tests/test_web_browser.py
 
 # The servo configurator in the browser, on the simulator (prints its URL; Ctrl-C stops it).
@@ -94,7 +94,8 @@ typecheck: $(STAMP)
 PYTEST_WORKERS ?= 4
 COV := --cov=ics35_async --cov-branch
 REALTIME_MODULES = $(shell grep -l "mark\.realtime" tests/test_*.py)
-pytest: $(STAMP)
+# (browser and tools are checked on every run: a venv made before a tool was added still gets it)
+pytest: $(STAMP) browser tools
 	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile -m "not realtime" $(COV) --cov-report=
 	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
