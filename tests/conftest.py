@@ -172,9 +172,9 @@ def _module_text(path: Path) -> str:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test that starts the pty simulator through ``pty_sim`` is a ``pty`` test without saying so.
 
-    Property tests (hypothesis) run their code hundreds of times; coverage's tracer makes each pass about
-    three times slower and finds no line the first pass did not, so they run untraced (``no_cover``, as the
-    soaks are marked by hand).  Their lines are covered by the example tests beside them.
+    Property tests (hypothesis) run their code hundreds of times, and coverage's tracer makes each pass about
+    three times slower, so they run untraced (``no_cover``, as the soaks are marked by hand): what they reach,
+    the example tests beside them reach too (the report misses 21 more of 13,400 statements without them).
 
     Modules with a test marked ``slow`` go first, each kept whole and in its own order: pytest-xdist
     (``--dist loadfile``) hands modules to its workers in this order, and a long one handed out last

@@ -61,8 +61,8 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
 def test_wheel_installs_into_a_clean_virtualenv_and_runs(dist: Path, tmp_path: Path) -> None:
     (wheel,) = dist.glob("*.whl")
     env_dir = tmp_path / "venv"
-    # Without a pip of its own: this pip installs into it (--python), as fast and without compiling every
-    # dependency's modules up front (imports compile what they use).
+    # Without a pip of its own (installing one costs more than the rest of the test): this pip installs into
+    # it (--python), without compiling every dependency's modules up front (imports compile what they use).
     venv.create(env_dir, with_pip=False)
     bin_dir = env_dir / ("Scripts" if os.name == "nt" else "bin")
     done = _run(
