@@ -14,12 +14,13 @@ signal while that unwinding runs is ignored: the servos are being put to rest.
 from __future__ import annotations
 
 import contextlib
+import functools
 import signal
 import sys
 import threading
 from collections.abc import Awaitable, Callable, Iterator
-from types import CodeType, FrameType
-from typing import Any, Literal, Protocol, TypeVar
+from types import FrameType
+from typing import Any, Literal, Protocol, TypeVar, cast
 
 from .errors import IcsError
 from .tasks import only_error
@@ -132,7 +133,7 @@ class _StopSignals:
     is deferred: the wait is woken and raises the stop itself, at a point
     where nothing is half done; inside a close (a function marked
     :func:`close_step`, or anything it calls) the signal is deferred too and
-    raised once the close is over (:meth:`held`).  Elsewhere, in the program's own code,
+    raised once the close is over.  Elsewhere, in the program's own code,
     the handler raises at once, as Ctrl-C does; if a finalizer or weakref
     callback it landed in drops it, the program's next blocking call raises it.
     """
@@ -161,7 +162,7 @@ class _StopSignals:
             return  # a second signal while the with blocks close (servos being put to rest): ignored
         # (else the first is still owed: a finalizer dropped it)
         if wait is None:
-            if _inside_a_close(frame):  # a close begun (before or after its held()) is not cut in half
+            if _inside_a_close(frame):  # a close begun is not cut in half: raised as it returns
                 self.deferred = True
                 return
             self.deferred = False
@@ -211,25 +212,33 @@ stop_signals = _StopSignals()
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-# The code of the functions that put servos to rest and release ports (a blocking stream's and bus's
-# close and ``__exit__``): a stop signal landing anywhere in one, or in anything it calls, is deferred
-# until the close's end instead of raised there.  ``held()`` alone cannot do this: a signal can land in
-# the few calls before a close enters it, and the close would then never run.
-_CLOSES: set[CodeType] = set()
-
 
 def close_step(function: F) -> F:
-    """Mark ``function`` as part of a close that a stop signal must not cut short (see ``_CLOSES``)."""
-    _CLOSES.add(function.__code__)
-    return function
+    """``function`` puts servos to rest or releases a port (a blocking stream's or bus's ``close``, its
+    ``__exit__``): a stop signal landing anywhere in it, or in anything it calls, waits for its end and is
+    raised as the outermost close returns.  ``held()`` alone cannot do this: a signal can land in the few
+    calls before a close enters it, and the close would then never run."""
+
+    @functools.wraps(function)
+    def closing(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return function(*args, **kwargs)
+        finally:
+            if not _inside_a_close(sys._getframe(1)):
+                stop_signals.take()  # the outermost close is over: the stop it held is raised now
+
+    return cast(F, closing)
 
 
 def _inside_a_close(frame: FrameType | None) -> bool:
     while frame is not None:
-        if frame.f_code in _CLOSES:
+        if frame.f_code is _CLOSING:
             return True
         frame = frame.f_back
     return False
+
+
+_CLOSING = close_step(lambda: None).__code__  # the code every close runs in (close_step's wrapper)
 
 
 @contextlib.contextmanager
@@ -246,10 +255,11 @@ def stop_on_signals() -> Iterator[None]:
     if stop_signals.active:  # inside another stop_on_signals: that one stops the program
         yield
         return
-    stop_signals.start()
     previous: dict[int, object] = {}
-    stop_signals.unraisablehook, sys.unraisablehook = sys.unraisablehook, stop_signals.dropped
+    stop_signals.unraisablehook = sys.unraisablehook
     try:
+        stop_signals.start()
+        sys.unraisablehook = stop_signals.dropped
         for stopping in (signal.SIGINT, signal.SIGTERM):
             previous[stopping] = signal.signal(stopping, stop_signals.handle)
         yield
@@ -258,14 +268,27 @@ def stop_on_signals() -> Iterator[None]:
     except _Stopped as stopped:
         raise SystemExit(stopped.code) from None
     finally:
+        # (``deferred`` may stay set: nothing reads it while inactive, and start() clears it.)
         try:
             stop_signals.active = False  # a signal from here on is only noted (see _StopSignals.handle)
-        finally:  # (a stop raised on the line above must not leave the handlers installed)
-            for signum, handler in previous.items():
-                signal.signal(signum, handler)  # type: ignore[arg-type]
             sys.unraisablehook = stop_signals.unraisablehook
-    if stop_signals.signum is not None:  # the block ended, and a signal came as this took its handlers back
+        finally:  # a stop raised above, or a handler run as another goes back, must not leave one installed
+            _hand_back(list(previous.items()))
+    # The block ended without a stop raised, yet one came: as the handlers went back, or the block's own
+    # code swallowed it (``except SystemExit``).  A stop asked for is a stop: raised now.
+    if stop_signals.signum is not None:
         raise SystemExit(_exit_code(stop_signals.signum))
+
+
+def _hand_back(handlers: list[tuple[int, object]]) -> None:
+    """Each signal's handler back, even when one (``signal.signal`` runs a pending signal's new handler as it
+    installs it: a Ctrl-C then raises KeyboardInterrupt) raises as it goes back."""
+    if handlers:
+        (signum, handler), rest = handlers[0], handlers[1:]
+        try:
+            signal.signal(signum, handler)  # type: ignore[arg-type]
+        finally:
+            _hand_back(rest)
 
 
 __all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "stop_on_signals"]

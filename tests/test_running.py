@@ -166,7 +166,8 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
     from ics35_async import blocking
     from ics35_async.sim import VirtualLine
 
-    calls, hang_after, first_frame, break_frame = int(sys.argv[1]), float(sys.argv[2]), *map(int, sys.argv[3:5])
+    calls, hang_after = int(sys.argv[1]), float(sys.argv[2])
+    first_frame, break_frame, then_move = map(int, sys.argv[3:6])
     faulthandler.dump_traceback_later(hang_after, exit=True)  # a hang: the stacks, then exit 1
     after = []  # a signal after stop_on_signals has handed SIGTERM back (the sweep is past the block's end)
     signal.signal(signal.SIGTERM, lambda signum, frame: after.append(signum))
@@ -174,33 +175,37 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
     tried = 0
     for n in range(1, calls + 1):
         events = 0
-        fired = False
+        fired = moving = False
 
         def hook(frame, event, arg):
-            global events, fired
+            global events, fired, fired_moving
             events += 1
             if events == n:
                 sys.setprofile(None)
-                fired = True
+                fired, fired_moving = True, moving
                 os.kill(os.getpid(), signal.SIGTERM)
 
         sim = VirtualLine([1, 2], realtime=True)
         outcome = "not stopped"
         try:
-            with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
-                s.set_targets({1: 8000, 2: 7000})
-                for k, frame in enumerate(s):
-                    if k == first_frame:  # from this frame on, the n-th call is signalled
-                        sys.setprofile(hook)
-                    if k == break_frame:
-                        break
+            with blocking.stop_on_signals(), blocking.open_bus(sim) as bus:
+                with bus.stream([1, 2], on_close="free") as s:
+                    s.set_targets({1: 8000, 2: 7000})
+                    for k, frame in enumerate(s):
+                        if k == first_frame:  # from this frame on, the n-th call is signalled
+                            sys.setprofile(hook)
+                        if k == break_frame:
+                            break
+                if then_move:  # the program's next command: a stop that came before it must keep it off the wire
+                    moving = True
+                    bus.servo(1).set_position(9000)
         except SystemExit as stop:
             outcome = f"exit {stop.code}"
         except BaseException as exc:
             outcome = repr(exc)
         sys.setprofile(None)
-        if not fired or after:
-            break  # the n-th call comes after the with block: every point before it was tried
+        if not fired or after or fired_moving:
+            break  # the n-th call comes after the stream's close (and the bus's): every point before was tried
         tried = n
         if outcome == "exit 143" and not all(sim.servo(i).free for i in (1, 2)):
             outcome = "servos holding"
@@ -214,9 +219,10 @@ SIGNAL_EVERYWHERE = textwrap.dedent(
 )
 
 
-def signal_everywhere(calls: int, first_frame: int, break_frame: int) -> dict[str, Any]:
+def signal_everywhere(calls: int, first_frame: int, break_frame: int, then_move: bool = False) -> dict[str, Any]:
+    args = [str(calls), str(scaled(60)), str(first_frame), str(break_frame), str(int(then_move))]
     done = subprocess.run(
-        [sys.executable, "-c", SIGNAL_EVERYWHERE, str(calls), str(scaled(60)), str(first_frame), str(break_frame)],
+        [sys.executable, "-c", SIGNAL_EVERYWHERE, *args],
         capture_output=True,
         text=True,
         timeout=scaled(90),
@@ -239,7 +245,28 @@ def test_a_stop_signal_at_any_point_of_the_closes_stops_the_program_with_servos_
     # joined), to the end of the with block.
     result = signal_everywhere(2000, first_frame=3, break_frame=3)
     assert result["bad"] == []
-    assert 150 < result["tried"] < 2000  # it swept the closes to their end
+    # It swept the closes to their end (how many calls they take varies with the real-time simulator).
+    assert 150 < result["tried"] < 2000
+
+
+@pytest.mark.slow
+def test_a_stop_signal_in_a_streams_close_keeps_the_programs_next_command_off_the_wire() -> None:
+    # The stream's close, then a command of the program's own: a stop that came before that command must
+    # end the program before it goes out (the servo stays free), even one held until the close was over.
+    result = signal_everywhere(2000, first_frame=3, break_frame=3, then_move=True)
+    assert result["bad"] == []
+    assert 100 < result["tried"] < 2000
+
+
+def test_every_blocking_close_and_exit_is_a_close_step() -> None:
+    # A close that is not one would be cut short by a stop landing as it starts (the sweeps above use
+    # ``with``; a program may call close() itself).
+    from ics35_async.blocking import BlockingBus, BlockingRobot, BlockingStream
+    from ics35_async.running import _CLOSING
+
+    for cls in (BlockingBus, BlockingStream, BlockingRobot):
+        for name in ("close", "__exit__"):
+            assert getattr(cls, name).__code__ is _CLOSING, f"{cls.__name__}.{name}"
 
 
 FINALIZER_PROGRAM = textwrap.dedent(

@@ -10,6 +10,7 @@ from ..bus import open_bus as open_async_bus
 from ..engine import State
 from ..errors import InvalidArgument
 from ..protocol import Command
+from ..running import close_step
 from ..servo import Device, Servo
 from ..stats import BusStats
 from ..transports import WireDevice
@@ -121,6 +122,7 @@ class BlockingBus(LoopOwner[Bus]):
 
     # ------------------------------------------------------------------ closing
 
+    @close_step
     def close(self) -> None:
         """Close the bus (queued requests fail with BusClosed), release the port, end the loop thread.
 

@@ -183,6 +183,7 @@ class LoopThread:
     def call(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
         """Await ``fn(*args, **kwargs)`` on the loop; a Ctrl-C meanwhile cancels it there first."""
         self._check_caller()
+        stop_signals.take()  # a stop owed (held by a close, dropped by a finalizer) ends it before this goes out
         call: _Call[T] = _Call()
         try:
             self._schedule(call.spawn, fn, args, kwargs)
@@ -213,6 +214,7 @@ class LoopThread:
                 outcome.set_exception(exc)
 
         self._check_caller()
+        stop_signals.take()  # (as in call)
         self._schedule(run)
         try:
             return _result(outcome, self._thread)
