@@ -197,7 +197,7 @@ def pytest_runtest_call(item: pytest.Item) -> Iterator[object]:
     if not item.get_closest_marker("no_cover"):
         return (yield)
     stopped = []
-    while (running := coverage.Coverage.current()) is not None:
+    while (running := coverage.Coverage.current()) is not None and running not in stopped:
         running.stop()
         stopped.append(running)
     try:
