@@ -187,6 +187,12 @@ static void run_plan(Burst *self) {
             double now = monotonic();
             if (got < 0) {
                 if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) continue;
+                if (errno == EIO) {
+                    /* a tty whose other end went away: Linux answers EIO until the hang-up is
+                       complete, then 0 bytes with POLLHUP; either is a hang-up */
+                    self->status = HANGUP;
+                    return;
+                }
                 stop_failed(self, errno);
                 return;
             }
