@@ -644,7 +644,9 @@ async def test_an_impossible_rate_counts_overruns() -> None:
             stats = stream.stats
     finally:
         sim.close()
-    assert all(set(f.positions) == set(ids) for f in frames)
+    # Every ID in each frame, answered or failed: a loaded machine (a stress run's CPU burners) can hold the
+    # real-time simulator's reply past a stream read's learnt wait; the cycles themselves are the point.
+    assert all(set(f.positions) | f.failed == set(ids) for f in frames)
     # Every cycle after the first started more than a whole period late.
     assert stats.cycles >= 3
     assert stats.overruns == stats.cycles - 1
