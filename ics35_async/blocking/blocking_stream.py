@@ -16,7 +16,7 @@ import anyio
 from .. import units
 from ..errors import BusClosed
 from ..frames import Frame, StreamStats
-from ..running import close_step, stop_signals
+from ..running import close_step
 from ..stream import Stream
 from .forward import ReadThrough, Wrapper, on_loop
 
@@ -84,10 +84,9 @@ class BlockingStream(Wrapper[Stream]):
     @close_step
     def close(self) -> None:
         """Stop streaming; the bus stays usable.  With ``free_on_close`` every ID goes free first."""
-        # A stop signal meanwhile is raised once the stream is closed: never half closed, servos as asked.
-        with stop_signals.held():
-            if self._loop.is_running:
-                self._loop.call_to_end(self._async.aclose)
+        # (A close_step: a stop signal meanwhile is raised once the stream is closed, servos as asked.)
+        if self._loop.is_running:
+            self._loop.call_to_end(self._async.aclose)
 
     def __enter__(self) -> BlockingStream:
         return self.start()

@@ -17,7 +17,7 @@ from collections.abc import Awaitable, Callable
 from types import TracebackType
 from typing import Self, TypeVar
 
-from ..running import close_step, stop_signals
+from ..running import close_step
 from .forward import Wrapper
 from .loop_thread import LoopThread
 
@@ -41,12 +41,11 @@ class LoopOwner(Wrapper[A]):
 
         Idempotent.  A Ctrl-C while closing is raised once everything is released.
         """
-        # A stop signal meanwhile is raised once all is closed (the port released, the thread ended).
-        with stop_signals.held():
-            detached = self._finalizer.detach()
-            if detached is not None:
-                _, _, (_, aclose, loop), _ = detached
-                _close(aclose, loop)
+        # (A close_step: a stop signal meanwhile is raised once all is closed, the port released, the thread ended.)
+        detached = self._finalizer.detach()
+        if detached is not None:
+            _, _, (_, aclose, loop), _ = detached
+            _close(aclose, loop)
 
     def __enter__(self) -> Self:
         return self
