@@ -179,6 +179,7 @@ async def reconnect_session(
                     stop.set()
                     await asyncio.gather(*workers)
                 report["reconnects"] += bus.stats.reconnects
+                report["timeouts"] += bus.stats.total.timeouts
         finally:
             stop.set()
             if watch.task is not None:
@@ -274,6 +275,7 @@ def new_unplug_tally() -> dict[str, Any]:
         "hung": 0,
         "wrong": 0,
         "reconnects": 0,
+        "timeouts": 0,  # transactions the bus gave up on (a reply late on a loaded machine among them)
     }
 
 
