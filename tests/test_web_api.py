@@ -19,6 +19,7 @@ from starlette.websockets import WebSocketDisconnect
 from ics35_async import Eeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
+from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
 from tests.support.timing import GUARD
 
@@ -276,6 +277,20 @@ def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None
     assert len(set(cycles)) >= 3
     post(client, "/api/live/stop")
     assert client.get("/api/status").json()["live"] is None
+
+
+def test_the_live_stream_is_paced_so_an_instant_line_does_not_take_the_servers_cpu(serve: Any) -> None:
+    # The simulator answers at once: an unpaced stream would cycle thousands of times a second on one
+    # core, for a page that draws 25 updates a second.  A loaded machine only runs fewer cycles.
+    client, _ = serve((1, 3))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    first = None
+    while first is None:
+        first = client.get("/api/live").json()
+    time.sleep(0.5)
+    last = client.get("/api/live").json()
+    post(client, "/api/live/stop")
+    assert last["cycle"] - first["cycle"] <= 0.5 * LIVE_RATE_HZ + 5, (first["cycle"], last["cycle"])
 
 
 def test_a_live_frames_slow_parts_are_sent_to_a_page_only_when_they_change(serve: Any) -> None:

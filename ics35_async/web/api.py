@@ -41,6 +41,7 @@ from ..transports.listing import (
 )
 from .config import error_text
 from .joints import RobotSession
+from .live import LIVE_RATE_HZ
 from .session import LineSession
 
 log = logging.getLogger("ics35_async.web")
@@ -256,7 +257,7 @@ async def live_start(request: Request, session: LineSession) -> Any:
     ids = data.get("ids")
     if not isinstance(ids, list) or not ids:
         raise InvalidArgument("choose at least one servo to plot")
-    await session.start_live(ids, data.get("rate_hz"))
+    await session.start_live(ids, data.get("rate_hz", LIVE_RATE_HZ))
     return session.status()
 
 

@@ -23,6 +23,12 @@ from ..protocol import Param
 from ..stream import WATCH, Stream
 from ..units import current_from_raw, temperature_to_celsius
 
+# The stream's pace: a page draws 25 updates a second, and a plot gains nothing from more samples than
+# this.  Unpaced, a fast line (one servo at 1.25 Mbit/s, the built-in simulator, which answers at once)
+# would cycle thousands of times a second and take a core of the server, and the line, for nothing; a
+# long line (32 servos at 115200: about 15 cycles a second) runs at its own rate below this.
+LIVE_RATE_HZ = 100.0
+
 # One servo's current and temperature every this many seconds: 32 servos in about 3 s,
 # about 20 transactions a second taken from the stream.
 TELEMETRY_PERIOD = 0.1
@@ -52,7 +58,7 @@ class LiveView:
         self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
 
     @classmethod
-    async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float | None = None) -> LiveView:
+    async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float | None = LIVE_RATE_HZ) -> LiveView:
         plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
         stream = bus.stream(plan.streamed, rate_hz=rate_hz, watch=plan.watch)
         await stream.start()

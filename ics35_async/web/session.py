@@ -41,7 +41,7 @@ from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
 from .config import LineConfig, error_text
 from .edits import allowances, edit_of
-from .live import LiveView, read_health
+from .live import LIVE_RATE_HZ, LiveView, read_health
 from .traffic import TrafficLog
 from .views import eeprom_view, plan_view, result_view, survey_view
 
@@ -511,7 +511,7 @@ class LineSession:
 
     # ------------------------------------------------------------------ live
 
-    async def start_live(self, ids: list[int], rate_hz: float | None = None) -> LiveView:
+    async def start_live(self, ids: list[int], rate_hz: float | None = LIVE_RATE_HZ) -> LiveView:
         self._refuse_on_robot_line("a live stream of the page's own", "its joints' angles are on the Robot page")
         await self.stop_live()
         async with self.exclusive:
