@@ -87,7 +87,8 @@ typecheck: $(STAMP)
 # pytest in two passes.  First everything but the real-time tests on PYTEST_WORKERS processes (pytest-xdist):
 # most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so twice the
 # cores pays; --dist loadfile keeps each module on one worker (module-scoped servers started once, the
-# browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names).
+# browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names),
+# in the order tests/conftest.py gives them, longest first (xdist would reorder them by their count of tests).
 # Then the tests marked realtime, one at a time, alone: they judge real elapsed time.  One coverage report.
 # The second pass collects only the modules that mark a test realtime (collecting every module takes
 # seconds); tests/conftest.py stops the run if a realtime test is marked where this list cannot see it.
@@ -96,7 +97,7 @@ COV := --cov=ics35_async --cov-branch
 REALTIME_MODULES = $(shell grep -l "mark\.realtime" tests/test_*.py)
 # (browser and tools are checked on every run: a venv made before a tool was added still gets it)
 pytest: $(STAMP) browser tools
-	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile -m "not realtime" $(COV) --cov-report=
+	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not realtime" $(COV) --cov-report=
 	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 

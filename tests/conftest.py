@@ -176,16 +176,29 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     three times slower, so they run untraced (``no_cover``, as the soaks are marked by hand): what they reach,
     the example tests beside them reach too (the report misses 21 more of 13,400 statements without them).
 
-    Modules with a test marked ``slow`` go first, each kept whole and in its own order: pytest-xdist
-    (``--dist loadfile``) hands modules to its workers in this order, and a long one handed out last
-    would run on alone after the others have finished."""
+    The longest modules go first, each kept whole and in its own order: pytest-xdist (``--dist loadfile
+    --no-loadscope-reorder``) hands modules to its workers in this order, and a long one handed out last
+    would run on alone after the others have finished.  How long a module takes is guessed from its marks
+    (:func:`_expected_seconds`)."""
     for item in items:
         if "pty_sim" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.pty)
         if getattr(getattr(item, "obj", None), "is_hypothesis_test", False):
             item.add_marker(pytest.mark.no_cover)
-    slow_modules = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.path not in slow_modules)  # stable: the rest keep their order
+    weight: dict[Path, float] = {}
+    for item in items:
+        weight[item.path] = weight.get(item.path, 0.0) + _expected_seconds(item)
+    items.sort(key=lambda item: -weight[item.path])  # stable: each module keeps its own order
+
+
+def _expected_seconds(item: pytest.Item) -> float:
+    """A rough guess of a test's time for the order above: a ``slow`` one takes seconds, one across a pty
+    (a simulator subprocess, often a CLI one too) about one, the rest (in process) a few hundredths."""
+    if item.get_closest_marker("slow"):
+        return 5.0
+    if item.get_closest_marker("pty"):
+        return 1.0
+    return 0.05
 
 
 @pytest.hookimpl(wrapper=True, trylast=True)

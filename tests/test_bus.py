@@ -123,6 +123,8 @@ async def test_id0_position_at_115200_keeps_the_msb() -> None:
         assert sim.log[-1].reply[0] == 0x80
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
+@pytest.mark.slow
 async def test_fifty_coroutines_every_result_belongs_to_its_caller(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     ops_done = 0
@@ -147,6 +149,8 @@ async def test_fifty_coroutines_every_result_belongs_to_its_caller(line: tuple[V
         assert stats.per_id[i].transactions == sum(1 for t in sim.log if t.servo_id == i)
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
+@pytest.mark.slow
 async def test_faults_of_every_kind_end_in_a_value_or_a_typed_error() -> None:
     kinds = ("drop", "truncate", "corrupt", "msb", "late", "noise", "echo")
     spec = ",".join(f"{k}@1-31:0.007" for k in kinds)  # about 5% of transactions to IDs 1..31; ID 0 healthy
@@ -195,6 +199,7 @@ async def test_faults_of_every_kind_end_in_a_value_or_a_typed_error() -> None:
     assert healthy["ok"] > 0.85 * (healthy["ok"] + healthy["error"])
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 async def test_cancellation_storm_never_desyncs(line: tuple[VirtualLine, Bus]) -> None:
     sim, bus = line
     rng = random.Random(5)

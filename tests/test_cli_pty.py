@@ -54,6 +54,7 @@ def port() -> Iterator[str]:
         yield path
 
 
+@pytest.mark.slow
 def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
     # Every present servo must answer (the patient allowance); two IDs nobody has are asked too.
     ids = ",".join(str(i) for i in sorted({0, 31, *SIM_IDS}))
@@ -102,6 +103,7 @@ def test_eeprom_dump_restore_round_trip(port: str, tmp_path: Path) -> None:
     assert restored["raw"] == original["raw"]  # calibration bytes included
 
 
+@pytest.mark.slow
 def test_monitor_and_demo_run_and_leave_servos_free(port: str) -> None:
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     proc = ics35(port, *baud, "monitor", "--free", "2,5,17", "--seconds", "1", "--json")
@@ -195,6 +197,7 @@ def run_set_id(ids: str, new: int, *extra: str) -> tuple[subprocess.CompletedPro
     return proc, [s["id"] for s in scan["servos"]]
 
 
+@pytest.mark.slow
 def test_set_id_refused_with_two_devices() -> None:
     proc, ids_after = run_set_id("3,4", 9, "--yes")
     assert proc.returncode == 5

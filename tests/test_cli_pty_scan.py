@@ -52,6 +52,7 @@ def test_scan_lists_each_servo_once_when_the_line_ignores_rates(rate_blind_port:
     assert all(s["answered_at"] == [115200, 625000, 1250000] for s in servos)
 
 
+@pytest.mark.slow
 def test_set_id_refuses_several_servos_and_renumbers_a_lone_one(rate_blind_port: str, lone_servo_port: str) -> None:
     # -v: should a servo be missed, the failure shows each transaction that failed and how.
     proc = ics35(rate_blind_port, *ANSWERED, "set-id", "9", "--yes", "-v")

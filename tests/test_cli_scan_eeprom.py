@@ -130,6 +130,7 @@ def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(cli: Any
 
 
 @pytest.mark.parametrize("level", [0.15, 0.30])
+@pytest.mark.slow
 def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(cli: Any, sim_line: Any, level: float) -> None:
     each = level / 4
     for seed in range(6):

@@ -32,6 +32,7 @@ from tests.support.engine_support import (
 from tests.support.paced_line import IDS, PERIOD, intervals, run
 
 
+@pytest.mark.no_cover  # a soak: thousands of passes through code the other tests cover (see conftest)
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_at_five_percent_faults_the_loop_holds_95_hz(seed: int) -> None:
     source = run(0.05, seed)

@@ -106,6 +106,7 @@ async def _stretch_once(bus: Any, servo_id: int) -> int:
     return value
 
 
+@pytest.mark.slow
 async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge) -> None:
     # Every present servo must answer at its rate, and only their IDs are asked; at the other rates each
     # waits its allowance out: the patient one.

@@ -272,6 +272,7 @@ def noisy_rate_blind_line(lines: Any, level: float, seed: int) -> VirtualLine:
 
 
 @pytest.mark.parametrize("level", [0.15, 0.30])
+@pytest.mark.slow
 async def test_a_noisy_line_that_ignores_rates_never_lists_a_servo_twice_or_at_a_contradicted_rate(
     lines: Any, level: float
 ) -> None:

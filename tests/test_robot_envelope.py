@@ -140,6 +140,7 @@ def motions(draw: st.DrawFn) -> list[dict[str, Any]]:
     ramp=st.floats(0.0, 0.8),
     how=st.sampled_from(["stop", "cancel then stop", "loop then stop"]),
 )
+@pytest.mark.slow
 def test_no_command_leaves_the_motions_envelope(
     start: dict[str, float], keyframes: list[dict[str, Any]], profile: str, stop_after: float, ramp: float, how: str
 ) -> None:

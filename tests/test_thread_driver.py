@@ -99,6 +99,7 @@ async def test_a_stream_frame_comes_with_its_transactions_counted(pty_sim: Any) 
 
 
 @pytest.mark.pty
+@pytest.mark.slow
 async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> None:
     # Every reply of servo 2 has a byte with its MSB set: the stream rejects it.  The engine counts
     # a stream reply before the frame it ends is published; a rejected one must not show as ok even

@@ -9,9 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SAMPLE = Path(__file__).parent / "typing_samples" / "mistakes.py"
 
 
+@pytest.mark.slow
 def test_mypy_finds_the_package_and_flags_every_mistake(tmp_path: Path) -> None:
     program = tmp_path / "program.py"
     shutil.copy(SAMPLE, program)
