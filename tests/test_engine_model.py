@@ -138,6 +138,7 @@ class LineModel(RuleBasedStateMachine):
         self.requests: list[Recorded] = []
         self.source: FakeSource | None = None
         self.source_errors: list[str] = []
+        self.starts_before_request = 0
         self.uncounted = 0  # transactions a lost port took off the wire before they ended
 
     # ---------------------------------------------------------------- rules
@@ -192,6 +193,7 @@ class LineModel(RuleBasedStateMachine):
         source = FakeSource(ids, wake_at=self.wire.now, period=0.004, paced=paced)
         source.on_value = self._check_source_value
         self.source = source
+        self.starts_before_request = 0  # the source's transactions started before the last request went
         self.wire.emit(self.engine.attach_source(source, self.wire.now))
 
     @precondition(lambda self: self.source is not None)
@@ -227,12 +229,20 @@ class LineModel(RuleBasedStateMachine):
         self.wire.emit(engine.connected(self.wire.now))
 
     def _check_no_request_delays_a_due_slot(self) -> None:
-        # Beside a paced stream, a request starts only while no slot is due, unless it is URGENT.
+        # Beside a paced stream, a request starts only while no slot is due, unless it is URGENT, or the
+        # stream runs late (a slot already past when its previous transaction ended: faults, a short
+        # period) and requests were passed over in two of its slots since the last one went: then the
+        # stream has started at least two transactions since.
         source, current = self.source, self.engine._current
         if source is None or not source.paced or not source.active or not isinstance(current, Recorded):
             return
-        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now:
-            self.source_errors.append(f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}")
+        since = len(source.started) - self.starts_before_request
+        self.starts_before_request = len(source.started)
+        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now and since < 2:
+            self.source_errors.append(
+                f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}, "
+                f"{since} stream transaction(s) since the last request"
+            )
 
     def _check_source_value(self, sid: int, value: int) -> None:
         k = len(self.wire.writes) - 1

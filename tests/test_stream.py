@@ -653,6 +653,20 @@ async def test_an_impossible_rate_counts_overruns() -> None:
     assert stats.cycle_time_p50 > 32 * 6 * 11 / 115200
 
 
+async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answered() -> None:
+    # 32 servos at 115200 in real time: a cycle takes over 20 ms, so a 100 Hz stream is always late and
+    # never leaves a slack; a request still gets the line after two cycles (the engine's rule).
+    ids = list(range(32))
+    sim = make_sim(ids, realtime=True)
+    try:
+        async with open_bus(sim, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
+            await next_frame(stream)
+            assert await asyncio.wait_for(bus.servo(5).read_stretch(), GUARD) == 45  # its own (make_sim)
+            assert stream.stats.overruns >= 1
+    finally:
+        sim.close()
+
+
 # --------------------------------------------------------------------------- bad input
 
 

@@ -422,7 +422,8 @@ class LineEngine:
         cycles, each only if it is expected to finish before the next cycle is due (its wire
         time plus what answers on this line usually take); ``URGENT`` requests outrank the stream; and a request
         too long for the slack it was passed over in still goes after the next cycle (it delays
-        that one cycle rather than waiting forever).
+        that one cycle rather than waiting forever), as does one beside a stream that runs late
+        (no slack at all: each overdue slot counts as one it was passed over in).
         """
         source = self._source
         queue = self.queue
@@ -520,8 +521,13 @@ class LineEngine:
             return True  # only abandoned requests: pop() drops them
         if head.priority == URGENT:
             return True
-        if due <= now:  # a cycle runs (or is due): the stream's transactions go first
+        if due == now:  # a cycle runs: its transactions go first
             return False
+        if due < now:
+            # The source runs late (its cycles take longer than its period): there is no slack, and
+            # none will come.  Each overdue slot counts as one the request was passed over in, so it
+            # still goes after two cycles (below) rather than never.
+            return self._passed_over_in(due, note)
         cmd = head.command
         beyond_wire = self.answers.expected
         if beyond_wire < 0:  # nothing answered yet on this port: expect the full allowance
@@ -530,8 +536,13 @@ class LineEngine:
             expected = wire_time(len(cmd.tx) + cmd.reply_len, self.baudrate) + beyond_wire + FIT_MARGIN
         if now + expected <= due:
             return True
-        # Too long for this slack.  Passed over in two slacks in a row: it goes now (delaying the
-        # next cycle once), rather than waiting forever for a slack it can never fit in.
+        # Too long for this slack.
+        return self._passed_over_in(due, note)
+
+    def _passed_over_in(self, due: float, note: bool) -> bool:
+        """The queue's head does not fit in the slack before ``due``: passed over in two slacks in a row,
+        it goes now (delaying the next cycle once), rather than waiting forever for a slack it can never
+        fit in.  ``note``: count this slack (the engine's decision, not a question)."""
         passed = self._passed_over if self._passed_over_due == due else self._passed_over + 1
         if note:
             self._passed_over_due, self._passed_over = due, passed

@@ -39,7 +39,8 @@ class BackgroundSource(Protocol):
 
     def slot_due(self, now: float) -> float | None:
         """When this source's next transaction must start, if it keeps a schedule (a stream with a
-        rate): ``now`` or earlier while a cycle runs, the next cycle's slot while it waits.  ``None``:
+        rate): exactly ``now`` while a cycle runs, the next cycle's slot while it waits (earlier than
+        ``now`` when the source runs late: its cycles take longer than its period).  ``None``:
         it keeps none, and requests share the line with it by count (``max_requests_between``)."""
         ...
 
