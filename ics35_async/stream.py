@@ -103,10 +103,7 @@ class Stream(FrameIterator[Frame]):
             raise InvalidArgument("a stream needs at least one ID")
         if len(set(id_list)) != len(id_list):
             raise InvalidArgument(f"duplicate IDs in {id_list}")
-        if rate_hz is not None and (
-            not isinstance(rate_hz, (int, float)) or not math.isfinite(rate_hz) or not 0 < rate_hz <= 10000
-        ):
-            raise InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {rate_hz!r}")
+        units.check_rate_hz(rate_hz)
         units.check_int("offline_after", offline_after, 1, 1_000_000)
         units.check_seconds("probe_interval", probe_interval, 0.001, 3600)
         units.check_int("history", history, 1, 10_000_000)

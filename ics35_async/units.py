@@ -57,6 +57,19 @@ def check_seconds(name: str, value: object, low: float = 0.0, high: float = 60.0
     return float(value)
 
 
+def check_rate_hz(value: object) -> float | None:
+    """A stream's pace: ``None`` (cycles back to back) or a finite number of cycles a second in (0, 10000]
+    (not a bool: ``True`` from a JSON form is not a rate)."""
+    if value is None:
+        return None
+    bad = InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {value!r}")
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise bad
+    if not math.isfinite(value) or not 0 < value <= 10000:
+        raise bad
+    return float(value)
+
+
 def check_ids(name: str, ids: object) -> list[int]:
     """A list of servo IDs 0..31 from an iterable of ints."""
     if isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable):

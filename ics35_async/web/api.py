@@ -257,7 +257,8 @@ async def live_start(request: Request, session: LineSession) -> Any:
     ids = data.get("ids")
     if not isinstance(ids, list) or not ids:
         raise InvalidArgument("choose at least one servo to plot")
-    await session.start_live(ids, data.get("rate_hz", LIVE_RATE_HZ))
+    rate_hz = data.get("rate_hz")
+    await session.start_live(ids, LIVE_RATE_HZ if rate_hz is None else rate_hz)
     return session.status()
 
 

@@ -22,7 +22,7 @@ from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from .. import protocol
+from .. import protocol, units
 from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
@@ -511,8 +511,12 @@ class LineSession:
 
     # ------------------------------------------------------------------ live
 
-    async def start_live(self, ids: list[int], rate_hz: float | None = LIVE_RATE_HZ) -> LiveView:
+    async def start_live(self, ids: list[int], rate_hz: float = LIVE_RATE_HZ) -> LiveView:
         self._refuse_on_robot_line("a live stream of the page's own", "its joints' angles are on the Robot page")
+        # Checked before the running plot stops or anything is sent (a page's JSON can hold anything).
+        ids = units.check_ids("ids", ids)
+        if units.check_rate_hz(rate_hz) is None:
+            raise InvalidArgument("rate_hz must be a number of cycles a second")
         await self.stop_live()
         async with self.exclusive:
             self.live = await LiveView.start(self.line(), ids, rate_hz=rate_hz)
