@@ -231,14 +231,14 @@ class LineModel(RuleBasedStateMachine):
     def _check_no_request_delays_a_due_slot(self) -> None:
         # Beside a paced stream, a request starts only while no slot is due, unless it is URGENT, or the
         # stream runs late (a slot already past when its previous transaction ended: faults, a short
-        # period) and requests were passed over in two of its slots since the last one went: then the
-        # stream has started at least two transactions since.
+        # period) and requests were passed over in two of its slots since the last one went (the
+        # second is the one it takes): then the stream has started a transaction since.
         source, current = self.source, self.engine._current
         if source is None or not source.paced or not source.active or not isinstance(current, Recorded):
             return
         since = len(source.started) - self.starts_before_request
         self.starts_before_request = len(source.started)
-        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now and since < 2:
+        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now and since < 1:
             self.source_errors.append(
                 f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}, "
                 f"{since} stream transaction(s) since the last request"

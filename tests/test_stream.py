@@ -655,7 +655,7 @@ async def test_an_impossible_rate_counts_overruns() -> None:
 
 async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answered() -> None:
     # 32 servos at 115200 in real time: a cycle takes over 20 ms, so a 100 Hz stream is always late and
-    # never leaves a slack; a request still gets the line after two cycles (the engine's rule).
+    # never leaves a slack; a request still gets the line within two cycles (the engine's rule).
     ids = list(range(32))
     sim = make_sim(ids, realtime=True)
     try:

@@ -526,7 +526,7 @@ class LineEngine:
         if due < now:
             # The source runs late (its cycles take longer than its period): there is no slack, and
             # none will come.  Each overdue slot counts as one the request was passed over in, so it
-            # still goes after two cycles (below) rather than never.
+            # still goes within two cycles (below) rather than never.
             return self._passed_over_in(due, note)
         cmd = head.command
         beyond_wire = self.answers.expected

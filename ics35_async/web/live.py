@@ -28,7 +28,7 @@ from ..units import current_from_raw, temperature_to_celsius
 # at 1.25 Mbit/s, or the built-in simulator, which answers at once) would cycle thousands of times a
 # second and take a core of the server for frames no page sees.  A line that cannot keep this pace (32
 # servos at 115200: about 46 cycles a second on the wire, 15 through a USB adapter) runs at its own,
-# and the other pages' requests still get the line after two of its cycles (the engine's rule).
+# and the other pages' requests still get the line within two of its cycles (the engine's rule).
 LIVE_RATE_HZ = 100.0
 
 # One servo's current and temperature every this many seconds: 32 servos in about 3 s,
