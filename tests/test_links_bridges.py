@@ -24,6 +24,7 @@ from ics35_async import open_bus, policies, protocol
 from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
+from ics35_async.transports import links
 from tests.support.links import Rfc2217Bridge, TcpBridge
 from tests.support.timing import PATIENT, PATIENT_OPTION
 
@@ -122,9 +123,12 @@ async def test_rfc2217_scan_finds_each_servo_at_its_rate(rfc2217: Rfc2217Bridge)
 
 @pytest.mark.parametrize("driver", DRIVERS)
 async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
-    tcp_bridge: TcpBridge, driver: str, caplog: pytest.LogCaptureFixture
+    tcp_bridge: TcpBridge, driver: str, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     caplog.set_level(logging.WARNING, logger="ics35_async")
+    # Once per port per process: an earlier test in this worker may have had this port number (the OS
+    # hands free ports out again), so the test starts from a process that has warned of none.
+    monkeypatch.setattr(links, "_warned", set())
     for _ in range(2):
         async with open_bus(tcp_bridge.url, driver=driver, retries=2) as bus:
             assert await bus.servo(3).read_stretch() == 30
