@@ -32,7 +32,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
-from tests.support.timing import FAST, REAL_TIME
+from tests.support.timing import FAST, NO_TIMEOUTS, REAL_TIME
 
 # For a silent ID's request that must still be on the wire when the port goes: a loaded machine can
 # stall the test for longer than FAST's allowance between the request and the unplug.
@@ -442,7 +442,7 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
 @pytest.mark.pty
 async def test_over_a_pty_through_the_real_serial_transport() -> None:
     with serving(["--fast", "--ids", "0-7"]) as path:
-        async with open_bus(path, **REAL_TIME) as bus:
+        async with open_bus(path, **NO_TIMEOUTS) as bus:
             rng = random.Random(1)
 
             async def worker(seed: int) -> None:
