@@ -12,7 +12,7 @@ Both serve the simulator's pty (``python -m ics35_async.sim``) in the tests,
 listen on 127.0.0.1 only, serve one client at a time, and can be stopped
 (connections dropped, nothing listening: refused) and started again on the
 same TCP port.  ``port_settings`` records every (baud rate, parity) the far
-end's port was set to.
+end's port was set to, ``input_purges`` how many times its input was dropped.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover - these bridges serve ptys, which only P
 
 
 class FarEndPort(serial.Serial):  # type: ignore[misc]
-    """The bridge's serial port; records the settings it is given.
+    """The bridge's serial port; records the settings it is given and counts the purges of its input.
 
     Served by a pty, which keeps no parity: Linux clears PARENB and glibc's
     ``tcsetattr`` then reports EINVAL although everything else was applied,
@@ -53,7 +53,12 @@ class FarEndPort(serial.Serial):  # type: ignore[misc]
 
     def __init__(self, *args: Any, record: list[tuple[int, str]], **kwargs: Any) -> None:
         self.port_settings = record  # appended to as settings are applied
+        self.input_purges = 0  # the bridge's own on each connection, and an RFC 2217 client's
         super().__init__(*args, **kwargs)
+
+    def reset_input_buffer(self) -> None:
+        self.input_purges += 1
+        super().reset_input_buffer()
 
     def _reconfigure_port(self, force_update: bool = False) -> None:
         try:
@@ -84,6 +89,10 @@ class _Bridge:
         self._serial: FarEndPort | None = None
         self._threads: list[threading.Thread] = []
         self._lock = threading.Lock()
+
+    @property
+    def input_purges(self) -> int:
+        return self._serial.input_purges if self._serial is not None else 0
 
     @property
     def host_port(self) -> str:
