@@ -423,3 +423,28 @@ def test_a_request_beside_a_paced_stream_that_runs_late_still_runs() -> None:
     # Each read went only after the stream had kept an (overdue) slot, never two reads in a row.
     kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
     assert kinds.startswith("S") and "RR" not in kinds and kinds.count("R") == 2, kinds[:20]
+
+
+def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in() -> None:
+    # A request passed over once beside a late stream; that stream closes and another (late as
+    # well) attaches while its last transaction is on the wire: the new stream's first overdue
+    # slot is the first the request was passed over in beside it, so one of its transactions
+    # goes first (the rule: within two cycles of the stream it waits beside).
+    wire, old = paced_line(period=0.0002)
+    wire.run_for(0.005)
+    new = FakeSource([1], wake_at=0.0, period=0.0002, paced=True)
+    swapped: list[int] = []
+
+    def swap_after_one_pass() -> None:
+        if not swapped:  # this write is the old stream's, made after passing the request over once
+            swapped.append(len(wire.writes) + 1)
+            wire.engine.detach_source(old)
+            assert wire.engine.attach_source(new, wire.now) is None  # its transaction is on the wire
+
+    req = Recorded(read(7))
+    wire.submit(req)
+    wire.on_write = swap_after_one_pass
+    wire.run_for(0.05)
+    assert req.state == "done" and new.started
+    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent()[swapped[0] :])
+    assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]

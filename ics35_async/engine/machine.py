@@ -253,6 +253,9 @@ class LineEngine:
         if self.state is CLOSED or self.state is DRAINING:
             raise BusClosed("bus is closed")
         self._source = source
+        # Slacks passed over beside an earlier stream are not this one's: a request waits for at
+        # most two of its slots, counted from now (see _passed_over_in).
+        self._passed_over, self._passed_over_due = 0, -INF
         return self.kick(now)
 
     @property
