@@ -165,19 +165,25 @@ async def reconnect_session(
                 stream.set_targets(targets)
                 async with stream:
                     workers = [asyncio.create_task(requests(k)) for k in range(3)]
-                    seen_cycles = 0
+                    measured = 0  # unplugs whose resume was measured
+                    backs_seen = 0  # replugs accounted for (measured, or cut short by the next unplug)
                     give_up = loop.time() + patience + cycles_each * (down + 1.5)
-                    while seen_cycles < cycles_each and loop.time() < give_up:
+                    while measured < cycles_each and loop.time() < give_up:
                         frame = await stream.next_frame()
                         if frame.resumed:  # as a controller does: targets again, once it knows where it is
                             stream.set_targets(targets)
                         backs = [t for kind, t in watch.events if kind == "back"]
-                        if len(backs) > seen_cycles and len(frame.positions) == len(ids):
+                        if len(backs) > backs_seen and len(frame.positions) == len(ids):
+                            # The latest replug's resume: the first whole frame that started after it.
+                            # Unplugs before it ended before the stream had resumed (a loaded machine's
+                            # slow frames): they have no resume to measure, and the session waits for
+                            # more unplugs instead.
                             gone = [t for kind, t in watch.events if kind == "gone"][len(backs) - 1]
                             back = backs[len(backs) - 1]
                             if frame.started >= back:
                                 report["cycles"].append(UnplugCycle(back - gone, frame.finished - back))
-                                seen_cycles = len(backs)
+                                measured += 1
+                                backs_seen = len(backs)
                     stop.set()
                     await asyncio.gather(*workers)
                 report["reconnects"] += bus.stats.reconnects
