@@ -175,9 +175,9 @@ async def reconnect_session(
                         backs = [t for kind, t in watch.events if kind == "back"]
                         if len(backs) > backs_seen and len(frame.positions) == len(ids):
                             # The latest replug's resume: the first whole frame that started after it.
-                            # Unplugs before it ended before the stream had resumed (a loaded machine's
-                            # slow frames): they have no resume to measure, and the session waits for
-                            # more unplugs instead.
+                            # An earlier replug not measured yet was cut short by the next unplug before
+                            # the stream had resumed (a loaded machine's slow frames): it has no resume
+                            # to measure, and the session waits for more unplugs instead.
                             gone = [t for kind, t in watch.events if kind == "gone"][len(backs) - 1]
                             back = backs[len(backs) - 1]
                             if frame.started >= back:
