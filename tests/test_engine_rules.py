@@ -429,7 +429,7 @@ def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in
     # A request passed over once beside a late stream; that stream closes and another (late as
     # well) attaches while its last transaction is on the wire: the new stream's first overdue
     # slot is the first the request was passed over in beside it, so one of its transactions
-    # goes first (the rule: within two cycles of the stream it waits beside).
+    # goes first (the rule: it goes once passed over in two of the stream's slots).
     wire, old = paced_line(period=0.0002)
     wire.run_for(0.005)
     new = FakeSource([1], wake_at=0.0, period=0.0002, paced=True)
@@ -447,4 +447,26 @@ def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in
     wire.run_for(0.05)
     assert req.state == "done" and new.started
     kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent()[swapped[0] :])
+    assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
+
+
+def test_a_request_does_not_inherit_the_slots_another_was_passed_over_in() -> None:
+    # A request passed over once beside a late stream is cancelled; the next one is passed over in
+    # slots of its own: one of the stream's transactions goes before it.
+    wire, _ = paced_line(period=0.0002)
+    wire.run_for(0.005)
+    first, second = Recorded(read(7)), Recorded(read(8))
+    marks: list[int] = []
+
+    def cancel_after_one_pass() -> None:
+        if not marks:  # the stream's write made after passing ``first`` over once
+            marks.append(len(wire.writes) + 1)
+            first.cancel()
+            wire.submit(second)
+
+    wire.submit(first)
+    wire.on_write = cancel_after_one_pass
+    wire.run_for(0.05)
+    assert first.state == "cancelled" and second.state == "done"
+    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent()[marks[0] :])
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]

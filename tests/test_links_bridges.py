@@ -101,7 +101,7 @@ async def test_rfc2217_answers_right_after_a_silent_id(rfc2217: Rfc2217Bridge, d
         for _ in range(3):
             with pytest.raises(ReplyTimeout):
                 await _stretch_once(bus, 9)  # nobody has ID 9
-            # Retries allowed: a loaded machine can make a reply late; the purge that held one up is counted below.
+            # Retries allowed: a loaded machine can make a reply late; a purge that would hold one up is counted below.
             assert await bus.servo(2).read_stretch() == 30
         assert rfc2217.input_purges == purges
 

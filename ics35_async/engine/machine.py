@@ -97,8 +97,10 @@ class LineEngine:
         self.queue = RequestQueue()
         self._source: BackgroundSource | None = None
         self._in_row = 0  # requests run since the source's last transaction
-        self._passed_over = 0  # slacks of a paced stream the queue's head was too long for
-        self._passed_over_due = -INF  # the slot of the last slack it was counted for
+        # Slots of a paced stream that one request, the queue's head, was passed over in (see _passed_over_in).
+        self._passed_over = 0
+        self._passed_over_due = -INF  # the slot of the last one counted
+        self._passed_over_head: Request | None = None  # the request they were counted for
         self._allowances: dict[int, float] = {}  # NORMAL allowance by transaction size
         # The transaction on the wire.
         self._buf = bytearray()
@@ -252,10 +254,11 @@ class LineEngine:
             raise InvalidArgument("this bus already runs a stream; close it first")
         if self.state is CLOSED or self.state is DRAINING:
             raise BusClosed("bus is closed")
+        # Slots a request was passed over in beside an earlier stream do not count: it goes ahead
+        # of this stream only once passed over in two of this stream's slots.
+        if source is not self._source:
+            self._passed_over, self._passed_over_due = 0, -INF
         self._source = source
-        # Slacks passed over beside an earlier stream are not this one's: a request waits for at
-        # most two of its slots, counted from now (see _passed_over_in).
-        self._passed_over, self._passed_over_due = 0, -INF
         return self.kick(now)
 
     @property
@@ -502,7 +505,7 @@ class LineEngine:
         if req is None:
             return None
         self._in_row += 1
-        self._passed_over = 0
+        self._passed_over_head = None  # the next head starts its own count
         cmd = req.command
         return self._begin(cmd.tx, cmd.reply_len, cmd.servo_id, req, cmd.timing, now)
 
@@ -530,7 +533,7 @@ class LineEngine:
             # The source runs late (its cycles take longer than its period): there is no slack, and
             # none will come.  Each overdue slot counts as one the request was passed over in, so it
             # still goes within two cycles (below) rather than never.
-            return self._passed_over_in(due, note)
+            return self._passed_over_in(head, due, note)
         cmd = head.command
         beyond_wire = self.answers.expected
         if beyond_wire < 0:  # nothing answered yet on this port: expect the full allowance
@@ -540,15 +543,19 @@ class LineEngine:
         if now + expected <= due:
             return True
         # Too long for this slack.
-        return self._passed_over_in(due, note)
+        return self._passed_over_in(head, due, note)
 
-    def _passed_over_in(self, due: float, note: bool) -> bool:
-        """The queue's head does not fit in the slack before ``due``: passed over in two slacks in a row,
-        it goes now (delaying the next cycle once), rather than waiting forever for a slack it can never
-        fit in.  ``note``: count this slack (the engine's decision, not a question)."""
-        passed = self._passed_over if self._passed_over_due == due else self._passed_over + 1
+    def _passed_over_in(self, head: Request, due: float, note: bool) -> bool:
+        """``head`` does not fit in the slack before ``due``: passed over in two slacks, it goes now
+        (delaying the next cycle once), rather than waiting forever for a slack it can never fit in.
+        Only its own count: a request that comes to the head (the one before it went, was cancelled,
+        or was outranked) starts from none.  ``note``: count this slack (the engine's decision, not a
+        question)."""
+        passed = self._passed_over if self._passed_over_head is head else 0
+        if self._passed_over_due != due or self._passed_over_head is not head:
+            passed += 1
         if note:
-            self._passed_over_due, self._passed_over = due, passed
+            self._passed_over_head, self._passed_over_due, self._passed_over = head, due, passed
         return passed >= 2
 
     def _begin(
