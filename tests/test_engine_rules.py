@@ -126,6 +126,11 @@ def test_urgent_runs_first_and_each_level_is_fifo() -> None:
     assert [tx[0] & 0x1F for tx in wire.sent()] == [1, 4, 6, 2, 3, 7, 5]
 
 
+def stream_or_request(sent: list[bytes]) -> str:
+    """The writes in order as letters: ``S`` a position command (the stream's), ``R`` any other (a request's)."""
+    return "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in sent)
+
+
 def test_the_stream_gets_a_turn_after_at_most_max_requests_between() -> None:
     wire, _ = line({1, 2, *range(10, 30)}, max_requests_between=3)
     source = FakeSource([1, 2])
@@ -135,7 +140,7 @@ def test_the_stream_gets_a_turn_after_at_most_max_requests_between() -> None:
         wire.submit(req)
     wire.run_for(0.2)
     assert all(req.state == "done" for req in requests)
-    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
+    kinds = stream_or_request(wire.sent())
     assert max(len(run) for run in kinds.split("S")) <= 3
     assert "RRRR" not in kinds and kinds.count("R") == 20
     assert len(source.values) == kinds.count("S") - (wire.engine.state is State.BUSY)
@@ -345,7 +350,7 @@ def test_requests_use_the_slack_of_a_paced_stream_and_never_delay_a_slot() -> No
     # A slot may only wait for the stream's own previous transaction, never for a request.
     assert not late, late
     # ...and the requests did get the slack: several between two slots.
-    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
+    kinds = stream_or_request(wire.sent())
     assert max(len(run) for run in kinds.split("S")[1:-1]) >= 3
 
 
@@ -421,7 +426,7 @@ def test_a_request_beside_a_paced_stream_that_runs_late_still_runs() -> None:
     assert [req.state for req in reads] == ["done", "done"]
     assert len(source.started) > 20  # the stream went on, late as it is
     # Each read went only after the stream had kept an (overdue) slot, never two reads in a row.
-    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent())
+    kinds = stream_or_request(wire.sent())
     assert kinds.startswith("S") and "RR" not in kinds and kinds.count("R") == 2, kinds[:20]
 
 
@@ -446,7 +451,7 @@ def test_a_new_stream_starts_its_own_count_of_slots_a_request_was_passed_over_in
     wire.on_write = swap_after_one_pass
     wire.run_for(0.05)
     assert req.state == "done" and new.started
-    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent()[swapped[0] :])
+    kinds = stream_or_request(wire.sent()[swapped[0] :])
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
 
 
@@ -468,5 +473,5 @@ def test_a_request_does_not_inherit_the_slots_another_was_passed_over_in() -> No
     wire.on_write = cancel_after_one_pass
     wire.run_for(0.05)
     assert first.state == "cancelled" and second.state == "done"
-    kinds = "".join("S" if tx[0] & 0xE0 == protocol.CMD_POSITION else "R" for tx in wire.sent()[marks[0] :])
+    kinds = stream_or_request(wire.sent()[marks[0] :])
     assert kinds.startswith("S") and kinds.count("R") == 1, kinds[:20]
