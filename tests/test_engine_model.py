@@ -370,3 +370,23 @@ def test_a_reply_that_failed_on_anothers_late_bytes_is_not_taken_by_its_retry() 
     state.advance(dt=0.3)
     state.each_request_ends_at_most_once_with_its_own_value()
     state.teardown()
+
+
+def test_a_streams_reply_late_by_more_than_the_links_extra_is_not_taken_after_the_hold() -> None:
+    # Found by the model above: on a line whose link has shown lateness (a guard read's tail came in
+    # its resync, so every deadline and resync gets an extra), a stream transaction gives up after
+    # its short wait and its reply comes where a timeout's resync would still have been listening,
+    # a quiet time and the extra after the full deadline.  The servo was held back only to the full
+    # deadline and a quiet time, so the stream's next transaction to it took that reply for its own.
+    state = LineModel()
+    state.open_line(echo=False, share=1)
+    state.attach_stream(ids=[1], paced=False)
+    for _ in range(17):
+        state.advance(dt=0.0)
+    state.advance(dt=0.3)
+    state.inject(batch=[("drop", 0.0, []), ("tail_late", 1.0, [])])
+    state.inject(batch=[("late", 1.0, []), ("clean", 0.0, [])])
+    state.inject(batch=[("drop", 0.0, [])])
+    state.advance(dt=0.3)
+    state.each_request_ends_at_most_once_with_its_own_value()
+    state.teardown()

@@ -800,15 +800,17 @@ class LineEngine:
     def _hold(self, now: float) -> None:
         """A stream transaction that waited less than its full allowance failed (after the resync began).
 
-        Its reply may still come, as late as the full allowance (and the link's extra) allows, and
-        a quiet time more.  Until then no command with its first byte (its command and ID) goes on
+        Its reply may still come, as late as a timeout at its full deadline would still listen for
+        it: that deadline (the full allowance and the link's extra), then the resync's quiet time
+        and the extra again.  Until then no command with its first byte (its command and ID) goes on
         the wire: the stream skips that servo, and a request to it waits.  A reply from it landing
         in another command's transaction cannot pass for that one's answer (another ID or command
         in its header), so it costs a failure there, never a value taken for another; and the
         resync after this failure can be as short as a probe's (see .probe).  The tail of a
         partial reply has no header to tell it by: see _settle.
         """
-        self._held[self._tx[0]] = self._t_start + self._base + self.link.extra + self.timing.quiet_time
+        extra = self.link.extra
+        self._held[self._tx[0]] = self._t_start + self._base + extra + self.timing.quiet_time + extra
         self._short_resync(now, STREAM_RESYNC)
 
     def _short_resync(self, now: float, latency: float | None) -> None:
