@@ -397,6 +397,97 @@ def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     page.click("#traffic-pause")
 
 
+def png_width(png: bytes) -> int:
+    return int.from_bytes(png[16:20], "big")  # the IHDR chunk: width, then height
+
+
+def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: str) -> None:
+    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
+    p = context.new_page()
+    p.goto(server)
+    scan_finds(p, 2, ids="0-4")
+    for name in ("line", "servo/1", "id", "many", "live", "traffic"):
+        p.goto(base_of(server) + f"/#{name}")
+        if name == "servo/1":
+            expect(p.locator("#eeprom-table tbody tr").first).to_be_visible()
+            shot(p, "phone", height=844, width=390)
+        width = png_width(p.screenshot(full_page=True))
+        assert width == 390, f"the {name} page is {width} px wide on a 390 px screen: it scrolls sideways"
+    context.close()
+
+
+def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    expect(page.locator("#line-status")).to_contain_text("LOST")
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    scan_finds(page, 2, ids="0-4")
+    expect(page.locator("#scan-progress")).to_have_js_property("value", 5)  # the five IDs typed, no more
+
+
+def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, lines: Any) -> None:
+    two = lines[0]
+    page.click("a[href='#line']")
+    two.sim.unplug()
+    expect(page.locator("#lost-banner")).to_be_visible()
+    page.click("#scan-btn")
+    expect(page.locator("#message")).to_contain_text("lost")
+    expect(page.locator("#scan-summary")).not_to_contain_text("scanning")  # the failed scan is not still going
+    two.sim.replug()
+    expect(page.locator("#lost-banner")).to_be_hidden()
+    # The banner and the message follow the same status update: no wait beyond the one for the banner.
+    expect(page.locator("#message")).not_to_contain_text("lost", timeout=500)
+    expect(page.locator("#message")).to_contain_text("the line is back", timeout=500)
+    scan_finds(page, 2, ids="0-4")
+
+
+def open_servo_page(page: Page, servo_id: int) -> None:
+    """The Servo page of ``servo_id``, its reads done (its ID in the EEPROM table, then its RAM shown)."""
+    page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
+    expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
+    expect(page.locator("#ram-table tbody tr").first).to_be_visible()
+
+
+def test_the_servo_page_reports_the_position_read_after_a_jog_not_the_one_before(page: Page, lines: Any) -> None:
+    servo = lines[0].sim.servo(3)  # ICS 3.6: its position is read without moving or freeing it
+    servo.move_by_hand(8000)
+    open_servo_page(page, 3)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-target")).to_have_text("8000")
+    for target in (8100, 8200):
+        page.click("#jog-plus")
+        expect(page.locator("#jog-target")).to_have_text(str(target))
+    expect(page.locator("#jog-position")).to_have_text("8200")  # where the servo got to, not where it set off from
+    expect(page.locator("#jog-position-note")).to_contain_text("read")
+    assert servo.target == 8200  # the reads moved nothing
+    page.click("#free-btn")
+    expect(page.locator("#jog-plus")).to_be_disabled()
+    servo.move_by_hand(9100)  # turned by hand while the page is open: the page follows
+    expect(page.locator("#jog-position")).to_have_text("9100")
+    assert servo.free  # the reads took no hold of it
+
+
+def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(page: Page, lines: Any) -> None:
+    servo = lines[0].sim.servo(1)  # ICS 3.5: reads a position only by going free, so none is read
+    servo.move_by_hand(7600)
+    open_servo_page(page, 1)
+    page.check("#motion-switch")
+    expect(page.locator("#jog-target")).to_have_text("7600")
+    page.click("#jog-plus")
+    expect(page.locator("#jog-target")).to_have_text("7700")
+    expect(page.locator("#jog-position-note")).to_contain_text("before")
+    page.wait_for_timeout(1200)  # several rounds of the page's reads
+    assert servo.target == 7700  # held where it was sent: nothing freed it
+    page.click("#free-btn")
+    expect(page.locator("#jog-plus")).to_be_disabled()
+
+
+# The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started
+# after the other pages' tests and stopped with the module.
 @pytest.fixture(scope="module")
 def robot_server() -> Iterator[str]:
     """``ics35 web --robot examples/humanoid.toml``: a 17-joint humanoid on two simulated lines."""
@@ -508,92 +599,3 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     expect(p.locator("#page-line")).to_be_visible()
     scan_lists(p, 10)
     context.close()
-
-
-def png_width(png: bytes) -> int:
-    return int.from_bytes(png[16:20], "big")  # the IHDR chunk: width, then height
-
-
-def test_on_a_phone_every_page_fits_the_screen_width(browser: Browser, server: str) -> None:
-    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True)
-    p = context.new_page()
-    p.goto(server)
-    scan_finds(p, 2, ids="0-4")
-    for name in ("line", "servo/1", "id", "many", "live", "traffic"):
-        p.goto(base_of(server) + f"/#{name}")
-        if name == "servo/1":
-            expect(p.locator("#eeprom-table tbody tr").first).to_be_visible()
-            shot(p, "phone", height=844, width=390)
-        width = png_width(p.screenshot(full_page=True))
-        assert width == 390, f"the {name} page is {width} px wide on a 390 px screen: it scrolls sideways"
-    context.close()
-
-
-def test_an_unplugged_port_is_shown_at_once_and_the_line_comes_back(page: Page, lines: Any) -> None:
-    two = lines[0]
-    page.click("a[href='#line']")
-    expect(page.locator("#lost-banner")).to_be_hidden()
-    two.sim.unplug()
-    expect(page.locator("#lost-banner")).to_be_visible()
-    expect(page.locator("#line-status")).to_contain_text("LOST")
-    two.sim.replug()
-    expect(page.locator("#lost-banner")).to_be_hidden()
-    scan_finds(page, 2, ids="0-4")
-    expect(page.locator("#scan-progress")).to_have_js_property("value", 5)  # the five IDs typed, no more
-
-
-def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, lines: Any) -> None:
-    two = lines[0]
-    page.click("a[href='#line']")
-    two.sim.unplug()
-    expect(page.locator("#lost-banner")).to_be_visible()
-    page.click("#scan-btn")
-    expect(page.locator("#message")).to_contain_text("lost")
-    expect(page.locator("#scan-summary")).not_to_contain_text("scanning")  # the failed scan is not still going
-    two.sim.replug()
-    expect(page.locator("#lost-banner")).to_be_hidden()
-    # The banner and the message follow the same status update: no wait beyond the one for the banner.
-    expect(page.locator("#message")).not_to_contain_text("lost", timeout=500)
-    expect(page.locator("#message")).to_contain_text("the line is back", timeout=500)
-    scan_finds(page, 2, ids="0-4")
-
-
-def open_servo_page(page: Page, servo_id: int) -> None:
-    """The Servo page of ``servo_id``, its reads done (its ID in the EEPROM table, then its RAM shown)."""
-    page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
-    expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
-    expect(page.locator("#ram-table tbody tr").first).to_be_visible()
-
-
-def test_the_servo_page_reports_the_position_read_after_a_jog_not_the_one_before(page: Page, lines: Any) -> None:
-    servo = lines[0].sim.servo(3)  # ICS 3.6: its position is read without moving or freeing it
-    servo.move_by_hand(8000)
-    open_servo_page(page, 3)
-    page.check("#motion-switch")
-    expect(page.locator("#jog-target")).to_have_text("8000")
-    for target in (8100, 8200):
-        page.click("#jog-plus")
-        expect(page.locator("#jog-target")).to_have_text(str(target))
-    expect(page.locator("#jog-position")).to_have_text("8200")  # where the servo got to, not where it set off from
-    expect(page.locator("#jog-position-note")).to_contain_text("read")
-    assert servo.target == 8200  # the reads moved nothing
-    page.click("#free-btn")
-    expect(page.locator("#jog-plus")).to_be_disabled()
-    servo.move_by_hand(9100)  # turned by hand while the page is open: the page follows
-    expect(page.locator("#jog-position")).to_have_text("9100")
-    assert servo.free  # the reads took no hold of it
-
-
-def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(page: Page, lines: Any) -> None:
-    servo = lines[0].sim.servo(1)  # ICS 3.5: reads a position only by going free, so none is read
-    servo.move_by_hand(7600)
-    open_servo_page(page, 1)
-    page.check("#motion-switch")
-    expect(page.locator("#jog-target")).to_have_text("7600")
-    page.click("#jog-plus")
-    expect(page.locator("#jog-target")).to_have_text("7700")
-    expect(page.locator("#jog-position-note")).to_contain_text("before")
-    page.wait_for_timeout(1200)  # several rounds of the page's reads
-    assert servo.target == 7700  # held where it was sent: nothing freed it
-    page.click("#free-btn")
-    expect(page.locator("#jog-plus")).to_be_disabled()
