@@ -12,7 +12,7 @@ DEMO_STAMP := $(VENV)/.demo-installed
 # of the wheel and sdist) like the installed packages' own.
 export PYTHONDONTWRITEBYTECODE :=
 
-.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest docs docs-serve dist bench soak clean browser tools web-demo bench-web stress
+.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest pytest-parallel pytest-realtime docs docs-serve dist bench soak clean browser tools web-demo bench-web stress
 
 all: test
 
@@ -89,21 +89,30 @@ typecheck: $(STAMP)
 # cores pays; --dist loadfile keeps each module on one worker (module-scoped servers started once, the
 # browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names),
 # in the order tests/conftest.py gives them, longest first (xdist would reorder them by their count of tests).
-# Then the tests marked realtime, one at a time, alone: they judge real elapsed time.  One coverage report.
+# Then the tests marked realtime, one at a time, with no other tests beside them: they judge real elapsed
+# time.  One coverage report.
 # The second pass collects only the modules that mark a test realtime (collecting every module takes
 # seconds); tests/conftest.py stops the run if a realtime test is marked where this list cannot see it.
 PYTEST_WORKERS ?= 4
 COV := --cov=ics35_async --cov-branch
 REALTIME_MODULES = $(shell grep -l "mark\.realtime" tests/test_*.py)
 # (browser and tools are checked on every run: a venv made before a tool was added still gets it)
-pytest: $(STAMP) browser tools
+pytest: pytest-parallel
+	$(MAKE) --no-print-directory pytest-realtime
+
+pytest-parallel: $(STAMP) browser tools
 	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not realtime" $(COV) --cov-report=
+
+pytest-realtime: $(STAMP)
 	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 
-# The quick checks run beside pytest (make -j): they use the CPU while the tests mostly wait.
+# The checks run beside the tests (make -j): lint and types beside the parallel pass, which keeps both cores
+# busy; the docs build (a process on one core for seconds) beside the real-time pass, which uses about one
+# (its tests are judged against the clock, and pass beside two CPU-burning processes: see `make stress`).
 test: $(STAMP)
-	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck docs pytest
+	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck pytest-parallel
+	$(MAKE) --no-print-directory -j2 --output-sync=target docs pytest-realtime
 
 # Flakiness measured: the whole suite five times in a row under two CPU-burning processes (this target
 # starts them and stops them, also on Ctrl-C); fails on the first failing run (its log: build/stress-N.log).
