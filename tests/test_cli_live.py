@@ -59,3 +59,14 @@ def test_plot_in_another_format_is_written(cli: Any, sim_line: Any, tmp_path: Pa
     result = cli("--port", url, "monitor", "--free", "1", "--seconds", "0.3", "--plot", str(target))
     assert result.code == 0, result.err
     assert b"<svg" in target.read_bytes()[:500]
+
+
+@pytest.mark.parametrize("command", [["monitor", "1", "--free"], ["demo", "--ids", "1"]], ids=["monitor", "demo"])
+def test_a_first_cycle_that_ends_after_seconds_is_up_is_reported(cli: Any, command: list[str]) -> None:
+    # Behind an adapter that holds every reply 0.25 s (an FTDI chip's latency timer at 250 ms), the first
+    # cycle ends after --seconds 0.1 is up.  Before it nothing is known of the servo: the command waits for it
+    # and reports what it found, not "no servo answered" (a loaded machine can be as slow).
+    url = "sim://?ids=1&realtime=1&adapter=ftdi&latency_timer=250"
+    result = cli("--port", url, "--timeout", "1", *command, "--seconds", "0.1")
+    assert result.code == 0, result.err
+    assert "answering 1/1" in result.out, result.out

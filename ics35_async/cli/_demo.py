@@ -49,7 +49,9 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     default=None,
     help="Servos to drive (default: 0-31 on the simulator; on hardware, the IDs a scan finds, after asking).",
 )
-@seconds_option("--seconds", "Run this long (Ctrl-C stops earlier).", low=0.1, default=10.0)
+@seconds_option(
+    "--seconds", "Run this long, and until a first cycle has ended (Ctrl-C stops earlier).", low=0.1, default=10.0
+)
 @click.option(
     "--amplitude",
     type=click.FloatRange(1, 120),

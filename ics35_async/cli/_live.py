@@ -97,8 +97,10 @@ async def run_live(
             async with stream:
                 try:
                     # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
-                    # cancellation when a frame arrives at the same moment.
-                    timer = asyncio.timeout_at(deadline)
+                    # cancellation when a frame arrives at the same moment.  --seconds counts from the
+                    # start but is set once the first cycle has ended: before it nothing is known of the
+                    # servos (a slow adapter or a loaded machine can take longer than a short --seconds).
+                    timer = asyncio.timeout(None)
                     async with timer:
                         while True:
                             frame = await stream.next_frame()
@@ -115,6 +117,8 @@ async def run_live(
                             if now - last_render >= render_every:
                                 last_render = now
                                 render()
+                            if deadline is not None and timer.when() is None:
+                                timer.reschedule(deadline)  # already past: ends at the next wait
                 except TimeoutError:
                     if not timer.expired():
                         raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
