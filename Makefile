@@ -103,7 +103,8 @@ pytest: pytest-parallel
 pytest-parallel: $(STAMP) browser tools
 	$(BIN)/pytest -q --fail-on-skip -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not realtime" $(COV) --cov-report=
 
-pytest-realtime: $(STAMP)
+# (it appends to the parallel pass's coverage data: run alone, its report includes whatever an earlier run left)
+pytest-realtime: $(STAMP) browser tools
 	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 

@@ -381,8 +381,6 @@ def test_a_streams_reply_late_by_more_than_the_links_extra_is_not_taken_after_th
     state = LineModel()
     state.open_line(echo=False, share=1)
     state.attach_stream(ids=[1], paced=False)
-    for _ in range(17):
-        state.advance(dt=0.0)
     state.advance(dt=0.3)
     state.inject(batch=[("drop", 0.0, []), ("tail_late", 1.0, [])])
     state.inject(batch=[("late", 1.0, []), ("clean", 0.0, [])])

@@ -50,7 +50,7 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     help="Servos to drive (default: 0-31 on the simulator; on hardware, the IDs a scan finds, after asking).",
 )
 @seconds_option(
-    "--seconds", "Run this long, and until a first cycle has ended (Ctrl-C stops earlier).", low=0.1, default=10.0
+    "--seconds", "Run this long, but not less than a first cycle (Ctrl-C stops earlier).", low=0.1, default=10.0
 )
 @click.option(
     "--amplitude",

@@ -118,7 +118,7 @@ async def run_live(
                                 last_render = now
                                 render()
                             if deadline is not None and timer.when() is None:
-                                timer.reschedule(deadline)  # already past: ends at the next wait
+                                timer.reschedule(deadline)  # (if already past, it fires at the next wait)
                 except TimeoutError:
                     if not timer.expired():
                         raise  # a line's own error (a ReplyTimeout is a TimeoutError too)

@@ -58,7 +58,8 @@ class LiveState:
         self.position_errors = dict(stats.failures)
 
     def summary(self, telemetry: Telemetry) -> str:
-        answering = len(self.ids) - len(self.failed | self.offline)
+        # Before the first cycle has ended nothing is known: no servo is counted as answering yet.
+        answering = len(self.ids) - len(self.failed | self.offline) if self.cycle else 0
         limit = f"/{self.seconds:g}" if self.seconds else ""
         errors = sum(self.position_errors.values()) + sum(telemetry.errors.values())
         return (

@@ -16,7 +16,7 @@ from ._telemetry import Telemetry
 
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
-@seconds_option("--seconds", "Stop after this long, once a first cycle has ended (default: Ctrl-C).", low=0.1)
+@seconds_option("--seconds", "Stop after this long, but not before a first cycle has ended (default: Ctrl-C).", low=0.1)
 @click.option(
     "--free",
     "free_servos",

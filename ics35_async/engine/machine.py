@@ -718,7 +718,7 @@ class LineEngine:
         own reply could fill the reply's length and pass for it; the rest of the real reply is
         then right behind.  So the reply is taken only if nothing more arrives for the rest of a
         reply's wire time and a millisecond (one more USB frame).  Rare: only in pieces, and only
-        within a failed stream transaction's full allowance.
+        while the servo of a failed stream transaction is held back (see _hold).
         """
         self._settling = True
         self._t_done = now
