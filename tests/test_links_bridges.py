@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from ics35_async import open_bus, policies, protocol
-from ics35_async.errors import PortLost, ReplyTimeout, SerialPortError
+from ics35_async.errors import PortLost, ReplyError, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
 from ics35_async.transports import links
@@ -243,17 +243,19 @@ async def _until_lost(bus: Any) -> None:
             await _stretch_once(bus, 1)
         except PortLost:
             return
-        except ReplyTimeout:
+        except ReplyError:  # (the far end going away can cut a reply short)
             pass
         await asyncio.sleep(0.01)
     pytest.fail("the dropped connection was never reported as PortLost")
 
 
 async def _until_answers(bus: Any) -> int:
+    # Right after the far end is back a read may fail in any typed way (a loaded machine can hold a reply's
+    # tail in the bridge: a partial reply); what is tested is that the bus recovers, with the right value.
     for _ in range(500):
         try:
             return await _stretch_once(bus, 1)
-        except (PortLost, ReplyTimeout):
+        except (PortLost, ReplyError):
             await asyncio.sleep(0.02)
     pytest.fail("the bus did not recover after the far end came back")
 
