@@ -733,7 +733,7 @@ class LineEngine:
             # answer still echoes.  With the echo not yet round, the host or the link is late, and
             # giving up would only fail whatever the bytes land in: wait the full allowance.
             self._short = False
-            full = self._t_start + self._base + self.link.extra
+            full = self._full_deadline()
             if now < full:
                 self.deadline = full
                 return None
@@ -792,9 +792,8 @@ class LineEngine:
         if self.state is not QUIET:
             return
         self.guard.timed_out(self._tx, heard=True, was_guard=req is not None and req.is_guard)
-        extra = self.link.extra
-        self._quiet_until = max(self._quiet_until, due + self.timing.quiet_time + extra)
-        self._resync_limit = max(self._resync_limit, due + self.timing.max_resync + extra)
+        self._quiet_until = max(self._quiet_until, self._resync_end(due))
+        self._resync_limit = max(self._resync_limit, due + self.timing.max_resync + self.link.extra)
         self.deadline = min(self._quiet_until, self._resync_limit)
 
     def _hold(self, now: float) -> None:
@@ -809,9 +808,16 @@ class LineEngine:
         resync after this failure can be as short as a probe's (see .probe).  The tail of a
         partial reply has no header to tell it by: see _settle.
         """
-        extra = self.link.extra
-        self._held[self._tx[0]] = self._t_start + self._base + extra + self.timing.quiet_time + extra
+        self._held[self._tx[0]] = self._resync_end(self._full_deadline())
         self._short_resync(now, STREAM_RESYNC)
+
+    def _full_deadline(self) -> float:
+        """The transaction's deadline with its full allowance (and the link's extra), whatever it waited."""
+        return self._t_start + self._base + self.link.extra
+
+    def _resync_end(self, deadline: float) -> float:
+        """How long the resync after a timeout at ``deadline`` listens for the late reply (see .link)."""
+        return deadline + self.timing.quiet_time + self.link.extra
 
     def _short_resync(self, now: float, latency: float | None) -> None:
         if self.state is QUIET and latency is not None:
@@ -844,7 +850,7 @@ class LineEngine:
         self.counters.resyncs += 1
         self.state = State.QUIET
         self._quiet_span = self.timing.quiet_time  # the silence that ends it (a short wait's fault: less)
-        self._quiet_until = now + self.timing.quiet_time + self.link.extra
+        self._quiet_until = self._resync_end(now)
         self._resync_limit = now + self.timing.max_resync + self.link.extra
         self._buf.clear()
         self.deadline = self._quiet_until
