@@ -85,15 +85,19 @@ typecheck: $(STAMP)
 	$(BIN)/mypy --strict ics35_async
 
 # pytest in two passes.  First everything but the real-time tests on PYTEST_WORKERS processes (pytest-xdist):
-# most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so twice the
-# cores pays; --dist loadfile keeps each module on one worker (module-scoped servers started once, the
-# browser tests' page walked in order; xdist's loadgroup is not used: pytest 9.2 ignores its group names),
-# in the order tests/conftest.py gives them, longest first (xdist would reorder them by their count of tests).
-# Then the tests marked realtime, one at a time, with no other tests beside them: they judge real elapsed
-# time.  One coverage report.
+# most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so three workers a
+# core keep the cores busy (with two a core they sat idle a tenth of the pass; more than three a core pay more
+# in each worker's start and collection than they fill); --dist loadfile keeps each module on one worker
+# (module-scoped servers started once, the browser tests' page walked in order; xdist's loadgroup is not used:
+# pytest 9.2 ignores its group names), in the order tests/conftest.py gives them, longest first (xdist would
+# reorder them by their count of tests).
+# Then the tests marked realtime, on two workers with no other tests beside them: they judge real elapsed time
+# (and pass beside two CPU-burning processes: see `make stress`).  One coverage report.
 # The second pass collects only the modules that mark a test realtime (collecting every module takes
 # seconds); tests/conftest.py stops the run if a realtime test is marked where this list cannot see it.
-PYTEST_WORKERS ?= 4
+CORES := $(shell nproc 2>/dev/null || sysctl -n hw.ncpu 2>/dev/null || echo 2)
+PYTEST_WORKERS ?= $(shell echo $$(( $(CORES) * 3 > 12 ? 12 : $(CORES) * 3 )))
+REALTIME_WORKERS ?= 2
 COV := --cov=ics35_async --cov-branch
 REALTIME_MODULES = $(shell grep -l "mark\.realtime" tests/test_*.py)
 # (browser and tools are checked on every run: a venv made before a tool was added still gets it)
@@ -105,12 +109,13 @@ pytest-parallel: $(STAMP) browser tools
 
 # (it appends to the parallel pass's coverage data: run alone, its report includes whatever an earlier run left)
 pytest-realtime: $(STAMP) browser tools
-	$(BIN)/pytest -q --fail-on-skip -m realtime $(COV) --cov-append --cov-report=term-missing:skip-covered \
+	$(BIN)/pytest -q --fail-on-skip -n $(REALTIME_WORKERS) --dist loadfile --no-loadscope-reorder -m realtime $(COV) --cov-append \
+		--cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 
 # The checks run beside the tests (make -j): lint and types beside the parallel pass, which keeps both cores
 # busy; the docs build (a process on one core for seconds) beside the real-time pass, which uses about one
-# (its tests are judged against the clock, and pass beside two CPU-burning processes: see `make stress`).
+# (its two workers mostly wait: its tests are judged against the clock).
 test: $(STAMP)
 	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck pytest-parallel
 	$(MAKE) --no-print-directory -j2 --output-sync=target docs pytest-realtime
