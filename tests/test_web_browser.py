@@ -491,7 +491,8 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
 @pytest.fixture(scope="module")
 def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """``ics35 web --robot``: the 17-joint humanoid of ``examples/humanoid.toml`` on two simulated lines,
-    cycling at 50 Hz instead of 100 (the simulators' half of its CPU, nothing the pages show)."""
+    cycling at 50 Hz instead of 100: half the transactions its simulators serve while it runs, and nothing
+    the pages show depends on the rate."""
     example = (ROOT / "examples" / "humanoid.toml").read_text()
     assert example.count("rate_hz = 100") == 2
     robot = tmp_path_factory.mktemp("robot") / "humanoid.toml"
