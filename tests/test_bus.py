@@ -247,8 +247,10 @@ async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line:
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(driver: str) -> None:
-    sim = VirtualLine(make_servos())
-    bus = await open_bus(sim, driver=driver, **FAST)
+    # Servo 0's reply comes 0.3 s late: its request is still on the wire when close begins, under the thread
+    # driver too (whose own thread, with a prompt reply, could finish several before aclose() runs).
+    sim = VirtualLine(make_servos(), realtime=True, faults="late@0:1.0", late_delay=0.3)
+    bus = await open_bus(sim, driver=driver, **HELD)
     futures = [bus.submit(protocol.ReadParam(i, protocol.Param.STRETCH)) for i in range(20)]
     await bus.aclose()
     results = await asyncio.gather(*futures, return_exceptions=True)
