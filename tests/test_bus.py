@@ -260,8 +260,8 @@ async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(dr
     with pytest.raises(BusClosed):
         await bus.servo(1).read_stretch()
     assert not bus.is_open
-    # The port is released: the same simulated line opens again.
-    async with open_bus(sim, driver=driver, **FAST) as again:
+    # The port is released: the same simulated line opens again (real-time: with the patient allowance).
+    async with open_bus(sim, driver=driver, **HELD) as again:
         assert await again.servo(3).read_stretch() == 13
 
 
