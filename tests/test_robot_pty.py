@@ -14,6 +14,7 @@ import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
+from tests.support.timing import NO_TIMEOUTS_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -64,7 +65,7 @@ def port() -> Iterator[str]:
 
 
 def servo_degrees(port: str) -> dict[int, float]:
-    proc = ics35("--port", port, "free", "1", "2", "3", "--json")
+    proc = ics35("--port", port, *NO_TIMEOUTS_OPTION, "free", "1", "2", "3", "--json")
     assert proc.returncode == 0, proc.stderr
     return {int(i): units.position_to_degrees(p) for i, p in json.loads(proc.stdout)["freed"].items()}
 
@@ -73,7 +74,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     robot = tmp_path / "robot.toml"
     robot.write_text(ROBOT.format(port=port))
     for sid, deg in ((1, "25"), (2, "-40"), (3, "60")):
-        assert ics35("--port", port, "move", str(sid), deg, "--deg").returncode == 0
+        assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), deg, "--deg").returncode == 0
     taught = tmp_path / "taught.json"
     proc = ics35("teach", str(robot), str(taught), stdin="\nq\n")
     assert proc.returncode == 0, proc.stderr
@@ -82,7 +83,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     # Joint degrees of where the servos were put: a = servo - 5, b = -servo, c = servo.
     assert keyframes[0]["pose"] == pytest.approx({"a": 20.0, "b": 40.0, "c": 60.0}, abs=0.1)
     for sid in (1, 2, 3):
-        assert ics35("--port", port, "move", str(sid), "0", "--deg").returncode == 0
+        assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), "0", "--deg").returncode == 0
     proc = ics35("play", str(robot), str(taught))
     assert proc.returncode == 0, proc.stderr
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
