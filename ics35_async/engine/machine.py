@@ -793,7 +793,7 @@ class LineEngine:
             return
         self.guard.timed_out(self._tx, heard=True, was_guard=req is not None and req.is_guard)
         self._quiet_until = max(self._quiet_until, self._resync_end(due))
-        self._resync_limit = max(self._resync_limit, due + self.timing.max_resync + self.link.extra)
+        self._resync_limit = max(self._resync_limit, self._resync_give_up(due))
         self.deadline = min(self._quiet_until, self._resync_limit)
 
     def _hold(self, now: float) -> None:
@@ -818,6 +818,10 @@ class LineEngine:
     def _resync_end(self, deadline: float) -> float:
         """How long the resync after a timeout at ``deadline`` listens for the late reply (see .link)."""
         return deadline + self.timing.quiet_time + self.link.extra
+
+    def _resync_give_up(self, start: float) -> float:
+        """When a resync from ``start`` uses the line anyway, quiet or not (a line that never goes quiet)."""
+        return start + self.timing.max_resync + self.link.extra
 
     def _short_resync(self, now: float, latency: float | None) -> None:
         if self.state is QUIET and latency is not None:
@@ -851,6 +855,6 @@ class LineEngine:
         self.state = State.QUIET
         self._quiet_span = self.timing.quiet_time  # the silence that ends it (a short wait's fault: less)
         self._quiet_until = self._resync_end(now)
-        self._resync_limit = now + self.timing.max_resync + self.link.extra
+        self._resync_limit = self._resync_give_up(now)
         self._buf.clear()
         self.deadline = self._quiet_until
