@@ -10,13 +10,16 @@ leaves the tracked pictures alone).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +28,7 @@ import pytest
 if not sys.platform.startswith("linux"):
     pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
 
-from playwright.sync_api import Browser, Page, Route, expect, sync_playwright
+from playwright.sync_api import Browser, Page, Request, Route, expect, sync_playwright
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
@@ -488,8 +491,28 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
 
 # The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started
 # after the other pages' tests and stopped with the module.
+@dataclass
+class RobotServer:
+    url: str
+    proc: subprocess.Popen[str]
+    stderr: Path
+
+    def stacks(self) -> str:
+        """What the server's threads are doing (faulthandler on SIGUSR1), and everything it wrote to stderr."""
+        self.proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
+        return self.stderr.read_text(errors="replace")
+
+
+# Its start: the CLI as a user runs it, with faulthandler's thread dump on SIGUSR1 (for a test's failure).
+ROBOT_WEB = (
+    "import faulthandler, signal, sys; faulthandler.register(signal.SIGUSR1, all_threads=True); "
+    "from ics35_async.cli import main; sys.argv[0] = 'ics35'; sys.exit(main())"
+)
+
+
 @pytest.fixture(scope="module")
-def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RobotServer]:
     """``ics35 web --robot``: the 17-joint humanoid of ``examples/humanoid.toml`` on two simulated lines,
     cycling at 50 Hz instead of 100 (half the transactions its simulators serve while it runs; nothing the
     pages show depends on the rate), with two retries for the pages' reads: the file has none, and on a
@@ -497,105 +520,138 @@ def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     and waits for the user's Read)."""
     example = (ROOT / "examples" / "humanoid.toml").read_text()
     assert example.count("rate_hz = 100") == 2 and "retries" not in example
-    robot = tmp_path_factory.mktemp("robot") / "humanoid.toml"
+    folder = tmp_path_factory.mktemp("robot")
+    robot = folder / "humanoid.toml"
     robot.write_text(example.replace("rate_hz = 100", "rate_hz = 50\nretries = 2"))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", "--robot", str(robot)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
+    stderr = folder / "server.stderr"
+    with stderr.open("w") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", ROBOT_WEB, "web", "--no-browser", "--robot", str(robot)],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+        )
     assert proc.stdout is not None
-    yield proc.stdout.readline().strip()
+    yield RobotServer(proc.stdout.readline().strip(), proc, stderr)
     proc.terminate()
     proc.wait(10)
     proc.stdout.close()
 
 
-def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot_server: str) -> None:
+@contextlib.contextmanager
+def explained(p: Page, server: RobotServer) -> Iterator[None]:
+    """A failure inside says which of the page's requests never finished and what the server's threads
+    were doing (a page waiting on an answer that never comes shows only its own empty boxes)."""
+    started = time.monotonic()
+    pending: dict[Request, str] = {}
+    ended: list[str] = []
+
+    def begin(r: Request) -> None:
+        pending[r] = f"{time.monotonic() - started:.2f}s {r.method} {r.url.split('?')[0]}"
+
+    def end(r: Request, how: str) -> None:
+        text = pending.pop(r, f"? {r.method} {r.url}")
+        ended.append(f"{text} -> {how} at {time.monotonic() - started:.2f}s")
+
+    p.on("request", begin)
+    p.on("requestfinished", lambda r: end(r, "finished"))
+    p.on("requestfailed", lambda r: end(r, f"failed ({r.failure})"))
+    try:
+        yield
+    except AssertionError as exc:
+        raise AssertionError(
+            f"{exc}\n--- the page's requests never finished: {list(pending.values())}\n"
+            f"--- the last ones finished: {ended[-12:]}\n--- the server:\n{server.stacks()}"
+        ) from exc
+
+
+def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot_server: RobotServer) -> None:
     context = browser.new_context(viewport={"width": 1280, "height": 1000})
     p = context.new_page()
-    p.goto(robot_server)
-    p.click("#robot-link")
-    expect(p.locator("#robot-table tbody tr")).to_have_count(17)
-    elbow = p.locator("tr[data-joint='right_elbow']")
-    expect(elbow.locator("input[type=range]")).to_be_disabled()
-    p.check("#robot-motion")
-    expect(elbow.locator("input[type=range]")).to_be_enabled()
-    elbow.locator("input[type=range]").fill("60")  # a slider's change event
-    expect(elbow.locator(".target")).to_have_text("60")
-    expect(elbow.locator(".angle")).to_have_text(re.compile(r"^(59\.\d|60(\.\d)?)$"))  # the servo got there
-    p.set_input_files("#robot-motion-file", str(ROOT / "examples/wave.json"))
-    p.click("#robot-play")
-    expect(p.locator("#robot-state")).to_contain_text("playing wave")
-    p.wait_for_timeout(1500)  # mid-wave, for the picture
-    shot(p, "robot")
-    expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
-    expect(p.locator("#robot-state")).to_contain_text("all within limits")
+    with explained(p, robot_server):
+        p.goto(robot_server.url)
+        p.click("#robot-link")
+        expect(p.locator("#robot-table tbody tr")).to_have_count(17)
+        elbow = p.locator("tr[data-joint='right_elbow']")
+        expect(elbow.locator("input[type=range]")).to_be_disabled()
+        p.check("#robot-motion")
+        expect(elbow.locator("input[type=range]")).to_be_enabled()
+        elbow.locator("input[type=range]").fill("60")  # a slider's change event
+        expect(elbow.locator(".target")).to_have_text("60")
+        expect(elbow.locator(".angle")).to_have_text(re.compile(r"^(59\.\d|60(\.\d)?)$"))  # the servo got there
+        p.set_input_files("#robot-motion-file", str(ROOT / "examples/wave.json"))
+        p.click("#robot-play")
+        expect(p.locator("#robot-state")).to_contain_text("playing wave")
+        p.wait_for_timeout(1500)  # mid-wave, for the picture
+        shot(p, "robot")
+        expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
+        expect(p.locator("#robot-state")).to_contain_text("all within limits")
     context.close()
 
 
 def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
-    browser: Browser, robot_server: str
+    browser: Browser, robot_server: RobotServer
 ) -> None:
     # The robot's state comes pushed several times a second, saying motion is off until the server
     # has taken the tick: the box must not flip back meanwhile (a user would see it untick itself).
     context = browser.new_context()
     p = context.new_page()
-    p.goto(robot_server)
-    p.click("#robot-link")
-    box = p.locator("#robot-motion")
-    p.uncheck("#robot-motion")  # a test before this one may have left motion on
-    held: list[Route] = []
-    p.route("**/api/robot/motion", lambda route: held.append(route))  # the request waits here until continued
-    p.click("#robot-motion")
-    for _ in range(3):  # pushed states, each saying motion is still off
-        cycle = p.locator("#robot-cycle").text_content() or ""
-        expect(p.locator("#robot-cycle")).not_to_have_text(cycle)
-        expect(box).to_be_checked()
-    assert len(held) == 1
-    held[0].continue_()
-    elbow = p.locator("tr[data-joint='right_elbow'] input[type=range]")
-    expect(elbow).to_be_enabled()  # the server's answer: motion on
-    p.unroute("**/api/robot/motion")
-    p.uncheck("#robot-motion")  # as the other robot tests expect to find it
-    expect(elbow).to_be_disabled()
+    with explained(p, robot_server):
+        p.goto(robot_server.url)
+        p.click("#robot-link")
+        box = p.locator("#robot-motion")
+        p.uncheck("#robot-motion")  # a test before this one may have left motion on
+        held: list[Route] = []
+        p.route("**/api/robot/motion", lambda route: held.append(route))  # the request waits here until continued
+        p.click("#robot-motion")
+        for _ in range(3):  # pushed states, each saying motion is still off
+            cycle = p.locator("#robot-cycle").text_content() or ""
+            expect(p.locator("#robot-cycle")).not_to_have_text(cycle)
+            expect(box).to_be_checked()
+        assert len(held) == 1
+        held[0].continue_()
+        elbow = p.locator("tr[data-joint='right_elbow'] input[type=range]")
+        expect(elbow).to_be_enabled()  # the server's answer: motion on
+        p.unroute("**/api/robot/motion")
+        p.uncheck("#robot-motion")  # as the other robot tests expect to find it
+        expect(elbow).to_be_disabled()
     context.close()
 
 
 def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_the_robot_page(
-    browser: Browser, robot_server: str
+    browser: Browser, robot_server: RobotServer
 ) -> None:
     context = browser.new_context(viewport={"width": 1280, "height": 1000})
     p = context.new_page()
-    p.goto(robot_server)
-    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")  # no --port: the robot's line
-    pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
-    for here in pages:
-        p.click(f"nav a[href='#{here}']")
-        expect(p.locator(f"#page-{here}")).to_be_visible()
-        for there in pages:
-            expect(p.locator(f"nav a[href='#{there}']")).to_be_visible()
-    p.click("nav a[href='#line']")
-    expect(p.locator("#robot-lines-table tbody tr")).to_have_count(2)
-    p.click("#robot-lines-table tr[data-line='upper'] button")
-    expect(p.locator("#line-status")).to_contain_text("the robot's line upper")
-    scan_lists(p, 7)  # found on the robot's own line
-    p.click("#servo-table tr[data-id='4'] a")
-    expect(p.locator("#servo-robot-note")).to_contain_text("right_elbow")
-    expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
-    p.click("nav a[href='#robot']")
-    p.click("tr[data-joint='right_knee'] a")  # a joint's servo, on the other line
-    expect(p.locator("#page-servo")).to_be_visible()
-    expect(p.locator("#line-status")).to_contain_text("the robot's line legs")
-    expect(p.locator("#servo-robot-note")).to_contain_text("right_knee")
-    expect(p.locator("#servo-id")).to_have_value("3")
-    # The page has read the servo (a read still under way could end after the refusal and say its own words).
-    expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
-    p.click("#free-btn")  # refused in words: the robot moves and frees its joints
-    expect(p.locator("#message")).to_contain_text("Robot page")
-    p.click("nav a[href='#robot']")
-    p.click("#robot-line-links button[data-line='legs']")
-    expect(p.locator("#page-line")).to_be_visible()
-    scan_lists(p, 10)
+    with explained(p, robot_server):
+        p.goto(robot_server.url)
+        expect(p.locator("#line-status")).to_contain_text("the robot's line upper")  # no --port: the robot's line
+        pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
+        for here in pages:
+            p.click(f"nav a[href='#{here}']")
+            expect(p.locator(f"#page-{here}")).to_be_visible()
+            for there in pages:
+                expect(p.locator(f"nav a[href='#{there}']")).to_be_visible()
+        p.click("nav a[href='#line']")
+        expect(p.locator("#robot-lines-table tbody tr")).to_have_count(2)
+        p.click("#robot-lines-table tr[data-line='upper'] button")
+        expect(p.locator("#line-status")).to_contain_text("the robot's line upper")
+        scan_lists(p, 7)  # found on the robot's own line
+        p.click("#servo-table tr[data-id='4'] a")
+        expect(p.locator("#servo-robot-note")).to_contain_text("right_elbow")
+        expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
+        p.click("nav a[href='#robot']")
+        p.click("tr[data-joint='right_knee'] a")  # a joint's servo, on the other line
+        expect(p.locator("#page-servo")).to_be_visible()
+        expect(p.locator("#line-status")).to_contain_text("the robot's line legs")
+        expect(p.locator("#servo-robot-note")).to_contain_text("right_knee")
+        expect(p.locator("#servo-id")).to_have_value("3")
+        # The page has read the servo (a read still under way could end after the refusal and say its own words).
+        expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
+        p.click("#free-btn")  # refused in words: the robot moves and frees its joints
+        expect(p.locator("#message")).to_contain_text("Robot page")
+        p.click("nav a[href='#robot']")
+        p.click("#robot-line-links button[data-line='legs']")
+        expect(p.locator("#page-line")).to_be_visible()
+        scan_lists(p, 10)
     context.close()
