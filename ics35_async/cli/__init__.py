@@ -30,13 +30,13 @@ CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 
 # own module, so `ics35 get` does not pay for the robot, the plot or the web server; listing them (help)
 # imports them all.  tests/test_cli_options.py checks this table against the modules' COMMANDS.
 COMMAND_MODULES = {
-    "scan": "_basic",
+    "scan": "_scan",
     "info": "_basic",
     "move": "_basic",
     "free": "_basic",
     "get": "_basic",
     "set": "_basic",
-    "set-id": "_basic",
+    "set-id": "_scan",
     "eeprom": "_eeprom",
     "monitor": "_monitor",
     "demo": "_demo",

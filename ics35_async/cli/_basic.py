@@ -1,4 +1,4 @@
-"""info, move, free, get, set (scan and set-id live in _scan)."""
+"""info, move, free, get, set (scan and set-id are in _scan)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,6 @@ from ._common import (
     translate,
 )
 from ._eeprom_view import eeprom_table
-from ._scan import scan, set_id
 from ._targets import check_pulse_limits, parse_target
 
 # --------------------------------------------------------------------------- probing
@@ -359,4 +358,4 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
     return 0
 
 
-COMMANDS = [scan, info, move, free, get, set_, set_id]
+COMMANDS = [info, move, free, get, set_]
