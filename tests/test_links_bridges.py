@@ -80,7 +80,8 @@ async def test_direct_pty_runs_many_transactions(far_pty: str, driver: str) -> N
 
 @pytest.mark.parametrize("driver", DRIVERS)
 async def test_rfc2217_opens_and_its_baud_and_parity_reach_the_far_end(rfc2217: Rfc2217Bridge, driver: str) -> None:
-    async with open_bus(rfc2217.url, driver=driver, retries=2) as bus:
+    # Every reply expected: the no-timeouts allowance (a loaded machine holds a reply up in the bridge).
+    async with open_bus(rfc2217.url, driver=driver, retries=2, **NO_TIMEOUTS) as bus:
         assert await bus.servo(1).read_stretch() == 30
         assert (115200, "E") in rfc2217.port_settings
     # At 625000 the far end's port runs at 625000: the servos (115200) cannot hear it.
@@ -135,7 +136,7 @@ async def test_socket_bridge_works_and_warns_once_that_it_carries_no_settings(
     # hands free ports out again), so the test starts from a process that has warned of none.
     monkeypatch.setattr(links, "_warned", set())
     for _ in range(2):
-        async with open_bus(tcp_bridge.url, driver=driver, retries=2) as bus:
+        async with open_bus(tcp_bridge.url, driver=driver, retries=2, **NO_TIMEOUTS) as bus:
             assert await bus.servo(3).read_stretch() == 30
             async with bus.stream([1, 2], rate_hz=100) as stream:
                 stream.set_targets({1: 7000, 2: 8000})
@@ -266,7 +267,11 @@ async def test_dropped_connection_is_port_lost_and_reconnect_recovers(far_pty: s
     bridge = BRIDGES[scheme](far_pty, tcp_port=free_tcp_port())
     bridge.start()
     try:
-        async with open_bus(bridge.url, driver=driver, reconnect=True, reconnect_backoff=(0.05,), retries=2) as bus:
+        # The patient allowance: the first read must be answered through the bridge however loaded the machine,
+        # and the reads while the far end is gone or back fail and are tried again.
+        async with open_bus(
+            bridge.url, driver=driver, reconnect=True, reconnect_backoff=(0.05,), retries=2, **PATIENT
+        ) as bus:
             assert await bus.servo(1).read_stretch() == 30
             bridge.stop()  # the far end goes away: connection dropped, then refused
             await _until_lost(bus)
