@@ -17,7 +17,7 @@ import pytest
 
 from ics35_async.sim.launch import start_subprocess, stop_subprocess
 from tests.support.cli_runs import edit_backup
-from tests.support.timing import PATIENT_OPTION
+from tests.support.timing import NO_TIMEOUTS_OPTION, PATIENT_OPTION
 
 pytestmark = [
     pytest.mark.pty,
@@ -160,7 +160,8 @@ def test_restore_cut_by_an_unplug_reports_what_each_servo_holds(tmp_path: Path) 
     backup = tmp_path / "backup"
     with_backup = start_subprocess(["--ids", "1-3"], quiet=True)
     try:
-        assert run_ics35("--port", with_backup[1], "eeprom", "dump", "1-3", "-o", f"{backup}/").returncode == 0
+        dumped = run_ics35("--port", with_backup[1], *NO_TIMEOUTS_OPTION, "eeprom", "dump", "1-3", "-o", f"{backup}/")
+        assert dumped.returncode == 0, dumped.stderr
     finally:
         stop_subprocess(with_backup[0])
     for i in (1, 2, 3):  # the backups differ from the fresh servos below: a restore writes all three

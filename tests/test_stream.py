@@ -37,7 +37,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
-from tests.support.timing import FAST, GUARD, REAL_TIME
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, REAL_TIME
 
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
 
@@ -659,7 +659,9 @@ async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answ
     ids = list(range(32))
     sim = make_sim(ids, realtime=True)
     try:
-        async with open_bus(sim, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
+        # Every servo answers: the no-timeouts allowance (on a loaded machine the request's reply can come
+        # late from the real-time simulator; what is tested is that it gets the line at all).
+        async with open_bus(sim, **NO_TIMEOUTS) as bus, bus.stream(ids, rate_hz=100) as stream:
             await next_frame(stream)
             assert await asyncio.wait_for(bus.servo(5).read_stretch(), GUARD) == 45  # its own (make_sim)
             assert stream.stats.overruns >= 1
