@@ -489,10 +489,10 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-plus")).to_be_disabled()
 
 
-# The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started
-# after the other pages' tests and stopped with the module.
 @dataclass
 class RobotServer:
+    """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""
+
     url: str
     proc: subprocess.Popen[str]
     stderr: Path
@@ -511,6 +511,8 @@ ROBOT_WEB = (
 )
 
 
+# The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started
+# after the other pages' tests and stopped with the module.
 @pytest.fixture(scope="module")
 def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RobotServer]:
     """``ics35 web --robot``: the 17-joint humanoid of ``examples/humanoid.toml`` on two simulated lines,
