@@ -12,6 +12,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 
@@ -24,9 +25,11 @@ pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux"),
 ]
 
+# Each program dumps its threads' stacks on SIGUSR1, so a command that outlives its Ctrl-C says where it is.
+DUMP_ON_USR1 = "import faulthandler, signal; faulthandler.register(signal.SIGUSR1, all_threads=True); "
 LOOPS = {
-    "asyncio": "import sys; sys.modules['uvloop'] = None; from ics35_async.cli import main; main()",
-    "uvloop": "from ics35_async.cli import main; main()",
+    "asyncio": DUMP_ON_USR1 + "import sys; sys.modules['uvloop'] = None; from ics35_async.cli import main; main()",
+    "uvloop": DUMP_ON_USR1 + "from ics35_async.cli import main; main()",
 }
 
 
@@ -74,7 +77,14 @@ def test_first_ctrl_c_at_the_question_exits_130(port: str, loop: str, command: s
         assert proc.stderr is not None
         before = read_until(proc.stderr.fileno(), b"[y/N]")
         proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=20)
+        try:
+            code = proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(2)
+            proc.kill()
+            stacks = proc.stderr.read().decode(errors="replace")
+            raise AssertionError(f"the command had not ended 20 s after its Ctrl-C; its stacks:\n{stacks}") from None
         rest = proc.stderr.read().decode(errors="replace")
     finally:
         if proc.poll() is None:
@@ -87,3 +97,42 @@ def test_first_ctrl_c_at_the_question_exits_130(port: str, loop: str, command: s
     if command == "demo":
         assert b"Move servo(s) 1, 2" in before
         assert "written" not in rest
+
+
+def test_ctrl_c_just_before_the_read_still_ends_the_question(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Ctrl-C that lands between the question's last signal check and its blocking read.
+
+    The C-level handler then only notes the signal and the read goes on waiting for
+    a line that never comes. Here the note is made on another thread (its handler
+    runs there, as it does when the signal lands in that window), so the main
+    thread sits in the read exactly as it would. The read must notice within moments.
+    """
+    from ics35_async.cli._prompt import ask_yes_no
+    from ics35_async.cli._settings import CliError, ExitCode
+
+    reader, writer = os.pipe()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(reader, "r"))
+
+    ended = threading.Event()
+    answered: list[bytes] = []
+
+    def ctrl_c_elsewhere() -> None:
+        time.sleep(0.3)
+        signal.pthread_kill(threading.get_ident(), signal.SIGINT)
+        # A read that never notices gets an answer after a while, so the test fails instead of hanging.
+        if not ended.wait(10.0):
+            answered.append(b"n\n")
+            os.write(writer, b"n\n")
+
+    helper = threading.Thread(target=ctrl_c_elsewhere, daemon=True)
+    helper.start()
+    try:
+        with pytest.raises(CliError) as raised:
+            ask_yes_no("Write?")
+    finally:
+        ended.set()
+        helper.join()
+        os.close(writer)
+        sys.stdin.close()
+    assert not answered, "the question went on waiting after the Ctrl-C, until the answer came"
+    assert raised.value.code == ExitCode.INTERRUPTED

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import io
+import os
+import select
 import signal
 import sys
 import threading
@@ -45,7 +48,7 @@ def _ask(question: str) -> bool:
     while True:
         sys.stderr.write(f"{question} [y/N]: ")
         sys.stderr.flush()
-        line = sys.stdin.readline()
+        line = _read_line()
         if not line:
             sys.stderr.write("\n")  # end of input: the prompt line got no newline from the user
             return False
@@ -55,6 +58,36 @@ def _ask(question: str) -> bool:
         if answer in ("", "n", "no"):
             return False
         sys.stderr.write("please answer y or n\n")
+
+
+# How often a wait for the answer looks up (the longest a Ctrl-C can go unnoticed).
+_CTRL_C_CHECK = 0.2
+
+
+def _read_line() -> str:
+    """One line of stdin ("" at its end), ended at once by a Ctrl-C however it lands.
+
+    A blocking ``readline()`` misses a Ctrl-C that lands after Python's last signal
+    check and before the read begins: the handler only notes it, and the read waits
+    on. So, where stdin is a descriptor select() can watch (not on Windows), the
+    wait wakes every moment to let a noted Ctrl-C raise, and the line is read a byte
+    at a time so nothing past it is taken from stdin.
+    """
+    try:
+        fd = sys.stdin.fileno()
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        fd = -1
+    if fd < 0 or sys.platform == "win32":
+        return sys.stdin.readline()
+    line = bytearray()
+    while not line.endswith(b"\n"):
+        if not select.select([fd], [], [], _CTRL_C_CHECK)[0]:
+            continue
+        byte = os.read(fd, 1)
+        if not byte:
+            break
+        line += byte
+    return line.decode(sys.stdin.encoding or "utf-8", errors="replace")
 
 
 def confirm(question: str, yes: bool, nothing: str = "nothing was written") -> None:
