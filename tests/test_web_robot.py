@@ -157,3 +157,19 @@ def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tm
         assert status["robot_line"] == "arm" and status["port"] == f"sim://{name}?ids=1" and status["connected"]
         assert [s["id"] for s in post(client, "/api/scan").json()["servos"]] == [1]
     sim.named(name).close()
+
+
+def test_the_robots_lines_open_with_the_line_options_given(tmp_path: Path) -> None:
+    """``ics35 web --timeout 0.3 --robot FILE``: the robot's lines wait for replies as long as asked, as
+    ``ics35 play`` does (the CLI hands its --timeout and --transport to the session)."""
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "one.toml"
+    path.write_text(f'[lines.arm]\nport = "sim://{name}?ids=1"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    robot = RobotSession(str(path), {"adapter_latency": 0.3})
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-unused")), TOKEN, robot=robot)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        bus, _ = robot.line("arm")
+        assert bus.timing.adapter_latency == 0.3
+        assert client.get("/api/robot").json()["cycle"] >= 0
+    sim.named(name).close()

@@ -73,6 +73,12 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
         direction=settings.direction,
     )
 
+    options = None
+    if robot_file is not None:
+        from ._robot_common import robot_options  # --timeout and --transport apply to the robot's lines too
+
+        options = robot_options(settings)
+
     def announce(url: str) -> None:
         click.echo(url)
         sys.stdout.flush()
@@ -89,6 +95,7 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
             announce=announce,
             warn=warn,
             robot_file=robot_file,
+            robot_options=options,
             line_from_robot=line_from_robot,
         )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included

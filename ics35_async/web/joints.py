@@ -26,9 +26,10 @@ from ..units import check_seconds
 class RobotSession:
     """The robot ``ics35 web --robot FILE`` serves (open from :meth:`open` to :meth:`close`)."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, options: Mapping[str, Any] | None = None) -> None:
         self.description = load_description(path)  # checked before the server starts
         self.path = path
+        self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
         self.robot: Robot | None = None
         self.error: str | None = None
         self.motion_enabled = False
@@ -39,7 +40,8 @@ class RobotSession:
 
     async def open(self) -> None:
         try:
-            self.robot = await self._stack.enter_async_context(open_robot(self.description, on_close="hold"))
+            opening = open_robot(self.description, on_close="hold", **self.options)
+            self.robot = await self._stack.enter_async_context(opening)
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {exc}"
 

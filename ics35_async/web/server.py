@@ -6,9 +6,10 @@ from __future__ import annotations
 import contextlib
 import socket
 import webbrowser
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
@@ -146,13 +147,16 @@ def serve(
     announce: Callable[[str], None] = print,
     warn: Callable[[str], None] | None = None,
     robot_file: str | None = None,
+    robot_options: Mapping[str, Any] | None = None,
     line_from_robot: bool = False,
 ) -> None:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong.
 
+    ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``).
     ``line_from_robot``: the pages start on the robot's first line rather than ``config``'s port.
     """
-    robot = None if robot_file is None else RobotSession(robot_file)  # a bad file: refused before binding
+    # A bad robot file is refused here, before binding.
+    robot = None if robot_file is None else RobotSession(robot_file, robot_options)
     sock = bind(listen)
     app = create_app(
         LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot, line_from_robot=line_from_robot
