@@ -15,7 +15,7 @@ import pytest
 from ics35_async import InvalidArgument, blocking
 from ics35_async.robot import DescriptionError
 from tests.support.robot_rig import JOINTS, joint_position, make_rig, targets_sent
-from tests.support.timing import FAST, GUARD, REAL_TIME
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HUMANOID = Path(__file__).resolve().parent.parent / "examples" / "humanoid.toml"
 
@@ -31,7 +31,7 @@ def settled_pose(robot: blocking.BlockingRobot, goal: dict[str, float]) -> dict[
 
 def test_humanoid_file_opens_moves_and_reads_back() -> None:
     before = set(threading.enumerate())
-    with blocking.open_robot(HUMANOID, **REAL_TIME) as robot:
+    with blocking.open_robot(HUMANOID, **NO_TIMEOUTS) as robot:
         assert robot.thread in threading.enumerate()
         pose = robot.read_pose()
         assert set(pose) == set(robot.joints)

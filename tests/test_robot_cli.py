@@ -22,6 +22,7 @@ from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
 from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, targets_sent
+from tests.support.timing import NO_TIMEOUTS_OPTION
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -42,7 +43,9 @@ def write_motion(path: Path, *keyframes: dict[str, Any]) -> Path:
 
 
 def test_play_the_example_humanoid_with_no_hardware(cli: Any) -> None:
-    result = cli("play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"), "--speed", "3")
+    # Its lines are real-time simulators: the no-timeouts allowance, as for any test across a real-time boundary.
+    files = (str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"))
+    result = cli(*NO_TIMEOUTS_OPTION, "play", *files, "--speed", "3")
     assert result.code == 0, result.err
     assert "play done" in result.out and "joints left holding" in result.out
     assert "right_elbow" in result.out  # the table at the end

@@ -20,7 +20,7 @@ from ics35_async import InvalidArgument, Robot, open_robot, units
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import MotionStopped, RobotWarning
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
-from tests.support.timing import FAST, GUARD, REAL_TIME
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole counts
 
@@ -118,7 +118,7 @@ def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profi
         # hip was not named: every command it got meanwhile is its old target.
         assert set(targets_sent(rig.lower, 1, since["lower"])) == {joint_position(JOINTS["hip"], 12.5)}
 
-    run_robot(rig, body, **REAL_TIME)
+    run_robot(rig, body, **NO_TIMEOUTS)
 
 
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
@@ -144,7 +144,7 @@ def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
         assert pose["hip"] == pytest.approx(units.position_to_degrees(6500))
         assert pose["knee"] == pytest.approx(units.position_to_degrees(9000) - 5.5)
 
-    run_robot(rig, body, **REAL_TIME)
+    run_robot(rig, body, **NO_TIMEOUTS)
 
 
 @pytest.mark.parametrize(
@@ -235,7 +235,7 @@ def test_move_to_under_trio() -> None:
     rig = make_rig(realtime=True)
 
     async def main() -> dict[str, float]:
-        async with open_robot(rig.description, **REAL_TIME) as robot:  # the buses pick their anyio driver
+        async with open_robot(rig.description, **NO_TIMEOUTS) as robot:  # the buses pick their anyio driver
             await robot.move_to({"neck": -30.0, "hip": 20.0}, duration=0.3)
             return await robot.read_pose()
 

@@ -76,7 +76,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     for sid, deg in ((1, "25"), (2, "-40"), (3, "60")):
         assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), deg, "--deg").returncode == 0
     taught = tmp_path / "taught.json"
-    proc = ics35("teach", str(robot), str(taught), stdin="\nq\n")
+    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), stdin="\nq\n")
     assert proc.returncode == 0, proc.stderr
     keyframes = json.loads(taught.read_text())["keyframes"]
     assert len(keyframes) == 1
@@ -84,7 +84,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     assert keyframes[0]["pose"] == pytest.approx({"a": 20.0, "b": 40.0, "c": 60.0}, abs=0.1)
     for sid in (1, 2, 3):
         assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), "0", "--deg").returncode == 0
-    proc = ics35("play", str(robot), str(taught))
+    proc = ics35(*NO_TIMEOUTS_OPTION, "play", str(robot), str(taught))
     assert proc.returncode == 0, proc.stderr
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
 
@@ -96,6 +96,7 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
             sys.executable,
             "-m",
             "ics35_async.cli",
+            *NO_TIMEOUTS_OPTION,
             "play",
             str(EXAMPLES / "humanoid.toml"),
             str(EXAMPLES / "wave.json"),
