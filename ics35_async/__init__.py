@@ -14,6 +14,7 @@ from .eeprom import BaudRate, Eeprom, Flags
 from .errors import (
     BadReply,
     BusClosed,
+    ClosedByPortLoss,
     DirectionControlNotSupported,
     EchoMismatch,
     IcsError,
@@ -96,6 +97,7 @@ __all__ = [
     "BusGroup",
     "BusOptions",
     "BusTiming",
+    "ClosedByPortLoss",
     "DirectionControlNotSupported",
     "Device",
     "Frame",

@@ -254,7 +254,7 @@ class Bus:
                 [`PortBusy`][ics35_async.errors.PortBusy], ...).
         """
         if self._engine.state is State.CLOSED or self._engine.state is State.DRAINING:
-            raise BusClosed("bus is closed")
+            raise self._engine.closed_error()
         if self._opening is not None:  # another open() is under way: share its outcome
             await self._opening.wait()
             if self._driver is None:
@@ -294,7 +294,7 @@ class Bus:
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
         driver = self._driver
         if driver is None or not self.is_open:
-            raise BusClosed("bus is closed")
+            raise self._engine.closed_error()
         if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
         self._reopening = True  # attach_source refuses from here on
@@ -315,6 +315,14 @@ class Bus:
     def is_open(self) -> bool:
         """True from a successful :meth:`open` until :meth:`aclose` or the port's loss (without reconnect)."""
         return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
+
+    def not_open_error(self) -> BusClosed:
+        """The error work on this bus meets while it is not open: a
+        [`ClosedByPortLoss`][ics35_async.errors.ClosedByPortLoss] if losing its port closed it, else a
+        [`BusClosed`][ics35_async.errors.BusClosed] saying it is closed or how to open it."""
+        if self._engine.state in (State.CLOSED, State.DRAINING):
+            return self._engine.closed_error()
+        return BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
 
     async def aclose(self) -> None:
         """Fail queued requests with BusClosed, finish the one on the wire, release the port."""
@@ -369,9 +377,7 @@ class Bus:
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         driver = self._driver
         if driver is None:
-            if self._engine.state in (State.CLOSED, State.DRAINING):
-                raise BusClosed("bus is closed")
-            raise BusClosed("bus is not open (use `async with open_bus(...)`)")
+            raise self.not_open_error()
         # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
         self._engine.debug = log.isEnabledFor(logging.DEBUG)
         return driver.submit(command, priority, retries)

@@ -149,6 +149,14 @@ class PortLost(IcsError):
     """The serial port failed or disappeared while the request was pending."""
 
 
+class ClosedByPortLoss(BusClosed, PortLost):
+    """A request on a bus that closed itself when its port was lost (a bus opened without ``reconnect``).
+
+    Both a :class:`BusClosed` (what it always was) and a :class:`PortLost` (why), so the message can say
+    what happened to the port.
+    """
+
+
 class SerialPortError(IcsError, OSError):
     """The serial port could not be opened or set up as the ICS line needs.
 

@@ -564,7 +564,7 @@ class Stream(FrameIterator[Frame]):
         if self._closed:
             raise BusClosed("stream closed")
         if not self.bus.is_open:
-            raise BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
+            raise self.bus.not_open_error()
         if not self._running:
             self._running = True
             try:

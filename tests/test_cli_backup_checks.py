@@ -119,8 +119,9 @@ def test_a_backup_edited_whole_is_restored(cli: Any, sim_line: Any, tmp_path: Pa
 
 
 class PullsThePlug(VirtualServo):
-    """A servo at whose EEPROM write (``when="write"``) or at whose read-back after it (``"read-back"``)
-    the adapter is pulled out: the servo has done what it was told, no reply gets back."""
+    """A servo at whose EEPROM write (``when="write"``), at whose read-back after it (``"read-back"``) or at
+    whose EEPROM read (``"read"``) the adapter is pulled out: the servo has done what it was told, no reply
+    gets back."""
 
     def __init__(self, servo_id: int, when: str) -> None:
         super().__init__(servo_id)
@@ -133,6 +134,7 @@ class PullsThePlug(VirtualServo):
         if self.line is not None and (
             (self.when == "write" and isinstance(command, WriteEeprom))
             or (self.when == "read-back" and written and isinstance(command, ReadEeprom))
+            or (self.when == "read" and isinstance(command, ReadEeprom))
         ):
             self.line.unplug()
         return reply
@@ -213,6 +215,33 @@ def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(cli: Any, sim_line: 
         saved += 1
         assert json.loads(backup.read_text())["raw"] == sim.servo(1).eeprom.to_bytes().hex(), seed
     assert saved >= 8
+
+
+@pytest.mark.parametrize("output", ["dir", "table"])
+def test_a_dump_cut_by_an_unplug_keeps_what_it_read(cli: Any, sim_line: Any, tmp_path: Path, output: str) -> None:
+    """Servos 1-4 dumped, the adapter pulled out at servo 3's read: servos 1 and 2 are saved (shown), and the
+    error says which were and how to read the rest."""
+    plug = PullsThePlug(3, "read")
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2), plug, VirtualServo(4)])
+    plug.line = sim
+    folder = tmp_path / "backup"
+    where = ["-o", f"{folder}/"] if output == "dir" else ["--table"]
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-4", *where)
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    err = " ".join(result.err.split())
+    assert "unplugged" in err and "Traceback" not in err
+    if output == "dir":
+        assert sorted(p.name for p in folder.iterdir()) == ["servo-01.json", "servo-02.json"]
+        for i in (1, 2):
+            saved = json.loads((folder / f"servo-{i:02d}.json").read_text())
+            assert saved["raw"] == sim.servo(i).eeprom.to_bytes().hex()
+        assert "servo(s) 1, 2 saved" in err
+        assert f"read the rest: ics35 --port {url} --timeout 0.05 eeprom dump 3,4 -o {folder}/" in err
+    else:
+        assert "EEPROM of servo 1" in result.out and "EEPROM of servo 2" in result.out
+        assert "servo 3" not in result.out
+        assert f"servo(s) 1, 2 shown above; when the line is back, read the rest: ics35 --port {url}" in err
+        assert "eeprom dump 3,4 --table" in err
 
 
 class UnpluggedWhenFreed(VirtualServo):

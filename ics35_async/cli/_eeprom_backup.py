@@ -13,7 +13,7 @@ import click
 from rich.markup import escape
 
 from ..eeprom import Eeprom, Flags
-from ..errors import InvalidArgument, MalformedEeprom, ReplyError
+from ..errors import InvalidArgument, MalformedEeprom, PortLost, ReplyError
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ._common import (
@@ -34,6 +34,7 @@ from ._common import (
 )
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, write_plans
+from ._runner import line_error
 
 
 def backup_name(servo_id: int) -> str:
@@ -69,12 +70,20 @@ def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str,
     return backup_document(image, servo_id, baud=settings.baud, port=settings.port)
 
 
-async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
+@dataclass
+class ReadImages:
+    """The images read, and the port's loss that cut the reading short (the images read before it are kept)."""
+
+    images: dict[int, Eeprom]
+    lost: CliError | None = None
+
+
+async def read_images(settings: Settings, ids: list[int]) -> ReadImages:
     """One servo's image (its errors raise), or the images of those of several that answer."""
     # Read until two reads agree: an EEPROM reply has no checksum, and a backup is written back one day.
     async with settings.bus() as bus:
         if len(ids) == 1:
-            return {ids[0]: await read_eeprom_agreed(bus, ids[0])}
+            return ReadImages({ids[0]: await read_eeprom_agreed(bus, ids[0])})
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
         for i in rate.answered:
@@ -82,10 +91,15 @@ async def read_images(settings: Settings, ids: list[int]) -> dict[int, Eeprom]:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
+            except PortLost as exc:
+                if not images:
+                    raise
+                # What was read is saved before the error is told (in words made while the port's name is known).
+                return ReadImages(images, line_error(settings, exc))
         if not images:
             where = f"{settings.port} at {settings.baud} baud (IDs {ids_text(ids)})"
             raise nothing_answered(settings, where, silent=rate.silent)
-        return images
+        return ReadImages(images)
 
 
 def write_backup(path: Path, doc: dict[str, Any]) -> None:
@@ -112,7 +126,8 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     """
     settings = settings_of(ctx)
     kind, path = output_target(ids, output, as_table)
-    images = run(settings, lambda: read_images(settings, ids))
+    read = run(settings, lambda: read_images(settings, ids))
+    images = read.images
     for i, image in images.items():
         if image.unknown_codes:
             codes = ", ".join(f"{name} 0x{code:02X}" for name, code in image.unknown_codes.items())
@@ -121,7 +136,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 "kept exactly as read; an image holding them cannot be written back"
             )
     missing = [i for i in ids if i not in images]
-    if missing and len(ids) > 1:
+    if missing and len(ids) > 1 and read.lost is None:
         if len(ids) == 32:  # "all": the servos on the line, whichever they are
             err.print(f"{len(images)} servo(s) answered: IDs {ids_text(images)}")
         else:
@@ -129,16 +144,25 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     if as_table:
         for i, image in images.items():
             out.print(eeprom_table(image, f"EEPROM of servo {i}"))
-        return 0
-    for i, image in images.items():
-        doc = dump_document(image, i, settings)
-        if kind == "stdout":
-            emit_json(doc)
-            continue
-        assert path is not None
-        target = path / backup_name(i) if kind == "dir" else path
-        write_backup(target, doc)
-        err.print(f"EEPROM of servo {i} saved to {escape(str(target))}")
+    else:
+        for i, image in images.items():
+            doc = dump_document(image, i, settings)
+            if kind == "stdout":
+                emit_json(doc)
+                continue
+            assert path is not None
+            target = path / backup_name(i) if kind == "dir" else path
+            write_backup(target, doc)
+            err.print(f"EEPROM of servo {i} saved to {escape(str(target))}")
+    if read.lost is not None:
+        failure = read.lost
+        rest = ",".join(str(i) for i in missing)
+        again = ["eeprom", "dump", rest, *(["--table"] if as_table else ["-o", str(output)])]
+        failure.hints.append(
+            f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}; when the line is back, "
+            f"read the rest: {settings.command_line(*again)}"
+        )
+        raise failure
     return 0
 
 

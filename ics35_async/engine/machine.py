@@ -17,7 +17,7 @@ import logging
 import math
 from collections.abc import Callable
 
-from ..errors import BusClosed, EchoMismatch, IcsError, InvalidArgument, PortLost, ReplyError
+from ..errors import BusClosed, ClosedByPortLoss, EchoMismatch, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Timing, wire_time
 from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
@@ -95,6 +95,7 @@ class LineEngine:
         # is back after a loss.  Called from wherever the engine runs (see Bus.state_change).
         self.on_state_change: Callable[[State], None] | None = None
         self.queue = RequestQueue()
+        self._lost: str | None = None  # why the port was lost, if that closed the line
         self._source: BackgroundSource | None = None
         self._in_row = 0  # requests run since the source's last transaction
         # Slots of a paced stream that one request, the queue's head, was passed over in (see _passed_over_in).
@@ -172,9 +173,16 @@ class LineEngine:
             self.state = LOST  # the source stays attached and resumes after the reconnect
         else:
             self.state = CLOSED
+            self._lost = reason
             self._detach(PortLost(reason))
         if self.on_state_change is not None:
             self.on_state_change(self.state)
+
+    def closed_error(self) -> BusClosed:
+        """What work on the closed line meets: why it closed, if losing its port closed it."""
+        if self._lost is not None:
+            return ClosedByPortLoss(f"the bus closed itself: {self._lost}")
+        return BusClosed("bus is closed")
 
     def close(self) -> None:
         """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""
@@ -246,14 +254,14 @@ class LineEngine:
             return self._start_next(now) if state is IDLE else None
         if state is LOST:
             raise PortLost("the port is lost; reconnecting")
-        raise BusClosed("bus is closed")
+        raise self.closed_error()
 
     def attach_source(self, source: BackgroundSource, now: float) -> bytes | None:
         """Let ``source`` fill the line's idle time (one at a time)."""
         if self._source is not None and self._source is not source:
             raise InvalidArgument("this bus already runs a stream; close it first")
         if self.state is CLOSED or self.state is DRAINING:
-            raise BusClosed("bus is closed")
+            raise self.closed_error()
         # Slots a request was passed over in beside an earlier stream do not count: it goes ahead
         # of this stream only once passed over in two of this stream's slots.
         if source is not self._source:
