@@ -183,3 +183,11 @@ class ParityNotSupported(SerialPortError):
 
 class DirectionControlNotSupported(SerialPortError):
     """The port's driver refused RS-485 direction control (RTS toggled while sending)."""
+
+
+def error_text(exc: BaseException) -> str:
+    """An error's words for a person: an OSError's without the ``[Errno 2]`` in front of them."""
+    if isinstance(exc, OSError) and exc.strerror:
+        named = exc.filename is None or str(exc.filename) in exc.strerror
+        return exc.strerror if named else f"{exc.strerror}: {exc.filename}"
+    return str(exc) or type(exc).__name__

@@ -21,7 +21,7 @@ NO_REPLY_HINTS = (
 
 def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     """The person-facing form of a library error."""
-    text = str(exc).replace(settings.url, settings.port)
+    text = errors.error_text(exc).replace(settings.url, settings.port)
     if isinstance(exc, errors.PortPermissionDenied):
         if sys.platform.startswith("linux"):
             return CliError(

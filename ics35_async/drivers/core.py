@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import anyio
 
 from ..engine import FlushInput, LineEngine, Output, Request, State
-from ..errors import IcsError
+from ..errors import IcsError, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
@@ -284,7 +284,7 @@ class DriverCore:
         self._unwatch(port)
         port.close()
         engine = self.engine
-        reason = f"port {self.target} lost: {exc}" if exc else f"port {self.target} closed"
+        reason = f"port {self.target} lost: {error_text(exc)}" if exc else f"port {self.target} closed"
         if engine.state not in (CLOSED, DRAINING):
             log.warning("%s", reason)
         engine.lost(reason, reconnect=reconnect and self.settings.reconnect)

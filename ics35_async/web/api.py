@@ -32,6 +32,7 @@ from ..errors import (
     SerialPortError,
     UnsafeOperation,
     VerifyError,
+    error_text,
 )
 from ..transports.listing import (
     HS_ADAPTER_USB_ID,
@@ -39,7 +40,6 @@ from ..transports.listing import (
     linux_adapter_steps,
     list_serial_ports,
 )
-from .config import error_text
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
 from .session import LineSession

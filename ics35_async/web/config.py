@@ -1,4 +1,4 @@
-"""How the configurator opens its line, and an error's words for a page."""
+"""How the configurator opens its line."""
 
 from __future__ import annotations
 
@@ -28,11 +28,3 @@ class LineConfig:
         if self.port == "sim://" or self.port.startswith("sim://?"):
             return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://') :]}"
         return self.port
-
-
-def error_text(exc: BaseException) -> str:
-    """An error's words, without the ``[Errno 2]`` an OSError puts in front of them."""
-    if isinstance(exc, OSError) and exc.strerror:
-        named = exc.filename is None or str(exc.filename) in exc.strerror
-        return exc.strerror if named else f"{exc.strerror}: {exc.filename}"
-    return str(exc) or type(exc).__name__

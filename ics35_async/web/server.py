@@ -17,9 +17,9 @@ from starlette.responses import FileResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, error_text
 from .api import ROUTES
-from .config import LineConfig, error_text
+from .config import LineConfig
 from .joints import RobotSession
 from .security import TokenGuard, is_loopback
 from .session import LineSession

@@ -26,7 +26,7 @@ from .. import protocol, units
 from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
-from ..errors import BusClosed, IcsError, InvalidArgument, ReplyError, UnsafeOperation
+from ..errors import BusClosed, IcsError, InvalidArgument, ReplyError, UnsafeOperation, error_text
 from ..policies import (
     EepromPlan,
     FoundServo,
@@ -39,7 +39,7 @@ from ..policies import (
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
-from .config import LineConfig, error_text
+from .config import LineConfig
 from .edits import allowances, edit_of
 from .live import LIVE_RATE_HZ, LiveView, read_health
 from .traffic import TrafficLog
