@@ -233,14 +233,14 @@ async def test_the_unplug_tally_counts_a_reply_timeout_as_a_typed_error_and_a_st
 
 @linux_only
 @pytest.mark.pty
-async def test_unplug_without_reconnect_reports_the_bus_closed() -> None:
+async def test_unplug_without_reconnect_reports_the_bus_closed_by_the_loss() -> None:
     tally = new_unplug_tally()
     # Every answered read answered in time: a reply later than the allowance (a loaded machine) would
     # spoil the next transaction, a BadReply that says nothing of what the loss does to pending requests.
     await no_reconnect_session(tally, adapter_latency=NO_TIMEOUTS["adapter_latency"])
     assert tally["stream_end"] == "PortLost"
     assert tally["pending"].get("PortLost", 0) > 0 and set(tally["pending"]) <= {"PortLost", "ReplyTimeout"}
-    assert tally["request_error"] == "BusClosed"
+    assert tally["request_error"] == "ClosedByPortLoss"  # a BusClosed that says the port was lost
 
 
 def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -> None:

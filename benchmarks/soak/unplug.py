@@ -86,7 +86,7 @@ class UnplugReport:
             # reply comes later than the stream's wait (a loaded one may fail one, typed: see the test).
             and not self.failed_other_typed
             and self.no_reconnect_stream_end == "PortLost"
-            and self.no_reconnect_request_error == "BusClosed"
+            and self.no_reconnect_request_error == "ClosedByPortLoss"
             and set(self.no_reconnect_pending_errors) <= {"PortLost", "ReplyTimeout"}  # silent reads time out
             and self.no_reconnect_pending_errors.get("PortLost", 0) > 0
             and self.tasks_after == self.tasks_before
@@ -199,7 +199,7 @@ async def reconnect_session(
 
 @under_watchdog("unplug (no reconnect)")
 async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 0.02) -> None:
-    """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get BusClosed.
+    """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get ClosedByPortLoss.
 
     ``adapter_latency``: the bus's reply allowance; a reply later than that (a loaded machine) is a timeout
     and its bytes spoil the next transaction's echo."""
@@ -349,7 +349,7 @@ def summarize_unplug(r: UnplugReport) -> list[Row]:
             "unplug: without reconnect",
             f"stream ends with {r.no_reconnect_stream_end}, pending {r.no_reconnect_pending_errors}, "
             f"later calls {r.no_reconnect_request_error}",
-            r.no_reconnect_stream_end == "PortLost" and r.no_reconnect_request_error == "BusClosed",
+            r.no_reconnect_stream_end == "PortLost" and r.no_reconnect_request_error == "ClosedByPortLoss",
         ),
         (
             "unplug: leaks (tasks, fds, threads before -> after)",

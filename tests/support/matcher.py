@@ -272,7 +272,7 @@ class LogMatcher:
                 self.ok[seq - self.first_seq] = 0  # the engine finished it and dropped the reply
             return
         if not run:
-            if record.ok or record.error not in ("BusClosed", "PortLost"):
+            if record.ok or record.error not in ("BusClosed", "PortLost", "ClosedByPortLoss"):
                 raise CheckError(
                     f"request {record.tx.hex(' ')} to ID {record.servo_id} ({'ok' if record.ok else record.error}) "
                     f"has no log entry; next entries: {[(e[0], e[1].hex(' ')) for e in list(entries)[:3]]}"
@@ -289,7 +289,7 @@ class LogMatcher:
                 last
                 and not record.ok
                 and verdict.error != record.error
-                and record.error not in ("BusClosed", "PortLost")
+                and record.error not in ("BusClosed", "PortLost", "ClosedByPortLoss")
             ):
                 counts.error_class_differs += 1
                 counts.note(f"seq {seq}: request failed with {record.error}, its bytes call for {verdict.error}")
