@@ -201,23 +201,57 @@ def _expected_seconds(item: pytest.Item) -> float:
     return 0.05
 
 
-@pytest.hookimpl(wrapper=True, trylast=True)
-def pytest_runtest_call(item: pytest.Item) -> Iterator[object]:
-    """A ``no_cover`` test runs untraced under pytest-xdist too.  pytest-cov pauses its own coverage for it,
-    but an xdist worker runs a second one beneath (started as the plugin loads, before the worker's own),
-    and pausing the top one resumes that: so every coverage still tracing is stopped here, innermost, and
-    started again after."""
-    if not item.get_closest_marker("no_cover"):
-        return (yield)
+@contextlib.contextmanager
+def _untraced() -> Iterator[None]:
+    """No coverage traces inside.  pytest-cov pauses its own coverage for a ``no_cover`` test, but an xdist
+    worker runs a second one beneath (started as the plugin loads, before the worker's own), and pausing the
+    top one resumes that: so every coverage still tracing is stopped here, innermost, and started again
+    after."""
     stopped = []
     while (running := coverage.Coverage.current()) is not None and running not in stopped:
         running.stop()
         stopped.append(running)
     try:
-        return (yield)
+        yield
     finally:
         for running in reversed(stopped):
             running.start()
+
+
+@pytest.hookimpl(wrapper=True, trylast=True)
+def pytest_runtest_call(item: pytest.Item) -> Iterator[object]:
+    """A ``no_cover`` test runs untraced under pytest-xdist too."""
+    if not item.get_closest_marker("no_cover"):
+        return (yield)
+    with _untraced():
+        return (yield)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection(session: pytest.Session) -> Iterator[object]:
+    """Collection runs untraced: the tracer made each worker's collection about 2 s longer (pytest's own
+    calls pay for it too), and what the package runs there is its modules' import.  So every module of the
+    package is imported first, traced (its module-level lines count as they would), and the rest of the
+    collection runs without the tracer; the tests run traced as ever.  (What collection did beside that, such
+    as pytest's probing of module attributes, no longer counts: a test covers a package's lazy names.)"""
+    if coverage.Coverage.current() is None:
+        return (yield)
+    _import_the_package()
+    with _untraced():
+        return (yield)
+
+
+def _import_the_package() -> None:
+    import importlib
+    import pkgutil
+
+    import ics35_async
+
+    for info in pkgutil.walk_packages(ics35_async.__path__, "ics35_async."):
+        if info.name.endswith(".__main__"):  # (running it would run the command)
+            continue
+        with contextlib.suppress(ImportError):  # an optional extra not installed: its own tests say so
+            importlib.import_module(info.name)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

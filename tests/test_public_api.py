@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import warnings
 
@@ -26,6 +27,20 @@ async def test_line_is_exported_and_a_bus_is_one() -> None:
     assert "Line" in ics35_async.__all__
     async with open_bus("sim://?ids=1") as bus:
         assert isinstance(bus, Line)
+
+
+@pytest.mark.parametrize("package", ["ics35_async", "ics35_async.transports", "ics35_async.sim"])
+def test_names_a_package_imports_when_asked_for_resolve_and_others_are_attribute_errors(package: str) -> None:
+    """A package's lazy names (its ``__getattr__``) give the object they name, and an unknown name is an
+    AttributeError (so ``hasattr`` and star imports work), asked directly: an earlier import may have
+    cached a name already."""
+    module = importlib.import_module(package)
+    lazy = getattr(module, "_LAZY", {"PtyServer": ".pty_server", "main": ".server_cli"})
+    for name, where in lazy.items():
+        assert module.__getattr__(name) is getattr(importlib.import_module(where, package), name)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        module.__getattr__("no_such_name")
+    assert not hasattr(module, "no_such_name")
 
 
 async def test_stream_engine_hooks_are_private_and_the_old_names_warn() -> None:
