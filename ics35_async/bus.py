@@ -19,7 +19,7 @@ from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, TimingOverrides
-from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation
+from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation, error_text
 from .protocol import Command
 from .stats import BusStats
 from .transports.direction import check_direction
@@ -305,7 +305,7 @@ class Bus:
             try:
                 await driver.reopen(new_baud)
             except BaseException as exc:
-                reason = f"reopening {self.port} failed: {exc}"
+                reason = f"reopening {self.port} failed: {error_text(exc)}"
                 driver.call(lambda t: self._engine.lost(reason, reconnect=False))
                 raise
         finally:
@@ -316,10 +316,9 @@ class Bus:
         """True from a successful :meth:`open` until :meth:`aclose` or the port's loss (without reconnect)."""
         return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
 
-    def not_open_error(self) -> BusClosed:
-        """The error work on this bus meets while it is not open: a
-        [`ClosedByPortLoss`][ics35_async.errors.ClosedByPortLoss] if losing its port closed it, else a
-        [`BusClosed`][ics35_async.errors.BusClosed] saying it is closed or how to open it."""
+    def _not_open_error(self) -> BusClosed:
+        """The error work on this bus meets while it is not open: why it closed (a ClosedByPortLoss if
+        losing its port closed it), or how to open it."""
         if self._engine.state in (State.CLOSED, State.DRAINING):
             return self._engine.closed_error()
         return BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
@@ -377,7 +376,7 @@ class Bus:
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         driver = self._driver
         if driver is None:
-            raise self.not_open_error()
+            raise self._not_open_error()
         # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
         self._engine.debug = log.isEnabledFor(logging.DEBUG)
         return driver.submit(command, priority, retries)
@@ -387,18 +386,19 @@ class Bus:
 
         Raises:
             InvalidArgument: the bus is reopening.
+            BusClosed: the bus is not open (a ClosedByPortLoss if losing its port closed it).
         """
         engine = self._engine
         if source is None:
             if engine.source is not None:
                 self.detach_source(engine.source)
             return
-        if self._reopening or engine.state is State.OFFLINE:
+        if self._reopening:
             raise InvalidArgument("the bus is reopening; start the stream afterwards")
-        if self._driver is None:
-            engine.attach_source(source, now())
-        else:
-            self._driver.call(lambda t: engine.attach_source(source, t))
+        driver = self._driver
+        if driver is None or not self.is_open:
+            raise self._not_open_error()
+        driver.call(lambda t: engine.attach_source(source, t))
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""

@@ -145,16 +145,14 @@ class BusClosed(IcsError):
     """The bus is closed; the request was not (or no longer) carried out."""
 
 
+class ClosedByPortLoss(BusClosed):
+    """A call on a bus that closed itself when its port was lost (opened without ``reconnect``) or could not
+    be reopened: a :class:`BusClosed`, as every call on a closed bus, whose message says what happened to
+    the port.  (Not a :class:`PortLost`: a loop that waits out a lost port to go on would wait forever.)"""
+
+
 class PortLost(IcsError):
     """The serial port failed or disappeared while the request was pending."""
-
-
-class ClosedByPortLoss(BusClosed, PortLost):
-    """A request on a bus that closed itself when its port was lost (a bus opened without ``reconnect``).
-
-    Both a :class:`BusClosed` (what it always was) and a :class:`PortLost` (why), so the message can say
-    what happened to the port.
-    """
 
 
 class SerialPortError(IcsError, OSError):

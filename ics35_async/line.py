@@ -11,7 +11,6 @@ from collections.abc import Awaitable, Callable
 from typing import Protocol, TypeVar, runtime_checkable
 
 from .engine import BackgroundSource, Priority
-from .errors import BusClosed
 from .protocol import Command
 from .stats import BusStats
 
@@ -37,9 +36,6 @@ class Line(Protocol):
     @property
     def stats(self) -> BusStats:
         """A snapshot of the line's counters."""
-
-    def not_open_error(self) -> BusClosed:
-        """The error work on the line meets while it is not open (why it closed, or how to open it)."""
 
     async def request(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None

@@ -563,8 +563,6 @@ class Stream(FrameIterator[Frame]):
         """Start streaming (``async with`` does); BusClosed if closed or the bus is not, InvalidArgument if busy."""
         if self._closed:
             raise BusClosed("stream closed")
-        if not self.bus.is_open:
-            raise self.bus.not_open_error()
         if not self._running:
             self._running = True
             try:

@@ -229,7 +229,7 @@ def pytest_runtest_call(item: pytest.Item) -> Iterator[object]:
 
 @pytest.hookimpl(wrapper=True)
 def pytest_collection(session: pytest.Session) -> Iterator[object]:
-    """Collection runs untraced: the tracer made each worker's collection about 2 s longer (pytest's own
+    """Collection runs untraced: the tracer made each worker's collection about 1 s longer (pytest's own
     calls pay for it too), and what the package runs there is its modules' import.  So every module of the
     package is imported first, traced (its module-level lines count as they would), and the rest of the
     collection runs without the tracer; the tests run traced as ever.  (What collection did beside that, such

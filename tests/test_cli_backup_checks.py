@@ -219,17 +219,19 @@ def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(cli: Any, sim_line: 
 
 @pytest.mark.parametrize("output", ["dir", "table"])
 def test_a_dump_cut_by_an_unplug_keeps_what_it_read(cli: Any, sim_line: Any, tmp_path: Path, output: str) -> None:
-    """Servos 1-4 dumped, the adapter pulled out at servo 3's read: servos 1 and 2 are saved (shown), and the
-    error says which were and how to read the rest."""
+    """Servos 1-5 dumped (5 is not there), the adapter pulled out at servo 3's read: servos 1 and 2 are saved
+    (shown), the silent ID is told as ever, and the error says which were saved and how to read the rest (the
+    servos that answered and were not read)."""
     plug = PullsThePlug(3, "read")
     sim, url = sim_line([VirtualServo(1), VirtualServo(2), plug, VirtualServo(4)])
     plug.line = sim
     folder = tmp_path / "backup"
     where = ["-o", f"{folder}/"] if output == "dir" else ["--table"]
-    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-4", *where)
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-5", *where)
     assert result.code == ExitCode.COMMUNICATION, result.err
     err = " ".join(result.err.split())
     assert "unplugged" in err and "Traceback" not in err
+    assert "no answer from ID(s) 5: not saved" in err
     if output == "dir":
         assert sorted(p.name for p in folder.iterdir()) == ["servo-01.json", "servo-02.json"]
         for i in (1, 2):

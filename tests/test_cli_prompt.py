@@ -118,6 +118,8 @@ def test_ctrl_c_just_before_the_read_still_ends_the_question(monkeypatch: pytest
 
     def ctrl_c_elsewhere() -> None:
         time.sleep(0.3)
+        # To this helper thread itself: the handler runs here and only notes the signal, while the main
+        # thread stays in its read, as when the signal lands between the last check and the read.
         signal.pthread_kill(threading.get_ident(), signal.SIGINT)
         # A read that never notices gets an answer after a while, so the test fails instead of hanging.
         if not ended.wait(10.0):

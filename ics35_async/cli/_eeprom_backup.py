@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +13,7 @@ import click
 from rich.markup import escape
 
 from ..eeprom import Eeprom, Flags
-from ..errors import InvalidArgument, MalformedEeprom, PortLost, ReplyError
+from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ._common import (
@@ -71,35 +71,38 @@ def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str,
 
 
 @dataclass
-class ReadImages:
-    """The images read, and the port's loss that cut the reading short (the images read before it are kept)."""
+class ImagesRead:
+    """The EEPROM images read; if the port was lost before all were, the error to tell once they are saved
+    and the IDs that answered but were not read."""
 
     images: dict[int, Eeprom]
     lost: CliError | None = None
+    unread: list[int] = field(default_factory=list)
 
 
-async def read_images(settings: Settings, ids: list[int]) -> ReadImages:
-    """One servo's image (its errors raise), or the images of those of several that answer."""
+async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
+    """One servo's image (its errors raise), or the images of those of several that answer (a lost port
+    after the first of them ends the reading, keeping what was read)."""
     # Read until two reads agree: an EEPROM reply has no checksum, and a backup is written back one day.
     async with settings.bus() as bus:
         if len(ids) == 1:
-            return ReadImages({ids[0]: await read_eeprom_agreed(bus, ids[0])})
+            return ImagesRead({ids[0]: await read_eeprom_agreed(bus, ids[0])})
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
-        for i in rate.answered:
+        for n, i in enumerate(rate.answered):
             try:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
-            except PortLost as exc:
+            except (PortLost, ClosedByPortLoss) as exc:
                 if not images:
                     raise
-                # What was read is saved before the error is told (in words made while the port's name is known).
-                return ReadImages(images, line_error(settings, exc))
+                # The error in words now, while the port's name is known; told once the images are saved.
+                return ImagesRead(images, line_error(settings, exc), list(rate.answered[n:]))
         if not images:
             where = f"{settings.port} at {settings.baud} baud (IDs {ids_text(ids)})"
             raise nothing_answered(settings, where, silent=rate.silent)
-        return ReadImages(images)
+        return ImagesRead(images)
 
 
 def write_backup(path: Path, doc: dict[str, Any]) -> None:
@@ -135,8 +138,8 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 f"[yellow]warning:[/yellow] servo {i}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
                 "kept exactly as read; an image holding them cannot be written back"
             )
-    missing = [i for i in ids if i not in images]
-    if missing and len(ids) > 1 and read.lost is None:
+    missing = [i for i in ids if i not in images and i not in read.unread]
+    if missing and len(ids) > 1:
         if len(ids) == 32:  # "all": the servos on the line, whichever they are
             err.print(f"{len(images)} servo(s) answered: IDs {ids_text(images)}")
         else:
@@ -156,7 +159,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             err.print(f"EEPROM of servo {i} saved to {escape(str(target))}")
     if read.lost is not None:
         failure = read.lost
-        rest = ",".join(str(i) for i in missing)
+        rest = ",".join(str(i) for i in read.unread)
         again = ["eeprom", "dump", rest, *(["--table"] if as_table else ["-o", str(output)])]
         failure.hints.append(
             f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}; when the line is back, "

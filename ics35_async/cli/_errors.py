@@ -47,7 +47,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
         )
     if isinstance(exc, errors.SerialPortError):
         return CliError(ExitCode.PORT, text, *bridge_hints(settings))
-    if isinstance(exc, errors.PortLost):
+    if isinstance(exc, errors.PortLost | errors.ClosedByPortLoss):
         if is_network_link(settings.port):
             return CliError(ExitCode.PORT, text, *bridge_hints(settings))
         return CliError(ExitCode.COMMUNICATION, text, "is the USB adapter still plugged in?")

@@ -73,9 +73,11 @@ def _read_line() -> str:
     wait wakes every moment to let a noted Ctrl-C raise, and the line is read a byte
     at a time so nothing past it is taken from stdin.
     """
+    if sys.stdin is None:  # no stdin at all (its descriptor closed, pythonw): as at its end
+        return ""
     try:
         fd = sys.stdin.fileno()
-    except (AttributeError, ValueError, io.UnsupportedOperation):
+    except (ValueError, io.UnsupportedOperation):  # closed, or not on a descriptor (a test's StringIO)
         fd = -1
     if fd < 0 or sys.platform == "win32":
         return sys.stdin.readline()

@@ -75,7 +75,9 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
 
     options = None
     if robot_file is not None:
-        from ._robot_common import robot_options  # --timeout and --transport apply to the robot's lines too
+        # --timeout and --transport apply to the robot's lines too (imported here: without --robot, the
+        # robot's modules stay out of the server's start).
+        from ._robot_common import robot_options
 
         options = robot_options(settings)
 

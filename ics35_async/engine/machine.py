@@ -173,7 +173,8 @@ class LineEngine:
             self.state = LOST  # the source stays attached and resumes after the reconnect
         else:
             self.state = CLOSED
-            self._lost = reason
+            if not draining:  # (a loss while the program closes it: the program closed it)
+                self._lost = reason
             self._detach(PortLost(reason))
         if self.on_state_change is not None:
             self.on_state_change(self.state)
