@@ -217,8 +217,10 @@ def test_a_dump_over_a_noisy_line_never_saves_a_wrong_image(cli: Any, sim_line: 
     assert saved >= 8
 
 
-@pytest.mark.parametrize("output", ["dir", "table"])
-def test_a_dump_cut_by_an_unplug_keeps_what_it_read(cli: Any, sim_line: Any, tmp_path: Path, output: str) -> None:
+@pytest.mark.parametrize(("output", "ids"), [("dir", "1-5"), ("table", "1-5"), ("dir", "all")])
+def test_a_dump_cut_by_an_unplug_keeps_what_it_read(
+    cli: Any, sim_line: Any, tmp_path: Path, output: str, ids: str
+) -> None:
     """Servos 1-5 dumped (5 is not there), the adapter pulled out at servo 3's read: servos 1 and 2 are saved
     (shown), the silent ID is told as ever, and the error says which were saved and how to read the rest (the
     servos that answered and were not read)."""
@@ -227,11 +229,14 @@ def test_a_dump_cut_by_an_unplug_keeps_what_it_read(cli: Any, sim_line: Any, tmp
     plug.line = sim
     folder = tmp_path / "backup"
     where = ["-o", f"{folder}/"] if output == "dir" else ["--table"]
-    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-5", *where)
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", ids, *where)
     assert result.code == ExitCode.COMMUNICATION, result.err
     err = " ".join(result.err.split())
     assert "unplugged" in err and "Traceback" not in err
-    assert "no answer from ID(s) 5: not saved" in err
+    if ids == "all":  # the servos on the line: those read and those the loss left unread
+        assert "4 servo(s) answered: IDs 1, 2, 3, 4" in err
+    else:
+        assert "no answer from ID(s) 5: not saved" in err
     if output == "dir":
         assert sorted(p.name for p in folder.iterdir()) == ["servo-01.json", "servo-02.json"]
         for i in (1, 2):

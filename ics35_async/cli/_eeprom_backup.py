@@ -141,7 +141,8 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     missing = [i for i in ids if i not in images and i not in read.unread]
     if missing and len(ids) > 1:
         if len(ids) == 32:  # "all": the servos on the line, whichever they are
-            err.print(f"{len(images)} servo(s) answered: IDs {ids_text(images)}")
+            answered = sorted([*images, *read.unread])
+            err.print(f"{len(answered)} servo(s) answered: IDs {ids_text(answered)}")
         else:
             err.print(f"[yellow]warning:[/yellow] no answer from ID(s) {ids_text(missing)}: not saved")
     if as_table:
