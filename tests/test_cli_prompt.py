@@ -19,6 +19,7 @@ from collections.abc import Iterator
 import pytest
 
 from ics35_async.sim import serving
+from tests.support.cli_runs import DUMP_ON_USR1
 
 pytestmark = [
     pytest.mark.pty,
@@ -26,7 +27,6 @@ pytestmark = [
 ]
 
 # Each program dumps its threads' stacks on SIGUSR1, so a command that outlives its Ctrl-C says where it is.
-DUMP_ON_USR1 = "import faulthandler, signal; faulthandler.register(signal.SIGUSR1, all_threads=True); "
 LOOPS = {
     "asyncio": DUMP_ON_USR1 + "import sys; sys.modules['uvloop'] = None; from ics35_async.cli import main; main()",
     "uvloop": DUMP_ON_USR1 + "from ics35_async.cli import main; main()",

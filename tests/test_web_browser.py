@@ -32,6 +32,7 @@ from playwright.sync_api import Browser, Page, Request, Route, expect, sync_play
 
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
+from tests.support.cli_runs import DUMP_ON_USR1
 from tests.support.timing import GUARD, PATIENT_OPTION, scaled
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium-headless-shell")  # see the Makefile's browser target
@@ -505,10 +506,7 @@ class RobotServer:
 
 
 # Its start: the CLI as a user runs it, with faulthandler's thread dump on SIGUSR1 (for a test's failure).
-ROBOT_WEB = (
-    "import faulthandler, signal, sys; faulthandler.register(signal.SIGUSR1, all_threads=True); "
-    "from ics35_async.cli import main; sys.argv[0] = 'ics35'; sys.exit(main())"
-)
+ROBOT_WEB = DUMP_ON_USR1 + "import sys; from ics35_async.cli import main; sys.argv[0] = 'ics35'; sys.exit(main())"
 
 
 # The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started

@@ -17,6 +17,10 @@ import pytest
 from ics35_async.cli import main
 from ics35_async.eeprom import EEPROM_FIELDS, Eeprom
 
+# The start of a ``python -c`` program that dumps every thread's stack on SIGUSR1, so a test whose process
+# outlives what it was told can say where it is before killing it.
+DUMP_ON_USR1 = "import faulthandler, signal; faulthandler.register(signal.SIGUSR1, all_threads=True); "
+
 
 @dataclasses.dataclass
 class CliResult:
