@@ -22,39 +22,23 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
-import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
-from bench_common import IDS, NEUTRAL, median, progress, run_on
+from bench_common import IDS, NEUTRAL, burst_setting, median, progress, run_on
 from bench_cpu import BUS_OPTIONS, sequential, stream
 from bench_lines import group_stream
 from bench_overhead import lean_loop, raw_loop
 from lean_responder import lean_lines
 
 from ics35_async import IcsError, open_bus
-from ics35_async.drivers.burst import ENV, burst_path
+from ics35_async.drivers.burst import burst_path
 
 Figures = dict[str, Any]
 BAUD = 1_250_000
-
-
-@contextlib.contextmanager
-def burst_setting(value: str) -> Iterator[None]:
-    """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one)."""
-    before = os.environ.get(ENV)
-    os.environ[ENV] = value
-    try:
-        yield
-    finally:
-        if before is None:
-            del os.environ[ENV]
-        else:
-            os.environ[ENV] = before
 
 
 def on_path(burst: bool, fn: Callable[[], Figures]) -> Figures:

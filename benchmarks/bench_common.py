@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import statistics
 import sys
 import time
@@ -17,6 +18,7 @@ from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from ics35_async import protocol
+from ics35_async.drivers.burst import ENV as BURST_ENV
 from ics35_async.sim import DEFAULT_TURNAROUND, serving
 
 T = TypeVar("T")
@@ -101,3 +103,17 @@ def vm_rss_kib() -> int:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1])
     return -1
+
+
+@contextlib.contextmanager
+def burst_setting(value: str) -> Iterator[None]:
+    """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one)."""
+    before = os.environ.get(BURST_ENV)
+    os.environ[BURST_ENV] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[BURST_ENV]
+        else:
+            os.environ[BURST_ENV] = before

@@ -1,12 +1,12 @@
 """Run the reliability soaks and print one table: ``python -m benchmarks.soak`` (``make soak``).
 
     .venv/bin/python -m benchmarks.soak             # every part at full size
-    .venv/bin/python -m benchmarks.soak --quick     # every part, small (about 20 s)
+    .venv/bin/python -m benchmarks.soak --quick     # every part, small (about 45 s)
     .venv/bin/python -m benchmarks.soak --only chaos,fuzz --transactions 200000 --seed 3
 
 Prints one markdown table (check, result, target met) and exits 1 if a
 target is missed; ``--json FILE`` keeps every figure (``make soak`` writes
-benchmarks/soak_results.json).  The full run takes about 6.5 minutes on two
+benchmarks/soak_results.json).  The full run takes about 14 minutes on two
 cores.  One module per part, registered in :data:`PARTS`.
 """
 
@@ -20,11 +20,22 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from . import cancellation, chaos, fuzz, held_tail, unplug
 from .common import Row, markdown
+
+
+@dataclass
+class PtyChaosReports:
+    ordinary: chaos.ChaosReport
+    burst: chaos.ChaosReport
+
+    @property
+    def seconds(self) -> float:
+        return self.ordinary.seconds + self.burst.seconds
+
 
 Part = Callable[[argparse.Namespace, Callable[[str], None]], tuple[Any, list[Row]]]
 """One soak: (the parsed options, a progress printer) -> (its report, a dataclass; its table rows)."""
@@ -34,6 +45,19 @@ def run_chaos(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any
     transactions = args.transactions or (50_000 if args.quick else 1_000_000)
     report = asyncio.run(chaos.chaos_soak(transactions, args.fault_rate, args.seed, progress=say))
     return report, chaos.summarize_chaos(report)
+
+
+def run_chaos_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
+    """The chaos soak over a pty, on the ordinary path and then on the burst path (one report each)."""
+    transactions = args.pty_transactions or (10_000 if args.quick else 50_000)
+    reports, rows = [], []
+    for link in (chaos.PTY, chaos.PTY_BURST):
+        soak = chaos.chaos_soak(
+            transactions, args.fault_rate, args.seed, max(2_000, transactions // 10), progress=say, link=link
+        )
+        reports.append(asyncio.run(soak))
+        rows += chaos.summarize_chaos(reports[-1])
+    return PtyChaosReports(*reports), rows
 
 
 def run_cancel(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
@@ -65,6 +89,7 @@ def run_held_tail(args: argparse.Namespace, say: Callable[[str], None]) -> tuple
 
 PARTS: dict[str, Part] = {
     "chaos": run_chaos,
+    "chaos_pty": run_chaos_pty,
     "cancel": run_cancel,
     "unplug": run_unplug,
     "fuzz": run_fuzz,
@@ -80,6 +105,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="small sizes (about a minute in all)")
     parser.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts: {', '.join(PARTS)}")
     parser.add_argument("--transactions", type=int, default=None, help="chaos: transactions (default 1,000,000)")
+    parser.add_argument(
+        "--pty-transactions", type=int, default=None, help="chaos_pty: transactions on each path (default 50,000)"
+    )
     parser.add_argument("--fault-rate", type=float, default=0.02, help="chaos: share of faulted transactions")
     parser.add_argument("--cancellations", type=int, default=None, help="cancel: cancellations (default 10,000)")
     parser.add_argument("--fuzz-streams", type=int, default=None, help="fuzz: byte streams (default 1,000,000)")

@@ -77,6 +77,7 @@ class MatchCounts:
     late_reply_to_own_retry: int = 0  # a request's late first reply arriving during (and taken by) its retry
     guards: int = 0  # guard reads the bus inserted after a timeout
     noise_accepted: int = 0  # a truncated reply completed by noise bytes into a valid-looking one
+    noise_after_reply: int = 0  # real time: a whole reply taken before the noise behind it came (see LogMatcher)
     untyped_outcomes: int = 0
     extra_attempts: int = 0  # more attempts than the request's retries allow
     predicted_errors: int = 0  # transactions whose bytes call for an error
@@ -96,12 +97,25 @@ class LogMatcher:
     Call :meth:`drain` to take new log entries (in order, never skipping),
     :meth:`add_frame` and :meth:`add_request` as outcomes come, and
     :meth:`match` to pair what can be paired.
+
+    ``realtime``: the simulator answers through a real port (a pty), where the bytes of one
+    transaction may arrive in several reads.  The predictor judges the bytes as one piece, as the
+    in-process line delivers them; across a port, noise on the idle line after a whole reply may
+    come after the bus has taken the reply, so the reply's own value is then right, not a
+    misattribution (counted as ``noise_after_reply``).
     """
 
     def __init__(
-        self, sim: VirtualLine, is_stream: Callable[[bytes], bool], ids: Iterable[int], track_stream: bool = True
+        self,
+        sim: VirtualLine,
+        is_stream: Callable[[bytes], bool],
+        ids: Iterable[int],
+        track_stream: bool = True,
+        *,
+        realtime: bool = False,
     ) -> None:
         self.sim = sim
+        self.realtime = realtime
         self.is_stream = is_stream
         self.track_stream = track_stream
         self.predictor = WirePredictor(sim.baudrate, sim.echo)
@@ -201,7 +215,9 @@ class LogMatcher:
         if ok:
             self.when[k] = when
             counts.accepted += 1
-            if not verdict.ok or verdict.value != value:
+            if self.realtime and fault and "noise" in fault.split("+") and value == clean:
+                counts.noise_after_reply += 1  # the reply was whole before the noise came (see the class)
+            elif not verdict.ok or verdict.value != value:
                 counts.misattributed += 1
                 counts.note(
                     f"seq {seq}: bus returned {value!r}, the bytes {verdict.received.hex(' ')} "
