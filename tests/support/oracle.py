@@ -69,12 +69,15 @@ class WirePredictor:
     all the parts (``echo``, ``extra`` = held reply + noise, ``reply``,
     ``clean_reply``), so the chunk, and therefore the one right conclusion,
     follow.  Feed every logged transaction, in order, to :meth:`predict`.
+    ``noise`` is the noise bytes at the end of the last transaction's chunk (across a real port they
+    may come after the bus has taken the reply: see :class:`.matcher.LogMatcher`).
     """
 
     def __init__(self, baudrate: int, echo: bool = True) -> None:
         self.baudrate = baudrate
         self.echo = echo
         self.held = b""
+        self.noise = b""
 
     def predict(self, t: Transaction) -> Verdict:
         held, self.held = self.held, b""
@@ -86,7 +89,7 @@ class WirePredictor:
             own = t.reply
         if not t.extra.startswith(held):
             raise CheckError(f"seq {t.seq}: the held-back reply {held.hex()} is not where expected: {t.extra.hex()}")
-        noise = t.extra[len(held) :]
+        noise = self.noise = t.extra[len(held) :]
         received = t.echo + held + own + noise
         verdict = self.judge(t.tx, received)
         if verdict.ok:
