@@ -6,8 +6,11 @@
  * stops, handing back what it has, at the first transaction that is late, whose bytes differ from
  * the echo of what was sent, that brings more bytes than expected, or that brings a 0xFF while the
  * port marks parity errors (PARMRK: the bytes go to the engine as they came, through the usual
- * decoder); at a transaction boundary once woken; on a hang-up or an error.  It never judges a
- * reply: the engine is fed the bytes and times afterwards and classifies them as it always does.
+ * decoder), or whose reply is not of the shape its plan entry gives (bytes to compare under a mask,
+ * made by the engine's side from the codec: the engine would refuse such a reply, and the plan's
+ * later commands must not go out after it); at a transaction boundary once woken; on a hang-up or
+ * an error.  It never judges a reply: the engine is fed the bytes and times afterwards and
+ * classifies them as it always does.
  *
  * Deadlines follow the engine's own arithmetic: the first transaction's deadline is given; each
  * later one starts when the previous one's last byte came (the time the engine is fed with it) and
@@ -31,12 +34,14 @@
 #include <sys/eventfd.h>
 #endif
 
-enum { DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED };
+enum { DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED, SHAPE };
 #define READ_CHUNK 4096
 
 typedef struct {
     Py_ssize_t tx_off, tx_len;  /* the transaction's bytes in plan_tx */
     Py_ssize_t expect, echo;    /* bytes expected back (echo + reply), of which the echo */
+    Py_ssize_t shape_off, shape_len; /* the reply's shape in plan_tx: shape_len bytes wanted, then as
+                                        many masks (0: none given) */
     double allowance;           /* seconds from its start to its deadline (the first: unused) */
     /* results */
     Py_ssize_t rx_off, rx_len;  /* its bytes in rx */
@@ -225,6 +230,16 @@ static void run_plan(Burst *self) {
                 return;
             }
         }
+        if (t->shape_len) {
+            const unsigned char *reply = self->rx + t->rx_off + t->echo;
+            const unsigned char *want = self->plan_tx + t->shape_off, *mask = want + t->shape_len;
+            for (Py_ssize_t j = 0; j < t->shape_len; j++) {
+                if ((reply[j] & mask[j]) != want[j]) {
+                    self->status = SHAPE;
+                    return;
+                }
+            }
+        }
         t_start = t->t_last;
     }
 }
@@ -331,13 +346,14 @@ static void Burst_dealloc(Burst *self) {
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-/* Copy a plan, [(tx, expect, echo, allowance), ...], into the object's buffers (with the GIL). */
+/* Copy a plan, [(tx, expect, echo, allowance, shape), ...], into the object's buffers (with the GIL).
+   shape: b"" or, for a reply of n = expect - echo bytes, n bytes wanted then n masks. */
 static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
     if (self->wake_r < 0) {
         PyErr_SetString(PyExc_ValueError, "the burst executor is closed");
         return -1;
     }
-    PyObject *seq = PySequence_Fast(plan, "the plan must be a sequence of (tx, expect, echo, allowance)");
+    PyObject *seq = PySequence_Fast(plan, "the plan must be a sequence of (tx, expect, echo, allowance, shape)");
     if (!seq) return -1;
     Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
     if (n < 1) {
@@ -353,12 +369,14 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
     }
     Py_ssize_t tx_total = 0, rx_total = READ_CHUNK;
     for (Py_ssize_t i = 0; i < n; i++) {
-        const char *bytes;
-        Py_ssize_t len, expect, echo;
+        const char *bytes, *shape;
+        Py_ssize_t len, expect, echo, shape_len;
         double allowance;
         PyObject *item = PySequence_Fast_GET_ITEM(seq, i);
-        if (!PyTuple_Check(item) || !PyArg_ParseTuple(item, "y#nnd", &bytes, &len, &expect, &echo, &allowance)) {
-            if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "a plan entry is (tx, expect, echo, allowance)");
+        if (!PyTuple_Check(item) ||
+            !PyArg_ParseTuple(item, "y#nndy#", &bytes, &len, &expect, &echo, &allowance, &shape, &shape_len)) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_TypeError, "a plan entry is (tx, expect, echo, allowance, shape)");
             Py_DECREF(seq);
             return -1;
         }
@@ -367,8 +385,13 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
             PyErr_SetString(PyExc_ValueError, "a plan entry needs 0 <= echo <= len(tx), echo <= expect");
             return -1;
         }
-        if (tx_total + len > self->plan_tx_cap) {
-            Py_ssize_t cap = (tx_total + len) * 2;
+        if (shape_len != 0 && shape_len != 2 * (expect - echo)) {
+            Py_DECREF(seq);
+            PyErr_SetString(PyExc_ValueError, "a plan entry's shape is empty or twice its reply's length");
+            return -1;
+        }
+        if (tx_total + len + shape_len > self->plan_tx_cap) {
+            Py_ssize_t cap = (tx_total + len + shape_len) * 2;
             unsigned char *b = PyMem_RawRealloc(self->plan_tx, (size_t)cap);
             if (!b) goto nomem_seq;
             self->plan_tx = b;
@@ -381,7 +404,10 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
         t->expect = expect;
         t->echo = echo;
         t->allowance = allowance;
-        tx_total += len;
+        memcpy(self->plan_tx + tx_total + len, shape, (size_t)shape_len);
+        t->shape_off = tx_total + len;
+        t->shape_len = shape_len / 2;
+        tx_total += len + shape_len;
         rx_total += expect;
     }
     Py_DECREF(seq);
@@ -569,8 +595,8 @@ PyMODINIT_FUNC PyInit__burst(void) {
         Py_DECREF(m);
         return NULL;
     }
-    const char *names[] = {"DONE", "WOKEN", "LATE", "MISMATCH", "MARK", "OVERRUN", "HANGUP", "FAILED"};
-    for (int k = 0; k < 8; k++) {
+    const char *names[] = {"DONE", "WOKEN", "LATE", "MISMATCH", "MARK", "OVERRUN", "HANGUP", "FAILED", "SHAPE"};
+    for (int k = 0; k < (int)(sizeof names / sizeof names[0]); k++) {
         if (PyModule_AddIntConstant(m, names[k], k) < 0) {
             Py_DECREF(m);
             return NULL;

@@ -8,8 +8,9 @@ MARK: int
 OVERRUN: int
 HANGUP: int
 FAILED: int
+SHAPE: int
 
-_Plan = list[tuple[bytes, int, int, float]]
+_Plan = list[tuple[bytes, int, int, float, bytes]]
 _Result = tuple[int, int, list[tuple[bytes, float, float]]]
 
 class Burst:

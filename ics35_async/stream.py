@@ -20,7 +20,7 @@ from typing import Literal, TypedDict
 import anyio
 
 from . import protocol, units
-from .engine.source import BoundSource, keep_old_hook_names
+from .engine.source import BoundSource, Upcoming, keep_old_hook_names
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
@@ -128,6 +128,7 @@ class Stream(FrameIterator[Frame]):
         self._jobs = [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in id_list]
         self._readers: list[protocol.ReadPosition | None] = [None] * n
         self._headers = [protocol.position_reply_header(sid, bus.baudrate) for sid in id_list]
+        self._shapes = [protocol.position_reply_shape(header) for header in self._headers]  # (for bursts)
         self._positions = [-1] * n
         self._stamps = [0.0] * n
         self._answered = [False] * n
@@ -317,12 +318,13 @@ class Stream(FrameIterator[Frame]):
         self._cur_reader = self._readers[k]
         return self._jobs[k]
 
-    def _upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
-        start = self._pos + 1  # after the one on the wire
+    def _upcoming(self, limit: int) -> list[Upcoming]:
+        start = self._pos  # the one on the wire
         slots = self._order[start : start + limit] if limit > 0 else []
-        self._frozen.update(slots)
-        jobs = self._jobs
-        return [jobs[k] for k in slots]
+        self._frozen.update(slots[1:])
+        jobs, readers, shapes = self._jobs, self._readers, self._shapes
+        # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
+        return [(*jobs[k], b"" if readers[k] is not None else shapes[k]) for k in slots]
 
     def _upcoming_done(self) -> None:
         self._frozen.clear()

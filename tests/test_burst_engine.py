@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 
 from ics35_async import protocol
+from ics35_async.drivers.burst import SHAPE
 from ics35_async.engine import LineEngine, Priority
 from ics35_async.protocol import Position
 from ics35_async.stream import Stream
@@ -64,6 +65,7 @@ def run_line(
     *,
     seed: int,
     mute_every: int = 0,
+    damage_every: int = 0,
     paced: bool = False,
     requests: int = 40,
     duration: float = 0.5,
@@ -74,6 +76,8 @@ def run_line(
     servos = SlowAtTimes(IDS, engine.baudrate, seed)
     if mute_every:
         servos.mute = {k for k in range(5, 100_000) if k % mute_every == 0}
+    if damage_every:
+        servos.damaged = {k for k in range(5, 100_000) if k % damage_every == 0}
     wire = wire_class(engine, servos)
     source: Any = PacedCycle(IDS, PERIOD) if paced else FakeSource(IDS)
     wire.emit(engine.attach_source(source, wire.now))
@@ -90,14 +94,23 @@ def run_line(
 
 
 @pytest.mark.parametrize("paced", [False, True], ids=["unpaced", "paced"])
-@pytest.mark.parametrize("mute_every", [0, 61], ids=["healthy", "faults"])
+@pytest.mark.parametrize(
+    ("mute_every", "damage_every"),
+    [(0, 0), (61, 0), (0, 41)],
+    ids=["healthy", "silent", "damaged"],  # damaged: a reply of the right length the stream refuses
+)
 @pytest.mark.parametrize("seed", range(3))
-def test_a_burst_line_does_exactly_what_the_ordinary_line_does(paced: bool, mute_every: int, seed: int) -> None:
-    plain, _ = run_line(Wire, seed=seed, mute_every=mute_every, paced=paced)
-    burst, wire = run_line(BurstWire, seed=seed, mute_every=mute_every, paced=paced)
+def test_a_burst_line_does_exactly_what_the_ordinary_line_does(
+    paced: bool, mute_every: int, damage_every: int, seed: int
+) -> None:
+    faults = {"mute_every": mute_every, "damage_every": damage_every}
+    plain, _ = run_line(Wire, seed=seed, paced=paced, **faults)
+    burst, wire = run_line(BurstWire, seed=seed, paced=paced, **faults)
     assert isinstance(wire, BurstWire)
     # Bursts ran (after a fault the ordinary path runs until a late reply can no longer come).
-    assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every else 3)
+    assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every else 3)
+    if damage_every:  # and some stopped at a damaged reply (the executor must not send the next command)
+        assert wire.executor.stops[SHAPE] > 0
     assert burst["requests"] == plain["requests"]
     assert burst["writes"] == plain["writes"]
     assert burst == plain
@@ -208,39 +221,33 @@ def test_a_planned_transaction_whose_echo_comes_round_late_is_waited_for_in_full
     assert burst == plain
 
 
-class GarbledOnce(Servos):
-    """Servos whose answer to one write has a data byte with its top bit set (the echo and the
-    length right, no parity error): only the engine's check of the reply can tell."""
+def test_a_reply_only_the_engine_refuses_ends_the_burst_there_and_the_line_goes_as_without_one() -> None:
+    # Write 20's reply has a data byte with its top bit set (the echo and the length right, no parity
+    # error): the stream refuses it.  The executor must stop there (its plan gave the reply's shape),
+    # not send the cycle's next commands, which the engine would take for strays and send again.
+    def line(wire_class: type[Wire]) -> tuple[Wire, FakeSource, Servos]:
+        engine = ready_engine()
+        servos = Servos(IDS)
+        servos.damaged = {20}
+        wire = wire_class(engine, servos)
+        source = FakeSource(IDS)
+        wire.emit(engine.attach_source(source, wire.now))
+        wire.run_for(0.001)
+        assert len(wire.writes) < 20
+        wire.run_for(0.2)
+        return wire, source, servos
 
-    def __init__(self, ids: list[int], garbled: int) -> None:
-        super().__init__(ids)
-        self.garbled = garbled
-
-    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
-        if len(self.answers) - 1 == self.garbled:
-            reply = reply[:1] + bytes((reply[1] | 0x80,)) + reply[2:]
-        super().deliver(wire, tx, reply)
-
-
-def test_a_reply_only_the_engine_refuses_stops_nothing_but_nothing_after_it_is_taken() -> None:
-    engine = ready_engine()
-    servos = GarbledOnce(IDS, garbled=20)
-    wire = BurstWire(engine, servos)
-    source = FakeSource(IDS)
-    wire.emit(engine.attach_source(source, wire.now))
-    wire.run_for(0.001)
-    warm = len(wire.writes)
-    wire.run_for(0.2)
-    assert warm < 20 < len(wire.writes) - 10 and wire.runner.bursts > 2
+    plain, _, _ = line(Wire)
+    wire, source, servos = line(BurstWire)
+    assert isinstance(wire, BurstWire) and wire.runner.bursts > 2
+    assert wire.executor.stops[SHAPE] == 1
     assert [type(f).__name__ for f in source.failures] == ["ReplyDataError"]
-    # The burst ran on past it: those replies arrived as strays, and no value was taken from them.
-    assert engine.counters.stray > 0
+    assert wire.engine.counters.stray == 0  # nothing came that no transaction of the engine's asked for
+    assert wire.writes == plain.writes  # every command once, at the time it goes without bursts
     write_of = {value: k for k, value in enumerate(servos.answers) if value is not None}
     for sid, value in source.values:  # every value taken is the answer to its own servo's command
         assert wire.writes[write_of[value]][1][0] & 0x1F == sid
-    taken = {write_of[value] for _, value in source.values}
-    assert 21 not in taken and 22 not in taken  # the burst ran on past it: none of those was taken
-    assert max(taken) > 40  # and the stream carries on
+    assert max(write_of[value] for _, value in source.values) > 40  # and the stream carries on
 
 
 class QuietLine:
@@ -265,7 +272,11 @@ def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_th
     stream._running = True
     hooks = stream._hooks
     assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
-    assert hooks.upcoming(10) == [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in (2, 3)]
+    shapes = {
+        sid: protocol.position_reply_shape(protocol.position_reply_header(sid, line.baudrate)) for sid in (1, 2, 3)
+    }
+    # The one on the wire first, then the rest of the cycle, each with the shape of a reply the stream takes.
+    assert hooks.upcoming(10) == [(protocol.position_tx(sid, protocol.FREE), 3, sid, shapes[sid]) for sid in (1, 2, 3)]
     stream.set_target(2, 8000)  # planned: the burst sends the old command; the stream asks it to stop
     assert line.kicks == 1 and stream.target(2) == 8000
     stream.set_target(1, 9000)  # on the wire already, not planned: next cycle's command, no stop needed

@@ -2,8 +2,8 @@
 
 The executor only moves bytes and notes times; what it must get right is where it stops: at the
 end of the plan, at a late transaction, at an echo that differs from what was sent, at more bytes
-than expected, at a 0xFF while the port marks parity errors, at a boundary once woken, on a
-hang-up.  The engine's side (what it plans and how it judges the bytes) is in
+than expected, after a reply not of its planned shape, at a 0xFF while the port marks parity
+errors, at a boundary once woken, on a hang-up.  The engine's side (what it plans and how it judges the bytes) is in
 tests/test_burst_engine.py.
 """
 
@@ -23,7 +23,7 @@ import serial
 
 from benchmarks.lean_responder import lean_lines
 from ics35_async import protocol
-from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRUN, WOKEN, burst_path
+from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRUN, SHAPE, WOKEN, burst_path
 from ics35_async.transports.tty_port import ParityMarks, enable_parity_marks
 from tests.support.timing import NO_TIMEOUTS
 
@@ -106,8 +106,10 @@ def pty_pair() -> Iterator[PtyPair]:
     pair.close()
 
 
-def plan(n: int = 32, allowance: float = ALLOWANCE) -> list[tuple[bytes, int, int, float]]:
-    return [(protocol.position_tx(i % 32, 7500), 6, 3, allowance) for i in range(n)]
+def plan(n: int = 32, allowance: float = ALLOWANCE) -> list[tuple[bytes, int, int, float, bytes]]:
+    """Position commands to IDs 0-31 in turn, each with the shape of the reply :func:`answer` gives."""
+    txs = [protocol.position_tx(i % 32, 7500) for i in range(n)]
+    return [(tx, 6, 3, allowance, protocol.position_reply_shape(tx[0] & 0x7F)) for tx in txs]
 
 
 def serve(master: int, reply: Reply = answer) -> Responder:
@@ -244,10 +246,42 @@ def test_a_hang_up_ends_the_burst(pty_pair: PtyPair) -> None:
     assert status == HANGUP and len(records) == 3
 
 
+def test_it_stops_after_a_reply_out_of_its_shape_and_sends_nothing_more(pty_pair: PtyPair) -> None:
+    # Write 4's reply has a data byte's top bit set: the echo and the length are right, the shape is not.
+    def garble(k: int, tx: bytes) -> bytes | None:
+        good = answer(k, tx)
+        assert good is not None
+        return good[:4] + bytes((good[4] | 0x80,)) + good[5:] if k == 4 else good
+
+    master, slave = pty_pair
+    responder = serve(master, garble)
+    status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, plan())
+    time.sleep(0.05)  # (a command sent after it would have reached the responder by now)
+    responder.stop()
+    assert status == SHAPE and len(records) == 5
+    assert records[4][0] == garble(4, plan()[4][0])  # handed back whole, for the engine to judge
+    assert len(responder.commands) == 5  # nothing was sent after it
+    # Without a shape the executor judges no reply: the same line runs the whole plan.
+    responder = serve(master, garble)
+    unshaped = [(*entry[:4], b"") for entry in plan()]
+    status, _, records = _burst.Burst(slave).run(time.monotonic() + ALLOWANCE, unshaped)
+    responder.stop()
+    assert status == DONE and len(records) == 32
+
+
 def test_bad_plans_are_refused_before_anything_is_written(pty_pair: PtyPair) -> None:
     _, slave = pty_pair
     burst = _burst.Burst(slave)
-    for bad in ([], [(b"", 6, 3, 0.1)], [(b"\x80\x00\x00", 6, 7, 0.1)], [("text", 6, 3, 0.1)], [(b"\x80", 1)]):
+    tx = b"\x80\x00\x00"
+    for bad in (
+        [],
+        [(b"", 6, 3, 0.1, b"")],  # no command
+        [(tx, 6, 7, 0.1, b"")],  # more echo than expected
+        [("text", 6, 3, 0.1, b"")],
+        [(tx, 1)],
+        [(tx, 6, 3, 0.1)],  # no shape (b"" says none)
+        [(tx, 6, 3, 0.1, b"\x00\xff")],  # a shape not twice the reply's length
+    ):
         with pytest.raises((ValueError, TypeError)):
             burst.run(time.monotonic() + 1, bad)
     with pytest.raises(ValueError):

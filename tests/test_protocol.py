@@ -41,6 +41,7 @@ from ics35_async.protocol import (
     nibbles_from_bytes,
     position_from_reply,
     position_reply_header,
+    position_reply_shape,
     position_tx,
     split7,
     wire_time,
@@ -125,6 +126,20 @@ def test_position_from_reply_agrees_with_parse(servo_id: int, baud: int, reply: 
             assert fast == cmd.parse(candidate)
         except BadReply:
             assert fast == -1
+
+
+@pytest.mark.parametrize("header", [0x00, 0x01, 0x11, 0x80])
+def test_a_position_replys_shape_takes_exactly_the_replies_the_hot_path_takes(header: int) -> None:
+    # The burst executor compares a reply with this shape (bytes under masks) and stops where it differs;
+    # the stream takes a reply through position_from_reply: the two must agree on every reply.
+    shape = position_reply_shape(header)
+    want, masks = shape[:3], shape[3:]
+    for first in (header, header ^ 0x80, header ^ 0x01):
+        for high in range(256):
+            for low in (0x00, 0x4C, 0x7F, 0x80, 0xCC, 0xFF):
+                reply = bytes((first, high, low))
+                fits = all(b & m == w for b, m, w in zip(reply, masks, want, strict=True))
+                assert fits == (position_from_reply(reply, 0, header) >= 0), reply.hex(" ")
 
 
 def test_position_from_reply_cases() -> None:

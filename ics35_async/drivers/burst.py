@@ -4,7 +4,9 @@ The engine makes the plan (:meth:`LineEngine.plan_burst <ics35_async.engine.Line
 the stream's transaction just put on the wire and its next ones, as far as the sharing rule lets
 the stream keep the line.  The executor (:mod:`ics35_async._burst`, C, in a thread of its own and
 without the GIL) writes each command and reads its echo and reply, and stops at the first one that
-is late, short or not echoed as sent, or at a boundary once woken.  :func:`feed` then hands every
+is late, short, not echoed as sent or answered out of the shape the source gave for its reply (the
+source would refuse that reply, and the burst's later commands must not go out after it), or at a
+boundary once woken.  :func:`feed` then hands every
 byte to the engine with the time it came, so the engine judges each transaction as if the bytes
 had come one by one: no rule lives in the executor.
 
@@ -39,7 +41,7 @@ else:
 
 # What the executor hands back: why it stopped, an errno, and per transaction written its raw bytes
 # and when the first and the last of them came.
-DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED = range(8)
+DONE, WOKEN, LATE, MISMATCH, MARK, OVERRUN, HANGUP, FAILED, SHAPE = range(9)
 Record = tuple[bytes, float, float]
 Result = tuple[int, int, list[Record]]
 log = logging.getLogger("ics35_async")
@@ -107,11 +109,12 @@ def feed(
                 raise BurstDiverged(
                     f"burst transaction {i + 1}: the engine wants {out!r}, the burst sent {plan[i + 1][0]!r}"
                 )
-            # The engine failed this transaction for what its reply said (echo and length were
-            # right, so the executor ran on): the burst's later commands are on the line already.
-            # Their bytes reach the engine as what they are to it now, bytes of no transaction:
-            # strays that keep its resync waiting for quiet.  None is taken for a reply.
-            log.debug("burst ran %d transaction(s) past a reply the engine refused", last - i)
+            # The engine failed a transaction whose reply had its echo, length and shape right, so
+            # the executor ran on: not expected (a source's shape says what it refuses), but the
+            # burst's later commands are on the line already.  Their bytes reach the engine as what
+            # they are to it now, bytes of no transaction: strays that keep its resync waiting for
+            # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
+            log.warning("burst ran %d transaction(s) past a reply the engine refused", last - i)
             in_step = False
     return out
 

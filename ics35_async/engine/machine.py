@@ -45,8 +45,9 @@ PROBE = Timing.PROBE
 URGENT = Priority.URGENT
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
 BURST_LIMIT = 64  # transactions in one burst at most (a 32-servo cycle fits; a wake still stops it sooner)
-PlannedTransaction = tuple[bytes, int, int, float]
-"""One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s)."""
+PlannedTransaction = tuple[bytes, int, int, float, bytes]
+"""One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s), and
+the shape of a reply the source takes (see :data:`.source.Upcoming`)."""
 
 
 class FlushInput:
@@ -291,10 +292,13 @@ class LineEngine:
         A burst is the source's transaction on the wire (returned by the last call) followed by
         the source's next ones, as far as the sharing rule lets the source keep the line (to the
         end of its cycle; not past a boundary where a queued request would go instead), at most
-        ``limit`` in all.  Each entry is ``(tx, expect, echo, allowance)``: the bytes to write,
-        how many come back (echo included), how many of them are the echo, and the seconds from
-        the transaction's start (when the previous one's last byte came) to its deadline; the
-        first one's deadline is the one returned with the plan.
+        ``limit`` in all.  Each entry is ``(tx, expect, echo, allowance, shape)``: the bytes to
+        write, how many come back (echo included), how many of them are the echo, the seconds from
+        the transaction's start (when the previous one's last byte came) to its deadline (the first
+        one's deadline is the one returned with the plan), and the shape of a reply the source takes
+        (see :data:`.source.Upcoming`).  The executor stops after a reply not of that shape, as
+        the source refuses it and the line then goes as it would without a burst; a transaction
+        whose source gives no shape ends the plan.
 
         Only while the line is in step (no reply owed or held back, no slow-link allowance
         learnt, nothing received yet of the transaction on the wire): after a fault the ordinary
@@ -304,8 +308,8 @@ class LineEngine:
         engine would, and the engine waits on for the rest.  The
         source keeps the planned transactions as they are until :meth:`burst_over`.
 
-        The executor runs the plan, stops at the first transaction that is late, short or not
-        echoed as sent, or at a boundary when woken; the driver then feeds every byte through
+        The executor runs the plan, stops at the first transaction that is late, short, not
+        echoed as sent or answered out of shape, or at a boundary when woken; the driver then feeds every byte through
         :meth:`receive` (and the deadline through :meth:`tick`) with the times they came, so the
         engine judges them exactly as if they had come one by one.
         """
@@ -323,21 +327,30 @@ class LineEngine:
             return None
         if self._held and max(self._held.values()) > self._t_start:
             return None  # a late reply may still land in any transaction (see _hold)
-        plan: list[PlannedTransaction] = [(self._tx, self._expect, self._echo_len, self.deadline - self._t_start)]
         queue = self.queue
         if queue.count and self._request_goes(queue.peek(), self._t_start, note=False):
             return None  # a request takes the line at the next boundary
+        upcoming = source.upcoming(limit)
+        if not upcoming or upcoming[0][0] != self._tx:
+            source.upcoming_done()
+            return None  # (the source no longer plans what is on the wire: never expected)
+        plan: list[PlannedTransaction] = [
+            (self._tx, self._expect, self._echo_len, self.deadline - self._t_start, upcoming[0][3])
+        ]
         echo = self.echo
         latency = self.answers.stream_latency
         steady = self.answers.answers_before_change()
-        for j, (tx, reply_len, _sid) in enumerate(source.upcoming(limit - 1), 1):
+        for j in range(1, len(upcoming)):
+            if not plan[-1][4]:
+                break  # a reply of no shape may only end a burst: the source may refuse it
+            tx, reply_len, _sid, shape = upcoming[j]
             nbytes = len(tx) + reply_len
             allowance = self._allowances.get(nbytes)
             if allowance is None:
                 allowance = self._allowance(nbytes, NORMAL)
             allowance = self._stream_wait(nbytes, allowance, latency if j < steady else STREAM_WAIT_FLOOR)
             echo_len = len(tx) if echo else 0
-            plan.append((tx, echo_len + reply_len, echo_len, allowance))
+            plan.append((tx, echo_len + reply_len, echo_len, allowance, shape))
         return self.deadline, plan
 
     def would_take(self, request: Request, now: float) -> bool:

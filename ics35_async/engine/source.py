@@ -9,6 +9,12 @@ from typing import Any, Protocol
 
 from ..errors import IcsError, ReplyError
 
+Upcoming = tuple[bytes, int, int, bytes]
+"""A transaction a source will ask for: ``(tx, reply_len, servo_id, shape)``; ``shape`` is the shape of a
+reply the source takes (``reply_len`` bytes wanted, then as many masks: a reply ``r`` fits when
+``r[i] & mask[i] == wanted[i]``), or ``b""`` if the source cannot tell a reply it would refuse by
+such a comparison (see :meth:`BackgroundSource.upcoming`)."""
+
 
 class BackgroundSource(Protocol):
     """Something that fills the line's idle time (the position stream).
@@ -61,10 +67,13 @@ class BackgroundSource(Protocol):
         moved meanwhile."""
         ...
 
-    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
-        """The transactions it will ask for after the one on the wire, if each succeeds, without
-        waiting for a slot (the rest of its cycle), at most ``limit``.  It keeps them as they are
-        (a new target for one of them waits) until :meth:`upcoming_done`."""
+    def upcoming(self, limit: int) -> list[Upcoming]:
+        """The one on the wire and the transactions it will ask for after it, if each succeeds,
+        without waiting for a slot (the rest of its cycle), at most ``limit`` in all, each with the
+        shape of a reply it takes (a burst stops where a reply is not of that shape: the source would
+        refuse it, and the line must then go as it goes without a burst).  It keeps the ones after
+        the one on the wire as they are (a new target for one of them waits) until
+        :meth:`upcoming_done`."""
         ...
 
     def upcoming_done(self) -> None:
@@ -88,7 +97,7 @@ class BoundSource:
     slot_due: Callable[[float], float | None]
     line_resumed: Callable[[float], None]
     skip: Callable[[float], None]
-    upcoming: Callable[[int], list[tuple[bytes, int, int]]]
+    upcoming: Callable[[int], list[Upcoming]]
     upcoming_done: Callable[[], None]
 
     @classmethod

@@ -28,7 +28,7 @@ from .commands import (
     guard_read,
 )
 from .device import decode_request
-from .hot_path import position_from_reply, position_reply_header, position_tx
+from .hot_path import position_from_reply, position_reply_header, position_reply_shape, position_tx
 from .memory import ReadMemory, WriteMemory
 from .wire import (
     BITS_PER_BYTE,
@@ -94,6 +94,7 @@ __all__ = [
     "nibbles_from_bytes",
     "position_from_reply",
     "position_reply_header",
+    "position_reply_shape",
     "position_tx",
     "split7",
     "wire_time",

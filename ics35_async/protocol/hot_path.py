@@ -24,6 +24,18 @@ def position_reply_header(servo_id: int, baudrate: int) -> int:
     return cmd if (servo_id == 0 and baudrate == _B115200) else cmd & 0x7F
 
 
+# What position_from_reply checks, as bytes a burst executor compares under a mask (no rule in C):
+# the header exactly, the two data bytes' MSB clear.
+_POSITION_REPLY_MASKS = bytes((0xFF, 0x80, 0x80))
+
+
+def position_reply_shape(header: int) -> bytes:
+    """The shape of a valid position reply with ``header``: three bytes wanted, then three masks (a
+    reply ``r`` has it when ``r[i] & mask[i] == wanted[i]``): exactly the replies
+    :func:`position_from_reply` takes (tests/test_protocol.py checks every reply)."""
+    return bytes((header, 0, 0)) + _POSITION_REPLY_MASKS
+
+
 def position_from_reply(buf: bytes | bytearray, offset: int, header: int) -> int:
     """The position in a 3-byte position reply at ``buf[offset:]``, or -1 if invalid.
 

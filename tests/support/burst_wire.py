@@ -2,14 +2,17 @@
 
 :class:`SimExecutor` does on a :class:`~.engine_support.Wire` what ``ics35_async._burst`` does on
 a real port (write each planned command, take the bytes that arrive until its expected count or
-its deadline, stop at a late, short, overlong or wrongly echoed transaction, or at a boundary once
-woken); :class:`BurstWire` is the Wire with the library's own :class:`BurstRunner` between the
-engine and the wire, so the same scenario can be run with and without bursts and compared.
+its deadline, stop at a late, short, overlong or wrongly echoed transaction, or one answered out of
+its planned shape, or at a boundary once woken); :class:`BurstWire` is the Wire with the library's
+own :class:`BurstRunner` between the engine and the wire, so the same scenario can be run with
+and without bursts and compared.
 """
 
 from __future__ import annotations
 
-from ics35_async.drivers.burst import DONE, LATE, MISMATCH, OVERRUN, WOKEN, BurstRunner, Record, Result
+from collections import Counter
+
+from ics35_async.drivers.burst import DONE, LATE, MISMATCH, OVERRUN, SHAPE, WOKEN, BurstRunner, Record, Result
 from ics35_async.engine import LineEngine, Request
 from ics35_async.engine.machine import PlannedTransaction
 
@@ -27,6 +30,7 @@ class SimExecutor:
         self.plan: tuple[float, list[PlannedTransaction]] | None = None
         self._result: Result | None = None
         self.runs = 0
+        self.stops: Counter[int] = Counter()  # why each run stopped (DONE, SHAPE, ...)
 
     def start(self, deadline: float, plan: list[PlannedTransaction]) -> None:
         self.woken = False
@@ -48,7 +52,7 @@ class SimExecutor:
         records: list[Record] = []
         t_start = 0.0
         status = DONE
-        for i, (tx, expect, echo, allowance) in enumerate(plan):
+        for i, (tx, expect, echo, allowance, shape) in enumerate(plan):
             if i:
                 if self.woken:
                     status = WOKEN
@@ -76,11 +80,17 @@ class SimExecutor:
                 if len(buf) > expect:
                     stop = OVERRUN
                     break
+            if stop == DONE and shape:
+                n = len(shape) // 2
+                reply, want, masks = buf[echo:], shape[:n], shape[n:]
+                if any(b & m != w for b, m, w in zip(reply, masks, want, strict=True)):
+                    stop = SHAPE
             records.append((bytes(buf), first, last))
             if stop != DONE:
                 status = stop
                 break
             t_start = last
+        self.stops[status] += 1
         self._result = (status, 0, records)
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 from ics35_async import protocol
 from ics35_async.engine import FlushInput, LineEngine, Output, Request
+from ics35_async.engine.source import Upcoming
 from ics35_async.errors import IcsError, ReplyError
 from ics35_async.protocol import Param, Position, ReadParam
 
@@ -217,7 +218,8 @@ class Servos:
     Every answer carries a fresh value (position replies 1..16383, parameter
     reads 1..127), so a reply taken for the wrong request shows.
     ``answers[k]`` is the value sent for write ``k`` (``None``: no reply);
-    the writes numbered in ``mute`` get their echo but no reply.
+    the writes numbered in ``mute`` get their echo but no reply, those in ``damaged`` a reply of the
+    right length whose last byte has its MSB set (a reply the codec refuses by its bytes alone).
     """
 
     def __init__(
@@ -229,6 +231,7 @@ class Servos:
         self.baudrate = baudrate
         self.answers: list[Any] = []
         self.mute: set[int] = set()
+        self.damaged: set[int] = set()
         self._serial = itertools.count(1)
 
     def value_for(self, command: protocol.Command[Any]) -> Any:
@@ -254,6 +257,8 @@ class Servos:
         if self.echo:
             wire.schedule(t + protocol.wire_time(len(tx), self.baudrate), tx, tag=len(self.answers))
         reply, value = self.reply_for(tx) if len(self.answers) not in self.mute else (None, None)
+        if reply is not None and len(self.answers) in self.damaged:
+            reply = reply[:-1] + bytes((reply[-1] | 0x80,))
         self.answers.append(value)
         if reply is not None:
             self.deliver(wire, tx, reply)
@@ -339,16 +344,18 @@ class FakeSource:
     def line_resumed(self, now: float) -> None:
         self.resumed.append(now)
 
-    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
-        """The rest of this round of the IDs (none with a period: each transaction waits for its own)."""
+    def upcoming(self, limit: int) -> list[Upcoming]:
+        """The one on the wire and the rest of this round of the IDs (none with a period: each
+        transaction waits for its own)."""
         if self.period or not self.active:
             return []
         n = len(self.ids)
         jobs = []
-        for k in range(self.k + 1, min((self.k // n + 1) * n, self.k + 1 + limit)):
+        for k in range(self.k, min((self.k // n + 1) * n, self.k + limit)):
             command = position(self.ids[k % n], 0)
             assert command.servo_id is not None
-            jobs.append((command.tx, command.reply_len, command.servo_id))
+            shape = protocol.position_reply_shape(command.reply_header)
+            jobs.append((command.tx, command.reply_len, command.servo_id, shape))
         return jobs
 
     def upcoming_done(self) -> None:

@@ -12,6 +12,7 @@ import random
 
 from ics35_async import protocol
 from ics35_async.engine import BusTiming, LineEngine
+from ics35_async.engine.source import Upcoming
 from ics35_async.errors import IcsError, ReplyError
 
 from .engine_support import Servos, Wire
@@ -78,8 +79,16 @@ class PacedCycle:
     def line_resumed(self, now: float) -> None:
         pass
 
-    def upcoming(self, limit: int) -> list[tuple[bytes, int, int]]:
-        return [(protocol.position_tx(sid, 7500), 3, sid) for sid in self.ids[self.pos + 1 : self.pos + 1 + limit]]
+    def upcoming(self, limit: int) -> list[Upcoming]:
+        return [
+            (
+                protocol.position_tx(sid, 7500),
+                3,
+                sid,
+                protocol.position_reply_shape(protocol.position_reply_header(sid, BAUD)),
+            )
+            for sid in self.ids[self.pos : self.pos + limit]
+        ]
 
     def upcoming_done(self) -> None:
         pass
