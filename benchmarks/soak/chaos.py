@@ -41,7 +41,6 @@ from ics35_async import (
     IcsError,
     open_bus,
 )
-from ics35_async.drivers.burst import burst_path
 from ics35_async.sim import (
     PtyServer,
     VirtualLine,
@@ -50,7 +49,7 @@ from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import CheckError, chaos_servos, is_stream_tx
 from tests.support.timing import FAST_TIMING
 
-from .common import Row, consistency_check, fault_spec, random_request, stream_target
+from .common import Row, burst_path_built, consistency_check, fault_spec, random_request, stream_target
 from .watchdog import under_watchdog, watched
 
 IN_PROCESS, PTY, PTY_BURST = "in-process", "pty", "pty, burst path"
@@ -249,12 +248,6 @@ async def served_on_a_pty(sim: VirtualLine) -> AsyncIterator[str]:
         server.stop()
         await asyncio.to_thread(thread.join)
         server.close()
-
-
-def burst_path_built() -> bool:
-    """Whether buses opened with ``ICS35_BURST=1`` take the burst path (the executor is built here)."""
-    with burst_setting("1"):
-        return burst_path()[0]
 
 
 async def chaos_run(

@@ -8,6 +8,7 @@ import random
 from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
+from benchmarks.bench_common import burst_setting
 from ics35_async import (
     Bus,
     Eeprom,
@@ -16,6 +17,7 @@ from ics35_async import (
     Servo,
     protocol,
 )
+from ics35_async.drivers.burst import burst_path
 from ics35_async.protocol import Command, Param
 from ics35_async.sim import (
     FaultConfig,
@@ -23,6 +25,12 @@ from ics35_async.sim import (
     VirtualLine,
 )
 from tests.support.oracle import FAULT_KINDS, band
+
+
+def burst_path_built() -> bool:
+    """Whether buses opened with ``ICS35_BURST=1`` take the burst path (the executor is built here)."""
+    with burst_setting("1"):
+        return burst_path()[0]
 
 
 def fault_spec(rate: float, kinds: Sequence[str] = FAULT_KINDS) -> str:

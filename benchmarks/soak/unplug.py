@@ -20,6 +20,7 @@ from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from benchmarks.bench_common import burst_setting
 from ics35_async import (
     Bus,
     IcsError,
@@ -35,7 +36,7 @@ from ics35_async.sim import (
 )
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 
-from .common import Row, ms
+from .common import Row, burst_path_built, ms
 from .watchdog import under_watchdog, watched
 
 
@@ -73,6 +74,8 @@ class UnplugReport:
     threads_before: int
     threads_after: int
     seconds: float
+    burst: bool = False  # run with the burst path on (ICS35_BURST=1)
+    burst_transactions: int = 0  # of the stream's transactions, those the compiled executor ran
 
     @property
     def passed(self) -> bool:
@@ -122,8 +125,9 @@ async def reconnect_session(
     report: dict[str, Any],
     unplug_rate: float = 0.002,
     patience: float = 6.0,
+    workers: int = 3,
 ) -> None:
-    """reconnect=True: a stream plus requests across repeated unplugs, at several down times.
+    """reconnect=True: a stream plus ``workers`` request loops across repeated unplugs, at several down times.
 
     The pty server unplugs after a transaction to ID 7 with probability
     ``unplug_rate`` (its ``unplug`` fault) and plugs back in after the down time.
@@ -164,12 +168,16 @@ async def reconnect_session(
                 targets = {i: 7000 + 100 * i for i in ids}
                 stream.set_targets(targets)
                 async with stream:
-                    workers = [asyncio.create_task(requests(k)) for k in range(3)]
+                    tasks = [asyncio.create_task(requests(k)) for k in range(workers)]
                     measured = 0  # unplugs whose resume was measured
                     backs_seen = 0  # replugs accounted for (measured, or cut short by the next unplug)
                     give_up = loop.time() + patience + cycles_each * (down + 1.5)
+                    runners: dict[int, Any] = {}  # each port's burst runner (a new one after a reconnect)
                     while measured < cycles_each and loop.time() < give_up:
                         frame = await stream.next_frame()
+                        runner = getattr(bus._driver, "burst", None)
+                        if runner is not None:
+                            runners[id(runner)] = runner
                         if frame.resumed:  # as a controller does: targets again, once it knows where it is
                             stream.set_targets(targets)
                         backs = [t for kind, t in watch.events if kind == "back"]
@@ -185,7 +193,8 @@ async def reconnect_session(
                                 measured += 1
                                 backs_seen = len(backs)
                     stop.set()
-                    await asyncio.gather(*workers)
+                    await asyncio.gather(*tasks)
+                    report["burst_transactions"] += sum(runner.transactions for runner in runners.values())
                 report["reconnects"] += bus.stats.reconnects
                 report["timeouts"] += bus.stats.total.timeouts
         finally:
@@ -284,14 +293,22 @@ def new_unplug_tally() -> dict[str, Any]:
         "wrong": 0,
         "reconnects": 0,
         "timeouts": 0,  # transactions the bus gave up on (a reply late on a loaded machine among them)
+        "burst_transactions": 0,  # those the compiled executor ran (with ICS35_BURST=1)
     }
 
 
 @under_watchdog("unplug")
 async def unplug_soak(
-    down_times: Sequence[float] = (0.05, 0.2, 0.5, 0.856, 1.4, 1.856, 2.4), cycles_each: int = 3, seed: int = 3
+    down_times: Sequence[float] = (0.05, 0.2, 0.5, 0.856, 1.4, 1.856, 2.4),
+    cycles_each: int = 3,
+    seed: int = 3,
+    *,
+    burst: bool = False,
 ) -> UnplugReport:
     """The pty simulator's device vanishes and returns (same path), again and again.
+
+    ``burst``: with the burst path on (``ICS35_BURST=1``), where the executor is built, and one request
+    loop instead of three, so that the stream has the line most of the time.
 
     The down times include the worst case of the default reconnect backoff
     (0.05, 0.1, 0.2, 0.5, 1.0 s): a device that returns just after the 4th or
@@ -301,8 +318,9 @@ async def unplug_soak(
     await asyncio.sleep(0)
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
     report = new_unplug_tally()
-    await reconnect_session(down_times, cycles_each, seed, report)
-    await no_reconnect_session(report)
+    with burst_setting("1" if burst else "0"):
+        await reconnect_session(down_times, cycles_each, seed, report, workers=1 if burst else 3)
+        await no_reconnect_session(report)
     await asyncio.sleep(0.05)  # closing transports release their fds on the next loop passes
     resume = [c.resume_s for c in report["cycles"]]
     return UnplugReport(
@@ -327,12 +345,14 @@ async def unplug_soak(
         threads_before=threads0,
         threads_after=non_executor_threads(),
         seconds=time.perf_counter() - t0,
+        burst=burst,
+        burst_transactions=report["burst_transactions"],
     )
 
 
 def summarize_unplug(r: UnplugReport) -> list[Row]:
     downs = sorted({round(c.down_s, 2) for c in r.reconnect_cycles})
-    return [
+    rows: list[Row] = [
         (
             "unplug: stream resumes after the device returns",
             f"median {ms(r.resume_s_median)}, max {ms(r.resume_s_max)} over {len(r.reconnect_cycles)} unplugs "
@@ -357,3 +377,15 @@ def summarize_unplug(r: UnplugReport) -> list[Row]:
             r.tasks_after == r.tasks_before and r.fds_after == r.fds_before and r.threads_after == r.threads_before,
         ),
     ]
+    if not r.burst:
+        return rows
+    built = burst_path_built()
+    rows.insert(
+        0,
+        (
+            "unplug: stream transactions the compiled executor ran",
+            f"{r.burst_transactions:,}" + ("" if built else " (the executor is not built here)"),
+            r.burst_transactions > 0 if built else None,
+        ),
+    )
+    return [("unplug, burst path" + name.removeprefix("unplug"), value, ok) for name, value, ok in rows]

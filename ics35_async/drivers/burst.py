@@ -57,8 +57,8 @@ def burst_path() -> tuple[bool, str]:
     """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
     doctor, after :data:`PATH_NAME`).
 
-    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU and rate goals, and the long soaks do not
-    run on it (their simulator has no descriptor).
+    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU and rate goals (the chaos and unplug soaks
+    run on it over a pty; the cancellation soak's in-process simulator has no descriptor).
     """
     if os.environ.get(ENV, "").strip().lower() not in ("1", "on", "yes", "true"):
         return False, f"off (optional; {ENV}=1 turns it on)"
