@@ -308,7 +308,9 @@ class Stream(FrameIterator[Frame]):
         return self._t0 + self._cycle / self.rate_hz
 
     def _next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
-        if not self._running:
+        if not self._running and not (self._pos < len(self._order) and self._order[self._pos] in self._frozen):
+            # (stopped: nothing more, but what a running burst planned, and so already put on the line,
+            # until the burst is over: the engine is fed it afterwards, and the detach waits for it)
             return None
         if self._pos >= len(self._order) and not self._start_cycle(now):
             return None
@@ -600,10 +602,13 @@ class Stream(FrameIterator[Frame]):
     def _stop(self, *, detach: bool = True) -> None:
         self._running = False
         self._closed = True
-        self._cur = -1
         self._wake_at = INF
         if detach:
+            # The reply on the wire (and what a running burst sent) still reaches these hooks until the
+            # engine detaches them; the engine hears no reply of a source it has detached.
             self.bus.detach_source(self._hooks)
+        else:
+            self._cur = -1
         self.bus.notify(self._wake_waiters)
 
     async def __aenter__(self) -> Stream:

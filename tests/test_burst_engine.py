@@ -258,9 +258,13 @@ class QuietLine:
 
     def __init__(self) -> None:
         self.kicks = 0
+        self.detached: Any = None
 
     def kick(self) -> None:
         self.kicks += 1
+
+    def detach_source(self, source: Any) -> None:
+        self.detached = source
 
     def notify(self, callback: Any) -> None:
         callback()
@@ -292,3 +296,24 @@ def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_th
     job = hooks.next_transaction(0.002)
     assert job == (protocol.ReadPosition(3).tx, protocol.ReadPosition(3).reply_len, 3)  # the change applies now
     assert stream._jobs[1] == (protocol.position_tx(2, 8000), 3, 2)
+
+
+def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already_sent() -> None:
+    # The program closes the stream while the executor runs the planned cycle: the engine, fed the
+    # burst afterwards, must find the stream offering what the executor already put on the line (its
+    # detach waits for the burst to stop); once the burst is over it offers nothing more.
+    line = QuietLine()
+    stream = Stream(line, [1, 2, 3])  # type: ignore[arg-type]
+    stream._running = True
+    hooks = stream._hooks
+    assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
+    assert len(hooks.upcoming(10)) == 3
+    stream._stop()
+    assert line.detached is hooks
+    reply = bytearray(protocol.position_tx(1, protocol.FREE) + bytes((1, 58, 76)))
+    assert hooks.complete(reply, 3, 0.001) is None
+    assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)  # sent by the burst
+    hooks.upcoming_done()
+    reply = bytearray(protocol.position_tx(2, protocol.FREE) + bytes((2, 58, 76)))
+    assert hooks.complete(reply, 3, 0.002) is None
+    assert hooks.next_transaction(0.002) is None  # the burst is over: the stop applies
