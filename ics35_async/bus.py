@@ -398,7 +398,8 @@ class Bus:
         driver = self._driver
         if driver is None or not self.is_open:
             raise self._not_open_error()
-        driver.call(lambda t: engine.attach_source(source, t))
+        # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
+        driver.call_now(lambda t: engine.attach_source(source, t))
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""

@@ -15,7 +15,7 @@ from collections.abc import AsyncIterator, Iterator
 import anyio
 import pytest
 
-from ics35_async import Bus, BusClosed, BusGroup, ReplyTimeout, open_bus, protocol
+from ics35_async import Bus, BusClosed, BusGroup, InvalidArgument, ReplyTimeout, open_bus, protocol
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.conftest import SIM_LAST, every_backend, sim_notes
@@ -171,3 +171,23 @@ async def test_protocol_commands_through_request(bus: Bus) -> None:
     assert await bus.request(protocol.ReadParam(6, protocol.Param.STRETCH)) == await bus.servo(6).read_stretch()
     assert await bus.request(protocol.WriteParam(6, protocol.Param.SPEED, 77)) == 77
     assert await bus.servo(6).read_speed() == 77
+
+
+@every_case
+async def test_a_second_stream_is_refused_at_once_and_one_started_right_after_a_close_runs(bus: Bus) -> None:
+    # On the burst path the first stream's transactions run in the executor while the program acts:
+    # the refusal must still reach the caller (not be deferred to where the burst stops), and a close
+    # followed at once by a new stream must hand the line over.
+    first = bus.stream([1, 2, 3])
+    async with first:
+        await first.next_frame()
+        await first.next_frame()
+        with pytest.raises(InvalidArgument, match="already runs a stream"):
+            await bus.stream([4, 5]).start()
+        frame = await first.next_frame()  # the line carries on
+        assert set(frame.positions) == {1, 2, 3}
+    for ids in ([4, 5], [1, 6], [2, 3, 7]):
+        async with bus.stream(ids) as stream:
+            frame = await stream.next_frame()
+            frame = await stream.next_frame()
+            assert set(frame.positions) == set(ids)

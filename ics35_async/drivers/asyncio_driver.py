@@ -144,14 +144,14 @@ class AsyncioDriver(LoopDriver):
         self.cancel_timer()  # and keeps the deadlines
         return True
 
-    def _burst_done(self, *, wait: bool = False) -> None:
+    def _burst_done(self, *, wait: bool = False, close: bool = False) -> None:
         burst = self.burst
         if burst is None or not burst.running:
             return
         done, out = burst.finish(now, wait=wait)
         if not done:
             return
-        if wait:
+        if close:
             self._close_burst()  # closing or reopening: the rest goes the ordinary way
         port = self.port
         if not isinstance(port, TtyPort):
@@ -166,9 +166,12 @@ class AsyncioDriver(LoopDriver):
         # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
         # knowing what was on the wire.
         if self.bursting:
-            self._burst_done(wait=True)
+            self._burst_done(wait=True, close=True)
         else:
             self._close_burst()
+
+    def _end_burst(self) -> None:
+        self._burst_done(wait=True)
 
     def _close_burst(self) -> None:
         burst, self.burst = self.burst, None

@@ -35,6 +35,9 @@ class Driver(Protocol):
     def call(self, step: Callable[[float], bytes | None]) -> None:
         """Run an engine call, given the time, where the engine may be touched; act on its answer."""
 
+    def call_now(self, step: Callable[[float], bytes | None]) -> None:
+        """As :meth:`call`, at once: what the step raises reaches the caller."""
+
     def notify(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` on the caller's event loop (the engine may run elsewhere)."""
 

@@ -194,6 +194,9 @@ class DriverCore:
     def _stop_burst(self) -> None:
         """Closing or reopening: a running burst stops at its next boundary and is fed to the engine."""
 
+    def _end_burst(self) -> None:
+        """A running burst stops at its next boundary and is fed to the engine (later ones may run)."""
+
     def _write_blocked(self, port: Port) -> None:
         """Part of a write waits in the tty's ``pending``: wait for the port to take it."""
 
@@ -353,6 +356,16 @@ class DriverCore:
                 burst.hold(step)  # where the burst stops (mid-transaction then: nothing to write)
             else:
                 self._after(step(now()))
+
+    def call_now(self, step: Callable[[float], Output]) -> None:
+        """As :meth:`call`, but at once, so that what the step raises reaches the caller: a running
+        burst is stopped at its next boundary first (a wait of one transaction at most).  For a call the
+        engine may refuse (attaching a stream while another runs)."""
+        with self.lock:
+            burst = self.burst
+            if burst is not None and burst.running:
+                self._end_burst()
+            self._after(step(now()))
 
     # ------------------------------------------------------------------ waiting for quiet; closing
 
