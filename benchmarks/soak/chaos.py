@@ -28,10 +28,9 @@ import asyncio
 import contextlib
 import math
 import random
-import threading
 import time
 from collections import Counter
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,19 +41,24 @@ from ics35_async import (
     open_bus,
 )
 from ics35_async.sim import (
-    PtyServer,
     VirtualLine,
 )
 from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import CheckError, chaos_servos, is_stream_tx
 from tests.support.timing import FAST_TIMING
 
-from .common import Row, burst_path_built, consistency_check, fault_spec, random_request, stream_target
+from .common import (
+    IN_PROCESS,
+    PTY_BURST,
+    Row,
+    burst_path_built,
+    consistency_check,
+    fault_spec,
+    random_request,
+    served_on_a_pty,
+    stream_target,
+)
 from .watchdog import under_watchdog, watched
-
-IN_PROCESS, PTY, PTY_BURST = "in-process", "pty", "pty, burst path"
-"""Where the chaos soak's simulator answers: in this process as a WireDevice, or on a pty with the bus on the
-ordinary path or on the burst path (see the module)."""
 
 
 @dataclass
@@ -233,21 +237,6 @@ class ChaosReport:
         """Real time decides how bytes split between reads (over a pty): rejected valid replies and
         differing error classes are counted, not targets."""
         return self.link != IN_PROCESS
-
-
-@contextlib.asynccontextmanager
-async def served_on_a_pty(sim: VirtualLine) -> AsyncIterator[str]:
-    """``sim`` answering on a pty from a thread of this process (its log stays readable here); yields the path."""
-    server = PtyServer(sim)
-    path = str(server.open())
-    thread = threading.Thread(target=server.serve, name="chaos pty server", daemon=True)
-    thread.start()
-    try:
-        yield path
-    finally:
-        server.stop()
-        await asyncio.to_thread(thread.join)
-        server.close()
 
 
 async def chaos_run(

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import math
 import random
-from collections.abc import Awaitable, Callable, Sequence
+import threading
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any
 
 from benchmarks.bench_common import burst_setting
@@ -22,9 +24,29 @@ from ics35_async.protocol import Command, Param
 from ics35_async.sim import (
     FaultConfig,
     FaultInjector,
+    PtyServer,
     VirtualLine,
 )
 from tests.support.oracle import FAULT_KINDS, band
+
+IN_PROCESS, PTY, PTY_BURST = "in-process", "pty", "pty, burst path"
+"""Where a soak's simulator answers: in this process as a WireDevice, or on a pty with the bus on the ordinary
+path or on the burst path (see the chaos soak's module)."""
+
+
+@contextlib.asynccontextmanager
+async def served_on_a_pty(sim: VirtualLine) -> AsyncIterator[str]:
+    """``sim`` answering on a pty from a thread of this process (its log stays readable here); yields the path."""
+    server = PtyServer(sim)
+    path = str(server.open())
+    thread = threading.Thread(target=server.serve, name="soak pty server", daemon=True)
+    thread.start()
+    try:
+        yield path
+    finally:
+        server.stop()
+        await asyncio.to_thread(thread.join)
+        server.close()
 
 
 def burst_path_built() -> bool:

@@ -58,6 +58,10 @@ class RequestRecord:
     log_mark: int  # sim.transactions when it finished: its entries are all below this
 
 
+REALTIME_LAG = 8
+"""Transactions the log may trail a request's outcome by when the simulator answers on a real port."""
+
+
 @dataclass
 class MatchCounts:
     entries: int = 0
@@ -99,7 +103,9 @@ class LogMatcher:
     :meth:`match` to pair what can be paired.
 
     ``realtime``: the simulator answers through a real port (a pty), where the bytes of one
-    transaction may arrive in several reads.  The predictor judges the bytes as one piece, as the
+    transaction may arrive in several reads, and an outcome may come before the simulator's thread
+    has logged its command (requests are then matched once :data:`REALTIME_LAG` more are logged).
+    The predictor judges the bytes as one piece, as the
     in-process line delivers them; across a port, noise on the idle line after a whole reply may
     come after the bus has taken the reply, so what the bytes without the noise call for is then
     right too (counted as ``noise_after_reply``, then checked as any accepted reply).
@@ -268,7 +274,9 @@ class LogMatcher:
                 self._settle(seq, verdict, clean, fault, ok, value, when)
             if outcomes and final:
                 raise CheckError(f"ID {sid}: {len(outcomes)} stream outcomes with no log entry")
-        drained_to = self.next_seq or 0
+        # (real time: an outcome may come before the simulator's thread has logged its command, but not
+        # after the line has run a few more transactions)
+        drained_to = (self.next_seq or 0) - (REALTIME_LAG if self.realtime else 0)
         for sid, records in self.requests.items():
             attempts = self.request_entries[sid]
             while records and (records[0].log_mark <= drained_to or final):
