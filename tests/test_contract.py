@@ -15,7 +15,7 @@ from collections.abc import AsyncIterator, Iterator
 import anyio
 import pytest
 
-from ics35_async import Bus, BusClosed, BusGroup, InvalidArgument, ReplyTimeout, open_bus, protocol
+from ics35_async import Bus, BusClosed, BusGroup, InvalidArgument, ReplyTimeout, Stream, open_bus, protocol
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.conftest import SIM_LAST, every_backend, sim_notes
@@ -173,6 +173,15 @@ async def test_protocol_commands_through_request(bus: Bus) -> None:
     assert await bus.servo(6).read_speed() == 77
 
 
+async def answered_by_all(stream: Stream, ids: list[int], frames: int = 20) -> bool:
+    """Whether a frame in which every one of ``ids`` answered comes within ``frames`` frames (on a loaded
+    machine a stream transaction may give up after its short wait: that frame lacks the servo)."""
+    for _ in range(frames):
+        if set((await stream.next_frame()).positions) == set(ids):
+            return True
+    return False
+
+
 @every_case
 async def test_a_second_stream_is_refused_at_once_and_one_started_right_after_a_close_runs(bus: Bus) -> None:
     # On the burst path the first stream's transactions run in the executor while the program acts:
@@ -181,13 +190,9 @@ async def test_a_second_stream_is_refused_at_once_and_one_started_right_after_a_
     first = bus.stream([1, 2, 3])
     async with first:
         await first.next_frame()
-        await first.next_frame()
         with pytest.raises(InvalidArgument, match="already runs a stream"):
             await bus.stream([4, 5]).start()
-        frame = await first.next_frame()  # the line carries on
-        assert set(frame.positions) == {1, 2, 3}
+        assert await answered_by_all(first, [1, 2, 3])  # the line carries on
     for ids in ([4, 5], [1, 6], [2, 3, 7]):
         async with bus.stream(ids) as stream:
-            frame = await stream.next_frame()
-            frame = await stream.next_frame()
-            assert set(frame.positions) == set(ids)
+            assert await answered_by_all(stream, ids)
