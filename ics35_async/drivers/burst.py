@@ -6,9 +6,9 @@ the stream keep the line.  The executor (:mod:`ics35_async._burst`, C, in a thre
 without the GIL) writes each command and reads its echo and reply, and stops at the first one that
 is late, short, not echoed as sent or answered out of the shape the source gave for its reply (the
 source would refuse that reply, and the burst's later commands must not go out after it), or at a
-boundary once woken.  :func:`feed` then hands every
-byte to the engine with the time it came, so the engine judges each transaction as if the bytes
-had come one by one: no rule lives in the executor.
+boundary once woken.  :func:`feed` then hands every byte to the engine with the time it came, so
+the engine judges each transaction as if the bytes had come one by one: no rule lives in the
+executor.
 
 What arrives from the program during a burst waits for the boundary where the burst stops: a
 request (the burst is woken when the sharing rule would give it the line at the next boundary),
@@ -57,8 +57,8 @@ def burst_path() -> tuple[bool, str]:
     """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
     doctor, after :data:`PATH_NAME`).
 
-    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU and rate goals (the chaos and unplug soaks
-    run on it over a pty; the cancellation soak's in-process simulator has no descriptor).
+    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU and rate goals (the chaos, cancellation
+    and unplug soaks run on it over a pty, and pass).
     """
     if os.environ.get(ENV, "").strip().lower() not in ("1", "on", "yes", "true"):
         return False, f"off (optional; {ENV}=1 turns it on)"

@@ -309,9 +309,9 @@ class LineEngine:
         source keeps the planned transactions as they are until :meth:`burst_over`.
 
         The executor runs the plan, stops at the first transaction that is late, short, not
-        echoed as sent or answered out of shape, or at a boundary when woken; the driver then feeds every byte through
-        :meth:`receive` (and the deadline through :meth:`tick`) with the times they came, so the
-        engine judges them exactly as if they had come one by one.
+        echoed as sent or answered out of shape, or at a boundary when woken; the driver then
+        feeds every byte through :meth:`receive` (and the deadline through :meth:`tick`) with the
+        times they came, so the engine judges them exactly as if they had come one by one.
         """
         source = self._source
         if (
