@@ -146,13 +146,24 @@ def test_beside_a_paced_stream_a_normal_request_waits_for_the_slack_and_an_urgen
     assert normal.write_index == cycle_end + 1  # after the whole cycle (with the urgent one in it)
 
 
-def test_the_burst_stops_at_the_first_fault_and_the_engine_judges_it() -> None:
+def stream_line(
+    wire_class: type[Wire], *, mute: set[int] | None = None, damaged: set[int] | None = None
+) -> tuple[Wire, FakeSource, Servos]:
+    """A FakeSource streaming over IDS on ``wire_class``; the writes in ``mute`` get no reply, those in
+    ``damaged`` one the stream refuses (see Servos)."""
     engine = ready_engine()
     servos = Servos(IDS)
-    servos.mute = {4}
-    wire = BurstWire(engine, servos)
+    servos.mute = mute or set()
+    servos.damaged = damaged or set()
+    wire = wire_class(engine, servos)
     source = FakeSource(IDS)
     wire.emit(engine.attach_source(source, wire.now))
+    return wire, source, servos
+
+
+def test_the_burst_stops_at_the_first_fault_and_the_engine_judges_it() -> None:
+    wire, source, _ = stream_line(BurstWire, mute={4})
+    engine = wire.engine
     wire.run_for(0.05)
     assert len(source.failures) == 1 and type(source.failures[0]).__name__ == "ReplyTimeout"
     assert engine.counters.resyncs == 1
@@ -226,12 +237,7 @@ def test_a_reply_only_the_engine_refuses_ends_the_burst_there_and_the_line_goes_
     # error): the stream refuses it.  The executor must stop there (its plan gave the reply's shape),
     # not send the cycle's next commands, which the engine would take for strays and send again.
     def line(wire_class: type[Wire]) -> tuple[Wire, FakeSource, Servos]:
-        engine = ready_engine()
-        servos = Servos(IDS)
-        servos.damaged = {20}
-        wire = wire_class(engine, servos)
-        source = FakeSource(IDS)
-        wire.emit(engine.attach_source(source, wire.now))
+        wire, source, servos = stream_line(wire_class, damaged={20})
         wire.run_for(0.001)
         assert len(wire.writes) < 20
         wire.run_for(0.2)
@@ -270,11 +276,21 @@ class QuietLine:
         callback()
 
 
-def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_the_stop() -> None:
+def streaming(ids: list[int]) -> tuple[QuietLine, Stream, Any]:
+    """A running stream on a :class:`QuietLine`, and its hooks (the engine's side, called by hand)."""
     line = QuietLine()
-    stream = Stream(line, [1, 2, 3])  # type: ignore[arg-type]
+    stream = Stream(line, ids)  # type: ignore[arg-type]
     stream._running = True
-    hooks = stream._hooks
+    return line, stream, stream._hooks
+
+
+def answer_to_free(sid: int) -> bytearray:
+    """The echo of a free command to ``sid`` and its reply (position 7500)."""
+    return bytearray(protocol.position_tx(sid, protocol.FREE) + bytes((sid, 58, 76)))
+
+
+def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_the_stop() -> None:
+    line, stream, hooks = streaming([1, 2, 3])
     assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
     shapes = {
         sid: protocol.position_reply_shape(protocol.position_reply_header(sid, line.baudrate)) for sid in (1, 2, 3)
@@ -287,12 +303,10 @@ def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_th
     assert line.kicks == 1
     stream.watch([3])
     assert line.kicks == 2
-    reply = bytearray(protocol.position_tx(1, protocol.FREE) + bytes((1, 58, 76)))
-    assert hooks.complete(reply, 3, 0.001) is None
+    assert hooks.complete(answer_to_free(1), 3, 0.001) is None
     assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)  # as planned
     hooks.upcoming_done()
-    reply = bytearray(protocol.position_tx(2, protocol.FREE) + bytes((2, 58, 76)))
-    assert hooks.complete(reply, 3, 0.002) is None  # read as the command that was sent
+    assert hooks.complete(answer_to_free(2), 3, 0.002) is None  # read as the command that was sent
     job = hooks.next_transaction(0.002)
     assert job == (protocol.ReadPosition(3).tx, protocol.ReadPosition(3).reply_len, 3)  # the change applies now
     assert stream._jobs[1] == (protocol.position_tx(2, 8000), 3, 2)
@@ -302,18 +316,13 @@ def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already
     # The program closes the stream while the executor runs the planned cycle: the engine, fed the
     # burst afterwards, must find the stream offering what the executor already put on the line (its
     # detach waits for the burst to stop); once the burst is over it offers nothing more.
-    line = QuietLine()
-    stream = Stream(line, [1, 2, 3])  # type: ignore[arg-type]
-    stream._running = True
-    hooks = stream._hooks
+    line, stream, hooks = streaming([1, 2, 3])
     assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
     assert len(hooks.upcoming(10)) == 3
     stream._stop()
     assert line.detached is hooks
-    reply = bytearray(protocol.position_tx(1, protocol.FREE) + bytes((1, 58, 76)))
-    assert hooks.complete(reply, 3, 0.001) is None
+    assert hooks.complete(answer_to_free(1), 3, 0.001) is None
     assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)  # sent by the burst
     hooks.upcoming_done()
-    reply = bytearray(protocol.position_tx(2, protocol.FREE) + bytes((2, 58, 76)))
-    assert hooks.complete(reply, 3, 0.002) is None
+    assert hooks.complete(answer_to_free(2), 3, 0.002) is None
     assert hooks.next_transaction(0.002) is None  # the burst is over: the stop applies
