@@ -326,3 +326,26 @@ def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already
     hooks.upcoming_done()
     assert hooks.complete(answer_to_free(2), 3, 0.002) is None
     assert hooks.next_transaction(0.002) is None  # the burst is over: the stop applies
+
+
+def test_a_stream_closed_during_a_burst_keeps_the_line_for_what_the_burst_already_sent() -> None:
+    # A paced stream's request that waits for the slack is still queued when the program closes the
+    # stream mid-burst: the engine, fed the burst afterwards, must not give the next boundary to it,
+    # since the executor already put the stream's planned command there (the cancellation soak on the
+    # burst path stopped on "the engine wants b'\xac\x03', the burst sent b'\x81 n'").
+    line = QuietLine()
+    stream = Stream(line, [1, 2, 3], rate_hz=50)  # type: ignore[arg-type]
+    stream._running = True
+    hooks = stream._hooks
+    assert hooks.next_transaction(0.0) is not None
+    assert hooks.slot_due(0.0) == 0.0  # a cycle runs: its transactions go first
+    assert len(hooks.upcoming(10)) == 3
+    stream._stop()
+    assert hooks.complete(answer_to_free(1), 3, 0.001) is None
+    assert hooks.slot_due(0.001) == 0.001  # the planned one is on the line: it still goes first
+    assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)
+    hooks.upcoming_done()
+    assert hooks.complete(answer_to_free(2), 3, 0.002) is None
+    assert hooks.slot_due(0.002) is None  # the burst is over: the stop applies, requests go
+    assert hooks.next_transaction(0.002) is None
+
