@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from ics35_async import protocol
+from ics35_async.drivers import burst
 from ics35_async.drivers.burst import ENV as BURST_ENV
 from ics35_async.sim import DEFAULT_TURNAROUND, serving
 
@@ -106,13 +107,22 @@ def vm_rss_kib() -> int:
 
 
 @contextlib.contextmanager
-def burst_setting(value: str) -> Iterator[None]:
-    """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one)."""
+def burst_setting(value: str, *, beside_requests: bool = False) -> Iterator[None]:
+    """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one).
+
+    ``beside_requests``: bursts run even while the program sends requests (the library pauses them then:
+    :data:`ics35_async.drivers.burst.REQUESTS_ABOUT`), so that requests arrive mid-burst: what the soaks
+    put the burst path through.
+    """
     before = os.environ.get(BURST_ENV)
+    pause = burst.REQUESTS_ABOUT
     os.environ[BURST_ENV] = value
+    if beside_requests:
+        burst.REQUESTS_ABOUT = 0.0
     try:
         yield
     finally:
+        burst.REQUESTS_ABOUT = pause
         if before is None:
             del os.environ[BURST_ENV]
         else:

@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 
 from ics35_async import protocol
+from ics35_async.drivers import burst
 from ics35_async.drivers.burst import SHAPE
 from ics35_async.engine import LineEngine, Priority
 from ics35_async.protocol import Position
@@ -27,6 +28,13 @@ from .support.paced_line import BAUD as PACED_BAUD
 from .support.paced_line import PERIOD, PacedCycle
 
 IDS = list(range(1, 9))
+
+
+@pytest.fixture(autouse=True)
+def bursts_beside_requests(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Bursts run beside requests (the library pauses them while requests are about), so that
+    requests arrive mid-burst: the rules that decide where they go are what these tests compare."""
+    monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.0)
 
 
 def summary(wire: Wire, requests: list[Recorded]) -> dict[str, Any]:
@@ -128,6 +136,33 @@ def test_a_request_arriving_mid_burst_takes_the_next_boundary_beside_an_unpaced_
     submitted_in = max(i for i, (t, _) in enumerate(wire.writes) if t <= 0.0101)
     assert k == submitted_in + 1  # the transaction after the one on the wire when it came
     assert wire.executor.runs > 2
+
+
+def test_no_burst_starts_while_requests_are_about_and_whole_cycles_burst_again_after(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A request that arrives mid-burst goes out only once the burst's bytes so far are fed to the
+    # engine: while the program sends requests, the stream takes the ordinary path.
+    monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.5)
+    ids = list(range(16))
+    engine = ready_engine()
+    wire = BurstWire(engine, Servos(ids))
+    wire.emit(engine.attach_source(FakeSource(ids), wire.now))
+    wire.run_for(0.05)
+    lengths = wire.executor.plan_lengths
+    assert max(lengths) == len(ids)  # no request yet: the one on the wire and the rest of its cycle
+    requests = [Recorded(read(k % 16), wire=wire) for k in range(20)]
+    for k, request in enumerate(requests):  # a poller: a read every 10 ms for 0.2 s
+        wire.at(0.05 + 0.01 * k, lambda request=request: wire.submit(request))
+    wire.run_for(0.01)  # the first request came mid-burst
+    before = len(lengths)
+    writes = len(wire.writes)
+    wire.run_for(0.2)
+    assert all(r.state == "done" for r in requests)
+    assert len(lengths) == before  # no burst since
+    assert len(wire.writes) - writes > 100  # while the stream ran on, the ordinary way
+    wire.run_for(0.5)
+    assert max(lengths[before:]) == len(ids)  # the requests have stopped: whole cycles again
 
 
 def test_beside_a_paced_stream_a_normal_request_waits_for_the_slack_and_an_urgent_one_does_not() -> None:
@@ -348,4 +383,3 @@ def test_a_stream_closed_during_a_burst_keeps_the_line_for_what_the_burst_alread
     assert hooks.complete(answer_to_free(2), 3, 0.002) is None
     assert hooks.slot_due(0.002) is None  # the burst is over: the stop applies, requests go
     assert hooks.next_transaction(0.002) is None
-

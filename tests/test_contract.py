@@ -16,6 +16,7 @@ import anyio
 import pytest
 
 from ics35_async import Bus, BusClosed, BusGroup, InvalidArgument, ReplyTimeout, Stream, open_bus, protocol
+from ics35_async.drivers import burst
 from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import start_subprocess, stop_subprocess
 from tests.conftest import SIM_LAST, every_backend, sim_notes
@@ -64,13 +65,15 @@ async def bus(
     """The case's bus on IDs 0-7: its driver, under its library, to its far end.
 
     The asyncio driver on a pty takes the burst path where it is built ("pty" turns it on, as
-    ICS35_BURST=1 does); "pty-ordinary" leaves it off (the default).
+    ICS35_BURST=1 does, and lets bursts run beside requests, which the library pauses them for, so
+    that requests arrive mid-burst); "pty-ordinary" leaves it off (the default).
     """
     port = request.getfixturevalue("pty_port") if far.startswith("pty") else "sim://?ids=0-7"
     if far == "pty-ordinary":
         monkeypatch.delenv(ENV, raising=False)
     else:
         monkeypatch.setenv(ENV, "1")
+        monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.0)
     bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
     # PATIENT: on a machine loaded by parallel tests a pty server can answer 50 ms late; the few
     # timeouts the scenarios expect (an absent ID) cost their half second each.

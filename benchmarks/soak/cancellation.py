@@ -104,7 +104,7 @@ async def cancellation_soak(
             bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))
         else:
             path = await stack.enter_async_context(served_on_a_pty(sim))
-            with burst_setting("1" if link == PTY_BURST else "0"):
+            with burst_setting("1" if link == PTY_BURST else "0", beside_requests=True):
                 bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING))
         stack.push_async_callback(bus.aclose)
         report = await _cancel(sim, bus, cancellations, seed, concurrency, stream_share, link)

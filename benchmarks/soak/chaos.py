@@ -255,7 +255,7 @@ async def chaos_run(
         stack.callback(sim.close)
         if link != IN_PROCESS:
             path = await stack.enter_async_context(served_on_a_pty(sim))
-            with burst_setting("1" if link == PTY_BURST else "0"):
+            with burst_setting("1" if link == PTY_BURST else "0", beside_requests=True):
                 bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING))
         else:
             bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))

@@ -318,7 +318,7 @@ async def unplug_soak(
     await asyncio.sleep(0)
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
     report = new_unplug_tally()
-    with burst_setting("1" if burst else "0"):
+    with burst_setting("1" if burst else "0", beside_requests=True):
         await reconnect_session(down_times, cycles_each, seed, report, workers=1 if burst else 3)
         await no_reconnect_session(report)
     await asyncio.sleep(0.05)  # closing transports release their fds on the next loop passes

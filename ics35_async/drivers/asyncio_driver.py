@@ -138,7 +138,7 @@ class AsyncioDriver(LoopDriver):
 
     def _start_burst(self, burst: BurstRunner) -> bool:
         port = self.port
-        if not isinstance(port, TtyPort) or not burst.start():
+        if not isinstance(port, TtyPort) or not burst.start(now()):
             return False
         self.loop.remove_reader(port.fd)  # the executor reads the port now
         self.cancel_timer()  # and keeps the deadlines

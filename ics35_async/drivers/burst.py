@@ -14,7 +14,10 @@ What arrives from the program during a burst waits for the boundary where the bu
 request (the burst is woken when the sharing rule would give it the line at the next boundary),
 a new target, a detached stream (each wakes it).  They reach the engine before the last
 transaction's bytes, so the engine decides at that boundary exactly as it would have without the
-burst.
+burst.  Feeding takes time (about 15 us a transaction in CPython), and a request's command goes out
+only after the burst's bytes so far are fed: while the program sends requests (one in the last
+:data:`REQUESTS_ABOUT` seconds), no burst starts, so telemetry beside a stream waits as it does
+without bursts.
 
 Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
 without a file descriptor -- or unless ``ICS35_BURST=1`` is set, every transaction takes the
@@ -24,6 +27,7 @@ ordinary path.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Callable
 from typing import Any
@@ -46,6 +50,13 @@ Record = tuple[bytes, float, float]
 Result = tuple[int, int, list[Record]]
 log = logging.getLogger("ics35_async")
 MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
+REQUESTS_ABOUT = 1.0
+"""Seconds after the program's last request during which the stream takes the ordinary path.  A request
+that arrives during a burst goes out only once the burst's bytes so far are fed to the engine (about
+15 us a transaction in CPython, plus a hand-off between threads), so telemetry beside a stream would
+wait longer with bursts than without; with no burst to feed, it waits exactly as on the ordinary path.
+Read as a port's burst path opens (the burst path's tests and soaks set it to 0 to put requests
+arriving mid-burst through it)."""
 ENV = "ICS35_BURST"
 
 
@@ -143,6 +154,8 @@ class BurstRunner:
         self.errno = 0
         self.bursts = 0
         self.transactions = 0
+        self.pause = REQUESTS_ABOUT  # no burst for this long after a request
+        self.requested_at = -math.inf  # when the program last sent a request on this line
 
     @property
     def done_fd(self) -> int:
@@ -153,10 +166,10 @@ class BurstRunner:
     def running(self) -> bool:
         return self.plan is not None
 
-    def start(self) -> bool:
+    def start(self, now: float) -> bool:
         """Run a burst from the transaction the engine just put on the wire (the executor writes it);
-        False: write it the ordinary way."""
-        if self._pending():
+        False: write it the ordinary way (also while requests are about: see :data:`REQUESTS_ABOUT`)."""
+        if self._pending() or now - self.requested_at < self.pause:
             return False
         planned = self.engine.plan_burst()
         if planned is None:
@@ -176,11 +189,16 @@ class BurstRunner:
         if wake:
             self.executor.wake()
 
-    def submit(self, request: Request, now: float) -> None:
-        """A request arrived during the burst: it joins the queue where the burst stops, which is the
-        next boundary if the sharing rule gives it the line there."""
+    def submit(self, request: Request, now: float) -> bool:
+        """A request from the program.  During a burst it joins the queue where the burst stops (the
+        next boundary if the sharing rule gives it the line there): True.  Otherwise False: the driver
+        hands it to the engine.  Either way, no burst starts for a while (see :data:`REQUESTS_ABOUT`)."""
+        self.requested_at = now
+        if self.plan is None:
+            return False
         engine = self.engine
         self.hold(lambda t: engine.submit(request, t), wake=engine.would_take(request, now))
+        return True
 
     def wake(self) -> None:
         self.executor.wake()

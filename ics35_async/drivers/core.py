@@ -341,11 +341,10 @@ class DriverCore:
         """Queue ``command``; returns what the caller awaits for its outcome."""
         request, awaited = self._new_request(command, priority, retries)
         with self.lock:
+            t = now()
             burst = self.burst
-            if burst is not None and burst.running:
-                burst.submit(request, now())  # it joins the queue where the burst stops
-            else:
-                self._after(self.engine.submit(request, now()))
+            if burst is None or not burst.submit(request, t):  # (during a burst: queued where it stops)
+                self._after(self.engine.submit(request, t))
         return awaited
 
     def call(self, step: Callable[[float], Output]) -> None:

@@ -30,10 +30,12 @@ class SimExecutor:
         self.plan: tuple[float, list[PlannedTransaction]] | None = None
         self._result: Result | None = None
         self.runs = 0
+        self.plan_lengths: list[int] = []  # of every plan started
         self.stops: Counter[int] = Counter()  # why each run stopped (DONE, SHAPE, ...)
 
     def start(self, deadline: float, plan: list[PlannedTransaction]) -> None:
         self.woken = False
+        self.plan_lengths.append(len(plan))
         self.plan = (deadline, plan)
         self._result = None
 
@@ -105,13 +107,12 @@ class BurstWire(Wire):
 
     def emit(self, out: bytes | None) -> bytes | None:
         runner = self.runner
-        while out is not None and self.now < self.end and not runner.running and runner.start():
+        while out is not None and self.now < self.end and not runner.running and runner.start(self.now):
             self.executor.run()
             _, out = runner.finish(lambda: self.now)
         return super().emit(out)
 
     def submit(self, request: Request) -> bytes | None:
-        if self.runner.running:
-            self.runner.submit(request, self.now)
-            return None
+        if self.runner.submit(request, self.now):
+            return None  # queued where the burst stops
         return super().submit(request)
