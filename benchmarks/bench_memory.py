@@ -7,8 +7,11 @@ transactions over the pty server would take minutes, and memory growth is
 a property of the client, not of the line.  The CPU figure therefore
 includes the simulator's own work and is for scale only.
 
-Cases: ``stream`` (a 32-ID stream with a consumer awaiting every frame) and
-``sequential`` (``await servo.set_position(...)`` in a loop).  RSS is read
+Cases: ``stream`` (a 32-ID stream with a consumer awaiting every frame),
+``sequential`` (``await servo.set_position(...)`` in a loop) and ``stream burst``
+(the same stream on the burst path: the compiled executor needs a descriptor, so
+its far end is the lean pty responder, a process of its own; the case is left out
+where the executor is not built).  RSS is read
 from ``/proc/self/status`` (VmRSS) after a warm-up of ``WARMUP``
 transactions, at 10 % of the run and at the end; ``ru_maxrss`` is reported
 as well.
@@ -27,19 +30,33 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_common import IDS, NEUTRAL, loop_names, run_on, vm_rss_kib
+from bench_common import IDS, NEUTRAL, burst_setting, loop_names, run_on, vm_rss_kib
+from lean_responder import lean_lines
 
 from ics35_async import open_bus
+from ics35_async.drivers.burst import burst_path
 from ics35_async.sim import VirtualLine
 
 WARMUP = 20_000
-CASES = ("stream", "sequential")
+BURST_CASE = "stream burst"
+CASES = ("stream", "sequential", BURST_CASE)
+
+
+def burst_built() -> bool:
+    with burst_setting("1"):
+        return burst_path()[0]
 
 
 def child(case: str, transactions: int, loop: str) -> dict[str, Any]:
+    if case == BURST_CASE:
+        with burst_setting("1"), lean_lines(1) as (path,):
+            return measure(case, path, transactions, loop)
+    return measure(case, VirtualLine(IDS, log_size=0), transactions, loop)
+
+
+def measure(case: str, device: Any, transactions: int, loop: str) -> dict[str, Any]:
     async def main() -> dict[str, Any]:
-        sim = VirtualLine(IDS, log_size=0)
-        async with open_bus(sim, adapter_latency=0.003, quiet_time=0.001) as bus:
+        async with open_bus(device, adapter_latency=0.003, quiet_time=0.001) as bus:
             marks: dict[str, int] = {}
             tenth = transactions // 10
             if case == "sequential":
@@ -71,6 +88,8 @@ def child(case: str, transactions: int, loop: str) -> dict[str, Any]:
             wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
             marks["end"] = vm_rss_kib()
             errors = bus.stats.total.errors
+            burst = getattr(bus._driver, "burst", None)  # how many the compiled executor ran
+            in_executor = burst.transactions if burst is not None else 0
         mib = 1 / 1024
         return {
             "case": case,
@@ -86,6 +105,7 @@ def child(case: str, transactions: int, loop: str) -> dict[str, Any]:
             "growth_after_first_tenth_mib_per_run": (marks["end"] - marks["tenth"]) * mib / 0.9,
             "ru_maxrss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * mib,
             "errors": errors,
+            "burst_transactions": in_executor,
         }
 
     return run_on(loop, main)
@@ -95,6 +115,8 @@ def run(
     transactions: int = 1_000_000, cases: tuple[str, ...] = CASES, loops: list[str] | None = None
 ) -> dict[str, Any]:
     rows = []
+    if not burst_built():
+        cases = tuple(c for c in cases if c != BURST_CASE)
     for loop in loops or loop_names()[:1]:
         for case in cases:
             proc = subprocess.run(
@@ -115,7 +137,8 @@ def run(
             )
             rows.append(json.loads(proc.stdout))
     return {
-        "device": "in-process simulator, fast mode, log_size=0 (a child process per case)",
+        "device": "in-process simulator, fast mode, log_size=0; the burst case: the lean pty responder "
+        "(a child process per case)",
         "warmup_transactions": WARMUP,
         "rows": rows,
     }
