@@ -111,19 +111,25 @@ def burst_setting(value: str, *, beside_requests: bool = False) -> Iterator[None
     """ICS35_BURST set to ``value`` for buses opened inside ("1": the burst path, "0": the ordinary one).
 
     ``beside_requests``: bursts run even while the program sends requests (the library pauses them then:
-    :data:`ics35_async.drivers.burst.REQUESTS_ABOUT`), so that requests arrive mid-burst: what the soaks
+    :data:`ics35_async.drivers.burst.PAUSE_AFTER_REQUEST`), so that requests arrive mid-burst: what the soaks
     put the burst path through.
     """
     before = os.environ.get(BURST_ENV)
-    pause = burst.REQUESTS_ABOUT
+    pause = burst.PAUSE_AFTER_REQUEST
     os.environ[BURST_ENV] = value
     if beside_requests:
-        burst.REQUESTS_ABOUT = 0.0
+        burst.PAUSE_AFTER_REQUEST = 0.0
     try:
         yield
     finally:
-        burst.REQUESTS_ABOUT = pause
+        burst.PAUSE_AFTER_REQUEST = pause
         if before is None:
             del os.environ[BURST_ENV]
         else:
             os.environ[BURST_ENV] = before
+
+
+def burst_path_built() -> bool:
+    """Whether buses opened with ``ICS35_BURST=1`` take the burst path (the executor is built here)."""
+    with burst_setting("1"):
+        return burst.burst_path()[0]

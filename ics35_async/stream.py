@@ -301,22 +301,14 @@ class Stream(FrameIterator[Frame]):
     # ------------------------------------------------------------------ the engine's hooks (BackgroundSource)
 
     def _slot_due(self, now: float) -> float | None:
-        if not self._running:
-            # Stopped: no schedule, but what a running burst planned is on the line already and goes
-            # first, as _next_transaction offers it (a request queued meanwhile goes after it).
-            return now if self._planned_next() else None
-        if self.rate_hz is None:
+        if self.rate_hz is None or not self._running:
             return None
         if self._pos < len(self._order) or not self._cycle:
             return now  # a cycle runs (or the first one starts at once): its transactions go first
         return self._t0 + self._cycle / self.rate_hz
 
-    def _planned_next(self) -> bool:
-        """The next slot is one a running burst planned (and so already put on the line)."""
-        return self._pos < len(self._order) and self._order[self._pos] in self._frozen
-
     def _next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
-        if not self._running and not self._planned_next():
+        if not self._running and not (self._pos < len(self._order) and self._order[self._pos] in self._frozen):
             # (stopped: nothing more, but what a running burst planned, and so already put on the line,
             # until the burst is over: the engine is fed it afterwards, and the detach waits for it)
             return None

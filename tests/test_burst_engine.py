@@ -34,7 +34,7 @@ IDS = list(range(1, 9))
 def bursts_beside_requests(monkeypatch: pytest.MonkeyPatch) -> None:
     """Bursts run beside requests (the library pauses them while requests are about), so that
     requests arrive mid-burst: the rules that decide where they go are what these tests compare."""
-    monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.0)
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)
 
 
 def summary(wire: Wire, requests: list[Recorded]) -> dict[str, Any]:
@@ -143,7 +143,7 @@ def test_no_burst_starts_while_requests_are_about_and_whole_cycles_burst_again_a
 ) -> None:
     # A request that arrives mid-burst goes out only once the burst's bytes so far are fed to the
     # engine: while the program sends requests, the stream takes the ordinary path.
-    monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.5)
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.5)
     ids = list(range(16))
     engine = ready_engine()
     wire = BurstWire(engine, Servos(ids))
@@ -152,9 +152,11 @@ def test_no_burst_starts_while_requests_are_about_and_whole_cycles_burst_again_a
     lengths = wire.executor.plan_lengths
     assert max(lengths) == len(ids)  # no request yet: the one on the wire and the rest of its cycle
     requests = [Recorded(read(k % 16), wire=wire) for k in range(20)]
+    bursting: list[bool] = []
     for k, request in enumerate(requests):  # a poller: a read every 10 ms for 0.2 s
-        wire.at(0.05 + 0.01 * k, lambda request=request: wire.submit(request))
-    wire.run_for(0.01)  # the first request came mid-burst
+        wire.at(0.0505 + 0.01 * k, lambda request=request: (bursting.append(wire.runner.running), wire.submit(request)))
+    wire.run_for(0.005)
+    assert bursting == [True]  # the first request came mid-burst
     before = len(lengths)
     writes = len(wire.writes)
     wire.run_for(0.2)
@@ -364,22 +366,29 @@ def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already
 
 
 def test_a_stream_closed_during_a_burst_keeps_the_line_for_what_the_burst_already_sent() -> None:
-    # A paced stream's request that waits for the slack is still queued when the program closes the
-    # stream mid-burst: the engine, fed the burst afterwards, must not give the next boundary to it,
-    # since the executor already put the stream's planned command there (the cancellation soak on the
-    # burst path stopped on "the engine wants b'\xac\x03', the burst sent b'\x81 n'").
+    # A request waits for the slack beside a paced stream (too long for it) when the program closes
+    # the stream mid-burst.  The executor has already sent the burst's next commands: the engine,
+    # fed the burst afterwards, must give those boundaries to them, not to the request (which a
+    # stopped stream, with no schedule left, would let through), and the request goes after them.
+    ids = [1, 2, 3]
+    engine = ready_engine(baudrate=115200)
     line = QuietLine()
-    stream = Stream(line, [1, 2, 3], rate_hz=50)  # type: ignore[arg-type]
+    stream = Stream(line, ids, rate_hz=400)  # type: ignore[arg-type]
     stream._running = True
-    hooks = stream._hooks
-    assert hooks.next_transaction(0.0) is not None
-    assert hooks.slot_due(0.0) == 0.0  # a cycle runs: its transactions go first
-    assert len(hooks.upcoming(10)) == 3
-    stream._stop()
-    assert hooks.complete(answer_to_free(1), 3, 0.001) is None
-    assert hooks.slot_due(0.001) == 0.001  # the planned one is on the line: it still goes first
-    assert hooks.next_transaction(0.001) == (protocol.position_tx(2, protocol.FREE), 3, 2)
-    hooks.upcoming_done()
-    assert hooks.complete(answer_to_free(2), 3, 0.002) is None
-    assert hooks.slot_due(0.002) is None  # the burst is over: the stop applies, requests go
-    assert hooks.next_transaction(0.002) is None
+    wire = BurstWire(engine, Servos(ids, baudrate=115200))
+    wire.emit(engine.attach_source(stream._hooks, wire.now))
+    request = Recorded(read(2, protocol.Param.TEMPERATURE), wire=wire)
+    # Cycles of 2.3 ms every 2.5 ms: the read (0.7 ms) fits no slack, and goes after its second.
+    wire.at(0.003, lambda: wire.submit(request))  # mid-burst in the second cycle: queued where it stops
+    wire.run_for(0.0055)  # passed over once; the third cycle has started
+    assert request.state == "queued"
+    stop_at = wire.now + 0.0003
+    bursting: list[bool] = []
+    wire.at(stop_at, lambda: (bursting.append(wire.runner.running), stream._stop()))
+    wire.run_for(0.01)  # BurstDiverged here if the engine gave the request a planned boundary
+    assert bursting == [True]  # the stream was closed while the executor ran its cycle
+    assert request.state == "done"
+    assert [tx[0] for _, tx in wire.writes].count(0xA2) == 1
+    first_after_stop = next(i for i, (t, _) in enumerate(wire.writes) if t > stop_at)
+    sent_after = [tx for _, tx in wire.writes[first_after_stop:]]
+    assert sent_after[0][0] & 0xE0 == 0x80  # the burst's planned command came first

@@ -73,7 +73,7 @@ async def bus(
         monkeypatch.delenv(ENV, raising=False)
     else:
         monkeypatch.setenv(ENV, "1")
-        monkeypatch.setattr(burst, "REQUESTS_ABOUT", 0.0)
+        monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)
     bursts = driver == "asyncio" and far == "pty" and burst_path()[0]
     # PATIENT: on a machine loaded by parallel tests a pty server can answer 50 ms late; the few
     # timeouts the scenarios expect (an absent ID) cost their half second each.

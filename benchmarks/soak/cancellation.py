@@ -22,7 +22,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
-from benchmarks.bench_common import burst_setting
+from benchmarks.bench_common import burst_path_built, burst_setting
 from ics35_async import (
     Bus,
     IcsError,
@@ -42,7 +42,6 @@ from .common import (
     IN_PROCESS,
     PTY_BURST,
     Row,
-    burst_path_built,
     consistency_check,
     random_request,
     served_on_a_pty,

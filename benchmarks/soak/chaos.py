@@ -34,7 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from benchmarks.bench_common import burst_setting
+from benchmarks.bench_common import burst_path_built, burst_setting
 from ics35_async import (
     Bus,
     IcsError,
@@ -51,7 +51,6 @@ from .common import (
     IN_PROCESS,
     PTY_BURST,
     Row,
-    burst_path_built,
     consistency_check,
     fault_spec,
     random_request,

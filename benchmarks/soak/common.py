@@ -10,7 +10,6 @@ import threading
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any
 
-from benchmarks.bench_common import burst_setting
 from ics35_async import (
     Bus,
     Eeprom,
@@ -19,7 +18,6 @@ from ics35_async import (
     Servo,
     protocol,
 )
-from ics35_async.drivers.burst import burst_path
 from ics35_async.protocol import Command, Param
 from ics35_async.sim import (
     FaultConfig,
@@ -47,12 +45,6 @@ async def served_on_a_pty(sim: VirtualLine) -> AsyncIterator[str]:
         server.stop()
         await asyncio.to_thread(thread.join)
         server.close()
-
-
-def burst_path_built() -> bool:
-    """Whether buses opened with ``ICS35_BURST=1`` take the burst path (the executor is built here)."""
-    with burst_setting("1"):
-        return burst_path()[0]
 
 
 def fault_spec(rate: float, kinds: Sequence[str] = FAULT_KINDS) -> str:

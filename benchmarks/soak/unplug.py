@@ -20,7 +20,7 @@ from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from benchmarks.bench_common import burst_setting
+from benchmarks.bench_common import burst_path_built, burst_setting
 from ics35_async import (
     Bus,
     IcsError,
@@ -36,7 +36,7 @@ from ics35_async.sim import (
 )
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 
-from .common import Row, burst_path_built, ms
+from .common import Row, ms
 from .watchdog import under_watchdog, watched
 
 

@@ -14,9 +14,9 @@ What arrives from the program during a burst waits for the boundary where the bu
 request (the burst is woken when the sharing rule would give it the line at the next boundary),
 a new target, a detached stream (each wakes it).  They reach the engine before the last
 transaction's bytes, so the engine decides at that boundary exactly as it would have without the
-burst.  Feeding takes time (about 15 us a transaction in CPython), and a request's command goes out
-only after the burst's bytes so far are fed: while the program sends requests (one in the last
-:data:`REQUESTS_ABOUT` seconds), no burst starts, so telemetry beside a stream waits as it does
+burst.  Feeding takes time (several microseconds a transaction in CPython), and a request's command
+goes out only after the burst's bytes so far are fed: while the program sends requests (one in the last
+:data:`PAUSE_AFTER_REQUEST` seconds), no burst starts, so telemetry beside a stream waits as it does
 without bursts.
 
 Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
@@ -50,10 +50,10 @@ Record = tuple[bytes, float, float]
 Result = tuple[int, int, list[Record]]
 log = logging.getLogger("ics35_async")
 MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
-REQUESTS_ABOUT = 1.0
+PAUSE_AFTER_REQUEST = 1.0
 """Seconds after the program's last request during which the stream takes the ordinary path.  A request
-that arrives during a burst goes out only once the burst's bytes so far are fed to the engine (about
-15 us a transaction in CPython, plus a hand-off between threads), so telemetry beside a stream would
+that arrives during a burst goes out only once the burst's bytes so far are fed to the engine (several
+microseconds a transaction in CPython, plus a hand-off between threads), so telemetry beside a stream would
 wait longer with bursts than without; with no burst to feed, it waits exactly as on the ordinary path.
 Read as a port's burst path opens (the burst path's tests and soaks set it to 0 to put requests
 arriving mid-burst through it)."""
@@ -154,7 +154,7 @@ class BurstRunner:
         self.errno = 0
         self.bursts = 0
         self.transactions = 0
-        self.pause = REQUESTS_ABOUT  # no burst for this long after a request
+        self.pause_after_request = PAUSE_AFTER_REQUEST  # no burst for this long after a request
         self.requested_at = -math.inf  # when the program last sent a request on this line
 
     @property
@@ -168,8 +168,8 @@ class BurstRunner:
 
     def start(self, now: float) -> bool:
         """Run a burst from the transaction the engine just put on the wire (the executor writes it);
-        False: write it the ordinary way (also while requests are about: see :data:`REQUESTS_ABOUT`)."""
-        if self._pending() or now - self.requested_at < self.pause:
+        False: write it the ordinary way (also shortly after a request: see :data:`PAUSE_AFTER_REQUEST`)."""
+        if self._pending() or now - self.requested_at < self.pause_after_request:
             return False
         planned = self.engine.plan_burst()
         if planned is None:
@@ -192,7 +192,7 @@ class BurstRunner:
     def submit(self, request: Request, now: float) -> bool:
         """A request from the program.  During a burst it joins the queue where the burst stops (the
         next boundary if the sharing rule gives it the line there): True.  Otherwise False: the driver
-        hands it to the engine.  Either way, no burst starts for a while (see :data:`REQUESTS_ABOUT`)."""
+        hands it to the engine.  Either way, no burst starts for a while (see :data:`PAUSE_AFTER_REQUEST`)."""
         self.requested_at = now
         if self.plan is None:
             return False

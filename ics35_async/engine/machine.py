@@ -122,6 +122,7 @@ class LineEngine:
         self._hold_wake = INF
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
+        self._planned = False  # a burst runs what plan_burst planned: until burst_over, it goes first
         self._settling = False  # this transaction's reply is in; waiting to see no more comes
         self._t_done = 0.0  # when it came in
         self._due = 0.0  # its deadline, while it settles
@@ -306,7 +307,8 @@ class LineEngine:
         engine would give it; where the stream's wait may be recomputed before it (see
         :mod:`.probe`), the least it can become: the executor then gives up no later than the
         engine would, and the engine waits on for the rest.  The
-        source keeps the planned transactions as they are until :meth:`burst_over`.
+        source keeps the planned transactions as they are until :meth:`burst_over`, and they go
+        first: a request queued meanwhile (or one the source's stop would let through) waits for it.
 
         The executor runs the plan, stops at the first transaction that is late, short, not
         echoed as sent or answered out of shape, or at a boundary when woken; the driver then
@@ -351,6 +353,7 @@ class LineEngine:
             allowance = self._stream_wait(nbytes, allowance, latency if j < steady else STREAM_WAIT_FLOOR)
             echo_len = len(tx) if echo else 0
             plan.append((tx, echo_len + reply_len, echo_len, allowance, shape))
+        self._planned = True
         return self.deadline, plan
 
     def would_take(self, request: Request, now: float) -> bool:
@@ -368,6 +371,7 @@ class LineEngine:
         Called before the last transaction's bytes are fed, so that what goes on the line next
         is what the source wants now.
         """
+        self._planned = False
         if self._source is not None:
             self._source.upcoming_done()
 
@@ -456,7 +460,9 @@ class LineEngine:
         source = self._source
         queue = self.queue
         self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
-        if queue.count and self._request_goes(queue.peek(), now, note=True):
+        # (While a burst runs, the boundaries up to its last are the planned transactions': the
+        # executor has sent them, even if the source stopped meanwhile.  Requests queued then wait.)
+        if queue.count and not self._planned and self._request_goes(queue.peek(), now, note=True):
             out = self._begin_request(now)
             if out is not None:
                 return out
