@@ -11,8 +11,9 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 * a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
   alone (how much of the program's time the servo line leaves it);
 * telemetry beside a wire-timed stream (``bench_sharing``'s 16 pollers reading current and
-  temperature, 10 times a second each): their p99 wait in position-transaction times, on each
-  path (the goal: at most 1.5, as on the ordinary path);
+  temperature, 10 times a second each): their p99 wait in position-transaction times and their
+  latency, on the burst path as it runs (no burst starts while requests come), with bursts
+  beside the requests (what that pause avoids) and on the ordinary path (the goal: at most 1.5);
 * sequential awaited ``set_position`` against raw pyserial, and the batched forms (``gather`` of
   one cycle's 32 commands; a stream) that replace it.
 
@@ -165,13 +166,13 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             base = (alone["spins_per_s"] + alone2["spins_per_s"]) / 2
             note("thread progress beside burst", beside_burst["spins_per_s"] / base, beside_burst)
             note("thread progress beside ordinary", beside_plain["spins_per_s"] / base, beside_plain)
-            order = (True, False) if r % 2 == 0 else (False, True)  # neither path always first
-            for burst in order:
-                tele = on_path(
-                    burst,
-                    lambda: telemetry_beside_stream(paths[0], "asyncio", BAUD, alone=duration, shared=1.5 * duration),
-                )
-                note(f"telemetry wait_p99_tx {'burst' if burst else 'ordinary'}", tele["wait_p99_tx"], tele)
+            # The burst path as it runs (no burst starts while requests come), with bursts beside the
+            # requests (what that pause avoids), and the ordinary path; a different one first each run.
+            variants = [("burst", "1", False), ("burst beside requests", "1", True), ("ordinary", "0", False)]
+            for name, setting, beside in variants[r % 3 :] + variants[: r % 3]:
+                with burst_setting(setting, beside_requests=beside):
+                    tele = telemetry_beside_stream(paths[0], "asyncio", BAUD, alone=duration, shared=1.5 * duration)
+                note(f"telemetry wait_p99_tx {name}", tele["wait_p99_tx"], tele)
     return {
         "path": on_path(True, lambda: {"path": burst_path()[1]})["path"],
         "runs": runs,
@@ -222,13 +223,14 @@ def print_table(r: dict[str, Any]) -> None:
     for name in ("burst", "ordinary"):
         rate = median([f["stream_tx_per_s"] for f in r["figures"][f"thread progress beside {name}"]])
         print(f"  {name + ' path':48} {m[f'thread progress beside {name}']:8.2f}   stream {rate:7.0f} tx/s")
-    print("   telemetry beside a wire-timed stream (16 pollers, 10 reads a second each): p99 wait in")
-    print("   position-transaction times (goal: at most 1.5; each path's own, measured with the stream alone),")
-    print("   and a read's latency, call to result, p50 / p99")
-    for name in ("burst", "ordinary"):
+    print("   telemetry beside a wire-timed stream (16 pollers reading current and temperature 10 times a")
+    print("   second each): p99 wait in position-transaction times (goal: at most 1.5; each path's own T,")
+    print("   measured with the stream alone), and a read's latency, call to result, p50 / p99")
+    for name in ("burst", "burst beside requests", "ordinary"):
         figs = r["figures"][f"telemetry wait_p99_tx {name}"]
         p50, p99 = (median([f[f"latency_{p}_tx"] * f["position_tx_us"] for f in figs]) for p in ("p50", "p99"))
-        print(f"  {name + ' path':48} {m[f'telemetry wait_p99_tx {name}']:8.2f}   {p50:4.0f} / {p99:4.0f} us")
+        label = "burst path, bursts beside requests" if name == "burst beside requests" else name + " path"
+        print(f"  {label:48} {m[f'telemetry wait_p99_tx {name}']:8.2f}   {p50:4.0f} / {p99:4.0f} us")
 
 
 def main() -> None:

@@ -2,10 +2,12 @@
 
 Runs in a fresh child process per case so that nothing else in the
 benchmark run shares its heap.  The far end is the in-process simulator in
-fast mode (``VirtualLine(log_size=0)``: no transaction log), not a pty: a million
-transactions over the pty server would take minutes, and memory growth is
-a property of the client, not of the line.  The CPU figure therefore
-includes the simulator's own work and is for scale only.
+fast mode (``VirtualLine(log_size=0)``: no transaction log), not the pty
+server: a million transactions through it would take minutes, and memory
+growth is a property of the client, not of the line.  The CPU figure therefore
+includes the simulator's own work and is for scale only (the burst case
+below answers from the lean pty responder, another process: its CPU is the
+client's alone).
 
 Cases: ``stream`` (a 32-ID stream with a consumer awaiting every frame),
 ``sequential`` (``await servo.set_position(...)`` in a loop) and ``stream burst``
@@ -30,21 +32,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_common import IDS, NEUTRAL, burst_setting, loop_names, run_on, vm_rss_kib
+from bench_common import IDS, NEUTRAL, burst_path_built, burst_setting, loop_names, run_on, vm_rss_kib
 from lean_responder import lean_lines
 
 from ics35_async import open_bus
-from ics35_async.drivers.burst import burst_path
 from ics35_async.sim import VirtualLine
 
 WARMUP = 20_000
 BURST_CASE = "stream burst"
 CASES = ("stream", "sequential", BURST_CASE)
-
-
-def burst_built() -> bool:
-    with burst_setting("1"):
-        return burst_path()[0]
 
 
 def child(case: str, transactions: int, loop: str) -> dict[str, Any]:
@@ -115,7 +111,7 @@ def run(
     transactions: int = 1_000_000, cases: tuple[str, ...] = CASES, loops: list[str] | None = None
 ) -> dict[str, Any]:
     rows = []
-    if not burst_built():
+    if not burst_path_built():
         cases = tuple(c for c in cases if c != BURST_CASE)
     for loop in loops or loop_names()[:1]:
         for case in cases:
