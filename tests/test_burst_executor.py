@@ -18,14 +18,16 @@ import time
 import tty
 from collections.abc import Callable, Iterator
 
+import anyio
 import pytest
 import serial
 
 from benchmarks.lean_responder import lean_lines
-from ics35_async import protocol
+from ics35_async import open_bus, protocol
+from ics35_async.drivers import burst
 from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRUN, SHAPE, WOKEN, burst_path
 from ics35_async.transports.tty_port import ParityMarks, enable_parity_marks
-from tests.support.timing import NO_TIMEOUTS
+from tests.support.timing import GUARD, NO_TIMEOUTS, scaled
 
 _burst = pytest.importorskip("ics35_async._burst", reason="the executor is not built (no C compiler?)")
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs a pty")
@@ -289,3 +291,31 @@ def test_bad_plans_are_refused_before_anything_is_written(pty_pair: PtyPair) -> 
     burst.close()
     with pytest.raises(ValueError):
         burst.run(time.monotonic() + 1, plan(1))
+
+
+@pytest.mark.anyio
+@pytest.mark.pty
+async def test_on_a_bus_no_burst_starts_while_the_program_sends_requests(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The library's default: a request that arrived mid-burst would wait for the burst's bytes to be
+    # fed to the engine, so while requests come the stream takes the ordinary path.
+    monkeypatch.setenv("ICS35_BURST", "1")
+    pause = scaled(1.0)  # longer than any read here takes, even on a loaded machine
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", pause)
+    with lean_lines(1) as (path,):
+        async with open_bus(path, **NO_TIMEOUTS) as bus, bus.stream(range(8)) as stream:
+            runner = bus._driver.burst  # type: ignore[attr-defined]
+            with anyio.fail_after(GUARD):
+                while runner.bursts < 5:
+                    await stream.next_frame()
+            for _ in range(40):  # a poller, flat out for a while
+                await bus.servo(3).read_current()
+            during = runner.bursts
+            cycle = (await stream.next_frame()).cycle
+            for _ in range(40):
+                await bus.servo(3).read_current()
+            assert runner.bursts == during  # none started while the reads came
+            assert (await stream.next_frame()).cycle > cycle  # the stream ran on meanwhile
+            await anyio.sleep(pause)
+            with anyio.fail_after(GUARD):
+                while runner.bursts == during:  # bursts again once the requests have stopped
+                    await stream.next_frame()
