@@ -129,6 +129,12 @@ def burst_setting(value: str, *, beside_requests: bool = False) -> Iterator[None
             os.environ[BURST_ENV] = before
 
 
+def executor_transactions(bus: Any) -> int:
+    """How many transactions the compiled executor ran on ``bus`` (0 off the burst path)."""
+    runner = getattr(bus._driver, "burst", None)
+    return runner.transactions if runner is not None else 0
+
+
 def burst_path_built() -> bool:
     """Whether buses opened with ``ICS35_BURST=1`` take the burst path (the executor is built here)."""
     with burst_setting("1"):

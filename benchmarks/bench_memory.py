@@ -32,7 +32,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_common import IDS, NEUTRAL, burst_path_built, burst_setting, loop_names, run_on, vm_rss_kib
+from bench_common import (
+    IDS,
+    NEUTRAL,
+    burst_path_built,
+    burst_setting,
+    executor_transactions,
+    loop_names,
+    run_on,
+    vm_rss_kib,
+)
 from lean_responder import lean_lines
 
 from ics35_async import open_bus
@@ -84,8 +93,7 @@ def measure(case: str, device: Any, transactions: int, loop: str) -> dict[str, A
             wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
             marks["end"] = vm_rss_kib()
             errors = bus.stats.total.errors
-            burst = getattr(bus._driver, "burst", None)  # how many the compiled executor ran
-            in_executor = burst.transactions if burst is not None else 0
+            in_executor = executor_transactions(bus)
         mib = 1 / 1024
         return {
             "case": case,

@@ -22,7 +22,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
-from benchmarks.bench_common import burst_path_built, burst_setting
+from benchmarks.bench_common import burst_setting, executor_transactions
 from ics35_async import (
     Bus,
     IcsError,
@@ -43,6 +43,7 @@ from .common import (
     PTY_BURST,
     Row,
     consistency_check,
+    executor_row,
     random_request,
     served_on_a_pty,
     stream_target,
@@ -264,8 +265,7 @@ async def _cancel(
     stats = bus.stats
     bus_errors, stray = stats.total.errors, stats.stray_bytes
     queued = stats.queued
-    burst = getattr(bus._driver, "burst", None)  # how many transactions the compiled executor ran
-    burst_transactions = burst.transactions if burst is not None else 0
+    burst_transactions = executor_transactions(bus)
     post = await consistency_check(sim, bus)
     problems = list(post["problems"])
     if bus_errors != expected_errors and not realtime:
@@ -319,15 +319,7 @@ def summarize_cancel(r: CancelReport) -> list[Row]:
     if r.link == IN_PROCESS:
         return rows
     if r.link == PTY_BURST:
-        built = burst_path_built()
-        rows.insert(
-            1,
-            (
-                "cancel: stream transactions the compiled executor ran",
-                f"{r.burst_transactions:,}" + ("" if built else " (the executor is not built here)"),
-                r.burst_transactions > 0 if built else None,
-            ),
-        )
+        rows.insert(1, executor_row("cancel: stream transactions the compiled executor ran", r.burst_transactions))
     rows.append(
         (
             "cancel: real time (counted, not desyncs)",

@@ -34,7 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from benchmarks.bench_common import burst_path_built, burst_setting
+from benchmarks.bench_common import burst_setting, executor_transactions
 from ics35_async import (
     Bus,
     IcsError,
@@ -52,6 +52,7 @@ from .common import (
     PTY_BURST,
     Row,
     consistency_check,
+    executor_row,
     fault_spec,
     random_request,
     served_on_a_pty,
@@ -264,8 +265,7 @@ async def chaos_run(
         extra = workload.finish()
         extra["fault_spec"] = spec
         extra["bus_guards"] = bus.stats.guards
-        burst = getattr(bus._driver, "burst", None)  # how many of them the compiled executor ran
-        extra["burst_transactions"] = burst.transactions if burst is not None else 0
+        extra["burst_transactions"] = executor_transactions(bus)
         if check:
             extra["post_check"] = await consistency_check(sim, bus)
     return workload, elapsed, extra
@@ -415,11 +415,11 @@ def summarize_chaos(r: ChaosReport) -> list[Row]:
     if r.link == PTY_BURST:
         rows.insert(
             1,
-            (
+            executor_row(
                 "chaos: transactions the compiled executor ran",
-                f"{r.burst_transactions:,} ({r.burst_transactions / max(1, r.transactions):.0%}; the rest on the "
-                "ordinary path: requests, and the stream after a fault until the line is in step again)",
-                r.burst_transactions > 0 if burst_path_built() else None,
+                r.burst_transactions,
+                f" ({r.burst_transactions / max(1, r.transactions):.0%}; the rest on the ordinary path: requests, "
+                "and the stream after a fault until the line is in step again)",
             ),
         )
     return [(f"chaos over a {r.link}" + name.removeprefix("chaos"), value, ok) for name, value, ok in rows]

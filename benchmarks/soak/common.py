@@ -10,6 +10,7 @@ import threading
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any
 
+from benchmarks.bench_common import burst_path_built
 from ics35_async import (
     Bus,
     Eeprom,
@@ -157,6 +158,16 @@ def ms(seconds: float) -> str:
 
 Row = tuple[str, str, bool | None]
 """One line of the table: check, result, whether its target is met (None: a figure, no target)."""
+
+
+def executor_row(check: str, count: int, detail: str = "") -> Row:
+    """How many transactions the compiled executor ran: a target (some did) where it is built here."""
+    built = burst_path_built()
+    return (
+        check,
+        f"{count:,}{detail}" + ("" if built else " (the executor is not built here)"),
+        count > 0 if built else None,
+    )
 
 
 def markdown(rows: Sequence[Row]) -> str:

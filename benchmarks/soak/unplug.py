@@ -20,7 +20,7 @@ from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from benchmarks.bench_common import burst_path_built, burst_setting
+from benchmarks.bench_common import burst_setting
 from ics35_async import (
     Bus,
     IcsError,
@@ -36,7 +36,7 @@ from ics35_async.sim import (
 )
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 
-from .common import Row, ms
+from .common import Row, executor_row, ms
 from .watchdog import under_watchdog, watched
 
 
@@ -379,13 +379,5 @@ def summarize_unplug(r: UnplugReport) -> list[Row]:
     ]
     if not r.burst:
         return rows
-    built = burst_path_built()
-    rows.insert(
-        0,
-        (
-            "unplug: stream transactions the compiled executor ran",
-            f"{r.burst_transactions:,}" + ("" if built else " (the executor is not built here)"),
-            r.burst_transactions > 0 if built else None,
-        ),
-    )
+    rows.insert(0, executor_row("unplug: stream transactions the compiled executor ran", r.burst_transactions))
     return [("unplug, burst path" + name.removeprefix("unplug"), value, ok) for name, value, ok in rows]
