@@ -17,7 +17,10 @@
  * has its allowance from then.  Times are CLOCK_MONOTONIC seconds (Python's time.monotonic).
  *
  * A Burst runs a plan either in the calling thread (run) or in a thread of its own (start, then
- * result once done_fd is readable), so an event loop can wait for it as for any descriptor.
+ * result once done_fd is readable), so an event loop can wait for it as for any descriptor.  While
+ * it runs, notify(i) makes done_fd readable once transaction i is written, and completed() hands
+ * back the transactions already final, so the loop can feed them to the engine while the rest of
+ * the plan runs instead of leaving the line idle while it feeds the whole burst at its end.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -64,7 +67,10 @@ typedef struct {
     Py_ssize_t rx_cap;
     double first_deadline;
     int status, err;
-    Py_ssize_t ran;  /* transactions written */
+    _Atomic Py_ssize_t ran;  /* transactions started (written, or being written); every one before the
+                                last started is complete and final, and the loop may read it mid-run */
+    _Atomic Py_ssize_t notify_at; /* signal done_fd (once) when the transaction of this index is written
+                                     (-1: none), so the loop can feed what is complete while the rest runs */
     /* the thread of start() */
     pthread_t thread;
     int has_thread, quit, job, busy;
@@ -140,6 +146,8 @@ static int ready_or_stop(Burst *self, short events, double deadline, int *woke, 
     return 1;
 }
 
+static void signal_fd(int fd);
+
 /* Run the plan (no Python objects touched: called without the GIL). */
 static void run_plan(Burst *self) {
     int woke = 0;
@@ -147,7 +155,7 @@ static void run_plan(Burst *self) {
     double t_start = 0, deadline = self->first_deadline;
     self->status = DONE;
     self->err = 0;
-    self->ran = 0;
+    atomic_store(&self->ran, 0);
     for (Py_ssize_t i = 0; i < self->n; i++) {
         Tx *t = &self->txs[i];
         if (i > 0) {
@@ -160,7 +168,7 @@ static void run_plan(Burst *self) {
         t->rx_off = rx_len;
         t->rx_len = 0;
         t->t_first = t->t_last = 0;
-        self->ran = i + 1;
+        atomic_store_explicit(&self->ran, i + 1, memory_order_release);
         /* write the whole command (a tty takes it at once; otherwise wait until it can) */
         const unsigned char *tx = self->plan_tx + t->tx_off;
         Py_ssize_t sent = 0;
@@ -182,6 +190,11 @@ static void run_plan(Burst *self) {
                 return;
             }
         }
+        /* the loop asked to hear when this one is on the wire: it feeds the engine the transactions
+           before it while this one's reply comes */
+        Py_ssize_t at = atomic_load(&self->notify_at);
+        if (at >= 0 && i >= at && atomic_compare_exchange_strong(&self->notify_at, &at, -1))
+            signal_fd(self->done_w);
         /* read until the expected count has come */
         while (t->rx_len < t->expect) {
             short rev = 0;
@@ -308,6 +321,8 @@ static PyObject *Burst_new(PyTypeObject *type, PyObject *args, PyObject *kwds) {
     if (!self) return NULL;
     self->fd = self->wake_r = self->wake_w = self->done_r = self->done_w = -1;
     atomic_init(&self->woken, 0);
+    atomic_init(&self->ran, 0);
+    atomic_init(&self->notify_at, -1);
     pthread_mutex_init(&self->lock, NULL);
     pthread_cond_init(&self->cond, NULL);
     return (PyObject *)self;
@@ -419,6 +434,7 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
     }
     self->n = n;
     self->first_deadline = first_deadline;
+    atomic_store(&self->notify_at, -1);
     /* a wake meant for an earlier burst must not cut this one short */
     atomic_store(&self->woken, 0);
     drain(self->wake_r);
@@ -430,18 +446,27 @@ nomem:
     return -1;
 }
 
-static PyObject *make_result(Burst *self) {
-    PyObject *records = PyList_New(self->ran);
+/* The records of transactions [start, end): (bytes, first, last) each. */
+static PyObject *make_records(Burst *self, Py_ssize_t start, Py_ssize_t end) {
+    if (start < 0) start = 0;
+    if (end < start) end = start;
+    PyObject *records = PyList_New(end - start);
     if (!records) return NULL;
-    for (Py_ssize_t i = 0; i < self->ran; i++) {
+    for (Py_ssize_t i = start; i < end; i++) {
         Tx *t = &self->txs[i];
         PyObject *rec = Py_BuildValue("(y#dd)", (const char *)self->rx + t->rx_off, t->rx_len, t->t_first, t->t_last);
         if (!rec) {
             Py_DECREF(records);
             return NULL;
         }
-        PyList_SET_ITEM(records, i, rec);
+        PyList_SET_ITEM(records, i - start, rec);
     }
+    return records;
+}
+
+static PyObject *make_result(Burst *self, Py_ssize_t start) {
+    PyObject *records = make_records(self, start, atomic_load(&self->ran));
+    if (!records) return NULL;
     return Py_BuildValue("(iiN)", self->status, self->err, records);
 }
 
@@ -465,7 +490,7 @@ static PyObject *Burst_run(Burst *self, PyObject *args) {
     run_plan(self);
     Py_END_ALLOW_THREADS
     self->busy = 0;
-    return make_result(self);
+    return make_result(self, 0);
 }
 
 static void *worker(void *arg) {
@@ -504,21 +529,30 @@ static PyObject *Burst_start(Burst *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-static PyObject *Burst_result(Burst *self, PyObject *unused) {
+static int parse_start(PyObject *args, Py_ssize_t *start) {
+    *start = 0;
+    return PyArg_ParseTuple(args, "|n", start);
+}
+
+static PyObject *Burst_result(Burst *self, PyObject *args) {
+    Py_ssize_t start;
+    if (!parse_start(args, &start)) return NULL;
     if (!self->busy) {
         PyErr_SetString(PyExc_RuntimeError, "no burst was started");
         return NULL;
     }
+    /* Drained before the check: a notice (see notify) is taken, and the signal of a burst that ends
+       after the check will come, as the worker sends it after clearing job under the lock. */
+    drain(self->done_r);
     pthread_mutex_lock(&self->lock);
     int running = self->job;
     pthread_mutex_unlock(&self->lock);
     if (running) Py_RETURN_NONE;
-    drain(self->done_r);
     self->busy = 0;
-    return make_result(self);
+    return make_result(self, start);
 }
 
-static PyObject *Burst_wait(Burst *self, PyObject *unused) {
+static PyObject *Burst_wait(Burst *self, PyObject *args) {
     /* Block (without the GIL) until a started burst is done; then its result. */
     if (!self->busy) {
         PyErr_SetString(PyExc_RuntimeError, "no burst was started");
@@ -529,12 +563,31 @@ static PyObject *Burst_wait(Burst *self, PyObject *unused) {
     while (self->job) {
         pthread_mutex_unlock(&self->lock);
         struct pollfd p = {self->done_r, POLLIN, 0};
-        poll(&p, 1, 100);
+        if (poll(&p, 1, 100) > 0) drain(self->done_r);  /* (a notice: not the end) */
         pthread_mutex_lock(&self->lock);
     }
     pthread_mutex_unlock(&self->lock);
     Py_END_ALLOW_THREADS
-    return Burst_result(self, NULL);
+    return Burst_result(self, args);
+}
+
+static PyObject *Burst_completed(Burst *self, PyObject *args) {
+    /* The records from start on that are final while the burst may still run: every transaction
+       before the last one started (the last may still be read, or be where the burst stops). */
+    Py_ssize_t start;
+    if (!parse_start(args, &start)) return NULL;
+    if (!self->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "no burst was started");
+        return NULL;
+    }
+    return make_records(self, start, atomic_load_explicit(&self->ran, memory_order_acquire) - 1);
+}
+
+static PyObject *Burst_notify(Burst *self, PyObject *args) {
+    Py_ssize_t index;
+    if (!PyArg_ParseTuple(args, "n", &index)) return NULL;
+    atomic_store(&self->notify_at, index);
+    Py_RETURN_NONE;
 }
 
 static PyObject *Burst_wake(Burst *self, PyObject *unused) {
@@ -551,9 +604,14 @@ static PyMethodDef Burst_methods[] = {
      "run(first_deadline, plan) -> (status, errno, records): run the plan in this thread, without the GIL."},
     {"start", (PyCFunction)Burst_start, METH_VARARGS,
      "start(first_deadline, plan): run the plan in the executor's own thread; done_fd turns readable when done."},
-    {"result", (PyCFunction)Burst_result, METH_NOARGS,
-     "result() -> (status, errno, records), or None while the started burst still runs."},
-    {"wait", (PyCFunction)Burst_wait, METH_NOARGS, "wait() -> (status, errno, records): block until done."},
+    {"result", (PyCFunction)Burst_result, METH_VARARGS,
+     "result(start=0) -> (status, errno, records from transaction start on), or None while the started burst still runs."},
+    {"wait", (PyCFunction)Burst_wait, METH_VARARGS,
+     "wait(start=0) -> (status, errno, records from start on): block until done."},
+    {"completed", (PyCFunction)Burst_completed, METH_VARARGS,
+     "completed(start) -> records from start on of the transactions final while the burst runs (each one before the last started)."},
+    {"notify", (PyCFunction)Burst_notify, METH_VARARGS,
+     "notify(index): make done_fd readable once the transaction of that index is written (result() then still says None)."},
     {"wake", (PyCFunction)Burst_wake, METH_NOARGS,
      "wake(): from any thread, stop the running burst at its next transaction boundary."},
     {"close", (PyCFunction)Burst_close, METH_NOARGS, "close(): end the executor's thread and its descriptors."},

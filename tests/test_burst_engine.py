@@ -119,6 +119,7 @@ def test_a_burst_line_does_exactly_what_the_ordinary_line_does(
     assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every else 3)
     if damage_every:  # and some stopped at a damaged reply (the executor must not send the next command)
         assert wire.executor.stops[SHAPE] > 0
+    assert wire.executor.notices > 0  # and some were fed to the engine in parts while they ran
     assert burst["requests"] == plain["requests"]
     assert burst["writes"] == plain["writes"]
     assert burst == plain

@@ -9,6 +9,7 @@ tests/test_burst_engine.py.
 
 from __future__ import annotations
 
+import itertools
 import os
 import select
 import sys
@@ -231,6 +232,47 @@ def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: PtyPair) -> 
         burst.result()  # nothing started
     responder.stop()
     burst.close()
+
+
+def test_a_notice_mid_burst_hands_over_what_is_final_while_the_rest_runs(pty_pair: PtyPair) -> None:
+    # The loop feeds the engine a long burst in parts (see burst.feed_ahead_points): done_fd turns readable
+    # once the asked-for transaction is written, the burst still runs, and completed() gives every
+    # transaction before the last one written; the end's result gives the rest from where the loop is.
+    master, slave = pty_pair
+    gate = threading.Event()
+
+    def held_at_10(k: int, tx: bytes) -> bytes | None:
+        if k == 10:
+            gate.wait(5)  # the burst is still running while the test looks
+        return answer(k, tx)
+
+    responder = serve(master, held_at_10)
+    executor = _burst.Burst(slave)
+    whole = plan(16)
+    executor.start(time.monotonic() + ALLOWANCE, whole)
+    executor.notify(6)
+    ready, _, _ = select.select([executor.done_fd], [], [], 2)
+    assert ready  # the notice: transaction 6 is on the wire
+    deadline = time.monotonic() + 2
+    while len(executor.completed(0)) < 10 and time.monotonic() < deadline:
+        time.sleep(0.001)  # it runs on to the held transaction 10
+    assert executor.result() is None  # (and the notice is taken: done_fd is quiet again)
+    assert not select.select([executor.done_fd], [], [], 0)[0]
+    early = executor.completed(0)
+    assert len(early) == 10  # 10 is written and unanswered: not final, nor anything after it
+    assert executor.completed(4) == early[4:]
+    gate.set()
+    assert select.select([executor.done_fd], [], [], 2)[0]
+    result = executor.result(len(early))
+    responder.stop()
+    executor.close()
+    assert result is not None
+    status, _, rest = result
+    assert status == DONE and len(rest) == 6
+    records = early + rest
+    assert [data for data, _, _ in records] == [answer(k, tx) for k, (tx, *_) in enumerate(whole)]
+    assert all(first <= last for _, first, last in records)
+    assert all(a[2] <= b[1] for a, b in itertools.pairwise(records))  # in the order they came
 
 
 def test_a_hang_up_ends_the_burst(pty_pair: PtyPair) -> None:

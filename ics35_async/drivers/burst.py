@@ -6,9 +6,10 @@ the stream keep the line.  The executor (:mod:`ics35_async._burst`, C, in a thre
 without the GIL) writes each command and reads its echo and reply, and stops at the first one that
 is late, short, not echoed as sent or answered out of the shape the source gave for its reply (the
 source would refuse that reply, and the burst's later commands must not go out after it), or at a
-boundary once woken.  :func:`feed` then hands every byte to the engine with the time it came, so
-the engine judges each transaction as if the bytes had come one by one: no rule lives in the
-executor.
+boundary once woken.  :meth:`BurstRunner.finish` hands every byte to the engine with the time it
+came, so the engine judges each transaction as if the bytes had come one by one: no rule lives in
+the executor.  It feeds a long burst in parts while it runs (see :func:`feed_ahead_points`), so
+the line waits for the loop only for the last few.
 
 What arrives from the program during a burst waits for the boundary where the burst stops: a
 request (the burst is woken when the sharing rule would give it the line at the next boundary),
@@ -50,6 +51,9 @@ Record = tuple[bytes, float, float]
 Result = tuple[int, int, list[Record]]
 log = logging.getLogger("ics35_async")
 MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
+FEED_AHEAD_MIN = 8
+"""A plan of at least this many transactions is fed to the engine in parts while it runs (see
+:func:`feed_ahead_points`); a shorter one at its end."""
 PAUSE_AFTER_REQUEST = 1.0
 """Seconds after the program's last request during which the stream takes the ordinary path.  A request
 that arrives during a burst goes out only once the burst's bytes so far are fed to the engine (several
@@ -78,56 +82,17 @@ def burst_path() -> tuple[bool, str]:
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
 
 
+def feed_ahead_points(n: int) -> list[int]:
+    """Where the loop feeds a running plan of ``n`` transactions what is done so far (every transaction
+    before the one on the wire): when the executor writes the transaction halfway through the plan, then
+    the third from its end.  Fed all at its end, a 32-transaction burst would keep the line idle while
+    CPython feeds the engine 31 transactions' bytes; fed ahead, only the last few wait for the loop, for two
+    more wake-ups of the loop a burst (measured: ``benchmarks/bench_burst.py``)."""
+    return sorted({n // 2, n - 3}) if n >= FEED_AHEAD_MIN else []
+
+
 class BurstDiverged(RuntimeError):
     """The engine asked for a different transaction than the burst ran (a bug: never expected)."""
-
-
-def feed(
-    engine: LineEngine,
-    plan: list[PlannedTransaction],
-    result: Result,
-    decode: Callable[[bytes], tuple[bytes, int]] | None,
-    before_last: Callable[[], None],
-    now: float,
-) -> bytes | None:
-    """Hand a burst's bytes to ``engine`` with their times; return what the engine wants written next.
-
-    Every transaction but the last ended at a boundary the engine had planned: fed its bytes with
-    the time they came, the engine must start the next planned one, which the executor did write
-    then.  Before the last one's bytes, the engine's source may change its plan again and
-    ``before_last`` runs what waited for the burst to stop.  The last one's bytes are fed at
-    ``now``, as the ordinary path feeds bytes when it reads them: what the engine starts then is
-    written now, and its deadline must count from now (the loop may have been slow to come back).
-    ``decode`` undoes the port's parity marks (see ``transports.tty_port.ParityMarks``).
-    """
-    _status, _errno, records = result
-    last = len(records) - 1
-    out = None
-    in_step = True
-    for i, (data, _first, at) in enumerate(records):
-        if i == last:
-            engine.burst_over()
-            before_last()
-        if decode is not None and data:
-            data, errors = decode(data)
-            if errors:
-                engine.line_error(errors)
-        # What the engine wants written after these bytes: only the last transaction's answer is
-        # for the driver (the executor wrote the others'); one stopped with nothing read has none.
-        out = engine.receive(data, at if i < last else max(at, now)) if data else None
-        if in_step and i < last and out != plan[i + 1][0]:
-            if out is not None:
-                raise BurstDiverged(
-                    f"burst transaction {i + 1}: the engine wants {out!r}, the burst sent {plan[i + 1][0]!r}"
-                )
-            # The engine failed a transaction whose reply had its echo, length and shape right, so
-            # the executor ran on: not expected (a source's shape says what it refuses), but the
-            # burst's later commands are on the line already.  Their bytes reach the engine as what
-            # they are to it now, bytes of no transaction: strays that keep its resync waiting for
-            # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
-            log.warning("burst ran %d transaction(s) past a reply the engine refused", last - i)
-            in_step = False
-    return out
 
 
 class BurstRunner:
@@ -149,6 +114,9 @@ class BurstRunner:
         self.decode = decode
         self._pending = pending  # the port holds half a parity mark: the ordinary read must finish it
         self.plan: list[PlannedTransaction] | None = None
+        self.fed = 0  # transactions of the running plan fed to the engine so far
+        self.in_step = True  # the engine took every transaction fed so far as the plan has it
+        self._ahead: list[int] = []  # where the running plan is still to be fed ahead (feed_ahead_points)
         self.held: list[Callable[[float], object]] = []
         self.status = DONE
         self.errno = 0
@@ -180,6 +148,11 @@ class BurstRunner:
             return False
         self.executor.start(deadline, plan)
         self.plan = plan
+        self.fed = 0
+        self.in_step = True
+        self._ahead = feed_ahead_points(len(plan))
+        if self._ahead:
+            self.executor.notify(self._ahead.pop(0))
         self.bursts += 1
         return True
 
@@ -204,22 +177,32 @@ class BurstRunner:
         self.executor.wake()
 
     def finish(self, now: Callable[[], float], *, wait: bool = False) -> tuple[bool, bytes | None]:
-        """After ``done_fd`` turned readable: (False, None) if the burst still runs; else feed it to the
-        engine and return (True, what to write next).  ``status``/``errno`` say why it stopped.
+        """After ``done_fd`` turned readable: feed the engine what the burst has done.  While it runs, only
+        the transactions already followed by another (see :func:`feed_ahead_points`): (False, None).  Once it
+        stopped, the rest: (True, what to write next); ``status``/``errno`` say why it stopped.
 
         ``wait``: stop it at its next boundary and block until it has (at most one transaction).
         """
-        if wait:
-            self.executor.wake()
-            result: Result | None = self.executor.wait()
-        else:
-            result = self.executor.result()
-        if result is None:
-            return False, None
-        plan, self.plan = self.plan, None
+        executor = self.executor
+        plan = self.plan
         assert plan is not None
+        if wait:
+            executor.wake()
+            result: Result | None = executor.wait(self.fed)
+        else:
+            result = executor.result(self.fed)
+        if result is None:
+            records = executor.completed(self.fed)
+            self._feed(plan, records, None, 0.0)
+            while self._ahead and self._ahead[0] <= self.fed:
+                self._ahead.pop(0)  # passed already (the loop was slow to come)
+            if self._ahead:
+                executor.notify(self._ahead.pop(0))
+            return False, None
+        self.plan = None
+        self._ahead = []
         self.status, self.errno = result[0], result[1]
-        self.transactions += len(result[2])
+        self.transactions += self.fed + len(result[2])
 
         t = now()
 
@@ -228,7 +211,53 @@ class BurstRunner:
             for step in held:
                 step(t)
 
-        return True, feed(self.engine, plan, result, self.decode, run_held, t)
+        return True, self._feed(plan, result[2], run_held, t)
+
+    def _feed(
+        self, plan: list[PlannedTransaction], records: list[Record], before_last: Callable[[], None] | None, now: float
+    ) -> bytes | None:
+        """Hand the engine the bytes of ``records`` (the plan's from :attr:`fed` on) with their times;
+        return what the engine wants written after the last of them.
+
+        Every transaction but the burst's last ended at a boundary the engine had planned: fed its
+        bytes with the time they came, the engine must start the next planned one, which the executor
+        did write then.  ``before_last`` is None while the burst runs (none of ``records`` is its last).
+        Otherwise the last record is the burst's last: before its bytes the engine's source may change
+        its plan again and ``before_last`` runs what waited for the burst to stop; its bytes are fed at
+        ``now``, as the ordinary path feeds bytes when it reads them: what the engine starts then is
+        written now, and its deadline must count from now (the loop may have been slow to come back).
+        The port's parity marks are undone by ``decode`` (see ``transports.tty_port.ParityMarks``).
+        """
+        engine, decode = self.engine, self.decode
+        last = len(records) - 1 if before_last is not None else -1
+        first = self.fed
+        out = None
+        for j, (data, _first, at) in enumerate(records):
+            if j == last:
+                engine.burst_over()
+                before_last()  # type: ignore[misc]
+            if decode is not None and data:
+                data, errors = decode(data)
+                if errors:
+                    engine.line_error(errors)
+            # What the engine wants written after these bytes: only the last transaction's answer is
+            # for the driver (the executor wrote the others'); one stopped with nothing read has none.
+            out = engine.receive(data, at if j != last else max(at, now)) if data else None
+            i = first + j
+            if self.in_step and j != last and out != plan[i + 1][0]:
+                if out is not None:
+                    raise BurstDiverged(
+                        f"burst transaction {i + 1}: the engine wants {out!r}, the burst sent {plan[i + 1][0]!r}"
+                    )
+                # The engine failed a transaction whose reply had its echo, length and shape right, so
+                # the executor ran on: not expected (a source's shape says what it refuses), but the
+                # burst's later commands are on the line already.  Their bytes reach the engine as what
+                # they are to it now, bytes of no transaction: strays that keep its resync waiting for
+                # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
+                log.warning("burst ran on past a reply the engine refused (transaction %d of %d)", i + 1, len(plan))
+                self.in_step = False
+        self.fed = first + len(records)
+        return out
 
     def close(self) -> None:
         """Stop the executor's thread (waiting for a running burst to end: at most one transaction)."""

@@ -11,6 +11,7 @@ and without bursts and compared.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterator
 
 from ics35_async.drivers.burst import DONE, LATE, MISMATCH, OVERRUN, SHAPE, WOKEN, BurstRunner, Record, Result
 from ics35_async.engine import LineEngine, Request
@@ -29,7 +30,12 @@ class SimExecutor:
         self.woken = False
         self.plan: tuple[float, list[PlannedTransaction]] | None = None
         self._result: Result | None = None
+        self._steps: Iterator[None] = iter(())
+        self.records: list[Record] = []  # of the running plan, as each transaction completes
+        self.ran = 0  # transactions of the running plan written
+        self.notify_at = -1
         self.runs = 0
+        self.notices = 0  # notify points reached (the runner then fed ahead)
         self.plan_lengths: list[int] = []  # of every plan started
         self.stops: Counter[int] = Counter()  # why each run stopped (DONE, SHAPE, ...)
 
@@ -38,20 +44,36 @@ class SimExecutor:
         self.plan_lengths.append(len(plan))
         self.plan = (deadline, plan)
         self._result = None
+        self.records = []
+        self.ran = 0
+        self.notify_at = -1
+        self._steps = self._run()
+
+    def notify(self, index: int) -> None:
+        self.notify_at = index
 
     def wake(self) -> None:
         self.woken = True
 
-    def result(self) -> Result | None:
+    def result(self, start: int = 0) -> Result | None:
         result, self._result = self._result, None
-        return result
+        return None if result is None else (result[0], result[1], result[2][start:])
 
-    def run(self) -> None:
+    def completed(self, start: int) -> list[Record]:
+        return self.records[start : self.ran - 1]
+
+    def run(self) -> bool:
+        """Run the plan on until a notify point or its end: True once it has ended."""
+        for _ in self._steps:
+            return False
+        return True
+
+    def _run(self) -> Iterator[None]:
         assert self.plan is not None
         wire = self.wire
         deadline, plan = self.plan
         self.runs += 1
-        records: list[Record] = []
+        records = self.records
         t_start = 0.0
         status = DONE
         for i, (tx, expect, echo, allowance, shape) in enumerate(plan):
@@ -61,6 +83,11 @@ class SimExecutor:
                     break
                 deadline = t_start + allowance
             Wire.emit(wire, tx)  # the servos hear it (the base class's write: no burst inside a burst)
+            self.ran = i + 1
+            if 0 <= self.notify_at <= i:
+                self.notify_at = -1
+                self.notices += 1
+                yield  # the runner feeds what is done while this one's reply comes
             buf = bytearray()
             first = last = 0.0
             stop = DONE
@@ -93,7 +120,7 @@ class SimExecutor:
                 break
             t_start = last
         self.stops[status] += 1
-        self._result = (status, 0, records)
+        self._result = (status, 0, list(records))
 
 
 class BurstWire(Wire):
@@ -108,8 +135,10 @@ class BurstWire(Wire):
     def emit(self, out: bytes | None) -> bytes | None:
         runner = self.runner
         while out is not None and self.now < self.end and not runner.running and runner.start(self.now):
-            self.executor.run()
-            _, out = runner.finish(lambda: self.now)
+            done = False
+            while not done:
+                self.executor.run()  # to a notify point (the runner feeds ahead) or the plan's end
+                done, out = runner.finish(lambda: self.now)
         return super().emit(out)
 
     def submit(self, request: Request) -> bytes | None:
