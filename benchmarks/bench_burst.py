@@ -4,9 +4,11 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 
 * CPU per transaction of a 32-ID stream on the default driver and loop, burst path and
   ordinary path (``ICS35_BURST=0``), against blocking pyserial on the same lean responder
-  (answers at once): the issue's goal is at most 0.7x;
+  (answers at once): the goal is at most 0.7x;
 * the same stream against a responder holding every reply to its 1.25 Mbit/s wire time, rate
   against the bare ``os.write``/``poll``/``os.read`` loop on the same line: goal at least 1.0x;
+* both of these also with every burst fed to the engine at its end instead of in parts while it
+  runs (what feeding ahead buys in rate, and costs in CPU);
 * four such lines streamed together against one: CPU per transaction, goal at most 1.1x;
 * a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
   alone (how much of the program's time the servo line leaves it);
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +43,7 @@ from bench_sharing import measure as telemetry_beside_stream
 from lean_responder import lean_lines
 
 from ics35_async import IcsError, open_bus
+from ics35_async.drivers import burst as burst_module
 from ics35_async.drivers.burst import burst_path
 
 Figures = dict[str, Any]
@@ -49,6 +53,17 @@ BAUD = 1_250_000
 def on_path(burst: bool, fn: Callable[[], Figures]) -> Figures:
     with burst_setting("1" if burst else "0"):
         return fn()
+
+
+def fed_at_end(fn: Callable[[], Figures]) -> Figures:
+    """``fn()`` on the burst path with every burst fed to the engine at its end (not in parts while it
+    runs: see :func:`ics35_async.drivers.burst.feed_ahead_points`), to show what feeding ahead buys."""
+    before = burst_module.FEED_AHEAD_MIN
+    burst_module.FEED_AHEAD_MIN = sys.maxsize
+    try:
+        return on_path(True, fn)
+    finally:
+        burst_module.FEED_AHEAD_MIN = before
 
 
 def gathered(path: str, duration: float) -> Figures:
@@ -124,8 +139,10 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
         for r in range(runs):
             progress(f"burst: run {r + 1}/{runs} (answers at once)")
             raw0 = raw_loop(path, duration)
-            burst = on_path(True, lambda: stream(path, None, "asyncio", duration))
+            bursts = on_path(True, lambda: stream(path, None, "asyncio", duration))
             raw1 = raw_loop(path, duration)
+            at_end = fed_at_end(lambda: stream(path, None, "asyncio", duration))
+            raw1b = raw_loop(path, duration)
             plain = on_path(False, lambda: stream(path, None, "asyncio", duration))
             raw2 = raw_loop(path, duration)
             seq = sequential(path, None, "asyncio", duration)
@@ -135,8 +152,9 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             floor = lean_loop(path, duration)
             raw5 = raw_loop(path, duration)
             for name, f, a, b in (
-                ("stream burst", burst, raw0, raw1),
-                ("stream ordinary", plain, raw1, raw2),
+                ("stream burst", bursts, raw0, raw1),
+                ("stream burst fed at end", at_end, raw1, raw1b),
+                ("stream ordinary", plain, raw1b, raw2),
                 ("sequential awaited set_position", seq, raw2, raw3),
                 ("gather of one cycle's set_position", gath, raw3, raw4),
                 ("floor: os.write/poll/os.read", floor, raw4, raw5),
@@ -152,9 +170,15 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             bare1 = lean_loop(paths[0], duration, baud=BAUD)
             one_plain = on_path(False, lambda: group_stream(paths[:1], None, "asyncio", BAUD, duration))
             bare2 = lean_loop(paths[0], duration, baud=BAUD)
+            one_end = fed_at_end(lambda: group_stream(paths[:1], None, "asyncio", BAUD, duration))
+            bare3 = lean_loop(paths[0], duration, baud=BAUD)
             four = on_path(True, lambda: group_stream(paths, None, "asyncio", BAUD, duration))
             four_plain = on_path(False, lambda: group_stream(paths, None, "asyncio", BAUD, duration))
-            for name, f, a, b in (("burst", one, bare0, bare1), ("ordinary", one_plain, bare1, bare2)):
+            for name, f, a, b in (
+                ("burst", one, bare0, bare1),
+                ("ordinary", one_plain, bare1, bare2),
+                ("burst fed at end", one_end, bare2, bare3),
+            ):
                 rate = f["aggregate_cycles_per_s"] * len(IDS)
                 note(f"wire rate_vs_bare {name}", ratio(rate, a["tx_per_s"], b["tx_per_s"]), f)
             note("four_vs_one cpu burst", four["cpu_us_per_tx"] / one["cpu_us_per_tx"], four)
@@ -185,6 +209,11 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
 
 ROWS = (
     ("stream, default driver and loop, burst path", "cpu_vs_raw stream burst", "rate_vs_raw stream burst"),
+    (
+        "  the same, each burst fed at its end",
+        "cpu_vs_raw stream burst fed at end",
+        "rate_vs_raw stream burst fed at end",
+    ),
     ("stream, default driver and loop, ordinary path", "cpu_vs_raw stream ordinary", "rate_vs_raw stream ordinary"),
     (
         "sequential awaited set_position",
@@ -214,6 +243,7 @@ def print_table(r: dict[str, Any]) -> None:
         print(f"  {label:48} {m[cpu]:8.2f} {m[rate]:9.2f}")
     print(f"   wire-timed at {BAUD} bit/s: stream rate against the bare loop on the same line")
     print(f"  {'burst path':48} {m['wire rate_vs_bare burst']:8.2f}")
+    print(f"  {'  the same, each burst fed at its end':48} {m['wire rate_vs_bare burst fed at end']:8.2f}")
     print(f"  {'ordinary path':48} {m['wire rate_vs_bare ordinary']:8.2f}")
     print("   four lines streamed together against one: CPU per transaction")
     print(f"  {'burst path':48} {m['four_vs_one cpu burst']:8.2f}")

@@ -138,9 +138,11 @@ class Stream(FrameIterator[Frame]):
         self._next_probe = [0.0] * n
         self._held = [False] * n  # after a resume: no command until the program sets a target
         # A burst (see the engine's plan_burst) runs the cycle's next transactions as planned: a new
-        # target for one of them is held back (its slot in _stale) until the burst is over.
+        # target for one of them is held back (its slot in _stale) until the burst is over.  It may
+        # run on into the cycles after this one (_beyond) where they are certain (see _upcoming).
         self._frozen: set[int] = set()
         self._stale: set[int] = set()
+        self._beyond = False
         # The cycle in progress.
         self._order: list[int] = []
         self._pos = 0
@@ -308,7 +310,7 @@ class Stream(FrameIterator[Frame]):
         return self._t0 + self._cycle / self.rate_hz
 
     def _next_transaction(self, now: float) -> tuple[bytes, int, int] | None:
-        if not self._running and not (self._pos < len(self._order) and self._order[self._pos] in self._frozen):
+        if not self._running and not self._planned_next():
             # (stopped: nothing more, but what a running burst planned, and so already put on the line,
             # until the burst is over: the engine is fed it afterwards, and the detach waits for it)
             return None
@@ -320,15 +322,43 @@ class Stream(FrameIterator[Frame]):
         self._cur_reader = self._readers[k]
         return self._jobs[k]
 
+    def _planned_next(self) -> bool:
+        """Has a running burst put this stream's next transaction on the line already (see _upcoming)?"""
+        if self._pos < len(self._order):
+            return self._order[self._pos] in self._frozen
+        return self._beyond  # the next cycle's first
+
     def _upcoming(self, limit: int) -> list[Upcoming]:
         start = self._pos  # the one on the wire
-        slots = self._order[start : start + limit] if limit > 0 else []
+        order = self._order
+        slots = order[start : start + limit] if limit > 0 else []
+        ends = {len(slots) - 1} if slots and start + len(slots) == len(order) else set()
+        n = len(self.ids)
+        if (
+            ends
+            and len(slots) < limit
+            and self.rate_hz is None
+            and self._running
+            and len(order) == n
+            and not any(self._offline)
+            and not any(self._held)
+        ):
+            # Unpaced, with every ID in the cycle: the next cycle starts as soon as this one ends, with
+            # every ID again (only a failure, which ends a burst, takes one out), so a burst may run on
+            # through the cycles after it.  Each cycle's frame is news: the burst is fed there.
+            self._beyond = True
+            while len(slots) < limit:
+                more = order[: limit - len(slots)]
+                slots += more
+                if len(more) == n:
+                    ends.add(len(slots) - 1)
         self._frozen.update(slots[1:])
         jobs, readers, shapes = self._jobs, self._readers, self._shapes
         # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
-        return [(*jobs[k], b"" if readers[k] is not None else shapes[k]) for k in slots]
+        return [(*jobs[k], b"" if readers[k] is not None else shapes[k], i in ends) for i, k in enumerate(slots)]
 
     def _upcoming_done(self) -> None:
+        self._beyond = False
         self._frozen.clear()
         stale, self._stale = self._stale, set()
         for k in stale:

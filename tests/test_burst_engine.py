@@ -11,6 +11,7 @@ tests/test_burst_executor.py.
 from __future__ import annotations
 
 import random
+from dataclasses import astuple
 from typing import Any
 
 import pytest
@@ -119,9 +120,88 @@ def test_a_burst_line_does_exactly_what_the_ordinary_line_does(
     assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every else 3)
     if damage_every:  # and some stopped at a damaged reply (the executor must not send the next command)
         assert wire.executor.stops[SHAPE] > 0
-    assert wire.executor.notices > 0  # and some were fed to the engine in parts while they ran
+    if not mute_every and not damage_every:
+        assert wire.executor.notices > 0  # and some were fed to the engine in parts while they ran
     assert burst["requests"] == plain["requests"]
     assert burst["writes"] == plain["writes"]
+    assert burst == plain
+
+
+class SimulatedBus:
+    """What a :class:`Stream` asks of its bus, on a simulated wire: a kick reaches the engine as the
+    asyncio driver passes it on (where a running burst stops, if one runs)."""
+
+    echo = True
+
+    def __init__(self, wire: Wire) -> None:
+        self.wire = wire
+        self.baudrate = wire.engine.baudrate
+        self.frames: list[Any] = []
+
+    def kick(self) -> None:
+        wire, engine = self.wire, self.wire.engine
+        if isinstance(wire, BurstWire) and wire.runner.running:
+            wire.runner.hold(engine.kick)
+        else:
+            wire.emit(engine.kick(wire.now))
+
+    def detach_source(self, source: Any) -> None:
+        self.wire.engine.detach_source(source)
+
+    def notify(self, callback: Any) -> None:
+        callback()
+
+
+def run_stream(
+    wire_class: type[Wire], *, seed: int, mute_every: int, damage_every: int, absent: bool
+) -> tuple[dict[str, Any], Wire]:
+    """The library's own stream over 8 servos, unpaced (its bursts run on through cycle after cycle),
+    with reads and new targets from the program at random times; ``absent``: and an ID no servo has
+    (offline, then probed now and then: the cycles it is probed in are not certain beforehand)."""
+    rng = random.Random(seed)
+    engine = ready_engine()
+    servos = SlowAtTimes(IDS, engine.baudrate, seed)
+    servos.mute = {k for k in range(5, 100_000) if mute_every and k % mute_every == 0}
+    servos.damaged = {k for k in range(5, 100_000) if damage_every and k % damage_every == 0}
+    wire = wire_class(engine, servos)
+    bus = SimulatedBus(wire)
+    ids = [*IDS[:4], 20, *IDS[4:]] if absent else IDS
+    stream = Stream(bus, ids, offline_after=2, probe_interval=0.1)  # type: ignore[arg-type]
+    stream._running = True
+    frames: list[tuple[Any, ...]] = []
+    stream._wake_waiters = lambda: frames.append(astuple(stream._latest))  # type: ignore[method-assign]
+    wire.emit(engine.attach_source(stream._hooks, wire.now))
+    recorded = []
+    for _ in range(20):
+        request = Recorded(read(rng.choice(IDS)), rng.choice(list(Priority)), retries=0, wire=wire)
+        recorded.append(request)
+        wire.at(rng.uniform(0, 0.4), lambda request=request: wire.submit(request))
+    for _ in range(30):
+        targets = {sid: rng.randrange(3500, 11500) for sid in rng.sample(IDS, 3)}
+        wire.at(rng.uniform(0, 0.4), lambda targets=targets: stream.set_targets(targets))
+    wire.run_for(0.5)
+    return {**summary(wire, recorded), "frames": frames}, wire
+
+
+@pytest.mark.parametrize(
+    ("mute_every", "damage_every", "absent"),
+    [(0, 0, False), (61, 0, False), (0, 41, False), (0, 0, True)],
+    ids=["healthy", "silent", "damaged", "absent"],
+)
+@pytest.mark.parametrize("seed", range(3))
+def test_the_librarys_stream_does_exactly_what_it_does_without_bursts(
+    seed: int, mute_every: int, damage_every: int, absent: bool
+) -> None:
+    faults = {"mute_every": mute_every, "damage_every": damage_every, "absent": absent}
+    plain, _ = run_stream(Wire, seed=seed, **faults)
+    burst, wire = run_stream(BurstWire, seed=seed, **faults)
+    assert isinstance(wire, BurstWire)
+    assert max(wire.executor.plan_lengths) > 2 * len(IDS)  # plans ran on through cycles
+    # (after each fault the ordinary path runs until a late reply can no longer come: an absent ID's probes are faults)
+    assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every or absent else 3)
+    assert len(plain["frames"]) > 50
+    assert burst["writes"] == plain["writes"]
+    assert burst["frames"] == plain["frames"]
     assert burst == plain
 
 
@@ -334,7 +414,9 @@ def test_a_stream_keeps_a_planned_target_until_the_burst_is_over_and_asks_for_th
         sid: protocol.position_reply_shape(protocol.position_reply_header(sid, line.baudrate)) for sid in (1, 2, 3)
     }
     # The one on the wire first, then the rest of the cycle, each with the shape of a reply the stream takes.
-    assert hooks.upcoming(10) == [(protocol.position_tx(sid, protocol.FREE), 3, sid, shapes[sid]) for sid in (1, 2, 3)]
+    assert hooks.upcoming(3) == [
+        (protocol.position_tx(sid, protocol.FREE), 3, sid, shapes[sid], sid == 3) for sid in (1, 2, 3)
+    ]
     stream.set_target(2, 8000)  # planned: the burst sends the old command; the stream asks it to stop
     assert line.kicks == 1 and stream.target(2) == 8000
     stream.set_target(1, 9000)  # on the wire already, not planned: next cycle's command, no stop needed
@@ -356,7 +438,7 @@ def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already
     # detach waits for the burst to stop); once the burst is over it offers nothing more.
     line, stream, hooks = streaming([1, 2, 3])
     assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
-    assert len(hooks.upcoming(10)) == 3
+    assert len(hooks.upcoming(3)) == 3
     stream._stop()
     assert line.detached is hooks
     assert hooks.complete(answer_to_free(1), 3, 0.001) is None
@@ -364,6 +446,67 @@ def test_a_stream_closed_during_a_burst_still_answers_for_what_the_burst_already
     hooks.upcoming_done()
     assert hooks.complete(answer_to_free(2), 3, 0.002) is None
     assert hooks.next_transaction(0.002) is None  # the burst is over: the stop applies
+
+
+def test_an_unpaced_stream_with_every_id_in_its_cycle_plans_on_through_the_next_cycles() -> None:
+    line, stream, hooks = streaming([1, 2, 3])
+    free = {sid: protocol.position_tx(sid, protocol.FREE) for sid in (1, 2, 3)}
+    assert hooks.next_transaction(0.0) == (free[1], 3, 1)
+    planned = hooks.upcoming(8)
+    # The one on the wire, the rest of its cycle, then whole cycles; each cycle's last is news (its frame).
+    assert [(tx, news) for tx, _, _, _, news in planned] == [
+        (free[1], False), (free[2], False), (free[3], True),
+        (free[1], False), (free[2], False), (free[3], True),
+        (free[1], False), (free[2], False),
+    ]  # fmt: skip
+    stream.set_target(1, 8000)  # planned for the next cycle: it waits for the burst's end, which it asks for
+    assert line.kicks == 1
+    t = 0.0
+    for sid in (1, 2, 3, 1):
+        t += 0.001
+        assert hooks.complete(answer_to_free(sid), 3, t) is None
+        assert hooks.next_transaction(t) == (free[sid % 3 + 1], 3, sid % 3 + 1)  # as planned, the old target too
+    hooks.upcoming_done()
+    assert hooks.complete(answer_to_free(2), 3, 0.006) is None
+    assert hooks.next_transaction(0.006) == (protocol.position_tx(3, protocol.FREE), 3, 3)
+    assert hooks.complete(answer_to_free(3), 3, 0.007) is None
+    assert hooks.next_transaction(0.007) == (protocol.position_tx(1, 8000), 3, 1)  # the new target, now
+
+
+@pytest.mark.parametrize("why", ["paced", "offline", "held"])
+def test_a_stream_plans_no_further_than_its_cycle_where_the_next_is_not_certain(why: str) -> None:
+    line = QuietLine()
+    stream = Stream(line, [1, 2, 3], rate_hz=100 if why == "paced" else None)  # type: ignore[arg-type]
+    stream._running = True
+    hooks = stream._hooks
+    if why == "offline":
+        stream._offline[1] = True  # ID 2: out of the cycle until its probe is due, which depends on the time
+        stream._next_probe[1] = 0.0
+    if why == "held":
+        stream._held[2] = True  # ID 3 waits for a target after a reconnect (then goes in the next cycle)
+        stream._held[1] = True
+    hooks.next_transaction(0.0)
+    planned = hooks.upcoming(8)
+    assert len(planned) == len(stream._order) and planned[-1][4]  # its own cycle, whose last is news
+
+
+def test_a_stream_closed_during_a_burst_answers_for_the_next_cycle_the_burst_already_sent() -> None:
+    # As above, with a plan that runs on into the next cycle: at the end of this one, the stopped
+    # stream still starts the next for the commands the executor already sent.
+    _, stream, hooks = streaming([1, 2, 3])
+    assert hooks.next_transaction(0.0) == (protocol.position_tx(1, protocol.FREE), 3, 1)
+    assert len(hooks.upcoming(5)) == 5  # 1, 2, 3, then 1, 2 of the next cycle
+    stream._stop()
+    t = 0.0
+    for sid in (1, 2, 3):
+        t += 0.001
+        assert hooks.complete(answer_to_free(sid), 3, t) is None
+        assert hooks.next_transaction(t) == (protocol.position_tx(sid % 3 + 1, protocol.FREE), 3, sid % 3 + 1)
+    assert hooks.complete(answer_to_free(1), 3, 0.004) is None
+    assert hooks.next_transaction(0.004) == (protocol.position_tx(2, protocol.FREE), 3, 2)
+    hooks.upcoming_done()
+    assert hooks.complete(answer_to_free(2), 3, 0.005) is None
+    assert hooks.next_transaction(0.005) is None  # the burst is over: the stop applies
 
 
 def test_a_stream_closed_during_a_burst_keeps_the_line_for_what_the_burst_already_sent() -> None:

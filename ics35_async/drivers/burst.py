@@ -53,7 +53,8 @@ log = logging.getLogger("ics35_async")
 MIN_PLAN = 2  # a plan of one transaction gains nothing from a thread hand-off
 FEED_AHEAD_MIN = 8
 """A plan of at least this many transactions is fed to the engine in parts while it runs (see
-:func:`feed_ahead_points`); a shorter one at its end."""
+:func:`feed_ahead_points`); a shorter one at its end, unless its source has news before then."""
+FEED_AHEAD_LAST = 3  # transactions of a plan left to feed at its end
 PAUSE_AFTER_REQUEST = 1.0
 """Seconds after the program's last request during which the stream takes the ordinary path.  A request
 that arrives during a burst goes out only once the burst's bytes so far are fed to the engine (several
@@ -82,13 +83,27 @@ def burst_path() -> tuple[bool, str]:
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
 
 
-def feed_ahead_points(n: int) -> list[int]:
+def feed_ahead_points(n: int, news: list[int]) -> list[int]:
     """Where the loop feeds a running plan of ``n`` transactions what is done so far (every transaction
-    before the one on the wire): when the executor writes the transaction halfway through the plan, then
-    the third from its end.  Fed all at its end, a 32-transaction burst would keep the line idle while
-    CPython feeds the engine 31 transactions' bytes; fed ahead, only the last few wait for the loop, for two
-    more wake-ups of the loop a burst (measured: ``benchmarks/bench_burst.py``)."""
-    return sorted({n // 2, n - 3}) if n >= FEED_AHEAD_MIN else []
+    before the one being written), given the entries ``news`` after which its source has news for the
+    program (a stream's frame).
+
+    Right after each entry with news, so a frame reaches the program as soon as its cycle's last reply
+    came, not when the burst ends.  In a plan of :data:`FEED_AHEAD_MIN` or more, also
+    :data:`FEED_AHEAD_LAST` transactions before its end, and halfway there from the point before when
+    that is far: fed all at its end, a burst would keep the line idle while CPython feeds the engine
+    its bytes (5 us or so a transaction); fed ahead, only the last few wait for the loop, for a wake-up
+    of the loop a point (measured: ``benchmarks/bench_burst.py``, the rows fed at the end).
+    """
+    points = {i + 1 for i in news if i + 1 < n}
+    if n >= FEED_AHEAD_MIN:
+        end = n - FEED_AHEAD_LAST
+        end = min((p for p in points if p >= end), default=end)  # (news there serves)
+        before = max((p for p in points if p < end), default=0)
+        points.add(end)
+        if end - before >= 2 * FEED_AHEAD_MIN:
+            points.add((before + end) // 2)
+    return sorted(points)
 
 
 class BurstDiverged(RuntimeError):
@@ -142,7 +157,7 @@ class BurstRunner:
         planned = self.engine.plan_burst()
         if planned is None:
             return False
-        deadline, plan = planned
+        deadline, plan, news = planned
         if len(plan) < MIN_PLAN:
             self.engine.burst_over()
             return False
@@ -150,7 +165,7 @@ class BurstRunner:
         self.plan = plan
         self.fed = 0
         self.in_step = True
-        self._ahead = feed_ahead_points(len(plan))
+        self._ahead = feed_ahead_points(len(plan), news)
         if self._ahead:
             self.executor.notify(self._ahead.pop(0))
         self.bursts += 1

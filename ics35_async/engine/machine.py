@@ -44,7 +44,9 @@ NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
 URGENT = Priority.URGENT
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
-BURST_LIMIT = 64  # transactions in one burst at most (a 32-servo cycle fits; a wake still stops it sooner)
+BURST_LIMIT = 128
+"""Transactions in one burst at most: four cycles of a 32-servo stream (a wake still stops it at its next
+boundary).  Each burst's start hands a plan to another thread; longer plans pay that less often."""
 PlannedTransaction = tuple[bytes, int, int, float, bytes]
 """One transaction of a burst: the bytes to write, bytes expected back, of which echo, allowance (s), and
 the shape of a reply the source takes (see :data:`.source.Upcoming`)."""
@@ -287,19 +289,21 @@ class LineEngine:
 
     # ------------------------------------------------------------------ bursts
 
-    def plan_burst(self, limit: int = BURST_LIMIT) -> tuple[float, list[PlannedTransaction]] | None:
+    def plan_burst(self, limit: int = BURST_LIMIT) -> tuple[float, list[PlannedTransaction], list[int]] | None:
         """The transactions a burst executor may run from the one just put on the wire, or None.
 
         A burst is the source's transaction on the wire (returned by the last call) followed by
         the source's next ones, as far as the sharing rule lets the source keep the line (to the
-        end of its cycle; not past a boundary where a queued request would go instead), at most
-        ``limit`` in all.  Each entry is ``(tx, expect, echo, allowance, shape)``: the bytes to
-        write, how many come back (echo included), how many of them are the echo, the seconds from
-        the transaction's start (when the previous one's last byte came) to its deadline (the first
-        one's deadline is the one returned with the plan), and the shape of a reply the source takes
-        (see :data:`.source.Upcoming`).  The executor stops after a reply not of that shape, as
-        the source refuses it and the line then goes as it would without a burst; a transaction
-        whose source gives no shape ends the plan.
+        end of its cycle, or of later cycles where the source knows them; not past a boundary where
+        a queued request would go instead), at most ``limit`` in all.  Returned with the plan: its
+        first transaction's deadline, and the entries after which the source has news for its
+        program (a frame), where the driver should feed the engine without waiting for the burst's
+        end.  Each entry is ``(tx, expect, echo, allowance, shape)``: the bytes to write, how many
+        come back (echo included), how many of them are the echo, the seconds from the
+        transaction's start (when the previous one's last byte came) to its deadline, and the shape
+        of a reply the source takes (see :data:`.source.Upcoming`).  The executor stops after a
+        reply not of that shape, as the source refuses it and the line then goes as it would
+        without a burst; a transaction whose source gives no shape ends the plan.
 
         Only while the line is in step (no reply owed or held back, no slow-link allowance
         learnt, nothing received yet of the transaction on the wire): after a fault the ordinary
@@ -339,22 +343,29 @@ class LineEngine:
         plan: list[PlannedTransaction] = [
             (self._tx, self._expect, self._echo_len, self.deadline - self._t_start, upcoming[0][3])
         ]
+        news = [0] if upcoming[0][4] else []
         echo = self.echo
         latency = self.answers.stream_latency
         steady = self.answers.answers_before_change()
+        waits: dict[tuple[int, bool], float] = {}  # (a stream's transactions are all alike: computed once)
         for j in range(1, len(upcoming)):
             if not plan[-1][4]:
                 break  # a reply of no shape may only end a burst: the source may refuse it
-            tx, reply_len, _sid, shape = upcoming[j]
+            tx, reply_len, _sid, shape, has_news = upcoming[j]
             nbytes = len(tx) + reply_len
-            allowance = self._allowances.get(nbytes)
+            key = (nbytes, j < steady)
+            allowance = waits.get(key)
             if allowance is None:
-                allowance = self._allowance(nbytes, NORMAL)
-            allowance = self._stream_wait(nbytes, allowance, latency if j < steady else STREAM_WAIT_FLOOR)
+                allowance = self._allowances.get(nbytes)
+                if allowance is None:
+                    allowance = self._allowance(nbytes, NORMAL)
+                allowance = waits[key] = self._stream_wait(nbytes, allowance, latency if key[1] else STREAM_WAIT_FLOOR)
             echo_len = len(tx) if echo else 0
             plan.append((tx, echo_len + reply_len, echo_len, allowance, shape))
+            if has_news:
+                news.append(j)
         self._planned = True
-        return self.deadline, plan
+        return self.deadline, plan, news
 
     def would_take(self, request: Request, now: float) -> bool:
         """Would ``request``, queued now, get the line at the next transaction boundary, before the

@@ -9,11 +9,13 @@ from typing import Any, Protocol
 
 from ..errors import IcsError, ReplyError
 
-Upcoming = tuple[bytes, int, int, bytes]
-"""A transaction a source will ask for: ``(tx, reply_len, servo_id, shape)``; ``shape`` is the shape of a
-reply the source takes (``reply_len`` bytes wanted, then as many masks: a reply ``r`` fits when
+Upcoming = tuple[bytes, int, int, bytes, bool]
+"""A transaction a source will ask for: ``(tx, reply_len, servo_id, shape, news)``; ``shape`` is the shape
+of a reply the source takes (``reply_len`` bytes wanted, then as many masks: a reply ``r`` fits when
 ``r[i] & mask[i] == wanted[i]``), or ``b""`` if the source cannot tell a reply it would refuse by
-such a comparison (see :meth:`BackgroundSource.upcoming`)."""
+such a comparison (see :meth:`BackgroundSource.upcoming`); ``news``: once this one is answered, the
+source has news for its program (a stream: a cycle's frame), so a burst should be fed to the engine
+promptly there rather than at its end."""
 
 
 class BackgroundSource(Protocol):
@@ -69,10 +71,11 @@ class BackgroundSource(Protocol):
 
     def upcoming(self, limit: int) -> list[Upcoming]:
         """The one on the wire and the transactions it will ask for after it, if each succeeds,
-        without waiting for a slot (the rest of its cycle), at most ``limit`` in all, each with the
-        shape of a reply it takes (a burst stops where a reply is not of that shape: the source would
-        refuse it, and the line must then go as it goes without a burst).  It keeps the ones after
-        the one on the wire as they are (a new target for one of them waits) until
+        without waiting for a slot (the rest of its cycle, and the cycles after it where they are
+        certain: an unpaced stream with every ID in its cycle), at most ``limit`` in all, each with
+        the shape of a reply it takes (a burst stops where a reply is not of that shape: the source
+        would refuse it, and the line must then go as it goes without a burst).  It keeps the ones
+        after the one on the wire as they are (a new target for one of them waits) until
         :meth:`upcoming_done`."""
         ...
 

@@ -350,12 +350,12 @@ class FakeSource:
         if self.period or not self.active:
             return []
         n = len(self.ids)
-        jobs = []
+        jobs: list[Upcoming] = []
         for k in range(self.k, min((self.k // n + 1) * n, self.k + limit)):
             command = position(self.ids[k % n], 0)
             assert command.servo_id is not None
             shape = protocol.position_reply_shape(command.reply_header)
-            jobs.append((command.tx, command.reply_len, command.servo_id, shape))
+            jobs.append((command.tx, command.reply_len, command.servo_id, shape, k % n == n - 1))
         return jobs
 
     def upcoming_done(self) -> None:

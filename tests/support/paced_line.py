@@ -86,8 +86,9 @@ class PacedCycle:
                 3,
                 sid,
                 protocol.position_reply_shape(protocol.position_reply_header(sid, BAUD)),
+                k == len(self.ids) - 1,  # the cycle's last: news
             )
-            for sid in self.ids[self.pos : self.pos + limit]
+            for k, sid in enumerate(self.ids[self.pos : self.pos + limit], start=self.pos)
         ]
 
     def upcoming_done(self) -> None:
