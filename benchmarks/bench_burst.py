@@ -7,8 +7,9 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
   (answers at once): the goal is at most 0.7x;
 * the same stream against a responder holding every reply to its 1.25 Mbit/s wire time, rate
   against the bare ``os.write``/``poll``/``os.read`` loop on the same line: goal at least 1.0x;
-* both of these also with every burst fed to the engine at its end instead of in parts while it
-  runs (what feeding ahead buys in rate, and costs in CPU);
+* both of these also without feeding the engine a few transactions ahead of each burst's end (what
+  that buys in rate, and costs in CPU);
+* where the burst path's CPU goes: the executor's thread, the loop's, feeding the engine;
 * four such lines streamed together against one: CPU per transaction, goal at most 1.1x;
 * a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
   alone (how much of the program's time the servo line leaves it);
@@ -56,14 +57,49 @@ def on_path(burst: bool, fn: Callable[[], Figures]) -> Figures:
 
 
 def fed_at_end(fn: Callable[[], Figures]) -> Figures:
-    """``fn()`` on the burst path with every burst fed to the engine at its end (not in parts while it
-    runs: see :func:`ics35_async.drivers.burst.feed_ahead_points`), to show what feeding ahead buys."""
+    """``fn()`` on the burst path with each burst fed to the engine only where a frame is complete and at
+    the burst's end, not also a few transactions before it (see
+    :func:`ics35_async.drivers.burst.feed_ahead_points`): what feeding ahead of the end buys."""
     before = burst_module.FEED_AHEAD_MIN
     burst_module.FEED_AHEAD_MIN = sys.maxsize
     try:
         return on_path(True, fn)
     finally:
         burst_module.FEED_AHEAD_MIN = before
+
+
+def cpu_split(path: str, duration: float) -> Figures:
+    """Where the burst path's CPU goes, per transaction of a 32-ID stream: all of it
+    (``time.process_time()``), the loop's thread (``time.thread_time()`` there), of which feeding the
+    engine the bursts' bytes (``BurstRunner._feed``); the rest is the executor's thread."""
+    feeding = [0.0]
+    feed = burst_module.BurstRunner._feed
+
+    def timed_feed(self: burst_module.BurstRunner, *args: Any) -> bytes | None:
+        t = time.thread_time()
+        try:
+            return feed(self, *args)
+        finally:
+            feeding[0] += time.thread_time() - t
+
+    async def measure() -> Figures:
+        async with open_bus(path, **BUS_OPTIONS) as bus, bus.stream(IDS) as st:
+            first = await st.next_frame()
+            while first.cycle < 5:
+                first = await st.next_frame()
+            wall0, cpu0, loop0, feed0 = time.perf_counter(), time.process_time(), time.thread_time(), feeding[0]
+            frame = first
+            while time.perf_counter() - wall0 < duration:
+                frame = await st.next_frame()
+            cpu, loop, fed = time.process_time() - cpu0, time.thread_time() - loop0, feeding[0] - feed0
+        n = (frame.cycle - first.cycle) * len(IDS)
+        return {"cpu_us_per_tx": cpu / n * 1e6, "loop_us_per_tx": loop / n * 1e6, "feed_us_per_tx": fed / n * 1e6}
+
+    burst_module.BurstRunner._feed = timed_feed  # type: ignore[method-assign]
+    try:
+        return on_path(True, lambda: run_on("asyncio", measure))
+    finally:
+        burst_module.BurstRunner._feed = feed  # type: ignore[method-assign]
 
 
 def gathered(path: str, duration: float) -> Figures:
@@ -151,6 +187,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             raw4 = raw_loop(path, duration)
             floor = lean_loop(path, duration)
             raw5 = raw_loop(path, duration)
+            note("cpu split", 0.0, cpu_split(path, duration))
             for name, f, a, b in (
                 ("stream burst", bursts, raw0, raw1),
                 ("stream burst fed at end", at_end, raw1, raw1b),
@@ -210,7 +247,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
 ROWS = (
     ("stream, default driver and loop, burst path", "cpu_vs_raw stream burst", "rate_vs_raw stream burst"),
     (
-        "  the same, each burst fed at its end",
+        "  the same, not fed ahead of a burst's end",
         "cpu_vs_raw stream burst fed at end",
         "rate_vs_raw stream burst fed at end",
     ),
@@ -241,9 +278,14 @@ def print_table(r: dict[str, Any]) -> None:
     print(f"  {'row':48} {'CPU/raw':>8} {'rate/raw':>9}")
     for label, cpu, rate in ROWS:
         print(f"  {label:48} {m[cpu]:8.2f} {m[rate]:9.2f}")
+    split = r["figures"]["cpu split"]
+    cpu, loop, fed = (median([f[k] for f in split]) for k in ("cpu_us_per_tx", "loop_us_per_tx", "feed_us_per_tx"))
+    print(f"   where the burst path's CPU goes (not alternated; only the split is to be read): {cpu:.1f} us/tx,")
+    print(f"   the executor's thread {cpu - loop:.1f}, the loop's thread {loop:.1f} (feeding the engine {fed:.1f})")
     print(f"   wire-timed at {BAUD} bit/s: stream rate against the bare loop on the same line")
     print(f"  {'burst path':48} {m['wire rate_vs_bare burst']:8.2f}")
-    print(f"  {'  the same, each burst fed at its end':48} {m['wire rate_vs_bare burst fed at end']:8.2f}")
+    label = "  the same, not fed ahead of a burst's end"
+    print(f"  {label:48} {m['wire rate_vs_bare burst fed at end']:8.2f}")
     print(f"  {'ordinary path':48} {m['wire rate_vs_bare ordinary']:8.2f}")
     print("   four lines streamed together against one: CPU per transaction")
     print(f"  {'burst path':48} {m['four_vs_one cpu burst']:8.2f}")

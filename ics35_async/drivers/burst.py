@@ -8,8 +8,9 @@ is late, short, not echoed as sent or answered out of the shape the source gave 
 source would refuse that reply, and the burst's later commands must not go out after it), or at a
 boundary once woken.  :meth:`BurstRunner.finish` hands every byte to the engine with the time it
 came, so the engine judges each transaction as if the bytes had come one by one: no rule lives in
-the executor.  It feeds a long burst in parts while it runs (see :func:`feed_ahead_points`), so
-the line waits for the loop only for the last few.
+the executor.  It feeds a burst in parts while it runs (see :func:`feed_ahead_points`): each frame
+as its cycle ends, and all but the last few transactions before the burst's end, so the line waits
+for the loop only for those.
 
 What arrives from the program during a burst waits for the boundary where the burst stops: a
 request (the burst is woken when the sharing rule would give it the line at the next boundary),
@@ -73,8 +74,8 @@ def burst_path() -> tuple[bool, str]:
     """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
     doctor, after :data:`PATH_NAME`).
 
-    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU and rate goals (the chaos, cancellation
-    and unplug soaks run on it over a pty, and pass).
+    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU goal, and its rate goal only in some runs
+    (the chaos, cancellation and unplug soaks run on it over a pty, and pass).
     """
     if os.environ.get(ENV, "").strip().lower() not in ("1", "on", "yes", "true"):
         return False, f"off (optional; {ENV}=1 turns it on)"
