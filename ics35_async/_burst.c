@@ -541,13 +541,15 @@ static PyObject *Burst_result(Burst *self, PyObject *args) {
         PyErr_SetString(PyExc_RuntimeError, "no burst was started");
         return NULL;
     }
-    /* Drained before the check: a notice (see notify) is taken, and the signal of a burst that ends
-       after the check will come, as the worker sends it after clearing job under the lock. */
+    /* Drained before the check, so a notice (see notify) is taken while the burst runs: the signal
+       of a burst that ends after the check comes then (the worker sends it after clearing job,
+       under the lock).  Drained again once it has ended, as its signal may have come between. */
     drain(self->done_r);
     pthread_mutex_lock(&self->lock);
     int running = self->job;
     pthread_mutex_unlock(&self->lock);
     if (running) Py_RETURN_NONE;
+    drain(self->done_r);
     self->busy = 0;
     return make_result(self, start);
 }

@@ -339,9 +339,9 @@ class Stream(FrameIterator[Frame]):
             and len(slots) < limit
             and self.rate_hz is None
             and self._running
-            and len(order) == n
-            and not any(self._offline)
-            and not any(self._held)
+            and len(order) == n  # none held, none offline but one probed now
+            and not any(self._offline)  # (one gone offline in this cycle is in its order still)
+            and all(reader is None for reader in self._readers)  # (a watched ID's read ends a plan)
         ):
             # Unpaced, with every ID in the cycle: the next cycle starts as soon as this one ends, with
             # every ID again (only a failure, which ends a burst, takes one out), so a burst may run on

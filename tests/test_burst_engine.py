@@ -127,6 +127,23 @@ def test_a_burst_line_does_exactly_what_the_ordinary_line_does(
     assert burst == plain
 
 
+@pytest.mark.parametrize(
+    ("n", "news", "points"),
+    [
+        (32, [31], [14, 29]),  # one cycle: halfway, then three before the end (its frame: at the end)
+        (128, [31, 63, 95, 127], [32, 64, 96, 110, 125]),  # four cycles: each frame, then as above
+        (128, [17, 35, 53, 71, 89, 107, 125], [18, 36, 54, 72, 90, 108, 117, 126]),  # a frame near the end serves
+        (5, [2, 4], [3]),  # short: its frames only
+        (7, [], []),
+        (20, [], [8, 17]),
+    ],
+)
+def test_a_burst_is_fed_ahead_at_each_frame_and_a_few_before_its_end(
+    n: int, news: list[int], points: list[int]
+) -> None:
+    assert burst.feed_ahead_points(n, news) == points
+
+
 class SimulatedBus:
     """What a :class:`Stream` asks of its bus, on a simulated wire: a kick reaches the engine as the
     asyncio driver passes it on (where a running burst stops, if one runs)."""
@@ -169,7 +186,13 @@ def run_stream(
     stream = Stream(bus, ids, offline_after=2, probe_interval=0.1)  # type: ignore[arg-type]
     stream._running = True
     frames: list[tuple[Any, ...]] = []
-    stream._wake_waiters = lambda: frames.append(astuple(stream._latest))  # type: ignore[method-assign]
+    mid_burst = [0]  # frames published while a burst still ran (fed ahead where its cycle ended)
+
+    def published() -> None:
+        frames.append(astuple(stream._latest))
+        mid_burst[0] += isinstance(wire, BurstWire) and wire.runner.running
+
+    stream._wake_waiters = published  # type: ignore[method-assign]
     wire.emit(engine.attach_source(stream._hooks, wire.now))
     recorded = []
     for _ in range(20):
@@ -180,7 +203,7 @@ def run_stream(
         targets = {sid: rng.randrange(3500, 11500) for sid in rng.sample(IDS, 3)}
         wire.at(rng.uniform(0, 0.4), lambda targets=targets: stream.set_targets(targets))
     wire.run_for(0.5)
-    return {**summary(wire, recorded), "frames": frames}, wire
+    return {**summary(wire, recorded), "frames": frames, "mid_burst": mid_burst[0]}, wire
 
 
 @pytest.mark.parametrize(
@@ -200,9 +223,11 @@ def test_the_librarys_stream_does_exactly_what_it_does_without_bursts(
     # (after each fault the ordinary path runs until a late reply can no longer come: an absent ID's probes are faults)
     assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every or absent else 3)
     assert len(plain["frames"]) > 50
+    if not mute_every and not damage_every and not absent:
+        assert burst["mid_burst"] > len(burst["frames"]) / 3  # frames did not wait for their burst's end
     assert burst["writes"] == plain["writes"]
     assert burst["frames"] == plain["frames"]
-    assert burst == plain
+    assert {**burst, "mid_burst": 0} == plain
 
 
 def test_a_request_arriving_mid_burst_takes_the_next_boundary_beside_an_unpaced_stream() -> None:
@@ -473,7 +498,7 @@ def test_an_unpaced_stream_with_every_id_in_its_cycle_plans_on_through_the_next_
     assert hooks.next_transaction(0.007) == (protocol.position_tx(1, 8000), 3, 1)  # the new target, now
 
 
-@pytest.mark.parametrize("why", ["paced", "offline", "held"])
+@pytest.mark.parametrize("why", ["paced", "offline", "held", "watched"])
 def test_a_stream_plans_no_further_than_its_cycle_where_the_next_is_not_certain(why: str) -> None:
     line = QuietLine()
     stream = Stream(line, [1, 2, 3], rate_hz=100 if why == "paced" else None)  # type: ignore[arg-type]
@@ -483,11 +508,14 @@ def test_a_stream_plans_no_further_than_its_cycle_where_the_next_is_not_certain(
         stream._offline[1] = True  # ID 2: out of the cycle until its probe is due, which depends on the time
         stream._next_probe[1] = 0.0
     if why == "held":
-        stream._held[2] = True  # ID 3 waits for a target after a reconnect (then goes in the next cycle)
-        stream._held[1] = True
+        stream._held[1] = True  # ID 2 gets no command after a reconnect until the program sets its target
     hooks.next_transaction(0.0)
+    if why == "watched":
+        stream.watch([3])  # read with ICS 3.6's read, whose reply has no shape: a plan ends there
     planned = hooks.upcoming(8)
     assert len(planned) == len(stream._order) and planned[-1][4]  # its own cycle, whose last is news
+    assert not stream._beyond
+    assert stream._frozen == set(stream._order[1:])
 
 
 def test_a_stream_closed_during_a_burst_answers_for_the_next_cycle_the_burst_already_sent() -> None:

@@ -275,6 +275,33 @@ def test_a_notice_mid_burst_hands_over_what_is_final_while_the_rest_runs(pty_pai
     assert all(a[2] <= b[1] for a, b in itertools.pairwise(records))  # in the order they came
 
 
+def test_a_notice_and_the_end_leave_done_fd_quiet_once_the_result_is_taken(pty_pair: PtyPair) -> None:
+    # A notice that comes just before the burst's end, and the end's own signal: once result() hands
+    # the result over, done_fd must be quiet (an event loop would otherwise call back for nothing, on
+    # and on, until the next burst starts).  Also a notice asked for past the plan, which never comes.
+    master, slave = pty_pair
+    responder = serve(master)
+    executor = _burst.Burst(slave)
+    for notice in (1, 3, 7, 20):
+        executor.start(time.monotonic() + ALLOWANCE, plan(8))
+        executor.notify(notice)
+        deadline = time.monotonic() + 2
+        result = None
+        while result is None and time.monotonic() < deadline:
+            select.select([executor.done_fd], [], [], 0.5)
+            time.sleep(0.01)  # (the burst has ended by now: both signals are written)
+            result = executor.result()
+        assert result is not None and result[0] == DONE and len(result[2]) == 8
+        assert not select.select([executor.done_fd], [], [], 0)[0], notice
+    for start in (0, 5):  # wait() from where the loop has fed
+        executor.start(time.monotonic() + ALLOWANCE, plan(8))
+        status, _, rest = executor.wait(start)
+        assert status == DONE and len(rest) == 8 - start
+        assert not select.select([executor.done_fd], [], [], 0)[0]
+    responder.stop()
+    executor.close()
+
+
 def test_a_hang_up_ends_the_burst(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
 

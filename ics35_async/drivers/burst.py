@@ -93,8 +93,8 @@ def feed_ahead_points(n: int, news: list[int]) -> list[int]:
     came, not when the burst ends.  In a plan of :data:`FEED_AHEAD_MIN` or more, also
     :data:`FEED_AHEAD_LAST` transactions before its end, and halfway there from the point before when
     that is far: fed all at its end, a burst would keep the line idle while CPython feeds the engine
-    its bytes (5 us or so a transaction); fed ahead, only the last few wait for the loop, for a wake-up
-    of the loop a point (measured: ``benchmarks/bench_burst.py``, the rows fed at the end).
+    its bytes (several microseconds a transaction); fed ahead, only the last few wait for the loop, for a wake-up
+    of the loop a point (measured: ``benchmarks/bench_burst.py``, the rows not fed ahead of the end).
     """
     points = {i + 1 for i in news if i + 1 < n}
     if n >= FEED_AHEAD_MIN:
@@ -133,6 +133,7 @@ class BurstRunner:
         self.fed = 0  # transactions of the running plan fed to the engine so far
         self.in_step = True  # the engine took every transaction fed so far as the plan has it
         self._ahead: list[int] = []  # where the running plan is still to be fed ahead (feed_ahead_points)
+        self._armed = -1  # the point the executor will signal next (-1: none)
         self.held: list[Callable[[float], object]] = []
         self.status = DONE
         self.errno = 0
@@ -167,8 +168,8 @@ class BurstRunner:
         self.fed = 0
         self.in_step = True
         self._ahead = feed_ahead_points(len(plan), news)
-        if self._ahead:
-            self.executor.notify(self._ahead.pop(0))
+        self._armed = -1
+        self._arm_next()
         self.bursts += 1
         return True
 
@@ -208,12 +209,8 @@ class BurstRunner:
         else:
             result = executor.result(self.fed)
         if result is None:
-            records = executor.completed(self.fed)
-            self._feed(plan, records, None, 0.0)
-            while self._ahead and self._ahead[0] <= self.fed:
-                self._ahead.pop(0)  # passed already (the loop was slow to come)
-            if self._ahead:
-                executor.notify(self._ahead.pop(0))
+            self._feed(plan, executor.completed(self.fed), None, 0.0)
+            self._arm_next()
             return False, None
         self.plan = None
         self._ahead = []
@@ -228,6 +225,18 @@ class BurstRunner:
                 step(t)
 
         return True, self._feed(plan, result[2], run_held, t)
+
+    def _arm_next(self) -> None:
+        """Ask the executor for a notice at the next point to feed ahead, once the one asked for is passed
+        (the transactions up to it are fed: the loop may also come for another reason)."""
+        if self._armed > self.fed:
+            return  # still to come
+        ahead = self._ahead
+        while ahead and ahead[0] <= self.fed:
+            ahead.pop(0)  # passed already (the loop was slow to come)
+        self._armed = ahead.pop(0) if ahead else -1
+        if self._armed >= 0:
+            self.executor.notify(self._armed)
 
     def _feed(
         self, plan: list[PlannedTransaction], records: list[Record], before_last: Callable[[], None] | None, now: float
@@ -260,6 +269,7 @@ class BurstRunner:
             # for the driver (the executor wrote the others'); one stopped with nothing read has none.
             out = engine.receive(data, at if j != last else max(at, now)) if data else None
             i = first + j
+            self.fed = i + 1  # (fed, whatever follows: a record is never fed twice)
             if self.in_step and j != last and out != plan[i + 1][0]:
                 if out is not None:
                     raise BurstDiverged(
@@ -272,7 +282,6 @@ class BurstRunner:
                 # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
                 log.warning("burst ran on past a reply the engine refused (transaction %d of %d)", i + 1, len(plan))
                 self.in_step = False
-        self.fed = first + len(records)
         return out
 
     def close(self) -> None:
