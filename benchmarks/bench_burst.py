@@ -69,37 +69,26 @@ def fed_at_end(fn: Callable[[], Figures]) -> Figures:
 
 
 def cpu_split(path: str, duration: float) -> Figures:
-    """Where the burst path's CPU goes, per transaction of a 32-ID stream: all of it
-    (``time.process_time()``), the loop's thread (``time.thread_time()`` there), of which feeding the
-    engine the bursts' bytes (``BurstRunner._feed``); the rest is the executor's thread."""
-    feeding = [0.0]
+    """Where the burst path's CPU goes, per transaction of a 32-ID stream: all of it and the loop's
+    thread's (:func:`bench_cpu.stream`), and what feeding the engine the bursts' bytes takes
+    (``BurstRunner._feed``, ``time.thread_time()`` per record fed); the rest is the executor's thread."""
+    fed = [0.0, 0]  # seconds feeding, records fed
     feed = burst_module.BurstRunner._feed
 
-    def timed_feed(self: burst_module.BurstRunner, *args: Any) -> bytes | None:
+    def timed_feed(self: burst_module.BurstRunner, plan: Any, records: list[Any], *args: Any) -> bytes | None:
         t = time.thread_time()
         try:
-            return feed(self, *args)
+            return feed(self, plan, records, *args)
         finally:
-            feeding[0] += time.thread_time() - t
+            fed[0] += time.thread_time() - t
+            fed[1] += len(records)
 
-    async def measure() -> Figures:
-        async with open_bus(path, **BUS_OPTIONS) as bus, bus.stream(IDS) as st:
-            first = await st.next_frame()
-            while first.cycle < 5:
-                first = await st.next_frame()
-            wall0, cpu0, loop0, feed0 = time.perf_counter(), time.process_time(), time.thread_time(), feeding[0]
-            frame = first
-            while time.perf_counter() - wall0 < duration:
-                frame = await st.next_frame()
-            cpu, loop, fed = time.process_time() - cpu0, time.thread_time() - loop0, feeding[0] - feed0
-        n = (frame.cycle - first.cycle) * len(IDS)
-        return {"cpu_us_per_tx": cpu / n * 1e6, "loop_us_per_tx": loop / n * 1e6, "feed_us_per_tx": fed / n * 1e6}
-
-    burst_module.BurstRunner._feed = timed_feed  # type: ignore[method-assign]
+    burst_module.BurstRunner._feed = timed_feed  # type: ignore[method-assign,assignment]
     try:
-        return on_path(True, lambda: run_on("asyncio", measure))
+        figures = on_path(True, lambda: stream(path, None, "asyncio", duration))
     finally:
         burst_module.BurstRunner._feed = feed  # type: ignore[method-assign]
+    return {**figures, "feed_us_per_tx": fed[0] / max(1, int(fed[1])) * 1e6}
 
 
 def gathered(path: str, duration: float) -> Figures:
@@ -276,16 +265,19 @@ def print_table(r: dict[str, Any]) -> None:
     raw = m["raw cpu_us_per_tx"]
     print(f"   against blocking pyserial on a lean responder that answers at once (raw: {raw:.1f} us/tx)")
     print(f"  {'row':48} {'CPU/raw':>8} {'rate/raw':>9}")
-    for label, cpu, rate in ROWS:
-        print(f"  {label:48} {m[cpu]:8.2f} {m[rate]:9.2f}")
+    for label, cpu_key, rate_key in ROWS:
+        print(f"  {label:48} {m[cpu_key]:8.2f} {m[rate_key]:9.2f}")
     split = r["figures"]["cpu split"]
-    cpu, loop, fed = (median([f[k] for f in split]) for k in ("cpu_us_per_tx", "loop_us_per_tx", "feed_us_per_tx"))
-    print(f"   where the burst path's CPU goes (not alternated; only the split is to be read): {cpu:.1f} us/tx,")
-    print(f"   the executor's thread {cpu - loop:.1f}, the loop's thread {loop:.1f} (feeding the engine {fed:.1f})")
+    total, loop, feeding = (
+        median([f[k] for f in split]) for k in ("cpu_us_per_tx", "loop_us_per_tx", "feed_us_per_tx")
+    )
+    print(f"   where the burst path's CPU goes (not alternated; only the split is to be read): {total:.1f} us/tx,")
+    executor = total - loop
+    print(f"   the executor's thread {executor:.1f}, the loop's thread {loop:.1f} (feeding the engine {feeding:.1f})")
     print(f"   wire-timed at {BAUD} bit/s: stream rate against the bare loop on the same line")
     print(f"  {'burst path':48} {m['wire rate_vs_bare burst']:8.2f}")
-    label = "  the same, not fed ahead of a burst's end"
-    print(f"  {label:48} {m['wire rate_vs_bare burst fed at end']:8.2f}")
+    not_ahead = "  the same, not fed ahead of a burst's end"
+    print(f"  {not_ahead:48} {m['wire rate_vs_bare burst fed at end']:8.2f}")
     print(f"  {'ordinary path':48} {m['wire rate_vs_bare ordinary']:8.2f}")
     print("   four lines streamed together against one: CPU per transaction")
     print(f"  {'burst path':48} {m['four_vs_one cpu burst']:8.2f}")
@@ -293,8 +285,8 @@ def print_table(r: dict[str, Any]) -> None:
     print("   a CPU-bound Python thread beside a wire-timed stream: its progress against the thread alone,")
     print("   and the stream's rate meanwhile (each burst's end waits for the GIL: sys.getswitchinterval())")
     for name in ("burst", "ordinary"):
-        rate = median([f["stream_tx_per_s"] for f in r["figures"][f"thread progress beside {name}"]])
-        print(f"  {name + ' path':48} {m[f'thread progress beside {name}']:8.2f}   stream {rate:7.0f} tx/s")
+        stream_rate = median([f["stream_tx_per_s"] for f in r["figures"][f"thread progress beside {name}"]])
+        print(f"  {name + ' path':48} {m[f'thread progress beside {name}']:8.2f}   stream {stream_rate:7.0f} tx/s")
     print("   telemetry beside a wire-timed stream (16 pollers reading current and temperature 10 times a")
     print("   second each): p99 wait in position-transaction times (goal: at most 1.5; each path's own T,")
     print("   measured with the stream alone), and a read's latency, call to result, p50 / p99")

@@ -69,6 +69,15 @@ class SlowAtTimes(Servos):
         super().deliver(wire, tx, reply)
 
 
+def servos_with_faults(engine: LineEngine, seed: int, mute_every: int, damage_every: int) -> SlowAtTimes:
+    """:class:`SlowAtTimes` servos on IDS where every ``mute_every``-th write gets no reply and every
+    ``damage_every``-th a damaged one (0: none; the first few writes are spared)."""
+    servos = SlowAtTimes(IDS, engine.baudrate, seed)
+    servos.mute = {k for k in range(5, 100_000) if mute_every and k % mute_every == 0}
+    servos.damaged = {k for k in range(5, 100_000) if damage_every and k % damage_every == 0}
+    return servos
+
+
 def run_line(
     wire_class: type[Wire],
     *,
@@ -82,12 +91,7 @@ def run_line(
     """A stream over 8 servos with ``requests`` reads and position commands at random times."""
     rng = random.Random(seed)
     engine = ready_engine(baudrate=PACED_BAUD) if paced else ready_engine()
-    servos = SlowAtTimes(IDS, engine.baudrate, seed)
-    if mute_every:
-        servos.mute = {k for k in range(5, 100_000) if k % mute_every == 0}
-    if damage_every:
-        servos.damaged = {k for k in range(5, 100_000) if k % damage_every == 0}
-    wire = wire_class(engine, servos)
+    wire = wire_class(engine, servos_with_faults(engine, seed, mute_every, damage_every))
     source: Any = PacedCycle(IDS, PERIOD) if paced else FakeSource(IDS)
     wire.emit(engine.attach_source(source, wire.now))
     recorded = []
@@ -177,10 +181,7 @@ def run_stream(
     (offline, then probed now and then: the cycles it is probed in are not certain beforehand)."""
     rng = random.Random(seed)
     engine = ready_engine()
-    servos = SlowAtTimes(IDS, engine.baudrate, seed)
-    servos.mute = {k for k in range(5, 100_000) if mute_every and k % mute_every == 0}
-    servos.damaged = {k for k in range(5, 100_000) if damage_every and k % damage_every == 0}
-    wire = wire_class(engine, servos)
+    wire = wire_class(engine, servos_with_faults(engine, seed, mute_every, damage_every))
     bus = SimulatedBus(wire)
     ids = [*IDS[:4], 20, *IDS[4:]] if absent else IDS
     stream = Stream(bus, ids, offline_after=2, probe_interval=0.1)  # type: ignore[arg-type]

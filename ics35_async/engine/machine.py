@@ -353,13 +353,14 @@ class LineEngine:
                 break  # a reply of no shape may only end a burst: the source may refuse it
             tx, reply_len, _sid, shape, has_news = upcoming[j]
             nbytes = len(tx) + reply_len
-            key = (nbytes, j < steady)
-            allowance = waits.get(key)
+            learnt = j < steady  # (after that, the learnt wait may be recomputed: the least it can become)
+            allowance = waits.get((nbytes, learnt))
             if allowance is None:
-                allowance = self._allowances.get(nbytes)
-                if allowance is None:
-                    allowance = self._allowance(nbytes, NORMAL)
-                allowance = waits[key] = self._stream_wait(nbytes, allowance, latency if key[1] else STREAM_WAIT_FLOOR)
+                full = self._allowances.get(nbytes)
+                if full is None:
+                    full = self._allowance(nbytes, NORMAL)
+                allowance = self._stream_wait(nbytes, full, latency if learnt else STREAM_WAIT_FLOOR)
+                waits[nbytes, learnt] = allowance
             echo_len = len(tx) if echo else 0
             plan.append((tx, echo_len + reply_len, echo_len, allowance, shape))
             if has_news:
