@@ -44,6 +44,7 @@ def summary(wire: Wire, requests: list[Recorded]) -> dict[str, Any]:
     stats = engine.counters.snapshot(len(engine.queue.waiting()))
     return {
         "writes": wire.writes,
+        "flushes": wire.flushes,  # input dropped as each resync ended, where the driver drops it
         "delivered": wire.delivered,
         "requests": [(r.state, r.value, type(r.error).__name__, r.write_index) for r in requests],
         "per_id": stats.per_id,

@@ -14,7 +14,7 @@ from collections import Counter
 from collections.abc import Iterator
 
 from ics35_async.drivers.burst import DONE, LATE, MISMATCH, OVERRUN, SHAPE, WOKEN, BurstRunner, Record, Result
-from ics35_async.engine import LineEngine, Request
+from ics35_async.engine import FlushInput, LineEngine, Output, Request
 from ics35_async.engine.machine import PlannedTransaction
 
 from .engine_support import Answer, Wire
@@ -132,7 +132,10 @@ class BurstWire(Wire):
         self.executor = SimExecutor(self)
         self.runner = BurstRunner(engine, self.executor, None)
 
-    def emit(self, out: bytes | None) -> bytes | None:
+    def emit(self, out: Output) -> bytes | None:
+        if isinstance(out, FlushInput):  # the driver drops stale input first, then runs the burst
+            self.flushes += 1
+            out = out.then
         runner = self.runner
         while out is not None and self.now < self.end and not runner.running and runner.start(self.now):
             done = False

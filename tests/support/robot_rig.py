@@ -65,7 +65,7 @@ def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
 
 def joint_degrees(spec: dict[str, Any], position: int) -> float:
     sign = -1 if spec.get("reverse") else 1
-    return (units.position_to_degrees(position) - spec.get("offset", 0.0)) * sign
+    return (units.position_to_degrees(position) - float(spec.get("offset", 0.0))) * sign
 
 
 def joint_position(spec: dict[str, Any], degrees: float) -> int:
