@@ -82,7 +82,7 @@ format: $(STAMP)
 	$(BIN)/ruff format $(FORMATTED)
 
 typecheck: $(STAMP)
-	$(BIN)/mypy --strict ics35_async
+	$(BIN)/mypy --strict ics35_async tests/support
 
 # pytest in two passes.  First everything but the real-time tests on PYTEST_WORKERS processes (pytest-xdist):
 # most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so three workers a
