@@ -388,3 +388,20 @@ async def test_on_a_bus_no_burst_starts_while_the_program_sends_requests(monkeyp
             with anyio.fail_after(GUARD):
                 while runner.bursts == during:  # bursts again once the requests have stopped
                     await stream.next_frame()
+
+
+@pytest.mark.anyio
+@pytest.mark.pty
+async def test_the_pause_after_requests_outlives_a_reopened_port(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The port's burst runner is new after a reopen (or a reconnect); the program's requests are not.
+    monkeypatch.setenv("ICS35_BURST", "1")
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 60.0)  # far longer than the test runs
+    with lean_lines(1) as (path,):
+        async with open_bus(path, **NO_TIMEOUTS) as bus:
+            await bus.servo(3).read_current()
+            await bus.reopen()
+            async with bus.stream(range(8)) as stream:
+                for _ in range(20):
+                    await stream.next_frame()
+                runner = bus._driver.burst  # type: ignore[attr-defined]
+                assert runner is not None and runner.bursts == 0

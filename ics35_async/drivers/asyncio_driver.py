@@ -74,7 +74,9 @@ class AsyncioDriver(LoopDriver):
     def _watch(self, port: Port) -> None:
         if isinstance(port, TtyPort):
             self.loop.add_reader(port.fd, self._readable)
-            self.burst = open_runner(self.engine, port.fd, port.decode_marks, port.in_between)
+            self.burst = open_runner(
+                self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
+            )
             if self.burst is not None:
                 self.loop.add_reader(self.burst.done_fd, self._burst_done)
         elif isinstance(port, DevicePort):  # (a port without a descriptor comes behind a reader thread)

@@ -124,6 +124,7 @@ class BurstRunner:
         executor: Any,
         decode: Callable[[bytes], tuple[bytes, int]] | None,
         pending: Callable[[], bool] = lambda: False,
+        last_request: Callable[[], float] = lambda: -math.inf,
     ) -> None:
         self.engine = engine
         self.executor = executor  # an ics35_async._burst.Burst (tests: the same contract on a simulated wire)
@@ -140,7 +141,9 @@ class BurstRunner:
         self.bursts = 0
         self.transactions = 0
         self.pause_after_request = PAUSE_AFTER_REQUEST  # no burst for this long after a request
-        self.requested_at = -math.inf  # when the program last sent a request on this line
+        # When the program last sent a request on this line: the driver's, kept across ports (a runner
+        # is new after each reopen or reconnect, the program's habit of polling is not).
+        self._last_request = last_request
 
     @property
     def done_fd(self) -> int:
@@ -154,7 +157,7 @@ class BurstRunner:
     def start(self, now: float) -> bool:
         """Run a burst from the transaction the engine just put on the wire (the executor writes it);
         False: write it the ordinary way (also shortly after a request: see :data:`PAUSE_AFTER_REQUEST`)."""
-        if self._pending() or now - self.requested_at < self.pause_after_request:
+        if self._pending() or now - self._last_request() < self.pause_after_request:
             return False
         planned = self.engine.plan_burst()
         if planned is None:
@@ -182,8 +185,7 @@ class BurstRunner:
     def submit(self, request: Request, now: float) -> bool:
         """A request from the program.  During a burst it joins the queue where the burst stops (the
         next boundary if the sharing rule gives it the line there): True.  Otherwise False: the driver
-        hands it to the engine.  Either way, no burst starts for a while (see :data:`PAUSE_AFTER_REQUEST`)."""
-        self.requested_at = now
+        hands it to the engine.  (The driver notes when it came: see ``last_request``.)"""
         if self.plan is None:
             return False
         engine = self.engine
@@ -294,10 +296,15 @@ class BurstRunner:
 
 
 def open_runner(
-    engine: LineEngine, fd: int, decode: Callable[[bytes], tuple[bytes, int]] | None, pending: Callable[[], bool]
+    engine: LineEngine,
+    fd: int,
+    decode: Callable[[bytes], tuple[bytes, int]] | None,
+    pending: Callable[[], bool],
+    last_request: Callable[[], float],
 ) -> BurstRunner | None:
     """The burst path for a port with descriptor ``fd`` (``decode``: it marks parity errors), or None
-    where it cannot run (see :func:`burst_path`)."""
+    where it cannot run (see :func:`burst_path`).  ``last_request``: when the program last sent a request
+    on this line (see :data:`PAUSE_AFTER_REQUEST`)."""
     if not burst_path()[0] or _burst is None:
         return None
-    return BurstRunner(engine, _burst.Burst(fd, marks=decode is not None), decode, pending)
+    return BurstRunner(engine, _burst.Burst(fd, marks=decode is not None), decode, pending, last_request)

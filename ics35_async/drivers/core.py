@@ -118,6 +118,7 @@ class DriverCore:
         # The burst path (see .burst), where the driver runs it: while a burst runs, the executor's
         # thread has the port and the engine waits to be fed.
         self.burst: BurstRunner | None = None
+        self.requested_at = -math.inf  # when the program last sent a request (no burst for a while after)
         # Held around every engine call where the engine may run on two threads (the thread driver's
         # lock); the other drivers run it on one and hold nothing.
         self.lock: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
@@ -342,6 +343,7 @@ class DriverCore:
         request, awaited = self._new_request(command, priority, retries)
         with self.lock:
             t = now()
+            self.requested_at = t
             burst = self.burst
             if burst is None or not burst.submit(request, t):  # (during a burst: queued where it stops)
                 self._after(self.engine.submit(request, t))

@@ -10,6 +10,7 @@ and without bursts and compared.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Iterator
 
@@ -130,7 +131,8 @@ class BurstWire(Wire):
     def __init__(self, engine: LineEngine, answer: Answer | None = None) -> None:
         super().__init__(engine, answer)
         self.executor = SimExecutor(self)
-        self.runner = BurstRunner(engine, self.executor, None)
+        self.requested_at = -math.inf  # as the driver notes it (see DriverCore.submit)
+        self.runner = BurstRunner(engine, self.executor, None, last_request=lambda: self.requested_at)
 
     def emit(self, out: Output) -> bytes | None:
         if isinstance(out, FlushInput):  # the driver drops stale input first, then runs the burst
@@ -145,6 +147,7 @@ class BurstWire(Wire):
         return super().emit(out)
 
     def submit(self, request: Request) -> bytes | None:
+        self.requested_at = self.now
         if self.runner.submit(request, self.now):
             return None  # queued where the burst stops
         return super().submit(request)
