@@ -78,8 +78,9 @@ class BusOptions(TimingOverrides, total=False):
     """Retries (0..10, default 0) for idempotent requests that do not give their own; the bus's
     ``retries`` may be changed later."""
     reconnect: bool
-    """Reopen a lost port with backoff (default ``False``: a loss closes the bus); requests wait
-    meanwhile, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
+    """Reopen a lost port with backoff (default ``False``: a loss closes the bus).  Meanwhile a
+    request fails at once with ``PortLost`` and a stream pauses (it resumes once the port is back);
+    to wait for the port, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
     reconnect_backoff: Sequence[float]
     """Seconds between reopen attempts after a loss; the last repeats (default 0.05, 0.1, 0.2, 0.4)."""
     max_requests_between: int
