@@ -150,7 +150,7 @@ dist: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
 
-# The web configurator's cost: stream rate with the Live plots page open vs none, server CPU per update (~25 s).
+# The web configurator's cost: stream rate with the Live plots page open vs none, server CPU per update (about 45 s).
 bench-web: $(STAMP)
 	$(BIN)/python benchmarks/bench_web.py
 

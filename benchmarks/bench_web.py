@@ -32,6 +32,11 @@ where the stream is bound by the CPU and every cycle the server spends on
 the page is a cycle the stream loses: the worst case.
 
     .venv/bin/python benchmarks/bench_web.py [--seconds 2] [--rounds 4] [--fast] [--json]     (about 45 s)
+
+``--startup`` measures instead how long ``ics35 web`` takes to start (median of ``--starts``, 9 by
+default, wall time of fresh processes): ``ics35 --version`` and the two imports for comparison, then
+``ics35 web --no-browser`` on the built-in simulator until it prints its address and until it first
+answers ``/api/status``.
 """
 
 from __future__ import annotations
@@ -89,6 +94,49 @@ class Server:
         self.proc.terminate()
         self.proc.wait(10)
         stop_subprocess(self.sim)
+
+
+def startup(starts: int = 9) -> dict[str, float]:
+    """Median wall seconds of fresh processes: the CLI and imports for comparison, then ``ics35 web``."""
+
+    def wall(argv: list[str]) -> float:
+        t0 = time.perf_counter()
+        subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
+        return time.perf_counter() - t0
+
+    def web() -> tuple[float, float]:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        try:
+            assert proc.stdout is not None
+            url = proc.stdout.readline().strip()
+            printed = time.perf_counter() - t0
+            base, _, token = url.partition("/?token=")
+            request = urllib.request.Request(base + "/api/status", headers={"cookie": f"ics35_token={token}"})
+            with urllib.request.urlopen(request, timeout=10) as response:
+                response.read()
+            return printed, time.perf_counter() - t0
+        finally:
+            proc.terminate()
+            proc.wait(10)
+
+    rows: dict[str, list[float]] = {}
+    for _ in range(starts):
+        for name, argv in (
+            ("ics35 --version", [sys.executable, "-m", "ics35_async.cli", "--version"]),
+            ("import ics35_async", [sys.executable, "-c", "import ics35_async"]),
+            ("import ics35_async.web", [sys.executable, "-c", "import ics35_async.web"]),
+        ):
+            rows.setdefault(name, []).append(wall(argv))
+        printed, answered = web()
+        rows.setdefault("ics35 web: address printed", []).append(printed)
+        rows.setdefault("ics35 web: first answer", []).append(answered)
+    return {name: statistics.median(values) for name, values in rows.items()}
 
 
 def phase(server: Server, seconds: float, kind: str) -> dict[str, Any]:
@@ -211,7 +259,14 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--fast", action="store_true", help="fast-mode simulator: the stream is CPU-bound")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON too")
+    parser.add_argument("--startup", action="store_true", help="measure how long ics35 web takes to start instead")
+    parser.add_argument("--starts", type=int, default=9, help="with --startup: fresh processes per row")
     args = parser.parse_args()
+    if args.startup:
+        print(f"ics35 web start-up: wall time of fresh processes, median of {args.starts}")
+        for name, seconds in startup(args.starts).items():
+            print(f"  {name:30} {seconds * 1e3:6.0f} ms")
+        return
     result = run(args.seconds, args.rounds, args.fast)
     print_table(result)
     if args.json:

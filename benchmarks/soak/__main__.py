@@ -1,7 +1,7 @@
 """Run the reliability soaks and print one table: ``python -m benchmarks.soak`` (``make soak``).
 
     .venv/bin/python -m benchmarks.soak             # every part at full size
-    .venv/bin/python -m benchmarks.soak --quick     # every part, small (about 45 s)
+    .venv/bin/python -m benchmarks.soak --quick     # every part, small (about a minute)
     .venv/bin/python -m benchmarks.soak --only chaos,fuzz --transactions 200000 --seed 3
 
 Prints one markdown table (check, result, target met) and exits 1 if a

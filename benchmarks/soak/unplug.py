@@ -280,6 +280,11 @@ async def tally_request(report: dict[str, Any], read: Awaitable[int], bus: Bus, 
     return key
 
 
+def other_errors(counts: dict[str, int]) -> str:
+    """`` (ReplyTimeout: 1)``: which typed errors other than PortLost requests met (none: empty)."""
+    return f" ({', '.join(f'{name}: {n}' for name, n in sorted(counts.items()))})" if counts else ""
+
+
 def new_unplug_tally() -> dict[str, Any]:
     """The counters :func:`reconnect_session` and :func:`no_reconnect_session` fill in."""
     return {
@@ -361,8 +366,9 @@ def summarize_unplug(r: UnplugReport) -> list[Row]:
         ),
         (
             "unplug: request outcomes",
-            f"{r.requests_ok:,} ok, {r.failed_port_lost:,} PortLost, {sum(r.failed_other_typed.values())} other, "
-            f"{r.untyped_outcomes} untyped, {r.requests_hung} hung, {r.values_wrong} wrong",
+            f"{r.requests_ok:,} ok, {r.failed_port_lost:,} PortLost, {sum(r.failed_other_typed.values())} other"
+            f"{other_errors(r.failed_other_typed)}, {r.untyped_outcomes} untyped, {r.requests_hung} hung, "
+            f"{r.values_wrong} wrong",
             r.untyped_outcomes == 0 and r.requests_hung == 0 and r.values_wrong == 0 and not r.failed_other_typed,
         ),
         (

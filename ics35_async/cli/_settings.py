@@ -51,7 +51,8 @@ class ExitCode(enum.IntEnum):
     REFUSED = 5
     """Refused or not confirmed, nothing written: a baud change without `--change-baud`, an ID already taken,
     `set-id` with more or fewer than one servo, `move` outside the servo's EEPROM pulse limits, "no" (or end
-    of input) at the prompt, `teach` with no pose captured, `calibrate` with its input ended early."""
+    of input) at the prompt, `teach` with no pose captured, `calibrate` with its input ended early or a joint
+    not moved far enough to both ends of its range."""
     WRONG_BAUD = 6
     """The servo answers, but at another baud rate than `--baud` (the message names it)."""
     SAFETY_STOP = 7

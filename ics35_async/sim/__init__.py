@@ -2,7 +2,7 @@
 
 Two ways in:
 
-* **In process**: :class:`VirtualLine` is a :class:`~ics35_async.transport.WireDevice`;
+* **In process**: :class:`VirtualLine` is a :class:`~ics35_async.transports.WireDevice`;
   importing this package registers the ``sim://`` URL scheme, so
   ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
   Tests build one from Python objects
