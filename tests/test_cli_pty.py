@@ -146,8 +146,8 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     assert freed.returncode == 0, freed.stderr
 
 
-def demo_interrupted(port: str, after: float) -> tuple[subprocess.Popen[str], str, str]:
-    """``ics35 demo`` on ``port``, sent Ctrl-C ``after`` seconds past its title line."""
+def demo_interrupted(port: str, after: float, signum: int = signal.SIGINT) -> tuple[subprocess.Popen[str], str, str]:
+    """``ics35 demo`` on ``port``, sent Ctrl-C (or ``signum``) ``after`` seconds past its title line."""
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
     proc = subprocess.Popen(
@@ -161,7 +161,7 @@ def demo_interrupted(port: str, after: float) -> tuple[subprocess.Popen[str], st
         first = proc.stdout.readline()  # the title: the demo is running
         assert "demo" in first
         time.sleep(after)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -174,6 +174,20 @@ def test_demo_stops_on_ctrl_c_and_frees_the_servos(port: str) -> None:
     proc, out, err = demo_interrupted(port, 0.3)
     assert proc.returncode == 0, err
     assert "demo stopped by Ctrl-C after" in out and "left free" in out
+    for i in (2, 5):
+        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
+        assert got["current"]["magnitude"] == 0
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_demo_ended_by_a_service_manager_or_a_closed_terminal_frees_the_servos(port: str, signum: int) -> None:
+    # SIGTERM (systemd, kill) and SIGHUP (the terminal closed) end it as Ctrl-C does, servos freed;
+    # the exit code says which signal it was.
+    proc, out, err = demo_interrupted(port, 0.3, signum)
+    assert proc.returncode == 128 + signum, err
+    assert "Traceback" not in err
+    if signum == signal.SIGTERM:  # (after SIGHUP nothing is printed: the terminal is gone)
+        assert "demo stopped by SIGTERM after" in out and "left free" in out
     for i in (2, 5):
         got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
         assert got["current"]["magnitude"] == 0

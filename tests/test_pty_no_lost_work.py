@@ -135,6 +135,26 @@ def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
     assert len(json.loads(taught.read_text())["keyframes"]) == 1
 
 
+def test_teach_keeps_the_poses_captured_when_terminated(tmp_path: Path) -> None:
+    # SIGTERM (a service manager, kill) ends teach as Ctrl-C does: the poses are written.
+    server, port = start_subprocess(["--ids", "1-2"], quiet=True)
+    try:
+        robot = tmp_path / "robot.toml"
+        robot.write_text(ROBOT.format(port=port))
+        taught = tmp_path / "taught.json"
+        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught))
+        teach.wait_for("Enter")
+        teach.type("\n")
+        teach.wait_for("pose 1 at")
+        teach.proc.send_signal(signal.SIGTERM)
+        code, out, err = teach.finish()
+    finally:
+        stop_subprocess(server)
+    assert code == 128 + signal.SIGTERM, err
+    assert "wrote 1 pose(s)" in out and str(taught) in " ".join(out.split())
+    assert len(json.loads(taught.read_text())["keyframes"]) == 1
+
+
 def run_ics35(*args: str) -> subprocess.CompletedProcess[str]:
     proc = subprocess.run(
         [sys.executable, "-m", "ics35_async.cli", *args],

@@ -89,7 +89,12 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
 
 
-def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
+@pytest.mark.parametrize(
+    ("signum", "code", "name"),
+    [(signal.SIGINT, 0, "Ctrl-C"), (signal.SIGTERM, 128 + signal.SIGTERM, "SIGTERM")],
+    ids=["Ctrl-C", "SIGTERM"],
+)
+def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, name: str) -> None:
     # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
     proc = subprocess.Popen(
         [
@@ -112,13 +117,13 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked() -> None:
         assert proc.stdout is not None
         assert "play wave" in proc.stdout.readline()  # the title: playing
         assert "t=" in proc.stdout.readline()  # a second into the motion
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, err
-    assert "stopped by Ctrl-C: slowing to rest, then the joints free" in err
+    assert proc.returncode == code, err
+    assert f"stopped by {name}: slowing to rest, then the joints free" in err
     assert "joints left free" in out
     assert "Traceback" not in err

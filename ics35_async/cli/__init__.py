@@ -21,6 +21,7 @@ from typing import Any
 import click
 
 from .. import __version__
+from . import _signals
 from ._line_options import add_line_options, group_line_options, settings_from
 from ._settings import CliError, ExitCode
 
@@ -158,12 +159,13 @@ cli.help = f"{inspect.cleandoc(cli.help or '')}\n\nExit codes: {_CODES} (the doc
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Console-script entry point: runs ``ics35`` and exits with its code."""
+    _signals.install()
     try:
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
     except CliError as exc:
         from ._console import fail
 
-        fail(exc)
+        fail(_stopped_by_signal(exc))
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
         sys.exit(int(ExitCode.INTERRUPTED))
@@ -174,13 +176,32 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
         # Ctrl-C outside a command's own handling (while loading, parsing): no traceback.
-        click.echo("interrupted", err=True)
-        sys.exit(int(ExitCode.INTERRUPTED))
+        stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, "interrupted"))
+        click.echo(stopped.message, err=True)
+        sys.exit(int(stopped.code))
     except BrokenPipeError:
         # `ics35 ... | head`: the reader left; not an error worth a traceback.
         sys.stderr.close()
         sys.exit(0)
-    sys.exit(code if isinstance(code, int) else 0)
+    code = code if isinstance(code, int) else 0
+    signum = _signals.received()
+    if signum is not None and code == ExitCode.OK:  # (a command that stops on Ctrl-C as its normal end)
+        code = _SIGNAL_CODES[signum]
+    sys.exit(code)
+
+
+# The stop signals' exit codes, by signal number (128 + the number, as a shell reports a process it ended).
+_SIGNAL_CODES = {int(code) - 128: code for code in (ExitCode.HANGUP, ExitCode.TERMINATED)}
+
+
+def _stopped_by_signal(error: CliError) -> CliError:
+    """An interrupted command's error, told by the signal that stopped it (SIGTERM, SIGHUP) if not Ctrl-C."""
+    signum = _signals.received()
+    if signum is None or error.code != ExitCode.INTERRUPTED:
+        return error
+    stopped = CliError(ExitCode(_SIGNAL_CODES[signum]), f"{_signals.stop_name()}: {error.message}")
+    stopped.hints = error.hints
+    return stopped
 
 
 __all__ = ["CliError", "ExitCode", "cli", "main"]

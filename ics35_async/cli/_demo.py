@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
+from . import _signals
 from ._common import ID_LIST, confirm, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
@@ -107,7 +108,7 @@ def demo(
     state, telemetry, recorder = run(settings, body)
     final_report(state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
-        f"demo {'stopped by Ctrl-C' if state.stopped_by_ctrl_c else 'done'} after "
+        f"demo {f'stopped by {_signals.stop_name()}' if state.stopped_by_ctrl_c else 'done'} after "
         f"{time.monotonic() - began:.1f} s: {state.cycle} cycles, "
         f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
     )

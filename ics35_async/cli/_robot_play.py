@@ -21,6 +21,7 @@ from ..errors import IcsError
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..stream import ON_CLOSE
+from . import _signals
 from ._common import choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
     first_pose,
@@ -189,7 +190,7 @@ def play(
                     current = asyncio.current_task()
                     if current is not None:
                         current.uncancel()
-                    how = "stopped by Ctrl-C"
+                    how = f"stopped by {_signals.stop_name()}"
                 finally:
                     # How far the motion got, for the closing line when no pass completed.
                     played = min(time.monotonic() - start, seconds or math.inf, total)

@@ -58,9 +58,15 @@ class ExitCode(enum.IntEnum):
     SAFETY_STOP = 7
     """`play`: a robot's safety watch stopped the motion (a joint too hot, drawing too much current, or
     offline)."""
+    HANGUP = 129
+    """The terminal closed (SIGHUP): the command ended as Ctrl-C ends it (servos freed or held as then, poses
+    written), with nothing more printed."""
     INTERRUPTED = 130
     """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
     written or moved)."""
+    TERMINATED = 143
+    """Stopped by SIGTERM (a service manager, `kill`): the command ended as Ctrl-C ends it (servos freed or
+    held as then, poses written)."""
 
 
 class CliError(Exception):
