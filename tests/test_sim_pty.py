@@ -194,6 +194,47 @@ def test_bad_arguments_exit_with_usage_error() -> None:
         start_subprocess(["--ids", "0-99"], timeout=10)
 
 
+def run_sim(*args: str) -> subprocess.CompletedProcess[str]:
+    """``ics35 sim`` with ``args``, for arguments it must refuse (it would otherwise serve until stopped)."""
+    return subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", *args],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+
+
+@pytest.mark.parametrize("option", ["--link", "--tap"])
+def test_a_link_path_that_is_not_the_simulators_own_is_refused_and_left_alone(tmp_path: Path, option: str) -> None:
+    precious = tmp_path / "notes.txt"
+    precious.write_text("keep me")
+    (tmp_path / "adir").mkdir()
+    for path, words in (
+        (precious, "exists"),
+        (tmp_path / "adir", "exists"),
+        (tmp_path / "no" / "such" / "dir" / "tty", "no such directory"),
+    ):
+        before = sorted(p.name for p in tmp_path.iterdir())
+        proc = run_sim(option, str(path))
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr and words in proc.stderr and str(path) in proc.stderr
+        assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing made, nothing removed
+    assert precious.read_text() == "keep me" and not precious.is_symlink()
+
+
+def test_a_link_the_simulator_left_behind_is_replaced(tmp_path: Path) -> None:
+    # A simulator killed with SIGKILL leaves its link pointing at a pty that is gone: the next takes it over.
+    link = tmp_path / "ttyICS"
+    os.symlink("/dev/pts/999999", link)
+    port = PtyPort(link)
+    port.open()
+    try:
+        assert os.readlink(link) == port.pts_name
+    finally:
+        port.dispose()
+    assert not link.exists() and not link.is_symlink()
+
+
 @pytest.mark.realtime
 def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
     path = pty_sim("--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4").path

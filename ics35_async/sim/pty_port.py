@@ -50,6 +50,8 @@ import termios
 from pathlib import Path
 from typing import Any
 
+from ..errors import InvalidArgument
+
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
 _IN_OPEN = 0x20
 _IDLE_SPEED = termios.B38400  # the speed a fresh pty has; never one of the ICS rates
@@ -115,6 +117,30 @@ def _client_opened(master: int) -> bool:
     return not any(ev & select.POLLHUP for _, ev in poller.poll(0))
 
 
+def check_link_path(path: Path) -> None:
+    """Refuse a path the simulator's link may not take: one in no directory, or one that is something
+    else than a link a simulator made (to a pty, gone or not): a file, a directory, another link.
+
+    The link is replaced while the simulator runs and removed when it stops, so a wrong path would
+    destroy what was there.  (Its ``.new`` sibling, the link made before it takes the path, alike.)
+
+    Raises:
+        InvalidArgument: the path, and why.
+    """
+    if not path.parent.is_dir():
+        raise InvalidArgument(f"no such directory for the link: {path.parent} (in {path})")
+    for taken in (path, path.with_name(path.name + ".new")):
+        if (taken.exists() or taken.is_symlink()) and not _simulator_link(taken):
+            raise InvalidArgument(
+                f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
+            )
+
+
+def _simulator_link(path: Path) -> bool:
+    """A symlink to a pseudo-terminal (a simulator's, perhaps left by one that was killed)."""
+    return path.is_symlink() and os.readlink(path).startswith(("/dev/pts/", "/dev/ttys"))  # Linux, macOS
+
+
 class PtyPort:
     """The master side of a pty, reachable by clients at :attr:`path`.
 
@@ -131,6 +157,7 @@ class PtyPort:
         else:
             self._tmpdir = None
             self.path = Path(link)
+            check_link_path(self.path)
         self.pts_name: str | None = None
         self.master: int | None = None
         self.opens: int | None = None
@@ -148,7 +175,7 @@ class PtyPort:
         self.client_present = False
         self.reset_settings()
         tmp_link = self.path.with_name(self.path.name + ".new")
-        with contextlib.suppress(FileNotFoundError):
+        if tmp_link.is_symlink():  # (one an earlier simulator left: check_link_path refused anything else)
             tmp_link.unlink()
         os.symlink(name, tmp_link)
         os.replace(tmp_link, self.path)

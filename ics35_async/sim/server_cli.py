@@ -14,7 +14,7 @@ from types import FrameType
 from typing import Any
 
 from ..eeprom import BaudRate
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, error_text
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
 from .faults import FaultConfig
@@ -170,8 +170,17 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         parser.error(str(exc))
     if args.tap and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
-    server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud, keep_last=max(0, args.last))
-    tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
+    # The tap first: a bad --tap then leaves no server's private directory behind.
+    try:
+        tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
+    except (InvalidArgument, OSError) as exc:
+        parser.error(f"--tap: {error_text(exc)}")
+    try:
+        server = PtyServer(device, link=args.link, follow_host_baud=not args.fixed_baud, keep_last=max(0, args.last))
+    except (InvalidArgument, OSError) as exc:
+        if tap is not None:
+            tap.close()
+        parser.error(f"--link: {error_text(exc)}")
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         server.stop()
