@@ -83,6 +83,19 @@ def test_named_line_is_shared_until_closed() -> None:
     fresh.close()
 
 
+def test_a_named_line_asked_for_with_other_options_is_refused_while_it_runs() -> None:
+    # The same name with other servos (a typo, or a test that reused a name) would silently get the
+    # first line's servos: refused in words.  The same options, or none, find it.
+    line = open_url("sim://arm?ids=1-3&baud=625000")
+    try:
+        assert open_url("sim://arm?baud=625000&ids=1-3") is line  # (the keys in any order)
+        assert open_url("sim://arm") is line
+        with pytest.raises(InvalidArgument, match="sim://arm is open already with other options"):
+            open_url("sim://arm?ids=5")
+    finally:
+        line.close()
+
+
 def test_line_built_in_python_is_reachable_by_name() -> None:
     with VirtualLine([9], name="from-python") as bus:
         assert open_url("sim://from-python?ids=0-31") is bus

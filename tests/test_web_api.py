@@ -129,6 +129,16 @@ def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> Non
     assert client.get("/api/status").json()["scanning"] is False
 
 
+def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) -> None:
+    # The page's Connect with sim://?ids=... : each unnamed URL is its own simulated line (the same URL,
+    # reopened for a scan at each rate, the same line).
+    client, _ = serve()
+    for url, found in (("sim://?ids=5", [5]), ("sim://?ids=2-3", [2, 3]), ("sim://?ids=5", [5])):
+        assert post(client, "/api/connect", {"port": url}).status_code == 200
+        report = post(client, "/api/scan", {"bauds": [115200]}).json()
+        assert [s["id"] for s in report["servos"]] == found, url
+
+
 def test_a_scan_of_chosen_ids_asks_only_those_and_a_bad_choice_is_refused_in_words(serve: Any) -> None:
     client, sim = serve((2, 7, 30))
     heard: list[bytes] = []

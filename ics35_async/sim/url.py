@@ -31,20 +31,37 @@ def open_url(url: str) -> WireDevice:
     later calls, so a bus that reconnects finds the same servos.
 
     Raises:
-        InvalidArgument: the URL is not a ``sim://`` URL, or a key or value is bad.
+        InvalidArgument: the URL is not a ``sim://`` URL, or a key or value is bad, or it names a
+            line open already that a URL made with other options.
     """
     name, options = parse_url(url)
+    query = _query_of(url)
     if name is not None:
         try:
-            return named(name)
+            line = named(name)
         except KeyError:
             pass
+        else:
+            # (a line built in Python has no URL options to compare: any URL naming it finds it)
+            if query and line.url_query is not None and query != line.url_query:
+                raise InvalidArgument(
+                    f"sim://{name} is open already with other options ({line.url_query}); "
+                    f"give the same options (or none) to reach it, or another name for another line"
+                )
+            return line
     replay = options.pop("replay", None)
     if replay is not None:
         if options:
             raise InvalidArgument(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
         return ReplayDevice(replay)
-    return VirtualLine(name=name, **options)
+    line = VirtualLine(name=name, **options)
+    line.url_query = query
+    return line
+
+
+def _query_of(url: str) -> str:
+    """The URL's options, their keys in order: the same line's options compare equal however written."""
+    return "&".join(sorted(urlsplit(url).query.split("&"))).strip("&")
 
 
 _TRUE = {"1", "true", "yes", "on"}

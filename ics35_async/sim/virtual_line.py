@@ -63,6 +63,7 @@ class VirtualLine(LineModel):
         self.replug_after = replug_after
         self.spin_margin = spin_margin
         self.name = name
+        self.url_query: str | None = None  # the options of the sim:// URL that made it (see sim.url.open_url)
         self.plugged = True
         self.unplug_count = 0
         self._host: HostSide | None = None

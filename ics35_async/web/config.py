@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 
@@ -24,7 +25,10 @@ class LineConfig:
 
     @property
     def url(self) -> str:
-        """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos."""
+        """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos;
+        one of its own for each set of options (``sim://?ids=5`` is not the ``sim://`` opened before it)."""
         if self.port == "sim://" or self.port.startswith("sim://?"):
-            return f"sim://ics35-web-{os.getpid()}{self.port[len('sim://') :]}"
+            options = self.port[len("sim://") :]
+            digest = hashlib.sha1(options.encode(), usedforsecurity=False).hexdigest()[:8]
+            return f"sim://ics35-web-{os.getpid()}-{digest}{options}"
         return self.port
