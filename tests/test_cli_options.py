@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import COMMAND_MODULES, ExitCode
+from ics35_async.drivers.burst import burst_path
 from ics35_async.sim import VirtualServo, serving
 
 # --------------------------------------------------------------------------- line options after the command
@@ -211,6 +212,31 @@ def test_version_with_verbose_and_doctor_say_which_path_runs(env: str) -> None:
             assert said == "compiled stream path: off (optional; ICS35_BURST=1 turns it on)"
     plain = subprocess.run([sys.executable, "-m", "ics35_async.cli", "--version"], capture_output=True, text=True)
     assert plain.stdout.strip().startswith("ics35, version") and "burst" not in plain.stdout
+
+
+@pytest.mark.pty
+def test_doctor_and_the_log_say_which_path_a_given_line_takes(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The helper runs on a serial port's descriptor: not for a sim:// URL, nor with --transport thread.
+    monkeypatch.setenv("ICS35_BURST", "1")
+    if not burst_path()[0]:
+        pytest.fail(f"the compiled helper is not built here: {burst_path()[1]}")
+    with serving(["--ids", "1", "--fast"]) as pty:
+        for port, transport, takes in (
+            (pty, "auto", True),
+            (pty, "thread", False),
+            ("sim://?ids=1", "auto", False),
+        ):
+            done = subprocess.run(
+                [sys.executable, "-m", "ics35_async.cli", "-v", "--port", port, "--transport", transport, "doctor"],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert done.returncode == 0, done.stderr
+            (said,) = [ln for ln in done.stdout.splitlines() if ln.startswith("compiled stream path:")]
+            assert said.startswith("compiled stream path: on" if takes else "compiled stream path: off"), (port, said)
+            (opened,) = [ln for ln in done.stderr.splitlines() if "opened" in ln and "driver" in ln]
+            assert ("compiled stream path" in opened) == takes, (port, transport, opened)
 
 
 # --------------------------------------------------------------------------- the event loop

@@ -12,7 +12,7 @@ from rich.markup import escape
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
-from ..drivers.burst import PATH_NAME, burst_path
+from ..drivers.burst import PATH_NAME, burst_path, burst_path_for
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
@@ -116,7 +116,8 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
                 Finding("line", "error", failure.message, "check power and wiring; ics35 scan tries every baud")
             )
         findings += line.judge()
-    burst_on, burst_text = burst_path()
+    # (for the line measured: a URL or the thread transport has no descriptor for the helper)
+    burst_on, burst_text = burst_path() if port is None else burst_path_for(port, settings.transport)
     if as_json:
         report: dict[str, Any] = {"port": port, **system.to_dict(), "burst_path": burst_on, "io_path": burst_text}
         line_part = line.to_dict() if line is not None else {}

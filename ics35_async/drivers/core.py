@@ -39,7 +39,7 @@ from ..errors import IcsError, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
-from .burst import BurstRunner
+from .burst import PATH_NAME, BurstRunner
 from .clock import now
 from .settings import LineSettings
 
@@ -276,8 +276,9 @@ class DriverCore:
     def _connected(self, port: Port) -> None:
         """``port`` is open: wait on it, and tell the engine (which may have work at once).  Under the lock."""
         self.port = port
-        log.info("opened %s at %d baud (%s driver)", self.target, self.engine.baudrate, self.name)
         self._watch(port)
+        path = f", {PATH_NAME}" if self.burst is not None else ""  # (see .burst: which path streams take)
+        log.info("opened %s at %d baud (%s driver%s)", self.target, self.engine.baudrate, self.name, path)
         self._after(self.engine.connected(now()))
 
     def _lose(self, port: Port, exc: Exception | None, *, reconnect: bool = True) -> bool:
