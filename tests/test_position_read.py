@@ -114,6 +114,25 @@ def test_an_ics35_servo_raises_a_typed_error_and_is_probed_once() -> None:
     assert sent.count("read_position") == 2  # two silences decide it, once
 
 
+def test_the_fault_log_tells_a_probes_silence_from_a_servo_that_should_have_answered(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # `ics35 -v` shows this log: a healthy ICS 3.5 servo's silence to the probe is not a wiring fault.
+    sim = VirtualLine([1], log_size=None)
+
+    async def body(bus: Any) -> None:
+        assert await bus.servo(1).has_position_read() is False
+        with pytest.raises(ReplyTimeout):
+            await bus.servo(9).read_stretch()
+
+    with caplog.at_level("DEBUG", logger="ics35_async.faults"):
+        run(sim, body)
+    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    probes = [m for m in said if m.startswith("read_position to ID 1")]
+    assert probes and all("probe" in m and "check ID" not in m for m in probes), said
+    assert any(m.startswith("read_stretch to ID 9") and "check ID, baud rate, power" in m for m in said), said
+
+
 def test_an_absent_id_is_not_taken_for_an_ics35_servo() -> None:
     sim = VirtualLine([1], ics36=[1], log_size=None)
 

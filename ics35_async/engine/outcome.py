@@ -53,6 +53,7 @@ def timeout_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, echo
             ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply", req, sid, buf
         )
     if got <= echo_len:
-        return _error(ReplyTimeout, "no reply (check ID, baud rate, power)", req, sid, buf)
+        silence = req.command.silence if req is not None else None  # (a probe's: see .probe)
+        return _error(ReplyTimeout, silence or "no reply (check ID, baud rate, power)", req, sid, buf)
     n, m = got - echo_len, expect - echo_len
     return _error(PartialReply, f"{n} of {m} reply bytes", req, sid, buf, received=n, expected=m)

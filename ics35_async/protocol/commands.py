@@ -73,6 +73,8 @@ class Command(Generic[T]):
 
     idempotent: ClassVar[bool] = True
     timing: ClassVar[Timing] = Timing.NORMAL
+    silence: ClassVar[str | None] = None
+    """What no reply at all means, for a command to which silence is a usual answer (a probe's)."""
 
     servo_id: int | None
     tx: bytes
@@ -183,6 +185,7 @@ class ProbeRead(ReadParam):
     __slots__ = ()
 
     timing = Timing.PROBE
+    silence = "no reply to the probe: no servo at this ID (or one that does not answer)"
 
     def __init__(self, servo_id: int) -> None:
         super().__init__(servo_id, Param.STRETCH)
@@ -223,6 +226,7 @@ class ProbeReadPosition(ReadPosition):
     __slots__ = ()
 
     timing = Timing.PROBE
+    silence = "no reply to the probe: an ICS 3.5 servo has no position read (or no servo answers here)"
 
 
 def guard_read(tx: bytes, servo_id: int) -> ReadParam:
