@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
 
 from ics35_async import units
@@ -232,6 +233,31 @@ def test_a_windows_port_name_elsewhere_is_named_as_such(cli: Any) -> None:
     result = cli("--port", "COM3", "info", "1")
     assert result.code == ExitCode.PORT
     assert "COM names are Windows'" in result.err
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="device paths are POSIX ones")
+def test_a_device_name_without_its_directory_is_named_with_it(cli: Any, tmp_path: Path) -> None:
+    # `--port ttyUSB0`: the person meant /dev/ttyUSB0 (which exists on this machine or not).
+    result = cli("--port", "ttyUSB0", "info", "1")
+    assert result.code == ExitCode.PORT
+    assert "/dev/ttyUSB0" in result.err and "hint" in result.err
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
+def test_the_configurator_names_misnamed_ports_as_the_command_does() -> None:
+    from ics35_async.web import LineConfig, LineSession
+
+    async def refused(port: str) -> str:
+        session = LineSession(LineConfig())
+        try:
+            with pytest.raises(OSError):
+                await session.connect(port)
+            return session.status()["error"]
+        finally:
+            await session.close()
+
+    assert "COM names are Windows' own" in anyio.run(refused, "COM3")
+    assert "/dev/ttyUSB0" in anyio.run(refused, "ttyUSB0")
 
 
 def test_missing_echo_is_named(cli: Any, sim_line: Any) -> None:

@@ -139,6 +139,19 @@ def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) 
         assert [s["id"] for s in report["servos"]] == found, url
 
 
+def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: Any) -> None:
+    client, _ = serve((1, 3))
+    not_a_port = tmp_path / "notes.txt"
+    not_a_port.write_text("")
+    refused = post(client, "/api/connect", {"port": str(not_a_port)})
+    assert refused.status_code >= 400 and "not a serial port" in refused.json()["error"]
+    status = client.get("/api/status").json()
+    assert status["connected"] and status["port"].startswith("sim://web-api-"), status
+    assert "not a serial port" in status["error"]  # (said on the Line page too)
+    report = post(client, "/api/scan", {"bauds": [115200]}).json()
+    assert [s["id"] for s in report["servos"]] == [1, 3]
+
+
 def test_a_scan_of_chosen_ids_asks_only_those_and_a_bad_choice_is_refused_in_words(serve: Any) -> None:
     client, sim = serve((2, 7, 30))
     heard: list[bytes] = []

@@ -159,6 +159,24 @@ def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tm
     sim.named(name).close()
 
 
+def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_they_start(tmp_path: Path) -> None:
+    path = tmp_path / "one.toml"
+    path.write_text('[lines.arm]\nport = "/dev/ttyUSB-ics35-none"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    name = f"web-robot-{next(_names)}"
+    warned: list[str] = []
+    session = LineSession(LineConfig(port=f"sim://{name}?ids=2"))
+    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True, warn=warned.append)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        status = client.get("/api/status").json()
+        assert status["connected"] and status["port"] == f"sim://{name}?ids=2" and status["robot_line"] is None
+    assert len(warned) == 2, warned
+    assert warned[0].startswith("the robot's lines could not be opened: no serial port at '/dev/ttyUSB-ics35-none'")
+    assert "[Errno" not in warned[0]
+    assert f"the pages start on sim://{name}?ids=2 instead" in warned[1]
+    sim.named(name).close()
+
+
 def test_the_robots_lines_open_with_the_line_options_given(tmp_path: Path) -> None:
     """``ics35 web --timeout 0.3 --robot FILE``: the robot's lines wait for replies as long as asked, as
     ``ics35 play`` does (the CLI hands its --timeout and --transport to the session)."""

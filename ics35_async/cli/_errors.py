@@ -7,7 +7,7 @@ import sys
 from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
-from ..transports.platforms import permission_hint, port_names_hint
+from ..transports.platforms import misnamed_port_hints, permission_hint, port_names_hint
 from ._loop import run_loop
 from ._params import ALL_BAUDS
 from ._settings import CliError, ExitCode, Settings
@@ -33,9 +33,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     if isinstance(exc, errors.PortNotFound):
         # The library's message already says where to look, for callers who see no hints.
         hints = [] if port_names_hint() in text else [f"list ports with: {port_names_hint()}"]
-        if settings.port.upper().startswith("COM") and sys.platform != "win32":
-            hints.insert(0, "COM names are Windows' own: here a serial port is a /dev/ path")
-        return CliError(ExitCode.PORT, text, *hints)
+        return CliError(ExitCode.PORT, text, *misnamed_port_hints(settings.port), *hints)
     if isinstance(exc, errors.PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, errors.DirectionControlNotSupported):

@@ -94,6 +94,19 @@ def port_names_hint(platform: str | None = None) -> str:
     return _for_platform(_PORT_NAMES, platform)
 
 
+def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
+    """What a port name that opened nothing probably meant on ``platform`` (default: this one): a Windows
+    ``COM`` name elsewhere, a device's name without its ``/dev/`` directory.  Empty: nothing to say."""
+    platform = platform or sys.platform
+    if platform == "win32" or "://" in port or "/" in port:
+        return []
+    if port.upper().startswith("COM"):
+        return ["COM names are Windows' own: here a serial port is a /dev/ path"]
+    if port.startswith(("tty", "cu.", "serial")):
+        return [f"a device path starts with /dev/: /dev/{port}"]
+    return []
+
+
 def permission_hint(platform: str | None = None) -> str:
     """How to get the right to open a serial port on ``platform`` (default: this one)."""
     return _for_platform(_PERMISSION, platform)

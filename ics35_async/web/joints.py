@@ -16,7 +16,7 @@ from typing import Any
 
 from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
 from ..bus import Bus
-from ..errors import IcsError, InvalidArgument, UnsafeOperation
+from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
@@ -43,7 +43,7 @@ class RobotSession:
             opening = open_robot(self.description, on_close="hold", **self.options)
             self.robot = await self._stack.enter_async_context(opening)
         except (IcsError, OSError) as exc:
-            self.error = f"the robot's lines could not be opened: {exc}"
+            self.error = f"the robot's lines could not be opened: {error_text(exc)}"
 
     async def close(self) -> None:
         await self.stop()

@@ -91,6 +91,11 @@ def create_app(
             await robot.open()
             if robot.error and warn is not None:
                 warn(robot.error)
+                if line_from_robot:
+                    warn(
+                        f"the pages start on {session.config.port} instead: once the robot's lines are "
+                        "there, restart the command (or choose a port on the Line page)"
+                    )
         try:
             if robot is not None and robot.robot is not None and line_from_robot:
                 await session.use_robot_line(next(iter(robot.description.lines)))

@@ -26,7 +26,7 @@ from .. import protocol, units
 from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
-from ..errors import BusClosed, IcsError, InvalidArgument, ReplyError, UnsafeOperation, error_text
+from ..errors import BusClosed, IcsError, InvalidArgument, PortNotFound, ReplyError, UnsafeOperation, error_text
 from ..policies import (
     EepromPlan,
     FoundServo,
@@ -39,6 +39,7 @@ from ..policies import (
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
+from ..transports.platforms import misnamed_port_hints
 from .config import LineConfig
 from .edits import allowances, edit_of
 from .live import LIVE_RATE_HZ, LiveView, read_health
@@ -125,17 +126,26 @@ class LineSession:
         if baud is not None:
             config = replace(config, baud=int(BaudRate.parse(baud)))
         async with self.exclusive:
-            await self.disconnect()
-            self.config = config
-            self.found = []
-            self.telemetry = {}
-            self._limits = {}
-            bus = self._open(config.baud)
+            # Another port opens before the open one closes, so a refused one leaves the line that
+            # worked; the same port (another baud rate) cannot be open twice: it closes first.
+            same = config.url == self.config.url and self.robot_line is None
+            if same or self.bus is None:
+                await self.disconnect()
+                self.config = config
+            bus = self._open(config.baud, config)
             try:
                 await bus.open()
             except (OSError, InvalidArgument) as exc:
-                self.error = error_text(exc)
+                hints = misnamed_port_hints(config.port) if isinstance(exc, PortNotFound) else []
+                self.error = "; ".join([error_text(exc), *hints])
                 raise
+            if not same:
+                await self.disconnect()
+                self._forget_simulator()
+                self.config = config
+            self.found = []
+            self.telemetry = {}
+            self._limits = {}
             self.bus = bus
             self.error = None
         return self.status()
@@ -166,10 +176,10 @@ class LineSession:
             who = f"servo {servo_id} is the robot's joint {joint}" if joint else f"servo {servo_id} is on it"
             self._refuse_on_robot_line(who, "move or free it on the Robot page")
 
-    def _open(self, baud: int) -> Bus:
+    def _open(self, baud: int, config: LineConfig | None = None) -> Bus:
         from .. import sim  # noqa: F401  (registers the sim:// URL scheme)
 
-        c = self.config
+        c = self.config if config is None else config
         return open_bus(
             c.url,
             baudrate=baud,
@@ -191,6 +201,10 @@ class LineSession:
 
     async def close(self) -> None:
         await self.disconnect()
+        self._forget_simulator()
+
+    def _forget_simulator(self) -> None:
+        """Close the simulated line the pages named for an unnamed ``sim://`` (see LineConfig.url), if any."""
         if self.config.is_sim and self.config.url != self.config.port:
             from .. import sim
 
