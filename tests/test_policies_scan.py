@@ -229,6 +229,23 @@ async def test_a_rate_the_port_cannot_open_is_skipped(lines: Any) -> None:
         await scan(refused, bauds=[625000, 115200], ids=[1])
 
 
+async def test_a_path_that_is_no_serial_port_stops_the_scan_at_once(tmp_path: Any) -> None:
+    # The same at every rate: no probe is counted for rates never tried (a progress bar showed a full
+    # scan before the error).
+    path = tmp_path / "notes.txt"
+    path.write_text("")
+    opened: list[int] = []
+    heard: list[object] = []
+
+    def open_at(baud: int) -> Bus:
+        opened.append(baud)
+        return open_bus(str(path), baudrate=baud, **FAST)
+
+    with pytest.raises(SerialPortError, match="not a serial port"):
+        await scan(open_at, ids=range(32), on_probe=lambda *outcome: heard.append(outcome))
+    assert len(opened) == 1 and heard == []
+
+
 async def test_bad_arguments_raise_before_the_line_opens(lines: Any) -> None:
     sim = lines([VirtualServo(1)])
     for kwargs in ({"bauds": [9600]}, {"bauds": []}, {"ids": [32]}):

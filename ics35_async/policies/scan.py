@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -256,6 +257,8 @@ async def _open_or_skip(
     except (PortNotFound, PortPermissionDenied, PortBusy):
         raise  # the same at every rate: the caller reports it
     except (InvalidArgument, SerialPortError) as exc:
+        if isinstance(exc, SerialPortError) and exc.errno == errno.ENOTTY:
+            raise  # not a serial port (a file, a directory): the same at every rate
         skipped[baud] = exc
         return None
 
@@ -273,7 +276,7 @@ async def scan(
     With ``read_eeprom`` every servo found has its EEPROM read; without it,
     only servos answering at several rates do (their EEPROM says which is
     theirs).  A rate the port cannot be opened at is skipped (``skipped``);
-    a missing port, a denied permission or a busy port raises, and so does
+    a missing port, a denied permission, a busy port or a path that is no serial port raises, and so does
     the first rate's error when no rate opened at all (a refused bridge, a
     malformed port name: nothing about the rates).  ``on_probe`` hears each
     probe's outcome as it comes.
