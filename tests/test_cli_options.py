@@ -84,6 +84,22 @@ def test_a_write_on_the_implicit_simulator_is_refused(cli: Any, args: list[str])
     assert "written" not in result.out and "target" not in result.out
 
 
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["set", "1", "speed", "0"], "speed"),
+        (["move", "1", "99999"], "99999"),
+        (["eeprom", "set", "1", "speed=500", "--yes"], "speed"),
+    ],
+    ids=lambda a: " ".join(a[:2]) if isinstance(a, list) else a,
+)
+def test_a_bad_value_is_named_before_the_missing_port(cli: Any, args: list[str], said: str) -> None:
+    # Told one mistake at a time, the value's first would cost a second run: the value's is checked first.
+    result = cli(*args)
+    assert result.code == ExitCode.USAGE, result.err
+    assert said in result.err and "no --port given" not in result.err, result.err
+
+
 def test_a_write_on_an_explicit_simulator_runs(cli: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     assert cli("--port", "sim://", "move", "1", "7600").code == 0
     assert cli("move", "1", "7600", "--port", "sim://").code == 0

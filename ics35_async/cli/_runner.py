@@ -75,7 +75,8 @@ WRITE_COMMANDS = {
 
 
 def guard_writes(command: click.Command, prefix: str = "") -> None:
-    """Make every command of WRITE_COMMANDS in ``command``'s tree call :func:`require_port` first.
+    """Make every command of WRITE_COMMANDS in ``command``'s tree call :func:`require_port` as it goes
+    to the line (in :func:`run`: after its own checks of its arguments, so a bad value is named first).
 
     One table, applied when the commands are mounted, so no write command can miss the rule.
     """
@@ -91,7 +92,7 @@ def guard_writes(command: click.Command, prefix: str = "") -> None:
 
     @functools.wraps(inner)
     def guarded(*args: Any, **kwargs: Any) -> Any:
-        require_port(settings_of(click.get_current_context()), action)
+        settings_of(click.get_current_context()).write_action = action
         return inner(*args, **kwargs)
 
     command.callback = guarded
@@ -108,6 +109,8 @@ def name_the_environment(settings: Settings, error: CliError) -> CliError:
 
 def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
     """Run the command's coroutine; turn every expected failure into a :class:`CliError`."""
+    if settings.write_action is not None:
+        require_port(settings, settings.write_action)
     check_line_files(settings)
     if not settings.is_sim:
         advise(settings.port)

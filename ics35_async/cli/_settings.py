@@ -93,6 +93,7 @@ class Settings:
     verbose: int = 0
     port_defaulted: bool = False  # neither --port nor ICS35_PORT: the implicit, throwaway simulator
     simulated: bool = False  # this command reads the implicit simulator (its output says so)
+    write_action: str | None = None  # a command that changes a servo: what it does (see _runner.guard_writes)
     json_output: bool = False  # --json given before the command
     from_environment: tuple[str, ...] = ()  # "ICS35_PORT=/dev/ttyUSB0": line options the environment set
     _sim_name: str | None = field(default=None, init=False, repr=False)
