@@ -174,6 +174,7 @@ class RobotSession:
         await self.stop(ramp=0.0)
         self.motion_enabled = False
         await self._robot().free()
+        self.outcome = "joints free"  # (the page's state line: no longer how the last motion ended)
 
 
 def _round(value: float | None) -> float | None:
