@@ -193,6 +193,32 @@ def test_demo_ended_by_a_service_manager_or_a_closed_terminal_frees_the_servos(p
         assert got["current"]["magnitude"] == 0
 
 
+def test_a_command_started_ignoring_sighup_keeps_running_when_the_terminal_closes(port: str) -> None:
+    # `nohup ics35 demo ...`: SIGHUP ignored from the start stays ignored.
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--ids", "2,5", "--seconds", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),  # what nohup does
+    )
+    try:
+        assert proc.stdout is not None
+        assert "demo" in proc.stdout.readline()
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        assert proc.poll() is None  # still running
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "demo stopped by SIGTERM after" in out
+
+
 def test_demo_stopped_before_its_first_frame_is_no_error(port: str) -> None:
     # Ctrl-C before any cycle ended (at once, or on a slow machine): nothing is known of the
     # servos, so no "no servo answered"; the stop is the one the user asked for.

@@ -199,7 +199,7 @@ def _stopped_by_signal(error: CliError) -> CliError:
     signum = _signals.received()
     if signum is None or error.code != ExitCode.INTERRUPTED:
         return error
-    stopped = CliError(ExitCode(_SIGNAL_CODES[signum]), f"{_signals.stop_name()}: {error.message}")
+    stopped = CliError(_SIGNAL_CODES[signum], f"{_signals.stop_name()}: {error.message}")
     stopped.hints = error.hints
     return stopped
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import stat
 import sys
 from types import FrameType
 
@@ -23,20 +24,29 @@ def _stop_signals() -> list[signal.Signals]:
 
 
 def install() -> None:
-    """Handle SIGTERM and SIGHUP as Ctrl-C for the rest of the process (call from the main thread)."""
+    """Handle SIGTERM and SIGHUP as Ctrl-C for the rest of the process (call from the main thread).
+
+    A signal the process was started ignoring stays ignored: ``nohup ics35 ...`` keeps running when
+    its terminal closes.
+    """
     for signum in _stop_signals():
-        signal.signal(signum, _like_ctrl_c)
+        if signal.getsignal(signum) is signal.SIG_DFL:
+            signal.signal(signum, _like_ctrl_c)
 
 
 def _like_ctrl_c(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
     if signum == getattr(signal, "SIGHUP", None):
-        # The terminal is gone: a write to it would fail (EIO) and cut the cleanup short.
+        # The terminal is gone: a write to it would fail (EIO) and cut the cleanup short.  (Output
+        # going to a file or a pipe still goes there.  A hung-up terminal may no longer pass isatty():
+        # any character device is taken for one.)
         devnull = os.open(os.devnull, os.O_WRONLY)
         for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError):  # (what was buffered goes nowhere now)
-                stream.flush()
-            os.dup2(devnull, stream.fileno())
+            with contextlib.suppress(OSError, ValueError):
+                if stat.S_ISCHR(os.fstat(stream.fileno()).st_mode):
+                    with contextlib.suppress(OSError):  # (what was buffered goes nowhere now)
+                        stream.flush()
+                    os.dup2(devnull, stream.fileno())
         os.close(devnull)
     handler = signal.getsignal(signal.SIGINT)
     if callable(handler):  # asyncio's while a command runs (it cancels the command's task), else Python's
