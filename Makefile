@@ -83,6 +83,8 @@ format: $(STAMP)
 
 typecheck: $(STAMP)
 	$(BIN)/mypy --strict ics35_async tests/support
+	MYPYPATH=benchmarks $(BIN)/mypy --strict $(wildcard benchmarks/*.py)
+	$(BIN)/mypy --strict --explicit-package-bases benchmarks/soak
 
 # pytest in two passes.  First everything but the real-time tests on PYTEST_WORKERS processes (pytest-xdist):
 # most of a test's time is spent waiting on a simulated line or a subprocess, not computing, so three workers a

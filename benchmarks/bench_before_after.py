@@ -86,7 +86,7 @@ def run(runs: int = 5, duration: float = 1.0, before: str = BEFORE) -> dict[str,
                     progress(f"before/after {loop}: run {k + 1}/{runs}")
                     for side, path in sides.items():
                         samples[side].append(child(path, loop, port, duration))
-                row = {
+                row: dict[str, Any] = {
                     side: {key: median([s[key] for s in ss]) for key in ("cpu_us_per_tx", "tx_per_s")}
                     for side, ss in samples.items()
                 }

@@ -43,6 +43,7 @@ from typing import Any
 from bench_common import progress
 
 from ics35_async import Bus, BusTiming, open_bus
+from ics35_async.engine.timing import TimingOverrides
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
 from tests.support.paced_line import IDS, intervals
@@ -67,7 +68,7 @@ async def measure(scenario: str, seconds: float) -> dict[str, Any]:
         late_delay=0.03,
         seed=1,
     )
-    timing = {"quiet_time": 0.005} if scenario == QUIET_5MS else {}
+    timing: TimingOverrides = {"quiet_time": 0.005} if scenario == QUIET_5MS else {}
     driver = "thread" if "thread driver" in scenario else "asyncio"
     switch = sys.getswitchinterval()
     if scenario.endswith("switch 0.5 ms"):

@@ -119,15 +119,21 @@ def stream(path: str, driver: str | None, loop: str, duration: float, warmup_cyc
 def rows_to_measure() -> list[tuple[str, Callable[[str, float], Figures]]]:
     """(row name, measure(path, duration)) for the floor and every driver x loop x kind."""
     rows: list[tuple[str, Callable[[str, float], Figures]]] = [("floor", lean_loop)]
+
+    def on(fn: Callable[[str, str, float], Figures], loop: str) -> Callable[[str, float], Figures]:
+        return lambda path, duration: fn(path, loop, duration)
+
+    def with_driver(
+        fn: Callable[[str, str | None, str, float], Figures], driver: str | None, loop: str
+    ) -> Callable[[str, float], Figures]:
+        return lambda path, duration: fn(path, driver, loop, duration)
+
     for loop in loop_names():
-        rows.append((f"loop floor stream {loop}", lambda path, d, loop=loop: bench_floors.loop_stream(path, loop, d)))
-        rows.append(
-            (f"loop floor sequential {loop}", lambda path, d, loop=loop: bench_floors.loop_sequential(path, loop, d))
-        )
+        rows.append((f"loop floor stream {loop}", on(bench_floors.loop_stream, loop)))
+        rows.append((f"loop floor sequential {loop}", on(bench_floors.loop_sequential, loop)))
     for driver, loop in itertools.product(DRIVERS, loop_names()):
         for kind, fn in (("sequential", sequential), ("stream", stream)):
-            name = f"{kind} {driver_name(driver)}/{loop}"
-            rows.append((name, lambda path, d, fn=fn, driver=driver, loop=loop: fn(path, driver, loop, d)))
+            rows.append((f"{kind} {driver_name(driver)}/{loop}", with_driver(fn, driver, loop)))
     return rows
 
 

@@ -48,7 +48,8 @@ def loop_stream(path: str, loop: str, duration: float) -> Figures:
     async def measure() -> Figures:
         running = asyncio.get_running_loop()
         done = running.create_future()
-        state = {"got": 0, "n": 0, "end": 0.0}
+        state = {"got": 0, "n": 0}
+        end = [0.0]
 
         def readable() -> None:
             state["got"] += len(os.read(fd, 64))
@@ -56,7 +57,7 @@ def loop_stream(path: str, loop: str, duration: float) -> Figures:
                 return
             state["got"] = 0
             n = state["n"] = state["n"] + 1
-            if not n % 1024 and time.perf_counter() >= state["end"]:
+            if not n % 1024 and time.perf_counter() >= end[0]:
                 running.remove_reader(fd)
                 done.set_result(None)
                 return
@@ -64,7 +65,7 @@ def loop_stream(path: str, loop: str, duration: float) -> Figures:
 
         running.add_reader(fd, readable)
         wall0, cpu0 = time.perf_counter(), time.process_time()
-        state["end"] = wall0 + duration
+        end[0] = wall0 + duration
         os.write(fd, txs[0])
         await done
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0

@@ -31,9 +31,10 @@ import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from ics35_async import IcsError, open_bus
-from ics35_async.protocol import Position, ReadEeprom
+from ics35_async.protocol import Command, Position, ReadEeprom
 from ics35_async.sim import start_subprocess, stop_subprocess
 
 WARM_UP = 5
@@ -139,7 +140,7 @@ async def measure(name: str, port: str, transactions: int) -> PathResult:
         for _ in range(WARM_UP):
             with contextlib.suppress(IcsError):
                 await bus.request(ReadEeprom(1))
-        commands = [
+        commands: list[Command[Any]] = [
             ReadEeprom(1) if k % 3 == 2 else Position(1, 7001 + 2 * (k % 50), baudrate=bus.baudrate)
             for k in range(transactions)
         ]

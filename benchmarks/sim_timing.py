@@ -107,6 +107,10 @@ class _TimedHost:
             self.arrivals.append(stamp)
             self.cond.notify_all()
 
+    def replied(self) -> bool:
+        """The echo and the reply have come (two deliveries)."""
+        return len(self.arrivals) >= 2
+
     def lost(self, exc: Exception | None) -> None:
         pass
 
@@ -121,7 +125,7 @@ def bench_in_process(n: int) -> None:
         for i in range(n):
             bus.write(Position(1, 7000 + i % 1000, baudrate=baud).tx)
             with host.cond:
-                host.cond.wait_for(lambda h=host: len(h.arrivals) >= 2, 5)
+                host.cond.wait_for(host.replied, 5)
                 reply_at = host.arrivals[1]
                 host.arrivals.clear()
             modelled = bus.log[-1].reply_time
@@ -148,7 +152,10 @@ async def _asyncio_run(n: int, baud: int, realtime: bool) -> list[float]:
         if len(got) >= want and not done.done():
             done.set_result(time.perf_counter())
 
-    port.on_input = lambda: loop.call_soon_threadsafe(readable)
+    def told() -> None:  # (from the device's thread)
+        loop.call_soon_threadsafe(readable)
+
+    port.on_input = told
     lateness = []
     for i in range(n):
         got.clear()

@@ -36,7 +36,7 @@ class PathReports:
 
     @property
     def seconds(self) -> float:
-        return self.ordinary.seconds + self.burst.seconds
+        return float(self.ordinary.seconds + self.burst.seconds)
 
 
 Part = Callable[[argparse.Namespace, Callable[[str], None]], tuple[Any, list[Row]]]
@@ -56,7 +56,8 @@ def run_chaos_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple
     the time, so most transactions run in the executor (with four, about 1 %).
     """
     transactions = args.pty_transactions or (10_000 if args.quick else 100_000)
-    reports, rows = [], []
+    reports: list[chaos.ChaosReport] = []
+    rows: list[Row] = []
     for link, workers in ((PTY, 4), (PTY_BURST, 1)):
         baseline = max(2_000, transactions // 10)
         soak = chaos.chaos_soak(transactions, args.fault_rate, args.seed, baseline, workers, progress=say, link=link)
@@ -76,8 +77,10 @@ def run_cancel_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tupl
     """The cancellation soak over a pty: on the ordinary path, then on the burst path with one request
     canceller and half the cancellations streams (with six cancellers the line is never free for a burst)."""
     cancellations = 500 if args.quick else 2_000
-    reports, rows = [], []
-    for link, shape in ((PTY, {}), (PTY_BURST, {"concurrency": 1, "stream_share": 0.5})):
+    reports: list[cancellation.CancelReport] = []
+    rows: list[Row] = []
+    shapes: tuple[tuple[str, dict[str, Any]], ...] = ((PTY, {}), (PTY_BURST, {"concurrency": 1, "stream_share": 0.5}))
+    for link, shape in shapes:
         say(f"cancel over a {link}: {cancellations} cancellations")
         soak = cancellation.cancellation_soak(cancellations, args.seed + 1, link=link, **shape)
         reports.append(asyncio.run(soak))
@@ -87,10 +90,11 @@ def run_cancel_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tupl
 
 def run_unplug(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
     """The unplug soak on the ordinary path, then on the burst path (one report each)."""
-    reports, rows = [], []
+    reports: list[unplug.UnplugReport] = []
+    rows: list[Row] = []
     for burst in (False, True):
         say(f"unplug: pty simulator, device unplugged and replugged{', burst path' if burst else ''}")
-        sizes = {"down_times": (0.05, 1.0), "cycles_each": 1} if args.quick else {}
+        sizes: dict[str, Any] = {"down_times": (0.05, 1.0), "cycles_each": 1} if args.quick else {}
         reports.append(asyncio.run(unplug.unplug_soak(seed=args.seed + 2, burst=burst, **sizes)))
         rows += unplug.summarize_unplug(reports[-1])
     return PathReports(*reports), rows

@@ -18,7 +18,7 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from benchmarks.bench_common import burst_setting
 from ics35_async import (
@@ -117,6 +117,9 @@ class _PathWatch:
             await asyncio.sleep(0.0005)
 
 
+PATIENT_ALLOWANCE = 0.25
+
+
 @under_watchdog("unplug (reconnect)")
 async def reconnect_session(
     down_times: Sequence[float],
@@ -153,7 +156,10 @@ async def reconnect_session(
         watch = _PathWatch(path)
         stop = asyncio.Event()
         try:
-            async with open_bus(path, reconnect=True, adapter_latency=0.02) as bus:
+            # The requests' allowance is a loaded machine's (0.25 s, not an adapter's 20 ms): what is
+            # judged is how a request ends across an unplug, and a reply held up by the machine (a
+            # timeout, then its late bytes in front of the next echo) would count as a failure here.
+            async with open_bus(path, reconnect=True, adapter_latency=PATIENT_ALLOWANCE) as bus:
                 watched(bus)
                 watch.task = asyncio.create_task(watch.run())
 
@@ -215,7 +221,8 @@ async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 
     proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
         bus = watched(await open_bus(path, adapter_latency=adapter_latency))
-        pending: list[asyncio.Future[Any]] = []
+        Fut = asyncio.Future[Any]
+        pending: list[Fut] = []
 
         async def keep_requests_queued() -> None:
             # Reads nobody answers (each waits out its deadline on the wire) and ordinary reads,
@@ -223,8 +230,9 @@ async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 
             with contextlib.suppress(IcsError):
                 while True:
                     if sum(not f.done() for f in pending) < 6:
-                        pending.append(bus.submit(protocol.ReadMemory(3, 0, 4), priority=Priority.LOW))
-                        pending.append(bus.submit(protocol.ReadParam(1, Param.SPEED), priority=Priority.LOW))
+                        # (the asyncio driver's awaitables are futures)
+                        pending.append(cast(Fut, bus.submit(protocol.ReadMemory(3, 0, 4), priority=Priority.LOW)))
+                        pending.append(cast(Fut, bus.submit(protocol.ReadParam(1, Param.SPEED), priority=Priority.LOW)))
                     await asyncio.sleep(0.002)
 
         stream = bus.stream(range(8))

@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from types import FrameType, TracebackType
 from typing import Any, ParamSpec, TypeVar
 
@@ -176,11 +176,11 @@ A = ParamSpec("A")
 R = TypeVar("R")
 
 
-def under_watchdog(name: str) -> Callable[[Callable[A, Awaitable[R]]], Callable[A, Awaitable[R]]]:
+def under_watchdog(name: str) -> Callable[[Callable[A, Awaitable[R]]], Callable[A, Coroutine[Any, Any, R]]]:
     """Run an async soak inside a :class:`Watchdog` named ``name`` (unless one already runs: a
     soak made of others is watched once, as a whole).  Buses it opens join through :func:`watched`."""
 
-    def decorate(soak: Callable[A, Awaitable[R]]) -> Callable[A, Awaitable[R]]:
+    def decorate(soak: Callable[A, Awaitable[R]]) -> Callable[A, Coroutine[Any, Any, R]]:
         @functools.wraps(soak)
         async def run(*args: A.args, **kwargs: A.kwargs) -> R:
             if _ACTIVE:

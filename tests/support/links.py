@@ -189,6 +189,11 @@ class _Bridge:
         """Make ``conn`` the client; return how its bytes become the port's."""
         raise NotImplementedError
 
+    @property
+    def url(self) -> str:
+        """The URL a client opens to reach the port through this bridge."""
+        raise NotImplementedError
+
 
 class TcpBridge(_Bridge):
     """A raw TCP <-> serial forwarder: the client's baud rate and parity never reach the port."""
