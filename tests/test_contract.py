@@ -176,12 +176,14 @@ async def test_protocol_commands_through_request(bus: Bus) -> None:
     assert await bus.servo(6).read_speed() == 77
 
 
-async def answered_by_all(stream: Stream, ids: list[int], frames: int = 20) -> bool:
-    """Whether a frame in which every one of ``ids`` answered comes within ``frames`` frames (on a loaded
-    machine a stream transaction may give up after its short wait: that frame lacks the servo)."""
-    for _ in range(frames):
-        if set((await stream.next_frame()).positions) == set(ids):
-            return True
+async def answered_by_all(stream: Stream, ids: list[int], within: float = GUARD / 2) -> bool:
+    """Whether a frame in which every one of ``ids`` answered comes within ``within`` seconds (on a loaded
+    machine a stream transaction may give up after its short wait, and its servo then sits out the
+    frames until its late reply can no longer come: counting frames, a stall could outlast them all)."""
+    with anyio.move_on_after(within):
+        while set((await stream.next_frame()).positions) != set(ids):
+            pass
+        return True
     return False
 
 
