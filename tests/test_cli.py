@@ -236,7 +236,7 @@ def test_a_windows_port_name_elsewhere_is_named_as_such(cli: Any) -> None:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="device paths are POSIX ones")
-def test_a_device_name_without_its_directory_is_named_with_it(cli: Any, tmp_path: Path) -> None:
+def test_a_device_name_without_its_directory_is_named_with_it(cli: Any) -> None:
     # `--port ttyUSB0`: the person meant /dev/ttyUSB0 (which exists on this machine or not).
     result = cli("--port", "ttyUSB0", "info", "1")
     assert result.code == ExitCode.PORT
