@@ -196,13 +196,20 @@ def test_demo_ended_by_a_service_manager_or_a_closed_terminal_frees_the_servos(p
 def test_a_command_started_ignoring_sighup_keeps_running_when_the_terminal_closes(port: str) -> None:
     # `nohup ics35 demo ...`: SIGHUP ignored from the start stays ignored.
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--ids", "2,5", "--seconds", "60"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN),  # what nohup does
-    )
+    command = [
+        sys.executable,
+        "-m",
+        "ics35_async.cli",
+        "--port",
+        port,
+        *baud,
+        "demo",
+        "--ids",
+        "2,5",
+        "--seconds",
+        "60",
+    ]
+    proc = subprocess.Popen(["nohup", *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         assert "demo" in proc.stdout.readline()
