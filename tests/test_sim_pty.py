@@ -235,6 +235,21 @@ def test_a_link_the_simulator_left_behind_is_replaced(tmp_path: Path) -> None:
     assert not link.exists() and not link.is_symlink()
 
 
+def test_a_link_a_running_simulator_serves_is_refused(tmp_path: Path) -> None:
+    # Taken over, the first simulator's clients would find other servos, and the link would be gone
+    # for good once the second stopped.
+    link = tmp_path / "tty"
+    first = PtyPort(link)
+    first.open()
+    try:
+        proc = run_sim("--link", str(link))
+        assert proc.returncode == 2, proc.stderr
+        assert "in use" in proc.stderr and str(link) in proc.stderr
+        assert os.readlink(link) == first.pts_name
+    finally:
+        first.dispose()
+
+
 @pytest.mark.realtime
 def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
     path = pty_sim("--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4").path

@@ -118,8 +118,9 @@ def _client_opened(master: int) -> bool:
 
 
 def check_link_path(path: Path) -> None:
-    """Refuse a path the simulator's link may not take: one in no directory, or one that is something
-    else than a link a simulator made (to a pty, gone or not): a file, a directory, another link.
+    """Refuse a path the simulator's link may not take: one in no directory, one that is something else
+    than a link a simulator made (a file, a directory, another link), or a link to a pty still there
+    (a running simulator's; a killed one's link to a pty that is gone is taken over).
 
     The link is replaced while the simulator runs and removed when it stops, so a wrong path would
     destroy what was there.  (Its ``.new`` sibling, the link made before it takes the path, alike.)
@@ -130,14 +131,18 @@ def check_link_path(path: Path) -> None:
     if not path.parent.is_dir():
         raise InvalidArgument(f"no such directory for the link: {path.parent} (in {path})")
     for taken in (path, path.with_name(path.name + ".new")):
-        if (taken.exists() or taken.is_symlink()) and not _simulator_link(taken):
+        if not (taken.exists() or taken.is_symlink()):
+            continue
+        if not _pty_link(taken):
             raise InvalidArgument(
                 f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
             )
+        if taken.exists():  # (its pty is there: a simulator, or whatever holds that pty now, serves it)
+            raise InvalidArgument(f"{taken} is in use: it leads to {os.readlink(taken)} (choose another path)")
 
 
-def _simulator_link(path: Path) -> bool:
-    """A symlink to a pseudo-terminal (a simulator's, perhaps left by one that was killed)."""
+def _pty_link(path: Path) -> bool:
+    """A symlink to a pseudo-terminal: a simulator's, or one a killed simulator left."""
     return path.is_symlink() and os.readlink(path).startswith(("/dev/pts/", "/dev/ttys"))  # Linux, macOS
 
 
