@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import sys
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -150,6 +151,14 @@ def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: A
     assert "not a serial port" in status["error"]  # (said on the Line page too)
     report = post(client, "/api/scan", {"bauds": [115200]}).json()
     assert [s["id"] for s in report["servos"]] == [1, 3]
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
+def test_a_refused_connect_answers_with_the_hints_the_page_shows(serve: Any) -> None:
+    client, _ = serve()
+    for port, hint in (("COM3", "COM names are Windows' own"), ("ttyUSB0", "/dev/ttyUSB0")):
+        refused = post(client, "/api/connect", {"port": port})
+        assert refused.status_code == 503 and hint in refused.json()["error"], refused.json()
 
 
 def test_a_scan_of_chosen_ids_asks_only_those_and_a_bad_choice_is_refused_in_words(serve: Any) -> None:

@@ -71,9 +71,12 @@ def _status_of(exc: BaseException) -> int:
     return 500
 
 
-def error_response(exc: BaseException) -> JSONResponse:
+def error_response(exc: BaseException, said: str | None = None) -> JSONResponse:
+    """The page's error for ``exc``: its words (or ``said``, what the session made of it), kind and status."""
     status = _status_of(exc)
-    if status == 500:
+    if said is not None:
+        message = said
+    elif status == 500:
         log.error("internal error: %s: %s", type(exc).__name__, exc)
         message = f"internal error ({type(exc).__name__}: {exc}); the line is unchanged by this request"
     elif isinstance(exc, KeyError):
@@ -151,7 +154,10 @@ async def connect(request: Request, session: LineSession) -> Any:
     data = await body(request)
     if data.get("robot_line") is not None:
         return await session.use_robot_line(data["robot_line"])
-    return await session.connect(data.get("port"), data.get("baud"))
+    try:
+        return await session.connect(data.get("port"), data.get("baud"))
+    except OSError as exc:  # (said with the hints the session found: a COM name off Windows, ...)
+        return error_response(exc, session.error)
 
 
 async def scan(request: Request, session: LineSession) -> Any:
