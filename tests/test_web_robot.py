@@ -104,6 +104,8 @@ def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: An
     assert stopped["playing"] is None and stopped["outcome"].endswith("stopped")
     freed = post(client, "/api/robot/free").json()  # the page's state line then says so, not "stopped"
     assert freed["outcome"] == "joints free" and not freed["motion_enabled"], freed
+    held = post(client, "/api/robot/motion", {"enabled": True}).json()  # and then, no longer "free"
+    assert held["outcome"] == "joints hold where they stand" and held["motion_enabled"], held
 
 
 def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:

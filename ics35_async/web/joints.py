@@ -122,6 +122,7 @@ class RobotSession:
         robot = self._robot()
         if enabled:
             robot.hold()
+            self.outcome = "joints hold where they stand"  # (the page's state line: not "joints free")
         self.motion_enabled = enabled
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
