@@ -39,6 +39,20 @@ def test_a_dump_without_port_stays_a_valid_backup_and_says_so(cli: Any) -> None:
     assert result.json()["simulated"] is True and result.json()["format"] == "ics35-eeprom/1"
 
 
+def test_a_dump_to_files_without_port_says_so_in_the_files_and_a_restore_of_one_warns(
+    cli: Any, sim_line: Any, tmp_path: Any
+) -> None:
+    one, folder = tmp_path / "one.json", tmp_path / "all"
+    assert cli("eeprom", "dump", "4", "-o", str(one)).code == 0
+    assert cli("eeprom", "dump", "1-2", "-o", f"{folder}/").code == 0
+    for path in (one, folder / "servo-01.json", folder / "servo-02.json"):
+        assert json.loads(path.read_text())["simulated"] is True, path
+    _, url = sim_line([4])
+    restored = cli("--port", url, "eeprom", "restore", str(one), "--yes")
+    assert restored.code == 0, restored.err
+    assert "read from the built-in simulator" in restored.err
+
+
 def test_eeprom_help_shows_the_summary_of_set_whole(cli: Any) -> None:
     result = cli("eeprom", "--help")
     assert result.code == 0

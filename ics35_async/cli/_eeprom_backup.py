@@ -32,6 +32,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
+from ._console import SIMULATED_KEY
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, write_plans
 from ._runner import line_error
@@ -67,7 +68,10 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
 
 
 def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
-    return backup_document(image, servo_id, baud=settings.baud, port=settings.port)
+    doc = backup_document(image, servo_id, baud=settings.baud, port=settings.port)
+    if settings.simulated:  # (a file too, not only stdout: its plausible data must not pass for a servo's)
+        doc[SIMULATED_KEY] = True
+    return doc
 
 
 @dataclass
@@ -181,13 +185,15 @@ class Backup:
     target: int
     fields: dict[str, int]
     saved_id: int  # the ID the backup was saved from
+    simulated: bool = False  # read from the implicit built-in simulator, not a servo
 
 
 def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         text = sys.stdin.read() if source == "-" else Path(source).read_text()
-        changes = backup_changes(json.loads(text), restore_id=restore_id)
+        doc = json.loads(text)
+        changes = backup_changes(doc, restore_id=restore_id)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
@@ -197,7 +203,7 @@ def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
         raise click.BadParameter(f"{source}: not JSON: {exc}", param_hint="FILE") from None
     except (InvalidArgument, MalformedEeprom) as exc:
         raise click.BadParameter(f"{source}: {exc}", param_hint="FILE") from None
-    return Backup(source, target, fields, saved_id)
+    return Backup(source, target, fields, saved_id, isinstance(doc, dict) and doc.get(SIMULATED_KEY) is True)
 
 
 def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
@@ -257,6 +263,11 @@ def restore(
     settings = settings_of(ctx)
     backups = load_backups(args, restore_id)
     for backup in backups:
+        if backup.simulated:
+            err.print(
+                f"[yellow]warning:[/yellow] {escape(backup.source)} was read from the built-in simulator "
+                "(no --port when it was saved), not from a servo"
+            )
         if backup.saved_id != backup.target and not restore_id and not as_json:
             err.print(
                 f"note: {escape(backup.source)} is a backup of ID {backup.saved_id}; servo {backup.target} keeps "
