@@ -226,6 +226,29 @@ def test_a_command_started_ignoring_sighup_keeps_running_when_the_terminal_close
     assert "demo stopped by SIGTERM after" in out
 
 
+def test_demos_summary_counts_the_wave_not_the_scan_and_the_question(port: str) -> None:
+    # No IDs: it scans and asks; the answer comes two seconds later.  The summary's time is the wave's.
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--seconds", "1"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(2.0)
+        out, err = proc.communicate("y\n", timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    (summary,) = [ln for ln in out.splitlines() if ln.startswith("demo done after")]
+    took = float(summary.split("after ")[1].split(" s")[0])
+    assert 1.0 <= took < 2.0, summary
+
+
 def test_demo_stopped_before_its_first_frame_is_no_error(port: str) -> None:
     # Ctrl-C before any cycle ended (at once, or on a slow machine): nothing is known of the
     # servos, so no "no servo answered"; the stop is the one the user asked for.
