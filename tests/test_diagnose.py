@@ -257,6 +257,16 @@ def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, cli: Any) -
     assert {"latency_timer", "line"} <= checks
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
+def test_doctor_names_a_missing_port_once_with_its_hints(cli: Any) -> None:
+    for port, hint in (("/dev/ttyUSB-ics35-none", "ls /dev/ttyUSB*"), ("ttyUSB0", "/dev/ttyUSB0")):
+        result = cli("doctor", "--port", port)
+        assert result.code == 3, result.err
+        errors = [ln for ln in result.err.splitlines() if ln.startswith("error:")]
+        assert len(errors) == 1 and port in errors[0], result.err
+        assert hint in result.err
+
+
 def test_udev_prints_the_rules(cli: Any) -> None:
     if not sys.platform.startswith("linux"):
         assert cli("udev").code == 2

@@ -14,6 +14,7 @@ from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..drivers.burst import PATH_NAME, burst_path, burst_path_for
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
+from ..transports.platforms import misnamed_port_hints
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
 from ._settings import Settings
 
@@ -103,6 +104,9 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         findings.append(
             Finding("line", "info", "no --port given: the line was not measured", "ics35 doctor --port PORT")
         )
+    elif unreachable := [f for f in system.findings if f.check == "port" and f.severity == "error"]:
+        # (the port is not there: said once, as the command's error, with what its name may have meant)
+        failure = CliError(ExitCode.PORT, unreachable[0].problem, unreachable[0].fix, *misnamed_port_hints(port))
     else:
         try:
             line = measure(settings, ids, samples, system)
