@@ -17,7 +17,7 @@ from pathlib import Path
 import click
 from rich.markup import escape
 
-from ..errors import IcsError
+from ..errors import BusClosed, IcsError, PortLost
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..stream import ON_CLOSE
@@ -159,7 +159,9 @@ def play(
                     f"cycle {robot.latest.cycle}" if robot.latest else ""
                 )
 
-            with Screen(lambda: joint_table(robot, title, motion.joints), summary) as screen:
+            lost: list[bool] = []  # the lines ended (a port lost): the table's last look says so
+
+            with Screen(lambda: joint_table(robot, title, motion.joints, lost=bool(lost)), summary) as screen:
                 if not screen.tty:
                     out.print(f"{title}; one line per second, table at the end")
 
@@ -184,6 +186,9 @@ def play(
                     if not timer.expired():
                         raise  # the motion's own error (a ReplyTimeout is a TimeoutError too)
                     how = "time is up"
+                except (PortLost, BusClosed):
+                    lost.append(True)
+                    raise
                 except asyncio.CancelledError:
                     # Ctrl-C (asyncio.run cancels us): the normal way to stop; handled here, so the
                     # command ends normally after the smooth stop.
@@ -200,6 +205,8 @@ def play(
                             await task
                         err.print(f"{how}: slowing to rest, then the joints {on_stop}")
                         await stop_smoothly(robot, ramp, on_stop)
+                if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
+                    await robot.free()  # the table's last look shows what they are left in)
             return how
 
     how = run_robot(settings, description, body)
