@@ -147,10 +147,8 @@ async def write_plans(
     if not pending:
         return WriteBatch([report_of(plan, None) for plan in plans])
     count = sum(len(plan.diff) for plan in pending)
-    servos = (
-        f"servo {pending[0].servo_id}'s" if len(pending) == 1 else f"servos {ids_text(p.servo_id for p in pending)}'"
-    )
-    confirm(f"Write these {count} change(s) to {servos} EEPROM?", yes)
+    servos = f"servo {pending[0].servo_id}" if len(pending) == 1 else f"servos {ids_text(p.servo_id for p in pending)}"
+    confirm(f"Write these {count} change(s) to the EEPROM of {servos}?", yes)
     done: list[ServoWriteReport] = []
     task = asyncio.current_task()
     with contextlib.suppress(asyncio.CancelledError):

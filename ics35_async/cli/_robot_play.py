@@ -17,7 +17,7 @@ from pathlib import Path
 import click
 from rich.markup import escape
 
-from ..errors import BusClosed, IcsError, PortLost
+from ..errors import BusClosed, IcsError, PortLost, error_text
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..stream import ON_CLOSE
@@ -56,7 +56,10 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
         try:
             data = json.loads(Path(text).read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise click.BadParameter(f"{text}: not a readable JSON file {{joint: degrees}} ({exc})") from None
+            raise click.BadParameter(
+                f"{text}: neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({error_text(exc)})",
+                param_hint="--start-pose",
+            ) from None
         if not isinstance(data, dict) or not all(isinstance(v, (int, float)) for v in data.values()):
             raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}")
         return {str(k): float(v) for k, v in data.items()}
@@ -203,7 +206,7 @@ def play(
                         task.cancel()
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
                             await task
-                        err.print(f"{how}: slowing to rest, then the joints {on_stop}")
+                        screen.say(f"{how}: slowing to rest, then the joints {on_stop}")  # (on a terminal: in the view)
                         await stop_smoothly(robot, ramp, on_stop)
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
