@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ics35_async import InvalidArgument, blocking
+from ics35_async import BusClosed, InvalidArgument, blocking
 from ics35_async.robot import DescriptionError
 from tests.support.robot_rig import JOINTS, joint_position, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
@@ -126,6 +126,9 @@ def test_ctrl_c_during_a_motion_cancels_it_and_closes_the_robot() -> None:
             robot.move_to({"neck": 50.0}, duration=60.0)
         assert not robot.is_open
         assert all(rig.servo(name).free for name in JOINTS)  # on_close="free" ran
+        # Its snapshots then say what closed it (the program never touched a bus).
+        with pytest.raises(BusClosed, match=r"the robot is closed: a Ctrl-C during a call closed it"):
+            _ = robot.targets
     finally:
         rig.close()
     time.sleep(0)  # the helper thread has ended once interrupt_main returned

@@ -97,7 +97,7 @@ class BlockingRobot(LoopOwner[Robot]):
     __slots__ = ("_holder",)
 
     def __init__(self, opener: contextlib.AbstractAsyncContextManager[Robot], name: str = "robot") -> None:
-        loop = LoopThread(name=f"ics35 blocking robot {name}")
+        loop = LoopThread(name=f"ics35 blocking robot {name}", what="robot")
         holder = _Holder(opener)
         self._holder = holder
         self._own(loop, holder.close, "blocking robot")
@@ -137,6 +137,7 @@ class BlockingRobot(LoopOwner[Robot]):
         try:
             return self._loop.call(fn, *args, **kwargs)
         except KeyboardInterrupt:
+            self._loop.closed_because = "a Ctrl-C during a call closed it"
             self.close()
             raise
 

@@ -147,10 +147,12 @@ class LoopThread:
     exits; :class:`~ics35_async.blocking.BlockingBus` closes the bus at exit.
     """
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, what: str = "bus") -> None:
         started: Outcome[asyncio.AbstractEventLoop] = Outcome()
         self._stop: asyncio.Event | None = None
         self._closed = False
+        self.what = what  # what a call finds closed: "bus", "robot"
+        self.closed_because = ""  # why it closed, when not by the program's close() (said with BusClosed)
         self._thread = threading.Thread(target=self._main, args=(started,), name=name, daemon=True)
         self._thread.start()
         try:
@@ -225,7 +227,7 @@ class LoopThread:
 
     def _check_caller(self) -> None:
         if self._closed:
-            raise BusClosed("bus is closed")
+            raise self._closed_error()
         if threading.current_thread() is self._thread:
             raise RuntimeError(
                 "a blocking call cannot run on the bus's own event loop thread (it would wait for itself); "
@@ -236,7 +238,11 @@ class LoopThread:
         try:
             self._loop.call_soon_threadsafe(callback, *args)
         except RuntimeError:  # the loop is closed
-            raise BusClosed("bus is closed") from None
+            raise self._closed_error() from None
+
+    def _closed_error(self) -> BusClosed:
+        because = f": {self.closed_because}" if self.closed_because else ""
+        return BusClosed(f"the {self.what} is closed{because}")
 
     # ------------------------------------------------------------------ stopping
 
