@@ -128,7 +128,7 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
         ("tail=3", "unknown joint(s): tail"),
         ("neck=99", "outside its limits"),
         ("neck=x", "joint=degrees"),
-        ("/nonexistent.json", "not a readable JSON file"),
+        ("/nonexistent.json", "nor a readable JSON file"),
     ],
 )
 def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
