@@ -60,7 +60,7 @@ class ExitCode(enum.IntEnum):
     offline)."""
     HANGUP = 129
     """The terminal closed (SIGHUP): the command ended as Ctrl-C ends it (servos freed or held as then, poses
-    written), with nothing more printed."""
+    written), with nothing more on the terminal."""
     INTERRUPTED = 130
     """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
     written or moved)."""
