@@ -63,7 +63,13 @@ COMMANDS = {
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 @pytest.mark.parametrize("loop", list(LOOPS))
-def test_first_ctrl_c_at_the_question_exits_130(port: str, loop: str, command: str) -> None:
+@pytest.mark.parametrize(
+    ("signum", "exit_code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["Ctrl-C", "SIGTERM"]
+)
+def test_first_ctrl_c_at_the_question_exits_130(
+    port: str, loop: str, command: str, signum: int, exit_code: int
+) -> None:
+    # (SIGTERM as Ctrl-C: the question blocks the event loop, so it cannot be a cancelled task's end)
     if loop == "uvloop":
         pytest.importorskip("uvloop")
     where = port if command == "demo" else "sim://?ids=1"
@@ -76,7 +82,7 @@ def test_first_ctrl_c_at_the_question_exits_130(port: str, loop: str, command: s
     try:
         assert proc.stderr is not None
         before = read_until(proc.stderr.fileno(), b"[y/N]")
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         try:
             code = proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
@@ -90,7 +96,7 @@ def test_first_ctrl_c_at_the_question_exits_130(port: str, loop: str, command: s
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert code == 130, rest
+    assert code == exit_code, rest
     assert "Traceback" not in rest
     # In the words of what the command would have done: demo moves servos, eeprom set writes.
     assert ("nothing moved" if command == "demo" else "nothing was written") in rest, rest

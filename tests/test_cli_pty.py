@@ -193,6 +193,43 @@ def test_demo_ended_by_a_service_manager_or_a_closed_terminal_frees_the_servos(p
         assert got["current"]["magnitude"] == 0
 
 
+def test_a_second_stop_signal_does_not_cut_the_first_ones_cleanup_short(port: str) -> None:
+    # Closing a terminal often sends SIGHUP twice (the shell to its jobs, the kernel to the foreground
+    # group); the second must not interrupt the freeing the first began.
+    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
+    command = [
+        sys.executable,
+        "-m",
+        "ics35_async.cli",
+        "--port",
+        port,
+        *baud,
+        "demo",
+        "--ids",
+        "2,5",
+        "--seconds",
+        "60",
+    ]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert "demo" in proc.stdout.readline()
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(0.01)
+        proc.send_signal(signal.SIGHUP)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGHUP, err
+    assert "Traceback" not in err and "left free" in out, err
+    for i in (2, 5):
+        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
+        assert got["current"]["magnitude"] == 0
+
+
 def test_a_command_started_ignoring_sighup_keeps_running_when_the_terminal_closes(port: str) -> None:
     # `nohup ics35 demo ...`: SIGHUP ignored from the start stays ignored.
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]

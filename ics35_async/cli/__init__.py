@@ -166,9 +166,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         from ._console import fail
 
         fail(_stopped_by_signal(exc))
-    except click.exceptions.Abort:
-        click.echo("aborted", err=True)
-        sys.exit(int(ExitCode.INTERRUPTED))
+    except click.exceptions.Abort:  # (click's form of a KeyboardInterrupt outside a command's handling)
+        stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, "aborted"))
+        click.echo(stopped.message, err=True)
+        sys.exit(int(stopped.code))
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)

@@ -106,7 +106,7 @@ def demo(
     state, telemetry, recorder = run(settings, body)
     final_report(state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
-        f"demo {f'stopped by {_signals.stop_name()}' if state.stopped_by_ctrl_c else 'done'} after "
+        f"demo {f'stopped by {_signals.stop_name()}' if state.stopped_by_signal else 'done'} after "
         f"{state.elapsed:.1f} s: {state.cycle} cycles, "  # (the wave's time: not the scan's, nor the question's)
         f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
     )

@@ -125,7 +125,7 @@ async def run_live(
                     # --seconds is up
                 except asyncio.CancelledError:
                     # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
-                    state.stopped_by_ctrl_c = True
+                    state.stopped_by_signal = True
                     if live is not None:
                         # In the live view itself: a line printed beside it (stderr) garbles the redraw,
                         # leaving the table's title twice on the screen.
@@ -208,7 +208,7 @@ def final_report(
         out.print(state.table(telemetry, options.with_targets))
         out.print(state.summary(telemetry))
     # Stopped by Ctrl-C before any cycle ended, nothing is known of the servos: no error for that.
-    asked = state.cycle > 0 or not state.stopped_by_ctrl_c
+    asked = state.cycle > 0 or not state.stopped_by_signal
     if asked and not state.answered_ever:
         raise CliError(ExitCode.NO_REPLY, f"no servo among {ids_text(state.ids)} answered", *NO_REPLY_HINTS)
 

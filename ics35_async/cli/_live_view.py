@@ -36,7 +36,7 @@ class LiveState:
     rate_avg: float = 0.0
     answered_ever: set[int] = field(default_factory=set)
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
-    stopped_by_ctrl_c: bool = False
+    stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:

@@ -8,6 +8,7 @@ import os
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
+from . import _signals
 from ._settings import CliError, ExitCode
 
 T = TypeVar("T")
@@ -16,7 +17,10 @@ log = logging.getLogger("ics35_async")
 
 
 async def _await(main: Awaitable[T]) -> T:
-    return await main
+    task = asyncio.current_task()
+    assert task is not None
+    with _signals.command_task(task):  # (SIGTERM and SIGHUP cancel it, as Ctrl-C does)
+        return await main
 
 
 def loop_factory() -> tuple[str, Callable[[], asyncio.AbstractEventLoop] | None]:
@@ -46,4 +50,9 @@ def run_loop(main: Awaitable[T]) -> T:
         raise
     log.info("event loop: %s", name)
     with asyncio.Runner(loop_factory=factory) as runner:
-        return runner.run(_await(main))
+        try:
+            return runner.run(_await(main))
+        except asyncio.CancelledError:
+            if _signals.received() is None:
+                raise
+            raise KeyboardInterrupt from None  # cancelled by a stop signal: what Ctrl-C's cancel becomes

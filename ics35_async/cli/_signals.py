@@ -2,21 +2,30 @@
 
 A service manager (systemd, Docker, ``kill``) stops a program with SIGTERM, and closing the terminal
 sends SIGHUP.  Python's default for both is to die at once: a demo's servos would keep holding their
-last target and ``teach`` would lose its poses.  Each command already handles Ctrl-C (asyncio cancels
-its task, or ``KeyboardInterrupt`` ends a wait), so these signals go the same way, through whatever
-handles SIGINT at that moment; the exit code then says which signal it was (128 + its number).
+last target and ``teach`` would lose its poses.  Each command already handles Ctrl-C: on the event
+loop asyncio cancels its task, elsewhere (a question, a file being read) ``KeyboardInterrupt`` ends
+the wait.  The first stop signal does the same: it cancels the command's task (see
+:func:`command_task`), or raises ``KeyboardInterrupt`` when none runs.  Later ones are ignored, so
+that they cannot cut short the cleanup the first began (closing a terminal often sends SIGHUP twice:
+the shell to its jobs, the kernel to the foreground group); a Ctrl-C still forces.  The exit code
+then says which signal it was (128 + its number; the library's :mod:`ics35_async.running` gives a
+program the same for SIGTERM).
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
 import signal
 import stat
 import sys
+from collections.abc import Iterator
 from types import FrameType
+from typing import Any
 
 _received: list[int] = []  # the stop signals received, first first
+_tasks: list[asyncio.Task[Any]] = []  # the command's task on the event loop, while it runs
 
 
 def _stop_signals() -> list[signal.Signals]:
@@ -31,28 +40,50 @@ def install() -> None:
     """
     for signum in _stop_signals():
         if signal.getsignal(signum) is signal.SIG_DFL:
-            signal.signal(signum, _like_ctrl_c)
+            signal.signal(signum, _stop)
 
 
-def _like_ctrl_c(signum: int, frame: FrameType | None) -> None:
+@contextlib.contextmanager
+def command_task(task: asyncio.Task[Any]) -> Iterator[None]:
+    """While the block runs, a stop signal cancels ``task`` (the command's, on the loop) as Ctrl-C does."""
+    _tasks.append(task)
+    try:
+        yield
+    finally:
+        _tasks.remove(task)
+
+
+def _stop(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
+    if len(_received) > 1:
+        return  # the first is being acted on (see the module's docstring)
     if signum == getattr(signal, "SIGHUP", None):
-        # The terminal is gone: a write to it would fail (EIO) and cut the cleanup short.  (Output
-        # going to a file or a pipe still goes there.  A hung-up terminal may no longer pass isatty():
-        # any character device is taken for one.)
+        _leave_the_terminal()
+    task = _tasks[-1] if _tasks else None
+    # A question waiting for its answer blocks the loop: there Ctrl-C raises (see _prompt), and so do these.
+    asking = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if task is not None and not task.done() and not asking:
+        # (run in the main thread between two bytecodes of the loop: cancel from the loop itself)
+        task.get_loop().call_soon_threadsafe(task.cancel)
+        return
+    raise KeyboardInterrupt  # outside the loop, or at a question: as a Ctrl-C there
+
+
+def _leave_the_terminal() -> None:
+    """The terminal is gone: a write to it would fail (EIO) and cut the cleanup short, so what is
+    written from now on goes to /dev/null instead.  Output to a file or a pipe still goes there.  (A
+    hung-up terminal may no longer pass isatty(): any character device is taken for one.  Nothing is
+    flushed: the main thread may be inside a write to it.)"""
+    with contextlib.suppress(OSError):
         devnull = os.open(os.devnull, os.O_WRONLY)
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError):
-                if stat.S_ISCHR(os.fstat(stream.fileno()).st_mode):
-                    with contextlib.suppress(OSError):  # (what was buffered goes nowhere now)
-                        stream.flush()
-                    os.dup2(devnull, stream.fileno())
-        os.close(devnull)
-    handler = signal.getsignal(signal.SIGINT)
-    if callable(handler):  # asyncio's while a command runs (it cancels the command's task), else Python's
-        handler(signal.SIGINT, frame)
-    else:  # SIGINT ignored (a background job of a non-interactive shell): this signal still stops
-        raise KeyboardInterrupt
+        try:
+            for stream in (sys.stdout, sys.stderr):
+                with contextlib.suppress(OSError, ValueError):
+                    fd = stream.fileno()
+                    if stat.S_ISCHR(os.fstat(fd).st_mode):
+                        os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)
 
 
 def received() -> int | None:

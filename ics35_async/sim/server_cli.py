@@ -185,7 +185,9 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
     def on_signal(signum: int, frame: FrameType | None) -> None:
         server.stop()
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # (a server: stopped by any of them, it ends as asked, exit 0)
+    stops = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
+    previous = {sig: signal.signal(sig, on_signal) for sig in stops}
     try:
         path = server.open()
         print(path, flush=True)
