@@ -161,6 +161,24 @@ def test_a_refused_connect_answers_with_the_hints_the_page_shows(serve: Any) -> 
         assert refused.status_code == 503 and hint in refused.json()["error"], refused.json()
 
 
+@pytest.mark.pty
+def test_the_open_port_under_another_name_is_reopened_not_refused_as_busy(tmp_path: Any) -> None:
+    # /dev/serial/by-id/... for /dev/ttyUSB0: the same device (it cannot be open twice), so it closes first.
+    from ics35_async.sim import serving
+
+    with serving(["--ids", "2", "--fast"]) as pty:
+        alias = tmp_path / "by-id-adapter"
+        alias.symlink_to(pty)
+        app = create_app(LineSession(LineConfig(port=pty)), TOKEN)
+        with TestClient(app, base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            assert client.get("/api/status").json()["connected"]
+            switched = post(client, "/api/connect", {"port": str(alias)})
+            assert switched.status_code == 200, switched.json()
+            assert switched.json()["connected"] and switched.json()["port"] == str(alias)
+            assert [s["id"] for s in post(client, "/api/scan", {"bauds": [115200]}).json()["servos"]] == [2]
+
+
 def test_a_scan_of_chosen_ids_asks_only_those_and_a_bad_choice_is_refused_in_words(serve: Any) -> None:
     client, sim = serve((2, 7, 30))
     heard: list[bytes] = []

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from .advice import adapter_advice
     from .device_port import DevicePort
     from .direction import DIRECTIONS, check_direction
-    from .links import carries_line_settings, rate_blind_note
+    from .links import carries_line_settings, rate_blind_note, same_port
     from .opening import Port, open_port
     from .pyserial_port import ReaderThread, SerialPort
     from .tty_port import ParityMarks, TtyPort
@@ -42,6 +42,7 @@ _LAZY = {
     "DIRECTIONS": ".direction",
     "check_direction": ".direction",
     "carries_line_settings": ".links",
+    "same_port": ".links",
     "rate_blind_note": ".links",
     "Port": ".opening",
     "open_port": ".opening",
@@ -81,6 +82,7 @@ __all__ = [
     "adapter_advice",
     "device_factory",
     "carries_line_settings",
+    "same_port",
     "check_direction",
     "open_port",
     "rate_blind_note",

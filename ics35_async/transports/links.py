@@ -9,6 +9,8 @@ bridge's serial side is set to, and pyserial drops our settings silently.
 
 from __future__ import annotations
 
+import os
+
 import contextlib
 import logging
 import socket
@@ -23,6 +25,15 @@ _RATE_BLIND_SCHEMES = frozenset({"socket"})
 
 _warned: set[str] = set()
 _warned_lock = threading.Lock()
+
+
+def same_port(a: str, b: str) -> bool:
+    """Whether two port names open the same line: equal URLs, or device paths that lead to the same
+    device (``/dev/serial/by-id/...`` and the ``/dev/ttyUSB0`` it links to).  A device cannot be open
+    twice, so whoever switches between them closes the one first."""
+    if "://" in a or "://" in b:
+        return a == b
+    return a == b or os.path.realpath(a) == os.path.realpath(b)
 
 
 def carries_line_settings(port: object) -> bool:

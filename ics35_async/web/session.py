@@ -39,6 +39,7 @@ from ..policies import (
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
+from ..transports import same_port
 from ..transports.platforms import misnamed_port_hints
 from .config import LineConfig
 from .edits import allowances, edit_of
@@ -110,9 +111,13 @@ class LineSession:
         }
 
     async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
-        """Open the line (closing the one open before); a refused port is reported, not raised.
+        """Open the line ``port`` at ``baud`` (each: the one open now if None); a refused one raises, its
+        error (with hints) also kept for :meth:`status`.
 
-        A port that is one of the robot's lines is that line (:meth:`use_robot_line`): the robot holds it open.
+        Another port opens before the open one closes, so a refused one leaves the line that worked;
+        the same device (another baud rate, or another name for it) cannot be open twice: it closes
+        first.  A port that is one of the robot's lines is that line (:meth:`use_robot_line`): the
+        robot holds it open.
         """
         config = self.config
         if self.robot is not None and isinstance(port, str):
@@ -126,12 +131,10 @@ class LineSession:
         if baud is not None:
             config = replace(config, baud=int(BaudRate.parse(baud)))
         async with self.exclusive:
-            # Another port opens before the open one closes, so a refused one leaves the line that
-            # worked; the same port (another baud rate) cannot be open twice: it closes first.
-            same = config.url == self.config.url and self.robot_line is None
+            same = self.robot_line is None and same_port(config.url, self.config.url)
             if same or self.bus is None:
                 await self.disconnect()
-                self.config = config
+                self._switch_to(config)
             bus = self._open(config.baud, config)
             try:
                 await bus.open()
@@ -139,16 +142,22 @@ class LineSession:
                 hints = misnamed_port_hints(config.port) if isinstance(exc, PortNotFound) else []
                 self.error = "; ".join([error_text(exc), *hints])
                 raise
-            if not same:
+            if self.config is not config:  # another port, open now: the old one goes
                 await self.disconnect()
-                self._forget_simulator()
-                self.config = config
-            self.found = []
-            self.telemetry = {}
-            self._limits = {}
+                self._switch_to(config)
             self.bus = bus
             self.error = None
         return self.status()
+
+    def _switch_to(self, config: LineConfig) -> None:
+        """Work on the line ``config`` from now on: what was found on the old one is forgotten, and the
+        simulated line the pages named for an unnamed ``sim://`` too (see LineConfig.url)."""
+        if config.url != self.config.url:
+            self._forget_simulator()
+        self.config = config
+        self.found = []
+        self.telemetry = {}
+        self._limits = {}
 
     async def use_robot_line(self, name: str) -> dict[str, Any]:
         """Work on the robot's line ``name``: its bus, open and streamed by the robot, not reopened here."""
@@ -157,10 +166,7 @@ class LineSession:
         bus, spec = self.robot.line(name)
         async with self.exclusive:
             await self.disconnect()
-            self.config = replace(self.config, port=spec.port, baud=spec.baudrate)
-            self.found = []
-            self.telemetry = {}
-            self._limits = {}
+            self._switch_to(replace(self.config, port=spec.port, baud=spec.baudrate))
             self.bus = bus
             self.robot_line = name
             self.error = None
