@@ -9,10 +9,9 @@ bridge's serial side is set to, and pyserial drops our settings silently.
 
 from __future__ import annotations
 
-import os
-
 import contextlib
 import logging
+import os
 import socket
 import threading
 
