@@ -138,6 +138,11 @@ def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) 
         assert post(client, "/api/connect", {"port": url}).status_code == 200
         report = post(client, "/api/scan", {"bauds": [115200]}).json()
         assert [s["id"] for s in report["servos"]] == found, url
+    # The same options in another order: the same line (one the page wrote to keeps what it was given).
+    assert (
+        LineConfig(port="sim://?ids=4&seed=2").url.split("?")[0]
+        == LineConfig(port="sim://?seed=2&ids=4").url.split("?")[0]
+    )
 
 
 def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: Any) -> None:

@@ -106,7 +106,8 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         )
     elif unreachable := [f for f in system.findings if f.check == "port" and f.severity == "error"]:
         # (the port is not there: said once, as the command's error, with what its name may have meant)
-        failure = CliError(ExitCode.PORT, unreachable[0].problem, unreachable[0].fix, *misnamed_port_hints(port))
+        fixes = [f for f in (unreachable[0].fix, *misnamed_port_hints(port)) if f]
+        failure = CliError(ExitCode.PORT, unreachable[0].problem, *fixes)
     else:
         try:
             line = measure(settings, ids, samples, system)
@@ -121,7 +122,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
             )
         findings += line.judge()
     # (for the line measured: a URL or the thread transport has no descriptor for the helper)
-    burst_on, burst_text = burst_path() if port is None else burst_path_for(port, settings.transport)
+    burst_on, burst_text = burst_path() if line is None else burst_path_for(settings.port, settings.transport)
     if as_json:
         report: dict[str, Any] = {"port": port, **system.to_dict(), "burst_path": burst_on, "io_path": burst_text}
         line_part = line.to_dict() if line is not None else {}

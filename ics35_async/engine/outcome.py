@@ -48,12 +48,10 @@ def timeout_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, echo
     got = len(buf)
     if echo_len and buf[: min(got, echo_len)] != tx[: min(got, echo_len)]:
         return echo_mismatch(req, sid, tx, buf)
-    if got == 0:
-        return _error(
-            ReplyTimeout, "no echo and no reply: is the adapter connected?" if echo_len else "no reply", req, sid, buf
-        )
+    silence = req.command.silence if req is not None else None  # (a probe's: see .probe)
+    if got == 0 and echo_len:
+        return _error(ReplyTimeout, "no echo and no reply: is the adapter connected?", req, sid, buf)
     if got <= echo_len:
-        silence = req.command.silence if req is not None else None  # (a probe's: see .probe)
         return _error(ReplyTimeout, silence or "no reply (check ID, baud rate, power)", req, sid, buf)
     n, m = got - echo_len, expect - echo_len
     return _error(PartialReply, f"{n} of {m} reply bytes", req, sid, buf, received=n, expected=m)

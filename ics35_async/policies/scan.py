@@ -257,7 +257,7 @@ async def _open_or_skip(
     except (PortNotFound, PortPermissionDenied, PortBusy):
         raise  # the same at every rate: the caller reports it
     except (InvalidArgument, SerialPortError) as exc:
-        if isinstance(exc, SerialPortError) and exc.errno == errno.ENOTTY:
+        if isinstance(exc, SerialPortError) and exc.errno in (errno.ENOTTY, errno.EISDIR):
             raise  # not a serial port (a file, a directory): the same at every rate
         skipped[baud] = exc
         return None

@@ -130,6 +130,8 @@ def check_link_path(path: Path) -> None:
     """
     if not path.parent.is_dir():
         raise InvalidArgument(f"no such directory for the link: {path.parent} (in {path})")
+    if not os.access(path.parent, os.W_OK):
+        raise InvalidArgument(f"no right to make the link in {path.parent} (in {path})")
     for taken in (path, path.with_name(path.name + ".new")):
         if not (taken.exists() or taken.is_symlink()):
             continue
@@ -138,7 +140,10 @@ def check_link_path(path: Path) -> None:
                 f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
             )
         if taken.exists():  # (its pty is there: a simulator, or whatever holds that pty now, serves it)
-            raise InvalidArgument(f"{taken} is in use: it leads to {os.readlink(taken)} (choose another path)")
+            raise InvalidArgument(
+                f"{taken} is in use: it leads to {os.readlink(taken)} (choose another path; if no simulator "
+                "serves it, a killed one left it: remove it)"
+            )
 
 
 def _pty_link(path: Path) -> bool:

@@ -35,7 +35,7 @@ def open_url(url: str) -> WireDevice:
             line open already that a URL made with other options.
     """
     name, options = parse_url(url)
-    query = _query_of(url)
+    query = url_options(url)
     if name is not None:
         try:
             line = named(name)
@@ -59,9 +59,10 @@ def open_url(url: str) -> WireDevice:
     return line
 
 
-def _query_of(url: str) -> str:
-    """The URL's options, their keys in order: the same line's options compare equal however written."""
-    return "&".join(sorted(urlsplit(url).query.split("&"))).strip("&")
+def url_options(url: str) -> str:
+    """A ``sim://`` URL's options in one form (keys in order): the same options compare equal in whatever
+    order they were written.  (Values are compared as written: ``ids=1-3`` is not ``ids=1,2,3``.)"""
+    return "&".join(sorted(part for part in urlsplit(url).query.split("&") if part))
 
 
 _TRUE = {"1", "true", "yes", "on"}

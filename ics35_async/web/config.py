@@ -28,7 +28,9 @@ class LineConfig:
         """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos;
         one of its own for each set of options (``sim://?ids=5`` is not the ``sim://`` opened before it)."""
         if self.port == "sim://" or self.port.startswith("sim://?"):
+            from ..sim.url import url_options  # (the simulator loads only for a sim:// line)
+
             options = self.port[len("sim://") :]
-            digest = hashlib.sha1(options.encode(), usedforsecurity=False).hexdigest()[:8]
+            digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
             return f"sim://ics35-web-{os.getpid()}-{digest}{options}"
         return self.port
