@@ -10,11 +10,11 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from . import _signals
 from ._common import ID_LIST, confirm, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
+from ._signals import stop_name
 from ._telemetry import Telemetry
 
 
@@ -106,7 +106,7 @@ def demo(
     state, telemetry, recorder = run(settings, body)
     final_report(state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
-        f"demo {f'stopped by {_signals.stop_name()}' if state.stopped_by_signal else 'done'} after "
+        f"demo {f'stopped by {stop_name()}' if state.stopped_by_signal else 'done'} after "
         f"{state.elapsed:.1f} s: {state.cycle} cycles, "  # (the wave's time: not the scan's, nor the question's)
         f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
     )

@@ -8,8 +8,8 @@ import os
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
-from . import _signals
 from ._settings import CliError, ExitCode
+from ._signals import command_task, received
 
 T = TypeVar("T")
 LOOPS = ("auto", "asyncio", "uvloop")
@@ -19,7 +19,7 @@ log = logging.getLogger("ics35_async")
 async def _await(main: Awaitable[T]) -> T:
     task = asyncio.current_task()
     assert task is not None
-    with _signals.command_task(task):  # (SIGTERM and SIGHUP cancel it, as Ctrl-C does)
+    with command_task(task):  # (SIGTERM and SIGHUP cancel it, as Ctrl-C does)
         return await main
 
 
@@ -53,6 +53,6 @@ def run_loop(main: Awaitable[T]) -> T:
         try:
             return runner.run(_await(main))
         except asyncio.CancelledError:
-            if _signals.received() is None:
+            if received() is None:
                 raise
             raise KeyboardInterrupt from None  # cancelled by a stop signal: what Ctrl-C's cancel becomes

@@ -21,7 +21,6 @@ from ..errors import BusClosed, IcsError, PortLost, error_text
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..stream import ON_CLOSE
-from . import _signals
 from ._common import choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
     first_pose,
@@ -33,6 +32,7 @@ from ._robot_common import (
     show_warnings,
 )
 from ._robot_view import Screen, joint_table
+from ._signals import stop_name
 
 
 def load_motion_file(path: str, description: RobotDescription) -> Motion:
@@ -198,7 +198,7 @@ def play(
                     current = asyncio.current_task()
                     if current is not None:
                         current.uncancel()
-                    how = f"stopped by {_signals.stop_name()}"
+                    how = f"stopped by {stop_name()}"
                 finally:
                     # How far the motion got, for the closing line when no pass completed.
                     played = min(time.monotonic() - start, seconds or math.inf, total)
