@@ -146,22 +146,35 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     assert freed.returncode == 0, freed.stderr
 
 
-def demo_interrupted(port: str, after: float, signum: int = signal.SIGINT) -> tuple[subprocess.Popen[str], str, str]:
-    """``ics35 demo`` on ``port``, sent Ctrl-C (or ``signum``) ``after`` seconds past its title line."""
+def demo_interrupted(
+    port: str, after: float, *signals: int, gap: float = 0.0, wrapper: tuple[str, ...] = ()
+) -> tuple[subprocess.Popen[str], str, str]:
+    """``ics35 demo`` on ``port`` (under ``wrapper``, e.g. nohup), sent ``signals`` (Ctrl-C when none)
+    ``after`` seconds past its title line, ``gap`` seconds apart."""
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]
-    # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "--port", port, *baud, "demo", "--ids", "2,5", "--seconds", "60"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    command = [
+        sys.executable,
+        "-m",
+        "ics35_async.cli",
+        "--port",
+        port,
+        *baud,
+        "demo",
+        "--ids",
+        "2,5",
+        "--seconds",
+        "60",
+    ]
+    proc = subprocess.Popen([*wrapper, *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         first = proc.stdout.readline()  # the title: the demo is running
         assert "demo" in first
         time.sleep(after)
-        proc.send_signal(signum)
+        for k, signum in enumerate(signals or (signal.SIGINT,)):
+            if k:
+                time.sleep(gap)
+            proc.send_signal(signum)
         out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -170,13 +183,17 @@ def demo_interrupted(port: str, after: float, signum: int = signal.SIGINT) -> tu
     return proc, out, err
 
 
+def assert_demos_servos_free(port: str) -> None:
+    for i in (2, 5):
+        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
+        assert got["current"]["magnitude"] == 0
+
+
 def test_demo_stops_on_ctrl_c_and_frees_the_servos(port: str) -> None:
     proc, out, err = demo_interrupted(port, 0.3)
     assert proc.returncode == 0, err
     assert "demo stopped by Ctrl-C after" in out and "left free" in out
-    for i in (2, 5):
-        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
-        assert got["current"]["magnitude"] == 0
+    assert_demos_servos_free(port)
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
@@ -188,77 +205,22 @@ def test_demo_ended_by_a_service_manager_or_a_closed_terminal_frees_the_servos(p
     assert "Traceback" not in err
     # (output to a pipe still comes after SIGHUP: only a terminal's goes to /dev/null)
     assert f"demo stopped by {signal.Signals(signum).name} after" in out and "left free" in out
-    for i in (2, 5):
-        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
-        assert got["current"]["magnitude"] == 0
+    assert_demos_servos_free(port)
 
 
 def test_a_second_stop_signal_does_not_cut_the_first_ones_cleanup_short(port: str) -> None:
     # Closing a terminal often sends SIGHUP twice (the shell to its jobs, the kernel to the foreground
     # group); the second must not interrupt the freeing the first began.
-    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
-    command = [
-        sys.executable,
-        "-m",
-        "ics35_async.cli",
-        "--port",
-        port,
-        *baud,
-        "demo",
-        "--ids",
-        "2,5",
-        "--seconds",
-        "60",
-    ]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        assert "demo" in proc.stdout.readline()
-        time.sleep(0.3)
-        proc.send_signal(signal.SIGHUP)
-        time.sleep(0.01)
-        proc.send_signal(signal.SIGHUP)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    proc, out, err = demo_interrupted(port, 0.3, signal.SIGHUP, signal.SIGHUP, gap=0.01)
     assert proc.returncode == 128 + signal.SIGHUP, err
     assert "Traceback" not in err and "left free" in out, err
-    for i in (2, 5):
-        got = json_of(port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(i), "current")
-        assert got["current"]["magnitude"] == 0
+    assert_demos_servos_free(port)
 
 
 def test_a_command_started_ignoring_sighup_keeps_running_when_the_terminal_closes(port: str) -> None:
-    # `nohup ics35 demo ...`: SIGHUP ignored from the start stays ignored.
-    baud = ["--baud", str(SIM_BAUD), *ANSWERED]
-    command = [
-        sys.executable,
-        "-m",
-        "ics35_async.cli",
-        "--port",
-        port,
-        *baud,
-        "demo",
-        "--ids",
-        "2,5",
-        "--seconds",
-        "60",
-    ]
-    proc = subprocess.Popen(["nohup", *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        assert "demo" in proc.stdout.readline()
-        proc.send_signal(signal.SIGHUP)
-        time.sleep(0.5)
-        assert proc.poll() is None  # still running
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    # `nohup ics35 demo ...`: SIGHUP ignored from the start stays ignored (SIGTERM half a second
+    # later ends it: had the SIGHUP stopped it, the exit code would say so).
+    proc, out, err = demo_interrupted(port, 0.0, signal.SIGHUP, signal.SIGTERM, gap=0.5, wrapper=("nohup",))
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "demo stopped by SIGTERM after" in out
 

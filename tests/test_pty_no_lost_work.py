@@ -116,7 +116,11 @@ def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) ->
     assert len(keyframes) == 2 and set(keyframes[0]["pose"]) == {"a", "b"}
 
 
-def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("signum", "code"), [(signal.SIGINT, 0), (signal.SIGTERM, 128 + signal.SIGTERM)], ids=["Ctrl-C", "SIGTERM"]
+)
+def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path, signum: int, code: int) -> None:
+    # (SIGTERM, from a service manager or kill, ends it as Ctrl-C does; the exit code says which)
     server, port = start_subprocess(["--ids", "1-2"], quiet=True)
     try:
         robot = tmp_path / "robot.toml"
@@ -126,31 +130,11 @@ def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path) -> None:
         teach.wait_for("Enter")
         teach.type("\n")
         teach.wait_for("pose 1 at")
-        teach.proc.send_signal(signal.SIGINT)
-        code, out, err = teach.finish()
+        teach.proc.send_signal(signum)
+        ended, out, err = teach.finish()
     finally:
         stop_subprocess(server)
-    assert code == 0, err
-    assert "wrote 1 pose(s)" in out and str(taught) in " ".join(out.split())
-    assert len(json.loads(taught.read_text())["keyframes"]) == 1
-
-
-def test_teach_keeps_the_poses_captured_when_terminated(tmp_path: Path) -> None:
-    # SIGTERM (a service manager, kill) ends teach as Ctrl-C does: the poses are written.
-    server, port = start_subprocess(["--ids", "1-2"], quiet=True)
-    try:
-        robot = tmp_path / "robot.toml"
-        robot.write_text(ROBOT.format(port=port))
-        taught = tmp_path / "taught.json"
-        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught))
-        teach.wait_for("Enter")
-        teach.type("\n")
-        teach.wait_for("pose 1 at")
-        teach.proc.send_signal(signal.SIGTERM)
-        code, out, err = teach.finish()
-    finally:
-        stop_subprocess(server)
-    assert code == 128 + signal.SIGTERM, err
+    assert ended == code, err
     assert "wrote 1 pose(s)" in out and str(taught) in " ".join(out.split())
     assert len(json.loads(taught.read_text())["keyframes"]) == 1
 
