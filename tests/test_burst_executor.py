@@ -398,6 +398,7 @@ async def test_the_pause_after_requests_outlives_a_reopened_port(monkeypatch: py
     monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 60.0)  # far longer than the test runs
     with lean_lines(1) as (path,):
         async with open_bus(path, **NO_TIMEOUTS) as bus:
+            assert bus.describe()["burst_path"] is True  # (what doctor reports of a line it measured)
             await bus.servo(3).read_current()
             await bus.reopen()
             async with bus.stream(range(8)) as stream:

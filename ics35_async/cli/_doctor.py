@@ -12,7 +12,7 @@ from rich.markup import escape
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
-from ..drivers.burst import PATH_NAME, burst_path, burst_path_for
+from ..drivers.burst import PATH_NAME, burst_path, line_path
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
@@ -28,18 +28,23 @@ def machine_ports() -> list[SerialPortInfo]:
         return []
 
 
-def measure(settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport) -> LineReport:
-    async def body() -> LineReport:
+def measure(
+    settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport
+) -> tuple[LineReport, bool]:
+    """The line's report, and whether its streams take the burst path (as the open bus says)."""
+
+    async def body() -> tuple[LineReport, bool]:
         async with settings.bus() as bus:
             found = await bus.scan(ids)
             samples, failed = await measure_round_trips(bus, found, per_servo=per_servo)
-            return LineReport(
+            report = LineReport(
                 baudrate=settings.baud,
                 samples=samples,
                 failed=failed,
                 system_latency_timer_ms=system.latency_timer_ms,
                 platform=sys.platform,
             )
+            return report, bool(bus.describe()["burst_path"])
 
     return run(settings, body)
 
@@ -110,7 +115,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         failure = CliError(ExitCode.PORT, unreachable[0].problem, *fixes)
     else:
         try:
-            line = measure(settings, ids, samples, system)
+            line, bursts = measure(settings, ids, samples, system)
         except CliError as exc:
             failure = exc
             findings.append(Finding("line", "error", exc.message, " ; ".join(exc.hints)))
@@ -121,8 +126,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
                 Finding("line", "error", failure.message, "check power and wiring; ics35 scan tries every baud")
             )
         findings += line.judge()
-    # (for the line measured: a URL or the thread transport has no descriptor for the helper)
-    burst_on, burst_text = burst_path() if line is None else burst_path_for(settings.port, settings.transport)
+    burst_on, burst_text = burst_path() if line is None else line_path(bursts)  # (the measured line's, if one)
     if as_json:
         report: dict[str, Any] = {"port": port, **system.to_dict(), "burst_path": burst_on, "io_path": burst_text}
         line_part = line.to_dict() if line is not None else {}

@@ -84,24 +84,18 @@ def burst_path() -> tuple[bool, str]:
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
 
 
-def burst_path_for(port: str, transport: str = "auto", driver: str = "asyncio") -> tuple[bool, str]:
-    """As :func:`burst_path`, for one line: whether its streams take the burst path, in plain words.
-
-    The executor runs on a serial port's descriptor under the asyncio driver (the ``ics35`` command's):
-    a URL (``sim://``, ``socket://``, ``rfc2217://``), ``transport="thread"`` or another driver has
-    none.  (A device path whose port turns out to have no descriptor also runs without it; the
-    driver's log says so as the port opens.)
-    """
+def line_path(bursts: bool) -> tuple[bool, str]:
+    """As :func:`burst_path`, for a line that opened: ``bursts`` says whether its driver runs the burst
+    path (``Bus.describe()["burst_path"]``), in plain words."""
     on, why = burst_path()
     if not on:
         return on, why
-    if "://" in port:
-        return False, f"off for {port}: a URL has no serial port descriptor for the helper to run on"
-    if transport == "thread":
-        return False, "off with the thread transport: the helper runs on the port's descriptor"
-    if driver != "asyncio":
-        return False, f"off under the {driver} driver: the helper runs under the asyncio driver"
-    return True, f"on for {port} (its streams run in the compiled helper ics35_async._burst)"
+    if bursts:
+        return True, "on for this line (its streams run in the compiled helper ics35_async._burst)"
+    return False, (
+        "off for this line: the helper runs on a serial port's descriptor under the asyncio driver "
+        "(not for a URL such as sim:// or a bridge, nor with the thread transport)"
+    )
 
 
 def feed_ahead_points(n: int, news: list[int]) -> list[int]:

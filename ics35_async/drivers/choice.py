@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Awaitable, Callable
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..engine import LineEngine
 from ..errors import InvalidArgument
 from ..protocol import Command
 from ..transports.wire_device import WireDevice
 from .settings import LineSettings
+
+if TYPE_CHECKING:  # (the burst path's module loads with the driver that runs it)
+    from .burst import BurstRunner
 
 DRIVERS = ("auto", "asyncio", "thread", "anyio")
 
@@ -23,6 +26,7 @@ class Driver(Protocol):
     """What the bus asks of a driver."""
 
     name: str
+    burst: BurstRunner | None  # the port open now runs streams on the burst path (see .burst)
 
     async def open(self) -> None: ...
 
