@@ -28,9 +28,7 @@ def machine_ports() -> list[SerialPortInfo]:
         return []
 
 
-def measure(
-    settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport
-) -> tuple[LineReport, bool]:
+def measure(settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport) -> tuple[LineReport, bool]:
     """The line's report, and whether its streams take the burst path (as the open bus says)."""
 
     async def body() -> tuple[LineReport, bool]:
