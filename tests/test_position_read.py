@@ -133,6 +133,20 @@ def test_the_fault_log_tells_a_probes_silence_from_a_servo_that_should_have_answ
     assert any(m.startswith("read_stretch to ID 9") and "check ID, baud rate, power" in m for m in said), said
 
 
+def test_a_scans_empty_ids_are_not_logged_as_wiring_faults(caplog: pytest.LogCaptureFixture) -> None:
+    # Its probes, the second look with the full allowance and the guard read before it: each silence
+    # is what a scan expects of an empty ID.
+    sim = VirtualLine([1], log_size=None)
+
+    async def body(bus: Any) -> None:
+        assert await bus.scan([1, 9]) == [1]
+
+    with caplog.at_level("DEBUG", logger="ics35_async.faults"):
+        run(sim, body)
+    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    assert said and not [m for m in said if "check ID" in m], said
+
+
 def test_an_absent_id_is_not_taken_for_an_ics35_servo() -> None:
     sim = VirtualLine([1], ics36=[1], log_size=None)
 

@@ -123,7 +123,7 @@ def _done(on_probe: ProbeCallback | None, n: int) -> None:
 
 async def _probe(line: Line, servo_id: int, *, short: bool = True) -> ReplyError | None:
     """A stretch read at ``servo_id``: with ``short``, the bus's probe allowance (see engine.probe)."""
-    command = protocol.ProbeRead(servo_id) if short else protocol.ReadParam(servo_id, Param.STRETCH)
+    command = protocol.ProbeRead(servo_id) if short else protocol.SecondLookRead(servo_id)
     try:
         await line.request(command, retries=0)
     except ReplyError as exc:

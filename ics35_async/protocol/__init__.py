@@ -15,6 +15,7 @@ implementation detail.
 from ..eeprom import EEPROM_SIZE, BaudRate, Eeprom
 from .commands import (
     Command,
+    GuardRead,
     Position,
     ProbeRead,
     ProbeReadPosition,
@@ -22,6 +23,7 @@ from .commands import (
     ReadId,
     ReadParam,
     ReadPosition,
+    SecondLookRead,
     WriteEeprom,
     WriteId,
     WriteParam,
@@ -78,6 +80,8 @@ __all__ = [
     "ReadMemory",
     "ProbeRead",
     "ProbeReadPosition",
+    "GuardRead",
+    "SecondLookRead",
     "ReadParam",
     "ReadPosition",
     "Timing",

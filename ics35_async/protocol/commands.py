@@ -229,6 +229,27 @@ class ProbeReadPosition(ReadPosition):
     silence = "no reply to the probe: an ICS 3.5 servo has no position read (or no servo answers here)"
 
 
+class SecondLookRead(ReadParam):
+    """A stretch read asking again, with the full allowance, whether a servo is at ``servo_id`` (a scan's
+    second look at an ID its :class:`ProbeRead` found silent): silence is its usual answer too."""
+
+    __slots__ = ()
+
+    silence = "no reply to the second look either: no servo at this ID (or one that does not answer)"
+
+    def __init__(self, servo_id: int) -> None:
+        super().__init__(servo_id, Param.STRETCH)
+
+
+class GuardRead(ReadParam):
+    """The read :func:`guard_read` makes: it follows a command that got no reply, so its servo's
+    silence is to be expected."""
+
+    __slots__ = ()
+
+    silence = "no reply to the guard read: the servo that did not answer just before is silent still"
+
+
 def guard_read(tx: bytes, servo_id: int) -> ReadParam:
     """A harmless read whose reply cannot be mistaken for the reply to ``tx``.
 
@@ -236,7 +257,7 @@ def guard_read(tx: bytes, servo_id: int) -> ReadParam:
     header, sub-command or length check.
     """
     same_as_stretch_read = tx[:2] == bytes((CMD_READ | servo_id, Param.STRETCH))
-    return ReadParam(servo_id, Param.SPEED if same_as_stretch_read else Param.STRETCH)
+    return GuardRead(servo_id, Param.SPEED if same_as_stretch_read else Param.STRETCH)
 
 
 class ReadEeprom(Command[Eeprom]):
