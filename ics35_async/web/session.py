@@ -214,8 +214,9 @@ class LineSession:
         if self.config.is_sim and self.config.url != self.config.port:
             from .. import sim
 
+            name, _ = sim.parse_url(self.config.url)  # (the name LineConfig.url gave it)
             with contextlib.suppress(KeyError):
-                sim.named(self.config.url.removeprefix("sim://").split("?")[0]).close()
+                sim.named(str(name)).close()
 
     def line(self) -> Bus:
         if self.bus is None or not self.bus.is_open:
