@@ -600,15 +600,22 @@ def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
         p.goto(robot_server.url)
         p.click("#robot-link")
         box = p.locator("#robot-motion")
-        p.uncheck("#robot-motion")  # a test before this one may have left motion on
+        # The first pushed state sets the box: before it, a test before this one that left motion on
+        # would tick it under the click below (which would then untick it).
+        expect(p.locator("#robot-cycle")).not_to_have_text("-")
+        if box.is_checked():
+            with p.expect_response("**/api/robot/motion"):
+                p.uncheck("#robot-motion")
         held: list[Route] = []
         p.route("**/api/robot/motion", lambda route: held.append(route))  # the request waits here until continued
         p.click("#robot-motion")
+        expect(box).to_be_checked()
         for _ in range(3):  # pushed states, each saying motion is still off
             cycle = p.locator("#robot-cycle").text_content() or ""
             expect(p.locator("#robot-cycle")).not_to_have_text(cycle)
             expect(box).to_be_checked()
         assert len(held) == 1
+        assert held[0].request.post_data_json == {"enabled": True}
         held[0].continue_()
         elbow = p.locator("tr[data-joint='right_elbow'] input[type=range]")
         expect(elbow).to_be_enabled()  # the server's answer: motion on
