@@ -3,11 +3,13 @@ a motion played and stopped, the safety state; checked on the simulated servos."
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -15,6 +17,7 @@ from starlette.testclient import TestClient
 
 from ics35_async import sim
 from ics35_async.web import LineConfig, LineSession, create_app
+from ics35_async.web.api import updates
 from ics35_async.web.joints import RobotSession
 from ics35_async.web.security import COOKIE
 
@@ -24,10 +27,8 @@ JSON = {"content-type": "application/json"}
 _names = itertools.count()
 
 
-@pytest.fixture
-def robot(tmp_path: Path) -> Iterator[tuple[TestClient, Any]]:
-    """A two-joint arm on a simulated line; yields the client and the simulated line."""
-    name = f"web-robot-{next(_names)}"
+def arm_file(tmp_path: Path, name: str) -> Path:
+    """A two-joint arm on the simulated line ``sim://NAME`` (servos 1 and 2)."""
     path = tmp_path / "arm.toml"
     path.write_text(
         f"""name = "arm"
@@ -45,6 +46,14 @@ min = 0
 max = 90
 """
     )
+    return path
+
+
+@pytest.fixture
+def robot(tmp_path: Path) -> Iterator[tuple[TestClient, Any]]:
+    """A two-joint arm on a simulated line; yields the client and the simulated line."""
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name)
     app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
     with TestClient(app, base_url=BASE) as client:
         client.cookies.set(COOKIE, TOKEN)
@@ -195,3 +204,52 @@ def test_the_robots_lines_open_with_the_line_options_given(tmp_path: Path) -> No
         assert bus.timing.adapter_latency == 0.3
         assert client.get("/api/robot").json()["cycle"] >= 0
     sim.named(name).close()
+
+
+def test_a_pushed_robot_state_is_what_the_robot_is_when_it_is_sent_not_before_a_telemetry_round(tmp_path: Path) -> None:
+    # The pages' once-a-second telemetry round waits for the line (here each read waits out its
+    # allowance); an answer the page gets meanwhile (motion on) must not be followed by a push saying
+    # what was before it: the page would flip the box back until the next push.
+    arm = f"web-robot-{next(_names)}"
+    robot = RobotSession(str(arm_file(tmp_path, arm)))
+    name = f"web-robot-slow-{next(_names)}"
+    session = LineSession(LineConfig(port=f"sim://{name}?ids=1-4"))
+    pushed: list[dict[str, Any]] = []
+
+    class Page:  # what the push needs of a page's WebSocket
+        app = SimpleNamespace(state=SimpleNamespace(session=session, robot=robot))
+
+        async def accept(self) -> None:
+            pass
+
+        async def receive_json(self) -> Any:
+            await asyncio.Event().wait()  # the page says nothing
+
+        async def send_json(self, update: dict[str, Any]) -> None:
+            pushed.append(update)
+
+    async def main() -> None:
+        await robot.open()
+        await session.connect()
+        try:
+            assert len((await session.scan(ids=[1, 2, 3, 4]))["servos"]) == 4
+            slow = sim.named(name)
+            for servo in slow.servos:
+                servo.ignores = frozenset({"read_temperature"})
+            start = slow.log[-1].seq + 1
+            pushing = asyncio.create_task(updates(Page()))  # type: ignore[arg-type]
+            while not slow.log_since(start):  # the first round has begun (it reads at once)
+                await asyncio.sleep(0.001)
+            robot.set_motion(True)  # what the page's tick does (/api/robot/motion)
+            while not any("servos" in u for u in pushed):
+                await asyncio.sleep(0.005)
+            pushing.cancel()
+        finally:
+            await session.close()
+            await robot.close()
+            sim.named(name).close()
+            sim.named(arm).close()
+
+    asyncio.run(main())
+    first = next(u for u in pushed if "servos" in u)
+    assert first["robot"]["motion_enabled"], "the push said what the robot was before the answer"

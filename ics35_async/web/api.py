@@ -338,6 +338,7 @@ async def updates(ws: WebSocket) -> None:
     watching_traffic = False
     seen = 0
     last_telemetry = 0.0
+    telemetry_read = False  # the servos' values were read since the last push
     loop = asyncio.get_running_loop()
     sent: dict[object, Any] = {}  # what this page was sent last, by part
     live_sent: object = None  # the live view those parts came from (a new one sends them all)
@@ -361,6 +362,9 @@ async def updates(ws: WebSocket) -> None:
     try:
         while not listener.done():
             update: dict[str, Any] = {}
+            if telemetry_read:
+                update["servos"] = session.servos_view()
+                telemetry_read = False
             status = session.status()
             if fresh("status", status):
                 update["status"] = status
@@ -381,11 +385,6 @@ async def updates(ws: WebSocket) -> None:
                         if not fresh(("live", part), frame[part]):
                             del frame[part]
                 update["live"] = frame
-            if loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
-                last_telemetry = loop.time()
-                with contextlib.suppress(IcsError):
-                    await session.read_telemetry()  # none while a live stream runs: the table shows its values
-                update["servos"] = session.servos_view()
             if watching_traffic:
                 entries = session.traffic.since(seen)
                 if entries:
@@ -393,6 +392,15 @@ async def updates(ws: WebSocket) -> None:
                     update["traffic"] = entries[-500:]
             if update:
                 await ws.send_json(update)
+            if loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
+                # Between two pushes, each taken as it is sent: one taken before these reads and sent
+                # after them could say what was before an answer the page got meanwhile (a box the user
+                # ticked flipping back).  Their values go out at once, with everything else as it is then.
+                last_telemetry = loop.time()
+                with contextlib.suppress(IcsError):
+                    await session.read_telemetry()  # none while a live stream runs: the table shows its values
+                telemetry_read = True
+                continue
             await asyncio.sleep(LIVE_PERIOD if session.live is not None else IDLE_PERIOD)
     except (WebSocketDisconnect, RuntimeError):
         pass
