@@ -213,7 +213,9 @@ def test_a_stopped_server_is_said_in_words_at_once(browser: Browser) -> None:
     assert proc.stdout is not None
     context = browser.new_context()
     p = context.new_page()
-    p.goto(proc.stdout.readline().strip())
+    # The page's first requests answered: one the stopped server fails would say its own words over the test's.
+    with p.expect_response("**/api/ports"), p.expect_response("**/api/status"):
+        p.goto(proc.stdout.readline().strip())
     expect(p.locator("#line-status")).to_contain_text("115200 baud")
     proc.terminate()
     proc.wait(10)
@@ -332,7 +334,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     page.click("a[href='#line']")
     page.fill("#port-input", lone.path)
     page.click("#connect-btn")
-    expect(page.locator("#line-status")).to_contain_text(lone.path)
+    expect(page.locator("#message")).to_have_text(f"connected to {lone.path}")  # the answer, not a pushed status
     page.click("a[href='#id']")
     page.click("#renumber-btn")
     expect(page.locator("#id-result")).to_contain_text("ID 4 is now ID 9")
@@ -340,7 +342,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     page.click("a[href='#line']")
     page.fill("#port-input", two.path)
     page.click("#connect-btn")
-    expect(page.locator("#line-status")).to_contain_text(two.path)
+    expect(page.locator("#message")).to_have_text(f"connected to {two.path}")
 
 
 def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any) -> None:
@@ -390,9 +392,18 @@ def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     page.fill("#traffic-filter", "")
     shot(page, "traffic")
     page.click("#traffic-pause")  # stops the recording on the server: what the line does now is not kept
-    page.wait_for_timeout(600)  # the WebSocket's message has arrived
     base = page.url.split("/#")[0]
-    last = page.request.get(f"{base}/api/traffic").json()["entries"][-1]["seq"]
+
+    def newest() -> int:
+        return int(page.request.get(f"{base}/api/traffic").json()["entries"][-1]["seq"])
+
+    def unrecorded() -> bool:  # the WebSocket's message has arrived: a read of the line is no longer kept
+        before = newest()
+        page.request.get(f"{base}/api/servo/1/ram")
+        return newest() == before
+
+    until(unrecorded, "pausing never stopped the recording")
+    last = newest()
     page.click("a[href='#servo']")
     with page.expect_response(lambda r: r.url.endswith("/ram")):  # its reads are done on the line
         page.click("#servo-load")
@@ -465,6 +476,9 @@ def test_the_servo_page_reports_the_position_read_after_a_jog_not_the_one_before
     for target in (8100, 8200):
         page.click("#jog-plus")
         expect(page.locator("#jog-target")).to_have_text(str(target))
+    until(lambda: servo.target == 8200, "the jogs never reached servo 3")
+    # There at once: the simulator's clock runs on the line's traffic (a few counts a read), not the wall's.
+    servo.move_by_hand(8200)
     expect(page.locator("#jog-position")).to_have_text("8200")  # where the servo got to, not where it set off from
     expect(page.locator("#jog-position-note")).to_contain_text("read")
     assert servo.target == 8200  # the reads moved nothing
@@ -483,7 +497,8 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-target")).to_have_text("7600")
     page.click("#jog-plus")
     expect(page.locator("#jog-target")).to_have_text("7700")
-    expect(page.locator("#jog-position-note")).to_contain_text("before")
+    expect(page.locator("#jog-position-note")).to_contain_text("before")  # (the first read says so: not the jog)
+    until(lambda: servo.target == 7700, "the jog's command never reached servo 1")
     page.wait_for_timeout(1200)  # several rounds of the page's reads
     assert servo.target == 7700  # held where it was sent: nothing freed it
     page.click("#free-btn")
@@ -655,6 +670,7 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
         expect(p.locator("#servo-id")).to_have_value("3")
         # The page has read the servo (a read still under way could end after the refusal and say its own words).
         expect(p.locator("#eeprom-table [name=speed]")).to_be_visible()
+        expect(p.locator("#ram-table tbody tr").first).to_be_visible()  # its RAM read done too
         p.click("#free-btn")  # refused in words: the robot moves and frees its joints
         expect(p.locator("#message")).to_contain_text("Robot page")
         p.click("nav a[href='#robot']")
