@@ -23,7 +23,7 @@ from ics35_async.errors import (
     ReplySubcommandError,
     ReplyTimeout,
 )
-from ics35_async.protocol import Position
+from ics35_async.protocol import Position, ReadId
 from tests.support.engine_support import Recorded, Wire, position, read, ready_engine
 
 CMD = read(3)
@@ -136,6 +136,23 @@ def test_a_complete_wrong_transaction_fails_at_once_and_resyncs() -> None:
     # so the resync lasts as long as a timeout's would (a quiet time past its deadline).
     due = engine.timing.allowance(len(CMD.tx) + CMD.reply_len, engine.baudrate, CMD.timing)
     assert engine.deadline == pytest.approx(due + engine.timing.quiet_time)
+
+
+def test_extra_bytes_after_an_id_reply_are_said_to_be_several_devices_answering() -> None:
+    # Every device on the line answers the ID command: a scan's ID read on a line of several servos
+    # gets more than one reply, and `-v` should read as that, not as a line fault.
+    engine = ready_engine()
+    req = Recorded(ReadId())
+    assert engine.submit(req, 0.0) == ReadId().tx
+    engine.receive(ReadId().tx + b"\xe1\xe2", 0.001)
+    assert isinstance(req.error, BadReply) and req.error.command == "read_id"
+    assert "more than one device answered the ID command" in str(req.error), req.error
+    other = Recorded(CMD)  # a servo's own reply with a byte more: no such guess
+    engine = ready_engine()
+    engine.submit(other, 0.0)
+    engine.receive(TX + REPLY + b"\x00", 0.001)
+    assert "unexpected extra byte(s) after the reply" in str(other.error)
+    assert "answered" not in str(other.error)
 
 
 def compositions(n: int) -> list[list[int]]:

@@ -39,7 +39,11 @@ def framing_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, expe
         message = "a byte arrived with a parity or framing error (noise on the line?)"
         return _error(ReplyDataError, message, req, sid, buf)
     if len(buf) > expect:
-        return _error(BadReply, f"{len(buf) - expect} unexpected extra byte(s) after the reply", req, sid, buf)
+        extra = len(buf) - expect
+        if req is not None and req.command.servo_id is None:  # the ID command: every device answers it
+            message = f"{extra} extra byte(s) after the reply: more than one device answered the ID command"
+            return _error(BadReply, message, req, sid, buf)
+        return _error(BadReply, f"{extra} unexpected extra byte(s) after the reply", req, sid, buf)
     return echo_mismatch(req, sid, tx, buf)
 
 
