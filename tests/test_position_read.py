@@ -11,6 +11,7 @@ import pytest
 
 from ics35_async import PositionReadUnsupported, ReplyTimeout, open_bus, protocol, units
 from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcommandError
+from ics35_async.policies.scan import probe_ids
 from ics35_async.sim import VirtualLine, parse_url
 from ics35_async.stream import WATCH
 from tests.support.timing import GUARD
@@ -145,6 +146,20 @@ def test_a_scans_empty_ids_are_not_logged_as_wiring_faults(caplog: pytest.LogCap
         run(sim, body)
     said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
     assert said and not [m for m in said if "check ID" in m], said
+
+
+def test_a_scans_id_read_on_a_silent_line_is_not_logged_as_a_wiring_fault(caplog: pytest.LogCaptureFixture) -> None:
+    # A scan of many IDs first asks the whole line with an ID read: silence there (a rate no servo
+    # speaks, a line being searched) is what a scan expects too.
+    sim = VirtualLine([], log_size=None)
+
+    async def body(bus: Any) -> None:
+        assert (await probe_ids(bus, range(32))).nobody  # as `ics35 scan` asks at each rate
+
+    with caplog.at_level("DEBUG", logger="ics35_async.faults"):
+        run(sim, body)
+    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    assert [m for m in said if m.startswith("read_id")] and not [m for m in said if "check ID" in m], said
 
 
 def test_an_absent_id_is_not_taken_for_an_ics35_servo() -> None:

@@ -146,7 +146,7 @@ def _late_evidence(line: Line) -> tuple[int, int, int]:
 
 async def _id_read(line: Line) -> int | ReplyError:
     try:
-        return await line.request(protocol.ReadId(), retries=0)
+        return await line.request(protocol.LineIdRead(), retries=0)
     except ReplyError as exc:
         return exc
 

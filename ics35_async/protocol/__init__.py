@@ -16,6 +16,7 @@ from ..eeprom import EEPROM_SIZE, BaudRate, Eeprom
 from .commands import (
     Command,
     GuardRead,
+    LineIdRead,
     Position,
     ProbeRead,
     ProbeReadPosition,
@@ -81,6 +82,7 @@ __all__ = [
     "ProbeRead",
     "ProbeReadPosition",
     "GuardRead",
+    "LineIdRead",
     "SecondLookRead",
     "ReadParam",
     "ReadPosition",

@@ -355,6 +355,15 @@ class ReadId(Command[int]):
         return bytes((CMD_ID | value,))
 
 
+class LineIdRead(ReadId):
+    """The ID read a scan sends first at a rate, asking the whole line whether anything answers there:
+    silence (no servo at this rate) is its usual answer."""
+
+    __slots__ = ()
+
+    silence = "no reply to the ID read: nothing on the line answers at this baud rate"
+
+
 class WriteId(Command[int]):
     """ID write: gives the new ID to every device on the line."""
 
