@@ -10,7 +10,7 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import InvalidArgument, Robot, open_robot
+from ics35_async import BusClosed, InvalidArgument, Robot, open_robot
 from ics35_async.cli._robot_view import joint_table
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
 from tests.support.timing import FAST, GUARD
@@ -156,3 +156,65 @@ def test_the_blocking_robot_takes_a_start_pose_and_tells_the_start_modes() -> No
             }
     finally:
         rig.close()
+
+
+def test_a_robot_used_after_its_block_ended_says_it_is_closed_at_once() -> None:
+    # A helper task can outlive the `async with open_robot(...)` block: every call then fails at once
+    # with BusClosed (they waited forever for a frame, or set targets nothing would ever send).
+    rig = make_rig(ics36=[1, 2, 3])
+    wave = {"format": "ics35-motion", "version": 1, "keyframes": [{"time": 0.5, "pose": {"neck": 10}}]}
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                robot.hold()
+                await robot.wait_frame(0)
+            calls: list[tuple[str, Any]] = [
+                ("move_to", lambda: robot.move_to({"neck": 10}, duration=0.2)),
+                ("read_pose", robot.read_pose),
+                ("play", lambda: robot.play(wave)),
+                ("free", robot.free),
+                ("on_wire", robot.on_wire),
+                ("wait_frame", lambda: robot.wait_frame(0)),
+            ]
+            for name, call in calls:
+                with anyio.fail_after(2), pytest.raises(BusClosed, match="robot is closed"):
+                    await call()
+                    pytest.fail(name)
+            async with robot.stream() as stream:
+                with anyio.fail_after(2), pytest.raises(BusClosed, match="robot is closed"):
+                    await stream.next_frame()
+            with pytest.raises(BusClosed, match="robot is closed"):
+                robot.hold()
+            with pytest.raises(BusClosed, match="robot is closed"):
+                robot.set_targets({"neck": 5})
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
+def test_a_motion_still_running_when_the_block_ends_fails_with_bus_closed() -> None:
+    rig = make_rig(ics36=[1, 2, 3])
+    outcome: list[BaseException] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with anyio.create_task_group() as tasks, open_robot(rig.description, **FAST) as robot:
+                robot.hold()
+
+                async def slow_move() -> None:
+                    try:
+                        await robot.move_to({"neck": 30}, duration=30.0)
+                    except BusClosed as exc:
+                        outcome.append(exc)
+
+                tasks.start_soon(slow_move)
+                await robot.wait_frame(robot.latest.cycle + 3 if robot.latest else 3)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert len(outcome) == 1 and "robot is closed" in str(outcome[0])

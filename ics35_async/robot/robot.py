@@ -22,7 +22,7 @@ from typing import Any
 import anyio
 
 from .. import protocol, units
-from ..errors import IcsError, InvalidArgument
+from ..errors import BusClosed, IcsError, InvalidArgument
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
 from .description import JointSpec, RobotDescription
@@ -64,6 +64,7 @@ class Robot:
         self._plans: list[Plan] = []
         self._latched: dict[str, SafetyStop] = {}
         self._end_error: IcsError | None = None
+        self._closed: BusClosed | None = None  # set when the block ends: targets are refused too
         self._gstream: GroupStream | None = None
 
     def __repr__(self) -> str:
@@ -157,6 +158,7 @@ class Robot:
         Raises:
             InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
                 without ``allow_free`` (nothing applied).
+            BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
@@ -172,7 +174,12 @@ class Robot:
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all) where they are now (within their limits), torque on."""
+        """Hold ``joints`` (default: all) where they are now (within their limits), torque on.
+
+        Raises:
+            InvalidArgument: an unknown joint.
+            BusClosed: the robot was closed (its ``async with`` block has ended).
+        """
         names = self.joint_names(joints)
         self._release(names)
         self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions})
@@ -191,6 +198,8 @@ class Robot:
                 plan.joints.discard(name)
 
     def _apply(self, targets: Mapping[str, float | None]) -> None:
+        if self._closed:
+            raise self._closed
         if not targets or self._gstream is None:
             return
         wanted: dict[tuple[str, int], int] = {}
@@ -371,6 +380,12 @@ class Robot:
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
+
+    def closed(self) -> None:
+        """The robot's block has ended (see :mod:`.startup`): from now on every call fails at once with
+        BusClosed, a motion still running included (a task can outlive the block)."""
+        self._closed = BusClosed("the robot is closed: it was used after its `async with open_robot(...)` block")
+        self._end(self._closed)
 
     def _end(self, error: IcsError) -> None:
         self._end_error = error

@@ -138,6 +138,7 @@ async def open_robot(
                         with anyio.CancelScope(shield=True), anyio.move_on_after(2.0):
                             await _close_out(robot, on_close)
                         tasks.cancel_scope.cancel()
+                        robot.closed()
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
                 raise only_error(group_error) from None
