@@ -39,6 +39,10 @@ IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with e
 FREE_ON_CLOSE_BOUND = 2.0  # seconds on_close="free" may take when the stream closes
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
+NOT_STARTED = (
+    "the stream is not started: use it as `async with bus.stream(...) as stream:` "
+    "(blocking: `with bus.stream(...) as stream:`), or call its start()"
+)
 OnClose = Literal["hold", "free"]
 OnResume = Literal["wait", "free"]
 
@@ -214,7 +218,15 @@ class Stream(FrameIterator[Frame]):
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
-        """Apply the targets ``checked`` that :meth:`check_targets` returned."""
+        """Apply the targets ``checked`` that :meth:`check_targets` returned.
+
+        Raises:
+            BusClosed: the stream (or its bus) was closed: nothing would send them.  (After a lost
+                port they are still taken, silently: a group or a robot closing out frees or holds
+                its other lines through the same call.)
+        """
+        if self._closed and isinstance(self._end_error, BusClosed):
+            raise self._end_error
         kick = False
         frozen = self._frozen
         for k, p in checked:
@@ -543,10 +555,16 @@ class Stream(FrameIterator[Frame]):
         A slow consumer never slows the bus: it gets the latest frame, with
         ``skipped`` telling how many it missed.  Once the stream is closed
         (or its bus closed or lost), it raises, even if a frame came meanwhile.
+
+        Raises:
+            InvalidArgument: the stream was never started (``async with bus.stream(...)`` starts it).
+            BusClosed, PortLost: the stream or its bus was closed, or the port is lost.
         """
         while self._closed or self._latest is None or self._latest.cycle <= self._consumed_cycle:
             if self._closed:
                 raise self._end_error
+            if not self._running:
+                raise InvalidArgument(NOT_STARTED)
             if self._new_frame is None:
                 self._new_frame = anyio.Event()
             await self._new_frame.wait()

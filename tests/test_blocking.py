@@ -255,6 +255,19 @@ def test_stream_errors_are_typed_and_a_bad_target_changes_nothing() -> None:
             bus.stream([1], bogus=3)
 
 
+def test_a_stream_not_started_says_so_and_a_frame_not_come_in_time_says_how_long() -> None:
+    with blocking.open_bus("sim://?ids=1-2") as bus:
+        stream = bus.stream([1, 2], rate_hz=2)
+        with pytest.raises(InvalidArgument, match=r"with bus\.stream"):
+            stream.next_frame(timeout=5)  # it waited out the timeout (or forever without one)
+        with pytest.raises(InvalidArgument, match=r"with bus\.stream"):
+            next(iter(stream))  # a for loop over it: not silently empty
+        with stream:
+            stream.next_frame()
+            with pytest.raises(TimeoutError, match=r"no frame within 0\.01 s"):
+                stream.next_frame(timeout=0.01)  # the next one comes half a second later
+
+
 def test_iteration_takes_every_frame_in_order_and_ends_when_the_stream_closes() -> None:
     with blocking.open_bus("sim://?ids=1-4") as bus:
         stream = bus.stream(range(1, 5)).start()

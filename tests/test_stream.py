@@ -18,6 +18,7 @@ import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from typing import Any
 
+import anyio
 import pytest
 
 from ics35_async import (
@@ -512,6 +513,25 @@ async def test_a_stream_on_a_closed_or_unopened_bus_raises_bus_closed() -> None:
         async with bus.stream([0, 1]):
             pass
     assert sim.transactions == 0
+
+
+async def test_a_stream_not_started_says_so_at_once_and_one_closed_refuses_targets() -> None:
+    # Used without `async with`, a stream's frames waited forever; once closed, its targets went nowhere
+    # in silence (a controller "commanding" a stream that had ended).
+    sim = make_sim(range(4))
+    async with open_bus(sim, **FAST) as bus:
+        stream = bus.stream([0, 1], rate_hz=50)
+        stream.set_targets({0: 8000})  # before it starts: its first cycle sends it
+        for call in (stream.next_frame, stream.__anext__):
+            with anyio.fail_after(GUARD), pytest.raises(InvalidArgument, match=r"async with bus\.stream"):
+                await call()
+        async with stream:
+            assert (await next_frame(stream)).positions
+        with pytest.raises(BusClosed, match="stream closed"):
+            stream.set_targets({0: 7000})
+        with pytest.raises(BusClosed, match="stream closed"):
+            stream.set_target(1, 7000)
+    assert not [t for t in sim.log if t.tx == position_tx(0, 7000)]
 
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])

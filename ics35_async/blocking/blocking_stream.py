@@ -102,8 +102,11 @@ class BlockingStream(Wrapper[Stream]):
 
 
 async def _next_frame(stream: Stream, timeout: float | None) -> Frame:
-    with anyio.fail_after(timeout):
-        return await stream.next_frame()
+    try:
+        with anyio.fail_after(timeout):
+            return await stream.next_frame()
+    except TimeoutError:
+        raise TimeoutError(f"no frame within {timeout:g} s") from None
 
 
 def _stats_of(stream: Stream) -> StreamStats:
