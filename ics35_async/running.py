@@ -13,16 +13,19 @@ signal while that unwinding runs is ignored: the servos are being put to rest.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
+import inspect
 import signal
 import sys
 import threading
+import typing
 from collections.abc import Awaitable, Callable, Iterator
 from types import FrameType
 from typing import Any, Literal, Protocol, TypeVar, cast
 
-from .errors import IcsError
+from .errors import IcsError, InvalidArgument
 from .tasks import only_error
 
 EXIT_OK = 0
@@ -39,8 +42,10 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     0 when ``main`` returned; 130 after SIGINT and 143 after SIGTERM, once ``main``'s
     ``async with`` blocks have closed (streams, robots, buses, in that order); 1 when
     ``main`` raised an :class:`~ics35_async.IcsError`, printed to stderr as one line
-    without a traceback.  Other exceptions propagate.  ``backend``: ``"asyncio"``,
-    ``"uvloop"`` (needs the uvloop package) or ``"trio"``.  Call it from the main thread::
+    without a traceback.  Other exceptions propagate (main's own, not the task group that ran
+    it); ``sys.exit()`` in ``main`` ends the program with its code once everything has closed.
+    ``backend``: ``"asyncio"``, ``"uvloop"`` (needs the uvloop package) or ``"trio"``.  Call it
+    from the main thread, outside any event loop::
 
         async def main() -> None:
             async with open_bus("/dev/ttyUSB0") as bus, bus.stream(ids, rate_hz=100, on_close="free") as s:
@@ -49,10 +54,16 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
 
         sys.exit(ics35_async.run(main))
+
+    Raises:
+        InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
+            an unknown ``backend``, or an event loop already runs in this thread.
     """
     import anyio
 
+    _check_run(main, backend)
     received: list[int] = []
+    exited: list[SystemExit] = []
 
     async def until_signal() -> None:
         with anyio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
@@ -60,8 +71,11 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
                 main_scope = anyio.CancelScope()
 
                 async def main_then_stop() -> None:
-                    with main_scope:
-                        await main()
+                    try:
+                        with main_scope:
+                            await main()
+                    except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
+                        exited.append(exc)
                     tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
 
                 async def listen() -> None:
@@ -86,10 +100,44 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         if isinstance(error, IcsError):
             print(f"error: {error}", file=sys.stderr)
             return EXIT_ERROR
-        raise
+        if error is exc:
+            raise
+        raise error from None  # main's own exception, not the task group that ran it
+    if exited:
+        raise exited[0]
     if not received:
         return EXIT_OK
     return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
+
+
+def _check_run(main: object, backend: str) -> None:
+    """What :func:`run` refuses before it starts anything (the habits of ``asyncio.run``)."""
+    if inspect.iscoroutine(main):
+        main.close()  # (never awaited: no warning about it on top of the error)
+        raise InvalidArgument("run() takes the async function itself: run(main), not run(main())")
+    if not callable(main):
+        raise InvalidArgument(f"run() takes an async function, not {type(main).__name__}")
+    if backend not in typing.get_args(Backend):
+        raise InvalidArgument(f"backend must be one of {', '.join(typing.get_args(Backend))}, not {backend!r}")
+    if _in_event_loop():
+        raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
+
+
+def _in_event_loop() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        pass
+    else:
+        return True
+    trio = sys.modules.get("trio")  # (imported by whoever runs trio)
+    if trio is None:
+        return False
+    try:
+        trio.lowlevel.current_task()
+    except RuntimeError:
+        return False
+    return True
 
 
 class _Stopped(SystemExit):

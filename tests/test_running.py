@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import signal
@@ -13,6 +14,8 @@ from typing import Any
 
 import pytest
 
+import ics35_async
+from ics35_async import InvalidArgument
 from tests.support.timing import scaled
 
 PROGRAM = textwrap.dedent(
@@ -83,6 +86,53 @@ def test_an_ics_error_is_one_line_and_exit_1() -> None:
     result = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert result.stderr.startswith("error: ") and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_main_s_own_exception_comes_out_as_itself(backend: str) -> None:
+    # "Other exceptions propagate": the program's `except KeyError` around run() must catch its KeyError
+    # (it came out wrapped in the task group's ExceptionGroup).
+    async def main() -> None:
+        raise KeyError("x")
+
+    with pytest.raises(KeyError):
+        ics35_async.run(main, backend=backend)  # type: ignore[arg-type]
+
+
+def test_misuses_of_run_are_said_before_anything_runs() -> None:
+    async def main() -> None:
+        pass
+
+    coroutine = main()
+    with pytest.raises(InvalidArgument, match=r"run\(main\), not run\(main\(\)\)"):
+        ics35_async.run(coroutine)  # type: ignore[arg-type]
+    with pytest.raises(InvalidArgument, match="backend"):
+        ics35_async.run(main, backend="uvlopp")  # type: ignore[arg-type]
+
+    async def inside() -> None:
+        ics35_async.run(main)
+
+    with pytest.raises(InvalidArgument, match="inside a running event loop"):
+        asyncio.run(inside())
+
+
+def test_sys_exit_in_main_ends_the_program_with_its_code_and_no_traceback() -> None:
+    program = textwrap.dedent(
+        """
+        import sys, ics35_async
+        from ics35_async import open_bus
+
+        async def main() -> None:
+            async with open_bus("sim://?ids=1") as bus:
+                await bus.servo(1).read_stretch()
+                sys.exit(3)
+
+        sys.exit(ics35_async.run(main))
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 3, result.stderr
+    assert result.stderr == "", result.stderr
 
 
 BLOCKING_PROGRAM = textwrap.dedent(
