@@ -138,8 +138,9 @@ stress: $(STAMP)
 
 # The docs site (MkDocs Material + mkdocstrings): warnings, broken links and
 # unresolved cross-references fail the build.
+# Not --quiet: it hides warnings from --strict too (a broken cross-reference would pass).
 docs: $(STAMP)
-	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir build/site
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir build/site
 
 docs-serve: $(STAMP)
 	$(BIN)/mkdocs serve

@@ -6,6 +6,8 @@ import enum
 
 
 class State(enum.Enum):
+    """What the line is doing (``bus.state``; ``bus.state_change()`` waits for the next change)."""
+
     OFFLINE = "offline"  # no line yet, or reopening: requests wait
     IDLE = "idle"
     BUSY = "busy"  # a transaction is on the wire

@@ -108,11 +108,12 @@ class LineModelOptions(TypedDict, total=False):
 class LineModel:
     """The devices of one line and the timing of everything on its wire.
 
+    Its keyword options (the wire's and the devices') are those of
+    [`LineModelOptions`][ics35_async.sim.LineModelOptions], each described there.
+
     Args:
         servos: [`VirtualServo`][ics35_async.sim.VirtualServo] objects or IDs (factory servos at
             ``baudrate``); ``None`` means IDs 0..31.
-        **options: the wire's and devices' options, each described in
-            [`LineModelOptions`][ics35_async.sim.LineModelOptions].
 
     Raises:
         InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.

@@ -31,6 +31,9 @@ DEFAULT_REPLUG_AFTER = 0.2
 class VirtualLine(LineModel):
     """A simulated ICS 3.5 line with up to 32 servos and optional memory devices.
 
+    Its other keyword options (the wire's and the devices': ``baudrate``, ``realtime``, ``faults``,
+    ...) are those of [`LineModelOptions`][ics35_async.sim.LineModelOptions], each described there.
+
     Args:
         servos: [`VirtualServo`][ics35_async.sim.VirtualServo] objects or IDs (factory servos);
             ``None`` means IDs 0..31.
@@ -39,8 +42,6 @@ class VirtualLine(LineModel):
         replug_after: it comes back (also after an ``unplug`` fault) that many seconds later.
         spin_margin: seconds the delivery thread spins before a chunk is due (see ``ics35_async.sim.precise_wait``).
         name: registers the line so ``sim://NAME`` reaches this object.
-        **options: the wire's and devices' options (``baudrate``, ``realtime``, ``faults``, ...), each
-            described in [`LineModelOptions`][ics35_async.sim.LineModelOptions].
 
     Raises:
         InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.
