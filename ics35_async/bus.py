@@ -524,6 +524,9 @@ class Bus:
     async def scan(self, ids: Iterable[int] = range(32), *, concurrency: int = 32) -> list[int]:
         """IDs that answer a harmless read (it moves nothing), in the order asked.
 
+        When not even the echo of what was sent came back (an adapter not
+        connected, a port with nothing on it), it logs a warning on the
+        ``ics35_async`` logger: the list is empty either way.
         ``concurrency`` bounds how many probes are queued at once (the line
         still runs them one at a time), leaving room for other callers.  The
         whole scan over baud rates, with EEPROM cross-checks, is
@@ -540,7 +543,15 @@ class Bus:
         from .policies import probe_ids
 
         checked = check_ids("ids", ids)
-        return list((await probe_ids(self, checked, id_read_first=False, concurrency=concurrency)).answered)
+        found = await probe_ids(self, checked, id_read_first=False, concurrency=concurrency)
+        if found.silent and self.echo and checked:
+            # An empty list either way: say which (a request says it in its error, a scan has none).
+            log.warning(
+                "scan of %s: nothing came back, not even the echo of what was sent: is the adapter connected "
+                "and the line powered?",
+                self.port,
+            )
+        return list(found.answered)
 
     def __repr__(self) -> str:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"

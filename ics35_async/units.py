@@ -50,10 +50,15 @@ def check_bool(name: str, value: object) -> bool:
 
 def check_seconds(name: str, value: object, low: float = 0.0, high: float = 60.0) -> float:
     """A finite number of seconds in ``low..high`` (not a bool)."""
+    return check_number(name, value, low, high, "seconds")
+
+
+def check_number(name: str, value: object, low: float, high: float, unit: str) -> float:
+    """A finite number in ``low..high`` (not a bool); ``unit`` says what it counts, in its errors."""
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise InvalidArgument(f"{name} must be a number of seconds, not {value!r}")
+        raise InvalidArgument(f"{name} must be a number of {unit}, not {value!r}")
     if not low <= value <= high:
-        raise InvalidArgument(f"{name} must be in {low}..{high} seconds, got {value}")
+        raise InvalidArgument(f"{name} must be in {low}..{high} {unit}, got {value}")
     return float(value)
 
 

@@ -260,3 +260,28 @@ def test_a_late_reply_that_lands_as_a_resync_ends_is_counted_not_silently_droppe
         anyio.run(main, backend=library)
     finally:
         far.close()
+
+
+@pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
+def test_a_scan_on_a_port_with_nothing_attached_warns_that_not_even_the_echo_came(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # No servos and no adapter look alike in the list scan() returns (empty): the log says which.
+    master, slave = os.openpty()  # the far end never answers, nor echoes
+    try:
+
+        async def main(echo: bool) -> list[int]:
+            async with open_bus(os.ttyname(slave), echo=echo, **REAL_TIME) as bus:
+                return await bus.scan([1, 2])
+
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            assert anyio.run(main, True) == []
+        said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert [m for m in said if "not even the echo" in m and "adapter connected" in m], said
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            assert anyio.run(main, False) == []  # without an echo, silence is what an empty line gives
+        assert not [r for r in caplog.records if "not even the echo" in r.getMessage()]
+    finally:
+        os.close(master)
+        os.close(slave)

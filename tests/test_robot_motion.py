@@ -194,3 +194,12 @@ def test_a_safety_stop_reaches_plays_caller() -> None:
     finally:
         rig.close()
     assert rig.servo("knee").free
+
+
+@pytest.mark.parametrize("speed", [0, 500, float("nan"), "fast"])
+def test_a_bad_speed_is_refused_in_words_about_a_time_scale(speed: Any) -> None:
+    # speed scales time (2: twice as fast): its error spoke of seconds.
+    data = motion({"time": 1, "pose": {"neck": 5}})
+    with pytest.raises(InvalidArgument, match="speed") as refused:
+        play_on(make_rig(), data, speed=speed)
+    assert "seconds" not in str(refused.value) and "twice as fast" in str(refused.value), refused.value

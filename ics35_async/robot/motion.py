@@ -204,7 +204,7 @@ async def play_motion(
     cancelled, each pass reaching the first keyframe from the last in the first keyframe's time."""
     if not isinstance(motion, Motion):
         motion = load_motion(motion)
-    rate = units.check_seconds("speed", speed, 0.01, 100.0)
+    rate = units.check_number("speed", speed, 0.01, 100.0, "times the motion's own pace (2: twice as fast)")
     units.check_bool("loop", loop)
     check_motion(robot, motion)
     joints = motion.joints
