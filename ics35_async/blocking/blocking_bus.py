@@ -157,7 +157,7 @@ class BlockingBus(LoopOwner[Bus]):
         Raises:
             BusClosed: the bus's loop thread has ended.
         """
-        return self._loop.call_sync(_stats_of, self._async)
+        return self._loop.read(_stats_of, self._async)
 
     def __repr__(self) -> str:
         return f"<BlockingBus {self._async!r}>"

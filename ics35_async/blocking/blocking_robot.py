@@ -204,37 +204,37 @@ class BlockingRobot(LoopOwner[Robot]):
     @property
     def joints(self) -> dict[str, JointSpec]:
         """Joint name -> its ``JointSpec`` (line, ID, offset, reverse, limits)."""
-        return self._loop.call_sync(_joints_of, self._async)
+        return self._loop.read(_joints_of, self._async)
 
     @property
     def targets(self) -> dict[str, float | None]:
         """Every joint's target in degrees (``None``: free)."""
-        return self._loop.call_sync(_targets_of, self._async)
+        return self._loop.read(_targets_of, self._async)
 
     @property
     def telemetry(self) -> dict[str, JointTelemetry]:
         """The newest temperature and current of every joint."""
-        return self._loop.call_sync(_telemetry_of, self._async)
+        return self._loop.read(_telemetry_of, self._async)
 
     @property
     def tripped(self) -> dict[str, SafetyStop]:
         """Joints whose safety stop still stands."""
-        return self._loop.call_sync(_tripped_of, self._async)
+        return self._loop.read(_tripped_of, self._async)
 
     @property
     def warnings(self) -> list[str]:
         """What opening found worth knowing (e.g. limits wider than a servo's EEPROM limits)."""
-        return self._loop.call_sync(_warnings_of, self._async)
+        return self._loop.read(_warnings_of, self._async)
 
     @property
     def start_modes(self) -> dict[str, str]:
         """How each joint started: ``"read"`` (ICS 3.6), ``"stated"`` (start_pose) or ``"free"``."""
-        return self._loop.call_sync(_start_modes_of, self._async)
+        return self._loop.read(_start_modes_of, self._async)
 
     @property
     def latest(self) -> RobotFrame | None:
         """The newest frame (immutable)."""
-        return self._loop.call_sync(_latest_of, self._async)
+        return self._loop.read(_latest_of, self._async)
 
 
 def _joints_of(robot: Robot) -> dict[str, JointSpec]:

@@ -47,12 +47,12 @@ class BlockingStream(Wrapper[Stream]):
     @property
     def stats(self) -> StreamStats:
         """Achieved rate, cycle-time percentiles, jitter, overruns and per-ID failures so far."""
-        return self._loop.call_sync(_stats_of, self._async)
+        return self._loop.read(_stats_of, self._async)
 
     @property
     def offline(self) -> frozenset[int]:
         """IDs currently out of the cycle after failing ``offline_after`` cycles in a row."""
-        return self._loop.call_sync(_offline_of, self._async)
+        return self._loop.read(_offline_of, self._async)
 
     def next_frame(self, timeout: float | None = None) -> Frame:
         """The newest frame not yet taken; waits for one (at most ``timeout`` seconds: then ``TimeoutError``).

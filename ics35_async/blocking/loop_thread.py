@@ -225,6 +225,14 @@ class LoopThread:
                 _wait_holding_interrupts(outcome, self._thread)
             raise
 
+    def read(self, fn: Callable[P, T], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        """A read of state (statistics, the latest frame): :meth:`call_sync` while the loop thread runs;
+        once it has ended, here (nothing else touches the objects any more), so what a program prints
+        after its ``with`` block still reads, as the async objects allow."""
+        if self._closed and not self._thread.is_alive():
+            return fn(*args, **kwargs)
+        return self.call_sync(fn, *args, **kwargs)
+
     def _check_caller(self) -> None:
         if self._closed:
             raise self._closed_error()
