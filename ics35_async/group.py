@@ -18,6 +18,8 @@ from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream
 from .tasks import first_library_error
 
+GROUP_NOT_STARTED = "the group stream is not started: use it as `async with group.stream(...) as stream:`"
+
 
 class GroupStream(FrameIterator[GroupFrame]):
     """Streams on several lines at once, each at its own pace, giving merged frames.
@@ -41,6 +43,7 @@ class GroupStream(FrameIterator[GroupFrame]):
 
         Raises:
             InvalidArgument: an unknown line, an ID not in that line's stream, a position out of range.
+            BusClosed: that line's stream (or bus) was closed.
         """
         self._stream(line).set_target(servo_id, position)
 
@@ -50,6 +53,7 @@ class GroupStream(FrameIterator[GroupFrame]):
         Raises:
             InvalidArgument: not a mapping, a key that is not ``(line, id)``, an unknown line, an ID not
                 in that line's stream or a position out of range (nothing applied).
+            BusClosed: a line's stream (or bus) was closed (nothing applied).
         """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{(line, id): position}}, not {type(targets).__name__}")
@@ -65,9 +69,19 @@ class GroupStream(FrameIterator[GroupFrame]):
             self.streams[line].apply_targets(c)
 
     def free(self) -> None:
-        """Put every servo on every line in free mode (torque off, still read back)."""
+        """Put every servo on every line in free mode (torque off, still read back).
+
+        Raises:
+            BusClosed: a line's stream (or bus) was closed: every other line is freed all the same.
+        """
+        refused: BusClosed | None = None
         for s in self.streams.values():
-            s.free()
+            try:
+                s.free()
+            except BusClosed as exc:  # one closed line must not keep the others holding
+                refused = refused or exc
+        if refused is not None:
+            raise refused
 
     def _stream(self, line: str) -> Stream:
         try:
@@ -79,6 +93,7 @@ class GroupStream(FrameIterator[GroupFrame]):
         """Wait until every line has completed a newer cycle and return them merged.
 
         Raises:
+            InvalidArgument: the group stream was never started (``async with group.stream(...)`` starts it).
             BusClosed: the stream or a bus was closed.
             PortLost: a line lost its port (without ``reconnect``).
         """
@@ -98,6 +113,8 @@ class GroupStream(FrameIterator[GroupFrame]):
             reason = first_library_error(group_error)
             if not isinstance(reason, IcsError):
                 raise
+            if isinstance(reason, InvalidArgument):  # not started: a mistake to mend, not the group's end
+                raise InvalidArgument(GROUP_NOT_STARTED) from None
             self._closed, self._end_error = True, reason
             raise reason from None
         self._cycle += 1

@@ -93,16 +93,18 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         import uvloop
 
         name, options = "asyncio", {"loop_factory": uvloop.new_event_loop}
+    failure: BaseException | None = None
     try:
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
-        error = only_error(exc)
-        if isinstance(error, IcsError):
-            print(f"error: {error}", file=sys.stderr)
+        if isinstance(only_error(exc), IcsError):
+            print(f"error: {only_error(exc)}", file=sys.stderr)
             return EXIT_ERROR
-        if error is exc:
-            raise
-        raise error from None  # main's own exception, not the task group that ran it
+        # main's own exception (its own group included), not the task group that ran it: raised
+        # below, out of this handler, so that its cause and context stay as main left them.
+        failure = exc.exceptions[0] if isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1 else exc
+    if failure is not None:
+        raise failure
     if exited:
         raise exited[0]
     if not received:

@@ -196,6 +196,7 @@ class Stream(FrameIterator[Frame]):
 
         Raises:
             InvalidArgument: ``servo_id`` is not in the stream or ``position`` is out of range.
+            BusClosed: the stream (or its bus) was closed.
         """
         self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
@@ -204,6 +205,7 @@ class Stream(FrameIterator[Frame]):
 
         Raises:
             InvalidArgument: not a mapping, an ID not in the stream or a position out of range (nothing applied).
+            BusClosed: the stream (or its bus) was closed.
         """
         self.apply_targets(self.check_targets(targets))
 
@@ -213,20 +215,25 @@ class Stream(FrameIterator[Frame]):
         Raises:
             InvalidArgument: not a mapping, an ID not in the stream or a position out of range.
         """
+        self._refuse_if_closed()
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: position}}, not {type(targets).__name__}")
         return [(self._slot(i), units.check_int("position", p, 0, protocol.POSITION_MAX)) for i, p in targets.items()]
+
+    def _refuse_if_closed(self) -> None:
+        """Targets for a stream closed by the program (or on a closed bus) would never be sent.  After a
+        lost port they are still taken, silently: a group or a robot closing out frees or holds its
+        other lines through the same calls."""
+        if self._closed and isinstance(self._end_error, BusClosed):
+            raise BusClosed(str(self._end_error))
 
     def apply_targets(self, checked: list[tuple[int, int]]) -> None:
         """Apply the targets ``checked`` that :meth:`check_targets` returned.
 
         Raises:
-            BusClosed: the stream (or its bus) was closed: nothing would send them.  (After a lost
-                port they are still taken, silently: a group or a robot closing out frees or holds
-                its other lines through the same call.)
+            BusClosed: the stream (or its bus) was closed: nothing would send them.
         """
-        if self._closed and isinstance(self._end_error, BusClosed):
-            raise self._end_error
+        self._refuse_if_closed()
         kick = False
         frozen = self._frozen
         for k, p in checked:
@@ -266,6 +273,7 @@ class Stream(FrameIterator[Frame]):
 
         Raises:
             InvalidArgument: an ID is not in the stream (nothing changes).
+            BusClosed: the stream (or its bus) was closed.
         """
         self.set_targets(dict.fromkeys(self.ids if ids is None else units.check_ids("ids", ids), protocol.FREE))
 

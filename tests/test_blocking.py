@@ -425,7 +425,7 @@ def test_statistics_still_read_after_the_with_block_ends() -> None:
     with blocking.open_bus("sim://?ids=1-2") as bus, bus.stream([1, 2]) as stream:
         for _ in range(3):
             stream.next_frame()
-    assert stream.stats.cycles >= 3 and stream.offline == frozenset()
+    assert stream.stats.cycles >= 3 and stream.offline == frozenset() and stream.target(1) == 0
     assert bus.stats.total.ok >= 6
     with pytest.raises(BusClosed):
         stream.set_target(1, 8000)  # acting on it is still refused

@@ -12,6 +12,7 @@ from rich.console import Console
 
 from ics35_async import BusClosed, InvalidArgument, Robot, open_robot
 from ics35_async.cli._robot_view import joint_table
+from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
 from tests.support.timing import FAST, GUARD
 
@@ -176,6 +177,8 @@ def test_a_robot_used_after_its_block_ended_says_it_is_closed_at_once() -> None:
                 ("free", robot.free),
                 ("on_wire", robot.on_wire),
                 ("wait_frame", lambda: robot.wait_frame(0)),
+                ("stop", robot.stop),
+                ("run", lambda: robot.run(Trajectory([Segment(0.0, 0.2, {"neck": 0.0}, {"neck": 5.0}, "linear")]))),
             ]
             for name, call in calls:
                 with anyio.fail_after(2), pytest.raises(BusClosed, match="robot is closed"):
@@ -218,3 +221,35 @@ def test_a_motion_still_running_when_the_block_ends_fails_with_bus_closed() -> N
     finally:
         rig.close()
     assert len(outcome) == 1 and "robot is closed" in str(outcome[0])
+
+
+def test_a_task_commanding_a_joint_while_the_block_closes_cannot_keep_it_from_going_free() -> None:
+    # on_close="free" with a controller task that outlives the block: its commands are refused from the
+    # moment the block ends, so the close-out's free is the last command every joint gets.
+    rig = make_rig(ics36=[1, 2, 3])
+    refused: list[BusClosed] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            opening = open_robot(rig.description, on_close="free", **FAST)
+            async with anyio.create_task_group() as tasks, opening as robot:
+                robot.hold()
+
+                async def controller() -> None:
+                    try:
+                        while True:
+                            await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                            robot.set_targets({"neck": 10.0})
+                    except BusClosed as exc:
+                        refused.append(exc)
+
+                tasks.start_soon(controller)
+                for _ in range(5):
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert refused and "robot is closed" in str(refused[0])
+    assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}

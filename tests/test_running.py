@@ -98,6 +98,22 @@ def test_main_s_own_exception_comes_out_as_itself(backend: str) -> None:
     with pytest.raises(KeyError):
         ics35_async.run(main, backend=backend)  # type: ignore[arg-type]
 
+    async def chained() -> None:
+        try:
+            raise KeyError("x")
+        except KeyError as exc:
+            raise ValueError("y") from exc
+
+    with pytest.raises(ValueError, match="y") as raised:
+        ics35_async.run(chained, backend=backend)  # type: ignore[arg-type]
+    assert isinstance(raised.value.__cause__, KeyError)  # its cause, as main raised it
+
+    async def own_group() -> None:
+        raise ExceptionGroup("main's own", [KeyError("z")])
+
+    with pytest.raises(ExceptionGroup, match="main's own"):
+        ics35_async.run(own_group, backend=backend)  # type: ignore[arg-type]
+
 
 def test_misuses_of_run_are_said_before_anything_runs() -> None:
     async def main() -> None:

@@ -18,7 +18,7 @@ from ..errors import BusClosed
 from ..frames import Frame, StreamStats
 from ..running import close_step
 from ..stream import Stream
-from .forward import ReadThrough, Wrapper, on_loop
+from .forward import ReadThrough, Wrapper, on_loop, read_on_loop
 
 
 class BlockingStream(Wrapper[Stream]):
@@ -38,7 +38,7 @@ class BlockingStream(Wrapper[Stream]):
     set_targets_degrees = on_loop(Stream.set_targets_degrees)
     free = on_loop(Stream.free)
     watch = on_loop(Stream.watch)
-    target = on_loop(Stream.target)
+    target = read_on_loop(Stream.target)
 
     ids = ReadThrough[tuple[int, ...]]("The servo IDs this stream cycles over, in order.")
     rate_hz = ReadThrough[float | None]("Cycles per second asked for (``None``: as fast as the line allows).")
@@ -58,7 +58,8 @@ class BlockingStream(Wrapper[Stream]):
         """The newest frame not yet taken; waits for one (at most ``timeout`` seconds: then ``TimeoutError``).
 
         Raises :class:`~ics35_async.BusClosed` once the stream or bus is
-        closed, :class:`~ics35_async.PortLost` if the port is lost.
+        closed, :class:`~ics35_async.PortLost` if the port is lost, and
+        :class:`~ics35_async.InvalidArgument` if the stream was never started.
         """
         if timeout is not None:
             units.check_seconds("timeout", timeout, 0.0, 1e9)
@@ -106,6 +107,8 @@ async def _next_frame(stream: Stream, timeout: float | None) -> Frame:
         with anyio.fail_after(timeout):
             return await stream.next_frame()
     except TimeoutError:
+        if timeout is None:
+            raise
         raise TimeoutError(f"no frame within {timeout:g} s") from None
 
 

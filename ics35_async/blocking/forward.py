@@ -36,9 +36,10 @@ class _Forward(Generic[A, P, T]):
     """The descriptor ``blocking`` and ``on_loop`` make: ``awaits`` says whether ``method`` is a coroutine
     function (awaited on the loop) or a plain one (called on the loop thread)."""
 
-    def __init__(self, method: Callable[Concatenate[A, P], Any], *, awaits: bool) -> None:
+    def __init__(self, method: Callable[Concatenate[A, P], Any], *, awaits: bool, reads: bool = False) -> None:
         self._method = method
         self._awaits = awaits
+        self._reads = reads
         self.__doc__ = method.__doc__
         self.__name__ = self.__qualname__ = getattr(method, "__name__", "method")
         # What help() and inspect.signature() show: the async method's signature without ``self``.
@@ -58,7 +59,7 @@ class _Forward(Generic[A, P, T]):
         if obj is None:
             return self
         method, target, loop = self._method, obj._async, obj._loop
-        run: Callable[..., T] = loop.call if self._awaits else loop.call_sync
+        run: Callable[..., T] = loop.call if self._awaits else loop.read if self._reads else loop.call_sync
 
         def call(*args: P.args, **kwargs: P.kwargs) -> T:
             return run(method, target, *args, **kwargs)
@@ -77,6 +78,12 @@ def blocking(method: Callable[Concatenate[A, P], Awaitable[T]]) -> _Forward[A, P
 def on_loop(method: Callable[Concatenate[A, P], T]) -> _Forward[A, P, T]:
     """A blocking method that runs the plain ``method`` on the wrapper's loop thread."""
     return _Forward(method, awaits=False)
+
+
+def read_on_loop(method: Callable[Concatenate[A, P], T]) -> _Forward[A, P, T]:
+    """Like :func:`on_loop`, for a method that only reads state: once the loop thread has ended, it
+    reads here (see ``LoopThread.read``)."""
+    return _Forward(method, awaits=False, reads=True)
 
 
 class ReadThrough(Generic[T]):

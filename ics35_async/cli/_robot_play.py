@@ -75,9 +75,11 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
 
 async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     """Slow every moving joint to rest, then hold or free; shielded from a second Ctrl-C's cancellation."""
-    with contextlib.suppress(IcsError):
+    # Each step on its own: a stop that fails (a line lost) or outlasts its time still leaves the free to run.
+    with contextlib.suppress(IcsError, TimeoutError):
         await asyncio.wait_for(robot.stop(ramp), ramp + 2.0)
-        if on_stop == "free":
+    if on_stop == "free":
+        with contextlib.suppress(IcsError, TimeoutError):
             await asyncio.wait_for(robot.free(), 2.0)
 
 

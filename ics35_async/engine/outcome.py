@@ -41,7 +41,7 @@ def framing_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, expe
     if len(buf) > expect:
         extra = len(buf) - expect
         if req is not None and req.command.servo_id is None:  # the ID command: every device answers it
-            message = f"{extra} extra byte(s) after the reply: more than one device answered the ID command"
+            message = f"{extra} extra byte(s) after the reply: more than one device answering the ID command?"
             return _error(BadReply, message, req, sid, buf)
         return _error(BadReply, f"{extra} unexpected extra byte(s) after the reply", req, sid, buf)
     return echo_mismatch(req, sid, tx, buf)

@@ -51,6 +51,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint or an angle outside its limits.
+            BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.set_targets({joint: degrees})
 
@@ -59,6 +60,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
+            BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.set_targets(pose)
 
@@ -67,6 +69,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint.
+            BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.set_targets(dict.fromkeys(self.robot.joint_names(joints)), allow_free=True)
 
@@ -75,6 +78,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint.
+            BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.hold(joints)
 

@@ -34,6 +34,7 @@ from .profiles import Segment, Trajectory, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
 
 log = logging.getLogger("ics35_async.robot")
+CLOSED = "the robot is closed (its `async with open_robot(...)` block has ended)"
 
 
 class Robot:
@@ -64,7 +65,7 @@ class Robot:
         self._plans: list[Plan] = []
         self._latched: dict[str, SafetyStop] = {}
         self._end_error: IcsError | None = None
-        self._closed: BusClosed | None = None  # set when the block ends: targets are refused too
+        self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
         self._gstream: GroupStream | None = None
 
     def __repr__(self) -> str:
@@ -185,7 +186,12 @@ class Robot:
         self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions})
 
     async def free(self, joints: Iterable[str] | None = None) -> None:
-        """Torque off for ``joints`` (default: all); returns once that has gone out on the wire."""
+        """Torque off for ``joints`` (default: all); returns once that has gone out on the wire.
+
+        Raises:
+            InvalidArgument: an unknown joint.
+            BusClosed, PortLost: the robot was closed, or a line is gone.
+        """
         names = self.joint_names(joints)
         self._release(names)
         self._apply(dict.fromkeys(names))
@@ -197,9 +203,9 @@ class Robot:
             for plan in self._plans:
                 plan.joints.discard(name)
 
-    def _apply(self, targets: Mapping[str, float | None]) -> None:
-        if self._closed:
-            raise self._closed
+    def _apply(self, targets: Mapping[str, float | None], *, close_out: bool = False) -> None:
+        if not close_out:
+            self._check_commands()
         if not targets or self._gstream is None:
             return
         wanted: dict[tuple[str, int], int] = {}
@@ -272,7 +278,14 @@ class Robot:
     async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None:
         """Play a trajectory from the next frame on; returns when it is done (its end on the wire, with
         ``wait_on_wire``).  Its time zero is that frame's: a host stall before it delays the motion rather
-        than skipping its start."""
+        than skipping its start.
+
+        Raises:
+            BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
+        """
+        self._check_commands()
+        if self._end_error is not None:
+            raise self._end_error  # no pump would ever step it
         plan = Plan(trajectory, wait_on_wire)
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
@@ -290,8 +303,13 @@ class Robot:
         """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
         seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
         targets): one that would pass its target rests on it, sooner.  Each motion stopped raises
-        :class:`MotionStopped` in its caller."""
+        :class:`MotionStopped` in its caller.
+
+        Raises:
+            BusClosed, PortLost: the robot was closed, or a line is gone.
+        """
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
+        self._check_commands()
         for plan in self._plans:
             plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
         self._plans.clear()
@@ -381,13 +399,36 @@ class Robot:
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
 
-    def closed(self) -> None:
-        """The robot's block has ended (see :mod:`.startup`): from now on every call fails at once with
-        BusClosed, a motion still running included (a task can outlive the block)."""
-        self._closed = BusClosed("the robot is closed: it was used after its `async with open_robot(...)` block")
-        self._end(self._closed)
+    def mark_closing(self) -> None:
+        """The robot's block has ended (see :mod:`.startup`): from now on a command from elsewhere (a task
+        that outlived the block) is refused with BusClosed, and motions still running end with it; frames
+        go on for the close-out (:meth:`free_on_close`) until :meth:`mark_closed`."""
+        if self._closing:
+            return
+        self._closing = True
+        for plan in self._plans:
+            plan.finish(BusClosed(CLOSED))
+        self._plans.clear()
+        self._velocity = dict.fromkeys(self.joints, 0.0)
+
+    async def free_on_close(self) -> None:
+        """The close-out's ``on_close="free"``: every joint free, on the wire before the streams close
+        (the one command :meth:`mark_closing` lets through)."""
+        names = list(self.joints)
+        self._apply(dict.fromkeys(names), close_out=True)
+        await self.on_wire(names)
+
+    def mark_closed(self) -> None:
+        """The close-out is over: every call now fails at once with BusClosed, frame waits included."""
+        self.mark_closing()
+        self._end(BusClosed(CLOSED))
+
+    def _check_commands(self) -> None:
+        if self._closing:
+            raise BusClosed(CLOSED)
 
     def _end(self, error: IcsError) -> None:
+        self._velocity = dict.fromkeys(self.joints, 0.0)  # nothing moves them any more: a stop has nothing to slow
         self._end_error = error
         for plan in self._plans:
             plan.finish(error)

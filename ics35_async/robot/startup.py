@@ -135,10 +135,11 @@ async def open_robot(
                         await robot.wait_frame(0)
                         yield robot
                     finally:
+                        robot.mark_closing()  # from here on, nothing but the close-out commands the joints
                         with anyio.CancelScope(shield=True), anyio.move_on_after(2.0):
                             await _close_out(robot, on_close)
                         tasks.cancel_scope.cancel()
-                        robot.closed()
+                        robot.mark_closed()
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
                 raise only_error(group_error) from None
@@ -179,7 +180,7 @@ async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]
 async def _close_out(robot: Robot, on_close: str) -> None:
     with contextlib.suppress(IcsError):
         if on_close == "free":
-            await robot.free()
+            await robot.free_on_close()
 
 
 async def check_servo_limits(robot: Robot) -> list[str]:

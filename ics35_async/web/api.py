@@ -393,12 +393,14 @@ async def updates(ws: WebSocket) -> None:
             if update:
                 await ws.send_json(update)
             if loop.time() - last_telemetry >= TELEMETRY_PERIOD and session.found:
-                # Between two pushes, each taken as it is sent: one taken before these reads and sent
-                # after them could say what was before an answer the page got meanwhile (a box the user
-                # ticked flipping back).  Their values go out at once, with everything else as it is then.
-                last_telemetry = loop.time()
+                # Between two pushes, each taken just before it is sent: one taken before these reads
+                # and sent after them would say what was before an answer the page got meanwhile (a box
+                # the user ticked flipping back).  Their values go out at once, with the rest as it is then.
                 with contextlib.suppress(IcsError):
                     await session.read_telemetry()  # none while a live stream runs: the table shows its values
+                # The period counts from the round's end: a slow round (servos that stopped answering)
+                # leaves the line to the page's own actions in between, not back to back with the next.
+                last_telemetry = loop.time()
                 telemetry_read = True
                 continue
             await asyncio.sleep(LIVE_PERIOD if session.live is not None else IDLE_PERIOD)
