@@ -152,11 +152,8 @@ class BlockingBus(LoopOwner[Bus]):
 
     @property
     def stats(self) -> BusStats:
-        """A snapshot of the line's counters, taken on the bus's loop.
-
-        Raises:
-            BusClosed: the bus's loop thread has ended.
-        """
+        """A snapshot of the line's counters, taken on the bus's loop (after the bus is closed: its
+        final counters)."""
         return self._loop.read(_stats_of, self._async)
 
     def __repr__(self) -> str:
