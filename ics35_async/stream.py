@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import itertools
+import logging
 import math
 import statistics
 import warnings
@@ -26,6 +27,8 @@ from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
 
+log = logging.getLogger("ics35_async")
+
 INF = math.inf
 
 
@@ -39,6 +42,10 @@ IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with e
 FREE_ON_CLOSE_BOUND = 2.0  # seconds on_close="free" may take when the stream closes
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
+# After this many cycles, a paced stream that ran past nearly every slot says once that its rate cannot
+# be kept (stats.overruns counts it too, but a program that never reads it runs slow without a word).
+RATE_CHECK_CYCLES = 20
+RATE_CHECK_LATE = 18
 NOT_STARTED = (
     "the stream is not started: use it as `async with bus.stream(...) as stream:` "
     "(blocking: `with bus.stream(...) as stream:`), or call its start()"
@@ -458,6 +465,24 @@ class Stream(FrameIterator[Frame]):
         if self.rate_hz is not None and self._cycle:
             self._t0 = now - self._cycle / self.rate_hz
 
+    def _tell_rate_not_kept(self, now: float) -> None:
+        n, baud = len(self.ids), int(self.bus.baudrate)
+        command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
+        wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
+        log.warning(
+            "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about %.0f "
+            "cycles/s); at %d baud its %d position transactions take %.1f ms on the wire alone, plus each "
+            "servo's answer time: raise the baud rate, stream fewer IDs or ask a lower rate (or the host is busy)",
+            n,
+            self.rate_hz,
+            self._overruns,
+            self._cycle,
+            self._cycle / max(now - self._first_start, 1e-9),
+            baud,
+            n,
+            wire * 1e3,
+        )
+
     def _line_closed(self, exc: IcsError) -> None:
         self._end_error = exc
         self._stop(detach=False)  # the engine has detached us already (and may hold its driver's lock)
@@ -475,6 +500,8 @@ class Stream(FrameIterator[Frame]):
                 self._slot_checked = True
                 if now > due:
                     self._overruns += 1
+                if self._cycle == RATE_CHECK_CYCLES and self._overruns >= RATE_CHECK_LATE:
+                    self._tell_rate_not_kept(now)
             if now < due:
                 self._wake_at = due
                 return False
