@@ -47,10 +47,12 @@ tools:
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
 	else echo "note: the tests need$$missing: sudo apt-get install$$missing" >&2; fi
 
+# The same editable mode as the development install above: the demo's install replaces it in the same
+# venv, and an import-hook install would then hide the package from the type checkers and the tests.
 $(DEMO_STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e .
+	$(BIN)/python -m pip install --quiet -e . --config-settings editable_mode=compat
 	touch $(DEMO_STAMP)
 
 demo: $(DEMO_STAMP)
