@@ -97,8 +97,9 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     try:
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
-        if isinstance(only_error(exc), IcsError):
-            print(f"error: {only_error(exc)}", file=sys.stderr)
+        error = only_error(exc)
+        if isinstance(error, IcsError):
+            print(f"error: {error}", file=sys.stderr)
             return EXIT_ERROR
         # main's own exception (its own group included), not the task group that ran it: raised
         # below, out of this handler, so that its cause and context stay as main left them.

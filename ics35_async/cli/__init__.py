@@ -16,7 +16,7 @@ import importlib
 import inspect  # click imports it already: no start-up cost
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 
@@ -167,9 +167,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         fail(_stopped_by_signal(exc))
     except click.exceptions.Abort:  # (click's form of a KeyboardInterrupt outside a command's handling)
-        stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, "aborted"))
-        click.echo(stopped.message, err=True)
-        sys.exit(int(stopped.code))
+        _interrupted("aborted")
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
@@ -177,9 +175,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
         # Ctrl-C outside a command's own handling (while loading, parsing): no traceback.
-        stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, "interrupted"))
-        click.echo(stopped.message, err=True)
-        sys.exit(int(stopped.code))
+        _interrupted("interrupted")
     except BrokenPipeError:
         # `ics35 ... | head`: the reader left; not an error worth a traceback.
         sys.stderr.close()
@@ -193,6 +189,13 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 # The stop signals' exit codes, by signal number (128 + the number, as a shell reports a process it ended).
 _SIGNAL_CODES = {int(code) - 128: code for code in (ExitCode.HANGUP, ExitCode.TERMINATED)}
+
+
+def _interrupted(word: str) -> NoReturn:
+    """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code."""
+    stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, word))
+    click.echo(stopped.message, err=True)
+    sys.exit(int(stopped.code))
 
 
 def _stopped_by_signal(error: CliError) -> CliError:
