@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from ics35_async import BusClosed, InvalidArgument, blocking
-from ics35_async.robot import DescriptionError
+from ics35_async.eeprom import Eeprom
+from ics35_async.robot import DescriptionError, RobotWarning
 from tests.support.robot_rig import JOINTS, joint_position, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
@@ -97,6 +98,23 @@ def test_on_close_free_frees_every_joint() -> None:
         assert all(rig.servo(name).free for name in JOINTS)
     finally:
         rig.close()
+
+
+def test_a_limits_warning_points_at_the_programs_line_and_is_issued_once() -> None:
+    rig = make_rig()
+    narrowed = rig.servo("elbow").eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)
+    assert isinstance(narrowed, Eeprom)
+    rig.servo("elbow").eeprom = narrowed
+    try:
+        with (
+            pytest.warns(RobotWarning, match=r"joints\.elbow: the file allows") as caught,
+            blocking.open_robot(rig.description, **FAST) as robot,
+        ):
+            assert len(robot.warnings) == 1
+    finally:
+        rig.close()
+    assert len(caught) == 1
+    assert Path(caught[0].filename).name == Path(__file__).name, caught[0].filename
 
 
 def test_opening_errors_are_typed_and_leave_no_thread() -> None:

@@ -9,6 +9,7 @@ import itertools
 import math
 import warnings
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import anyio
@@ -218,6 +219,8 @@ def test_limits_wider_than_the_servos_eeprom_warn_at_open() -> None:
         found = run_robot(rig, body)
     assert len(found) == 1 and len(caught) == 1
     assert "EEPROM pulse limits 6000..9000" in found[0]
+    # The warning points at the program that opened the robot, not into the library or contextlib.
+    assert Path(caught[0].filename).name == Path(__file__).name, caught[0].filename
 
 
 def test_no_warning_when_the_servos_allow_the_limits() -> None:

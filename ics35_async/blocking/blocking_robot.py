@@ -24,6 +24,7 @@ from typing import Any, ParamSpec, TypeVar, Unpack
 from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
+from ..robot.startup import warn_at_open, warn_program
 from ..running import close_step
 from .loop_thread import LoopThread
 from .owner import LoopOwner
@@ -43,6 +44,7 @@ class _Holder:
         self.exit_error: BaseException | None = None
 
     async def _hold(self, ready: asyncio.Future[Robot], closing: asyncio.Event) -> None:
+        warn_at_open.set(False)  # this task's own context: BlockingRobot warns from the program's thread
         try:
             async with self._opener as robot:
                 ready.set_result(robot)
@@ -108,6 +110,8 @@ class BlockingRobot(LoopOwner[Robot]):
             loop.stop()
             raise
         super().__init__(robot, loop)
+        for message in self.warnings:
+            warn_program(message)
 
     # ------------------------------------------------------------------ closing
 

@@ -14,8 +14,11 @@ ICS 3.5 reads a position only with the free command.
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
 import warnings
 from collections.abc import AsyncIterator, Iterable, Mapping
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, Unpack
 
@@ -183,6 +186,11 @@ async def _close_out(robot: Robot, on_close: str) -> None:
             await robot.free_on_close()
 
 
+warn_at_open: ContextVar[bool] = ContextVar("warn_at_open", default=True)
+"""False where the opener issues the robot's warnings itself, from its caller's thread: the blocking
+robot opens on a loop thread, whose stack holds no line of the program."""
+
+
 async def check_servo_limits(robot: Robot) -> list[str]:
     """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
     found: list[str] = []
@@ -198,8 +206,22 @@ async def check_servo_limits(robot: Robot) -> list[str]:
             tasks.start_soon(check_line, line)
     for message in found:
         robot.warnings.append(message)
-        warnings.warn(message, RobotWarning, stacklevel=3)
+        if warn_at_open.get():
+            warn_program(message)
     return found
+
+
+def warn_program(message: str) -> None:
+    """Issue ``message`` as a RobotWarning located at the program's line that opened the robot.
+
+    The warning is issued deep inside ``open_robot`` (this package, contextlib's ``__aenter__``, the
+    blocking layer): a fixed ``stacklevel`` would point into one of them.  Python 3.12's
+    ``skip_file_prefixes`` does this walk; 3.11 does not have it."""
+    skipped = (os.path.dirname(os.path.dirname(__file__)) + os.sep, contextlib.__file__)
+    level, frame = 1, sys._getframe(0)  # stacklevel 1 is this function
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(skipped):
+        level, frame = level + 1, frame.f_back
+    warnings.warn(message, RobotWarning, stacklevel=level)
 
 
 async def _limit_problem(robot: Robot, joint: JointSpec) -> str | None:
