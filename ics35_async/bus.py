@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
-from typing import TYPE_CHECKING, Any, TypeVar, Unpack
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar, Unpack
 
 from . import protocol
 from .drivers.choice import DRIVERS, Driver, make_driver
@@ -243,6 +243,15 @@ class Bus:
 
     async def __aenter__(self) -> Bus:
         return await self.open()
+
+    def __enter__(self) -> NoReturn:
+        raise TypeError(
+            "a bus is opened with `async with open_bus(...) as bus:` (or `bus = await open_bus(...)`, then"
+            " `await bus.aclose()`); in code without an event loop, `ics35_async.blocking.open_bus`"
+        )
+
+    def __exit__(self, *exc: object) -> None:
+        return None
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()

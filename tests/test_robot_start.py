@@ -10,7 +10,7 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, Robot, open_robot
+from ics35_async import BusClosed, InvalidArgument, Robot, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
@@ -253,3 +253,30 @@ def test_a_task_commanding_a_joint_while_the_block_closes_cannot_keep_it_from_go
         rig.close()
     assert refused and "robot is closed" in str(refused[0])
     assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}
+
+
+def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:
+    rig = make_rig()
+
+    async def main() -> None:
+        opener = open_robot(rig.description, **FAST)
+        with pytest.raises(AttributeError, match=r"async with open_robot\(\.\.\.\) as robot.*'move_to'"):
+            opener.move_to({"neck": 0.0}, duration=0.1)  # type: ignore[attr-defined]
+        with (
+            pytest.raises(TypeError, match=r"async with open_robot\(\.\.\.\) as robot.*blocking\.open_robot"),
+            opener,  # type: ignore[attr-defined]
+        ):
+            pass
+        with pytest.raises(TypeError, match=r"async with open_robot\(\.\.\.\) as robot"):
+            await opener  # type: ignore[misc]
+        bus = open_bus(f"sim://{rig.upper.name}", **FAST)
+        with pytest.raises(TypeError, match=r"async with open_bus\(\.\.\.\) as bus.*blocking\.open_bus"), bus:
+            pass
+        async with opener as robot:  # the same opener still opens the robot: nothing was started
+            await robot.move_to({"neck": 5.0}, duration=0.05)
+        assert rig.upper.transactions > 0
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()

@@ -20,7 +20,7 @@ import warnings
 from collections.abc import AsyncIterator, Iterable, Mapping
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Unpack
+from typing import Any, NoReturn, Unpack
 
 import anyio
 
@@ -61,10 +61,40 @@ class RobotOptions(BusOptions, total=False):
     command on (default ``None``)."""
 
 
-@contextlib.asynccontextmanager
-async def open_robot(
+_HOW_TO_OPEN = (
+    "a robot is opened with `async with open_robot(...) as robot:` (the block keeps its lines streaming"
+    " and ends them); in code without an event loop, `ics35_async.blocking.open_robot`"
+)
+
+
+class _RobotBlock(contextlib.AbstractAsyncContextManager[Robot]):
+    """What ``open_robot`` returns: entered with ``async with``; used any other way, it says how."""
+
+    def __init__(self, session: contextlib.AbstractAsyncContextManager[Robot]) -> None:
+        self._session = session
+
+    async def __aenter__(self) -> Robot:
+        return await self._session.__aenter__()
+
+    async def __aexit__(self, *exc: Any) -> bool | None:
+        return await self._session.__aexit__(*exc)
+
+    def __getattr__(self, name: str) -> NoReturn:
+        raise AttributeError(f"{_HOW_TO_OPEN} (open_robot(...) itself has no {name!r})")
+
+    def __enter__(self) -> NoReturn:
+        raise TypeError(_HOW_TO_OPEN)
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def __await__(self) -> NoReturn:
+        raise TypeError(_HOW_TO_OPEN)
+
+
+def open_robot(
     source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
-) -> AsyncIterator[Robot]:
+) -> contextlib.AbstractAsyncContextManager[Robot]:
     """Open every line of a robot and stream to all its joints: ``async with open_robot("robot.toml") as robot``.
 
     The robot opens without moving or freeing a joint whose servo speaks
@@ -87,6 +117,13 @@ async def open_robot(
         SerialPortError: a line's port cannot be opened (a servo that does not answer is not an error:
             its joint starts free and, with ``check_limits``, gets a warning).
     """
+    return _RobotBlock(_robot_session(source, **options))
+
+
+@contextlib.asynccontextmanager
+async def _robot_session(
+    source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
+) -> AsyncIterator[Robot]:
     on_close = options.pop("on_close", "hold")
     check_limits = options.pop("check_limits", True)
     offline_after = options.pop("offline_after", 3)
