@@ -361,7 +361,8 @@ class Bus:
             retries: retries after a failure (0..10; default: the bus's), for idempotent commands only.
 
         Raises:
-            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            InvalidArgument: not a command, a bad ``priority`` or ``retries``, or a call from another
+                event loop than the one the bus was opened in.
             ReplyError: no valid reply ([`ReplyTimeout`][ics35_async.errors.ReplyTimeout],
                 [`PartialReply`][ics35_async.errors.PartialReply], [`BadReply`][ics35_async.errors.BadReply], ...).
             BusClosed: the bus is not open, or closed before the reply.
@@ -379,7 +380,8 @@ class Bus:
         result raises what ``request`` raises.
 
         Raises:
-            InvalidArgument: not a command, or a bad ``priority`` or ``retries``.
+            InvalidArgument: not a command, a bad ``priority`` or ``retries``, or a call from another
+                event loop than the one the bus was opened in.
             BusClosed: the bus is not open.
         """
         if not isinstance(command, Command):

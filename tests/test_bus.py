@@ -246,6 +246,33 @@ async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line:
     assert names[-1] == (7, "read_speed")
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+def test_a_bus_used_from_another_event_loop_is_refused_before_the_wire(driver: str) -> None:
+    # A bus kept from one asyncio.run() for the next: the asyncio driver took the closed
+    # loop for a lost port, the thread driver raised asyncio's "attached to a different loop", the anyio
+    # driver waited forever.  (Under trio a bus left open ends its run with an error of trio's own.)
+    sim = VirtualLine(make_servos(range(4)))
+    kept: list[Bus] = []
+
+    async def first() -> None:
+        bus = await open_bus(sim, driver=driver, **FAST)
+        kept.append(bus)
+        assert await bus.servo(1).read_stretch() == 11
+
+    async def second() -> None:
+        before = sim.transactions
+        async with asyncio.timeout(5):
+            with pytest.raises(InvalidArgument, match="opened in another event loop"):
+                await kept[0].servo(2).read_stretch()
+        assert sim.transactions == before  # nothing went on the wire
+
+    try:
+        asyncio.run(first())
+        asyncio.run(second())
+    finally:
+        sim.close()
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(driver: str) -> None:
     # Servo 0's reply comes 0.3 s late: its request is still on the wire when close begins, under the thread

@@ -28,6 +28,7 @@ import contextlib
 import itertools
 import logging
 import math
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from typing import Any, Protocol
@@ -35,7 +36,7 @@ from typing import Any, Protocol
 import anyio
 
 from ..engine import FlushInput, LineEngine, Output, Request, State
-from ..errors import IcsError, error_text
+from ..errors import IcsError, InvalidArgument, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
@@ -102,6 +103,21 @@ def settle_future(request: CallerRequest) -> None:
             future.set_result(request.value)
 
 
+def running_loop() -> object | None:
+    """The event loop the calling code runs on: asyncio's loop, trio's token, or ``None`` (no loop)."""
+    loop = asyncio.events._get_running_loop()
+    if loop is not None:
+        return loop
+    trio: Any = sys.modules.get("trio")  # not imported: not running
+    if trio is None:
+        return None
+    try:
+        token: object = trio.lowlevel.current_trio_token()
+    except RuntimeError:
+        return None
+    return token
+
+
 class DriverCore:
     """The shared half of a driver: see the module docstring."""
 
@@ -111,6 +127,8 @@ class DriverCore:
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
         self.engine = engine
         self.target = port  # what the caller asked to open (the open port is ``port``)
+        # The loop the bus opened in: its callers' futures, events and wake-ups all belong to it.
+        self.home = running_loop()
         self.settings = settings
         self.port: Port | None = None
         self._waiting_until = INF  # when the driver's current wait ends (it is re-aimed for earlier)
@@ -341,6 +359,12 @@ class DriverCore:
 
     def submit(self, command: Command[Any], priority: int, retries: int) -> Any:
         """Queue ``command``; returns what the caller awaits for its outcome."""
+        if running_loop() is not self.home:
+            raise InvalidArgument(
+                "this bus was opened in another event loop (each asyncio.run() or trio.run() starts its own):"
+                " a bus serves the loop it was opened in, so open it in the one that uses it"
+                " (or use ics35_async.blocking from code without a loop)"
+            )
         request, awaited = self._new_request(command, priority, retries)
         with self.lock:
             t = now()
