@@ -128,7 +128,11 @@ class Robot:
             await self._new_frame.wait()
 
     async def read_pose(self) -> dict[str, float]:
-        """Every joint's angle as read after this call (an offline joint: its newest known angle)."""
+        """Every joint's angle as read after this call (an offline joint: its newest known angle).
+
+        A joint whose servo has not answered once since the robot opened has no angle to give: it is
+        left out (``robot.latest.offline`` names it), so index the result only by joints you know answer.
+        """
         # The servo measures when the command reaches it: the reply after a reply is a command sent after now.
         await self.fresh_replies(self.joints, 2)
         return {name: self._positions[name] for name in self.joints if name in self._positions}
