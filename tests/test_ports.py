@@ -17,6 +17,7 @@ import sys
 import termios
 import threading
 import time
+import traceback
 import tty
 from collections.abc import Iterator
 from pathlib import Path
@@ -280,6 +281,10 @@ def test_missing_port_is_a_clear_error() -> None:
     with pytest.raises(PortNotFound, match="no serial port at '/dev/ttyUSB-nonexistent'") as info:
         open_at("/dev/ttyUSB-nonexistent")
     assert isinstance(info.value, FileNotFoundError) and info.value.errno == errno.ENOENT
+    # One traceback on screen, ours (it says all pyserial's two chained ones said); theirs kept for a debugger.
+    printed = "".join(traceback.format_exception(info.value))
+    assert printed.count("Traceback (most recent call last)") == 1, printed
+    assert isinstance(info.value.__context__, serial.SerialException)
 
 
 def test_not_a_tty_is_a_clear_error() -> None:

@@ -175,18 +175,18 @@ def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "n
             log.debug("%s is a pty, which has no parity: opening it 8N1", port)
             ser = _serial_for_url(port, {**settings, "parity": serial.PARITY_NONE}, rs485)
     except serial.SerialException as exc:
-        raise translate_open_error(port, exc) from exc
+        raise translate_open_error(port, exc) from None  # its message says all; __context__ keeps the original
     except (ValueError, NotImplementedError) as exc:
         if rs485 is not None and is_rs485_refusal(exc):
             raise refused(port, direction, exc) from exc
         if isinstance(exc, NotImplementedError):
-            raise translate_open_error(port, exc) from exc
+            raise translate_open_error(port, exc) from None
         # Unknown URL scheme, or a baud rate the driver rejects.
         raise InvalidArgument(f"cannot open {port!r}: {exc}") from exc
     except IcsError:
         raise
     except Exception as exc:  # a URL handler's own failure (a refused connection), or a driver's odd error
-        raise translate_open_error(port, exc) from exc
+        raise translate_open_error(port, exc) from None
 
     try:
         fd = posix_fd(ser)
