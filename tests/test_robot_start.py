@@ -10,11 +10,11 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, Robot, open_bus, open_robot
+from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
-from tests.support.timing import FAST, GUARD
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
 
@@ -253,6 +253,46 @@ def test_a_task_commanding_a_joint_while_the_block_closes_cannot_keep_it_from_go
         rig.close()
     assert refused and "robot is closed" in str(refused[0])
     assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_on_close_free_frees_the_other_lines_joints_when_one_line_is_lost(moving: bool) -> None:
+    # A robot builder's finding: the lower line's adapter pulled, the block ended with PortLost, and the upper
+    # line's joints kept holding (mid-motion targets included): the close-out's free waited on the robot's
+    # frames, which had ended with the lost line.
+    rig = make_rig(ics36=[1, 2, 3], realtime=True)  # real time: the close can come before the next cycle
+    tables: list[dict[str, str]] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, on_close="free", **NO_TIMEOUTS) as robot:
+                robot.hold()
+                await robot.on_wire()
+                try:
+                    async with anyio.create_task_group() as tasks:
+                        if moving:
+                            tasks.start_soon(robot.move_to, {"neck": 30.0, "shoulder": -60.0, "hip": 20.0}, 2.0)
+                        await anyio.sleep(0.2)
+                        rig.lower.unplug()
+                        while True:  # the robot's frames end with the lost line: PortLost
+                            await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                except* PortLost:
+                    # The CLI's live table names the lost line's joints only (it said LINE LOST for all).
+                    console = Console(record=True, width=120)
+                    console.print(joint_table(robot, "t", None, lost=True))
+                    rows = {line.split()[0]: line for line in console.export_text().splitlines() if line.strip()}
+                    tables.append(rows)
+                    raise PortLost("the lower line") from None
+
+    try:
+        with pytest.raises(PortLost):
+            anyio.run(main)
+    finally:
+        rig.close()
+    upper = [name for name, spec in JOINTS.items() if spec["line"] == "upper"]
+    assert all(rig.servo(name).free for name in upper), {n: rig.servo(n).target for n in upper}
+    for name, spec in JOINTS.items():
+        assert ("LINE LOST" in tables[0][name]) == (spec["line"] == "lower"), tables[0][name]
 
 
 def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:

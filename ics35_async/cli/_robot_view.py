@@ -18,11 +18,13 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from ..engine import State
 from ..robot import Robot
 from ._common import err, out
 from ._console import signed_tenths
 
 Extra = Callable[[str], Sequence[str]]
+_GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
 
 
 def _deg(value: float | None) -> str:
@@ -39,8 +41,8 @@ def joint_table(
 ) -> Table:
     """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns).
 
-    ``lost``: the robot's lines stopped (a port lost); every state says so, since the positions shown
-    are only the last ones read.
+    ``lost``: the robot's lines stopped (a port lost); the joints of each line whose port is gone say
+    so (their positions are only the last ones read), the others keep their state.
     """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
@@ -50,11 +52,12 @@ def joint_table(
             table.add_column(name, justify="right")
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
+    gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
     for name in joints or list(robot.joints):
         spec = robot.joints[name]
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
-        if lost:
+        if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
             state = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")

@@ -159,6 +159,9 @@ async def _robot_session(
                 watch=[j.id for j in description.joints_on(line) if j.name in readable],
                 offline_after=offline_after,
                 probe_interval=probe_interval,
+                # The close-out frees through the robot's frames; a lost line ends those, and then
+                # each line's own stream still frees its servos as it closes (the lines left).
+                on_close="free" if on_close == "free" else "hold",
             )
             for line, spec in description.lines.items()
         }
