@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 
 from rich.markup import escape
 
-from ..errors import IcsError, InvalidArgument, ReplyTimeout
+from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout
 from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 
@@ -102,6 +102,16 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
+def lost_line_hint(description: RobotDescription, exc: IcsError) -> str:
+    """What the servos of the line whose port ``exc`` reports lost do now, and how to free them."""
+    ports = [line.port for line in description.lines.values() if line.port in str(exc)]
+    port = max(ports, key=len) if ports else "PORT"  # the longest: one port's name may start another's
+    return (
+        "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
+        f" power or, with the line back, get: ics35 free all -p {port}"
+    )
+
+
 def run_robot(settings: Settings, description: RobotDescription, make: Callable[[], Awaitable[T]]) -> T:
     """Run a robot command's coroutine; every expected failure becomes a :class:`CliError`."""
     with _sim_lines_of(description), warnings.catch_warnings():
@@ -117,6 +127,10 @@ def run_robot(settings: Settings, description: RobotDescription, make: Callable[
             raise CliError(ExitCode.NO_REPLY, str(exc), *NO_REPLY_HINTS) from None
         except InvalidArgument as exc:
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+        except (PortLost, ClosedByPortLoss) as exc:
+            error = translate(settings, exc)
+            error.hints.append(lost_line_hint(description, exc))
+            raise error from None
         except IcsError as exc:
             raise translate(settings, exc) from None
         except BrokenPipeError:
