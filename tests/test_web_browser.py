@@ -678,3 +678,49 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
         expect(p.locator("#page-line")).to_be_visible()
         scan_lists(p, 10)
     context.close()
+
+
+def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
+    # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
+    line = PtyLine((1, 2), ics36=(1, 2))
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    proc = subprocess.Popen(
+        [*WEB, "--robot", str(robot), *PATIENT_OPTION],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "ICS35_WEB_TOKEN": ""},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    context = browser.new_context()
+    try:
+        p = context.new_page()
+        p.set_default_timeout(WAIT_MS)
+        p.goto(proc.stdout.readline().strip())
+        p.click("#robot-link")
+        expect(p.locator("#robot-cycle")).not_to_have_text("-")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        line.sim.unplug()
+        expect(p.locator("#robot-error")).to_contain_text("lost")
+        expect(p.locator("#robot-reopen")).to_be_visible()
+        expect(p.locator("#robot-motion")).to_be_disabled()
+        line.sim.replug()
+        p.click("#robot-reopen")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        expect(p.locator("#robot-error")).to_have_text("")
+        expect(p.locator("#robot-motion")).to_be_enabled()
+        p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+    finally:
+        context.close()
+        proc.terminate()
+        proc.wait(10)
+        errors = proc.stderr.read()
+        proc.stdout.close()
+        proc.stderr.close()
+        line.close()
+    assert "Traceback" not in errors, errors

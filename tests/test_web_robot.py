@@ -117,6 +117,38 @@ def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: An
     assert held["outcome"] == "joints hold where they stand" and held["motion_enabled"], held
 
 
+def test_switching_motion_off_stops_a_running_motion(robot: Any) -> None:
+    # The switch reads as a safety switch: off must not leave a motion playing (it did, to its end).
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    reach = [{"time": 5.0, "pose": {"shoulder": 50}}]
+    long = {"format": "ics35-motion", "version": 1, "name": "reach", "keyframes": reach}
+    assert post(client, "/api/robot/play", {"motion": long}).json()["playing"] == "reach"
+    time.sleep(0.3)
+    off = post(client, "/api/robot/motion", {"enabled": False}).json()
+    assert off["playing"] is None and not off["motion_enabled"], off
+    assert off["outcome"] == "reach: stopped (motion switched off)", off
+    time.sleep(0.1)  # the smooth stop's ramp has ended (0.3 s at most, never past the motion's envelope)
+    held = line.servo(1).target
+    time.sleep(0.5)
+    assert line.servo(1).target == held  # nothing moves it any more
+
+
+def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -> None:
+    # The page said "open", no error, while every action failed with the lost port (until a restart).
+    client, line = robot
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    view = client.get("/api/robot").json()
+    assert not view["open"] and "lost" in view["error"], view
+    refused = post(client, "/api/robot/motion", {"enabled": True})
+    assert refused.status_code == 409 and "lost" in refused.json()["error"], refused.json()
+    line.replug()
+    reopened = post(client, "/api/robot/reopen")
+    assert reopened.status_code == 200 and reopened.json()["open"] and reopened.json()["error"] is None, reopened.json()
+    assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]
+
+
 def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:
     client, _ = robot
     with client.websocket_connect("ws://127.0.0.1:8766/ws", headers={"origin": BASE}) as ws:
@@ -240,7 +272,7 @@ def test_a_pushed_robot_state_is_what_the_robot_is_when_it_is_sent_not_before_a_
             pushing = asyncio.create_task(updates(Page()))  # type: ignore[arg-type]
             while not slow.log_since(start):  # the first round has begun (it reads at once)
                 await asyncio.sleep(0.001)
-            robot.set_motion(True)  # what the page's tick does (/api/robot/motion)
+            await robot.set_motion(True)  # what the page's tick does (/api/robot/motion)
             while not any("servos" in u for u in pushed):
                 await asyncio.sleep(0.005)
             pushing.cancel()

@@ -65,6 +65,8 @@ class Robot:
         self._plans: list[Plan] = []
         self._latched: dict[str, SafetyStop] = {}
         self._end_error: IcsError | None = None
+        self._ended = anyio.Event()
+        self._end_reason: IcsError | None = None
         self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
         self._gstream: GroupStream | None = None
 
@@ -126,6 +128,13 @@ class Robot:
             if latest is not None and latest.cycle > after:
                 return latest
             await self._new_frame.wait()
+
+    async def wait_end(self) -> IcsError:
+        """Wait until the robot's lines stop streaming: a line's port lost (without ``reconnect``) or the
+        ``async with`` block's end.  Returns why (the first reason, if the block's end followed a lost line)."""
+        await self._ended.wait()
+        assert self._end_reason is not None
+        return self._end_reason
 
     async def read_pose(self) -> dict[str, float]:
         """Every joint's angle as read after this call (an offline joint: its newest known angle).
@@ -434,6 +443,9 @@ class Robot:
     def _end(self, error: IcsError) -> None:
         self._velocity = dict.fromkeys(self.joints, 0.0)  # nothing moves them any more: a stop has nothing to slow
         self._end_error = error
+        if not self._ended.is_set():
+            self._end_reason = error  # the first: a lost line's, not the block's end that followed it
+            self._ended.set()
         for plan in self._plans:
             plan.finish(error)
         self._plans.clear()

@@ -291,7 +291,13 @@ async def robot_view(request: Request, session: LineSession) -> Any:
 
 async def robot_motion(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
-    robot.set_motion((await body(request)).get("enabled") is True)
+    await robot.set_motion((await body(request)).get("enabled") is True)
+    return robot.view()
+
+
+async def robot_reopen(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    await robot.reopen()
     return robot.view()
 
 
@@ -445,5 +451,6 @@ ROUTES = [
     Route("/api/robot/play", endpoint(robot_play), methods=["POST"]),
     Route("/api/robot/stop", endpoint(robot_stop), methods=["POST"]),
     Route("/api/robot/free", endpoint(robot_free), methods=["POST"]),
+    Route("/api/robot/reopen", endpoint(robot_reopen), methods=["POST"]),
     WebSocketRoute("/ws", updates),
 ]

@@ -35,19 +35,54 @@ class RobotSession:
         self.motion_enabled = False
         self.playing: str | None = None  # the motion's name while one plays
         self.outcome: str | None = None  # how the last motion ended
-        self._stack = contextlib.AsyncExitStack()
-        self._task: asyncio.Task[None] | None = None
+        self._task: asyncio.Task[None] | None = None  # the motion playing
+        self._stopped_because = ""  # why the motion playing was stopped, if not by Stop
+        self._holder: asyncio.Task[None] | None = None  # the task holding the robot open (see open)
+        self._closing = asyncio.Event()
 
     async def open(self) -> None:
+        """Open the robot's lines (an error is kept for the page, not raised): a task of its own holds the
+        robot open until :meth:`close`, or until a line is lost, and leaves it in the task that entered it."""
+        if self._holder is not None and not self._holder.done():
+            return
+        opened = asyncio.Event()
+        self._closing = asyncio.Event()
+        self._holder = asyncio.create_task(self._hold(opened, self._closing), name="ics35 web robot")
+        await opened.wait()
+
+    async def reopen(self) -> None:
+        """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks."""
+        if self.robot is None:
+            await self.close()
+            await self.open()
+
+    async def _hold(self, opened: asyncio.Event, closing: asyncio.Event) -> None:
         try:
-            opening = open_robot(self.description, on_close="hold", **self.options)
-            self.robot = await self._stack.enter_async_context(opening)
+            async with open_robot(self.description, on_close="hold", **self.options) as robot:
+                self.robot, self.error = robot, None
+                opened.set()
+                asked = asyncio.ensure_future(closing.wait())
+                ended = asyncio.ensure_future(robot.wait_end())
+                done, _ = await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
+                asked.cancel()
+                ended.cancel()
+                if ended in done and not closing.is_set():
+                    why = error_text(ended.result())
+                    self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
+        finally:
+            self.robot = None
+            self.motion_enabled = False
+            opened.set()
 
     async def close(self) -> None:
         await self.stop()
-        await self._stack.aclose()
+        holder, self._holder = self._holder, None
+        if holder is not None:
+            self._closing.set()
+            with contextlib.suppress(asyncio.CancelledError):
+                await holder
         self.robot = None
 
     def _robot(self) -> Robot:
@@ -117,12 +152,16 @@ class RobotSession:
             "joints": joints,
         }
 
-    def set_motion(self, enabled: bool) -> None:
-        """Motion on: the joints hold where they stand (their targets become their positions)."""
+    async def set_motion(self, enabled: bool) -> None:
+        """Motion on: the joints hold where they stand (their targets become their positions).  Off: a
+        motion playing stops smoothly (``Robot.stop``), and nothing moves the joints until it is on again."""
         robot = self._robot()
         if enabled:
             robot.hold()
             self.outcome = "joints hold where they stand"  # (the page's state line: not "joints free")
+        else:
+            self.motion_enabled = False  # first: no move may start while the motion stops
+            await self.stop(why="motion switched off")
         self.motion_enabled = enabled
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
@@ -144,14 +183,15 @@ class RobotSession:
 
     async def _run(self, job: Any, name: str) -> None:
         await self.stop()
-        self.playing, self.outcome = name, None
+        self.playing, self.outcome, self._stopped_because = name, None, ""
 
         async def run() -> None:
             try:
                 await job
                 self.outcome = f"{name}: done"
             except asyncio.CancelledError:
-                self.outcome = f"{name}: stopped"
+                because = f" ({self._stopped_because})" if self._stopped_because else ""
+                self.outcome = f"{name}: stopped{because}"
                 raise
             except IcsError as exc:
                 self.outcome = f"{name}: {exc}"
@@ -160,10 +200,11 @@ class RobotSession:
 
         self._task = asyncio.create_task(run())
 
-    async def stop(self, ramp: float = 0.3) -> None:
-        """Stop a motion smoothly (``Robot.stop``); the joints hold."""
+    async def stop(self, ramp: float = 0.3, why: str = "") -> None:
+        """Stop a motion smoothly (``Robot.stop``); the joints hold.  ``why``: said in the outcome."""
         task, self._task = self._task, None
         if task is not None and not task.done():
+            self._stopped_because = why
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task

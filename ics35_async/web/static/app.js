@@ -518,6 +518,8 @@ function onRobot(r) {
   state.robot = r;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
+  $("#robot-reopen").hidden = r.open;  // the lines lost (or never opened): open them again from here
+  $("#robot-motion").disabled = !r.open;
   $("#robot-cycle").textContent = r.cycle ?? "-";
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
   $("#robot-play").disabled = !r.motion_enabled || !$("#robot-motion-file").files.length;
@@ -656,6 +658,7 @@ on("#robot-motion-file", "change", () => { $("#robot-play").disabled = !(state.r
 on("#robot-play", "click", playMotion);
 on("#robot-stop", "click", async () => onRobot(await api("/api/robot/stop", {})));
 on("#robot-free", "click", async () => onRobot(await api("/api/robot/free", {})));
+on("#robot-reopen", "click", async () => onRobot(await api("/api/robot/reopen", {})));
 window.addEventListener("hashchange", show);
 
 api("/api/status").then(showStatus).catch(() => {});
