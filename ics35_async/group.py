@@ -35,6 +35,7 @@ class GroupStream(FrameIterator[GroupFrame]):
     def __init__(self, streams: Mapping[str, Stream]) -> None:
         self.streams = dict(streams)
         self._cycle = 0
+        self._last: dict[str, Frame] = {}  # each line's frame in the last merged one
         self._closed = False
         self._end_error: IcsError = BusClosed("group stream closed")
 
@@ -97,17 +98,39 @@ class GroupStream(FrameIterator[GroupFrame]):
             BusClosed: the stream or a bus was closed.
             PortLost: a line lost its port (without ``reconnect``).
         """
+        return self._merged(await self._take(every_line=True))
+
+    async def next_update(self) -> GroupFrame:
+        """Wait until any line has completed a newer cycle; return every line's newest frame merged.
+
+        Each line's new cycle comes out as soon as it ends, whatever the other lines' pace (a slower
+        line, or one slowed by a silent servo, does not hold up a faster one); a line with no newer
+        cycle contributes the frame it gave last.  The first call waits for every line, as
+        :meth:`next_frame` does, so the first merged frame knows every servo.
+
+        Raises:
+            InvalidArgument: the group stream was never started (``async with group.stream(...)`` starts it).
+            BusClosed: the stream or a bus was closed.
+            PortLost: a line lost its port (without ``reconnect``).
+        """
+        return self._merged(await self._take(every_line=len(self._last) < len(self.streams)))
+
+    async def _take(self, every_line: bool) -> dict[str, Frame]:
+        """Each line's next frame: from every line, or from those that have one first (the others' waits,
+        cancelled, take nothing: a stream's frame is only taken when it is returned)."""
         if self._closed:
             raise self._end_error
         frames: dict[str, Frame] = {}
 
-        async def take(line: str, stream: Stream) -> None:
+        async def take(line: str, stream: Stream, scope: anyio.CancelScope) -> None:
             frames[line] = await stream.next_frame()
+            if not every_line:
+                scope.cancel()
 
         try:
             async with anyio.create_task_group() as group:
                 for line, stream in self.streams.items():
-                    group.start_soon(take, line, stream)
+                    group.start_soon(take, line, stream, group.cancel_scope)
         except BaseExceptionGroup as group_error:
             # A line closed or lost its port: the group ends, with that line's reason.
             reason = first_library_error(group_error)
@@ -117,6 +140,11 @@ class GroupStream(FrameIterator[GroupFrame]):
                 raise InvalidArgument(GROUP_NOT_STARTED) from None
             self._closed, self._end_error = True, reason
             raise reason from None
+        return frames
+
+    def _merged(self, new: dict[str, Frame]) -> GroupFrame:
+        self._last.update(new)
+        frames = self._last
         self._cycle += 1
         positions: dict[tuple[str, int], int] = {}
         stamps: dict[tuple[str, int], float] = {}
@@ -135,7 +163,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             failed=frozenset(failed),
             offline=frozenset(offline),
             line_cycles={line: f.cycle for line, f in frames.items()},
-            skipped=max(f.skipped for f in frames.values()),
+            skipped=max(f.skipped for f in new.values()),
         )
 
     @property

@@ -122,6 +122,27 @@ def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profi
     run_robot(rig, body, **NO_TIMEOUTS)
 
 
+def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> None:
+    # A robot builder's finding: the robot stepped its motions on frames merged from every line, so a
+    # line at 10 Hz (or one slowed by a silent servo) made a 100 Hz line's motion a staircase of 10 steps
+    # a second.  Counted against the slow line's own cycles in the same span: no wall-clock figure.
+    rig = make_rig()
+    rig.description["lines"]["upper"]["rate_hz"] = 100
+    rig.description["lines"]["lower"]["rate_hz"] = 10
+
+    async def body(robot: Robot) -> dict[str, int]:
+        robot.hold()
+        await robot.on_wire()
+        before = seq_now(rig)
+        await robot.move_to({"neck": 40.0}, duration=0.6)
+        return before
+
+    before = run_robot(rig, body)
+    distinct = len(set(targets_sent(rig.upper, 1, before["upper"])))
+    slow_cycles = len(list(commanded(rig.lower, 1, before["lower"])))  # one position command a cycle
+    assert distinct >= 3 * slow_cycles, (distinct, slow_cycles)
+
+
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
     rig = make_rig(realtime=True)
 

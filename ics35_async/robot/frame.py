@@ -1,4 +1,4 @@
-"""What the robot's stream publishes: one merged cycle in joint degrees."""
+"""What the robot's stream publishes: every line's newest cycle, merged, in joint degrees."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class RobotFrame:
-    """One merged cycle of every line, in joint degrees.
+    """Every line's newest cycle, merged, in joint degrees: one comes each time any line ends a cycle.
 
-    ``positions`` holds the joints that answered this cycle; ``targets`` every
+    ``positions`` holds the joints that answered in their line's newest cycle; ``targets`` every
     joint's target (``None``: free); ``failed`` the joints tried that did not
     answer; ``offline`` the joints the stream has taken out of its cycle;
     ``time`` is ``anyio.current_time()`` when the frame arrived; ``stamps``

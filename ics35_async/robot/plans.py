@@ -50,6 +50,7 @@ class Plan:
         self.error: IcsError | None = None
         self.ending: Replies | None = None  # once the final targets are set
         self.segment = 0  # the segment the last targets came from
+        self.stepped: dict[str, int] = {}  # each line's cycle when the plan last set targets (see Robot._step)
 
     def finish(self, error: IcsError | None = None) -> None:
         if not self.done.is_set():

@@ -1,9 +1,10 @@
 """The :class:`Robot`: named joints in degrees over every line of a :class:`BusGroup`, streaming all the time.
 
 While a robot is open its group stream runs on every line: one task (the
-*pump*) takes each merged frame, turns it into joint degrees, checks for
-offline joints, advances the running motions (computing every moving
-joint's next target from the time now) and publishes the frame.  Motions
+*pump*) takes a merged frame each time any line ends a cycle, turns it into
+joint degrees, checks for offline joints, advances the running motions
+(computing every moving joint's next target from the time now, once each of
+its lines has run a cycle since its last) and publishes the frame.  Motions
 are *plans*: a :class:`~.profiles.Trajectory` and its start time.  A joint
 belongs to at most one plan; a new motion naming a joint takes it over.
 Joints no motion names keep their target (a held joint holds, a free one
@@ -350,8 +351,13 @@ class Robot:
         if errors:
             raise errors[0]
 
-    def _step(self, frame: RobotFrame) -> None:
-        """Advance every running plan to the frame's time: the targets for the next cycle."""
+    def _step(self, frame: RobotFrame, line_cycles: Mapping[str, int]) -> None:
+        """Advance every running plan to the frame's time: the targets for the next cycle.
+
+        A frame comes as soon as any line ends a cycle; a plan steps only once every line its joints
+        are on has run a cycle since its last step (its targets went out there): a plan on one line
+        keeps that line's pace whatever the others' pace, and no keyframe is overwritten unsent.
+        """
         targets: dict[str, float | None] = {}
         for plan in list(self._plans):
             if plan.ending is not None:
@@ -362,6 +368,10 @@ class Robot:
                 continue
             if plan.ending is not None:
                 continue
+            lines = {self.joints[name].line for name in plan.joints}
+            if any(line_cycles[line] <= plan.stepped.get(line, 0) for line in lines):
+                continue
+            plan.stepped.update((line, line_cycles[line]) for line in lines)
             if plan.t0 is None:
                 plan.t0 = frame.time
             segments, t = plan.trajectory.segments, frame.time - plan.t0
@@ -389,11 +399,12 @@ class Robot:
     # ------------------------------------------------------------------ the pump
 
     async def pump(self, gstream: GroupStream) -> None:
-        """Take every merged frame of ``gstream`` until it ends (then every waiter gets the reason)."""
+        """Take a merged frame of ``gstream`` as each line ends a cycle, until it ends (then every waiter
+        gets the reason)."""
         self._gstream = gstream
         try:
             while True:
-                self._on_frame(await gstream.next_frame())
+                self._on_frame(await gstream.next_update())  # each line's cycle at once, whatever the others' pace
         except IcsError as exc:
             self._end(exc)
 
@@ -407,7 +418,7 @@ class Robot:
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         self._watch_offline(offline)
         merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps)
-        self._step(merged)
+        self._step(merged, frame.line_cycles)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
