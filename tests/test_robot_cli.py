@@ -222,6 +222,7 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(
 
         return move
 
+    out_file.write_text('{"hand-edited": true}\n')  # a motion of the user's, under the name reused
     result = run_with_hands(
         ["teach", str(robot_file), str(out_file), "--joints", "neck,hip"],
         [("Enter captures", pose(first), "\n"), ("pose 1 at", pose(second), "\n"), ("pose 2 at", None, "q\n")],
@@ -229,6 +230,10 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(
     )
     assert result.code == 0, result.err
     assert "wrote 2 pose(s)" in result.out
+    # The file it replaced is kept beside it, and the user was told before teaching began.
+    assert (tmp_path / "taught.json.bak").read_text() == '{"hand-edited": true}\n'
+    assert "taught.json.bak" in " ".join((result.out + result.err).split())
+    assert "exists" in result.err.split("Enter captures")[0], result.err
     taught = json.loads(out_file.read_text())
     assert [k["pose"] for k in taught["keyframes"]] == [pytest.approx(first, abs=0.05), pytest.approx(second, abs=0.05)]
     # The first pose is reached in the lead time whenever it was captured; the rest keep their spacing.
@@ -270,7 +275,8 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     sims, _ = rig
     ports = {name: line["port"] for name, line in sims.description["lines"].items()}
     robot_file = tmp_path / "arm.toml"
-    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    written = CALIBRATE_FILE.format(**ports).replace("\n", "\r\n").encode()  # from a Windows editor
+    robot_file.write_bytes(written)
     neck, hip = sims.servo("neck"), sims.servo("hip")
 
     def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
@@ -292,7 +298,8 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     assert result.code == 0, result.err
     assert "comments kept" in result.out
     assert f"kept as {robot_file}.bak" in " ".join(result.out.split())
-    assert Path(f"{robot_file}.bak").read_text() == CALIBRATE_FILE.format(**ports)  # the file as it was
+    assert Path(f"{robot_file}.bak").read_bytes() == written  # the file as it was
+    assert robot_file.read_bytes().count(b"\n") == robot_file.read_bytes().count(b"\r\n")  # its line endings kept
     text = robot_file.read_text()
     assert "# my arm" in text and "# the left adapter" in text and "# degrees: trimmed by calibrate" in text
     data = tomllib.loads(text)
@@ -371,6 +378,24 @@ def test_calibrate_refuses_a_joint_not_moved_through_its_range(
     assert f"Nothing was written to {robot_file}" in message
     assert robot_file.read_text() == CALIBRATE_FILE.format(**ports)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "robot.toml"]  # no backup, no side file
+
+
+def test_teach_that_cannot_write_its_file_prints_the_poses_instead(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The folder goes away while the user poses the robot: the poses are not lost with it.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    folder = tmp_path / "gone"
+    folder.mkdir()
+    result = run_with_hands(
+        ["teach", str(robot_file), str(folder / "taught.json"), "--joints", "neck"],
+        [("Enter captures", None, "\n"), ("pose 1 at", folder.rmdir, "q\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 2 and "printed above instead" in result.err, result.err
+    motion = json.loads(result.out[result.out.index('{\n  "format"') :])
+    assert len(motion["keyframes"]) == 1 and set(motion["keyframes"][0]["pose"]) == {"neck"}
 
 
 def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:

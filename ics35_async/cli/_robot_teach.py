@@ -7,6 +7,7 @@ daemon thread, so Ctrl-C and the end of input always get through).
 from __future__ import annotations
 
 import asyncio
+import json
 import contextlib
 import time
 from collections.abc import AsyncIterator, Awaitable
@@ -140,6 +141,12 @@ def teach(
     target = check_output_path(out_file, "OUT.json", {"json"})
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
+    if target.exists():
+        err.print(
+            f"note: {escape(str(target))} exists: the poses you capture replace it when teaching ends "
+            f"(its content is kept as {escape(target.name)}.bak)",
+            soft_wrap=True,
+        )
     keyframes: list[Keyframe] = []
     times = TaughtTimes(lead)
 
@@ -208,12 +215,17 @@ def save_taught(
     """Write the captured poses to ``target`` and say where (after an error: that they are kept, on stderr)."""
     motion = Motion(tuple(keyframes), profile, name or target.stem)
     try:
-        save_motion(motion, target)
+        backup = save_motion(motion, target)
     except OSError as exc:
+        # Not lost all the same: the motion goes to stdout, to be saved from the terminal or a pipe.
+        out.print(json.dumps(motion.to_json(), indent=2), soft_wrap=True, markup=False, highlight=False)
         raise CliError(
-            ExitCode.USAGE, f"cannot write {target}: {exc.strerror or exc}; the {len(keyframes)} pose(s) are lost"
+            ExitCode.USAGE,
+            f"cannot write {target}: {exc.strerror or exc}; the {len(keyframes)} pose(s) are printed above instead",
         ) from None
     play = f"play it with: ics35 play {escape(robot_file)} {escape(str(target))}"
+    if backup is not None:
+        play = f"the file it replaced is kept as {escape(str(backup))}; {play}"
     if on_error:
         err.print(
             f"the {len(keyframes)} pose(s) captured so far are kept: wrote {escape(str(target))} "

@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import shutil
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -26,6 +24,7 @@ from pathlib import Path
 
 from ..errors import InvalidArgument
 from .description import SERVO_DEGREES, JointSpec, RobotDescription, parse_description
+from .replace_file import replace_keeping_backup
 
 CALIBRATED_KEYS = ("offset", "min", "max")
 _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
@@ -157,19 +156,6 @@ def _reads_back(text: str, source: str, joints: Mapping[str, JointSpec]) -> bool
     return all(again.joints.get(name) == joint for name, joint in joints.items())
 
 
-def _replace_keeping_backup(target: Path, text: str) -> Path | None:
-    """Write ``text`` to ``target`` whole (a new file renamed over it), the old content kept as
-    ``NAME.bak`` beside it; returns that backup (None when there was no file to keep)."""
-    backup: Path | None = None
-    if target.exists():
-        backup = target.with_name(f"{target.name}.bak")
-        shutil.copy2(target, backup)
-    fresh = target.with_name(f".{target.name}.new")
-    fresh.write_text(text, encoding="utf-8")
-    os.replace(fresh, target)
-    return backup
-
-
 @dataclass(frozen=True)
 class CalibrationWritten:
     """Where :func:`write_calibration` put its result."""
@@ -188,7 +174,7 @@ def write_calibration(
     values = {name: {key: float(getattr(j, key)) for key in CALIBRATED_KEYS} for name, j in joints.items()}
     edited = edit_joint_values(text, values)
     if edited is not None and _reads_back(edited, str(target), joints):
-        return CalibrationWritten(target, True, _replace_keeping_backup(target, edited))
+        return CalibrationWritten(target, True, replace_keeping_backup(target, edited))
     beside = target.with_name(f"{target.stem}.calibrated.toml")
     whole = replace(description, joints={**description.joints, **joints})
-    return CalibrationWritten(beside, False, _replace_keeping_backup(beside, dump_description(whole)))
+    return CalibrationWritten(beside, False, replace_keeping_backup(beside, dump_description(whole)))

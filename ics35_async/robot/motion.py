@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 from .. import units
 from ..errors import FileContentError, InvalidArgument
 from .profiles import PROFILES, Trajectory
+from .replace_file import replace_keeping_backup
 
 if TYPE_CHECKING:
     from .host import PoseChecker
@@ -111,13 +112,14 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
     return parse_motion(data, str(path))
 
 
-def save_motion(motion: Motion, path: str | Path) -> None:
-    """Write ``motion`` to ``path`` as JSON (UTF-8, indented).
+def save_motion(motion: Motion, path: str | Path) -> Path | None:
+    """Write ``motion`` to ``path`` as JSON (UTF-8, indented), whole: a file already there is kept as
+    ``NAME.bak`` beside it, which this returns (``None`` when there was none).
 
     Raises:
-        OSError: the file cannot be written.
+        OSError: the file cannot be written (one already there is left as it was).
     """
-    Path(path).write_text(json.dumps(motion.to_json(), indent=2) + "\n", encoding="utf-8")
+    return replace_keeping_backup(Path(path), json.dumps(motion.to_json(), indent=2) + "\n")
 
 
 def _number(value: object) -> bool:
