@@ -63,6 +63,9 @@ def test_a_stop_ends_at_or_before_the_motions_target() -> None:
     caught: list[BaseException] = []
     since: dict[str, int] = {}
 
+    stop_returned: list[bool] = []
+    at_rest_when_told: list[bool] = []
+
     async def body(robot: Robot) -> None:
         await robot.move_to({"shoulder": 0.0}, duration=0.0)
         since.update(seq_now(rig))
@@ -72,16 +75,20 @@ def test_a_stop_ends_at_or_before_the_motions_target() -> None:
                 await robot.move_to({"shoulder": -60.0}, duration=0.5)
             except MotionStopped as exc:
                 caught.append(exc)
+                # Told once the joint is at rest (the ramp over), not as the stop begins: code after
+                # the motion (a blocking program leaving its with block) must not cut the ramp short.
+                at_rest_when_told.append(bool(stop_returned))
 
         async with anyio.create_task_group() as tasks:
             tasks.start_soon(mover)
             await anyio.sleep(0.3)
             await robot.stop(ramp=0.3)
+            stop_returned.append(True)
         await robot.on_wire()
 
     run_robot(rig, body)
     sent = sent_degrees(rig, "shoulder", since)
-    assert len(caught) == 1
+    assert len(caught) == 1 and at_rest_when_told == [True]
     assert min(sent) >= -60.0 - HALF_COUNT, min(sent)
     # It kept going the way it went (no jump back), and came to rest.
     assert all(b <= a + HALF_COUNT for a, b in itertools.pairwise(sent)), sent

@@ -317,16 +317,23 @@ class Robot:
         """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
         seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
         targets): one that would pass its target rests on it, sooner.  Each motion stopped raises
-        :class:`MotionStopped` in its caller.
+        :class:`MotionStopped` in its caller once its joints are at rest.
 
         Raises:
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         self._check_commands()
-        for plan in self._plans:
-            plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
-        self._plans.clear()
+        stopped, self._plans = self._plans, []  # no longer stepped: the ramp drives their joints now
+        try:
+            await self._come_to_rest(seconds)
+        finally:
+            # Told once their joints are at rest (or the ramp failed), not as the stop begins: code
+            # after a motion (a program leaving its block, closing the robot) must not cut the ramp short.
+            for plan in stopped:
+                plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
+
+    async def _come_to_rest(self, seconds: float) -> None:
         moving = {}
         for name, speed in self._velocity.items():
             target = self._targets[name]
