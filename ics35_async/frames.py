@@ -132,3 +132,5 @@ class GroupFrame:
     offline: frozenset[tuple[str, int]]
     line_cycles: dict[str, int]
     skipped: int = 0
+    line_started: dict[str, float] = field(default_factory=dict)
+    """When each line's newest cycle began (``time.monotonic()``): a target set before that went out in it."""

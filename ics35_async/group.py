@@ -164,6 +164,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             offline=frozenset(offline),
             line_cycles={line: f.cycle for line, f in frames.items()},
             skipped=max(f.skipped for f in new.values()),
+            line_started={line: f.started for line, f in frames.items()},
         )
 
     @property

@@ -18,7 +18,15 @@ import pytest
 from ics35_async import units
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
-from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import (
+    JOINTS,
+    Rig,
+    commanded,
+    joint_degrees,
+    make_rig,
+    sent_position,
+    targets_sent,
+)
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9
 
@@ -118,7 +126,7 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
             torque = [t for t in sent if t.command in ("position", "free")]
             assert torque and all(t.command == "position" for t in torque), name  # never freed
             first = (torque[0].tx[1] << 7) | torque[0].tx[2]
-            assert first == joint_position(spec, deg), name  # holding the stated angle from the first command
+            assert first == sent_position(spec, deg), name  # holding the stated angle from the first command
         assert "started free" in result.err  # the others did, and it says so
 
 

@@ -8,9 +8,11 @@ from typing import Any
 
 import anyio
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from ics35_async import InvalidArgument, open_robot
-from ics35_async.robot import DescriptionError, load_description
+from ics35_async import InvalidArgument, open_robot, units
+from ics35_async.robot import DescriptionError, JointSpec, load_description
 from ics35_async.sim import VirtualLine
 from tests.support.timing import FAST
 
@@ -74,8 +76,11 @@ def test_servo_degrees_are_offset_plus_signed_joint_degrees_both_ways(tmp_path: 
         servo = elbow.servo_degrees(joint)
         assert servo == pytest.approx(2.5 - joint)
         assert elbow.joint_degrees(servo) == pytest.approx(joint)
-        # Through the counts and back: within half a count.
-        assert elbow.degrees(elbow.position(joint)) == pytest.approx(joint, abs=0.5 / 29.6)
+        # Through the counts and back: within half a count (a whole one at a limit, inside it).
+        back = elbow.degrees(elbow.position(joint))
+        at_limit = joint in (elbow.min, elbow.max)
+        assert back == pytest.approx(joint, abs=(1.0 if at_limit else 0.5) / 29.6)
+        assert elbow.min <= back <= elbow.max
 
 
 def test_default_limits_follow_the_offset() -> None:
@@ -229,3 +234,23 @@ def test_open_robot_refuses_per_line_options_and_bad_on_close() -> None:
         anyio.run(lambda: attempt(on_close="drop"))
     with pytest.raises(InvalidArgument, match="unknown open_bus option"):
         anyio.run(lambda: attempt(speed=3))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    offset=st.floats(-30, 30, allow_nan=False),
+    reverse=st.booleans(),
+    low=st.floats(-100, 0, allow_nan=False),
+    span=st.floats(1, 100, allow_nan=False),
+    where=st.floats(0, 1),
+)
+def test_no_count_sent_for_an_angle_within_the_limits_is_past_them(
+    offset: float, reverse: bool, low: float, span: float, where: float
+) -> None:
+    # "No command ever leaves a joint's limits" held only to half a count: a limit of 60 degrees went out
+    # as 60.0075, the nearest count.  The count sent is now the nearest one within the limits.
+    joint = JointSpec("j", "l", 1, offset=offset, reverse=reverse, min=low, max=low + span)
+    for angle in (joint.min, joint.max, joint.min + where * span):
+        sent = joint.joint_degrees(units.position_to_degrees(joint.position(angle)))
+        assert joint.min - 1e-9 <= sent <= joint.max + 1e-9, (angle, sent)
+        assert abs(sent - angle) <= 1 / units.COUNTS_PER_DEGREE + 1e-9  # still the nearest count inside

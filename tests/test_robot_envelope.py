@@ -22,6 +22,7 @@ from tests.support.timing import FAST, GUARD
 
 # Degrees: a command is rounded to whole counts, so it may sit this far outside the exact interval.
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE + 1e-9
+COUNT = 1 / units.COUNTS_PER_DEGREE + 1e-9
 
 
 def seq_now(rig: Rig) -> dict[str, int]:
@@ -39,8 +40,10 @@ def check_envelope(rig: Rig, since: dict[str, int], start: dict[str, float], tar
         sent = sent_degrees(rig, name, since)
         # A joint the motion never names holds its start (the stream repeats its target every cycle).
         named = [pose[name] for pose in targets if name in pose] or [start[name]]
-        low = max(min(start[name], *named), spec["min"]) - HALF_COUNT
-        high = min(max(start[name], *named), spec["max"]) + HALF_COUNT
+        # The nearest count within the limits: half a count from the angle, a whole one at a limit, and
+        # never past the limit itself.
+        low = max(min(start[name], *named) - COUNT, spec["min"] - 1e-9)
+        high = min(max(start[name], *named) + COUNT, spec["max"] + 1e-9)
         outside = [d for d in sent if not low <= d <= high]
         assert not outside, (name, low, high, outside)
 

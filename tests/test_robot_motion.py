@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
 from ics35_async.robot import Motion, MotionError, load_motion, save_motion
-from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, sent_position, targets_sent
 from tests.support.timing import FAST, GUARD
 
 
@@ -43,14 +43,14 @@ def check_played(rig: Rig, since: dict[str, int], played: Motion) -> None:
     """Within limits; direction changes only at keyframe angles; each joint ends at its last keyframe angle."""
     for name, spec in JOINTS.items():
         sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
-        low, high = sorted((joint_position(spec, spec["min"]), joint_position(spec, spec["max"])))
+        low, high = sorted((sent_position(spec, spec["min"]), sent_position(spec, spec["max"])))
         assert all(low <= p <= high for p in sent), name
         angles = [f.pose[name] for f in played.keyframes if name in f.pose]
         if not angles:
             assert sent == [], name  # a joint the motion never names is not touched
             continue
-        assert sent[-1] == joint_position(spec, angles[-1]), name
-        turns = {joint_position(spec, a) for a in angles}
+        assert sent[-1] == sent_position(spec, angles[-1]), name
+        turns = {sent_position(spec, a) for a in angles}
         path = [p for k, p in enumerate(sent) if k == 0 or p != sent[k - 1]]
         for a, b, c in zip(path, path[1:], path[2:], strict=False):
             if (b - a) * (c - b) < 0:

@@ -20,7 +20,16 @@ from hypothesis import strategies as st
 from ics35_async import InvalidArgument, Robot, open_robot, units
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import MotionStopped, RobotWarning
-from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import (
+    JOINTS,
+    Rig,
+    commanded,
+    joint_degrees,
+    joint_position,
+    make_rig,
+    sent_position,
+    targets_sent,
+)
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole counts
@@ -58,14 +67,14 @@ def check_segment(rig: Rig, since: dict[str, int], start: dict[str, float], goal
     """Every command within limits, monotonic from start toward goal, the last one exactly the goal."""
     for name, spec in JOINTS.items():
         sent = targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])
-        low = joint_position(spec, spec["min"])
-        high = joint_position(spec, spec["max"])
+        low = sent_position(spec, spec["min"])
+        high = sent_position(spec, spec["max"])
         assert all(min(low, high) <= p <= max(low, high) for p in sent), (name, sent)
         if name not in goal:
             continue
         assert sent, name
-        assert sent[-1] == joint_position(spec, goal[name]), name
-        ahead = joint_position(spec, goal[name]) >= joint_position(spec, start[name])
+        assert sent[-1] == sent_position(spec, goal[name]), name
+        ahead = sent_position(spec, goal[name]) >= sent_position(spec, start[name])
         steps = list(itertools.pairwise(sent))
         assert all((b >= a) if ahead else (b <= a) for a, b in steps), (name, sent)
 

@@ -13,7 +13,7 @@ from rich.console import Console
 from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
-from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, sent_position
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
@@ -114,7 +114,7 @@ def test_ics35_joints_start_free_unless_their_pose_is_stated() -> None:
     run_robot(rig, body, start_pose={"shoulder": 30.0, "knee": -5.0})
     for name, deg in (("shoulder", 30.0), ("knee", -5.0)):
         sent = torque_commands(rig, name)
-        assert sent and set(sent) == {joint_position(JOINTS[name], deg)}, name  # held from the first command
+        assert sent and set(sent) == {sent_position(JOINTS[name], deg)}, name  # held from the first command
     assert set(torque_commands(rig, "elbow")) == {0}  # ICS 3.5, not stated: read by freeing it
     assert torque_commands(rig, "neck") == torque_commands(rig, "hip") == []
 

@@ -7,8 +7,8 @@ daemon thread, so Ctrl-C and the end of input always get through).
 from __future__ import annotations
 
 import asyncio
-import json
 import contextlib
+import json
 import time
 from collections.abc import AsyncIterator, Awaitable
 from dataclasses import dataclass

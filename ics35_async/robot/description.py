@@ -67,8 +67,21 @@ class JointSpec:
         return (servo_degrees - self.offset) * self.sign
 
     def position(self, joint_degrees: float) -> int:
-        """The servo position (counts) for ``joint_degrees``, an angle of this joint."""
-        return units.degrees_to_position(self.servo_degrees(joint_degrees))
+        """The servo position (counts) for ``joint_degrees``, an angle of this joint: the nearest count
+        within the joint's limits (the nearest one overall may lie half a count past a limit)."""
+        nearest = units.degrees_to_position(self.servo_degrees(joint_degrees))
+        if self._within(nearest):
+            return nearest
+        for step in (-1, 1):  # one count back inside (which way depends on offset and reverse)
+            if self._within(nearest + step):
+                return nearest + step
+        return nearest  # limits narrower than a count: nothing inside to choose
+
+    def _within(self, position: int) -> bool:
+        if not units.POSITION_MIN <= position <= units.POSITION_MAX:
+            return False
+        angle = self.joint_degrees(units.position_to_degrees(position))
+        return self.min - 1e-9 <= angle <= self.max + 1e-9  # (float noise at a limit on a whole count)
 
     def degrees(self, position: int) -> float:
         """This joint's angle for a servo position (counts), to the servo's resolution.

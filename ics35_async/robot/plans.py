@@ -51,6 +51,7 @@ class Plan:
         self.ending: Replies | None = None  # once the final targets are set
         self.segment = 0  # the segment the last targets came from
         self.stepped: dict[str, int] = {}  # each line's cycle when the plan last set targets (see Robot._step)
+        self.keyframe_at: float | None = None  # when it last set a keyframe exactly, until that surely went out
 
     def finish(self, error: IcsError | None = None) -> None:
         if not self.done.is_set():

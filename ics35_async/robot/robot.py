@@ -358,14 +358,17 @@ class Robot:
         if errors:
             raise errors[0]
 
-    def _step(self, frame: RobotFrame, line_cycles: Mapping[str, int]) -> None:
+    def _step(self, frame: RobotFrame, line_cycles: Mapping[str, int], line_started: Mapping[str, float]) -> None:
         """Advance every running plan to the frame's time: the targets for the next cycle.
 
-        A frame comes as soon as any line ends a cycle; a plan steps only once every line its joints
-        are on has run a cycle since its last step (its targets went out there): a plan on one line
-        keeps that line's pace whatever the others' pace, and no keyframe is overwritten unsent.
+        A frame comes as soon as any line ends a cycle; a plan steps once every line its joints are
+        on has ended a cycle since its last step, so a plan on one line keeps that line's pace whatever
+        the others' pace.  After a keyframe it waits for cycles that began after it on each of those
+        lines (a cycle already under way may have sent a joint's command before it): no keyframe is
+        overwritten unsent.
         """
         targets: dict[str, float | None] = {}
+        keyframes: list[Plan] = []
         for plan in list(self._plans):
             if plan.ending is not None:
                 plan.ending.add(frame)
@@ -378,7 +381,10 @@ class Robot:
             lines = {self.joints[name].line for name in plan.joints}
             if any(line_cycles[line] <= plan.stepped.get(line, 0) for line in lines):
                 continue
+            if plan.keyframe_at is not None and any(line_started[line] <= plan.keyframe_at for line in lines):
+                continue
             plan.stepped.update((line, line_cycles[line]) for line in lines)
+            plan.keyframe_at = None
             if plan.t0 is None:
                 plan.t0 = frame.time
             segments, t = plan.trajectory.segments, frame.time - plan.t0
@@ -387,6 +393,7 @@ class Robot:
                 # one keyframe per frame, so a cycle longer than a segment skips none of them.
                 pose = dict(segments[plan.segment].end)
                 plan.segment += 1
+                keyframes.append(plan)
                 speed = segments[plan.segment].velocity_at(t)
             elif t >= plan.trajectory.duration:
                 pose, speed = plan.trajectory.final, {}
@@ -402,6 +409,10 @@ class Robot:
                     targets[name] = pose[name]
                     self._velocity[name] = speed.get(name, 0.0)
         self._apply(targets)
+        if keyframes:
+            applied = time.monotonic()  # (the clock of a frame's ``started``)
+            for plan in keyframes:
+                plan.keyframe_at = applied
 
     # ------------------------------------------------------------------ the pump
 
@@ -425,7 +436,7 @@ class Robot:
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         self._watch_offline(offline)
         merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps)
-        self._step(merged, frame.line_cycles)
+        self._step(merged, frame.line_cycles, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()

@@ -73,6 +73,17 @@ def joint_position(spec: dict[str, Any], degrees: float) -> int:
     return units.degrees_to_position(spec.get("offset", 0.0) + sign * degrees)
 
 
+def sent_position(spec: dict[str, Any], degrees: float) -> int:
+    """The count a command for ``degrees`` goes out as: the nearest one within the joint's limits (the
+    nearest overall may lie half a count past a limit)."""
+    nearest = joint_position(spec, degrees)
+    low, high = spec.get("min", -135.0), spec.get("max", 135.0)
+    for candidate in (nearest, nearest - 1, nearest + 1):
+        if low - 1e-9 <= joint_degrees(spec, candidate) <= high + 1e-9:
+            return candidate
+    return nearest
+
+
 def commanded(sim: VirtualLine, servo_id: int, since: int = 0) -> Iterator[int]:
     """Every position target sent to ``servo_id`` (log seq >= ``since``), decoded from the wire bytes; 0 is free."""
     for t in sim.log_since(since):
