@@ -146,6 +146,7 @@ class Bus:
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome
         self._reopening = False
         self._state_event: Any = None  # an anyio.Event while someone waits in state_change()
+        self._close_out: tuple[BackgroundSource, Callable[[], Awaitable[None]]] | None = None  # see attach_source
         self._engine.on_state_change = self._state_changed
 
     @property
@@ -336,7 +337,12 @@ class Bus:
         return BusClosed("the bus is not open (use `async with open_bus(...) as bus`)")
 
     async def aclose(self) -> None:
-        """Fail queued requests with BusClosed, finish the one on the wire, release the port."""
+        """Close the attached stream first (its ``on_close`` done on the open line: the program's block for
+        the bus may end before the stream's), then fail queued requests with BusClosed, finish the one on
+        the wire, release the port."""
+        if self._close_out is not None and self._close_out[0] is self._engine.source:
+            await self._close_out[1]()
+        self._close_out = None
         driver, self._driver = self._driver, None
         if driver is None:
             self._engine.close()
@@ -395,8 +401,12 @@ class Bus:
         self._engine.debug = log.isEnabledFor(logging.DEBUG)
         return driver.submit(command, priority, retries)
 
-    def attach_source(self, source: BackgroundSource | None) -> None:
-        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches.
+    def attach_source(
+        self, source: BackgroundSource | None, *, close_out: Callable[[], Awaitable[None]] | None = None
+    ) -> None:
+        """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches.  ``close_out``:
+        awaited on the open line by :meth:`aclose` if ``source`` is still attached then (a stream's
+        ``on_close``).
 
         Raises:
             InvalidArgument: the bus is reopening.
@@ -414,6 +424,7 @@ class Bus:
             raise self._not_open_error()
         # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
         driver.call_now(lambda t: engine.attach_source(source, t))
+        self._close_out = None if close_out is None else (source, close_out)
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""

@@ -50,8 +50,11 @@ class Line(Protocol):
     async def reopen(self, *, baudrate: int | None = None) -> None:
         """Close and reopen the port, optionally at a new rate ``baudrate`` (see ``Bus.reopen``)."""
 
-    def attach_source(self, source: BackgroundSource | None) -> None:
-        """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches."""
+    def attach_source(
+        self, source: BackgroundSource | None, *, close_out: Callable[[], Awaitable[None]] | None = None
+    ) -> None:
+        """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches.  ``close_out``: awaited
+        on the open line when the line closes while ``source`` is attached (a stream's ``on_close``)."""
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line."""

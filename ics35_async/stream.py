@@ -26,6 +26,7 @@ from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
+from .tasks import despite_cancellation
 
 log = logging.getLogger("ics35_async")
 
@@ -653,7 +654,7 @@ class Stream(FrameIterator[Frame]):
         if not self._running:
             self._running = True
             try:
-                self.bus.attach_source(self._hooks)
+                self.bus.attach_source(self._hooks, close_out=self.aclose)
             except BaseException:
                 self._running = False
                 raise
@@ -671,12 +672,15 @@ class Stream(FrameIterator[Frame]):
             return
         self._stop()
         if self.on_close == "free" and self.bus.is_open:
-            # Shielded: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
-            # ics35_async.run) must still free its servos; bounded, in case the line is gone.
-            with anyio.CancelScope(shield=True), anyio.move_on_after(FREE_ON_CLOSE_BOUND):
-                async with anyio.create_task_group() as group:
-                    for i in self.ids:
-                        group.start_soon(self._free_quietly, i)
+            # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
+            # ics35_async.run, a second Ctrl-C meanwhile) must still free its servos; bounded, in
+            # case the line is gone.
+            await despite_cancellation(self._free_all, FREE_ON_CLOSE_BOUND)
+
+    async def _free_all(self) -> None:
+        async with anyio.create_task_group() as group:
+            for i in self.ids:
+                group.start_soon(self._free_quietly, i)
 
     async def _free_quietly(self, servo_id: int) -> None:
         with contextlib.suppress(IcsError):

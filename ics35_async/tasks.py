@@ -11,7 +11,8 @@ nothing is hidden.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import AsyncIterator
+import sys
+from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import TYPE_CHECKING
 
 from .errors import IcsError
@@ -51,3 +52,36 @@ async def task_group() -> AsyncIterator[TaskGroup]:
         if error is exc:
             raise
         raise error from None
+
+
+async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float) -> None:
+    """Run ``work()`` to its end (``bound`` seconds at most) even when the caller is cancelled meanwhile;
+    a cancellation that came is raised once it is done.  For a close-out that must reach the servos
+    (freeing them) however the program is being stopped.
+
+    An anyio shielded scope keeps out anyio's and trio's cancellation, not asyncio's ``Task.cancel()``:
+    a second Ctrl-C under ``asyncio.run`` cancels the main task again, inside any shield.  On asyncio
+    the work therefore runs in a task of its own, which the caller waits for again after each cancel.
+    """
+    import anyio
+
+    async def bounded() -> None:
+        with anyio.move_on_after(bound):
+            await work()
+
+    asyncio = sys.modules.get("asyncio")
+    if asyncio is None or asyncio.events._get_running_loop() is None:  # trio: its shield is enough
+        with anyio.CancelScope(shield=True):
+            await bounded()
+        return
+    task = asyncio.ensure_future(bounded())
+    cancelled: BaseException | None = None
+    with anyio.CancelScope(shield=True):  # (anyio's own cancellation would re-deliver every loop turn)
+        while not task.done():
+            try:
+                await asyncio.shield(task)
+            except asyncio.CancelledError as exc:
+                cancelled = cancelled or exc
+    if cancelled is not None:
+        raise cancelled
+    task.result()

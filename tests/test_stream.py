@@ -638,6 +638,49 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_on_close_free_survives_a_second_cancel_while_it_frees(driver: str) -> None:
+    # A second Ctrl-C under asyncio.run (it cancels the main task again) landed in the free and cut it
+    # short: anyio's shield keeps out anyio's cancellation, not asyncio's Task.cancel().
+    ids = list(range(1, 9))
+    sim = make_sim(ids, realtime=True)  # the frees take wire time, so the second cancel lands among them
+    async with open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:
+        streaming = asyncio.Event()
+
+        async def controller() -> None:
+            async with bus.stream(ids, on_close="free") as stream:
+                stream.set_targets(dict.fromkeys(ids, 8000))
+                await frames_until(stream, lambda f: f.cycle > 2)
+                streaming.set()
+                await asyncio.sleep(3600)
+
+        task = asyncio.ensure_future(controller())
+        await streaming.wait()
+        task.cancel()
+        free_commands = sim.transactions
+        while sim.transactions == free_commands:  # the close-out's frees have begun
+            await asyncio.sleep(0)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        assert task.cancelled()  # the cancellation goes on once the frees are done
+    assert all(sim.servo(i).free for i in ids), [i for i in ids if not sim.servo(i).free]
+
+
+async def test_a_stream_still_open_when_its_bus_closes_still_frees_with_on_close_free() -> None:
+    # A control task's stream outlived the program's `async with open_bus` block: the bus closed under it
+    # and the servos kept holding (the free was skipped because the bus was no longer open).
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with contextlib.AsyncExitStack() as outlives:
+        async with open_bus(sim, **FAST) as bus:
+            stream = await outlives.enter_async_context(bus.stream(ids, on_close="free"))
+            stream.set_targets(dict.fromkeys(ids, 8000))
+            await frames_until(stream, lambda f: f.cycle > 2)
+            assert not any(sim.servo(i).free for i in ids)
+        assert all(sim.servo(i).free for i in ids), [i for i in ids if not sim.servo(i).free]
+
+
 async def test_slow_consumer_gets_the_latest_frame_and_a_skip_count_without_slowing_the_bus() -> None:
     ids = list(range(32))
     sim = make_sim(ids)

@@ -29,7 +29,7 @@ from ..bus import BusOptions, open_bus
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from ..stream import ON_CLOSE
-from ..tasks import only_error, task_group
+from ..tasks import despite_cancellation, only_error, task_group
 from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
@@ -179,10 +179,11 @@ async def _robot_session(
                         yield robot
                     finally:
                         robot.mark_closing()  # from here on, nothing but the close-out commands the joints
-                        with anyio.CancelScope(shield=True), anyio.move_on_after(2.0):
-                            await _close_out(robot, on_close)
-                        tasks.cancel_scope.cancel()
-                        robot.mark_closed()
+                        try:  # (a second Ctrl-C meanwhile must not cut it short)
+                            await despite_cancellation(lambda: _close_out(robot, on_close), 2.0)
+                        finally:
+                            tasks.cancel_scope.cancel()
+                            robot.mark_closed()
             except BaseExceptionGroup as group_error:
                 # The body's own error, not wrapped: the task group is an implementation detail.
                 raise only_error(group_error) from None
