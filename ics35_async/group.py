@@ -263,8 +263,7 @@ class BusGroup:
 
     async def aclose(self) -> None:
         """Close every bus, in reverse order; errors while closing are suppressed."""
-        # One after another, in this task and in reverse order: under the anyio driver each bus
-        # holds a task group, which must be left by the task that entered it, innermost first.
+        # One after another, in reverse order: the last opened is the first closed.
         for bus in reversed(self.buses.values()):
             with contextlib.suppress(IcsError, OSError):
                 await bus.aclose()

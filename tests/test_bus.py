@@ -273,6 +273,37 @@ def test_a_bus_used_from_another_event_loop_is_refused_before_the_wire(driver: s
         sim.close()
 
 
+@pytest.mark.parametrize("backend", ["trio", "asyncio"])
+@pytest.mark.parametrize("shape", ["opened under a timeout", "closed from a child task", "never closed"])
+def test_the_anyio_driver_needs_no_particular_task_or_scope_around_it(backend: str, shape: str) -> None:
+    # `bus = await open_bus(...)` inside `with trio.fail_after(2):` (a program that will not wait forever
+    # for a port), then used after it: the bus's task group, entered under that scope, broke trio
+    # ("TrioInternalError") or anyio on asyncio ("a cancel scope that isn't the current task's"); so did
+    # closing it from another task, or (trio) a bus never closed before the run ended.
+    import anyio
+
+    sim = VirtualLine(make_servos(range(4)))
+
+    async def main() -> int:
+        if shape == "opened under a timeout":
+            with anyio.fail_after(5):
+                bus = await open_bus(sim, driver="anyio", **FAST)
+        else:
+            bus = await open_bus(sim, driver="anyio", **FAST)
+        stretch: int = await bus.servo(2).read_stretch()
+        if shape == "closed from a child task":
+            async with anyio.create_task_group() as tasks:
+                tasks.start_soon(bus.aclose)
+        elif shape == "opened under a timeout":
+            await bus.aclose()
+        return stretch
+
+    try:
+        assert anyio.run(main, backend=backend) == 12
+    finally:
+        sim.close()
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(driver: str) -> None:
     # Servo 0's reply comes 0.3 s late: its request is still on the wire when close begins, under the thread

@@ -89,46 +89,67 @@ class AnyioDriver(DriverCore):
 
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
         super().__init__(engine, port, settings)
-        self._group: Any = None
         self._scope: anyio.CancelScope | None = None
-        self._task_scope = anyio.CancelScope()  # the bus task's own, shielded scope (see _run_shielded)
+        self._task_scope = anyio.CancelScope()  # the bus task's own (see open)
+        self._task_ended: anyio.Event | None = None
+        self._task_error: Exception | None = None
+        self._task: Any = None  # the asyncio task (kept referenced), when the backend is asyncio
         self._soon = soon_threadsafe()
         self._thread = threading.get_ident()
 
     # ------------------------------------------------------------------ life cycle
 
     async def open(self) -> None:
+        """Open the port and start the bus task: a task of no caller's, a system task under trio.
+
+        Not a task group's child: a group entered here belongs to the cancel scopes around this call
+        (``with trio.fail_after(2): bus = await open_bus(...)``) and must end in this task, which
+        broke trio (and anyio on asyncio) as soon as the bus outlived that scope or another task
+        closed it.  Detached, the line also outlives the program's own cancellation (Ctrl-C, a
+        timeout) while it puts its servos to rest on the way out (a stream's on_close, a robot's
+        stop); :meth:`aclose` ends it, and under trio the run's end does, for a bus never closed.
+        """
         self._connected(await self._open())
-        self._group = anyio.create_task_group()
-        await self._group.__aenter__()
         # Made here, not in the task: aclose() may cancel it before the task has even started.
-        self._task_scope = anyio.CancelScope(shield=True)
-        self._group.start_soon(self._run_shielded, name=f"ics35 bus {self.target}")
+        self._task_scope = anyio.CancelScope()
+        self._task_ended = anyio.Event()
+        name = f"ics35 bus {self.target}"
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # not asyncio: trio (the only other backend anyio has)
+            import trio
+
+            trio.lowlevel.spawn_system_task(self._run_task, name=name)
+        else:
+            self._task = loop.create_task(self._run_task(), name=name)
 
     async def aclose(self) -> None:
         try:
             await self._drain()
         finally:
-            # Even when the closing task is cancelled (Ctrl-C, a timeout around the program): the
-            # bus task's group must end here, in the task that began it, or trio's nursery stack
-            # is corrupted and the program dies with a traceback instead of closing.
             try:
-                if self._group is not None:
-                    group, self._group = self._group, None
-                    self._task_scope.cancel()
-                    group.cancel_scope.cancel()
-                    await group.__aexit__(None, None, None)  # no scope around it: it closes the group's own
-            finally:  # even if that raised (the closing task is cancelled): the port is released
+                self._task_scope.cancel()
+                if self._task_ended is not None:
+                    await self._task_ended.wait()  # at once: nothing in the task outlasts its scope
+            finally:  # even if the closing task is cancelled meanwhile: the port is released
                 self._drop_port()
+        error, self._task_error = self._task_error, None
+        if error is not None:
+            raise error
 
     # ------------------------------------------------------------------ the bus task
 
-    async def _run_shielded(self) -> None:
-        # Shielded from the opening task's cancellation: a program cancelled inside ``async with
-        # open_bus(...)`` (Ctrl-C, SIGTERM, a timeout) still has its line while it puts its servos
-        # to rest on the way out (a stream's on_close, a robot's stop); aclose() ends it.
-        with self._task_scope:
-            await self._run()
+    async def _run_task(self) -> None:
+        assert self._task_ended is not None
+        try:
+            with self._task_scope:
+                await self._run()
+        except Exception as exc:  # a bug: told at aclose(); out of a system task it would kill trio
+            self._task_error = exc
+            if self.port is not None:  # every caller waiting hears it (PortLost), none waits forever
+                self._lose(self.port, exc, reconnect=False)
+        finally:
+            self._task_ended.set()
 
     async def _run(self) -> None:
         engine = self.engine

@@ -143,8 +143,8 @@ async def _robot_session(
         for name, line in description.lines.items()
     }
     async with contextlib.AsyncExitStack() as stack:
-        # Each bus opened and closed by this task, one after the other: under trio a bus's
-        # task group must end in the task that began it (BusGroup closes its lines in child tasks).
+        # Each bus opened by this task, one after the other: a line that cannot be opened closes
+        # the ones opened before it, in reverse order, as the stack unwinds.
         for bus in buses.values():
             await stack.enter_async_context(bus)
         group = BusGroup(buses)
