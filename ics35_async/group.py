@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any, Unpack
+from typing import Unpack
 
 import anyio
 
 from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
-from .stream import Stream
+from .stream import Stream, StreamOptions
 from .tasks import first_library_error
 
 GROUP_NOT_STARTED = "the group stream is not started: use it as `async with group.stream(...) as stream:`"
@@ -65,7 +65,12 @@ class GroupStream(FrameIterator[GroupFrame]):
             line, sid = key
             self._stream(line)
             by_line.setdefault(line, {})[sid] = pos
-        checked = {line: self.streams[line].check_targets(t) for line, t in by_line.items()}
+        checked = {}
+        for line, line_targets in by_line.items():
+            try:
+                checked[line] = self.streams[line].check_targets(line_targets)
+            except InvalidArgument as exc:  # which line: the same ID may be on several
+                raise InvalidArgument(f"line {line}: {exc}") from None
         for line, c in checked.items():
             self.streams[line].apply_targets(c)
 
@@ -234,10 +239,13 @@ class BusGroup:
     def __getitem__(self, line: str) -> Bus:
         return self.buses[line]
 
-    def stream(self, ids: Mapping[str, Iterable[int]], **stream_options: Any) -> GroupStream:
+    def stream(
+        self, ids: Mapping[str, Iterable[int]], *, rate_hz: float | None = None, **stream_options: Unpack[StreamOptions]
+    ) -> GroupStream:
         """A [`GroupStream`][ics35_async.group.GroupStream] over ``{line: ids}``; use as ``async with``.
 
-        ``stream_options`` are each line's stream options (``rate_hz``, ``offline_after``...).
+        ``rate_hz`` and ``stream_options`` are each line's stream's, as [`Bus.stream`][ics35_async.bus.Bus.stream]
+        takes them.
 
         Raises:
             InvalidArgument: an unknown line, a bad ID or option.
@@ -247,7 +255,9 @@ class BusGroup:
         unknown = set(ids) - set(self.buses)
         if unknown:
             raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")
-        return GroupStream({line: Stream(self.buses[line], i, **stream_options) for line, i in ids.items()})
+        return GroupStream(
+            {line: self.buses[line].stream(i, rate_hz=rate_hz, **stream_options) for line, i in ids.items()}
+        )
 
     async def __aenter__(self) -> BusGroup:
         try:

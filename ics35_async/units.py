@@ -110,13 +110,20 @@ def position_to_degrees(position: int) -> float:
     return (position - NEUTRAL) / COUNTS_PER_DEGREE
 
 
+def shown(value: float) -> str:
+    """``value`` as short as ``:g`` writes it, unless that rounds it (135.0001 is not "135" in a message
+    saying it is past 135)."""
+    text = f"{value:g}"
+    return text if float(text) == value else repr(float(value))
+
+
 def degrees_to_position(degrees: float) -> int:
     """The position for an angle in -135..+135 degrees (0 = neutral); InvalidArgument outside it."""
     if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees):
         raise InvalidArgument(f"degrees must be a finite number, got {degrees!r}")
     if not abs(degrees) <= DEGREES_MAX + _ANGLE_SLACK:
         raise InvalidArgument(
-            f"{degrees:g} degrees is outside -135..+135, the servo's travel ({TRAVEL_MIN}..{TRAVEL_MAX} counts)"
+            f"{shown(degrees)} degrees is outside -135..+135, the servo's travel ({TRAVEL_MIN}..{TRAVEL_MAX} counts)"
         )
     return round(NEUTRAL + degrees * COUNTS_PER_DEGREE)
 
@@ -130,7 +137,7 @@ def radians_to_position(radians: float) -> int:
     if not isinstance(radians, (int, float)) or isinstance(radians, bool) or not math.isfinite(radians):
         raise InvalidArgument(f"radians must be a finite number, got {radians!r}")
     if not abs(math.degrees(radians)) <= DEGREES_MAX + _ANGLE_SLACK:
-        raise InvalidArgument(f"{radians:g} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
+        raise InvalidArgument(f"{shown(radians)} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
     return degrees_to_position(math.degrees(radians))
 
 

@@ -250,7 +250,7 @@ async def test_urgent_overtakes_a_long_queue_and_fifo_holds_within_a_level(line:
 def test_a_bus_used_from_another_event_loop_is_refused_before_the_wire(driver: str) -> None:
     # A bus kept from one asyncio.run() for the next: the asyncio driver took the closed
     # loop for a lost port, the thread driver raised asyncio's "attached to a different loop", the anyio
-    # driver waited forever.  (Under trio a bus left open ends its run with an error of trio's own.)
+    # driver waited forever.
     sim = VirtualLine(make_servos(range(4)))
     kept: list[Bus] = []
 

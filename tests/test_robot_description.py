@@ -81,6 +81,8 @@ def test_servo_degrees_are_offset_plus_signed_joint_degrees_both_ways(tmp_path: 
         at_limit = joint in (elbow.min, elbow.max)
         assert back == pytest.approx(joint, abs=(1.0 if at_limit else 0.5) / 29.6)
         assert elbow.min <= back <= elbow.max
+    with pytest.raises(InvalidArgument, match=r"45\.00001 degrees is outside its limits -90\.\.45"):
+        elbow.check(45.00001)
 
 
 def test_default_limits_follow_the_offset() -> None:

@@ -419,13 +419,15 @@ async def test_group_set_targets_is_all_or_nothing() -> None:
     sims = [make_sim(range(4)), make_sim(range(4))]
     group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
     async with group, group.stream({"a": [0, 1], "b": [2, 3]}) as gstream:
-        for bad in (
-            {("a", 0): 8000, ("b", 2): 20000},
-            {("a", 0): 8000, ("b", 0): 8000},  # ID 0 streams on line a only
-            {("a", 0): 8000, ("c", 2): 8000},
+        for bad, says in (
+            ({("a", 0): 8000, ("b", 2): 20000}, "line b"),
+            ({("a", 0): 8000, ("b", 0): 8000}, "line b: ID 0"),  # ID 0 streams on line a only
+            ({("a", 0): 8000, ("c", 2): 8000}, "no line named 'c'"),
         ):
-            with pytest.raises(InvalidArgument):
+            with pytest.raises(InvalidArgument, match=says):
                 gstream.set_targets(bad)
+        with pytest.raises(InvalidArgument, match=r"unknown stream option.*on_clos"):  # not Python's TypeError
+            group.stream({"a": [0]}, on_clos="free")  # type: ignore[call-arg]
         assert [gstream.streams["a"].target(0), gstream.streams["b"].target(2)] == [0, 0]
         await next_frame(gstream)
         await next_frame(gstream)

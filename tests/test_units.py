@@ -92,6 +92,11 @@ def test_degrees_range_edges() -> None:
             degrees_to_position(position_to_degrees(outside))
         with pytest.raises(InvalidArgument, match="outside"):
             radians_to_position(position_to_radians(outside))
+    # The value in the message is the one given, not rounded into the range it is outside of.
+    with pytest.raises(InvalidArgument, match=r"^135\.0001 degrees is outside"):
+        degrees_to_position(135.0001)
+    with pytest.raises(InvalidArgument, match=r"^200 degrees is outside"):
+        degrees_to_position(200)
 
 
 @pytest.mark.parametrize("value", [1e307, -1e307, 1e300, -1e300, 1e308])

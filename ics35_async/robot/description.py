@@ -101,7 +101,8 @@ class JointSpec:
             raise InvalidArgument(f"joint {self.name}: the target must be a number of degrees, not {joint_degrees!r}")
         if not self.min <= joint_degrees <= self.max:
             raise InvalidArgument(
-                f"joint {self.name}: {joint_degrees:g} degrees is outside its limits {self.min:g}..{self.max:g}"
+                f"joint {self.name}: {units.shown(joint_degrees)} degrees is outside its limits"
+                f" {self.min:g}..{self.max:g}"
             )
         return float(joint_degrees)
 
