@@ -22,6 +22,7 @@ from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, Ti
 from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation, error_text
 from .protocol import Command
 from .stats import BusStats
+from .tasks import despite_cancellation
 from .transports.direction import check_direction
 from .transports.wire_device import TRANSPORT_KINDS, WireDevice
 from .units import check_bool, check_ids, check_int, check_seconds
@@ -293,7 +294,9 @@ class Bus:
 
         For a baud-rate change: write the servos' EEPROM (``allow_baud_change=True``),
         power-cycle them, then ``await bus.reopen(baudrate=...)``.  Requests
-        submitted meanwhile wait and run after the reopen.
+        submitted meanwhile wait and run after the reopen.  A reopen runs to its end even if
+        its caller is cancelled meanwhile (the cancellation comes after it): cut off half-way,
+        it would leave no port open.
 
         Args:
             baudrate: the new line rate in bit/s (``None``: the current one).
@@ -311,7 +314,8 @@ class Bus:
         if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
         self._reopening = True  # attach_source refuses from here on
-        try:
+
+        async def swap() -> None:
             await driver.wait_idle()
             if self._engine.state is not State.IDLE:
                 raise PortLost(f"port {self.port} is lost; cannot reopen now")
@@ -321,6 +325,11 @@ class Bus:
                 reason = f"reopening {self.port} failed: {error_text(exc)}"
                 driver.call(lambda t: self._engine.lost(reason, reconnect=False))
                 raise
+
+        try:
+            # To its end: a reopen cut off half-way (a timeout around it) would leave no port open;
+            # a cancellation meanwhile is raised once the line is open again.
+            await despite_cancellation(swap, None)
         finally:
             self._reopening = False
 

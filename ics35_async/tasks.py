@@ -11,6 +11,7 @@ nothing is hidden.
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import TYPE_CHECKING
@@ -54,8 +55,8 @@ async def task_group() -> AsyncIterator[TaskGroup]:
         raise error from None
 
 
-async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float) -> None:
-    """Run ``work()`` to its end (``bound`` seconds at most) even when the caller is cancelled meanwhile;
+async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float | None) -> None:
+    """Run ``work()`` to its end (``bound`` seconds at most, if given) even when the caller is cancelled meanwhile;
     a cancellation that came is raised once it is done.  For a close-out that must reach the servos
     (freeing them) however the program is being stopped.
 
@@ -66,7 +67,7 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
     import anyio
 
     async def bounded() -> None:
-        with anyio.move_on_after(bound):
+        with anyio.move_on_after(math.inf if bound is None else bound):
             await work()
 
     asyncio = sys.modules.get("asyncio")

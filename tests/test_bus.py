@@ -498,6 +498,31 @@ async def test_baud_change_then_reopen_at_the_new_rate(driver: str) -> None:
         assert bus._engine._allowances[5] == bus.timing.allowance(5, 625000)
 
 
+@pytest.mark.parametrize(
+    ("driver", "backend"), [("asyncio", "asyncio"), ("thread", "asyncio"), ("anyio", "asyncio"), ("anyio", "trio")]
+)
+def test_a_cancelled_reopen_leaves_the_bus_open_at_the_rate_asked(driver: str, backend: str) -> None:
+    # A reopen cancelled mid-way (a timeout around it) closed the bus for good, as "a port loss".
+    import anyio
+
+    sim = VirtualLine([VirtualServo(1)])
+
+    async def main() -> None:
+        async with open_bus(sim, driver=driver, **FAST) as bus:
+            servo = bus.servo(1)
+            await servo.write_eeprom((await servo.read_eeprom()).replace(baud_rate=625000), allow_baud_change=True)
+            sim.power_cycle()
+            with anyio.move_on_after(0):
+                await bus.reopen(baudrate=625000)
+            assert bus.is_open and bus.baudrate == 625000
+            assert await servo.read_stretch() == 30
+
+    try:
+        anyio.run(main, backend=backend)
+    finally:
+        sim.close()
+
+
 async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pytest.LogCaptureFixture) -> None:
     _sim, bus = line
     with caplog.at_level(logging.DEBUG, logger="ics35_async"):
