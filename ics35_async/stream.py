@@ -179,6 +179,7 @@ class Stream(FrameIterator[Frame]):
         self._overruns = 0
         self._slot_checked = True
         self._first_start = 0.0
+        self._others_at_start: dict[int, int] = {}  # other IDs' unanswered requests when the stream began
         self._missed = 0  # slots passed with no cycle, in all...
         self._frame_missed = 0  # ...and before the cycle in progress
         self._resumed = False  # the cycle in progress is the first since the line came back
@@ -470,6 +471,24 @@ class Stream(FrameIterator[Frame]):
         n, baud = len(self.ids), int(self.bus.baudrate)
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
+        others = self._others_unanswered()
+        grown = {i: count - self._others_at_start.get(i, 0) for i, count in others.items()}
+        silent = sorted(i for i, more in grown.items() if more > 0)
+        if silent and sum(grown.values()) >= self._overruns // 2:  # the slots went to those waits
+            log.warning(
+                "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about "
+                "%.0f cycles/s), while requests on the same line to ID(s) %s went unanswered %d times: a "
+                "request to a servo that does not answer holds the line for its whole reply allowance (poll "
+                "such a servo less often)",
+                n,
+                self.rate_hz,
+                self._overruns,
+                self._cycle,
+                self._cycle / max(now - self._first_start, 1e-9),
+                ", ".join(map(str, silent)),
+                sum(grown.values()),
+            )
+            return
         log.warning(
             "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about %.0f "
             "cycles/s); at %d baud its %d position transactions take %.1f ms on the wire alone, plus each "
@@ -483,6 +502,11 @@ class Stream(FrameIterator[Frame]):
             n,
             wire * 1e3,
         )
+
+    def _others_unanswered(self) -> dict[int, int]:
+        """Each other ID's unanswered transactions on this line so far (requests: the stream's are its own)."""
+        mine = set(self.ids)
+        return {i: c.timeouts for i, c in self.bus.stats.per_id.items() if i is not None and i not in mine}
 
     def _line_closed(self, exc: IcsError) -> None:
         self._end_error = exc
@@ -515,6 +539,8 @@ class Stream(FrameIterator[Frame]):
         if not self._cycle:
             self._t0 = now
             self._first_start = now
+            if self.rate_hz is not None:  # (what the rate check tells apart, see _tell_rate_not_kept)
+                self._others_at_start = self._others_unanswered()
         self._cycle += 1
         order = []
         for k in range(len(self.ids)):

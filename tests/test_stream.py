@@ -31,6 +31,7 @@ from ics35_async import (
     InvalidArgument,
     Param,
     PortLost,
+    ReplyError,
     Stream,
     open_bus,
     protocol,
@@ -763,6 +764,35 @@ async def test_a_rate_the_line_cannot_keep_is_told_once_in_words(caplog: pytest.
     said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
     assert len(said) == 1, said
     assert "17 IDs" in said[0] and "rate_hz=100" in said[0] and "115200 baud" in said[0], said
+
+
+async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
+    # Six servos at 1.25 Mbit/s need 0.4 ms of a 10 ms period; a program polling an unplugged servo takes a
+    # whole reply allowance each time.  The warning said "raise the baud rate, stream fewer IDs": the stream
+    # was never the cause.
+    ids = list(range(6))
+    sim = make_sim(ids, realtime=True, baudrate=1250000)
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, baudrate=1250000, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
+
+                async def poll_the_unplugged_one() -> None:
+                    while True:
+                        with contextlib.suppress(ReplyError):
+                            await bus.servo(20).read_temperature()
+
+                poller = asyncio.ensure_future(poll_the_unplugged_one())
+                try:
+                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
+                        pass
+                finally:
+                    poller.cancel()
+    finally:
+        sim.close()
+    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
+    assert len(said) == 1, said
+    assert "requests" in said[0] and "does not answer" in said[0], said
+    assert "raise the baud rate" not in said[0], said
 
 
 async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answered() -> None:
