@@ -137,6 +137,8 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
         ("neck=99", "outside its limits"),
         ("neck=x", "joint=degrees"),
         ("/nonexistent.json", "nor a readable JSON file"),
+        ("neck=10,neck=20", "neck given twice"),
+        ("", "empty"),
     ],
 )
 def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(

@@ -131,6 +131,7 @@ MISTAKES: list[tuple[str, str, str]] = [
         "115200, 625000 or 1250000",
     ),
     ('[lines.main]\nbaudrate = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.port", "is required"),
+    ('[lines.main]\nprot = "sim://a"\n[joints.x]\nline="main"\nid=1', "lines.main.port", "'prot' meant to be 'port'"),
     (
         '[lines.main]\nport = "sim://a"\n[lines.b]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n'
         '[joints.y]\nline="b"\nid=1',

@@ -52,6 +52,8 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
     when the robot opens, before any port is)."""
     if text is None:
         return None
+    if not text.strip():
+        raise click.BadParameter("is empty: give joint=degrees,... or a JSON file", param_hint="--start-pose")
     if "=" not in text:
         try:
             data = json.loads(Path(text).read_text(encoding="utf-8"))
@@ -60,12 +62,16 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
                 f"{text}: neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({error_text(exc)})",
                 param_hint="--start-pose",
             ) from None
-        if not isinstance(data, dict) or not all(isinstance(v, (int, float)) for v in data.values()):
+        if not isinstance(data, dict) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()
+        ):
             raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}")
         return {str(k): float(v) for k, v in data.items()}
     pose = {}
     for item in text.split(","):
         joint, _, deg = item.partition("=")
+        if joint.strip() in pose:  # two angles for one joint: a typo for another joint, likely
+            raise click.BadParameter(f"{joint.strip()} given twice", param_hint="--start-pose")
         try:
             pose[joint.strip()] = float(deg)
         except ValueError:

@@ -8,6 +8,7 @@ reverse else +1) * joint degrees``.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from collections.abc import Iterable, Mapping
@@ -198,6 +199,11 @@ class _Reader:
     def error(self, name: str, message: str) -> DescriptionError:
         return DescriptionError(self.source, ".".join(k for k in (self.key, name) if k), message)
 
+    def missing(self, name: str) -> DescriptionError:
+        """``name`` is required and absent: a key spelt nearly like it is the likely reason."""
+        near = difflib.get_close_matches(name, [str(k) for k in self.table if k != name], n=1, cutoff=0.6)
+        return self.error(name, f"is required (is {near[0]!r} meant to be {name!r}?)" if near else "is required")
+
     def get(self, name: str) -> object:
         self.taken.add(name)
         return self.table.get(name)
@@ -207,7 +213,9 @@ class _Reader:
         if value is None and not required:
             return None
         if not isinstance(value, str) or not value:
-            raise self.error(name, "is required" if value is None else f"must be a non-empty string, not {value!r}")
+            if value is None:
+                raise self.missing(name)
+            raise self.error(name, f"must be a non-empty string, not {value!r}")
         return value
 
     def number(self, name: str, low: float, high: float) -> float | None:
@@ -224,7 +232,7 @@ class _Reader:
         value = self.get(name)
         if value is None:
             if required:
-                raise self.error(name, "is required")
+                raise self.missing(name)
             return None
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(name, f"must be a whole number, not {value!r}")
