@@ -102,18 +102,27 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
-def lost_line_hint(description: RobotDescription, exc: IcsError) -> str:
-    """What the servos of the line whose port ``exc`` reports lost do now, and how to free them."""
+def lost_line_hint(description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
+    """What the servos of the line whose port ``exc`` reports lost do now, and how to free them
+    (``others_left``: what the command left the other lines' joints in, when it has several)."""
     ports = [line.port for line in description.lines.values() if line.port in str(exc)]
     port = max(ports, key=len) if ports else "PORT"  # the longest: one port's name may start another's
+    others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
-        f" power or, with the line back, get: ics35 free all -p {port}"
+        f" power or, with the line back, get: ics35 free all -p {port}{others}"
     )
 
 
-def run_robot(settings: Settings, description: RobotDescription, make: Callable[[], Awaitable[T]]) -> T:
-    """Run a robot command's coroutine; every expected failure becomes a :class:`CliError`."""
+def run_robot(
+    settings: Settings,
+    description: RobotDescription,
+    make: Callable[[], Awaitable[T]],
+    *,
+    others_left: str | None = None,
+) -> T:
+    """Run a robot command's coroutine; every expected failure becomes a :class:`CliError`.  ``others_left``:
+    what the robot leaves the joints of lines still there in when one is lost (its ``on_close``)."""
     with _sim_lines_of(description), warnings.catch_warnings():
         # The command prints robot.warnings itself, once, in its own words.
         warnings.simplefilter("ignore", RobotWarning)
@@ -129,7 +138,7 @@ def run_robot(settings: Settings, description: RobotDescription, make: Callable[
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
         except (PortLost, ClosedByPortLoss) as exc:
             error = translate(settings, exc)
-            error.hints.append(lost_line_hint(description, exc))
+            error.hints.append(lost_line_hint(description, exc, others_left))
             raise error from None
         except IcsError as exc:
             raise translate(settings, exc) from None

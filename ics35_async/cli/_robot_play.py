@@ -220,7 +220,7 @@ def play(
                     await robot.free()  # the table's last look shows what they are left in)
             return how
 
-    how = run_robot(settings, description, body)
+    how = run_robot(settings, description, body, others_left="free" if on_stop == "free" else "holding")
     length = f"{motion.duration / speed:.1f} s"
     what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
     out.print(
