@@ -12,6 +12,7 @@ from typing import Unpack
 
 import anyio
 
+from . import units
 from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
@@ -73,6 +74,17 @@ class GroupStream(FrameIterator[GroupFrame]):
                 raise InvalidArgument(f"line {line}: {exc}") from None
         for line, c in checked.items():
             self.streams[line].apply_targets(c)
+
+    def set_targets_degrees(self, targets: Mapping[tuple[str, int], float]) -> None:
+        """Like :meth:`set_targets`, in degrees (-135..+135, 0 neutral).
+
+        Raises:
+            InvalidArgument: as :meth:`set_targets`, or an angle out of range (nothing applied).
+            BusClosed: a line's stream (or bus) was closed (nothing applied).
+        """
+        if not isinstance(targets, Mapping):
+            raise InvalidArgument(f"targets must be a mapping {{(line, id): degrees}}, not {type(targets).__name__}")
+        self.set_targets({key: units.degrees_to_position(d) for key, d in targets.items()})
 
     def free(self) -> None:
         """Put every servo on every line in free mode (torque off, still read back).

@@ -427,6 +427,8 @@ async def test_group_set_targets_is_all_or_nothing() -> None:
         ):
             with pytest.raises(InvalidArgument, match=says):
                 gstream.set_targets(bad)
+        with pytest.raises(InvalidArgument, match="outside -135"):
+            gstream.set_targets_degrees({("a", 0): 10.0, ("b", 2): 140.0})  # in degrees, as one stream takes them
         with pytest.raises(InvalidArgument, match=r"unknown stream option.*on_clos"):  # not Python's TypeError
             group.stream({"a": [0]}, on_clos="free")  # type: ignore[call-arg]
         assert [gstream.streams["a"].target(0), gstream.streams["b"].target(2)] == [0, 0]
@@ -967,3 +969,12 @@ async def test_switching_an_id_between_watch_and_a_target_mid_transaction_fails_
         total = bus.stats.total
         assert total.bad_replies <= total.timeouts, (total, stream.stats.failures)
         assert bus.stats.total.ok > switches
+
+
+async def test_a_group_takes_targets_in_degrees_as_one_stream_does() -> None:
+    sims = [make_sim(range(2)), make_sim(range(2))]
+    group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
+    async with group, group.stream({"a": [0, 1], "b": [0, 1]}) as gstream:
+        gstream.set_targets_degrees({("a", 1): 30.0, ("b", 1): -45.0})
+        assert gstream.streams["a"].target(1) == round(7500 + 30.0 * 8000 / 270)
+        assert gstream.streams["b"].target(1) == round(7500 - 45.0 * 8000 / 270)
