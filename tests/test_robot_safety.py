@@ -207,3 +207,27 @@ def test_the_stream_raises_the_stop_and_a_tripped_joint_refuses_motion_until_it_
     finally:
         rig.close()
     assert not hip.free and hip.target == 7500 + round(20 * 8000 / 270)
+
+
+def test_the_watch_reads_at_each_lines_own_pace_beside_a_faster_line() -> None:
+    # The robot's frames come as each line ends a cycle: the watch of a 10 Hz line read a joint at every
+    # frame of the 100 Hz line too (11 reads a cycle of its own for telemetry_per_cycle=1), taking that
+    # line's slack.  One read a cycle of its own line, whatever the others do.
+    rig = make_rig(safety={"telemetry_per_cycle": 1})
+    rig.description["lines"]["upper"]["rate_hz"] = 100
+    rig.description["lines"]["lower"]["rate_hz"] = 10
+
+    async def main() -> int:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST):
+                mark = rig.lower.transactions
+                await anyio.sleep(0.5)
+                return mark
+
+    try:
+        mark = anyio.run(main)
+    finally:
+        rig.close()
+    cycles = sum(1 for t in rig.lower.log_since(mark) if t.command in ("position", "free") and t.servo_id == 1)
+    temperatures = reads(rig.lower, "read_temperature", mark, rig.lower.transactions)
+    assert temperatures <= cycles + 1, (temperatures, cycles)

@@ -25,3 +25,5 @@ class RobotFrame:
     offline: frozenset[str]
     stamps: dict[str, float] = dataclasses.field(default_factory=dict)
     skipped: int = 0
+    line_cycles: dict[str, int] = dataclasses.field(default_factory=dict)
+    """Each line's newest cycle number: the lines that ended a cycle since the previous frame have a new one."""

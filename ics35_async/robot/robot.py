@@ -435,7 +435,7 @@ class Robot:
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         self._watch_offline(offline)
-        merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps)
+        merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps, line_cycles=frame.line_cycles)
         self._step(merged, frame.line_cycles, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()

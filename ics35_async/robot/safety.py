@@ -100,11 +100,14 @@ class SafetyWatch:
     async def _watch_line(self, robot: WatchedRobot, line: str, bus: Bus, joints: list[JointSpec]) -> None:
         servos = {j.name: Servo(bus, j.id, priority=Priority.LOW) for j in joints}
         per_cycle = min(self.spec.telemetry_per_cycle, len(joints))
-        cycle, k = 0, 0
+        cycle, k, line_cycle = 0, 0, 0
         try:
             while True:
                 frame = await robot.wait_frame(cycle)
                 cycle = frame.cycle
+                if frame.line_cycles.get(line, line_cycle + 1) <= line_cycle:
+                    continue  # another line's cycle: this line's reads follow its own pace
+                line_cycle = frame.line_cycles.get(line, line_cycle + 1)
                 for _ in range(per_cycle):
                     joint = joints[k]
                     k = (k + 1) % len(joints)
