@@ -33,7 +33,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
-from tests.support.timing import FAST, NO_TIMEOUTS
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 # For a silent ID's request that must still be on the wire when the port goes: a loaded machine can
 # stall the test for longer than FAST's allowance between the request and the unplug.
@@ -532,6 +532,25 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
     assert stats.by_command["read_stretch"] == 1
     assert stats.per_id[1].bytes_tx == 2 and stats.per_id[1].bytes_rx == 5
     assert 0 < stats.latency.percentile(50) <= stats.latency.max_s
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize(("driver", "backend"), [("asyncio", "asyncio"), ("anyio", "asyncio"), ("anyio", "trio")])
+def test_a_reopen_over_a_real_tty_reads_the_new_port(driver: str, backend: str) -> None:
+    # A review's find: on the anyio driver the bus task, finding no port while a tty reopened in its
+    # thread, waited where nothing could wake it: every request after a reopen (a baud change) hung.
+    # The in-process simulator opens without yielding, which hid it.
+    import anyio
+
+    async def main() -> None:
+        async with open_bus(path, driver=driver, **NO_TIMEOUTS) as bus:
+            assert await bus.servo(1).read_stretch() == 30
+            await bus.reopen()
+            with anyio.fail_after(GUARD):
+                assert await bus.servo(1).read_stretch() == 30
+
+    with serving(["--fast", "--ids", "1"]) as path:
+        anyio.run(main, backend=backend)
 
 
 @pytest.mark.pty

@@ -156,9 +156,15 @@ class AnyioDriver(DriverCore):
         while True:
             port = self.port
             if port is None or engine.state is State.LOST:
-                if engine.state is not State.LOST:
-                    await anyio.sleep_forever()  # closed for good: aclose() cancels this task
-                await self._reconnect()
+                if engine.state is State.LOST:
+                    await self._reconnect()
+                    continue
+                # No port: closed for good (aclose() cancels this task), or a reopen's port opening in
+                # a thread, whose _connected() ends this wait (_watch -> _rewait) as any new wait does.
+                with anyio.CancelScope() as scope:
+                    self._scope = scope
+                    await anyio.sleep_forever()
+                self._scope = None
                 continue
             deadline = engine.deadline
             self._waiting_until = deadline
