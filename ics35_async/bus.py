@@ -349,19 +349,21 @@ class Bus:
         """Close the attached stream first (its ``on_close`` done on the open line: the program's block for
         the bus may end before the stream's), then fail queued requests with BusClosed, finish the one on
         the wire, release the port."""
-        if self._close_out is not None and self._close_out[0] is self._engine.source:
-            await self._close_out[1]()
-        self._close_out = None
-        driver, self._driver = self._driver, None
-        if driver is None:
-            self._engine.close()
-            self._wake_state_waiters()
-            return
+        close_out, self._close_out = self._close_out, None
         try:
-            await driver.aclose()
-        finally:
-            self._wake_state_waiters()
-        log.info("closed %s", self.port)
+            if close_out is not None and close_out[0] is self._engine.source:
+                await close_out[1]()
+        finally:  # (a cancellation raised once the close-out is done must not keep the port open)
+            driver, self._driver = self._driver, None
+            if driver is None:
+                self._engine.close()
+                self._wake_state_waiters()
+            else:
+                try:
+                    await driver.aclose()
+                finally:
+                    self._wake_state_waiters()
+                log.info("closed %s", self.port)
 
     # ------------------------------------------------------------------ submitting
 

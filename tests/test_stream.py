@@ -686,6 +686,37 @@ async def test_a_stream_still_open_when_its_bus_closes_still_frees_with_on_close
         assert all(sim.servo(i).free for i in ids), [i for i in ids if not sim.servo(i).free]
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_bus_closing_a_stream_that_outlived_its_block_closes_even_when_cancelled_again(driver: str) -> None:
+    # A review's find: a second cancellation during the stream's close-out (run by the bus's close) came
+    # out of it before the port was closed: the bus stayed open after its block, port held.
+    ids = list(range(1, 9))
+    sim = make_sim(ids, realtime=True)
+    kept: list[Bus] = []
+    started = asyncio.Event()
+
+    async def controller() -> None:
+        async with contextlib.AsyncExitStack() as outlives, open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:
+            kept.append(bus)
+            stream = await outlives.enter_async_context(bus.stream(ids, on_close="free"))
+            stream.set_targets(dict.fromkeys(ids, 8000))
+            await frames_until(stream, lambda f: f.cycle > 2)
+            started.set()
+            await asyncio.sleep(3600)
+
+    task = asyncio.ensure_future(controller())
+    await started.wait()
+    task.cancel()
+    before = sim.transactions
+    while sim.transactions == before:  # the close-out's frees have begun
+        await asyncio.sleep(0)
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+    assert not kept[0].is_open
+    assert all(sim.servo(i).free for i in ids)
+
+
 async def test_slow_consumer_gets_the_latest_frame_and_a_skip_count_without_slowing_the_bus() -> None:
     ids = list(range(32))
     sim = make_sim(ids)
