@@ -699,8 +699,8 @@ class Stream(FrameIterator[Frame]):
         self._stop()
         if self.on_close == "free" and self.bus.is_open:
             # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
-            # ics35_async.run, a second Ctrl-C meanwhile) must still free its servos; bounded, in
-            # case the line is gone.
+            # ics35_async.run, another cancellation meanwhile) must still free its servos; bounded,
+            # in case the line is gone.
             await despite_cancellation(self._free_all, FREE_ON_CLOSE_BOUND)
 
     async def _free_all(self) -> None:

@@ -60,9 +60,12 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
     a cancellation that came is raised once it is done.  For a close-out that must reach the servos
     (freeing them) however the program is being stopped.
 
-    An anyio shielded scope keeps out anyio's and trio's cancellation, not asyncio's ``Task.cancel()``:
-    a second Ctrl-C under ``asyncio.run`` cancels the main task again, inside any shield.  On asyncio
-    the work therefore runs in a task of its own, which the caller waits for again after each cancel.
+    An anyio shielded scope keeps out anyio's and trio's cancellation, not asyncio's ``Task.cancel()``
+    (an ``asyncio.timeout`` around a task that is then cancelled, a task group cancelling its tasks,
+    a server cancelling a handler): it reaches the task inside any shield.  On asyncio the work
+    therefore runs in a task of its own, which the caller waits for again after each cancel.  (A
+    second Ctrl-C under plain ``asyncio.run`` is another matter: it raises KeyboardInterrupt and
+    asyncio cancels every task, this one too; ``ics35_async.run`` takes the second signal calmly.)
     """
     import anyio
 

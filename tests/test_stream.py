@@ -645,8 +645,8 @@ async def test_on_close_free_frees_every_servo() -> None:
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_on_close_free_survives_a_second_cancel_while_it_frees(driver: str) -> None:
-    # A second Ctrl-C under asyncio.run (it cancels the main task again) landed in the free and cut it
-    # short: anyio's shield keeps out anyio's cancellation, not asyncio's Task.cancel().
+    # A second Task.cancel() (a timeout around the task, then its caller cancelling it) landed in the free
+    # and cut it short: anyio's shield keeps out anyio's cancellation, not asyncio's Task.cancel().
     ids = list(range(1, 9))
     sim = make_sim(ids, realtime=True)  # the frees take wire time, so the second cancel lands among them
     async with open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:

@@ -179,7 +179,7 @@ async def _robot_session(
                         yield robot
                     finally:
                         robot.mark_closing()  # from here on, nothing but the close-out commands the joints
-                        try:  # (a second Ctrl-C meanwhile must not cut it short)
+                        try:  # (another cancellation meanwhile must not cut it short)
                             await despite_cancellation(lambda: _close_out(robot, on_close), 2.0)
                         finally:
                             tasks.cancel_scope.cancel()
