@@ -311,6 +311,7 @@ class Bus:
         driver = self._driver
         if driver is None or not self.is_open:
             raise self._engine.closed_error()
+        driver.check_caller()
         if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
         self._reopening = True  # attach_source refuses from here on
@@ -433,6 +434,7 @@ class Bus:
         driver = self._driver
         if driver is None or not self.is_open:
             raise self._not_open_error()
+        driver.check_caller()
         # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
         driver.call_now(lambda t: engine.attach_source(source, t))
         self._close_out = None if close_out is None else (source, close_out)

@@ -264,6 +264,10 @@ def test_a_bus_used_from_another_event_loop_is_refused_before_the_wire(driver: s
         async with asyncio.timeout(5):
             with pytest.raises(InvalidArgument, match="opened in another event loop"):
                 await kept[0].servo(2).read_stretch()
+            with pytest.raises(InvalidArgument, match="opened in another event loop"):
+                await kept[0].stream([1, 2]).start()  # a stream too (it hung, or closed the bus as lost)
+            with pytest.raises(InvalidArgument, match="opened in another event loop"):
+                await kept[0].reopen()
         assert sim.transactions == before  # nothing went on the wire
 
     try:

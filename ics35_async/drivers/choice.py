@@ -36,6 +36,9 @@ class Driver(Protocol):
 
     def submit(self, command: Command[Any], priority: int, retries: int) -> Awaitable[Any]: ...
 
+    def check_caller(self) -> None:
+        """InvalidArgument if the caller runs on another event loop than the one the bus opened in."""
+
     def call(self, step: Callable[[float], bytes | None]) -> None:
         """Run an engine call, given the time, where the engine may be touched; act on its answer."""
 

@@ -357,14 +357,18 @@ class DriverCore:
 
     # ------------------------------------------------------------------ the user's side
 
-    def submit(self, command: Command[Any], priority: int, retries: int) -> Any:
-        """Queue ``command``; returns what the caller awaits for its outcome."""
+    def check_caller(self) -> None:
+        """Refuse a caller on another event loop than the bus's (before anything is queued or sent)."""
         if running_loop() is not self.home:
             raise InvalidArgument(
                 "this bus was opened in another event loop (each asyncio.run() or trio.run() starts its own):"
                 " a bus serves the loop it was opened in, so open it in the one that uses it"
                 " (or use ics35_async.blocking from code without a loop)"
             )
+
+    def submit(self, command: Command[Any], priority: int, retries: int) -> Any:
+        """Queue ``command``; returns what the caller awaits for its outcome."""
+        self.check_caller()
         request, awaited = self._new_request(command, priority, retries)
         with self.lock:
             t = now()
