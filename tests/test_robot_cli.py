@@ -19,6 +19,7 @@ import pytest
 from ics35_async import PortLost
 from ics35_async.cli import ExitCode, main
 from ics35_async.cli._robot_common import lost_line_hint
+from ics35_async.cli._settings import Settings
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
@@ -416,11 +417,12 @@ def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path
 def test_the_lost_line_hint_names_that_lines_port_and_what_the_others_were_left_in() -> None:
     description = load_description(
         {
-            "lines": {"arms": {"port": "/dev/ttyUSB1"}, "legs": {"port": "/dev/ttyUSB10"}},
+            "lines": {"arms": {"port": "/dev/ttyUSB1"}, "legs": {"port": "/dev/ttyUSB10", "baudrate": 1250000}},
             "joints": {"a": {"line": "arms", "id": 1}, "l": {"line": "legs", "id": 1}},
         }
     )
     lost = PortLost("port /dev/ttyUSB10 lost: the serial port hung up (device disconnected?)")
-    hint = lost_line_hint(description, lost, "free")
-    assert "ics35 free all -p /dev/ttyUSB10;" in hint  # the longest port name in the message, not USB1
+    hint = lost_line_hint(Settings(), description, lost, "free")
+    # The longest port name in the message (not USB1), at that line's baud rate (its servos hear no other).
+    assert "ics35 --port /dev/ttyUSB10 --baud 1250000 free all;" in hint
     assert hint.endswith("the other lines' joints were left free")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import sys
 import threading
 import warnings
@@ -102,15 +103,20 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
-def lost_line_hint(description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
-    """What the servos of the line whose port ``exc`` reports lost do now, and how to free them
-    (``others_left``: what the command left the other lines' joints in, when it has several)."""
-    ports = [line.port for line in description.lines.values() if line.port in str(exc)]
-    port = max(ports, key=len) if ports else "PORT"  # the longest: one port's name may start another's
+def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
+    """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
+    (that line's port, baud rate and echo: the robot file's; ``others_left``: what the command left the
+    other lines' joints in, when it has several)."""
+    lines = [line for line in description.lines.values() if line.port in str(exc)]
+    free = "ics35 free all -p PORT"
+    if lines:
+        line = max(lines, key=lambda spec: len(spec.port))  # the longest: one port's name may start another's
+        here = dataclasses.replace(settings, port=line.port, baud=line.baudrate, echo=line.echo, port_defaulted=False)
+        free = here.command_line("free", "all")
     others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
-        f" power or, with the line back, get: ics35 free all -p {port}{others}"
+        f" power or, with the line back, get: {free}{others}"
     )
 
 
@@ -138,7 +144,7 @@ def run_robot(
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
         except (PortLost, ClosedByPortLoss) as exc:
             error = translate(settings, exc)
-            error.hints.append(lost_line_hint(description, exc, others_left))
+            error.hints.append(lost_line_hint(settings, description, exc, others_left))
             raise error from None
         except IcsError as exc:
             raise translate(settings, exc) from None
