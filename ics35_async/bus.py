@@ -317,9 +317,6 @@ class Bus:
         self._reopening = True  # attach_source refuses from here on
 
         async def swap() -> None:
-            await driver.wait_idle()
-            if self._engine.state is not State.IDLE:
-                raise PortLost(f"port {self.port} is lost; cannot reopen now")
             try:
                 await driver.reopen(new_baud)
             except BaseException as exc:
@@ -328,6 +325,9 @@ class Bus:
                 raise
 
         try:
+            await driver.wait_idle()  # (cancelled here, nothing has changed yet)
+            if self._engine.state is not State.IDLE:
+                raise PortLost(f"port {self.port} is lost; cannot reopen now")
             # To its end: a reopen cut off half-way (a timeout around it) would leave no port open;
             # a cancellation meanwhile is raised once the line is open again.
             await despite_cancellation(swap, None)

@@ -86,6 +86,7 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
                 await asyncio.shield(task)
             except asyncio.CancelledError as exc:
                 cancelled = cancelled or exc
+    failure = None if task.cancelled() else task.exception()  # (retrieved: asyncio would log it unread)
     if cancelled is not None:
-        raise cancelled
+        raise cancelled from failure
     task.result()
