@@ -203,3 +203,20 @@ def test_a_bad_speed_is_refused_in_words_about_a_time_scale(speed: Any) -> None:
     with pytest.raises(InvalidArgument, match="speed") as refused:
         play_on(make_rig(), data, speed=speed)
     assert "seconds" not in str(refused.value) and "twice as fast" in str(refused.value), refused.value
+
+
+def test_saving_over_a_link_writes_through_it_and_keeps_the_files_mode(tmp_path: Path) -> None:
+    # A motion kept in a shared folder and linked from the robot's: the link stays a link, its target
+    # gets the new motion, and the file's permissions are the ones it had.
+    motion_a = load_motion(motion({"time": 1.0, "pose": {"neck": 5}}))
+    motion_b = load_motion(motion({"time": 1.0, "pose": {"neck": -5}}))
+    real = tmp_path / "shared" / "wave.json"
+    real.parent.mkdir()
+    save_motion(motion_a, real)
+    real.chmod(0o640)
+    link = tmp_path / "wave.json"
+    link.symlink_to(real)
+    backup = save_motion(motion_b, link)
+    assert link.is_symlink() and load_motion(real) == motion_b
+    assert backup is not None and load_motion(backup) == motion_a
+    assert real.stat().st_mode & 0o777 == 0o640

@@ -22,6 +22,7 @@ import anyio
 import anyio.lowlevel
 
 from ..engine import LineEngine, State
+from ..errors import error_text
 from ..protocol import Command
 from ..transports.device_port import DevicePort
 from ..transports.opening import Port
@@ -130,7 +131,10 @@ class AnyioDriver(DriverCore):
             try:
                 self._task_scope.cancel()
                 if self._task_ended is not None:
-                    await self._task_ended.wait()  # at once: nothing in the task outlasts its scope
+                    # At once (nothing in the task outlasts its scope), and before the port closes under
+                    # its wait for input; shielded, since the closer may itself be cancelled.
+                    with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
+                        await self._task_ended.wait()
             finally:  # even if the closing task is cancelled meanwhile: the port is released
                 self._drop_port()
         error, self._task_error = self._task_error, None
@@ -146,8 +150,12 @@ class AnyioDriver(DriverCore):
                 await self._run()
         except Exception as exc:  # a bug: told at aclose(); out of a system task it would kill trio
             self._task_error = exc
-            if self.port is not None:  # every caller waiting hears it (PortLost), none waits forever
+            # Every caller waiting hears it (PortLost), none waits forever, with or without a port.
+            if self.port is not None:
                 self._lose(self.port, exc, reconnect=False)
+            else:
+                self.engine.lost(f"the bus task for {self.target} failed: {error_text(exc)}", reconnect=False)
+                self._release_idle()
         finally:
             self._task_ended.set()
 

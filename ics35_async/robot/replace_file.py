@@ -1,13 +1,16 @@
 """Replacing a user's file without losing it: the robot file calibration edits, a motion teach writes.
 
-The new content is written whole to a new file renamed over the old one (a crash or a full disk
-leaves the old file or the new one, never half of either), the old content is kept as
-``NAME.bak`` beside it, and the old file's line endings (CRLF from a Windows editor) are kept.
+The new content is written whole to a new file beside the old one, flushed to the disk, and
+renamed over it (a crash, a full disk or a power cut leaves the old file or the new one, never
+half of either); the old content is kept as ``NAME.bak`` beside it, and the old file's line
+endings (CRLF from a Windows editor) and permissions are kept.  A symbolic link is written
+through: the link stays, the file it names gets the new content.
 """
 
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 from pathlib import Path
 
@@ -19,6 +22,8 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
     Raises:
         OSError: the file (or its backup) cannot be written; ``target`` is then as it was.
     """
+    if target.is_symlink():
+        target = target.resolve()
     backup: Path | None = None
     newline = "\n"
     if target.exists():
@@ -26,10 +31,16 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
             newline = "\r\n"
         backup = target.with_name(f"{target.name}.bak")
         shutil.copy2(target, backup)
-    fresh = target.with_name(f".{target.name}.new")
+    fresh = target.with_name(f".{target.name}.{secrets.token_hex(4)}.new")
+    # Created as any new file is (the umask applies), then given the old file's permissions.
+    handle = os.open(fresh, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
-        with fresh.open("w", encoding="utf-8", newline=newline) as file:
+        with os.fdopen(handle, "w", encoding="utf-8", newline=newline) as file:
             file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        if backup is not None:
+            shutil.copymode(backup, fresh)
         os.replace(fresh, target)
     except BaseException:
         fresh.unlink(missing_ok=True)
