@@ -137,6 +137,7 @@ def test_switching_motion_off_stops_a_running_motion(robot: Any) -> None:
 def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -> None:
     # The page said "open", no error, while every action failed with the lost port (until a restart).
     client, line = robot
+    assert post(client, "/api/connect", {"robot_line": "arm"}).json()["connected"]  # the pages on its line too
     line.unplug()
     wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
     view = client.get("/api/robot").json()
@@ -147,6 +148,9 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     reopened = post(client, "/api/robot/reopen")
     assert reopened.status_code == 200 and reopened.json()["open"] and reopened.json()["error"] is None, reopened.json()
     assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]
+    # The pages working on the robot's line follow it to the reopened robot (they kept the closed bus).
+    status = client.get("/api/status").json()
+    assert status["robot_line"] == "arm" and status["connected"], status
 
 
 def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:

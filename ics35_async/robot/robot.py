@@ -325,13 +325,17 @@ class Robot:
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         self._check_commands()
         stopped, self._plans = self._plans, []  # no longer stepped: the ramp drives their joints now
+        outcome: IcsError = MotionStopped("the motion was stopped (Robot.stop)")
         try:
             await self._come_to_rest(seconds)
+        except IcsError as exc:  # the ramp's own end (a lost line): the stopped motions hear that too
+            outcome = exc
+            raise
         finally:
             # Told once their joints are at rest (or the ramp failed), not as the stop begins: code
             # after a motion (a program leaving its block, closing the robot) must not cut the ramp short.
             for plan in stopped:
-                plan.finish(MotionStopped("the motion was stopped (Robot.stop)"))
+                plan.finish(outcome)
 
     async def _come_to_rest(self, seconds: float) -> None:
         moving = {}
