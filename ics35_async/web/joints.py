@@ -159,10 +159,10 @@ class RobotSession:
         if enabled:
             robot.hold()
             self.outcome = "joints hold where they stand"  # (the page's state line: not "joints free")
+            self.motion_enabled = True
         else:
-            self.motion_enabled = False  # first: no move may start while the motion stops
+            self.motion_enabled = False  # first (and not again after the stop: an "on" meanwhile stands)
             await self.stop(why="motion switched off")
-        self.motion_enabled = enabled
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
         """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves)."""
