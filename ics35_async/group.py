@@ -84,7 +84,14 @@ class GroupStream(FrameIterator[GroupFrame]):
         """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{(line, id): degrees}}, not {type(targets).__name__}")
-        self.set_targets({key: units.degrees_to_position(d) for key, d in targets.items()})
+        positions = {}
+        for key, degrees in targets.items():
+            try:
+                positions[key] = units.degrees_to_position(degrees)
+            except InvalidArgument as exc:  # which line, as set_targets says it
+                line = key[0] if isinstance(key, tuple) and key else key
+                raise InvalidArgument(f"line {line}: {exc}") from None
+        self.set_targets(positions)
 
     def free(self) -> None:
         """Put every servo on every line in free mode (torque off, still read back).

@@ -427,7 +427,7 @@ async def test_group_set_targets_is_all_or_nothing() -> None:
         ):
             with pytest.raises(InvalidArgument, match=says):
                 gstream.set_targets(bad)
-        with pytest.raises(InvalidArgument, match="outside -135"):
+        with pytest.raises(InvalidArgument, match="line b: 140 degrees is outside -135"):
             gstream.set_targets_degrees({("a", 0): 10.0, ("b", 2): 140.0})  # in degrees, as one stream takes them
         with pytest.raises(InvalidArgument, match=r"unknown stream option.*on_clos"):  # not Python's TypeError
             group.stream({"a": [0]}, on_clos="free")  # type: ignore[call-arg]

@@ -75,7 +75,9 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
         try:
             pose[joint.strip()] = float(deg)
         except ValueError:
-            raise click.BadParameter(f"{item!r} is not joint=degrees (e.g. knee=30,hip=-10)") from None
+            raise click.BadParameter(
+                f"{item!r} is not joint=degrees (e.g. knee=30,hip=-10)", param_hint="--start-pose"
+            ) from None
     return pose
 
 

@@ -135,6 +135,7 @@ def teach(
     ics35 teach examples/humanoid.toml mine.json --joints right_shoulder_pitch,right_elbow
     The first pose is at --lead seconds (1 s); each later pose keeps its time after the first capture.
     The file plays back with: ics35 play ROBOT.toml OUT.json.  Ctrl-C ends like q.
+    An OUT.json already there is kept as OUT.json.bak.
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
@@ -144,7 +145,7 @@ def teach(
     if target.exists():
         err.print(
             f"note: {escape(str(target))} exists: the poses you capture replace it when teaching ends "
-            f"(its content is kept as {escape(target.name)}.bak)",
+            f"(its content is kept as {escape(str(target.resolve()))}.bak)",
             soft_wrap=True,
         )
     keyframes: list[Keyframe] = []

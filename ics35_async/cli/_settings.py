@@ -39,9 +39,9 @@ class ExitCode(enum.IntEnum):
     """Communication error: a garbled reply, an echo mismatch, a verify failure, the port lost mid-command."""
     USAGE = 2
     """Bad argument, nothing sent: ID 32, position 20000 (or 90 without `--deg`), an unknown parameter or
-    field, a broken backup file, a `--plot` or `sim://?record=` file that cannot be written, `--plot` without
-    matplotlib, a mistake in a robot or motion file, a motion beyond the robot's limits, or a write without
-    `--port`."""
+    field, a broken backup file, a `--plot` or `sim://?record=` file that cannot be written (or a taught
+    motion's: it is printed instead), `--plot` without matplotlib, a mistake in a robot or motion file, a
+    motion beyond the robot's limits, or a write without `--port`."""
     PORT = 3
     """The port cannot be opened: missing, permission denied, busy, not a serial port, direction control
     refused by its driver; a bridge (`socket://`, `rfc2217://`) that refuses or drops the connection (what

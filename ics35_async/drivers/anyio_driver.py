@@ -1,4 +1,4 @@
-"""The anyio driver: one bus task in a task group owns the line (trio, or asyncio by choice).
+"""The anyio driver: one bus task of its own owns the line (trio, or asyncio by choice).
 
 Its way of waiting: the task waits for input (``anyio.wait_readable`` on a
 tty's descriptor, or a cancel scope that an in-process device's delivery
