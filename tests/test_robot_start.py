@@ -14,7 +14,7 @@ from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, open_bus, o
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, sent_position
-from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
+from tests.support.timing import FAST, GUARD, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
 
@@ -265,7 +265,7 @@ def test_on_close_free_frees_the_other_lines_joints_when_one_line_is_lost(moving
 
     async def main() -> None:
         with anyio.fail_after(GUARD):
-            async with open_robot(rig.description, on_close="free", **NO_TIMEOUTS) as robot:
+            async with open_robot(rig.description, on_close="free", **PATIENT) as robot:
                 robot.hold()
                 await robot.on_wire()
                 try:

@@ -40,7 +40,7 @@ from ics35_async.bus import Bus
 from ics35_async.protocol import ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
 from ics35_async.stream import RATE_CHECK_CYCLES
-from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, REAL_TIME
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
 
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
 
@@ -643,13 +643,20 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
+async def frees_begun(sim: VirtualLine, mark: int) -> None:
+    """Wait (polling, bounded) until the simulator has logged a free command after transaction ``mark``."""
+    with anyio.fail_after(GUARD):
+        while not any(t.command == "free" for t in sim.log_since(mark)):
+            await asyncio.sleep(0.0005)
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_on_close_free_survives_a_second_cancel_while_it_frees(driver: str) -> None:
     # A second Task.cancel() (a timeout around the task, then its caller cancelling it) landed in the free
     # and cut it short: anyio's shield keeps out anyio's cancellation, not asyncio's Task.cancel().
     ids = list(range(1, 9))
     sim = make_sim(ids, realtime=True)  # the frees take wire time, so the second cancel lands among them
-    async with open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:
+    async with open_bus(sim, driver=driver, **PATIENT) as bus:
         streaming = asyncio.Event()
 
         async def controller() -> None:
@@ -661,10 +668,9 @@ async def test_on_close_free_survives_a_second_cancel_while_it_frees(driver: str
 
         task = asyncio.ensure_future(controller())
         await streaming.wait()
+        mark = sim.transactions
         task.cancel()
-        free_commands = sim.transactions
-        while sim.transactions == free_commands:  # the close-out's frees have begun
-            await asyncio.sleep(0)
+        await frees_begun(sim, mark)
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await task
@@ -696,7 +702,7 @@ async def test_a_bus_closing_a_stream_that_outlived_its_block_closes_even_when_c
     started = asyncio.Event()
 
     async def controller() -> None:
-        async with contextlib.AsyncExitStack() as outlives, open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:
+        async with contextlib.AsyncExitStack() as outlives, open_bus(sim, driver=driver, **PATIENT) as bus:
             kept.append(bus)
             stream = await outlives.enter_async_context(bus.stream(ids, on_close="free"))
             stream.set_targets(dict.fromkeys(ids, 8000))
@@ -706,10 +712,9 @@ async def test_a_bus_closing_a_stream_that_outlived_its_block_closes_even_when_c
 
     task = asyncio.ensure_future(controller())
     await started.wait()
+    mark = sim.transactions
     task.cancel()
-    before = sim.transactions
-    while sim.transactions == before:  # the close-out's frees have begun
-        await asyncio.sleep(0)
+    await frees_begun(sim, mark)
     task.cancel()
     with contextlib.suppress(asyncio.CancelledError):
         await task
