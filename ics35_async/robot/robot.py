@@ -362,7 +362,7 @@ class Robot:
         if errors:
             raise errors[0]
 
-    def _step(self, frame: RobotFrame, line_cycles: Mapping[str, int], line_started: Mapping[str, float]) -> None:
+    def _step(self, frame: RobotFrame, line_started: Mapping[str, float]) -> None:
         """Advance every running plan to the frame's time: the targets for the next cycle.
 
         A frame comes as soon as any line ends a cycle; a plan steps once every line its joints are
@@ -373,6 +373,7 @@ class Robot:
         """
         targets: dict[str, float | None] = {}
         keyframes: list[Plan] = []
+        line_cycles = frame.line_cycles
         for plan in list(self._plans):
             if plan.ending is not None:
                 plan.ending.add(frame)
@@ -440,7 +441,7 @@ class Robot:
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         self._watch_offline(offline)
         merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps, line_cycles=frame.line_cycles)
-        self._step(merged, frame.line_cycles, frame.line_started)
+        self._step(merged, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
