@@ -105,9 +105,10 @@ class SafetyWatch:
             while True:
                 frame = await robot.wait_frame(cycle)
                 cycle = frame.cycle
-                if frame.line_cycles.get(line, line_cycle + 1) <= line_cycle:
+                ran = frame.line_cycles.get(line, line_cycle + 1)  # (no line_cycles: every frame is one)
+                if ran <= line_cycle:
                     continue  # another line's cycle: this line's reads follow its own pace
-                line_cycle = frame.line_cycles.get(line, line_cycle + 1)
+                line_cycle = ran
                 for _ in range(per_cycle):
                     joint = joints[k]
                     k = (k + 1) % len(joints)
