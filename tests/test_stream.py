@@ -643,11 +643,17 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
-async def frees_begun(sim: VirtualLine, mark: int) -> None:
-    """Wait (polling, bounded) until the simulator has logged a free command after transaction ``mark``."""
+async def cancel_twice_while_it_frees(task: asyncio.Future[None], sim: VirtualLine) -> None:
+    """Cancel ``task``; cancel it again once its close-out's first free is on the simulator's log (polling,
+    bounded); wait for its end."""
+    mark = sim.transactions
+    task.cancel()
     with anyio.fail_after(GUARD):
         while not any(t.command == "free" for t in sim.log_since(mark)):
             await asyncio.sleep(0.0005)
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
 
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
@@ -668,12 +674,7 @@ async def test_on_close_free_survives_a_second_cancel_while_it_frees(driver: str
 
         task = asyncio.ensure_future(controller())
         await streaming.wait()
-        mark = sim.transactions
-        task.cancel()
-        await frees_begun(sim, mark)
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+        await cancel_twice_while_it_frees(task, sim)
         assert task.cancelled()  # the cancellation goes on once the frees are done
     assert all(sim.servo(i).free for i in ids), [i for i in ids if not sim.servo(i).free]
 
@@ -712,12 +713,7 @@ async def test_a_bus_closing_a_stream_that_outlived_its_block_closes_even_when_c
 
     task = asyncio.ensure_future(controller())
     await started.wait()
-    mark = sim.transactions
-    task.cancel()
-    await frees_begun(sim, mark)
-    task.cancel()
-    with contextlib.suppress(asyncio.CancelledError):
-        await task
+    await cancel_twice_while_it_frees(task, sim)
     assert not kept[0].is_open
     assert all(sim.servo(i).free for i in ids)
 
