@@ -63,9 +63,11 @@ class RobotSession:
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
-                done, _ = await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
-                asked.cancel()
-                ended.cancel()
+                try:
+                    done, _ = await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
+                finally:  # (cancelled too, if this task is: neither is left pending)
+                    asked.cancel()
+                    ended.cancel()
                 if ended in done and not closing.is_set():
                     why = error_text(ended.result())
                     self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
