@@ -220,3 +220,34 @@ def test_saving_over_a_link_writes_through_it_and_keeps_the_files_mode(tmp_path:
     assert link.is_symlink() and load_motion(real) == motion_b
     assert backup is not None and load_motion(backup) == motion_a
     assert real.stat().st_mode & 0o777 == 0o640
+
+
+def test_a_looping_play_gives_up_the_joints_another_command_takes_over() -> None:
+    # A newer move_to of a joint a looping play drives: the play's next pass took the joint back, and the
+    # move_to returned at once without reaching its pose.  The loop goes on with its other joints.
+    rig = make_rig()
+    data = motion(
+        {"time": 0.1, "pose": {"neck": 20.0, "hip": 10.0}}, {"time": 0.2, "pose": {"neck": -20.0, "hip": -10.0}}
+    )
+
+    async def main() -> tuple[float, dict[str, int]]:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot, anyio.create_task_group() as tasks:
+                tasks.start_soon(lambda: robot.play(data, loop=True))
+                await anyio.sleep(0.3)  # a pass or more under way
+                await robot.move_to({"neck": 45.0}, duration=0.3)
+                mark = {"upper": rig.upper.transactions, "lower": rig.lower.transactions}
+                await anyio.sleep(0.5)  # the loop's later passes
+                reached = robot.targets["neck"]
+                tasks.cancel_scope.cancel()
+                return reached, mark
+
+    try:
+        reached, mark = anyio.run(main)
+    finally:
+        rig.close()
+    assert reached == 45.0
+    neck = targets_sent(rig.upper, JOINTS["neck"]["id"], mark["upper"])
+    assert set(neck) == {sent_position(JOINTS["neck"], 45.0)}, neck  # the loop left the neck where it went
+    hip = targets_sent(rig.lower, JOINTS["hip"]["id"], mark["lower"])
+    assert len(set(hip)) > 2  # and still moves the hip

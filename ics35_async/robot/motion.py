@@ -203,7 +203,8 @@ async def play_motion(
     robot: Robot, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
 ) -> None:
     """Play ``motion`` on ``robot`` (``speed`` 2 plays twice as fast); with ``loop``, again and again until
-    cancelled, each pass reaching the first keyframe from the last in the first keyframe's time."""
+    cancelled, each pass reaching the first keyframe from the last in the first keyframe's time.  A joint
+    another command takes over is given up: the passes go on with the others, and end when none is left."""
     if not isinstance(motion, Motion):
         motion = load_motion(motion)
     rate = units.check_number("speed", speed, 0.01, 100.0, "times the motion's own pace (2: twice as fast)")
@@ -214,14 +215,16 @@ async def play_motion(
     if not joints:
         return
     first = motion.keyframes[0].pose
-    while True:
+    owned = set(joints)  # a joint another command takes over is given up, for this pass and the next ones
+    while owned:
         # A joint never read starts at its first angle in the motion (nothing to interpolate from).
-        start = {j: first.get(j, _first_angle(motion, j)) for j in joints}
-        start.update(robot.start_pose(joints))
+        start = {j: first.get(j, _first_angle(motion, j)) for j in owned}
+        start.update(robot.start_pose(owned))
         keyframes: Sequence[tuple[float, Mapping[str, float], str]] = [
-            (f.time / rate, f.pose, f.profile or motion.profile) for f in motion.keyframes
+            (f.time / rate, {j: a for j, a in f.pose.items() if j in owned}, f.profile or motion.profile)
+            for f in motion.keyframes
         ]
-        await robot.run(Trajectory.through(start, keyframes), wait_on_wire=not loop)
+        owned &= await robot.run(Trajectory.through(start, keyframes), wait_on_wire=not loop)
         if not loop:
             return
 

@@ -289,10 +289,11 @@ class Robot:
                 start[name] = target
         return start
 
-    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> None:
+    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> frozenset[str]:
         """Play a trajectory from the next frame on; returns when it is done (its end on the wire, with
         ``wait_on_wire``).  Its time zero is that frame's: a host stall before it delays the motion rather
-        than skipping its start.
+        than skipping its start.  Returns the joints it still drove at its end (a joint another command
+        took over meanwhile is not among them).
 
         Raises:
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
@@ -312,6 +313,7 @@ class Robot:
                 self._plans.remove(plan)
         if plan.error is not None:
             raise plan.error
+        return frozenset(plan.joints)
 
     async def stop(self, ramp: float = 0.3) -> None:
         """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
