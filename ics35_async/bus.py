@@ -404,14 +404,14 @@ class Bus:
         """
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
-        check_int("priority", priority, _URGENT, _LOW)
+        level = check_int("priority", priority, _URGENT, _LOW)
         retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
         driver = self._driver
         if driver is None:
             raise self._not_open_error()
         # Re-read per request (not per stream transaction) so enabling DEBUG takes effect.
         self._engine.debug = log.isEnabledFor(logging.DEBUG)
-        return driver.submit(command, priority, retries)
+        return driver.submit(command, level, retries)
 
     def attach_source(
         self, source: BackgroundSource | None, *, close_out: Callable[[], Awaitable[None]] | None = None

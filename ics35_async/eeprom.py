@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from .errors import InvalidArgument, MalformedEeprom, UnsafeOperation
-from .units import check_int
+from .units import check_int, whole_number
 
 EEPROM_SIZE = 64
 HEADER = 0x5A
@@ -51,9 +51,10 @@ class BaudRate(enum.IntEnum):
         """A BaudRate from 115200 / 625000 / 1250000 (int or str)."""
         try:
             # int() would silently truncate a float (115200.7) and take True as 1.
-            if isinstance(value, bool) or not isinstance(value, (int, str)):
+            number = value if isinstance(value, str) else whole_number(value)
+            if number is None:
                 raise TypeError
-            return cls(int(value))
+            return cls(int(number))
         except (TypeError, ValueError):
             raise InvalidArgument(
                 f"baud rate must be one of {', '.join(str(int(b)) for b in cls)}, got {value!r}"
@@ -74,11 +75,12 @@ def _baud_field(value: object) -> BaudRate | int:
     """
     if isinstance(value, BaudRate):
         return value
-    if isinstance(value, int) and not isinstance(value, bool):
-        if value in _RATES:
-            return BaudRate(value)
-        if 0 <= value <= _BYTE_MAX:
-            return _CODE_TO_BAUD.get(value, value)
+    number = whole_number(value)
+    if number is not None:
+        if number in _RATES:
+            return BaudRate(number)
+        if 0 <= number <= _BYTE_MAX:
+            return _CODE_TO_BAUD.get(number, number)
     raise MalformedEeprom(f"baud_rate must be a BaudRate or an EEPROM code 0..255, got {value!r}")
 
 
@@ -287,10 +289,10 @@ class Eeprom:
                 clean[name] = self._check_flags(value)
             else:
                 low, high = _RANGES[name]
-                check_int(name, value, low, high)
-                if _FIELDS[name].even and value % 2:
-                    raise InvalidArgument(f"{name} must be even, got {value}")
-                clean[name] = value
+                number = check_int(name, value, low, high)
+                if _FIELDS[name].even and number % 2:
+                    raise InvalidArgument(f"{name} must be even, got {number}")
+                clean[name] = number
         updated = dataclasses.replace(self, **clean)
         # Only a change to a limit is checked: an image read as it is may already have them crossed.
         limits_changed = "pulse_limit_low" in clean or "pulse_limit_high" in clean
@@ -302,14 +304,15 @@ class Eeprom:
         return updated
 
     def _check_flags(self, value: object) -> Flags:
-        if isinstance(value, bool) or not isinstance(value, int):
+        number = whole_number(value)
+        if number is None:
             raise InvalidArgument(f"flags must be Flags or an int, not {type(value).__name__}")
-        check_int("flags", int(value), 0, 0xFF)
-        if value & UNUSED_FLAG_BITS:
+        number = check_int("flags", int(number), 0, 0xFF)
+        if number & UNUSED_FLAG_BITS:
             raise InvalidArgument("flag bits 5-6 are unused and must stay 0")
-        if (value ^ self.flags) & READ_ONLY_FLAGS:
+        if (number ^ self.flags) & READ_ONLY_FLAGS:
             raise InvalidArgument("the FREE and PCM flags are read-only")
-        return Flags(value)
+        return Flags(number)
 
     def diff(self, other: Eeprom) -> dict[str, tuple[Any, Any]]:
         """Fields whose values differ, as ``{name: (self_value, other_value)}``."""
@@ -345,7 +348,7 @@ class Eeprom:
         Raises:
             InvalidArgument: ``servo_id`` is not 0..31.
         """
-        check_int("servo_id", servo_id, 0, 31)
+        servo_id = check_int("servo_id", servo_id, 0, 31)
         if calibration is None:
             # Plausible, ID-dependent calibration nibbles: real ones differ per unit.
             calibration = bytes((servo_id * 7 + i * 5 + 3) & 0x0F for i in range(_CALIBRATION_LEN))

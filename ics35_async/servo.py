@@ -79,7 +79,7 @@ class Servo:
             InvalidArgument: ``position`` is not 1..16383.
             ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
-        units.check_int("position", position, 1, protocol.POSITION_MAX)
+        position = units.check_int("position", position, 1, protocol.POSITION_MAX)
         cmd = protocol.Position(self.id, position, baudrate=self._bus.baudrate)
         return await self._bus.request(cmd, priority=self.priority)
 

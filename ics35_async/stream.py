@@ -115,10 +115,10 @@ class Stream(FrameIterator[Frame]):
             raise InvalidArgument("a stream needs at least one ID")
         if len(set(id_list)) != len(id_list):
             raise InvalidArgument(f"duplicate IDs in {id_list}")
-        units.check_rate_hz(rate_hz)
-        units.check_int("offline_after", offline_after, 1, 1_000_000)
-        units.check_seconds("probe_interval", probe_interval, 0.001, 3600)
-        units.check_int("history", history, 1, 10_000_000)
+        rate_hz = units.check_rate_hz(rate_hz)
+        offline_after = units.check_int("offline_after", offline_after, 1, 1_000_000)
+        probe_interval = units.check_seconds("probe_interval", probe_interval, 0.001, 3600)
+        history = units.check_int("history", history, 1, 10_000_000)
         if free_on_close is not None:
             units.check_bool("free_on_close", free_on_close)
             warnings.warn("free_on_close is deprecated: use on_close='free'", DeprecationWarning, stacklevel=2)

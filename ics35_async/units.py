@@ -11,6 +11,8 @@ about 125 C): an approximation, good for warnings, not for measurement.
 from __future__ import annotations
 
 import math
+import numbers
+import operator
 import re
 from collections.abc import Iterable
 from typing import NamedTuple
@@ -31,14 +33,42 @@ _TEMP_P2, _TEMP_C2 = 25, 125.0
 _CELSIUS_PER_STEP = (_TEMP_C2 - _TEMP_C1) / (_TEMP_P2 - _TEMP_P1)
 
 
+def whole_number(value: object) -> int | None:
+    """``value`` as a Python int if it is a whole-number type (an int, a NumPy integer: any
+    ``numbers.Integral``), else None.  Not a bool: True as an ID or position is always a mistake."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value  # an IntEnum or IntFlag stays itself
+    if isinstance(value, numbers.Integral):
+        return operator.index(value)  # np.int64(7) -> 7: what goes on and comes back holds Python's ints
+    return None
+
+
+def real_number(value: object) -> float | None:
+    """``value`` as a Python float if it is a real-number type (int, float, NumPy's numbers: any
+    ``numbers.Real``; ``np.float32`` is not a float), else None.  Not a bool.  NaN and inf pass: the
+    caller says whether they are allowed."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return None
+    return float(value)
+
+
+def said(value: object) -> str:
+    """``value`` as an error message names it: a number as Python writes it (``nan``, not
+    ``np.float32(nan)``), anything else as its repr."""
+    number = real_number(value)
+    return repr(value) if number is None else shown(number)
+
+
 def check_int(name: str, value: object, low: int, high: int) -> int:
-    """Return ``value`` if it is an int in ``low..high``, else raise InvalidArgument."""
-    # bool is an int subclass; True as an ID or position is always a mistake.
-    if not isinstance(value, int) or isinstance(value, bool):
+    """``value`` as an int if it is a whole number (:func:`whole_number`) in ``low..high``, else InvalidArgument."""
+    number = whole_number(value)
+    if number is None:
         raise InvalidArgument(f"{name} must be an int, not {type(value).__name__}")
-    if not low <= value <= high:
-        raise InvalidArgument(f"{name} must be in {low}..{high}, got {value}")
-    return value
+    if not low <= number <= high:
+        raise InvalidArgument(f"{name} must be in {low}..{high}, got {number}")
+    return number
 
 
 def check_bool(name: str, value: object) -> bool:
@@ -55,11 +85,12 @@ def check_seconds(name: str, value: object, low: float = 0.0, high: float = 60.0
 
 def check_number(name: str, value: object, low: float, high: float, unit: str) -> float:
     """A finite number in ``low..high`` (not a bool); ``unit`` says what it counts, in its errors."""
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise InvalidArgument(f"{name} must be a number of {unit}, not {value!r}")
-    if not low <= value <= high:
-        raise InvalidArgument(f"{name} must be in {low}..{high} {unit}, got {value}")
-    return float(value)
+    number = real_number(value)
+    if number is None or not math.isfinite(number):
+        raise InvalidArgument(f"{name} must be a number of {unit}, not {said(value)}")
+    if not low <= number <= high:
+        raise InvalidArgument(f"{name} must be in {low}..{high} {unit}, got {shown(number)}")
+    return number
 
 
 def check_rate_hz(value: object) -> float | None:
@@ -67,12 +98,10 @@ def check_rate_hz(value: object) -> float | None:
     (not a bool: ``True`` from a JSON form is not a rate)."""
     if value is None:
         return None
-    bad = InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {value!r}")
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
-        raise bad
-    if not math.isfinite(value) or not 0 < value <= 10000:
-        raise bad
-    return float(value)
+    number = real_number(value)
+    if number is None or not math.isfinite(number) or not 0 < number <= 10000:
+        raise InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {said(value)}")
+    return number
 
 
 def check_ids(name: str, ids: object) -> list[int]:
@@ -119,13 +148,14 @@ def shown(value: float) -> str:
 
 def degrees_to_position(degrees: float) -> int:
     """The position for an angle in -135..+135 degrees (0 = neutral); InvalidArgument outside it."""
-    if not isinstance(degrees, (int, float)) or isinstance(degrees, bool) or not math.isfinite(degrees):
-        raise InvalidArgument(f"degrees must be a finite number, got {degrees!r}")
-    if not abs(degrees) <= DEGREES_MAX + _ANGLE_SLACK:
+    number = real_number(degrees)
+    if number is None or not math.isfinite(number):
+        raise InvalidArgument(f"degrees must be a finite number, got {said(degrees)}")
+    if not abs(number) <= DEGREES_MAX + _ANGLE_SLACK:
         raise InvalidArgument(
-            f"{shown(degrees)} degrees is outside -135..+135, the servo's travel ({TRAVEL_MIN}..{TRAVEL_MAX} counts)"
+            f"{shown(number)} degrees is outside -135..+135, the servo's travel ({TRAVEL_MIN}..{TRAVEL_MAX} counts)"
         )
-    return round(NEUTRAL + degrees * COUNTS_PER_DEGREE)
+    return round(NEUTRAL + number * COUNTS_PER_DEGREE)
 
 
 def position_to_radians(position: int) -> float:
@@ -134,11 +164,12 @@ def position_to_radians(position: int) -> float:
 
 def radians_to_position(radians: float) -> int:
     """The position for an angle in -3*pi/4..+3*pi/4 radians (0 = neutral); InvalidArgument outside it."""
-    if not isinstance(radians, (int, float)) or isinstance(radians, bool) or not math.isfinite(radians):
-        raise InvalidArgument(f"radians must be a finite number, got {radians!r}")
-    if not abs(math.degrees(radians)) <= DEGREES_MAX + _ANGLE_SLACK:
-        raise InvalidArgument(f"{shown(radians)} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
-    return degrees_to_position(math.degrees(radians))
+    number = real_number(radians)
+    if number is None or not math.isfinite(number):
+        raise InvalidArgument(f"radians must be a finite number, got {said(radians)}")
+    if not abs(math.degrees(number)) <= DEGREES_MAX + _ANGLE_SLACK:
+        raise InvalidArgument(f"{shown(number)} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
+    return degrees_to_position(math.degrees(number))
 
 
 class Current(NamedTuple):
@@ -149,27 +180,27 @@ class Current(NamedTuple):
 
 
 def current_from_raw(raw: int) -> Current:
-    check_int("raw current", raw, 0, 127)
+    raw = check_int("raw current", raw, 0, 127)
     return Current(raw & 0x3F, bool(raw & 0x40))
 
 
 def current_to_raw(current: Current) -> int:
-    check_int("current magnitude", current.magnitude, 0, 63)
-    return current.magnitude | (0x40 if current.reverse else 0)
+    return check_int("current magnitude", current.magnitude, 0, 63) | (0x40 if current.reverse else 0)
 
 
 def temperature_to_celsius(parameter: int) -> float:
     """Approximate Celsius for a temperature parameter (smaller is hotter)."""
-    check_int("temperature parameter", parameter, 0, 127)
+    parameter = check_int("temperature parameter", parameter, 0, 127)
     return _TEMP_C1 + (parameter - _TEMP_P1) * _CELSIUS_PER_STEP
 
 
 def celsius_to_temperature(celsius: float) -> int:
     """The temperature parameter (1..127) closest to ``celsius``, clamped."""
-    if not isinstance(celsius, (int, float)) or isinstance(celsius, bool) or not math.isfinite(celsius):
-        raise InvalidArgument(f"celsius must be a finite number, got {celsius!r}")
+    number = real_number(celsius)
+    if number is None or not math.isfinite(number):
+        raise InvalidArgument(f"celsius must be a finite number, got {said(celsius)}")
     # Clamped before rounding: an extreme finite input overflows to inf, which round() cannot take.
-    parameter = _TEMP_P1 + (celsius - _TEMP_C1) / _CELSIUS_PER_STEP
+    parameter = _TEMP_P1 + (number - _TEMP_C1) / _CELSIUS_PER_STEP
     return round(min(127.0, max(1.0, parameter)))
 
 

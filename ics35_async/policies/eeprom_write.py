@@ -27,21 +27,26 @@ from typing import Any
 from .. import protocol
 from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
-from ..units import check_int
+from ..units import check_int, whole_number
 from .failure_kinds import Line, answers_short_read
 
 NO_FLAGS = Flags(0)
 
 
-def _check_flag_edit(set_flags: int, clear_flags: int) -> None:
+def _check_flag_edit(set_flags: int, clear_flags: int) -> tuple[int, int]:
+    """``set_flags`` and ``clear_flags`` as ints, checked."""
+    checked = []
     for what, value in (("set_flags", set_flags), ("clear_flags", clear_flags)):
-        check_int(what, value, 0, 0xFF)
-        if value & READ_ONLY_FLAGS:
-            names = "|".join(f.name or "" for f in Flags if f in Flags(value & READ_ONLY_FLAGS))
+        number = check_int(what, value, 0, 0xFF)
+        if number & READ_ONLY_FLAGS:
+            names = "|".join(f.name or "" for f in Flags if f in Flags(number & READ_ONLY_FLAGS))
             raise InvalidArgument(f"{names}: the FREE and PCM flags are read-only (they report the servo's state)")
+        checked.append(number)
+    set_flags, clear_flags = checked
     both = set_flags & clear_flags
     if both:
         raise InvalidArgument(f"flag(s) {Flags(both)!r} both set and cleared")
+    return set_flags, clear_flags
 
 
 def edit_image(
@@ -56,13 +61,13 @@ def edit_image(
     A ``flags`` value replaces the writable flags only: the read-only ones
     stay as ``current`` has them.  Every value is checked (InvalidArgument).
     """
-    _check_flag_edit(set_flags, clear_flags)
+    set_flags, clear_flags = _check_flag_edit(set_flags, clear_flags)
     fields = dict(changes)
     if "flags" in fields or set_flags or clear_flags:
-        flags = fields.get("flags", int(current.flags))
-        if isinstance(flags, bool) or not isinstance(flags, int):
-            raise InvalidArgument(f"flags must be Flags or an int, not {type(flags).__name__}")
-        check_int("flags", flags, 0, 0xFF)
+        given = fields.get("flags", int(current.flags))
+        if whole_number(given) is None:
+            raise InvalidArgument(f"flags must be Flags or an int, not {type(given).__name__}")
+        flags = check_int("flags", given, 0, 0xFF)
         flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
         fields["flags"] = (flags | set_flags) & ~clear_flags
     return current.replace(**fields)

@@ -52,7 +52,7 @@ async def read_eeprom_agreed(line: Line, servo_id: int, *, attempts: int = EEPRO
     wrong image (in a scan it would look like another servo; in a backup it would be written back
     one day).  Raises the last read's ReplyError, or a ReplyError saying no two reads agreed.
     """
-    check_int("attempts", attempts, 2, 20)
+    attempts = check_int("attempts", attempts, 2, 20)
     seen: list[Eeprom] = []
     error: ReplyError | None = None
     for _ in range(attempts):

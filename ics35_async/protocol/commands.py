@@ -133,10 +133,10 @@ class Position(Command[int]):
         self.servo_id = check_id(servo_id)
         self.position = check_int("position", position, 0, POSITION_MAX)
         self.baudrate = check_baud(baudrate)
-        self.name = "free" if position == FREE else "position"
-        self.tx = position_tx(servo_id, position)
+        self.name = "free" if self.position == FREE else "position"
+        self.tx = position_tx(self.servo_id, self.position)
         self.reply_len = 3
-        self.reply_header = position_reply_header(servo_id, self.baudrate)
+        self.reply_header = position_reply_header(self.servo_id, self.baudrate)
 
     def parse(self, reply: bytes) -> int:
         if len(reply) == 3:
@@ -159,10 +159,9 @@ class ReadParam(Command[int]):
 
     def __init__(self, servo_id: int, param: Param | int) -> None:
         self.servo_id = check_id(servo_id)
-        check_int("parameter", param, 1, 4)
-        self.param = Param(param)
+        self.param = Param(check_int("parameter", param, 1, 4))
         self.name = _READ_NAMES[self.param]
-        self.tx = bytes((CMD_READ | servo_id, self.param))
+        self.tx = bytes((CMD_READ | self.servo_id, self.param))
         self.reply_len = 3
 
     def parse(self, reply: bytes) -> int:
@@ -203,7 +202,7 @@ class ReadPosition(Command[int]):
     def __init__(self, servo_id: int) -> None:
         self.servo_id = check_id(servo_id)
         self.name = "read_position"
-        self.tx = bytes((CMD_READ | servo_id, SC_POSITION))
+        self.tx = bytes((CMD_READ | self.servo_id, SC_POSITION))
         self.reply_len = 4
 
     def parse(self, reply: bytes) -> int:
@@ -268,7 +267,7 @@ class ReadEeprom(Command[Eeprom]):
     def __init__(self, servo_id: int) -> None:
         self.servo_id = check_id(servo_id)
         self.name = _READ_NAMES[Param.EEPROM]
-        self.tx = bytes((CMD_READ | servo_id, Param.EEPROM))
+        self.tx = bytes((CMD_READ | self.servo_id, Param.EEPROM))
         self.reply_len = 2 + EEPROM_SIZE
 
     def parse(self, reply: bytes) -> Eeprom:
@@ -289,12 +288,11 @@ class WriteParam(Command[int]):
 
     def __init__(self, servo_id: int, param: Param | int, value: int) -> None:
         self.servo_id = check_id(servo_id)
-        check_int("parameter", param, 1, 4)
-        self.param = Param(param)
+        self.param = Param(check_int("parameter", param, 1, 4))
         self.name = _WRITE_NAMES[self.param]
         low, high = WRITE_RANGES[self.param]
         self.value = check_int(self.name.removeprefix("write_").replace("_", " "), value, low, high)
-        self.tx = bytes((CMD_WRITE | servo_id, self.param, value))
+        self.tx = bytes((CMD_WRITE | self.servo_id, self.param, self.value))
         self.reply_len = 3
 
     def parse(self, reply: bytes) -> int:
@@ -322,7 +320,7 @@ class WriteEeprom(Command[None]):
         eeprom.check_writable()  # an undefined header or baud code is read, never written
         self.eeprom = eeprom
         self.name = _WRITE_NAMES[Param.EEPROM]
-        self.tx = bytes((CMD_WRITE | servo_id, Param.EEPROM)) + eeprom.to_bytes()
+        self.tx = bytes((CMD_WRITE | self.servo_id, Param.EEPROM)) + eeprom.to_bytes()
         self.reply_len = 2
 
     def parse(self, reply: bytes) -> None:
@@ -375,7 +373,7 @@ class WriteId(Command[int]):
         self.new_id = check_id(new_id)
         self.servo_id = None
         self.name = "write_id"
-        self.tx = bytes((CMD_ID | new_id, 1, 1, 1))
+        self.tx = bytes((CMD_ID | self.new_id, 1, 1, 1))
         self.reply_len = 1
 
     def parse(self, reply: bytes) -> int:

@@ -17,9 +17,8 @@ T = TypeVar("T")
 
 
 def check_span(address: object, count: object) -> tuple[int, int]:
-    check_int("address", address, 0, MEMORY_SIZE - 1)
-    check_int("count", count, 1, MEMORY_SIZE - 1)
-    assert isinstance(address, int) and isinstance(count, int)
+    address = check_int("address", address, 0, MEMORY_SIZE - 1)
+    count = check_int("count", count, 1, MEMORY_SIZE - 1)
     if address + count > MEMORY_SIZE:
         raise InvalidArgument(f"address {address} + count {count} runs past the {MEMORY_SIZE}-byte memory")
     return address, count
@@ -56,7 +55,7 @@ class ReadMemory(_MemoryCommand[bytes]):
         self.servo_id = check_id(device_id)
         self.address, self.count = check_span(address, count)
         self.name = "read_memory"
-        self.tx = bytes((CMD_READ | device_id, SC_MEMORY, address, count))
+        self.tx = bytes((CMD_READ | self.servo_id, SC_MEMORY, self.address, self.count))
         self.reply_len = 4 + 2 * count
 
     def parse(self, reply: bytes) -> bytes:
@@ -89,7 +88,7 @@ class WriteMemory(_MemoryCommand[None]):
         self.address, self.count = check_span(address, len(payload))
         self.data = payload
         self.name = "write_memory"
-        self.tx = bytes((CMD_WRITE | device_id, SC_MEMORY, address, len(payload))) + nibbles_from_bytes(payload)
+        self.tx = bytes((CMD_WRITE | self.servo_id, SC_MEMORY, self.address, self.count)) + nibbles_from_bytes(payload)
         self.reply_len = 4
 
     def parse(self, reply: bytes) -> None:

@@ -98,14 +98,14 @@ class JointSpec:
 
     def check(self, joint_degrees: object) -> float:
         """``joint_degrees`` as a float if it is a finite number within the limits, else InvalidArgument."""
-        if not isinstance(joint_degrees, (int, float)) or isinstance(joint_degrees, bool):
+        number = units.real_number(joint_degrees)
+        if number is None:
             raise InvalidArgument(f"joint {self.name}: the target must be a number of degrees, not {joint_degrees!r}")
-        if not self.min <= joint_degrees <= self.max:
+        if not self.min <= number <= self.max:
             raise InvalidArgument(
-                f"joint {self.name}: {units.shown(joint_degrees)} degrees is outside its limits"
-                f" {self.min:g}..{self.max:g}"
+                f"joint {self.name}: {units.shown(number)} degrees is outside its limits {self.min:g}..{self.max:g}"
             )
-        return float(joint_degrees)
+        return number
 
 
 @dataclass(frozen=True)

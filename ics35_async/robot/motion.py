@@ -122,8 +122,10 @@ def save_motion(motion: Motion, path: str | Path) -> Path | None:
     return replace_keeping_backup(Path(path), json.dumps(motion.to_json(), indent=2) + "\n")
 
 
-def _number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+def _number(value: object) -> float | None:
+    """``value`` as a float if it is a finite number (a NumPy one too), else None."""
+    number = units.real_number(value)
+    return number if number is not None and math.isfinite(number) else None
 
 
 def parse_motion(data: object, source: str = "<mapping>") -> Motion:
@@ -164,24 +166,23 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
         extra = set(frame) - {"time", "pose", "profile"}
         if extra:
             raise MotionError(source, f"{key}.{sorted(extra)[0]}", "unknown key (known: time, pose, profile)")
-        time = frame.get("time")
-        if not _number(time):
-            raise MotionError(source, f"{key}.time", f"must be a number of seconds, not {time!r}")
-        assert isinstance(time, (int, float))
+        time = _number(frame.get("time"))
+        if time is None:
+            raise MotionError(source, f"{key}.time", f"must be a number of seconds, not {frame.get('time')!r}")
         if time <= previous:
             why = "above 0 (the time to reach it from where the robot is)" if k == 0 else f"after {previous:g}"
             raise MotionError(source, f"{key}.time", f"{time:g} must be {why}")
-        previous = float(time)
+        previous = time
         pose = frame.get("pose")
         if not isinstance(pose, Mapping):
             raise MotionError(source, f"{key}.pose", "must be an object {joint: degrees}")
         for joint, deg in pose.items():
-            if not _number(deg):
+            if _number(deg) is None:
                 raise MotionError(source, f"{key}.pose.{joint}", f"must be a number of degrees, not {deg!r}")
         shape = frame.get("profile")
         if shape is not None and shape not in PROFILES:
             raise MotionError(source, f"{key}.profile", f"must be one of {', '.join(PROFILES)}, not {shape!r}")
-        keyframes.append(Keyframe(float(time), {j: float(d) for j, d in pose.items()}, shape))
+        keyframes.append(Keyframe(time, {j: float(d) for j, d in pose.items()}, shape))
     return Motion(tuple(keyframes), profile, name)
 
 

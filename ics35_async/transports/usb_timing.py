@@ -45,8 +45,7 @@ class FtdiAdapter:
     """An FTDI USB serial chip's timing (see the module text); ``latency_timer_ms`` is 1..255."""
 
     def __init__(self, latency_timer_ms: int = DEFAULT_LATENCY_TIMER_MS, *, frame: float = USB_FRAME) -> None:
-        check_int("latency_timer", latency_timer_ms, 1, 255)
-        self.latency_timer_ms = int(latency_timer_ms)
+        self.latency_timer_ms = check_int("latency_timer", latency_timer_ms, 1, 255)
         self.latency = self.latency_timer_ms * 1e-3
         self.frame = frame
         self._anchor = 0.0  # when the last packet went to the host: the timer runs from here
