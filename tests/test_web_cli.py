@@ -104,6 +104,13 @@ def test_bad_options_are_refused_in_words(cli: Any, tmp_path: Path) -> None:
         assert result.code == 2 and words in result.err, result.err
     busy = cli("web", "--no-browser", "--listen", "203.0.113.9:0")  # an address this machine does not have
     assert busy.code == 2 and "cannot listen on 203.0.113.9" in busy.err
+    alone = cli("web", "--no-browser", "--start-pose", "knee=30")
+    assert alone.code == 2 and "goes with --robot" in alone.err, alone.err
+    robot = tmp_path / "arm.toml"
+    robot.write_text('[lines.arm]\nport = "sim://web-cli-pose"\n[joints.knee]\nline = "arm"\nid = 1\nmax = 40\n')
+    for pose, words in (("hip=10", "unknown joint"), ("knee=50", "outside its limits"), ("knee", "joint=degrees")):
+        refused = cli("web", "--no-browser", "--robot", str(robot), "--start-pose", pose)
+        assert refused.code == 2 and words in refused.err, (pose, refused.err)
 
 
 def test_without_the_web_extra_the_command_says_how_to_install_it(

@@ -153,6 +153,54 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     assert status["robot_line"] == "arm" and status["connected"], status
 
 
+def test_reconnect_keeps_the_joints_holding_where_they_were_and_free_ones_free(robot: Any) -> None:
+    # Reconnect opened the robot as the server's start does: its ICS 3.5 joints free, so a standing
+    # robot went limp the moment its line was back (its servos had held their last targets meanwhile).
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    assert post(client, "/api/robot/move", {"pose": {"shoulder": 20, "elbow": 45}, "duration": 0.1}).status_code == 200
+    wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [20.0, 45.0])
+    held = {1: line.servo(1).target, 2: line.servo(2).target}
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    line.replug()
+    since = line.transactions
+    assert post(client, "/api/robot/reopen").json()["open"]
+    view = client.get("/api/robot").json()
+    assert [j["target"] for j in view["joints"]] == [20.0, 45.0], view
+    time.sleep(0.2)  # some cycles on the wire
+    sent = line.log_since(since)
+    assert sent and not [t for t in sent if t.command == "free"], sent[:4]
+    assert {1: line.servo(1).target, 2: line.servo(2).target} == held
+    assert not line.servo(1).free and not line.servo(2).free
+    # A joint that was free when the line went is not taken hold of.
+    post(client, "/api/robot/free")
+    wait_for(lambda: line.servo(1).free and line.servo(2).free)
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    line.replug()
+    assert post(client, "/api/robot/reopen").json()["open"]
+    time.sleep(0.2)
+    assert line.servo(1).free and line.servo(2).free
+    assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None, None]
+
+
+def test_a_start_pose_given_to_the_server_holds_those_joints_from_the_first_command(tmp_path: Path) -> None:
+    # ics35 web --robot FILE --start-pose shoulder=20: a standing ICS 3.5 robot need not go limp at the start.
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name)
+    robot = RobotSession(str(path), start_pose={"shoulder": 20})
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=robot)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        line = sim.named(name)
+        wait_for(lambda: line.servo(2).free and line.servo(1).target is not None)
+        commands = [(t.servo_id, t.command) for t in line.log_since(0)]
+        assert (1, "free") not in commands and (2, "free") in commands, commands[:6]
+        assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [20.0, None]
+    line.close()
+
+
 def test_the_robot_page_gets_the_joints_over_the_websocket(robot: Any) -> None:
     client, _ = robot
     with client.websocket_connect("ws://127.0.0.1:8766/ws", headers={"origin": BASE}) as ws:

@@ -9,15 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import math
 import time
-from pathlib import Path
 
 import click
 from rich.markup import escape
 
-from ..errors import BusClosed, IcsError, PortLost, error_text
+from ..errors import BusClosed, IcsError, PortLost
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..stream import ON_CLOSE
@@ -33,6 +31,7 @@ from ._robot_common import (
 )
 from ._robot_view import Screen, joint_table
 from ._signals import stop_name
+from ._start_pose import parse_start_pose, start_pose_option
 
 
 def load_motion_file(path: str, description: RobotDescription) -> Motion:
@@ -45,40 +44,6 @@ def load_motion_file(path: str, description: RobotDescription) -> Motion:
         return motion
 
     return load_input_file(path, "MOTION.json", load)
-
-
-def parse_start_pose(text: str | None) -> dict[str, float] | None:
-    """``joint=deg,joint=deg`` or a JSON file ``{joint: degrees}`` (the joints' names and limits are checked
-    when the robot opens, before any port is)."""
-    if text is None:
-        return None
-    if not text.strip():
-        raise click.BadParameter("is empty: give joint=degrees,... or a JSON file", param_hint="--start-pose")
-    if "=" not in text:
-        try:
-            data = json.loads(Path(text).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise click.BadParameter(
-                f"{text}: neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({error_text(exc)})",
-                param_hint="--start-pose",
-            ) from None
-        if not isinstance(data, dict) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()
-        ):
-            raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}")
-        return {str(k): float(v) for k, v in data.items()}
-    pose = {}
-    for item in text.split(","):
-        joint, _, deg = item.partition("=")
-        if joint.strip() in pose:  # two angles for one joint: a typo for another joint, likely
-            raise click.BadParameter(f"{joint.strip()} given twice", param_hint="--start-pose")
-        try:
-            pose[joint.strip()] = float(deg)
-        except ValueError:
-            raise click.BadParameter(
-                f"{item!r} is not joint=degrees (e.g. knee=30,hip=-10)", param_hint="--start-pose"
-            ) from None
-    return pose
 
 
 async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
@@ -107,14 +72,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @seconds_option(
     "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )
-@click.option(
-    "--start-pose",
-    "start_pose_text",
-    metavar="POSE",
-    default=None,
-    help="Where the robot is now (joint=deg,... or a JSON file): those joints hold it from the first "
-    "command instead of going limp (ICS 3.5 servos are read by freeing them).",
-)
+@start_pose_option
 @click.pass_context
 def play(
     ctx: click.Context,

@@ -10,6 +10,7 @@ from rich.markup import escape
 from ..errors import InvalidArgument
 from ._common import CliError, ExitCode, err, settings_of
 from ._extras import extra_hint
+from ._start_pose import parse_start_pose, start_pose_option
 
 
 @click.command()
@@ -32,14 +33,25 @@ from ._extras import extra_hint
     metavar="ROBOT.toml",
     help="Also serve a Robot page for this robot description (its lines are its own; see ics35 play).",
 )
+@start_pose_option
 @click.pass_context
-def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | None, robot_file: str | None) -> int:
+def web(
+    ctx: click.Context,
+    listen: str,
+    no_browser: bool,
+    token_file: str | None,
+    robot_file: str | None,
+    start_pose_text: str | None,
+) -> int:
     """Serve the servo configurator in the browser: scan, EEPROM, backup, renumber, jog, live plots, traffic.
 
     Prints the page's URL (with its access token) on the first line of stdout.
     Without --port it serves the built-in simulator, labelled as such on every page.
     """
     settings = settings_of(ctx)
+    start_pose = parse_start_pose(start_pose_text)
+    if start_pose is not None and robot_file is None:
+        raise click.UsageError("--start-pose is where a robot stands: it goes with --robot ROBOT.toml")
     try:
         from ..web import LineConfig, Listen, load_token, serve
     except ImportError as exc:
@@ -98,6 +110,7 @@ def web(ctx: click.Context, listen: str, no_browser: bool, token_file: str | Non
             warn=warn,
             robot_file=robot_file,
             robot_options=options,
+            robot_start_pose=start_pose,
             line_from_robot=line_from_robot,
         )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included

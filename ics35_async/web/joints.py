@@ -26,10 +26,15 @@ from ..units import check_seconds
 class RobotSession:
     """The robot ``ics35 web --robot FILE`` serves (open from :meth:`open` to :meth:`close`)."""
 
-    def __init__(self, path: str, options: Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self, path: str, options: Mapping[str, Any] | None = None, start_pose: Mapping[str, float] | None = None
+    ) -> None:
         self.description = load_description(path)  # checked before the server starts
         self.path = path
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
+        # The next open's start_pose: the one given (--start-pose), then, after the robot ends (a lost
+        # line), the targets its joints held, so that Reconnect carries on where they are.
+        self.start_pose = self.description.check_pose(start_pose or {})
         self.robot: Robot | None = None
         self.error: str | None = None
         self.motion_enabled = False
@@ -51,14 +56,20 @@ class RobotSession:
         await opened.wait()
 
     async def reopen(self) -> None:
-        """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks."""
+        """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks.
+
+        A joint that held a target when the robot ended holds it again from the first command (its
+        servo kept that target while its line was away, or its line never went); a free one stays
+        free.  Opened as at the start, an ICS 3.5 joint would start free: a standing robot went limp."""
         if self.robot is None:
             await self.close()
             await self.open()
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event) -> None:
         try:
-            async with open_robot(self.description, on_close="hold", **self.options) as robot:
+            async with open_robot(
+                self.description, on_close="hold", start_pose=self.start_pose, **self.options
+            ) as robot:
                 self.robot, self.error = robot, None
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
@@ -71,6 +82,7 @@ class RobotSession:
                 if ended in done and not closing.is_set():
                     why = error_text(ended.result())
                     self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
+                self.start_pose = {name: target for name, target in robot.targets.items() if target is not None}
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
         finally:

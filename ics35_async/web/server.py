@@ -153,15 +153,17 @@ def serve(
     warn: Callable[[str], None] | None = None,
     robot_file: str | None = None,
     robot_options: Mapping[str, Any] | None = None,
+    robot_start_pose: Mapping[str, float] | None = None,
     line_from_robot: bool = False,
 ) -> None:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong.
 
-    ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``).
+    ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``);
+    ``robot_start_pose``: its ``start_pose`` (where the robot stands: those joints hold there from the start).
     ``line_from_robot``: the pages start on the robot's first line rather than ``config``'s port.
     """
     # A bad robot file is refused here, before binding.
-    robot = None if robot_file is None else RobotSession(robot_file, robot_options)
+    robot = None if robot_file is None else RobotSession(robot_file, robot_options, robot_start_pose)
     sock = bind(listen)
     app = create_app(
         LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot, line_from_robot=line_from_robot
