@@ -6,10 +6,12 @@ import pathlib
 import threading
 import time
 
+import anyio
 import pytest
 
+from ics35_async import open_bus
 from ics35_async.eeprom import BaudRate
-from ics35_async.errors import InvalidArgument
+from ics35_async.errors import InvalidArgument, PortBusy
 from ics35_async.protocol import Position, ReadParam
 from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
 from ics35_async.sim import url as sim_url
@@ -94,6 +96,21 @@ def test_a_named_line_asked_for_with_other_options_is_refused_while_it_runs() ->
             open_url("sim://arm?ids=5")
     finally:
         line.close()
+
+
+def test_a_named_line_open_on_one_bus_is_busy_for_a_second_one_in_words() -> None:
+    # A bare OSError ("the simulated port is already open") came out with a traceback, unlike a busy tty.
+    async def main() -> None:
+        async with open_bus("sim://twice?ids=1-2"):
+            with pytest.raises(PortBusy, match="sim://twice is already open: a simulated line takes one bus"):
+                await open_bus("sim://twice").open()
+        async with open_bus("sim://twice") as again:  # closed, the name still finds the same servos
+            assert await again.servo(2).free() == 7500
+
+    try:
+        anyio.run(main)
+    finally:
+        named("twice").close()
 
 
 def test_line_built_in_python_is_reachable_by_name() -> None:

@@ -21,9 +21,10 @@ is the driver's own business.
 
 from __future__ import annotations
 
+import errno
 import logging
 
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, PortBusy
 from .device_port import DevicePort
 from .pyserial_port import SERIAL_POLL, ReaderThread, SerialPort
 from .serial_port import READ_POLL, open_serial, posix_fd
@@ -69,11 +70,11 @@ def open_port(
     if not isinstance(port, str):
         if not isinstance(port, WireDevice):
             raise InvalidArgument(f"port must be a device path, a URL or a WireDevice, not {type(port).__name__}")
-        return _device_port(port, baudrate)
+        return _device_port(port, baudrate, repr(port))
     scheme, sep, _ = port.partition("://")
     factory = device_factory(scheme) if sep else None
     if factory is not None:
-        return _device_port(factory(port), baudrate)
+        return _device_port(factory(port), baudrate, port)
     if not port:
         raise InvalidArgument("port must not be empty")
     ser = open_serial(port, baudrate, True, direction)
@@ -85,7 +86,7 @@ def open_port(
         elif blocking_reads:
             opened = SerialPort(ser, SERIAL_POLL)
         else:
-            return _device_port(ReaderThread(SerialPort(ser, READ_POLL)), baudrate)
+            return _device_port(ReaderThread(SerialPort(ser, READ_POLL)), baudrate, port)
     except BaseException:
         ser.close()
         raise
@@ -93,7 +94,12 @@ def open_port(
     return opened
 
 
-def _device_port(device: WireDevice, baudrate: int) -> DevicePort:
+def _device_port(device: WireDevice, baudrate: int, name: str) -> DevicePort:
     opened = DevicePort(device)
-    opened.connect(baudrate)
+    try:
+        opened.connect(baudrate)
+    except OSError as exc:
+        if exc.errno == errno.EBUSY:  # as a tty held by another bus is (an in-process device is open once)
+            raise PortBusy(errno.EBUSY, f"{name} is already open: a simulated line takes one bus at a time") from None
+        raise
     return opened
