@@ -28,6 +28,22 @@ LAYERS = {
 }  # fmt: skip
 
 
+def test_the_layer_table_in_the_docs_is_the_one_checked_here() -> None:
+    """Every part of the package in the layer table of docs/development/architecture.md, in the row of its
+    layer here (a part the page left out, or put in another row, fails)."""
+    page = (PACKAGE.parent / "docs" / "development" / "architecture.md").read_text(encoding="utf-8")
+    placed: dict[str, range] = {}
+    for row in page.splitlines():
+        cells = row.split("|")
+        if len(cells) < 4 or not cells[1].strip()[:1].isdigit():
+            continue
+        low, _, high = cells[1].split()[0].partition("-")
+        for name in cells[2].replace("`", "").split(","):
+            placed[name.strip().removesuffix(".py").removesuffix("/")] = range(int(low), int(high or low) + 1)
+    assert set(placed) == set(LAYERS), set(placed) ^ set(LAYERS)
+    assert {part for part, layer in LAYERS.items() if layer not in placed[part]} == set()
+
+
 def module_name(path: Path) -> str:
     parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
