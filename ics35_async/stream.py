@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import itertools
 import logging
 import math
@@ -86,8 +87,8 @@ class Stream(FrameIterator[Frame]):
         probe_interval: seconds between probes of an offline ID.
         free_on_close: deprecated: ``on_close="free"``.
         history: how many cycles the statistics look back over.
-        on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target)
-            or ``"free"`` (torque off).
+        on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
+            since the last cycle is sent as the stream closes) or ``"free"`` (torque off).
         on_resume: after a lost port comes back: ``"wait"`` (hold every ID, sending no command,
             until the program sets its target again) or ``"free"``.
         watch: IDs (ICS 3.6 servos) read with the position read instead of starting free.
@@ -149,6 +150,9 @@ class Stream(FrameIterator[Frame]):
         self._offline = [False] * n
         self._next_probe = [0.0] * n
         self._held = [False] * n  # after a resume: no command until the program sets a target
+        # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
+        # the close sends these (a final pose set just before the block ends would be dropped otherwise).
+        self._unsent: set[int] = set()
         # A burst (see the engine's plan_burst) runs the cycle's next transactions as planned: a new
         # target for one of them is held back (its slot in _stale) until the burst is over.  It may
         # run on into the cycles after this one (_beyond) where they are certain (see _upcoming).
@@ -245,12 +249,15 @@ class Stream(FrameIterator[Frame]):
         self._refuse_if_closed()
         kick = False
         frozen = self._frozen
+        unsent = self._unsent
         for k, p in checked:
             if self._held[k]:
                 self._held[k] = False
+                unsent.add(k)
                 kick = True  # a stream waiting with every ID held has work again
             if self._targets[k] != p:
                 self._targets[k] = p
+                unsent.add(k)
                 if frozen and k in frozen:
                     self._stale.add(k)
                     kick = True  # a burst runs the old target: it stops at its next boundary
@@ -300,6 +307,7 @@ class Stream(FrameIterator[Frame]):
         for k in slots:
             self._targets[k] = WATCH
             self._held[k] = False
+            self._unsent.discard(k)  # (a watched ID gets no command)
             if k in self._frozen:
                 self._stale.add(k)
                 kick = True
@@ -347,6 +355,8 @@ class Stream(FrameIterator[Frame]):
             return None
         k = self._order[self._pos]
         self._cur = k
+        if self._unsent:  # (before the job is read: a target set meanwhile stays unsent, and goes at a close)
+            self._unsent.discard(k)
         # The reply is read as the command sent (set_targets or watch may change it meanwhile).
         self._cur_reader = self._readers[k]
         return self._jobs[k]
@@ -382,6 +392,8 @@ class Stream(FrameIterator[Frame]):
                 if len(more) == n:
                     ends.add(len(slots) - 1)
         self._frozen.update(slots[1:])
+        if self._unsent:
+            self._unsent.difference_update(slots)
         jobs, readers, shapes = self._jobs, self._readers, self._shapes
         # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
         return [(*jobs[k], b"" if readers[k] is not None else shapes[k], i in ends) for i, k in enumerate(slots)]
@@ -693,24 +705,33 @@ class Stream(FrameIterator[Frame]):
 
     async def aclose(self) -> None:
         """Stop streaming; the bus stays usable.  With ``on_close="free"`` every ID goes free
-        (torque off); with ``"hold"`` (the default) each servo keeps holding its last target."""
+        (torque off); with ``"hold"`` (the default) each servo keeps holding its last target, and a
+        target set since the last cycle (a final pose set just before the block ends) is sent first."""
         if self._closed:
             return
         self._stop()
-        if self.on_close == "free" and self.bus.is_open:
+        if self.on_close == "free":
+            last = dict.fromkeys(self.ids, protocol.FREE)
+        else:  # "hold": the targets set since their last cycle (offline and held IDs get nothing)
+            last = {
+                self.ids[k]: self._targets[k]
+                for k in sorted(self._unsent)
+                if not self._offline[k] and not self._held[k] and self._targets[k] != WATCH
+            }
+        if last and self.bus.is_open:
             # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
-            # ics35_async.run, another cancellation meanwhile) must still free its servos; bounded,
-            # in case the line is gone.
-            await despite_cancellation(self._free_all, FREE_ON_CLOSE_BOUND)
+            # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
+            # last pose it was given; bounded, in case the line is gone.
+            await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
 
-    async def _free_all(self) -> None:
+    async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:
-            for i in self.ids:
-                group.start_soon(self._free_quietly, i)
+            for servo_id, position in targets.items():
+                group.start_soon(self._send_quietly, servo_id, position)
 
-    async def _free_quietly(self, servo_id: int) -> None:
+    async def _send_quietly(self, servo_id: int, position: int) -> None:
         with contextlib.suppress(IcsError):
-            await self.bus.request(protocol.Position(servo_id, protocol.FREE, baudrate=self.bus.baudrate))
+            await self.bus.request(protocol.Position(servo_id, position, baudrate=self.bus.baudrate))
 
     def _stop(self, *, detach: bool = True) -> None:
         self._running = False

@@ -15,7 +15,7 @@ import pytest
 from ics35_async import BusClosed, InvalidArgument, blocking
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import DescriptionError, RobotWarning
-from tests.support.robot_rig import JOINTS, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, joint_position, make_rig, sent_position, targets_sent
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HUMANOID = Path(__file__).resolve().parent.parent / "examples" / "humanoid.toml"
@@ -96,6 +96,19 @@ def test_on_close_free_frees_every_joint() -> None:
             robot.move_to({"hip": 5.0}, duration=0.05)
             assert not rig.servo("hip").free
         assert all(rig.servo(name).free for name in JOINTS)
+    finally:
+        rig.close()
+
+
+def test_a_pose_set_just_before_the_block_ends_reaches_the_servos() -> None:
+    # set_targets() then the block's end: the last pose (a robot sitting down) was dropped.
+    rig = make_rig(realtime=True)
+    try:
+        with blocking.open_robot(rig.description, **NO_TIMEOUTS) as robot:
+            robot.move_to({"hip": 5.0, "neck": 0.0}, duration=0.05)
+            robot.set_targets({"hip": -20.0, "neck": 30.0})
+        for name, degrees in (("hip", -20.0), ("neck", 30.0)):
+            assert rig.servo(name).target == sent_position(JOINTS[name], degrees), name
     finally:
         rig.close()
 

@@ -207,6 +207,19 @@ def test_a_bad_target_raises_before_anything_is_sent(pose: dict[str, Any], messa
     run_robot(rig, body)
 
 
+def test_a_pose_set_just_before_the_block_ends_reaches_the_servos() -> None:
+    # set_targets() then the block's end (on_close="hold"): the last pose was dropped.
+    rig = make_rig(realtime=True)
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"hip": 5.0, "neck": 0.0}, duration=0.05)
+        robot.set_targets({"hip": -20.0, "neck": 30.0})
+
+    run_robot(rig, body, **NO_TIMEOUTS)
+    for name, degrees in (("hip", -20.0), ("neck", 30.0)):
+        assert rig.servo(name).target == sent_position(JOINTS[name], degrees), name
+
+
 def test_free_hold_and_the_joint_space_stream() -> None:
     rig = make_rig()
 

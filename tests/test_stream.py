@@ -37,7 +37,7 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
-from ics35_async.protocol import ReadParam, position_tx
+from ics35_async.protocol import FREE, ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
 from ics35_async.stream import RATE_CHECK_CYCLES
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
@@ -641,6 +641,27 @@ async def test_on_close_free_frees_every_servo() -> None:
             await frames_until(stream, lambda f: (f.cycle - 1) * 3 >= seq)
             assert not any(sim.servo(i).free for i in ids)
         assert all(sim.servo(i).free for i in ids)
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_targets_set_just_before_the_block_ends_are_sent_when_it_holds(driver: str) -> None:
+    # A final pose set right before leaving the block (a robot sitting down) was dropped: the stream
+    # stopped before its next cycle, and with on_close="hold" nothing else sent it.
+    ids = list(range(1, 10))
+    sim = make_sim(ids, realtime=True)  # a cycle takes wire time: the block ends before the next one
+    async with open_bus(sim, driver=driver, **PATIENT) as bus:
+        async with bus.stream(ids, rate_hz=100) as stream:
+            stream.set_targets(dict.fromkeys(ids, 7500))
+            await frames_until(stream, lambda f: f.cycle > 2)
+            stream.set_targets({i: 9000 + i for i in ids})
+            stream.set_target(5, FREE)
+            stream.watch([6])  # (a watched ID gets no command: nothing to send)
+        seq = sim.transactions
+        expected = {i: 9000 + i for i in ids} | {5: None, 6: 7500}  # 5 freed; 6 watched, so left as it was
+        assert {i: sim.servo(i).target for i in ids} == expected
+        # Once each: nothing more goes out after the close.
+        await asyncio.sleep(0.05)
+        assert sim.transactions == seq
 
 
 async def cancel_twice_while_it_frees(task: asyncio.Future[None], sim: VirtualLine) -> None:
