@@ -128,7 +128,8 @@ class LogMatcher:
         self.predictor = WirePredictor(sim.baudrate, sim.echo)
         self.next_seq: int | None = None
         self.first_seq = 0
-        self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None]]] = {i: deque() for i in ids}
+        # (seq, verdict, value, fault, tx) of each stream transaction not yet matched with a frame's outcome
+        self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None, bytes]]] = {i: deque() for i in ids}
         self.stream_outcomes: dict[int, deque[tuple[bool, Any, float]]] = {i: deque() for i in ids}
         self.request_entries: dict[int, deque[tuple[int, bytes, Verdict, Any, str | None]]] = {
             i: deque() for i in range(32)
@@ -185,7 +186,7 @@ class LogMatcher:
             elif self.is_stream(t.tx):
                 counts.stream_entries += 1
                 if self.track_stream:
-                    self.stream_entries[sid].append((t.seq, verdict, t.value, t.fault))
+                    self.stream_entries[sid].append((t.seq, verdict, t.value, t.fault, t.tx))
             else:
                 counts.request_entries += 1
                 self.request_entries[sid].append((t.seq, t.tx, verdict, t.value, t.fault))
@@ -269,7 +270,7 @@ class LogMatcher:
         for sid, entries in self.stream_entries.items():
             outcomes = self.stream_outcomes[sid]
             while entries and outcomes:
-                seq, verdict, clean, fault = entries.popleft()
+                seq, verdict, clean, fault, _ = entries.popleft()
                 ok, value, when = outcomes.popleft()
                 self._settle(seq, verdict, clean, fault, ok, value, when)
             if outcomes and final:
