@@ -483,6 +483,25 @@ class Stream(FrameIterator[Frame]):
         n, baud = len(self.ids), int(self.bus.baudrate)
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
+        # The stream's own IDs that never answered, or failed in half its cycles: each costs its whole reply
+        # allowance a cycle until it goes offline (a wrong baud rate silences them all).
+        own = [sid for sid, seen, failed in zip(self.ids, self._positions, self._failures, strict=True)
+               if failed and (seen < 0 or 2 * failed >= self._cycle)]  # fmt: skip
+        if own:
+            log.warning(
+                "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about "
+                "%.0f cycles/s), and its ID(s) %s did not answer: each silent servo costs its whole reply "
+                "allowance every cycle until it goes offline (offline_after=%d): check its power, wiring, ID "
+                "and baud rate (ics35 scan looks at every ID at every rate)",
+                n,
+                self.rate_hz,
+                self._overruns,
+                self._cycle,
+                self._cycle / max(now - self._first_start, 1e-9),
+                ", ".join(map(str, own)),
+                self.offline_after,
+            )
+            return
         others = self._others_unanswered()
         grown = {i: count - self._others_at_start.get(i, 0) for i, count in others.items()}
         silent = sorted(i for i, more in grown.items() if more > 0)

@@ -237,6 +237,17 @@ def test_stream_targets_reach_the_servos_and_frames_come_back() -> None:
         assert stream.offline == frozenset()
 
 
+def test_targets_given_before_a_blocking_stream_starts_hold_from_its_first_command() -> None:
+    line = VirtualLine([VirtualServo(i) for i in (1, 2, 3)], log_size=None, realtime=True)
+    with blocking.open_bus(line) as bus:
+        stream = bus.stream([1, 2, 3], rate_hz=100)
+        stream.set_targets({1: 8000, 2: 7000, 3: 7600})
+        with stream:
+            stream.next_frame()
+    assert [t.servo_id for t in line.log_since(0) if t.command == "free"] == []
+    assert [line.servo(i).target for i in (1, 2, 3)] == [8000, 7000, 7600]
+
+
 def test_stream_errors_are_typed_and_a_bad_target_changes_nothing() -> None:
     with blocking.open_bus("sim://?ids=1-2") as bus, bus.stream([1, 2]) as stream:
         stream.set_targets({1: 8000, 2: 8000})

@@ -50,10 +50,11 @@ def start_position(i: int) -> int:
 
 
 def make_sim(ids: Iterable[int] = range(32), **options: Any) -> VirtualLine:
-    """Servos at distinct start positions with distinct RAM stretch values; an unbounded log."""
+    """Servos at distinct start positions with distinct RAM stretch values; an unbounded log.  The servos
+    talk at the line's ``baudrate`` (default 115200)."""
     servos = []
     for i in ids:
-        servo = VirtualServo(i, position=start_position(i))
+        servo = VirtualServo(i, position=start_position(i), baud_rate=options.get("baudrate", 115200))
         servo.stretch = 40 + i
         servos.append(servo)
     options.setdefault("log_size", None)
@@ -664,6 +665,27 @@ async def test_targets_set_just_before_the_block_ends_are_sent_when_it_holds(dri
         assert sim.transactions == seq
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_targets_given_before_the_stream_starts_hold_from_its_first_command(driver: str) -> None:
+    # The documented way to start a stream on a standing robot: inside the block the first cycle
+    # may already have freed the first IDs (a stream starts as the block begins).
+    ids = [1, 2, 3]
+    sim = make_sim(ids, realtime=True)
+    other = make_sim(ids, realtime=True)
+    async with open_bus(sim, driver=driver, **PATIENT) as bus:
+        stream = bus.stream(ids, rate_hz=100)
+        stream.set_targets(dict.fromkeys(ids, 8000))
+        async with stream:
+            await next_frame(stream)
+        async with BusGroup({"a": bus, "b": open_bus(other, driver=driver, **PATIENT)}) as group:
+            both = group.stream({"a": ids, "b": ids}, rate_hz=100)
+            both.set_targets({(line, i): 7000 for line in "ab" for i in ids})
+            async with both:
+                await next_frame(both)
+    for line in (sim, other):
+        assert [t.servo_id for t in line.log_since(0) if t.command == "free"] == []
+
+
 async def cancel_twice_while_it_frees(task: asyncio.Future[None], sim: VirtualLine) -> None:
     """Cancel ``task``; cancel it again once its close-out's first free is on the simulator's log (polling,
     bounded); wait for its end."""
@@ -847,6 +869,25 @@ async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog
     said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
     assert len(said) == 1, said
     assert "requests" in said[0] and "does not answer" in said[0], said
+    assert "raise the baud rate" not in said[0], said
+
+
+async def test_a_rate_lost_to_the_streams_own_silent_servos_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
+    # Servos at 115200 streamed at 1.25 Mbit/s (a wrong baud rate): none answers, each costs its whole
+    # reply allowance every cycle until it goes offline; the warning said "raise the baud rate".
+    ids = list(range(4))
+    sim = make_sim(ids, realtime=True)  # the servos talk at 115200, the bus at 1250000
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            options = {**FAST, "baudrate": 1250000}  # (nothing answers: the allowance is what a cycle costs)
+            async with open_bus(sim, **options) as bus, bus.stream(ids, rate_hz=100, offline_after=1000) as stream:
+                while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
+                    pass
+    finally:
+        sim.close()
+    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
+    assert len(said) == 1, said
+    assert "its ID(s) 0, 1, 2, 3 did not answer" in said[0] and "baud rate" in said[0], said
     assert "raise the baud rate" not in said[0], said
 
 
