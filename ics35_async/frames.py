@@ -134,3 +134,10 @@ class GroupFrame:
     skipped: int = 0
     line_started: dict[str, float] = field(default_factory=dict)
     """When each line's newest cycle began (``time.monotonic()``): a target set before that went out in it."""
+    missed_slots: int = 0
+    """Whole slots the paced lines missed since the previous frame (see :attr:`Frame.missed_slots`), together."""
+    resumed: frozenset[str] = frozenset()
+    """The lines whose lost port came back since the previous frame (see :attr:`Frame.resumed`): their servos may
+    have restarted elsewhere; decide before moving them."""
+    held: frozenset[tuple[str, int]] = frozenset()
+    """The servos held after their line came back, sent nothing until their target is set again."""

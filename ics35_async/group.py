@@ -174,12 +174,14 @@ class GroupStream(FrameIterator[GroupFrame]):
         stamps: dict[tuple[str, int], float] = {}
         failed: set[tuple[str, int]] = set()
         offline: set[tuple[str, int]] = set()
+        held: set[tuple[str, int]] = set()
         for line in self.streams:
             f = frames[line]
             positions.update(((line, i), p) for i, p in f.positions.items())
             stamps.update(((line, i), t) for i, t in f.timestamps.items())
             failed.update((line, i) for i in f.failed)
             offline.update((line, i) for i in f.offline)
+            held.update((line, i) for i in f.held)
         return GroupFrame(
             cycle=self._cycle,
             positions=positions,
@@ -189,6 +191,10 @@ class GroupStream(FrameIterator[GroupFrame]):
             line_cycles={line: f.cycle for line, f in frames.items()},
             skipped=max(f.skipped for f in new.values()),
             line_started={line: f.started for line, f in frames.items()},
+            # (from the new frames only: each line's own next_frame keeps what its skipped frames said)
+            missed_slots=sum(f.missed_slots for f in new.values()),
+            resumed=frozenset(line for line, f in new.items() if f.resumed),
+            held=frozenset(held),
         )
 
     @property

@@ -220,6 +220,45 @@ def test_a_pose_set_just_before_the_block_ends_reaches_the_servos() -> None:
         assert rig.servo(name).target == sent_position(JOINTS[name], degrees), name
 
 
+def test_a_line_that_comes_back_ends_the_motions_on_it_and_its_joints_wait_for_a_target() -> None:
+    # A robot line reconnected mid-motion and the motion drove its joints on from where the plan was
+    # (a servo that restarted meanwhile would be thrown there); the robot's frames did not say so.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"hip": 0.0, "neck": 0.0}, duration=0.05)
+        moving = {"hip": 20.0, "neck": 30.0}
+        outcome: list[BaseException] = []
+
+        async def move() -> None:
+            try:
+                await robot.move_to(moving, duration=30.0)
+            except MotionStopped as exc:
+                outcome.append(exc)
+
+        async with anyio.create_task_group() as group:
+            group.start_soon(move)
+            await robot.wait_frame((await robot.wait_frame(0)).cycle + 3)
+            rig.lower.unplug(replug_after=0.05)
+            with anyio.fail_after(GUARD):
+                while not (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held:
+                    pass
+        assert outcome and "lower" in str(outcome[0]) and "came back" in str(outcome[0]), outcome
+        frame = await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+        assert frame.held == {"hip"}, frame.held  # (knee was free: a free joint carries on free)
+        since = rig.lower.transactions
+        await robot.wait_frame(frame.cycle + 5)
+        assert targets_sent(rig.lower, 1, since) == []  # hip: no command until a target is set
+        robot.set_targets({"hip": 5.0})
+        with anyio.fail_after(GUARD):
+            while "hip" in (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held:
+                pass
+        await robot.on_wire(["hip"])
+        assert targets_sent(rig.lower, 1, since)[-1] == sent_position(JOINTS["hip"], 5.0)
+
+    run_robot(rig, body, reconnect=True)
+
+
 def test_free_hold_and_the_joint_space_stream() -> None:
     rig = make_rig()
 

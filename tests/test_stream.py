@@ -603,6 +603,33 @@ async def test_losing_the_port_with_reconnect_resumes_the_stream(driver: str) ->
         assert not frame.failed and not frame.offline
 
 
+async def test_a_group_frame_says_which_line_came_back_and_which_servos_it_holds() -> None:
+    # A hexapod's gait over two lines: the right line reconnected and the gait drove its legs straight
+    # back to their old targets; a group frame had no resumed or held (only each line's own frames had).
+    ids = [1, 2, 3]
+    left, right = make_sim(ids), make_sim(ids)
+    lines = {"left": open_bus(left, reconnect=True, **FAST), "right": open_bus(right, reconnect=True, **FAST)}
+    async with BusGroup(lines) as group:
+        stream = group.stream({"left": ids, "right": ids})
+        pose = {(line, i): 8000 for line in lines for i in ids}
+        stream.set_targets(pose)
+        async with stream:
+            frame = await stream.next_update()
+            assert frame.resumed == frozenset() and frame.held == frozenset() and frame.missed_slots == 0
+            right.unplug(replug_after=0.05)
+            with anyio.fail_after(GUARD):
+                while not (frame := await stream.next_update()).resumed:
+                    pass
+            assert frame.resumed == {"right"}
+            assert frame.held == {("right", i) for i in ids}
+            later = await stream.next_update()
+            assert later.resumed == frozenset() and later.held == frame.held  # held until targeted again
+            stream.set_targets({("right", i): 8000 for i in ids})
+            with anyio.fail_after(GUARD):
+                while (await stream.next_update()).held:
+                    pass
+
+
 # --------------------------------------------------------------------------- free mode, consumers, rates
 
 

@@ -27,3 +27,10 @@ class RobotFrame:
     skipped: int = 0
     line_cycles: dict[str, int] = dataclasses.field(default_factory=dict)
     """Each line's newest cycle number: the lines that ended a cycle since the previous frame have a new one."""
+    resumed: frozenset[str] = frozenset()
+    """The lines whose lost port came back with this frame (opened with ``reconnect=True``): the motions on
+    them were ended, and their joints are :attr:`held`."""
+    held: frozenset[str] = frozenset()
+    """The joints on a line that came back, sent nothing until a target is set for them again (their servos
+    may have restarted elsewhere: decide, e.g. with :meth:`~ics35_async.robot.Robot.read_pose`, before
+    moving them)."""

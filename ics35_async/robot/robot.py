@@ -441,12 +441,42 @@ class Robot:
         stamps = {by_key[k]: t for k, t in frame.timestamps.items() if k in by_key}
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
+        held = frozenset(by_key[k] for k in frame.held if k in by_key)
         self._watch_offline(offline)
-        merged = RobotFrame(frame.cycle, now, positions, {}, failed, offline, stamps, line_cycles=frame.line_cycles)
+        if frame.resumed:
+            self._end_motions_on(frame.resumed)
+        merged = RobotFrame(
+            frame.cycle,
+            now,
+            positions,
+            {},
+            failed,
+            offline,
+            stamps,
+            line_cycles=frame.line_cycles,
+            resumed=frame.resumed,
+            held=held,
+        )
         self._step(merged, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
+
+    def _end_motions_on(self, lines: frozenset[str]) -> None:
+        """Lines whose lost port came back: their servos may have restarted, free and elsewhere, so a motion
+        driving on from where its plan was could throw them there.  The streams hold those joints (no
+        command until a target is set again); the motions moving any of them end, with why."""
+        for plan in list(self._plans):
+            on = sorted({self.joints[name].line for name in plan.joints} & lines)
+            if on:
+                plan.finish(
+                    MotionStopped(
+                        f"line {', '.join(on)} came back after its port was lost: its joints are held where they "
+                        "are, sent nothing until a target is set again (their servos may have restarted "
+                        "elsewhere); the motion was ended"
+                    )
+                )
+                self._plans.remove(plan)
 
     def mark_closing(self) -> None:
         """The robot's block has ended (see :mod:`.startup`): from now on a command from elsewhere (a task

@@ -55,7 +55,8 @@ class SafetyStop(IcsError):
 
 
 class MotionStopped(IcsError):
-    """A motion ended early because :meth:`Robot.stop` was called (from another task)."""
+    """A motion ended early: :meth:`Robot.stop` was called (from another task), or a line it moves came back
+    after its port was lost (``reconnect=True``: its servos may have restarted elsewhere)."""
 
 
 @dataclass
