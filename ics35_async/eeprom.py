@@ -128,6 +128,30 @@ _FIELDS: dict[str, _Field] = {
     "stretch_2": _Field(60, 2, 2, 254, even=True),
     "stretch_3": _Field(62, 2, 2, 254, even=True),
 }
+
+# What each decoded field means, for people: name -> (unit, meaning), in the order a person reads them (the
+# configurator's Servo page lists them so; docs/reference/eeprom.md has them as a table, checked by a test).
+FIELD_MEANINGS: Mapping[str, tuple[str, str]] = {
+    "servo_id": ("", "the ID the servo answers to (a change needs allow_id_change; one servo alone: ics35 set-id)"),
+    "baud_rate": ("bit/s", "the line rate the servo talks at after its next power-up"),
+    "stretch_gain": ("", "holding stiffness (P gain) used when no stretch 1..3 is selected; even values"),
+    "speed": ("", "output speed limit, 127 = full speed"),
+    "punch": ("", "minimum drive added when starting to move (overcomes static friction)"),
+    "dead_band": ("", "how far off target the servo may be before it drives (steps of about 0.1 degree)"),
+    "damping": ("", "braking characteristic as the servo nears its target"),
+    "safe_timer": ("x10 ms", "how long an over-current or over-temperature may last before the servo frees"),
+    "flags": ("", "REVERSE turns the direction round, ROTATION makes it a wheel, PWMINH inhibits the output "
+                  "while free, SLAVE for paired servos; FREE and PCM only report the servo's state"),
+    "pulse_limit_high": ("position", "the highest position the servo will go to (the joint's upper limit)"),
+    "pulse_limit_low": ("position", "the lowest position the servo will go to (the joint's lower limit)"),
+    "temperature_limit": ("", "temperature parameter at which the servo protects itself (smaller is hotter)"),
+    "current_limit": ("", "current at which the servo protects itself (about 0.1 A per step)"),
+    "response": ("", "reply delay setting (1 is the fastest)"),
+    "user_offset": ("position steps", "shifts the neutral position (-127..127)"),
+    "stretch_1": ("", "stiffness preset 1 (even values)"),
+    "stretch_2": ("", "stiffness preset 2 (even values)"),
+    "stretch_3": ("", "stiffness preset 3 (even values)"),
+}  # fmt: skip
 # (offset, nibble count) of each field, and the range of each numeric one.
 _LAYOUT: dict[str, tuple[int, int]] = {name: (f.offset, f.nibbles) for name, f in _FIELDS.items()}
 _RANGES: dict[str, tuple[int, int]] = {

@@ -5,31 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
+from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
 from ..policies import EepromPlan, EepromWriteResult, IdSurvey
-
-# name -> (unit, meaning), in the order the Servo page lists them.
-FIELD_HELP: dict[str, tuple[str, str]] = {
-    "servo_id": ("", "the ID the servo answers to (changed on the ID page, or here with 'allow ID change')"),
-    "baud_rate": ("bit/s", "the line rate the servo talks at after its next power-up"),
-    "stretch_gain": ("", "holding stiffness (P gain) used when no stretch 1..3 is selected; even values"),
-    "speed": ("", "output speed limit, 127 = full speed"),
-    "punch": ("", "minimum drive added when starting to move (overcomes static friction)"),
-    "dead_band": ("", "how far off target the servo may be before it drives (steps of about 0.1 degree)"),
-    "damping": ("", "braking characteristic as the servo nears its target"),
-    "safe_timer": ("x10 ms", "how long an over-current or over-temperature may last before the servo frees"),
-    "flags": ("", "REVERSE turns the direction round, ROTATION makes it a wheel, PWMINH inhibits the output "
-                  "while free, SLAVE for paired servos; FREE and PCM only report the servo's state"),
-    "pulse_limit_high": ("position", "the highest position the servo will go to (the joint's upper limit)"),
-    "pulse_limit_low": ("position", "the lowest position the servo will go to (the joint's lower limit)"),
-    "temperature_limit": ("", "temperature parameter at which the servo protects itself (smaller is hotter)"),
-    "current_limit": ("", "current at which the servo protects itself (about 0.1 A per step)"),
-    "response": ("", "reply delay setting (1 is the fastest)"),
-    "user_offset": ("position steps", "shifts the neutral position (-127..127)"),
-    "stretch_1": ("", "stiffness preset 1 (even values)"),
-    "stretch_2": ("", "stiffness preset 2 (even values)"),
-    "stretch_3": ("", "stiffness preset 3 (even values)"),
-}  # fmt: skip
 
 
 def flag_names(flags: int) -> list[str]:
@@ -39,7 +16,7 @@ def flag_names(flags: int) -> list[str]:
 def field_rows(image: Eeprom) -> list[dict[str, Any]]:
     values = image.to_dict()
     rows = []
-    for name, (unit, meaning) in FIELD_HELP.items():
+    for name, (unit, meaning) in FIELD_MEANINGS.items():
         bounds = field_range(name)
         row: dict[str, Any] = {"name": name, "value": values[name], "unit": unit, "meaning": meaning}
         if bounds is not None:
