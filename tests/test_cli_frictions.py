@@ -51,6 +51,10 @@ def test_a_dump_to_files_without_port_says_so_in_the_files_and_a_restore_of_one_
     restored = cli("--port", url, "eeprom", "restore", str(one), "--yes")
     assert restored.code == 0, restored.err
     assert "read from the built-in simulator" in restored.err
+    # Without --port the restore is refused before any line opens: no hint that it stopped reading servos.
+    refused = cli("eeprom", "restore", str(one), "--yes")
+    assert refused.code == 2 and "nothing was sent" in refused.err, refused.err
+    assert "while reading the servos" not in refused.err, refused.err
 
 
 def test_eeprom_help_shows_the_summary_of_set_whole(cli: Any) -> None:

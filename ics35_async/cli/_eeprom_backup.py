@@ -274,10 +274,12 @@ def restore(
                 "its ID (--restore-id to write it)"
             )
 
+    reading = False  # the servos are being read (the line opened): a failure then comes before any write
     planned = False  # every servo read and its write planned: until then nothing was written
 
     async def body() -> WriteBatch:
-        nonlocal planned
+        nonlocal reading, planned
+        reading = True
         async with settings.bus() as bus:
             plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
             planned = True
@@ -297,7 +299,7 @@ def restore(
     try:
         batch = run(settings, body)
     except CliError as exc:
-        if not planned and "nothing was written" not in exc.message:
+        if reading and not planned and "nothing was written" not in exc.message:
             exc.hints.insert(0, "nothing was written (it stopped while reading the servos)")
         if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
             source = backups[0].source
