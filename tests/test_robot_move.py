@@ -305,6 +305,23 @@ def test_limits_wider_than_the_servos_eeprom_warn_at_open() -> None:
     assert Path(caught[0].filename).name == Path(__file__).name, caught[0].filename
 
 
+def test_joints_whose_servos_do_not_answer_are_named_in_one_warning_a_line() -> None:
+    # A hexapod line with nothing answering printed a warning block per joint (nine, each with its
+    # source line): one a line, naming the joints, says the same.
+    rig = make_rig()
+    for servo_id in (1, 2, 3):
+        rig.upper.servo(servo_id).ignores = frozenset({"read_eeprom"})
+
+    async def body(robot: Robot) -> list[str]:
+        return list(robot.warnings)
+
+    with pytest.warns(RobotWarning) as caught:
+        found = run_robot(rig, body)
+    assert len(found) == 1 and len(caught) == 1, found
+    assert "joints neck, shoulder, elbow (servo IDs 1, 2, 3 on line upper) did not answer" in found[0], found
+    assert "limits not checked" in found[0]
+
+
 def test_no_warning_when_the_servos_allow_the_limits() -> None:
     rig = make_rig()
     with warnings.catch_warnings():

@@ -26,6 +26,7 @@ import anyio
 
 from .. import units
 from ..bus import BusOptions, open_bus
+from ..eeprom import Eeprom
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from ..stream import ON_CLOSE
@@ -237,10 +238,29 @@ async def check_servo_limits(robot: Robot) -> list[str]:
     found: list[str] = []
 
     async def check_line(line: str) -> None:
+        silent: list[JointSpec] = []
+        why = ""
         for joint in robot.description.joints_on(line):
-            message = await _limit_problem(robot, joint)
+            try:
+                eeprom = await robot.group[joint.line].servo(joint.id).read_eeprom()
+            except ReplyError as exc:
+                silent.append(joint)
+                why = why or str(exc)
+                continue
+            message = _limit_problem(robot, joint, eeprom)
             if message is not None:
                 found.append(message)
+        if silent:  # one message a line (a line with nothing answering said it once a joint)
+            source = robot.description.source
+            if len(silent) == 1:
+                joint = silent[0]
+                what = f"joints.{joint.name}: servo ID {joint.id} on line {line} did not answer"
+            else:
+                names = ", ".join(joint.name for joint in silent)
+                ids = ", ".join(str(joint.id) for joint in silent)
+                what = f"joints {names} (servo IDs {ids} on line {line}) did not answer"
+                why = f"the first: {why}"
+            found.append(f"{source}: {what} ({why}); limits not checked")
 
     async with task_group() as tasks:
         for line in robot.description.lines:
@@ -265,12 +285,8 @@ def warn_program(message: str) -> None:
     warnings.warn(message, RobotWarning, stacklevel=level)
 
 
-async def _limit_problem(robot: Robot, joint: JointSpec) -> str | None:
+def _limit_problem(robot: Robot, joint: JointSpec, eeprom: Eeprom) -> str | None:
     where = f"{robot.description.source}: joints.{joint.name}"
-    try:
-        eeprom = await robot.group[joint.line].servo(joint.id).read_eeprom()
-    except ReplyError as exc:
-        return f"{where}: servo ID {joint.id} on line {joint.line} did not answer ({exc}); limits not checked"
     low, high = sorted((joint.position(joint.min), joint.position(joint.max)))
     if low >= eeprom.pulse_limit_low and high <= eeprom.pulse_limit_high:
         return None
