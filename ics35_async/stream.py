@@ -152,7 +152,9 @@ class Stream(FrameIterator[Frame]):
         self._held = [False] * n  # after a resume: no command until the program sets a target
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
+        # A slot leaves it when a reply comes to the job that carries its current target (see _complete).
         self._unsent: set[int] = set()
+        self._sent_on_close: dict[int, int] = {}
         # A burst (see the engine's plan_burst) runs the cycle's next transactions as planned: a new
         # target for one of them is held back (its slot in _stale) until the burst is over.  It may
         # run on into the cycles after this one (_beyond) where they are certain (see _upcoming).
@@ -164,6 +166,7 @@ class Stream(FrameIterator[Frame]):
         self._pos = 0
         self._cur = -1
         self._cur_reader: protocol.ReadPosition | None = None  # how the reply on the wire is read
+        self._cur_job: tuple[bytes, int, int] | None = None  # the job on the wire, as handed out
         self._cycle = 0
         self._cycle_start = 0.0
         self._t0 = 0.0
@@ -257,12 +260,14 @@ class Stream(FrameIterator[Frame]):
                 kick = True  # a stream waiting with every ID held has work again
             if self._targets[k] != p:
                 self._targets[k] = p
-                unsent.add(k)
                 if frozen and k in frozen:
-                    self._stale.add(k)
+                    self._stale.add(k)  # (and unsent again once renewed, see _upcoming_done)
                     kick = True  # a burst runs the old target: it stops at its next boundary
                 else:
                     self._renew_job(k)
+                # After the new job (a driver's I/O thread may be completing the old one meanwhile: its
+                # reply, to a job no longer current, leaves the slot unsent, see _complete).
+                unsent.add(k)
         if kick and self._running:
             self.bus.kick()
 
@@ -355,11 +360,10 @@ class Stream(FrameIterator[Frame]):
             return None
         k = self._order[self._pos]
         self._cur = k
-        if self._unsent:  # (before the job is read: a target set meanwhile stays unsent, and goes at a close)
-            self._unsent.discard(k)
         # The reply is read as the command sent (set_targets or watch may change it meanwhile).
         self._cur_reader = self._readers[k]
-        return self._jobs[k]
+        self._cur_job = job = self._jobs[k]
+        return job
 
     def _planned_next(self) -> bool:
         """Has a running burst put this stream's next transaction on the line already (see _upcoming)?"""
@@ -392,8 +396,6 @@ class Stream(FrameIterator[Frame]):
                 if len(more) == n:
                     ends.add(len(slots) - 1)
         self._frozen.update(slots[1:])
-        if self._unsent:
-            self._unsent.difference_update(slots)
         jobs, readers, shapes = self._jobs, self._readers, self._shapes
         # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
         return [(*jobs[k], b"" if readers[k] is not None else shapes[k], i in ends) for i, k in enumerate(slots)]
@@ -404,6 +406,7 @@ class Stream(FrameIterator[Frame]):
         stale, self._stale = self._stale, set()
         for k in stale:
             self._renew_job(k)
+            self._unsent.add(k)  # (its reply came to the planned job: the new target is not yet sent)
 
     def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
@@ -427,6 +430,8 @@ class Stream(FrameIterator[Frame]):
         self._positions[k] = position
         self._stamps[k] = now
         self._answered[k] = True
+        if self._unsent and self._cur_job is self._jobs[k]:  # the slot's current target went out
+            self._unsent.discard(k)
         if self._fail_run[k]:  # only fail() marks an ID offline, always after a failure
             self._fail_run[k] = 0
             self._offline[k] = False
@@ -484,10 +489,11 @@ class Stream(FrameIterator[Frame]):
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
         # The stream's own IDs that never answered, or failed in half its cycles: each costs its whole reply
-        # allowance a cycle until it goes offline (a wrong baud rate silences them all).
+        # allowance a cycle until it goes offline (a wrong baud rate silences them all); told as the cause
+        # when their failures could account for half the late cycles (one gone offline early could not).
         own = [sid for sid, seen, failed in zip(self.ids, self._positions, self._failures, strict=True)
                if failed and (seen < 0 or 2 * failed >= self._cycle)]  # fmt: skip
-        if own:
+        if own and 2 * sum(self._failures[self._index[sid]] for sid in own) >= self._overruns:
             log.warning(
                 "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about "
                 "%.0f cycles/s), and its ID(s) %s did not answer: each silent servo costs its whole reply "
@@ -718,6 +724,13 @@ class Stream(FrameIterator[Frame]):
         return self
 
     @property
+    def targets_sent_on_close(self) -> dict[int, int]:
+        """What the stream's close sent, ``{id: position}`` (0: free): with ``on_close="free"`` every ID's free,
+        with ``"hold"`` the targets set since their last cycle (offline, held and watched IDs get nothing);
+        empty before the close, or if the bus was closed first."""
+        return dict(self._sent_on_close)
+
+    @property
     def free_on_close(self) -> bool:
         """Deprecated: ``on_close == "free"``."""
         return self.on_close == "free"
@@ -730,14 +743,17 @@ class Stream(FrameIterator[Frame]):
             return
         self._stop()
         if self.on_close == "free":
-            last = dict.fromkeys(self.ids, protocol.FREE)
+            last: dict[int, int] = dict.fromkeys(self.ids, protocol.FREE)
         else:  # "hold": the targets set since their last cycle (offline and held IDs get nothing)
             last = {
                 self.ids[k]: self._targets[k]
-                for k in sorted(self._unsent)
+                for k in sorted(self._unsent.copy())  # (copied at once: an I/O thread may still be finishing)
                 if not self._offline[k] and not self._held[k] and self._targets[k] != WATCH
             }
-        if last and self.bus.is_open:
+        if not self.bus.is_open:
+            last = {}
+        self._sent_on_close = last
+        if last:
             # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
             # last pose it was given; bounded, in case the line is gone.

@@ -91,7 +91,7 @@ class ChaosWorkload:
         self.busy: set[int] = set()
         self.last_tx: dict[int, bytes] = {}
         self.images = {i: sim.servo(i).eeprom for i in self.ids}
-        self.final_targets: dict[int, int] = {}  # the targets set last: on_close="hold" sends those not yet sent
+        self.sent_on_close: dict[int, int] = {}  # what the stream's close sent (on_close="hold": targets not yet sent)
 
     async def worker(self, k: int) -> None:
         rng = random.Random(self.seed * 1000 + k)
@@ -129,8 +129,7 @@ class ChaosWorkload:
         """Run until the simulator has seen ``transactions`` more transactions; returns the seconds taken."""
         sim, bus, matcher = self.sim, self.bus, self.matcher
         stream = bus.stream(self.ids, offline_after=3, probe_interval=0.05)
-        self.final_targets = {i: stream_target(i, 0) for i in self.ids}
-        stream.set_targets(self.final_targets)
+        stream.set_targets({i: stream_target(i, 0) for i in self.ids})
         start_txns = sim.transactions
         sim.log.clear()  # anything before the run is not ours
         t0 = time.perf_counter()
@@ -146,8 +145,7 @@ class ChaosWorkload:
                     self.stats.frames += 1
                     self.stats.skipped_frames += frame.skipped
                     matcher.add_frame(frame)
-                    self.final_targets = {i: stream_target(i, frame.cycle) for i in self.ids}
-                    stream.set_targets(self.final_targets)
+                    stream.set_targets({i: stream_target(i, frame.cycle) for i in self.ids})
                     if frame.cycle % drain_every == 0:
                         matcher.drain()
                         matcher.match()
@@ -164,17 +162,20 @@ class ChaosWorkload:
                     if task.done() and not task.cancelled() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
         elapsed = time.perf_counter() - t0
+        self.sent_on_close = stream.targets_sent_on_close
         matcher.drain()
         matcher.match()
         return elapsed
 
     def finish(self) -> dict[str, Any]:
-        """Match the rest; the last, unfinished cycle of the stream has no frame, nor has the close's send
-        of a target set after the last cycle (on_close="hold")."""
+        """Match the rest; the last, unfinished cycle of the stream has no frame, nor have the close's sends
+        of the targets set after their last cycle (on_close="hold"), which must be there, last."""
         matcher = self.matcher
-        for sid, entries in matcher.stream_entries.items():
-            if entries and entries[-1][4] == position_tx(sid, self.final_targets[sid]):
-                entries.pop()
+        for sid, target in self.sent_on_close.items():
+            entries = matcher.stream_entries[sid]
+            if not entries or entries[-1][4] != position_tx(sid, target):
+                raise CheckError(f"ID {sid}: the close's send of target {target} is not the last on the line")
+            entries.pop()
         leftovers = {sid: len(e) for sid, e in matcher.stream_entries.items() if e}
         if any(n > 1 for n in leftovers.values()):
             raise CheckError(f"stream log entries with no frame: {leftovers}")
