@@ -713,6 +713,39 @@ async def test_targets_given_before_the_stream_starts_hold_from_its_first_comman
         assert [t.servo_id for t in line.log_since(0) if t.command == "free"] == []
 
 
+async def test_a_target_set_during_a_burst_is_sent_at_the_close_when_its_cycle_carried_the_old_one() -> None:
+    # The engine's hooks driven as during a burst: the executor has already sent ID 2's planned command
+    # (the old target) when the program sets ID 2's final pose; that transaction is then fed back.  The
+    # close took the slot as sent (it was handed out) and the final pose was dropped.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with open_bus(sim, **FAST) as bus:
+        stream = bus.stream(ids)
+        stream.set_targets(dict.fromkeys(ids, 7000))
+        await stream.start()
+        await bus.servo(1).read_stretch()  # (a request: the stream ran meanwhile, cycles under way)
+        hooks = stream._hooks
+        bus.detach_source(hooks)  # from here the test is the engine
+        stream._running = True
+        now = 0.0
+        stream._pos = len(stream._order)  # (between cycles)
+        first = hooks.next_transaction(now)
+        assert first is not None and first[2] == 1
+        planned = hooks.upcoming(3)  # a burst plans IDs 1, 2, 3: the executor sends them
+        assert [p[0] for p in planned] == [position_tx(i, 7000) for i in ids]
+        stream.set_targets({2: 9000})  # the final pose, while the burst runs
+        reply = bytearray(position_tx(1, 7000) + bytes((0x01, 0x36, 0x58)))
+        for sid in ids:  # the burst's records fed back, one by one
+            job = hooks.next_transaction(now) if sid != 1 else first
+            assert job is not None and job[2] == sid
+            reply[0:3] = job[0]
+            reply[3] = sid
+            assert hooks.complete(reply, 3, now) is None
+        hooks.upcoming_done()
+        await stream.aclose()
+    assert stream.targets_sent_on_close == {2: 9000}
+
+
 async def cancel_twice_while_it_frees(task: asyncio.Future[None], sim: VirtualLine) -> None:
     """Cancel ``task``; cancel it again once its close-out's first free is on the simulator's log (polling,
     bounded); wait for its end."""
@@ -868,6 +901,25 @@ async def test_a_rate_the_line_cannot_keep_is_told_once_in_words(caplog: pytest.
     said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
     assert len(said) == 1, said
     assert "17 IDs" in said[0] and "rate_hz=100" in said[0] and "115200 baud" in said[0], said
+
+
+async def test_a_servo_gone_offline_early_is_not_blamed_for_a_rate_the_wire_cannot_keep(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # 17 servos at 115200 cannot make 100 Hz whatever an 18th, absent one does: it goes offline after
+    # three cycles; the warning named it as the cause and left out the wire time.
+    ids = list(range(17))
+    sim = make_sim(ids, realtime=True)
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, **REAL_TIME) as bus, bus.stream([*ids, 30], rate_hz=100) as stream:
+                while (await next_frame(stream)).cycle < RATE_CHECK_CYCLES + 2:
+                    pass
+    finally:
+        sim.close()
+    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
+    assert len(said) == 1, said
+    assert "115200 baud" in said[0] and "did not answer" not in said[0], said
 
 
 async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
