@@ -547,7 +547,7 @@ class Bus:
             VerifyError: the device took the ID but does not answer at it.
             ReplyError: the device stops answering during the change.
         """
-        protocol.check_id(new_id)
+        new_id = protocol.check_id(new_id)
         if exactly_one_device is not True:
             raise UnsafeOperation(
                 "write_id() renames EVERY device on the line; disconnect all but one and pass exactly_one_device=True"

@@ -20,6 +20,7 @@ import pytest
 
 from ics35_async import BusGroup, InvalidArgument, open_bus, open_robot
 from ics35_async.bus import Bus
+from ics35_async.policies import plan_eeprom_write
 from ics35_async.robot import parse_motion
 from ics35_async.sim import VirtualLine
 from tests.support.robot_rig import make_rig
@@ -60,6 +61,11 @@ async def _eeprom(bus: Bus, value: Any) -> Any:
     return (await servo.read_eeprom()).to_dict()
 
 
+async def _planned(bus: Bus, value: Any) -> Any:
+    plan = await plan_eeprom_write(bus, value, {"speed": 90})
+    return {"servo_id": plan.servo_id, "diff": {k: list(v) for k, v in plan.diff.items()}}
+
+
 # (label, call, NumPy value, the Python value it equals)
 CALLS: list[tuple[str, Call, Any, Any]] = [
     ("servo ID and set_position", lambda bus, v: bus.servo(v).set_position(7600), np.int64(1), 1),
@@ -78,6 +84,7 @@ CALLS: list[tuple[str, Call, Any, Any]] = [
     ("stream targets in degrees", _stream_degrees, np.float32(-12.25), -12.25),
     ("group targets in degrees", _group_degrees, np.float32(33.5), 33.5),
     ("EEPROM fields", _eeprom, np.int64(88), 88),
+    ("plan_eeprom_write", lambda bus, v: _planned(bus, v), np.int64(2), 2),
 ]
 
 
@@ -184,3 +191,42 @@ def test_a_robot_takes_numpy_joint_angles_and_keeps_python_floats() -> None:
     assert targets["elbow"] == 30.0
     assert targets["hip"] == float(np.float32(0.2) * 10)
     _python_only(targets)
+
+
+def test_an_id_written_from_a_numpy_number_comes_back_as_a_python_int() -> None:
+    sim = VirtualLine([1], log_size=None)
+
+    async def main() -> Any:
+        with anyio.fail_after(GUARD):
+            async with open_bus(sim, timing=FAST_TIMING) as bus:
+                return await bus.write_id(np.int64(5), exactly_one_device=True)
+
+    try:
+        written = anyio.run(main)
+    finally:
+        sim.close()
+    assert written == 5 and type(written) is int
+
+
+def test_a_robot_description_built_by_a_program_takes_numpy_numbers() -> None:
+    rig = make_rig()
+    description = dict(rig.description)
+    description["joints"] = {
+        name: {**spec, "id": np.int64(spec["id"]), "min": np.float32(spec.get("min", -135)), "max": np.int64(20)}
+        for name, spec in rig.description["joints"].items()
+        if name in ("hip", "knee")
+    }
+    description["lines"] = {"lower": rig.description["lines"]["lower"]}
+
+    async def main() -> Any:
+        with anyio.fail_after(GUARD):
+            async with open_robot(description, **FAST) as robot:
+                joints = robot.joints
+                return {name: (joints[name].id, joints[name].min, joints[name].max) for name in joints}
+
+    try:
+        specs = anyio.run(main)
+    finally:
+        rig.close()
+    assert specs == {"hip": (1, -30.0, 20.0), "knee": (2, -100.0, 20.0)}
+    _python_only(specs)

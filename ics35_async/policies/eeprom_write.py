@@ -154,7 +154,7 @@ async def plan_eeprom_write(
         ReplyError: the servo does not answer the EEPROM read, or answers wrongly.
         BusClosed, PortLost: the line is closed or its port is gone.
     """
-    protocol.check_id(servo_id)
+    servo_id = protocol.check_id(servo_id)
     check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
     before = await line.request(protocol.ReadEeprom(servo_id))
     after = edit_image(before, changes, set_flags=set_flags, clear_flags=clear_flags)

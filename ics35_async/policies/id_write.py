@@ -136,7 +136,7 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
     (the write took: returned as written), else the old one (VerifyError: the
     ID is unchanged), else neither (VerifyError: scan the line).
     """
-    protocol.check_id(new_id)
+    new_id = protocol.check_id(new_id)
     if survey is None:
         survey = await survey_for_id_write(line)
     old_id = survey.lone_id

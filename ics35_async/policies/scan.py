@@ -334,7 +334,7 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
     Raises:
         InvalidArgument: ``servo_id`` is not 0..31.
     """
-    protocol.check_id(servo_id)
+    servo_id = protocol.check_id(servo_id)
     found: list[int] = []
     skipped: dict[int, IcsError] = {}
     for baud in _check_bauds(bauds):

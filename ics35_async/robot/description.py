@@ -222,11 +222,12 @@ class _Reader:
         value = self.get(name)
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.error(name, f"must be a number, not {value!r}")
-        if not low <= value <= high:
-            raise self.error(name, f"must be in {low:g}..{high:g}, got {value:g}")
-        return float(value)
+        number = units.real_number(value)  # (a description built by a program may hold NumPy numbers)
+        if number is None or not math.isfinite(number):
+            raise self.error(name, f"must be a number, not {units.said(value)}")
+        if not low <= number <= high:
+            raise self.error(name, f"must be in {low:g}..{high:g}, got {number:g}")
+        return number
 
     def integer(self, name: str, low: int, high: int, *, required: bool = False) -> int | None:
         value = self.get(name)
@@ -234,11 +235,12 @@ class _Reader:
             if required:
                 raise self.missing(name)
             return None
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(name, f"must be a whole number, not {value!r}")
-        if not low <= value <= high:
-            raise self.error(name, f"must be in {low}..{high}, got {value}")
-        return value
+        number = units.whole_number(value)
+        if number is None:
+            raise self.error(name, f"must be a whole number, not {units.said(value)}")
+        if not low <= number <= high:
+            raise self.error(name, f"must be in {low}..{high}, got {number}")
+        return number
 
     def flag(self, name: str) -> bool | None:
         value = self.get(name)
