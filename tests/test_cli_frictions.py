@@ -55,6 +55,9 @@ def test_a_dump_to_files_without_port_says_so_in_the_files_and_a_restore_of_one_
     refused = cli("eeprom", "restore", str(one), "--yes")
     assert refused.code == 2 and "nothing was sent" in refused.err, refused.err
     assert "while reading the servos" not in refused.err, refused.err
+    # Nor when the port cannot be opened (no line, so no servo was read).
+    missing = cli("--port", "/dev/ttyICS35-none", "eeprom", "restore", str(one), "--yes")
+    assert missing.code == 3 and "while reading the servos" not in missing.err, missing.err
 
 
 def test_eeprom_help_shows_the_summary_of_set_whole(cli: Any) -> None:

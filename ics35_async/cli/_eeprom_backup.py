@@ -279,8 +279,8 @@ def restore(
 
     async def body() -> WriteBatch:
         nonlocal reading, planned
-        reading = True
         async with settings.bus() as bus:
+            reading = True
             plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
             planned = True
             return await write_plans(
