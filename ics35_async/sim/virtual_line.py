@@ -19,6 +19,7 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import Unpack
 
+from ..errors import PortBusy
 from ..transports import HostSide
 from .devices import Device
 from .model import LineModel, LineModelOptions
@@ -114,13 +115,14 @@ class VirtualLine(LineModel):
         with ``follow_host_baud``).
 
         Raises:
-            OSError: the port is unplugged (``ENOENT``) or already open (``EBUSY``).
+            OSError: the port is unplugged (``ENOENT``); PortBusy (an OSError, ``EBUSY``): it is already open.
         """
         with self._lock:
             if not self.plugged:
                 raise OSError(errno.ENOENT, "the simulated port is unplugged")
             if self._host is not None:
-                raise OSError(errno.EBUSY, "the simulated port is already open")
+                line = f"sim://{self.name}" if self.name is not None else "the simulated line"
+                raise PortBusy(errno.EBUSY, f"{line} is already open: a simulated line takes one bus at a time")
             self._host = host
             if self.follow_host_baud:
                 self.baudrate = int(baudrate)

@@ -99,7 +99,7 @@ def _device_port(device: WireDevice, baudrate: int, name: str) -> DevicePort:
     try:
         opened.connect(baudrate)
     except OSError as exc:
-        if exc.errno == errno.EBUSY:  # as a tty held by another bus is (an in-process device is open once)
-            raise PortBusy(errno.EBUSY, f"{name} is already open: a simulated line takes one bus at a time") from None
+        if exc.errno == errno.EBUSY and not isinstance(exc, PortBusy):  # as a tty another bus holds is
+            raise PortBusy(errno.EBUSY, f"{name} is already open ({exc.strerror})") from None
         raise
     return opened
