@@ -108,7 +108,11 @@ def test_bad_options_are_refused_in_words(cli: Any, tmp_path: Path) -> None:
     assert alone.code == 2 and "goes with --robot" in alone.err, alone.err
     robot = tmp_path / "arm.toml"
     robot.write_text('[lines.arm]\nport = "sim://web-cli-pose"\n[joints.knee]\nline = "arm"\nid = 1\nmax = 40\n')
-    for pose, words in (("hip=10", "unknown joint"), ("knee=50", "outside its limits"), ("knee", "joint=degrees")):
+    for pose, words in (
+        ("hip=10", "start_pose: unknown joint"),
+        ("knee=50", "start_pose: joint knee"),
+        ("knee", "joint=degrees"),
+    ):
         refused = cli("web", "--no-browser", "--robot", str(robot), "--start-pose", pose)
         assert refused.code == 2 and words in refused.err, (pose, refused.err)
 

@@ -132,7 +132,7 @@ async def _robot_session(
     start_pose = options.pop("start_pose", None)
     bus_options: BusOptions = options
     description = source if isinstance(source, RobotDescription) else load_description(source)
-    stated = _check_start_pose(description, start_pose)
+    stated = check_start_pose(description, start_pose)
     if on_close not in ON_CLOSE:
         raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
     units.check_bool("check_limits", check_limits)
@@ -194,7 +194,8 @@ def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -
     return {**shared, "baudrate": baudrate, "echo": echo, "retries": retries}
 
 
-def _check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
+def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
+    """``pose`` checked against ``description`` as ``open_robot``'s ``start_pose`` (InvalidArgument naming it)."""
     if pose is None:
         return {}
     try:

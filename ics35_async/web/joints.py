@@ -20,6 +20,7 @@ from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
+from ..robot.startup import check_start_pose
 from ..units import check_seconds
 
 
@@ -34,7 +35,7 @@ class RobotSession:
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
         # The next open's start_pose: the one given (--start-pose), then, after the robot ends (a lost
         # line), the targets its joints held, so that Reconnect carries on where they are.
-        self.start_pose = self.description.check_pose(start_pose or {})
+        self.start_pose = check_start_pose(self.description, start_pose)
         self.robot: Robot | None = None
         self.error: str | None = None
         self.motion_enabled = False
