@@ -132,7 +132,7 @@ _FIELDS: dict[str, _Field] = {
 # What each decoded field means, for people: name -> (unit, meaning), in the order a person reads them (the
 # configurator's Servo page lists them so; docs/reference/eeprom.md has them as a table, checked by a test).
 FIELD_MEANINGS: Mapping[str, tuple[str, str]] = {
-    "servo_id": ("", "the ID the servo answers to (a change needs allow_id_change; one servo alone: ics35 set-id)"),
+    "servo_id": ("", "the ID the servo answers to (a change is refused unless asked for explicitly)"),
     "baud_rate": ("bit/s", "the line rate the servo talks at after its next power-up"),
     "stretch_gain": ("", "holding stiffness (P gain) used when no stretch 1..3 is selected; even values"),
     "speed": ("", "output speed limit, 127 = full speed"),
@@ -147,7 +147,7 @@ FIELD_MEANINGS: Mapping[str, tuple[str, str]] = {
     "temperature_limit": ("", "temperature parameter at which the servo protects itself (smaller is hotter)"),
     "current_limit": ("", "current at which the servo protects itself (about 0.1 A per step)"),
     "response": ("", "reply delay setting (1 is the fastest)"),
-    "user_offset": ("position steps", "shifts the neutral position (-127..127)"),
+    "user_offset": ("position steps", "shifts the neutral position"),
     "stretch_1": ("", "stiffness preset 1 (even values)"),
     "stretch_2": ("", "stiffness preset 2 (even values)"),
     "stretch_3": ("", "stiffness preset 3 (even values)"),
