@@ -28,9 +28,10 @@ class RobotFrame:
     line_cycles: dict[str, int] = dataclasses.field(default_factory=dict)
     """Each line's newest cycle number: the lines that ended a cycle since the previous frame have a new one."""
     resumed: frozenset[str] = frozenset()
-    """The lines whose lost port came back with this frame (opened with ``reconnect=True``): the motions on
-    them were ended, and their joints are :attr:`held`."""
+    """The lines whose lost port came back with this frame (opened with ``reconnect=True``): the motions
+    moving their joints gave them up, and those joints are :attr:`held`."""
     held: frozenset[str] = frozenset()
-    """The joints on a line that came back, sent nothing until a target is set for them again (their servos
-    may have restarted elsewhere: decide, e.g. with :meth:`~ics35_async.robot.Robot.read_pose`, before
-    moving them)."""
+    """The joints on a line that came back, sent nothing until a target is set for them again: their servos
+    may have restarted, free and elsewhere, and where they are is unknown until they answer again (an ICS
+    3.6 servo's position can be read: ``robot.group[line].servo(id).read_position()``).  Decide before
+    moving them; a target set for one (``set_targets``, a motion) ends its hold."""

@@ -52,8 +52,11 @@ class Plan:
         self.segment = 0  # the segment the last targets came from
         self.stepped: dict[str, int] = {}  # each line's cycle when the plan last set targets (see Robot._step)
         self.keyframe_at: float | None = None  # when it last set a keyframe exactly, until that surely went out
+        # Why it gave up joints no other command took over (their line came back after a lost port): its
+        # caller hears it at the end, since the pose was not reached.
+        self.given_up: IcsError | None = None
 
     def finish(self, error: IcsError | None = None) -> None:
         if not self.done.is_set():
-            self.error = error
+            self.error = error or self.given_up
             self.done.set()

@@ -61,6 +61,8 @@ class Robot:
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
         self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
+        # Joints held since their line came back, not yet given a target: they answer nothing (see _line_resumed).
+        self._held: set[str] = set()
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
         self._plans: list[Plan] = []
@@ -141,17 +143,19 @@ class Robot:
         """Every joint's angle as read after this call (an offline joint: its newest known angle).
 
         A joint whose servo has not answered once since the robot opened has no angle to give: it is
-        left out (``robot.latest.offline`` names it), so index the result only by joints you know answer.
+        left out (``robot.latest.offline`` names it), so index the result only by joints you know answer;
+        so is a joint held since its line came back after a lost port (``robot.latest.held``).
         """
         # The servo measures when the command reaches it: the reply after a reply is a command sent after now.
         await self.fresh_replies(self.joints, 2)
         return {name: self._positions[name] for name in self.joints if name in self._positions}
 
     async def fresh_replies(self, joints: Iterable[str], replies: int) -> None:
-        """Wait until each of ``joints`` (but the offline ones) has answered ``replies`` times from now on."""
+        """Wait until each of ``joints`` (but the offline ones, and those held after their line came back)
+        has answered ``replies`` times from now on."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline):
+        while frame is None or not counter.reached(replies, frame.offline | self._held):
             frame = await self.wait_frame(frame.cycle if frame else 0)
             counter.add(frame)
 
@@ -230,6 +234,7 @@ class Robot:
         self._gstream.set_targets(wanted)
         self._targets.update(targets)
         self.untouched.difference_update(targets)
+        self._held.difference_update(targets)
 
     # ------------------------------------------------------------------ motions
 
@@ -322,6 +327,7 @@ class Robot:
         :class:`MotionStopped` in its caller once its joints are at rest.
 
         Raises:
+            MotionStopped: a line came back after a lost port during the ramp (its joints were given up).
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
@@ -379,7 +385,7 @@ class Robot:
         for plan in list(self._plans):
             if plan.ending is not None:
                 plan.ending.add(frame)
-            if not plan.joints or (plan.ending is not None and plan.ending.reached(2, frame.offline)):
+            if not plan.joints or (plan.ending is not None and plan.ending.reached(2, frame.offline | self._held)):
                 plan.finish()
                 self._plans.remove(plan)
                 continue
@@ -444,7 +450,7 @@ class Robot:
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
         self._watch_offline(offline)
         if frame.resumed:
-            self._end_motions_on(frame.resumed)
+            self._line_resumed(frame.resumed, held)
         merged = RobotFrame(
             frame.cycle,
             now,
@@ -462,21 +468,27 @@ class Robot:
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
 
-    def _end_motions_on(self, lines: frozenset[str]) -> None:
-        """Lines whose lost port came back: their servos may have restarted, free and elsewhere, so a motion
-        driving on from where its plan was could throw them there.  The streams hold those joints (no
-        command until a target is set again); the motions moving any of them end, with why."""
-        for plan in list(self._plans):
-            on = sorted({self.joints[name].line for name in plan.joints} & lines)
-            if on:
-                plan.finish(
-                    MotionStopped(
-                        f"line {', '.join(on)} came back after its port was lost: its joints are held where they "
-                        "are, sent nothing until a target is set again (their servos may have restarted "
-                        "elsewhere); the motion was ended"
-                    )
-                )
-                self._plans.remove(plan)
+    def _line_resumed(self, lines: frozenset[str], held: frozenset[str]) -> None:
+        """Lines whose lost port came back: their servos may have restarted, free and elsewhere, so the streams
+        hold those joints (no command until a target is set again).  A motion driving on from where its plan
+        was could throw them there: it gives them up (going on with its joints elsewhere, then raising
+        MotionStopped); where they are is unknown until they answer again (hold() and read_pose() leave
+        them out), and a stop has nothing to ramp for them."""
+        error = MotionStopped(
+            f"line {', '.join(sorted(lines))} came back after its port was lost: its joints are held where they "
+            "are, sent nothing until a target is set again (their servos may have restarted elsewhere); the "
+            "motion gave them up"
+        )
+        on = {name for name, joint in self.joints.items() if joint.line in lines}
+        for plan in self._plans:
+            if plan.joints & on:
+                plan.joints -= on
+                plan.given_up = plan.given_up or error
+        self._held.update(held)
+        for name in held:
+            self._velocity[name] = 0.0
+            self._envelope.pop(name, None)
+            self._positions.pop(name, None)
 
     def mark_closing(self) -> None:
         """The robot's block has ended (see :mod:`.startup`): from now on a command from elsewhere (a task
