@@ -682,7 +682,8 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
 
 def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
     # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
-    line = PtyLine((1, 2), ics36=(1, 2))
+    # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).
+    line = PtyLine((1, 2), ics36=(1,))
     robot = tmp_path / "arm.toml"
     robot.write_text(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
@@ -704,13 +705,28 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         p.click("#robot-link")
         expect(p.locator("#robot-cycle")).not_to_have_text("-")
         expect(p.locator("#robot-reopen")).to_be_hidden()
+        p.check("#robot-motion")  # the joints hold where they stand: elbow's servo holds a target
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        until(lambda: line.sim.servo(2).target is not None, "elbow's servo never got a target")
+        elbow = line.sim.servo(2).target
         line.sim.unplug()
         expect(p.locator("#robot-error")).to_contain_text("lost")
-        expect(p.locator("#robot-reopen")).to_be_visible()
+        expect(p.locator("#robot-reopen-choice")).to_be_visible()  # elbow held a target: the page asks
+        expect(p.locator("#robot-reopen-question")).to_contain_text("elbow held their targets")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
         expect(p.locator("#robot-motion")).to_be_disabled()
         line.sim.replug()
-        p.click("#robot-reopen")
+        p.click("#robot-reopen-hold")
+        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
         expect(p.locator("#robot-reopen")).to_be_hidden()
+        expect(p.locator("#robot-error")).to_have_text("")
+        assert line.sim.servo(2).target == elbow and not line.sim.servo(2).free  # never went limp
+        line.sim.unplug()  # again, with motion off now: the same question, and the plain button stays hidden
+        expect(p.locator("#robot-reopen-choice")).to_be_visible()
+        line.sim.replug()
+        p.click("#robot-reopen-free")
+        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+        until(lambda: line.sim.servo(2).free, "elbow's servo was not freed")
         expect(p.locator("#robot-error")).to_have_text("")
         expect(p.locator("#robot-motion")).to_be_enabled()
         p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand

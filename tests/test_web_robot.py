@@ -153,36 +153,73 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     assert status["robot_line"] == "arm" and status["connected"], status
 
 
-def test_reconnect_keeps_the_joints_holding_where_they_were_and_free_ones_free(robot: Any) -> None:
-    # Reconnect opened the robot as the server's start does: its ICS 3.5 joints free, so a standing
-    # robot went limp the moment its line was back (its servos had held their last targets meanwhile).
+def lose_and_replug(client: TestClient, line: Any) -> dict[str, Any]:
+    """Pull the line, wait until the page says the robot stopped, plug it back; the robot's view."""
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    line.replug()
+    view: dict[str, Any] = client.get("/api/robot").json()
+    return view
+
+
+def test_reconnect_asks_what_the_lost_lines_holding_joints_do_and_does_it(robot: Any) -> None:
+    # Reconnect opened the robot as the server's start does: its ICS 3.5 joints free, so a standing robot
+    # went limp the moment its line was back.  Holding them at their last targets is right if their servos
+    # kept their power (they held those targets meanwhile), wrong if they restarted elsewhere: the page asks.
     client, line = robot
     post(client, "/api/robot/motion", {"enabled": True})
     assert post(client, "/api/robot/move", {"pose": {"shoulder": 20, "elbow": 45}, "duration": 0.1}).status_code == 200
     wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [20.0, 45.0])
     held = {1: line.servo(1).target, 2: line.servo(2).target}
-    line.unplug()
-    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-    line.replug()
+    view = lose_and_replug(client, line)
+    assert view["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder", "elbow"]}, view
+    unsaid = post(client, "/api/robot/reopen")
+    assert unsaid.status_code == 400 and "hold" in unsaid.json()["error"] and "free" in unsaid.json()["error"]
+    assert post(client, "/api/robot/reopen", {"lost_joints": "maybe"}).status_code == 400
     since = line.transactions
-    assert post(client, "/api/robot/reopen").json()["open"]
+    assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
     view = client.get("/api/robot").json()
-    assert [j["target"] for j in view["joints"]] == [20.0, 45.0], view
+    assert [j["target"] for j in view["joints"]] == [20.0, 45.0] and view["reconnect_choice"] is None, view
     time.sleep(0.2)  # some cycles on the wire
     sent = line.log_since(since)
     assert sent and not [t for t in sent if t.command == "free"], sent[:4]
     assert {1: line.servo(1).target, 2: line.servo(2).target} == held
-    assert not line.servo(1).free and not line.servo(2).free
-    # A joint that was free when the line went is not taken hold of.
-    post(client, "/api/robot/free")
+    # The other answer: free.
+    lose_and_replug(client, line)
+    assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
     wait_for(lambda: line.servo(1).free and line.servo(2).free)
-    line.unplug()
-    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-    line.replug()
-    assert post(client, "/api/robot/reopen").json()["open"]
-    time.sleep(0.2)
-    assert line.servo(1).free and line.servo(2).free
     assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None, None]
+    # Nothing held when the line went: nothing to ask.
+    view = lose_and_replug(client, line)
+    assert view["reconnect_choice"] is None, view
+    assert post(client, "/api/robot/reopen").json()["open"]
+
+
+def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\n[lines.lower]\nport = "sim://{name}-lower?ids=1"\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+    )
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"neck": 10, "hip": -10}, "duration": 0.1})
+        wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, -10.0])
+        neck = upper.servo(1).target
+        view = lose_and_replug(client, lower)
+        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view
+        since = upper.transactions
+        assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
+        wait_for(lambda: lower.servo(1).free)
+        time.sleep(0.1)
+        assert not [t for t in upper.log_since(since) if t.command == "free"] and upper.servo(1).target == neck
+        assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, None]
+    upper.close()
+    lower.close()
 
 
 def test_a_start_pose_given_to_the_server_holds_those_joints_from_the_first_command(tmp_path: Path) -> None:

@@ -33,9 +33,13 @@ class RobotSession:
         self.description = load_description(path)  # checked before the server starts
         self.path = path
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
-        # The next open's start_pose: the one given (--start-pose), then, after the robot ends (a lost
-        # line), the targets its joints held, so that Reconnect carries on where they are.
+        # The next open's start_pose: the one given (--start-pose); after a lost line ended the robot, the
+        # targets its ICS 3.5 joints on the other lines held (they kept holding them), and those of the lost
+        # line's only if the person says so at Reconnect (lost_pose: right if their servos kept their power,
+        # wrong if they restarted elsewhere).  ICS 3.6 joints are read again instead.
         self.start_pose = check_start_pose(self.description, start_pose)
+        self.lost_pose: dict[str, float] = {}
+        self.lost_lines: list[str] = []
         self.robot: Robot | None = None
         self.error: str | None = None
         self.motion_enabled = False
@@ -51,26 +55,47 @@ class RobotSession:
         robot open until :meth:`close`, or until a line is lost, and leaves it in the task that entered it."""
         if self._holder is not None and not self._holder.done():
             return
+        await self._open(self.start_pose)
+
+    async def _open(self, start_pose: dict[str, float]) -> None:
         opened = asyncio.Event()
         self._closing = asyncio.Event()
-        self._holder = asyncio.create_task(self._hold(opened, self._closing), name="ics35 web robot")
+        hold = self._hold(opened, self._closing, start_pose)
+        self._holder = asyncio.create_task(hold, name="ics35 web robot")
         await opened.wait()
 
-    async def reopen(self) -> None:
+    async def reopen(self, lost_joints: object = None) -> None:
         """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks.
 
-        A joint that held a target when the robot ended holds it again from the first command (its
-        servo kept that target while its line was away, or its line never went); a free one stays
-        free.  Opened as at the start, an ICS 3.5 joint would start free: a standing robot went limp."""
-        if self.robot is None:
-            await self.close()
-            await self.open()
+        A joint that held a target when the robot ended carries on: on a line that stayed, it holds that
+        target from the first command (its servo kept holding it); an ICS 3.6 joint is read, torque left as
+        it is; a free one stays free.  The lost line's holding ICS 3.5 joints (:attr:`lost_pose`) hold
+        their last targets with ``lost_joints="hold"`` (their servos kept their power) or start free with
+        ``"free"`` (they restarted); with such joints, one of the two must be given.
 
-    async def _hold(self, opened: asyncio.Event, closing: asyncio.Event) -> None:
+        Raises:
+            InvalidArgument: ``lost_joints`` is not "hold" or "free" while the lost line had holding joints.
+        """
+        if self.robot is not None:
+            return
+        pose = dict(self.start_pose)
+        if self.lost_pose:
+            if lost_joints not in ("hold", "free"):
+                raise InvalidArgument(
+                    f"line {', '.join(self.lost_lines)} held joints {', '.join(self.lost_pose)} when it was lost:"
+                    " say whether they hold their last targets ('hold': right if their servos kept their power)"
+                    " or start free ('free': right if they restarted, free and elsewhere)"
+                )
+            if lost_joints == "hold":
+                pose.update(self.lost_pose)
+        await self.close()
+        await self._open(pose)
+        if self.robot is not None:
+            self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
+
+    async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
         try:
-            async with open_robot(
-                self.description, on_close="hold", start_pose=self.start_pose, **self.options
-            ) as robot:
+            async with open_robot(self.description, on_close="hold", start_pose=start_pose, **self.options) as robot:
                 self.robot, self.error = robot, None
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
@@ -83,13 +108,24 @@ class RobotSession:
                 if ended in done and not closing.is_set():
                     why = error_text(ended.result())
                     self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
-                self.start_pose = {name: target for name, target in robot.targets.items() if target is not None}
+                    self._carry_on_from(robot)
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
         finally:
             self.robot = None
             self.motion_enabled = False
             opened.set()
+
+    def _carry_on_from(self, robot: Robot) -> None:
+        """What Reconnect starts from (see :meth:`reopen`), taken as a lost line ends ``robot``."""
+        self.lost_lines = [line for line, bus in robot.group.buses.items() if not bus.is_open]
+        kept: dict[str, float] = {}
+        lost: dict[str, float] = {}
+        for name, target in robot.targets.items():
+            if target is None or robot.start_modes.get(name) == "read":
+                continue  # free: stays free; ICS 3.6: read again
+            (lost if self.description.joints[name].line in self.lost_lines else kept)[name] = target
+        self.start_pose, self.lost_pose = kept, lost
 
     async def close(self) -> None:
         await self.stop()
@@ -165,6 +201,8 @@ class RobotSession:
             "playing": self.playing,
             "outcome": self.outcome,
             "joints": joints,
+            # Reconnect's question: what the lost line's holding joints do (see reopen)
+            "reconnect_choice": {"lines": self.lost_lines, "joints": list(self.lost_pose)} if self.lost_pose else None,
         }
 
     async def set_motion(self, enabled: bool) -> None:

@@ -518,7 +518,12 @@ function onRobot(r) {
   state.robot = r;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
-  $("#robot-reopen").hidden = r.open;  // the lines lost (or never opened): open them again from here
+  // The lines lost (or never opened): open them again from here; when the lost line's joints were holding,
+  // the person says what they do (the server cannot tell whether their servos kept their power).
+  const choice = r.open ? null : r.reconnect_choice;
+  $("#robot-reopen").hidden = r.open || Boolean(choice);
+  $("#robot-reopen-choice").hidden = !choice;
+  $("#robot-reopen-question").textContent = choice ? `Line ${choice.lines.join(", ")} was lost while ${choice.joints.join(", ")} held their targets. If their servos kept their power they still hold them; if they restarted, they are free somewhere else.` : "";
   $("#robot-motion").disabled = !r.open;
   $("#robot-cycle").textContent = r.cycle ?? "-";
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
@@ -659,6 +664,8 @@ on("#robot-play", "click", playMotion);
 on("#robot-stop", "click", async () => onRobot(await api("/api/robot/stop", {})));
 on("#robot-free", "click", async () => onRobot(await api("/api/robot/free", {})));
 on("#robot-reopen", "click", async () => onRobot(await api("/api/robot/reopen", {})));
+on("#robot-reopen-hold", "click", async () => onRobot(await api("/api/robot/reopen", { lost_joints: "hold" })));
+on("#robot-reopen-free", "click", async () => onRobot(await api("/api/robot/reopen", { lost_joints: "free" })));
 window.addEventListener("hashchange", show);
 
 api("/api/status").then(showStatus).catch(() => {});
