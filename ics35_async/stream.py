@@ -430,8 +430,8 @@ class Stream(FrameIterator[Frame]):
         self._positions[k] = position
         self._stamps[k] = now
         self._answered[k] = True
-        if self._unsent and self._cur_job is self._jobs[k]:  # the slot's current target went out
-            self._unsent.discard(k)
+        if self._unsent and self._cur_job is self._jobs[k] and k not in self._stale:
+            self._unsent.discard(k)  # the slot's current target went out (a stale one's job is not yet renewed)
         if self._fail_run[k]:  # only fail() marks an ID offline, always after a failure
             self._fail_run[k] = 0
             self._offline[k] = False
@@ -747,7 +747,8 @@ class Stream(FrameIterator[Frame]):
         else:  # "hold": the targets set since their last cycle (offline and held IDs get nothing)
             last = {
                 self.ids[k]: self._targets[k]
-                for k in sorted(self._unsent.copy())  # (copied at once: an I/O thread may still be finishing)
+                # (copied at once: an I/O thread may still be finishing; a stale slot's target is set, not sent)
+                for k in sorted(self._unsent | self._stale)
                 if not self._offline[k] and not self._held[k] and self._targets[k] != WATCH
             }
         if not self.bus.is_open:

@@ -713,7 +713,10 @@ async def test_targets_given_before_the_stream_starts_hold_from_its_first_comman
         assert [t.servo_id for t in line.log_since(0) if t.command == "free"] == []
 
 
-async def test_a_target_set_during_a_burst_is_sent_at_the_close_when_its_cycle_carried_the_old_one() -> None:
+@pytest.mark.parametrize("close_mid_burst", [False, True])
+async def test_a_target_set_during_a_burst_is_sent_at_the_close_when_its_cycle_carried_the_old_one(
+    close_mid_burst: bool,
+) -> None:
     # The engine's hooks driven as during a burst: the executor has already sent ID 2's planned command
     # (the old target) when the program sets ID 2's final pose; that transaction is then fed back.  The
     # close took the slot as sent (it was handed out) and the final pose was dropped.
@@ -741,6 +744,8 @@ async def test_a_target_set_during_a_burst_is_sent_at_the_close_when_its_cycle_c
             reply[0:3] = job[0]
             reply[3] = sid
             assert hooks.complete(reply, 3, now) is None
+        if close_mid_burst:  # (a frame fed ahead of the burst's end: the program leaves its block)
+            await stream.aclose()
         hooks.upcoming_done()
         await stream.aclose()
     assert stream.targets_sent_on_close == {2: 9000}
