@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ics35_async import InvalidArgument, Robot, open_robot, units
+from ics35_async import InvalidArgument, Robot, UnsafeOperation, open_robot, units
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import MotionStopped, RobotWarning
 from tests.support.robot_rig import (
@@ -250,6 +250,8 @@ def test_a_motion_gives_up_the_joints_of_a_line_that_comes_back_and_they_wait_fo
         assert targets_sent(rig.upper, 1)[-1] == sent_position(JOINTS["neck"], 30.0)
         await robot.stop()  # nothing to ramp for hip: it stays held
         robot.hold(["hip"])  # where it is is unknown: nothing to hold it at
+        with pytest.raises(UnsafeOperation, match="hip is held since line lower came back"):
+            await robot.move_to({"hip": -20.0}, duration=0.1)  # it would start from the target it had
         pose = await robot.read_pose()  # (it waited for hip's replies, which never come)
         assert "hip" not in pose and "neck" in pose
         assert targets_sent(rig.lower, 1, since) == []  # hip: no command since it came back
@@ -257,6 +259,7 @@ def test_a_motion_gives_up_the_joints_of_a_line_that_comes_back_and_they_wait_fo
         await robot.on_wire(["hip"])
         assert targets_sent(rig.lower, 1, since)[-1] == sent_position(JOINTS["hip"], 5.0)
         assert "hip" not in (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held
+        await robot.move_to({"hip": 0.0}, duration=0.05)  # a target set: motions may move it again
 
     run_robot(rig, body, reconnect=True)
 

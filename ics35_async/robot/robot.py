@@ -23,7 +23,7 @@ from typing import Any
 import anyio
 
 from .. import protocol, units
-from ..errors import BusClosed, IcsError, InvalidArgument
+from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
 from .description import JointSpec, RobotDescription
@@ -86,7 +86,8 @@ class Robot:
 
     @property
     def targets(self) -> dict[str, float | None]:
-        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``)."""
+        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``).  A joint
+        held since its line came back (``latest.held``) shows the target it had, not being sent."""
         return dict(self._targets)
 
     @property
@@ -276,12 +277,20 @@ class Robot:
         await play_motion(self, motion, speed=speed, loop=loop)
 
     def check_ready(self, joints: Iterable[str]) -> None:
-        """Raise why a motion of ``joints`` cannot start: the robot's end, or a safety stop that still stands."""
+        """Raise why a motion of ``joints`` cannot start: the robot's end, a safety stop that still stands, or
+        a joint held since its line came back (UnsafeOperation: it would start from the target it had)."""
         if self._end_error is not None:
             raise self._end_error
         for name in joints:
             if name in self._latched:
                 raise self._latched[name]
+            if name in self._held:
+                line = self.joints[name].line
+                raise UnsafeOperation(
+                    f"joint {name} is held since line {line} came back after a lost port: where it is is unknown "
+                    "(its servo may have restarted elsewhere), and a motion would start from the target it had; "
+                    "set its target (set_targets) or free it first"
+                )
 
     def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
         """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits)."""
@@ -448,6 +457,8 @@ class Robot:
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
+        # (a frame published before a target was set may list its joint held still: a later one will not)
+        self._held.intersection_update(held)
         self._watch_offline(offline)
         if frame.resumed:
             self._line_resumed(frame.resumed, held)
