@@ -19,7 +19,7 @@ from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, TimingOverrides
-from .errors import BusClosed, InvalidArgument, PortLost, UnsafeOperation, error_text
+from .errors import BusClosed, ClosedByPortLoss, InvalidArgument, PortLost, UnsafeOperation, error_text
 from .protocol import Command
 from .stats import BusStats
 from .tasks import despite_cancellation
@@ -338,6 +338,12 @@ class Bus:
     def is_open(self) -> bool:
         """True from a successful :meth:`open` until :meth:`aclose` or the port's loss (without reconnect)."""
         return self._driver is not None and self._engine.state not in (State.CLOSED, State.DRAINING)
+
+    @property
+    def port_lost(self) -> bool:
+        """Whether losing its port closed the bus (opened without ``reconnect``, or it could not reopen): a
+        program whose lines ended can tell the lost one from those its own close closed."""
+        return not self.is_open and isinstance(self._not_open_error(), ClosedByPortLoss)
 
     def _not_open_error(self) -> BusClosed:
         """The error work on this bus meets while it is not open: why it closed (a ClosedByPortLoss if

@@ -198,26 +198,33 @@ def test_reconnect_asks_what_the_lost_lines_holding_joints_do_and_does_it(robot:
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "two.toml"
+    # ID 2 of each line speaks ICS 3.6: read at the start (and again after its line was lost), not asked about.
     path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\n[lines.lower]\nport = "sim://{name}-lower?ids=1"\n'
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2&ics36=2"\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2&ics36=2"\n'
         '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+        '[joints.nod]\nline = "upper"\nid = 2\n[joints.tail]\nline = "lower"\nid = 2\n'
     )
     app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
     with TestClient(app, base_url=BASE) as client:
         client.cookies.set(COOKIE, TOKEN)
         upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
         post(client, "/api/robot/motion", {"enabled": True})
-        post(client, "/api/robot/move", {"pose": {"neck": 10, "hip": -10}, "duration": 0.1})
-        wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, -10.0])
-        neck = upper.servo(1).target
+        pose = {"neck": 10, "hip": -10, "nod": 5, "tail": -5}
+        post(client, "/api/robot/move", {"pose": pose, "duration": 0.1})
+        wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, -10.0, 5.0, -5.0])
+        held = {"neck": upper.servo(1).target, "nod": upper.servo(2).target, "tail": lower.servo(2).target}
         view = lose_and_replug(client, lower)
-        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view
+        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view  # tail: ICS 3.6, read
         since = upper.transactions
         assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
         wait_for(lambda: lower.servo(1).free)
         time.sleep(0.1)
-        assert not [t for t in upper.log_since(since) if t.command == "free"] and upper.servo(1).target == neck
-        assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, None]
+        assert not [t for t in upper.log_since(since) if t.command == "free"]
+        now = {"neck": upper.servo(1).target, "nod": upper.servo(2).target, "tail": lower.servo(2).target}
+        assert now == held and not lower.servo(2).free  # the line that stayed holds; tail read, torque as it was
+        targets = {j["name"]: j["target"] for j in client.get("/api/robot").json()["joints"]}
+        assert targets == {"neck": 10.0, "hip": None, "nod": 5.0, "tail": None}, targets
     upper.close()
     lower.close()
 

@@ -40,6 +40,7 @@ class RobotSession:
         self.start_pose = check_start_pose(self.description, start_pose)
         self.lost_pose: dict[str, float] = {}
         self.lost_lines: list[str] = []
+        self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.robot: Robot | None = None
         self.error: str | None = None
         self.motion_enabled = False
@@ -68,8 +69,8 @@ class RobotSession:
         """Open the robot again after a lost line (or a failed start): what the page's Reconnect asks.
 
         A joint that held a target when the robot ended carries on: on a line that stayed, it holds that
-        target from the first command (its servo kept holding it); an ICS 3.6 joint is read, torque left as
-        it is; a free one stays free.  The lost line's holding ICS 3.5 joints (:attr:`lost_pose`) hold
+        target from the first command (its servo kept holding it); on the lost line an ICS 3.6 joint is
+        read, torque left as it is; a free one stays free.  The lost line's holding ICS 3.5 joints (:attr:`lost_pose`) hold
         their last targets with ``lost_joints="hold"`` (their servos kept their power) or start free with
         ``"free"`` (they restarted); with such joints, one of the two must be given.
 
@@ -105,10 +106,12 @@ class RobotSession:
                 finally:  # (cancelled too, if this task is: neither is left pending)
                     asked.cancel()
                     ended.cancel()
-                if ended in done and not closing.is_set():
+                lost = ended in done and not closing.is_set()
+                if lost:
                     why = error_text(ended.result())
                     self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
-                    self._carry_on_from(robot)
+            if lost:  # (once the robot is closed: a line lost during the close-out is known lost too)
+                self._carry_on_from(robot)
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
         finally:
@@ -117,14 +120,19 @@ class RobotSession:
             opened.set()
 
     def _carry_on_from(self, robot: Robot) -> None:
-        """What Reconnect starts from (see :meth:`reopen`), taken as a lost line ends ``robot``."""
-        self.lost_lines = [line for line, bus in robot.group.buses.items() if not bus.is_open]
+        """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has ended ``robot``."""
+        self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
+        self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
         kept: dict[str, float] = {}
         lost: dict[str, float] = {}
         for name, target in robot.targets.items():
-            if target is None or robot.start_modes.get(name) == "read":
-                continue  # free: stays free; ICS 3.6: read again
-            (lost if self.description.joints[name].line in self.lost_lines else kept)[name] = target
+            if target is None:
+                continue  # free: stays free
+            if self.description.joints[name].line not in self.lost_lines:
+                kept[name] = target  # its servo kept holding it
+            elif name not in self.ics36:
+                lost[name] = target  # the person says whether it still holds it
+            # (an ICS 3.6 joint on a lost line is read again: torque left as it is)
         self.start_pose, self.lost_pose = kept, lost
 
     async def close(self) -> None:
