@@ -70,9 +70,9 @@ class RobotSession:
 
         A joint that held a target when the robot ended carries on: on a line that stayed, it holds that
         target from the first command (its servo kept holding it); on the lost line an ICS 3.6 joint is
-        read, torque left as it is; a free one stays free.  The lost line's holding ICS 3.5 joints (:attr:`lost_pose`) hold
-        their last targets with ``lost_joints="hold"`` (their servos kept their power) or start free with
-        ``"free"`` (they restarted); with such joints, one of the two must be given.
+        read, torque left as it is; a free one stays free.  The lost line's holding ICS 3.5 joints
+        (:attr:`lost_pose`) hold their last targets with ``lost_joints="hold"`` (their servos kept their
+        power) or start free with ``"free"`` (they restarted); with such joints, one of the two must be given.
 
         Raises:
             InvalidArgument: ``lost_joints`` is not "hold" or "free" while the lost line had holding joints.
