@@ -234,7 +234,7 @@ def test_a_dump_cut_by_an_unplug_keeps_what_it_read(
     err = " ".join(result.err.split())
     assert "unplugged" in err and "Traceback" not in err
     if ids == "all":  # the servos on the line: those read and those the loss left unread
-        assert "4 servo(s) answered: IDs 1, 2, 3, 4" in err
+        assert "4 servo(s) answered at 115200 baud: IDs 1, 2, 3, 4" in err
     else:
         assert "no answer from ID(s) 5: not saved" in err
     if output == "dir":
@@ -290,3 +290,19 @@ def test_restore_clearing_pwminh_advises_what_fits_restore(cli: Any, sim_line: A
     assert "use flags+=NAME / flags-=NAME" not in err
     assert "this clears flag(s) PWMINH" in err
     assert f"ics35 --port {url} eeprom set 1 flags+=PWMINH" in err, err
+
+
+@pytest.mark.parametrize("ids", ["all", "7-8"])
+def test_a_dump_of_several_says_which_servo_answered_garbled_and_fails(
+    cli: Any, sim_line: Any, tmp_path: Path, ids: str
+) -> None:
+    """Two servos sharing ID 7 beside servo 8: the dump saved 8 and exited 0, saying nothing of 7 (for
+    "all") or that 7 did not answer (for 7-8): a backup missing a servo that is there, told wrongly."""
+    _, url = sim_line([VirtualServo(7), VirtualServo(7), VirtualServo(8)])
+    folder = tmp_path / "backup"
+    result = cli("--port", url, "eeprom", "dump", ids, "-o", f"{folder}/")
+    err = " ".join(result.err.split())
+    assert result.code == ExitCode.COMMUNICATION, err
+    assert sorted(p.name for p in folder.iterdir()) == ["servo-08.json"]
+    assert "ID(s) 7 answered garbled: not saved" in err and "two servos sharing an ID" in err, err
+    assert "no answer from ID(s) 7" not in err

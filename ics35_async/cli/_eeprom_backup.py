@@ -82,6 +82,8 @@ class ImagesRead:
     images: dict[int, Eeprom]
     lost: CliError | None = None
     unread: list[int] = field(default_factory=list)
+    garbled: list[int] = field(default_factory=list)  # answered garbled to the probe (two servos on one ID?)
+    failed: list[int] = field(default_factory=list)  # answered the probe, but no two EEPROM reads agreed
 
 
 async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
@@ -93,20 +95,23 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
             return ImagesRead({ids[0]: await read_eeprom_agreed(bus, ids[0])})
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
+        failed: list[int] = []
+        garbled = sorted(rate.garbled)
         for n, i in enumerate(rate.answered):
             try:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
+                failed.append(i)
             except (PortLost, ClosedByPortLoss) as exc:
                 if not images:
                     raise
                 # The error in words now, while the port's name is known; told once the images are saved.
-                return ImagesRead(images, line_error(settings, exc), list(rate.answered[n:]))
-        if not images:
+                return ImagesRead(images, line_error(settings, exc), list(rate.answered[n:]), garbled, failed)
+        if not images and not garbled:
             where = f"{settings.port} at {settings.baud} baud (IDs {ids_text(ids)})"
             raise nothing_answered(settings, where, silent=rate.silent)
-        return ImagesRead(images)
+        return ImagesRead(images, garbled=garbled, failed=failed)
 
 
 def write_backup(path: Path, doc: dict[str, Any]) -> None:
@@ -142,13 +147,22 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 f"[yellow]warning:[/yellow] servo {i}'s EEPROM holds unknown code(s), not in ICS 3.5 ({codes}): "
                 "kept exactly as read; an image holding them cannot be written back"
             )
-    missing = [i for i in ids if i not in images and i not in read.unread]
+    there = set(read.unread) | set(read.garbled) | set(read.failed)  # answered, not saved (told apart below)
+    missing = [i for i in ids if i not in images and i not in there]
     if missing and len(ids) > 1:
         if len(ids) == 32:  # "all": the servos on the line, whichever they are
-            answered = sorted([*images, *read.unread])
-            err.print(f"{len(answered)} servo(s) answered: IDs {ids_text(answered)}")
+            answered = sorted([*images, *read.unread, *read.garbled, *read.failed])
+            err.print(
+                f"{len(answered)} servo(s) answered at {settings.baud} baud: IDs {ids_text(answered)} (a servo "
+                f"at another rate does not: {settings.command_line('scan')} finds every rate)"
+            )
         else:
             err.print(f"[yellow]warning:[/yellow] no answer from ID(s) {ids_text(missing)}: not saved")
+    if read.garbled:
+        err.print(
+            f"[yellow]warning:[/yellow] ID(s) {ids_text(read.garbled)} answered garbled: not saved (two servos "
+            "sharing an ID, most likely: connect them one at a time and renumber one; or noise)"
+        )
     if as_table:
         for i, image in images.items():
             out.print(eeprom_table(image, f"EEPROM of servo {i}"))
@@ -171,6 +185,13 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             f"read the rest: {settings.command_line(*again)}"
         )
         raise failure
+    unsaved = sorted([*read.garbled, *read.failed])
+    if unsaved:  # servos that are there, and are not in the backup: not a success for a script to go on from
+        raise CliError(
+            ExitCode.COMMUNICATION,
+            f"servo(s) at ID(s) {ids_text(unsaved)} answered but could not be saved (see above)",
+            *([f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}"] if images else []),
+        )
     return 0
 
 
