@@ -313,6 +313,41 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     load_description(robot_file)  # still a valid robot file
 
 
+def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_limits(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A free servo turns by hand past its EEPROM pulse limits, which bound only the positions it is sent:
+    # calibrate wrote such a range without a word (only the next open warned).
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, _ = rig
+    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("min = -60\nmax = 60\n", "min = -40\nmax = 40\n"))
+    neck, hip = sims.servo("neck"), sims.servo("hip")
+    neck.eeprom = neck.eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)  # about -50..+50 degrees
+
+    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
+        def move() -> None:
+            neck.move_by_hand(7500 + round(servo_degrees["neck"] * 8000 / 270))
+            hip.move_by_hand(7500 + round(servo_degrees["hip"] * 8000 / 270))
+
+        return move
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 0.0, "hip": 0.0}), "\n"),
+            ("whole range", at({"neck": -45.0, "hip": -60.0}), ""),
+            (None, at({"neck": 70.0, "hip": 40.0}), "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    said = " ".join(result.err.split())
+    assert "joints.neck: the file allows -44.9..69.9 degrees, but servo ID 1 on line upper stops at" in said, said
+    assert "-50.6..50.6 (EEPROM pulse limits 6000..9000)" in said and "joints.hip" not in said, said
+
+
 def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

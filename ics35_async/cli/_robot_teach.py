@@ -18,10 +18,12 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from ..errors import IcsError, InvalidArgument
+from ..eeprom import Eeprom
+from ..errors import IcsError, InvalidArgument, ReplyError
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
+from ..robot.startup import limit_problem
 from ._common import (
     CliError,
     ExitCode,
@@ -300,6 +302,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     neutral: dict[str, float] = {}
     low: dict[str, float] = {}
     high: dict[str, float] = {}
+    eeproms: dict[str, Eeprom] = {}
 
     def extra(name: str) -> list[str]:
         return [signed_tenths(v[name]) if name in v else "-" for v in (neutral, low, high)]
@@ -350,6 +353,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                     with contextlib.suppress(asyncio.CancelledError):
                         await tracking
                 track(robot.latest)
+                for name in names:  # each servo's pulse limits, to compare with the range found (below)
+                    joint = robot.joints[name]
+                    with contextlib.suppress(ReplyError):
+                        eeproms[name] = await robot.group[joint.line].servo(joint.id).read_eeprom()
 
     run_robot(settings, description, body)
     calibrated: dict[str, JointSpec] = {}
@@ -374,6 +381,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     for name, joint in calibrated.items():
         offset, least, most = (signed_tenths(x) for x in (joint.offset, joint.min, joint.max))
         out.print(f"{name}: offset {offset}, min {least}, max {most}")
+        # A free servo turns by hand past its pulse limits, which bound only the positions it is sent.
+        problem = limit_problem(robot_file, joint, eeproms[name]) if name in eeproms else None
+        if problem is not None:
+            err.print(f"[yellow]warning:[/yellow] {escape(problem)}: commands stop there", soft_wrap=True)
     written = write_calibration(robot_file, description, calibrated)
     if written.comments_kept:
         out.print(f"written into {escape(str(written.path))} (comments kept)")

@@ -248,7 +248,7 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 silent.append(joint)
                 why = why or str(exc)
                 continue
-            message = _limit_problem(robot, joint, eeprom)
+            message = limit_problem(robot.description.source, joint, eeprom)
             if message is not None:
                 found.append(message)
         if silent:  # one message a line (a line with nothing answering said it once a joint)
@@ -286,8 +286,10 @@ def warn_program(message: str) -> None:
     warnings.warn(message, RobotWarning, stacklevel=level)
 
 
-def _limit_problem(robot: Robot, joint: JointSpec, eeprom: Eeprom) -> str | None:
-    where = f"{robot.description.source}: joints.{joint.name}"
+def limit_problem(source: str, joint: JointSpec, eeprom: Eeprom) -> str | None:
+    """What is wrong, in words, when ``joint``'s limits reach past its servo's EEPROM pulse limits (the servo
+    is never sent past them); None when they do not.  ``source`` names the robot file."""
+    where = f"{source}: joints.{joint.name}"
     low, high = sorted((joint.position(joint.min), joint.position(joint.max)))
     if low >= eeprom.pulse_limit_low and high <= eeprom.pulse_limit_high:
         return None
