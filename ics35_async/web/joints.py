@@ -34,9 +34,9 @@ class RobotSession:
         self.path = path
         self.options = dict(options or {})  # open_robot's options for every line (the CLI's --timeout, ...)
         # The next open's start_pose: the one given (--start-pose); after a lost line ended the robot, the
-        # targets its ICS 3.5 joints on the other lines held (they kept holding them), and those of the lost
-        # line's only if the person says so at Reconnect (lost_pose: right if their servos kept their power,
-        # wrong if they restarted elsewhere).  ICS 3.6 joints are read again instead.
+        # targets its joints on the other lines held (they kept holding them), and those of the lost line's
+        # ICS 3.5 joints only if the person says so at Reconnect (lost_pose: right if their servos kept their
+        # power, wrong if they restarted elsewhere); the lost line's ICS 3.6 joints are read again instead.
         self.start_pose = check_start_pose(self.description, start_pose)
         self.lost_pose: dict[str, float] = {}
         self.lost_lines: list[str] = []
