@@ -34,6 +34,7 @@ def arm_file(tmp_path: Path, name: str) -> Path:
         f"""name = "arm"
 [lines.arm]
 port = "sim://{name}?ids=1-2"
+rate_hz = 200
 [joints.shoulder]
 line = "arm"
 id = 1
@@ -200,8 +201,8 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
     path = tmp_path / "two.toml"
     # ID 2 of each line speaks ICS 3.6: read at the start (and again after its line was lost), not asked about.
     path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2&ics36=2"\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2&ics36=2"\n'
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2&ics36=2"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2&ics36=2"\nrate_hz = 200\n'
         '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
         '[joints.nod]\nline = "upper"\nid = 2\n[joints.tail]\nline = "lower"\nid = 2\n'
     )
@@ -289,7 +290,9 @@ def test_the_pages_work_on_a_robot_line_without_fighting_the_robot_for_its_servo
 def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tmp_path: Path) -> None:
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "one.toml"
-    path.write_text(f'[lines.arm]\nport = "sim://{name}?ids=1"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    path.write_text(
+        f'[lines.arm]\nport = "sim://{name}?ids=1"\nrate_hz = 200\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+    )
     session = LineSession(LineConfig(port=f"sim://{name}-unused"))
     app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True)
     with TestClient(app, base_url=BASE) as client:
@@ -323,7 +326,9 @@ def test_the_robots_lines_open_with_the_line_options_given(tmp_path: Path) -> No
     ``ics35 play`` does (the CLI hands its --timeout and --transport to the session)."""
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "one.toml"
-    path.write_text(f'[lines.arm]\nport = "sim://{name}?ids=1"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    path.write_text(
+        f'[lines.arm]\nport = "sim://{name}?ids=1"\nrate_hz = 200\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+    )
     robot = RobotSession(str(path), {"adapter_latency": 0.3})
     app = create_app(LineSession(LineConfig(port=f"sim://{name}-unused")), TOKEN, robot=robot)
     with TestClient(app, base_url=BASE) as client:
