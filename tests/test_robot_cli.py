@@ -250,6 +250,19 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(
     assert targets_sent(sims.lower, 1)[-1] == joint_position(JOINTS["hip"], taught["keyframes"][1]["pose"]["hip"])
 
 
+def by_hand(sims: Rig) -> Callable[[dict[str, float]], Callable[[], None]]:
+    """``at(servo_degrees)``: a step that turns the neck and hip servos by hand to those servo degrees."""
+
+    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
+        def move() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(7500 + round(servo_degrees[name] * 8000 / 270))
+
+        return move
+
+    return at
+
+
 CALIBRATE_FILE = """\
 # my arm
 [lines.upper]
@@ -280,14 +293,7 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     robot_file = tmp_path / "arm.toml"
     written = CALIBRATE_FILE.format(**ports).replace("\n", "\r\n").encode()  # from a Windows editor
     robot_file.write_bytes(written)
-    neck, hip = sims.servo("neck"), sims.servo("hip")
-
-    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
-        def move() -> None:
-            neck.move_by_hand(7500 + round(servo_degrees["neck"] * 8000 / 270))
-            hip.move_by_hand(7500 + round(servo_degrees["hip"] * 8000 / 270))
-
-        return move
+    at = by_hand(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],
@@ -323,15 +329,9 @@ def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_l
     ports = {name: line["port"] for name, line in sims.description["lines"].items()}
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("min = -60\nmax = 60\n", "min = -40\nmax = 40\n"))
-    neck, hip = sims.servo("neck"), sims.servo("hip")
+    neck = sims.servo("neck")
     neck.eeprom = neck.eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)  # about -50..+50 degrees
-
-    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
-        def move() -> None:
-            neck.move_by_hand(7500 + round(servo_degrees["neck"] * 8000 / 270))
-            hip.move_by_hand(7500 + round(servo_degrees["hip"] * 8000 / 270))
-
-        return move
+    at = by_hand(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],

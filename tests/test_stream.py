@@ -888,6 +888,13 @@ async def test_an_impossible_rate_counts_overruns() -> None:
     assert stats.cycle_time_p50 > 32 * 6 * 11 / 115200
 
 
+def rate_warning(caplog: pytest.LogCaptureFixture) -> str:
+    """The one warning of a stream that cannot keep its rate (fails if there is none, or more than one)."""
+    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
+    assert len(said) == 1, said
+    return said[0]
+
+
 async def test_a_rate_the_line_cannot_keep_is_told_once_in_words(caplog: pytest.LogCaptureFixture) -> None:
     # 17 servos at 115200 with rate_hz=100 ran at about 63 Hz, said only by stats.overruns: a newcomer's
     # loop then runs slow without a word.  One warning, after the first cycles, with what to change.
@@ -903,9 +910,8 @@ async def test_a_rate_the_line_cannot_keep_is_told_once_in_words(caplog: pytest.
                     pass  # a rate the line keeps: nothing said
     finally:
         sim.close()
-    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
-    assert len(said) == 1, said
-    assert "17 IDs" in said[0] and "rate_hz=100" in said[0] and "115200 baud" in said[0], said
+    said = rate_warning(caplog)
+    assert "17 IDs" in said and "rate_hz=100" in said and "115200 baud" in said, said
 
 
 async def test_a_servo_gone_offline_early_is_not_blamed_for_a_rate_the_wire_cannot_keep(
@@ -922,9 +928,8 @@ async def test_a_servo_gone_offline_early_is_not_blamed_for_a_rate_the_wire_cann
                     pass
     finally:
         sim.close()
-    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
-    assert len(said) == 1, said
-    assert "115200 baud" in said[0] and "did not answer" not in said[0], said
+    said = rate_warning(caplog)
+    assert "115200 baud" in said and "did not answer" not in said, said
 
 
 async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
@@ -950,10 +955,9 @@ async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog
                     poller.cancel()
     finally:
         sim.close()
-    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
-    assert len(said) == 1, said
-    assert "requests" in said[0] and "does not answer" in said[0], said
-    assert "raise the baud rate" not in said[0], said
+    said = rate_warning(caplog)
+    assert "requests" in said and "does not answer" in said, said
+    assert "raise the baud rate" not in said, said
 
 
 async def test_a_rate_lost_to_the_streams_own_silent_servos_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
@@ -969,10 +973,9 @@ async def test_a_rate_lost_to_the_streams_own_silent_servos_is_told_as_such(capl
                     pass
     finally:
         sim.close()
-    said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
-    assert len(said) == 1, said
-    assert "its ID(s) 0, 1, 2, 3 did not answer" in said[0] and "baud rate" in said[0], said
-    assert "raise the baud rate" not in said[0], said
+    said = rate_warning(caplog)
+    assert "its ID(s) 0, 1, 2, 3 did not answer" in said and "baud rate" in said, said
+    assert "raise the baud rate" not in said, said
 
 
 async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answered() -> None:
