@@ -149,3 +149,23 @@ def test_listen_takes_host_and_port_in_the_usual_spellings() -> None:
     assert Listen.parse("0.0.0.0:80") == Listen("0.0.0.0", 80)
     assert Listen.parse("[::1]:9000") == Listen("::1", 9000)
     assert Listen.parse("localhost").loopback and not Listen.parse("192.168.1.5:80").loopback
+
+
+def test_a_robot_line_on_a_fast_simulator_without_a_rate_is_said_to_run_flat_out(tmp_path: Path) -> None:
+    # Such a line's stream runs as fast as the CPU allows, in the server's own loop: its pages answered
+    # slowly (seconds) and nothing said why.  A rate, or a real-time simulator, paces it.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        '[lines.fast]\nport = "sim://web-cli-fast?ids=1"\n[lines.paced]\nport = "sim://web-cli-paced?ids=1"\n'
+        'rate_hz = 100\n[lines.real]\nport = "sim://web-cli-real?ids=1&realtime=1"\n'
+        '[joints.a]\nline = "fast"\nid = 1\n[joints.b]\nline = "paced"\nid = 1\n[joints.c]\nline = "real"\nid = 1\n'
+    )
+    with web("--robot", str(robot)) as (proc, url):
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200  # (the server has started: the robot is open)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(10) == 0
+        assert proc.stderr is not None
+        err = " ".join(proc.stderr.read().split())
+    assert "robot line fast (sim://web-cli-fast?ids=1) is a fast simulator with no rate_hz" in err, err
+    assert "line paced" not in err and "line real" not in err, err

@@ -21,6 +21,7 @@ from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
+from ..sim.url import parse_url
 from ..units import check_seconds
 
 
@@ -143,6 +144,25 @@ class RobotSession:
             with contextlib.suppress(asyncio.CancelledError):
                 await holder
         self.robot = None
+
+    def flat_out_lines(self) -> list[str]:
+        """A word for each robot line on a fast in-process simulator with no ``rate_hz``: nothing paces its
+        stream (on hardware the wire does), so it runs as fast as the CPU allows, in this server's loop."""
+        said = []
+        for line in self.description.lines.values():
+            if line.rate_hz is not None or not line.port.lower().startswith("sim://"):
+                continue
+            try:
+                realtime = parse_url(line.port)[1].get("realtime", False)
+            except InvalidArgument:
+                continue  # (opening the line says what is wrong with it)
+            if not realtime:
+                said.append(
+                    f"robot line {line.name} ({line.port}) is a fast simulator with no rate_hz: its stream runs "
+                    "as fast as the CPU allows, in this server's loop, and the pages answer slowly; give the "
+                    "line rate_hz = 100, or its port realtime=1"
+                )
+        return said
 
     def _robot(self) -> Robot:
         if self.robot is None:

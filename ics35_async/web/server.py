@@ -89,6 +89,9 @@ def create_app(
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
         if robot is not None:
             await robot.open()
+            if warn is not None:
+                for text in robot.flat_out_lines():
+                    warn(text)
             if robot.error and warn is not None:
                 warn(robot.error)
                 if line_from_robot:
