@@ -16,6 +16,7 @@ import pytest
 from starlette.testclient import TestClient
 
 from ics35_async import sim
+from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.api import updates
 from ics35_async.web.joints import RobotSession
@@ -100,6 +101,7 @@ def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: An
     motion = {"format": "ics35-motion", "version": 1, "name": "nod", "keyframes": nod}
     assert post(client, "/api/robot/play", {"motion": motion}).status_code == 409  # motion not on
     post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: line.servo(1).target is not None)  # (the hold goes out with the line's next cycle)
     held = line.servo(1).target
     too_far = {**motion, "keyframes": [{"time": 0.3, "pose": {"shoulder": 99}}]}
     bad = post(client, "/api/robot/play", {"motion": too_far})
@@ -170,8 +172,8 @@ def test_reconnect_asks_what_the_lost_lines_holding_joints_do_and_does_it(robot:
     client, line = robot
     post(client, "/api/robot/motion", {"enabled": True})
     assert post(client, "/api/robot/move", {"pose": {"shoulder": 20, "elbow": 45}, "duration": 0.1}).status_code == 200
-    wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [20.0, 45.0])
-    held = {1: line.servo(1).target, 2: line.servo(2).target}
+    held = {1: degrees_to_position(20), 2: degrees_to_position(45)}  # (the joints have no offsets)
+    wait_for(lambda: {1: line.servo(1).target, 2: line.servo(2).target} == held)
     view = lose_and_replug(client, line)
     assert view["reconnect_choice"] == {"lines": ["arm"], "joints": ["shoulder", "elbow"]}, view
     unsaid = post(client, "/api/robot/reopen")
@@ -213,8 +215,9 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
         post(client, "/api/robot/motion", {"enabled": True})
         pose = {"neck": 10, "hip": -10, "nod": 5, "tail": -5}
         post(client, "/api/robot/move", {"pose": pose, "duration": 0.1})
-        wait_for(lambda: [j["target"] for j in client.get("/api/robot").json()["joints"]] == [10.0, -10.0, 5.0, -5.0])
-        held = {"neck": upper.servo(1).target, "nod": upper.servo(2).target, "tail": lower.servo(2).target}
+        held = {"neck": degrees_to_position(10), "nod": degrees_to_position(5), "tail": degrees_to_position(-5)}
+        servos = {"neck": upper.servo(1), "nod": upper.servo(2), "tail": lower.servo(2), "hip": lower.servo(1)}
+        wait_for(lambda: {name: servos[name].target for name in held} == held and not servos["hip"].free)
         view = lose_and_replug(client, lower)
         assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view  # tail: ICS 3.6, read
         since = upper.transactions
