@@ -95,6 +95,14 @@ class Flags(enum.IntFlag):
     SLAVE = 0x80
 
 
+def flags_value(value: object) -> int:
+    """A ``flags`` value (``Flags`` or an int 0..255) as a plain int; InvalidArgument otherwise."""
+    number = whole_number(value)
+    if number is None:
+        raise InvalidArgument(f"flags must be Flags or an int, not {type(value).__name__}")
+    return check_int("flags", int(number), 0, 0xFF)
+
+
 READ_ONLY_FLAGS = Flags.FREE | Flags.PCM
 UNUSED_FLAG_BITS = 0x60
 
@@ -328,10 +336,7 @@ class Eeprom:
         return updated
 
     def _check_flags(self, value: object) -> Flags:
-        number = whole_number(value)
-        if number is None:
-            raise InvalidArgument(f"flags must be Flags or an int, not {type(value).__name__}")
-        number = check_int("flags", int(number), 0, 0xFF)
+        number = flags_value(value)
         if number & UNUSED_FLAG_BITS:
             raise InvalidArgument("flag bits 5-6 are unused and must stay 0")
         if (number ^ self.flags) & READ_ONLY_FLAGS:

@@ -485,9 +485,13 @@ class Stream(FrameIterator[Frame]):
             self._t0 = now - self._cycle / self.rate_hz
 
     def _tell_rate_not_kept(self, now: float) -> None:
+        """Warn once that the rate is not kept, with the likeliest cause: the stream's own silent servos,
+        requests to silent servos on the line, or else the wire time of its cycle."""
         n, baud = len(self.ids), int(self.bus.baudrate)
-        command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
-        wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
+        late = (
+            f"stream of {n} IDs cannot keep rate_hz={self.rate_hz:g}: {self._overruns} of its first {self._cycle} "
+            f"cycles ran past their slot (about {self._cycle / max(now - self._first_start, 1e-9):.0f} cycles/s)"
+        )
         # The stream's own IDs that never answered, or failed in half its cycles: each costs its whole reply
         # allowance a cycle until it goes offline (a wrong baud rate silences them all); told as the cause
         # when their failures could account for half the late cycles (one gone offline early could not).
@@ -495,15 +499,10 @@ class Stream(FrameIterator[Frame]):
                if failed and (seen < 0 or 2 * failed >= self._cycle)]  # fmt: skip
         if own and 2 * sum(self._failures[self._index[sid]] for sid in own) >= self._overruns:
             log.warning(
-                "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about "
-                "%.0f cycles/s), and its ID(s) %s did not answer: each silent servo costs its whole reply "
-                "allowance every cycle until it goes offline (offline_after=%d): check its power, wiring, ID "
-                "and baud rate (ics35 scan looks at every ID at every rate)",
-                n,
-                self.rate_hz,
-                self._overruns,
-                self._cycle,
-                self._cycle / max(now - self._first_start, 1e-9),
+                "%s, and its ID(s) %s did not answer: each silent servo costs its whole reply allowance every "
+                "cycle until it goes offline (offline_after=%d): check its power, wiring, ID and baud rate "
+                "(ics35 scan looks at every ID at every rate)",
+                late,
                 ", ".join(map(str, own)),
                 self.offline_after,
             )
@@ -513,28 +512,19 @@ class Stream(FrameIterator[Frame]):
         silent = sorted(i for i, more in grown.items() if more > 0)
         if silent and sum(grown.values()) >= self._overruns // 2:  # the slots went to those waits
             log.warning(
-                "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about "
-                "%.0f cycles/s), while requests on the same line to ID(s) %s went unanswered %d times: a "
-                "request to a servo that does not answer holds the line for its whole reply allowance (poll "
-                "such a servo less often)",
-                n,
-                self.rate_hz,
-                self._overruns,
-                self._cycle,
-                self._cycle / max(now - self._first_start, 1e-9),
+                "%s, while requests on the same line to ID(s) %s went unanswered %d times: a request to a servo "
+                "that does not answer holds the line for its whole reply allowance (poll such a servo less often)",
+                late,
                 ", ".join(map(str, silent)),
                 sum(grown.values()),
             )
             return
+        command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
+        wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
         log.warning(
-            "stream of %d IDs cannot keep rate_hz=%g: %d of its first %d cycles ran past their slot (about %.0f "
-            "cycles/s); at %d baud its %d position transactions take %.1f ms on the wire alone, plus each "
-            "servo's answer time: raise the baud rate, stream fewer IDs or ask a lower rate (or the host is busy)",
-            n,
-            self.rate_hz,
-            self._overruns,
-            self._cycle,
-            self._cycle / max(now - self._first_start, 1e-9),
+            "%s; at %d baud its %d position transactions take %.1f ms on the wire alone, plus each servo's answer "
+            "time: raise the baud rate, stream fewer IDs or ask a lower rate (or the host is busy)",
+            late,
             baud,
             n,
             wire * 1e3,

@@ -54,6 +54,12 @@ def real_number(value: object) -> float | None:
     return float(value)
 
 
+def finite_number(value: object) -> float | None:
+    """``value`` as a Python float if it is a real-number type (:func:`real_number`) and finite, else None."""
+    number = real_number(value)
+    return number if number is not None and math.isfinite(number) else None
+
+
 def said(value: object) -> str:
     """``value`` as an error message names it: a number as Python writes it (``nan``, not
     ``np.float32(nan)``), anything else as its repr."""
@@ -85,8 +91,8 @@ def check_seconds(name: str, value: object, low: float = 0.0, high: float = 60.0
 
 def check_number(name: str, value: object, low: float, high: float, unit: str) -> float:
     """A finite number in ``low..high`` (not a bool); ``unit`` says what it counts, in its errors."""
-    number = real_number(value)
-    if number is None or not math.isfinite(number):
+    number = finite_number(value)
+    if number is None:
         raise InvalidArgument(f"{name} must be a number of {unit}, not {said(value)}")
     if not low <= number <= high:
         raise InvalidArgument(f"{name} must be in {low}..{high} {unit}, got {shown(number)}")
@@ -98,8 +104,8 @@ def check_rate_hz(value: object) -> float | None:
     (not a bool: ``True`` from a JSON form is not a rate)."""
     if value is None:
         return None
-    number = real_number(value)
-    if number is None or not math.isfinite(number) or not 0 < number <= 10000:
+    number = finite_number(value)
+    if number is None or not 0 < number <= 10000:
         raise InvalidArgument(f"rate_hz must be None or a number in (0, 10000], got {said(value)}")
     return number
 
@@ -148,8 +154,8 @@ def shown(value: float) -> str:
 
 def degrees_to_position(degrees: float) -> int:
     """The position for an angle in -135..+135 degrees (0 = neutral); InvalidArgument outside it."""
-    number = real_number(degrees)
-    if number is None or not math.isfinite(number):
+    number = finite_number(degrees)
+    if number is None:
         raise InvalidArgument(f"degrees must be a finite number, got {said(degrees)}")
     if not abs(number) <= DEGREES_MAX + _ANGLE_SLACK:
         raise InvalidArgument(
@@ -164,8 +170,8 @@ def position_to_radians(position: int) -> float:
 
 def radians_to_position(radians: float) -> int:
     """The position for an angle in -3*pi/4..+3*pi/4 radians (0 = neutral); InvalidArgument outside it."""
-    number = real_number(radians)
-    if number is None or not math.isfinite(number):
+    number = finite_number(radians)
+    if number is None:
         raise InvalidArgument(f"radians must be a finite number, got {said(radians)}")
     if not abs(math.degrees(number)) <= DEGREES_MAX + _ANGLE_SLACK:
         raise InvalidArgument(f"{shown(number)} radians is outside -3*pi/4..+3*pi/4 (-135..+135 degrees)")
@@ -196,8 +202,8 @@ def temperature_to_celsius(parameter: int) -> float:
 
 def celsius_to_temperature(celsius: float) -> int:
     """The temperature parameter (1..127) closest to ``celsius``, clamped."""
-    number = real_number(celsius)
-    if number is None or not math.isfinite(number):
+    number = finite_number(celsius)
+    if number is None:
         raise InvalidArgument(f"celsius must be a finite number, got {said(celsius)}")
     # Clamped before rounding: an extreme finite input overflows to inf, which round() cannot take.
     parameter = _TEMP_P1 + (number - _TEMP_C1) / _CELSIUS_PER_STEP

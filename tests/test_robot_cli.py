@@ -250,6 +250,14 @@ def test_teach_captures_hand_poses_and_play_brings_them_back(
     assert targets_sent(sims.lower, 1)[-1] == joint_position(JOINTS["hip"], taught["keyframes"][1]["pose"]["hip"])
 
 
+@pytest.fixture
+def calibrating(rig: tuple[Rig, Path], monkeypatch: pytest.MonkeyPatch) -> tuple[Rig, dict[str, str]]:
+    """The rig's simulated lines and their ports (for CALIBRATE_FILE), with no ICS35_PORT set."""
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, _ = rig
+    return sims, {name: line["port"] for name, line in sims.description["lines"].items()}
+
+
 def by_hand(sims: Rig) -> Callable[[dict[str, float]], Callable[[], None]]:
     """``at(servo_degrees)``: a step that turns the neck and hip servos by hand to those servo degrees."""
 
@@ -285,11 +293,9 @@ id = 1
 
 
 def test_calibrate_writes_neutral_and_range_back_keeping_comments(
-    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
-    monkeypatch.delenv("ICS35_PORT", raising=False)
-    sims, _ = rig
-    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     written = CALIBRATE_FILE.format(**ports).replace("\n", "\r\n").encode()  # from a Windows editor
     robot_file.write_bytes(written)
@@ -320,13 +326,11 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
 
 
 def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_limits(
-    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
     # A free servo turns by hand past its EEPROM pulse limits, which bound only the positions it is sent:
     # calibrate wrote such a range without a word (only the next open warned).
-    monkeypatch.delenv("ICS35_PORT", raising=False)
-    sims, _ = rig
-    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("min = -60\nmax = 60\n", "min = -40\nmax = 40\n"))
     neck = sims.servo("neck")
@@ -349,11 +353,9 @@ def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_l
 
 
 def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(
-    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
-    monkeypatch.delenv("ICS35_PORT", raising=False)
-    sims, _ = rig
-    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    sims, ports = calibrating
     robot_file = tmp_path / "inline.toml"
     original = (
         f'lines.upper.port = "{ports["upper"]}"\n'
@@ -388,12 +390,10 @@ def settle_on(sim: VirtualLine) -> None:
 
 
 def test_calibrate_refuses_a_joint_not_moved_through_its_range(
-    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
     """Enter twice without moving: a zero-width range would forbid every motion; nothing is written."""
-    monkeypatch.delenv("ICS35_PORT", raising=False)
-    sims, _ = rig
-    ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+    sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports))
     neck, hip = sims.servo("neck"), sims.servo("hip")

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import protocol
-from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags
+from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, flags_value
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
-from ..units import check_int, whole_number
+from ..units import check_int
 from .failure_kinds import Line, answers_short_read
 
 NO_FLAGS = Flags(0)
@@ -64,10 +64,7 @@ def edit_image(
     set_flags, clear_flags = _check_flag_edit(set_flags, clear_flags)
     fields = dict(changes)
     if "flags" in fields or set_flags or clear_flags:
-        given = fields.get("flags", int(current.flags))
-        if whole_number(given) is None:
-            raise InvalidArgument(f"flags must be Flags or an int, not {type(given).__name__}")
-        flags = check_int("flags", given, 0, 0xFF)
+        flags = flags_value(fields.get("flags", int(current.flags)))
         flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
         fields["flags"] = (flags | set_flags) & ~clear_flags
     return current.replace(**fields)

@@ -9,7 +9,6 @@ reverse else +1) * joint degrees``.
 from __future__ import annotations
 
 import difflib
-import math
 import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -222,8 +221,8 @@ class _Reader:
         value = self.get(name)
         if value is None:
             return None
-        number = units.real_number(value)  # (a description built by a program may hold NumPy numbers)
-        if number is None or not math.isfinite(number):
+        number = units.finite_number(value)  # (a description built by a program may hold NumPy numbers)
+        if number is None:
             raise self.error(name, f"must be a number, not {units.said(value)}")
         if not low <= number <= high:
             raise self.error(name, f"must be in {low:g}..{high:g}, got {number:g}")

@@ -27,7 +27,6 @@ take a cycle (the motion runs late rather than cutting a corner).
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -122,12 +121,6 @@ def save_motion(motion: Motion, path: str | Path) -> Path | None:
     return replace_keeping_backup(Path(path), json.dumps(motion.to_json(), indent=2) + "\n")
 
 
-def _number(value: object) -> float | None:
-    """``value`` as a float if it is a finite number (a NumPy one too), else None."""
-    number = units.real_number(value)
-    return number if number is not None and math.isfinite(number) else None
-
-
 def parse_motion(data: object, source: str = "<mapping>") -> Motion:
     """Check ``data``, a parsed motion (what ``json.load`` returns), and build a :class:`Motion`.
 
@@ -166,7 +159,7 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
         extra = set(frame) - {"time", "pose", "profile"}
         if extra:
             raise MotionError(source, f"{key}.{sorted(extra)[0]}", "unknown key (known: time, pose, profile)")
-        time = _number(frame.get("time"))
+        time = units.finite_number(frame.get("time"))
         if time is None:
             raise MotionError(source, f"{key}.time", f"must be a number of seconds, not {frame.get('time')!r}")
         if time <= previous:
@@ -176,13 +169,16 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
         pose = frame.get("pose")
         if not isinstance(pose, Mapping):
             raise MotionError(source, f"{key}.pose", "must be an object {joint: degrees}")
+        angles = {}
         for joint, deg in pose.items():
-            if _number(deg) is None:
+            angle = units.finite_number(deg)
+            if angle is None:
                 raise MotionError(source, f"{key}.pose.{joint}", f"must be a number of degrees, not {deg!r}")
+            angles[joint] = angle
         shape = frame.get("profile")
         if shape is not None and shape not in PROFILES:
             raise MotionError(source, f"{key}.profile", f"must be one of {', '.join(PROFILES)}, not {shape!r}")
-        keyframes.append(Keyframe(time, {j: float(d) for j, d in pose.items()}, shape))
+        keyframes.append(Keyframe(time, angles, shape))
     return Motion(tuple(keyframes), profile, name)
 
 

@@ -21,10 +21,9 @@ is the driver's own business.
 
 from __future__ import annotations
 
-import errno
 import logging
 
-from ..errors import InvalidArgument, PortBusy
+from ..errors import InvalidArgument
 from .device_port import DevicePort
 from .pyserial_port import SERIAL_POLL, ReaderThread, SerialPort
 from .serial_port import READ_POLL, open_serial, posix_fd
@@ -70,11 +69,11 @@ def open_port(
     if not isinstance(port, str):
         if not isinstance(port, WireDevice):
             raise InvalidArgument(f"port must be a device path, a URL or a WireDevice, not {type(port).__name__}")
-        return _device_port(port, baudrate, repr(port))
+        return _device_port(port, baudrate)
     scheme, sep, _ = port.partition("://")
     factory = device_factory(scheme) if sep else None
     if factory is not None:
-        return _device_port(factory(port), baudrate, port)
+        return _device_port(factory(port), baudrate)
     if not port:
         raise InvalidArgument("port must not be empty")
     ser = open_serial(port, baudrate, True, direction)
@@ -86,7 +85,7 @@ def open_port(
         elif blocking_reads:
             opened = SerialPort(ser, SERIAL_POLL)
         else:
-            return _device_port(ReaderThread(SerialPort(ser, READ_POLL)), baudrate, port)
+            return _device_port(ReaderThread(SerialPort(ser, READ_POLL)), baudrate)
     except BaseException:
         ser.close()
         raise
@@ -94,12 +93,7 @@ def open_port(
     return opened
 
 
-def _device_port(device: WireDevice, baudrate: int, name: str) -> DevicePort:
+def _device_port(device: WireDevice, baudrate: int) -> DevicePort:
     opened = DevicePort(device)
-    try:
-        opened.connect(baudrate)
-    except OSError as exc:
-        if exc.errno == errno.EBUSY and not isinstance(exc, PortBusy):  # as a tty another bus holds is
-            raise PortBusy(errno.EBUSY, f"{name} is already open ({exc.strerror})") from None
-        raise
+    opened.connect(baudrate)
     return opened
