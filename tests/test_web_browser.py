@@ -383,7 +383,20 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
 
 def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     page.click("a[href='#traffic']")  # recording starts with the page, and goes on while away from it
+    base = page.url.split("/#")[0]
+
+    def newest() -> int:
+        entries = page.request.get(f"{base}/api/traffic").json()["entries"]
+        return int(entries[-1]["seq"]) if entries else 0
+
+    def recorded() -> bool:  # the page's WebSocket message has arrived: a read of the line is kept
+        before = newest()
+        page.request.get(f"{base}/api/servo/1/ram")
+        return newest() > before
+
+    until(recorded, "visiting the Traffic page never started the recording")
     page.click("a[href='#servo']")
+    page.fill("#servo-id", "1")  # (not the ID an earlier test left there: this test runs alone too)
     page.click("#servo-load")
     page.click("a[href='#traffic']")
     expect(page.locator("#traffic-table tbody tr").first).to_be_visible()
@@ -392,10 +405,6 @@ def test_the_traffic_page_shows_the_transactions(page: Page) -> None:
     page.fill("#traffic-filter", "")
     shot(page, "traffic")
     page.click("#traffic-pause")  # stops the recording on the server: what the line does now is not kept
-    base = page.url.split("/#")[0]
-
-    def newest() -> int:
-        return int(page.request.get(f"{base}/api/traffic").json()["entries"][-1]["seq"])
 
     def unrecorded() -> bool:  # the WebSocket's message has arrived: a read of the line is no longer kept
         before = newest()
