@@ -20,6 +20,7 @@ from ics35_async import PortLost
 from ics35_async.cli import ExitCode, main
 from ics35_async.cli._robot_common import lost_line_hint
 from ics35_async.cli._settings import Settings
+from ics35_async.eeprom import Flags
 from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
@@ -350,6 +351,34 @@ def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_l
     said = " ".join(result.err.split())
     assert "joints.neck: the file allows -44.9..69.9 degrees, but servo ID 1 on line upper stops at" in said, said
     assert "-50.6..50.6 (EEPROM pulse limits 6000..9000)" in said and "joints.hip" not in said, said
+
+
+def test_calibrate_warns_when_a_joint_is_reversed_both_in_the_file_and_in_its_servos_eeprom(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # The two reversals cancel (the joint turns as if neither were set): said when calibrate opens the robot.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("id = 1\noffset", "id = 1\nreverse = true\noffset"))
+    assert load_description(robot_file).joints["neck"].reverse
+    neck = sims.servo("neck")
+    neck.eeprom = neck.eeprom.replace(flags=neck.eeprom.flags | Flags.REVERSE)
+    at = by_hand(sims)
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 0.0, "hip": 0.0}), "\n"),
+            ("whole range", at({"neck": -45.0, "hip": -60.0}), ""),
+            (None, at({"neck": 45.0, "hip": 40.0}), "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    said = " ".join(result.err.split())
+    assert f"{robot_file}: joints.neck: reverse = true in the file and servo ID 1 on line upper" in said, said
+    assert f"ics35 --port {ports['upper']} eeprom set 1 flags-=REVERSE" in said, said
+    assert said.count("flags-=REVERSE") == 1 and "joints.hip" not in said, said
 
 
 def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(

@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, UnsafeOperation, open_robot, units
-from ics35_async.eeprom import Eeprom
+from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import MotionStopped, RobotWarning
 from tests.support.robot_rig import (
     JOINTS,
@@ -325,6 +325,26 @@ def test_joints_whose_servos_do_not_answer_are_named_in_one_warning_a_line() -> 
     assert len(found) == 1 and len(caught) == 1, found
     assert "joints neck, shoulder, elbow (servo IDs 1, 2, 3 on line upper) did not answer" in found[0], found
     assert "limits not checked" in found[0]
+
+
+def test_a_joint_reversed_both_in_the_file_and_in_its_servos_eeprom_warns_at_open() -> None:
+    # The two reversals cancel: the joint turns as if neither were set, the wrong way on a real robot.
+    rig = make_rig()
+    elbow, neck = rig.servo("elbow"), rig.servo("neck")  # elbow: reverse = true in the file; neck: not
+    elbow.eeprom = elbow.eeprom.replace(flags=elbow.eeprom.flags | Flags.REVERSE)
+    neck.eeprom = neck.eeprom.replace(flags=neck.eeprom.flags | Flags.REVERSE)  # alone: a legitimate setup
+
+    async def body(robot: Robot) -> list[str]:
+        return list(robot.warnings)
+
+    with pytest.warns(RobotWarning, match=r"<mapping>: joints\.elbow: ") as caught:
+        found = run_robot(rig, body)
+    assert len(found) == 1 and len(caught) == 1, found
+    said = found[0]
+    assert "reverse = true" in said and "servo ID 3 on line upper" in said and "EEPROM REVERSE flag" in said, said
+    assert "flags-=REVERSE" in said and f"--port {rig.description['lines']['upper']['port']}" in said, said
+    assert "neck" not in said
+    assert Path(caught[0].filename).name == Path(__file__).name, caught[0].filename
 
 
 def test_no_warning_when_the_servos_allow_the_limits() -> None:

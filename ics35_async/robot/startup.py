@@ -1,4 +1,4 @@
-"""Opening a robot: the file checked first, every line opened, the servos' EEPROM limits compared, the stream started.
+"""Opening a robot: the file checked first, every line opened, the servos' EEPROM compared, the stream started.
 
 Nothing is opened before the description has passed every check, so a
 mistake in the file never reaches a port.
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import sys
 import warnings
 from collections.abc import AsyncIterator, Iterable, Mapping
@@ -26,12 +27,12 @@ import anyio
 
 from .. import units
 from ..bus import BusOptions, open_bus
-from ..eeprom import Eeprom
+from ..eeprom import Eeprom, Flags
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from ..stream import ON_CLOSE
 from ..tasks import despite_cancellation, only_error, task_group
-from .description import JointSpec, RobotDescription, load_description
+from .description import JointSpec, LineSpec, RobotDescription, load_description
 from .robot import Robot
 
 # open_bus options the description sets per line, so they may not be given to open_robot.
@@ -39,7 +40,8 @@ _PER_LINE = frozenset({"baudrate", "echo", "retries"})
 
 
 class RobotWarning(UserWarning):
-    """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's)."""
+    """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's, or a
+    joint reversed both in the file and in its servo's EEPROM)."""
 
 
 class RobotOptions(BusOptions, total=False):
@@ -52,7 +54,8 @@ class RobotOptions(BusOptions, total=False):
     joint stays free) or ``"free"``."""
     check_limits: bool
     """Read each joint's servo EEPROM at open and issue a [`RobotWarning`][ics35_async.robot.RobotWarning]
-    (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits (default ``True``)."""
+    (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits, or where the file's
+    ``reverse = true`` and the servo's REVERSE flag cancel each other (default ``True``)."""
     offline_after: int
     """Every line's stream: failed cycles before a servo counts as offline (default 3)."""
     probe_interval: float
@@ -235,7 +238,8 @@ robot opens on a loop thread, whose stack holds no line of the program."""
 
 
 async def check_servo_limits(robot: Robot) -> list[str]:
-    """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
+    """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits,
+    and where a joint is reversed both in the file and by its servo's EEPROM REVERSE flag."""
     found: list[str] = []
 
     async def check_line(line: str) -> None:
@@ -248,9 +252,12 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 silent.append(joint)
                 why = why or str(exc)
                 continue
-            message = limit_problem(robot.description.source, joint, eeprom)
-            if message is not None:
-                found.append(message)
+            # Warnings, not refusals: either setting alone is legitimate, and opening moves nothing (the servo
+            # clamps to its pulse limits anyway); the person fixes the file or the servo with the robot closed.
+            source, spec = robot.description.source, robot.description.lines[line]
+            for message in (limit_problem(source, joint, eeprom), reverse_problem(source, joint, spec, eeprom)):
+                if message is not None:
+                    found.append(message)
         if silent:  # one message a line (a line with nothing answering said it once a joint)
             source = robot.description.source
             if len(silent) == 1:
@@ -261,7 +268,7 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 ids = ", ".join(str(joint.id) for joint in silent)
                 what = f"joints {names} (servo IDs {ids} on line {line}) did not answer"
                 why = f"the first: {why}"
-            found.append(f"{source}: {what} ({why}); limits not checked")
+            found.append(f"{source}: {what} ({why}); limits not checked, nor the REVERSE flag")
 
     async with task_group() as tasks:
         for line in robot.description.lines:
@@ -298,4 +305,24 @@ def limit_problem(source: str, joint: JointSpec, eeprom: Eeprom) -> str | None:
         f"{where}: the file allows {joint.min:g}..{joint.max:g} degrees, but servo ID {joint.id} on line "
         f"{joint.line} stops at {a:.1f}..{b:.1f} (EEPROM pulse limits {eeprom.pulse_limit_low}.."
         f"{eeprom.pulse_limit_high})"
+    )
+
+
+def reverse_problem(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
+    """What is wrong, in words, when ``joint`` is reversed both in the file and by its servo's EEPROM REVERSE flag
+    (``line``: the joint's line, for the command that clears the flag); None otherwise.  Either alone is a
+    legitimate setup; both cancel out, so the joint turns as if neither were set: the way neither meant."""
+    if not (joint.reverse and eeprom.flags & Flags.REVERSE):
+        return None
+    options = ["--port", line.port]
+    if line.baudrate != LineSpec.baudrate:
+        options += ["--baud", str(line.baudrate)]
+    if not line.echo:
+        options.append("--no-echo")
+    clear = shlex.join(["ics35", *options, "eeprom", "set", str(joint.id), "flags-=REVERSE"])
+    return (
+        f"{source}: joints.{joint.name}: reverse = true in the file and servo ID {joint.id} on line {joint.line} "
+        "has the EEPROM REVERSE flag set too: the two cancel out, so the joint turns as if neither were set. "
+        f"Keep one: remove reverse = true from joints.{joint.name}, or clear the servo's flag (robot closed): "
+        f"{clear}; then check the joint's offset and limits (ics35 calibrate measures them again)"
     )
