@@ -7,6 +7,7 @@ import asyncio
 import itertools
 import json
 import time
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -16,6 +17,8 @@ import pytest
 from starlette.testclient import TestClient
 
 from ics35_async import sim
+from ics35_async.eeprom import Flags
+from ics35_async.robot import RobotWarning
 from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.api import updates
@@ -322,6 +325,32 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
     assert "[Errno" not in warned[0]
     assert f"the pages start on sim://{name}?ids=2 instead" in warned[1]
     sim.named(name).close()
+
+
+def test_the_robots_open_warnings_reach_the_servers_warn_not_a_raw_python_warning(tmp_path: Path) -> None:
+    # A joint reversed both in the file and by its servo's REVERSE flag (the two cancel): said as the
+    # command's other start-up problems are, in its own words, not as a Python warning pointing into a library.
+    name = f"web-robot-{next(_names)}"
+    line = sim.VirtualLine([1, 2], name=name)
+    elbow = line.servo(2)
+    elbow.eeprom = elbow.eeprom.replace(flags=elbow.eeprom.flags | Flags.REVERSE)
+    path = tmp_path / "arm.toml"
+    path.write_text(arm_file(tmp_path, name).read_text().replace("id = 2\n", "id = 2\nreverse = true\n"))
+    warned: list[str] = []
+    app = create_app(
+        LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)), warn=warned.append
+    )
+    with warnings.catch_warnings(record=True) as raw:
+        warnings.simplefilter("always")
+        with TestClient(app, base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            view = client.get("/api/robot").json()
+    line.close()
+    assert view["open"] and view["warnings"] == warned, view  # the Robot page shows them too
+    assert len(warned) == 1, warned
+    assert f"{path}: joints.elbow: reverse = true in the file and servo ID 2 on line arm" in warned[0], warned
+    assert f"ics35 --port 'sim://{name}?ids=1-2' eeprom set 2 flags-=REVERSE" in warned[0], warned
+    assert not [w for w in raw if issubclass(w.category, RobotWarning)], [str(w.message) for w in raw]
 
 
 def test_the_robots_lines_open_with_the_line_options_given(tmp_path: Path) -> None:

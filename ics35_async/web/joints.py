@@ -20,7 +20,7 @@ from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
-from ..robot.startup import check_start_pose
+from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..units import check_seconds
 
@@ -44,6 +44,7 @@ class RobotSession:
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.robot: Robot | None = None
         self.error: str | None = None
+        self.warnings: list[str] = []  # the last open's robot.warnings, which the server says itself (see _hold)
         self.motion_enabled = False
         self.playing: str | None = None  # the motion's name while one plays
         self.outcome: str | None = None  # how the last motion ended
@@ -96,9 +97,12 @@ class RobotSession:
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
+        # No RobotWarning from the open (this task's own context): issued in the server's loop, it would point
+        # into asyncio; the server says self.warnings in its own words, as it does the other start-up problems.
+        warn_at_open.set(False)
         try:
             async with open_robot(self.description, on_close="hold", start_pose=start_pose, **self.options) as robot:
-                self.robot, self.error = robot, None
+                self.robot, self.error, self.warnings = robot, None, list(robot.warnings)
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
@@ -224,6 +228,7 @@ class RobotSession:
             "name": self.description.name or self.path,
             "open": robot is not None,
             "error": self.error,
+            "warnings": self.warnings if robot is not None else [],
             "cycle": None if frame is None else frame.cycle,
             "motion_enabled": self.motion_enabled,
             "playing": self.playing,

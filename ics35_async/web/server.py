@@ -90,7 +90,7 @@ def create_app(
         if robot is not None:
             await robot.open()
             if warn is not None:
-                for text in robot.flat_out_lines():
+                for text in [*robot.flat_out_lines(), *robot.warnings]:
                     warn(text)
             if robot.error and warn is not None:
                 warn(robot.error)

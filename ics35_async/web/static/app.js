@@ -518,6 +518,7 @@ function onRobot(r) {
   state.robot = r;
   $("#robot-name").textContent = r.name;
   $("#robot-error").textContent = r.error || "";
+  $("#robot-warnings").replaceChildren(...r.warnings.map((text) => el("li", {}, `warning: ${text}`)));
   // The lines lost (or never opened): open them again from here; when the lost line's joints were holding,
   // the person says what they do (the server cannot tell whether their servos kept their power).
   const choice = r.open ? null : r.reconnect_choice;
