@@ -14,7 +14,7 @@ from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, open_bus, o
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, sent_position
-from tests.support.timing import FAST, GUARD, PATIENT
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
 
@@ -293,6 +293,63 @@ def test_on_close_free_frees_the_other_lines_joints_when_one_line_is_lost(moving
     assert all(rig.servo(name).free for name in upper), {n: rig.servo(n).target for n in upper}
     for name, spec in JOINTS.items():
         assert ("LINE LOST" in tables[0][name]) == (spec["line"] == "lower"), tables[0][name]
+
+
+def frees_since(rig: Rig, marks: dict[str, int]) -> dict[str, int]:
+    """How many free commands each joint's servo got on the wire from ``marks`` (each line's log seq) on."""
+    return {
+        name: list(commanded(rig.sim(spec["line"]), spec["id"], marks[spec["line"]])).count(0)
+        for name, spec in JOINTS.items()
+    }
+
+
+@pytest.mark.parametrize(
+    ("ending", "backend"),
+    [(ending, "asyncio") for ending in ("block ends", "mid-motion", "cancelled", "line came back")]
+    + [("block ends", "trio"), ("cancelled", "trio")],
+)
+def test_on_close_free_sends_every_joint_one_free(ending: str, backend: str) -> None:
+    # The robot's close-out freed every joint through the streams' cycles and each line's stream then freed
+    # its servos again as it closed: every servo got its free several times (a cancelled block: free after
+    # free for two seconds), wire time spent at the moment the robot is being stopped, and doubled traffic
+    # in a sniff.  Every joint holds a target before the end, so each free counted is one sent for the close.
+    trio = backend == "trio"
+    rig = make_rig(ics36=[1, 2, 3], realtime=trio)  # (under trio the buses take their anyio driver: real time)
+    marks: dict[str, int] = {}
+    closed: list[Robot] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD), anyio.CancelScope() as scope:
+            timing = NO_TIMEOUTS if trio else FAST
+            opening = open_robot(rig.description, on_close="free", reconnect=ending == "line came back", **timing)
+            async with anyio.create_task_group() as tasks, opening as robot:
+                robot.hold()
+                await robot.on_wire()
+                if ending == "mid-motion":
+
+                    async def move() -> None:
+                        with pytest.raises(BusClosed):  # the block's end ends it
+                            await robot.move_to({"neck": 30.0, "hip": 20.0, "knee": -50.0}, duration=30.0)
+
+                    tasks.start_soon(move)
+                    await robot.wait_frame(robot.latest.cycle + 3 if robot.latest else 3)
+                if ending == "line came back":
+                    rig.lower.unplug(replug_after=0.05)
+                    while not (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held:
+                        pass  # the lower line is back, its joints held (sent nothing until a target is set)
+                marks.update(upper=rig.upper.transactions, lower=rig.lower.transactions)
+                closed.append(robot)
+                if ending == "cancelled":  # as Ctrl-C does: the body cancelled, the close runs all the same
+                    scope.cancel()
+                    await anyio.sleep_forever()
+
+    try:
+        anyio.run(main, backend=backend)
+    finally:
+        rig.close()
+    assert frees_since(rig, marks) == dict.fromkeys(JOINTS, 1)
+    assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}
+    assert closed[0].targets == dict.fromkeys(JOINTS)  # the closed robot's snapshot says so too
 
 
 def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:

@@ -222,9 +222,8 @@ class Robot:
             for plan in self._plans:
                 plan.joints.discard(name)
 
-    def _apply(self, targets: Mapping[str, float | None], *, close_out: bool = False) -> None:
-        if not close_out:
-            self._check_commands()
+    def _apply(self, targets: Mapping[str, float | None]) -> None:
+        self._check_commands()
         if not targets or self._gstream is None:
             return
         wanted: dict[tuple[str, int], int] = {}
@@ -503,8 +502,8 @@ class Robot:
 
     def mark_closing(self) -> None:
         """The robot's block has ended (see :mod:`.startup`): from now on a command from elsewhere (a task
-        that outlived the block) is refused with BusClosed, and motions still running end with it; frames
-        go on for the close-out (:meth:`free_on_close`) until :meth:`mark_closed`."""
+        that outlived the block) is refused with BusClosed, and motions still running end with it; the
+        joints keep their last targets until the lines' streams close (as the robot's ``on_close`` says)."""
         if self._closing:
             return
         self._closing = True
@@ -513,17 +512,18 @@ class Robot:
         self._plans.clear()
         self._velocity = dict.fromkeys(self.joints, 0.0)
 
-    async def free_on_close(self) -> None:
-        """The close-out's ``on_close="free"``: every joint free, on the wire before the streams close
-        (the one command :meth:`mark_closing` lets through)."""
-        names = list(self.joints)
-        self._apply(dict.fromkeys(names), close_out=True)
-        await self.on_wire(names)
-
     def mark_closed(self) -> None:
-        """The close-out is over: every call now fails at once with BusClosed, frame waits included."""
+        """The block's end is through: every call now fails at once with BusClosed, frame waits included."""
         self.mark_closing()
         self._end(BusClosed(CLOSED))
+
+    def freed_on_close(self, freed: Iterable[tuple[str, int]]) -> None:
+        """The servos ``freed`` ``(line, id)`` were sent free as their line's stream closed: their joints'
+        targets say so from then on (a closed robot's snapshots still read)."""
+        names = {self._by_key[key] for key in freed if key in self._by_key}
+        self._targets.update(dict.fromkeys(names))
+        self.untouched.difference_update(names)
+        self._held.difference_update(names)
 
     def _check_commands(self) -> None:
         if self._closing:

@@ -30,8 +30,9 @@ from ..bus import BusOptions, open_bus
 from ..eeprom import Eeprom, Flags
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
+from ..protocol import FREE
 from ..stream import ON_CLOSE
-from ..tasks import despite_cancellation, only_error, task_group
+from ..tasks import only_error, task_group
 from .description import JointSpec, LineSpec, RobotDescription, load_description
 from .robot import Robot
 
@@ -51,7 +52,7 @@ class RobotOptions(BusOptions, total=False):
 
     on_close: str
     """What the joints do when the block ends: ``"hold"`` (the default: keep their targets; a free
-    joint stays free) or ``"free"``."""
+    joint stays free) or ``"free"`` (each line's stream sends every servo its free once as it closes)."""
     check_limits: bool
     """Read each joint's servo EEPROM at open and issue a [`RobotWarning`][ics35_async.robot.RobotWarning]
     (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits, or where the file's
@@ -163,8 +164,9 @@ async def _robot_session(
                 watch=[j.id for j in description.joints_on(line) if j.name in readable],
                 offline_after=offline_after,
                 probe_interval=probe_interval,
-                # The close-out frees through the robot's frames; a lost line ends those, and then
-                # each line's own stream still frees its servos as it closes (the lines left).
+                # The streams' close is the robot's close: with "free", each line's stream sends every
+                # servo its free once as it closes, to its end however the block ended (a cancellation,
+                # Ctrl-C, another line lost), a line that lost its port and came back included.
                 on_close="free" if on_close == "free" else "hold",
             )
             for line, spec in description.lines.items()
@@ -173,24 +175,30 @@ async def _robot_session(
             joint = robot.joints[name]
             streams[joint.line].set_target(joint.id, joint.position(deg))  # before the first cycle
         robot.started(stated, readable)
-        async with GroupStream(streams) as gstream:
-            try:
-                async with anyio.create_task_group() as tasks:
-                    tasks.start_soon(robot.pump, gstream)
-                    tasks.start_soon(robot.watch.run, robot)
-                    try:
-                        await robot.wait_frame(0)
-                        yield robot
-                    finally:
-                        robot.mark_closing()  # from here on, nothing but the close-out commands the joints
-                        try:  # (another cancellation meanwhile must not cut it short)
-                            await despite_cancellation(lambda: _close_out(robot, on_close), 2.0)
+        try:
+            async with GroupStream(streams) as gstream:
+                try:
+                    async with anyio.create_task_group() as tasks:
+                        tasks.start_soon(robot.pump, gstream)
+                        tasks.start_soon(robot.watch.run, robot)
+                        try:
+                            await robot.wait_frame(0)
+                            yield robot
                         finally:
-                            tasks.cancel_scope.cancel()
+                            # From here on nothing commands the joints but the streams' close (a task that
+                            # outlived the block is refused): the joints hold their last targets until then.
                             robot.mark_closed()
-            except BaseExceptionGroup as group_error:
-                # The body's own error, not wrapped: the task group is an implementation detail.
-                raise only_error(group_error) from None
+                            tasks.cancel_scope.cancel()
+                except BaseExceptionGroup as group_error:
+                    # The body's own error, not wrapped: the task group is an implementation detail.
+                    raise only_error(group_error) from None
+        finally:  # (the closed robot's targets then say where the close left the joints)
+            robot.freed_on_close(
+                (line, servo_id)
+                for line, stream in streams.items()
+                for servo_id, position in stream.targets_sent_on_close.items()
+                if position == FREE
+            )
 
 
 def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -> BusOptions:
@@ -224,12 +232,6 @@ async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]
         for line in by_line:
             tasks.start_soon(probe_line, line)
     return found
-
-
-async def _close_out(robot: Robot, on_close: str) -> None:
-    with contextlib.suppress(IcsError):
-        if on_close == "free":
-            await robot.free_on_close()
 
 
 warn_at_open: ContextVar[bool] = ContextVar("warn_at_open", default=True)
