@@ -21,7 +21,7 @@ from ._console import (
     temperature_json,
     temperature_text,
 )
-from ._errors import NO_REPLY_HINTS, no_reply_error, nothing_answered, other_bauds, translate
+from ._errors import NO_REPLY_HINTS, no_reply_error, nothing_answered, translate
 from ._loop import run_loop
 from ._params import (
     ALL_BAUDS,
@@ -73,7 +73,6 @@ __all__ = [
     "no_reply_error",
     "note_simulator",
     "nothing_answered",
-    "other_bauds",
     "out",
     "parse_id_list",
     "require_port",

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_names_hint
 from ._loop import run_loop
-from ._params import ALL_BAUDS
 from ._settings import CliError, ExitCode, Settings
+
+if TYPE_CHECKING:
+    from ..bus import Bus
 
 NO_REPLY_HINTS = (
     "check the servo has power (6-12 V on the servo line, not just USB)",
@@ -129,8 +132,15 @@ def link_hints(settings: Settings) -> tuple[str, ...]:
 
 
 def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
-    """No answer: say whether the servo answers at another baud rate, else what to check."""
-    if exc.servo_id is not None and not exc.raw and settings.echo:
+    """No answer: why (policies.why_no_reply: the adapter, a long reply lost, another baud rate), else what
+    to check."""
+    from ..policies import NoReplyCause, why_no_reply
+
+    def open_at(baud: int) -> Bus:
+        return settings.bus(baud, retries=1)
+
+    finding = run_loop(why_no_reply(exc, open_at, settings.baud, echo=settings.echo))
+    if finding.cause is NoReplyCause.NO_ECHO:
         # Not even our own echo came back: the adapter or its wiring, not the servo.
         return CliError(
             ExitCode.NO_REPLY,
@@ -139,7 +149,7 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
             "check the adapter is an ICS adapter (TX looped back to RX) and the cable is plugged in",
             "if your interface does not echo what it sends, pass --no-echo",
         )
-    if exc.servo_id is not None and exc.command == "read_eeprom" and answers_short_read(settings, exc.servo_id):
+    if finding.cause is NoReplyCause.LONG_REPLY_LOST:
         return CliError(
             ExitCode.NO_REPLY,
             f"servo {exc.servo_id} answers short reads on {settings.port} at {settings.baud} baud, "
@@ -148,14 +158,12 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
             "replies loses it; raise --timeout, and see what ics35 doctor measures on this line",
             "a device that is not an ICS 3.5 servo (another firmware, a board) may not answer the EEPROM read",
         )
-    if exc.servo_id is not None:
-        found = other_bauds(settings, exc.servo_id)
-        if found:
-            return CliError(
-                ExitCode.WRONG_BAUD,
-                f"servo {exc.servo_id} does not answer at {settings.baud} baud, but does at {found[0]} baud",
-                f"pass --baud {found[0]}",
-            )
+    if finding.cause is NoReplyCause.OTHER_RATE:
+        return CliError(
+            ExitCode.WRONG_BAUD,
+            f"servo {exc.servo_id} does not answer at {settings.baud} baud, but does at {finding.rates[0]} baud",
+            f"pass --baud {finding.rates[0]}",
+        )
     # An ID command names no servo: whatever is on the line may answer it.
     what = f"servo {exc.servo_id} did not answer" if exc.servo_id is not None else "nothing answered the ID command"
     return CliError(
@@ -177,28 +185,3 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
             "if your interface does not echo what it sends, pass --no-echo",
         )
     return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
-
-
-def answers_short_read(settings: Settings, servo_id: int) -> bool:
-    """Whether ``servo_id`` answers a temperature read at the line's rate (see policies.answers_short_read)."""
-    from ..policies import answers_short_read as ask
-
-    async def body() -> bool:
-        async with settings.bus(retries=1) as bus:
-            return await ask(bus, servo_id)
-
-    try:
-        return run_loop(body())
-    except (errors.IcsError, OSError):
-        return False
-
-
-def other_bauds(settings: Settings, servo_id: int) -> list[int]:
-    """Bauds other than ``settings.baud`` at which ``servo_id`` answers and its own EEPROM names that rate."""
-    from ..policies import servo_rates
-
-    others = [baud for baud in ALL_BAUDS if baud != settings.baud]
-    try:
-        return list(run_loop(servo_rates(lambda baud: settings.bus(baud, retries=1), servo_id, others)))
-    except (errors.IcsError, OSError):
-        return []

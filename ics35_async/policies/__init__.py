@@ -1,5 +1,5 @@
-"""The line's policies: finding servos, renumbering the only one, changing an EEPROM safely, reading positions
-without freeing what may not go limp.
+"""The line's policies: finding servos, telling why one did not answer, renumbering the only one, changing an
+EEPROM safely, reading positions without freeing what may not go limp.
 
 They sit above the bus and use only its public surface (:class:`~.failure_kinds.Line`),
 so library users get the same rules the ``ics35`` command follows.
@@ -27,6 +27,7 @@ from .failure_kinds import (
     nothing_came_back,
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
+from .no_reply import NoReply, NoReplyCause, why_no_reply
 from .position_read import (
     NO_READ_ICS35,
     PositionReading,
@@ -50,6 +51,8 @@ __all__ = [
     "IdSurvey",
     "Line",
     "LineOpener",
+    "NoReply",
+    "NoReplyCause",
     "PositionReading",
     "RateScan",
     "Refusal",
@@ -72,5 +75,6 @@ __all__ = [
     "survey_for_id_write",
     "write_eeprom_plan",
     "write_eeprom_plans",
+    "why_no_reply",
     "write_lone_id",
 ]
