@@ -440,6 +440,33 @@ def test_a_lost_port_is_reported_at_once_and_the_line_comes_back(serve: Any) -> 
     assert client.get("/api/status").json()["lost"] is False
 
 
+def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(serve: Any) -> None:
+    client, sim = serve((1,))
+    sim.add_device(VirtualServo(5, baud_rate=1250000))
+    failed = client.get("/api/servo/5/eeprom")
+    answer = failed.json()
+    assert failed.status_code == 504 and answer["answers_at"] == 1250000, answer
+    assert "ID 5 answers at 1,250,000 baud" in answer["error"] and "reopen the line at that rate" in answer["error"]
+    assert client.get("/api/status").json()["baud"] == 115200  # the line is back at its own rate
+    assert client.get("/api/servo/1/eeprom").status_code == 200
+    post(client, "/api/connect", {"baud": answer["answers_at"]})
+    assert client.get("/api/servo/5/eeprom").json()["raw"] == sim.servo(5).eeprom.to_bytes().hex()
+    # Nowhere: no rate named, but what to check.
+    nowhere = client.get("/api/servo/9/eeprom").json()
+    assert "answers_at" not in nowhere and "no other baud rate" in nowhere["error"] and "power" in nowhere["error"]
+
+
+def test_while_a_live_plot_runs_other_rates_are_not_tried_and_the_message_says_so(serve: Any) -> None:
+    client, sim = serve((1,))
+    sim.add_device(VirtualServo(5, baud_rate=1250000))
+    post(client, "/api/live/start", {"ids": [1]})
+    answer = client.get("/api/servo/5/eeprom").json()
+    assert "answers_at" not in answer and "1,250,000" not in answer["error"], answer
+    assert "stop the live plot" in answer["error"]
+    status = client.get("/api/status").json()
+    assert status["live"] == [1] and status["baud"] == 115200  # the plot runs on, at the line's rate
+
+
 def test_bad_input_is_answered_in_words(serve: Any) -> None:
     client, _ = serve()
     assert client.get("/api/servo/40/eeprom").json()["error"] == "servo ID '40' is not 0..31"

@@ -530,6 +530,40 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-plus")).to_be_disabled()
 
 
+def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
+    line = PtyLine((1,))
+    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+    proc = subprocess.Popen(
+        [*WEB, "--port", line.path, *PATIENT_OPTION],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "ICS35_WEB_TOKEN": ""},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    context = browser.new_context()
+    try:
+        p = context.new_page()
+        p.set_default_timeout(WAIT_MS)
+        p.goto(proc.stdout.readline().strip())
+        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
+        p.goto(p.url.split("#")[0] + "#servo/5")
+        expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
+        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
+        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
+        expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
+    finally:
+        context.close()
+        proc.terminate()
+        proc.wait(10)
+        errors = proc.stderr.read()
+        proc.stdout.close()
+        proc.stderr.close()
+        line.close()
+    assert "Traceback" not in errors, errors
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

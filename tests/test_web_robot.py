@@ -293,6 +293,18 @@ def test_the_pages_work_on_a_robot_line_without_fighting_the_robot_for_its_servo
     assert post(client, "/api/robot/move", {"pose": {"shoulder": 10}, "duration": 0.1}).status_code == 200
 
 
+def test_on_a_robot_line_a_silent_servo_is_not_looked_for_at_other_rates_and_the_message_says_so(robot: Any) -> None:
+    client, line = robot
+    line.add_device(sim.VirtualServo(5, baud_rate=1250000))
+    post(client, "/api/connect", {"robot_line": "arm"})
+    cycle = client.get("/api/robot").json()["cycle"]
+    answer = client.get("/api/servo/5/eeprom").json()
+    assert "answers_at" not in answer and "1,250,000" not in answer["error"], answer
+    assert "other rates" in answer["error"] and "robot's line 'arm'" in answer["error"], answer
+    assert client.get("/api/status").json()["baud"] == 115200
+    wait_for(lambda: client.get("/api/robot").json()["cycle"] > cycle + 5)  # the robot streams on
+
+
 def test_without_a_port_of_their_own_the_pages_start_on_the_robots_first_line(tmp_path: Path) -> None:
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "one.toml"

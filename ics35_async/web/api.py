@@ -71,8 +71,9 @@ def _status_of(exc: BaseException) -> int:
     return 500
 
 
-def error_response(exc: BaseException, said: str | None = None) -> JSONResponse:
-    """The page's error for ``exc``: its words (or ``said``, what the session made of it), kind and status."""
+def error_response(exc: BaseException, said: str | None = None, **more: Any) -> JSONResponse:
+    """The page's error for ``exc``: its words (or ``said``, what the session made of it), kind and status,
+    and ``more`` the page can act on."""
     status = _status_of(exc)
     if said is not None:
         message = said
@@ -83,7 +84,17 @@ def error_response(exc: BaseException, said: str | None = None) -> JSONResponse:
         message = f"missing {exc}"
     else:
         message = error_text(exc)
-    return JSONResponse({"error": message, "kind": type(exc).__name__}, status_code=status)
+    return JSONResponse({"error": message, "kind": type(exc).__name__, **more}, status_code=status)
+
+
+async def no_reply_response(session: LineSession, exc: ReplyTimeout) -> JSONResponse:
+    """A servo's page asked a servo that did not answer: why (:meth:`LineSession.no_reply`), and the rate
+    it answers at instead (``answers_at``) when it does."""
+    try:
+        answer = await session.no_reply(exc)
+    except (IcsError, OSError) as failed:  # the line itself failed while looking: that is the news
+        return error_response(failed)
+    return error_response(exc, answer.pop("error"), **answer)
 
 
 def endpoint(handler: Handler) -> Callable[[Request], Awaitable[Response]]:
@@ -92,6 +103,10 @@ def endpoint(handler: Handler) -> Callable[[Request], Awaitable[Response]]:
         session: LineSession = request.app.state.session
         try:
             result = await handler(request, session)
+        except ReplyTimeout as exc:
+            if "servo_id" not in request.path_params:
+                return error_response(exc)
+            return await no_reply_response(session, exc)
         except (IcsError, OSError, ValueError, TypeError, KeyError) as exc:
             return error_response(exc)
         except Exception as exc:  # the page shows words, the terminal one line; never a traceback

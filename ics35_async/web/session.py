@@ -26,20 +26,32 @@ from .. import protocol, units
 from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
-from ..errors import BusClosed, IcsError, InvalidArgument, PortNotFound, ReplyError, UnsafeOperation, error_text
+from ..errors import (
+    BusClosed,
+    IcsError,
+    InvalidArgument,
+    PortNotFound,
+    ReplyError,
+    ReplyTimeout,
+    UnsafeOperation,
+    error_text,
+)
 from ..policies import (
     EepromPlan,
     FoundServo,
+    NoReply,
+    NoReplyCause,
     plan_eeprom_write,
     read_position_without_freeing,
     scan,
     survey_for_id_write,
+    why_no_reply,
     write_eeprom_plan,
     write_lone_id,
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
-from ..transports import same_port
+from ..transports import carries_line_settings, same_port
 from ..transports.platforms import misnamed_port_hints
 from .config import LineConfig
 from .edits import allowances, edit_of
@@ -333,6 +345,77 @@ class LineSession:
                 "position_note": reading.why,
                 "telemetry_error": None,
             }
+
+    # ------------------------------------------------------------------ a servo that did not answer
+
+    async def no_reply(self, exc: ReplyTimeout) -> dict[str, Any]:
+        """The page's words for a command to one servo that went unanswered (policies.why_no_reply), and
+        ``answers_at``: the rate the servo answers at instead, which the page offers to reopen the line at.
+
+        Other rates are looked for as a scan does, holding the line and reopening the port at each, then at
+        the line's own rate again; not while a robot streams on the line or a live plot runs on it (each
+        would lose its line meanwhile), nor on a link that does not carry the baud rate.
+        """
+        bus = self.bus
+        if exc.servo_id is None or bus is None or not bus.is_open:
+            return {"error": error_text(exc)}
+        baud = self.config.baud
+        not_tried = self._other_rates_not_tried()
+        async with self.exclusive:
+            try:
+                finding = await why_no_reply(
+                    exc, self._at_rate, baud, echo=self.config.echo, other_rates=not_tried is None
+                )
+            finally:
+                if bus.is_open and bus.baudrate != baud:
+                    await bus.reopen(baudrate=baud)
+        answer: dict[str, Any] = {"error": self._no_reply_words(finding, not_tried)}
+        if finding.cause is NoReplyCause.OTHER_RATE:
+            answer["answers_at"] = finding.rates[0]
+        return answer
+
+    def _other_rates_not_tried(self) -> str | None:
+        """Why the other rates may not be tried on this line now (None: they may)."""
+        if self.robot_line is not None:
+            return (
+                f"the page does not try other rates on the robot's line {self.robot_line!r} (the robot streams "
+                "on it): find its rate with the robot stopped (`ics35 scan` on that port)"
+            )
+        if self.live is not None:
+            return (
+                "other rates are not tried while the live plot runs (the port would be reopened under it): "
+                "stop the live plot and try again to look for it at the other rates"
+            )
+        if not carries_line_settings(self.config.url):
+            return (
+                f"{self.config.port} does not carry the baud rate (the far end keeps its own): set the bridge's "
+                "serial side to the servo's rate"
+            )
+        return None
+
+    def _no_reply_words(self, finding: NoReply, not_tried: str | None) -> str:
+        sid, baud, port = finding.servo_id, f"{finding.baud:,}", self.config.port
+        if finding.cause is NoReplyCause.NO_ECHO:
+            return (
+                f"no echo and no reply from {port}: the bytes sent never came back; check the adapter is an ICS "
+                "adapter (TX looped back to RX) and its cable is plugged in (an interface that does not echo "
+                "what it sends needs `ics35 web --no-echo`)"
+            )
+        if finding.cause is NoReplyCause.LONG_REPLY_LOST:
+            return (
+                f"ID {sid} answers short reads at {baud} baud, but not the EEPROM read: its reply, the longest "
+                "(66 bytes), is lost on the way (an adapter or bridge that drops long replies; a longer "
+                "`ics35 web --timeout` may do), or the device is not an ICS 3.5 servo"
+            )
+        if finding.cause is NoReplyCause.OTHER_RATE:
+            return (
+                f"ID {sid} did not answer at {baud} baud. ID {sid} answers at {finding.rates[0]:,} baud; "
+                "reopen the line at that rate (Baud, then Connect, on the Line page)"
+            )
+        checks = "check its power (6-12 V on the servo line, not just USB), the wiring and its ID"
+        if not_tried is not None:
+            return f"ID {sid} did not answer at {baud} baud; {not_tried}; else {checks}"
+        return f"ID {sid} did not answer on {port} at {baud} baud, and at no other baud rate: {checks}"
 
     # ------------------------------------------------------------------ one servo's EEPROM
 

@@ -8,12 +8,24 @@ const state = { status: null, servos: [], eeprom: null, plan: null, restore: nul
 
 // ---------------------------------------------------------------- talking to the server
 
-function say(text, kind = "error") {
+function say(text, kind = "error", action = null) {
   state.sayingLost = false;  // set by api() when this is the words of a lost port
   const box = $("#message");
   box.textContent = text;
+  if (action) box.append(" ", el("button", { type: "button", onclick: () => { say(""); Promise.resolve(action.run()).catch(() => {}); } }, action.label));
   box.className = kind;
   box.hidden = !text;
+}
+
+// A servo that answers at another rate than the line's (the server names it): the message offers the line at it.
+function reopenAt(baud) {
+  return { label: `Reopen the line at ${baud.toLocaleString("en-US")} baud`, run: async () => {
+    showServos([]); $("#scan-summary").textContent = "";  // the servos found were the line's at its old rate
+    const s = await api("/api/connect", { baud });
+    showStatus(s); $("#baud-select").value = String(s.baud);
+    if (location.hash.startsWith("#servo")) await loadServo();
+    say(`the line is open at ${s.baud.toLocaleString("en-US")} baud`, "info");
+  } };
 }
 
 async function api(path, data) {
@@ -29,7 +41,7 @@ async function api(path, data) {
   let body = null;
   try { body = JSON.parse(text); } catch (e) { body = { error: text.trim() }; }
   if (!response.ok) {
-    say(body && body.error ? body.error : `error ${response.status}`);
+    say(body && body.error ? body.error : `error ${response.status}`, "error", body && body.answers_at ? reopenAt(body.answers_at) : null);
     // The port's words (503) while it is gone: showStatus replaces them when the line is back.
     state.sayingLost = response.status === 503 && (body.kind === "PortLost" || !!(state.status && state.status.lost));
     throw new Error(body.error);
