@@ -28,7 +28,7 @@ import anyio
 from .. import units
 from ..bus import BusOptions, open_bus
 from ..eeprom import Eeprom, Flags
-from ..errors import IcsError, InvalidArgument, ReplyError
+from ..errors import InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from ..protocol import FREE
 from ..stream import ON_CLOSE
