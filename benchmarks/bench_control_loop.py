@@ -14,8 +14,14 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   under load), beside the stream on the asyncio driver, on the thread driver, and on the
   thread driver with ``sys.setswitchinterval(0.0005)``: the thread driver's I/O thread needs
   the GIL after every system call, and a busy thread holds it for up to the switch interval
-  (5 ms by default).  These rows use the simulator in its own process on a pty (``python -m
-  ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too.
+  (5 ms by default);
+* busy thread: a Python thread computing without pause (planning, or vision in pure Python: it
+  holds the GIL but for the interpreter's switch interval) beside the stream on the asyncio
+  driver, on the ordinary path (``ICS35_BURST=0``: the loop's thread needs the GIL at every
+  transaction) and on the compiled path (the default where it is built: once a cycle).
+  The busy rows use the simulator in its own process on a pty (``python -m
+  ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too,
+  and the compiled path needs a port with a descriptor.
 
 Each prints the stream's frame rate (Hz), the p99 and largest interval
 between cycle starts (ms; 10 ms is one period), how long after its slot a cycle
@@ -33,14 +39,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import itertools
 import json
 import statistics
 import sys
+import threading
 import time
 from typing import Any
 
-from bench_common import progress
+from bench_common import burst_setting, progress
 
 from ics35_async import Bus, BusTiming, open_bus
 from ics35_async.engine.timing import TimingOverrides
@@ -53,7 +61,8 @@ BAUD = 1_250_000
 RATE_HZ = 100.0
 FAULTS = "drop:0.0125,truncate:0.0125,late:0.0125,corrupt:0.0125"  # 5% in all
 BUSY = ("busy loop, asyncio driver", "busy loop, thread driver", "busy loop, thread driver, switch 0.5 ms")
-SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY)
+BUSY_THREAD = {"busy thread, ordinary path": "0", "busy thread, compiled path": "1"}  # ICS35_BURST for each
+SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY, *BUSY_THREAD)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
@@ -74,8 +83,9 @@ async def measure(scenario: str, seconds: float) -> dict[str, Any]:
     if scenario.endswith("switch 0.5 ms"):
         sys.setswitchinterval(0.0005)
     try:
-        if scenario in BUSY:
-            with serving(["--ids", f"{IDS[0]}-{IDS[-1]}", "--baud", str(BAUD)]) as pty:
+        if scenario in BUSY or scenario in BUSY_THREAD:
+            path = burst_setting(BUSY_THREAD[scenario]) if scenario in BUSY_THREAD else contextlib.nullcontext()
+            with serving(["--ids", f"{IDS[0]}-{IDS[-1]}", "--baud", str(BAUD)]) as pty, path:
                 async with open_bus(pty, baudrate=BAUD, driver=driver) as bus:
                     return await measure_on(bus, scenario, present, seconds)
         async with open_bus(sim, baudrate=BAUD, driver=driver, **timing) as bus:
@@ -107,12 +117,23 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
             work += 1
             await asyncio.sleep(0)
 
+    def spin() -> None:  # the busy thread: Python work without pause
+        nonlocal work
+        while not stop:
+            x = 0
+            for i in range(2000):  # about 0.1 ms of Python
+                x += i
+            work += 1
+
     async with bus.stream(IDS, rate_hz=RATE_HZ) as stream:
         stream.set_targets(dict.fromkeys(IDS, 7500))
         first = await stream.next_frame()
         tasks = [asyncio.ensure_future(poll(k)) for k in range(4 if scenario == "pollers" else 0)]
         if scenario in BUSY:
             tasks += [asyncio.ensure_future(busy()) for _ in range(2)]
+        thread = threading.Thread(target=spin, daemon=True)
+        if scenario in BUSY_THREAD:
+            thread.start()
         starts = [first.started]
         # Where each cycle started on the slot grid (start - cycle / rate): the grid is anchored
         # at the earliest of them, as no cycle starts before its slot.
@@ -130,6 +151,8 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
         elapsed = time.monotonic() - t0
         stop = True
         await asyncio.gather(*tasks)
+        if thread.is_alive():
+            thread.join()
     gaps = sorted(b - a for a, b in itertools.pairwise(starts))
     return {
         "rate_hz": cycles / elapsed,
@@ -161,7 +184,7 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
     for scenario in SCENARIOS:
         progress(f"control loop: {scenario}, {seconds:g} s")
         row: dict[str, Any] = {"scenario": scenario, "measured": asyncio.run(measure(scenario, seconds))}
-        if scenario != "pollers" and scenario not in BUSY:  # (no pollers nor loop in simulated time)
+        if scenario != "pollers" and scenario not in BUSY and scenario not in BUSY_THREAD:  # (not simulated)
             row["simulated"] = simulated(scenario)
         rows.append(row)
     return {"servos": len(IDS), "rate_hz": RATE_HZ, "baud": BAUD, "seconds": seconds, "rows": rows}
@@ -179,7 +202,7 @@ def print_table(result: dict[str, Any]) -> None:
         s = row.get("simulated")
         sim = f"{s['rate_hz']:.1f} Hz, {s['interval_p99_ms']:.1f} / {s['interval_max_ms']:.1f} ms" if s else "-"
         reads = f"{m['reads_per_s']:,.0f}" if row["scenario"] == "pollers" else "-"
-        if row["scenario"] in BUSY:
+        if row["scenario"] in BUSY or row["scenario"] in BUSY_THREAD:
             reads = f"{m['work_per_s']:,.0f} work/s, {m['frames_seen']} frames seen"
         lag = "-" if m["slot_lag_p50_ms"] is None else f"{m['slot_lag_p50_ms']:.2f}"
         print(

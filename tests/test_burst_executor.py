@@ -119,11 +119,14 @@ def serve(master: int, reply: Reply = answer) -> Responder:
     return Responder(master, reply)
 
 
-def test_the_path_reports_itself_built_and_is_off_unless_asked(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_path_reports_itself_built_and_on_unless_turned_off(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ICS35_BURST", "1")
     assert burst_path() == (True, burst_path()[1]) and "compiled" in burst_path()[1]
     monkeypatch.delenv("ICS35_BURST")
-    assert burst_path()[0] is False
+    assert burst_path()[0] is True  # the default where it is built
+    for off in ("0", "off", "No", "false", "2"):
+        monkeypatch.setenv("ICS35_BURST", off)
+        assert burst_path()[0] is False and "ICS35_BURST=" in burst_path()[1]
 
 
 def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: PtyPair) -> None:

@@ -211,10 +211,10 @@ def test_the_table_of_command_modules_names_every_command_where_it_is() -> None:
     assert found == COMMAND_MODULES
 
 
-@pytest.mark.parametrize("env", ["1", ""], ids=["burst", "ordinary"])
-def test_version_with_verbose_and_doctor_say_which_path_runs(env: str) -> None:
+@pytest.mark.parametrize("env", ["1", None, "0"], ids=["asked", "default", "turned-off"])
+def test_version_with_verbose_and_doctor_say_which_path_runs(env: str | None) -> None:
     environ = {k: v for k, v in os.environ.items() if k != "ICS35_BURST"}
-    if env:
+    if env is not None:
         environ["ICS35_BURST"] = env
     for args in (["--version", "-v"], ["-v", "--version"], ["doctor"]):
         done = subprocess.run(
@@ -222,10 +222,10 @@ def test_version_with_verbose_and_doctor_say_which_path_runs(env: str) -> None:
         )
         assert done.returncode == 0, done.stderr
         (said,) = [ln for ln in done.stdout.splitlines() if ln.startswith("compiled stream path:")]
-        if env:
+        if env == "0":
+            assert said == "compiled stream path: off (ICS35_BURST=0; unset it to turn the path on)"
+        else:  # on by default where it is built
             assert said.startswith(("compiled stream path: on (", "compiled stream path: off, not built ("))
-        else:
-            assert said == "compiled stream path: off (optional; ICS35_BURST=1 turns it on)"
     plain = subprocess.run([sys.executable, "-m", "ics35_async.cli", "--version"], capture_output=True, text=True)
     assert plain.stdout.strip().startswith("ics35, version") and "burst" not in plain.stdout
 

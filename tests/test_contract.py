@@ -65,12 +65,12 @@ async def bus(
     """The case's bus on IDs 0-7: its driver, under its library, to its far end.
 
     The asyncio driver on a pty takes the burst path where it is built ("pty" turns it on, as
-    ICS35_BURST=1 does, and lets bursts run beside requests, which the library pauses them for, so
-    that requests arrive mid-burst); "pty-ordinary" leaves it off (the default).
+    default does, and lets bursts run beside requests, which the library pauses them for, so
+    that requests arrive mid-burst); "pty-ordinary" turns it off (ICS35_BURST=0).
     """
     port = request.getfixturevalue("pty_port") if far.startswith("pty") else "sim://?ids=0-7"
     if far == "pty-ordinary":
-        monkeypatch.delenv(ENV, raising=False)
+        monkeypatch.setenv(ENV, "0")
     else:
         monkeypatch.setenv(ENV, "1")
         monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)

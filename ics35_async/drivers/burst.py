@@ -22,8 +22,8 @@ goes out only after the burst's bytes so far are fed: while the program sends re
 without bursts.
 
 Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
-without a file descriptor -- or unless ``ICS35_BURST=1`` is set, every transaction takes the
-ordinary path.
+without a file descriptor, the thread and anyio drivers -- or with ``ICS35_BURST=0`` set, every
+transaction takes the ordinary path.
 """
 
 from __future__ import annotations
@@ -74,11 +74,16 @@ def burst_path() -> tuple[bool, str]:
     """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
     doctor, after :data:`PATH_NAME`).
 
-    Opt-in (``ICS35_BURST=1``): it has not yet met its CPU goal, and its rate goal only in some runs
-    (the chaos, cancellation and unplug soaks run on it over a pty, and pass).
+    On where the helper is built, unless ``ICS35_BURST=0``: it costs a stream less CPU than the ordinary path
+    and keeps its rate beside a busy Python thread, which starves the ordinary path's loop of the GIL
+    (``benchmarks/bench_burst.py``); the engine's tests compare it with the ordinary path write for write, and the
+    contract suite and the chaos, cancellation and unplug soaks run on it.
     """
-    if os.environ.get(ENV, "").strip().lower() not in ("1", "on", "yes", "true"):
-        return False, f"off (optional; {ENV}=1 turns it on)"
+    setting = os.environ.get(ENV, "").strip().lower()
+    if setting in ("0", "off", "no", "false"):
+        return False, f"off ({ENV}={os.environ[ENV].strip()}; unset it to turn the path on)"
+    if setting not in ("", "1", "on", "yes", "true"):
+        return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; unset it to turn the path on)"
     if _burst is None:
         return False, f"off, not built ({_IMPORT_ERROR}): streams run without it"
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
