@@ -238,8 +238,8 @@ class Stream(FrameIterator[Frame]):
 
     def _refuse_if_closed(self) -> None:
         """Targets for a stream closed by the program (or on a closed bus) would never be sent.  After a
-        lost port they are still taken, silently: a group or a robot closing out frees or holds its
-        other lines through the same calls."""
+        lost port they are still taken, silently: a group or a robot driving several lines goes on with
+        the lines left through calls that reach every line's stream."""
         if self._closed and isinstance(self._end_error, BusClosed):
             raise BusClosed(str(self._end_error))
 
