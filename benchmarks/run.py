@@ -78,6 +78,8 @@ import bench_wire
 from bench_common import progress
 from bench_targets import print_targets, targets
 
+from ics35_async.drivers.burst import burst_path
+
 HERE = Path(__file__).resolve().parent
 SECTIONS = (
     "cpu",
@@ -123,6 +125,8 @@ def machine() -> dict[str, Any]:
         "git_commit": commit.stdout.strip() or None,
         "library_modified_since_commit": bool(dirty.stdout.strip()),
         "packages": {d: version(d) for d in ("pyserial", "pyserial-asyncio-fast", "pyserial-asyncio", "uvloop")},
+        # The rows that do not choose a path (all but the burst section's) run the one this names.
+        "compiled_stream_path": burst_path()[1],
     }
 
 
@@ -320,6 +324,7 @@ def main() -> int:
         f"load average at start {m['load_average_at_start'][0]:.2f}, at end {m['load_average_at_end'][0]:.2f}; "
         "a shared, noisy machine: compare the ratios (measured side by side), not the absolute rates"
     )
+    print(f"compiled stream path: {m.get('compiled_stream_path', 'not recorded')}")
     printers: dict[str, Callable[[dict[str, Any]], None]] = {
         "cpu": bench_cpu.print_table,
         "lines": bench_lines.print_table,
