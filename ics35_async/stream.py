@@ -7,7 +7,6 @@ servo's reply writes the next servo's command, with no task switch per servo.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import itertools
@@ -717,7 +716,8 @@ class Stream(FrameIterator[Frame]):
     def targets_sent_on_close(self) -> dict[int, int]:
         """What the stream's close sent, ``{id: position}`` (0: free): with ``on_close="free"`` every ID's free,
         with ``"hold"`` the targets set since their last cycle (offline, held and watched IDs get nothing);
-        empty before the close, or if the bus was closed first."""
+        empty before the close, or if the bus was closed first.  A command the line could not take (its port
+        lost, the bus closed meanwhile) is left out: its servo still holds what it held."""
         return dict(self._sent_on_close)
 
     @property
@@ -743,7 +743,7 @@ class Stream(FrameIterator[Frame]):
             }
         if not self.bus.is_open:
             last = {}
-        self._sent_on_close = last
+        self._sent_on_close = dict(last)  # (a copy: a send the line could not take leaves it)
         if last:
             # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
@@ -756,8 +756,12 @@ class Stream(FrameIterator[Frame]):
                 group.start_soon(self._send_quietly, servo_id, position)
 
     async def _send_quietly(self, servo_id: int, position: int) -> None:
-        with contextlib.suppress(IcsError):
+        try:
             await self.bus.request(protocol.Position(servo_id, position, baudrate=self.bus.baudrate))
+        except ReplyError:
+            pass  # its bytes went out (unanswered or answered badly): the servo heard it as likely as not
+        except IcsError:  # never on the wire, or cut off by a lost port: nothing says it arrived
+            self._sent_on_close.pop(servo_id, None)
 
     def _stop(self, *, detach: bool = True) -> None:
         self._running = False

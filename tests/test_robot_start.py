@@ -10,7 +10,7 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, open_bus, open_robot
+from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.robot import Segment, Trajectory
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, sent_position
@@ -350,6 +350,34 @@ def test_on_close_free_sends_every_joint_one_free(ending: str, backend: str) -> 
     assert frees_since(rig, marks) == dict.fromkeys(JOINTS, 1)
     assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}
     assert closed[0].targets == dict.fromkeys(JOINTS)  # the closed robot's snapshot says so too
+
+
+def test_a_line_still_lost_at_the_close_keeps_its_joints_targets_in_the_closed_robots_snapshot() -> None:
+    # on_close="free" with the lower line's port gone and not back: its free never goes out, its servos
+    # hold; the closed robot's targets must say so (they said free), while the upper line's joints are free.
+    rig = make_rig(ics36=[1, 2, 3])
+    closed: list[Robot] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, on_close="free", reconnect=True, **FAST) as robot:
+                robot.hold()
+                await robot.on_wire()
+                held = dict(robot.targets)
+                rig.lower.unplug(replug_after=60.0)
+                lower_bus = robot.group["lower"]
+                while lower_bus.state is not State.LOST:
+                    await lower_bus.state_change()
+                closed.append(robot)
+        lower = {name for name, spec in JOINTS.items() if spec["line"] == "lower"}
+        assert lower and all(held[name] is not None for name in lower)
+        assert closed[0].targets == {name: held[name] if name in lower else None for name in JOINTS}
+
+    try:
+        anyio.run(main)
+        assert all(rig.servo(name).free == (JOINTS[name]["line"] != "lower") for name in JOINTS)
+    finally:
+        rig.close()
 
 
 def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:

@@ -32,6 +32,7 @@ from ics35_async import (
     Param,
     PortLost,
     ReplyError,
+    State,
     Stream,
     open_bus,
     protocol,
@@ -1159,3 +1160,24 @@ async def test_a_group_takes_targets_in_degrees_as_one_stream_does() -> None:
         gstream.set_targets_degrees({("a", 1): 30.0, ("b", 1): -45.0})
         assert gstream.streams["a"].target(1) == round(7500 + 30.0 * 8000 / 270)
         assert gstream.streams["b"].target(1) == round(7500 - 45.0 * 8000 / 270)
+
+
+@pytest.mark.parametrize("on_close", ["free", "hold"])
+async def test_what_the_close_could_not_put_on_the_wire_is_not_said_sent(on_close: str) -> None:
+    # The port is lost and not back when the block ends: the close's commands never go out, so the
+    # servos keep holding what they held; targets_sent_on_close must not claim them (a robot's targets
+    # are set from it).
+    ids = [1, 2]
+    sim = make_sim(ids)
+    async with open_bus(sim, reconnect=True, **FAST) as bus:
+        stream = bus.stream(ids, on_close=on_close)
+        stream.set_targets({1: 7000, 2: 8000})
+        async with stream:
+            await next_frame(stream)
+            stream.set_target(2, 9000)  # (a target since the last cycle: what "hold" would send)
+            sim.unplug(replug_after=60.0)
+            with anyio.fail_after(GUARD):
+                while bus.state is not State.LOST:
+                    await bus.state_change()
+        assert stream.targets_sent_on_close == {}
+    assert not sim.servo(1).free and not sim.servo(2).free
