@@ -356,7 +356,8 @@ def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_l
 def test_calibrate_warns_when_a_joint_is_reversed_both_in_the_file_and_in_its_servos_eeprom(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
-    # The two reversals cancel (the joint turns as if neither were set): said when calibrate opens the robot.
+    # The two reversals cancel (the joint turns as its servo would with neither): said as calibrate begins, where
+    # a joint's direction is set up, with what either way out does (it mirrors the joint: calibrate again).
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("id = 1\noffset", "id = 1\nreverse = true\noffset"))
@@ -376,9 +377,11 @@ def test_calibrate_warns_when_a_joint_is_reversed_both_in_the_file_and_in_its_se
     )
     assert result.code == 0, result.err
     said = " ".join(result.err.split())
-    assert f"{robot_file}: joints.neck: reverse = true in the file and servo ID 1 on line upper" in said, said
+    assert f"{robot_file}: joints.neck: reverse = true in the file, and servo ID 1 on line upper" in said, said
     assert f"ics35 --port {ports['upper']} eeprom set 1 flags-=REVERSE" in said, said
+    assert "nothing to do" in said and "calibrate it again before any motion" in said, said
     assert said.count("flags-=REVERSE") == 1 and "joints.hip" not in said, said
+    assert said.index("flags-=REVERSE") < said.index("neutral"), said  # before step 1
 
 
 def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(

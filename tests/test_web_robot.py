@@ -17,7 +17,6 @@ import pytest
 from starlette.testclient import TestClient
 
 from ics35_async import sim
-from ics35_async.eeprom import Flags
 from ics35_async.robot import RobotWarning
 from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
@@ -340,14 +339,13 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
 
 
 def test_the_robots_open_warnings_reach_the_servers_warn_not_a_raw_python_warning(tmp_path: Path) -> None:
-    # A joint reversed both in the file and by its servo's REVERSE flag (the two cancel): said as the
-    # command's other start-up problems are, in its own words, not as a Python warning pointing into a library.
+    # A joint whose file allows more than its servo's EEPROM pulse limits: said as the command's other
+    # start-up problems are, in its own words, not as a Python warning pointing into a library.
     name = f"web-robot-{next(_names)}"
     line = sim.VirtualLine([1, 2], name=name)
     elbow = line.servo(2)
-    elbow.eeprom = elbow.eeprom.replace(flags=elbow.eeprom.flags | Flags.REVERSE)
-    path = tmp_path / "arm.toml"
-    path.write_text(arm_file(tmp_path, name).read_text().replace("id = 2\n", "id = 2\nreverse = true\n"))
+    elbow.eeprom = elbow.eeprom.replace(pulse_limit_high=9000)  # the file's 90 degrees are about 10,200
+    path = arm_file(tmp_path, name)
     warned: list[str] = []
     app = create_app(
         LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)), warn=warned.append
@@ -360,8 +358,7 @@ def test_the_robots_open_warnings_reach_the_servers_warn_not_a_raw_python_warnin
     line.close()
     assert view["open"] and view["warnings"] == warned, view  # the Robot page shows them too
     assert len(warned) == 1, warned
-    assert f"{path}: joints.elbow: reverse = true in the file and servo ID 2 on line arm" in warned[0], warned
-    assert f"ics35 --port 'sim://{name}?ids=1-2' eeprom set 2 flags-=REVERSE" in warned[0], warned
+    assert f"{path}: joints.elbow: the file allows 0..90 degrees, but servo ID 2 on line arm" in warned[0], warned
     assert not [w for w in raw if issubclass(w.category, RobotWarning)], [str(w.message) for w in raw]
 
 

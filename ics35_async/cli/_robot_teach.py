@@ -23,7 +23,7 @@ from ..errors import IcsError, InvalidArgument, ReplyError
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, write_calibration
 from ..robot.description import JointSpec
-from ..robot.startup import limit_problem
+from ..robot.startup import limit_problem, reverse_note
 from ._common import (
     CliError,
     ExitCode,
@@ -336,6 +336,15 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                     async for frame in stream:
                         track(frame)
 
+            for name in names:  # each servo's REVERSE flag (below) and pulse limits (after the ranges)
+                joint = robot.joints[name]
+                with contextlib.suppress(ReplyError):
+                    eeproms[name] = await robot.group[joint.line].servo(joint.id).read_eeprom()
+            for name, eeprom in eeproms.items():
+                spec = description.joints[name]
+                note = reverse_note(robot_file, spec, description.lines[spec.line], eeprom)
+                if note is not None:
+                    err.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
             with Screen(table, summary) as screen:
                 screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                 if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
@@ -353,10 +362,6 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                     with contextlib.suppress(asyncio.CancelledError):
                         await tracking
                 track(robot.latest)
-                for name in names:  # each servo's pulse limits, to compare with the range found (below)
-                    joint = robot.joints[name]
-                    with contextlib.suppress(ReplyError):
-                        eeproms[name] = await robot.group[joint.line].servo(joint.id).read_eeprom()
 
     run_robot(settings, description, body)
     calibrated: dict[str, JointSpec] = {}

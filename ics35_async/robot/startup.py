@@ -240,8 +240,7 @@ robot opens on a loop thread, whose stack holds no line of the program."""
 
 
 async def check_servo_limits(robot: Robot) -> list[str]:
-    """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits,
-    and where a joint is reversed both in the file and by its servo's EEPROM REVERSE flag."""
+    """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
     found: list[str] = []
 
     async def check_line(line: str) -> None:
@@ -254,12 +253,10 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 silent.append(joint)
                 why = why or str(exc)
                 continue
-            # Warnings, not refusals: either setting alone is legitimate, and opening moves nothing (the servo
-            # clamps to its pulse limits anyway); the person fixes the file or the servo with the robot closed.
-            source, spec = robot.description.source, robot.description.lines[line]
-            for message in (limit_problem(source, joint, eeprom), reverse_problem(source, joint, spec, eeprom)):
-                if message is not None:
-                    found.append(message)
+            # A warning, not a refusal: opening moves nothing, and the servo clamps to its pulse limits anyway.
+            message = limit_problem(robot.description.source, joint, eeprom)
+            if message is not None:
+                found.append(message)
         if silent:  # one message a line (a line with nothing answering said it once a joint)
             source = robot.description.source
             if len(silent) == 1:
@@ -270,7 +267,7 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 ids = ", ".join(str(joint.id) for joint in silent)
                 what = f"joints {names} (servo IDs {ids} on line {line}) did not answer"
                 why = f"the first: {why}"
-            found.append(f"{source}: {what} ({why}); limits not checked, nor the REVERSE flag")
+            found.append(f"{source}: {what} ({why}); limits not checked")
 
     async with task_group() as tasks:
         for line in robot.description.lines:
@@ -310,10 +307,15 @@ def limit_problem(source: str, joint: JointSpec, eeprom: Eeprom) -> str | None:
     )
 
 
-def reverse_problem(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
-    """What is wrong, in words, when ``joint`` is reversed both in the file and by its servo's EEPROM REVERSE flag
-    (``line``: the joint's line, for the command that clears the flag); None otherwise.  Either alone is a
-    legitimate setup; both cancel out, so the joint turns as if neither were set: the way neither meant."""
+def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
+    """What to check, in words, when ``joint`` is reversed both in the file and by its servo's EEPROM REVERSE flag
+    (``line``: the joint's line, for the command that clears the flag); None otherwise.
+
+    For calibration, where a joint's direction is set up: the two cancel out, so the joint turns as its servo
+    would with neither, most often a mix-up of two ways of reversing it.  Not a fault: a robot calibrated
+    so turns as it was calibrated, and removing either one mirrors the joint (its offset and limits with it),
+    so the note says to calibrate again then; it is not said at every open, where it would be noise for a
+    robot set up so on purpose."""
     if not (joint.reverse and eeprom.flags & Flags.REVERSE):
         return None
     options = ["--port", line.port]
@@ -323,8 +325,9 @@ def reverse_problem(source: str, joint: JointSpec, line: LineSpec, eeprom: Eepro
         options.append("--no-echo")
     clear = shlex.join(["ics35", *options, "eeprom", "set", str(joint.id), "flags-=REVERSE"])
     return (
-        f"{source}: joints.{joint.name}: reverse = true in the file and servo ID {joint.id} on line {joint.line} "
-        "has the EEPROM REVERSE flag set too: the two cancel out, so the joint turns as if neither were set. "
-        f"Keep one: remove reverse = true from joints.{joint.name}, or clear the servo's flag (robot closed): "
-        f"{clear}; then check the joint's offset and limits (ics35 calibrate measures them again)"
+        f"{source}: joints.{joint.name}: reverse = true in the file, and servo ID {joint.id} on line {joint.line} "
+        "has its EEPROM REVERSE flag set too: the two cancel out, so the joint turns as its servo would with "
+        "neither. If it turns the way you want, nothing to do. To keep one of them, remove reverse = true from "
+        f"joints.{joint.name} or clear the flag ({clear}); either mirrors the joint, its offset and limits with "
+        "it, so calibrate it again before any motion"
     )
