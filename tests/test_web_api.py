@@ -529,3 +529,18 @@ def test_the_servo_pages_position_is_read_without_moving_or_freeing_and_ics35_sa
     assert streamed["how"] == "stream" and streamed["position"] > 0
     post(client, "/api/live/stop")
     assert client.get("/api/servo/40/position").status_code == 400
+
+
+def test_an_old_backup_is_restored_keeping_the_servos_new_rate(serve: Any) -> None:
+    client, sim = serve((1,))
+    doc = client.get("/api/servo/1/backup").json()  # saved at 115200
+    servo = sim.servo(1)
+    servo.eeprom = servo.eeprom.replace(speed=9, baud_rate=1250000)
+    servo.power_cycle()  # it talks only at 1,250,000 now
+    assert post(client, "/api/connect", {"baud": 1250000}).json()["baud"] == 1250000
+    plan = post(client, "/api/servo/1/restore/plan", {"doc": doc}).json()
+    assert "baud rate" in plan["refusal"]
+    kept = post(client, "/api/servo/1/restore/plan", {"doc": doc, "keep_baud": True}).json()
+    assert kept["refusal"] is None and {d["name"] for d in kept["diff"]} == {"speed"}
+    result = post(client, "/api/servo/1/restore", {"doc": doc, "keep_baud": True, "before": kept["before"]}).json()
+    assert result["verified"] and servo.eeprom.speed == 127 and servo.eeprom.baud_rate == 1250000
