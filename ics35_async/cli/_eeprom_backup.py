@@ -12,10 +12,11 @@ from typing import Any
 import click
 from rich.markup import escape
 
+from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
-from ..policies.eeprom_backup import backup_changes, backup_document
+from ..policies.eeprom_backup import backup_changes, backup_document, restore_rates
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -209,12 +210,12 @@ class Backup:
     simulated: bool = False  # read from the implicit built-in simulator, not a servo
 
 
-def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
+def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bool = False) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         text = sys.stdin.read() if source == "-" else Path(source).read_text()
         doc = json.loads(text)
-        changes = backup_changes(doc, restore_id=restore_id)
+        changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
@@ -227,21 +228,21 @@ def load_backup(source: str, target: int | None, restore_id: bool) -> Backup:
     return Backup(source, target, fields, saved_id, isinstance(doc, dict) and doc.get(SIMULATED_KEY) is True)
 
 
-def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
+def load_backups(args: tuple[str, ...], restore_id: bool, keep_baud: bool = False) -> list[Backup]:
     if len(args) == 2:
         try:
             target = SERVO_ID.convert(args[0], None, None)
         except click.BadParameter as exc:
             raise click.BadParameter(exc.message, param_hint="ID") from None
-        return [load_backup(args[1], target, restore_id)]
+        return [load_backup(args[1], target, restore_id, keep_baud)]
     if len(args) != 1:
         raise click.BadParameter("give ID FILE, FILE or DIR", param_hint="[ID] FILE|DIR")
     if not Path(args[0]).is_dir():
-        return [load_backup(args[0], None, restore_id)]
+        return [load_backup(args[0], None, restore_id, keep_baud)]
     files = sorted(str(p) for p in Path(args[0]).glob("*.json"))
     if not files:
         raise click.BadParameter(f"no *.json backups in {args[0]}", param_hint="DIR")
-    backups = [load_backup(name, None, restore_id) for name in files]
+    backups = [load_backup(name, None, restore_id, keep_baud) for name in files]
     seen: dict[int, str] = {}
     for backup in backups:
         if backup.target in seen:
@@ -250,6 +251,46 @@ def load_backups(args: tuple[str, ...], restore_id: bool) -> list[Backup]:
             )
         seen[backup.target] = backup.source
     return backups
+
+
+RESTORE_BAUD_ADVICE = (
+    "to restore the rest and keep the servo at the rate it has now, add --keep-baud",
+    "to write the backup's rate too, add --change-baud",
+)
+
+
+async def plan_restore(bus: Bus, backups: list[Backup], bulk: bool) -> list[EepromPlan]:
+    """Every backup's write, planned at the rate its servo answers at; nothing is written.
+
+    One file goes to one servo at the line's rate: one that answers elsewhere is told "pass --baud" as by
+    every command.  A DIR's servos may answer at different rates (some moved to 1,250,000, others not), and
+    no one --baud reaches them all: each is found where it answers (policies.restore_rates, holding the line
+    as a scan does) and read, written and verified at its own rate, after one question over every diff.
+    That rather than a message sending the person to run the restore once per rate: the wire carries the
+    same traffic either way, while one run asks once, shows every servo, and can refuse an ID that answers
+    at two rates (two servos; a run per rate would give both of them the one backup).
+    """
+    if not bulk:
+        return [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
+    found = await restore_rates(bus, [b.target for b in backups])
+    refusal = found.refusal()
+    if refusal:
+        raise CliError(
+            ExitCode.REFUSED,
+            f"refused: {refusal}. Nothing was written",
+            "connect one of them at a time, or restore it by its file: ics35 --baud RATE eeprom restore FILE",
+        )
+    home = int(bus.baudrate)
+    # The line's own rate first, then each other rate: one reopen per rate, not per servo.
+    order = sorted(backups, key=lambda b: (found.rates[b.target] != home, found.rates[b.target]))
+    plans: list[EepromPlan] = []
+    for backup in order:
+        if int(bus.baudrate) != found.rates[backup.target]:
+            await bus.reopen(baudrate=found.rates[backup.target])
+        plans.append(await plan_eeprom_write(bus, backup.target, backup.fields))
+    if int(bus.baudrate) != home:
+        await bus.reopen(baudrate=home)
+    return plans
 
 
 def restore_flag_advice(settings: Settings, plan: EepromPlan) -> str:
@@ -265,11 +306,20 @@ def restore_flag_advice(settings: Settings, plan: EepromPlan) -> str:
 @click.option(
     "--change-baud", is_flag=True, help="Allow a backup to change the baud rate (the servo then talks only at it)."
 )
+@click.option(
+    "--keep-baud", is_flag=True, help="Write everything but the baud rate: each servo stays at the rate it has now."
+)
 @yes_option
 @json_option
 @click.pass_context
 def restore(
-    ctx: click.Context, args: tuple[str, ...], restore_id: bool, change_baud: bool, yes: bool, as_json: bool
+    ctx: click.Context,
+    args: tuple[str, ...],
+    restore_id: bool,
+    change_baud: bool,
+    keep_baud: bool,
+    yes: bool,
+    as_json: bool,
 ) -> int:
     """Write backups made by `eeprom dump` (shows every diff, asks once).
 
@@ -279,10 +329,15 @@ def restore(
     ics35 eeprom restore backup/         every file in backup/ to its own servo
 
     Each servo keeps its own factory calibration bytes and read-only flags, and
-    its ID unless --restore-id.  Use - as FILE for stdin (then pass --yes).
+    its ID unless --restore-id.  A backup naming another baud rate than the
+    servo's is refused unless --keep-baud (the servo keeps its rate) or
+    --change-baud (it takes the backup's).  A DIR's servos are each restored at
+    the rate they answer at.  Use - as FILE for stdin (then pass --yes).
     """
     settings = settings_of(ctx)
-    backups = load_backups(args, restore_id)
+    if keep_baud and change_baud:
+        raise click.UsageError("--keep-baud and --change-baud: choose one (keep the servo's rate, or the backup's)")
+    backups = load_backups(args, restore_id, keep_baud)
     for backup in backups:
         if backup.simulated:
             err.print(
@@ -297,12 +352,13 @@ def restore(
 
     reading = False  # the servos are being read (the line opened): a failure then comes before any write
     planned = False  # every servo read and its write planned: until then nothing was written
+    bulk = len(args) == 1 and Path(args[0]).is_dir()
 
     async def body() -> WriteBatch:
         nonlocal reading, planned
         async with settings.bus() as bus:
             reading = True
-            plans = [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
+            plans = await plan_restore(bus, backups, bulk)
             planned = True
             return await write_plans(
                 bus,
@@ -312,11 +368,15 @@ def restore(
                 allow_id_change=restore_id,
                 as_json=as_json,
                 flag_advice=lambda plan: restore_flag_advice(settings, plan),
+                baud_advice=RESTORE_BAUD_ADVICE,
             )
 
     again = ["eeprom", "restore", *args]
-    again += [flag for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud)) if on]
-    bulk = len(args) == 1 and Path(args[0]).is_dir()
+    again += [
+        flag
+        for flag, on in (("--restore-id", restore_id), ("--change-baud", change_baud), ("--keep-baud", keep_baud))
+        if on
+    ]
     try:
         batch = run(settings, body)
     except CliError as exc:

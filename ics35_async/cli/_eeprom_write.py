@@ -43,8 +43,14 @@ def _hs(new: int) -> str:
     return " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
 
 
-def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool) -> None:
-    """Refuse (exit 5, nothing written) what the person did not ask for, with what to do instead."""
+CHANGE_BAUD_ADVICE = ("to do it anyway, add --change-baud",)
+
+
+def check_allowed(
+    plan: EepromPlan, *, change_baud: bool, allow_id_change: bool, baud_advice: Sequence[str] = CHANGE_BAUD_ADVICE
+) -> None:
+    """Refuse (exit 5, nothing written) what the person did not ask for, with what to do instead
+    (``baud_advice``: for a baud change, in the command's own terms)."""
     if plan.changes_baud and not change_baud:
         new = int(plan.after.baud_rate)
         raise CliError(
@@ -53,7 +59,7 @@ def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool)
             f"from {baud_text(plan.before.baud_rate)} to {new}; "
             + BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))
             + ". Nothing was written",
-            "to do it anyway, add --change-baud",
+            *baud_advice,
         )
     if plan.changes_id and plan.id_taken:
         raise CliError(
@@ -70,7 +76,12 @@ def check_allowed(plan: EepromPlan, *, change_baud: bool, allow_id_change: bool)
 SET_FLAG_ADVICE = "to change one flag and keep the others use flags+=NAME / flags-=NAME"
 
 
-def show_plan(plan: EepromPlan, as_json: bool, flag_advice: Callable[[EepromPlan], str]) -> None:
+def show_plan(plan: EepromPlan, as_json: bool, flag_advice: Callable[[EepromPlan], str], line_baud: int) -> None:
+    if plan.baud != line_baud:
+        (err if as_json else out).print(
+            f"servo {plan.servo_id} answers at {plan.baud:,} baud (the line's rate is {line_baud:,}): "
+            "it is read, written and verified at its own rate"
+        )
     (err if as_json else out).print(diff_table(plan))
     if plan.cleared_flags:
         note = (
@@ -100,6 +111,7 @@ def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, An
         "changes": {k: [int(a), int(b)] for k, (a, b) in plan.diff.items()},
         "outcome": outcome.name.lower(),
         "written": written.get(outcome, True),
+        "baud": plan.baud,
     }
     if report is not None and report.error is not None:
         out["error"] = str(report.error)
@@ -132,16 +144,20 @@ async def write_plans(
     allow_id_change: bool,
     as_json: bool,
     flag_advice: Callable[[EepromPlan], str] = lambda plan: SET_FLAG_ADVICE,
+    baud_advice: Sequence[str] = CHANGE_BAUD_ADVICE,
 ) -> WriteBatch:
     """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure.
 
-    ``flag_advice``: what to do instead of clearing a plan's flags, in the command's own terms."""
+    ``flag_advice``: what to do instead of clearing a plan's flags, and ``baud_advice``: what to do about a
+    refused baud change, in the command's own terms.  A plan made at another rate than the line's now (a
+    servo that answers there) is said so, and written and verified at its own rate."""
     for plan in plans:
-        check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change)
+        check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change, baud_advice=baud_advice)
     pending = [plan for plan in plans if plan.diff]
+    line_baud = int(bus.baudrate)
     for plan in plans:
         if plan.diff:
-            show_plan(plan, as_json, flag_advice)
+            show_plan(plan, as_json, flag_advice, line_baud)
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
     if not pending:
@@ -186,7 +202,8 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
     if outcome in short_of_verified:
         out.print(f"servo {sid}: {short_of_verified[outcome]}")
         return
-    out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified")
+    elsewhere = f" at {report['baud']:,} baud" if report.get("baud", settings.baud) != settings.baud else ""
+    out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified{elsewhere}")
     if "baud_rate" in changes:
         new = changes["baud_rate"][1]
         if report.get("answers_at_new_rate"):

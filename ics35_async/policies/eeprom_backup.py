@@ -6,19 +6,32 @@ way back the whole document is checked before anything is sent (format and
 version, a whole ``raw`` image, every field agreeing with it), and only the
 editable fields are taken, so a restore goes through :func:`.eeprom_write.plan_eeprom_write`
 like any other edit: the target servo keeps its own calibration bytes and
-read-only flags, and its ID unless the caller asks for the saved one.
+read-only flags, and its ID unless the caller asks for the saved one; and
+its baud rate when the caller asks to keep it (``keep_baud``: a backup made
+before the servo was moved to another rate).
+
+Restoring several backups, the servos may answer at different rates (some
+moved to 1,250,000, others not): :func:`restore_rates` finds the rate each
+answers at, on the one line the restore holds, so each is read, written and
+verified at its own (:func:`.eeprom_write.write_eeprom_plans` reopens the line
+at each plan's rate).
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
-from dataclasses import dataclass
+from collections.abc import AsyncIterator, Iterable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from .. import protocol
 from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
-from ..errors import InvalidArgument
+from ..errors import IcsError, InvalidArgument
+from ..transports import carries_line_settings
 from .eeprom_write import check_changes
+from .failure_kinds import Line, LineOpener
+from .scan import ALL_BAUDS, probe_ids, scan
 
 BACKUP_FORMAT = "ics35-eeprom/1"
 
@@ -127,17 +140,94 @@ class BackupChanges:
     """A checked backup, as the changes to plan for its target servo."""
 
     saved_id: int  # the ID the backup was saved from
-    fields: dict[str, int]  # servo_id removed unless the saved ID is to be restored
+    fields: dict[str, int]  # servo_id removed unless the saved ID is to be restored; baud_rate if kept
+    saved_baud: int  # the baud rate the backup's image names
 
 
-def backup_changes(doc: object, *, restore_id: bool = False) -> BackupChanges:
-    """Check a backup document and return what restoring it changes (InvalidArgument when unusable)."""
+def backup_changes(doc: object, *, restore_id: bool = False, keep_baud: bool = False) -> BackupChanges:
+    """Check a backup document and return what restoring it changes (InvalidArgument when unusable).
+
+    ``restore_id``: the saved ID is written too (else the target keeps its own).  ``keep_baud``: the
+    backup's baud rate is not written, so the target stays at the rate it answers at now (a backup made
+    before the servo was moved to another rate); without it a backup naming another rate changes the
+    servo's, which :meth:`.EepromPlan.refusal` refuses unless a baud change is allowed.
+    """
     fields = fields_from_document(doc)
     assert isinstance(doc, dict)  # fields_from_document refused anything else
     saved = doc.get("servo_id")
     saved_id = saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
     protocol.check_id(saved_id)
+    saved_baud = fields["baud_rate"]
     if not restore_id:
         del fields["servo_id"]
+    if keep_baud:
+        del fields["baud_rate"]
     check_changes(fields)
-    return BackupChanges(saved_id, fields)
+    return BackupChanges(saved_id, fields, saved_baud)
+
+
+@dataclass(frozen=True)
+class RestoreRates:
+    """Where the servos of a restore of several backups answer (:func:`restore_rates`)."""
+
+    rates: Mapping[int, int]  # ID -> the rate to read, write and verify it at
+    several: Mapping[int, tuple[int, ...]] = field(default_factory=dict)  # ID -> rates: one servo at each
+    looked: bool = False  # the other rates were probed (some ID was silent at the line's own)
+
+    def refusal(self) -> str | None:
+        """Why the restore must not go on (``None``: it may): an ID answering at several rates is several
+        servos, and which of them a backup of that ID belongs to cannot be told."""
+        if not self.several:
+            return None
+        which = "; ".join(
+            f"ID {i} answers at {' and '.join(f'{b:,}' for b in at)} baud" for i, at in sorted(self.several.items())
+        )
+        return f"{which}: one servo at each rate, and which one its backup belongs to cannot be told"
+
+
+def reopening(line: Line) -> LineOpener:
+    """``line`` as a :data:`.LineOpener`: "opened" at a rate, it is reopened there (and left so)."""
+
+    @contextlib.asynccontextmanager
+    async def at(baud: int) -> AsyncIterator[Line]:
+        if baud != int(line.baudrate):
+            await line.reopen(baudrate=baud)
+        yield line
+
+    return at
+
+
+async def restore_rates(line: Line, ids: Iterable[int], *, bauds: Iterable[int] = ALL_BAUDS) -> RestoreRates:
+    """The rate each of ``ids`` answers at, for restoring their backups on ``line`` in one go.
+
+    Every ID is probed at the line's rate first; when all answer there, that
+    is all (nothing is sent at another rate).  Otherwise the line is held and
+    reopened at each of ``bauds`` to scan those IDs, as :func:`.scan.scan` does
+    (a stretch read, the EEPROM of what answers, one servo heard at several
+    rates told from several servos by its calibration bytes), and returned to
+    its rate.  An ID found nowhere keeps the line's rate (its read then fails
+    as a read there does).  A link that does not carry the baud rate
+    (``socket://``) and a line that gives nothing back, not even the echo, are
+    not scanned: another rate tells nothing there.  See :meth:`RestoreRates.refusal`.
+
+    Raises:
+        InvalidArgument: a bad ID or baud rate.
+        BusClosed, PortLost, SerialPortError: the line is closed, its port gone, or it cannot be reopened.
+    """
+    wanted = [protocol.check_id(i) for i in ids]
+    home = int(line.baudrate)
+    first = await probe_ids(line, wanted)
+    if set(first.answered) == set(wanted) or first.silent or not carries_line_settings(getattr(line, "port", None)):
+        return RestoreRates(dict.fromkeys(wanted, home))
+    try:
+        report = await scan(reopening(line), bauds=[home, *(int(b) for b in bauds if int(b) != home)], ids=wanted)
+    finally:
+        with contextlib.suppress(IcsError, OSError):  # a line that cannot go back fails the first read after
+            if line.is_open and int(line.baudrate) != home:
+                await line.reopen(baudrate=home)
+    found: dict[int, list[int]] = {}
+    for servo in report.servos:
+        found.setdefault(servo.servo_id, []).append(servo.baud)
+    rates = {i: home if i in first.answered or len(found.get(i, ())) != 1 else found[i][0] for i in wanted}
+    several = {i: tuple(sorted(at)) for i, at in found.items() if len(at) > 1}
+    return RestoreRates(rates, several, looked=True)

@@ -14,11 +14,15 @@ The rules, in order:
 * right before writing, the image is read again and must still be the one
   planned from; after writing it is read back and compared.  After an ID
   change both IDs are probed (the reference does not say when a new ID takes
-  effect); after a baud change the servo is also asked at the new rate.
+  effect); after a baud change the servo is also asked at the new rate;
+* a plan is written at the rate it was made at (the rate the servo answers
+  at): a line at another rate is reopened there first, so servos at different
+  rates (a restore of several backups) are each written and verified at their own.
 """
 
 from __future__ import annotations
 
+import contextlib
 import enum
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -220,6 +224,8 @@ async def _write(
         raise UnsafeOperation(f"{reason}; nothing was written")
     if not plan.diff:
         return EepromWriteResult(plan, written=False, read_back=plan.before)
+    if int(line.baudrate) != plan.baud:  # planned at the servo's own rate: written and verified there
+        await line.reopen(baudrate=plan.baud)
     now = await line.request(protocol.ReadEeprom(plan.servo_id))
     if now != plan.before:
         raise UnsafeOperation(
@@ -318,9 +324,12 @@ async def write_eeprom_plans(
     servos hold their new image.  ``on_report`` hears each report as it is
     made; when the batch is cancelled (Ctrl-C) it still hears every servo's
     (the one being written: as far as it got) before the cancellation goes on.
-    ``allow_baud_change`` and ``allow_id_change`` apply to every plan.
+    ``allow_baud_change`` and ``allow_id_change`` apply to every plan.  Each
+    plan is written at its own rate (``plan.baud``); a batch that reopened the
+    line at another rate returns it to the rate it had when it ends.
     """
     reports: list[ServoWriteReport] = []
+    home = int(line.baudrate)
 
     def add(report: ServoWriteReport) -> None:
         reports.append(report)
@@ -346,6 +355,10 @@ async def write_eeprom_plans(
             raise
         outcome = WriteOutcome.VERIFIED if result.written else WriteOutcome.UNCHANGED
         add(ServoWriteReport(plan, outcome, result))
+    if line.is_open and int(line.baudrate) != home:
+        # Every servo's report is made: a line that cannot go back is the caller's next failure, not theirs.
+        with contextlib.suppress(IcsError, OSError):
+            await line.reopen(baudrate=home)
     return reports
 
 

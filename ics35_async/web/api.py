@@ -215,17 +215,20 @@ async def backup(request: Request, session: LineSession) -> Any:
     return JSONResponse(doc, headers={"content-disposition": f'attachment; filename="servo-{sid:02d}.json"'})
 
 
+def restore_edit(session: LineSession, data: dict[str, Any]) -> dict[str, Any]:
+    """The request's edit: the backup's fields (its ID only with ``restore_id``, its rate not with ``keep_baud``)."""
+    wanted = {"restore_id": data.get("restore_id") is True, "keep_baud": data.get("keep_baud") is True}
+    return {**data, **session.restore_edit(data.get("doc"), **wanted)}
+
+
 async def restore_plan(request: Request, session: LineSession) -> Any:
-    data = await body(request)
-    edit = {**data, **session.restore_edit(data.get("doc"), restore_id=data.get("restore_id") is True)}
+    edit = restore_edit(session, await body(request))
     _, view = await session.plan(servo_id(request), edit)
     return {**view, "saved_id": edit["saved_id"]}
 
 
 async def restore(request: Request, session: LineSession) -> Any:
-    data = await body(request)
-    edit = {**data, **session.restore_edit(data.get("doc"), restore_id=data.get("restore_id") is True)}
-    return await session.write(servo_id(request), edit)
+    return await session.write(servo_id(request), restore_edit(session, await body(request)))
 
 
 async def free(request: Request, session: LineSession) -> Any:

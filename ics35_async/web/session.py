@@ -490,9 +490,10 @@ class LineSession:
             image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
             return backup_document(image, servo_id, baud=bus.baudrate, port=self.config.port)
 
-    def restore_edit(self, doc: object, *, restore_id: bool) -> dict[str, Any]:
-        """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`."""
-        changes = backup_changes(doc, restore_id=restore_id)
+    def restore_edit(self, doc: object, *, restore_id: bool, keep_baud: bool = False) -> dict[str, Any]:
+        """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`;
+        ``keep_baud``: all but the backup's baud rate (the servo stays at the rate the line reaches it at)."""
+        changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.
         return {"changes": changes.fields, "saved_id": changes.saved_id, "allow_id_change": restore_id}
 

@@ -322,11 +322,14 @@ async function planRestore() {
   if (!file) return;
   let doc;
   try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
-  const request = { doc, restore_id: $("#restore-id").checked, allow_baud_change: $("#allow-baud-change").checked };
+  const request = { doc, restore_id: $("#restore-id").checked, keep_baud: $("#restore-keep-baud").checked,
+    allow_baud_change: $("#allow-baud-change").checked };
   const plan = await api(`/api/servo/${servoId()}/restore/plan`, request);
   state.restore = { ...request, before: plan.before };
   const note = plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
-  $("#restore-diff").replaceChildren(note, diffTable(plan));
+  const baud = plan.refusal && plan.diff.some((d) => d.name === "baud_rate")
+    ? el("p", {}, "to restore the rest and keep the servo at its rate, tick “keep its baud rate”") : "";
+  $("#restore-diff").replaceChildren(note, diffTable(plan), baud);
   $("#restore-btn").disabled = !plan.diff.length || !!plan.refusal;
 }
 
@@ -642,6 +645,7 @@ on("#write-btn", "click", writeEeprom);
 on("#backup-btn", "click", backupServo);
 on("#restore-file", "change", planRestore);
 on("#restore-id", "change", planRestore);
+on("#restore-keep-baud", "change", planRestore);
 on("#restore-btn", "click", restoreServo);
 on("#ram-write", "click", writeRam);
 on("#free-btn", "click", () => torque("free"));
