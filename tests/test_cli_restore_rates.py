@@ -10,6 +10,7 @@ from typing import Any
 from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate
 from ics35_async.sim import VirtualServo
+from tests.test_cli_backup_checks import PullsThePlug
 
 FAST = BaudRate.B1250000
 
@@ -145,3 +146,22 @@ def test_a_servo_that_answers_at_no_rate_stops_the_restore_before_any_write(
     assert result.code == ExitCode.NO_REPLY, result.err
     assert "servo 3 did not answer" in result.err and "nothing was written" in result.err
     assert writes(sim) == [0, 0]
+
+
+def test_a_line_lost_at_the_second_rate_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    plug = PullsThePlug(2, "write")  # at 1,250,000: the adapter is pulled out as its write goes
+    sim, url = sim_line([VirtualServo(1), plug, VirtualServo(3)])
+    backed_up(cli, sim, url, (1, 2, 3), tmp_path)
+    move_to_rate(sim, 2, FAST)
+    plug.line = sim
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "restore", str(tmp_path), "--keep-baud", "--yes")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    out = " ".join(result.out.split())
+    assert "servo 1: 1 EEPROM field(s) written and verified" in out
+    assert "servo 3: 1 EEPROM field(s) written and verified" in out
+    assert "servo 2: unknown: the command stopped while the write was on its way" in out
+    err = " ".join(result.err.split())
+    assert f"run it again: ics35 --port {url} --timeout 0.05 eeprom restore {tmp_path} --keep-baud" in err
+    # What the report says is what the servos hold.
+    assert [servo.eeprom.speed for servo in sim.servos] == [127, 127, 127]
+    assert writes(sim) == [1, 1, 1]

@@ -12,7 +12,15 @@ from ics35_async import open_bus
 from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
-from ics35_async.policies import check_changes, edit_image, plan_eeprom_write, write_eeprom_plan
+from ics35_async.policies import (
+    WriteOutcome,
+    check_changes,
+    edit_image,
+    plan_eeprom_write,
+    write_eeprom_plan,
+    write_eeprom_plans,
+)
+from ics35_async.policies.eeprom_backup import restore_rates
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.timing import FAST, NO_TIMEOUTS
 
@@ -223,3 +231,32 @@ async def test_a_batch_cancelled_mid_write_still_accounts_for_every_servo() -> N
         (3, WriteOutcome.NOT_WRITTEN, None),
     ]
     assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [40, 40, 127]  # 2 got it: unknown was honest
+
+
+async def test_restore_rates_and_plans_at_two_rates_are_written_each_at_its_own() -> None:
+    fast = int(BaudRate.B1250000)
+    async with line([VirtualServo(1), VirtualServo(2, baud_rate=fast), VirtualServo(3)]) as (sim, bus):
+        found = await restore_rates(bus, [1, 2, 3])
+        assert dict(found.rates) == {1: 115200, 2: fast, 3: 115200} and found.refusal() is None
+        assert bus.baudrate == 115200  # returned to its own rate
+        plans = []
+        for i in (1, 2, 3):
+            if bus.baudrate != found.rates[i]:
+                await bus.reopen(baudrate=found.rates[i])
+            plans.append(await plan_eeprom_write(bus, i, {"speed": 50}))
+        assert [p.baud for p in plans] == [115200, fast, 115200]
+        await bus.reopen(baudrate=fast)  # wherever the line is when the writes begin, it is left there
+        reports = await write_eeprom_plans(bus, plans)
+        assert [r.outcome for r in reports] == [WriteOutcome.VERIFIED] * 3
+        assert bus.baudrate == fast and [s.eeprom.speed for s in sim.servos] == [50, 50, 50]
+        assert [r.result.read_back.speed for r in reports if r.result and r.result.read_back] == [50, 50, 50]
+
+
+async def test_an_id_at_two_rates_is_two_servos_and_refused() -> None:
+    fast = int(BaudRate.B1250000)
+    async with line([VirtualServo(1, baud_rate=fast), VirtualServo(2), VirtualServo(2, baud_rate=fast)]) as (_, bus):
+        all_home = await restore_rates(bus, [2])
+        assert dict(all_home.rates) == {2: 115200} and not all_home.looked  # nothing sent at another rate
+        found = await restore_rates(bus, [1, 2])
+        assert found.looked and dict(found.several) == {2: (115200, fast)}
+        assert "ID 2 answers at 115,200 and 1,250,000 baud" in (found.refusal() or "")
