@@ -134,25 +134,27 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
         thread = threading.Thread(target=spin, daemon=True)
         if scenario in BUSY_THREAD:
             thread.start()
-        starts = [first.started]
-        # Where each cycle started on the slot grid (start - cycle / rate): the grid is anchored
-        # at the earliest of them, as no cycle starts before its slot.
-        on_grid = [first.started - first.cycle / RATE_HZ]
-        missed = 0
-        cycles0 = stream.stats.cycles
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < seconds:
-            frame = await stream.next_frame()
-            starts.append(frame.started)
-            on_grid.append(frame.started - frame.cycle / RATE_HZ)
-            missed += frame.missed_slots
-        # Over the wall-clock window, not the frames seen: a starved consumer sees few of them.
-        cycles = stream.stats.cycles - cycles0
-        elapsed = time.monotonic() - t0
-        stop = True
-        await asyncio.gather(*tasks)
-        if thread.is_alive():
-            thread.join()
+        try:
+            starts = [first.started]
+            # Where each cycle started on the slot grid (start - cycle / rate): the grid is anchored
+            # at the earliest of them, as no cycle starts before its slot.
+            on_grid = [first.started - first.cycle / RATE_HZ]
+            missed = 0
+            cycles0 = stream.stats.cycles
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < seconds:
+                frame = await stream.next_frame()
+                starts.append(frame.started)
+                on_grid.append(frame.started - frame.cycle / RATE_HZ)
+                missed += frame.missed_slots
+            # Over the wall-clock window, not the frames seen: a starved consumer sees few of them.
+            cycles = stream.stats.cycles - cycles0
+            elapsed = time.monotonic() - t0
+        finally:  # the busy thread and coroutines end even if the stream raised: the next scenario needs the CPU
+            stop = True
+            if thread.is_alive():
+                thread.join()
+            await asyncio.gather(*tasks)
     gaps = sorted(b - a for a, b in itertools.pairwise(starts))
     return {
         "rate_hz": cycles / elapsed,

@@ -225,7 +225,7 @@ def test_a_motion_still_running_when_the_block_ends_fails_with_bus_closed() -> N
 
 def test_a_task_commanding_a_joint_while_the_block_closes_cannot_keep_it_from_going_free() -> None:
     # on_close="free" with a controller task that outlives the block: its commands are refused from the
-    # moment the block ends, so the close-out's free is the last command every joint gets.
+    # moment the block ends, so the free each line's stream sends as it closes is the last command every joint gets.
     rig = make_rig(ics36=[1, 2, 3])
     refused: list[BusClosed] = []
 
@@ -258,8 +258,8 @@ def test_a_task_commanding_a_joint_while_the_block_closes_cannot_keep_it_from_go
 @pytest.mark.parametrize("moving", [False, True])
 def test_on_close_free_frees_the_other_lines_joints_when_one_line_is_lost(moving: bool) -> None:
     # A robot builder's finding: the lower line's adapter pulled, the block ended with PortLost, and the upper
-    # line's joints kept holding (mid-motion targets included): the close-out's free waited on the robot's
-    # frames, which had ended with the lost line.
+    # line's joints kept holding (mid-motion targets included): the robot's own free at the close then waited
+    # on its frames, which had ended with the lost line.
     rig = make_rig(ics36=[1, 2, 3], realtime=True)  # real time: the close can come before the next cycle
     tables: list[dict[str, str]] = []
 
