@@ -91,7 +91,7 @@ from .precise_wait import Deliverer, lower_timer_slack, wait_until
 from .record import Entry, Mismatch, ReplayDevice, TransactionRecorder, load_recording, parse_recording
 from .transaction import Transaction
 from .url import open_url, parse_url
-from .virtual_line import VirtualLine, named
+from .virtual_line import ServoState, VirtualLine, named
 from .virtual_servo import MemoryDevice, VirtualServo
 
 if TYPE_CHECKING:  # loaded on first use (see __getattr__), named here for type checkers
@@ -127,6 +127,7 @@ __all__ = [
     "MemoryDevice",
     "Mismatch",
     "ReplayDevice",
+    "ServoState",
     "Transaction",
     "TransactionRecorder",
     "VirtualLine",

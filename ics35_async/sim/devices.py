@@ -95,6 +95,23 @@ class DeviceTable:
         self.devices.append(device)
         self.reindex()
 
+    def remove(self, device: Device) -> None:
+        """Take ``device`` (that object, not another at its ID) off the line.
+
+        Raises:
+            ValueError: it is not on the line.
+        """
+        for index, present in enumerate(self.devices):
+            if present is device:
+                del self.devices[index]
+                self.reindex()
+                return
+        raise ValueError(f"{device!r} is not on this simulated line")
+
+    def servos_at(self, servo_id: int) -> list[VirtualServo]:
+        """Every servo whose current ID is ``servo_id``, in the order they were plugged in."""
+        return [d for d in self._by_id.get(servo_id, ()) if isinstance(d, VirtualServo)]
+
     @property
     def servos(self) -> list[VirtualServo]:
         return [d for d in self.devices if isinstance(d, VirtualServo)]

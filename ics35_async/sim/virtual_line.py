@@ -9,7 +9,8 @@ faults, log) plus what makes it a line one plugs into:
   time in real-time mode (the pty server, :mod:`.pty_server`, is the other
   driver of the same model);
 * the port's presence: unplug and replug, by fault, by timer or by hand;
-* access to its devices, and a name by which ``sim://NAME`` finds it.
+* access to its devices (plugged in, unplugged and power-cycled while it runs), and a name by which
+  ``sim://NAME`` finds it.
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from __future__ import annotations
 import errno
 import threading
 from collections.abc import Callable, Iterable
-from typing import Unpack
+from typing import NamedTuple, Unpack
 
+from ..eeprom import BaudRate
 from ..errors import PortBusy
 from ..transports import HostSide
 from .devices import Device
@@ -27,6 +29,25 @@ from .precise_wait import SPIN_MARGIN, Deliverer
 from .virtual_servo import MemoryDevice, VirtualServo
 
 DEFAULT_REPLUG_AFTER = 0.2
+
+
+class ServoState(NamedTuple):
+    """One servo on a simulated line as [`VirtualLine.servo_states`][ics35_async.sim.VirtualLine.servo_states]
+    finds it."""
+
+    servo_id: int
+    """The ID it answers to."""
+    eeprom_baud: int | None
+    """The baud rate its EEPROM holds (it listens at it after its next power-up); ``None``: a code the
+    reference does not define."""
+    baud: int
+    """The baud rate it listens at now."""
+    ics36: bool
+    """It speaks ICS 3.6 (answers the position read)."""
+    position: int
+    """Where it is (host coordinates)."""
+    free: bool
+    """Its torque is off."""
 
 
 class VirtualLine(LineModel):
@@ -96,17 +117,77 @@ class VirtualLine(LineModel):
         """The (first) memory device whose ID is ``device_id``."""
         return self.table.memory_device(device_id)
 
+    def servos_at(self, servo_id: int) -> list[VirtualServo]:
+        """Every servo whose current ID is ``servo_id`` (several share one only by mistake), oldest first."""
+        with self._lock:
+            return self.table.servos_at(servo_id)
+
     def add_device(self, device: Device) -> None:
         """Put one more device on the line (as if plugged in while it runs)."""
         with self._lock:
             self.table.add(device)
 
-    def power_cycle(self) -> None:
-        """Power-cycle every servo on the line (RAM reloads from EEPROM)."""
+    def remove_device(self, device: Device) -> None:
+        """Take ``device`` off the line (as if unplugged while it runs); it keeps its EEPROM.
+
+        Raises:
+            ValueError: that object is not on the line.
+        """
         with self._lock:
             self.table.update(self.now())
-            for servo in self.servos:
+            self.table.remove(device)
+
+    def remove_servo(self, servo_id: int) -> VirtualServo:
+        """Unplug the servo whose current ID is ``servo_id`` and return it; of several at that ID, the one
+        plugged in last.
+
+        Raises:
+            KeyError: no servo has that ID.
+        """
+        with self._lock:
+            present = self.table.servos_at(servo_id)
+            if not present:
+                raise KeyError(f"no servo with ID {servo_id} on the simulated line")
+            self.remove_device(present[-1])
+            return present[-1]
+
+    def power_cycle(self, servo_id: int | None = None) -> list[VirtualServo]:
+        """Power-cycle every servo on the line, or those whose ID is ``servo_id``: RAM reloads from the
+        EEPROM (a baud rate written there takes effect now) and each wakes up free.  Returns them.
+
+        Raises:
+            KeyError: no servo has ID ``servo_id`` (nothing is power-cycled).
+        """
+        with self._lock:
+            servos = self.servos if servo_id is None else self.table.servos_at(servo_id)
+            if servo_id is not None and not servos:
+                raise KeyError(f"no servo with ID {servo_id} on the simulated line")
+            now = self.now()
+            for servo in servos:
+                servo.update(now)
                 servo.power_cycle()
+            return servos
+
+    def servo_states(self) -> list[ServoState]:
+        """Each servo's state now (ID, EEPROM and listening baud rates, ICS version, position), in the
+        order they were plugged in."""
+        with self._lock:
+            now = self.now()
+            states = []
+            for servo in self.servos:
+                servo.update(now)
+                eeprom_baud = servo.eeprom.baud_rate
+                states.append(
+                    ServoState(
+                        servo.servo_id,
+                        int(eeprom_baud) if isinstance(eeprom_baud, BaudRate) else None,
+                        int(servo.baud_rate),
+                        servo.ics36,
+                        servo.position,
+                        servo.free,
+                    )
+                )
+            return states
 
     # ------------------------------------------------------------------ the WireDevice face
 
