@@ -1,7 +1,8 @@
 """The pty server's command line: ``python -m ics35_async.sim`` and ``ics35 sim``.
 
 Prints the device path on its first line, then serves until SIGINT or
-SIGTERM (see :mod:`.pty_server`).
+SIGTERM (see :mod:`.pty_server`); with ``--console`` it also takes commands on stdin
+(:mod:`.console`) until ``quit`` or the end of input.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
+from .console import ConsoleReader, LineConsole
 from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
@@ -112,6 +114,13 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
         "--fixed-baud", action="store_true", help="ignore the client's baud rate; the line runs at --baud"
     )
     parser.add_argument(
+        "--console",
+        action="store_true",
+        help="read commands from stdin while serving, one a line, each answered on stdout: plug ID [BAUD] [ics36] "
+        "(a new factory servo), unplug ID, replug [ID], power [ID] (power-cycle), list, help, quit "
+        "(stops the simulator, as end of input does); not for a simulator started in the background",
+    )
+    parser.add_argument(
         "--last",
         type=int,
         default=0,
@@ -170,6 +179,8 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         parser.error(str(exc))
     if args.tap and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
+    if args.console and not isinstance(device, VirtualLine):
+        parser.error("--console needs a simulated line, not --replay")
     # The tap first: a bad --tap then leaves no server's private directory behind.
     try:
         tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
@@ -188,6 +199,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
     # (a server: stopped by any of them, it ends as asked, exit 0)
     stops = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
     previous = {sig: signal.signal(sig, on_signal) for sig in stops}
+    console: ConsoleReader | None = None
     try:
         path = server.open()
         print(path, flush=True)
@@ -205,8 +217,14 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
                 file=sys.stderr,
                 flush=True,
             )
+        if args.console and isinstance(device, VirtualLine):
+            console = ConsoleReader(LineConsole(device, args.baud), server.stop, out=sys.stdout)
+            print("ics35 sim: console: type help for its commands, quit to stop", file=sys.stderr, flush=True)
+            console.start()
         server.serve()
     finally:
+        if console is not None:
+            console.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         server.close()

@@ -1,0 +1,245 @@
+"""The console of ``ics35 sim --console``: plug servos in, unplug them and power-cycle them while the line serves.
+
+:class:`LineConsole` turns one command line into one change to a :class:`~.virtual_line.VirtualLine`
+(whose methods do the work, under its lock) and returns its answer; :class:`ConsoleReader` reads
+commands from a file descriptor (stdin) in a thread of its own and writes each answer on a line.
+Commands::
+
+    plug ID [BAUD] [ics36]   a new servo, factory settings, at ID (at BAUD, else the simulator's --baud)
+    unplug ID                the servo at ID leaves the line (of two at one ID, the one plugged in last)
+    replug [ID]              an unplugged servo comes back, powered up (the last unplugged, or the one at ID)
+    power [ID]               power-cycle every servo, or those at ID: a baud rate in their EEPROM applies now
+    list                     each servo: ID, ICS 3.5/3.6, the rate it listens at (and its EEPROM's), position
+    help                     the commands
+    quit                     stop the simulator (as end of input and Ctrl-C do)
+
+Every command answers with one line (``list``: a first line that says how many servo lines follow);
+a command it cannot carry out answers ``error: ...`` and changes nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import threading
+from collections.abc import Callable
+from typing import ClassVar, TextIO
+
+from ..eeprom import BaudRate
+from ..errors import InvalidArgument
+from .virtual_line import ServoState, VirtualLine
+from .virtual_servo import VirtualServo
+
+HELP = (
+    "commands: plug ID [BAUD] [ics36], unplug ID, replug [ID], power [ID], list, help, quit "
+    "(plug: a new servo with factory settings; power: a baud rate written to EEPROM applies then)"
+)
+
+
+class ConsoleError(Exception):
+    """A command the console cannot carry out (it changed nothing)."""
+
+
+def _servos(count: int) -> str:
+    return f"{count} servo{'s' if count != 1 else ''}"
+
+
+def _parse_id(text: str) -> int:
+    if not text.isdigit() or int(text) > 31:
+        raise ConsoleError(f"an ID is 0..31, got {text!r}")
+    return int(text)
+
+
+def _describe(state: ServoState) -> str:
+    version = "ICS 3.6" if state.ics36 else "ICS 3.5"
+    rate = f"{state.baud} bit/s"
+    if state.eeprom_baud is None:
+        rate += " (an undefined rate in its EEPROM)"
+    elif state.eeprom_baud != state.baud:
+        rate += f" ({state.eeprom_baud} in its EEPROM, after power)"
+    return f"  ID {state.servo_id}: {version}, {rate}, at {state.position}, {'free' if state.free else 'holding'}"
+
+
+class LineConsole:
+    """Carries out console commands on ``line``; new servos come at ``baudrate`` unless told another."""
+
+    def __init__(self, line: VirtualLine, baudrate: int) -> None:
+        self.line = line
+        self.baudrate = int(BaudRate.parse(baudrate))
+        self.unplugged: list[VirtualServo] = []  # off the line, EEPROM kept: replug brings one back
+        self.quit = False
+
+    def execute(self, text: str) -> str:
+        """Carry out one command line; its answer (one line; ``list``: one line per servo after it)."""
+        words = text.split()
+        if not words:
+            return HELP
+        name, args = words[0].lower(), words[1:]
+        handler = self._COMMANDS.get(name)
+        try:
+            if handler is None:
+                raise ConsoleError(f"unknown command {words[0]!r} (help lists the commands)")
+            return handler(self, args)
+        except ConsoleError as exc:
+            return f"error: {exc}"
+
+    def _on_line(self) -> str:
+        return f"{_servos(len(self.line.servos))} on the line"
+
+    def _sharing(self, servo_id: int, more: bool = False) -> str:
+        count = len(self.line.servos_at(servo_id))
+        if more:
+            return f"; {count} more still answer{'s' if count == 1 else ''} to ID {servo_id}" if count else ""
+        return f"; {count} servos now answer to ID {servo_id}: their replies collide" if count > 1 else ""
+
+    def _plug(self, args: list[str]) -> str:
+        if not args:
+            raise ConsoleError("plug takes an ID, e.g. plug 0 (then a baud rate and ics36 if wanted)")
+        servo_id = _parse_id(args[0])
+        baudrate, ics36 = self.baudrate, False
+        for word in args[1:]:
+            if word.lower() == "ics36":
+                ics36 = True
+            elif word.isdigit():
+                try:
+                    baudrate = int(BaudRate.parse(int(word)))
+                except InvalidArgument as exc:
+                    raise ConsoleError(str(exc)) from None
+            else:
+                raise ConsoleError(f"plug ID takes a baud rate and ics36 after it, not {word!r}")
+        self.line.add_device(VirtualServo(servo_id, baud_rate=baudrate, ics36=ics36))
+        version = "ICS 3.6" if ics36 else "ICS 3.5"
+        return (
+            f"plugged in a new servo at ID {servo_id} ({version}, {baudrate} bit/s); {self._on_line()}"
+            f"{self._sharing(servo_id)}"
+        )
+
+    def _one_id(self, command: str, args: list[str]) -> int:
+        if len(args) != 1:
+            raise ConsoleError(f"{command} takes one ID, e.g. {command} 1")
+        return _parse_id(args[0])
+
+    def _unplug(self, args: list[str]) -> str:
+        servo_id = self._one_id("unplug", args)
+        shared = len(self.line.servos_at(servo_id)) > 1
+        try:
+            servo = self.line.remove_servo(servo_id)
+        except KeyError:
+            raise ConsoleError(f"no servo at ID {servo_id} on the line (list shows them)") from None
+        self.unplugged.append(servo)
+        which = " plugged in last" if shared else ""
+        return (
+            f"unplugged the servo at ID {servo_id}{which} (replug {servo_id} plugs it back in); {self._on_line()}"
+            f"{self._sharing(servo_id, more=True)}"
+        )
+
+    def _replug(self, args: list[str]) -> str:
+        if len(args) > 1:
+            raise ConsoleError("replug takes at most one ID, e.g. replug 1")
+        servo_id = _parse_id(args[0]) if args else None
+        waiting = [s for s in self.unplugged if servo_id is None or s.servo_id == servo_id]
+        if not waiting:
+            at = "" if servo_id is None else f" at ID {servo_id}"
+            raise ConsoleError(f"no unplugged servo{at} to plug back in")
+        servo = waiting[-1]
+        self.unplugged.remove(servo)
+        servo.power_cycle()  # plugged in is powered up: it wakes up with what its EEPROM holds
+        self.line.add_device(servo)
+        return (
+            f"plugged the servo at ID {servo.servo_id} back in ({int(servo.baud_rate)} bit/s); {self._on_line()}"
+            f"{self._sharing(servo.servo_id)}"
+        )
+
+    def _power(self, args: list[str]) -> str:
+        if not args:
+            return f"power-cycled {_servos(len(self.line.power_cycle()))}"
+        servo_id = self._one_id("power", args)
+        try:
+            servos = self.line.power_cycle(servo_id)
+        except KeyError:
+            raise ConsoleError(f"no servo at ID {servo_id} on the line (list shows them)") from None
+        rates = " and ".join(sorted({str(int(s.baud_rate)) for s in servos}))
+        if len(servos) == 1:
+            return f"power-cycled the servo at ID {servo_id}: it listens at {rates} bit/s"
+        return f"power-cycled the {len(servos)} servos at ID {servo_id}: they listen at {rates} bit/s"
+
+    def _list(self, args: list[str]) -> str:
+        if args:
+            raise ConsoleError("list takes nothing after it")
+        states = self.line.servo_states()
+        if not states:
+            return "list: no servos on the line (plug ID puts one in)"
+        return "\n".join([f"list: {_servos(len(states))}", *(_describe(state) for state in states)])
+
+    def _help(self, args: list[str]) -> str:
+        return HELP
+
+    def _quit(self, args: list[str]) -> str:
+        self.quit = True
+        return "quit: the simulator stops"
+
+    _COMMANDS: ClassVar[dict[str, Callable[[LineConsole, list[str]], str]]] = {
+        "plug": _plug,
+        "unplug": _unplug,
+        "replug": _replug,
+        "power": _power,
+        "list": _list,
+        "help": _help,
+        "quit": _quit,
+        "exit": _quit,
+    }
+
+
+class ConsoleReader:
+    """Reads commands from ``fd`` in a thread, one a line, and writes each answer to ``out``.
+
+    ``on_end`` is called (from that thread) at the end of input and after ``quit``; :meth:`close`
+    stops the thread, from any other thread.
+    """
+
+    def __init__(self, console: LineConsole, on_end: Callable[[], None], *, fd: int = 0, out: TextIO) -> None:
+        self.console = console
+        self.on_end = on_end
+        self.fd = fd
+        self.out = out
+        self._stop_r, self._stop_w = os.pipe()
+        self._thread = threading.Thread(target=self._run, name="ics35-sim-console", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._stop_w, b"x")
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join()
+        for fd in (self._stop_r, self._stop_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def _run(self) -> None:
+        pending = b""
+        while True:
+            try:
+                readable, _, _ = select.select([self.fd, self._stop_r], [], [])
+                if self._stop_r in readable:
+                    return
+                data = os.read(self.fd, 4096)
+            except OSError:
+                data = b""  # no input to read (closed, or not readable): as at its end
+            if not data:
+                self.on_end()
+                return
+            pending += data
+            *lines, pending = pending.split(b"\n")
+            for line in lines:
+                answer = self.console.execute(line.decode("utf-8", "replace"))
+                try:
+                    self.out.write(answer + "\n")
+                    self.out.flush()
+                except (OSError, ValueError):
+                    pass  # nobody reads the answers any more: the commands still count
+                if self.console.quit:
+                    self.on_end()
+                    return

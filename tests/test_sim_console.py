@@ -1,0 +1,272 @@
+"""``ics35 sim --console``: servos plugged in, unplugged and power-cycled by typing, while the line serves.
+
+Each test runs the real command as a subprocess on a pty, types into its stdin, reads its answers on
+stdout, and checks what happened through the library (or ``ics35``) on the pty, as a person would.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import select
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from ics35_async import blocking
+from ics35_async.eeprom import BaudRate
+from tests.support.cli_runs import run_process
+from tests.support.timing import GUARD, PATIENT, PATIENT_OPTION
+
+pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
+
+
+class Console:
+    """A running ``ics35 sim ... --console``: ``say(command)`` types one line and returns its answer."""
+
+    def __init__(self, proc: subprocess.Popen[str], path: str, notes: Path) -> None:
+        self.proc = proc
+        self.path = path
+        self.notes = notes
+        self.lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line.rstrip("\n"))
+
+    def read_line(self) -> str:
+        try:
+            return self.lines.get(timeout=GUARD)
+        except queue.Empty:
+            pytest.fail(f"no answer within {GUARD} s")
+
+    def say(self, command: str) -> str:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        return self.read_line()
+
+    def listing(self) -> list[str]:
+        """``list``'s answer: its first line says how many servo lines follow."""
+        head = self.say("list")
+        count = 0 if head.startswith("list: no servos") else int(head.split()[1])
+        return [head, *(self.read_line() for _ in range(count))]
+
+    def end(self) -> int:
+        """Close its stdin (end of input) and wait for it; its exit code."""
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            self.proc.stdin.close()
+        try:
+            return self.proc.wait(GUARD)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise
+
+
+def start(*args: str, notes: Path) -> Console:
+    with open(notes, "w", encoding="utf-8") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ics35_async.cli", "sim", *args],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+        )
+    assert proc.stdout is not None
+    ready, _, _ = select.select([proc.stdout], [], [], GUARD)
+    path = proc.stdout.readline().strip() if ready else ""
+    if not path:
+        proc.kill()
+        proc.wait()
+        pytest.fail(f"the simulator printed no device path: {notes.read_text()}")
+    return Console(proc, path, notes)
+
+
+@pytest.fixture
+def sim_console(tmp_path: Path) -> Iterator[Callable[..., Console]]:
+    """``sim_console(*args)``: ``ics35 sim --fast --console ARGS``; at the end, end of input must end it
+    cleanly (exit 0, no traceback)."""
+    started: list[Console] = []
+
+    def run(*args: str) -> Console:
+        started.append(start("--fast", "--console", *args, notes=tmp_path / f"sim{len(started)}.log"))
+        return started[-1]
+
+    yield run
+    for console in started:
+        assert console.end() == 0
+        notes = console.notes.read_text()
+        assert "Traceback" not in notes, notes
+        assert "served" in notes  # it ended as it does on SIGINT, with its summary
+
+
+def scan(path: str, baud: int = 115200, ids: range = range(4)) -> list[int]:
+    # Only the IDs that matter: each silent one costs the patient allowance.
+    with blocking.open_bus(path, baudrate=baud, **PATIENT) as bus:
+        return bus.scan(ids)
+
+
+def ics35(path: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return run_process("--port", path, *PATIENT_OPTION, *args)
+
+
+def renumber(path: str, old: int, new: int) -> None:
+    """Write ID ``new`` into the EEPROM of the servo at ``old`` (an addressed write: no survey of the line)."""
+    with blocking.open_bus(path, **PATIENT) as bus:
+        servo = bus.servo(old)
+        servo.write_eeprom(servo.read_eeprom().replace(servo_id=new), allow_id_change=True)
+
+
+def test_servos_plugged_in_renumbered_unplugged_and_plugged_back(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "none")
+    assert scan(sim.path, ids=range(1)) == []
+    assert sim.say("plug 0") == "plugged in a new servo at ID 0 (ICS 3.5, 115200 bit/s); 1 servo on the line"
+    assert scan(sim.path, ids=range(2)) == [0]
+    renumber(sim.path, 0, 1)
+    assert scan(sim.path, ids=range(2)) == [1]
+    assert sim.say("plug 0").startswith("plugged in a new servo at ID 0")
+    assert scan(sim.path, ids=range(2)) == [0, 1]
+    assert sim.say("unplug 1") == "unplugged the servo at ID 1 (replug 1 plugs it back in); 1 servo on the line"
+    assert scan(sim.path, ids=range(3)) == [0]
+    renumber(sim.path, 0, 2)
+    assert sim.say("replug 1") == "plugged the servo at ID 1 back in (115200 bit/s); 2 servos on the line"
+    assert scan(sim.path, ids=range(3)) == [1, 2]
+    assert sim.listing() == [
+        "list: 2 servos",
+        "  ID 2: ICS 3.5, 115200 bit/s, at 7500, free",
+        "  ID 1: ICS 3.5, 115200 bit/s, at 7500, free",
+    ]
+
+
+@pytest.mark.slow
+def test_new_servos_renumbered_one_at_a_time_with_set_id(sim_console: Callable[..., Console]) -> None:
+    # The how-to's steps (docs/how-to/simulator.md), with ics35 set-id: it proves the servo alone on the
+    # line first (31 IDs that do not answer, each waited for with the patient allowance: seconds).
+    sim = sim_console("--ids", "none")
+    assert sim.say("plug 0").startswith("plugged in a new servo at ID 0")
+    done = ics35(sim.path, "set-id", "1", "--yes")
+    assert done.returncode == 0, done.stderr
+    assert sim.say("unplug 1").startswith("unplugged the servo at ID 1")
+    assert sim.say("plug 0").startswith("plugged in a new servo at ID 0")
+    done = ics35(sim.path, "set-id", "2", "--yes")
+    assert done.returncode == 0, done.stderr
+    assert sim.say("replug 1").startswith("plugged the servo at ID 1 back in")
+    assert scan(sim.path, ids=range(3)) == [1, 2]
+
+
+def test_a_baud_rate_written_to_eeprom_takes_effect_at_power(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "1,2")
+    with blocking.open_bus(sim.path, **PATIENT) as bus:
+        servo = bus.servo(1)
+        servo.write_eeprom(servo.read_eeprom().replace(baud_rate=BaudRate.B1250000), allow_baud_change=True)
+    assert scan(sim.path, ids=range(1, 3)) == [1, 2]  # it still talks at its old rate, as a real one does
+    assert sim.listing()[1] == "  ID 1: ICS 3.5, 115200 bit/s (1250000 in its EEPROM, after power), at 7500, free"
+    assert sim.say("power 1") == "power-cycled the servo at ID 1: it listens at 1250000 bit/s"
+    assert scan(sim.path, ids=range(1, 3)) == [2]
+    assert scan(sim.path, 1250000, range(1, 3)) == [1]
+    assert sim.say("power") == "power-cycled 2 servos"
+
+
+def test_power_cycling_every_servo_applies_what_each_eeprom_holds(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "3", "--ics36", "3")
+    with blocking.open_bus(sim.path, **PATIENT) as bus:
+        servo = bus.servo(3)
+        servo.write_eeprom(servo.read_eeprom().replace(baud_rate=BaudRate.B625000), allow_baud_change=True)
+    assert scan(sim.path, ids=range(3, 4)) == [3]
+    assert sim.say("power") == "power-cycled 1 servo"
+    assert scan(sim.path, ids=range(3, 4)) == []
+    assert scan(sim.path, 625000, range(3, 4)) == [3]
+    assert sim.listing() == ["list: 1 servo", "  ID 3: ICS 3.6, 625000 bit/s, at 7500, free"]
+
+
+def test_two_servos_at_one_id_are_named_and_the_last_plugged_in_leaves(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "0")
+    assert sim.say("plug 0 ics36") == (
+        "plugged in a new servo at ID 0 (ICS 3.6, 115200 bit/s); 2 servos on the line; "
+        "2 servos now answer to ID 0: their replies collide"
+    )
+    assert sim.say("unplug 0") == (
+        "unplugged the servo at ID 0 plugged in last (replug 0 plugs it back in); 1 servo on the line; "
+        "1 more still answers to ID 0"
+    )
+    assert sim.listing() == ["list: 1 servo", "  ID 0: ICS 3.5, 115200 bit/s, at 7500, free"]
+    assert scan(sim.path, ids=range(1)) == [0]
+
+
+def test_a_servo_plugged_in_at_another_rate_answers_only_there(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "none", "--baud", "625000")
+    assert sim.say("plug 4") == "plugged in a new servo at ID 4 (ICS 3.5, 625000 bit/s); 1 servo on the line"
+    assert sim.say("plug 5 1250000").startswith("plugged in a new servo at ID 5 (ICS 3.5, 1250000 bit/s)")
+    assert scan(sim.path, 625000, range(4, 6)) == [4]
+    assert scan(sim.path, 1250000, range(4, 6)) == [5]
+
+
+def test_bad_input_gets_a_clear_answer_and_changes_nothing(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "1")
+    before = sim.listing()
+    answers = {
+        command: sim.say(command)
+        for command in (
+            "plug",
+            "plug 32",
+            "plug x",
+            "plug 1 9600",
+            "plug 1 ics37",
+            "unplug",
+            "unplug 5",
+            "unplug 1 2",
+            "replug",
+            "replug 1",
+            "power 9",
+            "power -1",
+            "frobnicate",
+        )
+    }
+    assert all(answer.startswith("error: ") for answer in answers.values()), answers
+    assert answers["plug 32"] == "error: an ID is 0..31, got '32'"
+    assert answers["unplug 5"] == "error: no servo at ID 5 on the line (list shows them)"
+    assert answers["replug"] == "error: no unplugged servo to plug back in"
+    assert answers["frobnicate"] == "error: unknown command 'frobnicate' (help lists the commands)"
+    assert sim.say("") == sim.say("help")  # an empty line gets the help too
+    assert sim.say("help").startswith("commands: plug ID [BAUD] [ics36]")
+    assert sim.listing() == before
+    assert scan(sim.path, ids=range(1, 2)) == [1]
+
+
+def test_quit_ends_the_simulator_as_ctrl_c_does(tmp_path: Path) -> None:
+    sim = start("--console", "--ids", "1", notes=tmp_path / "notes.log")
+    assert sim.say("quit") == "quit: the simulator stops"
+    assert sim.proc.wait(GUARD) == 0
+    notes = sim.notes.read_text()
+    assert "Traceback" not in notes and "served 0 transactions" in notes, notes
+    assert not os.path.exists(sim.path)
+
+
+def test_without_console_the_simulator_does_not_read_its_input(tmp_path: Path) -> None:
+    sim = start("--ids", "1", notes=tmp_path / "notes.log")
+    try:
+        assert sim.proc.stdin is not None
+        sim.proc.stdin.write("quit\n")
+        sim.proc.stdin.close()
+        time.sleep(0.3)
+        assert sim.proc.poll() is None
+        assert scan(sim.path, ids=range(2)) == [1]
+    finally:
+        sim.proc.terminate()
+        assert sim.proc.wait(GUARD) == 0
+
+
+def test_console_refuses_a_replay(tmp_path: Path) -> None:
+    recording = tmp_path / "r.txt"
+    recording.write_text("")
+    done = run_process("sim", "--console", "--replay", str(recording), timeout=GUARD)
+    assert done.returncode == 2
+    assert "--console needs a simulated line, not --replay" in done.stderr
