@@ -31,10 +31,7 @@ from ..errors import InvalidArgument
 from .virtual_line import ServoState, VirtualLine
 from .virtual_servo import VirtualServo
 
-HELP = (
-    "commands: plug ID [BAUD] [ics36], unplug ID, replug [ID], power [ID], list, help, quit "
-    "(plug: a new servo with factory settings; power: a baud rate written to EEPROM applies then)"
-)
+HELP = "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], power [ID], list, help, quit"
 
 
 class ConsoleError(Exception):
