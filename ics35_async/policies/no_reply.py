@@ -51,7 +51,9 @@ class NoReply:
     servo_id: int | None
     baud: int
     rates: tuple[int, ...] = ()  # OTHER_RATE: the rates the servo answers at, the one to use first
-    rates_tried: bool = False  # whether the other rates were tried (False: not allowed, or not a servo's command)
+    # Whether the other rates were tried.  False: an earlier check found the cause (NO_ECHO, LONG_REPLY_LOST),
+    # the caller did not allow them (``other_rates=False``), or the command names no servo.
+    rates_tried: bool = False
 
 
 async def why_no_reply(
