@@ -6,13 +6,16 @@ answered; every refusal is checked to have left the servo as it was.
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import json
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from typing import Any
 
+import httpx2
 import pytest
 from starlette.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
@@ -465,6 +468,92 @@ def test_while_a_live_plot_runs_other_rates_are_not_tried_and_the_message_says_s
     assert "stop the live plot" in answer["error"]
     status = client.get("/api/status").json()
     assert status["live"] == [1] and status["baud"] == 115200  # the plot runs on, at the line's rate
+
+
+def test_a_silent_servo_is_not_looked_for_on_a_line_reopened_meanwhile(serve: Any) -> None:
+    # A Connect at another rate that the page asked for while a read of a silent servo held the line runs
+    # before that read's search for the servo: the search would run on the new line, measured against the
+    # old rate, and leave it at the last rate tried.  It does not run: the line was reopened meanwhile.
+    client, sim = serve((1,))
+    sim.add_device(VirtualServo(3, baud_rate=625000))
+    start = max((t.seq for t in sim.log_since()), default=-1) + 1
+
+    async def race() -> tuple[Any, Any]:
+        transport = httpx2.ASGITransport(app=client.app)
+        async with httpx2.AsyncClient(transport=transport, base_url=BASE, cookies={COOKIE: TOKEN}) as page:
+            unanswered = asyncio.create_task(page.get("/api/servo/9/eeprom"))
+            while not any(t.servo_id == 9 for t in sim.log_since(start)):  # its read holds the line
+                await asyncio.sleep(0.001)
+            reopened = await page.post("/api/connect", json={"baud": 625000})  # waits for the line
+            return await unanswered, reopened
+
+    failed, reopened = client.portal.call(race)
+    assert reopened.status_code == 200 and reopened.json()["baud"] == 625000, reopened.text
+    assert sim.baudrate == 625000  # the new line was left at its rate
+    answer = failed.json()
+    assert failed.status_code == 504 and "answers_at" not in answer, answer
+    assert "ID 9 did not answer at 115,200 baud" in answer["error"] and "reopened" in answer["error"], answer
+    assert client.get("/api/servo/3/ram").status_code == 200
+
+
+@pytest.mark.parametrize("action", ["look for a silent servo", "scan"])
+def test_a_port_lost_while_other_rates_are_tried_comes_back_at_the_lines_rate(serve: Any, action: str) -> None:
+    client, sim = serve((1,))
+    at_another_rate = threading.Event()
+
+    def unplug_at_another_rate(data: bytes) -> None:
+        if sim.baudrate != 115200 and not at_another_rate.is_set():
+            at_another_rate.set()
+            threading.Thread(target=sim.unplug, kwargs={"replug_after": 0.2}).start()
+
+    sim.add_tap(unplug_at_another_rate)
+    if action == "scan":
+        post(client, "/api/scan", {"bauds": [115200, 625000, 1250000], "ids": [9]})
+    else:
+        client.get("/api/servo/9/eeprom")
+    assert at_another_rate.is_set()
+    deadline = time.monotonic() + GUARD
+    while not (sim.plugged and client.get("/api/status").json()["state"] == "idle"):  # the port is back
+        assert time.monotonic() < deadline, "the port did not come back"
+        time.sleep(0.01)
+    read = client.get("/api/servo/1/ram")
+    assert read.status_code == 200, read.text
+    assert sim.unplug_count == 1 and sim.baudrate == 115200
+
+
+def test_only_reading_a_servos_eeprom_looks_for_it_at_other_rates_once_until_the_next_connect(serve: Any) -> None:
+    # A position poll, Free, Hold, a RAM read or switching motion on that goes unanswered does not reopen the
+    # port at the other rates (the Servo page polls the position twice a second); the EEPROM read that opens
+    # the Servo page does, once for a servo at a rate until the line is connected again.
+    client, sim = serve((1,))
+    sim.add_device(VirtualServo(5, baud_rate=1250000))
+    rates: set[int] = set()
+    sim.add_tap(lambda data: rates.add(sim.baudrate))
+    for path, data in (
+        ("/api/servo/5/position", None),
+        ("/api/servo/5/ram", None),
+        ("/api/servo/5/free", {}),
+        ("/api/servo/5/hold", {}),
+        ("/api/servo/5/motion", {"enabled": True}),
+    ):
+        failed = client.get(path) if data is None else post(client, path, data)
+        answer = failed.json()
+        assert failed.status_code == 504 and "answers_at" not in answer, (path, answer)
+        assert "ID 5 did not answer at 115,200 baud" in answer["error"] and "reads its EEPROM" in answer["error"]
+    assert rates == {115200}
+    first = client.get("/api/servo/5/eeprom").json()
+    assert first["answers_at"] == 1250000 and rates > {115200}, first
+    rates.clear()
+    again = client.get("/api/servo/5/eeprom").json()
+    polled = client.get("/api/servo/5/position").json()
+    assert again["answers_at"] == polled["answers_at"] == 1250000 and "answers at 1,250,000" in polled["error"]
+    assert rates == {115200}  # told again, not looked for again
+    nowhere = client.get("/api/servo/9/eeprom").json()
+    assert "no other baud rate" in nowhere["error"] and rates > {115200}
+    rates.clear()
+    assert "no other baud rate" in client.get("/api/servo/9/eeprom").json()["error"] and rates == {115200}
+    post(client, "/api/connect", {})
+    assert client.get("/api/servo/5/eeprom").json()["answers_at"] == 1250000 and rates > {115200}
 
 
 def test_bad_input_is_answered_in_words(serve: Any) -> None:

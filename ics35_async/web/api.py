@@ -87,17 +87,29 @@ def error_response(exc: BaseException, said: str | None = None, **more: Any) -> 
     return JSONResponse({"error": message, "kind": type(exc).__name__, **more}, status_code=status)
 
 
-async def no_reply_response(session: LineSession, exc: ReplyTimeout) -> JSONResponse:
+async def no_reply_response(session: LineSession, exc: ReplyTimeout, *, look_at_other_rates: bool) -> JSONResponse:
     """A servo's page asked a servo that did not answer: why (:meth:`LineSession.no_reply`), and the rate
     it answers at instead (``answers_at``) when it does."""
     try:
-        answer = await session.no_reply(exc)
+        answer = await session.no_reply(exc, look_at_other_rates=look_at_other_rates)
     except (IcsError, OSError) as failed:  # the line itself failed while looking: that is the news
         return error_response(failed)
     return error_response(exc, answer.pop("error"), **answer)
 
 
-def endpoint(handler: Handler) -> Callable[[Request], Awaitable[Response]]:
+def endpoint(handler: Handler, *, look_at_other_rates: bool = False) -> Callable[[Request], Awaitable[Response]]:
+    """``handler`` answering JSON; a servo that did not answer is explained (:func:`no_reply_response`), and
+    with ``look_at_other_rates`` looked for at the other baud rates.
+
+    Only the EEPROM read looks: it is what the Servo page sends when a person opens it or presses Read, on
+    purpose, to see a servo.  A search holds the line for a third of a second and reopens the port at each
+    rate (some boards reset when it opens); after the position poll (twice a second), a jog, Free or Hold it
+    would do so again and again while a servo has lost its power, and the page's other actions would wait.
+    The session keeps what was found until the next Connect, so a page read again is told, not searched
+    again (a button to ask for the search would leave the first look, the one that matters, to a person
+    who does not know the servo may be at another rate).
+    """
+
     @functools.wraps(handler)
     async def run(request: Request) -> Response:
         session: LineSession = request.app.state.session
@@ -106,7 +118,7 @@ def endpoint(handler: Handler) -> Callable[[Request], Awaitable[Response]]:
         except ReplyTimeout as exc:
             if "servo_id" not in request.path_params:
                 return error_response(exc)
-            return await no_reply_response(session, exc)
+            return await no_reply_response(session, exc, look_at_other_rates=look_at_other_rates)
         except (IcsError, OSError, ValueError, TypeError, KeyError) as exc:
             return error_response(exc)
         except Exception as exc:  # the page shows words, the terminal one line; never a traceback
@@ -445,7 +457,7 @@ ROUTES = [
     Route("/api/ports", endpoint(ports)),
     Route("/api/connect", endpoint(connect), methods=["POST"]),
     Route("/api/scan", endpoint(scan), methods=["POST"]),
-    Route("/api/servo/{servo_id}/eeprom", endpoint(eeprom)),
+    Route("/api/servo/{servo_id}/eeprom", endpoint(eeprom, look_at_other_rates=True)),
     Route("/api/servo/{servo_id}/ram", endpoint(ram)),
     Route("/api/servo/{servo_id}/ram/write", endpoint(ram_write), methods=["POST"]),
     Route("/api/servo/{servo_id}/plan", endpoint(plan), methods=["POST"]),

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
@@ -39,6 +40,7 @@ from ..errors import (
 from ..policies import (
     EepromPlan,
     FoundServo,
+    LineOpener,
     NoReply,
     NoReplyCause,
     plan_eeprom_write,
@@ -78,6 +80,11 @@ POSITION_AT_COMMAND = (
 )
 
 
+# The line a request was last handed (:meth:`LineSession._quiet`) in the task that runs it, and its rate then:
+# a servo that did not answer there is looked for on that line only (:meth:`LineSession.no_reply`).
+_ASKED_ON: contextvars.ContextVar[tuple[Bus, int] | None] = contextvars.ContextVar("asked_on", default=None)
+
+
 @dataclass
 class ScanProgress:
     done: int = 0
@@ -100,6 +107,7 @@ class LineSession:
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
         self._limits: dict[int, tuple[int, int]] = {}
+        self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
         self.robot_line: str | None = None  # the robot's line the pages work on (its bus is the robot's)
 
@@ -159,6 +167,7 @@ class LineSession:
                 self._switch_to(config)
             self.bus = bus
             self.error = None
+            self._looked = {}  # a Connect looks for a silent servo at the other rates again
         return self.status()
 
     def _switch_to(self, config: LineConfig) -> None:
@@ -170,6 +179,7 @@ class LineSession:
         self.found = []
         self.telemetry = {}
         self._limits = {}
+        self._looked = {}
 
     async def use_robot_line(self, name: str) -> dict[str, Any]:
         """Work on the robot's line ``name``: its bus, open and streamed by the robot, not reopened here."""
@@ -235,21 +245,41 @@ class LineSession:
             raise BusClosed("not connected: choose a port and press Connect on the Line page")
         return self.bus
 
+    async def _line_at_its_rate(self) -> Bus:
+        """The line, at the rate the page connected at (called holding :attr:`exclusive`).
+
+        A scan or the search for a silent servo reopens the port at other rates and then at the line's
+        own; when the port is lost meanwhile, that last reopen fails and the bus comes back by itself at
+        the rate it had then.  It is put back at the line's rate here, where the line is handed out
+        (PortLost while it is still away).
+        """
+        bus = self.line()
+        if self.robot_line is None and bus.baudrate != self.config.baud:
+            await bus.reopen(baudrate=self.config.baud)
+        return bus
+
     @contextlib.asynccontextmanager
     async def _quiet(self) -> AsyncIterator[Bus]:
         """The line at its own rate for one action: it waits while a scan (which reopens the port at
         other rates), an EEPROM write or a renumbering has the line."""
         async with self.exclusive:
-            yield self.line()
+            bus = await self._line_at_its_rate()
+            _ASKED_ON.set((bus, bus.baudrate))
+            yield bus
 
     # ------------------------------------------------------------------ scan
 
-    @contextlib.asynccontextmanager
-    async def _at_rate(self, baud: int) -> AsyncIterator[Bus]:
-        bus = self.line()
-        if baud != bus.baudrate:
-            await bus.reopen(baudrate=baud)
-        yield bus
+    @staticmethod
+    def _opener(bus: Bus) -> LineOpener:
+        """``bus`` reopened at a rate, for policies.scan and why_no_reply (called holding :attr:`exclusive`)."""
+
+        @contextlib.asynccontextmanager
+        async def at_rate(baud: int) -> AsyncIterator[Bus]:
+            if baud != bus.baudrate:
+                await bus.reopen(baudrate=baud)
+            yield bus
+
+        return at_rate
 
     async def scan(self, bauds: list[int] | None = None, ids: list[int] | None = None) -> dict[str, Any]:
         """Probe ``ids`` at ``bauds`` (policies.scan), then return the line to its own rate."""
@@ -260,14 +290,14 @@ class LineSession:
             self._refuse_on_robot_line("a scan at other baud rates", f"scan it at its own rate ({self.config.baud})")
         await self.stop_live()
         async with self.exclusive:
-            bus = self.line()
+            bus = await self._line_at_its_rate()
             self.progress = ScanProgress(0, len(wanted) * len(checked), True)
 
             def step(n: int) -> None:
                 self.progress.done += n
 
             try:
-                report = await scan(self._at_rate, bauds=checked, ids=wanted, on_probe=step)
+                report = await scan(self._opener(bus), bauds=checked, ids=wanted, on_probe=step)
             finally:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
@@ -324,7 +354,7 @@ class LineSession:
         if self.exclusive.locked() or self.bus is None or not self.bus.is_open or self.live is not None:
             return self.telemetry
         async with self.exclusive:  # a scan that starts meanwhile waits for this round, not the other way
-            await self._read_telemetry(self.bus)
+            await self._read_telemetry(await self._line_at_its_rate())
         return self.telemetry
 
     async def _read_telemetry(self, bus: Bus) -> None:
@@ -348,28 +378,51 @@ class LineSession:
 
     # ------------------------------------------------------------------ a servo that did not answer
 
-    async def no_reply(self, exc: ReplyTimeout) -> dict[str, Any]:
+    async def no_reply(self, exc: ReplyTimeout, *, look_at_other_rates: bool = False) -> dict[str, Any]:
         """The page's words for a command to one servo that went unanswered (policies.why_no_reply), and
         ``answers_at``: the rate the servo answers at instead, which the page offers to reopen the line at.
 
-        Other rates are looked for as a scan does, holding the line and reopening the port at each, then at
-        the line's own rate again; not while a robot streams on the line or a live plot runs on it (each
-        would lose its line meanwhile), nor on a link that does not carry the baud rate.
+        Other rates are looked for (``look_at_other_rates``) as a scan does, holding the line and reopening
+        the port at each, then at the line's own rate again; not while a robot streams on the line or a
+        live plot runs on it (each would lose its line meanwhile), nor on a link that does not carry the
+        baud rate.  Only on the line the command went unanswered on, at its rate: a Connect that ran in
+        between leaves the words plain.  What the other rates told of a servo is kept until the next
+        Connect: it is told again, not looked for again.
         """
-        bus = self.bus
-        if exc.servo_id is None or bus is None or not bus.is_open:
+        asked = _ASKED_ON.get()
+        if exc.servo_id is None or asked is None:
             return {"error": error_text(exc)}
-        baud = self.config.baud
-        not_tried = self._other_rates_not_tried()
+        bus, baud = asked
+        key = (exc.servo_id, baud)
+        looked_before = False
         async with self.exclusive:
-            try:
-                finding = await why_no_reply(
-                    exc, self._at_rate, baud, echo=self.config.echo, other_rates=not_tried is None
+            if self.bus is bus and not bus.is_open:
+                return {"error": error_text(exc)}
+            if self.bus is not bus or self.config.baud != baud:
+                finding = NoReply(NoReplyCause.UNKNOWN, exc.servo_id, baud)
+                not_tried: str | None = (
+                    "the line has been reopened since, so it was not looked for at the other rates: read it again"
                 )
-            finally:
-                if bus.is_open and bus.baudrate != baud:
-                    await bus.reopen(baudrate=baud)
-        answer: dict[str, Any] = {"error": self._no_reply_words(finding, not_tried)}
+            else:
+                looked = self._looked.get(key)
+                not_tried = self._other_rates_not_tried()
+                if not_tried is None and not look_at_other_rates:
+                    not_tried = (
+                        "the Servo page looks for it at the other baud rates when it reads its EEPROM "
+                        "(Read on the Servo page)"
+                    )
+                search = not_tried is None and looked is None
+                try:
+                    opener, echo = self._opener(bus), self.config.echo
+                    finding = await why_no_reply(exc, opener, baud, echo=echo, other_rates=search)
+                finally:
+                    if bus.is_open and bus.baudrate != baud:
+                        await bus.reopen(baudrate=baud)
+                if finding.rates_tried:
+                    self._looked[key] = finding
+                elif looked is not None and finding.cause is NoReplyCause.UNKNOWN:
+                    finding, not_tried, looked_before = looked, None, True
+        answer: dict[str, Any] = {"error": self._no_reply_words(finding, not_tried, looked_before=looked_before)}
         if finding.cause is NoReplyCause.OTHER_RATE:
             answer["answers_at"] = finding.rates[0]
         return answer
@@ -393,7 +446,7 @@ class LineSession:
             )
         return None
 
-    def _no_reply_words(self, finding: NoReply, not_tried: str | None) -> str:
+    def _no_reply_words(self, finding: NoReply, not_tried: str | None, *, looked_before: bool = False) -> str:
         sid, baud, port = finding.servo_id, f"{finding.baud:,}", self.config.port
         if finding.cause is NoReplyCause.NO_ECHO:
             return (
@@ -415,6 +468,11 @@ class LineSession:
         checks = "check its power (6-12 V on the servo line, not just USB), the wiring and its ID"
         if not_tried is not None:
             return f"ID {sid} did not answer at {baud} baud; {not_tried}; else {checks}"
+        if looked_before:
+            return (
+                f"ID {sid} did not answer on {port} at {baud} baud, and at no other baud rate when it was looked for "
+                f"since the line was connected (Connect on the Line page looks again): {checks}"
+            )
         return f"ID {sid} did not answer on {port} at {baud} baud, and at no other baud rate: {checks}"
 
     # ------------------------------------------------------------------ one servo's EEPROM
@@ -599,7 +657,7 @@ class LineSession:
         self._refuse_on_robot_line("renumbering", "it needs one servo alone on a line of its own")
         await self.stop_live()
         async with self.exclusive:
-            return survey_view(await survey_for_id_write(self.line()))
+            return survey_view(await survey_for_id_write(await self._line_at_its_rate()))
 
     async def renumber(self, new_id: int) -> dict[str, Any]:
         """The guarded one-servo ID write (policies.id_write): refused unless exactly one device answers."""
@@ -607,7 +665,7 @@ class LineSession:
         self._refuse_on_robot_line("renumbering", "it needs one servo alone on a line of its own")
         await self.stop_live()
         async with self.exclusive:
-            bus = self.line()
+            bus = await self._line_at_its_rate()
             survey = await survey_for_id_write(bus)
             change = await write_lone_id(bus, new_id, survey=survey)
         if change.written and change.old_id in self._limits:
@@ -624,7 +682,7 @@ class LineSession:
             raise InvalidArgument("rate_hz must be a number of cycles a second")
         await self.stop_live()
         async with self.exclusive:
-            self.live = await LiveView.start(self.line(), ids, rate_hz=rate_hz)
+            self.live = await LiveView.start(await self._line_at_its_rate(), ids, rate_hz=rate_hz)
         return self.live
 
     async def stop_live(self) -> None:
