@@ -21,9 +21,9 @@ from rich.table import Table
 from ..eeprom import Eeprom
 from ..errors import IcsError, InvalidArgument, ReplyError
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
-from ..robot.calibration import calibrate_joint, write_calibration
+from ..robot.calibration import calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
-from ..robot.startup import limit_problem, reverse_note
+from ..robot.startup import limit_problem
 from ._common import (
     CliError,
     ExitCode,

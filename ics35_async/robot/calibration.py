@@ -10,6 +10,8 @@ intended, it writes a complete new file beside the original instead
 (``NAME.calibrated.toml``; comments are lost there) and says so.  A file it
 overwrites is kept as ``NAME.bak`` first, and the new content is written whole
 before it replaces the old (a crash mid-write leaves the old file).
+:func:`reverse_note` tells, as calibration begins, of a joint reversed both in
+the file and by its servo's EEPROM REVERSE flag.
 """
 
 from __future__ import annotations
@@ -17,13 +19,15 @@ from __future__ import annotations
 import json
 import math
 import re
+import shlex
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..eeprom import Eeprom, Flags
 from ..errors import InvalidArgument
-from .description import SERVO_DEGREES, JointSpec, RobotDescription, parse_description
+from .description import SERVO_DEGREES, JointSpec, LineSpec, RobotDescription, parse_description
 from .replace_file import replace_keeping_backup
 
 CALIBRATED_KEYS = ("offset", "min", "max")
@@ -178,3 +182,29 @@ def write_calibration(
     beside = target.with_name(f"{target.stem}.calibrated.toml")
     whole = replace(description, joints={**description.joints, **joints})
     return CalibrationWritten(beside, False, replace_keeping_backup(beside, dump_description(whole)))
+
+
+def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
+    """What to check, in words, when ``joint`` is reversed both in the file and by its servo's EEPROM REVERSE flag
+    (``line``: the joint's line, for the command that clears the flag); None otherwise.
+
+    For calibration, where a joint's direction is set up: the two cancel out, so the joint turns as its servo
+    would with neither, most often a mix-up of two ways of reversing it.  Not a fault: a robot calibrated
+    so turns as it was calibrated, and removing either one mirrors the joint (its offset and limits with it),
+    so the note says to calibrate again then; it is not said at every open, where it would be noise for a
+    robot set up so on purpose."""
+    if not (joint.reverse and eeprom.flags & Flags.REVERSE):
+        return None
+    options = ["--port", line.port]
+    if line.baudrate != LineSpec.baudrate:
+        options += ["--baud", str(line.baudrate)]
+    if not line.echo:
+        options.append("--no-echo")
+    clear = shlex.join(["ics35", *options, "eeprom", "set", str(joint.id), "flags-=REVERSE"])
+    return (
+        f"{source}: joints.{joint.name}: reverse = true in the file, and servo ID {joint.id} on line {joint.line} "
+        "has its EEPROM REVERSE flag set too: the two cancel out, so the joint turns as its servo would with "
+        "neither. If it turns the way you want, nothing to do. To keep one of them, remove reverse = true from "
+        f"joints.{joint.name} or clear the flag ({clear}); either mirrors the joint, its offset and limits with "
+        "it, so calibrate it again before any motion"
+    )

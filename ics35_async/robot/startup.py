@@ -1,4 +1,4 @@
-"""Opening a robot: the file checked first, every line opened, the servos' EEPROM compared, the stream started.
+"""Opening a robot: the file checked first, every line opened, the servos' EEPROM limits compared, the stream started.
 
 Nothing is opened before the description has passed every check, so a
 mistake in the file never reaches a port.
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shlex
 import sys
 import warnings
 from collections.abc import AsyncIterator, Iterable, Mapping
@@ -27,13 +26,13 @@ import anyio
 
 from .. import units
 from ..bus import BusOptions, open_bus
-from ..eeprom import Eeprom, Flags
+from ..eeprom import Eeprom
 from ..errors import InvalidArgument, ReplyError
 from ..group import BusGroup, GroupStream
 from ..protocol import FREE
 from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
-from .description import JointSpec, LineSpec, RobotDescription, load_description
+from .description import JointSpec, RobotDescription, load_description
 from .robot import Robot
 
 # open_bus options the description sets per line, so they may not be given to open_robot.
@@ -41,8 +40,7 @@ _PER_LINE = frozenset({"baudrate", "echo", "retries"})
 
 
 class RobotWarning(UserWarning):
-    """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's, or a
-    joint reversed both in the file and in its servo's EEPROM)."""
+    """Something about the robot worth knowing that does not stop it (e.g. limits wider than the servo's)."""
 
 
 class RobotOptions(BusOptions, total=False):
@@ -55,8 +53,7 @@ class RobotOptions(BusOptions, total=False):
     joint stays free) or ``"free"`` (each line's stream sends every servo its free once as it closes)."""
     check_limits: bool
     """Read each joint's servo EEPROM at open and issue a [`RobotWarning`][ics35_async.robot.RobotWarning]
-    (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits, or where the file's
-    ``reverse = true`` and the servo's REVERSE flag cancel each other (default ``True``)."""
+    (kept in ``robot.warnings``) where the file allows more than the servo's pulse limits (default ``True``)."""
     offline_after: int
     """Every line's stream: failed cycles before a servo counts as offline (default 3)."""
     probe_interval: float
@@ -304,30 +301,4 @@ def limit_problem(source: str, joint: JointSpec, eeprom: Eeprom) -> str | None:
         f"{where}: the file allows {joint.min:g}..{joint.max:g} degrees, but servo ID {joint.id} on line "
         f"{joint.line} stops at {a:.1f}..{b:.1f} (EEPROM pulse limits {eeprom.pulse_limit_low}.."
         f"{eeprom.pulse_limit_high})"
-    )
-
-
-def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
-    """What to check, in words, when ``joint`` is reversed both in the file and by its servo's EEPROM REVERSE flag
-    (``line``: the joint's line, for the command that clears the flag); None otherwise.
-
-    For calibration, where a joint's direction is set up: the two cancel out, so the joint turns as its servo
-    would with neither, most often a mix-up of two ways of reversing it.  Not a fault: a robot calibrated
-    so turns as it was calibrated, and removing either one mirrors the joint (its offset and limits with it),
-    so the note says to calibrate again then; it is not said at every open, where it would be noise for a
-    robot set up so on purpose."""
-    if not (joint.reverse and eeprom.flags & Flags.REVERSE):
-        return None
-    options = ["--port", line.port]
-    if line.baudrate != LineSpec.baudrate:
-        options += ["--baud", str(line.baudrate)]
-    if not line.echo:
-        options.append("--no-echo")
-    clear = shlex.join(["ics35", *options, "eeprom", "set", str(joint.id), "flags-=REVERSE"])
-    return (
-        f"{source}: joints.{joint.name}: reverse = true in the file, and servo ID {joint.id} on line {joint.line} "
-        "has its EEPROM REVERSE flag set too: the two cancel out, so the joint turns as its servo would with "
-        "neither. If it turns the way you want, nothing to do. To keep one of them, remove reverse = true from "
-        f"joints.{joint.name} or clear the flag ({clear}); either mirrors the joint, its offset and limits with "
-        "it, so calibrate it again before any motion"
     )
