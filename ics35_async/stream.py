@@ -717,7 +717,8 @@ class Stream(FrameIterator[Frame]):
         """What the stream's close sent, ``{id: position}`` (0: free): with ``on_close="free"`` every ID's free,
         with ``"hold"`` the targets set since their last cycle (offline, held and watched IDs get nothing);
         empty before the close, or if the bus was closed first.  A command the line could not take (its port
-        lost, the bus closed meanwhile) is left out: its servo still holds what it held."""
+        lost, the bus closed meanwhile, the close's time bound run out) is left out: its servo may still hold
+        what it held (one cut off on the wire by a lost port may have arrived)."""
         return dict(self._sent_on_close)
 
     @property
@@ -762,6 +763,9 @@ class Stream(FrameIterator[Frame]):
             pass  # its bytes went out (unanswered or answered badly): the servo heard it as likely as not
         except IcsError:  # never on the wire, or cut off by a lost port: nothing says it arrived
             self._sent_on_close.pop(servo_id, None)
+        except BaseException:  # still queued when the close's bound ran out (or cancelled on the wire)
+            self._sent_on_close.pop(servo_id, None)
+            raise
 
     def _stop(self, *, detach: bool = True) -> None:
         self._running = False

@@ -358,7 +358,7 @@ def test_move_to_under_trio() -> None:
             # The simulated servos turn at their own speed in real time: on a loaded machine they may still
             # be on their way when the motion's last target has gone out.
             with anyio.move_on_after(GUARD):
-                while abs((pose := await robot.read_pose())["neck"] + 30.0) > 0.1:
+                while abs((pose := await robot.read_pose())["neck"] + 30.0) > 0.1 or abs(pose["hip"] - 20.0) > 0.1:
                     pass
             return pose
 

@@ -1181,3 +1181,19 @@ async def test_what_the_close_could_not_put_on_the_wire_is_not_said_sent(on_clos
                     await bus.state_change()
         assert stream.targets_sent_on_close == {}
     assert not sim.servo(1).free and not sim.servo(2).free
+
+
+async def test_what_the_close_had_no_time_to_send_is_not_said_sent() -> None:
+    # on_close="free" over 32 IDs of which one answers: each silent ID's free waits its allowance (and
+    # retries), so the close's bound runs out with frees still queued; those never went out.
+    sim = make_sim([0])
+    async with open_bus(sim, **{**FAST, "adapter_latency": 0.1, "retries": 2}) as bus:
+        ids = list(range(32))
+        stream = bus.stream(ids, on_close="free")
+        async with stream:
+            await next_frame(stream)
+            mark = sim.transactions
+        sent = stream.targets_sent_on_close
+        on_wire = {t.servo_id for t in sim.log_since(mark) if t.tx[1:3] == b"\0\0"}  # the frees that went out
+    assert 0 < len(sent) < len(ids), sent
+    assert set(sent) <= on_wire, (sorted(sent), sorted(on_wire))

@@ -556,6 +556,25 @@ def test_only_reading_a_servos_eeprom_looks_for_it_at_other_rates_once_until_the
     assert client.get("/api/servo/5/eeprom").json()["answers_at"] == 1250000 and rates > {115200}
 
 
+def test_a_scan_or_an_eeprom_write_forgets_what_the_other_rates_told_of_a_servo(serve: Any) -> None:
+    # What the other rates told of a silent servo is kept until the next Connect; a scan looks at the rates
+    # anew (the Line page would list a servo the Servo page still called nowhere), and a write may move a
+    # servo to another ID or rate.
+    client, sim = serve((1,))
+    assert "no other baud rate" in client.get("/api/servo/5/eeprom").json()["error"]
+    sim.add_device(VirtualServo(5, baud_rate=1250000))  # plugged in since
+    scanned = post(client, "/api/scan", {"bauds": [115200, 1250000]}).json()
+    assert {"id": 5, "baud": 1250000} in [{k: s[k] for k in ("id", "baud")} for s in scanned["servos"]], scanned
+    assert client.get("/api/servo/5/eeprom").json().get("answers_at") == 1250000
+    # A write through the page (servo 1's EEPROM): what was told of others is looked for again after it.
+    sim.remove_servo(5)
+    assert "answers at 1,250,000" in client.get("/api/servo/5/eeprom").json()["error"]  # (told again: kept)
+    edit = {"changes": {"speed": 99}}
+    plan = post(client, "/api/servo/1/plan", edit).json()
+    assert post(client, "/api/servo/1/write", {**edit, "before": plan["before"]}).json()["verified"]
+    assert "no other baud rate" in client.get("/api/servo/5/eeprom").json()["error"]
+
+
 def test_bad_input_is_answered_in_words(serve: Any) -> None:
     client, _ = serve()
     assert client.get("/api/servo/40/eeprom").json()["error"] == "servo ID '40' is not 0..31"

@@ -143,9 +143,10 @@ class ChaosWorkload:
             try:
                 # Frames keep coming while the workers finish their last requests: take them all,
                 # so that only the cycle cut short by closing the stream has no frame.
-                frame = None
+                frame = first = None
                 while not (self.stop and all(t.done() for t in tasks)) and loop.time() < give_up:
                     frame = await stream.next_frame()
+                    first = first or frame
                     self.stats.frames += 1
                     self.stats.skipped_frames += frame.skipped
                     matcher.add_frame(frame)
@@ -168,8 +169,13 @@ class ChaosWorkload:
         elapsed = time.perf_counter() - t0
         self.sent_on_close = stream.targets_sent_on_close
         newest = stream.latest
-        if frame is not None and newest is not None:
+        if frame is not None and first is not None and newest is not None:
             self.unread_cycles = newest.cycle - frame.cycle
+            # Every cycle from the first frame taken to the newest is a frame taken, one skipped or one unread:
+            # the allowance for unread cycles (finish) can then not hide a frame the stream failed to publish.
+            counted = self.stats.frames + self.stats.skipped_frames - first.skipped + self.unread_cycles
+            if counted != newest.cycle - first.cycle + 1:
+                raise CheckError(f"cycles {first.cycle}..{newest.cycle}: {counted} frames taken, skipped or unread")
         matcher.drain()
         matcher.match()
         return elapsed

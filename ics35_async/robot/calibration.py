@@ -205,6 +205,6 @@ def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) 
         f"{source}: joints.{joint.name}: reverse = true in the file, and servo ID {joint.id} on line {joint.line} "
         "has its EEPROM REVERSE flag set too: the two cancel out, so the joint turns as its servo would with "
         "neither. If it turns the way you want, nothing to do. To keep one of them, remove reverse = true from "
-        f"joints.{joint.name} or clear the flag ({clear}); either mirrors the joint, its offset and limits with "
-        "it, so calibrate it again before any motion"
+        f"joints.{joint.name} or, with calibrate stopped, clear the flag ({clear}); either mirrors the joint, its "
+        "offset and limits with it, so calibrate it again before any motion"
     )

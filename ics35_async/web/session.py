@@ -291,6 +291,7 @@ class LineSession:
         await self.stop_live()
         async with self.exclusive:
             bus = await self._line_at_its_rate()
+            self._looked = {}  # the rates looked at anew: a servo found (or not) now is told so, not as before
             self.progress = ScanProgress(0, len(wanted) * len(checked), True)
 
             def step(n: int) -> None:
@@ -526,6 +527,7 @@ class LineSession:
         still be the servo's, so what is written is what was shown.
         """
         async with self._quiet() as bus:
+            self._looked = {}  # a write may move a servo to another ID or rate: look for silent ones anew
             plan, _ = await self._plan(bus, servo_id, edit)
             seen = edit.get("before")
             if seen is not None and seen != plan.before.to_bytes().hex():
@@ -666,6 +668,7 @@ class LineSession:
         await self.stop_live()
         async with self.exclusive:
             bus = await self._line_at_its_rate()
+            self._looked = {}  # a servo moved to another ID: look for silent ones anew
             survey = await survey_for_id_write(bus)
             change = await write_lone_id(bus, new_id, survey=survey)
         if change.written and change.old_id in self._limits:
