@@ -228,6 +228,15 @@ def test_bad_input_gets_a_clear_answer_and_changes_nothing(sim_console: Callable
             "power 9",
             "power -1",
             "frobnicate",
+            # Digits that are not ASCII's: str.isdigit takes them, int() fails on some and reads others.
+            "plug \u00b2",  # superscript two
+            "plug 0 \u00b2",
+            "unplug \u00b2",
+            "power \u00b2",
+            "plug \u0661",  # Arabic-Indic one: not ID 1
+            "plug 0 \uff11\uff11\uff15\uff12\uff10\uff10",  # fullwidth 115200
+            "plug " + "9" * 5000,  # past int()'s 4300 digits
+            "plug 0 " + "1" * 5000,
         )
     }
     assert all(answer.startswith("error: ") for answer in answers.values()), answers
@@ -235,6 +244,8 @@ def test_bad_input_gets_a_clear_answer_and_changes_nothing(sim_console: Callable
     assert answers["unplug 5"] == "error: no servo at ID 5 on the line (list shows them)"
     assert answers["replug"] == "error: no unplugged servo to plug back in"
     assert answers["frobnicate"] == "error: unknown command 'frobnicate' (help lists the commands)"
+    assert answers["plug \u00b2"] == "error: an ID is 0..31, got '\u00b2'"
+    assert answers["plug 0 \u00b2"] == "error: plug ID takes a baud rate and ics36 after it, not '\u00b2'"
     assert sim.say("") == sim.say("help")  # an empty line gets the help too
     assert sim.say("help").startswith("commands: plug ID [BAUD] [ics36]")
     assert sim.listing() == before

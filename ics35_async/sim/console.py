@@ -27,7 +27,7 @@ from collections.abc import Callable
 from typing import ClassVar, TextIO
 
 from ..eeprom import BaudRate
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, error_text
 from .virtual_line import ServoState, VirtualLine
 from .virtual_servo import VirtualServo
 
@@ -42,10 +42,22 @@ def _servos(count: int) -> str:
     return f"{count} servo{'s' if count != 1 else ''}"
 
 
-def _parse_id(text: str) -> int:
-    if not text.isdigit() or int(text) > 31:
-        raise ConsoleError(f"an ID is 0..31, got {text!r}")
+def _number(text: str) -> int | None:
+    """``text`` as a number if it is one in ASCII digits, else None.
+
+    Not ``str.isdigit`` alone: it takes digits ``int`` fails on (``²``) and others it reads (Arabic-Indic one is 1);
+    and no more digits than any rate has: ``int`` refuses a string past 4300 of them.
+    """
+    if not (text.isascii() and text.isdecimal()) or len(text) > 9:
+        return None
     return int(text)
+
+
+def _parse_id(text: str) -> int:
+    servo_id = _number(text)
+    if servo_id is None or servo_id > 31:
+        raise ConsoleError(f"an ID is 0..31, got {text!r}")
+    return servo_id
 
 
 def _describe(state: ServoState) -> str:
@@ -80,6 +92,8 @@ class LineConsole:
             return handler(self, args)
         except ConsoleError as exc:
             return f"error: {exc}"
+        except Exception as exc:  # a bug, not the input's fault: still an answer, and the console lives on
+            return f"error: {words[0]} failed: {error_text(exc)}"
 
     def _on_line(self) -> str:
         return f"{_servos(len(self.line.servos))} on the line"
@@ -98,9 +112,9 @@ class LineConsole:
         for word in args[1:]:
             if word.lower() == "ics36":
                 ics36 = True
-            elif word.isdigit():
+            elif (number := _number(word)) is not None:
                 try:
-                    baudrate = int(BaudRate.parse(int(word)))
+                    baudrate = int(BaudRate.parse(number))
                 except InvalidArgument as exc:
                     raise ConsoleError(str(exc)) from None
             else:
