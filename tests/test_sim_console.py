@@ -261,6 +261,57 @@ def test_quit_ends_the_simulator_as_ctrl_c_does(tmp_path: Path) -> None:
     assert not os.path.exists(sim.path)
 
 
+# Runs ARGS as a shell runs a command in the foreground (fg) or with `&` (bg): in a session of its own
+# whose controlling terminal is a new pty, in the terminal's foreground process group or in a group of its
+# own; then types quit (fg) or list (bg) on the terminal.  Exits with the command's exit code, or 99 (and
+# says its state: T is stopped) if it has not ended within the guard.
+ON_A_TERMINAL = """
+import fcntl, os, subprocess, sys, termios
+guard, where, *args = float(sys.argv[1]), sys.argv[2], *sys.argv[3:]
+master, slave = os.openpty()
+fcntl.ioctl(slave, termios.TIOCSCTTY, 0)
+child = subprocess.Popen(args, stdin=slave, process_group=0 if where == "bg" else None)
+os.write(master, b"quit\\n" if where == "fg" else b"list\\n")  # input the terminal's foreground takes
+try:
+    sys.exit(child.wait(guard))
+except subprocess.TimeoutExpired:
+    with open(f"/proc/{child.pid}/stat") as stat:
+        state = stat.read().rsplit(")", 1)[1].split()[0]
+    child.kill()
+    child.wait()
+    print(f"still running after {guard} s, state {state}", file=sys.stderr)
+    sys.exit(99)
+"""
+
+
+def on_a_terminal(where: str, *args: str) -> subprocess.CompletedProcess[str]:
+    command = [sys.executable, "-m", "ics35_async.cli", "sim", *args]
+    return subprocess.run(
+        [sys.executable, "-c", ON_A_TERMINAL, str(GUARD), where, *command],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=3 * GUARD,
+        start_new_session=True,
+    )
+
+
+def test_console_refuses_to_start_in_the_background_of_a_terminal() -> None:
+    # As `ics35 sim --console &`: reading the terminal would stop it (SIGTTIN), and the pty server with it.
+    done = on_a_terminal("bg", "--console", "--ids", "1")
+    assert done.returncode == 2, done.stderr
+    assert "--console reads the terminal" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.stdout == ""  # no device path: it never served
+
+
+def test_console_in_the_foreground_of_a_terminal_reads_it() -> None:
+    done = on_a_terminal("fg", "--console", "--ids", "1")
+    assert done.returncode == 0, done.stderr
+    assert "quit: the simulator stops" in done.stdout
+    assert "Traceback" not in done.stderr, done.stderr
+
+
 def test_without_console_the_simulator_does_not_read_its_input(tmp_path: Path) -> None:
     sim = start("--ids", "1", notes=tmp_path / "notes.log")
     try:

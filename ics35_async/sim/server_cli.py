@@ -18,7 +18,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
-from .console import ConsoleReader, LineConsole
+from .console import ConsoleReader, LineConsole, in_background_of_terminal
 from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_server import PtyServer
@@ -173,6 +173,11 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
     """Entry point of ``python -m ics35_async.sim`` (and ``ics35 sim``); returns the exit status."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
+    if args.console and in_background_of_terminal(0):
+        parser.error(
+            "--console reads the terminal, but this simulator runs in its background (as with &): the first line "
+            "typed would stop it, and the pty with it; run it in the foreground, or without --console"
+        )
     try:
         device = build_device(args)
     except (InvalidArgument, OSError) as exc:
