@@ -258,7 +258,22 @@ def test_quit_ends_the_simulator_as_ctrl_c_does(tmp_path: Path) -> None:
     assert sim.proc.wait(GUARD) == 0
     notes = sim.notes.read_text()
     assert "Traceback" not in notes and "served 0 transactions" in notes, notes
+    assert "end of input" not in notes
     assert not os.path.exists(sim.path)
+
+
+def test_end_of_input_says_why_the_simulator_stops() -> None:
+    # As `ics35 sim --console </dev/null` (or under nohup): it stops at once, and says so.
+    done = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--console", "--ids", "1"],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=GUARD,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    assert "ics35 sim: console: end of input: the simulator stops" in done.stderr, done.stderr
 
 
 # Runs ARGS as a shell runs a command in the foreground (fg) or with `&` (bg): in a session of its own

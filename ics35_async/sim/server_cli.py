@@ -223,7 +223,14 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
                 flush=True,
             )
         if args.console and isinstance(device, VirtualLine):
-            console = ConsoleReader(LineConsole(device, args.baud), server.stop, out=sys.stdout)
+            commands = LineConsole(device, args.baud)
+
+            def on_end() -> None:
+                if not commands.quit:  # (quit said so on stdout already)
+                    print("ics35 sim: console: end of input: the simulator stops", file=sys.stderr, flush=True)
+                server.stop()
+
+            console = ConsoleReader(commands, on_end, out=sys.stdout)
             print("ics35 sim: console: type help for its commands, quit to stop", file=sys.stderr, flush=True)
             console.start()
         server.serve()
