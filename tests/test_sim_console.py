@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import queue
 import select
+import signal
 import subprocess
 import sys
 import threading
@@ -347,3 +348,33 @@ def test_console_refuses_a_replay(tmp_path: Path) -> None:
     done = run_process("sim", "--console", "--replay", str(recording), timeout=GUARD)
     assert done.returncode == 2
     assert "--console needs a simulated line, not --replay" in done.stderr
+
+
+def test_ctrl_c_ends_it_while_nobody_reads_its_answers(tmp_path: Path) -> None:
+    # Its stdout a pipe nobody empties: the answers fill it and the console blocks writing one; SIGINT
+    # must still end the simulator (the console is not waited for without end).
+    out_r, out_w = os.pipe()
+    with open(tmp_path / "notes.log", "w", encoding="utf-8") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ics35_async.cli", "sim", "--fast", "--console", "--ids", "1"],
+            stdin=subprocess.PIPE,
+            stdout=out_w,
+            stderr=err,
+        )
+    os.close(out_w)
+    try:
+        with os.fdopen(out_r, "rb") as out:
+            assert select.select([out], [], [], GUARD)[0], "no device path"
+            out.readline()
+            assert proc.stdin is not None
+            proc.stdin.write(b"help\n" * 2000)  # some 200 kB of answers: more than a pipe holds
+            proc.stdin.flush()
+            time.sleep(0.5)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(GUARD) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    notes = (tmp_path / "notes.log").read_text()
+    assert "Traceback" not in notes and "served 0 transactions" in notes, notes

@@ -235,7 +235,9 @@ class ConsoleReader:
         with contextlib.suppress(OSError):
             os.write(self._stop_w, b"x")
         if self._thread.is_alive() and self._thread is not threading.current_thread():
-            self._thread.join()
+            # Bounded: the thread may be blocked writing an answer to a stdout nobody reads (a full pipe),
+            # where the stop pipe cannot reach it; a daemon, it then ends with the process.
+            self._thread.join(timeout=1.0)
         for fd in (self._stop_r, self._stop_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
