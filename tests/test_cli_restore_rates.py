@@ -160,6 +160,8 @@ def test_a_line_lost_at_the_second_rate_says_what_each_servo_holds(cli: Any, sim
     assert "servo 1: 1 EEPROM field(s) written and verified" in out
     assert "servo 3: 1 EEPROM field(s) written and verified" in out
     assert "servo 2: unknown: the command stopped while the write was on its way" in out
+    # The command that tells which image servo 2 holds reaches it at its own rate, not the line's.
+    assert f"see which with: ics35 --port {url} --baud 1250000 --timeout 0.05 eeprom dump 2 --table" in out
     err = " ".join(result.err.split())
     assert f"run it again: ics35 --port {url} --timeout 0.05 eeprom restore {tmp_path} --keep-baud" in err
     # What the report says is what the servos hold.

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -189,8 +190,11 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         if whole:
             out.print(f"servo {sid}: {outcome.value}")
         return
-    # The outcomes short of a verified write: one line each, naming what the servo may hold.
-    check = escape(settings.command_line("eeprom", "dump", str(sid), "--table"))
+    # The outcomes short of a verified write: one line each, naming what the servo may hold; the command that
+    # tells which reaches the servo at the rate it was written at (a restore's servo at another rate too).
+    rate = report.get("baud", settings.baud)
+    there = settings if rate == settings.baud else dataclasses.replace(settings, baud=rate)
+    check = escape(there.command_line("eeprom", "dump", str(sid), "--table"))
     short_of_verified = {
         WriteOutcome.NOT_WRITTEN: "[bold]not written[/bold] (its EEPROM is as it was)",
         WriteOutcome.UNKNOWN: "[bold red]unknown[/bold red]: the command stopped while the write was on its way, "
