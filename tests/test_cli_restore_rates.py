@@ -167,3 +167,22 @@ def test_a_line_lost_at_the_second_rate_says_what_each_servo_holds(cli: Any, sim
     # What the report says is what the servos hold.
     assert [servo.eeprom.speed for servo in sim.servos] == [127, 127, 127]
     assert writes(sim) == [1, 1, 1]
+
+
+def test_a_folder_on_a_line_without_echo_finds_servos_all_at_another_rate(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    """Without the echo nothing at all comes back when no servo is at --baud: the other rates are looked at."""
+    sim, url = sim_line([1, 2], echo=False)
+    line = ("--port", url, "--no-echo")
+    assert cli(*line, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
+    for i in (1, 2):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=9)
+        move_to_rate(sim, i, FAST)
+    result = cli(*line, "eeprom", "restore", str(tmp_path), "--keep-baud", "--yes", "--json")
+    assert result.code == 0, result.err
+    assert {r["id"]: (r["outcome"], r["baud"]) for r in result.json()["servos"]} == {
+        1: ("verified", int(FAST)),
+        2: ("verified", int(FAST)),
+    }
+    assert [servo.eeprom.speed for servo in sim.servos] == [127, 127]

@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async import open_bus
+from ics35_async import open_bus, protocol
 from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.errors import InvalidArgument, UnsafeOperation, VerifyError
@@ -20,8 +20,9 @@ from ics35_async.policies import (
     write_eeprom_plan,
     write_eeprom_plans,
 )
-from ics35_async.policies.eeprom_backup import restore_rates
+from ics35_async.policies.eeprom_backup import plan_restores, restore_rates
 from ics35_async.sim import VirtualLine, VirtualServo
+from tests.conftest import every_backend
 from tests.support.timing import FAST, NO_TIMEOUTS
 
 
@@ -260,3 +261,123 @@ async def test_an_id_at_two_rates_is_two_servos_and_refused() -> None:
         found = await restore_rates(bus, [1, 2])
         assert found.looked and dict(found.several) == {2: (115200, fast)}
         assert "ID 2 answers at 115,200 and 1,250,000 baud" in (found.refusal() or "")
+
+
+@every_backend
+async def test_a_batch_cancelled_during_its_write_at_another_rate_leaves_the_line_at_its_own() -> None:
+    """Ctrl-C while servo 2's write waits for its answer at 1,250,000: the batch had reopened the line there;
+    the cancellation goes on with the line back at the rate it had, on every async library."""
+    import anyio
+
+    from ics35_async.policies import ServoWriteReport
+
+    fast = int(BaudRate.B1250000)
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2, baud_rate=fast)], realtime=True, eeprom_write_delay=0.1)
+    heard: list[ServoWriteReport] = []
+    try:
+        async with open_bus(sim, adapter_latency=NO_TIMEOUTS["adapter_latency"]) as bus:
+            plans = [await plan_eeprom_write(bus, 1, {"speed": 40})]
+            await bus.reopen(baudrate=fast)
+            plans.append(await plan_eeprom_write(bus, 2, {"speed": 40}))
+            await bus.reopen(baudrate=115200)
+            async with anyio.create_task_group() as group:
+
+                async def batch() -> None:
+                    await write_eeprom_plans(bus, plans, on_report=heard.append)
+                    raise AssertionError("the batch ended before servo 2 took its write")
+
+                group.start_soon(batch)
+                while sim.servo(2).eeprom_writes == 0:  # servo 2 has taken the write; its answer is 0.1 s away
+                    await anyio.sleep(0.001)
+                assert bus.baudrate == fast  # (the write is on its way at servo 2's rate)
+                group.cancel_scope.cancel()
+            assert [(r.plan.servo_id, r.outcome) for r in heard] == [
+                (1, WriteOutcome.VERIFIED),
+                (2, WriteOutcome.UNKNOWN),
+            ]
+            assert bus.baudrate == 115200 and bus.is_open
+            assert [s.eeprom.speed for s in sim.servos] == [40, 40]
+            assert await bus.request(protocol.ReadEeprom(1)) == sim.servo(1).eeprom  # the line works at its rate
+    finally:
+        sim.close()
+
+
+async def test_restore_rates_on_a_line_without_echo_looks_at_other_rates_when_nothing_answers() -> None:
+    """Without the echo, "nothing came back" at the line's rate is what a line whose servos are all at another
+    rate gives: they are looked for there.  With the echo, it means the adapter or its wiring: not looked for."""
+    fast = int(BaudRate.B1250000)
+    sim = VirtualLine([VirtualServo(1, baud_rate=fast), VirtualServo(2, baud_rate=fast)], echo=False, log_size=None)
+    try:
+        async with open_bus(sim, echo=False, **FAST) as bus:
+            found = await restore_rates(bus, [1, 2])
+            assert found.looked and dict(found.rates) == {1: fast, 2: fast}
+            assert bus.baudrate == 115200
+    finally:
+        sim.close()
+
+
+async def test_one_plan_made_at_another_rate_is_written_there_and_the_line_returns_to_its_own() -> None:
+    fast = int(BaudRate.B1250000)
+    async with line([VirtualServo(1), VirtualServo(2, baud_rate=fast)]) as (sim, bus):
+        await bus.reopen(baudrate=fast)
+        plan = await plan_eeprom_write(bus, 2, {"speed": 60})
+        await bus.reopen(baudrate=115200)
+        result = await write_eeprom_plan(bus, plan)
+        assert result.verified and sim.servo(2).eeprom.speed == 60
+        assert bus.baudrate == 115200  # the caller's line is at the rate it gave
+        stale = await plan_eeprom_write(bus, 1, {"speed": 61})
+        sim.servo(1).eeprom = sim.servo(1).eeprom.replace(speed=62)
+        await bus.reopen(baudrate=fast)
+        with pytest.raises(UnsafeOperation, match="changed since"):  # a failure returns the line too
+            await write_eeprom_plan(bus, stale)
+        assert bus.baudrate == fast
+
+
+async def test_plan_restores_plans_each_servo_at_its_rate_and_returns_the_line() -> None:
+    fast = int(BaudRate.B1250000)
+    servos = [VirtualServo(1), VirtualServo(2, baud_rate=fast), VirtualServo(3)]
+    async with line(servos) as (sim, bus):
+        plans = await plan_restores(bus, {2: {"speed": 50}, 1: {"speed": 51}, 3: {"speed": 52}})
+        assert [(p.servo_id, p.baud) for p in plans] == [(1, 115200), (3, 115200), (2, fast)]  # the line's rate first
+        assert bus.baudrate == 115200 and eeprom_writes(sim) == 0
+        reports = await write_eeprom_plans(bus, plans)
+        assert [r.outcome for r in reports] == [WriteOutcome.VERIFIED] * 3
+        assert [s.eeprom.speed for s in sim.servos] == [51, 50, 52] and bus.baudrate == 115200
+
+
+async def test_plan_restores_refuses_an_id_at_two_rates_and_bad_fields_before_the_wire() -> None:
+    fast = int(BaudRate.B1250000)
+    async with line([VirtualServo(1, baud_rate=fast), VirtualServo(2), VirtualServo(2, baud_rate=fast)]) as (sim, bus):
+        with pytest.raises(UnsafeOperation, match=r"ID 2 answers at 115,200 and 1,250,000 baud.*nothing was written"):
+            await plan_restores(bus, {1: {"speed": 50}, 2: {"speed": 50}})
+        assert bus.baudrate == 115200 and eeprom_writes(sim) == 0
+        sent = bus.stats.total.transactions
+        with pytest.raises(InvalidArgument):
+            await plan_restores(bus, {1: {"speed": 50}, 2: {"speed": 500}})
+        assert bus.stats.total.transactions == sent
+
+
+@every_backend
+@pytest.mark.parametrize("stint", [1, 2], ids=["scanning", "planning"])
+async def test_plan_restores_cancelled_at_another_rate_returns_the_line_to_its_own(stint: int) -> None:
+    """Ctrl-C while the line is at 1,250,000: its first stint there scans for the servos silent at the line's
+    rate, its second reads servo 2 for its plan.  The cancellation goes on with the line back at its rate."""
+    import anyio
+
+    fast = int(BaudRate.B1250000)
+    async with line([VirtualServo(1), VirtualServo(2, baud_rate=fast)]) as (sim, bus):
+        async with anyio.create_task_group() as group:
+
+            async def planning() -> None:
+                await plan_restores(bus, {1: {"speed": 50}, 2: {"speed": 50}}, bauds=[115200, fast])
+                raise AssertionError(f"the planning ended before stint {stint} at another rate was seen")
+
+            group.start_soon(planning)
+            for n in range(stint):
+                while bus.baudrate == 115200:
+                    await anyio.sleep(0)
+                while n < stint - 1 and bus.baudrate == fast:
+                    await anyio.sleep(0)
+            group.cancel_scope.cancel()
+        assert bus.baudrate == 115200 and bus.is_open
+        assert await bus.request(protocol.ReadEeprom(1)) == sim.servo(1).eeprom  # the line works at its rate

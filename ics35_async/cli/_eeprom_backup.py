@@ -14,9 +14,9 @@ from rich.markup import escape
 
 from ..bus import Bus
 from ..eeprom import Eeprom, Flags
-from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError
+from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
-from ..policies.eeprom_backup import backup_changes, backup_document, restore_rates
+from ..policies.eeprom_backup import backup_changes, backup_document, plan_restores
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -260,37 +260,23 @@ RESTORE_BAUD_ADVICE = (
 
 
 async def plan_restore(bus: Bus, backups: list[Backup], bulk: bool) -> list[EepromPlan]:
-    """Every backup's write, planned at the rate its servo answers at; nothing is written.
+    """Every backup's write, planned; nothing is written.
 
     One file goes to one servo at the line's rate: one that answers elsewhere is told "pass --baud" as by
     every command.  A DIR's servos may answer at different rates (some moved to 1,250,000, others not), and
-    no one --baud reaches them all: each is found where it answers (policies.restore_rates, holding the line
-    as a scan does) and read, written and verified at its own rate, after one question over every diff.
-    That rather than a message sending the person to run the restore once per rate: the wire carries the
-    same traffic either way, while one run asks once, shows every servo, and can refuse an ID that answers
-    at two rates (two servos; a run per rate would give both of them the one backup).
+    no one --baud reaches them all: each is planned at the rate it answers at (policies.eeprom_backup's
+    plan_restores), then written and verified there, after one question over every diff.
     """
     if not bulk:
         return [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
-    found = await restore_rates(bus, [b.target for b in backups])
-    refusal = found.refusal()
-    if refusal:
+    try:
+        return await plan_restores(bus, {b.target: b.fields for b in backups})
+    except UnsafeOperation as exc:  # an ID at two rates: two servos, and whose the backup is cannot be told
         raise CliError(
             ExitCode.REFUSED,
-            f"refused: {refusal}. Nothing was written",
+            f"refused: {exc}",
             "connect one of them at a time, or restore it by its file: ics35 --baud RATE eeprom restore FILE",
-        )
-    home = int(bus.baudrate)
-    # The line's own rate first, then each other rate: one reopen per rate, not per servo.
-    order = sorted(backups, key=lambda b: (found.rates[b.target] != home, found.rates[b.target]))
-    plans: list[EepromPlan] = []
-    for backup in order:
-        if int(bus.baudrate) != found.rates[backup.target]:
-            await bus.reopen(baudrate=found.rates[backup.target])
-        plans.append(await plan_eeprom_write(bus, backup.target, backup.fields))
-    if int(bus.baudrate) != home:
-        await bus.reopen(baudrate=home)
-    return plans
+        ) from None
 
 
 def restore_flag_advice(settings: Settings, plan: EepromPlan) -> str:

@@ -12,9 +12,13 @@ before the servo was moved to another rate).
 
 Restoring several backups, the servos may answer at different rates (some
 moved to 1,250,000, others not): :func:`restore_rates` finds the rate each
-answers at, on the one line the restore holds, so each is read, written and
-verified at its own (:func:`.eeprom_write.write_eeprom_plans` reopens the line
-at each plan's rate).
+answers at, on the one line the restore holds, and :func:`plan_restores` reads
+each servo and plans its write there, so each is read, written and verified at
+its own (:func:`.eeprom_write.write_eeprom_plans` reopens the line at each
+plan's rate).  One run over every rate rather than one run per rate: the wire
+carries the same traffic, while one run asks once over every diff and can
+refuse an ID that answers at two rates (two servos: a run per rate would give
+both of them the one backup).
 """
 
 from __future__ import annotations
@@ -27,9 +31,9 @@ from typing import Any
 
 from .. import protocol
 from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
-from ..errors import IcsError, InvalidArgument
+from ..errors import InvalidArgument, UnsafeOperation
 from ..transports import carries_line_settings
-from .eeprom_write import check_changes
+from .eeprom_write import EepromPlan, back_at_rate, check_changes, plan_eeprom_write
 from .failure_kinds import Line, LineOpener
 from .scan import ALL_BAUDS, probe_ids, scan
 
@@ -201,14 +205,17 @@ async def restore_rates(line: Line, ids: Iterable[int], *, bauds: Iterable[int] 
     """The rate each of ``ids`` answers at, for restoring their backups on ``line`` in one go.
 
     Every ID is probed at the line's rate first; when all answer there, that
-    is all (nothing is sent at another rate).  Otherwise the line is held and
-    reopened at each of ``bauds`` to scan those IDs, as :func:`.scan.scan` does
-    (a stretch read, the EEPROM of what answers, one servo heard at several
-    rates told from several servos by its calibration bytes), and returned to
-    its rate.  An ID found nowhere keeps the line's rate (its read then fails
-    as a read there does).  A link that does not carry the baud rate
-    (``socket://``) and a line that gives nothing back, not even the echo, are
-    not scanned: another rate tells nothing there.  See :meth:`RestoreRates.refusal`.
+    is all (nothing is sent at another rate, so an ID that also answers at
+    another rate goes unseen).  Otherwise the line is held and reopened at each
+    of ``bauds`` to scan those IDs, as :func:`.scan.scan` does (a stretch read,
+    the EEPROM of what answers, one servo heard at several rates told from
+    several servos by its calibration bytes), and returned to its rate however
+    the scan ends (:func:`.eeprom_write.back_at_rate`).  An ID found nowhere
+    keeps the line's rate (its read then fails as a read there does).  A link
+    that does not carry the baud rate (``socket://``) and a line with the echo
+    that gives nothing back, not even the echo, are not scanned: another rate
+    tells nothing there (without the echo, nothing back is what a line whose
+    servos are all at another rate gives: it is scanned).  See :meth:`RestoreRates.refusal`.
 
     Raises:
         InvalidArgument: a bad ID or baud rate.
@@ -217,17 +224,55 @@ async def restore_rates(line: Line, ids: Iterable[int], *, bauds: Iterable[int] 
     wanted = [protocol.check_id(i) for i in ids]
     home = int(line.baudrate)
     first = await probe_ids(line, wanted)
-    if set(first.answered) == set(wanted) or first.silent or not carries_line_settings(getattr(line, "port", None)):
+    dead = first.silent and line.echo  # not even the echo: the adapter or its wiring, at any rate
+    if set(first.answered) == set(wanted) or dead or not carries_line_settings(getattr(line, "port", None)):
         return RestoreRates(dict.fromkeys(wanted, home))
     try:
         report = await scan(reopening(line), bauds=[home, *(int(b) for b in bauds if int(b) != home)], ids=wanted)
     finally:
-        with contextlib.suppress(IcsError, OSError):  # a line that cannot go back fails the first read after
-            if line.is_open and int(line.baudrate) != home:
-                await line.reopen(baudrate=home)
+        await back_at_rate(line, home)  # (a line that cannot go back fails the first read after)
     found: dict[int, list[int]] = {}
     for servo in report.servos:
         found.setdefault(servo.servo_id, []).append(servo.baud)
     rates = {i: home if i in first.answered or len(found.get(i, ())) != 1 else found[i][0] for i in wanted}
     several = {i: tuple(sorted(at)) for i, at in found.items() if len(at) > 1}
     return RestoreRates(rates, several, looked=True)
+
+
+async def plan_restores(
+    line: Line, changes: Mapping[int, Mapping[str, Any]], *, bauds: Iterable[int] = ALL_BAUDS
+) -> list[EepromPlan]:
+    """Plan the restore of several backups on ``line`` (``changes``: servo ID -> the fields to write, as
+    :func:`backup_changes` gives them); nothing is written.
+
+    The rate each servo answers at is found first (:func:`restore_rates`, over
+    ``bauds``); each servo is then read and its write planned there
+    (:func:`.eeprom_write.plan_eeprom_write`), the servos at the line's rate
+    first, then those of each other rate (one reopen per rate), and the line is
+    returned to its rate however the planning ends
+    (:func:`.eeprom_write.back_at_rate`).  The plans come in that order, each
+    with its rate (``plan.baud``), for :func:`.eeprom_write.write_eeprom_plans`.
+
+    Raises:
+        InvalidArgument: a bad ID, field value or baud rate (before anything is sent).
+        UnsafeOperation: an ID answers at several rates (:meth:`RestoreRates.refusal`); nothing was written.
+        ReplyError: a servo does not answer its EEPROM read (at the line's rate when it was found nowhere).
+        BusClosed, PortLost, SerialPortError: the line is closed, its port gone, or it cannot be reopened.
+    """
+    for fields in changes.values():
+        check_changes(fields)
+    found = await restore_rates(line, changes, bauds=bauds)
+    refusal = found.refusal()
+    if refusal:
+        raise UnsafeOperation(f"{refusal}; nothing was written")
+    home = int(line.baudrate)
+    order = sorted(changes, key=lambda i: (found.rates[i] != home, found.rates[i]))
+    plans: list[EepromPlan] = []
+    try:
+        for servo_id in order:
+            if int(line.baudrate) != found.rates[servo_id]:
+                await line.reopen(baudrate=found.rates[servo_id])
+            plans.append(await plan_eeprom_write(line, servo_id, changes[servo_id]))
+    finally:
+        await back_at_rate(line, home)
+    return plans

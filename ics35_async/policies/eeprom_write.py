@@ -17,7 +17,8 @@ The rules, in order:
   effect); after a baud change the servo is also asked at the new rate;
 * a plan is written at the rate it was made at (the rate the servo answers
   at): a line at another rate is reopened there first, so servos at different
-  rates (a restore of several backups) are each written and verified at their own.
+  rates (a restore of several backups) are each written and verified at their
+  own, and returned to its rate after (a cancellation too waits for that).
 """
 
 from __future__ import annotations
@@ -31,10 +32,12 @@ from typing import Any
 from .. import protocol
 from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, flags_value
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
+from ..tasks import despite_cancellation
 from ..units import check_int
 from .failure_kinds import Line, answers_short_read
 
 NO_FLAGS = Flags(0)
+RETURN_BOUND = 5.0  # seconds a line's return to its rate may take when the work that moved it is cancelled
 
 
 def _check_flag_edit(set_flags: int, clear_flags: int) -> tuple[int, int]:
@@ -207,13 +210,39 @@ async def write_eeprom_plan(
     """Write ``plan`` on ``line`` (after the checks of :meth:`EepromPlan.refusal`, with
     ``allow_baud_change`` and ``allow_id_change``) and verify it by reading back.
 
+    The write goes at the rate the plan was made at (``plan.baud``): a line at
+    another rate is reopened there for it, and returned to its own rate when
+    the write ends, however it ends (see :func:`back_at_rate`).
+
     Raises:
         UnsafeOperation: the write is refused, or the servo's image changed since the plan (nothing written).
         VerifyError: the image read back differs, or the servo answers neither at its old nor its new ID / rate.
         ReplyError: the servo does not answer the write.
         BusClosed, PortLost: the line is closed or its port is gone.
     """
-    return await _write(line, plan, allow_baud_change, allow_id_change, _Progress())
+    home = int(line.baudrate)
+    try:
+        return await _write(line, plan, allow_baud_change, allow_id_change, _Progress())
+    finally:
+        await back_at_rate(line, home)
+
+
+async def back_at_rate(line: Line, baud: int) -> None:
+    """Reopen ``line`` at ``baud`` if it is at another (work that moved it has ended, however).
+
+    It runs to its end (:data:`RETURN_BOUND` seconds at most) even when the
+    caller is cancelled meanwhile, and a cancellation that came is raised
+    after.  A line that is closed, or lost meanwhile, is left as it is (one
+    that reconnects comes back at the rate it was lost at), and a reopen that
+    fails is not raised: the line's next request fails, as its own error.
+    """
+
+    async def back() -> None:
+        with contextlib.suppress(IcsError, OSError):
+            if line.is_open and int(line.baudrate) != baud:
+                await line.reopen(baudrate=baud)
+
+    await despite_cancellation(back, RETURN_BOUND)
 
 
 async def _write(
@@ -326,7 +355,9 @@ async def write_eeprom_plans(
     (the one being written: as far as it got) before the cancellation goes on.
     ``allow_baud_change`` and ``allow_id_change`` apply to every plan.  Each
     plan is written at its own rate (``plan.baud``); a batch that reopened the
-    line at another rate returns it to the rate it had when it ends.
+    line at another rate returns it to the rate it had when it ends, however it
+    ends, cancelled too (:func:`back_at_rate`): a line lost meanwhile is not
+    reopened, and comes back at the rate it was at when it was lost.
     """
     reports: list[ServoWriteReport] = []
     home = int(line.baudrate)
@@ -337,28 +368,28 @@ async def write_eeprom_plans(
             on_report(report)
 
     failed = False
-    for n, plan in enumerate(plans):
-        if failed:
-            add(ServoWriteReport(plan, WriteOutcome.NOT_WRITTEN))
-            continue
-        progress = _Progress()
-        try:
-            result = await _write(line, plan, allow_baud_change, allow_id_change, progress)
-        except IcsError as exc:
-            failed = True
-            add(ServoWriteReport(plan, _failed_outcome(progress), error=exc))
-            continue
-        except BaseException:  # cancelled mid-write: account for every servo, then stay cancelled
-            add(ServoWriteReport(plan, _failed_outcome(progress)))
-            for rest in plans[n + 1 :]:
-                add(ServoWriteReport(rest, WriteOutcome.NOT_WRITTEN))
-            raise
-        outcome = WriteOutcome.VERIFIED if result.written else WriteOutcome.UNCHANGED
-        add(ServoWriteReport(plan, outcome, result))
-    if line.is_open and int(line.baudrate) != home:
+    try:
+        for n, plan in enumerate(plans):
+            if failed:
+                add(ServoWriteReport(plan, WriteOutcome.NOT_WRITTEN))
+                continue
+            progress = _Progress()
+            try:
+                result = await _write(line, plan, allow_baud_change, allow_id_change, progress)
+            except IcsError as exc:
+                failed = True
+                add(ServoWriteReport(plan, _failed_outcome(progress), error=exc))
+                continue
+            except BaseException:  # cancelled mid-write: account for every servo, then stay cancelled
+                add(ServoWriteReport(plan, _failed_outcome(progress)))
+                for rest in plans[n + 1 :]:
+                    add(ServoWriteReport(rest, WriteOutcome.NOT_WRITTEN))
+                raise
+            outcome = WriteOutcome.VERIFIED if result.written else WriteOutcome.UNCHANGED
+            add(ServoWriteReport(plan, outcome, result))
+    finally:
         # Every servo's report is made: a line that cannot go back is the caller's next failure, not theirs.
-        with contextlib.suppress(IcsError, OSError):
-            await line.reopen(baudrate=home)
+        await back_at_rate(line, home)
     return reports
 
 
