@@ -530,11 +530,12 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-plus")).to_be_disabled()
 
 
-def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
-    line = PtyLine((1,))
-    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+@contextlib.contextmanager
+def web_server_page(browser: Browser, args: list[str], line: PtyLine) -> Iterator[Page]:
+    """``ics35 web ARGS`` in a process of its own and a page on it; at the end the server is stopped and
+    ``line`` closed, and the server must have printed no traceback."""
     proc = subprocess.Popen(
-        [*WEB, "--port", line.path, *PATIENT_OPTION],
+        [*WEB, *args, *PATIENT_OPTION],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -543,16 +544,10 @@ def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_r
     assert proc.stdout is not None and proc.stderr is not None
     context = browser.new_context()
     try:
-        p = context.new_page()
-        p.set_default_timeout(WAIT_MS)
-        p.goto(proc.stdout.readline().strip())
-        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
-        p.goto(p.url.split("#")[0] + "#servo/5")
-        expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
-        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
-        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
-        expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
+        page = context.new_page()
+        page.set_default_timeout(WAIT_MS)
+        page.goto(proc.stdout.readline().strip())
+        yield page
     finally:
         context.close()
         proc.terminate()
@@ -562,6 +557,19 @@ def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_r
         proc.stderr.close()
         line.close()
     assert "Traceback" not in errors, errors
+
+
+def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
+    line = PtyLine((1,))
+    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
+        p.goto(p.url.split("#")[0] + "#servo/5")
+        expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
+        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
+        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
+        expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
 
 
 @dataclass
@@ -748,19 +756,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
         '[joints.elbow]\nline = "arm"\nid = 2\n'
     )
-    proc = subprocess.Popen(
-        [*WEB, "--robot", str(robot), *PATIENT_OPTION],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "ICS35_WEB_TOKEN": ""},
-    )
-    assert proc.stdout is not None and proc.stderr is not None
-    context = browser.new_context()
-    try:
-        p = context.new_page()
-        p.set_default_timeout(WAIT_MS)
-        p.goto(proc.stdout.readline().strip())
+    with web_server_page(browser, ["--robot", str(robot)], line) as p:
         p.click("#robot-link")
         expect(p.locator("#robot-cycle")).not_to_have_text("-")
         expect(p.locator("#robot-reopen")).to_be_hidden()
@@ -790,12 +786,3 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         expect(p.locator("#robot-motion")).to_be_enabled()
         p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-    finally:
-        context.close()
-        proc.terminate()
-        proc.wait(10)
-        errors = proc.stderr.read()
-        proc.stdout.close()
-        proc.stderr.close()
-        line.close()
-    assert "Traceback" not in errors, errors
