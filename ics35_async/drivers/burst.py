@@ -23,7 +23,7 @@ without bursts.
 
 Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
 without a file descriptor, the thread and anyio drivers -- or with ``ICS35_BURST=0`` set, every
-transaction takes the ordinary path.
+transaction takes the ordinary path; on systems other than Linux, unless ``ICS35_BURST=1`` is set.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -74,16 +75,20 @@ def burst_path() -> tuple[bool, str]:
     """Whether the burst path runs on ports with a descriptor, and why, in plain words (for ``--version -v`` and
     doctor, after :data:`PATH_NAME`).
 
-    On where the helper is built, unless ``ICS35_BURST=0``: it costs a stream less CPU than the ordinary path
-    and keeps its rate beside a busy Python thread, which starves the ordinary path's loop of the GIL
+    On Linux where the helper is built, unless ``ICS35_BURST=0``: it costs a stream less CPU than the ordinary
+    path and keeps its rate beside a busy Python thread, which starves the ordinary path's loop of the GIL
     (``benchmarks/bench_burst.py``); the engine's tests compare it with the ordinary path write for write, and the
-    contract suite and the chaos, cancellation and unplug soaks run on it.
+    contract suite and the chaos, cancellation and unplug soaks run on it.  Elsewhere (macOS, the BSDs: the
+    helper builds there, with ``poll`` in whole milliseconds, but it is tried on Linux only) ``ICS35_BURST=1``
+    turns it on.
     """
     setting = os.environ.get(ENV, "").strip().lower()
     if setting in ("0", "off", "no", "false"):
         return False, f"off ({ENV}={os.environ[ENV].strip()}; unset it to turn the path on)"
     if setting not in ("", "1", "on", "yes", "true"):
         return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; unset it to turn the path on)"
+    if not setting and not sys.platform.startswith("linux"):
+        return False, f"off by default on {sys.platform}, where it has not been tried ({ENV}=1 turns it on)"
     if _burst is None:
         return False, f"off, not built ({_IMPORT_ERROR}): streams run without it"
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
