@@ -9,6 +9,7 @@ import os
 import re
 import sys
 import threading
+import time
 import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -25,8 +26,8 @@ from ics35_async.robot import load_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
-from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, targets_sent
-from tests.support.timing import NO_TIMEOUTS_OPTION
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_position, make_rig, targets_sent
+from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -60,6 +61,27 @@ def test_the_example_files_are_valid() -> None:
     robot = load_description(EXAMPLES / "humanoid.toml")
     assert len(robot.joints) == 17 and len(robot.lines) == 2
     assert all(line.port.startswith("sim://") for line in robot.lines.values())
+
+
+def test_play_leaves_the_joints_its_motion_does_not_name_as_they_are(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A newcomer's finding: a wrist left holding by `ics35 move`, then a motion that never names it; play freed
+    # it at its start (ICS 3.5 servos are read by freeing them) and it stayed limp, while the summary said
+    # "joints left holding". A standing humanoid's legs would fold under a wave of its arms.
+    sims, robot_file = rig
+    sims.servo("elbow").command_position(8000)  # holding, as a move left it
+    sims.servo("knee").command_position(7000)
+    upper, lower = sims.upper.transactions, sims.lower.transactions
+    motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": -10}})
+    result = cli("play", str(robot_file), str(motion))
+    assert result.code == 0, result.err
+    for name, sim, since in (("elbow", sims.upper, upper), ("knee", sims.lower, lower)):
+        assert not sims.servo(name).free and sims.servo(name).target in (8000, 7000), name
+        spec = JOINTS[name]
+        assert list(commanded(sim, spec["id"], since)) == [], name  # not a command: not even a read
+    assert "not named by the motion, left as they are: shoulder, elbow, knee" in " ".join(result.err.split())
+    assert targets_sent(sims.upper, 1, upper)[-1] == joint_position(JOINTS["neck"], 20)
 
 
 def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(
@@ -180,7 +202,11 @@ def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) 
 
     def settle() -> None:
         marks = [sim.transactions for sim in sims]
+        give_up = time.monotonic() + GUARD  # (a line the command did not open would be waited for for ever;
+        # going on then leaves the command to show what it saw, rather than a hang in a helper thread)
         while any(sim.transactions < mark + 300 for sim, mark in zip(sims, marks, strict=True)):
+            if time.monotonic() > give_up:
+                return
             threading.Event().wait(0.005)
 
     def hands() -> None:
@@ -423,6 +449,26 @@ def settle_on(sim: VirtualLine) -> None:
         threading.Event().wait(0.005)
 
 
+def test_teach_with_joints_leaves_the_others_as_they_are(rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # --joints neck: the other joints were opened too, and their ICS 3.5 servos freed to be read (a held arm
+    # dropped while one joint was taught); now only the joints named are opened.
+    sims, robot_file = rig
+    held = {"elbow": 8000, "hip": 7000, "knee": 7200}
+    for name, position in held.items():
+        sims.servo(name).command_position(position)
+    marks = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
+    result = run_with_hands(
+        ["teach", str(robot_file), str(tmp_path / "taught.json"), "--joints", "neck"],
+        [("Enter captures", None, "\n"), ("pose 1 at", None, "q\n")],
+        [sims.upper],
+    )
+    assert result.code == 0, result.err
+    for name, position in held.items():
+        spec = JOINTS[name]
+        assert sims.servo(name).target == position and not sims.servo(name).free, name
+        assert list(commanded(sims.sim(spec["line"]), spec["id"], marks[spec["line"]])) == [], name
+
+
 def test_calibrate_refuses_a_joint_not_moved_through_its_range(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
@@ -463,7 +509,7 @@ def test_teach_that_cannot_write_its_file_prints_the_poses_instead(
     result = run_with_hands(
         ["teach", str(robot_file), str(folder / "taught.json"), "--joints", "neck"],
         [("Enter captures", None, "\n"), ("pose 1 at", folder.rmdir, "q\n")],
-        [sims.upper, sims.lower],
+        [sims.upper],  # (the lower line has no joint named: it is not opened)
     )
     assert result.code == 2 and "printed above instead" in result.err, result.err
     motion = json.loads(result.out[result.out.index('{\n  "format"') :])

@@ -70,6 +70,22 @@ def test_a_good_file_reads_with_its_defaults(tmp_path: Path) -> None:
     assert robot.safety.continue_on_offline is False
 
 
+def test_only_some_joints_keeps_their_lines_and_the_rest_of_the_robot() -> None:
+    two_lines = {
+        "lines": {"a": {"port": "sim://?ids=1-2"}, "b": {"port": "sim://?ids=1"}},
+        "joints": {"x": {"line": "a", "id": 1}, "y": {"line": "a", "id": 2}, "z": {"line": "b", "id": 1}},
+        "safety": {"action": "hold"},
+    }
+    robot = load_description(two_lines)
+    some = robot.only(["y", "x"])
+    assert list(some.joints) == ["x", "y"] and list(some.lines) == ["a"]  # (file order; line b unused)
+    assert some.safety == robot.safety and some.source == robot.source and some.joints["y"] is robot.joints["y"]
+    with pytest.raises(InvalidArgument, match=r"unknown joint\(s\): w \(joints: x, y, z\)"):
+        robot.only(["x", "w"])
+    with pytest.raises(InvalidArgument, match="at least one joint"):
+        robot.only([])
+
+
 def test_servo_degrees_are_offset_plus_signed_joint_degrees_both_ways(tmp_path: Path) -> None:
     elbow = load_description(write(tmp_path, GOOD)).joints["left_elbow"]
     for joint in (-90.0, -12.25, 0.0, 30.0, 45.0):

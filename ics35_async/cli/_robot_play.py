@@ -18,6 +18,7 @@ from rich.markup import escape
 from ..errors import BusClosed, IcsError, PortLost
 from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
+from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ._common import choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
@@ -106,11 +107,20 @@ def play(
     async def body() -> str:
         nonlocal passes, played
         options = robot_options(settings)
-        async with open_robot(description, on_close=on_stop, start_pose=start_pose, **options) as robot:
+        check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
+        # Only the joints the motion moves (and those --start-pose states) are opened: the others are not
+        # read, freed or commanded, so a joint left holding stays held (a standing robot's legs under a wave).
+        moved = description.only([*motion.joints, *(start_pose or {})])
+        untouched = [name for name in description.joints if name not in moved.joints]
+        async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
+            if untouched:
+                err.print(
+                    f"[dim]note: joints not named by the motion, left as they are: {escape(', '.join(untouched))}[/dim]"
+                )
             limp = [name for name, mode in robot.start_modes.items() if mode == "free"]
             if limp:
-                which = "every joint" if len(limp) == len(robot.joints) else escape(", ".join(limp))
+                which = "every joint it moves" if len(limp) == len(robot.joints) else escape(", ".join(limp))
                 err.print(
                     f"[dim]note: {which} started free (ICS 3.5 servos are read by freeing them); "
                     "--start-pose states where they are instead[/dim]"

@@ -58,8 +58,9 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
 
 @contextlib.asynccontextmanager
 async def freed_robot(description: RobotDescription, settings: Settings, names: list[str]) -> AsyncIterator[Robot]:
-    """The robot open (freed again when it closes), its first pose read, ``names`` free to move by hand."""
-    async with open_robot(description, on_close="free", **robot_options(settings)) as robot:
+    """The robot's joints ``names`` open (freed again when it closes), their first pose read, free to move by
+    hand.  The other joints are not opened: not read, freed or commanded, their servos keep what they hold."""
+    async with open_robot(description.only(names), on_close="free", **robot_options(settings)) as robot:
         show_warnings(robot)
         await first_pose(robot)
         await robot.free(names)

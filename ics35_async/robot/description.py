@@ -11,7 +11,7 @@ from __future__ import annotations
 import difflib
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -129,6 +129,21 @@ class RobotDescription:
     def joints_on(self, line: str) -> list[JointSpec]:
         """The joints driven by servos on ``line``, in file order."""
         return [j for j in self.joints.values() if j.line == line]
+
+    def only(self, names: Iterable[object]) -> RobotDescription:
+        """This robot with only the joints ``names`` (in file order) and the lines they use: a robot opened on
+        it streams, reads and frees no other joint (their servos keep what they hold).
+
+        Raises:
+            InvalidArgument: an unknown joint name, or none at all.
+        """
+        wanted = set(self.known_joints(names))
+        if not wanted:
+            raise InvalidArgument("name at least one joint")
+        joints = {name: spec for name, spec in self.joints.items() if name in wanted}
+        used = {spec.line for spec in joints.values()}
+        lines = {name: spec for name, spec in self.lines.items() if name in used}
+        return replace(self, lines=lines, joints=joints)
 
     def known_joints(self, names: Iterable[object]) -> list[str]:
         """``names`` as a list, each one of this robot's joints.
