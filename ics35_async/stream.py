@@ -520,6 +520,21 @@ class Stream(FrameIterator[Frame]):
             return
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
+        period = 1 / self.rate_hz if self.rate_hz else 0.0
+        if wire < period / 2:  # the wire leaves half the period or more: the host, not the line, fell behind
+            log.warning(
+                "%s; at %d baud its %d position transactions take only %.1f ms of each %.1f ms period on the wire: "
+                "the host was too busy to keep up (a thread of this program computing without pause holds "
+                "Python's GIL, which the stream's event loop then waits for at every transaction: move such work "
+                "to a process, or stream on the compiled path, which needs the GIL once a cycle: see the "
+                "control-loop docs)",
+                late,
+                baud,
+                n,
+                wire * 1e3,
+                period * 1e3,
+            )
+            return
         log.warning(
             "%s; at %d baud its %d position transactions take %.1f ms on the wire alone, plus each servo's answer "
             "time: raise the baud rate, stream fewer IDs or ask a lower rate (or the host is busy)",

@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import itertools
 import json
+import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from typing import Any
@@ -976,6 +977,33 @@ async def test_a_rate_lost_to_the_streams_own_silent_servos_is_told_as_such(capl
         sim.close()
     said = rate_warning(caplog)
     assert "its ID(s) 0, 1, 2, 3 did not answer" in said and "baud rate" in said, said
+    assert "raise the baud rate" not in said, said
+
+
+async def test_a_rate_lost_to_a_busy_program_is_not_blamed_on_the_baud_rate(caplog: pytest.LogCaptureFixture) -> None:
+    # Six servos at 1.25 Mbit/s need 0.4 ms of a 10 ms period; a thread of the program computing without pause
+    # holds the GIL, which the loop's thread then waits for at every transaction (a newcomer's loop at 22-38
+    # Hz).  The warning said "raise the baud rate, stream fewer IDs or ask a lower rate (or the host is busy)".
+    ids = list(range(6))
+    sim = make_sim(ids, realtime=True, baudrate=1250000)
+    stop = threading.Event()
+
+    def compute() -> None:  # pure Python: it lets the GIL go only at the interpreter's switch interval
+        while not stop.is_set():
+            sum(range(1000))
+
+    busy = threading.Thread(target=compute, daemon=True)
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, baudrate=1250000, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
+                busy.start()
+                while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
+                    pass
+    finally:
+        stop.set()
+        sim.close()
+    said = rate_warning(caplog)
+    assert "only 0.3 ms of each 10.0 ms period" in said and "busy" in said and "GIL" in said, said
     assert "raise the baud rate" not in said, said
 
 
