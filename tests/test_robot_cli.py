@@ -63,6 +63,16 @@ def test_the_example_files_are_valid() -> None:
     assert all(line.port.startswith("sim://") for line in robot.lines.values())
 
 
+def test_play_with_its_two_files_swapped_says_which_comes_first(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20}})
+    result = cli("play", str(motion), str(robot_file))
+    assert result.code == 2, result.err
+    assert "the robot file (ROBOT.toml) comes first, then the motion (MOTION.json)" in " ".join(result.err.split())
+
+
 def test_play_leaves_the_joints_its_motion_does_not_name_as_they_are(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:

@@ -37,7 +37,11 @@ def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
     try:
         return load(path)
     except InvalidArgument as exc:
-        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
+        # A robot file where the motion goes, or the other way round: the two given in the wrong order.
+        wanted, other = (".toml", ".json") if placeholder.endswith(".toml") else (".json", ".toml")
+        swapped = path.lower().endswith(other) and not path.lower().endswith(wanted)
+        hints = ["the robot file (ROBOT.toml) comes first, then the motion (MOTION.json)"] if swapped else []
+        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)", *hints) from None
 
 
 def load_robot_file(path: str) -> RobotDescription:
