@@ -253,6 +253,85 @@ def test_bad_input_gets_a_clear_answer_and_changes_nothing(sim_console: Callable
     assert scan(sim.path, ids=range(1, 2)) == [1]
 
 
+def test_turn_moves_a_free_servo_by_hand_and_it_stays_there(sim_console: Callable[..., Console]) -> None:
+    # What ics35 calibrate and teach ask of a person, on the simulator: the free joint turned by hand.
+    sim = sim_console("--ids", "1,2")
+    assert (
+        sim.say("turn 1 9000") == "turned the servo at ID 1 by hand to 9000 (+50.6 degrees); it is free: it stays there"
+    )
+    assert (
+        sim.say("turn 2 3500")
+        == "turned the servo at ID 2 by hand to 3500 (-135.0 degrees); it is free: it stays there"
+    )
+    with blocking.open_bus(sim.path, **PATIENT) as bus:
+        assert bus.servo(1).free() == 9000
+        assert bus.servo(2).free() == 3500
+    assert sim.listing()[1:] == [
+        "  ID 1: ICS 3.5, 115200 bit/s, at 9000, free",
+        "  ID 2: ICS 3.5, 115200 bit/s, at 3500, free",
+    ]
+    assert sim.say("plug 1").startswith("plugged in a new servo at ID 1")
+    assert sim.say("turn 1 11500") == (
+        "turned the 2 servos at ID 1 by hand to 11500 (+135.0 degrees); they are free: they stay there"
+    )
+    assert [line for line in sim.listing() if "ID 1:" in line] == ["  ID 1: ICS 3.5, 115200 bit/s, at 11500, free"] * 2
+
+
+def test_turn_pushes_a_holding_servo_which_turns_back_to_its_target(sim_console: Callable[..., Console]) -> None:
+    # move_by_hand on a holding servo: it is where the hand put it, and turns back at its speed (--fast:
+    # the line's clock moves only with its transactions, so the way back takes a few hundred of them).
+    sim = sim_console("--ids", "1")
+    with blocking.open_bus(sim.path, **PATIENT) as bus:
+        servo = bus.servo(1)
+        assert servo.set_position(7500) == 7500
+        assert sim.say("turn 1 9000") == (
+            "turned the servo at ID 1 by hand to 9000 (+50.6 degrees); it is holding 7500: it turns back there"
+        )
+        reported = [servo.set_position(7500)]
+        assert 8900 < reported[0] <= 9000, reported  # pushed: a transaction's time takes it back a few counts
+        while reported[-1] != 7500 and len(reported) < 2000:
+            reported.append(servo.set_position(7500))
+        assert reported[-1] == 7500, reported[-5:]
+        assert reported == sorted(reported, reverse=True)  # on its way back, never past it
+    assert sim.listing()[1] == "  ID 1: ICS 3.5, 115200 bit/s, at 7500, holding"
+
+
+def test_turn_refuses_bad_input_and_changes_nothing(sim_console: Callable[..., Console]) -> None:
+    sim = sim_console("--ids", "1")
+    before = sim.listing()
+    answers = {
+        command: sim.say(command)
+        for command in (
+            "turn",
+            "turn 1",
+            "turn 1 9000 2",
+            "turn 5 9000",
+            "turn 32 9000",
+            "turn x 9000",
+            "turn 1 3499",
+            "turn 1 11501",
+            "turn 1 0",
+            "turn 1 -100",
+            "turn 1 +10",
+            "turn 1 9000.5",
+            "turn 1 \u00b2",
+            "turn 1 " + "9" * 5000,
+        )
+    }
+    assert all(answer.startswith("error: ") for answer in answers.values()), answers
+    assert answers["turn"] == "error: turn takes an ID and a position, e.g. turn 1 9000"
+    assert answers["turn 5 9000"] == "error: no servo at ID 5 on the line (list shows them)"
+    assert answers["turn 32 9000"] == "error: an ID is 0..31, got '32'"
+    assert answers["turn 1 3499"] == (
+        "error: a position is 3500..11500 (-135..+135 degrees, the servo's travel), got '3499'"
+    )
+    assert answers["turn 1 +10"] == answers["turn 1 3499"].replace("'3499'", "'+10'")
+    assert "turn ID POSITION" in sim.say("help")
+    assert sim.listing() == before
+    with blocking.open_bus(sim.path, **PATIENT) as bus:
+        assert bus.servo(1).free() == 7500
+
+
 def test_quit_ends_the_simulator_as_ctrl_c_does(tmp_path: Path) -> None:
     sim = start("--console", "--ids", "1", notes=tmp_path / "notes.log")
     assert sim.say("quit") == "quit: the simulator stops"

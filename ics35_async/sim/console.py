@@ -9,6 +9,8 @@ Commands::
     unplug ID                the servo at ID leaves the line (of two at one ID, the one plugged in last)
     replug [ID]              an unplugged servo comes back, powered up (the last unplugged, or the one at ID)
     power [ID]               power-cycle every servo, or those at ID: a baud rate in their EEPROM applies now
+    turn ID POSITION         turn the servo(s) at ID by hand to POSITION (3500..11500): a free one stays there,
+                             a holding one turns back to its target
     list                     each servo: ID, ICS 3.5/3.6, the rate it listens at (and its EEPROM's), position
     help                     the commands
     quit                     stop the simulator (as end of input and Ctrl-C do)
@@ -28,10 +30,14 @@ from typing import ClassVar, TextIO
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
+from ..units import TRAVEL_MAX, TRAVEL_MIN, position_to_degrees
 from .virtual_line import ServoState, VirtualLine
 from .virtual_servo import VirtualServo
 
-HELP = "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], power [ID], list, help, quit"
+HELP = (
+    "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], power [ID], "
+    "turn ID POSITION (by hand, 3500..11500), list, help, quit"
+)
 
 
 class ConsoleError(Exception):
@@ -58,6 +64,15 @@ def _parse_id(text: str) -> int:
     if servo_id is None or servo_id > 31:
         raise ConsoleError(f"an ID is 0..31, got {text!r}")
     return servo_id
+
+
+def _parse_position(text: str) -> int:
+    position = _number(text)
+    if position is None or not TRAVEL_MIN <= position <= TRAVEL_MAX:
+        raise ConsoleError(
+            f"a position is {TRAVEL_MIN}..{TRAVEL_MAX} (-135..+135 degrees, the servo's travel), got {text!r}"
+        )
+    return position
 
 
 def _describe(state: ServoState) -> str:
@@ -186,6 +201,28 @@ class LineConsole:
             return f"power-cycled the servo at ID {servo_id}: it listens at {rates} bit/s"
         return f"power-cycled the {len(servos)} servos at ID {servo_id}: they listen at {rates} bit/s"
 
+    def _turn(self, args: list[str]) -> str:
+        if len(args) != 2:
+            raise ConsoleError("turn takes an ID and a position, e.g. turn 1 9000")
+        servo_id, position = _parse_id(args[0]), _parse_position(args[1])
+        try:
+            servos = self.line.move_by_hand(servo_id, position)
+        except KeyError:
+            raise ConsoleError(f"no servo at ID {servo_id} on the line (list shows them)") from None
+        which = "the servo" if len(servos) == 1 else f"the {len(servos)} servos"
+        done = f"turned {which} at ID {servo_id} by hand to {position} ({position_to_degrees(position):+.1f} degrees)"
+        targets = sorted({s.target for s in servos if s.target is not None})
+        if not targets:
+            return done + ("; it is free: it stays there" if len(servos) == 1 else "; they are free: they stay there")
+        held = " and ".join(str(t) for t in targets)
+        if len(servos) == 1:
+            return f"{done}; it is holding {held}: it turns back there"
+        holding = sum(not s.free for s in servos)
+        free = len(servos) - holding
+        return f"{done}; {holding} of them holding {held} turn{'s' if holding == 1 else ''} back" + (
+            f", {free} free stay{'s' if free == 1 else ''} there" if free else ""
+        )
+
     def _list(self, args: list[str]) -> str:
         if args:
             raise ConsoleError("list takes nothing after it")
@@ -206,6 +243,7 @@ class LineConsole:
         "unplug": _unplug,
         "replug": _replug,
         "power": _power,
+        "turn": _turn,
         "list": _list,
         "help": _help,
         "quit": _quit,

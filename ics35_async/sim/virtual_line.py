@@ -23,6 +23,7 @@ from typing import NamedTuple, Unpack
 from ..eeprom import BaudRate
 from ..errors import PortBusy
 from ..transports import HostSide
+from ..units import POSITION_MAX, check_int
 from .devices import Device
 from .model import LineModel, LineModelOptions
 from .precise_wait import SPIN_MARGIN, Deliverer
@@ -166,6 +167,26 @@ class VirtualLine(LineModel):
             for servo in servos:
                 servo.update(now)
                 servo.power_cycle()
+            return servos
+
+    def move_by_hand(self, servo_id: int, position: int) -> list[VirtualServo]:
+        """Turn the servos whose ID is ``servo_id`` by hand to ``position`` (host coordinates), as
+        [`VirtualServo.move_by_hand`][ics35_async.sim.VirtualServo.move_by_hand] does: a free one stays
+        there, a holding one turns back to its target at its speed from now on.  Returns them.
+
+        Raises:
+            KeyError: no servo has ID ``servo_id`` (nothing is turned).
+            InvalidArgument: ``position`` is not 1..16383 (nothing is turned).
+        """
+        check_int("position", position, 1, POSITION_MAX)
+        with self._lock:
+            servos = self.table.servos_at(servo_id)
+            if not servos:
+                raise KeyError(f"no servo with ID {servo_id} on the simulated line")
+            now = self.now()
+            for servo in servos:
+                servo.update(now)  # its way so far first: the way back of a holding one starts now
+                servo.move_by_hand(position)
             return servos
 
     def servo_states(self) -> list[ServoState]:
