@@ -521,13 +521,16 @@ class Stream(FrameIterator[Frame]):
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
         period = 1 / self.rate_hz if self.rate_hz else 0.0
-        if wire < period / 2:  # the wire leaves half the period or more: the host, not the line, fell behind
+        if wire < period / 2:
+            # The wire leaves half the period or more: a faster rate would not help.  The time went to the
+            # answers (an adapter's latency timer) or to the host (a busy thread: what holds the loop's thread
+            # back also lengthens the answers it measures, so the two are not told apart here).
             log.warning(
                 "%s; at %d baud its %d position transactions take only %.1f ms of each %.1f ms period on the wire: "
-                "the host was too busy to keep up (a thread of this program computing without pause holds "
-                "Python's GIL, which the stream's event loop then waits for at every transaction: move such work "
-                "to a process, or stream on the compiled path, which needs the GIL once a cycle: see the "
-                "control-loop docs)",
+                "the rest goes to each answer's wait, where an adapter's latency timer adds up to 16 ms "
+                "(ics35 doctor measures it), or to a busy host (a thread of this program computing without "
+                "pause holds Python's GIL, which the stream's event loop waits for at every transaction: see "
+                "the control-loop docs)",
                 late,
                 baud,
                 n,
