@@ -46,6 +46,8 @@ def test_an_old_backup_is_restored_keeping_the_servos_new_rate(cli: Any, sim_lin
     refused = cli(*fast, "eeprom", "restore", str(tmp_path), "--yes")
     assert refused.code == ExitCode.REFUSED
     assert "--keep-baud" in refused.err and "--change-baud" in refused.err
+    said = " ".join(refused.err.split())
+    assert "servo 1" in said and "servo 2" in said, said  # every servo the restore would move, not the first
     assert writes(sim) == [0, 0]
 
     both = cli(*fast, "eeprom", "restore", str(tmp_path), "--keep-baud", "--change-baud", "--yes")

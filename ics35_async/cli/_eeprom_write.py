@@ -152,6 +152,19 @@ async def write_plans(
     ``flag_advice``: what to do instead of clearing a plan's flags, and ``baud_advice``: what to do about a
     refused baud change, in the command's own terms.  A plan made at another rate than the line's now (a
     servo that answers there) is said so, and written and verified at its own rate."""
+    moved = [plan for plan in plans if plan.changes_baud] if not change_baud else []
+    if len(moved) > 1:  # every servo the batch would move, not only the first (each one's rate in words)
+        which = ", ".join(
+            f"servo {plan.servo_id}'s from {baud_text(plan.before.baud_rate)} to {int(plan.after.baud_rate)}"
+            for plan in moved
+        )
+        raise CliError(
+            ExitCode.REFUSED,
+            f"refused: this changes the baud rate of {len(moved)} servos ({which}); from its next power-up each "
+            "answers ONLY at its new rate, and servos at different rates cannot share one bus session. Nothing "
+            "was written",
+            *baud_advice,
+        )
     for plan in plans:
         check_allowed(plan, change_baud=change_baud, allow_id_change=allow_id_change, baud_advice=baud_advice)
     pending = [plan for plan in plans if plan.diff]
