@@ -520,7 +520,7 @@ class Stream(FrameIterator[Frame]):
             return
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
-        period = 1 / self.rate_hz if self.rate_hz else 0.0
+        period = 1 / self.rate_hz if self.rate_hz is not None else 0.0  # (only a paced stream is told)
         if wire < period / 2:
             # The wire leaves half the period or more: a faster rate would not help.  The time went to the
             # answers (an adapter's latency timer) or to the host (a busy thread: what holds the loop's thread
@@ -529,8 +529,8 @@ class Stream(FrameIterator[Frame]):
                 "%s; at %d baud its %d position transactions take only %.1f ms of each %.1f ms period on the wire: "
                 "the rest goes to each answer's wait, where an adapter's latency timer adds up to 16 ms "
                 "(ics35 doctor measures it), or to a busy host (a thread of this program computing without "
-                "pause holds Python's GIL, which the stream's event loop waits for at every transaction: see "
-                "the control-loop docs)",
+                "pause holds Python's GIL, which the stream's event loop needs at each transaction on the "
+                "ordinary path, once a cycle on the compiled one: see the control-loop docs); or ask a lower rate",
                 late,
                 baud,
                 n,

@@ -133,6 +133,16 @@ def test_the_path_reports_itself_built_and_on_unless_turned_off(monkeypatch: pyt
     assert burst_path() == (False, "off by default on darwin, where it has not been tried (ICS35_BURST=1 turns it on)")
     monkeypatch.setenv("ICS35_BURST", "1")
     assert burst_path()[0] is True
+    monkeypatch.setenv("ICS35_BURST", "0")
+    assert burst_path() == (False, "off (ICS35_BURST=0; ICS35_BURST=1 turns it on)")
+    # Where the helper is not built (Windows: never), no setting turns it on, and none is offered.
+    monkeypatch.setattr(burst, "_burst", None)
+    for setting in (None, "1", "0"):
+        if setting is None:
+            monkeypatch.delenv("ICS35_BURST")
+        else:
+            monkeypatch.setenv("ICS35_BURST", setting)
+        assert burst_path()[0] is False and burst_path()[1].startswith("off, not built ("), burst_path()
 
 
 def test_a_whole_plan_runs_and_every_transaction_is_timed(pty_pair: PtyPair) -> None:

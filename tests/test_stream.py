@@ -997,6 +997,7 @@ async def test_a_rate_lost_beyond_the_wire_is_not_blamed_on_the_baud_rate(
         sim.close()
     said = rate_warning(caplog)
     assert "only 0.3 ms of each 10.0 ms period" in said and "latency timer" in said and "GIL" in said, said
+    assert said.endswith("or ask a lower rate"), said
     assert "raise the baud rate" not in said, said
 
 

@@ -69,7 +69,12 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 )
 @click.option("--loop", is_flag=True, help="Play again and again until Ctrl-C (or --seconds).")
 @seconds_option("--seconds", "Stop after this long.", low=0.1)
-@choice_option("--on-stop", ON_CLOSE, "hold", "What the joints do once the motion ends or is stopped.")
+@choice_option(
+    "--on-stop",
+    ON_CLOSE,
+    "hold",
+    "What the joints it opens (the motion's, --start-pose's) do once it ends or is stopped.",
+)
 @seconds_option(
     "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )
@@ -103,20 +108,23 @@ def play(
     began = time.monotonic()
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
+    # Only the joints the motion moves, and those --start-pose states (asked to hold there: a robot's legs just
+    # powered up are free), are opened: the others are not read, freed, commanded or watched, so a joint left
+    # holding stays held (a standing robot's legs under a wave of its arms).  (An unknown stated joint is
+    # refused in body, against the whole robot.)
+    moved = description.only([*motion.joints, *(name for name in start_pose or {} if name in description.joints)])
+    untouched = [name for name in description.joints if name not in moved.joints]
 
     async def body() -> str:
         nonlocal passes, played
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
-        # Only the joints the motion moves (and those --start-pose states) are opened: the others are not
-        # read, freed or commanded, so a joint left holding stays held (a standing robot's legs under a wave).
-        moved = description.only([*motion.joints, *(start_pose or {})])
-        untouched = [name for name in description.joints if name not in moved.joints]
         async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
             if untouched:
                 err.print(
-                    f"[dim]note: joints not named by the motion, left as they are: {escape(', '.join(untouched))}[/dim]"
+                    f"[dim]note: joints neither in the motion nor in --start-pose, left as they are (nor watched by "
+                    f"the file's safety): {escape(', '.join(untouched))}[/dim]"
                 )
             limp = [name for name, mode in robot.start_modes.items() if mode == "free"]
             if limp:
@@ -190,12 +198,12 @@ def play(
                     await robot.free()  # the table's last look shows what they are left in)
             return how
 
-    how = run_robot(settings, description, body, others_left="free" if on_stop == "free" else "holding")
+    how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else "holding")
     length = f"{motion.duration / speed:.1f} s"
     what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
     out.print(
         f"play {how} after {time.monotonic() - began:.1f} s: {what}; "
-        f"joints left {'free' if on_stop == 'free' else 'holding'}"
+        f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened)"
     )
     return 0
 

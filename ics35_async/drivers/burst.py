@@ -82,15 +82,17 @@ def burst_path() -> tuple[bool, str]:
     helper builds there, with ``poll`` in whole milliseconds, but it is tried on Linux only) ``ICS35_BURST=1``
     turns it on.
     """
+    if _burst is None:  # (first: no setting turns on what is not there, Windows included)
+        return False, f"off, not built ({_IMPORT_ERROR}): streams run without it"
+    linux = sys.platform.startswith("linux")
+    turn_on = "unset it to turn the path on" if linux else f"{ENV}=1 turns it on"
     setting = os.environ.get(ENV, "").strip().lower()
     if setting in ("0", "off", "no", "false"):
-        return False, f"off ({ENV}={os.environ[ENV].strip()}; unset it to turn the path on)"
+        return False, f"off ({ENV}={os.environ[ENV].strip()}; {turn_on})"
     if setting not in ("", "1", "on", "yes", "true"):
-        return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; unset it to turn the path on)"
-    if not setting and not sys.platform.startswith("linux"):
+        return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; {turn_on})"
+    if not setting and not linux:
         return False, f"off by default on {sys.platform}, where it has not been tried ({ENV}=1 turns it on)"
-    if _burst is None:
-        return False, f"off, not built ({_IMPORT_ERROR}): streams run without it"
     return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
 
 
