@@ -112,8 +112,8 @@ def play(
     # powered up are free), are opened: the others are not read, freed, commanded or watched, so a joint left
     # holding stays held (a standing robot's legs under a wave of its arms).  (An unknown stated joint is
     # refused in body, against the whole robot.)
-    moved = description.only([*motion.joints, *(name for name in start_pose or {} if name in description.joints)])
-    untouched = [name for name in description.joints if name not in moved.joints]
+    moved = description.only([*motion.joints, *(joint for joint in start_pose or {} if joint in description.joints)])
+    untouched = [joint for joint in description.joints if joint not in moved.joints]
 
     async def body() -> str:
         nonlocal passes, played
