@@ -25,6 +25,7 @@ from .failure_kinds import (
     echo_setting_wrong,
     id0_top_bit_differs,
     nothing_came_back,
+    reopening,
 )
 from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
 from .no_reply import NoReply, NoReplyCause, why_no_reply
@@ -69,6 +70,7 @@ __all__ = [
     "plan_position_stream",
     "probe_ids",
     "read_position_without_freeing",
+    "reopening",
     "read_eeprom_agreed",
     "scan",
     "servo_rates",

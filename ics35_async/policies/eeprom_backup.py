@@ -23,9 +23,8 @@ both of them the one backup).
 
 from __future__ import annotations
 
-import contextlib
 import datetime
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,7 +33,7 @@ from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, UnsafeOperation
 from ..transports import carries_line_settings
 from .eeprom_write import EepromPlan, back_at_rate, check_changes, plan_eeprom_write
-from .failure_kinds import Line, LineOpener
+from .failure_kinds import Line, reopening
 from .scan import ALL_BAUDS, probe_ids, scan
 
 BACKUP_FORMAT = "ics35-eeprom/1"
@@ -187,18 +186,6 @@ class RestoreRates:
             f"ID {i} answers at {' and '.join(f'{b:,}' for b in at)} baud" for i, at in sorted(self.several.items())
         )
         return f"{which}: one servo at each rate, and which one its backup belongs to cannot be told"
-
-
-def reopening(line: Line) -> LineOpener:
-    """``line`` as a :data:`.LineOpener`: "opened" at a rate, it is reopened there (and left so)."""
-
-    @contextlib.asynccontextmanager
-    async def at(baud: int) -> AsyncIterator[Line]:
-        if baud != int(line.baudrate):
-            await line.reopen(baudrate=baud)
-        yield line
-
-    return at
 
 
 async def restore_rates(line: Line, ids: Iterable[int], *, bauds: Iterable[int] = ALL_BAUDS) -> RestoreRates:

@@ -7,7 +7,8 @@ rewrite of the core and can be driven by any object with its members
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import AsyncIterator, Callable
 from contextlib import AbstractAsyncContextManager
 from typing import TypeVar
 
@@ -22,6 +23,18 @@ T = TypeVar("T")
 # (``lambda baud: open_bus(port, baudrate=baud)``).  Scans take this rather than one open
 # line because a rate the adapter cannot do must not cost the line for the other rates.
 LineOpener = Callable[[int], AbstractAsyncContextManager[Line]]
+
+
+def reopening(line: Line) -> LineOpener:
+    """``line`` as a :data:`.LineOpener`: "opened" at a rate, it is reopened there (and left so)."""
+
+    @contextlib.asynccontextmanager
+    async def at(baud: int) -> AsyncIterator[Line]:
+        if baud != int(line.baudrate):
+            await line.reopen(baudrate=baud)
+        yield line
+
+    return at
 
 
 def nothing_came_back(exc: ReplyError) -> bool:

@@ -40,11 +40,11 @@ from ..errors import (
 from ..policies import (
     EepromPlan,
     FoundServo,
-    LineOpener,
     NoReply,
     NoReplyCause,
     plan_eeprom_write,
     read_position_without_freeing,
+    reopening,
     scan,
     survey_for_id_write,
     why_no_reply,
@@ -269,18 +269,6 @@ class LineSession:
 
     # ------------------------------------------------------------------ scan
 
-    @staticmethod
-    def _opener(bus: Bus) -> LineOpener:
-        """``bus`` reopened at a rate, for policies.scan and why_no_reply (called holding :attr:`exclusive`)."""
-
-        @contextlib.asynccontextmanager
-        async def at_rate(baud: int) -> AsyncIterator[Bus]:
-            if baud != bus.baudrate:
-                await bus.reopen(baudrate=baud)
-            yield bus
-
-        return at_rate
-
     async def scan(self, bauds: list[int] | None = None, ids: list[int] | None = None) -> dict[str, Any]:
         """Probe ``ids`` at ``bauds`` (policies.scan), then return the line to its own rate."""
         bauds = bauds or [self.config.baud]
@@ -298,7 +286,7 @@ class LineSession:
                 self.progress.done += n
 
             try:
-                report = await scan(self._opener(bus), bauds=checked, ids=wanted, on_probe=step)
+                report = await scan(reopening(bus), bauds=checked, ids=wanted, on_probe=step)
             finally:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
@@ -414,7 +402,7 @@ class LineSession:
                     )
                 search = not_tried is None and looked is None
                 try:
-                    opener, echo = self._opener(bus), self.config.echo
+                    opener, echo = reopening(bus), self.config.echo
                     finding = await why_no_reply(exc, opener, baud, echo=echo, other_rates=search)
                 finally:
                     if bus.is_open and bus.baudrate != baud:
