@@ -380,6 +380,23 @@ def test_set_id_refused_with_a_shared_id(cli: Any, sim_line: Any) -> None:
     assert [s.servo_id for s in sim.servos] == [3, 3]
 
 
+def test_set_id_names_the_rate_a_lone_servo_answers_at(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([VirtualServo(3, baud_rate=625000)])
+    result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
+    assert result.code == ExitCode.WRONG_BAUD, result.err
+    assert "625000" in result.err and "--baud 625000" in result.err
+    assert [s.servo_id for s in sim.servos] == [3]  # nothing written
+    assert cli("--port", url, "--baud", "625000", "set-id", "9", "--yes").code == 0
+    assert [s.servo_id for s in sim.servos] == [9]
+
+
+def test_set_id_on_an_empty_line_says_nothing_answered(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([])
+    result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    assert "--baud" not in result.err
+
+
 def test_demo_leaves_every_servo_free(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line(range(4))
     result = cli("--port", url, "demo", "--ids", "0-3", "--seconds", "0.5")

@@ -292,6 +292,20 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(serve
     assert [s.servo_id for s in sim1.servos] == [9]
 
 
+def test_renumbering_a_servo_at_another_rate_names_that_rate_and_leaves_the_line_at_its_own(serve: Any) -> None:
+    client, sim = serve(())
+    sim.add_device(VirtualServo(4, baud_rate=625000))
+    survey = post(client, "/api/id/survey").json()
+    assert survey["lone_id"] is None and "625000 baud" in survey["refusal"], survey
+    refused = post(client, "/api/id/write", {"new_id": 9})
+    assert refused.status_code == 409 and "625000 baud" in refused.json()["error"]
+    assert [s.servo_id for s in sim.servos] == [4]  # nothing written
+    assert post(client, "/api/id/survey").json()["baud"] == 115200  # the line is back at its rate
+    post(client, "/api/connect", {"baud": 625000})
+    assert post(client, "/api/id/write", {"new_id": 9}).json()["written"]
+    assert [s.servo_id for s in sim.servos] == [9]
+
+
 def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limits(serve: Any) -> None:
     client, sim = serve()
     sim.servo(1).eeprom = sim.servo(1).eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)

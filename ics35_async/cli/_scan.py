@@ -265,6 +265,13 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
         if echo_setting_wrong(exc, settings.echo):
             raise translate(settings, exc)  # the same diagnosis `get` gives
     refusal = survey.refusal
+    if refusal is Refusal.NOBODY and survey.elsewhere:
+        raise CliError(
+            ExitCode.WRONG_BAUD,
+            f"no servo answered on {settings.port} at {settings.baud} baud, but a device answers at "
+            f"{survey.elsewhere[0]} baud. Nothing was written",
+            f"pass --baud {survey.elsewhere[0]}",
+        )
     if refusal is Refusal.NOBODY:
         raise nothing_answered(settings, f"{settings.port} at {settings.baud} baud", silent=survey.silent)
     if refusal is not None:
@@ -290,6 +297,7 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     async def body() -> tuple[int, int]:
         async with settings.bus() as bus:
             survey = await policies.survey_for_id_write(bus)
+            survey = await policies.look_elsewhere(survey, policies.reopening(bus), echo=settings.echo)
             old = refuse_unless_alone(settings, survey, new_id)
             if old == new_id:
                 return old, new_id

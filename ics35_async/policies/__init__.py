@@ -27,7 +27,7 @@ from .failure_kinds import (
     nothing_came_back,
     reopening,
 )
-from .id_write import IdChange, IdSurvey, Refusal, survey_for_id_write, write_lone_id
+from .id_write import IdChange, IdSurvey, Refusal, look_elsewhere, survey_for_id_write, write_lone_id
 from .no_reply import NoReply, NoReplyCause, why_no_reply
 from .position_read import (
     NO_READ_ICS35,
@@ -36,7 +36,7 @@ from .position_read import (
     plan_position_stream,
     read_position_without_freeing,
 )
-from .scan import ALL_BAUDS, ALL_IDS, RateScan, ScanReport, anyone_there, probe_ids, scan, servo_rates
+from .scan import ALL_BAUDS, ALL_IDS, RateScan, ScanReport, anyone_there, device_rates, probe_ids, scan, servo_rates
 from .scan_units import FoundServo, read_eeprom_agreed
 
 __all__ = [
@@ -63,8 +63,10 @@ __all__ = [
     "WriteOutcome",
     "anyone_there",
     "check_changes",
+    "device_rates",
     "echo_setting_wrong",
     "edit_image",
+    "look_elsewhere",
     "nothing_came_back",
     "plan_eeprom_write",
     "plan_position_stream",

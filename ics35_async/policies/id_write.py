@@ -24,15 +24,16 @@ transactions), since nothing after it would catch its late reply (see
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from .. import protocol
-from ..errors import ReplyError, UnsafeOperation, VerifyError
+from ..errors import IcsError, ReplyError, UnsafeOperation, VerifyError
 from ..protocol import Param
-from .failure_kinds import Line, answers_short_read, nothing_came_back
-from .scan import ALL_IDS, probe_ids
+from .failure_kinds import Line, LineOpener, answers_short_read, nothing_came_back
+from .scan import ALL_BAUDS, ALL_IDS, device_rates, probe_ids
 
 
 class Refusal(enum.Enum):
@@ -54,6 +55,7 @@ class IdSurvey:
     answered: tuple[int, ...] = ()  # IDs answering a stretch read
     garbled: Mapping[int, ReplyError] = field(default_factory=dict)
     silent: bool = False  # not one byte came back, not even the echo
+    elsewhere: tuple[int, ...] = ()  # nobody answered: the other rates a device answers at (see look_elsewhere)
 
     @property
     def refusal(self) -> Refusal | None:
@@ -79,6 +81,8 @@ class IdSurvey:
         refusal = self.refusal
         ids = ", ".join(map(str, self.answered))
         if refusal is Refusal.NOBODY:
+            if self.elsewhere:
+                return f"no device answered at {self.baud} baud, but one does at {self.elsewhere[0]} baud"
             return f"no device answered at {self.baud} baud"
         if refusal is Refusal.GARBLED:
             shared = ", ".join(map(str, sorted(self.garbled)))
@@ -123,6 +127,23 @@ async def survey_for_id_write(line: Line) -> IdSurvey:
         # One servo answers alone: the garbled ID read may have been noise.  Ask once more.
         seen, error = await _read_id(line)
     return IdSurvey(baud, seen, error, rate.answered, rate.garbled, line.stats.total.bytes_rx == rx_before)
+
+
+async def look_elsewhere(survey: IdSurvey, open_at: LineOpener, *, echo: bool = True) -> IdSurvey:
+    """``survey``, with the other rates a device answers at (``elsewhere``) when none answered at its own.
+
+    A servo set to another baud rate is silent at this one: the refusal then names the rate to open the
+    line at.  Not looked for when not even the echo came back (``echo``: the line loops what it sends):
+    the adapter or its wiring, which no rate mends.  ``open_at(baud)`` opens the line at a rate, as for
+    :func:`~.scan.scan` (:func:`~.failure_kinds.reopening` leaves a line at the last rate tried).
+    """
+    if survey.refusal is not Refusal.NOBODY or (survey.silent and echo):
+        return survey
+    try:
+        found = await device_rates(open_at, [rate for rate in ALL_BAUDS if rate != survey.baud])
+    except (IcsError, OSError):
+        found = ()  # advice only: a port that cannot be opened again leaves the refusal as it was
+    return dataclasses.replace(survey, elsewhere=found)
 
 
 async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = None) -> IdChange:

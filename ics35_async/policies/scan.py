@@ -323,6 +323,27 @@ async def scan(
     return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), reasons, rate_blind)
 
 
+async def device_rates(open_at: LineOpener, bauds: Iterable[int]) -> tuple[int, ...]:
+    """The rates among ``bauds`` at which some device answers the ID read (garbled counts: several answer).
+
+    For advice after nothing answered at a line's rate, where no servo ID is known (an ID write).  A
+    rate the port cannot be opened at is left out; on a line that ignores rates none is offered.
+    ``open_at(baud)`` opens the line at a rate, as for :func:`scan`.
+    """
+    found: list[int] = []
+    skipped: dict[int, IcsError] = {}
+    for baud in _check_bauds(bauds):
+        async with contextlib.AsyncExitStack() as stack:
+            line = await _open_or_skip(stack, open_at, baud, skipped)
+            if line is None:
+                continue
+            if not carries_line_settings(getattr(line, "port", None)):
+                return ()  # every rate is the far end's one rate: none to offer
+            if await anyone_there(line):
+                found.append(baud)
+    return tuple(found)
+
+
 async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``servo_id`` answers and its EEPROM names that rate.
 

@@ -40,8 +40,11 @@ from ..errors import (
 from ..policies import (
     EepromPlan,
     FoundServo,
+    IdSurvey,
     NoReply,
     NoReplyCause,
+    Refusal,
+    look_elsewhere,
     plan_eeprom_write,
     read_position_without_freeing,
     reopening,
@@ -647,7 +650,7 @@ class LineSession:
         self._refuse_on_robot_line("renumbering", "it needs one servo alone on a line of its own")
         await self.stop_live()
         async with self.exclusive:
-            return survey_view(await survey_for_id_write(await self._line_at_its_rate()))
+            return survey_view(await self._survey_for_id_write(await self._line_at_its_rate()))
 
     async def renumber(self, new_id: int) -> dict[str, Any]:
         """The guarded one-servo ID write (policies.id_write): refused unless exactly one device answers."""
@@ -657,11 +660,24 @@ class LineSession:
         async with self.exclusive:
             bus = await self._line_at_its_rate()
             self._looked = {}  # a servo moved to another ID: look for silent ones anew
-            survey = await survey_for_id_write(bus)
+            survey = await self._survey_for_id_write(bus)
             change = await write_lone_id(bus, new_id, survey=survey)
         if change.written and change.old_id in self._limits:
             self._limits[new_id] = self._limits.pop(change.old_id)
         return {"old_id": change.old_id, "new_id": change.new_id, "written": change.written}
+
+    async def _survey_for_id_write(self, bus: Bus) -> IdSurvey:
+        """The survey before an ID write; when nobody answered, the other rates a device answers at
+        (policies.look_elsewhere: the port reopened at each, then at the line's own rate again)."""
+        survey = await survey_for_id_write(bus)
+        if survey.refusal is not Refusal.NOBODY or self._other_rates_not_tried() is not None:
+            return survey
+        baud = int(bus.baudrate)
+        try:
+            return await look_elsewhere(survey, reopening(bus), echo=self.config.echo)
+        finally:
+            if bus.is_open and bus.baudrate != baud:
+                await bus.reopen(baudrate=baud)
 
     # ------------------------------------------------------------------ live
 
