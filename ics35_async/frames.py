@@ -45,7 +45,7 @@ class Frame:
 
     Trouble the stream itself went through shows here too: ``missed_slots``,
     how many of a paced stream's slots passed with no cycle before this one
-    (a stalled program or line, a pause); ``resumed``, True on the first frame
+    (a stalled program or line, a pause, a lost port's outage); ``resumed``, True on the first frame
     after the line came back from a lost port; ``held``, the IDs that get no
     command since then until the program sets their target again (see
     ``Stream(on_resume=...)``).
@@ -95,7 +95,7 @@ class StreamStats:
     - ``jitter``: standard deviation of the interval between cycle starts.
     - ``overruns``: cycles whose own work ran past the next slot (a paced stream).
     - ``missed_slots``: slots that passed with no cycle at all (the stream re-anchors rather than
-      bursting to catch up).
+      bursting to catch up), a lost port's outage included.
     - ``frames_dropped``: frames no consumer looked at before the next one replaced them.
     - ``failures``: failed transactions per ID; ``offline``: the IDs out of the cycle now.
     """

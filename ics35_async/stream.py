@@ -481,7 +481,7 @@ class Stream(FrameIterator[Frame]):
         self._slot_checked = True
         self._resumed = True
         if self.rate_hz is not None and self._cycle:
-            self._t0 = now - self._cycle / self.rate_hz
+            self._reanchor(now, self._t0 + self._cycle / self.rate_hz)  # (the outage's slots count as missed)
 
     def _tell_rate_not_kept(self, now: float) -> None:
         """Warn once that the rate is not kept, with the likeliest cause: the stream's own silent servos,
@@ -575,11 +575,7 @@ class Stream(FrameIterator[Frame]):
                 self._wake_at = due
                 return False
             if now - due > 1 / self.rate_hz:
-                # A whole slot missed: re-anchor instead of bursting to catch up.
-                missed = int((now - due) * self.rate_hz)
-                self._missed += missed
-                self._frame_missed += missed
-                self._t0 = now - self._cycle / self.rate_hz
+                self._reanchor(now, due)
         if not self._cycle:
             self._t0 = now
             self._first_start = now
@@ -608,6 +604,16 @@ class Stream(FrameIterator[Frame]):
             self._wake_at = min([*probes, slot])
             return False
         return True
+
+    def _reanchor(self, now: float, due: float) -> None:
+        """A paced stream's next cycle starts now (on a fresh schedule, rather than bursting to catch up),
+        its cycle number ``self._cycle + 1`` having been due at ``due``: the whole slots since are missed."""
+        rate = self.rate_hz
+        assert rate is not None
+        missed = max(0, int((now - due) * rate))
+        self._missed += missed
+        self._frame_missed += missed
+        self._t0 = now - self._cycle / rate
 
     def _publish(self, now: float) -> None:
         self._slot_checked = False

@@ -604,6 +604,24 @@ async def test_losing_the_port_with_reconnect_resumes_the_stream(driver: str) ->
         assert not frame.failed and not frame.offline
 
 
+async def test_the_slots_a_paced_stream_missed_while_its_port_was_lost_are_counted() -> None:
+    # The control-loop page: missed_slots are "slots that passed with no cycle: your program or the line
+    # stalled"; after an outage the resumed frame said 0, so a loop's log showed no gap at all.
+    ids = [1, 2]
+    sim = make_sim(ids)
+    async with open_bus(sim, reconnect=True, **FAST) as bus, bus.stream(ids, rate_hz=100) as stream:
+        stream.set_targets(dict.fromkeys(ids, 7500))
+        for _ in range(3):
+            before = await next_frame(stream)
+        sim.unplug(replug_after=0.3)
+        frames = await frames_until(stream, lambda f: f.resumed)
+        resumed = frames[-1]
+        gap = resumed.started - before.started  # the slots between are missed (bar the ones frames used)
+        used = len(frames) - 1
+        assert resumed.missed_slots + used >= int(gap * 100) - 2, (resumed.missed_slots, used, gap)
+        assert stream.stats.missed_slots >= resumed.missed_slots > 0
+
+
 async def test_a_group_frame_says_which_line_came_back_and_which_servos_it_holds() -> None:
     # A hexapod's gait over two lines: the right line reconnected and the gait drove its legs straight
     # back to their old targets; a group frame had no resumed or held (only each line's own frames had).
