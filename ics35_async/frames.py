@@ -47,8 +47,9 @@ class Frame:
     how many of a paced stream's slots passed with no cycle before this one
     (a stalled program or line, a pause, a lost port's outage); ``resumed``, True on the first frame
     after the line came back from a lost port; ``held``, the IDs that get no
-    command since then until the program sets their target again (see
-    ``Stream(on_resume=...)``).
+    command since then, or since they came back from offline (an ID back this
+    cycle is in neither ``positions`` nor ``failed``), until the program sets
+    their target again (see ``Stream(on_resume=...)``).
     """
 
     cycle: int
@@ -140,4 +141,5 @@ class GroupFrame:
     """The lines whose lost port came back since the previous frame (see :attr:`Frame.resumed`): their servos may
     have restarted elsewhere; decide before moving them."""
     held: frozenset[tuple[str, int]] = frozenset()
-    """The servos held after their line came back, sent nothing until their target is set again."""
+    """The servos held after their line came back (or they came back from offline), sent nothing until their
+    target is set again."""

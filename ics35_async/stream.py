@@ -82,14 +82,16 @@ class Stream(FrameIterator[Frame]):
         bus: the line to stream on (a [`Bus`][ics35_async.bus.Bus] or another [`Line`][ics35_async.line.Line]).
         ids: the servo IDs of each cycle, in order (0..31, at least one, no repeats).
         rate_hz: cycles per second, paced (``None``: cycles back to back, as fast as the line allows).
-        offline_after: failed cycles in a row before an ID leaves the cycle (it is probed meanwhile).
+        offline_after: failed cycles in a row before an ID leaves the cycle (it is probed meanwhile: an ID
+            with a position target by a parameter read, which moves nothing; it comes back as ``on_resume`` says).
         probe_interval: seconds between probes of an offline ID.
         free_on_close: deprecated: ``on_close="free"``.
         history: how many cycles the statistics look back over.
         on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
             since the last cycle is sent as the stream closes) or ``"free"`` (torque off).
-        on_resume: after a lost port comes back: ``"wait"`` (hold every ID, sending no command,
-            until the program sets its target again) or ``"free"``.
+        on_resume: after a lost port comes back, or an offline ID answers again: ``"wait"`` (hold each
+            such ID that had a position target, sending no command, until the program sets its target
+            again) or ``"free"``.
         watch: IDs (ICS 3.6 servos) read with the position read instead of starting free.
 
     Raises:
@@ -138,7 +140,7 @@ class Stream(FrameIterator[Frame]):
         self._index = {sid: k for k, sid in enumerate(id_list)}
         self._targets = [protocol.FREE] * n
         self._jobs = [(protocol.position_tx(sid, protocol.FREE), 3, sid) for sid in id_list]
-        self._readers: list[protocol.ReadPosition | None] = [None] * n
+        self._readers: list[protocol.ReadPosition | protocol.ReadParam | None] = [None] * n
         self._headers = [protocol.position_reply_header(sid, bus.baudrate) for sid in id_list]
         self._shapes = [protocol.position_reply_shape(header) for header in self._headers]  # (for bursts)
         self._positions = [-1] * n
@@ -148,7 +150,8 @@ class Stream(FrameIterator[Frame]):
         self._failures = [0] * n
         self._offline = [False] * n
         self._next_probe = [0.0] * n
-        self._held = [False] * n  # after a resume: no command until the program sets a target
+        self._held = [False] * n  # after a resume or a rejoin: no command until the program sets a target
+        self._rejoined: set[int] = set()  # slots back from offline in the cycle in progress (see _rejoin)
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
         # A slot leaves it when a reply comes to the job that carries its current target (see _complete).
@@ -164,7 +167,7 @@ class Stream(FrameIterator[Frame]):
         self._order: list[int] = []
         self._pos = 0
         self._cur = -1
-        self._cur_reader: protocol.ReadPosition | None = None  # how the reply on the wire is read
+        self._cur_reader: protocol.ReadPosition | protocol.ReadParam | None = None  # how the reply on the wire is read
         self._cur_job: tuple[bytes, int, int] | None = None  # the job on the wire, as handed out
         self._cycle = 0
         self._cycle_start = 0.0
@@ -321,10 +324,17 @@ class Stream(FrameIterator[Frame]):
             self.bus.kick()
 
     def _renew_job(self, k: int) -> None:
-        """The command that carries ID slot ``k``'s target, and how its reply is read."""
+        """The command that carries ID slot ``k``'s target, and how its reply is read.
+
+        An offline ID with a position target is probed with a parameter read, which moves nothing: its servo
+        may have restarted (a brown-out: free, where the load left it) and its old target would throw it there
+        at full speed.  Once it answers it comes back held or free (see :meth:`_rejoin`).  Free and watched IDs
+        are probed with their own command: neither moves a servo.
+        """
         sid, target = self.ids[k], self._targets[k]
-        if target == WATCH:
-            reader = protocol.ReadPosition(sid)
+        reader: protocol.ReadPosition | protocol.ReadParam
+        if target == WATCH or (self._offline[k] and target != protocol.FREE):
+            reader = protocol.ReadPosition(sid) if target == WATCH else protocol.ReadParam(sid, protocol.Param.STRETCH)
             self._readers[k] = reader
             self._jobs[k] = (reader.tx, reader.reply_len, sid)
         else:
@@ -412,11 +422,15 @@ class Stream(FrameIterator[Frame]):
         if k < 0:
             return None  # not ours: the bus routes only our own, but stay safe
         reader = self._cur_reader
-        if reader is not None:  # a watched ID: ICS 3.6's position read
+        if reader is not None:  # a watched ID (ICS 3.6's position read), or an offline one's probe
             try:
                 position = reader.parse(bytes(buf[offset:]))
             except ReplyError as exc:
                 return exc
+            if type(reader) is protocol.ReadParam:  # (a stretch, not a position)
+                self._rejoin(k)
+                self._advance(now)
+                return None
         else:
             position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
@@ -447,9 +461,30 @@ class Stream(FrameIterator[Frame]):
         self._fail_run[k] += 1
         if self._fail_run[k] >= self.offline_after and not self._offline[k]:
             self._offline[k] = True
+            self._job_changed(k)  # probed with a read from now on (see _renew_job)
         if self._offline[k]:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
+
+    def _rejoin(self, k: int) -> None:
+        """Offline ID slot ``k`` answered its probe.  Its servo may have restarted meanwhile (free, elsewhere):
+        as after a lost port (see _line_resumed), a position target waits for the program (held: no command
+        until it sets the target again) or is dropped for free, as ``on_resume`` says."""
+        self._fail_run[k] = 0
+        self._offline[k] = False
+        self._rejoined.add(k)
+        if self.on_resume == "free":
+            self._targets[k] = protocol.FREE
+        else:
+            self._held[k] = True
+        self._job_changed(k)
+
+    def _job_changed(self, k: int) -> None:
+        """Slot ``k``'s command is to change: now, or where a running burst that planned it is over."""
+        if k in self._frozen:
+            self._stale.add(k)
+        else:
+            self._renew_job(k)
 
     def _skip(self, now: float) -> None:
         # The engine held this ID's transaction back (its reply to a failed command may still
@@ -625,8 +660,9 @@ class Stream(FrameIterator[Frame]):
             if self._answered[k]:
                 positions[ids[k]] = self._positions[k]
                 stamps[ids[k]] = self._stamps[k]
-            else:
+            elif k not in self._rejoined:  # (back from offline: answered a read that gives no position)
                 failed.append(ids[k])
+        self._rejoined.clear()
         self._order = []
         self._pos = 0
         self._cycle_times.append(now - self._cycle_start)

@@ -266,6 +266,49 @@ def test_a_motion_gives_up_the_joints_of_a_line_that_comes_back_and_they_wait_fo
     run_robot(rig, body, reconnect=True)
 
 
+def test_a_joint_back_from_offline_is_given_up_by_its_motion_and_waits_for_a_target() -> None:
+    # A servo browned out under a robot that carries on past offline joints ([safety] continue_on_offline):
+    # it restarted free where the load left it, and the probe that found it again threw it to the motion's
+    # target.  It comes back held: the motion gives it up and nothing moves it until a target is set.
+    rig = make_rig(safety={"continue_on_offline": True})
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"elbow": 30.0, "neck": 0.0}, duration=0.05)
+        outcome: list[BaseException] = []
+
+        async def move() -> None:
+            try:
+                await robot.move_to({"elbow": 80.0, "neck": 30.0}, duration=1.0)
+            except MotionStopped as exc:
+                outcome.append(exc)
+
+        async with anyio.create_task_group() as group:
+            group.start_soon(move)
+            await robot.wait_frame((await robot.wait_frame(0)).cycle + 3)
+            elbow = rig.upper.remove_servo(3)
+            with anyio.fail_after(GUARD):
+                while "elbow" not in (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).offline:
+                    pass
+            rig.upper.add_device(elbow)
+            rig.upper.power_cycle(3)  # restarted: free, where the load left it
+            since = rig.upper.transactions
+            with anyio.fail_after(GUARD):
+                while not (frame := await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held:
+                    pass
+            assert frame.held == {"elbow"} and not frame.offline, frame
+        assert outcome and "elbow came back after going offline" in str(outcome[0]), outcome
+        assert targets_sent(rig.upper, 1)[-1] == sent_position(JOINTS["neck"], 30.0)  # neck went on to its end
+        assert targets_sent(rig.upper, 3, since) == [] and elbow.free  # nothing moved the elbow
+        with pytest.raises(UnsafeOperation, match="elbow is held since it came back after going offline"):
+            await robot.move_to({"elbow": 40.0}, duration=0.1)
+        robot.set_targets({"elbow": 40.0})
+        await robot.on_wire(["elbow"])
+        assert targets_sent(rig.upper, 3, since)[-1] == sent_position(JOINTS["elbow"], 40.0)
+        await robot.move_to({"elbow": 50.0}, duration=0.05)  # a target set: motions may move it again
+
+    run_robot(rig, body, offline_after=2, probe_interval=0.02)
+
+
 def test_free_hold_and_the_joint_space_stream() -> None:
     rig = make_rig()
 

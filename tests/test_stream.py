@@ -44,6 +44,7 @@ from ics35_async.stream import RATE_CHECK_CYCLES
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
 
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
+STREAM_COMMANDS = (*POSITION_COMMANDS, "read_stretch")  # (an offline ID with a target is probed with a read)
 
 
 def start_position(i: int) -> int:
@@ -113,16 +114,20 @@ def split_cycles(entries: Sequence[Transaction], ids: Sequence[int]) -> list[lis
 
 def check_frame(frame: Frame, cycle_log: Sequence[Transaction]) -> None:
     """The frame holds exactly what the servos reported in that cycle; silent IDs are ``failed``."""
-    assert frame.positions == {t.servo_id: t.value for t in cycle_log if t.reply}, frame.cycle
+    assert frame.positions == {t.servo_id: t.value for t in cycle_log if t.reply and t.command != "read_stretch"}
     assert frame.failed == {t.servo_id for t in cycle_log if not t.reply}, frame.cycle
     assert set(frame.timestamps) == set(frame.positions)
     assert frame.started <= min(frame.timestamps.values(), default=frame.started)
     assert max(frame.timestamps.values(), default=frame.finished) <= frame.finished
 
 
-def check_frames(frames: Iterable[Frame], sim: VirtualLine, ids: Sequence[int], since: int = 0) -> None:
-    """Check frames of a stream whose first cycle began at log seq ``since`` (no other position traffic)."""
-    cycles = split_cycles(position_log(sim, since), ids)
+def check_frames(
+    frames: Iterable[Frame], sim: VirtualLine, ids: Sequence[int], since: int = 0, commands: Sequence[str] = ()
+) -> None:
+    """Check frames of a stream whose first cycle began at log seq ``since`` (no other position traffic;
+    ``commands``: the stream's others, an offline ID's probe reads: ``STREAM_COMMANDS``)."""
+    commands = commands or POSITION_COMMANDS
+    cycles = split_cycles([t for t in sim.log_since(since) if t.command in commands], ids)
     for frame in frames:
         check_frame(frame, cycles[frame.cycle - 1])
 
@@ -288,12 +293,15 @@ async def test_dead_id_goes_offline_is_probed_at_a_low_rate_and_rejoins() -> Non
 
         seq_alive = sim.transactions
         sim.servo(dead).baud_rate = BaudRate.B115200
-        back = await frames_until(stream, lambda f: dead in f.positions)
+        back = await frames_until(stream, lambda f: dead not in f.offline)
+        assert back[-1].held == {dead}  # back from offline: held until its target is set again
+        stream.set_target(dead, 6000 + 60 * dead)
+        back += await frames_until(stream, lambda f: dead in f.positions)
         after = [await next_frame(stream) for _ in range(3)]
         stats = stream.stats
 
     # Every frame holds what the servos reported; the others answered in every cycle.
-    check_frames(healthy + going + offline + back + after, sim, ids)
+    check_frames(healthy + going + offline + back + after, sim, ids, commands=STREAM_COMMANDS)
     for frame in going + offline:
         assert others <= set(frame.positions)
         assert frame.failed <= {dead}
@@ -311,10 +319,52 @@ async def test_dead_id_goes_offline_is_probed_at_a_low_rate_and_rejoins() -> Non
     assert silent[3].seq - silent[2].seq > 32  # the cycle after it went offline did not try it
     assert stats.failures[dead] == len(silent)
 
-    # It rejoined: frames include it again and nothing is offline.
+    # It rejoined (probed with reads, which move nothing, then held until targeted again): frames include it
+    # again and nothing is offline.
+    probes_sent = {t.command for t in dead_txns(seq_obs) if t.seq < seq_alive}
+    assert probes_sent == {"read_stretch"}, probes_sent
     assert back[-1].offline == frozenset() and back[-1].failed == frozenset()
     assert all(set(f.positions) == set(ids) and not f.offline for f in after)
     assert stats.offline == frozenset()
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+@pytest.mark.parametrize("on_resume", ["wait", "free"])
+async def test_a_servo_back_from_offline_is_not_thrown_to_its_old_target(driver: str, on_resume: str) -> None:
+    # A servo browned out mid-stream (a humanoid's knee sagging under load): it went offline, restarted free
+    # where the robot's weight left it, and the probe that found it again was its old position command, which
+    # threw it there at full speed.  An offline ID is probed with a read that moves nothing, and comes back held
+    # (no command until the program sets its target again) or free, as after a lost port.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    opened = open_bus(sim, driver=driver, **FAST)
+    async with opened as bus, bus.stream(ids, offline_after=2, probe_interval=0.02, on_resume=on_resume) as stream:
+        old = {i: start_position(i) + 900 for i in ids}
+        stream.set_targets(old)
+        await frames_until(stream, lambda f: all(abs(f.positions.get(i, 0) - old[i]) < 20 for i in ids))
+        knee = sim.remove_servo(2)
+        await frames_until(stream, lambda f: 2 in f.offline)
+        sim.add_device(knee)
+        sim.power_cycle(2)  # it restarted: free, where the weight left it
+        knee.move_by_hand(start_position(2))
+        seq = sim.transactions
+        back = (await frames_until(stream, lambda f: 2 not in f.offline))[-1]
+        more = [await next_frame(stream) for _ in range(3)]
+        to_knee = [t for t in sim.log_since(seq) if t.servo_id == 2]
+        assert to_knee and not [t for t in to_knee if t.command == "position"], to_knee[:3]
+        assert knee.position == start_position(2)  # not moved
+        assert 2 not in back.failed and not back.offline
+        if on_resume == "wait":
+            assert all(f.held == {2} for f in [back, *more]) and stream.target(2) == old[2]
+            assert all(t.command != "free" for t in to_knee)  # nor freed: a held servo gets nothing
+            stream.set_target(2, start_position(2) + 50)  # the program decides again
+            await frames_until(stream, lambda f: 2 in f.positions and not f.held)
+            await wait_for_sim(lambda: knee.target == start_position(2) + 50, "the new target reached the knee")
+        else:
+            assert not back.held and stream.target(2) == FREE
+            await frames_until(stream, lambda f: f.positions.get(2) == start_position(2))
+        # The others carried on meanwhile.
+        assert all({1, 3} <= set(f.positions) for f in more)
 
 
 async def test_a_stalled_event_loop_does_not_fail_a_healthy_servo() -> None:

@@ -31,7 +31,8 @@ class RobotFrame:
     """The lines whose lost port came back with this frame (opened with ``reconnect=True``): the motions
     moving their joints gave them up, and those joints are :attr:`held`."""
     held: frozenset[str] = frozenset()
-    """The joints on a line that came back, sent nothing until a target is set for them again: their servos
+    """The joints on a line that came back (or whose servo came back from offline), sent nothing until a target
+    is set for them again: their servos
     may have restarted, free and elsewhere, and where they are is unknown until they answer again (an ICS
     3.6 servo's position can be read: ``robot.group[line].servo(id).read_position()``).  Decide before
     moving them; a target set for one (``set_targets``, a motion) ends its hold."""

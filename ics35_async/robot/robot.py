@@ -61,8 +61,10 @@ class Robot:
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
         self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
-        # Joints held since their line came back, not yet given a target: they answer nothing (see _line_resumed).
-        self._held: set[str] = set()
+        # Joints held since their line came back or their servo came back from offline, not yet given a target,
+        # and since when (for messages): they answer nothing (see _give_up).
+        self._held: dict[str, str] = {}
+        self._offline: frozenset[str] = frozenset()  # the joints offline in the last frame
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
         self._plans: list[Plan] = []
@@ -156,7 +158,7 @@ class Robot:
         has answered ``replies`` times from now on."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline | self._held):
+        while frame is None or not counter.reached(replies, frame.offline | self._held.keys()):
             frame = await self.wait_frame(frame.cycle if frame else 0)
             counter.add(frame)
 
@@ -234,7 +236,8 @@ class Robot:
         self._gstream.set_targets(wanted)
         self._targets.update(targets)
         self.untouched.difference_update(targets)
-        self._held.difference_update(targets)
+        for name in targets:
+            self._held.pop(name, None)
 
     # ------------------------------------------------------------------ motions
 
@@ -284,9 +287,8 @@ class Robot:
             if name in self._latched:
                 raise self._latched[name]
             if name in self._held:
-                line = self.joints[name].line
                 raise UnsafeOperation(
-                    f"joint {name} is held since line {line} came back after a lost port: where it is is unknown "
+                    f"joint {name} is held since {self._held[name]}: where it is is unknown "
                     "(its servo may have restarted elsewhere), and a motion would start from the target it had; "
                     "set its target (set_targets) or free it first"
                 )
@@ -393,7 +395,8 @@ class Robot:
         for plan in list(self._plans):
             if plan.ending is not None:
                 plan.ending.add(frame)
-            if not plan.joints or (plan.ending is not None and plan.ending.reached(2, frame.offline | self._held)):
+            unknown = frame.offline | self._held.keys()  # (joints that cannot answer)
+            if not plan.joints or (plan.ending is not None and plan.ending.reached(2, unknown)):
                 plan.finish()
                 self._plans.remove(plan)
                 continue
@@ -457,10 +460,14 @@ class Robot:
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
         # (a frame published before a target was set may list its joint held still: a later one will not)
-        self._held.intersection_update(held)
+        self._held = {name: why for name, why in self._held.items() if name in held}
         self._watch_offline(offline)
         if frame.resumed:
             self._line_resumed(frame.resumed, held)
+        came_back = (held & self._offline) - self._held.keys()  # (a line's resume told already)
+        self._offline = offline
+        if came_back:
+            self._came_back(came_back)
         merged = RobotFrame(
             frame.cycle,
             now,
@@ -490,15 +497,38 @@ class Robot:
             "motion gave them up"
         )
         on = {name for name, joint in self.joints.items() if joint.line in lines}
-        for plan in self._plans:
-            if plan.joints & on:
-                plan.joints -= on
-                plan.given_up = plan.given_up or error
-        self._held.update(held)
+        self._give_up(on, error)
         for name in held:
-            self._velocity[name] = 0.0
-            self._envelope.pop(name, None)
-            self._positions.pop(name, None)
+            self._hold_unknown(name, f"line {self.joints[name].line} came back after a lost port")
+
+    def _came_back(self, joints: frozenset[str]) -> None:
+        """Joints whose servo answered again after going offline: the streams hold them, as after a lost port
+        (see _line_resumed): their servos may have restarted meanwhile (a brown-out), free and elsewhere."""
+        names = ", ".join(sorted(joints))
+        self._give_up(
+            joints,
+            MotionStopped(
+                f"joint {names} came back after going offline: held where it is, sent nothing until a target is "
+                "set again (its servo may have restarted elsewhere); the motion gave it up"
+            ),
+        )
+        for name in joints:
+            self._hold_unknown(name, "it came back after going offline")
+
+    def _give_up(self, joints: set[str] | frozenset[str], error: MotionStopped) -> None:
+        """Running motions stop driving ``joints`` (going on with their others, then raising ``error``)."""
+        for plan in self._plans:
+            if plan.joints & joints:
+                plan.joints -= joints
+                plan.given_up = plan.given_up or error
+
+    def _hold_unknown(self, name: str, since: str) -> None:
+        """``name`` is held (sent nothing until a target is set) ``since`` something after which where it is
+        is unknown: nothing to ramp, hold or read for it."""
+        self._held[name] = since
+        self._velocity[name] = 0.0
+        self._envelope.pop(name, None)
+        self._positions.pop(name, None)
 
     def mark_closing(self) -> None:
         """The robot's block has ended (see :mod:`.startup`): from now on a command from elsewhere (a task
@@ -523,7 +553,8 @@ class Robot:
         names = {self._by_key[key] for key in freed if key in self._by_key}
         self._targets.update(dict.fromkeys(names))
         self.untouched.difference_update(names)
-        self._held.difference_update(names)
+        for name in names:
+            self._held.pop(name, None)
 
     def _check_commands(self) -> None:
         if self._closing:
