@@ -621,14 +621,16 @@ async def test_id_read_over_a_pty_survives_the_kernels_ff_marking() -> None:
 @pytest.mark.realtime
 async def test_a_deadline_after_an_eeprom_write_is_not_stretched_to_the_writes_allowance() -> None:
     sim = VirtualLine([VirtualServo(1)], faults="drop@5:1.0", realtime=True)  # the write takes 20 ms
-    async with open_bus(sim, adapter_latency=0.005, quiet_time=0.001, eeprom_write=5.0) as bus:
+    # (An allowance of 0.2 s, not a few ms: the real-time simulator's EEPROM read and write must succeed on a
+    # loaded machine too; what is checked is that the silent read gives up long before the write's 5 s.)
+    async with open_bus(sim, adapter_latency=0.2, quiet_time=0.001, eeprom_write=5.0) as bus:
         image = await bus.servo(1).read_eeprom()
         await bus.servo(1).write_eeprom(image.replace(speed=90), verify=False)
         started = time.monotonic()
         with pytest.raises(ReplyTimeout):
             await bus.servo(5).read_speed()
         # The watchdog was still armed for the write's 5 s allowance; it must follow the
-        # new, earlier deadline (~6 ms). The bound is loose on purpose.
+        # new, earlier deadline (~0.2 s a try). The bound is loose on purpose.
         assert time.monotonic() - started < 2.0
 
 
