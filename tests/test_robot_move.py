@@ -16,8 +16,10 @@ import anyio
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from rich.console import Console
 
 from ics35_async import InvalidArgument, Robot, UnsafeOperation, open_robot, units
+from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import MotionStopped, RobotWarning
 from tests.support.robot_rig import (
@@ -296,6 +298,11 @@ def test_a_joint_back_from_offline_is_given_up_by_its_motion_and_waits_for_a_tar
                 while not (frame := await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).held:
                     pass
             assert frame.held == {"elbow"} and not frame.offline, frame
+            # The CLI's table (ics35 play): the elbow is not "held" at its target, it waits for one.
+            console = Console(record=True, width=120)
+            console.print(joint_table(robot, "t", None))
+            rows = {line.split()[0]: line for line in console.export_text().splitlines() if line.strip()}
+            assert "waiting for a target" in rows["elbow"] and "held" in rows["neck"], rows
         assert outcome and "elbow came back after going offline" in str(outcome[0]), outcome
         assert targets_sent(rig.upper, 1)[-1] == sent_position(JOINTS["neck"], 30.0)  # neck went on to its end
         assert targets_sent(rig.upper, 3, since) == [] and elbow.free  # nothing moved the elbow

@@ -65,6 +65,8 @@ def joint_table(
             state = Text("offline", style="red")
         elif frame is not None and name in frame.failed:
             state = Text("no reply", style="yellow")
+        elif frame is not None and name in frame.held:  # (after its line or its servo came back: sent nothing)
+            state = Text("waiting for a target", style="yellow")
         else:
             state = "as found" if name in robot.untouched else "free" if target is None else "held"
         cells: list[str | Text] = [
