@@ -139,6 +139,15 @@ def test_opening_errors_are_typed_and_leave_no_thread() -> None:
     assert set(threading.enumerate()) <= before
 
 
+def test_a_misspelt_robot_option_is_named_as_open_robots_not_open_bus() -> None:
+    """``onclose="free"`` was refused as an "unknown open_bus option", sending the reader to a call the
+    program never made: the refusal names open_robot and the robot's own options."""
+    before = set(threading.enumerate())
+    with pytest.raises(InvalidArgument, match=r"unknown open_robot option\(s\): onclose \(.*on_close.*start_pose"):
+        blocking.open_robot(HUMANOID, onclose="free")  # type: ignore[call-arg]
+    assert set(threading.enumerate()) <= before
+
+
 def test_ctrl_c_during_a_motion_cancels_it_and_closes_the_robot() -> None:
     rig = make_rig()
     before = set(threading.enumerate())

@@ -92,7 +92,7 @@ async def test_open_robot_passes_bus_options_to_every_line_and_refuses_unknown_o
     }
     async with open_robot(description, check_limits=False, adapter_latency=0.007, on_close="hold") as robot:
         assert [bus.timing.adapter_latency for bus in robot.group.buses.values()] == [0.007, 0.007]
-    with pytest.raises(ics35_async.InvalidArgument, match=r"unknown open_bus option.*colour"):
+    with pytest.raises(ics35_async.InvalidArgument, match=r"unknown open_robot option.*colour"):
         async with open_robot(description, colour="red"):  # type: ignore[call-arg]
             pass
     with pytest.raises(ics35_async.InvalidArgument, match="baudrate: set per line"):

@@ -251,7 +251,7 @@ def test_open_robot_refuses_per_line_options_and_bad_on_close() -> None:
         anyio.run(lambda: attempt(baudrate=115200))
     with pytest.raises(InvalidArgument, match="on_close must be one of hold, free"):
         anyio.run(lambda: attempt(on_close="drop"))
-    with pytest.raises(InvalidArgument, match="unknown open_bus option"):
+    with pytest.raises(InvalidArgument, match="unknown open_robot option"):
         anyio.run(lambda: attempt(speed=3))
 
 

@@ -131,6 +131,14 @@ async def _robot_session(
     offline_after = options.pop("offline_after", 3)
     probe_interval = options.pop("probe_interval", 0.5)
     start_pose = options.pop("start_pose", None)
+    # Checked here, not left to open_bus: a misspelt robot option (``onclose``) would be refused as an
+    # "open_bus option", a call the program never made.
+    unknown = set(options) - BusOptions.__optional_keys__
+    if unknown:
+        own = ", ".join(sorted(RobotOptions.__optional_keys__ - BusOptions.__optional_keys__))
+        raise InvalidArgument(
+            f"unknown open_robot option(s): {', '.join(sorted(unknown))} (the robot's own: {own}; and open_bus's)"
+        )
     bus_options: BusOptions = options
     description = source if isinstance(source, RobotDescription) else load_description(source)
     stated = check_start_pose(description, start_pose)
