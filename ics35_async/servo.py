@@ -22,6 +22,12 @@ from .errors import (
 from .line import Line
 from .protocol import Param
 
+# What the deprecated read_degrees() says, at the program's line (the blocking servo says it too).
+READ_DEGREES_FREES = (
+    "Servo.read_degrees() turns the torque off; call free_and_read_degrees() for that, or "
+    "read_position_degrees() to read without freeing (ICS 3.6 servos)"
+)
+
 # Per line, per ID: whether the servo answers ICS 3.6's position read (probed once, then remembered).
 _POSITION_READS: weakref.WeakKeyDictionary[Line, dict[int, bool]] = weakref.WeakKeyDictionary()
 
@@ -128,12 +134,7 @@ class Servo:
         Raises:
             ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
-        warnings.warn(
-            "Servo.read_degrees() turns the torque off; call free_and_read_degrees() for that, or "
-            "read_position_degrees() to read without freeing (ICS 3.6 servos)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
+        warnings.warn(READ_DEGREES_FREES, DeprecationWarning, stacklevel=2)
         return await self.free_and_read_degrees()
 
     # ------------------------------------------------------------------ ICS 3.6 position read

@@ -418,6 +418,27 @@ def test_a_script_that_never_closes_its_bus_still_exits_cleanly() -> None:
     assert "Traceback" not in done.stderr
 
 
+def test_read_degrees_warns_a_blocking_program_that_it_frees_the_servo() -> None:
+    """``read_degrees()`` sounds like a read but turns the torque off.  Its DeprecationWarning said so to an
+    async program, at the program's line; the blocking twin issued it on the bus's loop thread, inside the
+    package, where Python's default filters hide it: a script freed its servo with nothing on screen."""
+    script = textwrap.dedent(
+        """
+        from ics35_async import blocking
+        with blocking.open_bus("sim://?ids=1") as bus:
+            bus.servo(1).set_position(8000)
+            print(bus.servo(1).read_degrees())
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "<string>:5: DeprecationWarning: Servo.read_degrees() turns the torque off" in done.stderr
+    assert done.stderr.count("DeprecationWarning") == 1, done.stderr
+    with blocking.open_bus("sim://?ids=1") as bus, pytest.warns(DeprecationWarning, match="torque off") as seen:
+        bus.servo(1).read_degrees()
+    assert [w.filename for w in seen] == [__file__]  # once, at the program's line
+
+
 # ---------------------------------------------------------------------- inside a running event loop (Jupyter)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Awaitable, Callable, Iterable
 from typing import TYPE_CHECKING, ParamSpec, TypeVar, Unpack
 
@@ -11,7 +12,7 @@ from ..engine import State
 from ..errors import InvalidArgument
 from ..protocol import Command
 from ..running import close_step
-from ..servo import Device, Servo
+from ..servo import READ_DEGREES_FREES, Device, Servo
 from ..stats import BusStats
 from ..transports import WireDevice
 from .blocking_stream import BlockingStream
@@ -53,8 +54,17 @@ class BlockingServo(Wrapper[Servo]):
     free = blocking(Servo.free)
     set_degrees = blocking(Servo.set_degrees)
     set_radians = blocking(Servo.set_radians)
-    read_degrees = blocking(Servo.read_degrees)
     free_and_read_degrees = blocking(Servo.free_and_read_degrees)
+
+    def read_degrees(self) -> float:
+        # Warned here, in the program's thread: the async method warns on the loop thread, inside this
+        # package, where Python's default filters hide a DeprecationWarning, and a script would free its
+        # servo (the joint goes limp) with nothing said.
+        warnings.warn(READ_DEGREES_FREES, DeprecationWarning, stacklevel=2)
+        return self._loop.call(self._async.free_and_read_degrees)
+
+    read_degrees.__doc__ = Servo.read_degrees.__doc__
+
     has_position_read = blocking(Servo.has_position_read)
     read_position = blocking(Servo.read_position)
     read_position_degrees = blocking(Servo.read_position_degrees)
