@@ -209,6 +209,48 @@ def test_the_stream_raises_the_stop_and_a_tripped_joint_refuses_motion_until_it_
     assert not hip.free and hip.target == 7500 + round(20 * 8000 / 270)
 
 
+def test_targets_and_holds_naming_a_tripped_joint_are_refused_until_it_cools() -> None:
+    # A program's own control loop (the blocking robot has no stream) set every joint's target each pass:
+    # the next set_targets after the watch freed an overheated hip turned its torque back on, 20 ms later.
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+    hip = rig.servo("hip")
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"hip": 10.0, "knee": 0.0}, duration=0.05)
+                hip.temperature_celsius = 90.0
+                hip.temperature_limit = 1  # the servo's own cut-out out of the way
+                while "hip" not in robot.tripped:
+                    robot.set_targets({"knee": 1.0})  # a loop's pass that leaves the hip alone goes on
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await robot.on_wire()
+                assert hip.free
+                since = rig.lower.transactions
+                for attempt in (
+                    lambda: robot.set_targets({"hip": 12.0, "knee": 2.0}),
+                    lambda: robot.hold(["hip", "knee"]),
+                ):
+                    with pytest.raises(SafetyStop, match="joint hip"):
+                        attempt()
+                robot.hold()  # every joint but the tripped one
+                robot.set_targets({"hip": None}, allow_free=True)  # freeing is always allowed
+                await robot.on_wire()
+                assert targets_sent(rig.lower, 1, since) == [] and hip.free  # nothing re-powered the hip
+                assert targets_sent(rig.lower, 2, since)  # the knee was held
+                hip.temperature_celsius = 25.0
+                while "hip" in robot.tripped:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                robot.set_targets({"hip": 12.0})  # cooled: targets go again
+                await robot.on_wire(["hip"])
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert not hip.free and hip.target == 7500 + round(12 * 8000 / 270)
+
+
 def test_the_watch_reads_at_each_lines_own_pace_beside_a_faster_line() -> None:
     # The robot's frames come as each line ends a cycle: the watch of a 10 Hz line read a joint at every
     # frame of the 100 Hz line too (11 reads a cycle of its own for telemetry_per_cycle=1), taking that

@@ -51,6 +51,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint or an angle outside its limits.
+            SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.set_targets({joint: degrees})
@@ -60,6 +61,7 @@ class RobotStream(FrameIterator[RobotFrame]):
 
         Raises:
             InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
+            SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.set_targets(pose)
@@ -74,10 +76,11 @@ class RobotStream(FrameIterator[RobotFrame]):
         self.robot.set_targets(dict.fromkeys(self.robot.joint_names(joints)), allow_free=True)
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all) where they are, torque on.
+        """Hold ``joints`` (default: all but the tripped ones) where they are, torque on.
 
         Raises:
             InvalidArgument: an unknown joint.
+            SafetyStop: a joint the safety watch tripped (see ``Robot.hold``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         self.robot.hold(joints)

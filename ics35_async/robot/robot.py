@@ -180,12 +180,15 @@ class Robot:
         Raises:
             InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
                 without ``allow_free`` (nothing applied).
+            SafetyStop: an angle for a joint the safety watch tripped (``tripped``), until it is back within
+                its limits: the target would undo the safety action (nothing applied; freeing it is allowed).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
         checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
+        self._refuse_tripped(n for n, d in checked.items() if d is not None)
         self._release(checked)
         self._apply(checked)
 
@@ -196,13 +199,17 @@ class Robot:
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all) where they are now (within their limits), torque on.
+        """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on.
 
         Raises:
             InvalidArgument: an unknown joint.
+            SafetyStop: ``joints`` names a joint the safety watch tripped (nothing applied; see :meth:`set_targets`).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
         names = self.joint_names(joints)
+        if joints is None:
+            names = [n for n in names if n not in self._latched]
+        self._refuse_tripped(names)
         self._release(names)
         self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions})
 
@@ -217,6 +224,14 @@ class Robot:
         self._release(names)
         self._apply(dict.fromkeys(names))
         await self.on_wire(names)
+
+    def _refuse_tripped(self, joints: Iterable[str]) -> None:
+        """Raise the safety stop of the first of ``joints`` still tripped: a target for it would undo what the
+        watch did (a freed joint's torque back on: a control loop setting every joint each pass did so at its
+        next pass), as a motion naming it would (see check_ready)."""
+        for name in joints:
+            if name in self._latched:
+                raise self._latched[name]
 
     def _release(self, joints: Iterable[str]) -> None:
         for name in joints:
