@@ -243,6 +243,15 @@ def test_a_device_name_without_its_directory_is_named_with_it(cli: Any) -> None:
     assert "/dev/ttyUSB0" in result.err and "hint" in result.err
 
 
+@pytest.mark.parametrize("port", ["sim:/?ids=1-6", "sim:?ids=1-6", "socket:/localhost:4000", "rfc2217:host:2217"])
+def test_a_url_with_its_slashes_mistyped_is_named_as_such(cli: Any, port: str) -> None:
+    # `sim:/?ids=1-6` was a port not found, with advice about the cable.
+    result = cli("--port", port, "info", "1")
+    assert result.code == ExitCode.PORT
+    scheme = port.split(":")[0]
+    assert f"a URL starts with {scheme}://" in result.err, result.err
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
 def test_the_configurator_names_misnamed_ports_as_the_command_does() -> None:
     from ics35_async.web import LineConfig, LineSession

@@ -95,9 +95,14 @@ def port_names_hint(platform: str | None = None) -> str:
 
 
 def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
-    """What a port name that opened nothing probably meant on ``platform`` (default: this one): a Windows
-    ``COM`` name elsewhere, a device's name without its ``/dev/`` directory.  Empty: nothing to say."""
+    """What a port name that opened nothing probably meant on ``platform`` (default: this one): a URL without
+    the ``//`` after its scheme, a Windows ``COM`` name elsewhere, a device's name without its ``/dev/``
+    directory.  Empty: nothing to say."""
     platform = platform or sys.platform
+    url = re.match(r"([A-Za-z][A-Za-z0-9+.-]+):(?!//)/?(.*)", port)  # (two letters at least: not C:)
+    if url:  # sim:/?ids=1-6, rfc2217:host:2217
+        scheme, rest = url.groups()
+        return [f"a URL starts with {scheme}://: {scheme}://{rest}"]
     if platform == "win32" or "://" in port or "/" in port:
         return []
     if port.upper().startswith("COM"):
