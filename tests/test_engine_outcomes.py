@@ -125,6 +125,14 @@ def test_outcome_without_echo(name: str, events: list[tuple[float, bytes]], expe
     check(req, wire, events, expected)
 
 
+def test_no_echo_at_all_names_an_adapter_that_holds_bytes_back_as_well_as_one_not_connected() -> None:
+    # On an FTDI adapter with its 16 ms latency timer, an echo held past the allowance read "is the adapter
+    # connected?" of an adapter that was.
+    req, _ = play(True, [])
+    assert isinstance(req.error, ReplyTimeout)
+    assert "is the adapter connected" in str(req.error) and "latency timer" in str(req.error), req.error
+
+
 def test_a_complete_wrong_transaction_fails_at_once_and_resyncs() -> None:
     engine = ready_engine()
     req = Recorded(CMD)

@@ -54,7 +54,15 @@ def timeout_error(req: Request | None, sid: int, tx: bytes, buf: bytearray, echo
         return echo_mismatch(req, sid, tx, buf)
     silence = req.command.silence if req is not None else None  # (a probe's: see .probe)
     if got == 0 and echo_len:
-        return _error(ReplyTimeout, "no echo and no reply: is the adapter connected?", req, sid, buf)
+        # (A USB adapter that holds bytes back longer than the allowance looks the same as none at all.)
+        return _error(
+            ReplyTimeout,
+            "no echo and no reply: is the adapter connected? (one that holds bytes back past the reply "
+            "allowance, as an FTDI latency timer of 16 ms can, looks the same)",
+            req,
+            sid,
+            buf,
+        )
     if got <= echo_len:
         return _error(ReplyTimeout, silence or "no reply (check ID, baud rate, power)", req, sid, buf)
     n, m = got - echo_len, expect - echo_len
