@@ -552,3 +552,72 @@ def test_the_lost_line_hint_names_that_lines_port_and_what_the_others_were_left_
     # The longest port name in the message (not USB1), at that line's baud rate (its servos hear no other).
     assert "ics35 --port /dev/ttyUSB10 --baud 1250000 free all;" in hint
     assert hint.endswith("the other lines' joints were left free")
+
+
+def until_offline(sims: Rig, joint: str) -> Callable[[], None]:
+    """A step that unplugs ``joint``'s servo and waits until the robot has had time to take it out of its
+    cycle (a few hundred transactions on its line, the other servos answering)."""
+
+    def unplug() -> None:
+        spec = JOINTS[joint]
+        sim = sims.sim(spec["line"])
+        sim.remove_servo(spec["id"])
+        for _ in range(3):
+            settle_on(sim)
+
+    return unplug
+
+
+def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The hip's servo stops answering (a loose plug) after the first pose: its last known angle is not where
+    # the hand has put it since, so a pose captured meanwhile must not record it as if it were.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    out_file = tmp_path / "taught.json"
+    sims.servo("hip").move_by_hand(joint_position(JOINTS["hip"], 20.0))
+    result = run_with_hands(
+        ["teach", str(robot_file), str(out_file), "--joints", "neck,hip,knee"],
+        [("Enter captures", None, "\n"), ("pose 1 at", until_offline(sims, "hip"), "\n"), ("pose 2 at", None, "q\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    taught = json.loads(out_file.read_text())
+    assert taught["keyframes"][0]["pose"]["hip"] == pytest.approx(20.0, abs=0.05)
+    assert set(taught["keyframes"][1]["pose"]) == {"neck", "knee"}
+    assert "joint hip does not answer (offline): left out of this pose" in " ".join(result.err.split())
+
+
+def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # The hip's servo stops answering before the neutral pose: its last known angle (30 degrees off) would
+    # become its offset, and every later motion of that joint would be 30 degrees off.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(
+        CALIBRATE_FILE.replace("[joints.hip]", '[joints.knee]\nline = "lower"\nid = 2\n\n[joints.hip]').format(**ports)
+    )
+    sims.servo("hip").move_by_hand(7500 + round(30 * 8000 / 270))
+    hip = sims.servo("hip")
+
+    def back_and_swing() -> None:  # the plug is pushed back in; each joint goes through its range
+        sims.lower.add_device(hip)
+        for name in ("neck", "hip", "knee"):
+            sims.servo(name).move_by_hand(7500 - round(40 * 8000 / 270))
+        for _ in range(3):
+            settle_on(sims.lower)
+        for name in ("neck", "hip", "knee"):
+            sims.servo(name).move_by_hand(7500 + round(40 * 8000 / 270))
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", until_offline(sims, "hip"), "\n"), ("whole range", back_and_swing, "\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    calibrated = tomllib.loads(robot_file.read_text())
+    assert "offset" not in calibrated["joints"]["hip"]  # not calibrated (it was written with an offset of 30)
+    assert "joint hip does not answer (offline): no neutral taken" in " ".join(result.err.split())
+    assert calibrated["joints"]["knee"]["offset"] == pytest.approx(0.0, abs=0.1)

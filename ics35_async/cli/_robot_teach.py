@@ -67,6 +67,20 @@ async def freed_robot(description: RobotDescription, settings: Settings, names: 
         yield robot
 
 
+async def answering_pose(robot: Robot, names: list[str], left_out: str) -> dict[str, float]:
+    """The pose of the joints ``names`` whose servos answer; each of the others is named on stderr with
+    ``left_out`` (what that means for it).  An offline joint's newest known angle (what ``read_pose`` gives
+    for it) is left out too: it was read before the servo fell silent, and a hand may have moved it since."""
+    pose = await robot.read_pose()
+    offline = robot.latest.offline if robot.latest is not None else frozenset()
+    for name in names:
+        if name in offline:
+            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} does not answer (offline): {left_out}")
+        elif name not in pose:
+            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: {left_out}")
+    return {name: pose[name] for name in names if name in pose and name not in offline}
+
+
 async def wait_for_line(
     lines: TypedLines, screen: Screen, hint: str, until: asyncio.Future[None] | None = None
 ) -> str | None:
@@ -262,12 +276,9 @@ async def capture(
 ) -> None:
     """Read the pose and add it as a keyframe, timed by ``times``."""
     now = time.monotonic()
-    pose = await robot.read_pose()
+    pose = await answering_pose(robot, names, "left out of this pose")
     taken = {}
-    for name in names:
-        if name not in pose:
-            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: left out of this pose")
-            continue
+    for name in pose:
         spec = robot.joints[name]
         if not spec.min <= pose[name] <= spec.max:
             err.print(
@@ -350,8 +361,8 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                 if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
                     raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
-                pose = await robot.read_pose()
-                neutral.update({n: robot.joints[n].servo_degrees(pose[n]) for n in names if n in pose})
+                pose = await answering_pose(robot, names, "no neutral taken, so it is not calibrated")
+                neutral.update({n: robot.joints[n].servo_degrees(deg) for n, deg in pose.items()})
                 step[0] = "range"
                 screen.say("now move each joint through its whole range by hand, then Enter")
                 tracking = asyncio.ensure_future(track_every_frame())
