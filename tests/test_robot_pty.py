@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
+from tests.support.terminal import screen_of
 from tests.support.timing import NO_TIMEOUTS_OPTION
 
 pytestmark = [
@@ -127,3 +130,70 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, n
     assert f"stopped by {name}: slowing to rest, then the joints free" in err
     assert "joints left free" in out
     assert "Traceback" not in err
+
+
+def run_on_a_terminal(args: list[str], typed: list[tuple[str, str]]) -> tuple[int, list[str]]:
+    """``ics35 ARGS`` with its stdout and stderr on one terminal (a pty) and a pipe as its stdin: for each
+    ``(phrase, text)`` it waits until ``phrase`` is on the terminal, then types ``text``.  Returns the exit
+    code and the lines on the screen at the end."""
+    master, slave = os.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        stdin=subprocess.PIPE,
+        stdout=slave,
+        stderr=slave,
+        env={**os.environ, "COLUMNS": "120", "TERM": "xterm"},
+        text=True,
+    )
+    os.close(slave)
+    written = b""
+
+    def read_until(done: Callable[[], bool]) -> None:
+        nonlocal written
+        deadline = time.monotonic() + 60
+        while not done() and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.1)[0]:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # the process has ended and closed the terminal
+                    return
+                if not chunk:
+                    return
+                written += chunk
+
+    try:
+        assert proc.stdin is not None
+        for phrase, text in typed:
+            read_until(lambda phrase=phrase: phrase in written.decode(errors="replace"))
+            proc.stdin.write(text)
+            proc.stdin.flush()
+        proc.stdin.close()
+        read_until(lambda: proc.poll() is not None)
+        proc.wait(30)
+        read_until(lambda: False)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    shown = written.decode(errors="replace")
+    assert "Traceback" not in shown, shown
+    return proc.returncode, screen_of(shown)
+
+
+def test_teach_on_a_terminal_shows_its_warning_about_a_pose_beyond_the_limits(port: str, tmp_path: Path) -> None:
+    # Joint b (servo 2, reversed, -90..90) posed by hand at -100: the pose is recorded at its limit, and the
+    # warning saying so was printed beside the live view, whose next redraw wrote over it.
+    robot = tmp_path / "robot.toml"
+    robot.write_text(ROBOT.format(port=port))
+    assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", "2", "100", "--deg").returncode == 0
+    taught = tmp_path / "taught.json"
+    code, screen = run_on_a_terminal(
+        [*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--joints", "b"],
+        [("Enter: capture", "\n"), ("pose 1 at", "q\n")],
+    )
+    assert code == 0, "\n".join(screen)
+    assert json.loads(taught.read_text())["keyframes"][0]["pose"] == {"b": -90.0}
+    text = " ".join(" ".join(screen).split())
+    assert "warning: joint b is at -100.0, beyond its limits -90..90: recorded at the limit" in text, "\n".join(screen)
+    assert sum("teach: taught.json" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once

@@ -67,17 +67,21 @@ async def freed_robot(description: RobotDescription, settings: Settings, names: 
         yield robot
 
 
-async def answering_pose(robot: Robot, names: list[str], left_out: str) -> dict[str, float]:
-    """The pose of the joints ``names`` whose servos answer; each of the others is named on stderr with
-    ``left_out`` (what that means for it).  An offline joint's newest known angle (what ``read_pose`` gives
-    for it) is left out too: it was read before the servo fell silent, and a hand may have moved it since."""
+WARNING = "[yellow]warning:[/yellow]"
+
+
+async def answering_pose(robot: Robot, names: list[str], left_out: str, warnings: list[str]) -> dict[str, float]:
+    """The pose of the joints ``names`` whose servos answer; a warning naming each of the others, with
+    ``left_out`` (what that means for it), is added to ``warnings``.  An offline joint's newest known angle
+    (what ``read_pose`` gives for it) is left out too: it was read before the servo fell silent, and a hand
+    may have moved it since."""
     pose = await robot.read_pose()
     offline = robot.latest.offline if robot.latest is not None else frozenset()
     for name in names:
         if name in offline:
-            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} does not answer (offline): {left_out}")
+            warnings.append(f"{WARNING} joint {escape(name)} does not answer (offline): {left_out}")
         elif name not in pose:
-            err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: {left_out}")
+            warnings.append(f"{WARNING} joint {escape(name)} did not answer: {left_out}")
     return {name: pose[name] for name in names if name in pose and name not in offline}
 
 
@@ -276,20 +280,22 @@ async def capture(
 ) -> None:
     """Read the pose and add it as a keyframe, timed by ``times``."""
     now = time.monotonic()
-    pose = await answering_pose(robot, names, "left out of this pose")
+    warnings: list[str] = []
+    pose = await answering_pose(robot, names, "left out of this pose", warnings)
     taken = {}
     for name in pose:
         spec = robot.joints[name]
         if not spec.min <= pose[name] <= spec.max:
-            err.print(
-                f"[yellow]warning:[/yellow] joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
+            warnings.append(
+                f"{WARNING} joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
                 f"{spec.min:g}..{spec.max:g}: recorded at the limit"
             )
         taken[name] = round(spec.clamp(pose[name]), 2)
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(times.at(now), round(previous + 0.001, 3))
     keyframes.append(Keyframe(when, taken))
-    screen.say(f"pose {len(keyframes)} at {when:.2f} s")
+    # Through the screen: on a terminal a line printed beside the live view is written over by its next redraw.
+    screen.say("\n".join([f"pose {len(keyframes)} at {when:.2f} s", *warnings]))
 
 
 @click.command()
@@ -361,10 +367,11 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                 if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
                     raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
-                pose = await answering_pose(robot, names, "no neutral taken, so it is not calibrated")
+                warnings: list[str] = []
+                pose = await answering_pose(robot, names, "no neutral taken, so it is not calibrated", warnings)
                 neutral.update({n: robot.joints[n].servo_degrees(deg) for n, deg in pose.items()})
                 step[0] = "range"
-                screen.say("now move each joint through its whole range by hand, then Enter")
+                screen.say("\n".join([*warnings, "now move each joint through its whole range by hand, then Enter"]))
                 tracking = asyncio.ensure_future(track_every_frame())
                 try:
                     if await wait_for_line(lines, screen, "Enter: done") is None:
