@@ -621,3 +621,23 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     assert "offset" not in calibrated["joints"]["hip"]  # not calibrated (it was written with an offset of 30)
     assert "joint hip does not answer (offline): no neutral taken" in " ".join(result.err.split())
     assert calibrated["joints"]["knee"]["offset"] == pytest.approx(0.0, abs=0.1)
+
+
+@pytest.mark.parametrize("on_stop", ["hold", "free"])
+def test_play_says_which_joint_it_could_not_leave_as_its_summary_says(cli: Any, tmp_path: Path, on_stop: str) -> None:
+    # With continue_on_offline the motion plays on without a servo that does not answer (unplugged here); the
+    # summary said every joint was left holding (or free), the silent one included, which got no command.
+    sims = make_rig(safety={"continue_on_offline": True})
+    try:
+        robot_file = tmp_path / "robot.toml"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        sims.lower.remove_servo(JOINTS["hip"]["id"])
+        motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": -10}})
+        result = cli("play", str(robot_file), str(motion), "--on-stop", on_stop)
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    summary = " ".join(result.out[result.out.index("play done after") :].split())
+    assert f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened), but hip: its servo" in summary
+    assert "does not answer (offline)" in summary
+    assert "neck" not in summary

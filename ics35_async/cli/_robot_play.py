@@ -108,6 +108,7 @@ def play(
     began = time.monotonic()
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
+    silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
     # Only the joints the motion moves, and those --start-pose states (asked to hold there: a robot's legs just
     # powered up are free), are opened: the others are not read, freed, commanded or watched, so a joint left
     # holding stays held (a standing robot's legs under a wave of its arms).  (An unknown stated joint is
@@ -116,7 +117,7 @@ def play(
     untouched = [joint for joint in description.joints if joint not in moved.joints]
 
     async def body() -> str:
-        nonlocal passes, played
+        nonlocal passes, played, silent
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
         async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
@@ -196,14 +197,23 @@ def play(
                         await stop_smoothly(robot, ramp, on_stop)
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
+            silent = sorted(robot.latest.offline) if robot.latest is not None else []
             return how
 
     how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else "holding")
     length = f"{motion.duration / speed:.1f} s"
     what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
+    # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
+    but = ""
+    if silent:
+        one = len(silent) == 1
+        but = (
+            f", but {escape(', '.join(silent))}: {'its servo does' if one else 'their servos do'} not answer "
+            f"(offline) and {'keeps' if one else 'keep'} whatever {'it' if one else 'they'} last received"
+        )
     out.print(
         f"play {how} after {time.monotonic() - began:.1f} s: {what}; "
-        f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened)"
+        f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened){but}"
     )
     return 0
 
