@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -251,3 +253,28 @@ def test_a_looping_play_gives_up_the_joints_another_command_takes_over() -> None
     assert set(neck) == {sent_position(JOINTS["neck"], 45.0)}, neck  # the loop left the neck where it went
     hip = targets_sent(rig.lower, JOINTS["hip"]["id"], mark["lower"])
     assert len(set(hip)) > 2  # and still moves the hip
+
+
+def test_a_motion_that_cannot_be_written_leaves_the_file_and_its_backup_as_they_were(tmp_path: Path) -> None:
+    # The disk fills up (here: a file size limit) while a motion is saved over an older one that already has
+    # a backup: the motion file was kept whole, but its backup was truncated by the copy that failed.
+    target, backup = tmp_path / "wave.json", tmp_path / "wave.json.bak"
+    target.write_text(json.dumps({"format": "ics35-motion", "version": 1, "keyframes": [], "pad": "x" * 400}))
+    backup.write_text("the motion as it was two saves ago\n")
+    before = {path.name: path.read_bytes() for path in (target, backup)}
+    resource = pytest.importorskip("resource")  # (a file size limit for one child process: POSIX)
+    script = (
+        "import sys; from ics35_async.robot import Keyframe, Motion, save_motion\n"
+        "try:\n"
+        f"    save_motion(Motion((Keyframe(1.0, {{'neck': 10.0}}),)), {str(target)!r})\n"
+        "except OSError as exc:\n"
+        "    sys.exit(f'OSError {exc.errno}')\n"
+    )
+
+    def small_files_only() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100, 100))  # (Python ignores SIGXFSZ: writes fail, EFBIG)
+
+    proc = subprocess.run([sys.executable, "-c", script], preexec_fn=small_files_only, capture_output=True, text=True)
+    assert proc.returncode == 1 and "OSError" in proc.stderr, proc.stderr
+    assert {path.name: path.read_bytes() for path in (target, backup)} == before
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["wave.json", "wave.json.bak"]  # nothing half-written

@@ -20,18 +20,15 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
     backup (``None`` when there was no file to keep).
 
     Raises:
-        OSError: the file (or its backup) cannot be written; ``target`` is then as it was.
+        OSError: the file (or its backup) cannot be written; ``target`` and ``NAME.bak`` are then as they
+            were.
     """
     if target.is_symlink():
         target = target.resolve()
-    backup: Path | None = None
     newline = "\n"
-    if target.exists():
-        if b"\r\n" in target.read_bytes():
-            newline = "\r\n"
-        backup = target.with_name(f"{target.name}.bak")
-        shutil.copy2(target, backup)
-    fresh = target.with_name(f".{target.name}.{secrets.token_hex(4)}.new")
+    if target.exists() and b"\r\n" in target.read_bytes():
+        newline = "\r\n"
+    fresh = _beside(target, "new")
     # Created as any new file is (the umask applies), then given the old file's permissions.
     handle = os.open(fresh, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
@@ -39,10 +36,31 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
             file.write(text)
             file.flush()
             os.fsync(file.fileno())
+        backup = _keep_backup(target)
         if backup is not None:
             shutil.copymode(backup, fresh)
         os.replace(fresh, target)
     except BaseException:
         fresh.unlink(missing_ok=True)
+        raise
+    return backup
+
+
+def _beside(target: Path, suffix: str) -> Path:
+    return target.with_name(f".{target.name}.{secrets.token_hex(4)}.{suffix}")
+
+
+def _keep_backup(target: Path) -> Path | None:
+    """Copy ``target`` to ``NAME.bak`` whole: copied beside it first and renamed over the old backup, so a copy
+    that fails (a full disk) leaves the backup there was, not half of the new one."""
+    if not target.exists():
+        return None
+    backup = target.with_name(f"{target.name}.bak")
+    copy = _beside(target, "bak")
+    try:
+        shutil.copy2(target, copy)
+        os.replace(copy, backup)
+    except BaseException:
+        copy.unlink(missing_ok=True)
         raise
     return backup
