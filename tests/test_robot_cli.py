@@ -332,12 +332,14 @@ id = 1
 """
 
 
+@pytest.mark.parametrize("bom", ["", "\ufeff"], ids=["utf-8", "utf-8 with a BOM"])
 def test_calibrate_writes_neutral_and_range_back_keeping_comments(
-    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path, bom: str
 ) -> None:
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
-    written = CALIBRATE_FILE.format(**ports).replace("\n", "\r\n").encode()  # from a Windows editor
+    # From a Windows editor: CRLF, and from some (Notepad's "UTF-8 with BOM") a byte order mark first.
+    written = (bom + CALIBRATE_FILE.format(**ports).replace("\n", "\r\n")).encode()
     robot_file.write_bytes(written)
     at = by_hand(sims)
 
@@ -355,7 +357,8 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     assert f"kept as {robot_file}.bak" in " ".join(result.out.split())
     assert Path(f"{robot_file}.bak").read_bytes() == written  # the file as it was
     assert robot_file.read_bytes().count(b"\n") == robot_file.read_bytes().count(b"\r\n")  # its line endings kept
-    text = robot_file.read_text()
+    assert robot_file.read_bytes().startswith(bom.encode())  # and its BOM
+    text = robot_file.read_text(encoding="utf-8-sig")
     assert "# my arm" in text and "# the left adapter" in text and "# degrees: trimmed by calibrate" in text
     data = tomllib.loads(text)
     neck_values = {k: data["joints"]["neck"][k] for k in ("offset", "min", "max")}

@@ -114,7 +114,7 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
     sims, robot_file = rig
     motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
     pose = tmp_path / "pose.json"
-    pose.write_text(json.dumps({"hip": 10, "knee": -20}))
+    pose.write_text("\ufeff" + json.dumps({"hip": 10, "knee": -20}), encoding="utf-8")  # a BOM, as Notepad may write
     for given in ("shoulder=30,elbow=40", str(pose)):
         since = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
         result = cli("play", str(robot_file), str(motion), "--start-pose", given)

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
-from ics35_async.robot import Motion, MotionError, load_motion, save_motion
+from ics35_async.robot import Motion, MotionError, load_description, load_motion, save_motion
 from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, sent_position, targets_sent
 from tests.support.timing import FAST, GUARD
 
@@ -278,3 +278,16 @@ def test_a_motion_that_cannot_be_written_leaves_the_file_and_its_backup_as_they_
     assert proc.returncode == 1 and "OSError" in proc.stderr, proc.stderr
     assert {path.name: path.read_bytes() for path in (target, backup)} == before
     assert sorted(path.name for path in tmp_path.iterdir()) == ["wave.json", "wave.json.bak"]  # nothing half-written
+
+
+def test_files_from_an_editor_that_writes_a_byte_order_mark_read(tmp_path: Path) -> None:
+    # Notepad's "UTF-8 with BOM": the file was refused as "not valid JSON" (as "not valid TOML: Invalid
+    # statement (at line 1, column 1)" for a robot file), for a mark the editor does not show.
+    wave = tmp_path / "wave.json"
+    wave.write_bytes(b"\xef\xbb\xbf" + json.dumps(motion({"time": 1.0, "pose": {"neck": 5}})).encode())
+    assert load_motion(wave).keyframes[0].pose == {"neck": 5}
+    robot = tmp_path / "robot.toml"
+    robot.write_bytes(
+        b'\xef\xbb\xbf[lines.main]\r\nport = "sim://"\r\n\r\n[joints.neck]\r\nline = "main"\r\nid = 1\r\n'
+    )
+    assert list(load_description(robot).joints) == ["neck"]

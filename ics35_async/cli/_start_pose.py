@@ -32,7 +32,7 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
         raise click.BadParameter("is empty: give joint=degrees,... or a JSON file", param_hint="--start-pose")
     if "=" not in text:
         try:
-            data = json.loads(Path(text).read_text(encoding="utf-8"))
+            data = json.loads(Path(text).read_text(encoding="utf-8-sig"))  # (a BOM some Windows editors write)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise click.BadParameter(
                 f"{text}: neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({error_text(exc)})",

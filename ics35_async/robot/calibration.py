@@ -175,10 +175,11 @@ def write_calibration(
     """Write the calibrated ``joints`` into the robot file, keeping its previous content as ``NAME.bak``."""
     target = Path(path)
     text = target.read_text(encoding="utf-8")
+    bom = "\ufeff" if text.startswith("\ufeff") else ""  # (a Windows editor's byte order mark: kept as it was)
     values = {name: {key: float(getattr(j, key)) for key in CALIBRATED_KEYS} for name, j in joints.items()}
-    edited = edit_joint_values(text, values)
+    edited = edit_joint_values(text.removeprefix(bom), values)
     if edited is not None and _reads_back(edited, str(target), joints):
-        return CalibrationWritten(target, True, replace_keeping_backup(target, edited))
+        return CalibrationWritten(target, True, replace_keeping_backup(target, bom + edited))
     beside = target.with_name(f"{target.stem}.calibrated.toml")
     whole = replace(description, joints={**description.joints, **joints})
     return CalibrationWritten(beside, False, replace_keeping_backup(beside, dump_description(whole)))

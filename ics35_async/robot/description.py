@@ -187,7 +187,7 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
         raise InvalidArgument(f"a robot description is a TOML file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # (-sig: a BOM some Windows editors write first is not TOML)
     except FileNotFoundError:
         raise DescriptionError(str(path), "", "no such file") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -101,7 +101,7 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
         return parse_motion(source, "<mapping>")
     path = Path(source)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8-sig"))  # (-sig: a BOM some Windows editors write first)
     except FileNotFoundError:
         raise MotionError(str(path), "", "no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
