@@ -644,3 +644,32 @@ def test_play_says_which_joint_it_could_not_leave_as_its_summary_says(cli: Any, 
     assert f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened), but hip: its servo" in summary
     assert "does not answer (offline)" in summary
     assert "neck" not in summary
+
+
+@pytest.mark.parametrize(
+    ("safety", "on_stop", "phrase", "free"),
+    [
+        (None, "hold", 'action = "stop": every joint it opened was freed (torque off', {"neck", "hip"}),
+        ({"action": "free"}, "hold", 'action = "free": joint hip was freed, but joint hip\'s silent servo', {"hip"}),
+        ({"action": "hold"}, "hold", 'action = "hold": every joint it opened keeps its last target', set()),
+        ({"action": "hold"}, "free", "the command then freed every joint it opened (--on-stop free)", {"neck", "hip"}),
+    ],
+)
+def test_a_safety_stop_says_what_the_joints_were_left_in(
+    cli: Any, tmp_path: Path, safety: dict[str, Any] | None, on_stop: str, phrase: str, free: set[str]
+) -> None:
+    # A robot file with no [safety] table: one servo's plug works loose mid-motion and every joint goes limp (a
+    # standing robot falls), while the message said only "action: stop".
+    sims = make_rig(safety=safety)
+    try:
+        robot_file = tmp_path / "robot.toml"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        sims.lower.remove_servo(JOINTS["hip"]["id"])
+        motion = write_motion(tmp_path / "m.json", {"time": 3.0, "pose": {"neck": 20, "hip": -10}})
+        # (--start-pose: the neck holds from the first command, as a standing robot's joints would)
+        result = cli("play", str(robot_file), str(motion), "--on-stop", on_stop, "--start-pose", "neck=0")
+        assert result.code == 7, result.err
+        assert phrase in " ".join(result.err.split())
+        assert sims.servo("neck").free == ("neck" in free)
+    finally:
+        sims.close()

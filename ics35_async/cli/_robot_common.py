@@ -59,15 +59,37 @@ def note_ports(settings: Settings, robot_file: str) -> None:
         err.print(f"[dim]note: the ports come from {escape(robot_file)}; --port and --baud are not used[/dim]")
 
 
-def safety_error(exc: SafetyStop) -> CliError:
+def left_after_trip(exc: SafetyStop, left: str | None) -> str:
+    """What the joints the command opened were left in by the trip's action (and then, on ``left == "free"``,
+    by the command's own free as it closed): a bare "action: stop" read as if the robot had stopped and held."""
+    # A servo that went offline hears no command: not the free either.
+    unheard = f", but joint {exc.joint}'s silent servo may not have heard it" if exc.reason == "offline" else ""
+    if left == "free":
+        return f"the command then freed every joint it opened (--on-stop free){unheard}"
+    if exc.action == "stop":
+        return (
+            f'action = "stop": every joint it opened was freed (torque off: a standing robot falls){unheard}; '
+            '[safety] action = "hold" keeps every joint at its last target instead'
+        )
+    if exc.action == "free":
+        return (
+            f'action = "free": joint {exc.joint} was freed{unheard}; the others keep their last targets (a free one '
+            "stays free)"
+        )
+    return 'action = "hold": every joint it opened keeps its last target (a free one stays free)'
+
+
+def safety_error(exc: SafetyStop, left: str | None = None) -> CliError:
+    """The error of a safety stop; ``left``: what the command leaves its joints in as it closes (its on_close)."""
     if exc.reason == "offline":
         return CliError(
             ExitCode.SAFETY_STOP,
             f"safety stop: {exc}",
+            left_after_trip(exc, left),
             *NO_REPLY_HINTS[:2],
             "to carry on without it: [safety] continue_on_offline = true",
         )
-    return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", *SAFETY_HINTS)
+    return CliError(ExitCode.SAFETY_STOP, f"safety stop: {exc}", left_after_trip(exc, left), *SAFETY_HINTS)
 
 
 def show_warnings(robot: Robot) -> None:
@@ -141,7 +163,7 @@ def run_robot(
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         except SafetyStop as exc:
-            raise safety_error(exc) from None
+            raise safety_error(exc, others_left) from None
         except ReplyTimeout as exc:
             raise CliError(ExitCode.NO_REPLY, str(exc), *NO_REPLY_HINTS) from None
         except InvalidArgument as exc:
