@@ -119,6 +119,29 @@ def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) ->
     assert len(keyframes) == 2 and set(keyframes[0]["pose"]) == {"a", "b"}
 
 
+@pytest.mark.parametrize("step", ["neutral (every joint at 0)", "whole range"])
+def test_calibrate_ends_at_once_when_the_port_is_lost(tmp_path: Path, step: str) -> None:
+    # The adapter pulled out while the joints are posed by hand: calibrate went on showing them free and waiting
+    # for Enter, the hands moving joints it no longer read, until the Enter told the port was gone.
+    server, port = start_subprocess(["--ids", "1-2"], quiet=True)
+    try:
+        robot = tmp_path / "robot.toml"
+        robot.write_text(ROBOT.format(port=port))
+        calibrate = Command(*NO_TIMEOUTS_OPTION, "calibrate", str(robot))
+        calibrate.wait_for("neutral (every joint at 0)")
+        if step == "whole range":
+            calibrate.type("\n")
+            calibrate.wait_for("whole range")
+        stop_subprocess(server)  # the adapter is pulled out: the pty goes away
+        code, out, err = calibrate.finish()  # ends on its own: no Enter typed
+    finally:
+        stop_subprocess(server)
+    assert code == 1, err
+    assert "LINE LOST" in out  # the live view said so (the table printed at the end off a terminal)
+    assert "lost" in err and "nothing written" in err, err
+    assert robot.read_text() == ROBOT.format(port=port) and not Path(f"{robot}.bak").exists()
+
+
 @pytest.mark.parametrize(
     ("signum", "code"), [(signal.SIGINT, 0), (signal.SIGTERM, 128 + signal.SIGTERM)], ids=["Ctrl-C", "SIGTERM"]
 )

@@ -321,6 +321,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     low: dict[str, float] = {}
     high: dict[str, float] = {}
     eeproms: dict[str, Eeprom] = {}
+    lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
 
     def extra(name: str) -> list[str]:
         return [signed_tenths(v[name]) if name in v else "-" for v in (neutral, low, high)]
@@ -331,6 +332,8 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
             step = ["neutral"]
 
             def summary() -> str:
+                if lost:
+                    return f"LINE LOST: calibration cut short, nothing written to {escape(robot_file)}"
                 return "step 1/2: the neutral pose" if step[0] == "neutral" else "step 2/2: each joint's range"
 
             def table() -> Table:
@@ -339,6 +342,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                     f"calibrate: {escape(robot_file)} (servo degrees on the right)",
                     names,
                     (("neutral°", "min°", "max°"), extra),
+                    lost=bool(lost),
                 )
 
             def track(frame: RobotFrame | None) -> None:
@@ -363,26 +367,50 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                 note = reverse_note(robot_file, spec, description.lines[spec.line], eeprom)
                 if note is not None:
                     err.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
-            with Screen(table, summary) as screen:
-                screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
-                if await wait_for_line(lines, screen, "Enter: this is the neutral pose") is None:
-                    raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
-                warnings: list[str] = []
-                pose = await answering_pose(robot, names, "no neutral taken, so it is not calibrated", warnings)
-                neutral.update({n: robot.joints[n].servo_degrees(deg) for n, deg in pose.items()})
-                step[0] = "range"
-                screen.say("\n".join([*warnings, "now move each joint through its whole range by hand, then Enter"]))
-                tracking = asyncio.ensure_future(track_every_frame())
-                try:
-                    if await wait_for_line(lines, screen, "Enter: done") is None:
-                        raise CliError(ExitCode.REFUSED, "input ended before the ranges were done: nothing written")
-                finally:
-                    tracking.cancel()
-                    with contextlib.suppress(asyncio.CancelledError):
-                        await tracking
-                track(robot.latest)
+            # A lost port ends the lines: said at once, not at the next Enter (the hands would go on moving
+            # joints no longer read).
+            watcher = asyncio.ensure_future(watch_lines(robot))
 
-    run_robot(settings, description, body)
+            async def typed(hint: str) -> str | None:
+                line = await wait_for_line(lines, screen, hint, until=watcher)
+                if watcher.done():
+                    lost.append(True)
+                    screen.update(force=True)
+                    await watcher  # raises what ended the lines
+                return line
+
+            with Screen(table, summary) as screen:
+                try:
+                    screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
+                    if await typed("Enter: this is the neutral pose") is None:
+                        raise CliError(ExitCode.REFUSED, "input ended before the neutral pose: nothing written")
+                    warnings: list[str] = []
+                    pose = await answering_pose(robot, names, "no neutral taken, so it is not calibrated", warnings)
+                    neutral.update({n: robot.joints[n].servo_degrees(deg) for n, deg in pose.items()})
+                    step[0] = "range"
+                    screen.say(
+                        "\n".join([*warnings, "now move each joint through its whole range by hand, then Enter"])
+                    )
+                    tracking = asyncio.ensure_future(track_every_frame())
+                    try:
+                        if await typed("Enter: done") is None:
+                            raise CliError(ExitCode.REFUSED, "input ended before the ranges were done: nothing written")
+                    finally:
+                        tracking.cancel()
+                        with contextlib.suppress(asyncio.CancelledError):
+                            await tracking
+                    track(robot.latest)
+                finally:
+                    watcher.cancel()
+                    with contextlib.suppress(asyncio.CancelledError, IcsError):
+                        await watcher
+
+    try:
+        run_robot(settings, description, body)
+    except CliError:
+        if lost:
+            err.print(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
+        raise
     calibrated: dict[str, JointSpec] = {}
     narrow: list[str] = []
     for name in names:
