@@ -376,6 +376,9 @@ def test_restore_rejects_a_broken_backup(cli: Any, sim_line: Any, tmp_path: Path
         bad.write_text(content)
         result = cli("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
         assert result.code == ExitCode.USAGE
+    bad.write_bytes(b"\x7fELF\x02\x01\xd0\xd1")  # a program given by mistake: no traceback
+    result = cli("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
+    assert result.code == ExitCode.USAGE and "not a text file" in result.err, result.err
     assert sim.transactions == 0
 
 

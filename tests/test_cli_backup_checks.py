@@ -115,6 +115,18 @@ def test_a_backup_edited_whole_is_restored(cli: Any, sim_line: Any, tmp_path: Pa
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
 
 
+def test_a_backup_saved_with_a_byte_order_mark_is_restored(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    """Notepad's "UTF-8 with BOM" puts a mark first that JSON refuses ("Unexpected UTF-8 BOM")."""
+    sim, url = sim_line([1])
+    backup = tmp_path / "one.json"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    edit_backup(backup, speed=40)
+    backup.write_bytes(b"\xef\xbb\xbf" + backup.read_bytes().replace(b"\n", b"\r\n"))
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.speed == 40 and sim.servo(1).calibration_intact
+
+
 # --------------------------------------------------------------------------- the account of every servo
 
 

@@ -118,7 +118,7 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
 def write_backup(path: Path, doc: dict[str, Any]) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(doc, indent=2) + "\n")
+        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     except OSError as exc:
         raise CliError(ExitCode.USAGE, f"cannot write {path}: {exc.strerror or exc}") from None
 
@@ -213,14 +213,17 @@ class Backup:
 def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bool = False) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
-        text = sys.stdin.read() if source == "-" else Path(source).read_text()
-        doc = json.loads(text)
+        # (UTF-8 whatever the system's encoding; a byte order mark some Windows editors write first is read past)
+        text = sys.stdin.read() if source == "-" else Path(source).read_text(encoding="utf-8-sig")
+        doc = json.loads(text.removeprefix("\ufeff"))
         changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
     except OSError as exc:
         raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
+    except UnicodeDecodeError:
+        raise click.BadParameter(f"{source}: not a text file (a backup is UTF-8 JSON)", param_hint="FILE") from None
     except json.JSONDecodeError as exc:
         raise click.BadParameter(f"{source}: not JSON: {exc}", param_hint="FILE") from None
     except (InvalidArgument, MalformedEeprom) as exc:
