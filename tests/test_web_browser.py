@@ -572,6 +572,24 @@ def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_r
         expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
 
 
+def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: Browser) -> None:
+    line = PtyLine((1,))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.fill("#eeprom-table [name=servo_id]", "7")
+        p.check("#allow-id-change")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text("7")
+        p.click("#write-btn")
+        # The page follows the servo to its new ID: no read of the old one (no answer there, then a search
+        # of the other rates) hiding the write's outcome behind a servo "not answering".
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        expect(p.locator("#servo-id")).to_have_value("7")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("7")
+        expect(p.locator("#message")).to_have_text("servo 1 is now servo 7: written and verified")
+        assert [s.servo_id for s in line.sim.servos] == [7]
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

@@ -299,12 +299,24 @@ async function planWrite() {
   $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
 }
 
+// After a write that gave the servo another ID, the page is that ID's: read at the old one, the servo would
+// not answer (and the page would look for it at the other rates), hiding the write's outcome.
+function followNewId(result) {
+  const change = result.written && result.diff.find((d) => d.name === "servo_id");
+  const old = servoId();
+  if (!change) return `servo ${old}`;
+  $("#servo-id").value = change.new;
+  history.replaceState(null, "", `#servo/${change.new}`);  // (no hashchange: this page reads it next)
+  return `servo ${old} is now servo ${change.new}`;
+}
+
 async function writeEeprom() {
   const result = await api(`/api/servo/${servoId()}/write`, { changes: editedFields(), ...allowances(), before: state.plan.before });
   $("#write-btn").disabled = true;
+  const who = followNewId(result);
   await loadServo();
   $("#write-result").replaceChildren(resultText(result));
-  say(`servo ${servoId()}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}`, result.verified || !result.written ? "info" : "error");
+  say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}`, result.verified || !result.written ? "info" : "error");
 }
 
 async function backupServo() {
@@ -336,6 +348,7 @@ async function planRestore() {
 async function restoreServo() {
   const result = await api(`/api/servo/${servoId()}/restore`, state.restore);
   $("#restore-btn").disabled = true;
+  followNewId(result);  // "also its ID": the servo answers at the backup's
   await loadServo();
   $("#restore-result").replaceChildren(resultText(result));
 }
