@@ -590,6 +590,32 @@ def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: 
         assert [s.servo_id for s in line.sim.servos] == [7]
 
 
+def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
+    line = PtyLine((0, 2))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        scan_finds(p, 2)
+        open_servo_page(p, 2)
+        p.fill("#eeprom-table [name=servo_id]", "3")
+        p.check("#allow-id-change")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text("3")
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        aside = line.sim.remove_servo(3)  # a bag of new servos: renumbered one at a time on the ID page
+        p.click("a[href='#id']")
+        p.fill("#new-id", "5")
+        p.click("#renumber-btn")
+        expect(p.locator("#id-result")).to_contain_text("ID 0 is now ID 5")
+        line.sim.add_device(aside)
+        p.click("a[href='#line']")
+        # Listed at their IDs now, and read there: not the old IDs, which no longer answer.
+        expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_contain_text("°C")
+        expect(p.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
+        expect(p.locator("#servo-table tr[data-id='0']")).to_have_count(0)
+        expect(p.locator("#servo-table tr[data-id='2']")).to_have_count(0)
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

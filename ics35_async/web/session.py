@@ -534,7 +534,27 @@ class LineSession:
             self._limits.pop(servo_id, None)
             self.motion_enabled.discard(servo_id)
         self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
+        if result.written:
+            self._found_now(servo_id, after.servo_id, after)
         return result_view(result)
+
+    def _found_now(self, old_id: int, new_id: int, image: Eeprom | None = None) -> None:
+        """The Line page's list after a write to ``old_id``: listed (and read) at ``new_id`` with the EEPROM
+        ``image`` it has now; the old ID, where nothing answers any more, is not read again."""
+        baud = self.config.baud  # (the write went at the line's rate: a servo listed at another is another)
+        if not any(s.servo_id == old_id and s.baud == baud for s in self.found):
+            return
+        found: list[FoundServo] = []
+        for servo in self.found:
+            if servo.baud == baud and servo.servo_id == old_id:
+                eeprom = image or (None if servo.eeprom is None else servo.eeprom.replace(servo_id=new_id))
+                found.append(replace(servo, servo_id=new_id, eeprom=eeprom))
+            elif not (servo.baud == baud and servo.servo_id == new_id):  # (one listed there is gone since the
+                found.append(servo)  # scan: the write is refused while new_id answers)
+        self.found = found
+        if old_id != new_id:
+            self.telemetry.pop(old_id, None)
+            self.telemetry.pop(new_id, None)
 
     async def backup(self, servo_id: int) -> dict[str, Any]:
         async with self._quiet() as bus:
@@ -664,6 +684,8 @@ class LineSession:
             change = await write_lone_id(bus, new_id, survey=survey)
         if change.written and change.old_id in self._limits:
             self._limits[new_id] = self._limits.pop(change.old_id)
+        if change.written:
+            self._found_now(change.old_id, change.new_id)
         return {"old_id": change.old_id, "new_id": change.new_id, "written": change.written}
 
     async def _survey_for_id_write(self, bus: Bus) -> IdSurvey:
