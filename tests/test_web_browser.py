@@ -616,6 +616,31 @@ def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) 
         expect(p.locator("#servo-table tr[data-id='2']")).to_have_count(0)
 
 
+def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
+    line = PtyLine((1,))
+    servo = line.sim.servo(1)
+    servo.move_by_hand(8000)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-target")).to_have_text("8000")
+        until(lambda: servo.target == 8000, "enable motion never held servo 1")
+        line.sim.unplug()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        line.sim.power_cycle(1)  # the servos' supply went too: it restarted, free, and was turned by hand
+        line.sim.move_by_hand(1, 6000)
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        # A jog from the old target would throw it from 6000 to 8100: motion is off until switched on again.
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_disabled()
+        refused = p.request.post(p.url.split("#")[0] + "api/servo/1/move", data={"position": 8100})
+        assert refused.status == 409 and "switch on" in refused.json()["error"], refused.text()
+        assert servo.free and servo.position == 6000
+        p.check("#motion-switch")  # switched on again: held where it stands now
+        expect(p.locator("#jog-target")).to_have_text("6000")
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

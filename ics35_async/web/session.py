@@ -109,6 +109,8 @@ class LineSession:
         self.live: LiveView | None = None
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
+        self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
+        self._motion_lost: set[int] = set()  # servos whose motion went off as the port was lost
         self._limits: dict[int, tuple[int, int]] = {}
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
@@ -116,7 +118,21 @@ class LineSession:
 
     # ------------------------------------------------------------------ the line
 
+    def _motion_off_if_line_lost(self) -> None:
+        """Switch motion off for every servo once the port was lost since it was switched on: the servos'
+        supply may have gone with it, and a servo that restarted is free, somewhere else; a jog from its
+        old target would throw it there.  Switched on again, it holds where it stands."""
+        bus = self.bus
+        if self.motion_enabled and (bus is None or bus.state is State.LOST or self._line_now() != self._motion_line):
+            self._motion_lost |= self.motion_enabled
+            self.motion_enabled.clear()
+
+    def _line_now(self) -> tuple[Bus, int] | None:
+        bus = self.bus
+        return None if bus is None else (bus, bus.stats.reconnects)
+
     def status(self) -> dict[str, Any]:
+        self._motion_off_if_line_lost()
         bus = self.bus
         state = "closed" if bus is None else bus.state.value
         return {
@@ -131,6 +147,7 @@ class LineSession:
             "scanning": self.progress.running,
             "robot_line": self.robot_line,
             "robot": None if self.robot is None else self.robot.lines_view(),
+            "motion_lost": sorted(self._motion_lost),  # motion switched off by a lost port (the page unticks it)
         }
 
     async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
@@ -227,6 +244,7 @@ class LineSession:
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
+        self._motion_lost.clear()
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
@@ -585,6 +603,7 @@ class LineSession:
     async def free(self, servo_id: int) -> int:
         self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
+        self._motion_lost.discard(servo_id)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
             return self.live.position(servo_id)
@@ -610,12 +629,17 @@ class LineSession:
         self._refuse_joint_motion(servo_id)
         await self.read_eeprom(servo_id)
         position = await self.hold(servo_id)
+        self._motion_off_if_line_lost()  # (another servo's, switched on before a loss, stays off)
+        if not self.motion_enabled:
+            self._motion_line = self._line_now()  # the line this servo was just held on
         self.motion_enabled.add(servo_id)
+        self._motion_lost.discard(servo_id)
         return position
 
     def disable_motion(self, servo_id: int) -> None:
         """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
         self.motion_enabled.discard(servo_id)
+        self._motion_lost.discard(servo_id)
 
     def check_limits(self, servo_id: int) -> list[int] | None:
         limits = self._limits.get(servo_id)
@@ -653,6 +677,13 @@ class LineSession:
         """Move (jog) a servo whose motion a page switched on, within its EEPROM pulse limits."""
         protocol.check_id(servo_id)
         self._refuse_joint_motion(servo_id)
+        self._motion_off_if_line_lost()
+        if servo_id in self._motion_lost:
+            raise UnsafeOperation(
+                f"the port was lost since motion was switched on for servo {servo_id}, so it was switched off (the "
+                "servo may have restarted, free and elsewhere): switch on 'enable motion' again, which holds it "
+                "where it stands; nothing was sent"
+            )
         if servo_id not in self.motion_enabled:
             raise UnsafeOperation(f"motion is not enabled for servo {servo_id}: switch on 'enable motion' first")
         if servo_id not in self._limits:
