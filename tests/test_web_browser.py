@@ -14,6 +14,7 @@ import contextlib
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -223,6 +224,41 @@ def test_a_stopped_server_is_said_in_words_at_once(browser: Browser) -> None:
     expect(p.locator("#message")).to_contain_text("server is gone")
     expect(p.locator("#line-status")).to_have_text("server gone")
     context.close()
+
+
+def test_a_page_of_a_server_started_again_with_a_new_token_says_to_open_the_new_address(browser: Browser) -> None:
+    with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
+        probe.bind(("127.0.0.1", 0))
+        listen = f"127.0.0.1:{probe.getsockname()[1]}"
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+
+    def start() -> tuple[subprocess.Popen[str], str]:
+        proc = subprocess.Popen(
+            [*WEB, "--listen", listen], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=environment
+        )
+        assert proc.stdout is not None
+        return proc, proc.stdout.readline().strip()
+
+    first, url = start()
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(url)
+    expect(p.locator("#line-status")).to_contain_text("115200 baud")
+    first.terminate()
+    first.wait(10)
+    expect(p.locator("#line-status")).to_have_text("server gone")
+    second, _ = start()  # every start makes a new token (none given): this page's is the old one
+    try:
+        # Not "server gone" while it runs: the page cannot use it, and says what to open instead.
+        expect(p.locator("#message")).to_contain_text("another token")
+        expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
+    finally:
+        context.close()
+        for proc in (first, second):
+            proc.terminate()
+            proc.wait(10)
+            assert proc.stdout is not None
+            proc.stdout.close()
 
 
 def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:

@@ -617,7 +617,10 @@ function socketSend() {
 function connectSocket() {
   socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
   socket.onopen = () => {
-    if (state.serverGone) { state.serverGone = false; say("the configurator's server is back", "info"); }
+    if (state.serverGone || state.tokenRefused) {
+      state.serverGone = state.tokenRefused = false;
+      say("the configurator's server is back", "info");
+    }
     socketSend();
   };
   socket.onmessage = (event) => {
@@ -630,7 +633,22 @@ function connectSocket() {
     if (u.traffic) onTraffic(u.traffic);
     if (u.robot) onRobot(u.robot);
   };
-  socket.onclose = () => {
+  socket.onclose = async () => {
+    // A server that answers but refuses this page's token was started again (each start makes a new token
+    // unless one is given): "gone" would send the person looking for a server that runs.
+    let refused = false;
+    try { refused = [401, 403].includes((await fetch("/api/status")).status); } catch (e) { /* gone */ }
+    if (refused) {
+      $("#line-status").textContent = "server started again: open its new address";
+      const words = "the configurator's server runs with another token now (it was started again): "
+        + "open the address `ics35 web` printed, which carries it";
+      if (!state.tokenRefused) say(words);
+      state.tokenRefused = true;
+      setTimeout(connectSocket, 5000);
+      return;
+    }
+    if (state.tokenRefused) state.serverGone = false;  // (gone after running with another token: say so)
+    state.tokenRefused = false;
     const gone = "the configurator's server is gone (was `ics35 web` stopped?): trying again every second";
     $("#line-status").textContent = "server gone";
     if (!state.serverGone) say(gone);  // once: the box stays until the server is back or another action
