@@ -652,6 +652,27 @@ def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) 
         expect(p.locator("#servo-table tr[data-id='2']")).to_have_count(0)
 
 
+def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(browser: Browser, tmp_path: Path) -> None:
+    line = PtyLine((1, 2))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        with p.expect_download() as download:
+            p.click("#backup-btn")
+        backup = tmp_path / download.value.suggested_filename
+        download.value.save_as(backup)
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff")).to_contain_text("no change")
+        p.check("#motion-switch")
+        expect(p.locator("#jog-target")).to_have_text("7500")
+        open_servo_page(p, 2)
+        # Servo 1's file no longer shown as chosen beside a dead Restore button (choosing the same file
+        # again is no change to a browser: it would do nothing), nor servo 1's target as servo 2's.
+        expect(p.locator("#restore-file")).to_have_value("")
+        expect(p.locator("#jog-target")).to_have_text("-")
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff")).to_contain_text("servo-01.json is a backup of ID 1; servo 2 keeps its ID")
+
+
 def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
     line = PtyLine((1,))
     servo = line.sim.servo(1)

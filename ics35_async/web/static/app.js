@@ -201,6 +201,10 @@ async function loadServo() {
   robotNote(id);
   state.servoLoaded = null;  // no position reads until this servo's page is shown
   $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
+  $("#jog-target").textContent = "-";  // where this page last sent a servo: none yet
+  // A file chosen for the last servo goes too: shown beside a Restore button left disabled, and chosen again
+  // (no change to the browser) it would do nothing.
+  $("#restore-file").value = "";
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
