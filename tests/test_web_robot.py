@@ -200,6 +200,21 @@ def test_reconnect_asks_what_the_lost_lines_holding_joints_do_and_does_it(robot:
     assert post(client, "/api/robot/reopen").json()["open"]
 
 
+def test_while_a_lost_line_has_stopped_the_robot_its_joints_show_their_last_targets(robot: Any) -> None:
+    # Every joint keeps its last command until Reconnect (a holding one holds): the page showed them all
+    # "free" meanwhile, beside the question that says they held their targets.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    assert post(client, "/api/robot/move", {"pose": {"shoulder": 20}, "duration": 0.1}).status_code == 200
+    wait_for(lambda: line.servo(1).target == degrees_to_position(20))
+    lose_and_replug(client, line)
+    wait_for(lambda: client.get("/api/robot").json()["reconnect_choice"] is not None)
+    view = client.get("/api/robot").json()
+    assert not view["open"] and [j["target"] for j in view["joints"]] == [20.0, 0.0], view  # (motion on: held)
+    assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
+    assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None, None]
+
+
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "two.toml"

@@ -41,6 +41,7 @@ class RobotSession:
         self.start_pose = check_start_pose(self.description, start_pose)
         self.lost_pose: dict[str, float] = {}
         self.lost_lines: list[str] = []
+        self.last_targets: dict[str, float | None] = {}  # each joint's last command when a lost line ended the robot
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.robot: Robot | None = None
         self.error: str | None = None
@@ -103,6 +104,7 @@ class RobotSession:
         try:
             async with open_robot(self.description, on_close="hold", start_pose=start_pose, **self.options) as robot:
                 self.robot, self.error, self.warnings = robot, None, list(robot.warnings)
+                self.last_targets = {}
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
@@ -127,6 +129,7 @@ class RobotSession:
     def _carry_on_from(self, robot: Robot) -> None:
         """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has ended ``robot``."""
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
+        self.last_targets = dict(robot.targets)  # what the page shows until Reconnect (each joint keeps it)
         self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
         kept: dict[str, float] = {}
         lost: dict[str, float] = {}
@@ -204,7 +207,7 @@ class RobotSession:
         frame = None if robot is None else robot.latest
         telemetry = {} if robot is None else robot.telemetry
         tripped = {} if robot is None else robot.tripped
-        targets = {} if robot is None else robot.targets
+        targets = self.last_targets if robot is None else robot.targets
         joints = []
         for name, spec in self.description.joints.items():
             t = telemetry.get(name)
