@@ -673,6 +673,19 @@ def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(brows
         expect(p.locator("#restore-diff")).to_contain_text("servo-01.json is a backup of ID 1; servo 2 keeps its ID")
 
 
+def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
+    line = PtyLine((1, 2))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        scan_finds(p, 2)
+        row = p.locator("#servo-table tr[data-id='2']")
+        expect(row.locator("td.temp")).to_contain_text("°C")
+        line.sim.remove_servo(2)  # its cable pulled
+        # Not the library's words with the raw bytes sent, beside the last current read as if read now.
+        expect(row.locator("td.temp")).to_have_text("not answering (open it to see why)")
+        expect(row.locator("td.current")).to_have_text("-")
+        expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
+
+
 def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
     line = PtyLine((1,))
     servo = line.sim.servo(1)

@@ -347,6 +347,8 @@ class LineSession:
                 continue
             position = live.position(sid)
             row["position"] = None if position < 0 else position
+            if position >= 0:
+                row["telemetry_error"] = None  # answering the stream: a read that failed before it is old news
             row["position_note"] = "from the live stream" if position >= 0 else "not yet read by the live stream"
             if sid in live.temperature:
                 row["temperature_c"], row["temperature"] = live.temperature[sid], None

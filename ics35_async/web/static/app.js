@@ -151,13 +151,16 @@ function showServos(servos) {
   const body = $("#servo-table tbody");
   body.replaceChildren();
   for (const s of servos) {
-    const temp = s.telemetry_error ? s.telemetry_error : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
-    const current = s.current === undefined ? "…" : String(s.current);
+    // A servo that stopped answering: said in words (the library's, with the bytes sent, on hover; its
+    // Servo page tells why), and no value from before shown as if read now.
+    const silent = !!s.telemetry_error;
+    const temp = silent ? "not answering (open it to see why)" : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
+    const current = silent ? "-" : s.current === undefined ? "…" : String(s.current);
     const ics = s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
-    const position = s.protocol === undefined ? "…" : s.position ?? "not read";
+    const position = silent ? "-" : s.protocol === undefined ? "…" : s.position ?? "not read";
     body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
       el("td", { class: "ics" }, ics), el("td", { class: "position", title: s.position_note || "" }, position),
-      el("td", { class: "temp" }, temp), el("td", { class: "current" }, current),
+      el("td", { class: "temp", title: s.telemetry_error || "" }, temp), el("td", { class: "current" }, current),
       el("td", {}, el("a", { href: `#servo/${s.id}` }, "open"))));
   }
 }
