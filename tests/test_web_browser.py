@@ -686,6 +686,19 @@ def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_
         expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
 
 
+def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
+    line = PtyLine((1,))
+    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.check("#scan-all-bauds")
+        scan_finds(p, 2)
+        expect(p.locator("#servo-table tr[data-id='1'] td.temp")).to_contain_text("°C")
+        # Its reads wait for nothing: the line reads only the servos at its own rate (it showed "…" for ever).
+        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_have_text(
+            "not read: the line is at 115200 baud (Connect at 1250000 to read it)"
+        )
+
+
 def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
     line = PtyLine((1,))
     servo = line.sim.servo(1)

@@ -154,10 +154,15 @@ function showServos(servos) {
     // A servo that stopped answering: said in words (the library's, with the bytes sent, on hover; its
     // Servo page tells why), and no value from before shown as if read now.
     const silent = !!s.telemetry_error;
-    const temp = silent ? "not answering (open it to see why)" : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
-    const current = silent ? "-" : s.current === undefined ? "…" : String(s.current);
-    const ics = s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
-    const position = silent ? "-" : s.protocol === undefined ? "…" : s.position ?? "not read";
+    // Found at another rate (a scan at every rate): the line reads only the servos at its own.
+    const lineBaud = state.status && state.status.baud;
+    const elsewhere = !silent && lineBaud && s.baud !== lineBaud && s.temperature_c === undefined;
+    const temp = silent ? "not answering (open it to see why)"
+      : elsewhere ? `not read: the line is at ${lineBaud} baud (Connect at ${s.baud} to read it)`
+      : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
+    const current = silent || elsewhere ? "-" : s.current === undefined ? "…" : String(s.current);
+    const ics = elsewhere ? "-" : s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
+    const position = silent || elsewhere ? "-" : s.protocol === undefined ? "…" : s.position ?? "not read";
     body.append(el("tr", { "data-id": s.id }, el("td", {}, s.id), el("td", {}, s.baud + (s.baud_pending ? " (EEPROM names another rate)" : "")),
       el("td", { class: "ics" }, ics), el("td", { class: "position", title: s.position_note || "" }, position),
       el("td", { class: "temp", title: s.telemetry_error || "" }, temp), el("td", { class: "current" }, current),
