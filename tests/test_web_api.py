@@ -457,6 +457,40 @@ def test_a_lost_port_is_reported_at_once_and_the_line_comes_back(serve: Any) -> 
     assert client.get("/api/status").json()["lost"] is False
 
 
+def test_a_streamed_servo_held_waiting_after_a_lost_port_is_told_in_words_when_motion_is_asked(serve: Any) -> None:
+    # After the port came back the live stream sends a held servo nothing (it may have restarted elsewhere)
+    # and reads no position for it: switching motion on answered "position -1 is outside its limits".
+    client, sim = serve((1,))
+    post(client, "/api/live/start", {"ids": [1]})
+    sim.servo(1).move_by_hand(8000)
+    deadline = time.monotonic() + GUARD
+    while (client.get("/api/live").json() or {}).get("positions", {}).get("1") != 8000:
+        assert time.monotonic() < deadline, "the stream never read servo 1"
+        time.sleep(0.02)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["enabled"]
+    sim.unplug()
+    while not client.get("/api/status").json()["lost"]:
+        assert time.monotonic() < deadline, "the port was never told lost"
+        time.sleep(0.02)
+    sim.power_cycle(1)
+    sim.move_by_hand(1, 6000)
+    sim.replug()
+    while client.get("/api/status").json()["lost"]:
+        assert time.monotonic() < deadline, "the port never came back"
+        time.sleep(0.02)
+    time.sleep(0.2)  # some cycles of the resumed stream
+    asked = post(client, "/api/servo/1/motion", {"enabled": True})
+    error = asked.json()["error"]
+    assert asked.status_code == 409 and "-1" not in error and "Free" in error, error
+    assert sim.servo(1).free and sim.servo(1).position == 6000  # nothing thrown back to 8000
+    assert post(client, "/api/servo/1/free").status_code == 200  # read again: then motion holds it there
+    while client.get("/api/live").json()["positions"].get("1") != 6000:
+        assert time.monotonic() < deadline, "the stream never read servo 1 again"
+        time.sleep(0.02)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 6000
+    post(client, "/api/live/stop")
+
+
 def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(serve: Any) -> None:
     client, sim = serve((1,))
     sim.add_device(VirtualServo(5, baud_rate=1250000))

@@ -618,6 +618,12 @@ class LineSession:
         self._refuse_joint_motion(servo_id)
         if self.live is not None and servo_id in self.live.ids:
             position = self.live.position(servo_id)
+            if position < 0:  # (a target from elsewhere would throw it there)
+                raise UnsafeOperation(
+                    f"the live stream has no position of servo {servo_id} to hold it at: not read yet, or, "
+                    "since the port came back, held with no command sent (it may have restarted, free and "
+                    "elsewhere); press Free to have the stream read it, then hold it"
+                )
             self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
             return position
         async with self._quiet() as bus:
