@@ -491,6 +491,26 @@ def test_a_streamed_servo_held_waiting_after_a_lost_port_is_told_in_words_when_m
     post(client, "/api/live/stop")
 
 
+def test_a_live_plot_that_frees_a_servo_switches_its_motion_off(serve: Any) -> None:
+    # The Servo page held it (motion on); a Live plots stream frees an ICS 3.5 servo to read it, and the
+    # servo falls; a jog from the page (another tab) threw it from there back past its old target.
+    client, sim = serve((1,))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    post(client, "/api/live/start", {"ids": [1]})
+    deadline = time.monotonic() + GUARD
+    while not sim.servo(1).free:
+        assert time.monotonic() < deadline, "the stream never freed servo 1"
+        time.sleep(0.02)
+    sim.servo(1).move_by_hand(6000)  # it fell
+    refused = post(client, "/api/servo/1/move", {"position": 8100})
+    assert refused.status_code == 409 and "live plot" in refused.json()["error"], refused.json()
+    assert "1" in client.get("/api/status").json()["motion_off"]
+    time.sleep(0.1)
+    assert sim.servo(1).free and sim.servo(1).position == 6000
+    post(client, "/api/live/stop")
+
+
 def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(serve: Any) -> None:
     client, sim = serve((1,))
     sim.add_device(VirtualServo(5, baud_rate=1250000))

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -110,7 +110,7 @@ class LineSession:
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
-        self._motion_lost: set[int] = set()  # servos whose motion went off as the port was lost
+        self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
         self._limits: dict[int, tuple[int, int]] = {}
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
@@ -124,8 +124,15 @@ class LineSession:
         old target would throw it there.  Switched on again, it holds where it stands."""
         bus = self.bus
         if self.motion_enabled and (bus is None or bus.state is State.LOST or self._line_now() != self._motion_line):
-            self._motion_lost |= self.motion_enabled
-            self.motion_enabled.clear()
+            why = "the port was lost (the servo may have restarted, free and elsewhere)"
+            self._switch_motion_off(self.motion_enabled, why)
+
+    def _switch_motion_off(self, ids: Iterable[int], why: str) -> None:
+        """Motion off for ``ids`` (those that had it) by the server, for ``why``: a jog is refused with it, and
+        the page unticks its switch (status ``motion_off``); switched on again, the servo holds where it stands."""
+        for sid in [i for i in ids if i in self.motion_enabled]:
+            self.motion_enabled.discard(sid)
+            self.motion_off[sid] = why
 
     def _line_now(self) -> tuple[Bus, int] | None:
         bus = self.bus
@@ -147,7 +154,7 @@ class LineSession:
             "scanning": self.progress.running,
             "robot_line": self.robot_line,
             "robot": None if self.robot is None else self.robot.lines_view(),
-            "motion_lost": sorted(self._motion_lost),  # motion switched off by a lost port (the page unticks it)
+            "motion_off": {str(k): v for k, v in sorted(self.motion_off.items())},  # (the page unticks them)
         }
 
     async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
@@ -244,7 +251,7 @@ class LineSession:
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
-        self._motion_lost.clear()
+        self.motion_off.clear()
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
@@ -605,7 +612,7 @@ class LineSession:
     async def free(self, servo_id: int) -> int:
         self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
-        self._motion_lost.discard(servo_id)
+        self.motion_off.pop(servo_id, None)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
             return self.live.position(servo_id)
@@ -641,13 +648,13 @@ class LineSession:
         if not self.motion_enabled:
             self._motion_line = self._line_now()  # the line this servo was just held on
         self.motion_enabled.add(servo_id)
-        self._motion_lost.discard(servo_id)
+        self.motion_off.pop(servo_id, None)
         return position
 
     def disable_motion(self, servo_id: int) -> None:
         """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
         self.motion_enabled.discard(servo_id)
-        self._motion_lost.discard(servo_id)
+        self.motion_off.pop(servo_id, None)
 
     def check_limits(self, servo_id: int) -> list[int] | None:
         limits = self._limits.get(servo_id)
@@ -686,11 +693,11 @@ class LineSession:
         protocol.check_id(servo_id)
         self._refuse_joint_motion(servo_id)
         self._motion_off_if_line_lost()
-        if servo_id in self._motion_lost:
+        why = self.motion_off.get(servo_id)
+        if why is not None:
             raise UnsafeOperation(
-                f"the port was lost since motion was switched on for servo {servo_id}, so it was switched off (the "
-                "servo may have restarted, free and elsewhere): switch on 'enable motion' again, which holds it "
-                "where it stands; nothing was sent"
+                f"motion was switched off for servo {servo_id}: {why}; switch on 'enable motion' again, which "
+                "holds it where it stands; nothing was sent"
             )
         if servo_id not in self.motion_enabled:
             raise UnsafeOperation(f"motion is not enabled for servo {servo_id}: switch on 'enable motion' first")
@@ -751,6 +758,9 @@ class LineSession:
         await self.stop_live()
         async with self.exclusive:
             self.live = await LiveView.start(await self._line_at_its_rate(), ids, rate_hz=rate_hz)
+        # The stream takes them over and frees an ICS 3.5 servo to read it: a jog from the old target would
+        # throw one that fell back there.
+        self._switch_motion_off(ids, "the live plot streams it (an ICS 3.5 servo goes free to be read)")
         return self.live
 
     async def stop_live(self) -> None:

@@ -92,10 +92,11 @@ function showStatus(s) {
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
-  // The server switched motion off when the port was lost (a servo may have restarted, free, elsewhere).
-  if ((s.motion_lost || []).includes(servoId()) && $("#motion-switch").checked) {
+  // Motion the server switched off (a lost port; a live plot that took the servo over and freed it).
+  const off = (s.motion_off || {})[servoId()];
+  if (off && $("#motion-switch").checked) {
     $("#motion-switch").checked = false; setMotion(false);
-    if ($("#message").hidden) say(`the port was lost: motion is off for servo ${servoId()}; switch it on again to jog (it holds the servo where it stands)`, "info");
+    if ($("#message").hidden) say(`motion is off for servo ${servoId()}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
   }
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
