@@ -90,6 +90,17 @@ def test_the_token_in_the_url_becomes_a_strict_httponly_cookie_and_leaves_the_ad
     assert page.status_code == 200 and "frame-ancestors 'none'" in page.headers["content-security-policy"]
 
 
+def test_the_pages_scripts_are_checked_again_at_each_load(serve: Any) -> None:
+    # Without a cache header a browser keeps a file for a tenth of its age (a wheel's files are as old
+    # as its build): after an upgrade the new page ran the old app.js against the new server for days.
+    client, _ = serve()
+    for path in ("/static/app.js", "/static/app.css"):
+        answer = client.get(path)
+        assert answer.status_code == 200 and answer.headers.get("cache-control") == "no-cache", answer.headers
+        again = client.get(path, headers={"if-none-match": answer.headers["etag"]})
+        assert again.status_code == 304  # checked, not sent again
+
+
 def test_state_changes_from_another_site_or_not_as_json_are_refused_and_nothing_is_sent(serve: Any) -> None:
     client, sim = serve()
     before = sim.servo(1).eeprom

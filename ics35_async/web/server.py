@@ -65,6 +65,17 @@ PAGE_HEADERS = {
 }
 
 
+class _Revalidated(StaticFiles):
+    """The page's scripts and style, checked again (by their ETag) at each load: with no cache header a
+    browser keeps a file for a tenth of its age, and after an upgrade would run the old app.js against
+    the new server."""
+
+    async def get_response(self, path: str, scope: Any) -> Response:
+        response = await super().get_response(path, scope)
+        response.headers["cache-control"] = "no-cache"
+        return response
+
+
 async def _index(request: object) -> Response:
     return FileResponse(STATIC / "index.html", headers=PAGE_HEADERS)
 
@@ -115,7 +126,7 @@ def create_app(
             await session.close()
 
     app = Starlette(
-        routes=[Route("/", _index), *ROUTES, Mount("/static", StaticFiles(directory=STATIC), name="static")],
+        routes=[Route("/", _index), *ROUTES, Mount("/static", _Revalidated(directory=STATIC), name="static")],
         middleware=[Middleware(TokenGuard, token=token, loopback_only_hosts=loopback)],
         lifespan=lifespan,
     )
