@@ -389,6 +389,7 @@ def test_set_id_refused_with_a_shared_id(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([VirtualServo(3), VirtualServo(3)])
     result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")
     assert result.code == ExitCode.REFUSED
+    assert "unplug every servo but the one to renumber" in result.err, result.err
     assert [s.servo_id for s in sim.servos] == [3, 3]
 
 

@@ -317,6 +317,21 @@ def test_renumbering_a_servo_at_another_rate_names_that_rate_and_leaves_the_line
     assert [s.servo_id for s in sim.servos] == [9]
 
 
+def test_a_renumbering_refused_says_what_to_do(serve: Any) -> None:
+    """The ID page's refusals say what to do, as `ics35 set-id`'s hints do (the advice is the library's)."""
+    client, sim = serve(())
+    survey = post(client, "/api/id/survey").json()
+    assert "no device answered at 115200 baud" in survey["refusal"] and "power" in survey["refusal"], survey
+    sim.add_device(VirtualServo(0, baud_rate=1250000))
+    refused = post(client, "/api/id/write", {"new_id": 5})
+    assert refused.status_code == 409 and "open the line at 1250000 baud" in refused.json()["error"]
+    two, _ = serve((1, 3))
+    assert "unplug every servo but the one to renumber" in post(two, "/api/id/survey").json()["refusal"]
+    refused = post(two, "/api/id/write", {"new_id": 5})
+    assert refused.status_code == 409 and "unplug every servo but the one to renumber" in refused.json()["error"]
+    assert [s.servo_id for s in sim.servos] == [0]
+
+
 def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limits(serve: Any) -> None:
     client, sim = serve()
     sim.servo(1).eeprom = sim.servo(1).eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)

@@ -249,12 +249,6 @@ def scan(
 
 # --------------------------------------------------------------------------- set-id
 
-_REFUSAL_HINTS = {
-    Refusal.GARBLED: "connect only the servo to renumber, then retry",
-    Refusal.SEVERAL: "disconnect every servo but the one to renumber, then retry",
-    Refusal.ID_READ: "disconnect every device but the servo to renumber",
-}
-
 
 def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> int:
     """The lone servo's ID, or the CliError that says why there is none."""
@@ -275,7 +269,7 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
     if refusal is Refusal.NOBODY:
         raise nothing_answered(settings, f"{settings.port} at {settings.baud} baud", silent=survey.silent)
     if refusal is not None:
-        raise CliError(ExitCode.REFUSED, f"{survey.reason(new_id)}. Nothing was written", _REFUSAL_HINTS[refusal])
+        raise CliError(ExitCode.REFUSED, f"{survey.reason(new_id)}. Nothing was written", survey.advice())
     assert survey.lone_id is not None
     return survey.lone_id
 

@@ -98,6 +98,22 @@ class IdSurvey:
             return f"servo {ids} answers, but the ID command reports ID {self.id_read}: another device is on the line"
         return ""
 
+    def advice(self) -> str:
+        """What to do about the refusal, for a person ("" when the write is safe)."""
+        refusal = self.refusal
+        if refusal is Refusal.NOBODY:
+            if self.elsewhere:
+                return f"open the line at {self.elsewhere[0]} baud to renumber it"
+            return (
+                "check the servo's power (6-12 V on the servo line, not just USB), its wiring, and that a servo "
+                "set to another baud rate answers only at that rate (scan every rate)"
+            )
+        if refusal is Refusal.GARBLED or refusal is Refusal.SEVERAL:
+            return "unplug every servo but the one to renumber, then try again"
+        if refusal is Refusal.ID_READ:
+            return "unplug every device but the servo to renumber, then try again"
+        return ""
+
 
 @dataclass(frozen=True)
 class IdChange:
@@ -162,7 +178,9 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
         survey = await survey_for_id_write(line)
     old_id = survey.lone_id
     if old_id is None:
-        raise UnsafeOperation(f"{survey.reason(new_id)}; an ID write needs exactly one device; nothing was written")
+        raise UnsafeOperation(
+            f"{survey.reason(new_id)}; an ID write needs exactly one device; nothing was written: {survey.advice()}"
+        )
     if old_id == new_id:
         return IdChange(old_id, new_id, written=False)
     try:

@@ -77,5 +77,5 @@ def survey_view(survey: IdSurvey) -> dict[str, Any]:
         "lone_id": survey.lone_id,
         "answered": list(survey.answered),
         "garbled": sorted(survey.garbled),
-        "refusal": survey.reason() or None,
+        "refusal": f"{survey.reason()}; {survey.advice()}" if survey.refusal is not None else None,
     }
