@@ -49,8 +49,9 @@ KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
 pytestmark = [pytest.mark.slow, pytest.mark.pty]
 WEB = [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"]
 WAIT_MS = int(scaled(20.0) * 1000)  # a busy machine: every wait is for an outcome, never a measure of speed
-# A scan with the patient allowance: a reply late past a probe's short wait (a loaded machine) has
-# the scan probe every silent ID again with the full half second, so it can take half a minute.
+# A scan (or a renumbering's survey, which probes every ID too) with the patient allowance: a reply late
+# past a probe's short wait (a loaded machine) has it probe every silent ID again with the full half
+# second, so it can take half a minute.
 SCAN_WAIT_MS = int(scaled(60.0) * 1000)
 expect.set_options(timeout=WAIT_MS)
 
@@ -380,7 +381,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     expect(page.locator("#survey-result")).to_contain_text("not safe to renumber")
     page.fill("#new-id", "9")
     page.click("#renumber-btn")
-    expect(page.locator("#id-result")).to_contain_text("exactly one device")
+    expect(page.locator("#id-result")).to_contain_text("exactly one device", timeout=SCAN_WAIT_MS)
     assert sorted(s.servo_id for s in two.sim.servos) == [1, 3]
     shot(page, "id")
     page.click("a[href='#line']")
@@ -389,7 +390,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     expect(page.locator("#message")).to_have_text(f"connected to {lone.path}")  # the answer, not a pushed status
     page.click("a[href='#id']")
     page.click("#renumber-btn")
-    expect(page.locator("#id-result")).to_contain_text("ID 4 is now ID 9")
+    expect(page.locator("#id-result")).to_contain_text("ID 4 is now ID 9", timeout=SCAN_WAIT_MS)
     assert [s.servo_id for s in lone.sim.servos] == [9]
     page.click("a[href='#line']")
     page.fill("#port-input", two.path)
@@ -641,7 +642,7 @@ def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) 
         p.click("a[href='#id']")
         p.fill("#new-id", "5")
         p.click("#renumber-btn")
-        expect(p.locator("#id-result")).to_contain_text("ID 0 is now ID 5")
+        expect(p.locator("#id-result")).to_contain_text("ID 0 is now ID 5", timeout=SCAN_WAIT_MS)
         line.sim.add_device(aside)
         p.click("a[href='#line']")
         # Listed at their IDs now, and read there: not the old IDs, which no longer answer.
