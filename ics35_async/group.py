@@ -49,8 +49,9 @@ class GroupStream(FrameIterator[GroupFrame]):
         """
         self._stream(line).set_target(servo_id, position)
 
-    def set_targets(self, targets: Mapping[tuple[str, int], int]) -> None:
+    def set_targets(self, targets: Mapping[tuple[str, int], int], *, lift_holds: bool = True) -> None:
         """``targets`` keyed by ``(line, id)``; all are checked, on every line, before any is applied.
+        ``lift_holds``: as for :meth:`Stream.apply_targets <ics35_async.Stream.apply_targets>`.
 
         Raises:
             InvalidArgument: not a mapping, a key that is not ``(line, id)``, an unknown line, an ID not
@@ -73,7 +74,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             except InvalidArgument as exc:  # which line: the same ID may be on several
                 raise InvalidArgument(f"line {line}: {exc}") from None
         for line, c in checked.items():
-            self.streams[line].apply_targets(c)
+            self.streams[line].apply_targets(c, lift_holds=lift_holds)
 
     def set_targets_degrees(self, targets: Mapping[tuple[str, int], float]) -> None:
         """Like :meth:`set_targets`, in degrees (-135..+135, 0 neutral).
@@ -196,6 +197,11 @@ class GroupStream(FrameIterator[GroupFrame]):
             resumed=frozenset(line for line, f in new.items() if f.resumed),
             held=frozenset(held),
         )
+
+    @property
+    def held(self) -> dict[tuple[str, int], str]:
+        """Each line's :attr:`Stream.held <ics35_async.Stream.held>` now, keyed by ``(line, id)``."""
+        return {(line, sid): why for line, stream in self.streams.items() for sid, why in stream.held.items()}
 
     @property
     def stats(self) -> dict[str, StreamStats]:

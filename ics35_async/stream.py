@@ -150,7 +150,8 @@ class Stream(FrameIterator[Frame]):
         self._failures = [0] * n
         self._offline = [False] * n
         self._next_probe = [0.0] * n
-        self._held = [False] * n  # after a resume or a rejoin: no command until the program sets a target
+        # Why each slot is held ("" when not): no command until the program sets its target (see held).
+        self._held = [""] * n
         self._rejoined: set[int] = set()  # slots back from offline in the cycle in progress (see _rejoin)
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
@@ -245,8 +246,11 @@ class Stream(FrameIterator[Frame]):
         if self._closed and isinstance(self._end_error, BusClosed):
             raise BusClosed(str(self._end_error))
 
-    def apply_targets(self, checked: list[tuple[int, int]]) -> None:
+    def apply_targets(self, checked: list[tuple[int, int]], *, lift_holds: bool = True) -> None:
         """Apply the targets ``checked`` that :meth:`check_targets` returned.
+
+        ``lift_holds=False``: a held ID (see :attr:`held`) takes the target but stays held, sent nothing, until a
+        target set with ``lift_holds`` (the program's decision, not the next step of a running motion).
 
         Raises:
             BusClosed: the stream (or its bus) was closed: nothing would send them.
@@ -256,8 +260,8 @@ class Stream(FrameIterator[Frame]):
         frozen = self._frozen
         unsent = self._unsent
         for k, p in checked:
-            if self._held[k]:
-                self._held[k] = False
+            if self._held[k] and lift_holds:
+                self._held[k] = ""
                 unsent.add(k)
                 kick = True  # a stream waiting with every ID held has work again
             if self._targets[k] != p:
@@ -313,7 +317,7 @@ class Stream(FrameIterator[Frame]):
         kick = False
         for k in slots:
             self._targets[k] = WATCH
-            self._held[k] = False
+            self._held[k] = ""
             self._unsent.discard(k)  # (a watched ID gets no command)
             if k in self._frozen:
                 self._stale.add(k)
@@ -345,6 +349,14 @@ class Stream(FrameIterator[Frame]):
         """The current target of ``servo_id``: a position, 0 (free) or :data:`WATCH`; InvalidArgument if it
         is not in the stream."""
         return self._targets[self._slot(servo_id)]
+
+    @property
+    def held(self) -> dict[int, str]:
+        """IDs held now, sent no command until the program sets their target (or frees or watches them), and
+        why: ``"resumed"`` (their lost port came back) or ``"rejoined"`` (they answered again after going
+        offline): their servos may have restarted, free and elsewhere.  (Frames list them in ``held`` too, as
+        of their cycle.)"""
+        return {sid: why for sid, why in zip(self.ids, self._held, strict=True) if why}
 
     @property
     def offline(self) -> frozenset[int]:
@@ -428,7 +440,11 @@ class Stream(FrameIterator[Frame]):
             except ReplyError as exc:
                 return exc
             if type(reader) is protocol.ReadParam:  # (a stretch, not a position)
-                self._rejoin(k)
+                if self._offline[k]:
+                    self._rejoin(k)
+                else:  # (back online already: a target set from another thread meanwhile renewed the probe)
+                    self._rejoined.add(k)
+                    self._job_changed(k)
                 self._advance(now)
                 return None
         else:
@@ -473,10 +489,12 @@ class Stream(FrameIterator[Frame]):
         self._fail_run[k] = 0
         self._offline[k] = False
         self._rejoined.add(k)
-        if self.on_resume == "free":
-            self._targets[k] = protocol.FREE
-        else:
-            self._held[k] = True
+        target = self._targets[k]
+        if target != protocol.FREE and target != WATCH:  # (freed or watched meanwhile: neither moves a servo)
+            if self.on_resume == "free":
+                self._targets[k] = protocol.FREE
+            else:
+                self._held[k] = "rejoined"
         self._job_changed(k)
 
     def _job_changed(self, k: int) -> None:
@@ -508,8 +526,9 @@ class Stream(FrameIterator[Frame]):
                     self._targets[k] = protocol.FREE
                     self._renew_job(k)
                 else:
-                    self._held[k] = True
+                    self._held[k] = "resumed"
         # The cycle the loss cut short is dropped; the next starts on a fresh schedule.
+        self._rejoined.clear()
         self._order = []
         self._pos = 0
         self._cur = -1

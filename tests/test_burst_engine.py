@@ -176,16 +176,20 @@ class SimulatedBus:
 
 
 def run_stream(
-    wire_class: type[Wire], *, seed: int, mute_every: int, damage_every: int, absent: bool
+    wire_class: type[Wire], *, seed: int, mute_every: int, damage_every: int, absent: bool, joins: bool = False
 ) -> tuple[dict[str, Any], Wire]:
     """The library's own stream over 8 servos, unpaced (its bursts run on through cycle after cycle),
     with reads and new targets from the program at random times; ``absent``: and an ID no servo has
-    (offline, then probed now and then: the cycles it is probed in are not certain beforehand)."""
+    (offline, then probed now and then: the cycles it is probed in are not certain beforehand);
+    ``joins``: a servo with that ID is plugged in a fifth of a second in (it answers a probe and is held)."""
     rng = random.Random(seed)
     engine = ready_engine()
-    wire = wire_class(engine, servos_with_faults(engine, seed, mute_every, damage_every))
+    servos = servos_with_faults(engine, seed, mute_every, damage_every)
+    wire = wire_class(engine, servos)
     bus = SimulatedBus(wire)
     ids = [*IDS[:4], 20, *IDS[4:]] if absent else IDS
+    if joins:
+        wire.at(0.2, lambda: servos.ids.add(20))
     stream = Stream(bus, ids, offline_after=2, probe_interval=0.1)  # type: ignore[arg-type]
     stream._running = True
     frames: list[tuple[Any, ...]] = []
@@ -205,6 +209,9 @@ def run_stream(
     for _ in range(30):
         targets = {sid: rng.randrange(3500, 11500) for sid in rng.sample(IDS, 3)}
         wire.at(rng.uniform(0, 0.4), lambda targets=targets: stream.set_targets(targets))
+    if joins:  # targets for it too, before and after it answers (a held ID's new target is not sent)
+        wire.at(0.1, lambda: stream.set_targets({20: 9000}))
+        wire.at(0.3, lambda: stream.set_targets({20: 9100}))
     wire.run_for(0.5)
     return {**summary(wire, recorded), "frames": frames, "mid_burst": mid_burst[0]}, wire
 
@@ -231,6 +238,81 @@ def test_the_librarys_stream_does_exactly_what_it_does_without_bursts(
     assert burst["writes"] == plain["writes"]
     assert burst["frames"] == plain["frames"]
     assert {**burst, "mid_burst": 0} == plain
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_servo_back_from_offline_is_held_alike_on_both_paths_and_sent_no_target(seed: int) -> None:
+    # An offline ID's probe is a read with no shape (it ends a plan); it answers, and the ID comes back held.
+    plain, _ = run_stream(Wire, seed=seed, mute_every=0, damage_every=0, absent=True, joins=True)
+    burst, wire = run_stream(BurstWire, seed=seed, mute_every=0, damage_every=0, absent=True, joins=True)
+    assert isinstance(wire, BurstWire) and wire.runner.transactions > 0
+    assert burst["writes"] == plain["writes"] and burst["frames"] == plain["frames"]
+    assert {**burst, "mid_burst": 0} == plain
+    # Its target set while it was offline (9000) never goes out: probed with reads, it comes back held, and
+    # only the target the program sets after that (at 0.3 s) is sent.
+    moves = [(t, tx) for t, tx in plain["writes"] if tx[0] == 0x80 | 20 and tx[1:] != b"\x00\x00"]
+    assert moves and all(t >= 0.3 and tx == protocol.position_tx(20, 9100) for t, tx in moves), moves[:3]
+    assert any(t < 0.3 and tx == bytes((0xA0 | 20, 1)) for t, tx in plain["writes"])  # probed with a read
+    assert any(frame[-1] == frozenset({20}) for frame in plain["frames"])  # held (Frame.held, the last field)
+
+
+def probing(ids: list[int], absent: int) -> tuple[Wire, Servos, Stream]:
+    """A stream on the ordinary path whose ID ``absent`` (target 9000) has gone offline and is probed."""
+    engine = ready_engine()
+    servos = Servos([i for i in ids if i != absent])
+    wire = Wire(engine, servos)
+    stream = Stream(SimulatedBus(wire), ids, offline_after=1, probe_interval=0.01)  # type: ignore[arg-type]
+    stream._running = True
+    stream.set_targets({absent: 9000})
+    wire.emit(engine.attach_source(stream._hooks, wire.now))
+    wire.run_for(0.05)
+    assert stream.offline == {absent}
+    return wire, servos, stream
+
+
+def run_until_written(wire: Wire, tx: bytes, limit: float = 0.5) -> None:
+    """Run until ``tx`` has just been written (its answer, if any, still to come)."""
+    seen = [w for _, w in wire.writes].count(tx)
+    end = wire.now + limit
+    while [w for _, w in wire.writes].count(tx) == seen:
+        assert wire.now < end, f"{tx!r} never written"
+        wire.run_for(1e-5)
+
+
+@pytest.mark.parametrize("change", ["free", "watch"])
+def test_an_id_freed_or_watched_while_its_probe_is_on_the_wire_comes_back_so_not_held(change: str) -> None:
+    # The probe's answer came to an ID freed meanwhile (a safety stop's free): it came back "held" with the
+    # free target, sent nothing, so the free never went out and the servo kept its old target's torque.
+    wire, servos, stream = probing([1, 2], 2)
+    servos.ids.add(2)  # back: it answers the next probe
+    run_until_written(wire, bytes((0xA0 | 2, 1)))
+    since = len(wire.writes)
+    stream.free([2]) if change == "free" else stream.watch([2])
+    wire.run_for(0.05)
+    sent = [w for _, w in wire.writes[since:]]
+    assert 2 not in stream.held
+    if change == "free":
+        assert stream.target(2) == protocol.FREE and protocol.position_tx(2, protocol.FREE) in sent
+    else:
+        assert protocol.ReadPosition(2).tx in sent
+
+
+def test_a_probe_job_left_on_an_id_back_online_is_replaced_by_its_target() -> None:
+    # A target set from another thread while the probe's answer brought the ID back could leave the probe's
+    # read as the slot's job: the ID was then probed every cycle, held again at each answer.
+    wire, servos, stream = probing([1, 2], 2)
+    servos.ids.add(2)
+    wire.run_for(0.05)
+    assert stream.held == {2: "rejoined"}
+    stream.set_targets({2: 9100})  # the program decides again
+    stream._offline[1] = True  # the race's end: a probe job written for a slot online again
+    stream._renew_job(1)
+    stream._offline[1] = False
+    since = len(wire.writes)
+    wire.run_for(0.05)
+    sent = [w for _, w in wire.writes[since:]]
+    assert 2 not in stream.held and protocol.position_tx(2, 9100) in sent
+    assert sent.count(bytes((0xA0 | 2, 1))) <= 1
 
 
 def test_a_request_arriving_mid_burst_takes_the_next_boundary_beside_an_unpaced_stream() -> None:

@@ -214,8 +214,12 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         # (UTF-8 whatever the system's encoding; a byte order mark some Windows editors write first is read past)
-        text = sys.stdin.read() if source == "-" else Path(source).read_text(encoding="utf-8-sig")
-        doc = json.loads(text.removeprefix("\ufeff"))
+        if source == "-":
+            stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
+            raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
+        else:
+            raw = Path(source).read_bytes()
+        doc = json.loads(raw.decode("utf-8-sig"))
         changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:

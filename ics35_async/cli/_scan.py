@@ -262,8 +262,7 @@ def refuse_unless_alone(settings: Settings, survey: IdSurvey, new_id: int) -> in
     if refusal is Refusal.NOBODY and survey.elsewhere:
         raise CliError(
             ExitCode.WRONG_BAUD,
-            f"no servo answered on {settings.port} at {settings.baud} baud, but a device answers at "
-            f"{survey.elsewhere[0]} baud. Nothing was written",
+            f"{survey.reason()} on {settings.port}. Nothing was written",
             f"pass --baud {survey.elsewhere[0]}",
         )
     if refusal is Refusal.NOBODY:

@@ -64,7 +64,6 @@ class Robot:
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
-        self._offline: frozenset[str] = frozenset()  # the joints offline in the last frame
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
         self._plans: list[Plan] = []
@@ -239,7 +238,9 @@ class Robot:
             for plan in self._plans:
                 plan.joints.discard(name)
 
-    def _apply(self, targets: Mapping[str, float | None]) -> None:
+    def _apply(self, targets: Mapping[str, float | None], *, lift_holds: bool = True) -> None:
+        """Send ``targets``; ``lift_holds=False`` (a motion's step): a joint its stream holds stays held, sent
+        nothing (the robot may not have seen the frame that says so yet: see _on_frame)."""
         self._check_commands()
         if not targets or self._gstream is None:
             return
@@ -248,11 +249,12 @@ class Robot:
             joint = self.joints[name]
             # Clamped again here: whatever computed it, no command leaves the joint's limits.
             wanted[(joint.line, joint.id)] = protocol.FREE if deg is None else joint.position(joint.clamp(deg))
-        self._gstream.set_targets(wanted)
+        self._gstream.set_targets(wanted, lift_holds=lift_holds)
         self._targets.update(targets)
         self.untouched.difference_update(targets)
-        for name in targets:
-            self._held.pop(name, None)
+        if lift_holds:
+            for name in targets:
+                self._held.pop(name, None)
 
     # ------------------------------------------------------------------ motions
 
@@ -447,7 +449,7 @@ class Robot:
                 if name in pose:
                     targets[name] = pose[name]
                     self._velocity[name] = speed.get(name, 0.0)
-        self._apply(targets)
+        self._apply(targets, lift_holds=False)
         if keyframes:
             applied = time.monotonic()  # (the clock of a frame's ``started``)
             for plan in keyframes:
@@ -474,15 +476,16 @@ class Robot:
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
-        # (a frame published before a target was set may list its joint held still: a later one will not)
-        self._held = {name: why for name, why in self._held.items() if name in held}
+        # What the streams hold now, not as of this frame's cycles: a joint whose target was set since is held
+        # no more, and one that came back from offline since is (the robot may lag behind its frames).
+        held_now = {by_key[k]: why for k, why in self._gstream.held.items() if k in by_key} if self._gstream else {}
+        self._held = {name: why for name, why in self._held.items() if name in held_now}
         self._watch_offline(offline)
         if frame.resumed:
             self._line_resumed(frame.resumed, held)
-        came_back = (held & self._offline) - self._held.keys()  # (a line's resume told already)
-        self._offline = offline
+        came_back = {name for name, why in held_now.items() if why == "rejoined" and name not in self._held}
         if came_back:
-            self._came_back(came_back)
+            self._came_back(frozenset(came_back))
         merged = RobotFrame(
             frame.cycle,
             now,
@@ -507,9 +510,9 @@ class Robot:
         MotionStopped); where they are is unknown until they answer again (hold() and read_pose() leave
         them out), and a stop has nothing to ramp for them."""
         error = MotionStopped(
-            f"line {', '.join(sorted(lines))} came back after its port was lost: its joints are held where they "
-            "are, sent nothing until a target is set again (their servos may have restarted elsewhere); the "
-            "motion gave them up"
+            f"line {', '.join(sorted(lines))} came back after its port was lost: its joints are sent nothing "
+            "until a target is set again (their servos may have restarted, free and elsewhere); the motion gave "
+            "them up"
         )
         on = {name for name, joint in self.joints.items() if joint.line in lines}
         self._give_up(on, error)
@@ -523,8 +526,8 @@ class Robot:
         self._give_up(
             joints,
             MotionStopped(
-                f"joint {names} came back after going offline: held where it is, sent nothing until a target is "
-                "set again (its servo may have restarted elsewhere); the motion gave it up"
+                f"joint {names} came back after going offline: sent nothing until a target is set again (its "
+                "servo may have restarted, free and elsewhere); the motion gave it up"
             ),
         )
         for name in joints:

@@ -55,8 +55,9 @@ class SafetyStop(IcsError):
 
 
 class MotionStopped(IcsError):
-    """A motion ended early: :meth:`Robot.stop` was called (from another task), or a line it moves came back
-    after its port was lost (``reconnect=True``: its servos may have restarted elsewhere)."""
+    """A motion ended early: :meth:`Robot.stop` was called (from another task), a line it moves came back
+    after its port was lost (``reconnect=True``), or a joint it moves came back after going offline (its
+    servos may have restarted, free and elsewhere: the motion gave those joints up)."""
 
 
 @dataclass

@@ -236,7 +236,7 @@ class Servos:
 
     def value_for(self, command: protocol.Command[Any]) -> Any:
         n = next(self._serial)
-        if isinstance(command, Position):
+        if isinstance(command, Position | protocol.ReadPosition):  # (ICS 3.6 servos, these)
             return n % protocol.POSITION_MAX + 1
         if isinstance(command, ReadParam):
             return n % 127 + 1
