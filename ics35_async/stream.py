@@ -13,6 +13,7 @@ import itertools
 import logging
 import math
 import statistics
+import threading
 import warnings
 from collections import deque
 from collections.abc import Iterable, Mapping
@@ -152,6 +153,10 @@ class Stream(FrameIterator[Frame]):
         self._next_probe = [0.0] * n
         # Why each slot is held ("" when not): no command until the program sets its target (see held).
         self._held = [""] * n
+        # Orders the program's target changes against the hooks that change a slot's hold or offline state
+        # (a driver's I/O thread): a free landing in a rejoin must not end up held, sent nothing.  Never held
+        # while calling into the bus (the driver's lock is taken first by the hooks' callers).
+        self._slot_lock = threading.Lock()
         self._rejoined: set[int] = set()  # slots back from offline in the cycle in progress (see _rejoin)
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
@@ -219,14 +224,17 @@ class Stream(FrameIterator[Frame]):
         """
         self.apply_targets([(self._slot(servo_id), units.check_int("position", position, 0, protocol.POSITION_MAX))])
 
-    def set_targets(self, targets: Mapping[int, int]) -> None:
+    def set_targets(self, targets: Mapping[int, int], *, lift_holds: bool = True) -> None:
         """Several ``targets`` ``{id: position}`` at once; all are checked before any is applied.
+
+        ``lift_holds=False``: an ID held now (see :attr:`held`) takes its target but stays held, sent nothing
+        (a control loop that sets every target each cycle: a hold may begin after the frame it looked at).
 
         Raises:
             InvalidArgument: not a mapping, an ID not in the stream or a position out of range (nothing applied).
             BusClosed: the stream (or its bus) was closed.
         """
-        self.apply_targets(self.check_targets(targets))
+        self.apply_targets(self.check_targets(targets), lift_holds=lift_holds)
 
     def check_targets(self, targets: Mapping[int, int]) -> list[tuple[int, int]]:
         """Check every target (raising before anything changes) and return them ready for apply_targets.
@@ -259,21 +267,22 @@ class Stream(FrameIterator[Frame]):
         kick = False
         frozen = self._frozen
         unsent = self._unsent
-        for k, p in checked:
-            if self._held[k] and lift_holds:
-                self._held[k] = ""
-                unsent.add(k)
-                kick = True  # a stream waiting with every ID held has work again
-            if self._targets[k] != p:
-                self._targets[k] = p
-                if frozen and k in frozen:
-                    self._stale.add(k)  # (and unsent again once renewed, see _upcoming_done)
-                    kick = True  # a burst runs the old target: it stops at its next boundary
-                else:
-                    self._renew_job(k)
-                # After the new job (a driver's I/O thread may be completing the old one meanwhile: its
-                # reply, to a job no longer current, leaves the slot unsent, see _complete).
-                unsent.add(k)
+        with self._slot_lock:
+            for k, p in checked:
+                if self._held[k] and lift_holds:
+                    self._held[k] = ""
+                    unsent.add(k)
+                    kick = True  # a stream waiting with every ID held has work again
+                if self._targets[k] != p:
+                    self._targets[k] = p
+                    if frozen and k in frozen:
+                        self._stale.add(k)  # (and unsent again once renewed, see _upcoming_done)
+                        kick = True  # a burst runs the old target: it stops at its next boundary
+                    else:
+                        self._renew_job(k)
+                    # After the new job (a driver's I/O thread may be completing the old one meanwhile: its
+                    # reply, to a job no longer current, leaves the slot unsent, see _complete).
+                    unsent.add(k)
         if kick and self._running:
             self.bus.kick()
 
@@ -315,15 +324,16 @@ class Stream(FrameIterator[Frame]):
         """
         slots = [self._slot(i) for i in (self.ids if ids is None else units.check_ids("ids", ids))]
         kick = False
-        for k in slots:
-            self._targets[k] = WATCH
-            self._held[k] = ""
-            self._unsent.discard(k)  # (a watched ID gets no command)
-            if k in self._frozen:
-                self._stale.add(k)
-                kick = True
-            else:
-                self._renew_job(k)
+        with self._slot_lock:
+            for k in slots:
+                self._targets[k] = WATCH
+                self._held[k] = ""
+                self._unsent.discard(k)  # (a watched ID gets no command)
+                if k in self._frozen:
+                    self._stale.add(k)
+                    kick = True
+                else:
+                    self._renew_job(k)
         if kick and self._running:
             self.bus.kick()
 
@@ -416,18 +426,20 @@ class Stream(FrameIterator[Frame]):
                 slots += more
                 if len(more) == n:
                     ends.add(len(slots) - 1)
-        self._frozen.update(slots[1:])
+        with self._slot_lock:  # (a target set now goes to _stale, renewed once the burst is over)
+            self._frozen.update(slots[1:])
         jobs, readers, shapes = self._jobs, self._readers, self._shapes
         # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
         return [(*jobs[k], b"" if readers[k] is not None else shapes[k], i in ends) for i, k in enumerate(slots)]
 
     def _upcoming_done(self) -> None:
         self._beyond = False
-        self._frozen.clear()
-        stale, self._stale = self._stale, set()
-        for k in stale:
-            self._renew_job(k)
-            self._unsent.add(k)  # (its reply came to the planned job: the new target is not yet sent)
+        with self._slot_lock:  # (a target set meanwhile lands before or after, not in between)
+            self._frozen.clear()
+            stale, self._stale = self._stale, set()
+            for k in stale:
+                self._renew_job(k)
+                self._unsent.add(k)  # (its reply came to the planned job: the new target is not yet sent)
 
     def _complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
         k = self._cur
@@ -440,11 +452,12 @@ class Stream(FrameIterator[Frame]):
             except ReplyError as exc:
                 return exc
             if type(reader) is protocol.ReadParam:  # (a stretch, not a position)
-                if self._offline[k]:
-                    self._rejoin(k)
-                else:  # (back online already: a target set from another thread meanwhile renewed the probe)
-                    self._rejoined.add(k)
-                    self._job_changed(k)
+                with self._slot_lock:
+                    if self._offline[k]:
+                        self._rejoin(k)
+                    else:  # (back online already: its job is its target's again)
+                        self._rejoined.add(k)
+                        self._job_changed(k)
                 self._advance(now)
                 return None
         else:
@@ -476,16 +489,18 @@ class Stream(FrameIterator[Frame]):
         self._failures[k] += 1
         self._fail_run[k] += 1
         if self._fail_run[k] >= self.offline_after and not self._offline[k]:
-            self._offline[k] = True
-            self._job_changed(k)  # probed with a read from now on (see _renew_job)
+            with self._slot_lock:
+                self._offline[k] = True
+                self._job_changed(k)  # probed with a read from now on (see _renew_job)
         if self._offline[k]:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
 
     def _rejoin(self, k: int) -> None:
-        """Offline ID slot ``k`` answered its probe.  Its servo may have restarted meanwhile (free, elsewhere):
-        as after a lost port (see _line_resumed), a position target waits for the program (held: no command
-        until it sets the target again) or is dropped for free, as ``on_resume`` says."""
+        """Offline ID slot ``k`` answered its probe (under ``_slot_lock``).  Its servo may have restarted
+        meanwhile (free, elsewhere): as after a lost port (see _line_resumed), a position target waits for the
+        program (held: no command until it sets the target again) or is dropped for free, as ``on_resume``
+        says."""
         self._fail_run[k] = 0
         self._offline[k] = False
         self._rejoined.add(k)
@@ -520,13 +535,16 @@ class Stream(FrameIterator[Frame]):
         # gone: the old targets could throw them across their range.  A targeted ID gets no
         # command until the program sets its target again ("wait"), or goes free ("free").
         # Free and watched IDs carry on: neither command moves a servo.
-        for k, target in enumerate(self._targets):
-            if target != protocol.FREE and target != WATCH:
-                if self.on_resume == "free":
-                    self._targets[k] = protocol.FREE
-                    self._renew_job(k)
-                else:
-                    self._held[k] = "resumed"
+        with self._slot_lock:
+            for k, target in enumerate(self._targets):
+                # (An offline ID is left to its probe, a read: held now, it would never be probed again; it
+                # comes back as _rejoin says once it answers.)
+                if target != protocol.FREE and target != WATCH and not self._offline[k]:
+                    if self.on_resume == "free":
+                        self._targets[k] = protocol.FREE
+                        self._renew_job(k)
+                    else:
+                        self._held[k] = "resumed"
         # The cycle the loss cut short is dropped; the next starts on a fresh schedule.
         self._rejoined.clear()
         self._order = []
@@ -807,7 +825,8 @@ class Stream(FrameIterator[Frame]):
 
     async def aclose(self) -> None:
         """Stop streaming; the bus stays usable.  With ``on_close="free"`` every ID goes free
-        (torque off); with ``"hold"`` (the default) each servo keeps holding its last target, and a
+        (torque off); with ``"hold"`` (the default) each servo keeps holding its last target (a held or
+        offline ID is sent nothing: it keeps what it last had, free if it restarted), and a
         target set since the last cycle (a final pose set just before the block ends) is sent first."""
         if self._closed:
             return

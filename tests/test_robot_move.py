@@ -316,6 +316,38 @@ def test_a_joint_back_from_offline_is_given_up_by_its_motion_and_waits_for_a_tar
     run_robot(rig, body, offline_after=2, probe_interval=0.02)
 
 
+def test_hold_and_a_loops_targets_leave_a_joint_held_by_its_stream_before_the_robot_saw_the_frame() -> None:
+    # hold() sent a servo back from offline the position it had before it fell silent (the robot had not
+    # yet seen the frame that held it), throwing a restarted servo back there.
+    rig = make_rig(safety={"continue_on_offline": True})
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"elbow": 30.0, "neck": 0.0}, duration=0.05)
+        await robot.read_pose()
+        elbow = rig.upper.remove_servo(3)
+        with anyio.fail_after(GUARD):
+            while "elbow" not in (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).offline:
+                pass
+        rig.upper.add_device(elbow)
+        rig.upper.power_cycle(3)  # restarted free, where the load left it
+        elbow.move_by_hand(sent_position(JOINTS["elbow"], 90.0))
+        since = rig.upper.transactions
+        with anyio.fail_after(GUARD):
+            while "elbow" not in robot.held:
+                await anyio.sleep(0)
+        assert robot.held == {"elbow": "rejoined"}
+        robot.hold()  # every joint where it is: not the elbow, whose position is unknown
+        robot.set_targets({"elbow": 40.0, "neck": 5.0}, lift_holds=False)  # a loop's pass
+        await anyio.sleep(0.1)
+        assert targets_sent(rig.upper, 3, since) == [] and elbow.free
+        assert targets_sent(rig.upper, 1, since)[-1] == sent_position(JOINTS["neck"], 5.0)
+        robot.set_targets({"elbow": 40.0})  # decided
+        await robot.on_wire(["elbow"])
+        assert targets_sent(rig.upper, 3, since)[-1] == sent_position(JOINTS["elbow"], 40.0) and robot.held == {}
+
+    run_robot(rig, body, offline_after=2, probe_interval=0.02)
+
+
 def test_free_hold_and_the_joint_space_stream() -> None:
     rig = make_rig()
 

@@ -654,6 +654,55 @@ async def test_losing_the_port_with_reconnect_resumes_the_stream(driver: str) ->
         assert not frame.failed and not frame.offline
 
 
+async def test_an_id_offline_when_its_port_was_lost_is_still_probed_and_comes_back_held() -> None:
+    # Held as the port came back while it was offline, it left the cycle and was never probed again.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with (
+        open_bus(sim, reconnect=True, **FAST) as bus,
+        bus.stream(ids, offline_after=2, probe_interval=0.02) as stream,
+    ):
+        stream.set_targets({i: start_position(i) + 900 for i in ids})
+        await frames_until(stream, lambda f: len(f.positions) == 3)
+        knee = sim.remove_servo(2)
+        await frames_until(stream, lambda f: 2 in f.offline)
+        sim.unplug(replug_after=0.05)
+        resumed = (await frames_until(stream, lambda f: f.resumed))[-1]
+        assert resumed.held == {1, 3} and stream.held == {1: "resumed", 3: "resumed"}
+        sim.add_device(knee)
+        seq = sim.transactions
+        await frames_until(stream, lambda f: 2 not in f.offline)
+        assert stream.held == {1: "resumed", 2: "rejoined", 3: "resumed"}
+        assert not [t for t in sim.log_since(seq) if t.command in POSITION_COMMANDS]  # nothing moved
+
+
+async def test_a_loop_that_sets_every_target_each_cycle_keeps_a_hold_with_lift_holds_false() -> None:
+    # A hold may begin after the frame a loop looked at: filtering its targets by that frame's held, the loop
+    # lifted the hold at once and threw the restarted servo to its target.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with open_bus(sim, **FAST) as bus, bus.stream(ids, offline_after=2, probe_interval=0.02) as stream:
+        pose = {i: start_position(i) + 900 for i in ids}
+        stream.set_targets(pose)
+        await frames_until(stream, lambda f: len(f.positions) == 3)
+        knee = sim.remove_servo(2)
+        await frames_until(stream, lambda f: 2 in f.offline)
+        sim.add_device(knee)
+        sim.power_cycle(2)
+        seq = sim.transactions
+        while 2 not in stream.held:
+            stream.set_targets(pose, lift_holds=False)  # the loop's every cycle
+            await next_frame(stream)
+        for _ in range(5):
+            stream.set_targets(pose, lift_holds=False)
+            await next_frame(stream)
+        assert [t for t in sim.log_since(seq) if t.servo_id == 2 and t.command == "position"] == []
+        assert knee.free
+        stream.set_targets({2: pose[2]})  # the program decides: the hold is lifted
+        await frames_until(stream, lambda f: 2 in f.positions)
+        assert stream.held == {}
+
+
 async def test_the_slots_a_paced_stream_missed_while_its_port_was_lost_are_counted() -> None:
     # The control-loop page: missed_slots are "slots that passed with no cycle: your program or the line
     # stalled"; after an outage the resumed frame said 0, so a loop's log showed no gap at all.

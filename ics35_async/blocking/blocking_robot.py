@@ -187,16 +187,24 @@ class BlockingRobot(LoopOwner[Robot]):
     # ------------------------------------------------------------------ plain calls, run on the loop thread
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all) where they are now, torque on."""
+        """Hold ``joints`` (default: all but the tripped and the held ones) where they are now, torque on.
+
+        Raises:
+            SafetyStop: ``joints`` names a tripped joint (see ``Robot.hold``).
+        """
         self._loop.call_sync(self._async.hold, joints)
 
-    def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
-        """Targets ``pose`` ``{joint: degrees}``, all checked first (``None`` frees, with ``allow_free``).
+    def set_targets(
+        self, pose: Mapping[str, float | None], *, allow_free: bool = False, lift_holds: bool = True
+    ) -> None:
+        """Targets ``pose`` ``{joint: degrees}``, all checked first (``None`` frees, with ``allow_free``);
+        ``lift_holds=False``: a held joint stays held (see ``Robot.set_targets``, :attr:`held`).
 
         Raises:
             InvalidArgument: an unknown joint, an angle outside its limits or a ``None`` without ``allow_free``.
+            SafetyStop: an angle for a tripped joint (see ``Robot.set_targets``).
         """
-        self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free)
+        self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free, lift_holds=lift_holds)
 
     # ------------------------------------------------------------------ snapshots
 
@@ -224,6 +232,11 @@ class BlockingRobot(LoopOwner[Robot]):
     def tripped(self) -> dict[str, SafetyStop]:
         """Joints whose safety stop still stands."""
         return self._loop.read(_tripped_of, self._async)
+
+    @property
+    def held(self) -> dict[str, str]:
+        """Joints their streams hold now, sent nothing until a target is set, and why (see ``Robot.held``)."""
+        return self._loop.read(_held_of, self._async)
 
     @property
     def warnings(self) -> list[str]:
@@ -255,6 +268,10 @@ def _telemetry_of(robot: Robot) -> dict[str, JointTelemetry]:
 
 def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:
     return robot.tripped
+
+
+def _held_of(robot: Robot) -> dict[str, str]:
+    return robot.held
 
 
 def _warnings_of(robot: Robot) -> list[str]:

@@ -35,4 +35,6 @@ class RobotFrame:
     is set for them again: their servos
     may have restarted, free and elsewhere, and where they are is unknown until they answer again (an ICS
     3.6 servo's position can be read: ``robot.group[line].servo(id).read_position()``).  Decide before
-    moving them; a target set for one (``set_targets``, a motion) ends its hold."""
+    moving them; a target the program sets for one (``set_targets``, ``hold``, ``free``; not a motion's
+    next step, nor ``set_targets(..., lift_holds=False)``) ends its hold.  ``Robot.held`` is the same,
+    live."""

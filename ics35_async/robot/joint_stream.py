@@ -56,15 +56,16 @@ class RobotStream(FrameIterator[RobotFrame]):
         """
         self.robot.set_targets({joint: degrees})
 
-    def set_targets(self, pose: Mapping[str, float]) -> None:
-        """Targets ``pose`` ``{joint: degrees}``, all checked (names, limits) before any is applied.
+    def set_targets(self, pose: Mapping[str, float], *, lift_holds: bool = True) -> None:
+        """Targets ``pose`` ``{joint: degrees}``, all checked (names, limits) before any is applied;
+        ``lift_holds``: as for ``Robot.set_targets`` (a loop setting every joint each frame passes False).
 
         Raises:
             InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
             SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
-        self.robot.set_targets(pose)
+        self.robot.set_targets(pose, lift_holds=lift_holds)
 
     def free(self, joints: Iterable[str] | None = None) -> None:
         """Free ``joints`` (default: all): torque off, positions still read back.

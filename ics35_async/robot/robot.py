@@ -87,9 +87,21 @@ class Robot:
 
     @property
     def targets(self) -> dict[str, float | None]:
-        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``).  A joint
-        held since its line came back (``latest.held``) shows the target it had, not being sent."""
+        """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``).  A held
+        joint (see :attr:`held`) shows the newest target set for it, not being sent."""
         return dict(self._targets)
+
+    @property
+    def held(self) -> dict[str, str]:
+        """The joints their streams hold now, sent nothing until a target is set for them, and why:
+        ``"resumed"`` (their line's lost port came back) or ``"rejoined"`` (their servo answered again after
+        going offline): the servo may have restarted, free and elsewhere.  Live, where ``latest.held`` is as
+        of that frame's cycles: a control loop filters its targets by this (or sets them with
+        ``lift_holds=False``)."""
+        if self._gstream is None:
+            return {}
+        by_key = self._by_key
+        return {by_key[k]: why for k, why in self._gstream.held.items() if k in by_key}
 
     @property
     def telemetry(self) -> dict[str, JointTelemetry]:
@@ -172,9 +184,13 @@ class Robot:
 
     # ------------------------------------------------------------------ targets
 
-    def set_targets(self, pose: Mapping[str, float | None], *, allow_free: bool = False) -> None:
+    def set_targets(
+        self, pose: Mapping[str, float | None], *, allow_free: bool = False, lift_holds: bool = True
+    ) -> None:
         """Targets ``pose`` ``{joint: degrees}`` (``None`` frees, with ``allow_free``), all checked first;
-        they take over those joints from any running motion.
+        they take over those joints from any running motion.  A held joint (see :attr:`held`) is sent its
+        target: the program has decided; ``lift_holds=False`` (a loop that sets every joint each pass) leaves
+        it held, sent nothing.
 
         Raises:
             InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
@@ -189,7 +205,7 @@ class Robot:
         checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
         self._refuse_tripped(n for n, d in checked.items() if d is not None)
         self._release(checked)
-        self._apply(checked)
+        self._apply(checked, lift_holds=lift_holds)
 
     def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
         """How the joints start (see :mod:`.startup`): ``stated`` angles already in the stream, ``read`` watched."""
@@ -199,6 +215,7 @@ class Robot:
 
     def hold(self, joints: Iterable[str] | None = None) -> None:
         """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on.
+        A held joint (see :attr:`held`) is left out: where it is is unknown.
 
         Raises:
             InvalidArgument: an unknown joint.
@@ -210,7 +227,12 @@ class Robot:
             names = [n for n in names if n not in self._latched]
         self._refuse_tripped(names)
         self._release(names)
-        self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions})
+        # (the streams' holds now, not only those a frame has told the robot of: a servo back from offline
+        # since has no position but the one from before it fell silent)
+        unknown = self.held.keys() | self._held.keys()
+        self._apply(
+            {n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions and n not in unknown}
+        )
 
     async def free(self, joints: Iterable[str] | None = None) -> None:
         """Torque off for ``joints`` (default: all); returns once that has gone out on the wire.
@@ -481,8 +503,11 @@ class Robot:
         held_now = {by_key[k]: why for k, why in self._gstream.held.items() if k in by_key} if self._gstream else {}
         self._held = {name: why for name, why in self._held.items() if name in held_now}
         self._watch_offline(offline)
-        if frame.resumed:
-            self._line_resumed(frame.resumed, held)
+        if frame.resumed:  # (held as of now, and for the lost port: not a joint on another line back from offline)
+            resumed = frozenset(
+                n for n, why in held_now.items() if why == "resumed" and self.joints[n].line in frame.resumed
+            )
+            self._line_resumed(frame.resumed, resumed)
         came_back = {name for name, why in held_now.items() if why == "rejoined" and name not in self._held}
         if came_back:
             self._came_back(frozenset(came_back))
