@@ -42,7 +42,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import anyio
@@ -323,13 +323,12 @@ async def scan(
     return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), reasons, rate_blind)
 
 
-async def device_rates(open_at: LineOpener, bauds: Iterable[int]) -> tuple[int, ...]:
-    """The rates among ``bauds`` at which some device answers the ID read (garbled counts: several answer).
-
-    For advice after nothing answered at a line's rate, where no servo ID is known (an ID write).  A
-    rate the port cannot be opened at is left out; on a line that ignores rates none is offered.
-    ``open_at(baud)`` opens the line at a rate, as for :func:`scan`.
-    """
+async def _rates_where(
+    open_at: LineOpener, bauds: Iterable[int], answers: Callable[[Line, int], Awaitable[bool]]
+) -> tuple[int, ...]:
+    """The rates among ``bauds`` at which ``answers(line, baud)`` is True, the line opened there with
+    ``open_at(baud)``.  A rate the port cannot be opened at is left out; on a line that ignores rates none
+    is offered (every rate is the far end's one rate)."""
     found: list[int] = []
     skipped: dict[int, IcsError] = {}
     for baud in _check_bauds(bauds):
@@ -338,10 +337,23 @@ async def device_rates(open_at: LineOpener, bauds: Iterable[int]) -> tuple[int, 
             if line is None:
                 continue
             if not carries_line_settings(getattr(line, "port", None)):
-                return ()  # every rate is the far end's one rate: none to offer
-            if await anyone_there(line):
+                return ()
+            if await answers(line, baud):
                 found.append(baud)
     return tuple(found)
+
+
+async def device_rates(open_at: LineOpener, bauds: Iterable[int]) -> tuple[int, ...]:
+    """The rates among ``bauds`` at which some device answers the ID read (garbled counts: several answer).
+
+    For advice after nothing answered at a line's rate, where no servo ID is known (an ID write).
+    ``open_at(baud)`` opens the line at a rate, as for :func:`scan`.
+    """
+
+    async def answers(line: Line, baud: int) -> bool:
+        return await anyone_there(line)
+
+    return await _rates_where(open_at, bauds, answers)
 
 
 async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) -> tuple[int, ...]:
@@ -356,20 +368,13 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
         InvalidArgument: ``servo_id`` is not 0..31.
     """
     servo_id = protocol.check_id(servo_id)
-    found: list[int] = []
-    skipped: dict[int, IcsError] = {}
-    for baud in _check_bauds(bauds):
-        async with contextlib.AsyncExitStack() as stack:
-            line = await _open_or_skip(stack, open_at, baud, skipped)
-            if line is None:
-                continue
-            if not carries_line_settings(getattr(line, "port", None)):
-                return ()  # every rate is the far end's one rate: none to offer
-            try:
-                await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
-            except ReplyError:
-                continue
-            image = await read_eeprom_or_error(line, servo_id)
-            if isinstance(image, Eeprom) and int(image.baud_rate) == baud:
-                found.append(baud)
-    return tuple(found)
+
+    async def answers(line: Line, baud: int) -> bool:
+        try:
+            await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
+        except ReplyError:
+            return False
+        image = await read_eeprom_or_error(line, servo_id)
+        return isinstance(image, Eeprom) and int(image.baud_rate) == baud
+
+    return await _rates_where(open_at, bauds, answers)
