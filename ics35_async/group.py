@@ -199,6 +199,11 @@ class GroupStream(FrameIterator[GroupFrame]):
         )
 
     @property
+    def offline(self) -> frozenset[tuple[str, int]]:
+        """Each line's :attr:`Stream.offline <ics35_async.Stream.offline>` now, keyed by ``(line, id)``."""
+        return frozenset((line, sid) for line, stream in self.streams.items() for sid in stream.offline)
+
+    @property
     def held(self) -> dict[tuple[str, int], str]:
         """Each line's :attr:`Stream.held <ics35_async.Stream.held>` now, keyed by ``(line, id)``."""
         return {(line, sid): why for line, stream in self.streams.items() for sid, why in stream.held.items()}

@@ -27,7 +27,7 @@ from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_position, make_rig, targets_sent
-from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION
+from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION, scaled
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -646,6 +646,21 @@ def test_play_says_which_joint_it_could_not_leave_as_its_summary_says(cli: Any, 
     assert "neck" not in summary
 
 
+def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
+    """Unplug ``servo_id`` a moment after it first answers (mid-motion), from a thread of its own."""
+
+    def run() -> None:
+        deadline = time.monotonic() + scaled(30.0)
+        while time.monotonic() < deadline:
+            if any(t.servo_id == servo_id and t.reply for t in sim.log_since(0)):
+                time.sleep(0.3)
+                sim.remove_servo(servo_id)
+                return
+            time.sleep(0.01)
+
+    threading.Thread(target=run, daemon=True).start()
+
+
 @pytest.mark.parametrize(
     ("safety", "on_stop", "phrase", "free"),
     [
@@ -664,7 +679,7 @@ def test_a_safety_stop_says_what_the_joints_were_left_in(
     try:
         robot_file = tmp_path / "robot.toml"
         robot_file.write_text(dump_description(load_description(sims.description)))
-        sims.lower.remove_servo(JOINTS["hip"]["id"])
+        unplug_once_answered(sims.lower, JOINTS["hip"]["id"])  # (one never heard from is refused, not a trip)
         motion = write_motion(tmp_path / "m.json", {"time": 3.0, "pose": {"neck": 20, "hip": -10}})
         # (--start-pose: the neck holds from the first command, as a standing robot's joints would)
         result = cli("play", str(robot_file), str(motion), "--on-stop", on_stop, "--start-pose", "neck=0")

@@ -12,7 +12,7 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import Robot, SafetyStop, open_robot
+from ics35_async import Robot, SafetyStop, UnsafeOperation, open_robot
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD
@@ -132,6 +132,45 @@ def test_action_hold_keeps_every_joint_at_its_last_target() -> None:
     for name in ("shoulder", "hip"):
         assert not rig.servo(name).free, name
     assert robot.tripped["shoulder"] is stop
+
+
+@pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
+def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refuses_motions() -> None:
+    # One servo unplugged before the robot opened (a loose plug, a line at the wrong rate): its joint went
+    # "offline" in the first cycles and the default action, stop, freed every joint, so a robot standing on its
+    # start pose went limp as it opened.  A joint that never answered was never under control: it is named at
+    # open and refused by motions, and the others hold.
+    rig = make_rig()
+    knee = rig.lower.remove_servo(2)
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"hip": 10.0, "knee": 0.0}, **FAST) as robot:
+                while robot.latest is None or "knee" not in robot.latest.offline:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                lower = robot.latest.line_cycles["lower"]
+                while robot.latest.line_cycles["lower"] < lower + 3:  # (the watch has seen it offline)
+                    await robot.wait_frame(robot.latest.cycle)
+                assert robot.trips == [] and not rig.servo("hip").free
+                assert any("knee" in w and "did not answer" in w for w in robot.warnings), robot.warnings
+                with pytest.raises(UnsafeOperation, match="joint knee has not answered since the robot opened"):
+                    await robot.move_to({"hip": 5.0, "knee": 5.0}, duration=0.05)
+                await robot.move_to({"hip": 5.0}, duration=0.05)  # the others move
+                rig.lower.add_device(knee)  # plugged in: it answers (held, where it is), under the watch from then on
+                while "knee" not in robot.held:
+                    await robot.wait_frame(robot.latest.cycle)
+                robot.set_targets({"knee": 0.0})  # decided
+                await robot.move_to({"knee": 5.0}, duration=0.05)
+                rig.lower.remove_servo(2)  # lost after it answered: the watch stops the robot
+                with pytest.raises(SafetyStop, match="joint knee"):
+                    while True:
+                        await robot.wait_frame(robot.latest.cycle)
+                        robot.check_ready(["knee"])
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
 
 
 def test_an_offline_servo_stops_the_motion_unless_continue_on_offline() -> None:

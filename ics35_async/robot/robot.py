@@ -64,6 +64,9 @@ class Robot:
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
+        # Joints whose servo has answered since the robot opened: only these are under control, so only their
+        # going offline trips the watch (one never heard from is refused by motions instead: see check_ready).
+        self._answered: set[str] = set()
         self._latest: RobotFrame | None = None
         self._new_frame = anyio.Event()
         self._plans: list[Plan] = []
@@ -246,6 +249,11 @@ class Robot:
         self._apply(dict.fromkeys(names))
         await self.on_wire(names)
 
+    def _offline_now(self, name: str) -> bool:
+        """Whether ``name``'s servo is offline in its stream now (frames tell it as of their cycles)."""
+        joint = self.joints[name]
+        return self._gstream is not None and (joint.line, joint.id) in self._gstream.offline
+
     def _refuse_tripped(self, joints: Iterable[str]) -> None:
         """Raise the safety stop of the first of ``joints`` still tripped: a target for it would undo what the
         watch did (a freed joint's torque back on: a control loop setting every joint each pass did so at its
@@ -325,6 +333,16 @@ class Robot:
         for name in joints:
             if name in self._latched:
                 raise self._latched[name]
+            if (
+                name not in self._answered
+                and self._offline_now(name)
+                and not self.description.safety.continue_on_offline  # (there: played on without it)
+            ):
+                joint = self.joints[name]
+                raise UnsafeOperation(
+                    f"joint {name} has not answered since the robot opened (line {joint.line}, servo ID {joint.id}: "
+                    "check its power, wiring, ID and the line's baud rate): a motion would drive it blind"
+                )
             if name in self._held:
                 raise UnsafeOperation(
                     f"joint {name} is held since {self._held[name]}: where it is is unknown "
@@ -494,6 +512,7 @@ class Robot:
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
         self._positions.update(positions)
+        self._answered.update(positions)
         stamps = {by_key[k]: t for k, t in frame.timestamps.items() if k in by_key}
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
@@ -509,6 +528,7 @@ class Robot:
             )
             self._line_resumed(frame.resumed, resumed)
         came_back = {name for name, why in held_now.items() if why == "rejoined" and name not in self._held}
+        self._answered.update(came_back)  # (it answered its probe: under the watch from now on)
         if came_back:
             self._came_back(frozenset(came_back))
         merged = RobotFrame(
@@ -623,6 +643,11 @@ class Robot:
         if self.description.safety.continue_on_offline:
             return
         for name in offline:
+            if name not in self._answered:
+                # Never heard from since the robot opened (unplugged, another rate: the open named it): nothing
+                # of it is under control, and stopping the others (action "stop" frees them all) would drop a
+                # robot standing on its start pose.  Motions naming it are refused (check_ready).
+                continue
             joint = self.joints[name]
             action = self.description.safety.action
             self.trip(
