@@ -99,6 +99,8 @@ class StreamStats:
       bursting to catch up), a lost port's outage included.
     - ``frames_dropped``: frames no consumer looked at before the next one replaced them.
     - ``failures``: failed transactions per ID; ``offline``: the IDs out of the cycle now.
+    - ``probes``: parameter reads that probed an offline ID with a position target (answered or not); on the
+      wire they look like the bus's guard reads (``BusStats.guards``).
     """
 
     cycles: int = 0
@@ -113,6 +115,7 @@ class StreamStats:
     failures: dict[int, int] = field(default_factory=dict)
     offline: frozenset[int] = frozenset()
     missed_slots: int = 0
+    probes: int = 0
 
 
 def percentile(sorted_values: Sequence[float], p: float) -> float:

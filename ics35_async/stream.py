@@ -158,6 +158,7 @@ class Stream(FrameIterator[Frame]):
         # while calling into the bus (the driver's lock is taken first by the hooks' callers).
         self._slot_lock = threading.Lock()
         self._rejoined: set[int] = set()  # slots back from offline in the cycle in progress (see _rejoin)
+        self._probes = 0  # offline IDs' probe reads (see _renew_job) that ended, answered or not
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
         # A slot leaves it when a reply comes to the job that carries its current target (see _complete).
@@ -452,6 +453,7 @@ class Stream(FrameIterator[Frame]):
             except ReplyError as exc:
                 return exc
             if type(reader) is protocol.ReadParam:  # (a stretch, not a position)
+                self._probes += 1
                 with self._slot_lock:
                     if self._offline[k]:
                         self._rejoin(k)
@@ -488,6 +490,8 @@ class Stream(FrameIterator[Frame]):
             return
         self._failures[k] += 1
         self._fail_run[k] += 1
+        if type(self._cur_reader) is protocol.ReadParam:
+            self._probes += 1
         if self._fail_run[k] >= self.offline_after and not self._offline[k]:
             with self._slot_lock:
                 self._offline[k] = True
@@ -792,6 +796,7 @@ class Stream(FrameIterator[Frame]):
             failures={sid: n for sid, n in zip(self.ids, self._failures, strict=True) if n},
             offline=self.offline,
             missed_slots=self._missed,
+            probes=self._probes,
         )
 
     # ------------------------------------------------------------------ lifetime

@@ -323,6 +323,7 @@ async def test_dead_id_goes_offline_is_probed_at_a_low_rate_and_rejoins() -> Non
     # again and nothing is offline.
     probes_sent = {t.command for t in dead_txns(seq_obs) if t.seq < seq_alive}
     assert probes_sent == {"read_stretch"}, probes_sent
+    assert stats.probes == len([t for t in dead_txns(seq_dead) if t.command == "read_stretch"]) > 2
     assert back[-1].offline == frozenset() and back[-1].failed == frozenset()
     assert all(set(f.positions) == set(ids) and not f.offline for f in after)
     assert stats.offline == frozenset()
