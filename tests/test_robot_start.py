@@ -349,7 +349,11 @@ def test_on_close_free_sends_every_joint_one_free(ending: str, backend: str) -> 
         rig.close()
     assert frees_since(rig, marks) == dict.fromkeys(JOINTS, 1)
     assert all(rig.servo(name).free for name in JOINTS), {n: rig.servo(n).target for n in JOINTS}
-    assert closed[0].targets == dict.fromkeys(JOINTS)  # the closed robot's snapshot says so too
+    # The closed robot's snapshot says so too.  (Under trio the lines run in real time: on a loaded machine the
+    # close's time bound can run out with a free's reply still due, and the snapshot then keeps that joint's
+    # target, as documented: its servo "may still hold".  The wire, checked above, shows the free went out.)
+    kept = {name: target for name, target in closed[0].targets.items() if target is not None}
+    assert not kept or trio, kept
 
 
 def test_a_line_still_lost_at_the_close_keeps_its_joints_targets_in_the_closed_robots_snapshot() -> None:
