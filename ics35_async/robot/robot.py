@@ -519,7 +519,7 @@ class Robot:
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
         # What the streams hold now, not as of this frame's cycles: a joint whose target was set since is held
         # no more, and one that came back from offline since is (the robot may lag behind its frames).
-        held_now = {by_key[k]: why for k, why in self._gstream.held.items() if k in by_key} if self._gstream else {}
+        held_now = self.held
         self._held = {name: why for name, why in self._held.items() if name in held_now}
         self._watch_offline(offline)
         if frame.resumed:  # (held as of now, and for the lost port: not a joint on another line back from offline)
