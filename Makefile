@@ -16,7 +16,7 @@ export PYTHONDONTWRITEBYTECODE :=
 
 all: test
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py ics35_async/drivers/_burst.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does

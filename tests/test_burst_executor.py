@@ -1,4 +1,4 @@
-"""The compiled burst executor (ics35_async._burst) on a real pty, against a responder thread.
+"""The compiled burst executor (ics35_async.drivers._burst) on a real pty, against a responder thread.
 
 The executor only moves bytes and notes times; what it must get right is where it stops: at the
 end of the plan, at a late transaction, at an echo that differs from what was sent, at more bytes
@@ -30,7 +30,7 @@ from ics35_async.drivers.burst import DONE, HANGUP, LATE, MARK, MISMATCH, OVERRU
 from ics35_async.transports.tty_port import ParityMarks, enable_parity_marks
 from tests.support.timing import GUARD, NO_TIMEOUTS, scaled
 
-_burst = pytest.importorskip("ics35_async._burst", reason="the executor is not built (no C compiler?)")
+_burst = pytest.importorskip("ics35_async.drivers._burst", reason="the executor is not built (no C compiler?)")
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs a pty")
 
 # Each transaction's allowance where every answer is expected: the no-timeouts one (a responder thread on a

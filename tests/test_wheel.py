@@ -45,6 +45,10 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
         names = archive.namelist()
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names
     assert "ics35_async/py.typed" in names
+    # The compiled helper's types ship with it; on Linux (where the tests build it) the helper itself too.
+    assert "ics35_async/drivers/_burst.pyi" in names
+    if sys.platform.startswith("linux"):
+        assert any(n.startswith("ics35_async/drivers/_burst.") and n.endswith(".so") for n in names), names
     with zipfile.ZipFile(wheel) as archive:
         (metadata_name,) = [n for n in names if n.endswith(".dist-info/METADATA")]
         metadata = archive.read(metadata_name).decode()
@@ -55,6 +59,7 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
     with tarfile.open(sdist) as archive:
         members = [m.split("/", 1)[1] for m in archive.getnames() if "/" in m]
     assert "LICENSE" in members and "CHANGELOG.md" in members
+    assert "ics35_async/drivers/_burst.c" in members  # so an sdist install builds the helper
     assert not [m for m in members if m.startswith("tests/")], "the sdist ships tests it cannot run"
 
 

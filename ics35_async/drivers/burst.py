@@ -2,7 +2,7 @@
 
 The engine makes the plan (:meth:`LineEngine.plan_burst <ics35_async.engine.LineEngine.plan_burst>`):
 the stream's transaction just put on the wire and its next ones, as far as the sharing rule lets
-the stream keep the line.  The executor (:mod:`ics35_async._burst`, C, in a thread of its own and
+the stream keep the line.  The executor (:mod:`ics35_async.drivers._burst`, C, in a thread of its own and
 without the GIL) writes each command and reads its echo and reply, and stops at the first one that
 is late, short, not echoed as sent or answered out of the shape the source gave for its reply (the
 source would refuse that reply, and the burst's later commands must not go out after it), or at a
@@ -39,7 +39,7 @@ from ..engine import LineEngine, Request
 from ..engine.machine import PlannedTransaction
 
 try:
-    from .. import _burst
+    from . import _burst
 except ImportError as exc:  # not built (no compiler at install time) or not for this platform
     _burst = None  # type: ignore[assignment]
     _IMPORT_ERROR: str = str(exc)
@@ -93,7 +93,9 @@ def burst_path() -> tuple[bool, str]:
         return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; {turn_on})"
     if not setting and not linux:
         return False, f"off by default on {sys.platform}, where it has not been tried ({ENV}=1 turns it on)"
-    return True, "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async._burst)"
+    return True, (
+        "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async.drivers._burst)"
+    )
 
 
 def line_path(bursts: bool) -> tuple[bool, str]:
@@ -103,7 +105,7 @@ def line_path(bursts: bool) -> tuple[bool, str]:
     if not on:
         return on, why
     if bursts:
-        return True, "on for this line (its streams run in the compiled helper ics35_async._burst)"
+        return True, "on for this line (its streams run in the compiled helper ics35_async.drivers._burst)"
     return False, (
         "off for this line: the helper runs on a serial port's descriptor under the asyncio driver "
         "(not for a URL such as sim:// or a bridge, nor with the thread transport)"
@@ -153,7 +155,7 @@ class BurstRunner:
         last_request: Callable[[], float] = lambda: -math.inf,
     ) -> None:
         self.engine = engine
-        self.executor = executor  # an ics35_async._burst.Burst (tests: the same contract on a simulated wire)
+        self.executor = executor  # an ics35_async.drivers._burst.Burst (tests: the same contract on a simulated wire)
         self.decode = decode
         self._pending = pending  # the port holds half a parity mark: the ordinary read must finish it
         self.plan: list[PlannedTransaction] | None = None

@@ -1,6 +1,6 @@
 """The burst path on the simulated wire: the compiled executor's contract in simulated time.
 
-:class:`SimExecutor` does on a :class:`~.engine_support.Wire` what ``ics35_async._burst`` does on
+:class:`SimExecutor` does on a :class:`~.engine_support.Wire` what ``ics35_async.drivers._burst`` does on
 a real port (write each planned command, take the bytes that arrive until its expected count or
 its deadline, stop at a late, short, overlong or wrongly echoed transaction, or one answered out of
 its planned shape, or at a boundary once woken); :class:`BurstWire` is the Wire with the library's
@@ -22,7 +22,7 @@ from .engine_support import Answer, Wire
 
 
 class SimExecutor:
-    """``ics35_async._burst.Burst``'s contract on a simulated wire (run by :class:`BurstWire`)."""
+    """``ics35_async.drivers._burst.Burst``'s contract on a simulated wire (run by :class:`BurstWire`)."""
 
     done_fd = -1
 

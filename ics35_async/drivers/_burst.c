@@ -627,7 +627,7 @@ static PyGetSetDef Burst_getset[] = {
 };
 
 static PyTypeObject BurstType = {
-    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "ics35_async._burst.Burst",
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "ics35_async.drivers._burst.Burst",
     .tp_basicsize = sizeof(Burst),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_doc = "Burst(fd, *, marks=False): runs plans of transactions on fd (see the module docstring).",
@@ -640,7 +640,7 @@ static PyTypeObject BurstType = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT,
-    .m_name = "ics35_async._burst",
+    .m_name = "ics35_async.drivers._burst",
     .m_doc = "The burst executor: a plan of transactions run on a descriptor without the GIL.",
     .m_size = -1,
 };

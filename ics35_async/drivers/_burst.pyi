@@ -1,4 +1,4 @@
-"""Types of the compiled burst executor (ics35_async/_burst.c)."""
+"""Types of the compiled burst executor (ics35_async/drivers/_burst.c)."""
 
 DONE: int
 WOKEN: int
