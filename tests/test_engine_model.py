@@ -139,6 +139,8 @@ class LineModel(RuleBasedStateMachine):
         self.source: FakeSource | None = None
         self.source_errors: list[str] = []
         self.starts_before_request = 0
+        self.head: tuple[object, int] = (None, 0)  # the queue's head and the stream's starts when it became so
+        self.starts_at_last_write = 0
         self.uncounted = 0  # transactions a lost port took off the wire before they ended
 
     # ---------------------------------------------------------------- rules
@@ -165,11 +167,13 @@ class LineModel(RuleBasedStateMachine):
             req = Recorded(command, priority, retries, wire=self.wire)
             self.requests.append(req)
             self.wire.submit(req)
+        self._note_head()
 
     @precondition(lambda self: self.requests)
     @rule(data=st.data())
     def cancel(self, data: st.DataObject) -> None:
         data.draw(st.sampled_from(self.requests)).cancel()
+        self._note_head()
 
     @rule(batch=st.lists(faults, min_size=1, max_size=4))
     def inject(self, batch: list[tuple[str, float, list[int]]]) -> None:
@@ -194,6 +198,9 @@ class LineModel(RuleBasedStateMachine):
         source.on_value = self._check_source_value
         self.source = source
         self.starts_before_request = 0  # the source's transactions started before the last request went
+        self.head = (None, 0)
+        self.starts_at_last_write = 0
+        self._note_head()
         self.wire.emit(self.engine.attach_source(source, self.wire.now))
 
     @precondition(lambda self: self.source is not None)
@@ -233,16 +240,33 @@ class LineModel(RuleBasedStateMachine):
         # stream runs late (a slot already past when its previous transaction ended: faults, a short
         # period) and requests were passed over in two of its slots since the last one went (the
         # second is the one it takes): then the stream has started a transaction since.
+        # Each request's own count: the stream has started a transaction since the request became the queue's
+        # head (a count left by a head that was cancelled, or went, is not the next head's).
         source, current = self.source, self.engine._current
-        if source is None or not source.paced or not source.active or not isinstance(current, Recorded):
-            return
-        since = len(source.started) - self.starts_before_request
-        self.starts_before_request = len(source.started)
-        if current.priority != Priority.URGENT and source.wake_at <= self.wire.now and since < 1:
-            self.source_errors.append(
-                f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}, "
-                f"{since} stream transaction(s) since the last request"
-            )
+        # (the head changes between writes only, at a rule or a transaction's end: a head first seen at this
+        # write became so with the stream's starts as they were after the write before)
+        before_this_write, self.starts_at_last_write = self.starts_at_last_write, len(source.started) if source else 0
+        try:
+            if source is None or not source.paced or not source.active or not isinstance(current, Recorded):
+                return
+            since = len(source.started) - self.starts_before_request
+            self.starts_before_request = len(source.started)
+            as_head = len(source.started) - self.head[1] if self.head[0] is current else 0
+            if current.priority != Priority.URGENT and source.wake_at <= self.wire.now and min(since, as_head) < 1:
+                self.source_errors.append(
+                    f"{current!r} started at {self.wire.now}, the slot due at {source.wake_at}, "
+                    f"{since} stream transaction(s) since the last request, {as_head} since it became the head"
+                )
+        finally:
+            self._note_head(before_this_write)
+
+    def _note_head(self, starts: int | None = None) -> None:
+        waiting = self.engine.queue.waiting()
+        head = waiting[0] if waiting else None
+        if head is not self.head[0]:
+            if starts is None:
+                starts = len(self.source.started) if self.source is not None else 0
+            self.head = (head, starts)
 
     def _check_source_value(self, sid: int, value: int) -> None:
         k = len(self.wire.writes) - 1
