@@ -17,8 +17,9 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   (5 ms by default);
 * busy thread: a Python thread computing without pause (planning, or vision in pure Python: it
   holds the GIL but for the interpreter's switch interval) beside the stream on the asyncio
-  driver, on the ordinary path (``ICS35_BURST=0``: the loop's thread needs the GIL at every
-  transaction) and on the compiled path (the default where it is built: once a cycle).
+  driver and on the thread driver, each on the ordinary path (``ICS35_BURST=0``: the loop's or
+  the I/O thread needs the GIL at every transaction) and on the compiled path (the default where
+  it is built: once a cycle).
   The busy rows use the simulator in its own process on a pty (``python -m
   ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too,
   and the compiled path needs a port with a descriptor.
@@ -61,7 +62,12 @@ BAUD = 1_250_000
 RATE_HZ = 100.0
 FAULTS = "drop:0.0125,truncate:0.0125,late:0.0125,corrupt:0.0125"  # 5% in all
 BUSY = ("busy loop, asyncio driver", "busy loop, thread driver", "busy loop, thread driver, switch 0.5 ms")
-BUSY_THREAD = {"busy thread, ordinary path": "0", "busy thread, compiled path": "1"}  # ICS35_BURST for each
+BUSY_THREAD = {  # ICS35_BURST for each
+    "busy thread, ordinary path": "0",
+    "busy thread, compiled path": "1",
+    "busy thread, thread driver, ordinary path": "0",
+    "busy thread, thread driver, compiled path": "1",
+}
 SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY, *BUSY_THREAD)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 

@@ -8,11 +8,14 @@ test_stream.py.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from typing import Any
 
 import pytest
 
-from ics35_async import PortLost, ReplyTimeout, open_bus, protocol
+from ics35_async import PortLost, ReplyError, ReplyTimeout, open_bus, protocol
+from ics35_async.drivers import burst
+from ics35_async.drivers.burst import ENV, burst_path
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.timing import FAST, NO_TIMEOUTS, PATIENT, or_describe, scaled
 
@@ -119,3 +122,42 @@ async def test_a_stream_reply_it_rejects_is_never_counted_ok(pty_sim: Any) -> No
         await or_describe(frames(), bus, RUN_GUARD)
         assert seen == []
         assert bus.stats.per_id[2].bad_replies > 0
+
+
+@pytest.mark.pty
+async def test_a_stream_on_a_tty_runs_in_bursts_beside_requests_that_get_their_own_replies(
+    pty_sim: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The compiled path under the I/O thread: the stream's transactions run in the executor while the
+    # program's requests arrive mid-burst (no pause after requests here); each gets its own servo's reply and
+    # the stream's frames carry every ID.  (On a loaded machine a stream transaction may give up after its
+    # short learnt wait and its late reply fail the next transaction: a failure, never a value for another.)
+    monkeypatch.setenv(ENV, "1")
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)
+    assert burst_path()[0], burst_path()[1]
+    ids = list(range(1, 9))
+    path = pty_sim("--fast", "--ids", "1-8").path
+    async with open_bus(path, driver="thread", **PATIENT) as bus:
+        assert bus.describe()["burst_path"] is True
+        runner = bus._driver.burst  # type: ignore[attr-defined]
+        async with bus.stream(ids) as stream:
+            targets = {i: 7000 + 100 * i for i in ids}
+            stream.set_targets(targets)
+            whole: list[bool] = []
+            answered: list[int] = []
+
+            async def frames() -> None:
+                for _ in range(200):
+                    frame = await stream.next_frame()
+                    whole.append(frame.positions == targets)  # (the fast simulator is where it is told at once)
+
+            async def reads() -> None:
+                for n in range(200):
+                    sid = 1 + n % 8
+                    with contextlib.suppress(ReplyError):
+                        assert (await bus.servo(sid).read_eeprom()).servo_id == sid
+                        answered.append(sid)
+
+            await or_describe(asyncio.gather(frames(), reads()), bus, RUN_GUARD)
+            assert runner.bursts > 10 and runner.transactions > 400, (runner.bursts, runner.transactions)
+            assert sum(whole) > len(whole) // 2 and len(answered) > 100, (sum(whole), len(answered), bus.stats.total)

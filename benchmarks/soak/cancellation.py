@@ -39,11 +39,12 @@ from tests.support.oracle import band, chaos_servos, is_stream_tx
 from tests.support.timing import FAST_TIMING
 
 from .common import (
+    BURST_LINKS,
     IN_PROCESS,
-    PTY_BURST,
     Row,
     consistency_check,
     executor_row,
+    link_driver,
     random_request,
     served_on_a_pty,
     stream_target,
@@ -104,8 +105,8 @@ async def cancellation_soak(
             bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))
         else:
             path = await stack.enter_async_context(served_on_a_pty(sim))
-            with burst_setting("1" if link == PTY_BURST else "0", beside_requests=True):
-                bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING))
+            with burst_setting("1" if link in BURST_LINKS else "0", beside_requests=True):
+                bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING, driver=link_driver(link)))
         stack.push_async_callback(bus.aclose)
         report = await _cancel(sim, bus, cancellations, seed, concurrency, stream_share, link)
     return report
@@ -318,7 +319,7 @@ def summarize_cancel(r: CancelReport) -> list[Row]:
     ]
     if r.link == IN_PROCESS:
         return rows
-    if r.link == PTY_BURST:
+    if r.link in BURST_LINKS:
         rows.insert(1, executor_row("cancel: stream transactions the compiled executor ran", r.burst_transactions))
     rows.append(
         (

@@ -75,6 +75,7 @@ class UnplugReport:
     threads_after: int
     seconds: float
     burst: bool = False  # run with the burst path on (ICS35_BURST=1)
+    driver: str = "asyncio"
     burst_transactions: int = 0  # of the stream's transactions, those the compiled executor ran
 
     @property
@@ -129,6 +130,7 @@ async def reconnect_session(
     unplug_rate: float = 0.002,
     patience: float = 6.0,
     workers: int = 3,
+    driver: str = "asyncio",
 ) -> None:
     """reconnect=True: a stream plus ``workers`` request loops across repeated unplugs, at several down times.
 
@@ -159,7 +161,7 @@ async def reconnect_session(
             # The requests' allowance is a loaded machine's (0.25 s, not an adapter's 20 ms): what is
             # judged is how a request ends across an unplug, and a reply held up by the machine (a
             # timeout, then its late bytes in front of the next echo) would count as a failure here.
-            async with open_bus(path, reconnect=True, adapter_latency=PATIENT_ALLOWANCE) as bus:
+            async with open_bus(path, reconnect=True, adapter_latency=PATIENT_ALLOWANCE, driver=driver) as bus:
                 watched(bus)
                 watch.task = asyncio.create_task(watch.run())
 
@@ -213,14 +215,14 @@ async def reconnect_session(
 
 
 @under_watchdog("unplug (no reconnect)")
-async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 0.02) -> None:
+async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 0.02, driver: str = "asyncio") -> None:
     """reconnect=False: the stream ends with PortLost, pending requests fail, later calls get ClosedByPortLoss.
 
     ``adapter_latency``: the bus's reply allowance; a reply later than that (a loaded machine) is a timeout
     and its bytes spoil the next transaction's echo."""
     proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
-        bus = watched(await open_bus(path, adapter_latency=adapter_latency))
+        bus = watched(await open_bus(path, adapter_latency=adapter_latency, driver=driver))
         Fut = asyncio.Future[Any]
         pending: list[Fut] = []
 
@@ -317,11 +319,12 @@ async def unplug_soak(
     seed: int = 3,
     *,
     burst: bool = False,
+    driver: str = "asyncio",
 ) -> UnplugReport:
     """The pty simulator's device vanishes and returns (same path), again and again.
 
     ``burst``: with the burst path on (``ICS35_BURST=1``), where the executor is built, and one request
-    loop instead of three, so that the stream has the line most of the time.
+    loop instead of three, so that the stream has the line most of the time.  ``driver``: the bus's.
 
     The down times include the worst case of the default reconnect backoff
     (0.05, 0.1, 0.2, 0.5, 1.0 s): a device that returns just after the 4th or
@@ -332,8 +335,8 @@ async def unplug_soak(
     tasks0, fds0, threads0 = other_tasks(), open_fds(), non_executor_threads()
     report = new_unplug_tally()
     with burst_setting("1" if burst else "0", beside_requests=True):
-        await reconnect_session(down_times, cycles_each, seed, report, workers=1 if burst else 3)
-        await no_reconnect_session(report)
+        await reconnect_session(down_times, cycles_each, seed, report, workers=1 if burst else 3, driver=driver)
+        await no_reconnect_session(report, driver=driver)
     await asyncio.sleep(0.05)  # closing transports release their fds on the next loop passes
     resume = [c.resume_s for c in report["cycles"]]
     return UnplugReport(
@@ -359,6 +362,7 @@ async def unplug_soak(
         threads_after=non_executor_threads(),
         seconds=time.perf_counter() - t0,
         burst=burst,
+        driver=driver,
         burst_transactions=report["burst_transactions"],
     )
 
@@ -394,4 +398,5 @@ def summarize_unplug(r: UnplugReport) -> list[Row]:
     if not r.burst:
         return rows
     rows.insert(0, executor_row("unplug: stream transactions the compiled executor ran", r.burst_transactions))
-    return [("unplug, burst path" + name.removeprefix("unplug"), value, ok) for name, value, ok in rows]
+    label = "unplug, burst path" if r.driver == "asyncio" else f"unplug, {r.driver} driver, burst path"
+    return [(label + name.removeprefix("unplug"), value, ok) for name, value, ok in rows]

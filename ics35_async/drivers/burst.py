@@ -22,7 +22,7 @@ goes out only after the burst's bytes so far are fed: while the program sends re
 without bursts.
 
 Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
-without a file descriptor, the thread and anyio drivers -- or with ``ICS35_BURST=0`` set, every
+without a file descriptor, the anyio driver (and so trio) -- or with ``ICS35_BURST=0`` set, every
 transaction takes the ordinary path; on systems other than Linux, unless ``ICS35_BURST=1`` is set.
 """
 
@@ -94,7 +94,8 @@ def burst_path() -> tuple[bool, str]:
     if not setting and not linux:
         return False, f"off by default on {sys.platform}, where it has not been tried ({ENV}=1 turns it on)"
     return True, (
-        "on (streams on serial ports under the asyncio driver run in the compiled helper ics35_async.drivers._burst)"
+        "on (streams on serial ports under the asyncio and thread drivers run in the compiled helper"
+        " ics35_async.drivers._burst)"
     )
 
 
@@ -107,8 +108,8 @@ def line_path(bursts: bool) -> tuple[bool, str]:
     if bursts:
         return True, "on for this line (its streams run in the compiled helper ics35_async.drivers._burst)"
     return False, (
-        "off for this line: the helper runs on a serial port's descriptor under the asyncio driver "
-        "(not for a URL such as sim:// or a bridge, nor with the thread transport)"
+        "off for this line: the helper runs on a serial port's descriptor under the asyncio or thread driver "
+        "(not for a URL such as sim:// or a bridge, nor with the thread transport, nor under the anyio driver)"
     )
 
 

@@ -6,12 +6,15 @@ device's condition) up to the engine's deadline, feeds it what came, and
 writes what it answers at once.  A stream's transactions therefore never
 touch the event loop: the loop is told once per frame, and a request only
 when it ends (``call_soon_threadsafe``).  That makes it the cheapest driver
-for streaming beside a quiet event loop on the ordinary path (the asyncio
-driver's compiled burst path costs less still), and the one for ports the loop
-cannot wait on (Windows COM ports, ``rfc2217://``).  Beside a loop kept busy
-with Python work it is not: this thread needs the GIL after every system
-call, and such a loop keeps it almost entirely: measured, the stream fell from 100 Hz to
-under 1 Hz (see the control-loop docs).
+for streaming beside a quiet event loop on the ordinary path, and the one for
+ports the loop cannot wait on (Windows COM ports, ``rfc2217://``).  On the
+ordinary path this thread needs the GIL after every system call, which a loop
+or a thread kept busy with Python work holds almost entirely.  On a tty where
+the compiled helper is built, a stream's transactions run in bursts as under
+the asyncio driver (see .burst): this thread then waits on the burst's notices,
+never on the port, and needs the GIL about once a cycle.  Only this thread
+starts a burst: a caller's thread that puts the stream's transaction on the
+wire writes it the ordinary way, as the I/O thread may be about to read the port.
 
 Every engine call, from either thread, holds ``lock``.  Requests are put
 on the wire by the caller's thread (no hand-over when the line is idle);
@@ -40,6 +43,7 @@ from ..transports.opening import Port
 from ..transports.pyserial_port import SerialPort
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
+from .burst import FAILED, BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
@@ -76,6 +80,7 @@ class _TtyWait:
         self._poll = select.poll()
         self._poll.register(port.fd, select.POLLIN)
         self._poll.register(self._wake_r, select.POLLIN)
+        self._burst_poll: select.poll | None = None  # the burst's done_fd and the wake-up pipe (not the port)
         self._closed = False
 
     def wait(self, timeout: float | None) -> bytes:
@@ -97,6 +102,18 @@ class _TtyWait:
                 with contextlib.suppress(BlockingIOError):
                     os.read(self._wake_r, 512)
         return data
+
+    def wait_for_burst(self, done_fd: int) -> None:
+        """Wait for a running burst's notice (``done_fd``: see .burst) or a wake-up: never on the port, which
+        the executor reads meanwhile."""
+        if self._burst_poll is None:
+            self._burst_poll = select.poll()
+            self._burst_poll.register(done_fd, select.POLLIN)
+            self._burst_poll.register(self._wake_r, select.POLLIN)
+        for polled, _ in self._burst_poll.poll():
+            if polled == self._wake_r:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 512)
 
     def want_writable(self, want: bool) -> None:
         self._poll.modify(self.port.fd, select.POLLIN | select.POLLOUT if want else select.POLLIN)
@@ -242,6 +259,9 @@ class ThreadDriver(LoopDriver):
         wait: _Wait
         if isinstance(port, TtyPort):
             wait = _TtyWait(port)
+            self.burst = open_runner(
+                self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
+            )
         elif isinstance(port, DevicePort):
             wait = _DeviceWait(port)
         else:
@@ -256,6 +276,7 @@ class ThreadDriver(LoopDriver):
 
     def _unwatch(self, port: Port) -> None:
         self._running.end()
+        self._close_burst()
         if self._wait is not None:
             self._wait.wake()
 
@@ -297,6 +318,16 @@ class ThreadDriver(LoopDriver):
         engine, lock, step = self.engine, self.lock, self._step
         waiting = wait.wait
         while not run.stopping:
+            burst = self.burst
+            if burst is not None and burst.running and isinstance(wait, _TtyWait):
+                wait.wait_for_burst(burst.done_fd)
+                with lock:
+                    if run.stopping:
+                        return
+                    if burst is self.burst and burst.running:
+                        self._burst_done(burst)
+                    self._waiting_until = engine.deadline
+                continue
             until = self._waiting_until
             if until == INF:
                 data = waiting(None)
@@ -321,6 +352,52 @@ class ThreadDriver(LoopDriver):
                     data = waiting(0)
                 step(port, data, t)
                 self._waiting_until = engine.deadline
+
+    # ------------------------------------------------------------------ the burst path (under the lock)
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        # Only from this port's I/O thread, which then waits for the burst's notices instead of reading the
+        # port: a burst started by a caller's thread could find the I/O thread about to read the port
+        # beside the executor.  (The caller's transaction goes the ordinary way; the stream's next, put on
+        # the wire by the I/O thread, starts the burst.)
+        return self._thread is threading.current_thread() and isinstance(self.port, TtyPort) and burst.start(now())
+
+    def _burst_done(self, burst: BurstRunner, *, wait: bool = False, close: bool = False) -> None:
+        """Feed the engine what ``burst`` did (see ``BurstRunner.finish``); once it stopped, act on the engine's
+        answer as the ordinary path would and let the I/O thread read the port again."""
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if close:
+            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+        if threading.current_thread() is not self._thread and self._wait is not None:
+            self._wait.wake()  # it waits for the burst's notices: the port is its own again
+        port = self.port
+        if not isinstance(port, TtyPort):
+            return
+        if burst.status == FAILED:
+            if self._lose(port, OSError(burst.errno, os.strerror(burst.errno))):
+                self.notify(self._lost.set)
+            return
+        self._after(out)
+
+    def _stop_burst(self) -> None:
+        # (closing: outside the lock, from the loop's thread) at most one transaction's wait, with no await
+        with self.lock:
+            burst = self.burst
+            if burst is not None and burst.running:
+                self._burst_done(burst, wait=True, close=True)
+            else:
+                self._close_burst()
+
+    def _end_burst(self) -> None:
+        if self.burst is not None:
+            self._burst_done(self.burst, wait=True)
+
+    def _close_burst(self) -> None:
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            burst.close()
 
     # ------------------------------------------------------------------ the user's side
 
