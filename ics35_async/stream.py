@@ -782,10 +782,13 @@ class Stream(FrameIterator[Frame]):
         times = sorted(self._cycle_times)
         starts = list(self._starts)
         intervals = [b - a for a, b in itertools.pairwise(starts)]
-        elapsed = (self._latest.finished - self._first_start) if self._latest else 0.0
+        # Intervals between cycle starts: the first frame is no whole period yet (counted as one, a
+        # 50 Hz stream said over 1000 Hz after its first frame, and above 50 for seconds after).
+        latest = self._latest
+        elapsed = (latest.started - self._first_start) if latest else 0.0
         return StreamStats(
             cycles=self._cycle,
-            rate_hz=self._latest.cycle / elapsed if self._latest and elapsed > 0 else 0.0,
+            rate_hz=(latest.cycle - 1) / elapsed if latest and elapsed > 0 else 0.0,
             cycle_time_p50=percentile(times, 50),
             cycle_time_p90=percentile(times, 90),
             cycle_time_p99=percentile(times, 99),

@@ -985,6 +985,24 @@ async def test_fixed_rate_never_runs_faster_than_asked_and_leaves_the_line_to_re
 
 
 @pytest.mark.realtime
+async def test_the_achieved_rate_is_counted_between_cycle_starts() -> None:
+    # Counted as frames over the time since the first cycle began, the first frame counted as a
+    # whole period already run: a 50 Hz stream said about 140 Hz after its first frame, 57 after eight.
+    ids = [0, 1]
+    rate = 50.0
+    sim = make_sim(ids)
+    async with streaming(sim, ids, rate_hz=rate) as (_, stream):
+        first = await next_frame(stream)
+        assert stream.stats.rate_hz == 0.0  # one cycle: no interval to measure yet
+        for _ in range(4):
+            await next_frame(stream)
+        stats, latest = stream.stats, stream.latest
+    assert latest is not None and latest.cycle > first.cycle
+    assert stats.rate_hz == pytest.approx((latest.cycle - first.cycle) / (latest.started - first.started))
+    assert stats.rate_hz <= rate * (1 + 1e-6)  # cycles start on their slots, never earlier
+
+
+@pytest.mark.realtime
 async def test_an_impossible_rate_counts_overruns() -> None:
     ids = list(range(32))
     # Real time: 32 position transactions at 115200 take > 20 ms, a 5000 Hz period is 0.2 ms.
