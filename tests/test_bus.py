@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import random
+import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
@@ -305,6 +306,47 @@ def test_the_anyio_driver_needs_no_particular_task_or_scope_around_it(backend: s
     try:
         assert anyio.run(main, backend=backend) == 12
     finally:
+        sim.close()
+
+
+class SlowToOpen(VirtualLine):
+    """A line whose first opening holds the port a while before it returns (a serial port's set-up after
+    its open, a bridge's handshake)."""
+
+    def __init__(self) -> None:
+        super().__init__(make_servos(range(4)))
+        self.opened = threading.Event()
+        self.go_on = threading.Event()
+
+    def connect(self, host: Any, baudrate: int) -> None:
+        super().connect(host, baudrate)
+        if not self.opened.is_set():
+            self.opened.set()
+            self.go_on.wait(GUARD)
+
+
+@pytest.mark.parametrize("again", ["the same bus", "a new bus"])
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_an_open_given_up_on_does_not_make_the_next_open_find_the_port_busy(driver: str, again: str) -> None:
+    # `with fail_after(...)` around an open, then the program tries again: the given-up open's thread
+    # still held the port (it closes it when it ends), so the new open was refused as PortBusy ("in use
+    # by another program") by the program's own abandoned attempt.
+    sim = SlowToOpen()
+    bus = open_bus(sim, driver=driver, **FAST)
+    try:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(bus.open(), 0.05)
+        assert sim.opened.is_set()  # the port is open in the abandoned thread
+        asyncio.get_running_loop().call_later(0.05, sim.go_on.set)
+        retry = bus if again == "the same bus" else open_bus(sim, driver=driver, **FAST)
+        try:
+            await asyncio.wait_for(retry.open(), GUARD)
+            assert await retry.servo(2).read_stretch() == 12
+        finally:
+            await retry.aclose()
+    finally:
+        sim.go_on.set()
+        await bus.aclose()
         sim.close()
 
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import itertools
 import logging
 import math
@@ -116,6 +117,34 @@ def running_loop() -> object | None:
     except RuntimeError:
         return None
     return token
+
+
+# The port openings of this process under way, by port.  An opening given up on (a timeout around
+# open) runs on in its thread and may hold the port until that thread closes it: an opening of the
+# same port started meanwhile, by the same bus or another, would find it busy, taken by this very
+# program.  So a new opening waits for the earlier one's thread to end (see DriverCore._open).
+_OPENINGS: dict[object, threading.Event] = {}
+_OPENINGS_LOCK = threading.Lock()
+
+
+async def _after_earlier_opening(key: object) -> threading.Event:
+    """Wait until no thread of this process is opening the port ``key``; return the new opening's event."""
+    delay = 0.0005
+    while True:
+        with _OPENINGS_LOCK:
+            earlier = _OPENINGS.get(key)
+            if earlier is None or earlier.is_set():
+                ended = _OPENINGS[key] = threading.Event()
+                return ended
+        await anyio.sleep(delay)
+        delay = min(delay * 2, 0.02)
+
+
+def _opening_ended(key: object, ended: threading.Event) -> None:
+    with _OPENINGS_LOCK:
+        ended.set()
+        if _OPENINGS.get(key) is ended:
+            del _OPENINGS[key]
 
 
 class DriverCore:
@@ -238,28 +267,40 @@ class DriverCore:
         """Open the port in a worker thread (closed again if the caller is cancelled meanwhile)."""
         opened: list[Port] = []
         abandoned: list[bool] = []
+        started: list[bool] = []
         lock = threading.Lock()
+        key = self.target if isinstance(self.target, str) else id(self.target)
+        ended = await _after_earlier_opening(key)
 
         def opening() -> Port:
-            port = open_port(
-                self.target,
-                self.engine.baudrate,
-                transport=self.settings.transport,
-                direction=self.settings.direction,
-                blocking_reads=self.blocking_reads,
-            )
-            with lock:
-                if abandoned:  # the caller gave up while this thread was opening it
-                    port.close()
-                else:
-                    opened.append(port)
-            return port
+            try:
+                with lock:
+                    if abandoned:  # given up on before this thread began: nothing to open
+                        raise OSError(errno.ECANCELED, "the opening was given up on")
+                    started.append(True)
+                port = open_port(
+                    self.target,
+                    self.engine.baudrate,
+                    transport=self.settings.transport,
+                    direction=self.settings.direction,
+                    blocking_reads=self.blocking_reads,
+                )
+                with lock:
+                    if abandoned:  # the caller gave up while this thread was opening it
+                        port.close()
+                    else:
+                        opened.append(port)
+                return port
+            finally:
+                _opening_ended(key, ended)
 
         try:
             return await self._in_thread(opening)
         except BaseException:
             with lock:
                 abandoned.append(True)
+                if not started:  # (an executor may never run it now)
+                    _opening_ended(key, ended)
             for port in opened:
                 port.close()
             raise
