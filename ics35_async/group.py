@@ -225,6 +225,12 @@ class GroupStream(FrameIterator[GroupFrame]):
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
+    def __repr__(self) -> str:
+        lines = ", ".join(f"{line}: {list(s.ids)} {s._pace()}" for line, s in self.streams.items())
+        lives = {s._life() for s in self.streams.values()}
+        life = "closed" if self._closed else lives.pop() if len(lives) == 1 else "running"
+        return f"<GroupStream {lines}, {life}>"
+
     async def aclose(self) -> None:
         """Stop every line's stream; the buses stay open."""
         self._closed = True
@@ -258,6 +264,9 @@ class BusGroup:
         for name, bus in self.buses.items():
             if not isinstance(bus, Bus):
                 raise InvalidArgument(f"line {name!r} is not a Bus")
+
+    def __repr__(self) -> str:
+        return f"<BusGroup {', '.join(f'{name}={bus!r}' for name, bus in self.buses.items())}>"
 
     @classmethod
     def open(cls, ports: Mapping[str, str], **bus_options: Unpack[BusOptions]) -> BusGroup:

@@ -885,6 +885,17 @@ class Stream(FrameIterator[Frame]):
             self._cur = -1
         self.bus.notify(self._wake_waiters)
 
+    def _pace(self) -> str:
+        """``at 100 Hz`` or ``back to back`` (for reprs)."""
+        return "back to back" if self.rate_hz is None else f"at {self.rate_hz:g} Hz"
+
+    def _life(self) -> str:
+        """``not started``, ``running`` or ``closed`` (for reprs)."""
+        return "closed" if self._closed else "running" if self._running else "not started"
+
+    def __repr__(self) -> str:
+        return f"<Stream {list(self.ids)} {self._pace()}, {self._life()}, on {self.bus!r}>"
+
     async def __aenter__(self) -> Stream:
         return await self.start()
 

@@ -1355,3 +1355,21 @@ async def test_what_the_close_had_no_time_to_send_is_not_said_sent() -> None:
         on_wire = {t.servo_id for t in sim.log_since(mark) if t.tx[1:3] == b"\0\0"}  # the frees that went out
     assert 0 < len(sent) < len(ids), sent
     assert set(sent) <= on_wire, (sorted(sent), sorted(on_wire))
+
+
+async def test_streams_and_groups_say_what_they_are_in_their_repr() -> None:
+    # A program that prints its stream (a log line, a debugger) saw `<ics35_async.stream.Stream object at 0x...>`
+    # beside the bus's and the servos' own reprs.
+    async with open_bus(make_sim([1, 2, 3]), **FAST) as bus:
+        stream = bus.stream([1, 2, 3], rate_hz=100)
+        assert repr(stream).startswith("<Stream [1, 2, 3] at 100 Hz, not started, on <Bus ")
+        async with stream:
+            assert repr(stream).startswith("<Stream [1, 2, 3] at 100 Hz, running, on <Bus ")
+        assert repr(stream).startswith("<Stream [1, 2, 3] at 100 Hz, closed, on <Bus ")
+        assert repr(bus.stream([2])).startswith("<Stream [2] back to back, not started, on <Bus ")
+    lines = {"left": open_bus(make_sim([1, 2]), **FAST), "right": open_bus(make_sim([1]), **FAST)}
+    async with BusGroup(lines) as group:
+        assert repr(group) == f"<BusGroup left={lines['left']!r}, right={lines['right']!r}>"
+        async with group.stream({"left": [1, 2], "right": [1]}, rate_hz=50) as merged:
+            assert repr(merged) == "<GroupStream left: [1, 2] at 50 Hz, right: [1] at 50 Hz, running>"
+        assert repr(merged) == "<GroupStream left: [1, 2] at 50 Hz, right: [1] at 50 Hz, closed>"
