@@ -54,6 +54,10 @@ class LatencyHistogram:
         total = self.total
         return self.sum_s / total if total else 0.0
 
+    def __repr__(self) -> str:  # (printed inside BusStats: a program prints bus.stats)
+        ms = {"mean": self.mean, "p50": self.percentile(50), "p99": self.percentile(99), "max": self.max_s}
+        return f"LatencyHistogram(total={self.total}, {', '.join(f'{k}_ms={v * 1e3:.3f}' for k, v in ms.items())})"
+
 
 @dataclass
 class IdStats:

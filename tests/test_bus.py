@@ -578,6 +578,13 @@ async def test_stats_and_debug_trace(line: tuple[VirtualLine, Bus], caplog: pyte
     assert stats.by_command["read_stretch"] == 1
     assert stats.per_id[1].bytes_tx == 2 and stats.per_id[1].bytes_rx == 5
     assert 0 < stats.latency.percentile(50) <= stats.latency.max_s
+    # Printed, as a program prints bus.stats, it says what it holds (not an object's address).
+    latency = stats.latency
+    assert repr(latency) == (
+        f"LatencyHistogram(total=1, mean_ms={latency.mean * 1e3:.3f}, p50_ms={latency.percentile(50) * 1e3:.3f}, "
+        f"p99_ms={latency.percentile(99) * 1e3:.3f}, max_ms={latency.max_s * 1e3:.3f})"
+    )
+    assert repr(latency) in repr(stats)
 
 
 @pytest.mark.pty
