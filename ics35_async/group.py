@@ -76,8 +76,8 @@ class GroupStream(FrameIterator[GroupFrame]):
         for line, c in checked.items():
             self.streams[line].apply_targets(c, lift_holds=lift_holds)
 
-    def set_targets_degrees(self, targets: Mapping[tuple[str, int], float]) -> None:
-        """Like :meth:`set_targets`, in degrees (-135..+135, 0 neutral).
+    def set_targets_degrees(self, targets: Mapping[tuple[str, int], float], *, lift_holds: bool = True) -> None:
+        """Like :meth:`set_targets`, in degrees (-135..+135, 0 neutral); ``lift_holds`` as there.
 
         Raises:
             InvalidArgument: as :meth:`set_targets`, or an angle out of range (nothing applied).
@@ -92,7 +92,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             except InvalidArgument as exc:  # which line, as set_targets says it
                 line = key[0] if isinstance(key, tuple) and key else key
                 raise InvalidArgument(f"line {line}: {exc}") from None
-        self.set_targets(positions)
+        self.set_targets(positions, lift_holds=lift_holds)
 
     def free(self) -> None:
         """Put every servo on every line in free mode (torque off, still read back).

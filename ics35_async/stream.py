@@ -295,15 +295,15 @@ class Stream(FrameIterator[Frame]):
         """
         self.set_target(servo_id, units.degrees_to_position(degrees))
 
-    def set_targets_degrees(self, targets: Mapping[int, float]) -> None:
-        """Like :meth:`set_targets`, in degrees.
+    def set_targets_degrees(self, targets: Mapping[int, float], *, lift_holds: bool = True) -> None:
+        """Like :meth:`set_targets`, in degrees; ``lift_holds=False`` leaves a held ID held, as there.
 
         Raises:
             InvalidArgument: not a mapping, an ID not in the stream or an angle out of range (nothing applied).
         """
         if not isinstance(targets, Mapping):
             raise InvalidArgument(f"targets must be a mapping {{id: degrees}}, not {type(targets).__name__}")
-        self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()})
+        self.set_targets({i: units.degrees_to_position(d) for i, d in targets.items()}, lift_holds=lift_holds)
 
     def free(self, ids: Iterable[int] | None = None) -> None:
         """Put ``ids`` (default: all) in free mode: torque off, positions still read back.

@@ -704,6 +704,64 @@ async def test_a_loop_that_sets_every_target_each_cycle_keeps_a_hold_with_lift_h
         assert stream.held == {}
 
 
+async def test_a_loop_in_degrees_keeps_a_hold_with_lift_holds_false() -> None:
+    # A gait computed in degrees (set_targets_degrees, the streaming page's unit) had no lift_holds: each
+    # pass lifted a hold that began after the frame it looked at, throwing a restarted servo to its target.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with open_bus(sim, **FAST) as bus, bus.stream(ids, offline_after=2, probe_interval=0.02) as stream:
+        pose = {i: 10.0 * i for i in ids}
+        stream.set_targets_degrees(pose)
+        await frames_until(stream, lambda f: len(f.positions) == 3)
+        knee = sim.remove_servo(2)
+        await frames_until(stream, lambda f: 2 in f.offline)
+        sim.add_device(knee)
+        sim.power_cycle(2)
+        seq = sim.transactions
+        while 2 not in stream.held:
+            stream.set_targets_degrees(pose, lift_holds=False)  # the loop's every cycle
+            await next_frame(stream)
+        for _ in range(5):
+            stream.set_targets_degrees(pose, lift_holds=False)
+            await next_frame(stream)
+        assert [t for t in sim.log_since(seq) if t.servo_id == 2 and t.command == "position"] == []
+        assert knee.free
+        stream.set_targets_degrees({2: pose[2]})  # the program decides: the hold is lifted
+        await frames_until(stream, lambda f: 2 in f.positions)
+        assert stream.held == {}
+
+
+async def test_a_group_loop_in_degrees_keeps_a_hold_with_lift_holds_false() -> None:
+    sim = make_sim([1, 2])
+    async with (
+        BusGroup({"legs": open_bus(sim, **FAST)}) as group,
+        group.stream({"legs": [1, 2]}, offline_after=2, probe_interval=0.02) as stream,
+    ):
+        pose = {("legs", 1): 10.0, ("legs", 2): 20.0}
+        stream.set_targets_degrees(pose)
+        await frames_until_group(stream, lambda f: len(f.positions) == 2)
+        knee = sim.remove_servo(2)
+        await frames_until_group(stream, lambda f: ("legs", 2) in f.offline)
+        sim.add_device(knee)
+        sim.power_cycle(2)
+        seq = sim.transactions
+        while ("legs", 2) not in stream.held:
+            stream.set_targets_degrees(pose, lift_holds=False)
+            await next_frame(stream)
+        for _ in range(5):
+            stream.set_targets_degrees(pose, lift_holds=False)
+            await next_frame(stream)
+        assert [t for t in sim.log_since(seq) if t.servo_id == 2 and t.command == "position"] == []
+        assert knee.free
+
+
+async def frames_until_group(stream: GroupStream, done: Callable[[GroupFrame], bool], limit: int = 5000) -> None:
+    for _ in range(limit):
+        if done(await next_frame(stream)):
+            return
+    raise AssertionError(f"condition not met within {limit} frames")
+
+
 async def test_the_slots_a_paced_stream_missed_while_its_port_was_lost_are_counted() -> None:
     # The control-loop page: missed_slots are "slots that passed with no cycle: your program or the line
     # stalled"; after an outage the resumed frame said 0, so a loop's log showed no gap at all.
