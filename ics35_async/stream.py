@@ -640,13 +640,7 @@ class Stream(FrameIterator[Frame]):
         if self.rate_hz is not None and self._cycle:
             due = self._t0 + self._cycle / self.rate_hz  # start of cycle number self._cycle + 1
             if not self._slot_checked:
-                # An overrun is a cycle whose own work ran past the next slot, not a
-                # timer that fired late (the loop's timers have ~1 ms resolution).
-                self._slot_checked = True
-                if now > due:
-                    self._overruns += 1
-                if self._cycle == RATE_CHECK_CYCLES and self._overruns >= RATE_CHECK_LATE:
-                    self._tell_rate_not_kept(now)
+                self._check_slot(now, due)
             if now < due:
                 self._wake_at = due
                 return False
@@ -675,11 +669,24 @@ class Stream(FrameIterator[Frame]):
             probes = [t for k, t in enumerate(self._next_probe) if self._offline[k] and not self._held[k]]
             if self.rate_hz is not None:
                 slot = self._t0 + self._cycle / self.rate_hz
+                # Its work (none) ended now, before the next slot: checked here, not when the timer for
+                # that slot fires (just after it), which counted every empty cycle an overrun.
+                self._check_slot(now, slot)
             else:
                 slot = now + IDLE_FRAME_INTERVAL if any(self._held) else INF
             self._wake_at = min([*probes, slot])
             return False
         return True
+
+    def _check_slot(self, now: float, due: float) -> None:
+        """The cycle just published ended ``now``; the next is due at ``due``: count it an overrun if late, and
+        tell the rate not kept after the first cycles.  An overrun is a cycle whose own work ran past the next
+        slot, not a timer that fired late (the loop's timers have ~1 ms resolution)."""
+        self._slot_checked = True
+        if now > due:
+            self._overruns += 1
+        if self._cycle == RATE_CHECK_CYCLES and self._overruns >= RATE_CHECK_LATE:
+            self._tell_rate_not_kept(now)
 
     def _reanchor(self, now: float, due: float) -> None:
         """A paced stream's next cycle starts now (on a fresh schedule, rather than bursting to catch up),

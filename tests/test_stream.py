@@ -1083,6 +1083,37 @@ async def test_an_impossible_rate_counts_overruns() -> None:
     assert stats.cycle_time_p50 > 32 * 6 * 11 / 115200
 
 
+@pytest.mark.realtime
+@pytest.mark.parametrize("nothing_to_send", ["every ID offline", "every ID held"])
+async def test_a_cycle_with_nothing_to_send_is_no_overrun(
+    nothing_to_send: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A paced stream whose IDs were all offline (the servos' supply off, the adapter on) or all held
+    # (after a port came back) counted each of its empty cycles as an overrun, its timer firing just after
+    # the slot: stats.overruns grew every cycle, and the "cannot keep rate_hz" warning blamed the adapter's
+    # latency timer or a busy host for cycles that started on their slots.
+    present = [] if nothing_to_send == "every ID offline" else [1, 2]
+    sim = make_sim(present)
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        async with (
+            open_bus(sim, reconnect=True, **FAST) as bus,
+            bus.stream([1, 2], rate_hz=50, probe_interval=60) as stream,
+        ):
+            if nothing_to_send == "every ID held":
+                stream.set_targets({1: 7500, 2: 7500})
+                await frames_until(stream, lambda f: len(f.positions) == 2)
+                sim.unplug(replug_after=0.05)
+                await frames_until(stream, lambda f: f.held == {1, 2})
+            else:
+                await frames_until(stream, lambda f: f.offline == {1, 2})
+            before = stream.stats
+            frames = [await next_frame(stream) for _ in range(RATE_CHECK_CYCLES + 2)]
+            after = stream.stats
+    assert all(not f.positions and not f.failed for f in frames)  # nothing was sent in those cycles
+    assert after.overruns == before.overruns, (before.overruns, after.overruns)
+    assert not [r for r in caplog.records if "rate_hz" in r.getMessage()]
+
+
 def rate_warning(caplog: pytest.LogCaptureFixture) -> str:
     """The one warning of a stream that cannot keep its rate (fails if there is none, or more than one)."""
     said = [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
