@@ -670,7 +670,7 @@ class Stream(FrameIterator[Frame]):
             if self.rate_hz is not None:
                 slot = self._t0 + self._cycle / self.rate_hz
                 # Its work (none) ended now, before the next slot: checked here, not when the timer for
-                # that slot fires (just after it), which counted every empty cycle an overrun.
+                # that slot fires (just after it, which would make every empty cycle an overrun).
                 self._check_slot(now, slot)
             else:
                 slot = now + IDLE_FRAME_INTERVAL if any(self._held) else INF
@@ -789,8 +789,8 @@ class Stream(FrameIterator[Frame]):
         times = sorted(self._cycle_times)
         starts = list(self._starts)
         intervals = [b - a for a, b in itertools.pairwise(starts)]
-        # Intervals between cycle starts: the first frame is no whole period yet (counted as one, a
-        # 50 Hz stream said over 1000 Hz after its first frame, and above 50 for seconds after).
+        # Intervals between cycle starts: the first frame is no whole period yet (counted as one, a new
+        # stream's rate would read far above its rate_hz: after one frame, one over its cycle time).
         latest = self._latest
         elapsed = (latest.started - self._first_start) if latest else 0.0
         return StreamStats(
