@@ -749,7 +749,8 @@ class Stream(FrameIterator[Frame]):
         """The newest frame not yet returned; waits for one if needed.
 
         A slow consumer never slows the bus: it gets the latest frame, with
-        ``skipped`` telling how many it missed.  Once the stream is closed
+        ``skipped`` telling how many it missed.  Each frame goes to one caller: a second task
+        calling it takes frames from the first (read :attr:`latest` there).  Once the stream is closed
         (or its bus closed or lost), it raises, even if a frame came meanwhile.
 
         Raises:
