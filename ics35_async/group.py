@@ -18,6 +18,7 @@ from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream, StreamOptions
 from .tasks import first_library_error
+from .transports.wire_device import WireDevice
 
 GROUP_NOT_STARTED = "the group stream is not started: use it as `async with group.stream(...) as stream:`"
 
@@ -269,17 +270,26 @@ class BusGroup:
         return f"<BusGroup {', '.join(f'{name}={bus!r}' for name, bus in self.buses.items())}>"
 
     @classmethod
-    def open(cls, ports: Mapping[str, str], **bus_options: Unpack[BusOptions]) -> BusGroup:
+    def open(
+        cls, ports: Mapping[str, str | WireDevice] | Sequence[str | WireDevice], **bus_options: Unpack[BusOptions]
+    ) -> BusGroup:
         """A group of buses opened with the same options.
 
         Args:
-            ports: ``{line name: port}``.
+            ports: ``{line name: port}``, or a list of ports (lines named ``"0"``, ``"1"``, ..., as ``BusGroup``
+                names a list of buses).
             **bus_options: every line's options ([`BusOptions`][ics35_async.bus.BusOptions]).
 
         Raises:
-            InvalidArgument: a bad port or option (see ``open_bus``).
+            InvalidArgument: ``ports`` is neither, or a bad port or option (see ``open_bus``).
         """
-        return cls({name: open_bus(port, **bus_options) for name, port in ports.items()})
+        if isinstance(ports, Mapping):
+            named = dict(ports)
+        elif isinstance(ports, Sequence) and not isinstance(ports, (str, bytes)):
+            named = {str(k): port for k, port in enumerate(ports)}
+        else:
+            raise InvalidArgument(f"BusGroup.open takes {{name: port}} or a list of ports, not {type(ports).__name__}")
+        return cls({name: open_bus(port, **bus_options) for name, port in named.items()})
 
     def __getitem__(self, line: str) -> Bus:
         return self.buses[line]

@@ -204,6 +204,8 @@ BAD_CALLS: list[Any] = [
     ("group empty", lambda e: BusGroup({})),
     ("group not a bus", lambda e: BusGroup({"a": 1})),  # type: ignore[dict-item]
     ("group open bad port", lambda e: BusGroup.open({"a": 5})),  # type: ignore[dict-item]
+    ("group open of a str", lambda e: BusGroup.open("sim://?ids=1")),  # type: ignore[arg-type]
+    ("group open of an int", lambda e: BusGroup.open(5)),  # type: ignore[arg-type]
     ("group stream unknown line", lambda e: BusGroup({"a": e.bus}).stream({"b": [1]})),
     ("group stream bad id", lambda e: BusGroup({"a": e.bus}).stream({"a": [40]})),
     ("group stream bad rate", lambda e: BusGroup({"a": e.bus}).stream({"a": [1]}, rate_hz=-1)),

@@ -1466,3 +1466,11 @@ async def test_streams_and_groups_say_what_they_are_in_their_repr() -> None:
         async with group.stream({"left": [1, 2], "right": [1]}, rate_hz=50) as merged:
             assert repr(merged) == "<GroupStream left: [1, 2] at 50 Hz, right: [1] at 50 Hz, running>"
         assert repr(merged) == "<GroupStream left: [1, 2] at 50 Hz, right: [1] at 50 Hz, closed>"
+
+
+async def test_a_group_opens_from_a_list_of_ports_as_from_a_list_of_buses() -> None:
+    # BusGroup([bus, bus]) names its lines "0", "1", ...; BusGroup.open([port, port]) raised AttributeError.
+    sims = [make_sim([1]), make_sim([2])]
+    async with BusGroup.open(sims, **FAST) as group:
+        assert list(group.buses) == ["0", "1"]
+        assert await group["1"].servo(2).read_stretch() == 42
