@@ -86,6 +86,14 @@ def test_only_some_joints_keeps_their_lines_and_the_rest_of_the_robot() -> None:
         robot.only([])
 
 
+@pytest.mark.parametrize("joints", [5, 2.5])
+def test_joints_that_are_neither_a_name_nor_names_are_refused_in_words(joints: Any) -> None:
+    # robot.free(5) and robot.hold(5) raised TypeError ("'int' object is not iterable"), not an IcsError.
+    robot = load_description({"lines": {"a": {"port": "sim://?ids=1"}}, "joints": {"x": {"line": "a", "id": 1}}})
+    with pytest.raises(InvalidArgument, match="joint names"):
+        robot.known_joints(joints)
+
+
 def test_servo_degrees_are_offset_plus_signed_joint_degrees_both_ways(tmp_path: Path) -> None:
     elbow = load_description(write(tmp_path, GOOD)).joints["left_elbow"]
     for joint in (-90.0, -12.25, 0.0, 30.0, 45.0):

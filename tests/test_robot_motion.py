@@ -156,6 +156,10 @@ def test_not_json_and_missing_files(tmp_path: Path) -> None:
         load_motion(tmp_path / "x.json")
     with pytest.raises(MotionError, match="no such file"):
         load_motion(tmp_path / "y.json")
+    # robot.play(5) raised TypeError from pathlib ("expected str, bytes or os.PathLike object").
+    for source in (5, None, [{"time": 1}]):
+        with pytest.raises(InvalidArgument, match="a motion is"):
+            load_motion(source)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(

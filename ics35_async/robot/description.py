@@ -149,8 +149,10 @@ class RobotDescription:
         """``names`` as a list, each one of this robot's joints.
 
         Raises:
-            InvalidArgument: an unknown joint name (the message lists the robot's joints).
+            InvalidArgument: not joint names, or an unknown joint name (the message lists the robot's joints).
         """
+        if not isinstance(names, Iterable):
+            raise InvalidArgument(f"joints must be a joint's name or joint names, not {type(names).__name__}")
         names = list(names)
         unknown = [str(n) for n in names if n not in self.joints]
         if unknown:

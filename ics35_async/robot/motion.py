@@ -27,6 +27,7 @@ take a cycle (the motion runs late rather than cutting a corner).
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,6 +100,8 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
     """
     if isinstance(source, Mapping):
         return parse_motion(source, "<mapping>")
+    if not isinstance(source, (str, os.PathLike)):
+        raise InvalidArgument(f"a motion is a Motion, a JSON file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
         data = json.loads(path.read_text(encoding="utf-8-sig"))  # (-sig: a BOM some Windows editors write first)
