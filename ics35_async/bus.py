@@ -148,6 +148,7 @@ class Bus:
         self._reopening = False
         self._state_event: Any = None  # an anyio.Event while someone waits in state_change()
         self._close_out: tuple[BackgroundSource, Callable[[], Awaitable[None]]] | None = None  # see attach_source
+        self._closed_event: Any = None  # an anyio.Event, set once aclose() is done (see aclose)
         self._engine.on_state_change = self._state_changed
 
     @property
@@ -356,9 +357,25 @@ class Bus:
         """Close the attached stream first (its ``on_close`` done on the open line: the program's block for
         the bus may end before the stream's), then fail queued requests with BusClosed, finish the one on
         the wire, release the port."""
+        import anyio
+
+        if self._closed_event is not None:
+            # Another close is under way: it may be waiting for the stream's close-out, which closing the
+            # line now would fail.  (Cancelled meanwhile, it still runs to its end.)
+            await despite_cancellation(self._closed_event.wait, None)
+            return
+        self._closed_event = closed = anyio.Event()
+        try:
+            await self._close()
+        finally:
+            closed.set()
+
+    async def _close(self) -> None:
         close_out, self._close_out = self._close_out, None
         try:
-            if close_out is not None and close_out[0] is self._engine.source:
+            # Also when the stream has already detached: its own close may still be sending its close-out
+            # (it returns once that is done), which the line closing now would fail.
+            if close_out is not None:
                 await close_out[1]()
         finally:  # (a cancellation raised once the close-out is done must not keep the port open)
             driver, self._driver = self._driver, None

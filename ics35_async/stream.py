@@ -182,6 +182,7 @@ class Stream(FrameIterator[Frame]):
         self._wake_at = INF  # when a cycle waiting for its fixed-rate slot (or a probe) is due
         self._running = False
         self._closed = False
+        self._closing_out: anyio.Event | None = None  # set once a close's commands are out (see aclose)
         self._end_error: IcsError = BusClosed("stream closed")
         # Publishing.
         self._latest: Frame | None = None
@@ -845,6 +846,11 @@ class Stream(FrameIterator[Frame]):
         offline ID is sent nothing: it keeps what it last had, free if it restarted), and a
         target set since the last cycle (a final pose set just before the block ends) is sent first."""
         if self._closed:
+            # Another close (the bus's, a second task's) waits until this stream's close-out is done: the
+            # bus closing meanwhile would fail the commands it queued (the servos left holding).
+            closing = self._closing_out
+            if closing is not None:
+                await despite_cancellation(closing.wait, FREE_ON_CLOSE_BOUND)
             return
         self._stop()
         if self.on_close == "free":
@@ -863,7 +869,11 @@ class Stream(FrameIterator[Frame]):
             # To its end: a stream closed because its program was cancelled (Ctrl-C, SIGTERM through
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
             # last pose it was given; bounded, in case the line is gone.
-            await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
+            self._closing_out = closing = anyio.Event()
+            try:
+                await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
+            finally:
+                closing.set()
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:

@@ -1474,3 +1474,30 @@ async def test_a_group_opens_from_a_list_of_ports_as_from_a_list_of_buses() -> N
     async with BusGroup.open(sims, **FAST) as group:
         assert list(group.buses) == ["0", "1"]
         assert await group["1"].servo(2).read_stretch() == 42
+
+
+@pytest.mark.parametrize("closers", ["stream, bus", "stream, bus, bus"])
+@pytest.mark.parametrize("on_close", ["free", "hold"])
+async def test_the_bus_closing_while_its_stream_closes_lets_the_close_out_reach_the_servos(
+    on_close: str, closers: str
+) -> None:
+    # The stream closed in one task (its block left, a task cancelled) while the program closed the bus in
+    # another: the bus's close found the stream already detached and failed the commands its close had
+    # queued, so with on_close="free" every servo kept holding and targets_sent_on_close said nothing went.
+    # A second close of the bus meanwhile (a shutdown handler beside the block's end) did the same.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    bus = await open_bus(sim, **FAST)
+    stream = bus.stream(ids, rate_hz=50, on_close=on_close)
+    stream.set_targets(dict.fromkeys(ids, 8000))
+    await stream.start()
+    await next_frame(stream)
+    stream.set_targets(dict.fromkeys(ids, 8100))  # (a final pose: "hold" sends it as it closes)
+    seq = sim.transactions
+    await asyncio.gather(*({"stream": stream, "bus": bus}[name].aclose() for name in closers.split(", ")))
+    sent = {t.servo_id: t.command for t in sim.log_since(seq) if t.command in POSITION_COMMANDS}
+    expected = "free" if on_close == "free" else "position"
+    assert sent == dict.fromkeys(ids, expected), sent
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, 0 if on_close == "free" else 8100)
+    if on_close == "free":
+        assert all(servo.free for servo in sim.devices if isinstance(servo, VirtualServo))
