@@ -63,7 +63,7 @@ robot-demo: $(DEMO_STAMP)
 	$(BIN)/ics35 play examples/humanoid.toml examples/wave.json
 
 # ruff format is applied to, and checked on, the whole Python tree.
-FORMATTED := ics35_async tests benchmarks tools setup.py
+FORMATTED := ics35_async _ics35_async_entry.py tests benchmarks tools setup.py
 
 # The configurator's screenshots in docs/images, taken by its browser tests (a plain test run leaves them alone).
 screenshots: $(STAMP) browser
@@ -74,7 +74,7 @@ web-demo: $(STAMP)
 	$(BIN)/ics35 web
 
 lint: $(STAMP)
-	$(BIN)/ruff check ics35_async tests benchmarks tools
+	$(BIN)/ruff check ics35_async _ics35_async_entry.py tests benchmarks tools
 	$(BIN)/ruff format --check $(FORMATTED)
 
 format-check: $(STAMP)
@@ -84,7 +84,7 @@ format: $(STAMP)
 	$(BIN)/ruff format $(FORMATTED)
 
 typecheck: $(STAMP)
-	$(BIN)/mypy --strict ics35_async tests/support
+	$(BIN)/mypy --strict ics35_async _ics35_async_entry.py tests/support
 	MYPYPATH=benchmarks $(BIN)/mypy --strict $(wildcard benchmarks/*.py)
 	$(BIN)/mypy --strict --explicit-package-bases benchmarks/soak
 

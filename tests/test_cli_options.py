@@ -5,8 +5,10 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from typing import Any
 
 import pytest
@@ -172,6 +174,54 @@ def test_version_imports_none_of_the_heavy_parts() -> None:
     if "ics35_async.bus" not in package:
         # Once the package imports lazily, --version must not pull the bus or the simulator in either.
         assert not {"ics35_async.bus", "ics35_async.sim", "ics35_async.transport"} & after
+
+
+# The console script as pip writes it for the entry point pyproject.toml names, with a line first that says
+# Python itself has started (its own start-up, before any of the project's code, is not the project's to guard).
+CONSOLE_SCRIPT = """
+import sys
+sys.stdout.write("started\\n"); sys.stdout.flush()
+from {module} import {function}
+sys.exit({function}())
+"""
+
+
+def console_script() -> str:
+    import tomllib
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "pyproject.toml"), "rb") as file:
+        module, function = tomllib.load(file)["project"]["scripts"]["ics35"].split(":")
+    return CONSOLE_SCRIPT.format(module=module, function=function)
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.005, 0.01, 0.02, 0.03, 0.045, 0.06, 0.08])
+def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> None:
+    # Ctrl-C at once after start: the package and the command line are still being imported.
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    for _ in range(2):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=os.environ,
+        )
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "started\n"
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        if "Traceback" in err:
+            # Only the generated script's own import statement (finding the entry module, about a millisecond)
+            # is beyond the project's reach: no traceback may pass through the project's files.
+            assert f'File "{root}{os.sep}' not in err, err
+            continue
+        # Stopped (one line, the interrupted exit code), or done before the signal came (the reading printed).
+        assert (proc.returncode, err.strip().splitlines()[-1:]) in (
+            (ExitCode.INTERRUPTED, ["interrupted"]),
+            (ExitCode.INTERRUPTED, ["aborted"]),  # (click's word for it, once it parses the arguments)
+        ) or (proc.returncode == 0 and "stretch" in out), (proc.returncode, out, err)
 
 
 COMMAND_PROBE = """
