@@ -162,6 +162,37 @@ def test_bad_files_are_usage_errors(
     assert targets_sent(sims.upper, 1) == []
 
 
+# Not text, or text in another encoding: named in words (what is wrong, what was expected), not a codec's.
+UNREADABLE = {
+    "binary": (b"\x7fELF\x02\x01\x01\x00\x00\xd0\xd1", "not a text file"),
+    "latin-1": ('name = "caf\xe9"\n'.encode("latin-1"), "not UTF-8 text: byte 0xe9 on line 1"),
+    "utf-16": ('{"neck": 10}'.encode("utf-16"), "is UTF-16 text"),
+}
+
+
+@pytest.mark.parametrize("content", list(UNREADABLE), ids=list(UNREADABLE))
+@pytest.mark.parametrize("which", ["ROBOT.toml", "MOTION.json", "--start-pose"])
+def test_a_file_that_is_not_utf8_text_is_named_so(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, which: str, content: str
+) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    bad = tmp_path / "bad.dat"
+    raw, phrase = UNREADABLE[content]
+    bad.write_bytes(raw)
+    args = {
+        "ROBOT.toml": [str(bad), str(motion)],
+        "MOTION.json": [str(robot_file), str(bad)],
+        "--start-pose": [str(robot_file), str(motion), "--start-pose", str(bad)],
+    }[which]
+    result = cli("play", *args)
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.USAGE, result.err
+    assert phrase in said and "codec" not in said and "Traceback" not in said, said
+    assert "save it as UTF-8" in said or content == "binary", said
+    assert sims.upper.transactions == 0 and sims.lower.transactions == 0
+
+
 @pytest.mark.parametrize(
     ("pose", "phrase"),
     [

@@ -12,6 +12,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
+from .._user_text import UnreadableText, decode_user_text, read_user_text
 from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
@@ -199,6 +200,9 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
 # --------------------------------------------------------------------------- restore
 
 
+BACKUP_IS = "a backup is UTF-8 JSON"  # (what a file given as one should be, for its refusal)
+
+
 @dataclass
 class Backup:
     """One checked backup file and the servo it goes to."""
@@ -213,21 +217,21 @@ class Backup:
 def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bool = False) -> Backup:
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
-        # (UTF-8 whatever the system's encoding; a byte order mark some Windows editors write first is read past)
         if source == "-":
             stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
             raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
+            text = decode_user_text(raw, BACKUP_IS)
         else:
-            raw = Path(source).read_bytes()
-        doc = json.loads(raw.decode("utf-8-sig"))
+            text = read_user_text(source, BACKUP_IS)
+        doc = json.loads(text)
         changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:
             target = saved_id
     except OSError as exc:
         raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
-    except UnicodeDecodeError:
-        raise click.BadParameter(f"{source}: not a text file (a backup is UTF-8 JSON)", param_hint="FILE") from None
+    except UnreadableText as exc:
+        raise click.BadParameter(f"{source}: {exc}", param_hint="FILE") from None
     except json.JSONDecodeError as exc:
         raise click.BadParameter(f"{source}: not JSON: {exc}", param_hint="FILE") from None
     except (InvalidArgument, MalformedEeprom) as exc:

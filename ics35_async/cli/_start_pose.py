@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from ..errors import error_text
+from .._user_text import UnreadableText, read_user_text
 
 start_pose_option = click.option(
     "--start-pose",
@@ -32,12 +32,16 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
         raise click.BadParameter("is empty: give joint=degrees,... or a JSON file", param_hint="--start-pose")
     if "=" not in text:
         try:
-            data = json.loads(Path(text).read_text(encoding="utf-8-sig"))  # (a BOM some Windows editors write)
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise click.BadParameter(
-                f"{text}: neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({error_text(exc)})",
-                param_hint="--start-pose",
-            ) from None
+            data = json.loads(read_user_text(text, "a start pose is UTF-8 JSON"))
+        except (UnreadableText, json.JSONDecodeError) as exc:
+            # A file that is there: what is wrong with it (not which of the two forms it was taken for).
+            if not Path(text).exists():
+                why = f"neither joint=degrees,... nor a readable JSON file {{joint: degrees}} ({exc})"
+            elif isinstance(exc, json.JSONDecodeError):
+                why = f"not valid JSON ({exc}); a start pose is {{joint: degrees}}"
+            else:
+                why = str(exc)
+            raise click.BadParameter(f"{text}: {why}", param_hint="--start-pose") from None
         if not isinstance(data, dict) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()
         ):

@@ -17,6 +17,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from .. import protocol, units
+from .._user_text import UnreadableText, read_user_text
 from ..errors import FileContentError, InvalidArgument
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
@@ -189,11 +190,9 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
         raise InvalidArgument(f"a robot description is a TOML file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        text = path.read_text(encoding="utf-8-sig")  # (-sig: a BOM some Windows editors write first is not TOML)
-    except FileNotFoundError:
-        raise DescriptionError(str(path), "", "no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DescriptionError(str(path), "", f"cannot read it ({exc})") from None
+        text = read_user_text(path, "a robot file is UTF-8 TOML")
+    except UnreadableText as exc:
+        raise DescriptionError(str(path), "", str(exc)) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

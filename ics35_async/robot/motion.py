@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import units
+from .._user_text import UnreadableText, read_user_text
 from ..errors import FileContentError, InvalidArgument
 from .profiles import PROFILES, Trajectory
 from .replace_file import replace_keeping_backup
@@ -104,11 +105,9 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
         raise InvalidArgument(f"a motion is a Motion, a JSON file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))  # (-sig: a BOM some Windows editors write first)
-    except FileNotFoundError:
-        raise MotionError(str(path), "", "no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MotionError(str(path), "", f"cannot read it ({exc})") from None
+        data = json.loads(read_user_text(path, "a motion is UTF-8 JSON"))
+    except UnreadableText as exc:
+        raise MotionError(str(path), "", str(exc)) from None
     except json.JSONDecodeError as exc:
         raise MotionError(str(path), "", f"not valid JSON: {exc}") from None
     return parse_motion(data, str(path))
