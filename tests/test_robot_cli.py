@@ -574,6 +574,69 @@ def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path
     assert not (tmp_path / "x.json").exists()
 
 
+def test_a_directory_given_for_a_file_is_named_so(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # It was "no such file", for a folder the user could see was there.
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    folder = tmp_path / "motions"
+    folder.mkdir()
+    for args, placeholder in (([robot_file, folder], "MOTION.json"), ([folder, motion], "ROBOT.toml")):
+        result = cli("play", *map(str, args))
+        said = " ".join(result.err.split())
+        assert result.code == ExitCode.USAGE, result.err
+        assert f"{placeholder} {folder}: is a directory" in said and "no such file" not in said, said
+    assert sims.upper.transactions == sims.lower.transactions == 0
+
+
+@pytest.mark.parametrize("command", ["teach", "calibrate"])
+def test_a_backup_path_that_is_a_directory_is_refused_before_the_joints_go_free(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, command: str
+) -> None:
+    # The file's old content goes to NAME.bak: a folder there made the write fail only at the end, after the
+    # poses were taken by hand, as "cannot write taught.json: Is a directory" (taught.json was not one).
+    sims, robot_file = rig
+    out_file = tmp_path / "taught.json"
+    out_file.write_text("{}\n")
+    target = out_file if command == "teach" else robot_file
+    Path(f"{target}.bak").mkdir()
+    args = [str(robot_file), str(out_file)] if command == "teach" else [str(robot_file)]
+    result = cli(command, *args, stdin="\nq\n")
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.USAGE, result.err
+    assert f"{target}.bak" in said and "is a directory" in said and "Traceback" not in said, said
+    assert sims.upper.transactions == sims.lower.transactions == 0  # nothing freed, nothing read
+    assert out_file.read_text() == "{}\n"
+
+
+def test_calibrate_that_cannot_write_at_the_end_says_so_in_words(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # The backup's place taken by a folder while the joints were moved by hand: a traceback, and the values lost.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    at = by_hand(sims)
+
+    def then_a_folder() -> None:
+        at({"neck": 70.0, "hip": 40.0})()
+        Path(f"{robot_file}.bak").mkdir()
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 12.0, "hip": -3.0}), "\n"),
+            ("whole range", at({"neck": -50.0, "hip": -60.0}), ""),
+            (None, then_a_folder, "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.USAGE, result.err
+    assert f"{robot_file}.bak, which is a directory" in said and "printed above" in said, said
+    assert "neck: offset" in result.out  # the values found, not lost
+    assert robot_file.read_text() == CALIBRATE_FILE.format(**ports)
+
+
 def test_the_lost_line_hint_names_that_lines_port_and_what_the_others_were_left_in() -> None:
     description = load_description(
         {

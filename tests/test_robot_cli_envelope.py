@@ -152,6 +152,18 @@ def test_a_bad_start_pose_is_a_usage_error_before_anything_is_sent(
     assert sims.upper.transactions == sims.lower.transactions == 0
 
 
+def test_a_motion_given_as_the_start_pose_is_named_so(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # The motion file given twice (or for the pose): it was "must hold a JSON object {joint: degrees}" without
+    # saying which option, of a file that is one.
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 20}})
+    result = cli("play", str(robot_file), str(motion), "--start-pose", str(motion))
+    said = " ".join(result.err.split())
+    assert result.code == 2, result.err
+    assert "--start-pose" in said and f"{motion}: is a motion" in said and "{joint: degrees}" in said, said
+    assert sims.upper.transactions == sims.lower.transactions == 0
+
+
 def test_play_on_an_ics36_robot_frees_nothing(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(ics36=[1, 2, 3])
     robot_file = tmp_path / "robot.toml"

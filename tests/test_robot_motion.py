@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
-from ics35_async.robot import Motion, MotionError, load_description, load_motion, save_motion
+from ics35_async.robot import Keyframe, Motion, MotionError, load_description, load_motion, save_motion
 from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, sent_position, targets_sent
 from tests.support.timing import FAST, GUARD
 
@@ -282,6 +282,18 @@ def test_a_motion_that_cannot_be_written_leaves_the_file_and_its_backup_as_they_
     assert proc.returncode == 1 and "OSError" in proc.stderr, proc.stderr
     assert {path.name: path.read_bytes() for path in (target, backup)} == before
     assert sorted(path.name for path in tmp_path.iterdir()) == ["wave.json", "wave.json.bak"]  # nothing half-written
+
+
+def test_a_backup_path_that_is_a_directory_is_named_in_the_error(tmp_path: Path) -> None:
+    # It said "Is a directory" of the motion's own path.
+    target = tmp_path / "wave.json"
+    target.write_text("{}\n")
+    (tmp_path / "wave.json.bak").mkdir()
+    with pytest.raises(IsADirectoryError) as caught:
+        save_motion(Motion((Keyframe(1.0, {"neck": 10.0}),)), target)
+    assert caught.value.filename == str(tmp_path / "wave.json.bak")
+    assert "wave.json.bak, which is a directory" in str(caught.value)
+    assert target.read_text() == "{}\n" and sorted(p.name for p in tmp_path.iterdir()) == ["wave.json", "wave.json.bak"]
 
 
 def test_files_from_an_editor_that_writes_a_byte_order_mark_read(tmp_path: Path) -> None:

@@ -37,7 +37,7 @@ from ._params import (
     seconds_option,
     yes_option,
 )
-from ._paths import check_input_path, check_line_files, check_output_path
+from ._paths import check_backup_path, check_input_path, check_line_files, check_output_path
 from ._prompt import ask_yes_no, confirm
 from ._runner import advise, note_simulator, require_port, run
 from ._settings import DEFAULT_PORT, CliError, ExitCode, Settings, settings_of, setup_logging
@@ -57,6 +57,7 @@ __all__ = [
     "advise",
     "all_ids_option",
     "ask_yes_no",
+    "check_backup_path",
     "check_input_path",
     "check_line_files",
     "check_output_path",

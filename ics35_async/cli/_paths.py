@@ -6,7 +6,7 @@ import os
 from collections.abc import Collection
 from pathlib import Path
 
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, error_text
 from ._settings import CliError, ExitCode, Settings
 
 
@@ -41,9 +41,22 @@ def check_output_path(path: str, what: str, formats: Collection[str] | None = No
     return target
 
 
+def check_backup_path(target: Path, what: str) -> None:
+    """Refuse, before the work begins, a file whose old content cannot be kept as ``NAME.bak`` when it is
+    replaced at the end (a directory there): a :class:`CliError` (exit code 2) naming ``what``."""
+    from ..robot.replace_file import check_backup_room  # (here: the robot package is not every command's)
+
+    try:
+        check_backup_room(target)
+    except OSError as exc:
+        raise _refuse(what, str(target), error_text(exc)) from None
+
+
 def check_input_path(path: str, what: str) -> Path:
     """``path`` if it is a readable file, else a :class:`CliError` (exit code 2)."""
     source = Path(path)
+    if source.is_dir():
+        raise _refuse(what, path, f"is a directory; give the file ({what}) itself")
     if not source.is_file():
         raise _refuse(what, path, "no such file")
     if not os.access(source, os.R_OK):

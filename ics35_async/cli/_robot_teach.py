@@ -19,7 +19,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..eeprom import Eeprom
-from ..errors import IcsError, InvalidArgument, ReplyError
+from ..errors import IcsError, InvalidArgument, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
 from ..robot.calibration import calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
@@ -28,6 +28,7 @@ from ._common import (
     CliError,
     ExitCode,
     Settings,
+    check_backup_path,
     check_output_path,
     choice_option,
     err,
@@ -161,6 +162,7 @@ def teach(
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
     target = check_output_path(out_file, "OUT.json", {"json"})
+    check_backup_path(target, "OUT.json")  # (now: at the end, the poses are taken by hand)
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
     if target.exists():
@@ -314,7 +316,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
-    check_output_path(robot_file, "ROBOT.toml")
+    check_backup_path(check_output_path(robot_file, "ROBOT.toml"), "ROBOT.toml")
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
     neutral: dict[str, float] = {}
@@ -437,7 +439,12 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
         problem = limit_problem(robot_file, joint, eeproms[name]) if name in eeproms else None
         if problem is not None:
             err.print(f"[yellow]warning:[/yellow] {escape(problem)}: commands stop there", soft_wrap=True)
-    written = write_calibration(robot_file, description, calibrated)
+    try:
+        written = write_calibration(robot_file, description, calibrated)
+    except OSError as exc:  # (the folder changed since the start: the values found are printed above)
+        raise CliError(
+            ExitCode.USAGE, f"cannot write {robot_file}: {error_text(exc)}; the calibrated values are printed above"
+        ) from None
     if written.comments_kept:
         out.print(f"written into {escape(str(written.path))} (comments kept)")
     else:

@@ -42,10 +42,19 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
             else:
                 why = str(exc)
             raise click.BadParameter(f"{text}: {why}", param_hint="--start-pose") from None
+        from ..robot.motion import FORMAT as MOTION_FORMAT  # (here: `ics35 web` imports this module up front)
+
+        if isinstance(data, dict) and ("keyframes" in data or data.get("format") == MOTION_FORMAT):
+            # (the motion given twice, or for the pose: its keyframes are where it goes, not where it starts)
+            raise click.BadParameter(
+                f"{text}: is a motion, not a pose: a start pose is where the robot stands now, "
+                "a JSON object {joint: degrees} or joint=degrees,...",
+                param_hint="--start-pose",
+            )
         if not isinstance(data, dict) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()
         ):
-            raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}")
+            raise click.BadParameter(f"{text}: must hold a JSON object {{joint: degrees}}", param_hint="--start-pose")
         return {str(k): float(v) for k, v in data.items()}
     pose = {}
     for item in text.split(","):

@@ -9,6 +9,7 @@ through: the link stays, the file it names gets the new content.
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import shutil
@@ -25,6 +26,7 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
     """
     if target.is_symlink():
         target = target.resolve()
+    check_backup_room(target)
     newline = "\n"
     if target.exists() and b"\r\n" in target.read_bytes():
         newline = "\r\n"
@@ -46,6 +48,29 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
     return backup
 
 
+def backup_path(target: Path) -> Path:
+    """Where :func:`replace_keeping_backup` keeps ``target``'s old content: ``NAME.bak`` beside it (beside the
+    file a symbolic link names, for a link)."""
+    if target.is_symlink():
+        target = target.resolve()
+    return target.with_name(f"{target.name}.bak")
+
+
+def check_backup_room(target: Path) -> None:
+    """Refuse to go on when ``target`` has content to keep and its ``NAME.bak`` is a directory, which the backup
+    cannot replace: a program checks this before the work whose result replaces ``target``, and
+    :func:`replace_keeping_backup` before it writes anything.
+
+    Raises:
+        IsADirectoryError: naming the backup's path, in words (not "Is a directory" of ``target``'s).
+    """
+    backup = backup_path(target)
+    if target.exists() and backup.is_dir() and not backup.is_symlink():  # (a link is replaced, not entered)
+        raise IsADirectoryError(
+            errno.EISDIR, f"its old content goes to {backup}, which is a directory: move or rename that", str(backup)
+        )
+
+
 def _beside(target: Path, suffix: str) -> Path:
     return target.with_name(f".{target.name}.{secrets.token_hex(4)}.{suffix}")
 
@@ -55,7 +80,7 @@ def _keep_backup(target: Path) -> Path | None:
     that fails (a full disk) leaves the backup there was, not half of the new one."""
     if not target.exists():
         return None
-    backup = target.with_name(f"{target.name}.bak")
+    backup = backup_path(target)
     copy = _beside(target, "bak")
     try:
         shutil.copy2(target, copy)
