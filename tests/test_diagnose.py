@@ -242,6 +242,23 @@ def test_doctor_text_and_no_servo(cli: Any) -> None:
     assert none.json()["servos"] == [] and "no servo answered" in none.err
 
 
+def test_doctor_on_the_simulator_says_so_and_checks_no_adapter(cli: Any) -> None:
+    # "info: no Kondo adapter (USB vendor 165C) is plugged in" and the machine's serial ports, under a line
+    # that was the simulator: advice about hardware the user did not ask about, beside figures that read
+    # as a real line's.
+    result = cli("doctor", "--port", "sim://?ids=1-3", "--samples", "6")
+    assert result.code == 0, result.err
+    said = result.out + result.err
+    assert "simulat" in result.out and "Kondo adapter" not in said and "lsusb" not in said, said
+    assert not [ln for ln in result.out.splitlines() if ln.startswith("ports")], result.out
+    assert "line (simulated)" in result.out
+    data = cli("doctor", "--port", "sim://?ids=1-3", "--samples", "6", "--json").json()
+    assert data["simulated"] is True and data["servos"] == [1, 2, 3] and data["ports"] == []
+    assert not {f["check"] for f in data["findings"]} & {"adapter", "grabber", "wsl", "latency_timer"}
+    # Without --port, the machine is what is checked: its adapters still are.
+    assert cli("doctor", "--json").json()["simulated"] is False
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
 def test_doctor_reads_the_system_from_the_given_root(tmp_path: Path, cli: Any) -> None:
     root = tree(tmp_path)

@@ -47,8 +47,19 @@ def measure(settings: Settings, ids: list[int], per_servo: int | None, system: S
     return run(settings, body)
 
 
-def print_report(system: SystemReport, line: LineReport | None, findings: list[Finding]) -> None:
-    if system.ports:
+SIMULATOR_NOTE = (
+    "[bold]the simulator[/bold]: the machine's adapters, drivers and port rights are not checked (they mean "
+    "nothing for it); its round trips are the simulator's, not hardware's (for hardware: ics35 doctor --port "
+    "/dev/ttyUSB0)"
+)
+
+
+def print_report(
+    system: SystemReport, line: LineReport | None, findings: list[Finding], simulated: bool = False
+) -> None:
+    if simulated:
+        out.print(SIMULATOR_NOTE)
+    elif system.ports:
         out.print("[bold]ports[/bold]")
         for p in system.ports:
             kind = adapter_name(p.usb_id) or ("Kondo adapter" if p.kondo else p.description or "-")
@@ -60,7 +71,8 @@ def print_report(system: SystemReport, line: LineReport | None, findings: list[F
     if line is not None and line.median is not None and line.p99 is not None:
         rates = line.cycle_hz()
         out.print(
-            f"[bold]line[/bold] at {line.baudrate} baud: servo(s) {ids_text(line.servo_ids)}; "
+            f"[bold]line{' (simulated)' if simulated else ''}[/bold] at {line.baudrate} baud: "
+            f"servo(s) {ids_text(line.servo_ids)}; "
             f"round trip median {line.median * 1e3:.2f} ms, p99 {line.p99 * 1e3:.2f} ms "
             f"({len(line.all_samples)} reads)"
         )
@@ -99,7 +111,10 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     """
     settings = settings_of(ctx)
     port = None if settings.port_defaulted else settings.port
-    system = check_system(machine_ports(), port, root=system_root, own_pid=os.getpid())
+    # The simulator's line has no adapter, driver or port: the machine's checks would be advice about hardware
+    # the user did not ask about ("no Kondo adapter is plugged in"), listed beside the simulator's figures.
+    simulated = port is not None and settings.is_sim
+    system = SystemReport() if simulated else check_system(machine_ports(), port, root=system_root, own_pid=os.getpid())
     findings = list(system.findings)
     line: LineReport | None = None
     failure: CliError | None = None
@@ -126,7 +141,13 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         findings += line.judge()
     burst_on, burst_text = burst_path() if line is None else line_path(bursts)  # (the measured line's, if one)
     if as_json:
-        report: dict[str, Any] = {"port": port, **system.to_dict(), "burst_path": burst_on, "io_path": burst_text}
+        report: dict[str, Any] = {
+            "port": port,
+            "simulated": simulated,
+            **system.to_dict(),
+            "burst_path": burst_on,
+            "io_path": burst_text,
+        }
         line_part = line.to_dict() if line is not None else {}
         report.update(
             {
@@ -145,7 +166,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         # The failure itself is printed last, as every command's error is: not twice.
         shown = [f for f in findings if failure is None or f.problem != failure.message]
         out.print(f"{PATH_NAME}: {escape(burst_text)}")
-        print_report(system, line, shown)
+        print_report(system, line, shown, simulated)
     if failure is not None:
         raise failure
     return 0
