@@ -250,6 +250,33 @@ def test_a_link_a_running_simulator_serves_is_refused(tmp_path: Path) -> None:
         first.dispose()
 
 
+def test_a_link_whose_folder_is_removed_while_serving_stops_the_simulator_in_words(tmp_path: Path) -> None:
+    # A temporary folder cleaned away under a running simulator: at the next replug the link could not be made
+    # again, and the simulator died with a traceback (FileNotFoundError of the link's .new sibling).
+    folder = tmp_path / "run"
+    folder.mkdir()
+    link = folder / "tty"
+    replug = ["--unplug-after", "0.3", "--replug-after", "0.3"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", "--fast", "--link", str(link), *replug],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
+        (folder / "tty").unlink(missing_ok=True)
+        folder.rmdir()
+        _, err = proc.communicate(timeout=GUARD)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err and f"{folder}" in err and "gone" in err, err
+    assert "served 0 transactions" in err  # its end said as ever
+
+
 @pytest.mark.realtime
 def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
     path = pty_sim("--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4").path

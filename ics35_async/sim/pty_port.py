@@ -151,6 +151,11 @@ def _pty_link(path: Path) -> bool:
     return path.is_symlink() and os.readlink(path).startswith(("/dev/pts/", "/dev/ttys"))  # Linux, macOS
 
 
+class LinkFolderGone(Exception):
+    """The folder of the link was removed while the simulator ran (a temporary folder cleaned away): the link
+    cannot be made again at the next plug, and no client can find the port."""
+
+
 class PtyPort:
     """The master side of a pty, reachable by clients at :attr:`path`.
 
@@ -185,10 +190,21 @@ class PtyPort:
         self.client_present = False
         self.reset_settings()
         tmp_link = self.path.with_name(self.path.name + ".new")
-        if tmp_link.is_symlink():  # (one an earlier simulator left: check_link_path refused anything else)
-            tmp_link.unlink()
-        os.symlink(name, tmp_link)
-        os.replace(tmp_link, self.path)
+        try:
+            if tmp_link.is_symlink():  # (one an earlier simulator left: check_link_path refused anything else)
+                tmp_link.unlink()
+            os.symlink(name, tmp_link)
+            os.replace(tmp_link, self.path)
+        except FileNotFoundError:
+            if self.path.parent.is_dir():
+                raise
+            self.close()  # (the pty just made: without its link no client reaches it)
+            # Not made again: a folder of the user's is theirs to make, and the private one is gone with whatever
+            # cleaned it.
+            raise LinkFolderGone(
+                f"the link's folder {self.path.parent} is gone (removed while the simulator ran): "
+                f"{self.path} cannot be made again"
+            ) from None
 
     def close(self) -> None:
         """Remove the link and close the pty (an open client sees a hang-up)."""

@@ -21,6 +21,7 @@ from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
 from .console import ConsoleReader, LineConsole, in_background_of_terminal
 from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
+from .pty_port import LinkFolderGone
 from .pty_server import PtyServer
 from .record import ReplayDevice
 from .tap import LineTap
@@ -205,6 +206,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
     stops = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
     previous = {sig: signal.signal(sig, on_signal) for sig in stops}
     console: ConsoleReader | None = None
+    code = 0
     try:
         path = server.open()
         print(path, flush=True)
@@ -234,6 +236,9 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             print("ics35 sim: console: type help for its commands, quit to stop", file=sys.stderr, flush=True)
             console.start()
         server.serve()
+    except LinkFolderGone as exc:
+        print(f"ics35 sim: {exc}; the simulator stops", file=sys.stderr, flush=True)
+        code = 1
     finally:
         if console is not None:
             console.close()
@@ -248,4 +253,4 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
             print(f"ics35 sim: served {device.transactions} transactions{lost}", file=sys.stderr, flush=True)
         for when, what, data in server.last:
             print(f"ics35 sim: at {when:.6f} {what:5} {data.hex(' ')}", file=sys.stderr, flush=True)
-    return 0
+    return code
