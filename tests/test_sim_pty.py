@@ -277,6 +277,23 @@ def test_a_link_whose_folder_is_removed_while_serving_stops_the_simulator_in_wor
     assert "served 0 transactions" in err  # its end said as ever
 
 
+def test_a_link_to_a_pty_in_use_names_the_process_that_holds_it(tmp_path: Path) -> None:
+    # A link a killed simulator left leads to a /dev/pts number since reused (a terminal): refused, as a running
+    # simulator's is, but naming who holds the pty, so the user can tell which of the two it is before removing.
+    master, slave = os.openpty()
+    try:
+        link = tmp_path / "tty"
+        os.symlink(os.ttyname(slave), link)
+        proc = run_sim("--link", str(link))
+        said = " ".join(proc.stderr.split())
+        assert proc.returncode == 2, proc.stderr
+        assert "in use" in said and f"process {os.getpid()}" in said, said
+        assert os.readlink(link) == os.ttyname(slave)  # left as it was
+    finally:
+        os.close(slave)
+        os.close(master)
+
+
 @pytest.mark.realtime
 def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
     path = pty_sim("--ids", "1", "--unplug-after", "0.4", "--replug-after", "0.4").path

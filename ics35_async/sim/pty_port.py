@@ -140,10 +140,32 @@ def check_link_path(path: Path) -> None:
                 f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
             )
         if taken.exists():  # (its pty is there: a simulator, or whatever holds that pty now, serves it)
+            pts = os.readlink(taken)
+            holder = _pty_holder(pts)
+            held = f", which {holder} holds" if holder else ""
             raise InvalidArgument(
-                f"{taken} is in use: it leads to {os.readlink(taken)} (choose another path; if no simulator "
-                "serves it, a killed one left it: remove it)"
+                f"{taken} is in use: it leads to {pts}{held} (choose another path; if no simulator serves it, "
+                "a killed one left the link and the pty was reused since: remove it)"
             )
+
+
+def _pty_holder(pts: str, proc: Path = Path("/proc")) -> str | None:
+    """``process PID (NAME)`` that holds the master side of the pty ``pts`` (``/dev/pts/N``), or None where the
+    system does not say (not Linux, another user's process).  A terminal (a shell's, tmux's) that took a killed
+    simulator's pty number tells itself apart from a simulator by its name."""
+    index = pts.removeprefix("/dev/pts/")
+    if not index.isdigit():
+        return None
+    for entry in proc.glob("[0-9]*"):
+        with contextlib.suppress(OSError):
+            for fd in (entry / "fd").iterdir():
+                if os.readlink(fd) not in ("/dev/ptmx", "/dev/pts/ptmx"):
+                    continue
+                info = (entry / "fdinfo" / fd.name).read_text()  # (Linux 4.13 on: the pty's number)
+                if f"tty-index:\t{index}\n" in info:
+                    name = (entry / "comm").read_text().strip()
+                    return f"process {entry.name} ({name})"
+    return None
 
 
 def _pty_link(path: Path) -> bool:
