@@ -222,6 +222,23 @@ def test_a_link_path_that_is_not_the_simulators_own_is_refused_and_left_alone(tm
     assert precious.read_text() == "keep me" and not precious.is_symlink()
 
 
+@pytest.mark.parametrize("option", ["--link", "--tap"])
+@pytest.mark.parametrize("path", ["", ".", "/"])
+def test_a_link_path_without_a_file_name_is_refused_in_words(option: str, path: str) -> None:
+    proc = run_sim(option, path)  # (an empty variable in a script: --link "$DIR/$NAME" with neither set)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and ("file name" in proc.stderr or "empty" in proc.stderr), proc.stderr
+
+
+def test_a_relative_link_is_printed_as_a_path_from_anywhere(tmp_path: Path) -> None:
+    # The path printed is what another terminal, in another directory, opens as --port.
+    port = PtyPort("tty-rel")
+    try:
+        assert port.path.is_absolute() and port.path == Path.cwd() / "tty-rel"
+    finally:
+        port.dispose()
+
+
 def test_a_link_the_simulator_left_behind_is_replaced(tmp_path: Path) -> None:
     # A simulator killed with SIGKILL leaves its link pointing at a pty that is gone: the next takes it over.
     link = tmp_path / "ttyICS"

@@ -128,6 +128,8 @@ def check_link_path(path: Path) -> None:
     Raises:
         InvalidArgument: the path, and why.
     """
+    if path.name in ("", ".."):  # ("", "." and "/" are all nameless to pathlib)
+        raise InvalidArgument(f"{str(path)!r} has no file name for the link (e.g. /tmp/ttyICS0)")
     if not path.parent.is_dir():
         raise InvalidArgument(f"no such directory for the link: {path.parent} (in {path})")
     if not os.access(path.parent, os.W_OK):
@@ -193,8 +195,11 @@ class PtyPort:
             self.path = Path(self._tmpdir) / "ttyICS0"
         else:
             self._tmpdir = None
-            self.path = Path(link)
-            check_link_path(self.path)
+            if not str(link):  # (pathlib reads "" as ".")
+                raise InvalidArgument("the path is empty: give the link's path (e.g. /tmp/ttyICS0)")
+            check_link_path(Path(link))
+            # Absolute: the path printed is what another terminal, in another directory, opens as --port.
+            self.path = Path(link).absolute()
         self.pts_name: str | None = None
         self.master: int | None = None
         self.opens: int | None = None

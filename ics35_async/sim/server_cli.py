@@ -183,13 +183,14 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         device = build_device(args)
     except (InvalidArgument, OSError) as exc:
         parser.error(str(exc))
-    if args.tap and not isinstance(device, VirtualLine):
+    if args.tap is not None and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
     if args.console and not isinstance(device, VirtualLine):
         parser.error("--console needs a simulated line, not --replay")
     # The tap first: a bad --tap then leaves no server's private directory behind.
     try:
-        tap = LineTap(device, args.tap) if args.tap and isinstance(device, VirtualLine) else None
+        # (`is not None`: an empty --tap, a script's unset variable, is refused, not taken for no tap)
+        tap = LineTap(device, args.tap) if args.tap is not None and isinstance(device, VirtualLine) else None
     except (InvalidArgument, OSError) as exc:
         parser.error(f"--tap: {error_text(exc)}")
     try:
