@@ -26,6 +26,14 @@ def test_a_sim_replay_file_that_is_not_there(cli: Any, tmp_path: Path) -> None:
     assert "no such file" in result.err
 
 
+def test_a_sim_replay_file_that_is_not_text(cli: Any, tmp_path: Path) -> None:
+    given = tmp_path / "session.bin"
+    given.write_bytes(b"\x7fELF\x02\x01\x01\x00\x00\xd0\xd1")
+    result = cli("--port", f"sim://?replay={given}", "get", "1", "speed")
+    assert result.code == ExitCode.USAGE, result.err
+    assert f"{given}: not a text file" in result.err
+
+
 def test_a_sim_record_file_is_written(cli: Any, tmp_path: Path) -> None:
     target = tmp_path / "session.txt"
     assert cli("--port", f"sim://?record={target}", "move", "1", "7600").code == 0

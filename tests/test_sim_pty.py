@@ -239,6 +239,13 @@ def test_a_relative_link_is_printed_as_a_path_from_anywhere(tmp_path: Path) -> N
         port.dispose()
 
 
+@pytest.mark.parametrize("option", ["--replay", "--record"])
+def test_a_session_file_that_is_a_directory_is_named_with_its_option(tmp_path: Path, option: str) -> None:
+    proc = run_sim(option, str(tmp_path))
+    assert proc.returncode == 2, proc.stderr
+    assert f"{option} {tmp_path}: Is a directory" in proc.stderr and "Errno" not in proc.stderr, proc.stderr
+
+
 def test_a_link_the_simulator_left_behind_is_replaced(tmp_path: Path) -> None:
     # A simulator killed with SIGKILL leaves its link pointing at a pty that is gone: the next takes it over.
     link = tmp_path / "ttyICS"

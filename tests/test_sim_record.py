@@ -112,3 +112,26 @@ def test_parse_recording_accepts_comments_blank_lines_and_silence() -> None:
 def test_parse_recording_rejects_bad_lines(line: str) -> None:
     with pytest.raises(InvalidArgument):
         parse_recording([line])
+
+
+@pytest.mark.parametrize(
+    ("raw", "phrase"),
+    [
+        (b"\x7fELF\x02\x01\x01\x00\x00\xd0\xd1", "not a text file"),
+        (b"0.000 81 3A 4C -> 81 3A 4C 01 3A 4C  # caf\xe9\n", "not UTF-8 text: byte 0xe9 on line 1"),
+    ],
+    ids=["binary", "latin-1"],
+)
+def test_a_recording_that_is_not_utf8_text_is_named_so(tmp_path: Path, raw: bytes, phrase: str) -> None:
+    # A binary file given by mistake as --replay (or sim://?replay=): a UnicodeDecodeError traceback.
+    given = tmp_path / "session.bin"
+    given.write_bytes(raw)
+    with pytest.raises(InvalidArgument, match=phrase) as caught:
+        load_recording(given)
+    assert str(given) in str(caught.value)
+
+
+def test_a_recording_saved_with_a_byte_order_mark_replays(tmp_path: Path) -> None:
+    given = tmp_path / "session.txt"
+    given.write_bytes(b"\xef\xbb\xbf0.000 81 3A 4C -> 81 3A 4C 01 3A 4C\r\n")
+    assert [entry.tx for entry in load_recording(given)] == [bytes.fromhex("81 3A 4C")]

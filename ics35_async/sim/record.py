@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from .._user_text import UnreadableText, decode_user_text
 from ..errors import InvalidArgument
 from ..transports import HostSide
 from .transaction import Transaction
@@ -143,12 +144,16 @@ def load_recording(source: str | Path | TextIO | Iterable[str]) -> list[Entry]:
     """Entries of a recording; ``source`` is a path, a text stream or lines.
 
     Raises:
-        InvalidArgument: a line breaks the format (see :func:`parse_recording`).
+        InvalidArgument: a line breaks the format (see :func:`parse_recording`), or the file is not UTF-8 text
+            (a byte order mark first is read past).
         OSError: the file cannot be read.
     """
     if isinstance(source, (str, Path)):
-        with open(source, encoding="utf-8") as stream:
-            return parse_recording(stream)
+        try:
+            text = decode_user_text(Path(source).read_bytes(), "a recording is UTF-8 text")
+        except UnreadableText as exc:
+            raise InvalidArgument(f"{source}: {exc}") from None
+        return parse_recording(text.splitlines())
     return parse_recording(source)
 
 

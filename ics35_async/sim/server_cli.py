@@ -181,8 +181,11 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
         )
     try:
         device = build_device(args)
-    except (InvalidArgument, OSError) as exc:
+    except InvalidArgument as exc:
         parser.error(str(exc))
+    except OSError as exc:  # (only the --replay or --record file is opened here: named with its option)
+        option = "--replay" if args.replay else "--record"
+        parser.error(f"{option} {args.replay or args.record}: {exc.strerror or error_text(exc)}")
     if args.tap is not None and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
     if args.console and not isinstance(device, VirtualLine):
