@@ -420,6 +420,16 @@ def test_demo_leaves_every_servo_free(cli: Any, sim_line: Any) -> None:
     assert all(s.eeprom_writes == 0 for s in sim.servos)
 
 
+def test_monitor_on_ics35_servos_without_free_refuses_as_its_help_says(cli: Any, sim_line: Any) -> None:
+    # Its --help promised "current and temperature but no position" where it refuses (KRS servos are ICS 3.5).
+    _, url = sim_line([1, 2])
+    result = cli("--port", url, "monitor", "1-2", "--seconds", "0.3")
+    assert result.code == ExitCode.REFUSED, result.err
+    shown = " ".join(cli("monitor", "--help").out.split())
+    assert "show current and temperature but no position" not in shown
+    assert "With only ICS 3.5 servos and no --free, monitor refuses (exit 5)" in shown, shown
+
+
 def test_monitor_json_lines(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([1, 2])
     result = cli("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "0.3", "--json")

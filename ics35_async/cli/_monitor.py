@@ -40,9 +40,10 @@ def monitor(
 
     The torque is left alone: ICS 3.6 servos report their position with their
     position read; ICS 3.5 servos can only by the free command, so with --free
-    they go limp (move them by hand and watch), and without it they show
-    current and temperature but no position.  IDS: 1-12, 0,3,5, all (default:
-    the IDs that answer a scan).  --json prints one JSON line per second.
+    they go limp (move them by hand and watch), and without it they show "n/a"
+    for position.  With only ICS 3.5 servos and no --free, monitor refuses
+    (exit 5) and sends nothing.  IDS: 1-12, 0,3,5, all (default: the IDs that
+    answer a scan).  --json prints one JSON line per second.
     """
     settings = settings_of(ctx)
     shown = live_port(settings, plot)
