@@ -34,6 +34,23 @@ def test_a_sim_replay_file_that_is_not_text(cli: Any, tmp_path: Path) -> None:
     assert f"{given}: not a text file" in result.err
 
 
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["play", "", "motion.json"],
+        ["calibrate", ""],
+        ["--port", "sim://", "monitor", "--free", "--plot", "", "--seconds", "0.2"],
+        ["--port", "sim://?record=", "get", "1", "speed"],
+    ],
+    ids=["ROBOT.toml", "calibrate", "--plot", "record="],
+)
+def test_an_empty_file_name_is_named_empty(cli: Any, args: list[str]) -> None:
+    # (a script's unset variable) It was "is a directory", for the current directory an empty path stands for.
+    result = cli(*args)
+    assert result.code == ExitCode.USAGE, result.err
+    assert "the path is empty" in result.err and "directory" not in result.err, result.err
+
+
 def test_a_sim_record_file_is_written(cli: Any, tmp_path: Path) -> None:
     target = tmp_path / "session.txt"
     assert cli("--port", f"sim://?record={target}", "move", "1", "7600").code == 0

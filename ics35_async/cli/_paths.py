@@ -15,11 +15,18 @@ def _refuse(what: str, path: str, why: str) -> CliError:
     return CliError(ExitCode.USAGE, f"{joined}: {why} (nothing was sent)")
 
 
+def _refuse_empty(path: str, what: str) -> None:
+    # (a script's unset variable: pathlib reads "" as ".", the current directory)
+    if not path.strip():
+        raise CliError(ExitCode.USAGE, f"{what}: the path is empty; give a file name (nothing was sent)")
+
+
 def check_output_path(path: str, what: str, formats: Collection[str] | None = None) -> Path:
     """``path`` if a file can be written there (and, given ``formats``, its suffix is one of them).
 
     Raises a :class:`CliError` (exit code 2) naming ``what`` (e.g. ``--plot``) otherwise.
     """
+    _refuse_empty(path, what)
     target = Path(path)
     if target.is_dir():
         raise _refuse(what, path, "is a directory; give a file name")
@@ -54,6 +61,7 @@ def check_backup_path(target: Path, what: str) -> None:
 
 def check_input_path(path: str, what: str) -> Path:
     """``path`` if it is a readable file, else a :class:`CliError` (exit code 2)."""
+    _refuse_empty(path, what)
     source = Path(path)
     if source.is_dir():
         raise _refuse(what, path, f"is a directory; give the file ({what}) itself")
