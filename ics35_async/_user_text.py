@@ -36,7 +36,7 @@ def read_user_text(path: str | Path, expected: str) -> str:
     except IsADirectoryError:
         raise UnreadableText(f"is a directory, not a file ({expected})") from None
     except OSError as exc:
-        raise UnreadableText(f"cannot read it ({error_text(exc)})") from None
+        raise UnreadableText(f"cannot read it ({exc.strerror or error_text(exc)})") from None  # (the caller names it)
     return decode_user_text(raw, expected)
 
 

@@ -175,9 +175,10 @@ def _pty_link(path: Path) -> bool:
     return path.is_symlink() and os.readlink(path).startswith(("/dev/pts/", "/dev/ttys"))  # Linux, macOS
 
 
-class LinkFolderGone(Exception):
+class LinkFolderGone(OSError):
     """The folder of the link was removed while the simulator ran (a temporary folder cleaned away): the link
-    cannot be made again at the next plug, and no client can find the port."""
+    cannot be made again at the next plug, and no client can find the port.  (An OSError: where a port opens, as
+    at the simulator's start, it is one more reason the port cannot be made.)"""
 
 
 class PtyPort:

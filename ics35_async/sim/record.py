@@ -153,7 +153,7 @@ def load_recording(source: str | Path | TextIO | Iterable[str]) -> list[Entry]:
             text = decode_user_text(Path(source).read_bytes(), "a recording is UTF-8 text")
         except UnreadableText as exc:
             raise InvalidArgument(f"{source}: {exc}") from None
-        return parse_recording(text.splitlines())
+        return parse_recording(text.split("\n"))  # (lines as the text's own: numbered as an editor shows them)
     return parse_recording(source)
 
 
