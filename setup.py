@@ -11,7 +11,9 @@ from setuptools import Extension, setup
 ext_modules = []
 if sys.platform != "win32":  # POSIX descriptors, poll and threads only
     ext_modules.append(
-        Extension("ics35_async.drivers._burst", ["ics35_async/drivers/_burst.c"], optional=True, extra_compile_args=["-O2"])
+        Extension(
+            "ics35_async.drivers._burst", ["ics35_async/drivers/_burst.c"], optional=True, extra_compile_args=["-O2"]
+        )
     )
 
 setup(ext_modules=ext_modules)

@@ -98,6 +98,7 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
 
     Raises:
         MotionError: the file cannot be read, is not JSON, or breaks a rule of the format.
+        InvalidArgument: ``source`` is neither a path nor a mapping (nothing read).
     """
     if isinstance(source, Mapping):
         return parse_motion(source, "<mapping>")
