@@ -746,3 +746,34 @@ def test_an_old_backup_is_restored_keeping_the_servos_new_rate(serve: Any) -> No
     assert kept["refusal"] is None and {d["name"] for d in kept["diff"]} == {"speed"}
     result = post(client, "/api/servo/1/restore", {"doc": doc, "keep_baud": True, "before": kept["before"]}).json()
     assert result["verified"] and servo.eeprom.speed == 127 and servo.eeprom.baud_rate == 1250000
+
+
+def test_a_live_frame_says_which_servos_the_stream_holds_and_why(serve: Any) -> None:
+    # After a lost port the stream sends a servo it held nothing (it may have restarted, free and elsewhere):
+    # the Live plots page must say so ("held: resumed"), not show it as a plain servo whose line went flat.
+    client, sim = serve((1, 3))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    deadline = time.monotonic() + GUARD
+    while (client.get("/api/live").json() or {}).get("positions", {}).get("1", -1) < 0:
+        assert time.monotonic() < deadline, "the stream never read servo 1"
+        time.sleep(0.02)
+    assert client.get("/api/live").json()["held"] == {}
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["enabled"]
+    sim.unplug()
+    while not client.get("/api/status").json()["lost"]:
+        assert time.monotonic() < deadline, "the port was never told lost"
+        time.sleep(0.02)
+    sim.replug()
+    frame: dict[str, Any] = {}
+    while frame.get("held") != {"1": "resumed"}:
+        assert time.monotonic() < deadline, f"servo 1 never shown held: {frame}"
+        frame = client.get("/api/live").json() or {}
+        time.sleep(0.02)
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:  # the page is sent it as a slow part
+        held = [u["live"]["held"] for u in (ws.receive_json() for _ in range(10)) if u.get("live", {}).get("held")]
+    assert held and held[0] == {"1": "resumed"}
+    post(client, "/api/servo/1/free")  # the page's Free: the stream reads it again, held no more
+    while (client.get("/api/live").json() or {}).get("held"):
+        assert time.monotonic() < deadline, "servo 1 still shown held after Free"
+        time.sleep(0.02)
+    post(client, "/api/live/stop")

@@ -939,3 +939,24 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         expect(p.locator("#robot-motion")).to_be_enabled()
         p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+
+
+def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Browser) -> None:
+    # The stream sends a servo it held nothing once the port is back (it may have restarted, free and
+    # elsewhere): plotted as if plain, its line just went flat; the terminal says "waiting for a target".
+    line = PtyLine((1,))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.goto(p.url.split("#")[0] + "#live")
+        p.fill("#live-ids", "1")
+        p.click("#live-start")
+        expect(p.locator("#legend span[data-id='1']")).to_be_visible()
+        expect(p.locator("#live-held")).to_have_text("none")
+        answer = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": True})
+        assert answer.ok and answer.json()["enabled"], answer.text()
+        line.sim.unplug()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        expect(p.locator("#live-held")).to_contain_text("1 (held: resumed")
+        expect(p.locator("#legend span[data-id='1']")).to_contain_text("held: resumed")
+        p.click("#live-stop")

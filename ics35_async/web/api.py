@@ -54,7 +54,7 @@ IDLE_PERIOD = 0.25
 TELEMETRY_PERIOD = 1.0
 # A live frame's parts that change at most a few times a second: sent when they change (the page keeps
 # the last), so the 25 updates a second carry little more than the positions.
-LIVE_SLOW_PARTS = ("targets", "current", "temperature", "watched", "offline")
+LIVE_SLOW_PARTS = ("targets", "current", "temperature", "watched", "offline", "held")
 
 
 def _status_of(exc: BaseException) -> int:

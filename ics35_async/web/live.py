@@ -107,6 +107,9 @@ class LiveView:
             "temperature": {str(k): v for k, v in self.temperature.items()},
             "offline": sorted(frame.offline),
             "watched": [i for i in self.ids if self.stream.target(i) == WATCH],
+            # Sent nothing since their port came back or they answered again, and why: their servos may
+            # have restarted, free and elsewhere, so the page says so rather than plot a line gone flat.
+            "held": {str(k): why for k, why in self.stream.held.items()},
             "rate_hz": round(rate, 1),
         }
 

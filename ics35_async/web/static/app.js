@@ -478,7 +478,7 @@ async function startLive() {
 function onLive(frame) {
   if (!frame) return;
   // The server sends these only when they change: each frame is filled in from the last ones sent.
-  for (const part of ["targets", "current", "temperature", "watched", "offline"]) {
+  for (const part of ["targets", "current", "temperature", "watched", "offline", "held"]) {
     if (frame[part] === undefined) frame[part] = state.liveParts[part]; else state.liveParts[part] = frame[part];
   }
   for (const id of Object.keys(frame.positions)) state.liveIds.add(id);  // a frame lacks an ID that missed its cycle
@@ -490,6 +490,12 @@ function onLive(frame) {
   $("#live-updates").textContent = state.updates.length;
   $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
   $("#live-watched").textContent = frame.watched.length ? frame.watched.join(",") : "none";
+  // Held by the stream since their port came back ("resumed") or they answered again ("rejoined"): sent
+  // nothing, their servos may have restarted, free and elsewhere; a flat line alone would not say so.
+  const held = Object.entries(frame.held || {});
+  $("#live-held").textContent = held.length ? held.map(([id, why]) => `${id} (held: ${why})`).join(", ") +
+    ": they may have restarted, free and elsewhere; Free on a servo's page has the stream read it again" : "none";
+  $("#live-held").className = held.length ? "bad" : "";
   if (state.livePaused) return;
   const last = state.history[state.history.length - 1];
   if (last && last.cycle === frame.cycle) return;
@@ -528,7 +534,10 @@ function drawPlot() {
     g.stroke();
   });
   const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
-  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: `color:${COLORS[k % COLORS.length]}`, "data-id": id }, `■ ${id}: ${latest(id)}`)));
+  const held = frames[frames.length - 1].held || {};
+  const color = (k) => `color:${COLORS[k % COLORS.length]}`;
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: color(k), "data-id": id },
+    `■ ${id}: ${latest(id)}` + (held[id] ? ` (held: ${held[id]})` : ""))));
 }
 
 function exportCsv() {
