@@ -517,23 +517,63 @@ def test_a_streamed_servo_held_waiting_after_a_lost_port_is_told_in_words_when_m
     post(client, "/api/live/stop")
 
 
-def test_a_live_plot_that_frees_a_servo_switches_its_motion_off(serve: Any) -> None:
-    # The Servo page held it (motion on); a Live plots stream frees an ICS 3.5 servo to read it, and the
-    # servo falls; a jog from the page (another tab) threw it from there back past its old target.
+def test_a_live_plot_keeps_a_servo_the_servo_page_holds_held_and_its_jog_goes_through_the_stream(serve: Any) -> None:
+    # The Servo page holds servo 1 (motion on) and servo 3 (Hold, motion off); a Live plots stream freed
+    # every ICS 3.5 servo to read it: a joint of a standing robot went limp unasked.  It keeps them held at
+    # their targets (the position command's reply reads them) and frees only the servos nobody holds.
+    client, sim = serve((1, 3, 5))
+    sim.servo(1).move_by_hand(8000)
+    sim.servo(3).move_by_hand(7000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    assert client.get("/api/servo/3/eeprom").status_code == 200  # (the Servo page reads it as it opens)
+    assert post(client, "/api/servo/3/hold").json()["position"] == 7000
+    started = post(client, "/api/live/start", {"ids": [1, 3, 5]})
+    assert started.status_code == 200, started.text
+    deadline = time.monotonic() + GUARD
+    frame: dict[str, Any] = {}
+    while set(frame.get("positions") or {}) != {"1", "3", "5"}:
+        assert time.monotonic() < deadline, f"the stream never read them all: {frame}"
+        frame = client.get("/api/live").json() or {}
+        time.sleep(0.02)
+    assert frame["positions"]["1"] == 8000 and frame["positions"]["3"] == 7000
+    assert frame["targets"] == {"1": 8000, "3": 7000, "5": 0}
+    assert sim.servo(1).target == 8000 and sim.servo(3).target == 7000 and sim.servo(5).free
+    assert "1" not in client.get("/api/status").json()["motion_off"]  # still on: the page's switch stays ticked
+    assert post(client, "/api/servo/1/move", {"position": 8100}).status_code == 200
+    while sim.servo(1).target != 8100:
+        assert time.monotonic() < deadline, "the jog never reached servo 1 through the stream"
+        time.sleep(0.02)
+    assert post(client, "/api/servo/3/move", {"position": 7100}).status_code == 409  # its motion was never on
+    post(client, "/api/live/stop")
+    assert sim.servo(1).target == 8100 and sim.servo(3).target == 7000  # the stream's end leaves them held
+
+
+def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve: Any) -> None:
+    # Held before the loss: it may still hold there (its supply kept) or have restarted, free elsewhere.
+    # Freed by the stream, a joint that still held would go limp; sent its old target, one that restarted
+    # would be thrown there.  The person says which (Free or Hold on its Servo page).
     client, sim = serve((1,))
     sim.servo(1).move_by_hand(8000)
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
-    post(client, "/api/live/start", {"ids": [1]})
+    sim.unplug()
     deadline = time.monotonic() + GUARD
-    while not sim.servo(1).free:
-        assert time.monotonic() < deadline, "the stream never freed servo 1"
+    while not client.get("/api/status").json()["lost"]:
+        assert time.monotonic() < deadline, "the port was never told lost"
         time.sleep(0.02)
-    sim.servo(1).move_by_hand(6000)  # it fell
-    refused = post(client, "/api/servo/1/move", {"position": 8100})
-    assert refused.status_code == 409 and "live plot" in refused.json()["error"], refused.json()
-    assert "1" in client.get("/api/status").json()["motion_off"]
+    sim.replug()
+    while client.get("/api/servo/1/ram").status_code != 200:
+        assert time.monotonic() < deadline, "the port never came back"
+        time.sleep(0.02)
+    refused = post(client, "/api/live/start", {"ids": [1]})
+    assert refused.status_code == 409, refused.text
+    error = refused.json()["error"]
+    assert "servo 1" in error and "Free" in error and "Hold" in error, error
+    assert client.get("/api/status").json()["live"] is None
+    assert not sim.servo(1).free and sim.servo(1).target == 8000
+    assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
+    assert post(client, "/api/live/start", {"ids": [1]}).status_code == 200
     time.sleep(0.1)
-    assert sim.servo(1).free and sim.servo(1).position == 6000
+    assert not sim.servo(1).free and sim.servo(1).target == 8000
     post(client, "/api/live/stop")
 
 

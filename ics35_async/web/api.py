@@ -294,8 +294,8 @@ async def live_start(request: Request, session: LineSession) -> Any:
     if not isinstance(ids, list) or not ids:
         raise InvalidArgument("choose at least one servo to plot")
     rate_hz = data.get("rate_hz")
-    await session.start_live(ids, LIVE_RATE_HZ if rate_hz is None else rate_hz)
-    return session.status()
+    view = await session.start_live(ids, LIVE_RATE_HZ if rate_hz is None else rate_hz)
+    return {**session.status(), "kept_held": view.kept_held}
 
 
 async def live_stop(request: Request, session: LineSession) -> Any:

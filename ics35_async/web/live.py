@@ -4,8 +4,10 @@ read in its gaps, sampled for the page at a fixed rate (the stream never waits f
 Which servo is read how is the library's policy (policies.plan_position_stream):
 an ICS 3.6 servo is watched with its position read, its torque left as it
 was; an ICS 3.5 servo starts free (the free command is how ICS 3.5 reads a
-position without moving).  They are held, or moved, only when a page with
-motion switched on gives them a target.
+position without moving), unless a Servo page holds it: then it is streamed
+its held target, whose reply reads it too (freed, a joint of a standing robot
+would go limp unasked).  They are moved only when a page with motion switched
+on gives them a target.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections import deque
+from collections.abc import Collection, Mapping
 from typing import Any
 
 from .. import protocol
 from ..bus import Bus, Priority
-from ..errors import IcsError
+from ..errors import IcsError, UnsafeOperation
 from ..policies import plan_position_stream
 from ..protocol import Param
 from ..stream import WATCH, Stream
@@ -54,17 +57,44 @@ class LiveView:
         self.bus = bus
         self.stream = stream
         self.ids = stream.ids
+        self.kept_held: list[int] = []  # ICS 3.5 servos a page held: streamed their target, not freed
+        self.freed: list[int] = []  # ICS 3.5 servos (and silent IDs) it frees to read them
         self.current: dict[int, int] = {}
         self.temperature: dict[int, float] = {}
         self._task: asyncio.Task[None] | None = None
         self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
 
     @classmethod
-    async def start(cls, bus: Bus, ids: list[int], *, rate_hz: float = LIVE_RATE_HZ) -> LiveView:
+    async def start(
+        cls,
+        bus: Bus,
+        ids: list[int],
+        *,
+        rate_hz: float = LIVE_RATE_HZ,
+        holding: Mapping[int, int] | None = None,
+        unsure: Collection[int] = (),
+    ) -> LiveView:
+        """Stream ``ids``; an ICS 3.5 servo in ``holding`` ({ID: the target a page holds it at}) is sent that
+        target, not freed; one in ``unsure`` (held before the port was lost) is refused: freed, a servo that
+        kept its supply would go limp, and sent its old target, one that restarted would be thrown there."""
         plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
+        doubtful = [sid for sid in plan.free if sid in unsure]
+        if doubtful:
+            who = ", ".join(map(str, doubtful))
+            raise UnsafeOperation(
+                f"servo {who} was held by a Servo page before the port was lost: it may still hold there, or have "
+                "restarted, free and elsewhere, and the live plot reads an ICS 3.5 servo only by freeing it or by "
+                "sending it a target; say which on its Servo page (Free lets it go, Hold here holds it where it "
+                "stands now), then start the plot again; nothing that moves or frees a servo was sent"
+            )
+        kept = {sid: target for sid, target in (holding or {}).items() if sid in plan.free}
         stream = bus.stream(plan.streamed, rate_hz=rate_hz, watch=plan.watch)
+        if kept:
+            stream.set_targets(kept)  # (before it starts: its first command to them is their target, not a free)
         await stream.start()
         view = cls(bus, stream)
+        view.kept_held = sorted(kept)
+        view.freed = sorted(set(plan.free) - kept.keys())
         view._task = asyncio.create_task(view._read_telemetry())
         return view
 

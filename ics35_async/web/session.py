@@ -111,6 +111,9 @@ class LineSession:
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
         self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
+        # Servos a page left holding (Hold, enable motion, a jog): their target, and the line it was sent on
+        # (a live plot keeps them held rather than freeing them; one held before a lost port is in doubt).
+        self.holding: dict[int, tuple[int, tuple[Bus, int] | None]] = {}
         self._limits: dict[int, tuple[int, int]] = {}
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
@@ -252,6 +255,7 @@ class LineSession:
         borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
         self.motion_off.clear()
+        self.holding.clear()
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
@@ -560,6 +564,7 @@ class LineSession:
         if plan.changes_id:
             self._limits.pop(servo_id, None)
             self.motion_enabled.discard(servo_id)
+            self._held_now_at(servo_id, after.servo_id)
         self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
         if result.written:
             self._found_now(servo_id, after.servo_id, after)
@@ -613,6 +618,7 @@ class LineSession:
         self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
         self.motion_off.pop(servo_id, None)
+        self.holding.pop(servo_id, None)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
             return self.live.position(servo_id)
@@ -632,11 +638,15 @@ class LineSession:
                     "elsewhere); press Free to have the stream read it, then hold it"
                 )
             self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
+            self._holds(servo_id, position)
             return position
         async with self._quiet() as bus:
             servo = bus.servo(servo_id)
             position = await servo.free()
-            return await servo.set_position(self.check_target(servo_id, position))
+            self.holding.pop(servo_id, None)  # (free now: held again only once the next command is sent)
+            held = await servo.set_position(self.check_target(servo_id, position))
+            self._holds(servo_id, position)
+            return held
 
     async def enable_motion(self, servo_id: int) -> int:
         """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
@@ -650,6 +660,29 @@ class LineSession:
         self.motion_enabled.add(servo_id)
         self.motion_off.pop(servo_id, None)
         return position
+
+    def _holds(self, servo_id: int, target: int) -> None:
+        """``servo_id`` was sent ``target`` by a page (on the line as it is now)."""
+        self.holding[servo_id] = (target, self._line_now())
+
+    def _held_now_at(self, old_id: int, new_id: int) -> None:
+        """A servo a page held answers at ``new_id`` now (an ID write changes no target)."""
+        held = self.holding.pop(old_id, None)
+        if held is not None:
+            self.holding[new_id] = held
+
+    def _holding_split(self) -> tuple[dict[int, int], list[int]]:
+        """The servos pages hold, ``{ID: target}``, held on the line as it is now; and those held before the
+        port was lost since, which may still hold or may have restarted (free, elsewhere)."""
+        bus, now = self.bus, self._line_now()
+        sure: dict[int, int] = {}
+        unsure: list[int] = []
+        for sid, (target, line) in self.holding.items():
+            if bus is not None and bus.state is not State.LOST and line == now:
+                sure[sid] = target
+            else:
+                unsure.append(sid)
+        return sure, unsure
 
     def disable_motion(self, servo_id: int) -> None:
         """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
@@ -706,9 +739,12 @@ class LineSession:
         target = self.check_target(servo_id, position)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.set_target(servo_id, target)
+            self._holds(servo_id, target)
             return self.live.position(servo_id)
         async with self._quiet() as bus:
-            return await bus.servo(servo_id).set_position(target)
+            reply = await bus.servo(servo_id).set_position(target)
+            self._holds(servo_id, target)
+            return reply
 
     # ------------------------------------------------------------------ renumbering
 
@@ -730,6 +766,8 @@ class LineSession:
             change = await write_lone_id(bus, new_id, survey=survey)
         if change.written and change.old_id in self._limits:
             self._limits[new_id] = self._limits.pop(change.old_id)
+        if change.written:
+            self._held_now_at(change.old_id, change.new_id)
         if change.written:
             self._found_now(change.old_id, change.new_id)
         return {"old_id": change.old_id, "new_id": change.new_id, "written": change.written}
@@ -757,10 +795,12 @@ class LineSession:
             raise InvalidArgument("rate_hz must be a number of cycles a second")
         await self.stop_live()
         async with self.exclusive:
-            self.live = await LiveView.start(await self._line_at_its_rate(), ids, rate_hz=rate_hz)
-        # The stream takes them over and frees an ICS 3.5 servo to read it: a jog from the old target would
-        # throw one that fell back there.
-        self._switch_motion_off(ids, "the live plot streams it (an ICS 3.5 servo goes free to be read)")
+            holding, unsure = self._holding_split()
+            bus = await self._line_at_its_rate()
+            self.live = await LiveView.start(bus, ids, rate_hz=rate_hz, holding=holding, unsure=unsure)
+        # A servo the stream frees to read it (ICS 3.5, held by no page) may fall: a jog from an old target
+        # would throw it back there.  One a page held is streamed its target, and its jogs go on through it.
+        self._switch_motion_off(self.live.freed, "the live plot freed it to read it (ICS 3.5)")
         return self.live
 
     async def stop_live(self) -> None:

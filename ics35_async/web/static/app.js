@@ -472,7 +472,9 @@ async function startLive() {
   try { ids = text ? parseIds(text) : state.servos.map((s) => s.id); } catch (e) { say(e.message); return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
   state.history = []; state.liveIds = new Set();
-  await api("/api/live/start", { ids });
+  const started = await api("/api/live/start", { ids });
+  const kept = started.kept_held || [];  // (not freed: a joint of a standing robot stays up)
+  if (kept.length) say(`servo ${kept.join(", ")}: held by its Servo page, so streamed its target, not freed`, "info");
 }
 
 function onLive(frame) {
