@@ -360,6 +360,33 @@ def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:
     assert sim.servo(1).eeprom.speed == 40 and sim.servo(3).eeprom.speed == 40
 
 
+def test_many_servos_say_no_reply_in_words_the_same_for_each_so_the_page_can_group_them(serve: Any) -> None:
+    # An absent ID was told with the library's raw bytes ("read_eeprom to ID 5: ... (raw: a5 00)"), each
+    # servo's words naming it, so the page listed the same news once per servo.
+    client, _ = serve((1, 3))
+    results = post(client, "/api/many/apply", {"ids": [1, 5, 6], "changes": {"speed": 40}}).json()["results"]
+    assert [r["id"] for r in results] == [1, 5, 6] and results[0]["verified"]
+    silent = [r for r in results if "error" in r]
+    assert [r["id"] for r in silent] == [5, 6] and silent[0]["error"] == silent[1]["error"], silent
+    words = silent[0]["error"]
+    assert "no reply" in words and "raw" not in words and "a5" not in words and "5" not in words.split(), words
+    assert "power" in words and "other baud rates" in words, words
+
+
+def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any) -> None:
+    # Each servo after the first was tried on the lost port, one "the port is lost" each; and a port back
+    # half-way through would have written some and not others with no word of it.
+    client, sim = serve((1, 3, 4))
+    sim.unplug()
+    results = post(client, "/api/many/apply", {"ids": [1, 3, 4], "changes": {"speed": 40}}).json()["results"]
+    assert [r["id"] for r in results] == [1, 3, 4]
+    assert "lost" in results[0]["error"] and not results[0].get("not_tried"), results[0]
+    assert all(r["not_tried"] and r["error"] == results[1]["error"] for r in results[1:]), results
+    assert "not tried" in results[1]["error"] and "servo 1" in results[1]["error"], results[1]
+    sim.replug()
+    assert all(sim.servo(i).eeprom.speed != 40 for i in (1, 3, 4))
+
+
 def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None:
     client, _ = serve((1, 3))
     post(client, "/api/live/start", {"ids": [1, 3]})

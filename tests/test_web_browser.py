@@ -960,3 +960,22 @@ def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Brow
         expect(p.locator("#live-held")).to_contain_text("1 (held: resumed")
         expect(p.locator("#legend span[data-id='1']")).to_contain_text("held: resumed")
         p.click("#live-stop")
+
+
+def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(browser: Browser) -> None:
+    # Each absent ID had a row of the library's words with the bytes sent ("read_eeprom to ID 5: no reply
+    # ... (raw: a5 00)"), the same news once per servo.
+    line = PtyLine((1,))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.goto(p.url.split("#")[0] + "#many")
+        p.fill("#many-ids", "1,5,6")
+        p.check("[name=use-punch]")
+        p.fill("[name=value-punch]", "3")
+        p.click("#many-apply")
+        expect(p.locator("#many-results tbody tr")).to_have_count(3)
+        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("verified")
+        expect(p.locator("#many-errors li")).to_have_count(1)
+        expect(p.locator("#many-errors li")).to_contain_text(re.compile(r"^servos 5, 6: no reply at 115,200 baud"))
+        expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("not written")
+        assert "raw" not in (p.locator("#page-many").text_content() or "")
+        assert line.sim.servo(1).eeprom.punch == 3

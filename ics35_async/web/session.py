@@ -31,9 +31,11 @@ from ..errors import (
     BusClosed,
     IcsError,
     InvalidArgument,
+    PortLost,
     PortNotFound,
     ReplyError,
     ReplyTimeout,
+    SerialPortError,
     UnsafeOperation,
     error_text,
 )
@@ -601,16 +603,43 @@ class LineSession:
         return {"changes": changes.fields, "saved_id": changes.saved_id, "allow_id_change": restore_id}
 
     async def apply_to_many(self, ids: list[Any], edit: Mapping[str, Any]) -> list[dict[str, Any]]:
-        """The same edit (a profile of chosen fields) written to each servo in turn; an outcome per servo."""
+        """The same edit (a profile of chosen fields) written to each servo in turn; an outcome per servo.
+
+        A failure's words name no servo (the page lists the servos that share them once, not the same news
+        per servo); a lost line ends the run, the servos after it ``not_tried`` (a port back half-way would
+        have written some of them and not the others)."""
         checked = [protocol.check_id(i) for i in ids]
         profile = {k: v for k, v in edit.items() if k in ("changes", "set_flags", "clear_flags")}
         results: list[dict[str, Any]] = []
-        for sid in checked:
+        for k, sid in enumerate(checked):
             try:
                 results.append({"id": sid, **await self.write(sid, profile)})
+            except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
+                results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
+            except (PortLost, BusClosed, SerialPortError, OSError) as exc:
+                results.append({"id": sid, "error": error_text(exc), "kind": type(exc).__name__})
+                rest = f"not tried: the line was lost at servo {sid}; apply again once it is back"
+                results += [{"id": i, "error": rest, "kind": "NotTried", "not_tried": True} for i in checked[k + 1 :]]
+                break
             except IcsError as exc:
-                results.append({"id": sid, "error": str(exc), "kind": type(exc).__name__})
+                results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
         return results
+
+    def _many_words(self, exc: IcsError) -> str:
+        """``exc``'s words for the Many servos page, naming no servo and showing no bytes (the Traffic page
+        has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent)."""
+        if not isinstance(exc, ReplyError):
+            return error_text(exc)  # (a refusal's words: the same for each servo the edit is refused for)
+        if isinstance(exc, ReplyTimeout):
+            if self.config.echo and not exc.raw:
+                return self._no_reply_words(NoReply(NoReplyCause.NO_ECHO, exc.servo_id, self.config.baud), None)
+            return (
+                f"no reply at {self.config.baud:,} baud, nothing written: check its power (6-12 V on the servo "
+                "line, not just USB), the wiring and its ID; its Servo page looks for it at the other baud rates"
+            )
+        text = str(exc)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
+        what = text.partition(": ")[2].rpartition(" (raw: ")[0]
+        return f"{what or text}; nothing written (the bytes are on the Traffic page)"
 
     # ------------------------------------------------------------------ torque and motion
 

@@ -455,10 +455,17 @@ async function applyMany() {
     changes[name] = +text;
   }
   if (!Object.keys(changes).length) { say("tick at least one field to apply"); return; }
-  $("#many-results tbody").replaceChildren();
+  $("#many-results tbody").replaceChildren(); $("#many-errors").replaceChildren();
   const reply = await api("/api/many/apply", { ids, changes });
+  // The same words for several servos (a lost port, a line of absent IDs) said once, naming them all.
+  const failed = new Map();
+  for (const r of reply.results) if (r.error) failed.set(r.error, [...(failed.get(r.error) || []), r.id]);
+  $("#many-errors").replaceChildren(...[...failed].map(([words, who]) =>
+    el("li", {}, `${who.length > 1 ? "servos" : "servo"} ${who.join(", ")}: ${words}`)));
+  const outcome = (r) => r.error ? (r.not_tried ? "not tried" : "not written (see above)")
+    : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so";
   $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
-    el("td", { class: r.error ? "bad" : "good" }, r.error ? r.error : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so"),
+    el("td", { class: r.error ? "bad" : "good", title: r.error || "" }, outcome(r)),
     el("td", {}, r.diff ? r.diff.map((d) => `${d.name} ${d.now}→${d.new}`).join(", ") : ""))));
 }
 
