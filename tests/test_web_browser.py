@@ -979,3 +979,37 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
         expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("not written")
         assert "raw" not in (p.locator("#page-many").text_content() or "")
         assert line.sim.servo(1).eeprom.punch == 3
+
+
+def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser: Browser) -> None:
+    # The page unticked "enable motion" when it was left (or opened again), the server kept it on: a jog from
+    # another tab moved a servo whose page said it was locked.
+    line = PtyLine((1,))
+    servo = line.sim.servo(1)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        base = p.url.split("#")[0]
+
+        def jog_refused() -> bool:
+            answer = p.request.post(base + "api/servo/1/move", data={"position": 7600})
+            return answer.status == 409 and "enable motion" in answer.json()["error"]
+
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-target")).to_have_text("7500")
+        p.click("a[href='#line']")
+        motion_on = lambda: p.request.get(base + "api/status").json()["motion_on"]  # noqa: E731
+        until(lambda: motion_on() == [], "motion stayed on on the server after its page was left")
+        assert jog_refused() and servo.target == 7500
+        open_servo_page(p, 1)
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        p.check("#motion-switch")
+        expect(p.locator("#jog-plus")).to_be_enabled()
+        held = int(p.locator("#jog-target").text_content() or "")  # (where it stood: the free may read it off by one)
+        other = p.context.new_page()  # the same servo's page in another tab: one page at a time jogs it
+        other.goto(base + "#servo/1")
+        expect(other.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_disabled()
+        assert jog_refused()
+        assert servo.target == held
+        other.close()

@@ -111,6 +111,9 @@ class LineSession:
         self.live: LiveView | None = None
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
+        # Counts the switchings (in the status): a page sees motion go on and off again between two of its
+        # pushes (another tab opened the servo's page) as a change, and unticks its switch.
+        self.motion_switches = 0
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
         self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
         # Servos a page left holding (Hold, enable motion, a jog): their target, and the line it was sent on
@@ -137,6 +140,7 @@ class LineSession:
         the page unticks its switch (status ``motion_off``); switched on again, the servo holds where it stands."""
         for sid in [i for i in ids if i in self.motion_enabled]:
             self.motion_enabled.discard(sid)
+            self.motion_switches += 1
             self.motion_off[sid] = why
 
     def _line_now(self) -> tuple[Bus, int] | None:
@@ -160,6 +164,8 @@ class LineSession:
             "robot_line": self.robot_line,
             "robot": None if self.robot is None else self.robot.lines_view(),
             "motion_off": {str(k): v for k, v in sorted(self.motion_off.items())},  # (the page unticks them)
+            "motion_on": sorted(self.motion_enabled),  # (a page whose switch says on for another unticks it)
+            "motion_switches": self.motion_switches,
         }
 
     async def connect(self, port: str | None = None, baud: int | None = None) -> dict[str, Any]:
@@ -256,6 +262,7 @@ class LineSession:
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
+        self.motion_switches += 1
         self.motion_off.clear()
         self.holding.clear()
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
@@ -566,6 +573,7 @@ class LineSession:
         if plan.changes_id:
             self._limits.pop(servo_id, None)
             self.motion_enabled.discard(servo_id)
+            self.motion_switches += 1
             self._held_now_at(servo_id, after.servo_id)
         self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
         if result.written:
@@ -646,6 +654,7 @@ class LineSession:
     async def free(self, servo_id: int) -> int:
         self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
+        self.motion_switches += 1
         self.motion_off.pop(servo_id, None)
         self.holding.pop(servo_id, None)
         if self.live is not None and servo_id in self.live.ids:
@@ -687,6 +696,7 @@ class LineSession:
         if not self.motion_enabled:
             self._motion_line = self._line_now()  # the line this servo was just held on
         self.motion_enabled.add(servo_id)
+        self.motion_switches += 1
         self.motion_off.pop(servo_id, None)
         return position
 
@@ -716,6 +726,7 @@ class LineSession:
     def disable_motion(self, servo_id: int) -> None:
         """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
         self.motion_enabled.discard(servo_id)
+        self.motion_switches += 1
         self.motion_off.pop(servo_id, None)
 
     def check_limits(self, servo_id: int) -> list[int] | None:

@@ -4,7 +4,7 @@
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
   history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false,
-  motionAsked: 0 };
+  motionAsked: 0, servoMotionAsked: 0 };
 
 // ---------------------------------------------------------------- talking to the server
 
@@ -77,6 +77,7 @@ function show() {
   for (const section of document.querySelectorAll(".page")) section.hidden = section.id !== `page-${page}`;
   for (const a of document.querySelectorAll("nav a")) a.classList.toggle("active", a.getAttribute("href") === `#${page}`);
   say("");
+  if (page !== "servo") leaveServo().catch(() => {});
   if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo(); }
   if (page === "many") fillManyFields();
   socketSend();
@@ -97,6 +98,14 @@ function showStatus(s) {
   if (off && $("#motion-switch").checked) {
     $("#motion-switch").checked = false; setMotion(false);
     if ($("#message").hidden) say(`motion is off for servo ${servoId()}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
+  }
+  // Switched off by another page (its page opened in another tab): this one shows it locked too. Not over
+  // a tick the server has yet to take.
+  const on = (s.motion_on || []).includes(state.servoLoaded);
+  if (!on && $("#motion-switch").checked && !state.servoMotionAsked) {
+    $("#motion-switch").checked = false; setMotion(false);
+    const words = `motion was switched off for servo ${state.servoLoaded} (by another page); switch it on again to jog`;
+    if ($("#message").hidden) say(words, "info");
   }
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
 }
@@ -205,8 +214,29 @@ function robotNote(id) {
     "read and configure it here; move or free it on the Robot page." : "";
 }
 
+// The page shows motion off for a servo it opens or leaves: the server is told so, and no jog (from another
+// tab) moves a servo whose page said it was locked.  (It keeps holding: Free lets go.)
+async function motionOff(id) {
+  if (id === null || id === undefined || Number.isNaN(id)) return;  // (asked even before the first status came)
+  state.servoMotionAsked += 1;
+  try {
+    await fetch(`/api/servo/${id}/motion`, { method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ enabled: false }) });
+  } catch (e) { /* the server is gone: the WebSocket says so */ } finally { state.servoMotionAsked -= 1; }
+}
+
+async function leaveServo() {
+  const id = state.servoLoaded;
+  $("#motion-switch").checked = false; setMotion(false);
+  await motionOff(id);
+}
+
 async function loadServo() {
   const id = servoId();
+  const previous = state.servoLoaded;
+  $("#motion-switch").checked = false; setMotion(false);
+  await motionOff(previous);
+  if (id !== previous) await motionOff(id);
   robotNote(id);
   state.servoLoaded = null;  // no position reads until this servo's page is shown
   $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
@@ -385,6 +415,7 @@ function setMotion(on) {
 
 async function toggleMotion() {
   const on = $("#motion-switch").checked;
+  state.servoMotionAsked += 1;
   try {
     const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
     setMotion(reply.enabled);
@@ -393,7 +424,7 @@ async function toggleMotion() {
       $("#jog-target").textContent = reply.position;
       $("#jog-position").textContent = reply.position;
     }
-  } catch (e) { $("#motion-switch").checked = false; setMotion(false); }
+  } catch (e) { $("#motion-switch").checked = false; setMotion(false); } finally { state.servoMotionAsked -= 1; }
 }
 
 async function jog(position) {
