@@ -575,6 +575,24 @@ def test_a_live_plot_keeps_a_servo_the_servo_page_holds_held_and_its_jog_goes_th
     assert sim.servo(1).target == 8100 and sim.servo(3).target == 7000  # the stream's end leaves them held
 
 
+def test_freeing_a_streamed_servo_that_does_not_answer_says_no_position_not_minus_one(serve: Any) -> None:
+    # The stream's "not read" (-1) went to the page as the position: "servo 3: free (torque off) at -1".
+    client, sim = serve((1, 3))
+    post(client, "/api/live/start", {"ids": [1, 3]})
+    unplugged = sim.remove_servo(3)
+    deadline = time.monotonic() + GUARD
+    while 3 not in (client.get("/api/live").json() or {}).get("offline", []):
+        assert time.monotonic() < deadline, "servo 3 never went offline"
+        time.sleep(0.02)
+    freed = post(client, "/api/servo/3/free")
+    assert freed.status_code == 200 and freed.json()["position"] is None, freed.text
+    sim.add_device(unplugged)
+    while not unplugged.free or 3 in (client.get("/api/live").json() or {}).get("offline", [3]):
+        assert time.monotonic() < deadline, "servo 3 was never freed once it answered"
+        time.sleep(0.02)
+    post(client, "/api/live/stop")
+
+
 def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve: Any) -> None:
     # Held before the loss: it may still hold there (its supply kept) or have restarted, free elsewhere.
     # Freed by the stream, a joint that still held would go limp; sent its old target, one that restarted

@@ -651,7 +651,9 @@ class LineSession:
 
     # ------------------------------------------------------------------ torque and motion
 
-    async def free(self, servo_id: int) -> int:
+    async def free(self, servo_id: int) -> int | None:
+        """Torque off; where the servo stood, or None for a streamed servo the stream has no reading of (one
+        not answering, freed once it answers)."""
         self._refuse_joint_motion(servo_id)
         self.motion_enabled.discard(servo_id)
         self.motion_switches += 1
@@ -659,7 +661,8 @@ class LineSession:
         self.holding.pop(servo_id, None)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
-            return self.live.position(servo_id)
+            position = self.live.position(servo_id)
+            return None if position < 0 else position  # (-1, the stream's "not read", is no position)
         async with self._quiet() as bus:
             return await bus.servo(protocol.check_id(servo_id)).free()
 

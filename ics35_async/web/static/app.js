@@ -439,9 +439,11 @@ async function jog(position) {
 
 async function torque(what) {
   const reply = await api(`/api/servo/${servoId()}/${what}`, {});
-  $("#jog-position").textContent = reply.position;
+  $("#jog-position").textContent = reply.position ?? "-";
   if (what === "free") { $("#motion-switch").checked = false; setMotion(false); }
-  say(`servo ${servoId()}: ${what === "free" ? "free (torque off)" : "holding"} at ${reply.position}`, "info");
+  const where = reply.position === null
+    ? ": not answering now (the live stream frees it once it answers)" : ` at ${reply.position}`;
+  say(`servo ${servoId()}: ${what === "free" ? "free (torque off)" : "holding"}${where}`, "info");
 }
 
 // ---- ID
