@@ -21,6 +21,7 @@ from starlette.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from ics35_async import Eeprom
+from ics35_async.errors import ReplyTimeout
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
@@ -371,6 +372,15 @@ def test_many_servos_say_no_reply_in_words_the_same_for_each_so_the_page_can_gro
     words = silent[0]["error"]
     assert "no reply" in words and "raw" not in words and "a5" not in words and "5" not in words.split(), words
     assert "power" in words and "other baud rates" in words, words
+
+
+def test_many_servos_do_not_say_nothing_was_written_of_a_write_left_unanswered() -> None:
+    # The write command's reply lost: the servo may have taken it (the read-back did not run).
+    session = LineSession(LineConfig(port="sim://unused"))
+    unread = session._many_words(ReplyTimeout("no reply", command="read_eeprom", servo_id=5, raw=b"\xa5\x00"))
+    assert "nothing written" in unread, unread
+    unanswered = session._many_words(ReplyTimeout("no reply", command="write_eeprom", servo_id=5, raw=b"\xc5"))
+    assert "nothing written" not in unanswered and "may" in unanswered and "5" not in unanswered.split(), unanswered
 
 
 def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any) -> None:

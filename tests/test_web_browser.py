@@ -976,7 +976,7 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
         expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("verified")
         expect(p.locator("#many-errors li")).to_have_count(1)
         expect(p.locator("#many-errors li")).to_contain_text(re.compile(r"^servos 5, 6: no reply at 115,200 baud"))
-        expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("not written")
+        expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("failed (see above)")
         assert "raw" not in (p.locator("#page-many").text_content() or "")
         assert line.sim.servo(1).eeprom.punch == 3
 

@@ -639,6 +639,11 @@ class LineSession:
         if not isinstance(exc, ReplyError):
             return error_text(exc)  # (a refusal's words: the same for each servo the edit is refused for)
         if isinstance(exc, ReplyTimeout):
+            if exc.command == "write_eeprom":  # (sent: the servo may have taken it; no read-back ran)
+                return (
+                    f"no reply to the EEPROM write at {self.config.baud:,} baud: it may or may not have been "
+                    "written; open its Servo page to read what it has"
+                )
             if self.config.echo and not exc.raw:
                 return self._no_reply_words(NoReply(NoReplyCause.NO_ECHO, exc.servo_id, self.config.baud), None)
             return (
