@@ -1013,3 +1013,19 @@ def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser
         assert jog_refused()
         assert servo.target == held
         other.close()
+
+
+def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(browser: Browser) -> None:
+    # Its last position stayed in the legend as if read now ("■ 2: 7500"), the word only in the line above.
+    line = PtyLine((1, 2))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.goto(p.url.split("#")[0] + "#live")
+        p.fill("#live-ids", "1,2")
+        p.click("#live-start")
+        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
+        unplugged = line.sim.remove_servo(2)
+        expect(p.locator("#live-offline")).to_have_text("2")
+        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500 (offline)")
+        line.sim.add_device(unplugged)
+        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
+        p.click("#live-stop")

@@ -576,10 +576,12 @@ function drawPlot() {
     g.stroke();
   });
   const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
-  const held = frames[frames.length - 1].held || {};
+  // The last value of a servo that stopped answering, or that the stream sends nothing, is not now's.
+  const newest = frames[frames.length - 1], held = newest.held || {}, offline = new Set(newest.offline.map(String));
+  const note = (id) => (offline.has(id) ? " (offline)" : "") + (held[id] ? ` (held: ${held[id]})` : "");
   const color = (k) => `color:${COLORS[k % COLORS.length]}`;
   $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: color(k), "data-id": id },
-    `■ ${id}: ${latest(id)}` + (held[id] ? ` (held: ${held[id]})` : ""))));
+    `■ ${id}: ${latest(id)}${note(id)}`)));
 }
 
 function exportCsv() {
