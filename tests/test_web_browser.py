@@ -1029,3 +1029,19 @@ def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(br
         line.sim.add_device(unplugged)
         expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
         p.click("#live-stop")
+
+
+def test_motion_switched_on_after_a_failed_read_goes_off_when_the_page_is_left(browser: Browser) -> None:
+    # The page's read failed (the servo unplugged), the switch was ticked once it answered: leaving the page
+    # left motion on on the server, the page showing none.
+    line = PtyLine((1,))
+    unplugged = line.sim.remove_servo(1)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        base = p.url.split("#")[0]
+        p.goto(base + "#servo/1")
+        expect(p.locator("#message")).to_contain_text("did not answer")
+        line.sim.add_device(unplugged)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-plus")).to_be_enabled()
+        p.click("a[href='#line']")
+        until(lambda: p.request.get(base + "api/status").json()["motion_on"] == [], "motion stayed on on the server")

@@ -101,10 +101,10 @@ function showStatus(s) {
   }
   // Switched off by another page (its page opened in another tab): this one shows it locked too. Not over
   // a tick the server has yet to take.
-  const on = (s.motion_on || []).includes(state.servoLoaded);
+  const on = (s.motion_on || []).includes(state.motionFor);
   if (!on && $("#motion-switch").checked && !state.servoMotionAsked) {
     $("#motion-switch").checked = false; setMotion(false);
-    const words = `motion was switched off for servo ${state.servoLoaded} (by another page); switch it on again to jog`;
+    const words = `motion was switched off for servo ${state.motionFor} (by another page); switch it on again to jog`;
     if ($("#message").hidden) say(words, "info");
   }
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
@@ -226,17 +226,17 @@ async function motionOff(id) {
 }
 
 async function leaveServo() {
-  const id = state.servoLoaded;
+  const [shown, on] = [state.servoLoaded, state.motionFor];
   $("#motion-switch").checked = false; setMotion(false);
-  await motionOff(id);
+  state.motionFor = null;
+  await motionOff(shown);
+  if (on !== shown) await motionOff(on);  // (switched on while the page showed no servo read: its read failed)
 }
 
 async function loadServo() {
   const id = servoId();
-  const previous = state.servoLoaded;
-  $("#motion-switch").checked = false; setMotion(false);
-  await motionOff(previous);
-  if (id !== previous) await motionOff(id);
+  await leaveServo();
+  await motionOff(id);
   robotNote(id);
   state.servoLoaded = null;  // no position reads until this servo's page is shown
   $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
@@ -419,6 +419,7 @@ async function toggleMotion() {
   try {
     const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
     setMotion(reply.enabled);
+    state.motionFor = reply.enabled ? servoId() : null;  // (the servo the switch is on for)
     if (reply.enabled) {  // held where it stands: the slider starts there
       $("#jog-slider").value = reply.position;
       $("#jog-target").textContent = reply.position;
