@@ -603,6 +603,50 @@ def test_freeing_a_streamed_servo_that_does_not_answer_says_no_position_not_minu
     post(client, "/api/live/stop")
 
 
+def test_a_held_servo_that_stopped_answering_is_neither_jogged_nor_streamed_its_old_target(serve: Any) -> None:
+    # Its cable pulled and pushed back (the port stayed): it restarted, free, and was turned by hand.  A jog
+    # from its old target, or a live plot sending it that target, threw it there.
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    unplugged = sim.remove_servo(1)
+    assert client.get("/api/servo/1/position").status_code == 504  # (the Servo page's poll, twice a second)
+    assert "stopped answering" in client.get("/api/status").json()["motion_off"]["1"]
+    unplugged.power_cycle()
+    unplugged.move_by_hand(6000)
+    sim.add_device(unplugged)
+    refused = post(client, "/api/servo/1/move", {"position": 8100})
+    assert refused.status_code == 409 and "stopped answering" in refused.json()["error"], refused.text
+    plot = post(client, "/api/live/start", {"ids": [1]})
+    assert plot.status_code == 409 and "servo 1" in plot.json()["error"], plot.text
+    time.sleep(0.1)
+    assert unplugged.free and unplugged.position == 6000
+
+
+def test_a_streamed_servo_held_by_a_page_that_went_offline_is_not_jogged_from_its_old_target(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    assert post(client, "/api/live/start", {"ids": [1, 3]}).json()["kept_held"] == [1]
+    unplugged = sim.remove_servo(1)
+    deadline = time.monotonic() + GUARD
+    while "1" not in client.get("/api/status").json()["motion_off"]:
+        assert time.monotonic() < deadline, "motion stayed on for servo 1 gone offline"
+        time.sleep(0.02)
+    unplugged.power_cycle()
+    unplugged.move_by_hand(6000)
+    sim.add_device(unplugged)
+    while (client.get("/api/live").json() or {}).get("held") != {"1": "rejoined"}:
+        assert time.monotonic() < deadline, "servo 1 never came back held"
+        time.sleep(0.02)
+    assert post(client, "/api/servo/1/move", {"position": 8100}).status_code == 409
+    time.sleep(0.1)
+    assert unplugged.free and unplugged.position == 6000
+    post(client, "/api/live/stop")
+    assert post(client, "/api/live/start", {"ids": [1]}).status_code == 409  # (its hold is in doubt)
+    assert unplugged.free and unplugged.position == 6000
+
+
 def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve: Any) -> None:
     # Held before the loss: it may still hold there (its supply kept) or have restarted, free elsewhere.
     # Freed by the stream, a joint that still held would go limp; sent its old target, one that restarted

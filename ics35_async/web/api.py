@@ -116,6 +116,8 @@ def endpoint(handler: Handler, *, look_at_other_rates: bool = False) -> Callable
         try:
             result = await handler(request, session)
         except ReplyTimeout as exc:
+            if exc.servo_id is not None:
+                session.lost_touch([exc.servo_id])  # (it may have restarted: free, elsewhere)
             if "servo_id" not in request.path_params:
                 return error_response(exc)
             return await no_reply_response(session, exc, look_at_other_rates=look_at_other_rates)

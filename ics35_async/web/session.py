@@ -143,12 +143,29 @@ class LineSession:
             self.motion_switches += 1
             self.motion_off[sid] = why
 
+    def lost_touch(self, ids: Iterable[int]) -> None:
+        """``ids`` did not answer (a request, a telemetry read, the live stream): a servo that restarted meanwhile
+        (its cable or supply) is free, somewhere else.  Its motion goes off (a jog from its old target would throw
+        it there) and the hold a page left it in is in doubt (a live plot would send it that target)."""
+        ids = [i for i in ids if i in self.holding or i in self.motion_enabled]
+        for sid in ids:
+            if sid in self.holding:
+                self.holding[sid] = (self.holding[sid][0], None)  # (held on no line: in doubt, see _holding_split)
+        self._switch_motion_off(ids, "it stopped answering (it may have restarted, free and elsewhere)")
+
+    def _lost_touch_in_live(self) -> None:
+        """The live stream's servos that went offline, or came back held, since they were held (see lost_touch)."""
+        live = self.live
+        if live is not None and (self.holding or self.motion_enabled):
+            self.lost_touch(live.stream.offline | live.stream.held.keys())
+
     def _line_now(self) -> tuple[Bus, int] | None:
         bus = self.bus
         return None if bus is None else (bus, bus.stats.reconnects)
 
     def status(self) -> dict[str, Any]:
         self._motion_off_if_line_lost()
+        self._lost_touch_in_live()
         bus = self.bus
         state = "closed" if bus is None else bus.state.value
         return {
@@ -399,6 +416,8 @@ class LineSession:
                 reading = await read_position_without_freeing(bus.servo(sid))
             except ReplyError as exc:
                 self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": str(exc)}
+                if isinstance(exc, ReplyTimeout):
+                    self.lost_touch([sid])
                 continue
             self.telemetry[sid] = {
                 **health,
@@ -624,6 +643,8 @@ class LineSession:
                 results.append({"id": sid, **await self.write(sid, profile)})
             except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
                 results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
+                if isinstance(exc, ReplyTimeout):
+                    self.lost_touch([sid])
             except (PortLost, BusClosed, SerialPortError, OSError) as exc:
                 results.append({"id": sid, "error": error_text(exc), "kind": type(exc).__name__})
                 rest = f"not tried: the line was lost at servo {sid}; apply again once it is back"
@@ -774,6 +795,7 @@ class LineSession:
         protocol.check_id(servo_id)
         self._refuse_joint_motion(servo_id)
         self._motion_off_if_line_lost()
+        self._lost_touch_in_live()
         why = self.motion_off.get(servo_id)
         if why is not None:
             raise UnsafeOperation(
@@ -852,6 +874,7 @@ class LineSession:
         return self.live
 
     async def stop_live(self) -> None:
+        self._lost_touch_in_live()  # (its servos' holds in doubt stay so once it is gone)
         live, self.live = self.live, None
         if live is not None:
             await live.stop()
