@@ -1045,3 +1045,15 @@ def test_motion_switched_on_after_a_failed_read_goes_off_when_the_page_is_left(b
         expect(p.locator("#jog-plus")).to_be_enabled()
         p.click("a[href='#line']")
         until(lambda: p.request.get(base + "api/status").json()["motion_on"] == [], "motion stayed on on the server")
+
+
+def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_error(browser: Browser) -> None:
+    # The words are on the page; the same failure also went to the browser's console as an uncaught error.
+    line = PtyLine((1,))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        errors: list[str] = []
+        p.on("pageerror", lambda error: errors.append(str(error)))
+        p.goto(p.url.split("#")[0] + "#servo/4")
+        expect(p.locator("#message")).to_contain_text("did not answer")
+        p.wait_for_timeout(200)
+        assert errors == []

@@ -78,7 +78,8 @@ function show() {
   for (const a of document.querySelectorAll("nav a")) a.classList.toggle("active", a.getAttribute("href") === `#${page}`);
   say("");
   if (page !== "servo") leaveServo().catch(() => {});
-  if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo(); }
+  // (A failed read is said by api(): not again as an uncaught error in the console.)
+  if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
   if (page === "many") fillManyFields();
   socketSend();
 }
