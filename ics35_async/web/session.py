@@ -117,7 +117,8 @@ class LineSession:
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
         self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
         # Servos a page left holding (Hold, enable motion, a jog): their target, and the line it was sent on
-        # (a live plot keeps them held rather than freeing them; one held before a lost port is in doubt).
+        # (a live plot keeps them held rather than freeing them; one held before a lost port, or before it
+        # stopped answering, None, is in doubt).
         self.holding: dict[int, tuple[int, tuple[Bus, int] | None]] = {}
         self._limits: dict[int, tuple[int, int]] = {}
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
@@ -741,7 +742,8 @@ class LineSession:
 
     def _holding_split(self) -> tuple[dict[int, int], list[int]]:
         """The servos pages hold, ``{ID: target}``, held on the line as it is now; and those held before the
-        port was lost since, which may still hold or may have restarted (free, elsewhere)."""
+        port was lost since, or before they stopped answering (see lost_touch), which may still hold or may
+        have restarted (free, elsewhere)."""
         bus, now = self.bus, self._line_now()
         sure: dict[int, int] = {}
         unsure: list[int] = []
