@@ -11,8 +11,9 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   default, a reply held until the host's next command, ties the reply to what the host does);
 * offline: one of the 12 servos missing;
 * busy loop: two coroutines doing ~0.1 ms of Python work between yields (a web server
-  under load), beside the stream on the asyncio driver, on the thread driver, and on the
-  thread driver with ``sys.setswitchinterval(0.0005)``: the thread driver's I/O thread needs
+  under load), beside the stream on the asyncio driver and on the thread driver (each on its
+  default path: the compiled one where it is built), and on the thread driver's ordinary path
+  (``ICS35_BURST=0``), also with ``sys.setswitchinterval(0.0005)``: there its I/O thread needs
   the GIL after every system call, and a busy thread holds it for up to the switch interval
   (5 ms by default);
 * busy thread: a Python thread computing without pause (planning, or vision in pure Python: it
@@ -61,7 +62,12 @@ from tests.support.paced_line import run as run_simulated
 BAUD = 1_250_000
 RATE_HZ = 100.0
 FAULTS = "drop:0.0125,truncate:0.0125,late:0.0125,corrupt:0.0125"  # 5% in all
-BUSY = ("busy loop, asyncio driver", "busy loop, thread driver", "busy loop, thread driver, switch 0.5 ms")
+BUSY = {  # ICS35_BURST for each (None: the default, the compiled path where it is built)
+    "busy loop, asyncio driver": None,
+    "busy loop, thread driver": None,
+    "busy loop, thread driver, ordinary path": "0",
+    "busy loop, thread driver, ordinary path, switch 0.5 ms": "0",
+}
 BUSY_THREAD = {  # ICS35_BURST for each
     "busy thread, ordinary path": "0",
     "busy thread, compiled path": "1",
@@ -90,7 +96,8 @@ async def measure(scenario: str, seconds: float) -> dict[str, Any]:
         sys.setswitchinterval(0.0005)
     try:
         if scenario in BUSY or scenario in BUSY_THREAD:
-            path = burst_setting(BUSY_THREAD[scenario]) if scenario in BUSY_THREAD else contextlib.nullcontext()
+            setting = BUSY_THREAD[scenario] if scenario in BUSY_THREAD else BUSY[scenario]
+            path = burst_setting(setting) if setting is not None else contextlib.nullcontext()
             with serving(["--ids", f"{IDS[0]}-{IDS[-1]}", "--baud", str(BAUD)]) as pty, path:
                 async with open_bus(pty, baudrate=BAUD, driver=driver) as bus:
                     return await measure_on(bus, scenario, present, seconds)
