@@ -344,7 +344,13 @@ class Eeprom:
         return Flags(number)
 
     def diff(self, other: Eeprom) -> dict[str, tuple[Any, Any]]:
-        """Fields whose values differ, as ``{name: (self_value, other_value)}``."""
+        """Fields whose values differ, as ``{name: (self_value, other_value)}``.
+
+        Raises:
+            InvalidArgument: ``other`` is not an :class:`Eeprom` (``Eeprom.from_bytes`` reads a raw image).
+        """
+        if not isinstance(other, Eeprom):
+            raise InvalidArgument(f"an Eeprom is compared with an Eeprom, not {type(other).__name__}")
         return {
             name: (getattr(self, name), getattr(other, name))
             for name in _LAYOUT

@@ -142,7 +142,15 @@ def parse_ids(text: str) -> list[int]:
 
 
 def position_to_degrees(position: int) -> float:
-    return (position - NEUTRAL) / COUNTS_PER_DEGREE
+    """The angle of a position in counts (7500 = 0 degrees); InvalidArgument for anything but a whole number."""
+    return (_counts(position) - NEUTRAL) / COUNTS_PER_DEGREE
+
+
+def _counts(position: object) -> int:
+    number = whole_number(position)
+    if number is None:
+        raise InvalidArgument(f"a position must be a whole number of counts, got {said(position)}")
+    return number
 
 
 def shown(value: float) -> str:

@@ -602,3 +602,9 @@ def test_cli_refuses_to_write_an_image_with_unknown_codes(
     code, _, err = _Cli(capsys)("--port", url, "eeprom", "set", "1", "speed=50", "--yes")
     assert code == ExitCode.USAGE and "reference does not define" in err and "nothing was written" in err
     assert sim.servo(1).eeprom_writes == 0 and sim.servo(1).eeprom.to_bytes() == image
+
+
+@pytest.mark.parametrize("other", [5, None, b"\x00" * 64, {"speed": 1}])
+def test_a_diff_with_what_is_not_an_eeprom_is_refused_in_words(other: object) -> None:
+    with pytest.raises(InvalidArgument, match="Eeprom"):
+        Eeprom.factory(1).diff(other)  # type: ignore[arg-type]

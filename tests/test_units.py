@@ -252,3 +252,11 @@ def test_id_lists_are_parsed_in_one_place_for_the_cli_and_the_simulator() -> Non
             parse_ids(bad)
     with pytest.raises(InvalidArgument, match="no IDs"):
         parse_id_list(" ")
+
+
+@pytest.mark.parametrize("value", [*BAD_NUMBERS, 7500.0, "7500"])
+def test_position_conversions_refuse_what_is_not_a_whole_number_of_counts(value: object) -> None:
+    with pytest.raises(InvalidArgument, match="whole number"):
+        position_to_degrees(value)  # type: ignore[arg-type]
+    with pytest.raises(InvalidArgument, match="whole number"):
+        position_to_radians(value)  # type: ignore[arg-type]
