@@ -151,6 +151,10 @@ class Stream(FrameIterator[Frame]):
         self._failures = [0] * n
         self._offline = [False] * n
         self._next_probe = [0.0] * n
+        # Slots that have answered a watch read (ICS 3.6's position read): one watched that goes offline unheard
+        # may be an ICS 3.5 servo (see _fail); and the IDs told so (once each).
+        self._watch_heard: set[int] = set()
+        self._told_unwatchable: set[int] = set()
         # Why each slot is held ("" when not): no command until the program sets its target (see held).
         self._held = [""] * n
         # Orders the program's target changes against the hooks that change a slot's hold or offline state
@@ -463,6 +467,7 @@ class Stream(FrameIterator[Frame]):
                         self._job_changed(k)
                 self._advance(now)
                 return None
+            self._watch_heard.add(k)
         else:
             position = position_from_reply(buf, offset, self._headers[k])
         if position < 0:  # let the codec name what is wrong
@@ -497,9 +502,27 @@ class Stream(FrameIterator[Frame]):
             with self._slot_lock:
                 self._offline[k] = True
                 self._job_changed(k)  # probed with a read from now on (see _renew_job)
+            if self._targets[k] == WATCH and k not in self._watch_heard:
+                self._tell_unwatchable(k)
         if self._offline[k]:
             self._next_probe[k] = now + self.probe_interval
         self._advance(now)
+
+    def _tell_unwatchable(self, k: int) -> None:
+        """Watched slot ``k`` went offline without answering one watch read since its watch began: say it
+        may be an ICS 3.5 servo (most KRS servos), silent to the ICS 3.6 position read, once an ID (its
+        frames say only "offline", as for a servo that is not there)."""
+        sid = self.ids[k]
+        if sid in self._told_unwatchable:
+            return
+        self._told_unwatchable.add(sid)
+        log.warning(
+            "ID %d went offline without answering the position read watch() sends: it is not on the line,"
+            " or it is an ICS 3.5 servo, which stays silent to that ICS 3.6 read; free it to read where it is"
+            " (stream.free([%d]), torque off) or give it a target",
+            sid,
+            sid,
+        )
 
     def _rejoin(self, k: int) -> None:
         """Offline ID slot ``k`` answered its probe (under ``_slot_lock``).  Its servo may have restarted

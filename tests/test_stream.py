@@ -1501,3 +1501,26 @@ async def test_the_bus_closing_while_its_stream_closes_lets_the_close_out_reach_
     assert stream.targets_sent_on_close == dict.fromkeys(ids, 0 if on_close == "free" else 8100)
     if on_close == "free":
         assert all(servo.free for servo in sim.devices if isinstance(servo, VirtualServo))
+
+
+async def test_a_watched_id_that_goes_offline_unheard_is_said_maybe_an_ics35_servo(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # watch sends the ICS 3.6 position read: an ICS 3.5 servo (most KRS servos) stays silent to it and the
+    # frames only said "offline", as for a servo not there.  Said once per ID, naming both causes and the
+    # way to read its position; not for an ICS 3.6 servo heard before, nor for one that went offline while
+    # it had a target.
+    servos = [VirtualServo(1), VirtualServo(2, ics36=True), VirtualServo(3)]
+    sim = VirtualLine(servos)
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        async with open_bus(sim, **FAST) as bus, bus.stream([1, 2, 3], offline_after=2) as stream:
+            stream.watch([1, 2])
+            await frames_until(stream, lambda f: 1 in f.offline and f.cycle > 20)
+            sim.remove_servo(2)  # (an ICS 3.6 servo heard, then gone)
+            sim.remove_servo(3)  # (a target, not a watch)
+            await frames_until(stream, lambda f: {2, 3} <= f.offline)
+            for _ in range(5):
+                await next_frame(stream)
+    said = [r.getMessage() for r in caplog.records if "ICS 3.5" in r.getMessage()]
+    assert len(said) == 1, said
+    assert "ID 1" in said[0] and "free" in said[0]
