@@ -48,6 +48,9 @@ ON_RESUME = ("wait", "free")
 # be kept (stats.overruns counts it too, but a program that never reads it runs slow without a word).
 RATE_CHECK_CYCLES = 20
 RATE_CHECK_LATE = 18
+# Requests whose transaction outlasts a paced stream's slack (a whole 64-byte image each way): each goes once
+# passed over in two slots, delaying that cycle (see _tell_rate_not_kept).
+LONG_REQUESTS = ("read_eeprom", "write_eeprom", "read_memory", "write_memory")
 NOT_STARTED = (
     "the stream is not started: use it as `async with bus.stream(...) as stream:` "
     "(blocking: `with bus.stream(...) as stream:`), or call its start()"
@@ -201,6 +204,7 @@ class Stream(FrameIterator[Frame]):
         self._slot_checked = True
         self._first_start = 0.0
         self._others_at_start: dict[int, int] = {}  # other IDs' unanswered requests when the stream began
+        self._long_at_start = 0  # the line's EEPROM and memory requests when the stream began
         self._missed = 0  # slots passed with no cycle, in all...
         self._frame_missed = 0  # ...and before the cycle in progress
         self._resumed = False  # the cycle in progress is the first since the line came back
@@ -618,6 +622,20 @@ class Stream(FrameIterator[Frame]):
                 sum(grown.values()),
             )
             return
+        long = self._long_requests() - self._long_at_start
+        if long and 2 * long >= self._overruns:  # (each took a slot: see LONG_REQUESTS)
+            image = protocol.ReadEeprom(0)
+            log.warning(
+                "%s, while the program's requests read or wrote %d EEPROM or memory images on the same line: each "
+                "takes %.1f ms at %d baud on the wire alone, more than a cycle's slack, so it goes once passed over "
+                "in two slots and delays that cycle (read and write EEPROMs with the stream stopped, or ask a "
+                "lower rate)",
+                late,
+                long,
+                protocol.wire_time(len(image.tx) + image.reply_len, baud) * 1e3,
+                baud,
+            )
+            return
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply
         period = 1 / self.rate_hz if self.rate_hz is not None else 0.0  # (only a paced stream is told)
@@ -647,6 +665,11 @@ class Stream(FrameIterator[Frame]):
             wire * 1e3,
         )
 
+    def _long_requests(self) -> int:
+        """The line's EEPROM and memory transactions so far (the program's requests: the stream sends none)."""
+        done = self.bus.stats.by_command
+        return sum(done.get(name, 0) for name in LONG_REQUESTS)
+
     def _others_unanswered(self) -> dict[int, int]:
         """Each other ID's unanswered transactions on this line so far (requests: the stream's are its own)."""
         mine = set(self.ids)
@@ -675,6 +698,7 @@ class Stream(FrameIterator[Frame]):
             self._first_start = now
             if self.rate_hz is not None:  # (what the rate check tells apart, see _tell_rate_not_kept)
                 self._others_at_start = self._others_unanswered()
+                self._long_at_start = self._long_requests()
         self._cycle += 1
         order = []
         for k in range(len(self.ids)):
