@@ -277,3 +277,33 @@ def test_restore_with_change_baud_verifies_at_both_rates(cli: Any, sim_line: Any
     assert result.code == 0, result.err
     assert result.json()["answers_at_new_rate"] is False  # the simulated servo switches at power-up
     assert sim.servo(1).eeprom.baud_rate == BaudRate.B625000
+
+
+def test_a_dump_over_an_earlier_backup_keeps_it_as_bak(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    # A second dump to the same file (after the servo was changed) overwrote the first backup, the one
+    # a user restores to: the earlier file is kept as NAME.bak, and said so.
+    sim, url = sim_line([1, 2])
+    one, folder = tmp_path / "one.json", tmp_path / "all"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(one)).code == 0
+    assert cli("--port", url, "eeprom", "dump", "1-2", "-o", f"{folder}/").code == 0
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(speed=3)
+    result = cli("--port", url, "eeprom", "dump", "1", "-o", str(one))
+    assert result.code == 0, result.err
+    assert "one.json.bak" in result.err
+    assert json.loads(one.read_text())["fields"]["speed"] == 3
+    assert json.loads((tmp_path / "one.json.bak").read_text())["fields"]["speed"] == 127
+    result = cli("--port", url, "eeprom", "dump", "1-2", "-o", f"{folder}/")
+    assert result.code == 0, result.err
+    assert json.loads((folder / "servo-01.json.bak").read_text())["fields"]["speed"] == 127
+    assert json.loads((folder / "servo-01.json").read_text())["fields"]["speed"] == 3
+
+
+def test_a_dump_whose_bak_is_a_directory_is_refused_before_reading(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([1])
+    one = tmp_path / "one.json"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(one)).code == 0
+    (tmp_path / "one.json.bak").mkdir()
+    before = sim.transactions
+    result = cli("--port", url, "eeprom", "dump", "1", "-o", str(one))
+    assert result.code == ExitCode.USAGE and "one.json.bak" in result.err, result.err
+    assert sim.transactions == before

@@ -12,12 +12,12 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from .._user_text import UnreadableText, decode_user_text, read_user_text
 from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document, plan_restores
+from ..user_files import UnreadableText, decode_user_text, read_user_text, replace_keeping_backup
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -37,6 +37,7 @@ from ._common import (
 from ._console import SIMULATED_KEY
 from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, write_plans
+from ._paths import check_backup_path
 from ._runner import line_error
 
 
@@ -116,10 +117,12 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
         return ImagesRead(images, garbled=garbled, failed=failed)
 
 
-def write_backup(path: Path, doc: dict[str, Any]) -> None:
+def write_backup(path: Path, doc: dict[str, Any]) -> Path | None:
+    """Write the backup whole; an earlier file there is kept as ``NAME.bak`` (returned), never overwritten: it
+    may be the one the user restores to."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        return replace_keeping_backup(path, json.dumps(doc, indent=2) + "\n")
     except OSError as exc:
         raise CliError(ExitCode.USAGE, f"cannot write {path}: {exc.strerror or exc}") from None
 
@@ -140,6 +143,9 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     """
     settings = settings_of(ctx)
     kind, path = output_target(ids, output, as_table)
+    if path is not None and not as_table:  # (an earlier backup there is kept as NAME.bak: room for it first)
+        for target in [path / backup_name(i) for i in ids] if kind == "dir" else [path]:
+            check_backup_path(target, "--output")
     read = run(settings, lambda: read_images(settings, ids))
     images = read.images
     for i, image in images.items():
@@ -176,8 +182,9 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 continue
             assert path is not None
             target = path / backup_name(i) if kind == "dir" else path
-            write_backup(target, doc)
-            err.print(f"EEPROM of servo {i} saved to {escape(str(target))}")
+            kept = write_backup(target, doc)
+            also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
+            err.print(f"EEPROM of servo {i} saved to {escape(str(target))}{also}")
     if read.lost is not None:
         failure = read.lost
         rest = ",".join(str(i) for i in read.unread)

@@ -7,6 +7,7 @@ from collections.abc import Collection
 from pathlib import Path
 
 from ..errors import InvalidArgument, error_text
+from ..user_files import check_backup_room
 from ._settings import CliError, ExitCode, Settings
 
 
@@ -51,8 +52,6 @@ def check_output_path(path: str, what: str, formats: Collection[str] | None = No
 def check_backup_path(target: Path, what: str) -> None:
     """Refuse, before the work begins, a file whose old content cannot be kept as ``NAME.bak`` when it is
     replaced at the end (a directory there): a :class:`CliError` (exit code 2) naming ``what``."""
-    from ..robot.replace_file import check_backup_room  # (here: the robot package is not every command's)
-
     try:
         check_backup_room(target)
     except OSError as exc:

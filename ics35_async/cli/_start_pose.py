@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from .._user_text import UnreadableText, read_user_text
+from ..user_files import UnreadableText, read_user_text
 
 start_pose_option = click.option(
     "--start-pose",

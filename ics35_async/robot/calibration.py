@@ -27,8 +27,8 @@ from pathlib import Path
 
 from ..eeprom import Eeprom, Flags
 from ..errors import InvalidArgument
+from ..user_files import replace_keeping_backup
 from .description import SERVO_DEGREES, JointSpec, LineSpec, RobotDescription, parse_description
-from .replace_file import replace_keeping_backup
 
 CALIBRATED_KEYS = ("offset", "min", "max")
 _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")

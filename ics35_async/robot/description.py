@@ -17,8 +17,8 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from .. import protocol, units
-from .._user_text import UnreadableText, read_user_text
 from ..errors import FileContentError, InvalidArgument
+from ..user_files import UnreadableText, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees

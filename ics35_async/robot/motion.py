@@ -34,10 +34,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import units
-from .._user_text import UnreadableText, read_user_text
 from ..errors import FileContentError, InvalidArgument
+from ..user_files import UnreadableText, read_user_text, replace_keeping_backup
 from .profiles import PROFILES, Trajectory
-from .replace_file import replace_keeping_backup
 
 if TYPE_CHECKING:
     from .host import PoseChecker

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from .._user_text import UnreadableText, decode_user_text
 from ..errors import InvalidArgument
 from ..transports import HostSide
+from ..user_files import UnreadableText, decode_user_text
 from .transaction import Transaction
 
 HEADER = "# ics35 sim recording v1"
