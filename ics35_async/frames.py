@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Self, TypeVar
 
@@ -147,3 +147,36 @@ class GroupFrame:
     held: frozenset[tuple[str, int]] = frozenset()
     """The servos held after their line came back (or they came back from offline), sent nothing until their
     target is set again."""
+
+    def degrees(self) -> dict[tuple[str, int], float]:
+        """The positions of this frame in degrees, by ``(line, id)`` (7500 counts is 0 degrees)."""
+        return {key: units.position_to_degrees(p) for key, p in self.positions.items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The frame as plain JSON values, for a log or a web page: what is keyed by ``(line, id)`` nested by
+        line, then ID (as a string), every line present; sets as sorted lists."""
+        lines = sorted(self.line_cycles)
+
+        def by_line(values: Mapping[tuple[str, int], Any]) -> dict[str, dict[str, Any]]:
+            nested: dict[str, dict[str, Any]] = {line: {} for line in lines}
+            for (line, i), value in sorted(values.items()):
+                nested.setdefault(line, {})[str(i)] = value
+            return nested
+
+        def listed(keys: frozenset[tuple[str, int]]) -> dict[str, list[int]]:
+            return {line: sorted(i for ln, i in keys if ln == line) for line in lines}
+
+        return {
+            "cycle": self.cycle,
+            "line_cycles": dict(self.line_cycles),
+            "positions": by_line(self.positions),
+            "degrees": by_line({key: round(d, 2) for key, d in self.degrees().items()}),
+            "timestamps": by_line(self.timestamps),
+            "failed": listed(self.failed),
+            "offline": listed(self.offline),
+            "line_started": dict(self.line_started),
+            "skipped": self.skipped,
+            "missed_slots": self.missed_slots,
+            "resumed": sorted(self.resumed),
+            "held": listed(self.held),
+        }

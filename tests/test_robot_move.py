@@ -6,6 +6,7 @@ Every check reads the position commands back from the simulator's log.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import warnings
 from collections.abc import Awaitable, Callable
@@ -517,3 +518,19 @@ def test_stop_slows_a_running_motion_to_rest_without_turning_back() -> None:
 
     run_robot(rig, body)
     assert len(caught) == 1
+
+
+def test_a_robot_frame_is_plain_json_for_a_log_or_a_web_page() -> None:
+    # A robot serving a web page had frame.to_dict() on one line's stream but not on the robot's frame.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"hip": 12.5, "neck": -20.0}, duration=0.05)
+        frame = await robot.wait_frame((await robot.wait_frame(0)).cycle + 1)
+        doc = json.loads(json.dumps(frame.to_dict()))
+        assert doc["cycle"] == frame.cycle and doc["line_cycles"] == frame.line_cycles
+        assert doc["positions"] == {name: round(deg, 2) for name, deg in frame.positions.items()}
+        assert doc["targets"]["hip"] == pytest.approx(12.5, abs=0.01) and doc["targets"]["knee"] is None
+        assert doc["held"] == sorted(frame.held) and doc["offline"] == sorted(frame.offline)
+
+    run_robot(rig, body)

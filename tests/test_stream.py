@@ -36,6 +36,7 @@ from ics35_async import (
     Stream,
     open_bus,
     protocol,
+    units,
 )
 from ics35_async.bus import Bus
 from ics35_async.protocol import FREE, ReadParam, position_tx
@@ -1553,3 +1554,20 @@ async def test_a_watched_id_that_goes_offline_unheard_is_said_maybe_an_ics35_ser
     said = [r.getMessage() for r in caplog.records if "ICS 3.5" in r.getMessage()]
     assert len(said) == 1, said
     assert "ID 1" in said[0] and "free" in said[0]
+
+
+async def test_a_group_frame_is_plain_json_by_line_and_says_its_degrees() -> None:
+    sims = [make_sim(range(3)), make_sim(range(2))]
+    group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
+    async with group, group.stream({"a": [0, 1, 2], "b": [0, 1]}) as gstream:
+        gstream.set_targets_degrees({("a", 1): 30.0, ("b", 0): -45.0})
+        frame = await gstream.next_frame()
+        frame = await gstream.next_frame()
+    assert frame.degrees() == {key: units.position_to_degrees(p) for key, p in frame.positions.items()}
+    doc = json.loads(json.dumps(frame.to_dict()))
+    assert doc["positions"] == {
+        line: {str(i): p for (ln, i), p in frame.positions.items() if ln == line} for line in ("a", "b")
+    }
+    assert doc["degrees"]["a"]["1"] == round(units.position_to_degrees(frame.positions[("a", 1)]), 2)
+    assert doc["line_cycles"] == frame.line_cycles and doc["cycle"] == frame.cycle
+    assert doc["failed"] == {"a": [], "b": []} and doc["resumed"] == []

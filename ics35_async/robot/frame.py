@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -38,3 +39,20 @@ class RobotFrame:
     moving them; a target the program sets for one (``set_targets``, ``hold``, ``free``; not a motion's
     next step, nor ``set_targets(..., lift_holds=False)``) ends its hold.  ``Robot.held`` is the same,
     live."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The frame as plain JSON values, for a log or a web page: degrees rounded to 0.01, sets as sorted
+        lists, a free joint's target ``None``."""
+        return {
+            "cycle": self.cycle,
+            "time": self.time,
+            "positions": {name: round(deg, 2) for name, deg in self.positions.items()},
+            "targets": {name: None if deg is None else round(deg, 2) for name, deg in self.targets.items()},
+            "failed": sorted(self.failed),
+            "offline": sorted(self.offline),
+            "stamps": dict(self.stamps),
+            "skipped": self.skipped,
+            "line_cycles": dict(self.line_cycles),
+            "resumed": sorted(self.resumed),
+            "held": sorted(self.held),
+        }
