@@ -307,3 +307,14 @@ def test_a_dump_whose_bak_is_a_directory_is_refused_before_reading(cli: Any, sim
     result = cli("--port", url, "eeprom", "dump", "1", "-o", str(one))
     assert result.code == ExitCode.USAGE and "one.json.bak" in result.err, result.err
     assert sim.transactions == before
+
+
+def test_a_dump_to_an_empty_path_is_refused_not_written_into_the_current_folder(
+    cli: Any, sim_line: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # (a script's unset variable: pathlib reads "" as ".", and the backup landed in the current folder)
+    sim, url = sim_line([1])
+    monkeypatch.chdir(tmp_path)
+    result = cli("--port", url, "eeprom", "dump", "1", "-o", "")
+    assert result.code == ExitCode.USAGE and "empty" in result.err, result.err
+    assert list(tmp_path.iterdir()) == [] and sim.transactions == 0

@@ -54,6 +54,8 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
         if len(ids) > 1 and not as_table:
             raise click.BadParameter("several servos need -o DIR/ (one file per servo)", param_hint="IDS")
         return "stdout", None
+    if not output.strip():  # (a script's unset variable: pathlib reads "" as ".", the current folder)
+        raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
     path = Path(output)
     is_dir = output.endswith(("/", os.sep)) or path.is_dir()
     if not is_dir and len(ids) > 1:
