@@ -287,6 +287,16 @@ def test_missing_port_is_a_clear_error() -> None:
     assert isinstance(info.value.__context__, serial.SerialException)
 
 
+def test_a_dangling_link_is_named_as_such(tmp_path: Path) -> None:
+    # A simulator's --link left by a run that stopped, or a udev symlink whose device is gone: "no serial port
+    # at 'ttyICS'" sent the user to the cable; the link and what it names say what happened.
+    link = tmp_path / "ttyICS"
+    link.symlink_to("/dev/pts/ics35-gone")
+    with pytest.raises(PortNotFound, match=r"a link to /dev/pts/ics35-gone, which is not there") as info:
+        open_at(str(link))
+    assert "simulator" in str(info.value)
+
+
 def test_not_a_tty_is_a_clear_error() -> None:
     with pytest.raises(SerialPortError, match="not a serial port"):
         open_at(os.devnull)

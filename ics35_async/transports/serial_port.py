@@ -94,10 +94,27 @@ def _error_code(exc: BaseException) -> tuple[int | None, int | None]:
     return None, None
 
 
+def _dangling_link(port: str) -> str | None:
+    """What ``port`` names if it is a symbolic link to nothing, else None."""
+    try:
+        if os.path.islink(port) and not os.path.exists(port):
+            return os.readlink(port)
+    except OSError:
+        pass
+    return None
+
+
 def translate_open_error(port: str, exc: Exception) -> Exception:
     """Turn what pyserial raised into an error that says what to do."""
     code, winerror = _error_code(exc)
     if winerror in _WINERROR_NOT_FOUND or (winerror is None and code == errno.ENOENT):
+        dangling = _dangling_link(port)
+        if dangling is not None:  # (a stopped simulator's --link, a udev link whose adapter is gone)
+            return PortNotFound(
+                errno.ENOENT,
+                f"no serial port at {port!r}: it is a link to {dangling}, which is not there (a simulator that "
+                f"stopped, or an adapter unplugged; {port_names_hint()})",
+            )
         return PortNotFound(
             errno.ENOENT,
             f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",
