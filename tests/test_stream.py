@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import itertools
 import json
+import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Sequence
 from typing import Any
@@ -1571,3 +1572,42 @@ async def test_a_group_frame_is_plain_json_by_line_and_says_its_degrees() -> Non
     assert doc["degrees"]["a"]["1"] == round(units.position_to_degrees(frame.positions[("a", 1)]), 2)
     assert doc["line_cycles"] == frame.line_cycles and doc["cycle"] == frame.cycle
     assert doc["failed"] == {"a": [], "b": []} and doc["resumed"] == []
+
+
+class WritersRecorded:
+    """The far end of a line (a simulator) that notes which thread wrote each command."""
+
+    def __init__(self, sim: VirtualLine) -> None:
+        self.sim = sim
+        self.writers: set[int] = set()
+
+    def connect(self, host: Any, baudrate: int) -> None:
+        self.sim.connect(host, baudrate)
+
+    def write(self, data: bytes) -> None:
+        self.writers.add(threading.get_ident())
+        self.sim.write(data)
+
+    def disconnect(self) -> None:
+        self.sim.disconnect()
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "anyio"])
+async def test_targets_set_from_another_thread_go_on_the_wire_from_the_loops_thread(driver: str) -> None:
+    # A program's vision thread sets the stream's targets.  The engine of these drivers runs on the loop's thread
+    # without a lock: a stream held with nothing to send (after a lost port) put its next command on the wire
+    # from the program's thread, inside the engine beside the loop's own calls.
+    sim = make_sim([1, 2])
+    device = WritersRecorded(sim)
+    async with open_bus(device, reconnect=True, driver=driver, **FAST) as bus, bus.stream([1, 2]) as stream:
+        stream.set_targets({1: 7000, 2: 8000})
+        await frames_until(stream, lambda f: len(f.positions) == 2)
+        sim.unplug(replug_after=0.05)
+        await frames_until(stream, lambda f: f.held == {1, 2})
+        device.writers.clear()
+        thread = threading.Thread(target=stream.set_targets, args=({1: 7100, 2: 8100},))
+        thread.start()
+        thread.join()
+        await frames_until(stream, lambda f: f.positions.keys() == {1, 2} and not f.held)
+        assert device.writers == {threading.get_ident()}
+    assert (sim.servo(1).target, sim.servo(2).target) == (7100, 8100)

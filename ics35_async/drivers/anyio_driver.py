@@ -222,6 +222,9 @@ class AnyioDriver(DriverCore):
         if self._scope is not None:
             self._scope.cancel()
 
+    def _soon_at_home(self, callback: Callable[[], None]) -> None:
+        self._soon(callback)
+
     # ------------------------------------------------------------------ the user's side
 
     def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:

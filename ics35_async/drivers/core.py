@@ -158,6 +158,7 @@ class DriverCore:
         self.target = port  # what the caller asked to open (the open port is ``port``)
         # The loop the bus opened in: its callers' futures, events and wake-ups all belong to it.
         self.home = running_loop()
+        self._home_thread = threading.get_ident()
         self.settings = settings
         self.port: Port | None = None
         self._waiting_until = INF  # when the driver's current wait ends (it is re-aimed for earlier)
@@ -419,8 +420,20 @@ class DriverCore:
                 self._after(self.engine.submit(request, t))
         return awaited
 
+    def _soon_at_home(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` on the thread of the loop the bus opened in, from any thread."""
+        raise NotImplementedError
+
     def call(self, step: Callable[[float], Output]) -> None:
-        """Run an engine call (given the time) and act on what it answers."""
+        """Run an engine call (given the time) and act on what it answers.
+
+        From another thread than the loop's (a program's vision thread setting a stream's targets), where the
+        engine runs on the loop's thread without a lock (the asyncio and anyio drivers), the call is made there,
+        within a loop turn: run here, it would put commands on the wire beside the loop's own engine calls."""
+        if isinstance(self.lock, contextlib.nullcontext) and threading.get_ident() != self._home_thread:
+            with contextlib.suppress(RuntimeError):  # the loop has ended: nothing is left to call
+                self._soon_at_home(lambda: self.call(step))
+            return
         with self.lock:
             burst = self.burst
             if burst is not None and burst.running:
@@ -487,6 +500,9 @@ class LoopDriver(DriverCore):
 
     async def _in_thread(self, call: Callable[[], Port]) -> Port:
         return await self.loop.run_in_executor(None, call)
+
+    def _soon_at_home(self, callback: Callable[[], None]) -> None:
+        self.loop.call_soon_threadsafe(callback)
 
     def _supervise(self) -> None:
         self._supervisor = self.loop.create_task(self._supervisor_task(), name=f"ics35 bus {self.target}")
