@@ -95,6 +95,44 @@ def test_play_leaves_the_joints_its_motion_does_not_name_as_they_are(
     assert targets_sent(sims.upper, 1, upper)[-1] == joint_position(JOINTS["neck"], 20)
 
 
+def test_play_with_joints_plays_only_those_and_leaves_the_others_as_they_are(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A motion for both arms and the legs, played on one joint to try it out: the motion's other joints are not
+    # opened (not read, so not freed; not commanded), on its line or on another.
+    sims, robot_file = rig
+    held = {"elbow": 8000, "hip": 7000}
+    for name, position in held.items():
+        sims.servo(name).command_position(position)
+    marks = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
+    motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "elbow": 30, "hip": -10}})
+    result = cli("play", str(robot_file), str(motion), "--joints", "neck")
+    assert result.code == 0, result.err
+    for name, position in held.items():
+        spec = JOINTS[name]
+        assert sims.servo(name).target == position and not sims.servo(name).free, name
+        assert list(commanded(sims.sim(spec["line"]), spec["id"], marks[spec["line"]])) == [], name
+    assert targets_sent(sims.upper, 1, marks["upper"])[-1] == joint_position(JOINTS["neck"], 20)
+    said = " ".join(result.err.split())
+    assert "left as they are" in said and "elbow" in said and "hip" in said
+
+
+def test_play_refuses_joints_it_does_not_know_or_the_motion_does_not_move(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    sims, robot_file = rig
+    marks = (sims.upper.transactions, sims.lower.transactions)
+    motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": -10}})
+    result = cli("play", str(robot_file), str(motion), "--joints", "neck,tail")
+    assert result.code == 2 and "unknown joint(s): tail" in result.err, result.err
+    result = cli("play", str(robot_file), str(motion), "--joints", "neck,knee")
+    said = " ".join(result.err.split())
+    assert result.code == 2 and "knee" in said and "not in the motion" in said and "neck, hip" in said, said
+    result = cli("play", str(robot_file), str(motion), "--joints", " , ")
+    assert result.code == 2 and "no joint named" in result.err, result.err
+    assert (sims.upper.transactions, sims.lower.transactions) == marks  # nothing was sent
+
+
 def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:

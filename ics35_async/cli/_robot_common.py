@@ -16,6 +16,7 @@ import warnings
 from collections.abc import Awaitable, Callable, Iterator
 from typing import Any, TypeVar
 
+import click
 from rich.markup import escape
 
 from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout
@@ -47,6 +48,23 @@ def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
 def load_robot_file(path: str) -> RobotDescription:
     """The checked description, or a usage error (exit code 2) naming the file and key."""
     return load_input_file(path, "ROBOT.toml", load_description)
+
+
+def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
+    if text is None:
+        return list(description.joints)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise CliError(
+            ExitCode.USAGE, "--joints: no joint named (nothing was sent)", f"joints: {', '.join(description.joints)}"
+        )
+    try:
+        return description.known_joints(names)
+    except InvalidArgument as exc:
+        raise CliError(ExitCode.USAGE, f"--joints: {exc} (nothing was sent)") from None
+
+
+joints_option = click.option("--joints", default=None, help="Comma-separated joint names (default: every joint).")
 
 
 def robot_options(settings: Settings) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import time
 
@@ -20,8 +21,9 @@ from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
-from ._common import choice_option, err, out, seconds_option, settings_of
+from ._common import CliError, ExitCode, choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
+    chosen_joints,
     first_pose,
     load_input_file,
     load_robot_file,
@@ -45,6 +47,28 @@ def load_motion_file(path: str, description: RobotDescription) -> Motion:
         return motion
 
     return load_input_file(path, "MOTION.json", load)
+
+
+def motion_joints(description: RobotDescription, motion: Motion, text: str | None, motion_file: str) -> Motion:
+    """The motion with only the joints ``--joints`` names (each one the motion moves), or a usage error."""
+    if text is None:
+        return motion
+    names = chosen_joints(description, text)
+    outside = [name for name in names if name not in motion.joints]
+    if outside:
+        raise CliError(
+            ExitCode.USAGE,
+            f"--joints: {', '.join(outside)} not in the motion {motion_file} (nothing was sent)",
+            f"the motion moves: {', '.join(motion.joints)}",
+        )
+    # The keyframes keep their times (the pace is the motion's), each pose without the joints left out.
+    return dataclasses.replace(
+        motion,
+        keyframes=tuple(
+            dataclasses.replace(frame, pose={j: deg for j, deg in frame.pose.items() if j in names})
+            for frame in motion.keyframes
+        ),
+    )
 
 
 async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
@@ -79,6 +103,12 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     "--ramp", "How long a stopped motion takes to come to rest (never past its keyframes).", low=0, high=5, default=0.3
 )
 @start_pose_option
+@click.option(
+    "--joints",
+    default=None,
+    help="Comma-separated joint names: play only these of the motion's joints, the others are not opened "
+    "(default: every joint the motion moves).",
+)
 @click.pass_context
 def play(
     ctx: click.Context,
@@ -90,18 +120,20 @@ def play(
     on_stop: str,
     ramp: float,
     start_pose_text: str | None,
+    joints: str | None,
 ) -> int:
     """Play a keyframe motion (MOTION.json) on the robot ROBOT.toml describes, with a live view.
 
     \b
     No hardware:   ics35 play examples/humanoid.toml examples/wave.json
+    One arm only:  ics35 play examples/humanoid.toml examples/wave.json --joints right_shoulder_pitch,right_elbow
     Ctrl-C stops smoothly (--ramp), then the joints hold or go free (--on-stop).
     Exit codes as for every command; 7: the safety watch stopped the motion.
     """
     settings = settings_of(ctx)
     start_pose = parse_start_pose(start_pose_text)
     description = load_robot_file(robot_file)
-    motion = load_motion_file(motion_file, description)
+    motion = motion_joints(description, load_motion_file(motion_file, description), joints, motion_file)
     note_ports(settings, robot_file)
     name = description.name or robot_file
     title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"
@@ -123,8 +155,9 @@ def play(
         async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
             if untouched:
+                which = "neither in the motion" if joints is None else "neither in --joints"
                 err.print(
-                    f"[dim]note: joints neither in the motion nor in --start-pose, left as they are (nor watched by "
+                    f"[dim]note: joints {which} nor in --start-pose, left as they are (nor watched by "
                     f"the file's safety): {escape(', '.join(untouched))}[/dim]"
                 )
             limp = [name for name, mode in robot.start_modes.items() if mode == "free"]

@@ -37,24 +37,20 @@ from ._common import (
     settings_of,
 )
 from ._console import signed_tenths
-from ._robot_common import TypedLines, first_pose, load_robot_file, note_ports, robot_options, run_robot, show_warnings
+from ._robot_common import (
+    TypedLines,
+    chosen_joints,
+    first_pose,
+    joints_option,
+    load_robot_file,
+    note_ports,
+    robot_options,
+    run_robot,
+    show_warnings,
+)
 from ._robot_view import Screen, joint_table
 
 QUIT = ("q", "quit", "exit")
-
-
-def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
-    if text is None:
-        return list(description.joints)
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise CliError(
-            ExitCode.USAGE, "--joints: no joint named (nothing was sent)", f"joints: {', '.join(description.joints)}"
-        )
-    try:
-        return description.known_joints(names)
-    except InvalidArgument as exc:
-        raise CliError(ExitCode.USAGE, f"--joints: {exc} (nothing was sent)") from None
 
 
 @contextlib.asynccontextmanager
@@ -123,9 +119,6 @@ async def handled_ctrl_c(work: Awaitable[None]) -> bool:
             current.uncancel()
         return True
     return False
-
-
-joints_option = click.option("--joints", default=None, help="Comma-separated joint names (default: every joint).")
 
 
 @click.command()
