@@ -703,6 +703,29 @@ def until_offline(sims: Rig, joint: str) -> Callable[[], None]:
     return unplug
 
 
+def test_play_with_a_line_lost_says_the_other_lines_joints_hold_their_last_targets(
+    rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # The legs' adapter pulled mid-motion: the arms' joints stop at once where the motion had them (no ramp, not
+    # thrown on to the keyframe, not freed), and the error says so, not just "left holding".
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 10.0, "pose": {"neck": 50, "hip": 20}, "profile": "linear"})
+    mark, start = sims.upper.transactions, sims.servo("neck").position
+    result = run_with_hands(
+        ["play", str(robot_file), str(motion)],
+        [("started free", lambda: (time.sleep(1.0), sims.lower.unplug()), "")],
+        [],  # (the upper line's cycles end with the lower line's)
+    )
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = " ".join(result.err.split())
+    assert "the other lines' joints were left holding their last targets" in said, said
+    assert "stopped there at once" in said, said
+    neck = sims.servo("neck")
+    last = targets_sent(sims.upper, 1, mark)[-1]
+    assert not neck.free and neck.target == last
+    assert start < last < joint_position(JOINTS["neck"], 50)  # mid-motion
+
+
 def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -233,7 +233,10 @@ def play(
             silent = sorted(robot.latest.offline) if robot.latest is not None else []
             return how
 
-    how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else "holding")
+    # A line lost mid-motion ends the motion on the others at once: each joint holds the last target it got,
+    # where the motion had it (no --ramp: the robot's streams end with the lost line), or goes free.
+    held = "holding their last targets (the motion stopped there at once, without the --ramp slow-down)"
+    how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else held)
     length = f"{motion.duration / speed:.1f} s"
     what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
