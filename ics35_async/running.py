@@ -8,22 +8,28 @@ keep whatever they were last told), and Ctrl-C prints asyncio's
 cancellation of ``main``: its ``async with`` blocks unwind in order (a stream
 closes as its ``on_close`` says, a robot stops smoothly, a bus drains and
 releases its port), then it returns an exit code for ``sys.exit``.  A second
-signal while that unwinding runs is ignored: the servos are being put to rest.
+signal while that unwinding runs is said with one line and the unwinding goes on
+(the servos are being put to rest); a third forces the program out at once,
+cutting it short.  One just after it ended (a double Ctrl-C) is taken for the
+same stop: the program ends as the first one had it, with no traceback.
 """
 
 from __future__ import annotations
 
 import asyncio
+import atexit
 import contextlib
 import functools
 import inspect
+import os
 import signal
 import sys
 import threading
+import time
 import typing
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from types import FrameType
-from typing import Any, Literal, Protocol, TypeVar, cast
+from typing import Any, Literal, NoReturn, Protocol, TypeVar, cast
 
 from .errors import IcsError, InvalidArgument
 from .tasks import only_error
@@ -32,6 +38,8 @@ EXIT_OK = 0
 EXIT_ERROR = 1  # main raised an IcsError (printed as one line)
 EXIT_SIGINT = 128 + signal.SIGINT  # 130, as a shell reports a Ctrl-C'd program
 EXIT_SIGTERM = 128 + signal.SIGTERM  # 143
+STOPPING = (signal.SIGINT, signal.SIGTERM)
+AFTER_STOP = 1.0  # seconds after a stop's close when another stop signal is taken for the same press
 
 Backend = Literal["asyncio", "uvloop", "trio"]
 
@@ -42,8 +50,10 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     0 when ``main`` returned; 130 after SIGINT and 143 after SIGTERM, once ``main``'s
     ``async with`` blocks have closed (streams, robots, buses, in that order); 1 when
     ``main`` raised an :class:`~ics35_async.IcsError`, printed to stderr as one line
-    without a traceback.  Other exceptions propagate (main's own, not the task group that ran
-    it); ``sys.exit()`` in ``main`` ends the program with its code once everything has closed.
+    without a traceback.  A second signal while the blocks close is said with one line and they go on
+    closing; a third forces the program out at once (by that signal), cutting the close short.  Other
+    exceptions propagate (main's own, not the task group that ran it); ``sys.exit()`` in ``main`` ends the
+    program with its code once everything has closed.
     ``backend``: ``"asyncio"``, ``"uvloop"`` (needs the uvloop package) or ``"trio"``.  Call it
     from the main thread, outside any event loop::
 
@@ -64,28 +74,54 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     _check_run(main, backend)
     received: list[int] = []
     exited: list[SystemExit] = []
+    presses = _Presses()
+
+    def outside(signum: int, frame: FrameType | None) -> None:
+        """A stop signal while the receiver below is not open (the loop starting, or ending): one before a stop
+        is the stop (main, if it has not started, never does); one after it is the same press, ignored.  Without
+        it such a signal met Python's handler (or trio's) and its KeyboardInterrupt's traceback, or killed the
+        program, and trio gives its receiver's signals still queued as it closes to the handler it puts back."""
+        if not received:
+            received.append(signum)
 
     async def until_signal() -> None:
-        with anyio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-            async with anyio.create_task_group() as tasks:
-                main_scope = anyio.CancelScope()
+        receiver = anyio.open_signal_receiver(*STOPPING)
+        signals = receiver.__enter__()
+        try:
+            await listening(signals)
+        finally:
+            try:
+                receiver.__exit__(None, None, None)
+                # asyncio's receiver puts Python's own handlers back as it closes, whatever was there before.
+                _hand_back([(signum, outside) for signum in STOPPING])
+            except KeyboardInterrupt:  # a Ctrl-C just then, on Python's handler
+                outside(signal.SIGINT, None)
+                _hand_back([(signum, outside) for signum in STOPPING])
 
-                async def main_then_stop() -> None:
-                    try:
-                        with main_scope:
-                            await main()
-                    except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
-                        exited.append(exc)
-                    tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
+    async def listening(signals: AsyncIterator[int]) -> None:
+        async with anyio.create_task_group() as tasks:
+            main_scope = anyio.CancelScope()
 
-                async def listen() -> None:
-                    async for signum in signals:
-                        if not received:
-                            received.append(int(signum))
+            async def main_then_stop() -> None:
+                try:
+                    with main_scope:
+                        if received:  # as the loop started
                             main_scope.cancel()
+                        await main()
+                except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
+                    exited.append(exc)
+                tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
 
-                tasks.start_soon(main_then_stop)
-                tasks.start_soon(listen)
+            async def listen() -> None:
+                async for signum in signals:
+                    if not received:
+                        received.append(int(signum))
+                        main_scope.cancel()
+                    else:
+                        presses.again(int(signum))
+
+            tasks.start_soon(main_then_stop)
+            tasks.start_soon(listen)
 
     options: dict[str, object] = {}
     name = backend
@@ -94,7 +130,10 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
         name, options = "asyncio", {"loop_factory": uvloop.new_event_loop}
     failure: BaseException | None = None
+    before: list[tuple[int, object]] = []
     try:
+        if threading.current_thread() is threading.main_thread():  # (else the receiver refuses, as it should)
+            before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in STOPPING]
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
         error = only_error(exc)
@@ -104,6 +143,11 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         # main's own exception (its own group included), not the task group that ran it: raised
         # below, out of this handler, so that its cause and context stay as main left them.
         failure = exc.exceptions[0] if isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1 else exc
+    finally:
+        if received:
+            _after_stop(dict(before))  # (a double press's second one may still come, as the program ends)
+        else:
+            _hand_back(before)
     if failure is not None:
         raise failure
     if exited:
@@ -159,6 +203,106 @@ def _exit_code(signum: int) -> int:
     return EXIT_SIGINT if signum == signal.SIGINT else EXIT_SIGTERM
 
 
+def _signal_name(signum: int) -> str:
+    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+
+
+def _say(text: str) -> None:
+    """A line on stderr from a signal handler: straight to its file descriptor where it has one (the main
+    thread may be inside a write to ``sys.stderr``'s buffer, which would refuse a second one)."""
+    stream = sys.stderr
+    if stream is None:
+        return
+    try:
+        fd = stream.fileno()
+    except (OSError, ValueError, AttributeError):
+        with contextlib.suppress(Exception):
+            stream.write(text)
+        return
+    with contextlib.suppress(OSError):
+        os.write(fd, text.encode(errors="replace"))
+
+
+class _Presses:
+    """The stop signals after the first while its close runs: the second is said, the third forces out.
+
+    Silently ignored, a second Ctrl-C looked lost and a third did nothing either: a program whose close hung
+    (a port gone mid-write) could not be stopped from its terminal."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def again(self, signum: int) -> None:
+        self.count += 1
+        name = _signal_name(signum)
+        if self.count == 1:
+            _say(
+                f"{name} again: still stopping, the servos are being put to rest "
+                f"({name} once more forces out, cutting that short)\n"
+            )
+        else:
+            _force_out(signum)
+
+
+def _force_out(signum: int) -> NoReturn:
+    """End the process now, by ``signum`` as a shell expects of a signal it sent (the close is cut short)."""
+    _say(f"{_signal_name(signum)}: forced out; the close was cut short (each servo keeps whatever it was last sent)\n")
+    with contextlib.suppress(Exception):  # (may be inside a write of its own: then what it holds is lost)
+        sys.stdout.flush()
+    with contextlib.suppress(OSError, ValueError, TypeError):
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+    os._exit(_exit_code(signum))  # (where a signal to itself does not end it)
+
+
+class _AfterStop:
+    """A stop signal's handler for the moment a stopped program takes to end, its closes over.
+
+    A double Ctrl-C's second press lands there: on Python's own handler it printed KeyboardInterrupt's
+    traceback over the program's last steps or killed it.  Within :data:`AFTER_STOP` seconds it is taken for
+    the same stop and ignored; later (a program that went on after its stop) the handler that was there
+    before is put back and has it."""
+
+    def __init__(self, previous: object) -> None:
+        self.previous = previous
+        self.until = time.monotonic() + AFTER_STOP
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if time.monotonic() < self.until:
+            return
+        with contextlib.suppress(TypeError, ValueError):
+            signal.signal(signum, self.previous)  # type: ignore[arg-type]
+        if callable(self.previous):
+            self.previous(signum, frame)
+        elif self.previous == signal.SIG_DFL:
+            os.kill(os.getpid(), signum)
+
+
+def _unwrapped(handler: object) -> object:
+    """The handler an :class:`_AfterStop` stands in for (a new stop's block is its own, and gives that back)."""
+    return handler.previous if isinstance(handler, _AfterStop) else handler
+
+
+def _after_stop(previous: dict[int, object]) -> None:
+    """Once a stop's closes are over: each stop signal's handler an :class:`_AfterStop` in front of ``previous``."""
+    if threading.current_thread() is threading.main_thread():
+        if not _exiting:
+            _exiting.append(atexit.register(_ignore_at_exit))
+        _hand_back([(signum, _AfterStop(handler)) for signum, handler in previous.items()])
+
+
+_exiting: list[object] = []  # _ignore_at_exit, once registered
+
+
+def _ignore_at_exit() -> None:
+    """A stopped program's last steps: Python puts every handler of its own back to the default as it ends,
+    and a double Ctrl-C's second press then killed it (by SIGINT, not with its stop's exit code)."""
+    for signum in STOPPING:
+        with contextlib.suppress(TypeError, ValueError):
+            if isinstance(signal.getsignal(signum), _AfterStop):
+                signal.signal(signum, signal.SIG_IGN)
+
+
 class Wakeable(Protocol):
     def wake(self) -> None: ...
 
@@ -197,10 +341,12 @@ class _StopSignals:
         # running between two stores never sees half of a change.
         self._current: tuple[Wakeable | None, bool] = (None, False)
         self.unraisablehook = sys.unraisablehook
+        self.presses = _Presses()
 
     def start(self) -> None:
         self.active, self.signum, self.deferred = True, None, False
         self._current = (None, False)
+        self.presses = _Presses()
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
         if not self.active:  # stop_on_signals is ending: noted, and raised once its handlers are given back
@@ -210,7 +356,8 @@ class _StopSignals:
         if self.signum is None:
             self.signum = signum
         elif not (self.deferred and wait is None):
-            return  # a second signal while the with blocks close (servos being put to rest): ignored
+            self.presses.again(signum)  # while the with blocks close (servos being put to rest): said, or forced
+            return
         # (else the first is still owed: a finalizer dropped it)
         if wait is None:
             if _inside_a_close(frame):  # a close begun is not cut in half: raised as it returns
@@ -297,8 +444,9 @@ def stop_on_signals() -> Iterator[None]:
     """For programs without an event loop: SIGINT (Ctrl-C) and SIGTERM end the ``with`` block like an
     exception, so the ``with`` blocks inside it close in order (a blocking stream frees or holds as its
     ``on_close`` says, a bus releases its port), then the program exits with 130 or 143 and no
-    traceback (``SystemExit``).  A second signal while they close is ignored.  Use it around
-    everything, in the main thread::
+    traceback (``SystemExit``).  A second signal while they close is said with one line and they go on
+    closing; a third forces the program out at once, cutting the close short; one just after they closed
+    (a double Ctrl-C) is taken for the same stop.  Use it around everything, in the main thread::
 
         with stop_on_signals(), blocking.open_bus(port) as bus, bus.stream(ids, on_close="free") as s:
             ...
@@ -311,8 +459,8 @@ def stop_on_signals() -> Iterator[None]:
     try:
         stop_signals.start()
         sys.unraisablehook = stop_signals.dropped
-        for stopping in (signal.SIGINT, signal.SIGTERM):
-            previous[stopping] = signal.signal(stopping, stop_signals.handle)
+        for stopping in STOPPING:
+            previous[stopping] = _unwrapped(signal.signal(stopping, stop_signals.handle))
         yield
         if stop_signals.deferred:  # a finalizer dropped the stop after the block's last blocking call
             raise _Stopped(stop_signals.signum or signal.SIGTERM)
@@ -324,7 +472,10 @@ def stop_on_signals() -> Iterator[None]:
             stop_signals.active = False  # a signal from here on is only noted (see _StopSignals.handle)
             sys.unraisablehook = stop_signals.unraisablehook
         finally:  # a stop raised above, or a handler run as another goes back, must not leave one installed
-            _hand_back(list(previous.items()))
+            if stop_signals.signum is None:
+                _hand_back(list(previous.items()))
+            else:
+                _after_stop(previous)
     # The block ended without a stop raised, yet one came: as the handlers went back, or the block's own
     # code swallowed it (``except SystemExit``).  A stop asked for is a stop: raised now.
     if stop_signals.signum is not None:

@@ -416,3 +416,110 @@ def test_a_wait_woken_early_blocks_again_until_its_outcome_is_settled() -> None:
     assert outcome.wait(0.0) is False and outcome._wake.locked()  # taken again: a timed wait would block
     outcome.set_result(7)
     assert outcome.wait(0.0) is True and outcome.result() == 7
+
+
+# Ctrl-C pressed twice (or three times) in a row: a program whose close takes its time (a robot slowing to
+# rest, here a pause in a finally) under run() or stop_on_signals.  The first press stops it; it prints
+# "closing" as its close begins and "closed" as it ends.
+SLOW_CLOSE_ASYNC = textwrap.dedent(
+    """
+    import sys, anyio, ics35_async
+    from ics35_async import open_bus
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+    PAUSE = float(sys.argv[1])
+
+    async def main() -> None:
+        async with open_bus(sim) as bus, bus.stream([1, 2], rate_hz=100, on_close="free") as stream:
+            stream.set_targets({1: 8000, 2: 7000})
+            try:
+                async for frame in stream:
+                    if frame.cycle == 5:
+                        print("streaming", flush=True)
+            finally:
+                with anyio.CancelScope(shield=True):
+                    print("closing", flush=True)
+                    await anyio.sleep(PAUSE)
+                    print("closed", flush=True)
+
+    code = ics35_async.run(main)
+    print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    sys.exit(code)
+    """
+)
+
+SLOW_CLOSE_BLOCKING = textwrap.dedent(
+    """
+    import sys, time
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+    PAUSE = float(sys.argv[1])
+    try:
+        with blocking.stop_on_signals(), blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            try:
+                for n, frame in enumerate(s):
+                    if n == 5:
+                        print("streaming", flush=True)
+            finally:
+                print("closing", flush=True)
+                time.sleep(PAUSE)
+                print("closed", flush=True)
+    finally:
+        print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    """
+)
+
+
+def press_ctrl_c(program: str, pause: float, gaps: list[float], wait_for_close: bool) -> tuple[int, str, str]:
+    """Run ``program``, then SIGINT once it streams, and again after each of ``gaps`` (seconds; from
+    "closing" on, with ``wait_for_close``): its exit code, stdout and stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", program, str(pause)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "streaming"
+        lines = ["streaming"]
+        os.kill(proc.pid, signal.SIGINT)
+        if wait_for_close:
+            lines.append(proc.stdout.readline().strip())
+            assert lines[-1] == "closing"
+        for gap in gaps:
+            time.sleep(gap)
+            os.kill(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=scaled(30))
+    finally:
+        proc.kill()
+    return proc.returncode, "\n".join([*lines, *out.split()]), err
+
+
+@pytest.mark.parametrize("program", [SLOW_CLOSE_ASYNC, SLOW_CLOSE_BLOCKING], ids=["run", "stop_on_signals"])
+@pytest.mark.parametrize("gap", [0.001, 0.015, 0.05])
+def test_ctrl_c_twice_in_a_row_ends_the_program_as_once_does(program: str, gap: float) -> None:
+    # A double press, the second 1-50 ms after the first: as the close runs or just after it ended, as
+    # the program exits.  It exited by SIGINT with KeyboardInterrupt's traceback, or killed by it.
+    for _ in range(3):
+        code, out, err = press_ctrl_c(program, 0.0, [gap], wait_for_close=False)
+        assert code == 130, err
+        assert out.split()[-3:] == ["closing", "closed", "free"], out
+        assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+
+
+@pytest.mark.parametrize("program", [SLOW_CLOSE_ASYNC, SLOW_CLOSE_BLOCKING], ids=["run", "stop_on_signals"])
+def test_a_second_ctrl_c_during_the_close_is_said_and_the_close_goes_on(program: str) -> None:
+    code, out, err = press_ctrl_c(program, 1.0, [0.2], wait_for_close=True)
+    assert code == 130, err
+    assert out.split()[-2:] == ["closed", "free"], out
+    assert err.count("\n") == 1 and "Ctrl-C again" in err and "once more" in err, err
+
+
+@pytest.mark.parametrize("program", [SLOW_CLOSE_ASYNC, SLOW_CLOSE_BLOCKING], ids=["run", "stop_on_signals"])
+def test_a_third_ctrl_c_during_the_close_forces_the_program_out(program: str) -> None:
+    code, out, err = press_ctrl_c(program, 30.0, [0.2, 0.2], wait_for_close=True)
+    assert code in (130, -signal.SIGINT), err  # (as a shell reports either: 130)
+    assert "closed" not in out.split(), out
+    assert "Traceback" not in err and "forced out" in err and "cut short" in err, err
