@@ -178,3 +178,49 @@ def test_play_on_an_ics36_robot_frees_nothing(cli: Any, tmp_path: Path) -> None:
             assert 0 not in commanded(sims.sim(spec["line"]), spec["id"]), name  # no free command
     finally:
         sims.close()
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
+@pytest.mark.parametrize("on_stop", ["hold", "free"])
+def test_ctrl_c_twice_cuts_the_slow_down_short_and_says_what_the_joints_were_left_in(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, on_stop: str
+) -> None:
+    """A second Ctrl-C during a long --ramp ends the command at once (the CLI's second Ctrl-C forces): the
+    joints stay within the motion's poses, hold where the slow-down had them or go free as asked, and the
+    error says which (it said only "interrupted")."""
+    sims, robot_file = rig
+    # (far from its keyframe: a slow-down never passes it, so one close to it ends before the second press)
+    motion = write_motion(tmp_path / "m.json", {"time": 4.0, "pose": {"neck": 55, "knee": -90}, "profile": "linear"})
+    done = threading.Event()
+
+    def press_ctrl_c_twice() -> None:
+        while sims.servo("neck").target is None:
+            if done.wait(0.005):
+                return
+        if not done.wait(0.5):
+            os.kill(os.getpid(), signal.SIGINT)
+        if not done.wait(0.3):  # slowing to rest over 3 s: well inside it
+            os.kill(os.getpid(), signal.SIGINT)
+
+    presser = threading.Thread(target=press_ctrl_c_twice)
+    presser.start()
+    try:
+        result = cli("play", str(robot_file), str(motion), "--ramp", "3", "--on-stop", on_stop)
+    finally:
+        done.set()
+        presser.join()
+    assert result.code == 130, result.err
+    said = " ".join(result.err.split())
+    assert "Ctrl-C again cut the slow-down short" in said, said
+    neck, knee = sent(sims, "neck"), sent(sims, "knee")
+    assert inside(neck, neutral("neck"), 55), max(neck)
+    assert inside(knee, neutral("knee"), -90), min(knee)
+    if on_stop == "free":
+        assert "the joints it opened were freed" in said, said
+        assert sims.servo("neck").free and sims.servo("knee").free
+    else:
+        assert "the joints it opened hold their last targets, where the slow-down had them" in said, said
+        for name in ("neck", "knee"):
+            spec = JOINTS[name]
+            assert not sims.servo(name).free
+            assert sims.servo(name).target == targets_sent(sims.sim(spec["line"]), spec["id"])[-1], name

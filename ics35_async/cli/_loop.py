@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
-from collections.abc import Awaitable, Callable
+import signal
+import threading
+from collections.abc import Awaitable, Callable, Iterator
+from types import FrameType
 from typing import TypeVar
 
 from ._settings import CliError, ExitCode
-from ._signals import command_task, received
+from ._signals import command_task, current_task, received
 
 T = TypeVar("T")
 LOOPS = ("auto", "asyncio", "uvloop")
@@ -49,10 +53,53 @@ def run_loop(main: Awaitable[T]) -> T:
             main.close()  # never awaited: no "coroutine was never awaited" warning
         raise
     log.info("event loop: %s", name)
-    with asyncio.Runner(loop_factory=factory) as runner:
+    with _ctrl_c() as pressed, asyncio.Runner(loop_factory=factory) as runner:
         try:
             return runner.run(_await(main))
         except asyncio.CancelledError:
-            if received() is None:
+            if received() is None and not pressed:
                 raise
             raise KeyboardInterrupt from None  # cancelled by a stop signal: what Ctrl-C's cancel becomes
+
+
+@contextlib.contextmanager
+def _ctrl_c() -> Iterator[list[int]]:
+    """Ctrl-C while a command runs on the loop, as asyncio's runner takes it but for where the second raises.
+
+    The first cancels the command's task (it stops as it does at Ctrl-C: play slows to rest).  The second
+    forces it out: KeyboardInterrupt, raised by the loop between two of its callbacks.  asyncio's runner
+    raised it in its signal handler, wherever the main thread was: inside a weakref callback Python printed
+    it as "Exception ignored in ..." and dropped it (the command went on), inside the library it cut a step
+    in half.  A third raises it at once (a loop stuck in a call that never returns).  Yields the presses."""
+    pressed: list[int] = []
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield pressed  # (asyncio's runner takes it, as before, or a handler of the program's own)
+        return
+
+    def on_sigint(signum: int, frame: FrameType | None) -> None:
+        pressed.append(signum)
+        task = current_task()
+        try:
+            if len(pressed) == 1 and task is not None and not task.done():
+                task.get_loop().call_soon_threadsafe(task.cancel)
+                return
+            if len(pressed) == 2 and task is not None:
+                task.get_loop().call_soon_threadsafe(_interrupt)
+                return
+        except RuntimeError:  # the loop is closed
+            pass
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield pressed
+    finally:
+        if signal.getsignal(signal.SIGINT) is on_sigint:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _interrupt() -> None:
+    raise KeyboardInterrupt  # (a loop callback's KeyboardInterrupt leaves run_until_complete)

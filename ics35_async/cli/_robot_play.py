@@ -72,7 +72,8 @@ def motion_joints(description: RobotDescription, motion: Motion, text: str | Non
 
 
 async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
-    """Slow every moving joint to rest, then hold or free; shielded from a second Ctrl-C's cancellation."""
+    """Slow every moving joint to rest, then hold or free.  (A second Ctrl-C meanwhile cuts it short: asyncio's
+    runner raises KeyboardInterrupt, and the robot's close then leaves the joints as ``on_stop`` says.)"""
     # Each step on its own: a stop that fails (a line lost) or outlasts its time still leaves the free to run.
     with contextlib.suppress(IcsError, TimeoutError):
         await asyncio.wait_for(robot.stop(ramp), ramp + 2.0)
@@ -147,6 +148,7 @@ def play(
     # refused in body, against the whole robot.)
     moved = description.only([*motion.joints, *(joint for joint in start_pose or {} if joint in description.joints)])
     untouched = [joint for joint in description.joints if joint not in moved.joints]
+    slowing: list[bool] = []  # the smooth stop has begun (a Ctrl-C then, the CLI's second, cuts it short)
 
     async def body() -> str:
         nonlocal passes, played, silent
@@ -227,6 +229,7 @@ def play(
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
                             await task
                         screen.say(f"{how}: slowing to rest, then the joints {on_stop}")  # (on a terminal: in the view)
+                        slowing.append(True)
                         await stop_smoothly(robot, ramp, on_stop)
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
@@ -236,7 +239,17 @@ def play(
     # A line lost mid-motion ends the motion on the others at once: each joint holds the last target it got,
     # where the motion had it (no --ramp: the robot's streams end with the lost line), or goes free.
     held = "holding their last targets (the motion stopped there at once, without the --ramp slow-down)"
-    how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else held)
+    try:
+        how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else held)
+    except CliError as exc:
+        if exc.code == ExitCode.INTERRUPTED and slowing:  # (the robot's close then leaves them as --on-stop says)
+            left = (
+                "were freed"
+                if on_stop == "free"
+                else "hold their last targets, where the slow-down had them (stiff, short of the motion's poses)"
+            )
+            exc.message = f"interrupted: Ctrl-C again cut the slow-down short; the joints it opened {left}"
+        raise
     length = f"{motion.duration / speed:.1f} s"
     what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.

@@ -53,6 +53,11 @@ def command_task(task: asyncio.Task[Any]) -> Iterator[None]:
         _tasks.remove(task)
 
 
+def current_task() -> asyncio.Task[Any] | None:
+    """The command's task on the event loop, while it runs."""
+    return _tasks[-1] if _tasks else None
+
+
 def _stop(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
     if len(_received) > 1:
