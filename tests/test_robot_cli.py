@@ -7,6 +7,7 @@ import itertools
 import json
 import os
 import re
+import signal
 import sys
 import threading
 import time
@@ -550,6 +551,32 @@ def test_teach_with_joints_leaves_the_others_as_they_are(rig: tuple[Rig, Path], 
         spec = JOINTS[name]
         assert sims.servo(name).target == position and not sims.servo(name).free, name
         assert list(commanded(sims.sim(spec["line"]), spec["id"], marks[spec["line"]])) == [], name
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
+def test_calibrate_stopped_by_ctrl_c_says_nothing_was_written(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # Ctrl-C at step 2: it said only "interrupted", leaving the user to wonder whether the file was half changed.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+
+    def ctrl_c() -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(scaled(1.0))  # (taken before the end of input that follows)
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", None, "\n"), ("whole range", ctrl_c, "")],
+        [],
+    )
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    said = " ".join(result.err.split())
+    assert f"interrupted: nothing written to {robot_file}" in said, said
+    assert "the joints it opened are left free" in said, said
+    assert robot_file.read_text() == CALIBRATE_FILE.format(**ports)
+    assert all(sims.servo(name).free for name in ("neck", "hip"))
 
 
 def test_calibrate_refuses_a_joint_not_moved_through_its_range(

@@ -402,9 +402,12 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
 
     try:
         run_robot(settings, description, body)
-    except CliError:
+    except CliError as exc:
         if lost:
             err.print(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
+        if exc.code == ExitCode.INTERRUPTED:  # (the file is written only once step 2 ends with Enter)
+            exc.message = f"interrupted: nothing written to {robot_file}"
+            exc.hints.append("the joints it opened are left free, as calibrate had them")
         raise
     calibrated: dict[str, JointSpec] = {}
     narrow: list[str] = []
