@@ -6,8 +6,8 @@ the process on the spot (no ``finally``, no ``async with`` exit: the servos
 keep whatever they were last told), and Ctrl-C prints asyncio's
 ``KeyboardInterrupt`` traceback.  :func:`run` turns both signals into a
 cancellation of ``main``: its ``async with`` blocks unwind in order (a stream
-closes as its ``on_close`` says, a robot stops smoothly, a bus drains and
-releases its port), then it returns an exit code for ``sys.exit``.  A second
+closes as its ``on_close`` says, a robot's joints hold or go free as its own
+says, a bus drains and releases its port), then it returns an exit code for ``sys.exit``.  A second
 signal while that unwinding runs is said with one line and the unwinding goes on
 (the servos are being put to rest); a third forces the program out at once,
 cutting it short.  One just after it ended (a double Ctrl-C) is taken for the

@@ -3,6 +3,7 @@ ICS 3.5 joints free unless the caller states their pose.  What went on the wire 
 
 from __future__ import annotations
 
+import itertools
 import time
 from typing import Any
 
@@ -409,3 +410,44 @@ def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:
         anyio.run(main)
     finally:
         rig.close()
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_cancelled(backend: str) -> None:
+    # run()'s Ctrl-C cancels a scope around the whole program, the robot's block included: its cycles were
+    # cancelled with it, and a shielded robot.stop() in the body's finally (what the docs advise after a
+    # cancellation) waited for frames that never came, for ever.  The stop must slow the joint to rest.
+    trio = backend == "trio"
+    rig = make_rig(realtime=trio)
+    stopped: list[bool] = []
+    marks: dict[str, int] = {}
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD), anyio.CancelScope() as outer:
+            async with open_robot(rig.description, **(NO_TIMEOUTS if trio else FAST)) as robot:
+                try:
+                    async with anyio.create_task_group() as tasks:
+                        tasks.start_soon(robot.move_to, {"neck": 50.0}, 2.0)
+                        while (robot.targets["neck"] or 0.0) < 10.0:
+                            await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                        marks["upper"] = rig.upper.transactions
+                        outer.cancel()  # as run() does at Ctrl-C
+                        await anyio.sleep_forever()
+                finally:
+                    with anyio.CancelScope(shield=True), anyio.fail_after(GUARD):
+                        await robot.stop(ramp=0.3)
+                        stopped.append(True)
+
+    try:
+        anyio.run(main, backend=backend)
+    finally:
+        rig.close()
+    assert stopped == [True]
+    sent = [joint_degrees(JOINTS["neck"], p) for p in sent_positions(rig, marks["upper"])]
+    steps = [b - a for a, b in itertools.pairwise(sent)]
+    assert sent and max(sent) < 50.0  # short of the target: slowed to rest, not carried on to it
+    assert steps and steps[-1] <= max(steps)  # (slowing, not cut off at full speed)
+
+
+def sent_positions(rig: Rig, since: int) -> list[int]:
+    return [p for p in commanded(rig.upper, JOINTS["neck"]["id"], since) if p]

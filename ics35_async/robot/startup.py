@@ -14,10 +14,11 @@ ICS 3.5 reads a position only with the free command.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import warnings
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, NoReturn, Unpack
@@ -183,9 +184,19 @@ async def _robot_session(
         try:
             async with GroupStream(streams) as gstream:
                 try:
+                    # The robot's cycles run until its block ends, not until a scope around it is cancelled
+                    # (run()'s Ctrl-C, a move_on_after): the body's own close-out (a shielded robot.stop() in a
+                    # finally) waited for frames that never came, for ever.
+                    running: list[anyio.CancelScope] = []
+
+                    async def cycles(work: Callable[[], Awaitable[None]]) -> None:
+                        with anyio.CancelScope(shield=True) as scope:
+                            running.append(scope)
+                            await work()
+
                     async with anyio.create_task_group() as tasks:
-                        tasks.start_soon(robot.pump, gstream)
-                        tasks.start_soon(robot.watch.run, robot)
+                        tasks.start_soon(cycles, functools.partial(robot.pump, gstream))
+                        tasks.start_soon(cycles, functools.partial(robot.watch.run, robot))
                         try:
                             await robot.wait_frame(0)
                             yield robot
@@ -193,6 +204,8 @@ async def _robot_session(
                             # From here on nothing commands the joints but the streams' close (a task that
                             # outlived the block is refused): the joints hold their last targets until then.
                             robot.mark_closed()
+                            for scope in running:
+                                scope.cancel()
                             tasks.cancel_scope.cancel()
                 except BaseExceptionGroup as group_error:
                     # The body's own error, not wrapped: the task group is an implementation detail.
