@@ -608,6 +608,39 @@ def test_calibrate_refuses_a_joint_not_moved_through_its_range(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "robot.toml"]  # no backup, no side file
 
 
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
+def test_teach_keeps_its_poses_when_a_second_ctrl_c_lands_as_it_writes_them(
+    rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A double Ctrl-C: the first ends the teaching, the second came as the poses were being written (the
+    # command's loop already over): KeyboardInterrupt ended the command with "aborted" and nothing written.
+    _, robot_file = rig
+    target = tmp_path / "taught.json"
+
+    def second_press(frame: Any, event: str, arg: Any) -> None:
+        if event == "call" and frame.f_code.co_name == "save_taught":
+            sys.setprofile(None)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    def first_press() -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(scaled(1.0))
+
+    sys.setprofile(second_press)  # (the main thread's, where the command runs)
+    try:
+        result = run_with_hands(
+            ["teach", str(robot_file), str(target), "--joints", "neck"],
+            [("Enter captures", None, "\n"), ("pose 1 at", first_press, "")],
+            [],
+        )
+    finally:
+        sys.setprofile(None)
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    assert "aborted" not in result.err
+    assert "the 1 pose(s) captured so far are kept" in " ".join(result.err.split()), result.err
+    assert len(json.loads(target.read_text())["keyframes"]) == 1
+
+
 def test_teach_that_cannot_write_its_file_prints_the_poses_instead(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

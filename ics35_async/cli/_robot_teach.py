@@ -213,16 +213,23 @@ def teach(
                     with contextlib.suppress(asyncio.CancelledError, IcsError):
                         await watcher
 
+    saving = saved = False
     try:
         run_robot(settings, description, body)
-    except BaseException:
-        # Lost port, error or Ctrl-C: the poses captured so far are written before the error is told.
-        if keyframes:
+        if keyframes:  # (inside the try: a second Ctrl-C landing as they are written must not lose them)
+            saving = True
+            save_taught(keyframes, profile, name, target, robot_file)
+            saved = True
+    except BaseException as exc:
+        # Lost port, error or Ctrl-C: the poses captured so far are written before the error is told (the
+        # save's own failure, a CliError with the poses printed instead, is not tried twice).
+        if keyframes and not saved and not (saving and isinstance(exc, CliError)):
             save_taught(keyframes, profile, name, target, robot_file, on_error=True)
+        if isinstance(exc, KeyboardInterrupt):  # (out of run_robot, which tells its own the same way)
+            raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         raise
     if not keyframes:
         raise CliError(ExitCode.REFUSED, "no pose captured: nothing written", "press Enter to capture a pose")
-    save_taught(keyframes, profile, name, target, robot_file)
     return 0
 
 
