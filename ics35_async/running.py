@@ -79,8 +79,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     def outside(signum: int, frame: FrameType | None) -> None:
         """A stop signal while the receiver below is not open (the loop starting, or ending): one before a stop
         is the stop (main, if it has not started, never does); one after it is the same press, ignored.  Without
-        it such a signal met Python's handler (or trio's) and its KeyboardInterrupt's traceback, or killed the
-        program, and trio gives its receiver's signals still queued as it closes to the handler it puts back."""
+        it such a signal meets Python's handler (or trio's): a KeyboardInterrupt's traceback, or the program
+        killed; and trio gives its receiver's signals still queued as it closes to the handler it puts back."""
         if not received:
             received.append(signum)
 
@@ -226,8 +226,8 @@ def _say(text: str) -> None:
 class _Presses:
     """The stop signals after the first while its close runs: the second is said, the third forces out.
 
-    Silently ignored, a second Ctrl-C looked lost and a third did nothing either: a program whose close hung
-    (a port gone mid-write) could not be stopped from its terminal."""
+    Ignored without a word, a second Ctrl-C would look lost, and a program whose close hangs (a port gone
+    mid-write) could not be stopped from its terminal."""
 
     def __init__(self) -> None:
         self.count = 0
@@ -258,8 +258,8 @@ def _force_out(signum: int) -> NoReturn:
 class _AfterStop:
     """A stop signal's handler for the moment a stopped program takes to end, its closes over.
 
-    A double Ctrl-C's second press lands there: on Python's own handler it printed KeyboardInterrupt's
-    traceback over the program's last steps or killed it.  Within :data:`AFTER_STOP` seconds it is taken for
+    A double Ctrl-C's second press lands there: Python's own handler would print KeyboardInterrupt's
+    traceback over the program's last steps, or kill it.  Within :data:`AFTER_STOP` seconds it is taken for
     the same stop and ignored; later (a program that went on after its stop) the handler that was there
     before is put back and has it."""
 
@@ -296,7 +296,7 @@ _exiting: list[object] = []  # _ignore_at_exit, once registered
 
 def _ignore_at_exit() -> None:
     """A stopped program's last steps: Python puts every handler of its own back to the default as it ends,
-    and a double Ctrl-C's second press then killed it (by SIGINT, not with its stop's exit code)."""
+    and a double Ctrl-C's second press would then kill it (by SIGINT, not with its stop's exit code)."""
     for signum in STOPPING:
         with contextlib.suppress(TypeError, ValueError):
             if isinstance(signal.getsignal(signum), _AfterStop):

@@ -68,8 +68,8 @@ def _ctrl_c() -> Iterator[list[int]]:
 
     The first cancels the command's task (it stops as it does at Ctrl-C: play slows to rest).  The second
     forces it out: KeyboardInterrupt, raised by the loop between two of its callbacks.  asyncio's runner
-    raised it in its signal handler, wherever the main thread was: inside a weakref callback Python printed
-    it as "Exception ignored in ..." and dropped it (the command went on), inside the library it cut a step
+    raises it in its signal handler, wherever the main thread is: inside a weakref callback Python prints
+    it as "Exception ignored in ..." and drops it (the command goes on), inside the library it cuts a step
     in half.  A third raises it at once (a loop stuck in a call that never returns).  Yields the presses."""
     pressed: list[int] = []
     if (

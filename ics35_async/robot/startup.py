@@ -186,7 +186,7 @@ async def _robot_session(
                 try:
                     # The robot's cycles run until its block ends, not until a scope around it is cancelled
                     # (run()'s Ctrl-C, a move_on_after): the body's own close-out (a shielded robot.stop() in a
-                    # finally) waited for frames that never came, for ever.
+                    # finally) would wait for ever for frames that never come.
                     running: list[anyio.CancelScope] = []
 
                     async def cycles(work: Callable[[], Awaitable[None]]) -> None:
