@@ -496,7 +496,7 @@ class QuietLine:
 
     @property
     def stats(self) -> Any:
-        return SimpleNamespace(per_id={})  # no request ever went on this line
+        return SimpleNamespace(per_id={}, by_command={})  # no request ever went on this line
 
     def kick(self) -> None:
         self.kicks += 1

@@ -862,12 +862,15 @@ def test_play_says_which_joint_it_could_not_leave_as_its_summary_says(cli: Any, 
 
 
 def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
-    """Unplug ``servo_id`` a moment after it first answers (mid-motion), from a thread of its own."""
+    """Unplug ``servo_id`` a moment after it first answers a position command (mid-motion: the robot has heard
+    it), from a thread of its own.  (Not after its first answer of any kind: the start's read of an ICS 3.5
+    servo frees it, and on a loaded machine the robot's stream may not have heard it 0.3 s later: a joint never
+    heard from is refused, not tripped.)"""
 
     def run() -> None:
         deadline = time.monotonic() + scaled(30.0)
         while time.monotonic() < deadline:
-            if any(t.servo_id == servo_id and t.reply for t in sim.log_since(0)):
+            if any(t.servo_id == servo_id and t.reply and t.command == "position" for t in sim.log_since(0)):
                 time.sleep(0.3)
                 sim.remove_servo(servo_id)
                 return
