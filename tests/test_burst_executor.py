@@ -253,6 +253,23 @@ def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: PtyPair) -> 
     burst.close()
 
 
+def test_a_new_burst_never_hands_back_the_last_ones_records(pty_pair: PtyPair) -> None:
+    # completed() right after start() gave the previous burst's records (its bytes, its old times) until the
+    # executor's thread began the new plan: a driver woken for another reason then fed the engine those as the
+    # new plan's replies (the thread driver did, on any wake-up).
+    master, slave = pty_pair
+    responder = serve(master)
+    burst = _burst.Burst(slave)
+    for _ in range(100):
+        burst.start(time.monotonic() + ALLOWANCE, plan(4))
+        early = burst.completed(0)
+        result = burst.wait()
+        assert result is not None and result[0] == DONE and len(result[2]) == 4
+        assert all(record in result[2] for record in early), (early, result[2])  # only this burst's records
+    responder.stop()
+    burst.close()
+
+
 def test_a_notice_mid_burst_hands_over_what_is_final_while_the_rest_runs(pty_pair: PtyPair) -> None:
     # The loop feeds the engine a long burst in parts (see burst.feed_ahead_points): done_fd turns readable
     # once the asked-for transaction is written, the burst still runs, and completed() gives every

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import random
 from typing import Any
 
 import pytest
@@ -161,3 +162,60 @@ async def test_a_stream_on_a_tty_runs_in_bursts_beside_requests_that_get_their_o
             await or_describe(asyncio.gather(frames(), reads()), bus, RUN_GUARD)
             assert runner.bursts > 10 and runner.transactions > 400, (runner.bursts, runner.transactions)
             assert sum(whole) > len(whole) // 2 and len(answered) > 100, (sum(whole), len(answered), bus.stats.total)
+
+
+@pytest.mark.pty
+async def test_streams_started_and_closed_beside_requests_feed_the_engine_only_their_own_bursts(
+    pty_sim: Any, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # The I/O thread, woken for another reason (a caller's new target or request) just as it started a burst,
+    # fed the engine what the executor had not yet begun: the previous burst's records, taken for this one's
+    # replies (echo mismatches on healthy servos, "burst ran on past a reply", or old replies taken as new).
+    monkeypatch.setenv(ENV, "1")
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)
+    ids = list(range(1, 9))
+    path = pty_sim("--fast", "--ids", "1-8").path
+    rng = random.Random(1)
+    wrong: list[tuple[int, int]] = []
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        async with open_bus(path, driver="thread", **PATIENT) as bus:
+            stop = False
+
+            async def reads() -> None:
+                k = 0
+                while not stop:
+                    sid = ids[k % 8]
+                    k += 1
+                    with contextlib.suppress(ReplyError, asyncio.TimeoutError):
+                        got = await asyncio.wait_for(bus.servo(sid).read_eeprom(), rng.choice([0.0005, 0.002, 1.0]))
+                        if got.servo_id != sid:
+                            wrong.append((sid, got.servo_id))
+
+            async def streams() -> None:
+                for i in range(60):
+                    stream = bus.stream(ids, rate_hz=rng.choice([None, 200.0]), on_close=rng.choice(["free", "hold"]))
+                    await stream.start()
+                    stream.set_targets({sid: 7000 + 10 * i for sid in ids})
+                    for _ in range(rng.randint(1, 6)):
+                        await stream.next_frame()
+                    if rng.random() < 0.3:  # a close cancelled as it sends its close-out
+                        closing = asyncio.ensure_future(stream.aclose())
+                        await asyncio.sleep(rng.random() * 0.002)
+                        closing.cancel()
+                        with contextlib.suppress(asyncio.CancelledError):
+                            await closing
+                    else:
+                        await stream.aclose()
+                    if i % 10 == 9:
+                        await bus.reopen()
+
+            readers = [asyncio.ensure_future(reads()) for _ in range(2)]
+            try:
+                await or_describe(streams(), bus, RUN_GUARD)
+            finally:
+                stop = True
+                await asyncio.gather(*readers)
+            assert bus.is_open
+    assert wrong == []
+    said = [r.getMessage() for r in caplog.records if "burst" in r.getMessage() or "I/O thread" in r.getMessage()]
+    assert said == []

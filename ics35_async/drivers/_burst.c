@@ -435,6 +435,10 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
     self->n = n;
     self->first_deadline = first_deadline;
     atomic_store(&self->notify_at, -1);
+    /* none of this plan's transactions has run: completed() before the worker begins must not hand back the
+       last plan's records as this one's */
+    atomic_store(&self->ran, 0);
+    self->status = DONE;
     /* a wake meant for an earlier burst must not cut this one short */
     atomic_store(&self->woken, 0);
     drain(self->wake_r);

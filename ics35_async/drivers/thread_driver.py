@@ -103,17 +103,26 @@ class _TtyWait:
                     os.read(self._wake_r, 512)
         return data
 
-    def wait_for_burst(self, done_fd: int) -> None:
-        """Wait for a running burst's notice (``done_fd``: see .burst) or a wake-up: never on the port, which
-        the executor reads meanwhile."""
-        if self._burst_poll is None:
-            self._burst_poll = select.poll()
-            self._burst_poll.register(done_fd, select.POLLIN)
-            self._burst_poll.register(self._wake_r, select.POLLIN)
+    def watch_bursts(self, done_fd: int) -> None:
+        """The port's burst runner tells on ``done_fd`` (see .burst): taken once, as the runner opens (read
+        later, outside the lock, it could be a closed runner's)."""
+        self._burst_poll = select.poll()
+        self._burst_poll.register(done_fd, select.POLLIN)
+        self._burst_poll.register(self._wake_r, select.POLLIN)
+
+    def wait_for_burst(self) -> bool:
+        """Wait for a running burst's notice or a wake-up, never on the port (the executor reads it
+        meanwhile); True if the burst told (its notice or its end), False for a mere wake-up, after which
+        the burst's records so far are not to be taken (the executor may not have begun them)."""
+        assert self._burst_poll is not None
+        told = False
         for polled, _ in self._burst_poll.poll():
             if polled == self._wake_r:
                 with contextlib.suppress(BlockingIOError):
                     os.read(self._wake_r, 512)
+            else:
+                told = True
+        return told
 
     def want_writable(self, want: bool) -> None:
         self._poll.modify(self.port.fd, select.POLLIN | select.POLLOUT if want else select.POLLIN)
@@ -262,6 +271,8 @@ class ThreadDriver(LoopDriver):
             self.burst = open_runner(
                 self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
             )
+            if self.burst is not None:
+                wait.watch_bursts(self.burst.done_fd)
         elif isinstance(port, DevicePort):
             wait = _DeviceWait(port)
         else:
@@ -320,11 +331,11 @@ class ThreadDriver(LoopDriver):
         while not run.stopping:
             burst = self.burst
             if burst is not None and burst.running and isinstance(wait, _TtyWait):
-                wait.wait_for_burst(burst.done_fd)
+                told = wait.wait_for_burst()
                 with lock:
                     if run.stopping:
                         return
-                    if burst is self.burst and burst.running:
+                    if told and burst is self.burst and burst.running:
                         self._burst_done(burst)
                     self._waiting_until = engine.deadline
                 continue
