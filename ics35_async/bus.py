@@ -148,6 +148,7 @@ class Bus:
         self._reopening = False
         self._state_event: Any = None  # an anyio.Event while someone waits in state_change()
         self._close_out: tuple[BackgroundSource, Callable[[], Awaitable[None]]] | None = None  # see attach_source
+        self._closing_outs: set[Any] = set()  # streams' close-outs under way (see close_out_begins)
         self._closed_event: Any = None  # an anyio.Event, set once aclose() is done (see aclose)
         self._engine.on_state_change = self._state_changed
 
@@ -377,6 +378,9 @@ class Bus:
             # (it returns once that is done), which the line closing now would fail.
             if close_out is not None:
                 await close_out[1]()
+            # And an earlier stream's, still sending with another stream attached since.
+            for done in list(self._closing_outs):
+                await despite_cancellation(done.wait, None)
         finally:  # (a cancellation raised once the close-out is done must not keep the port open)
             driver, self._driver = self._driver, None
             if driver is None:
@@ -440,8 +444,8 @@ class Bus:
         self, source: BackgroundSource | None, *, close_out: Callable[[], Awaitable[None]] | None = None
     ) -> None:
         """Let ``source`` fill the line's idle time (one at a time); ``None`` detaches.  ``close_out``:
-        awaited on the open line by :meth:`aclose` if ``source`` is still attached then (a stream's
-        ``on_close``).
+        awaited on the open line by :meth:`aclose` (a stream's ``on_close``; it returns at once when it has
+        already run, and waits for it when it is under way).
 
         Raises:
             InvalidArgument: the bus is reopening.
@@ -461,6 +465,16 @@ class Bus:
         # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
         driver.call_now(lambda t: engine.attach_source(source, t))
         self._close_out = None if close_out is None else (source, close_out)
+
+    def close_out_begins(self, done: Any) -> None:
+        """A stream's close-out (its ``on_close`` commands) is under way, until ``done`` (an ``anyio.Event``)
+        is set: :meth:`aclose` waits for it before it closes the line, attached or not (the program's next
+        stream may have started meanwhile)."""
+        self._closing_outs.add(done)
+
+    def close_out_ends(self, done: Any) -> None:
+        """The close-out :meth:`close_out_begins` was told of has ended."""
+        self._closing_outs.discard(done)
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line (no-op if it is not attached)."""

@@ -8,7 +8,7 @@ bus, so the layers stay one-way and a test double or another driver fits.
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
-from typing import Protocol, TypeVar, runtime_checkable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from .engine import BackgroundSource, Priority
 from .protocol import Command
@@ -54,7 +54,13 @@ class Line(Protocol):
         self, source: BackgroundSource | None, *, close_out: Callable[[], Awaitable[None]] | None = None
     ) -> None:
         """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches.  ``close_out``: awaited
-        on the open line when the line closes while ``source`` is attached (a stream's ``on_close``)."""
+        on the open line when the line closes (a stream's ``on_close``)."""
+
+    def close_out_begins(self, done: Any) -> None:
+        """A stream's close-out is under way until ``done`` (an ``anyio.Event``) is set: the line's close waits."""
+
+    def close_out_ends(self, done: Any) -> None:
+        """That close-out has ended."""
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line."""

@@ -917,10 +917,12 @@ class Stream(FrameIterator[Frame]):
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
             # last pose it was given; bounded, in case the line is gone.
             self._closing_out = closing = anyio.Event()
+            self.bus.close_out_begins(closing)
             try:
                 await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
             finally:
                 closing.set()
+                self.bus.close_out_ends(closing)
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:

@@ -1611,3 +1611,22 @@ async def test_targets_set_from_another_thread_go_on_the_wire_from_the_loops_thr
         await frames_until(stream, lambda f: f.positions.keys() == {1, 2} and not f.held)
         assert device.writers == {threading.get_ident()}
     assert (sim.servo(1).target, sim.servo(2).target) == (7100, 8100)
+
+
+async def test_the_bus_closing_waits_for_an_earlier_streams_close_out_when_another_stream_started_meanwhile() -> None:
+    # The bus waited only for the stream attached last: a stream closing with its frees queued, the program's
+    # next stream started meanwhile, then the bus closed under the frees (the first stream's servos left holding).
+    sim = make_sim(range(1, 7))
+    bus = await open_bus(sim, **FAST)
+    first = bus.stream([1, 2, 3], on_close="free")
+    first.set_targets(dict.fromkeys([1, 2, 3], 8000))
+    await first.start()
+    await next_frame(first)
+    await next_frame(first)
+    second = bus.stream([4, 5, 6])  # (on_close="hold": nothing left to send when it closes)
+    closing = asyncio.ensure_future(first.aclose())
+    await asyncio.sleep(0)  # (the first stream's frees are queued)
+    await second.start()
+    await asyncio.gather(closing, bus.aclose())
+    assert first.targets_sent_on_close == dict.fromkeys([1, 2, 3], FREE)
+    assert all(sim.servo(i).free for i in (1, 2, 3))
