@@ -322,16 +322,18 @@ class Bus:
             try:
                 await driver.reopen(new_baud)
             except BaseException as exc:
+                if isinstance(exc, PortLost) and self._engine.state is State.LOST:
+                    raise  # lost before it went offline: nothing was changed, the reconnect goes on
                 reason = f"reopening {self.port} failed: {error_text(exc)}"
                 driver.call(lambda t: self._engine.lost(reason, reconnect=False))
                 raise
 
         try:
-            await driver.wait_idle()  # (cancelled here, nothing has changed yet)
-            if self._engine.state is not State.IDLE:
+            if self._engine.state is State.LOST:
                 raise PortLost(f"port {self.port} is lost; cannot reopen now")
-            # To its end: a reopen cut off half-way (a timeout around it) would leave no port open;
-            # a cancellation meanwhile is raised once the line is open again.
+            # To its end (the transaction on the wire first: requests queued meanwhile wait for the reopened
+            # port): a reopen cut off half-way (a timeout around it) would leave no port open; a cancellation
+            # meanwhile is raised once the line is open again.
             await despite_cancellation(swap, None)
         finally:
             self._reopening = False

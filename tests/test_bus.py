@@ -746,3 +746,37 @@ async def test_state_change_tells_a_lost_port_its_return_and_the_close(driver: s
         await bus.aclose()
     await asyncio.wait_for(watcher, 5)
     assert changes == [State.LOST, State.IDLE, State.CLOSED]
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_reopen_beside_a_program_polling_waits_for_the_line_and_the_bus_stays_open(driver: str) -> None:
+    # A baud change while telemetry polls: a request could start between the reopen's wait for a free line and
+    # the port's swap; the swap then refused ("cannot take the line offline while busy") and closed the bus
+    # for good, where the docs promise that requests wait and run after the reopen; with requests queued all
+    # along, the reopen waited for a free line for ever.
+    sim = VirtualLine([VirtualServo(i) for i in range(1, 4)])
+    try:
+        async with open_bus(sim, driver=driver, **FAST) as bus:
+            stop = False
+            answered = 0
+
+            async def poll() -> None:
+                nonlocal answered
+                while not stop:  # (three of these keep a request queued all along: never an idle line)
+                    await bus.servo(1).read_stretch()
+                    answered += 1
+
+            pollers = [asyncio.ensure_future(poll()) for _ in range(3)]
+            try:
+                for _ in range(5):
+                    await asyncio.sleep(0.01)
+                    await asyncio.wait_for(bus.reopen(), GUARD)
+                    assert bus.is_open
+                before = answered
+                await asyncio.sleep(0.02)
+                assert answered > before  # (the pollers' requests run after each reopen)
+            finally:
+                stop = True
+                await asyncio.gather(*pollers)
+    finally:
+        sim.close()

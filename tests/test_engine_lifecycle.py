@@ -56,10 +56,30 @@ def test_a_reopen_keeps_queued_requests() -> None:
     assert wire.sent() == [read(3).tx, read(4).tx]
 
 
-def test_the_line_goes_offline_only_when_idle() -> None:
-    engine, _, _ = busy_engine()
+def test_a_line_asked_offline_while_busy_goes_offline_once_its_transaction_ends() -> None:
+    # A reopen beside a program that keeps requests queued (telemetry) waited for a line with nothing on the wire
+    # and nothing queued, which never came; taking the line offline at once was refused while busy.  Now the
+    # transaction on the wire ends, then the line goes offline, and what was queued meanwhile waits for the port.
+    engine = ready_engine()
+    wire = Wire(engine, Servos({3, 4}))
+    a, b = Recorded(read(3)), Recorded(read(4))
+    wire.submit(a)
+    assert engine.state is State.BUSY
+    assert engine.disconnected() is False  # (at the end of a's transaction)
+    wire.submit(b)
+    wire.run_for(0.1)  # (a's transaction takes a millisecond)
+    assert a.state == "done" and b.state != "done"
+    assert engine.state is State.OFFLINE and engine.deadline == math.inf
+    assert wire.sent() == [read(3).tx]
     with pytest.raises(InvalidArgument):
-        engine.disconnected()
+        engine.disconnected()  # (offline already)
+    wire.emit(engine.connected(wire.now))
+    wire.settle()
+    assert b.state == "done" and wire.sent() == [read(3).tx, read(4).tx]
+
+
+def test_an_open_line_cannot_be_connected_again() -> None:
+    engine, _, _ = busy_engine()
     with pytest.raises(InvalidArgument):
         engine.connected(0.0)  # already open
 

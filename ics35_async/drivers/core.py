@@ -37,7 +37,7 @@ from typing import Any, Protocol
 import anyio
 
 from ..engine import FlushInput, LineEngine, Output, Request, State
-from ..errors import IcsError, InvalidArgument, error_text
+from ..errors import IcsError, InvalidArgument, PortLost, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
@@ -48,7 +48,7 @@ from .settings import LineSettings
 log = logging.getLogger("ics35_async")
 
 INF = math.inf
-LOST, CLOSED, DRAINING = State.LOST, State.CLOSED, State.DRAINING
+LOST, CLOSED, DRAINING, OFFLINE = State.LOST, State.CLOSED, State.DRAINING, State.OFFLINE
 
 
 class Waiter(Protocol):
@@ -216,7 +216,7 @@ class DriverCore:
             out = None
         if out is not None:
             self._act(port, out)
-        if self._idle and engine.idle:
+        if self._idle and self._idle_now():
             self._release_idle()
 
     def _act(self, port: Port, out: bytes | FlushInput) -> None:
@@ -259,7 +259,7 @@ class DriverCore:
             self._act(port, out)
         if self.engine.deadline < self._waiting_until:
             self._rewait()
-        if self._idle and self.engine.idle:
+        if self._idle and self._idle_now():
             self._release_idle()
 
     # ------------------------------------------------------------------ the port coming and going
@@ -357,12 +357,33 @@ class DriverCore:
         return engine.state is LOST
 
     async def reopen(self, baudrate: int) -> None:
-        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
+        """Close and reopen the port (the engine holds requests meanwhile), once the transaction on the wire
+        (if any) has ended."""
         self._stop_burst()
-        self.engine.disconnected()
+        await self._go_offline()
         self._drop_port()
         self.engine.baudrate = baudrate
         self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+
+    async def _go_offline(self) -> None:
+        """Take the line offline for a reopen: at once when idle, else at the end of the transaction on the
+        wire (requests queued meanwhile wait for the reopened port).
+
+        Raises:
+            PortLost: the port was lost meanwhile (or before).
+            BusClosed: the bus closed meanwhile.
+        """
+        with self.lock:
+            if self.engine.state is LOST:
+                raise PortLost(f"port {self.target} is lost; cannot reopen now")
+            offline = self.engine.disconnected()  # (raises on a closed line)
+        if not offline:
+            await self.wait_idle()  # (offline is idle enough: see _idle_now)
+            with self.lock:
+                if self.engine.state is LOST:
+                    raise PortLost(f"port {self.target} was lost; cannot reopen now")
+                if self.engine.state is not OFFLINE:
+                    raise self.engine.closed_error()
 
     def _drop_port(self) -> None:
         """Stop waiting on the port and close it (a reopen, or the bus closing)."""
@@ -454,7 +475,8 @@ class DriverCore:
     # ------------------------------------------------------------------ waiting for quiet; closing
 
     def _idle_now(self) -> bool:
-        return self.engine.idle or self.port is None
+        # (offline: a reopen's line, its requests held for the reopened port)
+        return self.engine.idle or self.port is None or self.engine.state is OFFLINE
 
     async def wait_idle(self) -> None:
         """Return once nothing is on the wire, resyncing or queued (or the port is gone)."""

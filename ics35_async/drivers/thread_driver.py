@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ..engine import LineEngine, State
+from ..engine import LineEngine
 from ..protocol import Command
 from ..transports.device_port import DevicePort
 from ..transports.opening import Port
@@ -239,14 +239,10 @@ class ThreadDriver(LoopDriver):
             port.close()
 
     async def reopen(self, baudrate: int) -> None:
-        """Close and reopen the port (the engine holds requests meanwhile); only when idle."""
-        while True:
-            await self.wait_idle()
-            with self.lock:
-                # A stray byte may have started a resync since the caller saw the line idle.
-                if self.engine.state not in (State.BUSY, State.QUIET):
-                    self.engine.disconnected()  # raises unless idle (a lost port, a closed bus)
-                    break
+        """Close and reopen the port (the engine holds requests meanwhile), once the transaction on the wire
+        (if any) has ended."""
+        self._stop_burst()
+        await self._go_offline()
         await self._stop_thread()
         self.engine.baudrate = baudrate
         port = await self._open()  # a failure closes the line for good (the bus tells the engine)

@@ -90,6 +90,7 @@ class LineEngine:
         self.max_requests_between = max_requests_between
         self.state = OFFLINE
         self.deadline = INF
+        self._going_offline = False  # asked offline while busy: at the end of the transaction (see disconnected)
         self.counters = LineCounters()
         self.link = LinkLatency(bound=self.timing.link_extra_max)
         self.counters.link = self.link
@@ -156,17 +157,27 @@ class LineEngine:
                 self.on_state_change(IDLE)
         return self._start_next(now)
 
-    def disconnected(self) -> None:
-        """The driver closes the port on purpose (reopen); requests wait.  Only when idle."""
-        if self.state is not IDLE:
-            raise InvalidArgument(f"cannot take the line offline while {self.state.value}")
-        self.state = OFFLINE
-        self.deadline = INF
+    def disconnected(self) -> bool:
+        """The driver is to close the port on purpose (reopen); requests wait for it to be open again.
+
+        Idle: offline now (True).  With a transaction on the wire or a resync under way: offline once it ends
+        (False; the state tells when), and no queued request goes meanwhile: a program that keeps requests
+        queued (telemetry) would otherwise never leave the line idle for the reopen.
+        """
+        if self.state is IDLE:
+            self.state = OFFLINE
+            self.deadline = INF
+            return True
+        if self.state is BUSY or self.state is QUIET:
+            self._going_offline = True
+            return False
+        raise InvalidArgument(f"cannot take the line offline while {self.state.value}")
 
     def lost(self, reason: str, *, reconnect: bool) -> None:
         """The port went away: everything waiting fails with PortLost."""
         if self.state in (CLOSED, LOST):
             return
+        self._going_offline = False
         draining = self.state is DRAINING
         current, self._current = self._current, None
         if current is not None:
@@ -193,6 +204,7 @@ class LineEngine:
         """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""
         if self.state in (CLOSED, DRAINING):
             return
+        self._going_offline = False
         self._detach(BusClosed("bus closed"))
         self.queue.fail_all(BusClosed("bus closed"))
         if self.state is BUSY:
@@ -469,6 +481,10 @@ class LineEngine:
         that one cycle rather than waiting forever), as does one beside a stream that runs late
         (no slack at all: each overdue slot counts as one it was passed over in).
         """
+        if self._going_offline:  # (asked while busy: see disconnected)
+            self._going_offline = False
+            self.state, self.deadline = OFFLINE, INF
+            return None
         source = self._source
         queue = self.queue
         self._hold_wake = INF  # when a request or offer kept back by a hold may go (see _hold)
