@@ -23,6 +23,7 @@ from ics35_async import (
     Eeprom,
     IcsError,
     InvalidArgument,
+    PortBusy,
     PortLost,
     Priority,
     ReplyError,
@@ -32,6 +33,7 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
+from ics35_async.drivers import core
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
@@ -344,6 +346,23 @@ async def test_an_open_given_up_on_does_not_make_the_next_open_find_the_port_bus
             assert await retry.servo(2).read_stretch() == 12
         finally:
             await retry.aclose()
+    finally:
+        sim.go_on.set()
+        await bus.aclose()
+        sim.close()
+
+
+async def test_an_open_behind_a_given_up_open_that_hangs_is_refused_in_words(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The next open waited behind the given-up one for as long as it hung (an RFC 2217 handshake, a bridge),
+    # with no bound and no word; it now gives up after OPENING_WAIT, saying why.
+    monkeypatch.setattr(core, "OPENING_WAIT", 0.2)
+    sim = SlowToOpen()
+    bus = open_bus(sim, **FAST)
+    try:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(bus.open(), 0.05)
+        with pytest.raises(PortBusy, match="an earlier open of this port in this program"):
+            await asyncio.wait_for(open_bus(sim, **FAST).open(), GUARD)
     finally:
         sim.go_on.set()
         await bus.aclose()

@@ -37,7 +37,7 @@ from typing import Any, Protocol
 import anyio
 
 from ..engine import FlushInput, LineEngine, Output, Request, State
-from ..errors import IcsError, InvalidArgument, PortLost, error_text
+from ..errors import IcsError, InvalidArgument, PortBusy, PortLost, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
 from ..transports.wire_device import WireDevice
@@ -125,17 +125,30 @@ def running_loop() -> object | None:
 # program.  So a new opening waits for the earlier one's thread to end (see DriverCore._open).
 _OPENINGS: dict[object, threading.Event] = {}
 _OPENINGS_LOCK = threading.Lock()
+OPENING_WAIT = 2.0
+"""Seconds a new opening of a port waits for an earlier one of this process to end (given up on, its thread
+may hang: an RFC 2217 handshake, a bridge); then it is refused as PortBusy, saying so."""
 
 
-async def _after_earlier_opening(key: object) -> threading.Event:
-    """Wait until no thread of this process is opening the port ``key``; return the new opening's event."""
+async def _after_earlier_opening(key: object, target: object) -> threading.Event:
+    """Wait until no thread of this process is opening the port ``key``; return the new opening's event.
+
+    Raises:
+        PortBusy: an earlier opening has not ended within :data:`OPENING_WAIT`.
+    """
     delay = 0.0005
+    give_up = anyio.current_time() + OPENING_WAIT
     while True:
         with _OPENINGS_LOCK:
-            earlier = _OPENINGS.get(key)
-            if earlier is None or earlier.is_set():
+            if key not in _OPENINGS:
                 ended = _OPENINGS[key] = threading.Event()
                 return ended
+        if anyio.current_time() >= give_up:
+            raise PortBusy(
+                errno.EBUSY,
+                f"{target!r}: an earlier open of this port in this program has not ended after {OPENING_WAIT:g} s"
+                " (given up on, it may hang: a bridge or an RFC 2217 handshake); try again later",
+            )
         await anyio.sleep(delay)
         delay = min(delay * 2, 0.02)
 
@@ -271,9 +284,10 @@ class DriverCore:
         started: list[bool] = []
         lock = threading.Lock()
         key = self.target if isinstance(self.target, str) else id(self.target)
-        ended = await _after_earlier_opening(key)
+        ended = await _after_earlier_opening(key, self.target)
 
         def opening() -> Port:
+            handed = False  # the port went to the caller, who ends the opening (after closing it, if cancelled)
             try:
                 with lock:
                     if abandoned:  # given up on before this thread began: nothing to open
@@ -291,20 +305,25 @@ class DriverCore:
                         port.close()
                     else:
                         opened.append(port)
+                        handed = True
                 return port
             finally:
-                _opening_ended(key, ended)
+                if not handed:
+                    _opening_ended(key, ended)
 
         try:
-            return await self._in_thread(opening)
+            port = await self._in_thread(opening)
         except BaseException:
             with lock:
                 abandoned.append(True)
-                if not started:  # (an executor may never run it now)
-                    _opening_ended(key, ended)
+                ends_here = not started or bool(opened)  # (never run, or its port handed over)
             for port in opened:
                 port.close()
+            if ends_here:
+                _opening_ended(key, ended)
             raise
+        _opening_ended(key, ended)
+        return port
 
     async def _in_thread(self, call: Callable[[], Port]) -> Port:
         """Run a blocking ``call`` in a thread of its own, which ends with it.
