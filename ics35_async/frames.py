@@ -91,7 +91,7 @@ class StreamStats:
     """What a stream has done so far (:attr:`Stream.stats <ics35_async.Stream.stats>`); times in seconds.
 
     - ``cycles``: cycles started; ``rate_hz``: cycles per second, from the first cycle's start to the newest
-      frame's (0 until two cycles have run).
+      frame's cycle start (0 until two cycles have run).
     - ``cycle_time_p50`` .. ``cycle_time_max``: how long a cycle took, start to frame, over the
       last ``history`` cycles.
     - ``jitter``: standard deviation of the interval between cycle starts.

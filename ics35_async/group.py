@@ -227,10 +227,13 @@ class GroupStream(FrameIterator[GroupFrame]):
         await self.aclose()
 
     def __repr__(self) -> str:
-        lines = ", ".join(f"{line}: {list(s.ids)} {s._pace()}" for line, s in self.streams.items())
         lives = {s._life() for s in self.streams.values()}
-        life = "closed" if self._closed else lives.pop() if len(lives) == 1 else "running"
-        return f"<GroupStream {lines}, {life}>"
+        if self._closed or len(lives) == 1:  # (one state for all: said once)
+            lines = ", ".join(f"{line}: {list(s.ids)} {s._pace()}" for line, s in self.streams.items())
+            return f"<GroupStream {lines}, {'closed' if self._closed else lives.pop()}>"
+        # Lines in different states (one ended by its lost port, the others running): each says its own.
+        lines = ", ".join(f"{line}: {list(s.ids)} {s._pace()} {s._life()}" for line, s in self.streams.items())
+        return f"<GroupStream {lines}>"
 
     async def aclose(self) -> None:
         """Stop every line's stream; the buses stay open."""
