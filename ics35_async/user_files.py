@@ -39,8 +39,10 @@ def read_user_text(path: str | Path, expected: str) -> str:
     """The text of the file at ``path``; ``expected`` says what it should be, e.g. ``"a motion is UTF-8 JSON"``.
 
     Raises:
-        UnreadableText: no such file, a directory, not readable, binary, or not UTF-8.
+        UnreadableText: an empty path, no such file, a directory, not readable, binary, or not UTF-8.
     """
+    if isinstance(path, str) and not path.strip():  # (a script's unset variable: pathlib reads "" as ".")
+        raise UnreadableText(f"the path is empty; give a file name ({expected})")
     try:
         raw = Path(path).read_bytes()
     except FileNotFoundError:
@@ -62,14 +64,15 @@ def decode_user_text(raw: bytes, expected: str) -> str:
         raise UnreadableText(f"is UTF-16 text ({expected}: save it as UTF-8)")
     if b"\0" in raw:  # no text holds a NUL byte; most binary files do (and UTF-16 without its mark)
         raise UnreadableText(f"not a text file ({expected})")
+    body = raw.removeprefix(codecs.BOM_UTF8)  # (its offsets are the ones the codec names)
     try:
-        return raw.decode("utf-8-sig")
+        return body.decode("utf-8")
     except UnicodeDecodeError as exc:
-        if _CONTROL.search(raw):  # (a program's header starts with one: 0x7f ELF)
+        if _CONTROL.search(body):  # (a program's header starts with one: 0x7f ELF)
             raise UnreadableText(f"not a text file ({expected})") from None
-        line = raw.count(b"\n", 0, exc.start) + 1
+        line = body.count(b"\n", 0, exc.start) + 1
         raise UnreadableText(
-            f"not UTF-8 text: byte 0x{raw[exc.start]:02x} on line {line} ({expected}: save it as UTF-8)"
+            f"not UTF-8 text: byte 0x{body[exc.start]:02x} on line {line} ({expected}: save it as UTF-8)"
         ) from None
 
 

@@ -190,7 +190,7 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
         raise InvalidArgument(f"a robot description is a TOML file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        text = read_user_text(path, "a robot file is UTF-8 TOML")
+        text = read_user_text(source, "a robot file is UTF-8 TOML")
     except UnreadableText as exc:
         raise DescriptionError(str(path), "", str(exc)) from None
     try:

@@ -105,7 +105,7 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
         raise InvalidArgument(f"a motion is a Motion, a JSON file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        data = json.loads(read_user_text(path, "a motion is UTF-8 JSON"))
+        data = json.loads(read_user_text(source if isinstance(source, str) else path, "a motion is UTF-8 JSON"))
     except UnreadableText as exc:
         raise MotionError(str(path), "", str(exc)) from None
     except json.JSONDecodeError as exc:

@@ -60,6 +60,8 @@ class TransactionRecorder:
     """Writes one line per transaction to ``target``, a path (created, and closed by :meth:`close`) or a text stream."""
 
     def __init__(self, target: str | Path | TextIO) -> None:
+        if isinstance(target, str) and not target.strip():  # (a script's unset variable: "" reads as ".")
+            raise InvalidArgument("the recording's path is empty; give a file name")
         if isinstance(target, (str, Path)):
             self._stream: TextIO = open(target, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
             self._owned = True
@@ -149,6 +151,8 @@ def load_recording(source: str | Path | TextIO | Iterable[str]) -> list[Entry]:
         OSError: the file cannot be read.
     """
     if isinstance(source, (str, Path)):
+        if isinstance(source, str) and not source.strip():  # (a script's unset variable: "" reads as ".")
+            raise InvalidArgument("the recording's path is empty; give a file name")
         try:
             text = decode_user_text(Path(source).read_bytes(), "a recording is UTF-8 text")
         except UnreadableText as exc:

@@ -132,7 +132,7 @@ def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentPa
 
 
 def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
-    if args.replay:
+    if args.replay is not None:  # (an empty one, a script's unset variable, is refused, not taken for none)
         return ReplayDevice(args.replay)
     ids = [] if args.ids.strip().lower() == "none" else parse_ids(args.ids)
     replug_after = parse_seconds(args.replug_after, "--replug-after") if args.replug_after else DEFAULT_REPLUG_AFTER
@@ -184,8 +184,9 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_asyn
     except InvalidArgument as exc:
         parser.error(str(exc))
     except OSError as exc:  # (only the --replay or --record file is opened here: named with its option)
-        option = "--replay" if args.replay else "--record"
-        parser.error(f"{option} {args.replay or args.record}: {exc.strerror or error_text(exc)}")
+        option = "--replay" if args.replay is not None else "--record"
+        path = args.replay if args.replay is not None else args.record
+        parser.error(f"{option} {path}: {exc.strerror or error_text(exc)}")
     if args.tap is not None and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
     if args.console and not isinstance(device, VirtualLine):
