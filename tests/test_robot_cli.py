@@ -882,7 +882,8 @@ def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
 @pytest.mark.parametrize(
     ("safety", "on_stop", "phrase", "free"),
     [
-        (None, "hold", 'action = "stop": every joint it opened was freed (torque off', {"neck", "hip"}),
+        (None, "hold", 'action = "free": joint hip was freed, but joint hip\'s silent servo', {"hip"}),
+        ({"action": "stop"}, "hold", 'action = "stop": every joint it opened was freed (torque off', {"neck", "hip"}),
         ({"action": "free"}, "hold", 'action = "free": joint hip was freed, but joint hip\'s silent servo', {"hip"}),
         ({"action": "hold"}, "hold", 'action = "hold": every joint it opened keeps its last target', set()),
         ({"action": "hold"}, "free", "the command then freed every joint it opened (--on-stop free)", {"neck", "hip"}),

@@ -114,7 +114,7 @@ class SafetySpec:
 
     max_temperature_c: float | None = None
     max_current: int | None = None
-    action: str = "stop"
+    action: str = "free"
     continue_on_offline: bool = False
     telemetry_per_cycle: int = 2
 
@@ -388,7 +388,7 @@ def _safety(source: str, value: object) -> SafetySpec:
     r = _Reader(source, "safety", value)
     temperature = r.number("max_temperature_c", 0, 150)
     current = r.integer("max_current", 1, 63)
-    action = r.text("action") or "stop"
+    action = r.text("action") or "free"
     if action not in SAFETY_ACTIONS:
         raise r.error("action", f"must be one of {', '.join(SAFETY_ACTIONS)}, not {action!r}")
     on_offline = r.flag("continue_on_offline")
