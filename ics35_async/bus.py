@@ -314,6 +314,10 @@ class Bus:
         if driver is None or not self.is_open:
             raise self._engine.closed_error()
         driver.check_caller()
+        if self._engine.source is not None and not self._reopening:
+            # A stream closed during a burst is detached where the burst stops (see attach_source): stop it now
+            # (one transaction at most), so that a reopen right after the close finds the stream gone.
+            driver.call_now(lambda t: None)
         if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
         self._reopening = True  # attach_source refuses from here on
@@ -475,7 +479,7 @@ class Bus:
         self._closing_outs.add(done)
 
     def close_out_ends(self, done: Any) -> None:
-        """The close-out :meth:`close_out_begins` was told of has ended."""
+        """The close-out :meth:`close_out_begins` was told of, with ``done``, has ended."""
         self._closing_outs.discard(done)
 
     def detach_source(self, source: BackgroundSource) -> None:

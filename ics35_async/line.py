@@ -60,7 +60,7 @@ class Line(Protocol):
         """A stream's close-out is under way until ``done`` (an ``anyio.Event``) is set: the line's close waits."""
 
     def close_out_ends(self, done: Any) -> None:
-        """That close-out has ended."""
+        """The close-out told of with ``done`` has ended."""
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line."""

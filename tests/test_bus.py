@@ -33,10 +33,10 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
-from ics35_async.drivers import core
+from ics35_async.drivers import burst, core
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
-from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 # For a silent ID's request that must still be on the wire when the port goes: a loaded machine can
 # stall the test for longer than FAST's allowance between the request and the unplug.
@@ -799,3 +799,22 @@ async def test_a_reopen_beside_a_program_polling_waits_for_the_line_and_the_bus_
                 await asyncio.gather(*pollers)
     finally:
         sim.close()
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_a_reopen_right_after_a_streams_close_is_not_refused(
+    driver: str, pty_sim: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A stream closed during a burst is detached where the burst stops: a reopen straight after the close
+    # found it still attached and was refused ("stop the running stream before reopening the bus").
+    monkeypatch.setenv(burst.ENV, "1")
+    path = pty_sim("--fast", "--ids", "1-8").path
+    async with open_bus(path, driver=driver, **PATIENT) as bus:
+        assert bus.describe()["burst_path"] is True
+        for _ in range(10):
+            async with bus.stream(range(1, 9)) as stream:
+                await stream.next_frame()
+                await stream.next_frame()
+            await bus.reopen()
+        assert await bus.servo(3).read_stretch() > 0

@@ -57,7 +57,12 @@ def describe(record: Transaction) -> str:
 
 
 class TransactionRecorder:
-    """Writes one line per transaction to ``target``, a path (created, and closed by :meth:`close`) or a text stream."""
+    """Writes one line per transaction to ``target``, a path (created, and closed by :meth:`close`) or a text stream.
+
+    Raises:
+        InvalidArgument: an empty path (nothing created).
+        OSError: the file cannot be created.
+    """
 
     def __init__(self, target: str | Path | TextIO) -> None:
         if isinstance(target, str) and not target.strip():  # (a script's unset variable: "" reads as ".")
