@@ -679,14 +679,21 @@ async def test_an_id_offline_when_its_port_was_lost_is_still_probed_and_comes_ba
         assert not [t for t in sim.log_since(seq) if t.command in POSITION_COMMANDS]  # nothing moved
 
 
-async def test_a_loop_that_sets_every_target_each_cycle_keeps_a_hold_with_lift_holds_false() -> None:
+@pytest.mark.parametrize("unit", ["counts", "degrees"])
+async def test_a_loop_that_sets_every_target_each_cycle_keeps_a_hold_with_lift_holds_false(unit: str) -> None:
     # A hold may begin after the frame a loop looked at: filtering its targets by that frame's held, the loop
-    # lifted the hold at once and threw the restarted servo to its target.
+    # lifted the hold at once and threw the restarted servo to its target.  (In degrees, set_targets_degrees,
+    # the streaming page's unit, had no lift_holds.)
     ids = [1, 2, 3]
     sim = make_sim(ids)
     async with open_bus(sim, **FAST) as bus, bus.stream(ids, offline_after=2, probe_interval=0.02) as stream:
-        pose = {i: start_position(i) + 900 for i in ids}
-        stream.set_targets(pose)
+        if unit == "counts":
+            pose: dict[int, float] = {i: start_position(i) + 900 for i in ids}
+            set_targets: Callable[..., None] = stream.set_targets
+        else:
+            pose = {i: 10.0 * i for i in ids}
+            set_targets = stream.set_targets_degrees
+        set_targets(pose)
         await frames_until(stream, lambda f: len(f.positions) == 3)
         knee = sim.remove_servo(2)
         await frames_until(stream, lambda f: 2 in f.offline)
@@ -694,41 +701,14 @@ async def test_a_loop_that_sets_every_target_each_cycle_keeps_a_hold_with_lift_h
         sim.power_cycle(2)
         seq = sim.transactions
         while 2 not in stream.held:
-            stream.set_targets(pose, lift_holds=False)  # the loop's every cycle
+            set_targets(pose, lift_holds=False)  # the loop's every cycle
             await next_frame(stream)
         for _ in range(5):
-            stream.set_targets(pose, lift_holds=False)
+            set_targets(pose, lift_holds=False)
             await next_frame(stream)
         assert [t for t in sim.log_since(seq) if t.servo_id == 2 and t.command == "position"] == []
         assert knee.free
-        stream.set_targets({2: pose[2]})  # the program decides: the hold is lifted
-        await frames_until(stream, lambda f: 2 in f.positions)
-        assert stream.held == {}
-
-
-async def test_a_loop_in_degrees_keeps_a_hold_with_lift_holds_false() -> None:
-    # A gait computed in degrees (set_targets_degrees, the streaming page's unit) had no lift_holds: each
-    # pass lifted a hold that began after the frame it looked at, throwing a restarted servo to its target.
-    ids = [1, 2, 3]
-    sim = make_sim(ids)
-    async with open_bus(sim, **FAST) as bus, bus.stream(ids, offline_after=2, probe_interval=0.02) as stream:
-        pose = {i: 10.0 * i for i in ids}
-        stream.set_targets_degrees(pose)
-        await frames_until(stream, lambda f: len(f.positions) == 3)
-        knee = sim.remove_servo(2)
-        await frames_until(stream, lambda f: 2 in f.offline)
-        sim.add_device(knee)
-        sim.power_cycle(2)
-        seq = sim.transactions
-        while 2 not in stream.held:
-            stream.set_targets_degrees(pose, lift_holds=False)  # the loop's every cycle
-            await next_frame(stream)
-        for _ in range(5):
-            stream.set_targets_degrees(pose, lift_holds=False)
-            await next_frame(stream)
-        assert [t for t in sim.log_since(seq) if t.servo_id == 2 and t.command == "position"] == []
-        assert knee.free
-        stream.set_targets_degrees({2: pose[2]})  # the program decides: the hold is lifted
+        set_targets({2: pose[2]})  # the program decides: the hold is lifted
         await frames_until(stream, lambda f: 2 in f.positions)
         assert stream.held == {}
 
