@@ -243,5 +243,6 @@ def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_
     assert (safe.watch, safe.free, list(safe.left_out)) == ([2, 5], [], [1])
     assert "free command" in safe.left_out[1]
     assert (limp.watch, limp.free, limp.left_out, limp.streamed) == ([2], [1, 5], {}, [1, 2, 5])
+    assert safe.silent == limp.silent == [5]  # (a caller holding 5 at a target cannot tell it still holds)
     assert (reading.position, reading.how, reading.protocol) == (None, None, "ICS 3.5")
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}

@@ -623,6 +623,30 @@ def test_a_held_servo_that_stopped_answering_is_neither_jogged_nor_streamed_its_
     assert unplugged.free and unplugged.position == 6000
 
 
+def test_a_held_servo_silent_as_a_live_plot_starts_is_refused_by_name_not_streamed_its_old_target(serve: Any) -> None:
+    # Its supply dropped while nothing asked it: the plot's probe found it silent and streamed it its held
+    # target ("kept held"); back restarted (free, turned elsewhere) it was thrown there.
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    unplugged = sim.remove_servo(1)
+    started = post(client, "/api/live/start", {"ids": [1, 3], "rate_hz": 2})
+    assert started.status_code == 409 and "servo 1" in started.json()["error"], started.text
+    assert client.get("/api/status").json()["live"] is None
+    assert "stopped answering" in client.get("/api/status").json()["motion_off"]["1"]  # (its jogs refused too)
+    unplugged.power_cycle()
+    unplugged.move_by_hand(6000)
+    sim.add_device(unplugged)
+    assert post(client, "/api/live/start", {"ids": [1, 3]}).status_code == 409  # (in doubt until Free or Hold)
+    assert post(client, "/api/servo/1/move", {"position": 8100}).status_code == 409
+    time.sleep(0.1)
+    assert unplugged.free and unplugged.position == 6000
+    assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
+    assert post(client, "/api/live/start", {"ids": [1, 3]}).json()["kept_held"] == [1]
+    post(client, "/api/live/stop")
+    assert not unplugged.free and unplugged.target == 6000
+
+
 def test_a_streamed_servo_held_by_a_page_that_went_offline_is_not_jogged_from_its_old_target(serve: Any) -> None:
     client, sim = serve((1, 3))
     sim.servo(1).move_by_hand(8000)

@@ -44,12 +44,16 @@ class StreamPlan:
 
     ``watch``: IDs read with ICS 3.6's read (``Stream(watch=...)``), torque
     left alone; ``free``: ICS 3.5 IDs read with the free command (only with
-    ``free_ics35``); ``left_out``: IDs not to stream, and why.
+    ``free_ics35``); ``left_out``: IDs not to stream, and why; ``silent``:
+    the IDs (in ``watch`` or ``free``) that answered nothing as they were
+    probed: a servo held at a target may have lost its supply and restarted,
+    free and elsewhere, so a caller that would stream it that target knows.
     """
 
     watch: list[int] = field(default_factory=list)
     free: list[int] = field(default_factory=list)
     left_out: dict[int, str] = field(default_factory=dict)
+    silent: list[int] = field(default_factory=list)
 
     @property
     def streamed(self) -> list[int]:
@@ -71,6 +75,7 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
             readable: bool | None = await Servo(line, sid).has_position_read()
         except ReplyError:
             readable = None
+            plan.silent.append(sid)
         if readable or (readable is None and not free_ics35):
             plan.watch.append(sid)
         elif free_ics35:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections import deque
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
 from .. import protocol
@@ -73,13 +73,18 @@ class LiveView:
         rate_hz: float = LIVE_RATE_HZ,
         holding: Mapping[int, int] | None = None,
         unsure: Collection[int] = (),
+        lost_touch: Callable[[list[int]], None] | None = None,
     ) -> LiveView:
         """Stream ``ids``; an ICS 3.5 servo in ``holding`` ({ID: the target a page holds it at}) is sent that
         target, not freed; one in ``unsure`` (held before the port was lost or it stopped answering) is refused:
         freed, a servo that kept its supply would go limp, and sent its old target, one that restarted would be
-        thrown there."""
+        thrown there.  A servo in ``holding`` silent as the plot starts has stopped answering: it is refused as
+        well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it)."""
         plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
-        doubtful = [sid for sid in plan.free if sid in unsure]
+        silent_held = [sid for sid in plan.silent if sid in (holding or {})]
+        if silent_held and lost_touch is not None:
+            lost_touch(silent_held)
+        doubtful = [sid for sid in plan.free if sid in unsure or sid in silent_held]
         if doubtful:
             who = ", ".join(map(str, doubtful))
             raise UnsafeOperation(

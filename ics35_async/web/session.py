@@ -869,7 +869,9 @@ class LineSession:
         async with self.exclusive:
             holding, unsure = self._holding_split()
             bus = await self._line_at_its_rate()
-            self.live = await LiveView.start(bus, ids, rate_hz=rate_hz, holding=holding, unsure=unsure)
+            self.live = await LiveView.start(
+                bus, ids, rate_hz=rate_hz, holding=holding, unsure=unsure, lost_touch=self.lost_touch
+            )
         # A servo the stream frees to read it (ICS 3.5, held by no page) may fall: a jog from an old target
         # would throw it back there.  One a page held is streamed its target, and its jogs go on through it.
         self._switch_motion_off(self.live.freed, "the live plot freed it to read it (ICS 3.5)")
