@@ -700,6 +700,37 @@ def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve:
     post(client, "/api/live/stop")
 
 
+def test_a_connect_again_to_the_same_port_leaves_a_held_servos_hold_in_doubt_not_forgotten(serve: Any) -> None:
+    # Connect again forgot the hold: the next live plot freed the held joint unasked.  The port was closed
+    # and opened meanwhile: the servo may still hold or may have restarted, so the plot asks first.
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    status = client.get("/api/status").json()
+    for baud in (status["baud"], 625000, status["baud"]):  # (the same rate, another, and back)
+        assert post(client, "/api/connect", {"port": status["port"], "baud": baud}).status_code == 200
+        refused = post(client, "/api/live/start", {"ids": [1, 3]})
+        assert refused.status_code == 409 and "servo 1" in refused.json()["error"], refused.text
+        assert client.get("/api/status").json()["motion_on"] == []  # (the page unticks its switch)
+        time.sleep(0.1)
+        assert not sim.servo(1).free and sim.servo(1).target == 8000
+    assert client.get("/api/servo/1/eeprom").status_code == 200  # (the Servo page reads it as it opens)
+    assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
+    assert post(client, "/api/live/start", {"ids": [1]}).json()["kept_held"] == [1]
+    post(client, "/api/live/stop")
+    assert not sim.servo(1).free and sim.servo(1).target == 8000
+
+
+def test_a_connect_to_another_port_forgets_the_holds_of_the_old_one(serve: Any) -> None:
+    client, sim = serve((1,))
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).status_code == 200
+    assert post(client, "/api/connect", {"port": "sim://?ids=1"}).status_code == 200
+    started = post(client, "/api/live/start", {"ids": [1]})  # (the other line's servo 1 was never held)
+    assert started.status_code == 200 and started.json()["kept_held"] == [], started.text
+    post(client, "/api/live/stop")
+    assert not sim.servo(1).free  # (the old line's servo was left holding)
+
+
 def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(serve: Any) -> None:
     client, sim = serve((1,))
     sim.add_device(VirtualServo(5, baud_rate=1250000))

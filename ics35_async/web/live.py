@@ -76,9 +76,9 @@ class LiveView:
         lost_touch: Callable[[list[int]], None] | None = None,
     ) -> LiveView:
         """Stream ``ids``; an ICS 3.5 servo in ``holding`` ({ID: the target a page holds it at}) is sent that
-        target, not freed; one in ``unsure`` (held before the port was lost or it stopped answering) is refused:
-        freed, a servo that kept its supply would go limp, and sent its old target, one that restarted would be
-        thrown there.  A servo in ``holding`` silent as the plot starts has stopped answering: it is refused as
+        target, not freed; one in ``unsure`` (held before the port was lost or reopened, or it stopped answering)
+        is refused: freed, a servo that kept its supply would go limp, and sent its old target, one that restarted
+        would be thrown there.  A servo in ``holding`` silent as the plot starts has stopped answering: it is refused as
         well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it)."""
         plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
         silent_held = [sid for sid in plan.silent if sid in (holding or {})]
@@ -88,11 +88,11 @@ class LiveView:
         if doubtful:
             who = ", ".join(map(str, doubtful))
             raise UnsafeOperation(
-                f"servo {who} was held by a Servo page before the port was lost or it stopped answering: it may "
-                "still hold there, or have restarted, free and elsewhere, and the live plot reads an ICS 3.5 servo "
-                "only by freeing it or by sending it a target; say which on its Servo page (Free lets it go, Hold "
-                "here holds it where it stands now), then start the plot again; nothing that moves or frees a servo "
-                "was sent"
+                f"servo {who} was held by a Servo page before the port was lost or opened again, or it stopped "
+                "answering: it may still hold there, or have restarted, free and elsewhere, and the live plot reads "
+                "an ICS 3.5 servo only by freeing it or by sending it a target; say which on its Servo page (Free "
+                "lets it go, Hold here holds it where it stands now), then start the plot again; nothing that moves "
+                "or frees a servo was sent"
             )
         kept = {sid: target for sid, target in (holding or {}).items() if sid in plan.free}
         stream = bus.stream(plan.streamed, rate_hz=rate_hz, watch=plan.watch)

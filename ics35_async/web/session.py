@@ -209,7 +209,9 @@ class LineSession:
         async with self.exclusive:
             same = self.robot_line is None and same_port(config.url, self.config.url)
             if same or self.bus is None:
-                await self.disconnect()
+                # The same port closed and opened again: its servos' holds are in doubt, not forgotten (see
+                # disconnect); the servos of another port were never held here.
+                await self.disconnect(keep_holds=same)
                 self._switch_to(config)
             bus = self._open(config.baud, config)
             try:
@@ -275,14 +277,21 @@ class LineSession:
             adapter_latency=c.adapter_latency,
         )
 
-    async def disconnect(self) -> None:
+    async def disconnect(self, *, keep_holds: bool = False) -> None:
+        """Close the line (a robot's stays open); motion goes off.  With ``keep_holds`` (the same port is opened
+        again) the servos pages held are kept in doubt: a servo that still holds would go limp in a live plot
+        that forgot it was held, and one that restarted meanwhile would be thrown to its old target; the plot
+        refuses them by name until their Servo page frees or holds them."""
         await self.stop_live()
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
         self.motion_enabled.clear()
         self.motion_switches += 1
         self.motion_off.clear()
-        self.holding.clear()
+        if keep_holds:
+            self.holding = {sid: (target, None) for sid, (target, _) in self.holding.items()}
+        else:
+            self.holding.clear()
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
