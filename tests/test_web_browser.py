@@ -725,6 +725,37 @@ def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(b
         expect(p.locator("#jog-target")).to_have_text("6000")
 
 
+def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(browser: Browser) -> None:
+    # The page unticks a switch whose motion the server switched off (here: a lost port).  A status pushed
+    # between the tick and the server's answer still says so: it unticked the switch, and the server then
+    # switched motion on behind a page showing it off.
+    line = PtyLine((1, 3))
+    servo = line.sim.servo(1)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        until(lambda: not servo.free, "enable motion never held servo 1")
+        line.sim.unplug()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
+        held: list[Route] = []
+        p.route("**/api/servo/1/motion", lambda route: held.append(route))  # the request waits here until continued
+        p.click("#motion-switch")
+        until(lambda: len(held) == 1, "enable motion was never asked")
+        # Another change on the server (servo 3's motion switched on elsewhere): a status is pushed.
+        other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
+        assert other.status == 200, other.text()
+        time.sleep(0.5)  # (the push reaches the page)
+        expect(p.locator("#motion-switch")).to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_disabled()  # not on before the server says so
+        held[0].continue_()
+        expect(p.locator("#jog-plus")).to_be_enabled()
+        expect(p.locator("#motion-switch")).to_be_checked()
+        p.unroute("**/api/servo/1/motion")
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

@@ -94,9 +94,10 @@ function showStatus(s) {
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
-  // Motion the server switched off (a lost port; a live plot that took the servo over and freed it).
+  // Motion the server switched off (a lost port; a live plot that took the servo over and freed it). Not
+  // over a tick the server has yet to take: a status pushed meanwhile still says motion is off.
   const off = (s.motion_off || {})[servoId()];
-  if (off && $("#motion-switch").checked) {
+  if (off && $("#motion-switch").checked && !state.servoMotionAsked) {
     $("#motion-switch").checked = false; setMotion(false);
     if ($("#message").hidden) say(`motion is off for servo ${servoId()}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
   }
@@ -419,6 +420,7 @@ async function toggleMotion() {
   state.servoMotionAsked += 1;
   try {
     const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
+    $("#motion-switch").checked = reply.enabled;  // (the server's answer, whatever was pushed meanwhile)
     setMotion(reply.enabled);
     state.motionFor = reply.enabled ? servoId() : null;  // (the servo the switch is on for)
     if (reply.enabled) {  // held where it stands: the slider starts there
