@@ -341,7 +341,7 @@ def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limit
     assert sim.servo(1).target is None
     sim.servo(1).move_by_hand(7000)
     enabled = post(client, "/api/servo/1/motion", {"enabled": True}).json()
-    assert enabled == {"enabled": True, "limits": [6000, 9000], "position": 7000}
+    assert enabled == {"enabled": True, "limits": [6000, 9000], "position": 7000, "motion_switches": 1}
     assert sim.servo(1).target == 7000  # held where it stood, not moved
     outside = post(client, "/api/servo/1/move", {"position": 9500})
     assert outside.status_code == 400 and "6000..9000" in outside.json()["error"]
@@ -351,6 +351,21 @@ def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limit
     post(client, "/api/servo/1/free")
     assert sim.servo(1).free
     assert post(client, "/api/servo/1/move", {"position": 8000}).status_code == 409  # free switches motion off
+
+
+def test_the_motion_count_moves_only_when_motion_changes_and_the_answer_to_a_switch_carries_it(serve: Any) -> None:
+    # A page takes a pushed status older than the server's answer to its own switch (the two travel apart)
+    # for what it is: the count orders them.
+    client, _ = serve((1, 3))
+    count = client.get("/api/status").json()["motion_switches"]
+    assert post(client, "/api/servo/1/motion", {"enabled": False}).json()["motion_switches"] == count  # (was off)
+    assert client.get("/api/servo/1/eeprom").status_code == 200
+    assert post(client, "/api/servo/1/free").status_code == 200
+    assert client.get("/api/status").json()["motion_switches"] == count
+    on = post(client, "/api/servo/1/motion", {"enabled": True}).json()
+    assert on["enabled"] and on["motion_switches"] > count
+    assert client.get("/api/status").json()["motion_switches"] == on["motion_switches"]
+    assert post(client, "/api/servo/1/motion", {"enabled": False}).json()["motion_switches"] > on["motion_switches"]
 
 
 def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:

@@ -756,6 +756,47 @@ def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(b
         p.unroute("**/api/servo/1/motion")
 
 
+def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_switch_ticked(browser: Browser) -> None:
+    # The status the server pushes and its answer to the tick travel apart: one sent just before the tick was
+    # taken (saying motion is off) can reach the page after the answer.  It unticked the switch of a servo
+    # whose motion the server had just switched on.
+    line = PtyLine((1, 3))
+    servo = line.sim.servo(1)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        holding, late = [False], []
+
+        def relay(ws: Any) -> None:  # the page's WebSocket through this test: its pushes held back when asked
+            server = ws.connect_to_server()
+            server.on_message(lambda m: late.append((ws, m)) if holding[0] else ws.send(m))
+            ws.on_message(server.send)
+
+        p.route_web_socket("**/ws", relay)
+        p.reload()
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        until(lambda: not servo.free, "enable motion never held servo 1")
+        line.sim.unplug()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
+        holding[0] = True
+        other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
+        assert other.status == 200, other.text()
+        deadline = time.monotonic() + GUARD
+        while not late:  # a status pushed (it says motion is off for servo 1)
+            assert time.monotonic() < deadline, "no status was pushed"
+            p.wait_for_timeout(20)  # (Playwright relays the WebSocket only while the test waits on it)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-plus")).to_be_enabled()  # the server's answer: on
+        holding[0] = False
+        for ws, message in late:
+            ws.send(message)
+        p.wait_for_timeout(300)
+        expect(p.locator("#motion-switch")).to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_enabled()
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""

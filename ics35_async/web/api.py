@@ -260,7 +260,12 @@ async def motion(request: Request, session: LineSession) -> Any:
         position = await session.enable_motion(sid)
     else:
         session.disable_motion(sid)
-    return {"enabled": sid in session.motion_enabled, "limits": session.check_limits(sid), "position": position}
+    return {
+        "enabled": sid in session.motion_enabled,
+        "limits": session.check_limits(sid),
+        "position": position,
+        "motion_switches": session.motion_switches,  # (a status counting fewer is from before this answer)
+    }
 
 
 async def position(request: Request, session: LineSession) -> Any:

@@ -111,8 +111,9 @@ class LineSession:
         self.live: LiveView | None = None
         self.telemetry: dict[int, dict[str, Any]] = {}
         self.motion_enabled: set[int] = set()  # servos a page switched motion on for
-        # Counts the switchings (in the status): a page sees motion go on and off again between two of its
-        # pushes (another tab opened the servo's page) as a change, and unticks its switch.
+        # Counts the changes of motion on or off (in the status and in the answer to a page's switch): the
+        # status pushed to a page and the answer travel apart, and a page takes a status counting fewer than
+        # its answer for one from before it (it would untick a switch the server has just switched on).
         self.motion_switches = 0
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
         self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
@@ -285,8 +286,9 @@ class LineSession:
         await self.stop_live()
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
+        if self.motion_enabled or self.motion_off:
+            self.motion_switches += 1
         self.motion_enabled.clear()
-        self.motion_switches += 1
         self.motion_off.clear()
         if keep_holds:
             self.holding = {sid: (target, None) for sid, (target, _) in self.holding.items()}
@@ -601,8 +603,9 @@ class LineSession:
         after = result.read_back or plan.after
         if plan.changes_id:
             self._limits.pop(servo_id, None)
+            if servo_id in self.motion_enabled:
+                self.motion_switches += 1
             self.motion_enabled.discard(servo_id)
-            self.motion_switches += 1
             self._held_now_at(servo_id, after.servo_id)
         self._limits[after.servo_id] = (after.pulse_limit_low, after.pulse_limit_high)
         if result.written:
@@ -691,9 +694,7 @@ class LineSession:
         """Torque off; where the servo stood, or None for a streamed servo the stream has no reading of (one
         not answering, freed once it answers)."""
         self._refuse_joint_motion(servo_id)
-        self.motion_enabled.discard(servo_id)
-        self.motion_switches += 1
-        self.motion_off.pop(servo_id, None)
+        self._motion_goes_off(servo_id)
         self.holding.pop(servo_id, None)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.free([servo_id])
@@ -734,8 +735,9 @@ class LineSession:
         self._motion_off_if_line_lost()  # (another servo's, switched on before a loss, stays off)
         if not self.motion_enabled:
             self._motion_line = self._line_now()  # the line this servo was just held on
+        if servo_id not in self.motion_enabled:
+            self.motion_switches += 1
         self.motion_enabled.add(servo_id)
-        self.motion_switches += 1
         self.motion_off.pop(servo_id, None)
         return position
 
@@ -765,8 +767,13 @@ class LineSession:
 
     def disable_motion(self, servo_id: int) -> None:
         """Motion off: jogs are refused again; the servo keeps holding (Free lets go)."""
+        self._motion_goes_off(servo_id)
+
+    def _motion_goes_off(self, servo_id: int) -> None:
+        """Motion off for ``servo_id`` as a page asked (no reason kept for the page: it asked)."""
+        if servo_id in self.motion_enabled or servo_id in self.motion_off:
+            self.motion_switches += 1
         self.motion_enabled.discard(servo_id)
-        self.motion_switches += 1
         self.motion_off.pop(servo_id, None)
 
     def check_limits(self, servo_id: int) -> list[int] | None:

@@ -4,7 +4,7 @@
 const $ = (sel) => document.querySelector(sel);
 const state = { status: null, servos: [], eeprom: null, plan: null, restore: null, traffic: [], trafficPaused: false,
   history: [], livePaused: false, updates: [], limits: null, liveParts: {}, liveIds: new Set(), sayingLost: false,
-  motionAsked: 0, servoMotionAsked: 0 };
+  motionAsked: 0, servoMotionAsked: 0, motionSeen: 0 };
 
 // ---------------------------------------------------------------- talking to the server
 
@@ -95,16 +95,18 @@ function showStatus(s) {
   $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
   // Motion the server switched off (a lost port; a live plot that took the servo over and freed it). Not
-  // over a tick the server has yet to take: a status pushed meanwhile still says motion is off.
+  // over a tick the server has yet to take: a status pushed meanwhile still says motion is off; nor from a
+  // status sent before the server's answer to it (counting fewer changes of motion), come after it.
+  const motionNow = !state.servoMotionAsked && (s.motion_switches ?? 0) >= state.motionSeen;
   const off = (s.motion_off || {})[servoId()];
-  if (off && $("#motion-switch").checked && !state.servoMotionAsked) {
+  if (off && $("#motion-switch").checked && motionNow) {
     $("#motion-switch").checked = false; setMotion(false);
     if ($("#message").hidden) say(`motion is off for servo ${servoId()}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
   }
   // Switched off by another page (its page opened in another tab): this one shows it locked too. Not over
   // a tick the server has yet to take.
   const on = (s.motion_on || []).includes(state.motionFor);
-  if (!on && $("#motion-switch").checked && !state.servoMotionAsked) {
+  if (!on && $("#motion-switch").checked && motionNow) {
     $("#motion-switch").checked = false; setMotion(false);
     const words = `motion was switched off for servo ${state.motionFor} (by another page); switch it on again to jog`;
     if ($("#message").hidden) say(words, "info");
@@ -421,6 +423,7 @@ async function toggleMotion() {
   try {
     const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
     $("#motion-switch").checked = reply.enabled;  // (the server's answer, whatever was pushed meanwhile)
+    state.motionSeen = Math.max(state.motionSeen, reply.motion_switches ?? 0);
     setMotion(reply.enabled);
     state.motionFor = reply.enabled ? servoId() : null;  // (the servo the switch is on for)
     if (reply.enabled) {  // held where it stands: the slider starts there
@@ -687,6 +690,7 @@ function socketSend() {
 function connectSocket() {
   socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
   socket.onopen = () => {
+    state.motionSeen = 0;  // (a server started again counts from 0)
     if (state.serverGone || state.tokenRefused) {
       state.serverGone = state.tokenRefused = false;
       say("the configurator's server is back", "info");
