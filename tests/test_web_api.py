@@ -600,6 +600,37 @@ def test_a_live_plot_keeps_a_servo_the_servo_page_holds_held_and_its_jog_goes_th
     assert sim.servo(1).target == 8100 and sim.servo(3).target == 7000  # the stream's end leaves them held
 
 
+def test_hold_here_for_a_streamed_servo_holds_it_where_it_stands_after_a_lost_port_never_where_it_stood(
+    serve: Any,
+) -> None:
+    # The stream's newest frame, all the while the port is away and for a moment after it is back, is the one
+    # from before the loss: Hold here held the servo there, throwing one that restarted elsewhere back.
+    client, sim = serve((1,))
+    assert client.get("/api/servo/1/eeprom").status_code == 200
+    post(client, "/api/live/start", {"ids": [1]})
+    deadline = time.monotonic() + GUARD
+    while (client.get("/api/live").json() or {}).get("positions", {}).get("1", -1) < 0:
+        assert time.monotonic() < deadline, "the stream never read servo 1"
+        time.sleep(0.02)
+    sim.unplug()
+    while not client.get("/api/status").json()["lost"]:
+        assert time.monotonic() < deadline, "the port was never told lost"
+        time.sleep(0.02)
+    sim.power_cycle(1)
+    sim.move_by_hand(1, 6000)
+    away = post(client, "/api/servo/1/hold")
+    assert away.status_code != 200 and "lost" in away.json()["error"], away.text
+    sim.replug()
+    held = post(client, "/api/servo/1/hold")
+    while held.status_code != 200:
+        assert time.monotonic() < deadline, f"servo 1 was never held again: {held.text}"
+        held = post(client, "/api/servo/1/hold")
+    assert held.json()["position"] == 6000, held.text
+    time.sleep(0.1)
+    assert sim.servo(1).target == 6000 and sim.servo(1).position == 6000
+    post(client, "/api/live/stop")
+
+
 def test_freeing_a_streamed_servo_that_does_not_answer_says_no_position_not_minus_one(serve: Any) -> None:
     # The stream's "not read" (-1) went to the page as the position: "servo 3: free (torque off) at -1".
     client, sim = serve((1, 3))

@@ -85,6 +85,10 @@ POSITION_AT_COMMAND = (
 )
 
 
+# How long Hold here waits for the live stream to read a servo it carries (a frame after the press).
+HOLD_READ_WAIT = 2.0
+
+
 # The line a request was last handed (:meth:`LineSession._quiet`) in the task that runs it, and its rate then:
 # a servo that did not answer there is looked for on that line only (:meth:`LineSession.no_reply`).
 _ASKED_ON: contextvars.ContextVar[tuple[Bus, int] | None] = contextvars.ContextVar("asked_on", default=None)
@@ -707,15 +711,10 @@ class LineSession:
         """Torque on where the servo stands now (the free command reads the position, then it is held there)."""
         protocol.check_id(servo_id)
         self._refuse_joint_motion(servo_id)
-        if self.live is not None and servo_id in self.live.ids:
-            position = self.live.position(servo_id)
-            if position < 0:  # (a target from elsewhere would throw it there)
-                raise UnsafeOperation(
-                    f"the live stream has no position of servo {servo_id} to hold it at: not read yet, or, "
-                    "since the port came back, held with no command sent (it may have restarted, free and "
-                    "elsewhere); press Free to have the stream read it, then hold it"
-                )
-            self.live.stream.set_target(servo_id, self.check_target(servo_id, position))
+        live = self.live
+        if live is not None and servo_id in live.ids:
+            position = await self._position_read_now(live, servo_id)
+            live.stream.set_target(servo_id, self.check_target(servo_id, position))
             self._holds(servo_id, position)
             return position
         async with self._quiet() as bus:
@@ -725,6 +724,41 @@ class LineSession:
             held = await servo.set_position(self.check_target(servo_id, position))
             self._holds(servo_id, position)
             return held
+
+    async def _position_read_now(self, live: LiveView, servo_id: int) -> int:
+        """Where the stream reads ``servo_id`` now, from a frame finished after this call.  Its newest frame
+        may be from before a lost port (all the while it is away, and for a moment after it is back): a servo
+        that restarted meanwhile, free and elsewhere, would be held there, thrown back."""
+        stream = live.stream
+
+        def refuse_unless_read() -> None:
+            bus = self.bus
+            if bus is None or bus.state is State.LOST:
+                raise PortLost(f"the port is lost: servo {servo_id} is not held; hold it once the line is back")
+            if servo_id in stream.held or servo_id in stream.offline:
+                raise UnsafeOperation(
+                    f"the live stream has no position of servo {servo_id} to hold it at: since the port came back "
+                    "or it answered again, held with no command sent (it may have restarted, free and elsewhere), "
+                    "or not answering; press Free to have the stream read it, then hold it"
+                )
+
+        refuse_unless_read()
+        before = stream.latest
+        after = -1 if before is None else before.cycle
+        position = -1
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(HOLD_READ_WAIT):  # (a cycle or two; more after a reply went missing)
+                while position < 0:
+                    frame = await stream.next_frame()
+                    if frame.cycle > after:
+                        position = frame.positions.get(servo_id, -1)
+        refuse_unless_read()  # (lost, or back, while it waited)
+        if position < 0:  # (a target from elsewhere would throw it there)
+            raise UnsafeOperation(
+                f"the live stream has no position of servo {servo_id} to hold it at: not read yet; "
+                "press Free to have the stream read it, then hold it"
+            )
+        return position
 
     async def enable_motion(self, servo_id: int) -> int:
         """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
@@ -824,6 +858,8 @@ class LineSession:
             raise UnsafeOperation(f"motion is not enabled for servo {servo_id}: switch on 'enable motion' first")
         if servo_id not in self._limits:
             await self.read_eeprom(servo_id)
+            # (while it read, the port may have been lost, or the stream held the servo: checked again)
+            return await self.move(servo_id, position)
         target = self.check_target(servo_id, position)
         if self.live is not None and servo_id in self.live.ids:
             self.live.stream.set_target(servo_id, target)
