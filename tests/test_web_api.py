@@ -412,6 +412,18 @@ def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any
     assert all(sim.servo(i).eeprom.speed != 40 for i in (1, 3, 4))
 
 
+def test_many_servos_say_not_connected_once_when_no_line_is_open(tmp_path: Any) -> None:
+    # Each servo had a row: the first "not connected", the others "not tried: the line was lost at servo 1".
+    not_a_port = tmp_path / "notes.txt"
+    not_a_port.write_text("")
+    with TestClient(create_app(LineSession(LineConfig(port=str(not_a_port))), TOKEN), base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        assert not client.get("/api/status").json()["connected"]
+        refused = post(client, "/api/many/apply", {"ids": [1, 3, 4], "changes": {"speed": 40}})
+        assert refused.status_code >= 400 and "not connected" in refused.json()["error"], refused.text
+        assert "results" not in refused.json()
+
+
 def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None:
     client, _ = serve((1, 3))
     post(client, "/api/live/start", {"ids": [1, 3]})

@@ -653,6 +653,7 @@ class LineSession:
         per servo); a lost line ends the run, the servos after it ``not_tried`` (a port back half-way would
         have written some of them and not the others)."""
         checked = [protocol.check_id(i) for i in ids]
+        self.line()  # (no line open: said once, not "lost at servo 1" for the others)
         profile = {k: v for k, v in edit.items() if k in ("changes", "set_flags", "clear_flags")}
         results: list[dict[str, Any]] = []
         for k, sid in enumerate(checked):
