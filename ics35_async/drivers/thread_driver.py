@@ -12,7 +12,10 @@ ordinary path this thread needs the GIL after every system call, which a loop
 or a thread kept busy with Python work holds almost entirely.  On a tty where
 the compiled helper is built, a stream's transactions run in bursts as under
 the asyncio driver (see .burst): this thread then waits on the burst's notices,
-never on the port, and needs the GIL about once a cycle.  Only this thread
+never on the port, and needs the GIL about once a cycle, which a busy thread
+hands over at its switch interval but a busy event loop, which takes the GIL
+back after each of its short system calls, hardly ever (measured in the
+control-loop docs).  Only this thread
 starts a burst: a caller's thread that puts the stream's transaction on the
 wire writes it the ordinary way, as the I/O thread may be about to read the port.
 
