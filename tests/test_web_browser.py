@@ -725,21 +725,26 @@ def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(b
         expect(p.locator("#jog-target")).to_have_text("6000")
 
 
+def motion_switched_off_by_a_lost_port(p: Page, line: PtyLine) -> None:
+    """Servo 1's page with its motion switched on, then the port lost and back: the server switched it off."""
+    servo = line.sim.servo(1)
+    open_servo_page(p, 1)
+    p.check("#motion-switch")
+    until(lambda: not servo.free, "enable motion never held servo 1")
+    line.sim.unplug()
+    expect(p.locator("#lost-banner")).to_be_visible()
+    line.sim.replug()
+    expect(p.locator("#lost-banner")).to_be_hidden()
+    expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
+
+
 def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(browser: Browser) -> None:
     # The page unticks a switch whose motion the server switched off (here: a lost port).  A status pushed
     # between the tick and the server's answer still says so: it unticked the switch, and the server then
     # switched motion on behind a page showing it off.
     line = PtyLine((1, 3))
-    servo = line.sim.servo(1)
     with web_server_page(browser, ["--port", line.path], line) as p:
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        until(lambda: not servo.free, "enable motion never held servo 1")
-        line.sim.unplug()
-        expect(p.locator("#lost-banner")).to_be_visible()
-        line.sim.replug()
-        expect(p.locator("#lost-banner")).to_be_hidden()
-        expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
+        motion_switched_off_by_a_lost_port(p, line)
         held: list[Route] = []
         p.route("**/api/servo/1/motion", lambda route: held.append(route))  # the request waits here until continued
         p.click("#motion-switch")
@@ -761,7 +766,6 @@ def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_swi
     # taken (saying motion is off) can reach the page after the answer.  It unticked the switch of a servo
     # whose motion the server had just switched on.
     line = PtyLine((1, 3))
-    servo = line.sim.servo(1)
     with web_server_page(browser, ["--port", line.path], line) as p:
         holding, late = [False], []
 
@@ -772,14 +776,7 @@ def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_swi
 
         p.route_web_socket("**/ws", relay)
         p.reload()
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        until(lambda: not servo.free, "enable motion never held servo 1")
-        line.sim.unplug()
-        expect(p.locator("#lost-banner")).to_be_visible()
-        line.sim.replug()
-        expect(p.locator("#lost-banner")).to_be_hidden()
-        expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
+        motion_switched_off_by_a_lost_port(p, line)
         holding[0] = True
         other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
         assert other.status == 200, other.text()
