@@ -295,8 +295,9 @@ class Bus:
         """Close and reopen the port, optionally at a new line rate.
 
         For a baud-rate change: write the servos' EEPROM (``allow_baud_change=True``),
-        power-cycle them, then ``await bus.reopen(baudrate=...)``.  Requests
-        submitted meanwhile wait and run after the reopen.  A reopen runs to its end even if
+        power-cycle them, then ``await bus.reopen(baudrate=...)``.  The transaction on the wire
+        finishes first; requests already queued and those submitted meanwhile wait and run after the
+        reopen (at the new rate).  A reopen runs to its end even if
         its caller is cancelled meanwhile (the cancellation comes after it): cut off half-way,
         it would leave no port open.
 
@@ -326,8 +327,10 @@ class Bus:
             try:
                 await driver.reopen(new_baud)
             except BaseException as exc:
-                if isinstance(exc, PortLost) and self._engine.state is State.LOST:
+                if isinstance(exc, PortLost) and self._engine.state is not State.OFFLINE:
                     raise  # lost before it went offline: nothing was changed, the reconnect goes on
+                if self._engine.state in (State.CLOSED, State.DRAINING):
+                    raise  # a close came first: its drain goes on (the request on the wire finishes)
                 reason = f"reopening {self.port} failed: {error_text(exc)}"
                 driver.call(lambda t: self._engine.lost(reason, reconnect=False))
                 raise

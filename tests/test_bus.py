@@ -818,3 +818,51 @@ async def test_a_reopen_right_after_a_streams_close_is_not_refused(
                 await stream.next_frame()
             await bus.reopen()
         assert await bus.servo(3).read_stretch() > 0
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_reopen_racing_a_close_leaves_the_transaction_on_the_wire_to_finish(driver: str) -> None:
+    # The reopen's swap runs in a task of its own: a close that came first made the swap fail with the engine's
+    # "cannot take the line offline while draining", and the swap's failure handling then failed the read the
+    # close was letting finish with a PortLost blaming the reopen.
+    sim = VirtualLine([VirtualServo(1)], realtime=True)
+    try:
+        bus = await open_bus(sim, driver=driver, **NO_TIMEOUTS)
+        read = asyncio.ensure_future(bus.servo(1).read_eeprom())
+        await asyncio.sleep(0.002)  # (the read on the wire)
+        reopened, closed = await asyncio.gather(bus.reopen(), bus.aclose(), return_exceptions=True)
+        assert closed is None
+        assert reopened is None or isinstance(reopened, BusClosed), repr(reopened)
+        assert (await read).servo_id == 1  # the close let it finish
+    finally:
+        sim.close()
+
+
+class SlowToReopen(VirtualLine):
+    """A line whose openings after the first take a while (a reopen's swap)."""
+
+    def __init__(self) -> None:
+        super().__init__(make_servos(range(2)), realtime=True)
+        self.openings = 0
+
+    def connect(self, host: Any, baudrate: int) -> None:
+        self.openings += 1
+        if self.openings > 1:
+            time.sleep(0.3)
+        super().connect(host, baudrate)
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+async def test_wait_idle_during_a_reopen_waits_for_the_requests_queued_meanwhile(driver: str) -> None:
+    sim = SlowToReopen()
+    try:
+        async with open_bus(sim, driver=driver, **NO_TIMEOUTS) as bus:
+            reopening = asyncio.ensure_future(bus.reopen())
+            await asyncio.sleep(0.05)
+            queued = asyncio.ensure_future(bus.servo(1).read_stretch())
+            await asyncio.sleep(0.01)
+            await asyncio.wait_for(bus.wait_idle(), GUARD)
+            assert queued.done(), "wait_idle returned with a request still queued"
+            await reopening
+    finally:
+        sim.close()

@@ -172,6 +172,7 @@ class DriverCore:
         # The loop the bus opened in: its callers' futures, events and wake-ups all belong to it.
         self.home = running_loop()
         self._home_thread = threading.get_ident()
+        self._awaiting_offline = False  # a reopen waits for the transaction on the wire to end (see _go_offline)
         self.settings = settings
         self.port: Port | None = None
         self._waiting_until = INF  # when the driver's current wait ends (it is re-aimed for earlier)
@@ -393,16 +394,26 @@ class DriverCore:
             BusClosed: the bus closed meanwhile.
         """
         with self.lock:
-            if self.engine.state is LOST:
+            state = self.engine.state
+            if state is LOST:
                 raise PortLost(f"port {self.target} is lost; cannot reopen now")
-            offline = self.engine.disconnected()  # (raises on a closed line)
+            if state is CLOSED or state is DRAINING:  # (a close came first: its drain goes on undisturbed)
+                raise self.engine.closed_error()
+            offline = self.engine.disconnected()
         if not offline:
-            await self.wait_idle()  # (offline is idle enough: see _idle_now)
+            self._awaiting_offline = True
+            try:
+                await self.wait_idle()  # (offline is idle enough for this wait: see _idle_now)
+            finally:
+                self._awaiting_offline = False
             with self.lock:
-                if self.engine.state is LOST:
+                state = self.engine.state
+                if state is LOST:
                     raise PortLost(f"port {self.target} was lost; cannot reopen now")
-                if self.engine.state is not OFFLINE:
+                if state is CLOSED or state is DRAINING:
                     raise self.engine.closed_error()
+                if state is not OFFLINE:  # (lost and back already: the reconnect's line, not this reopen's)
+                    raise PortLost(f"port {self.target} was lost and reconnected; reopen again")
 
     def _drop_port(self) -> None:
         """Stop waiting on the port and close it (a reopen, or the bus closing)."""
@@ -494,8 +505,11 @@ class DriverCore:
     # ------------------------------------------------------------------ waiting for quiet; closing
 
     def _idle_now(self) -> bool:
-        # (offline: a reopen's line, its requests held for the reopened port)
-        return self.engine.idle or self.port is None or self.engine.state is OFFLINE
+        if self.engine.state is OFFLINE:
+            # A reopen's line: its queued requests wait for the reopened port (not idle, for the program's
+            # wait_idle), but the reopen itself waits only for the line to go offline.
+            return self._awaiting_offline or self.engine.idle
+        return self.engine.idle or self.port is None
 
     async def wait_idle(self) -> None:
         """Return once nothing is on the wire, resyncing or queued (or the port is gone)."""
