@@ -789,6 +789,20 @@ def test_a_connect_to_another_port_forgets_the_holds_of_the_old_one(serve: Any) 
     assert not sim.servo(1).free  # (the old line's servo was left holding)
 
 
+def test_a_port_connected_again_after_another_gets_its_holds_back_in_doubt(serve: Any) -> None:
+    # Connect to another port forgot the old port's holds while its servos stayed holding: back on it, the next
+    # live plot took its held ICS 3.5 servo for one nobody held and freed it (a joint gone limp unasked).
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    first = client.get("/api/status").json()["port"]
+    assert post(client, "/api/connect", {"port": "sim://?ids=5"}).status_code == 200
+    assert post(client, "/api/connect", {"port": first}).status_code == 200
+    started = post(client, "/api/live/start", {"ids": [1, 3]})
+    assert started.status_code == 409 and "servo 1" in started.json()["error"], started.text  # (in doubt: named)
+    assert not sim.servo(1).free and sim.servo(1).target == 8000
+
+
 def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(serve: Any) -> None:
     client, sim = serve((1,))
     sim.add_device(VirtualServo(5, baud_rate=1250000))

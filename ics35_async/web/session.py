@@ -125,6 +125,9 @@ class LineSession:
         # (a live plot keeps them held rather than freeing them; one held before a lost port, or before it
         # stopped answering, None, is in doubt).
         self.holding: dict[int, tuple[int, tuple[Bus, int] | None]] = {}
+        # The holds of the ports worked on before (their servos stay holding): given back, in doubt, when the
+        # pages come back to that port (see _switch_to).
+        self._holds_elsewhere: dict[str, dict[int, int]] = {}
         self._limits: dict[int, tuple[int, int]] = {}
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
@@ -236,6 +239,10 @@ class LineSession:
     def _switch_to(self, config: LineConfig) -> None:
         """Work on the line ``config`` from now on: what was found on the old one is forgotten, and the
         simulated line the pages named for an unnamed ``sim://`` too (see LineConfig.url)."""
+        if not same_port(config.url, self.config.url):
+            back = next((url for url in self._holds_elsewhere if same_port(url, config.url)), None)
+            held = self._holds_elsewhere.pop(back, {}) if back is not None else {}
+            self.holding = {sid: (target, None) for sid, target in held.items()}  # (in doubt: see lost_touch)
         if config.url != self.config.url:
             self._forget_simulator()
         self.config = config
@@ -286,7 +293,8 @@ class LineSession:
         """Close the line (a robot's stays open); motion goes off.  With ``keep_holds`` (the same port is opened
         again) the servos pages held are kept in doubt: a servo that still holds would go limp in a live plot
         that forgot it was held, and one that restarted meanwhile would be thrown to its old target; the plot
-        refuses them by name until their Servo page frees or holds them."""
+        refuses them by name until their Servo page frees or holds them.  Without it (another port) they are put
+        aside for this port, and come back in doubt with it (see _switch_to)."""
         await self.stop_live()
         bus, self.bus = self.bus, None
         borrowed, self.robot_line = self.robot_line, None
@@ -296,8 +304,10 @@ class LineSession:
         self.motion_off.clear()
         if keep_holds:
             self.holding = {sid: (target, None) for sid, (target, _) in self.holding.items()}
-        else:
-            self.holding.clear()
+        else:  # (put aside: its servos stay holding, and come back in doubt with their port: see _switch_to)
+            if self.holding:
+                self._holds_elsewhere[self.config.url] = {sid: target for sid, (target, _) in self.holding.items()}
+            self.holding = {}
         if bus is not None and borrowed is None:  # a robot's line stays the robot's
             await bus.aclose()
 
