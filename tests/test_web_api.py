@@ -779,7 +779,7 @@ def test_a_connect_again_to_the_same_port_leaves_a_held_servos_hold_in_doubt_not
     assert not sim.servo(1).free and sim.servo(1).target == 8000
 
 
-def test_a_connect_to_another_port_forgets_the_holds_of_the_old_one(serve: Any) -> None:
+def test_a_connect_to_another_port_does_not_carry_the_old_ones_holds_to_it(serve: Any) -> None:
     client, sim = serve((1,))
     assert post(client, "/api/servo/1/motion", {"enabled": True}).status_code == 200
     assert post(client, "/api/connect", {"port": "sim://?ids=1"}).status_code == 200
