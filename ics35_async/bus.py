@@ -387,9 +387,10 @@ class Bus:
             # (it returns once that is done), which the line closing now would fail.
             if close_out is not None:
                 await close_out[1]()
-            # And an earlier stream's, still sending with another stream attached since.
-            for done in list(self._closing_outs):
-                await despite_cancellation(done.wait, None)
+            # And an earlier stream's, still sending with another stream attached since (one that begins
+            # meanwhile too: each ends by leaving the set).
+            while self._closing_outs:
+                await despite_cancellation(next(iter(self._closing_outs)).wait, None)
         finally:  # (a cancellation raised once the close-out is done must not keep the port open)
             driver, self._driver = self._driver, None
             if driver is None:

@@ -336,6 +336,8 @@ class Stream(FrameIterator[Frame]):
         kick = False
         with self._slot_lock:
             for k in slots:
+                if self._targets[k] != WATCH:
+                    self._watch_heard.discard(k)  # (heard by this watch, not an earlier one)
                 self._targets[k] = WATCH
                 self._held[k] = ""
                 self._unsent.discard(k)  # (a watched ID gets no command)

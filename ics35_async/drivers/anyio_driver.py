@@ -96,7 +96,6 @@ class AnyioDriver(DriverCore):
         self._task_error: Exception | None = None
         self._task: Any = None  # the asyncio task (kept referenced), when the backend is asyncio
         self._soon = soon_threadsafe()
-        self._thread = threading.get_ident()
 
     # ------------------------------------------------------------------ life cycle
 
@@ -212,7 +211,7 @@ class AnyioDriver(DriverCore):
         self._rewait()
 
     def _input_came(self) -> None:
-        if threading.get_ident() == self._thread:
+        if threading.get_ident() == self._home_thread:
             self._rewait()
         else:
             with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
