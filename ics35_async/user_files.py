@@ -35,13 +35,20 @@ class UnreadableText(ValueError):
     (the caller's error names it)."""
 
 
+def empty_path(path: object) -> bool:
+    """Whether ``path``, as a person or a script gave it, names no file: an empty or blank string (a script's
+    unset variable), which pathlib would read as ".", the current folder.  Each caller refuses it in its
+    own words."""
+    return isinstance(path, str) and not path.strip()
+
+
 def read_user_text(path: str | Path, expected: str) -> str:
     """The text of the file at ``path``; ``expected`` says what it should be, e.g. ``"a motion is UTF-8 JSON"``.
 
     Raises:
         UnreadableText: an empty path, no such file, a directory, not readable, binary, or not UTF-8.
     """
-    if isinstance(path, str) and not path.strip():  # (a script's unset variable: pathlib reads "" as ".")
+    if empty_path(path):
         raise UnreadableText(f"the path is empty; give a file name ({expected})")
     try:
         raw = Path(path).read_bytes()

@@ -534,6 +534,14 @@ def test_the_traffic_page_sees_each_transaction_with_its_bytes(serve: Any) -> No
     assert reads and reads[0]["sent"] == "a1 04" and reads[0]["outcome"] == "ok"
 
 
+def wait_lost(client: Any, lost: bool) -> None:
+    """Until the status says the port is lost (``lost=False``: back again), within GUARD."""
+    deadline = time.monotonic() + GUARD
+    while client.get("/api/status").json()["lost"] is not lost:
+        assert time.monotonic() < deadline, "the port was never told lost" if lost else "the port never came back"
+        time.sleep(0.02)
+
+
 def test_a_lost_port_is_reported_at_once_and_the_line_comes_back(serve: Any) -> None:
     client, sim = serve((1,))
     sim.unplug()
@@ -559,15 +567,11 @@ def test_a_streamed_servo_held_waiting_after_a_lost_port_is_told_in_words_when_m
         time.sleep(0.02)
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["enabled"]
     sim.unplug()
-    while not client.get("/api/status").json()["lost"]:
-        assert time.monotonic() < deadline, "the port was never told lost"
-        time.sleep(0.02)
+    wait_lost(client, True)
     sim.power_cycle(1)
     sim.move_by_hand(1, 6000)
     sim.replug()
-    while client.get("/api/status").json()["lost"]:
-        assert time.monotonic() < deadline, "the port never came back"
-        time.sleep(0.02)
+    wait_lost(client, False)
     time.sleep(0.2)  # some cycles of the resumed stream
     asked = post(client, "/api/servo/1/motion", {"enabled": True})
     error = asked.json()["error"]
@@ -625,9 +629,7 @@ def test_hold_here_for_a_streamed_servo_holds_it_where_it_stands_after_a_lost_po
         assert time.monotonic() < deadline, "the stream never read servo 1"
         time.sleep(0.02)
     sim.unplug()
-    while not client.get("/api/status").json()["lost"]:
-        assert time.monotonic() < deadline, "the port was never told lost"
-        time.sleep(0.02)
+    wait_lost(client, True)
     sim.power_cycle(1)
     sim.move_by_hand(1, 6000)
     away = post(client, "/api/servo/1/hold")
@@ -738,9 +740,7 @@ def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve:
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
     sim.unplug()
     deadline = time.monotonic() + GUARD
-    while not client.get("/api/status").json()["lost"]:
-        assert time.monotonic() < deadline, "the port was never told lost"
-        time.sleep(0.02)
+    wait_lost(client, True)
     sim.replug()
     while client.get("/api/servo/1/ram").status_code != 200:
         assert time.monotonic() < deadline, "the port never came back"
@@ -1026,9 +1026,7 @@ def test_a_live_frame_says_which_servos_the_stream_holds_and_why(serve: Any) -> 
     assert client.get("/api/live").json()["held"] == {}
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["enabled"]
     sim.unplug()
-    while not client.get("/api/status").json()["lost"]:
-        assert time.monotonic() < deadline, "the port was never told lost"
-        time.sleep(0.02)
+    wait_lost(client, True)
     sim.replug()
     frame: dict[str, Any] = {}
     while frame.get("held") != {"1": "resumed"}:

@@ -17,7 +17,7 @@ from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document, plan_restores
-from ..user_files import UnreadableText, decode_user_text, read_user_text, replace_keeping_backup
+from ..user_files import UnreadableText, decode_user_text, empty_path, read_user_text, replace_keeping_backup
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -54,7 +54,7 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
         if len(ids) > 1 and not as_table:
             raise click.BadParameter("several servos need -o DIR/ (one file per servo)", param_hint="IDS")
         return "stdout", None
-    if not output.strip():  # (a script's unset variable: pathlib reads "" as ".", the current folder)
+    if empty_path(output):
         raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
     path = Path(output)
     is_dir = output.endswith(("/", os.sep)) or path.is_dir()

@@ -7,7 +7,7 @@ from collections.abc import Collection
 from pathlib import Path
 
 from ..errors import InvalidArgument, error_text
-from ..user_files import check_backup_room
+from ..user_files import check_backup_room, empty_path
 from ._settings import CliError, ExitCode, Settings
 
 
@@ -17,8 +17,7 @@ def _refuse(what: str, path: str, why: str) -> CliError:
 
 
 def _refuse_empty(path: str, what: str) -> None:
-    # (a script's unset variable: pathlib reads "" as ".", the current directory)
-    if not path.strip():
+    if empty_path(path):
         raise CliError(ExitCode.USAGE, f"{what}: the path is empty; give a file name (nothing was sent)")
 
 

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InvalidArgument
+from ..user_files import empty_path
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
 _IN_OPEN = 0x20
@@ -196,7 +197,7 @@ class PtyPort:
             self.path = Path(self._tmpdir) / "ttyICS0"
         else:
             self._tmpdir = None
-            if not str(link):  # (pathlib reads "" as ".")
+            if empty_path(str(link)):
                 raise InvalidArgument("the path is empty: give the link's path (e.g. /tmp/ttyICS0)")
             check_link_path(Path(link))
             # Absolute: the path printed is what another terminal, in another directory, opens as --port.

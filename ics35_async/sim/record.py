@@ -33,7 +33,7 @@ from typing import Any, TextIO
 
 from ..errors import InvalidArgument
 from ..transports import HostSide
-from ..user_files import UnreadableText, decode_user_text
+from ..user_files import UnreadableText, decode_user_text, empty_path
 from .transaction import Transaction
 
 HEADER = "# ics35 sim recording v1"
@@ -65,7 +65,7 @@ class TransactionRecorder:
     """
 
     def __init__(self, target: str | Path | TextIO) -> None:
-        if isinstance(target, str) and not target.strip():  # (a script's unset variable: "" reads as ".")
+        if empty_path(target):
             raise InvalidArgument("the recording's path is empty; give a file name")
         if isinstance(target, (str, Path)):
             self._stream: TextIO = open(target, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
@@ -156,7 +156,7 @@ def load_recording(source: str | Path | TextIO | Iterable[str]) -> list[Entry]:
         OSError: the file cannot be read.
     """
     if isinstance(source, (str, Path)):
-        if isinstance(source, str) and not source.strip():  # (a script's unset variable: "" reads as ".")
+        if empty_path(source):
             raise InvalidArgument("the recording's path is empty; give a file name")
         try:
             text = decode_user_text(Path(source).read_bytes(), "a recording is UTF-8 text")
