@@ -232,6 +232,30 @@ def test_the_line_page_shows_each_servos_protocol_and_reads_positions_without_fr
     assert (sim.servo(1).target, sim.servo(3).target) == (7000, 8200)  # neither went limp nor moved
 
 
+def test_hold_here_and_motion_on_read_an_ics36_servo_without_freeing_it_and_free_an_ics35_one(serve: Any) -> None:
+    # A joint of a standing robot, held by its servo: "Hold here" (and "enable motion", which holds) must not
+    # send it the free command to learn where it stands when the servo has ICS 3.6's read; only an ICS 3.5
+    # servo, which has no other way to tell, goes free for the instant between the two commands.
+    client, sim = serve((1, 3), ics36=(3,))
+    for sid, where in ((1, 7000), (3, 8200)):
+        sim.servo(sid).move_by_hand(where)
+        sim.servo(sid).command_position(where)
+    for sid in (1, 3):
+        assert client.get(f"/api/servo/{sid}/eeprom").status_code == 200  # (the Servo page reads it as it opens)
+    heard: list[bytes] = []
+    sim.add_tap(heard.append)
+
+    def frees(sid: int) -> int:  # the free command: position command, position 0 (the echo comes back too)
+        return b"".join(heard).count(bytes((0x80 | sid, 0, 0)))
+
+    held = post(client, "/api/servo/3/hold")
+    assert held.status_code == 200 and held.json()["position"] == 8200, held.text
+    assert post(client, "/api/servo/3/motion", {"enabled": True}).json()["position"] == 8200
+    assert frees(3) == 0 and sim.servo(3).target == 8200
+    assert post(client, "/api/servo/1/hold").json()["position"] == 7000
+    assert frees(1) > 0 and sim.servo(1).target == 7000
+
+
 def test_eeprom_fields_carry_their_unit_range_and_meaning(serve: Any) -> None:
     client, sim = serve()
     view = client.get("/api/servo/3/eeprom").json()

@@ -719,7 +719,8 @@ class LineSession:
             return await bus.servo(protocol.check_id(servo_id)).free()
 
     async def hold(self, servo_id: int) -> int:
-        """Torque on where the servo stands now (the free command reads the position, then it is held there)."""
+        """Torque on where the servo stands now: read by ICS 3.6's position read, which leaves its torque alone,
+        or on an ICS 3.5 servo by the free command (the only way it tells), then held there."""
         protocol.check_id(servo_id)
         self._refuse_joint_motion(servo_id)
         live = self.live
@@ -730,10 +731,14 @@ class LineSession:
             return position
         async with self._quiet() as bus:
             servo = bus.servo(servo_id)
-            position = await servo.free()
-            self.holding.pop(servo_id, None)  # (free now: held again only once the next command is sent)
-            held = await servo.set_position(self.check_target(servo_id, position))
-            self._holds(servo_id, position)
+            # (A standing robot's joint under load sags while free, even between two commands: ICS 3.6 first.)
+            reading = await read_position_without_freeing(servo, free_ics35=True)
+            here = reading.position
+            assert here is not None  # (free_ics35: read either way)
+            if reading.how == "free":
+                self.holding.pop(servo_id, None)  # (free now: held again only once the next command is sent)
+            held = await servo.set_position(self.check_target(servo_id, here))
+            self._holds(servo_id, here)
             return held
 
     async def _position_read_now(self, live: LiveView, servo_id: int) -> int:
