@@ -246,3 +246,22 @@ def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_
     assert safe.silent == limp.silent == [5]  # (a caller holding 5 at a target cannot tell it still holds)
     assert (reading.position, reading.how, reading.protocol) == (None, None, "ICS 3.5")
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
+
+
+def test_the_stream_plan_finds_a_servo_silent_that_answered_before_its_protocol_is_remembered_from() -> None:
+    # Each servo's protocol is probed once per line and remembered; a plan made later probed nothing, so a
+    # servo held at a target that had since lost its supply (it restarts free, elsewhere) was not named
+    # silent, and a caller streaming it that target threw it there.
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2, 3], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> Any:
+        await policies.plan_position_stream(bus, [1, 2, 3])  # (both protocols known from here on)
+        sim.remove_servo(1)
+        sim.remove_servo(2)
+        return await policies.plan_position_stream(bus, [1, 2, 3], free_ics35=True)
+
+    plan = run(sim, body)
+    assert plan.silent == [1, 2] and plan.streamed == [1, 2, 3]
+    assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}

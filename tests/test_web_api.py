@@ -707,6 +707,20 @@ def test_a_held_servo_that_stopped_answering_is_neither_jogged_nor_streamed_its_
     assert unplugged.free and unplugged.position == 6000
 
 
+def test_the_servo_pages_poll_notices_an_ics35_servo_that_stopped_answering_after_its_first_reads(serve: Any) -> None:
+    # An ICS 3.5 servo has no position read: once the page's poll knew that, it sent nothing at all, so a servo
+    # held with motion on that lost its supply went unnoticed by the open page (a jog then threw it back).
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(8000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
+    for _ in range(2):  # (the page's poll, twice a second, while the servo answers)
+        read = client.get("/api/servo/1/position")
+        assert read.status_code == 200 and read.json()["position"] is None, read.text
+    sim.remove_servo(1)
+    assert client.get("/api/servo/1/position").status_code == 504
+    assert "stopped answering" in client.get("/api/status").json()["motion_off"]["1"]
+
+
 def test_a_held_servo_silent_as_a_live_plot_starts_is_refused_by_name_not_streamed_its_old_target(serve: Any) -> None:
     # Its supply dropped while nothing asked it: the plot's probe found it silent and streamed it its held
     # target ("kept held"); back restarted (free, turned elsewhere) it was thrown there.

@@ -67,12 +67,18 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
 
     An ID silent to everything is watched (freed, with ``free_ics35``): a
     stream marks it offline and probes it, as any servo that stops answering,
-    and a read never frees it.
+    and a read never frees it.  A servo whose protocol this line already knows
+    is asked all the same (its position read, or an ICS 3.5 servo's
+    temperature): ``silent`` is what the servos say now.
     """
     plan = StreamPlan()
     for sid in ids:
+        servo = Servo(line, sid)
+        known = servo.known_position_read()
         try:
-            readable: bool | None = await Servo(line, sid).has_position_read()
+            readable: bool | None = await servo.has_position_read()  # (unknown: probed, which asks the servo)
+            if known is not None:
+                await (servo.read_position() if known else servo.read_temperature())
         except ReplyError:
             readable = None
             plan.silent.append(sid)

@@ -845,8 +845,9 @@ class LineSession:
         A position command's reply is where the servo stood when the command
         arrived, before it moved, so the page reads the position again while
         it is open.  A live stream's servo: the stream's newest reading.  An
-        ICS 3.5 servo reads a position only by going free: none is read, and
-        ``note`` says what the page shows instead.
+        ICS 3.5 servo reads a position only by going free: none is read (its
+        temperature is, so that a servo gone silent is noticed), and ``note``
+        says what the page shows instead.
         """
         protocol.check_id(servo_id)
         live = self.live
@@ -854,7 +855,13 @@ class LineSession:
             position = live.position(servo_id)
             return {"position": None if position < 0 else position, "how": "stream", "note": "from the live stream"}
         async with self._quiet() as bus:
-            reading = await read_position_without_freeing(bus.servo(servo_id))
+            servo = bus.servo(servo_id)
+            reading = await read_position_without_freeing(servo)
+            if reading.how is None:
+                # Nothing to read (ICS 3.5), but the poll is how an open page learns that its servo stopped
+                # answering (a servo that restarted is free, elsewhere: a jog from its old target would throw
+                # it there): a read that moves nothing, the temperature, asks it all the same.
+                await servo.read_temperature()
         note = "read now (ICS 3.6 position read)" if reading.how == "read" else POSITION_AT_COMMAND
         return {"position": reading.position, "how": reading.how, "note": note}
 
