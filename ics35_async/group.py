@@ -170,8 +170,11 @@ class GroupStream(FrameIterator[GroupFrame]):
 
     def _merged(self, new: dict[str, Frame]) -> GroupFrame:
         self._last.update(new)
-        frames = self._last
         self._cycle += 1
+        return self._merge(self._last, new, self._cycle)
+
+    def _merge(self, frames: Mapping[str, Frame], new: Mapping[str, Frame], cycle: int) -> GroupFrame:
+        """``frames`` (one per line) as one group frame; ``new``: those taken since the previous one."""
         positions: dict[tuple[str, int], int] = {}
         stamps: dict[tuple[str, int], float] = {}
         failed: set[tuple[str, int]] = set()
@@ -185,7 +188,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             offline.update((line, i) for i in f.offline)
             held.update((line, i) for i in f.held)
         return GroupFrame(
-            cycle=self._cycle,
+            cycle=cycle,
             positions=positions,
             timestamps=stamps,
             failed=frozenset(failed),
@@ -198,6 +201,21 @@ class GroupStream(FrameIterator[GroupFrame]):
             resumed=frozenset(line for line, f in new.items() if f.resumed),
             held=frozenset(held),
         )
+
+    @property
+    def latest(self) -> GroupFrame | None:
+        """Every line's newest published frame merged (takes none: does not mark them consumed); ``None`` until
+        every line has published one.
+
+        As :attr:`Stream.latest <ics35_async.Stream.latest>`, for any task while another takes the frames:
+        ``line_cycles`` tell how new each line's part is; ``cycle`` is the last merged frame taken's (0 before one
+        was), ``skipped`` is 0, and ``missed_slots`` and ``resumed`` are what those newest frames say.
+        """
+        frames = {line: s.latest for line, s in self.streams.items()}
+        newest = {line: f for line, f in frames.items() if f is not None}
+        if len(newest) < len(frames):
+            return None
+        return self._merge(newest, newest, self._cycle)  # (a published frame's own skipped is 0)
 
     @property
     def offline(self) -> frozenset[tuple[str, int]]:

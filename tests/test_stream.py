@@ -520,6 +520,25 @@ async def test_a_group_stream_asked_for_a_frame_before_it_started_works_once_sta
             assert (await next_frame(gstream)).positions
 
 
+async def test_a_group_stream_s_latest_merges_each_line_s_newest_frame_and_takes_none() -> None:
+    sims = [make_sim([1, 2]), make_sim([1])]
+    group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
+    async with group:
+        gstream = group.stream({"a": [1, 2], "b": [1]})
+        assert gstream.latest is None  # before the first frame
+        async with gstream:
+            await wait_for_sim(lambda: gstream.latest is not None, "a latest group frame")
+            latest = gstream.latest
+            assert latest is not None
+            assert set(latest.positions) == {("a", 1), ("a", 2), ("b", 1)}
+            assert latest.positions["a", 2] == start_position(2)
+            streams = gstream.streams
+            assert all(latest.line_cycles[line] <= s.latest.cycle for line, s in streams.items() if s.latest)
+            # Reading it took nothing: the next frame is at least as new, on every line.
+            frame = await next_frame(gstream)
+            assert all(frame.line_cycles[line] >= latest.line_cycles[line] for line in streams)
+
+
 # --------------------------------------------------------------------------- cancelling and closing
 
 
