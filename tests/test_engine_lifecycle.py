@@ -66,10 +66,13 @@ def test_a_line_asked_offline_while_busy_goes_offline_once_its_transaction_ends(
     wire.submit(a)
     assert engine.state is State.BUSY
     assert engine.disconnected() is False  # (at the end of a's transaction)
+    # A dump taken meanwhile says so: a busy line that queues nothing more would look stuck otherwise.
+    assert engine.describe(wire.now)["going_offline"] is True
     wire.submit(b)
     wire.run_for(0.1)  # (a's transaction takes a millisecond)
     assert a.state == "done" and b.state != "done"
     assert engine.state is State.OFFLINE and engine.deadline == math.inf
+    assert engine.describe(wire.now)["going_offline"] is False  # (offline now: the state says it)
     assert wire.sent() == [read(3).tx]
     with pytest.raises(InvalidArgument):
         engine.disconnected()  # (offline already)

@@ -33,3 +33,16 @@ def test_docs_engine_diagram_comes_from_a_real_engine() -> None:
     assert transitions[("IDLE", "BUSY")] == ["request submitted"]
     assert ("QUIET", "IDLE") in transitions and ("BUSY", "DRAINING") in transitions
     assert not any(before == "CLOSED" for before, _ in transitions), "nothing leaves CLOSED"
+
+
+def test_docs_engine_diagram_draws_a_reopen_asked_while_busy() -> None:
+    # A reopen asked while a transaction is on the wire (or a resync runs) takes the line offline when that ends:
+    # two events, and the diagram drew only what one event changes, so that path was missing.
+    transitions = mkdocs_hooks.engine_transitions()
+    assert transitions[("BUSY", "BUSY_THEN_OFFLINE")] == ["disconnected"]
+    assert "echo and reply received" in transitions[("BUSY_THEN_OFFLINE", "OFFLINE")]
+    assert ("QUIET", "QUIET_THEN_OFFLINE") in transitions
+    assert any(after == "OFFLINE" for before, after in transitions if before == "QUIET_THEN_OFFLINE")
+    diagram = mkdocs_hooks.engine_state_diagram()
+    assert 'state "BUSY, then OFFLINE" as BUSY_THEN_OFFLINE' in diagram
+    assert "| BUSY, then OFFLINE | echo and reply received" in diagram

@@ -79,6 +79,20 @@ def _engine_events() -> dict[str, Callable[[Any, float], Any]]:
     }
 
 
+PENDING = "_THEN_OFFLINE"
+"""Suffix of a state asked offline meanwhile (a reopen while BUSY or QUIET): offline once it ends."""
+
+
+def _engine_node(engine: Any) -> str:
+    """The engine's state, as drawn: a reopen asked while busy is pending in the same state, so it is a node of
+    its own (otherwise the diagram would not show where that state then goes)."""
+    return engine.state.name + (PENDING if engine.describe(0.0)["going_offline"] else "")
+
+
+def _node_label(node: str) -> str:
+    return node.replace(PENDING, ", then OFFLINE")
+
+
 def engine_transitions() -> dict[tuple[str, str], list[str]]:
     """(state before, state after) -> the events that lead there, found by trying each event in each state."""
     from ics35_async.engine import LineEngine
@@ -86,7 +100,7 @@ def engine_transitions() -> dict[tuple[str, str], list[str]]:
 
     events = _engine_events()
     start = LineEngine(baudrate=115200)
-    seen = {start.state.name}
+    seen = {_engine_node(start)}
     todo = [start]
     edges: dict[tuple[str, str], list[str]] = {}
     while todo:
@@ -97,7 +111,7 @@ def engine_transitions() -> dict[tuple[str, str], list[str]]:
                 event(trial, 0.0)
             except IcsError:  # refused in this state (InvalidArgument, BusClosed, PortLost): no edge
                 continue
-            before, after = engine.state.name, trial.state.name
+            before, after = _engine_node(engine), _engine_node(trial)
             if before == after:
                 continue
             edges.setdefault((before, after), []).append(name)
@@ -110,10 +124,16 @@ def engine_transitions() -> dict[tuple[str, str], list[str]]:
 def engine_state_diagram() -> str:
     """A Mermaid state diagram of the engine's transitions, and the same as a table (readable without JavaScript)."""
     transitions = sorted(engine_transitions().items())
-    lines = ["```mermaid", "stateDiagram-v2", "    [*] --> OFFLINE"]
+    pending = sorted({node for edge in dict(transitions) for node in edge if node.endswith(PENDING)})
+    lines = ["```mermaid", "stateDiagram-v2"]
+    lines += [f'    state "{_node_label(node)}" as {node}' for node in pending]
+    lines += ["    [*] --> OFFLINE"]
     lines += [f"    {before} --> {after}: {'; '.join(names)}" for (before, after), names in transitions]
     lines += ["    CLOSED --> [*]", "```", "", "| from | event | to |", "|---|---|---|"]
-    lines += [f"| {before} | {'; '.join(names)} | {after} |" for (before, after), names in transitions]
+    lines += [
+        f"| {_node_label(before)} | {'; '.join(names)} | {_node_label(after)} |"
+        for (before, after), names in transitions
+    ]
     return "\n".join(lines)
 
 

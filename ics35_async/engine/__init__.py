@@ -24,6 +24,9 @@ The rules, each in one place:
   requests between two stream transactions;
 * retries of idempotent commands; cancellation (a cancelled request's reply
   is still consumed and dropped);
+* offline for a reopen: at once when idle; asked while BUSY or QUIET, once
+  that transaction or resync ends, no queued request going meanwhile
+  (``describe()["going_offline"]`` says it is pending);
 * a slow link: late bytes raise every allowance (see :mod:`.link`);
 * probes: a ``Timing.PROBE`` read waits as long as this link's answers have
   taken, not the adapter's worst case, and its silence resyncs as briefly

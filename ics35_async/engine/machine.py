@@ -234,8 +234,10 @@ class LineEngine:
 
         The state, when the engine wants its next :meth:`tick` (seconds from ``now``; None: not
         until something happens), the transaction on the wire (bytes sent and so far received,
-        who waits for it), every queued request in the order it would run, and the slow-link and
-        guard-read rules' state.
+        who waits for it), every queued request in the order it would run, ``going_offline``
+        (asked offline while busy, by a reopen: offline when the transaction or resync ends, the
+        queued requests waiting until the port is open again), and the slow-link and guard-read
+        rules' state.
         """
         wire: dict[str, object] | None = None
         if self.state in (BUSY, DRAINING):
@@ -252,6 +254,7 @@ class LineEngine:
             "deadline_in_s": None if self.deadline == INF else round(self.deadline - now, 6),
             "on_the_wire": wire,
             "queued": [repr(request) for request in self.queue.waiting()],
+            "going_offline": self._going_offline,
             "stream": None if source is None else repr(source),
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
