@@ -149,6 +149,7 @@ class Bus:
         self._state_event: Any = None  # an anyio.Event while someone waits in state_change()
         self._close_out: tuple[BackgroundSource, Callable[[], Awaitable[None]]] | None = None  # see attach_source
         self._closing_outs: set[Any] = set()  # streams' close-outs under way (see close_out_begins)
+        self._leaving: BackgroundSource | None = None  # detached by its program, maybe at a burst's end (see reopen)
         self._closed_event: Any = None  # an anyio.Event, set once aclose() is done (see aclose)
         self._engine.on_state_change = self._state_changed
 
@@ -315,9 +316,10 @@ class Bus:
         if driver is None or not self.is_open:
             raise self._engine.closed_error()
         driver.check_caller()
-        if self._engine.source is not None and not self._reopening:
+        if self._engine.source is not None and self._engine.source is self._leaving and not self._reopening:
             # A stream closed during a burst is detached where the burst stops (see attach_source): stop it now
-            # (one transaction at most), so that a reopen right after the close finds the stream gone.
+            # (one transaction at most), so that a reopen right after the close finds the stream gone.  Only
+            # then: a stream still running would lose its burst to a reopen refused all the same.
             driver.call_now(lambda t: None)
         if self._engine.source is not None or self._reopening:
             raise InvalidArgument("stop the running stream (or the other reopen) before reopening the bus")
@@ -475,6 +477,7 @@ class Bus:
         # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
         driver.call_now(lambda t: engine.attach_source(source, t))
         self._close_out = None if close_out is None else (source, close_out)
+        self._leaving = None
 
     def close_out_begins(self, done: Any) -> None:
         """A stream's close-out (its ``on_close`` commands) is under way, until ``done`` (an ``anyio.Event``)
@@ -492,6 +495,7 @@ class Bus:
         if self._driver is None:
             engine.detach_source(source)
         else:
+            self._leaving = source
             self._driver.call(lambda t: engine.detach_source(source))
 
     def kick(self) -> None:

@@ -820,6 +820,31 @@ async def test_a_reopen_right_after_a_streams_close_is_not_refused(
         assert await bus.servo(3).read_stretch() > 0
 
 
+@pytest.mark.pty
+async def test_a_reopen_refused_beside_a_running_stream_leaves_its_burst_running(
+    pty_sim: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The refusal stopped the stream's running burst first (to let a stream closed meanwhile detach), costing a
+    # stream that runs on, and was refused, its burst.  (The asyncio driver: no loop turn between the looks at
+    # the burst, so nothing else starts or ends one meanwhile.)
+    monkeypatch.setenv(burst.ENV, "1")
+    path = pty_sim("--fast", "--ids", "1-8").path
+    async with open_bus(path, driver="asyncio", **PATIENT) as bus, bus.stream(range(1, 9)) as stream:
+        await stream.next_frame()
+        runner = bus._driver.burst  # type: ignore[union-attr]
+        assert runner is not None
+        for _ in range(5):
+            async with asyncio.timeout(GUARD):
+                while not runner.running:
+                    await asyncio.sleep(0)
+            bursts = runner.bursts
+            with pytest.raises(InvalidArgument, match="stop the running stream"):
+                await bus.reopen()
+            assert runner.running and runner.bursts == bursts
+            await stream.next_frame()
+        assert bus._driver.burst is runner  # type: ignore[union-attr]
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_a_reopen_racing_a_close_leaves_the_transaction_on_the_wire_to_finish(driver: str) -> None:
     # The reopen's swap runs in a task of its own: a close that came first made the swap fail with the engine's

@@ -379,6 +379,8 @@ class DriverCore:
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile), once the transaction on the wire
         (if any) has ended."""
+        with self.lock:
+            self._refuse_reopen()  # first: a refused reopen leaves the line (and any burst) as it was
         self._stop_burst()
         await self._go_offline()
         self._drop_port()
@@ -394,11 +396,7 @@ class DriverCore:
             BusClosed: the bus closed meanwhile.
         """
         with self.lock:
-            state = self.engine.state
-            if state is LOST:
-                raise PortLost(f"port {self.target} is lost; cannot reopen now")
-            if state is CLOSED or state is DRAINING:  # (a close came first: its drain goes on undisturbed)
-                raise self.engine.closed_error()
+            self._refuse_reopen()
             offline = self.engine.disconnected()
         if not offline:
             self._awaiting_offline = True
@@ -407,13 +405,17 @@ class DriverCore:
             finally:
                 self._awaiting_offline = False
             with self.lock:
-                state = self.engine.state
-                if state is LOST:
-                    raise PortLost(f"port {self.target} was lost; cannot reopen now")
-                if state is CLOSED or state is DRAINING:
-                    raise self.engine.closed_error()
-                if state is not OFFLINE:  # (lost and back already: the reconnect's line, not this reopen's)
+                self._refuse_reopen(waited=True)
+                if self.engine.state is not OFFLINE:  # (lost and back already: the reconnect's line, not this one's)
                     raise PortLost(f"port {self.target} was lost and reconnected; reopen again")
+
+    def _refuse_reopen(self, *, waited: bool = False) -> None:
+        """Raise if the line cannot be reopened now: PortLost while it is lost, the closed error once closing."""
+        state = self.engine.state
+        if state is LOST:
+            raise PortLost(f"port {self.target} {'was' if waited else 'is'} lost; cannot reopen now")
+        if state is CLOSED or state is DRAINING:  # (a close came first: its drain goes on undisturbed)
+            raise self.engine.closed_error()
 
     def _drop_port(self) -> None:
         """Stop waiting on the port and close it (a reopen, or the bus closing)."""

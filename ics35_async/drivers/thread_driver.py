@@ -244,6 +244,8 @@ class ThreadDriver(LoopDriver):
     async def reopen(self, baudrate: int) -> None:
         """Close and reopen the port (the engine holds requests meanwhile), once the transaction on the wire
         (if any) has ended."""
+        with self.lock:
+            self._refuse_reopen()  # first: a refused reopen leaves the line (and any burst) as it was
         self._stop_burst()
         await self._go_offline()
         await self._stop_thread()
