@@ -590,53 +590,54 @@ class Stream(FrameIterator[Frame]):
             self._reanchor(now, self._t0 + self._cycle / self.rate_hz)  # (the outage's slots count as missed)
 
     def _tell_rate_not_kept(self, now: float) -> None:
-        """Warn once that the rate is not kept, with the likeliest cause: the stream's own silent servos,
-        requests to silent servos on the line, or else the wire time of its cycle."""
+        """Warn once that the rate is not kept, naming every cause it can count that cost the cycles (the
+        stream's own silent servos, requests to silent servos on the line, the program's EEPROM and memory
+        requests) when together they could account for half the late cycles; or else the wire time of its
+        cycle (or, where the wire leaves half the period, the answers' waits and a busy host)."""
         n, baud = len(self.ids), int(self.bus.baudrate)
         late = (
             f"stream of {n} IDs cannot keep rate_hz={self.rate_hz:g}: {self._overruns} of its first {self._cycle} "
             f"cycles ran past their slot (about {self._cycle / max(now - self._first_start, 1e-9):.0f} cycles/s)"
         )
-        # The stream's own IDs that never answered, or failed in half its cycles: each costs its whole reply
-        # allowance a cycle until it goes offline (a wrong baud rate silences them all); told as the cause
-        # when their failures could account for half the late cycles (one gone offline early could not).
+        # Each cause the stream can count, with what it cost: the stream's own IDs that never answered, or
+        # failed in half its cycles (each costs its whole reply allowance a cycle until it goes offline: a wrong
+        # baud rate silences them all); the program's requests to other IDs that went unanswered (each holds the
+        # line for its allowance); its EEPROM and memory requests (each goes once passed over in two slots: see
+        # LONG_REQUESTS).  Told when together they could account for half the late cycles (one ID gone offline
+        # early could not), every one that cost any: the first alone would send the program to mend one of them.
+        causes: list[tuple[str, int]] = []  # (what to say, the transactions it cost)
         own = [sid for sid, seen, failed in zip(self.ids, self._positions, self._failures, strict=True)
                if failed and (seen < 0 or 2 * failed >= self._cycle)]  # fmt: skip
-        if own and 2 * sum(self._failures[self._index[sid]] for sid in own) >= self._overruns:
-            log.warning(
-                "%s, and its ID(s) %s did not answer: each silent servo costs its whole reply allowance every "
-                "cycle until it goes offline (offline_after=%d): check its power, wiring, ID and baud rate "
-                "(ics35 scan looks at every ID at every rate)",
-                late,
-                ", ".join(map(str, own)),
-                self.offline_after,
+        if own:
+            said = (
+                f"its ID(s) {', '.join(map(str, own))} did not answer: each silent servo costs its whole reply "
+                f"allowance every cycle until it goes offline (offline_after={self.offline_after}): check its "
+                "power, wiring, ID and baud rate (ics35 scan looks at every ID at every rate)"
             )
-            return
+            causes.append((said, sum(self._failures[self._index[sid]] for sid in own)))
         others = self._others_unanswered()
         grown = {i: count - self._others_at_start.get(i, 0) for i, count in others.items()}
         silent = sorted(i for i, more in grown.items() if more > 0)
-        if silent and sum(grown.values()) >= self._overruns // 2:  # the slots went to those waits
-            log.warning(
-                "%s, while requests on the same line to ID(s) %s went unanswered %d times: a request to a servo "
-                "that does not answer holds the line for its whole reply allowance (poll such a servo less often)",
-                late,
-                ", ".join(map(str, silent)),
-                sum(grown.values()),
+        if silent:
+            said = (
+                f"requests on the same line to ID(s) {', '.join(map(str, silent))} went unanswered "
+                f"{sum(grown.values())} times: a request to a servo that does not answer holds the line for its "
+                "whole reply allowance (poll such a servo less often)"
             )
-            return
+            causes.append((said, sum(grown.values())))
         long = self._long_requests() - self._long_at_start
-        if long and 2 * long >= self._overruns:  # (each took a slot: see LONG_REQUESTS)
+        if long:
             image = protocol.ReadEeprom(0)
-            log.warning(
-                "%s, while the program's requests read or wrote %d EEPROM or memory images on the same line: each "
-                "takes %.1f ms at %d baud on the wire alone, more than a cycle's slack, so it goes once passed over "
-                "in two slots and delays that cycle (read and write EEPROMs with the stream stopped, or ask a "
-                "lower rate)",
-                late,
-                long,
-                protocol.wire_time(len(image.tx) + image.reply_len, baud) * 1e3,
-                baud,
+            said = (
+                f"the program's requests read or wrote {long} EEPROM or memory images on the same line: each "
+                f"takes {protocol.wire_time(len(image.tx) + image.reply_len, baud) * 1e3:.1f} ms at {baud} baud "
+                "on the wire alone, more than a cycle's slack, so it goes once passed over in two slots and delays "
+                "that cycle (read and write EEPROMs with the stream stopped, or ask a lower rate)"
             )
+            causes.append((said, long))
+        if causes and 2 * sum(cost for _, cost in causes) >= self._overruns:
+            first = ", and " if own else ", while "
+            log.warning("%s%s", late + first, "; and ".join(said for said, _ in causes))
             return
         command = protocol.Position(self.ids[0], protocol.FREE, baudrate=baud)
         wire = n * protocol.wire_time(len(command.tx) + command.reply_len, baud)  # each command and its reply

@@ -1223,6 +1223,41 @@ async def test_a_rate_lost_to_the_programs_eeprom_requests_is_told_as_such(caplo
     assert "EEPROM" in said and "latency timer" not in said, said
 
 
+@pytest.mark.realtime
+async def test_a_rate_lost_to_several_causes_names_each(caplog: pytest.LogCaptureFixture) -> None:
+    # The program polls an unplugged servo and reads EEPROMs beside a 150 Hz stream: both cost its cycles.  The
+    # warning named the first cause it checked that could account for half the late cycles and stopped there.
+    ids = list(range(6))
+    sim = make_sim([*ids, 9, 10], realtime=True)
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, **REAL_TIME) as bus, bus.stream(ids, rate_hz=150) as stream:
+
+                async def read_eeproms(sid: int) -> None:
+                    while True:
+                        with contextlib.suppress(ReplyError):
+                            await bus.servo(sid).read_eeprom()
+
+                async def poll_the_unplugged_one() -> None:
+                    while True:
+                        with contextlib.suppress(ReplyError):
+                            await bus.servo(20).read_temperature()
+
+                tasks = [asyncio.ensure_future(read_eeproms(sid)) for sid in (9, 10)]
+                tasks.append(asyncio.ensure_future(poll_the_unplugged_one()))
+                try:
+                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
+                        pass
+                finally:
+                    for task in tasks:
+                        task.cancel()
+    finally:
+        sim.close()
+    said = rate_warning(caplog)
+    assert "ID(s) 20 went unanswered" in said and "EEPROM" in said, said
+    assert "latency timer" not in said and "raise the baud rate" not in said, said
+
+
 async def test_a_rate_lost_to_the_streams_own_silent_servos_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
     # Servos at 115200 streamed at 1.25 Mbit/s (a wrong baud rate): none answers, each costs its whole
     # reply allowance every cycle until it goes offline; the warning said "raise the baud rate".
