@@ -8,7 +8,7 @@ bus, so the layers stay one-way and a test double or another driver fits.
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
-from typing import Any, Protocol, TypeVar, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 from .engine import BackgroundSource, Priority
 from .protocol import Command
@@ -19,7 +19,14 @@ T = TypeVar("T")
 
 @runtime_checkable
 class Line(Protocol):
-    """An ICS line: one transaction at a time, a background source (the stream), counters."""
+    """An ICS line: one transaction at a time, a background source (the stream), counters.
+
+    Two methods are optional, called only where a line has them (a stream's close looks them up):
+    ``close_out_begins(done)``, told when a stream's close-out (its ``on_close`` commands) begins, until
+    ``done`` (an ``anyio.Event``) is set, and ``close_out_ends(done)`` when it has ended.  A line whose own
+    close waits for the close-outs under way (as :class:`~ics35_async.bus.Bus` does) has them; without them a
+    stream closes out as before, and the line's close does not wait for it.
+    """
 
     @property
     def baudrate(self) -> int:
@@ -55,12 +62,6 @@ class Line(Protocol):
     ) -> None:
         """Let ``source`` (a stream) fill the line's idle time; ``None`` detaches.  ``close_out``: awaited
         on the open line when the line closes (a stream's ``on_close``)."""
-
-    def close_out_begins(self, done: Any) -> None:
-        """A stream's close-out is under way until ``done`` (an ``anyio.Event``) is set: the line's close waits."""
-
-    def close_out_ends(self, done: Any) -> None:
-        """The close-out told of with ``done`` has ended."""
 
     def detach_source(self, source: BackgroundSource) -> None:
         """Stop ``source`` filling the line."""

@@ -920,12 +920,13 @@ class Stream(FrameIterator[Frame]):
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
             # last pose it was given; bounded, in case the line is gone.
             self._closing_out = closing = anyio.Event()
-            self.bus.close_out_begins(closing)
+            # (Optional hooks of a Line: one made elsewhere may lack them, and must still close out.)
+            getattr(self.bus, "close_out_begins", _no_hook)(closing)
             try:
                 await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
             finally:
                 closing.set()
-                self.bus.close_out_ends(closing)
+                getattr(self.bus, "close_out_ends", _no_hook)(closing)
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:
@@ -971,6 +972,10 @@ class Stream(FrameIterator[Frame]):
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
+
+
+def _no_hook(done: anyio.Event) -> None:
+    """A line without the close-out hooks (see :class:`~ics35_async.line.Line`)."""
 
 
 keep_old_hook_names(Stream)  # the hooks had public names: they still work, with a warning, for one release

@@ -5,11 +5,16 @@ from __future__ import annotations
 import importlib
 import inspect
 import warnings
+from collections.abc import Awaitable, Callable
+from typing import Any
 
 import pytest
 
 import ics35_async
-from ics35_async import Line, open_bus
+from ics35_async import Line, Priority, Stream, open_bus
+from ics35_async.bus import Bus
+from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.stats import BusStats
 
 
 async def test_line_options_are_read_only_after_opening() -> None:
@@ -27,6 +32,59 @@ async def test_line_is_exported_and_a_bus_is_one() -> None:
     assert "Line" in ics35_async.__all__
     async with open_bus("sim://?ids=1") as bus:
         assert isinstance(bus, Line)
+
+
+class ThirdPartyLine:
+    """A line of another package's making: what the ``Line`` protocol asked of one before the close's hooks
+    (``close_out_begins``/``close_out_ends``) were added; here it hands each call to a bus."""
+
+    def __init__(self, bus: Bus) -> None:
+        self._bus = bus
+        self.baudrate, self.echo = bus.baudrate, bus.echo
+
+    @property
+    def is_open(self) -> bool:
+        return self._bus.is_open
+
+    @property
+    def stats(self) -> BusStats:
+        return self._bus.stats
+
+    async def request(self, command: Any, *, priority: Priority = Priority.NORMAL, retries: int | None = None) -> Any:
+        return await self._bus.request(command, priority=priority, retries=retries)
+
+    def submit(self, command: Any, *, priority: Priority = Priority.NORMAL, retries: int | None = None) -> Any:
+        return self._bus.submit(command, priority=priority, retries=retries)
+
+    async def reopen(self, *, baudrate: int | None = None) -> None:
+        await self._bus.reopen(baudrate=baudrate)
+
+    def attach_source(self, source: Any, *, close_out: Callable[[], Awaitable[None]] | None = None) -> None:
+        self._bus.attach_source(source, close_out=close_out)
+
+    def detach_source(self, source: Any) -> None:
+        self._bus.detach_source(source)
+
+    def kick(self) -> None:
+        self._bus.kick()
+
+    def notify(self, callback: Callable[[], None]) -> None:
+        self._bus.notify(callback)
+
+
+async def test_a_line_without_the_close_out_hooks_is_a_line_and_its_streams_close_out() -> None:
+    # The close's hooks were added to the protocol as required methods: a line made elsewhere was no Line any more
+    # (isinstance), and its stream's close raised AttributeError before it freed its servos.
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)])
+    async with open_bus(sim) as bus:
+        line = ThirdPartyLine(bus)
+        assert isinstance(line, Line)
+        async with Stream(line, [1, 2], on_close="free") as stream:
+            stream.set_targets({1: 7000, 2: 8000})
+            while (await stream.next_frame()).positions.get(1) != 7000:
+                pass
+        assert stream.targets_sent_on_close == {1: 0, 2: 0}
+        assert sim.servo(1).free and sim.servo(2).free
 
 
 @pytest.mark.parametrize("package", ["ics35_async", "ics35_async.transports", "ics35_async.sim"])
