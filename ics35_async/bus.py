@@ -19,6 +19,7 @@ from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, TimingOverrides
+from .engine.machine import ANOTHER_STREAM
 from .errors import BusClosed, ClosedByPortLoss, InvalidArgument, PortLost, UnsafeOperation, error_text
 from .protocol import Command
 from .stats import BusStats
@@ -474,7 +475,12 @@ class Bus:
         if driver is None or not self.is_open:
             raise self._not_open_error()
         driver.check_caller()
-        # At once (a running burst stops first): a refusal (another stream runs) reaches the caller.
+        running = engine.source
+        if running is not None and running is not source and running is not self._leaving:
+            # Refused before the running burst is stopped: the stream that runs on would pay for it.
+            raise InvalidArgument(ANOTHER_STREAM)
+        # At once (a running burst stops first): a refusal (another stream runs: one closed during a burst is
+        # detached where the burst stops) reaches the caller.
         driver.call_now(lambda t: engine.attach_source(source, t))
         self._close_out = None if close_out is None else (source, close_out)
         self._leaving = None

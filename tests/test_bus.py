@@ -821,12 +821,12 @@ async def test_a_reopen_right_after_a_streams_close_is_not_refused(
 
 
 @pytest.mark.pty
-async def test_a_reopen_refused_beside_a_running_stream_leaves_its_burst_running(
+async def test_a_reopen_or_stream_refused_beside_a_running_stream_leaves_its_burst_running(
     pty_sim: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The refusal stopped the stream's running burst first (to let a stream closed meanwhile detach), costing a
-    # stream that runs on, and was refused, its burst.  (The asyncio driver: no loop turn between the looks at
-    # the burst, so nothing else starts or ends one meanwhile.)
+    # stream that runs on its burst; a second stream's start, refused, did the same.  (The asyncio driver: no
+    # loop turn between the looks at the burst, so nothing else starts or ends one meanwhile.)
     monkeypatch.setenv(burst.ENV, "1")
     path = pty_sim("--fast", "--ids", "1-8").path
     async with open_bus(path, driver="asyncio", **PATIENT) as bus, bus.stream(range(1, 9)) as stream:
@@ -840,6 +840,9 @@ async def test_a_reopen_refused_beside_a_running_stream_leaves_its_burst_running
             bursts = runner.bursts
             with pytest.raises(InvalidArgument, match="stop the running stream"):
                 await bus.reopen()
+            assert runner.running and runner.bursts == bursts
+            with pytest.raises(InvalidArgument, match="already runs a stream"):
+                await bus.stream([1]).start()  # (a second stream is refused as well, at no cost to the first)
             assert runner.running and runner.bursts == bursts
             await stream.next_frame()
         assert bus._driver.burst is runner  # type: ignore[union-attr]

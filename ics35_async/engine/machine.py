@@ -43,6 +43,7 @@ OFFLINE, LOST = State.OFFLINE, State.LOST
 NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
 URGENT = Priority.URGENT
+ANOTHER_STREAM = "this bus already runs a stream; close it first"  # (the bus refuses it too: see Bus.attach_source)
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
 BURST_LIMIT = 128
 """Transactions in one burst at most: four cycles of a 32-servo stream (a wake still stops it at its next
@@ -279,7 +280,7 @@ class LineEngine:
     def attach_source(self, source: BackgroundSource, now: float) -> bytes | None:
         """Let ``source`` fill the line's idle time (one at a time)."""
         if self._source is not None and self._source is not source:
-            raise InvalidArgument("this bus already runs a stream; close it first")
+            raise InvalidArgument(ANOTHER_STREAM)
         if self.state is CLOSED or self.state is DRAINING:
             raise self.closed_error()
         # Slots a request was passed over in beside an earlier stream do not count: it goes ahead
