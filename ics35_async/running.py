@@ -72,6 +72,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     import anyio
 
     _check_run(main, backend)
+    stopping = _heard()
     received: list[int] = []
     exited: list[SystemExit] = []
     presses = _Presses()
@@ -85,7 +86,10 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
             received.append(signum)
 
     async def until_signal() -> None:
-        receiver = anyio.open_signal_receiver(*STOPPING)
+        if not stopping:  # (both ignored: nothing to listen for, and trio refuses a receiver of none)
+            await listening(_no_signals())
+            return
+        receiver = anyio.open_signal_receiver(*stopping)
         signals = receiver.__enter__()
         try:
             await listening(signals)
@@ -93,10 +97,10 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
             try:
                 receiver.__exit__(None, None, None)
                 # asyncio's receiver puts Python's own handlers back as it closes, whatever was there before.
-                _hand_back([(signum, outside) for signum in STOPPING])
+                _hand_back([(signum, outside) for signum in stopping])
             except KeyboardInterrupt:  # a Ctrl-C just then, on Python's handler
                 outside(signal.SIGINT, None)
-                _hand_back([(signum, outside) for signum in STOPPING])
+                _hand_back([(signum, outside) for signum in stopping])
 
     async def listening(signals: AsyncIterator[int]) -> None:
         async with anyio.create_task_group() as tasks:
@@ -133,7 +137,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     before: list[tuple[int, object]] = []
     try:
         if threading.current_thread() is threading.main_thread():  # (else the receiver refuses, as it should)
-            before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in STOPPING]
+            before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in stopping]
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
         error = only_error(exc)
@@ -155,6 +159,21 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     if not received:
         return EXIT_OK
     return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
+
+
+def _heard() -> tuple[signal.Signals, ...]:
+    """The stop signals the program takes: those it was not started ignoring.  A shell without job control
+    (a script) starts a background command with SIGINT ignored, so that the Ctrl-C typed for its foreground
+    command does not stop it too, and ``nohup`` has SIGHUP ignored the same way: such a signal stays ignored."""
+    return tuple(signum for signum in STOPPING if signal.getsignal(signum) is not signal.SIG_IGN)
+
+
+async def _no_signals() -> AsyncIterator[int]:
+    """A receiver of no signals: waits until cancelled."""
+    import anyio
+
+    await anyio.sleep_forever()
+    yield 0  # (never reached: makes this an async generator)
 
 
 def _check_run(main: object, backend: str) -> None:
@@ -459,7 +478,7 @@ def stop_on_signals() -> Iterator[None]:
     try:
         stop_signals.start()
         sys.unraisablehook = stop_signals.dropped
-        for stopping in STOPPING:
+        for stopping in _heard():
             previous[stopping] = _unwrapped(signal.signal(stopping, stop_signals.handle))
         yield
         if stop_signals.deferred:  # a finalizer dropped the stop after the block's last blocking call

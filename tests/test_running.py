@@ -523,3 +523,43 @@ def test_a_third_ctrl_c_during_the_close_forces_the_program_out(program: str) ->
     assert code in (130, -signal.SIGINT), err  # (as a shell reports either: 130)
     assert "closed" not in out.split(), out
     assert "Traceback" not in err and "forced out" in err and "cut short" in err, err
+
+
+def _started_ignoring_sigint() -> None:
+    """As a shell without job control starts a background command (``./robot.py &`` in a script)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize(
+    "program",
+    [
+        pytest.param([PROGRAM, "asyncio", "free"], id="run-asyncio"),
+        pytest.param([PROGRAM, "uvloop", "free"], id="run-uvloop"),
+        pytest.param([PROGRAM, "trio", "free"], id="run-trio"),
+        pytest.param([BLOCKING_PROGRAM], id="stop_on_signals"),
+    ],
+)
+def test_a_program_started_ignoring_sigint_keeps_ignoring_it(program: list[str]) -> None:
+    # The Ctrl-C typed for the script's foreground command reaches its background jobs too: they were started
+    # ignoring it so that it does not stop them, and a robot program must not start hearing it.  SIGTERM still
+    # stops it as asked.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", *program],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_started_ignoring_sigint,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "streaming"
+        os.kill(proc.pid, signal.SIGINT)
+        time.sleep(scaled(0.5))
+        assert proc.poll() is None, proc.communicate()
+        os.kill(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert out.strip() == "free"
+    assert "Traceback" not in err, err
