@@ -120,6 +120,27 @@ def test_sim_help_is_laid_out_like_every_other_command(cli: Any) -> None:
     assert "usage:" not in result.out and "options:" not in result.out  # argparse's own layout
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="the pty simulator is POSIX only")
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--bogus"], "Error: Unrecognized arguments: --bogus"),
+        (["--ids", "x"], "Error: 'x' is not an ID or a range of IDs"),
+        (["--baud", "3"], "Error: Baud rate must be one of 115200, 625000, 1250000, got 3"),
+        (["--baud", "fast"], "Error: Argument --baud: invalid int value: 'fast'"),
+    ],
+)
+def test_sim_usage_errors_look_like_every_other_commands(cli: Any, args: list[str], says: str) -> None:
+    theirs = cli("scan", "--ids", "x")
+    result = cli("sim", *args)
+    assert result.code == theirs.code == ExitCode.USAGE
+    assert theirs.err.startswith("Usage: ics35 scan [OPTIONS]\nTry 'ics35 scan --help' for help.\n\nError: ")
+    assert result.err.startswith("Usage: ics35 sim [OPTIONS]\nTry 'ics35 sim --help' for help.\n\nError: "), result.err
+    assert says in result.err, result.err
+    assert "usage:" not in result.err and "ics35 sim: error:" not in result.err  # argparse's own layout
+    assert result.out == ""
+
+
 def test_restore_to_a_silent_servo_names_restores_own_syntax(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     _, url = sim_line([1])
     backup = tmp_path / "one.json"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import IO, Any, NoReturn
 
 import click
 
@@ -24,7 +25,24 @@ def sim(args: tuple[str, ...]) -> int:
     if "-h" in args or "--help" in args:
         click.echo(click_style_help(build_parser("ics35 sim"), "ics35 sim"), nl=False)
         return 0
-    return main(list(args), prog="ics35 sim")
+    return main(list(args), prog="ics35 sim", parser_class=ClickStyleErrors)
+
+
+class SimUsageError(click.UsageError):
+    """A usage error of ``ics35 sim``, shown as click shows every other command's (its usage line is the
+    help's: the command's own context knows only its pass-through ARGS)."""
+
+    def show(self, file: IO[Any] | None = None) -> None:
+        usage = "Usage: ics35 sim [OPTIONS]\nTry 'ics35 sim --help' for help."
+        click.echo(f"{usage}\n\nError: {self.message}", file=file, err=file is None)
+
+
+class ClickStyleErrors(argparse.ArgumentParser):
+    """The simulator's parser, its usage errors raised as click's (exit 2, ExitCode.USAGE) instead of
+    argparse's usage block and ``ics35 sim: error:`` line."""
+
+    def error(self, message: str) -> NoReturn:
+        raise SimUsageError(message[:1].upper() + message[1:])
 
 
 def click_style_help(parser: argparse.ArgumentParser, prog: str) -> str:

@@ -29,8 +29,11 @@ from .url import parse_seconds
 from .virtual_line import DEFAULT_REPLUG_AFTER, VirtualLine
 
 
-def build_parser(prog: str = "python -m ics35_async.sim") -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser(
+    prog: str = "python -m ics35_async.sim", parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser
+) -> argparse.ArgumentParser:
+    """The options; ``parser_class``: ``ics35 sim`` tells its usage errors as its other commands do."""
+    parser = parser_class(
         prog=prog,
         description="Serve a simulated ICS 3.5 servo line on a pseudo-terminal. "
         "Prints the device path on the first line, then serves until SIGINT/SIGTERM. "
@@ -170,9 +173,15 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     return bus
 
 
-def main(argv: Sequence[str] | None = None, *, prog: str = "python -m ics35_async.sim") -> int:
-    """Entry point of ``python -m ics35_async.sim`` (and ``ics35 sim``); returns the exit status."""
-    parser = build_parser(prog)
+def main(
+    argv: Sequence[str] | None = None,
+    *,
+    prog: str = "python -m ics35_async.sim",
+    parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser,
+) -> int:
+    """Entry point of ``python -m ics35_async.sim`` (and ``ics35 sim``); returns the exit status.  Every usage
+    error goes through ``parser_class``'s ``error`` (argparse's: the usage, the message, exit 2)."""
+    parser = build_parser(prog, parser_class)
     args = parser.parse_args(argv)
     if args.console and in_background_of_terminal(0):
         parser.error(
