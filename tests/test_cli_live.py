@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -70,3 +71,28 @@ def test_a_first_cycle_that_ends_after_seconds_is_up_is_reported(cli: Any, comma
     result = cli("--port", url, "--timeout", "1", *command, "--seconds", "0.1")
     assert result.code == 0, result.err
     assert "answering 1/1" in result.out, result.out  # (0/1 until a cycle has ended)
+
+
+@pytest.mark.parametrize(
+    ("command", "position_cells"),
+    [(["monitor", "1-3", "--free"], slice(1, 3)), (["demo", "--ids", "1-3"], slice(2, 3))],
+    ids=["monitor", "demo"],
+)
+def test_a_servo_gone_offline_shows_no_position(
+    cli: Any, sim_line: Any, command: list[str], position_cells: slice
+) -> None:
+    # Servo 3 answers, then is unplugged: its row says "off", and shows no position (nor current or
+    # temperature), not the last ones read as if it were still there.
+    sim, url = sim_line([1, 2, 3], realtime=True)
+    timer = threading.Timer(0.5, sim.remove_servo, (3,))
+    timer.start()
+    try:
+        result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "1.5")
+    finally:
+        timer.cancel()
+    assert result.code == 0, result.err
+    rows = {line.split()[0]: line.split() for line in result.out.splitlines() if line.split()[:1] in (["1"], ["3"])}
+    assert rows["3"][-1] == "off", result.out
+    assert rows["3"][position_cells] == ["-"] * len(rows["3"][position_cells]), result.out
+    assert rows["3"][-3:-1] == ["-", "-"], result.out  # current, temperature
+    assert "-" not in rows["1"][position_cells], result.out  # (a servo still there shows where it is)

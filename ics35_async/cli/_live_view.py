@@ -97,9 +97,11 @@ class LiveState:
         return table
 
     def _cells(self, sid: int, telemetry: Telemetry, with_targets: bool) -> list[str | Text]:
-        pos = self.positions.get(sid)
-        cur = telemetry.current.get(sid)
-        temp = telemetry.temperature.get(sid)
+        # An offline servo's last readings no longer say what it does (a hand or gravity may move it): none shown.
+        gone = sid in self.offline
+        pos = None if gone else self.positions.get(sid)
+        cur = None if gone else telemetry.current.get(sid)
+        temp = None if gone else telemetry.temperature.get(sid)
         errors = self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0)
         if sid in self.offline:
             state: str | Text = Text("off", style="red")
