@@ -142,6 +142,7 @@ def play(
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
     silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
+    untargeted: list[str] = []  # the joints opened that never got a target (stopped as it began): left free
     # Only the joints the motion moves, and those --start-pose states (asked to hold there: a robot's legs just
     # powered up are free), are opened: the others are not read, freed, commanded or watched, so a joint left
     # holding stays held (a standing robot's legs under a wave of its arms).  (An unknown stated joint is
@@ -151,7 +152,7 @@ def play(
     slowing: list[bool] = []  # the smooth stop has begun (a Ctrl-C then, the CLI's second, cuts it short)
 
     async def body() -> str:
-        nonlocal passes, played, silent
+        nonlocal passes, played, silent, untargeted
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
         async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
@@ -234,6 +235,9 @@ def play(
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
             silent = sorted(robot.latest.offline) if robot.latest is not None else []
+            # A joint freed to be read at the start (ICS 3.5) and stopped before its first target stays free:
+            # "hold" keeps only the targets there are.
+            untargeted = [j for j in robot.joints if robot.targets.get(j) is None and j not in robot.untouched]
             return how
 
     # A line lost mid-motion ends the motion on the others at once: each joint holds the last target it got,
@@ -251,7 +255,18 @@ def play(
             exc.message = f"interrupted: Ctrl-C again cut the slow-down short; the joints it opened {left}"
         raise
     length = f"{motion.duration / speed:.1f} s"
-    what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}" if passes else f"{played:.1f} s of {length} played"
+    if passes:
+        what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}"
+    else:  # (stopped as it began: not "0.0 s", which reads as if nothing could have moved)
+        what = f"{'under 0.1' if played < 0.05 else f'{played:.1f}'} s of {length} played"
+    left = f"{'free' if on_stop == 'free' else 'holding'} (those it opened)"
+    if on_stop != "free" and untargeted:
+        free = escape(", ".join(untargeted))
+        left = (
+            "free (those it opened: none had a target yet)"
+            if len(untargeted) == len(moved.joints)
+            else f"holding (those it opened), but {free} free (no target yet)"
+        )
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
     but = ""
     if silent:
@@ -260,10 +275,7 @@ def play(
             f", but {escape(', '.join(silent))}: {'its servo does' if one else 'their servos do'} not answer "
             f"(offline) and {'keeps' if one else 'keep'} whatever {'it' if one else 'they'} last received"
         )
-    out.print(
-        f"play {how} after {time.monotonic() - began:.1f} s: {what}; "
-        f"joints left {'free' if on_stop == 'free' else 'holding'} (those it opened){but}"
-    )
+    out.print(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}")
     return 0
 
 
