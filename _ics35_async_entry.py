@@ -20,6 +20,9 @@ def main() -> None:
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
-        sys.stderr.write("interrupted\n")
+        # As the command line does after Ctrl-C (cli._console.off_the_ctrl_c_line): the terminal's echoed ^C,
+        # at the start of the line, is cleared, and the message starts a line of its own.
+        clear = "\r\x1b[2K" if sys.stderr.isatty() and sys.platform != "win32" else ""
+        sys.stderr.write(f"{clear}interrupted\n")
         sys.exit(INTERRUPTED)
     cli_main()

@@ -22,7 +22,8 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.timing import PATIENT_OPTION
+from tests.support.terminal import screen_of, typed_on_a_terminal
+from tests.support.timing import PATIENT_OPTION, scaled
 
 pytestmark = [
     pytest.mark.pty,
@@ -299,3 +300,56 @@ def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
         sim.terminate()
         sim.communicate(timeout=10)
     assert sim.returncode == 0
+
+
+CALIBRATED = """\
+[lines.main]
+port = "sim://ctrl-c-arm?ids=1-2&realtime=1"
+
+[joints.a]
+line = "main"
+id = 1
+
+[joints.b]
+line = "main"
+id = 2
+"""
+
+
+@pytest.mark.parametrize(
+    ("args", "when", "first"),
+    [
+        # A one-shot command waiting for a silent servo: the message came right after the echoed ^C.
+        (
+            ["--port", "sim://?ids=1&realtime=1", "--timeout", "3", "--retries", "3", "get", "5", "speed"],
+            1.0,
+            "error: interrupted",
+        ),
+        # doctor prints its report after the Ctrl-C, then the error: the report's first line came after the ^C.
+        (["doctor", "--port", "sim://?ids=1-3&realtime=1", "--samples", "1000"], 1.5, "compiled stream path: "),
+        # calibrate's live view: its last redraw and the message after it.
+        (["calibrate", "{robot}"], "neutral pose   Enter", "error: interrupted: nothing written to"),
+    ],
+    ids=["get", "doctor", "calibrate"],
+)
+def test_what_is_said_after_ctrl_c_starts_on_a_line_of_its_own(
+    tmp_path: Path, args: list[str], when: str | float, first: str
+) -> None:
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    code, written = typed_on_a_terminal(
+        [a.format(robot=robot) for a in args], [(scaled(when) if isinstance(when, float) else when, b"\x03")]
+    )
+    screen = screen_of(written)
+    assert code == 130, "\n".join(screen)
+    assert "Traceback" not in written, written
+    assert not any("^C" in line and line != "^C" for line in screen), "\n".join(screen)  # never beside other text
+    assert any(line.startswith(first) for line in screen), "\n".join(screen)
+    assert any(line.startswith("error: interrupted") for line in screen), "\n".join(screen)
+
+
+def test_the_simulators_last_words_after_ctrl_c_start_a_line_of_their_own() -> None:
+    code, written = typed_on_a_terminal(["sim", "--ids", "1"], [("ics35 sim: 1 servos", b"\x03")])
+    screen = screen_of(written)
+    assert code == 0, "\n".join(screen)
+    assert any(line.startswith("ics35 sim: served 0 transactions") for line in screen), "\n".join(screen)

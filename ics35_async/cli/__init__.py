@@ -194,6 +194,10 @@ _SIGNAL_CODES = {int(code) - 128: code for code in (ExitCode.HANGUP, ExitCode.TE
 def _interrupted(word: str) -> NoReturn:
     """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code."""
     stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, word))
+    if stopped.code == ExitCode.INTERRUPTED:
+        from ._console import off_the_ctrl_c_line
+
+        off_the_ctrl_c_line()
     click.echo(stopped.message, err=True)
     sys.exit(int(stopped.code))
 

@@ -99,6 +99,10 @@ def _ctrl_c() -> Iterator[list[int]]:
     finally:
         if signal.getsignal(signal.SIGINT) is on_sigint:
             signal.signal(signal.SIGINT, signal.default_int_handler)
+        if pressed:  # (what the command says next, a report or its error, must not follow the echoed ^C)
+            from ._console import off_the_ctrl_c_line
+
+            off_the_ctrl_c_line()
 
 
 def _interrupt() -> None:

@@ -213,7 +213,10 @@ def main(
             tap.close()
         parser.error(f"--link: {error_text(exc)}")
 
+    stopped_by: list[int] = []
+
     def on_signal(signum: int, frame: FrameType | None) -> None:
+        stopped_by.append(signum)
         server.stop()
 
     # (a server: stopped by any of them, it ends as asked, exit 0)
@@ -261,6 +264,10 @@ def main(
         server.close()
         if tap is not None:
             tap.close()
+        if signal.SIGINT in stopped_by and sys.stderr.isatty() and sys.platform != "win32":
+            # Ctrl-C: the terminal echoed ^C at the start of a line; cleared, so the last words start one of their
+            # own (as the ics35 commands' after Ctrl-C).
+            sys.stderr.write("\r\x1b[2K")
         if isinstance(device, VirtualLine):
             device.close()
             lost = f"; {server.dropped_bytes} bytes no client took" if server.dropped_bytes else ""

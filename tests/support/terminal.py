@@ -3,12 +3,14 @@
 Only what the live views write is modelled (rich's ``Live`` redraws in place with carriage returns,
 cursor-up and erase-line); colours and other control sequences are dropped.  A line printed beside a live
 view by another console is overwritten by the view's next redraw, as on a real terminal: that is what
-this is for.
+this is for.  :func:`typed_on_a_terminal` runs a command on a pty of its own, Ctrl-C typed as a person types it.
 """
 
 from __future__ import annotations
 
 import re
+import signal
+from collections.abc import Callable
 
 _CONTROL = re.compile(r"\x1b\[([0-9;?]*)([A-Za-z])|\x1b[()][A-Za-z0-9]|\x1b.|\r|\n|\x08|[^\x1b\r\n\x08]+")
 
@@ -45,3 +47,69 @@ def screen_of(output: str) -> list[str]:
             line[col : col + len(text)] = list(text)
             col += len(text)
     return ["".join(line).rstrip() for line in lines]
+
+
+def typed_on_a_terminal(
+    args: list[str], keys: list[tuple[str | float, bytes]], *, timeout: float = 60
+) -> tuple[int, str]:
+    """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
+    a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
+    ``when`` seconds, then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
+    Returns the exit code and everything written to the terminal."""
+    import fcntl
+    import os
+    import select
+    import struct
+    import subprocess
+    import sys
+    import termios
+    import time
+
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+
+    def own_terminal() -> None:
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # (as an interactive shell starts it)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        preexec_fn=own_terminal,
+        env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
+    )
+    os.close(slave)
+    written = b""
+
+    def read_until(done: Callable[[], bool], limit: float) -> None:
+        nonlocal written
+        deadline = time.monotonic() + limit
+        while not done() and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.05)[0]:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # the process has ended and closed the terminal
+                    return
+                if not chunk:
+                    return
+                written += chunk
+
+    try:
+        for when, key in keys:
+            if isinstance(when, str):
+                read_until(lambda when=when: when in written.decode(errors="replace"), timeout)
+            else:
+                read_until(lambda: False, when)
+            os.write(master, key)
+        read_until(lambda: proc.poll() is not None, timeout)
+        proc.wait(timeout)
+        read_until(lambda: False, 0.2)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    return proc.returncode, written.decode(errors="replace")
