@@ -97,10 +97,13 @@ def typed_on_a_terminal(
                     return
                 written += chunk
 
+    def shows(text: str) -> Callable[[], bool]:
+        return lambda: text in written.decode(errors="replace")
+
     try:
         for when, key in keys:
             if isinstance(when, str):
-                read_until(lambda when=when: when in written.decode(errors="replace"), timeout)
+                read_until(shows(when), timeout)
             else:
                 read_until(lambda: False, when)
             os.write(master, key)
