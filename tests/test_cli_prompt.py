@@ -144,3 +144,30 @@ def test_ctrl_c_just_before_the_read_still_ends_the_question(monkeypatch: pytest
         sys.stdin.close()
     assert not answered, "the question went on waiting after the Ctrl-C, until the answer came"
     assert raised.value.code == ExitCode.INTERRUPTED
+
+
+def test_a_command_started_ignoring_sigint_keeps_ignoring_it_at_the_question() -> None:
+    # A script's background job starts with SIGINT ignored (the Ctrl-C typed for the script's foreground
+    # command is not for it): the question turned Ctrl-C back on while it asked, so that Ctrl-C ended it.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LOOPS["asyncio"], "--port", "sim://?ids=1", "eeprom", "set", "1", "speed=5"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # (what a shell does)
+    )
+    try:
+        assert proc.stderr is not None and proc.stdin is not None
+        read_until(proc.stderr.fileno(), b"[y/N]")
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.5)  # (a Ctrl-C heard would end it at once: see the test above)
+        assert proc.poll() is None, proc.stderr.read().decode(errors="replace")
+        proc.stdin.write(b"n\n")
+        proc.stdin.close()
+        code = proc.wait(timeout=20)
+        rest = proc.stderr.read().decode(errors="replace")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code != 130 and "interrupted" not in rest, rest

@@ -20,12 +20,14 @@ def _ctrl_c_raises() -> Iterator[None]:
 
     A question asked inside the event loop would otherwise meet asyncio.Runner's
     SIGINT handler, which only cancels the main task (the read goes on waiting)
-    and raises KeyboardInterrupt at the second Ctrl-C.
+    and raises KeyboardInterrupt at the second Ctrl-C.  A command started with
+    SIGINT ignored (a script's background job: the Ctrl-C typed for the
+    script's foreground command is not for it) keeps ignoring it.
     """
-    if threading.current_thread() is not threading.main_thread():
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is signal.SIG_IGN:
         yield
         return
-    previous = signal.getsignal(signal.SIGINT)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
