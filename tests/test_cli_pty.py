@@ -302,6 +302,31 @@ def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
     assert sim.returncode == 0
 
 
+def test_ics35_sim_started_ignoring_sighup_keeps_serving_when_the_terminal_closes() -> None:
+    # `nohup ics35 sim --link ... &`, as every other command: SIGHUP ignored from the start stays ignored (it
+    # took SIGHUP over and ended with the terminal); SIGTERM still ends it.
+    sim = subprocess.Popen(
+        ["nohup", sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "4"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert sim.stdout is not None
+        path = sim.stdout.readline().strip()
+        assert path, sim.stderr.read() if sim.stderr else ""
+        sim.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        assert sim.poll() is None, sim.communicate(timeout=10)
+        proc = ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", "4", "--quick", "--json")
+        assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4]
+    finally:
+        sim.terminate()
+        sim.communicate(timeout=10)
+    assert sim.returncode == 0
+
+
 CALIBRATED = """\
 [lines.main]
 port = "sim://ctrl-c-arm?ids=1-2&realtime=1"

@@ -219,8 +219,13 @@ def main(
         stopped_by.append(signum)
         server.stop()
 
-    # (a server: stopped by any of them, it ends as asked, exit 0)
-    stops = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)]
+    # (a server: stopped by any of them, it ends as asked, exit 0; one it was started ignoring stays ignored,
+    # as with every ics35 command: `nohup ics35 sim ... &` outlives its terminal)
+    stops = [
+        sig
+        for sig in (getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+        if signal.getsignal(sig) is not signal.SIG_IGN
+    ]
     previous = {sig: signal.signal(sig, on_signal) for sig in stops}
     console: ConsoleReader | None = None
     code = 0
