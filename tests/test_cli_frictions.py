@@ -174,3 +174,22 @@ def test_read_pose_has_no_float_noise_and_no_negative_zero(tmp_path: Path) -> No
         sim.close()
     assert json.dumps(got) == json.dumps({"a": round((148 * 270 / 8000) - 5, 5), "b": 0.0})
     assert str(got["b"]) == "0.0"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["move", "--bogus"], ["move", "1", "--bogus"], ["move", "1", "7500", "--degs"], ["set", "--bogus", "1", "speed"]],
+    ids=["move-first", "move-second", "move-misspelt", "set"],
+)
+def test_an_unknown_option_of_a_command_taking_negative_numbers_is_named_as_such(cli: Any, args: list[str]) -> None:
+    # move and set take negative values (move 1 -30 --deg): an unknown option was read as the ID or the
+    # position ("'--bogus' is not a servo ID"), or went unsaid.
+    result = cli("--port", "sim://?ids=1", *args)
+    assert result.code == ExitCode.USAGE, result.err
+    assert "No such option: --" in result.err or "No such option '--" in result.err, result.err
+
+
+def test_negative_values_still_reach_move_and_set(cli: Any) -> None:
+    assert cli("--port", "sim://?ids=1", "move", "1", "-30", "--deg").code == 0
+    refused = cli("--port", "sim://?ids=1", "set", "1", "speed", "-5")
+    assert refused.code == ExitCode.USAGE and "No such option" not in refused.err, refused.err

@@ -21,6 +21,7 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    SignedValuesCommand,
     current_json,
     current_text,
     emit_json,
@@ -148,7 +149,7 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
 # --------------------------------------------------------------------------- move / free
 
 
-@click.command(context_settings={"ignore_unknown_options": True})
+@click.command(cls=SignedValuesCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("position", metavar="POS")
 @click.option("--deg", "degrees", is_flag=True, help="POS is in degrees (0 = neutral, -135..+135).")
@@ -327,7 +328,7 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
     return 0
 
 
-@click.command(name="set", context_settings={"ignore_unknown_options": True})
+@click.command(name="set", cls=SignedValuesCommand)
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
 @click.argument("param", metavar="PARAM", type=click.Choice(list(WRITE_PARAMS), case_sensitive=False))
 @click.argument("value", metavar="VALUE", type=int)

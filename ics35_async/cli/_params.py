@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -70,6 +71,29 @@ class ListType(click.ParamType[list[int]]):
             return self._parse(str(value))
         except InvalidArgument as exc:
             self.fail(f"{exc}{self._hint}", param, ctx)
+
+
+class SignedValuesCommand(click.Command):
+    """A command whose arguments may be negative numbers (``move 1 -30 --deg``, ``set 1 speed -5``).
+
+    Click takes ``-30`` for an option unless unknown options are let through, and then it lets a mistyped
+    option through too: ``move --bogus`` said "'--bogus' is not a servo ID".  A word of two dashes is never a
+    number, so one the command does not have is refused as click refuses it elsewhere, with its near names.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["context_settings"] = {**(kwargs.get("context_settings") or {}), "ignore_unknown_options": True}
+        super().__init__(*args, **kwargs)
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        known = [name for p in self.get_params(ctx) for name in (*p.opts, *p.secondary_opts) if name[:2] == "--"]
+        for arg in args:
+            if arg == "--":
+                break  # (what follows is arguments only)
+            name = arg.partition("=")[0]
+            if name[:2] == "--" and name not in known:
+                raise click.NoSuchOption(name, possibilities=difflib.get_close_matches(name, known), ctx=ctx)
+        return super().parse_args(ctx, args)
 
 
 SERVO_ID = ServoIdType()
