@@ -608,6 +608,27 @@ def test_calibrate_refuses_a_joint_not_moved_through_its_range(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.toml", "robot.toml"]  # no backup, no side file
 
 
+def test_calibrate_with_no_joint_moved_says_so_in_one_short_sentence(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    """Enter twice, nothing moved: one sentence for the joints (it was the same sentence once per joint, 17
+    times over for a humanoid, on one line)."""
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", None, "\n"), ("whole range", None, "\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == ExitCode.REFUSED, result.err
+    message = " ".join(result.err.split())
+    assert "joints neck, hip moved over less than the 5 degrees a range needs" in message, message
+    assert message.count("degrees") == 1, message
+    assert f"Nothing was written to {robot_file}" in message
+    assert robot_file.read_text() == CALIBRATE_FILE.format(**ports)
+
+
 @pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
 def test_teach_keeps_its_poses_when_a_second_ctrl_c_lands_as_it_writes_them(
     rig: tuple[Rig, Path], tmp_path: Path

@@ -19,9 +19,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..eeprom import Eeprom
-from ..errors import IcsError, InvalidArgument, ReplyError, error_text
+from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
-from ..robot.calibration import calibrate_joint, reverse_note, write_calibration
+from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
 from ..robot.startup import limit_problem
 from ._common import (
@@ -417,19 +417,26 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
             exc.hints.append("the joints it opened are left free, as calibrate had them")
         raise
     calibrated: dict[str, JointSpec] = {}
-    narrow: list[str] = []
+    narrow: list[NarrowRange] = []
     for name in names:
         if name not in neutral or name not in low:
             err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
             continue
         try:
             calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
-        except InvalidArgument as exc:
-            narrow.append(str(exc))
+        except NarrowRange as exc:
+            narrow.append(exc)
     if narrow:
+        # One joint: its own words; more (none moved, often: a humanoid's 17), one sentence naming them.
+        said = str(narrow[0])
+        if len(narrow) > 1:
+            said = (
+                f"joints {', '.join(exc.joint for exc in narrow)} moved over less than the "
+                f"{MIN_RANGE_DEGREES:g} degrees a range needs (were they moved to both ends of their ranges?)"
+            )
         raise CliError(
             ExitCode.REFUSED,
-            "; ".join(narrow) + f". Nothing was written to {robot_file}",
+            f"{said}. Nothing was written to {robot_file}",
             "run calibrate again and, at step 2, move each joint to both ends of its range by hand",
             "to calibrate some joints only: --joints NAME,NAME",
         )

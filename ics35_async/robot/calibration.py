@@ -38,12 +38,26 @@ _KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)([^#]*?)(\s*#.*)?$")
 MIN_RANGE_DEGREES = 5.0  # narrower, the joint was not moved through its range: limits that would lock it
 
 
+class NarrowRange(InvalidArgument):
+    """A joint moved over less than :data:`MIN_RANGE_DEGREES` as it was calibrated: ``joint`` (its name),
+    ``span`` (the degrees it moved over)."""
+
+    def __init__(self, joint: str, span: float) -> None:
+        super().__init__(
+            f"joint {joint} moved over {span:.1f} degrees only, less than the {MIN_RANGE_DEGREES:g} a range needs "
+            "(was it moved to both ends of its range?)"
+        )
+        self.joint = joint
+        self.span = span
+
+
 def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -> JointSpec:
     """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
     ``low``..``high`` (servo degrees), rounded inward to 0.1 degree.
 
-    Raises InvalidArgument when the range is narrower than :data:`MIN_RANGE_DEGREES`: a joint not
-    moved by hand (Enter pressed twice) would otherwise get limits that forbid every motion.
+    Raises :class:`NarrowRange` (an InvalidArgument) when the range is narrower than
+    :data:`MIN_RANGE_DEGREES`: a joint not moved by hand (Enter pressed twice) would otherwise get limits
+    that forbid every motion.
     """
     offset = round(neutral, 1)
     ends = sorted(((s - offset) * joint.sign) for s in (low, high))
@@ -53,11 +67,7 @@ def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -
     bound = sorted(((e - offset) * joint.sign) for e in (-SERVO_DEGREES, SERVO_DEGREES))
     lo, hi = max(lo, bound[0]), min(hi, bound[1])
     if hi - lo < MIN_RANGE_DEGREES:
-        span = max(0.0, high - low)
-        raise InvalidArgument(
-            f"joint {joint.name} moved over {span:.1f} degrees only, less than the {MIN_RANGE_DEGREES:g} a range "
-            "needs (was it moved to both ends of its range?)"
-        )
+        raise NarrowRange(joint.name, max(0.0, high - low))
     return replace(joint, offset=offset, min=lo, max=hi)
 
 
