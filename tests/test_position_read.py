@@ -264,4 +264,20 @@ def test_the_stream_plan_finds_a_servo_silent_that_answered_before_its_protocol_
 
     plan = run(sim, body)
     assert plan.silent == [1, 2] and plan.streamed == [1, 2, 3]
+    # Each still read as its protocol says: the ICS 3.6 servo (2) watched, never freed, once it answers again.
+    assert (plan.watch, plan.free) == ([2], [1, 3])
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
+
+
+def test_a_known_ics35_servo_gone_silent_is_still_left_out_of_a_plan_that_may_not_free() -> None:
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> Any:
+        await policies.plan_position_stream(bus, [1, 2])
+        sim.remove_servo(1)
+        return await policies.plan_position_stream(bus, [1, 2])
+
+    plan = run(sim, body)
+    assert (plan.watch, plan.free, list(plan.left_out), plan.silent) == ([2], [], [1], [1])

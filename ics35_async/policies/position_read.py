@@ -69,18 +69,19 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     stream marks it offline and probes it, as any servo that stops answering,
     and a read never frees it.  A servo whose protocol this line already knows
     is asked all the same (its position read, or an ICS 3.5 servo's
-    temperature): ``silent`` is what the servos say now.
+    temperature): ``silent`` is what the servos say now; silent, it is still
+    read as its protocol says (an ICS 3.6 servo watched, never freed).
     """
     plan = StreamPlan()
     for sid in ids:
         servo = Servo(line, sid)
-        known = servo.known_position_read()
+        readable = servo.known_position_read()
         try:
-            readable: bool | None = await servo.has_position_read()  # (unknown: probed, which asks the servo)
-            if known is not None:
-                await (servo.read_position() if known else servo.read_temperature())
+            if readable is None:
+                readable = await servo.has_position_read()  # (probed: which asks the servo)
+            else:
+                await (servo.read_position() if readable else servo.read_temperature())
         except ReplyError:
-            readable = None
             plan.silent.append(sid)
         if readable or (readable is None and not free_ics35):
             plan.watch.append(sid)
