@@ -501,7 +501,8 @@ class Bus:
         if self._driver is None:
             engine.detach_source(source)
         else:
-            self._leaving = source
+            if engine.source is source:  # (one never attached, closed now, must not hide the one really leaving)
+                self._leaving = source
             self._driver.call(lambda t: engine.detach_source(source))
 
     def kick(self) -> None:

@@ -848,6 +848,32 @@ async def test_a_reopen_or_stream_refused_beside_a_running_stream_leaves_its_bur
         assert bus._driver.burst is runner  # type: ignore[union-attr]
 
 
+@pytest.mark.pty
+async def test_a_stream_never_started_and_closed_does_not_hide_one_closed_during_a_burst(
+    pty_sim: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Closing a stream that never ran told the bus it was the one leaving, so a stream closed during a burst just
+    # before was taken for one still running: the reopen (or a new stream) right after was refused.
+    monkeypatch.setenv(burst.ENV, "1")
+    path = pty_sim("--fast", "--ids", "1-8").path
+    async with open_bus(path, driver="asyncio", **PATIENT) as bus:
+        for _ in range(5):
+            stream = bus.stream(range(1, 9))
+            await stream.start()
+            runner = bus._driver.burst  # type: ignore[union-attr]
+            assert runner is not None
+            async with asyncio.timeout(GUARD):
+                while not runner.running:
+                    await stream.next_frame()
+            spare = bus.stream([1])  # (never started)
+            await stream.aclose()
+            await spare.aclose()
+            await bus.reopen()
+            another = bus.stream([1])
+            await another.start()
+            await another.aclose()
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_a_reopen_racing_a_close_leaves_the_transaction_on_the_wire_to_finish(driver: str) -> None:
     # The reopen's swap runs in a task of its own: a close that came first made the swap fail with the engine's
