@@ -132,9 +132,21 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, n
     assert "Traceback" not in err
 
 
-def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_left_in() -> None:
+@pytest.mark.parametrize("servos", ["ICS 3.5", "ICS 3.6", "both"])
+def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_left_in(
+    servos: str, tmp_path: Path
+) -> None:
     # Ctrl-C as the motion starts: the summary said "0.0 s of 3.6 s played; joints left holding", while the
-    # joints (ICS 3.5 servos, freed to be read at the start) had not been given a target and were left free.
+    # joints (ICS 3.5 servos, freed to be read at the start) had not been given a target and were left free;
+    # ICS 3.6 servos, read without freeing and not commanded yet, are as they were found (free, on a robot just
+    # powered up), not "holding" either.
+    robot = (EXAMPLES / "humanoid.toml").read_text()
+    if servos != "ICS 3.5":
+        robot = robot.replace("ids=1-7&", "ids=1-7&ics36=1-7&")
+    if servos == "ICS 3.6":
+        robot = robot.replace("ids=1-10&", "ids=1-10&ics36=1-10&")
+    robot_file = tmp_path / "humanoid.toml"
+    robot_file.write_text(robot)
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -142,7 +154,7 @@ def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_lef
             "ics35_async.cli",
             *NO_TIMEOUTS_OPTION,
             "play",
-            str(EXAMPLES / "humanoid.toml"),
+            str(robot_file),
             str(EXAMPLES / "wave.json"),
         ],
         stdout=subprocess.PIPE,
@@ -164,12 +176,19 @@ def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_lef
     assert "0.0 s of" not in summary, summary
     # What the summary says of the joints is what the table printed at the end shows them in.  (The stop
     # lands before the motion's first targets unless this machine took over 50 ms to deliver the signal.)
-    states = {line.split()[-1] for line in out.splitlines() if "upper:" in line or "legs:" in line}
-    if states == {"free"}:
-        assert "holding" not in summary and "joints left free" in summary, summary
-        assert "under 0.1 s of 3.6 s played" in summary, summary
+    rows = [line for line in out.splitlines() if "upper:" in line or "legs:" in line]
+    states = {line.split()[-1] for line in rows}
+    if states == {"held"}:
+        assert "joints left holding" in summary and "found" not in summary, out
+        return
+    assert "holding" not in summary and "under 0.1 s of 3.6 s played" in summary, summary
+    if servos == "ICS 3.5":
+        assert states == {"free"} and "joints left free" in summary, out
+    elif servos == "ICS 3.6":
+        assert states == {"found"} and "joints left as found" in summary, out
     else:
-        assert states == {"held"} and "joints left holding" in summary, out
+        assert states == {"free", "found"}, out
+        assert "as found" in summary and "free" in summary, summary
 
 
 def run_on_a_terminal(args: list[str], typed: list[tuple[str, str]]) -> tuple[int, list[str]]:

@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import math
 import time
+from collections.abc import Iterable
 
 import click
 from rich.markup import escape
@@ -143,6 +144,7 @@ def play(
     played = 0.0  # seconds into the motion when it stopped
     silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
     untargeted: list[str] = []  # the joints opened that never got a target (stopped as it began): left free
+    found: list[str] = []  # (likewise, read without freeing: left as they were found)
     # Only the joints the motion moves, and those --start-pose states (asked to hold there: a robot's legs just
     # powered up are free), are opened: the others are not read, freed, commanded or watched, so a joint left
     # holding stays held (a standing robot's legs under a wave of its arms).  (An unknown stated joint is
@@ -152,7 +154,7 @@ def play(
     slowing: list[bool] = []  # the smooth stop has begun (a Ctrl-C then, the CLI's second, cuts it short)
 
     async def body() -> str:
-        nonlocal passes, played, silent, untargeted
+        nonlocal passes, played, silent, untargeted, found
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
         async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
@@ -238,6 +240,9 @@ def play(
             # A joint freed to be read at the start (ICS 3.5) and stopped before its first target stays free:
             # "hold" keeps only the targets there are.
             untargeted = [j for j in robot.joints if robot.targets.get(j) is None and j not in robot.untouched]
+            # An ICS 3.6 joint read without freeing and given no target yet is as it was found (free, on a
+            # robot just powered up): not holding either.
+            found = [j for j in robot.joints if j in robot.untouched]
             return how
 
     # A line lost mid-motion ends the motion on the others at once: each joint holds the last target it got,
@@ -259,14 +264,7 @@ def play(
         what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}"
     else:  # (stopped as it began: not "0.0 s", which reads as if nothing could have moved)
         what = f"{'under 0.1' if played < 0.05 else f'{played:.1f}'} s of {length} played"
-    left = f"{'free' if on_stop == 'free' else 'holding'} (those it opened)"
-    if on_stop != "free" and untargeted:
-        free = escape(", ".join(untargeted))
-        left = (
-            "free (those it opened: none had a target yet)"
-            if len(untargeted) == len(moved.joints)
-            else f"holding (those it opened), but {free} free (no target yet)"
-        )
+    left = "free (those it opened)" if on_stop == "free" else _left_holding(moved.joints, untargeted, found)
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
     but = ""
     if silent:
@@ -277,6 +275,21 @@ def play(
         )
     out.print(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}")
     return 0
+
+
+def _left_holding(opened: Iterable[str], free: list[str], found: list[str]) -> str:
+    """What the joints ``play`` opened are left in when they keep their targets: holding, but those with no target
+    yet are ``free`` (freed to be read at the start) or as ``found`` (read without freeing)."""
+    if not free and not found:
+        return "holding (those it opened)"
+    said = {"free": free, "as found": found}
+    if all(j in free or j in found for j in opened):
+        if not found or not free:
+            return f"{'free' if free else 'as found'} (those it opened: none had a target yet)"
+        both = " and ".join(f"{escape(', '.join(names))} {state}" for state, names in said.items())
+        return f"{both} (those it opened: none had a target yet)"
+    rest = ", ".join(f"{escape(', '.join(names))} {state}" for state, names in said.items() if names)
+    return f"holding (those it opened), but {rest} (no target yet)"
 
 
 COMMANDS = [play]
