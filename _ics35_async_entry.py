@@ -3,12 +3,13 @@
 A module of its own, outside the package on purpose: a console script imports its entry point's package
 before any of its code runs, and ``ics35_async`` with its command line takes about 0.1 s to import, in which
 Ctrl-C (a command started by mistake, stopped at once) would print a ``KeyboardInterrupt`` traceback.  This
-module imports only :mod:`sys`, then the command line with Ctrl-C caught; once ``main`` runs, the command
-line handles Ctrl-C itself.
+module imports only :mod:`os` and :mod:`sys` (loaded with the interpreter), then the command line with Ctrl-C
+caught; once ``main`` runs, the command line handles Ctrl-C itself.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 # ExitCode.INTERRUPTED (128 + SIGINT): the enum is in the package whose import this guards.
@@ -20,9 +21,18 @@ def main() -> None:
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
-        # As the command line does after Ctrl-C (cli._console.off_the_ctrl_c_line): the terminal's echoed ^C,
-        # at the start of the line, is cleared, and the message starts a line of its own.
-        clear = "\r\x1b[2K" if sys.stderr.isatty() and sys.platform != "win32" else ""
-        sys.stderr.write(f"{clear}interrupted\n")
+        # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
+        # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
+        sys.stderr.write(("\r\x1b[2K" if _ctrl_c_echoed_on_stderr() else "") + "interrupted\n")
         sys.exit(INTERRUPTED)
     cli_main()
+
+
+def _ctrl_c_echoed_on_stderr() -> bool:
+    """stderr is the terminal this process is in the foreground of (where a typed Ctrl-C echoed ``^C``)."""
+    if sys.platform == "win32":
+        return False
+    try:
+        return os.isatty(2) and os.tcgetpgrp(2) == os.getpgrp()
+    except OSError:
+        return False

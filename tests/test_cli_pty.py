@@ -10,6 +10,8 @@ loaded CI machine, and ``--retries`` covers a rare late reply.
 from __future__ import annotations
 
 import json
+import os
+import select
 import signal
 import subprocess
 import sys
@@ -24,6 +26,8 @@ from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import PATIENT_OPTION, scaled
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 pytestmark = [
     pytest.mark.pty,
@@ -347,7 +351,7 @@ id = 2
         # A one-shot command waiting for a silent servo: the message came right after the echoed ^C.
         (
             ["--port", "sim://?ids=1&realtime=1", "--timeout", "3", "--retries", "3", "get", "5", "speed"],
-            1.0,
+            2.0,  # (well after the command line loaded, 0.35 s here; well before the last of its 4 waits of 3 s)
             "error: interrupted",
         ),
         # doctor prints its report after the Ctrl-C, then the error: the report's first line came after the ^C.
@@ -373,8 +377,91 @@ def test_what_is_said_after_ctrl_c_starts_on_a_line_of_its_own(
     assert any(line.startswith("error: interrupted") for line in screen), "\n".join(screen)
 
 
+@pytest.mark.parametrize(
+    ("args", "when", "said"),
+    [
+        (["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "30"], 1.5, "stopping:"),
+        (
+            ["--timeout", "0.5", "play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json")],
+            3.0,
+            "stopped by Ctrl-C: slowing",
+        ),
+    ],
+    ids=["demo", "play"],
+)
+def test_what_is_said_as_ctrl_c_is_handled_starts_a_line_of_its_own_when_the_output_goes_to_a_file(
+    tmp_path: Path, args: list[str], when: float, said: str
+) -> None:
+    # Output to a file, notes on the terminal: the note said at the Ctrl-C followed the echoed ^C.
+    _, written = typed_on_a_terminal(args, [(scaled(when), b"\x03")], stdout=tmp_path / "out.txt")
+    screen = screen_of(written)
+    assert "Traceback" not in written, written
+    assert not any("^C" in line and line != "^C" for line in screen), "\n".join(screen)
+    assert any(line.startswith(said) for line in screen), "\n".join(screen)
+
+
 def test_the_simulators_last_words_after_ctrl_c_start_a_line_of_their_own() -> None:
     code, written = typed_on_a_terminal(["sim", "--ids", "1"], [("ics35 sim: 1 servos", b"\x03")])
     screen = screen_of(written)
     assert code == 0, "\n".join(screen)
     assert any(line.startswith("ics35 sim: served 0 transactions") for line in screen), "\n".join(screen)
+
+
+# A process on a terminal of its own (its controlling one: a new session), in the terminal's foreground
+# process group or, forked, in a background one; it clears "the ^C line" on stderr, the terminal.
+_ON_A_TERMINAL = """
+import os, sys
+os.setsid()
+tty = os.open(sys.argv[1], os.O_RDWR)  # (the session's first terminal opened: its controlling one)
+if sys.argv[2] == "background":
+    pid = os.fork()
+    if pid:
+        os.waitpid(pid, 0)
+        os._exit(0)
+    os.setpgid(0, 0)  # a process group of its own: not the terminal's foreground one
+sys.stderr = os.fdopen(tty, "w")
+from ics35_async.terminal import clear_echoed_ctrl_c
+clear_echoed_ctrl_c()
+sys.stderr.write("said\\n")
+sys.stderr.flush()
+"""
+
+
+@pytest.mark.parametrize("group", ["foreground", "background"])
+def test_the_ctrl_c_line_is_cleared_only_on_the_terminal_the_process_is_in_the_foreground_of(group: str) -> None:
+    # A background process sent SIGINT (kill -INT) echoes no ^C: the line where the cursor is, then, is the
+    # shell's prompt with what the person is typing; clearing it wiped that.
+    master, slave = os.openpty()
+    try:
+        path = os.ttyname(slave)
+        os.close(slave)
+        proc = subprocess.run(
+            [sys.executable, "-c", _ON_A_TERMINAL, path, group], stdout=subprocess.PIPE, timeout=30, check=True
+        )
+        written = b""
+        while select.select([master], [], [], 0.5)[0]:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # (the terminal's last process has closed it)
+                break
+            if not chunk:
+                break
+            written += chunk
+    finally:
+        os.close(master)
+    assert proc.returncode == 0 and b"said" in written, written
+    assert (b"\x1b[2K" in written) == (group == "foreground"), written
+
+
+def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(tmp_path: Path) -> None:
+    # FORCE_COLOR makes the console library treat a file as a terminal: the clearing went into the log.
+    log = tmp_path / "err.log"
+    with log.open("w") as stderr:
+        code = subprocess.run(
+            [sys.executable, "-c", "from ics35_async.terminal import clear_echoed_ctrl_c; clear_echoed_ctrl_c()"],
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            env={**os.environ, "FORCE_COLOR": "1", "TTY_COMPATIBLE": "1"},
+            timeout=30,
+        ).returncode
+    assert code == 0 and log.read_bytes() == b""

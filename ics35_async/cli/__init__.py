@@ -195,9 +195,9 @@ def _interrupted(word: str) -> NoReturn:
     """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code."""
     stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, word))
     if stopped.code == ExitCode.INTERRUPTED:
-        from ._console import off_the_ctrl_c_line
+        from ..terminal import clear_echoed_ctrl_c
 
-        off_the_ctrl_c_line()
+        clear_echoed_ctrl_c()
     click.echo(stopped.message, err=True)
     sys.exit(int(stopped.code))
 

@@ -9,11 +9,10 @@ from typing import Any, NoReturn
 
 import click
 from rich.console import Console
-from rich.control import Control
 from rich.markup import escape
-from rich.segment import ControlType
 
 from .. import units
+from ..terminal import clear_echoed_ctrl_c
 from ._settings import CliError, ExitCode, Settings
 
 out = Console(highlight=False, soft_wrap=True)
@@ -37,20 +36,9 @@ def emit_json(value: Any) -> None:
     sys.stdout.flush()
 
 
-def off_the_ctrl_c_line() -> None:
-    """After Ctrl-C, before anything more is written: the terminal echoed ``^C`` where the cursor was, and
-    what comes next would follow it on that line (``^Cerror: interrupted``).  The cursor is at the start
-    of a line there (every line written ends with its newline; a question's line gets one on Ctrl-C), so
-    that line is cleared: the ``^C`` goes, as a live view's last redraw wipes it, and the next message
-    starts a line of its own.  Nothing is written off a terminal."""
-    console = err if err.is_terminal else out
-    if console.is_terminal:
-        console.control(Control(ControlType.CARRIAGE_RETURN, (ControlType.ERASE_IN_LINE, 2)))
-
-
 def fail(error: CliError) -> NoReturn:
     if error.code == ExitCode.INTERRUPTED:
-        off_the_ctrl_c_line()
+        clear_echoed_ctrl_c()
     err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
     for hint in error.hints:
         err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)

@@ -25,6 +25,7 @@ from ..bus import Bus
 from ..errors import BusClosed, IcsError, PortLost
 from ..frames import Frame
 from ..stream import Stream
+from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
 from ._live_view import LiveState
@@ -131,6 +132,7 @@ async def run_live(
                         # leaving the table's title twice on the screen.
                         render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
                     elif not options.as_json:
+                        clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
                         err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
                 finally:
                     if options.free_at_end:

@@ -100,9 +100,9 @@ def _ctrl_c() -> Iterator[list[int]]:
         if signal.getsignal(signal.SIGINT) is on_sigint:
             signal.signal(signal.SIGINT, signal.default_int_handler)
         if pressed:  # (what the command says next, a report or its error, must not follow the echoed ^C)
-            from ._console import off_the_ctrl_c_line
+            from ..terminal import clear_echoed_ctrl_c
 
-            off_the_ctrl_c_line()
+            clear_echoed_ctrl_c()
 
 
 def _interrupt() -> None:

@@ -231,7 +231,7 @@ def play(
                         task.cancel()
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
                             await task
-                        screen.say(f"{how}: slowing to rest, then the joints {on_stop}")  # (on a terminal: in the view)
+                        screen.say(f"{how}: slowing to rest, then the joints {on_stop}", stopping=True)
                         slowing.append(True)
                         await stop_smoothly(robot, ramp, on_stop)
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so

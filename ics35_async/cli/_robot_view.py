@@ -20,6 +20,7 @@ from rich.text import Text
 
 from ..engine import State
 from ..robot import Robot
+from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
 from ._console import signed_tenths
 
@@ -95,10 +96,13 @@ class Screen:
         self._last = time.monotonic()
         self._said = ""
 
-    def say(self, message: str) -> None:
+    def say(self, message: str, *, stopping: bool = False) -> None:
         """A note for the person (on stderr); on a terminal, a line of the live view instead, since a line
-        printed beside it garbles the redraw (the table's title twice on the screen)."""
+        printed beside it garbles the redraw (the table's title twice on the screen).  ``stopping``: said as a
+        stop signal is handled, so not after the ``^C`` a terminal echoed (a live view's redraw wipes that)."""
         if self._live is None:
+            if stopping:
+                clear_echoed_ctrl_c()
             err.print(message)
             return
         self._said = message

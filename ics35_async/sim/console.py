@@ -85,17 +85,6 @@ def _describe(state: ServoState) -> str:
     return f"  ID {state.servo_id}: {version}, {rate}, at {state.position}, {'free' if state.free else 'holding'}"
 
 
-def in_background_of_terminal(fd: int = 0) -> bool:
-    """Whether ``fd`` is this process's controlling terminal and the process is in a background process
-    group of it (started with ``&``): reading it would stop the process (SIGTTIN), and all it serves with it."""
-    if not os.isatty(fd):
-        return False
-    try:
-        return os.tcgetpgrp(fd) != os.getpgrp()
-    except OSError:
-        return False  # a terminal, but not this process's controlling one: reading it never stops the process
-
-
 class LineConsole:
     """Carries out console commands on ``line``; new servos come at ``baudrate`` unless told another."""
 

@@ -16,9 +16,10 @@ from typing import Any
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
+from ..terminal import clear_echoed_ctrl_c, in_background_of_terminal
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
-from .console import ConsoleReader, LineConsole, in_background_of_terminal
+from .console import ConsoleReader, LineConsole
 from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_port import LinkFolderGone
@@ -269,10 +270,8 @@ def main(
         server.close()
         if tap is not None:
             tap.close()
-        if signal.SIGINT in stopped_by and sys.stderr.isatty() and sys.platform != "win32":
-            # Ctrl-C: the terminal echoed ^C at the start of a line; cleared, so the last words start one of their
-            # own (as the ics35 commands' after Ctrl-C).
-            sys.stderr.write("\r\x1b[2K")
+        if signal.SIGINT in stopped_by:
+            clear_echoed_ctrl_c()  # (the last words start a line of their own, as the ics35 commands' do)
         if isinstance(device, VirtualLine):
             device.close()
             lost = f"; {server.dropped_bytes} bytes no client took" if server.dropped_bytes else ""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 import signal
 from collections.abc import Callable
+from pathlib import Path
 
 _CONTROL = re.compile(r"\x1b\[([0-9;?]*)([A-Za-z])|\x1b[()][A-Za-z0-9]|\x1b.|\r|\n|\x08|[^\x1b\r\n\x08]+")
 
@@ -50,12 +51,13 @@ def screen_of(output: str) -> list[str]:
 
 
 def typed_on_a_terminal(
-    args: list[str], keys: list[tuple[str | float, bytes]], *, timeout: float = 60
+    args: list[str], keys: list[tuple[str | float, bytes]], *, timeout: float = 60, stdout: Path | None = None
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
     ``when`` seconds, then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
-    Returns the exit code and everything written to the terminal."""
+    ``stdout``: a file for stdout instead (``ics35 ... > FILE``).  Returns the exit code and everything written
+    to the terminal."""
     import fcntl
     import os
     import select
@@ -73,10 +75,11 @@ def typed_on_a_terminal(
         fcntl.ioctl(0, termios.TIOCSCTTY, 0)
         signal.signal(signal.SIGINT, signal.SIG_DFL)  # (as an interactive shell starts it)
 
+    output = None if stdout is None else stdout.open("wb")
     proc = subprocess.Popen(
         [sys.executable, "-m", "ics35_async.cli", *args],
         stdin=slave,
-        stdout=slave,
+        stdout=slave if output is None else output,
         stderr=slave,
         preexec_fn=own_terminal,
         env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
@@ -115,4 +118,6 @@ def typed_on_a_terminal(
             proc.kill()
             proc.wait()
         os.close(master)
+        if output is not None:
+            output.close()
     return proc.returncode, written.decode(errors="replace")

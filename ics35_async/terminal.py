@@ -1,0 +1,53 @@
+"""The terminal a command runs on: whether the process runs in the background of it, and the ``^C`` it echoes.
+
+The command line and the simulator's server share these rules; the console script's entry module
+(``_ics35_async_entry``) keeps a copy of the second, since it runs before the package can be imported.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import TextIO
+
+ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleared (VT100, every terminal today)
+
+
+def in_background_of_terminal(fd: int = 0) -> bool:
+    """Whether ``fd`` is this process's controlling terminal and the process is in a background process
+    group of it (started with ``&``): reading it would stop the process (SIGTTIN), and all it serves with it."""
+    if not os.isatty(fd):
+        return False
+    try:
+        return os.tcgetpgrp(fd) != os.getpgrp()
+    except OSError:
+        return False  # a terminal, but not this process's controlling one: reading it never stops the process
+
+
+def in_foreground_of_terminal(stream: TextIO) -> bool:
+    """Whether ``stream`` writes to this process's controlling terminal and the process is in its foreground
+    process group: where a Ctrl-C typed there came from, and the terminal echoed ``^C``."""
+    if sys.platform == "win32":
+        return False  # (the console echoes no ^C there)
+    try:
+        fd = stream.fileno()
+        return os.isatty(fd) and os.tcgetpgrp(fd) == os.getpgrp()
+    except (AttributeError, OSError, ValueError):  # no descriptor (a test's capture), or not the controlling one
+        return False
+
+
+def clear_echoed_ctrl_c() -> None:
+    """After Ctrl-C, before anything more is written: the terminal echoed ``^C`` where the cursor was, and what
+    comes next would follow it on that line (``^Cerror: interrupted``).
+
+    The cursor is at the start of a line there (every line written ends with its newline), so that line is
+    cleared: the ``^C`` goes and the next words start a line of their own.  Only on the terminal the process is
+    in the foreground of (stderr's, else stdout's): a signal sent to a background process (``kill -INT``) echoes
+    nothing, and the line where the cursor is then is the shell's, with what the person is typing; a file or a
+    pipe gets nothing (not even where a setting such as ``FORCE_COLOR`` makes the output look like a terminal's).
+    """
+    for stream in (sys.stderr, sys.stdout):
+        if in_foreground_of_terminal(stream):
+            stream.write(ERASE_LINE)
+            stream.flush()
+            return
