@@ -39,6 +39,8 @@ CASES = [
     ("thread", "asyncio", "sim"),
     ("thread", "uvloop", "pty"),
     ("anyio", "trio", "pty"),
+    ("anyio", "trio", "pty-ordinary"),
+    ("anyio", "asyncio", "pty"),
     ("thread", "trio", "pty"),
 ]
 every_case = pytest.mark.parametrize(
@@ -65,7 +67,7 @@ async def bus(
 ) -> AsyncIterator[Bus]:
     """The case's bus on IDs 0-7: its driver, under its library, to its far end.
 
-    The asyncio and thread drivers on a pty take the burst path where it is built ("pty" turns it on, as
+    Every driver on a pty's descriptor takes the burst path where it is built ("pty" turns it on, as
     default does, and lets bursts run beside requests, which the library pauses them for, so
     that requests arrive mid-burst); "pty-ordinary" turns it off (ICS35_BURST=0).
     """
@@ -79,9 +81,11 @@ async def bus(
     # timeouts the scenarios expect (an absent ID) cost their half second each.
     async with open_bus(port, driver=driver, **PATIENT) as opened:
         assert opened.driver == ("anyio" if driver == "anyio" or anyio_backend_name == "trio" else driver)
-        if opened.driver != "anyio":  # (under trio the thread driver is the anyio one)
-            bursts = far == "pty" and burst_path()[0]
-            assert (opened._driver.burst is not None) == bursts  # type: ignore[union-attr]
+        # (Under trio "thread" is the anyio driver on the thread transport: no descriptor for the helper.)
+        on_thread_transport = driver == "thread" and anyio_backend_name == "trio"
+        bursts = far == "pty" and burst_path()[0] and not on_thread_transport
+        assert (opened._driver.burst is not None) == bursts  # type: ignore[union-attr]
+        assert opened.describe()["burst_path"] == bursts
         yield opened
 
 
@@ -143,12 +147,18 @@ async def test_stream_frames_targets_and_offline_ids(bus: Bus) -> None:
 
 @every_case
 async def test_requests_share_the_line_with_a_stream(bus: Bus) -> None:
+    runner = bus._driver.burst  # type: ignore[union-attr]
     async with bus.stream(IDS) as stream:
         await stream.next_frame()
         for i in IDS:
             assert (await bus.servo(i).read_eeprom()).servo_id == i
         before = (await stream.next_frame()).cycle
         assert (await stream.next_frame()).cycle > before
+        if runner is not None:  # the stream's transactions really ran in the compiled helper
+            with anyio.fail_after(GUARD):
+                while runner.transactions == 0:  # (counted as each burst ends)
+                    await stream.next_frame()
+            assert runner.bursts > 0
 
 
 @every_case

@@ -8,12 +8,23 @@ earlier deadline) cancels that scope so the task looks again.  Requests wait
 on an ``anyio.Event``.  This costs a little more per transaction than the
 asyncio driver's I/O callbacks, so asyncio programs get the asyncio driver
 unless they ask for this one.
+
+On a tty where the compiled helper is built, a stream's transactions run in
+bursts as under the other drivers (see .burst): while one runs, the bus task
+waits on the burst's notices (``done_fd``), never on the port, which the
+executor's thread reads meanwhile, and with no deadline (the executor keeps
+them).  Only the bus task starts a burst: a caller's task that puts the
+stream's transaction on the wire writes it the ordinary way, as the bus task
+may be about to read the port (the stream's next transaction, put on the wire
+by the bus task, starts the burst).  A burst stopped from a caller's task (a
+close, a reopen, a stream attached) ends the bus task's wait on its notices.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import threading
 from collections.abc import Callable, Generator
 from typing import Any
@@ -28,6 +39,7 @@ from ..transports.device_port import DevicePort
 from ..transports.opening import Port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
+from .burst import FAILED, BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, DriverCore
 from .settings import LineSettings
@@ -96,6 +108,7 @@ class AnyioDriver(DriverCore):
         self._task_error: Exception | None = None
         self._task: Any = None  # the asyncio task (kept referenced), when the backend is asyncio
         self._soon = soon_threadsafe()
+        self._in_bus_task = False  # the bus task acts on the engine's answer now: it may start a burst
 
     # ------------------------------------------------------------------ life cycle
 
@@ -173,6 +186,10 @@ class AnyioDriver(DriverCore):
                     await anyio.sleep_forever()
                 self._scope = None
                 continue
+            burst = self.burst
+            if burst is not None and burst.running:
+                await self._wait_burst(burst)
+                continue
             deadline = engine.deadline
             self._waiting_until = deadline
             wait = INF if deadline == INF else anyio.current_time() + max(0.0, deadline - now())
@@ -181,9 +198,34 @@ class AnyioDriver(DriverCore):
                 await self._wait_input(port)
             self._scope = None
             self._waiting_until = INF
+            if self.bursting or port is not self.port:
+                continue  # (not this wait's port to read any more: the executor's, or gone)
             data = self._read(port)
             if data is not None:
-                self._step(port, data, now())
+                self._in_bus_task = True
+                try:
+                    self._step(port, data, now())
+                finally:
+                    self._in_bus_task = False
+
+    async def _wait_burst(self, burst: BurstRunner) -> None:
+        """Wait for the running ``burst``'s notice (a point to feed ahead, or its end) and feed the engine.
+
+        No deadline: the executor keeps them.  A wait ended by ``_rewait`` (the runner closing under a port
+        that is lost, closed or reopened, or a burst stopped by a caller's task) feeds nothing: the burst's
+        records are taken only once it told (before, the executor may not have begun them)."""
+        told = False
+        with anyio.CancelScope() as scope:
+            self._scope = scope
+            await anyio.wait_readable(burst.done_fd)
+            told = True
+        self._scope = None
+        if told and burst is self.burst and burst.running:
+            self._in_bus_task = True
+            try:
+                self._burst_done()
+            finally:
+                self._in_bus_task = False
 
     async def _wait_input(self, port: Port) -> None:
         if isinstance(port, TtyPort):
@@ -201,11 +243,16 @@ class AnyioDriver(DriverCore):
     # ------------------------------------------------------------------ waking the bus task
 
     def _watch(self, port: Port) -> None:
-        if isinstance(port, DevicePort):
+        if isinstance(port, TtyPort):
+            self.burst = open_runner(
+                self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
+            )
+        elif isinstance(port, DevicePort):
             port.on_input = self._input_came
         self._rewait()
 
     def _unwatch(self, port: Port) -> None:
+        self._close_burst()
         if isinstance(port, DevicePort):
             port.stop_telling()
         self._rewait()
@@ -223,6 +270,56 @@ class AnyioDriver(DriverCore):
 
     def _soon_at_home(self, callback: Callable[[], None]) -> None:
         self._soon(callback)
+
+    # ------------------------------------------------------------------ the burst path
+
+    @property
+    def bursting(self) -> bool:
+        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
+        return self.burst is not None and self.burst.running
+
+    def _start_burst(self, burst: BurstRunner) -> bool:
+        # Only from the bus task, between its waits (see the module docstring).
+        return self._in_bus_task and isinstance(self.port, TtyPort) and burst.start(now())
+
+    def _burst_done(self, *, wait: bool = False, close: bool = False) -> None:
+        """Feed the engine what the running burst did (see ``BurstRunner.finish``); once it stopped, act on the
+        engine's answer as the ordinary path would, and let the bus task wait on the port again."""
+        burst = self.burst
+        if burst is None or not burst.running:
+            return
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if close:
+            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+        self._rewait()  # (from a caller's task: the bus task waits on the burst's notices; the port is its own again)
+        port = self.port
+        if not isinstance(port, TtyPort):
+            return
+        if burst.status == FAILED:
+            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))
+            return
+        self._after(out)
+
+    def _stop_burst(self) -> None:
+        # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
+        # knowing what was on the wire.
+        if self.bursting:
+            self._burst_done(wait=True, close=True)
+        else:
+            self._close_burst()
+
+    def _end_burst(self) -> None:
+        self._burst_done(wait=True)
+
+    def _close_burst(self) -> None:
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            # The bus task's wait on its notices ends first: under trio at once (its descriptor is no longer
+            # watched once this returns), under asyncio as the task next runs (the loop drops a closed one).
+            self._rewait()
+            burst.close()
 
     # ------------------------------------------------------------------ the user's side
 

@@ -1,0 +1,190 @@
+"""The anyio driver on the compiled stream path (see ics35_async.drivers.burst), under trio and anyio-on-asyncio.
+
+Its bus task waits on the burst's notices instead of the port while a burst runs; these scenarios put
+the program's requests, new streams, reopens, closes and a port that vanishes in the middle of bursts.
+The shared scenarios run on it in tests/test_contract.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import random
+from typing import Any
+
+import anyio
+import pytest
+
+from ics35_async import BusClosed, PortLost, ReplyError, State, open_bus
+from ics35_async.drivers import burst
+from ics35_async.drivers.burst import ENV, burst_path
+from tests.support.timing import GUARD, NO_TIMEOUTS, PATIENT, scaled
+
+RUN_GUARD = scaled(60.0)  # a run this long means a reply or a frame stopped coming
+on_trio_and_asyncio = pytest.mark.parametrize("anyio_backend", ["trio", "asyncio"], indirect=True)
+
+
+@pytest.fixture(autouse=True)
+def bursts_beside_requests(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The burst path on, and not paused after requests: the program's requests arrive mid-burst."""
+    monkeypatch.setenv(ENV, "1")
+    monkeypatch.setattr(burst, "PAUSE_AFTER_REQUEST", 0.0)
+    assert burst_path()[0], burst_path()[1]
+
+
+@on_trio_and_asyncio
+async def test_a_stream_runs_in_bursts_beside_requests_that_get_their_own_replies(pty_sim: Any) -> None:
+    ids = list(range(1, 9))
+    path = pty_sim("--fast", "--ids", "1-8").path
+    async with open_bus(path, driver="anyio", **PATIENT) as bus:
+        assert bus.describe()["burst_path"] is True
+        runner = bus._driver.burst  # type: ignore[attr-defined]
+        async with bus.stream(ids) as stream:
+            targets = {i: 7000 + 100 * i for i in ids}
+            stream.set_targets(targets)
+            whole: list[bool] = []
+            answered: list[int] = []
+
+            async def frames() -> None:
+                for _ in range(200):
+                    frame = await stream.next_frame()
+                    # (The fast simulator is where it is told at once.  A servo whose transaction failed on a
+                    # loaded machine sits out the cycles until its late reply could no longer come.)
+                    whole.append(all(targets[i] == p for i, p in frame.positions.items()))
+
+            async def reads() -> None:
+                for n in range(200):
+                    sid = 1 + n % 8
+                    with contextlib.suppress(ReplyError):
+                        assert (await bus.servo(sid).read_eeprom()).servo_id == sid
+                        answered.append(sid)
+
+            with anyio.fail_after(RUN_GUARD):
+                async with anyio.create_task_group() as group:
+                    group.start_soon(frames)
+                    group.start_soon(reads)
+            # (Beside a request loop an unpaced stream yields the line at its next boundary: a burst then ends
+            # after a transaction or two, the more often on a loaded machine.)
+            assert runner.bursts > 10 and runner.transactions >= runner.bursts, (runner.bursts, runner.transactions)
+            assert all(whole[5:]) and len(answered) > 100, (whole, len(answered), bus.stats.total)
+
+
+@on_trio_and_asyncio
+async def test_streams_started_closed_and_cancelled_beside_requests_and_reopens_keep_every_reply_its_own(
+    pty_sim: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    ids = list(range(1, 9))
+    path = pty_sim("--fast", "--ids", "1-8").path
+    rng = random.Random(1)
+    wrong: list[tuple[int, int]] = []
+    ran = 0
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        async with open_bus(path, driver="anyio", **PATIENT) as bus:
+            stop = False
+
+            async def reads() -> None:
+                k = 0
+                while not stop:
+                    sid = ids[k % 8]
+                    k += 1
+                    with anyio.move_on_after(rng.choice([0.0005, 0.002, 1.0])), contextlib.suppress(ReplyError):
+                        got = await bus.servo(sid).read_eeprom()
+                        if got.servo_id != sid:
+                            wrong.append((sid, got.servo_id))
+                    await anyio.lowlevel.checkpoint()
+
+            async def streams() -> None:
+                nonlocal ran, stop
+                try:
+                    for i in range(60):
+                        rate, on_close = rng.choice([None, 200.0]), rng.choice(["free", "hold"])
+                        stream = bus.stream(ids, rate_hz=rate, on_close=on_close)
+                        await stream.start()
+                        stream.set_targets({sid: 7000 + 10 * i for sid in ids})
+                        for _ in range(rng.randint(1, 6)):
+                            await stream.next_frame()
+                        runner = bus._driver.burst  # type: ignore[attr-defined]
+                        ran += runner.bursts if runner is not None else 0
+                        if rng.random() < 0.3:  # a close cancelled as it sends its close-out
+                            with anyio.move_on_after(rng.random() * 0.002):
+                                await stream.aclose()
+                        await stream.aclose()
+                        if i % 10 == 9:
+                            await bus.reopen()
+                finally:
+                    stop = True
+
+            with anyio.fail_after(RUN_GUARD):
+                async with anyio.create_task_group() as group:
+                    group.start_soon(streams)
+                    group.start_soon(reads)
+                    group.start_soon(reads)
+            assert bus.is_open
+    assert wrong == []
+    assert ran > 0
+    said = [r.getMessage() for r in caplog.records if "burst" in r.getMessage() or "task" in r.getMessage()]
+    assert said == []
+
+
+@on_trio_and_asyncio
+async def test_closing_the_bus_mid_burst_feeds_the_engine_and_releases_the_port(pty_sim: Any) -> None:
+    # A close (or the program's cancellation around it) while the stream's bursts run: the burst stops at
+    # its next boundary, the stream's close-out goes the ordinary way, the port is free for the next open.
+    path = pty_sim("--fast", "--ids", "1-8").path
+    for on_close in ("hold", "free"):
+        with anyio.CancelScope() as program:
+            async with (
+                open_bus(path, driver="anyio", **NO_TIMEOUTS) as bus,
+                bus.stream(range(1, 9), on_close=on_close) as stream,
+            ):
+                stream.set_targets(dict.fromkeys(range(1, 9), 8000))
+                runner = bus._driver.burst  # type: ignore[attr-defined]
+                with anyio.fail_after(GUARD):
+                    while runner.transactions == 0:
+                        await stream.next_frame()
+                program.cancel()  # the program cancelled mid-stream (Ctrl-C, a timeout)
+                while True:
+                    await stream.next_frame()
+        assert runner.bursts > 0 and not runner.running
+        assert bus.state is State.CLOSED
+        with anyio.fail_after(GUARD):
+            async with open_bus(path, driver="anyio", **NO_TIMEOUTS) as again:
+                for sid in range(1, 9):
+                    assert (await again.servo(sid).read_eeprom()).servo_id == sid
+                assert again.stats.total.errors == 0
+
+
+@on_trio_and_asyncio
+async def test_a_port_lost_mid_burst_is_reconnected_and_the_stream_bursts_again(pty_sim: Any) -> None:
+    # The simulator's device goes away while the stream's bursts run (the executor sees the hang-up or an
+    # error), and comes back at the same path: the bus reconnects and the stream goes on in bursts.
+    path = pty_sim("--fast", "--ids", "1-4", "--unplug-after", "0.5", "--replug-after", "0.3").path
+    async with open_bus(path, driver="anyio", reconnect=True, **PATIENT) as bus, bus.stream(range(1, 5)) as stream:
+        first = bus._driver.burst  # type: ignore[attr-defined]
+        assert first is not None
+        with anyio.fail_after(GUARD):
+            while not (await stream.next_frame()).resumed:
+                pass
+            assert bus.stats.reconnects == 1
+            assert first.bursts > 0 and not first.running
+            again = bus._driver.burst  # type: ignore[attr-defined]
+            assert again is not None and again is not first
+            while again.transactions == 0:
+                await stream.next_frame()
+        frame = await stream.next_frame()
+        assert set(frame.positions) == {1, 2, 3, 4}
+
+
+@on_trio_and_asyncio
+async def test_a_port_lost_mid_burst_without_reconnect_ends_the_stream_with_port_lost(pty_sim: Any) -> None:
+    sim = pty_sim("--fast", "--ids", "1-4")
+    async with open_bus(sim.path, driver="anyio", **PATIENT) as bus, bus.stream(range(1, 5)) as stream:
+        runner = bus._driver.burst  # type: ignore[attr-defined]
+        with anyio.fail_after(GUARD):
+            while runner.transactions == 0:
+                await stream.next_frame()
+            sim.stop()  # the adapter pulled mid-stream
+            with pytest.raises((PortLost, BusClosed)):
+                while True:
+                    await stream.next_frame()
+        assert bus._driver.burst is None  # type: ignore[attr-defined]
+        assert not runner.running
