@@ -4,7 +4,7 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 
 * CPU per transaction of a 32-ID stream on the default driver and loop, burst path and
   ordinary path (``ICS35_BURST=0``), against blocking pyserial on the same lean responder
-  (answers at once): the goal is at most 0.7x;
+  (answers at once): the goal is at most 0.7x; the same two for the anyio driver under trio;
 * the same stream against a responder holding every reply to its 1.25 Mbit/s wire time, rate
   against the bare ``os.write``/``poll``/``os.read`` loop on the same line: goal at least 1.0x;
 * both of these also without feeding the engine a few transactions ahead of each burst's end (what
@@ -12,7 +12,8 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 * where the burst path's CPU goes: the executor's thread, the loop's, feeding the engine;
 * four such lines streamed together against one: CPU per transaction, goal at most 1.1x;
 * a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
-  alone (how much of the program's time the servo line leaves it);
+  alone (how much of the program's time the servo line leaves it), and the stream's rate meanwhile;
+  also under trio (the anyio driver);
 * telemetry beside a wire-timed stream (``bench_sharing``'s 16 pollers reading current and
   temperature, 10 times a second each): their p99 wait in position-transaction times and their
   latency, on the burst path as it runs (no burst starts while requests come), with bursts
@@ -110,8 +111,9 @@ def gathered(path: str, duration: float) -> Figures:
     return run_on("asyncio", measure)
 
 
-def thread_progress(path: str | None, burst: bool, duration: float) -> Figures:
-    """Iterations per second of a pure-Python counting thread, alone (``path`` None) or beside a stream."""
+def thread_progress(path: str | None, burst: bool, duration: float, loop: str = "asyncio") -> Figures:
+    """Iterations per second of a pure-Python counting thread, alone (``path`` None) or beside a stream run
+    under ``loop`` (``"trio"``: the anyio driver)."""
     done = threading.Event()
     count = [0]
 
@@ -141,7 +143,7 @@ def thread_progress(path: str | None, burst: bool, duration: float) -> Figures:
             c0, t0 = count[0], time.perf_counter()
             time.sleep(duration)
             return {"spins_per_s": (count[0] - c0) / (time.perf_counter() - t0)}
-        return on_path(burst, lambda: run_on("asyncio", beside_stream))
+        return on_path(burst, lambda: run_on(loop, beside_stream))
     finally:
         done.set()
         thread.join()
@@ -172,6 +174,10 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             raw2 = raw_loop(path, duration)
             seq = sequential(path, None, "asyncio", duration)
             raw3 = raw_loop(path, duration)
+            trio_bursts = on_path(True, lambda: stream(path, "anyio", "trio", duration))
+            raw3a = raw_loop(path, duration)
+            trio_plain = on_path(False, lambda: stream(path, "anyio", "trio", duration))
+            raw3b = raw_loop(path, duration)
             gath = gathered(path, duration)
             raw4 = raw_loop(path, duration)
             floor = lean_loop(path, duration)
@@ -182,7 +188,9 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
                 ("stream burst fed at end", at_end, raw1, raw1b),
                 ("stream ordinary", plain, raw1b, raw2),
                 ("sequential awaited set_position", seq, raw2, raw3),
-                ("gather of one cycle's set_position", gath, raw3, raw4),
+                ("stream trio burst", trio_bursts, raw3, raw3a),
+                ("stream trio ordinary", trio_plain, raw3a, raw3b),
+                ("gather of one cycle's set_position", gath, raw3b, raw4),
                 ("floor: os.write/poll/os.read", floor, raw4, raw5),
             ):
                 note(f"cpu_vs_raw {name}", ratio(f["cpu_us_per_tx"], a["cpu_us_per_tx"], b["cpu_us_per_tx"]), f)
@@ -212,10 +220,14 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             alone = thread_progress(None, True, duration)
             beside_burst = thread_progress(paths[0], True, duration)
             beside_plain = thread_progress(paths[0], False, duration)
+            beside_trio_burst = thread_progress(paths[0], True, duration, "trio")
+            beside_trio_plain = thread_progress(paths[0], False, duration, "trio")
             alone2 = thread_progress(None, True, duration)
             base = (alone["spins_per_s"] + alone2["spins_per_s"]) / 2
             note("thread progress beside burst", beside_burst["spins_per_s"] / base, beside_burst)
             note("thread progress beside ordinary", beside_plain["spins_per_s"] / base, beside_plain)
+            note("thread progress beside trio burst", beside_trio_burst["spins_per_s"] / base, beside_trio_burst)
+            note("thread progress beside trio ordinary", beside_trio_plain["spins_per_s"] / base, beside_trio_plain)
             # The burst path as it runs (no burst starts while requests come), with bursts beside the
             # requests (what that pause avoids), and the ordinary path; a different one first each run.
             variants = [("burst", "1", False), ("burst beside requests", "1", True), ("ordinary", "0", False)]
@@ -241,6 +253,12 @@ ROWS = (
         "rate_vs_raw stream burst fed at end",
     ),
     ("stream, default driver and loop, ordinary path", "cpu_vs_raw stream ordinary", "rate_vs_raw stream ordinary"),
+    ("stream, anyio driver under trio, burst path", "cpu_vs_raw stream trio burst", "rate_vs_raw stream trio burst"),
+    (
+        "stream, anyio driver under trio, ordinary path",
+        "cpu_vs_raw stream trio ordinary",
+        "rate_vs_raw stream trio ordinary",
+    ),
     (
         "sequential awaited set_position",
         "cpu_vs_raw sequential awaited set_position",
@@ -284,9 +302,10 @@ def print_table(r: dict[str, Any]) -> None:
     print(f"  {'ordinary path':48} {m['four_vs_one cpu ordinary']:8.2f}")
     print("   a CPU-bound Python thread beside a wire-timed stream: its progress against the thread alone,")
     print("   and the stream's rate meanwhile (each burst's end waits for the GIL: sys.getswitchinterval())")
-    for name in ("burst", "ordinary"):
+    for name in ("burst", "ordinary", "trio burst", "trio ordinary"):
         stream_rate = median([f["stream_tx_per_s"] for f in r["figures"][f"thread progress beside {name}"]])
-        print(f"  {name + ' path':48} {m[f'thread progress beside {name}']:8.2f}   stream {stream_rate:7.0f} tx/s")
+        label = f"{name.removeprefix('trio ')} path" + (", anyio driver under trio" if name.startswith("trio") else "")
+        print(f"  {label:48} {m[f'thread progress beside {name}']:8.2f}   stream {stream_rate:7.0f} tx/s")
     print("   telemetry beside a wire-timed stream (16 pollers reading current and temperature 10 times a")
     print("   second each): p99 wait in position-transaction times (goal: at most 1.5; each path's own T,")
     print("   measured with the stream alone), and a read's latency, call to result, p50 / p99")

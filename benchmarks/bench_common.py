@@ -59,10 +59,15 @@ def loop_factory(name: str) -> Callable[[], asyncio.AbstractEventLoop]:
 
 
 def run_on(loop_name: str, fn: Callable[[], Awaitable[T]]) -> T:
-    """Run ``fn()`` to completion on a fresh event loop of the named kind."""
+    """Run ``fn()`` to completion on a fresh event loop of the named kind (``"trio"``: under ``trio.run``)."""
 
     async def main() -> T:
         return await fn()
+
+    if loop_name == "trio":
+        import trio
+
+        return trio.run(main)
 
     with asyncio.Runner(loop_factory=loop_factory(loop_name)) as runner:
         return runner.run(main())

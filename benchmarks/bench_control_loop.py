@@ -20,7 +20,7 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   holds the GIL but for the interpreter's switch interval) beside the stream on the asyncio
   driver and on the thread driver, each on the ordinary path (``ICS35_BURST=0``: the loop's or
   the I/O thread needs the GIL at every transaction) and on the compiled path (the default where
-  it is built: once a cycle).
+  it is built: once a cycle); and the same two for the anyio driver under trio (its bus task).
   The busy rows use the simulator in its own process on a pty (``python -m
   ics35_async.sim``): in-process, the simulator's delivery thread would compete for the GIL too,
   and the compiled path needs a port with a descriptor.
@@ -73,6 +73,8 @@ BUSY_THREAD = {  # ICS35_BURST for each
     "busy thread, compiled path": "1",
     "busy thread, thread driver, ordinary path": "0",
     "busy thread, thread driver, compiled path": "1",
+    "busy thread, anyio driver under trio, ordinary path": "0",
+    "busy thread, anyio driver under trio, compiled path": "1",
 }
 SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY, *BUSY_THREAD)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
@@ -90,7 +92,7 @@ async def measure(scenario: str, seconds: float) -> dict[str, Any]:
         seed=1,
     )
     timing: TimingOverrides = {"quiet_time": 0.005} if scenario == QUIET_5MS else {}
-    driver = "thread" if "thread driver" in scenario else "asyncio"
+    driver = "thread" if "thread driver" in scenario else "anyio" if "under trio" in scenario else "asyncio"
     switch = sys.getswitchinterval()
     if scenario.endswith("switch 0.5 ms"):
         sys.setswitchinterval(0.0005)
@@ -167,7 +169,8 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
             stop = True
             if thread.is_alive():
                 thread.join()
-            await asyncio.gather(*tasks)
+            if tasks:  # (none under trio: only the busy thread's rows run there)
+                await asyncio.gather(*tasks)
     gaps = sorted(b - a for a, b in itertools.pairwise(starts))
     return {
         "rate_hz": cycles / elapsed,
@@ -179,6 +182,15 @@ async def measure_on(bus: Bus, scenario: str, present: list[int], seconds: float
         # A missed slot moves the grid (the stream re-anchors): then there is no one grid to measure.
         "slot_lag_p50_ms": (statistics.median(on_grid) - min(on_grid)) * 1e3 if not missed else None,
     }
+
+
+def measure_in_its_library(scenario: str, seconds: float) -> dict[str, Any]:
+    """:func:`measure` under asyncio, or under trio for the scenarios that say so."""
+    if "under trio" in scenario:
+        import trio
+
+        return trio.run(measure, scenario, seconds)
+    return asyncio.run(measure(scenario, seconds))
 
 
 def simulated(scenario: str) -> dict[str, Any]:
@@ -198,7 +210,7 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
     rows = []
     for scenario in SCENARIOS:
         progress(f"control loop: {scenario}, {seconds:g} s")
-        row: dict[str, Any] = {"scenario": scenario, "measured": asyncio.run(measure(scenario, seconds))}
+        row: dict[str, Any] = {"scenario": scenario, "measured": measure_in_its_library(scenario, seconds)}
         if scenario != "pollers" and scenario not in BUSY and scenario not in BUSY_THREAD:  # (not simulated)
             row["simulated"] = simulated(scenario)
         rows.append(row)
