@@ -64,11 +64,12 @@ class BusOptions(TimingOverrides, total=False):
     The engine frames replies by it, so it is fixed for the bus's life."""
     driver: str
     """What runs the line (default ``"auto"``): ``"asyncio"`` (I/O callbacks, and the compiled burst path
-    for streams where it is built; the default under asyncio), ``"anyio"`` (one bus task; the default under
-    trio), ``"thread"`` (the engine in an I/O thread that blocks on the port: for ports the loop cannot wait
-    on, and cheap for streaming beside a quiet event loop; on the compiled burst path where it is built, a
-    stream beside a busy Python thread keeps its rate; beside a loop kept busy with Python work its stream
-    all but stops, the thread waiting for the GIL; under trio, the anyio driver's reader thread)."""
+    for streams where it is built; the default under asyncio), ``"anyio"`` (one bus task, and the compiled
+    burst path too; the default under trio), ``"thread"`` (the engine in an I/O thread that blocks on the
+    port: for ports the loop cannot wait on, and cheap for streaming beside a quiet event loop; on the
+    compiled burst path where it is built, a stream beside a busy Python thread keeps its rate; beside a loop
+    kept busy with Python work its stream all but stops, the thread waiting for the GIL; under trio, the anyio
+    driver's reader thread)."""
     transport: str
     """How a serial port is read (default ``"auto"``): ``"auto"`` and ``"direct"`` read a port
     with a descriptor on it (``"direct"`` refuses one without), ``"thread"`` reads any serial port

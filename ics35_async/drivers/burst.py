@@ -21,9 +21,11 @@ goes out only after the burst's bytes so far are fed: while the program sends re
 :data:`PAUSE_AFTER_REQUEST` seconds), no burst starts, so telemetry beside a stream waits as it does
 without bursts.
 
-Where the executor cannot run -- not built (no C compiler at install time), Windows, a port
-without a file descriptor, the anyio driver (and so trio) -- or with ``ICS35_BURST=0`` set, every
-transaction takes the ordinary path; on systems other than Linux, unless ``ICS35_BURST=1`` is set.
+Every driver runs it on a port with a file descriptor (the asyncio driver from its loop's callbacks,
+the thread driver from its I/O thread, the anyio driver, and so trio, from its bus task).  Where the
+executor cannot run -- not built (no C compiler at install time), Windows, a port without a file
+descriptor -- or with ``ICS35_BURST=0`` set, every transaction takes the ordinary path; on systems
+other than Linux, unless ``ICS35_BURST=1`` is set.
 """
 
 from __future__ import annotations
@@ -93,10 +95,7 @@ def burst_path() -> tuple[bool, str]:
         return False, f"off ({ENV}={os.environ[ENV].strip()!r} is neither 1 nor 0; {turn_on})"
     if not setting and not linux:
         return False, f"off by default on {sys.platform}, where it has not been tried ({ENV}=1 turns it on)"
-    return True, (
-        "on (streams on serial ports under the asyncio and thread drivers run in the compiled helper"
-        " ics35_async.drivers._burst)"
-    )
+    return True, "on (streams on serial ports run in the compiled helper ics35_async.drivers._burst)"
 
 
 def line_path(bursts: bool) -> tuple[bool, str]:
@@ -108,8 +107,9 @@ def line_path(bursts: bool) -> tuple[bool, str]:
     if bursts:
         return True, "on for this line (its streams run in the compiled helper ics35_async.drivers._burst)"
     return False, (
-        "off for this line: the helper runs on a serial port's descriptor under the asyncio or thread driver "
-        "(not for a URL such as sim:// or a bridge, nor with the thread transport, nor under the anyio driver)"
+        "off for this line: the helper runs on a serial port's descriptor "
+        "(not for a URL such as sim:// or a bridge, nor with the thread transport, which driver='thread' "
+        "takes under trio)"
     )
 
 
