@@ -1,4 +1,5 @@
-"""The anyio driver on the compiled stream path (see ics35_async.drivers.burst), under trio and anyio-on-asyncio.
+"""The anyio driver on a tty, under trio and anyio-on-asyncio: the compiled stream path (see
+ics35_async.drivers.burst), and a write the tty could not take at once.
 
 Its bus task waits on the burst's notices instead of the port while a burst runs; these scenarios put
 the program's requests, new streams, reopens, closes and a port that vanishes in the middle of bursts.
@@ -8,6 +9,7 @@ The shared scenarios run on it in tests/test_contract.py.
 from __future__ import annotations
 
 import contextlib
+import os
 import random
 from typing import Any
 
@@ -17,7 +19,7 @@ import pytest
 from ics35_async import BusClosed, PortLost, ReplyError, State, open_bus
 from ics35_async.drivers import burst
 from ics35_async.drivers.burst import ENV, burst_path
-from tests.support.timing import GUARD, NO_TIMEOUTS, PATIENT, scaled
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, scaled
 
 RUN_GUARD = scaled(60.0)  # a run this long means a reply or a frame stopped coming
 on_trio_and_asyncio = pytest.mark.parametrize("anyio_backend", ["trio", "asyncio"], indirect=True)
@@ -188,3 +190,40 @@ async def test_a_port_lost_mid_burst_without_reconnect_ends_the_stream_with_port
                     await stream.next_frame()
         assert bus._driver.burst is None  # type: ignore[attr-defined]
         assert not runner.running
+
+
+@on_trio_and_asyncio
+async def test_a_port_lost_while_a_partial_write_waits_is_lost_and_reconnected_not_a_failed_bus_task() -> None:
+    # The bus task finishes a write the tty could not take at once when the port turns writable: a port gone
+    # meanwhile (the adapter pulled) raised out of the task, which took it for a bug of its own: the bus closed
+    # for good despite reconnect=True, and aclose() raised the OSError (the asyncio driver loses the port).
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)  # (the bus opens it by name)
+    os.set_blocking(master, False)
+    try:
+        bus = await open_bus(path, driver="anyio", reconnect=True, reconnect_backoff=(0.05,), **FAST)
+        port = bus._driver.port  # type: ignore[attr-defined]
+        # Nobody reads the far end: fill the pty until it takes not one byte more (see test_ports).
+        quiet_checks = 0
+        while quiet_checks < 3:
+            took = 0
+            for size in (4096, 1):
+                with contextlib.suppress(BlockingIOError):
+                    while True:
+                        took += os.write(port.fd, b"x" * size)
+            quiet_checks = quiet_checks + 1 if not took else 0
+            await anyio.sleep(0.02)
+        with pytest.raises(ReplyError):
+            await bus.servo(1).read_stretch()  # its command waits in the port's pending bytes
+        assert port.pending
+        os.close(master)  # the device goes away
+        master = -1
+        with anyio.fail_after(GUARD):
+            while bus.state not in (State.LOST, State.CLOSED):
+                await bus.state_change()
+        assert bus.state is State.LOST and bus.is_open  # reconnecting
+    finally:
+        if master >= 0:
+            os.close(master)
+    await bus.aclose()  # (no error of the bus task to raise)

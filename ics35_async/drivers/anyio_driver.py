@@ -231,7 +231,11 @@ class AnyioDriver(DriverCore):
         if isinstance(port, TtyPort):
             if port.pending:
                 await anyio.wait_writable(port.fd)
-                port.write_pending()
+                try:
+                    port.write_pending()
+                except OSError as exc:  # the port went away (a pulled adapter): lost, not a bug of this task
+                    self._lose(port, exc)
+                    return
             await anyio.wait_readable(port.fd)
         elif isinstance(port, DevicePort) and port.has_input:
             # Already here (a fast simulator answers inside write): still let other tasks run,
