@@ -214,8 +214,11 @@ class Bus:
                 log.warning("line %s: %s", bus.port, state.value)
         """
         import anyio
+        import anyio.lowlevel
 
         if self.state is State.CLOSED:
+            # Still a checkpoint: a loop around this call must not keep the program's other tasks out.
+            await anyio.lowlevel.checkpoint()
             return State.CLOSED
         if self._state_event is None:
             self._state_event = anyio.Event()

@@ -767,6 +767,28 @@ async def test_state_change_tells_a_lost_port_its_return_and_the_close(driver: s
     assert changes == [State.LOST, State.IDLE, State.CLOSED]
 
 
+@pytest.mark.parametrize("anyio_backend", ["asyncio", "trio"], indirect=True)
+async def test_state_change_on_a_closed_bus_still_lets_the_programs_other_tasks_run() -> None:
+    # It returned at once without yielding: a watcher looping on it for a state other than CLOSED (LOST, say)
+    # froze the whole program once the bus closed (its other tasks, its timeouts, under trio its Ctrl-C).
+    import anyio
+
+    from ics35_async import State
+
+    bus = await open_bus("sim://?ids=1", **FAST)
+    await bus.aclose()
+    others: list[int] = []
+
+    async def other() -> None:
+        others.append(1)
+
+    async with anyio.create_task_group() as group:
+        group.start_soon(other)
+        for _ in range(100):
+            assert await bus.state_change() is State.CLOSED
+        assert others == [1]
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_a_reopen_beside_a_program_polling_waits_for_the_line_and_the_bus_stays_open(driver: str) -> None:
     # A baud change while telemetry polls: a request could start between the reopen's wait for a free line and
@@ -802,7 +824,7 @@ async def test_a_reopen_beside_a_program_polling_waits_for_the_line_and_the_bus_
 
 
 @pytest.mark.pty
-@pytest.mark.parametrize("driver", ["asyncio", "thread"])
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_a_reopen_right_after_a_streams_close_is_not_refused(
     driver: str, pty_sim: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
