@@ -345,3 +345,27 @@ def test_a_port_named_by_id_reads_the_timer_of_its_tty(tmp_path: Path) -> None:
     assert report.latency_timer_ms == 16
     (finding,) = by_check(report, "latency_timer")
     assert "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in finding.fix and port in finding.problem
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
+def test_a_timer_the_system_shows_is_one_finding_for_the_ports_own_tty(tmp_path: Path, cli: Any, pty_sim: Any) -> None:
+    # The adapter is not always ttyUSB0 (an Arduino plugged in first takes it): the line's measurement
+    # repeated the system's finding with a fix for ttyUSB0, and with round trips that did not wait for the
+    # timer (ics35 asks the driver for low latency) it said they "sit at" it.
+    sim = pty_sim("--ids", "1", "--fast")
+    root = tree(tmp_path)
+    node = root / sim.path.lstrip("/")
+    node.parent.mkdir(parents=True)
+    node.write_text("")
+    node.chmod(0o666)
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / node.name / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    result = cli("doctor", "--port", sim.path, "--ids", "1", "--samples", "10", "--system-root", str(root), "--json")
+    assert result.code == 0, result.err
+    data = result.json()
+    assert data["latency_timer_ms"] == 16 and data["servos"] == [1]
+    (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
+    assert f"/sys/bus/usb-serial/devices/{node.name}/latency_timer" in finding["fix"]
+    assert "ttyUSB0" not in finding["fix"]

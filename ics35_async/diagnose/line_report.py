@@ -171,7 +171,10 @@ class LineReport:
             return found
         timer = self.suspected_timer_ms
         rates = self.cycle_hz()
-        if timer is not None:
+        # A timer the system shows has its own finding, with the fix for this port's tty (not always ttyUSB0);
+        # the round trips may not show it at all, as the library asks the driver for low latency.
+        system_timer = self.system_latency_timer_ms is not None and self.system_latency_timer_ms > 1
+        if timer is not None and not system_timer:
             fix = latency_timer_advice(self.platform)
             if self.platform.startswith("linux"):
                 fix += "  (or: ics35 udev --install)"
@@ -186,7 +189,7 @@ class LineReport:
                     fix,
                 )
             )
-        elif median - wire_time(PROBE_TX + PROBE_REPLY, self.baudrate) >= SLOW_EXCESS:
+        elif timer is None and median - wire_time(PROBE_TX + PROBE_REPLY, self.baudrate) >= SLOW_EXCESS:
             found.append(
                 Finding(
                     "round_trip",
