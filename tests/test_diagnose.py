@@ -369,3 +369,19 @@ def test_a_timer_the_system_shows_is_one_finding_for_the_ports_own_tty(tmp_path:
     (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
     assert f"/sys/bus/usb-serial/devices/{node.name}/latency_timer" in finding["fix"]
     assert "ttyUSB0" not in finding["fix"]
+
+
+def test_doctor_says_why_no_servo_answered_as_the_other_commands_do(cli: Any) -> None:
+    # The first command a newcomer runs said only "no servo answered", where get and set-id name the rate
+    # the servos answer at, or the adapter when not even the echo came back.
+    other_rate = cli("doctor", "--port", "sim://?ids=4&baud=1250000", "--json")
+    assert other_rate.code == 6, other_rate.err
+    assert "1250000" in other_rate.err and "--baud 1250000" in other_rate.err
+    (line,) = [f for f in other_rate.json()["findings"] if f["check"] == "line"]
+    assert "--baud 1250000" in line["fix"]
+    no_echo = cli("doctor", "--port", "sim://?ids=5&echo=0", "--ids", "1")
+    assert no_echo.code == 4, no_echo.err
+    assert "not even the echo" in no_echo.err and "--no-echo" in no_echo.err
+    nobody = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3")
+    assert nobody.code == 4, nobody.err
+    assert "no servo answered" in nobody.err and "hint: check the servo has power" in nobody.err

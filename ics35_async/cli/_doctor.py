@@ -9,13 +9,18 @@ from typing import Any
 import click
 from rich.markup import escape
 
+from .. import policies
+from ..bus import Bus
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..drivers.burst import PATH_NAME, burst_path, line_path
+from ..errors import IcsError
+from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
+from ._errors import nothing_answered
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -28,12 +33,39 @@ def machine_ports() -> list[SerialPortInfo]:
         return []
 
 
-def measure(settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport) -> tuple[LineReport, bool]:
-    """The line's report, and whether its streams take the burst path (as the open bus says)."""
+async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) -> CliError:
+    """Why no servo answered, as the other commands say it: the adapter when not even the echo came back,
+    the rate a device answers at when it is another, else what to check."""
+    where = f"{settings.port} at {settings.baud} baud"
+    if probed.silent and settings.echo:
+        return nothing_answered(settings, where, silent=True)
+    rates: tuple[int, ...] = ()
+    if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
+        try:
+            others = [rate for rate in policies.ALL_BAUDS if rate != settings.baud]
+            rates = await policies.device_rates(policies.reopening(bus), others)
+        except (IcsError, OSError):
+            pass  # advice only: a port that cannot be opened again leaves what was said
+    if rates:
+        return CliError(
+            ExitCode.WRONG_BAUD,
+            f"no servo answered on {where}, but a device does at {rates[0]} baud",
+            f"pass --baud {rates[0]}",
+        )
+    return nothing_answered(settings, where, silent=False)
 
-    async def body() -> tuple[LineReport, bool]:
+
+def measure(
+    settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport
+) -> tuple[LineReport, bool, CliError | None]:
+    """The line's report, whether its streams take the burst path (as the open bus says), and why no servo
+    answered (None when one did)."""
+
+    async def body() -> tuple[LineReport, bool, CliError | None]:
         async with settings.bus() as bus:
-            found = await bus.scan(ids)
+            probed = await policies.probe_ids(bus, ids, id_read_first=False)
+            found = list(probed.answered)
+            nobody = None if found else await why_nobody(settings, bus, probed)
             samples, failed = await measure_round_trips(bus, found, per_servo=per_servo)
             report = LineReport(
                 baudrate=settings.baud,
@@ -42,7 +74,7 @@ def measure(settings: Settings, ids: list[int], per_servo: int | None, system: S
                 system_latency_timer_ms=system.latency_timer_ms,
                 platform=sys.platform,
             )
-            return report, bool(bus.describe()["burst_path"])
+            return report, bool(bus.describe()["burst_path"]), nobody
 
     return run(settings, body)
 
@@ -107,7 +139,8 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     and the cycle rate for 32 servos now and after each fix.
 
     Reads only (temperature reads: nothing moves, nothing is freed).  Without --port only the machine
-    is checked.  Exit codes: 0 checked (findings are advice), 3 the port cannot be opened, 4 no servo answered.
+    is checked.  Exit codes: 0 checked (findings are advice), 3 the port cannot be opened, 4 no servo answered,
+    6 none answered at --baud but a device does at another rate (named).
     """
     settings = settings_of(ctx)
     port = None if settings.port_defaulted else settings.port
@@ -117,6 +150,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     system = SystemReport() if simulated else check_system(machine_ports(), port, root=system_root, own_pid=os.getpid())
     findings = list(system.findings)
     line: LineReport | None = None
+    nobody: CliError | None = None
     failure: CliError | None = None
     if port is None:
         findings.append(
@@ -128,16 +162,15 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         failure = CliError(ExitCode.PORT, unreachable[0].problem, *fixes)
     else:
         try:
-            line, bursts = measure(settings, ids, samples, system)
+            line, bursts, nobody = measure(settings, ids, samples, system)
         except CliError as exc:
             failure = exc
             findings.append(Finding("line", "error", exc.message, " ; ".join(exc.hints)))
     if line is not None:
         if not line.servo_ids:
-            failure = CliError(ExitCode.NO_REPLY, f"no servo answered on {settings.port} at {settings.baud} baud")
-            findings.append(
-                Finding("line", "error", failure.message, "check power and wiring; ics35 scan tries every baud")
-            )
+            where = f"{settings.port} at {settings.baud} baud"
+            failure = nobody or nothing_answered(settings, where, silent=False)
+            findings.append(Finding("line", "error", failure.message, " ; ".join(failure.hints)))
         findings += line.judge()
     burst_on, burst_text = burst_path() if line is None else line_path(bursts)  # (the measured line's, if one)
     if as_json:
