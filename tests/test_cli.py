@@ -110,6 +110,18 @@ def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:
     assert doc["garbled"] == [{"id": 3, "baud": 115200}]
 
 
+def test_new_servos_chained_at_id_0_are_named_not_blamed_on_power(cli: Any, sim_line: Any) -> None:
+    # Every new KRS servo has ID 0: a newcomer who chains two and scans was told "no servo answered" with
+    # the hints of an unpowered line (check the supply), under a warning about garbled replies.
+    _, url = sim_line([VirtualServo(0), VirtualServo(0)])
+    for command in (("scan", "--bauds", "115200", "--ids", "0-3"), ("doctor", "--ids", "0-3")):
+        result = cli("--port", url, *command)
+        assert result.code == 4, result.err
+        (error,) = [ln for ln in result.err.splitlines() if ln.startswith("error:")]
+        assert "ID 0" in error and "garbled" in error, result.err
+        assert "set-id" in result.err and "check the servo has power" not in result.err, result.err
+
+
 def test_info_json_matches_the_servo(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([VirtualServo(7, position=9000)])
     result = cli("--port", url, "info", "7", "--json", "--free")

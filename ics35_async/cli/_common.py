@@ -21,7 +21,7 @@ from ._console import (
     temperature_json,
     temperature_text,
 )
-from ._errors import NO_REPLY_HINTS, no_reply_error, nothing_answered, translate
+from ._errors import NO_REPLY_HINTS, answered_garbled, no_reply_error, nothing_answered, translate
 from ._loop import run_loop
 from ._params import (
     ALL_BAUDS,
@@ -58,6 +58,7 @@ __all__ = [
     "SignedValuesCommand",
     "advise",
     "all_ids_option",
+    "answered_garbled",
     "ask_yes_no",
     "check_backup_path",
     "check_input_path",

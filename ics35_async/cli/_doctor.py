@@ -20,7 +20,7 @@ from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
-from ._errors import nothing_answered
+from ._errors import answered_garbled, nothing_answered
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -35,7 +35,8 @@ def machine_ports() -> list[SerialPortInfo]:
 
 async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) -> CliError:
     """Why no servo answered, as the other commands say it: the adapter when not even the echo came back,
-    the rate a device answers at when it is another, else what to check."""
+    two servos sharing an ID when replies came garbled, the rate a device answers at when it is another,
+    else what to check."""
     where = f"{settings.port} at {settings.baud} baud"
     if probed.silent and settings.echo:
         return nothing_answered(settings, where, silent=True)
@@ -46,6 +47,11 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) ->
             rates = await policies.device_rates(policies.reopening(bus), others)
         except (IcsError, OSError):
             pass  # advice only: a port that cannot be opened again leaves what was said
+    if probed.garbled:
+        garbled = answered_garbled(settings, where, [(settings.baud, i) for i in sorted(probed.garbled)])
+        if rates:  # (a servo at another rate can garble what it hears at this one)
+            garbled.hints.append(f"a device answers at {rates[0]} baud: try --baud {rates[0]}")
+        return garbled
     if rates:
         return CliError(
             ExitCode.WRONG_BAUD,

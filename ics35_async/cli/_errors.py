@@ -185,3 +185,18 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
             "if your interface does not echo what it sends, pass --no-echo",
         )
     return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
+
+
+def answered_garbled(settings: Settings, where: str, garbled: list[tuple[int, int]]) -> CliError:
+    """The error for a line where no servo answered cleanly but some did garbled (``(baud, ID)`` pairs): two
+    servos sharing an ID, most often new ones (all ID 0), not the unpowered line :func:`nothing_answered` is."""
+    baud, servo_id = garbled[0]
+    which = ", ".join(f"ID {i} at {b}" for b, i in garbled)
+    rate = [] if baud == settings.baud else ["--baud", str(baud)]
+    return CliError(
+        ExitCode.NO_REPLY,
+        f"no servo answered cleanly on {where}: {which} answered garbled",
+        f"two servos sharing ID {servo_id} answer at once (new servos all have ID 0): connect one at a time and "
+        f"give each its own ID with: {settings.command_line('set-id', 'NEW', *rate)}",
+        "otherwise: noise or a loose contact on the signal wire",
+    )

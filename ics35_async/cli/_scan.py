@@ -22,6 +22,7 @@ from ._common import (
     ExitCode,
     Settings,
     all_ids_option,
+    answered_garbled,
     confirm,
     emit_json,
     err,
@@ -243,6 +244,8 @@ def scan(
         where = f"{settings.port} at {', '.join(map(str, scanned))} baud"
         if report.rate_blind:
             where = f"{settings.port} (at the bridge's own rate)"
+        if report.garbled:
+            raise answered_garbled(settings, where, [(baud, i) for baud, i, _ in report.garbled])
         raise nothing_answered(settings, where, silent=report.silent)
     return 0
 
