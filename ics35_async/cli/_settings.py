@@ -34,7 +34,8 @@ class ExitCode(enum.IntEnum):
     """
 
     OK = 0
-    """Success; also `demo`, `monitor` or `play` stopped with Ctrl-C, and `teach` ended with Ctrl-C."""
+    """Success; also `demo`, `monitor`, `play`, `sniff`, `sim` or `web` stopped with Ctrl-C, and `teach` ended
+    with Ctrl-C."""
     COMMUNICATION = 1
     """Communication error: a garbled reply, an echo mismatch, a verify failure, the port lost mid-command."""
     USAGE = 2
