@@ -385,3 +385,19 @@ def test_doctor_says_why_no_servo_answered_as_the_other_commands_do(cli: Any) ->
     nobody = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3")
     assert nobody.code == 4, nobody.err
     assert "no servo answered" in nobody.err and "hint: check the servo has power" in nobody.err
+
+
+async def test_a_port_lost_while_measuring_is_the_ports_error_not_failed_reads() -> None:
+    # An adapter pulled during doctor's measurement was "N of M reads failed: check the wiring and the
+    # servos' power", exit 0.
+    from ics35_async import BusClosed, PortLost, open_bus
+    from ics35_async.diagnose.line_report import measure_round_trips
+    from ics35_async.sim import VirtualLine, VirtualServo
+
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2)])
+    async with open_bus(sim) as bus:
+        assert await bus.scan([1, 2]) == [1, 2]
+        sim.unplug()
+        with pytest.raises((PortLost, BusClosed)):
+            await measure_round_trips(bus, [1, 2], per_servo=5)
+    sim.close()

@@ -144,9 +144,10 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
     the USB latency timer; then each answering servo's round trip, the latency timer it points to,
     and the cycle rate for 32 servos now and after each fix.
 
-    Reads only (temperature reads: nothing moves, nothing is freed).  Without --port only the machine
-    is checked.  Exit codes: 0 checked (findings are advice), 3 the port cannot be opened, 4 no servo answered,
-    6 none answered at --baud but a device does at another rate (named).
+    Reads only (temperature reads; ID reads at the other rates when none answers: nothing moves, nothing
+    is freed).  Without --port only the machine
+    is checked.  Exit codes: 0 checked (findings are advice), 1 the port was lost while measuring, 3 the port
+    cannot be opened, 4 no servo answered, 6 none answered at --baud but a device does at another rate (named).
     """
     settings = settings_of(ctx)
     port = None if settings.port_defaulted else settings.port

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..bus import Bus
-from ..errors import IcsError
+from ..errors import ReplyError
 from ..protocol import wire_time
 from ..transports.platforms import latency_timer_advice
 from ..transports.usb_timing import FtdiAdapter, adapter_cycle_time
@@ -50,6 +50,9 @@ async def measure_round_trips(
 
     Without ``per_servo``: ``budget`` transactions in all, at least
     :data:`MIN_PER_SERVO` each (32 servos at 16 ms: about 3 s).
+
+    Raises:
+        PortLost, BusClosed: the port went away (an adapter pulled) or the bus closed while measuring.
     """
     count = per_servo or max(MIN_PER_SERVO, budget // max(1, len(servo_ids)))
     samples: dict[int, list[float]] = {i: [] for i in servo_ids}
@@ -60,7 +63,9 @@ async def measure_round_trips(
             start = time.perf_counter()
             try:
                 await servo.read_temperature()
-            except IcsError:
+            except ReplyError:
+                # (only a reply that failed: a port lost or a bus closed ends the measurement with its own
+                # error, not as reads that blame the wiring)
                 failed += 1
                 continue
             samples[servo_id].append(time.perf_counter() - start)
