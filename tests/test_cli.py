@@ -206,6 +206,17 @@ def test_get_limit_reads_the_eeprom_and_says_so(cli: Any, sim_line: Any) -> None
     assert "= 63" in result.out and "EEPROM" in result.out and "cannot be read back" in result.out
 
 
+def test_a_temperature_limit_is_shown_in_celsius_and_which_way_is_hotter(cli: Any, sim_line: Any) -> None:
+    # A limit of 60 is about 96 C, hotter than the factory 80 (about 80 C): a builder who meant "60 C" was
+    # told only "temperature-limit = 60" and had loosened the servo's protection.
+    _, url = sim_line([1])
+    written = cli("--port", url, "set", "1", "temperature-limit", "60")
+    assert written.code == 0, written.err
+    assert "~96 °C" in written.out and "smaller is hotter" in written.out, written.out
+    read = cli("--port", url, "get", "1", "temperature-limit")
+    assert "= 80 (~80 °C)" in read.out and "smaller is hotter" in read.out, read.out
+
+
 # --------------------------------------------------------------------------- errors a person can act on
 
 

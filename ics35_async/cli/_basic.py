@@ -281,6 +281,16 @@ _EEPROM_TWIN = {
 }
 
 
+# A temperature limit counts the other way from degrees (60 is about 96 C, hotter than the factory 80): shown
+# in Celsius and said, or a limit meant as "60 C" loosens the servo's protection unnoticed.
+HOTTER = {"temperature-limit": "smaller is hotter; "}
+
+
+def limit_text(param: str, value: int) -> str:
+    """A written or read value of ``param`` as shown: a temperature limit with its Celsius."""
+    return temperature_text(value) if param == "temperature-limit" else str(value)
+
+
 # The limits are write-only in RAM (reading SC 3/4 returns the measured values),
 # so `get` reports the EEPROM limit, which the servo loads into RAM at power-up.
 EEPROM_LIMITS = {"current-limit": "current_limit", "temperature-limit": "temperature_limit"}
@@ -319,8 +329,9 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
         return 0
     if memory == "EEPROM":
         out.print(
-            f"servo {servo_id} {param} = {value}  (EEPROM value, loaded at power-up: the RAM limit cannot be "
-            f"read back, so a later `ics35 set {servo_id} {param} ...` is not reflected here)"
+            f"servo {servo_id} {param} = {limit_text(param, value)}  ({HOTTER.get(param, '')}EEPROM value, "
+            f"loaded at power-up: the RAM limit cannot be read back, so a later `ics35 set {servo_id} {param} ...` "
+            "is not reflected here)"
         )
         return 0
     shown = {"current": current_text, "temperature": temperature_text}.get(param, str)(value)
@@ -338,6 +349,8 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
     """Write a RAM parameter: stretch, speed, current-limit or temperature-limit.
 
     RAM only: the servo forgets it at power-off.  To persist, use `ics35 eeprom set`.
+    A temperature limit counts the other way: smaller is hotter (80, the factory
+    value, is about 80 °C; 60 about 96 °C).
     """
     settings = settings_of(ctx)
     param = param.lower()
@@ -355,7 +368,10 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
         emit_json({"id": servo_id, "param": param, "value": written, "memory": "RAM"})
     else:
         keep = settings.command_line("eeprom", "set", str(servo_id), _EEPROM_TWIN[param].split()[0] + "=...")
-        out.print(f"servo {servo_id} {param} = {written} (RAM only: lost at power-off; to keep it: {escape(keep)})")
+        out.print(
+            f"servo {servo_id} {param} = {limit_text(param, written)} ({HOTTER.get(param, '')}RAM only: lost at "
+            f"power-off; to keep it: {escape(keep)})"
+        )
     return 0
 
 
