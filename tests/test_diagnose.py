@@ -401,3 +401,17 @@ async def test_a_port_lost_while_measuring_is_the_ports_error_not_failed_reads()
         with pytest.raises((PortLost, BusClosed)):
             await measure_round_trips(bus, [1, 2], per_servo=5)
     sim.close()
+
+
+def test_the_timer_fix_for_good_is_the_udev_rule_that_matches_the_adapter(tmp_path: Path) -> None:
+    # ics35 udev's rules match Kondo's vendor ID only: for an FTDI adapter of FTDI's own (a DIY interface),
+    # "for good: ics35 udev --install" left its timer at 16 ms.
+    root = tree(tmp_path)
+    timer = root / "sys" / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    (kondo,) = by_check(check(root, uid=0), "latency_timer")
+    assert "ics35 udev --install" in kondo.fix
+    ftdi = SerialPortInfo("/dev/ttyUSB0", "FT232R USB UART", 0x0403, 0x6001)
+    (other,) = by_check(check(root, ports=[ftdi], uid=0), "latency_timer")
+    assert "ics35 udev" not in other.fix and 'ATTR{latency_timer}="1"' in other.fix

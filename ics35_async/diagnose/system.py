@@ -164,17 +164,33 @@ def check_holders(root: Path, port: str, *, own_pid: int | None) -> list[Finding
     return found
 
 
-def check_latency_timer(port: str, tty: str, ms: int | None) -> list[Finding]:
-    """A warning when ``port`` (whose kernel name is ``tty``) holds received bytes more than 1 ms."""
+# For an FTDI adapter of another vendor (a DIY interface): ics35 udev's rules match Kondo's vendor ID only.
+FTDI_LATENCY_RULE = (
+    'a udev rule: ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", ATTR{latency_timer}="1" '
+    "in /etc/udev/rules.d/99-ftdi-latency.rules"
+)
+
+
+def check_latency_timer(port: str, tty: str, ms: int | None, kondo: bool | None = True) -> list[Finding]:
+    """A warning when ``port`` (whose kernel name is ``tty``) holds received bytes more than 1 ms.
+
+    ``kondo``: whether the adapter is Kondo's (None: not known), which ``ics35 udev``'s rules fix for good.
+    """
     if ms is None or ms <= 1:
         return []
+    if kondo:
+        for_good = "ics35 udev --install"
+    elif kondo is None:
+        for_good = f"ics35 udev --install (Kondo's adapters), or {FTDI_LATENCY_RULE}"
+    else:
+        for_good = FTDI_LATENCY_RULE
     return [
         Finding(
             "latency_timer",
             "warning",
             f"{port}'s USB adapter holds received bytes up to {ms} ms (its FTDI latency timer): every "
             f"transaction waits that long",
-            f"now: echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer ; for good: ics35 udev --install",
+            f"now: echo 1 | sudo tee /sys/bus/usb-serial/devices/{tty}/latency_timer ; for good: {for_good}",
         )
     ]
 
@@ -256,7 +272,8 @@ def check_system(
         report.findings += check_holders(root, device, own_pid=own_pid)
         tty = os.path.basename(os.path.realpath(_below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
         report.latency_timer_ms = read_latency_timer(root, tty)
-        report.findings += check_latency_timer(device, tty, report.latency_timer_ms)
+        listed = [p.kondo for p in ports if os.path.basename(p.device) == tty]
+        report.findings += check_latency_timer(device, tty, report.latency_timer_ms, listed[0] if listed else None)
     elif not linux and any(p.ftdi_based for p in ports):
         report.findings.append(
             Finding(
