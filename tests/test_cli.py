@@ -8,6 +8,7 @@ The serial boundary (a real subprocess on a pty) is covered by test_cli_pty.py.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -321,6 +322,20 @@ def test_permission_denied_points_at_dialout() -> None:
     error = translate(Settings(port="/dev/ttyUSB0"), PortPermissionDenied(13, "permission denied opening it"))
     assert error.code == ExitCode.PORT
     assert any("dialout" in hint for hint in error.hints)
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="giving a file a group needs root")
+def test_permission_denied_names_the_group_that_owns_the_port(tmp_path: Path) -> None:
+    # On Arch and others serial ports belong to uucp: "sudo usermod -aG dialout" added the user to a
+    # group that does not own the port (or to none at all).
+    import grp
+
+    group = next(g for g in grp.getgrall() if g.gr_gid != 0 and g.gr_name != "dialout")
+    port = tmp_path / "ttyUSB0"
+    port.write_text("")
+    os.chown(port, 0, group.gr_gid)
+    error = translate(Settings(port=str(port)), PortPermissionDenied(13, "permission denied opening it"))
+    assert any(f"usermod -aG {group.gr_name} " in hint for hint in error.hints), error.hints
 
 
 # --------------------------------------------------------------------------- EEPROM

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
-from ..transports.platforms import misnamed_port_hints, permission_hint, port_names_hint
+from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
 
@@ -27,10 +27,12 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     text = errors.error_text(exc).replace(settings.url, settings.port)
     if isinstance(exc, errors.PortPermissionDenied):
         if sys.platform.startswith("linux"):
+            # The port's own group: dialout on Debian, Ubuntu and Fedora, uucp on Arch and others.
+            group = port_group(settings.port) or "dialout"
             return CliError(
                 ExitCode.PORT,
                 text,
-                "on Linux: sudo usermod -aG dialout $USER, then log out and in again (check with: groups)",
+                f"on Linux: sudo usermod -aG {group} $USER, then log out and in again (check with: groups)",
             )
         return CliError(ExitCode.PORT, text, permission_hint())
     if isinstance(exc, errors.PortNotFound):

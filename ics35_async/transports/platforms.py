@@ -112,6 +112,18 @@ def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
     return []
 
 
+def port_group(port: str) -> str | None:
+    """The name of the group that owns the device node ``port`` (``dialout``, ``uucp``...), or None where it
+    cannot be told (no such node, no POSIX groups) or is ``root`` (no group for a user to join)."""
+    try:
+        import grp
+
+        gid = os.stat(port).st_gid
+        return None if gid == 0 else grp.getgrgid(gid).gr_name
+    except (ImportError, OSError, KeyError):
+        return None
+
+
 def permission_hint(platform: str | None = None) -> str:
     """How to get the right to open a serial port on ``platform`` (default: this one)."""
     return _for_platform(_PERMISSION, platform)
