@@ -101,6 +101,8 @@ def test_scan_finds_servos_at_every_baud(cli: Any, sim_line: Any) -> None:
     rows = {int(cols[0]): int(cols[1]) for cols in lines if len(cols) > 2 and cols[0].isdigit() and cols[1].isdigit()}
     assert rows == {1: 115200, 2: 1250000, 3: 625000}
     assert "servos at different baud rates" in result.err
+    # ... and how to bring one to another's rate (the note alone left a newcomer there).
+    assert "eeprom set ID baud_rate=" in result.err and "--change-baud" in result.err, result.err
 
 
 def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:

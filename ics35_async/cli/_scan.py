@@ -197,7 +197,13 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
     )
     out.print(f"{len(report.servos)} servo(s) found on {escape(settings.port)}: {summary}")
     if len(by_baud) > 1:
-        err.print("[yellow]note:[/yellow] servos at different baud rates cannot share one bus session")
+        most = max(by_baud, key=lambda b: by_baud[b])
+        move = settings.command_line("--baud", "ITS_RATE", "eeprom", "set", "ID", f"baud_rate={most}", "--change-baud")
+        err.print(
+            "[yellow]note:[/yellow] servos at different baud rates cannot share one bus session; to bring one to "
+            f"{most} baud: {escape(move)}, then power-cycle it",
+            soft_wrap=True,
+        )
 
 
 @click.command()
