@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -84,12 +85,20 @@ def test_a_servo_gone_offline_shows_no_position(
     # Servo 3 answers, then is unplugged: its row says "off", and shows no position (nor current or
     # temperature), not the last ones read as if it were still there.
     sim, url = sim_line([1, 2, 3], realtime=True)
-    timer = threading.Timer(0.5, sim.remove_servo, (3,))
-    timer.start()
+    ended = threading.Event()
+
+    def unplug_once_it_answered() -> None:  # (by what the command has seen, not by the clock: a loaded machine)
+        while not ended.is_set() and sum(t.servo_id == 3 for t in sim.log_since(0)) < 5:
+            time.sleep(0.01)
+        sim.remove_servo(3)
+
+    unplugging = threading.Thread(target=unplug_once_it_answered)
+    unplugging.start()
     try:
-        result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "1.5")
+        result = cli("--port", url, "--timeout", "0.02", *command, "--seconds", "2")
     finally:
-        timer.cancel()
+        ended.set()
+        unplugging.join()
     assert result.code == 0, result.err
     rows = {line.split()[0]: line.split() for line in result.out.splitlines() if line.split()[:1] in (["1"], ["3"])}
     assert rows["3"][-1] == "off", result.out
