@@ -153,8 +153,9 @@ def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> Non
     distinct = len(set(targets_sent(rig.upper, 1, before["upper"])))
     slow_cycles = len(list(commanded(rig.lower, 1, before["lower"])))  # one position command a cycle
     # (stepped on the slow line's frames, the two counts are alike; 10 to 1 on a quiet machine, 2.6 to 1 once
-    # under a stress run's two CPU burners, the 100 Hz line then at about 30 Hz)
-    assert distinct >= 2 * slow_cycles, (distinct, slow_cycles)
+    # under a stress run's two CPU burners, the 100 Hz line then at about 30 Hz, and 1.56 to 1 once at load
+    # average 6 on two cores, the 100 Hz line at about 15 Hz)
+    assert distinct >= 1.4 * slow_cycles, (distinct, slow_cycles)
 
 
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
