@@ -928,6 +928,24 @@ class SlowToReopen(VirtualLine):
         super().connect(host, baudrate)
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_close_while_a_reopen_opens_the_port_leaves_no_port_open(driver: str) -> None:
+    # The reopen's port, opened after the bus had closed, was installed all the same and left open: the caller
+    # got the engine's "connected() while closed", and the program's next open found the port busy.
+    sim = SlowToReopen()
+    try:
+        bus = await open_bus(sim, driver=driver, **NO_TIMEOUTS)
+        reopening = asyncio.ensure_future(bus.reopen())
+        await asyncio.sleep(0.1)  # (the reopen opens the port again: 0.3 s)
+        await bus.aclose()
+        with pytest.raises(BusClosed):
+            await reopening
+        async with open_bus(sim, driver=driver, **NO_TIMEOUTS) as again:  # (not busy)
+            assert (await again.servo(1).read_stretch()) > 0
+    finally:
+        sim.close()
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_wait_idle_during_a_reopen_waits_for_the_requests_queued_meanwhile(driver: str) -> None:
     sim = SlowToReopen()

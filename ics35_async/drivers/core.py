@@ -385,7 +385,16 @@ class DriverCore:
         await self._go_offline()
         self._drop_port()
         self.engine.baudrate = baudrate
-        self._connected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+        self._reconnected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+
+    def _reconnected(self, port: Port) -> None:
+        """``port``, opened again by a reopen, is the line's now; unless the bus closed while it opened: closed
+        at once then (left open, it would be busy to the program's next open), and the closed error raised."""
+        with self.lock:
+            if self.engine.state is CLOSED or self.engine.state is DRAINING:
+                port.close()
+                raise self.engine.closed_error()
+            self._connected(port)
 
     async def _go_offline(self) -> None:
         """Take the line offline for a reopen: at once when idle, else at the end of the transaction on the

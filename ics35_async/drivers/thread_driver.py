@@ -250,9 +250,7 @@ class ThreadDriver(LoopDriver):
         await self._go_offline()
         await self._stop_thread()
         self.engine.baudrate = baudrate
-        port = await self._open()  # a failure closes the line for good (the bus tells the engine)
-        with self.lock:
-            self._connected(port)
+        self._reconnected(await self._open())  # a failure closes the line for good (the bus tells the engine)
 
     async def aclose(self) -> None:
         try:
