@@ -171,3 +171,26 @@ def test_a_command_started_ignoring_sigint_keeps_ignoring_it_at_the_question() -
             proc.kill()
             proc.wait()
     assert code != 130 and "interrupted" not in rest, rest
+
+
+def test_sigterm_still_ends_the_question_of_a_command_started_ignoring_sigint() -> None:
+    # The question told a stop signal it was asking by finding Ctrl-C's handler on: with SIGINT left ignored,
+    # SIGTERM only cancelled the loop's task, which the question's blocking read holds up: it waited on.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LOOPS["asyncio"], "--port", "sim://?ids=1", "eeprom", "set", "1", "speed=5"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # (what a shell does)
+    )
+    try:
+        assert proc.stderr is not None
+        read_until(proc.stderr.fileno(), b"[y/N]")
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=20)
+        rest = proc.stderr.read().decode(errors="replace")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 143 and "nothing was written" in rest, rest

@@ -11,6 +11,7 @@ import sys
 import threading
 from collections.abc import Iterator
 
+from . import _signals
 from ._settings import CliError, ExitCode
 
 
@@ -25,14 +26,18 @@ def _ctrl_c_raises() -> Iterator[None]:
     script's foreground command is not for it) keeps ignoring it.
     """
     previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or previous is signal.SIG_IGN:
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    with _signals.asking():  # (SIGTERM and SIGHUP raise there too)
+        if previous is signal.SIG_IGN:
+            yield
+            return
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, previous)
 
 
 def ask_yes_no(question: str, nothing: str = "nothing was written") -> bool:

@@ -26,6 +26,7 @@ from typing import Any
 
 _received: list[int] = []  # the stop signals received, first first
 _tasks: list[asyncio.Task[Any]] = []  # the command's task on the event loop, while it runs
+_questions: list[bool] = []  # a question waits for its answer, blocking the loop (see asking)
 
 
 def _stop_signals() -> list[signal.Signals]:
@@ -53,6 +54,17 @@ def command_task(task: asyncio.Task[Any]) -> Iterator[None]:
         _tasks.remove(task)
 
 
+@contextlib.contextmanager
+def asking() -> Iterator[None]:
+    """While the block runs, a question blocks the loop waiting for its answer: a stop signal raises
+    ``KeyboardInterrupt`` there, as Ctrl-C does (a cancelled task would wait for the answer)."""
+    _questions.append(True)
+    try:
+        yield
+    finally:
+        _questions.pop()
+
+
 def current_task() -> asyncio.Task[Any] | None:
     """The command's task on the event loop, while it runs."""
     return _tasks[-1] if _tasks else None
@@ -66,8 +78,7 @@ def _stop(signum: int, frame: FrameType | None) -> None:
         _leave_the_terminal()
     task = _tasks[-1] if _tasks else None
     # A question waiting for its answer blocks the loop: there Ctrl-C raises (see _prompt), and so do these.
-    asking = signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    if task is not None and not task.done() and not asking:
+    if task is not None and not task.done() and not _questions:
         # (run in the main thread between two bytecodes of the loop: cancel from the loop itself)
         task.get_loop().call_soon_threadsafe(task.cancel)
         return
