@@ -23,16 +23,23 @@ def main() -> None:
     except KeyboardInterrupt:
         # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
         # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
-        sys.stderr.write(("\r\x1b[2K" if _ctrl_c_echoed_on_stderr() else "") + "interrupted\n")
+        _clear_echoed_ctrl_c()
+        sys.stderr.write("interrupted\n")
         sys.exit(INTERRUPTED)
     cli_main()
 
 
-def _ctrl_c_echoed_on_stderr() -> bool:
-    """stderr is the terminal this process is in the foreground of (where a typed Ctrl-C echoed ``^C``)."""
+def _clear_echoed_ctrl_c() -> None:
+    """The line the terminal echoed ``^C`` on cleared, on stderr or else stdout: whichever is the terminal this
+    process is in the foreground of."""
     if sys.platform == "win32":
-        return False
-    try:
-        return os.isatty(2) and os.tcgetpgrp(2) == os.getpgrp()
-    except OSError:
-        return False
+        return
+    for stream in (sys.stderr, sys.stdout):
+        try:
+            fd = stream.fileno()
+            if os.isatty(fd) and os.tcgetpgrp(fd) == os.getpgrp():
+                stream.write("\r\x1b[2K")
+                stream.flush()
+                return
+        except (AttributeError, OSError, ValueError):
+            continue

@@ -212,6 +212,9 @@ class Bus:
 
             while (state := await bus.state_change()) is not State.CLOSED:
                 log.warning("line %s: %s", bus.port, state.value)
+
+        Once the bus is closed, every call returns ``State.CLOSED`` at once: a loop must end there (one that
+        waits for another state would go round for ever).
         """
         import anyio
         import anyio.lowlevel

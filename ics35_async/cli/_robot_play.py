@@ -288,7 +288,7 @@ def _left_holding(opened: Iterable[str], free: list[str], found: list[str]) -> s
             return f"{'free' if free else 'as found'} (those it opened: none had a target yet)"
         both = " and ".join(f"{escape(', '.join(names))} {state}" for state, names in said.items())
         return f"{both} (those it opened: none had a target yet)"
-    rest = ", ".join(f"{escape(', '.join(names))} {state}" for state, names in said.items() if names)
+    rest = " and ".join(f"{escape(', '.join(names))} {state}" for state, names in said.items() if names)
     return f"holding (those it opened), but {rest} (no target yet)"
 
 
