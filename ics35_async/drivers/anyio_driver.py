@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import threading
 from collections.abc import Callable, Generator
 from typing import Any
@@ -39,7 +38,7 @@ from ..transports.device_port import DevicePort
 from ..transports.opening import Port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
-from .burst import FAILED, BurstRunner, open_runner
+from .burst import BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, DriverCore
 from .settings import LineSettings
@@ -223,7 +222,7 @@ class AnyioDriver(DriverCore):
         if told and burst is self.burst and burst.running:
             self._in_bus_task = True
             try:
-                self._burst_done()
+                self._burst_done(burst)
             finally:
                 self._in_bus_task = False
 
@@ -277,53 +276,17 @@ class AnyioDriver(DriverCore):
 
     # ------------------------------------------------------------------ the burst path
 
-    @property
-    def bursting(self) -> bool:
-        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
-        return self.burst is not None and self.burst.running
-
     def _start_burst(self, burst: BurstRunner) -> bool:
         # Only from the bus task, between its waits (see the module docstring).
         return self._in_bus_task and isinstance(self.port, TtyPort) and burst.start(now())
 
-    def _burst_done(self, *, wait: bool = False, close: bool = False) -> None:
-        """Feed the engine what the running burst did (see ``BurstRunner.finish``); once it stopped, act on the
-        engine's answer as the ordinary path would, and let the bus task wait on the port again."""
-        burst = self.burst
-        if burst is None or not burst.running:
-            return
-        done, out = burst.finish(now, wait=wait)
-        if not done:
-            return
-        if close:
-            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+    def _burst_over(self, port: Port | None) -> None:
         self._rewait()  # (from a caller's task: the bus task waits on the burst's notices; the port is its own again)
-        port = self.port
-        if not isinstance(port, TtyPort):
-            return
-        if burst.status == FAILED:
-            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))
-            return
-        self._after(out)
 
-    def _stop_burst(self) -> None:
-        # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
-        # knowing what was on the wire.
-        if self.bursting:
-            self._burst_done(wait=True, close=True)
-        else:
-            self._close_burst()
-
-    def _end_burst(self) -> None:
-        self._burst_done(wait=True)
-
-    def _close_burst(self) -> None:
-        burst, self.burst = self.burst, None
-        if burst is not None:
-            # The bus task's wait on its notices ends first: under trio at once (its descriptor is no longer
-            # watched once this returns), under asyncio as the task next runs (the loop drops a closed one).
-            self._rewait()
-            burst.close()
+    def _burst_closing(self, burst: BurstRunner) -> None:
+        # The bus task's wait on its notices ends first: under trio at once (its descriptor is no longer watched
+        # once this returns), under asyncio as the task next runs (the loop drops a closed one).
+        self._rewait()
 
     # ------------------------------------------------------------------ the user's side
 

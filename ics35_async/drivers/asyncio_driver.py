@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import threading
 from typing import Any
 
@@ -28,7 +27,7 @@ from ..transports.device_port import DevicePort
 from ..transports.opening import Port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
-from .burst import FAILED, BurstRunner, open_runner
+from .burst import BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
@@ -78,7 +77,7 @@ class AsyncioDriver(LoopDriver):
                 self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
             )
             if self.burst is not None:
-                self.loop.add_reader(self.burst.done_fd, self._burst_done)
+                self.loop.add_reader(self.burst.done_fd, self._burst_readable)
         elif isinstance(port, DevicePort):  # (a port without a descriptor comes behind a reader thread)
             port.on_input = self._input_came
             if port.has_input:
@@ -133,11 +132,6 @@ class AsyncioDriver(LoopDriver):
 
     # ------------------------------------------------------------------ the burst path
 
-    @property
-    def bursting(self) -> bool:
-        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
-        return self.burst is not None and self.burst.running
-
     def _start_burst(self, burst: BurstRunner) -> bool:
         port = self.port
         if not isinstance(port, TtyPort) or not burst.start(now()):
@@ -146,40 +140,17 @@ class AsyncioDriver(LoopDriver):
         self.cancel_timer()  # and keeps the deadlines
         return True
 
-    def _burst_done(self, *, wait: bool = False, close: bool = False) -> None:
+    def _burst_readable(self) -> None:
         burst = self.burst
-        if burst is None or not burst.running:
-            return
-        done, out = burst.finish(now, wait=wait)
-        if not done:
-            return
-        if close:
-            self._close_burst()  # closing or reopening: the rest goes the ordinary way
-        port = self.port
-        if not isinstance(port, TtyPort):
-            return
-        if burst.status == FAILED:
-            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))
-            return
-        self.loop.add_reader(port.fd, self._readable)  # a hang-up or what came after: the ordinary read sees it
-        self._after(out)
+        if burst is not None and burst.running:
+            self._burst_done(burst)
 
-    def _stop_burst(self) -> None:
-        # Blocks for at most one transaction: no await, so a cancelled close still leaves the engine
-        # knowing what was on the wire.
-        if self.bursting:
-            self._burst_done(wait=True, close=True)
-        else:
-            self._close_burst()
+    def _burst_over(self, port: Port | None) -> None:
+        if isinstance(port, TtyPort):
+            self.loop.add_reader(port.fd, self._readable)  # a hang-up or what came after: the ordinary read sees it
 
-    def _end_burst(self) -> None:
-        self._burst_done(wait=True)
-
-    def _close_burst(self) -> None:
-        burst, self.burst = self.burst, None
-        if burst is not None:
-            self.loop.remove_reader(burst.done_fd)
-            burst.close()
+    def _burst_closing(self, burst: BurstRunner) -> None:
+        self.loop.remove_reader(burst.done_fd)
 
     # ------------------------------------------------------------------ time
 

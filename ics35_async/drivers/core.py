@@ -29,6 +29,7 @@ import errno
 import itertools
 import logging
 import math
+import os
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -40,8 +41,9 @@ from ..engine import FlushInput, LineEngine, Output, Request, State
 from ..errors import IcsError, InvalidArgument, PortBusy, PortLost, error_text
 from ..protocol import Command
 from ..transports.opening import Port, open_port
+from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
-from .burst import PATH_NAME, BurstRunner
+from .burst import FAILED, PATH_NAME, BurstRunner
 from .clock import now
 from .settings import LineSettings
 
@@ -250,15 +252,72 @@ class DriverCore:
         except Exception as exc:  # the port vanished, or an in-process device failed: a lost port
             self._write_failed(port, exc)
 
+    # ------------------------------------------------------------------ the burst path (see .burst)
+
+    @property
+    def bursting(self) -> bool:
+        """A burst runs: the executor's thread has the port; the engine waits to be fed."""
+        burst = self.burst
+        return burst is not None and burst.running
+
     def _start_burst(self, burst: BurstRunner) -> bool:
-        """The engine just put a transaction on the wire: run it (and its plan) as a burst; False: write it."""
+        """The engine just put a transaction on the wire: run it (and its plan) as a burst; False: write it.
+        Only from where the driver waits on the port (its loop, bus task or I/O thread): a burst started by a
+        caller could find that wait about to read the port beside the executor."""
         return False
 
+    def _burst_done(self, burst: BurstRunner, *, wait: bool = False, close: bool = False) -> None:
+        """Feed the engine what ``burst`` did (see ``BurstRunner.finish``: while it runs, what is done so far).
+        Once it stopped: closed if ``close`` (closing or reopening: the rest goes the ordinary way), the port
+        handed back to the driver's own wait (:meth:`_burst_over`), and the engine's answer acted on as the
+        ordinary path would.  Under the lock; ``wait``: stop it at its next boundary and block until it has."""
+        done, out = burst.finish(now, wait=wait)
+        if not done:
+            return
+        if close:
+            self._close_burst()
+        port = self.port
+        self._burst_over(port)
+        if not isinstance(port, TtyPort):
+            return
+        if burst.status == FAILED:
+            self._lose_in_burst(port, OSError(burst.errno, os.strerror(burst.errno)))
+            return
+        self._after(out)
+
+    def _burst_over(self, port: Port | None) -> None:
+        """A burst stopped: the driver's wait takes the port again (it waited on the burst's notices)."""
+
+    def _lose_in_burst(self, port: Port, exc: OSError) -> None:
+        """The executor's write or read failed: the port is lost."""
+        self._lose(port, exc)
+
     def _stop_burst(self) -> None:
-        """Closing or reopening: a running burst stops at its next boundary and is fed to the engine."""
+        """Closing or reopening: a running burst stops at its next boundary and is fed to the engine.  Blocks for
+        at most one transaction, with no await: a cancelled close still leaves the engine knowing what was on
+        the wire."""
+        with self.lock:
+            burst = self.burst
+            if burst is not None and burst.running:
+                self._burst_done(burst, wait=True, close=True)
+            else:
+                self._close_burst()
 
     def _end_burst(self) -> None:
         """A running burst stops at its next boundary and is fed to the engine (later ones may run)."""
+        burst = self.burst
+        if burst is not None and burst.running:
+            self._burst_done(burst, wait=True)
+
+    def _close_burst(self) -> None:
+        """The burst path of this port ends (the port is unwatched, or closing): its executor's thread stops."""
+        burst, self.burst = self.burst, None
+        if burst is not None:
+            self._burst_closing(burst)
+            burst.close()
+
+    def _burst_closing(self, burst: BurstRunner) -> None:
+        """Before ``burst``'s executor closes (and with it the descriptor of its notices): stop waiting on it."""
 
     def _write_blocked(self, port: Port) -> None:
         """Part of a write waits in the tty's ``pending``: wait for the port to take it."""

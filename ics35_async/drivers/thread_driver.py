@@ -46,7 +46,7 @@ from ..transports.opening import Port
 from ..transports.pyserial_port import SerialPort
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
-from .burst import FAILED, BurstRunner, open_runner
+from .burst import BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
@@ -372,42 +372,13 @@ class ThreadDriver(LoopDriver):
         # the wire by the I/O thread, starts the burst.)
         return self._thread is threading.current_thread() and isinstance(self.port, TtyPort) and burst.start(now())
 
-    def _burst_done(self, burst: BurstRunner, *, wait: bool = False, close: bool = False) -> None:
-        """Feed the engine what ``burst`` did (see ``BurstRunner.finish``); once it stopped, act on the engine's
-        answer as the ordinary path would and let the I/O thread read the port again."""
-        done, out = burst.finish(now, wait=wait)
-        if not done:
-            return
-        if close:
-            self._close_burst()  # closing or reopening: the rest goes the ordinary way
+    def _burst_over(self, port: Port | None) -> None:
         if threading.current_thread() is not self._thread and self._wait is not None:
             self._wait.wake()  # it waits for the burst's notices: the port is its own again
-        port = self.port
-        if not isinstance(port, TtyPort):
-            return
-        if burst.status == FAILED:
-            if self._lose(port, OSError(burst.errno, os.strerror(burst.errno))):
-                self.notify(self._lost.set)
-            return
-        self._after(out)
 
-    def _stop_burst(self) -> None:
-        # (closing: outside the lock, from the loop's thread) at most one transaction's wait, with no await
-        with self.lock:
-            burst = self.burst
-            if burst is not None and burst.running:
-                self._burst_done(burst, wait=True, close=True)
-            else:
-                self._close_burst()
-
-    def _end_burst(self) -> None:
-        if self.burst is not None:
-            self._burst_done(self.burst, wait=True)
-
-    def _close_burst(self) -> None:
-        burst, self.burst = self.burst, None
-        if burst is not None:
-            burst.close()
+    def _lose_in_burst(self, port: Port, exc: OSError) -> None:
+        if self._lose(port, exc):
+            self.notify(self._lost.set)
 
     # ------------------------------------------------------------------ the user's side
 
