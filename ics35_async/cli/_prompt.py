@@ -21,7 +21,8 @@ def _ctrl_c_raises() -> Iterator[None]:
 
     A question asked inside the event loop would otherwise meet asyncio.Runner's
     SIGINT handler, which only cancels the main task (the read goes on waiting)
-    and raises KeyboardInterrupt at the second Ctrl-C.  A command started with
+    and raises KeyboardInterrupt at the second Ctrl-C (SIGTERM and SIGHUP raise
+    there too: see _signals.asking).  A command started with
     SIGINT ignored (a script's background job: the Ctrl-C typed for the
     script's foreground command is not for it) keeps ignoring it.
     """
