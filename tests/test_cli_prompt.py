@@ -146,16 +146,21 @@ def test_ctrl_c_just_before_the_read_still_ends_the_question(monkeypatch: pytest
     assert raised.value.code == ExitCode.INTERRUPTED
 
 
-def test_a_command_started_ignoring_sigint_keeps_ignoring_it_at_the_question() -> None:
-    # A script's background job starts with SIGINT ignored (the Ctrl-C typed for the script's foreground
-    # command is not for it): the question turned Ctrl-C back on while it asked, so that Ctrl-C ended it.
-    proc = subprocess.Popen(
+def eeprom_set_started_ignoring_sigint() -> subprocess.Popen[bytes]:
+    """``ics35 eeprom set`` (it asks before it writes) as a script's background job starts: SIGINT ignored."""
+    return subprocess.Popen(
         [sys.executable, "-c", LOOPS["asyncio"], "--port", "sim://?ids=1", "eeprom", "set", "1", "speed=5"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # (what a shell does)
     )
+
+
+def test_a_command_started_ignoring_sigint_keeps_ignoring_it_at_the_question() -> None:
+    # A script's background job starts with SIGINT ignored (the Ctrl-C typed for the script's foreground
+    # command is not for it): the question turned Ctrl-C back on while it asked, so that Ctrl-C ended it.
+    proc = eeprom_set_started_ignoring_sigint()
     try:
         assert proc.stderr is not None and proc.stdin is not None
         read_until(proc.stderr.fileno(), b"[y/N]")
@@ -176,13 +181,7 @@ def test_a_command_started_ignoring_sigint_keeps_ignoring_it_at_the_question() -
 def test_sigterm_still_ends_the_question_of_a_command_started_ignoring_sigint() -> None:
     # The question told a stop signal it was asking by finding Ctrl-C's handler on: with SIGINT left ignored,
     # SIGTERM only cancelled the loop's task, which the question's blocking read holds up: it waited on.
-    proc = subprocess.Popen(
-        [sys.executable, "-c", LOOPS["asyncio"], "--port", "sim://?ids=1", "eeprom", "set", "1", "speed=5"],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # (what a shell does)
-    )
+    proc = eeprom_set_started_ignoring_sigint()
     try:
         assert proc.stderr is not None
         read_until(proc.stderr.fileno(), b"[y/N]")
