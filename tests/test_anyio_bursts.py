@@ -175,8 +175,9 @@ async def test_a_port_lost_mid_burst_is_reconnected_and_the_stream_bursts_again(
             assert again is not None and again is not first
             while again.transactions == 0:
                 await stream.next_frame()
-        frame = await stream.next_frame()
-        assert set(frame.positions) == {1, 2, 3, 4}
+            # Every servo read again (a frame may miss one whose reply failed on a loaded machine: the next reads it).
+            while set((await stream.next_frame()).positions) != {1, 2, 3, 4}:
+                pass
 
 
 @on_trio_and_asyncio
