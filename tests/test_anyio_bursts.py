@@ -19,6 +19,7 @@ import pytest
 from ics35_async import BusClosed, PortLost, ReplyError, State, open_bus
 from ics35_async.drivers import burst
 from ics35_async.drivers.burst import ENV, burst_path
+from tests.support.terminal import write_until_refused
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, scaled
 
 RUN_GUARD = scaled(120.0)  # a run this long means a reply or a frame stopped coming (4-9 s, 60+ once under stress)
@@ -208,15 +209,10 @@ async def test_a_port_lost_while_a_partial_write_waits_is_lost_and_reconnected_n
     try:
         bus = await open_bus(path, driver="anyio", reconnect=True, reconnect_backoff=(0.05,), **FAST)
         port = bus._driver.port  # type: ignore[attr-defined]
-        # Nobody reads the far end: fill the pty until it takes not one byte more (see test_ports).
+        # Nobody reads the far end: fill the pty until it takes not one byte more.
         quiet_checks = 0
         while quiet_checks < 3:
-            took = 0
-            for size in (4096, 1):
-                with contextlib.suppress(BlockingIOError):
-                    while True:
-                        took += os.write(port.fd, b"x" * size)
-            quiet_checks = quiet_checks + 1 if not took else 0
+            quiet_checks = quiet_checks + 1 if not write_until_refused(port.fd) else 0
             await anyio.sleep(0.02)
         with pytest.raises(ReplyError):
             await bus.servo(1).read_stretch()  # its command waits in the port's pending bytes

@@ -9,6 +9,7 @@ loaded CI machine, and ``--retries`` covers a rare late reply.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -286,9 +287,12 @@ def test_set_id_works_with_one_device() -> None:
     assert ids_after == [9]
 
 
-def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
+@contextlib.contextmanager
+def ics35_sim(ids: str, *, wrapper: tuple[str, ...] = ()) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """``ics35 sim --ids IDS`` in a process of its own (started through ``wrapper``, e.g. ``nohup``): the process
+    and the path of its pty; terminated after the block."""
     sim = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "4,6"],
+        [*wrapper, sys.executable, "-m", "ics35_async.cli", "sim", "--ids", ids],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -298,36 +302,28 @@ def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
         assert sim.stdout is not None
         path = sim.stdout.readline().strip()
         assert path, sim.stderr.read() if sim.stderr else ""
-        proc = ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", "4-6", "--quick", "--json")
-        assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4, 6]
+        yield sim, path
     finally:
         sim.terminate()
         sim.communicate(timeout=10)
+
+
+def test_ics35_sim_serves_a_line_other_commands_can_open() -> None:
+    with ics35_sim("4,6") as (sim, path):
+        proc = ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", "4-6", "--quick", "--json")
+        assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4, 6]
     assert sim.returncode == 0
 
 
 def test_ics35_sim_started_ignoring_sighup_keeps_serving_when_the_terminal_closes() -> None:
     # `nohup ics35 sim --link ... &`, as every other command: SIGHUP ignored from the start stays ignored (it
     # took SIGHUP over and ended with the terminal); SIGTERM still ends it.
-    sim = subprocess.Popen(
-        ["nohup", sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "4"],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert sim.stdout is not None
-        path = sim.stdout.readline().strip()
-        assert path, sim.stderr.read() if sim.stderr else ""
+    with ics35_sim("4", wrapper=("nohup",)) as (sim, path):
         sim.send_signal(signal.SIGHUP)
         time.sleep(0.5)
         assert sim.poll() is None, sim.communicate(timeout=10)
         proc = ics35(path, *ANSWERED, "scan", "--bauds", "115200", "--ids", "4", "--quick", "--json")
         assert [s["id"] for s in json.loads(proc.stdout)["servos"]] == [4]
-    finally:
-        sim.terminate()
-        sim.communicate(timeout=10)
     assert sim.returncode == 0
 
 

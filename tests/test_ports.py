@@ -44,6 +44,7 @@ from ics35_async.transports import (
     open_port,
     register_url_scheme,
 )
+from tests.support.terminal import write_until_refused
 
 WAIT = 5.0  # generous: only ever reached when something is broken
 
@@ -239,17 +240,12 @@ def test_a_write_the_port_cannot_take_yet_goes_out_once_it_drains(pty: Pty) -> N
     assert isinstance(port, TtyPort)
     try:
         tty.setraw(port.fd)
-        # Nobody reads the far end: fill the pty until it takes not one byte more.  The kernel moves
-        # bytes between the pty's buffers in a worker of its own, so room can appear just after a
-        # refusal (on a loaded machine, late): full is when it stays full for a while.
+        # Nobody reads the far end: fill the pty until it takes not one byte more (full is when it stays
+        # full for a while: see write_until_refused).
         filled = 0
         quiet_checks = 0
         while quiet_checks < 3:
-            took = 0
-            for size in (4096, 1):
-                with contextlib.suppress(BlockingIOError):
-                    while True:
-                        took += os.write(port.fd, b"x" * size)
+            took = write_until_refused(port.fd)
             filled += took
             quiet_checks = quiet_checks + 1 if not took else 0
             time.sleep(0.02)

@@ -4,19 +4,18 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
-from tests.support.terminal import screen_of
+from tests.support.terminal import TerminalOutput, screen_of
 from tests.support.timing import NO_TIMEOUTS_OPTION, scaled
 
 pytestmark = [
@@ -205,37 +204,23 @@ def run_on_a_terminal(args: list[str], typed: list[tuple[str, str]]) -> tuple[in
         text=True,
     )
     os.close(slave)
-    written = b""
-
-    def read_until(done: Callable[[], bool]) -> None:
-        nonlocal written
-        deadline = time.monotonic() + 60
-        while not done() and time.monotonic() < deadline:
-            if select.select([master], [], [], 0.1)[0]:
-                try:
-                    chunk = os.read(master, 65536)
-                except OSError:  # the process has ended and closed the terminal
-                    return
-                if not chunk:
-                    return
-                written += chunk
-
+    screen = TerminalOutput(master)
     try:
         assert proc.stdin is not None
         for phrase, text in typed:
-            read_until(lambda phrase=phrase: phrase in written.decode(errors="replace"))
+            screen.read_until(screen.shows(phrase), 60)
             proc.stdin.write(text)
             proc.stdin.flush()
         proc.stdin.close()
-        read_until(lambda: proc.poll() is not None)
+        screen.read_until(lambda: proc.poll() is not None, 60)
         proc.wait(30)
-        read_until(lambda: False)
+        screen.read_until(lambda: False, 60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
         os.close(master)
-    shown = written.decode(errors="replace")
+    shown = screen.text
     assert "Traceback" not in shown, shown
     return proc.returncode, screen_of(shown)
 

@@ -16,7 +16,7 @@ import itertools
 import json
 import threading
 import time
-from collections.abc import AsyncIterator, Callable, Iterable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
 from typing import Any
 
 import anyio
@@ -537,6 +537,7 @@ async def test_a_group_stream_s_latest_merges_each_line_s_newest_frame_and_takes
             # Reading it took nothing: the next frame is at least as new, on every line.
             frame = await next_frame(gstream)
             assert all(frame.line_cycles[line] >= latest.line_cycles[line] for line in streams)
+            assert (latest.cycle, frame.cycle) == (0, 1)  # (a frame taken by latest would have counted one)
 
 
 # --------------------------------------------------------------------------- cancelling and closing
@@ -1129,6 +1130,45 @@ def rate_warning(caplog: pytest.LogCaptureFixture) -> str:
     return said[0]
 
 
+async def rate_warning_beside(
+    caplog: pytest.LogCaptureFixture,
+    sim: VirtualLine,
+    ids: list[int],
+    rate_hz: float,
+    requests: list[Callable[[Bus], Awaitable[object]]],
+    **options: Any,
+) -> str:
+    """The rate warning of a stream of ``ids`` at ``rate_hz`` on ``sim`` while the program sends ``requests``
+    (each, on the bus, over and over, its failures ignored) beside it."""
+
+    async def over_and_over(request: Callable[[Bus], Awaitable[object]], bus: Bus) -> None:
+        while True:
+            with contextlib.suppress(ReplyError):
+                await request(bus)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, **options) as bus, bus.stream(ids, rate_hz=rate_hz) as stream:
+                tasks = [asyncio.ensure_future(over_and_over(request, bus)) for request in requests]
+                try:
+                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
+                        pass
+                finally:
+                    for task in tasks:
+                        task.cancel()
+    finally:
+        sim.close()
+    return rate_warning(caplog)
+
+
+def poll_unplugged_servo(bus: Bus) -> Awaitable[object]:
+    return bus.servo(20).read_temperature()
+
+
+def read_eeprom_of(sid: int) -> Callable[[Bus], Awaitable[object]]:
+    return lambda bus: bus.servo(sid).read_eeprom()
+
+
 async def test_a_rate_the_line_cannot_keep_is_told_once_in_words(caplog: pytest.LogCaptureFixture) -> None:
     # 17 servos at 115200 with rate_hz=100 ran at about 63 Hz, said only by stats.overruns: a newcomer's
     # loop then runs slow without a word.  One warning, after the first cycles, with what to change.
@@ -1172,24 +1212,7 @@ async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog
     # was never the cause.
     ids = list(range(6))
     sim = make_sim(ids, realtime=True, baudrate=1250000)
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            async with open_bus(sim, baudrate=1250000, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
-
-                async def poll_the_unplugged_one() -> None:
-                    while True:
-                        with contextlib.suppress(ReplyError):
-                            await bus.servo(20).read_temperature()
-
-                poller = asyncio.ensure_future(poll_the_unplugged_one())
-                try:
-                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
-                        pass
-                finally:
-                    poller.cancel()
-    finally:
-        sim.close()
-    said = rate_warning(caplog)
+    said = await rate_warning_beside(caplog, sim, ids, 100, [poll_unplugged_servo], baudrate=1250000, **REAL_TIME)
     assert "requests" in said and "does not answer" in said, said
     assert "raise the baud rate" not in said, said
 
@@ -1201,25 +1224,7 @@ async def test_a_rate_lost_to_the_programs_eeprom_requests_is_told_as_such(caplo
     # adapter's latency timer or a busy host.
     ids = list(range(6))
     sim = make_sim([*ids, 9, 10], realtime=True)
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            async with open_bus(sim, **REAL_TIME) as bus, bus.stream(ids, rate_hz=150) as stream:
-
-                async def read_eeproms(sid: int) -> None:
-                    while True:
-                        with contextlib.suppress(ReplyError):
-                            await bus.servo(sid).read_eeprom()
-
-                readers = [asyncio.ensure_future(read_eeproms(sid)) for sid in (9, 10)]
-                try:
-                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
-                        pass
-                finally:
-                    for reader in readers:
-                        reader.cancel()
-    finally:
-        sim.close()
-    said = rate_warning(caplog)
+    said = await rate_warning_beside(caplog, sim, ids, 150, [read_eeprom_of(9), read_eeprom_of(10)], **REAL_TIME)
     assert "EEPROM" in said and "latency timer" not in said, said
 
 
@@ -1229,31 +1234,8 @@ async def test_a_rate_lost_to_several_causes_names_each(caplog: pytest.LogCaptur
     # warning named the first cause it checked that could account for half the late cycles and stopped there.
     ids = list(range(6))
     sim = make_sim([*ids, 9, 10], realtime=True)
-    try:
-        with caplog.at_level("WARNING", logger="ics35_async"):
-            async with open_bus(sim, **REAL_TIME) as bus, bus.stream(ids, rate_hz=150) as stream:
-
-                async def read_eeproms(sid: int) -> None:
-                    while True:
-                        with contextlib.suppress(ReplyError):
-                            await bus.servo(sid).read_eeprom()
-
-                async def poll_the_unplugged_one() -> None:
-                    while True:
-                        with contextlib.suppress(ReplyError):
-                            await bus.servo(20).read_temperature()
-
-                tasks = [asyncio.ensure_future(read_eeproms(sid)) for sid in (9, 10)]
-                tasks.append(asyncio.ensure_future(poll_the_unplugged_one()))
-                try:
-                    while (await next_frame(stream)).cycle < 2 * RATE_CHECK_CYCLES:
-                        pass
-                finally:
-                    for task in tasks:
-                        task.cancel()
-    finally:
-        sim.close()
-    said = rate_warning(caplog)
+    requests = [read_eeprom_of(9), read_eeprom_of(10), poll_unplugged_servo]
+    said = await rate_warning_beside(caplog, sim, ids, 150, requests, **REAL_TIME)
     assert "ID(s) 20 went unanswered" in said and "EEPROM" in said, said
     assert "latency timer" not in said and "raise the baud rate" not in said, said
 

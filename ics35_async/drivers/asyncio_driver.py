@@ -62,12 +62,6 @@ class AsyncioDriver(LoopDriver):
             self._drop_port()
             self._release_idle()
 
-    def _lose(self, port: Port, exc: Exception | None, *, reconnect: bool = True) -> bool:
-        again = super()._lose(port, exc, reconnect=reconnect)
-        if again:
-            self._lost.set()
-        return again
-
     # ------------------------------------------------------------------ waiting on the port
 
     def _watch(self, port: Port) -> None:

@@ -281,16 +281,12 @@ class DriverCore:
         if not isinstance(port, TtyPort):
             return
         if burst.status == FAILED:
-            self._lose_in_burst(port, OSError(burst.errno, os.strerror(burst.errno)))
+            self._lose(port, OSError(burst.errno, os.strerror(burst.errno)))  # (the executor's write or read)
             return
         self._after(out)
 
     def _burst_over(self, port: Port | None) -> None:
         """A burst stopped: the driver's wait takes the port again (it waited on the burst's notices)."""
-
-    def _lose_in_burst(self, port: Port, exc: OSError) -> None:
-        """The executor's write or read failed: the port is lost."""
-        self._lose(port, exc)
 
     def _stop_burst(self) -> None:
         """Closing or reopening: a running burst stops at its next boundary and is fed to the engine.  Blocks for
@@ -442,11 +438,15 @@ class DriverCore:
             self._refuse_reopen()  # first: a refused reopen leaves the line (and any burst) as it was
         self._stop_burst()
         await self._go_offline()
-        self._drop_port()
+        await self._release_port()
         self.engine.baudrate = baudrate
-        self._reconnected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+        self._reopened(await self._open())  # a failure closes the line for good (the bus tells the engine)
 
-    def _reconnected(self, port: Port) -> None:
+    async def _release_port(self) -> None:
+        """A reopen's old port is given up (offline by now): no wait on it remains, and it is closed."""
+        self._drop_port()
+
+    def _reopened(self, port: Port) -> None:
         """``port``, opened again by a reopen, is the line's now; unless the bus closed while it opened: closed
         at once then (left open, it would be busy to the program's next open), and the closed error raised."""
         with self.lock:
@@ -625,6 +625,12 @@ class LoopDriver(DriverCore):
 
     async def _in_thread(self, call: Callable[[], Port]) -> Port:
         return await self.loop.run_in_executor(None, call)
+
+    def _lose(self, port: Port, exc: Exception | None, *, reconnect: bool = True) -> bool:
+        again = super()._lose(port, exc, reconnect=reconnect)
+        if again:  # the supervisor reopens it (told on the loop's thread: the thread driver's I/O thread loses it)
+            self.notify(self._lost.set)
+        return again
 
     def _soon_at_home(self, callback: Callable[[], None]) -> None:
         self.loop.call_soon_threadsafe(callback)

@@ -241,16 +241,8 @@ class ThreadDriver(LoopDriver):
         elif port is not None:
             port.close()
 
-    async def reopen(self, baudrate: int) -> None:
-        """Close and reopen the port (the engine holds requests meanwhile), once the transaction on the wire
-        (if any) has ended."""
-        with self.lock:
-            self._refuse_reopen()  # first: a refused reopen leaves the line (and any burst) as it was
-        self._stop_burst()
-        await self._go_offline()
-        await self._stop_thread()
-        self.engine.baudrate = baudrate
-        self._reconnected(await self._open())  # a failure closes the line for good (the bus tells the engine)
+    async def _release_port(self) -> None:
+        await self._stop_thread()  # (the I/O thread waits on the port, and closes it as it ends)
 
     async def aclose(self) -> None:
         try:
@@ -317,8 +309,8 @@ class ThreadDriver(LoopDriver):
                 log.error("the I/O thread of %s failed", self.target, exc_info=exc)
                 exc = OSError(errno.EIO, f"the line's I/O thread failed: {exc!r}")
             with self.lock:
-                if not run.stopping and self._lose(port, exc, reconnect=reconnect):
-                    self.notify(self._lost.set)
+                if not run.stopping:
+                    self._lose(port, exc, reconnect=reconnect)
         finally:
             with self.lock:
                 wait.close()
@@ -375,10 +367,6 @@ class ThreadDriver(LoopDriver):
     def _burst_over(self, port: Port | None) -> None:
         if threading.current_thread() is not self._thread and self._wait is not None:
             self._wait.wake()  # it waits for the burst's notices: the port is its own again
-
-    def _lose_in_burst(self, port: Port, exc: OSError) -> None:
-        if self._lose(port, exc):
-            self.notify(self._lost.set)
 
     # ------------------------------------------------------------------ the user's side
 

@@ -3,11 +3,14 @@
 Only what the live views write is modelled (rich's ``Live`` redraws in place with carriage returns,
 cursor-up and erase-line); colours and other control sequences are dropped.  A line printed beside a live
 view by another console is overwritten by the view's next redraw, as on a real terminal: that is what
-this is for.  :func:`typed_on_a_terminal` runs a command on a pty of its own, Ctrl-C typed as a person types it.
+this is for.  :func:`typed_on_a_terminal` runs a command on a pty of its own, Ctrl-C typed as a person types it;
+:func:`write_until_refused` fills a pty nobody reads.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 import signal
 from collections.abc import Callable
@@ -50,6 +53,38 @@ def screen_of(output: str) -> list[str]:
     return ["".join(line).rstrip() for line in lines]
 
 
+class TerminalOutput:
+    """What a program writes to its pty, read from the master side ``fd`` as it comes."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.written = b""
+
+    @property
+    def text(self) -> str:
+        return self.written.decode(errors="replace")
+
+    def shows(self, text: str) -> Callable[[], bool]:
+        """A check that ``text`` has been written (for :meth:`read_until`)."""
+        return lambda: text in self.text
+
+    def read_until(self, done: Callable[[], bool], limit: float) -> None:
+        """Read until ``done()``, the program has closed the terminal, or ``limit`` seconds."""
+        import select
+        import time
+
+        deadline = time.monotonic() + limit
+        while not done() and time.monotonic() < deadline:
+            if select.select([self.fd], [], [], 0.05)[0]:
+                try:
+                    chunk = os.read(self.fd, 65536)
+                except OSError:  # the process has ended and closed the terminal
+                    return
+                if not chunk:
+                    return
+                self.written += chunk
+
+
 def typed_on_a_terminal(
     args: list[str], keys: list[tuple[str | float, bytes]], *, timeout: float = 60, stdout: Path | None = None
 ) -> tuple[int, str]:
@@ -59,13 +94,10 @@ def typed_on_a_terminal(
     ``stdout``: a file for stdout instead (``ics35 ... > FILE``).  Returns the exit code and everything written
     to the terminal."""
     import fcntl
-    import os
-    import select
     import struct
     import subprocess
     import sys
     import termios
-    import time
 
     master, slave = os.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
@@ -85,34 +117,17 @@ def typed_on_a_terminal(
         env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
     )
     os.close(slave)
-    written = b""
-
-    def read_until(done: Callable[[], bool], limit: float) -> None:
-        nonlocal written
-        deadline = time.monotonic() + limit
-        while not done() and time.monotonic() < deadline:
-            if select.select([master], [], [], 0.05)[0]:
-                try:
-                    chunk = os.read(master, 65536)
-                except OSError:  # the process has ended and closed the terminal
-                    return
-                if not chunk:
-                    return
-                written += chunk
-
-    def shows(text: str) -> Callable[[], bool]:
-        return lambda: text in written.decode(errors="replace")
-
+    screen = TerminalOutput(master)
     try:
         for when, key in keys:
             if isinstance(when, str):
-                read_until(shows(when), timeout)
+                screen.read_until(screen.shows(when), timeout)
             else:
-                read_until(lambda: False, when)
+                screen.read_until(lambda: False, when)
             os.write(master, key)
-        read_until(lambda: proc.poll() is not None, timeout)
+        screen.read_until(lambda: proc.poll() is not None, timeout)
         proc.wait(timeout)
-        read_until(lambda: False, 0.2)
+        screen.read_until(lambda: False, 0.2)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -120,4 +135,17 @@ def typed_on_a_terminal(
         os.close(master)
         if output is not None:
             output.close()
-    return proc.returncode, written.decode(errors="replace")
+    return proc.returncode, screen.text
+
+
+def write_until_refused(fd: int) -> int:
+    """Write to the non-blocking ``fd`` until it takes not one byte more; the bytes it took.  A pty whose far
+    end nobody reads is full only once this takes nothing a few times in a row, a little apart: the kernel
+    moves bytes between the pty's buffers in a worker of its own, so room can appear just after a refusal
+    (on a loaded machine, late)."""
+    took = 0
+    for size in (4096, 1):
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                took += os.write(fd, b"x" * size)
+    return took
