@@ -230,3 +230,19 @@ def test_a_robot_description_built_by_a_program_takes_numpy_numbers() -> None:
         rig.close()
     assert specs == {"hip": (1, -30.0, 20.0), "knee": (2, -100.0, 20.0)}
     _python_only(specs)
+
+
+def test_a_command_built_from_numpy_numbers_holds_python_ints_only() -> None:
+    # The engine takes a command's lengths and IDs as ints; a compiled engine (mypyc) refuses anything else.
+    from ics35_async import protocol
+
+    commands = [
+        protocol.ReadMemory(np.int64(5), np.int64(4), np.int64(6)),
+        protocol.WriteMemory(np.int64(5), np.int64(4), [np.int64(1), np.int64(2)]),
+        protocol.Position(np.int64(3), np.int64(7500), baudrate=np.int64(115200)),
+        protocol.ReadParam(np.int64(3), protocol.Param.STRETCH),
+    ]
+    for command in commands:
+        for name in ("servo_id", "reply_len", "address", "count"):
+            value = getattr(command, name, 0)
+            assert type(value) is int, (command, name, type(value))

@@ -56,7 +56,7 @@ class ReadMemory(_MemoryCommand[bytes]):
         self.address, self.count = check_span(address, count)
         self.name = "read_memory"
         self.tx = bytes((CMD_READ | self.servo_id, SC_MEMORY, self.address, self.count))
-        self.reply_len = 4 + 2 * count
+        self.reply_len = 4 + 2 * self.count  # (the checked count: a Python int, whatever number was given)
 
     def parse(self, reply: bytes) -> bytes:
         self._check_length(reply)
