@@ -12,15 +12,16 @@ DEMO_STAMP := $(VENV)/.demo-installed
 # of the wheel and sdist) like the installed packages' own.
 export PYTHONDONTWRITEBYTECODE :=
 
-.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest pytest-parallel pytest-realtime docs docs-serve dist bench soak clean browser tools web-demo bench-web stress
+.PHONY: all demo robot-demo screenshots test lint format format-check typecheck pytest pytest-parallel pytest-realtime pytest-compiled compiled docs docs-serve dist bench soak clean browser tools web-demo bench-web stress
 
 all: test
 
 $(STAMP): pyproject.toml setup.py ics35_async/drivers/_burst.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does
-	$(BIN)/python -m pip install --quiet -e '.[dev,web]' --config-settings editable_mode=compat
+	# compat: a path entry, so type checkers (mypy, pyright) find the package as well as Python does.
+	# ICS35_COMPILE=0: the engine stays plain Python here (compiled modules would shadow every edit; see setup.py).
+	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e '.[dev,web]' --config-settings editable_mode=compat
 	$(MAKE) --no-print-directory browser tools
 	touch $(STAMP)
 
@@ -52,7 +53,7 @@ tools:
 $(DEMO_STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e . --config-settings editable_mode=compat
+	ICS35_COMPILE=0 $(BIN)/python -m pip install --quiet -e . --config-settings editable_mode=compat
 	touch $(DEMO_STAMP)
 
 demo: $(DEMO_STAMP)
@@ -117,11 +118,33 @@ pytest-realtime: $(STAMP) browser tools
 		--cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 
-# The checks run beside the tests (make -j): lint and types beside the parallel pass, which keeps both cores
-# busy; the docs build (a process on one core for seconds) beside the real-time pass, which uses about one
-# (its two workers mostly wait: its tests are judged against the clock).
+# The package as its wheel has it: a copy of the tree (the files git knows, edits included) with the engine
+# and the stream compiled by mypyc (see setup.py).  The development tree keeps them plain Python.
+COMPILED_TREE := build/compiled
+$(COMPILED_TREE)/.built: $(STAMP) setup.py $(wildcard $(shell git ls-files ics35_async tests))
+	rm -rf $(COMPILED_TREE) && mkdir -p $(COMPILED_TREE)
+	git ls-files -co --exclude-standard -z | tar --null -T - --ignore-failed-read -cf - 2>/dev/null | tar -xf - -C $(COMPILED_TREE)
+	cd $(COMPILED_TREE) && ICS35_COMPILE=1 $(CURDIR)/$(BIN)/python setup.py -q build_ext --inplace > build.log 2>&1 \
+		|| { cat build.log; exit 1; }
+	touch $@
+compiled: $(COMPILED_TREE)/.built
+
+# The tests of what mypyc compiles, on the compiled copy: the engine's rules, the stream, the burst path and
+# the contract suite (every driver, loop and port kind).  ICS35_EXPECT_COMPILED=1: a copy whose modules did not
+# compile fails (tests/test_compiled_engine.py) rather than testing the plain modules again.
+COMPILED_TESTS = tests/test_compiled_engine.py tests/test_engine_*.py tests/test_burst_*.py tests/test_anyio_bursts.py \
+	tests/test_contract.py tests/test_fuzz.py tests/test_numeric_types.py tests/test_stream*.py tests/test_group*.py \
+	tests/test_bus.py tests/test_public_api.py
+pytest-compiled: $(COMPILED_TREE)/.built browser tools
+	cd $(COMPILED_TREE) && ICS35_EXPECT_COMPILED=1 $(CURDIR)/$(BIN)/pytest -q -p no:cacheprovider --fail-on-skip \
+		-n $(COMPILED_WORKERS) --dist loadfile -m "not realtime" $(wildcard $(COMPILED_TESTS))
+COMPILED_WORKERS ?= $(CORES)
+
+# The checks run beside the tests (make -j): lint, types and the compiled pass beside the parallel pass, which
+# keeps both cores busy; the docs build (a process on one core for seconds) beside the real-time pass, which
+# uses about one (its two workers mostly wait: its tests are judged against the clock).
 test: $(STAMP)
-	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck pytest-parallel
+	$(MAKE) --no-print-directory -j4 --output-sync=target lint typecheck pytest-parallel pytest-compiled
 	$(MAKE) --no-print-directory -j2 --output-sync=target docs pytest-realtime
 
 # Flakiness measured: the whole suite five times in a row under two CPU-burning processes (this target
@@ -152,15 +175,17 @@ dist: $(STAMP)
 	rm -rf dist
 	$(BIN)/python -m build --no-isolation --outdir dist
 
-bench: $(STAMP)
-	$(BIN)/python benchmarks/run.py
+# On the compiled copy (the package as its wheel has it): its modules come first on the path.
+bench: $(STAMP) compiled
+	PYTHONPATH=$(CURDIR)/$(COMPILED_TREE) $(BIN)/python benchmarks/run.py
 
 # The web configurator's cost: stream rate with the Live plots page open vs none, server CPU per update (about 45 s).
 bench-web: $(STAMP)
 	$(BIN)/python benchmarks/bench_web.py
 
-soak: $(STAMP)
-	$(BIN)/python -m benchmarks.soak --json benchmarks/soak_results.json
+# On the compiled copy, run from there (python -m puts the working directory first on the path).
+soak: $(STAMP) compiled
+	cd $(COMPILED_TREE) && $(CURDIR)/$(BIN)/python -m benchmarks.soak --json $(CURDIR)/benchmarks/soak_results.json
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage build dist

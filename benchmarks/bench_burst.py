@@ -8,7 +8,8 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 * the same stream against a responder holding every reply to its 1.25 Mbit/s wire time, rate
   against the bare ``os.write``/``poll``/``os.read`` loop on the same line: goal at least 1.0x;
 * both of these also without feeding the engine a few transactions ahead of each burst's end (what
-  that buys in rate, and costs in CPU);
+  that buys in rate, and costs in CPU); the first also with the engine as plain Python (``make bench``
+  runs the rest with it compiled by mypyc: see ``setup.py``);
 * where the burst path's CPU goes: the executor's thread, the loop's, feeding the engine;
 * four such lines streamed together against one: CPU per transaction, goal at most 1.1x;
 * a CPU-bound Python thread's progress while a wire-timed stream runs, against the same thread
@@ -31,10 +32,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
+import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from bench_common import IDS, NEUTRAL, burst_setting, median, progress, run_on
@@ -45,6 +49,7 @@ from bench_sharing import measure as telemetry_beside_stream
 from lean_responder import lean_lines
 
 from ics35_async import IcsError, open_bus
+from ics35_async.compiled import engine_compiled
 from ics35_async.drivers import burst as burst_module
 from ics35_async.drivers.burst import burst_path
 
@@ -67,6 +72,29 @@ def fed_at_end(fn: Callable[[], Figures]) -> Figures:
         return on_path(True, fn)
     finally:
         burst_module.FEED_AHEAD_MIN = before
+
+
+SOURCE_TREE = Path(__file__).resolve().parent.parent
+
+
+def plain_engine_stream(path: str, duration: float) -> Figures:
+    """:func:`bench_cpu.stream` on the burst path with the engine as plain Python: in a process that imports the
+    package from the source tree (which ``make`` never compiles in place; ``make bench`` runs the other rows on
+    the compiled copy), what the compiled engine saves.  CPU counted inside that process, as in-process rows."""
+    code = (
+        "import json, sys; from bench_cpu import stream; "
+        f"print(json.dumps(stream({path!r}, None, 'asyncio', {duration!r})))"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SOURCE_TREE), str(SOURCE_TREE / "benchmarks")])}
+    check = "from ics35_async.compiled import engine_compiled; assert not engine_compiled()[0]; "
+    with burst_setting("1"):
+        done = subprocess.run(
+            [sys.executable, "-c", check + code], capture_output=True, text=True, timeout=120, env=env, check=False
+        )
+    if done.returncode != 0:
+        raise RuntimeError(f"the plain-engine row failed: {done.stderr[-2000:]}")
+    figures: Figures = json.loads(done.stdout.splitlines()[-1])
+    return figures
 
 
 def cpu_split(path: str, duration: float) -> Figures:
@@ -169,6 +197,8 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             bursts = on_path(True, lambda: stream(path, None, "asyncio", duration))
             raw1 = raw_loop(path, duration)
             at_end = fed_at_end(lambda: stream(path, None, "asyncio", duration))
+            raw1a = raw_loop(path, duration)
+            plain_engine = plain_engine_stream(path, duration)
             raw1b = raw_loop(path, duration)
             plain = on_path(False, lambda: stream(path, None, "asyncio", duration))
             raw2 = raw_loop(path, duration)
@@ -185,7 +215,8 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             note("cpu split", 0.0, cpu_split(path, duration))
             for name, f, a, b in (
                 ("stream burst", bursts, raw0, raw1),
-                ("stream burst fed at end", at_end, raw1, raw1b),
+                ("stream burst fed at end", at_end, raw1, raw1a),
+                ("stream burst plain engine", plain_engine, raw1a, raw1b),
                 ("stream ordinary", plain, raw1b, raw2),
                 ("sequential awaited set_position", seq, raw2, raw3),
                 ("stream trio burst", trio_bursts, raw3, raw3a),
@@ -237,6 +268,7 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
                 note(f"telemetry wait_p99_tx {name}", tele["wait_p99_tx"], tele)
     return {
         "path": on_path(True, lambda: {"path": burst_path()[1]})["path"],
+        "engine": engine_compiled()[1],
         "runs": runs,
         "duration_s": duration,
         "medians": {name: median(values) for name, values in rows.items()},
@@ -251,6 +283,11 @@ ROWS = (
         "  the same, not fed ahead of a burst's end",
         "cpu_vs_raw stream burst fed at end",
         "rate_vs_raw stream burst fed at end",
+    ),
+    (
+        "  the same, engine as plain Python",
+        "cpu_vs_raw stream burst plain engine",
+        "rate_vs_raw stream burst plain engine",
     ),
     ("stream, default driver and loop, ordinary path", "cpu_vs_raw stream ordinary", "rate_vs_raw stream ordinary"),
     ("stream, anyio driver under trio, burst path", "cpu_vs_raw stream trio burst", "rate_vs_raw stream trio burst"),
@@ -280,6 +317,7 @@ ROWS = (
 def print_table(r: dict[str, Any]) -> None:
     m = r["medians"]
     print(f"\nE. The burst path ({r['path']}); medians of {r['runs']} runs, ratios against baselines run alongside")
+    print(f"   compiled engine: {r.get('engine', 'not recorded')}")
     raw = m["raw cpu_us_per_tx"]
     print(f"   against blocking pyserial on a lean responder that answers at once (raw: {raw:.1f} us/tx)")
     print(f"  {'row':48} {'CPU/raw':>8} {'rate/raw':>9}")

@@ -49,6 +49,10 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
     assert "ics35_async/drivers/_burst.pyi" in names
     if sys.platform.startswith("linux"):
         assert any(n.startswith("ics35_async/drivers/_burst.") and n.endswith(".so") for n in names), names
+        # ... and the engine's rules compiled by mypyc, beside their sources (setup.py)
+        for module in ("ics35_async/engine/machine.", "ics35_async/_compiled__mypyc."):
+            assert any(n.startswith(module) and n.endswith(".so") for n in names), (module, names)
+        assert "ics35_async/engine/machine.py" in names
     with zipfile.ZipFile(wheel) as archive:
         (metadata_name,) = [n for n in names if n.endswith(".dist-info/METADATA")]
         metadata = archive.read(metadata_name).decode()
@@ -60,6 +64,9 @@ def test_wheel_and_sdist_carry_the_license_and_the_sdist_no_unrunnable_tests(dis
         members = [m.split("/", 1)[1] for m in archive.getnames() if "/" in m]
     assert "LICENSE" in members and "CHANGELOG.md" in members
     assert "ics35_async/drivers/_burst.c" in members  # so an sdist install builds the helper
+    # The engine ships as source (an sdist install compiles it); nothing built or generated goes in.
+    assert "ics35_async/engine/machine.py" in members
+    assert [m for m in members if m.endswith((".so", ".c"))] == ["ics35_async/drivers/_burst.c"]
     assert not [m for m in members if m.startswith("tests/")], "the sdist ships tests it cannot run"
 
 
@@ -95,6 +102,10 @@ def test_wheel_installs_into_a_clean_virtualenv_and_runs(dist: Path, tmp_path: P
 
     version = _run(bin_dir / "ics35", "--version", cwd=tmp_path)
     assert version.returncode == 0 and "0." in version.stdout
+
+    # The wheel's build compiles the engine's rules (mypy is in the dev extra: setup.py), and says so.
+    verbose = _run(bin_dir / "ics35", "--version", "-v", cwd=tmp_path)
+    assert "compiled engine: on (" in verbose.stdout, verbose.stdout
 
     script = tmp_path / "example.py"
     script.write_text(EXAMPLE)

@@ -97,7 +97,7 @@ class LazyGroup(click.Group):
 
 
 def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
-    """The version; with -v also the Python, the platform and the I/O path that runs."""
+    """The version; with -v also the Python, the platform, the I/O path that runs and whether the engine is compiled."""
     if not value or ctx.resilient_parsing:
         return
     click.echo(f"ics35, version {__version__}")
@@ -105,10 +105,12 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
     if any(a == "--verbose" or (a.startswith("-v") and set(a[1:]) == {"v"}) for a in argv):
         import platform
 
+        from ..compiled import ENGINE_NAME, engine_compiled
         from ..drivers.burst import PATH_NAME, burst_path
 
         click.echo(f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}")
         click.echo(f"{PATH_NAME}: {burst_path()[1]}")
+        click.echo(f"{ENGINE_NAME}: {engine_compiled()[1]}")
     ctx.exit()
 
 

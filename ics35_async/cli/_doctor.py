@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from .. import policies
 from ..bus import Bus
+from ..compiled import ENGINE_NAME, engine_compiled
 from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
@@ -187,6 +188,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
             **system.to_dict(),
             "burst_path": burst_on,
             "io_path": burst_text,
+            "compiled_engine": engine_compiled()[0],
         }
         line_part = line.to_dict() if line is not None else {}
         report.update(
@@ -206,6 +208,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         # The failure itself is printed last, as every command's error is: not twice.
         shown = [f for f in findings if failure is None or f.problem != failure.message]
         out.print(f"{PATH_NAME}: {escape(burst_text)}")
+        out.print(f"{ENGINE_NAME}: {escape(engine_compiled()[1])}")
         print_report(system, line, shown, simulated)
     if failure is not None:
         raise failure
