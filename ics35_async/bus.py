@@ -439,10 +439,15 @@ class Bus:
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
     ) -> Awaitable[T]:
-        """Queue ``command`` and return an awaitable of its result (an asyncio future on the asyncio driver).
+        """Queue ``command`` and return an awaitable of its result.
 
         ``priority`` and ``retries`` are as in [`request`][ics35_async.bus.Bus.request]; awaiting the
-        result raises what ``request`` raises.
+        result raises what ``request`` raises.  On every driver the awaitable also answers as an asyncio
+        future: ``done()``, ``cancelled()``, ``result()``, ``exception()`` and ``cancel()`` (it is one on the
+        asyncio and thread drivers; under the anyio driver, trio included, these raise asyncio's
+        ``CancelledError`` and ``InvalidStateError`` as a future does).  A request cancelled while queued is
+        never sent; one already on the wire finishes there (its reply read and dropped, no retry), so the
+        line stays in step.  A caller that stops awaiting it (a timeout, a cancelled task) cancels it.
 
         Raises:
             InvalidArgument: not a command, a bad ``priority`` or ``retries``, or a call from another

@@ -9,6 +9,7 @@ each test on the case's library (``anyio_backend``); the ``bus`` fixture opens t
 
 from __future__ import annotations
 
+import asyncio
 import math
 from collections.abc import AsyncIterator, Iterator
 
@@ -119,6 +120,58 @@ async def test_a_cancelled_request_does_not_desync_the_line(bus: Bus) -> None:
         with anyio.move_on_after(0):
             await bus.servo(4).read_eeprom()  # cancelled at once: queued or on the wire
         assert (await bus.servo(5).read_eeprom()).servo_id == 5
+
+
+# Every driver on a pty, under each library it serves (the anyio driver under trio and on asyncio).
+PTY_CASES = [case for case in CASES if case[2] == "pty"]
+on_every_pty_case = pytest.mark.parametrize(
+    ("driver", "anyio_backend", "far"),
+    PTY_CASES,
+    ids=[f"{d}-{lib}-{far}" for d, lib, far in PTY_CASES],
+    indirect=["anyio_backend"],
+)
+
+
+@on_every_pty_case
+async def test_a_submitted_request_tells_done_gives_its_result_and_cancels_as_a_future_does(bus: Bus) -> None:
+    stretch, speed = protocol.Param.STRETCH, protocol.Param.SPEED
+    # ID 20 is silent: its read stays on the wire for the whole allowance, and the next request waits queued.
+    on_wire = bus.submit(protocol.ReadParam(20, speed), retries=2)
+    queued = bus.submit(protocol.ReadParam(6, stretch))
+    assert not on_wire.done() and not queued.done()  # type: ignore[attr-defined]
+    with pytest.raises(asyncio.InvalidStateError):
+        queued.result()  # type: ignore[attr-defined]
+    assert queued.cancel() is True  # type: ignore[attr-defined]
+    assert queued.done() and queued.cancelled()  # type: ignore[attr-defined]
+    assert queued.cancel() is False  # type: ignore[attr-defined]  # (cancelled already)
+    with pytest.raises(asyncio.CancelledError):
+        queued.result()  # type: ignore[attr-defined]
+    with pytest.raises(asyncio.CancelledError):
+        await queued
+    # On the wire: it finishes there (its deadline waited out, no retry), and the line carries on in step.
+    assert on_wire.cancel() is True and on_wire.done()  # type: ignore[attr-defined]
+    with pytest.raises(asyncio.CancelledError):
+        await on_wire
+    with anyio.fail_after(GUARD):
+        assert (await bus.servo(5).read_eeprom()).servo_id == 5
+    assert 6 not in bus.stats.per_id  # cancelled while queued: never sent
+    assert bus.stats.per_id[20].transactions == 1 and bus.stats.per_id[20].retries == 0
+    # A reply already on its way when the request is cancelled is read and dropped, not taken for the next one's.
+    answered = bus.submit(protocol.ReadEeprom(4))
+    assert answered.cancel() is True  # type: ignore[attr-defined]
+    assert await bus.servo(3).read_stretch() == await bus.servo(3).read_stretch()
+    assert (await bus.servo(2).read_eeprom()).servo_id == 2
+    # Done: its result, again and again, and a cancel that changes nothing.
+    done = bus.submit(protocol.ReadParam(1, stretch))
+    with anyio.fail_after(GUARD):
+        value = await done
+    assert done.done() and not done.cancelled() and done.result() == value  # type: ignore[attr-defined]
+    assert done.cancel() is False and done.result() == value  # type: ignore[attr-defined]
+    # Given up by its caller (a timeout around the await): cancelled, as a future awaited by a cancelled task is.
+    given_up = bus.submit(protocol.ReadParam(20, speed))
+    with anyio.move_on_after(0):
+        await given_up
+    assert given_up.cancelled()  # type: ignore[attr-defined]
 
 
 @every_case

@@ -65,26 +65,66 @@ def soon_threadsafe() -> Callable[[Callable[[], None]], None]:
 
 
 class EventWaiter:
-    """What a caller of the anyio driver awaits: ``await waiter`` gives the request's value."""
+    """What ``submit`` hands a caller under the anyio driver: awaiting it gives the request's value.
 
-    __slots__ = ("event", "request")
+    It answers as the asyncio future the other drivers hand out does, so that a program's (or a soak's)
+    code that cancels or polls its requests runs on every driver: ``done()``, ``cancelled()``, ``cancel()``,
+    ``result()`` and ``exception()``, with asyncio's ``CancelledError`` and ``InvalidStateError`` (under trio
+    too: there is no other exception for a request cancelled outside any cancel scope).  Not thread-safe,
+    as a future is not: its methods are for the bus's own event loop."""
+
+    __slots__ = ("_cancelled", "event", "request")
 
     def __init__(self) -> None:
-        self.event = anyio.Event()
+        self.event = anyio.Event()  # set once the outcome is in, or the request is cancelled
         self.request: CallerRequest | None = None
+        self._cancelled = False
 
     def done(self) -> bool:
-        return False  # a caller that gives up cancels its request (see wait)
+        return self.event.is_set()
+
+    def cancelled(self) -> bool:
+        return self._cancelled
+
+    def cancel(self) -> bool:
+        """Give up on the request; False if it is done already.  Queued, it is skipped; on the wire, it
+        finishes there (its reply, if one comes, is read and dropped; it is not retried), so the line
+        stays in step."""
+        if self.event.is_set():
+            return False
+        assert self.request is not None
+        self._cancelled = True
+        self.request.cancel()
+        self.event.set()  # (awaiting it raises CancelledError, as for a cancelled future)
+        return True
+
+    def result(self) -> Any:
+        """The value; raises the request's error, ``CancelledError`` once cancelled, ``InvalidStateError`` before
+        the outcome."""
+        if self._cancelled:
+            raise asyncio.CancelledError
+        if not self.event.is_set():
+            raise asyncio.InvalidStateError("Result is not set.")
+        assert self.request is not None
+        return self.request.result()
+
+    def exception(self) -> BaseException | None:
+        """The request's error (``None`` once done without one); raises as :meth:`result` when cancelled or
+        not done."""
+        if self._cancelled:
+            raise asyncio.CancelledError
+        if not self.event.is_set():
+            raise asyncio.InvalidStateError("Exception is not set.")
+        assert self.request is not None
+        return self.request.error
 
     async def wait(self) -> Any:
-        request = self.request
-        assert request is not None
         try:
             await self.event.wait()
         except BaseException:
-            request.cancel()  # queued: skipped; on the wire: its reply is consumed and dropped
+            self.cancel()  # the caller gave up (a timeout, a cancelled task): as its future would be
             raise
-        return request.result()
+        return self.result()
 
     def __await__(self) -> Generator[Any, None, Any]:
         return self.wait().__await__()
