@@ -3,8 +3,10 @@ the line part against the simulator's USB adapter model, and ics35 udev."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +16,7 @@ from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
 from ics35_async.diagnose.system import check_system, holders
 from ics35_async.diagnose.udev import rules_text, serial_group
 from ics35_async.transports.listing import SerialPortInfo
-from tests.support.timing import NO_TIMEOUTS_OPTION
+from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION
 
 UID, GID = 1000, 1000
 DIALOUT = 20
@@ -369,6 +371,78 @@ def test_a_timer_the_system_shows_is_one_finding_for_the_ports_own_tty(tmp_path:
     (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
     assert f"/sys/bus/usb-serial/devices/{node.name}/latency_timer" in finding["fix"]
     assert "ttyUSB0" not in finding["fix"]
+
+
+class FtdiTimerFile:
+    """A stand-in for ftdi_sio's sysfs ``latency_timer`` (the kernel's, not our code): a FIFO whose every read
+    finds 1 while this process has ``port`` open (the library asks the driver for low latency as it opens a
+    port, and ftdi_sio then runs the chip's timer at 1 ms), else the adapter's own 16."""
+
+    def __init__(self, path: Path, port: str) -> None:
+        os.mkfifo(path)
+        self.path, self.port = path, os.path.realpath(port)
+        self.stopping = False
+        self.said: list[str] = []
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _held(self) -> bool:
+        """Whether this process has the port open."""
+        for fd in os.listdir("/proc/self/fd"):
+            with contextlib.suppress(OSError):
+                if os.readlink(f"/proc/self/fd/{fd}") == self.port:
+                    return True
+        return False
+
+    def _serve(self) -> None:
+        while not self.stopping:
+            with open(self.path, "w") as reader:  # (opens once a reader does: what it finds is then's)
+                # A new FIFO in its place before the answer: the next read, which begins once this one has
+                # its answer, waits for an answer of its own (the same FIFO would give it this one again).
+                fresh = self.path.with_name("latency_timer.next")
+                os.mkfifo(fresh)
+                os.replace(fresh, self.path)
+                if not self.stopping:
+                    self.said.append("1" if self._held() else "16")
+                    reader.write(f"{self.said[-1]}\n")
+
+    def stop(self) -> None:
+        self.stopping = True
+        os.close(os.open(self.path, os.O_RDONLY | os.O_NONBLOCK))  # (ends its wait for the next reader)
+        self.thread.join(GUARD)
+        assert not self.thread.is_alive()
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
+def test_doctor_reads_the_latency_timer_with_the_port_open(tmp_path: Path, cli: Any, pty_sim: Any) -> None:
+    # A fresh adapter's timer reads 16 ms until a program asks for low latency, as ics35 does as it opens the
+    # port: doctor read it before opening the port and warned of a 16 ms timer its own round trips did not show.
+    sim = pty_sim("--ids", "1", "--fast")
+    root = tree(tmp_path)
+    node = root / sim.path.lstrip("/")
+    node.parent.mkdir(parents=True)
+    node.write_text("")
+    node.chmod(0o666)
+    devices = root / "sys" / "bus" / "usb-serial" / "devices" / node.name
+    devices.mkdir(parents=True)
+    timer = FtdiTimerFile(devices / "latency_timer", sim.path)
+    try:
+        line = ("--port", sim.path, "--ids", "1", "--samples", "10", "--system-root", str(root))
+        result = cli("doctor", *line, "--json")
+        assert result.code == 0, result.err
+        data = result.json()
+        assert data["latency_timer_ms"] == 1 and data["servos"] == [1], timer.said
+        (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
+        # What is left to say: a program that does not ask for low latency still waits the adapter's 16 ms.
+        assert finding["severity"] == "info" and "16 ms" in finding["problem"], finding
+        assert "ics35 udev --install" in finding["fix"]
+        text = cli("doctor", *line)
+        assert text.code == 0, text.err
+        assert "latency timer (from the system, with the port open): 1 ms" in text.out, text.out
+        assert "warning" not in text.err, text.err
+    finally:
+        timer.stop()
 
 
 def test_doctor_says_why_no_servo_answered_as_the_other_commands_do(cli: Any) -> None:

@@ -63,10 +63,11 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) ->
 
 
 def measure(
-    settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport
+    settings: Settings, ids: list[int], per_servo: int | None, system: SystemReport, system_root: str = "/"
 ) -> tuple[LineReport, bool, CliError | None]:
     """The line's report, whether its streams take the burst path (as the open bus says), and why no servo
-    answered (None when one did)."""
+    answered (None when one did).  The port's latency timer is read again meanwhile, with the port open (the
+    timer the round trips met: see SystemReport.timer_while_open)."""
 
     async def body() -> tuple[LineReport, bool, CliError | None]:
         async with settings.bus() as bus:
@@ -74,6 +75,7 @@ def measure(
             found = list(probed.answered)
             nobody = None if found else await why_nobody(settings, bus, probed)
             samples, failed = await measure_round_trips(bus, found, per_servo=per_servo)
+            system.timer_while_open(system_root)  # (why_nobody may have reopened it: open again by now)
             report = LineReport(
                 baudrate=settings.baud,
                 samples=samples,
@@ -106,7 +108,8 @@ def print_report(
     else:
         out.print("[bold]ports[/bold]: none found")
     if system.latency_timer_ms is not None:
-        out.print(f"latency timer (from the system): {system.latency_timer_ms} ms")
+        opened = ", with the port open" if system.timer_read_open else ""
+        out.print(f"latency timer (from the system{opened}): {system.latency_timer_ms} ms")
     if line is not None and line.median is not None and line.p99 is not None:
         rates = line.cycle_hz()
         out.print(
@@ -170,10 +173,12 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         failure = CliError(ExitCode.PORT, unreachable[0].problem, *fixes)
     else:
         try:
-            line, bursts, nobody = measure(settings, ids, samples, system)
+            line, bursts, nobody = measure(settings, ids, samples, system, system_root)
         except CliError as exc:
             failure = exc
-            findings.append(Finding("line", "error", exc.message, " ; ".join(exc.hints)))
+        findings = list(system.findings)  # (its latency timer judged again if it was read with the port open)
+        if failure is not None:
+            findings.append(Finding("line", "error", failure.message, " ; ".join(failure.hints)))
     if line is not None:
         if not line.servo_ids:
             where = f"{settings.port} at {settings.baud} baud"

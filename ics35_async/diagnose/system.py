@@ -44,6 +44,26 @@ class SystemReport:
     kondo_without_port: list[str] = field(default_factory=list)
     latency_timer_ms: int | None = None  # the checked port's, where the system shows it
     findings: list[Finding] = field(default_factory=list)
+    # The checked port, its kernel name (ttyUSB0) and whether its adapter is Kondo's (None: not known): for
+    # the timer read again once the port is open (see timer_while_open).
+    device: str | None = None
+    tty: str | None = None
+    kondo_adapter: bool | None = None
+    timer_read_open: bool = False  # latency_timer_ms was read with the port open
+
+    def timer_while_open(self, root: str | Path = "/") -> None:
+        """Read the port's latency timer again, with the port open (by this program, which asked the driver for
+        low latency as it opened it: ftdi_sio then runs the timer at 1 ms and its sysfs file reads 1), and
+        judge that reading: the one before the open is what a program that does not ask gets."""
+        if self.device is None or self.tty is None:
+            return
+        before = self.latency_timer_ms
+        self.latency_timer_ms = read_latency_timer(Path(root), self.tty)
+        self.timer_read_open = True
+        kept = [f for f in self.findings if f.check != "latency_timer"]
+        self.findings = kept + check_latency_timer(
+            self.device, self.tty, self.latency_timer_ms, self.kondo_adapter, before=before
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -171,19 +191,34 @@ FTDI_LATENCY_RULE = (
 )
 
 
-def check_latency_timer(port: str, tty: str, ms: int | None, kondo: bool | None = True) -> list[Finding]:
+def check_latency_timer(
+    port: str, tty: str, ms: int | None, kondo: bool | None = True, *, before: int | None = None
+) -> list[Finding]:
     """A warning when ``port`` (whose kernel name is ``tty``) holds received bytes more than 1 ms.
 
     ``kondo``: whether the adapter is Kondo's (None: not known), which ``ics35 udev``'s rules fix for good.
+    ``before``: for ``ms`` read with the port open, the reading before it opened; a timer at 1 ms only while
+    this program has the port (it asked for low latency) is a note for the programs that do not ask.
     """
-    if ms is None or ms <= 1:
-        return []
     if kondo:
         for_good = "ics35 udev --install"
     elif kondo is None:
         for_good = f"ics35 udev --install (Kondo's adapters), or {FTDI_LATENCY_RULE}"
     else:
         for_good = FTDI_LATENCY_RULE
+    if ms is None or ms <= 1:
+        if ms is None or before is None or before <= 1:
+            return []
+        return [
+            Finding(
+                "latency_timer",
+                "info",
+                f"{port}'s USB adapter timer (its FTDI latency timer) read {before} ms before ics35 opened the port "
+                f"and {ms} ms with it open (ics35 asks the driver for low latency): a program that does not ask "
+                f"(ser2net, screen, a virtual machine's) may wait {before} ms a transaction",
+                f"for every program: {for_good}",
+            )
+        ]
     return [
         Finding(
             "latency_timer",
@@ -273,7 +308,8 @@ def check_system(
         tty = os.path.basename(os.path.realpath(_below(root, device)))  # /dev/serial/by-id/... -> ttyUSB0
         report.latency_timer_ms = read_latency_timer(root, tty)
         listed = [p.kondo for p in ports if os.path.basename(p.device) == tty]
-        report.findings += check_latency_timer(device, tty, report.latency_timer_ms, listed[0] if listed else None)
+        report.device, report.tty, report.kondo_adapter = device, tty, listed[0] if listed else None
+        report.findings += check_latency_timer(device, tty, report.latency_timer_ms, report.kondo_adapter)
     elif not linux and any(p.ftdi_based for p in ports):
         report.findings.append(
             Finding(
