@@ -296,38 +296,88 @@ def test_udev_prints_the_rules(cli: Any) -> None:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
-def test_udev_install_writes_where_it_may_and_asks_before_sudo(tmp_path: Path, cli: Any) -> None:
+def test_udev_install_writes_where_it_may(tmp_path: Path, cli: Any) -> None:
     target = tmp_path / "99-ics35-kondo.rules"
     result = cli("udev", "--install", "--path", str(target))
     assert result.code == 0, result.err
     assert "ftdi_sio" in target.read_text() and "udevadm control --reload-rules" in result.err
-    # A place we may not write (even as root: its directory does not exist): the sudo question.
-    elsewhere = tmp_path / "no-such-dir" / "x.rules"
-    refused = cli("udev", "--install", "--path", str(elsewhere), stdin="n\n")
-    if "no sudo here" in refused.err:
-        assert refused.code == 3
-    else:
-        assert refused.code == 5 and "sudo tee" in refused.err and "[y/N]" in refused.err
-        assert "nothing was written" in refused.err
-    assert not elsewhere.exists()
-    silent = cli("udev", "--install", "--path", str(elsewhere), stdin="")  # no answer: no sudo
-    assert silent.code in (3, 5) and not elsewhere.exists()
+
+
+def one_error(result: Any) -> str:
+    """The one ``error:`` line of a failed command (a traceback fails the test in ``cli``)."""
+    errors = [ln for ln in result.err.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1, result.err
+    return errors[0]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_install_says_in_one_line_why_it_cannot_write_and_asks_no_sudo_for_it(tmp_path: Path, cli: Any) -> None:
+    # A directory that is not there (a machine or container without udev): sudo tee cannot make it, so no sudo
+    # question (as root it said "needs root to write, and there is no sudo here").
+    missing = tmp_path / "no-such-dir" / "x.rules"
+    result = cli("udev", "--install", "--path", str(missing), stdin="y\n")
+    assert result.code == 3 and "[y/N]" not in result.err, result.err
+    assert f"{missing.parent} does not exist" in one_error(result) and not missing.parent.exists()
+    a_file = tmp_path / "a-file"
+    a_file.write_text("")
+    result = cli("udev", "--install", "--path", str(a_file / "x.rules"), stdin="y\n")
+    assert result.code == 3 and "[y/N]" not in result.err, result.err
+    assert f"{a_file} is not a directory" in one_error(result)
+    # A write that fails although the file may be written (a full disk; /proc and /sys as root): a traceback.
+    result = cli("udev", "--install", "--path", "/dev/full")
+    assert result.code == 3, result.err
+    assert "cannot write /dev/full: No space left on device" in one_error(result)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_refuses_to_install_rules_for_a_group_this_system_does_not_have(tmp_path: Path, cli: Any) -> None:
+    # GROUP="dailout" in a rule: udev leaves the port root's, and the user finds out at the next plug-in.
+    target = tmp_path / "x.rules"
+    result = cli("udev", "--install", "--group", "ics35-no-such-group", "--path", str(target))
+    assert result.code == 2, result.err
+    assert "group ics35-no-such-group does not exist" in one_error(result) and not target.exists()
+    printed = cli("udev", "--group", "ics35-no-such-group")  # (printed for another machine, perhaps: said, not refused)
+    assert printed.code == 0 and 'GROUP="ics35-no-such-group"' in printed.out
+    assert "group ics35-no-such-group does not exist" in printed.err
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
+def test_udev_install_says_when_udevadm_is_missing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cli: Any) -> None:
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    monkeypatch.setenv("PATH", str(empty))
+    target = tmp_path / "x.rules"
+    result = cli("udev", "--install", "--path", str(target))
+    assert result.code == 0 and target.exists(), result.err
+    assert "udevadm is not on this system" in result.err
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="udev is Linux's")
 def test_udev_install_runs_sudo_only_after_a_yes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cli: Any) -> None:
-    # A stand-in for the system's sudo (not our code): it logs its arguments and runs them.
+    # A stand-in for the system's sudo (not our code): it logs its arguments, lets its caller write the
+    # directory (the test's own) and runs them.
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     log = tmp_path / "sudo.log"
     sudo = bin_dir / "sudo"
-    sudo.write_text(f'#!/bin/sh\necho "$@" >> {log}\nmkdir -p "$(dirname "$2")"\nexec "$@"\n')
+    sudo.write_text(f'#!/bin/sh\necho "$@" >> {log}\nchmod u+w "$(dirname "$2")"\nexec "$@"\n')
     sudo.chmod(0o755)
     monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
-    target = tmp_path / "etc-udev" / "99-ics35-kondo.rules"  # its directory does not exist: not writable
+    rules_d = tmp_path / "rules.d"
+    rules_d.mkdir()
+    rules_d.chmod(0o555)  # not ours to write
+    target = rules_d / "99-ics35-kondo.rules"
+    if os.geteuid() == 0:  # root writes it itself: sudo would change nothing
+        done = cli("udev", "--install", "--path", str(target), stdin="")
+        assert done.code == 0, done.err
+        assert not log.exists() and "165c 0006" in target.read_text()
+        return
     refused = cli("udev", "--install", "--path", str(target), stdin="n\n")
-    assert refused.code == 5 and "[y/N]" in refused.err
+    assert refused.code == 5 and "[y/N]" in refused.err and "sudo tee" in refused.err
+    assert "nothing was written" in refused.err
     assert not log.exists() and not target.exists()  # sudo never ran
+    silent = cli("udev", "--install", "--path", str(target), stdin="")  # no answer: no sudo
+    assert silent.code == 5 and not log.exists() and not target.exists()
     done = cli("udev", "--install", "--path", str(target), stdin="y\n")
     assert done.code == 0, done.err
     assert log.read_text().split() == ["tee", str(target)]

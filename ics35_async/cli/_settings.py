@@ -42,11 +42,11 @@ class ExitCode(enum.IntEnum):
     """Bad argument, nothing sent: ID 32, position 20000 (or 90 without `--deg`), an unknown parameter or
     field, a broken backup file, a `--plot` or `sim://?record=` file that cannot be written (or a taught
     motion's: it is printed instead), `--plot` without matplotlib, a mistake in a robot or motion file, a
-    motion beyond the robot's limits, or a write without `--port`."""
+    motion beyond the robot's limits, a write without `--port`, or a `udev --group` this system does not have."""
     PORT = 3
     """The port cannot be opened: missing, permission denied, busy, not a serial port, direction control
     refused by its driver; a bridge (`socket://`, `rfc2217://`) that refuses or drops the connection (what
-    was sent before it dropped stands); `ports` found no serial port."""
+    was sent before it dropped stands); `ports` found no serial port; `udev --install` cannot write its rules file."""
     NO_REPLY = 4
     """No servo answered (or nothing came back at all, not even the echo): baud, power, wiring, ID."""
     REFUSED = 5

@@ -26,10 +26,37 @@ def _writable(path: Path) -> bool:
     return path.parent.is_dir() and os.access(path.parent, os.W_OK)
 
 
+def _read_only(directory: Path) -> bool:
+    try:
+        return bool(os.statvfs(directory).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def _cannot_write(path: Path, why: str, *hints: str) -> CliError:
+    return CliError(ExitCode.PORT, f"cannot write {path}: {why}", *(hints or (MANUAL,)))
+
+
 def install(text: str, path: Path, yes: bool) -> None:
-    """Write ``text`` to ``path``: directly if we may, else with sudo after a yes (never silently)."""
-    if _writable(path):
-        path.write_text(text, encoding="utf-8")
+    """Write ``text`` to ``path``: directly if we may, else with sudo after a yes (never silently).
+
+    What sudo cannot mend is said at once, without asking for it: a directory that is not there (sudo tee
+    makes none: no udev on this machine, or a mistyped --path), a read-only file system, and for root any
+    failed write."""
+    directory = path.parent
+    if not directory.is_dir():
+        why = f"{directory} is not a directory" if directory.exists() else f"{directory} does not exist"
+        if path == RULES_PATH:
+            hint = "udev may not run here (a container?): install the rules on the machine the adapter plugs into"
+            raise _cannot_write(path, why, hint)
+        raise _cannot_write(path, why)
+    if _read_only(directory):
+        raise _cannot_write(path, f"{directory} is on a read-only file system")
+    if os.geteuid() == 0 or _writable(path):  # (root: sudo would change nothing)
+        try:
+            path.write_text(text, encoding="utf-8")
+        except OSError as exc:  # a full disk, or a place the checks above do not see (/proc, /sys)
+            raise _cannot_write(path, exc.strerror or str(exc)) from None
         return
     if shutil.which("sudo") is None:
         raise CliError(ExitCode.PORT, f"{path} needs root to write, and there is no sudo here", MANUAL)
@@ -43,6 +70,16 @@ def install(text: str, path: Path, yes: bool) -> None:
         raise CliError(ExitCode.INTERRUPTED, f"interrupted: {path} may not have been written") from None
     if done.returncode != 0:
         raise CliError(ExitCode.REFUSED, f"sudo tee {path} failed (exit {done.returncode}): nothing written", MANUAL)
+
+
+def _group_exists(name: str) -> bool:
+    import grp  # (POSIX only: this command runs on Linux alone)
+
+    try:
+        grp.getgrnam(name)  # (the system's groups, LDAP's too: not only /etc/group)
+    except KeyError:
+        return False
+    return True
 
 
 @click.command()
@@ -73,13 +110,28 @@ def udev(group: str | None, do_install: bool, path: Path, yes: bool) -> int:
         )
     chosen = group or serial_group(user_gids=set(os.getgroups()) | {os.getegid()})
     text = rules_text(chosen)
+    unknown = None if _group_exists(chosen) else f"group {chosen} does not exist on this system"
     if not do_install:
         click.echo(text, nl=False)
+        if unknown:  # (rules printed for another machine may name its group)
+            err.print(f"[yellow]warning:[/yellow] {escape(unknown)}: on this machine udev would leave the port root's")
         return 0
+    if unknown:
+        # A rule with an unknown GROUP leaves the port root's, found out at the next plug-in.
+        raise CliError(
+            ExitCode.USAGE,
+            f"{unknown}: its rule would leave the port root's; nothing was written",
+            "pass --group with the group that owns serial ports here (ls -l /dev/ttyS0 names it)",
+        )
     install(text, path, yes)
     err.print(f"wrote {escape(str(path))}; now reload the rules:")
     for step in RELOAD_STEPS:
         err.print(f"  {escape(step)}")
+    if shutil.which("udevadm") is None:
+        err.print(
+            "[yellow]note:[/yellow] udevadm is not on this system (or not on PATH): udev may not run here"
+            " (a container?); the rules act where udev runs, on the machine the adapter plugs into"
+        )
     err.print(
         f"and make sure you are in group {escape(chosen)}: groups  (if not: sudo usermod -aG {escape(chosen)} "
         "$USER, then log in again)"
