@@ -148,3 +148,29 @@ def test_adapters_are_named_by_usb_id() -> None:
     assert adapter_name("165C:0006") == "ICS USB adapter HS"
     assert adapter_name("165c:0008") == "Dual USB adapter HS"
     assert adapter_name("0403:6001") is None and adapter_name(None) is None
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
+@pytest.mark.parametrize("unbound", [None, "0006", "0008"], ids=["none-plugged-in", "hs-unbound", "dual-unbound"])
+def test_ports_and_doctor_say_the_same_of_a_missing_kondo_adapter(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, cli: Any, unbound: str | None
+) -> None:
+    # ports told the ftdi_sio commands where doctor said "plugged in, or the system does not show it" (and
+    # doctor's fix left out that the commands are untested): one text now, whichever command a user runs.
+    others = [port_info("/dev/ttyS0", "n/a"), port_info("/dev/ttyUSB1", "FT232R USB UART", 0x0403, 0x6001)]
+    monkeypatch.setattr(list_ports, "comports", lambda include_links=False: list(others))
+    monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))
+    (tmp_path / "sys" / "bus" / "usb" / "devices").mkdir(parents=True)
+    if unbound is not None:
+        usb_device(tmp_path / "sys", "1-1", "165c", unbound, tty=None)
+    notes = cli("ports", "--json").json()["notes"]
+    doctor = cli("doctor", "--system-root", str(tmp_path), "--json")
+    assert doctor.code == 0, doctor.err
+    (finding,) = [f for f in doctor.json()["findings"] if f["check"] == "adapter"]
+    said = f"{finding['problem']}: {finding['fix']}"
+    assert said in notes, (said, notes)
+    assert len([n for n in notes if "165C" in n]) == 1, notes  # (said once)
+    if unbound is not None:
+        assert f"165C:{unbound}" in said and f"echo 165C {unbound} |" in said and "has no serial port" in said
+    else:
+        assert "lsusb" in said and "no Kondo adapter" in said

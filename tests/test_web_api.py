@@ -1079,3 +1079,27 @@ def test_a_live_frame_says_which_servos_the_stream_holds_and_why(serve: Any) -> 
         assert time.monotonic() < deadline, "servo 1 still shown held after Free"
         time.sleep(0.02)
     post(client, "/api/live/stop")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the ftdi_sio note is Linux's")
+@pytest.mark.parametrize("unbound", [None, "0008"], ids=["none-plugged-in", "dual-unbound"])
+def test_the_page_says_of_a_missing_kondo_adapter_what_ics35_ports_says(
+    serve: Any, cli: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Any, unbound: str | None
+) -> None:
+    from serial.tools import list_ports
+    from serial.tools.list_ports_common import ListPortInfo
+
+    from ics35_async.transports import listing
+
+    monkeypatch.setattr(list_ports, "comports", lambda include_links=False: [ListPortInfo("/dev/ttyS0", True)])
+    devices = tmp_path / "sys" / "bus" / "usb" / "devices"
+    devices.mkdir(parents=True)
+    if unbound is not None:  # a Kondo USB device no driver took: no tty under its interface
+        (devices / "1-1").mkdir()
+        (devices / "1-1" / "idVendor").write_text("165c\n")
+        (devices / "1-1" / "idProduct").write_text(f"{unbound}\n")
+        (devices / "1-1:1.0").mkdir()
+    monkeypatch.setattr(listing, "SYSFS_ROOT", str(tmp_path / "sys"))
+    client, _ = serve()
+    page = client.get("/api/ports").json()["notes"]
+    assert page and page == cli("ports", "--json").json()["notes"]

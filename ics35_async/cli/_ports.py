@@ -9,21 +9,11 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
+from ..diagnose.system import missing_adapter_notes
 from ..transports import adapter_advice
-from ..transports.listing import (
-    DUAL_ADAPTER_USB_ID,
-    HS_ADAPTER_USB_ID,
-    KONDO_ADAPTERS,
-    SerialPortInfo,
-    adapter_name,
-    kondo_usb_without_port,
-    linux_adapter_steps,
-    list_serial_ports,
-)
+from ..transports.listing import SerialPortInfo, adapter_name, kondo_usb_without_port, list_serial_ports
 from ..transports.platforms import latency_timer_advice, port_names_hint
 from ._common import CliError, ExitCode, emit_json, err, json_option, out
-
-UNTESTED = "untested here without the hardware"
 
 
 def ports_table(found: list[SerialPortInfo]) -> Table:
@@ -44,22 +34,8 @@ def ports_table(found: list[SerialPortInfo]) -> Table:
 
 
 def notes(found: list[SerialPortInfo], unbound: list[str]) -> list[str]:
-    """What to do next: a Kondo device with no port, or an FTDI latency timer to set."""
-    said = []
-    for usb_id in unbound:
-        what = KONDO_ADAPTERS.get(usb_id, "a Kondo USB device")
-        said.append(
-            f"{what} ({usb_id}) is plugged in but has no serial port: make Linux's ftdi_sio "
-            f"driver take it with: {' ; '.join(linux_adapter_steps(usb_id))}  "
-            f"(for good: ics35 udev --install; {UNTESTED})"
-        )
-    if not any(p.kondo for p in found) and not unbound and sys.platform.startswith("linux"):
-        said.append(
-            f"no Kondo adapter listed: a Kondo adapter that is plugged in (lsusb shows 165c:0006 for the ICS USB "
-            f"adapter HS, 165c:0008 for the Dual USB adapter HS) needs Linux's ftdi_sio driver told its USB ID: "
-            f"{' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}  (for {DUAL_ADAPTER_USB_ID}: "
-            f"echo 165C 0008 instead; {UNTESTED})"
-        )
+    """What to do next: a Kondo adapter missing (as doctor says it), or an FTDI latency timer to set."""
+    said = missing_adapter_notes(found, unbound, linux=sys.platform.startswith("linux"))
     for p in found:
         if not p.ftdi_based:
             continue

@@ -16,7 +16,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..transports.listing import KONDO_ADAPTERS, SerialPortInfo, kondo_usb_without_port, linux_adapter_steps
+from ..transports.listing import (
+    DUAL_ADAPTER_USB_ID,
+    HS_ADAPTER_USB_ID,
+    KONDO_ADAPTERS,
+    SerialPortInfo,
+    kondo_usb_without_port,
+    linux_adapter_steps,
+)
 from ..transports.platforms import latency_timer_advice, port_names_hint
 from .findings import Finding
 from .udev import system_groups
@@ -247,7 +254,13 @@ def is_wsl(root: Path) -> bool:
     return "microsoft" in version or "wsl" in version
 
 
-def check_adapters(root: Path, ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
+UNTESTED = "untested here without the hardware"
+
+
+def missing_adapter(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
+    """What to say of a Kondo adapter that is missing, worded once for ``ics35 doctor`` (its findings) and
+    ``ics35 ports`` (its notes): each Kondo device plugged in with no serial port (``unbound``: its USB IDs),
+    with the commands that make ftdi_sio take it; on Linux, no Kondo adapter among ``ports`` at all."""
     found = []
     for usb_id in unbound:
         name = KONDO_ADAPTERS.get(usb_id, "a Kondo USB device")
@@ -257,19 +270,28 @@ def check_adapters(root: Path, ports: list[SerialPortInfo], unbound: list[str], 
                 "error",
                 f"{name} ({usb_id}) is plugged in but has no serial port: Linux's ftdi_sio driver does not "
                 "know its USB ID",
-                f"{' ; '.join(linux_adapter_steps(usb_id))}   (for good: ics35 udev --install)",
+                f"{' ; '.join(linux_adapter_steps(usb_id))}   (for good: ics35 udev --install; {UNTESTED})",
             )
         )
     if linux and not unbound and not any(p.kondo for p in ports):
+        # (A Kondo device the system shows has no serial port is in ``unbound``: this is lsusb's to tell.)
         found.append(
             Finding(
                 "adapter",
                 "info",
                 "no Kondo adapter (USB vendor 165C) is plugged in, or the system does not show it",
-                "check with lsusb: 165c:0006 is the ICS USB adapter HS, 165c:0008 the Dual USB adapter HS",
+                "check with lsusb: 165c:0006 is the ICS USB adapter HS, 165c:0008 the Dual USB adapter HS; one "
+                "listed there needs Linux's ftdi_sio driver told its USB ID: "
+                f"{' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}   (for {DUAL_ADAPTER_USB_ID}: echo 165C 0008 "
+                f"instead; for good: ics35 udev --install; {UNTESTED})",
             )
         )
     return found
+
+
+def missing_adapter_notes(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[str]:
+    """:func:`missing_adapter`'s findings, one line each: ``ics35 ports``'s notes and the web page's."""
+    return [f"{f.problem}: {f.fix}" for f in missing_adapter(ports, unbound, linux=linux)]
 
 
 def check_system(
@@ -293,7 +315,7 @@ def check_system(
     device = port if port and "://" not in port and not port.upper().startswith("COM") else None
     if linux:
         report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
-    report.findings += check_adapters(root, report.ports, report.kondo_without_port, linux=linux)
+    report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux)
     if linux and is_wsl(root) and not any(p.usb_id for p in ports):
         report.findings.append(
             Finding("wsl", "warning", "this is WSL2: it sees a USB adapter only once Windows attaches it", USBIPD_STEPS)

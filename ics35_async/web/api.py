@@ -21,6 +21,7 @@ from starlette.responses import JSONResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from ..diagnose.system import missing_adapter_notes
 from ..errors import (
     BusClosed,
     IcsError,
@@ -34,12 +35,7 @@ from ..errors import (
     VerifyError,
     error_text,
 )
-from ..transports.listing import (
-    HS_ADAPTER_USB_ID,
-    kondo_usb_without_port,
-    linux_adapter_steps,
-    list_serial_ports,
-)
+from ..transports.listing import kondo_usb_without_port, list_serial_ports
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
 from .session import LineSession
@@ -163,20 +159,12 @@ async def status(request: Request, session: LineSession) -> Any:
 
 async def ports(request: Request, session: LineSession) -> Any:
     try:
-        found = [p.to_dict() for p in list_serial_ports()]
+        found = list_serial_ports()
     except Exception as exc:  # pyserial's platform backend failed: say so
         return {"ports": [], "notes": [f"cannot list serial ports: {exc}"]}
-    notes = [
-        f"a Kondo USB device ({usb_id}) is plugged in but has no serial port; on Linux: "
-        + " ; ".join(linux_adapter_steps(usb_id))
-        for usb_id in kondo_usb_without_port()
-    ]
-    if not any(p["kondo"] for p in found) and not notes and sys.platform.startswith("linux"):
-        notes.append(
-            "no Kondo adapter listed: an ICS USB adapter HS that is plugged in may need Linux's ftdi_sio driver "
-            f"told its USB ID: {' ; '.join(linux_adapter_steps(HS_ADAPTER_USB_ID))}"
-        )
-    return {"ports": found, "notes": notes}
+    # (worded as ics35 ports and ics35 doctor word it)
+    notes = missing_adapter_notes(found, kondo_usb_without_port(), linux=sys.platform.startswith("linux"))
+    return {"ports": [p.to_dict() for p in found], "notes": notes}
 
 
 async def connect(request: Request, session: LineSession) -> Any:
