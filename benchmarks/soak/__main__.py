@@ -23,6 +23,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from ics35_async.compiled import engine_compiled
+
 from . import cancellation, chaos, fuzz, held_tail, unplug
 from .common import PTY, PTY_BURST, PTY_BURST_THREAD, Row, markdown
 
@@ -163,7 +165,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(text, file=sys.stderr, flush=True)
 
     rows: list[Row] = []
-    figures: dict[str, Any] = {"python": sys.version.split()[0], "cpus": os.cpu_count()}
+    figures: dict[str, Any] = {
+        "python": sys.version.split()[0],
+        "cpus": os.cpu_count(),
+        "engine": engine_compiled()[1],  # (make soak runs on the compiled copy: see the Makefile)
+    }
     started = time.perf_counter()
     for name in parts:
         report, part_rows = PARTS[name](args, say)
@@ -173,6 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     figures["seconds"] = time.perf_counter() - started
     print(markdown(rows))
     print(f"\n{figures['seconds']:.0f} s in all, Python {figures['python']}, {figures['cpus']} CPUs")
+    print(f"compiled engine: {figures['engine']}")
     for part in parts:
         examples = figures.get(part, {}).get("examples")
         if examples:
