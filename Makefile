@@ -121,7 +121,7 @@ pytest-realtime: $(STAMP) browser tools
 # The package as its wheel has it: a copy of the tree (the files git knows, edits included) with the engine
 # and the stream compiled by mypyc (see setup.py).  The development tree keeps them plain Python.
 COMPILED_TREE := build/compiled
-$(COMPILED_TREE)/.built: $(STAMP) setup.py $(wildcard $(shell git ls-files ics35_async tests))
+$(COMPILED_TREE)/.built: $(STAMP) setup.py $(wildcard $(shell git ls-files ics35_async tests benchmarks))
 	rm -rf $(COMPILED_TREE) && mkdir -p $(COMPILED_TREE)
 	git ls-files -co --exclude-standard -z | tar --null -T - --ignore-failed-read -cf - 2>/dev/null | tar -xf - -C $(COMPILED_TREE)
 	cd $(COMPILED_TREE) && ICS35_COMPILE=1 $(CURDIR)/$(BIN)/python setup.py -q build_ext --inplace > build.log 2>&1 \
