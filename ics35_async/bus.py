@@ -176,9 +176,11 @@ class Bus:
         return self._settings
 
     @property
-    def baudrate(self) -> int:
-        """The line rate in bit/s; changed only by :meth:`reopen`."""
-        return self._engine.baudrate
+    def baudrate(self) -> protocol.BaudRate:
+        """The line rate in bit/s (a [`BaudRate`][ics35_async.eeprom.BaudRate], an int); changed only by
+        :meth:`reopen`."""
+        # (As a BaudRate again: a compiled engine keeps the plain int its attribute is declared as.)
+        return protocol.check_baud(self._engine.baudrate)
 
     @property
     def timing(self) -> BusTiming:

@@ -34,6 +34,7 @@ from ics35_async import (
 )
 from ics35_async.bus import Bus
 from ics35_async.drivers import burst, core
+from ics35_async.protocol import BaudRate
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
@@ -550,6 +551,7 @@ async def test_eeprom_write_is_checked_and_verified(line: tuple[VirtualLine, Bus
 async def test_baud_change_then_reopen_at_the_new_rate(driver: str) -> None:
     sim = VirtualLine([VirtualServo(1)])
     async with open_bus(sim, driver=driver, **FAST) as bus:
+        assert type(bus.baudrate) is BaudRate
         servo = bus.servo(1)
         image = await servo.read_eeprom()
         await servo.write_eeprom(image.replace(baud_rate=625000), allow_baud_change=True)
@@ -557,7 +559,9 @@ async def test_baud_change_then_reopen_at_the_new_rate(driver: str) -> None:
         with pytest.raises(ReplyTimeout):
             await servo.read_stretch()
         await bus.reopen(baudrate=625000)
-        assert bus.baudrate == 625000
+        # The same value, of the same type, whether the engine runs compiled or not (compiled, the engine keeps
+        # a plain int).
+        assert bus.baudrate == 625000 and type(bus.baudrate) is BaudRate
         assert await servo.read_stretch() == 30
         # Deadlines follow the new rate: the allowance cache was rebuilt at 625000.
         assert bus._engine._allowances[5] == bus.timing.allowance(5, 625000)
