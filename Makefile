@@ -118,14 +118,15 @@ pytest-realtime: $(STAMP) browser tools
 		--cov-report=term-missing:skip-covered \
 		$(REALTIME_MODULES)
 
-# The package as its wheel has it: a copy of the tree (the files git knows, edits included) with the engine
-# and the stream compiled by mypyc (see setup.py).  The development tree keeps them plain Python.
+# The package as its wheel has it: a copy of the tree (the files git knows, edits included) with the engine's
+# rules compiled by mypyc (see setup.py).  The development tree keeps them plain Python.  A build that falls
+# back to plain Python (it only warns: users still get a working package) fails here.
 COMPILED_TREE := build/compiled
 $(COMPILED_TREE)/.built: $(STAMP) setup.py $(wildcard $(shell git ls-files ics35_async tests benchmarks))
 	rm -rf $(COMPILED_TREE) && mkdir -p $(COMPILED_TREE)
 	git ls-files -co --exclude-standard -z | tar --null -T - --ignore-failed-read -cf - 2>/dev/null | tar -xf - -C $(COMPILED_TREE)
 	cd $(COMPILED_TREE) && ICS35_COMPILE=1 $(CURDIR)/$(BIN)/python setup.py -q build_ext --inplace > build.log 2>&1 \
-		|| { cat build.log; exit 1; }
+		&& ! grep -q "is not compiled" build.log || { cat build.log; exit 1; }
 	touch $@
 compiled: $(COMPILED_TREE)/.built
 
@@ -187,5 +188,7 @@ bench-web: $(STAMP)
 soak: $(STAMP) compiled
 	cd $(COMPILED_TREE) && $(CURDIR)/$(BIN)/python -m benchmarks.soak --json $(CURDIR)/benchmarks/soak_results.json
 
+# (also an engine compiled in place by hand, ICS35_COMPILE=1 ... --inplace: it would shadow every edit)
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .coverage build dist
+	rm -f ics35_async/_compiled__mypyc.* $(addsuffix .*.so,$(basename $(wildcard ics35_async/engine/*.py)))

@@ -32,6 +32,13 @@ COMPILED = [
 ]
 
 
+# mypyc needs the modules' types, not the project's strict checks (pyproject's [tool.mypy], for development), and
+# an isolated build has none of the package's dependencies (anyio, pyserial): the modules they type are read for
+# their types only (silent), and a missing one is Any.  tests/test_compiled_engine.py runs mypy with these options
+# without site-packages, as an isolated build does.
+MYPYC_OPTIONS = ["--config-file=", "--follow-imports=silent", "--ignore-missing-imports"]
+
+
 def compile_setting() -> str:
     return os.environ.get("ICS35_COMPILE", "").strip().lower()
 
@@ -44,12 +51,11 @@ def mypyc_extensions() -> list[Extension]:
         warnings.warn("mypy is not installed: the engine is not compiled (it runs as plain Python)", stacklevel=1)
         return []
     try:
-        # (An isolated build has none of the package's dependencies: their types are not needed to compile.)
         extensions: list[Extension] = mypycify(
-            ["--ignore-missing-imports", *COMPILED], opt_level="3", group_name="ics35_async._compiled"
+            [*MYPYC_OPTIONS, *COMPILED], opt_level="3", group_name="ics35_async._compiled"
         )
-    except (Exception, SystemExit) as exc:  # (mypy exits on a type error)
-        warnings.warn(f"the engine is not compiled ({exc!r}): it runs as plain Python", stacklevel=1)
+    except (Exception, SystemExit) as exc:  # (mypy exits on a type error, having printed it)
+        warnings.warn(f"the engine is not compiled (mypy refused it: {exc!r}): it runs as plain Python", stacklevel=1)
         return []
     return extensions
 
@@ -100,14 +106,17 @@ class BuildExt(build_ext):
         return [path for path in super().get_outputs() if not failed or os.path.exists(path)]
 
 
-ext_modules = []
-cmdclass = {}
-if sys.platform != "win32":  # POSIX descriptors, poll and threads only
-    ext_modules.append(
-        Extension(
-            "ics35_async.drivers._burst", ["ics35_async/drivers/_burst.c"], optional=True, extra_compile_args=["-O2"]
+if __name__ == "__main__":  # (as setuptools runs it; the tests read the constants above)
+    ext_modules = []
+    cmdclass = {}
+    if sys.platform != "win32":  # POSIX descriptors, poll and threads only
+        ext_modules.append(
+            Extension(
+                "ics35_async.drivers._burst",
+                ["ics35_async/drivers/_burst.c"],
+                optional=True,
+                extra_compile_args=["-O2"],
+            )
         )
-    )
-    cmdclass["build_ext"] = BuildExt
-
-setup(ext_modules=ext_modules, cmdclass=cmdclass)
+        cmdclass["build_ext"] = BuildExt
+    setup(ext_modules=ext_modules, cmdclass=cmdclass)
