@@ -191,7 +191,11 @@ class ChaosWorkload:
             entries = matcher.stream_entries[sid]
             sent = position_tx(sid, target)
             if not entries or entries[-1][4] != sent:
-                raise CheckError(f"ID {sid}: the close's send of target {target} is not the last on the line")
+                last = [matcher.previous.get(e[0], e[4].hex(" ")) + f" ({e[1]})" for e in list(entries)[-3:]]
+                raise CheckError(
+                    f"ID {sid}: the close's send of target {target} ({sent.hex(' ')}) is not the last on the line; "
+                    f"its last stream entries: {last}"
+                )
             entries.pop()
             # Its earlier attempts: the bus retries a failed one (at most bus.retries times), so only failed ones.
             for _ in range(self.bus.retries):
