@@ -483,3 +483,18 @@ def test_ctrl_c_while_a_silent_servo_is_awaited_ends_the_command_at_once(command
     assert any(line.startswith("error: interrupted") for line in screen), "\n".join(screen)
     # Not a timing demand: the allowance had more than 4 s to run (it took 0.1 s here).
     assert after_ctrl_c < scaled(3.0), f"{after_ctrl_c:.2f} s after Ctrl-C"
+
+
+@pytest.mark.parametrize("gap", [0.005, 0.01, 0.02, 0.03])
+def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, gap: float) -> None:
+    # The second press landed as the first one's message was being made: "aborted" was all it said (nothing
+    # of the file left untouched, nor of the joints left free), or it killed the process as Python ended.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    keys = [("neutral pose   Enter", b"\r"), ("Enter: done", b"\x03"), (gap, b"\x03")]
+    code, written = typed_on_a_terminal(["calibrate", str(robot)], keys)
+    screen = screen_of(written)
+    assert code == 130, "\n".join(screen)
+    assert "Traceback" not in written and "aborted" not in written, "\n".join(screen)
+    assert any(line.startswith(f"error: interrupted: nothing written to {robot}") for line in screen), "\n".join(screen)
+    assert any("the joints it opened are left free" in line for line in screen), "\n".join(screen)

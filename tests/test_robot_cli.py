@@ -635,6 +635,8 @@ def test_teach_keeps_its_poses_when_a_second_ctrl_c_lands_as_it_writes_them(
 ) -> None:
     # A double Ctrl-C: the first ends the teaching, the second came as the poses were being written (the
     # command's loop already over): KeyboardInterrupt ended the command with "aborted" and nothing written.
+    # It is the same stop (a press just after it, as ics35_async.run takes one): the poses are written and
+    # teach ends as at one Ctrl-C.
     _, robot_file = rig
     target = tmp_path / "taught.json"
 
@@ -656,9 +658,8 @@ def test_teach_keeps_its_poses_when_a_second_ctrl_c_lands_as_it_writes_them(
         )
     finally:
         sys.setprofile(None)
-    assert result.code == ExitCode.INTERRUPTED, result.err
+    assert result.code == ExitCode.OK, result.err
     assert "aborted" not in result.err
-    assert "the 1 pose(s) captured so far are kept" in " ".join(result.err.split()), result.err
     assert len(json.loads(target.read_text())["keyframes"]) == 1
 
 

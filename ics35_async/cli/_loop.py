@@ -12,6 +12,7 @@ from collections.abc import Awaitable, Callable, Iterator
 from types import FrameType
 from typing import TypeVar
 
+from ..running import _after_stop, _unwrapped
 from ._settings import CliError, ExitCode
 from ._signals import command_task, current_task, received
 
@@ -70,11 +71,12 @@ def _ctrl_c() -> Iterator[list[int]]:
     forces it out: KeyboardInterrupt, raised by the loop between two of its callbacks.  asyncio's runner
     raises it in its signal handler, wherever the main thread is: inside a weakref callback Python prints
     it as "Exception ignored in ..." and drops it (the command goes on), inside the library it cuts a step
-    in half.  A third raises it at once (a loop stuck in a call that never returns).  Yields the presses."""
+    in half.  A third raises it at once (a loop stuck in a call that never returns).  One within a second after
+    the loop ends is taken for the same stop (see the end).  Yields the presses."""
     pressed: list[int] = []
     if (
         threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+        or _unwrapped(signal.getsignal(signal.SIGINT)) is not signal.default_int_handler  # (see below)
     ):
         yield pressed  # (asyncio's runner takes it, as before, or a handler of the program's own)
         return
@@ -98,7 +100,13 @@ def _ctrl_c() -> Iterator[list[int]]:
         yield pressed
     finally:
         if signal.getsignal(signal.SIGINT) is on_sigint:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+            if pressed:
+                # A double Ctrl-C's second press landing once the loop is over would raise KeyboardInterrupt
+                # wherever the command then is (making its message, which would become a bare "aborted"), or kill
+                # the process as Python ends: within a moment it is the same press, as the library's run() has it.
+                _after_stop({signal.SIGINT: signal.default_int_handler})
+            else:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
         if pressed:  # (what the command says next, a report or its error, must not follow the echoed ^C)
             from ..terminal import clear_echoed_ctrl_c
 
