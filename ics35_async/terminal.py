@@ -12,6 +12,8 @@ from typing import TextIO
 
 ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleared (VT100, every terminal today)
 
+_echoed: list[bool] = []  # a Ctrl-C was typed and its echoed ^C not cleared yet (see ctrl_c_typed)
+
 
 def in_background_of_terminal(fd: int = 0) -> bool:
     """Whether ``fd`` is this process's controlling terminal and the process is in a background process
@@ -46,8 +48,23 @@ def clear_echoed_ctrl_c() -> None:
     nothing, and the line where the cursor is then is the shell's, with what the person is typing; a file or a
     pipe gets nothing (not even where a setting such as ``FORCE_COLOR`` makes the output look like a terminal's).
     """
+    _echoed.clear()
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
             stream.write(ERASE_LINE)
             stream.flush()
             return
+
+
+def ctrl_c_typed() -> None:
+    """Note a Ctrl-C (from its signal handler: nothing is written there): :func:`clear_after_ctrl_c` clears its
+    echoed ``^C`` before the next thing written, unless :func:`clear_echoed_ctrl_c` has by then."""
+    if not _echoed:
+        _echoed.append(True)
+
+
+def clear_after_ctrl_c() -> None:
+    """Before a line written while the command may still be stopping (a log record): the ``^C`` a Ctrl-C noted
+    by :func:`ctrl_c_typed` left, cleared once (see :func:`clear_echoed_ctrl_c`)."""
+    if _echoed:
+        clear_echoed_ctrl_c()

@@ -350,12 +350,18 @@ id = 2
             2.0,  # (well after the command line loaded, 0.35 s here; well before the last of its 4 waits of 3 s)
             "error: interrupted",
         ),
+        # With -v the log's lines as the command stops ("closed ..."): the first came right after the ^C.
+        (
+            ["--port", "sim://?ids=1&realtime=1", "--timeout", "3", "-v", "get", "5", "speed"],
+            2.0,
+            "error: interrupted",
+        ),
         # doctor prints its report after the Ctrl-C, then the error: the report's first line came after the ^C.
         (["doctor", "--port", "sim://?ids=1-3&realtime=1", "--samples", "1000"], 1.5, "compiled stream path: "),
         # calibrate's live view: its last redraw and the message after it.
         (["calibrate", "{robot}"], "neutral pose   Enter", "error: interrupted: nothing written to"),
     ],
-    ids=["get", "doctor", "calibrate"],
+    ids=["get", "get -v", "doctor", "calibrate"],
 )
 def test_what_is_said_after_ctrl_c_starts_on_a_line_of_its_own(
     tmp_path: Path, args: list[str], when: str | float, first: str

@@ -13,6 +13,7 @@ from types import FrameType
 from typing import TypeVar
 
 from ..running import _after_stop, _unwrapped
+from ..terminal import ctrl_c_typed
 from ._settings import CliError, ExitCode
 from ._signals import command_task, current_task, received
 
@@ -83,6 +84,7 @@ def _ctrl_c() -> Iterator[list[int]]:
 
     def on_sigint(signum: int, frame: FrameType | None) -> None:
         pressed.append(signum)
+        ctrl_c_typed()  # (what -v logs as the command stops starts a line of its own: see _settings)
         task = current_task()
         try:
             if len(pressed) == 1 and task is not None and not task.done():

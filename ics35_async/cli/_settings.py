@@ -178,6 +178,14 @@ def settings_of(ctx: click.Context) -> Settings:
 _QUIET = logging.NullHandler()
 
 
+def _after_ctrl_c(record: logging.LogRecord) -> bool:
+    """The log's filter: a record written as a command stops on Ctrl-C followed the echoed ``^C`` on its line."""
+    from ..terminal import clear_after_ctrl_c  # (not at the top: ics35 --version stays light)
+
+    clear_after_ctrl_c()
+    return True
+
+
 def setup_logging(verbose: int) -> None:
     if not verbose:
         # The library logs a lost port as a warning, which Python's last-resort handler would
@@ -186,7 +194,12 @@ def setup_logging(verbose: int) -> None:
         return
     logging.getLogger("ics35_async").removeHandler(_QUIET)
     level = logging.DEBUG if verbose > 1 else logging.INFO
+    root = logging.getLogger()
+    ours = not root.handlers  # (a program that set up logging itself keeps its own handlers as they are)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if ours:
+        for handler in root.handlers:
+            handler.addFilter(_after_ctrl_c)
     # -v may come again after the command (ics35 scan -vv): the last count wins.
     logging.getLogger().setLevel(level)
     # Every failed transaction in words at -v (what the live tables' error columns count).
