@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -21,7 +22,10 @@ from ics35_async.cli._extras import install_command, installed_from
 
 
 @contextmanager
-def web(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[subprocess.Popen[str], str]]:
+def web(
+    *args: str, env: dict[str, str] | None = None, ignoring_sigint: bool = False
+) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """``ics35 web``; ``ignoring_sigint``: started as a script's background job is, SIGINT ignored."""
     environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
     proc = subprocess.Popen(
         [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", *args],
@@ -29,6 +33,7 @@ def web(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[subproc
         stderr=subprocess.PIPE,
         text=True,
         env={**environment, **(env or {})},
+        preexec_fn=(lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignoring_sigint else None,
     )
     assert proc.stdout is not None
     url = proc.stdout.readline().strip()
@@ -69,6 +74,24 @@ def test_the_url_comes_first_and_the_default_port_is_the_simulator_said_so() -> 
         assert proc.stderr is not None
         err = proc.stderr.read()
     assert "built-in simulator" in err and "Traceback" not in err
+
+
+def test_a_server_started_ignoring_sigint_keeps_ignoring_it() -> None:
+    # `ics35 web &` in a script (or under nohup's kin): the shell starts it with SIGINT ignored, so that the
+    # Ctrl-C typed for the script's foreground command is not for it.  The web server turned Ctrl-C back on:
+    # that Ctrl-C stopped it too.  SIGTERM still ends it.
+    with web(ignoring_sigint=True) as (proc, url):
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200  # (the server runs: the URL comes before it starts)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.5)  # (a Ctrl-C heard ends it at once: see the test above)
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        assert get(f"{base}/api/status", token)[0] == 200
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 143
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+    assert "Traceback" not in err, err
 
 
 def test_a_token_from_the_environment_or_a_file_is_the_one_asked_for(tmp_path: Path) -> None:

@@ -4,11 +4,13 @@ running it with uvicorn on a socket bound before the URL is printed."""
 from __future__ import annotations
 
 import contextlib
+import signal
 import socket
 import webbrowser
 from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from starlette.applications import Starlette
@@ -157,6 +159,32 @@ def url_of(sock: socket.socket, token: str) -> str:
     return f"http://{shown}:{port}/?token={token}"
 
 
+def _server_class() -> type[Any]:
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, but a stop signal the process was started ignoring stays ignored.
+
+        A shell without job control (a script) starts ``ics35 web &`` with SIGINT ignored, so that the Ctrl-C
+        typed for its foreground command is not for it; uvicorn puts its handlers in for SIGINT and SIGTERM
+        whatever was there, and that Ctrl-C would stop the server too.  (The other commands keep such a
+        signal ignored: see ics35_async.running._heard.)
+        """
+
+        def __init__(self, config: uvicorn.Config) -> None:
+            super().__init__(config)
+            self.ignored = {sig for sig in _STOPPING if signal.getsignal(sig) is signal.SIG_IGN}
+
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            if sig not in self.ignored:
+                super().handle_exit(sig, frame)
+
+    return Server
+
+
+_STOPPING = (signal.SIGINT, signal.SIGTERM)
+
+
 def serve(
     config: LineConfig,
     token: str,
@@ -186,7 +214,7 @@ def serve(
     announce(url)  # the socket listens already: a browser that comes now waits in its backlog
     import uvicorn  # after the URL: it is the slower half of the start-up
 
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
+    server = _server_class()(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
     if open_browser:
         with contextlib.suppress(Exception):
             webbrowser.open(url)
