@@ -504,3 +504,39 @@ def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, ga
     assert "Traceback" not in written and "aborted" not in written, "\n".join(screen)
     assert any(line.startswith(f"error: interrupted: nothing written to {robot}") for line in screen), "\n".join(screen)
     assert any("the joints it opened are left free" in line for line in screen), "\n".join(screen)
+
+
+@pytest.mark.parametrize("gap", [0.002, 0.005, 0.01, 0.02])
+def test_a_double_ctrl_c_in_demo_says_what_the_servos_were_left_in(gap: float) -> None:
+    # The second press forced the stop out as the servos were being freed: asyncio's runner, closing, then
+    # printed the command's own account (the servos may still hold, and how to free them) as a traceback
+    # and dropped it; landing as the runner closed, it left tracebacks of the loop and exit code 1.
+    args = ["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "30"]
+    code, written = typed_on_a_terminal(args, [(scaled(1.5), b"\x03"), (gap, b"\x03")])
+    screen = screen_of(written)
+    assert "Traceback" not in written and "Exception" not in written, "\n".join(screen)
+    assert code in (0, 130), "\n".join(screen)
+    said = "\n".join(screen)
+    assert "all servos left free" in said or "may still be holding" in said or "error: interrupted" in said, said
+
+
+@pytest.mark.parametrize(
+    ("args", "when", "said"),
+    [
+        (["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "30"], 1.5, "error: interrupted"),
+        (
+            ["--timeout", "0.5", "play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json")],
+            3.0,
+            "error: interrupted",  # (": Ctrl-C again cut the slow-down short" once the slow-down had begun)
+        ),
+    ],
+    ids=["demo", "play"],
+)
+def test_three_quick_ctrl_c_force_the_command_out_without_a_traceback(args: list[str], when: float, said: str) -> None:
+    # The third press forces out at once; landing as the runner closed the loop, it left asyncio's and the
+    # loop's tracebacks and exit code 1.
+    code, written = typed_on_a_terminal(args, [(scaled(when), b"\x03"), (0.005, b"\x03"), (0.005, b"\x03")])
+    screen = screen_of(written)
+    assert "Traceback" not in written and "Exception" not in written, "\n".join(screen)
+    assert code == 130, "\n".join(screen)
+    assert any(line.startswith(said) for line in screen), "\n".join(screen)

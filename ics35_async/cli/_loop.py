@@ -10,7 +10,7 @@ import signal
 import threading
 from collections.abc import Awaitable, Callable, Iterator
 from types import FrameType
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from ..running import _after_stop, _unwrapped
 from ..terminal import ctrl_c_typed
@@ -22,9 +22,10 @@ LOOPS = ("auto", "asyncio", "uvloop")
 log = logging.getLogger("ics35_async")
 
 
-async def _await(main: Awaitable[T]) -> T:
+async def _await(main: Awaitable[T], started: list[asyncio.Task[T]]) -> T:
     task = asyncio.current_task()
     assert task is not None
+    started.append(task)
     with command_task(task):  # (SIGTERM and SIGHUP cancel it, as Ctrl-C does)
         return await main
 
@@ -55,13 +56,54 @@ def run_loop(main: Awaitable[T]) -> T:
             main.close()  # never awaited: no "coroutine was never awaited" warning
         raise
     log.info("event loop: %s", name)
-    with _ctrl_c() as pressed, asyncio.Runner(loop_factory=factory) as runner:
-        try:
-            return runner.run(_await(main))
-        except asyncio.CancelledError:
-            if received() is None and not pressed:
+    started: list[asyncio.Task[T]] = []
+    forced: list[asyncio.Task[T]] = []
+    try:
+        with _ctrl_c() as pressed, asyncio.Runner(loop_factory=factory) as runner:
+            try:
+                return runner.run(_await(main, started))
+            except asyncio.CancelledError:
+                if received() is None and not pressed:
+                    raise
+                raise KeyboardInterrupt from None  # cancelled by a stop signal: what Ctrl-C's cancel becomes
+            except KeyboardInterrupt:
+                if len(pressed) == 2 and started:  # (a third forces out at once: nothing more to tell then)
+                    forced.append(started[0])
+                    _told_after_close(runner.get_loop(), started[0])
                 raise
-            raise KeyboardInterrupt from None  # cancelled by a stop signal: what Ctrl-C's cancel becomes
+    except KeyboardInterrupt:
+        if not forced:
+            raise
+        return _forced_out(forced[0])
+
+
+def _told_after_close(loop: asyncio.AbstractEventLoop, task: asyncio.Task[T]) -> None:
+    """The runner, closing, cancels the command's task again and waits for it (its ``finally`` blocks run); what
+    it then ends with the runner prints as a traceback ("unhandled exception during asyncio.run() shutdown") and
+    drops.  That is the command's own account of what it left (servos that may still hold, and how to free
+    them): it is kept for :func:`_forced_out` instead."""
+
+    def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        if context.get("task") is not task:
+            loop.default_exception_handler(context)
+
+    loop.set_exception_handler(handler)
+
+
+def _forced_out(task: asyncio.Task[T]) -> T:
+    """A second Ctrl-C forced the command out as it stopped, and the runner's close has ended its task: the
+    command's own account of what it left is raised, as an interruption; a command that finished all the same
+    returns what it did; else KeyboardInterrupt."""
+    if not task.done() or task.cancelled():
+        raise KeyboardInterrupt
+    error = task.exception()
+    if error is None:
+        return task.result()
+    if isinstance(error, CliError):
+        if error.code != ExitCode.INTERRUPTED:
+            error.code, error.message = ExitCode.INTERRUPTED, f"interrupted: {error.message}"
+        raise error from None
+    raise KeyboardInterrupt from None  # (another failure as it was forced out: an interruption all the same)
 
 
 @contextlib.contextmanager
@@ -90,11 +132,13 @@ def _ctrl_c() -> Iterator[list[int]]:
             if len(pressed) == 1 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(task.cancel)
                 return
-            if len(pressed) == 2 and task is not None:
+            if len(pressed) == 2 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(_interrupt)
                 return
         except RuntimeError:  # the loop is closed
             pass
+        if len(pressed) == 2:
+            return  # the command has ended (the first press stopped it): this one is the same stop (see the end)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)
