@@ -392,6 +392,28 @@ def test_the_motion_count_moves_only_when_motion_changes_and_the_answer_to_a_swi
     assert post(client, "/api/servo/1/motion", {"enabled": False}).json()["motion_switches"] > on["motion_switches"]
 
 
+def test_motion_a_page_switched_on_goes_off_when_its_socket_closes_and_a_page_not_connected_is_refused(
+    serve: Any,
+) -> None:
+    client, sim = serve((1, 3))
+    sim.servo(1).move_by_hand(7000)
+    refused = post(client, "/api/servo/1/motion", {"enabled": True, "page": "p1"})  # (its socket not open)
+    assert refused.status_code == 409 and "not connected" in refused.json()["error"]
+    assert sim.servo(1).free and client.get("/api/status").json()["motion_on"] == []  # nothing sent
+    with client.websocket_connect(f"{WS}?page=p1", headers={"origin": BASE}) as ws:
+        ws.receive_json()
+        assert post(client, "/api/servo/1/motion", {"enabled": True, "page": "p1"}).json()["enabled"] is True
+        assert post(client, "/api/servo/3/motion", {"enabled": True}).json()["enabled"] is True  # (a script's)
+        with client.websocket_connect(f"{WS}?page=p2", headers={"origin": BASE}) as other:  # another tab
+            other.receive_json()
+        assert client.get("/api/status").json()["motion_on"] == [1, 3]  # (that tab switched nothing on)
+    status = client.get("/api/status").json()
+    assert status["motion_on"] == [3] and "page that switched it on" in status["motion_off"]["1"]
+    jog = post(client, "/api/servo/1/move", {"position": 8000})
+    assert jog.status_code == 409 and "page that switched it on" in jog.json()["error"]
+    assert sim.servo(1).target == 7000 and not sim.servo(1).free  # still held where motion went on
+
+
 def test_applying_a_profile_to_many_servos_reports_each(serve: Any) -> None:
     client, sim = serve((1, 3))
     results = post(client, "/api/many/apply", {"ids": [1, 3, 5], "changes": {"speed": 40}}).json()["results"]

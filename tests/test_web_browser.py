@@ -725,6 +725,31 @@ def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(b
         expect(p.locator("#jog-target")).to_have_text("6000")
 
 
+# How soon the server switches off the motion of a page that is gone: at once for a tab closed (its socket
+# closes), a few seconds for one whose network went (no answer to the server's pings).
+PAGE_GONE_BOUND = scaled(8.0)
+
+
+def test_motion_a_closed_tab_switched_on_goes_off_on_the_server_and_a_jog_is_refused(browser: Browser) -> None:
+    line = PtyLine((1,))
+    servo = line.sim.servo(1)
+    servo.move_by_hand(8000)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        until(lambda: servo.target == 8000, "enable motion never held servo 1")
+        base, api = p.url.split("#")[0], p.context.request  # (the tab's cookie, without the tab)
+        assert api.get(base + "api/status").json()["motion_on"] == [1]
+        p.close()  # the tab closed, its switch on: no page is left to say motion is on
+        deadline = time.monotonic() + PAGE_GONE_BOUND
+        while api.get(base + "api/status").json()["motion_on"]:
+            assert time.monotonic() < deadline, "motion stayed on after the page that switched it on was closed"
+            time.sleep(0.05)
+        refused = api.post(base + "api/servo/1/move", data={"position": 8100})
+        assert refused.status == 409 and "page" in refused.json()["error"], refused.text()
+        assert servo.target == 8000 and not servo.free  # nothing sent; it keeps holding, as when the page is left
+
+
 def motion_switched_off_by_a_lost_port(p: Page, line: PtyLine) -> None:
     """Servo 1's page with its motion switched on, then the port lost and back: the server switched it off."""
     servo = line.sim.servo(1)
@@ -774,7 +799,7 @@ def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_swi
             server.on_message(lambda m: late.append((ws, m)) if holding[0] else ws.send(m))
             ws.on_message(server.send)
 
-        p.route_web_socket("**/ws", relay)
+        p.route_web_socket(re.compile(r"/ws(\?|$)"), relay)  # (the page names itself: /ws?page=...)
         p.reload()
         motion_switched_off_by_a_lost_port(p, line)
         holding[0] = True

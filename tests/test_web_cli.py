@@ -3,9 +3,11 @@ the token from the environment or a file, Ctrl-C, and the missing extra, all wit
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -19,6 +21,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli._extras import install_command, installed_from
+from tests.support.timing import scaled
 
 
 @contextmanager
@@ -55,6 +58,16 @@ def get(url: str, token: str | None = None) -> tuple[int, Any]:
             return response.status, json.loads(response.read())
     except urllib.error.HTTPError as exc:
         return exc.code, exc.read().decode()
+
+
+def post(url: str, token: str, data: Any) -> tuple[int, Any]:
+    headers = {"cookie": f"ics35_token={token}", "content-type": "application/json"}
+    request = urllib.request.Request(url, data=json.dumps(data).encode(), headers=headers, method="POST")
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
 
 
 def split(url: str) -> tuple[str, str]:
@@ -192,3 +205,30 @@ def test_a_robot_line_on_a_fast_simulator_without_a_rate_is_said_to_run_flat_out
         err = " ".join(proc.stderr.read().split())
     assert "robot line fast (sim://web-cli-fast?ids=1) is a fast simulator with no rate_hz" in err, err
     assert "line paced" not in err and "line real" not in err, err
+
+
+def test_motion_a_page_switched_on_goes_off_once_its_network_is_gone() -> None:
+    # A page whose network went (a laptop asleep, Wi-Fi gone) closes nothing: the server hears nothing more
+    # from it, and its motion stayed on for the next page, tab or script to find.  The server's pings go
+    # unanswered: within seconds the page is gone, its motion off.
+    with web("--port", "sim://?ids=1") as (_, url):
+        base, token = split(url)
+        host, port = base.removeprefix("http://").split(":")
+        page = "a-page-whose-network-went"
+        key = base64.b64encode(os.urandom(16)).decode()
+        with socket.create_connection((host, int(port)), timeout=10) as ws:  # the page's WebSocket
+            ws.sendall(
+                f"GET /ws?page={page} HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                f"Origin: {base}\r\nCookie: ics35_token={token}\r\n\r\n".encode()
+            )
+            assert ws.recv(4096).startswith(b"HTTP/1.1 101"), "the page's WebSocket was refused"
+            status, answer = post(f"{base}/api/servo/1/motion", token, {"enabled": True, "page": page})
+            assert status == 200 and answer["enabled"] is True, answer
+            # From now on the page reads nothing and answers nothing (its socket stays open).
+            deadline = time.monotonic() + scaled(8.0)
+            while get(f"{base}/api/status", token)[1]["motion_on"]:
+                assert time.monotonic() < deadline, "motion stayed on for a page that answers nothing"
+                time.sleep(0.1)
+            status, refused = post(f"{base}/api/servo/1/move", token, {"position": 8000})
+            assert status == 409 and "page" in refused["error"], refused

@@ -8,9 +8,9 @@ import itertools
 import json
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from types import SimpleNamespace
+from types import MappingProxyType, SimpleNamespace
 from typing import Any
 
 import pytest
@@ -407,6 +407,7 @@ def test_a_pushed_robot_state_is_what_the_robot_is_when_it_is_sent_not_before_a_
 
     class Page:  # what the push needs of a page's WebSocket
         app = SimpleNamespace(state=SimpleNamespace(session=session, robot=robot))
+        query_params: Mapping[str, str] = MappingProxyType({})  # (a page that gives no name)
 
         async def accept(self) -> None:
             pass

@@ -38,7 +38,7 @@ from ..errors import (
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
-from .session import LineSession
+from .session import PAGE_NAME_MAX, LineSession
 
 log = logging.getLogger("ics35_async.web")
 
@@ -245,7 +245,7 @@ async def motion(request: Request, session: LineSession) -> Any:
     sid, data = servo_id(request), await body(request)
     position = None
     if data.get("enabled") is True:
-        position = await session.enable_motion(sid)
+        position = await session.enable_motion(sid, data.get("page"))  # (the page's name: see updates)
     else:
         session.disable_motion(sid)
     return {
@@ -364,10 +364,28 @@ async def updates(ws: WebSocket) -> None:
     """Push the line's status, scan progress, telemetry, live frames and traffic to one page.
 
     The status, the scan's progress and a live frame's slow parts are sent
-    to a page when they differ from what it was last sent.
+    to a page when they differ from what it was last sent.  The page names
+    itself (``/ws?page=NAME``, a random name of its own): while this socket is
+    open that page is there, and once it closes (the tab closed, or the
+    server's pings unanswered: the page's network gone) the motion the page
+    switched on goes off (:meth:`LineSession.page_gone`).
     """
     session: LineSession = ws.app.state.session
+    name = ws.query_params.get("page")
+    page = name if name and len(name) <= PAGE_NAME_MAX else None
     await ws.accept()
+    if page is not None:
+        session.page_came(page)
+    gone = False
+
+    def page_gone() -> None:
+        # At once from the reader, which hears the socket close: the pushing loop may be waiting on a slow
+        # round of reads meanwhile.  Once only, from either.
+        nonlocal gone
+        if page is not None and not gone:
+            gone = True
+            session.page_gone(page)
+
     watching_traffic = False
     seen = 0
     last_telemetry = 0.0
@@ -384,12 +402,15 @@ async def updates(ws: WebSocket) -> None:
 
     async def listen() -> None:
         nonlocal watching_traffic
-        while True:
-            message = await ws.receive_json()
-            want = bool(isinstance(message, dict) and message.get("traffic"))
-            if want != watching_traffic:
-                watching_traffic = want
-                (session.traffic.watch if want else session.traffic.unwatch)()
+        try:
+            while True:
+                message = await ws.receive_json()
+                want = bool(isinstance(message, dict) and message.get("traffic"))
+                if want != watching_traffic:
+                    watching_traffic = want
+                    (session.traffic.watch if want else session.traffic.unwatch)()
+        finally:
+            page_gone()
 
     listener = asyncio.create_task(listen())
     try:
@@ -443,6 +464,7 @@ async def updates(ws: WebSocket) -> None:
         listener.cancel()
         with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
             await listener
+        page_gone()
         if watching_traffic:
             session.traffic.unwatch()
 

@@ -55,6 +55,13 @@ class Listen:
         return is_loopback(self.host)
 
 
+# Each page's WebSocket is pinged this often, and closed when a ping goes this long unanswered: a page whose
+# network went (a laptop asleep, Wi-Fi gone) closes nothing, and the motion it switched on goes off only once
+# its socket is closed (see api.updates).  The browser answers pings itself, in a background tab too.
+PAGE_PING_PERIOD = 1.0
+PAGE_PING_TIMEOUT = 3.0
+
+
 # The page runs only its own scripts and talks only to this server; no other site may frame it
 # (a framed page could be clicked through by another site) or learn its address.
 PAGE_HEADERS = {
@@ -214,7 +221,16 @@ def serve(
     announce(url)  # the socket listens already: a browser that comes now waits in its backlog
     import uvicorn  # after the URL: it is the slower half of the start-up
 
-    server = _server_class()(uvicorn.Config(app, log_level="warning", lifespan="on", ws="websockets-sansio"))
+    server = _server_class()(
+        uvicorn.Config(
+            app,
+            log_level="warning",
+            lifespan="on",
+            ws="websockets-sansio",
+            ws_ping_interval=PAGE_PING_PERIOD,
+            ws_ping_timeout=PAGE_PING_TIMEOUT,
+        )
+    )
     if open_browser:
         with contextlib.suppress(Exception):
             webbrowser.open(url)

@@ -85,6 +85,12 @@ POSITION_AT_COMMAND = (
 )
 
 
+# Why the server switched a servo's motion off when the page that switched it on went (see page_gone).
+PAGE_GONE = "the page that switched it on was closed or lost its connection to the server"
+# A page's name for itself (see page_came), as long as it may be.
+PAGE_NAME_MAX = 64
+
+
 # How long Hold here waits for the live stream to read a servo it carries (a frame after the press).
 HOLD_READ_WAIT = 2.0
 
@@ -121,6 +127,10 @@ class LineSession:
         self.motion_switches = 0
         self._motion_line: tuple[Bus, int] | None = None  # the bus and its reconnections when motion went on
         self.motion_off: dict[int, str] = {}  # servos whose motion the server switched off, and why
+        # The pages connected now (their WebSocket open, see page_came), by the name each gives itself, and the
+        # page that switched each servo's motion on: once that page is gone its motion goes off, as when it is left.
+        self._pages: dict[str, int] = {}
+        self._motion_page: dict[int, str] = {}
         # Servos a page left holding (Hold, enable motion, a jog): their target, and the line it was sent on
         # (a live plot keeps them held rather than freeing them; one held before a lost port, or before it
         # stopped answering, None, is in doubt).
@@ -149,6 +159,7 @@ class LineSession:
         the page unticks its switch (status ``motion_off``); switched on again, the servo holds where it stands."""
         for sid in [i for i in ids if i in self.motion_enabled]:
             self.motion_enabled.discard(sid)
+            self._motion_page.pop(sid, None)
             self.motion_switches += 1
             self.motion_off[sid] = why
 
@@ -301,6 +312,7 @@ class LineSession:
         if self.motion_enabled or self.motion_off:
             self.motion_switches += 1
         self.motion_enabled.clear()
+        self._motion_page.clear()
         self.motion_off.clear()
         if keep_holds:
             self.holding = {sid: (target, None) for sid, (target, _) in self.holding.items()}
@@ -776,10 +788,21 @@ class LineSession:
             )
         return position
 
-    async def enable_motion(self, servo_id: int) -> int:
+    async def enable_motion(self, servo_id: int, page: object = None) -> int:
         """Switch motion on: read the limits, then hold the servo where it stands, so the first jog
-        steps from there rather than jumping to wherever the slider happened to be."""
+        steps from there rather than jumping to wherever the slider happened to be.
+
+        ``page``: the name of the page asking (see :meth:`page_came`), whose motion goes off once it is gone;
+        a page not connected now is refused before anything is sent.  Without one (a script), motion stays on
+        until it is switched off.
+        """
         self._refuse_joint_motion(servo_id)
+        if page is not None and page not in self._pages:
+            raise UnsafeOperation(
+                f"this page is not connected to the server now, so its motion could not go off should the page "
+                f"go: wait for the page to be connected again, then switch on 'enable motion' for servo {servo_id}; "
+                "nothing was sent"
+            )
         await self.read_eeprom(servo_id)
         position = await self.hold(servo_id)
         self._motion_off_if_line_lost()  # (another servo's, switched on before a loss, stays off)
@@ -789,7 +812,29 @@ class LineSession:
             self.motion_switches += 1
         self.motion_enabled.add(servo_id)
         self.motion_off.pop(servo_id, None)
+        if isinstance(page, str):
+            self._motion_page[servo_id] = page
+            if page not in self._pages:  # (gone while the servo was read and held: it keeps holding)
+                self._switch_motion_off([servo_id], PAGE_GONE)
+        else:
+            self._motion_page.pop(servo_id, None)
         return position
+
+    def page_came(self, page: str) -> None:
+        """A page named ``page`` is connected (its WebSocket opened: a page may connect again under its name)."""
+        self._pages[page] = self._pages.get(page, 0) + 1
+
+    def page_gone(self, page: str) -> None:
+        """A page's WebSocket closed: its tab was closed, reloaded or went elsewhere, or its network went quiet
+        (the server's pings went unanswered).  Once none of that page's is left, the motion it switched on goes off,
+        as when it leaves a servo's page: a later page, another tab or a script must not find jogging armed, and
+        the servo keeps holding (no joint goes limp unasked)."""
+        left = self._pages.get(page, 0) - 1
+        if left > 0:
+            self._pages[page] = left
+            return
+        self._pages.pop(page, None)
+        self._switch_motion_off([sid for sid, p in self._motion_page.items() if p == page], PAGE_GONE)
 
     def _holds(self, servo_id: int, target: int) -> None:
         """``servo_id`` was sent ``target`` by a page (on the line as it is now)."""
@@ -824,6 +869,7 @@ class LineSession:
         if servo_id in self.motion_enabled or servo_id in self.motion_off:
             self.motion_switches += 1
         self.motion_enabled.discard(servo_id)
+        self._motion_page.pop(servo_id, None)
         self.motion_off.pop(servo_id, None)
 
     def check_limits(self, servo_id: int) -> list[int] | None:

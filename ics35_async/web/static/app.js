@@ -421,7 +421,7 @@ async function toggleMotion() {
   const on = $("#motion-switch").checked;
   state.servoMotionAsked += 1;
   try {
-    const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on });
+    const reply = await api(`/api/servo/${servoId()}/motion`, { enabled: on, page: PAGE });
     $("#motion-switch").checked = reply.enabled;  // (the server's answer, whatever was pushed meanwhile)
     state.motionSeen = Math.max(state.motionSeen, reply.motion_switches ?? 0);
     setMotion(reply.enabled);
@@ -678,6 +678,9 @@ async function playMotion() {
 // ---------------------------------------------------------------- the WebSocket
 
 let socket = null;
+// This page's name for the server, on its WebSocket and its "enable motion": the motion it switched on goes off
+// once its socket is gone (the tab closed, or its network went), not only when it leaves the servo's page.
+const PAGE = Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, "0")).join("");
 
 // Recording starts when the Traffic page is first opened and goes on while this page is open, so what
 // other pages do can be looked at afterwards; Pause stops it (it slows a streaming line).
@@ -688,7 +691,7 @@ function socketSend() {
 }
 
 function connectSocket() {
-  socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?page=${PAGE}`);
   socket.onopen = () => {
     state.motionSeen = 0;  // (a server started again counts from 0)
     if (state.serverGone || state.tokenRefused) {
