@@ -502,7 +502,9 @@ def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, ga
     screen = screen_of(written)
     assert code == 130, "\n".join(screen)
     assert "Traceback" not in written and "aborted" not in written, "\n".join(screen)
-    assert any(line.startswith(f"error: interrupted: nothing written to {robot}") for line in screen), "\n".join(screen)
+    # (Anywhere on its line: the second press's ^C is echoed by the terminal whenever it lands, and one landing
+    # between the first's clearing and the message stays in front of it.)
+    assert any(f"error: interrupted: nothing written to {robot}" in line for line in screen), "\n".join(screen)
     assert any("the joints it opened are left free" in line for line in screen), "\n".join(screen)
 
 
