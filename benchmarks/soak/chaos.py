@@ -204,7 +204,15 @@ class ChaosWorkload:
                 entries.pop()
         leftovers = {sid: len(e) for sid, e in matcher.stream_entries.items() if e}
         if any(n > 1 + self.unread_cycles for n in leftovers.values()):
-            raise CheckError(f"stream log entries with no frame: {leftovers} ({self.unread_cycles} cycle(s) unread)")
+            over = {
+                sid: [matcher.previous.get(e[0], e[4].hex(" ")) + f" (seq {e[0]}, {e[1]})" for e in entries]
+                for sid, entries in matcher.stream_entries.items()
+                if len(entries) > 1 + self.unread_cycles
+            }
+            raise CheckError(
+                f"stream log entries with no frame: {leftovers} ({self.unread_cycles} cycle(s) unread; "
+                f"{self.stats.frames} frames taken); those over: {over}"
+            )
         for entries in matcher.stream_entries.values():
             entries.clear()
         matcher.match(final=True)
