@@ -3,7 +3,7 @@
 The package's build compiles the engine's rules (the modules every transaction runs through) with mypyc where
 it can (mypy and a C compiler at hand, not Windows; ``ICS35_COMPILE=0`` turns it
 off; see ``setup.py``).  The same Python source runs either way: compiled, a stream on the burst path costs
-about a tenth less CPU (``benchmarks/bench_burst.py``).
+5-10 % less CPU (``benchmarks/bench_burst.py``).
 """
 
 from __future__ import annotations
