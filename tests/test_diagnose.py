@@ -399,6 +399,19 @@ def test_a_port_named_by_id_reads_the_timer_of_its_tty(tmp_path: Path) -> None:
     assert "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in finding.fix and port in finding.problem
 
 
+def system_with_the_pty(tmp_path: Path, pty: str) -> tuple[Path, Path, Path]:
+    """A fake system (:func:`tree`) that has the simulator's pty as a device node: (its root, the node, the
+    node's empty usb-serial device directory in /sys, for a ``latency_timer`` file)."""
+    root = tree(tmp_path)
+    node = root / pty.lstrip("/")
+    node.parent.mkdir(parents=True)
+    node.write_text("")
+    node.chmod(0o666)
+    devices = root / "sys" / "bus" / "usb-serial" / "devices" / node.name
+    devices.mkdir(parents=True)
+    return root, node, devices
+
+
 @pytest.mark.pty
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
 def test_a_timer_the_system_shows_is_one_finding_for_the_ports_own_tty(tmp_path: Path, cli: Any, pty_sim: Any) -> None:
@@ -406,13 +419,8 @@ def test_a_timer_the_system_shows_is_one_finding_for_the_ports_own_tty(tmp_path:
     # repeated the system's finding with a fix for ttyUSB0, and with round trips that did not wait for the
     # timer (ics35 asks the driver for low latency) it said they "sit at" it.
     sim = pty_sim("--ids", "1", "--fast")
-    root = tree(tmp_path)
-    node = root / sim.path.lstrip("/")
-    node.parent.mkdir(parents=True)
-    node.write_text("")
-    node.chmod(0o666)
-    timer = root / "sys" / "bus" / "usb-serial" / "devices" / node.name / "latency_timer"
-    timer.parent.mkdir(parents=True)
+    root, node, devices = system_with_the_pty(tmp_path, sim.path)
+    timer = devices / "latency_timer"
     timer.write_text("16\n")
     result = cli("doctor", "--port", sim.path, "--ids", "1", "--samples", "10", "--system-root", str(root), "--json")
     assert result.code == 0, result.err
@@ -469,13 +477,7 @@ def test_doctor_reads_the_latency_timer_with_the_port_open(tmp_path: Path, cli: 
     # A fresh adapter's timer reads 16 ms until a program asks for low latency, as ics35 does as it opens the
     # port: doctor read it before opening the port and warned of a 16 ms timer its own round trips did not show.
     sim = pty_sim("--ids", "1", "--fast")
-    root = tree(tmp_path)
-    node = root / sim.path.lstrip("/")
-    node.parent.mkdir(parents=True)
-    node.write_text("")
-    node.chmod(0o666)
-    devices = root / "sys" / "bus" / "usb-serial" / "devices" / node.name
-    devices.mkdir(parents=True)
+    root, _node, devices = system_with_the_pty(tmp_path, sim.path)
     timer = FtdiTimerFile(devices / "latency_timer", sim.path)
     try:
         line = ("--port", sim.path, "--ids", "1", "--samples", "10", "--system-root", str(root))
