@@ -378,7 +378,7 @@ class Bus:
     async def aclose(self) -> None:
         """Close the attached stream first (its ``on_close`` done on the open line: the program's block for
         the bus may end before the stream's), then fail queued requests with BusClosed, finish the one on
-        the wire (one whose caller gave up: once its bytes are out, its echo back), release the port."""
+        the wire, release the port."""
         import anyio
 
         if self._closed_event is not None:

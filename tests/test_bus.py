@@ -964,3 +964,22 @@ async def test_wait_idle_during_a_reopen_waits_for_the_requests_queued_meanwhile
             await reopening
     finally:
         sim.close()
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_bus_closed_while_a_cancelled_commands_reply_is_due_waits_for_it(pty_sim: Any, driver: str) -> None:
+    # The close must let the transaction on the wire end, even one whose caller gave up (Ctrl-C, a timeout):
+    # closed once its command's bytes were out, its reply came after the port was closed, and the next open of
+    # that port (the next command, a restarted program) took it into its own first reply.
+    import anyio
+
+    path = pty_sim("--ids", "1", "--eeprom-delay", "0.15s").path
+    async with open_bus(path, driver=driver) as bus:
+        servo = bus.servo(1)
+        image = await servo.read_eeprom()
+        with anyio.move_on_after(0.05):
+            await servo.write_eeprom(image)  # on the wire, its reply 0.15 s away: given up meanwhile
+    async with open_bus(path, driver=driver) as again:
+        assert (await again.servo(1).read_eeprom()).servo_id == 1
+        assert again.stats.total.errors == 0 and again.stats.stray_bytes == 0

@@ -469,28 +469,6 @@ def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(t
     assert code == 0 and log.read_bytes() == b""
 
 
-@pytest.mark.parametrize(
-    "command",
-    [["get", "5", "speed"], ["set", "5", "speed", "50"], ["eeprom", "dump", "5"], ["scan", "--ids", "5-31"]],
-    ids=["get", "set", "eeprom dump", "scan"],
-)
-def test_ctrl_c_while_a_silent_servo_is_awaited_ends_the_command_at_once(command: list[str]) -> None:
-    # The bus's close let the command on the wire run to its end: Ctrl-C waited out the rest of the reply
-    # allowance (seconds with a long --timeout) although nobody wanted the reply any more.  Its bytes are all
-    # out (their echo is back), so the close ends there.
-    when = scaled(1.0)  # (the command line loaded, 0.35 s here, and its request on the wire)
-    args = ["--port", "sim://?ids=1&realtime=1", "--timeout", "5", *command]
-    started = time.monotonic()
-    code, written = typed_on_a_terminal(args, [(when, b"\x03")])
-    after_ctrl_c = time.monotonic() - started - when
-    screen = screen_of(written)
-    assert code == 130, "\n".join(screen)
-    assert "Traceback" not in written, written
-    assert any(line.startswith("error: interrupted") for line in screen), "\n".join(screen)
-    # Not a timing demand: the allowance had more than 4 s to run (it took 0.1 s here).
-    assert after_ctrl_c < scaled(3.0), f"{after_ctrl_c:.2f} s after Ctrl-C"
-
-
 @pytest.mark.parametrize("gap", [0.005, 0.01, 0.02, 0.03])
 def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, gap: float) -> None:
     # The second press landed as the first one's message was being made: "aborted" was all it said (nothing

@@ -147,40 +147,6 @@ def test_a_transaction_without_retries_that_times_out_while_draining_keeps_its_e
     assert isinstance(req.error, ReplyTimeout) and engine.state is State.CLOSED
 
 
-@pytest.mark.parametrize("echo_back", [False, True], ids=["echo coming", "echo back"])
-def test_close_with_a_given_up_request_on_the_wire_ends_once_its_bytes_are_out(echo_back: bool) -> None:
-    # Nobody waits for its reply (its caller was cancelled: Ctrl-C): the drain waited out a silent servo's
-    # whole allowance all the same.  It ends once the command's bytes are all out (their echo is back), never
-    # before: a command cut off half-written would reach the servo as another command.
-    engine = ready_engine()
-    req = Recorded(read(3))
-    tx = engine.submit(req, 0.0)
-    assert tx is not None
-    if echo_back:
-        engine.receive(tx, 0.0005)
-    req.cancel()
-    engine.close()
-    if not echo_back:
-        assert engine.state is State.DRAINING
-        assert engine.receive(tx[:1], 0.0003) is None and engine.state is State.DRAINING  # half the echo
-        assert engine.receive(tx[1:], 0.0005) is None
-    assert engine.state is State.CLOSED and engine.deadline == math.inf and engine.idle
-    assert engine.receive(REPLY, 0.001) is None  # its reply, late: ignored
-    assert req.state == "cancelled"
-
-
-def test_close_with_a_given_up_request_and_no_echo_waits_out_its_allowance() -> None:
-    # Without an echo nothing tells when the bytes have left the adapter: the drain runs as before.
-    engine = ready_engine(echo=False)
-    req = Recorded(read(3))
-    engine.submit(req, 0.0)
-    req.cancel()
-    engine.close()
-    assert engine.state is State.DRAINING
-    engine.tick(engine.deadline)
-    assert engine.state is State.CLOSED
-
-
 @pytest.mark.parametrize("make_quiet", [False, True], ids=["idle", "resyncing"])
 def test_close_when_nothing_is_on_the_wire_closes_at_once(make_quiet: bool) -> None:
     engine = ready_engine()

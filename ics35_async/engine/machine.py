@@ -202,8 +202,7 @@ class LineEngine:
         return BusClosed("bus is closed")
 
     def close(self) -> None:
-        """No new work: queued requests fail with BusClosed; a transaction on the wire finishes (one nobody
-        waits for any more once its bytes are out: see :meth:`_unheeded`)."""
+        """No new work: queued requests fail with BusClosed; a transaction on the wire finishes."""
         if self.state in (CLOSED, DRAINING):
             return
         self._going_offline = False
@@ -211,32 +210,9 @@ class LineEngine:
         self.queue.fail_all(BusClosed("bus closed"))
         if self.state is BUSY:
             self.state = DRAINING
-            if self._unheeded():
-                self._drained()
         else:
             self.state = CLOSED
             self.deadline = INF
-
-    def _unheeded(self) -> bool:
-        """Closing, whether the transaction on the wire is a request nobody waits for (its caller gave up, as
-        at Ctrl-C, or the engine's own guard read) whose bytes are all out (its echo is back, as sent): its
-        reply, seconds away from a silent servo, would only delay the close.  Never before the whole echo: a
-        command cut off half-written would reach the servo as another one.  Without an echo (or with one that
-        came back damaged) nothing tells when the bytes have left the adapter: the drain runs to its end."""
-        req = self._current
-        return (
-            req is not None
-            and (req.is_guard or req.abandoned())
-            and self._echo_len > 0
-            and self._buf.startswith(self._tx)
-        )
-
-    def _drained(self) -> None:
-        """The drain is over without the reply (see :meth:`_unheeded`); one that still comes is ignored."""
-        current, self._current = self._current, None
-        if current is not None:
-            current.reject(BusClosed("bus closed"))  # (its caller is gone: this only ends its bookkeeping)
-        self.state, self.deadline = CLOSED, INF
 
     @property
     def drain_bound(self) -> float:
@@ -441,8 +417,6 @@ class LineEngine:
                     self._settle(now)
                     return None
                 return self._finish(now)
-            if state is DRAINING and self._unheeded():
-                self._drained()
         elif state is QUIET:
             self.counters.stray += len(data)
             if self.link.owed > 0:  # the reply that just timed out may be coming late (see .link)
