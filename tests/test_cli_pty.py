@@ -519,4 +519,6 @@ def test_three_quick_ctrl_c_force_the_command_out_without_a_traceback(args: list
     screen = screen_of(written)
     assert "Traceback" not in written and "Exception" not in written, "\n".join(screen)
     assert code == 130, "\n".join(screen)
-    assert any(line.startswith(said) for line in screen), "\n".join(screen)
+    # (Anywhere on its line: with three presses 5 ms apart the live table's last line may be redrawn after the
+    # ^C's line was cleared, and the message then follows it.)
+    assert any(said in line for line in screen), "\n".join(screen)

@@ -72,9 +72,26 @@ def run_loop(main: Awaitable[T]) -> T:
                     _told_after_close(runner.get_loop(), started[0])
                 raise
     except KeyboardInterrupt:
+        _quiet_executor_shutdown()
         if not forced:
             raise
         return _forced_out(forced[0])
+
+
+def _quiet_executor_shutdown() -> None:
+    """Forced out (a later Ctrl-C cut the runner's close short), uvloop's thread that shuts the loop's executor
+    down (the one the driver opens ports in) finds the loop closed as it reports back, and Python prints that
+    thread's RuntimeError as a traceback.  Nothing is lost there: that one report is dropped (asyncio's own
+    loop checks first; any other thread's error is printed as before)."""
+    previous = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        name = args.thread.name if args.thread is not None else ""
+        if args.exc_type is RuntimeError and "Event loop is closed" in str(args.exc_value) and "_do_shutdown" in name:
+            return
+        previous(args)
+
+    threading.excepthook = hook
 
 
 def _told_after_close(loop: asyncio.AbstractEventLoop, task: asyncio.Task[T]) -> None:
