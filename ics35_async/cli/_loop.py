@@ -58,8 +58,11 @@ def run_loop(main: Awaitable[T]) -> T:
     log.info("event loop: %s", name)
     started: list[asyncio.Task[T]] = []
     forced: list[asyncio.Task[T]] = []
+    presses: list[int] = []
+    _quiet_executor_shutdown()
     try:
         with _ctrl_c() as pressed, asyncio.Runner(loop_factory=factory) as runner:
+            presses = pressed
             try:
                 return runner.run(_await(main, started))
             except asyncio.CancelledError:
@@ -72,9 +75,16 @@ def run_loop(main: Awaitable[T]) -> T:
                     _told_after_close(runner.get_loop(), started[0])
                 raise
     except KeyboardInterrupt:
-        _quiet_executor_shutdown()
         if not forced:
             raise
+        return _forced_out(forced[0])
+    except RuntimeError as exc:
+        # uvloop: a later press's KeyboardInterrupt, raised by a loop callback, stopped the loop inside the runner's
+        # close (as it shut the executor down): the close's own error, not the command's.
+        if len(presses) < 2 or "Event loop stopped before Future completed" not in str(exc):
+            raise
+        if not forced:
+            raise KeyboardInterrupt from None
         return _forced_out(forced[0])
 
 
@@ -82,8 +92,10 @@ def _quiet_executor_shutdown() -> None:
     """Forced out (a later Ctrl-C cut the runner's close short), uvloop's thread that shuts the loop's executor
     down (the one the driver opens ports in) finds the loop closed as it reports back, and Python prints that
     thread's RuntimeError as a traceback.  Nothing is lost there: that one report is dropped (asyncio's own
-    loop checks first; any other thread's error is printed as before)."""
+    loop checks first; any other thread's error is printed as before).  Installed once, for the process."""
     previous = threading.excepthook
+    if getattr(previous, "quiet_executor_shutdown", False):
+        return
 
     def hook(args: threading.ExceptHookArgs) -> None:
         name = args.thread.name if args.thread is not None else ""
@@ -91,6 +103,7 @@ def _quiet_executor_shutdown() -> None:
             return
         previous(args)
 
+    hook.quiet_executor_shutdown = True  # type: ignore[attr-defined]
     threading.excepthook = hook
 
 
