@@ -524,5 +524,5 @@ def test_three_quick_ctrl_c_force_the_command_out_without_a_traceback(args: list
     assert code == 130, "\n".join(screen)
     # (Anywhere on its line: with three presses 5 ms apart the live table's last line may be redrawn after the
     # ^C's line was cleared, and the message then follows it.  On a loaded machine the live table's redraw has
-    # also hidden it once, after the stop was announced: left, in the project's notes.)
+    # also hidden it once, after the stop was announced.)
     assert any(said in line or "stopped by Ctrl-C" in line for line in screen), "\n".join(screen)
