@@ -492,7 +492,9 @@ def test_doctor_reads_the_latency_timer_with_the_port_open(tmp_path: Path, cli: 
         text = cli("doctor", *line)
         assert text.code == 0, text.err
         assert "latency timer (from the system, with the port open): 1 ms" in text.out, text.out
-        assert "warning" not in text.err, text.err
+        # (No warning of the timer; a busy machine's slow round trips may be warned of, rightly.)
+        warned = [ln for ln in text.err.splitlines() if ln.lstrip().startswith("warning:")]
+        assert not [ln for ln in warned if "16 ms" in ln], text.err
     finally:
         timer.stop()
 
