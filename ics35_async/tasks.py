@@ -79,6 +79,9 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
             await bounded()
         return
     task = asyncio.ensure_future(bounded())
+    # (Its error retrieved however it ends: a program forced out meanwhile, a third Ctrl-C, never waits for it
+    # again, and asyncio would print it at exit as "Task exception was never retrieved".)
+    task.add_done_callback(lambda t: None if t.cancelled() else t.exception())
     cancelled: BaseException | None = None
     with anyio.CancelScope(shield=True):  # (anyio's own cancellation would re-deliver every loop turn)
         while not task.done():
