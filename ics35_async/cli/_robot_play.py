@@ -12,7 +12,8 @@ import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Coroutine, Iterable
+from typing import Any
 
 import click
 from rich.markup import escape
@@ -77,10 +78,19 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     runner raises KeyboardInterrupt, and the robot's close then leaves the joints as ``on_stop`` says.)"""
     # Each step on its own: a stop that fails (a line lost) or outlasts its time still leaves the free to run.
     with contextlib.suppress(IcsError, TimeoutError):
-        await asyncio.wait_for(robot.stop(ramp), ramp + 2.0)
+        await asyncio.wait_for(_retrieved(robot.stop(ramp)), ramp + 2.0)
     if on_stop == "free":
         with contextlib.suppress(IcsError, TimeoutError):
-            await asyncio.wait_for(robot.free(), 2.0)
+            await asyncio.wait_for(_retrieved(robot.free()), 2.0)
+
+
+def _retrieved(step: Coroutine[Any, Any, None]) -> asyncio.Future[None]:
+    """``step`` as a task whose error is retrieved however it ends: forced out by a third Ctrl-C, the command
+    never waits for it again, and asyncio would print its error at exit ("Task exception was never retrieved");
+    what the joints were left in is said by the command's own message."""
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: None if t.cancelled() else t.exception())
+    return task
 
 
 @click.command()
