@@ -13,12 +13,16 @@ from __future__ import annotations
 import contextlib
 import math
 import sys
-from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import TYPE_CHECKING
+from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from .errors import IcsError
 
+T = TypeVar("T")
+
 if TYPE_CHECKING:
+    import asyncio
+
     from anyio.abc import TaskGroup
 
 
@@ -78,10 +82,7 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
         with anyio.CancelScope(shield=True):
             await bounded()
         return
-    task = asyncio.ensure_future(bounded())
-    # (Its error retrieved however it ends: a program forced out meanwhile, a third Ctrl-C, never waits for it
-    # again, and asyncio would print it at exit as "Task exception was never retrieved".)
-    task.add_done_callback(lambda t: None if t.cancelled() else t.exception())
+    task = retrieved(bounded())
     cancelled: BaseException | None = None
     with anyio.CancelScope(shield=True):  # (anyio's own cancellation would re-deliver every loop turn)
         while not task.done():
@@ -93,3 +94,14 @@ async def despite_cancellation(work: Callable[[], Awaitable[None]], bound: float
     if cancelled is not None:
         raise cancelled from failure
     task.result()
+
+
+def retrieved(step: Coroutine[Any, Any, T]) -> asyncio.Task[T]:
+    """``step`` as an asyncio task whose error is retrieved however it ends: a program forced out meanwhile (a
+    third Ctrl-C) never waits for it again, and asyncio would print its error at exit ("Task exception was never
+    retrieved"); what the work left is said by the program's own message."""
+    import asyncio
+
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: None if t.cancelled() else t.exception())
+    return task

@@ -12,8 +12,7 @@ import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Coroutine, Iterable
-from typing import Any
+from collections.abc import Iterable
 
 import click
 from rich.markup import escape
@@ -23,6 +22,7 @@ from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
+from ..tasks import retrieved
 from ._common import CliError, ExitCode, choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
     chosen_joints,
@@ -78,19 +78,10 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
     runner raises KeyboardInterrupt, and the robot's close then leaves the joints as ``on_stop`` says.)"""
     # Each step on its own: a stop that fails (a line lost) or outlasts its time still leaves the free to run.
     with contextlib.suppress(IcsError, TimeoutError):
-        await asyncio.wait_for(_retrieved(robot.stop(ramp)), ramp + 2.0)
+        await asyncio.wait_for(retrieved(robot.stop(ramp)), ramp + 2.0)
     if on_stop == "free":
         with contextlib.suppress(IcsError, TimeoutError):
-            await asyncio.wait_for(_retrieved(robot.free()), 2.0)
-
-
-def _retrieved(step: Coroutine[Any, Any, None]) -> asyncio.Future[None]:
-    """``step`` as a task whose error is retrieved however it ends: forced out by a third Ctrl-C, the command
-    never waits for it again, and asyncio would print its error at exit ("Task exception was never retrieved");
-    what the joints were left in is said by the command's own message."""
-    task = asyncio.ensure_future(step)
-    task.add_done_callback(lambda t: None if t.cancelled() else t.exception())
-    return task
+            await asyncio.wait_for(retrieved(robot.free()), 2.0)
 
 
 @click.command()
