@@ -46,6 +46,7 @@ class AsyncioDriver(LoopDriver):
         self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
         self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self._writing = False  # a writer waits for a tty to take what a partial write left
+        self._reading = False  # the loop's reader watches the tty (not while a burst's executor reads it)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -67,6 +68,7 @@ class AsyncioDriver(LoopDriver):
     def _watch(self, port: Port) -> None:
         if isinstance(port, TtyPort):
             self.loop.add_reader(port.fd, self._readable)
+            self._reading = True
             self.burst = open_runner(
                 self.engine, port.fd, port.decode_marks, port.in_between, lambda: self.requested_at
             )
@@ -82,6 +84,7 @@ class AsyncioDriver(LoopDriver):
         self._close_burst()
         if isinstance(port, TtyPort):
             self.loop.remove_reader(port.fd)
+            self._reading = False
             if self._writing:
                 self.loop.remove_writer(port.fd)
                 self._writing = False
@@ -130,7 +133,9 @@ class AsyncioDriver(LoopDriver):
         port = self.port
         if not isinstance(port, TtyPort) or not burst.start(now()):
             return False
-        self.loop.remove_reader(port.fd)  # the executor reads the port now
+        if self._reading:  # (not after a burst that ran on into this one: see DriverCore._burst_done)
+            self.loop.remove_reader(port.fd)  # the executor reads the port now
+            self._reading = False
         self.cancel_timer()  # and keeps the deadlines
         return True
 
@@ -140,8 +145,9 @@ class AsyncioDriver(LoopDriver):
             self._burst_done(burst)
 
     def _burst_over(self, port: Port | None) -> None:
-        if isinstance(port, TtyPort):
+        if isinstance(port, TtyPort) and not self._reading:
             self.loop.add_reader(port.fd, self._readable)  # a hang-up or what came after: the ordinary read sees it
+            self._reading = True
 
     def _burst_closing(self, burst: BurstRunner) -> None:
         self.loop.remove_reader(burst.done_fd)
