@@ -20,6 +20,7 @@ import anyio
 import pytest
 
 from ics35_async import IcsError, PortLost, ReplyDataError, open_bus, protocol
+from ics35_async.drivers.burst import burst_path
 from tests.support.fuzzing import healthy_answer
 from tests.support.timing import GUARD, NO_TIMEOUTS, REAL_TIME
 
@@ -172,6 +173,55 @@ def test_on_every_driver_a_marked_byte_fails_its_transaction_and_is_counted(driv
                         await bus.servo(3).read_stretch()
                     assert bus.stats.line_errors == 1
                     assert await bus.servo(3).read_stretch() == 5  # the line carries on
+
+        anyio.run(main, backend=library)
+    finally:
+        far.close()
+
+
+class MarkingStreamServo(FarEnd):
+    """Answers a stream's position commands as healthy servos would, the ``damaged``-th with a reply byte
+    marked as the kernel marks a parity error (see :class:`MarkingServo`)."""
+
+    def __init__(self, damaged: int) -> None:
+        self.damaged, self.answers = damaged, 0
+        super().__init__()
+
+    def answer(self, data: bytes) -> None:
+        reply = healthy_answer(data, 115200)
+        self.answers += 1
+        if self.answers == self.damaged:
+            reply = reply[:1] + b"\xff\x00" + reply[1:]
+        os.write(self.master, data + reply)
+
+
+@pytest.mark.skipif(termios is None, reason="needs POSIX ttys")
+@pytest.mark.parametrize("library", ["asyncio", "trio"])
+def test_a_marked_byte_in_a_streams_burst_fails_that_transaction_alone(library: str) -> None:
+    # The burst path: the executor stops at the chunk holding the mark, and the runner undoes the marks of
+    # that chunk alone (every other one comes as it was on the wire).
+    far = MarkingStreamServo(damaged=300)
+    slave = far.slave
+    try:
+
+        async def main() -> None:
+            driver = "anyio" if library == "trio" else "auto"
+            with anyio.fail_after(GUARD):
+                async with open_bus(os.ttyname(slave), driver=driver, **NO_TIMEOUTS) as bus:
+                    attrs = termios.tcgetattr(slave)
+                    attrs[0] &= ~termios.PARMRK  # the far end's marks come through as they are
+                    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+                    runner = bus._driver.burst  # type: ignore[attr-defined]
+                    if burst_path()[0]:
+                        assert runner is not None
+                    async with bus.stream(range(4)) as stream:
+                        while far.answers < 400:
+                            await stream.next_frame()
+                        failures = dict(stream.stats.failures)
+                    assert bus.stats.line_errors == 1
+                    assert sum(failures.values()) == 1, failures
+                    if runner is not None:
+                        assert runner.bursts > 1  # (the mark came mid-burst)
 
         anyio.run(main, backend=library)
     finally:

@@ -292,7 +292,9 @@ class BurstRunner:
             if j == last:
                 engine.burst_over()
                 before_last()  # type: ignore[misc]
-            if decode is not None and data:
+            # (bytes with no 0xFF come as they were on the wire: no mark is in them, and none was left half
+            # read, as a burst starts only without one and stops at the first chunk holding an 0xFF)
+            if decode is not None and 0xFF in data:
                 data, errors = decode(data)
                 if errors:
                     engine.line_error(errors)
