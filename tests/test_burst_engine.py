@@ -11,6 +11,7 @@ tests/test_burst_executor.py.
 from __future__ import annotations
 
 import random
+from collections import Counter
 from dataclasses import astuple
 from types import SimpleNamespace
 from typing import Any
@@ -21,6 +22,7 @@ from ics35_async import protocol
 from ics35_async.drivers import burst
 from ics35_async.drivers.burst import SHAPE
 from ics35_async.engine import LineEngine, Priority
+from ics35_async.errors import ReplyError, ReplyValueError
 from ics35_async.protocol import Position
 from ics35_async.stream import Stream
 
@@ -653,3 +655,40 @@ def test_a_stream_closed_during_a_burst_keeps_the_line_for_what_the_burst_alread
     first_after_stop = next(i for i, (t, _) in enumerate(wire.writes) if t > stop_at)
     sent_after = [tx for _, tx in wire.writes[first_after_stop:]]
     assert sent_after[0][0] & 0xE0 == 0x80  # the burst's planned command came first
+
+
+class RefusingOnce(FakeSource):
+    """Refuses its ``refused``-th reply though the reply has the shape its plan gave: a source's shape is to
+    say what it refuses, and this one breaks that, as a bug in a source would."""
+
+    def __init__(self, ids: list[int], refused: int) -> None:
+        super().__init__(ids)
+        self.refused = refused
+        self.replies = 0
+
+    def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None:
+        self.replies += 1
+        if self.replies == self.refused:
+            return ReplyValueError("refused though in shape", command="position", servo_id=None, raw=bytes(buf))
+        return super().complete(buf, offset, now)
+
+
+def test_a_reply_refused_though_in_shape_leaves_the_burst_out_of_step_and_nothing_misattributed(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # The executor ran on past a reply the engine refused: the later transactions' bytes are strays to the
+    # engine, none is taken for a reply, and the line goes on once they are over (not a BurstDiverged).
+    engine = ready_engine()
+    servos = Servos(IDS)
+    wire = BurstWire(engine, servos)
+    source = RefusingOnce(IDS, refused=len(IDS) + 3)  # mid-burst, in the second cycle
+    wire.emit(engine.attach_source(source, wire.now))
+    wire.run_for(0.1)
+    assert "burst ran on past a reply the engine refused" in caplog.text
+    assert len(source.failures) == 1 and isinstance(source.failures[0], ReplyValueError)
+    assert engine.counters.snapshot(0).stray_bytes > 0  # the bytes of the commands sent after it
+    answered = Counter(sid for sid, _value in source.values)
+    assert min(answered[sid] for sid in IDS) > 3  # every ID answered on after it
+    # Every value taken is the one that servo sent for a write to that very ID.
+    sent = {(tx[0] & 0x1F, value) for (_, tx), value in zip(wire.writes, servos.answers, strict=True)}
+    assert set(source.values) <= sent

@@ -288,7 +288,17 @@ class BurstRunner:
         last = len(records) - 1 if before_last is not None else -1
         first = self.fed
         out = None
-        for j, (data, _first, at) in enumerate(records):
+        done = 0
+        # Every record but the burst's last, in one call while the engine answers as planned (none of them
+        # holds a parity mark: the executor stops at the first chunk holding an 0xFF).
+        bulk = len(records) - 1 if before_last is not None else len(records)
+        if self.in_step and bulk > 0:
+            done, out = engine.receive_planned(records, bulk, plan, first)
+            self.fed = first + done
+            if out != plan[first + done][0]:
+                self._ran_past(plan, first + done, out)
+        for j in range(done, len(records)):  # the burst's last, and the rest once out of step (not checked)
+            data, _first, at = records[j]
             if j == last:
                 engine.burst_over()
                 before_last()  # type: ignore[misc]
@@ -301,21 +311,20 @@ class BurstRunner:
             # What the engine wants written after these bytes: only the last transaction's answer is
             # for the driver (the executor wrote the others'); one stopped with nothing read has none.
             out = engine.receive(data, at if j != last else max(at, now)) if data else None
-            i = first + j
-            self.fed = i + 1  # (fed, whatever follows: a record is never fed twice)
-            if self.in_step and j != last and out != plan[i + 1][0]:
-                if out is not None:
-                    raise BurstDiverged(
-                        f"burst transaction {i + 1}: the engine wants {out!r}, the burst sent {plan[i + 1][0]!r}"
-                    )
-                # The engine failed a transaction whose reply had its echo, length and shape right, so
-                # the executor ran on: not expected (a source's shape says what it refuses), but the
-                # burst's later commands are on the line already.  Their bytes reach the engine as what
-                # they are to it now, bytes of no transaction: strays that keep its resync waiting for
-                # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
-                log.warning("burst ran on past a reply the engine refused (transaction %d of %d)", i + 1, len(plan))
-                self.in_step = False
+            self.fed = first + j + 1  # (fed, whatever follows: a record is never fed twice)
         return out
+
+    def _ran_past(self, plan: list[PlannedTransaction], k: int, out: bytes | None) -> None:
+        """The engine, fed the bytes before plan entry ``k``, answered ``out`` where the executor wrote entry ``k``."""
+        if out is not None:
+            raise BurstDiverged(f"burst transaction {k}: the engine wants {out!r}, the burst sent {plan[k][0]!r}")
+        # The engine failed a transaction whose reply had its echo, length and shape right, so
+        # the executor ran on: not expected (a source's shape says what it refuses), but the
+        # burst's later commands are on the line already.  Their bytes reach the engine as what
+        # they are to it now, bytes of no transaction: strays that keep its resync waiting for
+        # quiet.  None is taken for a reply; the commands go uncounted and are sent again.
+        log.warning("burst ran on past a reply the engine refused (transaction %d of %d)", k, len(plan))
+        self.in_step = False
 
     def close(self) -> None:
         """Stop the executor's thread (waiting for a running burst to end: at most one transaction)."""
