@@ -55,7 +55,6 @@ typedef struct {
     PyObject_HEAD
     int fd;
     int marks;
-    int wake_r, wake_w;  /* wakes a poll in progress (eventfd: both ends the same) */
     int done_r, done_w;  /* readable once a started plan is done */
     atomic_int woken;
     /* the plan and its results */
@@ -90,38 +89,31 @@ static void drain(int fd) {
     }
 }
 
-/* Wait for fd (events) or the wake descriptor until the deadline: >0 ready, 0 timed out, -1 error. */
-static int wait_for(Burst *self, short events, double deadline, int *woke, short *revents) {
-    struct pollfd p[2];
-    p[0].fd = self->fd;
-    p[0].events = events;
-    p[0].revents = 0;
-    p[1].fd = self->wake_r;
-    p[1].events = POLLIN;
-    p[1].revents = 0;
+/* Wait for fd (events) until the deadline: >0 ready, 0 timed out, -1 error.  A wake is not waited for: it
+   stops a plan at its next boundary only (the transaction on the wire is finished first, its deadline at
+   most away), where the flag is read; one descriptor less to poll for every read. */
+static int wait_for(Burst *self, short events, double deadline, short *revents) {
+    struct pollfd p;
+    p.fd = self->fd;
+    p.events = events;
+    p.revents = 0;
     for (;;) {
         double left = deadline - monotonic();
         if (left < 0) left = 0;
-        nfds_t count = *woke ? 1 : 2;
 #ifdef __linux__
         struct timespec ts;
         ts.tv_sec = (time_t)left;
         ts.tv_nsec = (long)((left - (double)ts.tv_sec) * 1e9);
-        int r = ppoll(p, count, &ts, NULL);
+        int r = ppoll(&p, 1, &ts, NULL);
 #else
-        int r = poll(p, count, (int)(left * 1000.0 + 0.999));
+        int r = poll(&p, 1, (int)(left * 1000.0 + 0.999));
 #endif
         if (r < 0) {
             if (errno == EINTR) continue;
             return -1;
         }
-        if (count == 2 && (p[1].revents & POLLIN)) {
-            drain(self->wake_r);
-            *woke = 1;
-            if (!(p[0].revents)) continue;  /* finish the transaction on the wire first */
-        }
-        *revents = p[0].revents;
-        return p[0].revents ? 1 : 0;
+        *revents = p.revents;
+        return p.revents ? 1 : 0;
     }
 }
 
@@ -133,8 +125,8 @@ static void stop_failed(Burst *self, int err) {
 
 /* Wait for the line; on an error or a passed deadline, end the plan (status set) and
    return 0, so both the write and the read loop stop the same way. */
-static int ready_or_stop(Burst *self, short events, double deadline, int *woke, short *rev) {
-    int r = wait_for(self, events, deadline, woke, rev);
+static int ready_or_stop(Burst *self, short events, double deadline, short *rev) {
+    int r = wait_for(self, events, deadline, rev);
     if (r < 0) {
         stop_failed(self, errno);
         return 0;
@@ -150,7 +142,6 @@ static void signal_fd(int fd);
 
 /* Run the plan (no Python objects touched: called without the GIL). */
 static void run_plan(Burst *self) {
-    int woke = 0;
     Py_ssize_t rx_len = 0;
     double t_start = 0, deadline = self->first_deadline;
     self->status = DONE;
@@ -159,7 +150,7 @@ static void run_plan(Burst *self) {
     for (Py_ssize_t i = 0; i < self->n; i++) {
         Tx *t = &self->txs[i];
         if (i > 0) {
-            if (woke || atomic_load(&self->woken)) {
+            if (atomic_load(&self->woken)) {
                 self->status = WOKEN;
                 return;
             }
@@ -184,7 +175,7 @@ static void run_plan(Burst *self) {
                 return;
             }
             short rev = 0;
-            if (!ready_or_stop(self, POLLOUT, deadline, &woke, &rev)) return;
+            if (!ready_or_stop(self, POLLOUT, deadline, &rev)) return;
             if (rev & (POLLERR | POLLNVAL)) {
                 stop_failed(self, EIO);
                 return;
@@ -198,7 +189,7 @@ static void run_plan(Burst *self) {
         /* read until the expected count has come */
         while (t->rx_len < t->expect) {
             short rev = 0;
-            if (!ready_or_stop(self, POLLIN, deadline, &woke, &rev)) return;
+            if (!ready_or_stop(self, POLLIN, deadline, &rev)) return;
             Py_ssize_t room = self->rx_cap - rx_len;
             if (room > READ_CHUNK) room = READ_CHUNK;
             ssize_t got = read(self->fd, self->rx + rx_len, (size_t)room);
@@ -305,10 +296,6 @@ static int Burst_init(Burst *self, PyObject *args, PyObject *kwds) {
     }
     self->fd = fd;
     self->marks = marks;
-    if (self->wake_r < 0 && make_pipe(&self->wake_r, &self->wake_w) < 0) {
-        PyErr_SetFromErrno(PyExc_OSError);
-        return -1;
-    }
     if (self->done_r < 0 && make_pipe(&self->done_r, &self->done_w) < 0) {
         PyErr_SetFromErrno(PyExc_OSError);
         return -1;
@@ -319,7 +306,7 @@ static int Burst_init(Burst *self, PyObject *args, PyObject *kwds) {
 static PyObject *Burst_new(PyTypeObject *type, PyObject *args, PyObject *kwds) {
     Burst *self = (Burst *)type->tp_alloc(type, 0);
     if (!self) return NULL;
-    self->fd = self->wake_r = self->wake_w = self->done_r = self->done_w = -1;
+    self->fd = self->done_r = self->done_w = -1;
     atomic_init(&self->woken, 0);
     atomic_init(&self->ran, 0);
     atomic_init(&self->notify_at, -1);
@@ -331,7 +318,6 @@ static PyObject *Burst_new(PyTypeObject *type, PyObject *args, PyObject *kwds) {
 static void stop_thread(Burst *self) {
     if (!self->has_thread) return;
     atomic_store(&self->woken, 1);
-    if (self->wake_w >= 0) signal_fd(self->wake_w);
     pthread_mutex_lock(&self->lock);
     self->quit = 1;
     pthread_cond_signal(&self->cond);
@@ -344,14 +330,12 @@ static void stop_thread(Burst *self) {
 
 static PyObject *Burst_close(Burst *self, PyObject *unused) {
     stop_thread(self);
-    close_pipe(&self->wake_r, &self->wake_w);
     close_pipe(&self->done_r, &self->done_w);
     Py_RETURN_NONE;
 }
 
 static void Burst_dealloc(Burst *self) {
     stop_thread(self);
-    close_pipe(&self->wake_r, &self->wake_w);
     close_pipe(&self->done_r, &self->done_w);
     PyMem_RawFree(self->txs);
     PyMem_RawFree(self->plan_tx);
@@ -364,7 +348,7 @@ static void Burst_dealloc(Burst *self) {
 /* Copy a plan, [(tx, expect, echo, allowance, shape), ...], into the object's buffers (with the GIL).
    shape: b"" or, for a reply of n = expect - echo bytes, n bytes wanted then n masks. */
 static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
-    if (self->wake_r < 0) {
+    if (self->done_r < 0) {
         PyErr_SetString(PyExc_ValueError, "the burst executor is closed");
         return -1;
     }
@@ -441,7 +425,6 @@ static int take_plan(Burst *self, double first_deadline, PyObject *plan) {
     self->status = DONE;
     /* a wake meant for an earlier burst must not cut this one short */
     atomic_store(&self->woken, 0);
-    drain(self->wake_r);
     return 0;
 nomem_seq:
     Py_DECREF(seq);
@@ -598,7 +581,6 @@ static PyObject *Burst_notify(Burst *self, PyObject *args) {
 
 static PyObject *Burst_wake(Burst *self, PyObject *unused) {
     atomic_store(&self->woken, 1);
-    if (self->wake_w >= 0) signal_fd(self->wake_w);
     Py_RETURN_NONE;
 }
 
