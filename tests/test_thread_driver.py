@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import random
+from collections import Counter
 from typing import Any
 
 import pytest
@@ -144,13 +145,17 @@ async def test_a_stream_on_a_tty_runs_in_bursts_beside_requests_that_get_their_o
         async with bus.stream(ids) as stream:
             targets = {i: 7000 + 100 * i for i in ids}
             stream.set_targets(targets)
-            whole: list[bool] = []
+            seen: Counter[int] = Counter()  # frames carrying each ID's position
+            wrong: list[tuple[int, int]] = []  # (ID, position) in a frame that is not that servo's
             answered: list[int] = []
 
             async def frames() -> None:
                 for _ in range(200):
                     frame = await stream.next_frame()
-                    whole.append(frame.positions == targets)  # (the fast simulator is where it is told at once)
+                    if frame.cycle > 2:  # (the first may have gone out before the targets were set)
+                        seen.update(frame.positions)
+                        # (the fast simulator is where it is told at once: any other value is another's)
+                        wrong.extend((sid, p) for sid, p in frame.positions.items() if p != targets[sid])
 
             async def reads() -> None:
                 for n in range(200):
@@ -161,7 +166,9 @@ async def test_a_stream_on_a_tty_runs_in_bursts_beside_requests_that_get_their_o
 
             await or_describe(asyncio.gather(frames(), reads()), bus, RUN_GUARD)
             assert runner.bursts > 10 and runner.transactions > 400, (runner.bursts, runner.transactions)
-            assert sum(whole) > len(whole) // 2 and len(answered) > 100, (sum(whole), len(answered), bus.stats.total)
+            assert not wrong, wrong
+            # Every ID's replies reach the frames (a loaded machine fails some, as the comment above says).
+            assert min(seen[sid] for sid in ids) > 50 and len(answered) > 100, (seen, len(answered), bus.stats.total)
 
 
 @pytest.mark.pty
