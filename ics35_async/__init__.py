@@ -42,7 +42,7 @@ from .protocol import Param
 
 if TYPE_CHECKING:
     from . import sim as sim
-    from .bus import Bus, BusOptions, BusTiming, Priority, State, open_bus
+    from .bus import Bus, BusOptions, BusTiming, Priority, RequestHandle, State, open_bus
     from .frames import Frame, GroupFrame, StreamStats
     from .group import BusGroup, GroupStream
     from .line import Line
@@ -59,6 +59,7 @@ _LAZY = {
     "BusOptions": ".bus",
     "BusTiming": ".bus",
     "Priority": ".bus",
+    "RequestHandle": ".bus",
     "State": ".bus",
     "open_bus": ".bus",
     "Frame": ".frames",
@@ -105,6 +106,7 @@ __all__ = [
     "GroupStream",
     "Line",
     "Priority",
+    "RequestHandle",
     "Robot",
     "RobotStream",
     "SafetyStop",

@@ -18,7 +18,7 @@ from . import protocol
 from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
-from .engine import BackgroundSource, BusTiming, LineEngine, Priority, State, TimingOverrides
+from .engine import BackgroundSource, BusTiming, LineEngine, Priority, RequestHandle, State, TimingOverrides
 from .engine.machine import ANOTHER_STREAM
 from .errors import BusClosed, ClosedByPortLoss, InvalidArgument, PortLost, UnsafeOperation, error_text
 from .protocol import Command
@@ -440,14 +440,15 @@ class Bus:
 
     def submit(
         self, command: Command[T], *, priority: Priority = Priority.NORMAL, retries: int | None = None
-    ) -> Awaitable[T]:
-        """Queue ``command`` and return an awaitable of its result.
+    ) -> RequestHandle[T]:
+        """Queue ``command`` and return a handle: awaited, its result.
 
         ``priority`` and ``retries`` are as in [`request`][ics35_async.bus.Bus.request]; awaiting the
-        result raises what ``request`` raises.  On every driver the awaitable also answers as an asyncio
-        future: ``done()``, ``cancelled()``, ``result()``, ``exception()`` and ``cancel()`` (it is one on the
-        asyncio and thread drivers; under the anyio driver, trio included, these raise asyncio's
-        ``CancelledError`` and ``InvalidStateError`` as a future does).  A request cancelled while queued is
+        result raises what ``request`` raises.  On every driver the handle also answers as an asyncio
+        future ([`RequestHandle`][ics35_async.engine.requests.RequestHandle]): ``done()``, ``cancelled()``,
+        ``result()``, ``exception()`` and ``cancel()`` (it is one on the asyncio and thread drivers; under
+        the anyio driver, trio included, these raise asyncio's ``CancelledError`` and ``InvalidStateError``
+        as a future does).  A request cancelled while queued is
         never sent; one already on the wire finishes there (its reply read and dropped, no retry), so the
         line stays in step.  A caller that stops awaiting it (a timeout, a cancelled task) cancels it.
 
@@ -690,4 +691,4 @@ def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> Bus:
     return Bus(port, **options)
 
 
-__all__ = ["BackgroundSource", "Bus", "BusOptions", "BusTiming", "Priority", "State", "open_bus"]
+__all__ = ["BackgroundSource", "Bus", "BusOptions", "BusTiming", "Priority", "RequestHandle", "State", "open_bus"]

@@ -20,7 +20,7 @@ import random
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 from benchmarks.bench_common import burst_setting, executor_transactions
 from ics35_async import (
@@ -164,7 +164,7 @@ async def _cancel(
                 priority = rng.choice(list(Priority))
                 retries = rng.randrange(3) if cmd.idempotent else 0
                 attempts = 1 + retries
-                fut = cast("asyncio.Future[Any]", bus.submit(cmd, priority=priority, retries=retries))  # (asyncio's)
+                fut = bus.submit(cmd, priority=priority, retries=retries)
                 if style < 0.25:
                     for _ in range(rng.randrange(3)):
                         await asyncio.sleep(0)

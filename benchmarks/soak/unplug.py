@@ -18,7 +18,7 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Sequence
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 from benchmarks.bench_common import burst_setting
 from ics35_async import (
@@ -26,6 +26,7 @@ from ics35_async import (
     IcsError,
     PortLost,
     Priority,
+    RequestHandle,
     open_bus,
     protocol,
 )
@@ -223,8 +224,7 @@ async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 
     proc, path = start_pty_server(["--fast", "--ids", "0-7", "--unplug-after", "1.0", "--replug-after", "0.3"])
     try:
         bus = watched(await open_bus(path, adapter_latency=adapter_latency, driver=driver))
-        Fut = asyncio.Future[Any]
-        pending: list[Fut] = []
+        pending: list[RequestHandle[Any]] = []
 
         async def keep_requests_queued() -> None:
             # Reads nobody answers (each waits out its deadline on the wire) and ordinary reads,
@@ -232,9 +232,8 @@ async def no_reconnect_session(report: dict[str, Any], adapter_latency: float = 
             with contextlib.suppress(IcsError):
                 while True:
                     if sum(not f.done() for f in pending) < 6:
-                        # (the asyncio driver's awaitables are futures)
-                        pending.append(cast(Fut, bus.submit(protocol.ReadMemory(3, 0, 4), priority=Priority.LOW)))
-                        pending.append(cast(Fut, bus.submit(protocol.ReadParam(1, Param.SPEED), priority=Priority.LOW)))
+                        pending.append(bus.submit(protocol.ReadMemory(3, 0, 4), priority=Priority.LOW))
+                        pending.append(bus.submit(protocol.ReadParam(1, Param.SPEED), priority=Priority.LOW))
                     await asyncio.sleep(0.002)
 
         stream = bus.stream(range(8))

@@ -7,10 +7,10 @@ the library loads no event loop.  Every driver offers :class:`Driver`.
 from __future__ import annotations
 
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
-from ..engine import LineEngine
+from ..engine import LineEngine, RequestHandle
 from ..errors import InvalidArgument
 from ..protocol import Command
 from ..transports.wire_device import WireDevice
@@ -34,7 +34,7 @@ class Driver(Protocol):
 
     async def aclose(self) -> None: ...
 
-    def submit(self, command: Command[Any], priority: int, retries: int) -> Awaitable[Any]: ...
+    def submit(self, command: Command[Any], priority: int, retries: int) -> RequestHandle[Any]: ...
 
     def check_caller(self) -> None:
         """InvalidArgument if the caller runs on another event loop than the one the bus opened in."""

@@ -40,7 +40,7 @@ The rules, each in one place:
 
 from .counters import LineCounters
 from .machine import FlushInput, LineEngine, Output
-from .requests import GuardRequest, Priority, Request, RequestQueue
+from .requests import GuardRequest, Priority, Request, RequestHandle, RequestQueue
 from .source import BackgroundSource
 from .state import State
 from .timing import BusTiming, TimingOverrides
@@ -56,6 +56,7 @@ __all__ = [
     "Output",
     "Priority",
     "Request",
+    "RequestHandle",
     "RequestQueue",
     "State",
 ]

@@ -1,10 +1,11 @@
-"""What the engine queues: requests, their priority, and the queue's fairness rule."""
+"""What the engine queues: requests, their priority, and the queue's fairness rule; what a caller holds of one."""
 
 from __future__ import annotations
 
 import enum
 from collections import deque
-from typing import Any
+from collections.abc import Generator
+from typing import Any, Protocol, TypeVar
 
 from ..errors import IcsError
 from ..protocol import Command
@@ -17,6 +18,32 @@ class Priority(enum.IntEnum):
     HIGH = 1
     NORMAL = 2
     LOW = 3
+
+
+T_co = TypeVar("T_co", covariant=True)
+
+
+class RequestHandle(Protocol[T_co]):
+    """A queued request (:meth:`Bus.submit <ics35_async.bus.Bus.submit>`): awaited, its result; and, on every
+    driver, what an asyncio future answers (the asyncio and thread drivers give one; under the anyio driver,
+    trio included, these raise asyncio's ``CancelledError`` and ``InvalidStateError`` as a future does)."""
+
+    def __await__(self) -> Generator[Any, None, T_co]: ...
+
+    def done(self) -> bool:
+        """Finished: a result, an error, or cancelled."""
+
+    def cancelled(self) -> bool:
+        """Cancelled (while queued it is never sent; on the wire it finishes there, its reply dropped)."""
+
+    def cancel(self) -> bool:
+        """Cancel it; False if it had finished."""
+
+    def result(self) -> T_co:
+        """Its result, once done (else ``InvalidStateError``); raises its error, or ``CancelledError``."""
+
+    def exception(self) -> BaseException | None:
+        """Its error, once done (None if it has a result); ``CancelledError`` if cancelled."""
 
 
 class Request:

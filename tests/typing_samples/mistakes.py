@@ -1,6 +1,6 @@
 """A user's program with mistakes a type checker must catch (tests/test_typing.py runs mypy on it)."""
 
-from ics35_async import BusGroup, BusOptions, ReplyTimeout, blocking, open_bus
+from ics35_async import BusGroup, BusOptions, ReplyTimeout, blocking, open_bus, protocol
 from ics35_async.engine import TimingOverrides
 
 
@@ -14,6 +14,12 @@ async def main() -> None:
             await bus.servo(1).read_stretch()
         except TimeoutError as exc:
             assert isinstance(exc, ReplyTimeout)
+        pending = bus.submit(protocol.ReadParam(1, protocol.Param.STRETCH))
+        if not pending.done():
+            pending.cancel()  # (a future's own methods, on every driver)
+        stretch: int = await pending
+        label: str = await pending  # MISTAKE: a stretch is an int
+        print(stretch, label, pending.exception())
     open_bus("sim://", adapter_latncy=0.1)  # MISTAKE: misspelt timing
     slow: TimingOverrides = {"adapter_latency": "20 ms"}  # MISTAKE: not seconds
     print(slow)
