@@ -944,13 +944,54 @@ def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
             expect(p.locator("#robot-cycle")).not_to_have_text(cycle)
             expect(box).to_be_checked()
         assert len(held) == 1
-        assert held[0].request.post_data_json == {"enabled": True}
+        assert held[0].request.post_data_json["enabled"] is True
         held[0].continue_()
         elbow = p.locator("tr[data-joint='right_elbow'] input[type=range]")
         expect(elbow).to_be_enabled()  # the server's answer: motion on
         p.unroute("**/api/robot/motion")
         p.uncheck("#robot-motion")  # as the other robot tests expect to find it
         expect(elbow).to_be_disabled()
+    context.close()
+
+
+def test_the_robots_motion_goes_off_with_the_page_that_switched_it_on_and_the_other_tabs_follow(
+    browser: Browser, robot_server: RobotServer, tmp_path: Path
+) -> None:
+    # A tab closed with "enable motion" on left the robot armed on the server: any later tab or script
+    # could move a standing robot.  The motion playing stops smoothly, as when the switch is turned off.
+    slow = tmp_path / "slow.json"  # (long enough to be still playing when the tab closes, however slow the machine)
+    slow.write_text('{"format": "ics35-motion", "version": 1, "name": "slow turn",'
+                    ' "keyframes": [{"time": 30.0, "pose": {"head_yaw": 30}}]}')  # fmt: skip
+    context = browser.new_context()
+    p, other = context.new_page(), context.new_page()
+    with explained(other, robot_server):
+        base, api = robot_server.url.split("?")[0], context.request
+        motion_on = lambda: api.get(base + "api/robot").json()["motion_enabled"]  # noqa: E731
+        for tab in (p, other):
+            tab.goto(robot_server.url)
+            tab.click("#robot-link")
+            expect(tab.locator("#robot-cycle")).not_to_have_text("-")  # its first pushed state came
+        expect(p.locator("#robot-motion")).not_to_be_checked()
+        p.check("#robot-motion")
+        expect(other.locator("#robot-motion")).to_be_checked()  # a page follows the server's state
+        p.set_input_files("#robot-motion-file", str(slow))
+        p.click("#robot-play")
+        expect(other.locator("#robot-state")).to_contain_text("playing slow turn")
+        p.close()  # the tab that switched it on, closed with its switch on
+        expect(other.locator("#robot-motion")).not_to_be_checked(timeout=int(PAGE_GONE_BOUND * 1000))
+        said = "slow turn: stopped (motion switched off: the page that switched it on was closed or lost its"
+        expect(other.locator("#robot-state")).to_contain_text(said)
+        assert not motion_on()
+        refused = api.post(base + "api/robot/move", data={"pose": {"right_elbow": 30}})
+        assert refused.status == 409 and "enable motion" in refused.json()["error"], refused.text()
+        # Reloaded, a page is another page: the one that switched motion on is gone.
+        other.check("#robot-motion")
+        expect(other.locator("tr[data-joint='right_elbow'] input[type=range]")).to_be_enabled()
+        other.reload()
+        until(lambda: not motion_on(), "motion stayed on after the page that switched it on was reloaded")
+        expect(other.locator("#robot-cycle")).not_to_have_text("-")
+        expect(other.locator("#robot-motion")).not_to_be_checked()
+        expect(other.locator("#robot-state")).to_contain_text("motion switched off: the page that switched it on")
     context.close()
 
 

@@ -139,6 +139,75 @@ def test_switching_motion_off_stops_a_running_motion(robot: Any) -> None:
     assert line.servo(1).target == held  # nothing moves it any more
 
 
+WS = "ws://127.0.0.1:8766/ws"
+# How the page's state line says motion went off because the page that switched it on went.
+PAGE_GONE_SAID = "motion switched off: the page that switched it on was closed or lost its connection to the server"
+
+
+def test_motion_a_page_switched_on_goes_off_when_its_socket_closes_and_a_motion_playing_stops_smoothly(
+    robot: Any,
+) -> None:
+    # A closed tab left the robot's motion armed on the server: any later tab or script could move it.
+    client, line = robot
+    refused = post(client, "/api/robot/motion", {"enabled": True, "page": "p1"})  # (its socket not open)
+    assert refused.status_code == 409 and "not connected" in refused.json()["error"], refused.json()
+    assert not client.get("/api/robot").json()["motion_enabled"]
+    reach = [{"time": 5.0, "pose": {"shoulder": 50}}]
+    long = {"format": "ics35-motion", "version": 1, "name": "reach", "keyframes": reach}
+    with client.websocket_connect(f"{WS}?page=p1", headers={"origin": BASE}) as ws:
+        ws.receive_json()
+        assert post(client, "/api/robot/motion", {"enabled": True, "page": "p1"}).json()["motion_enabled"]
+        with client.websocket_connect(f"{WS}?page=p2", headers={"origin": BASE}) as other:  # another tab
+            other.receive_json()
+        assert client.get("/api/robot").json()["motion_enabled"]  # (that tab switched nothing on)
+        assert post(client, "/api/robot/play", {"motion": long}).json()["playing"] == "reach"
+        time.sleep(0.3)
+    wait_for(lambda: client.get("/api/robot").json()["playing"] is None)
+    view = client.get("/api/robot").json()
+    assert not view["motion_enabled"] and view["outcome"] == f"reach: stopped ({PAGE_GONE_SAID})", view
+    moved = post(client, "/api/robot/move", {"pose": {"elbow": 45}})
+    assert moved.status_code == 409 and "enable motion" in moved.json()["error"]
+    # The smooth stop's ramp (0.3 s at most) goes on after the motion's end is said: once it is over, the
+    # reach (10 degrees a second) moves the shoulder no further, and it keeps holding.
+    held = line.servo(1).target
+    end = time.monotonic() + 10.0
+    while True:
+        time.sleep(0.4)
+        if line.servo(1).target == held:
+            break
+        assert time.monotonic() < end, "the shoulder kept moving after motion went off"
+        held = line.servo(1).target
+    time.sleep(0.5)
+    assert line.servo(1).target == held and not line.servo(1).free
+
+
+def test_the_robots_motion_is_the_last_page_to_switch_it_on_and_a_scripts_stays_on(robot: Any) -> None:
+    client, _ = robot
+
+    def on() -> bool:
+        enabled: bool = client.get("/api/robot").json()["motion_enabled"]
+        return enabled
+
+    with client.websocket_connect(f"{WS}?page=b", headers={"origin": BASE}) as b:
+        b.receive_json()
+        with client.websocket_connect(f"{WS}?page=a", headers={"origin": BASE}) as a:
+            a.receive_json()
+            assert post(client, "/api/robot/motion", {"enabled": True, "page": "a"}).json()["motion_enabled"]
+            assert post(client, "/api/robot/motion", {"enabled": True, "page": "b"}).json()["motion_enabled"]
+        assert on()  # page b switched it on last: it is b's now
+    wait_for(lambda: not on())
+    assert client.get("/api/robot").json()["outcome"] == PAGE_GONE_SAID
+    # A script names no page: its motion stays on until it switches it off, pages coming and going.
+    assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]
+    with client.websocket_connect(f"{WS}?page=c", headers={"origin": BASE}) as c:
+        c.receive_json()
+        assert post(client, "/api/robot/motion", {"enabled": True, "page": "c"}).json()["motion_enabled"]
+        assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]  # the script's again
+    time.sleep(0.3)
+    assert on()
+    assert not post(client, "/api/robot/motion", {"enabled": False}).json()["motion_enabled"]
+
+
 def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -> None:
     # The page said "open", no error, while every action failed with the lost port (until a restart).
     client, line = robot

@@ -315,8 +315,12 @@ async def robot_view(request: Request, session: LineSession) -> Any:
 
 
 async def robot_motion(request: Request, session: LineSession) -> Any:
-    robot = joints_of(request)
-    await robot.set_motion((await body(request)).get("enabled") is True)
+    robot, data = joints_of(request), await body(request)
+    enabled, page = data.get("enabled") is True, data.get("page")  # (the page's name: see updates)
+    if enabled:
+        await robot.settled()  # (a gone page's smooth stop first: the check below then holds for the switch)
+        session.refuse_absent_page(page, "again")
+    await robot.set_motion(enabled, page if enabled and isinstance(page, str) else None)
     return robot.view()
 
 

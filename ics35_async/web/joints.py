@@ -3,8 +3,9 @@
 Everything goes through :class:`~ics35_async.robot.Robot`: poses are checked
 against the joints' limits there, motions are checked and played there, and
 its safety watch trips there; this module only keeps the robot open while the
-server runs, refuses to move joints until the page switches motion on, and
-runs a motion in the background so the page stays live while it plays.
+server runs, refuses to move joints until the page switches motion on (and
+switches it off again once that page is gone), and runs a motion in the
+background so the page stays live while it plays.
 """
 
 from __future__ import annotations
@@ -22,7 +23,12 @@ from ..robot.description import LineSpec
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
+from ..tasks import retrieved
 from ..units import check_seconds
+from .session import PAGE_GONE
+
+# The state line's words (and a stopped motion's) when the page that switched motion on went.
+MOTION_OFF_PAGE_GONE = f"motion switched off: {PAGE_GONE}"
 
 
 class RobotSession:
@@ -47,6 +53,10 @@ class RobotSession:
         self.error: str | None = None
         self.warnings: list[str] = []  # the last open's robot.warnings, which the server says itself (see _hold)
         self.motion_enabled = False
+        # The page that switched motion on (see page_gone; None: a script, whose motion stays on until switched
+        # off), and the smooth stop that page's going started (set_motion and stop wait for it).
+        self._motion_page: str | None = None
+        self._page_stop: asyncio.Task[None] | None = None
         self.playing: str | None = None  # the motion's name while one plays
         self.outcome: str | None = None  # how the last motion ended
         self._task: asyncio.Task[None] | None = None  # the motion playing
@@ -241,17 +251,44 @@ class RobotSession:
             "reconnect_choice": {"lines": self.lost_lines, "joints": list(self.lost_pose)} if self.lost_pose else None,
         }
 
-    async def set_motion(self, enabled: bool) -> None:
+    async def set_motion(self, enabled: bool, page: str | None = None) -> None:
         """Motion on: the joints hold where they stand (their targets become their positions).  Off: a
-        motion playing stops smoothly (``Robot.stop``), and nothing moves the joints until it is on again."""
+        motion playing stops smoothly (``Robot.stop``), and nothing moves the joints until it is on again.
+
+        ``page``: the page switching it on (its name on its WebSocket, connected now: the caller checks),
+        whose going switches it off again (:meth:`page_gone`); the last page to switch it on is the one.
+        Without one (a script), it stays on until it is switched off.  Once the smooth stop a page's going
+        started is over, the switch is done at once (nothing awaited: the caller's check still holds).
+        """
+        await self.settled()
         robot = self._robot()
         if enabled:
             robot.hold()
             self.outcome = "joints hold where they stand"  # (the page's state line: not "joints free")
             self.motion_enabled = True
+            self._motion_page = page
         else:
             self.motion_enabled = False  # first (and not again after the stop: an "on" meanwhile stands)
             await self.stop(why="motion switched off")
+
+    def page_gone(self, page: str) -> None:
+        """The page named ``page`` is gone (its tab closed or reloaded, or its network: see ``api.updates``).
+        If it switched motion on, motion goes off as the switch turned off does: at once for moves and
+        motions, and a motion playing stops smoothly (in a task of its own: the caller cannot wait)."""
+        if not self.motion_enabled or self._motion_page != page:
+            return
+        self.motion_enabled = False
+        self._motion_page = None
+        if self.playing is None:
+            self.outcome = MOTION_OFF_PAGE_GONE  # (else the motion's own "stopped (...)" says it)
+        self._page_stop = retrieved(self._stop(why=MOTION_OFF_PAGE_GONE))
+
+    async def settled(self) -> None:
+        """Returns once the smooth stop a gone page started is over (at once, without yielding, if none is
+        under way): nothing else drives the joints meanwhile."""
+        pending = self._page_stop
+        if pending is not None and not pending.done():
+            await asyncio.wait({pending})  # (its error, if any, is its own: see page_gone)
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
         """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves)."""
@@ -291,6 +328,10 @@ class RobotSession:
 
     async def stop(self, ramp: float = 0.3, why: str = "") -> None:
         """Stop a motion smoothly (``Robot.stop``); the joints hold.  ``why``: said in the outcome."""
+        await self.settled()
+        await self._stop(ramp, why)
+
+    async def _stop(self, ramp: float = 0.3, why: str = "") -> None:
         task, self._task = self._task, None
         if task is not None and not task.done():
             self._stopped_because = why

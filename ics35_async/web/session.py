@@ -797,12 +797,7 @@ class LineSession:
         until it is switched off.
         """
         self._refuse_joint_motion(servo_id)
-        if page is not None and page not in self._pages:
-            raise UnsafeOperation(
-                f"this page is not connected to the server now, so its motion could not go off should the page "
-                f"go: wait for the page to be connected again, then switch on 'enable motion' for servo {servo_id}; "
-                "nothing was sent"
-            )
+        self.refuse_absent_page(page, f"for servo {servo_id}")
         await self.read_eeprom(servo_id)
         position = await self.hold(servo_id)
         self._motion_off_if_line_lost()  # (another servo's, switched on before a loss, stays off)
@@ -820,6 +815,20 @@ class LineSession:
             self._motion_page.pop(servo_id, None)
         return position
 
+    def refuse_absent_page(self, page: object, what: str) -> None:
+        """Refuse a page's "enable motion" ``what`` (e.g. "for servo 3") unless that page is connected now:
+        the motion it switches on goes off once it is gone, which the server learns only from its socket.
+
+        Raises:
+            UnsafeOperation: ``page`` is given and not connected.
+        """
+        if page is not None and page not in self._pages:
+            raise UnsafeOperation(
+                f"this page is not connected to the server now, so its motion could not go off should the page "
+                f"go: wait for the page to be connected again, then switch on 'enable motion' {what}; "
+                "nothing was sent"
+            )
+
     def page_came(self, page: str) -> None:
         """A page named ``page`` is connected (its WebSocket opened: a page may connect again under its name)."""
         self._pages[page] = self._pages.get(page, 0) + 1
@@ -835,6 +844,8 @@ class LineSession:
             return
         self._pages.pop(page, None)
         self._switch_motion_off([sid for sid, p in self._motion_page.items() if p == page], PAGE_GONE)
+        if self.robot is not None:
+            self.robot.page_gone(page)  # (the robot's, a motion playing stopping smoothly)
 
     def _holds(self, servo_id: int, target: int) -> None:
         """``servo_id`` was sent ``target`` by a page (on the line as it is now)."""

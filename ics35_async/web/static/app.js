@@ -678,8 +678,9 @@ async function playMotion() {
 // ---------------------------------------------------------------- the WebSocket
 
 let socket = null;
-// This page's name for the server, on its WebSocket and its "enable motion": the motion it switched on goes off
-// once its socket is gone (the tab closed, or its network went), not only when it leaves the servo's page.
+// This page's name for the server, on its WebSocket and its "enable motion" (the Servo page's and the Robot
+// page's): the motion it switched on goes off once its socket is gone (the tab closed or reloaded, or its network
+// went), not only when it leaves the servo's page.
 const PAGE = Array.from(crypto.getRandomValues(new Uint8Array(12)), (b) => b.toString(16).padStart(2, "0")).join("");
 
 // Recording starts when the Traffic page is first opened and goes on while this page is open, so what
@@ -785,7 +786,9 @@ on("#robot-motion", "change", async () => {
   // Until the server answers, the states it pushes still say what motion was: they leave the box alone.
   state.motionAsked += 1;
   let answer = null;
-  try { answer = await api("/api/robot/motion", { enabled: $("#robot-motion").checked }); } catch (e) { $("#robot-motion").checked = false; }
+  // Named: the server switches the motion this page switched on off again once the page is gone.
+  const asked = { enabled: $("#robot-motion").checked, page: PAGE };
+  try { answer = await api("/api/robot/motion", asked); } catch (e) { $("#robot-motion").checked = false; }
   state.motionAsked -= 1;
   if (answer) onRobot(answer);
 });
