@@ -207,28 +207,56 @@ def test_a_robot_line_on_a_fast_simulator_without_a_rate_is_said_to_run_flat_out
     assert "line paced" not in err and "line real" not in err, err
 
 
+@contextmanager
+def silent_page(base: str, token: str, page: str) -> Iterator[None]:
+    """A page named ``page`` whose WebSocket opens, then reads nothing and answers nothing (its network went:
+    its socket stays open)."""
+    host, port = base.removeprefix("http://").split(":")
+    key = base64.b64encode(os.urandom(16)).decode()
+    with socket.create_connection((host, int(port)), timeout=10) as ws:
+        ws.sendall(
+            f"GET /ws?page={page} HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            f"Origin: {base}\r\nCookie: ics35_token={token}\r\n\r\n".encode()
+        )
+        assert ws.recv(4096).startswith(b"HTTP/1.1 101"), "the page's WebSocket was refused"
+        yield
+
+
 def test_motion_a_page_switched_on_goes_off_once_its_network_is_gone() -> None:
     # A page whose network went (a laptop asleep, Wi-Fi gone) closes nothing: the server hears nothing more
     # from it, and its motion stayed on for the next page, tab or script to find.  The server's pings go
     # unanswered: within seconds the page is gone, its motion off.
     with web("--port", "sim://?ids=1") as (_, url):
         base, token = split(url)
-        host, port = base.removeprefix("http://").split(":")
         page = "a-page-whose-network-went"
-        key = base64.b64encode(os.urandom(16)).decode()
-        with socket.create_connection((host, int(port)), timeout=10) as ws:  # the page's WebSocket
-            ws.sendall(
-                f"GET /ws?page={page} HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
-                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                f"Origin: {base}\r\nCookie: ics35_token={token}\r\n\r\n".encode()
-            )
-            assert ws.recv(4096).startswith(b"HTTP/1.1 101"), "the page's WebSocket was refused"
+        with silent_page(base, token, page):
             status, answer = post(f"{base}/api/servo/1/motion", token, {"enabled": True, "page": page})
             assert status == 200 and answer["enabled"] is True, answer
-            # From now on the page reads nothing and answers nothing (its socket stays open).
             deadline = time.monotonic() + scaled(8.0)
             while get(f"{base}/api/status", token)[1]["motion_on"]:
                 assert time.monotonic() < deadline, "motion stayed on for a page that answers nothing"
                 time.sleep(0.1)
             status, refused = post(f"{base}/api/servo/1/move", token, {"position": 8000})
             assert status == 409 and "page" in refused["error"], refused
+
+
+def test_the_robots_motion_a_page_switched_on_goes_off_once_its_network_is_gone(tmp_path: Path) -> None:
+    # As for the Servo page: the Robot page's "enable motion" stayed on for the next page, tab or script.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        '[lines.arm]\nport = "sim://web-cli-silent?ids=1"\nrate_hz = 100\n'
+        '[joints.knee]\nline = "arm"\nid = 1\nmax = 40\n'
+    )
+    with web("--robot", str(robot)) as (_, url):
+        base, token = split(url)
+        page = "a-robot-page-whose-network-went"
+        with silent_page(base, token, page):
+            status, answer = post(f"{base}/api/robot/motion", token, {"enabled": True, "page": page})
+            assert status == 200 and answer["motion_enabled"] is True, answer
+            deadline = time.monotonic() + scaled(8.0)
+            while get(f"{base}/api/robot", token)[1]["motion_enabled"]:
+                assert time.monotonic() < deadline, "the robot's motion stayed on for a page that answers nothing"
+                time.sleep(0.1)
+            status, refused = post(f"{base}/api/robot/move", token, {"pose": {"knee": 20}})
+            assert status == 409 and "enable motion" in refused["error"], refused
