@@ -399,6 +399,8 @@ def test_motion_a_page_switched_on_goes_off_when_its_socket_closes_and_a_page_no
     sim.servo(1).move_by_hand(7000)
     refused = post(client, "/api/servo/1/motion", {"enabled": True, "page": "p1"})  # (its socket not open)
     assert refused.status_code == 409 and "not connected" in refused.json()["error"]
+    no_name = post(client, "/api/servo/1/motion", {"enabled": True, "page": ["p1"]})  # (no page's name: refused too)
+    assert no_name.status_code == 409 and "not connected" in no_name.json()["error"], no_name.text
     assert sim.servo(1).free and client.get("/api/status").json()["motion_on"] == []  # nothing sent
     with client.websocket_connect(f"{WS}?page=p1", headers={"origin": BASE}) as ws:
         ws.receive_json()

@@ -151,6 +151,8 @@ def test_motion_a_page_switched_on_goes_off_when_its_socket_closes_and_a_motion_
     client, line = robot
     refused = post(client, "/api/robot/motion", {"enabled": True, "page": "p1"})  # (its socket not open)
     assert refused.status_code == 409 and "not connected" in refused.json()["error"], refused.json()
+    no_name = post(client, "/api/robot/motion", {"enabled": True, "page": ["p1"]})  # (no page's name: refused too)
+    assert no_name.status_code == 409 and "not connected" in no_name.json()["error"], no_name.text
     assert not client.get("/api/robot").json()["motion_enabled"]
     reach = [{"time": 5.0, "pose": {"shoulder": 50}}]
     long = {"format": "ics35-motion", "version": 1, "name": "reach", "keyframes": reach}

@@ -257,8 +257,9 @@ class RobotSession:
 
         ``page``: the page switching it on (its name on its WebSocket, connected now: the caller checks),
         whose going switches it off again (:meth:`page_gone`); the last page to switch it on is the one.
-        Without one (a script), it stays on until it is switched off.  Once the smooth stop a page's going
-        started is over, the switch is done at once (nothing awaited: the caller's check still holds).
+        Without one (a script), it stays on until it is switched off.  Switching on waits for nothing but
+        the smooth stop a gone page started (:meth:`settled`), so a caller's check that the page is connected,
+        made once that stop is over, still holds when motion goes on.
         """
         await self.settled()
         robot = self._robot()

@@ -822,7 +822,7 @@ class LineSession:
         Raises:
             UnsafeOperation: ``page`` is given and not connected.
         """
-        if page is not None and page not in self._pages:
+        if page is not None and not (isinstance(page, str) and page in self._pages):  # (a page's name is a str)
             raise UnsafeOperation(
                 f"this page is not connected to the server now, so its motion could not go off should the page "
                 f"go: wait for the page to be connected again, then switch on 'enable motion' {what}; "
