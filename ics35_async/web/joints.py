@@ -25,10 +25,6 @@ from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
 from ..units import check_seconds
-from .session import PAGE_GONE
-
-# The state line's words (and a stopped motion's) when the page that switched motion on went.
-MOTION_OFF_PAGE_GONE = f"motion switched off: {PAGE_GONE}"
 
 
 class RobotSession:
@@ -272,17 +268,19 @@ class RobotSession:
             self.motion_enabled = False  # first (and not again after the stop: an "on" meanwhile stands)
             await self.stop(why="motion switched off")
 
-    def page_gone(self, page: str) -> None:
+    def page_gone(self, page: str, why: str) -> None:
         """The page named ``page`` is gone (its tab closed or reloaded, or its network: see ``api.updates``).
         If it switched motion on, motion goes off as the switch turned off does: at once for moves and
-        motions, and a motion playing stops smoothly (in a task of its own: the caller cannot wait)."""
+        motions, and a motion playing stops smoothly (in a task of its own: the caller cannot wait).
+        ``why``: said in the state line (``outcome``), or in the stopped motion's."""
         if not self.motion_enabled or self._motion_page != page:
             return
         self.motion_enabled = False
         self._motion_page = None
+        said = f"motion switched off: {why}"
         if self.playing is None:
-            self.outcome = MOTION_OFF_PAGE_GONE  # (else the motion's own "stopped (...)" says it)
-        self._page_stop = retrieved(self._stop(why=MOTION_OFF_PAGE_GONE))
+            self.outcome = said  # (else the motion's own "stopped (...)" says it)
+        self._page_stop = retrieved(self._stop(why=said))
 
     async def settled(self) -> None:
         """Returns once the smooth stop a gone page started is over (at once, without yielding, if none is

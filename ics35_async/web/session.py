@@ -845,7 +845,7 @@ class LineSession:
         self._pages.pop(page, None)
         self._switch_motion_off([sid for sid, p in self._motion_page.items() if p == page], PAGE_GONE)
         if self.robot is not None:
-            self.robot.page_gone(page)  # (the robot's, a motion playing stopping smoothly)
+            self.robot.page_gone(page, PAGE_GONE)  # (the robot's, a motion playing stopping smoothly)
 
     def _holds(self, servo_id: int, target: int) -> None:
         """``servo_id`` was sent ``target`` by a page (on the line as it is now)."""
