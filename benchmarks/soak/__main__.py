@@ -56,7 +56,8 @@ def run_chaos(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any
 def run_chaos_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
     """The chaos soak over a pty, on the ordinary path and then on the burst path (one report each).  Not under
     the thread driver: its stream runs beside the program's loop, which then takes the latest frame and skips
-    some, and this soak's oracle pairs every cycle on the wire with a frame taken.
+    some, and this soak's oracle pairs every cycle on the wire with a frame taken (it sets aside only the
+    skipped cycles of a burst fed at once, which have every ID: see ``LogMatcher.add_frame``).
 
     On the burst path with one request worker instead of four: the stream then has the line most of
     the time, so most transactions run in the executor (with four, about 1 %).

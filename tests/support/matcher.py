@@ -6,7 +6,9 @@ simulator logs them, so:
 * stream transactions are the position commands with an even, non-zero
   target (requests only ever send odd positions or FREE), and frame ``c``
   holds one outcome per ID it tried: the n-th stream outcome of ID ``i``
-  belongs to the n-th stream log entry addressed to ``i``;
+  belongs to the n-th stream log entry addressed to ``i``; a frame the consumer never took (skipped: on the
+  burst path a loop held up while the executor ran several cycles is fed them at once, and takes the last
+  frame) has its cycle's entries set aside unchecked, one per ID (see :meth:`LogMatcher.add_frame`);
 * a request is the only one in flight for its servo ID (the workers take an
   ID at a time), and two requests in a row to one ID never send the same
   bytes, so the request log entries of ID ``i`` split into runs of equal
@@ -58,6 +60,9 @@ class RequestRecord:
     log_mark: int  # sim.transactions when it finished: its entries are all below this
 
 
+SKIPPED = None
+"""A stream outcome never seen: its cycle's frame was skipped (see :meth:`LogMatcher.add_frame`)."""
+
 REALTIME_LAG = 8
 """Transactions the log may trail a request's outcome by when the simulator answers on a real port."""
 
@@ -87,6 +92,7 @@ class MatchCounts:
     predicted_errors: int = 0  # transactions whose bytes call for an error
     cancelled_queued: int = 0  # cancelled before any attempt reached the wire
     cancelled_in_flight: int = 0  # cancelled with an attempt on the wire (or between attempts)
+    skipped_cycle_entries: int = 0  # stream entries of cycles whose frame was skipped: no outcome to check
     examples: list[str] = field(default_factory=list)
 
     def note(self, text: str) -> None:
@@ -130,7 +136,9 @@ class LogMatcher:
         self.first_seq = 0
         # (seq, verdict, value, fault, tx) of each stream transaction not yet matched with a frame's outcome
         self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None, bytes]]] = {i: deque() for i in ids}
-        self.stream_outcomes: dict[int, deque[tuple[bool, Any, float]]] = {i: deque() for i in ids}
+        # Per ID, each stream outcome (ok, value, when) in cycle order, or SKIPPED for a cycle whose frame was skipped
+        self.stream_outcomes: dict[int, deque[tuple[bool, Any, float] | None]] = {i: deque() for i in ids}
+        self.last_cycle = 0  # of the frames added
         self.request_entries: dict[int, deque[tuple[int, bytes, Verdict, Any, str | None]]] = {
             i: deque() for i in range(32)
         }
@@ -194,7 +202,25 @@ class LogMatcher:
         return taken
 
     def add_frame(self, frame: Frame) -> None:
+        """The outcomes of ``frame``'s cycle, after those of the cycles before it whose frames were skipped.
+
+        A skipped cycle's outcomes are unknown, but not which log entries are its: a frame is skipped only when
+        the burst path feeds the loop several cycles at once, and a burst runs on past a cycle's end only with
+        every ID in the cycle (none offline or held: see the stream's ``_upcoming``), so every ID has one stream
+        entry in each skipped cycle, as in this frame's: those entries are set aside unchecked.
+        """
         outcomes = self.stream_outcomes
+        skipped = frame.cycle - self.last_cycle - 1  # (frame.skipped, counted from the stream's first cycle)
+        self.last_cycle = frame.cycle
+        if skipped > 0:
+            tried = set(frame.positions) | frame.failed
+            if tried != set(outcomes):
+                raise CheckError(
+                    f"frame of cycle {frame.cycle}: {skipped} cycle(s) before it skipped, and it tried "
+                    f"{sorted(tried)}, not every ID: the skipped cycles' log entries cannot be told apart"
+                )
+            for sid in tried:
+                outcomes[sid].extend([SKIPPED] * skipped)
         stamps = frame.timestamps
         for sid, position in frame.positions.items():
             outcomes[sid].append((True, position, stamps[sid]))
@@ -271,7 +297,11 @@ class LogMatcher:
             outcomes = self.stream_outcomes[sid]
             while entries and outcomes:
                 seq, verdict, clean, fault, _ = entries.popleft()
-                ok, value, when = outcomes.popleft()
+                outcome = outcomes.popleft()
+                if outcome is SKIPPED:
+                    self.counts.skipped_cycle_entries += 1
+                    continue
+                ok, value, when = outcome
                 self._settle(seq, verdict, clean, fault, ok, value, when)
             if outcomes and final:
                 raise CheckError(f"ID {sid}: {len(outcomes)} stream outcomes with no log entry")
