@@ -252,6 +252,7 @@ class ChaosReport:
     stale_accepted: int
     late_reply_to_own_retry: int
     guard_reads: int
+    failed_probes: int  # offline IDs' probes (stretch reads, among the guard reads) that failed
     noise_accepted: int
     extra_attempts: int
     accepted: int
@@ -388,6 +389,7 @@ async def chaos_soak(
         stale_accepted=counts.stale_accepted,
         late_reply_to_own_retry=counts.late_reply_to_own_retry,
         guard_reads=counts.guards,
+        failed_probes=counts.failed_probes,
         noise_accepted=counts.noise_accepted,
         extra_attempts=counts.extra_attempts,
         accepted=ok_entries,

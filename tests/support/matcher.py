@@ -8,7 +8,8 @@ simulator logs them, so:
   holds one outcome per ID it tried: the n-th stream outcome of ID ``i``
   belongs to the n-th stream log entry addressed to ``i``; a frame the consumer never took (skipped: on the
   burst path a loop held up while the executor ran several cycles is fed them at once, and takes the last
-  frame) has its cycle's entries set aside unchecked, one per ID (see :meth:`LogMatcher.add_frame`);
+  frame) has its cycle's entries set aside unchecked, one per ID (see :meth:`LogMatcher.add_frame`); an
+  offline ID's probe is a stretch read (a guard read's bytes), so a frame's failed probe has no stream entry;
 * a request is the only one in flight for its servo ID (the workers take an
   ID at a time), and two requests in a row to one ID never send the same
   bytes, so the request log entries of ID ``i`` split into runs of equal
@@ -93,6 +94,7 @@ class MatchCounts:
     cancelled_queued: int = 0  # cancelled before any attempt reached the wire
     cancelled_in_flight: int = 0  # cancelled with an attempt on the wire (or between attempts)
     skipped_cycle_entries: int = 0  # stream entries of cycles whose frame was skipped: no outcome to check
+    failed_probes: int = 0  # offline IDs' probes that failed (in a frame's failed, with no stream entry)
     examples: list[str] = field(default_factory=list)
 
     def note(self, text: str) -> None:
@@ -139,6 +141,7 @@ class LogMatcher:
         # Per ID, each stream outcome (ok, value, when) in cycle order, or SKIPPED for a cycle whose frame was skipped
         self.stream_outcomes: dict[int, deque[tuple[bool, Any, float] | None]] = {i: deque() for i in ids}
         self.last_cycle = 0  # of the frames added
+        self.offline: frozenset[int] = frozenset()  # the IDs offline in the last frame added
         self.request_entries: dict[int, deque[tuple[int, bytes, Verdict, Any, str | None]]] = {
             i: deque() for i in range(32)
         }
@@ -208,6 +211,10 @@ class LogMatcher:
         the burst path feeds the loop several cycles at once, and a burst runs on past a cycle's end only with
         every ID in the cycle (none offline or held: see the stream's ``_upcoming``), so every ID has one stream
         entry in each skipped cycle, as in this frame's: those entries are set aside unchecked.
+
+        An ID offline as the cycle began (in the frame before: a burst never runs with one offline, so never
+        across a skipped cycle) was probed, if at all, with a stretch read, which the log shows as a guard read:
+        the frame lists it as failed if the probe failed, and that outcome has no stream entry.
         """
         outcomes = self.stream_outcomes
         skipped = frame.cycle - self.last_cycle - 1  # (frame.skipped, counted from the stream's first cycle)
@@ -224,9 +231,14 @@ class LogMatcher:
         stamps = frame.timestamps
         for sid, position in frame.positions.items():
             outcomes[sid].append((True, position, stamps[sid]))
+        probed, self.offline = self.offline, frame.offline
         for sid in frame.failed:
-            outcomes[sid].append((False, None, 0.0))
-        self.counts.stream_outcomes += len(frame.positions) + len(frame.failed)
+            if sid in probed:
+                self.counts.failed_probes += 1
+            else:
+                outcomes[sid].append((False, None, 0.0))
+                self.counts.stream_outcomes += 1
+        self.counts.stream_outcomes += len(frame.positions)
 
     def add_request(self, record: RequestRecord) -> None:
         self.requests[record.servo_id].append(record)
