@@ -427,6 +427,7 @@ class Stream(FrameIterator[Frame]):
             and self._running
             and len(order) == n  # none held, none offline but one probed now
             and not any(self._offline)  # (one gone offline in this cycle is in its order still)
+            and not any(self._held)  # (one back from offline in this cycle too: held, it leaves the next)
             and all(reader is None for reader in self._readers)  # (a watched ID's read ends a plan)
         ):
             # Unpaced, with every ID in the cycle: the next cycle starts as soon as this one ends, with

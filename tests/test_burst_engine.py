@@ -258,6 +258,38 @@ def test_a_servo_back_from_offline_is_held_alike_on_both_paths_and_sent_no_targe
     assert any(frame[-1] == frozenset({20}) for frame in plain["frames"])  # held (Frame.held, the last field)
 
 
+PLUGGED_IN = 0.03
+
+
+def rejoining(wire_class: type[Wire]) -> tuple[Wire, Stream]:
+    """Four servos streamed unpaced; ID 2, absent, goes offline, then is plugged in and answers a probe."""
+    engine = ready_engine()
+    servos = Servos([1, 3, 4])
+    wire = wire_class(engine, servos)
+    stream = Stream(SimulatedBus(wire), [1, 2, 3, 4], offline_after=1, probe_interval=0.05)  # type: ignore[arg-type]
+    stream._running = True
+    stream.set_targets({sid: 7000 + 100 * sid for sid in (1, 2, 3, 4)})
+    wire.emit(engine.attach_source(stream._hooks, wire.now))
+    wire.run_for(PLUGGED_IN)
+    assert stream.offline == {2}
+    servos.ids.add(2)
+    wire.run_for(0.2)
+    return wire, stream
+
+
+def test_a_servo_back_from_offline_mid_cycle_is_planned_no_target_for_the_cycles_after() -> None:
+    # Its probe answered mid-cycle: held from then on, but still in the cycle's order, so a burst planned at the
+    # next transaction ran on into the next cycles with its old target (sent to a servo that may have restarted,
+    # free, elsewhere), and the engine, whose next cycle leaves it out, diverged from the burst.
+    plain, plain_stream = rejoining(Wire)
+    wire, stream = rejoining(BurstWire)
+    assert isinstance(wire, BurstWire) and wire.runner.transactions > 0
+    assert plain_stream.held == stream.held == {2: "rejoined"}
+    old = protocol.position_tx(2, 7200)
+    assert [t for t, tx in wire.writes if tx == old and t > PLUGGED_IN] == []  # (sent before it went offline)
+    assert wire.writes == plain.writes
+
+
 def probing(ids: list[int], absent: int) -> tuple[Wire, Servos, Stream]:
     """A stream on the ordinary path whose ID ``absent`` (target 9000) has gone offline and is probed."""
     engine = ready_engine()
