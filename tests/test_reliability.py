@@ -109,6 +109,27 @@ def test_the_matcher_sets_aside_the_entries_of_a_cycle_whose_frame_was_skipped()
         matcher.add_frame(Frame(5, {1: 5040}, {1: 0.0}, frozenset(), frozenset({2}), 0.0, 0.0, skipped=1))
 
 
+async def test_the_chaos_check_of_the_close_takes_every_attempt_the_bus_made_of_its_send() -> None:
+    # Over a pty a valid reply may time out behind a slow thread: the close's send to ID 1 was answered on the
+    # wire, failed in the bus and went again. Both attempts are the close's; before them, the cycle the close
+    # cut short (ID 1's command went out, its frame never came). The check took the first attempt, answered by
+    # its bytes, for a frame's entry: "stream log entries with no frame: {0: 1, 1: 2}".
+    sim = VirtualLine(chaos_servos(), log_size=None)
+    async with await open_bus(sim, retries=1, timing=FAST_TIMING) as bus:
+        workload = ChaosWorkload(sim, bus, seed=1, workers=0, request_pause=0.0)
+        workload.matcher = LogMatcher(sim, is_stream_tx, [1, 2])
+        cycle = [protocol.position_tx(1, 4210), protocol.position_tx(2, 4410)]
+        close = protocol.position_tx(1, 4220)
+        run_line(sim, [*cycle, cycle[0], close, close])
+        answered = {t.servo_id: t.value for t in list(sim.log)[:2]}
+        workload.matcher.drain()
+        workload.matcher.add_frame(Frame(1, answered, dict.fromkeys(answered, 0.0), frozenset(), frozenset(), 0, 0))
+        workload.matcher.match()
+        workload.sent_on_close = {1: 4220}
+        workload.close_attempts = {1: 2}  # (what run() reads from the bus's retry count for ID 1)
+        assert workload.finish() == {"unfinished_cycle_entries": 1}
+
+
 class ScriptedFaults(FaultInjector):
     """The simulator's fault injector, but each transaction's faults come from a script."""
 

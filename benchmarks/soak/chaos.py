@@ -95,6 +95,9 @@ class ChaosWorkload:
         self.last_tx: dict[int, bytes] = {}
         self.images = {i: sim.servo(i).eeprom for i in self.ids}
         self.sent_on_close: dict[int, int] = {}  # what the stream's close sent (on_close="hold": targets not yet sent)
+        # How many times the bus put each of those sends on the line (its retries of the ID during the close: over
+        # a pty an attempt whose reply came whole may still time out behind a slow thread, and go again).
+        self.close_attempts: dict[int, int] = {}
         # Cycles the stream completed after the last frame the workload took (their frames never read): between
         # that frame's publication and the close, the loop may run a whole cycle or more on a loaded machine.
         self.unread_cycles = 0
@@ -170,8 +173,10 @@ class ChaosWorkload:
                 for task in tasks:
                     if task.done() and not task.cancelled() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
+                retried = self._retries()  # (the close's sends are all the requests from here on)
         elapsed = time.perf_counter() - t0
         self.sent_on_close = stream.targets_sent_on_close
+        self.close_attempts = {sid: 1 + n - retried.get(sid, 0) for sid, n in self._retries().items()}
         self.stream_probes = stream.stats.probes
         newest = stream.latest
         if frame is not None and first is not None and newest is not None:
@@ -185,25 +190,25 @@ class ChaosWorkload:
         matcher.match()
         return elapsed
 
+    def _retries(self) -> dict[int, int]:
+        return {sid: c.retries for sid, c in self.bus.stats.per_id.items() if sid is not None}
+
     def finish(self) -> dict[str, Any]:
         """Match the rest; the last, unfinished cycle of the stream has no frame, nor have the cycles completed
         after the last frame taken (:attr:`unread_cycles`), nor the close's sends of the targets set after their
-        last cycle (on_close="hold"), which must be there, last."""
+        last cycle (on_close="hold"), which must be there, last, each as many times as the bus sent it."""
         matcher = self.matcher
         for sid, target in self.sent_on_close.items():
             entries = matcher.stream_entries[sid]
             sent = position_tx(sid, target)
-            if not entries or entries[-1][4] != sent:
+            attempts = self.close_attempts.get(sid, 1)
+            if len(entries) < attempts or any(e[4] != sent for e in list(entries)[-attempts:]):
                 last = [matcher.previous.get(e[0], e[4].hex(" ")) + f" ({e[1]})" for e in list(entries)[-3:]]
                 raise CheckError(
-                    f"ID {sid}: the close's send of target {target} ({sent.hex(' ')}) is not the last on the line; "
-                    f"its last stream entries: {last}"
+                    f"ID {sid}: the close's send of target {target} ({sent.hex(' ')}, {attempts} attempt(s)) is not "
+                    f"the last on the line; its last stream entries: {last}"
                 )
-            entries.pop()
-            # Its earlier attempts: the bus retries a failed one (at most bus.retries times), so only failed ones.
-            for _ in range(self.bus.retries):
-                if not entries or entries[-1][4] != sent or (entries[-1][1].ok and not entries[-1][3]):
-                    break
+            for _ in range(attempts):
                 entries.pop()
         leftovers = {sid: len(e) for sid, e in matcher.stream_entries.items() if e}
         if any(n > 1 + self.unread_cycles for n in leftovers.values()):
