@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import random
 import threading
@@ -26,6 +27,7 @@ from ics35_async.sim import (
     PtyServer,
     VirtualLine,
 )
+from ics35_async.stats import IdStats
 from tests.support.oracle import FAULT_KINDS, band
 
 IN_PROCESS, PTY, PTY_BURST = "in-process", "pty", "pty, burst path"
@@ -130,6 +132,7 @@ async def consistency_check(sim: VirtualLine, bus: Bus) -> dict[str, Any]:
     with contextlib.suppress(ReplyError):
         await bus.request(protocol.ReadParam(0, Param.STRETCH), retries=1)
     before = bus.stats.total.errors
+    per_id_before = {i: dataclasses.replace(c) for i, c in bus.stats.per_id.items()}
     for servo in sim.servos:
         i = servo.servo_id
         s = bus.servo(i)
@@ -148,7 +151,13 @@ async def consistency_check(sim: VirtualLine, bus: Bus) -> dict[str, Any]:
     await bus.wait_idle()
     stats = bus.stats
     if stats.total.errors != before:
-        problems.append(f"{stats.total.errors - before} errors on a fault-free line")
+        kinds = ("timeouts", "partial_replies", "echo_mismatches", "bad_replies")
+        which = {
+            f"ID {i}": {k: n for k in kinds if (n := getattr(c, k) - getattr(per_id_before.get(i, IdStats()), k))}
+            for i, c in stats.per_id.items()
+            if c.errors != per_id_before.get(i, IdStats()).errors
+        }
+        problems.append(f"{stats.total.errors - before} errors on a fault-free line: {which}")
     if stats.queued:
         problems.append(f"{stats.queued} requests still queued")
     if stats.total.transactions != sim.transactions:
