@@ -470,11 +470,21 @@ async def test_back_to_back_bursts_keep_the_port_from_the_loops_reader(monkeypat
                 add_reader(reader_fd, *args)
 
             monkeypatch.setattr(loop, "add_reader", counting_add_reader)
+            stops: list[int] = []  # why each burst stopped
+            finish = runner.finish
+
+            def noting_finish(*args: Any, **kwargs: Any) -> Any:
+                done = finish(*args, **kwargs)
+                if done[0]:
+                    stops.append(runner.status)
+                return done
+
+            monkeypatch.setattr(runner, "finish", noting_finish)
             first = runner.bursts
             with anyio.fail_after(GUARD):
                 while runner.bursts < first + 20:
                     await stream.next_frame()
-            ran = runner.bursts - first
-            # (a burst that stops early, a late reply say, hands the port back: its next transaction is read
-            # the ordinary way; on a lean responder that is rare)
-            assert len(handed) <= ran // 4, f"the port went back to the loop reader {len(handed)} times in {ran} bursts"
+            # A burst that stopped early (a late reply on a loaded machine, say) hands the port back: its next
+            # transaction is read the ordinary way.  One that ran its plan to the end does not.
+            early = sum(status != DONE for status in stops)
+            assert len(handed) <= early, f"the port went back to the loop's reader {len(handed)} times; {stops=}"
