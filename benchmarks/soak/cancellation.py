@@ -267,7 +267,7 @@ async def _cancel(
     bus_errors, stray = stats.total.errors, stats.stray_bytes
     queued = stats.queued
     burst_transactions = executor_transactions(bus)
-    post = await consistency_check(sim, bus)
+    post = await consistency_check(sim, bus, realtime=realtime)
     problems = list(post["problems"])
     if bus_errors != expected_errors and not realtime:
         problems.append(f"bus counted {bus_errors} errors, the bytes on the line call for {expected_errors}")
