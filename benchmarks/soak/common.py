@@ -8,6 +8,7 @@ import dataclasses
 import math
 import random
 import threading
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any
 
@@ -124,25 +125,30 @@ def random_request(
     return silent, lambda: bus.request(silent, priority=priority, retries=0), 1
 
 
-REALTIME_ATTEMPTS = 4
-"""Attempts of each read of the check after a soak over a pty (see :func:`consistency_check`)."""
+REALTIME_PATIENCE = 2.0
+"""Seconds the check after a soak over a pty keeps asking for each value (see :func:`consistency_check`)."""
 
 
 async def consistency_check(sim: VirtualLine, bus: Bus, *, realtime: bool = False) -> dict[str, Any]:
     """Faults off; every servo must answer exactly what the simulator holds; the bus idle and its counters sane.
 
     ``realtime``: the simulator answers on a pty from a thread of this process, which a loaded machine may hold
-    up past a reply's allowance (the soaks' is short): each read then has :data:`REALTIME_ATTEMPTS` attempts,
-    and errors on the fault-free line are told in ``notes``, not ``problems``, as the soaks over a pty count
-    rejected valid replies without failing on them.
+    up past a reply's allowance (the soaks' is short): each value is then asked for again for up to
+    :data:`REALTIME_PATIENCE` seconds, and errors on the fault-free line are told in ``notes``, not ``problems``,
+    as the soaks over a pty count rejected valid replies without failing on them.
     """
     sim.faults = FaultInjector(FaultConfig(), 0)
     problems: list[str] = []
     notes: list[str] = []
-    retries = REALTIME_ATTEMPTS - 1 if realtime else bus.retries
 
     async def ask(command: Command[Any]) -> Any:
-        return await bus.request(command, retries=retries)
+        give_up = time.monotonic() + (REALTIME_PATIENCE if realtime else 0.0)
+        while True:
+            try:
+                return await bus.request(command)  # (each command here is idempotent: asked again, it does no harm)
+            except ReplyError:
+                if time.monotonic() >= give_up:
+                    raise
 
     # A reply held back by a `late` fault of the very last transaction lands on the next one: let it.
     with contextlib.suppress(ReplyError):
