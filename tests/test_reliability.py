@@ -124,7 +124,7 @@ async def test_the_chaos_check_of_the_close_takes_every_attempt_the_bus_made_of_
         run_line(sim, [*cycle, cycle[0], close, close])
         answered = {t.servo_id: t.value for t in list(sim.log)[:2]}
         workload.matcher.drain()
-        workload.matcher.add_frame(Frame(1, answered, dict.fromkeys(answered, 0.0), frozenset(), frozenset(), 0, 0))
+        workload.matcher.add_frame(Frame(1, answered, dict.fromkeys(answered, 0.0), frozenset(), frozenset(), 0.0, 0.0))
         workload.matcher.match()
         workload.sent_on_close = {1: 4220}
         workload.close_attempts = {1: 2}  # (what run() reads from the bus's retry count for ID 1)
