@@ -9,7 +9,7 @@ import pytest
 
 from ics35_async import protocol
 from ics35_async.engine import State
-from ics35_async.engine.probe import FLOOR
+from ics35_async.engine.probe import FACTOR, FLOOR, MARGIN, REFRESH, AnswerTimes
 from ics35_async.errors import InvalidArgument, ReplyTimeout
 from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
 
@@ -125,3 +125,18 @@ def test_a_probe_answered_past_its_short_wait_does_not_teach_the_link_lateness()
     wire.settle()
     assert probe.state == "done"
     assert engine.link.extra == 0.010
+
+
+def test_the_streams_wait_leaves_out_the_two_slowest_recent_answers() -> None:
+    # Host hiccups: the stream's wait is set from the third-slowest of the recent answers, twice it plus a
+    # millisecond, never under the floor.
+    times = AnswerTimes()
+    beyond = [0.0031, 0.0002, 0.050, 0.0007, 0.0029, 0.120, 0.0012, 0.0030]  # RECENT_MIN answers, two hiccups
+    for b in beyond:
+        times.answered(b)
+    assert times.stream_latency == pytest.approx(max(FLOOR, FACTOR * 0.0031 + MARGIN))
+    for _ in range(REFRESH - len(beyond) - 1):
+        times.answered(0.0001)
+    assert times.stream_latency == pytest.approx(max(FLOOR, FACTOR * 0.0031 + MARGIN))  # not yet refreshed
+    times.answered(0.0001)  # the REFRESH-th: the same three slowest, so the same wait
+    assert times.stream_latency == pytest.approx(max(FLOOR, FACTOR * 0.0031 + MARGIN))
