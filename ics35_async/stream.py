@@ -752,15 +752,16 @@ class Stream(FrameIterator[Frame]):
 
     def _publish(self, now: float) -> None:
         self._slot_checked = False
-        ids = self.ids
+        ids, answered, values, times, rejoined = self.ids, self._answered, self._positions, self._stamps, self._rejoined
         positions: dict[int, int] = {}
         stamps: dict[int, float] = {}
         failed = []
-        for k in self._order:
-            if self._answered[k]:
-                positions[ids[k]] = self._positions[k]
-                stamps[ids[k]] = self._stamps[k]
-            elif k not in self._rejoined:  # (back from offline: answered a read that gives no position)
+        for k in self._order:  # (locals: this runs for every ID of every cycle)
+            if answered[k]:
+                sid = ids[k]
+                positions[sid] = values[k]
+                stamps[sid] = times[k]
+            elif k not in rejoined:  # (back from offline: answered a read that gives no position)
                 failed.append(ids[k])
         self._rejoined.clear()
         self._order = []
@@ -774,7 +775,7 @@ class Stream(FrameIterator[Frame]):
             positions=positions,
             timestamps=stamps,
             failed=frozenset(failed),
-            offline=self.offline,
+            offline=self.offline if any(self._offline) else frozenset(),
             started=self._cycle_start,
             finished=now,
             missed_slots=self._frame_missed,
