@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from starlette.testclient import TestClient
 
-from ics35_async import sim
+from ics35_async import UnsafeOperation, sim
 from ics35_async.robot import RobotWarning
 from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
@@ -514,3 +514,44 @@ def test_a_pushed_robot_state_is_what_the_robot_is_when_it_is_sent_not_before_a_
     asyncio.run(main())
     first = next(u for u in pushed if "servos" in u)
     assert first["robot"]["motion_enabled"], "the push said what the robot was before the answer"
+
+
+@pytest.mark.parametrize("off", ["page gone", "switched off"])
+def test_a_move_asked_as_motion_goes_off_does_not_start_once_the_last_motion_stopped(tmp_path: Path, off: str) -> None:
+    # A Play (or Move) waits for the motion playing to stop smoothly before it starts; motion went off
+    # meanwhile (its page gone, or the switch): it started anyway, and moved a robot with motion off.
+    name = f"web-robot-{next(_names)}"
+    robot = RobotSession(str(arm_file(tmp_path, name)))
+
+    def reach(label: str, degrees: float) -> dict[str, Any]:
+        return {
+            "format": "ics35-motion",
+            "version": 1,
+            "name": label,
+            "keyframes": [{"time": 5.0, "pose": {"shoulder": degrees}}],
+        }
+
+    async def main() -> None:
+        await robot.open()
+        try:
+            await robot.set_motion(True, "p1")
+            await robot.play(reach("first", 50))
+            await asyncio.sleep(0.3)
+            second = asyncio.create_task(robot.play(reach("second", -20)))
+            await asyncio.sleep(0.05)  # (inside the first's smooth stop: 0.3 s)
+            if off == "page gone":
+                robot.page_gone("p1", "tab closed")
+            else:
+                await robot.set_motion(False)
+            with pytest.raises(UnsafeOperation, match="enable motion"):
+                await second
+            await robot.settled()
+            assert not robot.motion_enabled and robot.playing is None, (robot.playing, robot.outcome)
+            held = sim.named(name).servo(1).target
+            await asyncio.sleep(0.6)
+            assert sim.named(name).servo(1).target == held  # nothing drives the joints
+        finally:
+            await robot.close()
+            sim.named(name).close()
+
+    asyncio.run(main())

@@ -307,7 +307,16 @@ class RobotSession:
         await self._run(robot.play(motion, speed=speed), motion.name or "motion")
 
     async def _run(self, job: Any, name: str) -> None:
+        robot = self.robot
         await self.stop()
+        # Motion may have gone off while the motion playing stopped (its page gone, the switch, a lost line):
+        # asked again here, or the job would move a robot with motion off.
+        try:
+            if self._moving_allowed() is not robot:
+                raise UnsafeOperation("the robot was opened again meanwhile: nothing was sent")
+        except BaseException:
+            job.close()  # (never started: no "coroutine was never awaited" warning)
+            raise
         self.playing, self.outcome, self._stopped_because = name, None, ""
 
         async def run() -> None:
