@@ -488,3 +488,26 @@ async def test_back_to_back_bursts_keep_the_port_from_the_loops_reader(monkeypat
             # transaction is read the ordinary way.  One that ran its plan to the end does not.
             early = sum(status != DONE for status in stops)
             assert len(handed) <= early, f"the port went back to the loop's reader {len(handed)} times; {stops=}"
+
+
+@pytest.mark.anyio
+@pytest.mark.pty
+async def test_a_burst_stopped_for_a_close_hands_the_port_back_with_a_stream_still_on_the_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # What a reopen or close does to a running burst (stop it, close the executor), here with the stream
+    # still on the line: the next transaction must go the ordinary way, not to the executor just closed
+    # (which raised, and left the port with no reader, no timer and the engine waiting for a reply).
+    monkeypatch.setenv("ICS35_BURST", "1")
+    with lean_lines(1) as (path,):
+        async with open_bus(path, **NO_TIMEOUTS) as bus, bus.stream(range(8)) as stream:
+            driver = bus._driver  # type: ignore[attr-defined]
+            with anyio.fail_after(GUARD):
+                while not (driver.burst is not None and driver.burst.running):
+                    await stream.next_frame()
+            driver._stop_burst()
+            assert driver.burst is None and driver._reading
+            cycle = (await stream.next_frame()).cycle
+            with anyio.fail_after(GUARD):
+                while (await stream.next_frame()).cycle < cycle + 3:  # the stream goes on, the ordinary way
+                    pass

@@ -277,10 +277,17 @@ class DriverCore:
         if close:
             self._close_burst()
         port = self.port
-        if isinstance(port, TtyPort) and burst.status != FAILED and type(out) is bytes and self._start_burst(burst):
+        if (
+            not close
+            and isinstance(port, TtyPort)
+            and burst.status != FAILED
+            and type(out) is bytes
+            and self._start_burst(burst)
+        ):
             # The next burst runs on from here: the port stays with the executor (handed to the driver's
             # wait and taken back, it costs the asyncio driver two epoll_ctl calls and a selector's
-            # bookkeeping a burst).  Otherwise as _act would, once the driver's wait has the port again.
+            # bookkeeping a burst).  Otherwise as _act would, once the driver's wait has the port again
+            # (closing: the runner is closed, and _act finds none).
             self._after(None)
             return
         self._burst_over(port)
