@@ -221,6 +221,11 @@ class LogMatcher:
         self.last_cycle = frame.cycle
         if skipped > 0:
             tried = set(frame.positions) | frame.failed
+            if self.offline:  # (a burst never runs with one offline: these cycles were not one burst's)
+                raise CheckError(
+                    f"frame of cycle {frame.cycle}: {skipped} cycle(s) before it skipped after a frame with "
+                    f"{sorted(self.offline)} offline: the skipped cycles' log entries cannot be told apart"
+                )
             if tried != set(outcomes):
                 raise CheckError(
                     f"frame of cycle {frame.cycle}: {skipped} cycle(s) before it skipped, and it tried "
