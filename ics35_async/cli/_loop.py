@@ -8,6 +8,7 @@ import logging
 import os
 import signal
 import threading
+import warnings
 from collections.abc import Awaitable, Callable, Iterator
 from types import FrameType
 from typing import Any, TypeVar
@@ -162,6 +163,11 @@ def _ctrl_c() -> Iterator[list[int]]:
             if len(pressed) == 1 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(task.cancel)
                 return
+            if len(pressed) == 2:
+                # Forced out: what the command had started and not yet run (a smooth stop's steps, a stream's
+                # next take) is dropped unrun, and Python would print a "coroutine ... was never awaited"
+                # warning for each as they are collected, through a live table being torn down: a traceback.
+                warnings.filterwarnings("ignore", "coroutine .* was never awaited", RuntimeWarning)
             if len(pressed) == 2 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(_interrupt)
                 return
