@@ -448,9 +448,9 @@ class Bus:
         future ([`RequestHandle`][ics35_async.engine.requests.RequestHandle]): ``done()``, ``cancelled()``,
         ``result()``, ``exception()`` and ``cancel()`` (it is one on the asyncio and thread drivers; under
         the anyio driver, trio included, these raise asyncio's ``CancelledError`` and ``InvalidStateError``
-        as a future does).  A request cancelled while queued is
-        never sent; one already on the wire finishes there (its reply read and dropped, no retry), so the
-        line stays in step.  A caller that stops awaiting it (a timeout, a cancelled task) cancels it.
+        as a future does).  A request cancelled while queued is never sent; one already on the wire finishes
+        there (its reply read and dropped, no retry), so the line stays in step.  A caller that stops
+        awaiting it (a timeout, a cancelled task) cancels it.
 
         Raises:
             InvalidArgument: not a command, a bad ``priority`` or ``retries``, or a call from another
