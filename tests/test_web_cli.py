@@ -223,6 +223,20 @@ def silent_page(base: str, token: str, page: str) -> Iterator[None]:
         yield
 
 
+def switched_off_once_silent(base: str, token: str, page: str, switch: tuple[str, str], state: tuple[str, str]) -> None:
+    """``page`` (a :func:`silent_page`) switches motion on at ``switch`` (a path, and the key of its answer
+    saying it is on); returns once the server's ``state`` (the same) says it went off: the page answered no
+    pings."""
+    switch_path, switched = switch
+    status, answer = post(f"{base}{switch_path}", token, {"enabled": True, "page": page})
+    assert status == 200 and answer[switched] is True, answer
+    path, key = state
+    deadline = time.monotonic() + scaled(8.0)
+    while get(f"{base}{path}", token)[1][key]:
+        assert time.monotonic() < deadline, f"motion stayed on ({path}) for a page that answers nothing"
+        time.sleep(0.1)
+
+
 def test_motion_a_page_switched_on_goes_off_once_its_network_is_gone() -> None:
     # A page whose network went (a laptop asleep, Wi-Fi gone) closes nothing: the server hears nothing more
     # from it, and its motion stayed on for the next page, tab or script to find.  The server's pings go
@@ -231,12 +245,9 @@ def test_motion_a_page_switched_on_goes_off_once_its_network_is_gone() -> None:
         base, token = split(url)
         page = "a-page-whose-network-went"
         with silent_page(base, token, page):
-            status, answer = post(f"{base}/api/servo/1/motion", token, {"enabled": True, "page": page})
-            assert status == 200 and answer["enabled"] is True, answer
-            deadline = time.monotonic() + scaled(8.0)
-            while get(f"{base}/api/status", token)[1]["motion_on"]:
-                assert time.monotonic() < deadline, "motion stayed on for a page that answers nothing"
-                time.sleep(0.1)
+            switched_off_once_silent(
+                base, token, page, ("/api/servo/1/motion", "enabled"), ("/api/status", "motion_on")
+            )
             status, refused = post(f"{base}/api/servo/1/move", token, {"position": 8000})
             assert status == 409 and "page" in refused["error"], refused
 
@@ -252,11 +263,8 @@ def test_the_robots_motion_a_page_switched_on_goes_off_once_its_network_is_gone(
         base, token = split(url)
         page = "a-robot-page-whose-network-went"
         with silent_page(base, token, page):
-            status, answer = post(f"{base}/api/robot/motion", token, {"enabled": True, "page": page})
-            assert status == 200 and answer["motion_enabled"] is True, answer
-            deadline = time.monotonic() + scaled(8.0)
-            while get(f"{base}/api/robot", token)[1]["motion_enabled"]:
-                assert time.monotonic() < deadline, "the robot's motion stayed on for a page that answers nothing"
-                time.sleep(0.1)
+            switched_off_once_silent(
+                base, token, page, ("/api/robot/motion", "motion_enabled"), ("/api/robot", "motion_enabled")
+            )
             status, refused = post(f"{base}/api/robot/move", token, {"pose": {"knee": 20}})
             assert status == 409 and "enable motion" in refused["error"], refused

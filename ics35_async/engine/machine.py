@@ -441,12 +441,13 @@ class LineEngine:
         fewer than ``count`` where it answered otherwise.  None of them may be the plan's last (its answer is
         the driver's to write).  The same as a loop over :meth:`receive` in the driver, in one call: with the
         engine compiled, without CPython's cost a transaction."""
+        out = None
         for j in range(count):
             data, _first, at = records[j]
             out = self.receive(data, at) if data else None
             if out != plan[first + j + 1][0]:
                 return j + 1, out
-        return count, plan[first + count][0] if count else None
+        return count, out
 
     def input_dropped(self, count: int) -> None:
         """The driver, told to drop the port's input as a resync ended (:class:`FlushInput`), found
