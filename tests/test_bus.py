@@ -974,12 +974,14 @@ async def test_a_bus_closed_while_a_cancelled_commands_reply_is_due_waits_for_it
     # that port (the next command, a restarted program) took it into its own first reply.
     import anyio
 
+    # NO_TIMEOUTS: across a pty a loaded machine can hold even the first read's echo past the default allowance;
+    # the write's allowance stays past its 0.15 s reply either way.
     path = pty_sim("--ids", "1", "--eeprom-delay", "0.15s").path
-    async with open_bus(path, driver=driver) as bus:
+    async with open_bus(path, driver=driver, **NO_TIMEOUTS) as bus:
         servo = bus.servo(1)
         image = await servo.read_eeprom()
         with anyio.move_on_after(0.05):
             await servo.write_eeprom(image)  # on the wire, its reply 0.15 s away: given up meanwhile
-    async with open_bus(path, driver=driver) as again:
+    async with open_bus(path, driver=driver, **NO_TIMEOUTS) as again:
         assert (await again.servo(1).read_eeprom()).servo_id == 1
         assert again.stats.total.errors == 0 and again.stats.stray_bytes == 0
