@@ -26,21 +26,23 @@ from typing import Any
 from ics35_async.compiled import engine_compiled
 
 from . import cancellation, chaos, fuzz, held_tail, unplug
-from .common import PTY, PTY_BURST, PTY_BURST_THREAD, Row, markdown
+from .common import PTY, PTY_BURST, PTY_BURST_ANYIO, PTY_BURST_THREAD, Row, markdown
 
 
 @dataclass
 class PathReports:
-    """A soak's reports on the ordinary path and on the burst path (and, where the soak runs there, on the thread
-    driver's burst path)."""
+    """A soak's reports on the ordinary path and on the burst path: the asyncio driver's, the anyio driver's
+    (on asyncio) and, where the soak runs there, the thread driver's."""
 
     ordinary: Any
     burst: Any
+    anyio_burst: Any
     thread_burst: Any = None
 
     @property
     def seconds(self) -> float:
-        return float(sum(r.seconds for r in (self.ordinary, self.burst, self.thread_burst) if r is not None))
+        reports = (self.ordinary, self.burst, self.anyio_burst, self.thread_burst)
+        return float(sum(r.seconds for r in reports if r is not None))
 
 
 Part = Callable[[argparse.Namespace, Callable[[str], None]], tuple[Any, list[Row]]]
@@ -54,10 +56,11 @@ def run_chaos(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any
 
 
 def run_chaos_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
-    """The chaos soak over a pty, on the ordinary path and then on the burst path (one report each).  Not under
-    the thread driver: its stream runs beside the program's loop, which then takes the latest frame and skips
-    some, and this soak's oracle pairs every cycle on the wire with a frame taken (it sets aside only the
-    skipped cycles of a burst fed at once, which have every ID: see ``LogMatcher.add_frame``).
+    """The chaos soak over a pty, on the ordinary path and then on the burst path, the asyncio driver's and the
+    anyio driver's (one report each).  Not under the thread driver: its stream runs beside the program's loop,
+    which then takes the latest frame and skips some, and this soak's oracle pairs every cycle on the wire with
+    a frame taken (it sets aside only the skipped cycles of a burst fed at once, which have every ID: see
+    ``LogMatcher.add_frame``).
 
     On the burst path with one request worker instead of four: the stream then has the line most of
     the time, so most transactions run in the executor (with four, about 1 %).
@@ -65,7 +68,7 @@ def run_chaos_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple
     transactions = args.pty_transactions or (10_000 if args.quick else 100_000)
     reports: list[chaos.ChaosReport] = []
     rows: list[Row] = []
-    for link, workers in ((PTY, 4), (PTY_BURST, 1)):
+    for link, workers in ((PTY, 4), (PTY_BURST, 1), (PTY_BURST_ANYIO, 1)):
         baseline = max(2_000, transactions // 10)
         soak = chaos.chaos_soak(transactions, args.fault_rate, args.seed, baseline, workers, progress=say, link=link)
         reports.append(asyncio.run(soak))
@@ -81,14 +84,19 @@ def run_cancel(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[An
 
 
 def run_cancel_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
-    """The cancellation soak over a pty: on the ordinary path, then on the burst path (the asyncio driver's, then
-    the thread driver's) with one request canceller and half the cancellations streams (with six cancellers the
-    line is never free for a burst)."""
+    """The cancellation soak over a pty: on the ordinary path, then on the burst path (the asyncio driver's, the
+    anyio driver's, then the thread driver's) with one request canceller and half the cancellations streams
+    (with six cancellers the line is never free for a burst)."""
     cancellations = 500 if args.quick else 2_000
     reports: list[cancellation.CancelReport] = []
     rows: list[Row] = []
     on_bursts = {"concurrency": 1, "stream_share": 0.5}
-    shapes: tuple[tuple[str, dict[str, Any]], ...] = ((PTY, {}), (PTY_BURST, on_bursts), (PTY_BURST_THREAD, on_bursts))
+    shapes: tuple[tuple[str, dict[str, Any]], ...] = (
+        (PTY, {}),
+        (PTY_BURST, on_bursts),
+        (PTY_BURST_ANYIO, on_bursts),
+        (PTY_BURST_THREAD, on_bursts),
+    )
     for link, shape in shapes:
         say(f"cancel over a {link}: {cancellations} cancellations")
         soak = cancellation.cancellation_soak(cancellations, args.seed + 1, link=link, **shape)
@@ -98,12 +106,12 @@ def run_cancel_pty(args: argparse.Namespace, say: Callable[[str], None]) -> tupl
 
 
 def run_unplug(args: argparse.Namespace, say: Callable[[str], None]) -> tuple[Any, list[Row]]:
-    """The unplug soak on the ordinary path, then on the burst path, the asyncio driver's and the thread
-    driver's (one report each)."""
+    """The unplug soak on the ordinary path, then on the burst path, the asyncio driver's, the anyio driver's (on
+    asyncio) and the thread driver's (one report each)."""
     reports: list[unplug.UnplugReport] = []
     rows: list[Row] = []
-    for burst, driver in ((False, "asyncio"), (True, "asyncio"), (True, "thread")):
-        path = f", burst path{', thread driver' if driver == 'thread' else ''}" if burst else ""
+    for burst, driver in ((False, "asyncio"), (True, "asyncio"), (True, "anyio"), (True, "thread")):
+        path = f", burst path{'' if driver == 'asyncio' else f', {driver} driver'}" if burst else ""
         say(f"unplug: pty simulator, device unplugged and replugged{path}")
         sizes: dict[str, Any] = {"down_times": (0.05, 1.0), "cycles_each": 1} if args.quick else {}
         reports.append(asyncio.run(unplug.unplug_soak(seed=args.seed + 2, burst=burst, driver=driver, **sizes)))

@@ -16,7 +16,8 @@ same process.
 ``link=PTY``: the same simulator served on a pseudo-terminal from a thread of this process
 (:class:`ics35_async.sim.PtyServer`), the bus opened on its path; ``link=PTY_BURST``: the same
 with the burst path on (``ICS35_BURST=1``) where it is built: the stream's transactions then run
-in the compiled executor and are fed to the engine afterwards.  Real time decides there how the bytes of a
+in the compiled executor and are fed to the engine afterwards; ``link=PTY_BURST_ANYIO``: the same under the
+anyio driver (on asyncio), whose bus task feeds the bursts.  Real time decides there how the bytes of a
 transaction are split between reads, so a valid reply may time out behind a slow thread, or be
 taken before the noise behind it comes (see :class:`tests.support.matcher.LogMatcher`): rejected
 valid replies and differing error classes are counted but are not targets; misattribution is.  On the
@@ -52,12 +53,13 @@ from tests.support.oracle import CheckError, chaos_servos, is_stream_tx
 from tests.support.timing import FAST_TIMING
 
 from .common import (
+    BURST_LINKS,
     IN_PROCESS,
-    PTY_BURST,
     Row,
     consistency_check,
     executor_row,
     fault_spec,
+    link_driver,
     random_request,
     served_on_a_pty,
     stream_target,
@@ -237,7 +239,7 @@ class ChaosWorkload:
 
 @dataclass
 class ChaosReport:
-    link: str  # IN_PROCESS, PTY or PTY_BURST
+    link: str  # IN_PROCESS, PTY or one of BURST_LINKS
     burst_transactions: int  # of the run's transactions, those the compiled executor ran (over a pty)
     noise_after_reply: int  # over a pty: replies taken whole before the noise behind them came
     transactions: int
@@ -316,8 +318,8 @@ async def chaos_run(
         stack.callback(sim.close)
         if link != IN_PROCESS:
             path = await stack.enter_async_context(served_on_a_pty(sim))
-            with burst_setting("1" if link == PTY_BURST else "0", beside_requests=True):
-                bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING))
+            with burst_setting("1" if link in BURST_LINKS else "0", beside_requests=True):
+                bus = watched(await open_bus(path, retries=1, timing=FAST_TIMING, driver=link_driver(link)))
         else:
             bus = watched(await open_bus(sim, retries=1, timing=FAST_TIMING))
         stack.push_async_callback(bus.aclose)
@@ -492,7 +494,7 @@ def summarize_chaos(r: ChaosReport) -> list[Row]:
     if not r.realtime:
         return rows
     # Over a pty: the same rows under their own name, and how much of the run the compiled executor ran.
-    if r.link == PTY_BURST:
+    if r.link in BURST_LINKS:
         rows.insert(
             1,
             executor_row(

@@ -33,15 +33,16 @@ from tests.support.oracle import FAULT_KINDS, band
 
 IN_PROCESS, PTY, PTY_BURST = "in-process", "pty", "pty, burst path"
 """Where a soak's simulator answers: in this process as a WireDevice, or on a pty with the bus on the ordinary
-path or on the burst path (see the chaos soak's module), under the asyncio driver or (PTY_BURST_THREAD) the
-thread driver."""
+path or on the burst path (see the chaos soak's module), under the asyncio driver, or the thread driver
+(PTY_BURST_THREAD), or the anyio driver on asyncio (PTY_BURST_ANYIO)."""
 PTY_BURST_THREAD = "pty, burst path, thread driver"
-BURST_LINKS = (PTY_BURST, PTY_BURST_THREAD)  # the links whose bus runs streams on the compiled path
+PTY_BURST_ANYIO = "pty, burst path, anyio driver"
+BURST_LINKS = (PTY_BURST, PTY_BURST_THREAD, PTY_BURST_ANYIO)  # the links whose bus runs streams on the compiled path
 
 
 def link_driver(link: str) -> str:
     """The bus driver a soak over ``link`` opens with."""
-    return "thread" if link == PTY_BURST_THREAD else "asyncio"
+    return {PTY_BURST_THREAD: "thread", PTY_BURST_ANYIO: "anyio"}.get(link, "asyncio")
 
 
 @contextlib.asynccontextmanager
