@@ -16,7 +16,7 @@ import statistics
 import threading
 import warnings
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Literal, TypedDict
 
 import anyio
@@ -194,6 +194,9 @@ class Stream(FrameIterator[Frame]):
         # Publishing.
         self._latest: Frame | None = None
         self._new_frame: anyio.Event | None = None  # made by the first waiter, set by the next frame
+        # How the waiter makes it: anyio.Event() finds the running backend on every call (a few microseconds a
+        # frame); once one is made, its own class (the backend's) is made directly.
+        self._make_event: Callable[[], anyio.Event] = anyio.Event
         self._consumed_cycle = 0
         self._dropped = 0
         self._seen_latest = True
@@ -816,7 +819,8 @@ class Stream(FrameIterator[Frame]):
             if not self._running:
                 raise InvalidArgument(NOT_STARTED)
             if self._new_frame is None:
-                self._new_frame = anyio.Event()
+                self._new_frame = event = self._make_event()
+                self._make_event = type(event)
             await self._new_frame.wait()
         published, missed_total, resumes = self._published  # the frame and its totals, together
         # (the I/O thread may have set _latest and not yet _published: then the totals lag one frame)
