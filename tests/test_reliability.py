@@ -269,7 +269,8 @@ async def test_chaos_lines_up_an_offline_ids_failed_probes() -> None:
     # One servo that mostly does not answer goes offline, and its probes fail too: each is in its frame's
     # failed IDs with no stream entry in the log (the oracle paired it with the servo's next entry, and the
     # close's send of its target went missing from the line's tail, or an outcome was left with no entry).
-    sim = VirtualLine(chaos_servos(), faults=fault_spec(0.02) + ",drop@5:0.7", seed=2, log_size=100_000)
+    # (It drops nine replies in ten: at seven in ten, a run in about ten had a probe answer each time, none fail.)
+    sim = VirtualLine(chaos_servos(), faults=fault_spec(0.02) + ",drop@5:0.9", seed=2, log_size=100_000)
     async with await open_bus(sim, retries=1, timing=FAST_TIMING) as bus:
         workload = ChaosWorkload(sim, bus, seed=2, workers=4, request_pause=0.002)
         await workload.run(3_000)
