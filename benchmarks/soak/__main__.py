@@ -6,7 +6,7 @@
 
 Prints one markdown table (check, result, target met) and exits 1 if a
 target is missed; ``--json FILE`` keeps every figure (``make soak`` writes
-benchmarks/soak_results.json).  The full run takes about 19 minutes on two
+benchmarks/soak_results.json).  The full run takes about 20 minutes on two
 cores.  One module per part, registered in :data:`PARTS`.
 """
 
