@@ -3,6 +3,7 @@ ICS 3.5 joints free unless the caller states their pose.  What went on the wire 
 
 from __future__ import annotations
 
+import functools
 import itertools
 import time
 from typing import Any
@@ -421,16 +422,20 @@ def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_canc
     rig = make_rig(realtime=trio)
     stopped: list[bool] = []
     marks: dict[str, int] = {}
+    under_way: list[float] = []  # the joint's target as the scope is cancelled
 
     async def main() -> None:
         with anyio.fail_after(GUARD), anyio.CancelScope() as outer:
             async with open_robot(rig.description, **(NO_TIMEOUTS if trio else FAST)) as robot:
                 try:
                     async with anyio.create_task_group() as tasks:
-                        tasks.start_soon(robot.move_to, {"neck": 50.0}, 2.0)
-                        while (robot.targets["neck"] or 0.0) < 10.0:
+                        # (Slow, so that the joint is still on its way when the scope is cancelled: a loaded
+                        # machine stalled a 2 s move's task past its end once, and its first target was the goal.)
+                        tasks.start_soon(functools.partial(robot.move_to, {"neck": 50.0}, 10.0, profile="linear"))
+                        while (robot.targets["neck"] or -10.0) < -5.0:  # (the neck starts at -10 degrees)
                             await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
                         marks["upper"] = rig.upper.transactions
+                        under_way.append(robot.targets["neck"] or 0.0)
                         outer.cancel()  # as run() does at Ctrl-C
                         await anyio.sleep_forever()
                 finally:
@@ -443,6 +448,7 @@ def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_canc
     finally:
         rig.close()
     assert stopped == [True]
+    assert under_way and under_way[0] < 50.0, under_way  # (what this test is about: a joint still moving)
     sent = [joint_degrees(JOINTS["neck"], p) for p in sent_positions(rig, marks["upper"])]
     steps = [b - a for a, b in itertools.pairwise(sent)]
     assert sent and max(sent) < 50.0  # short of the target: slowed to rest, not carried on to it
