@@ -1427,8 +1427,8 @@ async def test_a_stalled_loop_shows_as_missed_slots_on_the_frame_and_in_the_stat
     async with open_bus(sim, **FAST) as bus, bus.stream(ids, rate_hz=100) as stream:
         await frames_until(stream, lambda f: f.cycle >= 3)
         time.sleep(0.06)  # the program blocks its event loop: six slots pass with no cycle
-        after = await frames_until(stream, lambda f: f.missed_slots > 0, limit=20)
-        assert after[-1].missed_slots >= 3
+        # (the frame of the stall's cycle: on a loaded machine a frame before it may have missed a slot of its own)
+        after = await frames_until(stream, lambda f: f.missed_slots >= 3, limit=20)
         assert stream.stats.missed_slots >= after[-1].missed_slots
         assert json.loads(json.dumps(after[-1].to_dict()))["missed_slots"] == after[-1].missed_slots
 
