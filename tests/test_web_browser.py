@@ -1192,3 +1192,47 @@ def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_err
         expect(p.locator("#message")).to_contain_text("did not answer")
         p.wait_for_timeout(200)
         assert errors == []
+
+
+def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Browser) -> None:
+    # A number box the user emptied (or typed a letter in: the browser then gives no value) reads as 0 in
+    # JavaScript: the lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.
+    line = PtyLine((4,))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 4)
+        p.fill("#eeprom-table [name=punch]", "")
+        p.click("#plan-btn")
+        expect(p.locator("#message")).to_have_text("give punch a value")
+        expect(p.locator("#diff tr.changed")).to_have_count(0)
+        p.fill("#ram-value", "")
+        p.click("#ram-write")
+        expect(p.locator("#message")).to_have_text("give the RAM value a value")
+        p.click("a[href='#id']")
+        p.fill("#new-id", "")
+        p.click("#renumber-btn")
+        expect(p.locator("#id-result")).to_have_text("give the new ID a value")
+        p.wait_for_timeout(500)  # (time for a write the page might still have sent)
+        assert [s.servo_id for s in line.sim.servos] == [4]
+        assert line.sim.servo(4).eeprom.punch != 0
+
+
+def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
+    browser: Browser, robot_server: RobotServer
+) -> None:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    p = context.new_page()
+    with explained(p, robot_server):
+        p.goto(robot_server.url)
+        p.click("#robot-link")
+        expect(p.locator("#robot-table tbody tr")).to_have_count(17)
+        p.check("#robot-motion")
+        yaw = p.locator("tr[data-joint='head_yaw']")
+        expect(yaw.locator("input[type=range]")).to_be_enabled()
+        target = yaw.locator(".target").text_content()
+        p.fill("#robot-duration", "")
+        yaw.locator("input[type=range]").fill("45")
+        expect(p.locator("#message")).to_have_text("give the move time a value")
+        p.wait_for_timeout(500)
+        expect(yaw.locator(".target")).to_have_text(target or "")
+        p.uncheck("#robot-motion")
+    context.close()

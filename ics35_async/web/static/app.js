@@ -58,6 +58,17 @@ function el(tag, props = {}, ...children) {
   return node;
 }
 
+// A number box's value. An emptied box (or one with a letter typed in, which the browser gives as empty)
+// is refused in words: JavaScript's +"" is 0, which would renumber a servo to ID 0 or move a joint at once.
+function numberIn(box, what) {
+  const text = box.value.trim();
+  if (text === "") {
+    say(`give ${what} a value`);
+    throw new Error(`give ${what} a value`);
+  }
+  return +text;
+}
+
 function parseIds(text) {
   const ids = new Set();
   for (const part of text.split(",").map((s) => s.trim()).filter(Boolean)) {
@@ -315,7 +326,7 @@ function editedFields() {
       if (flags !== writable) changes.flags = flags;
       continue;
     }
-    const value = +document.querySelector(`#eeprom-table [name=${f.name}]`).value;
+    const value = numberIn(document.querySelector(`#eeprom-table [name=${f.name}]`), f.name);
     if (value !== f.value) changes[f.name] = value;
   }
   return changes;
@@ -407,7 +418,7 @@ async function restoreServo() {
 
 async function writeRam() {
   const param = $("#ram-param").value;
-  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: +$("#ram-value").value });
+  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: numberIn($("#ram-value"), "the RAM value") });
   $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
   const ram = await api(`/api/servo/${servoId()}/ram`);
   $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
@@ -466,7 +477,7 @@ async function survey() {
 async function renumber() {
   $("#id-result").replaceChildren();
   try {
-    const r = await api("/api/id/write", { new_id: +$("#new-id").value });
+    const r = await api("/api/id/write", { new_id: numberIn($("#new-id"), "the new ID") });
     $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
   } catch (e) { $("#id-result").replaceChildren(el("p", { class: "refusal" }, e.message)); }
 }
@@ -665,14 +676,14 @@ function onRobot(r) {
 }
 
 async function moveJoint(name, degrees) {
-  await api("/api/robot/move", { pose: { [name]: degrees }, duration: +$("#robot-duration").value });
+  await api("/api/robot/move", { pose: { [name]: degrees }, duration: numberIn($("#robot-duration"), "the move time") });
 }
 
 async function playMotion() {
   const file = $("#robot-motion-file").files[0];
   let motion;
   try { motion = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
-  onRobot(await api("/api/robot/play", { motion, speed: +$("#robot-speed").value }));
+  onRobot(await api("/api/robot/play", { motion, speed: numberIn($("#robot-speed"), "the speed") }));
 }
 
 // ---------------------------------------------------------------- the WebSocket
