@@ -113,7 +113,7 @@ def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) ->
     assert "lost" in err and "the 2 pose(s) captured so far are kept" in err
     # What the servos of a lost line do now, and how to free them once it is back.
     said = " ".join(err.split())
-    assert "keep their last command" in err and f"ics35 --port {port}" in said and "free all" in said, err
+    assert "keep their last command" in err and f"ics35 --port {port}" in said and "free 1-2" in said, err
     assert str(taught) in " ".join(err.split())
     keyframes = json.loads(taught.read_text())["keyframes"]
     assert len(keyframes) == 2 and set(keyframes[0]["pose"]) == {"a", "b"}

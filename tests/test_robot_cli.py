@@ -767,8 +767,28 @@ def test_the_lost_line_hint_names_that_lines_port_and_what_the_others_were_left_
     lost = PortLost("port /dev/ttyUSB10 lost: the serial port hung up (device disconnected?)")
     hint = lost_line_hint(Settings(), description, lost, "free")
     # The longest port name in the message (not USB1), at that line's baud rate (its servos hear no other).
-    assert "ics35 --port /dev/ttyUSB10 --baud 1250000 free all;" in hint
+    assert "ics35 --port /dev/ttyUSB10 --baud 1250000 free 1;" in hint
     assert hint.endswith("the other lines' joints were left free")
+
+
+def test_the_lost_line_hint_frees_that_lines_servos_by_their_ids_not_every_id() -> None:
+    # `free all` asks all 32 IDs: it frees the robot's servos, then ends with exit code 4 and "servo(s) 0, 5,
+    # ... did not go free", each absent ID taken for a servo without power.
+    description = load_description(
+        {
+            "lines": {"arms": {"port": "/dev/ttyUSB1"}, "legs": {"port": "/dev/ttyUSB2"}},
+            "joints": {
+                "a": {"line": "arms", "id": 7},
+                "b": {"line": "legs", "id": 4},
+                "c": {"line": "legs", "id": 2},
+                "d": {"line": "legs", "id": 3},
+                "e": {"line": "legs", "id": 9},
+            },
+        }
+    )
+    lost = PortLost("port /dev/ttyUSB2 lost: the serial port hung up (device disconnected?)")
+    hint = lost_line_hint(Settings(), description, lost, None)
+    assert hint.endswith("get: ics35 --port /dev/ttyUSB2 free 2-4,9"), hint
 
 
 def until_offline(sims: Rig, joint: str) -> Callable[[], None]:

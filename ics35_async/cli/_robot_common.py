@@ -13,7 +13,7 @@ import dataclasses
 import sys
 import threading
 import warnings
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 import click
@@ -147,6 +147,17 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
+def id_ranges(ids: Iterable[int]) -> str:
+    """``ids`` as the ID lists of the command line take them, runs of neighbours as ranges: ``2-4,9``."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in runs)
+
+
 def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
     """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
     (that line's port, baud rate and echo: the robot file's; ``others_left``: what the command left the
@@ -156,7 +167,8 @@ def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsEr
     if lines:
         line = max(lines, key=lambda spec: len(spec.port))  # the longest: one port's name may start another's
         here = dataclasses.replace(settings, port=line.port, baud=line.baudrate, echo=line.echo, port_defaulted=False)
-        free = here.command_line("free", "all")
+        # Its joints' IDs, not "all": the 32 IDs' absent ones would end it "did not go free", exit code 4.
+        free = here.command_line("free", id_ranges(j.id for j in description.joints_on(line.name)))
     others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
