@@ -1207,6 +1207,9 @@ def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Bro
         p.fill("#ram-value", "")
         p.click("#ram-write")
         expect(p.locator("#message")).to_have_text("give the RAM value a value")
+        p.fill("#servo-id", "")
+        p.click("#servo-load")
+        expect(p.locator("#message")).to_have_text("give the servo's ID a value")  # not "ID 0 did not answer"
         p.click("a[href='#id']")
         p.fill("#new-id", "")
         p.click("#renumber-btn")

@@ -249,7 +249,7 @@ async function leaveServo() {
 }
 
 async function loadServo() {
-  const id = servoId();
+  const id = numberIn($("#servo-id"), "the servo's ID");
   await leaveServo();
   await motionOff(id);
   robotNote(id);
