@@ -252,6 +252,19 @@ def test_a_motion_that_does_not_fit_the_robot_is_refused_before_any_port_opens(
     assert sims.upper.transactions == 0 and sims.lower.transactions == 0  # not even a free or a read
 
 
+def test_play_refusing_a_joint_whose_servo_never_answered_is_exit_code_5_not_a_usage_error(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # The robot refuses (UnsafeOperation) to drive it blind: nothing wrong with the command line, so not
+    # exit code 2, which a script takes for a mistake in its own arguments.
+    sims, robot_file = rig
+    sims.sim("lower").remove_servo(2)  # the knee's servo: unplugged
+    motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"knee": -10, "hip": 5}})
+    result = cli("play", str(robot_file), str(motion))
+    assert result.code == 5, result.err
+    assert "joint knee has not answered since the robot opened" in result.err
+
+
 def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(safety={"max_current": 20, "action": "free"})
     try:

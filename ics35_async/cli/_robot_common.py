@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 import click
 from rich.markup import escape
 
-from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout
+from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout, UnsafeOperation
 from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 
@@ -196,6 +196,9 @@ def run_robot(
             raise safety_error(exc, others_left) from None
         except ReplyTimeout as exc:
             raise CliError(ExitCode.NO_REPLY, str(exc), *NO_REPLY_HINTS) from None
+        except UnsafeOperation as exc:
+            # The robot's refusal (a joint whose servo never answered, driven blind), not a mistake in the command.
+            raise CliError(ExitCode.REFUSED, f"{exc} (nothing was sent)") from None
         except InvalidArgument as exc:
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
         except (PortLost, ClosedByPortLoss) as exc:

@@ -53,7 +53,8 @@ class ExitCode(enum.IntEnum):
     """Refused or not confirmed, nothing written: a baud change without `--change-baud`, an ID already taken,
     `set-id` with more or fewer than one servo, `move` outside the servo's EEPROM pulse limits, "no" (or end
     of input) at the prompt, `teach` with no pose captured, `calibrate` with its input ended early or a joint
-    not moved far enough to both ends of its range."""
+    not moved far enough to both ends of its range, `play` with a joint whose servo has not answered since the
+    robot opened."""
     WRONG_BAUD = 6
     """The servo answers, but at another baud rate than `--baud` (the message names it)."""
     SAFETY_STOP = 7
