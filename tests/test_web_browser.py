@@ -1166,9 +1166,10 @@ def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(br
         p.click("#live-stop")
 
 
-def test_motion_switched_on_after_a_failed_read_goes_off_when_the_page_is_left(browser: Browser) -> None:
-    # The page's read failed (the servo unplugged), the switch was ticked once it answered: leaving the page
-    # left motion on on the server, the page showing none.
+def test_motion_is_not_switched_on_for_a_servo_whose_read_failed_until_it_is_read(browser: Browser) -> None:
+    # The page's read failed (the servo unplugged), the switch was ticked once it answered: motion went on for
+    # a servo whose pulse limits the page had not read, and leaving the page left it on on the server.  The
+    # page acts only on a servo it has read: the switch is refused until Read succeeds.
     line = PtyLine((1,))
     unplugged = line.sim.remove_servo(1)
     with web_server_page(browser, ["--port", line.path], line) as p:
@@ -1176,6 +1177,13 @@ def test_motion_switched_on_after_a_failed_read_goes_off_when_the_page_is_left(b
         p.goto(base + "#servo/1")
         expect(p.locator("#message")).to_contain_text("did not answer")
         line.sim.add_device(unplugged)
+        p.click("#motion-switch")  # (not check(): the page unticks it at once)
+        expect(p.locator("#message")).to_have_text("read a servo first")
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        expect(p.locator("#jog-plus")).to_be_disabled()
+        assert p.request.get(base + "api/status").json()["motion_on"] == []
+        p.click("#servo-load")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
         p.check("#motion-switch")
         expect(p.locator("#jog-plus")).to_be_enabled()
         p.click("a[href='#line']")
@@ -1239,3 +1247,24 @@ def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
         expect(yaw.locator(".target")).to_have_text(target or "")
         p.uncheck("#robot-motion")
     context.close()
+
+
+def test_the_servo_page_acts_on_the_servo_it_shows_not_an_id_typed_in_the_box_and_not_read(browser: Browser) -> None:
+    # Servo 1's page open, 2 typed in the ID box without Read (new servos all read alike): Show changes and
+    # Write wrote servo 2 ("servo 2: written and verified") while the table showed servo 1's values.
+    line = PtyLine((1, 2))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        speeds = {i: line.sim.servo(i).eeprom.speed for i in (1, 2)}
+        wanted = 77 if speeds[1] != 77 else 78
+        p.fill("#servo-id", "2")
+        p.fill("#eeprom-table [name=speed]", str(wanted))
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text(str(wanted))
+        p.click("#write-btn")
+        expect(p.locator("#message")).to_have_text("servo 1: written and verified")
+        assert line.sim.servo(1).eeprom.speed == wanted
+        assert line.sim.servo(2).eeprom.speed == speeds[2]
+        # The page reads the servo it wrote again, and says which one it shows.
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
+        expect(p.locator("#servo-id")).to_have_value("1")

@@ -109,10 +109,10 @@ function showStatus(s) {
   // over a tick the server has yet to take: a status pushed meanwhile still says motion is off; nor from a
   // status sent before the server's answer to it (counting fewer changes of motion), come after it.
   const motionNow = !state.servoMotionAsked && (s.motion_switches ?? 0) >= state.motionSeen;
-  const off = (s.motion_off || {})[servoId()];
+  const off = (s.motion_off || {})[state.servoLoaded];
   if (off && $("#motion-switch").checked && motionNow) {
     $("#motion-switch").checked = false; setMotion(false);
-    if ($("#message").hidden) say(`motion is off for servo ${servoId()}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
+    if ($("#message").hidden) say(`motion is off for servo ${state.servoLoaded}: ${off}; switch it on again to jog (it holds the servo where it stands)`, "info");
   }
   // Switched off by another page (its page opened in another tab): this one shows it locked too. Not over
   // a tick the server has yet to take.
@@ -219,7 +219,16 @@ async function scanLine() {
 
 // ---- Servo
 
-function servoId() { return +$("#servo-id").value; }
+// The servo the page shows (the last one read): every action acts on it, never on an ID typed in the box and
+// not read (the page showed one servo's values and wrote another's: new servos all read alike).
+function servoId() {
+  const id = state.servoLoaded;
+  if (id === null || id === undefined) {
+    say("read a servo first");
+    throw new Error("read a servo first");
+  }
+  return id;
+}
 
 function robotNote(id) {
   const line = state.status && state.status.robot_line;
@@ -245,7 +254,7 @@ async function leaveServo() {
   $("#motion-switch").checked = false; setMotion(false);
   state.motionFor = null;
   await motionOff(shown);
-  if (on !== shown) await motionOff(on);  // (switched on while the page showed no servo read: its read failed)
+  if (on !== shown) await motionOff(on);  // (the switch acts on the servo shown: never expected, but kept off)
 }
 
 async function loadServo() {
@@ -298,7 +307,7 @@ const POSITION_PERIOD_MS = 500;
 
 async function pollPosition() {
   const id = state.servoLoaded;
-  if (id === null || id === undefined || id !== servoId() || $("#page-servo").hidden) return;
+  if (id === null || id === undefined || $("#page-servo").hidden) return;
   let response, body;
   try {
     response = await fetch(`/api/servo/${id}/position`);
@@ -367,8 +376,8 @@ async function planWrite() {
 function followNewId(result) {
   const change = result.written && result.diff.find((d) => d.name === "servo_id");
   const old = servoId();
+  $("#servo-id").value = change ? change.new : old;  // (read next: the servo written, whatever the box said)
   if (!change) return `servo ${old}`;
-  $("#servo-id").value = change.new;
   history.replaceState(null, "", `#servo/${change.new}`);  // (no hashchange: this page reads it next)
   return `servo ${old} is now servo ${change.new}`;
 }
