@@ -433,6 +433,19 @@ def test_set_id_refused_with_a_shared_id(cli: Any, sim_line: Any) -> None:
     assert [s.servo_id for s in sim.servos] == [3, 3]
 
 
+@pytest.mark.parametrize(
+    "command", [["monitor", "1-2", "--free", "--seconds", "0.3"], ["demo", "--ids", "1-2", "--seconds", "0.3"]]
+)
+def test_monitor_and_demo_name_the_rate_their_servos_answer_at(cli: Any, sim_line: Any, command: list[str]) -> None:
+    # Servos at another rate: the stream ran "offline" to its end, then "no servo among 1-2 answered" with
+    # power hints (exit 4), where get, info, free and eeprom name the rate (exit 6).
+    _, url = sim_line([VirtualServo(1, baud_rate=1250000), VirtualServo(2, baud_rate=1250000)])
+    result = cli("--port", url, "--timeout", "0.005", *command)
+    assert result.code == ExitCode.WRONG_BAUD, result.err
+    assert "--baud 1250000" in result.err and "Traceback" not in result.err
+    assert cli("--port", url, "--baud", "1250000", *command).code == 0
+
+
 def test_set_id_names_the_rate_a_lone_servo_answers_at(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([VirtualServo(3, baud_rate=625000)])
     result = cli("--port", url, "--timeout", "0.005", "set-id", "9", "--yes")

@@ -21,7 +21,14 @@ from ._console import (
     temperature_json,
     temperature_text,
 )
-from ._errors import NO_REPLY_HINTS, answered_garbled, no_reply_error, nothing_answered, translate
+from ._errors import (
+    NO_REPLY_HINTS,
+    answered_garbled,
+    no_reply_error,
+    none_of_them_answered,
+    nothing_answered,
+    translate,
+)
 from ._loop import run_loop
 from ._params import (
     ALL_BAUDS,
@@ -76,6 +83,7 @@ __all__ = [
     "json_option",
     "no_reply_error",
     "note_simulator",
+    "none_of_them_answered",
     "nothing_answered",
     "out",
     "parse_id_list",

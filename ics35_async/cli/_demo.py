@@ -104,7 +104,7 @@ def demo(
             return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
     state, telemetry, recorder = run(settings, body)
-    final_report(state, telemetry, recorder, options, f"ics35 demo: {shown}")
+    final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
         f"demo {f'stopped by {stop_name()}' if state.stopped_by_signal else 'done'} after "
         f"{state.elapsed:.1f} s: {state.cycle} cycles, "  # (the wave's time: not the scan's, nor the question's)

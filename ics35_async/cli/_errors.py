@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
+from ._console import ids_text
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
 
@@ -174,6 +176,30 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
         *link_hints(settings),
         *NO_REPLY_HINTS,
     )
+
+
+def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
+    """The error for a command that asked servos ``ids`` over and over (a stream) and none ever answered: the
+    rate the first of them answers at when it is another (its EEPROM agreeing: see policies.servo_rates), as
+    the one-shot commands say it, else what to check."""
+    from ..policies import ALL_BAUDS, servo_rates
+
+    def open_at(baud: int) -> Bus:
+        return settings.bus(baud, retries=1)
+
+    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
+    try:
+        rates = run_loop(servo_rates(open_at, ids[0], others))
+    except (errors.IcsError, OSError):
+        rates = ()  # advice only: a port that cannot be opened again leaves what was said
+    which = ids_text(ids)
+    if rates:
+        return CliError(
+            ExitCode.WRONG_BAUD,
+            f"no servo among {which} answered at {settings.baud} baud, but servo {ids[0]} does at {rates[0]} baud",
+            f"pass --baud {rates[0]}",
+        )
+    return CliError(ExitCode.NO_REPLY, f"no servo among {which} answered", *NO_REPLY_HINTS)
 
 
 def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:

@@ -27,7 +27,17 @@ from ..frames import Frame
 from ..stream import Stream
 from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
-from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, emit_json, err, ids_text, nothing_answered, out
+from ._common import (
+    CliError,
+    ExitCode,
+    Settings,
+    emit_json,
+    err,
+    ids_text,
+    none_of_them_answered,
+    nothing_answered,
+    out,
+)
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -200,9 +210,15 @@ def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:
 
 
 def final_report(
-    state: LiveState, telemetry: Telemetry, recorder: Recorder, options: LiveOptions, plot_title: str
+    settings: Settings,
+    state: LiveState,
+    telemetry: Telemetry,
+    recorder: Recorder,
+    options: LiveOptions,
+    plot_title: str,
 ) -> None:
-    """The plot (with --plot), the table and summary where no live table was drawn; no answer at all is an error."""
+    """The plot (with --plot), the table and summary where no live table was drawn; no answer at all is an error
+    (naming the rate the servos answer at when it is another)."""
     if options.plot is not None:
         recorder.write(options.plot, plot_title)
         err.print(f"plot written to {escape(options.plot)}")
@@ -212,7 +228,7 @@ def final_report(
     # Stopped by Ctrl-C before any cycle ended, nothing is known of the servos: no error for that.
     asked = state.cycle > 0 or not state.stopped_by_signal
     if asked and not state.answered_ever:
-        raise CliError(ExitCode.NO_REPLY, f"no servo among {ids_text(state.ids)} answered", *NO_REPLY_HINTS)
+        raise none_of_them_answered(settings, state.ids)
 
 
 F = TypeVar("F", bound=Callable[..., Any])

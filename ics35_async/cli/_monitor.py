@@ -74,7 +74,7 @@ def monitor(
             return await run_live(settings, bus, plan.streamed, state, options, None, watch=watch)
 
     state, telemetry, recorder = run(settings, body)
-    final_report(state, telemetry, recorder, options, f"ics35 monitor: {shown}")
+    final_report(settings, state, telemetry, recorder, options, f"ics35 monitor: {shown}")
     return 0
 
 
