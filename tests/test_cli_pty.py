@@ -72,6 +72,14 @@ def test_scan_finds_exactly_the_simulated_ids_at_their_baud(port: str) -> None:
     assert doc["garbled"] == []
 
 
+def test_python_m_ics35_async_is_the_command_line(port: str) -> None:
+    # `python -m ics35_async` said "No module named ics35_async.__main__"; the docs' `-m ics35_async.cli` worked.
+    command = ["--port", port, "--baud", str(SIM_BAUD), *ANSWERED, "get", str(SIM_IDS[0]), "speed", "--json"]
+    done = subprocess.run([sys.executable, "-m", "ics35_async", *command], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == ics35(*command[1:]).stdout
+
+
 def test_json_read_commands_parse(port: str) -> None:
     baud = ["--baud", str(SIM_BAUD), *ANSWERED]
     info = json_of(port, *baud, "info", "5", "--free")
