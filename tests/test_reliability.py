@@ -29,7 +29,7 @@ from tests.support.fuzzing import valid_value
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
 from tests.support.matcher import LogMatcher, RequestRecord
 from tests.support.oracle import FAULT_KINDS, CheckError, Verdict, WirePredictor, chaos_servos, is_stream_tx
-from tests.support.timing import FAST_TIMING, NO_TIMEOUTS
+from tests.support.timing import FAST_TIMING, GUARD, NO_TIMEOUTS
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
 
@@ -350,9 +350,14 @@ async def test_the_check_after_a_soak_over_a_pty_takes_a_simulator_held_up_past_
     # value must still be right, and the counters add up.
     sim = VirtualLine(chaos_servos(), log_size=None)
     async with served_on_a_pty(sim) as path, await open_bus(path, retries=1, timing=FAST_TIMING) as bus:
+        before = sim.transactions
 
         def hold_up_the_simulator() -> None:
-            time.sleep(0.01)  # (the check's reads have begun: they take some 50 ms in all)
+            # Once the check's reads have begun (one has reached the simulator; they take some 50 ms in all): a
+            # fixed 10 ms wait came, on a loaded machine, before the first of them or after the last.
+            deadline = time.monotonic() + GUARD
+            while sim.transactions == before and time.monotonic() < deadline:
+                time.sleep(0.0005)
             with sim._lock:  # its server thread waits here: the reply on the wire comes late, and the retry's too
                 time.sleep(0.03)
 
