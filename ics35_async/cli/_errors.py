@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from .. import errors
@@ -135,15 +135,21 @@ def link_hints(settings: Settings) -> tuple[str, ...]:
     )
 
 
+def _opener(settings: Settings) -> Callable[[int], Bus]:
+    """How the diagnoses below open the line at a rate (``open_at(baud)``, as the policies take it)."""
+
+    def open_at(baud: int) -> Bus:
+        return settings.bus(baud, retries=1)
+
+    return open_at
+
+
 def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     """No answer: why (policies.why_no_reply: the adapter, a long reply lost, another baud rate), else what
     to check."""
     from ..policies import NoReplyCause, why_no_reply
 
-    def open_at(baud: int) -> Bus:
-        return settings.bus(baud, retries=1)
-
-    finding = run_loop(why_no_reply(exc, open_at, settings.baud, echo=settings.echo))
+    finding = run_loop(why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo))
     if finding.cause is NoReplyCause.NO_ECHO:
         # Not even our own echo came back: the adapter or its wiring, not the servo.
         return CliError(
@@ -184,12 +190,9 @@ def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
     the one-shot commands say it, else what to check."""
     from ..policies import ALL_BAUDS, servo_rates
 
-    def open_at(baud: int) -> Bus:
-        return settings.bus(baud, retries=1)
-
     others = [rate for rate in ALL_BAUDS if rate != settings.baud]
     try:
-        rates = run_loop(servo_rates(open_at, ids[0], others))
+        rates = run_loop(servo_rates(_opener(settings), ids[0], others))
     except (errors.IcsError, OSError):
         rates = ()  # advice only: a port that cannot be opened again leaves what was said
     which = ids_text(ids)
