@@ -18,7 +18,7 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
 * telemetry beside a wire-timed stream (``bench_sharing``'s 16 pollers reading current and
   temperature, 10 times a second each): their p99 wait in position-transaction times and their
   latency, on the burst path as it runs (no burst starts while requests come), with bursts
-  beside the requests (what that pause avoids) and on the ordinary path (the goal: at most 1.5);
+  beside the requests (what that pause avoids), on the ordinary path, and on uvloop (the goal: at most 1.5);
 * sequential awaited ``set_position`` against raw pyserial, and the batched forms (``gather`` of
   one cycle's 32 commands; a stream) that replace it.
 
@@ -260,11 +260,17 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             note("thread progress beside trio burst", beside_trio_burst["spins_per_s"] / base, beside_trio_burst)
             note("thread progress beside trio ordinary", beside_trio_plain["spins_per_s"] / base, beside_trio_plain)
             # The burst path as it runs (no burst starts while requests come), with bursts beside the
-            # requests (what that pause avoids), and the ordinary path; a different one first each run.
-            variants = [("burst", "1", False), ("burst beside requests", "1", True), ("ordinary", "0", False)]
-            for name, setting, beside in variants[r % 3 :] + variants[: r % 3]:
+            # requests (what that pause avoids), the ordinary path, and the first on uvloop (its own order of
+            # timers and I/O in a pass); a different one first each run.
+            variants = [
+                ("burst", "1", False, "asyncio"),
+                ("burst beside requests", "1", True, "asyncio"),
+                ("ordinary", "0", False, "asyncio"),
+                ("burst uvloop", "1", False, "uvloop"),
+            ]
+            for name, setting, beside, loop in variants[r % 4 :] + variants[: r % 4]:
                 with burst_setting(setting, beside_requests=beside):
-                    tele = telemetry_beside_stream(paths[0], "asyncio", BAUD, alone=duration, shared=1.5 * duration)
+                    tele = telemetry_beside_stream(paths[0], loop, BAUD, alone=duration, shared=1.5 * duration)
                 note(f"telemetry wait_p99_tx {name}", tele["wait_p99_tx"], tele)
     return {
         "path": on_path(True, lambda: {"path": burst_path()[1]})["path"],
@@ -347,10 +353,15 @@ def print_table(r: dict[str, Any]) -> None:
     print("   telemetry beside a wire-timed stream (16 pollers reading current and temperature 10 times a")
     print("   second each): p99 wait in position-transaction times (goal: at most 1.5; each path's own T,")
     print("   measured with the stream alone), and a read's latency, call to result, p50 / p99")
-    for name in ("burst", "burst beside requests", "ordinary"):
+    labels = {
+        "burst": "burst path",
+        "burst beside requests": "burst path, bursts beside requests",
+        "ordinary": "ordinary path",
+        "burst uvloop": "burst path, on uvloop",
+    }
+    for name, label in labels.items():
         figs = r["figures"][f"telemetry wait_p99_tx {name}"]
         p50, p99 = (median([f[f"latency_{p}_tx"] * f["position_tx_us"] for f in figs]) for p in ("p50", "p99"))
-        label = "burst path, bursts beside requests" if name == "burst beside requests" else name + " path"
         print(f"  {label:48} {m[f'telemetry wait_p99_tx {name}']:8.2f}   {p50:4.0f} / {p99:4.0f} us")
 
 
