@@ -184,6 +184,43 @@ def test_free_reports_the_missing_one(cli: Any, sim_line: Any) -> None:
     assert "2" in result.err
 
 
+def test_free_all_frees_the_servos_there_and_names_the_absent_ids_in_one_line(cli: Any, sim_line: Any) -> None:
+    # "free all" makes a robot go limp: the 29 empty IDs of a 3-servo line are no failure, and no flood of lines.
+    sim, url = sim_line([1, 2, 3])
+    result = cli("--port", url, "--timeout", "0.005", "free", "all")
+    assert result.code == 0, result.err
+    assert [line.split(":")[0] for line in result.out.splitlines()] == ["servo 1", "servo 2", "servo 3"]
+    assert all(sim.servo(i).free for i in (1, 2, 3))
+    said = [line for line in result.err.splitlines() if line.strip()]
+    assert len(said) == 1 and "0, 4-31" in said[0] and "no answer" in said[0], result.err
+
+
+def test_free_all_as_json_lists_the_absent_ids(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2, 3])
+    result = cli("--port", url, "--timeout", "0.005", "free", "all", "--json")
+    assert result.code == 0, result.err
+    doc = result.json()
+    assert set(doc["freed"]) == {"1", "2", "3"} and doc["failed"] == {}
+    assert doc["absent"] == [0, *range(4, 32)]
+    assert result.err == ""
+
+
+def test_free_all_where_nothing_answers_is_still_an_error(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([])
+    result = cli("--port", url, "--timeout", "0.005", "free", "all")
+    assert result.code == ExitCode.NO_REPLY
+    assert "power" in result.err
+
+
+def test_free_of_named_ids_that_are_absent_is_still_an_error(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([1, 2, 3])
+    result = cli("--port", url, "--timeout", "0.005", "free", "1-5", "--json")
+    assert result.code == ExitCode.NO_REPLY
+    doc = result.json()
+    assert set(doc["freed"]) == {"1", "2", "3"} and set(doc["failed"]) == {"4", "5"}
+    assert "absent" not in doc
+
+
 def test_get_and_set_are_ram(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([1])
     result = cli("--port", url, "set", "1", "speed", "50")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -13,7 +12,7 @@ from rich.table import Table
 from .. import policies, protocol, units
 from ..bus import Bus
 from ..eeprom import Eeprom
-from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout
+from ..errors import InvalidArgument, ReplyTimeout
 from ..protocol import Param
 from ._common import (
     ID_LIST,
@@ -27,6 +26,7 @@ from ._common import (
     emit_json,
     err,
     fmt_degrees,
+    id_ranges,
     ids_text,
     json_option,
     out,
@@ -204,52 +204,48 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
     except click.BadParameter as exc:
         raise click.BadParameter(exc.message, param_hint="IDS") from None
 
-    async def body() -> tuple[dict[int, int | IcsError], IcsError | None]:
-        async with settings.bus() as bus:
-            results = await asyncio.gather(*(bus.servo(i).free() for i in wanted), return_exceptions=True)
-        done: dict[int, int | IcsError] = {}
-        for i, r in zip(wanted, results, strict=True):
-            if isinstance(r, IcsError):
-                done[i] = r
-            elif isinstance(r, BaseException):
-                raise r
-            else:
-                done[i] = r
-        # A line lost half-way: the servos freed before it are told apart from the rest, then the loss.
-        lost = next((r for r in done.values() if isinstance(r, IcsError) and not isinstance(r, ReplyError)), None)
-        if lost is None and all(isinstance(r, ReplyError) for r in done.values()):
-            first = next(iter(done.values()))
-            assert isinstance(first, ReplyError)
-            raise first
-        return done, lost
+    every_servo = len(wanted) == len(policies.ALL_IDS)  # "all": the servos on the line, whichever they are
 
-    done, lost = run(settings, body)
-    failed = {i: r for i, r in done.items() if isinstance(r, ReplyError)}
-    unknown = [i for i, r in done.items() if isinstance(r, IcsError) and not isinstance(r, ReplyError)]
+    async def body() -> policies.FreeReport:
+        async with settings.bus() as bus:
+            report = await policies.free_servos(bus, wanted, every_servo=every_servo)
+        if not report.freed and not report.unknown and len(report.failed) == len(wanted):
+            raise next(iter(report.failed.values()))  # nothing answered: the no-reply diagnosis
+        return report
+
+    report = run(settings, body)
     if as_json:
         emit_json(
             {
-                "freed": {str(i): p for i, p in done.items() if isinstance(p, int)},
-                "failed": {str(i): str(e) for i, e in failed.items()},
-                **({"unknown": [str(i) for i in unknown]} if unknown else {}),
+                "freed": {str(i): p for i, p in report.freed.items()},
+                "failed": {str(i): str(e) for i, e in report.failed.items()},
+                **({"absent": list(report.absent)} if every_servo else {}),
+                **({"unknown": [str(i) for i in report.unknown]} if report.unknown else {}),
             }
         )
     else:
-        for i, p in done.items():
-            if isinstance(p, int):
-                out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
-            elif i in unknown:
+        for i, p in report.freed.items():
+            out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
+        for i, e in report.failed.items():
+            err.print(f"[red]servo {i}: no answer[/red] ({escape(str(e))})")
+        if report.unknown and every_servo:  # (most of them empty IDs: one line)
+            out.print(
+                f"ID(s) {id_ranges(report.unknown)}: [bold]unknown[/bold]: the line was lost before they answered "
+                "(free or still holding)"
+            )
+        else:
+            for i in report.unknown:
                 out.print(
                     f"servo {i}: [bold]unknown[/bold]: the line was lost before it answered (free or still holding)"
                 )
-            else:
-                err.print(f"[red]servo {i}: no answer[/red] ({escape(str(p))})")
-    if lost is not None:
-        raise translate(settings, lost)
-    if failed:
-        timed_out = any(isinstance(e, ReplyTimeout) for e in failed.values())
+        if report.absent:
+            err.print(f"no answer from ID(s) {id_ranges(report.absent)} at {settings.baud} baud: no servo there")
+    if report.lost is not None:
+        raise translate(settings, report.lost)
+    if report.failed:
+        timed_out = any(isinstance(e, ReplyTimeout) for e in report.failed.values())
         code = ExitCode.NO_REPLY if timed_out else ExitCode.COMMUNICATION
-        raise CliError(code, f"servo(s) {ids_text(failed)} did not go free", *NO_REPLY_HINTS[:2])
+        raise CliError(code, f"servo(s) {ids_text(report.failed)} did not go free", *NO_REPLY_HINTS[:2])
     return 0
 
 

@@ -74,3 +74,14 @@ def temperature_json(raw: int) -> dict[str, Any]:
 
 def ids_text(ids: Sequence[int] | Iterable[int]) -> str:
     return ", ".join(str(i) for i in ids) or "none"
+
+
+def id_ranges(ids: Iterable[int]) -> str:
+    """``0, 4-31``: a run of three or more IDs as a range (29 empty IDs in one short line), the rest one by one."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in runs) or "none"

@@ -1,5 +1,5 @@
 """The line's policies: finding servos, telling why one did not answer, renumbering the only one, changing an
-EEPROM safely, reading positions without freeing what may not go limp.
+EEPROM safely, reading positions without freeing what may not go limp, freeing every servo there.
 
 They sit above the bus and use only its public surface (:class:`~.failure_kinds.Line`),
 so library users get the same rules the ``ics35`` command follows.
@@ -27,6 +27,7 @@ from .failure_kinds import (
     nothing_came_back,
     reopening,
 )
+from .free import FreeReport, free_servos
 from .id_write import IdChange, IdSurvey, Refusal, look_elsewhere, survey_for_id_write, write_lone_id
 from .no_reply import NoReply, NoReplyCause, why_no_reply
 from .position_read import (
@@ -48,6 +49,7 @@ __all__ = [
     "EepromPlan",
     "EepromWriteResult",
     "FoundServo",
+    "FreeReport",
     "IdChange",
     "IdSurvey",
     "Line",
@@ -66,6 +68,7 @@ __all__ = [
     "device_rates",
     "echo_setting_wrong",
     "edit_image",
+    "free_servos",
     "look_elsewhere",
     "nothing_came_back",
     "plan_eeprom_write",
