@@ -105,3 +105,25 @@ def test_a_servo_gone_offline_shows_no_position(
     assert rows["3"][position_cells] == ["-"] * len(rows["3"][position_cells]), result.out
     assert rows["3"][-3:-1] == ["-", "-"], result.out  # current, temperature
     assert "-" not in rows["1"][position_cells], result.out  # (a servo still there shows where it is)
+
+
+@pytest.mark.parametrize("command", [["monitor", "all", "--free"], ["demo", "--ids", "all"]], ids=["monitor", "demo"])
+def test_all_means_the_servos_that_answer_and_the_empty_ids_are_one_line(
+    cli: Any, sim_line: Any, command: list[str]
+) -> None:
+    # On a 3-servo line, "all" is those 3: not a table of 29 empty rows counting errors, each a reply timeout.
+    _, url = sim_line([1, 2, 3])
+    result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "0.3")
+    assert result.code == 0, result.err
+    rows = [line.split()[0] for line in result.out.splitlines() if line.split()[:1] and line.split()[0].isdigit()]
+    assert rows == ["1", "2", "3"], result.out
+    said = [line for line in result.err.splitlines() if "no answer" in line]
+    assert len(said) == 1 and "0, 4-31" in said[0], result.err
+    assert "answering 3/3" in result.out, result.out
+
+
+def test_monitor_all_where_nothing_answers_is_an_error(cli: Any, sim_line: Any) -> None:
+    _, url = sim_line([])
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "all", "--free", "--seconds", "0.3")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    assert "no servo answered" in result.err

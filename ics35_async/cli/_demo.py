@@ -11,7 +11,7 @@ from rich.markup import escape
 from .. import units
 from ..frames import Frame
 from ._common import ID_LIST, confirm, ids_text, out, run, seconds_option, settings_of, yes_option
-from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
+from ._live import LiveOptions, TargetFunction, discover, every_id, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._signals import stop_name
@@ -47,7 +47,8 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
     "ids",
     type=ID_LIST,
     default=None,
-    help="Servos to drive (default: 0-31 on the simulator; on hardware, the IDs a scan finds, after asking).",
+    help="Servos to drive; all: those that answer (default: 0-31 on the simulator; on hardware, the IDs a scan "
+    "finds, after asking).",
 )
 @seconds_option(
     "--seconds", "Run this long, but not less than a first cycle (Ctrl-C stops earlier).", low=0.1, default=10.0
@@ -81,6 +82,7 @@ def demo(
     Without --ids on hardware, demo scans and asks before moving every servo it finds (--yes skips that).
     """
     settings = settings_of(ctx)
+    asked_all = every_id(ids)  # "all": the servos that answer, as the user asked for every one (no question)
     if settings.port == "sim://":
         ids = ids or list(range(32))
     shown = live_port(settings, plot, "ids=0-31&")
@@ -92,7 +94,7 @@ def demo(
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = ids or await discover(bus, settings, False)
+            chosen = ids if ids and not asked_all else await discover(bus, settings, False, asked_all=asked_all)
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
                 question = f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave?"

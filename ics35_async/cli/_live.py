@@ -33,6 +33,7 @@ from ._common import (
     Settings,
     emit_json,
     err,
+    id_ranges,
     ids_text,
     none_of_them_answered,
     nothing_answered,
@@ -185,13 +186,23 @@ def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> Cl
     return error
 
 
-async def discover(bus: Bus, settings: Settings, quiet: bool) -> list[int]:
-    if not quiet:
+def every_id(ids: Sequence[int] | None) -> bool:
+    """IDS "all" (or 0-31): every servo there is, not 32 servos the user expects on the line."""
+    return ids is not None and set(ids) == set(range(32))
+
+
+async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool = False) -> list[int]:
+    """The IDs that answer a probe (no IDs given, or "all": each absent one would cost a reply timeout every
+    cycle and a row of errors); none answering is an error.  Asked for "all", the others are named in one line."""
+    if not quiet and not asked_all:
         err.print(f"no IDs given: scanning {escape(settings.port)} at {settings.baud} baud ...")
     answered, _ = await probe_ids(bus, range(32))
     if not answered:
         where = f"{settings.port} at {settings.baud} baud"
         raise nothing_answered(settings, where, silent=bus.stats.total.bytes_rx == 0)
+    absent = sorted(set(range(32)) - set(answered))
+    if asked_all and absent and not quiet:
+        err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
     return answered
 
 

@@ -8,7 +8,7 @@ from rich.markup import escape
 from .. import policies
 from ._basic import NO_READ_35
 from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, seconds_option, settings_of
-from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
+from ._live import LiveOptions, discover, every_id, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._telemetry import Telemetry
@@ -42,8 +42,8 @@ def monitor(
     position read; ICS 3.5 servos can only by the free command, so with --free
     they go limp (move them by hand and watch), and without it they show "n/a"
     for position.  With only ICS 3.5 servos and no --free, monitor refuses
-    (exit 5) and sends nothing.  IDS: 1-12, 0,3,5, all (default: the IDs that
-    answer a scan).  --json prints one JSON line per second.
+    (exit 5) and sends nothing.  IDS: 1-12, 0,3,5, all (the IDs that answer;
+    also the default).  --json prints one JSON line per second.
     """
     settings = settings_of(ctx)
     shown = live_port(settings, plot)
@@ -53,7 +53,7 @@ def monitor(
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = ids or await discover(bus, settings, as_json)
+            chosen = ids if ids and not every_id(ids) else await discover(bus, settings, as_json, asked_all=bool(ids))
             plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
             watch, freed = plan.watch, plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
