@@ -22,6 +22,7 @@ from ics35_async.cli._common import Settings, parse_id_list, translate
 from ics35_async.cli._extras import install_command, installed_from
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
+from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied
 
@@ -103,6 +104,38 @@ def test_scan_finds_servos_at_every_baud(cli: Any, sim_line: Any) -> None:
     assert "servos at different baud rates" in result.err
     # ... and how to bring one to another's rate (the note alone left a newcomer there).
     assert "eeprom set ID baud_rate=" in result.err and "--change-baud" in result.err, result.err
+
+
+class UnpluggedWhenRead(VirtualServo):
+    """A servo whose line is pulled away when its EEPROM is read (after the probes found every servo)."""
+
+    line: Any = None
+
+    def handle(self, command: Any) -> Any:
+        if self.line is not None and isinstance(command, ReadEeprom):
+            self.line.unplug()
+        return super().handle(command)
+
+
+@pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
+def test_scan_whose_port_is_lost_part_way_shows_what_it_found_then_the_loss(
+    cli: Any, sim_line: Any, as_json: bool
+) -> None:
+    puller = UnpluggedWhenRead(20)
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2), puller, VirtualServo(7, baud_rate=625000)])
+    puller.line = sim
+    result = cli("--port", url, "scan", "--timeout", "0.005", *(["--json"] if as_json else []))
+    assert result.code not in (0, ExitCode.NO_REPLY), (result.code, result.err)
+    assert "unplugged" in result.err, result.err
+    if as_json:
+        doc = result.json()
+        assert [s["id"] for s in doc["servos"]] == [1, 2, 20]
+        assert doc["servos"][0]["eeprom"]["servo_id"] == 1 and doc["servos"][2]["eeprom"] is None
+        assert "unplugged" in doc["lost"]
+    else:
+        rows = [ln.split()[:2] for ln in result.out.splitlines() if ln.split()[:1] and ln.split()[0].isdigit()]
+        assert [row[0] for row in rows if row[1] == "115200"] == ["1", "2", "20"], result.out
+        assert "before the line was lost" in " ".join(result.err.split()), result.err
 
 
 def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:

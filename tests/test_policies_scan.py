@@ -11,9 +11,9 @@ import pytest
 from ics35_async import open_bus
 from ics35_async.bus import Bus
 from ics35_async.eeprom import BaudRate
-from ics35_async.errors import EchoMismatch, InvalidArgument, PartialReply, ReplyError
+from ics35_async.errors import BusClosed, EchoMismatch, InvalidArgument, PartialReply, PortLost, ReplyError
 from ics35_async.policies import ALL_BAUDS, Line, echo_setting_wrong, probe_ids, scan, servo_rates
-from ics35_async.protocol import Param, Position, ReadParam
+from ics35_async.protocol import Param, Position, ReadEeprom, ReadParam
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 from tests.support.engine_support import Recorded, Wire, ready_engine
@@ -325,3 +325,31 @@ async def test_a_scan_on_a_lost_port_raises_port_lost_itself_not_a_group_of_them
         with pytest.raises(PortLost):
             await bus.scan(range(ids_from, 32))
     sim.close()
+
+
+class UnplugsWhenAsked(VirtualServo):
+    """A servo whose line is pulled away as it hears ``what`` (a stretch read: a probe; or its EEPROM read)."""
+
+    def __init__(self, servo_id: int, what: type, **options: Any) -> None:
+        super().__init__(servo_id, **options)
+        self.what = what
+        self.line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        if self.line is not None and isinstance(command, self.what):
+            self.line.unplug()
+        return super().handle(command)
+
+
+@pytest.mark.parametrize("pulled_at", [ReadParam, ReadEeprom], ids=["probing", "reading-eeprom"])
+async def test_a_port_lost_part_way_keeps_the_servos_found_before_it(lines: Any, pulled_at: type) -> None:
+    # Servos 1 and 2 answered before the line went: a caller gets them, and the loss, not only the loss.
+    puller = UnplugsWhenAsked(20, pulled_at)
+    sim = lines([VirtualServo(1), VirtualServo(2), puller, VirtualServo(7, baud_rate=625000)])
+    puller.line = sim
+    report = await scan(opener(sim), ids=range(32))
+    assert [s.servo_id for s in report.servos][:2] == [1, 2], report
+    assert 7 not in [s.servo_id for s in report.servos]  # (its rate came after the loss)
+    if pulled_at is ReadEeprom:  # the probes were over: servo 1's EEPROM was read before the loss
+        assert report.servos[0].eeprom == sim.servo(1).eeprom
+    assert isinstance(report.lost, (PortLost, BusClosed)), report.lost

@@ -137,6 +137,7 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
             "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
             "rate_blind": report.rate_blind,
             "id_read_only": [{"baud": r.baud, "id": r.id_answer} for r in report.rates if r.only_id_read],
+            "lost": None if report.lost is None else str(report.lost),
         }
     )
 
@@ -227,7 +228,8 @@ def scan(
     Sends only harmless reads: an ID read per rate (a rate where nothing answers
     it is done), then a stretch read per ID, then each servo's EEPROM.  A servo
     that answers at several rates is listed once, at the rate its EEPROM names.
-    Exit code 4 when nothing answers.
+    Exit code 4 when nothing answers.  A port lost part-way: the servos found
+    before it are listed, then the error.
     """
     settings = settings_of(ctx)
     report = run(
@@ -242,6 +244,15 @@ def scan(
         if report.servos:
             out.print(scan_table(report.servos))
         scan_notes(settings, report)
+    if report.lost is not None:  # what was found is shown above; then the loss, not "no servo answered"
+        failure = translate(settings, report.lost)
+        if report.servos:
+            shown = "listed" if as_json else "shown above"
+            failure.hints.append(
+                f"servo(s) {ids_text(sorted({s.servo_id for s in report.servos}))} were found before the line was "
+                f"lost ({shown}; the rates after it were not scanned); when it is back: {settings.command_line('scan')}"
+            )
+        raise failure
     if not report.servos:
         evidence = report.echo_evidence
         if evidence is not None:

@@ -218,6 +218,8 @@ async def restore_rates(line: Line, ids: Iterable[int], *, bauds: Iterable[int] 
         report = await scan(reopening(line), bauds=[home, *(int(b) for b in bauds if int(b) != home)], ids=wanted)
     finally:
         await back_at_rate(line, home)  # (a line that cannot go back fails the first read after)
+    if report.lost is not None:
+        raise report.lost  # (the rates the loss cut off are unknown: no restore is planned on half a scan)
     found: dict[int, list[int]] = {}
     for servo in report.servos:
         found.setdefault(servo.servo_id, []).append(servo.baud)

@@ -71,7 +71,7 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     freed = {i: r for i, r in sorted(outcomes.items()) if isinstance(r, int)}
     failed = {i: r for i, r in sorted(outcomes.items()) if isinstance(r, ReplyError)}
     unknown = tuple(i for i, r in sorted(outcomes.items()) if isinstance(r, IcsError) and i not in failed)
-    lost = next((r for i, r in sorted(outcomes.items()) if i in unknown), None)
+    lost = next((r for i, r in sorted(outcomes.items()) if i in unknown and isinstance(r, IcsError)), None)
     absent: tuple[int, ...] = ()
     if every_servo and (freed or not all(nothing_came_back(e) for e in failed.values())):
         # Some servo answered, so the line works at this rate: an ID silent on it is an empty slot.

@@ -49,7 +49,7 @@ import anyio
 
 from .. import protocol
 from ..eeprom import BaudRate, Eeprom
-from ..errors import IcsError, InvalidArgument, ReplyError
+from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Param
 from ..tasks import task_group
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
@@ -84,6 +84,7 @@ class RateScan:
     nobody: bool = False  # nothing answered the ID read, so no ID was probed one by one
     echo_evidence: ReplyError | None = None  # an error showing the line's echo setting is wrong
     id_answer: int | None = None  # the ID a device gave to the ID read (None: not asked, or no clean answer)
+    lost: IcsError | None = None  # the line was lost part-way (in a scan's report; probe_ids raises it)
 
     @property
     def only_id_read(self) -> bool:
@@ -99,6 +100,7 @@ class ScanReport:
     rates: tuple[RateScan, ...]  # the rates probed, in order
     skipped: Mapping[int, str] = field(default_factory=dict)  # baud -> why the port would not open at it
     rate_blind: bool = False  # the link does not carry the baud rate (socket://): probed once, at the first rate
+    lost: IcsError | None = None  # the line was lost part-way: ``servos`` are those found before it
 
     @property
     def garbled(self) -> list[tuple[int, int, ReplyError]]:
@@ -179,6 +181,32 @@ async def probe_ids(
     """
     gate = anyio.Semaphore(check_int("concurrency", concurrency, 1, 32))
     wanted = [protocol.check_id(i) for i in ids]
+    rate = await _probe_rate(line, wanted, gate, id_read_first, on_probe)
+    if rate.lost is not None:
+        raise rate.lost
+    return rate
+
+
+async def _probe_rate(
+    line: Line, wanted: list[int], gate: anyio.Semaphore, id_read_first: bool | None, on_probe: ProbeCallback | None
+) -> RateScan:
+    """:func:`probe_ids`, but a line lost part-way is returned (``lost``) with the IDs that answered before it."""
+    heard: list[int] = []
+    try:
+        return await _probe_all(line, wanted, gate, id_read_first, on_probe, heard)
+    except (BusClosed, PortLost) as exc:
+        return RateScan(int(line.baudrate), answered=tuple(i for i in wanted if i in heard), lost=exc)
+
+
+async def _probe_all(
+    line: Line,
+    wanted: list[int],
+    gate: anyio.Semaphore,
+    id_read_first: bool | None,
+    on_probe: ProbeCallback | None,
+    heard: list[int],
+) -> RateScan:
+    """The body of :func:`probe_ids`; ``heard`` gets each ID that answers as it does."""
     rx_before = line.stats.total.bytes_rx
     if id_read_first is None:
         id_read_first = len(wanted) >= ID_READ_MIN_IDS
@@ -200,6 +228,8 @@ async def probe_ids(
     async def probe(i: int) -> None:
         async with gate:
             outcomes[i] = await _probe(line, i)
+        if outcomes[i] is None:
+            heard.append(i)
         _done(on_probe, 1)
 
     # All queued at once (up to ``concurrency``): the line runs them back to back in this order.
@@ -281,9 +311,14 @@ async def scan(
     malformed port name: nothing about the rates).  ``on_probe`` hears each
     probe's outcome as it comes.
 
+    A line lost part-way (its port gone, the bus closed) does not cost what was
+    found before it: the report lists those servos (an EEPROM not read by then
+    is ``None``) and holds the loss in ``lost``; the rates after it are not
+    probed.
+
     Raises:
         InvalidArgument: a bad baud rate or ID.
-        SerialPortError: the port is missing, denied or busy, or no rate could be opened.
+        SerialPortError: the port is missing, denied or busy, or no rate could be opened (before any was probed).
     """
     rates_wanted = _check_bauds(bauds)
     wanted = [protocol.check_id(i) for i in ids]
@@ -291,36 +326,60 @@ async def scan(
     skipped: dict[int, IcsError] = {}
     images: dict[tuple[int, int], Eeprom | ReplyError] = {}
     rate_blind = False
+    lost: IcsError | None = None
     for baud in rates_wanted:
-        if rate_blind:
-            _done(on_probe, len(wanted))  # the same line again: nothing to learn
+        if rate_blind or lost is not None:
+            _done(on_probe, len(wanted))  # the same line again, or none: nothing to learn
             continue
         async with contextlib.AsyncExitStack() as stack:
-            line = await _open_or_skip(stack, open_at, baud, skipped)
+            try:
+                line = await _open_or_skip(stack, open_at, baud, skipped)
+            except (SerialPortError, BusClosed) as exc:
+                if not rates:
+                    raise
+                lost = exc  # it opened before: the port went away between two rates
+                continue
             if line is None:
                 _done(on_probe, len(wanted))
                 continue
             rate_blind = not carries_line_settings(getattr(line, "port", None))
-            rate = await probe_ids(line, wanted, on_probe=on_probe)
+            rate = await _probe_rate(line, wanted, anyio.Semaphore(32), None, on_probe)
             rates.append(rate)
-            if read_eeprom:
-                for i in rate.answered:
-                    images[(baud, i)] = await read_eeprom_or_error(line, i)
+            lost = rate.lost
+            if read_eeprom and lost is None:
+                lost = await _read_images(line, baud, rate.answered, images)
     if len(skipped) == len(rates_wanted):
         raise skipped[rates_wanted[0]]
     hits: dict[int, list[int]] = {}
     for rate in rates:
         for i in rate.answered:
             hits.setdefault(i, []).append(rate.baud)
-    await read_missing_images(open_at, hits, images)
-    if not rate_blind:
-        await confirm_eeprom_rates(open_at, hits, images, [r.baud for r in rates])
+    if lost is None:
+        try:
+            await read_missing_images(open_at, hits, images)
+            if not rate_blind:
+                await confirm_eeprom_rates(open_at, hits, images, [r.baud for r in rates])
+        except (SerialPortError, BusClosed, PortLost) as exc:
+            lost = exc
     ignores_rates = rate_blind or one_unit_at_several_rates(hits, images)
     servos = [servo for i, at in sorted(hits.items()) for servo in servos_of(i, at, images, ignores_rates)]
     if rate_blind:  # the rate opened at says nothing: the EEPROM's is the servo's own
         servos = [dataclasses.replace(s, baud=s.eeprom_baud or s.baud) for s in servos]
     reasons = {baud: str(exc) for baud, exc in skipped.items()}
-    return ScanReport(tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud))), tuple(rates), reasons, rate_blind)
+    listed = tuple(sorted(servos, key=lambda s: (s.servo_id, s.baud)))
+    return ScanReport(listed, tuple(rates), reasons, rate_blind, lost)
+
+
+async def _read_images(
+    line: Line, baud: int, ids: Iterable[int], images: dict[tuple[int, int], Eeprom | ReplyError]
+) -> IcsError | None:
+    """Read the EEPROM of each of ``ids`` into ``images``; the line's loss, if it was lost (the rest unread)."""
+    try:
+        for i in ids:
+            images[(baud, i)] = await read_eeprom_or_error(line, i)
+    except (BusClosed, PortLost) as exc:
+        return exc
+    return None
 
 
 async def _rates_where(

@@ -387,6 +387,8 @@ class LineSession:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
                     await bus.reopen(baudrate=self.config.baud)
+        if report.lost is not None:
+            raise report.lost  # (the page reports a lost line as it does any request's)
         self.found = list(report.servos)
         for servo in report.servos:
             if servo.eeprom is not None:
