@@ -725,6 +725,51 @@ def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(b
         expect(p.locator("#jog-target")).to_have_text("6000")
 
 
+def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) -> None:
+    # The page shows a jog's target at the click.  The server refusing it (409: motion switched off meanwhile,
+    # nothing sent) must not leave the page showing a target the servo never got.
+    line = PtyLine((1,))
+    servo = line.sim.servo(1)
+    servo.move_by_hand(8000)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-target")).to_have_text("8000")
+        held: list[Route] = []
+        p.route("**/api/servo/1/move", lambda route: held.append(route))  # the request waits here until continued
+        p.click("#jog-plus")
+        expect(p.locator("#jog-target")).to_have_text("8100")  # (shown at the click)
+        deadline = time.monotonic() + GUARD
+        while not held:
+            assert time.monotonic() < deadline, "the jog was never asked"
+            p.wait_for_timeout(20)
+        off = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": False})
+        assert off.status == 200, off.text()
+        held[0].continue_()
+        expect(p.locator("#message")).to_contain_text("motion is not enabled for servo 1")
+        expect(p.locator("#jog-target")).to_have_text("8000")  # the last target sent, not the refused one
+        expect(p.locator("#jog-slider")).to_have_value("8000")
+        assert servo.target == 8000
+        p.unroute("**/api/servo/1/move")
+
+
+def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Browser) -> None:
+    # A servo that did not answer the jog (504) may have heard it: its target is the new one or the old.
+    line = PtyLine((1,))
+    servo = line.sim.servo(1)
+    servo.move_by_hand(8000)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-target")).to_have_text("8000")
+        line.sim.remove_servo(1)  # its cable pulled: the jog goes out, no answer comes back
+        with p.expect_response("**/api/servo/1/move") as answer:
+            p.click("#jog-plus")
+        assert answer.value.status == 504, answer.value.text()
+        expect(p.locator("#jog-target")).to_have_text("8100? (not confirmed)")
+        expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("may"))
+
+
 # How soon the server switches off the motion of a page that is gone: at once for a tab closed (its socket
 # closes), a few seconds for one whose network went (no answer to the server's pings).
 PAGE_GONE_BOUND = scaled(8.0)

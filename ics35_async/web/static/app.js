@@ -44,7 +44,9 @@ async function api(path, data) {
     say(body && body.error ? body.error : `error ${response.status}`, "error", body && body.answers_at ? reopenAt(body.answers_at) : null);
     // The port's words (503) while it is gone: showStatus replaces them when the line is back.
     state.sayingLost = response.status === 503 && (body.kind === "PortLost" || !!(state.status && state.status.lost));
-    throw new Error(body.error);
+    // The status goes with the error: 400 and 409 were refused before anything was sent; a 502 or 504 may
+    // have reached the servo, its answer lost (a caller that showed the request's effect early tells them apart).
+    throw Object.assign(new Error(body.error), { status: response.status });
   }
   return body;
 }
@@ -264,7 +266,7 @@ async function loadServo() {
   robotNote(id);
   state.servoLoaded = null;  // no position reads until this servo's page is shown
   $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
-  $("#jog-target").textContent = "-";  // where this page last sent a servo: none yet
+  targetSent(null);  // where this page last sent a servo: none yet
   // A file chosen for the last servo goes too: shown beside a Restore button left disabled, and chosen again
   // (no change to the browser) it would do nothing.
   $("#restore-file").value = "";
@@ -447,19 +449,49 @@ async function toggleMotion() {
     setMotion(reply.enabled);
     state.motionFor = reply.enabled ? servoId() : null;  // (the servo the switch is on for)
     if (reply.enabled) {  // held where it stands: the slider starts there
-      $("#jog-slider").value = reply.position;
-      $("#jog-target").textContent = reply.position;
+      targetSent(reply.position);
       $("#jog-position").textContent = reply.position;
     }
   } catch (e) { $("#motion-switch").checked = false; setMotion(false); } finally { state.servoMotionAsked -= 1; }
 }
 
+// The jog's target as shown: a number sent (or where motion was switched on), "-" for none, or a target not
+// confirmed (the jog's answer lost: the servo may be going there, or still to the one before).
+function showTarget(position, uncertain = false) {
+  const box = $("#jog-target");
+  box.textContent = position === null ? "-" : uncertain ? `${position}? (not confirmed)` : String(position);
+  box.title = uncertain ? `the jog to ${position} was sent but its answer was lost: the servo may be going there, or still holding the target before` : "";
+  box.classList.toggle("uncertain", uncertain);
+  if (position !== null) $("#jog-slider").value = position;
+}
+
+// The last target sent to the servo shown (null: none), and whether it is only perhaps sent.
+function targetSent(position, uncertain = false) {
+  state.jogSent = { position, uncertain };
+  showTarget(position, uncertain);
+}
+
 async function jog(position) {
   const [low, high] = state.limits;
   position = Math.max(low, Math.min(high, Math.round(position)));
-  $("#jog-slider").value = position;
-  $("#jog-target").textContent = position;
-  const reply = await api(`/api/servo/${servoId()}/move`, { position });
+  const mine = (state.jogs = (state.jogs ?? 0) + 1);
+  showTarget(position);  // at once, so a drag or clicks in a row feel direct; taken back if refused
+  let reply;
+  try {
+    reply = await api(`/api/servo/${servoId()}/move`, { position });
+  } catch (e) {
+    const latest = mine === state.jogs;  // (a later jog shows its own target meanwhile)
+    if (e.status === 400 || e.status === 409) {  // refused, nothing sent: the last target sent stands
+      const sent = state.jogSent ?? { position: null, uncertain: false };
+      if (latest) showTarget(sent.position, sent.uncertain);
+    } else {  // 502, 504, a lost port or server: it may have gone out
+      state.jogSent = { position, uncertain: true };
+      if (latest) showTarget(position, true);
+    }
+    throw e;
+  }
+  state.jogSent = { position, uncertain: false };
+  if (mine === state.jogs) showTarget(position);
   // The reply is where it stood before this move: shown only for a servo whose position is not read again.
   if (state.positionHow !== "read") $("#jog-position").textContent = reply.position;
 }
