@@ -25,6 +25,7 @@ from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied
+from tests.support.sim_servos import UnplugsWhenAsked
 
 # --------------------------------------------------------------------------- bad arguments
 
@@ -106,22 +107,11 @@ def test_scan_finds_servos_at_every_baud(cli: Any, sim_line: Any) -> None:
     assert "eeprom set ID baud_rate=" in result.err and "--change-baud" in result.err, result.err
 
 
-class UnpluggedWhenRead(VirtualServo):
-    """A servo whose line is pulled away when its EEPROM is read (after the probes found every servo)."""
-
-    line: Any = None
-
-    def handle(self, command: Any) -> Any:
-        if self.line is not None and isinstance(command, ReadEeprom):
-            self.line.unplug()
-        return super().handle(command)
-
-
 @pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
 def test_scan_whose_port_is_lost_part_way_shows_what_it_found_then_the_loss(
     cli: Any, sim_line: Any, as_json: bool
 ) -> None:
-    puller = UnpluggedWhenRead(20)
+    puller = UnplugsWhenAsked(20, ReadEeprom)
     sim, url = sim_line([VirtualServo(1), VirtualServo(2), puller, VirtualServo(7, baud_rate=625000)])
     puller.line = sim
     result = cli("--port", url, "scan", "--timeout", "0.005", *(["--json"] if as_json else []))

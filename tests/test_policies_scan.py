@@ -17,6 +17,7 @@ from ics35_async.protocol import Param, Position, ReadEeprom, ReadParam
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 from tests.support.engine_support import Recorded, Wire, ready_engine
+from tests.support.sim_servos import UnplugsWhenAsked
 from tests.support.timing import FAST
 
 
@@ -325,20 +326,6 @@ async def test_a_scan_on_a_lost_port_raises_port_lost_itself_not_a_group_of_them
         with pytest.raises(PortLost):
             await bus.scan(range(ids_from, 32))
     sim.close()
-
-
-class UnplugsWhenAsked(VirtualServo):
-    """A servo whose line is pulled away as it hears ``what`` (a stretch read: a probe; or its EEPROM read)."""
-
-    def __init__(self, servo_id: int, what: type, **options: Any) -> None:
-        super().__init__(servo_id, **options)
-        self.what = what
-        self.line: VirtualLine | None = None
-
-    def handle(self, command: Any) -> Any:
-        if self.line is not None and isinstance(command, self.what):
-            self.line.unplug()
-        return super().handle(command)
 
 
 @pytest.mark.parametrize("pulled_at", [ReadParam, ReadEeprom], ids=["probing", "reading-eeprom"])

@@ -22,10 +22,12 @@ from starlette.websockets import WebSocketDisconnect
 
 from ics35_async import Eeprom
 from ics35_async.errors import ReplyTimeout
+from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
+from tests.support.sim_servos import UnplugsWhenAsked
 from tests.support.timing import GUARD
 
 TOKEN = "test-token-0123456789abcdef"
@@ -143,6 +145,26 @@ def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> Non
     report = post(client, "/api/scan").json()
     assert [s["id"] for s in report["servos"]] == [2, 7, 30]
     assert client.get("/api/status").json()["scanning"] is False
+
+
+def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_found_before_it_with_the_loss() -> None:
+    # Nothing found is lost work: the page lists servos 1, 2 and 20 (its EEPROM unread), then says the line went.
+    puller = UnplugsWhenAsked(20, ReadEeprom)
+    name = f"web-api-{next(_names)}"
+    sim = VirtualLine([VirtualServo(1), VirtualServo(2), puller], name=name)
+    puller.line = sim
+    session = LineSession(LineConfig(port=f"sim://{name}"))
+    try:
+        with TestClient(create_app(session, TOKEN), base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            answer = post(client, "/api/scan")
+            assert answer.status_code == 200, answer.json()
+            report = answer.json()
+            assert [s["id"] for s in report["servos"]] == [1, 2, 20], report
+            assert "unplugged" in report["lost"], report
+            assert [s["id"] for s in session.servos_view()] == [1, 2, 20]  # (the Line page's table)
+    finally:
+        sim.close()
 
 
 def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) -> None:

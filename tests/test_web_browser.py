@@ -31,9 +31,11 @@ if not sys.platform.startswith("linux"):
 
 from playwright.sync_api import Browser, Page, Request, Route, expect, sync_playwright
 
+from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.pty_server import PtyServer
 from tests.support.cli_runs import DUMP_ON_USR1
+from tests.support.sim_servos import UnplugsWhenAsked
 from tests.support.timing import GUARD, PATIENT_OPTION, scaled
 
 CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium-headless-shell")  # see the Makefile's browser target
@@ -607,6 +609,26 @@ def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_r
         expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
         expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
         expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
+
+
+def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_the_loss(browser: Browser) -> None:
+    line = PtyLine((1, 2))
+    puller = UnplugsWhenAsked(3, ReadEeprom)
+    line.sim.add_device(puller)
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        puller.line = line.sim
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        expect(p.locator("#scan-summary")).to_contain_text(
+            "3 servo(s) found before the line was lost", timeout=SCAN_WAIT_MS
+        )
+        expect(p.locator("#servo-table tbody tr")).to_have_count(3)
+        expect(p.locator("#message")).to_contain_text("lost")
+        expect(p.locator("#lost-banner")).to_be_visible()
+        puller.line = None
+        line.sim.replug()
+        expect(p.locator("#message")).to_contain_text("the line is back")
+        scan_finds(p, 3, ids="0-4")
 
 
 def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: Browser) -> None:

@@ -387,8 +387,8 @@ class LineSession:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
                     await bus.reopen(baudrate=self.config.baud)
-        if report.lost is not None:
-            raise report.lost  # (the page reports a lost line as it does any request's)
+        # A line lost part-way: the servos found before it are listed all the same (nothing found is lost
+        # work), with the loss, which the page says beside them (and the line's status, pushed, shows it lost).
         self.found = list(report.servos)
         for servo in report.servos:
             if servo.eeprom is not None:
@@ -399,6 +399,7 @@ class LineSession:
             "garbled": [{"baud": b, "id": i, "error": str(e)} for b, i, e in report.garbled],
             "silent": report.silent,
             "echo_wrong": None if report.echo_evidence is None else str(report.echo_evidence),
+            "lost": None if report.lost is None else str(report.lost),
         }
 
     def found_view(self, servo: FoundServo) -> dict[str, Any]:

@@ -212,6 +212,13 @@ async function scanLine() {
     if (report.echo_wrong) notes.push(`the echo setting looks wrong for this interface (${report.echo_wrong})`);
     for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
     for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
+    if (report.lost) {  // the servos found before the line went are listed; the rest of the scan did not run
+      say(report.lost);
+      state.sayingLost = true;  // (showStatus says when the line is back)
+      $("#scan-summary").textContent = `${report.servos.length} servo(s) found before the line was lost; ` +
+        `scan again when it is back. ${notes.join("; ")}`;
+      return;
+    }
     $("#scan-summary").textContent = `${report.servos.length} servo(s) found. ${notes.join("; ")}`;
   } catch (e) {
     $("#scan-summary").textContent = "the scan did not finish (the message above says why)";
