@@ -235,6 +235,24 @@ def test_free_all_where_nothing_answers_is_still_an_error(cli: Any, sim_line: An
     assert "power" in result.err
 
 
+def test_free_all_where_nothing_answers_at_this_rate_names_the_rate_they_answer_at(cli: Any, sim_line: Any) -> None:
+    # "servo 0 did not answer ... check the power" sent a builder whose servos are at 625000 the wrong way.
+    _, url = sim_line([VirtualServo(1, baud_rate=625000), VirtualServo(2, baud_rate=625000)])
+    result = cli("--port", url, "--timeout", "0.005", "free", "all")
+    assert result.code == ExitCode.WRONG_BAUD, result.err
+    assert "--baud 625000" in result.err and "servo 0" not in result.err, result.err
+    assert "power" not in result.err, result.err
+
+
+def test_eeprom_dump_of_several_where_none_answers_at_this_rate_names_the_rate_they_answer_at(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    _, url = sim_line([VirtualServo(1, baud_rate=1250000), VirtualServo(2, baud_rate=1250000)])
+    result = cli("--port", url, "--timeout", "0.005", "eeprom", "dump", "1,2", "-o", f"{tmp_path}/")
+    assert result.code == ExitCode.WRONG_BAUD, result.err
+    assert "--baud 1250000" in result.err and "power" not in result.err, result.err
+
+
 def test_free_of_named_ids_that_are_absent_is_still_an_error(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([1, 2, 3])
     result = cli("--port", url, "--timeout", "0.005", "free", "1-5", "--json")

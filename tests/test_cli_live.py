@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode
+from ics35_async.sim import VirtualServo
 
 TELEMETRY_READS = ("read_current", "read_temperature")
 
@@ -127,3 +128,19 @@ def test_monitor_all_where_nothing_answers_is_an_error(cli: Any, sim_line: Any) 
     result = cli("--port", url, "--timeout", "0.005", "monitor", "all", "--free", "--seconds", "0.3")
     assert result.code == ExitCode.NO_REPLY, result.err
     assert "no servo answered" in result.err
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["monitor", "all", "--free"], ["monitor", "--free"], ["demo", "--ids", "all"]],
+    ids=["monitor-all", "monitor", "demo-all"],
+)
+def test_every_servo_asked_where_none_answers_at_this_rate_names_the_rate_they_answer_at(
+    cli: Any, sim_line: Any, command: list[str]
+) -> None:
+    # Servos set to 625000 (an HS adapter's user) and a line opened at the default 115200: not "check the power".
+    _, url = sim_line([VirtualServo(1, baud_rate=625000), VirtualServo(2, baud_rate=625000)])
+    result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "0.3")
+    assert result.code == ExitCode.WRONG_BAUD, result.err
+    assert "625000" in result.err and "--baud 625000" in result.err, result.err
+    assert "power" not in result.err, result.err

@@ -20,6 +20,7 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    NobodyAnswered,
     SignedValuesCommand,
     current_json,
     current_text,
@@ -210,6 +211,10 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         async with settings.bus() as bus:
             report = await policies.free_servos(bus, wanted, every_servo=every_servo)
         if not report.freed and not report.unknown and len(report.failed) == len(wanted):
+            if every_servo and all(isinstance(e, ReplyTimeout) for e in report.failed.values()):
+                # No servo at all at this rate: perhaps at another (not servo 0's no-reply diagnosis)
+                where = f"{settings.port} at {settings.baud} baud"
+                raise NobodyAnswered(settings, where, silent=bus.stats.total.bytes_rx == 0)
             raise next(iter(report.failed.values()))  # nothing answered: the no-reply diagnosis
         return report
 

@@ -24,6 +24,7 @@ from ._console import (
 )
 from ._errors import (
     NO_REPLY_HINTS,
+    NobodyAnswered,
     answered_garbled,
     no_reply_error,
     none_of_them_answered,
@@ -87,6 +88,7 @@ __all__ = [
     "note_simulator",
     "none_of_them_answered",
     "nothing_answered",
+    "NobodyAnswered",
     "out",
     "parse_id_list",
     "require_port",

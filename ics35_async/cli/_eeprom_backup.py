@@ -23,12 +23,13 @@ from ._common import (
     SERVO_ID,
     CliError,
     ExitCode,
+    NobodyAnswered,
     Settings,
     emit_json,
     err,
+    id_ranges,
     ids_text,
     json_option,
-    nothing_answered,
     out,
     run,
     settings_of,
@@ -114,8 +115,8 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
                 # The error in words now, while the port's name is known; told once the images are saved.
                 return ImagesRead(images, line_error(settings, exc), list(rate.answered[n:]), garbled, failed)
         if not images and not garbled:
-            where = f"{settings.port} at {settings.baud} baud (IDs {ids_text(ids)})"
-            raise nothing_answered(settings, where, silent=rate.silent)
+            where = f"{settings.port} at {settings.baud} baud (IDs {id_ranges(ids)})"
+            raise NobodyAnswered(settings, where, silent=rate.silent)
         return ImagesRead(images, garbled=garbled, failed=failed)
 
 

@@ -218,6 +218,40 @@ def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliErro
     return CliError(ExitCode.NO_REPLY, f"no servo answered on {where}", *link_hints(settings), *NO_REPLY_HINTS)
 
 
+class NobodyAnswered(CliError):
+    """No servo answered at the line's rate where a command asked every ID (``all``, or a look for servos) or
+    several: the command line's runner (``_runner.run``), once the line is closed, looks for the rate a device
+    answers at (:func:`nobody_at_this_rate`); until then, and where none is found, :func:`nothing_answered`'s
+    words."""
+
+    def __init__(self, settings: Settings, where: str, *, silent: bool) -> None:
+        said = nothing_answered(settings, where, silent=silent)
+        super().__init__(said.code, said.message, *said.hints)
+        self.where = where
+        self.silent = silent
+
+
+def nobody_at_this_rate(settings: Settings, nobody: NobodyAnswered) -> CliError:
+    """``nobody``, or the rate a device answers the ID read at when it is another (policies.device_rates, as
+    set-id names it): servos set to 1.25 Mbit/s on a line opened at the default 115200 are no power fault."""
+    from ..policies import ALL_BAUDS, device_rates
+
+    if nobody.silent and settings.echo:
+        return nobody  # not even the echo came back: the adapter or its wiring, which no rate mends
+    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
+    try:
+        rates = run_loop(device_rates(_opener(settings), others))
+    except (errors.IcsError, OSError):
+        return nobody  # advice only: a port that cannot be opened again leaves what was said
+    if not rates:
+        return nobody
+    return CliError(
+        ExitCode.WRONG_BAUD,
+        f"no servo answered on {nobody.where}, but a device does at {rates[0]} baud",
+        f"pass --baud {rates[0]}",
+    )
+
+
 def answered_garbled(settings: Settings, where: str, garbled: list[tuple[int, int]]) -> CliError:
     """The error for a line where no servo answered cleanly but some did garbled (``(baud, ID)`` pairs): two
     servos sharing an ID, most often new ones (all ID 0), not the unpowered line :func:`nothing_answered` is."""

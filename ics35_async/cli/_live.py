@@ -30,13 +30,13 @@ from ._basic import probe_ids
 from ._common import (
     CliError,
     ExitCode,
+    NobodyAnswered,
     Settings,
     emit_json,
     err,
     id_ranges,
     ids_text,
     none_of_them_answered,
-    nothing_answered,
     out,
 )
 from ._live_view import LiveState
@@ -199,7 +199,7 @@ async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool
     answered, _ = await probe_ids(bus, range(32))
     if not answered:
         where = f"{settings.port} at {settings.baud} baud"
-        raise nothing_answered(settings, where, silent=bus.stats.total.bytes_rx == 0)
+        raise NobodyAnswered(settings, where, silent=bus.stats.total.bytes_rx == 0)
     absent = sorted(set(range(32)) - set(answered))
     if asked_all and absent and not quiet:
         err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")

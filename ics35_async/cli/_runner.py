@@ -12,7 +12,7 @@ from rich.markup import escape
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
 from ._console import err, out
-from ._errors import no_reply_error, translate
+from ._errors import NobodyAnswered, no_reply_error, nobody_at_this_rate, translate
 from ._loop import run_loop
 from ._paths import check_line_files
 from ._settings import CliError, ExitCode, Settings, settings_of
@@ -120,6 +120,8 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
             return run_loop(make())
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
+        except NobodyAnswered as nobody:  # (the line is closed now: the other rates can be looked at)
+            raise nobody_at_this_rate(settings, nobody) from None
         except BrokenPipeError:
             raise  # `ics35 ... | head`: main() ends quietly
         except (IcsError, OSError) as exc:

@@ -56,7 +56,8 @@ class ExitCode(enum.IntEnum):
     not moved far enough to both ends of its range, `play` with a joint whose servo has not answered since the
     robot opened."""
     WRONG_BAUD = 6
-    """The servo answers, but at another baud rate than `--baud` (the message names it)."""
+    """The servo answers, but at another baud rate than `--baud` (the message names it); for a command that asked
+    every ID (`free all`, `monitor` without IDs), a device answers at another rate."""
     SAFETY_STOP = 7
     """`play`: a robot's safety watch stopped the motion (a joint too hot, drawing too much current, or
     offline)."""
