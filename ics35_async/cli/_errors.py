@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from typing import TYPE_CHECKING
 
 from .. import errors
@@ -144,6 +144,20 @@ def _opener(settings: Settings) -> Callable[[int], Bus]:
     return open_at
 
 
+def _rate_elsewhere(
+    settings: Settings, search: Callable[[Callable[[int], Bus], list[int]], Awaitable[tuple[int, ...]]]
+) -> int | None:
+    """The first of the line's other rates ``search(open_at, rates)`` (a policy) finds, or None: also when the
+    port cannot be opened again (advice only: what was said stands)."""
+    from ..policies import ALL_BAUDS
+
+    try:
+        found = run_loop(search(_opener(settings), [rate for rate in ALL_BAUDS if rate != settings.baud]))
+    except (errors.IcsError, OSError):
+        return None
+    return found[0] if found else None
+
+
 def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     """No answer: why (policies.why_no_reply: the adapter, a long reply lost, another baud rate), else what
     to check."""
@@ -188,19 +202,15 @@ def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
     """The error for a command that asked servos ``ids`` over and over (a stream) and none ever answered: the
     rate the first of them answers at when it is another (its EEPROM agreeing: see policies.servo_rates), as
     the one-shot commands say it, else what to check."""
-    from ..policies import ALL_BAUDS, servo_rates
+    from ..policies import servo_rates
 
-    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
-    try:
-        rates = run_loop(servo_rates(_opener(settings), ids[0], others))
-    except (errors.IcsError, OSError):
-        rates = ()  # advice only: a port that cannot be opened again leaves what was said
+    rate = _rate_elsewhere(settings, lambda open_at, others: servo_rates(open_at, ids[0], others))
     which = ids_text(ids)
-    if rates:
+    if rate is not None:
         return CliError(
             ExitCode.WRONG_BAUD,
-            f"no servo among {which} answered at {settings.baud} baud, but servo {ids[0]} does at {rates[0]} baud",
-            f"pass --baud {rates[0]}",
+            f"no servo among {which} answered at {settings.baud} baud, but servo {ids[0]} does at {rate} baud",
+            f"pass --baud {rate}",
         )
     return CliError(ExitCode.NO_REPLY, f"no servo among {which} answered", *NO_REPLY_HINTS)
 
@@ -234,21 +244,17 @@ class NobodyAnswered(CliError):
 def nobody_at_this_rate(settings: Settings, nobody: NobodyAnswered) -> CliError:
     """``nobody``, or the rate a device answers the ID read at when it is another (policies.device_rates, as
     set-id names it): servos set to 1.25 Mbit/s on a line opened at the default 115200 are no power fault."""
-    from ..policies import ALL_BAUDS, device_rates
+    from ..policies import device_rates
 
     if nobody.silent and settings.echo:
         return nobody  # not even the echo came back: the adapter or its wiring, which no rate mends
-    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
-    try:
-        rates = run_loop(device_rates(_opener(settings), others))
-    except (errors.IcsError, OSError):
-        return nobody  # advice only: a port that cannot be opened again leaves what was said
-    if not rates:
+    rate = _rate_elsewhere(settings, device_rates)
+    if rate is None:
         return nobody
     return CliError(
         ExitCode.WRONG_BAUD,
-        f"no servo answered on {nobody.where}, but a device does at {rates[0]} baud",
-        f"pass --baud {rates[0]}",
+        f"no servo answered on {nobody.where}, but a device does at {rate} baud",
+        f"pass --baud {rate}",
     )
 
 
