@@ -26,6 +26,7 @@ from ._common import (
     current_text,
     emit_json,
     err,
+    every_id,
     fmt_degrees,
     id_ranges,
     ids_text,
@@ -205,7 +206,7 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
     except click.BadParameter as exc:
         raise click.BadParameter(exc.message, param_hint="IDS") from None
 
-    every_servo = len(wanted) == len(policies.ALL_IDS)  # "all": the servos on the line, whichever they are
+    every_servo = every_id(wanted)  # "all": the servos on the line, whichever they are
 
     async def body() -> policies.FreeReport:
         async with settings.bus() as bus:

@@ -10,8 +10,8 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ._common import ID_LIST, confirm, ids_text, out, run, seconds_option, settings_of, yes_option
-from ._live import LiveOptions, TargetFunction, discover, every_id, final_report, live_port, run_live, stream_options
+from ._common import ID_LIST, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
+from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._signals import stop_name

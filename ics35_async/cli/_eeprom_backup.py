@@ -27,6 +27,7 @@ from ._common import (
     Settings,
     emit_json,
     err,
+    every_id,
     id_ranges,
     ids_text,
     json_option,
@@ -161,7 +162,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     there = set(read.unread) | set(read.garbled) | set(read.failed)  # answered, not saved (told apart below)
     missing = [i for i in ids if i not in images and i not in there]
     if missing and len(ids) > 1:
-        if len(ids) == 32:  # "all": the servos on the line, whichever they are
+        if every_id(ids):  # "all": the servos on the line, whichever they are
             answered = sorted([*images, *read.unread, *read.garbled, *read.failed])
             err.print(
                 f"{len(answered)} servo(s) answered at {settings.baud} baud: IDs {ids_text(answered)} (a servo "

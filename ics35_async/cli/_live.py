@@ -186,11 +186,6 @@ def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> Cl
     return error
 
 
-def every_id(ids: Sequence[int] | None) -> bool:
-    """IDS "all" (or 0-31): every servo there is, not 32 servos the user expects on the line."""
-    return ids is not None and set(ids) == set(range(32))
-
-
 async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool = False) -> list[int]:
     """The IDs that answer a probe (no IDs given, or "all": each absent one would cost a reply timeout every
     cycle and a row of errors); none answering is an error.  Asked for "all", the others are named in one line."""

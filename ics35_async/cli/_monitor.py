@@ -7,8 +7,8 @@ from rich.markup import escape
 
 from .. import policies
 from ._basic import NO_READ_35
-from ._common import ID_LIST, CliError, ExitCode, err, ids_text, json_option, run, seconds_option, settings_of
-from ._live import LiveOptions, discover, every_id, final_report, live_port, run_live, stream_options
+from ._common import ID_LIST, CliError, ExitCode, err, every_id, ids_text, json_option, run, seconds_option, settings_of
+from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._telemetry import Telemetry

@@ -29,6 +29,12 @@ def parse_id_list(text: str) -> list[int]:
     return ids
 
 
+def every_id(ids: Sequence[int] | None) -> bool:
+    """IDS ``all`` (or 0-31): every servo there is, not 32 servos the user expects on the line (a command asks
+    which answer, and those that do not are no failure)."""
+    return ids is not None and set(ids) == set(range(32))
+
+
 class ServoIdType(click.ParamType[int]):
     name = "ID"
 
