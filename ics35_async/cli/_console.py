@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
+import weakref
 from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 import click
 from rich.console import Console
+from rich.file_proxy import FileProxy
+from rich.live import Live
 from rich.markup import escape
 
 from .. import units
@@ -17,6 +21,30 @@ from ._settings import CliError, ExitCode, Settings
 
 out = Console(highlight=False, soft_wrap=True)
 err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+_live_views: weakref.WeakSet[Live] = weakref.WeakSet()
+
+
+def live_view(**options: Any) -> Live:
+    """A live view (rich's ``Live``) on stdout, ended by :func:`end_live_views` should its own stop be cut short."""
+    live = Live(console=out, **options)
+    _live_views.add(live)
+    return live
+
+
+def end_live_views() -> None:
+    """Stop every live view still running: the command's own stop of it was cut short (a later Ctrl-C forced it
+    out).  A live view not stopped keeps stdout and stderr redirected through itself: what the command says next
+    (its error) is drawn into the view's last line and the view redrawn around it ("cycle 509error: interrupted",
+    "error: interruptedral pose"), or over it."""
+    for live in list(_live_views):
+        with contextlib.suppress(Exception):
+            live.stop()
+    for name in ("stdout", "stderr"):  # (a stop itself cut short, after its first steps)
+        stream = getattr(sys, name)
+        if isinstance(stream, FileProxy):
+            setattr(sys, name, stream.rich_proxied_file)
 
 
 SIMULATED_KEY = "simulated"  # in a JSON result read from the implicit built-in simulator
@@ -37,6 +65,7 @@ def emit_json(value: Any) -> None:
 
 
 def fail(error: CliError) -> NoReturn:
+    end_live_views()
     if error.code == ExitCode.INTERRUPTED:
         clear_echoed_ctrl_c()
     err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)

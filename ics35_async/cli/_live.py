@@ -16,7 +16,6 @@ from typing import Any, TypeVar
 
 import click
 from rich.console import Group
-from rich.live import Live
 from rich.markup import escape
 from rich.text import Text
 
@@ -39,6 +38,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
+from ._console import live_view
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -81,7 +81,7 @@ async def run_live(
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json
     render_every = 0.1 if tty else 1.0
-    live = Live(console=out, auto_refresh=False, transient=False, vertical_overflow="visible") if tty else None
+    live = live_view(auto_refresh=False, transient=False, vertical_overflow="visible") if tty else None
     start = loop.time()
     # A terminal gets a table at once; a log or --json gets its first line after a second, with a
     # measured rate (a line at t=0 would say 0 Hz).

@@ -4,17 +4,20 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
+import inspect
 import logging
 import os
 import signal
 import threading
 import warnings
 from collections.abc import Awaitable, Callable, Iterator
-from types import FrameType
-from typing import Any, TypeVar
+from types import CoroutineType, FrameType
+from typing import Any, TypeGuard, TypeVar, cast
 
 from ..running import _after_stop, _unwrapped
 from ..terminal import ctrl_c_typed
+from ._console import end_live_views
 from ._settings import CliError, ExitCode
 from ._signals import command_task, current_task, received
 
@@ -61,9 +64,11 @@ def run_loop(main: Awaitable[T]) -> T:
     forced: list[asyncio.Task[T]] = []
     presses: list[int] = []
     _quiet_executor_shutdown()
+    loops: list[asyncio.AbstractEventLoop] = []
     try:
-        with _ctrl_c() as pressed, asyncio.Runner(loop_factory=factory) as runner:
+        with _ctrl_c() as pressed, _dropping_unrun(loops, pressed), asyncio.Runner(loop_factory=factory) as runner:
             presses = pressed
+            loops.append(runner.get_loop())
             try:
                 return runner.run(_await(main, started))
             except asyncio.CancelledError:
@@ -87,6 +92,37 @@ def run_loop(main: Awaitable[T]) -> T:
         if not forced:
             raise KeyboardInterrupt from None
         return _forced_out(forced[0])
+    finally:
+        if len(presses) >= 2:  # (what the command says next, or its error, must not go through a view left running)
+            end_live_views()
+
+
+@contextlib.contextmanager
+def _dropping_unrun(loops: list[asyncio.AbstractEventLoop], pressed: list[int]) -> Iterator[None]:
+    """Once the runner has closed the loop (``loops``' one): the work it left unrun, dropped for good.
+
+    Forced out (a later Ctrl-C cut the runner's close short), the loop closes with tasks still pending: work
+    the command's stop had just started (play's slow-down, a task per joint; a group stream's next take) and
+    never began, or began and never finished; and the press's KeyboardInterrupt, raised wherever the command
+    then was, may have come between a coroutine's making and its first step (``retrieved(robot.stop())``),
+    which the exception's traceback keeps.  The process's end collects them in whatever order it finds them,
+    and each says so on the screen, below the command's message: "coroutine ... was never awaited", "Task
+    was destroyed but it is pending!".  What was cut short is the message's to say: here every coroutine
+    never begun is closed (nothing can run it any more), and no pending task is reported as it goes."""
+    try:
+        yield
+    finally:
+        if len(pressed) >= 2:
+            for loop in loops:
+                for task in asyncio.all_tasks(loop):
+                    cast(Any, task)._log_destroy_pending = False  # (asyncio's own switch for that report)
+            for value in gc.get_objects():  # (coroutines are tracked by the collector)
+                if _unstarted(value):
+                    value.close()
+
+
+def _unstarted(value: object) -> TypeGuard[CoroutineType[Any, Any, Any]]:
+    return inspect.iscoroutine(value) and inspect.getcoroutinestate(value) == inspect.CORO_CREATED
 
 
 def _quiet_executor_shutdown() -> None:
@@ -164,9 +200,11 @@ def _ctrl_c() -> Iterator[list[int]]:
                 task.get_loop().call_soon_threadsafe(task.cancel)
                 return
             if len(pressed) == 2:
-                # Forced out: what the command had started and not yet run (a smooth stop's steps, a stream's
-                # next take) is dropped unrun, and Python would print a "coroutine ... was never awaited"
-                # warning for each as they are collected, through a live table being torn down: a traceback.
+                # Forced out: a later press's KeyboardInterrupt, raised wherever the command then is, can land
+                # between a coroutine's making and its first step (``await f()``), dropping it there, and
+                # Python would print a "coroutine ... was never awaited" warning through a live table being torn
+                # down.  (Those the exception keeps, and the tasks the closed loop leaves unrun, are closed by
+                # _dropping_unrun.)
                 warnings.filterwarnings("ignore", "coroutine .* was never awaited", RuntimeWarning)
             if len(pressed) == 2 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(_interrupt)

@@ -14,7 +14,6 @@ from types import TracebackType
 
 from rich import box
 from rich.console import Group
-from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
@@ -22,7 +21,7 @@ from ..engine import State
 from ..robot import Robot
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import signed_tenths
+from ._console import live_view, signed_tenths
 
 Extra = Callable[[str], Sequence[str]]
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
@@ -92,7 +91,7 @@ class Screen:
         self.render = render
         self.summary = summary
         self.tty = out.is_terminal
-        self._live = Live(console=out, auto_refresh=False, transient=False) if self.tty else None
+        self._live = live_view(auto_refresh=False, transient=False) if self.tty else None
         self._last = time.monotonic()
         self._said = ""
 
