@@ -494,18 +494,22 @@ def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, ga
     assert any("the joints it opened are left free" in line for line in screen), "\n".join(screen)
 
 
-@pytest.mark.parametrize("gap", [0.002, 0.005, 0.01, 0.02])
-def test_a_double_ctrl_c_in_demo_says_what_the_servos_were_left_in(gap: float) -> None:
+@pytest.mark.parametrize(
+    "gaps", [[0.002], [0.005], [0.01], [0.02], [0.03], [0.05], [0.03, 0.005]], ids=lambda gaps: "+".join(map(str, gaps))
+)
+def test_a_double_ctrl_c_in_demo_says_what_the_servos_were_left_in(gaps: list[float]) -> None:
     # The second press forced the stop out as the servos were being freed: asyncio's runner, closing, then
     # printed the command's own account (the servos may still hold, and how to free them) as a traceback
-    # and dropped it; landing as the runner closed, it left tracebacks of the loop and exit code 1.
+    # and dropped it; landing as the runner closed, it left tracebacks of the loop and exit code 1.  Landing
+    # once they had been freed (or a third press after it), the error said only "interrupted".
     args = ["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "30"]
-    code, written = typed_on_a_terminal(args, [(scaled(1.5), b"\x03"), (gap, b"\x03")])
+    code, written = typed_on_a_terminal(args, [(scaled(1.5), b"\x03"), *((gap, b"\x03") for gap in gaps)])
     screen = screen_of(written)
     assert "Traceback" not in written and "Exception" not in written, "\n".join(screen)
     assert code in (0, 130), "\n".join(screen)
     said = "\n".join(screen)
-    assert "all servos left free" in said or "may still be holding" in said or "error: interrupted" in said, said
+    assert "servos left free" in said or "may still be holding" in said, said
+    assert code == 0 or "error: interrupted" in said, said
 
 
 @pytest.mark.parametrize(

@@ -10,8 +10,17 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ._common import ID_LIST, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
-from ._live import LiveOptions, TargetFunction, discover, final_report, live_port, run_live, stream_options
+from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
+from ._live import (
+    LiveOptions,
+    TargetFunction,
+    discover,
+    final_report,
+    forced_out,
+    live_port,
+    run_live,
+    stream_options,
+)
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._signals import stop_name
@@ -92,6 +101,8 @@ def demo(
     swing = amplitude
     options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
 
+    started: list[LiveState] = []  # (what it left the servos in, should a second Ctrl-C force it out)
+
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids if ids and not asked_all else await discover(bus, settings, False, asked_all=asked_all)
@@ -101,11 +112,15 @@ def demo(
                 confirm(question, yes, "nothing moved")
             title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
+            started.append(state)
             if not out.is_terminal:
                 out.print(f"{title}; one line per second, table at the end")
             return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
-    state, telemetry, recorder = run(settings, body)
+    try:
+        state, telemetry, recorder = run(settings, body)
+    except CliError as exc:
+        raise forced_out(settings, started[0] if started else None, exc) from None
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     out.print(
         f"demo {f'stopped by {stop_name()}' if state.stopped_by_signal else 'done'} after "

@@ -149,6 +149,7 @@ async def run_live(
                     if options.free_at_end:
                         done = await _free_all(stream, [i for i in ids if i not in watch], state)
                         freed = freed or done
+                        state.freed = done
         except (IcsError, OSError) as exc:
             if not freed:
                 raise still_holding(settings, commanded, line_error(settings, exc)) from None
@@ -175,6 +176,19 @@ async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> bool:
                 await asyncio.wait_for(stream.next_frame(), 1.0)
                 return True
     return False
+
+
+def forced_out(settings: Settings, state: LiveState | None, error: CliError) -> CliError:
+    """``error``, a stop forced out (a second Ctrl-C), saying what the streamed servos were left in when the error
+    itself does not: the command's own account is lost when the press lands after it freed them (as its stream
+    or its port closed) or before it could say so."""
+    if error.code != ExitCode.INTERRUPTED or state is None or "servo" in error.message:
+        return error
+    if state.freed:
+        error.message = "interrupted: Ctrl-C again cut the end short, once the servos were freed: all servos left free"
+    elif state.cycle:  # (targets go out from the first frame on)
+        still_holding(settings, state.ids, error)
+    return error
 
 
 def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> CliError:

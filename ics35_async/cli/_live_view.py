@@ -37,6 +37,7 @@ class LiveState:
     answered_ever: set[int] = field(default_factory=set)
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
+    freed: bool = False  # the free at the end reached every streamed servo (a whole cycle carried it)
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
