@@ -131,6 +131,41 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, n
     assert "Traceback" not in err
 
 
+def test_play_stopped_by_ctrl_c_counts_the_same_time_played_in_its_table_and_its_summary() -> None:
+    # The table's last line counted the slow-down after the stop as motion played ("motion 2.0/3.6 s", with
+    # --ramp 1), where the summary said "1.0 s of 3.6 s played".
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ics35_async.cli",
+            *NO_TIMEOUTS_OPTION,
+            "play",
+            str(EXAMPLES / "humanoid.toml"),
+            str(EXAMPLES / "wave.json"),
+            "--ramp",
+            "1",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        assert "play wave" in proc.stdout.readline()  # the title: playing
+        assert "t=" in proc.stdout.readline()  # a second into the motion
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    *_, table_line, summary = out.strip().splitlines()
+    played = summary.split(": ")[1].split(" s of ")[0]
+    assert f"motion {played:>4}/3.6 s" in table_line, out
+
+
 @pytest.mark.parametrize("servos", ["ICS 3.5", "ICS 3.6", "both"])
 def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_left_in(
     servos: str, tmp_path: Path

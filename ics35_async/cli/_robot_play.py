@@ -177,10 +177,13 @@ def play(
             start = time.monotonic()
             total = motion.duration / speed
 
+            stopped_at: list[float] = []  # seconds in when it ended or was stopped (Ctrl-C, --seconds, a lost line)
+
             def summary() -> str:
-                t = time.monotonic() - start
+                # The smooth stop after it (--ramp) is not playing time: the motion stands where it stopped.
+                t = stopped_at[0] if stopped_at else time.monotonic() - start
                 if seconds:
-                    t = min(t, seconds)  # the smooth stop after the limit is not playing time
+                    t = min(t, seconds)
                 into = t % total if loop else min(t, total)
                 limit = f"/{seconds:g}" if seconds else ""
                 count = f"pass {passes + 1}  " if loop else ""
@@ -227,7 +230,8 @@ def play(
                     how = f"stopped by {stop_name()}"
                 finally:
                     # How far the motion got, for the closing line when no pass completed.
-                    played = min(time.monotonic() - start, seconds or math.inf, total)
+                    stopped_at.append(time.monotonic() - start)
+                    played = min(stopped_at[0], seconds or math.inf, total)
                     if not task.done():
                         task.cancel()
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
