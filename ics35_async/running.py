@@ -33,6 +33,7 @@ from typing import Any, Literal, NoReturn, Protocol, TypeVar, cast
 
 from .errors import IcsError, InvalidArgument
 from .tasks import only_error
+from .terminal import ctrl_c_typed
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # main raised an IcsError (printed as one line)
@@ -288,6 +289,8 @@ class _AfterStop:
 
     def __call__(self, signum: int, frame: FrameType | None) -> None:
         if time.monotonic() < self.until:
+            if signum == signal.SIGINT:
+                ctrl_c_typed()  # (its ^C is echoed where the program's last words go: they clear it first)
             return
         with contextlib.suppress(TypeError, ValueError):
             signal.signal(signum, self.previous)  # type: ignore[arg-type]

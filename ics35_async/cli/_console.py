@@ -16,14 +16,24 @@ from rich.live import Live
 from rich.markup import escape
 
 from .. import units
-from ..terminal import clear_echoed_ctrl_c
+from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c
 from ._settings import CliError, ExitCode, Settings
 
-out = Console(highlight=False, soft_wrap=True)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+class _Console(Console):
+    """A console whose first words after a Ctrl-C start a line of their own: a press taken for the stop before
+    it (a double Ctrl-C's second, landing as the command ends) has its ``^C`` echoed where they go next
+    (``^Cwrote 1 pose(s) ...``).  Not while a live view runs: it redraws its own lines."""
+
+    def print(self, *objects: Any, **options: Any) -> None:
+        if not any(view.is_started for view in _live_views):
+            clear_after_ctrl_c()
+        super().print(*objects, **options)
 
 
 _live_views: weakref.WeakSet[Live] = weakref.WeakSet()
+out = _Console(highlight=False, soft_wrap=True)
+err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 def live_view(**options: Any) -> Live:
