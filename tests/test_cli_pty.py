@@ -548,7 +548,8 @@ def test_three_quick_ctrl_c_force_the_command_out_without_a_traceback(args: list
     # (Nor what the stop had started and the loop left unrun: "coroutine ... was never awaited", at exit.)
     assert "Warning" not in written and "Task was destroyed" not in written, "\n".join(screen)
     if code == 0:  # the first press's stop was over before the others came: they were the same stop
-        assert any("stopped by Ctrl-C" in line for line in screen), "\n".join(screen)
+        # (On failure, also the bytes written last: what drew over the screen shows only there.)
+        assert any("stopped by Ctrl-C" in line for line in screen), "\n".join(screen) + f"\n{written[-1500:]!r}"
         return
     assert code == 130, "\n".join(screen)
     # On a line of its own, below the live table: a table whose stop the press cut short kept stdout and stderr

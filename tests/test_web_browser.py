@@ -525,8 +525,10 @@ def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, 
 
 
 def open_servo_page(page: Page, servo_id: int) -> None:
-    """The Servo page of ``servo_id``, its reads done (its ID in the EEPROM table, then its RAM shown)."""
+    """The Servo page of ``servo_id``, its reads done (the page says it loaded that servo; its ID in the EEPROM
+    table, then its RAM shown).  (The tables alone could be the page's last visit's, still on show.)"""
     page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
+    expect(page.locator(f"#page-servo[data-loaded='{servo_id}']")).to_be_attached()
     expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
     expect(page.locator("#ram-table tbody tr").first).to_be_visible()
 

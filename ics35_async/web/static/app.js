@@ -262,6 +262,10 @@ async function leaveServo() {
   const [shown, on] = [state.servoLoaded, state.motionFor];
   $("#motion-switch").checked = false; setMotion(false);
   state.motionFor = null;
+  // Left, its page acts on no servo until one is read again: what it still shows is the last servo's, and a
+  // click while the next one's values load must not act on that one (nor say it loaded: see loadServo).
+  state.servoLoaded = null;
+  delete $("#page-servo").dataset.loaded;
   await motionOff(shown);
   if (on !== shown) await motionOff(on);  // (the switch acts on the servo shown: never expected, but kept off)
 }
@@ -306,6 +310,7 @@ async function loadServo() {
   $("#jog-limits").textContent = `${state.limits[0]}..${state.limits[1]}`;
   $("#motion-switch").checked = false; setMotion(false);
   state.servoLoaded = id;
+  $("#page-servo").dataset.loaded = String(id);  // (read: what a test, or a person's script, can wait for)
   pollPosition();
 }
 
