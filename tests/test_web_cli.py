@@ -204,7 +204,10 @@ def test_a_robot_line_on_a_fast_simulator_without_a_rate_is_said_to_run_flat_out
         assert proc.stderr is not None
         err = " ".join(proc.stderr.read().split())
     assert "robot line fast (sim://web-cli-fast?ids=1) is a fast simulator with no rate_hz" in err, err
-    assert "line paced" not in err and "line real" not in err, err
+    # Said of that line alone.  (Not "line real" anywhere: on a loaded machine the real-time line's limits read
+    # can time out on the default allowance, and its own warning names the line.)
+    assert err.count("is a fast simulator") == 1, err
+    assert "robot line paced" not in err and "robot line real" not in err, err
 
 
 @contextmanager
