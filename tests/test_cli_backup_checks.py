@@ -14,9 +14,10 @@ import pytest
 
 from ics35_async.cli import ExitCode, main
 from ics35_async.eeprom import Flags
-from ics35_async.protocol import Position, ReadEeprom, WriteEeprom
+from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
+from tests.support.sim_servos import UnplugsWhenAsked, free_command
 
 Damage = Callable[[dict[str, Any]], None]
 
@@ -263,20 +264,8 @@ def test_a_dump_cut_by_an_unplug_keeps_what_it_read(
         assert "eeprom dump 3,4 --table" in err
 
 
-class UnpluggedWhenFreed(VirtualServo):
-    """A servo at whose free command the adapter is pulled out: it goes free, its reply never gets back."""
-
-    line: VirtualLine | None = None
-
-    def handle(self, command: Any) -> Any:
-        reply = super().handle(command)
-        if self.line is not None and isinstance(command, Position) and command.position == 0:
-            self.line.unplug()
-        return reply
-
-
 def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: Any, sim_line: Any) -> None:
-    puller = UnpluggedWhenFreed(2)
+    puller = UnplugsWhenAsked(2, free_command)
     sim, url = sim_line([VirtualServo(1), puller, VirtualServo(3)])
     puller.line = sim
     result = cli("--port", url, "free", "1-3")

@@ -10,8 +10,8 @@ import pytest
 from ics35_async import open_bus
 from ics35_async.errors import PortLost, ReplyTimeout
 from ics35_async.policies import ALL_IDS, free_servos
-from ics35_async.protocol import Position
 from ics35_async.sim import VirtualLine, VirtualServo
+from tests.support.sim_servos import UnplugsWhenAsked, free_command
 from tests.support.timing import FAST
 
 
@@ -56,18 +56,8 @@ async def test_every_servo_on_a_line_where_none_answers_failed(lines: Any) -> No
     assert sorted(report.failed) == list(ALL_IDS) and not report.ok
 
 
-class UnpluggedWhenFreed(VirtualServo):
-    line: VirtualLine | None = None
-
-    def handle(self, command: Any) -> Any:
-        reply = super().handle(command)
-        if self.line is not None and isinstance(command, Position) and command.position == 0:
-            self.line.unplug()
-        return reply
-
-
 async def test_a_line_lost_half_way_tells_the_freed_from_the_unknown(lines: Any) -> None:
-    puller = UnpluggedWhenFreed(2)
+    puller = UnplugsWhenAsked(2, free_command)
     sim = lines([VirtualServo(1), puller, VirtualServo(3)])
     puller.line = sim
     async with open_bus(sim, **FAST) as bus:

@@ -115,12 +115,18 @@ def ids_text(ids: Sequence[int] | Iterable[int]) -> str:
     return ", ".join(str(i) for i in ids) or "none"
 
 
-def id_ranges(ids: Iterable[int]) -> str:
-    """``0, 4-31``: a run of three or more IDs as a range (29 empty IDs in one short line), the rest one by one."""
+def id_runs(ids: Iterable[int]) -> list[list[int]]:
+    """``ids`` sorted, without repeats, in runs of neighbours: ``[[0], [4, 5, 6]]``."""
     runs: list[list[int]] = []
     for i in sorted(set(ids)):
         if runs and i == runs[-1][-1] + 1:
             runs[-1].append(i)
         else:
             runs.append([i])
-    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in runs) or "none"
+    return runs
+
+
+def id_ranges(ids: Iterable[int]) -> str:
+    """``0, 4-31``, for a person: a run of three or more IDs as a range (29 empty IDs in one short line), the
+    rest one by one."""
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in id_runs(ids)) or "none"

@@ -22,6 +22,7 @@ from rich.markup import escape
 from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout, UnsafeOperation
 from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
+from ._console import id_runs
 
 T = TypeVar("T")
 
@@ -147,15 +148,9 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
-def id_ranges(ids: Iterable[int]) -> str:
+def ids_argument(ids: Iterable[int]) -> str:
     """``ids`` as the ID lists of the command line take them, runs of neighbours as ranges: ``2-4,9``."""
-    runs: list[list[int]] = []
-    for i in sorted(set(ids)):
-        if runs and i == runs[-1][-1] + 1:
-            runs[-1].append(i)
-        else:
-            runs.append([i])
-    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in runs)
+    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in id_runs(ids))
 
 
 def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
@@ -168,7 +163,7 @@ def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsEr
         line = max(lines, key=lambda spec: len(spec.port))  # the longest: one port's name may start another's
         here = dataclasses.replace(settings, port=line.port, baud=line.baudrate, echo=line.echo, port_defaulted=False)
         # Its joints' IDs, not "all": the 32 IDs' absent ones would end it "did not go free", exit code 4.
-        free = here.command_line("free", id_ranges(j.id for j in description.joints_on(line.name)))
+        free = here.command_line("free", ids_argument(j.id for j in description.joints_on(line.name)))
     others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"

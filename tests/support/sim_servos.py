@@ -2,21 +2,30 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+from ics35_async.protocol import Position
 from ics35_async.sim import VirtualLine, VirtualServo
 
 
-class UnplugsWhenAsked(VirtualServo):
-    """A servo whose line is pulled away as it hears a ``what`` command (a ``ReadParam``: a scan's probe; a
-    ``ReadEeprom``: once the probes found every servo).  ``line`` is set once the line holds it (None: never)."""
+def free_command(command: Any) -> bool:
+    """The free command (a position command with target 0)."""
+    return isinstance(command, Position) and command.position == 0
 
-    def __init__(self, servo_id: int, what: type, **options: Any) -> None:
+
+class UnplugsWhenAsked(VirtualServo):
+    """A servo whose line is pulled away as it hears a command: ``what`` is a command class (a ``ReadParam``: a
+    scan's probe; a ``ReadEeprom``: once the probes found every servo) or a test of the command
+    (:func:`free_command`).  It acts on the command, whose reply never gets back.  ``line`` is set once the line
+    holds it (None: never)."""
+
+    def __init__(self, servo_id: int, what: type | Callable[[Any], bool], **options: Any) -> None:
         super().__init__(servo_id, **options)
-        self.what = what
+        self.heard = what if not isinstance(what, type) else lambda command: isinstance(command, what)
         self.line: VirtualLine | None = None
 
     def handle(self, command: Any) -> Any:
-        if self.line is not None and isinstance(command, self.what):
+        if self.line is not None and self.heard(command):
             self.line.unplug()
         return super().handle(command)
