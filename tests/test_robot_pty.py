@@ -97,20 +97,31 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     ids=["Ctrl-C", "SIGTERM"],
 )
 def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, name: str) -> None:
-    # A shell started in the background ignores SIGINT, and children inherit that: restore the default.
+    returncode, out, err = play_stopped_a_second_in(signum, "--loop", "--on-stop", "free")
+    assert returncode == code, err
+    assert f"stopped by {name}: slowing to rest, then the joints free" in err
+    assert "joints left free" in out
+    assert "Traceback" not in err
+
+
+def test_play_stopped_by_ctrl_c_counts_the_same_time_played_in_its_table_and_its_summary() -> None:
+    # The table's last line counted the slow-down after the stop as motion played ("motion 2.0/3.6 s", with
+    # --ramp 1), where the summary said "1.0 s of 3.6 s played".
+    returncode, out, err = play_stopped_a_second_in(signal.SIGINT, "--ramp", "1")
+    assert returncode == 0, err
+    *_, table_line, summary = out.strip().splitlines()
+    played = summary.split(": ")[1].split(" s of ")[0]
+    assert f"motion {played:>4}/3.6 s" in table_line, out
+
+
+PLAYED = (str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"))
+
+
+def play_stopped_a_second_in(signum: int, *options: str) -> tuple[int, str, str]:
+    """``ics35 play`` of the humanoid's wave with ``options``, sent ``signum`` a second into the motion: its exit
+    code, stdout and stderr."""
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "ics35_async.cli",
-            *NO_TIMEOUTS_OPTION,
-            "play",
-            str(EXAMPLES / "humanoid.toml"),
-            str(EXAMPLES / "wave.json"),
-            "--loop",
-            "--on-stop",
-            "free",
-        ],
+        [sys.executable, "-m", "ics35_async.cli", *NO_TIMEOUTS_OPTION, "play", *PLAYED, *options],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -125,45 +136,7 @@ def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, n
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == code, err
-    assert f"stopped by {name}: slowing to rest, then the joints free" in err
-    assert "joints left free" in out
-    assert "Traceback" not in err
-
-
-def test_play_stopped_by_ctrl_c_counts_the_same_time_played_in_its_table_and_its_summary() -> None:
-    # The table's last line counted the slow-down after the stop as motion played ("motion 2.0/3.6 s", with
-    # --ramp 1), where the summary said "1.0 s of 3.6 s played".
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "ics35_async.cli",
-            *NO_TIMEOUTS_OPTION,
-            "play",
-            str(EXAMPLES / "humanoid.toml"),
-            str(EXAMPLES / "wave.json"),
-            "--ramp",
-            "1",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        assert "play wave" in proc.stdout.readline()  # the title: playing
-        assert "t=" in proc.stdout.readline()  # a second into the motion
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, err
-    *_, table_line, summary = out.strip().splitlines()
-    played = summary.split(": ")[1].split(" s of ")[0]
-    assert f"motion {played:>4}/3.6 s" in table_line, out
+    return proc.returncode, out, err
 
 
 @pytest.mark.parametrize("servos", ["ICS 3.5", "ICS 3.6", "both"])
