@@ -724,14 +724,22 @@ def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser
         )
 
 
-def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
+@contextlib.contextmanager
+def held_by_its_page(browser: Browser, position: int) -> Iterator[tuple[PtyLine, VirtualServo, Page]]:
+    """Servo 1 alone on a line, turned by hand to ``position``, its page open with motion switched on (so held
+    there): the line, the servo and the page."""
     line = PtyLine((1,))
     servo = line.sim.servo(1)
-    servo.move_by_hand(8000)
+    servo.move_by_hand(position)
     with web_server_page(browser, ["--port", line.path], line) as p:
         open_servo_page(p, 1)
         p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text("8000")
+        expect(p.locator("#jog-target")).to_have_text(str(position))
+        yield line, servo, p
+
+
+def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
+    with held_by_its_page(browser, 8000) as (line, servo, p):
         until(lambda: servo.target == 8000, "enable motion never held servo 1")
         line.sim.unplug()
         expect(p.locator("#lost-banner")).to_be_visible()
@@ -752,13 +760,7 @@ def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(b
 def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) -> None:
     # The page shows a jog's target at the click.  The server refusing it (409: motion switched off meanwhile,
     # nothing sent) must not leave the page showing a target the servo never got.
-    line = PtyLine((1,))
-    servo = line.sim.servo(1)
-    servo.move_by_hand(8000)
-    with web_server_page(browser, ["--port", line.path], line) as p:
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text("8000")
+    with held_by_its_page(browser, 8000) as (_, servo, p):
         held: list[Route] = []
         p.route("**/api/servo/1/move", lambda route: held.append(route))  # the request waits here until continued
         p.click("#jog-plus")
@@ -779,13 +781,7 @@ def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) 
 
 def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Browser) -> None:
     # A servo that did not answer the jog (504) may have heard it: its target is the new one or the old.
-    line = PtyLine((1,))
-    servo = line.sim.servo(1)
-    servo.move_by_hand(8000)
-    with web_server_page(browser, ["--port", line.path], line) as p:
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text("8000")
+    with held_by_its_page(browser, 8000) as (line, _, p):
         line.sim.remove_servo(1)  # its cable pulled: the jog goes out, no answer comes back
         with p.expect_response("**/api/servo/1/move") as answer:
             p.click("#jog-plus")
