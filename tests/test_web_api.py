@@ -147,6 +147,19 @@ def test_scan_finds_the_simulated_servos_and_reports_progress(serve: Any) -> Non
     assert client.get("/api/status").json()["scanning"] is False
 
 
+def test_a_scan_where_nothing_answers_at_the_lines_rate_names_the_rate_a_device_answers_at(serve: Any) -> None:
+    # Servos set to 1.25 Mbit/s, the page opened at the default 115200: "0 servo(s) found" said nothing of why.
+    client, sim = serve(())
+    for i in (1, 2):
+        sim.add_device(VirtualServo(i, baud_rate=1250000))
+    report = post(client, "/api/scan").json()
+    assert report["servos"] == [] and report["answers_at"] == 1250000, report
+    assert client.get("/api/status").json()["baud"] == 115200  # (the line back at its own rate)
+    sim.add_device(VirtualServo(3))
+    report = post(client, "/api/scan").json()
+    assert [s["id"] for s in report["servos"]] == [3] and report["answers_at"] is None, report
+
+
 def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_found_before_it_with_the_loss() -> None:
     # Nothing found is lost work: the page lists servos 1, 2 and 20 (its EEPROM unread), then says the line went.
     puller = UnplugsWhenAsked(20, ReadEeprom)

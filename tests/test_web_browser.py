@@ -633,6 +633,22 @@ def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_t
         scan_finds(p, 3, ids="0-4")
 
 
+def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_answers_at(browser: Browser) -> None:
+    # Servos set to 1.25 Mbit/s, the page opened at the default 115200: it said "0 servo(s) found" and no more.
+    line = PtyLine(())
+    for i in (1, 2):
+        line.sim.add_device(VirtualServo(i, baud_rate=1250000))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        expect(p.locator("#message")).to_contain_text(
+            "no servo answered at 115,200 baud, but a device does at 1,250,000 baud", timeout=SCAN_WAIT_MS
+        )
+        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
+        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
+        scan_lists(p, 2)  # (scanned again at once)
+
+
 def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: Browser) -> None:
     line = PtyLine((1,))
     with web_server_page(browser, ["--port", line.path], line) as p:

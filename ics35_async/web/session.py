@@ -40,12 +40,15 @@ from ..errors import (
     error_text,
 )
 from ..policies import (
+    ALL_BAUDS,
     EepromPlan,
     FoundServo,
     IdSurvey,
     NoReply,
     NoReplyCause,
     Refusal,
+    ScanReport,
+    device_rates,
     look_elsewhere,
     plan_eeprom_write,
     read_position_without_freeing,
@@ -383,6 +386,7 @@ class LineSession:
 
             try:
                 report = await scan(reopening(bus), bauds=checked, ids=wanted, on_probe=step)
+                elsewhere = await self._answered_elsewhere(bus, report, checked)
             finally:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
@@ -400,7 +404,24 @@ class LineSession:
             "silent": report.silent,
             "echo_wrong": None if report.echo_evidence is None else str(report.echo_evidence),
             "lost": None if report.lost is None else str(report.lost),
+            "answers_at": elsewhere,  # nothing here: the rate a device answers at, which the page offers
         }
+
+    async def _answered_elsewhere(self, bus: Bus, report: ScanReport, scanned: list[int]) -> int | None:
+        """After a scan where nothing answered: a rate not scanned that a device answers the ID read at
+        (policies.device_rates, as the ID page looks), to reopen the line at; None when something answered, not
+        even the echo came back (the adapter or its wiring, which no rate mends), or the other rates may not be
+        tried on this line.  The port is left at the last rate tried (the scan's close puts it back)."""
+        others = [rate for rate in ALL_BAUDS if rate not in scanned]
+        if report.servos or report.garbled or report.lost is not None or not others:
+            return None
+        if (report.silent and self.config.echo) or self._other_rates_not_tried() is not None:
+            return None
+        try:
+            found = await device_rates(reopening(bus), others)
+        except (IcsError, OSError):
+            return None  # advice only: the scan's own outcome stands
+        return found[0] if found else None
 
     def found_view(self, servo: FoundServo) -> dict[str, Any]:
         return {

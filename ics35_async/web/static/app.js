@@ -25,6 +25,7 @@ function reopenAt(baud) {
     showStatus(s); $("#baud-select").value = String(s.baud);
     if (location.hash.startsWith("#servo")) await loadServo();
     say(`the line is open at ${s.baud.toLocaleString("en-US")} baud`, "info");
+    if (!$("#page-line").hidden) await scanLine();  // (offered by a scan that found nothing: scanned again here)
   } };
 }
 
@@ -220,6 +221,11 @@ async function scanLine() {
       return;
     }
     $("#scan-summary").textContent = `${report.servos.length} servo(s) found. ${notes.join("; ")}`;
+    if (report.answers_at) {  // nothing at the line's rate, something at another: offer the line at that one
+      const at = state.status ? ` at ${state.status.baud.toLocaleString("en-US")} baud` : "";
+      say(`no servo answered${at}, but a device does at ${report.answers_at.toLocaleString("en-US")} baud`, "error",
+        reopenAt(report.answers_at));
+    }
   } catch (e) {
     $("#scan-summary").textContent = "the scan did not finish (the message above says why)";
     throw e;
