@@ -304,7 +304,14 @@ def open_servo(p: Page, sid: int, *, speed: int) -> None:
     p.click("a[href='#servo']")
     p.fill("#servo-id", str(sid))
     p.click("#servo-load")
+    servo_read(p, sid)
     expect(p.locator("#eeprom-table [name=speed]")).to_have_value(str(speed))
+
+
+def servo_read(p: Page, sid: int) -> None:
+    """Wait until ``p``'s Servo page says it has read servo ``sid`` (its reads done: its buttons act on it).  (Its
+    tables fill before the last read, and could be the page's last visit's.)"""
+    expect(p.locator(f"#page-servo[data-loaded='{sid}']")).to_be_attached()
 
 
 def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines: Any) -> None:
@@ -525,10 +532,10 @@ def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, 
 
 
 def open_servo_page(page: Page, servo_id: int) -> None:
-    """The Servo page of ``servo_id``, its reads done (the page says it loaded that servo; its ID in the EEPROM
-    table, then its RAM shown).  (The tables alone could be the page's last visit's, still on show.)"""
+    """The Servo page of ``servo_id``, its reads done (see :func:`servo_read`; its ID in the EEPROM table, then its
+    RAM shown)."""
     page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
-    expect(page.locator(f"#page-servo[data-loaded='{servo_id}']")).to_be_attached()
+    servo_read(page, servo_id)
     expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
     expect(page.locator("#ram-table tbody tr").first).to_be_visible()
 
@@ -1264,11 +1271,36 @@ def test_motion_is_not_switched_on_for_a_servo_whose_read_failed_until_it_is_rea
         expect(p.locator("#jog-plus")).to_be_disabled()
         assert p.request.get(base + "api/status").json()["motion_on"] == []
         p.click("#servo-load")
+        servo_read(p, 1)
         expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
         p.check("#motion-switch")
         expect(p.locator("#jog-plus")).to_be_enabled()
         p.click("a[href='#line']")
         until(lambda: p.request.get(base + "api/status").json()["motion_on"] == [], "motion stayed on on the server")
+
+
+def test_a_read_overtaken_by_another_servos_read_does_not_end_the_page_on_its_servo(browser: Browser) -> None:
+    # Read pressed for servo 1, then for servo 3 before servo 1's values came: servo 1's read, ending last, left
+    # the page on servo 1 (its values shown, its buttons acting on it) with 3 asked for last.
+    line = PtyLine((1, 3))
+    with web_server_page(browser, ["--port", line.path], line) as p:
+        p.click("a[href='#servo']")
+        held: list[Route] = []
+        p.route("**/api/servo/1/eeprom", lambda route: held.append(route))  # servo 1's read waits here
+        p.fill("#servo-id", "1")
+        p.click("#servo-load")
+        deadline = time.monotonic() + GUARD
+        while not held:
+            assert time.monotonic() < deadline, "servo 1 was never read"
+            p.wait_for_timeout(20)
+        p.fill("#servo-id", "3")
+        p.click("#servo-load")
+        servo_read(p, 3)
+        held[0].continue_()
+        p.wait_for_timeout(500)  # (servo 1's read answered: the page must not turn to it)
+        expect(p.locator("#page-servo")).to_have_attribute("data-loaded", "3")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("3")
+        p.unroute("**/api/servo/1/eeprom")
 
 
 def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_error(browser: Browser) -> None:

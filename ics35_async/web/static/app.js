@@ -278,8 +278,13 @@ async function leaveServo() {
 
 async function loadServo() {
   const id = numberIn($("#servo-id"), "the servo's ID");
+  // Each load has its number: one overtaken by a later load (Read pressed again, another servo's page) stops at
+  // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
+  const mine = (state.loads = (state.loads ?? 0) + 1);
+  const overtaken = () => mine !== state.loads;
   await leaveServo();
   await motionOff(id);
+  if (overtaken()) return;
   robotNote(id);
   state.servoLoaded = null;  // no position reads until this servo's page is shown
   $("#jog-position").textContent = "-"; $("#jog-position-note").textContent = ""; state.positionHow = null;
@@ -292,7 +297,9 @@ async function loadServo() {
   state.eeprom = null;
   $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren();
   $("#restore-diff").replaceChildren(); $("#restore-result").replaceChildren(); $("#restore-btn").disabled = true;
-  state.eeprom = await api(`/api/servo/${id}/eeprom`);
+  const eeprom = await api(`/api/servo/${id}/eeprom`);
+  if (overtaken()) return;
+  state.eeprom = eeprom;
   const body = $("#eeprom-table tbody");
   body.replaceChildren();
   for (const f of state.eeprom.fields) {
@@ -309,6 +316,7 @@ async function loadServo() {
     body.append(el("tr", { "data-field": f.name }, el("td", {}, f.name), el("td", {}, input), el("td", {}, f.unit), el("td", {}, range), el("td", { class: "meaning" }, f.meaning)));
   }
   const ram = await api(`/api/servo/${id}/ram`);
+  if (overtaken()) return;
   $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
   const limits = state.eeprom.fields.filter((f) => f.name.startsWith("pulse_limit")).map((f) => f.value);
   state.limits = [Math.min(...limits), Math.max(...limits)];
