@@ -579,11 +579,11 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
 
 
 @contextlib.contextmanager
-def web_server_page(browser: Browser, args: list[str], line: PtyLine) -> Iterator[Page]:
-    """``ics35 web ARGS`` in a process of its own and a page on it; at the end the server is stopped and
-    ``line`` closed, and the server must have printed no traceback."""
+def web_server_page(browser: Browser, line: PtyLine, args: list[str] | None = None) -> Iterator[Page]:
+    """``ics35 web ARGS`` (by default ``--port`` ``line``'s pty) in a process of its own and a page on it; at the
+    end the server is stopped and ``line`` closed, and the server must have printed no traceback."""
     proc = subprocess.Popen(
-        [*WEB, *args, *PATIENT_OPTION],
+        [*WEB, *(["--port", line.path] if args is None else args), *PATIENT_OPTION],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -610,7 +610,7 @@ def web_server_page(browser: Browser, args: list[str], line: PtyLine) -> Iterato
 def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
     line = PtyLine((1,))
     line.sim.add_device(VirtualServo(5, baud_rate=1250000))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
         p.goto(p.url.split("#")[0] + "#servo/5")
         expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
@@ -624,7 +624,7 @@ def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_t
     line = PtyLine((1, 2))
     puller = UnplugsWhenAsked(3, ReadEeprom)
     line.sim.add_device(puller)
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         puller.line = line.sim
         p.fill("#scan-ids", "0-4")
         p.click("#scan-btn")
@@ -645,7 +645,7 @@ def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_an
     line = PtyLine(())
     for i in (1, 2):
         line.sim.add_device(VirtualServo(i, baud_rate=1250000))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.fill("#scan-ids", "0-4")
         p.click("#scan-btn")
         expect(p.locator("#message")).to_contain_text(
@@ -658,7 +658,7 @@ def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_an
 
 def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: Browser) -> None:
     line = PtyLine((1,))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         p.fill("#eeprom-table [name=servo_id]", "7")
         p.check("#allow-id-change")
@@ -676,7 +676,7 @@ def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: 
 
 def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
     line = PtyLine((0, 2))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         scan_finds(p, 2)
         open_servo_page(p, 2)
         p.fill("#eeprom-table [name=servo_id]", "3")
@@ -702,7 +702,7 @@ def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) 
 
 def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(browser: Browser, tmp_path: Path) -> None:
     line = PtyLine((1, 2))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         with p.expect_download() as download:
             p.click("#backup-btn")
@@ -723,7 +723,7 @@ def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(brows
 
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         scan_finds(p, 2)
         row = p.locator("#servo-table tr[data-id='2']")
         expect(row.locator("td.temp")).to_contain_text("°C")
@@ -737,7 +737,7 @@ def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_
 def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
     line = PtyLine((1,))
     line.sim.add_device(VirtualServo(5, baud_rate=1250000))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.check("#scan-all-bauds")
         scan_finds(p, 2)
         expect(p.locator("#servo-table tr[data-id='1'] td.temp")).to_contain_text("°C")
@@ -754,7 +754,7 @@ def held_by_its_page(browser: Browser, position: int) -> Iterator[tuple[PtyLine,
     line = PtyLine((1,))
     servo = line.sim.servo(1)
     servo.move_by_hand(position)
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         p.check("#motion-switch")
         expect(p.locator("#jog-target")).to_have_text(str(position))
@@ -822,7 +822,7 @@ def test_motion_a_closed_tab_switched_on_goes_off_on_the_server_and_a_jog_is_ref
     line = PtyLine((1,))
     servo = line.sim.servo(1)
     servo.move_by_hand(8000)
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         p.check("#motion-switch")
         until(lambda: servo.target == 8000, "enable motion never held servo 1")
@@ -856,7 +856,7 @@ def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(b
     # between the tick and the server's answer still says so: it unticked the switch, and the server then
     # switched motion on behind a page showing it off.
     line = PtyLine((1, 3))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         motion_switched_off_by_a_lost_port(p, line)
         held: list[Route] = []
         p.route("**/api/servo/1/motion", lambda route: held.append(route))  # the request waits here until continued
@@ -879,7 +879,7 @@ def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_swi
     # taken (saying motion is off) can reach the page after the answer.  It unticked the switch of a servo
     # whose motion the server had just switched on.
     line = PtyLine((1, 3))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         holding, late = [False], []
 
         def relay(ws: Any) -> None:  # the page's WebSocket through this test: its pushes held back when asked
@@ -1132,7 +1132,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
         '[joints.elbow]\nline = "arm"\nid = 2\n'
     )
-    with web_server_page(browser, ["--robot", str(robot)], line) as p:
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
         expect(p.locator("#robot-cycle")).not_to_have_text("-")
         expect(p.locator("#robot-reopen")).to_be_hidden()
@@ -1168,7 +1168,7 @@ def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Brow
     # The stream sends a servo it held nothing once the port is back (it may have restarted, free and
     # elsewhere): plotted as if plain, its line just went flat; the terminal says "waiting for a target".
     line = PtyLine((1,))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.goto(p.url.split("#")[0] + "#live")
         p.fill("#live-ids", "1")
         p.click("#live-start")
@@ -1189,7 +1189,7 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
     # Each absent ID had a row of the library's words with the bytes sent ("read_eeprom to ID 5: no reply
     # ... (raw: a5 00)"), the same news once per servo.
     line = PtyLine((1,))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.goto(p.url.split("#")[0] + "#many")
         p.fill("#many-ids", "1,5,6")
         p.check("[name=use-punch]")
@@ -1209,7 +1209,7 @@ def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser
     # another tab moved a servo whose page said it was locked.
     line = PtyLine((1,))
     servo = line.sim.servo(1)
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         base = p.url.split("#")[0]
 
         def jog_refused() -> bool:
@@ -1241,7 +1241,7 @@ def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser
 def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(browser: Browser) -> None:
     # Its last position stayed in the legend as if read now ("■ 2: 7500"), the word only in the line above.
     line = PtyLine((1, 2))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.goto(p.url.split("#")[0] + "#live")
         p.fill("#live-ids", "1,2")
         p.click("#live-start")
@@ -1260,7 +1260,7 @@ def test_motion_is_not_switched_on_for_a_servo_whose_read_failed_until_it_is_rea
     # page acts only on a servo it has read: the switch is refused until Read succeeds.
     line = PtyLine((1,))
     unplugged = line.sim.remove_servo(1)
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         base = p.url.split("#")[0]
         p.goto(base + "#servo/1")
         expect(p.locator("#message")).to_contain_text("did not answer")
@@ -1283,7 +1283,7 @@ def test_a_read_overtaken_by_another_servos_read_does_not_end_the_page_on_its_se
     # Read pressed for servo 1, then for servo 3 before servo 1's values came: servo 1's read, ending last, left
     # the page on servo 1 (its values shown, its buttons acting on it) with 3 asked for last.
     line = PtyLine((1, 3))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         p.click("a[href='#servo']")
         held: list[Route] = []
         p.route("**/api/servo/1/eeprom", lambda route: held.append(route))  # servo 1's read waits here
@@ -1306,7 +1306,7 @@ def test_a_read_overtaken_by_another_servos_read_does_not_end_the_page_on_its_se
 def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_error(browser: Browser) -> None:
     # The words are on the page; the same failure also went to the browser's console as an uncaught error.
     line = PtyLine((1,))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         errors: list[str] = []
         p.on("pageerror", lambda error: errors.append(str(error)))
         p.goto(p.url.split("#")[0] + "#servo/4")
@@ -1319,7 +1319,7 @@ def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Bro
     # A number box the user emptied (or typed a letter in: the browser then gives no value) reads as 0 in
     # JavaScript: the lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.
     line = PtyLine((4,))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 4)
         p.fill("#eeprom-table [name=punch]", "")
         p.click("#plan-btn")
@@ -1366,7 +1366,7 @@ def test_the_servo_page_acts_on_the_servo_it_shows_not_an_id_typed_in_the_box_an
     # Servo 1's page open, 2 typed in the ID box without Read (new servos all read alike): Show changes and
     # Write wrote servo 2 ("servo 2: written and verified") while the table showed servo 1's values.
     line = PtyLine((1, 2))
-    with web_server_page(browser, ["--port", line.path], line) as p:
+    with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         speeds = {i: line.sim.servo(i).eeprom.speed for i in (1, 2)}
         wanted = 77 if speeds[1] != 77 else 78
