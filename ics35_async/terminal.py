@@ -6,6 +6,8 @@ The command line and the simulator's server share these rules; the console scrip
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import os
 import sys
 from typing import TextIO
@@ -49,6 +51,7 @@ def clear_echoed_ctrl_c() -> None:
     pipe gets nothing (not even where a setting such as ``FORCE_COLOR`` makes the output look like a terminal's).
     """
     _echoed.clear()
+    keep_last_words()
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
             stream.write(ERASE_LINE)
@@ -58,9 +61,57 @@ def clear_echoed_ctrl_c() -> None:
 
 def ctrl_c_typed() -> None:
     """Note a Ctrl-C (from its signal handler: nothing is written there): :func:`clear_after_ctrl_c` clears its
-    echoed ``^C`` before the next thing written, unless :func:`clear_echoed_ctrl_c` has by then."""
+    echoed ``^C`` before the next thing written, unless :func:`clear_echoed_ctrl_c` has by then.  What the
+    program says as it stops is kept from a later press (see :func:`keep_last_words`)."""
     if not _echoed:
         _echoed.append(True)
+    keep_last_words()
+
+
+_kept: list[int] = []  # the terminal's descriptor once keep_last_words has acted (-1: nothing to put back)
+
+
+def keep_last_words() -> None:
+    """Once a Ctrl-C has stopped the program: a later press must not take what it says as it ends off the screen.
+
+    At each Ctrl-C a terminal discards what the program wrote and it has not shown yet (POSIX's default, the
+    NOFLSH flag unset): a double Ctrl-C's second press, landing as the program said what it left ("the joints
+    it opened are left free"), took those lines away, a few lines in every hundred written under it.  So the
+    terminal the process is in the foreground of is set to keep its output at Ctrl-C (its input is kept too:
+    the program reads none as it stops) until the process ends, when its own setting is put back.  Nothing on
+    a terminal the process runs in the background of (changing its settings would stop the process), in a
+    file or a pipe, or on Windows."""
+    if _kept or sys.platform == "win32":
+        return
+    import termios
+
+    for stream in (sys.stderr, sys.stdout):
+        if in_foreground_of_terminal(stream):
+            fd = stream.fileno()
+            try:
+                attrs = termios.tcgetattr(fd)
+                if attrs[3] & termios.NOFLSH:
+                    break  # (already so: nothing to put back)
+                attrs[3] |= termios.NOFLSH
+                termios.tcsetattr(fd, termios.TCSANOW, attrs)
+            except (termios.error, OSError):
+                break
+            _kept.append(fd)
+            atexit.register(_give_back_flushing, fd)
+            return
+    _kept.append(-1)
+
+
+def _give_back_flushing(fd: int) -> None:
+    """The terminal's own setting put back, as the process ends (unless it is no longer the foreground's: a
+    background process changing it would be stopped)."""
+    import termios
+
+    with contextlib.suppress(termios.error, OSError):
+        if os.tcgetpgrp(fd) == os.getpgrp():
+            attrs = termios.tcgetattr(fd)
+            attrs[3] &= ~termios.NOFLSH
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
 
 def clear_after_ctrl_c() -> None:

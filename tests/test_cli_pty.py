@@ -16,6 +16,7 @@ import select
 import signal
 import subprocess
 import sys
+import termios
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -461,6 +462,64 @@ def test_the_ctrl_c_line_is_cleared_only_on_the_terminal_the_process_is_in_the_f
         os.close(master)
     assert proc.returncode == 0 and b"said" in written, written
     assert (b"\x1b[2K" in written) == (group == "foreground"), written
+
+
+_STOPPING_ON_A_TERMINAL = """
+import os, signal, sys, time
+os.setsid()
+tty = os.open(sys.argv[1], os.O_RDWR)  # (the session's first terminal opened: its controlling one)
+sys.stderr = os.fdopen(os.dup(tty), "w")  # (tty itself open until the process is gone)
+from ics35_async.terminal import ctrl_c_typed
+presses = []
+def on_sigint(signum, frame):
+    presses.append(signum)
+    ctrl_c_typed()  # (as the command line's handler does at each press)
+signal.signal(signal.SIGINT, on_sigint)
+os.write(tty, b"ready\\n")
+while not presses:
+    time.sleep(0.001)
+os.write(tty, b"stopping\\n")
+for i in range(int(sys.argv[2])):  # its last words, line by line, as more presses come
+    os.write(tty, b"line %d\\n" % i)
+    time.sleep(0.0002)
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # (as the command line's own end does: see running._ignore_at_exit)
+os.write(tty, b"end\\n")
+"""
+
+
+def test_a_stopping_commands_last_words_survive_more_ctrl_c_presses() -> None:
+    # A terminal discards what a program wrote and it has not shown yet at each Ctrl-C (unless NOFLSH): a double
+    # Ctrl-C's second press, landing as calibrate said what it left, took the hint "the joints it opened are left
+    # free" off the screen.  Once a Ctrl-C has stopped the command, a later one must not take its last words.
+    lines = 1500
+    master, slave = os.openpty()
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", _STOPPING_ON_A_TERMINAL, os.ttyname(slave), str(lines)])
+        written = b""
+        deadline = time.monotonic() + scaled(30)
+        pressed = False
+        while proc.poll() is None or select.select([master], [], [], 0.2)[0]:
+            assert time.monotonic() < deadline, written[-300:]
+            if b"ready" in written and not pressed:
+                os.close(slave)  # (held until the child has the terminal: a pty nobody holds reads as closed)
+                os.write(master, b"\x03")
+                pressed = True
+            elif b"stopping" in written and b"end" not in written:
+                os.write(master, b"\x03")  # (a press every millisecond or so as it says its last words)
+            if select.select([master], [], [], 0.001)[0]:
+                try:
+                    written += os.read(master, 65536)
+                except OSError:  # (the terminal's last process has closed it)
+                    break
+        no_flush_after = bool(termios.tcgetattr(master)[3] & termios.NOFLSH)  # (the pty's settings, from its master)
+    finally:
+        os.close(master)
+        if not pressed:
+            os.close(slave)
+    assert proc.wait(scaled(30)) == 0
+    said = {int(word) for word in written.replace(b"^C", b" ").split() if word.isdigit()}
+    assert set(range(lines)) - said == set(), f"{lines - len(said)} line(s) of its last words lost"
+    assert not no_flush_after, "the terminal's own setting is put back as the command ends"
 
 
 def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(tmp_path: Path) -> None:
