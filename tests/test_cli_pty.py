@@ -663,6 +663,51 @@ assert not unstarted, unstarted
 """
 
 
+# A third press landing in a weakref callback as the runner's close ran the command's cleanup again: Python prints
+# an exception raised there ("Exception ignored in: <function WeakSet.__init__.<locals>._remove ...>" and its
+# traceback, under demo's table) and drops it.  (signal.raise_signal runs the handler before it returns: inside the
+# callback, at once.)
+_FORCED_OUT_IN_A_CALLBACK = """
+import asyncio, signal, weakref
+from ics35_async.cli._loop import run_loop
+
+class Thing:
+    pass
+
+async def main():
+    signal.raise_signal(signal.SIGINT)
+    try:
+        await asyncio.sleep(30)  # the first press cancels it
+    finally:
+        signal.raise_signal(signal.SIGINT)  # the second forces the command out
+        try:
+            await asyncio.sleep(30)  # the runner, closing, cancels it again
+        finally:
+            thing = Thing()
+            ref = weakref.ref(thing, lambda _: signal.raise_signal(signal.SIGINT))  # the third
+            del thing
+            await asyncio.sleep(30)  # forced out, it must not wait for this (dropped, the press did)
+
+try:
+    run_loop(main())
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
+def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_forces_out(loop: str) -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _FORCED_OUT_IN_A_CALLBACK],
+        capture_output=True,
+        text=True,
+        timeout=scaled(15),
+        env={**os.environ, "ICS35_LOOP": loop},
+    )
+    assert done.stdout == "interrupted\n", done.stderr
+    assert done.stderr == "", done.stderr
+
+
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
 def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_screen(loop: str) -> None:
     # Three quick Ctrl-C in play printed "coroutine 'Robot._come_to_rest.<locals>.slow_down' was never awaited"

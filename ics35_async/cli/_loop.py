@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import _thread
 import asyncio
 import contextlib
 import gc
@@ -9,6 +10,7 @@ import inspect
 import logging
 import os
 import signal
+import sys
 import threading
 import warnings
 from collections.abc import Awaitable, Callable, Iterator
@@ -215,10 +217,27 @@ def _ctrl_c() -> Iterator[list[int]]:
             return  # the command has ended (the first press stopped it): this one is the same stop (see the end)
         raise KeyboardInterrupt
 
+    def on_unraisable(unraisable: Any) -> None:
+        if unraisable.exc_type is KeyboardInterrupt and len(pressed) >= 2:
+            # A forcing press raised where Python only prints an exception and drops it (a weakref callback, a
+            # finalizer: "Exception ignored in ..." and its traceback under the table) and the close went on as
+            # if it had not come: it is raised again, by the loop as the second press's is (the main thread may
+            # be about to wait in it), or else at the main thread's next step.
+            try:
+                asyncio.get_running_loop().call_soon_threadsafe(_interrupt)
+            except RuntimeError:  # (no loop running)
+                _thread.interrupt_main(signal.SIGINT)
+            return
+        previous_unraisable(unraisable)
+
+    previous_unraisable = sys.unraisablehook
+    sys.unraisablehook = on_unraisable
     signal.signal(signal.SIGINT, on_sigint)
     try:
         yield pressed
     finally:
+        if sys.unraisablehook is on_unraisable:
+            sys.unraisablehook = previous_unraisable
         if signal.getsignal(signal.SIGINT) is on_sigint:
             if pressed:
                 # A double Ctrl-C's second press landing once the loop is over would raise KeyboardInterrupt
