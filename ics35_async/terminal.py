@@ -10,6 +10,7 @@ import atexit
 import contextlib
 import os
 import sys
+import time
 from typing import TextIO
 
 ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleared (VT100, every terminal today)
@@ -78,7 +79,8 @@ def keep_last_words() -> None:
     NOFLSH flag unset): a double Ctrl-C's second press, landing as the program said what it left ("the joints
     it opened are left free"), took those lines away, a few lines in every hundred written under it.  So the
     terminal the process is in the foreground of is set to keep its output at Ctrl-C (its input is kept too:
-    the program reads none as it stops) until the process ends, when its own setting is put back.  Nothing on
+    the program reads none as it stops) until the process ends, when its own setting is put back a tenth of a
+    second later (see :data:`_LAST_WORDS_SHOWN`).  Nothing on
     a terminal the process runs in the background of (changing its settings would stop the process), in a
     file or a pipe, or on Windows."""
     if _kept or sys.platform == "win32":
@@ -102,6 +104,12 @@ def keep_last_words() -> None:
     _kept.append(-1)
 
 
+# How long the terminal keeps its output at Ctrl-C once the process has said its last words: what was written and
+# the terminal has not read yet (a loaded machine, an ssh link) would be discarded by a press landing just after
+# the setting is put back.  The last words' bytes cannot be seen leaving a pty from the process's side.
+_LAST_WORDS_SHOWN = 0.1
+
+
 def _give_back_flushing(fd: int) -> None:
     """The terminal's own setting put back, as the process ends (unless it is no longer the foreground's: a
     background process changing it would be stopped)."""
@@ -109,6 +117,7 @@ def _give_back_flushing(fd: int) -> None:
 
     with contextlib.suppress(termios.error, OSError):
         if os.tcgetpgrp(fd) == os.getpgrp():
+            time.sleep(_LAST_WORDS_SHOWN)
             attrs = termios.tcgetattr(fd)
             attrs[3] &= ~termios.NOFLSH
             termios.tcsetattr(fd, termios.TCSANOW, attrs)

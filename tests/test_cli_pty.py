@@ -522,6 +522,50 @@ def test_a_stopping_commands_last_words_survive_more_ctrl_c_presses() -> None:
     assert not no_flush_after, "the terminal's own setting is put back as the command ends"
 
 
+# Its last words written at once as it ends, and a press just after (TIOCSTI: typed from inside, at that moment),
+# on a terminal that reads them a little behind (a loaded machine, an ssh link).
+_ENDING_ON_A_TERMINAL = """
+import atexit, fcntl, os, signal, sys, termios
+os.setsid()
+tty = os.open(sys.argv[1], os.O_RDWR)  # (the session's first terminal opened: its controlling one)
+sys.stderr = os.fdopen(os.dup(tty), "w")  # (tty itself open until the process is gone)
+from ics35_async.terminal import ctrl_c_typed
+
+def press_as_it_ends():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (as the command line's own end does)
+    fcntl.ioctl(tty, termios.TIOCSTI, b"\\x03")
+
+atexit.register(press_as_it_ends)  # (registered first: run last, once the terminal has its own setting back)
+signal.signal(signal.SIGINT, lambda signum, frame: ctrl_c_typed())
+fcntl.ioctl(tty, termios.TIOCSTI, b"\\x03")  # the first press (its handler runs before the next line)
+os.write(tty, b"".join(b"line %d\\n" % i for i in range(int(sys.argv[2]))))
+"""
+
+
+def test_last_words_written_as_the_command_ends_survive_a_press_as_it_ends() -> None:
+    # The setting put back at once as the process ended: a press landing just after discarded what the terminal
+    # had not read yet (calibrate's error and hint, under a loaded test run).
+    lines = 1000
+    master, slave = os.openpty()
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", _ENDING_ON_A_TERMINAL, os.ttyname(slave), str(lines)])
+        written = b""
+        deadline = time.monotonic() + scaled(30)
+        while proc.poll() is None or select.select([master], [], [], 0.2)[0]:
+            assert time.monotonic() < deadline, written[-300:]
+            if select.select([master], [], [], 0.005)[0]:
+                written += os.read(master, 4096)
+                time.sleep(0.005)  # (a terminal reading a little behind: 4 KiB each 5 ms)
+        no_flush_after = bool(termios.tcgetattr(master)[3] & termios.NOFLSH)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert proc.wait(scaled(30)) == 0
+    said = {int(word) for word in written.replace(b"^C", b" ").split() if word.isdigit()}
+    assert set(range(lines)) - said == set(), f"{lines - len(said)} line(s) of its last words lost"
+    assert not no_flush_after, "the terminal's own setting is put back as the command ends"
+
+
 def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(tmp_path: Path) -> None:
     # FORCE_COLOR makes the console library treat a file as a terminal: the clearing went into the log.
     log = tmp_path / "err.log"
