@@ -491,35 +491,41 @@ def test_a_stopping_commands_last_words_survive_more_ctrl_c_presses() -> None:
     # A terminal discards what a program wrote and it has not shown yet at each Ctrl-C (unless NOFLSH): a double
     # Ctrl-C's second press, landing as calibrate said what it left, took the hint "the joints it opened are left
     # free" off the screen.  Once a Ctrl-C has stopped the command, a later one must not take its last words.
-    lines = 1500
+    lost, no_flush_after = _last_words_lost_on_a_terminal(_STOPPING_ON_A_TERMINAL, 1500, pressing=True)
+    assert lost == [], f"{len(lost)} line(s) of its last words lost"
+    assert not no_flush_after, "the terminal's own setting is put back as the command ends"
+
+
+def _last_words_lost_on_a_terminal(script: str, lines: int, *, pressing: bool) -> tuple[list[int], bool]:
+    """Run ``script`` (its terminal's path and ``lines`` its arguments) on a pty, read as a terminal does, and
+    return the lines of its last words (``line N``) that never reached the terminal, and whether the terminal
+    kept its output at Ctrl-C (NOFLSH) once the script had ended.  ``pressing``: type Ctrl-C once the script
+    says ``ready``, then at each pass once it says ``stopping`` and until it says ``end``; else read 4 KiB each
+    5 ms (a terminal reading a little behind: a loaded machine, an ssh link)."""
     master, slave = os.openpty()
     try:
-        proc = subprocess.Popen([sys.executable, "-c", _STOPPING_ON_A_TERMINAL, os.ttyname(slave), str(lines)])
+        proc = subprocess.Popen([sys.executable, "-c", script, os.ttyname(slave), str(lines)])
         written = b""
         deadline = time.monotonic() + scaled(30)
         pressed = False
         while proc.poll() is None or select.select([master], [], [], 0.2)[0]:
             assert time.monotonic() < deadline, written[-300:]
-            if b"ready" in written and not pressed:
-                os.close(slave)  # (held until the child has the terminal: a pty nobody holds reads as closed)
+            if pressing and b"ready" in written and not pressed:
                 os.write(master, b"\x03")
                 pressed = True
-            elif b"stopping" in written and b"end" not in written:
+            elif pressing and b"stopping" in written and b"end" not in written:
                 os.write(master, b"\x03")  # (a press every millisecond or so as it says its last words)
-            if select.select([master], [], [], 0.001)[0]:
-                try:
-                    written += os.read(master, 65536)
-                except OSError:  # (the terminal's last process has closed it)
-                    break
+            if select.select([master], [], [], 0.001 if pressing else 0.005)[0]:
+                written += os.read(master, 65536 if pressing else 4096)
+                if not pressing:
+                    time.sleep(0.005)
         no_flush_after = bool(termios.tcgetattr(master)[3] & termios.NOFLSH)  # (the pty's settings, from its master)
     finally:
         os.close(master)
-        if not pressed:
-            os.close(slave)
+        os.close(slave)
     assert proc.wait(scaled(30)) == 0
     said = {int(word) for word in written.replace(b"^C", b" ").split() if word.isdigit()}
-    assert set(range(lines)) - said == set(), f"{lines - len(said)} line(s) of its last words lost"
-    assert not no_flush_after, "the terminal's own setting is put back as the command ends"
+    return sorted(set(range(lines)) - said), no_flush_after
 
 
 # Its last words written at once as it ends, and a press just after (TIOCSTI: typed from inside, at that moment),
@@ -545,24 +551,8 @@ os.write(tty, b"".join(b"line %d\\n" % i for i in range(int(sys.argv[2]))))
 def test_last_words_written_as_the_command_ends_survive_a_press_as_it_ends() -> None:
     # The setting put back at once as the process ended: a press landing just after discarded what the terminal
     # had not read yet (calibrate's error and hint, under a loaded test run).
-    lines = 1000
-    master, slave = os.openpty()
-    try:
-        proc = subprocess.Popen([sys.executable, "-c", _ENDING_ON_A_TERMINAL, os.ttyname(slave), str(lines)])
-        written = b""
-        deadline = time.monotonic() + scaled(30)
-        while proc.poll() is None or select.select([master], [], [], 0.2)[0]:
-            assert time.monotonic() < deadline, written[-300:]
-            if select.select([master], [], [], 0.005)[0]:
-                written += os.read(master, 4096)
-                time.sleep(0.005)  # (a terminal reading a little behind: 4 KiB each 5 ms)
-        no_flush_after = bool(termios.tcgetattr(master)[3] & termios.NOFLSH)
-    finally:
-        os.close(master)
-        os.close(slave)
-    assert proc.wait(scaled(30)) == 0
-    said = {int(word) for word in written.replace(b"^C", b" ").split() if word.isdigit()}
-    assert set(range(lines)) - said == set(), f"{lines - len(said)} line(s) of its last words lost"
+    lost, no_flush_after = _last_words_lost_on_a_terminal(_ENDING_ON_A_TERMINAL, 1000, pressing=False)
+    assert lost == [], f"{len(lost)} line(s) of its last words lost"
     assert not no_flush_after, "the terminal's own setting is put back as the command ends"
 
 
