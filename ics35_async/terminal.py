@@ -1,4 +1,5 @@
-"""The terminal a command runs on: whether the process runs in the background of it, and the ``^C`` it echoes.
+"""The terminal a command runs on: whether the process runs in the background of it, the ``^C`` it echoes, and
+what it keeps of the command's last words at Ctrl-C.
 
 The command line and the simulator's server share these rules; the console script's entry module
 (``_ics35_async_entry``) keeps a copy of the second, since it runs before the package can be imported.
@@ -12,6 +13,9 @@ import os
 import sys
 import time
 from typing import TextIO
+
+if sys.platform != "win32":
+    import termios  # (here, not in keep_last_words: that runs in a signal handler, which must not import)
 
 ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleared (VT100, every terminal today)
 
@@ -80,13 +84,10 @@ def keep_last_words() -> None:
     it opened are left free"), took those lines away, a few lines in every hundred written under it.  So the
     terminal the process is in the foreground of is set to keep its output at Ctrl-C (its input is kept too:
     the program reads none as it stops) until the process ends, when its own setting is put back a tenth of a
-    second later (see :data:`_LAST_WORDS_SHOWN`).  Nothing on
-    a terminal the process runs in the background of (changing its settings would stop the process), in a
-    file or a pipe, or on Windows."""
+    second later (see ``_LAST_WORDS_SHOWN``).  Nothing on a terminal the process runs in the background of
+    (changing its settings would stop the process), in a file or a pipe, or on Windows."""
     if _kept or sys.platform == "win32":
         return
-    import termios
-
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
             fd = stream.fileno()
@@ -113,8 +114,6 @@ _LAST_WORDS_SHOWN = 0.1
 def _give_back_flushing(fd: int) -> None:
     """The terminal's own setting put back, as the process ends (unless it is no longer the foreground's: a
     background process changing it would be stopped)."""
-    import termios
-
     with contextlib.suppress(termios.error, OSError):
         if os.tcgetpgrp(fd) == os.getpgrp():
             time.sleep(_LAST_WORDS_SHOWN)
