@@ -21,6 +21,10 @@ def main() -> None:
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
+        import signal
+
+        # A second press (a double Ctrl-C) is the same stop, not a death by SIGINT as Python ends.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
         # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
         _clear_echoed_ctrl_c()

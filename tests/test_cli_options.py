@@ -359,3 +359,31 @@ def test_verbose_names_each_failed_transaction_and_only_double_verbose_dumps_byt
     assert "position to ID 3: no reply" in once.stderr, once.stderr[-2000:]
     assert " tx 81 " not in once.stderr  # the byte dumps are -vv's
     assert " tx 81 " in twice.stderr and "position to ID 3: no reply" in twice.stderr
+
+
+@pytest.mark.parametrize("delay", [0.02, 0.05, 0.1, 0.15])
+def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float) -> None:
+    # The second press landed as the first one's "interrupted" (or "aborted", "error: interrupted") was said or
+    # the process ended: Python's own handler, back by then, killed it (by SIGINT, not with exit code 130) or
+    # printed a KeyboardInterrupt traceback; a press before the loop ran the command left "coroutine ... was
+    # never awaited" under its message.
+    for gap in (0.005, 0.02):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=os.environ,
+        )
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "started\n"
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(gap)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        if "stretch" in out:
+            continue  # done before the presses came: a press as it ended may end it by SIGINT (nothing lost)
+        assert proc.returncode == ExitCode.INTERRUPTED, (proc.returncode, err)
+        assert "Traceback" not in err and "never awaited" not in err, err
+        assert err.strip().splitlines()[-1:] in (["interrupted"], ["aborted"], ["error: interrupted"]), err

@@ -20,6 +20,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import DUMP_ON_USR1
+from tests.support.terminal import screen_of, typed_on_a_terminal
 
 pytestmark = [
     pytest.mark.pty,
@@ -103,6 +104,20 @@ def test_first_ctrl_c_at_the_question_exits_130(
     if command == "demo":
         assert b"Move servo(s) 1, 2" in before
         assert "written" not in rest
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+@pytest.mark.parametrize("gap", [0.005, 0.03, 0.08])
+def test_a_double_ctrl_c_at_the_question_ends_as_the_first_says(port: str, command: str, gap: float) -> None:
+    # The second press landed as the command ended: Python's own handler, back after the question, printed a
+    # KeyboardInterrupt traceback over the command's last words, or killed it as Python ended (by SIGINT).
+    where = port if command == "demo" else "sim://?ids=1"
+    code, written = typed_on_a_terminal(["--port", where, *COMMANDS[command]], [("[y/N]", b"\x03"), (gap, b"\x03")])
+    screen = screen_of(written)
+    assert code == 130, "\n".join(screen)
+    assert "Traceback" not in written and "Exception" not in written, "\n".join(screen)
+    nothing = "nothing moved" if command == "demo" else "nothing was written"
+    assert any(f"error: interrupted at the question: {nothing}" in line for line in screen), "\n".join(screen)
 
 
 def test_ctrl_c_just_before_the_read_still_ends_the_question(monkeypatch: pytest.MonkeyPatch) -> None:

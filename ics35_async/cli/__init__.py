@@ -195,6 +195,7 @@ _SIGNAL_CODES = {int(code) - 128: code for code in (ExitCode.HANGUP, ExitCode.TE
 
 def _interrupted(word: str) -> NoReturn:
     """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code."""
+    _signals.same_stop_for_a_moment()
     stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, word))
     if stopped.code == ExitCode.INTERRUPTED:
         from ..terminal import clear_echoed_ctrl_c

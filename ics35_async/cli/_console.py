@@ -18,6 +18,7 @@ from rich.markup import escape
 from .. import units
 from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c
 from ._settings import CliError, ExitCode, Settings
+from ._signals import same_stop_for_a_moment
 
 
 class _Console(Console):
@@ -77,6 +78,7 @@ def emit_json(value: Any) -> None:
 def fail(error: CliError) -> NoReturn:
     end_live_views()
     if error.code == ExitCode.INTERRUPTED:
+        same_stop_for_a_moment()  # (a double Ctrl-C's second press, landing as this is said)
         clear_echoed_ctrl_c()
     err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
     for hint in error.hints:

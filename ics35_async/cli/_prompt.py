@@ -48,6 +48,7 @@ def ask_yes_no(question: str, nothing: str = "nothing was written") -> bool:
             return _ask(question)
     except KeyboardInterrupt:
         # Anywhere in the question (even between writing it and reading), not just in the read.
+        _signals.same_stop_for_a_moment()
         sys.stderr.write("\n")
         raise CliError(ExitCode.INTERRUPTED, f"interrupted at the question: {nothing}") from None
 

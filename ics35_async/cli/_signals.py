@@ -20,6 +20,7 @@ import os
 import signal
 import stat
 import sys
+import threading
 from collections.abc import Iterator
 from types import FrameType
 from typing import Any
@@ -100,6 +101,22 @@ def _leave_the_terminal() -> None:
                         os.dup2(devnull, fd)
         finally:
             os.close(devnull)
+
+
+def same_stop_for_a_moment() -> None:
+    """Ctrl-C has just stopped the command outside the event loop's handling (at a question, while loading):
+    a second press within a moment (a double Ctrl-C) is the same stop.  Python's own handler, back by then,
+    would raise it wherever the command is as it says its last words (a traceback over them) or kill the
+    process as Python ends (by SIGINT, not with its exit code); the library's after-stop handler takes it
+    instead, as it does after a command's stop on the loop (see ``running._AfterStop``).  Main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    from ..running import _after_stop, _unwrapped  # (here: every command starts with only the light front loaded)
+
+    handler = signal.getsignal(signal.SIGINT)
+    if handler in (signal.SIG_IGN, None) or _unwrapped(handler) is not handler:
+        return  # (ignored, not Python's to set, or already so)
+    _after_stop({signal.SIGINT: handler})
 
 
 def received() -> int | None:
