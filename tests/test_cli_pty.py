@@ -742,6 +742,41 @@ def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_force
     assert done.stderr == "", done.stderr
 
 
+# Ctrl-C as the command's loop is being made (uvloop's, here a stand-in whose loop-making is where the press lands):
+# the command's coroutine, made before, never ran, and Python said so as the process ended ("sys:1:
+# RuntimeWarning: coroutine 'get.<locals>.body' was never awaited", under "error: interrupted").
+_CTRL_C_AS_THE_LOOP_IS_MADE = """
+import gc, signal, sys, types
+
+def new_event_loop():
+    signal.raise_signal(signal.SIGINT)  # (the handler runs before it returns)
+
+sys.modules["uvloop"] = types.SimpleNamespace(new_event_loop=new_event_loop)
+from ics35_async.cli._loop import run_loop
+
+async def body():
+    pass
+
+try:
+    run_loop(body())
+except KeyboardInterrupt:
+    print("interrupted")
+gc.collect()  # (what the process's end does, at once)
+"""
+
+
+def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _CTRL_C_AS_THE_LOOP_IS_MADE],
+        capture_output=True,
+        text=True,
+        timeout=scaled(30),
+        env={**os.environ, "ICS35_LOOP": "uvloop"},
+    )
+    assert done.stdout == "interrupted\n", done.stderr
+    assert done.stderr == "", done.stderr
+
+
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
 def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_screen(loop: str) -> None:
     # Three quick Ctrl-C in play printed "coroutine 'Robot._come_to_rest.<locals>.slow_down' was never awaited"

@@ -56,11 +56,16 @@ def loop_factory() -> tuple[str, Callable[[], asyncio.AbstractEventLoop] | None]
 def run_loop(main: Awaitable[T]) -> T:
     """``asyncio.run`` on the loop :func:`loop_factory` names."""
     try:
-        name, factory = loop_factory()
-    except CliError:
-        if asyncio.iscoroutine(main):
-            main.close()  # never awaited: no "coroutine was never awaited" warning
-        raise
+        return _run_loop(main)
+    finally:
+        # Not run at all (ICS35_LOOP refused, a Ctrl-C as the loop was being made): closed, so that Python does
+        # not say "coroutine ... was never awaited" under the command's message as the process ends.
+        if _unstarted(main):
+            main.close()
+
+
+def _run_loop(main: Awaitable[T]) -> T:
+    name, factory = loop_factory()
     log.info("event loop: %s", name)
     started: list[asyncio.Task[T]] = []
     forced: list[asyncio.Task[T]] = []
@@ -71,8 +76,9 @@ def run_loop(main: Awaitable[T]) -> T:
         with _ctrl_c() as pressed, _dropping_unrun(loops, pressed), asyncio.Runner(loop_factory=factory) as runner:
             presses = pressed
             loops.append(runner.get_loop())
+            awaiting = _await(main, started)
             try:
-                return runner.run(_await(main, started))
+                return runner.run(awaiting)
             except asyncio.CancelledError:
                 if received() is None and not pressed:
                     raise
@@ -82,6 +88,9 @@ def run_loop(main: Awaitable[T]) -> T:
                     forced.append(started[0])
                     _told_after_close(runner.get_loop(), started[0])
                 raise
+            finally:
+                if _unstarted(awaiting):  # (as main's, in run_loop)
+                    awaiting.close()
     except KeyboardInterrupt:
         if not forced:
             raise
