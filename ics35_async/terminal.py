@@ -14,8 +14,10 @@ import sys
 import time
 from typing import TextIO
 
-if sys.platform != "win32":
+try:
     import termios  # (here, not in keep_last_words: that runs in a signal handler, which must not import)
+except ImportError:  # (Windows: no terminal settings of this kind)
+    termios = None  # type: ignore[assignment]
 
 ERASE_LINE = "\r\x1b[2K"  # back to the line's start, then the whole line cleared (VT100, every terminal today)
 
@@ -86,7 +88,7 @@ def keep_last_words() -> None:
     the program reads none as it stops) until the process ends, when its own setting is put back a tenth of a
     second later (see ``_LAST_WORDS_SHOWN``).  Nothing on a terminal the process runs in the background of
     (changing its settings would stop the process), in a file or a pipe, or on Windows."""
-    if _kept or sys.platform == "win32":
+    if _kept or termios is None:
         return
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
