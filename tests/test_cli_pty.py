@@ -742,14 +742,29 @@ def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_force
     assert done.stderr == "", done.stderr
 
 
-# Ctrl-C as the command's loop is being made (uvloop's, here a stand-in whose loop-making is where the press lands):
-# the command's coroutine, made before, never ran, and Python said so as the process ended ("sys:1:
-# RuntimeWarning: coroutine 'get.<locals>.body' was never awaited", under "error: interrupted").
+# Ctrl-C as the command's loop is being made, or as the task that runs the command is (uvloop's loop, here a
+# stand-in whose loop-making or task-making is where the press lands): the command's coroutine, made before, never
+# ran, and Python said so as the process ended ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never
+# awaited", under "error: interrupted"); closed while its task waited to start, the task failed ("Task exception
+# was never retrieved ... cannot reuse already awaited coroutine").
 _CTRL_C_AS_THE_LOOP_IS_MADE = """
-import gc, signal, sys, types
+import asyncio, gc, signal, sys, types
+
+def press():
+    signal.raise_signal(signal.SIGINT)  # (the handler runs before it returns)
 
 def new_event_loop():
-    signal.raise_signal(signal.SIGINT)  # (the handler runs before it returns)
+    if sys.argv[1] == "loop":
+        press()
+    loop = asyncio.new_event_loop()
+
+    def task_factory(loop, coro, **options):
+        task = asyncio.Task(coro, loop=loop, **options)
+        press()
+        return task
+
+    loop.set_task_factory(task_factory)
+    return loop
 
 sys.modules["uvloop"] = types.SimpleNamespace(new_event_loop=new_event_loop)
 from ics35_async.cli._loop import run_loop
@@ -765,9 +780,10 @@ gc.collect()  # (what the process's end does, at once)
 """
 
 
-def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning() -> None:
+@pytest.mark.parametrize("where", ["loop", "task"])
+def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning(where: str) -> None:
     done = subprocess.run(
-        [sys.executable, "-c", _CTRL_C_AS_THE_LOOP_IS_MADE],
+        [sys.executable, "-c", _CTRL_C_AS_THE_LOOP_IS_MADE, where],
         capture_output=True,
         text=True,
         timeout=scaled(30),

@@ -13,7 +13,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import CoroutineType, FrameType
 from typing import Any, TypeGuard, TypeVar, cast
 
@@ -72,13 +72,14 @@ def _run_loop(main: Awaitable[T]) -> T:
     presses: list[int] = []
     _quiet_executor_shutdown()
     loops: list[asyncio.AbstractEventLoop] = []
+    awaiting: list[Coroutine[Any, Any, T]] = []  # the coroutine the runner runs, once made
     try:
         with _ctrl_c() as pressed, _dropping_unrun(loops, pressed), asyncio.Runner(loop_factory=factory) as runner:
             presses = pressed
             loops.append(runner.get_loop())
-            awaiting = _await(main, started)
+            awaiting.append(_await(main, started))
             try:
-                return runner.run(awaiting)
+                return runner.run(awaiting[0])
             except asyncio.CancelledError:
                 if received() is None and not pressed:
                     raise
@@ -88,9 +89,6 @@ def _run_loop(main: Awaitable[T]) -> T:
                     forced.append(started[0])
                     _told_after_close(runner.get_loop(), started[0])
                 raise
-            finally:
-                if _unstarted(awaiting):  # (as main's, in run_loop)
-                    awaiting.close()
     except KeyboardInterrupt:
         if not forced:
             raise
@@ -106,6 +104,10 @@ def _run_loop(main: Awaitable[T]) -> T:
     finally:
         if len(presses) >= 2:  # (what the command says next, or its error, must not go through a view left running)
             end_live_views()
+        # (as main, in run_loop; only now, the runner closed: a task made for it and never run has been cancelled,
+        # and closing it while that task waited to start would fail the task)
+        if awaiting and _unstarted(awaiting[0]):
+            awaiting[0].close()
 
 
 @contextlib.contextmanager
