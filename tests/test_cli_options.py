@@ -387,3 +387,36 @@ def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float
         assert proc.returncode == ExitCode.INTERRUPTED, (proc.returncode, err)
         assert "Traceback" not in err and "never awaited" not in err, err
         assert err.strip().splitlines()[-1:] in (["interrupted"], ["aborted"], ["error: interrupted"]), err
+
+
+# Ctrl-C landing in a class's making as a command imports what it needs (rich's console, whose dataclasses have
+# fields): Python hands the KeyboardInterrupt on wrapped ("RuntimeError: Error calling __set_name__ on 'Field'
+# instance 'buffer' in 'ConsoleThreadLocals'"), and the command line printed that traceback.  (The import is
+# where a press landed under load; here it lands there every time.)
+CTRL_C_IN_A_CLASS_AS_IT_IS_MADE = """
+import sys
+
+class Pressed:
+    def __set_name__(self, owner, name):
+        raise KeyboardInterrupt  # (as Ctrl-C's handler raises, wherever the main thread is)
+
+class AsTheConsoleLoads:
+    def find_spec(self, name, path=None, target=None):
+        if name == "rich.console":
+            type("ConsoleThreadLocals", (), {"buffer": Pressed()})
+        return None
+
+sys.meta_path.insert(0, AsTheConsoleLoads())
+from ics35_async.cli import main
+main(sys.argv[1:])
+"""
+
+
+def test_ctrl_c_landing_in_a_class_as_it_is_made_ends_in_one_line() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", CTRL_C_IN_A_CLASS_AS_IT_IS_MADE, "--port", "sim://", "get", "1", "stretch"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (done.returncode, done.stderr) == (ExitCode.INTERRUPTED, "interrupted\n"), done.stderr

@@ -178,6 +178,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt:
         # Ctrl-C outside a command's own handling (while loading, parsing): no traceback.
         _interrupted("interrupted")
+    except RuntimeError as exc:
+        # Ctrl-C landing in a class as it was made (a dataclass's fields, as a command imports what it needs):
+        # Python hands the KeyboardInterrupt on inside a RuntimeError ("Error calling __set_name__ ...").
+        if not isinstance(exc.__cause__, KeyboardInterrupt):
+            raise
+        _interrupted("interrupted")
     except BrokenPipeError:
         # `ics35 ... | head`: the reader left; not an error worth a traceback.
         sys.stderr.close()
