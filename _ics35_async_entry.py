@@ -21,16 +21,28 @@ def main() -> None:
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
-        import signal
-
-        # A second press (a double Ctrl-C) is the same stop, not a death by SIGINT as Python ends.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        _ignore_later_presses()
         # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
         # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
         _clear_echoed_ctrl_c()
         sys.stderr.write("interrupted\n")
         sys.exit(INTERRUPTED)
     cli_main()
+
+
+def _ignore_later_presses() -> None:
+    """A second press (a double Ctrl-C) is the same stop: not a traceback over "interrupted", nor a death by
+    SIGINT as Python ends.  It may land before SIGINT is ignored, even inside the import below (on a loaded
+    machine both presses come as the process gets the CPU back): its KeyboardInterrupt is caught and the
+    step begun again."""
+    while True:
+        try:
+            import signal
+
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 def _clear_echoed_ctrl_c() -> None:

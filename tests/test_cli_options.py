@@ -367,6 +367,7 @@ def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float
     # the process ended: Python's own handler, back by then, killed it (by SIGINT, not with exit code 130) or
     # printed a KeyboardInterrupt traceback; a press before the loop ran the command left "coroutine ... was
     # never awaited" under its message.
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     for gap in (0.005, 0.02):
         proc = subprocess.Popen(
             [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
@@ -384,6 +385,8 @@ def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float
         out, err = proc.communicate(timeout=60)
         if "stretch" in out:
             continue  # done before the presses came: a press as it ended may end it by SIGINT (nothing lost)
+        if "Traceback" in err and f'File "{os.path.join(root, "ics35_async")}' not in err and "_entry.py" not in err:
+            continue  # (the generated script's own import statement: see the test above)
         assert proc.returncode == ExitCode.INTERRUPTED, (proc.returncode, err)
         assert "Traceback" not in err and "never awaited" not in err, err
         assert err.strip().splitlines()[-1:] in (["interrupted"], ["aborted"], ["error: interrupted"]), err
