@@ -12,6 +12,10 @@ from __future__ import annotations
 import os
 import sys
 
+TYPE_CHECKING = False  # (typing is not imported at run time: it is not loaded with the interpreter)
+if TYPE_CHECKING:
+    from typing import NoReturn
+
 # ExitCode.INTERRUPTED (128 + SIGINT): the enum is in the package whose import this guards.
 INTERRUPTED = 130
 
@@ -21,13 +25,23 @@ def main() -> None:
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
-        _ignore_later_presses()
-        # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
-        # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
-        _clear_echoed_ctrl_c()
-        sys.stderr.write("interrupted\n")
-        sys.exit(INTERRUPTED)
+        _interrupted()
+    except RuntimeError as exc:
+        # Ctrl-C landing in a class as it was made (a module's class with a cached property, a dataclass): Python
+        # hands the KeyboardInterrupt on inside a RuntimeError ("Error calling __set_name__ ...").
+        if not isinstance(exc.__cause__, KeyboardInterrupt):
+            raise
+        _interrupted()
     cli_main()
+
+
+def _interrupted() -> NoReturn:
+    _ignore_later_presses()
+    # As the command line does after Ctrl-C (ics35_async.terminal.clear_echoed_ctrl_c, not importable here):
+    # the terminal's echoed ^C, at the start of the line, is cleared and the message starts a line of its own.
+    _clear_echoed_ctrl_c()
+    sys.stderr.write("interrupted\n")
+    sys.exit(INTERRUPTED)
 
 
 def _ignore_later_presses() -> None:

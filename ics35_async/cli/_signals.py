@@ -108,15 +108,23 @@ def same_stop_for_a_moment() -> None:
     a second press within a moment (a double Ctrl-C) is the same stop.  Python's own handler, back by then,
     would raise it wherever the command is as it says its last words (a traceback over them) or kill the
     process as Python ends (by SIGINT, not with its exit code); the library's after-stop handler takes it
-    instead, as it does after a command's stop on the loop (see ``running._AfterStop``).  Main thread only."""
+    instead, as it does after a command's stop on the loop (see ``running._AfterStop``).  Main thread only.
+
+    The second press may land before that handler is in place, even inside the import below (on a loaded
+    machine both presses come as the process gets the CPU back): its KeyboardInterrupt is caught and the step
+    begun again."""
     if threading.current_thread() is not threading.main_thread():
         return
-    from ..running import _after_stop, _unwrapped  # (here: every command starts with only the light front loaded)
+    while True:
+        try:
+            from ..running import _after_stop, _unwrapped  # (here: every command starts with only the light front)
 
-    handler = signal.getsignal(signal.SIGINT)
-    if handler in (signal.SIG_IGN, None) or _unwrapped(handler) is not handler:
-        return  # (ignored, not Python's to set, or already so)
-    _after_stop({signal.SIGINT: handler})
+            handler = signal.getsignal(signal.SIGINT)
+            if handler not in (signal.SIG_IGN, None) and _unwrapped(handler) is handler:  # (else: ignored, not
+                _after_stop({signal.SIGINT: handler})  # Python's to set, or so already)
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 def received() -> int | None:
