@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.robot import load_description, open_robot
 from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.console import LineConsole
 
 
 @pytest.mark.parametrize("command", [["get", "1", "speed"], ["info", "1"], ["scan", "--ids", "1-2"]])
@@ -118,6 +120,20 @@ def test_sim_help_is_laid_out_like_every_other_command(cli: Any) -> None:
     assert "  --ids TEXT " in result.out and "Servo IDs, e.g. 0-31" in result.out  # click's metavars, capitals
     assert "  -h, --help " in result.out and "Show this message and exit." in result.out
     assert "usage:" not in result.out and "options:" not in result.out  # argparse's own layout
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="the pty simulator is POSIX only")
+def test_sim_help_names_every_command_its_console_takes(cli: Any) -> None:
+    """The simulator's pages send people to ``ics35 sim --help`` for the console: a command the console takes
+    (``turn``, which stands in for a hand in calibrate's practice) must be named there too."""
+    commands = LineConsole(VirtualLine([]), 115200).execute("help").removeprefix("commands: ")
+    names = [item.split()[0] for item in re.sub(r"\([^)]*\)", "", commands).split(", ")]
+    assert "turn" in names, names
+    result = cli("sim", "--help")
+    assert result.code == 0
+    console = " ".join(result.out.split("--console", 1)[1].split("--last", 1)[0].split())
+    missing = [name for name in names if not re.search(rf"\b{name}\b", console)]
+    assert not missing, console
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="the pty simulator is POSIX only")

@@ -122,7 +122,8 @@ def build_parser(
         "--console",
         action="store_true",
         help="read commands from stdin while serving, one a line, each answered on stdout: plug ID [BAUD] [ics36] "
-        "(a new factory servo), unplug ID, replug [ID], power [ID] (power-cycle), list, help, quit "
+        "(a new factory servo), unplug ID, replug [ID], power [ID] (power-cycle), turn ID POSITION (by hand, in "
+        "counts), list, help, quit "
         "(stops the simulator, as end of input does); not for a simulator started in the background",
     )
     parser.add_argument(
