@@ -262,6 +262,18 @@ def test_free_of_named_ids_that_are_absent_is_still_an_error(cli: Any, sim_line:
     assert "absent" not in doc
 
 
+@pytest.mark.parametrize("ids", ["0,1", "all"])
+def test_free_of_several_names_a_garbled_reply_as_such_not_as_a_silent_servo(cli: Any, sim_line: Any, ids: str) -> None:
+    # Two new servos at ID 0 beside a third: "servo 0: no answer" and "check the servo has power" sent a
+    # builder to the supply when the line says two servos share the ID (its reply came back garbled).
+    sim, url = sim_line([VirtualServo(0), VirtualServo(0), VirtualServo(1)])
+    result = cli("--port", url, "--timeout", "0.005", "free", ids)
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "servo 1: free at" in result.out and sim.servo(1).free
+    assert "servo 0: no answer" not in result.err and "power" not in result.err, result.err
+    assert "servo 0: garbled reply" in result.err and "two servos sharing one ID" in result.err, result.err
+
+
 def test_get_and_set_are_ram(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([1])
     result = cli("--port", url, "set", "1", "speed", "50")

@@ -12,7 +12,7 @@ from rich.table import Table
 from .. import policies, protocol, units
 from ..bus import Bus
 from ..eeprom import Eeprom
-from ..errors import InvalidArgument, ReplyTimeout
+from ..errors import BadReply, EchoMismatch, InvalidArgument, PartialReply, ReplyTimeout
 from ..protocol import Param
 from ._common import (
     ID_LIST,
@@ -233,7 +233,10 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
         for i, p in report.freed.items():
             out.print(f"servo {i}: free at {p} ({fmt_degrees(p).strip()})")
         for i, e in report.failed.items():
-            err.print(f"[red]servo {i}: no answer[/red] ({escape(str(e))})")
+            # Only silence is "no answer": a garbled reply means something at that ID did answer (two servos
+            # sharing it, most often), which the supply and wiring hints below would not mend.
+            what = "no answer" if isinstance(e, ReplyTimeout) else "garbled reply" if _garbled(e) else "failed"
+            err.print(f"[red]servo {i}: {what}[/red] ({escape(str(e))})")
         if report.unknown and every_servo:  # (most of them empty IDs: one line)
             out.print(
                 f"ID(s) {id_ranges(report.unknown)}: [bold]unknown[/bold]: the line was lost before they answered "
@@ -251,8 +254,17 @@ def free(ctx: click.Context, ids: tuple[str, ...], as_json: bool) -> int:
     if report.failed:
         timed_out = any(isinstance(e, ReplyTimeout) for e in report.failed.values())
         code = ExitCode.NO_REPLY if timed_out else ExitCode.COMMUNICATION
-        raise CliError(code, f"servo(s) {ids_text(report.failed)} did not go free", *NO_REPLY_HINTS[:2])
+        hints = [*NO_REPLY_HINTS[:2]] if timed_out else []
+        for e in report.failed.values():  # each failure's own hints, once (the silent ones': the supply above)
+            if not isinstance(e, ReplyTimeout):
+                hints += [hint for hint in translate(settings, e).hints if hint not in hints]
+        raise CliError(code, f"servo(s) {ids_text(report.failed)} did not go free", *hints)
     return 0
+
+
+def _garbled(exc: Exception) -> bool:
+    """Whether ``exc`` says a reply came back, but not as sent or not whole (an echo changed, bytes cut short)."""
+    return isinstance(exc, BadReply | PartialReply | EchoMismatch)
 
 
 # --------------------------------------------------------------------------- get / set (RAM)
