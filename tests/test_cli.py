@@ -563,6 +563,34 @@ def test_demo_leaves_every_servo_free(cli: Any, sim_line: Any) -> None:
     assert all(s.eeprom_writes == 0 for s in sim.servos)
 
 
+LIVE_ALL = [["demo", "--ids", "all"], ["monitor", "all", "--free"]]
+
+
+@pytest.mark.parametrize("command", LIVE_ALL, ids=["demo", "monitor"])
+def test_live_commands_on_all_name_an_id_that_answered_garbled_not_as_an_empty_one(
+    cli: Any, sim_line: Any, command: list[str]
+) -> None:
+    # Two new servos at ID 0 beside servo 1: "no answer from ID(s) 0, 2-31: no servo there" hid the two left out.
+    sim, url = sim_line([VirtualServo(0), VirtualServo(0), VirtualServo(1)])
+    result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "0.3")
+    assert result.code == 0, result.err
+    assert sim.servo(1).free
+    assert "no answer from ID(s) 2-31 at 115200 baud: no servo there" in result.err, result.err
+    assert "ID(s) 0 answered garbled" in result.err and "two servos sharing an ID" in result.err, result.err
+
+
+@pytest.mark.parametrize("command", LIVE_ALL, ids=["demo", "monitor"])
+def test_live_commands_on_all_where_only_garbled_replies_came_say_so(
+    cli: Any, sim_line: Any, command: list[str]
+) -> None:
+    # Only new servos, all at ID 0: not the unpowered line's "no servo answered ... check the power".
+    _, url = sim_line([VirtualServo(0), VirtualServo(0)])
+    result = cli("--port", url, "--timeout", "0.005", *command, "--seconds", "0.3")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    assert "ID 0 at 115200 answered garbled" in result.err and "set-id" in result.err, result.err
+    assert "power" not in result.err, result.err
+
+
 def test_monitor_on_ics35_servos_without_free_refuses_as_its_help_says(cli: Any, sim_line: Any) -> None:
     # Its --help promised "current and temperature but no position" where it refuses (KRS servos are ICS 3.5).
     _, url = sim_line([1, 2])

@@ -31,6 +31,7 @@ from ._common import (
     ExitCode,
     NobodyAnswered,
     Settings,
+    answered_garbled,
     emit_json,
     err,
     id_ranges,
@@ -202,16 +203,24 @@ def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> Cl
 
 async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool = False) -> list[int]:
     """The IDs that answer a probe (no IDs given, or "all": each absent one would cost a reply timeout every
-    cycle and a row of errors); none answering is an error.  Asked for "all", the others are named in one line."""
+    cycle and a row of errors); none answering is an error.  Asked for "all", the others are named in one line;
+    IDs that answered garbled (left out: two servos sharing one, most often) are named whatever was asked."""
     if not quiet and not asked_all:
         err.print(f"no IDs given: scanning {escape(settings.port)} at {settings.baud} baud ...")
-    answered, _ = await probe_ids(bus, range(32))
+    answered, garbled = await probe_ids(bus, range(32))
+    where = f"{settings.port} at {settings.baud} baud"
+    if not answered and garbled:  # new servos, all at ID 0: not the unpowered line NobodyAnswered tells of
+        raise answered_garbled(settings, where, [(settings.baud, i) for i in garbled])
     if not answered:
-        where = f"{settings.port} at {settings.baud} baud"
         raise NobodyAnswered(settings, where, silent=bus.stats.total.bytes_rx == 0)
-    absent = sorted(set(range(32)) - set(answered))
+    absent = sorted(set(range(32)) - set(answered) - set(garbled))
     if asked_all and absent and not quiet:
         err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
+    if garbled:  # left out of the stream, said whatever was asked: servos there, which it will not move or read
+        err.print(
+            f"[yellow]warning:[/yellow] ID(s) {ids_text(garbled)} answered garbled: left out (two servos sharing "
+            "an ID, most likely: connect them one at a time and renumber one; or noise)"
+        )
     return answered
 
 
