@@ -67,6 +67,25 @@ def test_flags_replacement_names_every_flag_it_clears_before_asking(cli: Any, si
     assert sim.servo(1).eeprom_writes == 0
 
 
+def test_a_flag_cleared_by_name_is_not_met_with_advice_to_clear_it_by_name(cli: Any, sim_line: Any) -> None:
+    # flags-=REVERSE warned "this clears flag(s) REVERSE; to change one flag and keep the others use flags+=NAME /
+    # flags-=NAME": the very thing typed.  PWMINH's own risk (PWM mode after a brown-out) is still said.
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.REVERSE | Flags.ROTATION)])
+    result = cli("--port", url, "eeprom", "set", "1", "flags-=REVERSE", "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.ROTATION
+    assert "flags CLEARED" in result.out  # the diff still names it
+    assert "warning" not in result.err and "flags-=NAME" not in result.err, result.err
+    result = cli("--port", url, "eeprom", "set", "1", "flags-=PWMINH", "--yes")
+    assert result.code == 0, result.err
+    assert "clears flag(s) PWMINH (without PWMINH a servo may start in PWM mode" in result.err, result.err
+    assert "flags-=NAME" not in result.err, result.err
+    result = cli("--port", url, "eeprom", "set", "1", "flags=REVERSE", "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(1).eeprom.flags == Flags.REVERSE
+    assert "clears flag(s) ROTATION; to change one flag and keep the others use flags+=NAME" in result.err, result.err
+
+
 @pytest.mark.parametrize("assignment", ["flags=FREE", "flags+=PCM", "flags-=FREE", "flags=PWMINH,PCM", "flags=0x0A"])
 def test_read_only_flag_names_are_refused_before_the_wire(cli: Any, sim_line: Any, assignment: str) -> None:
     sim, url = sim_line([1])

@@ -151,6 +151,7 @@ def set_fields(
                 change_baud=change_baud,
                 allow_id_change="servo_id" in edit.changes,
                 as_json=as_json,
+                asked_cleared=edit.clear_flags,
             )
 
     finish(settings, run(settings, body), as_json)

@@ -77,22 +77,34 @@ def check_allowed(
 SET_FLAG_ADVICE = "to change one flag and keep the others use flags+=NAME / flags-=NAME"
 
 
-def show_plan(plan: EepromPlan, as_json: bool, flag_advice: Callable[[EepromPlan], str], line_baud: int) -> None:
+def show_plan(
+    plan: EepromPlan,
+    as_json: bool,
+    flag_advice: Callable[[EepromPlan], str],
+    line_baud: int,
+    asked_cleared: int = 0,
+) -> None:
+    """The plan's diff, and warnings for what it does that the person may not have meant: flags it clears
+    that were not named to be cleared (``asked_cleared``, as ``flags-=NAME`` names them), PWMINH cleared
+    however asked, a new baud rate."""
     if plan.baud != line_baud:
         (err if as_json else out).print(
             f"servo {plan.servo_id} answers at {plan.baud:,} baud (the line's rate is {line_baud:,}): "
             "it is read, written and verified at its own rate"
         )
     (err if as_json else out).print(diff_table(plan))
-    if plan.cleared_flags:
+    # A flag cleared by name (flags-=NAME) was meant: advice to clear flags by name would send the person to
+    # what they typed.  PWMINH's risk is said however it was cleared.
+    unasked = plan.cleared_flags & ~asked_cleared
+    if unasked or plan.cleared_flags & Flags.PWMINH:
         note = (
             " (without PWMINH a servo may start in PWM mode after a brown-out)"
             if plan.cleared_flags & Flags.PWMINH
             else ""
         )
+        advice = f"; {escape(flag_advice(plan))}" if unasked else ""
         err.print(
-            f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}; "
-            + escape(flag_advice(plan)),
+            f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}{advice}",
             soft_wrap=True,
         )
     if plan.changes_baud:
@@ -146,12 +158,14 @@ async def write_plans(
     as_json: bool,
     flag_advice: Callable[[EepromPlan], str] = lambda plan: SET_FLAG_ADVICE,
     baud_advice: Sequence[str] = CHANGE_BAUD_ADVICE,
+    asked_cleared: int = 0,
 ) -> WriteBatch:
     """Check every plan, show them, ask once, write them in order; one report per plan, even after a failure.
 
-    ``flag_advice``: what to do instead of clearing a plan's flags, and ``baud_advice``: what to do about a
-    refused baud change, in the command's own terms.  A plan made at another rate than the line's now (a
-    servo that answers there) is said so, and written and verified at its own rate."""
+    ``flag_advice``: what to do instead of clearing a plan's flags (``asked_cleared``: those named to be cleared,
+    which get none), and ``baud_advice``: what to do about a refused baud change, in the command's own terms.
+    A plan made at another rate than the line's now (a servo that answers there) is said so, and written and
+    verified at its own rate."""
     moved = [plan for plan in plans if plan.changes_baud] if not change_baud else []
     if len(moved) > 1:  # every servo the batch would move, not only the first (each one's rate in words)
         which = ", ".join(
@@ -171,7 +185,7 @@ async def write_plans(
     line_baud = int(bus.baudrate)
     for plan in plans:
         if plan.diff:
-            show_plan(plan, as_json, flag_advice, line_baud)
+            show_plan(plan, as_json, flag_advice, line_baud, asked_cleared)
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
     if not pending:
