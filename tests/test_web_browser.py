@@ -1315,6 +1315,32 @@ def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_err
         assert errors == []
 
 
+def test_the_ram_box_shows_what_the_servo_has_for_the_parameter_chosen(browser: Browser) -> None:
+    # The box said 127 whatever the servo had (its RAM stretch 30): Write to RAM, pressed to see what it does,
+    # set the servo to the box's 127.  Stretch and speed are read from RAM; the limits cannot be read there, so
+    # the box shows what the servo starts with (its EEPROM), within the limit's own range.
+    line = PtyLine((4,))
+    servo = line.sim.servo(4)
+    servo.stretch, servo.speed = 30, 90
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 4)
+        expect(p.locator("#ram-value")).to_have_value("30")  # (stretch, the first chosen)
+        p.select_option("#ram-param", "speed")
+        expect(p.locator("#ram-value")).to_have_value("90")
+        p.select_option("#ram-param", "current_limit")
+        expect(p.locator("#ram-value")).to_have_value(str(servo.eeprom.current_limit))
+        expect(p.locator("#ram-value")).to_have_attribute("max", "63")
+        p.select_option("#ram-param", "temperature_limit")
+        expect(p.locator("#ram-value")).to_have_value(str(servo.eeprom.temperature_limit))
+        expect(p.locator("#ram-value")).to_have_attribute("max", "127")
+        p.select_option("#ram-param", "speed")
+        p.fill("#ram-value", "60")
+        p.click("#ram-write")
+        expect(p.locator("#ram-result")).to_contain_text("speed = 60")
+        expect(p.locator("#ram-value")).to_have_value("60")
+        assert servo.speed == 60 and servo.stretch == 30
+
+
 def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Browser) -> None:
     # A number box the user emptied (or typed a letter in: the browser then gives no value) reads as 0 in
     # JavaScript: the lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.

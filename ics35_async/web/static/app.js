@@ -295,7 +295,7 @@ async function loadServo() {
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
-  $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren();
+  $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren(); state.ram = null;
   $("#restore-diff").replaceChildren(); $("#restore-result").replaceChildren(); $("#restore-btn").disabled = true;
   const eeprom = await api(`/api/servo/${id}/eeprom`);
   if (overtaken()) return;
@@ -317,7 +317,7 @@ async function loadServo() {
   }
   const ram = await api(`/api/servo/${id}/ram`);
   if (overtaken()) return;
-  $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+  showRam(ram);
   const limits = state.eeprom.fields.filter((f) => f.name.startsWith("pulse_limit")).map((f) => f.value);
   state.limits = [Math.min(...limits), Math.max(...limits)];
   $("#jog-slider").min = state.limits[0]; $("#jog-slider").max = state.limits[1];
@@ -457,8 +457,25 @@ async function writeRam() {
   const param = $("#ram-param").value;
   const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: numberIn($("#ram-value"), "the RAM value") });
   $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
-  const ram = await api(`/api/servo/${servoId()}/ram`);
+  showRam(await api(`/api/servo/${servoId()}/ram`));
+}
+
+function showRam(ram) {
+  state.ram = ram;
   $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+  ramBox();
+}
+
+// The RAM box starts at what the servo has for the parameter chosen (it said 127 whatever the servo had, and
+// Write to RAM, pressed to see what it does, set that): stretch and speed as read from its RAM; the limits
+// cannot be read there, so what the servo starts with, its EEPROM's.  Its range is the parameter's own.
+function ramBox() {
+  const choice = $("#ram-param").selectedOptions[0];
+  const box = $("#ram-value");
+  box.max = choice.dataset.max;
+  const fromEeprom = (state.eeprom?.fields ?? []).find((f) => f.name === choice.value);
+  const value = state.ram && choice.value in state.ram ? state.ram[choice.value] : fromEeprom?.value;
+  if (value !== undefined) box.value = value;
 }
 
 function setMotion(on) {
@@ -840,6 +857,7 @@ on("#restore-id", "change", planRestore);
 on("#restore-keep-baud", "change", planRestore);
 on("#restore-btn", "click", restoreServo);
 on("#ram-write", "click", writeRam);
+on("#ram-param", "change", ramBox);
 on("#free-btn", "click", () => torque("free"));
 on("#hold-btn", "click", () => torque("hold"));
 on("#motion-switch", "change", toggleMotion);
