@@ -218,10 +218,19 @@ def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> N
             assert f'File "{os.path.join(root, "ics35_async")}{os.sep}' not in err, err
             continue
         # Stopped (one line, the interrupted exit code), or done before the signal came (the reading printed).
-        assert (proc.returncode, err.strip().splitlines()[-1:]) in (
-            (ExitCode.INTERRUPTED, ["interrupted"]),
-            (ExitCode.INTERRUPTED, ["aborted"]),  # (click's word for it, once it parses the arguments)
-        ) or (proc.returncode == 0 and "stretch" in out), (proc.returncode, out, err)
+        # The delay counts from when this process read "started": held up on a loaded machine, it sends the signal
+        # later in the command's life, once the command runs (its own stop's one line) or after its reading, as
+        # Python itself ends (Python's end, beyond the project's code, is ended by it: nothing more is said).
+        assert (
+            (proc.returncode, err.strip().splitlines()[-1:])
+            in (
+                (ExitCode.INTERRUPTED, ["interrupted"]),
+                (ExitCode.INTERRUPTED, ["aborted"]),  # (click's word for it, once it parses the arguments)
+                (ExitCode.INTERRUPTED, ["error: interrupted"]),  # (the command's, once it runs)
+            )
+            or (proc.returncode == 0 and "stretch" in out)
+            or (proc.returncode == -signal.SIGINT and "stretch" in out and not err)
+        ), (proc.returncode, out, err)
 
 
 COMMAND_PROBE = """
