@@ -233,6 +233,30 @@ def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> N
         ), (proc.returncode, out, err)
 
 
+# A Ctrl-C just as the command's event loop is to start (run_loop called, its coroutine made but not begun).
+PRESS_AS_THE_LOOP_STARTS = """
+import os, signal, sys
+from ics35_async.cli import main
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == "run_loop":
+        sys.setprofile(None)
+        os.kill(os.getpid(), signal.SIGINT)
+
+sys.setprofile(press)
+main(["--port", "sim://", "get", "1", "stretch"])
+"""
+
+
+def test_ctrl_c_as_the_commands_loop_starts_ends_in_one_line() -> None:
+    # The command's coroutine was made, and never begun: Python warned, as it ended, that it was never awaited
+    # ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never awaited") under the one line.
+    done = subprocess.run(
+        [sys.executable, "-c", PRESS_AS_THE_LOOP_STARTS], capture_output=True, text=True, timeout=60, env=os.environ
+    )
+    assert (done.returncode, done.stderr.strip()) == (ExitCode.INTERRUPTED, "error: interrupted"), done.stderr
+
+
 COMMAND_PROBE = """
 import json, sys
 from ics35_async.cli import main

@@ -687,7 +687,7 @@ async def main():
 
 with warnings.catch_warnings():
     try:
-        run_loop(main())
+        run_loop(main)
     except KeyboardInterrupt:
         print("interrupted")
 gc.collect()  # (what the process's end does, at once)
@@ -723,7 +723,7 @@ async def main():
             await asyncio.sleep(30)  # forced out, it must not wait for this (dropped, the press did)
 
 try:
-    run_loop(main())
+    run_loop(main)
 except KeyboardInterrupt:
     print("interrupted")
 """
@@ -773,7 +773,7 @@ async def body():
     pass
 
 try:
-    run_loop(body())
+    run_loop(body)
 except KeyboardInterrupt:
     print("interrupted")
 gc.collect()  # (what the process's end does, at once)

@@ -152,7 +152,7 @@ def _rate_elsewhere(
     from ..policies import ALL_BAUDS
 
     try:
-        found = run_loop(search(_opener(settings), [rate for rate in ALL_BAUDS if rate != settings.baud]))
+        found = run_loop(lambda: search(_opener(settings), [rate for rate in ALL_BAUDS if rate != settings.baud]))
     except (errors.IcsError, OSError):
         return None
     return found[0] if found else None
@@ -163,7 +163,7 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     to check."""
     from ..policies import NoReplyCause, why_no_reply
 
-    finding = run_loop(why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo))
+    finding = run_loop(lambda: why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo))
     if finding.cause is NoReplyCause.NO_ECHO:
         # Not even our own echo came back: the adapter or its wiring, not the servo.
         return CliError(

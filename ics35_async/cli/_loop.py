@@ -28,12 +28,12 @@ LOOPS = ("auto", "asyncio", "uvloop")
 log = logging.getLogger("ics35_async")
 
 
-async def _await(main: Awaitable[T], started: list[asyncio.Task[T]]) -> T:
+async def _await(make: Callable[[], Awaitable[T]], started: list[asyncio.Task[T]]) -> T:
     task = asyncio.current_task()
     assert task is not None
     started.append(task)
     with command_task(task):  # (SIGTERM and SIGHUP cancel it, as Ctrl-C does)
-        return await main
+        return await make()
 
 
 def loop_factory() -> tuple[str, Callable[[], asyncio.AbstractEventLoop] | None]:
@@ -53,18 +53,12 @@ def loop_factory() -> tuple[str, Callable[[], asyncio.AbstractEventLoop] | None]
     return "uvloop", uvloop.new_event_loop
 
 
-def run_loop(main: Awaitable[T]) -> T:
-    """``asyncio.run`` on the loop :func:`loop_factory` names."""
-    try:
-        return _run_loop(main)
-    finally:
-        # Not run at all (ICS35_LOOP refused, a Ctrl-C as the loop was being made): closed, so that Python does
-        # not say "coroutine ... was never awaited" under the command's message as the process ends.
-        if _unstarted(main):
-            main.close()
+def run_loop(make: Callable[[], Awaitable[T]]) -> T:
+    """``asyncio.run(make())`` on the loop :func:`loop_factory` names.
 
-
-def _run_loop(main: Awaitable[T]) -> T:
+    The command's coroutine is made by ``make`` once its task runs: one made before (``run_loop(main())``) and
+    never run, stopped by a Ctrl-C as the loop was being made (or ``ICS35_LOOP`` refused), was said by Python
+    as the process ended, under the command's message: "coroutine ... was never awaited"."""
     name, factory = loop_factory()
     log.info("event loop: %s", name)
     started: list[asyncio.Task[T]] = []
@@ -77,7 +71,7 @@ def _run_loop(main: Awaitable[T]) -> T:
         with _ctrl_c() as pressed, _dropping_unrun(loops, pressed), asyncio.Runner(loop_factory=factory) as runner:
             presses = pressed
             loops.append(runner.get_loop())
-            awaiting.append(_await(main, started))
+            awaiting.append(_await(make, started))
             try:
                 return runner.run(awaiting[0])
             except asyncio.CancelledError:
@@ -104,8 +98,9 @@ def _run_loop(main: Awaitable[T]) -> T:
     finally:
         if len(presses) >= 2:  # (what the command says next, or its error, must not go through a view left running)
             end_live_views()
-        # (as main, in run_loop; only now, the runner closed: a task made for it and never run has been cancelled,
-        # and closing it while that task waited to start would fail the task)
+        # Never run (a Ctrl-C before its task was made), closed as the command's would be (see run_loop); only now,
+        # the runner closed: a task made for it and never run has been cancelled, and closing it while that task
+        # waited to start would fail the task.
         if awaiting and _unstarted(awaiting[0]):
             awaiting[0].close()
 

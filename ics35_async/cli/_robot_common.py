@@ -184,7 +184,7 @@ def run_robot(
         # The command prints robot.warnings itself, once, in its own words.
         warnings.simplefilter("ignore", RobotWarning)
         try:
-            return run_loop(make())
+            return run_loop(make)
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         except SafetyStop as exc:

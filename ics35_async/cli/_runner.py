@@ -117,7 +117,7 @@ def run(settings: Settings, make: Callable[[], Awaitable[T]]) -> T:
     note_simulator(settings)
     try:
         try:
-            return run_loop(make())
+            return run_loop(make)
         except KeyboardInterrupt:
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         except NobodyAnswered as nobody:  # (the line is closed now: the other rates can be looked at)
