@@ -243,13 +243,14 @@ def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> N
         ), (proc.returncode, out, err)
 
 
-# A Ctrl-C just as the command's event loop is to start (run_loop called, its coroutine made but not begun).
-PRESS_AS_THE_LOOP_STARTS = """
+# A Ctrl-C as the command's event loop is to start (run_loop called, the command's coroutine made but not begun), or
+# as the command line, the command over and its reading printed, works out its exit code.
+PRESS_AT = """
 import os, signal, sys
 from ics35_async.cli import main
 
 def press(frame, event, arg):
-    if event == "call" and frame.f_code.co_name == "run_loop":
+    if event == "call" and frame.f_code.co_name == {function!r}:
         sys.setprofile(None)
         os.kill(os.getpid(), signal.SIGINT)
 
@@ -258,13 +259,19 @@ main(["--port", "sim://", "get", "1", "stretch"])
 """
 
 
-def test_ctrl_c_as_the_commands_loop_starts_ends_in_one_line() -> None:
-    # The command's coroutine was made, and never begun: Python warned, as it ended, that it was never awaited
-    # ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never awaited") under the one line.
+@pytest.mark.parametrize(("where", "said"), [("run_loop", "error: interrupted"), ("received", "interrupted")])
+def test_ctrl_c_as_a_command_starts_or_ends_ends_in_one_line(where: str, said: str) -> None:
+    # As it started, the command's coroutine was made and never begun: Python warned, as it ended, that it was never
+    # awaited ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never awaited") under the one line.  As it
+    # ended, KeyboardInterrupt's traceback came through the command line's main.
     done = subprocess.run(
-        [sys.executable, "-c", PRESS_AS_THE_LOOP_STARTS], capture_output=True, text=True, timeout=60, env=os.environ
+        [sys.executable, "-c", PRESS_AT.format(function=where)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=os.environ,
     )
-    assert (done.returncode, done.stderr.strip()) == (ExitCode.INTERRUPTED, "error: interrupted"), done.stderr
+    assert (done.returncode, done.stderr.strip()) == (ExitCode.INTERRUPTED, said), done.stderr
 
 
 COMMAND_PROBE = """

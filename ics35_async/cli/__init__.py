@@ -164,6 +164,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     _signals.install()
     try:
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
+        # (Within the try: a Ctrl-C as the exit code is worked out, the command over, ends in one line too.)
+        code = code if isinstance(code, int) else 0
+        signum = _signals.received()
+        if signum is not None and code == ExitCode.OK:  # (a command that stops on Ctrl-C as its normal end)
+            code = _SIGNAL_CODES[signum]
     except CliError as exc:
         from ._console import fail
 
@@ -176,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
-        # Ctrl-C outside a command's own handling (while loading, parsing): no traceback.
+        # Ctrl-C outside a command's own handling (while loading, parsing, or once it is over): no traceback.
         _interrupted("interrupted")
     except RuntimeError as exc:
         # Ctrl-C landing in a class as it was made (a dataclass's fields, as a command imports what it needs):
@@ -188,10 +193,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         # `ics35 ... | head`: the reader left; not an error worth a traceback.
         sys.stderr.close()
         sys.exit(0)
-    code = code if isinstance(code, int) else 0
-    signum = _signals.received()
-    if signum is not None and code == ExitCode.OK:  # (a command that stops on Ctrl-C as its normal end)
-        code = _SIGNAL_CODES[signum]
     sys.exit(code)
 
 
