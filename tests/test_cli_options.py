@@ -243,8 +243,9 @@ def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> N
         ), (proc.returncode, out, err)
 
 
-# A Ctrl-C as the command's event loop is to start (run_loop called, the command's coroutine made but not begun), or
-# as the command line, the command over and its reading printed, works out its exit code.
+# A Ctrl-C as the command line's main begins (installing its signal handlers), as the command's event loop is to start
+# (run_loop called, the command's coroutine made but not begun), or as the command line, the command over and its
+# reading printed, works out its exit code.
 PRESS_AT = """
 import os, signal, sys
 from ics35_async.cli import main
@@ -259,11 +260,13 @@ main(["--port", "sim://", "get", "1", "stretch"])
 """
 
 
-@pytest.mark.parametrize(("where", "said"), [("run_loop", "error: interrupted"), ("received", "interrupted")])
+@pytest.mark.parametrize(
+    ("where", "said"), [("install", "interrupted"), ("run_loop", "error: interrupted"), ("received", "interrupted")]
+)
 def test_ctrl_c_as_a_command_starts_or_ends_ends_in_one_line(where: str, said: str) -> None:
     # As it started, the command's coroutine was made and never begun: Python warned, as it ended, that it was never
     # awaited ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never awaited") under the one line.  As it
-    # ended, KeyboardInterrupt's traceback came through the command line's main.
+    # ended, and as main began, KeyboardInterrupt's traceback came through the command line's main.
     done = subprocess.run(
         [sys.executable, "-c", PRESS_AT.format(function=where)],
         capture_output=True,

@@ -161,8 +161,8 @@ cli.help = f"{inspect.cleandoc(cli.help or '')}\n\nExit codes: {_CODES} (the doc
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Console-script entry point: runs ``ics35`` and exits with its code."""
-    _signals.install()
     try:
+        _signals.install()  # (within the try: a Ctrl-C as main begins ends in one line too)
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
         # (Within the try: a Ctrl-C as the exit code is worked out, the command over, ends in one line too.)
         code = code if isinstance(code, int) else 0
@@ -181,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
-        # Ctrl-C outside a command's own handling (while loading, parsing, or once it is over): no traceback.
+        # Ctrl-C outside a command's own handling (as main begins, while parsing, once it is over): no traceback.
         _interrupted("interrupted")
     except RuntimeError as exc:
         # Ctrl-C landing in a class as it was made (a dataclass's fields, as a command imports what it needs):
