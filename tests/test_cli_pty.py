@@ -793,6 +793,48 @@ def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning(whe
     assert done.stderr == "", done.stderr
 
 
+# Ctrl-C as the runner closes the loop, the command's work over: uvloop runs Python's socket bookkeeping inside its
+# own loop step (a profile hook presses there, as a press lands in the main thread between any two steps), and a
+# KeyboardInterrupt raised there left the loop running and unclosable ("RuntimeError: Cannot close a running event
+# loop", a traceback, exit code 1).
+_PRESS_AS_THE_LOOP_CLOSES = """
+import os, signal, sys
+from ics35_async.cli import main
+
+where, count = sys.argv[1], int(sys.argv[2])
+calls = [0]
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == where:
+        calls[0] += 1
+        if calls[0] == count:
+            sys.setprofile(None)
+            os.kill(os.getpid(), signal.SIGINT)
+
+sys.setprofile(press)
+main(["--port", "sim://", "get", "1", "stretch"])
+"""
+
+
+@pytest.mark.parametrize(
+    ("loop", "where"),
+    [
+        ("uvloop", ("_decref_socketios", 1)),
+        ("uvloop", ("_decref_socketios", 2)),
+        ("asyncio", ("shutdown_asyncgens", 1)),
+    ],
+)
+def test_ctrl_c_as_the_loop_closes_ends_in_one_line(loop: str, where: tuple[str, int]) -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _PRESS_AS_THE_LOOP_CLOSES, where[0], str(where[1])],
+        capture_output=True,
+        text=True,
+        timeout=scaled(30),
+        env={**os.environ, "ICS35_LOOP": loop},
+    )
+    assert (done.returncode, done.stderr) == (130, "error: interrupted\n"), done.stderr
+
+
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
 def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_screen(loop: str) -> None:
     # Three quick Ctrl-C in play printed "coroutine 'Robot._come_to_rest.<locals>.slow_down' was never awaited"

@@ -68,7 +68,11 @@ def run_loop(make: Callable[[], Awaitable[T]]) -> T:
     loops: list[asyncio.AbstractEventLoop] = []
     awaiting: list[Coroutine[Any, Any, T]] = []  # the coroutine the runner runs, once made
     try:
-        with _ctrl_c() as pressed, _dropping_unrun(loops, pressed), asyncio.Runner(loop_factory=factory) as runner:
+        with (
+            _ctrl_c(started) as pressed,
+            _dropping_unrun(loops, pressed),
+            asyncio.Runner(loop_factory=factory) as runner,
+        ):
             presses = pressed
             loops.append(runner.get_loop())
             awaiting.append(_await(make, started))
@@ -182,7 +186,7 @@ def _forced_out(task: asyncio.Task[T]) -> T:
 
 
 @contextlib.contextmanager
-def _ctrl_c() -> Iterator[list[int]]:
+def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
     """Ctrl-C while a command runs on the loop, as asyncio's runner takes it but for where the second raises.
 
     The first cancels the command's task (it stops as it does at Ctrl-C: play slows to rest).  The second
@@ -190,8 +194,12 @@ def _ctrl_c() -> Iterator[list[int]]:
     raises it in its signal handler, wherever the main thread is: inside a weakref callback Python prints
     it as "Exception ignored in ..." and drops it (the command goes on), inside the library it cuts a step
     in half.  A third raises it at once (a loop stuck in a call that never returns).  One within a second after
-    the loop ends is taken for the same stop (see the end).  Yields the presses."""
+    the loop ends is taken for the same stop (see the end).  A first press once the command's task (``command``)
+    is over, as the runner closes the loop, is raised once it has: inside uvloop's own step it left the loop
+    running and unclosable ("Cannot close a running event loop"), and the close lets the port go cleanly.
+    Yields the presses."""
     pressed: list[int] = []
+    after_the_command: list[bool] = []  # a first press came once the command's task was over
     if (
         threading.current_thread() is not threading.main_thread()
         or _unwrapped(signal.getsignal(signal.SIGINT)) is not signal.default_int_handler  # (see below)
@@ -206,6 +214,9 @@ def _ctrl_c() -> Iterator[list[int]]:
         try:
             if len(pressed) == 1 and task is not None and not task.done():
                 task.get_loop().call_soon_threadsafe(task.cancel)
+                return
+            if len(pressed) == 1 and command and command[0].done():
+                after_the_command.append(True)  # (raised at the end, once the runner has closed the loop)
                 return
             if len(pressed) == 2:
                 # Forced out: a later press's KeyboardInterrupt, raised wherever the command then is, can land
@@ -241,6 +252,8 @@ def _ctrl_c() -> Iterator[list[int]]:
     signal.signal(signal.SIGINT, on_sigint)
     try:
         yield pressed
+        if after_the_command:
+            raise KeyboardInterrupt
     finally:
         if sys.unraisablehook is on_unraisable:
             sys.unraisablehook = previous_unraisable
