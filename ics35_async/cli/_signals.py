@@ -120,8 +120,9 @@ def same_stop_for_a_moment() -> None:
             from ..running import _after_stop, _unwrapped  # (here: every command starts with only the light front)
 
             handler = signal.getsignal(signal.SIGINT)
-            if handler not in (signal.SIG_IGN, None) and _unwrapped(handler) is handler:  # (else: ignored, not
-                _after_stop({signal.SIGINT: handler})  # Python's to set, or so already)
+            # (Not where it is ignored, not Python's to set, or so already.)
+            if handler not in (signal.SIG_IGN, None) and _unwrapped(handler) is handler:
+                _after_stop({signal.SIGINT: handler})
             return
         except KeyboardInterrupt:
             continue
