@@ -115,10 +115,12 @@ _LAST_WORDS_SHOWN = 0.1
 
 def _give_back_flushing(fd: int) -> None:
     """The terminal's own setting put back, as the process ends (unless it is no longer the foreground's: a
-    background process changing it would be stopped)."""
+    background process changing it would be stopped).  A later press's ``^C``, echoed below the last words, is
+    cleared first: the shell's prompt would follow it ("^C$ "), the process having ended with its exit code."""
     with contextlib.suppress(termios.error, OSError):
         if os.tcgetpgrp(fd) == os.getpgrp():
             time.sleep(_LAST_WORDS_SHOWN)
+            clear_after_ctrl_c()
             attrs = termios.tcgetattr(fd)
             attrs[3] &= ~termios.NOFLSH
             termios.tcsetattr(fd, termios.TCSANOW, attrs)
