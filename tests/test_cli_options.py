@@ -205,20 +205,26 @@ def read_started(fd: int) -> bytes:
     return line
 
 
+def started_reading_stretch() -> subprocess.Popen[str]:
+    """``ics35 --port sim:// get 1 stretch`` through the console script, once it says it has started."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=os.environ,
+    )
+    assert proc.stdout is not None
+    assert read_started(proc.stdout.fileno()) == b"started\n"
+    return proc
+
+
 @pytest.mark.parametrize("delay", [0.0, 0.005, 0.01, 0.02, 0.03, 0.045, 0.06, 0.08])
 def test_ctrl_c_while_the_command_line_loads_ends_in_one_line(delay: float) -> None:
     # Ctrl-C at once after start: the package and the command line are still being imported.
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     for _ in range(2):
-        proc = subprocess.Popen(
-            [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=os.environ,
-        )
-        assert proc.stdout is not None
-        assert read_started(proc.stdout.fileno()) == b"started\n"
+        proc = started_reading_stretch()
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
@@ -422,15 +428,7 @@ def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float
     # never awaited" under its message.
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     for gap in (0.005, 0.02):
-        proc = subprocess.Popen(
-            [sys.executable, "-c", console_script(), "--port", "sim://", "get", "1", "stretch"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=os.environ,
-        )
-        assert proc.stdout is not None
-        assert proc.stdout.readline() == "started\n"
+        proc = started_reading_stretch()  # (read to its end and no further: see read_started)
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
         time.sleep(gap)
