@@ -697,6 +697,14 @@ assert not unstarted, unstarted
 """
 
 
+def script_on_loop(loop: str, script: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    """``python -c script args`` with ``ICS35_LOOP=loop``: what it printed and how it ended."""
+    env = {**os.environ, "ICS35_LOOP": loop}
+    return subprocess.run(
+        [sys.executable, "-c", script, *args], capture_output=True, text=True, timeout=timeout, env=env
+    )
+
+
 # A third press landing in a weakref callback as the runner's close ran the command's cleanup again: Python prints
 # an exception raised there ("Exception ignored in: <function WeakSet.__init__.<locals>._remove ...>" and its
 # traceback, under demo's table) and drops it.  (signal.raise_signal runs the handler before it returns: inside the
@@ -731,13 +739,7 @@ except KeyboardInterrupt:
 
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
 def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_forces_out(loop: str) -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", _FORCED_OUT_IN_A_CALLBACK],
-        capture_output=True,
-        text=True,
-        timeout=scaled(15),
-        env={**os.environ, "ICS35_LOOP": loop},
-    )
+    done = script_on_loop(loop, _FORCED_OUT_IN_A_CALLBACK, timeout=scaled(15))  # (less than its 30 s wait)
     assert done.stdout == "interrupted\n", done.stderr
     assert done.stderr == "", done.stderr
 
@@ -782,13 +784,7 @@ gc.collect()  # (what the process's end does, at once)
 
 @pytest.mark.parametrize("where", ["loop", "task"])
 def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning(where: str) -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", _CTRL_C_AS_THE_LOOP_IS_MADE, where],
-        capture_output=True,
-        text=True,
-        timeout=scaled(30),
-        env={**os.environ, "ICS35_LOOP": "uvloop"},
-    )
+    done = script_on_loop("uvloop", _CTRL_C_AS_THE_LOOP_IS_MADE, where)
     assert done.stdout == "interrupted\n", done.stderr
     assert done.stderr == "", done.stderr
 
@@ -825,13 +821,7 @@ main(["--port", "sim://", "get", "1", "stretch"])
     ],
 )
 def test_ctrl_c_as_the_loop_closes_ends_in_one_line(loop: str, where: tuple[str, int]) -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", _PRESS_AS_THE_LOOP_CLOSES, where[0], str(where[1])],
-        capture_output=True,
-        text=True,
-        timeout=scaled(30),
-        env={**os.environ, "ICS35_LOOP": loop},
-    )
+    done = script_on_loop(loop, _PRESS_AS_THE_LOOP_CLOSES, where[0], str(where[1]))
     assert (done.returncode, done.stderr) == (130, "error: interrupted\n"), done.stderr
 
 
@@ -840,12 +830,6 @@ def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_scre
     # Three quick Ctrl-C in play printed "coroutine 'Robot._come_to_rest.<locals>.slow_down' was never awaited"
     # (or "Task was destroyed but it is pending!") as the process ended: the slow-down's tasks, started as the
     # third press landed, were left unrun by the closed loop.
-    done = subprocess.run(
-        [sys.executable, "-c", _FORCED_OUT_AS_IT_STARTS_WORK],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**os.environ, "ICS35_LOOP": loop},
-    )
+    done = script_on_loop(loop, _FORCED_OUT_AS_IT_STARTS_WORK)
     assert done.stdout == "interrupted\n", done.stderr
     assert done.stderr == "", done.stderr
