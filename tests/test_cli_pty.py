@@ -825,6 +825,49 @@ def test_ctrl_c_as_the_loop_closes_ends_in_one_line(loop: str, where: tuple[str,
     assert (done.returncode, done.stderr) == (130, "error: interrupted\n"), done.stderr
 
 
+# A later press landing in uvloop's own step as it starts or ends a run of the loop (the runner's close running the
+# forced-out command's task to its end): uvloop marks itself running, then makes its self-pipe with Python's socket
+# code (and closes it as the run ends, before unmarking itself), and a KeyboardInterrupt raised in between left the
+# loop running and unclosable: "RuntimeError: Cannot close a running event loop", tracebacks under demo's table
+# (three presses 30 ms and 5 ms apart), exit code 1.  A profile hook presses at the chosen socket call.
+_LATER_PRESS_IN_THE_LOOPS_OWN_STEP = """
+import asyncio, os, signal, sys
+from ics35_async.cli._loop import run_loop
+
+where, count = sys.argv[1], int(sys.argv[2])
+calls = [0]
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == where:
+        calls[0] += 1
+        if calls[0] == count:
+            sys.setprofile(None)
+            os.kill(os.getpid(), signal.SIGINT)
+
+async def main():
+    signal.raise_signal(signal.SIGINT)
+    try:
+        await asyncio.sleep(30)  # the first press cancels it
+    finally:
+        sys.setprofile(press)
+        signal.raise_signal(signal.SIGINT)  # the second forces the command out
+        await asyncio.sleep(30)  # the runner, closing, cancels it again
+
+try:
+    run_loop(main)
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+@pytest.mark.parametrize(
+    "where", [("socketpair", 1), ("_real_close", 1), ("_real_close", 2)], ids=lambda where: f"{where[0]}-{where[1]}"
+)
+def test_a_later_press_in_uvloops_own_step_still_ends_in_one_line(where: tuple[str, int]) -> None:
+    done = script_on_loop("uvloop", _LATER_PRESS_IN_THE_LOOPS_OWN_STEP, where[0], str(where[1]), timeout=scaled(15))
+    assert (done.stdout, done.stderr) == ("interrupted\n", ""), done.stderr
+
+
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
 def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_screen(loop: str) -> None:
     # Three quick Ctrl-C in play printed "coroutine 'Robot._come_to_rest.<locals>.slow_down' was never awaited"

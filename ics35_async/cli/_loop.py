@@ -69,7 +69,7 @@ def run_loop(make: Callable[[], Awaitable[T]]) -> T:
     awaiting: list[Coroutine[Any, Any, T]] = []  # the coroutine the runner runs, once made
     try:
         with (
-            _ctrl_c(started) as pressed,
+            _ctrl_c(started, loops) as pressed,
             _dropping_unrun(loops, pressed),
             asyncio.Runner(loop_factory=factory) as runner,
         ):
@@ -186,7 +186,7 @@ def _forced_out(task: asyncio.Task[T]) -> T:
 
 
 @contextlib.contextmanager
-def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
+def _ctrl_c(command: list[asyncio.Task[T]], loops: list[asyncio.AbstractEventLoop]) -> Iterator[list[int]]:
     """Ctrl-C while a command runs on the loop, as asyncio's runner takes it but for where the second raises.
 
     The first cancels the command's task (it stops as it does at Ctrl-C: play slows to rest).  The second
@@ -196,10 +196,12 @@ def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
     in half.  A third raises it at once (a loop stuck in a call that never returns).  One within a second after
     the loop ends is taken for the same stop (see the end).  A first press once the command's task (``command``)
     is over, as the runner closes the loop, is raised once it has: inside uvloop's own step it left the loop
-    running and unclosable ("Cannot close a running event loop"), and the close lets the port go cleanly.
-    Yields the presses."""
+    running and unclosable ("Cannot close a running event loop"), and the close lets the port go cleanly.  A
+    press raised at once is raised by the loop (``loops``' one) when it lands in uvloop's own step as a run of the
+    loop starts or ends (see :func:`_raised_by_the_loop`).  Yields the presses."""
     pressed: list[int] = []
     after_the_command: list[bool] = []  # a first press came once the command's task was over
+    left_to_the_loop: list[bool] = []  # a press the loop is to raise, until it has
     if (
         threading.current_thread() is not threading.main_thread()
         or _unwrapped(signal.getsignal(signal.SIGINT)) is not signal.default_int_handler  # (see below)
@@ -232,6 +234,8 @@ def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
             pass
         if len(pressed) == 2:
             return  # the command has ended (the first press stopped it): this one is the same stop (see the end)
+        if _raised_by_the_loop(loops, left_to_the_loop):
+            return
         raise KeyboardInterrupt
 
     def on_unraisable(unraisable: Any) -> None:
@@ -252,7 +256,7 @@ def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
     signal.signal(signal.SIGINT, on_sigint)
     try:
         yield pressed
-        if after_the_command:
+        if after_the_command or left_to_the_loop:  # (the loop closed before it ran the press it was left)
             raise KeyboardInterrupt
     finally:
         if sys.unraisablehook is on_unraisable:
@@ -273,3 +277,26 @@ def _ctrl_c(command: list[asyncio.Task[T]]) -> Iterator[list[int]]:
 
 def _interrupt() -> None:
     raise KeyboardInterrupt  # (a loop callback's KeyboardInterrupt leaves run_until_complete)
+
+
+def _raised_by_the_loop(loops: list[asyncio.AbstractEventLoop], left: list[bool]) -> bool:
+    """A press to raise at once, landing in uvloop's own step as a run of the loop starts or ends, is left to the
+    loop to raise (between its callbacks) and True; else False (raised where it landed).
+
+    uvloop marks itself running, then makes its self-pipe with Python's socket code (closing it as the run ends,
+    before it unmarks itself): a KeyboardInterrupt raised in between left the loop marked running for good, and
+    the runner's close failed ("Cannot close a running event loop", exit code 1).  Running, yet not the thread's
+    running loop, is that window (asyncio's loop unmarks itself first).  A press left to a run that is ending is
+    raised by the loop's next run (the runner's close has more) or once the loop has closed (:func:`_ctrl_c`)."""
+    loop = loops[0] if loops else None
+    if loop is None or not loop.is_running() or asyncio._get_running_loop() is loop:
+        return False
+    if not left:
+
+        def interrupt() -> None:
+            left.clear()
+            raise KeyboardInterrupt
+
+        left.append(True)
+        loop.call_soon_threadsafe(interrupt)
+    return True
