@@ -15,6 +15,7 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
+import anyio
 import pytest
 
 from ics35_async import (
@@ -392,6 +393,21 @@ async def test_closing_fails_queued_requests_and_finishes_the_one_on_the_wire(dr
     # The port is released: the same simulated line opens again (real-time: with the patient allowance).
     async with open_bus(sim, driver=driver, **HELD) as again:
         assert await again.servo(3).read_stretch() == 13
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+async def test_a_close_run_cancelled_still_finishes_the_one_on_the_wire(driver: str) -> None:
+    # A program being cancelled (Ctrl-C, a timeout around it) closes its bus inside that cancellation: the
+    # close gave the transaction on the wire up at once and released the port with its reply still to come,
+    # which then landed in front of the next program's first transaction on that port (a BadReply there).
+    sim = VirtualLine(make_servos(), realtime=True, faults="late@0:1.0", late_delay=0.3)
+    bus = await open_bus(sim, driver=driver, **HELD)
+    on_the_wire = bus.submit(protocol.ReadParam(0, protocol.Param.STRETCH))
+    with anyio.CancelScope() as program:
+        program.cancel()
+        await bus.aclose()
+    assert await on_the_wire == 10
+    assert not bus.is_open
 
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])

@@ -40,6 +40,7 @@ import anyio
 from ..engine import FlushInput, LineEngine, Output, Request, State
 from ..errors import IcsError, InvalidArgument, PortBusy, PortLost, error_text
 from ..protocol import Command
+from ..tasks import despite_cancellation
 from ..transports.opening import Port, open_port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
@@ -618,8 +619,10 @@ class DriverCore:
             draining = engine.state is DRAINING
         try:
             if draining:
-                with anyio.move_on_after(engine.drain_bound):
-                    await self.wait_idle()
+                # To its end also when the close runs cancelled (a program stopped by Ctrl-C or a timeout closes its
+                # bus inside that cancellation): released at once, the port's reply still on its way would land in
+                # front of the next transaction on that port, the next program's.
+                await despite_cancellation(self.wait_idle, engine.drain_bound)
         finally:
             with self.lock:
                 engine.abort()
