@@ -23,6 +23,7 @@ import anyio
 
 from . import protocol, units
 from .engine.source import BoundSource, Upcoming, keep_old_hook_names
+from .engine.timing import BusTiming
 from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
@@ -41,7 +42,9 @@ STREAM_OPTIONS = frozenset(
 WATCH = -1
 """The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
 IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held
-FREE_ON_CLOSE_BOUND = 2.0  # seconds on_close="free" may take when the stream closes
+# Seconds a stream's close-out (its on_close commands) may take, at least: more on a line whose allowances are
+# long (see Stream._close_out_bound).
+FREE_ON_CLOSE_BOUND = 2.0
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
 # After this many cycles, a paced stream that ran past nearly every slot says once that its rate cannot
@@ -190,6 +193,7 @@ class Stream(FrameIterator[Frame]):
         self._running = False
         self._closed = False
         self._closing_out: anyio.Event | None = None  # set once a close's commands are out (see aclose)
+        self._close_out_bound = FREE_ON_CLOSE_BOUND  # how long that may take (see _close_out_bound)
         self._end_error: IcsError = BusClosed("stream closed")
         # Publishing.
         self._latest: Frame | None = None
@@ -906,7 +910,7 @@ class Stream(FrameIterator[Frame]):
             # bus closing meanwhile would fail the commands it queued (the servos left holding).
             closing = self._closing_out
             if closing is not None:
-                await despite_cancellation(closing.wait, FREE_ON_CLOSE_BOUND)
+                await despite_cancellation(closing.wait, self._close_out_bound)
             return
         self._stop()
         if self.on_close == "free":
@@ -926,13 +930,27 @@ class Stream(FrameIterator[Frame]):
             # ics35_async.run, another cancellation meanwhile) must still free its servos, or send the
             # last pose it was given; bounded, in case the line is gone.
             self._closing_out = closing = anyio.Event()
+            self._close_out_bound = self._bound_for(len(last))
             # (Optional hooks of a Line: one made elsewhere may lack them, and must still close out.)
             getattr(self.bus, "close_out_begins", _no_hook)(closing)
             try:
-                await despite_cancellation(functools.partial(self._send_all, last), FREE_ON_CLOSE_BOUND)
+                await despite_cancellation(functools.partial(self._send_all, last), self._close_out_bound)
             finally:
                 closing.set()
                 getattr(self.bus, "close_out_ends", _no_hook)(closing)
+
+    def _bound_for(self, commands: int) -> float:
+        """Seconds a close-out of ``commands`` may take: :data:`FREE_ON_CLOSE_BOUND`, or, where more, the time
+        the line may need for them and a transaction already on the wire, each waiting its whole reply allowance
+        (a servo that does not answer, the link's learnt lateness at its most) and a resync after it.  A fixed
+        bound ran out on a slow link's long allowance (a TCP bridge) in the frees of absent IDs, and a servo
+        queued behind them was never freed."""
+        timing: BusTiming | None = getattr(self.bus, "timing", None)  # (a Line made elsewhere may not say)
+        if timing is None:
+            return FREE_ON_CLOSE_BOUND
+        position = 6  # bytes on the wire: a position command and its reply
+        each = timing.allowance(position, self.bus.baudrate) + timing.link_extra_max + timing.quiet_time
+        return max(FREE_ON_CLOSE_BOUND, (commands + 1) * each)
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:

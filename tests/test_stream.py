@@ -850,6 +850,21 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
+async def test_on_close_free_reaches_a_servo_queued_behind_silent_ids_on_a_slow_link() -> None:
+    # A slow link's reply allowance (0.3 s, as over a TCP bridge): the close-out's fixed two-second bound ran out on
+    # the frees of the IDs that do not answer (each waits its whole allowance), and the servo queued behind them
+    # never got its free: it went on holding.
+    ids = list(range(1, 10))
+    sim = make_sim([9])
+    async with open_bus(sim, **{**FAST, "adapter_latency": 0.3}) as bus:
+        await bus.servo(9).set_position(8000)
+        assert not sim.servo(9).free
+        async with bus.stream(ids, on_close="free") as stream:
+            pass
+    assert sim.servo(9).free
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_targets_set_just_before_the_block_ends_are_sent_when_it_holds(driver: str) -> None:
     # A final pose set right before leaving the block (a robot sitting down) was dropped: the stream
