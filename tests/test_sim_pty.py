@@ -390,6 +390,18 @@ def test_help_says_real_time_is_the_default(command: list[str]) -> None:
     assert "real time (wire timing) by default" in text
 
 
+def test_on_exit_the_server_counts_one_transaction_in_the_singular(tmp_path: Path) -> None:
+    notes_path = tmp_path / "notes.txt"  # ("served 1 transactions")
+    with open(notes_path, "w", encoding="utf-8") as notes:
+        proc, path = start_subprocess(["--fast", "--ids", "1"], notes=notes)
+        try:
+            with open_port(path) as port:
+                assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+        finally:
+            assert stop_subprocess(proc) == 0
+    assert "ics35 sim: served 1 transaction" in notes_path.read_text(encoding="utf-8").splitlines()
+
+
 def test_on_exit_the_server_says_what_it_served_and_its_last_reads_and_writes(tmp_path: Path) -> None:
     # The notes a failing test is read against: the transaction count, and with --last the last
     # reads and writes stamped with time.monotonic(), the clock this process reads too.

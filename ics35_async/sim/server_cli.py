@@ -275,8 +275,10 @@ def main(
             clear_echoed_ctrl_c()  # (the last words start a line of their own, as the ics35 commands' do)
         if isinstance(device, VirtualLine):
             device.close()
-            lost = f"; {server.dropped_bytes} bytes no client took" if server.dropped_bytes else ""
-            print(f"ics35 sim: served {device.transactions} transactions{lost}", file=sys.stderr, flush=True)
+            dropped, served = server.dropped_bytes, device.transactions
+            lost = f"; {dropped} byte{'s' if dropped != 1 else ''} no client took" if dropped else ""
+            counted = f"{served} transaction{'s' if served != 1 else ''}"
+            print(f"ics35 sim: served {counted}{lost}", file=sys.stderr, flush=True)
         for when, what, data in server.last:
             print(f"ics35 sim: at {when:.6f} {what:5} {data.hex(' ')}", file=sys.stderr, flush=True)
     return code
