@@ -939,18 +939,33 @@ class Stream(FrameIterator[Frame]):
                 closing.set()
                 getattr(self.bus, "close_out_ends", _no_hook)(closing)
 
-    def _bound_for(self, commands: int) -> float:
-        """Seconds a close-out of ``commands`` may take: :data:`FREE_ON_CLOSE_BOUND`, or, where more, the time
-        the line may need for them and a transaction already on the wire, each waiting its whole reply allowance
-        (a servo that does not answer, the link's learnt lateness at its most) and a resync after it.  A fixed
-        bound ran out on a slow link's long allowance (a TCP bridge) in the frees of absent IDs, and a servo
-        queued behind them was never freed."""
+    def longest_cycle(self) -> float:
+        """Seconds one of this stream's cycles may take at most (a bound, not a forecast): each ID's command
+        waiting its whole reply allowance (a servo that does not answer, a slow link's learnt lateness at its most)
+        and a resync after it, or a paced stream's period if longer; requests beside the stream add their own
+        time.  For a program waiting for a cycle to carry a command (a free before it stops); 2 s
+        (:data:`FREE_ON_CLOSE_BOUND`) on a line that does not tell its allowances."""
+        each = self._longest_command()
+        if each is None:
+            return FREE_ON_CLOSE_BOUND
+        return max(0.0 if self.rate_hz is None else 1.0 / self.rate_hz, len(self.ids) * each)
+
+    def _longest_command(self) -> float | None:
+        """Seconds one position command may take on this line at most (see :meth:`longest_cycle`); None where
+        the line does not tell its allowances."""
         timing: BusTiming | None = getattr(self.bus, "timing", None)  # (a Line made elsewhere may not say)
         if timing is None:
-            return FREE_ON_CLOSE_BOUND
+            return None
         position = 6  # bytes on the wire: a position command and its reply
-        each = timing.allowance(position, self.bus.baudrate) + timing.link_extra_max + timing.quiet_time
-        return max(FREE_ON_CLOSE_BOUND, (commands + 1) * each)
+        return timing.allowance(position, self.bus.baudrate) + timing.link_extra_max + timing.quiet_time
+
+    def _bound_for(self, commands: int) -> float:
+        """Seconds a close-out of ``commands`` may take: :data:`FREE_ON_CLOSE_BOUND`, or, where more, the time
+        the line may need for them and a transaction already on the wire, each at its longest.  A fixed bound
+        ran out on a slow link's long allowance (a TCP bridge) in the frees of absent IDs, and a servo queued
+        behind them was never freed."""
+        each = self._longest_command()
+        return FREE_ON_CLOSE_BOUND if each is None else max(FREE_ON_CLOSE_BOUND, (commands + 1) * each)
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:

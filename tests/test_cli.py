@@ -563,6 +563,20 @@ def test_demo_leaves_every_servo_free(cli: Any, sim_line: Any) -> None:
     assert all(s.eeprom_writes == 0 for s in sim.servos)
 
 
+def test_demo_frees_its_servos_at_the_end_beside_a_silent_id_on_a_long_allowance(cli: Any, sim_line: Any) -> None:
+    # ID 3 named but absent, --timeout 0.25: the end's free waited a fixed second for two cycles while the table's
+    # current and temperature reads of ID 3 (each with its guard read) took the line half a second each, and demo
+    # said "the servos did not confirm the free command at the end; servo(s) 1, 2, 3 may still be holding" (exit
+    # 5) with 1 and 2 freed.
+    sim, url = sim_line(range(1, 3))
+    result = cli("--port", url, "--timeout", "0.25", "demo", "--ids", "1-3", "--seconds", "0.6")
+    assert result.code == 0, result.err
+    assert "all servos left free" in result.out
+    assert all(s.free for s in sim.servos)
+    # Its time, not its last frame's (it said "done after 0.3 s", the next frame due after the time was up).
+    assert float(result.out.split("demo done after ")[1].split()[0]) >= 0.6, result.out
+
+
 LIVE_ALL = [["demo", "--ids", "all"], ["monitor", "all", "--free"]]
 
 

@@ -147,6 +147,9 @@ async def run_live(
                         clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
                         err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
                 finally:
+                    # The run's time, not its last frame's (the next one may have been due after the time was up).
+                    state.elapsed = max(state.elapsed, loop.time() - start)
+                    telemetry.stop()
                     if options.free_at_end:
                         done = await _free_all(stream, [i for i in ids if i not in watch], state)
                         freed = freed or done
@@ -170,11 +173,13 @@ async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> bool:
     with contextlib.suppress(IcsError):
         stream.free(ids)
         state.targets.update(dict.fromkeys(ids, protocol.FREE))
+        # (A second at least; longer where a cycle may take longer: long allowances and servos that do not answer.)
+        bound = max(1.0, stream.longest_cycle())
         with contextlib.suppress(TimeoutError, BusClosed, PortLost, asyncio.CancelledError):
-            first = await asyncio.wait_for(stream.next_frame(), 1.0)
+            first = await asyncio.wait_for(stream.next_frame(), bound)
             # The cycle in flight may have started before free(); the next one certainly did not.
             if first is not None:
-                await asyncio.wait_for(stream.next_frame(), 1.0)
+                await asyncio.wait_for(stream.next_frame(), bound)
                 return True
     return False
 

@@ -45,11 +45,13 @@ class Telemetry:
         self._next_probe: dict[int, float] = dict.fromkeys(self.ids, 0.0)
         self._next = 0
         self._pending = 0
+        self._reads: set[asyncio.Future[int]] = set()
+        self._stopped = False
 
     def after_frame(self, offline: Collection[int] = ()) -> None:
         """Queue the next round of reads, skipping the IDs in ``offline`` (the frame's)."""
         # At most one round outstanding: telemetry must never starve the stream.
-        if self._pending or not self.per_cycle or not self.ids:
+        if self._pending or self._stopped or not self.per_cycle or not self.ids:
             return
         now = self.clock()
         chosen: list[int] = []
@@ -69,11 +71,21 @@ class Telemetry:
             for param, store in ((Param.CURRENT, self.current), (Param.TEMPERATURE, self.temperature)):
                 fut = asyncio.ensure_future(self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW))
                 self._pending += 1
+                self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
+
+    def stop(self) -> None:
+        """No more reads; those still queued are withdrawn (one on the wire finishes there, its value dropped).
+        The stream's last cycles, a free going out as a command ends, must not wait behind them: a read of a
+        servo that does not answer costs its whole allowance, and its guard read as much again."""
+        self._stopped = True
+        for read in list(self._reads):
+            read.cancel()
 
     def _done_callback(self, sid: int, store: dict[int, int]) -> Callable[[asyncio.Future[int]], None]:
         def done(fut: asyncio.Future[int]) -> None:
             self._pending -= 1
+            self._reads.discard(fut)
             if fut.cancelled():
                 return
             exc = fut.exception()
