@@ -615,6 +615,17 @@ def test_monitor_on_ics35_servos_without_free_refuses_as_its_help_says(cli: Any,
     assert "With only ICS 3.5 servos and no --free, monitor refuses (exit 5)" in shown, shown
 
 
+def test_monitor_on_ics35_servos_beside_an_absent_id_without_free_refuses_naming_both(cli: Any, sim_line: Any) -> None:
+    # Servos 1 and 2 (ICS 3.5) left out, absent ID 3 the only one streamed: monitor ran its whole time on nothing,
+    # then said "no servo among 1, 2, 3 answered" with power hints (exit 4), though 1 and 2 had answered.
+    sim, url = sim_line([1, 2])
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "1-3", "--seconds", "0.3")
+    assert result.code == ExitCode.REFUSED, result.err
+    assert "1, 2 speak ICS 3.5" in result.err and "no answer from ID 3" in result.err, result.err
+    assert "--free" in result.err and "power" not in result.err, result.err
+    assert not [t for t in sim.log_since(0) if t.command in ("position", "free")]  # nothing that moves or frees
+
+
 def test_monitor_json_lines(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([1, 2])
     result = cli("--port", url, "--timeout", "0.005", "monitor", "--free", "--seconds", "0.3", "--json")

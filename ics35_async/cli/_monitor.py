@@ -57,12 +57,16 @@ def monitor(
             plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
             watch, freed = plan.watch, plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
-            if not plan.streamed:
+            # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
+            silent = plan.streamed if plan.left_out and set(plan.streamed) <= set(plan.silent) else []
+            if not plan.streamed or silent:
+                which = f"{ids_text(list(plan.left_out))} speak" if silent else "they speak"
+                absent = f", and no answer from ID{'s' if len(silent) > 1 else ''} {ids_text(silent)}" if silent else ""
                 raise CliError(
                     ExitCode.REFUSED,
-                    f"no servo among {ids_text(chosen)} can report its position without going limp: they speak "
-                    "ICS 3.5, which reads a position only with the free command (nothing was sent that moves or "
-                    "frees them)",
+                    f"no servo among {ids_text(chosen)} can report its position without going limp: {which} "
+                    f"ICS 3.5, which reads a position only with the free command{absent} (nothing was sent that "
+                    "moves or frees them)",
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",
                 )
             how = "ICS 3.5 servos free" if freed else "torque left alone"
