@@ -43,7 +43,7 @@ WATCH = -1
 """The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
 IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held
 # Seconds a stream's close-out (its on_close commands) may take, at least: more on a line whose allowances are
-# long (see Stream._close_out_bound).
+# long (see Stream._bound_for).
 FREE_ON_CLOSE_BOUND = 2.0
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
@@ -193,7 +193,7 @@ class Stream(FrameIterator[Frame]):
         self._running = False
         self._closed = False
         self._closing_out: anyio.Event | None = None  # set once a close's commands are out (see aclose)
-        self._close_out_bound = FREE_ON_CLOSE_BOUND  # how long that may take (see _close_out_bound)
+        self._close_out_bound = FREE_ON_CLOSE_BOUND  # how long that may take (see _bound_for)
         self._end_error: IcsError = BusClosed("stream closed")
         # Publishing.
         self._latest: Frame | None = None

@@ -42,8 +42,9 @@ def monitor(
     position read; ICS 3.5 servos can only by the free command, so with --free
     they go limp (move them by hand and watch), and without it they show "n/a"
     for position.  With only ICS 3.5 servos and no --free, monitor refuses
-    (exit 5) and sends nothing (also beside IDs that do not answer).  IDS: 1-12, 0,3,5, all (the IDs that answer;
-    also the default).  --json prints one JSON line per second.
+    (exit 5) and sends nothing (also beside IDs that do not answer).  IDS:
+    1-12, 0,3,5, all (the IDs that answer; also the default).  --json prints
+    one JSON line per second.
     """
     settings = settings_of(ctx)
     shown = live_port(settings, plot)
