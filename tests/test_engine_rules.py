@@ -147,6 +147,35 @@ def test_the_stream_gets_a_turn_after_at_most_max_requests_between() -> None:
     assert {sid for sid, _ in source.values} == {1, 2}
 
 
+def test_after_a_request_beside_a_stream_the_programs_next_turn_comes_before_the_streams_next_transaction() -> None:
+    # A caller reading several values in a row beside a stream (current, then temperature) waited a whole stream
+    # transaction for each read after its first: the stream's next was put on the wire as the first read's reply
+    # came in, before the caller had its turn to ask again.  The line now waits for the driver's next turn
+    # (a deadline of now): a request made by then goes first, else the stream goes on.
+    for follow_up in (True, False):
+        engine = ready_engine()
+        source = FakeSource([1])
+        stream_tx = position(1, 0)
+        assert engine.attach_source(source, 0.0) == stream_tx.tx
+        first, second = Recorded(read(3)), Recorded(read(3, Param.TEMPERATURE))
+        assert engine.submit(first, 0.0005) is None  # (queued behind the stream's transaction)
+        assert engine.receive(stream_tx.tx + stream_tx.encode_reply(7500), 0.001) == read(3).tx
+        assert engine.receive(read(3).tx + read(3).encode_reply(9), 0.002) is None
+        assert first.result() == 9 and engine.deadline == 0.002 and engine.state is State.IDLE
+        if follow_up:
+            assert engine.submit(second, 0.002) == read(3, Param.TEMPERATURE).tx
+        else:
+            assert engine.tick(0.002) == stream_tx.tx
+    # Not after a LOW one: background reads (a safety watch's, a live table's) slip in between the stream's
+    # transactions and take no more of the line.
+    engine = ready_engine()
+    source = FakeSource([1])
+    engine.attach_source(source, 0.0)
+    engine.submit(Recorded(read(3), priority=Priority.LOW), 0.0005)
+    assert engine.receive(stream_tx.tx + stream_tx.encode_reply(7500), 0.001) == read(3).tx
+    assert engine.receive(read(3).tx + read(3).encode_reply(9), 0.002) == stream_tx.tx
+
+
 def test_the_sources_wake_at_becomes_the_deadline_when_it_has_nothing() -> None:
     engine = ready_engine()
     source = FakeSource([1], wake_at=5.0)
@@ -158,7 +187,8 @@ def test_the_sources_wake_at_becomes_the_deadline_when_it_has_nothing() -> None:
     req = Recorded(read(3))
     assert engine.submit(req, 4.9) == read(3).tx
     engine.receive(read(3).tx + read(3).encode_reply(7), 4.901)
-    assert req.result() == 7 and engine.deadline == 5.0
+    assert req.result() == 7 and engine.deadline == 4.901  # (the caller's next turn first)
+    assert engine.tick(4.901) is None and engine.deadline == 5.0
     source.active = True
     asked = source.asked
     assert engine.tick(5.0) == position(1, 0).tx

@@ -850,6 +850,23 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
+@pytest.mark.parametrize("driver", ["asyncio", "anyio"])
+async def test_reads_in_a_row_beside_a_stream_follow_each_other_on_the_wire(driver: str) -> None:
+    # Each read after a caller's first waited a whole stream transaction: the stream's next went on the wire as
+    # the previous read's reply came in, before the caller's task had its turn to ask again.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with open_bus(sim, driver=driver, **FAST) as bus, bus.stream(ids) as stream:
+        await stream.next_frame()
+        mark = sim.transactions
+        for _ in range(10):
+            await bus.servo(2).read_current()
+            await bus.servo(2).read_temperature()
+        log = [t.command for t in sim.log_since(mark)]
+    follows = [log[k - 1] for k, command in enumerate(log) if command == "read_temperature" and k]
+    assert follows == ["read_current"] * 10, log
+
+
 async def test_on_close_free_reaches_a_servo_queued_behind_silent_ids_on_a_slow_link() -> None:
     # A slow link's reply allowance (0.3 s, as over a TCP bridge): the close-out's fixed two-second bound ran out on
     # the frees of the IDs that do not answer (each waits its whole allowance), and the servo queued behind them

@@ -43,6 +43,7 @@ OFFLINE, LOST = State.OFFLINE, State.LOST
 NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
 URGENT = Priority.URGENT
+LOW = Priority.LOW
 ANOTHER_STREAM = "this bus already runs a stream; close it first"  # (the bus refuses it too: see Bus.attach_source)
 FIT_MARGIN = 0.0005  # seconds a request beside a paced stream must leave before the next cycle is due
 BURST_LIMIT = 128
@@ -776,6 +777,12 @@ class LineEngine:
             req.resolve(value)
         if self.state is BUSY:
             self.state = IDLE
+            if req is not None and req.priority < LOW and self._source is not None and not self.queue.count:
+                # The caller's next turn first (see "sharing the line"): a request it makes then goes before the
+                # stream's next transaction, which the driver starts at this deadline otherwise.  (Not after a
+                # LOW one: background reads, a safety watch's, slip in between the stream's transactions.)
+                self.deadline = now
+                return None
             return self._start_next(now)
         self.state, self.deadline = CLOSED, INF  # draining: that was the last transaction
         return None
