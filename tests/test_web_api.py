@@ -39,15 +39,16 @@ _names = itertools.count()
 
 @pytest.fixture
 def serve() -> Iterator[Any]:
-    """``serve(servo_ids) -> (client with the token cookie, VirtualLine)``; closed after the test."""
+    """``serve(servo_ids) -> (client with the token cookie, VirtualLine)``; closed after the test.  ``timeout``:
+    the line's reply allowance on top of the wire time (``ics35 web --timeout``)."""
     opened: list[tuple[TestClient, VirtualLine]] = []
 
     def make(
-        ids: tuple[int, ...] = (1, 3), ics36: tuple[int, ...] = (), **options: Any
+        ids: tuple[int, ...] = (1, 3), ics36: tuple[int, ...] = (), timeout: float = 0.020, **options: Any
     ) -> tuple[TestClient, VirtualLine]:
         name = f"web-api-{next(_names)}"
         sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids], name=name, **options)
-        app = create_app(LineSession(LineConfig(port=f"sim://{name}")), TOKEN)
+        app = create_app(LineSession(LineConfig(port=f"sim://{name}", adapter_latency=timeout)), TOKEN)
         client = TestClient(app, base_url=BASE)
         client.__enter__()
         client.cookies.set(COOKIE, TOKEN)
@@ -697,6 +698,23 @@ def test_a_live_plot_keeps_a_servo_the_servo_page_holds_held_and_its_jog_goes_th
     assert post(client, "/api/servo/3/move", {"position": 7100}).status_code == 409  # its motion was never on
     post(client, "/api/live/stop")
     assert sim.servo(1).target == 8100 and sim.servo(3).target == 7000  # the stream's end leaves them held
+
+
+def test_hold_here_for_a_streamed_servo_beside_silent_ids_on_a_long_allowance_waits_for_the_streams_cycle(
+    serve: Any,
+) -> None:
+    # A live plot of IDs 1, 3, 4 and 5 with only servo 1 on the line, --timeout 1: each cycle waits a second for
+    # each silent ID until the stream takes it out.  Hold here waited a fixed 2 s for a frame and said servo 1 was
+    # "not read yet; press Free to have the stream read it" (409), the stream reading it all along.
+    client, sim = serve((1,), timeout=1.0)
+    sim.servo(1).move_by_hand(8000)
+    assert client.get("/api/servo/1/eeprom").status_code == 200
+    assert post(client, "/api/live/start", {"ids": [1, 3, 4, 5]}).status_code == 200
+    held = post(client, "/api/servo/1/hold")
+    assert held.status_code == 200, held.text
+    assert held.json()["position"] == 8000
+    post(client, "/api/live/stop")
+    assert sim.servo(1).target == 8000
 
 
 def test_hold_here_for_a_streamed_servo_holds_it_where_it_stands_after_a_lost_port_never_where_it_stood(

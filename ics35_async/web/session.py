@@ -94,7 +94,8 @@ PAGE_GONE = "the page that switched it on was closed or lost its connection to t
 PAGE_NAME_MAX = 64
 
 
-# How long Hold here waits for the live stream to read a servo it carries (a frame after the press).
+# How long Hold here waits at least for the live stream to read a servo it carries (a frame after the press);
+# longer where two of the stream's cycles may take longer (Stream.longest_cycle).
 HOLD_READ_WAIT = 2.0
 
 
@@ -798,8 +799,12 @@ class LineSession:
         before = stream.latest
         after = -1 if before is None else before.cycle
         position = -1
+        # A cycle or two (more after a reply went missing).  A long allowance makes a cycle long where IDs beside
+        # it do not answer, each waiting its whole allowance until the stream takes it out: a fixed wait ran out
+        # there, and a servo read all along was "not read yet".
+        wait = max(HOLD_READ_WAIT, 2 * stream.longest_cycle())
         with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(HOLD_READ_WAIT):  # (a cycle or two; more after a reply went missing)
+            async with asyncio.timeout(wait):
                 while position < 0:
                     frame = await stream.next_frame()
                     if frame.cycle > after:
