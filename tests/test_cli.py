@@ -577,6 +577,15 @@ def test_demo_frees_its_servos_at_the_end_beside_a_silent_id_on_a_long_allowance
     assert float(result.out.split("demo done after ")[1].split()[0]) >= 0.6, result.out
 
 
+def test_demo_counts_one_cycle_and_one_servo_in_the_singular(cli: Any, sim_line: Any) -> None:
+    # Paced at 2 Hz, 0.1 s ends it after its first cycle: it said "1 cycles ... over 1 servos".
+    sim, url = sim_line([1])
+    result = cli("--port", url, "demo", "--ids", "1", "--rate", "2", "--seconds", "0.1")
+    assert result.code == 0, result.err
+    assert ": 1 cycle, " in result.out and " over 1 servo; " in result.out, result.out
+    assert sim.servo(1).free
+
+
 LIVE_ALL = [["demo", "--ids", "all"], ["monitor", "all", "--free"]]
 
 

@@ -122,10 +122,12 @@ def demo(
     except CliError as exc:
         raise forced_out(settings, started[0] if started else None, exc) from None
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
+    cycles = f"{state.cycle} cycle{'' if state.cycle == 1 else 's'}"
+    servos = f"{len(state.ids)} servo{'' if len(state.ids) == 1 else 's'}"
     out.print(
         f"demo {f'stopped by {stop_name()}' if state.stopped_by_signal else 'done'} after "
-        f"{state.elapsed:.1f} s: {state.cycle} cycles, "  # (the wave's time: not the scan's, nor the question's)
-        f"{state.rate_avg:.1f} cycles/s over {len(state.ids)} servos; all servos left free"
+        f"{state.elapsed:.1f} s: {cycles}, "  # (the wave's time: not the scan's, nor the question's)
+        f"{state.rate_avg:.1f} cycles/s over {servos}; all servos left free"
     )
     return 0
 
