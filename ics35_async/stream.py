@@ -963,9 +963,14 @@ class Stream(FrameIterator[Frame]):
         """Seconds a close-out of ``commands`` may take: :data:`FREE_ON_CLOSE_BOUND`, or, where more, the time
         the line may need for them and a transaction already on the wire, each at its longest.  A fixed bound
         ran out on a slow link's long allowance (a TCP bridge) in the frees of absent IDs, and a servo queued
-        behind them was never freed."""
+        behind them was never freed.  The close-out's requests take the bus's retries: a command that is not
+        answered is tried again, each retry after a guard read (see the engine's guard), so each may cost
+        ``1 + 2 * retries`` allowances; counted once, the bound ran out with ``retries=1`` (ics35's default)."""
         each = self._longest_command()
-        return FREE_ON_CLOSE_BOUND if each is None else max(FREE_ON_CLOSE_BOUND, (commands + 1) * each)
+        if each is None:
+            return FREE_ON_CLOSE_BOUND
+        retries: int = getattr(self.bus, "retries", 0)  # (a Line made elsewhere may not have them)
+        return max(FREE_ON_CLOSE_BOUND, (commands * (1 + 2 * retries) + 1) * each)
 
     async def _send_all(self, targets: dict[int, int]) -> None:
         async with anyio.create_task_group() as group:

@@ -32,6 +32,7 @@ from ics35_async import (
     InvalidArgument,
     Param,
     PortLost,
+    Priority,
     ReplyError,
     State,
     Stream,
@@ -882,6 +883,21 @@ async def test_on_close_free_reaches_a_servo_queued_behind_silent_ids_on_a_slow_
     assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
 
 
+async def test_on_close_free_reaches_a_servo_queued_behind_silent_ids_with_retries_on_a_slow_link() -> None:
+    # The bus retries (retries=1, as ics35's default): each silent ID's free is tried twice, with a guard read
+    # between, three allowances where the close-out's bound counted one; it ran out and servo 4, queued behind
+    # them, went on holding.
+    ids = [1, 2, 3, 4]
+    sim = make_sim([4])
+    async with open_bus(sim, **{**FAST, "adapter_latency": 0.3, "retries": 1}) as bus:
+        await bus.servo(4).set_position(8000)
+        assert not sim.servo(4).free
+        async with bus.stream(ids, on_close="free") as stream:
+            pass
+    assert sim.servo(4).free
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
 async def test_targets_set_just_before_the_block_ends_are_sent_when_it_holds(driver: str) -> None:
     # A final pose set right before leaving the block (a robot sitting down) was dropped: the stream
@@ -1517,18 +1533,30 @@ async def test_what_the_close_could_not_put_on_the_wire_is_not_said_sent(on_clos
 
 
 async def test_what_the_close_had_no_time_to_send_is_not_said_sent() -> None:
-    # on_close="free" over 32 IDs of which one answers: each silent ID's free waits its allowance (and
-    # retries), so the close's bound runs out with frees still queued; those never went out.
+    # on_close="free" over IDs 0-3 of which 0 answers; once its free is out a program's urgent reads of a silent
+    # ID take the line (requests beside the stream: its bound does not count them) until the close's bound runs
+    # out with the other frees still queued: those never went out.
     sim = make_sim([0])
-    async with open_bus(sim, **{**FAST, "adapter_latency": 0.1, "retries": 2}) as bus:
-        ids = list(range(32))
+    async with open_bus(sim, **{**FAST, "adapter_latency": 0.1}) as bus:
+        ids = list(range(4))
         stream = bus.stream(ids, on_close="free")
+        reads: list[Any] = []
+
+        async def take_the_line() -> None:
+            while not any(t.servo_id == 0 and t.tx[1:3] == b"\0\0" for t in sim.log_since(mark)):
+                await asyncio.sleep(0.001)
+            reads.extend(bus.submit(ReadParam(20, Param.TEMPERATURE), priority=Priority.HIGH) for _ in range(40))
+
         async with stream:
             await next_frame(stream)
             mark = sim.transactions
+            hog = asyncio.create_task(take_the_line())
         sent = stream.targets_sent_on_close
         on_wire = {t.servo_id for t in sim.log_since(mark) if t.tx[1:3] == b"\0\0"}  # the frees that went out
-    assert 0 < len(sent) < len(ids), sent
+        await hog
+        for read in reads:
+            read.cancel()
+    assert 0 in sent and len(sent) < len(ids), sent
     assert set(sent) <= on_wire, (sorted(sent), sorted(on_wire))
 
 
