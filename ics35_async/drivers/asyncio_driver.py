@@ -164,7 +164,12 @@ class AsyncioDriver(LoopDriver):
             self._timer.cancel()
         deadline = self.engine.deadline
         self._waiting_until = deadline
-        self._timer = self.loop.call_at(deadline, self._on_timer)
+        if deadline <= now():
+            # Due already (the engine gives a caller the line's next turn with a deadline of now): a timer would
+            # come back a millisecond later on uvloop, whose loop time is whole milliseconds, and the line idle.
+            self._timer = self.loop.call_soon(self._on_timer)
+        else:
+            self._timer = self.loop.call_at(deadline, self._on_timer)
 
     def cancel_timer(self) -> None:
         if self._timer is not None:
