@@ -38,7 +38,10 @@ def bursts_beside_requests(monkeypatch: pytest.MonkeyPatch) -> None:
 async def test_a_stream_runs_in_bursts_beside_requests_that_get_their_own_replies(pty_sim: Any) -> None:
     ids = list(range(1, 9))
     path = pty_sim("--fast", "--ids", "1-8").path
-    async with open_bus(path, driver="anyio", **PATIENT) as bus:
+    # One request between two stream transactions: the read loop below asks again in its next turn, which the
+    # engine gives it, and would otherwise keep the line for up to 16 reads in a row, leaving the stream few
+    # boundaries to start its bursts at.
+    async with open_bus(path, driver="anyio", max_requests_between=1, **PATIENT) as bus:
         assert bus.describe()["burst_path"] is True
         runner = bus._driver.burst  # type: ignore[attr-defined]
         async with bus.stream(ids) as stream:
