@@ -22,9 +22,9 @@ The rules, each in one place:
   resync and the guard read a timeout would have;
 * priorities, and the stream's share: at most ``max_requests_between``
   requests between two stream transactions; after a request's reply beside
-  a stream (above ``LOW`` priority) the line waits for the driver's next turn (a deadline of now), so
-  that the caller's next request, made in that turn, goes before the
-  stream's next transaction;
+  a stream (above ``LOW`` priority) the line waits for the driver's next
+  turn (a deadline of now), so that the caller's next request, made in that
+  turn, goes before the stream's next transaction;
 * retries of idempotent commands; cancellation (a cancelled request's reply
   is still consumed and dropped);
 * offline for a reopen: at once when idle; asked while BUSY or QUIET, once
