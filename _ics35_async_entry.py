@@ -53,7 +53,16 @@ def _ignore_later_presses() -> None:
         try:
             import signal
 
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            # Blocked meanwhile, as ics35_async.running._ignore does (this module cannot import the package): one
+            # arriving between Python's handler turning SIG_IGN and the kernel's was printed as "OSError: Signal 2
+            # ignored due to race condition" as the process ended.
+            block = getattr(signal, "pthread_sigmask", None)  # (not on Windows)
+            before = block(signal.SIG_BLOCK, {signal.SIGINT}) if block is not None else None
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            finally:
+                if block is not None and before is not None:
+                    block(signal.SIG_SETMASK, before)
             return
         except KeyboardInterrupt:
             continue

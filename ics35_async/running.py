@@ -322,7 +322,23 @@ def _ignore_at_exit() -> None:
     for signum in STOPPING:
         with contextlib.suppress(TypeError, ValueError):
             if isinstance(signal.getsignal(signum), _AfterStop):
-                signal.signal(signum, signal.SIG_IGN)
+                _ignore(signum)
+
+
+def _ignore(signum: int) -> None:
+    """``signal.signal(signum, SIG_IGN)`` with the signal blocked meanwhile: one arriving between Python's
+    handler turning SIG_IGN and the kernel's was reported by Python, as the program ended, as "OSError: Signal 2
+    ignored due to race condition" with a traceback (a double Ctrl-C's second press).  Blocked, it waits; a
+    pending signal whose action becomes SIG_IGN is dropped by the kernel."""
+    block = getattr(signal, "pthread_sigmask", None)  # (not on Windows)
+    if block is None:
+        signal.signal(signum, signal.SIG_IGN)
+        return
+    before = block(signal.SIG_BLOCK, {signum})
+    try:
+        signal.signal(signum, signal.SIG_IGN)
+    finally:
+        block(signal.SIG_SETMASK, before)
 
 
 class Wakeable(Protocol):
