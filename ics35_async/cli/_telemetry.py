@@ -44,14 +44,13 @@ class Telemetry:
         self._fail_run: dict[int, int] = dict.fromkeys(self.ids, 0)
         self._next_probe: dict[int, float] = dict.fromkeys(self.ids, 0.0)
         self._next = 0
-        self._pending = 0
-        self._reads: set[asyncio.Future[int]] = set()
+        self._reads: set[asyncio.Future[int]] = set()  # outstanding (cancelled by stop)
         self._stopped = False
 
     def after_frame(self, offline: Collection[int] = ()) -> None:
         """Queue the next round of reads, skipping the IDs in ``offline`` (the frame's)."""
         # At most one round outstanding: telemetry must never starve the stream.
-        if self._pending or self._stopped or not self.per_cycle or not self.ids:
+        if self._reads or self._stopped or not self.per_cycle or not self.ids:
             return
         now = self.clock()
         chosen: list[int] = []
@@ -70,7 +69,6 @@ class Telemetry:
         for sid in chosen:
             for param, store in ((Param.CURRENT, self.current), (Param.TEMPERATURE, self.temperature)):
                 fut = asyncio.ensure_future(self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW))
-                self._pending += 1
                 self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
 
@@ -84,7 +82,6 @@ class Telemetry:
 
     def _done_callback(self, sid: int, store: dict[int, int]) -> Callable[[asyncio.Future[int]], None]:
         def done(fut: asyncio.Future[int]) -> None:
-            self._pending -= 1
             self._reads.discard(fut)
             if fut.cancelled():
                 return
