@@ -153,6 +153,8 @@ class Stream(FrameIterator[Frame]):
         self._positions = [-1] * n
         self._stamps = [0.0] * n
         self._answered = [False] * n
+        self._none_answered = [False] * n  # (what each cycle starts from, and its order with every slot in it)
+        self._every_slot = list(range(n))
         self._fail_run = [0] * n
         self._failures = [0] * n
         self._offline = [False] * n
@@ -711,11 +713,13 @@ class Stream(FrameIterator[Frame]):
                 self._others_at_start = self._others_unanswered()
                 self._long_at_start = self._long_requests()
         self._cycle += 1
-        order = []
-        for k in range(len(self.ids)):
-            self._answered[k] = False
-            if not self._held[k] and (not self._offline[k] or now >= self._next_probe[k]):
-                order.append(k)
+        n = len(self.ids)
+        self._answered[:] = self._none_answered  # (slices: this runs once a cycle, in C)
+        if any(self._held) or any(self._offline):
+            held, offline, probe = self._held, self._offline, self._next_probe
+            order = [k for k in range(n) if not held[k] and (not offline[k] or now >= probe[k])]
+        else:
+            order = self._every_slot[:]
         self._order = order
         self._pos = 0
         self._cycle_start = now
@@ -760,16 +764,20 @@ class Stream(FrameIterator[Frame]):
     def _publish(self, now: float) -> None:
         self._slot_checked = False
         ids, answered, values, times, rejoined = self.ids, self._answered, self._positions, self._stamps, self._rejoined
-        positions: dict[int, int] = {}
-        stamps: dict[int, float] = {}
+        positions: dict[int, int]
+        stamps: dict[int, float]
         failed = []
-        for k in self._order:  # (locals: this runs for every ID of every cycle)
-            if answered[k]:
-                sid = ids[k]
-                positions[sid] = values[k]
-                stamps[sid] = times[k]
-            elif k not in rejoined:  # (back from offline: answered a read that gives no position)
-                failed.append(ids[k])
+        if len(self._order) == len(ids) and all(answered):  # every ID in the cycle answered: in C
+            positions, stamps = dict(zip(ids, values, strict=True)), dict(zip(ids, times, strict=True))
+        else:
+            positions, stamps = {}, {}
+            for k in self._order:  # (locals: this runs for every ID of every cycle)
+                if answered[k]:
+                    sid = ids[k]
+                    positions[sid] = values[k]
+                    stamps[sid] = times[k]
+                elif k not in rejoined:  # (back from offline: answered a read that gives no position)
+                    failed.append(ids[k])
         self._rejoined.clear()
         self._order = []
         self._pos = 0
