@@ -21,6 +21,7 @@ import pytest
 
 from ics35_async import IcsError, PortLost, ReplyDataError, open_bus, protocol
 from ics35_async.drivers.burst import burst_path
+from ics35_async.engine.machine import BURST_LIMIT
 from tests.support.fuzzing import healthy_answer
 from tests.support.timing import GUARD, NO_TIMEOUTS, REAL_TIME
 
@@ -199,8 +200,9 @@ class MarkingStreamServo(FarEnd):
 @pytest.mark.parametrize("library", ["asyncio", "trio"])
 def test_a_marked_byte_in_a_streams_burst_fails_that_transaction_alone(library: str) -> None:
     # The burst path: the executor stops at the chunk holding the mark, and the runner undoes the marks of
-    # that chunk alone (every other one comes as it was on the wire).
-    far = MarkingStreamServo(damaged=300)
+    # that chunk alone (every other one comes as it was on the wire).  The mark comes halfway through the
+    # second burst (the first ends at the engine's limit).
+    far = MarkingStreamServo(damaged=BURST_LIMIT * 3 // 2)
     slave = far.slave
     try:
 
@@ -215,7 +217,7 @@ def test_a_marked_byte_in_a_streams_burst_fails_that_transaction_alone(library: 
                     if burst_path()[0]:
                         assert runner is not None
                     async with bus.stream(range(4)) as stream:
-                        while far.answers < 400:
+                        while far.answers < far.damaged + 100:
                             await stream.next_frame()
                         failures = dict(stream.stats.failures)
                     assert bus.stats.line_errors == 1
