@@ -357,20 +357,25 @@ async def test_the_check_after_a_soak_over_a_pty_takes_a_simulator_held_up_past_
     # value must still be right, and the counters add up.
     sim = VirtualLine(chaos_servos(), log_size=None)
     async with served_on_a_pty(sim) as path, await open_bus(path, retries=1, timing=FAST_TIMING) as bus:
-        before = sim.transactions
+        timeouts = bus._engine.counters.per_name["timeouts"]  # (read from the holder's thread: ints, in place)
+        held = threading.Event()
 
         def hold_up_the_simulator() -> None:
-            # Once the check's reads have begun (one has reached the simulator; they take some 50 ms in all): a
-            # fixed 10 ms wait came, on a loaded machine, before the first of them or after the last.
+            # From before the check's first read until six replies have timed out: the first read (which lets a
+            # late reply land: the check counts errors from after it) with its retry and guard reads takes four
+            # at most, so the check counts at least two.  A hold begun once a read had reached the simulator came,
+            # on a loaded machine, after the last of the check's reads (some 50 ms in all): no error to note.
             deadline = time.monotonic() + GUARD
-            while sim.transactions == before and time.monotonic() < deadline:
-                time.sleep(0.0005)
-            with sim._lock:  # its server thread waits here: the reply on the wire comes late, and the retry's too
-                time.sleep(0.03)
+            with sim._lock:  # its server thread waits here: the replies on the wire come late
+                held.set()
+                while sum(timeouts) < 6 and time.monotonic() < deadline:
+                    time.sleep(0.0005)
 
         holder = threading.Thread(target=hold_up_the_simulator)
         holder.start()
         try:
+            while not held.is_set():
+                await asyncio.sleep(0.001)
             post = await consistency_check(sim, bus, realtime=True)
         finally:
             holder.join()
