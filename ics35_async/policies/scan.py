@@ -42,7 +42,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
-from collections.abc import Awaitable, Callable, Iterable, Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import anyio
@@ -146,6 +146,55 @@ def _late_evidence(line: Line) -> tuple[int, int, int]:
     return stats.stray_bytes, stats.late_replies, total.partial_replies + total.echo_mismatches + total.bad_replies
 
 
+# ``ask(servo_id, short)`` asks one ID: ``short``, with the bus's probe allowance and no retry; else once
+# more with the normal allowance.  It returns the error, or None when the ID answered.
+Ask = Callable[[int, bool], Awaitable[ReplyError | None]]
+
+
+async def ask_each(
+    line: Line, wanted: Sequence[int], ask: Ask
+) -> tuple[dict[int, ReplyError | None], ReplyError | None]:
+    """Ask each of ``wanted`` once, short, all queued at once (the line runs them back to back in this
+    order), then ask again those whose answer the short wait may have missed or that came back garbled
+    (see the module: the rule that makes a silent ID an empty one, not a slow servo's).
+
+    Returns each ID's outcome (``None``: it answered; a :func:`nothing_came_back` error: nothing is
+    there) and the error showing the echo setting wrong, if one did (then no garbled ID is asked again).
+
+    Raises:
+        BusClosed, PortLost: the line is closed or its port is gone (the IDs not asked by then are not).
+    """
+    outcomes: dict[int, ReplyError | None] = dict.fromkeys(wanted)
+    late_before = _late_evidence(line)
+
+    async def first(i: int) -> None:
+        outcomes[i] = await ask(i, True)
+
+    async with task_group() as group:
+        for i in wanted:
+            group.start_soon(first, i)
+    last = wanted[-1] if wanted else None
+    if last is not None and outcomes[last] is not None and nothing_came_back(outcomes[last]):  # type: ignore[arg-type]
+        # The last ID's late reply would land after every other ID's: wait for it with the normal
+        # allowance (a guard read goes first and takes any late bytes, see engine.guard).
+        outcomes[last] = await ask(last, False)
+    silent_ids = [i for i, e in outcomes.items() if e is not None and nothing_came_back(e)]
+    garbled = _garbled(outcomes)
+    if silent_ids and (garbled or _late_evidence(line) != late_before):
+        # Bytes came after a short wait had given up (as strays, in a guard, or garbling a later
+        # transaction): some servo may answer slower than the short waits.  Every silent ID once
+        # more with the normal allowance, so none is taken for empty.
+        for i in silent_ids:
+            outcomes[i] = await ask(i, False)
+        garbled = _garbled(outcomes)
+    evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
+    if garbled and evidence is None:
+        # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
+        for i in sorted(garbled):
+            outcomes[i] = await ask(i, False)
+    return outcomes, evidence
+
+
 async def _id_read(line: Line) -> int | ReplyError:
     try:
         return await line.request(protocol.LineIdRead(), retries=0)
@@ -222,40 +271,18 @@ async def _probe_all(
             silent = line.stats.total.bytes_rx == rx_before
             return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
 
-    outcomes: dict[int, ReplyError | None] = dict.fromkeys(wanted)
-    late_before = _late_evidence(line)
-
-    async def probe(i: int) -> None:
+    async def probe(i: int, short: bool) -> ReplyError | None:
+        if not short:
+            return await _probe(line, i, short=False)
         async with gate:
-            outcomes[i] = await _probe(line, i)
-        if outcomes[i] is None:
+            error = await _probe(line, i)
+        if error is None:
             heard.append(i)
         _done(on_probe, 1)
+        return error
 
-    # All queued at once (up to ``concurrency``): the line runs them back to back in this order.
-    async with task_group() as group:
-        for i in wanted:
-            group.start_soon(probe, i)
-    last = wanted[-1] if wanted else None
-    if last is not None and outcomes[last] is not None and nothing_came_back(outcomes[last]):  # type: ignore[arg-type]
-        # The last probe's late reply would land after every other probe: wait for it with the
-        # normal allowance (a guard read goes first and takes any late bytes, see engine.guard).
-        outcomes[last] = await _probe(line, last, short=False)
-    silent_ids = [i for i, e in outcomes.items() if e is not None and nothing_came_back(e)]
+    outcomes, evidence = await ask_each(line, wanted, probe)
     garbled = _garbled(outcomes)
-    if silent_ids and (garbled or _late_evidence(line) != late_before):
-        # Bytes came after a probe had given up (as strays, in a guard, or garbling a later
-        # probe): some servo may answer slower than the probes waited.  Every silent ID once
-        # more with the normal allowance, so none is taken for empty.
-        for i in silent_ids:
-            outcomes[i] = await _probe(line, i, short=False)
-        garbled = _garbled(outcomes)
-    evidence = next((e for e in garbled.values() if echo_setting_wrong(e, line.echo)), None)
-    if garbled and evidence is None:
-        # Once more, after the line has settled: noise answers cleanly now, a shared ID does not.
-        for i in sorted(garbled):
-            outcomes[i] = await _probe(line, i, short=False)
-        garbled = _garbled(outcomes)
     return RateScan(
         int(line.baudrate),
         answered=tuple(i for i, e in outcomes.items() if e is None),
