@@ -9,6 +9,18 @@ there: something at that ID answered (two servos sharing it, noise) and may
 still hold.  When no ID answered, every servo is not "none": the line is
 unpowered, at another rate or miswired, so the silent IDs fail as named ones
 would.
+
+Every servo is asked as a scan probes (see :mod:`.scan`): each ID once,
+with the bus's probe allowance (:class:`~ics35_async.protocol.ProbeFree`:
+what this link's answers take, learnt, not the adapter's worst case) and no
+retry, so an empty ID costs milliseconds and a servo after it goes limp at
+once.  The scan's rule then decides which silent IDs are empty: the last
+one, and every silent one if some answer came after its wait, are freed
+once more with the normal allowance; a garbled one is freed once more after
+the line has settled.  Until something has answered (a fresh port) the
+probe allowance is the normal one, so the empty IDs before the first servo
+cost that each.  Named IDs get the normal allowance and the bus's retries:
+a slow servo the caller expects must not be called absent.
 """
 
 from __future__ import annotations
@@ -17,10 +29,11 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 from .. import protocol
-from ..errors import IcsError, ReplyError
+from ..errors import BusClosed, IcsError, PortLost, ReplyError
 from ..servo import Servo
 from ..tasks import task_group
 from .failure_kinds import Line, nothing_came_back
+from .scan import ask_each
 
 
 @dataclass(frozen=True)
@@ -58,16 +71,19 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     """
     wanted = sorted({protocol.check_id(i) for i in ids})
     outcomes: dict[int, int | IcsError] = {}
+    if every_servo:
+        await _free_every_servo(line, wanted, outcomes)
+    else:
 
-    async def free_one(sid: int) -> None:
-        try:
-            outcomes[sid] = await Servo(line, sid).free()
-        except IcsError as exc:
-            outcomes[sid] = exc
+        async def free_one(sid: int) -> None:
+            try:
+                outcomes[sid] = await Servo(line, sid).free()
+            except IcsError as exc:
+                outcomes[sid] = exc
 
-    async with task_group() as group:
-        for sid in wanted:
-            group.start_soon(free_one, sid)
+        async with task_group() as group:
+            for sid in wanted:
+                group.start_soon(free_one, sid)
     freed = {i: r for i, r in sorted(outcomes.items()) if isinstance(r, int)}
     failed = {i: r for i, r in sorted(outcomes.items()) if isinstance(r, ReplyError)}
     unknown = tuple(i for i, r in sorted(outcomes.items()) if isinstance(r, IcsError) and i not in failed)
@@ -78,3 +94,28 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
         absent = tuple(i for i, e in failed.items() if nothing_came_back(e))
         failed = {i: e for i, e in failed.items() if i not in absent}
     return FreeReport(freed, failed, absent, unknown, lost)
+
+
+async def _free_every_servo(line: Line, wanted: list[int], outcomes: dict[int, int | IcsError]) -> None:
+    """Free each of ``wanted`` as a scan probes (see the module), into ``outcomes`` (ID -> position or error).
+
+    A line lost part-way leaves its error at every ID not answered by then (free or still holding).
+    """
+    baud = line.baudrate
+
+    async def free(sid: int, short: bool) -> ReplyError | None:
+        command = protocol.ProbeFree(sid, baudrate=baud) if short else protocol.SecondLookFree(sid, baudrate=baud)
+        try:
+            position: int = await line.request(command, retries=0)
+            outcomes[sid] = position
+        except ReplyError as exc:
+            outcomes[sid] = exc
+            return exc
+        return None
+
+    try:
+        await ask_each(line, wanted, free)
+    except (BusClosed, PortLost) as exc:
+        for sid in wanted:
+            if not isinstance(outcomes.get(sid), int | ReplyError):
+                outcomes[sid] = exc

@@ -152,6 +152,36 @@ class Position(Command[int]):
         return bytes((self.reply_header, *split7(value)))
 
 
+class ProbeFree(Position):
+    """The free command sent to an ID that may be empty ("free all": every ID there may be a servo at).
+
+    The same bytes as ``Position(servo_id, FREE, baudrate=...)``; its ``Timing.PROBE``
+    lets the bus wait only as long as this link's answers have taken, not the
+    adapter's worst case, because most of the IDs asked are empty and the servos
+    after them are to go limp at once.
+    """
+
+    __slots__ = ()
+
+    timing = Timing.PROBE
+    silence = "no reply to the free: no servo at this ID (or one that does not answer)"
+
+    def __init__(self, servo_id: int, *, baudrate: int) -> None:
+        super().__init__(servo_id, FREE, baudrate=baudrate)
+
+
+class SecondLookFree(Position):
+    """The free command again, with the full allowance, to an ID its :class:`ProbeFree` found silent
+    (or answered garbled): silence is its usual answer too."""
+
+    __slots__ = ()
+
+    silence = "no reply to the free's second look either: no servo at this ID (or one that does not answer)"
+
+    def __init__(self, servo_id: int, *, baudrate: int) -> None:
+        super().__init__(servo_id, FREE, baudrate=baudrate)
+
+
 class ReadParam(Command[int]):
     """Parameter read (0xA0), SC 1..4: one 7-bit value."""
 
