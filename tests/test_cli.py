@@ -218,6 +218,24 @@ def test_free_all_frees_the_servos_there_and_names_the_absent_ids_in_one_line(cl
     assert len(said) == 1 and "0, 4-31" in said[0] and "no answer" in said[0], result.err
 
 
+def test_free_all_asks_each_empty_id_once_whatever_the_allowance_and_retries(cli: Any, sim_line: Any) -> None:
+    # A robot that misbehaves, over a TCP bridge (a long allowance): servo 20 is not to wait while each empty ID
+    # below it takes the allowance and the retries (24 s here).  Each ID gets one free (the last, silent, a
+    # second look behind a guard read, as a scan's last probe), and the report is what it was.
+    sim, url = sim_line([1, 7, 20])
+    result = cli("--port", url, "--timeout", "0.25", "--retries", "2", "free", "all")
+    assert result.code == 0, result.err
+    assert [line.split(":")[0] for line in result.out.splitlines()] == ["servo 1", "servo 7", "servo 20"]
+    assert all(sim.servo(i).free for i in (1, 7, 20))
+    said = [line for line in result.err.splitlines() if line.strip()]
+    assert len(said) == 1 and "0, 2-6, 8-19, 21-31" in said[0] and "no answer" in said[0], result.err
+    assert [(t.command, t.servo_id) for t in sim.log] == [
+        *(("free", i) for i in range(32)),
+        ("read_stretch", 31),
+        ("free", 31),
+    ]
+
+
 def test_free_all_as_json_lists_the_absent_ids(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([1, 2, 3])
     result = cli("--port", url, "--timeout", "0.005", "free", "all", "--json")
