@@ -62,7 +62,8 @@ async def free_servos(line: Line, ids: Iterable[int], *, every_servo: bool = Fal
     """Send the free command to each of ``ids`` (queued at once: the line runs them back to back).
 
     With ``every_servo`` the IDs are every servo there may be, not servos the
-    caller named: a silent one is ``absent``, unless none answered at all.
+    caller named: each is asked as a scan probes (a short wait, no retry: see
+    the module), and a silent one is ``absent``, unless none answered at all.
     A line lost part-way does not raise: the servos freed before it are in
     ``freed``, the rest in ``unknown``, the loss in ``lost``.
 

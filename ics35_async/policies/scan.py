@@ -13,6 +13,9 @@ next probe, or between probes), every silent ID is probed again with the
 normal allowance first, so a slow servo is never taken for an empty ID.
 The last probe has nothing after it to catch its late reply, so a silent
 last ID is always read once more with the normal allowance.
+That rule is :func:`ask_each`, for any command sent to IDs that are mostly
+empty: "free all" (:func:`~ics35_async.policies.free_servos` with
+``every_servo``) frees by it too.
 
 Before probing a rate's IDs one by one, an ID *read* (which every device at
 that rate answers) asks whether anyone is there at all: a rate where nothing
