@@ -11,6 +11,7 @@ from ics35_async import open_bus
 from ics35_async.errors import PortLost, ReplyError, ReplyTimeout
 from ics35_async.policies import ALL_IDS, free_servos
 from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.virtual_servo import NO_REPLY
 from tests.support.sim_servos import UnplugsWhenAsked, free_command
 from tests.support.timing import FAST, or_describe, scaled
 
@@ -146,3 +147,32 @@ async def test_a_line_lost_half_way_tells_the_freed_from_the_unknown(lines: Any)
     assert sorted(report.freed) == [1]
     assert isinstance(report.lost, PortLost) and not report.ok
     assert report.unknown == tuple(range(2, 32)) and report.absent == (0,)
+
+
+class SilentThenUnplugs(UnplugsWhenAsked):
+    """Silent to its first free (an empty ID, as far as a short wait can tell); the line is pulled away as
+    its second free comes."""
+
+    def __init__(self, servo_id: int) -> None:
+        super().__init__(servo_id, free_command)
+        self.frees = 0
+
+    def handle(self, command: Any) -> Any:
+        if free_command(command):
+            self.frees += 1
+            if self.frees == 1:
+                return NO_REPLY
+        return super().handle(command)
+
+
+async def test_a_line_lost_as_a_silent_id_is_freed_again_leaves_that_id_unknown(lines: Any) -> None:
+    # The last ID, silent, is freed again with the normal allowance; the line is lost on the way: that free
+    # was pending (free or still holding), not an empty ID.
+    puller = SilentThenUnplugs(31)
+    sim = lines([VirtualServo(1), puller])
+    puller.line = sim
+    async with open_bus(sim, **FAST) as bus:
+        report = await free_servos(bus, ALL_IDS, every_servo=True)
+    assert sorted(report.freed) == [1] and puller.frees == 2
+    assert isinstance(report.lost, PortLost) and not report.ok
+    assert report.unknown == (31,) and report.absent == (0, *range(2, 31))

@@ -106,6 +106,7 @@ async def _free_every_servo(line: Line, wanted: list[int], outcomes: dict[int, i
 
     async def free(sid: int, short: bool) -> ReplyError | None:
         command = protocol.ProbeFree(sid, baudrate=baud) if short else protocol.SecondLookFree(sid, baudrate=baud)
+        outcomes.pop(sid, None)  # pending again: a line lost now leaves it free or still holding (unknown)
         try:
             position: int = await line.request(command, retries=0)
             outcomes[sid] = position
