@@ -165,7 +165,8 @@ async def ask_each(
     there) and the error showing the echo setting wrong, if one did (then no garbled ID is asked again).
 
     Raises:
-        BusClosed, PortLost: the line is closed or its port is gone (the IDs not asked by then are not).
+        BusClosed, PortLost: the line is closed or its port is gone (what was answered before is lost
+            with the outcomes: an ``ask`` that must keep it keeps it itself).
     """
     outcomes: dict[int, ReplyError | None] = dict.fromkeys(wanted)
     late_before = _late_evidence(line)
@@ -274,6 +275,7 @@ async def _probe_all(
             silent = line.stats.total.bytes_rx == rx_before
             return RateScan(int(line.baudrate), silent=silent, nobody=nobody, echo_evidence=None if nobody else error)
 
+    # The first look at each ID: at most ``concurrency`` queued at once, each counted for the progress display.
     async def probe(i: int, short: bool) -> ReplyError | None:
         if not short:
             return await _probe(line, i, short=False)
