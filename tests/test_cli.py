@@ -18,8 +18,10 @@ import pytest
 
 from ics35_async import units
 from ics35_async.cli import ExitCode
-from ics35_async.cli._common import Settings, parse_id_list, translate
+from ics35_async.cli._common import CliError, Settings, parse_id_list, translate
 from ics35_async.cli._extras import install_command, installed_from
+from ics35_async.cli._live import forced_out
+from ics35_async.cli._live_view import LiveState
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import ReadEeprom
@@ -593,6 +595,15 @@ def test_demo_frees_its_servos_at_the_end_beside_a_silent_id_on_a_long_allowance
     assert all(s.free for s in sim.servos)
     # Its time, not its last frame's (it said "done after 0.3 s", the next frame due after the time was up).
     assert float(result.out.split("demo done after ")[1].split()[0]) >= 0.6, result.out
+
+
+def test_a_stop_forced_out_before_the_free_names_the_free_command_with_no_lost_line_to_wait_for() -> None:
+    # A second Ctrl-C cutting demo's end short said "once the line is back, free them with: ..." though the line
+    # was never lost: the command works at once.
+    state = LiveState([1, 2, 3], "demo", 30.0, cycle=4)
+    error = forced_out(Settings(port="/dev/ttyUSB0"), state, CliError(ExitCode.INTERRUPTED, "interrupted"))
+    assert "servo(s) 1, 2, 3 may still be holding" in error.message, error.message
+    assert error.hints == ["free them with: ics35 --port /dev/ttyUSB0 free 1,2,3"], error.hints
 
 
 def test_demo_counts_one_cycle_and_one_servo_in_the_singular(cli: Any, sim_line: Any) -> None:

@@ -151,7 +151,7 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     text = " ".join(proc.stderr.split())
     assert "may still be holding" in text, proc.stderr
     command = f"ics35 --port {server.path} {' '.join(ANSWERED[:2])} free 1,2,3"
-    assert command in text, proc.stderr
+    assert f"once the line is back, free them with: {command}" in text, proc.stderr
     deadline = time.monotonic() + 10
     while not Path(server.path).exists():
         assert time.monotonic() < deadline, "the port never came back"

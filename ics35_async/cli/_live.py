@@ -156,7 +156,8 @@ async def run_live(
                         state.freed = done
         except (IcsError, OSError) as exc:
             if not freed:
-                raise still_holding(settings, commanded, line_error(settings, exc)) from None
+                lost = isinstance(exc, (PortLost, OSError))
+                raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
             raise
         if not freed:
             failure = CliError(ExitCode.COMMUNICATION, "the servos did not confirm the free command at the end")
@@ -197,12 +198,13 @@ def forced_out(settings: Settings, state: LiveState | None, error: CliError) -> 
     return error
 
 
-def still_holding(settings: Settings, ids: Sequence[int], error: CliError) -> CliError:
+def still_holding(settings: Settings, ids: Sequence[int], error: CliError, *, line_lost: bool = False) -> CliError:
     """``error``, saying that servos ``ids`` were sent targets and may still hold them (torque on), with the
-    command that frees them on this same line."""
+    command that frees them on this same line (to run once it is back where the line was lost; a stop forced
+    out by a second Ctrl-C or a free the servos did not confirm left the line as it was)."""
     error.message += f"; servo(s) {ids_text(ids)} may still be holding their last target (torque on)"
     free = settings.command_line("free", ",".join(map(str, ids)))
-    error.hints.append(f"once the line is back, free them with: {free}")
+    error.hints.append(f"once the line is back, free them with: {free}" if line_lost else f"free them with: {free}")
     return error
 
 
