@@ -310,6 +310,18 @@ def test_get_and_set_are_ram(cli: Any, sim_line: Any) -> None:
     assert sim.servo(1).current_limit == 20
 
 
+@pytest.mark.parametrize("word", ["position", "Pos", "angle"])
+def test_get_of_the_position_says_which_commands_read_it(cli: Any, sim_line: Any, word: str) -> None:
+    # `ics35 get 1 position`, a newcomer's first guess, listed the RAM parameters and nothing more: the
+    # position is not one of them (a servo tells it as it answers a position or free command).
+    sim, url = sim_line([1])
+    result = cli("--port", url, "get", "1", word)
+    assert result.code == 2, result.err
+    said = " ".join(result.err.split())
+    assert "ics35 info 1" in said and "ics35 free 1" in said and "ics35 monitor 1 --free" in said, said
+    assert sim.transactions == 0  # nothing sent
+
+
 def test_get_limit_reads_the_eeprom_and_says_so(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([1])
     sim.servo(1).eeprom = sim.servo(1).eeprom.replace(temperature_limit=70)

@@ -310,9 +310,29 @@ def limit_text(param: str, value: int) -> str:
 EEPROM_LIMITS = {"current-limit": "current_limit", "temperature-limit": "temperature_limit"}
 
 
+class _ReadParamChoice(click.Choice):  # type: ignore[type-arg]
+    """``get``'s parameters; asked for the position (a newcomer's first guess), it names the commands that read
+    it: the servo tells its position only as it answers a position or free command, not as a parameter."""
+
+    POSITION_WORDS = frozenset({"position", "pos", "angle"})
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and value.lower() in self.POSITION_WORDS:
+            servo = ctx.params.get("servo_id", "ID") if ctx is not None else "ID"
+            self.fail(
+                f"{value!r} is not a parameter get reads (the servo tells its position only as it answers a command):"
+                f" `ics35 info {servo}` reads it (an ICS 3.5 servo only with --free, which frees it), `ics35 free"
+                f" {servo}` frees the servo and prints it, `ics35 monitor {servo} --free` shows it live as you move"
+                " the servo by hand",
+                param,
+                ctx,
+            )
+        return super().convert(value, param, ctx)
+
+
 @click.command()
 @click.argument("servo_id", metavar="ID", type=SERVO_ID)
-@click.argument("param", metavar="PARAM", type=click.Choice([*READ_PARAMS, *EEPROM_LIMITS], case_sensitive=False))
+@click.argument("param", metavar="PARAM", type=_ReadParamChoice([*READ_PARAMS, *EEPROM_LIMITS], case_sensitive=False))
 @json_option
 @click.pass_context
 def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
