@@ -67,6 +67,15 @@ def said(value: object) -> str:
     return repr(value) if number is None else shown(number)
 
 
+def said_not_whole(value: object) -> str:
+    """``value`` as a message refusing it as a whole number names it: a float that is whole as a float
+    (``7500.0``: ``7500`` would read as the whole number asked for), anything else as :func:`said` does."""
+    number = real_number(value)
+    if number is not None and number.is_integer():
+        return repr(number)
+    return said(value)
+
+
 def check_int(name: str, value: object, low: int, high: int) -> int:
     """``value`` as an int if it is a whole number (:func:`whole_number`) in ``low..high``, else InvalidArgument."""
     number = whole_number(value)
@@ -149,7 +158,7 @@ def position_to_degrees(position: int) -> float:
 def _counts(position: object) -> int:
     number = whole_number(position)
     if number is None:
-        raise InvalidArgument(f"a position must be a whole number of counts, got {said(position)}")
+        raise InvalidArgument(f"a position must be a whole number of counts, got {said_not_whole(position)}")
     return number
 
 

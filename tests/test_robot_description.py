@@ -169,6 +169,8 @@ MISTAKES: list[tuple[str, str, str]] = [
     ),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=32', "joints.x.id", "0..31"),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"', "joints.x.id", "is required"),
+    # A float that happens to be whole is named as written: "not 1" would read as nonsense.
+    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1.0', "joints.x.id", "whole number, not 1.0"),
     (
         '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\noffset="2"',
         "joints.x.offset",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -260,3 +261,10 @@ def test_position_conversions_refuse_what_is_not_a_whole_number_of_counts(value:
         position_to_degrees(value)  # type: ignore[arg-type]
     with pytest.raises(InvalidArgument, match="whole number"):
         position_to_radians(value)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("value", [7500.0, np.float64(7500.0)])
+def test_a_whole_float_refused_as_a_position_is_named_as_a_float(value: object) -> None:
+    """A message saying "got 7500" beside "must be a whole number" reads as nonsense: it shows the float."""
+    with pytest.raises(InvalidArgument, match=r"whole number of counts, got 7500\.0$"):
+        position_to_degrees(value)  # type: ignore[arg-type]

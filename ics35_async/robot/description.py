@@ -252,7 +252,7 @@ class _Reader:
             return None
         number = units.whole_number(value)
         if number is None:
-            raise self.error(name, f"must be a whole number, not {units.said(value)}")
+            raise self.error(name, f"must be a whole number, not {units.said_not_whole(value)}")
         if not low <= number <= high:
             raise self.error(name, f"must be in {low}..{high}, got {number}")
         return number
