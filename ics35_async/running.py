@@ -68,7 +68,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
     Raises:
         InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
-            an unknown ``backend``, or an event loop already runs in this thread.
+            an unknown ``backend``, or an event loop already runs in this thread; or ``main()`` gave nothing
+            to await (``def main()`` for ``async def main()``: said once that call has returned).
     """
     import anyio
 
@@ -76,6 +77,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     stopping = _heard()
     received: list[int] = []
     exited: list[SystemExit] = []
+    misused: list[InvalidArgument] = []  # main was a plain function: `def main()` meant as `async def main()`
     presses = _Presses()
 
     def outside(signum: int, frame: FrameType | None) -> None:
@@ -112,7 +114,11 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
                     with main_scope:
                         if received:  # as the loop started
                             main_scope.cancel()
-                        await main()
+                        awaitable = main()
+                        if inspect.isawaitable(awaitable):
+                            await awaitable
+                        else:  # (raised below, as run()'s misuse: not printed as main's IcsError)
+                            misused.append(_not_async(main, awaitable))
                 except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
                     exited.append(exc)
                 tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
@@ -153,6 +159,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
             _after_stop(dict(before))  # (a double press's second one may still come, as the program ends)
         else:
             _hand_back(before)
+    if misused:
+        raise misused[0]
     if failure is not None:
         raise failure
     if exited:
@@ -184,10 +192,22 @@ def _check_run(main: object, backend: str) -> None:
         raise InvalidArgument("run() takes the async function itself: run(main), not run(main())")
     if not callable(main):
         raise InvalidArgument(f"run() takes an async function, not {type(main).__name__}")
+    if inspect.isasyncgenfunction(main):  # (its call gives something to iterate, not to await)
+        raise _not_async(main, main())
     if backend not in typing.get_args(Backend):
         raise InvalidArgument(f"backend must be one of {', '.join(typing.get_args(Backend))}, not {backend!r}")
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
+
+
+def _not_async(main: Callable[[], object], returned: object) -> InvalidArgument:
+    """run()'s misuse by a ``main`` whose call gave nothing to await (``def main()`` for ``async def main()``)."""
+    name = getattr(main, "__name__", "main")
+    kind = type(returned).__name__
+    what = "None" if returned is None else f"{'an' if kind[:1] in 'aeiou' else 'a'} {kind}"
+    return InvalidArgument(
+        f"run() takes an async function (async def {name}()): {name}() returned {what}, not an awaitable"
+    )
 
 
 def _in_event_loop() -> bool:

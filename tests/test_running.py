@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
@@ -130,6 +131,23 @@ def test_misuses_of_run_are_said_before_anything_runs() -> None:
 
     with pytest.raises(InvalidArgument, match="inside a running event loop"):
         asyncio.run(inside())
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_a_main_that_is_not_async_is_said_plainly(backend: str) -> None:
+    # `def main()` where `async def main()` was meant: said as run()'s misuse, not as a TypeError from
+    # inside the task that awaited what main returned.
+    def main() -> None:
+        pass
+
+    with pytest.raises(InvalidArgument, match=r"^run\(\) takes an async function \(async def main\(\)\)"):
+        ics35_async.run(main, backend=backend)  # type: ignore[arg-type]
+
+    async def generator() -> AsyncIterator[int]:
+        yield 1
+
+    with pytest.raises(InvalidArgument, match=r"generator\(\) returned an async_generator, not an awaitable"):
+        ics35_async.run(generator, backend=backend)  # type: ignore[arg-type]
 
 
 def test_sys_exit_in_main_ends_the_program_with_its_code_and_no_traceback() -> None:
