@@ -118,7 +118,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
                         if inspect.isawaitable(awaitable):
                             await awaitable
                         else:  # (raised below, as run()'s misuse: not printed as main's IcsError)
-                            misused.append(_not_async(main, awaitable))
+                            misused.append(not_async(main, awaitable))
                 except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
                     exited.append(exc)
                 tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
@@ -193,20 +193,23 @@ def _check_run(main: object, backend: str) -> None:
     if not callable(main):
         raise InvalidArgument(f"run() takes an async function, not {type(main).__name__}")
     if inspect.isasyncgenfunction(main):  # (its call gives something to iterate, not to await)
-        raise _not_async(main, main())
+        raise not_async(main, main())
     if backend not in typing.get_args(Backend):
         raise InvalidArgument(f"backend must be one of {', '.join(typing.get_args(Backend))}, not {backend!r}")
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
 
 
-def _not_async(main: Callable[[], object], returned: object) -> InvalidArgument:
-    """run()'s misuse by a ``main`` whose call gave nothing to await (``def main()`` for ``async def main()``)."""
-    name = getattr(main, "__name__", "main")
+def not_async(fn: Callable[..., object], returned: object, taker: str = "run()") -> InvalidArgument:
+    """The misuse of ``taker`` (:func:`run`, ``BlockingBus.run``) by an ``fn`` whose call gave nothing to
+    await: ``def main()`` for ``async def main()``."""
+    name = getattr(fn, "__name__", "")
     kind = type(returned).__name__
     what = "None" if returned is None else f"{'an' if kind[:1] in 'aeiou' else 'a'} {kind}"
+    if not name.isidentifier():  # a lambda, a partial: nothing to name
+        return InvalidArgument(f"{taker} takes an async function: the function given returned {what}, not an awaitable")
     return InvalidArgument(
-        f"run() takes an async function (async def {name}()): {name}() returned {what}, not an awaitable"
+        f"{taker} takes an async function (async def {name}()): {name}() returned {what}, not an awaitable"
     )
 
 

@@ -174,6 +174,25 @@ def test_run_takes_async_helpers_that_want_the_async_bus() -> None:
         assert result.verified and line.servo(1).eeprom.speed == 90
 
 
+def test_run_says_plainly_what_it_takes_and_sends_nothing_for_a_misuse() -> None:
+    # bus.run(fn(...)) or a plain function: said as run()'s misuse (not "'coroutine' object is not callable" or
+    # a TypeError from inside the loop), with no "never awaited" warning on top; the bus carries on.
+    line = VirtualLine([VirtualServo(1)])
+    with blocking.open_bus(line) as bus:
+        coroutine = plan_eeprom_write(bus.async_bus, 1, {"speed": 90})
+        with pytest.raises(InvalidArgument, match=r"bus\.run\(fn, \*args\), not bus\.run\(fn\(\*args\)\)"):
+            bus.run(coroutine)  # type: ignore[arg-type]
+        assert inspect.getcoroutinestate(coroutine) == inspect.CORO_CLOSED
+
+        def plain(servo_id: int) -> int:
+            return servo_id
+
+        with pytest.raises(InvalidArgument, match=r"an async function \(async def plain\(\)\): .* returned an int"):
+            bus.run(plain, 1)  # type: ignore[arg-type]
+        assert line.transactions == 0
+        assert bus.servo(1).free() == 7500
+
+
 def test_several_threads_share_one_bus_and_each_gets_its_own_answer() -> None:
     line = VirtualLine([VirtualServo(i, position=5000 + 100 * i) for i in range(8)])
     answers: dict[int, list[int]] = {}

@@ -89,6 +89,28 @@ def test_move_free_hold_and_bad_poses_against_the_simulator() -> None:
     assert set(threading.enumerate()) <= before
 
 
+def test_run_says_plainly_what_it_takes_and_the_robot_carries_on() -> None:
+    # robot.run(fn(...)) or a plain function: said as run()'s misuse, not as "'coroutine' object is not
+    # callable" or a TypeError from inside the robot's loop; the robot is still open after it.
+    rig = make_rig()
+    try:
+        with blocking.open_robot(rig.description, **FAST) as robot:
+            coroutine = robot.async_robot.read_pose()
+            with pytest.raises(InvalidArgument, match=r"robot\.run\(fn, \*args\), not robot\.run\(fn\(\*args\)\)"):
+                robot.run(coroutine)  # type: ignore[arg-type]
+
+            def plain() -> None:
+                pass
+
+            with pytest.raises(
+                InvalidArgument, match=r"async function \(async def plain\(\)\): plain\(\) returned None"
+            ):
+                robot.run(plain)  # type: ignore[arg-type]
+            assert set(robot.run(robot.async_robot.read_pose)) == set(JOINTS)
+    finally:
+        rig.close()
+
+
 def test_on_close_free_frees_every_joint() -> None:
     rig = make_rig()
     try:

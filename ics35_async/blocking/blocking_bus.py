@@ -17,7 +17,7 @@ from ..stats import BusStats
 from ..transports import WireDevice
 from .blocking_stream import BlockingStream
 from .forward import ReadThrough, Wrapper, blocking
-from .loop_thread import LoopThread
+from .loop_thread import LoopThread, awaited, check_async_function
 from .owner import LoopOwner
 
 if TYPE_CHECKING:
@@ -188,8 +188,13 @@ class BlockingBus(LoopOwner[Bus]):
 
         For async helpers that take the async bus, e.g.
         ``bus.run(plan_eeprom_write, bus.async_bus, 1, {"speed": 90})``.
+
+        Raises:
+            InvalidArgument: ``fn`` is a coroutine (``bus.run(fn(*args))``: pass ``fn`` and its arguments) or not
+                callable, or its call gave nothing to await (a plain ``def``: said once that call has returned).
         """
-        return self._loop.call(fn, *args, **kwargs)
+        check_async_function(fn, "bus.run")
+        return self._loop.call(awaited, "bus.run", fn, *args, **kwargs)
 
     scan = blocking(Bus.scan)
     read_id = blocking(Bus.read_id)

@@ -26,7 +26,7 @@ from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from ..robot.startup import warn_at_open, warn_program
 from ..running import close_step
-from .loop_thread import LoopThread
+from .loop_thread import LoopThread, awaited, check_async_function
 from .owner import LoopOwner
 
 P = ParamSpec("P")
@@ -137,9 +137,15 @@ class BlockingRobot(LoopOwner[Robot]):
         return f"<BlockingRobot {self._async!r}>"
 
     def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
-        """Await ``fn(*args, **kwargs)`` on the robot's loop; Ctrl-C cancels it and closes the robot."""
+        """Await ``fn(*args, **kwargs)`` on the robot's loop; Ctrl-C cancels it and closes the robot.
+
+        Raises:
+            InvalidArgument: ``fn`` is a coroutine (``robot.run(fn(*args))``: pass ``fn`` and its arguments) or
+                not callable, or its call gave nothing to await (a plain ``def``: said once that call has returned).
+        """
+        check_async_function(fn, "robot.run")
         try:
-            return self._loop.call(fn, *args, **kwargs)
+            return self._loop.call(awaited, "robot.run", fn, *args, **kwargs)
         except KeyboardInterrupt:
             self._loop.closed_because = "a Ctrl-C during a call closed it"
             self.close()

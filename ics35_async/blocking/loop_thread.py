@@ -33,12 +33,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import threading
 from collections.abc import Awaitable, Callable
 from typing import Any, Generic, ParamSpec, TypeVar, cast
 
-from ..errors import BusClosed
-from ..running import stop_signals
+from ..errors import BusClosed, InvalidArgument
+from ..running import not_async, stop_signals
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -138,6 +139,27 @@ class _Call(Generic[T]):
 
 async def _await(fn: Callable[..., Awaitable[T]], args: tuple[Any, ...], kwargs: dict[str, Any]) -> T:
     return await fn(*args, **kwargs)
+
+
+def check_async_function(fn: object, taker: str) -> None:
+    """What ``bus.run`` and ``robot.run`` (``taker``) refuse before anything runs: a coroutine
+    (``bus.run(fn(*args))``) or something not callable."""
+    if inspect.iscoroutine(fn):
+        fn.close()  # (never awaited: no warning about it on top of the error)
+        raise InvalidArgument(
+            f"{taker}() takes the async function and its arguments: {taker}(fn, *args), not {taker}(fn(*args))"
+        )
+    if not callable(fn):
+        raise InvalidArgument(f"{taker}() takes an async function, not {type(fn).__name__}")
+
+
+async def awaited(taker: str, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
+    """``fn(*args, **kwargs)`` awaited for ``taker`` (``bus.run``), or :class:`InvalidArgument` if it gave
+    nothing to await: a plain ``def``, whose result awaited would raise a TypeError from inside the loop."""
+    result = fn(*args, **kwargs)
+    if not inspect.isawaitable(result):
+        raise not_async(fn, result, f"{taker}()")
+    return await result
 
 
 class LoopThread:
