@@ -32,10 +32,15 @@ class GroupStream(FrameIterator[GroupFrame]):
 
     Args:
         streams: ``{line name: stream}``; [`BusGroup.stream`][ics35_async.group.BusGroup.stream] makes them.
+
+    Raises:
+        InvalidArgument: no stream (``group.stream({})``): its frames would merge nothing.
     """
 
     def __init__(self, streams: Mapping[str, Stream]) -> None:
         self.streams = dict(streams)
+        if not self.streams:
+            raise InvalidArgument("a group stream needs at least one line's IDs: {line: ids}")
         self._cycle = 0
         self._last: dict[str, Frame] = {}  # each line's frame in the last merged one
         self._closed = False
@@ -324,7 +329,7 @@ class BusGroup:
         takes them.
 
         Raises:
-            InvalidArgument: an unknown line, a bad ID or option.
+            InvalidArgument: no line, an unknown line, a bad ID or option.
         """
         if not isinstance(ids, Mapping):
             raise InvalidArgument(f"a group stream takes {{line: ids}}, not {type(ids).__name__}")

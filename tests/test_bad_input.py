@@ -209,6 +209,8 @@ BAD_CALLS: list[Any] = [
     ("group stream unknown line", lambda e: BusGroup({"a": e.bus}).stream({"b": [1]})),
     ("group stream bad id", lambda e: BusGroup({"a": e.bus}).stream({"a": [40]})),
     ("group stream bad rate", lambda e: BusGroup({"a": e.bus}).stream({"a": [1]}, rate_hz=-1)),
+    ("group stream no lines", lambda e: BusGroup({"a": e.bus}).stream({})),
+    ("group stream of no streams", lambda e: GroupStream({})),
     ("group set_target unknown line", lambda e: e.group.set_target("b", 1, 7500)),
     ("group set_target bad position", lambda e: e.group.set_target("a", 1, 0.5)),
     ("group set_targets bad position", lambda e: e.group.set_targets({("a", 1): "x"})),
