@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import inspect
+import pydoc
 import subprocess
 import sys
 import textwrap
@@ -84,6 +85,19 @@ def test_every_async_method_has_a_blocking_twin_with_its_signature() -> None:
                 assert method.__doc__ == getattr(async_cls, name).__doc__
         # request is written out (generic in its result); its parameters are the async one's
         assert list(inspect.signature(bus.request).parameters) == ["command", "priority", "retries"]
+
+
+def test_help_on_a_blocking_class_shows_each_method_with_its_arguments() -> None:
+    # help(blocking.BlockingServo) in the REPL listed "set_position(...)": its arguments were not to be seen.
+    assert inspect.signature(blocking.BlockingServo.set_position) == inspect.signature(Servo.set_position)
+    assert inspect.signature(blocking.BlockingBus.scan) == inspect.signature(Bus.scan)
+    text = pydoc.render_doc(blocking.BlockingServo, renderer=pydoc.plaintext)
+    assert "set_position(self, position: 'int') -> 'int'" in text
+    assert "free(self, *, priority: 'Priority | None' = None) -> 'int'" in text
+    line = VirtualLine([VirtualServo(1, position=8000)])
+    with blocking.open_bus(line) as bus:  # called through the class, as any method can be
+        assert blocking.BlockingServo.set_position(bus.servo(1), 9000) == 8000
+        assert line.servo(1).target == 9000
 
 
 def test_every_stream_target_method_is_there() -> None:

@@ -36,15 +36,18 @@ class _Forward(Generic[A, P, T]):
     """The descriptor ``blocking`` and ``on_loop`` make: ``awaits`` says whether ``method`` is a coroutine
     function (awaited on the loop) or a plain one (called on the loop thread)."""
 
+    __signature__: inspect.Signature
+
     def __init__(self, method: Callable[Concatenate[A, P], Any], *, awaits: bool, reads: bool = False) -> None:
         self._method = method
         self._awaits = awaits
         self._reads = reads
         self.__doc__ = method.__doc__
         self.__name__ = self.__qualname__ = getattr(method, "__name__", "method")
-        # What help() and inspect.signature() show: the async method's signature without ``self``.
-        signature = inspect.signature(method)
-        self._signature = signature.replace(parameters=list(signature.parameters.values())[1:])
+        # What help() and inspect.signature() show: the async method's signature, ``self`` and all, for the
+        # class's (help(BlockingServo) lists it, as it would a method); without ``self`` for an object's.
+        self.__signature__ = inspect.signature(method)
+        self._signature = self.__signature__.replace(parameters=list(self.__signature__.parameters.values())[1:])
 
     def __set_name__(self, owner: type, name: str) -> None:
         self.__name__, self.__qualname__, self.__module__ = name, f"{owner.__qualname__}.{name}", owner.__module__
@@ -68,6 +71,11 @@ class _Forward(Generic[A, P, T]):
         call.__doc__ = self.__doc__
         call.__signature__ = self._signature  # type: ignore[attr-defined]
         return call
+
+    def __call__(self, obj: Wrapper[A], /, *args: P.args, **kwargs: P.kwargs) -> T:
+        """Called through the class (``BlockingServo.set_position(servo, 9000)``), as a method can be; being
+        callable is also what lets help() and inspect.signature() show the class's method with its arguments."""
+        return self.__get__(obj)(*args, **kwargs)
 
 
 def blocking(method: Callable[Concatenate[A, P], Awaitable[T]]) -> _Forward[A, P, T]:
