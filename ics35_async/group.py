@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Unpack
+from typing import TYPE_CHECKING, NoReturn, Unpack
 
 import anyio
 
@@ -249,6 +249,14 @@ class GroupStream(FrameIterator[GroupFrame]):
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
 
+    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
+
+        def __enter__(self) -> NoReturn:
+            raise TypeError("a group stream runs in `async with group.stream(...) as stream:`")
+
+        def __exit__(self, *exc: object) -> None:
+            return None
+
     def __repr__(self) -> str:
         lives = {s._life() for s in self.streams.values()}
         if self._closed or len(lives) == 1:  # (one state for all: said once)
@@ -351,6 +359,14 @@ class BusGroup:
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
+
+    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
+
+        def __enter__(self) -> NoReturn:
+            raise TypeError("a group of lines is opened with `async with BusGroup(...) as group:`")
+
+        def __exit__(self, *exc: object) -> None:
+            return None
 
     async def aclose(self) -> None:
         """Close every bus, in reverse order; errors while closing are suppressed."""

@@ -38,6 +38,7 @@ from ics35_async import (
     Servo,
     UnsafeOperation,
     open_bus,
+    open_robot,
     protocol,
 )
 from ics35_async.cli import main as cli_main
@@ -45,7 +46,7 @@ from ics35_async.eeprom import EEPROM_FIELDS
 from ics35_async.group import GroupStream
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.stream import Stream
-from tests.support.timing import FAST_TIMING
+from tests.support.timing import FAST, FAST_TIMING
 
 
 @dataclass
@@ -250,6 +251,27 @@ async def test_bad_argument_is_refused_before_the_wire(env: Env, label: str, cal
         assert env.sim.transactions == before, f"{label}: bytes went on the line"
     assert str(info.value), "the error says what is wrong"
     assert await env.bus.servo(2).read_stretch() == 30  # and the bus is fine
+
+
+async def test_an_async_context_manager_used_with_plain_with_says_how_to_use_it(env: Env) -> None:
+    # `with bus.stream(...)` in async code (the `async` forgotten) is said as `with open_bus(...)` is:
+    # how to write it, not "'Stream' object does not support the context manager protocol".
+    before = env.sim.transactions
+    uses = [
+        (env.stream, r"`async with bus\.stream\(\.\.\.\) as stream:`"),
+        (env.group, r"`async with group\.stream\(\.\.\.\) as stream:`"),
+        (BusGroup({"a": env.bus}), r"`async with BusGroup\(\.\.\.\) as group:`"),
+    ]
+    for manager, how in uses:
+        with pytest.raises(TypeError, match=how), manager:  # type: ignore[attr-defined]
+            pytest.fail("entered")
+    assert env.sim.transactions == before and env.bus.is_open
+    assert await env.bus.servo(2).read_stretch() == 30
+    robot_line = {"lines": {"m": {"port": "sim://bad-input-robot?ids=1"}}, "joints": {"j": {"line": "m", "id": 1}}}
+    async with open_robot(robot_line, **FAST) as robot:
+        with pytest.raises(TypeError, match=r"`async with robot\.stream\(\) as stream:`"), robot.stream():  # type: ignore[attr-defined]
+            pytest.fail("entered")
+        assert set(await robot.read_pose()) == {"j"}
 
 
 # (label, call, expected result or a check): values just inside a boundary work.

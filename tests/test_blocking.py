@@ -29,6 +29,7 @@ from ics35_async import (
     protocol,
 )
 from ics35_async.bus import Bus
+from ics35_async.bus import open_bus as open_async_bus
 from ics35_async.policies import plan_eeprom_write, write_eeprom_plan
 from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
@@ -91,7 +92,7 @@ def test_help_on_a_blocking_class_shows_each_method_with_its_arguments() -> None
     # help(blocking.BlockingServo) in the REPL listed "set_position(...)": its arguments were not to be seen.
     assert inspect.signature(blocking.BlockingServo.set_position) == inspect.signature(Servo.set_position)
     assert inspect.signature(blocking.BlockingBus.scan) == inspect.signature(Bus.scan)
-    text = pydoc.render_doc(blocking.BlockingServo, renderer=pydoc.plaintext)
+    text = pydoc.render_doc(blocking.BlockingServo, renderer=pydoc.plaintext)  # type: ignore[attr-defined]
     assert "set_position(self, position: 'int') -> 'int'" in text
     assert "free(self, *, priority: 'Priority | None' = None) -> 'int'" in text
     line = VirtualLine([VirtualServo(1, position=8000)])
@@ -483,6 +484,26 @@ async def test_works_from_inside_a_running_asyncio_loop() -> None:
         assert bus.scan([1, 2, 3]) == [1, 2]
         with bus.stream([1, 2]) as stream:
             assert stream.next_frame().positions.keys() == {1, 2}
+
+
+async def test_async_with_on_a_blocking_object_says_how_and_releases_the_port() -> None:
+    # `async with blocking.open_bus(...)` in async code: said how to write it (with, or the async API), and
+    # the port the blocking bus had opened is released at once: the async bus opens it next.
+    asyncio.get_running_loop()
+    with pytest.raises(TypeError, match=r"`with blocking\.open_bus\(\.\.\.\) as bus:`.*`async with ics35_async\."):
+        async with blocking.open_bus("sim://wrong-with?ids=1"):  # type: ignore[attr-defined]
+            pytest.fail("entered")
+    with blocking.open_bus("sim://wrong-with?ids=1") as bus:
+        with pytest.raises(TypeError, match=r"`with bus\.stream\(\.\.\.\) as stream:`"):
+            async with bus.stream([1]):  # type: ignore[attr-defined]
+                pytest.fail("entered")
+        assert bus.servo(1).free() == 7500
+    robot_line = {"lines": {"m": {"port": "sim://wrong-with?ids=1"}}, "joints": {"j": {"line": "m", "id": 1}}}
+    with pytest.raises(TypeError, match=r"`with blocking\.open_robot\(\.\.\.\) as robot:`"):
+        async with blocking.open_robot(robot_line):  # type: ignore[attr-defined]
+            pytest.fail("entered")
+    async with open_async_bus("sim://wrong-with?ids=1") as async_bus:
+        assert await async_bus.servo(1).free() == 7500
 
 
 def test_statistics_still_read_after_the_with_block_ends() -> None:

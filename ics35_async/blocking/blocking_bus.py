@@ -118,6 +118,10 @@ class BlockingBus(LoopOwner[Bus]):
     """
 
     __slots__ = ()
+    _usage = (
+        "a blocking bus is used with `with blocking.open_bus(...) as bus:` (this one is closed now); in async"
+        " code, `async with ics35_async.open_bus(...) as bus:`"
+    )
 
     def __init__(self, bus: Bus) -> None:
         if not isinstance(bus, Bus):

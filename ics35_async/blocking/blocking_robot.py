@@ -97,6 +97,10 @@ class BlockingRobot(LoopOwner[Robot]):
     """
 
     __slots__ = ("_holder",)
+    _usage = (
+        "a blocking robot is used with `with blocking.open_robot(...) as robot:` (this one is closed now); in"
+        " async code, `async with ics35_async.open_robot(...) as robot:`"
+    )
 
     def __init__(self, opener: contextlib.AbstractAsyncContextManager[Robot], name: str = "robot") -> None:
         loop = LoopThread(name=f"ics35 blocking robot {name}", what="robot")

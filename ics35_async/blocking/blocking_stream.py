@@ -10,6 +10,7 @@ newest frame, with ``frame.skipped`` counting the ones it missed.
 from __future__ import annotations
 
 from types import TracebackType
+from typing import TYPE_CHECKING, NoReturn
 
 import anyio
 
@@ -91,6 +92,17 @@ class BlockingStream(Wrapper[Stream]):
 
     def __enter__(self) -> BlockingStream:
         return self.start()
+
+    if not TYPE_CHECKING:  # (at run time only: a type checker says `async with` is wrong itself)
+
+        async def __aenter__(self) -> NoReturn:
+            raise TypeError(
+                "a blocking stream is used with `with bus.stream(...) as stream:`; in async code, the streams of"
+                " `async with ics35_async.open_bus(...) as bus:` are used with `async with`"
+            )
+
+        async def __aexit__(self, *exc: object) -> None:
+            return None
 
     @close_step
     def __exit__(

@@ -15,7 +15,7 @@ import warnings
 import weakref
 from collections.abc import Awaitable, Callable
 from types import TracebackType
-from typing import Self, TypeVar
+from typing import TYPE_CHECKING, NoReturn, Self, TypeVar
 
 from ..running import close_step
 from .forward import Wrapper
@@ -30,6 +30,7 @@ class LoopOwner(Wrapper[A]):
     """A :class:`Wrapper` whose loop thread is its own (see the module docstring)."""
 
     __slots__ = ("__weakref__", "_finalizer")
+    _usage = ""  # how a program uses it: said to one that wrote `async with` where `with` goes
 
     def _own(self, loop: LoopThread, aclose: Closer, what: str) -> None:
         """From now on, closing (or forgetting) this object runs ``aclose`` on ``loop``, then ends it."""
@@ -49,6 +50,17 @@ class LoopOwner(Wrapper[A]):
 
     def __enter__(self) -> Self:
         return self
+
+    if not TYPE_CHECKING:  # (at run time only: a type checker says `async with` is wrong itself)
+
+        async def __aenter__(self) -> NoReturn:
+            # `async with` written for `with`: said so, and this object (open already) closed at once, so that
+            # the port it holds is free for the async API the program reaches for next, not at garbage collection.
+            self.close()
+            raise TypeError(self._usage)
+
+        async def __aexit__(self, *exc: object) -> None:
+            return None
 
     @close_step
     def __exit__(

@@ -31,3 +31,8 @@ async def main() -> None:
     BusGroup.open({"legs": "sim://"}, retry=1)  # MISTAKE: misspelt option
     blocking.open_bus("sim://", max_requests_between=8, quiet_time=0.002)
     blocking.open_bus("sim://", drivr="thread")  # MISTAKE: misspelt option
+    async with open_bus("sim://?ids=1") as bus:
+        with bus.stream([1]):  # MISTAKE: a stream runs in `async with`
+            pass
+    async with blocking.open_bus("sim://"):  # MISTAKE: a blocking bus is used with `with`
+        pass
