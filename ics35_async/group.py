@@ -7,6 +7,7 @@ merged frame holds every line's newest cycle.
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, NoReturn, Unpack
 
@@ -297,6 +298,11 @@ class BusGroup:
         if not self.buses:
             raise InvalidArgument("a BusGroup needs at least one bus")
         for name, bus in self.buses.items():
+            if isinstance(bus, (str, os.PathLike)):  # a port, as BusGroup.open takes them
+                raise InvalidArgument(
+                    f"line {name!r} is a port, not a Bus: BusGroup({{{name!r}: open_bus({str(bus)!r})}}), or"
+                    f" BusGroup.open({{{name!r}: {str(bus)!r}}}) to open every line with the same options"
+                )
             if not isinstance(bus, Bus):
                 raise InvalidArgument(f"line {name!r} is not a Bus")
 

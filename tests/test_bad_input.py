@@ -19,6 +19,7 @@ import subprocess
 import sys
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -251,6 +252,13 @@ async def test_bad_argument_is_refused_before_the_wire(env: Env, label: str, cal
         assert env.sim.transactions == before, f"{label}: bytes went on the line"
     assert str(info.value), "the error says what is wrong"
     assert await env.bus.servo(2).read_stretch() == 30  # and the bus is fine
+
+
+@pytest.mark.parametrize("port", ["sim://?ids=1", Path("/dev/ttyUSB0")])
+def test_a_group_given_a_port_for_a_bus_points_at_open_bus_and_busgroup_open(port: object) -> None:
+    # BusGroup({"legs": "/dev/ttyUSB0"}): BusGroup.open takes ports, BusGroup takes buses.
+    with pytest.raises(InvalidArgument, match=r"line 'legs' is a port, not a Bus: .*open_bus\(.*BusGroup\.open\("):
+        BusGroup({"legs": port})  # type: ignore[dict-item]
 
 
 async def test_an_async_context_manager_used_with_plain_with_says_how_to_use_it(env: Env) -> None:
