@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ics35_async import BusClosed, InvalidArgument, blocking
+from ics35_async import BusClosed, InvalidArgument, SafetyStop, blocking
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import DescriptionError, RobotWarning
 from tests.support.robot_rig import JOINTS, joint_position, make_rig, sent_position, targets_sent
@@ -87,6 +87,37 @@ def test_move_free_hold_and_bad_poses_against_the_simulator() -> None:
     finally:
         rig.close()
     assert set(threading.enumerate()) <= before
+
+
+def test_a_loop_setting_targets_each_pass_ends_at_an_over_current_trip_until_reset() -> None:
+    # The docs' own control loop at 200 Hz with max_current: the watch freed the overloaded knee, read it free
+    # (no current: "within limits") and cleared the trip, so most passes went on and powered the knee again.
+    rig = make_rig(safety={"max_current": 20, "action": "free"})
+    knee = rig.servo("knee")
+    try:
+        with blocking.open_robot(rig.description, **FAST) as robot:
+            robot.move_to({"knee": -10.0}, duration=0.05)
+            knee.load = 40
+            deadline = time.monotonic() + GUARD
+            with pytest.raises(SafetyStop, match="joint knee"):
+                while time.monotonic() < deadline:
+                    robot.set_targets({"knee": -10.0, "hip": 0.0})
+                    time.sleep(0.005)
+            robot.on_wire()
+            since = rig.lower.transactions
+            for _ in range(20):  # the loop's later passes: each refused, none re-powers the knee
+                with pytest.raises(SafetyStop, match="joint knee"):
+                    robot.set_targets({"knee": -10.0, "hip": 0.0})
+                time.sleep(0.005)
+            robot.on_wire()
+            assert knee.free and targets_sent(rig.lower, 2, since) == []
+            knee.load = 0
+            robot.reset_trip("knee")
+            robot.set_targets({"knee": -10.0})
+            robot.on_wire(["knee"])
+            assert not knee.free and robot.tripped == {}
+    finally:
+        rig.close()
 
 
 def test_run_says_plainly_what_it_takes_and_the_robot_carries_on() -> None:

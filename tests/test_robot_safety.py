@@ -12,7 +12,7 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import Robot, SafetyStop, UnsafeOperation, open_robot
+from ics35_async import InvalidArgument, Robot, SafetyStop, UnsafeOperation, open_robot
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD
@@ -290,6 +290,73 @@ def test_targets_and_holds_naming_a_tripped_joint_are_refused_until_it_cools() -
     finally:
         rig.close()
     assert not hip.free and hip.target == 7500 + round(12 * 8000 / 270)
+
+
+def test_a_freed_over_current_joint_stays_tripped_until_the_program_resets_it() -> None:
+    # A free servo draws no current, so the watch's next read of the knee it had freed for over-current was
+    # "back within the limits" and cleared the trip at once (about 10 ms): a control loop setting every joint
+    # each pass powered the overloaded knee again at its next pass, and tripped again, over and over.
+    rig = make_rig(safety={"max_current": 20, "action": "free"})
+    knee = rig.servo("knee")
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"knee": 10.0}, duration=0.05)
+                knee.load = 40  # a load it cannot carry, still there
+                while "knee" not in robot.tripped:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                stop = robot.tripped["knee"]
+                await robot.on_wire()
+                assert knee.free
+                reads_before = robot.watch.telemetry["knee"].reads
+                while robot.watch.telemetry["knee"].reads < reads_before + 3:  # free, it reads 0: within limits
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                assert robot.tripped == {"knee": stop}
+                since = rig.lower.transactions
+                with pytest.raises(SafetyStop, match="joint knee"):
+                    robot.set_targets({"knee": 12.0, "hip": 0.0})
+                await robot.on_wire()
+                assert targets_sent(rig.lower, 2, since) == [] and knee.free  # nothing re-powered the knee
+                knee.load = 0  # the program dealt with the cause: its call puts the joint back in its hands
+                robot.reset_trip("knee")
+                assert robot.tripped == {} and robot.trips == [stop]
+                robot.set_targets({"knee": 12.0})
+                await robot.on_wire(["knee"])
+                assert not knee.free and knee.target == robot.joints["knee"].position(12.0)
+                with pytest.raises(InvalidArgument, match="ankle"):
+                    robot.reset_trip("ankle")
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
+def test_an_over_current_trip_with_action_hold_clears_once_the_load_is_gone() -> None:
+    # With action "hold" the joint keeps its torque: a reading back within the limits is the load gone.
+    rig = make_rig(safety={"max_current": 20, "action": "hold"})
+    knee = rig.servo("knee")
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"knee": 10.0}, duration=0.05)
+                knee.load = 40
+                while "knee" not in robot.tripped:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                assert not knee.free
+                knee.load = 0
+                while "knee" in robot.tripped:
+                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                robot.set_targets({"knee": 12.0})
+                await robot.on_wire(["knee"])
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert not knee.free
 
 
 def test_the_watch_reads_at_each_lines_own_pace_beside_a_faster_line() -> None:

@@ -216,6 +216,15 @@ class BlockingRobot(LoopOwner[Robot]):
         """
         self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free, lift_holds=lift_holds)
 
+    def reset_trip(self, joint: str) -> None:
+        """Clear ``joint``'s safety trip once the program has dealt with its cause (see ``Robot.reset_trip``:
+        a current trip of a joint the watch freed stands until this call).
+
+        Raises:
+            InvalidArgument: an unknown joint.
+        """
+        self._loop.call_sync(self._async.reset_trip, joint)
+
     # ------------------------------------------------------------------ snapshots
 
     @property
@@ -240,7 +249,7 @@ class BlockingRobot(LoopOwner[Robot]):
 
     @property
     def tripped(self) -> dict[str, SafetyStop]:
-        """Joints whose safety stop still stands."""
+        """Joints whose safety stop still stands (see ``Robot.tripped``; :meth:`reset_trip`)."""
         return self._loop.read(_tripped_of, self._async)
 
     @property

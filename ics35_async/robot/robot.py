@@ -113,7 +113,9 @@ class Robot:
 
     @property
     def tripped(self) -> dict[str, SafetyStop]:
-        """Joints whose safety stop still stands (until a reading is back within limits, or it is back online)."""
+        """Joints whose safety stop still stands: until a reading is back within the limits (a current trip: one
+        taken with the joint powered, so not of a joint the watch freed), it is back online, or
+        :meth:`reset_trip`."""
         return dict(self._latched)
 
     def joint_names(self, joints: Iterable[str] | None) -> list[str]:
@@ -680,8 +682,25 @@ class Robot:
     def clear_trip(self, joint: str, reasons: Iterable[str]) -> None:
         """Clear ``joint``'s safety trip if it was for one of ``reasons``.
 
-        The safety watch calls this once a reading is back within the limits.
+        The safety watch calls this once a reading is back within the limits.  Not a current trip of a joint
+        left free: a free servo draws nothing, so its reading says nothing of the load that tripped it (the
+        program's next target would power the joint into it again); :meth:`reset_trip` clears that one.
         """
         stop = self._latched.get(joint)
-        if stop is not None and stop.reason in reasons:
-            del self._latched[joint]
+        if stop is None or stop.reason not in reasons:
+            return
+        if stop.reason == "current" and self._targets.get(joint) is None:
+            return
+        del self._latched[joint]
+
+    def reset_trip(self, joint: str) -> None:
+        """Clear ``joint``'s safety trip by the program's decision, once it has dealt with the cause: targets
+        and motions for the joint go again.  A current trip of a joint the watch freed (``action`` ``free`` or
+        ``stop``) stands until this call; the others also clear by themselves (see :attr:`tripped`).  The stop
+        stays in :attr:`trips`; a joint not tripped is left as it is.
+
+        Raises:
+            InvalidArgument: an unknown joint.
+        """
+        (name,) = self.joint_names([joint])
+        self._latched.pop(name, None)
