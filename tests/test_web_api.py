@@ -618,6 +618,26 @@ def test_the_traffic_page_sees_each_transaction_with_its_bytes(serve: Any) -> No
     assert reads and reads[0]["sent"] == "a1 04" and reads[0]["outcome"] == "ok"
 
 
+def test_the_traffic_page_lists_a_transaction_that_timed_out_as_its_own_row(serve: Any) -> None:
+    # A timeout logged no transaction, only its failure, which was put on the transaction before it: a
+    # scan's 26 silent probes were no rows, and a servo that answered showed the last absent ID's "no reply".
+    client, _ = serve((1,))
+    with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
+        ws.send_json({"traffic": True})
+        ws.receive_json()
+        assert client.get("/api/servo/1/ram").status_code == 200
+        assert client.get("/api/servo/9/ram").status_code == 504
+        assert client.get("/api/servo/1/ram").status_code == 200  # (its rows come after ID 9's, whatever they are)
+        entries: list[dict[str, Any]] = []
+        while sum(e["command"] == "read temperature" for e in entries) < 2:
+            entries += ws.receive_json().get("traffic", [])
+    answered = [e for e in entries if e["id"] == 1]
+    assert answered and all(e["outcome"] == "ok" for e in answered), answered
+    silent = [e for e in entries if e["id"] == 9]
+    assert silent and silent[0]["sent"] == "a9 01" and silent[0]["received"] == "a9 01", silent
+    assert all("ID 9" in e["outcome"] and "no reply" in e["outcome"] for e in silent), silent
+
+
 def wait_lost(client: Any, lost: bool) -> None:
     """Until the status says the port is lost (``lost=False``: back again), within GUARD."""
     deadline = time.monotonic() + GUARD

@@ -825,6 +825,8 @@ class LineEngine:
                 self.deadline = full
                 return None
         buf, sid, tx, echo_len = self._buf, self._current_id, self._tx, self._echo_len
+        if self.debug:  # logged as _finish logs one, so its failure (logged next) follows its own bytes
+            log.debug("id %s tx %s rx %s", sid, tx.hex(" "), buf.hex(" "))
         self.counters.count(sid, len(tx), len(buf))
         error = timeout_error(self._current, sid, tx, buf, echo_len, self._expect)
         req = self._current
