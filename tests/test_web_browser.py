@@ -721,6 +721,31 @@ def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(brows
         expect(p.locator("#restore-diff")).to_contain_text("servo-01.json is a backup of ID 1; servo 2 keeps its ID")
 
 
+def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(browser: Browser, tmp_path: Path) -> None:
+    # The diff of the file chosen before stayed under the words refusing the new one, naming the old file as
+    # if it were the one chosen (its Restore button disabled: nothing to press, but a diff of nothing chosen).
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        with p.expect_download() as download:
+            p.click("#backup-btn")
+        backup = tmp_path / download.value.suggested_filename
+        download.value.save_as(backup)
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff")).to_contain_text("no change")
+        (tmp_path / "notes.json").write_text('{"hello": 1}')
+        p.set_input_files("#restore-file", str(tmp_path / "notes.json"))
+        expect(p.locator("#message")).to_contain_text("no 'format'")
+        expect(p.locator("#restore-diff")).to_be_empty()
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff")).to_contain_text("no change")
+        (tmp_path / "notes.txt").write_text("not json")
+        p.set_input_files("#restore-file", str(tmp_path / "notes.txt"))
+        expect(p.locator("#message")).to_contain_text("notes.txt: not JSON")
+        expect(p.locator("#restore-diff")).to_be_empty()
+        expect(p.locator("#restore-btn")).to_be_disabled()
+
+
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:

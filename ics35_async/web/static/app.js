@@ -430,7 +430,9 @@ async function backupServo() {
 async function planRestore() {
   const file = $("#restore-file").files[0];
   $("#restore-btn").disabled = true;
-  $("#restore-result").replaceChildren();
+  // The last file's diff goes before this one is read: left under the words refusing this one (not JSON, not a
+  // backup, a failed read), it named the other file as if it were the one chosen.
+  $("#restore-result").replaceChildren(); $("#restore-diff").replaceChildren(); state.restore = null;
   if (!file) return;
   let doc;
   try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
