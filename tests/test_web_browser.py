@@ -746,6 +746,25 @@ def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(brow
         expect(p.locator("#restore-btn")).to_be_disabled()
 
 
+def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Browser) -> None:
+    # Stop left "stream 99.8 cycles/s, page 26 updates/s" on show for good, as if it still ran.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#live")
+        p.fill("#live-ids", "1")
+        p.click("#live-start")
+        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
+        expect(p.locator("#live-rate")).to_have_text(re.compile(r"^\d"))
+        p.click("#live-stop")
+        expect(p.locator("#live-cycle")).to_contain_text("(stopped)")
+        for part in ("#live-rate", "#live-updates", "#live-offline", "#live-watched", "#live-held"):
+            expect(p.locator(part)).to_have_text("-")
+        p.click("#live-start")  # started again: its figures come back
+        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
+        expect(p.locator("#live-cycle")).not_to_contain_text("stopped")
+        p.click("#live-stop")
+
+
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:

@@ -126,6 +126,7 @@ function showStatus(s) {
     if ($("#message").hidden) say(words, "info");
   }
   if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
+  if (!s.live) liveStopped();
 }
 
 // ---- Line
@@ -619,6 +620,15 @@ async function startLive() {
   const started = await api("/api/live/start", { ids });
   const kept = started.kept_held || [];  // (not freed: a joint of a standing robot stays up)
   if (kept.length) say(`servo ${kept.join(", ")}: held by its Servo page, so streamed its target, not freed`, "info");
+}
+
+// No stream runs (stopped, or none yet): its last rate and lists are not now's (they stayed, as if it ran on).
+function liveStopped() {
+  const cycle = $("#live-cycle");
+  if (cycle.textContent !== "-" && !cycle.textContent.endsWith("(stopped)")) cycle.textContent += " (stopped)";
+  for (const part of ["#live-rate", "#live-updates", "#live-offline", "#live-watched", "#live-held"]) $(part).textContent = "-";
+  $("#live-held").className = "";
+  state.updates = [];
 }
 
 function onLive(frame) {
