@@ -765,6 +765,21 @@ def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Br
         p.click("#live-stop")
 
 
+def test_the_live_target_legend_says_free_and_left_alone_not_0_and_minus_1(browser: Browser) -> None:
+    # The target plot's legend gave the stream's own marks as if they were positions: "1: 0" for a servo it
+    # frees, "3: -1" for an ICS 3.6 servo it only reads; and the free servo's 0 was drawn, squashing the rest.
+    line = PtyLine((1, 3), ics36=(3,))
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#live")
+        p.fill("#live-ids", "1,3")
+        p.click("#live-start")
+        expect(p.locator("#legend span[data-id='3']")).to_have_text("■ 3: 7500")
+        p.select_option("#live-what", "targets")
+        expect(p.locator("#legend span[data-id='1']")).to_have_text("■ 1: free")
+        expect(p.locator("#legend span[data-id='3']")).to_have_text("■ 3: left alone")
+        p.click("#live-stop")
+
+
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:

@@ -670,8 +670,20 @@ function drawPlot() {
   g.clearRect(0, 0, canvas.width, canvas.height);
   if (frames.length < 2) return;
   const ids = [...state.liveIds].sort((a, b) => a - b);
+  // A target of 0 or -1 is the stream's mark, not a position: free, or an ICS 3.6 servo it only reads (torque
+  // left alone). Drawn, a free servo's 0 squashed every other line; the legend says which in words.
+  const plotted = (v) => v !== undefined && (what === "targets" ? v > 0 : v >= 0);
+  const words = (v) => what !== "targets" || v === "-" || v > 0 ? v : v === 0 ? "free" : "left alone";
+  const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
+  // The last value of a servo that stopped answering, or that the stream sends nothing, is not now's.
+  const newest = frames[frames.length - 1], held = newest.held || {}, offline = new Set(newest.offline.map(String));
+  const note = (id) => (offline.has(id) ? " (offline)" : "") + (held[id] ? ` (held: ${held[id]})` : "");
+  const color = (k) => `color:${COLORS[k % COLORS.length]}`;
+  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: color(k), "data-id": id },
+    `■ ${id}: ${words(latest(id))}${note(id)}`)));
+  // (Said first: with nothing to draw, every servo free, the legend still says so.)
   let lo = Infinity, hi = -Infinity;
-  for (const f of frames) for (const id of ids) { const v = f[what][id]; if (v !== undefined && v >= 0) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
+  for (const f of frames) for (const id of ids) { const v = f[what][id]; if (plotted(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
   if (lo === Infinity) return;
   if (hi - lo < 1) { hi += 1; lo -= 1; }
   const t0 = frames[0].t, t1 = frames[frames.length - 1].t || t0 + 1;
@@ -684,18 +696,11 @@ function drawPlot() {
     let started = false;
     for (const f of frames) {
       const v = f[what][id];
-      if (v === undefined || v < 0) continue;
+      if (!plotted(v)) continue;
       if (started) g.lineTo(x(f.t), y(v)); else { g.moveTo(x(f.t), y(v)); started = true; }
     }
     g.stroke();
   });
-  const latest = (id) => { for (let i = frames.length - 1; i >= 0; i--) if (frames[i][what][id] !== undefined) return frames[i][what][id]; return "-"; };
-  // The last value of a servo that stopped answering, or that the stream sends nothing, is not now's.
-  const newest = frames[frames.length - 1], held = newest.held || {}, offline = new Set(newest.offline.map(String));
-  const note = (id) => (offline.has(id) ? " (offline)" : "") + (held[id] ? ` (held: ${held[id]})` : "");
-  const color = (k) => `color:${COLORS[k % COLORS.length]}`;
-  $("#legend").replaceChildren(...ids.map((id, k) => el("span", { style: color(k), "data-id": id },
-    `■ ${id}: ${latest(id)}${note(id)}`)));
 }
 
 function exportCsv() {
