@@ -780,6 +780,27 @@ def test_the_live_target_legend_says_free_and_left_alone_not_0_and_minus_1(brows
         p.click("#live-stop")
 
 
+def test_a_tick_allowing_an_id_or_baud_change_is_for_one_servos_write_not_the_next(browser: Browser) -> None:
+    # Ticked for servo 1's write, "allow baud change" stayed ticked on servo 2's page and on servo 1's again after
+    # the write: a restore of an old backup then changed the servo's rate with no tick of its own.
+    line = PtyLine((1, 2))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        ticks = ("#allow-id-change", "#allow-baud-change", "#restore-id")
+        for tick in ticks:
+            p.check(tick)
+        open_servo_page(p, 2)
+        for tick in ticks:
+            expect(p.locator(tick)).not_to_be_checked()
+        p.select_option("#eeprom-table [name=baud_rate]", "1250000")
+        p.check("#allow-baud-change")
+        p.click("#plan-btn")
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        assert line.sim.servo(2).eeprom.baud_rate == 1250000
+        expect(p.locator("#allow-baud-change")).not_to_be_checked()  # (written: the next change needs its own)
+
+
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:

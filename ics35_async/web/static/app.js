@@ -293,6 +293,9 @@ async function loadServo() {
   // A file chosen for the last servo goes too: shown beside a Restore button left disabled, and chosen again
   // (no change to the browser) it would do nothing.
   $("#restore-file").value = "";
+  // A tick allowing an ID or baud change is for one write to the servo it was ticked for: kept, it let the next
+  // servo's write or restore (an old backup at another rate) change its ID or rate with no tick of its own.
+  for (const tick of ["#allow-id-change", "#allow-baud-change", "#restore-id"]) $(tick).checked = false;
   $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
