@@ -286,6 +286,31 @@ def test_while_a_lost_line_has_stopped_the_robot_its_joints_show_their_last_targ
     assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None, None]
 
 
+def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_old_target(tmp_path: Path) -> None:
+    # Its servo went offline and answered again (restarted, free, in a brown-out): the robot sends it nothing
+    # until it is told what to do, but the page showed its old target, "ok", as if it still held there.
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name)
+    path.write_text(path.read_text() + '[safety]\naction = "hold"\n')  # (the others hold; the default frees it)
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        line = sim.named(name)
+        post(client, "/api/robot/motion", {"enabled": True})
+        assert post(client, "/api/robot/move", {"pose": {"elbow": 40}, "duration": 0.1}).status_code == 200
+        wait_for(lambda: line.servo(2).target == degrees_to_position(40))
+        servo = line.remove_servo(2)
+        wait_for(lambda: client.get("/api/robot").json()["joints"][1]["offline"])
+        servo.power_cycle()
+        line.add_device(servo)
+        wait_for(lambda: not client.get("/api/robot").json()["joints"][1]["offline"])
+        shoulder, elbow = client.get("/api/robot").json()["joints"]
+        assert elbow["held"] == "rejoined" and elbow["target"] == 40.0 and servo.free, elbow
+        assert shoulder["held"] is None, shoulder
+        post(client, "/api/robot/free")
+    line.close()
+
+
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "two.toml"

@@ -213,6 +213,9 @@ class RobotSession:
         frame = None if robot is None else robot.latest
         telemetry = {} if robot is None else robot.telemetry
         tripped = {} if robot is None else robot.tripped
+        # Sent nothing since their servo answered again (or their line came back), and why: the target they
+        # had is not where they are (restarted, free and elsewhere), so the page says so beside it.
+        held = {} if robot is None else robot.held
         targets = self.last_targets if robot is None else robot.targets
         joints = []
         for name, spec in self.description.joints.items():
@@ -231,6 +234,7 @@ class RobotSession:
                     "current": None if t is None else t.current,
                     "offline": frame is not None and name in frame.offline,
                     "tripped": None if stop is None else str(stop),
+                    "held": held.get(name),
                 }
             )
         return {

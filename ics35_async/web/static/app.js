@@ -768,7 +768,9 @@ function onRobot(r) {
   for (const j of r.joints) {
     const row = body.querySelector(`tr[data-joint="${j.name}"]`);
     row.querySelector(".angle").textContent = j.offline ? "offline" : j.position ?? "-";
-    row.querySelector(".target").textContent = j.target ?? "free";
+    // Held (sent nothing since its servo answered again, or its line came back): its old target is not where it is.
+    row.querySelector(".target").textContent = (j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    row.querySelector(".target").className = j.held ? "target bad" : "target";
     row.querySelector(".temp").textContent = j.temperature_c ?? "-";
     row.querySelector(".current").textContent = j.current ?? "-";
     row.querySelector(".safety").textContent = j.tripped || "ok";
