@@ -801,6 +801,26 @@ def test_a_tick_allowing_an_id_or_baud_change_is_for_one_servos_write_not_the_ne
         expect(p.locator("#allow-baud-change")).not_to_be_checked()  # (written: the next change needs its own)
 
 
+def test_a_write_refused_for_its_id_or_baud_change_names_the_tick_that_allows_it(browser: Browser) -> None:
+    # "refused: servo 1: the write changes its ID to 7", and nothing said the tick below the table allows it.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        p.fill("#eeprom-table [name=servo_id]", "7")
+        p.click("#plan-btn")
+        expect(p.locator("#diff .refusal")).to_contain_text("the write changes its ID to 7")
+        expect(p.locator("#diff")).to_contain_text("tick “allow ID change” to write it")
+        p.fill("#eeprom-table [name=servo_id]", "1")
+        p.select_option("#eeprom-table [name=baud_rate]", "1250000")
+        p.click("#plan-btn")
+        expect(p.locator("#diff")).to_contain_text("tick “allow baud change” to write it")
+        p.check("#allow-baud-change")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text("1250000")
+        expect(p.locator("#diff")).not_to_contain_text("tick")
+        expect(p.locator("#write-btn")).to_be_enabled()
+
+
 def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:

@@ -399,7 +399,12 @@ async function planWrite() {
   $("#write-result").replaceChildren();  // an earlier write's outcome is not this one's
   $("#write-btn").disabled = true;
   state.plan = await api(`/api/servo/${servoId()}/plan`, { changes: editedFields(), ...allowances() });
-  $("#diff").replaceChildren(diffTable(state.plan));
+  // Refused for a change of ID or rate that its tick allows: said which tick (the refusal names only the change).
+  const changed = (name) => state.plan.refusal && state.plan.diff.some((d) => d.name === name);
+  const ticks = [["servo_id", "#allow-id-change", "allow ID change"], ["baud_rate", "#allow-baud-change", "allow baud change"]]
+    .filter(([name, box]) => changed(name) && !$(box).checked)
+    .map(([, , label]) => el("p", {}, `tick “${label}” to write it, then Show changes again`));
+  $("#diff").replaceChildren(diffTable(state.plan), ...ticks);
   $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
 }
 
