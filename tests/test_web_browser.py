@@ -1223,6 +1223,38 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     context.close()
 
 
+def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_again(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A free servo draws no current, so a current trip of a joint the watch freed stands until the person says
+    # its cause is dealt with: the joint's Reset button, and nothing else, lets it move again.
+    line = PtyLine((1, 2))
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n'
+        '[safety]\nmax_current = 20\naction = "free"\n'
+    )
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        elbow = p.locator("tr[data-joint='elbow']")
+        line.sim.servo(2).load = 40  # a load the elbow cannot carry
+        expect(elbow.locator(".safety")).to_contain_text("draws current")
+        until(lambda: line.sim.servo(2).free, "the watch did not free the elbow")
+        expect(elbow.locator(".current")).to_have_text("0")  # read free: within the limits, still stopped
+        expect(elbow.locator(".safety")).to_contain_text("draws current")
+        line.sim.servo(2).load = 0
+        elbow.get_by_role("button", name="Reset").click()
+        expect(elbow.locator(".safety")).to_have_text("ok")
+        expect(p.locator("#robot-state")).to_contain_text("joint elbow: safety stop reset")
+        assert line.sim.servo(2).free  # reset moves nothing
+        elbow.locator("input[type=range]").fill("30")
+        expect(elbow.locator(".target")).to_have_text("30")
+        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
+
+
 def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
     # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
     # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).

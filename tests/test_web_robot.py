@@ -30,8 +30,8 @@ JSON = {"content-type": "application/json"}
 _names = itertools.count()
 
 
-def arm_file(tmp_path: Path, name: str) -> Path:
-    """A two-joint arm on the simulated line ``sim://NAME`` (servos 1 and 2)."""
+def arm_file(tmp_path: Path, name: str, more: str = "") -> Path:
+    """A two-joint arm on the simulated line ``sim://NAME`` (servos 1 and 2); ``more``: tables added to it."""
     path = tmp_path / "arm.toml"
     path.write_text(
         f"""name = "arm"
@@ -49,6 +49,7 @@ id = 2
 min = 0
 max = 90
 """
+        + more
     )
     return path
 
@@ -95,6 +96,40 @@ def test_joints_move_only_with_motion_on_and_within_their_limits(robot: Any) -> 
     post(client, "/api/robot/free")
     wait_for(lambda: line.servo(1).free and line.servo(2).free)
     assert client.get("/api/robot").json()["motion_enabled"] is False
+
+
+def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tmp_path: Path) -> None:
+    # A free servo draws no current, so the trip cannot clear by itself: the page is the person's way to say
+    # the cause is dealt with, as Robot.reset_trip is a program's.
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name, '[safety]\nmax_current = 20\naction = "free"\n')
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        line = sim.named(name)
+        try:
+
+            def elbow() -> Any:
+                return client.get("/api/robot").json()["joints"][1]
+
+            assert post(client, "/api/robot/motion", {"enabled": True}).status_code == 200
+            line.servo(2).load = 40
+            wait_for(lambda: elbow()["tripped"] is not None)
+            wait_for(lambda: line.servo(2).free and elbow()["current"] == 0)  # read free: "within the limits"
+            assert "draws current" in elbow()["tripped"]
+            post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})  # (told in the state line)
+            wait_for(lambda: "draws current" in (client.get("/api/robot").json()["outcome"] or ""))
+            assert line.servo(2).free
+            unknown = post(client, "/api/robot/reset_trip", {"joint": "knee"})
+            assert unknown.status_code == 400 and "knee" in unknown.json()["error"]
+            line.servo(2).load = 0
+            reset = post(client, "/api/robot/reset_trip", {"joint": "elbow"})
+            assert reset.status_code == 200 and reset.json()["joints"][1]["tripped"] is None
+            assert "elbow" in reset.json()["outcome"]
+            assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
+            wait_for(lambda: not line.servo(2).free and line.servo(2).target == degrees_to_position(30))
+        finally:
+            line.close()
 
 
 def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: Any) -> None:

@@ -353,6 +353,12 @@ async def robot_stop(request: Request, session: LineSession) -> Any:
     return robot.view()
 
 
+async def robot_reset_trip(request: Request, session: LineSession) -> Any:
+    robot = joints_of(request)
+    robot.reset_trip((await body(request)).get("joint"))
+    return robot.view()
+
+
 async def robot_free(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
     await robot.free()
@@ -504,6 +510,7 @@ ROUTES = [
     Route("/api/robot/play", endpoint(robot_play), methods=["POST"]),
     Route("/api/robot/stop", endpoint(robot_stop), methods=["POST"]),
     Route("/api/robot/free", endpoint(robot_free), methods=["POST"]),
+    Route("/api/robot/reset_trip", endpoint(robot_reset_trip), methods=["POST"]),
     Route("/api/robot/reopen", endpoint(robot_reopen), methods=["POST"]),
     WebSocketRoute("/ws", updates),
 ]

@@ -354,6 +354,14 @@ class RobotSession:
                 with contextlib.suppress(IcsError):
                     await self.robot.stop(ramp)
 
+    def reset_trip(self, joint: object) -> None:
+        """The person says a tripped joint's cause is dealt with (``Robot.reset_trip``: a current trip of a joint
+        the watch freed stands until then); the joint stays as it is until it is moved."""
+        if not isinstance(joint, str):
+            raise InvalidArgument(f"joint must be a joint's name, not {type(joint).__name__}")
+        self._robot().reset_trip(joint)
+        self.outcome = f"joint {joint}: safety stop reset (as it was left until it is moved)"
+
     async def free(self) -> None:
         await self.stop(ramp=0.0)
         self.motion_enabled = False

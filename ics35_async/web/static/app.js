@@ -778,12 +778,22 @@ function onRobot(r) {
     row.querySelector(".target").className = j.held ? "target bad" : "target";
     row.querySelector(".temp").textContent = j.temperature_c ?? "-";
     row.querySelector(".current").textContent = j.current ?? "-";
-    row.querySelector(".safety").textContent = j.tripped || "ok";
-    row.querySelector(".safety").className = j.tripped ? "safety bad" : "safety";
+    // A tripped joint's Reset: the person says its cause is dealt with (a current trip of a freed joint stands
+    // until then). Rebuilt only when the stop changes: a button replaced under the pointer would lose its click.
+    const safety = row.querySelector(".safety");
+    if (safety.dataset.stop !== (j.tripped || "")) {
+      safety.dataset.stop = j.tripped || "";
+      safety.replaceChildren(j.tripped || "ok", ...(j.tripped ? [" ", el("button", { class: "reset-trip", title: "the cause is dealt with: targets and motions for this joint go again", onclick: () => resetTrip(j.name).catch(() => {}) }, "Reset")] : []));
+    }
+    safety.className = j.tripped ? "safety bad" : "safety";
     const slider = row.querySelector("input[type=range]");
     slider.disabled = !r.motion_enabled;
     if (document.activeElement !== slider && j.target !== null) slider.value = j.target;
   }
+}
+
+async function resetTrip(name) {
+  onRobot(await api("/api/robot/reset_trip", { joint: name }));
 }
 
 async function moveJoint(name, degrees) {
