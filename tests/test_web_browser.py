@@ -407,6 +407,20 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     expect(page.locator("#message")).to_have_text(f"connected to {two.path}")
 
 
+def test_a_port_that_cannot_be_opened_leaves_the_port_box_naming_the_line_still_open(browser: Browser) -> None:
+    # A mistyped port was refused and the line stayed on the old one, but the box kept the refused name: a Scan
+    # right after scanned the old line while the box named another.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        expect(p.locator("#port-input")).to_have_value(line.path)
+        p.fill("#port-input", "/dev/ttyNOPE")
+        p.click("#connect-btn")
+        expect(p.locator("#message")).to_contain_text("/dev/ttyNOPE")
+        expect(p.locator("#port-input")).to_have_value(line.path)
+        expect(p.locator("#line-status")).to_contain_text(line.path)
+        scan_finds(p, 1, ids="0-2")
+
+
 def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any) -> None:
     sim = lines[0].sim
     page.click("a[href='#many']")

@@ -880,7 +880,15 @@ function on(sel, event, handler) {
 on("#connect-form", "submit", async (e) => {
   e.preventDefault();
   showServos([]); $("#scan-summary").textContent = "";  // the servos found were the line before's
-  const s = await api("/api/connect", { port: $("#port-input").value, baud: +$("#baud-select").value });
+  let s;
+  try {
+    s = await api("/api/connect", { port: $("#port-input").value, baud: +$("#baud-select").value });
+  } catch (err) {
+    // Refused (said by api): the line stays where it was, and so does the box, or a Scan next would scan
+    // one line while the box names another.
+    if (state.status) { $("#port-input").value = state.status.port; $("#baud-select").value = String(state.status.baud); }
+    throw err;
+  }
   showStatus(s); showServos([]);
   say(`connected to ${s.port}`, "info");
 });
