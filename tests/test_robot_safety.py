@@ -40,6 +40,12 @@ async def when_moving(robot: Robot, joint: str) -> None:
             pass
 
 
+async def frames_until(robot: Robot, done: Callable[[], bool]) -> None:
+    """The robot's frames, one after another, until ``done()`` (the test's GUARD bounds the wait)."""
+    while not done():
+        await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+
+
 def run_with_fault(
     rig: Rig, moves: dict[str, float], joint: str, fault: Callable[[], None], **options: Any
 ) -> tuple[SafetyStop | None, dict[str, int], Robot]:
@@ -146,8 +152,7 @@ def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refus
     async def main() -> None:
         with anyio.fail_after(GUARD):
             async with open_robot(rig.description, start_pose={"hip": 10.0, "knee": 0.0}, **FAST) as robot:
-                while robot.latest is None or "knee" not in robot.latest.offline:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: robot.latest is not None and "knee" in robot.latest.offline)
                 lower = robot.latest.line_cycles["lower"]
                 while robot.latest.line_cycles["lower"] < lower + 3:  # (the watch has seen it offline)
                     await robot.wait_frame(robot.latest.cycle)
@@ -238,8 +243,7 @@ def test_the_stream_raises_the_stop_and_a_tripped_joint_refuses_motion_until_it_
                 assert targets_sent(rig.lower, 1, since) == [] and targets_sent(rig.lower, 2, since) == []
                 await robot.move_to({"knee": 5.0}, duration=0.05)  # other joints still move
                 hip.temperature_celsius = 25.0
-                while "hip" in robot.tripped:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: "hip" not in robot.tripped)
                 await robot.move_to({"hip": 20.0}, duration=0.05)
                 assert robot.watch.rounds["lower"] > 0
 
@@ -280,8 +284,7 @@ def test_targets_and_holds_naming_a_tripped_joint_are_refused_until_it_cools() -
                 assert targets_sent(rig.lower, 1, since) == [] and hip.free  # nothing re-powered the hip
                 assert targets_sent(rig.lower, 2, since)  # the knee was held
                 hip.temperature_celsius = 25.0
-                while "hip" in robot.tripped:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: "hip" not in robot.tripped)
                 robot.set_targets({"hip": 12.0})  # cooled: targets go again
                 await robot.on_wire(["hip"])
 
@@ -304,14 +307,13 @@ def test_a_freed_over_current_joint_stays_tripped_until_the_program_resets_it() 
             async with open_robot(rig.description, **FAST) as robot:
                 await robot.move_to({"knee": 10.0}, duration=0.05)
                 knee.load = 40  # a load it cannot carry, still there
-                while "knee" not in robot.tripped:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: "knee" in robot.tripped)
                 stop = robot.tripped["knee"]
                 await robot.on_wire()
                 assert knee.free
                 reads_before = robot.watch.telemetry["knee"].reads
-                while robot.watch.telemetry["knee"].reads < reads_before + 3:  # free, it reads 0: within limits
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                # Read three times since, free: a current of 0, "within the limits".
+                await frames_until(robot, lambda: robot.watch.telemetry["knee"].reads >= reads_before + 3)
                 assert robot.tripped == {"knee": stop}
                 since = rig.lower.transactions
                 with pytest.raises(SafetyStop, match="joint knee"):
@@ -343,12 +345,10 @@ def test_an_over_current_trip_with_action_hold_clears_once_the_load_is_gone() ->
             async with open_robot(rig.description, **FAST) as robot:
                 await robot.move_to({"knee": 10.0}, duration=0.05)
                 knee.load = 40
-                while "knee" not in robot.tripped:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: "knee" in robot.tripped)
                 assert not knee.free
                 knee.load = 0
-                while "knee" in robot.tripped:
-                    await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                await frames_until(robot, lambda: "knee" not in robot.tripped)
                 robot.set_targets({"knee": 12.0})
                 await robot.on_wire(["knee"])
 

@@ -340,10 +340,7 @@ def test_backup_then_restore_from_the_file(page: Page, lines: Any, tmp_path: Pat
     sim = lines[0].sim
     speed = sim.servo(1).eeprom.speed
     open_servo(page, 1, speed=speed)
-    with page.expect_download() as download:
-        page.click("#backup-btn")
-    backup = tmp_path / download.value.suggested_filename
-    download.value.save_as(backup)
+    backup = backed_up(page, tmp_path)
     assert backup.name == "servo-01.json" and f'"speed": {speed}' in backup.read_text()
     other = 20 if speed != 20 else 21
     page.locator("#eeprom-table [name=speed]").fill(str(other))
@@ -545,6 +542,15 @@ def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, 
     scan_finds(page, 2, ids="0-4")
 
 
+def backed_up(page: Page, folder: Path) -> Path:
+    """The Servo page's **Back up to a file**, its download saved in ``folder`` under the name it was offered."""
+    with page.expect_download() as download:
+        page.click("#backup-btn")
+    backup = folder / download.value.suggested_filename
+    download.value.save_as(backup)
+    return backup
+
+
 def open_servo_page(page: Page, servo_id: int) -> None:
     """The Servo page of ``servo_id``, its reads done (see :func:`servo_read`; its ID in the EEPROM table, then its
     RAM shown)."""
@@ -718,10 +724,7 @@ def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(brows
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
-        with p.expect_download() as download:
-            p.click("#backup-btn")
-        backup = tmp_path / download.value.suggested_filename
-        download.value.save_as(backup)
+        backup = backed_up(p, tmp_path)
         p.set_input_files("#restore-file", str(backup))
         expect(p.locator("#restore-diff")).to_contain_text("no change")
         p.check("#motion-switch")
@@ -741,10 +744,7 @@ def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(brow
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
-        with p.expect_download() as download:
-            p.click("#backup-btn")
-        backup = tmp_path / download.value.suggested_filename
-        download.value.save_as(backup)
+        backup = backed_up(p, tmp_path)
         p.set_input_files("#restore-file", str(backup))
         expect(p.locator("#restore-diff")).to_contain_text("no change")
         (tmp_path / "notes.json").write_text('{"hello": 1}')
