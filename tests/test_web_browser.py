@@ -1512,6 +1512,27 @@ def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Bro
         assert line.sim.servo(4).eeprom.punch != 0
 
 
+def test_a_fraction_typed_where_a_whole_number_goes_is_refused_in_the_pages_words(browser: Browser) -> None:
+    # 7.5 as a new ID came back as "new_id must be an integer, got 7.5", 2.5 as a dead band as "dead_band must be
+    # an int, not float", 1.5 in RAM as "value must be an integer": the server's names, not the page's.
+    line = PtyLine((4,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 4)
+        p.fill("#eeprom-table [name=dead_band]", "2.5")
+        p.click("#plan-btn")
+        expect(p.locator("#message")).to_have_text("dead_band must be a whole number, not 2.5")
+        p.fill("#ram-value", "1.5")
+        p.click("#ram-write")
+        expect(p.locator("#message")).to_have_text("the RAM value must be a whole number, not 1.5")
+        p.click("a[href='#id']")
+        p.fill("#new-id", "7.5")
+        p.click("#renumber-btn")
+        expect(p.locator("#id-result")).to_have_text("the new ID must be a whole number, not 7.5")
+        p.wait_for_timeout(500)  # (time for a write the page might still have sent)
+        assert [s.servo_id for s in line.sim.servos] == [4]
+        assert line.sim.servo(4).eeprom_writes == 0
+
+
 def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
     browser: Browser, robot_server: RobotServer
 ) -> None:

@@ -72,6 +72,16 @@ function numberIn(box, what) {
   return +text;
 }
 
+// A box for a whole number (an ID, an EEPROM field, a RAM value): a fraction is refused here, in the page's words.
+function wholeIn(box, what) {
+  const value = numberIn(box, what);
+  if (!Number.isInteger(value)) {
+    say(`${what} must be a whole number, not ${box.value.trim()}`);
+    throw new Error(`${what} must be a whole number, not ${box.value.trim()}`);
+  }
+  return value;
+}
+
 function parseIds(text) {
   const ids = new Set();
   for (const part of text.split(",").map((s) => s.trim()).filter(Boolean)) {
@@ -278,7 +288,7 @@ async function leaveServo() {
 }
 
 async function loadServo() {
-  const id = numberIn($("#servo-id"), "the servo's ID");
+  const id = wholeIn($("#servo-id"), "the servo's ID");
   // Each load has its number: one overtaken by a later load (Read pressed again, another servo's page) stops at
   // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
   const mine = (state.loads = (state.loads ?? 0) + 1);
@@ -367,7 +377,7 @@ function editedFields() {
       if (flags !== writable) changes.flags = flags;
       continue;
     }
-    const value = numberIn(document.querySelector(`#eeprom-table [name=${f.name}]`), f.name);
+    const value = wholeIn(document.querySelector(`#eeprom-table [name=${f.name}]`), f.name);
     if (value !== f.value) changes[f.name] = value;
   }
   return changes;
@@ -466,7 +476,7 @@ async function restoreServo() {
 
 async function writeRam() {
   const param = $("#ram-param").value;
-  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: numberIn($("#ram-value"), "the RAM value") });
+  const reply = await api(`/api/servo/${servoId()}/ram/write`, { param, value: wholeIn($("#ram-value"), "the RAM value") });
   $("#ram-result").textContent = `servo ${servoId()} ${param} = ${reply.value} in RAM (lost at power-off)`;
   showRam(await api(`/api/servo/${servoId()}/ram`));
 }
@@ -572,7 +582,7 @@ async function survey() {
 async function renumber() {
   $("#id-result").replaceChildren();
   try {
-    const r = await api("/api/id/write", { new_id: numberIn($("#new-id"), "the new ID") });
+    const r = await api("/api/id/write", { new_id: wholeIn($("#new-id"), "the new ID") });
     $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
   } catch (e) { $("#id-result").replaceChildren(el("p", { class: "refusal" }, e.message)); }
 }
