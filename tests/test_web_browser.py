@@ -451,6 +451,10 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
     rows = [dict(zip(csv[0].split(","), line.split(","), strict=True)) for line in csv[1:]]
     assert [r["pos_3"] for r in rows if r["pos_3"]][-1] == "6000"  # a frame lacks an ID that missed its cycle
     assert rows[-1]["target_3"] == "-1" and rows[-1]["target_1"] == "0"  # watched (ICS 3.6), free (ICS 3.5)
+    # Seconds since the first frame recorded (it was the server's monotonic clock: 63208.7, a spreadsheet's
+    # plot starting hours in), rising with the cycles.
+    times = [float(r["t"]) for r in rows]
+    assert times[0] == 0.0 and times == sorted(times) and 0.5 < times[-1] < 60, times
     page.click("#live-stop")
 
 

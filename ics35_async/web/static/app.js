@@ -727,7 +727,8 @@ function exportCsv() {
   const ids = [...state.liveIds].sort((a, b) => a - b);
   const head = ["t", "cycle", ...ids.flatMap((id) => [`pos_${id}`, `target_${id}`, `current_${id}`, `temp_${id}`])];
   const lines = [head.join(",")];
-  for (const f of frames) lines.push([f.t.toFixed(4), f.cycle, ...ids.flatMap((id) => [f.positions[id] ?? "", f.targets[id] ?? "", f.current[id] ?? "", f.temperature[id] ?? ""])].join(","));
+  // t: seconds since the first frame recorded (the frames carry the server's monotonic clock: hours, not a start).
+  for (const f of frames) lines.push([(f.t - frames[0].t).toFixed(4), f.cycle, ...ids.flatMap((id) => [f.positions[id] ?? "", f.targets[id] ?? "", f.current[id] ?? "", f.temperature[id] ?? ""])].join(","));
   const link = el("a", { href: URL.createObjectURL(new Blob([lines.join("\n") + "\n"], { type: "text/csv" })), download: "ics35-live.csv" });
   document.body.append(link); link.click(); link.remove();
 }
