@@ -38,10 +38,10 @@ class Frame:
     """One completed cycle.
 
     ``positions`` (0..16383) and ``timestamps`` (``time.monotonic()`` of each reply) hold the
-    IDs that answered this cycle; ``failed`` the IDs asked this cycle that did not (their
-    transaction failed, or was held back after a failure while its late reply could still come; an
-    offline ID probed this cycle and still silent is one too, and so in both); ``offline`` the IDs
-    currently out of the cycle.  ``skipped`` counts the
+    IDs that answered this cycle; ``failed`` the IDs in the cycle that did not (their
+    transaction failed, or was held back after a failure while its late reply could still come);
+    ``offline`` the IDs currently out of the cycle (an ID whose failure this cycle took it out is in
+    both, in this frame).  ``skipped`` counts the
     frames this consumer missed since its previous one.
 
     Trouble the stream itself went through shows here too: ``missed_slots``,

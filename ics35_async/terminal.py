@@ -76,6 +76,7 @@ def ctrl_c_typed() -> None:
 
 
 _kept: list[int] = []  # the terminal's descriptor once keep_last_words has acted (-1: nothing to put back)
+_set: list[int] = []  # the local-mode bits keep_last_words turned on, and those it turned off (to put back)
 
 
 def keep_last_words() -> None:
@@ -86,23 +87,28 @@ def keep_last_words() -> None:
     it opened are left free"), took those lines away, a few lines in every hundred written under it.  So the
     terminal the process is in the foreground of is set to keep its output at Ctrl-C (its input is kept too:
     the program reads none as it stops) until the process ends, when its own setting is put back a tenth of a
-    second later (see ``_LAST_WORDS_SHOWN``).  Nothing on a terminal the process runs in the background of
+    second later (see ``_LAST_WORDS_SHOWN``).  It also echoes no more ``^C`` meanwhile (ECHOCTL off): a later
+    press's, echoed between the first one's clearing and the last words, came in front of them ("^Cwrote 1
+    pose(s)"); the press itself still interrupts.  Nothing on a terminal the process runs in the background of
     (changing its settings would stop the process), in a file or a pipe, or on Windows."""
     if _kept or termios is None:
         return
+    echoctl = getattr(termios, "ECHOCTL", 0)  # (POSIX leaves it out; Linux, macOS and the BSDs have it)
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
             fd = stream.fileno()
             try:
                 attrs = termios.tcgetattr(fd)
-                if attrs[3] & termios.NOFLSH:
+                on, off = ~attrs[3] & termios.NOFLSH, attrs[3] & echoctl
+                if not on and not off:
                     break  # (already so: nothing to put back)
-                attrs[3] |= termios.NOFLSH
+                attrs[3] = (attrs[3] | on) & ~off
                 termios.tcsetattr(fd, termios.TCSANOW, attrs)
             except (termios.error, OSError):
                 break
             _kept.append(fd)
-            atexit.register(_give_back_flushing, fd)
+            _set[:] = [on, off]
+            atexit.register(_put_back_setting, fd)
             return
     _kept.append(-1)
 
@@ -113,16 +119,18 @@ def keep_last_words() -> None:
 _LAST_WORDS_SHOWN = 0.1
 
 
-def _give_back_flushing(fd: int) -> None:
-    """The terminal's own setting put back, as the process ends (unless it is no longer the foreground's: a
-    background process changing it would be stopped).  A later press's ``^C``, echoed below the last words, is
-    cleared first: the shell's prompt would follow it ("^C$ "), the process having ended with its exit code."""
+def _put_back_setting(fd: int) -> None:
+    """The terminal's own setting put back (output flushed at Ctrl-C, ``^C`` echoed), as the process ends (unless
+    it is no longer the foreground's: a background process changing it would be stopped).  A later press's
+    ``^C``, where the terminal still echoed one below the last words, is cleared first: the shell's prompt would
+    follow it ("^C$ "), the process having ended with its exit code."""
     with contextlib.suppress(termios.error, OSError):
         if os.tcgetpgrp(fd) == os.getpgrp():
             time.sleep(_LAST_WORDS_SHOWN)
             clear_after_ctrl_c()
+            on, off = _set
             attrs = termios.tcgetattr(fd)
-            attrs[3] &= ~termios.NOFLSH
+            attrs[3] = (attrs[3] & ~on) | off
             termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
 

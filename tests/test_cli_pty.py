@@ -556,6 +556,49 @@ def test_last_words_written_as_the_command_ends_survive_a_press_as_it_ends() -> 
     assert not no_flush_after, "the terminal's own setting is put back as the command ends"
 
 
+# Two presses (TIOCSTI: typed from inside), the first noted as the command line's handler notes it, then its
+# last words.
+_TWO_PRESSES_ON_A_TERMINAL = """
+import fcntl, os, signal, sys, termios
+os.setsid()
+tty = os.open(sys.argv[1], os.O_RDWR)  # (the session's first terminal opened: its controlling one)
+sys.stderr = os.fdopen(os.dup(tty), "w")
+from ics35_async.terminal import clear_echoed_ctrl_c, ctrl_c_typed
+
+signal.signal(signal.SIGINT, lambda signum, frame: ctrl_c_typed())
+fcntl.ioctl(tty, termios.TIOCSTI, b"\\x03")  # the first press (its handler runs before the next line)
+clear_echoed_ctrl_c()
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the second is taken for the same stop)
+fcntl.ioctl(tty, termios.TIOCSTI, b"\\x03")  # the second, as the command says what it left
+os.write(tty, b"wrote 1 pose(s)\\n")
+"""
+
+
+def test_a_second_press_once_a_ctrl_c_has_stopped_the_command_echoes_no_c_before_its_last_words() -> None:
+    # The terminal echoed the second press's ^C where the last words were about to start: "^Cwrote 1 pose(s) ...",
+    # whenever it came between the first press's clearing and the words (teach, eeprom set, a few runs in a
+    # hundred).  Once a Ctrl-C has stopped the command the terminal echoes no more ^C, until it ends.
+    master, slave = os.openpty()
+    try:
+        echoctl_before = bool(termios.tcgetattr(master)[3] & termios.ECHOCTL)
+        proc = subprocess.Popen([sys.executable, "-c", _TWO_PRESSES_ON_A_TERMINAL, os.ttyname(slave)])
+        written = b""
+        deadline = time.monotonic() + scaled(30)
+        while proc.poll() is None or select.select([master], [], [], 0.2)[0]:
+            assert time.monotonic() < deadline, written[-300:]
+            if select.select([master], [], [], 0.01)[0]:
+                written += os.read(master, 65536)
+        echoctl_after = bool(termios.tcgetattr(master)[3] & termios.ECHOCTL)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert proc.wait(scaled(30)) == 0
+    assert echoctl_before, "a pty echoes control characters as ^C by default"
+    assert written.count(b"^C") == 1, written  # the first press's, cleared; none for the second
+    assert written.rstrip().endswith(b"wrote 1 pose(s)") and b"^Cwrote" not in written, written
+    assert echoctl_after, "the terminal's own setting is put back as the command ends"
+
+
 def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(tmp_path: Path) -> None:
     # FORCE_COLOR makes the console library treat a file as a terminal: the clearing went into the log.
     log = tmp_path / "err.log"
