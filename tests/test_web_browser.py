@@ -1491,47 +1491,31 @@ def test_the_ram_box_shows_what_the_servo_has_for_the_parameter_chosen(browser: 
         assert servo.speed == 60 and servo.stretch == 30
 
 
-def test_an_emptied_number_box_is_refused_in_words_not_sent_as_zero(browser: Browser) -> None:
-    # A number box the user emptied (or typed a letter in: the browser then gives no value) reads as 0 in
-    # JavaScript: the lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.
+@pytest.mark.parametrize("typed", ["", "7.5"], ids=["emptied", "a fraction"])
+def test_a_number_box_emptied_or_given_a_fraction_is_refused_in_the_pages_words(browser: Browser, typed: str) -> None:
+    # Emptied (or a letter typed in: the browser then gives no value), a number box read as 0 in JavaScript: the
+    # lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.  A fraction came back in the
+    # server's names: "new_id must be an integer, got 7.5", "punch must be an int, not float".
+    def refused(what: str) -> str:
+        return f"give {what} a value" if typed == "" else f"{what} must be a whole number, not {typed}"
+
     line = PtyLine((4,))
     with web_server_page(browser, line) as p:
         open_servo_page(p, 4)
-        p.fill("#eeprom-table [name=punch]", "")
+        p.fill("#eeprom-table [name=punch]", typed)
         p.click("#plan-btn")
-        expect(p.locator("#message")).to_have_text("give punch a value")
+        expect(p.locator("#message")).to_have_text(refused("punch"))
         expect(p.locator("#diff tr.changed")).to_have_count(0)
-        p.fill("#ram-value", "")
+        p.fill("#ram-value", typed)
         p.click("#ram-write")
-        expect(p.locator("#message")).to_have_text("give the RAM value a value")
-        p.fill("#servo-id", "")
+        expect(p.locator("#message")).to_have_text(refused("the RAM value"))
+        p.fill("#servo-id", typed)
         p.click("#servo-load")
-        expect(p.locator("#message")).to_have_text("give the servo's ID a value")  # not "ID 0 did not answer"
+        expect(p.locator("#message")).to_have_text(refused("the servo's ID"))  # not "ID 0 did not answer"
         p.click("a[href='#id']")
-        p.fill("#new-id", "")
+        p.fill("#new-id", typed)
         p.click("#renumber-btn")
-        expect(p.locator("#id-result")).to_have_text("give the new ID a value")
-        p.wait_for_timeout(500)  # (time for a write the page might still have sent)
-        assert [s.servo_id for s in line.sim.servos] == [4]
-        assert line.sim.servo(4).eeprom.punch != 0
-
-
-def test_a_fraction_typed_where_a_whole_number_goes_is_refused_in_the_pages_words(browser: Browser) -> None:
-    # 7.5 as a new ID came back as "new_id must be an integer, got 7.5", 2.5 as a dead band as "dead_band must be
-    # an int, not float", 1.5 in RAM as "value must be an integer": the server's names, not the page's.
-    line = PtyLine((4,))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 4)
-        p.fill("#eeprom-table [name=dead_band]", "2.5")
-        p.click("#plan-btn")
-        expect(p.locator("#message")).to_have_text("dead_band must be a whole number, not 2.5")
-        p.fill("#ram-value", "1.5")
-        p.click("#ram-write")
-        expect(p.locator("#message")).to_have_text("the RAM value must be a whole number, not 1.5")
-        p.click("a[href='#id']")
-        p.fill("#new-id", "7.5")
-        p.click("#renumber-btn")
-        expect(p.locator("#id-result")).to_have_text("the new ID must be a whole number, not 7.5")
+        expect(p.locator("#id-result")).to_have_text(refused("the new ID"))
         p.wait_for_timeout(500)  # (time for a write the page might still have sent)
         assert [s.servo_id for s in line.sim.servos] == [4]
         assert line.sim.servo(4).eeprom_writes == 0
