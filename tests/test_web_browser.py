@@ -863,6 +863,15 @@ def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser
         expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_have_text(
             "not read: the line is at 115200 baud (Connect at 1250000 to read it)"
         )
+        # Many servos and Live plots start from the servos found at the line's rate: servo 5 pre-filled there
+        # failed with "no reply" (Many) or was plotted offline (Live).
+        p.click("a[href='#many']")
+        expect(p.locator("#many-ids")).to_have_value("1")
+        p.click("a[href='#live']")
+        p.click("#live-start")
+        expect(p.locator("#legend span[data-id='1']")).to_be_visible()
+        expect(p.locator("#legend span[data-id='5']")).to_have_count(0)
+        p.click("#live-stop")
 
 
 @contextlib.contextmanager

@@ -184,6 +184,12 @@ async function loadPorts() {
   $("#port-notes").replaceChildren(...found.notes.map((n) => el("li", {}, n)));
 }
 
+// The IDs a scan found at the line's own rate: the ones the other pages can talk to now (one found at another rate
+// would answer nothing there until the line is connected at its rate).
+function servosHere() {
+  return state.servos.filter((s) => !state.status || s.baud === state.status.baud).map((s) => s.id);
+}
+
 function showServos(servos) {
   state.servos = servos;
   $("#servo-notes").hidden = !servos.length;
@@ -594,7 +600,7 @@ const PROFILE_FIELDS = ["stretch_gain", "speed", "punch", "dead_band", "damping"
 function fillManyFields() {
   const body = $("#many-fields tbody");
   if (body.children.length) return;
-  if (!$("#many-ids").value && state.servos.length) $("#many-ids").value = state.servos.map((s) => s.id).join(",");
+  if (!$("#many-ids").value && servosHere().length) $("#many-ids").value = servosHere().join(",");
   for (const name of PROFILE_FIELDS) {
     body.append(el("tr", {}, el("td", {}, el("input", { type: "checkbox", name: `use-${name}` })), el("td", {}, name), el("td", {}, el("input", { type: "number", name: `value-${name}` }))));
   }
@@ -632,7 +638,7 @@ const COLORS = ["#0b63c5", "#b3261e", "#1e7b34", "#8a5a00", "#6a1b9a", "#00838f"
 async function startLive() {
   let ids;
   const text = $("#live-ids").value.trim();
-  try { ids = text ? parseIds(text) : state.servos.map((s) => s.id); } catch (e) { say(e.message); return; }
+  try { ids = text ? parseIds(text) : servosHere(); } catch (e) { say(e.message); return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
   state.history = []; state.liveIds = new Set();
   const started = await api("/api/live/start", { ids });
