@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Self, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, NoReturn, Self, TypeVar
 
 from . import units
 from .errors import BusClosed
@@ -22,6 +22,17 @@ class FrameIterator(Generic[F]):
     async def next_frame(self) -> F:
         """The next frame (each stream says which); raises ``BusClosed`` once the stream is closed."""
         raise NotImplementedError
+
+    # What a program that wrote `with` where `async with` goes is told (each stream says how it is used).
+    _used_with = "a stream runs in `async with ...`"
+
+    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
+
+        def __enter__(self) -> NoReturn:
+            raise TypeError(self._used_with)
+
+        def __exit__(self, *exc: object) -> None:
+            return None
 
     def __aiter__(self) -> Self:
         return self

@@ -38,6 +38,8 @@ class GroupStream(FrameIterator[GroupFrame]):
         InvalidArgument: no stream (``group.stream({})``): its frames would merge nothing.
     """
 
+    _used_with = "a group stream runs in `async with group.stream(...) as stream:`"
+
     def __init__(self, streams: Mapping[str, Stream]) -> None:
         self.streams = dict(streams)
         if not self.streams:
@@ -249,14 +251,6 @@ class GroupStream(FrameIterator[GroupFrame]):
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
-
-    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
-
-        def __enter__(self) -> NoReturn:
-            raise TypeError("a group stream runs in `async with group.stream(...) as stream:`")
-
-        def __exit__(self, *exc: object) -> None:
-            return None
 
     def __repr__(self) -> str:
         lives = {s._life() for s in self.streams.values()}

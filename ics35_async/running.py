@@ -187,17 +187,25 @@ async def _no_signals() -> AsyncIterator[int]:
 
 def _check_run(main: object, backend: str) -> None:
     """What :func:`run` refuses before it starts anything (the habits of ``asyncio.run``)."""
-    if inspect.iscoroutine(main):
-        main.close()  # (never awaited: no warning about it on top of the error)
-        raise InvalidArgument("run() takes the async function itself: run(main), not run(main())")
-    if not callable(main):
-        raise InvalidArgument(f"run() takes an async function, not {type(main).__name__}")
+    check_async_function(main, "run")
     if inspect.isasyncgenfunction(main):  # (its call gives something to iterate, not to await)
         raise not_async(main, main())
     if backend not in typing.get_args(Backend):
         raise InvalidArgument(f"backend must be one of {', '.join(typing.get_args(Backend))}, not {backend!r}")
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
+
+
+def check_async_function(fn: object, taker: str, *, with_args: bool = False) -> None:
+    """What ``taker`` (:func:`run`; ``bus.run`` and ``robot.run``, ``with_args``: they take the function's
+    arguments too) refuses before anything runs: a coroutine (``run(main())``) or something not callable."""
+    if inspect.iscoroutine(fn):
+        fn.close()  # (never awaited: no warning about it on top of the error)
+        right, wrong = ("fn, *args", "fn(*args)") if with_args else ("main", "main()")
+        what = "and its arguments" if with_args else "itself"
+        raise InvalidArgument(f"{taker}() takes the async function {what}: {taker}({right}), not {taker}({wrong})")
+    if not callable(fn):
+        raise InvalidArgument(f"{taker}() takes an async function, not {type(fn).__name__}")
 
 
 def not_async(fn: Callable[..., object], returned: object, taker: str = "run()") -> InvalidArgument:

@@ -17,7 +17,7 @@ import threading
 import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from typing import TYPE_CHECKING, Literal, NoReturn, TypedDict
+from typing import Literal, TypedDict
 
 import anyio
 
@@ -104,6 +104,11 @@ class Stream(FrameIterator[Frame]):
     Raises:
         InvalidArgument: a bad, duplicate or missing ID, or an option out of range.
     """
+
+    _used_with = (
+        "a stream runs in `async with bus.stream(...) as stream:`; in code without an event loop, a bus of"
+        " `ics35_async.blocking` gives a stream for `with`"
+    )
 
     def __init__(
         self,
@@ -1024,17 +1029,6 @@ class Stream(FrameIterator[Frame]):
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
-
-    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
-
-        def __enter__(self) -> NoReturn:
-            raise TypeError(
-                "a stream runs in `async with bus.stream(...) as stream:`; in code without an event loop, a bus"
-                " of `ics35_async.blocking` gives a stream for `with`"
-            )
-
-        def __exit__(self, *exc: object) -> None:
-            return None
 
 
 def _no_hook(done: anyio.Event) -> None:

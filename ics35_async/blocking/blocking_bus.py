@@ -11,13 +11,13 @@ from ..bus import open_bus as open_async_bus
 from ..engine import State
 from ..errors import InvalidArgument
 from ..protocol import Command
-from ..running import close_step
+from ..running import check_async_function, close_step
 from ..servo import READ_DEGREES_FREES, Device, Servo
 from ..stats import BusStats
 from ..transports import WireDevice
 from .blocking_stream import BlockingStream
 from .forward import ReadThrough, Wrapper, blocking
-from .loop_thread import LoopThread, awaited, check_async_function
+from .loop_thread import LoopThread, awaited
 from .owner import LoopOwner
 
 if TYPE_CHECKING:
@@ -197,7 +197,7 @@ class BlockingBus(LoopOwner[Bus]):
             InvalidArgument: ``fn`` is a coroutine (``bus.run(fn(*args))``: pass ``fn`` and its arguments) or not
                 callable, or its call gave nothing to await (a plain ``def``: said once that call has returned).
         """
-        check_async_function(fn, "bus.run")
+        check_async_function(fn, "bus.run", with_args=True)
         return self._loop.call(awaited, "bus.run", fn, *args, **kwargs)
 
     scan = blocking(Bus.scan)

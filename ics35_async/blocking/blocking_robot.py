@@ -25,8 +25,8 @@ from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, Robo
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from ..robot.startup import warn_at_open, warn_program
-from ..running import close_step
-from .loop_thread import LoopThread, awaited, check_async_function
+from ..running import check_async_function, close_step
+from .loop_thread import LoopThread, awaited
 from .owner import LoopOwner
 
 P = ParamSpec("P")
@@ -147,7 +147,7 @@ class BlockingRobot(LoopOwner[Robot]):
             InvalidArgument: ``fn`` is a coroutine (``robot.run(fn(*args))``: pass ``fn`` and its arguments) or
                 not callable, or its call gave nothing to await (a plain ``def``: said once that call has returned).
         """
-        check_async_function(fn, "robot.run")
+        check_async_function(fn, "robot.run", with_args=True)
         try:
             return self._loop.call(awaited, "robot.run", fn, *args, **kwargs)
         except KeyboardInterrupt:

@@ -38,7 +38,7 @@ import threading
 from collections.abc import Awaitable, Callable
 from typing import Any, Generic, ParamSpec, TypeVar, cast
 
-from ..errors import BusClosed, InvalidArgument
+from ..errors import BusClosed
 from ..running import not_async, stop_signals
 
 P = ParamSpec("P")
@@ -139,18 +139,6 @@ class _Call(Generic[T]):
 
 async def _await(fn: Callable[..., Awaitable[T]], args: tuple[Any, ...], kwargs: dict[str, Any]) -> T:
     return await fn(*args, **kwargs)
-
-
-def check_async_function(fn: object, taker: str) -> None:
-    """What ``bus.run`` and ``robot.run`` (``taker``) refuse before anything runs: a coroutine
-    (``bus.run(fn(*args))``) or something not callable."""
-    if inspect.iscoroutine(fn):
-        fn.close()  # (never awaited: no warning about it on top of the error)
-        raise InvalidArgument(
-            f"{taker}() takes the async function and its arguments: {taker}(fn, *args), not {taker}(fn(*args))"
-        )
-    if not callable(fn):
-        raise InvalidArgument(f"{taker}() takes an async function, not {type(fn).__name__}")
 
 
 async def awaited(taker: str, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:

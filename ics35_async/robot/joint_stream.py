@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Mapping
 from types import TracebackType
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 
 from ..errors import BusClosed
 from ..frames import FrameIterator
@@ -22,6 +22,8 @@ class RobotStream(FrameIterator[RobotFrame]):
     (the newest one not seen yet) and raises :class:`SafetyStop` when the
     safety watch trips after the view was opened.
     """
+
+    _used_with = "a robot's stream runs in `async with robot.stream() as stream:`"
 
     def __init__(self, robot: Robot) -> None:
         self.robot = robot
@@ -92,14 +94,6 @@ class RobotStream(FrameIterator[RobotFrame]):
 
     async def __aenter__(self) -> RobotStream:
         return self
-
-    if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
-
-        def __enter__(self) -> NoReturn:
-            raise TypeError("a robot's stream runs in `async with robot.stream() as stream:`")
-
-        def __exit__(self, *exc: object) -> None:
-            return None
 
     async def __aexit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None

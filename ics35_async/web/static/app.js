@@ -75,11 +75,10 @@ function numberIn(box, what) {
 // A box for a whole number (an ID, an EEPROM field, a RAM value): a fraction is refused here, in the page's words.
 function wholeIn(box, what) {
   const value = numberIn(box, what);
-  if (!Number.isInteger(value)) {
-    say(`${what} must be a whole number, not ${box.value.trim()}`);
-    throw new Error(`${what} must be a whole number, not ${box.value.trim()}`);
-  }
-  return value;
+  if (Number.isInteger(value)) return value;
+  const words = `${what} must be a whole number, not ${box.value.trim()}`;
+  say(words);
+  throw new Error(words);
 }
 
 function parseIds(text) {
@@ -135,11 +134,16 @@ function showStatus(s) {
     const words = `motion was switched off for servo ${state.motionFor} (by another page); switch it on again to jog`;
     if ($("#message").hidden) say(words, "info");
   }
-  if (!$("#port-input").value) { $("#port-input").value = s.port; $("#baud-select").value = String(s.baud); }
+  if (!$("#port-input").value) showLineInBoxes(s);
   if (!s.live) liveStopped();
 }
 
 // ---- Line
+
+// The Port and Baud boxes naming the line a status `s` says is open.
+function showLineInBoxes(s) {
+  $("#port-input").value = s.port; $("#baud-select").value = String(s.baud);
+}
 
 // With --robot: the robot's lines on the Line page and the Robot page, so either leads to the other.
 function showRobotLines(robot) {
@@ -159,7 +163,7 @@ function showRobotLines(robot) {
 async function useRobotLine(name, scan = false) {
   const s = await api("/api/connect", { robot_line: name });
   showStatus(s); showServos([]);
-  $("#port-input").value = s.port; $("#baud-select").value = String(s.baud);
+  showLineInBoxes(s);
   say(`working on the robot's line ${name} (${s.port}); the robot keeps streaming it`, "info");
   if (scan) await scanLine();
 }
@@ -600,7 +604,7 @@ const PROFILE_FIELDS = ["stretch_gain", "speed", "punch", "dead_band", "damping"
 function fillManyFields() {
   const body = $("#many-fields tbody");
   if (body.children.length) return;
-  if (!$("#many-ids").value && servosHere().length) $("#many-ids").value = servosHere().join(",");
+  if (!$("#many-ids").value) $("#many-ids").value = servosHere().join(",");
   for (const name of PROFILE_FIELDS) {
     body.append(el("tr", {}, el("td", {}, el("input", { type: "checkbox", name: `use-${name}` })), el("td", {}, name), el("td", {}, el("input", { type: "number", name: `value-${name}` }))));
   }
@@ -903,7 +907,7 @@ on("#connect-form", "submit", async (e) => {
   } catch (err) {
     // Refused (said by api): the line stays where it was, and so does the box, or a Scan next would scan
     // one line while the box names another.
-    if (state.status) { $("#port-input").value = state.status.port; $("#baud-select").value = String(state.status.baud); }
+    if (state.status) showLineInBoxes(state.status);
     throw err;
   }
   showStatus(s); showServos([]);
