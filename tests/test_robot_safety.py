@@ -28,6 +28,15 @@ def reads(sim: VirtualLine, command: str, since: int, until: int, servo_id: int 
     )
 
 
+def heard(sim: VirtualLine, servo_id: int, since: int) -> list[int]:
+    """The position targets (log seq > ``since``) the servo at ``servo_id`` heard: it was on the line to answer."""
+    return [
+        (t.tx[1] << 7) | t.tx[2]
+        for t in sim.log_since(since)
+        if t.command == "position" and t.servo_id == servo_id and servo_id in t.responders
+    ]
+
+
 def first_free(sim: VirtualLine, servo_id: int, since: int) -> int:
     return next(t.seq for t in sim.log_since(since) if t.command == "free" and t.servo_id == servo_id)
 
@@ -178,6 +187,35 @@ def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refus
         rig.close()
 
 
+@pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
+def test_a_target_set_for_a_joint_that_never_answered_does_not_move_its_servo_once_plugged_in() -> None:
+    # move_to refuses such a joint (it would drive it blind); set_targets takes the target, as a loop setting
+    # every joint each pass needs, but the servo, plugged in later, must not be thrown there at full speed from
+    # wherever it stands: it answers a read, comes back held, and moves only once the program sets it again.
+    rig = make_rig()
+    knee = rig.lower.remove_servo(2)
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"hip": 10.0, "knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.latest is not None and "knee" in robot.latest.offline)
+                robot.set_targets({"hip": 10.0, "knee": -40.0})
+                since = rig.lower.transactions
+                rig.lower.add_device(knee)
+                await frames_until(robot, lambda: "knee" in robot.held)
+                lower = robot.latest.line_cycles["lower"]
+                await frames_until(robot, lambda: robot.latest.line_cycles["lower"] >= lower + 3)
+                assert heard(rig.lower, 2, since) == []
+                robot.set_targets({"knee": -40.0})  # decided: now it goes
+                await robot.on_wire(["knee"])
+                assert set(heard(rig.lower, 2, since)) == {robot.joints["knee"].position(-40.0)}
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
 def test_an_offline_servo_stops_the_motion_unless_continue_on_offline() -> None:
     def silence(rig: Rig) -> Callable[[], None]:
         # Every reply of ID 3 (the elbow) dropped from now on: the servo has gone quiet.
@@ -319,7 +357,9 @@ def test_a_freed_over_current_joint_stays_tripped_until_the_program_resets_it() 
                 with pytest.raises(SafetyStop, match="joint knee"):
                     robot.set_targets({"knee": 12.0, "hip": 0.0})
                 await robot.on_wire()
-                assert targets_sent(rig.lower, 2, since) == [] and knee.free  # nothing re-powered the knee
+                assert targets_sent(rig.lower, 2, since) == [], [
+                    (t.seq, t.command, t.tx.hex(), t.responders) for t in rig.lower.log_since(since) if t.servo_id == 2
+                ] and knee.free  # nothing re-powered the knee
                 knee.load = 0  # the program dealt with the cause: its call puts the joint back in its hands
                 robot.reset_trip("knee")
                 assert robot.tripped == {} and robot.trips == [stop]

@@ -195,7 +195,9 @@ class Robot:
         """Targets ``pose`` ``{joint: degrees}`` (``None`` frees, with ``allow_free``), all checked first;
         they take over those joints from any running motion.  A held joint (see :attr:`held`) is sent its
         target: the program has decided; ``lift_holds=False`` (a loop that sets every joint each pass) leaves
-        it held, sent nothing.
+        it held, sent nothing.  A joint whose servo does not answer (offline, or never heard from since the
+        robot opened) takes the target, but its servo, once it answers, is not thrown there from wherever it
+        stands: it comes back held, until the program sets its target again.
 
         Raises:
             InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
