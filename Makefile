@@ -68,7 +68,7 @@ FORMATTED := ics35_async _ics35_async_entry.py tests benchmarks tools setup.py
 
 # The configurator's screenshots in docs/images, taken by its browser tests (a plain test run leaves them alone).
 screenshots: $(STAMP) browser
-	ICS35_SCREENSHOTS=1 $(BIN)/pytest -q -p no:cacheprovider tests/test_web_browser.py
+	ICS35_SCREENSHOTS=1 $(BIN)/pytest -q -p no:cacheprovider tests/test_web_browser.py tests/test_web_browser_line.py tests/test_web_browser_servo.py
 
 # The servo configurator in the browser, on the simulator (prints its URL; Ctrl-C stops it).
 web-demo: $(STAMP)

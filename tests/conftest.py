@@ -7,6 +7,8 @@
 * ``sim_line``: ``sim_line(servos, **VirtualLine options)`` a named in-process simulated line and its
   ``sim://NAME`` URL, closed after the test;
 * ``pty_sim``: ``pty_sim(*server args)`` the simulator served on a pty by a subprocess, stopped after the test;
+* ``browser``: headless Chromium driven by Playwright, one per test module (the configurator's browser tests;
+  what they share besides is :mod:`tests.support.browser_pages`);
 * ``anyio_backend``: the async library an ``async def`` test runs on (anyio's pytest plugin runs every
   coroutine test); asyncio unless the test is marked :data:`every_backend`.
 
@@ -26,7 +28,7 @@ import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import coverage
 import pytest
@@ -35,6 +37,9 @@ from hypothesis import HealthCheck, settings
 
 from ics35_async.sim import VirtualLine, start_subprocess, stop_subprocess
 from tests.support.cli_runs import CliResult, run_in_process, run_process
+
+if TYPE_CHECKING:
+    from playwright.sync_api import Browser
 
 # Property tests run without Hypothesis' per-example deadline (200 ms) and its too-slow check: a test never
 # asserts that something was fast, and on a loaded machine one example can take longer than that.
@@ -65,6 +70,24 @@ every_backend = pytest.mark.parametrize("anyio_backend", list(BACKENDS), indirec
 def anyio_backend(request: pytest.FixtureRequest) -> object:
     """asyncio by default; ``@every_backend`` (or an indirect parametrization by name) picks another."""
     return BACKENDS[getattr(request, "param", "asyncio")]
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    """Headless Chromium for a module's tests (each module its own: `make test` runs the browser modules side by
+    side).  Playwright is imported here, not at the top: only the browser tests need it."""
+    from playwright.sync_api import sync_playwright
+
+    from tests.support.browser_pages import CHROMIUM, CHROMIUM_ARGS
+
+    if not Path(CHROMIUM).exists():
+        pytest.fail(
+            f"{CHROMIUM} is missing: `make` installs Debian's chromium-headless-shell (as root), or set ICS35_CHROMIUM"
+        )
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
 
 
 @pytest.fixture

@@ -6,6 +6,9 @@ every change the page makes is checked on the simulated servo itself.  Each
 page's screenshot is taken; with ``ICS35_SCREENSHOTS=1`` (``make screenshots``)
 it goes to ``docs/images/web-*.png``, which the docs show (a plain test run
 leaves the tracked pictures alone).
+
+The Line page's scans and renumbering are in ``test_web_browser_line.py``, the Servo, ID and live pages'
+own cases in ``test_web_browser_servo.py``: three modules, run side by side.
 """
 
 from __future__ import annotations
@@ -17,9 +20,8 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,50 +31,31 @@ import pytest
 if not sys.platform.startswith("linux"):
     pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
 
-from playwright.sync_api import Browser, Page, Request, Route, expect, sync_playwright
+from playwright.sync_api import Browser, Page, Request, Route, expect
 
-from ics35_async.protocol import ReadEeprom
-from ics35_async.sim import VirtualLine, VirtualServo
-from ics35_async.sim.pty_server import PtyServer
+from tests.support.browser_pages import (
+    PAGE_GONE_BOUND,
+    ROOT,
+    SCAN_WAIT_MS,
+    WAIT_MS,
+    WEB,
+    PtyLine,
+    backed_up,
+    base_of,
+    open_servo_page,
+    scan_finds,
+    scan_lists,
+    servo_read,
+    shot,
+    until,
+    web_server_page,
+)
 from tests.support.cli_runs import DUMP_ON_USR1
-from tests.support.sim_servos import UnplugsWhenAsked
-from tests.support.timing import GUARD, PATIENT_OPTION, scaled
+from tests.support.timing import PATIENT_OPTION
 
-CHROMIUM = os.environ.get("ICS35_CHROMIUM", "/usr/bin/chromium-headless-shell")  # see the Makefile's browser target
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-]  # fmt: skip
-ROOT = Path(__file__).resolve().parents[1]
-IMAGES = ROOT / "docs" / "images"
-KEEP_SHOTS = os.environ.get("ICS35_SCREENSHOTS") == "1"
-# The tests walk one page in order (a servo opened, then backed up, ...): `make test` hands each module
-# whole to one xdist worker (--dist loadfile).
+# Each module's tests share its browser (and the first module's, one page walked in order): `make test`
+# hands each module whole to one xdist worker (--dist loadfile); the three modules run side by side.
 pytestmark = [pytest.mark.slow, pytest.mark.pty]
-WEB = [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser"]
-WAIT_MS = int(scaled(20.0) * 1000)  # a busy machine: every wait is for an outcome, never a measure of speed
-# A scan (or a renumbering's survey, which probes every ID too) with the patient allowance: a reply late
-# past a probe's short wait (a loaded machine) has it probe every silent ID again with the full half
-# second, so it can take half a minute.
-SCAN_WAIT_MS = int(scaled(60.0) * 1000)
-expect.set_options(timeout=WAIT_MS)
-
-
-class PtyLine:
-    """A simulated line served on a pty by a thread of this process."""
-
-    def __init__(self, ids: tuple[int, ...], ics36: tuple[int, ...] = ()) -> None:
-        self.sim = VirtualLine([VirtualServo(i, ics36=i in ics36) for i in ids])
-        self.server = PtyServer(self.sim)
-        self.path = str(self.server.open())
-        self.thread = threading.Thread(target=self.server.serve, daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.server.stop()
-        self.thread.join(5)
-        self.server.close()
-        self.sim.close()
 
 
 @pytest.fixture(scope="module")
@@ -112,18 +95,6 @@ def server(lines: tuple[PtyLine, PtyLine]) -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    if not Path(CHROMIUM).exists():
-        pytest.fail(
-            f"{CHROMIUM} is missing: `make` installs Debian's chromium-headless-shell (as root), or set ICS35_CHROMIUM"
-        )
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield b
-        b.close()
-
-
-@pytest.fixture(scope="module")
 def page(browser: Browser, server: str) -> Iterator[Page]:
     context = browser.new_context(viewport={"width": 1280, "height": 1000}, accept_downloads=True)
     p = context.new_page()
@@ -131,49 +102,6 @@ def page(browser: Browser, server: str) -> Iterator[Page]:
     p.goto(server)
     yield p
     context.close()
-
-
-def shot(page: Page, name: str, height: int = 1000, width: int = 1280) -> None:
-    """The page from its top, ``height`` pixels of it (the header stays put while the page scrolls);
-    into docs/images with ICS35_SCREENSHOTS=1."""
-    size = page.viewport_size
-    page.set_viewport_size({"width": width, "height": height})
-    page.keyboard.press("Home")  # the page allows no eval (CSP): scrolled the way a person would
-    page.locator("main h1:visible").scroll_into_view_if_needed()
-    picture = page.screenshot()
-    assert picture.startswith(b"\x89PNG")
-    if KEEP_SHOTS:
-        IMAGES.mkdir(parents=True, exist_ok=True)
-        (IMAGES / f"web-{name}.png").write_bytes(picture)
-    if size is not None:
-        page.set_viewport_size(size)
-
-
-SCAN_OUTCOME = {"scan summary": "#scan-summary", "message": "#message", "line": "#line-status"}
-
-
-def scan_finds(p: Page, count: int, ids: str = "") -> None:
-    """Scan the line from ``p``'s Line page (``ids``: the IDs to ask, as typed; all 32 if empty): ``count``
-    servos found and listed.  A failure says what the page showed (the scan's summary, the message box, the
-    line's status), not only that the table stayed empty."""
-    p.fill("#scan-ids", ids)
-    p.click("#scan-btn")
-    scan_lists(p, count)
-
-
-def scan_lists(p: Page, count: int) -> None:
-    """The scan under way on ``p``'s Line page ends with ``count`` servos found and listed (a failure says
-    what the page showed)."""
-    try:
-        expect(p.locator("#scan-summary")).to_contain_text(f"{count} servo(s) found", timeout=SCAN_WAIT_MS)
-        expect(p.locator("#servo-table tbody tr")).to_have_count(count)
-    except AssertionError as exc:
-        shown = {name: p.locator(sel).text_content() for name, sel in SCAN_OUTCOME.items()}
-        raise AssertionError(f"a scan did not list {count} servos; the page showed {shown}") from exc
-
-
-def base_of(url: str) -> str:
-    return url.split("/?")[0]
 
 
 @pytest.fixture(scope="module")
@@ -308,12 +236,6 @@ def open_servo(p: Page, sid: int, *, speed: int) -> None:
     expect(p.locator("#eeprom-table [name=speed]")).to_have_value(str(speed))
 
 
-def servo_read(p: Page, sid: int) -> None:
-    """Wait until ``p``'s Servo page says it has read servo ``sid`` (its reads done: its buttons act on it).  (Its
-    tables fill before the last read, and could be the page's last visit's.)"""
-    expect(p.locator(f"#page-servo[data-loaded='{sid}']")).to_be_attached()
-
-
 def test_a_field_is_changed_written_and_verified_on_the_servo(page: Page, lines: Any) -> None:
     sim = lines[0].sim
     page.click("a[href='#line']")
@@ -355,14 +277,6 @@ def test_backup_then_restore_from_the_file(page: Page, lines: Any, tmp_path: Pat
     assert sim.servo(1).eeprom.speed == speed
 
 
-def until(condition: Callable[[], bool], failure: str) -> None:
-    """Wait for what the simulated line shows (only against a hang: GUARD)."""
-    deadline = time.monotonic() + GUARD
-    while not condition():
-        assert time.monotonic() < deadline, failure
-        time.sleep(0.01)
-
-
 def test_jog_moves_the_servo_only_with_motion_enabled(page: Page, lines: Any) -> None:
     sim = lines[0].sim
     open_servo(page, 1, speed=sim.servo(1).eeprom.speed)
@@ -402,20 +316,6 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     page.fill("#port-input", two.path)
     page.click("#connect-btn")
     expect(page.locator("#message")).to_have_text(f"connected to {two.path}")
-
-
-def test_a_port_that_cannot_be_opened_leaves_the_port_box_naming_the_line_still_open(browser: Browser) -> None:
-    # A mistyped port was refused and the line stayed on the old one, but the box kept the refused name: a Scan
-    # right after scanned the old line while the box named another.
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        expect(p.locator("#port-input")).to_have_value(line.path)
-        p.fill("#port-input", "/dev/ttyNOPE")
-        p.click("#connect-btn")
-        expect(p.locator("#message")).to_contain_text("/dev/ttyNOPE")
-        expect(p.locator("#port-input")).to_have_value(line.path)
-        expect(p.locator("#line-status")).to_contain_text(line.path)
-        scan_finds(p, 1, ids="0-2")
 
 
 def test_a_profile_goes_to_many_servos_with_a_result_each(page: Page, lines: Any) -> None:
@@ -546,24 +446,6 @@ def test_a_message_that_the_port_is_lost_goes_when_the_line_is_back(page: Page, 
     scan_finds(page, 2, ids="0-4")
 
 
-def backed_up(page: Page, folder: Path) -> Path:
-    """The Servo page's **Back up to a file**, its download saved in ``folder`` under the name it was offered."""
-    with page.expect_download() as download:
-        page.click("#backup-btn")
-    backup = folder / download.value.suggested_filename
-    download.value.save_as(backup)
-    return backup
-
-
-def open_servo_page(page: Page, servo_id: int) -> None:
-    """The Servo page of ``servo_id``, its reads done (see :func:`servo_read`; its ID in the EEPROM table, then its
-    RAM shown)."""
-    page.goto(page.url.split("#")[0] + f"#servo/{servo_id}")
-    servo_read(page, servo_id)
-    expect(page.locator("#eeprom-table [name=servo_id]")).to_have_value(str(servo_id))
-    expect(page.locator("#ram-table tbody tr").first).to_be_visible()
-
-
 def test_the_servo_page_reports_the_position_read_after_a_jog_not_the_one_before(page: Page, lines: Any) -> None:
     servo = lines[0].sim.servo(3)  # ICS 3.6: its position is read without moving or freeing it
     servo.move_by_hand(8000)
@@ -600,438 +482,6 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     assert servo.target == 7700  # held where it was sent: nothing freed it
     page.click("#free-btn")
     expect(page.locator("#jog-plus")).to_be_disabled()
-
-
-@contextlib.contextmanager
-def web_server_page(browser: Browser, line: PtyLine, args: list[str] | None = None) -> Iterator[Page]:
-    """``ics35 web ARGS`` (by default ``--port`` ``line``'s pty) in a process of its own and a page on it; at the
-    end the server is stopped and ``line`` closed, and the server must have printed no traceback."""
-    proc = subprocess.Popen(
-        [*WEB, *(["--port", line.path] if args is None else args), *PATIENT_OPTION],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "ICS35_WEB_TOKEN": ""},
-    )
-    assert proc.stdout is not None and proc.stderr is not None
-    context = browser.new_context()
-    try:
-        page = context.new_page()
-        page.set_default_timeout(WAIT_MS)
-        page.goto(proc.stdout.readline().strip())
-        yield page
-    finally:
-        context.close()
-        proc.terminate()
-        proc.wait(10)
-        errors = proc.stderr.read()
-        proc.stdout.close()
-        proc.stderr.close()
-        line.close()
-    assert "Traceback" not in errors, errors
-
-
-def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
-    line = PtyLine((1,))
-    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
-    with web_server_page(browser, line) as p:
-        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
-        p.goto(p.url.split("#")[0] + "#servo/5")
-        expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
-        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
-        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
-        expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
-
-
-def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_the_loss(browser: Browser) -> None:
-    line = PtyLine((1, 2))
-    puller = UnplugsWhenAsked(3, ReadEeprom)
-    line.sim.add_device(puller)
-    with web_server_page(browser, line) as p:
-        puller.line = line.sim
-        p.fill("#scan-ids", "0-4")
-        p.click("#scan-btn")
-        expect(p.locator("#scan-summary")).to_contain_text(
-            "3 servo(s) found before the line was lost", timeout=SCAN_WAIT_MS
-        )
-        expect(p.locator("#servo-table tbody tr")).to_have_count(3)
-        expect(p.locator("#message")).to_contain_text("lost")
-        expect(p.locator("#lost-banner")).to_be_visible()
-        puller.line = None
-        line.sim.replug()
-        expect(p.locator("#message")).to_contain_text("the line is back")
-        scan_finds(p, 3, ids="0-4")
-
-
-def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_answers_at(browser: Browser) -> None:
-    # Servos set to 1.25 Mbit/s, the page opened at the default 115200: it said "0 servo(s) found" and no more.
-    line = PtyLine(())
-    for i in (1, 2):
-        line.sim.add_device(VirtualServo(i, baud_rate=1250000))
-    with web_server_page(browser, line) as p:
-        p.fill("#scan-ids", "0-4")
-        p.click("#scan-btn")
-        expect(p.locator("#message")).to_contain_text(
-            "no servo answered at 115,200 baud, but a device does at 1,250,000 baud", timeout=SCAN_WAIT_MS
-        )
-        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
-        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
-        scan_lists(p, 2)  # (scanned again at once)
-
-
-def test_a_servo_given_another_id_on_its_page_is_read_again_at_that_id(browser: Browser) -> None:
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        p.fill("#eeprom-table [name=servo_id]", "7")
-        p.check("#allow-id-change")
-        p.click("#plan-btn")
-        expect(p.locator("#diff tr.changed")).to_contain_text("7")
-        p.click("#write-btn")
-        # The page follows the servo to its new ID: no read of the old one (no answer there, then a search
-        # of the other rates) hiding the write's outcome behind a servo "not answering".
-        expect(p.locator("#write-result")).to_contain_text("verified")
-        expect(p.locator("#servo-id")).to_have_value("7")
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("7")
-        expect(p.locator("#message")).to_have_text("servo 1 is now servo 7: written and verified")
-        assert [s.servo_id for s in line.sim.servos] == [7]
-
-
-def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
-    line = PtyLine((0, 2))
-    with web_server_page(browser, line) as p:
-        scan_finds(p, 2)
-        open_servo_page(p, 2)
-        p.fill("#eeprom-table [name=servo_id]", "3")
-        p.check("#allow-id-change")
-        p.click("#plan-btn")
-        expect(p.locator("#diff tr.changed")).to_contain_text("3")
-        p.click("#write-btn")
-        expect(p.locator("#write-result")).to_contain_text("verified")
-        aside = line.sim.remove_servo(3)  # a bag of new servos: renumbered one at a time on the ID page
-        p.click("a[href='#id']")
-        p.fill("#new-id", "5")
-        p.click("#renumber-btn")
-        expect(p.locator("#id-result")).to_contain_text("ID 0 is now ID 5", timeout=SCAN_WAIT_MS)
-        line.sim.add_device(aside)
-        p.click("a[href='#line']")
-        # Listed at their IDs now, and read there: not the old IDs, which no longer answer.
-        expect(p.locator("#servo-table tbody tr")).to_have_count(2)
-        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_contain_text("°C")
-        expect(p.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
-        expect(p.locator("#servo-table tr[data-id='0']")).to_have_count(0)
-        expect(p.locator("#servo-table tr[data-id='2']")).to_have_count(0)
-
-
-def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(browser: Browser, tmp_path: Path) -> None:
-    line = PtyLine((1, 2))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        backup = backed_up(p, tmp_path)
-        p.set_input_files("#restore-file", str(backup))
-        expect(p.locator("#restore-diff")).to_contain_text("no change")
-        p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text("7500")
-        open_servo_page(p, 2)
-        # Servo 1's file no longer shown as chosen beside a dead Restore button (choosing the same file
-        # again is no change to a browser: it would do nothing), nor servo 1's target as servo 2's.
-        expect(p.locator("#restore-file")).to_have_value("")
-        expect(p.locator("#jog-target")).to_have_text("-")
-        p.set_input_files("#restore-file", str(backup))
-        expect(p.locator("#restore-diff")).to_contain_text("servo-01.json is a backup of ID 1; servo 2 keeps its ID")
-
-
-def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(browser: Browser, tmp_path: Path) -> None:
-    # The diff of the file chosen before stayed under the words refusing the new one, naming the old file as
-    # if it were the one chosen (its Restore button disabled: nothing to press, but a diff of nothing chosen).
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        backup = backed_up(p, tmp_path)
-        p.set_input_files("#restore-file", str(backup))
-        expect(p.locator("#restore-diff")).to_contain_text("no change")
-        (tmp_path / "notes.json").write_text('{"hello": 1}')
-        p.set_input_files("#restore-file", str(tmp_path / "notes.json"))
-        expect(p.locator("#message")).to_contain_text("no 'format'")
-        expect(p.locator("#restore-diff")).to_be_empty()
-        p.set_input_files("#restore-file", str(backup))
-        expect(p.locator("#restore-diff")).to_contain_text("no change")
-        (tmp_path / "notes.txt").write_text("not json")
-        p.set_input_files("#restore-file", str(tmp_path / "notes.txt"))
-        expect(p.locator("#message")).to_contain_text("notes.txt: not JSON")
-        expect(p.locator("#restore-diff")).to_be_empty()
-        expect(p.locator("#restore-btn")).to_be_disabled()
-
-
-def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Browser) -> None:
-    # Stop left "stream 99.8 cycles/s, page 26 updates/s" on show for good, as if it still ran.
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1")
-        p.click("#live-start")
-        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
-        expect(p.locator("#live-rate")).to_have_text(re.compile(r"^\d"))
-        p.click("#live-stop")
-        expect(p.locator("#live-cycle")).to_contain_text("(stopped)")
-        for part in ("#live-rate", "#live-updates", "#live-offline", "#live-watched", "#live-held"):
-            expect(p.locator(part)).to_have_text("-")
-        p.click("#live-start")  # started again: its figures come back
-        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
-        expect(p.locator("#live-cycle")).not_to_contain_text("stopped")
-        p.click("#live-stop")
-
-
-def test_the_live_target_legend_says_free_and_left_alone_not_0_and_minus_1(browser: Browser) -> None:
-    # The target plot's legend gave the stream's own marks as if they were positions: "1: 0" for a servo it
-    # frees, "3: -1" for an ICS 3.6 servo it only reads; and the free servo's 0 was drawn, squashing the rest.
-    line = PtyLine((1, 3), ics36=(3,))
-    with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1,3")
-        p.click("#live-start")
-        expect(p.locator("#legend span[data-id='3']")).to_have_text("■ 3: 7500")
-        p.select_option("#live-what", "targets")
-        expect(p.locator("#legend span[data-id='1']")).to_have_text("■ 1: free")
-        expect(p.locator("#legend span[data-id='3']")).to_have_text("■ 3: left alone")
-        p.click("#live-stop")
-
-
-def test_a_tick_allowing_an_id_or_baud_change_is_for_one_servos_write_not_the_next(browser: Browser) -> None:
-    # Ticked for servo 1's write, "allow baud change" stayed ticked on servo 2's page and on servo 1's again after
-    # the write: a restore of an old backup then changed the servo's rate with no tick of its own.
-    line = PtyLine((1, 2))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        ticks = ("#allow-id-change", "#allow-baud-change", "#restore-id")
-        for tick in ticks:
-            p.check(tick)
-        open_servo_page(p, 2)
-        for tick in ticks:
-            expect(p.locator(tick)).not_to_be_checked()
-        p.select_option("#eeprom-table [name=baud_rate]", "1250000")
-        p.check("#allow-baud-change")
-        p.click("#plan-btn")
-        p.click("#write-btn")
-        expect(p.locator("#write-result")).to_contain_text("verified")
-        assert line.sim.servo(2).eeprom.baud_rate == 1250000
-        expect(p.locator("#allow-baud-change")).not_to_be_checked()  # (written: the next change needs its own)
-
-
-def test_a_write_refused_for_its_id_or_baud_change_names_the_tick_that_allows_it(browser: Browser) -> None:
-    # "refused: servo 1: the write changes its ID to 7", and nothing said the tick below the table allows it.
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        p.fill("#eeprom-table [name=servo_id]", "7")
-        p.click("#plan-btn")
-        expect(p.locator("#diff .refusal")).to_contain_text("the write changes its ID to 7")
-        expect(p.locator("#diff")).to_contain_text("tick “allow ID change” to write it")
-        p.fill("#eeprom-table [name=servo_id]", "1")
-        p.select_option("#eeprom-table [name=baud_rate]", "1250000")
-        p.click("#plan-btn")
-        expect(p.locator("#diff")).to_contain_text("tick “allow baud change” to write it")
-        p.check("#allow-baud-change")
-        p.click("#plan-btn")
-        expect(p.locator("#diff tr.changed")).to_contain_text("1250000")
-        expect(p.locator("#diff")).not_to_contain_text("tick")
-        expect(p.locator("#write-btn")).to_be_enabled()
-
-
-def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
-    line = PtyLine((1, 2))
-    with web_server_page(browser, line) as p:
-        scan_finds(p, 2)
-        row = p.locator("#servo-table tr[data-id='2']")
-        expect(row.locator("td.temp")).to_contain_text("°C")
-        line.sim.remove_servo(2)  # its cable pulled
-        # Not the library's words with the raw bytes sent, beside the last current read as if read now.
-        expect(row.locator("td.temp")).to_have_text("not answering (open it to see why)")
-        expect(row.locator("td.current")).to_have_text("-")
-        expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
-
-
-def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
-    line = PtyLine((1,))
-    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
-    with web_server_page(browser, line) as p:
-        p.check("#scan-all-bauds")
-        scan_finds(p, 2)
-        expect(p.locator("#servo-table tr[data-id='1'] td.temp")).to_contain_text("°C")
-        # Its reads wait for nothing: the line reads only the servos at its own rate (it showed "…" for ever).
-        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_have_text(
-            "not read: the line is at 115200 baud (Connect at 1250000 to read it)"
-        )
-        # Many servos and Live plots start from the servos found at the line's rate: servo 5 pre-filled there
-        # failed with "no reply" (Many) or was plotted offline (Live).
-        p.click("a[href='#many']")
-        expect(p.locator("#many-ids")).to_have_value("1")
-        p.click("a[href='#live']")
-        p.click("#live-start")
-        expect(p.locator("#legend span[data-id='1']")).to_be_visible()
-        expect(p.locator("#legend span[data-id='5']")).to_have_count(0)
-        p.click("#live-stop")
-
-
-@contextlib.contextmanager
-def held_by_its_page(browser: Browser, position: int) -> Iterator[tuple[PtyLine, VirtualServo, Page]]:
-    """Servo 1 alone on a line, turned by hand to ``position``, its page open with motion switched on (so held
-    there): the line, the servo and the page."""
-    line = PtyLine((1,))
-    servo = line.sim.servo(1)
-    servo.move_by_hand(position)
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text(str(position))
-        yield line, servo, p
-
-
-def test_motion_switched_on_before_the_line_was_lost_must_be_switched_on_again(browser: Browser) -> None:
-    with held_by_its_page(browser, 8000) as (line, servo, p):
-        until(lambda: servo.target == 8000, "enable motion never held servo 1")
-        line.sim.unplug()
-        expect(p.locator("#lost-banner")).to_be_visible()
-        line.sim.power_cycle(1)  # the servos' supply went too: it restarted, free, and was turned by hand
-        line.sim.move_by_hand(1, 6000)
-        line.sim.replug()
-        expect(p.locator("#lost-banner")).to_be_hidden()
-        # A jog from the old target would throw it from 6000 to 8100: motion is off until switched on again.
-        expect(p.locator("#motion-switch")).not_to_be_checked()
-        expect(p.locator("#jog-plus")).to_be_disabled()
-        refused = p.request.post(p.url.split("#")[0] + "api/servo/1/move", data={"position": 8100})
-        assert refused.status == 409 and "switch on" in refused.json()["error"], refused.text()
-        assert servo.free and servo.position == 6000
-        p.check("#motion-switch")  # switched on again: held where it stands now
-        expect(p.locator("#jog-target")).to_have_text("6000")
-
-
-def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) -> None:
-    # The page shows a jog's target at the click.  The server refusing it (409: motion switched off meanwhile,
-    # nothing sent) must not leave the page showing a target the servo never got.
-    with held_by_its_page(browser, 8000) as (_, servo, p):
-        held: list[Route] = []
-        p.route("**/api/servo/1/move", lambda route: held.append(route))  # the request waits here until continued
-        p.click("#jog-plus")
-        expect(p.locator("#jog-target")).to_have_text("8100")  # (shown at the click)
-        deadline = time.monotonic() + GUARD
-        while not held:
-            assert time.monotonic() < deadline, "the jog was never asked"
-            p.wait_for_timeout(20)
-        off = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": False})
-        assert off.status == 200, off.text()
-        held[0].continue_()
-        expect(p.locator("#message")).to_contain_text("motion is not enabled for servo 1")
-        expect(p.locator("#jog-target")).to_have_text("8000")  # the last target sent, not the refused one
-        expect(p.locator("#jog-slider")).to_have_value("8000")
-        assert servo.target == 8000
-        p.unroute("**/api/servo/1/move")
-
-
-def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Browser) -> None:
-    # A servo that did not answer the jog (504) may have heard it: its target is the new one or the old.
-    with held_by_its_page(browser, 8000) as (line, _, p):
-        line.sim.remove_servo(1)  # its cable pulled: the jog goes out, no answer comes back
-        with p.expect_response("**/api/servo/1/move") as answer:
-            p.click("#jog-plus")
-        assert answer.value.status == 504, answer.value.text()
-        expect(p.locator("#jog-target")).to_have_text("8100? (not confirmed)")
-        expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("may"))
-
-
-# How soon the server switches off the motion of a page that is gone: at once for a tab closed (its socket
-# closes), a few seconds for one whose network went (no answer to the server's pings).
-PAGE_GONE_BOUND = scaled(8.0)
-
-
-def test_motion_a_closed_tab_switched_on_goes_off_on_the_server_and_a_jog_is_refused(browser: Browser) -> None:
-    line = PtyLine((1,))
-    servo = line.sim.servo(1)
-    servo.move_by_hand(8000)
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        until(lambda: servo.target == 8000, "enable motion never held servo 1")
-        base, api = p.url.split("#")[0], p.context.request  # (the tab's cookie, without the tab)
-        assert api.get(base + "api/status").json()["motion_on"] == [1]
-        p.close()  # the tab closed, its switch on: no page is left to say motion is on
-        deadline = time.monotonic() + PAGE_GONE_BOUND
-        while api.get(base + "api/status").json()["motion_on"]:
-            assert time.monotonic() < deadline, "motion stayed on after the page that switched it on was closed"
-            time.sleep(0.05)
-        refused = api.post(base + "api/servo/1/move", data={"position": 8100})
-        assert refused.status == 409 and "page" in refused.json()["error"], refused.text()
-        assert servo.target == 8000 and not servo.free  # nothing sent; it keeps holding, as when the page is left
-
-
-def motion_switched_off_by_a_lost_port(p: Page, line: PtyLine) -> None:
-    """Servo 1's page with its motion switched on, then the port lost and back: the server switched it off."""
-    servo = line.sim.servo(1)
-    open_servo_page(p, 1)
-    p.check("#motion-switch")
-    until(lambda: not servo.free, "enable motion never held servo 1")
-    line.sim.unplug()
-    expect(p.locator("#lost-banner")).to_be_visible()
-    line.sim.replug()
-    expect(p.locator("#lost-banner")).to_be_hidden()
-    expect(p.locator("#motion-switch")).not_to_be_checked()  # (motion off: the port was lost)
-
-
-def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(browser: Browser) -> None:
-    # The page unticks a switch whose motion the server switched off (here: a lost port).  A status pushed
-    # between the tick and the server's answer still says so: it unticked the switch, and the server then
-    # switched motion on behind a page showing it off.
-    line = PtyLine((1, 3))
-    with web_server_page(browser, line) as p:
-        motion_switched_off_by_a_lost_port(p, line)
-        held: list[Route] = []
-        p.route("**/api/servo/1/motion", lambda route: held.append(route))  # the request waits here until continued
-        p.click("#motion-switch")
-        until(lambda: len(held) == 1, "enable motion was never asked")
-        # Another change on the server (servo 3's motion switched on elsewhere): a status is pushed.
-        other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
-        assert other.status == 200, other.text()
-        time.sleep(0.5)  # (the push reaches the page)
-        expect(p.locator("#motion-switch")).to_be_checked()
-        expect(p.locator("#jog-plus")).to_be_disabled()  # not on before the server says so
-        held[0].continue_()
-        expect(p.locator("#jog-plus")).to_be_enabled()
-        expect(p.locator("#motion-switch")).to_be_checked()
-        p.unroute("**/api/servo/1/motion")
-
-
-def test_a_status_from_before_the_servers_answer_to_enable_motion_leaves_the_switch_ticked(browser: Browser) -> None:
-    # The status the server pushes and its answer to the tick travel apart: one sent just before the tick was
-    # taken (saying motion is off) can reach the page after the answer.  It unticked the switch of a servo
-    # whose motion the server had just switched on.
-    line = PtyLine((1, 3))
-    with web_server_page(browser, line) as p:
-        holding, late = [False], []
-
-        def relay(ws: Any) -> None:  # the page's WebSocket through this test: its pushes held back when asked
-            server = ws.connect_to_server()
-            server.on_message(lambda m: late.append((ws, m)) if holding[0] else ws.send(m))
-            ws.on_message(server.send)
-
-        p.route_web_socket(re.compile(r"/ws(\?|$)"), relay)  # (the page names itself: /ws?page=...)
-        p.reload()
-        motion_switched_off_by_a_lost_port(p, line)
-        holding[0] = True
-        other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
-        assert other.status == 200, other.text()
-        deadline = time.monotonic() + GUARD
-        while not late:  # a status pushed (it says motion is off for servo 1)
-            assert time.monotonic() < deadline, "no status was pushed"
-            p.wait_for_timeout(20)  # (Playwright relays the WebSocket only while the test waits on it)
-        p.check("#motion-switch")
-        expect(p.locator("#jog-plus")).to_be_enabled()  # the server's answer: on
-        holding[0] = False
-        for ws, message in late:
-            ws.send(message)
-        p.wait_for_timeout(300)
-        expect(p.locator("#motion-switch")).to_be_checked()
-        expect(p.locator("#jog-plus")).to_be_enabled()
 
 
 @dataclass
@@ -1323,213 +773,6 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
 
 
-def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Browser) -> None:
-    # The stream sends a servo it held nothing once the port is back (it may have restarted, free and
-    # elsewhere): plotted as if plain, its line just went flat; the terminal says "waiting for a target".
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1")
-        p.click("#live-start")
-        expect(p.locator("#legend span[data-id='1']")).to_be_visible()
-        expect(p.locator("#live-held")).to_have_text("none")
-        answer = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": True})
-        assert answer.ok and answer.json()["enabled"], answer.text()
-        line.sim.unplug()
-        expect(p.locator("#lost-banner")).to_be_visible()
-        line.sim.replug()
-        expect(p.locator("#lost-banner")).to_be_hidden()
-        expect(p.locator("#live-held")).to_contain_text("1 (held: resumed")
-        expect(p.locator("#legend span[data-id='1']")).to_contain_text("held: resumed")
-        p.click("#live-stop")
-
-
-def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(browser: Browser) -> None:
-    # Each absent ID had a row of the library's words with the bytes sent ("read_eeprom to ID 5: no reply
-    # ... (raw: a5 00)"), the same news once per servo.
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#many")
-        p.fill("#many-ids", "1,5,6")
-        p.check("[name=use-punch]")
-        p.fill("[name=value-punch]", "3")
-        p.click("#many-apply")
-        expect(p.locator("#many-results tbody tr")).to_have_count(3)
-        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("verified")
-        expect(p.locator("#many-errors li")).to_have_count(1)
-        expect(p.locator("#many-errors li")).to_contain_text(re.compile(r"^servos 5, 6: no reply at 115,200 baud"))
-        expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("failed (see above)")
-        assert "raw" not in (p.locator("#page-many").text_content() or "")
-        assert line.sim.servo(1).eeprom.punch == 3
-
-
-def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser: Browser) -> None:
-    # The page unticked "enable motion" when it was left (or opened again), the server kept it on: a jog from
-    # another tab moved a servo whose page said it was locked.
-    line = PtyLine((1,))
-    servo = line.sim.servo(1)
-    with web_server_page(browser, line) as p:
-        base = p.url.split("#")[0]
-
-        def jog_refused() -> bool:
-            answer = p.request.post(base + "api/servo/1/move", data={"position": 7600})
-            return answer.status == 409 and "enable motion" in answer.json()["error"]
-
-        open_servo_page(p, 1)
-        p.check("#motion-switch")
-        expect(p.locator("#jog-target")).to_have_text("7500")
-        p.click("a[href='#line']")
-        motion_on = lambda: p.request.get(base + "api/status").json()["motion_on"]  # noqa: E731
-        until(lambda: motion_on() == [], "motion stayed on on the server after its page was left")
-        assert jog_refused() and servo.target == 7500
-        open_servo_page(p, 1)
-        expect(p.locator("#motion-switch")).not_to_be_checked()
-        p.check("#motion-switch")
-        expect(p.locator("#jog-plus")).to_be_enabled()
-        held = int(p.locator("#jog-target").text_content() or "")  # (where it stood: the free may read it off by one)
-        other = p.context.new_page()  # the same servo's page in another tab: one page at a time jogs it
-        other.goto(base + "#servo/1")
-        expect(other.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
-        expect(p.locator("#motion-switch")).not_to_be_checked()
-        expect(p.locator("#jog-plus")).to_be_disabled()
-        assert jog_refused()
-        assert servo.target == held
-        other.close()
-
-
-def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(browser: Browser) -> None:
-    # Its last position stayed in the legend as if read now ("■ 2: 7500"), the word only in the line above.
-    line = PtyLine((1, 2))
-    with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1,2")
-        p.click("#live-start")
-        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
-        unplugged = line.sim.remove_servo(2)
-        expect(p.locator("#live-offline")).to_have_text("2")
-        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500 (offline)")
-        line.sim.add_device(unplugged)
-        expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
-        p.click("#live-stop")
-
-
-def test_motion_is_not_switched_on_for_a_servo_whose_read_failed_until_it_is_read(browser: Browser) -> None:
-    # The page's read failed (the servo unplugged), the switch was ticked once it answered: motion went on for
-    # a servo whose pulse limits the page had not read, and leaving the page left it on on the server.  The
-    # page acts only on a servo it has read: the switch is refused until Read succeeds.
-    line = PtyLine((1,))
-    unplugged = line.sim.remove_servo(1)
-    with web_server_page(browser, line) as p:
-        base = p.url.split("#")[0]
-        p.goto(base + "#servo/1")
-        expect(p.locator("#message")).to_contain_text("did not answer")
-        line.sim.add_device(unplugged)
-        p.click("#motion-switch")  # (not check(): the page unticks it at once)
-        expect(p.locator("#message")).to_have_text("read a servo first")
-        expect(p.locator("#motion-switch")).not_to_be_checked()
-        expect(p.locator("#jog-plus")).to_be_disabled()
-        assert p.request.get(base + "api/status").json()["motion_on"] == []
-        p.click("#servo-load")
-        servo_read(p, 1)
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
-        p.check("#motion-switch")
-        expect(p.locator("#jog-plus")).to_be_enabled()
-        p.click("a[href='#line']")
-        until(lambda: p.request.get(base + "api/status").json()["motion_on"] == [], "motion stayed on on the server")
-
-
-def test_a_read_overtaken_by_another_servos_read_does_not_end_the_page_on_its_servo(browser: Browser) -> None:
-    # Read pressed for servo 1, then for servo 3 before servo 1's values came: servo 1's read, ending last, left
-    # the page on servo 1 (its values shown, its buttons acting on it) with 3 asked for last.
-    line = PtyLine((1, 3))
-    with web_server_page(browser, line) as p:
-        p.click("a[href='#servo']")
-        held: list[Route] = []
-        p.route("**/api/servo/1/eeprom", lambda route: held.append(route))  # servo 1's read waits here
-        p.fill("#servo-id", "1")
-        p.click("#servo-load")
-        deadline = time.monotonic() + GUARD
-        while not held:
-            assert time.monotonic() < deadline, "servo 1 was never read"
-            p.wait_for_timeout(20)
-        p.fill("#servo-id", "3")
-        p.click("#servo-load")
-        servo_read(p, 3)
-        held[0].continue_()
-        p.wait_for_timeout(500)  # (servo 1's read answered: the page must not turn to it)
-        expect(p.locator("#page-servo")).to_have_attribute("data-loaded", "3")
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("3")
-        p.unroute("**/api/servo/1/eeprom")
-
-
-def test_opening_the_page_of_a_servo_that_does_not_answer_leaves_no_uncaught_error(browser: Browser) -> None:
-    # The words are on the page; the same failure also went to the browser's console as an uncaught error.
-    line = PtyLine((1,))
-    with web_server_page(browser, line) as p:
-        errors: list[str] = []
-        p.on("pageerror", lambda error: errors.append(str(error)))
-        p.goto(p.url.split("#")[0] + "#servo/4")
-        expect(p.locator("#message")).to_contain_text("did not answer")
-        p.wait_for_timeout(200)
-        assert errors == []
-
-
-def test_the_ram_box_shows_what_the_servo_has_for_the_parameter_chosen(browser: Browser) -> None:
-    # The box said 127 whatever the servo had (its RAM stretch 30): Write to RAM, pressed to see what it does,
-    # set the servo to the box's 127.  Stretch and speed are read from RAM; the limits cannot be read there, so
-    # the box shows what the servo starts with (its EEPROM), within the limit's own range.
-    line = PtyLine((4,))
-    servo = line.sim.servo(4)
-    servo.stretch, servo.speed = 30, 90
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 4)
-        expect(p.locator("#ram-value")).to_have_value("30")  # (stretch, the first chosen)
-        p.select_option("#ram-param", "speed")
-        expect(p.locator("#ram-value")).to_have_value("90")
-        p.select_option("#ram-param", "current_limit")
-        expect(p.locator("#ram-value")).to_have_value(str(servo.eeprom.current_limit))
-        expect(p.locator("#ram-value")).to_have_attribute("max", "63")
-        p.select_option("#ram-param", "temperature_limit")
-        expect(p.locator("#ram-value")).to_have_value(str(servo.eeprom.temperature_limit))
-        expect(p.locator("#ram-value")).to_have_attribute("max", "127")
-        p.select_option("#ram-param", "speed")
-        p.fill("#ram-value", "60")
-        p.click("#ram-write")
-        expect(p.locator("#ram-result")).to_contain_text("speed = 60")
-        expect(p.locator("#ram-value")).to_have_value("60")
-        assert servo.speed == 60 and servo.stretch == 30
-
-
-@pytest.mark.parametrize("typed", ["", "7.5"], ids=["emptied", "a fraction"])
-def test_a_number_box_emptied_or_given_a_fraction_is_refused_in_the_pages_words(browser: Browser, typed: str) -> None:
-    # Emptied (or a letter typed in: the browser then gives no value), a number box read as 0 in JavaScript: the
-    # lone servo renumbered to ID 0, a punch of 0 planned, a RAM speed of 0 sent.  A fraction came back in the
-    # server's names: "new_id must be an integer, got 7.5", "punch must be an int, not float".
-    def refused(what: str) -> str:
-        return f"give {what} a value" if typed == "" else f"{what} must be a whole number, not {typed}"
-
-    line = PtyLine((4,))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 4)
-        p.fill("#eeprom-table [name=punch]", typed)
-        p.click("#plan-btn")
-        expect(p.locator("#message")).to_have_text(refused("punch"))
-        expect(p.locator("#diff tr.changed")).to_have_count(0)
-        p.fill("#ram-value", typed)
-        p.click("#ram-write")
-        expect(p.locator("#message")).to_have_text(refused("the RAM value"))
-        p.fill("#servo-id", typed)
-        p.click("#servo-load")
-        expect(p.locator("#message")).to_have_text(refused("the servo's ID"))  # not "ID 0 did not answer"
-        p.click("a[href='#id']")
-        p.fill("#new-id", typed)
-        p.click("#renumber-btn")
-        expect(p.locator("#id-result")).to_have_text(refused("the new ID"))
-        p.wait_for_timeout(500)  # (time for a write the page might still have sent)
-        assert [s.servo_id for s in line.sim.servos] == [4]
-        assert line.sim.servo(4).eeprom_writes == 0
-
-
 def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
     browser: Browser, robot_server: RobotServer
 ) -> None:
@@ -1550,24 +793,3 @@ def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
         expect(yaw.locator(".target")).to_have_text(target or "")
         p.uncheck("#robot-motion")
     context.close()
-
-
-def test_the_servo_page_acts_on_the_servo_it_shows_not_an_id_typed_in_the_box_and_not_read(browser: Browser) -> None:
-    # Servo 1's page open, 2 typed in the ID box without Read (new servos all read alike): Show changes and
-    # Write wrote servo 2 ("servo 2: written and verified") while the table showed servo 1's values.
-    line = PtyLine((1, 2))
-    with web_server_page(browser, line) as p:
-        open_servo_page(p, 1)
-        speeds = {i: line.sim.servo(i).eeprom.speed for i in (1, 2)}
-        wanted = 77 if speeds[1] != 77 else 78
-        p.fill("#servo-id", "2")
-        p.fill("#eeprom-table [name=speed]", str(wanted))
-        p.click("#plan-btn")
-        expect(p.locator("#diff tr.changed")).to_contain_text(str(wanted))
-        p.click("#write-btn")
-        expect(p.locator("#message")).to_have_text("servo 1: written and verified")
-        assert line.sim.servo(1).eeprom.speed == wanted
-        assert line.sim.servo(2).eeprom.speed == speeds[2]
-        # The page reads the servo it wrote again, and says which one it shows.
-        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
-        expect(p.locator("#servo-id")).to_have_value("1")

@@ -1,0 +1,155 @@
+"""The configurator's Line page in a real browser: scans at the line's rate and at others, servos renumbered
+or gone silent, a port that cannot be opened (see ``test_web_browser.py``).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+
+import pytest
+
+if not sys.platform.startswith("linux"):
+    pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
+
+from playwright.sync_api import Browser, expect
+
+from ics35_async.protocol import ReadEeprom
+from ics35_async.sim import VirtualServo
+from tests.support.browser_pages import (
+    SCAN_WAIT_MS,
+    PtyLine,
+    open_servo_page,
+    scan_finds,
+    scan_lists,
+    web_server_page,
+)
+from tests.support.sim_servos import UnplugsWhenAsked
+
+# Each module's tests share its browser (and the first module's, one page walked in order): `make test`
+# hands each module whole to one xdist worker (--dist loadfile); the three modules run side by side.
+pytestmark = [pytest.mark.slow, pytest.mark.pty]
+
+
+def test_a_port_that_cannot_be_opened_leaves_the_port_box_naming_the_line_still_open(browser: Browser) -> None:
+    # A mistyped port was refused and the line stayed on the old one, but the box kept the refused name: a Scan
+    # right after scanned the old line while the box named another.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        expect(p.locator("#port-input")).to_have_value(line.path)
+        p.fill("#port-input", "/dev/ttyNOPE")
+        p.click("#connect-btn")
+        expect(p.locator("#message")).to_contain_text("/dev/ttyNOPE")
+        expect(p.locator("#port-input")).to_have_value(line.path)
+        expect(p.locator("#line-status")).to_contain_text(line.path)
+        scan_finds(p, 1, ids="0-2")
+
+
+def test_a_servo_at_another_rate_is_named_and_the_page_reopens_the_line_at_its_rate(browser: Browser) -> None:
+    line = PtyLine((1,))
+    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+    with web_server_page(browser, line) as p:
+        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
+        p.goto(p.url.split("#")[0] + "#servo/5")
+        expect(p.locator("#message")).to_contain_text("ID 5 answers at 1,250,000 baud; reopen the line at that rate")
+        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
+        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
+        expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("5")
+        expect(p.locator("#message")).to_have_text("the line is open at 1,250,000 baud")
+
+
+def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_the_loss(browser: Browser) -> None:
+    line = PtyLine((1, 2))
+    puller = UnplugsWhenAsked(3, ReadEeprom)
+    line.sim.add_device(puller)
+    with web_server_page(browser, line) as p:
+        puller.line = line.sim
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        expect(p.locator("#scan-summary")).to_contain_text(
+            "3 servo(s) found before the line was lost", timeout=SCAN_WAIT_MS
+        )
+        expect(p.locator("#servo-table tbody tr")).to_have_count(3)
+        expect(p.locator("#message")).to_contain_text("lost")
+        expect(p.locator("#lost-banner")).to_be_visible()
+        puller.line = None
+        line.sim.replug()
+        expect(p.locator("#message")).to_contain_text("the line is back")
+        scan_finds(p, 3, ids="0-4")
+
+
+def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_answers_at(browser: Browser) -> None:
+    # Servos set to 1.25 Mbit/s, the page opened at the default 115200: it said "0 servo(s) found" and no more.
+    line = PtyLine(())
+    for i in (1, 2):
+        line.sim.add_device(VirtualServo(i, baud_rate=1250000))
+    with web_server_page(browser, line) as p:
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        expect(p.locator("#message")).to_contain_text(
+            "no servo answered at 115,200 baud, but a device does at 1,250,000 baud", timeout=SCAN_WAIT_MS
+        )
+        p.get_by_role("button", name="Reopen the line at 1,250,000 baud").click()
+        expect(p.locator("#line-status")).to_contain_text("at 1250000 baud")
+        scan_lists(p, 2)  # (scanned again at once)
+
+
+def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
+    line = PtyLine((0, 2))
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 2)
+        open_servo_page(p, 2)
+        p.fill("#eeprom-table [name=servo_id]", "3")
+        p.check("#allow-id-change")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text("3")
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        aside = line.sim.remove_servo(3)  # a bag of new servos: renumbered one at a time on the ID page
+        p.click("a[href='#id']")
+        p.fill("#new-id", "5")
+        p.click("#renumber-btn")
+        expect(p.locator("#id-result")).to_contain_text("ID 0 is now ID 5", timeout=SCAN_WAIT_MS)
+        line.sim.add_device(aside)
+        p.click("a[href='#line']")
+        # Listed at their IDs now, and read there: not the old IDs, which no longer answer.
+        expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_contain_text("°C")
+        expect(p.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
+        expect(p.locator("#servo-table tr[data-id='0']")).to_have_count(0)
+        expect(p.locator("#servo-table tr[data-id='2']")).to_have_count(0)
+
+
+def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_values(browser: Browser) -> None:
+    line = PtyLine((1, 2))
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 2)
+        row = p.locator("#servo-table tr[data-id='2']")
+        expect(row.locator("td.temp")).to_contain_text("°C")
+        line.sim.remove_servo(2)  # its cable pulled
+        # Not the library's words with the raw bytes sent, beside the last current read as if read now.
+        expect(row.locator("td.temp")).to_have_text("not answering (open it to see why)")
+        expect(row.locator("td.current")).to_have_text("-")
+        expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
+
+
+def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
+    line = PtyLine((1,))
+    line.sim.add_device(VirtualServo(5, baud_rate=1250000))
+    with web_server_page(browser, line) as p:
+        p.check("#scan-all-bauds")
+        scan_finds(p, 2)
+        expect(p.locator("#servo-table tr[data-id='1'] td.temp")).to_contain_text("°C")
+        # Its reads wait for nothing: the line reads only the servos at its own rate (it showed "…" for ever).
+        expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_have_text(
+            "not read: the line is at 115200 baud (Connect at 1250000 to read it)"
+        )
+        # Many servos and Live plots start from the servos found at the line's rate: servo 5 pre-filled there
+        # failed with "no reply" (Many) or was plotted offline (Live).
+        p.click("a[href='#many']")
+        expect(p.locator("#many-ids")).to_have_value("1")
+        p.click("a[href='#live']")
+        p.click("#live-start")
+        expect(p.locator("#legend span[data-id='1']")).to_be_visible()
+        expect(p.locator("#legend span[data-id='5']")).to_have_count(0)
+        p.click("#live-stop")
