@@ -302,6 +302,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     page.fill("#new-id", "9")
     page.click("#renumber-btn")
     expect(page.locator("#id-result")).to_contain_text("exactly one device", timeout=SCAN_WAIT_MS)
+    expect(page.locator("#message")).to_be_hidden()  # said once, beside the button (it was also said on top)
     assert sorted(s.servo_id for s in two.sim.servos) == [1, 3]
     shot(page, "id")
     page.click("a[href='#line']")

@@ -35,8 +35,9 @@ async function api(path, data) {
   try {
     response = await fetch(path, options);
   } catch (e) {
-    say("the configurator's server does not answer (was `ics35 web` stopped?)");
-    throw e;
+    const gone = "the configurator's server does not answer (was `ics35 web` stopped?)";
+    say(gone);
+    throw new Error(gone, { cause: e });  // (a caller showing the error beside its button says this, not "Failed to fetch")
   }
   const text = await response.text();
   let body = null;
@@ -594,7 +595,10 @@ async function renumber() {
   try {
     const r = await api("/api/id/write", { new_id: wholeIn($("#new-id"), "the new ID") });
     $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
-  } catch (e) { $("#id-result").replaceChildren(el("p", { class: "refusal" }, e.message)); }
+  } catch (e) {
+    say("");  // (api() or wholeIn() said it on top too: once, beside the button, is enough)
+    $("#id-result").replaceChildren(el("p", { class: "refusal" }, e.message));
+  }
 }
 
 // ---- Many
