@@ -733,6 +733,46 @@ def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_aga
         until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
 
 
+def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_moved_again(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A servo that stopped answering and came back (continue_on_offline: the watch let the robot play on) is
+    # held, sent nothing: it may have restarted, free, elsewhere.  Its slider's move was refused only in the
+    # state line, in the library's words ("set its target (set_targets) or free it first"), and the page had no
+    # way out but Free all (every joint limp).  The refusal is the move's answer now, in the page's words, and
+    # the joint's row has a Free button: freed (read where it stands), it moves again from there.
+    line = PtyLine((1, 2))
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n'
+        "[safety]\ncontinue_on_offline = true\n"
+    )
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
+        elbow = p.locator("tr[data-joint='elbow']")
+        servo = line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        line.sim.add_device(servo)
+        expect(elbow.locator(".target")).to_contain_text("held: rejoined")
+        target = servo.target
+        elbow.locator("input[type=range]").fill("30")
+        expect(p.locator("#message")).to_contain_text("joint elbow is held")
+        expect(p.locator("#message")).to_contain_text("Free")
+        expect(p.locator("#message")).not_to_contain_text("set_targets")
+        assert servo.target == target  # nothing sent
+        elbow.get_by_role("button", name="Free").click()
+        until(lambda: line.sim.servo(2).free, "the elbow was not freed")
+        expect(elbow.locator(".target")).to_have_text("free")
+        assert not line.sim.servo(1).free  # the shoulder holds on
+        elbow.locator("input[type=range]").fill("30")
+        expect(elbow.locator(".target")).to_have_text("30")
+        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
+
+
 def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
     # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
     # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).

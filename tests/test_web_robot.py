@@ -117,8 +117,8 @@ def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tm
             wait_for(lambda: elbow()["tripped"] is not None)
             wait_for(lambda: line.servo(2).free and elbow()["current"] == 0)  # read free: "within the limits"
             assert "draws current" in elbow()["tripped"]
-            post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})  # (told in the state line)
-            wait_for(lambda: "draws current" in (client.get("/api/robot").json()["outcome"] or ""))
+            refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
+            assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
             assert line.servo(2).free
             unknown = post(client, "/api/robot/reset_trip", {"joint": "knee"})
             assert unknown.status_code == 400 and "knee" in unknown.json()["error"]

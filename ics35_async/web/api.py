@@ -35,6 +35,7 @@ from ..errors import (
     VerifyError,
     error_text,
 )
+from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
@@ -54,7 +55,7 @@ LIVE_SLOW_PARTS = ("targets", "current", "temperature", "watched", "offline", "h
 
 
 def _status_of(exc: BaseException) -> int:
-    if isinstance(exc, UnsafeOperation):
+    if isinstance(exc, (UnsafeOperation, SafetyStop)):  # (a safety stop standing refuses a move: nothing sent)
         return 409
     if isinstance(exc, (InvalidArgument, MalformedEeprom, ValueError, TypeError, KeyError)):
         return 400
@@ -361,7 +362,7 @@ async def robot_reset_trip(request: Request, session: LineSession) -> Any:
 
 async def robot_free(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
-    await robot.free()
+    await robot.free((await body(request)).get("joint"))
     return robot.view()
 
 

@@ -294,10 +294,21 @@ class RobotSession:
             await asyncio.wait({pending})  # (its error, if any, is its own: see page_gone)
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
-        """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves)."""
+        """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves).  What the
+        robot refuses to start (a joint held, tripped or never heard from) is the request's answer, not only the
+        state line's once the motion has failed."""
         robot = self._moving_allowed()
         checked = robot.check_pose(pose)
         seconds = check_seconds("duration", duration, 0.0, 30.0)
+        held = [name for name in checked if name in robot.held]
+        if held:
+            # The library's words name its API (set_targets); the page's way out is the joint's Free button.
+            raise UnsafeOperation(
+                f"joint {held[0]} is held, sent nothing, since its servo answered again ({robot.held[held[0]]}): "
+                "where it stands is unknown, and a move would start from the target it had; Free it (the button "
+                "in its row: it is then read where it stands), then move it"
+            )
+        robot.check_ready(checked)
         await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}")
 
     async def play(self, doc: object, speed: float = 1.0) -> None:
@@ -362,11 +373,20 @@ class RobotSession:
         self._robot().reset_trip(joint)
         self.outcome = f"joint {joint}: safety stop reset (as it was left until it is moved)"
 
-    async def free(self) -> None:
-        await self.stop(ramp=0.0)
-        self.motion_enabled = False
-        await self._robot().free()
-        self.outcome = "joints free"  # (the page's state line: no longer how the last motion ended)
+    async def free(self, joint: object = None) -> None:
+        """Every joint free (torque off: a motion playing stops at once, and motion goes off), or only ``joint``
+        (one held since its servo answered again: freed, it is read where it stands and may be moved from there;
+        a motion playing goes on with the others)."""
+        if joint is None:
+            await self.stop(ramp=0.0)
+            self.motion_enabled = False
+            await self._robot().free()
+            self.outcome = "joints free"  # (the page's state line: no longer how the last motion ended)
+            return
+        if not isinstance(joint, str):
+            raise InvalidArgument(f"joint must be a joint's name, not {type(joint).__name__}")
+        await self._robot().free([joint])
+        self.outcome = f"joint {joint} free"
 
 
 def _round(value: float | None) -> float | None:

@@ -799,8 +799,15 @@ function onRobot(r) {
     const row = body.querySelector(`tr[data-joint="${j.name}"]`);
     row.querySelector(".angle").textContent = j.offline ? "offline" : j.position ?? "-";
     // Held (sent nothing since its servo answered again, or its line came back): its old target is not where it is.
-    row.querySelector(".target").textContent = (j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
-    row.querySelector(".target").className = j.held ? "target bad" : "target";
+    // Its Free button: the page's way out of a hold (its servo then read where it stands, and moved from there).
+    // Rebuilt only when the hold changes: a button replaced under the pointer would lose its click.
+    const target = row.querySelector(".target");
+    const shown = (j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    if (target.dataset.shown !== shown) {
+      target.dataset.shown = shown;
+      target.replaceChildren(shown, ...(j.held ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
+    }
+    target.className = j.held ? "target bad" : "target";
     row.querySelector(".temp").textContent = j.temperature_c ?? "-";
     row.querySelector(".current").textContent = j.current ?? "-";
     // A tripped joint's Reset: the person says its cause is dealt with (a current trip of a freed joint stands
@@ -815,6 +822,10 @@ function onRobot(r) {
     slider.disabled = !r.motion_enabled;
     if (document.activeElement !== slider && j.target !== null) slider.value = j.target;
   }
+}
+
+async function freeJoint(name) {
+  onRobot(await api("/api/robot/free", { joint: name }));
 }
 
 async function resetTrip(name) {
