@@ -4,7 +4,9 @@ Each wire byte carries one nibble; pairs of nibbles make 8-bit fields, four
 make the 16-bit pulse limits.  The factory calibration bytes are kept
 verbatim and no update path can change them.  Decoding is lenient about
 field ranges (a real servo's image is shown as it is); :meth:`Eeprom.replace`
-is strict about every field it changes.
+is strict about every field it changes.  Every image, however made (``Eeprom(...)``,
+``dataclasses.replace``), refuses a value its bytes cannot hold (``MalformedEeprom``),
+rather than have it cut to its nibbles on the way to a servo.
 
 Any 64 nibbles decode.  A header other than 0x5A or a baud-rate code other
 than 10/1/0 is kept as its raw value (so the image round-trips byte for byte)
@@ -185,6 +187,19 @@ def _get(image: bytes, offset: int, nibbles: int) -> int:
     return value
 
 
+def _held(name: str, value: object, nibbles: int) -> Any:
+    """``value`` as field ``name`` holds it (a plain int; ``flags`` a Flags), if its ``nibbles`` can.
+
+    Not the reference's range (a servo's image is kept as read): what the nibbles carry, since
+    :func:`_put` would otherwise cut a wider value to them and write another number than the one given.
+    """
+    number = whole_number(value)
+    low, high = (-0x80, 0x7F) if name == "user_offset" else (0, (1 << 4 * nibbles) - 1)  # two's complement
+    if number is None or not low <= number <= high:
+        raise MalformedEeprom(f"{name} must be a whole number {low}..{high} to fit its EEPROM bytes, got {value!r}")
+    return Flags(number) if name == "flags" else int(number)
+
+
 def _put(image: bytearray, offset: int, nibbles: int, value: int) -> None:
     for i in range(nibbles):
         image[offset + i] = (value >> (4 * (nibbles - 1 - i))) & 0x0F
@@ -297,6 +312,9 @@ class Eeprom:
             raise MalformedEeprom(f"calibration must be {_CALIBRATION_LEN} nibbles")
         # Frozen: normalise through object.__setattr__, as dataclasses document for __post_init__.
         object.__setattr__(self, "baud_rate", _baud_field(self.baud_rate))
+        for name, (_, nibbles) in _LAYOUT.items():
+            if name != "baud_rate":
+                object.__setattr__(self, name, _held(name, getattr(self, name), nibbles))
         header = self.header
         if isinstance(header, bool) or not isinstance(header, int) or not 0 <= header <= _BYTE_MAX:
             raise MalformedEeprom(f"header must be an int 0..255, got {header!r}")

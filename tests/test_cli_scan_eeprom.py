@@ -250,7 +250,7 @@ def test_bulk_dump_saves_the_servos_that_answer(cli: Any, sim_line: Any, tmp_pat
 def test_bulk_restore_checks_every_file_before_writing_any(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url = sim_line([1, 2])
     assert cli("--port", url, "eeprom", "dump", "1,2", "-o", f"{tmp_path}/").code == 0
-    edit_backup(tmp_path / "servo-02.json", speed=500)
+    edit_backup(tmp_path / "servo-02.json", speed=200)  # out of the reference's 1..127, as a hand edit may leave it
     before = sim.transactions
     result = cli("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
     assert result.code == ExitCode.USAGE and "servo-02.json" in result.err

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -608,3 +610,54 @@ def test_cli_refuses_to_write_an_image_with_unknown_codes(
 def test_a_diff_with_what_is_not_an_eeprom_is_refused_in_words(other: object) -> None:
     with pytest.raises(InvalidArgument, match="Eeprom"):
         Eeprom.factory(1).diff(other)  # type: ignore[arg-type]
+
+
+# A value the image cannot hold was cut to its nibbles on the way out: speed 300 went on the wire as 44,
+# user offset 200 as -56, a pulse limit of 70000 as 4464.  The image refuses it when it is made.
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("speed", 300),
+        ("speed", -1),
+        ("servo_id", 256),
+        ("pulse_limit_high", 70000),
+        ("pulse_limit_low", -3500),
+        ("user_offset", 200),
+        ("user_offset", -200),
+        ("flags", 0x160),
+        ("damping", 40.0),
+        ("punch", True),
+        ("dead_band", "2"),
+        ("stretch_gain", None),
+    ],
+)
+def test_an_image_refuses_a_value_its_nibbles_cannot_hold(name: str, value: object) -> None:
+    with pytest.raises(MalformedEeprom, match=name):
+        dataclasses.replace(FACTORY, **{name: value})
+    with pytest.raises(MalformedEeprom, match=name):
+        Eeprom(**{**FACTORY.__dict__, name: value})
+
+
+def test_an_image_holds_every_value_its_nibbles_can() -> None:
+    # Lenient as decoding is (a servo's image is shown as it is): out of the reference's range but whole.
+    image = dataclasses.replace(
+        FACTORY, speed=255, pulse_limit_high=0xFFFF, pulse_limit_low=0, user_offset=-128, servo_id=np.int64(40)
+    )
+    assert Eeprom.from_bytes(image.to_bytes()) == image
+    assert type(image.servo_id) is int
+    assert isinstance(dataclasses.replace(FACTORY, flags=0x09).flags, Flags)
+
+
+async def test_an_image_that_cannot_be_made_never_reaches_the_wire() -> None:
+    sim = VirtualLine([VirtualServo(1)], name=f"eeprom-wide-{next(_lines)}")
+    try:
+        async with open_bus(sim) as bus:
+            servo = bus.servo(1)
+            image = await servo.read_eeprom()
+            before = sim.transactions
+            with pytest.raises(MalformedEeprom, match="speed"):
+                await servo.write_eeprom(dataclasses.replace(image, speed=300))
+            assert sim.transactions == before
+            assert sim.servo(1).eeprom == image and sim.servo(1).eeprom_writes == 0
+    finally:
+        sim.close()
