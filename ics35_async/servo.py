@@ -327,7 +327,8 @@ class Servo:
             allow_id_change: allow an image that changes the servo's ID.
 
         Raises:
-            InvalidArgument: ``eeprom`` is not an ``Eeprom`` or a flag is not a bool.
+            InvalidArgument: ``eeprom`` is not an ``Eeprom``, a flag is not a bool, or a field it changes is
+                outside the reference's range (as :meth:`Eeprom.replace` checks it; nothing is written).
             UnsafeOperation: the image changes the calibration bytes, or the baud rate or ID without its
                 ``allow_...`` flag (nothing is written).
             VerifyError: the image read back differs from the one written.
@@ -357,6 +358,9 @@ class Servo:
                 f"servo {self.id}: the image changes the EEPROM ID to {eeprom.servo_id}; "
                 "pass allow_id_change=True to do it"
             )
+        # Each field the image changes passes replace()'s checks (the reference's range, even stretch, flag
+        # rules), as if it had been made so; a value the servo already holds is written back as read.
+        current.replace(**{name: new for name, (new, _) in eeprom.diff(current).items()})
         await self._bus.request(command, priority=self.priority)
         if verify and eeprom.baud_rate == current.baud_rate and eeprom.servo_id == current.servo_id:
             back = await self.read_eeprom()

@@ -661,3 +661,43 @@ async def test_an_image_that_cannot_be_made_never_reaches_the_wire() -> None:
             assert sim.servo(1).eeprom == image and sim.servo(1).eeprom_writes == 0
     finally:
         sim.close()
+
+
+# The reference's ranges (section 7) and flag rules (section 8) hold for an image written whole, as for
+# replace(): a change made around replace() (dataclasses.replace, Eeprom(...)) went to the servo as it was.
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"speed": 0}, "speed must be in 1..127"),
+        ({"punch": 200}, "punch must be in 0..10"),
+        ({"stretch_gain": 61}, "stretch_gain must be even"),
+        ({"user_offset": -128}, "user_offset must be in -127..127"),
+        ({"flags": Flags.PWMINH | 0x20}, "bits 5-6 are unused"),
+        ({"flags": Flags.FREE}, "read-only"),
+        ({"pulse_limit_low": 11500, "pulse_limit_high": 3500}, "must not exceed"),
+    ],
+)
+async def test_write_eeprom_refuses_a_change_the_reference_does_not_allow(changes: dict[str, Any], match: str) -> None:
+    sim = VirtualLine([VirtualServo(1)], name=f"eeprom-range-{next(_lines)}")
+    try:
+        async with open_bus(sim) as bus:
+            servo = bus.servo(1)
+            image = await servo.read_eeprom()
+            with pytest.raises(InvalidArgument, match=match):
+                await servo.write_eeprom(dataclasses.replace(image, **changes))
+            assert sim.servo(1).eeprom == image and sim.servo(1).eeprom_writes == 0
+    finally:
+        sim.close()
+
+
+async def test_write_eeprom_writes_back_what_a_servo_holds_out_of_range() -> None:
+    # Read, change one field, write back (the reference's way): a value the servo already holds is kept.
+    odd = Eeprom.from_bytes(_image_with(4, _nibbles(0)))  # speed 0, out of 1..127
+    sim = VirtualLine([VirtualServo(eeprom=odd)], name=f"eeprom-range-{next(_lines)}")
+    try:
+        async with open_bus(sim) as bus:
+            servo = bus.servo(0)
+            await servo.write_eeprom((await servo.read_eeprom()).replace(punch=3))
+            assert sim.servo(0).eeprom == odd.replace(punch=3) and sim.servo(0).eeprom.speed == 0
+    finally:
+        sim.close()
