@@ -144,23 +144,29 @@ _FIELDS: dict[str, _Field] = {
 FIELD_MEANINGS: Mapping[str, tuple[str, str]] = {
     "servo_id": ("", "the ID the servo answers to (a change is refused unless asked for explicitly)"),
     "baud_rate": ("bit/s", "the line rate the servo talks at after its next power-up"),
-    "stretch_gain": ("", "holding stiffness (P gain) used when no stretch 1..3 is selected; even values"),
+    "stretch_gain": ("", "holding stiffness (P gain) loaded at power-up; even values (the RAM stretch, "
+                         "`ics35 set ID stretch`, is half of it: 1..127)"),
     "speed": ("", "output speed limit, 127 = full speed"),
     "punch": ("", "minimum drive added when starting to move (overcomes static friction)"),
     "dead_band": ("", "how far off target the servo may be before it drives (steps of about 0.1 degree)"),
     "damping": ("", "braking characteristic as the servo nears its target"),
     "safe_timer": ("x10 ms", "how long an over-current or over-temperature may last before the servo frees"),
-    "flags": ("", "REVERSE turns the direction round, ROTATION makes it a wheel, PWMINH inhibits the output "
-                  "while free, SLAVE for paired servos; FREE and PCM only report the servo's state"),
+    "flags": ("", "REVERSE turns the direction round, ROTATION makes it a wheel (continuous rotation), "
+                  "PWMINH keeps the servo in serial mode (a brown-out cannot drop it into PWM mode; set it for "
+                  "serial use), SLAVE for paired servos; FREE and PCM only report the servo's state"),
     "pulse_limit_high": ("position", "the highest position the servo will go to (the joint's upper limit)"),
     "pulse_limit_low": ("position", "the lowest position the servo will go to (the joint's lower limit)"),
     "temperature_limit": ("", "temperature parameter at which the servo protects itself (smaller is hotter)"),
     "current_limit": ("", "current at which the servo protects itself (about 0.1 A per step)"),
-    "response": ("", "reply delay setting (1 is the fastest)"),
+    "response": ("", "how sharply the servo starts to move from standstill: larger is sharper (not a reply "
+                     "delay)"),
     "user_offset": ("position steps", "shifts the neutral position"),
-    "stretch_1": ("", "stiffness preset 1 (even values)"),
-    "stretch_2": ("", "stiffness preset 2 (even values)"),
-    "stretch_3": ("", "stiffness preset 3 (even values)"),
+    "stretch_1": ("", "characteristic change stretch 1: the stretch a 100 us pulse selects in PWM mode "
+                      "(even values)"),
+    "stretch_2": ("", "characteristic change stretch 2: the stretch a 150 us pulse selects in PWM mode "
+                      "(even values)"),
+    "stretch_3": ("", "characteristic change stretch 3: the stretch a 200 us pulse selects in PWM mode "
+                      "(even values)"),
 }  # fmt: skip
 # (offset, nibble count) of each field, and the range of each numeric one.
 _LAYOUT: dict[str, tuple[int, int]] = {name: (f.offset, f.nibbles) for name, f in _FIELDS.items()}
