@@ -303,6 +303,21 @@ def test_eeprom_fields_carry_their_unit_range_and_meaning(serve: Any) -> None:
     assert {f["name"] for f in fields["flags"]["flags"] if f["read_only"]} == {"FREE", "PCM"}
 
 
+def test_the_ram_read_says_what_the_current_and_temperature_mean(serve: Any) -> None:
+    # The reference's encodings (section 4): bit 6 of the current is its direction, 64..127 reverse; the
+    # temperature parameter is smaller when hotter.  The Servo page showed 70 for a reverse current of 6.
+    client, sim = serve((1,))
+    sim.servo(1).load = -5  # a reverse load: the holding current (1) and the load's (5)
+    sim.servo(1).command_position(7500)
+    ram = client.get("/api/servo/1/ram").json()
+    assert ram["current"] == 70 and ram["temperature"] == sim.servo(1).temperature  # the raw values, as read
+    assert ram["shown"]["current"] == "-6  (magnitude 0..63, sign = direction)"  # as `ics35 get` says it
+    temperature = ram["shown"]["temperature"]
+    assert temperature.startswith(f"{ram['temperature']} (~") and "°C" in temperature
+    assert "smaller is hotter" in temperature
+    assert ram["shown"]["stretch"] == f"{ram['stretch']}" and set(ram["shown"]) == set(ram) - {"shown"}
+
+
 def test_a_write_shows_its_diff_then_writes_and_is_verified_on_the_servo(serve: Any) -> None:
     client, sim = serve()
     edit = {"changes": {"speed": 77, "punch": 3}}

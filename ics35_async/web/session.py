@@ -67,7 +67,7 @@ from .config import LineConfig
 from .edits import allowances, edit_of
 from .live import LIVE_RATE_HZ, LiveView, read_health
 from .traffic import TrafficLog
-from .views import eeprom_view, plan_view, result_view, survey_view
+from .views import eeprom_view, plan_view, ram_view, result_view, survey_view
 
 if TYPE_CHECKING:
     from .joints import RobotSession
@@ -603,7 +603,7 @@ class LineSession:
         async with self._quiet() as bus:
             for param in (Param.STRETCH, Param.SPEED, Param.CURRENT, Param.TEMPERATURE):
                 values[param.name.lower()] = await bus.request(protocol.ReadParam(servo_id, param))
-        return values
+        return ram_view(values)
 
     async def write_ram(self, servo_id: int, name: str, value: int) -> int:
         """Write a RAM parameter (lost at power-off); the command checks the value's range."""

@@ -7,6 +7,7 @@ from typing import Any
 
 from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
 from ..policies import EepromPlan, EepromWriteResult, IdSurvey
+from ..units import current_from_raw, temperature_to_celsius
 
 
 def flag_names(flags: int) -> list[str]:
@@ -30,6 +31,21 @@ def field_rows(image: Eeprom) -> list[dict[str, Any]]:
             ]
         rows.append(row)
     return rows
+
+
+def ram_view(values: dict[str, int]) -> dict[str, Any]:
+    """The RAM values as read, and ``shown``: each in words as ``ics35 get`` says it.  The raw current carries
+    its direction in bit 6 (64..127 is reverse) and the temperature parameter is smaller when hotter: shown
+    bare, 70 would read as a large current and 127 as hot."""
+    shown = {name: str(value) for name, value in values.items()}
+    if "current" in values:
+        current = current_from_raw(values["current"])
+        sign = "-" if current.reverse else "+"
+        shown["current"] = f"{sign}{current.magnitude}  (magnitude 0..63, sign = direction)"
+    if "temperature" in values:
+        celsius = temperature_to_celsius(values["temperature"])
+        shown["temperature"] = f"{values['temperature']} (~{celsius:.0f} °C)  (smaller is hotter)"
+    return {**values, "shown": shown}
 
 
 def eeprom_view(image: Eeprom) -> dict[str, Any]:

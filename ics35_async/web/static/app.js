@@ -494,7 +494,9 @@ async function writeRam() {
 
 function showRam(ram) {
   state.ram = ram;
-  $("#ram-table tbody").replaceChildren(...Object.entries(ram).map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v))));
+  // Each value in words (the current's sign is its direction, the temperature smaller when hotter), not as read.
+  const rows = Object.entries(ram).filter(([k]) => k !== "shown");
+  $("#ram-table tbody").replaceChildren(...rows.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, ram.shown?.[k] ?? v))));
   ramBox();
 }
 
