@@ -310,6 +310,25 @@ def test_get_and_set_are_ram(cli: Any, sim_line: Any) -> None:
     assert sim.servo(1).current_limit == 20
 
 
+@pytest.mark.parametrize(
+    ("param", "value", "eeprom_field"),
+    [("stretch", "40", "stretch_gain=80"), ("speed", "50", "speed=50"), ("current-limit", "20", "current_limit=20")],
+)
+def test_set_names_the_eeprom_value_that_keeps_it(
+    cli: Any, sim_line: Any, param: str, value: str, eeprom_field: str
+) -> None:
+    # The EEPROM stores the stretch twice over (RAM 1..127, EEPROM 2..254): the hint gives the value to type,
+    # so stretch 40 is kept as stretch_gain=80, not 40 (which the servo would load as stretch 20).
+    sim, url = sim_line([1])
+    result = cli("--port", url, "set", "1", param, value)
+    assert result.code == 0, result.err
+    assert f"eeprom set 1 {eeprom_field})" in " ".join(result.out.split())
+    kept = cli("--port", url, "eeprom", "set", "1", eeprom_field, "--yes")
+    assert kept.code == 0, kept.err
+    sim.servo(1).power_cycle()
+    assert cli("--port", url, "get", "1", param).out.split("=")[1].split()[0] == value
+
+
 @pytest.mark.parametrize("word", ["position", "Pos", "angle"])
 def test_get_of_the_position_says_which_commands_read_it(cli: Any, sim_line: Any, word: str) -> None:
     # `ics35 get 1 position`, a newcomer's first guess, listed the RAM parameters and nothing more: the

@@ -401,7 +401,9 @@ def set_(ctx: click.Context, servo_id: int, param: str, value: int, as_json: boo
     if as_json:
         emit_json({"id": servo_id, "param": param, "value": written, "memory": "RAM"})
     else:
-        keep = settings.command_line("eeprom", "set", str(servo_id), _EEPROM_TWIN[param].split()[0] + "=...")
+        # The value to type: the EEPROM keeps the stretch twice over (RAM 1..127 is 2..254 there).
+        stored = units.stretch_to_eeprom(written) if param == "stretch" else written
+        keep = settings.command_line("eeprom", "set", str(servo_id), f"{_EEPROM_TWIN[param].split()[0]}={stored}")
         out.print(
             f"servo {servo_id} {param} = {limit_text(param, written)} ({HOTTER.get(param, '')}RAM only: lost at "
             f"power-off; to keep it: {escape(keep)})"
