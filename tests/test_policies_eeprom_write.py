@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -66,6 +67,17 @@ async def test_a_field_change_is_written_and_read_back() -> None:
         assert sim.servo(1).calibration_intact
         # Read, read again right before writing, write, read back.
         assert bus.stats.total.transactions == 4
+
+
+async def test_a_plan_made_around_edit_image_is_checked_before_it_is_written() -> None:
+    # EepromPlan is a plain dataclass: a plan built by hand holds whatever its `after` holds.  Each field it
+    # changes is checked as Eeprom.replace checks it (the reference's range), before a byte is sent.
+    async with line([VirtualServo(1)]) as (sim, bus):
+        planned = await plan_eeprom_write(bus, 1, {})
+        plan = dataclasses.replace(planned, after=dataclasses.replace(planned.before, speed=0, punch=4))
+        with pytest.raises(InvalidArgument, match=r"speed must be in 1\.\.127"):
+            await write_eeprom_plan(bus, plan)
+        assert eeprom_writes(sim) == 0 and sim.servo(1).eeprom == planned.before
 
 
 async def test_an_image_that_already_matches_is_not_written() -> None:

@@ -215,6 +215,7 @@ async def write_eeprom_plan(
     the write ends, however it ends (see :func:`back_at_rate`).
 
     Raises:
+        InvalidArgument: a field the plan changes is outside the reference's range (nothing written).
         UnsafeOperation: the write is refused, or the servo's image changed since the plan (nothing written).
         VerifyError: the image read back differs, or the servo answers neither at its old nor its new ID / rate.
         ReplyError: the servo does not answer the write.
@@ -251,6 +252,9 @@ async def _write(
     reason = plan.refusal(allow_baud_change=allow_baud_change, allow_id_change=allow_id_change)
     if reason:
         raise UnsafeOperation(f"{reason}; nothing was written")
+    # A plan is a plain dataclass: one not made by plan_eeprom_write has its changes checked here, as replace()
+    # checks them (InvalidArgument), so what goes out is within the reference's ranges.
+    plan.before.replace(**{name: new for name, (_, new) in plan.diff.items()})
     if not plan.diff:
         return EepromWriteResult(plan, written=False, read_back=plan.before)
     if int(line.baudrate) != plan.baud:  # planned at the servo's own rate: written and verified there
