@@ -50,6 +50,46 @@ def test_spec_write_temperature_limit_example() -> None:
     assert bus.servo(2).temperature_limit == 10
 
 
+@pytest.mark.parametrize(
+    ("offset", "nibbles", "ram", "held"),
+    [
+        (4, b"\x00\x00", "speed", 1),  # speed 0: the servo moved at rate 0 (a division by zero)
+        (2, b"\x00\x01", "stretch", 1),  # stretch gain 1: RAM stretch 0 (an error at power-up)
+        (2, b"\x00\x00", "stretch", 1),
+        (4, b"\x0c\x08", "speed", 127),  # speed 200: a RAM value whose reply would have its MSB set
+        (30, b"\x00\x00", "current_limit", 1),
+        (30, b"\x06\x04", "current_limit", 63),
+        (28, b"\x00\x00", "temperature_limit", 1),
+    ],
+    ids=[
+        "speed-0",
+        "stretch-gain-1",
+        "stretch-gain-0",
+        "speed-200",
+        "current-limit-0",
+        "current-limit-100",
+        "t-limit-0",
+    ],
+)
+def test_an_eeprom_value_out_of_the_references_range_loads_into_ram_within_it(
+    offset: int, nibbles: bytes, ram: str, held: int
+) -> None:
+    # The simulator stores any EEPROM image the wire brings (what a real servo does with one out of range is not
+    # documented), and its RAM loads from it at power-up: held to the range the RAM holds (sections 4-5), so
+    # the servo goes on answering and moving.
+    bus = VirtualLine([1])
+    image = bytearray(bus.servo(1).eeprom.to_bytes())
+    image[offset : offset + 2] = nibbles
+    assert xfer(bus, b"\xc1\x00" + bytes(image))[-2:] == h("41 00")
+    bus.power_cycle()
+    servo = bus.servo(1)
+    assert getattr(servo, ram) == held
+    servo.load = 70  # more than any current limit lets through
+    assert xfer(bus, "81 3E 40")[3:4] == h("01")  # position 8000: it takes the command and answers
+    bus.advance(0.5)  # moving there
+    assert xfer(bus, "A1 03")[2:4] == h("21 03") and xfer(bus, "A1 02")[4] == servo.speed <= 127
+
+
 def test_spec_id_examples_on_a_single_servo_line() -> None:
     bus = VirtualLine([7])
     assert xfer(bus, "F4 01 01 01") == h("F4 01 01 01 F4")

@@ -8,7 +8,8 @@ Model of a servo, in brief (all of it deliberately simple and deterministic):
 
 * **EEPROM vs RAM.**  The 64-byte image is kept as an :class:`Eeprom`.
   Stretch, speed, current limit and temperature limit live in RAM, loaded
-  from the EEPROM at power-up; the parameter-write command changes RAM only.
+  from the EEPROM at power-up (held to the RAM's ranges: an image out of the
+  reference's loads its nearest values); the parameter-write command changes RAM only.
   The EEPROM write stores the image (protected calibration bytes included, as
   written: the firmware does not guard them, the host must write them back
   as read; :attr:`VirtualServo.calibration_intact` tells a test whether it did).
@@ -50,6 +51,7 @@ from ..errors import InvalidArgument
 from ..protocol import (
     FREE,
     MEMORY_SIZE,
+    WRITE_RANGES,
     Param,
     Position,
     ReadEeprom,
@@ -69,7 +71,6 @@ from ..units import (
     celsius_to_temperature,
     check_int,
     current_to_raw,
-    stretch_from_eeprom,
 )
 
 MAX_RATE = 12000.0
@@ -89,6 +90,12 @@ def factory_calibration(servo_id: int) -> bytes:
     """Plausible calibration nibbles, fixed per ID and different for each of the 32 IDs."""
     rng = random.Random(0x1C5 * 32 + servo_id)
     return bytes(rng.randrange(16) for _ in range(CALIBRATION_NIBBLES))
+
+
+def _held(param: Param, value: int) -> int:
+    """``value`` within the range RAM parameter ``param`` takes."""
+    low, high = WRITE_RANGES[param]
+    return min(high, max(low, value))
 
 
 class NoReply:
@@ -173,10 +180,14 @@ class VirtualServo:
     def _load_ram(self) -> None:
         image = self._eeprom
         self.baud_rate = image.baud_rate if isinstance(image.baud_rate, BaudRate) else self._undefined_code_baud
-        self.stretch = max(1, stretch_from_eeprom(image.stretch_gain))
-        self.speed = image.speed
-        self.current_limit = image.current_limit
-        self.temperature_limit = image.temperature_limit
+        # An image out of the reference's ranges loads held to what the RAM holds (the parameter write's ranges,
+        # sections 4-5; stretch 1..127 is the EEPROM's 2..254 halved): a speed of 0 would stop the motion model,
+        # a RAM value of 200 could not be answered in 7 bits.  What a real servo makes of such an image is not
+        # documented.
+        self.stretch = _held(Param.STRETCH, image.stretch_gain // 2)
+        self.speed = _held(Param.SPEED, image.speed)
+        self.current_limit = _held(Param.CURRENT, image.current_limit)
+        self.temperature_limit = _held(Param.TEMPERATURE, image.temperature_limit)
 
     def power_cycle(self) -> None:
         """Power off and on: RAM reloads from the EEPROM, the servo wakes up free."""
