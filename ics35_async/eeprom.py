@@ -213,7 +213,11 @@ def _put(image: bytearray, offset: int, nibbles: int, value: int) -> None:
 
 @dataclass(frozen=True)
 class Eeprom:
-    """A decoded EEPROM image.  Build one with :meth:`from_bytes` or :meth:`factory`."""
+    """A decoded EEPROM image.  Build one with :meth:`from_bytes` or :meth:`factory`.
+
+    Raises:
+        MalformedEeprom: made directly (or by ``dataclasses.replace``) with a value its bytes cannot hold.
+    """
 
     stretch_gain: int
     speed: int
