@@ -123,6 +123,59 @@ def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
     assert len(set(rest)) > 3  # it went on moving while slowing down
 
 
+def test_a_stop_leaves_a_joint_at_rest_since_its_motion_was_cancelled() -> None:
+    """A motion cancelled half way (a timeout around it), the joint at rest a while: a stop() for another motion
+    does not set it moving again at the speed it had when cancelled."""
+    rig = make_rig()
+    since: dict[str, int] = {}
+    rested: list[float] = []
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"shoulder": 0.0, "knee": 0.0}, duration=0.0)
+        with anyio.move_on_after(0.3):
+            await robot.move_to({"shoulder": -80.0}, duration=1.0, profile="linear")
+        await anyio.sleep(0.3)  # the shoulder holds where the motion left it
+        rested.append(sent_degrees(rig, "shoulder", {"upper": 0})[-1])
+        since.update(seq_now(rig))
+        async with anyio.create_task_group() as tasks:
+
+            async def knee() -> None:
+                with pytest.raises(MotionStopped):
+                    await robot.move_to({"knee": -60.0}, duration=1.0)
+
+            tasks.start_soon(knee)
+            await anyio.sleep(0.2)
+            await robot.stop(ramp=0.3)
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "shoulder", since)
+    assert -80.0 < rested[0] < -1.0, rested  # (the motion was under way when it was cancelled)
+    assert sent and all(abs(d - rested[0]) <= HALF_COUNT for d in sent), (rested, sorted(set(sent)))
+
+
+def test_a_stop_right_after_a_cancelled_motion_slows_its_joint_down() -> None:
+    """Ctrl-C in a program that stops in its finally: the joint goes on at its speed and slows to rest."""
+    rig = make_rig()
+    since: dict[str, int] = {}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"knee": -90.0}, duration=0.0)
+        since.update(seq_now(rig))
+        with anyio.move_on_after(0.2):
+            try:
+                await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
+            finally:
+                with anyio.CancelScope(shield=True):
+                    await robot.stop(ramp=0.3)
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "knee", since)
+    rest = [d for d in sent if d > sent[-1] - 5.0]
+    assert len(set(rest)) > 3, rest  # it went on moving while slowing down
+
+
 angles = {name: st.floats(spec["min"], spec["max"], allow_nan=False) for name, spec in JOINTS.items()}
 pose_strategy = st.fixed_dictionaries({}, optional=angles)
 start_strategy = st.fixed_dictionaries(angles)

@@ -56,6 +56,10 @@ class Robot:
         self._by_key = {(j.line, j.id): name for name, j in self.joints.items()}
         self._targets: dict[str, float | None] = dict.fromkeys(self.joints)
         self._velocity: dict[str, float] = dict.fromkeys(self.joints, 0.0)
+        # Joints a cancelled motion left moving: when it was cancelled (time.monotonic, a frame's line_started
+        # clock) and the first cycle of their line begun since.  A stop() right after (a finally) slows them
+        # from that speed; once their line has run a second cycle with the target frozen, they are at rest.
+        self._coasting: dict[str, tuple[float, int | None]] = {}
         # Per joint, the interval its newest motion may use: the pose it started from and its targets.
         self._envelope: dict[str, tuple[float, float]] = {}
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
@@ -269,6 +273,7 @@ class Robot:
     def _release(self, joints: Iterable[str]) -> None:
         for name in joints:
             self._velocity[name] = 0.0
+            self._coasting.pop(name, None)
             for plan in self._plans:
                 plan.joints.discard(name)
 
@@ -385,8 +390,10 @@ class Robot:
             await plan.done.wait()
         finally:
             if plan in self._plans and not plan.done.is_set():
-                # Cancelled: the joints keep their last target (and speed, for a smooth stop()).
+                # Cancelled: the joints keep their last target (and speed, for a smooth stop() right after).
                 self._plans.remove(plan)
+                cancelled = time.monotonic()
+                self._coasting.update((name, (cancelled, None)) for name in plan.joints if self._velocity[name])
         if plan.error is not None:
             raise plan.error
         return frozenset(plan.joints)
@@ -424,6 +431,7 @@ class Robot:
                 low, high = self._envelope.get(name, (target, target))
                 moving[name] = (target, speed, (self.joints[name].clamp(low), self.joints[name].clamp(high)))
         self._velocity = dict.fromkeys(self.joints, 0.0)
+        self._coasting.clear()
         segments = stopping(moving, seconds)
         if not segments:
             return
@@ -547,10 +555,25 @@ class Robot:
             resumed=frame.resumed,
             held=held,
         )
+        self._settle(frame.line_cycles, frame.line_started)
         self._step(merged, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
+
+    def _settle(self, line_cycles: Mapping[str, int], line_started: Mapping[str, float]) -> None:
+        """Joints a cancelled motion left (see run) come to rest once their line has run two cycles begun since:
+        the servo has been sent the frozen target for a whole cycle, and a stop() starting it again at the speed
+        it had would throw it from rest (a joint still within a cycle of the cancel is slowed down smoothly)."""
+        for name, (cancelled, first) in list(self._coasting.items()):
+            line = self.joints[name].line
+            if line_started.get(line, 0.0) <= cancelled:
+                continue
+            if first is None:
+                self._coasting[name] = (cancelled, line_cycles[line])
+            elif line_cycles[line] > first:
+                del self._coasting[name]
+                self._velocity[name] = 0.0
 
     def _line_resumed(self, lines: frozenset[str], held: frozenset[str]) -> None:
         """Lines whose lost port came back: their servos may have restarted, free and elsewhere, so the streams
