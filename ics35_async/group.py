@@ -18,7 +18,7 @@ from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
 from .stream import Stream, StreamOptions
-from .tasks import first_library_error
+from .tasks import again, first_library_error
 from .transports.wire_device import WireDevice
 
 GROUP_NOT_STARTED = "the group stream is not started: use it as `async with group.stream(...) as stream:`"
@@ -153,7 +153,7 @@ class GroupStream(FrameIterator[GroupFrame]):
         """Each line's next frame: from every line, or from those that have one first (the others' waits,
         cancelled, take nothing: a stream's frame is only taken when it is returned)."""
         if self._closed:
-            raise self._end_error
+            raise again(self._end_error)
         frames: dict[str, Frame] = {}
 
         async def take(line: str, stream: Stream, scope: anyio.CancelScope) -> None:

@@ -28,7 +28,7 @@ from .errors import BusClosed, IcsError, InvalidArgument, ReplyError
 from .frames import Frame, FrameIterator, StreamStats, percentile
 from .line import Line
 from .protocol.hot_path import position_from_reply
-from .tasks import despite_cancellation
+from .tasks import again, despite_cancellation
 
 log = logging.getLogger("ics35_async")
 
@@ -832,7 +832,7 @@ class Stream(FrameIterator[Frame]):
         """
         while self._closed or self._latest is None or self._latest.cycle <= self._consumed_cycle:
             if self._closed:
-                raise self._end_error
+                raise again(self._end_error)
             if not self._running:
                 raise InvalidArgument(NOT_STARTED)
             if self._new_frame is None:

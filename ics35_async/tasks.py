@@ -26,6 +26,17 @@ if TYPE_CHECKING:
     from anyio.abc import TaskGroup
 
 
+E = TypeVar("E", bound=BaseException)
+
+
+def again(error: E) -> E:
+    """``error``, kept to be raised at every call after something ended (a lost line, a safety stop that stands),
+    without the traceback of its last raise: each raise adds its call's frames to the one traceback, so a
+    program's traceback would name every earlier call, and a loop catching it at each pass grow it (and the
+    frames it holds) without end.  ``raise again(self._end_error)``."""
+    return error.with_traceback(None)
+
+
 def only_error(exc: BaseException) -> BaseException:
     """The one exception inside (nested) exception groups of one, else ``exc`` itself."""
     while isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1:

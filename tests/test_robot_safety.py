@@ -6,6 +6,7 @@ sent after it tripped; nothing here depends on wall-clock timing.
 
 from __future__ import annotations
 
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -423,3 +424,34 @@ def test_the_watch_reads_at_each_lines_own_pace_beside_a_faster_line() -> None:
         rig.close()
     temperatures = reads(rig.lower, "read_temperature", mark, until)
     assert temperatures <= cycles + 2, (temperatures, cycles)  # (a read each at the window's two edges)
+
+
+def test_a_loop_that_catches_the_stop_at_every_pass_does_not_pile_up_its_tracebacks() -> None:
+    # The robot raised the one SafetyStop it keeps for a tripped joint at every refusal, and each raise added
+    # that pass's frames to its traceback: a 100 Hz loop catching it and going on grew it (and the frames it
+    # keeps alive) without end, and the traceback shown named every earlier pass.
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+    hip = rig.servo("hip")
+    lengths: list[int] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"hip": 10.0, "knee": 0.0}, duration=0.0)
+                hip.temperature_celsius = 90.0
+                hip.temperature_limit = 1  # the servo's own cut-out out of the way
+                await frames_until(robot, lambda: "hip" in robot.tripped)
+                for _ in range(20):
+                    try:
+                        robot.set_targets({"hip": 12.0, "knee": 2.0})
+                    except SafetyStop as stop:
+                        lengths.append(len(traceback.extract_tb(stop.__traceback__)))
+                    with pytest.raises(SafetyStop) as refused:
+                        await robot.move_to({"hip": 0.0}, duration=0.1)
+                    lengths.append(len(traceback.extract_tb(refused.value.__traceback__)))
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert len(lengths) == 40 and max(lengths) <= 8, lengths

@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import itertools
 import time
+import traceback
 from typing import Any
 
 import anyio
@@ -457,3 +458,29 @@ def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_canc
 
 def sent_positions(rig: Rig, since: int) -> list[int]:
     return [p for p in commanded(rig.upper, JOINTS["neck"]["id"], since) if p]
+
+
+def test_calls_after_a_lost_line_each_raise_its_error_with_their_own_traceback() -> None:
+    # The robot (and its streams) raised the one PortLost they keep at every call after the line was lost,
+    # each raise adding that call's frames: the traceback a program printed named every earlier call, and a
+    # loop retrying grew it without end.
+    rig = make_rig()
+    lengths: list[int] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                rig.lower.unplug()
+                for _ in range(10):
+                    for call in (robot.read_pose, functools.partial(robot.move_to, {"neck": 1.0}, 0.1)):
+                        with pytest.raises(PortLost) as lost:
+                            await call()
+                        lengths.append(len(traceback.extract_tb(lost.value.__traceback__)))
+                raise PortLost("the lower line") from None
+
+    try:
+        with pytest.raises(PortLost):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert len(lengths) == 20 and max(lengths) <= 12, lengths

@@ -26,6 +26,7 @@ from .. import protocol, units
 from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
+from ..tasks import again
 from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
 from .joint_stream import RobotStream
@@ -149,7 +150,7 @@ class Robot:
         """The newest frame with a cycle number above ``after`` (waits for one)."""
         while True:
             if self._end_error is not None:
-                raise self._end_error
+                raise again(self._end_error)
             latest = self._latest
             if latest is not None and latest.cycle > after:
                 return latest
@@ -268,7 +269,7 @@ class Robot:
         next pass), as a motion naming it would (see check_ready)."""
         for name in joints:
             if name in self._latched:
-                raise self._latched[name]
+                raise again(self._latched[name])
 
     def _release(self, joints: Iterable[str]) -> None:
         for name in joints:
@@ -338,10 +339,10 @@ class Robot:
         """Raise why a motion of ``joints`` cannot start: the robot's end, a safety stop that still stands, or
         a joint held since its line came back (UnsafeOperation: it would start from the target it had)."""
         if self._end_error is not None:
-            raise self._end_error
+            raise again(self._end_error)
         for name in joints:
             if name in self._latched:
-                raise self._latched[name]
+                raise again(self._latched[name])
             if (
                 name not in self._answered
                 and self._offline_now(name)
@@ -381,7 +382,7 @@ class Robot:
         """
         self._check_commands()
         if self._end_error is not None:
-            raise self._end_error  # no pump would ever step it
+            raise again(self._end_error)  # no pump would ever step it
         plan = Plan(trajectory, wait_on_wire)
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
@@ -395,7 +396,7 @@ class Robot:
                 cancelled = time.monotonic()
                 self._coasting.update((name, (cancelled, None)) for name in plan.joints if self._velocity[name])
         if plan.error is not None:
-            raise plan.error
+            raise again(plan.error)
         return frozenset(plan.joints)
 
     async def stop(self, ramp: float = 0.3) -> None:
@@ -447,7 +448,7 @@ class Robot:
             for segment in segments:
                 tasks.start_soon(slow_down, Trajectory([segment]))
         if errors:
-            raise errors[0]
+            raise again(errors[0])
 
     def _step(self, frame: RobotFrame, line_started: Mapping[str, float]) -> None:
         """Advance every running plan to the frame's time: the targets for the next cycle.
