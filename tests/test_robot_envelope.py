@@ -123,6 +123,44 @@ def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
     assert len(set(rest)) > 3  # it went on moving while slowing down
 
 
+def test_a_stop_ends_at_or_before_the_keyframe_its_joint_is_heading_for() -> None:
+    """Stopped on its way back to a keyframe the motion turns at (-90, then -40, then -90 again), the knee comes
+    to rest on -40 at most: not past it, towards the poses of the motion's other keyframes."""
+    rig = make_rig()
+    since: dict[str, int] = {}
+    motion = {
+        "format": "ics35-motion",
+        "version": 1,
+        "profile": "linear",
+        "keyframes": [
+            {"time": 0.4, "pose": {"knee": -90.0}},
+            {"time": 0.8, "pose": {"knee": -40.0}},
+            {"time": 1.2, "pose": {"knee": -90.0}},
+        ],
+    }
+    at_stop: list[float] = []
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"knee": 0.0}, duration=0.0)
+        async with anyio.create_task_group() as tasks:
+
+            async def player() -> None:
+                with contextlib.suppress(MotionStopped):
+                    await robot.play(motion)
+
+            tasks.start_soon(player)
+            await anyio.sleep(0.7)
+            since.update(seq_now(rig))
+            at_stop.append(robot.targets["knee"] or 0.0)
+            await robot.stop(ramp=0.6)  # at 125 degrees/s, 0.6 s of ramp would carry it some 37 degrees
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "knee", since)
+    assert -90.0 < at_stop[0] < -40.0, at_stop  # (on its way from -90 to -40 when stopped)
+    assert max(sent) <= -40.0 + HALF_COUNT, (at_stop, max(sent))
+
+
 def test_a_stop_leaves_a_joint_at_rest_since_its_motion_was_cancelled() -> None:
     """A motion cancelled half way (a timeout around it), the joint at rest a while: a stop() for another motion
     does not set it moving again at the speed it had when cancelled."""

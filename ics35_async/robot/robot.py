@@ -61,7 +61,8 @@ class Robot:
         # clock) and the first cycle of their line begun since.  A stop() right after (a finally) slows them
         # from that speed; once their line has run a second cycle with the target frozen, they are at rest.
         self._coasting: dict[str, tuple[float, int | None]] = {}
-        # Per joint, the interval its newest motion may use: the pose it started from and its targets.
+        # Per joint, the interval a stop may slow it down in: the ends of the segment its newest motion is on
+        # (before its first step: the pose the motion started from and its targets).
         self._envelope: dict[str, tuple[float, float]] = {}
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
         self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
@@ -402,8 +403,8 @@ class Robot:
     async def stop(self, ramp: float = 0.3) -> None:
         """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
         seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
-        targets): one that would pass its target rests on it, sooner.  Each motion stopped raises
-        :class:`MotionStopped` in its caller once its joints are at rest.
+        targets), nor passing the keyframe it is heading for: one that would pass it rests on it, sooner.  Each
+        motion stopped raises :class:`MotionStopped` in its caller once its joints are at rest.
 
         Raises:
             MotionStopped: a line came back after a lost port during the ramp (its joints were given up).
@@ -498,10 +499,15 @@ class Robot:
             else:
                 segment = segments[plan.segment]
                 pose, speed = segment.pose_at(t), segment.velocity_at(t)
+            # A stop slows a joint down within the segment it is on (the keyframe it heads for, not past it
+            # towards the motion's other poses): that segment's ends.
+            heading = segments[plan.segment]
             for name in plan.joints:
                 if name in pose:
                     targets[name] = pose[name]
                     self._velocity[name] = speed.get(name, 0.0)
+                    ends = (heading.start[name], heading.end[name])
+                    self._envelope[name] = (min(ends), max(ends))
         self._apply(targets, lift_holds=False)
         if keyframes:
             applied = time.monotonic()  # (the clock of a frame's ``started``)
