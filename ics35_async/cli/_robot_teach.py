@@ -323,6 +323,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     low: dict[str, float] = {}
     high: dict[str, float] = {}
     eeproms: dict[str, Eeprom] = {}
+    silent: set[str] = set()  # joints offline at some frame of step 2
     lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
 
     def extra(name: str) -> list[str]:
@@ -355,10 +356,15 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
                         high[name] = max(servo, high.get(name, servo))
 
             async def track_every_frame() -> None:
-                # Every frame, not the screen's ticks: a joint may touch its end only for a moment.
-                async with robot.stream() as stream:
-                    async for frame in stream:
-                        track(frame)
+                # Every frame, not the screen's ticks: a joint may touch its end only for a moment.  The robot's
+                # own frames, not a stream's: a stream ends at a safety stop (one servo's plug working loose),
+                # and the other joints' ranges would end with it.
+                cycle = 0
+                while True:
+                    frame = await robot.wait_frame(cycle)
+                    cycle = frame.cycle
+                    silent.update(name for name in frame.offline if name in names)  # (its range may be cut short)
+                    track(frame)
 
             for name in names:  # each servo's REVERSE flag (below) and pulse limits (after the ranges)
                 joint = robot.joints[name]
@@ -421,6 +427,12 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     for name in names:
         if name not in neutral or name not in low:
             err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
+            continue
+        if name in silent:
+            err.print(
+                f"[yellow]warning:[/yellow] joint {escape(name)} stopped answering during step 2: not calibrated "
+                "(its range may be cut short; calibrate it again with --joints)"
+            )
             continue
         try:
             calibrated[name] = calibrate_joint(description.joints[name], neutral[name], low[name], high[name])
