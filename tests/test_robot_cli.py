@@ -896,7 +896,6 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     assert calibrated["joints"]["knee"]["offset"] == pytest.approx(0.0, abs=0.1)
 
 
-
 def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:
@@ -933,6 +932,7 @@ def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
     for name in ("neck", "knee"):
         values = {k: calibrated["joints"][name][k] for k in ("offset", "min", "max")}
         assert values == pytest.approx({"offset": 0.0, "min": -40.0, "max": 40.0}, abs=0.11), name
+
 
 @pytest.mark.parametrize("on_stop", ["hold", "free"])
 def test_play_says_which_joint_it_could_not_leave_as_its_summary_says(cli: Any, tmp_path: Path, on_stop: str) -> None:
