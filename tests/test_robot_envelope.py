@@ -161,6 +161,44 @@ def test_a_stop_ends_at_or_before_the_keyframe_its_joint_is_heading_for() -> Non
     assert max(sent) <= -40.0 + HALF_COUNT, (at_stop, max(sent))
 
 
+def test_a_stop_taken_over_by_another_stop_returns_once_the_joints_are_at_rest() -> None:
+    """Two stops (a watchdog's and a finally's): the first one's ramp, taken over by the second, is no error: it
+    returns as the second does, the joints at rest, instead of raising MotionStopped into the close-out."""
+    rig = make_rig()
+    outcomes: dict[str, str] = {}
+    since: dict[str, int] = {}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"knee": -90.0}, duration=0.0)
+        since.update(seq_now(rig))
+        async with anyio.create_task_group() as tasks:
+
+            async def mover() -> None:
+                with pytest.raises(MotionStopped):
+                    await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
+
+            async def stopper(name: str, delay: float) -> None:
+                await anyio.sleep(delay)
+                try:
+                    await robot.stop(ramp=0.4)
+                except MotionStopped as exc:
+                    outcomes[name] = f"MotionStopped: {exc}"
+                else:
+                    outcomes[name] = f"at rest at {robot.targets['knee']}"
+
+            tasks.start_soon(mover)
+            tasks.start_soon(stopper, "first", 0.2)
+            tasks.start_soon(stopper, "second", 0.3)
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    sent = sent_degrees(rig, "knee", since)
+    # Both returned with the joint at rest, where the second stop's ramp left it.
+    assert outcomes.keys() == {"first", "second"} and outcomes["first"] == outcomes["second"], outcomes
+    assert outcomes["first"].startswith("at rest"), outcomes
+    assert all(b >= a - HALF_COUNT for a, b in itertools.pairwise(sent)), sent  # no jump back
+
+
 def test_a_stop_leaves_a_joint_at_rest_since_its_motion_was_cancelled() -> None:
     """A motion cancelled half way (a timeout around it), the joint at rest a while: a stop() for another motion
     does not set it moving again at the speed it had when cancelled."""

@@ -56,6 +56,11 @@ class Plan:
         # caller hears it at the end, since the pose was not reached.
         self.given_up: IcsError | None = None
 
+    @property
+    def slowing_down(self) -> bool:
+        """Whether this is a stop's own ramp (only ``Robot.stop`` makes ``decel`` segments)."""
+        return all(segment.profile == "decel" for segment in self.trajectory.segments)
+
     def finish(self, error: IcsError | None = None) -> None:
         if not self.done.is_set():
             self.error = error or self.given_up

@@ -404,7 +404,8 @@ class Robot:
         """End every motion smoothly: each moving joint slows to rest (at the rate that would take ``ramp``
         seconds), then holds, never leaving its motion's envelope (the pose the motion started from and its
         targets), nor passing the keyframe it is heading for: one that would pass it rests on it, sooner.  Each
-        motion stopped raises :class:`MotionStopped` in its caller once its joints are at rest.
+        motion stopped raises :class:`MotionStopped` in its caller once its joints are at rest.  A stop during
+        another's ramp takes it over: both return once the joints are at rest.
 
         Raises:
             MotionStopped: a line came back after a lost port during the ramp (its joints were given up).
@@ -413,7 +414,8 @@ class Robot:
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
         self._check_commands()
         stopped, self._plans = self._plans, []  # no longer stepped: the ramp drives their joints now
-        outcome: IcsError = MotionStopped("the motion was stopped (Robot.stop)")
+        stopped_here = MotionStopped("the motion was stopped (Robot.stop)")
+        outcome: IcsError = stopped_here
         try:
             await self._come_to_rest(seconds)
         except IcsError as exc:  # the ramp's own end (a lost line): the stopped motions hear that too
@@ -423,7 +425,10 @@ class Robot:
             # Told once their joints are at rest (or the ramp failed), not as the stop begins: code
             # after a motion (a program leaving its block, closing the robot) must not cut the ramp short.
             for plan in stopped:
-                plan.finish(outcome)
+                # An earlier stop's ramp, taken over by this one, is no motion stopped short: its joints came to
+                # rest here, and that stop returns as this one does (not with MotionStopped, into a close-out).
+                taken_over = plan.slowing_down and outcome is stopped_here
+                plan.finish(None if taken_over else outcome)
 
     async def _come_to_rest(self, seconds: float) -> None:
         moving = {}
