@@ -263,6 +263,9 @@ def test_play_refusing_a_joint_whose_servo_never_answered_is_exit_code_5_not_a_u
     result = cli("play", str(robot_file), str(motion))
     assert result.code == 5, result.err
     assert "joint knee has not answered since the robot opened" in result.err
+    # The robot was open by then, its ICS 3.5 joints freed to be read (the hip went limp): not "nothing was sent".
+    assert sims.servo("hip").free and "nothing was sent" not in result.err, result.err
+    assert "no motion was started" in " ".join(result.err.split()), result.err
 
 
 def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:

@@ -193,7 +193,8 @@ def run_robot(
             raise CliError(ExitCode.NO_REPLY, str(exc), *NO_REPLY_HINTS) from None
         except UnsafeOperation as exc:
             # The robot's refusal (a joint whose servo never answered, driven blind), not a mistake in the command.
-            raise CliError(ExitCode.REFUSED, f"{exc} (nothing was sent)") from None
+            # The robot was open by then (its ICS 3.5 joints freed to be read): not "nothing was sent".
+            raise CliError(ExitCode.REFUSED, f"{exc} (no motion was started)") from None
         except InvalidArgument as exc:
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
         except (PortLost, ClosedByPortLoss) as exc:
