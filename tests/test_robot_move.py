@@ -379,6 +379,39 @@ def test_free_hold_and_the_joint_space_stream() -> None:
     run_robot(rig, body)
 
 
+def test_a_free_joint_standing_past_its_limit_is_not_thrown_to_the_limit_by_a_motion_or_a_hold() -> None:
+    # A free joint turned by hand past its limit (knee: max 20 degrees, at 61) started a motion from the limit:
+    # the first command was the limit, which the servo reached at full speed (a 2 s move_to moved it 41 degrees
+    # in a tenth of a second), and hold() (the configurator's "enable motion") did the same.  A motion naming it
+    # is refused, hold() leaves it free and says so; within the limits' slack it is held and moved as ever.
+    rig = make_rig()
+    knee = rig.servo("knee")
+    knee.move_by_hand(joint_position(JOINTS["knee"], 61.0))
+
+    async def body(robot: Robot) -> None:
+        pose = await robot.read_pose()
+        assert pose["knee"] == pytest.approx(61.0, abs=0.1) and knee.free
+        since = seq_now(rig)
+        with pytest.raises(UnsafeOperation, match=r"joint knee stands at 61\.0 degrees, past its limit 20"):
+            await robot.move_to({"knee": 0.0, "hip": 5.0}, duration=1.0)
+        with pytest.raises(UnsafeOperation, match="joint knee stands at 61"):
+            await robot.play(
+                {"format": "ics35-motion", "version": 1, "keyframes": [{"time": 0.5, "pose": {"knee": 0}}]}
+            )
+        left = robot.hold()
+        assert set(left) == {"knee"} and "past its limit 20" in left["knee"], left
+        await robot.on_wire()
+        assert targets_sent(rig.lower, JOINTS["knee"]["id"], since["lower"]) == [] and knee.free
+        assert not rig.servo("hip").free  # the others hold
+        knee.move_by_hand(joint_position(JOINTS["knee"], 21.5))  # within the slack: read noise at a limit
+        await robot.read_pose()
+        assert robot.hold(["knee"]) == {}
+        await robot.move_to({"knee": 0.0}, duration=0.1)
+        assert knee.target == sent_position(JOINTS["knee"], 0.0)
+
+    run_robot(rig, body)
+
+
 def test_limits_wider_than_the_servos_eeprom_warn_at_open() -> None:
     rig = make_rig()
     narrowed = rig.servo("elbow").eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)

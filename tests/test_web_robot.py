@@ -98,6 +98,19 @@ def test_joints_move_only_with_motion_on_and_within_their_limits(robot: Any) -> 
     assert client.get("/api/robot").json()["motion_enabled"] is False
 
 
+def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says_so(robot: Any) -> None:
+    # Turned by hand to 120 degrees (the elbow's limit is 90), "enable motion" held it at 90: reached at full speed.
+    client, line = robot
+    line.servo(2).move_by_hand(degrees_to_position(120))
+    wait_for(lambda: (client.get("/api/robot").json()["joints"][1]["position"] or 0) > 119)
+    view = post(client, "/api/robot/motion", {"enabled": True}).json()
+    assert "elbow left as it is: stands at 120.0 degrees, past its limit 90" in view["outcome"], view["outcome"]
+    refused = post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": 0.2})
+    assert refused.status_code == 409 and "past its limit 90" in refused.json()["error"], refused.text
+    wait_for(lambda: not line.servo(1).free)  # the shoulder holds
+    assert line.servo(2).free
+
+
 def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tmp_path: Path) -> None:
     # A free servo draws no current, so the trip cannot clear by itself: the page is the person's way to say
     # the cause is dealt with, as Robot.reset_trip is a program's.

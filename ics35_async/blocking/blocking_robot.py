@@ -196,13 +196,14 @@ class BlockingRobot(LoopOwner[Robot]):
 
     # ------------------------------------------------------------------ plain calls, run on the loop thread
 
-    def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all but the tripped and the held ones) where they are now, torque on.
+    def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
+        """Hold ``joints`` (default: all but the tripped and the held ones) where they are now, torque on; returns
+        those left out and why (see ``Robot.hold``: a held joint, one not read yet, a free one past a limit).
 
         Raises:
             SafetyStop: ``joints`` names a tripped joint (see ``Robot.hold``).
         """
-        self._loop.call_sync(self._async.hold, joints)
+        return self._loop.call_sync(self._async.hold, joints)
 
     def set_targets(
         self, pose: Mapping[str, float | None], *, allow_free: bool = False, lift_holds: bool = True

@@ -78,15 +78,16 @@ class RobotStream(FrameIterator[RobotFrame]):
         """
         self.robot.set_targets(dict.fromkeys(self.robot.joint_names(joints)), allow_free=True)
 
-    def hold(self, joints: Iterable[str] | None = None) -> None:
-        """Hold ``joints`` (default: all but the tripped ones) where they are, torque on.
+    def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
+        """Hold ``joints`` (default: all but the tripped ones) where they are, torque on; returns those left out
+        and why (see ``Robot.hold``).
 
         Raises:
             InvalidArgument: an unknown joint.
             SafetyStop: a joint the safety watch tripped (see ``Robot.hold``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
         """
-        self.robot.hold(joints)
+        return self.robot.hold(joints)
 
     async def aclose(self) -> None:
         """Stop taking frames from this stream; the robot keeps streaming."""

@@ -37,6 +37,10 @@ from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
 
 log = logging.getLogger("ics35_async.robot")
 CLOSED = "the robot is closed (its `async with open_robot(...)` block has ended)"
+# Degrees a free joint may stand past a limit and still be held or moved from it (the limit, reached at the
+# servo's own speed): a joint resting at its limit reads a little either side of it.  Farther past, the first
+# command would throw it there at full speed (see Robot.check_ready and Robot.hold).
+LIMIT_SLACK = 2.0
 
 
 class Robot:
@@ -226,9 +230,12 @@ class Robot:
         self.untouched = set(read)
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
-    def hold(self, joints: Iterable[str] | None = None) -> None:
+    def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
         """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on.
-        A held joint (see :attr:`held`) is left out: where it is is unknown.
+        Left out, as they are, and returned with why (``{joint: why}``): a held joint (see :attr:`held`: where it
+        is is unknown), one whose position was not read yet, and a free one standing more than
+        :data:`LIMIT_SLACK` degrees past a limit (turned there by hand: holding it would throw it to the limit at
+        full speed; bring it within its limits first).
 
         Raises:
             InvalidArgument: an unknown joint.
@@ -243,9 +250,25 @@ class Robot:
         # (the streams' holds now, not only those a frame has told the robot of: a servo back from offline
         # since has no position but the one from before it fell silent)
         unknown = self.held.keys() | self._held.keys()
-        self._apply(
-            {n: self.joints[n].clamp(self._positions[n]) for n in names if n in self._positions and n not in unknown}
-        )
+        left = {n: "held since its servo answered again: where it stands is unknown" for n in names if n in unknown}
+        left.update((n, "its position is not read yet") for n in names if n not in self._positions and n not in left)
+        left.update((n, why) for n, why in self._past_limits(names).items() if n not in left)
+        self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n not in left})
+        return left
+
+    def _past_limits(self, joints: Iterable[str]) -> dict[str, str]:
+        """Those of ``joints`` sent no target (free, or read and left alone) that stand more than LIMIT_SLACK
+        degrees past a limit, and where: their first command would be the limit, reached at full speed."""
+        past = {}
+        for name in joints:
+            where = self._positions.get(name)
+            if self._targets[name] is not None or where is None:
+                continue
+            spec = self.joints[name]
+            limit = spec.max if where > spec.max + LIMIT_SLACK else spec.min if where < spec.min - LIMIT_SLACK else None
+            if limit is not None:
+                past[name] = f"stands at {where:.1f} degrees, past its limit {limit:g}"
+        return past
 
     async def free(self, joints: Iterable[str] | None = None) -> None:
         """Torque off for ``joints`` (default: all); returns once that has gone out on the wire.
@@ -337,8 +360,10 @@ class Robot:
         await play_motion(self, motion, speed=speed, loop=loop)
 
     def check_ready(self, joints: Iterable[str]) -> None:
-        """Raise why a motion of ``joints`` cannot start: the robot's end, a safety stop that still stands, or
-        a joint held since its line came back (UnsafeOperation: it would start from the target it had)."""
+        """Raise why a motion of ``joints`` cannot start: the robot's end, a safety stop that still stands, a
+        joint held since its line came back (UnsafeOperation: it would start from the target it had), or a free
+        one standing past a limit (UnsafeOperation: it would be thrown to the limit; see :data:`LIMIT_SLACK`)."""
+        joints = list(joints)
         if self._end_error is not None:
             raise again(self._end_error)
         for name in joints:
@@ -360,6 +385,11 @@ class Robot:
                     "(its servo may have restarted elsewhere), and a motion would start from the target it had; "
                     "set its target (set_targets) or free it first"
                 )
+        for name, where in self._past_limits(joints).items():
+            raise UnsafeOperation(
+                f"joint {name} {where}: a motion would send it to that limit at full speed first; bring it within "
+                "its limits (by hand, while it is free) or widen them in the robot file"
+            )
 
     def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
         """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits)."""

@@ -264,8 +264,11 @@ class RobotSession:
         await self.settled()
         robot = self._robot()
         if enabled:
-            robot.hold()
-            self.outcome = "joints hold where they stand"  # (the page's state line: not "joints free")
+            left = robot.hold()
+            # (the page's state line: not "joints free"; and each joint left as it was, with why)
+            self.outcome = "joints hold where they stand" + "".join(
+                f"; {n} left as it is: {w}" for n, w in left.items()
+            )
             self.motion_enabled = True
             self._motion_page = page
         else:

@@ -54,6 +54,9 @@ def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
     line_options.setdefault("log_size", None)
     upper = VirtualLine([1, 2, 3], name=f"robot-upper-{n}", **line_options)
     lower = VirtualLine([1, 2], name=f"robot-lower-{n}", **line_options)
+    # At its neutral the elbow's servo stands 20 degrees past the joint's lower limit (offset -20, reversed): a
+    # robot refuses to move or hold a free joint so far out (it would throw it to the limit), so it starts within.
+    upper.servo(3).move_by_hand(joint_position(JOINTS["elbow"], 10.0))
     description: dict[str, Any] = {
         "lines": {"upper": {"port": f"sim://robot-upper-{n}"}, "lower": {"port": f"sim://robot-lower-{n}"}},
         "joints": {name: dict(spec) for name, spec in JOINTS.items()},
