@@ -701,22 +701,29 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     context.close()
 
 
-def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_again(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # A free servo draws no current, so a current trip of a joint the watch freed stands until the person says
-    # its cause is dealt with: the joint's Reset button, and nothing else, lets it move again.
+@contextlib.contextmanager
+def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[tuple[PtyLine, Page]]:
+    """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90) on a line of its own with ``safety`` (the
+    robot file's table), served by ``ics35 web --robot``: its Robot page with motion switched on."""
     line = PtyLine((1, 2))
-    robot = tmp_path / "arm.toml"
+    robot = folder / "arm.toml"
     robot.write_text(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n'
-        '[safety]\nmax_current = 20\naction = "free"\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n' + safety
     )
     with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
         p.check("#robot-motion")
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        yield line, p
+
+
+def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_again(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A free servo draws no current, so a current trip of a joint the watch freed stands until the person says
+    # its cause is dealt with: the joint's Reset button, and nothing else, lets it move again.
+    with arm_with_motion_on(browser, tmp_path, '[safety]\nmax_current = 20\naction = "free"\n') as (line, p):
         elbow = p.locator("tr[data-joint='elbow']")
         line.sim.servo(2).load = 40  # a load the elbow cannot carry
         expect(elbow.locator(".safety")).to_contain_text("draws current")
@@ -741,17 +748,7 @@ def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_m
     # state line, in the library's words ("set its target (set_targets) or free it first"), and the page had no
     # way out but Free all (every joint limp).  The refusal is the move's answer now, in the page's words, and
     # the joint's row has a Free button: freed (read where it stands), it moves again from there.
-    line = PtyLine((1, 2))
-    robot = tmp_path / "arm.toml"
-    robot.write_text(
-        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n'
-        "[safety]\ncontinue_on_offline = true\n"
-    )
-    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
-        p.click("#robot-link")
-        p.check("#robot-motion")
-        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
         until(lambda: not line.sim.servo(2).free, "the elbow was never held")
         elbow = p.locator("tr[data-joint='elbow']")
         servo = line.sim.remove_servo(2)
