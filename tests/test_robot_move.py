@@ -412,6 +412,32 @@ def test_a_free_joint_standing_past_its_limit_is_not_thrown_to_the_limit_by_a_mo
     run_robot(rig, body)
 
 
+def test_hold_during_a_motion_stops_its_joints_where_they_were_sent_not_back_where_they_were_last_read() -> None:
+    # hold() mid-motion held a moving joint where it was last read, which lags its target (the servo is on its
+    # way): the joint stepped back, against its motion (6.3 degrees in a 0.5 s move of 90).  A joint a motion
+    # drives holds at the target last sent; one at rest, or free, where it was read, as ever.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"neck": 0.0}, duration=0.05)
+        since = seq_now(rig)
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(robot.move_to, {"neck": 50.0}, 1.0)
+            while (robot.targets["neck"] or 0.0) < 20.0:
+                await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+            before = robot.targets["neck"]
+            assert before is not None
+            assert robot.hold(["neck"]) == {}
+            assert robot.targets["neck"] == before
+        await robot.on_wire(["neck"])
+        spec = JOINTS["neck"]
+        sent = [joint_degrees(spec, p) for p in targets_sent(rig.upper, spec["id"], since["upper"])]
+        assert sent and all(b >= a - HALF_COUNT for a, b in itertools.pairwise(sent)), sent  # never back
+        assert sent[-1] == pytest.approx(before, abs=HALF_COUNT)
+
+    run_robot(rig, body)
+
+
 def test_limits_wider_than_the_servos_eeprom_warn_at_open() -> None:
     rig = make_rig()
     narrowed = rig.servo("elbow").eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)

@@ -231,11 +231,12 @@ class Robot:
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
 
     def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
-        """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on.
-        Left out, as they are, and returned with why (``{joint: why}``): a held joint (see :attr:`held`: where it
-        is is unknown), one whose position was not read yet, and a free one standing more than
-        :data:`LIMIT_SLACK` degrees past a limit (turned there by hand: holding it would throw it to the limit at
-        full speed; bring it within its limits first).
+        """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on:
+        one a motion drives at the target last sent (its servo is on its way there: where it was last read lags
+        it), the others where they were last read.  Left out, as they are, and returned with why
+        (``{joint: why}``): a held joint (see :attr:`held`: where it is is unknown), one whose position was not
+        read yet, and a free one standing more than :data:`LIMIT_SLACK` degrees past a limit (turned there by
+        hand: holding it would throw it to the limit at full speed; bring it within its limits first).
 
         Raises:
             InvalidArgument: an unknown joint.
@@ -246,14 +247,28 @@ class Robot:
         if joints is None:
             names = [n for n in names if n not in self._latched]
         self._refuse_tripped(names)
+        # A joint a motion drives (or a cancelled one left moving) holds at the target last sent: where it was last
+        # read lags it (the servo is on its way), and holding there would step it back against its motion.
+        driven = {
+            n: target
+            for n in names
+            if (target := self._targets[n]) is not None
+            and (self._velocity[n] or any(n in plan.joints for plan in self._plans))
+        }
         self._release(names)
         # (the streams' holds now, not only those a frame has told the robot of: a servo back from offline
         # since has no position but the one from before it fell silent)
         unknown = self.held.keys() | self._held.keys()
         left = {n: "held since its servo answered again: where it stands is unknown" for n in names if n in unknown}
-        left.update((n, "its position is not read yet") for n in names if n not in self._positions and n not in left)
+        left.update(
+            (n, "its position is not read yet")
+            for n in names
+            if n not in self._positions and n not in driven and n not in left
+        )
         left.update((n, why) for n, why in self._past_limits(names).items() if n not in left)
-        self._apply({n: self.joints[n].clamp(self._positions[n]) for n in names if n not in left})
+        self._apply(
+            {n: driven[n] if n in driven else self.joints[n].clamp(self._positions[n]) for n in names if n not in left}
+        )
         return left
 
     def _past_limits(self, joints: Iterable[str]) -> dict[str, str]:
