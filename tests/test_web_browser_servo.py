@@ -236,6 +236,20 @@ def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Brow
         expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("may"))
 
 
+def test_a_jog_the_server_never_answered_says_so_not_that_its_answer_was_lost(browser: Browser) -> None:
+    # With the server gone (stopped, its network down), the jog's target showed "not confirmed" and its title said
+    # the jog "was sent but its answer was lost", though it may never have left the browser.
+    with held_by_its_page(browser, 8000) as (_, servo, p):
+        p.route("**/api/servo/1/move", lambda route: route.abort())  # the request fails as with no server
+        p.click("#jog-plus")
+        expect(p.locator("#message")).to_contain_text("the configurator's server does not answer")
+        expect(p.locator("#jog-target")).to_have_text("8100? (not confirmed)")  # it may have reached the server
+        expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("the server did not answer"))
+        expect(p.locator("#jog-target")).not_to_have_attribute("title", re.compile("was sent"))
+        assert servo.target == 8000
+        p.unroute("**/api/servo/1/move")
+
+
 def test_motion_a_closed_tab_switched_on_goes_off_on_the_server_and_a_jog_is_refused(browser: Browser) -> None:
     line = PtyLine((1,))
     servo = line.sim.servo(1)

@@ -533,12 +533,14 @@ async function toggleMotion() {
 }
 
 // The jog's target as shown: a number sent (or where motion was switched on), "-" for none, or a target not
-// confirmed (the jog's answer lost: the servo may be going there, or still to the one before).
+// confirmed (the jog's answer lost: the servo may be going there, or still to the one before; "server": the
+// server never answered, so the jog may not even have left the browser).
 function showTarget(position, uncertain = false) {
   const box = $("#jog-target");
   box.textContent = position === null ? "-" : uncertain ? `${position}? (not confirmed)` : String(position);
-  box.title = uncertain ? `the jog to ${position} was sent but its answer was lost: the servo may be going there, or still holding the target before` : "";
-  box.classList.toggle("uncertain", uncertain);
+  box.title = uncertain === "server" ? `the server did not answer the jog to ${position}: it may not have reached the servo, or reached it with its answer lost`
+    : uncertain ? `the jog to ${position} was sent but its answer was lost: the servo may be going there, or still holding the target before` : "";
+  box.classList.toggle("uncertain", Boolean(uncertain));
   if (position !== null) $("#jog-slider").value = position;
 }
 
@@ -562,8 +564,9 @@ async function jog(position) {
       const sent = state.jogSent ?? { position: null, uncertain: false };
       if (latest) showTarget(sent.position, sent.uncertain);
     } else {  // 502, 504, a lost port or server: it may have gone out
-      state.jogSent = { position, uncertain: true };
-      if (latest) showTarget(position, true);
+      const uncertain = e.status === undefined ? "server" : true;  // (no status: the server never answered)
+      state.jogSent = { position, uncertain };
+      if (latest) showTarget(position, uncertain);
     }
     throw e;
   }
