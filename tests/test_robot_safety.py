@@ -14,6 +14,7 @@ import anyio
 import pytest
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, UnsafeOperation, open_robot
+from ics35_async.robot import MotionStopped
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD
@@ -210,6 +211,50 @@ def test_a_target_set_for_a_joint_that_never_answered_does_not_move_its_servo_on
                 robot.set_targets({"knee": -40.0})  # decided: now it goes
                 await robot.on_wire(["knee"])
                 assert set(heard(rig.lower, 2, since)) == {robot.joints["knee"].position(-40.0)}
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
+def test_a_trip_between_a_stops_planning_and_its_ramps_start_is_not_undone_by_the_ramp() -> None:
+    # stop() works its ramps out, then its ramp tasks start a scheduler pass later: a trip landing in between (the
+    # watch's frame handled first) ended every motion but the ramps not yet running, which then drove the joint
+    # the watch had just freed.  A ramp, like a motion, does not drive a tripped joint.
+    rig = make_rig()
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot:
+                await robot.move_to({"neck": 0.0}, duration=0.05)
+                caught: list[BaseException] = []
+
+                async def move() -> None:
+                    try:
+                        await robot.move_to({"neck": 50.0}, duration=2.0)
+                    except (MotionStopped, SafetyStop) as exc:  # (stopped: by the stop, or the trip)
+                        caught.append(exc)
+
+                async def stop() -> None:
+                    try:
+                        await robot.stop(ramp=0.5)
+                    except SafetyStop as exc:
+                        caught.append(exc)
+
+                async with anyio.create_task_group() as tasks:
+                    tasks.start_soon(move)
+                    await when_moving(robot, "neck")
+                    tasks.start_soon(stop)
+                    await anyio.sleep(0)  # stop() has planned its ramps; they have not started
+                    robot.trip(SafetyStop("neck: a test's trip", joint="neck", reason="current", action="free"))
+                    since = rig.upper.transactions
+                await robot.on_wire()
+                await frames_until(robot, lambda: rig.upper.transactions > since + 20)
+                assert rig.servo("neck").free, "the ramp drove the joint the watch freed"
+                assert targets_sent(rig.upper, 1, since) == []
+                # The stop, and the motion it stopped, hear of the trip.
+                assert len(caught) == 2 and all(isinstance(e, SafetyStop) for e in caught), caught
 
     try:
         anyio.run(main)

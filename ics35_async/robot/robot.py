@@ -424,12 +424,17 @@ class Robot:
         took over meanwhile is not among them).
 
         Raises:
+            SafetyStop: the trajectory names a joint the safety watch tripped (at once, nothing sent), or the watch
+                stopped it.
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
         """
         self._check_commands()
         if self._end_error is not None:
             raise again(self._end_error)  # no pump would ever step it
         plan = Plan(trajectory, wait_on_wire)
+        # A trajectory does not drive a tripped joint: a motion checks that before it starts (check_ready), but
+        # stop()'s ramps start a scheduler pass after they are worked out, and a trip may land in between.
+        self._refuse_tripped(plan.joints)
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
