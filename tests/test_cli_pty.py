@@ -637,7 +637,7 @@ def test_teachs_last_words_after_a_double_ctrl_c_start_a_line_of_their_own(tmp_p
     robot = tmp_path / "arm.toml"
     robot.write_text(CALIBRATED)
     keys = [("0 pose(s) captured", b"\r"), ("1 pose(s) captured", b"\x03"), (gap, b"\x03")]
-    code, written = typed_on_a_terminal(["teach", str(robot), str(tmp_path / "wave.json")], keys)
+    code, written = typed_on_a_terminal(["teach", str(robot), str(tmp_path / "wave.json"), "--yes"], keys)
     screen = screen_of(written)
     # (Taken for the same stop, or landing as teach wrote its file: then it says so, exit code 130.)
     assert code in (0, 130), "\n".join(screen)

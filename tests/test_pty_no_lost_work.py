@@ -98,7 +98,7 @@ def test_teach_keeps_the_poses_captured_when_the_port_is_lost(tmp_path: Path) ->
         robot = tmp_path / "robot.toml"
         robot.write_text(ROBOT.format(port=port))
         taught = tmp_path / "taught.json"
-        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught))
+        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--yes")
         teach.wait_for("Enter")
         teach.type("\n")
         teach.wait_for("pose 1 at")
@@ -152,7 +152,7 @@ def test_teach_keeps_the_poses_captured_on_ctrl_c(tmp_path: Path, signum: int, c
         robot = tmp_path / "robot.toml"
         robot.write_text(ROBOT.format(port=port))
         taught = tmp_path / "taught.json"
-        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught))
+        teach = Command(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--yes")
         teach.wait_for("Enter")
         teach.type("\n")
         teach.wait_for("pose 1 at")

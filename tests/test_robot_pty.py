@@ -78,7 +78,7 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     for sid, deg in ((1, "25"), (2, "-40"), (3, "60")):
         assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", str(sid), deg, "--deg").returncode == 0
     taught = tmp_path / "taught.json"
-    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), stdin="\nq\n")
+    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--yes", stdin="\nq\n")
     assert proc.returncode == 0, proc.stderr
     keyframes = json.loads(taught.read_text())["keyframes"]
     assert len(keyframes) == 1
@@ -89,6 +89,22 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     proc = ics35(*NO_TIMEOUTS_OPTION, "play", str(robot), str(taught))
     assert proc.returncode == 0, proc.stderr
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
+
+
+def test_teach_without_joints_on_hardware_asks_before_freeing_every_joint(port: str, tmp_path: Path) -> None:
+    # Teaching an arm's wave on a standing humanoid without --joints freed every joint at once: the robot fell.
+    # On a serial line (not the simulator) teach asks first, naming how many joints go free; --joints or --yes
+    # does not ask.  A "no" frees nothing: the servos keep holding.
+    robot = tmp_path / "robot.toml"
+    robot.write_text(ROBOT.format(port=port))
+    assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", "1", "25", "--deg").returncode == 0
+    taught = tmp_path / "taught.json"
+    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), stdin="n\n")
+    assert proc.returncode == 5, proc.stderr
+    assert "free all 3 joints" in proc.stderr and "falls" in proc.stderr and "--joints" in proc.stderr, proc.stderr
+    assert "nothing was freed" in proc.stderr and "the joints are free" not in proc.stderr and not taught.exists()
+    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--joints", "a", stdin="\nq\n")
+    assert proc.returncode == 0 and "free all" not in proc.stderr, proc.stderr
 
 
 @pytest.mark.parametrize(

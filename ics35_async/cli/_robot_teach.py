@@ -31,10 +31,12 @@ from ._common import (
     check_backup_path,
     check_output_path,
     choice_option,
+    confirm,
     err,
     out,
     seconds_option,
     settings_of,
+    yes_option,
 )
 from ._console import signed_tenths
 from ._robot_common import (
@@ -134,6 +136,7 @@ async def handled_ctrl_c(work: Awaitable[None]) -> bool:
     high=30,
     default=1.0,
 )
+@yes_option
 @click.pass_context
 def teach(
     ctx: click.Context,
@@ -143,6 +146,7 @@ def teach(
     profile: str,
     name: str | None,
     lead: float,
+    yes: bool,
 ) -> int:
     """Teach a motion by hand: the joints go free, Enter captures the pose with its time, q then Enter ends.
 
@@ -151,6 +155,7 @@ def teach(
     The first pose is at --lead seconds (1 s); each later pose keeps its time after the first capture.
     The file plays back with: ics35 play ROBOT.toml OUT.json.  Ctrl-C ends like q.
     An OUT.json already there is kept as OUT.json.bak.
+    Without --joints on a serial line, teach asks before freeing every joint (--yes skips that).
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
@@ -163,6 +168,15 @@ def teach(
             f"note: {escape(str(target))} exists: the poses you capture replace it when teaching ends "
             f"(its content is kept as {escape(str(target.resolve()))}.bak)",
             soft_wrap=True,
+        )
+    if joints is None and not all(line.port.startswith("sim://") for line in description.lines.values()):
+        # Every joint goes free at once: a humanoid standing on them falls while an arm's wave is taught.
+        robot_name = description.name or robot_file
+        confirm(
+            f"teach will free all {len(names)} joints of {robot_name} (a robot standing on them falls; "
+            "--joints names the ones to teach): go on?",
+            yes,
+            "nothing was freed",
         )
     keyframes: list[Keyframe] = []
     times = TaughtTimes(lead)
