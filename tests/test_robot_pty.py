@@ -101,10 +101,10 @@ def test_teach_without_joints_on_hardware_asks_before_freeing_every_joint(port: 
     taught = tmp_path / "taught.json"
     proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), stdin="n\n")
     assert proc.returncode == 5, proc.stderr
-    assert "free all 3 joints" in proc.stderr and "falls" in proc.stderr and "--joints" in proc.stderr, proc.stderr
+    assert "Free all 3 joints" in proc.stderr and "falls" in proc.stderr and "--joints" in proc.stderr, proc.stderr
     assert "nothing was freed" in proc.stderr and "the joints are free" not in proc.stderr and not taught.exists()
     proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--joints", "a", stdin="\nq\n")
-    assert proc.returncode == 0 and "free all" not in proc.stderr, proc.stderr
+    assert proc.returncode == 0 and "Free all" not in proc.stderr, proc.stderr
 
 
 @pytest.mark.parametrize(

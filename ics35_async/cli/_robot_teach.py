@@ -173,8 +173,7 @@ def teach(
         # Every joint goes free at once: a humanoid standing on them falls while an arm's wave is taught.
         robot_name = description.name or robot_file
         confirm(
-            f"teach will free all {len(names)} joints of {robot_name} (a robot standing on them falls; "
-            "--joints names the ones to teach): go on?",
+            f"Free all {len(names)} joints of {robot_name}? (a standing robot falls; --joints picks some)",
             yes,
             "nothing was freed",
         )
