@@ -107,6 +107,10 @@ def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says
     assert "elbow left as it is: stands at 120.0 degrees, past its limit 90" in view["outcome"], view["outcome"]
     refused = post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": 0.2})
     assert refused.status_code == 409 and "past its limit 90" in refused.json()["error"], refused.text
+    # A motion naming it is refused too, as the request's answer (it was told only in the state line, once failed).
+    motion = {"format": "ics35-motion", "version": 1, "keyframes": [{"time": 0.3, "pose": {"elbow": 45}}]}
+    refused = post(client, "/api/robot/play", {"motion": motion})
+    assert refused.status_code == 409 and "past its limit 90" in refused.json()["error"], refused.text
     wait_for(lambda: not line.servo(1).free)  # the shoulder holds
     assert line.servo(2).free
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
@@ -297,21 +297,12 @@ class RobotSession:
             await asyncio.wait({pending})  # (its error, if any, is its own: see page_gone)
 
     async def move(self, pose: Mapping[str, Any], duration: float) -> None:
-        """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves).  What the
-        robot refuses to start (a joint held, tripped or never heard from) is the request's answer, not only the
-        state line's once the motion has failed."""
+        """Move the named joints smoothly (``Robot.move_to``: limits checked before anything moves; what the robot
+        refuses to start is the request's answer: see _check_ready)."""
         robot = self._moving_allowed()
         checked = robot.check_pose(pose)
         seconds = check_seconds("duration", duration, 0.0, 30.0)
-        held = [name for name in checked if name in robot.held]
-        if held:
-            # The library's words name its API (set_targets); the page's way out is the joint's Free button.
-            raise UnsafeOperation(
-                f"joint {held[0]} is held, sent nothing, since its servo answered again ({robot.held[held[0]]}): "
-                "where it stands is unknown, and a move would start from the target it had; Free it (the button "
-                "in its row: it is then read where it stands), then move it"
-            )
-        robot.check_ready(checked)
+        _check_ready(robot, checked)
         await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}")
 
     async def play(self, doc: object, speed: float = 1.0) -> None:
@@ -322,6 +313,7 @@ class RobotSession:
             raise InvalidArgument(f"speed must be 0.05..10, got {speed!r}")
         # Unknown joints, limits: against the description, as `ics35 play` does, before anything moves.
         check_motion(self.description, motion, "the uploaded motion")
+        _check_ready(robot, motion.joints)
         await self._run(robot.play(motion, speed=speed), motion.name or "motion")
 
     async def _run(self, job: Any, name: str) -> None:
@@ -390,6 +382,22 @@ class RobotSession:
             raise InvalidArgument(f"joint must be a joint's name, not {type(joint).__name__}")
         await self._robot().free([joint])
         self.outcome = f"joint {joint} free"
+
+
+def _check_ready(robot: Robot, joints: Iterable[str]) -> None:
+    """What the robot would refuse a motion of ``joints`` for (``Robot.check_ready``: a joint held, tripped, never
+    heard from or standing past a limit), raised now, as the request's answer, rather than told only in the state
+    line once the motion has failed."""
+    joints = list(joints)
+    held = [name for name in joints if name in robot.held]
+    if held:
+        # The library's words name its API (set_targets); the page's way out is the joint's Free button.
+        raise UnsafeOperation(
+            f"joint {held[0]} is held, sent nothing, since its servo answered again ({robot.held[held[0]]}): "
+            "where it stands is unknown, and a move would start from the target it had; Free it (the button "
+            "in its row: it is then read where it stands), then move it"
+        )
+    robot.check_ready(joints)
 
 
 def _round(value: float | None) -> float | None:
