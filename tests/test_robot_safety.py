@@ -7,7 +7,7 @@ sent after it tripped; nothing here depends on wall-clock timing.
 from __future__ import annotations
 
 import traceback
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import anyio
@@ -15,7 +15,7 @@ import pytest
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, UnsafeOperation, open_robot
 from ics35_async.robot import MotionStopped
-from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD
 
@@ -151,12 +151,9 @@ def test_action_hold_keeps_every_joint_at_its_last_target() -> None:
     assert robot.tripped["shoulder"] is stop
 
 
-@pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
-def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refuses_motions() -> None:
-    # One servo unplugged before the robot opened (a loose plug, a line at the wrong rate): its joint went
-    # "offline" in the first cycles and the default action, stop, freed every joint, so a robot standing on its
-    # start pose went limp as it opened.  A joint that never answered was never under control: it is named at
-    # open and refused by motions, and the others hold.
+def with_the_knee_unplugged(body: Callable[[Robot, Rig, VirtualServo], Awaitable[None]]) -> None:
+    """``body(robot, rig, knee)`` on a robot opened (standing on its start pose) with the knee's servo unplugged
+    before it opened, once its frames say the knee is offline; ``knee`` is the unplugged servo, to plug in."""
     rig = make_rig()
     knee = rig.lower.remove_servo(2)
 
@@ -164,29 +161,42 @@ def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refus
         with anyio.fail_after(GUARD):
             async with open_robot(rig.description, start_pose={"hip": 10.0, "knee": 0.0}, **FAST) as robot:
                 await frames_until(robot, lambda: robot.latest is not None and "knee" in robot.latest.offline)
-                lower = robot.latest.line_cycles["lower"]
-                while robot.latest.line_cycles["lower"] < lower + 3:  # (the watch has seen it offline)
-                    await robot.wait_frame(robot.latest.cycle)
-                assert robot.trips == [] and not rig.servo("hip").free
-                assert any("knee" in w and "did not answer" in w for w in robot.warnings), robot.warnings
-                with pytest.raises(UnsafeOperation, match="joint knee has not answered since the robot opened"):
-                    await robot.move_to({"hip": 5.0, "knee": 5.0}, duration=0.05)
-                await robot.move_to({"hip": 5.0}, duration=0.05)  # the others move
-                rig.lower.add_device(knee)  # plugged in: it answers (held, where it is), under the watch from then on
-                while "knee" not in robot.held:
-                    await robot.wait_frame(robot.latest.cycle)
-                robot.set_targets({"knee": 0.0})  # decided
-                await robot.move_to({"knee": 5.0}, duration=0.05)
-                rig.lower.remove_servo(2)  # lost after it answered: the watch stops the robot
-                with pytest.raises(SafetyStop, match="joint knee"):
-                    while True:
-                        await robot.wait_frame(robot.latest.cycle)
-                        robot.check_ready(["knee"])
+                await body(robot, rig, knee)
 
     try:
         anyio.run(main)
     finally:
         rig.close()
+
+
+@pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
+def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refuses_motions() -> None:
+    # One servo unplugged before the robot opened (a loose plug, a line at the wrong rate): its joint went
+    # "offline" in the first cycles and the default action, stop, freed every joint, so a robot standing on its
+    # start pose went limp as it opened.  A joint that never answered was never under control: it is named at
+    # open and refused by motions, and the others hold.
+
+    async def body(robot: Robot, rig: Rig, knee: VirtualServo) -> None:
+        lower = robot.latest.line_cycles["lower"]
+        while robot.latest.line_cycles["lower"] < lower + 3:  # (the watch has seen it offline)
+            await robot.wait_frame(robot.latest.cycle)
+        assert robot.trips == [] and not rig.servo("hip").free
+        assert any("knee" in w and "did not answer" in w for w in robot.warnings), robot.warnings
+        with pytest.raises(UnsafeOperation, match="joint knee has not answered since the robot opened"):
+            await robot.move_to({"hip": 5.0, "knee": 5.0}, duration=0.05)
+        await robot.move_to({"hip": 5.0}, duration=0.05)  # the others move
+        rig.lower.add_device(knee)  # plugged in: it answers (held, where it is), under the watch from then on
+        while "knee" not in robot.held:
+            await robot.wait_frame(robot.latest.cycle)
+        robot.set_targets({"knee": 0.0})  # decided
+        await robot.move_to({"knee": 5.0}, duration=0.05)
+        rig.lower.remove_servo(2)  # lost after it answered: the watch stops the robot
+        with pytest.raises(SafetyStop, match="joint knee"):
+            while True:
+                await robot.wait_frame(robot.latest.cycle)
+                robot.check_ready(["knee"])
+
+    with_the_knee_unplugged(body)
 
 
 @pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
@@ -194,28 +204,20 @@ def test_a_target_set_for_a_joint_that_never_answered_does_not_move_its_servo_on
     # move_to refuses such a joint (it would drive it blind); set_targets takes the target, as a loop setting
     # every joint each pass needs, but the servo, plugged in later, must not be thrown there at full speed from
     # wherever it stands: it answers a read, comes back held, and moves only once the program sets it again.
-    rig = make_rig()
-    knee = rig.lower.remove_servo(2)
 
-    async def main() -> None:
-        with anyio.fail_after(GUARD):
-            async with open_robot(rig.description, start_pose={"hip": 10.0, "knee": 0.0}, **FAST) as robot:
-                await frames_until(robot, lambda: robot.latest is not None and "knee" in robot.latest.offline)
-                robot.set_targets({"hip": 10.0, "knee": -40.0})
-                since = rig.lower.transactions
-                rig.lower.add_device(knee)
-                await frames_until(robot, lambda: "knee" in robot.held)
-                lower = robot.latest.line_cycles["lower"]
-                await frames_until(robot, lambda: robot.latest.line_cycles["lower"] >= lower + 3)
-                assert heard(rig.lower, 2, since) == []
-                robot.set_targets({"knee": -40.0})  # decided: now it goes
-                await robot.on_wire(["knee"])
-                assert set(heard(rig.lower, 2, since)) == {robot.joints["knee"].position(-40.0)}
+    async def body(robot: Robot, rig: Rig, knee: VirtualServo) -> None:
+        robot.set_targets({"hip": 10.0, "knee": -40.0})
+        since = rig.lower.transactions
+        rig.lower.add_device(knee)
+        await frames_until(robot, lambda: "knee" in robot.held)
+        lower = robot.latest.line_cycles["lower"]
+        await frames_until(robot, lambda: robot.latest.line_cycles["lower"] >= lower + 3)
+        assert heard(rig.lower, 2, since) == []
+        robot.set_targets({"knee": -40.0})  # decided: now it goes
+        await robot.on_wire(["knee"])
+        assert set(heard(rig.lower, 2, since)) == {robot.joints["knee"].position(-40.0)}
 
-    try:
-        anyio.run(main)
-    finally:
-        rig.close()
+    with_the_knee_unplugged(body)
 
 
 def test_a_trip_between_a_stops_planning_and_its_ramps_start_is_not_undone_by_the_ramp() -> None:
