@@ -217,6 +217,23 @@ def temperature_to_celsius(parameter: int) -> float:
     return _TEMP_C1 + (parameter - _TEMP_P1) * _CELSIUS_PER_STEP
 
 
+# How a person reads a current or a temperature reading (the command line's `get` and the configurator's RAM
+# table say them alike): shown bare, a reverse current of 6 (raw 70) reads as a large one, and 127 as hot.
+CURRENT_NOTE = "magnitude 0..63, sign = direction"
+TEMPERATURE_NOTE = "smaller is hotter"
+
+
+def current_text(raw: int) -> str:
+    """A raw current reading as ``+6`` / ``-6``: its magnitude, signed by its direction."""
+    c = current_from_raw(raw)
+    return f"{'-' if c.reverse else '+'}{c.magnitude}"
+
+
+def temperature_text(parameter: int) -> str:
+    """A temperature parameter with its approximate Celsius: ``70 (~80 °C)``."""
+    return f"{parameter} (~{temperature_to_celsius(parameter):.0f} °C)"
+
+
 def celsius_to_temperature(celsius: float) -> int:
     """The temperature parameter (1..127) closest to ``celsius``, clamped."""
     number = finite_number(celsius)

@@ -416,6 +416,8 @@ max = 60
 line = "lower"
 id = 1
 """
+# The same robot with the knee (servo 2 of the lower line) beside the hip.
+CALIBRATE_WITH_KNEE = CALIBRATE_FILE.replace("[joints.hip]", '[joints.knee]\nline = "lower"\nid = 2\n\n[joints.hip]')
 
 
 @pytest.mark.parametrize("bom", ["", "\ufeff"], ids=["utf-8", "utf-8 with a BOM"])
@@ -872,9 +874,7 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     # become its offset, and every later motion of that joint would be 30 degrees off.
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
-    robot_file.write_text(
-        CALIBRATE_FILE.replace("[joints.hip]", '[joints.knee]\nline = "lower"\nid = 2\n\n[joints.hip]').format(**ports)
-    )
+    robot_file.write_text(CALIBRATE_WITH_KNEE.format(**ports))
     sims.servo("hip").move_by_hand(7500 + round(30 * 8000 / 270))
     hip = sims.servo("hip")
 
@@ -907,9 +907,7 @@ def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
     # other joints' ranges lost.  The hip's range may be cut short: it alone is not calibrated.
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
-    robot_file.write_text(
-        CALIBRATE_FILE.replace("[joints.hip]", '[joints.knee]\nline = "lower"\nid = 2\n\n[joints.hip]').format(**ports)
-    )
+    robot_file.write_text(CALIBRATE_WITH_KNEE.format(**ports))
 
     def swing(sign: int) -> Callable[[], None]:
         def move() -> None:

@@ -97,6 +97,12 @@ def test_a_stop_ends_at_or_before_the_motions_target() -> None:
     assert all(b <= a + HALF_COUNT for a, b in itertools.pairwise(sent)), sent
 
 
+async def knee_up_until_stopped(robot: Robot) -> None:
+    """The knee's 2 s linear move up to 15 degrees, which a stop cuts short (MotionStopped, as expected)."""
+    with pytest.raises(MotionStopped):
+        await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
+
+
 def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
     """Far from its target, a stopped joint goes on for a while (not frozen) and rests short of the target."""
     rig = make_rig()
@@ -106,12 +112,7 @@ def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
         await robot.move_to({"knee": -90.0}, duration=0.0)
         since.update(seq_now(rig))
         async with anyio.create_task_group() as tasks:
-
-            async def mover() -> None:
-                with pytest.raises(MotionStopped):
-                    await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
-
-            tasks.start_soon(mover)
+            tasks.start_soon(knee_up_until_stopped, robot)
             await anyio.sleep(0.2)
             await robot.stop(ramp=0.3)
         await robot.on_wire()
@@ -173,10 +174,6 @@ def test_a_stop_taken_over_by_another_stop_returns_once_the_joints_are_at_rest()
         since.update(seq_now(rig))
         async with anyio.create_task_group() as tasks:
 
-            async def mover() -> None:
-                with pytest.raises(MotionStopped):
-                    await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
-
             async def stopper(name: str, delay: float) -> None:
                 await anyio.sleep(delay)
                 try:
@@ -186,7 +183,7 @@ def test_a_stop_taken_over_by_another_stop_returns_once_the_joints_are_at_rest()
                 else:
                     outcomes[name] = f"at rest at {robot.targets['knee']}"
 
-            tasks.start_soon(mover)
+            tasks.start_soon(knee_up_until_stopped, robot)
             tasks.start_soon(stopper, "first", 0.2)
             tasks.start_soon(stopper, "second", 0.3)
         await robot.on_wire()

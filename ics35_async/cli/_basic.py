@@ -141,8 +141,8 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
         live.add_row("position", f"{position}  ({fmt_degrees(position).strip()})  - torque now OFF (free, --free)")
     else:
         live.add_row("position", f"{position}  ({fmt_degrees(position).strip()})  - torque left as it was")
-    live.add_row("current", f"{current_text(got['current'])}  (magnitude 0..63, sign = direction)")
-    live.add_row("temperature", f"{temperature_text(got['temperature'])}  (smaller is hotter)")
+    live.add_row("current", f"{current_text(got['current'])}  ({units.CURRENT_NOTE})")
+    live.add_row("temperature", f"{temperature_text(got['temperature'])}  ({units.TEMPERATURE_NOTE})")
     out.print(live)
     out.print(eeprom_table(eeprom))
     return 0

@@ -9,9 +9,9 @@ person's words), :mod:`._paths` (files checked before the line is touched),
 
 from __future__ import annotations
 
+from ..units import current_text, temperature_text
 from ._console import (
     current_json,
-    current_text,
     emit_json,
     err,
     fail,
@@ -20,7 +20,6 @@ from ._console import (
     ids_text,
     out,
     temperature_json,
-    temperature_text,
 )
 from ._errors import (
     NO_REPLY_HINTS,

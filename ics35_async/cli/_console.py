@@ -95,15 +95,6 @@ def fmt_degrees(position: int) -> str:
     return f"{signed_tenths(units.position_to_degrees(position)):>7}°"
 
 
-def current_text(raw: int) -> str:
-    c = units.current_from_raw(raw)
-    return f"{'-' if c.reverse else '+'}{c.magnitude}"
-
-
-def temperature_text(raw: int) -> str:
-    return f"{raw} (~{units.temperature_to_celsius(raw):.0f} °C)"
-
-
 def current_json(raw: int) -> dict[str, Any]:
     c = units.current_from_raw(raw)
     return {"raw": raw, "magnitude": c.magnitude, "reverse": c.reverse}

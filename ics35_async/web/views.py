@@ -7,7 +7,7 @@ from typing import Any
 
 from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
 from ..policies import EepromPlan, EepromWriteResult, IdSurvey
-from ..units import current_from_raw, temperature_to_celsius
+from ..units import CURRENT_NOTE, TEMPERATURE_NOTE, current_text, temperature_text
 
 
 def flag_names(flags: int) -> list[str]:
@@ -39,12 +39,9 @@ def ram_view(values: dict[str, int]) -> dict[str, Any]:
     bare, 70 would read as a large current and 127 as hot."""
     shown = {name: str(value) for name, value in values.items()}
     if "current" in values:
-        current = current_from_raw(values["current"])
-        sign = "-" if current.reverse else "+"
-        shown["current"] = f"{sign}{current.magnitude}  (magnitude 0..63, sign = direction)"
+        shown["current"] = f"{current_text(values['current'])}  ({CURRENT_NOTE})"
     if "temperature" in values:
-        celsius = temperature_to_celsius(values["temperature"])
-        shown["temperature"] = f"{values['temperature']} (~{celsius:.0f} °C)  (smaller is hotter)"
+        shown["temperature"] = f"{temperature_text(values['temperature'])}  ({TEMPERATURE_NOTE})"
     return {**values, "shown": shown}
 
 
