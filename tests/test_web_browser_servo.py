@@ -95,13 +95,18 @@ def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(brow
         expect(p.locator("#restore-btn")).to_be_disabled()
 
 
+def start_live_plot(p: Page, ids: str) -> None:
+    """The Live plots page of ``p``'s server, streaming ``ids`` (as typed in its IDs box)."""
+    p.goto(p.url.split("#")[0] + "#live")
+    p.fill("#live-ids", ids)
+    p.click("#live-start")
+
+
 def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Browser) -> None:
     # Stop left "stream 99.8 cycles/s, page 26 updates/s" on show for good, as if it still ran.
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1")
-        p.click("#live-start")
+        start_live_plot(p, "1")
         expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
         expect(p.locator("#live-rate")).to_have_text(re.compile(r"^\d"))
         p.click("#live-stop")
@@ -119,9 +124,7 @@ def test_the_live_target_legend_says_free_and_left_alone_not_0_and_minus_1(brows
     # frees, "3: -1" for an ICS 3.6 servo it only reads; and the free servo's 0 was drawn, squashing the rest.
     line = PtyLine((1, 3), ics36=(3,))
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1,3")
-        p.click("#live-start")
+        start_live_plot(p, "1,3")
         expect(p.locator("#legend span[data-id='3']")).to_have_text("■ 3: 7500")
         p.select_option("#live-what", "targets")
         expect(p.locator("#legend span[data-id='1']")).to_have_text("■ 1: free")
@@ -344,9 +347,7 @@ def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Brow
     # elsewhere): plotted as if plain, its line just went flat; the terminal says "waiting for a target".
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1")
-        p.click("#live-start")
+        start_live_plot(p, "1")
         expect(p.locator("#legend span[data-id='1']")).to_be_visible()
         expect(p.locator("#live-held")).to_have_text("none")
         answer = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": True})
@@ -417,9 +418,7 @@ def test_the_live_plots_legend_says_a_servo_that_stopped_answering_is_offline(br
     # Its last position stayed in the legend as if read now ("■ 2: 7500"), the word only in the line above.
     line = PtyLine((1, 2))
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#live")
-        p.fill("#live-ids", "1,2")
-        p.click("#live-start")
+        start_live_plot(p, "1,2")
         expect(p.locator("#legend span[data-id='2']")).to_have_text("■ 2: 7500")
         unplugged = line.sim.remove_servo(2)
         expect(p.locator("#live-offline")).to_have_text("2")
