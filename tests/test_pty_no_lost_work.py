@@ -127,7 +127,7 @@ def test_calibrate_ends_at_once_when_the_port_is_lost(tmp_path: Path, step: str)
     try:
         robot = tmp_path / "robot.toml"
         robot.write_text(ROBOT.format(port=port))
-        calibrate = Command(*NO_TIMEOUTS_OPTION, "calibrate", str(robot))
+        calibrate = Command(*NO_TIMEOUTS_OPTION, "calibrate", str(robot), "--yes")
         calibrate.wait_for("neutral (every joint at 0)")
         if step == "whole range":
             calibrate.type("\n")

@@ -91,20 +91,25 @@ def test_teach_then_play_round_trip(port: str, tmp_path: Path) -> None:
     assert servo_degrees(port) == pytest.approx({1: 25.0, 2: -40.0, 3: 60.0}, abs=0.1)
 
 
-def test_teach_without_joints_on_hardware_asks_before_freeing_every_joint(port: str, tmp_path: Path) -> None:
-    # Teaching an arm's wave on a standing humanoid without --joints freed every joint at once: the robot fell.
-    # On a serial line (not the simulator) teach asks first, naming how many joints go free; --joints or --yes
-    # does not ask.  A "no" frees nothing: the servos keep holding.
+@pytest.mark.parametrize("command", ["teach", "calibrate"])
+def test_without_joints_on_hardware_asks_before_freeing_every_joint(port: str, tmp_path: Path, command: str) -> None:
+    # Teaching an arm's wave (or calibrating a knee) on a standing humanoid without --joints freed every joint at
+    # once: the robot fell.  On a serial line (not the simulator) teach and calibrate ask first, naming how many
+    # joints go free; --joints or --yes does not ask.  A "no" frees nothing: the servos keep holding.
     robot = tmp_path / "robot.toml"
     robot.write_text(ROBOT.format(port=port))
     assert ics35("--port", port, *NO_TIMEOUTS_OPTION, "move", "1", "25", "--deg").returncode == 0
     taught = tmp_path / "taught.json"
-    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), stdin="n\n")
+    files = [str(robot), str(taught)] if command == "teach" else [str(robot)]
+    proc = ics35(*NO_TIMEOUTS_OPTION, command, *files, stdin="n\n")
     assert proc.returncode == 5, proc.stderr
     assert "Free all 3 joints" in proc.stderr and "falls" in proc.stderr and "--joints" in proc.stderr, proc.stderr
-    assert "nothing was freed" in proc.stderr and "the joints are free" not in proc.stderr and not taught.exists()
-    proc = ics35(*NO_TIMEOUTS_OPTION, "teach", str(robot), str(taught), "--joints", "a", stdin="\nq\n")
-    assert proc.returncode == 0 and "Free all" not in proc.stderr, proc.stderr
+    assert "nothing was freed" in proc.stderr and "the joints are free" not in proc.stderr, proc.stderr
+    assert not taught.exists() and not robot.with_suffix(".toml.bak").exists()
+    proc = ics35(*NO_TIMEOUTS_OPTION, command, *files, "--joints", "a", stdin="\nq\n" if command == "teach" else "")
+    assert "Free all" not in proc.stderr and "the joints are free" in proc.stderr, proc.stderr
+    proc = ics35(*NO_TIMEOUTS_OPTION, command, *files, "--yes", stdin="\nq\n" if command == "teach" else "")
+    assert "Free all" not in proc.stderr and "the joints are free" in proc.stderr, proc.stderr
 
 
 @pytest.mark.parametrize(

@@ -66,6 +66,21 @@ async def freed_robot(description: RobotDescription, settings: Settings, names: 
         yield robot
 
 
+def ask_before_freeing_all(description: RobotDescription, robot_file: str, joints: str | None, yes: bool) -> None:
+    """Without ``--joints`` every joint goes free at once: a humanoid standing on them falls while an arm's wave
+    is taught or a knee calibrated.  On a serial line (not the simulator) ask first; ``--yes`` skips it."""
+    if joints is not None or all(line.port.startswith("sim://") for line in description.lines.values()):
+        return
+    robot_name = description.name or robot_file
+    if len(description.joints) == 1:
+        question = f"Free joint {next(iter(description.joints))} of {robot_name}? (a robot standing on it falls)"
+    else:
+        question = (
+            f"Free all {len(description.joints)} joints of {robot_name}? (a standing robot falls; --joints picks some)"
+        )
+    confirm(question, yes, "nothing was freed")
+
+
 WARNING = "[yellow]warning:[/yellow]"
 
 
@@ -169,14 +184,7 @@ def teach(
             f"(its content is kept as {escape(str(target.resolve()))}.bak)",
             soft_wrap=True,
         )
-    if joints is None and not all(line.port.startswith("sim://") for line in description.lines.values()):
-        # Every joint goes free at once: a humanoid standing on them falls while an arm's wave is taught.
-        robot_name = description.name or robot_file
-        confirm(
-            f"Free all {len(names)} joints of {robot_name}? (a standing robot falls; --joints picks some)",
-            yes,
-            "nothing was freed",
-        )
+    ask_before_freeing_all(description, robot_file, joints, yes)
     keyframes: list[Keyframe] = []
     times = TaughtTimes(lead)
 
@@ -316,8 +324,9 @@ async def capture(
 @click.command()
 @click.argument("robot_file", metavar="ROBOT.toml")
 @joints_option
+@yes_option
 @click.pass_context
-def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
+def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool) -> int:
     """Calibrate joints by hand: their neutral (offset) and range (min, max), written back into ROBOT.toml.
 
     \b
@@ -326,12 +335,14 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None) -> int:
     The file keeps its comments and its previous content as ROBOT.toml.bak; where it cannot be edited
     in place, ROBOT.calibrated.toml is written beside it.  A joint moved over less than 5 degrees
     is refused, and then nothing is written.
+    Without --joints on a serial line, calibrate asks before freeing every joint (--yes skips that).
     """
     settings = settings_of(ctx)
     description = load_robot_file(robot_file)
     check_backup_path(check_output_path(robot_file, "ROBOT.toml"), "ROBOT.toml")
     names = chosen_joints(description, joints)
     note_ports(settings, robot_file)
+    ask_before_freeing_all(description, robot_file, joints, yes)
     neutral: dict[str, float] = {}
     low: dict[str, float] = {}
     high: dict[str, float] = {}
