@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from collections import Counter
@@ -146,3 +149,25 @@ def test_every_servo_asked_where_none_answers_at_this_rate_names_the_rate_they_a
     assert result.code == ExitCode.WRONG_BAUD, result.err
     assert "625000" in result.err and "--baud 625000" in result.err, result.err
     assert "power" not in result.err, result.err
+
+
+@pytest.mark.parametrize("json_lines", [False, True], ids=["table", "json"])
+def test_a_reader_that_leaves_the_pipe_ends_monitor_quietly(json_lines: bool) -> None:
+    # `ics35 monitor 1-3 | head -2`: the reader leaves while monitor still writes.  Nothing said, the servos let
+    # go as on any other end (the line closed, not left to the process's exit), and exit code 1 as click, rich
+    # and Python's own advice for SIGPIPE have it (a shell's `set -o pipefail` sees it, as it sees a tool the
+    # signal ended).
+    args = ["--port", "sim://?ids=1-3", "-v", "monitor", "1-3", "--free", "--seconds", "30"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", *args, *(["--json"] if json_lines else [])],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "COLUMNS": "100"},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    assert proc.stdout.readline()  # the reader takes a line, then leaves
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=30) == 1, err
+    assert "Traceback" not in err and "rror" not in err, err
+    assert "closed sim://" in err, err
