@@ -214,12 +214,15 @@ class Robot:
                 without ``allow_free`` (nothing applied).
             SafetyStop: an angle for a joint the safety watch tripped (``tripped``), until it is back within
                 its limits: the target would undo the safety action (nothing applied; freeing it is allowed).
-            BusClosed: the robot was closed (its ``async with`` block has ended).
+            BusClosed, PortLost: the robot was closed (its ``async with`` block has ended), or a line is gone
+                (without ``reconnect``: the robot's frames have ended; nothing applied unless every target frees).
         """
         if not isinstance(pose, Mapping):
             raise InvalidArgument(f"a pose is a mapping {{joint: degrees}}, not {type(pose).__name__}")
         self.joint_names(pose)
         checked = {n: None if d is None and allow_free else self.joints[n].check(d) for n, d in pose.items()}
+        if any(d is not None for d in checked.values()):
+            self._check_watched()  # (freeing alone still reaches the lines left)
         self._refuse_tripped(n for n, d in checked.items() if d is not None)
         self._release(checked)
         self._apply(checked, lift_holds=lift_holds)
@@ -241,11 +244,12 @@ class Robot:
         Raises:
             InvalidArgument: an unknown joint.
             SafetyStop: ``joints`` names a joint the safety watch tripped (nothing applied; see :meth:`set_targets`).
-            BusClosed: the robot was closed (its ``async with`` block has ended).
+            BusClosed, PortLost: the robot was closed, or a line is gone (nothing applied; see :meth:`set_targets`).
         """
         names = self.joint_names(joints)
         if joints is None:
             names = [n for n in names if n not in self._latched]
+        self._check_watched()
         self._refuse_tripped(names)
         # A joint a motion drives (or a cancelled one left moving) holds at the target last sent: where it was last
         # read lags it (the servo is on its way), and holding there would step it back against its motion.
@@ -462,7 +466,7 @@ class Robot:
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         seconds = units.check_seconds("ramp", ramp, 0.0, 10.0)
-        self._check_commands()
+        self._check_watched()  # (no frames: nothing to ramp by)
         stopped, self._plans = self._plans, []  # no longer stepped: the ramp drives their joints now
         stopped_here = MotionStopped("the motion was stopped (Robot.stop)")
         outcome: IcsError = stopped_here
@@ -711,6 +715,15 @@ class Robot:
     def _check_commands(self) -> None:
         if self._closing:
             raise BusClosed(CLOSED)
+
+    def _check_watched(self) -> None:
+        """Refuse a command the robot could not follow: the block has ended, or its frames have (a line lost
+        without ``reconnect``).  The other lines' streams would still send a target, but nothing reads where
+        the joints go, the safety watch included: a control loop must not run on blind.  (Freeing is not
+        refused: it still reaches the lines left.)"""
+        self._check_commands()
+        if self._end_error is not None:
+            raise again(self._end_error)
 
     def _end(self, error: IcsError) -> None:
         self._velocity = dict.fromkeys(self.joints, 0.0)  # nothing moves them any more: a stop has nothing to slow
