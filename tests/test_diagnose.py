@@ -543,3 +543,45 @@ def test_the_timer_fix_for_good_is_the_udev_rule_that_matches_the_adapter(tmp_pa
     ftdi = SerialPortInfo("/dev/ttyUSB0", "FT232R USB UART", 0x0403, 0x6001)
     (other,) = by_check(check(root, ports=[ftdi], uid=0), "latency_timer")
     assert "ics35 udev" not in other.fix and 'ATTR{latency_timer}="1"' in other.fix
+
+
+def board_uart(tmp_path: Path, tty: str, driver: str, *, alias: str | None = None) -> Path:
+    """A fake board: /dev/``tty`` (``/dev/alias`` linking to it, as Raspberry Pi OS's /dev/serial0 does), run by
+    the kernel driver ``driver``."""
+    root = tree(tmp_path)
+    (root / "dev" / tty).write_text("")
+    if alias:
+        os.symlink(tty, root / "dev" / alias)
+    drivers = root / "sys" / "bus" / "platform" / "drivers" / driver
+    drivers.mkdir(parents=True)
+    device = root / "sys" / "devices" / "platform" / "soc" / "fe215040.serial"
+    device.mkdir(parents=True)
+    os.symlink(drivers, device / "driver")
+    (root / "sys" / "class" / "tty" / tty).mkdir(parents=True)
+    os.symlink(device, root / "sys" / "class" / "tty" / tty / "device")
+    return root
+
+
+@pytest.mark.parametrize("port", ["/dev/ttyS0", "/dev/serial0"])
+def test_a_raspberry_pi_mini_uart_is_named_for_its_missing_parity(tmp_path: Path, port: str) -> None:
+    # ICS frames carry even parity.  A Raspberry Pi's mini UART (ttyS0, /dev/serial0 where Bluetooth has the
+    # other UART) has none: every command goes out without it, and the servos answer none.  doctor says so, and
+    # which UART to use instead; the PL011 (ttyAMA0) is fine.
+    root = board_uart(tmp_path, "ttyS0", "bcm2835-aux-uart", alias="serial0")
+    (finding,) = by_check(check_system([], port, root=root, platform="linux", uid=0, gids=set()), "uart")
+    assert finding.severity == "error" and "mini UART" in finding.problem and "parity" in finding.problem
+    assert "dtoverlay=disable-bt" in finding.fix and "/dev/ttyAMA0" in finding.fix
+    other = board_uart(tmp_path / "pl011", "ttyAMA0", "uart-pl011")
+    assert by_check(check_system([], "/dev/ttyAMA0", root=other, platform="linux", uid=0, gids=set()), "uart") == []
+
+
+@pytest.mark.parametrize("cmdline", ["console=serial0,115200 console=tty1", "console=ttyAMA0,115200 root=/dev/x"])
+def test_the_kernel_console_on_the_servo_port_is_named(tmp_path: Path, cmdline: str) -> None:
+    # A board's serial console on the UART the servos hang on: the kernel's messages go out onto their line.
+    root = board_uart(tmp_path, "ttyAMA0", "uart-pl011", alias="serial0")
+    (root / "proc" / "cmdline").write_text(cmdline + "\n")
+    (finding,) = by_check(check_system([], "/dev/ttyAMA0", root=root, platform="linux", uid=0, gids=set()), "console")
+    assert finding.severity == "error" and "console" in finding.problem and "/dev/ttyAMA0" in finding.problem
+    assert "cmdline.txt" in finding.fix and "raspi-config" in finding.fix
+    (root / "proc" / "cmdline").write_text("console=tty1 root=/dev/x\n")
+    assert by_check(check_system([], "/dev/ttyAMA0", root=root, platform="linux", uid=0, gids=set()), "console") == []

@@ -145,8 +145,8 @@ def print_report(
 @click.pass_context
 def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root: str, as_json: bool) -> int:
     """Check the machine and the line: adapters and their driver, rights on the port, who holds it,
-    the USB latency timer; then each answering servo's round trip, the latency timer it points to,
-    and the cycle rate for 32 servos now and after each fix.
+    the USB latency timer, a board's UART that cannot carry the line; then each answering servo's round
+    trip, the latency timer it points to, and the cycle rate for 32 servos now and after each fix.
 
     Reads only (temperature reads; ID reads at the other rates when none answers: nothing moves, nothing
     is freed).  Without --port only the machine

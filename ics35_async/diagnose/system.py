@@ -1,5 +1,5 @@
 """The machine's side of a diagnosis: adapters and their driver, who may open the port, who holds it,
-the FTDI latency timer, programs known to grab serial ports, WSL2.
+the FTDI latency timer, programs known to grab serial ports, WSL2, a board's own UART that cannot carry the line.
 
 Every check reads system files below ``root`` (``/``: ``sys``, ``dev``,
 ``proc``, ``etc/group``), so a test can hand it a fake tree.  The port
@@ -41,6 +41,8 @@ USBIPD_STEPS = (
     "in Windows PowerShell as administrator: usbipd list ; usbipd bind --busid BUSID ; "
     "usbipd attach --wsl --busid BUSID  (BUSID: the adapter's row in the list); then in WSL: ics35 doctor"
 )
+
+UNTESTED = "untested here without the hardware"
 
 
 @dataclass
@@ -237,6 +239,62 @@ def check_latency_timer(
     ]
 
 
+# The Raspberry Pi's mini UART (Linux's 8250_bcm2835aux driver): the BCM2835 peripherals datasheet lists it
+# with "no parities".  ICS frames carry even parity, so what it sends is no command a servo takes.
+MINI_UART_DRIVER = "bcm2835-aux-uart"
+PL011_STEPS = (
+    "use the board's PL011 UART: on a Raspberry Pi 3, 4 or Zero W add dtoverlay=disable-bt to config.txt "
+    "(/boot/firmware/config.txt; it takes the PL011 back from Bluetooth for GPIO 14 and 15) and reboot, then "
+    f"--port /dev/ttyAMA0 (/dev/serial0 points there then; {UNTESTED})"
+)
+CONSOLE_FIX = (
+    "turn the serial console off: sudo raspi-config, Interface Options, Serial Port: login shell No, serial "
+    "port hardware Yes; or remove its console=... from the kernel command line (cmdline.txt beside config.txt) "
+    "and reboot"
+)
+
+
+def check_board_uart(root: Path, device: str, tty: str) -> list[Finding]:
+    """An error for a board's own UART that cannot carry the line: a Raspberry Pi's mini UART (no parity), or
+    one the kernel writes its console to (its messages would go out onto the servos' line as bytes)."""
+    found = []
+    try:
+        driver = os.path.basename(os.readlink(_below(root, f"/sys/class/tty/{tty}/device/driver")))
+    except OSError:
+        driver = ""
+    if driver == MINI_UART_DRIVER:
+        found.append(
+            Finding(
+                "uart",
+                "error",
+                f"{device} is the Raspberry Pi's mini UART: it sends no parity bit, and ICS frames carry even "
+                "parity, so no servo takes what it sends",
+                PL011_STEPS,
+            )
+        )
+    try:
+        words = _below(root, "/proc/cmdline").read_text().split()
+    except OSError:
+        words = []
+    for word in words:
+        if not word.startswith("console="):
+            continue
+        name = word.removeprefix("console=").split(",")[0]
+        named = os.path.basename(os.path.realpath(_below(root, f"/dev/{name}"))) if name else ""
+        if tty in (name, named):
+            found.append(
+                Finding(
+                    "console",
+                    "error",
+                    f"the kernel writes its console to {device} ({word} on its command line): its messages go out "
+                    "onto the servos' line",
+                    CONSOLE_FIX,
+                )
+            )
+            break
+    return found
+
+
 def check_grabbers(root: Path) -> list[Finding]:
     running = {name for _, name in processes(root)}
     return [
@@ -252,9 +310,6 @@ def is_wsl(root: Path) -> bool:
     except OSError:
         return False
     return "microsoft" in version or "wsl" in version
-
-
-UNTESTED = "untested here without the hardware"
 
 
 def missing_adapter(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
@@ -332,6 +387,7 @@ def check_system(
         listed = [p.kondo for p in ports if os.path.basename(p.device) == tty]
         report.device, report.tty, report.kondo_adapter = device, tty, listed[0] if listed else None
         report.findings += check_latency_timer(device, tty, report.latency_timer_ms, report.kondo_adapter)
+        report.findings += check_board_uart(root, device, tty)
     elif not linux and any(p.ftdi_based for p in ports):
         report.findings.append(
             Finding(
