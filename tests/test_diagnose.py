@@ -557,6 +557,8 @@ def board_uart(tmp_path: Path, tty: str, driver: str, *, alias: str | None = Non
     device = root / "sys" / "devices" / "platform" / "soc" / "fe215040.serial"
     device.mkdir(parents=True)
     os.symlink(drivers, device / "driver")
+    (root / "sys" / "bus" / "platform").mkdir(exist_ok=True)
+    os.symlink(root / "sys" / "bus" / "platform", device / "subsystem")
     (root / "sys" / "class" / "tty" / tty).mkdir(parents=True)
     os.symlink(device, root / "sys" / "class" / "tty" / tty / "device")
     return root
@@ -571,6 +573,8 @@ def test_a_raspberry_pi_mini_uart_is_named_for_its_missing_parity(tmp_path: Path
     (finding,) = by_check(check_system([], port, root=root, platform="linux", uid=0, gids=set()), "uart")
     assert finding.severity == "error" and "mini UART" in finding.problem and "parity" in finding.problem
     assert "dtoverlay=disable-bt" in finding.fix and "/dev/ttyAMA0" in finding.fix
+    # (a board's UART needs no USB adapter: "no Kondo adapter is plugged in" would be noise)
+    assert by_check(check_system([], port, root=root, platform="linux", uid=0, gids=set()), "adapter") == []
     other = board_uart(tmp_path / "pl011", "ttyAMA0", "uart-pl011")
     assert by_check(check_system([], "/dev/ttyAMA0", root=other, platform="linux", uid=0, gids=set()), "uart") == []
 

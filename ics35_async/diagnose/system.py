@@ -254,6 +254,15 @@ CONSOLE_FIX = (
 )
 
 
+def _on_usb(root: Path, tty: str) -> bool:
+    """Whether ``tty`` is a USB device's (or not known to be otherwise): False for a UART on the board's bus."""
+    try:
+        bus = os.path.basename(os.readlink(_below(root, f"/sys/class/tty/{tty}/device/subsystem")))
+    except OSError:
+        return True
+    return bus in ("usb", "usb-serial")
+
+
 def check_board_uart(root: Path, device: str, tty: str) -> list[Finding]:
     """An error for a board's own UART that cannot carry the line: a Raspberry Pi's mini UART (no parity), or
     one the kernel writes its console to (its messages would go out onto the servos' line as bytes)."""
@@ -370,7 +379,9 @@ def check_system(
     device = port if port and "://" not in port and not port.upper().startswith("COM") else None
     if linux:
         report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
-    report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux)
+    # (A port on a board's own UART or a PC's serial port needs no USB adapter: none missing is no news.)
+    on_usb = device is None or not linux or _on_usb(root, os.path.basename(os.path.realpath(_below(root, device))))
+    report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux and on_usb)
     if linux and is_wsl(root) and not any(p.usb_id for p in ports):
         report.findings.append(
             Finding("wsl", "warning", "this is WSL2: it sees a USB adapter only once Windows attaches it", USBIPD_STEPS)
