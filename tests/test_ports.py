@@ -582,6 +582,28 @@ def test_adapter_advice_is_quiet_when_fine(tmp_path: Path, latency: str) -> None
     assert adapter_advice("/dev/ttyUSB0", sysfs_root=tmp_path / "sys") == []
 
 
+@pytest.mark.parametrize("driver", ["bcm2835-aux-uart", "uart-pl011"])
+def test_adapter_advice_names_a_raspberry_pi_mini_uart_at_every_command(tmp_path: Path, driver: str) -> None:
+    # A first scan on a Raspberry Pi's /dev/serial0 (its mini UART: no parity bit) said only that no servo
+    # answered, with hints about power and IDs; doctor knew, but nothing sent the person there.  Every command
+    # on that port warns, with the fix; the PL011 (ttyAMA0) is fine.
+    (tmp_path / "dev").mkdir()
+    (tmp_path / "dev" / "ttyS0").touch()
+    (tmp_path / "dev" / "serial0").symlink_to("ttyS0")
+    device = tmp_path / "sys" / "devices" / "platform" / "soc" / "fe215040.serial"
+    device.mkdir(parents=True)
+    (tmp_path / "sys" / "bus" / "platform" / "drivers" / driver).mkdir(parents=True)
+    (device / "driver").symlink_to(tmp_path / "sys" / "bus" / "platform" / "drivers" / driver)
+    (tmp_path / "sys" / "class" / "tty" / "ttyS0").mkdir(parents=True)
+    (tmp_path / "sys" / "class" / "tty" / "ttyS0" / "device").symlink_to(device)
+    advice = adapter_advice(str(tmp_path / "dev" / "serial0"), sysfs_root=tmp_path / "sys")
+    if driver == "uart-pl011":
+        assert advice == []
+        return
+    [said] = advice
+    assert "mini UART" in said and "parity" in said and "dtoverlay=disable-bt" in said and "/dev/ttyAMA0" in said
+
+
 def test_adapter_advice_does_not_apply_elsewhere(tmp_path: Path) -> None:
     _fake_sysfs(tmp_path / "sys", "ttyUSB0", "16")
     assert adapter_advice("/dev/ttyACM0", sysfs_root=tmp_path / "sys") == []

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..transports.advice import MINI_UART_DRIVER, MINI_UART_FIX, MINI_UART_PROBLEM, tty_driver
 from ..transports.listing import (
     DUAL_ADAPTER_USB_ID,
     HS_ADAPTER_USB_ID,
@@ -41,8 +42,6 @@ USBIPD_STEPS = (
     "in Windows PowerShell as administrator: usbipd list ; usbipd bind --busid BUSID ; "
     "usbipd attach --wsl --busid BUSID  (BUSID: the adapter's row in the list); then in WSL: ics35 doctor"
 )
-
-UNTESTED = "untested here without the hardware"
 
 
 @dataclass
@@ -239,14 +238,6 @@ def check_latency_timer(
     ]
 
 
-# The Raspberry Pi's mini UART (Linux's 8250_bcm2835aux driver): the BCM2835 peripherals datasheet lists it
-# with "no parities".  ICS frames carry even parity, so what it sends is no command a servo takes.
-MINI_UART_DRIVER = "bcm2835-aux-uart"
-PL011_STEPS = (
-    "use the board's PL011 UART: on a Raspberry Pi 3, 4 or Zero W add dtoverlay=disable-bt to config.txt "
-    "(/boot/firmware/config.txt; it takes the PL011 back from Bluetooth for GPIO 14 and 15) and reboot, then "
-    f"--port /dev/ttyAMA0 (/dev/serial0 points there then; {UNTESTED})"
-)
 CONSOLE_FIX = (
     "turn the serial console off: sudo raspi-config, Interface Options, Serial Port: login shell No, serial "
     "port hardware Yes; or remove its console=... from the kernel command line (cmdline.txt beside config.txt) "
@@ -267,20 +258,8 @@ def check_board_uart(root: Path, device: str, tty: str) -> list[Finding]:
     """An error for a board's own UART that cannot carry the line: a Raspberry Pi's mini UART (no parity), or
     one the kernel writes its console to (its messages would go out onto the servos' line as bytes)."""
     found = []
-    try:
-        driver = os.path.basename(os.readlink(_below(root, f"/sys/class/tty/{tty}/device/driver")))
-    except OSError:
-        driver = ""
-    if driver == MINI_UART_DRIVER:
-        found.append(
-            Finding(
-                "uart",
-                "error",
-                f"{device} is the Raspberry Pi's mini UART: it sends no parity bit, and ICS frames carry even "
-                "parity, so no servo takes what it sends",
-                PL011_STEPS,
-            )
-        )
+    if tty_driver(tty, sysfs_root=_below(root, "/sys")) == MINI_UART_DRIVER:
+        found.append(Finding("uart", "error", MINI_UART_PROBLEM.format(port=device), MINI_UART_FIX))
     try:
         words = _below(root, "/proc/cmdline").read_text().split()
     except OSError:
@@ -319,6 +298,9 @@ def is_wsl(root: Path) -> bool:
     except OSError:
         return False
     return "microsoft" in version or "wsl" in version
+
+
+UNTESTED = "untested here without the hardware"
 
 
 def missing_adapter(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
