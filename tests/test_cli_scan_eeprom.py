@@ -56,6 +56,16 @@ def test_flags_plus_and_minus_keep_the_other_flags(cli: Any, sim_line: Any) -> N
     assert sim.servo(1).eeprom.flags == Flags.PWMINH | Flags.ROTATION
 
 
+def test_a_flag_change_keeps_the_unused_bits_the_servo_has(cli: Any, sim_line: Any) -> None:
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | 0x60)])
+    result = cli("--port", url, "eeprom", "set", "1", "flags+=REVERSE", "--yes")
+    assert result.code == 0, result.err
+    assert int(sim.servo(1).eeprom.flags) == 0x60 | Flags.PWMINH | Flags.REVERSE
+    result = cli("--port", url, "eeprom", "set", "1", "flags-=PWMINH", "speed=90", "--yes")
+    assert result.code == 0, result.err
+    assert int(sim.servo(1).eeprom.flags) == 0x60 | Flags.REVERSE and sim.servo(1).eeprom.speed == 90
+
+
 def test_flags_replacement_names_every_flag_it_clears_before_asking(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.ROTATION)])
     result = cli("--port", url, "eeprom", "set", "1", "flags=REVERSE", stdin="n\n")

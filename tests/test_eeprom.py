@@ -441,6 +441,16 @@ def test_replace_flags_rejects_unused_bits(bits: int) -> None:
         FACTORY.replace(flags=bits)
 
 
+def test_unused_flag_bits_the_image_has_stay_when_another_flag_changes() -> None:
+    # A servo (or a hand-made image) may have bits 5-6 set: a change to another flag keeps them as read,
+    # clearing them is allowed (the reference fixes them at 0), setting one is refused.
+    reported = Eeprom.from_bytes(_image_with(14, b"\x02\x08"))  # 0x28: bit 5 and PWMINH
+    assert int(reported.replace(flags=reported.flags | Flags.REVERSE).flags) == 0x29
+    assert reported.replace(flags=Flags.PWMINH).flags == Flags.PWMINH
+    with pytest.raises(InvalidArgument, match="unused"):
+        reported.replace(flags=reported.flags | 0x40)
+
+
 @pytest.mark.parametrize("value", [True, 8.0, "8", None, -1, 0x100])
 def test_replace_flags_rejects_wrong_types_and_ranges(value: object) -> None:
     with pytest.raises(InvalidArgument):

@@ -104,6 +104,24 @@ async def test_flag_edits_keep_the_other_flags_and_the_read_only_ones() -> None:
         assert sim.servo(1).eeprom.flags == Flags.FREE
 
 
+async def test_flag_edits_keep_the_unused_bits_the_servo_has() -> None:
+    servo = VirtualServo(1)
+    raw = bytearray(servo.eeprom.to_bytes())
+    raw[14], raw[15] = 0x6, 0x8  # bits 5-6 and PWMINH, as a servo may report them
+    servo.eeprom = Eeprom.from_bytes(bytes(raw))
+    async with line([servo]) as (sim, bus):
+        plan = await plan_eeprom_write(bus, 1, {}, set_flags=Flags.REVERSE)
+        assert int(plan.after.flags) == 0x69 and plan.added_flags == Flags.REVERSE
+        await write_eeprom_plan(bus, plan)
+        assert int(sim.servo(1).eeprom.flags) == 0x69
+        plan = await plan_eeprom_write(bus, 1, {"flags": Flags.REVERSE | Flags.PWMINH})  # (a replacement clears them)
+        assert int(plan.after.flags) == 0x09 and plan.cleared_flags == Flags(0)  # nameless: no "flag" lost
+        with pytest.raises(InvalidArgument, match="unused"):
+            await plan_eeprom_write(bus, 1, {"flags": 0x40})
+        with pytest.raises(InvalidArgument, match="unused"):
+            await plan_eeprom_write(bus, 1, {}, set_flags=0x60)
+
+
 @pytest.mark.parametrize(
     ("changes", "flags"),
     [

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import protocol
-from ..eeprom import READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, flags_value
+from ..eeprom import READ_ONLY_FLAGS, UNUSED_FLAG_BITS, BaudRate, Eeprom, Flags, flags_value
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
 from ..tasks import despite_cancellation
 from ..units import check_int
@@ -114,13 +114,13 @@ class EepromPlan:
 
     @property
     def cleared_flags(self) -> Flags:
-        """Flags the servo has now and loses with this write."""
-        return Flags(self.before.flags & ~self.after.flags & ~READ_ONLY_FLAGS)
+        """Flags the servo has now and loses with this write (unused bits 5-6, nameless, excluded)."""
+        return Flags(self.before.flags & ~self.after.flags & ~READ_ONLY_FLAGS & ~UNUSED_FLAG_BITS)
 
     @property
     def added_flags(self) -> Flags:
         """Flags the write sets that were clear (read-only flags excluded)."""
-        return Flags(self.after.flags & ~self.before.flags & ~READ_ONLY_FLAGS)
+        return Flags(self.after.flags & ~self.before.flags & ~READ_ONLY_FLAGS & ~UNUSED_FLAG_BITS)
 
     def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
         """Why this write must not happen (``None``: it may), given whether a baud change
