@@ -297,6 +297,20 @@ def test_restore_one_file_to_the_servo_it_came_from(cli: Any, sim_line: Any, tmp
     assert sim.servo(1).eeprom_writes == 0
 
 
+def test_restore_says_which_read_only_flags_the_servo_keeps(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    sim, url = sim_line([with_flags(VirtualServo(1), Flags.FREE | Flags.PWMINH), VirtualServo(2)])
+    backup = tmp_path / "one.json"
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(backup)).code == 0
+    result = cli("--port", url, "eeprom", "restore", "2", str(backup), "--yes")
+    assert result.code == 0, result.err
+    assert sim.servo(2).eeprom.flags == Flags.PWMINH  # FREE reports servo 2's own state: not written
+    assert "note: servo 2 keeps its read-only flag(s) as it reports them (FREE off)" in result.err, result.err
+    result = cli("--port", url, "eeprom", "restore", "2", str(backup), "--yes", "--json")
+    assert result.code == 0 and result.json()["kept_read_only"] == ["FREE"], result.err
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")  # onto its own servo: nothing to say
+    assert result.code == 0 and "read-only" not in result.err, result.err
+
+
 def test_restore_with_change_baud_verifies_at_both_rates(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url = sim_line([1])
     backup = tmp_path / "one.json"

@@ -122,11 +122,33 @@ async def test_flag_edits_keep_the_unused_bits_the_servo_has() -> None:
             await plan_eeprom_write(bus, 1, {}, set_flags=0x60)
 
 
+async def test_a_flags_value_naming_a_read_only_flag_is_refused_and_a_restore_keeps_the_servos() -> None:
+    servo = VirtualServo(1)
+    raw = bytearray(servo.eeprom.to_bytes())
+    raw[14], raw[15] = 0x0, 0xA  # PWMINH, and FREE as the servo reports it
+    servo.eeprom = Eeprom.from_bytes(bytes(raw))
+    async with line([servo]) as (sim, bus):
+        for value in (Flags.PCM | Flags.PWMINH, Flags.FREE | Flags.PWMINH):  # a change, or one as the servo has it
+            with pytest.raises(InvalidArgument, match="read-only"):
+                await plan_eeprom_write(bus, 1, {"flags": value})
+        assert sim.transactions == 0
+        # A restore: the backup's read-only flags are another moment's state; the servo's stay, and are named.
+        plan = await plan_eeprom_write(bus, 1, {"flags": Flags.PCM | Flags.REVERSE}, keep_read_only=True)
+        assert plan.after.flags == Flags.FREE | Flags.REVERSE and plan.kept_read_only == Flags.FREE | Flags.PCM
+        assert plan.kept_note == (
+            "servo 1 keeps its read-only flag(s) as it reports them (FREE on, PCM off): they report the servo's "
+            "state and are not written"
+        )
+        same = await plan_eeprom_write(bus, 1, {"flags": Flags.FREE | Flags.PWMINH}, keep_read_only=True)
+        assert not same.diff and same.kept_read_only == Flags(0) and same.kept_note is None
+
+
 @pytest.mark.parametrize(
     ("changes", "flags"),
     [
         ({}, {"set_flags": Flags.FREE}),
         ({}, {"clear_flags": Flags.PCM}),
+        ({"flags": Flags.FREE}, {}),
         ({}, {"set_flags": Flags.REVERSE, "clear_flags": Flags.REVERSE}),
         ({"flags": 0x20}, {}),
         ({"flags": -1}, {}),

@@ -358,6 +358,47 @@ def test_backup_then_restore_brings_the_settings_back_and_keeps_the_servos_id(se
     assert sim.servo(3).eeprom.servo_id == 3
 
 
+def free_reported(servo: VirtualServo) -> None:
+    """Give ``servo`` the FREE flag in its EEPROM, as a servo reports its state (read-only: never written)."""
+    raw = bytearray(servo.eeprom.to_bytes())
+    raw[15] |= 0x02
+    servo.eeprom = Eeprom.from_bytes(bytes(raw))
+
+
+def test_a_change_to_a_read_only_flag_is_refused_in_words_as_the_command_line_refuses_it(serve: Any) -> None:
+    client, sim = serve()
+    before = sim.servo(1).eeprom
+    for edit in ({"changes": {"flags": 0x02}}, {"changes": {"flags": 0x0C}}, {"set_flags": 0x02}):
+        plan = post(client, "/api/servo/1/plan", edit)
+        assert plan.status_code == 400 and "read-only" in plan.json()["error"], plan.text
+        write = post(client, "/api/servo/1/write", edit)
+        assert write.status_code == 400 and "read-only" in write.json()["error"], write.text
+    assert sim.servo(1).eeprom == before and sim.servo(1).eeprom_writes == 0
+
+
+def test_a_restore_keeps_the_servos_read_only_flags_and_says_so(serve: Any) -> None:
+    client, sim = serve()
+    free_reported(sim.servo(1))
+    post(client, "/api/servo/1/write", {"set_flags": 0x08})  # PWMINH
+    doc = client.get("/api/servo/1/backup").json()
+    assert doc["flags_names"] == ["FREE", "PWMINH"]
+    # Onto servo 3, which reports itself not free: the backup's FREE is not written, and the plan says so.
+    plan = post(client, "/api/servo/3/restore/plan", {"doc": doc}).json()
+    assert [(d["name"], d["new"]) for d in plan["diff"]] == [("flags", 0x08)] and plan["refusal"] is None
+    assert plan["note"] == (
+        "servo 3 keeps its read-only flag(s) as it reports them (FREE off): they report the servo's state and "
+        "are not written"
+    )
+    result = post(client, "/api/servo/3/restore", {"doc": doc, "before": plan["before"]}).json()
+    assert result["verified"] and int(sim.servo(3).eeprom.flags) == 0x08
+    # Back onto servo 1, whose read-only flags are the backup's: restored, nothing to say about them.
+    post(client, "/api/servo/1/write", {"clear_flags": 0x08})
+    plan = post(client, "/api/servo/1/restore/plan", {"doc": doc}).json()
+    assert plan["note"] is None and [d["name"] for d in plan["diff"]] == ["flags"]
+    assert post(client, "/api/servo/1/restore", {"doc": doc}).json()["verified"]
+    assert int(sim.servo(1).eeprom.flags) == 0x0A
+
+
 def test_a_broken_backup_is_refused_before_anything_is_sent(serve: Any) -> None:
     client, sim = serve()
     before = sim.servo(1).eeprom

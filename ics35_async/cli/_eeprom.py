@@ -43,18 +43,13 @@ class Edit:
 
 
 def parse_flag_names(text: str) -> int:
-    """``PWMINH,REVERSE`` / ``PWMINH|REVERSE`` / ``0x08`` -> bits; the read-only names are refused."""
+    """``PWMINH,REVERSE`` / ``PWMINH|REVERSE`` / ``0x08`` -> bits (the library refuses the read-only ones)."""
     text = text.strip()
     if text.lstrip("-").isdigit() or text.lower().startswith("0x"):
         try:
-            bits = int(text, 0)
+            return int(text, 0)
         except ValueError:
             raise InvalidArgument(f"flags needs names or an integer, got {text!r}") from None
-        if bits >= 0 and bits & READ_ONLY_FLAGS:
-            raise InvalidArgument(
-                f"flags value {text} includes FREE or PCM, which are read-only (they report the servo's state)"
-            )
-        return bits
     bits = 0
     for part in text.replace(",", "|").split("|"):
         part = part.strip().upper()
@@ -65,8 +60,6 @@ def parse_flag_names(text: str) -> int:
         except KeyError:
             names = ", ".join(f.name or "" for f in Flags if not f & READ_ONLY_FLAGS)
             raise InvalidArgument(f"unknown flag {part!r}; flags: {names}") from None
-        if flag & READ_ONLY_FLAGS:
-            raise InvalidArgument(f"flag {part} is read-only: it reports the servo's state and cannot be written")
         bits |= flag
     return bits
 

@@ -290,7 +290,7 @@ async def plan_restore(bus: Bus, backups: list[Backup], bulk: bool) -> list[Eepr
     plan_restores), then written and verified there, after one question over every diff.
     """
     if not bulk:
-        return [await plan_eeprom_write(bus, b.target, b.fields) for b in backups]
+        return [await plan_eeprom_write(bus, b.target, b.fields, keep_read_only=True) for b in backups]
     try:
         return await plan_restores(bus, {b.target: b.fields for b in backups})
     except UnsafeOperation as exc:  # an ID at two rates: two servos, and whose the backup is cannot be told

@@ -126,6 +126,8 @@ def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, An
         "written": written.get(outcome, True),
         "baud": plan.baud,
     }
+    if plan.kept_read_only:
+        out["kept_read_only"] = [f.name for f in Flags if f in plan.kept_read_only]
     if report is not None and report.error is not None:
         out["error"] = str(report.error)
     if result is not None and result.written:
@@ -188,6 +190,8 @@ async def write_plans(
             show_plan(plan, as_json, flag_advice, line_baud, asked_cleared)
         elif not as_json:
             out.print(f"servo {plan.servo_id}: EEPROM already matches, nothing to write")
+        if plan.kept_note and not as_json:
+            err.print(f"note: {escape(plan.kept_note)}", soft_wrap=True)
     if not pending:
         return WriteBatch([report_of(plan, None) for plan in plans])
     count = sum(len(plan.diff) for plan in pending)

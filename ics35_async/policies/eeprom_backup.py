@@ -6,7 +6,8 @@ way back the whole document is checked before anything is sent (format and
 version, a whole ``raw`` image, every field agreeing with it), and only the
 editable fields are taken, so a restore goes through :func:`.eeprom_write.plan_eeprom_write`
 like any other edit: the target servo keeps its own calibration bytes and
-read-only flags, and its ID unless the caller asks for the saved one; and
+read-only flags (``keep_read_only``: the plan names those the backup has
+otherwise), and its ID unless the caller asks for the saved one; and
 its baud rate when the caller asks to keep it (``keep_baud``: a backup made
 before the servo was moved to another rate).
 
@@ -165,7 +166,7 @@ def backup_changes(doc: object, *, restore_id: bool = False, keep_baud: bool = F
         del fields["servo_id"]
     if keep_baud:
         del fields["baud_rate"]
-    check_changes(fields)
+    check_changes(fields, keep_read_only=True)
     return BackupChanges(saved_id, fields, saved_baud)
 
 
@@ -249,7 +250,7 @@ async def plan_restores(
         BusClosed, PortLost, SerialPortError: the line is closed, its port gone, or it cannot be reopened.
     """
     for fields in changes.values():
-        check_changes(fields)
+        check_changes(fields, keep_read_only=True)
     found = await restore_rates(line, changes, bauds=bauds)
     refusal = found.refusal()
     if refusal:
@@ -261,7 +262,7 @@ async def plan_restores(
         for servo_id in order:
             if int(line.baudrate) != found.rates[servo_id]:
                 await line.reopen(baudrate=found.rates[servo_id])
-            plans.append(await plan_eeprom_write(line, servo_id, changes[servo_id]))
+            plans.append(await plan_eeprom_write(line, servo_id, changes[servo_id], keep_read_only=True))
     finally:
         await back_at_rate(line, home)
     return plans

@@ -6,8 +6,10 @@ The rules, in order:
   (``Eeprom.replace`` checks each), so the factory calibration bytes stay the
   servo's;
 * the read-only flags (FREE, PCM) report the servo's state: they stay as the
-  servo has them whatever a ``flags`` value says, and naming them in a flag
-  edit is refused;
+  servo has them, and an edit naming them (in a ``flags`` value, or to set or
+  clear) is refused; a restore (``keep_read_only``: the flags of an image saved
+  at another moment, or from another servo) keeps the servo's and names those
+  it keeps otherwise than the image has them (:attr:`EepromPlan.kept_note`);
 * the ID and the baud rate change only when the caller allows it, and an ID
   change is refused when the new ID already answers (two servos with one ID
   garble every reply);
@@ -40,14 +42,22 @@ NO_FLAGS = Flags(0)
 RETURN_BOUND = 5.0  # seconds a line's return to its rate may take when the work that moved it is cancelled
 
 
+def _refuse_read_only(bits: int) -> None:
+    """Refuse an edit naming a read-only flag, in the words every caller (command line, configurator) gives."""
+    if bits & READ_ONLY_FLAGS:
+        names = "|".join(f.name or "" for f in Flags if f in Flags(bits & READ_ONLY_FLAGS))
+        raise InvalidArgument(
+            f"{names}: the FREE and PCM flags are read-only (they report the servo's state and cannot be set "
+            "or cleared)"
+        )
+
+
 def _check_flag_edit(set_flags: int, clear_flags: int) -> tuple[int, int]:
     """``set_flags`` and ``clear_flags`` as ints, checked."""
     checked = []
     for what, value in (("set_flags", set_flags), ("clear_flags", clear_flags)):
         number = check_int(what, value, 0, 0xFF)
-        if number & READ_ONLY_FLAGS:
-            names = "|".join(f.name or "" for f in Flags if f in Flags(number & READ_ONLY_FLAGS))
-            raise InvalidArgument(f"{names}: the FREE and PCM flags are read-only (they report the servo's state)")
+        _refuse_read_only(number)
         checked.append(number)
     set_flags, clear_flags = checked
     both = set_flags & clear_flags
@@ -56,35 +66,60 @@ def _check_flag_edit(set_flags: int, clear_flags: int) -> tuple[int, int]:
     return set_flags, clear_flags
 
 
+def _edit(
+    current: Eeprom, changes: Mapping[str, Any], set_flags: int, clear_flags: int, keep_read_only: bool
+) -> tuple[Eeprom, Flags]:
+    """The edited image, and the read-only flags a ``flags`` value asked otherwise than ``current`` has them."""
+    set_flags, clear_flags = _check_flag_edit(set_flags, clear_flags)
+    fields = dict(changes)
+    kept = NO_FLAGS
+    if "flags" in fields or set_flags or clear_flags:
+        flags = flags_value(fields.get("flags", int(current.flags)))
+        if "flags" in fields:
+            if not keep_read_only:
+                _refuse_read_only(flags)
+            kept = Flags((flags ^ current.flags) & READ_ONLY_FLAGS)
+        flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
+        fields["flags"] = (flags | set_flags) & ~clear_flags
+    return current.replace(**fields), kept
+
+
 def edit_image(
     current: Eeprom,
     changes: Mapping[str, Any],
     *,
     set_flags: int = NO_FLAGS,
     clear_flags: int = NO_FLAGS,
+    keep_read_only: bool = False,
 ) -> Eeprom:
     """``current`` with ``changes`` applied, then ``set_flags`` set and ``clear_flags`` cleared.
 
-    A ``flags`` value replaces the writable flags only: the read-only ones
-    stay as ``current`` has them.  Every value is checked (InvalidArgument).
+    A ``flags`` value gives the writable flags (REVERSE, PWMINH, ROTATION,
+    SLAVE); the read-only ones (FREE, PCM) stay as ``current`` has them, and
+    naming one is refused, in the value or to set or clear.  ``keep_read_only``
+    (a restore: the value is a saved image's flags byte): the value's read-only
+    flags are not written, whatever they are.  Every value is checked
+    (InvalidArgument).
     """
-    set_flags, clear_flags = _check_flag_edit(set_flags, clear_flags)
-    fields = dict(changes)
-    if "flags" in fields or set_flags or clear_flags:
-        flags = flags_value(fields.get("flags", int(current.flags)))
-        flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
-        fields["flags"] = (flags | set_flags) & ~clear_flags
-    return current.replace(**fields)
+    return _edit(current, changes, set_flags, clear_flags, keep_read_only)[0]
 
 
-def check_changes(changes: Mapping[str, Any], *, set_flags: int = NO_FLAGS, clear_flags: int = NO_FLAGS) -> None:
-    """Check ``changes``, ``set_flags`` and ``clear_flags`` (as :func:`edit_image` takes them) before any
-    port opens, against a factory image; limits are checked again on the servo's.
+def check_changes(
+    changes: Mapping[str, Any],
+    *,
+    set_flags: int = NO_FLAGS,
+    clear_flags: int = NO_FLAGS,
+    keep_read_only: bool = False,
+) -> None:
+    """Check ``changes``, ``set_flags`` and ``clear_flags`` (as :func:`edit_image` takes them, with
+    ``keep_read_only``) before any port opens, against a factory image; limits are checked again on the
+    servo's.
 
     Raises:
-        InvalidArgument: an unknown field, a value out of range, or a flag both set and cleared.
+        InvalidArgument: an unknown field, a value out of range, a read-only flag named, or a flag both set
+            and cleared.
     """
-    edit_image(Eeprom.factory(), changes, set_flags=set_flags, clear_flags=clear_flags)
+    edit_image(Eeprom.factory(), changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep_read_only)
 
 
 @dataclass(frozen=True)
@@ -96,6 +131,21 @@ class EepromPlan:
     before: Eeprom
     after: Eeprom
     id_taken: bool = False  # the new ID already answers on this line
+    kept_read_only: Flags = NO_FLAGS  # read-only flags a restored image has otherwise: kept as the servo's
+
+    @property
+    def kept_note(self) -> str | None:
+        """What the write leaves as the servo has it though the image asked otherwise (``None``: nothing):
+        its read-only flags, in one line for a person."""
+        if not self.kept_read_only:
+            return None
+        states = ", ".join(
+            f"{f.name} {'on' if f in self.before.flags else 'off'}" for f in Flags if f in self.kept_read_only
+        )
+        return (
+            f"servo {self.servo_id} keeps its read-only flag(s) as it reports them ({states}): they report the "
+            "servo's state and are not written"
+        )
 
     @property
     def diff(self) -> dict[str, tuple[Any, Any]]:
@@ -146,24 +196,28 @@ async def plan_eeprom_write(
     *,
     set_flags: int = NO_FLAGS,
     clear_flags: int = NO_FLAGS,
+    keep_read_only: bool = False,
 ) -> EepromPlan:
     """Read servo ``servo_id``'s image on ``line`` and build the change (``changes``, ``set_flags``,
-    ``clear_flags``: see :func:`edit_image`); nothing is written.
+    ``clear_flags``, ``keep_read_only``: see :func:`edit_image`); nothing is written.
 
     When the change gives the servo a new ID, that ID is probed first
-    (``id_taken``).
+    (``id_taken``).  With ``keep_read_only`` the plan names the read-only flags
+    it keeps otherwise than ``changes`` has them (``kept_read_only``, ``kept_note``).
 
     Raises:
-        InvalidArgument: an unknown field, a value out of range, or a flag both set and cleared.
+        InvalidArgument: an unknown field, a value out of range, a read-only flag named, or a flag both set
+            and cleared.
         ReplyError: the servo does not answer the EEPROM read, or answers wrongly.
         BusClosed, PortLost: the line is closed or its port is gone.
     """
     servo_id = protocol.check_id(servo_id)
-    check_changes(changes, set_flags=set_flags, clear_flags=clear_flags)  # bad values never reach the wire
+    # Bad values never reach the wire.
+    check_changes(changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep_read_only)
     before = await line.request(protocol.ReadEeprom(servo_id))
-    after = edit_image(before, changes, set_flags=set_flags, clear_flags=clear_flags)
+    after, kept = _edit(before, changes, set_flags, clear_flags, keep_read_only)
     taken = after.servo_id not in (before.servo_id, servo_id) and await answers_short_read(line, after.servo_id)
-    return EepromPlan(servo_id, int(line.baudrate), before, after, id_taken=taken)
+    return EepromPlan(servo_id, int(line.baudrate), before, after, id_taken=taken, kept_read_only=kept)
 
 
 @dataclass(frozen=True)

@@ -9,15 +9,16 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 
 
-def edit_of(edit: Mapping[str, Any]) -> tuple[dict[str, Any], int, int]:
-    """(changes, set_flags, clear_flags) for :func:`~ics35_async.policies.plan_eeprom_write`, which checks each."""
+def edit_of(edit: Mapping[str, Any]) -> tuple[dict[str, Any], int, int, bool]:
+    """(changes, set_flags, clear_flags, keep_read_only) for :func:`~ics35_async.policies.plan_eeprom_write`,
+    which checks each; ``keep_read_only`` only when said in as many words (a restore's edit says it)."""
     changes = edit.get("changes", {})
     if not isinstance(changes, dict):
         raise InvalidArgument("changes must be an object of field: value")
     set_flags, clear_flags = edit.get("set_flags", 0), edit.get("clear_flags", 0)
     if "baud_rate" in changes:
         changes = {**changes, "baud_rate": BaudRate.parse(changes["baud_rate"])}
-    return changes, set_flags, clear_flags
+    return changes, set_flags, clear_flags, edit.get("keep_read_only") is True
 
 
 def allowances(edit: Mapping[str, Any]) -> dict[str, bool]:

@@ -620,8 +620,10 @@ class LineSession:
             return await self._plan(bus, servo_id, edit)
 
     async def _plan(self, bus: Bus, servo_id: int, edit: Mapping[str, Any]) -> tuple[EepromPlan, dict[str, Any]]:
-        changes, set_flags, clear_flags = edit_of(edit)
-        plan = await plan_eeprom_write(bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags)
+        changes, set_flags, clear_flags, keep = edit_of(edit)
+        plan = await plan_eeprom_write(
+            bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep
+        )
         allow = allowances(edit)
         return plan, plan_view(plan, self._robot_line_refusal(plan) or plan.refusal(**allow))
 
@@ -690,8 +692,14 @@ class LineSession:
         """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`;
         ``keep_baud``: all but the backup's baud rate (the servo stays at the rate the line reaches it at)."""
         changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
-        # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.
-        return {"changes": changes.fields, "saved_id": changes.saved_id, "allow_id_change": restore_id}
+        # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.  The
+        # backup's read-only flags are another moment's state: the servo keeps its own (the plan names them).
+        return {
+            "changes": changes.fields,
+            "saved_id": changes.saved_id,
+            "allow_id_change": restore_id,
+            "keep_read_only": True,
+        }
 
     async def apply_to_many(self, ids: list[Any], edit: Mapping[str, Any]) -> list[dict[str, Any]]:
         """The same edit (a profile of chosen fields) written to each servo in turn; an outcome per servo.

@@ -68,6 +68,7 @@ def plan_view(plan: EepromPlan, refusal: str | None) -> dict[str, Any]:
         "changes_id": plan.changes_id,
         "changes_baud": plan.changes_baud,
         "refusal": refusal,
+        "note": plan.kept_note,
     }
 
 

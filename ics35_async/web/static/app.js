@@ -399,11 +399,13 @@ function allowances() {
 }
 
 function diffTable(plan) {
-  if (!plan.diff.length) return el("p", {}, "no change: the servo already has these values");
+  const note = plan.note ? [el("p", {}, plan.note)] : [];  // what the write leaves as the servo has it
+  if (!plan.diff.length) return el("div", {}, el("p", {}, "no change: the servo already has these values"), ...note);
   const rows = plan.diff.map((d) => el("tr", { class: "changed" }, el("td", {}, d.name), el("td", {}, d.now), el("td", {}, d.new)));
   const extra = [];
   if (plan.flags_set.length) extra.push(el("p", {}, `flags set: ${plan.flags_set.join(", ")}`));
   if (plan.flags_cleared.length) extra.push(el("p", { class: "bad" }, `flags CLEARED: ${plan.flags_cleared.join(", ")}`));
+  extra.push(...note);
   if (plan.refusal) extra.push(el("p", { class: "refusal" }, `refused: ${plan.refusal}`));
   return el("div", {}, el("table", { class: "grid diff" }, el("thead", {}, el("tr", {}, el("th", {}, "field"), el("th", {}, "now"), el("th", {}, "new"))), el("tbody", {}, ...rows)), ...extra);
 }
