@@ -66,6 +66,28 @@ def test_a_flag_change_keeps_the_unused_bits_the_servo_has(cli: Any, sim_line: A
     assert int(sim.servo(1).eeprom.flags) == 0x60 | Flags.REVERSE and sim.servo(1).eeprom.speed == 90
 
 
+def test_eeprom_set_says_a_ram_value_takes_the_change_at_power_up_and_how_to_use_it_now(
+    cli: Any, sim_line: Any
+) -> None:
+    # The servo loads stretch, speed and its limits from the EEPROM into RAM at power-up: `get` still read the
+    # old speed after a write that said only "written and verified".
+    sim, url = sim_line([1])
+    result = cli("--port", url, "eeprom", "set", "1", "speed=50", "stretch=80", "punch=3", "--yes")
+    assert result.code == 0, result.err
+    note = [line for line in result.out.splitlines() if "power-up" in line]
+    assert len(note) == 1, result.out
+    assert "stretch_gain, speed: loaded into RAM at the servo's next power-up" in note[0]
+    assert f"ics35 --port {url} set 1 stretch 40" in note[0] and f"ics35 --port {url} set 1 speed 50" in note[0]
+    assert "punch" not in note[0]
+    assert sim.servo(1).eeprom.speed == 50
+    assert "speed = 127" in cli("--port", url, "get", "1", "speed").out  # RAM: until the next power-up
+    assert cli("--port", url, "set", "1", "speed", "50").code == 0  # what the note says to run
+    assert "speed = 50" in cli("--port", url, "get", "1", "speed").out
+    result = cli("--port", url, "eeprom", "set", "1", "punch=4", "current_limit=40", "--yes")
+    assert "current_limit: loaded into RAM" in result.out and "set 1 current-limit 40" in result.out, result.out
+    assert "power-up" not in cli("--port", url, "eeprom", "set", "1", "punch=5", "--yes").out
+
+
 def test_flags_replacement_names_every_flag_it_clears_before_asking(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([with_flags(VirtualServo(1), Flags.PWMINH | Flags.ROTATION)])
     result = cli("--port", url, "eeprom", "set", "1", "flags=REVERSE", stdin="n\n")

@@ -329,6 +329,17 @@ def test_a_write_shows_its_diff_then_writes_and_is_verified_on_the_servo(serve: 
     assert (sim.servo(1).eeprom.speed, sim.servo(1).eeprom.punch) == (77, 3)
 
 
+def test_a_write_of_a_value_loaded_at_power_up_says_so_and_how_to_use_it_now(serve: Any) -> None:
+    client, sim = serve()
+    result = post(client, "/api/servo/1/write", {"changes": {"speed": 50, "punch": 3}}).json()
+    assert result["verified"] and result["note"] == (
+        "speed: loaded into RAM at the servo's next power-up; to use it now: Write to RAM speed 50"
+    )
+    assert sim.servo(1).eeprom.speed == 50
+    assert client.get("/api/servo/1/ram").json()["speed"] == 127  # RAM: until the next power-up
+    assert post(client, "/api/servo/1/write", {"changes": {"punch": 4}}).json()["note"] is None
+
+
 def test_a_write_against_a_stale_diff_or_with_a_bad_value_is_refused_in_words(serve: Any) -> None:
     client, sim = serve()
     plan = post(client, "/api/servo/1/plan", {"changes": {"speed": 77}}).json()

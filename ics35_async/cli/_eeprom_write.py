@@ -19,7 +19,7 @@ from rich.markup import escape
 from ..bus import Bus
 from ..eeprom import BaudRate, Flags
 from ..errors import IcsError, ReplyTimeout
-from ..policies import EepromPlan, ServoWriteReport, WriteOutcome, write_eeprom_plans
+from ..policies import EepromPlan, ServoWriteReport, WriteOutcome, power_up_note, write_eeprom_plans
 from ._common import (
     CliError,
     ExitCode,
@@ -239,6 +239,14 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         return
     elsewhere = f" at {report['baud']:,} baud" if report.get("baud", settings.baud) != settings.baud else ""
     out.print(f"servo {sid}: {len(changes)} EEPROM field(s) written and verified{elsewhere}")
+    new_id = changes.get("servo_id", [sid, sid])[1]
+    now_id = new_id if report.get("answers_as") == [new_id] else sid  # (the ID it answers as now)
+    note = power_up_note(
+        {name: new for name, (_, new) in changes.items()},
+        lambda param, value: there.command_line("set", str(now_id), param.replace("_", "-"), str(value)),
+    )
+    if note:
+        out.print(escape(note), soft_wrap=True)
     if "baud_rate" in changes:
         new = changes["baud_rate"][1]
         if report.get("answers_at_new_rate"):

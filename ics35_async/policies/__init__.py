@@ -8,6 +8,7 @@ so library users get the same rules the ``ics35`` command follows.
 from __future__ import annotations
 
 from .eeprom_write import (
+    POWER_UP_PARAMS,
     EepromPlan,
     EepromWriteResult,
     ServoWriteReport,
@@ -15,6 +16,7 @@ from .eeprom_write import (
     check_changes,
     edit_image,
     plan_eeprom_write,
+    power_up_note,
     write_eeprom_plan,
     write_eeprom_plans,
 )
@@ -46,6 +48,7 @@ __all__ = [
     "ALL_BAUDS",
     "ALL_IDS",
     "NO_READ_ICS35",
+    "POWER_UP_PARAMS",
     "EepromPlan",
     "EepromWriteResult",
     "FoundServo",
@@ -73,6 +76,7 @@ __all__ = [
     "nothing_came_back",
     "plan_eeprom_write",
     "plan_position_stream",
+    "power_up_note",
     "probe_ids",
     "read_position_without_freeing",
     "reopening",

@@ -35,11 +35,36 @@ from .. import protocol
 from ..eeprom import READ_ONLY_FLAGS, UNUSED_FLAG_BITS, BaudRate, Eeprom, Flags, flags_value
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
 from ..tasks import despite_cancellation
-from ..units import check_int
+from ..units import check_int, stretch_from_eeprom
 from .failure_kinds import Line, answers_short_read
 
 NO_FLAGS = Flags(0)
 RETURN_BOUND = 5.0  # seconds a line's return to its rate may take when the work that moved it is cancelled
+
+# The EEPROM fields whose RAM twin the servo works with, named as its RAM parameter: the reference gives each
+# parameter write's value with "the EEPROM's in parentheses", and the RAM stretch as loaded from the EEPROM at
+# power-up.  An EEPROM write changes what the servo powers up with; the RAM keeps its value until then.
+POWER_UP_PARAMS: Mapping[str, str] = {
+    "stretch_gain": "stretch",
+    "speed": "speed",
+    "current_limit": "current_limit",
+    "temperature_limit": "temperature_limit",
+}
+
+
+def power_up_note(changed: Mapping[str, int], set_now: Callable[[str, int], str]) -> str | None:
+    """One line for a person after an EEPROM write of ``changed`` (field -> new value): the fields the servo
+    loads into RAM only at its next power-up, and how to use them now (``set_now(param, value)``: the RAM write
+    in the caller's words, e.g. an ``ics35 set`` command line); ``None`` when it wrote none of them."""
+    loaded = [name for name in changed if name in POWER_UP_PARAMS]
+    if not loaded:
+        return None
+    ways = [
+        set_now(POWER_UP_PARAMS[name], stretch_from_eeprom(changed[name]) if name == "stretch_gain" else changed[name])
+        for name in loaded
+    ]
+    it = "it" if len(loaded) == 1 else "them"
+    return f"{', '.join(loaded)}: loaded into RAM at the servo's next power-up; to use {it} now: {'; '.join(ways)}"
 
 
 def _refuse_read_only(bits: int) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
-from ..policies import EepromPlan, EepromWriteResult, IdSurvey
+from ..policies import EepromPlan, EepromWriteResult, IdSurvey, power_up_note
 from ..units import CURRENT_NOTE, TEMPERATURE_NOTE, current_text, temperature_text
 
 
@@ -82,6 +82,11 @@ def result_view(result: EepromWriteResult) -> dict[str, Any]:
         "new_rate_error": result.new_rate_error,
         "diff": [{"name": k, "now": _plain(a), "new": _plain(b)} for k, (a, b) in result.plan.diff.items()],
         "read_back": None if result.read_back is None else eeprom_view(result.read_back),
+        # (the Servo page's RAM box writes a RAM parameter now: named by its button)
+        "note": power_up_note(
+            {name: int(new) for name, (_, new) in result.plan.diff.items()} if result.written else {},
+            lambda param, value: f"Write to RAM {param} {value}",
+        ),
     }
 
 

@@ -415,7 +415,8 @@ function resultText(result) {
   const parts = [result.verified ? "written and verified by reading it back" : "written, but the read-back differs"];
   if (result.answering_ids.length) parts.push(`answering IDs now: ${result.answering_ids.join(", ")}`);
   if (result.new_rate_answers !== null) parts.push(result.new_rate_answers ? "it answers at the new rate" : "not at the new rate yet (power-cycle it)");
-  return el("p", { class: result.verified ? "good" : "bad" }, parts.join("; "));
+  const done = el("p", { class: result.verified ? "good" : "bad" }, parts.join("; "));
+  return result.note ? el("div", {}, done, el("p", {}, result.note)) : done;
 }
 
 async function planWrite() {
