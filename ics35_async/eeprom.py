@@ -12,7 +12,9 @@ Any 64 nibbles decode.  A header other than 0x5A or a baud-rate code other
 than 10/1/0 is kept as its raw value (so the image round-trips byte for byte)
 and listed in :attr:`Eeprom.unknown_codes`; :meth:`Eeprom.check_writable`
 (called by the EEPROM write command) refuses such an image, since what a
-servo makes of a value the reference does not define is unknown.
+servo makes of a value the reference does not define is unknown.  The
+write command checks the ranges too (:meth:`Eeprom.check_values`): of every
+field, or of the fields that differ from the servo's own image when given it.
 """
 
 from __future__ import annotations
@@ -277,6 +279,22 @@ class Eeprom:
             "refusing to write an EEPROM image holding values the ICS 3.5 reference does not define: "
             + "; ".join(problems)
         )
+
+    def check_values(self, since: Eeprom | None = None) -> None:
+        """Raise InvalidArgument for a field outside the reference's range (the checks :meth:`replace` makes).
+
+        ``since``: the image the servo holds now; then only the fields that
+        differ from it are checked, as a change made with :meth:`replace`
+        would be (a value the servo holds, in range or not, is kept as read;
+        its read-only flags must stay).  Without it every field is checked,
+        the flags but for the read-only ones (they report a servo's state).
+        """
+        base = since
+        if base is None:  # (factory values are in range: a field equal to one needs no check)
+            base = dataclasses.replace(
+                Eeprom.factory(), flags=Flags(self.flags & READ_ONLY_FLAGS), calibration=self.calibration
+            )
+        base.replace(**{name: new for name, (new, _) in self.diff(base).items()})
 
     @classmethod
     def from_bytes(cls, image: bytes | bytearray) -> Eeprom:

@@ -340,7 +340,7 @@ class Servo:
         units.check_bool("verify", verify)
         units.check_bool("allow_baud_change", allow_baud_change)
         units.check_bool("allow_id_change", allow_id_change)
-        command = protocol.WriteEeprom(self.id, eeprom)
+        eeprom.check_writable()  # (an undefined header or baud code: refused before the read goes out)
         current = await self.read_eeprom()
         if eeprom.calibration != current.calibration:
             raise UnsafeOperation(
@@ -360,7 +360,7 @@ class Servo:
             )
         # Each field the image changes passes replace()'s checks (the reference's range, even stretch, flag
         # rules), as if it had been made so; a value the servo already holds is written back as read.
-        current.replace(**{name: new for name, (new, _) in eeprom.diff(current).items()})
+        command = protocol.WriteEeprom(self.id, eeprom, current=current)
         await self._bus.request(command, priority=self.priority)
         if verify and eeprom.baud_rate == current.baud_rate and eeprom.servo_id == current.servo_id:
             back = await self.read_eeprom()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -390,6 +391,52 @@ def test_write_eeprom_needs_an_eeprom(eeprom: object) -> None:
         WriteEeprom(1, eeprom)  # type: ignore[arg-type]
 
 
+# The reference's ranges (section 7) and flag rules (section 8), for an image given to the codec itself: a value
+# within its nibbles but outside them (speed 0, punch 200) went on the wire as it was.
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"speed": 0}, "speed must be in 1..127"),
+        ({"punch": 200}, "punch must be in 0..10"),
+        ({"dead_band": 15}, "dead_band must be in 0..5"),
+        ({"safe_timer": 9}, "safe_timer must be in 10..255"),
+        ({"servo_id": 32}, "servo_id must be in 0..31"),
+        ({"stretch_gain": 61}, "stretch_gain must be even"),
+        ({"user_offset": -128}, "user_offset must be in -127..127"),
+        ({"pulse_limit_low": 3000}, "pulse_limit_low must be in 3500..11500"),
+        ({"flags": Flags.PWMINH | 0x20}, "bits 5-6 are unused"),
+        ({"pulse_limit_low": 11500, "pulse_limit_high": 3500}, "must not exceed"),
+    ],
+)
+def test_write_eeprom_refuses_a_value_outside_the_references_range(changes: dict[str, Any], match: str) -> None:
+    with pytest.raises(InvalidArgument, match=match):
+        WriteEeprom(1, dataclasses.replace(EEPROM, **changes))
+
+
+def test_write_eeprom_given_the_servos_image_checks_only_what_changes() -> None:
+    # A servo's own value outside the ranges (an image as read) is written back as it is; a change is checked.
+    held = dataclasses.replace(EEPROM, speed=0, flags=Flags(0x68))
+    changed = dataclasses.replace(held, punch=3, flags=Flags(0x69))
+    assert WriteEeprom(1, changed, current=held).tx == h("C1 00") + changed.to_bytes()
+    with pytest.raises(InvalidArgument, match="speed"):
+        WriteEeprom(1, changed)
+    with pytest.raises(InvalidArgument, match="punch"):
+        WriteEeprom(1, dataclasses.replace(changed, punch=11), current=held)
+    with pytest.raises(InvalidArgument, match="read-only"):
+        WriteEeprom(1, dataclasses.replace(changed, flags=Flags(0x6B)), current=held)
+    with pytest.raises(InvalidArgument, match="Eeprom"):
+        WriteEeprom(1, changed, current=held.to_bytes())  # type: ignore[arg-type]
+    # The read-only flags report the servo's state: an image with them, checked alone, is not refused for them.
+    assert WriteEeprom(1, dataclasses.replace(EEPROM, flags=Flags.FREE | Flags.PCM)).eeprom.flags == Flags(0x06)
+
+
+def test_a_device_frames_an_eeprom_write_whatever_its_values() -> None:
+    # The simulator answers a host's write of any 64 nibbles (a servo's own out-of-range value written back).
+    held = dataclasses.replace(EEPROM, speed=0)
+    framed = decode_request(WriteEeprom(1, held, current=held).tx, baudrate=115200)
+    assert framed is not None and isinstance(framed[0], WriteEeprom) and framed[0].eeprom == held
+
+
 @pytest.mark.parametrize(
     ("address", "count", "match"),
     [
@@ -619,8 +666,9 @@ def commands(draw: st.DrawFn) -> Command[Any]:
     if kind == 3:
         param = draw(st.sampled_from(list(Param)[1:]))
         return WriteParam(draw(sid), param, draw(st.integers(1, 63 if param is Param.CURRENT else 127)))
-    if kind == 4:
-        return WriteEeprom(draw(sid), draw(eeproms()))
+    if kind == 4:  # any image a servo may hold, written back as read
+        image = draw(eeproms())
+        return WriteEeprom(draw(sid), image, current=image)
     if kind == 5:
         return ReadId(draw(sid))
     if kind == 6:

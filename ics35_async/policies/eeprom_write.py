@@ -333,7 +333,7 @@ async def _write(
         raise UnsafeOperation(f"{reason}; nothing was written")
     # A plan is a plain dataclass: one not made by plan_eeprom_write has its changes checked here, as replace()
     # checks them (InvalidArgument), so what goes out is within the reference's ranges.
-    plan.before.replace(**{name: new for name, (_, new) in plan.diff.items()})
+    command = protocol.WriteEeprom(plan.servo_id, plan.after, current=plan.before)
     if not plan.diff:
         return EepromWriteResult(plan, written=False, read_back=plan.before)
     if int(line.baudrate) != plan.baud:  # planned at the servo's own rate: written and verified there
@@ -346,7 +346,7 @@ async def _write(
     acknowledged = True
     progress.sending = True
     try:
-        await line.request(protocol.WriteEeprom(plan.servo_id, plan.after))
+        await line.request(command)
     except ReplyTimeout:
         # A servo may take a new ID or rate before acknowledging; the read-back decides.
         if not (plan.changes_id or plan.changes_baud):

@@ -337,20 +337,47 @@ class WriteParam(Command[int]):
 
 
 class WriteEeprom(Command[None]):
-    """Parameter write SC 0: all 64 EEPROM bytes at once (persists; slow reply)."""
+    """Parameter write SC 0: all 64 EEPROM bytes at once (persists; slow reply).
+
+    ``eeprom`` is checked before any byte is made: a header or baud code the
+    reference does not define (:meth:`Eeprom.check_writable`), and every field
+    within the reference's range (:meth:`Eeprom.check_values`).  ``current``:
+    the image the servo holds now (read just before); then only the fields
+    that differ from it are range-checked, so a value the servo already holds
+    outside the ranges (unused flag bits it reports set) is written back as
+    read; its read-only flags must stay.
+
+    Raises:
+        InvalidArgument: ``eeprom`` (or ``current``) is not an ``Eeprom``, or it holds a value it may not.
+    """
 
     __slots__ = ("eeprom",)
     idempotent = False
     timing = Timing.EEPROM_WRITE
 
-    def __init__(self, servo_id: int, eeprom: Eeprom) -> None:
-        self.servo_id = check_id(servo_id)
+    def __init__(self, servo_id: int, eeprom: Eeprom, *, current: Eeprom | None = None) -> None:
+        servo_id = check_id(servo_id)
         if not isinstance(eeprom, Eeprom):
             raise InvalidArgument(f"eeprom must be an Eeprom, not {type(eeprom).__name__}")
         eeprom.check_writable()  # an undefined header or baud code is read, never written
+        eeprom.check_values(current)  # (InvalidArgument for a current that is not an Eeprom too)
+        self._frame(servo_id, eeprom)
+
+    @classmethod
+    def heard(cls, servo_id: int, eeprom: Eeprom) -> WriteEeprom:
+        """The command as a device frames it off the wire (the simulator, a sniffer): the image as the host
+        sent it, its values unchecked (a host writes a servo's own out-of-range values back as read); one
+        with an undefined header or baud code is not framed (InvalidArgument), as no host sends it."""
+        command = cls.__new__(cls)
+        eeprom.check_writable()
+        command._frame(check_id(servo_id), eeprom)
+        return command
+
+    def _frame(self, servo_id: int, eeprom: Eeprom) -> None:
+        self.servo_id = servo_id
         self.eeprom = eeprom
         self.name = _WRITE_NAMES[Param.EEPROM]
-        self.tx = bytes((CMD_WRITE | self.servo_id, Param.EEPROM)) + eeprom.to_bytes()
+        self.tx = bytes((CMD_WRITE | servo_id, Param.EEPROM)) + eeprom.to_bytes()
         self.reply_len = 2
 
     def parse(self, reply: bytes) -> None:

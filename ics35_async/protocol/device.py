@@ -114,7 +114,7 @@ def decode_request(buf: bytes | bytearray, *, baudrate: int) -> tuple[Command[An
         if (early := _not_whole(buf, total)) is not False:
             return early
         try:
-            return WriteEeprom(sid, Eeprom.from_bytes(bytes(buf[2:total]))), total
+            return WriteEeprom.heard(sid, Eeprom.from_bytes(bytes(buf[2:total]))), total
         except (MalformedEeprom, InvalidArgument):  # InvalidArgument: a code the reference does not define
             return None, total
     if sc not in WRITE_RANGES:
