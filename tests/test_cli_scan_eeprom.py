@@ -64,6 +64,10 @@ def test_a_flag_change_keeps_the_unused_bits_the_servo_has(cli: Any, sim_line: A
     result = cli("--port", url, "eeprom", "set", "1", "flags-=PWMINH", "speed=90", "--yes")
     assert result.code == 0, result.err
     assert int(sim.servo(1).eeprom.flags) == 0x60 | Flags.REVERSE and sim.servo(1).eeprom.speed == 90
+    assert cli("--port", url, "eeprom", "set", "1", "flags=ROTATION", "--yes").code == 0
+    assert int(sim.servo(1).eeprom.flags) == 0x60 | Flags.ROTATION
+    assert cli("--port", url, "eeprom", "set", "1", "flags-=0x60", "--yes").code == 0
+    assert sim.servo(1).eeprom.flags == Flags.ROTATION
 
 
 def test_eeprom_set_says_a_ram_value_takes_the_change_at_power_up_and_how_to_use_it_now(

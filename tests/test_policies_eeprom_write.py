@@ -114,8 +114,14 @@ async def test_flag_edits_keep_the_unused_bits_the_servo_has() -> None:
         assert int(plan.after.flags) == 0x69 and plan.added_flags == Flags.REVERSE
         await write_eeprom_plan(bus, plan)
         assert int(sim.servo(1).eeprom.flags) == 0x69
-        plan = await plan_eeprom_write(bus, 1, {"flags": Flags.REVERSE | Flags.PWMINH})  # (a replacement clears them)
+        plan = await plan_eeprom_write(bus, 1, {"flags": Flags.REVERSE})  # a replacement of the named flags
+        assert int(plan.after.flags) == 0x61 and plan.cleared_flags == Flags.PWMINH
+        plan = await plan_eeprom_write(bus, 1, {}, clear_flags=0x60)  # cleared when asked, to the reference's 0
         assert int(plan.after.flags) == 0x09 and plan.cleared_flags == Flags(0)  # nameless: no "flag" lost
+        # A restore's saved byte without them (another servo's): they are the servo's state, kept and named.
+        restore = await plan_eeprom_write(bus, 1, {"flags": Flags.PWMINH}, keep_read_only=True)
+        assert int(restore.after.flags) == 0x68 and int(restore.kept_read_only) == 0x60
+        assert restore.kept_note is not None and "(bit 5 on, bit 6 on)" in restore.kept_note
         with pytest.raises(InvalidArgument, match="unused"):
             await plan_eeprom_write(bus, 1, {"flags": 0x40})
         with pytest.raises(InvalidArgument, match="unused"):

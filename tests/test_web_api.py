@@ -387,6 +387,18 @@ def test_a_change_to_a_read_only_flag_is_refused_in_words_as_the_command_line_re
     assert sim.servo(1).eeprom == before and sim.servo(1).eeprom_writes == 0
 
 
+def test_ticking_a_flag_keeps_the_unused_bits_the_servo_has(serve: Any) -> None:
+    # The Servo page sends its ticked flags as a flags value (the writable ones): bits 5-6, which a servo may
+    # report set and no box shows, stay as they are.
+    client, sim = serve()
+    raw = bytearray(sim.servo(1).eeprom.to_bytes())
+    raw[14], raw[15] = 0x6, 0x8  # bits 5-6 and PWMINH
+    sim.servo(1).eeprom = Eeprom.from_bytes(bytes(raw))
+    result = post(client, "/api/servo/1/write", {"changes": {"flags": 0x09}})  # REVERSE ticked
+    assert result.status_code == 200 and result.json()["verified"], result.text
+    assert int(sim.servo(1).eeprom.flags) == 0x69
+
+
 def test_a_restore_keeps_the_servos_read_only_flags_and_says_so(serve: Any) -> None:
     client, sim = serve()
     free_reported(sim.servo(1))

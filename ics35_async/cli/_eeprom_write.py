@@ -127,7 +127,7 @@ def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, An
         "baud": plan.baud,
     }
     if plan.kept_read_only:
-        out["kept_read_only"] = [f.name for f in Flags if f in plan.kept_read_only]
+        out["kept_read_only"] = plan.kept_names
     if report is not None and report.error is not None:
         out["error"] = str(report.error)
     if result is not None and result.written:

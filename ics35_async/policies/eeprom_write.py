@@ -91,20 +91,29 @@ def _check_flag_edit(set_flags: int, clear_flags: int) -> tuple[int, int]:
     return set_flags, clear_flags
 
 
+# The flags byte's bits that are the servo's own state, not a setting: its read-only flags and the unused
+# bits 5-6 (the reference fixes them at 0, yet a servo may report them set).
+_STATE_BITS = READ_ONLY_FLAGS | UNUSED_FLAG_BITS
+
+
 def _edit(
     current: Eeprom, changes: Mapping[str, Any], set_flags: int, clear_flags: int, keep_read_only: bool
 ) -> tuple[Eeprom, Flags]:
-    """The edited image, and the read-only flags a ``flags`` value asked otherwise than ``current`` has them."""
+    """The edited image, and the state bits (read-only flags, unused bits 5-6) a restored ``flags`` value
+    asked otherwise than ``current`` has them, which stay the servo's."""
     set_flags, clear_flags = _check_flag_edit(set_flags, clear_flags)
     fields = dict(changes)
     kept = NO_FLAGS
     if "flags" in fields or set_flags or clear_flags:
         flags = flags_value(fields.get("flags", int(current.flags)))
-        if "flags" in fields:
-            if not keep_read_only:
-                _refuse_read_only(flags)
-            kept = Flags((flags ^ current.flags) & READ_ONLY_FLAGS)
-        flags = (flags & ~READ_ONLY_FLAGS) | (current.flags & READ_ONLY_FLAGS)
+        if "flags" in fields and keep_read_only:  # a saved byte: its state bits were another moment's
+            kept = Flags((flags ^ current.flags) & _STATE_BITS)
+            flags = (flags & ~_STATE_BITS) | (current.flags & _STATE_BITS)
+        elif "flags" in fields:
+            _refuse_read_only(flags)
+            # A value names the writable flags: the servo's state bits stay (a bit 5-6 it has not is a setting,
+            # which replace() refuses).
+            flags |= current.flags & _STATE_BITS
         fields["flags"] = (flags | set_flags) & ~clear_flags
     return current.replace(**fields), kept
 
@@ -121,10 +130,11 @@ def edit_image(
 
     A ``flags`` value gives the writable flags (REVERSE, PWMINH, ROTATION,
     SLAVE); the read-only ones (FREE, PCM) stay as ``current`` has them, and
-    naming one is refused, in the value or to set or clear.  ``keep_read_only``
-    (a restore: the value is a saved image's flags byte): the value's read-only
-    flags are not written, whatever they are.  Every value is checked
-    (InvalidArgument).
+    naming one is refused, in the value or to set or clear.  The unused bits
+    5-6 stay as ``current`` has them too: setting one is refused, clearing
+    them takes ``clear_flags``.  ``keep_read_only`` (a restore: the value is a
+    saved image's flags byte): the value's read-only flags and unused bits are
+    not written, whatever they are.  Every value is checked (InvalidArgument).
     """
     return _edit(current, changes, set_flags, clear_flags, keep_read_only)[0]
 
@@ -156,17 +166,24 @@ class EepromPlan:
     before: Eeprom
     after: Eeprom
     id_taken: bool = False  # the new ID already answers on this line
-    kept_read_only: Flags = NO_FLAGS  # read-only flags a restored image has otherwise: kept as the servo's
+    kept_read_only: Flags = NO_FLAGS  # read-only flags (unused bits 5-6) a restored image has otherwise: the servo's
+
+    def _kept_bits(self) -> list[tuple[str, int]]:
+        bits = [1 << n for n in range(8) if self.kept_read_only & (1 << n)]
+        return [(Flags(bit).name or f"bit {bit.bit_length() - 1}", bit) for bit in bits]
+
+    @property
+    def kept_names(self) -> list[str]:
+        """The names of :attr:`kept_read_only` (``FREE``, ``PCM``, ``bit 5``, ``bit 6``)."""
+        return [name for name, _ in self._kept_bits()]
 
     @property
     def kept_note(self) -> str | None:
         """What the write leaves as the servo has it though the image asked otherwise (``None``: nothing):
-        its read-only flags, in one line for a person."""
+        its read-only flags (and unused bits 5-6), in one line for a person."""
         if not self.kept_read_only:
             return None
-        states = ", ".join(
-            f"{f.name} {'on' if f in self.before.flags else 'off'}" for f in Flags if f in self.kept_read_only
-        )
+        states = ", ".join(f"{name} {'on' if self.before.flags & bit else 'off'}" for name, bit in self._kept_bits())
         return (
             f"servo {self.servo_id} keeps its read-only flag(s) as it reports them ({states}): they report the "
             "servo's state and are not written"
