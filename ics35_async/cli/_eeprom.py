@@ -120,8 +120,10 @@ def set_fields(
     servo_id (alias id), stretch_1..3.
     Flags: REVERSE, PWMINH, ROTATION, SLAVE.  flags+=NAME sets one, flags-=NAME
     clears one and keeps the others; flags=NAME,NAME replaces them all (the diff
-    names every flag it clears).  FREE and PCM are read-only.
-    Factory calibration bytes cannot be changed.
+    names every flag it clears).  FREE and PCM are read-only; the unused bits
+    5-6 stay as the servo has them (flags-=0x60 clears them).
+    Stretch, speed and the limits reach the servo's RAM at its next power-up
+    (ics35 set changes the RAM now).  Factory calibration bytes cannot be changed.
     """
     settings = settings_of(ctx)
     edit = Edit()
