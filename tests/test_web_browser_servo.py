@@ -20,6 +20,7 @@ if not sys.platform.startswith("linux"):
 
 from playwright.sync_api import Browser, Page, Route, expect
 
+from ics35_async.eeprom import Eeprom
 from ics35_async.sim import VirtualServo
 from tests.support.browser_pages import (
     PAGE_GONE_BOUND,
@@ -71,6 +72,33 @@ def test_another_servos_page_keeps_neither_the_restore_file_nor_the_target(brows
         expect(p.locator("#jog-target")).to_have_text("-")
         p.set_input_files("#restore-file", str(backup))
         expect(p.locator("#restore-diff")).to_contain_text("servo-01.json is a backup of ID 1; servo 2 keeps its ID")
+
+
+def test_the_servo_page_says_what_a_write_leaves_for_the_next_power_up_and_what_a_restore_keeps(
+    browser: Browser, tmp_path: Path
+) -> None:
+    line = PtyLine((1, 2))
+    servo = line.sim.servo(1)
+    raw = bytearray(servo.eeprom.to_bytes())
+    raw[15] |= 0x02  # FREE, as a servo reports its state
+    servo.eeprom = Eeprom.from_bytes(bytes(raw))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        p.fill("#eeprom-table [name=speed]", "50")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_contain_text("50")
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text(
+            "speed: loaded into RAM at the servo's next power-up; to use it now: Write to RAM speed 50"
+        )
+        backup = backed_up(p, tmp_path)
+        open_servo_page(p, 2)
+        line.sim.servo(2).eeprom = line.sim.servo(2).eeprom.replace(speed=50)  # only FREE differs
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff")).to_contain_text("no change")
+        expect(p.locator("#restore-diff")).to_contain_text(
+            "servo 2 keeps its read-only flag(s) as it reports them (FREE off)"
+        )
 
 
 def test_a_restore_file_that_is_not_a_backup_takes_the_last_files_diff_away(browser: Browser, tmp_path: Path) -> None:
