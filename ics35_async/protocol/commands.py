@@ -367,7 +367,11 @@ class WriteEeprom(Command[None]):
     def heard(cls, servo_id: int, eeprom: Eeprom) -> WriteEeprom:
         """The command as a device frames it off the wire (the simulator, a sniffer): the image as the host
         sent it, its values unchecked (a host writes a servo's own out-of-range values back as read); one
-        with an undefined header or baud code is not framed (InvalidArgument), as no host sends it."""
+        with an undefined header or baud code is not framed (InvalidArgument), as no host sends it.
+
+        Sent by a host, it is the one EEPROM write whose ranges are not checked: the raw way, for trying
+        what a servo makes of such a value, never for a setting (use ``WriteEeprom(id, image, current=...)``).
+        """
         command = cls.__new__(cls)
         eeprom.check_writable()
         command._frame(check_id(servo_id), eeprom)
