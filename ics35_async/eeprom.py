@@ -386,7 +386,9 @@ class Eeprom:
         # Setting one is refused; one the image has already (a servo, or a hand-made image, may) is kept as
         # it is when another flag changes, and may be cleared to the reference's 0.
         if number & UNUSED_FLAG_BITS & ~self.flags:
-            raise InvalidArgument("flag bits 5-6 are unused and must stay 0")
+            raise InvalidArgument(
+                "flag bits 5-6 are unused: none may be set (those a servo has already are kept as they are)"
+            )
         if (number ^ self.flags) & READ_ONLY_FLAGS:
             raise InvalidArgument("the FREE and PCM flags are read-only")
         return Flags(number)
