@@ -15,8 +15,18 @@ from rich.console import Console
 
 from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
+from ics35_async.protocol import FREE
 from ics35_async.robot import Segment, Trajectory
-from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, sent_position
+from tests.support.robot_rig import (
+    JOINTS,
+    Rig,
+    commanded,
+    joint_degrees,
+    joint_position,
+    make_rig,
+    sent_position,
+    targets_sent,
+)
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
@@ -524,3 +534,45 @@ def test_targets_set_after_a_lost_line_raise_its_error_with_nothing_applied() ->
     finally:
         rig.close()
     assert len(raised) == 3 and all("lost" in text for text in raised), raised
+
+
+def test_after_a_lost_line_targets_that_power_a_joint_are_refused_and_freeing_still_goes_out() -> None:
+    # A robot builder's control loop of set_targets() went on after one line's adapter was pulled (no
+    # reconnect): the robot's frames and its safety watch had ended with the lost line, yet each pass still
+    # drove the other line's joints, unwatched, and nothing told the loop.
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+    refused: list[str] = []
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"neck": 0.0, "hip": 0.0}, **FAST) as robot:
+                rig.lower.unplug()
+                with pytest.raises(PortLost):
+                    await robot.read_pose()
+                since = rig.upper.log[-1].seq + 1
+                for call in (
+                    functools.partial(robot.set_targets, {"neck": 30.0}),
+                    functools.partial(robot.set_targets, {"neck": 30.0, "shoulder": None}, allow_free=True),
+                    robot.hold,
+                    functools.partial(robot.stream().set_target, "neck", 30.0),
+                ):
+                    with pytest.raises(PortLost) as lost:
+                        call()
+                    refused.append(str(lost.value))
+                assert robot.targets["neck"] == 0.0 and robot.targets["shoulder"] is None  # nothing applied
+                # Freeing is still allowed: the line left sends it (the call then says the other is lost).
+                with pytest.raises(PortLost):
+                    await robot.free(["neck"])
+                assert robot.targets["neck"] is None
+                with anyio.fail_after(GUARD):
+                    while FREE not in commanded(rig.upper, JOINTS["neck"]["id"], since):
+                        await anyio.sleep(0.01)
+                assert targets_sent(rig.upper, JOINTS["neck"]["id"], since) == []  # never sent 30 degrees
+                raise PortLost("the lower line") from None
+
+    try:
+        with pytest.raises(PortLost):
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert len(refused) == 4 and all("lost" in message for message in refused), refused

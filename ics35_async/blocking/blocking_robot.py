@@ -202,6 +202,7 @@ class BlockingRobot(LoopOwner[Robot]):
 
         Raises:
             SafetyStop: ``joints`` names a tripped joint (see ``Robot.hold``).
+            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
         """
         return self._loop.call_sync(self._async.hold, joints)
 
@@ -214,6 +215,8 @@ class BlockingRobot(LoopOwner[Robot]):
         Raises:
             InvalidArgument: an unknown joint, an angle outside its limits or a ``None`` without ``allow_free``.
             SafetyStop: an angle for a tripped joint (see ``Robot.set_targets``).
+            PortLost: an angle after a line was lost (without ``reconnect``): nothing applied, freeing is
+                allowed (see ``Robot.set_targets``).
         """
         self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free, lift_holds=lift_holds)
 

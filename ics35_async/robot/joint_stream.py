@@ -55,6 +55,7 @@ class RobotStream(FrameIterator[RobotFrame]):
             InvalidArgument: an unknown joint or an angle outside its limits.
             SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
+            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
         """
         self.robot.set_targets({joint: degrees})
 
@@ -66,6 +67,7 @@ class RobotStream(FrameIterator[RobotFrame]):
             InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
             SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
+            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
         """
         self.robot.set_targets(pose, lift_holds=lift_holds)
 
@@ -86,6 +88,7 @@ class RobotStream(FrameIterator[RobotFrame]):
             InvalidArgument: an unknown joint.
             SafetyStop: a joint the safety watch tripped (see ``Robot.hold``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
+            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
         """
         return self.robot.hold(joints)
 
