@@ -846,6 +846,29 @@ def test_play_with_a_line_lost_says_the_other_lines_joints_hold_their_last_targe
     assert start < last < joint_position(JOINTS["neck"], 50)  # mid-motion
 
 
+def test_teach_with_a_line_lost_names_only_the_servos_it_freed_on_that_line(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A robot builder's finding: `teach --joints` of one leg joint per line, the legs' adapter pulled: the
+    # hint's command freed every servo of the legs' line, those teach had left as they were (holding a
+    # standing robot up) included.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    result = run_with_hands(
+        ["teach", str(robot_file), str(tmp_path / "taught.json"), "--joints", "neck,hip"],
+        # (then a second for teach to see the loss, before the end of its input would end it normally)
+        [("Enter captures", None, "\n"), ("pose 1 at", lambda: (sims.lower.unplug(), time.sleep(1.0)), "")],
+        [],  # (the upper line's cycles end with the lower line's)
+    )
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = " ".join(result.err.split())
+    port = load_description(robot_file).lines["lower"].port
+    assert f"get: ics35 --port {port} free {JOINTS['hip']['id']}" in said, said
+    assert f"free {JOINTS['hip']['id']}-" not in said and f"free {JOINTS['hip']['id']}," not in said, said
+    assert said.endswith("the other lines' joints were left free"), said
+    assert sims.servo("neck").free  # (so they were)
+
+
 def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

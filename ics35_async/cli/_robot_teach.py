@@ -236,7 +236,9 @@ def teach(
 
     saving = saved = False
     try:
-        run_robot(settings, description, body)
+        # The joints it opened (their line lost: the hint frees those, not the ones left holding as they were),
+        # freed by the robot's close on the lines still there.
+        run_robot(settings, description.only(names), body, others_left="free")
         if keyframes:  # (inside the try: a second Ctrl-C landing as they are written must not lose them)
             saving = True
             save_taught(keyframes, profile, name, target, robot_file)
@@ -438,7 +440,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                         await watcher
 
     try:
-        run_robot(settings, description, body)
+        run_robot(settings, description.only(names), body, others_left="free")  # (as teach's)
     except CliError as exc:
         if lost:
             err.print(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
