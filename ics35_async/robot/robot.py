@@ -23,6 +23,7 @@ from typing import Any
 import anyio
 
 from .. import protocol, units
+from ..engine import State
 from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
@@ -522,10 +523,16 @@ class Robot:
         targets: dict[str, float | None] = {}
         keyframes: list[Plan] = []
         line_cycles = frame.line_cycles
+        # A line whose port is lost (reconnecting) runs no cycle until it is back: a plan waiting for one would
+        # stall its joints on the other lines, then throw them to where its clock is by then.  Its joints are
+        # given up at once (they keep their last command; back, their line holds them: see _line_resumed).
+        lost = self._lost_joints()
         for plan in list(self._plans):
+            if lost and plan.joints & lost:
+                self._give_up_lost(plan, plan.joints & lost)
             if plan.ending is not None:
                 plan.ending.add(frame)
-            unknown = frame.offline | self._held.keys()  # (joints that cannot answer)
+            unknown = frame.offline | self._held.keys() | lost  # (joints that cannot answer)
             if not plan.joints or (plan.ending is not None and plan.ending.reached(2, unknown)):
                 plan.finish()
                 self._plans.remove(plan)
@@ -656,6 +663,26 @@ class Robot:
         self._give_up(on, error)
         for name in held:
             self._hold_unknown(name, f"line {self.joints[name].line} came back after a lost port")
+
+    def _lost_joints(self) -> frozenset[str]:
+        """The joints on lines whose port is lost now (``reconnect=True``: the bus reconnecting)."""
+        lost = {line for line, bus in self.group.buses.items() if bus.state is State.LOST}
+        if not lost:
+            return frozenset()
+        return frozenset(name for name, joint in self.joints.items() if joint.line in lost)
+
+    def _give_up_lost(self, plan: Plan, joints: Iterable[str]) -> None:
+        """``plan`` stops driving ``joints``, on a lost line: it goes on with its others, then raises MotionStopped."""
+        joints = set(joints)
+        lines = ", ".join(sorted({self.joints[name].line for name in joints}))
+        plan.joints -= joints
+        plan.given_up = plan.given_up or MotionStopped(
+            f"line {lines} lost its port: the motion gave its joints up (their servos keep their last command;"
+            " once the line is back, they are sent nothing until a target is set again) and went on with the others"
+        )
+        for name in joints:  # (nothing moves them now: a stop has nothing to slow down)
+            self._velocity[name] = 0.0
+            self._coasting.pop(name, None)
 
     def _came_back(self, joints: frozenset[str]) -> None:
         """Joints whose servo answered again after going offline: the streams hold them, as after a lost port
