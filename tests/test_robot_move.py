@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from ics35_async import InvalidArgument, Robot, UnsafeOperation, open_robot, units
+from ics35_async import InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import MotionStopped, RobotWarning
@@ -313,6 +313,28 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     steps = [b - a for a, b in itertools.pairwise(sent)]
     assert max(steps) < 10.0, max(steps)  # 50 degrees a second: never the half second lost in one command
     assert sent[-1] == pytest.approx(50.0, abs=HALF_COUNT)
+
+
+def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> None:
+    # A robot builder's finding (reconnect=True): with one line's adapter pulled, read_pose() waited for that
+    # line's replies for as long as it stayed away, so the other line's pose could not be read at all.
+    rig = make_rig()
+    rig.servo("neck").move_by_hand(joint_position(JOINTS["neck"], 12.0))
+
+    async def body(robot: Robot) -> None:
+        before = await robot.read_pose()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while robot.group["lower"].state is not State.LOST:
+                await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+        rig.servo("neck").move_by_hand(joint_position(JOINTS["neck"], 20.0))
+        with anyio.fail_after(2.0):  # (it waited for ever)
+            pose = await robot.read_pose()
+            await robot.on_wire()
+        assert pose["neck"] == pytest.approx(20.0, abs=HALF_COUNT)  # read after the call
+        assert pose["hip"] == before["hip"]  # its last known angle, as an offline joint's
+
+    run_robot(rig, body, reconnect=True)
 
 
 def test_a_joint_back_from_offline_is_given_up_by_its_motion_and_waits_for_a_target() -> None:

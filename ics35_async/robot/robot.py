@@ -170,7 +170,8 @@ class Robot:
         return self._end_reason
 
     async def read_pose(self) -> dict[str, float]:
-        """Every joint's angle as read after this call (an offline joint: its newest known angle).
+        """Every joint's angle as read after this call (an offline joint, or one on a line whose port is lost
+        while it reconnects: its newest known angle).
 
         A joint whose servo has not answered once since the robot opened has no angle to give: it is
         left out (``robot.latest.offline`` names it), so index the result only by joints you know answer;
@@ -181,11 +182,12 @@ class Robot:
         return {name: self._positions[name] for name in self.joints if name in self._positions}
 
     async def fresh_replies(self, joints: Iterable[str], replies: int) -> None:
-        """Wait until each of ``joints`` (but the offline ones, and those held after their line came back)
-        has answered ``replies`` times from now on."""
+        """Wait until each of ``joints`` (but the offline ones, those on a line whose port is lost, and those
+        held after their line came back) has answered ``replies`` times from now on: a line reconnecting
+        answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline | self._held.keys()):
+        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self._lost_joints()):
             frame = await self.wait_frame(frame.cycle if frame else 0)
             counter.add(frame)
 
@@ -194,7 +196,9 @@ class Robot:
         return RobotStream(self)
 
     async def on_wire(self, joints: Iterable[str] | None = None) -> None:
-        """Wait until the targets set so far have gone out to ``joints`` (default: all)."""
+        """Wait until the targets set so far have gone out to ``joints`` (default: all), but those that cannot
+        be sent now: an offline joint's, one held since its servo or line came back, one on a line whose port is
+        lost (reconnecting)."""
         # The command in flight may predate the target; the one after its reply cannot.
         await self.fresh_replies(self.joint_names(joints), 2)
 
