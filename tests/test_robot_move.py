@@ -282,6 +282,7 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     async def body(robot: Robot) -> None:
         await robot.move_to({"neck": 0.0, "hip": 0.0}, duration=0.05)
         await robot.on_wire()
+        outage["start"] = rig.upper.transactions
         outcome: list[BaseException] = []
 
         async def unplug_for_a_while() -> None:
@@ -289,6 +290,8 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
             outage["from"] = rig.upper.transactions
             rig.lower.unplug()
             await anyio.sleep(0.5)
+            while rig.upper.transactions < outage["from"] + 90:  # (a machine that stalled us: 30 cycles at least)
+                await anyio.sleep(0.01)
             outage["to"] = rig.upper.transactions
             rig.lower.replug()
 
@@ -303,16 +306,18 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     run_robot(rig, body, reconnect=True, **NO_TIMEOUTS)
     # (a log entry's seq is the line's transaction count when it went out)
     neck = [
-        (t.seq, (t.tx[1] << 7) | t.tx[2])
-        for t in rig.upper.log_since(0)
+        (t.seq, t.time, joint_degrees(JOINTS["neck"], (t.tx[1] << 7) | t.tx[2]))
+        for t in rig.upper.log_since(outage["start"])
         if t.command == "position" and t.servo_id == JOINTS["neck"]["id"]
     ]
-    during = [joint_degrees(JOINTS["neck"], p) for seq, p in neck if outage["from"] <= seq < outage["to"]]
-    assert during and during[-1] - during[0] > 15.0, during  # it went on while the lower line was away
-    sent = [joint_degrees(JOINTS["neck"], p) for _, p in neck]
-    steps = [b - a for a, b in itertools.pairwise(sent)]
-    assert max(steps) < 10.0, max(steps)  # 50 degrees a second: never the half second lost in one command
-    assert sent[-1] == pytest.approx(50.0, abs=HALF_COUNT)
+    during = [deg for seq, _, deg in neck if outage["from"] <= seq < outage["to"]]
+    assert during and during[-1] - during[0] > 5.0, during  # it went on while the lower line was away (not 0)
+    # 50 degrees a second: each command at most that far on from the one before, by the time between them (a
+    # busy machine's stall lets the motion's clock run on as much), and a cycle's slack: never half a second's
+    # worth at once, as when it drove on after the lost line came back.
+    for (_, t1, d1), (_, t2, d2) in itertools.pairwise(neck):
+        assert d2 - d1 <= 50.0 * (t2 - t1 + 0.05) + 1.0, (d1, d2, t2 - t1)
+    assert neck[-1][2] == pytest.approx(50.0, abs=HALF_COUNT)
 
 
 def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> None:
