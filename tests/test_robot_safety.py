@@ -13,7 +13,7 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import InvalidArgument, Robot, SafetyStop, UnsafeOperation, open_robot
+from ics35_async import InvalidArgument, Robot, SafetyStop, State, UnsafeOperation, open_robot
 from ics35_async.robot import MotionStopped
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
@@ -502,3 +502,30 @@ def test_a_loop_that_catches_the_stop_at_every_pass_does_not_pile_up_its_traceba
     finally:
         rig.close()
     assert len(lengths) == 40 and max(lengths) <= 8, lengths
+
+
+def test_the_watch_goes_on_reading_a_line_that_comes_back_after_its_port_was_lost() -> None:
+    # A robot builder's finding (reconnect=True): a read of the watch's landing while the lower line was away
+    # ended that line's watch for good. Back, its joints were driven again with nothing reading their
+    # temperature or current: a knee at 80 C went unnoticed.
+    rig = make_rig(safety={"max_temperature_c": 60, "action": "free"})
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, reconnect=True, start_pose={"knee": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.telemetry["knee"].reads > 0)
+                rig.lower.unplug()
+                await frames_until(robot, lambda: robot.group["lower"].state is State.LOST)
+                await frames_until(robot, lambda: robot.telemetry["neck"].reads > 10)  # (reads went on: upper)
+                rig.lower.replug()
+                await frames_until(robot, lambda: "knee" in robot.held)
+                robot.set_targets({"knee": 0.0})  # the program decides: the knee holds again, torque on
+                rig.servo("knee").temperature_celsius = 80.0
+                await frames_until(robot, lambda: "knee" in robot.tripped)
+                assert robot.tripped["knee"].reason == "temperature"
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert rig.servo("knee").free  # action "free"

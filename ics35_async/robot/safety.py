@@ -19,7 +19,7 @@ import anyio
 
 from .. import units
 from ..bus import Bus, Priority
-from ..errors import IcsError, ReplyError
+from ..errors import IcsError, PortLost, ReplyError
 from ..servo import Servo
 from .description import JointSpec, SafetySpec
 from .frame import RobotFrame
@@ -118,9 +118,15 @@ class SafetyWatch:
                     if k == 0:
                         self.rounds[line] += 1
                     if joint.name not in frame.offline:
-                        await self._read(robot, joint, servos[joint.name])
+                        try:
+                            await self._read(robot, joint, servos[joint.name])
+                        except PortLost:
+                            # Reconnecting (reconnect=True): the line runs no cycle until it is back, and its
+                            # reads go on with its cycles then.  (Without reconnect the robot's frames end
+                            # with the line, and this watch with them.)
+                            break
         except IcsError:
-            return  # the line closed or was lost: the robot reports that itself
+            return  # the robot's frames ended (its block, a line lost for good): the robot reports that itself
 
     async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
         seen = self.telemetry[joint.name]
