@@ -333,7 +333,7 @@ def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> No
             while robot.group["lower"].state is not State.LOST:
                 await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
         rig.servo("neck").move_by_hand(joint_position(JOINTS["neck"], 20.0))
-        with anyio.fail_after(2.0):  # (it waited for ever)
+        with anyio.fail_after(GUARD):  # (it waited for ever)
             pose = await robot.read_pose()
             await robot.on_wire()
         assert pose["neck"] == pytest.approx(20.0, abs=HALF_COUNT)  # read after the call
