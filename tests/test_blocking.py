@@ -31,6 +31,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.bus import open_bus as open_async_bus
 from ics35_async.policies import plan_eeprom_write, write_eeprom_plan
+from ics35_async.protocol import BaudRate
 from ics35_async.sim import MemoryDevice, VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
 from tests.support.leaks import open_fds
@@ -515,3 +516,21 @@ def test_statistics_still_read_after_the_with_block_ends() -> None:
     assert bus.stats.total.ok >= 6
     with pytest.raises(BusClosed):
         stream.set_target(1, 8000)  # acting on it is still refused
+
+
+def test_a_blocking_stream_says_which_ids_it_holds_now() -> None:
+    # The control-loop docs tell a loop to filter its targets by `stream.held` (the holds now, not a frame's):
+    # the blocking stream had no `held`, so a blocking gait had only its frames' word, a cycle late.
+    line = VirtualLine([VirtualServo(i) for i in (1, 2)], log_size=None)
+    with blocking.open_bus(line) as bus, bus.stream([1, 2], offline_after=1, probe_interval=0.01) as stream:
+        stream.set_targets({1: 7000, 2: 8000})
+        assert stream.held == {}
+        line.servo(2).baud_rate = BaudRate.B625000  # silent at the line's 115200
+        while 2 not in stream.next_frame(timeout=5).offline:
+            pass
+        line.servo(2).baud_rate = BaudRate.B115200
+        while 2 in stream.next_frame(timeout=5).offline:
+            pass
+        assert stream.held == {2: "rejoined"}
+        stream.set_target(2, 8000)
+        assert stream.held == {}

@@ -55,6 +55,12 @@ class BlockingStream(Wrapper[Stream]):
         """IDs currently out of the cycle after failing ``offline_after`` cycles in a row."""
         return self._loop.read(_offline_of, self._async)
 
+    @property
+    def held(self) -> dict[int, str]:
+        """IDs held now, sent no command until their target is set (or they are freed or watched), and why
+        (see ``Stream.held``): a loop setting every target each pass filters by this, not by a frame's."""
+        return self._loop.read(_held_of, self._async)
+
     def next_frame(self, timeout: float | None = None) -> Frame:
         """The newest frame not yet taken; waits for one (at most ``timeout`` seconds: then ``TimeoutError``).
 
@@ -130,3 +136,7 @@ def _stats_of(stream: Stream) -> StreamStats:
 
 def _offline_of(stream: Stream) -> frozenset[int]:
     return stream.offline
+
+
+def _held_of(stream: Stream) -> dict[int, str]:
+    return stream.held
