@@ -190,3 +190,32 @@ def test_the_text_line_names_the_value_or_why_there_is_none() -> None:
     assert "read_eeprom" in text_line(eeprom) and "= EEPROM id 2, 115200 baud, stretch 60" in text_line(eeprom)
     assert text_line(temperature).split()[1:4] == ["id", "2", "read_temperature"]
     assert "! no reply" in text_line(absent) and text_line(absent).endswith("a9 04 | -")
+
+
+def test_sniff_count_stops_at_that_many_transactions(tmp_path: Path) -> None:
+    """``--count N`` prints N transactions, also when more were decoded at once: here four commands written
+    in one go, so their transactions reach the listener together."""
+    tap = tmp_path / "tap"
+    with serving(["--ids", "1-3", "--tap", str(tap)]) as port:
+        sniffer = subprocess.Popen(
+            [sys.executable, "-m", "ics35_async.cli", "sniff", "--port", str(tap), "--json", "--count", "2"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert sniffer.stderr is not None
+            assert "listening on" in sniffer.stderr.readline()
+            fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
+            try:
+                os.write(fd, b"".join(ReadParam(servo_id, 2).tx for servo_id in (1, 2, 3, 1)))
+                stdout, stderr = sniffer.communicate(timeout=20)
+            finally:
+                os.close(fd)
+        finally:
+            if sniffer.poll() is None:
+                sniffer.send_signal(2)
+                sniffer.communicate(timeout=20)
+    assert sniffer.returncode == 0, stderr
+    assert [json.loads(line)["id"] for line in stdout.splitlines()] == [1, 2], stdout
+    assert "count reached: 2 transactions heard" in stderr

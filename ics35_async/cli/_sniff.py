@@ -39,14 +39,21 @@ def text_line(h: HeardTransaction) -> str:
 class Output:
     """Each transaction, as it is decoded, to the screen and to the file (flushed: Ctrl-C or a lost port loses none)."""
 
-    def __init__(self, as_json: bool, file: IO[str] | None) -> None:
+    def __init__(self, as_json: bool, file: IO[str] | None, limit: int | None = None) -> None:
         self.as_json = as_json
         self.file = file
+        self.limit = limit  # --count: one read can decode several transactions, and the end's flush one more
         self.count = 0
         self.unknown = 0
 
+    @property
+    def full(self) -> bool:
+        return self.limit is not None and self.count >= self.limit
+
     def write(self, heard: list[HeardTransaction]) -> None:
         for h in heard:
+            if self.full:
+                return
             self.count += 1
             self.unknown += h.kind == "unknown"
             line = json.dumps(h.to_dict()) if self.as_json else text_line(h)
@@ -61,10 +68,8 @@ class Output:
                 self.file.flush()
 
 
-def listen(
-    settings: Settings, listener: LineListener, output: Output, duration: float | None, count: int | None
-) -> str:
-    """Read until Ctrl-C, ``duration`` or ``count``; returns why it stopped."""
+def listen(settings: Settings, listener: LineListener, output: Output, duration: float | None) -> str:
+    """Read until Ctrl-C, ``duration`` or the output's limit; returns why it stopped."""
     try:
         ser = open_serial(settings.port, settings.baud, low_latency=True)
     except IcsError as exc:
@@ -77,7 +82,7 @@ def listen(
             now = time.monotonic() - start
             if duration is not None and now >= duration:
                 return "time is up"
-            if count is not None and output.count >= count:
+            if output.full:
                 return "count reached"
             if fd is not None:
                 select.select([fd], [], [], POLL)
@@ -135,9 +140,9 @@ def sniff(
     file = None
     if output_path is not None:
         file = check_output_path(output_path, "--output").open("w", encoding="utf-8")
-    output = Output(as_json, file)
+    output = Output(as_json, file, limit=count)
     try:
-        why = listen(settings, LineListener(settings.baud, gap=gap * 1e-3), output, duration, count)
+        why = listen(settings, LineListener(settings.baud, gap=gap * 1e-3), output, duration)
     finally:
         if file is not None:
             file.close()
