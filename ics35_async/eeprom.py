@@ -428,10 +428,12 @@ class Eeprom:
     ) -> Eeprom:
         """The spec's factory example image (section 7) for ``servo_id`` at ``baud_rate``.
 
-        ``calibration``: the 8 factory calibration nibbles (default: plausible ones made from the ID).
+        ``calibration``: the 22 factory calibration nibbles, bytes 25-26, 33-50 and 55-56 of the image in
+        order (default: plausible ones made from the ID).
 
         Raises:
             InvalidArgument: ``servo_id`` is not 0..31.
+            MalformedEeprom: ``calibration`` is not 22 nibbles (values 0..15).
         """
         servo_id = check_int("servo_id", servo_id, 0, 31)
         if calibration is None:
