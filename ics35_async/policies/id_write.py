@@ -132,7 +132,9 @@ async def _read_id(line: Line) -> tuple[int | None, ReplyError | None]:
 
 
 async def survey_for_id_write(line: Line) -> IdSurvey:
-    """Find out, in at most 34 transactions, whether exactly one device is on the line."""
+    """Find out whether exactly one device is on the line: an ID read, then a stretch read per ID, and a guard
+    read and a second read for a silent ID 31 (33 to 35 transactions; garbled or late replies are asked again).
+    """
     rx_before = line.stats.total.bytes_rx
     seen, error = await _read_id(line)
     baud = int(line.baudrate)
