@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+import click
 import pytest
 
 from ics35_async.eeprom import Eeprom
@@ -219,3 +221,13 @@ def test_sniff_count_stops_at_that_many_transactions(tmp_path: Path) -> None:
     assert sniffer.returncode == 0, stderr
     assert [json.loads(line)["id"] for line in stdout.splitlines()] == [1, 2], stdout
     assert "count reached: 2 transactions heard" in stderr
+
+
+def test_the_json_options_help_names_every_key_a_line_carries() -> None:
+    from ics35_async.cli._sniff import sniff
+
+    with VirtualLine([2], log_size=None) as line:
+        (heard,) = hear(line, [ReadParam(2, 4).tx])
+    (option,) = [p for p in sniff.params if isinstance(p, click.Option) and p.name == "as_json"]
+    named = re.search(r"\(([^)]*)\)", option.help or "")
+    assert named is not None and named.group(1).split(", ") == list(heard.to_dict()), option.help

@@ -119,7 +119,9 @@ def listen(settings: Settings, listener: LineListener, output: Output, duration:
     show_default=True,
     help="Silence (ms) after which a reply is no longer expected.",
 )
-@click.option("--json", "as_json", is_flag=True, help="One JSON object a line (t, kind, id, sent, reply, value).")
+@click.option(
+    "--json", "as_json", is_flag=True, help="One JSON object a line (t, kind, id, sent, reply, value, error)."
+)
 @click.pass_context
 def sniff(
     ctx: click.Context, output_path: str | None, duration: float | None, count: int | None, gap: float, as_json: bool
