@@ -162,6 +162,21 @@ def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(
     assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
 
 
+def test_play_names_the_line_options_the_robot_file_decides(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    """A robot's lines are its file's: a line option given for them is said to be unused, not dropped unsaid."""
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    result = cli("play", str(robot_file), str(motion))
+    assert result.code == 0, result.err
+    assert "not used" not in result.err
+    result = cli("play", str(robot_file), str(motion), "--no-echo", "--retries", "3", "--direction", "rts")
+    assert result.code == 0, result.err
+    note = next(line for line in result.err.splitlines() if "not used" in line)
+    for option in ("--retries", "--no-echo", "--direction"):
+        assert option in note, note
+    assert "--port" not in note  # (not given)
+
+
 def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:

@@ -74,8 +74,23 @@ def robot_options(settings: Settings) -> dict[str, Any]:
 
 
 def note_ports(settings: Settings, robot_file: str) -> None:
-    if not settings.port_defaulted:
-        err.print(f"[dim]note: the ports come from {escape(robot_file)}; --port and --baud are not used[/dim]")
+    """Name the line options given that the robot file decides (see :func:`robot_options` for those that apply):
+    each line's port, baud rate, echo and retries are the file's, and a DIY interface's direction control is not
+    one of its keys.  Left unsaid, a --direction meant for a DIY interface would be dropped without a word."""
+    unused = [] if settings.port_defaulted else ["--port", "--baud"]
+    unused += [
+        option
+        for option, given in (
+            ("--retries", settings.retries != Settings.retries),
+            ("--no-echo", not settings.echo),
+            ("--direction", settings.direction != Settings.direction),
+        )
+        if given
+    ]
+    if unused:
+        names = ", ".join(unused[:-1]) + f" and {unused[-1]}" if len(unused) > 1 else unused[0]
+        verb = "are" if len(unused) > 1 else "is"
+        err.print(f"[dim]note: the lines come from {escape(robot_file)}; {names} {verb} not used[/dim]")
 
 
 def left_after_trip(exc: SafetyStop, left: str | None) -> str:
