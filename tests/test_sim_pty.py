@@ -479,3 +479,13 @@ def test_a_client_opening_as_the_last_one_closes_keeps_its_speed() -> None:
         assert writes == []
     finally:
         port.dispose()
+
+
+@pytest.mark.parametrize(("ids", "words"), [("1", "1 servo at 115200"), ("1-2", "2 servos at 115200")])
+def test_its_first_note_counts_the_servos_in_words(tmp_path: Path, ids: str, words: str) -> None:
+    notes = tmp_path / "notes.txt"
+    with notes.open("w") as file:
+        proc, _ = start_subprocess(["--ids", ids, "--fast"], notes=file)
+        stop_subprocess(proc)
+    first = notes.read_text().splitlines()[0]
+    assert first.startswith(f"ics35 sim: {words} bit/s"), first

@@ -234,11 +234,12 @@ def main(
     try:
         path = server.open()
         print(path, flush=True)
-        what = (
-            f"replaying {len(device.entries)} transactions"
-            if isinstance(device, ReplayDevice)
-            else f"{len(device.servos)} servos at {device.baudrate} bit/s, {'real-time' if device.realtime else 'fast'}"
-        )
+        if isinstance(device, ReplayDevice):
+            what = f"replaying {len(device.entries)} transactions"
+        else:
+            count = len(device.servos)
+            what = f"{count} servo{'s' if count != 1 else ''} at {device.baudrate} bit/s, "
+            what += "real-time" if device.realtime else "fast"
         if isinstance(device, VirtualLine) and device.adapter is not None:
             what += f", behind a USB adapter model ({device.adapter.latency_timer_ms} ms latency timer)"
         print(f"ics35 sim: {what} on {server.pts_name} (link {path})", file=sys.stderr, flush=True)
