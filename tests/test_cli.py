@@ -130,6 +130,17 @@ def test_scan_whose_port_is_lost_part_way_shows_what_it_found_then_the_loss(
         assert "before the line was lost" in " ".join(result.err.split()), result.err
 
 
+@pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
+def test_scan_lost_part_way_names_the_port_as_given(cli: Any, as_json: bool) -> None:
+    """An unnamed sim:// line gets a name of the command's own for its reopenings at each rate; the loss, said
+    once the line is closed, names the port as it was given, not that name."""
+    port = "sim://?ids=1,2,20&faults=unplug@20:1&replug_after=30"  # lost as ID 20 is asked, at the first rate
+    result = cli("--port", port, "scan", *(["--json"] if as_json else []))
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = result.json()["lost"] if as_json else result.err
+    assert f"port {port} lost" in " ".join(said.split()) and "ics35-cli" not in said, said
+
+
 def test_scan_reports_a_shared_id_as_garbled(cli: Any, sim_line: Any) -> None:
     _, url = sim_line([VirtualServo(1), VirtualServo(3), VirtualServo(3)])
     result = cli("--port", url, "scan", "--bauds", "115200", "--ids", "0-4", "--json")

@@ -26,7 +26,7 @@ NO_REPLY_HINTS = (
 
 def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     """The person-facing form of a library error."""
-    text = errors.error_text(exc).replace(settings.url, settings.port)
+    text = settings.as_given(errors.error_text(exc))
     if isinstance(exc, errors.PortPermissionDenied):
         if sys.platform.startswith("linux"):
             # The port's own group: dialout on Debian, Ubuntu and Fedora, uucp on Arch and others.

@@ -137,7 +137,7 @@ def scan_json(settings: Settings, bauds: Sequence[int], report: ScanReport) -> N
             "skipped_bauds": {str(baud): why for baud, why in report.skipped.items()},
             "rate_blind": report.rate_blind,
             "id_read_only": [{"baud": r.baud, "id": r.id_answer} for r in report.rates if r.only_id_read],
-            "lost": None if report.lost is None else str(report.lost),
+            "lost": None if report.lost is None else settings.as_given(str(report.lost)),
         }
     )
 

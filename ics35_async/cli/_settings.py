@@ -100,6 +100,8 @@ class Settings:
     json_output: bool = False  # --json given before the command
     from_environment: tuple[str, ...] = ()  # "ICS35_PORT=/dev/ttyUSB0": line options the environment set
     _sim_name: str | None = field(default=None, init=False, repr=False)
+    # Every name url gave: an error may be said once release_sim has closed its line (see as_given)
+    _sim_names: list[str] = field(default_factory=list, init=False, repr=False)
 
     @property
     def is_sim(self) -> bool:
@@ -116,7 +118,16 @@ class Settings:
             return self.port
         if self._sim_name is None:
             self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
+            self._sim_names.append(self._sim_name)
         return urlunsplit(parts._replace(netloc=self._sim_name))
+
+    def as_given(self, text: str) -> str:
+        """``text`` (a library error's) with the port as it was given where it names :attr:`url`: the name an
+        unnamed sim:// line got is the command's own, also after :meth:`release_sim` closed that line."""
+        parts = urlsplit(self.port)
+        for name in self._sim_names:
+            text = text.replace(urlunsplit(parts._replace(netloc=name)), self.port)
+        return text
 
     def line_args(self) -> list[str]:
         """The line options that reach this line again, as arguments: --port unless the implicit simulator,
