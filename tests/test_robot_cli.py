@@ -162,6 +162,17 @@ def test_play_a_motion_to_its_end_and_loop_until_the_time_is_up(
     assert sum(1 for a, b in itertools.pairwise(runs) if b == end != a) >= 2  # reached more than once
 
 
+def test_play_counts_each_lines_cycles_not_the_merged_frames(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # Two lines at 100 Hz each showed "cycle 210" a second in: the robot's frames (one each time either line ends
+    # a cycle), read as a 200 Hz rate.  Each line's own count is shown.
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 1.0, "pose": {"neck": 30, "hip": -20}})
+    result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", "1.5")
+    assert result.code == 0, result.err
+    lines = [line for line in result.out.splitlines() if line.startswith("t=")]
+    assert lines and all(re.search(r"cycles upper \d+, lower \d+$", line) for line in lines), result.out
+
+
 def test_play_names_the_line_options_the_robot_file_decides(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
     """A robot's lines are its file's: a line option given for them is said to be unused, not dropped unsaid."""
     _, robot_file = rig

@@ -34,7 +34,7 @@ from ._robot_common import (
     run_robot,
     show_warnings,
 )
-from ._robot_view import Screen, joint_table
+from ._robot_view import Screen, cycles_text, joint_table
 from ._signals import stop_name
 from ._start_pose import parse_start_pose, start_pose_option
 
@@ -178,17 +178,20 @@ def play(
             total = motion.duration / speed
 
             stopped_at: list[float] = []  # seconds in when it ended or was stopped (Ctrl-C, --seconds, a lost line)
+            # Seconds in when the pass playing now began: a pass takes a little longer than the motion (its end
+            # waits for its last targets to go out), so the time into it is not the time modulo the motion's.
+            pass_began = [0.0]
 
             def summary() -> str:
                 # The smooth stop after it (--ramp) is not playing time: the motion stands where it stopped.
                 t = stopped_at[0] if stopped_at else time.monotonic() - start
                 if seconds:
                     t = min(t, seconds)
-                into = t % total if loop else min(t, total)
+                into = min(max(0.0, t - pass_began[0]), total)
                 limit = f"/{seconds:g}" if seconds else ""
                 count = f"pass {passes + 1}  " if loop else ""
                 return f"t={t:5.1f}{limit} s  motion {into:4.1f}/{total:.1f} s  {count}" + (
-                    f"cycle {robot.latest.cycle}" if robot.latest else ""
+                    cycles_text(robot.latest) if robot.latest else ""
                 )
 
             lost: list[bool] = []  # the lines ended (a port lost): the table's last look says so
@@ -202,6 +205,7 @@ def play(
                     await robot.play(motion, speed=speed)
                     passes += 1
                     while loop:
+                        pass_began[0] = time.monotonic() - start
                         await robot.play(motion, speed=speed)
                         passes += 1
 

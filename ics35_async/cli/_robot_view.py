@@ -18,7 +18,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ..engine import State
-from ..robot import Robot
+from ..robot import Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
 from ._console import live_view, signed_tenths
@@ -29,6 +29,14 @@ _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconn
 
 def _deg(value: float | None) -> str:
     return "-" if value is None else signed_tenths(value)
+
+
+def cycles_text(frame: RobotFrame) -> str:
+    """The cycles run so far, each line's on a robot of several: its frames come each time any line ends a cycle,
+    so their count over two 100 Hz lines would read as 200 Hz."""
+    if len(frame.line_cycles) <= 1:
+        return f"cycle {frame.cycle}"
+    return "cycles " + ", ".join(f"{line} {cycles}" for line, cycles in frame.line_cycles.items())
 
 
 def joint_table(
