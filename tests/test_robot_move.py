@@ -342,6 +342,33 @@ def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> No
     run_robot(rig, body, reconnect=True)
 
 
+def test_frames_name_the_joints_on_a_line_whose_port_is_lost_until_it_is_back() -> None:
+    # With one line's adapter pulled (reconnect=True) the robot's frames went on with the other line's cycles,
+    # and a lost line's joints were neither offline nor held in them: a program had to ask each line's bus.
+    rig = make_rig()
+    lower = {name for name, spec in JOINTS.items() if spec["line"] == "lower"}
+
+    async def body(robot: Robot) -> None:
+        frame = await robot.wait_frame(0)
+        assert frame.lost == frozenset() and frame.to_dict()["lost"] == []
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while not frame.lost:
+                frame = await robot.wait_frame(frame.cycle)
+        assert frame.lost == lower and sorted(lower) == frame.to_dict()["lost"]
+        rig.lower.replug()
+        with anyio.fail_after(GUARD):
+            while "lower" not in frame.resumed:
+                assert frame.lost == lower  # (until the frame that says the line is back)
+                frame = await robot.wait_frame(frame.cycle)
+        assert frame.lost == frozenset()  # back (free joints answer again; one with a target is held)
+        with anyio.fail_after(GUARD):
+            while not lower <= frame.positions.keys():
+                frame = await robot.wait_frame(frame.cycle)
+
+    run_robot(rig, body, reconnect=True)
+
+
 def test_a_joint_back_from_offline_is_given_up_by_its_motion_and_waits_for_a_target() -> None:
     # A servo browned out under a robot that carries on past offline joints ([safety] continue_on_offline):
     # it restarted free where the load left it, and the probe that found it again threw it to the motion's

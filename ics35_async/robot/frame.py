@@ -39,6 +39,11 @@ class RobotFrame:
     moving them; a target the program sets for one (``set_targets``, ``hold``, ``free``; not a motion's
     next step, nor ``set_targets(..., lift_holds=False)``) ends its hold.  ``Robot.held`` is the same,
     live."""
+    lost: frozenset[str] = frozenset()
+    """The joints on a line whose port is lost now (opened with ``reconnect=True``: its bus reconnecting), until
+    the frame that says it is back (:attr:`resumed`): their servos keep their last command, the motions have
+    given them up, and their angles in :attr:`positions` are from the line's last cycle before the loss.  Once
+    it is back, a joint that had a target is :attr:`held`."""
 
     def to_dict(self) -> dict[str, Any]:
         """The frame as plain JSON values, for a log or a web page: degrees rounded to 0.01, sets as sorted
@@ -55,4 +60,5 @@ class RobotFrame:
             "line_cycles": dict(self.line_cycles),
             "resumed": sorted(self.resumed),
             "held": sorted(self.held),
+            "lost": sorted(self.lost),
         }

@@ -86,6 +86,7 @@ class Robot:
         self._ended = anyio.Event()
         self._end_reason: IcsError | None = None
         self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
+        self._lost_lines: set[str] = set()  # lost ports not yet back in a frame (see _lost_joints)
         self._gstream: GroupStream | None = None
 
     def __repr__(self) -> str:
@@ -598,6 +599,9 @@ class Robot:
 
     def _on_frame(self, frame: GroupFrame) -> None:
         now = anyio.current_time()
+        self._lost_lines = (
+            self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        ) - frame.resumed
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
         self._positions.update(positions)
@@ -631,6 +635,7 @@ class Robot:
             line_cycles=frame.line_cycles,
             resumed=frame.resumed,
             held=held,
+            lost=self._lost_joints(),
         )
         self._settle(frame.line_cycles, frame.line_started)
         self._step(merged, frame.line_started)
@@ -669,8 +674,10 @@ class Robot:
             self._hold_unknown(name, f"line {self.joints[name].line} came back after a lost port")
 
     def _lost_joints(self) -> frozenset[str]:
-        """The joints on lines whose port is lost now (``reconnect=True``: the bus reconnecting)."""
-        lost = {line for line, bus in self.group.buses.items() if bus.state is State.LOST}
+        """The joints on lines whose port is lost (``reconnect=True``: the bus reconnecting), from the moment the
+        bus knows until the frame that says the line is back (``resumed``): the reopened port runs no cycle of
+        the stream before that, and the joints are held only from then on."""
+        lost = self._lost_lines | {line for line, bus in self.group.buses.items() if bus.state is State.LOST}
         if not lost:
             return frozenset()
         return frozenset(name for name, joint in self.joints.items() if joint.line in lost)
