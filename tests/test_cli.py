@@ -642,10 +642,11 @@ def test_demo_frees_its_servos_at_the_end_beside_a_silent_id_on_a_long_allowance
 def test_a_stop_forced_out_before_the_free_names_the_free_command_with_no_lost_line_to_wait_for() -> None:
     # A second Ctrl-C cutting demo's end short said "once the line is back, free them with: ..." though the line
     # was never lost: the command works at once.
-    state = LiveState([1, 2, 3], "demo", 30.0, cycle=4)
+    # (Neighbouring IDs as a range, as the robot commands write their free commands: "1,2,...,9" was demo's.)
+    state = LiveState([1, 2, 3, 7], "demo", 30.0, cycle=4)
     error = forced_out(Settings(port="/dev/ttyUSB0"), state, CliError(ExitCode.INTERRUPTED, "interrupted"))
-    assert "servo(s) 1, 2, 3 may still be holding" in error.message, error.message
-    assert error.hints == ["free them with: ics35 --port /dev/ttyUSB0 free 1,2,3"], error.hints
+    assert "servo(s) 1, 2, 3, 7 may still be holding" in error.message, error.message
+    assert error.hints == ["free them with: ics35 --port /dev/ttyUSB0 free 1-3,7"], error.hints
 
 
 def test_demo_counts_one_cycle_and_one_servo_in_the_singular(cli: Any, sim_line: Any) -> None:

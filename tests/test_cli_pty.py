@@ -150,7 +150,7 @@ def test_demo_that_loses_its_port_says_the_servos_may_hold_and_how_to_free_them(
     assert proc.returncode == 1, proc.stderr
     text = " ".join(proc.stderr.split())
     assert "may still be holding" in text, proc.stderr
-    command = f"ics35 --port {server.path} {' '.join(ANSWERED[:2])} free 1,2,3"
+    command = f"ics35 --port {server.path} {' '.join(ANSWERED[:2])} free 1-3"
     assert f"once the line is back, free them with: {command}" in text, proc.stderr
     deadline = time.monotonic() + 10
     while not Path(server.path).exists():

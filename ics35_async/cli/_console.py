@@ -119,6 +119,11 @@ def id_runs(ids: Iterable[int]) -> list[list[int]]:
     return runs
 
 
+def ids_argument(ids: Iterable[int]) -> str:
+    """``ids`` as the ID lists of the command line take them, runs of neighbours as ranges: ``2-4,9``."""
+    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in id_runs(ids))
+
+
 def id_ranges(ids: Iterable[int]) -> str:
     """``0, 4-31``, for a person: a run of three or more IDs as a range (29 empty IDs in one short line), the
     rest one by one."""

@@ -39,7 +39,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import live_view
+from ._console import ids_argument, live_view
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -203,7 +203,7 @@ def still_holding(settings: Settings, ids: Sequence[int], error: CliError, *, li
     command that frees them on this same line (to run once it is back where the line was lost; a stop forced
     out by a second Ctrl-C or a free the servos did not confirm left the line as it was)."""
     error.message += f"; servo(s) {ids_text(ids)} may still be holding their last target (torque on)"
-    free = settings.command_line("free", ",".join(map(str, ids)))
+    free = settings.command_line("free", ids_argument(ids))
     error.hints.append(f"once the line is back, free them with: {free}" if line_lost else f"free them with: {free}")
     return error
 

@@ -13,7 +13,7 @@ import dataclasses
 import sys
 import threading
 import warnings
-from collections.abc import Awaitable, Callable, Iterable, Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from typing import Any, TypeVar
 
 import click
@@ -22,7 +22,7 @@ from rich.markup import escape
 from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout, UnsafeOperation
 from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
-from ._console import id_runs
+from ._console import ids_argument
 
 T = TypeVar("T")
 
@@ -161,11 +161,6 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
         for name in names - before:
             with contextlib.suppress(KeyError):
                 sim.named(str(name)).close()
-
-
-def ids_argument(ids: Iterable[int]) -> str:
-    """``ids`` as the ID lists of the command line take them, runs of neighbours as ranges: ``2-4,9``."""
-    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in id_runs(ids))
 
 
 def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
