@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, open_robot, units
 from ics35_async.robot import DescriptionError, JointSpec, load_description
+from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
 from tests.support.timing import FAST
 
@@ -155,6 +156,11 @@ MISTAKES: list[tuple[str, str, str]] = [
         "115200, 625000 or 1250000",
     ),
     ('[lines.main]\nbaudrate = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.port", "is required"),
+    (
+        '[lines.main]\nport = "sim://a"\ndirection = "up"\n[joints.x]\nline="main"\nid=1',
+        "lines.main.direction",
+        "none, rts, rts-inverted",
+    ),
     ('[lines.main]\nprot = "sim://a"\n[joints.x]\nline="main"\nid=1', "lines.main.port", "'prot' meant to be 'port'"),
     (
         '[lines.main]\nport = "sim://a"\n[lines.b]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n'
@@ -234,6 +240,28 @@ def test_each_mistake_names_the_file_and_key_and_opens_nothing(
     finally:
         for sim in sims:
             sim.close()
+
+
+def test_a_lines_direction_control_reaches_its_bus(tmp_path: Path) -> None:
+    # A robot on a board's own UART with a tri-state buffer on RTS (a DIY half-duplex interface) could not say
+    # so: the robot file had no key for it, and the command line's --direction is not used by the robot
+    # commands.  Its line's `direction` goes to that line's bus, which refuses it on a simulated line (it drives a
+    # local serial port's RTS pin): the refusal shows it arrived.
+    path = write(tmp_path, '[lines.main]\nport = "sim://dir"\ndirection = "rts"\n[joints.x]\nline="main"\nid=1')
+    assert load_description(path).lines["main"].direction == "rts"
+
+    async def try_open() -> None:
+        async with open_robot(path, **FAST):
+            pytest.fail("opened a simulated line with RTS direction control")
+
+    with pytest.raises(InvalidArgument, match="RTS pin"):
+        anyio.run(try_open)
+    again = tmp_path / "again.toml"  # (as calibrate writes a whole file where it cannot edit one in place)
+    again.write_text(dump_description(load_description(path)))
+    assert load_description(again).lines["main"].direction == "rts"
+    plain = tmp_path / "plain.toml"
+    plain.write_text('[lines.main]\nport = "sim://dir"\n[joints.x]\nline="main"\nid=1')
+    assert load_description(plain).lines["main"].direction == "none"
 
 
 def test_a_missing_file_is_a_description_error(tmp_path: Path) -> None:

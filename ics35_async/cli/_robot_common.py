@@ -75,8 +75,8 @@ def robot_options(settings: Settings) -> dict[str, Any]:
 
 def note_ports(settings: Settings, robot_file: str) -> None:
     """Name the line options given that the robot file decides (see :func:`robot_options` for those that apply):
-    each line's port, baud rate, echo and retries are the file's, and a DIY interface's direction control is not
-    one of its keys.  Left unsaid, a --direction meant for a DIY interface would be dropped without a word."""
+    each line's port, baud rate, echo, retries and a DIY interface's direction control are the file's.  Left unsaid,
+    a --direction meant for a DIY interface would be dropped without a word."""
     unused = [] if settings.port_defaulted else ["--port", "--baud"]
     unused += [
         option
@@ -165,13 +165,20 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
 
 def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
     """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
-    (that line's port, baud rate and echo: the robot file's; ``others_left``: what the command left the
-    other lines' joints in, when it has several)."""
+    (that line's port, baud rate, echo and direction control: the robot file's; ``others_left``: what the
+    command left the other lines' joints in, when it has several)."""
     lines = [line for line in description.lines.values() if line.port in str(exc)]
     free = "ics35 free all -p PORT"
     if lines:
         line = max(lines, key=lambda spec: len(spec.port))  # the longest: one port's name may start another's
-        here = dataclasses.replace(settings, port=line.port, baud=line.baudrate, echo=line.echo, port_defaulted=False)
+        here = dataclasses.replace(
+            settings,
+            port=line.port,
+            baud=line.baudrate,
+            echo=line.echo,
+            direction=line.direction,
+            port_defaulted=False,
+        )
         # Its joints' IDs, not "all": the 32 IDs' absent ones would end it "did not go free", exit code 4.
         free = here.command_line("free", ids_argument(j.id for j in description.joints_on(line.name)))
     others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""

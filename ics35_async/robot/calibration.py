@@ -147,6 +147,8 @@ def dump_description(description: RobotDescription) -> str:
             text.append(f"rate_hz = {_number(line.rate_hz)}\n")
         if line.retries:
             text.append(f"retries = {line.retries}\n")
+        if line.direction != LineSpec.direction:
+            text.append(f"direction = {json.dumps(line.direction)}\n")
     for joint in description.joints.values():
         text.append(f"\n[joints.{json.dumps(joint.name)}]\nline = {json.dumps(joint.line)}\nid = {joint.id}\n")
         text.append(f"offset = {_number(joint.offset)}\nreverse = {'true' if joint.reverse else 'false'}\n")
@@ -211,6 +213,8 @@ def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) 
         options += ["--baud", str(line.baudrate)]
     if not line.echo:
         options.append("--no-echo")
+    if line.direction != LineSpec.direction:
+        options += ["--direction", line.direction]
     clear = shlex.join(["ics35", *options, "eeprom", "set", str(joint.id), "flags-=REVERSE"])
     return (
         f"{source}: joints.{joint.name}: reverse = true in the file, and servo ID {joint.id} on line {joint.line} "

@@ -18,6 +18,7 @@ from urllib.parse import urlsplit
 
 from .. import protocol, units
 from ..errors import FileContentError, InvalidArgument
+from ..transports.direction import DIRECTIONS
 from ..user_files import UnreadableText, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
@@ -40,6 +41,7 @@ class LineSpec:
     echo: bool = True
     rate_hz: float | None = None
     retries: int = 0
+    direction: str = "none"  # a DIY half-duplex interface's direction control on RTS (see open_bus)
 
 
 @dataclass(frozen=True)
@@ -320,6 +322,9 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
         echo = r.flag("echo")
         rate = r.number("rate_hz", 0.1, 10_000)
         retries = r.integer("retries", 0, 10)
+        direction = r.text("direction")
+        if direction is not None and direction not in DIRECTIONS:
+            raise r.error("direction", f"must be one of {', '.join(DIRECTIONS)}, got {direction!r}")
         r.done()
         if port in ports and not _fresh_sim(port):
             raise r.error("port", f"{port!r} is already the port of lines.{ports[port]}")
@@ -331,6 +336,7 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
             echo=True if echo is None else echo,
             rate_hz=rate,
             retries=0 if retries is None else retries,
+            direction="none" if direction is None else direction,
         )
     return lines
 

@@ -33,11 +33,11 @@ from ..group import BusGroup, GroupStream
 from ..protocol import FREE
 from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
-from .description import JointSpec, RobotDescription, load_description
+from .description import JointSpec, LineSpec, RobotDescription, load_description
 from .robot import Robot
 
 # open_bus options the description sets per line, so they may not be given to open_robot.
-_PER_LINE = frozenset({"baudrate", "echo", "retries"})
+_PER_LINE = frozenset({"baudrate", "echo", "retries", "direction"})
 
 
 class RobotWarning(UserWarning):
@@ -149,10 +149,7 @@ async def _robot_session(
     clash = _PER_LINE & set(bus_options)
     if clash:
         raise InvalidArgument(f"{', '.join(sorted(clash))}: set per line in the robot description, not here")
-    buses = {
-        name: open_bus(line.port, **_line_options(bus_options, line.baudrate, line.echo, line.retries))
-        for name, line in description.lines.items()
-    }
+    buses = {name: open_bus(line.port, **_line_options(bus_options, line)) for name, line in description.lines.items()}
     async with contextlib.AsyncExitStack() as stack:
         # Each bus opened by this task, one after the other: a line that cannot be opened closes
         # the ones opened before it, in reverse order, as the stack unwinds.
@@ -219,8 +216,14 @@ async def _robot_session(
             )
 
 
-def _line_options(shared: BusOptions, baudrate: int, echo: bool, retries: int) -> BusOptions:
-    return {**shared, "baudrate": baudrate, "echo": echo, "retries": retries}
+def _line_options(shared: BusOptions, line: LineSpec) -> BusOptions:
+    return {
+        **shared,
+        "baudrate": line.baudrate,
+        "echo": line.echo,
+        "retries": line.retries,
+        "direction": line.direction,
+    }
 
 
 def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
