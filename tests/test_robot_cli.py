@@ -171,7 +171,7 @@ def test_play_counts_each_lines_cycles_not_the_merged_frames(cli: Any, rig: tupl
     result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", "3")
     assert result.code == 0, result.err
     lines = [line for line in result.out.splitlines() if line.startswith("t=")]
-    assert lines and all(re.search(r"cycles upper \d+, lower \d+$", line) for line in lines), result.out
+    assert lines and all(re.search(r"cycles lower \d+, upper \d+$", line) for line in lines), result.out
 
 
 def test_play_names_the_line_options_the_robot_file_decides(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:

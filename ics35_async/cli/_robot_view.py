@@ -32,11 +32,11 @@ def _deg(value: float | None) -> str:
 
 
 def cycles_text(frame: RobotFrame) -> str:
-    """The cycles run so far, each line's on a robot of several: its frames come each time any line ends a cycle,
-    so their count over two 100 Hz lines would read as 200 Hz."""
+    """The cycles run so far, each line's (by name) on a robot of several: its frames come each time any line ends
+    a cycle, so their count over two 100 Hz lines would read as 200 Hz."""
     if len(frame.line_cycles) <= 1:
         return f"cycle {frame.cycle}"
-    return "cycles " + ", ".join(f"{line} {cycles}" for line, cycles in frame.line_cycles.items())
+    return "cycles " + ", ".join(f"{line} {cycles}" for line, cycles in sorted(frame.line_cycles.items()))
 
 
 def joint_table(
