@@ -231,6 +231,7 @@ def test_a_stop_right_after_a_cancelled_motion_slows_its_joint_down() -> None:
     """Ctrl-C in a program that stops in its finally: the joint goes on at its speed and slows to rest."""
     rig = make_rig()
     since: dict[str, int] = {}
+    at_cancel: list[float] = []
 
     async def body(robot: Robot) -> None:
         await robot.move_to({"knee": -90.0}, duration=0.0)
@@ -240,13 +241,16 @@ def test_a_stop_right_after_a_cancelled_motion_slows_its_joint_down() -> None:
                 await robot.move_to({"knee": 15.0}, duration=2.0, profile="linear")
             finally:
                 with anyio.CancelScope(shield=True):
+                    at_cancel.append(robot.targets["knee"] or 0.0)
                     await robot.stop(ramp=0.3)
         await robot.on_wire()
 
     run_robot(rig, body)
     sent = sent_degrees(rig, "knee", since)
-    rest = [d for d in sent if d > sent[-1] - 5.0]
-    assert len(set(rest)) > 3, rest  # it went on moving while slowing down
+    # Slowed to rest from 52.5 degrees a second over 0.3 s: about 7.9 degrees on past the target it had at the
+    # cancel (frozen there, it would go no further; kept at its speed, far more).  Judged by distance, which the
+    # ramp's clock sets, not by how many cycles a loaded machine ran in it.
+    assert 2.0 < sent[-1] - at_cancel[0] < 12.0, (at_cancel, sent[-5:])
 
 
 angles = {name: st.floats(spec["min"], spec["max"], allow_nan=False) for name, spec in JOINTS.items()}
