@@ -338,6 +338,25 @@ def test_while_a_lost_line_has_stopped_the_robot_its_joints_show_their_last_targ
     assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None, None]
 
 
+def test_after_reconnect_the_state_line_says_what_the_lost_lines_joints_do_not_what_they_did_before(
+    robot: Any,
+) -> None:
+    # The state line went on saying "joints hold where they stand" (from before the line was lost) once
+    # Reconnect had opened the robot again with the lost line's joints free.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: not line.servo(1).free and not line.servo(2).free)
+    lose_and_replug(client, line)
+    reopened = post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()
+    assert reopened["open"] and "hold where they stand" not in (reopened["outcome"] or ""), reopened["outcome"]
+    assert "shoulder, elbow" in reopened["outcome"] and "free" in reopened["outcome"], reopened["outcome"]
+    wait_for(lambda: line.servo(1).free and line.servo(2).free)
+    post(client, "/api/robot/motion", {"enabled": True})
+    lose_and_replug(client, line)
+    held = post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["outcome"]
+    assert "shoulder, elbow" in held and "hold their last targets" in held, held
+
+
 def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_old_target(tmp_path: Path) -> None:
     # Its servo went offline and answered again (restarted, free, in a brown-out): the robot sends it nothing
     # until it is told what to do, but the page showed its old target, "ok", as if it still held there.

@@ -101,6 +101,11 @@ class RobotSession:
         await self.close()
         await self._open(pose)
         if self.robot is not None:
+            # The state line said how the robot was before the line went ("joints hold where they stand", a
+            # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
+            lost = ", ".join(self.lost_pose)
+            done = "hold their last targets" if lost_joints == "hold" else "start free"
+            self.outcome = f"reconnected; {lost} {done}" if lost else "reconnected"
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
