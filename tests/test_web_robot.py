@@ -174,6 +174,29 @@ def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: An
     assert held["outcome"] == "joints hold where they stand" and held["motion_enabled"], held
 
 
+def test_a_slider_moved_while_another_joints_move_runs_leaves_that_move_to_finish(robot: Any) -> None:
+    # Two sliders moved one after the other within the move time: the second move stopped the first, and its
+    # joint stayed where that stop left it, short of where its slider was put.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: not line.servo(1).free and not line.servo(2).free)
+    assert post(client, "/api/robot/move", {"pose": {"shoulder": 40}, "duration": 0.6}).status_code == 200
+    assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
+    goal = {1: degrees_to_position(40), 2: degrees_to_position(30)}
+    wait_for(lambda: {1: line.servo(1).target, 2: line.servo(2).target} == goal)
+    # Stop stops every move running, and Play (a motion of its own) takes over from them.
+    post(client, "/api/robot/move", {"pose": {"shoulder": -20}, "duration": 5})
+    post(client, "/api/robot/move", {"pose": {"elbow": 80}, "duration": 5})
+    assert set(client.get("/api/robot").json()["playing"].split(", ")) == {"move shoulder", "move elbow"}
+    stopped = post(client, "/api/robot/stop").json()
+    assert stopped["playing"] is None, stopped
+    time.sleep(0.4)  # (the smooth stop's ramp is over)
+    held = {1: line.servo(1).target, 2: line.servo(2).target}
+    time.sleep(0.3)
+    far = {1: degrees_to_position(-20), 2: degrees_to_position(80)}
+    assert {1: line.servo(1).target, 2: line.servo(2).target} == held and held[1] != far[1] and held[2] != far[2]
+
+
 def test_switching_motion_off_stops_a_running_motion(robot: Any) -> None:
     # The switch reads as a safety switch: off must not leave a motion playing (it did, to its end).
     client, line = robot

@@ -53,9 +53,11 @@ class RobotSession:
         # off), and the smooth stop that page's going started (set_motion and stop wait for it).
         self._motion_page: str | None = None
         self._page_stop: asyncio.Task[None] | None = None
-        self.playing: str | None = None  # the motion's name while one plays
         self.outcome: str | None = None  # how the last motion ended
-        self._task: asyncio.Task[None] | None = None  # the motion playing
+        # What plays, by name: a motion, or the moves of the sliders (a slider moved while another's move runs
+        # leaves that one to finish: the robot gives each joint to the newest move naming it).
+        self._jobs: dict[asyncio.Task[None], str] = {}
+        self._moves_only = False  # every job playing is a slider's move (see move)
         self._stopped_because = ""  # why the motion playing was stopped, if not by Stop
         self._holder: asyncio.Task[None] | None = None  # the task holding the robot open (see open)
         self._closing = asyncio.Event()
@@ -181,6 +183,11 @@ class RobotSession:
                     "line rate_hz = 100, or its port realtime=1"
                 )
         return said
+
+    @property
+    def playing(self) -> str | None:
+        """The names of the motion or the moves playing (``None``: nothing plays)."""
+        return ", ".join(dict.fromkeys(self._jobs.values())) or None  # (a move taken over runs out its time)
 
     def _robot(self) -> Robot:
         if self.robot is None:
@@ -308,7 +315,7 @@ class RobotSession:
         checked = robot.check_pose(pose)
         seconds = check_seconds("duration", duration, 0.0, 30.0)
         _check_ready(robot, checked)
-        await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}")
+        await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}", alongside=True)
 
     async def play(self, doc: object, speed: float = 1.0) -> None:
         """Play a motion file's content (``parse_motion`` checks it; ``Robot.play`` checks it against the robot)."""
@@ -321,9 +328,13 @@ class RobotSession:
         _check_ready(robot, motion.joints)
         await self._run(robot.play(motion, speed=speed), motion.name or "motion")
 
-    async def _run(self, job: Any, name: str) -> None:
+    async def _run(self, job: Any, name: str, alongside: bool = False) -> None:
+        """Play ``job`` in the background; what plays stops first, but for moves ``alongside`` one another."""
         robot = self.robot
-        await self.stop()
+        if alongside and self._moves_only:
+            await self.settled()
+        else:
+            await self.stop()
         # Motion may have gone off while the motion playing stopped (its page gone, the switch, a lost line):
         # asked again here, or the job would move a robot with motion off.
         try:
@@ -332,7 +343,9 @@ class RobotSession:
         except BaseException:
             job.close()  # (never started: no "coroutine was never awaited" warning)
             raise
-        self.playing, self.outcome, self._stopped_because = name, None, ""
+        if not self._jobs:
+            self._stopped_because = ""
+        self.outcome, self._moves_only = None, alongside and (self._moves_only or not self._jobs)
 
         async def run() -> None:
             try:
@@ -345,9 +358,10 @@ class RobotSession:
             except IcsError as exc:
                 self.outcome = f"{name}: {exc}"
             finally:
-                self.playing = None
+                self._jobs.pop(task, None)
 
-        self._task = asyncio.create_task(run())
+        task = asyncio.create_task(run())
+        self._jobs[task] = name
 
     async def stop(self, ramp: float = 0.3, why: str = "") -> None:
         """Stop a motion smoothly (``Robot.stop``); the joints hold.  ``why``: said in the outcome."""
@@ -355,12 +369,13 @@ class RobotSession:
         await self._stop(ramp, why)
 
     async def _stop(self, ramp: float = 0.3, why: str = "") -> None:
-        task, self._task = self._task, None
-        if task is not None and not task.done():
+        jobs = [task for task in self._jobs if not task.done()]
+        self._jobs.clear()
+        if jobs:
             self._stopped_because = why
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            for task in jobs:
+                task.cancel()
+            await asyncio.wait(jobs)  # (each one's end is its own: see _run)
             if self.robot is not None:
                 with contextlib.suppress(IcsError):
                     await self.robot.stop(ramp)
