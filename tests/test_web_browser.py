@@ -33,6 +33,7 @@ if not sys.platform.startswith("linux"):
 
 from playwright.sync_api import Browser, Page, Request, Route, expect
 
+from ics35_async.units import degrees_to_position
 from tests.support.browser_pages import (
     PAGE_GONE_BOUND,
     ROOT,
@@ -738,6 +739,30 @@ def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_aga
         elbow.locator("input[type=range]").fill("30")
         expect(elbow.locator(".target")).to_have_text("30")
         until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
+
+
+def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_with_the_next_move(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A refused slider move left the slider where it was put (the joint's target elsewhere); the refusal stayed
+    # at the top of the page after the next slider move had gone out; and a free joint's slider stood at the
+    # target it had before it was freed, wherever the joint was turned since.
+    with arm_with_motion_on(browser, tmp_path, '[safety]\naction = "hold"\n') as (line, p):
+        shoulder, elbow = p.locator("tr[data-joint='shoulder']"), p.locator("tr[data-joint='elbow']")
+        expect(elbow.locator(".target")).not_to_have_text("free")
+        held = elbow.locator(".target").text_content() or ""
+        line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        elbow.locator("input[type=range]").fill("40")
+        expect(p.locator("#message")).to_contain_text("offline")
+        expect(elbow.locator("input[type=range]")).to_have_value(held)
+        shoulder.locator("input[type=range]").fill("20")
+        expect(shoulder.locator(".target")).to_have_text("20")
+        expect(p.locator("#message")).to_be_hidden()
+        p.click("#robot-free")
+        expect(shoulder.locator(".target")).to_have_text("free")
+        line.sim.servo(1).move_by_hand(degrees_to_position(-25))
+        expect(shoulder.locator("input[type=range]")).to_have_value("-25")
 
 
 def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_moved_again(

@@ -800,7 +800,14 @@ function onRobot(r) {
       el("td", { class: "temp" }), el("td", { class: "current" }),
       el("td", {}, el("a", { href: `#servo/${j.id}`, title: "this servo on the Servo page", onclick: (e) => { e.preventDefault(); openJoint(j.line, j.id).catch(() => {}); } }, `${j.line} / ${j.id}`)))));
     for (const slider of body.querySelectorAll("input[type=range]")) {
-      slider.addEventListener("change", () => moveJoint(slider.name.slice(6), +slider.value).catch(() => {}));
+      const name = slider.name.slice(6);
+      slider.addEventListener("change", () => moveJoint(name, +slider.value).catch(() => {
+        // Refused (nothing sent): the slider goes back to where the joint is asked to be, and lets go of the
+        // focus that keeps the pushed state off it while it is being moved.
+        slider.blur();
+        const j = state.robot.joints.find((joint) => joint.name === name);
+        if (j && sliderAt(j) !== null) slider.value = sliderAt(j);
+      }));
     }
   }
   for (const j of r.joints) {
@@ -828,19 +835,29 @@ function onRobot(r) {
     safety.className = j.tripped ? "safety bad" : "safety";
     const slider = row.querySelector("input[type=range]");
     slider.disabled = !r.motion_enabled;
-    if (document.activeElement !== slider && j.target !== null) slider.value = j.target;
+    if (document.activeElement !== slider && sliderAt(j) !== null) slider.value = sliderAt(j);
   }
 }
 
+// Where a joint's slider stands: its target; a free joint's, where it is (not the target it had before it was
+// freed: it may have been turned since, and motion switched on holds it where it is).
+function sliderAt(j) {
+  return j.target ?? j.position;
+}
+
+// A row's own controls are a person's action as the page's buttons are (see on): the words about the last one go.
 async function freeJoint(name) {
+  say("");
   onRobot(await api("/api/robot/free", { joint: name }));
 }
 
 async function resetTrip(name) {
+  say("");
   onRobot(await api("/api/robot/reset_trip", { joint: name }));
 }
 
 async function moveJoint(name, degrees) {
+  say("");
   await api("/api/robot/move", { pose: { [name]: degrees }, duration: numberIn($("#robot-duration"), "the move time") });
 }
 
