@@ -158,6 +158,37 @@ def test_a_stopped_server_is_said_in_words_at_once(browser: Browser) -> None:
     context.close()
 
 
+def test_the_robot_page_of_a_stopped_server_shows_nothing_live(browser: Browser, tmp_path: Path) -> None:
+    # Ctrl-C with the Robot page open: it went on showing motion switched on (its sliders live), "playing", and
+    # the joints' last angles, temperatures and cycle as if read, under the words that the server was gone.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        '[lines.arm]\nport = "sim://stopped-arm?ids=1-2&realtime=1"\nrate_hz = 50\n'
+        '[joints.shoulder]\nline = "arm"\nid = 1\n[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    proc = subprocess.Popen([*WEB, "--robot", str(robot)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    assert proc.stdout is not None
+    context = browser.new_context()
+    p = context.new_page()
+    p.goto(proc.stdout.readline().strip())
+    p.click("#robot-link")
+    p.check("#robot-motion")
+    shoulder = p.locator("tr[data-joint='shoulder']")
+    expect(shoulder.locator("input[type=range]")).to_be_enabled()
+    expect(shoulder.locator(".angle")).to_have_text("0")
+    proc.terminate()
+    proc.wait(10)
+    proc.stdout.close()
+    expect(p.locator("#robot-error")).to_contain_text("server is gone")
+    expect(p.locator("#robot-motion")).not_to_be_checked()
+    expect(p.locator("#robot-motion")).to_be_disabled()
+    expect(shoulder.locator("input[type=range]")).to_be_disabled()
+    expect(shoulder.locator(".angle")).to_have_text("-")
+    expect(p.locator("#robot-cycle")).to_have_text("-")
+    expect(p.locator("#robot-reopen")).to_be_hidden()  # (nothing to reconnect to)
+    context.close()
+
+
 def test_a_page_of_a_server_started_again_with_a_new_token_says_to_open_the_new_address(browser: Browser) -> None:
     with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
         probe.bind(("127.0.0.1", 0))

@@ -846,6 +846,15 @@ function sliderAt(j) {
 }
 
 // A row's own controls are a person's action as the page's buttons are (see on): the words about the last one go.
+// The server gone: nothing on the Robot page is live any more (its switch, a motion playing, the angles read).
+// Shown as a robot stopped by a lost line is, its joints at their last targets, with nothing to reconnect to.
+function robotGone() {
+  const joints = state.robot.joints.map((j) => ({ ...j, position: null, offline: false, temperature_c: null, current: null }));
+  onRobot({ ...state.robot, open: false, cycle: null, motion_enabled: false, playing: null, reconnect_choice: null, joints,
+    error: "the configurator's server is gone: nothing here is read or sent (the joints keep their last commands)" });
+  $("#robot-reopen").hidden = true;
+}
+
 async function freeJoint(name) {
   say("");
   onRobot(await api("/api/robot/free", { joint: name }));
@@ -922,6 +931,7 @@ function connectSocket() {
     state.tokenRefused = false;
     const gone = "the configurator's server is gone (was `ics35 web` stopped?): trying again every second";
     $("#line-status").textContent = "server gone";
+    if (state.robot) robotGone();
     if (!state.serverGone) say(gone);  // once: the box stays until the server is back or another action
     state.serverGone = true;
     setTimeout(connectSocket, 1000);
