@@ -149,6 +149,38 @@ def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tm
             line.close()
 
 
+def test_a_joint_freed_for_over_current_stays_stopped_across_a_reconnect_until_reset(tmp_path: Path) -> None:
+    # A lost line and Reconnect opened a robot that knew nothing of the stop: the joint the watch had freed
+    # for its load moved again at the next slider move, with no Reset, into the load that tripped it.
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name, '[safety]\nmax_current = 20\naction = "free"\n')
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        line = sim.named(name)
+        try:
+
+            def elbow() -> Any:
+                return client.get("/api/robot").json()["joints"][1]
+
+            post(client, "/api/robot/motion", {"enabled": True})
+            line.servo(2).load = 40
+            wait_for(lambda: elbow()["tripped"] is not None and line.servo(2).free)
+            lose_and_replug(client, line)
+            assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
+            assert "draws current" in (elbow()["tripped"] or ""), elbow()
+            post(client, "/api/robot/motion", {"enabled": True})
+            refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
+            assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
+            assert line.servo(2).free
+            line.servo(2).load = 0
+            assert post(client, "/api/robot/reset_trip", {"joint": "elbow"}).json()["joints"][1]["tripped"] is None
+            assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
+            wait_for(lambda: not line.servo(2).free)
+        finally:
+            line.close()
+
+
 def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: Any) -> None:
     client, line = robot
     nod = [{"time": 0.3, "pose": {"shoulder": 20}}, {"time": 0.6, "pose": {"shoulder": 0}}]

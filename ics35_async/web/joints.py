@@ -21,6 +21,7 @@ from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
+from ..robot.safety import SafetyStop
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
@@ -45,6 +46,7 @@ class RobotSession:
         self.lost_lines: list[str] = []
         self.last_targets: dict[str, float | None] = {}  # each joint's last command when a lost line ended the robot
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
+        self.kept_trips: list[SafetyStop] = []  # the stops the next open's robot is told of (see _carry_on_from)
         self.robot: Robot | None = None
         self.error: str | None = None
         self.warnings: list[str] = []  # the last open's robot.warnings, which the server says itself (see _hold)
@@ -116,7 +118,11 @@ class RobotSession:
         warn_at_open.set(False)
         try:
             async with open_robot(self.description, on_close="hold", start_pose=start_pose, **self.options) as robot:
+                for stop in self.kept_trips:  # (before anyone can move it: motion is off until the page's switch)
+                    # Told as a "free" stop: the joint is free already, and "stop" would free the others too.
+                    robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
                 self.robot, self.error, self.warnings = robot, None, list(robot.warnings)
+                self.kept_trips = []
                 self.last_targets = {}
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
@@ -144,6 +150,12 @@ class RobotSession:
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
         self.last_targets = dict(robot.targets)  # what the page shows until Reconnect (each joint keeps it)
         self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
+        # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
+        # no reading clears it): a new robot knows nothing of it, and would let the next move drive the joint into
+        # the load that tripped it.  (The other stops clear, or trip again, by the new robot's own readings.)
+        self.kept_trips = [
+            stop for name, stop in robot.tripped.items() if stop.reason == "current" and robot.targets[name] is None
+        ]
         kept: dict[str, float] = {}
         lost: dict[str, float] = {}
         for name, target in robot.targets.items():
