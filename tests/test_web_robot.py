@@ -472,6 +472,49 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
     lower.close()
 
 
+def test_reconnect_sends_nothing_to_a_joint_held_since_its_servo_answered_again(tmp_path: Path) -> None:
+    # A joint whose servo went offline and came back (restarted, free, elsewhere) is sent nothing until it is
+    # freed; another line lost, Reconnect held it at the target it had before: its servo was thrown there.
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2"\nrate_hz = 200\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+        '[joints.arm]\nline = "upper"\nid = 2\n[joints.knee]\nline = "lower"\nid = 2\n'
+        '[safety]\naction = "hold"\n'
+    )
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        try:
+
+            def joint(name: str) -> Any:
+                return next(j for j in client.get("/api/robot").json()["joints"] if j["name"] == name)
+
+            post(client, "/api/robot/motion", {"enabled": True})
+            post(client, "/api/robot/move", {"pose": {"arm": 40, "knee": 30}, "duration": 0.1})
+            wait_for(lambda: upper.servo(2).target == degrees_to_position(40))
+            wait_for(lambda: lower.servo(2).target == degrees_to_position(30))
+            for line, name in ((upper, "arm"), (lower, "knee")):  # offline, and back restarted (free)
+                servo = line.remove_servo(2)
+                wait_for(lambda: joint(name)["offline"])  # noqa: B023  (waited for here, in its own pass)
+                servo.power_cycle()
+                line.add_device(servo)
+            wait_for(lambda: joint("arm")["held"] == "rejoined" and joint("knee")["held"] == "rejoined")
+            view = lose_and_replug(client, lower)
+            assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view  # not knee: sent nothing
+            assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
+            time.sleep(0.2)  # some cycles on the wire
+            assert upper.servo(2).free and upper.servo(2).target is None, upper.servo(2).target
+            assert lower.servo(2).free and lower.servo(2).target is None, lower.servo(2).target
+            assert joint("arm")["target"] is None and joint("knee")["target"] is None
+        finally:
+            upper.close()
+            lower.close()
+
+
 def test_a_start_pose_given_to_the_server_holds_those_joints_from_the_first_command(tmp_path: Path) -> None:
     # ics35 web --robot FILE --start-pose shoulder=20: a standing ICS 3.5 robot need not go limp at the start.
     name = f"web-robot-{next(_names)}"

@@ -148,7 +148,11 @@ class RobotSession:
     def _carry_on_from(self, robot: Robot) -> None:
         """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has ended ``robot``."""
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
-        self.last_targets = dict(robot.targets)  # what the page shows until Reconnect (each joint keeps it)
+        # A joint held since its servo answered again (restarted, free and elsewhere) was sent nothing: the target
+        # it had is not where it is, so it carries on as a free one (a target would throw it there).
+        held = robot.held
+        targets = {name: None if name in held else target for name, target in robot.targets.items()}
+        self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
         self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
         # no reading clears it): a new robot knows nothing of it, and would let the next move drive the joint into
@@ -158,9 +162,9 @@ class RobotSession:
         ]
         kept: dict[str, float] = {}
         lost: dict[str, float] = {}
-        for name, target in robot.targets.items():
+        for name, target in targets.items():
             if target is None:
-                continue  # free: stays free
+                continue  # free (or sent nothing): stays so
             if self.description.joints[name].line not in self.lost_lines:
                 kept[name] = target  # its servo kept holding it
             elif name not in self.ics36:
