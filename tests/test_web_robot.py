@@ -412,6 +412,16 @@ def test_after_reconnect_the_state_line_says_what_the_lost_lines_joints_do_not_w
     assert "shoulder, elbow" in held and "hold their last targets" in held, held
 
 
+def test_an_offline_joint_shows_no_temperature_or_current(robot: Any) -> None:
+    # Its row said "offline" beside the temperature and current read before its servo went silent, as if read.
+    client, line = robot
+    wait_for(lambda: client.get("/api/robot").json()["joints"][1]["temperature_c"] is not None)
+    line.remove_servo(2)
+    wait_for(lambda: client.get("/api/robot").json()["joints"][1]["offline"])
+    elbow = client.get("/api/robot").json()["joints"][1]
+    assert elbow["temperature_c"] is None and elbow["current"] is None, elbow
+
+
 def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_old_target(tmp_path: Path) -> None:
     # Its servo went offline and answered again (restarted, free, in a brown-out): the robot sends it nothing
     # until it is told what to do, but the page showed its old target, "ok", as if it still held there.

@@ -247,7 +247,8 @@ class RobotSession:
         targets = self.last_targets if robot is None else robot.targets
         joints = []
         for name, spec in self.description.joints.items():
-            t = telemetry.get(name)
+            offline = frame is not None and name in frame.offline
+            t = None if offline else telemetry.get(name)  # (what was read before it went silent is not now)
             stop = tripped.get(name)
             joints.append(
                 {
@@ -260,7 +261,7 @@ class RobotSession:
                     "target": _round(targets.get(name)),
                     "temperature_c": None if t is None else _round(t.temperature_c),
                     "current": None if t is None else t.current,
-                    "offline": frame is not None and name in frame.offline,
+                    "offline": offline,
                     "tripped": None if stop is None else str(stop),
                     "held": held.get(name),
                 }
