@@ -327,6 +327,9 @@ def test_a_lost_line_is_told_and_the_robot_reopens_when_it_is_back(robot: Any) -
     assert not view["open"] and "lost" in view["error"], view
     refused = post(client, "/api/robot/motion", {"enabled": True})
     assert refused.status_code == 409 and "lost" in refused.json()["error"], refused.json()
+    # The other pages, on its line, said only "not connected": they say why, and where the way back is.
+    status = client.get("/api/status").json()
+    assert not status["connected"] and "Reconnect" in (status["error"] or ""), status
     line.replug()
     reopened = post(client, "/api/robot/reopen")
     assert reopened.status_code == 200 and reopened.json()["open"] and reopened.json()["error"] is None, reopened.json()

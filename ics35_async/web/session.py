@@ -192,6 +192,10 @@ class LineSession:
         self._lost_touch_in_live()
         bus = self.bus
         state = "closed" if bus is None else bus.state.value
+        error = self.error
+        if error is None and self.robot_line is not None and self.robot is not None and self.robot.robot is None:
+            # The robot's line closed with the robot (a line lost, this one or another): why, and the way back.
+            error = f"{self.robot.error or 'the robot is not open'} (on the Robot page)"
         return {
             "port": self.config.port,
             "baud": self.config.baud,
@@ -199,7 +203,7 @@ class LineSession:
             "connected": bus is not None and bus.is_open,
             "state": state,
             "lost": bus is not None and bus.state is State.LOST,
-            "error": self.error,
+            "error": error,
             "live": None if self.live is None else list(self.live.ids),
             "scanning": self.progress.running,
             "robot_line": self.robot_line,
