@@ -444,7 +444,7 @@ def test_a_double_ctrl_c_as_the_command_starts_ends_in_its_one_line(delay: float
 
 
 # Ctrl-C landing in a class's making as a command imports what it needs (rich's console, whose dataclasses have
-# fields): Python hands the KeyboardInterrupt on wrapped ("RuntimeError: Error calling __set_name__ on 'Field'
+# fields): Python 3.11 hands the KeyboardInterrupt on wrapped ("RuntimeError: Error calling __set_name__ on 'Field'
 # instance 'buffer' in 'ConsoleThreadLocals'"), and the command line printed that traceback.  (The import is
 # where a press landed under load; here it lands there every time.)
 CTRL_C_IN_A_CLASS_AS_IT_IS_MADE = """
@@ -473,4 +473,10 @@ def test_ctrl_c_landing_in_a_class_as_it_is_made_ends_in_one_line() -> None:
         text=True,
         timeout=60,
     )
-    assert (done.returncode, done.stderr) == (ExitCode.INTERRUPTED, "interrupted\n"), done.stderr
+    if sys.version_info < (3, 12):
+        assert (done.returncode, done.stderr) == (ExitCode.INTERRUPTED, "interrupted\n"), done.stderr
+    else:
+        # Python 3.12 no longer wraps it: the bare KeyboardInterrupt reaches click as it runs the command, and ends
+        # as any press there does (click's word for it).
+        assert done.returncode == ExitCode.INTERRUPTED, done.stderr
+        assert done.stderr.strip().splitlines() == ["aborted"], done.stderr

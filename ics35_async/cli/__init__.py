@@ -185,7 +185,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         _interrupted("interrupted")
     except RuntimeError as exc:
         # Ctrl-C landing in a class as it was made (a dataclass's fields, as a command imports what it needs):
-        # Python hands the KeyboardInterrupt on inside a RuntimeError ("Error calling __set_name__ ...").
+        # Python 3.11 hands the KeyboardInterrupt on inside a RuntimeError ("Error calling __set_name__ ...");
+        # 3.12 raises it bare (click, running the command, makes it an Abort).
         if not isinstance(exc.__cause__, KeyboardInterrupt):
             raise
         _interrupted("interrupted")
