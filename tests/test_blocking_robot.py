@@ -6,6 +6,8 @@ Positions are checked against the simulator's servos and its transaction log, ne
 from __future__ import annotations
 
 import _thread
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -19,6 +21,18 @@ from tests.support.robot_rig import JOINTS, joint_position, make_rig, sent_posit
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HUMANOID = Path(__file__).resolve().parent.parent / "examples" / "humanoid.toml"
+
+
+def test_a_script_that_never_closes_its_robot_still_exits_cleanly() -> None:
+    # Closed at interpreter exit: its loop thread ends there, where Python 3.12 starts no new thread (asyncio's
+    # own ending joins the loop's executor from one, and printed that refusal as a traceback).
+    script = (
+        f"from ics35_async import blocking\nrobot = blocking.open_robot({str(HUMANOID)!r})\nprint(len(robot.joints))"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().isdigit()
+    assert "Traceback" not in done.stderr, done.stderr
 
 
 def settled_pose(robot: blocking.BlockingRobot, goal: dict[str, float]) -> dict[str, float]:

@@ -36,6 +36,7 @@ import contextlib
 import inspect
 import threading
 from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Generic, ParamSpec, TypeVar, cast
 
 from ..errors import BusClosed
@@ -179,8 +180,23 @@ class LoopThread:
             started.set_result(asyncio.get_running_loop())
             await self._stop.wait()
 
-        # asyncio.run ends by cancelling what is left, shutting the executor down and closing the loop.
-        asyncio.run(serve())
+        # asyncio.run's ending (cancel what is left, the executor shut down, the loop closed), but for the executor:
+        # asyncio joins it from a new thread, and Python 3.12 refuses to start one at interpreter exit, which is
+        # where a bus the program never closed is closed.  Its workers (ports opened: idle by now) are joined here.
+        executor = ThreadPoolExecutor(thread_name_prefix=self._thread.name)
+        loop = asyncio.new_event_loop()
+        loop.set_default_executor(executor)
+        try:
+            loop.run_until_complete(serve())
+            left = asyncio.all_tasks(loop)
+            for task in left:
+                task.cancel()
+            if left:
+                loop.run_until_complete(asyncio.gather(*left, return_exceptions=True))
+            loop.run_until_complete(loop.shutdown_asyncgens())
+        finally:
+            executor.shutdown(wait=True)
+            loop.close()
 
     @property
     def thread(self) -> threading.Thread:
