@@ -849,7 +849,7 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         line.sim.unplug()
         expect(p.locator("#robot-error")).to_contain_text("lost")
         expect(p.locator("#robot-reopen-choice")).to_be_visible()  # elbow held a target: the page asks
-        expect(p.locator("#robot-reopen-question")).to_contain_text("elbow held their targets")
+        expect(p.locator("#robot-reopen-question")).to_contain_text("elbow had targets")
         expect(p.locator("#robot-reopen")).to_be_hidden()
         expect(p.locator("#robot-motion")).to_be_disabled()
         line.sim.replug()

@@ -485,9 +485,12 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
     lower.close()
 
 
-def test_reconnect_sends_nothing_to_a_joint_held_since_its_servo_answered_again(tmp_path: Path) -> None:
-    # A joint whose servo went offline and came back (restarted, free, elsewhere) is sent nothing until it is
-    # freed; another line lost, Reconnect held it at the target it had before: its servo was thrown there.
+@pytest.mark.parametrize("answer", ["hold", "free"])
+def test_reconnect_asks_about_a_joint_held_since_its_servo_answered_again(tmp_path: Path, answer: str) -> None:
+    # A joint whose servo went offline and came back is sent nothing until the program decides: its servo may
+    # have restarted (free, elsewhere) or kept its power (holding what it bears).  Another line lost, Reconnect
+    # held it at its old target without asking (a restarted servo thrown there); freeing it unasked would drop
+    # a holding one.  It is asked about with the lost line's joints, and the answer goes for it too.
     name = f"web-robot-{next(_names)}"
     path = tmp_path / "two.toml"
     path.write_text(
@@ -517,12 +520,17 @@ def test_reconnect_sends_nothing_to_a_joint_held_since_its_servo_answered_again(
                 line.add_device(servo)
             wait_for(lambda: joint("arm")["held"] == "rejoined" and joint("knee")["held"] == "rejoined")
             view = lose_and_replug(client, lower)
-            assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view  # not knee: sent nothing
-            assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
+            choice = view["reconnect_choice"]
+            assert choice["lines"] == ["lower"] and sorted(choice["joints"]) == ["arm", "hip", "knee"], view
+            assert upper.servo(2).free  # (nothing sent to it meanwhile)
+            assert post(client, "/api/robot/reopen", {"lost_joints": answer}).json()["open"]
             time.sleep(0.2)  # some cycles on the wire
-            assert upper.servo(2).free and upper.servo(2).target is None, upper.servo(2).target
-            assert lower.servo(2).free and lower.servo(2).target is None, lower.servo(2).target
-            assert joint("arm")["target"] is None and joint("knee")["target"] is None
+            if answer == "hold":  # the person says they kept their power: held at their targets
+                assert upper.servo(2).target == degrees_to_position(40) and not upper.servo(2).free
+                assert lower.servo(2).target == degrees_to_position(30) and not lower.servo(2).free
+            else:
+                assert upper.servo(2).free and lower.servo(2).free
+                assert joint("arm")["target"] is None and joint("knee")["target"] is None
         finally:
             upper.close()
             lower.close()

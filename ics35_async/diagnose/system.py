@@ -303,10 +303,13 @@ def is_wsl(root: Path) -> bool:
 UNTESTED = "untested here without the hardware"
 
 
-def missing_adapter(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[Finding]:
+def missing_adapter(
+    ports: list[SerialPortInfo], unbound: list[str], *, linux: bool, usb_port: bool = True
+) -> list[Finding]:
     """What to say of a Kondo adapter that is missing, worded once for ``ics35 doctor`` (its findings) and
     ``ics35 ports`` (its notes): each Kondo device plugged in with no serial port (``unbound``: its USB IDs),
-    with the commands that make ftdi_sio take it; on Linux, no Kondo adapter among ``ports`` at all."""
+    with the commands that make ftdi_sio take it; on Linux, no Kondo adapter among ``ports`` at all, unless the
+    port checked is not a USB one (``usb_port``: a board's own UART needs no adapter)."""
     found = []
     for usb_id in unbound:
         name = KONDO_ADAPTERS.get(usb_id, "a Kondo USB device")
@@ -319,7 +322,7 @@ def missing_adapter(ports: list[SerialPortInfo], unbound: list[str], *, linux: b
                 f"{' ; '.join(linux_adapter_steps(usb_id))}   (for good: ics35 udev --install; {UNTESTED})",
             )
         )
-    if linux and not unbound and not any(p.kondo for p in ports):
+    if linux and usb_port and not unbound and not any(p.kondo for p in ports):
         # (A Kondo device the system shows has no serial port is in ``unbound``: this is lsusb's to tell.)
         found.append(
             Finding(
@@ -363,7 +366,7 @@ def check_system(
         report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
     # (A port on a board's own UART or a PC's serial port needs no USB adapter: none missing is no news.)
     on_usb = device is None or not linux or _on_usb(root, os.path.basename(os.path.realpath(_below(root, device))))
-    report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux and on_usb)
+    report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux, usb_port=on_usb)
     if linux and is_wsl(root) and not any(p.usb_id for p in ports):
         report.findings.append(
             Finding("wsl", "warning", "this is WSL2: it sees a USB adapter only once Windows attaches it", USBIPD_STEPS)

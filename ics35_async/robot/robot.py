@@ -438,9 +438,7 @@ class Robot:
                 stopped it.
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
         """
-        self._check_commands()
-        if self._end_error is not None:
-            raise again(self._end_error)  # no pump would ever step it
+        self._check_watched()  # (no pump would ever step it)
         plan = Plan(trajectory, wait_on_wire)
         # A trajectory does not drive a tripped joint: a motion checks that before it starts (check_ready), but
         # stop()'s ramps start a scheduler pass after they are worked out, and a trip may land in between.
@@ -532,9 +530,10 @@ class Robot:
         # stall its joints on the other lines, then throw them to where its clock is by then.  Its joints are
         # given up at once (they keep their last command; back, their line holds them: see _line_resumed).
         lost = self._lost_joints()
+        driven_lost = frozenset(name for plan in self._plans for name in plan.joints & lost)
+        if driven_lost:
+            self._give_up_lost(driven_lost)
         for plan in list(self._plans):
-            if lost and plan.joints & lost:
-                self._give_up_lost(plan, plan.joints & lost)
             if plan.ending is not None:
                 plan.ending.add(frame)
             unknown = frame.offline | self._held.keys() | lost  # (joints that cannot answer)
@@ -682,14 +681,17 @@ class Robot:
             return frozenset()
         return frozenset(name for name, joint in self.joints.items() if joint.line in lost)
 
-    def _give_up_lost(self, plan: Plan, joints: Iterable[str]) -> None:
-        """``plan`` stops driving ``joints``, on a lost line: it goes on with its others, then raises MotionStopped."""
-        joints = set(joints)
+    def _give_up_lost(self, joints: frozenset[str]) -> None:
+        """The motions stop driving ``joints``, on lines whose port is lost: they go on with their others, then
+        raise MotionStopped."""
         lines = ", ".join(sorted({self.joints[name].line for name in joints}))
-        plan.joints -= joints
-        plan.given_up = plan.given_up or MotionStopped(
-            f"line {lines} lost its port: the motion gave its joints up (their servos keep their last command;"
-            " once the line is back, they are sent nothing until a target is set again) and went on with the others"
+        self._give_up(
+            joints,
+            MotionStopped(
+                f"line {lines} lost its port: the motion gave its joints up (their servos keep their last command;"
+                " once the line is back, they are sent nothing until a target is set again) and went on with the"
+                " others"
+            ),
         )
         for name in joints:  # (nothing moves them now: a stop has nothing to slow down)
             self._velocity[name] = 0.0

@@ -23,7 +23,7 @@ MINI_UART_PROBLEM = (
 MINI_UART_FIX = (
     "use the board's PL011 UART: on a Raspberry Pi 3, 4 or Zero W add dtoverlay=disable-bt to config.txt "
     "(/boot/firmware/config.txt; it takes the PL011 back from Bluetooth for GPIO 14 and 15) and reboot, then "
-    "--port /dev/ttyAMA0 (/dev/serial0 points there then; untested here without the hardware)"
+    "--port /dev/ttyAMA0 (/dev/serial0 points there then)"
 )
 
 

@@ -148,10 +148,11 @@ class RobotSession:
     def _carry_on_from(self, robot: Robot) -> None:
         """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has ended ``robot``."""
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
-        # A joint held since its servo answered again (restarted, free and elsewhere) was sent nothing: the target
-        # it had is not where it is, so it carries on as a free one (a target would throw it there).
+        # A joint held since its servo answered again was sent nothing: its servo may have restarted (free and
+        # elsewhere: its old target would throw it there) or kept its power (holding: freeing it drops what it
+        # bears).  Which, the person knows: it is asked about with the lost line's joints.
         held = robot.held
-        targets = {name: None if name in held else target for name, target in robot.targets.items()}
+        targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
         self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
@@ -164,12 +165,13 @@ class RobotSession:
         lost: dict[str, float] = {}
         for name, target in targets.items():
             if target is None:
-                continue  # free (or sent nothing): stays so
-            if self.description.joints[name].line not in self.lost_lines:
-                kept[name] = target  # its servo kept holding it
-            elif name not in self.ics36:
+                continue  # free: stays free
+            if name in self.ics36 and (name in held or self.description.joints[name].line in self.lost_lines):
+                continue  # read again (ICS 3.6): torque left as it is
+            if name in held or self.description.joints[name].line in self.lost_lines:
                 lost[name] = target  # the person says whether it still holds it
-            # (an ICS 3.6 joint on a lost line is read again: torque left as it is)
+            else:
+                kept[name] = target  # its servo kept holding it
         self.start_pose, self.lost_pose = kept, lost
 
     async def close(self) -> None:

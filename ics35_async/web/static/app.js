@@ -783,7 +783,7 @@ function onRobot(r) {
   const choice = r.open ? null : r.reconnect_choice;
   $("#robot-reopen").hidden = r.open || Boolean(choice);
   $("#robot-reopen-choice").hidden = !choice;
-  $("#robot-reopen-question").textContent = choice ? `Line ${choice.lines.join(", ")} was lost while ${choice.joints.join(", ")} held their targets. If their servos kept their power they still hold them; if they restarted, they are free somewhere else.` : "";
+  $("#robot-reopen-question").textContent = choice ? `Line ${choice.lines.join(", ")} was lost. ${choice.joints.join(", ")} had targets their servos may no longer hold (on the lost line, or held since their servo answered again). If their servos kept their power they still hold them; if they restarted, they are free somewhere else.` : "";
   $("#robot-motion").disabled = !r.open;
   $("#robot-cycle").textContent = r.cycle ?? "-";
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
