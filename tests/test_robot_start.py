@@ -7,6 +7,7 @@ import functools
 import itertools
 import time
 import traceback
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import anyio
@@ -297,11 +298,7 @@ def test_on_close_free_frees_the_other_lines_joints_when_one_line_is_lost(moving
                     tables.append(rows)
                     raise PortLost("the lower line") from None
 
-    try:
-        with pytest.raises(PortLost):
-            anyio.run(main)
-    finally:
-        rig.close()
+    run_to_the_lost_line(rig, main)
     upper = [name for name, spec in JOINTS.items() if spec["line"] == "upper"]
     assert all(rig.servo(name).free for name in upper), {n: rig.servo(n).target for n in upper}
     for name, spec in JOINTS.items():
@@ -466,6 +463,15 @@ def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_canc
     assert steps and steps[-1] <= max(steps)  # (slowing, not cut off at full speed)
 
 
+def run_to_the_lost_line(rig: Rig, main: Callable[[], Awaitable[None]]) -> None:
+    """Run ``main``, which ends raising the lost line's PortLost (its checks done inside), then close ``rig``."""
+    try:
+        with pytest.raises(PortLost):
+            anyio.run(main)
+    finally:
+        rig.close()
+
+
 def sent_positions(rig: Rig, since: int) -> list[int]:
     return [p for p in commanded(rig.upper, JOINTS["neck"]["id"], since) if p]
 
@@ -488,11 +494,7 @@ def test_calls_after_a_lost_line_each_raise_its_error_with_their_own_traceback()
                         lengths.append(len(traceback.extract_tb(lost.value.__traceback__)))
                 raise PortLost("the lower line") from None
 
-    try:
-        with pytest.raises(PortLost):
-            anyio.run(main)
-    finally:
-        rig.close()
+    run_to_the_lost_line(rig, main)
     assert len(lengths) == 20 and max(lengths) <= 12, lengths
 
 
@@ -533,9 +535,5 @@ def test_after_a_lost_line_targets_that_power_a_joint_are_refused_and_freeing_st
                 assert targets_sent(rig.upper, JOINTS["neck"]["id"], since) == []  # never sent 30 degrees
                 raise PortLost("the lower line") from None
 
-    try:
-        with pytest.raises(PortLost):
-            anyio.run(main)
-    finally:
-        rig.close()
+    run_to_the_lost_line(rig, main)
     assert len(refused) == 5 and all("lost" in message for message in refused), refused
