@@ -122,6 +122,7 @@ async def test_flag_edits_keep_the_unused_bits_the_servo_has() -> None:
         restore = await plan_eeprom_write(bus, 1, {"flags": Flags.PWMINH}, keep_read_only=True)
         assert int(restore.after.flags) == 0x68 and int(restore.kept_read_only) == 0x60
         assert restore.kept_note is not None and "(bit 5 on, bit 6 on)" in restore.kept_note
+        assert "unused flag bits" in restore.kept_note and "read-only" not in restore.kept_note  # (not flags)
         with pytest.raises(InvalidArgument, match="unused"):
             await plan_eeprom_write(bus, 1, {"flags": 0x40})
         with pytest.raises(InvalidArgument, match="unused"):

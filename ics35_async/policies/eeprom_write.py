@@ -166,7 +166,7 @@ class EepromPlan:
     before: Eeprom
     after: Eeprom
     id_taken: bool = False  # the new ID already answers on this line
-    kept_read_only: Flags = NO_FLAGS  # read-only flags (unused bits 5-6) a restored image has otherwise: the servo's
+    kept_read_only: Flags = NO_FLAGS  # read-only flags and unused bits 5-6 a restored image has otherwise: the servo's
 
     def _kept_bits(self) -> list[tuple[str, int]]:
         bits = [1 << n for n in range(8) if self.kept_read_only & (1 << n)]
@@ -184,8 +184,13 @@ class EepromPlan:
         if not self.kept_read_only:
             return None
         states = ", ".join(f"{name} {'on' if self.before.flags & bit else 'off'}" for name, bit in self._kept_bits())
+        kinds = [
+            kind
+            for kind, bits in (("read-only flag(s)", READ_ONLY_FLAGS), ("unused flag bits", UNUSED_FLAG_BITS))
+            if self.kept_read_only & bits
+        ]
         return (
-            f"servo {self.servo_id} keeps its read-only flag(s) as it reports them ({states}): they report the "
+            f"servo {self.servo_id} keeps its {' and '.join(kinds)} as it reports them ({states}): they report the "
             "servo's state and are not written"
         )
 
