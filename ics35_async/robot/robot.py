@@ -86,7 +86,7 @@ class Robot:
         self._ended = anyio.Event()
         self._end_reason: IcsError | None = None
         self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
-        self._lost_lines: set[str] = set()  # lost ports not yet back in a frame (see _lost_joints)
+        self._lost_lines: set[str] = set()  # lost ports not yet back in a frame (see _on_frame)
         self._gstream: GroupStream | None = None
 
     def __repr__(self) -> str:
@@ -188,7 +188,7 @@ class Robot:
         answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self._lost_joints()):
+        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | frame.lost):
             frame = await self.wait_frame(frame.cycle if frame else 0)
             counter.add(frame)
 
@@ -529,7 +529,7 @@ class Robot:
         # A line whose port is lost (reconnecting) runs no cycle until it is back: a plan waiting for one would
         # stall its joints on the other lines, then throw them to where its clock is by then.  Its joints are
         # given up at once (they keep their last command; back, their line holds them: see _line_resumed).
-        lost = self._lost_joints()
+        lost = frame.lost
         driven_lost = frozenset(name for plan in self._plans for name in plan.joints & lost)
         if driven_lost:
             self._give_up_lost(driven_lost)
@@ -598,9 +598,17 @@ class Robot:
 
     def _on_frame(self, frame: GroupFrame) -> None:
         now = anyio.current_time()
+        # A line whose port is lost (reconnect=True: its bus reconnecting) from the moment its bus knows until the
+        # frame that says it is back (resumed): the reopened port runs no cycle of the stream before that, and its
+        # joints are held only from then on.
         self._lost_lines = (
             self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
         ) - frame.resumed
+        lost = (
+            frozenset(n for n, j in self.joints.items() if j.line in self._lost_lines)
+            if self._lost_lines
+            else frozenset()
+        )
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
         self._positions.update(positions)
@@ -634,7 +642,7 @@ class Robot:
             line_cycles=frame.line_cycles,
             resumed=frame.resumed,
             held=held,
-            lost=self._lost_joints(),
+            lost=lost,
         )
         self._settle(frame.line_cycles, frame.line_started)
         self._step(merged, frame.line_started)
@@ -671,15 +679,6 @@ class Robot:
         self._give_up(on, error)
         for name in held:
             self._hold_unknown(name, f"line {self.joints[name].line} came back after a lost port")
-
-    def _lost_joints(self) -> frozenset[str]:
-        """The joints on lines whose port is lost (``reconnect=True``: the bus reconnecting), from the moment the
-        bus knows until the frame that says the line is back (``resumed``): the reopened port runs no cycle of
-        the stream before that, and the joints are held only from then on."""
-        lost = self._lost_lines | {line for line, bus in self.group.buses.items() if bus.state is State.LOST}
-        if not lost:
-            return frozenset()
-        return frozenset(name for name, joint in self.joints.items() if joint.line in lost)
 
     def _give_up_lost(self, joints: frozenset[str]) -> None:
         """The motions stop driving ``joints``, on lines whose port is lost: they go on with their others, then
