@@ -792,6 +792,9 @@ def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_
         expect(p.locator("#message")).to_be_hidden()
         p.click("#robot-free")
         expect(shoulder.locator(".target")).to_have_text("free")
+        # (The page says "free" once the robot's target is; its servo is free once the command is on the wire: a
+        # servo turned by hand before then turns back to 20.)
+        until(lambda: line.sim.servo(1).free, "the shoulder was never freed")
         line.sim.servo(1).move_by_hand(degrees_to_position(-25))
         expect(shoulder.locator("input[type=range]")).to_have_value("-25")
 
