@@ -216,3 +216,12 @@ def test_realtime_line_through_open_port() -> None:
     finally:
         line.port.close()
         bus.close()
+
+
+def test_ids_none_is_a_line_without_servos_as_ics35_sim_takes_it() -> None:
+    # `ics35 sim --ids none` served an empty line; `sim://?ids=none` was refused as "not an ID".
+    assert parse_url("sim://?ids=none")[1]["servos"] == []
+    assert parse_url("sim://?ids=None")[1]["servos"] == []
+    line = open_url("sim://?ids=none")
+    assert isinstance(line, VirtualLine) and not line.servos
+    line.close()

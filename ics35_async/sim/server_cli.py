@@ -26,7 +26,7 @@ from .pty_port import LinkFolderGone
 from .pty_server import PtyServer
 from .record import ReplayDevice
 from .tap import LineTap
-from .url import parse_seconds
+from .url import parse_line_ids, parse_seconds
 from .virtual_line import DEFAULT_REPLUG_AFTER, VirtualLine
 
 
@@ -139,7 +139,7 @@ def build_parser(
 def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     if args.replay is not None:  # (an empty one, a script's unset variable, is refused, not taken for none)
         return ReplayDevice(args.replay)
-    ids = [] if args.ids.strip().lower() == "none" else parse_ids(args.ids)
+    ids = parse_line_ids(args.ids)
     replug_after = parse_seconds(args.replug_after, "--replug-after") if args.replug_after else DEFAULT_REPLUG_AFTER
     options: dict[str, Any] = {}
     if args.turnaround is not None:

@@ -102,10 +102,20 @@ def _int(key: str, text: str) -> int:
         raise InvalidArgument(f"sim URL: {key}={text!r} is not an integer") from None
 
 
+def parse_line_ids(text: str) -> list[int]:
+    """The servo IDs a simulated line holds, as ``ids=`` and ``ics35 sim --ids`` take them: ``0-31`` /
+    ``1,3,5-7``, or ``none`` for a line without servos (what a scan of an empty line meets).
+
+    Raises:
+        InvalidArgument: not IDs 0..31 nor ``none``.
+    """
+    return [] if text.strip().lower() == "none" else parse_ids(text)
+
+
 def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     """Split ``url``, a ``sim://[NAME][?key=value&...]`` URL, into a name and VirtualLine options.
 
-    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31),
+    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31; ``none``: no servos),
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
     (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
     ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
@@ -133,7 +143,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             raise InvalidArgument(f"sim URL: {key} given more than once")
         value = values[0]
         if key == "ids":
-            options["servos"] = parse_ids(value)
+            options["servos"] = parse_line_ids(value)
         elif key == "baud":
             options["baudrate"] = BaudRate.parse(value)
         elif key in ("realtime", "echo"):
