@@ -205,7 +205,9 @@ def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_lef
     # What the summary says of the joints is what the table printed at the end shows them in.  (The stop
     # lands before the motion's first targets unless this machine took over 50 ms to deliver the signal.)
     rows = [line for line in out.splitlines() if "upper:" in line or "legs:" in line]
-    states = {line.split()[-1] for line in rows}
+    # (A row saying "no reply": the simulator, another process, did not answer within the allowance, seen with
+    # the machine loaded well past its two cores; what it says of that joint's torque is not read.)
+    states = {line.split()[-1] for line in rows if not line.rstrip().endswith("no reply")}
     if states == {"held"}:
         assert "joints left holding" in summary and "found" not in summary, out
         return
