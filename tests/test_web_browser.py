@@ -893,3 +893,44 @@ def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
         expect(yaw.locator(".target")).to_have_text(target or "")
         p.uncheck("#robot-motion")
     context.close()
+
+
+def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints_it_could_not_reach(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A lost line closed the robot, and Free all was refused, while the other line's joints held their last
+    # targets: a robot half-stopped could not be made limp at once.
+    upper, lower = PtyLine((1,)), PtyLine((1,))
+    robot = tmp_path / "two.toml"
+    robot.write_text(
+        f'[lines.upper]\nport = "{upper.path}"\n[lines.lower]\nport = "{lower.path}"\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+    )
+    try:
+        with web_server_page(browser, upper, ["--robot", str(robot)]) as p:
+            p.click("#robot-link")
+            for name in ("neck", "hip"):  # (read, so that motion on holds them where they stand)
+                expect(p.locator(f'tr[data-joint="{name}"] .angle')).to_have_text(re.compile(r"^-?\d"))
+            p.check("#robot-motion")
+            expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+            until(lambda: not upper.sim.servo(1).free and not lower.sim.servo(1).free, "the joints never held")
+            lower.sim.unplug()
+            expect(p.locator("#robot-error")).to_contain_text("lost")
+            expect(p.locator("#robot-reopen-choice")).to_be_visible()
+            p.click("#robot-free")
+            expect(p.locator("#robot-state")).to_contain_text("hip not reached")
+            expect(p.locator("#robot-state")).to_contain_text("may still hold")
+            until(lambda: upper.sim.servo(1).free, "the neck was not freed")
+            assert not lower.sim.servo(1).free  # (its line is lost: nothing reaches it)
+            expect(p.locator('tr[data-joint="neck"] .target')).to_have_text("free")
+            # Reconnect follows the freeing: nothing to ask about, and it frees the joint it could not reach.
+            expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+            expect(p.locator("#robot-reopen")).to_be_visible()
+            lower.sim.replug()
+            p.click("#robot-reopen")
+            expect(p.locator("#robot-error")).to_have_text("")
+            expect(p.locator("#robot-state")).to_contain_text("hip freed")
+            until(lambda: lower.sim.servo(1).free, "the hip was not freed once its line was back")
+            assert upper.sim.servo(1).free
+    finally:
+        lower.close()

@@ -770,3 +770,98 @@ def test_a_move_asked_as_motion_goes_off_does_not_start_once_the_last_motion_sto
             sim.named(name).close()
 
     asyncio.run(main())
+
+
+def two_line_robot(tmp_path: Path) -> tuple[str, Path]:
+    """Two lines of two ICS 3.5 joints each (upper: neck 1, arm 2; lower: hip 1, knee 2); the name of the lines."""
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2"\nrate_hz = 200\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.arm]\nline = "upper"\nid = 2\n'
+        '[joints.hip]\nline = "lower"\nid = 1\n[joints.knee]\nline = "lower"\nid = 2\n'
+    )
+    return name, path
+
+
+def test_free_all_while_a_line_is_lost_frees_the_other_lines_and_names_the_lost_ones(tmp_path: Path) -> None:
+    # A lost line closed the robot, and Free all was refused, while the other line's joints went on holding their
+    # last targets: a robot half-stopped could not be made limp.
+    name, path = two_line_robot(tmp_path)
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        try:
+            post(client, "/api/robot/motion", {"enabled": True})
+            post(client, "/api/robot/move", {"pose": {"neck": 10, "arm": 20, "hip": -10, "knee": 30}, "duration": 0.1})
+            wait_for(lambda: not any(s.free for s in (*upper.servos, *lower.servos)))
+            lower.unplug()
+            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+            early = post(client, "/api/robot/reopen")  # (before the line is back: the robot stays as it is)
+            assert early.status_code == 409 and "still lost" in early.json()["error"], early.json()
+            freed = post(client, "/api/robot/free")
+            assert freed.status_code == 200, freed.json()
+            # Confirmed on the wire when it answers: the upper line's servos are free now.
+            assert upper.servo(1).free and upper.servo(2).free
+            assert not lower.servo(1).free and not lower.servo(2).free  # (not reached: they hold on)
+            view = freed.json()
+            said = view["outcome"]
+            assert "hip, knee" in said and "may still hold" in said and "neck" not in said, said
+            assert [j["target"] for j in view["joints"]] == [None, None, None, None], view
+            # Reconnect follows the freeing: nothing to ask about, and nothing held again.
+            assert view["reconnect_choice"] is None, view
+            lower.replug()
+            reopened = post(client, "/api/robot/reopen")
+            assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
+            wait_for(lambda: all(s.free for s in (*upper.servos, *lower.servos)))
+            time.sleep(0.2)  # some cycles on the wire: nothing takes hold again
+            assert all(s.free for s in (*upper.servos, *lower.servos))
+            assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None] * 4
+        finally:
+            upper.close()
+            lower.close()
+
+
+def test_free_all_frees_a_lost_lines_ics36_joint_at_reconnect(tmp_path: Path) -> None:
+    # An ICS 3.6 joint is read at an open, its torque left as it is: freed by Free all while its line was lost, it
+    # went on holding after Reconnect.
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1&ics36=1"\nrate_hz = 200\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.tail]\nline = "lower"\nid = 1\n'
+    )
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        try:
+            post(client, "/api/robot/motion", {"enabled": True})
+            post(client, "/api/robot/move", {"pose": {"neck": 10, "tail": 30}, "duration": 0.1})
+            wait_for(lambda: lower.servo(1).target == degrees_to_position(30) and not upper.servo(1).free)
+            lower.unplug()
+            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+            assert post(client, "/api/robot/free").status_code == 200
+            assert upper.servo(1).free and not lower.servo(1).free
+            lower.replug()
+            assert post(client, "/api/robot/reopen").json()["open"]
+            wait_for(lambda: lower.servo(1).free)
+        finally:
+            upper.close()
+            lower.close()
+
+
+def test_free_all_on_a_robot_whose_only_line_is_lost_answers_at_once(robot: Any) -> None:
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: not line.servo(1).free and not line.servo(2).free)
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    freed = post(client, "/api/robot/free")
+    assert freed.status_code == 200 and "shoulder, elbow" in freed.json()["outcome"], freed.json()
+    line.replug()
+    assert post(client, "/api/robot/reopen").json()["open"]
+    wait_for(lambda: line.servo(1).free and line.servo(2).free)

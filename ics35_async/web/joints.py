@@ -17,6 +17,7 @@ from typing import Any
 
 from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
 from ..bus import Bus
+from ..engine import State
 from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
@@ -26,6 +27,10 @@ from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
 from ..units import check_seconds
+
+# How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
+# longest, 0.4 s, with room for a loaded machine) before it says the line is still lost.
+RECONNECT_WAIT = 2.0
 
 
 class RobotSession:
@@ -63,6 +68,10 @@ class RobotSession:
         self._stopped_because = ""  # why the motion playing was stopped, if not by Stop
         self._holder: asyncio.Task[None] | None = None  # the task holding the robot open (see open)
         self._closing = asyncio.Event()
+        # The robot a lost line stopped, kept open until Reconnect (its lines reconnect by themselves): the lines
+        # still there stream on, so Free all reaches their joints and sees it on the wire (see free).
+        self._stopped: Robot | None = None
+        self._free_at_reopen: list[str] = []  # joints Free all could not reach (a lost line's): freed at Reconnect
 
     async def open(self) -> None:
         """Open the robot's lines (an error is kept for the page, not raised): a task of its own holds the
@@ -89,9 +98,20 @@ class RobotSession:
 
         Raises:
             InvalidArgument: ``lost_joints`` is not "hold" or "free" while the lost line had holding joints.
+            UnsafeOperation: the lost line is not back (the robot a lost line stopped stays as it is).
         """
         if self.robot is not None:
             return
+        if self._stopped is not None:
+            # Its lost line reopens by itself once its port is back (within a reconnect delay of it): until then
+            # the robot stays as it is, not closed for an open that would fail (Free all would reach nothing).
+            still = await _still_lost(self._stopped, RECONNECT_WAIT)
+            if still:
+                raise UnsafeOperation(
+                    f"line {', '.join(still)} is still lost (its port is not back): plug it back in, then press "
+                    "Reconnect; meanwhile Free all reaches the joints on the other lines"
+                )
+            self._carry_on_from(self._stopped)  # (as it is now: a safety stop since, a joint back held)
         pose = dict(self.start_pose)
         if self.lost_pose:
             if lost_joints not in ("hold", "free"):
@@ -104,20 +124,30 @@ class RobotSession:
                 pose.update(self.lost_pose)
         await self.close()
         await self._open(pose)
-        if self.robot is not None:
+        robot = self.robot
+        if robot is not None:
             # The state line said how the robot was before the line went ("joints hold where they stand", a
             # motion's end): the lost line's holding joints may be free now, so it says what they do instead.
             lost = ", ".join(self.lost_pose)
             done = "hold their last targets" if lost_joints == "hold" else "start free"
-            self.outcome = f"reconnected; {lost} {done}" if lost else "reconnected"
+            said = [f"{lost} {done}"] if lost else []
+            unreached, self._free_at_reopen = self._free_at_reopen, []
+            if unreached:
+                # Free all was asked while their line was lost: an ICS 3.6 joint read at the open keeps its torque.
+                with contextlib.suppress(IcsError):
+                    await robot.free(unreached)
+                said.append(f"{', '.join(unreached)} freed, as Free all asked")
+            self.outcome = "; ".join(["reconnected", *said])
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
 
     async def _hold(self, opened: asyncio.Event, closing: asyncio.Event, start_pose: dict[str, float]) -> None:
         # No RobotWarning from the open (this task's own context): issued in the server's loop, it would point
         # into asyncio; the server says self.warnings in its own words, as it does the other start-up problems.
         warn_at_open.set(False)
+        # reconnect: a lost line leaves the others streaming (see _stop_at_loss), its own reopened once it is back.
+        options = {**self.options, "reconnect": True}
         try:
-            async with open_robot(self.description, on_close="hold", start_pose=start_pose, **self.options) as robot:
+            async with open_robot(self.description, on_close="hold", start_pose=start_pose, **options) as robot:
                 for stop in self.kept_trips:  # (before anyone can move it: motion is off until the page's switch)
                     # Told as a "free" stop: the joint is free already, and "stop" would free the others too.
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
@@ -127,26 +157,41 @@ class RobotSession:
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
+                lost = asyncio.ensure_future(_lost_lines(robot))
                 try:
-                    done, _ = await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
-                finally:  # (cancelled too, if this task is: neither is left pending)
-                    asked.cancel()
-                    ended.cancel()
-                lost = ended in done and not closing.is_set()
-                if lost:
-                    why = error_text(ended.result())
-                    self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
-            if lost:  # (once the robot is closed: a line lost during the close-out is known lost too)
-                self._carry_on_from(robot)
+                    done, _ = await asyncio.wait({asked, ended, lost}, return_when=asyncio.FIRST_COMPLETED)
+                    if lost in done and lost.result() and not closing.is_set():
+                        await self._stop_at_loss(robot, lost.result())
+                    # Kept open, its other lines streaming, until Reconnect or the server's end (or until its
+                    # lines end: a lost port that could not be reopened).
+                    await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
+                    if ended.done() and not closing.is_set() and self._stopped is None:
+                        why = error_text(ended.result())
+                        self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
+                        self._carry_on_from(robot)
+                finally:  # (cancelled too, if this task is: none is left pending)
+                    for task in (asked, ended, lost):
+                        task.cancel()
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
         finally:
-            self.robot = None
+            self.robot = self._stopped = None
             self.motion_enabled = False
             opened.set()
 
+    async def _stop_at_loss(self, robot: Robot, lines: list[str]) -> None:
+        """Line(s) ``lines`` lost their port: the page's robot stops (motion off, what plays slowed to rest on the
+        lines left, nothing moved until Reconnect), kept open so that Free all still reaches the other lines."""
+        self.robot, self._stopped = None, robot
+        self.motion_enabled, self._motion_page = False, None
+        ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
+        self.error = f"the robot stopped: line {ports} lost its port; with the line back, press Reconnect"
+        await self._stop(why=f"line {', '.join(lines)} was lost", robot=robot)
+        self._carry_on_from(robot)
+
     def _carry_on_from(self, robot: Robot) -> None:
-        """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has ended ``robot``."""
+        """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has stopped ``robot`` (and again
+        once Free all has freed joints, and at Reconnect: what it is then)."""
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
         # A joint held since its servo answered again was sent nothing: its servo may have restarted (free and
         # elsewhere: its old target would throw it there) or kept its power (holding: freeing it drops what it
@@ -154,7 +199,12 @@ class RobotSession:
         held = robot.held
         targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
-        self.lost_lines = [line for line, bus in robot.group.buses.items() if bus.port_lost]
+        # (a line back by itself since keeps its place: its joints are held, sent nothing, until Reconnect)
+        self.lost_lines = [
+            line
+            for line, bus in robot.group.buses.items()
+            if line in self.lost_lines or bus.port_lost or bus.state is State.LOST
+        ]
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
         # no reading clears it): a new robot knows nothing of it, and would let the next move drive the joint into
         # the load that tripped it.  (The other stops clear, or trip again, by the new robot's own readings.)
@@ -246,7 +296,9 @@ class RobotSession:
         # Sent nothing since their servo answered again (or their line came back), and why: the target they
         # had is not where they are (restarted, free and elsewhere), so the page says so beside it.
         held = {} if robot is None else robot.held
-        targets = self.last_targets if robot is None else robot.targets
+        # (the robot a lost line stopped: its targets as they are now, a joint freed since included)
+        kept = robot or self._stopped
+        targets = self.last_targets if kept is None else kept.targets
         joints = []
         for name, spec in self.description.joints.items():
             offline = frame is not None and name in frame.offline
@@ -387,17 +439,18 @@ class RobotSession:
         await self.settled()
         await self._stop(ramp, why)
 
-    async def _stop(self, ramp: float = 0.3, why: str = "") -> None:
+    async def _stop(self, ramp: float = 0.3, why: str = "", robot: Robot | None = None) -> None:
         jobs = [task for task in self._jobs if not task.done()]
         self._jobs.clear()
+        robot = self.robot if robot is None else robot
         if jobs:
             self._stopped_because = why
             for task in jobs:
                 task.cancel()
             await asyncio.wait(jobs)  # (each one's end is its own: see _run)
-            if self.robot is not None:
+            if robot is not None:
                 with contextlib.suppress(IcsError):
-                    await self.robot.stop(ramp)
+                    await robot.stop(ramp)
 
     def reset_trip(self, joint: object) -> None:
         """The person says a tripped joint's cause is dealt with (``Robot.reset_trip``: a current trip of a joint
@@ -410,10 +463,17 @@ class RobotSession:
     async def free(self, joint: object = None) -> None:
         """Every joint free (torque off: a motion playing stops at once, and motion goes off), or only ``joint``
         (one held since its servo answered again: freed, it is read where it stands and may be moved from there;
-        a motion playing goes on with the others)."""
+        a motion playing goes on with the others).
+
+        Every joint, with the robot stopped by a lost line: those on the lines still there are freed on the wire,
+        the lost line's are named (their servos may still hold) and freed once their line is back (Reconnect).
+        """
         if joint is None:
             await self.stop(ramp=0.0)
             self.motion_enabled = False
+            if self.robot is None and self._stopped is not None:
+                await self._free_stopped(self._stopped)
+                return
             await self._robot().free()
             self.outcome = "joints free"  # (the page's state line: no longer how the last motion ended)
             return
@@ -421,6 +481,74 @@ class RobotSession:
             raise InvalidArgument(f"joint must be a joint's name, not {type(joint).__name__}")
         await self._robot().free([joint])
         self.outcome = f"joint {joint} free"
+
+    async def _free_stopped(self, robot: Robot) -> None:
+        """Free all on the robot a lost line stopped (see free)."""
+        lost = _on_lost_lines(robot)
+        # The lost line's joints take the free now (their streams send it once the line is back); the others'
+        # is waited for on the wire (a lost line's is not: it answers nothing).
+        robot.set_targets(dict.fromkeys(lost), allow_free=True)
+        await robot.free([name for name in robot.joints if name not in lost])
+        self._free_at_reopen = sorted(set(self._free_at_reopen) | set(lost), key=list(robot.joints).index)
+        self._carry_on_from(robot)  # (Reconnect holds none of them now)
+        if not lost:
+            self.outcome = "joints free"
+            return
+        names = ", ".join(self._free_at_reopen)
+        one = len(self._free_at_reopen) == 1
+        lines = ", ".join(self.lost_lines)
+        self.outcome = (
+            f"joints free on the lines still there; {names} not reached (line {lines} lost): "
+            f"{'its servo' if one else 'their servos'} may still hold; once the line is back, Reconnect frees "
+            f"{'it' if one else 'them'}"
+        )
+
+
+async def _still_lost(robot: Robot, seconds: float) -> list[str]:
+    """``robot``'s lines still lost after up to ``seconds`` (each back sooner ends the wait sooner)."""
+
+    def lost() -> list[str]:
+        return [name for name, bus in robot.group.buses.items() if bus.state is State.LOST]
+
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(seconds):
+            while names := lost():
+                await robot.group.buses[names[0]].state_change()
+    return lost()
+
+
+def _on_lost_lines(robot: Robot) -> list[str]:
+    """``robot``'s joints on a line whose port is lost now (reconnecting)."""
+    buses = robot.group.buses
+    return [name for name, joint in robot.joints.items() if buses[joint.line].state is State.LOST]
+
+
+async def _lost_lines(robot: Robot) -> list[str]:
+    """Returns the names of ``robot``'s lines once one has lost its port (reconnecting, or back already)."""
+    buses = robot.group.buses
+    before = {name: bus.stats.reconnects for name, bus in buses.items()}
+
+    def lost() -> list[str]:
+        return [
+            name
+            for name, bus in buses.items()
+            if bus.state is State.LOST or bus.stats.reconnects != before[name] or bus.port_lost
+        ]
+
+    waits = [asyncio.ensure_future(bus.state_change()) for bus in buses.values()]
+    try:
+        while not lost():
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+            if any(task.done() and task.result() is State.CLOSED for task in waits):
+                break  # (the robot's end: its caller waits for that)
+            waits = [
+                task if not task.done() else asyncio.ensure_future(bus.state_change())
+                for task, bus in zip(waits, buses.values(), strict=True)
+            ]
+    finally:
+        for task in waits:
+            task.cancel()
+    return lost()
 
 
 def _check_ready(robot: Robot, joints: Iterable[str]) -> None:

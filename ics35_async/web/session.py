@@ -193,14 +193,13 @@ class LineSession:
         bus = self.bus
         state = "closed" if bus is None else bus.state.value
         error = self.error
-        if error is None and self.robot_line is not None and self.robot is not None and self.robot.robot is None:
-            # The robot's line closed with the robot (a line lost, this one or another): why, and the way back.
-            error = f"{self.robot.error or 'the robot is not open'} (on the Robot page)"
+        if error is None:
+            error = self._robot_stopped()
         return {
             "port": self.config.port,
             "baud": self.config.baud,
             "simulator": self.config.is_sim,
-            "connected": bus is not None and bus.is_open,
+            "connected": bus is not None and bus.is_open and self._robot_stopped() is None,
             "state": state,
             "lost": bus is not None and bus.state is State.LOST,
             "error": error,
@@ -347,7 +346,18 @@ class LineSession:
     def line(self) -> Bus:
         if self.bus is None or not self.bus.is_open:
             raise BusClosed("not connected: choose a port and press Connect on the Line page")
+        stopped = self._robot_stopped()
+        if stopped is not None:
+            raise BusClosed(f"not connected: {stopped}")
         return self.bus
+
+    def _robot_stopped(self) -> str | None:
+        """Why the robot's line the pages work on is not theirs now, and the way back: the robot is not open (a
+        line lost, this one or another).  The robot a lost line stopped keeps its other lines streaming until
+        Reconnect (see RobotSession.free): the pages work on none of them meanwhile."""
+        if self.robot_line is None or self.robot is None or self.robot.robot is not None:
+            return None
+        return f"{self.robot.error or 'the robot is not open'} (on the Robot page)"
 
     async def _line_at_its_rate(self) -> Bus:
         """The line, at the rate the page connected at (called holding :attr:`exclusive`).
