@@ -865,3 +865,16 @@ def test_free_all_on_a_robot_whose_only_line_is_lost_answers_at_once(robot: Any)
     line.replug()
     assert post(client, "/api/robot/reopen").json()["open"]
     wait_for(lambda: line.servo(1).free and line.servo(2).free)
+
+
+def test_stop_with_the_robot_stopped_by_a_lost_line_says_how_it_stands_and_what_to_do(robot: Any) -> None:
+    # It answered with the robot's view, unchanged: the page said nothing, as if the robot had stopped on the press.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: not line.servo(1).free)
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+    answer = post(client, "/api/robot/stop")
+    said = answer.json()["error"]
+    assert answer.status_code == 409 and "not open" in said and "Free all" in said and "Reconnect" in said, said
+    assert "keep their last" in said, said

@@ -350,7 +350,7 @@ async def robot_play(request: Request, session: LineSession) -> Any:
 
 async def robot_stop(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
-    await robot.stop()
+    await robot.press_stop()
     return robot.view()
 
 

@@ -439,6 +439,23 @@ class RobotSession:
         await self.settled()
         await self._stop(ramp, why)
 
+    async def press_stop(self) -> None:
+        """The page's Stop (see :meth:`stop`).
+
+        Raises:
+            UnsafeOperation: the robot is not open (nothing plays): how it stands, and what the person can do.
+        """
+        if self.robot is None:
+            if self._stopped is not None:  # (kept: its other lines stream on, see free)
+                todo = "Free all lets go of those on the lines still there; Reconnect opens the robot again"
+            else:
+                todo = "Reconnect opens the robot again (Free all then lets them go)"
+            raise UnsafeOperation(
+                f"nothing to stop: the robot is not open ({self.error or 'closed'}); nothing plays, and its joints "
+                f"keep their last commands (a holding joint holds): {todo}"
+            )
+        await self.stop()
+
     async def _stop(self, ramp: float = 0.3, why: str = "", robot: Robot | None = None) -> None:
         jobs = [task for task in self._jobs if not task.done()]
         self._jobs.clear()
