@@ -852,7 +852,10 @@ def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser:
         line.sim.unplug()
         expect(p.locator("#robot-error")).to_contain_text("lost")
         expect(p.locator("#robot-reopen-choice")).to_be_visible()  # elbow held a target: the page asks
-        expect(p.locator("#robot-reopen-question")).to_contain_text("elbow had targets")
+        # (one joint: its grammar, not "elbow had targets their servos may no longer hold")
+        question = "Line arm was lost. elbow had a target its servo may no longer hold"
+        expect(p.locator("#robot-reopen-question")).to_contain_text(question)
+        expect(p.locator("#robot-reopen-question")).to_contain_text("If its servo kept its power it still holds it")
         expect(p.locator("#robot-reopen")).to_be_hidden()
         expect(p.locator("#robot-motion")).to_be_disabled()
         line.sim.replug()
@@ -900,31 +903,35 @@ def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints
 ) -> None:
     # A lost line closed the robot, and Free all was refused, while the other line's joints held their last
     # targets: a robot half-stopped could not be made limp at once.
-    upper, lower = PtyLine((1,)), PtyLine((1,))
+    upper, lower = PtyLine((1,)), PtyLine((1, 2))
     robot = tmp_path / "two.toml"
     robot.write_text(
         f'[lines.upper]\nport = "{upper.path}"\n[lines.lower]\nport = "{lower.path}"\n'
         '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+        '[joints.knee]\nline = "lower"\nid = 2\n'
     )
     try:
         with web_server_page(browser, upper, ["--robot", str(robot)]) as p:
             p.click("#robot-link")
-            for name in ("neck", "hip"):  # (read, so that motion on holds them where they stand)
+            for name in ("neck", "hip", "knee"):  # (read, so that motion on holds them where they stand)
                 expect(p.locator(f'tr[data-joint="{name}"] .angle')).to_have_text(re.compile(r"^-?\d"))
             p.check("#robot-motion")
             expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-            until(lambda: not upper.sim.servo(1).free and not lower.sim.servo(1).free, "the joints never held")
+            servos = (upper.sim.servo(1), lower.sim.servo(1), lower.sim.servo(2))
+            until(lambda: not any(servo.free for servo in servos), "the joints never held")
             lower.sim.unplug()
             expect(p.locator("#robot-error")).to_contain_text("lost")
             expect(p.locator("#robot-reopen-choice")).to_be_visible()
+            question = "Line lower was lost. hip, knee had targets their servos may no longer hold"
+            expect(p.locator("#robot-reopen-question")).to_contain_text(question)
             p.click("#robot-stop")  # (it said nothing: the robot is not open, nothing plays)
             expect(p.locator("#message")).to_contain_text("nothing to stop: the robot is not open")
             expect(p.locator("#message")).to_contain_text("Free all")
             p.click("#robot-free")
-            expect(p.locator("#robot-state")).to_contain_text("hip not reached")
-            expect(p.locator("#robot-state")).to_contain_text("may still hold")
+            expect(p.locator("#robot-state")).to_contain_text("hip, knee not reached")
+            expect(p.locator("#robot-state")).to_contain_text("their servos may still hold")
             until(lambda: upper.sim.servo(1).free, "the neck was not freed")
-            assert not lower.sim.servo(1).free  # (its line is lost: nothing reaches it)
+            assert not lower.sim.servo(1).free and not lower.sim.servo(2).free  # (their line is lost)
             expect(p.locator('tr[data-joint="neck"] .target')).to_have_text("free")
             # Reconnect follows the freeing: nothing to ask about, and it frees the joint it could not reach.
             expect(p.locator("#robot-reopen-choice")).to_be_hidden()
@@ -932,8 +939,8 @@ def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints
             lower.sim.replug()
             p.click("#robot-reopen")
             expect(p.locator("#robot-error")).to_have_text("")
-            expect(p.locator("#robot-state")).to_contain_text("hip freed")
-            until(lambda: lower.sim.servo(1).free, "the hip was not freed once its line was back")
+            expect(p.locator("#robot-state")).to_contain_text("hip, knee freed")
+            until(lambda: all(servo.free for servo in servos), "the lower line was not freed once it was back")
             assert upper.sim.servo(1).free
     finally:
         lower.close()

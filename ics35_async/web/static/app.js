@@ -783,7 +783,7 @@ function onRobot(r) {
   const choice = r.open ? null : r.reconnect_choice;
   $("#robot-reopen").hidden = r.open || Boolean(choice);
   $("#robot-reopen-choice").hidden = !choice;
-  $("#robot-reopen-question").textContent = choice ? `Line ${choice.lines.join(", ")} was lost. ${choice.joints.join(", ")} had targets their servos may no longer hold (on the lost line, or held since their servo answered again). If their servos kept their power they still hold them; if they restarted, they are free somewhere else.` : "";
+  $("#robot-reopen-question").textContent = choice ? reconnectQuestion(choice) : "";
   $("#robot-motion").disabled = !r.open;
   $("#robot-cycle").textContent = r.cycle ?? "-";
   if (!state.motionAsked) $("#robot-motion").checked = r.motion_enabled;  // not over a tick the server has yet to take
@@ -837,6 +837,18 @@ function onRobot(r) {
     slider.disabled = !r.motion_enabled;
     if (document.activeElement !== slider && sliderAt(j) !== null) slider.value = sliderAt(j);
   }
+}
+
+// Reconnect's question, worded for one joint or several (and one line or several).
+function reconnectQuestion(choice) {
+  const lost = choice.lines.length === 1 ? `Line ${choice.lines[0]} was lost.` : `Lines ${choice.lines.join(", ")} were lost.`;
+  const joints = choice.joints.join(", ");
+  if (choice.joints.length === 1) {
+    return `${lost} ${joints} had a target its servo may no longer hold (on the lost line, or held since its servo answered again). ` +
+      "If its servo kept its power it still holds it; if it restarted, it is free somewhere else.";
+  }
+  return `${lost} ${joints} had targets their servos may no longer hold (on the lost line, or held since their servo answered again). ` +
+    "If their servos kept their power they still hold them; if they restarted, they are free somewhere else.";
 }
 
 // Where a joint's slider stands: its target; a free joint's, where it is (not the target it had before it was
