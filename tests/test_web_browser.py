@@ -944,3 +944,64 @@ def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints
             assert upper.sim.servo(1).free
     finally:
         lower.close()
+
+
+def test_the_robot_page_of_a_server_started_again_with_a_new_token_shows_nothing_live(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # The server stopped and started again with a new token before the page had noticed: the page said to open the
+    # new address, but its Robot page went on showing motion on (its sliders live) and the joints' angles as read.
+    with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
+        probe.bind(("127.0.0.1", 0))
+        listen = f"127.0.0.1:{probe.getsockname()[1]}"
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        '[lines.arm]\nport = "sim://again-arm?ids=1-2&realtime=1"\nrate_hz = 50\n'
+        '[joints.shoulder]\nline = "arm"\nid = 1\n[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+
+    def start() -> tuple[subprocess.Popen[str], str]:
+        command = [*WEB, "--listen", listen, "--robot", str(robot)]
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=environment)
+        assert proc.stdout is not None
+        return proc, proc.stdout.readline().strip()
+
+    first, url = start()
+    second: subprocess.Popen[str] | None = None
+    context = browser.new_context()
+
+    def restarted_first(route: Route) -> None:
+        # The page asks the server's status once its socket closes: the new server answers it, as it does when
+        # the restart is quicker than the page.
+        nonlocal second
+        if first.poll() is not None and second is None:
+            second, _ = start()
+        route.continue_()
+
+    try:
+        p = context.new_page()
+        p.goto(url)
+        p.route("**/api/status", restarted_first)
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        shoulder = p.locator("tr[data-joint='shoulder']")
+        expect(shoulder.locator("input[type=range]")).to_be_enabled()
+        expect(shoulder.locator(".angle")).to_have_text("0")
+        first.terminate()
+        first.wait(10)
+        expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
+        expect(p.locator("#robot-error")).to_contain_text("another token")
+        expect(p.locator("#robot-motion")).not_to_be_checked()
+        expect(p.locator("#robot-motion")).to_be_disabled()
+        expect(shoulder.locator("input[type=range]")).to_be_disabled()
+        expect(shoulder.locator(".angle")).to_have_text("-")
+        expect(p.locator("#robot-reopen")).to_be_hidden()  # (nothing this page can reconnect to)
+    finally:
+        context.close()
+        for proc in (first, second):
+            if proc is not None:
+                proc.terminate()
+                proc.wait(10)
+                assert proc.stdout is not None
+                proc.stdout.close()

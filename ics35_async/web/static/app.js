@@ -858,12 +858,13 @@ function sliderAt(j) {
 }
 
 // A row's own controls are a person's action as the page's buttons are (see on): the words about the last one go.
-// The server gone: nothing on the Robot page is live any more (its switch, a motion playing, the angles read).
-// Shown as a robot stopped by a lost line is, its joints at their last targets, with nothing to reconnect to.
-function robotGone() {
+// The server gone, or started again with another token (``why``): nothing on the Robot page is live any more (its
+// switch, a motion playing, the angles read). Shown as a robot stopped by a lost line is, its joints at their last
+// targets, with nothing to reconnect to.
+function robotGone(why = "the configurator's server is gone") {
   const joints = state.robot.joints.map((j) => ({ ...j, position: null, offline: false, temperature_c: null, current: null }));
   onRobot({ ...state.robot, open: false, cycle: null, motion_enabled: false, playing: null, reconnect_choice: null, joints,
-    error: "the configurator's server is gone: nothing here is read or sent (the joints keep their last commands)" });
+    error: `${why}: nothing here is read or sent (the joints keep their last commands)` });
   $("#robot-reopen").hidden = true;
 }
 
@@ -935,6 +936,8 @@ function connectSocket() {
       const words = "the configurator's server runs with another token now (it was started again): "
         + "open the address `ics35 web` printed, which carries it";
       if (!state.tokenRefused) say(words);
+      // (as gone: this page cannot read or send anything; a restart quicker than the page never showed it gone)
+      if (state.robot) robotGone("the configurator's server was started again with another token (open its new address)");
       state.tokenRefused = true;
       setTimeout(connectSocket, 5000);
       return;
