@@ -5,7 +5,9 @@ against the joints' limits there, motions are checked and played there, and
 its safety watch trips there; this module only keeps the robot open while the
 server runs, refuses to move joints until the page switches motion on (and
 switches it off again once that page is gone), and runs a motion in the
-background so the page stays live while it plays.
+background so the page stays live while it plays.  A lost line stops the
+page's robot until Reconnect, but keeps it open (``reconnect=True``): freeing
+still goes through ``Robot.free`` to the lines left.
 """
 
 from __future__ import annotations
