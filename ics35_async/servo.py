@@ -143,7 +143,7 @@ class Servo:
         """Whether this servo answers ICS 3.6's position read, if already probed on this line; else ``None``."""
         return _POSITION_READS.get(self._bus, {}).get(self.id)
 
-    async def has_position_read(self) -> bool:
+    async def has_position_read(self, *, silent_before: bool = False) -> bool:
         """Whether the servo speaks ICS 3.6 (answers the position read); probed once per line, then remembered.
 
         Nothing it sends moves or frees the servo.  A servo silent to the
@@ -151,12 +151,18 @@ class Servo:
         servo silent to both raises :class:`ReplyTimeout` (and is probed
         again next time).
 
+        Args:
+            silent_before: the caller's own read of this servo (a whole reply allowance) has just gone
+                unanswered: a silent probe then raises ReplyTimeout at once, the parameter read that tells
+                ICS 3.5 from no servo left out (two silences in a row already say nothing answers; that read,
+                and the guard read before it, would each wait a whole allowance more).
+
         Raises:
             ReplyError, BusClosed, PortLost: no valid reply, or the line is closed or gone (see the class).
         """
         known = self.known_position_read()
         if known is None:
-            await self._probe_position()
+            await self._probe_position(silent_before=silent_before)
             known = self.known_position_read()
         return bool(known)
 
@@ -192,8 +198,9 @@ class Servo:
         """
         return units.position_to_degrees(await self.read_position())
 
-    async def _probe_position(self) -> int | None:
-        """Probe the position read: the position (ICS 3.6), or ``None`` (ICS 3.5); the answer is remembered."""
+    async def _probe_position(self, *, silent_before: bool = False) -> int | None:
+        """Probe the position read: the position (ICS 3.6), or ``None`` (ICS 3.5); the answer is remembered.
+        ``silent_before``: see :meth:`has_position_read`."""
         # A probe's short wait (Timing.PROBE) is what makes silence cheap and keeps it from teaching
         # the link to wait longer. Silence twice, with a parameter read answered in between (so the
         # servo is there), is ICS 3.5: one lost reply of an ICS 3.6 servo does not decide it.
@@ -207,6 +214,8 @@ class Servo:
             except ReplyTimeout:
                 silences += 1
                 if silences == 1:
+                    if silent_before:
+                        raise
                     await self._read(Param.STRETCH)  # silent too: no servo here, and nothing remembered
                     continue
                 _POSITION_READS.setdefault(self._bus, {})[self.id] = False

@@ -115,6 +115,21 @@ def test_an_ics35_servo_raises_a_typed_error_and_is_probed_once() -> None:
     assert sent.count("read_position") == 2  # two silences decide it, once
 
 
+def test_after_the_callers_own_silent_read_one_silent_probe_says_no_servo_and_an_answer_still_counts() -> None:
+    # silent_before: the caller's full-allowance read just went unanswered (a robot's EEPROM read at open).
+    sim = VirtualLine([1], ics36=[1], log_size=None)
+
+    async def body(bus: Any) -> None:
+        with pytest.raises(ReplyTimeout):
+            await bus.servo(5).has_position_read(silent_before=True)
+        assert bus.servo(5).known_position_read() is None  # nothing remembered: asked again next time
+        assert await bus.servo(1).has_position_read(silent_before=True) is True  # its reply was only lost
+
+    run(sim, body)
+    assert commands(sim, 5) == ["read_position"]  # no parameter read, nor the guard read before it
+    assert commands(sim, 1) == ["read_position"]
+
+
 def test_the_fault_log_tells_a_probes_silence_from_a_servo_that_should_have_answered(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -133,6 +133,50 @@ def test_ics35_joints_start_free_unless_their_pose_is_stated() -> None:
     assert torque_commands(rig, "neck") == torque_commands(rig, "hip") == []
 
 
+def commands_to(rig: Rig, line: str, servo_id: int) -> list[str]:
+    return [t.command for t in rig.sim(line).log_since(0) if t.servo_id == servo_id]
+
+
+# What the open sends a present servo before the stream's first command: its EEPROM read, then the position-read
+# probe: an ICS 3.6 servo answers it; an ICS 3.5 one stays silent twice around a parameter read it answers (the
+# read the probe asks for, after the guard read a silent probe calls for).
+PRESENT_ICS36 = ["read_eeprom", "read_position"]
+PRESENT_ICS35 = ["read_eeprom", "read_position", "read_speed", "read_stretch", "read_position"]
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_an_absent_joint_costs_the_open_one_reply_allowance_and_the_watch_none() -> None:
+    # Each read of a silent ID waits a whole allowance (an adapter's latency, --timeout): a robot with unplugged
+    # legs must not wait several of them a joint.  The EEPROM read's silence and one short probe say the servo
+    # is not there; the safety watch reads nothing of a servo never heard from (it has nothing to watch).
+    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+    rig.upper.remove_servo(2)  # shoulder unplugged
+    rig.lower.remove_servo(2)  # knee unplugged
+
+    async def body(robot: Robot) -> None:
+        pose = await robot.read_pose()  # (once the absent ones are offline)
+        assert set(pose) == {"neck", "elbow", "hip"}
+        assert robot.start_modes == {"neck": "read", "shoulder": "free", "elbow": "free", "hip": "read", "knee": "free"}
+        for _ in range(3):  # a few telemetry rounds more
+            await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+
+    run_robot(rig, body, probe_interval=60.0)
+    for line in ("upper", "lower"):
+        sent = commands_to(rig, line, 2)
+        stream = sent.index("free")
+        assert sent[:stream] == ["read_eeprom", "read_position"], line  # one full allowance, one short probe
+        assert set(sent[stream:]) == {"free"}, line  # the stream's short waits only, until it is offline
+    # The servos that answer are checked as fully as ever.
+    for line, servo_id, expected in (
+        ("upper", 1, PRESENT_ICS36),
+        ("upper", 3, PRESENT_ICS35),
+        ("lower", 1, PRESENT_ICS36),
+    ):
+        sent = commands_to(rig, line, servo_id)
+        assert sent[: len(expected)] == expected, (line, servo_id)
+        assert {"read_temperature", "read_current"} <= set(sent), (line, servo_id)  # watched
+
+
 @pytest.mark.parametrize(
     ("pose", "phrase"),
     [

@@ -130,6 +130,11 @@ class Robot:
         :meth:`reset_trip`."""
         return dict(self._latched)
 
+    def has_answered(self, joint: str) -> bool:
+        """Whether ``joint``'s servo has answered since the robot opened (a position, or a probe once offline):
+        only such a joint is under control, its going offline a safety matter and its telemetry read."""
+        return joint in self._answered
+
     def joint_names(self, joints: Iterable[str] | None) -> list[str]:
         """``joints`` checked and as a list (``None``: every joint; a string: that one).
 

@@ -6,7 +6,9 @@ line (round robin), at low priority, so the reads slip in between the
 stream's position transactions.  A *telemetry round* is every joint of a
 line read once; a joint crossing a threshold is reported within one round.
 A joint the stream has marked offline is skipped (each read of a dead ID
-costs a whole reply timeout); the robot itself watches offline joints.
+costs a whole reply timeout); the robot itself watches offline joints.  So
+is one whose servo has not answered since the robot opened (an unplugged
+one): nothing of it is under control, and it answers nothing to read.
 """
 
 from __future__ import annotations
@@ -80,6 +82,8 @@ class WatchedRobot(Protocol):
 
     def clear_trip(self, joint: str, reasons: Sequence[str]) -> None: ...
 
+    def has_answered(self, joint: str) -> bool: ...
+
 
 class SafetyWatch:
     """Reads every joint's temperature and current between stream cycles and trips the robot's safety."""
@@ -117,7 +121,7 @@ class SafetyWatch:
                     k = (k + 1) % len(joints)
                     if k == 0:
                         self.rounds[line] += 1
-                    if joint.name not in frame.offline:
+                    if joint.name not in frame.offline and robot.has_answered(joint.name):
                         try:
                             await self._read(robot, joint, servos[joint.name])
                         except PortLost:

@@ -28,7 +28,7 @@ import anyio
 from .. import units
 from ..bus import BusOptions, open_bus
 from ..eeprom import Eeprom
-from ..errors import InvalidArgument, ReplyError
+from ..errors import InvalidArgument, ReplyError, ReplyTimeout
 from ..group import BusGroup, GroupStream
 from ..protocol import FREE
 from ..stream import ON_CLOSE
@@ -157,9 +157,8 @@ async def _robot_session(
             await stack.enter_async_context(bus)
         group = BusGroup(buses)
         robot = Robot(description, group)
-        if check_limits:
-            await check_servo_limits(robot)
-        readable = await _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated))
+        silent = (await _check_limits(robot))[1] if check_limits else set()
+        readable = await _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated), silent)
         streams = {
             line: group[line].stream(
                 [j.id for j in description.joints_on(line)],
@@ -236,8 +235,10 @@ def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | 
         raise InvalidArgument(f"start_pose: {exc}") from None
 
 
-async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]:
-    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything)."""
+async def _position_reads(robot: Robot, joints: Iterable[JointSpec], silent: set[str]) -> set[str]:
+    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything).
+    ``silent``: the joints whose EEPROM read just got no reply: one silent probe more says they are absent
+    (an unplugged leg then costs its joints one allowance each, not three)."""
     found: set[str] = set()
     by_line: dict[str, list[JointSpec]] = {}
     for joint in joints:
@@ -246,7 +247,8 @@ async def _position_reads(robot: Robot, joints: Iterable[JointSpec]) -> set[str]
     async def probe_line(line: str) -> None:
         for joint in by_line[line]:
             with contextlib.suppress(ReplyError):  # silent or garbled: it starts free, as ICS 3.5 does
-                if await robot.group[line].servo(joint.id).has_position_read():
+                servo = robot.group[line].servo(joint.id)
+                if await servo.has_position_read(silent_before=joint.name in silent):
                     found.add(joint.name)
 
     async with task_group() as tasks:
@@ -262,7 +264,13 @@ robot opens on a loop thread, whose stack holds no line of the program."""
 
 async def check_servo_limits(robot: Robot) -> list[str]:
     """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
+    return (await _check_limits(robot))[0]
+
+
+async def _check_limits(robot: Robot) -> tuple[list[str], set[str]]:
+    """:func:`check_servo_limits`'s warnings, and the joints whose servo sent no reply at all (ReplyTimeout)."""
     found: list[str] = []
+    unanswered: set[str] = set()
 
     async def check_line(line: str) -> None:
         silent: list[JointSpec] = []
@@ -272,6 +280,8 @@ async def check_servo_limits(robot: Robot) -> list[str]:
                 eeprom = await robot.group[joint.line].servo(joint.id).read_eeprom()
             except ReplyError as exc:
                 silent.append(joint)
+                if isinstance(exc, ReplyTimeout):  # (a garbled reply: something is there)
+                    unanswered.add(joint.name)
                 why = why or str(exc)
                 continue
             # A warning, not a refusal: opening moves nothing, and the servo clamps to its pulse limits anyway.
@@ -297,7 +307,7 @@ async def check_servo_limits(robot: Robot) -> list[str]:
         robot.warnings.append(message)
         if warn_at_open.get():
             warn_program(message)
-    return found
+    return found, unanswered
 
 
 def warn_program(message: str) -> None:
