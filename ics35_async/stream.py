@@ -162,6 +162,9 @@ class Stream(FrameIterator[Frame]):
         self._every_slot = list(range(n))
         self._fail_run = [0] * n
         self._failures = [0] * n
+        # Slots a transaction has been handed out for (to the wire, answered or not): what a program cut short as
+        # its stream began can tell (see reached).
+        self._reached = [False] * n
         self._offline = [False] * n
         self._next_probe = [0.0] * n
         # Slots that have answered a watch read (ICS 3.6's position read): one watched that goes offline unheard
@@ -395,6 +398,13 @@ class Stream(FrameIterator[Frame]):
         return {sid: why for sid, why in zip(self.ids, self._held, strict=True) if why}
 
     @property
+    def reached(self) -> frozenset[int]:
+        """IDs the stream has sent a transaction to so far (its target, ICS 3.6's read or an offline ID's probe),
+        answered or not: those never reached have heard nothing from it (the close's commands aside: see
+        :attr:`targets_sent_on_close`)."""
+        return frozenset(sid for sid, reached in zip(self.ids, self._reached, strict=True) if reached)
+
+    @property
     def offline(self) -> frozenset[int]:
         """IDs out of the cycle after failing ``offline_after`` cycles in a row (probed every ``probe_interval``)."""
         return frozenset(sid for sid, off in zip(self.ids, self._offline, strict=True) if off)
@@ -417,6 +427,7 @@ class Stream(FrameIterator[Frame]):
             return None
         k = self._order[self._pos]
         self._cur = k
+        self._reached[k] = True
         # The reply is read as the command sent (set_targets or watch may change it meanwhile).
         self._cur_reader = self._readers[k]
         self._cur_job = job = self._jobs[k]
@@ -455,6 +466,8 @@ class Stream(FrameIterator[Frame]):
                     ends.add(len(slots) - 1)
         with self._slot_lock:  # (a target set now goes to _stale, renewed once the burst is over)
             self._frozen.update(slots[1:])
+        for k in slots:  # (on the wire as planned, whether or not the burst runs to its end)
+            self._reached[k] = True
         jobs, readers, shapes = self._jobs, self._readers, self._shapes
         # (a watched ID's reply is read by the codec's ICS 3.6 read, which gives no shape: a burst ends there)
         return [(*jobs[k], b"" if readers[k] is not None else shapes[k], i in ends) for i, k in enumerate(slots)]

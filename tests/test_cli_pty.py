@@ -615,6 +615,92 @@ def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(t
     assert code == 0 and log.read_bytes() == b""
 
 
+ARM_WITH_AN_UNPLUGGED_HAND = """\
+[lines.main]
+port = "sim://{name}?ids=1-2&realtime=1&record={record}"
+
+[joints.a]
+line = "main"
+id = 1
+
+[joints.b]
+line = "main"
+id = 2
+
+[joints.hand]
+line = "main"
+id = 5
+"""
+
+
+def torque_commands_sent(record: Path) -> dict[int, list[int]]:
+    """Every position or free command in a simulator's recording, by ID (0: free), decoded from the wire bytes."""
+    from ics35_async.sim import load_recording
+
+    sent: dict[int, list[int]] = {}
+    for entry in load_recording(record):
+        if entry.tx[0] & 0xE0 == 0x80 and len(entry.tx) == 3:
+            sent.setdefault(entry.tx[0] & 0x1F, []).append((entry.tx[1] << 7) | entry.tx[2])
+    return sent
+
+
+def arm_interrupted_as_it_opens(tmp_path: Path, name: str, command: list[str], when: str) -> tuple[int, str, Path]:
+    """``command`` (with the robot file's path first) on the arm whose hand is unplugged, the reply allowance long
+    (its silent hand keeps the open waiting), Ctrl-C typed half a second after ``when`` is on the screen."""
+    record = tmp_path / "wire.txt"
+    robot = tmp_path / "arm.toml"
+    robot.write_text(ARM_WITH_AN_UNPLUGGED_HAND.format(name=name, record=record))
+    args = ["-v", "--timeout", str(scaled(3.0)), command[0], str(robot), *command[1:]]
+    code, written = typed_on_a_terminal(args, [(when, b""), (scaled(0.5), b"\x03")])
+    return code, written, record
+
+
+def test_ctrl_c_as_a_robot_command_reads_its_servos_says_nothing_was_sent_that_moves_or_frees_them(
+    tmp_path: Path,
+) -> None:
+    # Typed as the open waits for the unplugged hand's EEPROM: it said only "interrupted", and the person could
+    # not tell whether any servo had gone free.
+    code, written, record = arm_interrupted_as_it_opens(
+        tmp_path, "ctrl-c-open-reads", ["teach", str(tmp_path / "wave.json")], "opened sim://"
+    )
+    screen = screen_of(written)
+    said = "\n".join(screen)
+    assert code == 130, said
+    assert "Traceback" not in written, said
+    assert torque_commands_sent(record) == {}, said  # only reads went out
+    assert any(line.startswith("error: interrupted while opening the robot:") for line in screen), said
+    assert "no joint was sent anything that moves or frees it" in said.replace("\n", " "), said
+
+
+def test_ctrl_c_as_a_robot_command_waits_for_its_first_pose_names_the_joints_it_freed_and_those_it_holds(
+    tmp_path: Path,
+) -> None:
+    motion = tmp_path / "reach.json"
+    motion.write_text(
+        json.dumps(
+            {
+                "format": "ics35-motion",
+                "version": 1,
+                "keyframes": [{"time": 1.0, "pose": {"a": 10, "b": 10, "hand": 10}}],
+            }
+        )
+    )
+    # Typed once the open has started the stream (its warnings said), as it waits for the hand to go offline.
+    code, written, record = arm_interrupted_as_it_opens(
+        tmp_path, "ctrl-c-open-stream", ["play", str(motion), "--start-pose", "b=10"], "did not answer"
+    )
+    screen = screen_of(written)
+    said = "\n".join(screen)
+    assert code == 130, said
+    assert "Traceback" not in written, said
+    sent = torque_commands_sent(record)
+    assert set(sent[1]) == {0} and set(sent[5]) == {0}, sent  # a and the hand: freed, to read where they stand
+    assert 0 not in sent[2], sent  # b: its stated angle only
+    flat = said.replace("\n", " ")
+    assert any(line.startswith("error: interrupted while opening the robot:") for line in screen), said
+    assert "joints a, hand were freed" in flat and "joint b holds its stated angle" in flat, said
+
+
 @pytest.mark.parametrize("gap", [0.005, 0.01, 0.02, 0.03])
 def test_a_double_ctrl_c_in_calibrate_still_says_what_it_left(tmp_path: Path, gap: float) -> None:
     # The second press landed as the first one's message was being made: "aborted" was all it said (nothing

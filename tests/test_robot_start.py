@@ -177,6 +177,42 @@ def test_an_absent_joint_costs_the_open_one_reply_allowance_and_the_watch_none()
         assert {"read_temperature", "read_current"} <= set(sent), (line, servo_id)  # watched
 
 
+@pytest.mark.parametrize("on_close", ["hold", "free"])
+def test_the_block_tells_what_an_open_left_each_joint_in_as_the_wire_shows(on_close: str) -> None:
+    # What a program cut short as it opened (Ctrl-C) tells its person: which servos went limp, which were only read.
+    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+    said: dict[str, str] = {}
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            block = open_robot(rig.description, on_close=on_close, start_pose={"shoulder": 30.0}, **FAST)
+            said["before"] = block.joints_left()
+            async with block as robot:
+                await robot.read_pose()
+                said["open"] = block.joints_left()
+            said["closed"] = block.joints_left()
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert said["before"] == "no servo was sent anything (its lines were still being opened)"
+    freed = sorted(name for name in JOINTS if 0 in torque_commands(rig, name))
+    assert freed == (["elbow", "knee"] if on_close == "hold" else sorted(JOINTS))
+    assert torque_commands(rig, "neck") == torque_commands(rig, "hip") == ([] if on_close == "hold" else [0])
+    assert said["open"] == (
+        "joints elbow, knee were freed to read where they stand; joint shoulder holds its stated angle; "
+        "joints neck, hip were left as they were (only read)"
+    )
+    if on_close == "hold":
+        assert said["closed"] == said["open"]
+    else:  # (the shoulder: its stated angle, then the close's free)
+        assert (
+            said["closed"]
+            == "joints elbow, knee were freed to read where they stand; joints neck, shoulder, hip were freed"
+        )
+
+
 @pytest.mark.parametrize(
     ("pose", "phrase"),
     [

@@ -20,7 +20,7 @@ import click
 from rich.markup import escape
 
 from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout, UnsafeOperation
-from ..robot import Robot, RobotDescription, RobotWarning, SafetyStop, load_description
+from ..robot import Robot, RobotBlock, RobotDescription, RobotWarning, SafetyStop, load_description, open_robot
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
 
@@ -188,21 +188,47 @@ def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsEr
     )
 
 
+class Opening:
+    """The robot a command opens, until it has its first pose: a Ctrl-C before then is told with what the open
+    left the joints in (the library's account: some may have gone limp to be read, others not sent anything)."""
+
+    def __init__(self) -> None:
+        self._block: RobotBlock | None = None
+        self._over = False
+
+    def open(self, description: RobotDescription, **options: Any) -> RobotBlock:
+        self._block = open_robot(description, **options)
+        return self._block
+
+    def over(self) -> None:
+        """The command has its robot's first pose: what it leaves from now on is its own to say."""
+        self._over = True
+
+    def joints_left(self) -> str | None:
+        """What the open left the joints in, if the command was still opening its robot; else None."""
+        return None if self._over or self._block is None else self._block.joints_left()
+
+
 def run_robot(
     settings: Settings,
     description: RobotDescription,
     make: Callable[[], Awaitable[T]],
     *,
     others_left: str | None = None,
+    opening: Opening | None = None,
 ) -> T:
     """Run a robot command's coroutine; every expected failure becomes a :class:`CliError`.  ``others_left``:
-    what the robot leaves the joints of lines still there in when one is lost (its ``on_close``)."""
+    what the robot leaves the joints of lines still there in when one is lost (its ``on_close``); ``opening``:
+    the robot the coroutine opens (see :class:`Opening`)."""
     with _sim_lines_of(description), warnings.catch_warnings():
         # The command prints robot.warnings itself, once, in its own words.
         warnings.simplefilter("ignore", RobotWarning)
         try:
             return run_loop(make)
         except KeyboardInterrupt:
+            left = opening.joints_left() if opening is not None else None
+            if left is not None:
+                raise CliError(ExitCode.INTERRUPTED, f"interrupted while opening the robot: {left}") from None
             raise CliError(ExitCode.INTERRUPTED, "interrupted") from None
         except SafetyStop as exc:
             raise safety_error(exc, others_left) from None

@@ -18,13 +18,14 @@ import click
 from rich.markup import escape
 
 from ..errors import BusClosed, IcsError, PortLost
-from ..robot import Motion, Robot, RobotDescription, load_motion, open_robot
+from ..robot import Motion, Robot, RobotDescription, load_motion
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
 from ._common import CliError, ExitCode, choice_option, err, out, seconds_option, settings_of
 from ._robot_common import (
+    Opening,
     chosen_joints,
     first_pose,
     load_input_file,
@@ -153,12 +154,13 @@ def play(
     moved = description.only([*motion.joints, *(joint for joint in start_pose or {} if joint in description.joints)])
     untouched = [joint for joint in description.joints if joint not in moved.joints]
     slowing: list[bool] = []  # the smooth stop has begun (a Ctrl-C then, the CLI's second, cuts it short)
+    opening = Opening()
 
     async def body() -> str:
         nonlocal passes, played, silent, untargeted, found
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
-        async with open_robot(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
+        async with opening.open(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
             if untouched:
                 which = "neither in the motion" if joints is None else "neither in --joints"
@@ -174,6 +176,7 @@ def play(
                     "--start-pose states where they are instead[/dim]"
                 )
             await first_pose(robot)
+            opening.over()
             start = time.monotonic()
             total = motion.duration / speed
 
@@ -258,7 +261,7 @@ def play(
     # where the motion had it (no --ramp: the robot's streams end with the lost line), or goes free.
     held = "holding their last targets (the motion stopped there at once, without the --ramp slow-down)"
     try:
-        how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else held)
+        how = run_robot(settings, moved, body, others_left="free" if on_stop == "free" else held, opening=opening)
     except CliError as exc:
         if exc.code == ExitCode.INTERRUPTED and slowing:  # (the robot's close then leaves them as --on-stop says)
             left = (

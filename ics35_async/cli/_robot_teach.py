@@ -20,7 +20,7 @@ from rich.table import Table
 
 from ..eeprom import Eeprom
 from ..errors import IcsError, ReplyError, error_text
-from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, open_robot, save_motion
+from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, save_motion
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
 from ..robot.startup import limit_problem
@@ -40,6 +40,7 @@ from ._common import (
 )
 from ._console import signed_tenths
 from ._robot_common import (
+    Opening,
     TypedLines,
     chosen_joints,
     first_pose,
@@ -56,13 +57,16 @@ QUIT = ("q", "quit", "exit")
 
 
 @contextlib.asynccontextmanager
-async def freed_robot(description: RobotDescription, settings: Settings, names: list[str]) -> AsyncIterator[Robot]:
+async def freed_robot(
+    description: RobotDescription, settings: Settings, names: list[str], opening: Opening
+) -> AsyncIterator[Robot]:
     """The robot's joints ``names`` open (freed again when it closes), their first pose read, free to move by
     hand.  The other joints are not opened: not read, freed or commanded, their servos keep what they hold."""
-    async with open_robot(description.only(names), on_close="free", **robot_options(settings)) as robot:
+    async with opening.open(description.only(names), on_close="free", **robot_options(settings)) as robot:
         show_warnings(robot)
         await first_pose(robot)
         await robot.free(names)
+        opening.over()
         yield robot
 
 
@@ -186,10 +190,11 @@ def teach(
         )
     ask_before_freeing_all(description, robot_file, joints, yes)
     keyframes: list[Keyframe] = []
+    opening = Opening()
     times = TaughtTimes(lead)
 
     async def body() -> None:
-        async with freed_robot(description, settings, names) as robot:
+        async with freed_robot(description, settings, names, opening) as robot:
             lines = TypedLines()
             err.print(
                 "the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
@@ -238,7 +243,7 @@ def teach(
     try:
         # The joints it opened (their line lost: the hint frees those, not the ones left holding as they were),
         # freed by the robot's close on the lines still there.
-        run_robot(settings, description.only(names), body, others_left="free")
+        run_robot(settings, description.only(names), body, others_left="free", opening=opening)
         if keyframes:  # (inside the try: a second Ctrl-C landing as they are written must not lose them)
             saving = True
             save_taught(keyframes, profile, name, target, robot_file)
@@ -348,6 +353,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     neutral: dict[str, float] = {}
     low: dict[str, float] = {}
     high: dict[str, float] = {}
+    opening = Opening()
     eeproms: dict[str, Eeprom] = {}
     silent: set[str] = set()  # joints offline at some frame of step 2
     lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
@@ -356,7 +362,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         return [signed_tenths(v[name]) if name in v else "-" for v in (neutral, low, high)]
 
     async def body() -> None:
-        async with freed_robot(description, settings, names) as robot:
+        async with freed_robot(description, settings, names, opening) as robot:
             lines = TypedLines()
             step = ["neutral"]
 
@@ -440,13 +446,16 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                         await watcher
 
     try:
-        run_robot(settings, description.only(names), body, others_left="free")  # (as teach's)
+        run_robot(settings, description.only(names), body, others_left="free", opening=opening)  # (as teach's)
     except CliError as exc:
         if lost:
             err.print(f"the port was lost before calibration ended: nothing written to {escape(robot_file)}")
         if exc.code == ExitCode.INTERRUPTED:  # (the file is written only once step 2 ends with Enter)
-            exc.message = f"interrupted: nothing written to {robot_file}"
-            exc.hints.append("the joints it opened are left free, as calibrate had them")
+            left = opening.joints_left()
+            exc.message = (
+                f"interrupted{'' if left is None else ' while opening the robot'}: nothing written to {robot_file}"
+            )
+            exc.hints.append(left or "the joints it opened are left free, as calibrate had them")
         raise
     calibrated: dict[str, JointSpec] = {}
     narrow: list[NarrowRange] = []

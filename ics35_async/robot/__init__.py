@@ -27,7 +27,7 @@ from .motion import Keyframe, Motion, MotionError, load_motion, parse_motion, sa
 from .profiles import PROFILES, Segment, Trajectory
 from .robot import Robot
 from .safety import JointTelemetry, MotionStopped, SafetyStop
-from .startup import RobotOptions, RobotWarning, check_servo_limits, open_robot
+from .startup import RobotBlock, RobotOptions, RobotWarning, check_servo_limits, open_robot
 
 __all__ = [
     "PROFILES",
@@ -40,6 +40,7 @@ __all__ = [
     "MotionError",
     "MotionStopped",
     "Robot",
+    "RobotBlock",
     "RobotDescription",
     "RobotFrame",
     "RobotOptions",

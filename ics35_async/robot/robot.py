@@ -27,6 +27,7 @@ from ..engine import State
 from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
+from ..stream import WATCH, Stream
 from ..tasks import again
 from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
@@ -88,6 +89,7 @@ class Robot:
         self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
         self._lost_lines: set[str] = set()  # lost ports not yet back in a frame (see _on_frame)
         self._gstream: GroupStream | None = None
+        self._streams: dict[str, Stream] = {}  # every line's, once the open has made them (see started)
 
     def __repr__(self) -> str:
         name = self.description.name or self.description.source
@@ -238,11 +240,53 @@ class Robot:
         self._release(checked)
         self._apply(checked, lift_holds=lift_holds)
 
-    def started(self, stated: Mapping[str, float], read: Iterable[str]) -> None:
-        """How the joints start (see :mod:`.startup`): ``stated`` angles already in the stream, ``read`` watched."""
+    def started(self, stated: Mapping[str, float], read: Iterable[str], streams: Mapping[str, Stream]) -> None:
+        """How the joints start (see :mod:`.startup`): ``stated`` angles already in the ``streams`` (every line's,
+        about to start), ``read`` watched."""
+        self._streams = dict(streams)
         self._targets.update(stated)
         self.untouched = set(read)
         self.start_modes.update({**dict.fromkeys(read, "read"), **dict.fromkeys(stated, "stated")})
+
+    def joints_left(self) -> str:
+        """In words, what the robot's streams have left its joints in so far (their close's commands included):
+        which were freed, which hold an angle, which were left as they were (only read: the open's EEPROM reads
+        and probes, ICS 3.6's position read).  For a person whose program was cut short as it opened the robot
+        (Ctrl-C), who needs to know which servos went limp.  From what was sent, not from what the servos did:
+        one that does not answer may not have heard it."""
+        groups: dict[str, list[str]] = {"read free": [], "freed": [], "held": [], "as found": []}
+        for name, joint in self.joints.items():
+            stream = self._streams.get(joint.line)
+            if stream is None:  # (the open was cut short before it made them: only reads went out)
+                groups["as found"].append(name)
+                continue
+            # (every transaction to it carried its start's target: none is set while the robot opens)
+            carried = stream.target(joint.id) if joint.id in stream.reached else None
+            closing = stream.targets_sent_on_close.get(joint.id)
+            if carried == protocol.FREE and self.start_modes[name] == "free":
+                groups["read free"].append(name)
+            elif protocol.FREE in (carried, closing):  # (freed by the program, or by the close: on_close="free")
+                groups["freed"].append(name)
+            elif closing is not None or carried not in (None, WATCH):
+                groups["held"].append(name)
+            else:
+                groups["as found"].append(name)
+        if not any(groups[group] for group in ("read free", "freed", "held")):
+            return "no joint was sent anything that moves or frees it (its servos were only read)"
+        stated = all(self.start_modes[name] == "stated" for name in groups["held"])
+        words = {
+            "read free": ("was freed to read where it stands", "were freed to read where they stand"),
+            "freed": ("was freed", "were freed"),
+            "held": ("holds its stated angle", "hold their stated angles")
+            if stated
+            else ("holds its last target", "hold their last targets"),
+            "as found": ("was left as it was (only read)", "were left as they were (only read)"),
+        }
+        return "; ".join(
+            f"joint{'s' if len(names) > 1 else ''} {', '.join(names)} {words[group][len(names) > 1]}"
+            for group, names in groups.items()
+            if names
+        )
 
     def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
         """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on:

@@ -70,11 +70,28 @@ _HOW_TO_OPEN = (
 )
 
 
-class _RobotBlock(contextlib.AbstractAsyncContextManager[Robot]):
-    """What ``open_robot`` returns: entered with ``async with``; used any other way, it says how."""
+class RobotBlock(contextlib.AbstractAsyncContextManager[Robot]):
+    """What [`open_robot`][ics35_async.robot.open_robot] returns: entered with ``async with``; used any other
+    way, it says how.  Kept by a program that must tell what an open cut short (Ctrl-C) left the joints in:
+    :meth:`joints_left`.
 
-    def __init__(self, session: contextlib.AbstractAsyncContextManager[Robot]) -> None:
-        self._session = session
+    Args:
+        source: as ``open_robot``'s.
+        options: ``open_robot``'s options, as a mapping (checked as the block is entered).
+    """
+
+    def __init__(self, source: str | Path | Mapping[str, Any] | RobotDescription, options: RobotOptions) -> None:
+        self.robot: Robot | None = None
+        """The robot once its lines are open (``None`` before): as the block's ``async with ... as`` gives it."""
+        self._session = _robot_session(source, self, **options)
+
+    def joints_left(self) -> str:
+        """In words, what the open has left the joints in so far, its close included (see
+        [`Robot.joints_left`][ics35_async.robot.Robot.joints_left]): for an open cut short (Ctrl-C) before the
+        block's body had the robot."""
+        if self.robot is None:
+            return "no servo was sent anything (its lines were still being opened)"
+        return self.robot.joints_left()
 
     async def __aenter__(self) -> Robot:
         return await self._session.__aenter__()
@@ -97,7 +114,7 @@ class _RobotBlock(contextlib.AbstractAsyncContextManager[Robot]):
 
 def open_robot(
     source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
-) -> contextlib.AbstractAsyncContextManager[Robot]:
+) -> RobotBlock:
     """Open every line of a robot and stream to all its joints: ``async with open_robot("robot.toml") as robot``.
 
     The robot opens without moving or freeing a joint whose servo speaks
@@ -120,12 +137,12 @@ def open_robot(
         SerialPortError: a line's port cannot be opened (a servo that does not answer is not an error:
             its joint starts free and, with ``check_limits``, gets a warning).
     """
-    return _RobotBlock(_robot_session(source, **options))
+    return RobotBlock(source, options)
 
 
 @contextlib.asynccontextmanager
 async def _robot_session(
-    source: str | Path | Mapping[str, Any] | RobotDescription, **options: Unpack[RobotOptions]
+    source: str | Path | Mapping[str, Any] | RobotDescription, block: RobotBlock, **options: Unpack[RobotOptions]
 ) -> AsyncIterator[Robot]:
     on_close = options.pop("on_close", "hold")
     check_limits = options.pop("check_limits", True)
@@ -156,7 +173,7 @@ async def _robot_session(
         for bus in buses.values():
             await stack.enter_async_context(bus)
         group = BusGroup(buses)
-        robot = Robot(description, group)
+        robot = block.robot = Robot(description, group)
         silent = (await _check_limits(robot))[1] if check_limits else set()
         readable = await _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated), silent)
         streams = {
@@ -176,7 +193,7 @@ async def _robot_session(
         for name, deg in stated.items():
             joint = robot.joints[name]
             streams[joint.line].set_target(joint.id, joint.position(deg))  # before the first cycle
-        robot.started(stated, readable)
+        robot.started(stated, readable, streams)
         try:
             async with GroupStream(streams) as gstream:
                 try:
