@@ -1051,3 +1051,14 @@ def test_a_safety_stop_says_what_the_joints_were_left_in(
         assert sims.servo("neck").free == ("neck" in free)
     finally:
         sims.close()
+
+
+@pytest.mark.parametrize("command", ["play", "teach", "calibrate"])
+def test_each_robot_commands_help_says_the_joints_it_leaves_unopened_are_not_watched_by_the_safety(
+    cli: Any, command: str
+) -> None:
+    # Only the docs said it: a person choosing --joints at the terminal could take the file's [safety] to watch
+    # the whole robot, the legs left holding under a taught arm included.
+    shown = " ".join(cli(command, "--help").out.split())
+    joints = shown[shown.index("--joints") :]
+    assert "not opened" in joints and "watched by the file's [safety]" in joints, shown

@@ -65,7 +65,12 @@ def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:
         raise CliError(ExitCode.USAGE, f"--joints: {exc} (nothing was sent)") from None
 
 
-joints_option = click.option("--joints", default=None, help="Comma-separated joint names (default: every joint).")
+joints_option = click.option(
+    "--joints",
+    default=None,
+    help="Comma-separated joint names (default: every joint); the others are not opened: not read, freed, "
+    "commanded or watched by the file's [safety].",
+)
 
 
 def robot_options(settings: Settings) -> dict[str, Any]:

@@ -110,8 +110,8 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @click.option(
     "--joints",
     default=None,
-    help="Comma-separated joint names: play only these of the motion's joints, the others are not opened "
-    "(default: every joint the motion moves).",
+    help="Comma-separated joint names: play only these of the motion's joints, the others are not opened: not "
+    "read, freed, commanded or watched by the file's [safety] (default: every joint the motion moves).",
 )
 @click.pass_context
 def play(
