@@ -342,6 +342,65 @@ def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> No
     run_robot(rig, body, reconnect=True)
 
 
+def test_free_on_wire_and_read_pose_do_not_wait_when_every_line_is_lost() -> None:
+    # With every line's port lost no frame comes (there is no line left to run a cycle): free() waited for one
+    # for as long as the lines stayed away (the configurator's Free all hung on a one-line robot).  The free is
+    # each joint's target, sent once its line is back.  (Paced lines: unpaced, a frame still came.)
+    rig = make_rig()
+    for line in rig.description["lines"].values():
+        line["rate_hz"] = 200
+
+    async def body(robot: Robot) -> None:
+        robot.set_targets({"neck": 10.0, "hip": 5.0})
+        await robot.on_wire()
+        rig.upper.unplug()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
+                await anyio.sleep(0.01)
+        with anyio.fail_after(GUARD):  # (it waited for ever)
+            await robot.free()
+            await robot.on_wire(["neck"])
+            pose = await robot.read_pose()
+        assert set(pose) == set(JOINTS)  # their last known angles
+        assert set(robot.targets.values()) == {None}
+        rig.upper.replug()
+        rig.lower.replug()
+        with anyio.fail_after(GUARD):
+            while not (all(s.free for s in rig.upper.servos) and all(s.free for s in rig.lower.servos)):
+                await anyio.sleep(0.01)
+
+    run_robot(rig, body, reconnect=True)
+
+
+def test_a_motion_whose_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
+    # One line lost among others gives its joints up at the next frame; with every line lost no frame came, and
+    # the motion waited for as long as the lines stayed away (then went on, its joints held by their lines).
+    rig = make_rig()
+    for line in rig.description["lines"].values():
+        line["rate_hz"] = 200
+
+    async def body(robot: Robot) -> None:
+        ended: list[BaseException] = []
+
+        async def move() -> None:
+            try:
+                await robot.move_to({"neck": 20.0, "hip": 10.0}, duration=5.0)
+            except MotionStopped as exc:
+                ended.append(exc)
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(move)
+            with anyio.fail_after(GUARD):
+                while robot.targets.get("neck") is None:  # (the motion under way)
+                    await anyio.sleep(0.01)
+            rig.upper.unplug()
+            rig.lower.unplug()
+        assert ended and "lost its port" in str(ended[0]), ended
+
+    run_robot(rig, body, reconnect=True)
+
+
 def test_frames_name_the_joints_on_a_line_whose_port_is_lost_until_it_is_back() -> None:
     # With one line's adapter pulled (reconnect=True) the robot's frames went on with the other line's cycles,
     # and a lost line's joints were neither offline nor held in them: a program had to ask each line's bus.

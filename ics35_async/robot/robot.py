@@ -23,6 +23,7 @@ from typing import Any
 import anyio
 
 from .. import protocol, units
+from ..bus import Bus
 from ..engine import State
 from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
 from ..frames import GroupFrame
@@ -195,9 +196,13 @@ class Robot:
         answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | frame.lost):
-            frame = await self.wait_frame(frame.cycle if frame else 0)
-            counter.add(frame)
+        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self._lost_joints()):
+            if self._end_error is not None:
+                raise again(self._end_error)
+            await self._new_frame.wait()  # a frame, or a line lost (with every line lost no frame comes)
+            if self._latest is not frame and self._latest is not None:
+                frame = self._latest
+                counter.add(frame)
 
     def stream(self) -> RobotStream:
         """Frames in joint space and targets by name; ``async with robot.stream() as s: async for frame in s``."""
@@ -653,11 +658,7 @@ class Robot:
         self._lost_lines = (
             self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
         ) - frame.resumed
-        lost = (
-            frozenset(n for n, j in self.joints.items() if j.line in self._lost_lines)
-            if self._lost_lines
-            else frozenset()
-        )
+        lost = self._lost_joints()
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
         self._positions.update(positions)
@@ -696,6 +697,39 @@ class Robot:
         self._settle(frame.line_cycles, frame.line_started)
         self._step(merged, frame.line_started)
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
+        event, self._new_frame = self._new_frame, anyio.Event()
+        event.set()
+
+    def _lost_joints(self) -> frozenset[str]:
+        """The joints on a line whose port is lost (see _on_frame and _line_changed)."""
+        if not self._lost_lines:
+            return frozenset()
+        return frozenset(n for n, j in self.joints.items() if j.line in self._lost_lines)
+
+    async def watch_lines(self) -> None:
+        """Tell the robot of each line's port lost or back as its bus knows it (see :meth:`_line_changed`);
+        runs beside :meth:`pump` until the robot's block ends."""
+
+        async def watch(bus: Bus) -> None:
+            while await bus.state_change() is not State.CLOSED:
+                self._line_changed()
+
+        async with anyio.create_task_group() as tasks:
+            for bus in self.group.buses.values():
+                tasks.start_soon(watch, bus)
+
+    def _line_changed(self) -> None:
+        """A line's port was lost (or is back).  A frame tells the robot so as well, but with every line lost no
+        frame comes: the motions give up the lost lines' joints here (a motion with none left ends), and what
+        waits for replies (on_wire, free, read_pose) is woken to leave them out."""
+        self._lost_lines |= {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        lost = self._lost_joints()
+        driven = frozenset(name for plan in self._plans for name in plan.joints & lost)
+        if driven:
+            self._give_up_lost(driven)
+        for plan in [plan for plan in self._plans if not plan.joints]:
+            plan.finish()
+            self._plans.remove(plan)
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
 

@@ -210,6 +210,7 @@ async def _robot_session(
                     async with anyio.create_task_group() as tasks:
                         tasks.start_soon(cycles, functools.partial(robot.pump, gstream))
                         tasks.start_soon(cycles, functools.partial(robot.watch.run, robot))
+                        tasks.start_soon(cycles, robot.watch_lines)
                         try:
                             await robot.wait_frame(0)
                             yield robot

@@ -504,10 +504,9 @@ class RobotSession:
     async def _free_stopped(self, robot: Robot) -> None:
         """Free all on the robot a lost line stopped (see free)."""
         lost = _on_lost_lines(robot)
-        # The lost line's joints take the free now (their streams send it once the line is back); the others'
-        # is waited for on the wire (a lost line's is not: it answers nothing).
-        robot.set_targets(dict.fromkeys(lost), allow_free=True)
-        await robot.free([name for name in robot.joints if name not in lost])
+        # Robot.free: the other lines' joints are freed on the wire (waited for); the lost line's take the free as
+        # their target, sent once the line is back (not waited for: it answers nothing).
+        await robot.free()
         self._free_at_reopen = sorted(set(self._free_at_reopen) | set(lost), key=list(robot.joints).index)
         self._carry_on_from(robot)  # (Reconnect holds none of them now)
         if not lost:
