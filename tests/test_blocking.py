@@ -534,3 +534,20 @@ def test_a_blocking_stream_says_which_ids_it_holds_now() -> None:
         assert stream.held == {2: "rejoined"}
         stream.set_target(2, 8000)
         assert stream.held == {}
+
+
+def test_a_blocking_stream_says_what_its_close_sent_and_how_long_a_cycle_may_take() -> None:
+    # The streaming docs point a program at `stream.targets_sent_on_close` (did every joint go limp on Ctrl-C?)
+    # and `stream.longest_cycle()` (how long to wait for a free to go out), and at `bus.describe()` for a log:
+    # the blocking objects had none of them, and a script following those docs stopped on an AttributeError.
+    line = VirtualLine([VirtualServo(i) for i in (1, 2)])
+    with blocking.open_bus(line) as bus:
+        assert bus.describe()["port"] == str(bus.port)
+        with bus.stream([1, 2], on_close="free") as stream:
+            stream.set_targets({1: 8000, 2: 7000})
+            assert stream.longest_cycle() > 0
+            assert stream.targets_sent_on_close == {}
+            stream.next_frame()
+        assert stream.targets_sent_on_close == {1: 0, 2: 0}
+        assert line.servo(1).free and line.servo(2).free
+    assert stream.targets_sent_on_close == {1: 0, 2: 0}  # still read for a summary after the bus's block

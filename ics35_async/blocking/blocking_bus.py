@@ -170,6 +170,11 @@ class BlockingBus(LoopOwner[Bus]):
         final counters)."""
         return self._loop.read(_stats_of, self._async)
 
+    def describe(self) -> dict[str, object]:
+        """A snapshot of the line for a log (see [`Bus.describe`][ics35_async.bus.Bus.describe]), taken on the
+        bus's loop."""
+        return self._loop.read(_describe, self._async)
+
     def __repr__(self) -> str:
         return f"<BlockingBus {self._async!r}>"
 
@@ -250,6 +255,10 @@ class BlockingBus(LoopOwner[Bus]):
 
 def _stats_of(bus: Bus) -> BusStats:
     return bus.stats
+
+
+def _describe(bus: Bus) -> dict[str, object]:
+    return bus.describe()
 
 
 def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> BlockingBus:

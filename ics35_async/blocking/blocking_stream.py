@@ -40,6 +40,7 @@ class BlockingStream(Wrapper[Stream]):
     free = on_loop(Stream.free)
     watch = on_loop(Stream.watch)
     target = read_on_loop(Stream.target)
+    longest_cycle = read_on_loop(Stream.longest_cycle)
 
     ids = ReadThrough[tuple[int, ...]]("The servo IDs this stream cycles over, in order.")
     rate_hz = ReadThrough[float | None]("Cycles per second asked for (``None``: as fast as the line allows).")
@@ -60,6 +61,12 @@ class BlockingStream(Wrapper[Stream]):
         """IDs held now, sent no command until their target is set (or they are freed or watched), and why
         (see ``Stream.held``): a loop setting every target each pass filters by this, not by a frame's."""
         return self._loop.read(_held_of, self._async)
+
+    @property
+    def targets_sent_on_close(self) -> dict[int, int]:
+        """What the stream's close sent, ``{id: position}`` (0: free), for a summary after the ``with`` block
+        (see ``Stream.targets_sent_on_close``)."""
+        return self._loop.read(_sent_on_close_of, self._async)
 
     def next_frame(self, timeout: float | None = None) -> Frame:
         """The newest frame not yet taken; waits for one (at most ``timeout`` seconds: then ``TimeoutError``).
@@ -140,3 +147,7 @@ def _offline_of(stream: Stream) -> frozenset[int]:
 
 def _held_of(stream: Stream) -> dict[int, str]:
     return stream.held
+
+
+def _sent_on_close_of(stream: Stream) -> dict[int, int]:
+    return stream.targets_sent_on_close
