@@ -5,11 +5,14 @@ from __future__ import annotations
 import asyncio
 import gc
 import inspect
+import itertools
 import pydoc
+import re
 import subprocess
 import sys
 import textwrap
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -551,3 +554,37 @@ def test_a_blocking_stream_says_what_its_close_sent_and_how_long_a_cycle_may_tak
         assert stream.targets_sent_on_close == {1: 0, 2: 0}
         assert line.servo(1).free and line.servo(2).free
     assert stream.targets_sent_on_close == {1: 0, 2: 0}  # still read for a summary after the bus's block
+
+
+def test_the_module_example_starts_its_stream_with_every_servo_holding() -> None:
+    # The reference page opens with the package's docstring example: it started its stream with no targets, so
+    # every servo was sent the free command (a standing robot sags) and then thrown to neutral. It is run here
+    # on a simulated line in place of its serial port, and stopped (its bus closed) once it has streamed a while.
+    assert blocking.__doc__ is not None
+    after = blocking.__doc__.split("::\n", 1)[1].splitlines()
+    block = itertools.takewhile(lambda text: not text or text.startswith("    "), after)
+    example = textwrap.dedent("\n".join(block))
+    opening = re.search(r"open_bus\([^)]*\)", example)
+    assert opening is not None
+    line = VirtualLine([VirtualServo(i, position=8000) for i in range(12)], log_size=None)
+    names: dict[str, object] = {"__name__": "example", "LINE": line}
+    code = compile(example.replace(opening.group(0), "open_bus(LINE)"), "<ics35_async.blocking>", "exec")
+
+    def stop_it() -> None:  # as a Ctrl-C would, from outside: the example's own loop never ends
+        while sum(t.command == "position" for t in line.log) < 60:
+            time.sleep(0.01)
+        bus = names["bus"]
+        assert isinstance(bus, blocking.BlockingBus)
+        bus.close()
+
+    stopper = threading.Thread(target=stop_it, daemon=True)
+    stopper.start()
+    exec(code, names)  # in the main thread: stop_on_signals() takes the signals there only
+    stopper.join(10)
+    first: dict[
+        int | None, str
+    ] = {}  # each servo's first command from the stream (a free to start with: the joint went limp)
+    for transaction in line.log:
+        if transaction.command in ("position", "free"):
+            first.setdefault(transaction.servo_id, transaction.command)
+    assert first == dict.fromkeys(range(12), "position")

@@ -4,11 +4,15 @@
 
     from ics35_async import blocking
 
-    with blocking.open_bus("/dev/ttyUSB0", baudrate=1250000) as bus:
-        print(bus.servo(1).set_position(9000))
-        with bus.stream(range(12)) as stream:
+    STAND = dict.fromkeys(range(12), 7500)  # where each servo stands, in counts
+
+    with blocking.stop_on_signals(), blocking.open_bus("/dev/ttyUSB0", baudrate=1250000) as bus:
+        print("temperature of 1:", bus.servo(1).read_temperature())
+        stream = bus.stream(STAND, rate_hz=100, on_close="free")
+        stream.set_targets(STAND)  # before the block: every servo holds from its first command
+        with stream:  # Ctrl-C ends it: every servo goes free, the port is released
             for frame in stream:
-                stream.set_targets({i: 7500 for i in frame.positions})
+                stream.set_targets({i: 7500 + 5 * (frame.cycle % 200) for i in STAND})
 
 The async :class:`~ics35_async.Bus` runs on an event loop in a background
 thread (one per bus); every blocking call hands its work to that loop and
