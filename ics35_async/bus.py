@@ -25,7 +25,7 @@ from .protocol import Command
 from .stats import BusStats
 from .tasks import despite_cancellation
 from .transports.direction import check_direction
-from .transports.wire_device import TRANSPORT_KINDS, WireDevice
+from .transports.wire_device import TRANSPORT_KINDS, WireDevice, check_port
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
@@ -107,8 +107,7 @@ class Bus:
     """
 
     def __init__(self, port: str | WireDevice, **options: Unpack[BusOptions]) -> None:
-        if not isinstance(port, (str, WireDevice)):
-            raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}")
+        check_port(port)  # here, not at the open: an empty port is refused before anything starts
         unknown = set(options) - BusOptions.__optional_keys__
         if unknown:
             raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")

@@ -588,3 +588,12 @@ def test_the_module_example_starts_its_stream_with_every_servo_holding() -> None
         if transaction.command in ("position", "free"):
             first.setdefault(transaction.servo_id, transaction.command)
     assert first == dict.fromkeys(range(12), "position")
+
+
+@pytest.mark.parametrize("port", ["", None])
+def test_a_forgotten_port_says_what_to_pass(port: str) -> None:
+    # A script whose port came from an unset variable (os.environ.get, an empty argument) was told only that
+    # the port "must not be empty" or "must be a path ... not NoneType": not what to pass, nor where to find it.
+    with pytest.raises(InvalidArgument) as raised:
+        blocking.open_bus(port)
+    assert "/dev/ttyUSB0" in str(raised.value) and "ics35 ports" in str(raised.value) and "sim://" in str(raised.value)

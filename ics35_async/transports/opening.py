@@ -28,7 +28,7 @@ from .device_port import DevicePort
 from .pyserial_port import SERIAL_POLL, ReaderThread, SerialPort
 from .serial_port import READ_POLL, open_serial, posix_fd
 from .tty_port import TtyPort
-from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory
+from .wire_device import TRANSPORT_KINDS, WireDevice, check_port, device_factory
 
 log = logging.getLogger("ics35_async.transports")
 
@@ -66,16 +66,13 @@ def open_port(
         raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
     if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
         raise InvalidArgument(f"baudrate must be a positive int, not {baudrate!r}")
+    check_port(port)
     if not isinstance(port, str):
-        if not isinstance(port, WireDevice):
-            raise InvalidArgument(f"port must be a device path, a URL or a WireDevice, not {type(port).__name__}")
         return _device_port(port, baudrate)
     scheme, sep, _ = port.partition("://")
     factory = device_factory(scheme) if sep else None
     if factory is not None:
         return _device_port(factory(port), baudrate)
-    if not port:
-        raise InvalidArgument("port must not be empty")
     ser = open_serial(port, baudrate, True, direction)
     try:
         if posix_fd(ser) is not None and (transport != "thread" or blocking_reads):

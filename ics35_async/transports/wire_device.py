@@ -13,6 +13,8 @@ import importlib
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 
+from ..errors import InvalidArgument
+
 TransportKind = Literal["auto", "direct", "thread"]
 TRANSPORT_KINDS: tuple[str, ...] = get_args(TransportKind)
 
@@ -59,6 +61,26 @@ def register_url_scheme(scheme: str, factory: WireDeviceFactory) -> None:
 
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
 _LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
+
+
+# What a program that passed no port (an unset variable, an empty argument) is told to pass instead.
+_PORT_ADVICE = (
+    "pass the adapter's serial port, e.g. '/dev/ttyUSB0' or 'COM3' (`ics35 ports` lists them), or 'sim://' for"
+    " the built-in simulator"
+)
+
+
+def check_port(port: object) -> None:
+    """Refuse, saying what to pass, a port that is neither a non-empty path or URL nor a :class:`WireDevice`.
+
+    Raises:
+        InvalidArgument: ``port`` is empty, ``None`` or of another type.
+    """
+    if isinstance(port, str):
+        if not port:
+            raise InvalidArgument(f"port must not be empty: {_PORT_ADVICE}")
+    elif not isinstance(port, WireDevice):
+        raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}: {_PORT_ADVICE}")
 
 
 def device_factory(scheme: str) -> WireDeviceFactory | None:
