@@ -632,8 +632,10 @@ class Bus:
         """IDs that answer a harmless read (it moves nothing), in the order asked.
 
         When not even the echo of what was sent came back (an adapter not
-        connected, a port with nothing on it), it logs a warning on the
-        ``ics35_async`` logger: the list is empty either way.
+        connected, a port with nothing on it), when no servo answered (their
+        power, or servos set to another baud rate), or when an ID answered
+        garbled (two servos sharing it), it logs a warning saying so on the
+        ``ics35_async`` logger: the list cannot tell those apart.
         ``concurrency`` bounds how many probes are queued at once (the line
         still runs them one at a time), leaving room for other callers.  The
         whole scan over baud rates, with EEPROM cross-checks, is
@@ -656,6 +658,28 @@ class Bus:
             log.warning(
                 "scan of %s: nothing came back, not even the echo of what was sent: is the adapter connected "
                 "and the line powered?",
+                self.port,
+            )
+        elif found.garbled:
+            # Left out of the list, which cannot say "two servos here": new servos all come with ID 0.
+            log.warning(
+                "scan of %s: %s answered garbled: two servos sharing one ID (new ones all have ID 0)? connect "
+                "them one at a time and give each its own ID (`ics35 set-id`)",
+                self.port,
+                ", ".join(f"ID {i}" for i in sorted(found.garbled)),
+            )
+        elif checked and not found.answered and not found.silent:
+            # Servos set to another rate are as silent as no servos: the program's fix is the rate it opened at.
+            others = " or ".join(
+                f"baudrate={int(rate)}" for rate in reversed(protocol.BaudRate) if rate != self.baudrate
+            )
+            log.warning(
+                "scan of %s: no servo answered at %d bit/s: check their power; servos set to another rate are "
+                "silent at this one: open the bus at theirs (%s), or find them with `ics35 --port %s scan`, "
+                "which tries every rate",
+                self.port,
+                int(self.baudrate),
+                others,
                 self.port,
             )
         return list(found.answered)

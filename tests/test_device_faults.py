@@ -337,3 +337,31 @@ def test_a_scan_on_a_port_with_nothing_attached_warns_that_not_even_the_echo_cam
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_a_scan_that_finds_nobody_or_a_shared_id_says_why(caplog: pytest.LogCaptureFixture) -> None:
+    # bus.scan() gave an empty list, and nothing else, for servos set to another baud rate and for two new servos
+    # that share ID 0 (their replies collide): a program had no way to tell those from an empty line.
+    from ics35_async.protocol import BaudRate
+    from ics35_async.sim import VirtualLine, VirtualServo
+
+    async def scan(line: VirtualLine) -> list[int]:
+        async with open_bus(line) as bus:
+            return await bus.scan()
+
+    fast = VirtualLine([VirtualServo(i) for i in (1, 2)])
+    for servo in fast.servos:
+        servo.baud_rate = BaudRate.B1250000  # silent at the bus's 115200
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        assert anyio.run(scan, fast) == []
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+    assert "no servo answered at 115200" in said and "baudrate=1250000" in said and "ics35" in said, said
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        assert anyio.run(scan, VirtualLine([VirtualServo(0), VirtualServo(0), VirtualServo(3)])) == [3]
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+    assert "ID 0" in said and "garbled" in said and "one at a time" in said, said
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        assert anyio.run(scan, VirtualLine([VirtualServo(3)])) == [3]  # a line that answers: nothing to say
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
