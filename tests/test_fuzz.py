@@ -19,7 +19,7 @@ from ics35_async import IcsError, Param, ReplyError, open_bus, protocol
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine
 from tests.support.fuzzing import BAUDS, FuzzCase, FuzzCounts, FuzzDevice, FuzzRig, fuzz_case, fuzz_parsers, valid_value
 from tests.support.oracle import FAULT_KINDS, WirePredictor, chaos_servos
-from tests.support.timing import FAST_TIMING
+from tests.support.timing import FAST_TIMING, GUARD
 
 blobs = st.binary(min_size=6, max_size=80)
 
@@ -73,7 +73,7 @@ async def test_every_fault_at_100_percent_gives_only_typed_errors_and_leaves_the
                 lambda i=i: bus.servo(i).write_speed(60 + i),
             ):
                 try:
-                    async with asyncio.timeout(1):  # a hang is a failure, not a two-minute wait
+                    async with asyncio.timeout(GUARD):  # a hang is a failure, not a two-minute wait
                         outcomes.append(await call())
                 except IcsError as exc:
                     outcomes.append(exc)
