@@ -69,7 +69,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     Raises:
         InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
             an unknown ``backend``, or an event loop already runs in this thread; or ``main()`` gave nothing
-            to await (``def main()`` for ``async def main()``: said once that call has returned).
+            to await (``def main()`` for ``async def main()``: said once that call has returned; a program with
+            no async code at all runs with :func:`run_blocking`).
     """
     import anyio
 
@@ -147,9 +148,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
             before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in stopping]
         anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
-        error = only_error(exc)
-        if isinstance(error, IcsError):
-            print(f"error: {error}", file=sys.stderr)
+        if _said(exc):
             return EXIT_ERROR
         # main's own exception (its own group included), not the task group that ran it: raised
         # below, out of this handler, so that its cause and context stay as main left them.
@@ -168,6 +167,86 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     if not received:
         return EXIT_OK
     return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
+
+
+def _said(exc: BaseException) -> bool:
+    """A library error (alone in any exception groups around it) said on stderr as one line, no traceback: the
+    ending of a program run by :func:`run` or :func:`run_blocking`; False (nothing said) for anything else."""
+    error = only_error(exc)
+    if not isinstance(error, IcsError):
+        return False
+    print(f"error: {error}", file=sys.stderr)
+    return True
+
+
+def run_blocking(main: Callable[[], object]) -> int:
+    """:func:`run` for programs without an event loop (``ics35_async.blocking.run``): call the plain function
+    ``main()`` under :func:`stop_on_signals` and return an exit code, the same as :func:`run`'s.
+
+    0 when ``main`` returned; 130 after SIGINT (Ctrl-C) and 143 after SIGTERM, once its ``with`` blocks have
+    closed (a stream frees or holds as its ``on_close`` says, a bus releases its port); 1 when ``main`` raised
+    an :class:`~ics35_async.IcsError` (a lost port, a mistyped one), printed to stderr as one line, with its hint,
+    without a traceback.  Other exceptions propagate as ``main`` raised them, with their traceback (a bug);
+    ``sys.exit()`` in ``main`` ends the program with its code.  An error ``main`` catches itself (``except
+    PortLost``) is its own, as without ``run``.  Call it from the main thread::
+
+        def main() -> None:
+            with blocking.open_bus("/dev/ttyUSB0") as bus, bus.stream(ids, rate_hz=50, on_close="free") as s:
+                for frame in s:
+                    ...
+
+
+        sys.exit(blocking.run(main))
+
+    Raises:
+        InvalidArgument: ``main`` is an async function (``ics35_async.run`` runs it), a coroutine or not
+            callable; or ``main()`` returned an awaitable (said once that call has returned).
+    """
+    _check_plain_function(main)
+    inside = stop_signals.active  # inside a stop_on_signals of the program's own: that one stops the program
+    misused: InvalidArgument | None = None  # (raised below, as run_blocking's misuse: not printed as main's error)
+    try:
+        with stop_on_signals():
+            returned = main()
+            if inspect.isawaitable(returned):  # (a partial of an async function, say)
+                if inspect.iscoroutine(returned):
+                    returned.close()  # (never awaited: no warning about it on top of the error)
+                misused = _not_plain(main)
+    except SystemExit as exc:
+        # The stop's own exit (not main's sys.exit(), which goes on as main raised it): its code, returned.
+        if inside or stop_signals.signum is None or exc.code != _exit_code(stop_signals.signum):
+            raise
+        return _exit_code(stop_signals.signum)
+    except BaseException as exc:
+        if _said(exc):
+            return EXIT_ERROR
+        raise
+    if misused is not None:
+        raise misused
+    return EXIT_OK
+
+
+def _check_plain_function(main: object) -> None:
+    """What :func:`run_blocking` refuses before it starts anything: an async function (or its coroutine), which
+    :func:`run` runs, or something not callable."""
+    if inspect.iscoroutine(main):
+        main.close()  # (never awaited: no warning about it on top of the error)
+        raise InvalidArgument(
+            "blocking.run() takes a plain function; an async one runs with ics35_async.run(main), "
+            "not blocking.run(main())"
+        )
+    if not callable(main):
+        raise InvalidArgument(f"blocking.run() takes a plain function, not {type(main).__name__}")
+    if inspect.iscoroutinefunction(main) or inspect.isasyncgenfunction(main):
+        raise _not_plain(main)
+
+
+def _not_plain(main: Callable[..., object]) -> InvalidArgument:
+    name = getattr(main, "__name__", "")
+    name = name if name.isidentifier() else "main"
+    return InvalidArgument(
+        f"blocking.run() takes a plain function: async def {name}() runs with ics35_async.run({name})"
+    )
 
 
 def _heard() -> tuple[signal.Signals, ...]:
@@ -216,8 +295,10 @@ def not_async(fn: Callable[..., object], returned: object, taker: str = "run()")
     what = "None" if returned is None else f"{'an' if kind[:1] in 'aeiou' else 'a'} {kind}"
     if not name.isidentifier():  # a lambda, a partial: nothing to name
         return InvalidArgument(f"{taker} takes an async function: the function given returned {what}, not an awaitable")
+    # A plain function meant as one (no async anywhere in the program) has a runner of its own.
+    plain = "" if taker != "run()" or inspect.isasyncgen(returned) else f" (a plain one runs with blocking.run({name}))"
     return InvalidArgument(
-        f"{taker} takes an async function (async def {name}()): {name}() returned {what}, not an awaitable"
+        f"{taker} takes an async function (async def {name}()): {name}() returned {what}, not an awaitable{plain}"
     )
 
 
@@ -562,4 +643,4 @@ def _hand_back(handlers: list[tuple[int, object]]) -> None:
             _hand_back(rest)
 
 
-__all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "stop_on_signals"]
+__all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "run_blocking", "stop_on_signals"]

@@ -581,3 +581,154 @@ def test_a_program_started_ignoring_sigint_keeps_ignoring_it(program: list[str])
     assert proc.returncode == 143, err
     assert out.strip() == "free"
     assert "Traceback" not in err, err
+
+
+# A plain 50 Hz gait script under blocking.run, on a pty whose port is unplugged 3 s after the simulator starts
+# (the script streams by then): argv[1] the port, argv[2] what it does once the port is lost ("end": nothing,
+# "catch": catches PortLost itself, "reconnect": opened with reconnect=True, returns at the first frame after
+# the port came back).
+BLOCKING_GAIT = textwrap.dedent(
+    """
+    import sys
+    from ics35_async import PortLost, blocking
+
+    PORT, MODE = sys.argv[1], sys.argv[2]
+    STAND = {1: 7500, 2: 7500}
+
+    def main() -> None:
+        with blocking.open_bus(PORT, reconnect=MODE == "reconnect") as bus:
+            stream = bus.stream(STAND, rate_hz=50, on_close="free")
+            stream.set_targets(STAND)
+            with stream:
+                try:
+                    for frame in stream:
+                        if frame.cycle == 5:
+                            print("streaming", flush=True)
+                        if frame.resumed:
+                            print("resumed", flush=True)
+                            return
+                        stream.set_targets(STAND, lift_holds=False)
+                except PortLost:
+                    if MODE != "catch":
+                        raise
+                    print("caught", flush=True)
+
+    sys.exit(blocking.run(main))
+    """
+)
+
+
+def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1-2", "--unplug-after", "3", "--replug-after", "60").path
+    done = subprocess.run(
+        [sys.executable, "-c", BLOCKING_GAIT, path, "end"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stdout.split() == ["streaming"]
+    assert "Traceback" not in done.stderr, done.stderr
+    last = done.stderr.splitlines()[-1]
+    assert last.startswith(f"error: port {path} lost: "), done.stderr
+
+
+def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) -> None:
+    path = pty_sim("--ids", "1-2", "--unplug-after", "3", "--replug-after", "60").path
+    done = subprocess.run(
+        [sys.executable, "-c", BLOCKING_GAIT, path, "catch"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["streaming", "caught"]
+    assert "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
+
+
+def test_a_blocking_program_s_mistyped_port_is_one_line_with_its_hint() -> None:
+    port = "/dev/ttyICS35-nothing-here"
+    done = subprocess.run(
+        [sys.executable, "-c", BLOCKING_GAIT, port, "end"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: "), done.stderr
+    assert port in done.stderr and "ics35 ports" in done.stderr, done.stderr
+
+
+BLOCKING_RUN_PROGRAM = textwrap.dedent(
+    """
+    import sys
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+
+    def main() -> None:
+        with blocking.open_bus(sim) as bus, bus.stream([1, 2], on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            for n, frame in enumerate(s):
+                if n == 5:
+                    print("streaming", flush=True)
+
+    code = blocking.run(main)
+    print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    sys.exit(code)
+    """
+)
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_blocking_run_ends_on_a_signal_as_the_async_run_does(signum: int, code: int) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", BLOCKING_RUN_PROGRAM], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "streaming"
+        os.kill(proc.pid, signum)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert out.strip() == "free"  # run() returned its code: the program's own last words came after
+    assert err == "", err
+
+
+def test_blocking_run_lets_main_s_own_exceptions_and_exit_through() -> None:
+    from ics35_async import blocking
+
+    def failing() -> None:
+        try:
+            raise KeyError("x")
+        except KeyError as exc:
+            raise ValueError("y") from exc
+
+    with pytest.raises(ValueError, match="y") as raised:
+        blocking.run(failing)
+    assert isinstance(raised.value.__cause__, KeyError)
+
+    def exiting() -> None:
+        with blocking.open_bus("sim://?ids=1") as bus:
+            bus.servo(1).read_stretch()
+            sys.exit(3)
+
+    with pytest.raises(SystemExit) as exited:
+        blocking.run(exiting)
+    assert exited.value.code == 3
+    assert blocking.run(lambda: None) == 0
+
+
+def test_misuses_of_blocking_run_are_said_before_anything_runs() -> None:
+    from ics35_async import blocking
+
+    async def main() -> None:
+        pass
+
+    with pytest.raises(InvalidArgument, match=r"ics35_async\.run\(main\)"):
+        blocking.run(main)
+    coroutine = main()
+    with pytest.raises(InvalidArgument, match=r"ics35_async\.run\(main\), not blocking\.run\(main\(\)\)"):
+        blocking.run(coroutine)  # type: ignore[arg-type]
+    with pytest.raises(InvalidArgument, match="plain function"):
+        blocking.run(42)  # type: ignore[arg-type]
+
+    def plain() -> None:
+        pass
+
+    with pytest.raises(InvalidArgument, match=r"blocking\.run\(plain\)"):
+        ics35_async.run(plain)  # type: ignore[arg-type]

@@ -14,6 +14,11 @@
             for frame in stream:
                 stream.set_targets({i: 7500 + 5 * (frame.cycle % 200) for i in STAND})
 
+A program whose body is a plain ``def main()`` ends with ``sys.exit(blocking.run(main))``
+(:func:`~ics35_async.running.run_blocking`): the signal handling of :func:`stop_on_signals`, the exit
+codes of :func:`ics35_async.run`, and a library error that ends it (a port lost or mistyped) said as one
+line instead of a traceback.
+
 The async :class:`~ics35_async.Bus` runs on an event loop in a background
 thread (one per bus); every blocking call hands its work to that loop and
 waits for the result: 60-100 microseconds per call on top of the wire time
@@ -29,6 +34,7 @@ each call; async code does better with the async API.
 
 from __future__ import annotations
 
+from ..running import run_blocking as run
 from ..running import stop_on_signals
 from .blocking_bus import BlockingBus, BlockingDevice, BlockingServo, open_bus
 from .blocking_robot import BlockingRobot, open_robot
@@ -42,5 +48,6 @@ __all__ = [
     "BlockingStream",
     "open_bus",
     "open_robot",
+    "run",
     "stop_on_signals",
 ]
