@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -753,3 +754,45 @@ def test_each_command_gets_a_fresh_unnamed_simulator(cli: Any) -> None:
     second = cli("--port", "sim://?ids=6", "scan", "--bauds", "115200", "--ids", "0-7", "--quick", "--json")
     assert [s["id"] for s in first.json()["servos"]] == [4]
     assert [s["id"] for s in second.json()["servos"]] == [6]
+
+
+# A command's line lost and reconnected (what `ics35 web` does on a robot's line), with its logging set up
+# as every command sets it (argv[1]: the -v count); it reads its port from stdin once it has imported everything.
+LOST_AND_BACK = """
+import sys
+from ics35_async import blocking
+from ics35_async.cli._settings import setup_logging
+
+setup_logging(int(sys.argv[1]))
+print("ready", flush=True)
+with blocking.open_bus(input(), reconnect=True) as bus, bus.stream([1, 2]) as stream:
+    for frame in stream:
+        if frame.resumed:
+            break
+"""
+
+
+@pytest.mark.parametrize("verbose", [0, 1])
+def test_a_port_lost_and_back_is_logged_by_a_command_only_at_v(pty_sim: Any, verbose: int) -> None:
+    # The library warns of both (a plain program hears them): a command says what happened itself and keeps
+    # its stderr to that unless -v asks for the log, where both appear.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LOST_AND_BACK, str(verbose)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "ready"  # (the simulator's unplug counts from its start)
+        path = pty_sim("--ids", "1-2", "--unplug-after", "1", "--replug-after", "0.3").path
+        _, err = proc.communicate(f"{path}\n", timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    if not verbose:
+        assert err == "", err
+    else:
+        assert f"WARNING ics35_async: port {path} lost" in err, err
+        assert f"WARNING ics35_async: port {path} back: reconnected" in err, err

@@ -583,17 +583,18 @@ def test_a_program_started_ignoring_sigint_keeps_ignoring_it(program: list[str])
     assert "Traceback" not in err, err
 
 
-# A plain 50 Hz gait script under blocking.run, on a pty whose port is unplugged 3 s after the simulator starts
-# (the script streams by then): argv[1] the port, argv[2] what it does once the port is lost ("end": nothing,
+# A plain 50 Hz gait script under blocking.run: argv[1] what it does once its port is lost ("end": nothing,
 # "catch": catches PortLost itself, "reconnect": opened with reconnect=True, returns at the first frame after
-# the port came back).
+# the port came back).  It reads its port from stdin once it has imported everything (see gait_on_a_pty).
 BLOCKING_GAIT = textwrap.dedent(
     """
     import sys
     from ics35_async import PortLost, blocking
 
-    PORT, MODE = sys.argv[1], sys.argv[2]
+    MODE = sys.argv[1]
     STAND = {1: 7500, 2: 7500}
+    print("ready", flush=True)
+    PORT = input()
 
     def main() -> None:
         with blocking.open_bus(PORT, reconnect=MODE == "reconnect") as bus:
@@ -618,36 +619,65 @@ BLOCKING_GAIT = textwrap.dedent(
 )
 
 
-def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> None:
-    path = pty_sim("--ids", "1-2", "--unplug-after", "3", "--replug-after", "60").path
-    done = subprocess.run(
-        [sys.executable, "-c", BLOCKING_GAIT, path, "end"], capture_output=True, text=True, timeout=60
+def gait_on_a_pty(pty_sim: Any, mode: str, *sim_args: str) -> subprocess.CompletedProcess[str]:
+    """BLOCKING_GAIT in a process of its own on a pty simulator started with ``sim_args``, once the program has
+    imported everything: a simulator's ``--unplug-after`` counts from its start, and a loaded machine can take
+    seconds to start a Python program."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", BLOCKING_GAIT, mode],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "ready"
+        path = pty_sim("--ids", "1-2", *sim_args).path
+        out, err = proc.communicate(f"{path}\n", timeout=60)
+    finally:
+        proc.kill()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, f"{path}\n{out}", err)
+
+
+def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> None:
+    done = gait_on_a_pty(pty_sim, "end", "--unplug-after", "1", "--replug-after", "60")
+    path, *said = done.stdout.split()
     assert done.returncode == 1, done.stderr
-    assert done.stdout.split() == ["streaming"]
+    assert said == ["streaming"]
     assert "Traceback" not in done.stderr, done.stderr
     last = done.stderr.splitlines()[-1]
     assert last.startswith(f"error: port {path} lost: "), done.stderr
 
 
 def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) -> None:
-    path = pty_sim("--ids", "1-2", "--unplug-after", "3", "--replug-after", "60").path
-    done = subprocess.run(
-        [sys.executable, "-c", BLOCKING_GAIT, path, "catch"], capture_output=True, text=True, timeout=60
-    )
+    done = gait_on_a_pty(pty_sim, "catch", "--unplug-after", "1", "--replug-after", "60")
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["streaming", "caught"]
+    assert done.stdout.split()[1:] == ["streaming", "caught"]
     assert "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
 
 
 def test_a_blocking_program_s_mistyped_port_is_one_line_with_its_hint() -> None:
     port = "/dev/ttyICS35-nothing-here"
     done = subprocess.run(
-        [sys.executable, "-c", BLOCKING_GAIT, port, "end"], capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", BLOCKING_GAIT, "end"], input=f"{port}\n", capture_output=True, text=True, timeout=60
     )
     assert done.returncode == 1, done.stderr
     assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: "), done.stderr
     assert port in done.stderr and "ics35 ports" in done.stderr, done.stderr
+
+
+def test_a_plain_program_hears_its_port_lost_and_back(pty_sim: Any) -> None:
+    # No logging set up: Python's last-resort handler prints the library's warnings, the port lost and,
+    # once reopened, back (were it logged below WARNING, the program would never hear of it).
+    done = gait_on_a_pty(pty_sim, "reconnect", "--unplug-after", "1", "--replug-after", "0.3")
+    path, *said = done.stdout.split()
+    assert done.returncode == 0, done.stderr
+    assert said == ["streaming", "resumed"]
+    lines = done.stderr.splitlines()
+    assert len(lines) == 2, done.stderr
+    assert lines[0].startswith(f"port {path} lost: "), done.stderr
+    assert lines[1].startswith(f"port {path} back: reconnected after "), done.stderr
 
 
 BLOCKING_RUN_PROGRAM = textwrap.dedent(

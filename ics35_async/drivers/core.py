@@ -529,7 +529,9 @@ class DriverCore:
                     return
                 self.engine.counters.reconnects += 1
                 self._connected(port)
-            log.info("reconnected to %s after %d attempt(s)", self.target, attempt)
+            # A warning, as the loss was: a program that set no logging up hears both (Python's last-resort
+            # handler prints warnings only), or it would never learn that its port came back.
+            log.warning("port %s back: reconnected after %d attempt(s)", self.target, attempt)
             return
 
     # ------------------------------------------------------------------ the user's side
