@@ -11,8 +11,8 @@
         stream = bus.stream(STAND, rate_hz=100, on_close="free")
         stream.set_targets(STAND)  # before the block: every servo holds from its first command
         with stream:  # Ctrl-C ends it: every servo goes free, the port is released
-            for frame in stream:
-                stream.set_targets({i: 7500 + 5 * (frame.cycle % 200) for i in STAND})
+            for frame in stream:  # lift_holds=False: a servo back from offline stays held (see the guide)
+                stream.set_targets({i: 7500 + 5 * (frame.cycle % 200) for i in STAND}, lift_holds=False)
 
 A program whose body is a plain ``def main()`` ends with ``sys.exit(blocking.run(main))``
 (:func:`~ics35_async.running.run_blocking`): the signal handling of :func:`stop_on_signals`, the exit
