@@ -152,7 +152,8 @@ class Servo:
         again next time).
 
         Args:
-            silent_before: the caller's own read of this servo (a whole reply allowance) has just gone
+            silent_before: the caller's own read of this servo (a whole reply allowance, or a scan's probe
+                with its second looks: see :func:`~ics35_async.policies.probe_ids`) has just gone
                 unanswered: a silent probe then raises ReplyTimeout at once, the parameter read that tells
                 ICS 3.5 from no servo left out (two silences in a row already say nothing answers; that read,
                 and the guard read before it, would each wait a whole allowance more).

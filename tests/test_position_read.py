@@ -20,9 +20,13 @@ TORQUE_COMMANDS = {"position", "free"}
 
 
 def run(sim: VirtualLine, body: Callable[[Any], Awaitable[Any]]) -> Any:
+    return run_with(sim, body)
+
+
+def run_with(sim: VirtualLine, body: Callable[[Any], Awaitable[Any]], **options: Any) -> Any:
     async def main() -> Any:
         with anyio.fail_after(GUARD):
-            async with open_bus(sim) as bus:
+            async with open_bus(sim, **options) as bus:
                 return await body(bus)
 
     try:
@@ -281,6 +285,31 @@ def test_the_stream_plan_finds_a_servo_silent_that_answered_before_its_protocol_
     assert plan.silent == [1, 2] and plan.streamed == [1, 2, 3]
     # Each still read as its protocol says: the ICS 3.6 servo (2) watched, never freed, once it answers again.
     assert (plan.watch, plan.free) == ([2], [1, 3])
+    assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
+
+
+def test_an_absent_id_costs_the_stream_plan_two_short_probes_and_the_servos_there_are_told_apart_as_ever() -> None:
+    # Each wait of a full allowance (an adapter's latency, --timeout) at an ID nobody answers delays the command's
+    # first cycle: `monitor 0-17` with two legs unplugged.  The plan asks every ID as a scan probes (a short wait,
+    # no retry), and a silent one once more with a short position-read probe: no parameter read with its retries,
+    # nor the guard read before each.
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2, 6], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> Any:
+        return await policies.plan_position_stream(bus, range(1, 9), free_ics35=True)
+
+    plan = run_with(sim, body, retries=1)  # (the command line's --retries)
+    assert (plan.watch, plan.free, plan.silent) == ([2], [1, 3, 4, 5, 6, 7, 8], [3, 4, 5, 7, 8])
+    for absent in (3, 4, 5, 7):
+        assert commands(sim, absent) == ["read_stretch", "read_position"], absent
+    # The last ID's short wait has nothing after it to catch a late reply: the scan's second look (after its guard).
+    assert commands(sim, 8) == ["read_stretch", "read_speed", "read_stretch", "read_position"]
+    # The servos that answer: ICS 3.6 by its position read; ICS 3.5 silent to it twice around a parameter read.
+    assert commands(sim, 2) == ["read_stretch", "read_position"]
+    ics35 = ["read_stretch", "read_position", "read_speed", "read_stretch", "read_position"]
+    assert commands(sim, 1) == commands(sim, 6) == ics35
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
 
 

@@ -11,9 +11,11 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+from .. import protocol
 from ..errors import ReplyError
 from ..line import Line
 from ..servo import Servo
+from .scan import probe_ids
 
 NO_READ_ICS35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp)"
 
@@ -65,21 +67,35 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     """Probe the position read of each of ``ids`` on ``line`` (nothing sent moves or frees a servo) and
     sort the IDs into a plan.
 
+    Every ID is first asked as a scan probes (:func:`~.scan.probe_ids`: a
+    short wait, no retry, a second look where a reply may have come late), so
+    an ID where no servo is costs a command's start a few milliseconds, not
+    several reply allowances.  A silent one gets one short position-read
+    probe more (``has_position_read(silent_before=True)``): an ICS 3.6 servo
+    whose first reply was lost answers it; silent twice, the ID is
+    ``silent``.  A servo that answered is probed as ever: its position read,
+    and if it is silent to that, a parameter read and the position read
+    again, so an ICS 3.5 servo is told from an ICS 3.6 one.
+
     An ID silent to everything is watched (freed, with ``free_ics35``): a
     stream marks it offline and probes it, as any servo that stops answering,
     and a read never frees it.  A servo whose protocol this line already knows
-    is asked all the same (its position read, or an ICS 3.5 servo's
-    temperature): ``silent`` is what the servos say now; silent, it is still
-    read as its protocol says (an ICS 3.6 servo watched, never freed).
+    is asked all the same (the scan's probe; silent to it, its position read,
+    or an ICS 3.5 servo's temperature): ``silent`` is what the servos say now;
+    silent, it is still read as its protocol says (an ICS 3.6 servo watched,
+    never freed).
     """
+    wanted = [protocol.check_id(i) for i in ids]
+    present = set((await probe_ids(line, wanted, id_read_first=False)).answered) if wanted else set()
     plan = StreamPlan()
-    for sid in ids:
+    for sid in wanted:
         servo = Servo(line, sid)
         readable = servo.known_position_read()
         try:
             if readable is None:
-                readable = await servo.has_position_read()  # (probed: which asks the servo)
-            else:
+                # (probed: which asks the servo; silent to the scan's probe, one silent probe more says nobody)
+                readable = await servo.has_position_read(silent_before=sid not in present)
+            elif sid not in present:
                 await (servo.read_position() if readable else servo.read_temperature())
         except ReplyError:
             plan.silent.append(sid)
