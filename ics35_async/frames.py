@@ -76,6 +76,13 @@ class Frame:
     resumed: bool = False
     held: frozenset[int] = frozenset()
 
+    @property
+    def unanswered(self) -> frozenset[int]:
+        """The IDs that did not answer this cycle or are out of it (``failed | offline``): a read sent to one
+        now would most likely wait its whole reply allowance (and its retries), so telemetry beside a stream
+        (``ics35 monitor``, the configurator's Live page) leaves them to the stream until they answer it."""
+        return self.failed | self.offline
+
     def degrees(self) -> dict[int, float]:
         """The positions of this frame in degrees, by ID (7500 counts is 0 degrees)."""
         return {i: units.position_to_degrees(p) for i, p in self.positions.items()}

@@ -124,7 +124,7 @@ async def run_live(
                                 wanted = targets(elapsed, frame)
                                 stream.set_targets(wanted)
                                 state.targets.update(wanted)
-                            telemetry.after_frame(frame.offline)
+                            telemetry.after_frame(frame.unanswered)
                             if options.plot:
                                 recorder.add(elapsed, frame)
                             if now - last_render >= render_every:

@@ -1,9 +1,11 @@
 """Current and temperature reads for the live table, fitted between a stream's position cycles.
 
-They follow the stream's offline marking: an ID the stream has taken out of
-its cycle (it stopped answering) is not read, since every read of a dead ID
-costs a full reply timeout and would slow every cycle; the stream probes it,
-and telemetry resumes when it rejoins.  An ID whose telemetry reads alone
+They follow the stream (``Frame.unanswered``): an ID that did not answer its
+latest cycle, or that the stream has taken out of its cycle (it stopped
+answering), is not read, since every read of a dead ID costs a full reply
+timeout and would slow every cycle (an ID where no servo is would cost the
+first cycles one a read until the stream marks it offline); the stream
+probes it, and telemetry resumes when it answers.  An ID whose telemetry reads alone
 keep failing is read only once per ``probe_interval`` until one answers.
 """
 
@@ -47,8 +49,8 @@ class Telemetry:
         self._reads: set[asyncio.Future[int]] = set()  # outstanding (cancelled by stop)
         self._stopped = False
 
-    def after_frame(self, offline: Collection[int] = ()) -> None:
-        """Queue the next round of reads, skipping the IDs in ``offline`` (the frame's)."""
+    def after_frame(self, unanswered: Collection[int] = ()) -> None:
+        """Queue the next round of reads, skipping the IDs in ``unanswered`` (the frame's)."""
         # At most one round outstanding: telemetry must never starve the stream.
         if self._reads or self._stopped or not self.per_cycle or not self.ids:
             return
@@ -59,7 +61,7 @@ class Telemetry:
                 break
             sid = self.ids[self._next % len(self.ids)]
             self._next += 1
-            if sid in offline:
+            if sid in unanswered:
                 continue
             if self._fail_run[sid] >= self.fail_limit:
                 if now < self._next_probe[sid]:

@@ -111,7 +111,8 @@ class LiveView:
             await asyncio.sleep(TELEMETRY_PERIOD)
             sid = self.ids[k % len(self.ids)]
             k += 1
-            if sid in self.stream.offline:
+            frame = self.stream.latest
+            if frame is None or sid in frame.unanswered:
                 continue  # a dead ID costs a full timeout per read: the stream probes it
             with contextlib.suppress(IcsError):
                 health = await read_health(self.bus, sid)
