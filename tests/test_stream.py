@@ -851,6 +851,24 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
+async def test_on_close_free_sends_an_id_offline_and_never_heard_its_free_once_without_retries() -> None:
+    # An ID where no servo is (`ics35 monitor 0-9 --free` with 4-9 unplugged) failed every cycle and every probe;
+    # its close-out free, retried after a guard read (retries=1, ics35's default), waited three reply allowances
+    # at the end of the command, each such ID.  Once is what its probes had: its free still goes out.
+    ids = [1, 2, 5]
+    sim = make_sim([1, 2])
+    async with (
+        open_bus(sim, **{**FAST, "retries": 1}) as bus,
+        bus.stream(ids, on_close="free", offline_after=2, probe_interval=60.0) as stream,
+    ):
+        await frames_until(stream, lambda f: 5 in f.offline)
+        seq = sim.transactions
+    sent = [(t.servo_id, t.command) for t in sim.log_since(seq)]
+    assert [c for i, c in sent if i == 5] == ["free"], sent
+    assert {1, 2} <= {i for i, c in sent if c == "free"} and sim.servo(1).free and sim.servo(2).free
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "anyio"])
 async def test_reads_in_a_row_beside_a_stream_follow_each_other_on_the_wire(driver: str) -> None:
     # Each read after a caller's first waited a whole stream transaction: the stream's next went on the wire as
