@@ -95,8 +95,8 @@ class Stream(FrameIterator[Frame]):
         free_on_close: deprecated: ``on_close="free"``.
         history: how many cycles the statistics look back over.
         on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
-            since the last cycle is sent as the stream closes) or ``"free"`` (torque off; an ID offline that
-            never answered gets its free once, without the bus's retries).
+            since the last cycle is sent as the stream closes) or ``"free"`` (torque off).  An ID that failed
+            twice and never answered gets its close command once, without the bus's retries.
         on_resume: after a lost port comes back, or an offline ID answers again: ``"wait"`` (hold each
             such ID that had a position target, sending no command, until the program sets its target
             again) or ``"free"``.
@@ -1006,10 +1006,11 @@ class Stream(FrameIterator[Frame]):
 
     async def _send_quietly(self, servo_id: int, position: int) -> None:
         k = self._index[servo_id]
-        # An ID offline that never answered (no servo there, most likely: it failed every cycle and every probe)
-        # gets its command once, as its probes had it: a retry, and the guard read before it, would each wait a
-        # whole reply allowance more at the end of the program, for each such ID.
-        retries = 0 if self._offline[k] and self._positions[k] < 0 else None
+        # An ID that never answered and failed twice or more (offline, or not yet: a short run, a long allowance)
+        # has no servo, most likely: two silences say nobody answers there.  It gets its command once: a retry,
+        # and the guard read before it, would each wait a whole reply allowance more at the end of the program,
+        # for each such ID.
+        retries = 0 if self._positions[k] < 0 and (self._offline[k] or self._failures[k] >= 2) else None
         try:
             await self.bus.request(protocol.Position(servo_id, position, baudrate=self.bus.baudrate), retries=retries)
         except ReplyError:

@@ -851,22 +851,38 @@ async def test_on_close_free_frees_every_servo() -> None:
         assert all(sim.servo(i).free for i in ids)
 
 
-async def test_on_close_free_sends_an_id_offline_and_never_heard_its_free_once_without_retries() -> None:
+@pytest.mark.parametrize("offline_after", [2, 10], ids=["offline", "not-yet-offline"])
+async def test_on_close_free_sends_an_id_never_heard_its_free_once_without_retries(offline_after: int) -> None:
     # An ID where no servo is (`ics35 monitor 0-9 --free` with 4-9 unplugged) failed every cycle and every probe;
     # its close-out free, retried after a guard read (retries=1, ics35's default), waited three reply allowances
-    # at the end of the command, each such ID.  Once is what its probes had: its free still goes out.
+    # at the end of the command, each such ID, offline or not yet (a short run, a long allowance).  Two silences
+    # and no answer say nobody is there: its free goes out once.
     ids = [1, 2, 5]
     sim = make_sim([1, 2])
     async with (
         open_bus(sim, **{**FAST, "retries": 1}) as bus,
-        bus.stream(ids, on_close="free", offline_after=2, probe_interval=60.0) as stream,
+        bus.stream(ids, on_close="free", offline_after=offline_after, probe_interval=60.0) as stream,
     ):
-        await frames_until(stream, lambda f: 5 in f.offline)
+        frames = await frames_until(stream, lambda f: 5 in f.offline or f.cycle >= 3)
+        assert sum(5 in f.failed for f in frames) >= 2
         seq = sim.transactions
     sent = [(t.servo_id, t.command) for t in sim.log_since(seq)]
     assert [c for i, c in sent if i == 5] == ["free"], sent
     assert {1, 2} <= {i for i, c in sent if c == "free"} and sim.servo(1).free and sim.servo(2).free
     assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+
+
+async def test_on_close_free_still_retries_an_id_that_failed_only_once() -> None:
+    # One silence is not two: a servo whose only reply so far was lost gets the bus's retries as ever.
+    ids = [1, 5]
+    sim = make_sim([1])
+    async with (
+        open_bus(sim, **{**FAST, "retries": 1}) as bus,
+        bus.stream(ids, on_close="free", offline_after=10, rate_hz=2) as stream,  # (no second cycle before the close)
+    ):
+        await frames_until(stream, lambda f: 5 in f.failed)
+        seq = sim.transactions
+    assert [t.command for t in sim.log_since(seq) if t.servo_id == 5] == ["free", "read_stretch", "free"]
 
 
 @pytest.mark.parametrize("driver", ["asyncio", "anyio"])
