@@ -86,13 +86,17 @@ class TerminalOutput:
 
 
 def typed_on_a_terminal(
-    args: list[str], keys: list[tuple[str | float, bytes]], *, timeout: float = 60, stdout: Path | None = None
+    args: list[str],
+    keys: list[tuple[str | float | Callable[[], bool], bytes]],
+    *,
+    timeout: float = 60,
+    stdout: Path | None = None,
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
-    ``when`` seconds, then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
-    ``stdout``: a file for stdout instead (``ics35 ... > FILE``).  Returns the exit code and everything written
-    to the terminal."""
+    ``when`` seconds, or until ``when()`` is true (e.g. a line in the ``stdout`` file), then types ``key``
+    (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).  ``stdout``: a file for stdout instead
+    (``ics35 ... > FILE``).  Returns the exit code and everything written to the terminal."""
     import fcntl
     import struct
     import subprocess
@@ -122,6 +126,8 @@ def typed_on_a_terminal(
         for when, key in keys:
             if isinstance(when, str):
                 screen.read_until(screen.shows(when), timeout)
+            elif callable(when):
+                screen.read_until(when, timeout)
             else:
                 screen.read_until(lambda: False, when)
             os.write(master, key)
