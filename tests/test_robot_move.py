@@ -373,6 +373,30 @@ def test_free_on_wire_and_read_pose_do_not_wait_when_every_line_is_lost() -> Non
     run_robot(rig, body, reconnect=True)
 
 
+def test_a_stop_right_after_a_cancelled_motion_does_not_wait_when_every_line_is_lost() -> None:
+    # A motion cancelled (Ctrl-C, the configurator's Stop) leaves its joints coasting for two cycles, at the speed
+    # they had, for a smooth stop() right after.  Every line lost then, the stop ramped them down on cycles no line
+    # could run: it waited for as long as the lines stayed away.  Their servos keep their last command.
+    rig = make_rig()
+    for line in rig.description["lines"].values():
+        line["rate_hz"] = 200
+
+    async def body(robot: Robot) -> None:
+        with anyio.move_on_after(0.3):  # (a move of 5 s: cancelled on its way)
+            await robot.move_to({"neck": 40.0, "hip": 20.0}, duration=5.0)
+        rig.upper.unplug()  # (at once: within the two cycles the joints coast for)
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
+                await anyio.sleep(0.01)
+        with anyio.fail_after(GUARD):  # (it waited for ever)
+            await robot.stop()
+        rig.upper.replug()
+        rig.lower.replug()
+
+    run_robot(rig, body, reconnect=True)
+
+
 def test_a_motion_whose_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
     # One line lost among others gives its joints up at the next frame; with every line lost no frame came, and
     # the motion waited for as long as the lines stayed away (then went on, its joints held by their lines).

@@ -727,6 +727,9 @@ class Robot:
         driven = frozenset(name for plan in self._plans for name in plan.joints & lost)
         if driven:
             self._give_up_lost(driven)
+        for name in lost - driven:  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
+            self._velocity[name] = 0.0
+            self._coasting.pop(name, None)
         for plan in [plan for plan in self._plans if not plan.joints]:
             plan.finish()
             self._plans.remove(plan)
