@@ -668,8 +668,9 @@ class Bus:
                 self.port,
                 ", ".join(f"ID {i}" for i in sorted(found.garbled)),
             )
-        elif checked and not found.answered and not found.silent:
+        elif checked and not found.answered:
             # Servos set to another rate are as silent as no servos: the program's fix is the rate it opened at.
+            # (A line without echo gives no byte back either way: its silence is this case, not the adapter's.)
             others = " or ".join(
                 f"baudrate={int(rate)}" for rate in reversed(protocol.BaudRate) if rate != self.baudrate
             )

@@ -365,3 +365,23 @@ def test_a_scan_that_finds_nobody_or_a_shared_id_says_why(caplog: pytest.LogCapt
     with caplog.at_level("WARNING", logger="ics35_async"):
         assert anyio.run(scan, VirtualLine([VirtualServo(3)])) == [3]  # a line that answers: nothing to say
     assert not [r for r in caplog.records if r.levelname == "WARNING"]
+
+
+def test_a_scan_that_finds_nobody_on_a_line_without_echo_says_so(caplog: pytest.LogCaptureFixture) -> None:
+    # A line without echo (a DIY interface: echo=False) where nothing answers gets no "not even the echo" warning,
+    # which would blame the adapter for what such a line always does; no servo answering is still worth saying.
+    from ics35_async.protocol import BaudRate
+    from ics35_async.sim import VirtualLine, VirtualServo
+
+    async def scan(line: VirtualLine) -> list[int]:
+        async with open_bus(line, echo=False) as bus:
+            return await bus.scan()
+
+    fast = VirtualLine([VirtualServo(i) for i in (1, 2)], echo=False)
+    for servo in fast.servos:
+        servo.baud_rate = BaudRate.B1250000  # silent at the bus's 115200
+    with caplog.at_level("WARNING", logger="ics35_async"):
+        assert anyio.run(scan, fast) == []
+    said = " ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+    assert "no servo answered at 115200" in said and "baudrate=1250000" in said, said
+    assert "not even the echo" not in said, said
