@@ -373,10 +373,12 @@ def test_free_on_wire_and_read_pose_do_not_wait_when_every_line_is_lost() -> Non
     run_robot(rig, body, reconnect=True)
 
 
-def test_a_stop_right_after_a_cancelled_motion_does_not_wait_when_every_line_is_lost() -> None:
+@pytest.mark.parametrize("lost", [("upper", "lower"), ("lower",)], ids=["every-line", "one-line"])
+def test_a_stop_right_after_a_cancelled_motion_has_nothing_to_ramp_on_a_lost_line(lost: tuple[str, ...]) -> None:
     # A motion cancelled (Ctrl-C, the configurator's Stop) leaves its joints coasting for two cycles, at the speed
-    # they had, for a smooth stop() right after.  Every line lost then, the stop ramped them down on cycles no line
-    # could run: it waited for as long as the lines stayed away.  Their servos keep their last command.
+    # they had, for a smooth stop() right after.  A line lost then, the stop ramped its joints down on cycles the
+    # line could not run: with every line lost it waited for as long as they stayed away; with one, it raised
+    # MotionStopped for joints no motion drove any more.  Their servos keep their last command.
     rig = make_rig()
     for line in rig.description["lines"].values():
         line["rate_hz"] = 200
@@ -384,15 +386,15 @@ def test_a_stop_right_after_a_cancelled_motion_does_not_wait_when_every_line_is_
     async def body(robot: Robot) -> None:
         with anyio.move_on_after(0.3):  # (a move of 5 s: cancelled on its way)
             await robot.move_to({"neck": 40.0, "hip": 20.0}, duration=5.0)
-        rig.upper.unplug()  # (at once: within the two cycles the joints coast for)
-        rig.lower.unplug()
+        for name in lost:  # (at once: within the two cycles the joints coast for)
+            getattr(rig, name).unplug()
         with anyio.fail_after(GUARD):
-            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
+            while any(robot.group.buses[name].state is not State.LOST for name in lost):
                 await anyio.sleep(0.01)
-        with anyio.fail_after(GUARD):  # (it waited for ever)
+        with anyio.fail_after(GUARD):  # (it waited for ever, every line lost)
             await robot.stop()
-        rig.upper.replug()
-        rig.lower.replug()
+        for name in lost:
+            getattr(rig, name).replug()
 
     run_robot(rig, body, reconnect=True)
 
