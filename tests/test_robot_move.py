@@ -399,6 +399,28 @@ def test_a_stop_right_after_a_cancelled_motion_has_nothing_to_ramp_on_a_lost_lin
     run_robot(rig, body, reconnect=True)
 
 
+def test_a_motion_started_once_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
+    # Started after the loss (a program's next move, the configurator's), the motion was given nothing up: with
+    # no line left to run a cycle, no frame came to step it, and it waited for as long as the lines stayed away.
+    rig = make_rig()
+    for line in rig.description["lines"].values():
+        line["rate_hz"] = 200
+
+    async def body(robot: Robot) -> None:
+        await robot.read_pose()
+        rig.upper.unplug()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
+                await anyio.sleep(0.01)
+        with anyio.fail_after(GUARD), pytest.raises(MotionStopped, match="lost its port"):  # (it waited for ever)
+            await robot.move_to({"neck": 10.0, "hip": 5.0}, duration=0.5)
+        rig.upper.replug()
+        rig.lower.replug()
+
+    run_robot(rig, body, reconnect=True)
+
+
 def test_a_motion_whose_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
     # One line lost among others gives its joints up at the next frame; with every line lost no frame came, and
     # the motion waited for as long as the lines stayed away (then went on, its joints held by their lines).

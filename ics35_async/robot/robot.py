@@ -500,6 +500,8 @@ class Robot:
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
+        if self._lost_lines:  # (its joints there given up now: every line lost, no frame would come to do it)
+            self._drop_lost_joints()
         try:
             await plan.done.wait()
         finally:
@@ -723,18 +725,23 @@ class Robot:
         frame comes: the motions give up the lost lines' joints here (a motion with none left ends), and what
         waits for replies (on_wire, free, read_pose) is woken to leave them out."""
         self._lost_lines |= {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        for name in self._lost_joints():  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
+            self._velocity[name] = 0.0
+            self._coasting.pop(name, None)
+        self._drop_lost_joints()
+        event, self._new_frame = self._new_frame, anyio.Event()
+        event.set()
+
+    def _drop_lost_joints(self) -> None:
+        """The motions give up the joints on a line whose port is lost, and a motion with none left ends: with
+        every line lost no frame comes to step it (see _line_changed, and run for a motion started meanwhile)."""
         lost = self._lost_joints()
         driven = frozenset(name for plan in self._plans for name in plan.joints & lost)
         if driven:
             self._give_up_lost(driven)
-        for name in lost - driven:  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
-            self._velocity[name] = 0.0
-            self._coasting.pop(name, None)
         for plan in [plan for plan in self._plans if not plan.joints]:
             plan.finish()
             self._plans.remove(plan)
-        event, self._new_frame = self._new_frame, anyio.Event()
-        event.set()
 
     def _settle(self, line_cycles: Mapping[str, int], line_started: Mapping[str, float]) -> None:
         """Joints a cancelled motion left (see run) come to rest once their line has run two cycles begun since:
