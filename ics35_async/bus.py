@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar, Unpack
 
@@ -25,7 +26,7 @@ from .protocol import Command
 from .stats import BusStats
 from .tasks import despite_cancellation
 from .transports.direction import check_direction
-from .transports.wire_device import TRANSPORT_KINDS, WireDevice, check_port
+from .transports.wire_device import TRANSPORT_KINDS, WireDevice, port_argument
 from .units import check_bool, check_ids, check_int, check_seconds
 
 if TYPE_CHECKING:
@@ -106,8 +107,8 @@ class Bus:
         InvalidArgument: an option has the wrong type or is out of range (nothing is opened).
     """
 
-    def __init__(self, port: str | WireDevice, **options: Unpack[BusOptions]) -> None:
-        check_port(port)  # here, not at the open: an empty port is refused before anything starts
+    def __init__(self, port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> None:
+        port = port_argument(port)  # here, not at the open: an empty port is refused before anything starts
         unknown = set(options) - BusOptions.__optional_keys__
         if unknown:
             raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
@@ -689,13 +690,13 @@ class Bus:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"
 
 
-def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> Bus:
+def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
 
     Nothing is opened until ``async with`` (or ``await``).  ``Bus(port, **options)`` is the same.
 
     Args:
-        port: a serial device path (``/dev/ttyUSB0``, ``COM3``), a pyserial URL (``socket://``,
+        port: a serial device path (``/dev/ttyUSB0``, ``COM3``; a ``pathlib.Path`` too), a pyserial URL (``socket://``,
             ``rfc2217://``, ``loop://``), ``sim://?...`` for the built-in simulator, or a
             ``WireDevice`` (``ics35_async.transports``: a device in this process).
         **options: the line's options, each described in [`BusOptions`][ics35_async.bus.BusOptions]

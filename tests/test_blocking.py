@@ -693,3 +693,12 @@ def test_the_guide_s_gait_loop_leaves_a_servo_that_came_back_to_the_program_and_
     last_silent = max(n for n, t in enumerate(streamed) if not t.responders)
     after = [t.command for t in streamed[last_silent + 1 :]]
     assert after[:1] == ["read_stretch"] and "position" in after, after  # probed, held, taken back by the program
+
+
+def test_a_port_given_as_a_path_object_is_taken_as_its_path() -> None:
+    # A program building the port's name with pathlib (Path("/dev/serial/by-id") / name) was told "port must be
+    # a path, a URL or a WireDevice, not PosixPath".  It is opened as the path it names.
+    missing = Path("/dev/ttyICS-no-such-port")
+    with pytest.raises(PortNotFound):
+        blocking.open_bus(missing)
+    assert open_async_bus(missing).port == str(missing)

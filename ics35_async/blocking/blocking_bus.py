@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Awaitable, Callable, Iterable
 from typing import TYPE_CHECKING, ParamSpec, TypeVar, Unpack
@@ -261,7 +262,7 @@ def _describe(bus: Bus) -> dict[str, object]:
     return bus.describe()
 
 
-def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> BlockingBus:
+def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> BlockingBus:
     """Open a [`BlockingBus`][ics35_async.blocking.BlockingBus] on ``port``: use ``with open_bus(...) as bus:``.
 
     Takes what [`ics35_async.open_bus`][ics35_async.bus.open_bus] takes.  The bus is open when this
@@ -269,7 +270,7 @@ def open_bus(port: str | WireDevice, **options: Unpack[BusOptions]) -> BlockingB
     loop thread.
 
     Args:
-        port: a serial device path, a pyserial URL, ``sim://?...`` or a ``WireDevice``.
+        port: a serial device path (a ``pathlib.Path`` too), a pyserial URL, ``sim://?...`` or a ``WireDevice``.
         **options: the line's options, each described in [`BusOptions`][ics35_async.bus.BusOptions].
 
     Raises:

@@ -22,13 +22,14 @@ is the driver's own business.
 from __future__ import annotations
 
 import logging
+import os
 
 from ..errors import InvalidArgument
 from .device_port import DevicePort
 from .pyserial_port import SERIAL_POLL, ReaderThread, SerialPort
 from .serial_port import READ_POLL, open_serial, posix_fd
 from .tty_port import TtyPort
-from .wire_device import TRANSPORT_KINDS, WireDevice, check_port, device_factory
+from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory, port_argument
 
 log = logging.getLogger("ics35_async.transports")
 
@@ -36,7 +37,7 @@ Port = TtyPort | SerialPort | DevicePort
 
 
 def open_port(
-    port: str | WireDevice,
+    port: str | os.PathLike[str] | WireDevice,
     baudrate: int,
     *,
     transport: str = "auto",
@@ -66,7 +67,7 @@ def open_port(
         raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORT_KINDS)}, not {transport!r}")
     if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
         raise InvalidArgument(f"baudrate must be a positive int, not {baudrate!r}")
-    check_port(port)
+    port = port_argument(port)
     if not isinstance(port, str):
         return _device_port(port, baudrate)
     scheme, sep, _ = port.partition("://")

@@ -10,6 +10,7 @@ line opens, so importing the library loads no simulator.
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 
@@ -70,17 +71,22 @@ _PORT_ADVICE = (
 )
 
 
-def check_port(port: object) -> None:
-    """Refuse, saying what to pass, a port that is neither a non-empty path or URL nor a :class:`WireDevice`.
+def port_argument(port: object) -> str | WireDevice:
+    """``port`` as the library keeps it: a path or URL (a ``pathlib.Path`` as its string) or a :class:`WireDevice`;
+    refused, saying what to pass, when it is none of those or empty.
 
     Raises:
         InvalidArgument: ``port`` is empty, ``None`` or of another type.
     """
+    if isinstance(port, os.PathLike):
+        port = os.fspath(port)
     if isinstance(port, str):
         if not port:
             raise InvalidArgument(f"port must not be empty: {_PORT_ADVICE}")
-    elif not isinstance(port, WireDevice):
+        return port
+    if not isinstance(port, WireDevice):
         raise InvalidArgument(f"port must be a path, a URL or a WireDevice, not {type(port).__name__}: {_PORT_ADVICE}")
+    return port
 
 
 def device_factory(scheme: str) -> WireDeviceFactory | None:
