@@ -878,7 +878,8 @@ async def test_on_close_free_still_retries_an_id_that_failed_only_once() -> None
     sim = make_sim([1])
     async with (
         open_bus(sim, **{**FAST, "retries": 1}) as bus,
-        bus.stream(ids, on_close="free", offline_after=10, rate_hz=2) as stream,  # (no second cycle before the close)
+        # (a cycle every 20 s: no second one before the close, however long the machine stalls)
+        bus.stream(ids, on_close="free", offline_after=10, rate_hz=0.05) as stream,
     ):
         await frames_until(stream, lambda f: 5 in f.failed)
         seq = sim.transactions
