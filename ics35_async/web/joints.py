@@ -72,7 +72,7 @@ class RobotSession:
         self._closing = asyncio.Event()
         # The robot a lost line stopped, kept open until Reconnect (its lines reconnect by themselves): the lines
         # still there stream on, so Free all reaches their joints and sees it on the wire (see free).
-        self._stopped: Robot | None = None
+        self._stopped_robot: Robot | None = None
         self._free_at_reopen: list[str] = []  # joints Free all could not reach (a lost line's): freed at Reconnect
 
     async def open(self) -> None:
@@ -104,16 +104,19 @@ class RobotSession:
         """
         if self.robot is not None:
             return
-        if self._stopped is not None:
+        stopped = self._stopped_robot
+        if stopped is not None:
             # Its lost line reopens by itself once its port is back (within a reconnect delay of it): until then
             # the robot stays as it is, not closed for an open that would fail (Free all would reach nothing).
-            still = await _still_lost(self._stopped, RECONNECT_WAIT)
+            still = await _still_lost(stopped, RECONNECT_WAIT)
             if still:
                 raise UnsafeOperation(
                     f"line {', '.join(still)} is still lost (its port is not back): plug it back in, then press "
                     "Reconnect; meanwhile Free all reaches the joints on the other lines"
                 )
-            self._carry_on_from(self._stopped)  # (as it is now: a safety stop since, a joint back held)
+            if self._stopped_robot is not stopped:  # (the server closing meanwhile: the robot is gone)
+                raise UnsafeOperation("the robot was closed while Reconnect waited for its line")
+            self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
         pose = dict(self.start_pose)
         if self.lost_pose:
             if lost_joints not in ("hold", "free"):
@@ -159,7 +162,7 @@ class RobotSession:
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
-                lost = asyncio.ensure_future(_lost_lines(robot))
+                lost = asyncio.ensure_future(_a_line_lost(robot))
                 try:
                     done, _ = await asyncio.wait({asked, ended, lost}, return_when=asyncio.FIRST_COMPLETED)
                     if lost in done and lost.result() and not closing.is_set():
@@ -167,7 +170,7 @@ class RobotSession:
                     # Kept open, its other lines streaming, until Reconnect or the server's end (or until its
                     # lines end: a lost port that could not be reopened).
                     await asyncio.wait({asked, ended}, return_when=asyncio.FIRST_COMPLETED)
-                    if ended.done() and not closing.is_set() and self._stopped is None:
+                    if ended.done() and not closing.is_set() and self._stopped_robot is None:
                         why = error_text(ended.result())
                         self.error = f"the robot stopped: {why}; with the line back, press Reconnect"
                         self._carry_on_from(robot)
@@ -177,14 +180,14 @@ class RobotSession:
         except (IcsError, OSError) as exc:
             self.error = f"the robot's lines could not be opened: {error_text(exc)}"
         finally:
-            self.robot = self._stopped = None
+            self.robot = self._stopped_robot = None
             self.motion_enabled = False
             opened.set()
 
     async def _stop_at_loss(self, robot: Robot, lines: list[str]) -> None:
         """Line(s) ``lines`` lost their port: the page's robot stops (motion off, what plays slowed to rest on the
         lines left, nothing moved until Reconnect), kept open so that Free all still reaches the other lines."""
-        self.robot, self._stopped = None, robot
+        self.robot, self._stopped_robot = None, robot
         self.motion_enabled, self._motion_page = False, None
         ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
         self.error = f"the robot stopped: line {ports} lost its port; with the line back, press Reconnect"
@@ -299,7 +302,7 @@ class RobotSession:
         # had is not where they are (restarted, free and elsewhere), so the page says so beside it.
         held = {} if robot is None else robot.held
         # (the robot a lost line stopped: its targets as they are now, a joint freed since included)
-        kept = robot or self._stopped
+        kept = robot or self._stopped_robot
         targets = self.last_targets if kept is None else kept.targets
         joints = []
         for name, spec in self.description.joints.items():
@@ -448,7 +451,7 @@ class RobotSession:
             UnsafeOperation: the robot is not open (nothing plays): how it stands, and what the person can do.
         """
         if self.robot is None:
-            if self._stopped is not None:  # (kept: its other lines stream on, see free)
+            if self._stopped_robot is not None:  # (kept: its other lines stream on, see free)
                 todo = "Free all lets go of those on the lines still there; Reconnect opens the robot again"
             else:
                 todo = "Reconnect opens the robot again (Free all then lets them go)"
@@ -490,8 +493,8 @@ class RobotSession:
         if joint is None:
             await self.stop(ramp=0.0)
             self.motion_enabled = False
-            if self.robot is None and self._stopped is not None:
-                await self._free_stopped(self._stopped)
+            if self.robot is None and self._stopped_robot is not None:
+                await self._free_stopped(self._stopped_robot)
                 return
             await self._robot().free()
             self.outcome = "joints free"  # (the page's state line: no longer how the last motion ended)
@@ -541,7 +544,7 @@ def _on_lost_lines(robot: Robot) -> list[str]:
     return [name for name, joint in robot.joints.items() if buses[joint.line].state is State.LOST]
 
 
-async def _lost_lines(robot: Robot) -> list[str]:
+async def _a_line_lost(robot: Robot) -> list[str]:
     """Returns the names of ``robot``'s lines once one has lost its port (reconnecting, or back already)."""
     buses = robot.group.buses
     before = {name: bus.stats.reconnects for name, bus in buses.items()}
