@@ -800,3 +800,24 @@ def test_a_robot_frame_is_plain_json_for_a_log_or_a_web_page() -> None:
         assert doc["held"] == sorted(frame.held) and doc["offline"] == sorted(frame.offline)
 
     run_robot(rig, body)
+
+
+def test_robot_lost_names_the_joints_on_a_lost_line_as_of_now() -> None:
+    # (What the configurator's Free all names as not reached: a frame's `lost` is as of its cycle, and with every
+    # line lost no frame comes.)
+    rig = make_rig()
+    upper = {name for name, spec in JOINTS.items() if spec["line"] == "upper"}
+
+    async def body(robot: Robot) -> None:
+        assert robot.lost == frozenset()
+        rig.upper.unplug()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while robot.lost != set(JOINTS):
+                await anyio.sleep(0.01)
+        rig.lower.replug()
+        with anyio.fail_after(GUARD):  # (the lower line back: in a frame whose `resumed` names it)
+            while robot.lost != upper:
+                await anyio.sleep(0.01)
+
+    run_robot(rig, body, reconnect=True)

@@ -133,6 +133,14 @@ class Robot:
         :meth:`reset_trip`."""
         return dict(self._latched)
 
+    @property
+    def lost(self) -> frozenset[str]:
+        """Joints on a line whose port is lost now (``reconnect=True``: its bus reconnecting), until the frame
+        whose ``resumed`` names the line back: nothing sent to them is confirmed meanwhile (``free()`` and
+        ``on_wire()`` do not wait for them).  A frame's ``lost`` as of now: with every line lost no frame comes."""
+        lines = self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        return frozenset(n for n, j in self.joints.items() if j.line in lines) if lines else frozenset()
+
     def has_answered(self, joint: str) -> bool:
         """Whether ``joint``'s servo has answered since the robot opened (a position, or a probe once offline):
         only such a joint is under control, its going offline a safety matter and its telemetry read."""

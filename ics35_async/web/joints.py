@@ -506,7 +506,7 @@ class RobotSession:
 
     async def _free_stopped(self, robot: Robot) -> None:
         """Free all on the robot a lost line stopped (see free)."""
-        lost = _on_lost_lines(robot)
+        lost = [name for name in robot.joints if name in robot.lost]
         # Robot.free: the other lines' joints are freed on the wire (waited for); the lost line's take the free as
         # their target, sent once the line is back (not waited for: it answers nothing).
         await robot.free()
@@ -536,12 +536,6 @@ async def _still_lost(robot: Robot, seconds: float) -> list[str]:
             while names := lost():
                 await robot.group.buses[names[0]].state_change()
     return lost()
-
-
-def _on_lost_lines(robot: Robot) -> list[str]:
-    """``robot``'s joints on a line whose port is lost now (reconnecting)."""
-    buses = robot.group.buses
-    return [name for name, joint in robot.joints.items() if buses[joint.line].state is State.LOST]
 
 
 async def _a_line_lost(robot: Robot) -> list[str]:
