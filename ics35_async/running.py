@@ -31,7 +31,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from types import FrameType
 from typing import Any, Literal, NoReturn, Protocol, TypeVar, cast
 
-from .errors import IcsError, InvalidArgument
+from .errors import IcsError, InvalidArgument, error_text
 from .tasks import only_error
 from .terminal import ctrl_c_typed
 
@@ -175,7 +175,7 @@ def _said(exc: BaseException) -> bool:
     error = only_error(exc)
     if not isinstance(error, IcsError):
         return False
-    print(f"error: {error}", file=sys.stderr)
+    print(f"error: {error_text(error)}", file=sys.stderr)
     return True
 
 

@@ -665,6 +665,7 @@ def test_a_blocking_program_s_mistyped_port_is_one_line_with_its_hint() -> None:
     assert done.returncode == 1, done.stderr
     assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: "), done.stderr
     assert port in done.stderr and "ics35 ports" in done.stderr, done.stderr
+    assert "Errno" not in done.stderr, done.stderr  # (the words only, as the ics35 commands say them)
 
 
 def test_a_plain_program_hears_its_port_lost_and_back(pty_sim: Any) -> None:
