@@ -6,7 +6,10 @@ server of its own: backups and restores, ticks, motion switched on and off, jogs
 from __future__ import annotations
 
 import contextlib
+import os
 import re
+import socket
+import subprocess
 import sys
 import time
 from collections.abc import Iterator
@@ -24,6 +27,7 @@ from ics35_async.eeprom import Eeprom
 from ics35_async.sim import VirtualServo
 from tests.support.browser_pages import (
     PAGE_GONE_BOUND,
+    WEB,
     PtyLine,
     backed_up,
     open_servo_page,
@@ -31,7 +35,7 @@ from tests.support.browser_pages import (
     until,
     web_server_page,
 )
-from tests.support.timing import GUARD
+from tests.support.timing import GUARD, PATIENT_OPTION
 
 # Each module's tests share its browser (and the first module's, one page walked in order): `make test`
 # hands each module whole to one xdist worker (--dist loadfile); the three modules run side by side.
@@ -592,3 +596,64 @@ def test_the_servo_page_acts_on_the_servo_it_shows_not_an_id_typed_in_the_box_an
         # The page reads the servo it wrote again, and says which one it shows.
         expect(p.locator("#eeprom-table [name=servo_id]")).to_have_value("1")
         expect(p.locator("#servo-id")).to_have_value("1")
+
+
+@pytest.mark.parametrize("restarted", [False, True], ids=["stopped", "started-again-with-another-token"])
+def test_the_servo_page_of_a_server_gone_shows_motion_off_and_no_position_as_read_now(
+    browser: Browser, restarted: bool
+) -> None:
+    # Ctrl-C (or a restart, with a new token this page cannot use) with a servo's page open: its "enable motion"
+    # stayed ticked, its jog buttons live, and its last position "read now", under the words that the server was
+    # gone.  The server that comes back knows no motion switched on: a jog there is refused.
+    line = PtyLine((1,), ics36=(1,))
+    with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
+        probe.bind(("127.0.0.1", 0))
+        listen = f"127.0.0.1:{probe.getsockname()[1]}"
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+
+    def start() -> subprocess.Popen[str]:
+        command = [*WEB, "--port", line.path, "--listen", listen, *PATIENT_OPTION]
+        return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=environment)
+
+    first = start()
+    second: subprocess.Popen[str] | None = None
+
+    def restarted_first(route: Route) -> None:
+        # The page asks the server's status once its socket closes: the new server answers it, as it does when
+        # the restart is quicker than the page.
+        nonlocal second
+        if first.poll() is not None and second is None:
+            second = start()
+            assert second.stdout is not None
+            second.stdout.readline()  # (its address printed: it listens)
+        route.continue_()
+
+    context = browser.new_context()
+    try:
+        assert first.stdout is not None
+        p = context.new_page()
+        p.goto(first.stdout.readline().strip())
+        if restarted:
+            p.route("**/api/status", restarted_first)
+        open_servo_page(p, 1)
+        p.check("#motion-switch")
+        expect(p.locator("#jog-plus")).to_be_enabled()
+        expect(p.locator("#jog-position-note")).to_contain_text("read now")
+        first.terminate()
+        first.wait(10)
+        gone = "server started again: open its new address" if restarted else "server gone"
+        expect(p.locator("#line-status")).to_have_text(gone)
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        for control in ("#jog-minus", "#jog-slider", "#jog-plus"):
+            expect(p.locator(control)).to_be_disabled()
+        expect(p.locator("#jog-position")).to_have_text("-")
+        expect(p.locator("#jog-position-note")).to_contain_text("not read now: the configurator's server")
+    finally:
+        context.close()
+        for proc in (first, second):
+            if proc is not None:
+                proc.terminate()
+                proc.wait(10)
+                assert proc.stdout is not None
+                proc.stdout.close()
+        line.close()

@@ -367,6 +367,7 @@ async function pollPosition() {
     body = await response.json();
   } catch (e) { return; }  // the server is gone: the WebSocket says so
   if (id !== state.servoLoaded) return;  // another servo's page meanwhile
+  if (state.serverGone || state.tokenRefused) return;  // (its words, from serverGoneHere, stay until it is back)
   if (!response.ok) { $("#jog-position-note").textContent = `not read now: ${body.error}`; return; }
   state.positionHow = body.how;
   if (body.position !== null) $("#jog-position").textContent = body.position;
@@ -868,6 +869,19 @@ function robotGone(why = "the configurator's server is gone") {
   $("#robot-reopen").hidden = true;
 }
 
+// The server gone, or started again with another token (``why``): the pages show nothing as live any more.  The
+// Servo page's motion is off (a server started again knows no switch this page ticked: a jog would be refused)
+// and its servo's position is not read; the Line page's values and the live plot's rates are the last ones read.
+function serverGoneHere(why) {
+  if (state.robot) robotGone(why);
+  $("#motion-switch").checked = false; setMotion(false);
+  state.motionFor = null;
+  $("#jog-position").textContent = "-";
+  $("#jog-position-note").textContent = `not read now: ${why}`;
+  $("#servo-table").classList.add("stale");
+  liveStopped();
+}
+
 async function freeJoint(name) {
   say("");
   onRobot(await api("/api/robot/free", { joint: name }));
@@ -937,7 +951,7 @@ function connectSocket() {
         + "open the address `ics35 web` printed, which carries it";
       if (!state.tokenRefused) say(words);
       // (as gone: this page cannot read or send anything; a restart quicker than the page never showed it gone)
-      if (state.robot) robotGone("the configurator's server was started again with another token (open its new address)");
+      serverGoneHere("the configurator's server was started again with another token (open its new address)");
       state.tokenRefused = true;
       setTimeout(connectSocket, 5000);
       return;
@@ -946,7 +960,7 @@ function connectSocket() {
     state.tokenRefused = false;
     const gone = "the configurator's server is gone (was `ics35 web` stopped?): trying again every second";
     $("#line-status").textContent = "server gone";
-    if (state.robot) robotGone();
+    serverGoneHere("the configurator's server is gone");
     if (!state.serverGone) say(gone);  // once: the box stays until the server is back or another action
     state.serverGone = true;
     setTimeout(connectSocket, 1000);
