@@ -1279,3 +1279,23 @@ def test_the_page_says_of_a_missing_kondo_adapter_what_ics35_ports_says(
     client, _ = serve()
     page = client.get("/api/ports").json()["notes"]
     assert page and page == cli("ports", "--json").json()["notes"]
+
+
+def test_a_servo_whose_id_a_second_one_answers_too_has_motion_switched_off_and_is_said_to_share_it(
+    serve: Any,
+) -> None:
+    # A new servo (ID 0, as they come) plugged in beside the one whose page jogs it: the page's poll came back
+    # garbled, said in raw bytes, and motion stayed on: the next jog moved the new servo too, from wherever it was.
+    client, sim = serve((0,))
+    assert post(client, "/api/servo/0/motion", {"enabled": True}).json()["position"] == 7500
+    new = VirtualServo(0)
+    new.move_by_hand(6000)
+    sim.add_device(new)
+    read = client.get("/api/servo/0/position")  # (the Servo page's poll, twice a second)
+    assert read.status_code == 502 and "sharing ID 0" in read.json()["error"], read.text
+    assert "sharing ID 0" in client.get("/api/status").json()["motion_off"]["0"]
+    refused = post(client, "/api/servo/0/move", {"position": 7600})
+    assert refused.status_code == 409 and "sharing ID 0" in refused.json()["error"], refused.text
+    eeprom = client.get("/api/servo/0/eeprom")
+    assert eeprom.status_code == 502 and "sharing ID 0" in eeprom.json()["error"], eeprom.text
+    assert new.free and new.position == 6000

@@ -23,10 +23,12 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from ..diagnose.system import missing_adapter_notes
 from ..errors import (
+    BadReply,
     BusClosed,
     IcsError,
     InvalidArgument,
     MalformedEeprom,
+    PartialReply,
     PortLost,
     ReplyError,
     ReplyTimeout,
@@ -118,6 +120,8 @@ def endpoint(handler: Handler, *, look_at_other_rates: bool = False) -> Callable
             if "servo_id" not in request.path_params:
                 return error_response(exc)
             return await no_reply_response(session, exc, look_at_other_rates=look_at_other_rates)
+        except (BadReply, PartialReply) as exc:  # (two servos sharing an ID, most often: said so)
+            return error_response(exc, session.answered_garbled(exc))
         except (IcsError, OSError, ValueError, TypeError, KeyError) as exc:
             return error_response(exc)
         except Exception as exc:  # the page shows words, the terminal one line; never a traceback

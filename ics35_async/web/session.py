@@ -28,9 +28,11 @@ from ..bus import Bus, open_bus
 from ..eeprom import BaudRate, Eeprom
 from ..engine import State
 from ..errors import (
+    BadReply,
     BusClosed,
     IcsError,
     InvalidArgument,
+    PartialReply,
     PortLost,
     PortNotFound,
     ReplyError,
@@ -167,7 +169,9 @@ class LineSession:
             self.motion_switches += 1
             self.motion_off[sid] = why
 
-    def lost_touch(self, ids: Iterable[int]) -> None:
+    def lost_touch(
+        self, ids: Iterable[int], why: str = "it stopped answering (it may have restarted, free and elsewhere)"
+    ) -> None:
         """``ids`` did not answer (a request, a telemetry read, the live stream): a servo that restarted meanwhile
         (its cable or supply) is free, somewhere else.  Its motion goes off (a jog from its old target would throw
         it there) and the hold a page left it in is in doubt (a live plot would send it that target)."""
@@ -175,7 +179,22 @@ class LineSession:
         for sid in ids:
             if sid in self.holding:
                 self.holding[sid] = (self.holding[sid][0], None)  # (held on no line: in doubt, see _holding_split)
-        self._switch_motion_off(ids, "it stopped answering (it may have restarted, free and elsewhere)")
+        self._switch_motion_off(ids, why)
+
+    def answered_garbled(self, exc: BadReply | PartialReply) -> str:
+        """A servo's answer came back garbled (``exc``): the page's words for it.  Most often a second servo
+        answers at its ID too (a new one, ID 0 as they all come, plugged in beside it): a jog would move both,
+        the other from wherever it is, so its motion goes off and its hold is in doubt, as when it stops
+        answering (see lost_touch); switched on again, it is read first, and refused while the answers stay
+        garbled."""
+        sid = exc.servo_id
+        if sid is None:  # (the ID command addresses the whole line)
+            return error_text(exc)
+        self.lost_touch([sid], f"it answered garbled (two servos sharing ID {sid}?)")
+        return (
+            f"{error_text(exc)}: a garbled answer: two servos sharing ID {sid} answer at once (new servos all have "
+            "ID 0: connect one at a time and renumber it on the ID and baud page), or noise on the line"
+        )
 
     def _lost_touch_in_live(self) -> None:
         """The live stream's servos that went offline, or came back held, since they were held (see lost_touch)."""
@@ -495,6 +514,8 @@ class LineSession:
                 self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": str(exc)}
                 if isinstance(exc, ReplyTimeout):
                     self.lost_touch([sid])
+                elif isinstance(exc, (BadReply, PartialReply)):
+                    self.telemetry[sid]["telemetry_error"] = self.answered_garbled(exc)
                 continue
             self.telemetry[sid] = {
                 **health,
