@@ -94,6 +94,19 @@ def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_an
         scan_lists(p, 2)  # (scanned again at once)
 
 
+def test_a_scan_that_finds_no_servo_at_any_rate_says_what_to_check(browser: Browser) -> None:
+    # The adapter echoes, but no servo is powered on its line: the page said "0 servo(s) found." and no more.
+    line = PtyLine(())
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 0, ids="0-4")
+        expect(p.locator("#scan-summary")).to_contain_text("no servo answered at 115,200 baud")
+        expect(p.locator("#scan-summary")).to_contain_text("power")
+        expect(p.locator("#scan-summary")).to_contain_text("every baud rate")
+        p.check("#scan-all-bauds")
+        scan_finds(p, 0, ids="0-4")
+        expect(p.locator("#scan-summary")).to_contain_text("no servo answered at any baud rate")
+
+
 def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
     line = PtyLine((0, 2))
     with web_server_page(browser, line) as p:

@@ -235,6 +235,12 @@ async function scanLine() {
     if (report.echo_wrong) notes.push(`the echo setting looks wrong for this interface (${report.echo_wrong})`);
     for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
     for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
+    // The echo came back but no servo answered (nor one at another rate, said below): their power, most often.
+    if (!report.servos.length && !report.garbled.length && !report.silent && !report.lost && !report.answers_at) {
+      const rate = state.status ? `${state.status.baud.toLocaleString("en-US")} baud` : "the line's rate";
+      notes.push(`no servo answered at ${bauds ? "any baud rate" : rate}: check their power (6-12 V on the servo line, ` +
+        "not just USB) and wiring" + (bauds ? "" : "; a servo set to another rate answers only at it (tick “every baud rate”)"));
+    }
     if (report.lost) {  // the servos found before the line went are listed; the rest of the scan did not run
       say(report.lost);
       state.sayingLost = true;  // (showStatus says when the line is back)
