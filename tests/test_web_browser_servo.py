@@ -151,6 +151,26 @@ def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Br
         p.click("#live-stop")
 
 
+def test_a_live_plot_whose_port_is_lost_no_longer_shows_the_streams_rate_as_now(browser: Browser) -> None:
+    # The adapter pulled mid-plot: the page went on saying "stream 99.9 cycles/s, page 26 updates/s" (the same
+    # last frame pushed again and again), its cycle standing still, as if the servos were read.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        start_live_plot(p, "1")
+        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
+        line.sim.unplug()
+        expect(p.locator("#lost-banner")).to_be_visible()
+        expect(p.locator("#live-cycle")).to_contain_text("the port is lost")
+        expect(p.locator("#live-rate")).to_have_text("-")
+        expect(p.locator("#live-updates")).to_have_text("0")
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        expect(p.locator("#live-updates")).to_have_text(re.compile(r"^[1-9]\d*$"))
+        expect(p.locator("#live-rate")).to_have_text(re.compile(r"^\d"))
+        expect(p.locator("#live-cycle")).not_to_contain_text("lost")
+        p.click("#live-stop")
+
+
 def test_the_live_target_legend_says_free_and_left_alone_not_0_and_minus_1(browser: Browser) -> None:
     # The target plot's legend gave the stream's own marks as if they were positions: "1: 0" for a servo it
     # frees, "3: -1" for an ICS 3.6 servo it only reads; and the free servo's 0 was drawn, squashing the rest.

@@ -685,11 +685,15 @@ function onLive(frame) {
     if (frame[part] === undefined) frame[part] = state.liveParts[part]; else state.liveParts[part] = frame[part];
   }
   for (const id of Object.keys(frame.positions)) state.liveIds.add(id);  // a frame lacks an ID that missed its cycle
+  // The server pushes the newest frame it has: the same one again while the stream stands still (its port lost),
+  // which is no update, and no rate of the stream's now.
   const now = performance.now();
-  state.updates.push(now);
+  if (frame.cycle !== state.liveCycle) state.updates.push(now);
+  state.liveCycle = frame.cycle;
   while (state.updates.length && now - state.updates[0] > 1000) state.updates.shift();
-  $("#live-cycle").textContent = frame.cycle;
-  $("#live-rate").textContent = frame.rate_hz;
+  const lost = !!(state.status && state.status.lost);
+  $("#live-cycle").textContent = lost ? `${frame.cycle} (the port is lost: nothing read since)` : frame.cycle;
+  $("#live-rate").textContent = lost ? "-" : frame.rate_hz;
   $("#live-updates").textContent = state.updates.length;
   $("#live-offline").textContent = frame.offline.length ? frame.offline.join(",") : "none";
   $("#live-watched").textContent = frame.watched.length ? frame.watched.join(",") : "none";
