@@ -677,3 +677,31 @@ def test_the_servo_page_of_a_server_gone_shows_motion_off_and_no_position_as_rea
                 assert proc.stdout is not None
                 proc.stdout.close()
         line.close()
+
+
+def test_an_edit_typed_on_a_servos_page_and_not_written_is_still_there_back_on_its_page(browser: Browser) -> None:
+    # Typed, then a look at another page: back through the Servo link the page still showed the edit but every
+    # button said "read a servo first", and Read (as did the browser's Back, to #servo/1) read it again over the edit.
+    line = PtyLine((1, 2))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        p.fill("#eeprom-table [name=speed]", "70")
+        p.click("nav a[href='#line']")
+        p.click("nav a[href='#servo']")
+        servo_read(p, 1)
+        expect(p.locator("#eeprom-table [name=speed]")).to_have_value("70")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_have_text(re.compile(r"speed\s*127\s*70"))
+        p.fill("#eeprom-table [name=punch]", "9")
+        p.click("nav a[href='#live']")
+        p.go_back()
+        servo_read(p, 1)
+        expect(p.locator("#eeprom-table [name=punch]")).to_have_value("9")
+        expect(p.locator("#eeprom-table [name=speed]")).to_have_value("70")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_have_count(2)
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        assert line.sim.servo(1).eeprom.speed == 70 and line.sim.servo(2).eeprom.speed == 127
+        open_servo_page(p, 2)  # another servo's page reads that servo: nothing of servo 1's stays
+        expect(p.locator("#eeprom-table [name=speed]")).to_have_value("127")

@@ -103,7 +103,8 @@ function show() {
   say("");
   if (page !== "servo") leaveServo().catch(() => {});
   // (A failed read is said by api(): not again as an uncaught error in the console.)
-  if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
+  if (page === "servo" && shownStill(arg)) backToServo();
+  else if (page === "servo" && arg !== undefined) { $("#servo-id").value = arg; loadServo().catch(() => {}); }
   if (page === "many") fillManyFields();
   socketSend();
 }
@@ -304,8 +305,31 @@ async function leaveServo() {
   if (on !== shown) await motionOff(on);  // (the switch acts on the servo shown: never expected, but kept off)
 }
 
+// The servo the page still shows, read on the line open now: the Servo link, or the browser's Back to its page
+// (``arg``, its ID in the address), come back to it.
+function shownStill(arg) {
+  const shown = state.shown, s = state.status;
+  if (!shown || !s || shown.port !== s.port || shown.baud !== s.baud || !$("#page-servo").dataset.shown) return false;
+  return arg === undefined || arg === String(shown.id);
+}
+
+// Back on the page of the servo it shows: that servo again, with what was typed in its boxes and not written
+// kept (read again, they were lost); a Show changes diffs them against the servo as it is now. Motion stays off,
+// as on any servo's page opened.
+function backToServo() {
+  const id = state.shown.id;
+  $("#servo-id").value = id;
+  history.replaceState(null, "", `#servo/${id}`);
+  robotNote(id);
+  state.servoLoaded = id;
+  $("#page-servo").dataset.loaded = String(id);
+  motionOff(id).catch(() => {});  // (switched on in another tab meanwhile: off, as opening its page does)
+  pollPosition();
+}
+
 async function loadServo() {
   const id = wholeIn($("#servo-id"), "the servo's ID");
+  state.shown = null; delete $("#page-servo").dataset.shown;  // (its tables are another read's from here on)
   // Each load has its number: one overtaken by a later load (Read pressed again, another servo's page) stops at
   // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
   const mine = (state.loads = (state.loads ?? 0) + 1);
@@ -356,6 +380,8 @@ async function loadServo() {
   $("#motion-switch").checked = false; setMotion(false);
   state.servoLoaded = id;
   $("#page-servo").dataset.loaded = String(id);  // (read: what a test, or a person's script, can wait for)
+  state.shown = { id, port: state.status && state.status.port, baud: state.status && state.status.baud };
+  $("#page-servo").dataset.shown = String(id);
   pollPosition();
 }
 
@@ -609,6 +635,7 @@ async function renumber() {
   $("#id-result").replaceChildren();
   try {
     const r = await api("/api/id/write", { new_id: wholeIn($("#new-id"), "the new ID") });
+    if (r.written && state.shown && state.shown.id === r.old_id) state.shown = null;  // (its page reads it anew)
     $("#id-result").replaceChildren(el("p", { class: "good" }, r.written ? `renumbered: ID ${r.old_id} is now ID ${r.new_id}, and answers` : `the servo already has ID ${r.new_id}`));
   } catch (e) {
     say("");  // (api() or wholeIn() said it on top too: once, beside the button, is enough)
