@@ -705,3 +705,21 @@ def test_an_edit_typed_on_a_servos_page_and_not_written_is_still_there_back_on_i
         assert line.sim.servo(1).eeprom.speed == 70 and line.sim.servo(2).eeprom.speed == 127
         open_servo_page(p, 2)  # another servo's page reads that servo: nothing of servo 1's stays
         expect(p.locator("#eeprom-table [name=speed]")).to_have_value("127")
+
+
+def test_an_edit_typed_after_show_changes_is_not_written_unshown(browser: Browser) -> None:
+    # Show changes, then one more box changed: Write and verify wrote both, the second never in a diff.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        p.fill("#eeprom-table [name=speed]", "70")
+        p.click("#plan-btn")
+        expect(p.locator("#write-btn")).to_be_enabled()
+        p.fill("#eeprom-table [name=punch]", "9")
+        expect(p.locator("#write-btn")).to_be_disabled()
+        expect(p.locator("#diff")).to_contain_text("Show changes again")
+        p.click("#plan-btn")
+        expect(p.locator("#diff tr.changed")).to_have_count(2)
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        assert (line.sim.servo(1).eeprom.speed, line.sim.servo(1).eeprom.punch) == (70, 9)

@@ -347,7 +347,7 @@ async function loadServo() {
   // A tick allowing an ID or baud change is for one write to the servo it was ticked for: kept, it let the next
   // servo's write or restore (an old backup at another rate) change its ID or rate with no tick of its own.
   for (const tick of ["#allow-id-change", "#allow-baud-change", "#restore-id"]) $(tick).checked = false;
-  $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true;
+  $("#diff").replaceChildren(); $("#write-result").replaceChildren(); $("#write-btn").disabled = true; state.plan = null;
   // Another servo's values, or this one's from before a failed read, must not stay on show as if read now.
   state.eeprom = null;
   $("#eeprom-table tbody").replaceChildren(); $("#ram-table tbody").replaceChildren(); state.ram = null;
@@ -463,6 +463,14 @@ async function planWrite() {
     .map(([, , label]) => el("p", {}, `tick “${label}” to write it, then Show changes again`));
   $("#diff").replaceChildren(diffTable(state.plan), ...ticks);
   $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
+}
+
+// A box changed after Show changes: Write writes what the boxes say, so the diff shown is not what it would write.
+function planStale() {
+  if (!state.plan) return;
+  state.plan = null;
+  $("#write-btn").disabled = true;
+  $("#diff").append(el("p", { class: "refusal" }, "changed since this diff: press Show changes again to write it"));
 }
 
 // After a write that gave the servo another ID, the page is that ID's: read at the old one, the servo would
@@ -1033,6 +1041,7 @@ on("#scan-btn", "click", scanLine);
 on("#servo-load", "click", loadServo);
 on("#plan-btn", "click", planWrite);
 on("#write-btn", "click", writeEeprom);
+for (const event of ["input", "change"]) $("#eeprom-table").addEventListener(event, planStale);
 on("#backup-btn", "click", backupServo);
 on("#restore-file", "change", planRestore);
 on("#restore-id", "change", planRestore);
