@@ -723,3 +723,17 @@ def test_an_edit_typed_after_show_changes_is_not_written_unshown(browser: Browse
         p.click("#write-btn")
         expect(p.locator("#write-result")).to_contain_text("verified")
         assert (line.sim.servo(1).eeprom.speed, line.sim.servo(1).eeprom.punch) == (70, 9)
+
+
+def test_a_write_that_switches_motion_off_says_so(browser: Browser) -> None:
+    # Jogging, then a speed written to the EEPROM: the page reads the servo again after the write, which switches
+    # its motion off; the switch went off with nothing said, the next jog's button dead.
+    with held_by_its_page(browser, 8000) as (_, servo, p):
+        p.fill("#eeprom-table [name=speed]", "70")
+        p.click("#plan-btn")
+        p.click("#write-btn")
+        expect(p.locator("#write-result")).to_contain_text("verified")
+        expect(p.locator("#motion-switch")).not_to_be_checked()
+        expect(p.locator("#message")).to_contain_text("written and verified")
+        expect(p.locator("#message")).to_contain_text("motion is off")
+        assert servo.target == 8000 and not servo.free  # (it keeps holding)

@@ -484,13 +484,20 @@ function followNewId(result) {
   return `servo ${old} is now servo ${change.new}`;
 }
 
+// Said after a write or restore that read the servo again, which switched its motion off (its limits may be new).
+function motionOffAfter(wasOn) {
+  return wasOn ? "; motion is off now (it was read again): switch it on to jog, which holds it where it stands" : "";
+}
+
 async function writeEeprom() {
   const result = await api(`/api/servo/${servoId()}/write`, { changes: editedFields(), ...allowances(), before: state.plan.before });
   $("#write-btn").disabled = true;
   const who = followNewId(result);
+  const wasOn = $("#motion-switch").checked;
   await loadServo();
   $("#write-result").replaceChildren(resultText(result));
-  say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}`, result.verified || !result.written ? "info" : "error");
+  say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}${motionOffAfter(wasOn)}`,
+    result.verified || !result.written ? "info" : "error");
 }
 
 async function backupServo() {
@@ -525,8 +532,10 @@ async function restoreServo() {
   const result = await api(`/api/servo/${servoId()}/restore`, state.restore);
   $("#restore-btn").disabled = true;
   followNewId(result);  // "also its ID": the servo answers at the backup's
+  const wasOn = $("#motion-switch").checked;
   await loadServo();
   $("#restore-result").replaceChildren(resultText(result));
+  if (wasOn) say(`servo ${servoId()}${motionOffAfter(wasOn)}`, "info");
 }
 
 async function writeRam() {
