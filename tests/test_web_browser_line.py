@@ -146,6 +146,20 @@ def test_a_listed_servo_that_stops_answering_is_told_in_words_not_with_its_last_
         expect(row.locator("td.temp")).to_have_attribute("title", re.compile("no reply"))
 
 
+def test_a_listed_servo_that_a_second_one_at_its_id_answers_with_is_not_said_not_to_answer(browser: Browser) -> None:
+    # A second new servo (ID 0, as they come) plugged in beside the first: its row said "not answering", which
+    # sends a person to its power and cable, when two servos answer at once.
+    line = PtyLine((0,))
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 1)
+        row = p.locator("#servo-table tr[data-id='0']")
+        expect(row.locator("td.temp")).to_contain_text("°C")
+        line.sim.add_device(VirtualServo(0))
+        expect(row.locator("td.temp")).to_have_text("answers garbled: two servos sharing ID 0?")
+        expect(row.locator("td.current")).to_have_text("-")
+        expect(row.locator("td.temp")).to_have_attribute("title", re.compile("sharing ID 0"))
+
+
 def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
     line = PtyLine((1,))
     line.sim.add_device(VirtualServo(5, baud_rate=1250000))

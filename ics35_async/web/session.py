@@ -511,13 +511,15 @@ class LineSession:
                 health = await read_health(bus, sid)
                 reading = await read_position_without_freeing(bus.servo(sid))
             except ReplyError as exc:
-                self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": str(exc)}
+                # (a garbled answer is told as such, not as silence: the page sends a person to the power for that)
+                garbled = isinstance(exc, (BadReply, PartialReply))
+                said = self.answered_garbled(exc) if isinstance(exc, (BadReply, PartialReply)) else str(exc)
+                self.telemetry[sid] = {**self.telemetry.get(sid, {}), "telemetry_error": said, "garbled": garbled}
                 if isinstance(exc, ReplyTimeout):
                     self.lost_touch([sid])
-                elif isinstance(exc, (BadReply, PartialReply)):
-                    self.telemetry[sid]["telemetry_error"] = self.answered_garbled(exc)
                 continue
             self.telemetry[sid] = {
+                "garbled": False,
                 **health,
                 "protocol": reading.protocol,
                 "position": reading.position,

@@ -208,7 +208,7 @@ function showServos(servos) {
     // Found at another rate (a scan at every rate): the line reads only the servos at its own.
     const lineBaud = state.status && state.status.baud;
     const elsewhere = !silent && lineBaud && s.baud !== lineBaud && s.temperature_c === undefined;
-    const temp = silent ? "not answering (open it to see why)"
+    const temp = silent ? (s.garbled ? `answers garbled: two servos sharing ID ${s.id}?` : "not answering (open it to see why)")
       : elsewhere ? `not read: the line is at ${lineBaud} baud (Connect at ${s.baud} to read it)`
       : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
     const current = silent || elsewhere ? "-" : s.current === undefined ? "…" : String(s.current);
