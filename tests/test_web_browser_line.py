@@ -160,6 +160,22 @@ def test_a_listed_servo_that_a_second_one_at_its_id_answers_with_is_not_said_not
         expect(row.locator("td.temp")).to_have_attribute("title", re.compile("sharing ID 0"))
 
 
+def test_the_many_servos_page_opened_as_the_page_loads_names_the_servos_found(browser: Browser) -> None:
+    # Its Servos box is filled from the servos found when it is first shown: opened as the page loaded (a reload,
+    # a bookmark), before the server had said which, it stayed empty, and Apply said "choose at least one servo".
+    line = PtyLine((1, 2))
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 2)
+        p.goto(p.url.split("#")[0] + "#many")
+        p.reload()
+        expect(p.locator("#many-ids")).to_have_value("1,2")
+        p.fill("#many-ids", "")  # emptied by the person: left so
+        p.goto(p.url.split("#")[0] + "#line")
+        expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+        p.goto(p.url.split("#")[0] + "#many")
+        expect(p.locator("#many-ids")).to_have_value("")
+
+
 def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser: Browser) -> None:
     line = PtyLine((1,))
     line.sim.add_device(VirtualServo(5, baud_rate=1250000))

@@ -198,6 +198,11 @@ function servosHere() {
 
 function showServos(servos) {
   state.servos = servos;
+  // The Many servos page shown before the server said which servos were found (opened as the page loaded): its
+  // box named none; it names them once they are known, unless the person typed in it.
+  if ($("#many-fields tbody").children.length && !state.manyIdsTyped && !$("#many-ids").value) {
+    $("#many-ids").value = servosHere().join(",");
+  }
   $("#servo-notes").hidden = !servos.length;
   const body = $("#servo-table tbody");
   body.replaceChildren();
@@ -1067,6 +1072,7 @@ on("#jog-plus", "click", () => jog(+$("#jog-slider").value + 100));
 on("#survey-btn", "click", survey);
 on("#renumber-btn", "click", renumber);
 on("#many-apply", "click", applyMany);
+on("#many-ids", "input", () => { state.manyIdsTyped = true; });
 on("#live-start", "click", startLive);
 on("#live-stop", "click", () => api("/api/live/stop", {}));
 on("#live-pause", "click", () => { state.livePaused = !state.livePaused; $("#live-pause").textContent = state.livePaused ? "Resume" : "Pause"; });
