@@ -705,6 +705,28 @@ def test_an_edit_typed_on_a_servos_page_and_not_written_is_still_there_back_on_i
         assert line.sim.servo(1).eeprom.speed == 70 and line.sim.servo(2).eeprom.speed == 127
         open_servo_page(p, 2)  # another servo's page reads that servo: nothing of servo 1's stays
         expect(p.locator("#eeprom-table [name=speed]")).to_have_value("127")
+        # Back on servo 2's page after the Many servos page wrote to it: read again, its new value shown (not the
+        # one read before, as if read now), with what was typed kept.
+        p.fill("#eeprom-table [name=punch]", "7")
+        p.click("nav a[href='#many']")
+        p.fill("#many-ids", "2")
+        p.check("[name=use-dead_band]")
+        p.fill("[name=value-dead_band]", "4")
+        p.click("#many-apply")
+        expect(p.locator("#many-results tr[data-id='2']")).to_contain_text("verified")
+        p.go_back()
+        servo_read(p, 2)
+        expect(p.locator("#eeprom-table [name=dead_band]")).to_have_value("4")
+        expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
+        # Back while its cable is out: the read fails, and the next one (Read, once it is back) keeps the edit.
+        p.click("nav a[href='#line']")
+        unplugged = line.sim.remove_servo(2)
+        p.click("nav a[href='#servo']")
+        expect(p.locator("#message")).to_contain_text("ID 2")
+        line.sim.add_device(unplugged)
+        p.click("#servo-load")
+        servo_read(p, 2)
+        expect(p.locator("#eeprom-table [name=punch]")).to_have_value("7")
 
 
 def test_an_edit_typed_after_show_changes_is_not_written_unshown(browser: Browser) -> None:

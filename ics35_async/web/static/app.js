@@ -314,27 +314,39 @@ async function leaveServo() {
 // (``arg``, its ID in the address), come back to it.
 function shownStill(arg) {
   const shown = state.shown, s = state.status;
-  if (!shown || !s || shown.port !== s.port || shown.baud !== s.baud || !$("#page-servo").dataset.shown) return false;
+  if (!shown || !s || shown.port !== s.port || shown.baud !== s.baud) return false;
   return arg === undefined || arg === String(shown.id);
 }
 
-// Back on the page of the servo it shows: that servo again, with what was typed in its boxes and not written
-// kept (read again, they were lost); a Show changes diffs them against the servo as it is now. Motion stays off,
-// as on any servo's page opened.
+// Back on the page of the servo it shows: that servo read again (another page may have written to it meanwhile),
+// with what was typed in its boxes and not written kept (read again, they were lost); a Show changes diffs them
+// against the servo as it is now.
 function backToServo() {
   const id = state.shown.id;
   $("#servo-id").value = id;
   history.replaceState(null, "", `#servo/${id}`);
-  robotNote(id);
-  state.servoLoaded = id;
-  $("#page-servo").dataset.loaded = String(id);
-  motionOff(id).catch(() => {});  // (switched on in another tab meanwhile: off, as opening its page does)
-  pollPosition();
+  loadServo(typedEdits()).catch(() => {});
 }
 
-async function loadServo() {
+// What was typed in the EEPROM boxes and not written: {field: value as typed}, a flag's as {"flag-NAME": ticked}.
+function typedEdits() {
+  const typed = {};
+  for (const f of state.eeprom?.fields ?? []) {
+    for (const flag of f.flags ?? []) {
+      const box = document.querySelector(`[name=flag-${flag.name}]`);
+      if (box && !flag.read_only && box.checked !== flag.on) typed[`flag-${flag.name}`] = box.checked;
+    }
+    const box = f.flags ? null : document.querySelector(`#eeprom-table [name=${f.name}]`);
+    if (box && box.value !== String(f.value)) typed[f.name] = box.value;
+  }
+  return typed;
+}
+
+async function loadServo(typed = {}) {
   const id = wholeIn($("#servo-id"), "the servo's ID");
-  state.shown = null; delete $("#page-servo").dataset.shown;  // (its tables are another read's from here on)
+  // (its tables are another read's from here on; a read that fails keeps what was typed for the next of this servo)
+  const kept = state.typedFor && state.typedFor.id === id && !Object.keys(typed).length ? state.typedFor.typed : typed;
+  state.shown = null; state.typedFor = Object.keys(kept).length ? { id, typed: kept } : null;
   // Each load has its number: one overtaken by a later load (Read pressed again, another servo's page) stops at
   // its next step, so the page never ends on the earlier servo, showing its values and acting on it.
   const mine = (state.loads = (state.loads ?? 0) + 1);
@@ -375,6 +387,10 @@ async function loadServo() {
     const range = f.low === undefined ? "" : `${f.low}..${f.high}${f.even ? " even" : ""}`;
     body.append(el("tr", { "data-field": f.name }, el("td", {}, f.name), el("td", {}, input), el("td", {}, f.unit), el("td", {}, range), el("td", { class: "meaning" }, f.meaning)));
   }
+  for (const [name, value] of Object.entries(kept)) {  // (typed before it was read again: see backToServo)
+    const box = document.querySelector(`#eeprom-table [name=${name}]`);
+    if (box && box.type === "checkbox") box.checked = value; else if (box) box.value = value;
+  }
   const ram = await api(`/api/servo/${id}/ram`);
   if (overtaken()) return;
   showRam(ram);
@@ -386,7 +402,7 @@ async function loadServo() {
   state.servoLoaded = id;
   $("#page-servo").dataset.loaded = String(id);  // (read: what a test, or a person's script, can wait for)
   state.shown = { id, port: state.status && state.status.port, baud: state.status && state.status.baud };
-  $("#page-servo").dataset.shown = String(id);
+  state.typedFor = null;
   pollPosition();
 }
 
@@ -1052,7 +1068,7 @@ on("#connect-form", "submit", async (e) => {
   say(`connected to ${s.port}`, "info");
 });
 on("#scan-btn", "click", scanLine);
-on("#servo-load", "click", loadServo);
+on("#servo-load", "click", () => loadServo());
 on("#plan-btn", "click", planWrite);
 on("#write-btn", "click", writeEeprom);
 for (const event of ["input", "change"]) $("#eeprom-table").addEventListener(event, planStale);
