@@ -1299,3 +1299,19 @@ def test_a_servo_whose_id_a_second_one_answers_too_has_motion_switched_off_and_i
     eeprom = client.get("/api/servo/0/eeprom")
     assert eeprom.status_code == 502 and "sharing ID 0" in eeprom.json()["error"], eeprom.text
     assert new.free and new.position == 6000
+
+
+def test_hold_here_on_a_servo_a_second_one_answers_with_lets_go_of_neither(serve: Any) -> None:
+    # An ICS 3.5 servo tells where it stands only in answer to the free command: with a new servo plugged in at
+    # its ID, Hold here freed both (the one holding let go) and was then refused for the garbled answer.
+    client, sim = serve((0,))
+    assert client.get("/api/servo/0/eeprom").status_code == 200
+    assert post(client, "/api/servo/0/hold").json()["position"] == 7500
+    holding = sim.servo(0)
+    new = VirtualServo(0)
+    new.move_by_hand(6000)
+    sim.add_device(new)
+    refused = post(client, "/api/servo/0/hold")
+    assert refused.status_code == 502 and "sharing ID 0" in refused.json()["error"], refused.text
+    assert not holding.free and holding.target == 7500
+    assert new.free and new.position == 6000

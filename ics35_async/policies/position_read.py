@@ -32,10 +32,16 @@ class PositionReading:
 
 
 async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = False) -> PositionReading:
-    """The servo's position by ICS 3.6's read; on an ICS 3.5 servo by the free command only with ``free_ics35``."""
+    """The servo's position by ICS 3.6's read; on an ICS 3.5 servo by the free command only with ``free_ics35``.
+
+    Before the free command, a read that moves nothing (its temperature): two servos sharing the ID (a new one,
+    ID 0 as they all come, plugged in beside it) answer it garbled, and it raises, freeing neither, where the free
+    command would let go of both, one that held included.
+    """
     if await servo.has_position_read():
         return PositionReading(await servo.read_position(), "read", "ICS 3.6")
     if free_ics35:
+        await servo.read_temperature()
         return PositionReading(await servo.free(), "free", "ICS 3.5")
     return PositionReading(None, None, "ICS 3.5", NO_READ_ICS35)
 
