@@ -344,22 +344,33 @@ def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> No
     run_robot(rig, body, reconnect=True)
 
 
-def test_free_on_wire_and_read_pose_do_not_wait_when_every_line_is_lost() -> None:
-    # With every line's port lost no frame comes (there is no line left to run a cycle): free() waited for one
-    # for as long as the lines stayed away (the configurator's Free all hung on a one-line robot).  The free is
-    # each joint's target, sent once its line is back.  (Paced lines: unpaced, a frame still came.)
+def paced_rig() -> Rig:
+    """The rig with both lines paced (200 Hz): an unpaced line's stream still gives a frame as its port goes."""
     rig = make_rig()
     for line in rig.description["lines"].values():
         line["rate_hz"] = 200
+    return rig
+
+
+async def lose_every_line(rig: Rig, robot: Robot) -> None:
+    """Both lines' adapters pulled (``reconnect=True``): returns once both buses know it."""
+    rig.upper.unplug()
+    rig.lower.unplug()
+    with anyio.fail_after(GUARD):
+        while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
+            await anyio.sleep(0.01)
+
+
+def test_free_on_wire_and_read_pose_do_not_wait_when_every_line_is_lost() -> None:
+    # With every line's port lost no frame comes (there is no line left to run a cycle): free() waited for one
+    # for as long as the lines stayed away (the configurator's Free all hung on a one-line robot).  The free is
+    # each joint's target, sent once its line is back.
+    rig = paced_rig()
 
     async def body(robot: Robot) -> None:
         robot.set_targets({"neck": 10.0, "hip": 5.0})
         await robot.on_wire()
-        rig.upper.unplug()
-        rig.lower.unplug()
-        with anyio.fail_after(GUARD):
-            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
-                await anyio.sleep(0.01)
+        await lose_every_line(rig, robot)
         with anyio.fail_after(GUARD):  # (it waited for ever)
             await robot.free()
             await robot.on_wire(["neck"])
@@ -381,9 +392,7 @@ def test_a_stop_right_after_a_cancelled_motion_has_nothing_to_ramp_on_a_lost_lin
     # they had, for a smooth stop() right after.  A line lost then, the stop ramped its joints down on cycles the
     # line could not run: with every line lost it waited for as long as they stayed away; with one, it raised
     # MotionStopped for joints no motion drove any more.  Their servos keep their last command.
-    rig = make_rig()
-    for line in rig.description["lines"].values():
-        line["rate_hz"] = 200
+    rig = paced_rig()
 
     async def body(robot: Robot) -> None:
         with anyio.move_on_after(0.3):  # (a move of 5 s: cancelled on its way)
@@ -404,17 +413,11 @@ def test_a_stop_right_after_a_cancelled_motion_has_nothing_to_ramp_on_a_lost_lin
 def test_a_motion_started_once_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
     # Started after the loss (a program's next move, the configurator's), the motion was given nothing up: with
     # no line left to run a cycle, no frame came to step it, and it waited for as long as the lines stayed away.
-    rig = make_rig()
-    for line in rig.description["lines"].values():
-        line["rate_hz"] = 200
+    rig = paced_rig()
 
     async def body(robot: Robot) -> None:
         await robot.read_pose()
-        rig.upper.unplug()
-        rig.lower.unplug()
-        with anyio.fail_after(GUARD):
-            while any(bus.state is not State.LOST for bus in robot.group.buses.values()):
-                await anyio.sleep(0.01)
+        await lose_every_line(rig, robot)
         with anyio.fail_after(GUARD), pytest.raises(MotionStopped, match="lost its port"):  # (it waited for ever)
             await robot.move_to({"neck": 10.0, "hip": 5.0}, duration=0.5)
         rig.upper.replug()
@@ -426,9 +429,7 @@ def test_a_motion_started_once_every_line_is_lost_ends_with_motion_stopped_not_a
 def test_a_motion_whose_every_line_is_lost_ends_with_motion_stopped_not_a_wait() -> None:
     # One line lost among others gives its joints up at the next frame; with every line lost no frame came, and
     # the motion waited for as long as the lines stayed away (then went on, its joints held by their lines).
-    rig = make_rig()
-    for line in rig.description["lines"].values():
-        line["rate_hz"] = 200
+    rig = paced_rig()
 
     async def body(robot: Robot) -> None:
         ended: list[BaseException] = []
