@@ -198,7 +198,7 @@ def run(seconds: float = 2.0, rounds: int = 4, fast: bool = False) -> dict[str, 
     server = Server(fast)
     phases: list[dict[str, Any]] = []
     try:
-        server.call("/api/live/start", {"ids": list(range(32))})
+        server.call("/api/live/start", {"ids": list(range(32)), "free_ics35": True})
         time.sleep(1.0)
         for kind in order:
             phases.append(phase(server, seconds, kind))

@@ -589,7 +589,7 @@ def test_many_servos_say_not_connected_once_when_no_line_is_open(tmp_path: Any) 
 
 def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None:
     client, _ = serve((1, 3))
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
         cycles = []
         for _ in range(50):
@@ -608,7 +608,7 @@ def test_the_live_stream_is_paced_so_an_instant_line_does_not_take_the_servers_c
     # The simulator answers at once: an unpaced stream would cycle thousands of times a second on one
     # core, for a page sent 25 updates a second.  The rate is taken from the frames' own times.
     client, _ = serve((1, 3))
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     frames: list[dict[str, Any]] = []
     deadline = time.monotonic() + GUARD
     while time.monotonic() < deadline and (len(frames) < 2 or frames[-1]["t"] - frames[0]["t"] < 0.3):
@@ -629,15 +629,15 @@ def test_a_bad_live_request_is_refused_before_the_running_plot_stops_or_anything
         refused = post(client, "/api/live/start", bad)
         assert refused.status_code == 400 and "rate_hz" in refused.json()["error"], refused.text
         assert len(sim.log) == sent  # not even the probes of the servos to stream
-    post(client, "/api/live/start", {"ids": [1]})
-    assert post(client, "/api/live/start", {"ids": [1, 40]}).status_code == 400
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 40]}).status_code == 400
     assert client.get("/api/status").json()["live"], "the running plot was stopped by a refused request"
     post(client, "/api/live/stop")
 
 
 def test_a_live_frames_slow_parts_are_sent_to_a_page_only_when_they_change(serve: Any) -> None:
     client, _ = serve((1, 3), ics36=(3,))
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
         frames = [u["live"] for u in (ws.receive_json() for _ in range(60)) if u.get("live")][:6]
         assert frames[0]["watched"] == [3] and frames[0]["targets"] == {"1": 0, "3": -1}
@@ -655,7 +655,7 @@ def test_the_live_stream_leaves_an_ics36_servos_torque_alone_and_frees_only_ics3
     client, sim = serve((1, 3), ics36=(3,))
     for sid in (1, 3):
         sim.servo(sid).command_position(8200)
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     frame: dict[str, Any] = {}
     for _ in range(200):
         frame = client.get("/api/live").json() or {}
@@ -667,11 +667,38 @@ def test_the_live_stream_leaves_an_ics36_servos_torque_alone_and_frees_only_ics3
     assert sim.servo(3).target == 8200
 
 
+def test_a_live_plot_frees_no_ics35_servo_unless_the_page_says_so(serve: Any) -> None:
+    # A standing robot's ICS 3.5 joints went limp as a live plot started: it freed every one no page held to read
+    # where it is (`ics35 monitor` does only with --free).  Without `free_ics35` they are left out, named, sent
+    # nothing that frees them; with only such servos the plot is refused in words, nothing sent.
+    client, sim = serve((1, 3), ics36=(3,))
+    for sid in (1, 3):
+        sim.servo(sid).command_position(8200)
+    started = post(client, "/api/live/start", {"ids": [1, 3], "free_ics35": False})
+    assert started.status_code == 200 and started.json()["left_out"] == [1], started.text
+    frame: dict[str, Any] = {}
+    for _ in range(200):
+        frame = client.get("/api/live").json() or {}
+        if frame.get("positions", {}).get("3", -1) > 0:
+            break
+    assert frame["positions"]["3"] > 0 and "1" not in frame["positions"]
+    post(client, "/api/live/stop")
+    assert sim.servo(1).target == 8200 and sim.servo(3).target == 8200  # neither freed
+    refused = post(client, "/api/live/start", {"ids": [1]})  # (not said: not freed)
+    assert refused.status_code == 409 and "free ICS 3.5" in refused.json()["error"], refused.text
+    assert sim.servo(1).target == 8200
+    bad = post(client, "/api/live/start", {"ids": [1], "free_ics35": "yes"})
+    assert bad.status_code == 400 and "free_ics35" in bad.json()["error"], bad.text
+    assert post(client, "/api/live/start", {"ids": [1], "free_ics35": True}).status_code == 200
+    post(client, "/api/live/stop")
+    assert sim.servo(1).free  # said: freed to be read
+
+
 def test_while_a_live_stream_runs_the_line_pages_table_shows_its_values(serve: Any) -> None:
     client, sim = serve((1, 3))
     post(client, "/api/scan")
     sim.servo(1).move_by_hand(9100)
-    post(client, "/api/live/start", {"ids": [1]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     rows: dict[int, dict[str, Any]] = {}
     with client.websocket_connect(WS, headers={"origin": BASE}) as ws:
         for _ in range(80):
@@ -742,7 +769,7 @@ def test_a_streamed_servo_held_waiting_after_a_lost_port_is_told_in_words_when_m
     # After the port came back the live stream sends a held servo nothing (it may have restarted elsewhere)
     # and reads no position for it: switching motion on answered "position -1 is outside its limits".
     client, sim = serve((1,))
-    post(client, "/api/live/start", {"ids": [1]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     sim.servo(1).move_by_hand(8000)
     deadline = time.monotonic() + GUARD
     while (client.get("/api/live").json() or {}).get("positions", {}).get("1") != 8000:
@@ -778,7 +805,7 @@ def test_a_live_plot_keeps_a_servo_the_servo_page_holds_held_and_its_jog_goes_th
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
     assert client.get("/api/servo/3/eeprom").status_code == 200  # (the Servo page reads it as it opens)
     assert post(client, "/api/servo/3/hold").json()["position"] == 7000
-    started = post(client, "/api/live/start", {"ids": [1, 3, 5]})
+    started = post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3, 5]})
     assert started.status_code == 200, started.text
     deadline = time.monotonic() + GUARD
     frame: dict[str, Any] = {}
@@ -808,7 +835,7 @@ def test_hold_here_for_a_streamed_servo_beside_silent_ids_on_a_long_allowance_wa
     client, sim = serve((1,), timeout=1.0)
     sim.servo(1).move_by_hand(8000)
     assert client.get("/api/servo/1/eeprom").status_code == 200
-    assert post(client, "/api/live/start", {"ids": [1, 3, 4, 5]}).status_code == 200
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3, 4, 5]}).status_code == 200
     held = post(client, "/api/servo/1/hold")
     assert held.status_code == 200, held.text
     assert held.json()["position"] == 8000
@@ -823,7 +850,7 @@ def test_hold_here_for_a_streamed_servo_holds_it_where_it_stands_after_a_lost_po
     # from before the loss: Hold here held the servo there, throwing one that restarted elsewhere back.
     client, sim = serve((1,))
     assert client.get("/api/servo/1/eeprom").status_code == 200
-    post(client, "/api/live/start", {"ids": [1]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     deadline = time.monotonic() + GUARD
     while (client.get("/api/live").json() or {}).get("positions", {}).get("1", -1) < 0:
         assert time.monotonic() < deadline, "the stream never read servo 1"
@@ -848,7 +875,7 @@ def test_hold_here_for_a_streamed_servo_holds_it_where_it_stands_after_a_lost_po
 def test_freeing_a_streamed_servo_that_does_not_answer_says_no_position_not_minus_one(serve: Any) -> None:
     # The stream's "not read" (-1) went to the page as the position: "servo 3: free (torque off) at -1".
     client, sim = serve((1, 3))
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     unplugged = sim.remove_servo(3)
     deadline = time.monotonic() + GUARD
     while 3 not in (client.get("/api/live").json() or {}).get("offline", []):
@@ -877,7 +904,7 @@ def test_a_held_servo_that_stopped_answering_is_neither_jogged_nor_streamed_its_
     sim.add_device(unplugged)
     refused = post(client, "/api/servo/1/move", {"position": 8100})
     assert refused.status_code == 409 and "stopped answering" in refused.json()["error"], refused.text
-    plot = post(client, "/api/live/start", {"ids": [1]})
+    plot = post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     assert plot.status_code == 409 and "servo 1" in plot.json()["error"], plot.text
     time.sleep(0.1)
     assert unplugged.free and unplugged.position == 6000
@@ -904,19 +931,21 @@ def test_a_held_servo_silent_as_a_live_plot_starts_is_refused_by_name_not_stream
     sim.servo(1).move_by_hand(8000)
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
     unplugged = sim.remove_servo(1)
-    started = post(client, "/api/live/start", {"ids": [1, 3], "rate_hz": 2})
+    started = post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3], "rate_hz": 2})
     assert started.status_code == 409 and "servo 1" in started.json()["error"], started.text
     assert client.get("/api/status").json()["live"] is None
     assert "stopped answering" in client.get("/api/status").json()["motion_off"]["1"]  # (its jogs refused too)
     unplugged.power_cycle()
     unplugged.move_by_hand(6000)
     sim.add_device(unplugged)
-    assert post(client, "/api/live/start", {"ids": [1, 3]}).status_code == 409  # (in doubt until Free or Hold)
+    assert (
+        post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]}).status_code == 409
+    )  # (in doubt until Free or Hold)
     assert post(client, "/api/servo/1/move", {"position": 8100}).status_code == 409
     time.sleep(0.1)
     assert unplugged.free and unplugged.position == 6000
     assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
-    assert post(client, "/api/live/start", {"ids": [1, 3]}).json()["kept_held"] == [1]
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]}).json()["kept_held"] == [1]
     post(client, "/api/live/stop")
     assert not unplugged.free and unplugged.target == 6000
 
@@ -925,7 +954,7 @@ def test_a_streamed_servo_held_by_a_page_that_went_offline_is_not_jogged_from_it
     client, sim = serve((1, 3))
     sim.servo(1).move_by_hand(8000)
     assert post(client, "/api/servo/1/motion", {"enabled": True}).json()["position"] == 8000
-    assert post(client, "/api/live/start", {"ids": [1, 3]}).json()["kept_held"] == [1]
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]}).json()["kept_held"] == [1]
     unplugged = sim.remove_servo(1)
     deadline = time.monotonic() + GUARD
     while "1" not in client.get("/api/status").json()["motion_off"]:
@@ -941,7 +970,9 @@ def test_a_streamed_servo_held_by_a_page_that_went_offline_is_not_jogged_from_it
     time.sleep(0.1)
     assert unplugged.free and unplugged.position == 6000
     post(client, "/api/live/stop")
-    assert post(client, "/api/live/start", {"ids": [1]}).status_code == 409  # (its hold is in doubt)
+    assert (
+        post(client, "/api/live/start", {"free_ics35": True, "ids": [1]}).status_code == 409
+    )  # (its hold is in doubt)
     assert unplugged.free and unplugged.position == 6000
 
 
@@ -959,14 +990,14 @@ def test_a_live_plot_is_refused_for_a_servo_held_before_the_port_was_lost(serve:
     while client.get("/api/servo/1/ram").status_code != 200:
         assert time.monotonic() < deadline, "the port never came back"
         time.sleep(0.02)
-    refused = post(client, "/api/live/start", {"ids": [1]})
+    refused = post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     assert refused.status_code == 409, refused.text
     error = refused.json()["error"]
     assert "servo 1" in error and "Free" in error and "Hold" in error, error
     assert client.get("/api/status").json()["live"] is None
     assert not sim.servo(1).free and sim.servo(1).target == 8000
     assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
-    assert post(client, "/api/live/start", {"ids": [1]}).status_code == 200
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1]}).status_code == 200
     time.sleep(0.1)
     assert not sim.servo(1).free and sim.servo(1).target == 8000
     post(client, "/api/live/stop")
@@ -981,14 +1012,14 @@ def test_a_connect_again_to_the_same_port_leaves_a_held_servos_hold_in_doubt_not
     status = client.get("/api/status").json()
     for baud in (status["baud"], 625000, status["baud"]):  # (the same rate, another, and back)
         assert post(client, "/api/connect", {"port": status["port"], "baud": baud}).status_code == 200
-        refused = post(client, "/api/live/start", {"ids": [1, 3]})
+        refused = post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
         assert refused.status_code == 409 and "servo 1" in refused.json()["error"], refused.text
         assert client.get("/api/status").json()["motion_on"] == []  # (the page unticks its switch)
         time.sleep(0.1)
         assert not sim.servo(1).free and sim.servo(1).target == 8000
     assert client.get("/api/servo/1/eeprom").status_code == 200  # (the Servo page reads it as it opens)
     assert post(client, "/api/servo/1/hold").status_code == 200  # the person's answer: held where it stands
-    assert post(client, "/api/live/start", {"ids": [1]}).json()["kept_held"] == [1]
+    assert post(client, "/api/live/start", {"free_ics35": True, "ids": [1]}).json()["kept_held"] == [1]
     post(client, "/api/live/stop")
     assert not sim.servo(1).free and sim.servo(1).target == 8000
 
@@ -997,7 +1028,9 @@ def test_a_connect_to_another_port_does_not_carry_the_old_ones_holds_to_it(serve
     client, sim = serve((1,))
     assert post(client, "/api/servo/1/motion", {"enabled": True}).status_code == 200
     assert post(client, "/api/connect", {"port": "sim://?ids=1"}).status_code == 200
-    started = post(client, "/api/live/start", {"ids": [1]})  # (the other line's servo 1 was never held)
+    started = post(
+        client, "/api/live/start", {"free_ics35": True, "ids": [1]}
+    )  # (the other line's servo 1 was never held)
     assert started.status_code == 200 and started.json()["kept_held"] == [], started.text
     post(client, "/api/live/stop")
     assert not sim.servo(1).free  # (the old line's servo was left holding)
@@ -1012,7 +1045,7 @@ def test_a_port_connected_again_after_another_gets_its_holds_back_in_doubt(serve
     first = client.get("/api/status").json()["port"]
     assert post(client, "/api/connect", {"port": "sim://?ids=5"}).status_code == 200
     assert post(client, "/api/connect", {"port": first}).status_code == 200
-    started = post(client, "/api/live/start", {"ids": [1, 3]})
+    started = post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     assert started.status_code == 409 and "servo 1" in started.json()["error"], started.text  # (in doubt: named)
     assert not sim.servo(1).free and sim.servo(1).target == 8000
 
@@ -1036,7 +1069,7 @@ def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(se
 def test_while_a_live_plot_runs_other_rates_are_not_tried_and_the_message_says_so(serve: Any) -> None:
     client, sim = serve((1,))
     sim.add_device(VirtualServo(5, baud_rate=1250000))
-    post(client, "/api/live/start", {"ids": [1]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1]})
     answer = client.get("/api/servo/5/eeprom").json()
     assert "answers_at" not in answer and "1,250,000" not in answer["error"], answer
     assert "stop the live plot" in answer["error"]
@@ -1202,7 +1235,7 @@ def test_the_servo_pages_position_is_read_without_moving_or_freeing_and_ics35_sa
     ics35 = client.get("/api/servo/1/position").json()
     assert ics35["position"] is None and ics35["how"] is None and "before it moved" in ics35["note"]
     assert sim.servo(1).target == 7700  # ICS 3.5 reads a position only by going free: it was not
-    post(client, "/api/live/start", {"ids": [3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [3]})
     streamed: dict[str, Any] = {}
     for _ in range(200):
         streamed = client.get("/api/servo/3/position").json()
@@ -1232,7 +1265,7 @@ def test_a_live_frame_says_which_servos_the_stream_holds_and_why(serve: Any) -> 
     # After a lost port the stream sends a servo it held nothing (it may have restarted, free and elsewhere):
     # the Live plots page must say so ("held: resumed"), not show it as a plain servo whose line went flat.
     client, sim = serve((1, 3))
-    post(client, "/api/live/start", {"ids": [1, 3]})
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3]})
     deadline = time.monotonic() + GUARD
     while (client.get("/api/live").json() or {}).get("positions", {}).get("1", -1) < 0:
         assert time.monotonic() < deadline, "the stream never read servo 1"

@@ -370,6 +370,9 @@ def test_the_live_plot_follows_a_servo_turned_by_hand(page: Page, lines: Any) ->
     servo = lines[0].sim.servo(3)
     page.click("a[href='#live']")
     page.fill("#live-ids", "1,3")
+    page.click("#live-start")  # (unticked: ICS 3.5 servo 1 is not freed to be read, and the page says so)
+    expect(page.locator("#message")).to_contain_text("servo 1 not plotted: ICS 3.5 reads a position only by going free")
+    page.check("#live-free")
     page.click("#live-start")
     expect(page.locator("#legend span[data-id='3']")).to_be_visible()  # the page's CSP allows no eval: DOM waits
     for position in (8000, 9000, 10000, 8500, 6000):

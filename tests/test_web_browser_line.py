@@ -192,6 +192,7 @@ def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser
         p.click("a[href='#many']")
         expect(p.locator("#many-ids")).to_have_value("1")
         p.click("a[href='#live']")
+        p.check("#live-free")
         p.click("#live-start")
         expect(p.locator("#legend span[data-id='1']")).to_be_visible()
         expect(p.locator("#legend span[data-id='5']")).to_have_count(0)

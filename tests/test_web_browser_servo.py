@@ -131,6 +131,7 @@ def start_live_plot(p: Page, ids: str) -> None:
     """The Live plots page of ``p``'s server, streaming ``ids`` (as typed in its IDs box)."""
     p.goto(p.url.split("#")[0] + "#live")
     p.fill("#live-ids", ids)
+    p.check("#live-free")  # (ICS 3.5 servos: read by going free)
     p.click("#live-start")
 
 

@@ -294,8 +294,10 @@ async def live_start(request: Request, session: LineSession) -> Any:
     if not isinstance(ids, list) or not ids:
         raise InvalidArgument("choose at least one servo to plot")
     rate_hz = data.get("rate_hz")
-    view = await session.start_live(ids, LIVE_RATE_HZ if rate_hz is None else rate_hz)
-    return {**session.status(), "kept_held": view.kept_held}
+    view = await session.start_live(
+        ids, LIVE_RATE_HZ if rate_hz is None else rate_hz, free_ics35=data.get("free_ics35", False)
+    )
+    return {**session.status(), "kept_held": view.kept_held, "left_out": view.left_out}
 
 
 async def live_stop(request: Request, session: LineSession) -> Any:

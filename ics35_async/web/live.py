@@ -59,6 +59,7 @@ class LiveView:
         self.ids = stream.ids
         self.kept_held: list[int] = []  # ICS 3.5 servos a page held: streamed their target, not freed
         self.freed: list[int] = []  # ICS 3.5 servos (and silent IDs) it frees to read them
+        self.left_out: list[int] = []  # ICS 3.5 servos not plotted: freeing them was not asked for
         self.current: dict[int, int] = {}
         self.temperature: dict[int, float] = {}
         self._task: asyncio.Task[None] | None = None
@@ -74,13 +75,21 @@ class LiveView:
         holding: Mapping[int, int] | None = None,
         unsure: Collection[int] = (),
         lost_touch: Callable[[list[int]], None] | None = None,
+        free_ics35: bool = False,
     ) -> LiveView:
         """Stream ``ids``; an ICS 3.5 servo in ``holding`` ({ID: the target a page holds it at}) is sent that
         target, not freed; one in ``unsure`` (held before the port was lost or reopened, or it stopped answering)
         is refused: freed, a servo that kept its supply would go limp, and sent its old target, one that restarted
         would be thrown there.  A servo in ``holding`` silent as the plot starts has stopped answering: it is refused as
-        well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it)."""
-        plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=True)
+        well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it).
+        The other ICS 3.5 servos are freed to be read only with ``free_ics35`` (a standing robot's joints would go
+        limp); without it they are left out (``left_out``), and a plot with nothing else to read is refused.
+
+        Raises:
+            UnsafeOperation: a servo's hold in doubt (see above), or nothing to plot without ``free_ics35``
+                (nothing that moves or frees a servo sent).
+        """
+        plan = await plan_position_stream(bus, [protocol.check_id(i) for i in ids], free_ics35=free_ics35)
         silent_held = [sid for sid in plan.silent if sid in (holding or {})]
         if silent_held and lost_touch is not None:
             lost_touch(silent_held)
@@ -94,14 +103,25 @@ class LiveView:
                 "lets it go, Hold here holds it where it stands now), then start the plot again; nothing that moves "
                 "or frees a servo was sent"
             )
-        kept = {sid: target for sid, target in (holding or {}).items() if sid in plan.free}
-        stream = bus.stream(plan.streamed, rate_hz=rate_hz, watch=plan.watch)
+        # (An ICS 3.5 servo a page holds is streamed its target, freed or not: the command's reply reads it.)
+        kept = {sid: target for sid, target in (holding or {}).items() if sid in plan.free or sid in plan.left_out}
+        left_out = sorted(set(plan.left_out) - kept.keys())
+        streamed = sorted(set(plan.streamed) | kept.keys())
+        if not streamed:
+            raise UnsafeOperation(
+                f"servo {', '.join(map(str, left_out))} speak{'s' if len(left_out) == 1 else ''} ICS 3.5, which "
+                'reads a position only by going free (limp): tick "free ICS 3.5 servos" to plot them (turn them by '
+                "hand), or hold one on its Servo page first (it is then plotted at its target); nothing that moves or "
+                "frees a servo was sent"
+            )
+        stream = bus.stream(streamed, rate_hz=rate_hz, watch=plan.watch)
         if kept:
             stream.set_targets(kept)  # (before it starts: its first command to them is their target, not a free)
         await stream.start()
         view = cls(bus, stream)
         view.kept_held = sorted(kept)
         view.freed = sorted(set(plan.free) - kept.keys())
+        view.left_out = left_out
         view._task = asyncio.create_task(view._read_telemetry())
         return view
 

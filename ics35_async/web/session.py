@@ -1065,10 +1065,11 @@ class LineSession:
 
     # ------------------------------------------------------------------ live
 
-    async def start_live(self, ids: list[int], rate_hz: float = LIVE_RATE_HZ) -> LiveView:
+    async def start_live(self, ids: list[int], rate_hz: float = LIVE_RATE_HZ, free_ics35: object = False) -> LiveView:
         self._refuse_on_robot_line("a live stream of the page's own", "its joints' angles are on the Robot page")
         # Checked before the running plot stops or anything is sent (a page's JSON can hold anything).
         ids = units.check_ids("ids", ids)
+        free_ics35 = units.check_bool("free_ics35", free_ics35)
         if units.check_rate_hz(rate_hz) is None:
             raise InvalidArgument("rate_hz must be a number of cycles a second")
         await self.stop_live()
@@ -1076,7 +1077,13 @@ class LineSession:
             holding, unsure = self._holding_split()
             bus = await self._line_at_its_rate()
             self.live = await LiveView.start(
-                bus, ids, rate_hz=rate_hz, holding=holding, unsure=unsure, lost_touch=self.lost_touch
+                bus,
+                ids,
+                rate_hz=rate_hz,
+                holding=holding,
+                unsure=unsure,
+                lost_touch=self.lost_touch,
+                free_ics35=free_ics35,
             )
         # A servo the stream frees to read it (ICS 3.5, held by no page) may fall: a jog from an old target
         # would throw it back there.  One a page held is streamed its target, and its jogs go on through it.

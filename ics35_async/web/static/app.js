@@ -729,9 +729,13 @@ async function startLive() {
   try { ids = text ? parseIds(text) : servosHere(); } catch (e) { say(e.message); return; }
   if (!ids.length) { say("scan first, or name the servos to plot (e.g. 0-31)"); return; }
   state.history = []; state.liveIds = new Set();
-  const started = await api("/api/live/start", { ids });
+  const started = await api("/api/live/start", { ids, free_ics35: $("#live-free").checked });
   const kept = started.kept_held || [];  // (not freed: a joint of a standing robot stays up)
-  if (kept.length) say(`servo ${kept.join(", ")}: held by its Servo page, so streamed its target, not freed`, "info");
+  const notes = [];
+  if (kept.length) notes.push(`servo ${kept.join(", ")}: held by its Servo page, so streamed its target, not freed`);
+  const left = started.left_out || [];  // (ICS 3.5, not freed: "free ICS 3.5 servos" was not ticked)
+  if (left.length) notes.push(`servo ${left.join(", ")} not plotted: ICS 3.5 reads a position only by going free (tick "free ICS 3.5 servos" to plot them limp)`);
+  if (notes.length) say(notes.join("; "), "info");
 }
 
 // No stream runs (stopped, or none yet): its last rate and lists are not now's (they stayed, as if it ran on).
