@@ -295,6 +295,22 @@ def test_play_refusing_a_joint_whose_servo_never_answered_is_exit_code_5_not_a_u
     assert "no motion was started" in " ".join(result.err.split()), result.err
 
 
+@pytest.mark.parametrize("on_stop", ["hold", "free"])
+def test_play_refused_as_it_starts_says_the_joints_it_freed_to_read_are_left_free(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, on_stop: str
+) -> None:
+    # A standing robot's legs went limp to be read, then play refused: "no motion was started" alone reads as if
+    # the robot were left as it stood.
+    sims, robot_file = rig
+    sims.sim("lower").remove_servo(2)  # the knee's servo: unplugged
+    motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"knee": -10, "hip": 5}})
+    result = cli("play", str(robot_file), str(motion), "--on-stop", on_stop)
+    assert result.code == 5, result.err
+    assert sims.servo("hip").free, result.err
+    said = " ".join(result.err.split())
+    assert "joints left free (those it opened" in said, result.err
+
+
 def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(safety={"max_current": 20, "action": "free"})
     try:

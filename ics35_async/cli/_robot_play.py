@@ -17,7 +17,7 @@ from collections.abc import Iterable
 import click
 from rich.markup import escape
 
-from ..errors import BusClosed, IcsError, PortLost
+from ..errors import BusClosed, IcsError, PortLost, UnsafeOperation
 from ..robot import Motion, Robot, RobotDescription, load_motion
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
@@ -154,6 +154,7 @@ def play(
     moved = description.only([*motion.joints, *(joint for joint in start_pose or {} if joint in description.joints)])
     untouched = [joint for joint in description.joints if joint not in moved.joints]
     slowing: list[bool] = []  # the smooth stop has begun (a Ctrl-C then, the CLI's second, cuts it short)
+    refused: list[bool] = []  # the robot refused the motion (UnsafeOperation): the joints are as the open left them
     opening = Opening()
 
     async def body() -> str:
@@ -228,6 +229,10 @@ def play(
                 except (PortLost, BusClosed):
                     lost.append(True)
                     raise
+                except UnsafeOperation:
+                    refused.append(True)
+                    untargeted, found = _not_targeted(robot)
+                    raise
                 except asyncio.CancelledError:
                     # Ctrl-C (asyncio.run cancels us): the normal way to stop; handled here, so the
                     # command ends normally after the smooth stop.
@@ -249,12 +254,7 @@ def play(
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
             silent = sorted(robot.latest.offline) if robot.latest is not None else []
-            # A joint freed to be read at the start (ICS 3.5) and stopped before its first target stays free:
-            # "hold" keeps only the targets there are.
-            untargeted = [j for j in robot.joints if robot.targets.get(j) is None and j not in robot.untouched]
-            # An ICS 3.6 joint read without freeing and given no target yet is as it was found (free, on a
-            # robot just powered up): not holding either.
-            found = [j for j in robot.joints if j in robot.untouched]
+            untargeted, found = _not_targeted(robot)
             return how
 
     # A line lost mid-motion ends the motion on the others at once: each joint holds the last target it got,
@@ -270,6 +270,10 @@ def play(
                 else "hold their last targets, where the slow-down had them (stiff, short of the motion's poses)"
             )
             exc.message = f"interrupted: Ctrl-C again cut the slow-down short; the joints it opened {left}"
+        elif exc.code == ExitCode.REFUSED and refused:
+            # Refused as it started: its ICS 3.5 joints went limp to be read, which "no motion was started" hides.
+            left = "free (those it opened)" if on_stop == "free" else _left_holding(moved.joints, untargeted, found)
+            exc.hints.append(f"joints left {left}")
         raise
     length = f"{motion.duration / speed:.1f} s"
     if passes:
@@ -287,6 +291,14 @@ def play(
         )
     out.print(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}")
     return 0
+
+
+def _not_targeted(robot: Robot) -> tuple[list[str], list[str]]:
+    """The joints with no target yet: those freed to be read at the start (ICS 3.5), left free ("hold" keeps only
+    the targets there are), and those read without freeing (ICS 3.6), left as they were found (free, on a robot
+    just powered up)."""
+    untargeted = [j for j in robot.joints if robot.targets.get(j) is None and j not in robot.untouched]
+    return untargeted, [j for j in robot.joints if j in robot.untouched]
 
 
 def _left_holding(opened: Iterable[str], free: list[str], found: list[str]) -> str:
