@@ -1039,6 +1039,49 @@ def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
     threading.Thread(target=run, daemon=True).start()
 
 
+def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float) -> None:
+    """As :func:`unplug_once_answered`, then plug the servo back in ``away`` seconds later, powered up (free)."""
+
+    def run() -> None:
+        deadline = time.monotonic() + scaled(30.0)
+        while time.monotonic() < deadline:
+            if any(t.servo_id == servo_id and t.reply and t.command == "position" for t in sim.log_since(0)):
+                time.sleep(0.2)
+                servo = sim.remove_servo(servo_id)
+                time.sleep(away)
+                servo.power_cycle()
+                sim.add_device(servo)
+                return
+            time.sleep(0.01)
+
+    threading.Thread(target=run, daemon=True).start()
+
+
+@pytest.mark.parametrize("loop", [False, True])
+def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp_path: Path, loop: bool) -> None:
+    # With continue_on_offline the motion plays on without a servo unplugged mid-motion; plugged back, the motion
+    # gives its joint up (it may have restarted, free and elsewhere).  play ended on the motion's MotionStopped,
+    # in the library's words (exit code 1, "until a target is set again"), without its summary of the joints.
+    sims = make_rig(safety={"continue_on_offline": True})
+    try:
+        robot_file = tmp_path / "robot.toml"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        motion = write_motion(
+            tmp_path / "m.json",
+            {"time": 0.3, "pose": {"neck": 10, "hip": -5}},
+            {"time": 2.5, "pose": {"neck": 20, "hip": -10}},
+        )
+        unplug_and_replug_once_answered(sims.lower, JOINTS["hip"]["id"], 0.5)
+        result = cli("play", str(robot_file), str(motion), *(["--loop", "--seconds", "20"] if loop else []))
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    assert "Traceback" not in result.err and "error:" not in result.err, result.err
+    summary = " ".join(result.out[result.out.index("play ") :].split()[-60:])
+    assert "joints left holding (those it opened), but hip: its servo came back after going offline" in summary
+    assert "neck" not in summary.split("but", 1)[1], summary
+
+
 @pytest.mark.parametrize(
     ("safety", "on_stop", "phrase", "free"),
     [

@@ -18,7 +18,7 @@ import click
 from rich.markup import escape
 
 from ..errors import BusClosed, IcsError, PortLost, UnsafeOperation
-from ..robot import Motion, Robot, RobotDescription, load_motion
+from ..robot import Motion, MotionStopped, Robot, RobotDescription, load_motion
 from ..robot.motion import check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
@@ -145,6 +145,7 @@ def play(
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
     silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
+    rejoined: list[str] = []  # the joints whose servo came back after going offline: given up, sent nothing since
     untargeted: list[str] = []  # the joints opened that never got a target (stopped as it began): left free
     found: list[str] = []  # (likewise, read without freeing: left as they were found)
     # Only the joints the motion moves, and those --start-pose states (asked to hold there: a robot's legs just
@@ -158,7 +159,7 @@ def play(
     opening = Opening()
 
     async def body() -> str:
-        nonlocal passes, played, silent, untargeted, found
+        nonlocal passes, played, silent, rejoined, untargeted, found
         options = robot_options(settings)
         check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
         async with opening.open(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
@@ -204,15 +205,30 @@ def play(
                 if not screen.tty:
                     out.print(f"{title}; one line per second, table at the end")
 
+                async def one_pass() -> bool:
+                    """Play the motion once; False if it gave up a joint whose servo came back after going offline
+                    (continue_on_offline): it may have restarted, free and elsewhere, so the robot holds it, sent
+                    nothing, and a later pass would be refused."""
+                    try:
+                        await robot.play(motion, speed=speed)
+                    except MotionStopped:
+                        if not robot.held:
+                            raise
+                        return False
+                    return True
+
                 async def player() -> None:
                     nonlocal passes
-                    await robot.play(motion, speed=speed)
+                    whole = await one_pass()
                     passes += 1
-                    while loop:
+                    while loop and whole:
                         pass_began[0] = time.monotonic() - start
-                        await robot.play(motion, speed=speed)
+                        whole = await one_pass()
                         passes += 1
+                    if not whole and loop:
+                        given_up.append(True)
 
+                given_up: list[bool] = []  # the loop ended early: a joint came back after going offline
                 task = asyncio.ensure_future(player())
                 how = "done"
                 timer = asyncio.timeout(seconds)
@@ -222,6 +238,8 @@ def play(
                             await asyncio.wait({task}, timeout=0.05)  # then redraw
                             screen.update("Ctrl-C to stop")
                         task.result()
+                    if given_up:
+                        how = "stopped looping"
                 except TimeoutError:
                     if not timer.expired():
                         raise  # the motion's own error (a ReplyTimeout is a TimeoutError too)
@@ -254,6 +272,7 @@ def play(
                 if on_stop == "free" and not task.cancelled():  # (played to its end: free them now, so
                     await robot.free()  # the table's last look shows what they are left in)
             silent = sorted(robot.latest.offline) if robot.latest is not None else []
+            rejoined = sorted(name for name, why in robot.held.items() if why == "rejoined" and name not in silent)
             untargeted, found = _not_targeted(robot)
             return how
 
@@ -282,13 +301,20 @@ def play(
         what = f"{'under 0.1' if played < 0.05 else f'{played:.1f}'} s of {length} played"
     left = "free (those it opened)" if on_stop == "free" else _left_holding(moved.joints, untargeted, found)
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
-    but = ""
+    buts = []
     if silent:
         one = len(silent) == 1
-        but = (
-            f", but {escape(', '.join(silent))}: {'its servo does' if one else 'their servos do'} not answer "
+        buts.append(
+            f"{escape(', '.join(silent))}: {'its servo does' if one else 'their servos do'} not answer "
             f"(offline) and {'keeps' if one else 'keep'} whatever {'it' if one else 'they'} last received"
         )
+    if rejoined and on_stop != "free":  # (freed as it closed, the free reached them too)
+        one = len(rejoined) == 1
+        buts.append(
+            f"{escape(', '.join(rejoined))}: {'its servo' if one else 'their servos'} came back after going offline "
+            f"and {'was' if one else 'were'} sent nothing since (restarted, a servo is free, and may be elsewhere)"
+        )
+    but = f", but {'; and '.join(buts)}" if buts else ""
     out.print(f"play {how} after {time.monotonic() - began:.1f} s: {what}; joints left {left}{but}")
     return 0
 
