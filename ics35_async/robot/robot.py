@@ -266,8 +266,8 @@ class Robot:
         which were freed, which hold an angle, which were left as they were (only read: the open's EEPROM reads
         and probes, ICS 3.6's position read).  For a person whose program was cut short as it opened the robot
         (Ctrl-C), who needs to know which servos went limp.  From what was sent, not from what the servos did:
-        one that does not answer may not have heard it."""
-        groups: dict[str, list[str]] = {"read free": [], "freed": [], "held": [], "as found": []}
+        one that does not answer now may not have heard it; one that never answered is said apart."""
+        groups: dict[str, list[str]] = {"read free": [], "freed": [], "held": [], "as found": [], "unheard": []}
         for name, joint in self.joints.items():
             stream = self._streams.get(joint.line)
             if stream is None:  # (the open was cut short before it made them: only reads went out)
@@ -276,7 +276,10 @@ class Robot:
             # (every transaction to it carried its start's target: none is set while the robot opens)
             carried = stream.target(joint.id) if joint.id in stream.reached else None
             closing = stream.targets_sent_on_close.get(joint.id)
-            if carried == protocol.FREE and self.start_modes[name] == "free":
+            if (carried, closing) != (None, None) and not self._heard_from(name):
+                # An unplugged leg: "freed" would be news its servos never got (plugged in, they power up free).
+                groups["unheard"].append(name)
+            elif carried == protocol.FREE and self.start_modes[name] == "free":
                 groups["read free"].append(name)
             elif protocol.FREE in (carried, closing):  # (freed by the program, or by the close: on_close="free")
                 groups["freed"].append(name)
@@ -294,12 +297,24 @@ class Robot:
             if stated
             else ("holds its last target", "hold their last targets"),
             "as found": ("was left as it was (only read)", "were left as they were (only read)"),
+            "unheard": (
+                "never answered (whatever was sent to it went unheard)",
+                "never answered (whatever was sent to them went unheard)",
+            ),
         }
         return "; ".join(
             f"joint{'s' if len(names) > 1 else ''} {', '.join(names)} {words[group][len(names) > 1]}"
             for group, names in groups.items()
             if names
         )
+
+    def _heard_from(self, name: str) -> bool:
+        """Whether ``name``'s servo has answered anything since the robot opened: a position, or the open's probe
+        (a stated joint is not probed: taken as heard)."""
+        if name in self._answered or self.start_modes[name] == "stated":
+            return True
+        joint = self.joints[name]
+        return self.group[joint.line].servo(joint.id).known_position_read() is not None
 
     def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
         """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on:
