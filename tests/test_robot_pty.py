@@ -280,3 +280,41 @@ def test_teach_on_a_terminal_shows_its_warning_about_a_pose_beyond_the_limits(po
     text = " ".join(" ".join(screen).split())
     assert "warning: joint b is at -100.0, beyond its limits -90..90: recorded at the limit" in text, "\n".join(screen)
     assert sum("teach: taught.json" in line for line in screen) == 1, "\n".join(screen)  # the view drawn once
+
+
+@pytest.mark.parametrize("command", ["teach", "calibrate"])
+def test_an_enter_typed_while_the_robot_opens_is_no_answer(port: str, tmp_path: Path, command: str) -> None:
+    # An unplugged servo makes the open last a few --timeouts; an Enter pressed meanwhile (nothing on the screen
+    # yet) was the first answer: teach captured a pose the hands had not set, calibrate took it as the neutral.
+    robot = tmp_path / "robot.toml"
+    robot.write_text(ROBOT.format(port=port) + '\n[joints.d]\nline = "main"\nid = 9\n')  # (ID 9: not on the line)
+    files = [str(robot), str(tmp_path / "taught.json")] if command == "teach" else [str(robot)]
+    master, slave = os.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "--timeout", "0.5", command, *files, "--joints", "a,d"],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        env={**os.environ, "COLUMNS": "120", "TERM": "xterm"},
+        start_new_session=True,
+    )
+    os.close(slave)
+    screen = TerminalOutput(master)
+    try:
+        os.write(master, b"\n")  # typed at once: the command is still starting
+        prompt = "Enter: capture" if command == "teach" else "Enter: this is the neutral pose"
+        screen.read_until(screen.shows(prompt), 60)
+        time.sleep(0.5)  # (an Enter still waiting would have been taken by now)
+        os.write(master, b"q\n" if command == "teach" else b"\x04")  # ends teach; the end of input ends calibrate
+        screen.read_until(lambda: proc.poll() is not None, 60)
+        proc.wait(30)
+        screen.read_until(lambda: False, 1)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    text = " ".join(screen.text.split())
+    assert "Traceback" not in text, text
+    assert proc.returncode == 5, text
+    assert "pose 1 at" not in text and "now move each joint" not in text, text

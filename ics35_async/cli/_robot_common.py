@@ -14,7 +14,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Awaitable, Callable, Iterator
-from typing import Any, TypeVar
+from typing import Any, TextIO, TypeVar
 
 import click
 from rich.markup import escape
@@ -257,6 +257,17 @@ def run_robot(
             raise CliError(ExitCode.COMMUNICATION, str(exc)) from None
 
 
+def _discard_typed_ahead(stdin: TextIO) -> None:
+    """Drop what was typed at a terminal before the lines are asked for: an Enter pressed while the robot opened
+    (an unplugged servo makes that last a few --timeouts) would be the first answer, teach capturing a pose the
+    hands had not set, calibrate taking it as the neutral.  Input from a file or a pipe is kept: written ahead."""
+    with contextlib.suppress(ImportError, OSError, ValueError):
+        import termios  # (not on Windows)
+
+        if stdin.isatty():
+            termios.tcflush(stdin.fileno(), termios.TCIFLUSH)
+
+
 class TypedLines:
     """Lines typed on stdin, read by a daemon thread (a blocked read must not keep the process alive)."""
 
@@ -264,6 +275,7 @@ class TypedLines:
         self._loop = asyncio.get_running_loop()
         self._queue: asyncio.Queue[str | None] = asyncio.Queue()
         self._stdin = sys.stdin
+        _discard_typed_ahead(self._stdin)
         threading.Thread(target=self._read, name="ics35 stdin", daemon=True).start()
 
     def _read(self) -> None:
