@@ -96,7 +96,8 @@ class Stream(FrameIterator[Frame]):
         history: how many cycles the statistics look back over.
         on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
             since the last cycle is sent as the stream closes) or ``"free"`` (torque off).  An ID that failed
-            twice and never answered gets its close command once, without the bus's retries.
+            twice and never answered gets its close command once, without the bus's retries (a free: with a
+            probe's short wait).
         on_resume: after a lost port comes back, or an offline ID answers again: ``"wait"`` (hold each
             such ID that had a position target, sending no command, until the program sets its target
             again) or ``"free"``.
@@ -1010,9 +1011,15 @@ class Stream(FrameIterator[Frame]):
         # has no servo, most likely: two silences say nobody answers there.  It gets its command once: a retry,
         # and the guard read before it, would each wait a whole reply allowance more at the end of the program,
         # for each such ID.
-        retries = 0 if self._positions[k] < 0 and (self._offline[k] or self._failures[k] >= 2) else None
+        unheard = self._positions[k] < 0 and (self._offline[k] or self._failures[k] >= 2)
+        baudrate = self.bus.baudrate
+        command: protocol.Position = protocol.Position(servo_id, position, baudrate=baudrate)
+        if unheard and position == protocol.FREE:
+            # Nor a whole allowance for its silence: as `free all` frees an ID that may be empty, it waits only as
+            # long as this line's answers take (five IDs of an unplugged leg under a 1 s allowance: five seconds).
+            command = protocol.ProbeFree(servo_id, baudrate=baudrate)
         try:
-            await self.bus.request(protocol.Position(servo_id, position, baudrate=self.bus.baudrate), retries=retries)
+            await self.bus.request(command, retries=0 if unheard else None)
         except ReplyError:
             pass  # its bytes went out (unanswered or answered badly): the servo heard it as likely as not
         except IcsError:  # never on the wire, or cut off by a lost port: nothing says it arrived

@@ -872,6 +872,24 @@ async def test_on_close_free_sends_an_id_never_heard_its_free_once_without_retri
     assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
 
 
+async def test_on_close_free_to_ids_never_heard_waits_as_long_as_the_line_answers_not_its_allowance() -> None:
+    # A leg unplugged under `ics35 teach --timeout 1`: after q, each of its IDs' close-out free waited a whole
+    # reply allowance, one after the other (five IDs: five seconds with nothing said).  Nobody is there: the
+    # free goes out as `free all` sends it to an ID that may be empty, waiting only as long as this line's
+    # servos take to answer.
+    ids = [1, 5, 6, 7]
+    sim = make_sim([1])
+    async with open_bus(sim, **{**PATIENT, "retries": 1}) as bus:
+        async with bus.stream(ids, on_close="free", offline_after=2, probe_interval=60.0) as stream:
+            await frames_until(stream, lambda f: {5, 6, 7} <= f.offline)
+            seq = sim.transactions
+            closing = time.monotonic()
+        took = time.monotonic() - closing
+    assert [(t.servo_id, t.command) for t in sim.log_since(seq)] == [(i, "free") for i in ids]
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+    assert took < 2 * PATIENT["adapter_latency"], took  # (three allowances before)
+
+
 async def test_on_close_free_still_retries_an_id_that_failed_only_once() -> None:
     # One silence is not two: a servo whose only reply so far was lost gets the bus's retries as ever.
     ids = [1, 5]
