@@ -330,7 +330,7 @@ def test_renumbering_is_refused_in_words_with_two_servos_and_done_with_one(page:
     two, lone = lines
     page.click("a[href='#id']")
     page.click("#survey-btn")
-    expect(page.locator("#survey-result")).to_contain_text("not safe to renumber")
+    expect(page.locator("#survey-result")).to_contain_text("not safe to renumber", timeout=SCAN_WAIT_MS)
     page.fill("#new-id", "9")
     page.click("#renumber-btn")
     expect(page.locator("#id-result")).to_contain_text("exactly one device", timeout=SCAN_WAIT_MS)
