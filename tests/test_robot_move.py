@@ -314,11 +314,12 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     assert during and during[-1] - during[0] > 5.0, during  # it went on while the lower line was away (not 0)
     # 50 degrees a second: each new target at most that far on from the one before, by the time since that one
     # first went out (a busy machine's stall lets the motion's clock run on as much, the stream sending the
-    # last target meanwhile), and a cycle's slack: never half a second's worth at once, as when it drove on after
-    # the lost line came back.
+    # last target meanwhile), and a slack of 0.2 s: a stall between a target worked out and its command on the
+    # wire is not in the wire's times (a loaded machine's 0.1 s made a command 5 degrees on from one 14 ms
+    # before).  Never half a second's worth at once, as when it drove on after the lost line came back.
     changes = [(t, deg) for k, (_, t, deg) in enumerate(neck) if k == 0 or deg != neck[k - 1][2]]
     for (t1, d1), (t2, d2) in itertools.pairwise(changes):
-        assert d2 - d1 <= 50.0 * (t2 - t1 + 0.05) + 1.0, (d1, d2, t2 - t1)
+        assert d2 - d1 <= 50.0 * (t2 - t1 + 0.2) + 1.0, (d1, d2, t2 - t1)
     assert neck[-1][2] == pytest.approx(50.0, abs=HALF_COUNT)
 
 
@@ -781,7 +782,9 @@ def test_stop_slows_a_running_motion_to_rest_without_turning_back() -> None:
             steps = list(itertools.pairwise(sent))
             # On in the direction it was going, slowing down, never back; then at rest.
             assert all((b >= a) if forward else (b <= a) for a, b in steps), (name, sent)
-            assert len(set(sent)) > 3, (name, sent)  # it went on moving: not frozen at once
+            # It went on moving: not frozen at once.  (Not counted in distinct targets: the ramp follows the clock,
+            # so a machine that stalls the loop for most of the 0.2 s sends its rest two or three cycles in.)
+            assert sent[-1] != sent[0], (name, sent)
             assert sent[-1] != joint_position(spec, -90.0 if name == "knee" else 55.0)
             assert robot.targets[name] == pytest.approx(joint_degrees(spec, sent[-1]), abs=HALF_COUNT)
 
