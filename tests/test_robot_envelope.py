@@ -196,6 +196,30 @@ def test_a_stop_taken_over_by_another_stop_returns_once_the_joints_are_at_rest()
     assert all(b >= a - HALF_COUNT for a, b in itertools.pairwise(sent)), sent  # no jump back
 
 
+def test_a_second_stop_in_the_same_moment_as_the_first_returns_once_the_joints_are_at_rest() -> None:
+    """Two stops called together (before the first one's ramp has run a step): the second takes the ramp over as
+    it would later, instead of finding nothing moving and returning while the joint still slows down."""
+    rig = make_rig()
+    outcomes: dict[str, float | None] = {}
+
+    async def body(robot: Robot) -> None:
+        await robot.move_to({"knee": -90.0}, duration=0.0)
+        async with anyio.create_task_group() as tasks:
+
+            async def stopper(name: str) -> None:
+                await robot.stop(ramp=0.4)
+                outcomes[name] = robot.targets["knee"]
+
+            tasks.start_soon(knee_up_until_stopped, robot)
+            await anyio.sleep(0.2)
+            tasks.start_soon(stopper, "first")
+            tasks.start_soon(stopper, "second")
+        await robot.on_wire()
+
+    run_robot(rig, body)
+    assert outcomes.keys() == {"first", "second"} and outcomes["first"] == outcomes["second"], outcomes
+
+
 def test_a_stop_leaves_a_joint_at_rest_since_its_motion_was_cancelled() -> None:
     """A motion cancelled half way (a timeout around it), the joint at rest a while: a stop() for another motion
     does not set it moving again at the speed it had when cancelled."""

@@ -515,16 +515,24 @@ class Robot:
                 stopped it.
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
         """
+        return await self._played(self._planned(trajectory, wait_on_wire))
+
+    def _planned(self, trajectory: Trajectory, wait_on_wire: bool) -> Plan:
+        """The trajectory's plan, stepped from the next frame on: registered at once, with no await, so a stop()
+        called in the same moment as another finds the other's ramp to take over (not a joint at rest)."""
         self._check_watched()  # (no pump would ever step it)
         plan = Plan(trajectory, wait_on_wire)
-        # A trajectory does not drive a tripped joint: a motion checks that before it starts (check_ready), but
-        # stop()'s ramps start a scheduler pass after they are worked out, and a trip may land in between.
+        # A trajectory does not drive a tripped joint: a motion checks that before it starts (check_ready), but a
+        # trip may have landed since (a stop()'s ramp comes from the motions it stops).
         self._refuse_tripped(plan.joints)
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
         if self._lost_lines:  # (its joints there given up now: every line lost, no frame would come to do it)
             self._drop_lost_joints()
+        return plan
+
+    async def _played(self, plan: Plan) -> frozenset[str]:
         try:
             await plan.done.wait()
         finally:
@@ -580,16 +588,22 @@ class Robot:
         if not segments:
             return
         errors: list[IcsError] = []
-
-        async def slow_down(trajectory: Trajectory) -> None:
+        ramps: list[Plan] = []
+        for segment in segments:  # registered before any await: a stop right after this one takes them over
             try:
-                await self.run(trajectory)
+                ramps.append(self._planned(Trajectory([segment]), wait_on_wire=True))
+            except IcsError as exc:  # a safety stop meanwhile, the line's end: the caller hears it
+                errors.append(exc)
+
+        async def slow_down(plan: Plan) -> None:
+            try:
+                await self._played(plan)
             except IcsError as exc:  # a later stop, a safety stop, the line's end: the caller hears it
                 errors.append(exc)
 
         async with anyio.create_task_group() as tasks:
-            for segment in segments:
-                tasks.start_soon(slow_down, Trajectory([segment]))
+            for ramp in ramps:
+                tasks.start_soon(slow_down, ramp)
         if errors:
             raise again(errors[0])
 
