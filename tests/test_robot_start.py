@@ -177,41 +177,14 @@ def test_an_absent_joint_costs_the_open_one_reply_allowance_and_the_watch_none()
         assert {"read_temperature", "read_current"} <= set(sent), (line, servo_id)  # watched
 
 
-@pytest.mark.parametrize("on_close", ["hold", "free"])
-def test_the_block_does_not_say_an_unplugged_servo_was_freed(on_close: str) -> None:
-    # A leg unplugged as the robot opened: Ctrl-C then said its joints "were freed to read where they stand",
-    # though no servo there heard a thing (plugged back, it would be free by powering up, not by the robot).
-    rig = make_rig()
-    rig.sim("lower").remove_servo(2)  # the knee
+def joints_left_said(rig: Rig, **options: Any) -> dict[str, str]:
+    """What ``open_robot(rig's robot, **options)``'s block says the joints were left in: before it is entered, once
+    the robot has read its pose, and after its close (the rig closed afterwards)."""
     said: dict[str, str] = {}
 
     async def main() -> None:
         with anyio.fail_after(GUARD):
-            block = open_robot(rig.description, on_close=on_close, **FAST)
-            async with block as robot:
-                await robot.read_pose()
-                said["open"] = block.joints_left()
-            said["closed"] = block.joints_left()
-
-    try:
-        anyio.run(main)
-    finally:
-        rig.close()
-    for when in ("open", "closed"):
-        freed = [part for part in said[when].split("; ") if "freed" in part]
-        assert freed and all("knee" not in part for part in freed), said
-        assert "joint knee never answered (whatever was sent to it went unheard)" in said[when], said
-
-
-@pytest.mark.parametrize("on_close", ["hold", "free"])
-def test_the_block_tells_what_an_open_left_each_joint_in_as_the_wire_shows(on_close: str) -> None:
-    # What a program cut short as it opened (Ctrl-C) tells its person: which servos went limp, which were only read.
-    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
-    said: dict[str, str] = {}
-
-    async def main() -> None:
-        with anyio.fail_after(GUARD):
-            block = open_robot(rig.description, on_close=on_close, start_pose={"shoulder": 30.0}, **FAST)
+            block = open_robot(rig.description, **options, **FAST)
             said["before"] = block.joints_left()
             async with block as robot:
                 await robot.read_pose()
@@ -222,6 +195,27 @@ def test_the_block_tells_what_an_open_left_each_joint_in_as_the_wire_shows(on_cl
         anyio.run(main)
     finally:
         rig.close()
+    return said
+
+
+@pytest.mark.parametrize("on_close", ["hold", "free"])
+def test_the_block_does_not_say_an_unplugged_servo_was_freed(on_close: str) -> None:
+    # A leg unplugged as the robot opened: Ctrl-C then said its joints "were freed to read where they stand",
+    # though no servo there heard a thing (plugged back, it would be free by powering up, not by the robot).
+    rig = make_rig()
+    rig.sim("lower").remove_servo(2)  # the knee
+    said = joints_left_said(rig, on_close=on_close)
+    for when in ("open", "closed"):
+        freed = [part for part in said[when].split("; ") if "freed" in part]
+        assert freed and all("knee" not in part for part in freed), said
+        assert "joint knee never answered (whatever was sent to it went unheard)" in said[when], said
+
+
+@pytest.mark.parametrize("on_close", ["hold", "free"])
+def test_the_block_tells_what_an_open_left_each_joint_in_as_the_wire_shows(on_close: str) -> None:
+    # What a program cut short as it opened (Ctrl-C) tells its person: which servos went limp, which were only read.
+    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+    said = joints_left_said(rig, on_close=on_close, start_pose={"shoulder": 30.0})
     assert said["before"] == "no servo was sent anything (its lines were still being opened)"
     freed = sorted(name for name in JOINTS if 0 in torque_commands(rig, name))
     assert freed == (["elbow", "knee"] if on_close == "hold" else sorted(JOINTS))

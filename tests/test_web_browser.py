@@ -48,6 +48,7 @@ from tests.support.browser_pages import (
     scan_lists,
     servo_read,
     shot,
+    stop_servers,
     until,
     web_server_page,
 )
@@ -217,11 +218,7 @@ def test_a_page_of_a_server_started_again_with_a_new_token_says_to_open_the_new_
         expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
     finally:
         context.close()
-        for proc in (first, second):
-            proc.terminate()
-            proc.wait(10)
-            assert proc.stdout is not None
-            proc.stdout.close()
+        stop_servers(first, second)
 
 
 def test_without_the_token_the_page_is_refused(browser: Browser, server: str) -> None:
@@ -1002,9 +999,4 @@ def test_the_robot_page_of_a_server_started_again_with_a_new_token_shows_nothing
         expect(p.locator("#robot-reopen")).to_be_hidden()  # (nothing this page can reconnect to)
     finally:
         context.close()
-        for proc in (first, second):
-            if proc is not None:
-                proc.terminate()
-                proc.wait(10)
-                assert proc.stdout is not None
-                proc.stdout.close()
+        stop_servers(first, second)

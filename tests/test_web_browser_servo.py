@@ -32,6 +32,7 @@ from tests.support.browser_pages import (
     backed_up,
     open_servo_page,
     servo_read,
+    stop_servers,
     until,
     web_server_page,
 )
@@ -671,12 +672,7 @@ def test_the_servo_page_of_a_server_gone_shows_motion_off_and_no_position_as_rea
         expect(p.locator("#jog-position-note")).to_contain_text("not read now: the configurator's server")
     finally:
         context.close()
-        for proc in (first, second):
-            if proc is not None:
-                proc.terminate()
-                proc.wait(10)
-                assert proc.stdout is not None
-                proc.stdout.close()
+        stop_servers(first, second)
         line.close()
 
 

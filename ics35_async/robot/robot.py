@@ -204,7 +204,7 @@ class Robot:
         answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
-        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self._lost_joints()):
+        while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self.lost):
             if self._end_error is not None:
                 raise again(self._end_error)
             await self._new_frame.wait()  # a frame, or a line lost (with every line lost no frame comes)
@@ -528,7 +528,7 @@ class Robot:
         self._release(plan.joints)
         self._envelope.update(trajectory.envelope())
         self._plans.append(plan)
-        if self._lost_lines:  # (its joints there given up now: every line lost, no frame would come to do it)
+        if self.lost:  # (its joints there given up now: every line lost, no frame would come to do it)
             self._drop_lost_joints()
         return plan
 
@@ -697,7 +697,7 @@ class Robot:
         self._lost_lines = (
             self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
         ) - frame.resumed
-        lost = self._lost_joints()
+        lost = self.lost
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
         self._positions.update(positions)
@@ -739,12 +739,6 @@ class Robot:
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
 
-    def _lost_joints(self) -> frozenset[str]:
-        """The joints on a line whose port is lost (see _on_frame and _line_changed)."""
-        if not self._lost_lines:
-            return frozenset()
-        return frozenset(n for n, j in self.joints.items() if j.line in self._lost_lines)
-
     async def watch_lines(self) -> None:
         """Tell the robot of each line's port lost or back as its bus knows it (see :meth:`_line_changed`);
         runs beside :meth:`pump` until the robot's block ends."""
@@ -762,7 +756,7 @@ class Robot:
         frame comes: the motions give up the lost lines' joints here (a motion with none left ends), and what
         waits for replies (on_wire, free, read_pose) is woken to leave them out."""
         self._lost_lines |= {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
-        for name in self._lost_joints():  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
+        for name in self.lost:  # (coasting from a cancelled motion: a stop's ramp would wait for frames too)
             self._velocity[name] = 0.0
             self._coasting.pop(name, None)
         self._drop_lost_joints()
@@ -772,7 +766,7 @@ class Robot:
     def _drop_lost_joints(self) -> None:
         """The motions give up the joints on a line whose port is lost, and a motion with none left ends: with
         every line lost no frame comes to step it (see _line_changed, and run for a motion started meanwhile)."""
-        lost = self._lost_joints()
+        lost = self.lost
         driven = frozenset(name for plan in self._plans for name in plan.joints & lost)
         if driven:
             self._give_up_lost(driven)

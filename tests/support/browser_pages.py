@@ -133,6 +133,16 @@ def open_servo_page(page: Page, servo_id: int) -> None:
     expect(page.locator("#ram-table tbody tr").first).to_be_visible()
 
 
+def stop_servers(*procs: subprocess.Popen[str] | None) -> None:
+    """Stop ``ics35 web`` processes a test started itself (``None``: one it did not get to start)."""
+    for proc in procs:
+        if proc is not None:
+            proc.terminate()
+            proc.wait(10)
+            assert proc.stdout is not None
+            proc.stdout.close()
+
+
 @contextlib.contextmanager
 def web_server_page(browser: Browser, line: PtyLine, args: list[str] | None = None) -> Iterator[Page]:
     """``ics35 web ARGS`` (by default ``--port`` ``line``'s pty) in a process of its own and a page on it; at the
