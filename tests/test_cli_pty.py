@@ -882,6 +882,49 @@ def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_force
     assert done.stderr == "", done.stderr
 
 
+# A stop whose own task fails as the third press lands (play's ``retrieved(robot.stop())``, its first step taken as
+# the runner's close ran, the robot closed by then): the press stops the loop before the task's done callback, which
+# retrieves its error, has run; the process's end then printed "Task exception was never retrieved" and the error's
+# traceback under the command's message.
+_FORCED_OUT_AS_A_STOP_FAILS = """
+import asyncio, gc, os, signal
+from ics35_async.cli._loop import run_loop
+from ics35_async.tasks import retrieved
+
+def press():
+    os.kill(os.getpid(), signal.SIGINT)  # (Ctrl-C's handler runs before the next line)
+
+async def stop():
+    raise RuntimeError("the robot is closed")
+
+async def main():
+    press()
+    try:
+        await asyncio.sleep(30)  # the first press cancels it
+    finally:
+        press()  # the second forces the command out
+        try:
+            await asyncio.sleep(30)  # the runner, closing, cancels it again
+        finally:
+            retrieved(stop())  # its step fails next, and its done callback is queued behind the third press
+            asyncio.get_running_loop().call_soon(press)  # the third
+            await asyncio.sleep(30)
+
+try:
+    run_loop(main)
+except KeyboardInterrupt:
+    print("interrupted")
+gc.collect()  # (what the process's end does, at once)
+"""
+
+
+@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
+def test_a_stop_failing_as_the_command_is_forced_out_is_not_printed(loop: str) -> None:
+    done = script_on_loop(loop, _FORCED_OUT_AS_A_STOP_FAILS, timeout=scaled(15))  # (less than its 30 s wait)
+    assert done.stdout == "interrupted\n", done.stderr
+    assert done.stderr == "", done.stderr
+
+
 # Ctrl-C as the command's loop is being made, or as the task that runs the command is (uvloop's loop, here a
 # stand-in whose loop-making or task-making is where the press lands): the command's coroutine, made before, never
 # ran, and Python said so as the process ended ("sys:1: RuntimeWarning: coroutine 'get.<locals>.body' was never

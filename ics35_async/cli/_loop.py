@@ -75,6 +75,7 @@ def run_loop(make: Callable[[], Awaitable[T]]) -> T:
         ):
             presses = pressed
             loops.append(runner.get_loop())
+            _reports_when_forced_out(runner.get_loop(), pressed, forced)
             awaiting.append(_await(make, started))
             try:
                 return runner.run(awaiting[0])
@@ -85,7 +86,6 @@ def run_loop(make: Callable[[], Awaitable[T]]) -> T:
             except KeyboardInterrupt:
                 if len(pressed) == 2 and started:  # (a third forces out at once: nothing more to tell then)
                     forced.append(started[0])
-                    _told_after_close(runner.get_loop(), started[0])
                 raise
     except KeyboardInterrupt:
         if not forced:
@@ -156,15 +156,26 @@ def _quiet_executor_shutdown() -> None:
     threading.excepthook = hook
 
 
-def _told_after_close(loop: asyncio.AbstractEventLoop, task: asyncio.Task[T]) -> None:
-    """The runner, closing, cancels the command's task again and waits for it (its ``finally`` blocks run); what
+def _reports_when_forced_out(
+    loop: asyncio.AbstractEventLoop, pressed: list[int], forced: list[asyncio.Task[Any]]
+) -> None:
+    """What the loop reports once a second Ctrl-C has forced the command out (``pressed``, ``forced``: run_loop's).
+
+    The runner, closing, cancels the command's task again and waits for it (its ``finally`` blocks run); what
     it then ends with the runner prints as a traceback ("unhandled exception during asyncio.run() shutdown") and
     drops.  That is the command's own account of what it left (servos that may still hold, and how to free
-    them): it is kept for :func:`_forced_out` instead."""
+    them): it is kept for :func:`_forced_out` instead.  And a task that failed as a later press stopped the loop
+    (play's ``retrieved(robot.stop())``, its first step taken as the runner closed, the robot closed under it)
+    never had its done callback run, the one that retrieves its error: the loop's close dropped the task and
+    Python printed "Task exception was never retrieved" and the error's traceback under the command's message.
+    What was cut short is the message's to say: those reports are dropped; every other goes to the default."""
 
     def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-        if context.get("task") is not task:
-            loop.default_exception_handler(context)
+        if forced and context.get("task") is forced[0]:
+            return
+        if len(pressed) >= 2 and str(context.get("message", "")).endswith("exception was never retrieved"):
+            return
+        loop.default_exception_handler(context)
 
     loop.set_exception_handler(handler)
 
