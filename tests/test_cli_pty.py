@@ -419,7 +419,7 @@ def test_what_is_said_as_ctrl_c_is_handled_starts_a_line_of_its_own_when_the_out
 
 
 def test_the_simulators_last_words_after_ctrl_c_start_a_line_of_their_own() -> None:
-    code, written = typed_on_a_terminal(["sim", "--ids", "1"], [("ics35 sim: 1 servos", b"\x03")])
+    code, written = typed_on_a_terminal(["sim", "--ids", "1"], [("ics35 sim: 1 servo ", b"\x03")])
     screen = screen_of(written)
     assert code == 0, "\n".join(screen)
     assert any(line.startswith("ics35 sim: served 0 transactions") for line in screen), "\n".join(screen)

@@ -124,10 +124,14 @@ def typed_on_a_terminal(
     screen = TerminalOutput(master)
     try:
         for when, key in keys:
-            if isinstance(when, str):
-                screen.read_until(screen.shows(when), timeout)
-            elif callable(when):
-                screen.read_until(when, timeout)
+            if isinstance(when, str) or callable(when):
+                # (A phrase never shown fails here, not after typing the key at the end of the wait: the test then
+                # judged whatever followed, and a misspelt phrase cost the whole timeout.)
+                done = screen.shows(when) if isinstance(when, str) else when
+                screen.read_until(done, timeout)
+                assert done(), f"not shown within {timeout} s: {when!r}; the screen:\n" + "\n".join(
+                    screen_of(screen.text)
+                )
             else:
                 screen.read_until(lambda: False, when)
             os.write(master, key)
