@@ -383,7 +383,15 @@ def test_a_tty_read_by_a_thread_survives_input_discards_while_bytes_arrive(pty: 
     try:
         port.discard_input()
         pty.write(b"\x21\x22")  # and it still reads
-        assert read_until(port, 2)[-2:] == b"\x21\x22"
+        # (The loop's last bytes can reach the input after that discard: the kernel moves a pty's bytes between
+        # its buffers in a worker of its own, late on a loaded machine.  What comes first may be those.)
+        data = b""
+        deadline = time.monotonic() + WAIT
+        while not data.endswith(b"\x21\x22"):
+            assert time.monotonic() < deadline, data
+            data += port.read()
+            time.sleep(0.001)
+        assert set(data[:-2]) <= set(b"\x80\x01\x02"), data
     finally:
         port.close()
 
