@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from ics35_async import InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
+from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import MotionStopped, RobotWarning
@@ -827,3 +827,87 @@ def test_robot_lost_names_the_joints_on_a_lost_line_as_of_now() -> None:
                 await anyio.sleep(0.01)
 
     run_robot(rig, body, reconnect=True)
+
+
+def test_line_change_returns_as_a_line_is_lost_and_as_it_is_back_with_its_joints() -> None:
+    # What the configurator's Robot page waits for to stop the robot, and Reconnect for the line to be back.
+    rig = paced_rig()
+    lower = {name for name, spec in JOINTS.items() if spec["line"] == "lower"}
+
+    async def body(robot: Robot) -> None:
+        robot.set_targets({"hip": 5.0})
+        await robot.on_wire()
+        seen: list[tuple[frozenset[str], frozenset[str], frozenset[str]]] = []
+
+        async def watch() -> None:
+            lost = await robot.line_change(())
+            seen.append((lost, robot.lost, frozenset(robot.held)))
+            lost = await robot.line_change(lost)
+            seen.append((lost, robot.lost, frozenset(robot.held)))
+
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(watch)
+            await anyio.sleep(0.1)
+            assert not seen  # (no line lost yet: it waits)
+            rig.lower.unplug()
+            with anyio.fail_after(GUARD):
+                while not seen:
+                    await anyio.sleep(0.01)
+            assert seen[0] == (frozenset({"lower"}), lower, frozenset()), seen
+            assert robot.lost_lines == frozenset({"lower"})
+            await anyio.sleep(0.1)
+            assert len(seen) == 1  # (still lost: it waits)
+            rig.lower.replug()
+        # Back as the robot counts it: at the frame that says so, its joint with a target held from then on.
+        assert seen[1] == (frozenset(), frozenset(), frozenset({"hip"})), seen
+        assert robot.lost_lines == frozenset() and robot.held == {"hip": "resumed"}
+
+    run_robot(rig, body, reconnect=True)
+
+
+def test_line_change_returns_with_every_line_lost_when_no_frame_comes_and_at_once_when_they_differ() -> None:
+    rig = paced_rig()
+
+    async def body(robot: Robot) -> None:
+        await lose_every_line(rig, robot)
+        with anyio.fail_after(GUARD):  # (already others than none: at once)
+            assert await robot.line_change(()) == frozenset({"upper", "lower"})
+            assert await robot.line_change("upper") == frozenset({"upper", "lower"})
+        rig.upper.replug()
+        with anyio.fail_after(GUARD):  # (the default: the lines lost as it is called)
+            assert await robot.line_change() == frozenset({"lower"})
+        with pytest.raises(InvalidArgument, match="no line 'middle'"):
+            await robot.line_change(["lower", "middle"])
+        rig.lower.replug()
+        return robot
+
+    robot = run_robot(rig, body, reconnect=True)
+    with pytest.raises(BusClosed):  # (the block has ended: nothing to wait for)
+        anyio.run(robot.line_change)
+
+
+def test_line_change_waiting_as_the_robots_block_ends_raises_bus_closed() -> None:
+    rig = paced_rig()
+    raised: list[BaseException] = []
+
+    async def watch(robot: Robot) -> None:
+        try:
+            await robot.line_change(())
+        except BusClosed as exc:
+            raised.append(exc)
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            # (the watcher outlives the robot's block: the task group waits for it once the robot is closed)
+            async with (
+                anyio.create_task_group() as tasks,
+                open_robot(rig.description, **{**FAST, "reconnect": True}) as robot,
+            ):
+                tasks.start_soon(watch, robot)
+                await anyio.sleep(0.05)
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+    assert raised and "closed" in str(raised[0]), raised

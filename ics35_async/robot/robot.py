@@ -89,6 +89,7 @@ class Robot:
         self._end_reason: IcsError | None = None
         self._closing = False  # the block has ended: commands from elsewhere are refused (mark_closing)
         self._lost_lines: set[str] = set()  # lost ports not yet back in a frame (see _on_frame)
+        self._lines_changed = anyio.Event()  # set (and replaced) as lost_lines changes: see line_change
         self._gstream: GroupStream | None = None
         self._streams: dict[str, Stream] = {}  # every line's, once the open has made them (see started)
 
@@ -138,8 +139,51 @@ class Robot:
         """Joints on a line whose port is lost now (``reconnect=True``: its bus reconnecting), until the frame
         whose ``resumed`` names the line back: nothing sent to them is confirmed meanwhile (``free()`` and
         ``on_wire()`` do not wait for them).  A frame's ``lost`` as of now: with every line lost no frame comes."""
-        lines = self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
+        lines = self.lost_lines
         return frozenset(n for n, j in self.joints.items() if j.line in lines) if lines else frozenset()
+
+    @property
+    def lost_lines(self) -> frozenset[str]:
+        """The lines whose port is lost now (``reconnect=True``: their bus reconnecting), from the moment their
+        bus knows until the frame whose ``resumed`` names them back: the lines of :attr:`lost`'s joints.
+        :meth:`line_change` waits for it to change."""
+        return frozenset(self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST})
+
+    async def line_change(self, lost: Iterable[str] | None = None) -> frozenset[str]:
+        """Wait until the lines whose port is lost (:attr:`lost_lines`) are others than ``lost`` (default: those
+        lost now): a line lost (as soon as its bus knows, frames or not) or back (at the frame whose
+        ``resumed`` names it, once its joints are held: see :attr:`held`).  Returns the lines lost then, at once
+        if they differ already; their joints are :attr:`lost`.  A line lost and back between two calls is not
+        seen here: pass what the last call returned, or read a frame's ``resumed``.
+
+        A program (or the configurator) that stops when a line goes, and carries on once it is back::
+
+            lost = await robot.line_change(())  # returns once a line is lost
+            print(f"line {', '.join(sorted(lost))} lost: joints {', '.join(sorted(robot.lost))} wait")
+            while lost:
+                lost = await robot.line_change(lost)  # every line back: an empty set
+
+        Raises:
+            InvalidArgument: ``lost`` names a line the robot does not have.
+            BusClosed, PortLost: the robot was closed (its ``async with`` block has ended), or a line is gone
+                (without ``reconnect``: the robot's frames have ended).
+        """
+        if lost is None:
+            before = self.lost_lines
+        else:
+            before = frozenset([lost] if isinstance(lost, str) else lost)
+            unknown = sorted(before - self.group.buses.keys())
+            if unknown:
+                raise InvalidArgument(
+                    f"the robot has no line {', '.join(map(repr, unknown))} (its lines: {', '.join(self.group.buses)})"
+                )
+        while True:
+            if self._end_error is not None:
+                raise again(self._end_error)
+            now = self.lost_lines
+            if now != before:
+                return now
+            await self._lines_changed.wait()
 
     def has_answered(self, joint: str) -> bool:
         """Whether ``joint``'s servo has answered since the robot opened (a position, or a probe once offline):
@@ -694,9 +738,12 @@ class Robot:
         # A line whose port is lost (reconnect=True: its bus reconnecting) from the moment its bus knows until the
         # frame that says it is back (resumed): the reopened port runs no cycle of the stream before that, and its
         # joints are held only from then on.
+        was_lost = self._lost_lines
         self._lost_lines = (
             self._lost_lines | {n for n, bus in self.group.buses.items() if bus.state is State.LOST}
         ) - frame.resumed
+        if self._lost_lines != was_lost:
+            self._tell_lines_changed()
         lost = self.lost
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
@@ -760,7 +807,13 @@ class Robot:
             self._velocity[name] = 0.0
             self._coasting.pop(name, None)
         self._drop_lost_joints()
+        self._tell_lines_changed()
         event, self._new_frame = self._new_frame, anyio.Event()
+        event.set()
+
+    def _tell_lines_changed(self) -> None:
+        """Wake what waits in line_change: the lost lines may be others now."""
+        event, self._lines_changed = self._lines_changed, anyio.Event()
         event.set()
 
     def _drop_lost_joints(self) -> None:
@@ -898,6 +951,7 @@ class Robot:
             plan.finish(error)
         self._plans.clear()
         self._new_frame.set()
+        self._lines_changed.set()
 
     # ------------------------------------------------------------------ safety
 
