@@ -878,3 +878,37 @@ def test_stop_with_the_robot_stopped_by_a_lost_line_says_how_it_stands_and_what_
     said = answer.json()["error"]
     assert answer.status_code == 409 and "not open" in said and "Free all" in said and "Reconnect" in said, said
     assert "keep their last" in said, said
+
+
+def test_a_lost_line_back_before_the_motion_playing_has_slowed_to_rest_is_still_the_one_reconnect_asks_about(
+    tmp_path: Path,
+) -> None:
+    # The page worked the lost line out again from the buses' states once the motion playing on the other line had
+    # slowed to rest: a line back by then (an adapter that only wiggled) was no lost line, and Reconnect's question
+    # named no line ("line  held joints hip, knee"), or, a cycle earlier, its joints were held again unasked.
+    name, path = two_line_robot(tmp_path)
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        try:
+            post(client, "/api/robot/motion", {"enabled": True})
+            post(client, "/api/robot/move", {"pose": {"hip": -10, "knee": 30}, "duration": 0.1})
+            wait_for(lambda: lower.servo(1).target == degrees_to_position(-10))
+            # A long move on the other line: the lost line's stop slows it to rest over the stop's ramp.
+            assert post(client, "/api/robot/move", {"pose": {"neck": 60}, "duration": 3}).status_code == 200
+            wait_for(lambda: upper.servo(1).target > degrees_to_position(10))  # (under way: a stop has a ramp)
+            lower.unplug()
+            lower.replug()  # (back at the first reconnect attempt, within the stop's ramp)
+            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+            # (the stop's ramp over, Reconnect's question is there: it was never asked, or named no line)
+            wait_for(lambda: client.get("/api/robot").json()["reconnect_choice"] is not None, 3.0)
+            view = client.get("/api/robot").json()
+            assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip", "knee"]}, view
+            unsaid = post(client, "/api/robot/reopen")
+            assert unsaid.status_code == 400 and "line lower held joints hip, knee" in unsaid.json()["error"]
+            assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
+            wait_for(lambda: lower.servo(1).free and lower.servo(2).free)
+        finally:
+            upper.close()
+            lower.close()

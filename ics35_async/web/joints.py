@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from typing import Any
 
 from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
 from ..bus import Bus
-from ..engine import State
 from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
@@ -108,14 +107,18 @@ class RobotSession:
         if stopped is not None:
             # Its lost line reopens by itself once its port is back (within a reconnect delay of it): until then
             # the robot stays as it is, not closed for an open that would fail (Free all would reach nothing).
-            still = await _still_lost(stopped, RECONNECT_WAIT)
-            if still:
-                raise UnsafeOperation(
-                    f"line {', '.join(still)} is still lost (its port is not back): plug it back in, then press "
-                    "Reconnect; meanwhile Free all reaches the joints on the other lines"
-                )
+            still = stopped.lost_lines
+            with contextlib.suppress(TimeoutError, IcsError):  # (IcsError: the robot closed meanwhile, see below)
+                async with asyncio.timeout(RECONNECT_WAIT):
+                    while still:
+                        still = await stopped.line_change(still)
             if self._stopped_robot is not stopped:  # (the server closing meanwhile: the robot is gone)
                 raise UnsafeOperation("the robot was closed while Reconnect waited for its line")
+            if still:
+                raise UnsafeOperation(
+                    f"line {', '.join(self._in_order(still))} is still lost (its port is not back): plug it back "
+                    "in, then press Reconnect; meanwhile Free all reaches the joints on the other lines"
+                )
             self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
         pose = dict(self.start_pose)
         if self.lost_pose:
@@ -162,10 +165,10 @@ class RobotSession:
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
-                lost = asyncio.ensure_future(_a_line_lost(robot))
+                lost = retrieved(robot.line_change(()))  # (its error: the robot's end, which `ended` tells)
                 try:
                     done, _ = await asyncio.wait({asked, ended, lost}, return_when=asyncio.FIRST_COMPLETED)
-                    if lost in done and lost.result() and not closing.is_set():
+                    if lost in done and lost.exception() is None and not closing.is_set():
                         await self._stop_at_loss(robot, lost.result())
                     # Kept open, its other lines streaming, until Reconnect or the server's end (or until its
                     # lines end: a lost port that could not be reopened).
@@ -184,11 +187,14 @@ class RobotSession:
             self.motion_enabled = False
             opened.set()
 
-    async def _stop_at_loss(self, robot: Robot, lines: list[str]) -> None:
-        """Line(s) ``lines`` lost their port: the page's robot stops (motion off, what plays slowed to rest on the
+    async def _stop_at_loss(self, robot: Robot, lost: frozenset[str]) -> None:
+        """Line(s) ``lost`` lost their port: the page's robot stops (motion off, what plays slowed to rest on the
         lines left, nothing moved until Reconnect), kept open so that Free all still reaches the other lines."""
         self.robot, self._stopped_robot = None, robot
         self.motion_enabled, self._motion_page = False, None
+        # Kept from here, not read again once the stop is over: a line back by then (within the ramp) is still the
+        # one Reconnect asks about (its servos may have restarted while it was away).
+        lines = self.lost_lines = self._in_order(lost)
         ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
         self.error = f"the robot stopped: line {ports} lost its port; with the line back, press Reconnect"
         await self._stop(why=f"line {', '.join(lines)} was lost", robot=robot)
@@ -205,11 +211,7 @@ class RobotSession:
         targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
         # (a line back by itself since keeps its place: its joints are held, sent nothing, until Reconnect)
-        self.lost_lines = [
-            line
-            for line, bus in robot.group.buses.items()
-            if line in self.lost_lines or bus.port_lost or bus.state is State.LOST
-        ]
+        self.lost_lines = self._in_order({*self.lost_lines, *robot.lost_lines})
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
         # no reading clears it): a new robot knows nothing of it, and would let the next move drive the joint into
         # the load that tripped it.  (The other stops clear, or trip again, by the new robot's own readings.)
@@ -261,6 +263,10 @@ class RobotSession:
     def playing(self) -> str | None:
         """The names of the motion or the moves playing (``None``: nothing plays)."""
         return ", ".join(dict.fromkeys(self._jobs.values())) or None  # (a move taken over runs out its time)
+
+    def _in_order(self, lines: Collection[str]) -> list[str]:
+        """``lines`` in the order the robot file gives them."""
+        return [line for line in self.description.lines if line in lines]
 
     def _robot(self) -> Robot:
         if self.robot is None:
@@ -523,47 +529,6 @@ class RobotSession:
             f"{'its servo' if one else 'their servos'} may still hold; once the line is back, Reconnect frees "
             f"{'it' if one else 'them'}"
         )
-
-
-async def _still_lost(robot: Robot, seconds: float) -> list[str]:
-    """``robot``'s lines still lost after up to ``seconds`` (each back sooner ends the wait sooner)."""
-
-    def lost() -> list[str]:
-        return [name for name, bus in robot.group.buses.items() if bus.state is State.LOST]
-
-    with contextlib.suppress(TimeoutError):
-        async with asyncio.timeout(seconds):
-            while names := lost():
-                await robot.group.buses[names[0]].state_change()
-    return lost()
-
-
-async def _a_line_lost(robot: Robot) -> list[str]:
-    """Returns the names of ``robot``'s lines once one has lost its port (reconnecting, or back already)."""
-    buses = robot.group.buses
-    before = {name: bus.stats.reconnects for name, bus in buses.items()}
-
-    def lost() -> list[str]:
-        return [
-            name
-            for name, bus in buses.items()
-            if bus.state is State.LOST or bus.stats.reconnects != before[name] or bus.port_lost
-        ]
-
-    waits = [asyncio.ensure_future(bus.state_change()) for bus in buses.values()]
-    try:
-        while not lost():
-            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
-            if any(task.done() and task.result() is State.CLOSED for task in waits):
-                break  # (the robot's end: its caller waits for that)
-            waits = [
-                task if not task.done() else asyncio.ensure_future(bus.state_change())
-                for task, bus in zip(waits, buses.values(), strict=True)
-            ]
-    finally:
-        for task in waits:
-            task.cancel()
-    return lost()
 
 
 def _check_ready(robot: Robot, joints: Iterable[str]) -> None:
