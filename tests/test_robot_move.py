@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import sys
 import warnings
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -33,7 +34,7 @@ from tests.support.robot_rig import (
     sent_position,
     targets_sent,
 )
-from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, scaled
 
 HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole counts
 
@@ -911,3 +912,28 @@ def test_line_change_waiting_as_the_robots_block_ends_raises_bus_closed() -> Non
     finally:
         rig.close()
     assert raised and "closed" in str(raised[0]), raised
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+def test_line_change_over_a_pty_whose_port_goes_away_and_comes_back(pty_sim: Any) -> None:
+    # A one-line robot over a real serial boundary: with its only line lost no frame comes, so the loss is told
+    # by the line's bus alone; back, by the frame whose `resumed` names the line.
+    # (unplugged once the robot is open: its opening reads take a fraction of that)
+    server = pty_sim("--fast", "--ids", "1-2", "--unplug-after", str(scaled(3.0)), "--replug-after", "0.5")
+    description = {
+        "lines": {"main": {"port": server.path}},
+        "joints": {"a": {"line": "main", "id": 1}, "b": {"line": "main", "id": 2}},
+    }
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(description, **{**NO_TIMEOUTS, "reconnect": True}) as robot:
+                robot.set_targets({"a": 10.0})
+                lost = await robot.line_change(())
+                assert lost == frozenset({"main"}) and robot.lost == frozenset({"a", "b"})
+                assert await robot.line_change(lost) == frozenset()
+                assert robot.lost == frozenset() and robot.held == {"a": "resumed"}
+                assert robot.group["main"].stats.reconnects >= 1
+
+    anyio.run(main)
