@@ -146,7 +146,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     try:
         if threading.current_thread() is threading.main_thread():  # (else the receiver refuses, as it should)
             before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in stopping]
-        anyio.run(until_signal, backend=name, backend_options=options)
+        with _Runs.under_way():
+            anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
         if _said(exc):
             return EXIT_ERROR
@@ -167,6 +168,29 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     if not received:
         return EXIT_OK
     return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
+
+
+class _Runs:
+    """How many :func:`run` or :func:`run_blocking` calls are under way: each says the library error that ends
+    its program (see :func:`ending_said`)."""
+
+    count = 0
+
+    @classmethod
+    @contextlib.contextmanager
+    def under_way(cls) -> Iterator[None]:
+        cls.count += 1
+        try:
+            yield
+        finally:
+            cls.count -= 1
+
+
+def ending_said() -> bool:
+    """True while :func:`run` or :func:`run_blocking` runs the program: a library error that ends it is said
+    there, as its last line.  A port lost for good (no ``reconnect``) is logged below WARNING then, so that the
+    person at the terminal reads the loss once, not as the library's warning and again as the program's end."""
+    return _Runs.count > 0
 
 
 def _said(exc: BaseException) -> bool:
@@ -206,7 +230,7 @@ def run_blocking(main: Callable[[], object]) -> int:
     inside = stop_signals.active  # inside a stop_on_signals of the program's own: that one stops the program
     misused: InvalidArgument | None = None  # (raised below, as run_blocking's misuse: not printed as main's error)
     try:
-        with stop_on_signals():
+        with _Runs.under_way(), stop_on_signals():
             returned = main()
             if inspect.isawaitable(returned):  # (a partial of an async function, say)
                 if inspect.iscoroutine(returned):

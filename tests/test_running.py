@@ -585,7 +585,8 @@ def test_a_program_started_ignoring_sigint_keeps_ignoring_it(program: list[str])
 
 # A plain 50 Hz gait script under blocking.run: argv[1] what it does once its port is lost ("end": nothing,
 # "catch": catches PortLost itself, "reconnect": opened with reconnect=True, returns at the first frame after
-# the port came back).  It reads its port from stdin once it has imported everything (see gait_on_a_pty).
+# the port came back; "alone": nothing, under blocking.stop_on_signals() alone instead of blocking.run).
+# It reads its port from stdin once it has imported everything (see gait_on_a_pty).
 BLOCKING_GAIT = textwrap.dedent(
     """
     import sys
@@ -614,17 +615,46 @@ BLOCKING_GAIT = textwrap.dedent(
                         raise
                     print("caught", flush=True)
 
-    sys.exit(blocking.run(main))
+    if MODE == "alone":
+        with blocking.stop_on_signals():
+            main()
+    else:
+        sys.exit(blocking.run(main))
     """
 )
 
 
-def gait_on_a_pty(pty_sim: Any, mode: str, *sim_args: str) -> subprocess.CompletedProcess[str]:
-    """BLOCKING_GAIT in a process of its own on a pty simulator started with ``sim_args``, once the program has
-    imported everything: a simulator's ``--unplug-after`` counts from its start, and a loaded machine can take
-    seconds to start a Python program."""
+# BLOCKING_GAIT's "end" mode as an async program under ics35_async.run.
+ASYNC_GAIT = textwrap.dedent(
+    """
+    import sys
+    import ics35_async
+    from ics35_async import open_bus
+
+    STAND = {1: 7500, 2: 7500}
+    print("ready", flush=True)
+    PORT = input()
+
+    async def main() -> None:
+        async with open_bus(PORT) as bus, bus.stream(STAND, rate_hz=50, on_close="free") as stream:
+            stream.set_targets(STAND)
+            async for frame in stream:
+                if frame.cycle == 5:
+                    print("streaming", flush=True)
+
+    sys.exit(ics35_async.run(main))
+    """
+)
+
+
+def gait_on_a_pty(
+    pty_sim: Any, mode: str, *sim_args: str, program: str = BLOCKING_GAIT
+) -> subprocess.CompletedProcess[str]:
+    """``program`` (BLOCKING_GAIT) in a process of its own on a pty simulator started with ``sim_args``, once the
+    program has imported everything: a simulator's ``--unplug-after`` counts from its start, and a loaded machine
+    can take seconds to start a Python program."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", BLOCKING_GAIT, mode],
+        [sys.executable, "-c", program, mode],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -646,8 +676,16 @@ def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> 
     assert done.returncode == 1, done.stderr
     assert said == ["streaming"]
     assert "Traceback" not in done.stderr, done.stderr
-    last = done.stderr.splitlines()[-1]
-    assert last.startswith(f"error: port {path} lost: "), done.stderr
+    # Said once, by run(): the library's own warning of the loss would say it a second time.
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"error: port {path} lost: "), done.stderr
+
+
+def test_an_async_program_s_lost_port_is_said_once_and_exit_1(pty_sim: Any) -> None:
+    done = gait_on_a_pty(pty_sim, "", "--unplug-after", "1", "--replug-after", "60", program=ASYNC_GAIT)
+    path, *said = done.stdout.split()
+    assert done.returncode == 1, done.stderr
+    assert said == ["streaming"]
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"error: port {path} lost: "), done.stderr
 
 
 def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) -> None:
