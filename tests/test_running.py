@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -678,6 +679,24 @@ def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> 
     assert "Traceback" not in done.stderr, done.stderr
     # Said once, by run(): the library's own warning of the loss would say it a second time.
     assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"error: port {path} lost: "), done.stderr
+
+
+def test_a_library_error_s_traceback_under_stop_on_signals_alone_ends_at_the_program_s_call(pty_sim: Any) -> None:
+    # The error is met on the bus's loop thread; the frames it went through there mean nothing to the
+    # program's author, and the traceback's last of the program's own lines is the call that failed.
+    done = gait_on_a_pty(pty_sim, "alone", "--unplug-after", "1", "--replug-after", "60")
+    path, *said = done.stdout.split()
+    assert done.returncode == 1, done.stderr
+    assert said == ["streaming"]
+    assert done.stderr.count("Traceback (most recent call last):") == 1, done.stderr
+    assert done.stderr.splitlines()[-1].startswith(f"ics35_async.errors.PortLost: port {path} lost: "), done.stderr
+    files = re.findall(r'^  File "([^"]+)", line \d+, in (\S+)$', done.stderr, re.MULTILINE)
+    assert files[0] == ("<string>", "<module>"), done.stderr
+    assert ("<string>", "main") in files, done.stderr
+    below = files[files.index(("<string>", "main")) + 1 :]
+    # Below the program's own call only the blocking layer's hand-over in the program's thread.
+    assert below and all("ics35_async/blocking/" in file for file, _ in below), done.stderr
+    assert not any(function in ("_await", "_next_frame") for _, function in below), done.stderr
 
 
 def test_an_async_program_s_lost_port_is_said_once_and_exit_1(pty_sim: Any) -> None:

@@ -3,7 +3,8 @@
 Every blocking call is one hop: the caller's thread hands a function to the
 loop thread (``call_soon_threadsafe``) and waits for its result on an
 :class:`Outcome`.  Whatever the function raises is raised in the caller's
-thread, as it was, so typed errors stay typed.
+thread, as it was, so typed errors stay typed (a library error without the
+loop thread's frames, see :meth:`Outcome.result`).
 
 This is what anyio's ``BlockingPortal`` does, minus its task group and
 cancel scopes: a portal call measured about 400 us on the development
@@ -39,8 +40,9 @@ from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Generic, ParamSpec, TypeVar, cast
 
-from ..errors import BusClosed
+from ..errors import BusClosed, IcsError
 from ..running import not_async, stop_signals
+from ..tasks import again
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -94,7 +96,13 @@ class Outcome(Generic[T]):
         return self.done
 
     def result(self) -> T:
-        """The result, or the exception raised (call once settled)."""
+        """The result, or the exception raised (call once settled).
+
+        A library error comes without the frames it went through on the loop thread: they are the bus's
+        inner workings, meaningless to the program whose call it fails, and its traceback ends at that call.
+        Anything else (a bug) keeps them: they say where it happened."""
+        if isinstance(self._exception, IcsError):
+            raise again(self._exception)
         if self._exception is not None:
             raise self._exception
         return cast(T, self._result)
