@@ -21,7 +21,7 @@ from ..running import _after_stop, _unwrapped
 from ..terminal import ctrl_c_typed
 from ._console import end_live_views
 from ._settings import CliError, ExitCode
-from ._signals import command_task, current_task, received
+from ._signals import command_task, current_task, received, stop_cuts_nothing
 
 T = TypeVar("T")
 LOOPS = ("auto", "asyncio", "uvloop")
@@ -212,6 +212,7 @@ def _ctrl_c(command: list[asyncio.Task[T]], loops: list[asyncio.AbstractEventLoo
     loop starts or ends (see :func:`_raised_by_the_loop`).  Yields the presses."""
     pressed: list[int] = []
     after_the_command: list[bool] = []  # a first press came once the command's task was over
+    same_stop: list[int] = []  # a second press taken for the first's stop (see nothing_left_to_cut_short)
     left_to_the_loop: list[bool] = []  # a press the loop is to raise, until it has
     if (
         threading.current_thread() is not threading.main_thread()
@@ -230,6 +231,11 @@ def _ctrl_c(command: list[asyncio.Task[T]], loops: list[asyncio.AbstractEventLoo
                 return
             if len(pressed) == 1 and command and command[0].done():
                 after_the_command.append(True)  # (raised at the end, once the runner has closed the loop)
+                return
+            if len(pressed) == 2 and not same_stop and task is not None and stop_cuts_nothing(task):
+                # Nothing left for it to cut short: the same stop, as one after the loop ended is.  Not counted,
+                # so that the next press forces out as a second one would.
+                same_stop.append(pressed.pop())
                 return
             if len(pressed) == 2:
                 # Forced out: a later press's KeyboardInterrupt, raised wherever the command then is, can land

@@ -52,6 +52,7 @@ from ._robot_common import (
     show_warnings,
 )
 from ._robot_view import Screen, joint_table
+from ._signals import nothing_left_to_cut_short
 
 QUIT = ("q", "quit", "exit")
 
@@ -195,6 +196,9 @@ def teach(
 
     async def body() -> None:
         async with freed_robot(description, settings, names, opening) as robot:
+            # The joints are free from here to the end, and the poses are written after the loop: a stop's close
+            # frees free joints, and a second Ctrl-C has nothing to cut short.
+            nothing_left_to_cut_short()
             lines = TypedLines()
             err.print(
                 "the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "

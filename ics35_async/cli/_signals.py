@@ -21,6 +21,7 @@ import signal
 import stat
 import sys
 import threading
+import weakref
 from collections.abc import Iterator
 from types import FrameType
 from typing import Any
@@ -28,6 +29,7 @@ from typing import Any
 _received: list[int] = []  # the stop signals received, first first
 _tasks: list[asyncio.Task[Any]] = []  # the command's task on the event loop, while it runs
 _questions: list[bool] = []  # a question waits for its answer, blocking the loop (see asking)
+_settled: weakref.WeakSet[asyncio.Task[Any]] = weakref.WeakSet()  # see nothing_left_to_cut_short
 
 
 def _stop_signals() -> list[signal.Signals]:
@@ -64,6 +66,22 @@ def asking() -> Iterator[None]:
         yield
     finally:
         _questions.pop()
+
+
+def nothing_left_to_cut_short() -> None:
+    """Said by the command's task once its stop has nothing a second Ctrl-C could cut short (teach, its joints
+    free: its close frees free joints, and its poses are written after the loop whatever ended it): from then on
+    a second press is taken for the same stop, as one just after the loop ended is, and the command ends in its
+    own words; a third still forces it out (a close that hangs).  Elsewhere (play slowing to rest) the second
+    press is the person's choice to cut the stop short, and forces out."""
+    task = asyncio.current_task()
+    if task is not None:
+        _settled.add(task)
+
+
+def stop_cuts_nothing(task: asyncio.Task[Any]) -> bool:
+    """Whether ``task`` said :func:`nothing_left_to_cut_short`."""
+    return task in _settled
 
 
 def current_task() -> asyncio.Task[Any] | None:
