@@ -16,8 +16,8 @@ from rich.console import Console
 
 from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
-from ics35_async.protocol import FREE
-from ics35_async.robot import Segment, Trajectory
+from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
+from ics35_async.robot import Segment, Trajectory, startup
 from tests.support.robot_rig import (
     JOINTS,
     Rig,
@@ -28,6 +28,7 @@ from tests.support.robot_rig import (
     sent_position,
     targets_sent,
 )
+from tests.support.sim_servos import UnplugsWhenAsked, free_command
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
@@ -492,6 +493,83 @@ def test_a_line_still_lost_at_the_close_keeps_its_joints_targets_in_the_closed_r
         assert all(rig.servo(name).free == (JOINTS[name]["line"] != "lower") for name in JOINTS)
     finally:
         rig.close()
+
+
+def rig_whose_lower_line_is_pulled_at(what: Any, replug_after: float, *, ics36: bool = True) -> Rig:
+    """The rig (of ICS 3.6 servos, or 3.5), its lower line pulled away (once) as the knee's servo hears ``what``."""
+    rig = make_rig(ics36=[1, 2, 3] if ics36 else [])
+    knee = rig.servo("knee")
+    puller = UnplugsWhenAsked(JOINTS["knee"]["id"], what, replug_after=replug_after, ics36=ics36)
+    rig.lower.remove_device(knee)
+    rig.lower.add_device(puller)
+    puller.line = rig.lower
+    return rig
+
+
+def lower_line_only(rig: Rig) -> Rig:
+    description = rig.description
+    description["lines"].pop("upper")
+    description["joints"] = {name: spec for name, spec in description["joints"].items() if spec["line"] == "lower"}
+    return rig
+
+
+@pytest.mark.parametrize("what", [ReadEeprom, ReadPosition], ids=["limits", "position-reads"])
+def test_an_open_with_reconnect_rides_out_a_port_lost_during_its_reads(what: type) -> None:
+    # A robot builder who asked for reconnect=True had the open raise PortLost when a line's port went away
+    # (a USB adapter re-enumerating as the servos power up) while the open read the servos.
+    rig = rig_whose_lower_line_is_pulled_at(what, replug_after=0.1)
+
+    async def body(robot: Robot) -> tuple[dict[str, str], list[str], int]:
+        return dict(robot.start_modes), list(robot.warnings), robot.group["lower"].stats.reconnects
+
+    modes, warned, reconnects = run_robot(rig, body, reconnect=True)
+    assert reconnects == 1
+    assert modes == dict.fromkeys(JOINTS, "read")  # as an undisturbed open: the reads cut short were made again
+    assert warned == []
+    assert FREE not in torque_commands(rig, "knee")
+
+
+def test_an_open_with_reconnect_whose_port_stays_away_says_it_was_lost_while_opening(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(startup, "LOST_AT_OPEN", 0.3)
+    rig = rig_whose_lower_line_is_pulled_at(ReadEeprom, replug_after=60.0)
+
+    async def body(robot: Robot) -> None:
+        raise AssertionError("opened without its lower line")
+
+    with pytest.raises(PortLost, match=r", while the robot was opening: line lower \(sim://[^)]+\) not back within "):
+        run_robot(rig, body, reconnect=True)
+
+
+@pytest.mark.parametrize("replug_after", [0.1, 60.0], ids=["back", "away"])
+def test_an_open_with_reconnect_whose_every_line_is_lost_as_its_streams_start_waits_a_bounded_while(
+    monkeypatch: pytest.MonkeyPatch, replug_after: float
+) -> None:
+    # The ICS 3.5 joints start free (their only position read): the line is pulled at that first free, and with
+    # no line left no frame came: the open waited for ever.
+    monkeypatch.setattr(startup, "LOST_AT_OPEN", 0.5)
+    rig = lower_line_only(rig_whose_lower_line_is_pulled_at(free_command, replug_after, ics36=False))
+
+    async def body(robot: Robot) -> dict[str, str]:
+        return dict(robot.start_modes)
+
+    if replug_after < startup.LOST_AT_OPEN:
+        assert run_robot(rig, body, reconnect=True) == {"hip": "free", "knee": "free"}
+    else:
+        with pytest.raises(PortLost, match=r"every line's port was lost, while the robot was opening: line lower "):
+            run_robot(rig, body, reconnect=True)
+
+
+def test_an_open_without_reconnect_raises_a_port_lost_during_its_reads_at_once() -> None:
+    rig = rig_whose_lower_line_is_pulled_at(ReadEeprom, replug_after=60.0)
+
+    async def body(robot: Robot) -> None:
+        raise AssertionError("opened without its lower line")
+
+    with pytest.raises(PortLost) as lost:
+        run_robot(rig, body)
+    assert "while the robot was opening" not in str(lost.value)
 
 
 def test_a_robot_or_bus_used_without_async_with_says_how_to_open_it() -> None:

@@ -21,20 +21,23 @@ import warnings
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, NoReturn, Unpack
+from typing import Any, NoReturn, TypeVar, Unpack
 
 import anyio
 
 from .. import units
-from ..bus import BusOptions, open_bus
+from ..bus import Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
-from ..errors import InvalidArgument, ReplyError, ReplyTimeout
+from ..engine import State
+from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout
 from ..group import BusGroup, GroupStream
 from ..protocol import FREE
 from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
 from .description import JointSpec, LineSpec, RobotDescription, load_description
 from .robot import Robot
+
+T = TypeVar("T")
 
 # open_bus options the description sets per line, so they may not be given to open_robot.
 _PER_LINE = frozenset({"baudrate", "echo", "retries", "direction"})
@@ -136,6 +139,9 @@ def open_robot(
             angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here.
         SerialPortError: a line's port cannot be opened (a servo that does not answer is not an error:
             its joint starts free and, with ``check_limits``, gets a warning).
+        PortLost: a line's port was lost during the open: at once without ``reconnect``; with
+            ``reconnect=True`` only if it was not back within ``LOST_AT_OPEN`` (5) seconds, the open's reads made
+            again once it is (they move and free nothing).
     """
     return RobotBlock(source, options)
 
@@ -174,8 +180,11 @@ async def _robot_session(
             await stack.enter_async_context(bus)
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)
-        silent = (await _check_limits(robot))[1] if check_limits else set()
-        readable = await _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated), silent)
+        waits = _LostAtOpen(buses)
+        silent = (await waits.despite(lambda: _check_limits(robot)))[1] if check_limits else set()
+        readable = await waits.despite(
+            lambda: _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated), silent)
+        )
         streams = {
             line: group[line].stream(
                 [j.id for j in description.joints_on(line)],
@@ -212,7 +221,7 @@ async def _robot_session(
                         tasks.start_soon(cycles, functools.partial(robot.watch.run, robot))
                         tasks.start_soon(cycles, robot.watch_lines)
                         try:
-                            await robot.wait_frame(0)
+                            await waits.first_frame(robot)
                             yield robot
                         finally:
                             # From here on nothing commands the joints but the streams' close (a task that
@@ -231,6 +240,77 @@ async def _robot_session(
                 for servo_id, position in stream.targets_sent_on_close.items()
                 if position == FREE
             )
+
+
+LOST_AT_OPEN = 5.0
+"""Seconds an open with ``reconnect=True`` waits in all for lines whose port was lost during its reads (or, every
+line lost, as its streams start)."""
+
+
+class _LostAtOpen:
+    """The open's reads (EEPROM limits, which joints answer the position read) despite a port lost meanwhile.
+
+    With ``reconnect=True`` a person expects a robot to ride out a port lost and back (a USB adapter that
+    re-enumerates as the servos power up), and a running robot does.  Its reads are begun again once its lines
+    are back: they neither move nor free a joint, and what a joint starts as must not be decided on a read the
+    loss cut short (a joint taken for silent would start free).  The wait is bounded (:data:`LOST_AT_OPEN`, in
+    all): a port that does not come back ends the open with an error saying so, rather than a program waiting
+    at its open with nothing on the screen.  Without ``reconnect`` the loss is for good: raised as it is."""
+
+    def __init__(self, buses: Mapping[str, Bus]) -> None:
+        self.buses = buses
+        self.deadline: float | None = None  # set at the first loss
+
+    def reconnecting(self) -> dict[str, Bus]:
+        return {name: bus for name, bus in self.buses.items() if bus.reconnect}
+
+    async def despite(self, step: Callable[[], Awaitable[T]]) -> T:
+        while True:
+            try:
+                return await step()
+            except PortLost as lost:
+                if not self.reconnecting():
+                    raise
+                await self._back(self.reconnecting(), str(lost))
+
+    async def first_frame(self, robot: Robot) -> None:
+        """``robot.wait_frame(0)``.  With a line lost as the streams start, the others' frames come and the robot
+        opens with it lost, as a running robot goes on; with every line lost none comes until one is back: that
+        wait is bounded as the reads' is."""
+        buses = self.reconnecting()
+        if not buses:
+            await robot.wait_frame(0)
+            return
+        async with task_group() as tasks:
+
+            async def every_line_lost() -> None:
+                while True:
+                    for bus in buses.values():
+                        if bus.state is State.CLOSED:
+                            return  # (its state changes no more: the wait for the frame meets the closed bus)
+                        if bus.state is not State.LOST:  # (changes only once that one is lost too)
+                            await bus.state_change()
+                            break
+                    else:
+                        await self._back(buses, "every line's port was lost")
+
+            tasks.start_soon(every_line_lost)
+            await robot.wait_frame(0)
+            tasks.cancel_scope.cancel()
+
+    async def _back(self, buses: Mapping[str, Bus], lost: str) -> None:
+        if self.deadline is None:
+            self.deadline = anyio.current_time() + LOST_AT_OPEN
+        with anyio.move_on_after(self.deadline - anyio.current_time()):
+            for bus in buses.values():
+                while bus.state is State.LOST:
+                    await bus.state_change()
+            return
+        away = ", ".join(f"line {name} ({bus.port})" for name, bus in buses.items() if bus.state is State.LOST)
+        raise PortLost(
+            f"{lost}, while the robot was opening: {away} not back within {LOST_AT_OPEN:g} s (with reconnect=True"
+            " an open waits that long for a lost port; once open, the robot waits for it as long as it runs)"
+        ) from None
 
 
 def _line_options(shared: BusOptions, line: LineSpec) -> BusOptions:

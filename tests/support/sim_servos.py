@@ -18,14 +18,20 @@ class UnplugsWhenAsked(VirtualServo):
     """A servo whose line is pulled away as it hears a command: ``what`` is a command class (a ``ReadParam``: a
     scan's probe; a ``ReadEeprom``: once the probes found every servo) or a test of the command
     (:func:`free_command`).  It acts on the command, whose reply never gets back.  ``line`` is set once the line
-    holds it (None: never)."""
+    holds it (None: never).  With ``replug_after`` (seconds) the line comes back by itself, and the servo pulls it
+    away only the first time."""
 
-    def __init__(self, servo_id: int, what: type | Callable[[Any], bool], **options: Any) -> None:
+    def __init__(
+        self, servo_id: int, what: type | Callable[[Any], bool], *, replug_after: float | None = None, **options: Any
+    ) -> None:
         super().__init__(servo_id, **options)
         self.heard = what if not isinstance(what, type) else lambda command: isinstance(command, what)
         self.line: VirtualLine | None = None
+        self.replug_after = replug_after
 
     def handle(self, command: Any) -> Any:
         if self.line is not None and self.heard(command):
-            self.line.unplug()
+            self.line.unplug(replug_after=self.replug_after)
+            if self.replug_after is not None:
+                self.line = None
         return super().handle(command)
