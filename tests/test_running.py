@@ -689,6 +689,7 @@ def test_a_library_error_s_traceback_under_stop_on_signals_alone_ends_at_the_pro
     assert done.returncode == 1, done.stderr
     assert said == ["streaming"]
     assert done.stderr.count("Traceback (most recent call last):") == 1, done.stderr
+    assert done.stderr.startswith(f"port {path} lost: "), done.stderr  # (no run() to say it: the library's warning)
     assert done.stderr.splitlines()[-1].startswith(f"ics35_async.errors.PortLost: port {path} lost: "), done.stderr
     files = re.findall(r'^  File "([^"]+)", line \d+, in (\S+)$', done.stderr, re.MULTILINE)
     assert files[0] == ("<string>", "<module>"), done.stderr
