@@ -37,7 +37,7 @@ INF = math.inf
 
 # Options of Stream beyond its IDs and rate (what Bus.stream passes through).
 STREAM_OPTIONS = frozenset(
-    {"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history", "watch"}
+    {"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history", "watch", "offline"}
 )
 WATCH = -1
 """The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
@@ -72,6 +72,7 @@ class StreamOptions(TypedDict, total=False):
     on_resume: OnResume
     history: int
     watch: Iterable[int]
+    offline: Iterable[int]
     free_on_close: bool  # deprecated: on_close="free"
 
 
@@ -102,6 +103,10 @@ class Stream(FrameIterator[Frame]):
             such ID that had a position target, sending no command, until the program sets its target
             again) or ``"free"``.
         watch: IDs (ICS 3.6 servos) read with the position read instead of starting free.
+        offline: IDs the caller has just found silent (a robot's open: an unplugged leg): they start offline, out
+            of the cycle, first probed one ``probe_interval`` after the start, instead of each failing
+            ``offline_after`` cycles first at its whole reply allowance; one that answers comes back as any
+            offline ID does.
 
     Raises:
         InvalidArgument: a bad, duplicate or missing ID, or an option out of range.
@@ -125,6 +130,7 @@ class Stream(FrameIterator[Frame]):
         on_close: OnClose = "hold",
         on_resume: OnResume = "wait",
         watch: Iterable[int] = (),
+        offline: Iterable[int] = (),
     ) -> None:
         id_list = units.check_ids("ids", ids)
         if not id_list:
@@ -234,7 +240,15 @@ class Stream(FrameIterator[Frame]):
         self._published: tuple[Frame | None, int, int] = (None, 0, 0)  # the latest frame, its totals
         self._seen: tuple[int, int] = (0, 0)
         self._hooks = BoundSource.of(self)  # what the engine calls, kept off the public face
+        # As if each had failed offline_after cycles (the caller's silence stands for them): a free one comes
+        # back once its probe is answered (see _complete), one with a position target is probed with a read.
+        self._offline_at_start = [self._slot(i) for i in units.check_ids("offline", offline)]
+        for k in self._offline_at_start:
+            self._offline[k] = True
+            self._fail_run[k] = offline_after
         self.watch(units.check_ids("watch", watch))
+        for k in self._offline_at_start:
+            self._renew_job(k)
 
     # ------------------------------------------------------------------ targets
 
@@ -729,6 +743,8 @@ class Stream(FrameIterator[Frame]):
         if not self._cycle:
             self._t0 = now
             self._first_start = now
+            for k in self._offline_at_start:  # (not in the first cycle: the caller has just asked them)
+                self._next_probe[k] = now + self.probe_interval
             if self.rate_hz is not None:  # (what the rate check tells apart, see _tell_rate_not_kept)
                 self._others_at_start = self._others_unanswered()
                 self._long_at_start = self._long_requests()

@@ -371,6 +371,42 @@ async def test_a_servo_back_from_offline_is_not_thrown_to_its_old_target(driver:
         assert all({1, 3} <= set(f.positions) for f in more)
 
 
+async def test_ids_given_offline_are_out_of_the_cycle_from_the_first() -> None:
+    # A caller that has just found IDs silent (a robot's open: two unplugged legs) had each of them asked
+    # offline_after cycles more, at its whole reply allowance each, before the stream marked it offline.
+    # Given as offline, they are out of the cycle from the first frame: nothing is sent to them until their
+    # first probe, one probe_interval after the start.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    sim.remove_servo(2)
+    async with streaming(sim, ids, offline=[2], probe_interval=60.0) as (_, stream):
+        frames = [await next_frame(stream) for _ in range(5)]
+        assert stream.offline == {2} and stream.stats.offline == {2}
+    assert all(f.offline == {2} and not f.failed and set(f.positions) == {1, 3} for f in frames)
+    assert [t for t in sim.log_since(0) if t.servo_id == 2] == []
+    assert stream.stats.failures == {}  # (its silence was the caller's, not the stream's)
+
+
+@pytest.mark.parametrize("target", ["free", "position"])
+async def test_an_id_given_offline_that_answers_its_probe_comes_back_as_any_offline_id(target: str) -> None:
+    # A servo the caller took for absent that answers after all (plugged in since, or missed): as an ID back
+    # from offline, a free one is read (its free is the probe), one given a position target is held, sent
+    # nothing, not thrown there.
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    async with streaming(sim, ids, offline=[2], probe_interval=0.02) as (_, stream):
+        if target == "position":
+            stream.set_target(2, start_position(2) + 900)
+        back = (await frames_until(stream, lambda f: 2 not in f.offline))[-1]
+        if target == "free":
+            await frames_until(stream, lambda f: f.positions.get(2) == start_position(2))
+        else:
+            assert back.held == {2} and stream.held == {2: "rejoined"}
+    sent = [t.command for t in sim.log_since(0) if t.servo_id == 2]
+    assert sent and set(sent) == ({"free"} if target == "free" else {"read_stretch"}), sent
+    assert sim.servo(2).position == start_position(2)  # not moved
+
+
 async def test_a_stalled_event_loop_does_not_fail_a_healthy_servo() -> None:
     ids = list(range(8))
     sim = make_sim(ids)
