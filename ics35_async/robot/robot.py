@@ -320,8 +320,9 @@ class Robot:
             # (every transaction to it carried its start's target: none is set while the robot opens)
             carried = stream.target(joint.id) if joint.id in stream.reached else None
             closing = stream.targets_sent_on_close.get(joint.id)
-            if (carried, closing) != (None, None) and not self._heard_from(name):
-                # An unplugged leg: "freed" would be news its servos never got (plugged in, they power up free).
+            if not self._heard_from(name):
+                # An unplugged leg: "freed" would be news its servos never got (plugged in, they power up free); nor
+                # was it "left as it was" (it starts offline, sent nothing until its first probe): it is not there.
                 groups["unheard"].append(name)
             elif carried == protocol.FREE and self.start_modes[name] == "free":
                 groups["read free"].append(name)

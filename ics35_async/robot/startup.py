@@ -31,6 +31,7 @@ from ..eeprom import Eeprom
 from ..engine import State
 from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout
 from ..group import BusGroup, GroupStream
+from ..policies.scan import anyone_there
 from ..protocol import FREE
 from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
@@ -181,15 +182,20 @@ async def _robot_session(
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)
         waits = _LostAtOpen(buses)
-        silent = (await waits.despite(lambda: _check_limits(robot)))[1] if check_limits else set()
-        readable = await waits.despite(
-            lambda: _position_reads(robot, (j for j in robot.joints.values() if j.name not in stated), silent)
-        )
+        lines = _LineAnswers(robot)
+        silent = (await waits.despite(lambda: _check_limits(robot, lines)))[1] if check_limits else set()
+        probed = [j for j in robot.joints.values() if j.name not in stated]
+        readable, unheard = await waits.despite(lambda: _position_reads(robot, probed, silent, lines))
+        # The joints the open found silent start offline (probed every probe_interval, back as any offline joint
+        # once they answer): asked offline_after cycles first, each at its whole reply allowance, two unplugged
+        # legs kept the robot from its first frame for three allowances a joint.
+        unheard |= {j.name for j in robot.joints.values() if j.line in lines.empty}
         streams = {
             line: group[line].stream(
                 [j.id for j in description.joints_on(line)],
                 rate_hz=spec.rate_hz,
                 watch=[j.id for j in description.joints_on(line) if j.name in readable],
+                offline=[j.id for j in description.joints_on(line) if j.name in unheard],
                 offline_after=offline_after,
                 probe_interval=probe_interval,
                 # The streams' close is the robot's close: with "free", each line's stream sends every
@@ -333,26 +339,68 @@ def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | 
         raise InvalidArgument(f"start_pose: {exc}") from None
 
 
-async def _position_reads(robot: Robot, joints: Iterable[JointSpec], silent: set[str]) -> set[str]:
-    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything).
-    ``silent``: the joints whose EEPROM read just got no reply: one silent probe more says they are absent
-    (an unplugged leg then costs its joints one allowance each, not three)."""
+async def _position_reads(
+    robot: Robot, joints: Iterable[JointSpec], silent: set[str], lines: _LineAnswers
+) -> tuple[set[str], set[str]]:
+    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything), and
+    those whose servo answered nothing (absent).  ``silent``: the joints whose EEPROM read just got no reply:
+    one silent probe more says they are absent (an unplugged leg then costs its joints one allowance each, not
+    three).  The joints of a line where nothing answers (``lines.empty``) are not probed."""
     found: set[str] = set()
+    absent: set[str] = set()
     by_line: dict[str, list[JointSpec]] = {}
     for joint in joints:
         by_line.setdefault(joint.line, []).append(joint)
 
     async def probe_line(line: str) -> None:
-        for joint in by_line[line]:
-            with contextlib.suppress(ReplyError):  # silent or garbled: it starts free, as ICS 3.5 does
-                servo = robot.group[line].servo(joint.id)
-                if await servo.has_position_read(silent_before=joint.name in silent):
+        joints = by_line[line]
+        for index, joint in enumerate(joints):
+            if line in lines.empty:
+                return
+            try:
+                if await robot.group[line].servo(joint.id).has_position_read(silent_before=joint.name in silent):
                     found.add(joint.name)
+            except ReplyTimeout:  # silent: it starts free, as ICS 3.5 does (and offline: see open_robot)
+                absent.add(joint.name)
+                await lines.silent(line, len(joints) - index - 1)
+                continue
+            except ReplyError:  # garbled: something is there; it starts free, as ICS 3.5 does
+                pass
+            lines.answered(line)
 
     async with task_group() as tasks:
         for line in by_line:
             tasks.start_soon(probe_line, line)
-    return found
+    return found, absent
+
+
+# Joints left to ask on a line where nothing has answered, from which one ID read costs less than their silences.
+_ASK_LINE_FROM = 2
+
+
+class _LineAnswers:
+    """What the open has heard on each line so far: a line where nothing answers is asked once as a whole (see
+    :meth:`silent`) instead of each of its joints at its whole reply allowance."""
+
+    def __init__(self, robot: Robot) -> None:
+        self._robot = robot
+        self.settled: set[str] = set()  # lines something answered on (garbled too), or asked as a whole already
+        self.empty: set[str] = set()  # lines where nothing answered the ID read
+
+    def answered(self, line: str) -> None:
+        self.settled.add(line)
+
+    async def silent(self, line: str, left: int) -> None:
+        """A joint's read on ``line`` has just gone unanswered, with ``left`` of the line's joints still to ask.
+        If nothing on the line has answered yet, one ID read (which every servo on the line answers, garbled
+        when several do) asks whether anything is there at all; nothing: the line is ``empty``, and its joints
+        are asked nothing more (two legs unplugged on their own line waited an allowance for each read of each
+        of their joints, since a line where nothing has answered gives even a probe the whole allowance)."""
+        if line in self.settled or left < _ASK_LINE_FROM:
+            return
+        self.settled.add(line)
+        if not await anyone_there(self._robot.group[line]):
+            self.empty.add(line)
 
 
 warn_at_open: ContextVar[bool] = ContextVar("warn_at_open", default=True)
@@ -362,26 +410,36 @@ robot opens on a loop thread, whose stack holds no line of the program."""
 
 async def check_servo_limits(robot: Robot) -> list[str]:
     """Warn (RobotWarning, and ``robot.warnings``) where a joint's limits exceed its servo's EEPROM pulse limits."""
-    return (await _check_limits(robot))[0]
+    return (await _check_limits(robot, _LineAnswers(robot)))[0]
 
 
-async def _check_limits(robot: Robot) -> tuple[list[str], set[str]]:
-    """:func:`check_servo_limits`'s warnings, and the joints whose servo sent no reply at all (ReplyTimeout)."""
+async def _check_limits(robot: Robot, lines: _LineAnswers) -> tuple[list[str], set[str]]:
+    """:func:`check_servo_limits`'s warnings, and the joints whose servo sent no reply at all (ReplyTimeout); a
+    line where nothing answers (``lines.empty``) has its joints after the first taken as silent, not read."""
     found: list[str] = []
     unanswered: set[str] = set()
 
     async def check_line(line: str) -> None:
         silent: list[JointSpec] = []
         why = ""
-        for joint in robot.description.joints_on(line):
+        joints = robot.description.joints_on(line)
+        for index, joint in enumerate(joints):
+            if line in lines.empty:  # (the line's silence to the ID read stands for theirs)
+                silent.append(joint)
+                unanswered.add(joint.name)
+                continue
             try:
                 eeprom = await robot.group[joint.line].servo(joint.id).read_eeprom()
             except ReplyError as exc:
                 silent.append(joint)
+                why = why or str(exc)
                 if isinstance(exc, ReplyTimeout):  # (a garbled reply: something is there)
                     unanswered.add(joint.name)
-                why = why or str(exc)
+                    await lines.silent(line, len(joints) - index - 1)
+                else:
+                    lines.answered(line)
                 continue
+            lines.answered(line)
             # A warning, not a refusal: opening moves nothing, and the servo clamps to its pulse limits anyway.
             message = limit_problem(robot.description.source, joint, eeprom)
             if message is not None:
