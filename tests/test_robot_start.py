@@ -18,6 +18,7 @@ from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, open
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
 from ics35_async.robot import Segment, Trajectory, startup
+from ics35_async.sim import VirtualServo
 from tests.support.robot_rig import (
     JOINTS,
     Rig,
@@ -209,6 +210,26 @@ def test_a_line_where_nothing_answers_costs_the_open_one_question_not_one_per_jo
     # The line that answers is asked as fully as ever, and not with an ID read.
     assert commands_to(rig, "upper", 3)[:1] == [first]
     assert not [t for t in rig.upper.log_since(0) if t.servo_id is None]
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_a_line_whose_first_joint_is_absent_is_asked_once_and_its_other_joints_as_fully_as_ever() -> None:
+    # The ID read after the first silence: the others answer it (garbled, several at once), so the line is not
+    # taken for empty and each of its joints is read and probed as before.
+    rig = make_rig(ics36=[1])
+    rig.lower.add_device(VirtualServo(3))
+    rig.description["joints"]["ankle"] = {"line": "lower", "id": 3}
+    rig.lower.remove_servo(1)  # the hip
+
+    async def body(robot: Robot) -> None:
+        assert set(await robot.read_pose()) == set(robot.joints) - {"hip"}
+        assert robot.latest is not None and robot.latest.offline == {"hip"}
+
+    run_robot(rig, body, probe_interval=60.0)
+    assert [t.command for t in rig.lower.log_since(0) if t.servo_id is None] == ["read_id"]
+    assert commands_to(rig, "lower", 1) == ["read_eeprom", "read_position"]
+    for servo_id in (2, 3):  # (ICS 3.5 servos)
+        assert commands_to(rig, "lower", servo_id)[: len(PRESENT_ICS35)] == PRESENT_ICS35, servo_id
 
 
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")

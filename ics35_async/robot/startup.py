@@ -188,7 +188,8 @@ async def _robot_session(
         readable, unheard = await waits.despite(lambda: _position_reads(robot, probed, silent, lines))
         # The joints the open found silent start offline (probed every probe_interval, back as any offline joint
         # once they answer): asked offline_after cycles first, each at its whole reply allowance, two unplugged
-        # legs kept the robot from its first frame for three allowances a joint.
+        # legs kept the robot from its first pose (read_pose waits for every joint not offline) for three
+        # allowances a joint.
         unheard |= {j.name for j in robot.joints.values() if j.line in lines.empty}
         streams = {
             line: group[line].stream(
