@@ -742,6 +742,29 @@ def test_teach_that_cannot_write_its_file_prints_the_poses_instead(
     assert len(motion["keyframes"]) == 1 and set(motion["keyframes"][0]["pose"]) == {"neck"}
 
 
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_teach_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, tmp_path: Path) -> None:
+    # Two legs unplugged on their own line: teach waited each leg joint's EEPROM read, its probe and the stream's
+    # first three cycles, each a whole --timeout (nothing had answered there to learn a shorter wait from).  Now
+    # the line's first joint is read, one ID read asks the line, and its joints start offline.
+    sims = make_rig()
+    sims.description["joints"]["ankle"] = {"line": "lower", "id": 3}  # (no servo: the leg's third joint)
+    for servo_id in (1, 2):
+        sims.lower.remove_servo(servo_id)
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    try:
+        result = cli("teach", str(robot_file), str(tmp_path / "taught.json"), "--yes", stdin="\nq\n")
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    said = " ".join(result.err.split())
+    assert "joints hip, knee, ankle (servo IDs 1, 2, 3 on line lower) did not answer" in said, said
+    sent = {i: [t.command for t in sims.lower.log_since(0) if t.servo_id == i] for i in (None, 1, 2, 3)}
+    assert sent[None] == ["read_id"] and sent[1][:1] == ["read_eeprom"], sent
+    assert all(set(sent[i][1 if i == 1 else 0 :]) <= {"free"} for i in (1, 2, 3)), sent  # (probes, the close)
+
+
 def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
     _, robot_file = rig
     result = cli("teach", str(robot_file), str(tmp_path / "x.txt"))
