@@ -575,7 +575,7 @@ class Bus:
 
         ``rate_hz`` (``None``: cycles back to back) and the options
         ([`StreamOptions`][ics35_async.stream.StreamOptions]: ``on_close``, ``on_resume``,
-        ``offline_after``, ``probe_interval``, ``history``) are the stream's.
+        ``offline_after``, ``probe_interval``, ``history``, ``watch``, ``offline``) are the stream's.
 
         Raises:
             InvalidArgument: an unknown option, a bad ID, a duplicate ID or an out-of-range value.
