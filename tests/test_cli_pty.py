@@ -622,7 +622,7 @@ def test_no_terminal_control_goes_into_a_file_whatever_the_colour_settings_say(t
 
 ARM_WITH_AN_UNPLUGGED_HAND = """\
 [lines.main]
-port = "sim://{name}?ids=1-2&realtime=1&record={record}"
+port = "sim://{name}?ids=1-2&realtime=1&turnaround={turnaround}&record={record}"
 
 [joints.a]
 line = "main"
@@ -651,10 +651,12 @@ def torque_commands_sent(record: Path) -> dict[int, list[int]]:
 
 def arm_interrupted_as_it_opens(tmp_path: Path, name: str, command: list[str], when: str) -> tuple[int, str, Path]:
     """``command`` (with the robot file's path first) on the arm whose hand is unplugged, the reply allowance long
-    (its silent hand keeps the open waiting), Ctrl-C typed half a second after ``when`` is on the screen."""
+    (its silent hand keeps the open waiting), Ctrl-C typed half a second after ``when`` is on the screen.  Its
+    servos answer slowly (0.6 s after each command): the open's first cycle, once its warnings are said, takes
+    over a second (the hand, found silent by the open, is not in it)."""
     record = tmp_path / "wire.txt"
     robot = tmp_path / "arm.toml"
-    robot.write_text(ARM_WITH_AN_UNPLUGGED_HAND.format(name=name, record=record))
+    robot.write_text(ARM_WITH_AN_UNPLUGGED_HAND.format(name=name, record=record, turnaround=scaled(0.6)))
     args = ["-v", "--timeout", str(scaled(3.0)), command[0], str(robot), *command[1:]]
     code, written = typed_on_a_terminal(args, [(when, b""), (scaled(0.5), b"\x03")])
     return code, written, record
@@ -690,7 +692,7 @@ def test_ctrl_c_as_a_robot_command_waits_for_its_first_pose_names_the_joints_it_
             }
         )
     )
-    # Typed once the open has started the stream (its warnings said), as it waits for the hand to go offline.
+    # Typed once the open has started the stream (its warnings said), as it waits for the first cycle.
     code, written, record = arm_interrupted_as_it_opens(
         tmp_path, "ctrl-c-open-stream", ["play", str(motion), "--start-pose", "b=10"], "did not answer"
     )
@@ -699,7 +701,8 @@ def test_ctrl_c_as_a_robot_command_waits_for_its_first_pose_names_the_joints_it_
     assert code == 130, said
     assert "Traceback" not in written, said
     sent = torque_commands_sent(record)
-    assert set(sent[1]) == {0} and set(sent[5]) == {0}, sent  # a and the hand: freed, to read where they stand
+    assert set(sent[1]) == {0}, sent  # a: freed, to read where it stands
+    assert set(sent.get(5, [])) <= {0}, sent  # the hand, found silent: nothing, or its probe (a free)
     assert 0 not in sent[2], sent  # b: its stated angle only
     flat = said.replace("\n", " ")
     assert any(line.startswith("error: interrupted while opening the robot:") for line in screen), said
