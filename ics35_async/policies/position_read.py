@@ -51,7 +51,8 @@ class StreamPlan:
     """How to stream a set of IDs without freeing what may not go limp.
 
     ``watch``: IDs read with ICS 3.6's read (``Stream(watch=...)``), torque
-    left alone; ``free``: ICS 3.5 IDs read with the free command (only with
+    left alone, and the IDs whose protocol could not be told; ``free``: IDs
+    known to speak ICS 3.5, read with the free command (only with
     ``free_ics35``); ``left_out``: IDs not to stream, and why; ``silent``:
     the IDs (in ``watch`` or ``free``) that answered nothing as they were
     probed: a servo held at a target may have lost its supply and restarted,
@@ -83,9 +84,17 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     and if it is silent to that, a parameter read and the position read
     again, so an ICS 3.5 servo is told from an ICS 3.6 one.
 
-    An ID silent to everything is watched (freed, with ``free_ics35``): a
-    stream marks it offline and probes it, as any servo that stops answering,
-    and a read never frees it.  A servo whose protocol this line already knows
+    Only an ID known to speak ICS 3.5 is freed (with ``free_ics35``).  One
+    whose protocol could not be told is watched, whatever ``free_ics35`` says:
+    silent to the short probes (nobody there, or a present servo whose replies
+    were lost or came after the short wait: a lossy line, a TCP bridge, an
+    adapter's latency timer), or heard but silent to the reads that tell ICS
+    3.5 from 3.6.  The free command reaches a servo whose reply is lost, and
+    a holding ICS 3.6 servo would go limp; a read never frees it, and an
+    empty ID costs no more probes.  A stream marks such an ID offline and
+    probes it, as any servo that stops answering (an ICS 3.5 servo there stays
+    silent to the read: the stream logs a warning naming it, and a new plan
+    asks it again).  A servo whose protocol this line already knows
     is asked all the same (the scan's probe; silent to it, its position read,
     or an ICS 3.5 servo's temperature): ``silent`` is what the servos say now;
     silent, it is still read as its protocol says (an ICS 3.6 servo watched,
@@ -105,7 +114,9 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
                 await (servo.read_position() if readable else servo.read_temperature())
         except ReplyError:
             plan.silent.append(sid)
-        if readable or (readable is None and not free_ics35):
+        if readable is not False:
+            # ICS 3.6, or not told apart (nobody there, or a servo whose replies were lost or came too late):
+            # a read frees nothing, where the free command would reach a holding servo whose reply is lost.
             plan.watch.append(sid)
         elif free_ics35:
             plan.free.append(sid)

@@ -58,7 +58,7 @@ class LiveView:
         self.stream = stream
         self.ids = stream.ids
         self.kept_held: list[int] = []  # ICS 3.5 servos a page held: streamed their target, not freed
-        self.freed: list[int] = []  # ICS 3.5 servos (and silent IDs) it frees to read them
+        self.freed: list[int] = []  # ICS 3.5 servos it frees to read them
         self.left_out: list[int] = []  # ICS 3.5 servos not plotted: freeing them was not asked for
         self.current: dict[int, int] = {}
         self.temperature: dict[int, float] = {}
