@@ -81,7 +81,8 @@ class LiveView:
         target, not freed; one in ``unsure`` (held before the port was lost or reopened, or it stopped answering)
         is refused: freed, a servo that kept its supply would go limp, and sent its old target, one that restarted
         would be thrown there.  A servo in ``holding`` silent as the plot starts has stopped answering: it is refused as
-        well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it).
+        well, and ``lost_touch`` is told its ID (the plan catches its timeout, so nothing else would say it).  (One
+        whose protocol this line does not know is watched, which sends neither: see ``plan_position_stream``.)
         The other ICS 3.5 servos are freed to be read only with ``free_ics35`` (a standing robot's joints would go
         limp); without it they are left out (``left_out``), and a plot with nothing else to read is refused.
 
