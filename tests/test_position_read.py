@@ -12,7 +12,8 @@ import pytest
 from ics35_async import PositionReadUnsupported, ReplyTimeout, open_bus, protocol, units
 from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcommandError
 from ics35_async.policies.scan import probe_ids
-from ics35_async.sim import VirtualLine, parse_url
+from ics35_async.sim import VirtualLine, VirtualServo, parse_url
+from ics35_async.sim.virtual_servo import NO_REPLY
 from ics35_async.stream import WATCH
 from tests.support.timing import GUARD
 
@@ -307,10 +308,11 @@ def test_an_absent_id_costs_the_stream_plan_two_short_probes_and_the_servos_ther
         assert commands(sim, absent) == ["read_stretch", "read_position"], absent
     # The last ID's short wait has nothing after it to catch a late reply: the scan's second look (after its guard).
     assert commands(sim, 8) == ["read_stretch", "read_speed", "read_stretch", "read_position"]
-    # The servos that answer: ICS 3.6 by its position read; ICS 3.5 silent to it twice around a parameter read.
+    # The servos that answer: ICS 3.6 by its position read; ICS 3.5 silent to it twice around a parameter read,
+    # then, as it is to be freed, once more with the whole allowance (behind a guard read).
     assert commands(sim, 2) == ["read_stretch", "read_position"]
     ics35 = ["read_stretch", "read_position", "read_speed", "read_stretch", "read_position"]
-    assert commands(sim, 1) == commands(sim, 6) == ics35
+    assert commands(sim, 1) == commands(sim, 6) == [*ics35, "read_stretch", "read_position"]
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
 
 
@@ -353,3 +355,51 @@ def test_a_holding_ics36_servo_whose_replies_are_lost_is_watched_never_freed_by_
         assert commands(sim, 1).count("free") == 0 and sim.servo(1).target == 9000, seed
         assert 2 in plan.free and 5 in plan.watch, (seed, plan)  # the ICS 3.5 servo freed as asked; nobody at 5
     assert undecided  # (the seeds do make the probes miss the servo)
+
+
+class LosesPositionReplies(VirtualServo):
+    """An ICS 3.6 servo whose first ``lost`` replies to the position read never reach the host (noise on the line,
+    or a reply held past the wait): it hears each read, as a servo whose reply is lost does."""
+
+    def __init__(self, servo_id: int, lost: int, **options: Any) -> None:
+        super().__init__(servo_id, ics36=True, **options)
+        self.lost = lost
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if isinstance(command, protocol.ReadPosition) and self.lost > 0:
+            self.lost -= 1
+            return NO_REPLY
+        return reply
+
+
+def test_an_ics36_servo_that_lost_its_probes_replies_is_read_not_freed_where_ics35_servos_may_be_freed() -> None:
+    # Two position reads unanswered around an answered parameter read: the probe takes the servo for ICS 3.5.
+    # Where that frees it (monitor --free, the Live plots tick, info --free, Hold here), a holding joint went limp.
+    from ics35_async import policies
+
+    sim = VirtualLine([LosesPositionReplies(1, lost=2), VirtualServo(2)], log_size=None)
+    sim.servo(1).command_position(9000)
+
+    async def body(bus: Any) -> Any:
+        plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
+        async with bus.stream(plan.streamed, watch=plan.watch) as stream:
+            for _ in range(3):
+                await stream.next_frame()
+        return plan
+
+    plan = run(sim, body)
+    assert (plan.watch, plan.free) == ([1, 5], [2])
+    assert "free" not in commands(sim, 1) and sim.servo(1).target == 9000
+    assert commands(sim, 2).count("free") >= 1  # the ICS 3.5 servo, as asked
+
+    one = VirtualLine([LosesPositionReplies(1, lost=2)], log_size=None)
+    one.servo(1).move_by_hand(9000)
+    one.servo(1).command_position(9000)  # (holding where it stands)
+
+    async def read(bus: Any) -> Any:
+        return await policies.read_position_without_freeing(bus.servo(1), free_ics35=True)
+
+    reading = run(one, read)
+    assert (reading.position, reading.how, reading.protocol) == (9000, "read", "ICS 3.6")
+    assert "free" not in commands(one, 1) and one.servo(1).target == 9000

@@ -707,6 +707,10 @@ def test_a_live_plot_frees_no_ics35_servo_unless_the_page_says_so(serve: Any) ->
     bad = post(client, "/api/live/start", {"ids": [1], "free_ics35": "yes"})
     assert bad.status_code == 400 and "free_ics35" in bad.json()["error"], bad.text
     assert post(client, "/api/live/start", {"ids": [1], "free_ics35": True}).status_code == 200
+    deadline = time.monotonic() + GUARD
+    while "1" not in (client.get("/api/live").json() or {}).get("positions", {}):  # (its first cycle: a free)
+        assert time.monotonic() < deadline, "servo 1 was never read"
+        time.sleep(0.01)
     post(client, "/api/live/stop")
     assert sim.servo(1).free  # said: freed to be read
 

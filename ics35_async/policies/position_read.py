@@ -15,6 +15,7 @@ from .. import protocol
 from ..errors import ReplyError
 from ..line import Line
 from ..servo import Servo
+from .failure_kinds import nothing_came_back
 from .scan import probe_ids
 
 NO_READ_ICS35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp)"
@@ -31,16 +32,42 @@ class PositionReading:
     why: str | None = None
 
 
+async def _position_read_once_more(servo: Servo) -> int | None:
+    """Before a free command to a servo taken for ICS 3.5: its position read once more, with the whole reply
+    allowance and no retry.  Its position if it answers, ``None`` if silent (ICS 3.5, or nobody there).
+
+    The probe that tells the protocols apart waits only as long as this line's answers have taken, and takes two
+    silences around an answered parameter read for ICS 3.5: an ICS 3.6 servo whose two replies were lost (a
+    lossy line) or came after those short waits (a TCP bridge, an adapter's latency timer) is taken for one, and
+    the free command reaches a servo whose reply is lost.  Costs one reply allowance per ICS 3.5 servo, and only
+    where one is to be freed.
+
+    Raises:
+        ReplyError: a garbled answer (something is there: free nothing on it).
+        BusClosed, PortLost: the line is closed or gone.
+    """
+    try:
+        return await servo.bus.request(protocol.SecondLookReadPosition(servo.id), priority=servo.priority, retries=0)
+    except ReplyError as exc:
+        if nothing_came_back(exc):
+            return None
+        raise
+
+
 async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = False) -> PositionReading:
     """The servo's position by ICS 3.6's read; on an ICS 3.5 servo by the free command only with ``free_ics35``.
 
-    Before the free command, a read that moves nothing (its temperature): two servos sharing the ID (a new one,
-    ID 0 as they all come, plugged in beside it) answer it garbled, and it raises, freeing neither, where the free
-    command would let go of both, one that held included.
+    Before the free command, the position read once more with the whole allowance (an ICS 3.6 servo whose replies
+    were lost answers it, and is read, not freed), then a read that moves nothing (its temperature): two servos
+    sharing the ID (a new one, ID 0 as they all come, plugged in beside it) answer it garbled, and it raises,
+    freeing neither, where the free command would let go of both, one that held included.
     """
     if await servo.has_position_read():
         return PositionReading(await servo.read_position(), "read", "ICS 3.6")
     if free_ics35:
+        position = await _position_read_once_more(servo)
+        if position is not None:
+            return PositionReading(position, "read", "ICS 3.6")
         await servo.read_temperature()
         return PositionReading(await servo.free(), "free", "ICS 3.5")
     return PositionReading(None, None, "ICS 3.5", NO_READ_ICS35)
@@ -84,21 +111,24 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     and if it is silent to that, a parameter read and the position read
     again, so an ICS 3.5 servo is told from an ICS 3.6 one.
 
-    Only an ID known to speak ICS 3.5 is freed (with ``free_ics35``).  One
-    whose protocol could not be told is watched, whatever ``free_ics35`` says:
-    silent to the short probes (nobody there, or a present servo whose replies
-    were lost or came after the short wait: a lossy line, a TCP bridge, an
-    adapter's latency timer), or heard but silent to the reads that tell ICS
-    3.5 from 3.6.  The free command reaches a servo whose reply is lost, and
-    a holding ICS 3.6 servo would go limp; a read never frees it, and an
-    empty ID costs no more probes.  A stream marks such an ID offline and
-    probes it, as any servo that stops answering (an ICS 3.5 servo there stays
-    silent to the read: the stream logs a warning naming it, and a new plan
-    asks it again).  A servo whose protocol this line already knows
-    is asked all the same (the scan's probe; silent to it, its position read,
-    or an ICS 3.5 servo's temperature): ``silent`` is what the servos say now;
-    silent, it is still read as its protocol says (an ICS 3.6 servo watched,
-    never freed).
+    Only an ID known to speak ICS 3.5 is freed (with ``free_ics35``), and
+    only once its position read with the whole allowance has gone unanswered
+    too: the protocol probe's two short waits take an ICS 3.6 servo whose two
+    replies were lost or late for ICS 3.5 (one allowance more per servo to be
+    freed, none for an empty ID).  One whose protocol could not be told is
+    watched, whatever ``free_ics35`` says: silent to the short probes (nobody
+    there, or a present servo whose replies were lost or came after the short
+    wait: a lossy line, a TCP bridge, an adapter's latency timer), or heard but
+    silent to the reads that tell ICS 3.5 from 3.6.  The free command reaches
+    a servo whose reply is lost, and a holding ICS 3.6 servo would go limp; a
+    read never frees it, and an empty ID costs no more probes.  A stream marks
+    such an ID offline and probes it, as any servo that stops answering (an
+    ICS 3.5 servo there stays silent to the read: the stream logs a warning
+    naming it, and a new plan asks it again).  A servo whose protocol this
+    line already knows is asked all the same (the scan's probe; silent to it,
+    its position read, or an ICS 3.5 servo's temperature): ``silent`` is what
+    the servos say now; silent, it is still read as its protocol says (an ICS
+    3.6 servo watched, never freed).
     """
     wanted = [protocol.check_id(i) for i in ids]
     present = set((await probe_ids(line, wanted, id_read_first=False)).answered) if wanted else set()
@@ -114,6 +144,12 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
                 await (servo.read_position() if readable else servo.read_temperature())
         except ReplyError:
             plan.silent.append(sid)
+        if readable is False and free_ics35:
+            try:
+                if await _position_read_once_more(servo) is not None:
+                    readable = True  # ICS 3.6 after all: its probes' replies were lost or late
+            except ReplyError:
+                readable = None  # garbled: not told apart
         if readable is not False:
             # ICS 3.6, or not told apart (nobody there, or a servo whose replies were lost or came too late):
             # a read frees nothing, where the free command would reach a holding servo whose reply is lost.

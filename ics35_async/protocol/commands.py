@@ -258,6 +258,16 @@ class ProbeReadPosition(ReadPosition):
     silence = "no reply to the probe: an ICS 3.5 servo has no position read (or no servo answers here)"
 
 
+class SecondLookReadPosition(ReadPosition):
+    """The position read once more, with the full allowance, before a free command to a servo its
+    :class:`ProbeReadPosition` found silent (an ICS 3.6 servo's reply may have been lost, or late past the
+    probe's short wait): silence (ICS 3.5) is its usual answer too."""
+
+    __slots__ = ()
+
+    silence = "no reply to the position read with the whole allowance either: an ICS 3.5 servo (or no servo here)"
+
+
 class SecondLookRead(ReadParam):
     """A stretch read asking again, with the full allowance, whether a servo is at ``servo_id`` (a scan's
     second look at an ID its :class:`ProbeRead` found silent): silence is its usual answer too."""
