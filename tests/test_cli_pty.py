@@ -881,13 +881,6 @@ except KeyboardInterrupt:
 """
 
 
-@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
-def test_a_forced_out_press_landing_in_a_callback_is_not_printed_and_still_forces_out(loop: str) -> None:
-    done = script_on_loop(loop, _FORCED_OUT_IN_A_CALLBACK, timeout=scaled(15))  # (less than its 30 s wait)
-    assert done.stdout == "interrupted\n", done.stderr
-    assert done.stderr == "", done.stderr
-
-
 # A stop whose own task fails as the third press lands (play's ``retrieved(robot.stop())``, its first step taken as
 # the runner's close ran, the robot closed by then): the press stops the loop before the task's done callback, which
 # retrieves its error, has run; the process's end then printed "Task exception was never retrieved" and the error's
@@ -925,8 +918,11 @@ gc.collect()  # (what the process's end does, at once)
 
 
 @pytest.mark.parametrize("loop", ["asyncio", "uvloop"])
-def test_a_stop_failing_as_the_command_is_forced_out_is_not_printed(loop: str) -> None:
-    done = script_on_loop(loop, _FORCED_OUT_AS_A_STOP_FAILS, timeout=scaled(15))  # (less than its 30 s wait)
+@pytest.mark.parametrize(
+    "script", [_FORCED_OUT_IN_A_CALLBACK, _FORCED_OUT_AS_A_STOP_FAILS], ids=["press-in-a-callback", "stop-failing"]
+)
+def test_what_a_third_press_cuts_short_is_not_printed_and_it_still_forces_out(loop: str, script: str) -> None:
+    done = script_on_loop(loop, script, timeout=scaled(15))  # (less than its 30 s wait)
     assert done.stdout == "interrupted\n", done.stderr
     assert done.stderr == "", done.stderr
 

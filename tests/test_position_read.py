@@ -3,6 +3,7 @@ and the stream's watched IDs.  What went on the wire is read back from the simul
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -247,6 +248,17 @@ def test_a_watched_id_is_read_without_a_target_until_it_gets_one() -> None:
 # ---------------------------------------------------------------- the policies info and monitor follow
 
 
+async def planned_and_streamed(bus: Any, frames: int) -> Any:
+    """The plan of IDs 1, 2 and 5 where ICS 3.5 servos may be freed, then ``frames`` of a stream of it."""
+    from ics35_async import policies
+
+    plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
+    async with bus.stream(plan.streamed, watch=plan.watch) as stream:
+        for _ in range(frames):
+            await stream.next_frame()
+    return plan
+
+
 def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_command() -> None:
     from ics35_async import policies
 
@@ -335,21 +347,12 @@ def test_a_holding_ics36_servo_whose_replies_are_lost_is_watched_never_freed_by_
     # to the plan's short probes, or answer one and lose the replies that tell its protocol.  Freed on that, a
     # standing robot's joint went limp though only ICS 3.5 servos were to be freed (the free command reaches a
     # servo whose reply is lost).
-    from ics35_async import policies
 
     undecided = 0
     for seed in range(12):
         sim = VirtualLine([1, 2], ics36=[1], faults="drop@1:0.5", seed=seed, log_size=None)
         sim.servo(1).command_position(9000)  # holding: a joint of a standing robot
-
-        async def body(bus: Any) -> Any:
-            plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
-            async with bus.stream(plan.streamed, watch=plan.watch) as stream:
-                for _ in range(6):
-                    await stream.next_frame()
-            return plan
-
-        plan = run(sim, body)
+        plan = run(sim, functools.partial(planned_and_streamed, frames=6))
         undecided += 1 in plan.silent
         assert 1 in plan.watch and 1 not in plan.free, (seed, plan)
         assert commands(sim, 1).count("free") == 0 and sim.servo(1).target == 9000, seed
@@ -380,15 +383,7 @@ def test_an_ics36_servo_that_lost_its_probes_replies_is_read_not_freed_where_ics
 
     sim = VirtualLine([LosesPositionReplies(1, lost=2), VirtualServo(2)], log_size=None)
     sim.servo(1).command_position(9000)
-
-    async def body(bus: Any) -> Any:
-        plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
-        async with bus.stream(plan.streamed, watch=plan.watch) as stream:
-            for _ in range(3):
-                await stream.next_frame()
-        return plan
-
-    plan = run(sim, body)
+    plan = run(sim, functools.partial(planned_and_streamed, frames=3))
     assert (plan.watch, plan.free) == ([1, 5], [2])
     assert "free" not in commands(sim, 1) and sim.servo(1).target == 9000
     assert commands(sim, 2).count("free") >= 1  # the ICS 3.5 servo, as asked
