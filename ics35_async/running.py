@@ -21,6 +21,7 @@ import atexit
 import contextlib
 import functools
 import inspect
+import logging
 import os
 import signal
 import sys
@@ -171,26 +172,47 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
 
 class _Runs:
-    """How many :func:`run` or :func:`run_blocking` calls are under way: each says the library error that ends
-    its program (see :func:`ending_said`)."""
+    """The :func:`run` or :func:`run_blocking` call under way (one at a time: each runs in the main thread), and the
+    ports lost for good while it runs (see :func:`said_by_the_run`)."""
 
-    count = 0
+    losses: list[tuple[logging.Logger, str]] | None = None  # None: no run under way
+    lock = threading.Lock()  # (a driver may tell its loss from a thread of its own)
 
     @classmethod
     @contextlib.contextmanager
     def under_way(cls) -> Iterator[None]:
-        cls.count += 1
+        with cls.lock:
+            outer, cls.losses = cls.losses, []
+            kept = cls.losses
+        ending = ""
         try:
             yield
+        except BaseException as exc:
+            error = only_error(exc)
+            ending = str(error) if isinstance(error, IcsError) else ""  # (what _said then prints)
+            raise
         finally:
-            cls.count -= 1
+            with cls.lock:
+                cls.losses = outer
+            # Before the program's last line: a loss the ending says is not said twice, and one it does not say
+            # (the program went on without that port, or caught its PortLost) is not left unsaid.
+            for logger, message in kept:
+                if message not in ending:
+                    logger.warning("%s", message)
 
 
-def ending_said() -> bool:
-    """True while :func:`run` or :func:`run_blocking` runs the program: a library error that ends it is said
-    there, as its last line.  A port lost for good (no ``reconnect``) is logged below WARNING then, so that the
-    person at the terminal reads the loss once, not as the library's warning and again as the program's end."""
-    return _Runs.count > 0
+def said_by_the_run(logger: logging.Logger, message: str) -> bool:
+    """A port lost for good (no ``reconnect``), told by the library's ``logger``: while :func:`run` or
+    :func:`run_blocking` runs the program, ``message`` is logged at INFO now and True is returned; the run says it
+    once, as the program ends: as its last line when the PortLost ends it, else as a warning then.  So the
+    person at the terminal reads the loss once, not as the library's warning and again as the program's end,
+    and never not at all.  False (nothing logged) without a run under way: the caller warns."""
+    with _Runs.lock:
+        if _Runs.losses is None:
+            return False
+        _Runs.losses.append((logger, message))
+    logger.info("%s", message)
+    return True
 
 
 def _said(exc: BaseException) -> bool:

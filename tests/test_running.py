@@ -648,6 +648,32 @@ ASYNC_GAIT = textwrap.dedent(
 )
 
 
+# Under ics35_async.run, a program with a second line it only checks now and then, which goes on without that line
+# once its port is lost for good (no error of it reaches the program's end).
+ASIDE_LINE = textwrap.dedent(
+    """
+    import sys
+    import anyio
+    import ics35_async
+    from ics35_async import open_bus
+
+    print("ready", flush=True)
+    PORT = input()
+
+    async def main() -> None:
+        async with open_bus(PORT) as aside, open_bus("sim://?ids=1") as bus:
+            await aside.servo(1).read_temperature()
+            with anyio.fail_after(30):
+                while aside.is_open:
+                    await bus.servo(1).read_temperature()
+                    await anyio.sleep(0.05)
+            print("gone", flush=True)
+
+    sys.exit(ics35_async.run(main))
+    """
+)
+
+
 def gait_on_a_pty(
     pty_sim: Any, mode: str, *sim_args: str, program: str = BLOCKING_GAIT
 ) -> subprocess.CompletedProcess[str]:
@@ -710,9 +736,20 @@ def test_an_async_program_s_lost_port_is_said_once_and_exit_1(pty_sim: Any) -> N
 
 def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) -> None:
     done = gait_on_a_pty(pty_sim, "catch", "--unplug-after", "1", "--replug-after", "60")
+    path, *said = done.stdout.split()
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split()[1:] == ["streaming", "caught"]
+    assert said == ["streaming", "caught"]
     assert "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
+    # Not the program's ending, so not said there: the library's warning, once, as the program ends.
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"port {path} lost: "), done.stderr
+
+
+def test_a_port_lost_for_good_that_does_not_end_the_program_is_still_said_once(pty_sim: Any) -> None:
+    done = gait_on_a_pty(pty_sim, "", "--unplug-after", "1", "--replug-after", "60", program=ASIDE_LINE)
+    path, *said = done.stdout.split()
+    assert done.returncode == 0, done.stderr
+    assert said == ["gone"]
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith(f"port {path} lost: "), done.stderr
 
 
 def test_a_blocking_program_s_mistyped_port_is_one_line_with_its_hint() -> None:

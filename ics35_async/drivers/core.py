@@ -40,7 +40,7 @@ import anyio
 from ..engine import FlushInput, LineEngine, Output, Request, State
 from ..errors import IcsError, InvalidArgument, PortBusy, PortLost, error_text
 from ..protocol import Command
-from ..running import ending_said
+from ..running import said_by_the_run
 from ..tasks import despite_cancellation
 from ..transports.opening import Port, open_port
 from ..transports.tty_port import TtyPort
@@ -441,11 +441,9 @@ class DriverCore:
         engine = self.engine
         reason = f"port {self.target} lost: {error_text(exc)}" if exc else f"port {self.target} closed"
         reconnect = reconnect and self.settings.reconnect
-        if engine.state not in (CLOSED, DRAINING):
-            # A loss for good under run() is the PortLost that ends the program, said there as its last line:
-            # warned here too, the person at the terminal would read it twice.
-            said_at_the_end = not reconnect and ending_said()
-            log.log(logging.INFO if said_at_the_end else logging.WARNING, "%s", reason)
+        # (A loss for good under run() is said by the run, once: see said_by_the_run.)
+        if engine.state not in (CLOSED, DRAINING) and (reconnect or not said_by_the_run(log, reason)):
+            log.warning("%s", reason)
         engine.lost(reason, reconnect=reconnect)
         self._release_idle()
         return engine.state is LOST
