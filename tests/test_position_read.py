@@ -14,8 +14,8 @@ from ics35_async import PositionReadUnsupported, ReplyTimeout, open_bus, protoco
 from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcommandError
 from ics35_async.policies.scan import probe_ids
 from ics35_async.sim import VirtualLine, VirtualServo, parse_url
-from ics35_async.sim.virtual_servo import NO_REPLY
 from ics35_async.stream import WATCH
+from tests.support.sim_servos import LosesPositionReplies
 from tests.support.timing import GUARD
 
 TORQUE_COMMANDS = {"position", "free"}
@@ -358,22 +358,6 @@ def test_a_holding_ics36_servo_whose_replies_are_lost_is_watched_never_freed_by_
         assert commands(sim, 1).count("free") == 0 and sim.servo(1).target == 9000, seed
         assert 2 in plan.free and 5 in plan.watch, (seed, plan)  # the ICS 3.5 servo freed as asked; nobody at 5
     assert undecided  # (the seeds do make the probes miss the servo)
-
-
-class LosesPositionReplies(VirtualServo):
-    """An ICS 3.6 servo whose first ``lost`` replies to the position read never reach the host (noise on the line,
-    or a reply held past the wait): it hears each read, as a servo whose reply is lost does."""
-
-    def __init__(self, servo_id: int, lost: int, **options: Any) -> None:
-        super().__init__(servo_id, ics36=True, **options)
-        self.lost = lost
-
-    def handle(self, command: Any) -> Any:
-        reply = super().handle(command)
-        if isinstance(command, protocol.ReadPosition) and self.lost > 0:
-            self.lost -= 1
-            return NO_REPLY
-        return reply
 
 
 def test_an_ics36_servo_that_lost_its_probes_replies_is_read_not_freed_where_ics35_servos_may_be_freed() -> None:

@@ -919,8 +919,11 @@ def test_line_change_waiting_as_the_robots_block_ends_raises_bus_closed() -> Non
 def test_line_change_over_a_pty_whose_port_goes_away_and_comes_back(pty_sim: Any) -> None:
     # A one-line robot over a real serial boundary: with its only line lost no frame comes, so the loss is told
     # by the line's bus alone; back, by the frame whose `resumed` names the line.
-    # (unplugged once the robot is open: its opening reads take a fraction of that)
-    server = pty_sim("--fast", "--ids", "1-2", "--unplug-after", str(scaled(3.0)), "--replug-after", "0.5")
+    # (unplugged once the robot is open: its opening reads take a fraction of that, its servos ICS 3.6: an ICS 3.5
+    # joint's open waits a whole allowance for a second position read before it starts free)
+    server = pty_sim(
+        "--fast", "--ids", "1-2", "--ics36", "1-2", "--unplug-after", str(scaled(3.0)), "--replug-after", "0.5"
+    )
     description = {
         "lines": {"main": {"port": server.path}},
         "joints": {"a": {"line": "main", "id": 1}, "b": {"line": "main", "id": 2}},

@@ -29,7 +29,7 @@ from tests.support.robot_rig import (
     sent_position,
     targets_sent,
 )
-from tests.support.sim_servos import UnplugsWhenAsked, free_command
+from tests.support.sim_servos import LosesPositionReplies, UnplugsWhenAsked, free_command
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
@@ -591,6 +591,22 @@ def lower_line_only(rig: Rig) -> Rig:
     description["lines"].pop("upper")
     description["joints"] = {name: spec for name, spec in description["joints"].items() if spec["line"] == "lower"}
     return rig
+
+
+def test_a_holding_ics36_joint_whose_probe_replies_were_lost_starts_read_not_free() -> None:
+    # Two position reads unanswered around an answered parameter read: the protocol probe takes the servo for
+    # ICS 3.5, whose joint starts free: a standing robot's ICS 3.6 joint went limp as the robot opened.
+    rig = make_rig(ics36=[1, 2, 3])
+    knee = LosesPositionReplies(JOINTS["knee"]["id"], lost=2)
+    rig.lower.remove_device(rig.servo("knee"))
+    rig.lower.add_device(knee)
+    knee.command_position(joint_position(JOINTS["knee"], -10.0))  # (holding)
+
+    async def body(robot: Robot) -> dict[str, str]:
+        return dict(robot.start_modes)
+
+    assert run_robot(rig, body) == dict.fromkeys(JOINTS, "read")
+    assert FREE not in torque_commands(rig, "knee") and not knee.free
 
 
 @pytest.mark.parametrize("what", [ReadEeprom, ReadPosition], ids=["limits", "position-reads"])

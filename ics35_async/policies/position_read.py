@@ -32,9 +32,10 @@ class PositionReading:
     why: str | None = None
 
 
-async def _position_read_once_more(servo: Servo) -> int | None:
-    """Before a free command to a servo taken for ICS 3.5: its position read once more, with the whole reply
-    allowance and no retry.  Its position if it answers, ``None`` if silent (ICS 3.5, or nobody there).
+async def position_read_once_more(servo: Servo) -> int | None:
+    """Before a free command to a servo taken for ICS 3.5 (here, and as a robot opens: its joints that do not
+    answer the position read start free): its position read once more, with the whole reply allowance and no
+    retry.  Its position if it answers, ``None`` if silent (ICS 3.5, or nobody there).
 
     The probe that tells the protocols apart waits only as long as this line's answers have taken, and takes two
     silences around an answered parameter read for ICS 3.5: an ICS 3.6 servo whose two replies were lost (a
@@ -65,7 +66,7 @@ async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = Fals
     if await servo.has_position_read():
         return PositionReading(await servo.read_position(), "read", "ICS 3.6")
     if free_ics35:
-        position = await _position_read_once_more(servo)
+        position = await position_read_once_more(servo)
         if position is not None:
             return PositionReading(position, "read", "ICS 3.6")
         await servo.read_temperature()
@@ -146,7 +147,7 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
             plan.silent.append(sid)
         if readable is False and free_ics35:
             try:
-                if await _position_read_once_more(servo) is not None:
+                if await position_read_once_more(servo) is not None:
                     readable = True  # ICS 3.6 after all: its probes' replies were lost or late
             except ReplyError:
                 readable = None  # garbled: not told apart

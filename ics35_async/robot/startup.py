@@ -31,6 +31,7 @@ from ..eeprom import Eeprom
 from ..engine import State
 from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout
 from ..group import BusGroup, GroupStream
+from ..policies.position_read import position_read_once_more
 from ..policies.scan import anyone_there
 from ..protocol import FREE
 from ..stream import ON_CLOSE
@@ -343,8 +344,10 @@ def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | 
 async def _position_reads(
     robot: Robot, joints: Iterable[JointSpec], silent: set[str], lines: _LineAnswers
 ) -> tuple[set[str], set[str]]:
-    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything), and
-    those whose servo answered nothing (absent).  ``silent``: the joints whose EEPROM read just got no reply:
+    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything; one taken
+    for ICS 3.5, whose joint starts free, read once more with the whole allowance: see
+    :func:`~ics35_async.policies.position_read.position_read_once_more`), and those whose servo answered nothing
+    (absent).  ``silent``: the joints whose EEPROM read just got no reply:
     one silent probe more says they are absent (an unplugged leg then costs its joints one allowance each, not
     three).  The joints of a line where nothing answers (``lines.empty``) are not probed."""
     found: set[str] = set()
@@ -358,8 +361,12 @@ async def _position_reads(
         for index, joint in enumerate(joints):
             if line in lines.empty:
                 return
+            servo = robot.group[line].servo(joint.id)
             try:
-                if await robot.group[line].servo(joint.id).has_position_read(silent_before=joint.name in silent):
+                # (A servo taken for ICS 3.5 starts free: read once more first, as before any free command.)
+                if await servo.has_position_read(silent_before=joint.name in silent) or (
+                    await position_read_once_more(servo) is not None
+                ):
                     found.add(joint.name)
             except ReplyTimeout:  # silent: it starts free, as ICS 3.5 does (and offline: see open_robot)
                 absent.add(joint.name)

@@ -1,12 +1,14 @@
-"""Simulated servos that do something to their line at a chosen moment (for tests of a line lost part-way)."""
+"""Simulated servos that do something to their line at a chosen moment (for tests of a line lost part-way), or whose
+replies go astray."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Any
 
-from ics35_async.protocol import Position
+from ics35_async.protocol import Position, ReadPosition
 from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.virtual_servo import NO_REPLY
 
 
 def free_command(command: Any) -> bool:
@@ -35,3 +37,19 @@ class UnplugsWhenAsked(VirtualServo):
             if self.replug_after is not None:
                 self.line = None
         return super().handle(command)
+
+
+class LosesPositionReplies(VirtualServo):
+    """An ICS 3.6 servo whose first ``lost`` replies to the position read never reach the host (noise on the line,
+    or a reply held past the wait): it hears each read, as a servo whose reply is lost does."""
+
+    def __init__(self, servo_id: int, lost: int, **options: Any) -> None:
+        super().__init__(servo_id, ics36=True, **options)
+        self.lost = lost
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if isinstance(command, ReadPosition) and self.lost > 0:
+            self.lost -= 1
+            return NO_REPLY
+        return reply
