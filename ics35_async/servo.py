@@ -199,6 +199,31 @@ class Servo:
         """
         return units.position_to_degrees(await self.read_position())
 
+    async def read_position_once_more(self) -> int | None:
+        """The position read once more, with the whole reply allowance and no retry: what to ask before a free
+        command to a servo :meth:`has_position_read` took for ICS 3.5.  Its position if it answers (ICS 3.6 after
+        all, remembered as such on this line), ``None`` if silent (ICS 3.5, or nobody there).  Moves and frees
+        nothing.
+
+        The probe that tells the protocols apart waits only as long as this line's answers have taken, and takes
+        two silences around an answered parameter read for ICS 3.5: an ICS 3.6 servo whose two replies were lost
+        (a lossy line) or came after those short waits (a TCP bridge, an adapter's latency timer) is taken for
+        one, and the free command reaches a servo whose reply is lost.  Costs one reply allowance where the
+        servo is silent.
+
+        Raises:
+            ReplyError: a garbled answer (something is there: free nothing on it).
+            BusClosed, PortLost: the line is closed or gone.
+        """
+        try:
+            position = await self._bus.request(
+                protocol.SecondLookReadPosition(self.id), priority=self.priority, retries=0
+            )
+        except ReplyTimeout:
+            return None
+        _POSITION_READS.setdefault(self._bus, {})[self.id] = True
+        return position
+
     async def _probe_position(self, *, silent_before: bool = False) -> int | None:
         """Probe the position read: the position (ICS 3.6), or ``None`` (ICS 3.5); the answer is remembered.
         ``silent_before``: see :meth:`has_position_read`."""

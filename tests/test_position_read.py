@@ -382,3 +382,24 @@ def test_an_ics36_servo_that_lost_its_probes_replies_is_read_not_freed_where_ics
     reading = run(one, read)
     assert (reading.position, reading.how, reading.protocol) == (9000, "read", "ICS 3.6")
     assert "free" not in commands(one, 1) and one.servo(1).target == 9000
+
+
+def test_a_servo_read_once_more_is_known_for_ics36_on_its_line_from_then_on() -> None:
+    # Its answer to the read once more told the line's memory nothing: it still said ICS 3.5, and a later
+    # read without freeing (the configurator's joints after Hold here, a plot without the tick) named the servo
+    # ICS 3.5 and left it out, or asked it once more at every free.
+    from ics35_async import policies
+
+    sim = VirtualLine([LosesPositionReplies(1, lost=2)], log_size=None)
+    sim.servo(1).move_by_hand(9000)
+
+    async def body(bus: Any) -> Any:
+        servo = bus.servo(1)
+        first = await policies.read_position_without_freeing(servo, free_ics35=True)
+        return first, servo.known_position_read(), await policies.read_position_without_freeing(servo)
+
+    first, known, then = run(sim, body)
+    assert (first.how, first.protocol) == ("read", "ICS 3.6")
+    assert known is True
+    assert (then.position, then.how, then.protocol) == (9000, "read", "ICS 3.6")
+    assert "free" not in commands(sim, 1)

@@ -68,6 +68,7 @@ class BlockingServo(Wrapper[Servo]):
 
     has_position_read = blocking(Servo.has_position_read)
     read_position = blocking(Servo.read_position)
+    read_position_once_more = blocking(Servo.read_position_once_more)
     read_position_degrees = blocking(Servo.read_position_degrees)
     read_stretch = blocking(Servo.read_stretch)
     read_speed = blocking(Servo.read_speed)

@@ -15,7 +15,6 @@ from .. import protocol
 from ..errors import ReplyError
 from ..line import Line
 from ..servo import Servo
-from .failure_kinds import nothing_came_back
 from .scan import probe_ids
 
 NO_READ_ICS35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp)"
@@ -32,29 +31,6 @@ class PositionReading:
     why: str | None = None
 
 
-async def position_read_once_more(servo: Servo) -> int | None:
-    """Before a free command to a servo taken for ICS 3.5 (here, and as a robot opens: its joints that do not
-    answer the position read start free): its position read once more, with the whole reply allowance and no
-    retry.  Its position if it answers, ``None`` if silent (ICS 3.5, or nobody there).
-
-    The probe that tells the protocols apart waits only as long as this line's answers have taken, and takes two
-    silences around an answered parameter read for ICS 3.5: an ICS 3.6 servo whose two replies were lost (a
-    lossy line) or came after those short waits (a TCP bridge, an adapter's latency timer) is taken for one, and
-    the free command reaches a servo whose reply is lost.  Costs one reply allowance per ICS 3.5 servo, and only
-    where one is to be freed.
-
-    Raises:
-        ReplyError: a garbled answer (something is there: free nothing on it).
-        BusClosed, PortLost: the line is closed or gone.
-    """
-    try:
-        return await servo.bus.request(protocol.SecondLookReadPosition(servo.id), priority=servo.priority, retries=0)
-    except ReplyError as exc:
-        if nothing_came_back(exc):
-            return None
-        raise
-
-
 async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = False) -> PositionReading:
     """The servo's position by ICS 3.6's read; on an ICS 3.5 servo by the free command only with ``free_ics35``.
 
@@ -66,7 +42,7 @@ async def read_position_without_freeing(servo: Servo, *, free_ics35: bool = Fals
     if await servo.has_position_read():
         return PositionReading(await servo.read_position(), "read", "ICS 3.6")
     if free_ics35:
-        position = await position_read_once_more(servo)
+        position = await servo.read_position_once_more()
         if position is not None:
             return PositionReading(position, "read", "ICS 3.6")
         await servo.read_temperature()
@@ -147,7 +123,7 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
             plan.silent.append(sid)
         if readable is False and free_ics35:
             try:
-                if await position_read_once_more(servo) is not None:
+                if await servo.read_position_once_more() is not None:
                     readable = True  # ICS 3.6 after all: its probes' replies were lost or late
             except ReplyError:
                 readable = None  # garbled: not told apart

@@ -31,7 +31,6 @@ from ..eeprom import Eeprom
 from ..engine import State
 from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout
 from ..group import BusGroup, GroupStream
-from ..policies.position_read import position_read_once_more
 from ..policies.scan import anyone_there
 from ..protocol import FREE
 from ..stream import ON_CLOSE
@@ -346,7 +345,7 @@ async def _position_reads(
 ) -> tuple[set[str], set[str]]:
     """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything; one taken
     for ICS 3.5, whose joint starts free, read once more with the whole allowance: see
-    :func:`~ics35_async.policies.position_read.position_read_once_more`), and those whose servo answered nothing
+    :meth:`~ics35_async.Servo.read_position_once_more`), and those whose servo answered nothing
     (absent).  ``silent``: the joints whose EEPROM read just got no reply:
     one silent probe more says they are absent (an unplugged leg then costs its joints one allowance each, not
     three).  The joints of a line where nothing answers (``lines.empty``) are not probed."""
@@ -365,7 +364,7 @@ async def _position_reads(
             try:
                 # (A servo taken for ICS 3.5 starts free: read once more first, as before any free command.)
                 if await servo.has_position_read(silent_before=joint.name in silent) or (
-                    await position_read_once_more(servo) is not None
+                    await servo.read_position_once_more() is not None
                 ):
                     found.add(joint.name)
             except ReplyTimeout:  # silent: it starts free, as ICS 3.5 does (and offline: see open_robot)
