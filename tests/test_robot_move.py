@@ -879,6 +879,9 @@ def test_line_change_returns_with_every_line_lost_when_no_frame_comes_and_at_onc
             assert await robot.line_change() == frozenset({"lower"})
         with pytest.raises(InvalidArgument, match="no line 'middle'"):
             await robot.line_change(["lower", "middle"])
+        for bad in (5, [["lower"]], None.__class__):  # (not line names: a typed error, not a TypeError)
+            with pytest.raises(InvalidArgument, match="lost must be"):
+                await robot.line_change(bad)  # type: ignore[arg-type]
         rig.lower.replug()
         return robot
 

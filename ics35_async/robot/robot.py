@@ -164,14 +164,17 @@ class Robot:
                 lost = await robot.line_change(lost)  # every line back: an empty set
 
         Raises:
-            InvalidArgument: ``lost`` names a line the robot does not have.
+            InvalidArgument: ``lost`` is not line names, or names a line the robot does not have.
             BusClosed, PortLost: the robot was closed (its ``async with`` block has ended), or a line is gone
                 (without ``reconnect``: the robot's frames have ended).
         """
         if lost is None:
             before = self.lost_lines
         else:
-            before = frozenset([lost] if isinstance(lost, str) else lost)
+            names = [lost] if isinstance(lost, str) else list(lost) if isinstance(lost, Iterable) else None
+            if names is None or not all(isinstance(name, str) for name in names):
+                raise InvalidArgument(f"lost must be line names (what line_change returned), not {lost!r}")
+            before = frozenset(names)
             unknown = sorted(before - self.group.buses.keys())
             if unknown:
                 raise InvalidArgument(
