@@ -199,6 +199,30 @@ def test_a_servo_that_never_answered_does_not_free_the_robot_and_its_joint_refus
     with_the_knee_unplugged(body)
 
 
+@pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joints)
+def test_a_motion_refused_for_silent_joints_names_every_one_of_them() -> None:
+    # A robot's legs' line unplugged whole: a motion over both legs was refused naming only its first silent joint,
+    # and the builder who plugged that one in was refused again for the next.
+    rig = make_rig()
+    rig.lower.remove_servo(1)
+    rig.lower.remove_servo(2)
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, start_pose={"neck": 0.0}, **FAST) as robot:
+                await frames_until(robot, lambda: robot.latest is not None and {"hip", "knee"} <= robot.latest.offline)
+                with pytest.raises(UnsafeOperation) as refused:
+                    await robot.move_to({"neck": 5.0, "hip": 5.0, "knee": 5.0}, duration=0.05)
+                said = str(refused.value)
+                assert "joints hip, knee have not answered since the robot opened" in said, said
+                assert "line lower, servo IDs 1, 2" in said, said
+
+    try:
+        anyio.run(main)
+    finally:
+        rig.close()
+
+
 @pytest.mark.filterwarnings("ignore::ics35_async.robot.RobotWarning")  # (the open names the silent joint)
 def test_a_target_set_for_a_joint_that_never_answered_does_not_move_its_servo_once_plugged_in() -> None:
     # move_to refuses such a joint (it would drive it blind); set_targets takes the target, as a loop setting

@@ -519,16 +519,10 @@ class Robot:
         for name in joints:
             if name in self._latched:
                 raise again(self._latched[name])
-            if (
-                name not in self._answered
-                and self._offline_now(name)
-                and not self.description.safety.continue_on_offline  # (there: played on without it)
-            ):
-                joint = self.joints[name]
-                raise UnsafeOperation(
-                    f"joint {name} has not answered since the robot opened (line {joint.line}, servo ID {joint.id}: "
-                    "check its power, wiring, ID and the line's baud rate): a motion would drive it blind"
-                )
+            if self._unheard(name):
+                # Every such joint at once: an unplugged leg refused one joint at a time, each plugged in only to
+                # be refused for the next.
+                raise self._unheard_error([n for n in joints if self._unheard(n)])
             if name in self._held:
                 raise UnsafeOperation(
                     f"joint {name} is held since {self._held[name]}: where it is is unknown "
@@ -540,6 +534,33 @@ class Robot:
                 f"joint {name} {where}: a motion would send it to that limit at full speed first; bring it within "
                 "its limits (by hand, while it is free) or widen them in the robot file"
             )
+
+    def _unheard(self, name: str) -> bool:
+        """``name``'s servo has not answered since the robot opened and is offline: a motion would drive it blind
+        (unless the file's safety plays on without it)."""
+        return (
+            name not in self._answered
+            and self._offline_now(name)
+            and not self.description.safety.continue_on_offline  # (there: played on without it)
+        )
+
+    def _unheard_error(self, names: list[str]) -> UnsafeOperation:
+        if len(names) == 1:
+            joint = self.joints[names[0]]
+            return UnsafeOperation(
+                f"joint {joint.name} has not answered since the robot opened (line {joint.line}, servo ID {joint.id}: "
+                "check its power, wiring, ID and the line's baud rate): a motion would drive it blind"
+            )
+        by_line: dict[str, list[str]] = {}
+        for name in names:
+            by_line.setdefault(self.joints[name].line, []).append(str(self.joints[name].id))
+        where = "; ".join(
+            f"line {line}, servo ID{'s' if len(ids) > 1 else ''} {', '.join(ids)}" for line, ids in by_line.items()
+        )
+        return UnsafeOperation(
+            f"joints {', '.join(names)} have not answered since the robot opened ({where}: check their power, "
+            "wiring, IDs and the lines' baud rates): a motion would drive them blind"
+        )
 
     def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
         """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits)."""
