@@ -984,7 +984,11 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     assert result.code == 0, result.err
     calibrated = tomllib.loads(robot_file.read_text())
     assert "offset" not in calibrated["joints"]["hip"]  # not calibrated (it was written with an offset of 30)
-    assert "joint hip does not answer (offline): no neutral taken" in " ".join(result.err.split())
+    said = " ".join(result.err.split())
+    assert "joint hip does not answer (offline): no neutral taken" in said, said
+    # Back at step 2 it answered: the end says why it is left out (it was said "did not answer" there).
+    assert "joint hip did not answer" not in said, said
+    assert "joint hip had no neutral (it did not answer at step 1): not calibrated" in said, said
     assert calibrated["joints"]["knee"]["offset"] == pytest.approx(0.0, abs=0.1)
 
 

@@ -464,6 +464,12 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     calibrated: dict[str, JointSpec] = {}
     narrow: list[NarrowRange] = []
     for name in names:
+        if name not in neutral and name in low:  # (plugged back in at step 2: it did answer, after step 1)
+            err.print(
+                f"[yellow]warning:[/yellow] joint {escape(name)} had no neutral (it did not answer at step 1): not "
+                "calibrated (calibrate it again with --joints)"
+            )
+            continue
         if name not in neutral or name not in low:
             err.print(f"[yellow]warning:[/yellow] joint {escape(name)} did not answer: not calibrated")
             continue
