@@ -765,6 +765,27 @@ def test_teach_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, t
     assert all(set(sent[i][1 if i == 1 else 0 :]) <= {"free"} for i in (1, 2, 3)), sent  # (probes, the close)
 
 
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_calibrate_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, tmp_path: Path) -> None:
+    # The legs' line empty: the open asks it once, but calibrate then read each silent joint's EEPROM again (for
+    # its reverse flag and pulse limits), each read a whole --timeout and its retries: at --timeout 1 a humanoid's
+    # ten leg joints kept step 1 from showing for over a minute.
+    sims = make_rig()
+    sims.description["joints"]["ankle"] = {"line": "lower", "id": 3}  # (no servo: the leg's third joint)
+    for servo_id in (1, 2):
+        sims.lower.remove_servo(servo_id)
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    try:
+        result = cli("calibrate", str(robot_file), "--yes", stdin="")
+    finally:
+        sims.close()
+    assert result.code == 5 and "nothing written" in result.err, result.err
+    sent = {i: [t.command for t in sims.lower.log_since(0) if t.servo_id == i] for i in (None, 1, 2, 3)}
+    assert sent[None] == ["read_id"] and sent[1][:1] == ["read_eeprom"], sent
+    assert all(set(sent[i][1 if i == 1 else 0 :]) <= {"free"} for i in (1, 2, 3)), sent  # (probes, the close)
+
+
 def test_teach_and_calibrate_refuse_bad_arguments(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
     _, robot_file = rig
     result = cli("teach", str(robot_file), str(tmp_path / "x.txt"))

@@ -402,7 +402,11 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     silent.update(name for name in frame.offline if name in names)  # (its range may be cut short)
                     track(frame)
 
-            for name in names:  # each servo's REVERSE flag (below) and pulse limits (after the ranges)
+            # Each servo's REVERSE flag (below) and pulse limits (after the ranges); not of the joints the open found
+            # silent (they start offline): each read would wait a whole allowance and its retries again, a humanoid's
+            # unplugged legs at --timeout 1 over a minute before step 1 showed.
+            silent_at_open = robot.latest.offline if robot.latest is not None else frozenset()
+            for name in (n for n in names if n not in silent_at_open):
                 joint = robot.joints[name]
                 with contextlib.suppress(ReplyError):
                     eeproms[name] = await robot.group[joint.line].servo(joint.id).read_eeprom()
