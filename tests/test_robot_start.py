@@ -811,3 +811,63 @@ def test_after_a_lost_line_targets_that_power_a_joint_are_refused_and_freeing_st
 
     run_to_the_lost_line(rig, main)
     assert len(refused) == 5 and all("lost" in message for message in refused), refused
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+@pytest.mark.parametrize("check_limits", [True, False])
+def test_start_free_opens_without_protocol_probes_and_reads_every_joint_by_its_free(check_limits: bool) -> None:
+    # A program that frees every joint it opens (teach, calibrate) has no use for the protocol probe: the free
+    # command reads the position on ICS 3.5 and ICS 3.6 alike, and an ICS 3.5 joint's read once more cost the open
+    # a whole reply allowance each.  An unplugged joint is still asked once, and starts offline.
+    rig = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+    rig.lower.remove_servo(2)  # knee unplugged
+    where = {"neck": 20.0, "shoulder": -45.0, "elbow": 80.0, "hip": -10.0}
+    for name, deg in where.items():
+        rig.servo(name).move_by_hand(joint_position(JOINTS[name], deg))
+
+    async def body(robot: Robot) -> tuple[dict[str, float], dict[str, str], frozenset[str]]:
+        assert robot.latest is not None
+        offline = robot.latest.offline  # (the first frame's)
+        return await robot.read_pose(), dict(robot.start_modes), offline
+
+    pose, modes, offline = run_robot(rig, body, start_free=True, check_limits=check_limits, probe_interval=60.0)
+    assert pose == pytest.approx(where, abs=HALF_COUNT)
+    assert modes == dict.fromkeys(JOINTS, "free")
+    assert offline == {"knee"}
+    first = "read_eeprom" if check_limits else "read_stretch"  # (the one read that tells a servo is there)
+    for name in where:
+        spec = JOINTS[name]
+        sent = commands_to(rig, spec["line"], spec["id"])
+        assert sent[:2] == [first, "free"], (name, sent)
+        assert "read_position" not in sent, (name, sent)
+    assert commands_to(rig, "lower", 2) == [first]  # one allowance, then offline: asked nothing more
+
+
+def test_start_free_with_a_start_pose_holds_the_stated_joints_and_frees_the_others() -> None:
+    rig = make_rig(ics36=[1])
+
+    async def body(robot: Robot) -> dict[str, str]:
+        await robot.read_pose()
+        return dict(robot.start_modes)
+
+    modes = run_robot(rig, body, start_free=True, start_pose={"knee": -5.0})
+    assert modes == {**dict.fromkeys(JOINTS, "free"), "knee": "stated"}
+    sent = torque_commands(rig, "knee")
+    assert sent and set(sent) == {sent_position(JOINTS["knee"], -5.0)}
+    assert set(torque_commands(rig, "neck")) == {FREE}  # ICS 3.6, freed all the same
+
+
+@pytest.mark.parametrize("value", ["yes", 1])
+def test_start_free_must_be_a_bool(value: Any) -> None:
+    rig = make_rig()
+
+    async def main() -> None:
+        async with open_robot(rig.description, start_free=value, **FAST):
+            pass
+
+    try:
+        with pytest.raises(InvalidArgument, match="start_free"):
+            anyio.run(main)
+        assert not rig.upper.log_since(0) and not rig.lower.log_since(0)
+    finally:
+        rig.close()

@@ -8,7 +8,8 @@ ICS 3.6 is *read* (its position read each cycle, torque left as it was);
 a joint the caller gives in ``start_pose`` is *stated* (it holds that
 angle from the first cycle on: the caller says the robot is there); any
 other joint (ICS 3.5, or a servo that did not answer) starts *free*, since
-ICS 3.5 reads a position only with the free command.
+ICS 3.5 reads a position only with the free command.  With ``start_free`` every
+joint not stated starts free, whatever its protocol: no probe tells them apart.
 """
 
 from __future__ import annotations
@@ -66,6 +67,13 @@ class RobotOptions(BusOptions, total=False):
     start_pose: Mapping[str, float] | None
     """``{joint: degrees}``: where the named joints are, so they hold that angle from the first
     command on (default ``None``)."""
+    start_free: bool
+    """Every joint not in ``start_pose`` starts free, ICS 3.6 ones too, read by the free command (which answers
+    with the position on both protocols), and the open asks no servo its protocol (default ``False``).  For a
+    program that frees every joint it opens anyway (teaching or calibrating by hand): the probe, and the read
+    once more of each ICS 3.5 servo at the whole reply allowance, would be wasted.  A servo is still asked once
+    whether it is there (its EEPROM read, with ``check_limits``; else a parameter read): one that does not
+    answer starts offline."""
 
 
 _HOW_TO_OPEN = (
@@ -125,8 +133,11 @@ def open_robot(
     ICS 3.6 (its position read).  An ICS 3.5 joint starts free (its only
     position read), unless ``start_pose`` names it: it
     then holds that angle from the first command on, so state where the
-    robot really is (a joint elsewhere jumps there).  ``robot.start_modes``
-    tells how each joint started.
+    robot really is (a joint elsewhere jumps there).  A program that frees
+    every joint it opens passes ``start_free=True``: every joint not stated
+    starts free, ICS 3.6 ones too, and the open probes no servo's protocol
+    (a robot of ICS 3.5 servos opens about one reply allowance a joint
+    sooner).  ``robot.start_modes`` tells how each joint started.
 
     Args:
         source: a TOML file's path, the same structure as a mapping, or a
@@ -156,6 +167,7 @@ async def _robot_session(
     offline_after = options.pop("offline_after", 3)
     probe_interval = options.pop("probe_interval", 0.5)
     start_pose = options.pop("start_pose", None)
+    start_free = options.pop("start_free", False)
     # Checked here, not left to open_bus: a misspelt robot option (``onclose``) would be refused as an
     # "open_bus option", a call the program never made.
     unknown = set(options) - BusOptions.__optional_keys__
@@ -170,6 +182,7 @@ async def _robot_session(
     if on_close not in ON_CLOSE:
         raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
     units.check_bool("check_limits", check_limits)
+    units.check_bool("start_free", start_free)
     clash = _PER_LINE & set(bus_options)
     if clash:
         raise InvalidArgument(f"{', '.join(sorted(clash))}: set per line in the robot description, not here")
@@ -185,7 +198,11 @@ async def _robot_session(
         lines = _LineAnswers(robot)
         silent = (await waits.despite(lambda: _check_limits(robot, lines)))[1] if check_limits else set()
         probed = [j for j in robot.joints.values() if j.name not in stated]
-        readable, unheard = await waits.despite(lambda: _position_reads(robot, probed, silent, lines))
+        if start_free:  # (every joint is read by its free: only whether it is there is asked)
+            readable: set[str] = set()
+            unheard = await waits.despite(lambda: _presence(robot, probed, silent if check_limits else None, lines))
+        else:
+            readable, unheard = await waits.despite(lambda: _position_reads(robot, probed, silent, lines))
         # The joints the open found silent start offline (probed every probe_interval, back as any offline joint
         # once they answer): asked offline_after cycles first, each at its whole reply allowance, two unplugged
         # legs kept the robot from its first pose (read_pose waits for every joint not offline) for three
@@ -379,6 +396,43 @@ async def _position_reads(
         for line in by_line:
             tasks.start_soon(probe_line, line)
     return found, absent
+
+
+async def _presence(
+    robot: Robot, joints: Iterable[JointSpec], silent: set[str] | None, lines: _LineAnswers
+) -> set[str]:
+    """The joints whose servo answered nothing (absent), for ``start_free``: ``silent``, the joints whose EEPROM
+    read just went unanswered (that read's silence says it: asking again would cost another allowance), or,
+    without that read (``None``), those silent to one parameter read, which either protocol answers and which
+    moves nothing.  The joints of a line where nothing answers (``lines.empty``) are not asked."""
+    joints = list(joints)
+    if silent is not None:
+        return {joint.name for joint in joints if joint.name in silent}
+    absent: set[str] = set()
+    by_line: dict[str, list[JointSpec]] = {}
+    for joint in joints:
+        by_line.setdefault(joint.line, []).append(joint)
+
+    async def ask_line(line: str) -> None:
+        joints = by_line[line]
+        for index, joint in enumerate(joints):
+            if line in lines.empty:
+                absent.add(joint.name)  # (the line's silence to the ID read stands for theirs)
+                continue
+            try:
+                await robot.group[line].servo(joint.id).read_stretch()
+            except ReplyTimeout:
+                absent.add(joint.name)
+                await lines.silent(line, len(joints) - index - 1)
+                continue
+            except ReplyError:  # garbled: something is there
+                pass
+            lines.answered(line)
+
+    async with task_group() as tasks:
+        for line in by_line:
+            tasks.start_soon(ask_line, line)
+    return absent
 
 
 # Joints left to ask on a line where nothing has answered, from which one ID read costs less than their silences.
