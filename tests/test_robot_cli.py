@@ -742,6 +742,87 @@ def test_teach_that_cannot_write_its_file_prints_the_poses_instead(
     assert len(motion["keyframes"]) == 1 and set(motion["keyframes"][0]["pose"]) == {"neck"}
 
 
+def opened_without_probes(sims: Rig, names: list[str]) -> None:
+    """Each joint's servo was read its EEPROM, then freed: the open asked none its protocol (ICS 3.6's position
+    read, or that read once more at the whole reply allowance before an ICS 3.5 joint went free)."""
+    for name in names:
+        spec = sims.description["joints"][name]
+        sent = [t.command for t in sims.sim(spec["line"]).log_since(0) if t.servo_id == spec["id"]]
+        assert sent[:2] == ["read_eeprom", "free"] and "read_position" not in sent, (name, sent)
+
+
+def test_teach_on_a_robot_of_both_protocols_frees_every_joint_without_probing_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # teach frees every joint it opens, and the free command reads the position on ICS 3.5 and ICS 3.6 alike:
+    # the open's protocol probe was wasted, and its read once more of each ICS 3.5 servo cost a whole --timeout.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims = make_rig(ics36=[1])  # neck (upper 1) and hip (lower 1) speak ICS 3.6
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    out_file = tmp_path / "taught.json"
+    pose = {"neck": 25.0, "shoulder": -30.0, "hip": -15.0, "knee": -40.0}
+
+    def move() -> None:
+        for name, deg in pose.items():
+            sims.servo(name).move_by_hand(joint_position(JOINTS[name], deg))
+
+    try:
+        result = run_with_hands(
+            ["teach", str(robot_file), str(out_file), "--joints", ",".join(pose)],
+            [("Enter captures", move, "\n"), ("pose 1 at", None, "q\n")],
+            [sims.upper, sims.lower],
+        )
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    taught = json.loads(out_file.read_text())
+    assert [k["pose"] for k in taught["keyframes"]] == [pytest.approx(pose, abs=0.05)]
+    opened_without_probes(sims, list(pose))
+
+
+def test_calibrate_on_a_robot_of_both_protocols_frees_every_joint_without_probing_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims = make_rig(ics36=[1])  # neck and hip speak ICS 3.6, the knee ICS 3.5
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(
+        CALIBRATE_WITH_KNEE.format(**{name: line["port"] for name, line in sims.description["lines"].items()})
+    )
+
+    def at(servo_degrees: dict[str, float]) -> Callable[[], None]:
+        def move() -> None:
+            for name, deg in servo_degrees.items():
+                sims.servo(name).move_by_hand(7500 + round(deg * 8000 / 270))
+
+        return move
+
+    try:
+        result = run_with_hands(
+            ["calibrate", str(robot_file)],
+            [
+                ("neutral (every joint at 0)", at({"neck": 12.0, "hip": -3.0, "knee": 6.0}), "\n"),
+                ("whole range", at({"neck": -50.0, "hip": -60.0, "knee": -70.0}), ""),
+                (None, at({"neck": 70.0, "hip": 40.0, "knee": 30.0}), "\n"),
+            ],
+            [sims.upper, sims.lower],
+        )
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    joints = tomllib.loads(robot_file.read_text())["joints"]
+    assert {n: joints[n]["offset"] for n in ("neck", "hip", "knee")} == pytest.approx(
+        {"neck": 12.0, "hip": -3.0, "knee": 6.0}, abs=0.11
+    )
+    assert {n: (joints[n]["min"], joints[n]["max"]) for n in ("neck", "hip", "knee")} == {
+        "neck": pytest.approx((-62.0, 58.0), abs=0.11),
+        "hip": pytest.approx((-57.0, 43.0), abs=0.11),
+        "knee": pytest.approx((-76.0, 24.0), abs=0.11),
+    }
+    opened_without_probes(sims, ["neck", "hip", "knee"])
+
+
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
 def test_teach_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, tmp_path: Path) -> None:
     # Two legs unplugged on their own line: teach waited each leg joint's EEPROM read, its probe and the stream's

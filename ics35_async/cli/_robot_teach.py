@@ -63,7 +63,8 @@ async def freed_robot(
 ) -> AsyncIterator[Robot]:
     """The robot's joints ``names`` open (freed again when it closes), their first pose read, free to move by
     hand.  The other joints are not opened: not read, freed or commanded, their servos keep what they hold."""
-    async with opening.open(description.only(names), on_close="free", **robot_options(settings)) as robot:
+    options = robot_options(settings)
+    async with opening.open(description.only(names), on_close="free", start_free=True, **options) as robot:
         show_warnings(robot)
         await first_pose(robot)
         await robot.free(names)
