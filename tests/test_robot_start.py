@@ -181,7 +181,10 @@ def test_an_absent_joint_costs_the_open_one_reply_allowance_and_the_watch_none()
 
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
 @pytest.mark.parametrize("check_limits", [True, False])
-def test_a_line_where_nothing_answers_costs_the_open_one_question_not_one_per_joint(check_limits: bool) -> None:
+@pytest.mark.parametrize("start_free", [False, True])
+def test_a_line_where_nothing_answers_costs_the_open_one_question_not_one_per_joint(
+    check_limits: bool, start_free: bool
+) -> None:
     # Two legs unplugged on their own line: each joint's EEPROM read and position probe waited a whole allowance
     # (nothing has answered there, so even a probe cannot wait less), then each was asked offline_after cycles
     # more at its whole allowance: at --timeout 1, about five seconds a joint.  After the first silence on a
@@ -200,8 +203,8 @@ def test_a_line_where_nothing_answers_costs_the_open_one_question_not_one_per_jo
         if check_limits:
             assert any("hip, knee, ankle" in warning and "did not answer" in warning for warning in robot.warnings)
 
-    run_robot(rig, body, probe_interval=60.0, check_limits=check_limits)
-    first = "read_eeprom" if check_limits else "read_position"
+    run_robot(rig, body, probe_interval=60.0, check_limits=check_limits, start_free=start_free)
+    first = "read_eeprom" if check_limits else "read_stretch" if start_free else "read_position"
     assert commands_to(rig, "lower", 1)[:1] == [first]
     if check_limits:  # (without it, the first joint's own probe is the whole allowance: see the docs)
         assert commands_to(rig, "lower", 1) == [first]
@@ -312,6 +315,18 @@ def test_the_block_tells_what_an_open_left_each_joint_in_as_the_wire_shows(on_cl
             said["closed"]
             == "joints elbow, knee were freed to read where they stand; joints neck, shoulder, hip were freed"
         )
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_the_block_of_a_robot_opened_with_start_free_says_every_joint_was_freed_to_be_read() -> None:
+    # (ICS 3.6 joints too: Ctrl-C as teach opens must not say they were left as they were)
+    rig = make_rig(ics36=[1])
+    rig.sim("lower").remove_servo(2)  # the knee
+    said = joints_left_said(rig, start_free=True)
+    assert said["open"] == (
+        "joints neck, shoulder, elbow, hip were freed to read where they stand; "
+        "joint knee never answered (whatever was sent to it went unheard)"
+    )
 
 
 @pytest.mark.parametrize(
