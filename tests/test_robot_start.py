@@ -19,6 +19,7 @@ from ics35_async.cli._robot_view import joint_table
 from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
 from ics35_async.robot import Segment, Trajectory, startup
 from ics35_async.sim import VirtualServo
+from ics35_async.sim.virtual_servo import NO_REPLY
 from tests.support.robot_rig import (
     JOINTS,
     Rig,
@@ -327,6 +328,36 @@ def test_the_block_of_a_robot_opened_with_start_free_says_every_joint_was_freed_
         "joints neck, shoulder, elbow, hip were freed to read where they stand; "
         "joint knee never answered (whatever was sent to it went unheard)"
     )
+
+
+class DeafToTheFree(VirtualServo):
+    """A servo that answers reads but whose reply to the free command never gets back (lost on the line)."""
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        return NO_REPLY if free_command(command) else reply
+
+
+@pytest.mark.parametrize("start_free", [False, True])
+def test_a_joint_that_answered_the_opens_reads_is_not_said_never_to_have_answered(start_free: bool) -> None:
+    # Opened with start_free, the open's reads are its EEPROM read: a joint whose free went unanswered (Ctrl-C before
+    # its first reply) was said never to have answered, though it had.
+    rig = make_rig()
+    rig.lower.remove_servo(2)
+    rig.lower.add_device(DeafToTheFree(2))  # the knee
+
+    async def main() -> str:
+        with anyio.fail_after(GUARD):
+            block = open_robot(rig.description, start_free=start_free, offline_after=1000, **FAST)
+            async with block as robot:
+                await robot.wait_frame(robot.latest.cycle if robot.latest else 0)
+                return block.joints_left()
+
+    try:
+        said = anyio.run(main)
+    finally:
+        rig.close()
+    assert said == "joints neck, shoulder, elbow, hip, knee were freed to read where they stand"
 
 
 @pytest.mark.parametrize(

@@ -92,6 +92,7 @@ class Robot:
         self._lines_changed = anyio.Event()  # set (and replaced) as lost_lines changes: see line_change
         self._gstream: GroupStream | None = None
         self._streams: dict[str, Stream] = {}  # every line's, once the open has made them (see started)
+        self._heard_at_open: set[str] = set()  # (see started)
 
     def __repr__(self) -> str:
         name = self.description.name or self.description.source
@@ -300,9 +301,13 @@ class Robot:
         self._release(checked)
         self._apply(checked, lift_holds=lift_holds)
 
-    def started(self, stated: Mapping[str, float], read: Iterable[str], streams: Mapping[str, Stream]) -> None:
+    def started(
+        self, stated: Mapping[str, float], read: Iterable[str], streams: Mapping[str, Stream], heard: Iterable[str] = ()
+    ) -> None:
         """How the joints start (see :mod:`.startup`): ``stated`` angles already in the ``streams`` (every line's,
-        about to start), ``read`` watched."""
+        about to start), ``read`` watched; ``heard``: joints whose servo answered the open without a protocol probe
+        (``start_free``)."""
+        self._heard_at_open = set(heard)
         self._streams = dict(streams)
         self._targets.update(stated)
         self.untouched = set(read)
@@ -358,8 +363,8 @@ class Robot:
 
     def _heard_from(self, name: str) -> bool:
         """Whether ``name``'s servo has answered anything since the robot opened: a position, or the open's probe
-        (a stated joint is not probed: taken as heard)."""
-        if name in self._answered or self.start_modes[name] == "stated":
+        (a stated joint is not probed: taken as heard), or, with ``start_free``, the open's reads."""
+        if name in self._answered or name in self._heard_at_open or self.start_modes[name] == "stated":
             return True
         joint = self.joints[name]
         return self.group[joint.line].servo(joint.id).known_position_read() is not None
