@@ -226,7 +226,7 @@ async def _robot_session(
         for name, deg in stated.items():
             joint = robot.joints[name]
             streams[joint.line].set_target(joint.id, joint.position(deg))  # before the first cycle
-        # (with start_free no probe tells which servos answered the open: what does, for what it left them in)
+        # (with start_free no probe remembers which servos answered the open: the robot is told, for joints_left)
         heard = {j.name for j in probed} - unheard if start_free else ()
         robot.started(stated, readable, streams, heard)
         try:
