@@ -1070,7 +1070,13 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     hip = sims.servo("hip")
 
     def back_and_swing() -> None:  # the plug is pushed back in; each joint goes through its range
+        mark = sims.lower.transactions
         sims.lower.add_device(hip)
+        # (Heard back only at its next probe, one probe interval on: a count of transactions may come first.)
+        give_up = time.monotonic() + GUARD
+        while not any(t.responders == (hip.servo_id,) for t in sims.lower.log_since(mark)):
+            assert time.monotonic() < give_up, "the hip's servo, plugged back in, was never asked"
+            threading.Event().wait(0.005)
         for name in ("neck", "hip", "knee"):
             sims.servo(name).move_by_hand(7500 - round(40 * 8000 / 270))
         for _ in range(3):
