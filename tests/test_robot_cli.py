@@ -1037,6 +1037,30 @@ def test_teach_with_a_line_lost_names_only_the_servos_it_freed_on_that_line(
     assert sims.servo("neck").free  # (so they were)
 
 
+@pytest.mark.parametrize("command", ["teach", "calibrate", "play"])
+def test_a_robot_command_names_the_line_whose_adapter_is_missing(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, command: str
+) -> None:
+    # The legs' adapter unplugged: "no serial port at '/tmp/nothing/legs'" alone did not say which line of the
+    # robot file that was, nor that the other lines' joints can be opened meanwhile.
+    sims, robot_file = rig
+    missing = str(tmp_path / "nothing" / "lower")
+    sims.description["lines"]["lower"]["port"] = missing
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    files = {
+        "teach": [str(tmp_path / "taught.json")],
+        "calibrate": [],
+        "play": [str(write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": 5}}))],
+    }[command]
+    result = cli(command, str(robot_file), *files, "--yes" if command != "play" else "--speed=1")
+    assert result.code == ExitCode.PORT, result.err
+    said = " ".join(result.err.split())
+    assert f"{robot_file}: line lower: no serial port at '{missing}'" in said, said
+    # (play opens the joints its motion moves: of those, the neck alone is on the upper line)
+    others = "neck" if command == "play" else "neck,shoulder,elbow"
+    assert f"--joints can open only the joints on the other line meanwhile: --joints {others}" in said, said
+
+
 def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

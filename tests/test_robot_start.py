@@ -3,6 +3,7 @@ ICS 3.5 joints free unless the caller states their pose.  What went on the wire 
 
 from __future__ import annotations
 
+import errno
 import functools
 import itertools
 import time
@@ -14,8 +15,9 @@ import anyio
 import pytest
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, open_bus, open_robot
+from ics35_async import BusClosed, InvalidArgument, PortLost, PortNotFound, Robot, State, open_bus, open_robot
 from ics35_async.cli._robot_view import joint_table
+from ics35_async.errors import error_text
 from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
 from ics35_async.robot import Segment, Trajectory, startup
 from ics35_async.sim import VirtualServo
@@ -917,3 +919,25 @@ def test_start_free_must_be_a_bool(value: Any) -> None:
         assert not rig.upper.log_since(0) and not rig.lower.log_since(0)
     finally:
         rig.close()
+
+
+def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any) -> None:
+    # A robot of two lines, one adapter unplugged: the port's own words alone ("no serial port at ...") did not say
+    # which line of the robot file it was.
+    rig = make_rig()
+    missing = str(tmp_path / "nothing" / "lower")
+    rig.description["lines"]["lower"]["port"] = missing
+
+    async def main() -> None:
+        async with open_robot(rig.description, **FAST):
+            pass
+
+    try:
+        with pytest.raises(PortNotFound) as refused:
+            anyio.run(main)
+    finally:
+        rig.close()
+    said = error_text(refused.value)
+    assert said.startswith("<mapping>: line lower: no serial port at "), said
+    assert missing in said and refused.value.errno == errno.ENOENT
+    assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)

@@ -633,7 +633,8 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
         status = client.get("/api/status").json()
         assert status["connected"] and status["port"] == f"sim://{name}?ids=2" and status["robot_line"] is None
     assert len(warned) == 2, warned
-    assert warned[0].startswith("the robot's lines could not be opened: no serial port at '/dev/ttyUSB-ics35-none'")
+    opened = f"the robot's lines could not be opened: {path}: line arm: no serial port at '/dev/ttyUSB-ics35-none'"
+    assert warned[0].startswith(opened), warned
     assert "[Errno" not in warned[0]
     assert f"the pages start on sim://{name}?ids=2 instead" in warned[1]
     sim.named(name).close()

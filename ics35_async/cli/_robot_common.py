@@ -19,8 +19,25 @@ from typing import Any, TextIO, TypeVar
 import click
 from rich.markup import escape
 
-from ..errors import ClosedByPortLoss, IcsError, InvalidArgument, PortLost, ReplyTimeout, UnsafeOperation
-from ..robot import Robot, RobotBlock, RobotDescription, RobotWarning, SafetyStop, load_description, open_robot
+from ..errors import (
+    ClosedByPortLoss,
+    IcsError,
+    InvalidArgument,
+    PortLost,
+    ReplyTimeout,
+    SerialPortError,
+    UnsafeOperation,
+)
+from ..robot import (
+    LineSpec,
+    Robot,
+    RobotBlock,
+    RobotDescription,
+    RobotWarning,
+    SafetyStop,
+    load_description,
+    open_robot,
+)
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
 
@@ -168,14 +185,29 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
                 sim.named(str(name)).close()
 
 
+def _line_of(description: RobotDescription, exc: IcsError) -> LineSpec | None:
+    """The line whose port ``exc`` names, if one."""
+    lines = [line for line in description.lines.values() if line.port in str(exc)]
+    return max(lines, key=lambda spec: len(spec.port)) if lines else None  # (one port's name may start another's)
+
+
+def other_lines_hint(description: RobotDescription, exc: IcsError) -> list[str]:
+    """For a line whose port could not be opened: the ``--joints`` that opens the robot's other lines meanwhile."""
+    line = _line_of(description, exc)
+    others = [name for name, joint in description.joints.items() if line is not None and joint.line != line.name]
+    if not others:
+        return []
+    where = "the other line" if len(description.lines) == 2 else "the other lines"
+    return [f"--joints can open only the joints on {where} meanwhile: --joints {','.join(others)}"]
+
+
 def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
     """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
     (that line's port, baud rate, echo and direction control: the robot file's; ``others_left``: what the
     command left the other lines' joints in, when it has several)."""
-    lines = [line for line in description.lines.values() if line.port in str(exc)]
+    line = _line_of(description, exc)
     free = "ics35 free all -p PORT"
-    if lines:
-        line = max(lines, key=lambda spec: len(spec.port))  # the longest: one port's name may start another's
+    if line is not None:
         here = dataclasses.replace(
             settings,
             port=line.port,
@@ -248,6 +280,10 @@ def run_robot(
         except (PortLost, ClosedByPortLoss) as exc:
             error = translate(settings, exc)
             error.hints.append(lost_line_hint(settings, description, exc, others_left))
+            raise error from None
+        except SerialPortError as exc:
+            error = translate(settings, exc)
+            error.hints.extend(other_lines_hint(description, exc))
             raise error from None
         except IcsError as exc:
             raise translate(settings, exc) from None

@@ -30,7 +30,7 @@ from .. import units
 from ..bus import Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
 from ..engine import State
-from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout
+from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError, error_text
 from ..group import BusGroup, GroupStream
 from ..policies.scan import anyone_there
 from ..protocol import FREE
@@ -149,8 +149,8 @@ def open_robot(
         DescriptionError: the description is not valid (nothing is opened).
         InvalidArgument: an unknown or bad option, a ``start_pose`` naming an unknown joint or an
             angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here.
-        SerialPortError: a line's port cannot be opened (a servo that does not answer is not an error:
-            its joint starts free and, with ``check_limits``, gets a warning).
+        SerialPortError: a line's port cannot be opened (its message names the line; a servo that does not
+            answer is not an error: its joint starts free and, with ``check_limits``, gets a warning).
         PortLost: a line's port was lost during the open: at once without ``reconnect``; with
             ``reconnect=True`` only if it was not back within ``LOST_AT_OPEN`` (5) seconds, the open's reads made
             again once it is (they move and free nothing).
@@ -190,8 +190,11 @@ async def _robot_session(
     async with contextlib.AsyncExitStack() as stack:
         # Each bus opened by this task, one after the other: a line that cannot be opened closes
         # the ones opened before it, in reverse order, as the stack unwinds.
-        for bus in buses.values():
-            await stack.enter_async_context(bus)
+        for name, bus in buses.items():
+            try:
+                await stack.enter_async_context(bus)
+            except SerialPortError as exc:
+                raise _on_line(exc, description.source, name) from exc
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)
         waits = _LostAtOpen(buses)
@@ -337,6 +340,14 @@ class _LostAtOpen:
             f"{lost}, while the robot was opening: {away} not back within {LOST_AT_OPEN:g} s (with reconnect=True"
             " an open waits that long for a lost port; once open, the robot waits for it as long as it runs)"
         ) from None
+
+
+def _on_line(exc: SerialPortError, source: str, line: str) -> SerialPortError:
+    """``exc`` (a line's port that could not be opened) naming the robot file's line too: the port's own words
+    do not say which line of the robot it is, and a robot has one adapter a line.  The same class and errno, so a
+    caller that tells a missing port from a busy one still can."""
+    text = f"{source}: line {line}: {error_text(exc)}"
+    return type(exc)(text) if exc.errno is None else type(exc)(exc.errno, text)
 
 
 def _line_options(shared: BusOptions, line: LineSpec) -> BusOptions:
