@@ -144,6 +144,7 @@ class Bus:
             echo=check_bool("echo", options.get("echo", True)),
             timing=timing or BusTiming(),
             max_requests_between=check_int("max_requests_between", options.get("max_requests_between", 16), 1, 10_000),
+            port=port,
         )
         self._driver: Driver | None = None
         self._opening: Any = None  # an anyio.Event while open() runs: later callers wait for its outcome

@@ -21,6 +21,13 @@ from tests.support.timing import GUARD
 TORQUE_COMMANDS = {"position", "free"}
 
 
+def fault_lines(caplog: pytest.LogCaptureFixture) -> list[str]:
+    """The fault log's lines, each checked to name its port (a simulator here) and given without it."""
+    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    assert all(m.startswith("<VirtualLine ") and ">: " in m for m in said), said
+    return [m.partition(">: ")[2] for m in said]
+
+
 def run(sim: VirtualLine, body: Callable[[Any], Awaitable[Any]]) -> Any:
     return run_with(sim, body)
 
@@ -149,7 +156,7 @@ def test_the_fault_log_tells_a_probes_silence_from_a_servo_that_should_have_answ
 
     with caplog.at_level("DEBUG", logger="ics35_async.faults"):
         run(sim, body)
-    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    said = fault_lines(caplog)
     probes = [m for m in said if m.startswith("read_position to ID 1")]
     assert probes and all("probe" in m and "check ID" not in m for m in probes), said
     assert any(m.startswith("read_stretch to ID 9") and "check ID, baud rate, power" in m for m in said), said
@@ -165,7 +172,7 @@ def test_a_scans_empty_ids_are_not_logged_as_wiring_faults(caplog: pytest.LogCap
 
     with caplog.at_level("DEBUG", logger="ics35_async.faults"):
         run(sim, body)
-    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    said = fault_lines(caplog)
     assert said and not [m for m in said if "check ID" in m], said
 
 
@@ -179,7 +186,7 @@ def test_a_scans_id_read_on_a_silent_line_is_not_logged_as_a_wiring_fault(caplog
 
     with caplog.at_level("DEBUG", logger="ics35_async.faults"):
         run(sim, body)
-    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    said = fault_lines(caplog)
     assert [m for m in said if m.startswith("read_id")] and not [m for m in said if "check ID" in m], said
 
 

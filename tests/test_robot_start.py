@@ -941,3 +941,21 @@ def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any)
     assert said.startswith("<mapping>: line lower: no serial port at "), said
     assert missing in said and refused.value.errno == errno.ENOENT
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_each_fault_logged_names_its_lines_port(caplog: pytest.LogCaptureFixture) -> None:
+    # `ics35 -v` on a robot of two lines: "read_position to ID 1: no reply" alone could be either line's ID 1.
+    rig = make_rig()
+    rig.lower.remove_servo(JOINTS["hip"]["id"])
+    ports = {name: line["port"] for name, line in rig.description["lines"].items()}
+
+    async def body(robot: Robot) -> None:
+        await robot.read_pose()
+
+    with caplog.at_level("DEBUG", logger="ics35_async.faults"):
+        run_robot(rig, body)
+    said = [r.getMessage() for r in caplog.records if r.name == "ics35_async.faults"]
+    hip = f"read_eeprom to ID {JOINTS['hip']['id']}: no reply"  # (the neck, ID 1 too, answers it: ICS 3.5 the probe)
+    assert said and all(m.startswith((f"{ports['upper']}: ", f"{ports['lower']}: ")) for m in said), said
+    assert [m for m in said if hip in m] and all(m.startswith(f"{ports['lower']}: ") for m in said if hip in m), said

@@ -86,9 +86,17 @@ class LineEngine:
     """The rules of one ICS line.  See the module docstring for the contract."""
 
     def __init__(
-        self, *, baudrate: int, echo: bool = True, timing: BusTiming | None = None, max_requests_between: int = 16
+        self,
+        *,
+        baudrate: int,
+        echo: bool = True,
+        timing: BusTiming | None = None,
+        max_requests_between: int = 16,
+        port: object = None,
     ) -> None:
         self.baudrate = baudrate
+        # What the fault log names the line by (the bus's port as given): a robot's lines each have an ID 1.
+        self.port = port
         self.echo = echo
         self.timing = timing or BusTiming()
         self.max_requests_between = max_requests_between
@@ -920,7 +928,10 @@ class LineEngine:
 
     def _fault(self, error: ReplyError, sid: int, now: float) -> bytes | None:
         self.counters.per_name[error_counter(error)][sid] += 1
-        fault_log.debug("%s", error)
+        if self.port is None:
+            fault_log.debug("%s", error)
+        else:
+            fault_log.debug("%s: %s", self.port, error)
         self._resync(now)
         return None
 
