@@ -1079,7 +1079,38 @@ def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     taught = json.loads(out_file.read_text())
     assert taught["keyframes"][0]["pose"]["hip"] == pytest.approx(20.0, abs=0.05)
     assert set(taught["keyframes"][1]["pose"]) == {"neck", "knee"}
-    assert "joint hip does not answer (offline): left out of this pose" in " ".join(result.err.split())
+    hip = f"joint hip (servo ID {JOINTS['hip']['id']} on line lower)"
+    assert f"{hip} does not answer (offline): left out of this pose" in " ".join(result.err.split())
+
+
+def test_teach_says_the_joints_gone_offline_on_a_line_in_one_warning(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The legs' line unplugged whole after the first pose: each capture said one warning a joint (a humanoid's ten
+    # legs' joints, ten lines each Enter), where the open says one a line.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    out_file = tmp_path / "taught.json"
+
+    def unplug_the_lower_line() -> None:
+        for name in ("hip", "knee"):
+            sims.lower.remove_servo(JOINTS[name]["id"])
+        for _ in range(2):  # (and the settling after it: as until_offline's three)
+            settle_on(sims.upper)
+
+    result = run_with_hands(
+        ["teach", str(robot_file), str(out_file), "--joints", "neck,hip,knee"],
+        [("Enter captures", None, "\n"), ("pose 1 at", unplug_the_lower_line, "\n"), ("pose 2 at", None, "q\n")],
+        # (the upper line's cycles tell the time, not the lower's: silent, it is probed too seldom)
+        [sims.upper],
+    )
+    assert result.code == 0, result.err
+    assert set(json.loads(out_file.read_text())["keyframes"][1]["pose"]) == {"neck"}
+    said = [" ".join(line.split()) for line in result.err.splitlines() if "answer" in line]
+    ids = f"{JOINTS['hip']['id']}, {JOINTS['knee']['id']}"
+    assert said == [
+        f"warning: joints hip, knee (servo IDs {ids} on line lower) do not answer (offline): left out of this pose"
+    ], result.err
 
 
 def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
@@ -1117,7 +1148,9 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     calibrated = tomllib.loads(robot_file.read_text())
     assert "offset" not in calibrated["joints"]["hip"]  # not calibrated (it was written with an offset of 30)
     said = " ".join(result.err.split())
-    assert "joint hip does not answer (offline): no neutral taken" in said, said
+    assert (
+        f"joint hip (servo ID {JOINTS['hip']['id']} on line lower) does not answer (offline): no neutral taken" in said
+    ), said
     # Back at step 2 it answered: the end says why it is left out (it was said "did not answer" there).
     assert "joint hip did not answer" not in said, said
     assert "joint hip had no neutral (it did not answer at step 1): not calibrated" in said, said

@@ -91,17 +91,26 @@ WARNING = "[yellow]warning:[/yellow]"
 
 
 async def answering_pose(robot: Robot, names: list[str], left_out: str, warnings: list[str]) -> dict[str, float]:
-    """The pose of the joints ``names`` whose servos answer; a warning naming each of the others, with
-    ``left_out`` (what that means for it), is added to ``warnings``.  An offline joint's newest known angle
-    (what ``read_pose`` gives for it) is left out too: it was read before the servo fell silent, and a hand
-    may have moved it since."""
+    """The pose of the joints ``names`` whose servos answer; a warning naming the others, one a line as the
+    open's, with ``left_out`` (what that means for them), is added to ``warnings``.  An offline joint's newest
+    known angle (what ``read_pose`` gives for it) is left out too: it was read before the servo fell silent, and
+    a hand may have moved it since."""
     pose = await robot.read_pose()
     offline = robot.latest.offline if robot.latest is not None else frozenset()
+    # One warning a line and kind: a legs' line unplugged whole said ten lines at each capture.
+    silent: dict[tuple[str, bool], list[str]] = {}
     for name in names:
-        if name in offline:
-            warnings.append(f"{WARNING} joint {escape(name)} does not answer (offline): {left_out}")
-        elif name not in pose:
-            warnings.append(f"{WARNING} joint {escape(name)} did not answer: {left_out}")
+        if name in offline or name not in pose:
+            silent.setdefault((robot.joints[name].line, name in offline), []).append(name)
+    for (line, gone), joints in silent.items():
+        ids = ", ".join(str(robot.joints[name].id) for name in joints)
+        one = len(joints) == 1
+        what = f"joint{'' if one else 's'} {', '.join(joints)} (servo ID{'' if one else 's'} {ids} on line {line})"
+        if gone:
+            what += f" {'does' if one else 'do'} not answer (offline)"
+        else:
+            what += " did not answer"
+        warnings.append(f"{WARNING} {escape(what)}: {left_out}")
     return {name: pose[name] for name in names if name in pose and name not in offline}
 
 
