@@ -15,6 +15,7 @@ from collections import deque
 from typing import Any
 
 LOGGER = logging.getLogger("ics35_async")
+FAULTS = "ics35_async.faults"  # (the engine's logger of failed transactions: see engine.machine)
 COMMANDS = {0x80: "position", 0xA0: "read", 0xC0: "write", 0xE0: "id"}
 SUBCOMMANDS = {0: "eeprom", 1: "stretch", 2: "speed", 3: "current", 4: "temperature", 5: "position (3.6)"}
 
@@ -57,9 +58,10 @@ class TrafficLog(logging.Handler):
         args = record.args
         if record.msg == "id %s tx %s rx %s" and isinstance(args, tuple) and len(args) == 3:
             self.entries.append([next(self._seq), record.created, args[1], args[2], None])
-        elif record.msg == "%s" and record.levelno == logging.DEBUG and self.entries:
-            # A failure of the transaction just logged (see engine.machine, LineEngine._failed).
-            self.entries[-1][4] = record.getMessage()
+        elif record.name == FAULTS and record.levelno == logging.DEBUG and isinstance(args, tuple) and self.entries:
+            # A failure of the transaction just logged (see engine.machine, LineEngine._fault): the error, its
+            # last argument (the port it may be told after is the page's own line).
+            self.entries[-1][4] = str(args[-1])
         elif record.levelno >= logging.WARNING:
             self.entries.append([next(self._seq), record.created, "", "", record.getMessage()])
 
