@@ -41,7 +41,9 @@ HALF_COUNT = 0.5 / units.COUNTS_PER_DEGREE  # degrees: the rounding to whole cou
 
 def run_robot(rig: Rig, body: Callable[[Robot], Awaitable[Any]], **options: Any) -> Any:
     async def main() -> Any:
-        with anyio.fail_after(GUARD):
+        # (Twice the guard: the open alone reads each joint taken for ICS 3.5 once more at the whole allowance,
+        # two seconds each at NO_TIMEOUTS, before the body's moves.)
+        with anyio.fail_after(2 * GUARD):
             async with open_robot(rig.description, **{**FAST, **options}) as robot:
                 return await body(robot)
 
