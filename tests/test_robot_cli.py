@@ -824,10 +824,15 @@ def test_calibrate_on_a_robot_of_both_protocols_frees_every_joint_without_probin
 
 
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
-def test_teach_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, tmp_path: Path) -> None:
+@pytest.mark.parametrize("command", ["teach", "calibrate"])
+def test_teach_and_calibrate_with_a_line_where_nothing_answers_ask_that_line_once(
+    cli: Any, tmp_path: Path, command: str
+) -> None:
     # Two legs unplugged on their own line: teach waited each leg joint's EEPROM read, its probe and the stream's
     # first three cycles, each a whole --timeout (nothing had answered there to learn a shorter wait from).  Now
-    # the line's first joint is read, one ID read asks the line, and its joints start offline.
+    # the line's first joint is read, one ID read asks the line, and its joints start offline.  Calibrate then read
+    # each silent joint's EEPROM again (for its reverse flag and pulse limits), each read a whole --timeout and its
+    # retries: at --timeout 1 a humanoid's ten leg joints kept step 1 from showing for over a minute.
     sims = make_rig()
     sims.description["joints"]["ankle"] = {"line": "lower", "id": 3}  # (no servo: the leg's third joint)
     for servo_id in (1, 2):
@@ -835,33 +840,18 @@ def test_teach_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, t
     robot_file = tmp_path / "robot.toml"
     robot_file.write_text(dump_description(load_description(sims.description)))
     try:
-        result = cli("teach", str(robot_file), str(tmp_path / "taught.json"), "--yes", stdin="\nq\n")
+        if command == "teach":
+            result = cli("teach", str(robot_file), str(tmp_path / "taught.json"), "--yes", stdin="\nq\n")
+        else:
+            result = cli("calibrate", str(robot_file), "--yes", stdin="")
     finally:
         sims.close()
-    assert result.code == 0, result.err
-    said = " ".join(result.err.split())
-    assert "joints hip, knee, ankle (servo IDs 1, 2, 3 on line lower) did not answer" in said, said
-    sent = {i: [t.command for t in sims.lower.log_since(0) if t.servo_id == i] for i in (None, 1, 2, 3)}
-    assert sent[None] == ["read_id"] and sent[1][:1] == ["read_eeprom"], sent
-    assert all(set(sent[i][1 if i == 1 else 0 :]) <= {"free"} for i in (1, 2, 3)), sent  # (probes, the close)
-
-
-@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
-def test_calibrate_with_a_line_where_nothing_answers_asks_that_line_once(cli: Any, tmp_path: Path) -> None:
-    # The legs' line empty: the open asks it once, but calibrate then read each silent joint's EEPROM again (for
-    # its reverse flag and pulse limits), each read a whole --timeout and its retries: at --timeout 1 a humanoid's
-    # ten leg joints kept step 1 from showing for over a minute.
-    sims = make_rig()
-    sims.description["joints"]["ankle"] = {"line": "lower", "id": 3}  # (no servo: the leg's third joint)
-    for servo_id in (1, 2):
-        sims.lower.remove_servo(servo_id)
-    robot_file = tmp_path / "robot.toml"
-    robot_file.write_text(dump_description(load_description(sims.description)))
-    try:
-        result = cli("calibrate", str(robot_file), "--yes", stdin="")
-    finally:
-        sims.close()
-    assert result.code == 5 and "nothing written" in result.err, result.err
+    if command == "teach":
+        assert result.code == 0, result.err
+        said = " ".join(result.err.split())
+        assert "joints hip, knee, ankle (servo IDs 1, 2, 3 on line lower) did not answer" in said, said
+    else:
+        assert result.code == 5 and "nothing written" in result.err, result.err
     sent = {i: [t.command for t in sims.lower.log_since(0) if t.servo_id == i] for i in (None, 1, 2, 3)}
     assert sent[None] == ["read_id"] and sent[1][:1] == ["read_eeprom"], sent
     assert all(set(sent[i][1 if i == 1 else 0 :]) <= {"free"} for i in (1, 2, 3)), sent  # (probes, the close)
