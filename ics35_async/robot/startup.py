@@ -370,57 +370,12 @@ def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | 
         raise InvalidArgument(f"start_pose: {exc}") from None
 
 
-async def _position_reads(
-    robot: Robot, joints: Iterable[JointSpec], silent: set[str], lines: _LineAnswers
-) -> tuple[set[str], set[str]]:
-    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything; one taken
-    for ICS 3.5, whose joint starts free, read once more with the whole allowance: see
-    :meth:`~ics35_async.Servo.read_position_once_more`), and those whose servo answered nothing
-    (absent).  ``silent``: the joints whose EEPROM read just got no reply:
-    one silent probe more says they are absent (an unplugged leg then costs its joints one allowance each, not
-    three).  The joints of a line where nothing answers (``lines.empty``) are not probed."""
-    found: set[str] = set()
-    absent: set[str] = set()
-    by_line: dict[str, list[JointSpec]] = {}
-    for joint in joints:
-        by_line.setdefault(joint.line, []).append(joint)
-
-    async def probe_line(line: str) -> None:
-        joints = by_line[line]
-        for index, joint in enumerate(joints):
-            if line in lines.empty:
-                return
-            servo = robot.group[line].servo(joint.id)
-            try:
-                # (A servo taken for ICS 3.5 starts free: read once more first, as before any free command.)
-                if await servo.has_position_read(silent_before=joint.name in silent) or (
-                    await servo.read_position_once_more() is not None
-                ):
-                    found.add(joint.name)
-            except ReplyTimeout:  # silent: it starts free, as ICS 3.5 does (and offline: see open_robot)
-                absent.add(joint.name)
-                await lines.silent(line, len(joints) - index - 1)
-                continue
-            except ReplyError:  # garbled: something is there; it starts free, as ICS 3.5 does
-                pass
-            lines.answered(line)
-
-    async with task_group() as tasks:
-        for line in by_line:
-            tasks.start_soon(probe_line, line)
-    return found, absent
-
-
-async def _presence(
-    robot: Robot, joints: Iterable[JointSpec], silent: set[str] | None, lines: _LineAnswers
+async def _silent_to(
+    robot: Robot, joints: Iterable[JointSpec], lines: _LineAnswers, ask: Callable[[JointSpec], Awaitable[object]]
 ) -> set[str]:
-    """The joints whose servo answered nothing (absent), for ``start_free``: ``silent``, the joints whose EEPROM
-    read just went unanswered (that read's silence says it: asking again would cost another allowance), or,
-    without that read (``None``), those silent to one parameter read, which either protocol answers and which
-    moves nothing.  The joints of a line where nothing answers (``lines.empty``) are not asked."""
-    joints = list(joints)
-    if silent is not None:
-        return {joint.name for joint in joints if joint.name in silent}
+    """The joints whose servo answered ``ask`` nothing (ReplyTimeout): each line's joints asked in turn, the lines at
+    once.  A garbled answer is an answer (something is there).  A line where nothing answers (``lines.empty``) has
+    its joints left unasked from then on: the caller takes them as absent."""
     absent: set[str] = set()
     by_line: dict[str, list[JointSpec]] = {}
     for joint in joints:
@@ -430,10 +385,9 @@ async def _presence(
         joints = by_line[line]
         for index, joint in enumerate(joints):
             if line in lines.empty:
-                absent.add(joint.name)  # (the line's silence to the ID read stands for theirs)
-                continue
+                return
             try:
-                await robot.group[line].servo(joint.id).read_stretch()
+                await ask(joint)
             except ReplyTimeout:
                 absent.add(joint.name)
                 await lines.silent(line, len(joints) - index - 1)
@@ -446,6 +400,43 @@ async def _presence(
         for line in by_line:
             tasks.start_soon(ask_line, line)
     return absent
+
+
+async def _position_reads(
+    robot: Robot, joints: Iterable[JointSpec], silent: set[str], lines: _LineAnswers
+) -> tuple[set[str], set[str]]:
+    """The joints whose servo answers ICS 3.6's position read (probed without moving or freeing anything; one taken
+    for ICS 3.5, whose joint starts free, read once more with the whole allowance: see
+    :meth:`~ics35_async.Servo.read_position_once_more`), and those whose servo answered nothing
+    (absent).  ``silent``: the joints whose EEPROM read just got no reply:
+    one silent probe more says they are absent (an unplugged leg then costs its joints one allowance each, not
+    three).  The joints of a line where nothing answers (``lines.empty``) are not probed.  A silent or garbled
+    servo starts free, as ICS 3.5 does (a silent one offline too: see open_robot)."""
+    found: set[str] = set()
+
+    async def probe(joint: JointSpec) -> None:
+        servo = robot.group[joint.line].servo(joint.id)
+        # (A servo taken for ICS 3.5 starts free: read once more first, as before any free command.)
+        if await servo.has_position_read(silent_before=joint.name in silent) or (
+            await servo.read_position_once_more() is not None
+        ):
+            found.add(joint.name)
+
+    absent = await _silent_to(robot, joints, lines, probe)
+    return found, absent
+
+
+async def _presence(
+    robot: Robot, joints: Iterable[JointSpec], silent: set[str] | None, lines: _LineAnswers
+) -> set[str]:
+    """The joints whose servo answered nothing (absent), for ``start_free``: ``silent``, the joints whose EEPROM
+    read just went unanswered (that read's silence says it: asking again would cost another allowance), or,
+    without that read (``None``), those silent to one parameter read, which either protocol answers and which
+    moves nothing.  The joints of a line where nothing answers (``lines.empty``) are not asked (the caller takes
+    them as absent)."""
+    if silent is not None:
+        return {joint.name for joint in joints if joint.name in silent}
+    return await _silent_to(robot, joints, lines, lambda joint: robot.group[joint.line].servo(joint.id).read_stretch())
 
 
 # Joints left to ask on a line where nothing has answered, from which one ID read costs less than their silences.
