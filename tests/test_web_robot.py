@@ -485,6 +485,33 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
     lower.close()
 
 
+def test_the_page_says_reconnect_with_its_question_while_the_other_lines_slow_to_rest(tmp_path: Path) -> None:
+    # A line lost mid-move: the page said "press Reconnect" at once, but the question Reconnect asks (what the
+    # lost line's holding joints do) only once the other lines' motion had slowed to rest: a page read in
+    # between offered Reconnect without it.
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?ids=1"\nrate_hz = 200\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+    )
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"neck": 60, "hip": -60}, "duration": 5.0})
+        wait_for(lambda: not lower.servo(1).free and lower.servo(1).target != degrees_to_position(0))
+        lower.unplug()
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+        view = client.get("/api/robot").json()
+        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view
+        lower.replug()
+    upper.close()
+    lower.close()
+
+
 @pytest.mark.parametrize("answer", ["hold", "free"])
 def test_reconnect_asks_about_a_joint_held_since_its_servo_answered_again(tmp_path: Path, answer: str) -> None:
     # A joint whose servo went offline and came back is sent nothing until the program decides: its servo may

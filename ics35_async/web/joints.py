@@ -197,6 +197,9 @@ class RobotSession:
         lines = self.lost_lines = self._in_order(lost)
         ports = ", ".join(f"{name} ({self.description.lines[name].port})" for name in lines)
         self.error = f"the robot stopped: line {ports} lost its port; with the line back, press Reconnect"
+        # Reconnect's question goes with its offer: taken now (the lost line's joints keep their targets through
+        # the stop), and again once the other lines have slowed to rest (their targets, where they came to rest).
+        self._carry_on_from(robot)
         await self._stop(why=f"line {', '.join(lines)} was lost", robot=robot)
         self._carry_on_from(robot)
 
