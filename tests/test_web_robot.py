@@ -4,6 +4,7 @@ a motion played and stopped, the safety state; checked on the simulated servos."
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import json
 import time
@@ -54,16 +55,56 @@ max = 90
     return path
 
 
+@contextlib.contextmanager
+def robot_page(path: Path, name: str, *lines: str) -> Iterator[TestClient]:
+    """The configurator serving the robot file ``path`` (the pages' own line on ``sim://NAME-config``), signed in;
+    the simulated lines named ``lines`` closed after, whatever the test did."""
+    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
+    try:
+        with TestClient(app, base_url=BASE) as client:
+            client.cookies.set(COOKIE, TOKEN)
+            yield client
+    finally:
+        for line in lines:
+            sim.named(line).close()
+
+
+@contextlib.contextmanager
+def arm_page(tmp_path: Path, more: str = "") -> Iterator[tuple[TestClient, Any]]:
+    """The Robot page of a two-joint arm on a simulated line (see arm_file): the client and the simulated line."""
+    name = f"web-robot-{next(_names)}"
+    with robot_page(arm_file(tmp_path, name, more), name, name) as client:
+        yield client, sim.named(name)
+
+
+FOUR_JOINTS = (
+    '[joints.neck]\nline = "upper"\nid = 1\n[joints.arm]\nline = "upper"\nid = 2\n'
+    '[joints.hip]\nline = "lower"\nid = 1\n[joints.knee]\nline = "lower"\nid = 2\n'
+)
+
+
+@contextlib.contextmanager
+def two_line_page(
+    tmp_path: Path, joints: str = FOUR_JOINTS, upper: str = "ids=1-2", lower: str = "ids=1-2"
+) -> Iterator[tuple[TestClient, Any, Any]]:
+    """The Robot page of a robot on two simulated lines, "upper" and "lower" (``upper``, ``lower``: their URLs'
+    queries), with ``joints`` (a robot file's tables; by default two ICS 3.5 joints a line: upper neck 1, arm 2;
+    lower hip 1, knee 2): the client and the two simulated lines."""
+    name = f"web-robot-{next(_names)}"
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f'[lines.upper]\nport = "sim://{name}-upper?{upper}"\nrate_hz = 200\n'
+        f'[lines.lower]\nport = "sim://{name}-lower?{lower}"\nrate_hz = 200\n' + joints
+    )
+    with robot_page(path, name, f"{name}-upper", f"{name}-lower") as client:
+        yield client, sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+
+
 @pytest.fixture
 def robot(tmp_path: Path) -> Iterator[tuple[TestClient, Any]]:
     """A two-joint arm on a simulated line; yields the client and the simulated line."""
-    name = f"web-robot-{next(_names)}"
-    path = arm_file(tmp_path, name)
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        yield client, sim.named(name)
-    sim.named(name).close()
+    with arm_page(tmp_path) as page:
+        yield page
 
 
 def post(client: TestClient, path: str, data: Any = None) -> Any:
@@ -118,67 +159,51 @@ def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says
 def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tmp_path: Path) -> None:
     # A free servo draws no current, so the trip cannot clear by itself: the page is the person's way to say
     # the cause is dealt with, as Robot.reset_trip is a program's.
-    name = f"web-robot-{next(_names)}"
-    path = arm_file(tmp_path, name, '[safety]\nmax_current = 20\naction = "free"\n')
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        line = sim.named(name)
-        try:
+    with arm_page(tmp_path, '[safety]\nmax_current = 20\naction = "free"\n') as (client, line):
 
-            def elbow() -> Any:
-                return client.get("/api/robot").json()["joints"][1]
+        def elbow() -> Any:
+            return client.get("/api/robot").json()["joints"][1]
 
-            assert post(client, "/api/robot/motion", {"enabled": True}).status_code == 200
-            line.servo(2).load = 40
-            wait_for(lambda: elbow()["tripped"] is not None)
-            wait_for(lambda: line.servo(2).free and elbow()["current"] == 0)  # read free: "within the limits"
-            assert "draws current" in elbow()["tripped"]
-            refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
-            assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
-            assert line.servo(2).free
-            unknown = post(client, "/api/robot/reset_trip", {"joint": "knee"})
-            assert unknown.status_code == 400 and "knee" in unknown.json()["error"]
-            line.servo(2).load = 0
-            reset = post(client, "/api/robot/reset_trip", {"joint": "elbow"})
-            assert reset.status_code == 200 and reset.json()["joints"][1]["tripped"] is None
-            assert "elbow" in reset.json()["outcome"]
-            assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
-            wait_for(lambda: not line.servo(2).free and line.servo(2).target == degrees_to_position(30))
-        finally:
-            line.close()
+        assert post(client, "/api/robot/motion", {"enabled": True}).status_code == 200
+        line.servo(2).load = 40
+        wait_for(lambda: elbow()["tripped"] is not None)
+        wait_for(lambda: line.servo(2).free and elbow()["current"] == 0)  # read free: "within the limits"
+        assert "draws current" in elbow()["tripped"]
+        refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
+        assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
+        assert line.servo(2).free
+        unknown = post(client, "/api/robot/reset_trip", {"joint": "knee"})
+        assert unknown.status_code == 400 and "knee" in unknown.json()["error"]
+        line.servo(2).load = 0
+        reset = post(client, "/api/robot/reset_trip", {"joint": "elbow"})
+        assert reset.status_code == 200 and reset.json()["joints"][1]["tripped"] is None
+        assert "elbow" in reset.json()["outcome"]
+        assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
+        wait_for(lambda: not line.servo(2).free and line.servo(2).target == degrees_to_position(30))
 
 
 def test_a_joint_freed_for_over_current_stays_stopped_across_a_reconnect_until_reset(tmp_path: Path) -> None:
     # A lost line and Reconnect opened a robot that knew nothing of the stop: the joint the watch had freed
     # for its load moved again at the next slider move, with no Reset, into the load that tripped it.
-    name = f"web-robot-{next(_names)}"
-    path = arm_file(tmp_path, name, '[safety]\nmax_current = 20\naction = "free"\n')
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        line = sim.named(name)
-        try:
+    with arm_page(tmp_path, '[safety]\nmax_current = 20\naction = "free"\n') as (client, line):
 
-            def elbow() -> Any:
-                return client.get("/api/robot").json()["joints"][1]
+        def elbow() -> Any:
+            return client.get("/api/robot").json()["joints"][1]
 
-            post(client, "/api/robot/motion", {"enabled": True})
-            line.servo(2).load = 40
-            wait_for(lambda: elbow()["tripped"] is not None and line.servo(2).free)
-            lose_and_replug(client, line)
-            assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
-            assert "draws current" in (elbow()["tripped"] or ""), elbow()
-            post(client, "/api/robot/motion", {"enabled": True})
-            refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
-            assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
-            assert line.servo(2).free
-            line.servo(2).load = 0
-            assert post(client, "/api/robot/reset_trip", {"joint": "elbow"}).json()["joints"][1]["tripped"] is None
-            assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
-            wait_for(lambda: not line.servo(2).free)
-        finally:
-            line.close()
+        post(client, "/api/robot/motion", {"enabled": True})
+        line.servo(2).load = 40
+        wait_for(lambda: elbow()["tripped"] is not None and line.servo(2).free)
+        lose_and_replug(client, line)
+        assert post(client, "/api/robot/reopen", {"lost_joints": "hold"}).json()["open"]
+        assert "draws current" in (elbow()["tripped"] or ""), elbow()
+        post(client, "/api/robot/motion", {"enabled": True})
+        refused = post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1})
+        assert refused.status_code == 409 and "draws current" in refused.json()["error"], refused.text
+        assert line.servo(2).free
+        line.servo(2).load = 0
+        assert post(client, "/api/robot/reset_trip", {"joint": "elbow"}).json()["joints"][1]["tripped"] is None
+        assert post(client, "/api/robot/move", {"pose": {"elbow": 30}, "duration": 0.1}).status_code == 200
+        wait_for(lambda: not line.servo(2).free)
 
 
 def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: Any) -> None:
@@ -428,13 +453,7 @@ def test_an_offline_joint_shows_no_temperature_or_current(robot: Any) -> None:
 def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_old_target(tmp_path: Path) -> None:
     # Its servo went offline and answered again (restarted, free, in a brown-out): the robot sends it nothing
     # until it is told what to do, but the page showed its old target, "ok", as if it still held there.
-    name = f"web-robot-{next(_names)}"
-    path = arm_file(tmp_path, name)
-    path.write_text(path.read_text() + '[safety]\naction = "hold"\n')  # (the others hold; the default frees it)
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        line = sim.named(name)
+    with arm_page(tmp_path, '[safety]\naction = "hold"\n') as (client, line):  # (the default frees the others)
         post(client, "/api/robot/motion", {"enabled": True})
         assert post(client, "/api/robot/move", {"pose": {"elbow": 40}, "duration": 0.1}).status_code == 200
         wait_for(lambda: line.servo(2).target == degrees_to_position(40))
@@ -447,23 +466,15 @@ def test_a_joint_held_since_its_servo_answered_again_is_shown_held_not_at_its_ol
         assert elbow["held"] == "rejoined" and elbow["target"] == 40.0 and servo.free, elbow
         assert shoulder["held"] is None, shoulder
         post(client, "/api/robot/free")
-    line.close()
 
 
 def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path: Path) -> None:
-    name = f"web-robot-{next(_names)}"
-    path = tmp_path / "two.toml"
     # ID 2 of each line speaks ICS 3.6: read at the start (and again after its line was lost), not asked about.
-    path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2&ics36=2"\nrate_hz = 200\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2&ics36=2"\nrate_hz = 200\n'
+    joints = (
         '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
         '[joints.nod]\nline = "upper"\nid = 2\n[joints.tail]\nline = "lower"\nid = 2\n'
     )
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
+    with two_line_page(tmp_path, joints, "ids=1-2&ics36=2", "ids=1-2&ics36=2") as (client, upper, lower):
         post(client, "/api/robot/motion", {"enabled": True})
         pose = {"neck": 10, "hip": -10, "nod": 5, "tail": -5}
         post(client, "/api/robot/move", {"pose": pose, "duration": 0.1})
@@ -481,35 +492,6 @@ def test_reconnect_keeps_the_other_lines_joints_holding_without_asking(tmp_path:
         assert now == held and not lower.servo(2).free  # the line that stayed holds; tail read, torque as it was
         targets = {j["name"]: j["target"] for j in client.get("/api/robot").json()["joints"]}
         assert targets == {"neck": 10.0, "hip": None, "nod": 5.0, "tail": None}, targets
-    upper.close()
-    lower.close()
-
-
-def test_the_page_says_reconnect_with_its_question_while_the_other_lines_slow_to_rest(tmp_path: Path) -> None:
-    # A line lost mid-move: the page said "press Reconnect" at once, but the question Reconnect asks (what the
-    # lost line's holding joints do) only once the other lines' motion had slowed to rest: a page read in
-    # between offered Reconnect without it.
-    name = f"web-robot-{next(_names)}"
-    path = tmp_path / "two.toml"
-    path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\nrate_hz = 200\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1"\nrate_hz = 200\n'
-        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
-    )
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
-        post(client, "/api/robot/motion", {"enabled": True})
-        post(client, "/api/robot/move", {"pose": {"neck": 60, "hip": -60}, "duration": 5.0})
-        wait_for(lambda: not lower.servo(1).free and lower.servo(1).target != degrees_to_position(0))
-        lower.unplug()
-        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-        view = client.get("/api/robot").json()
-        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip"]}, view
-        lower.replug()
-    upper.close()
-    lower.close()
 
 
 @pytest.mark.parametrize("answer", ["hold", "free"])
@@ -518,49 +500,38 @@ def test_reconnect_asks_about_a_joint_held_since_its_servo_answered_again(tmp_pa
     # have restarted (free, elsewhere) or kept its power (holding what it bears).  Another line lost, Reconnect
     # held it at its old target without asking (a restarted servo thrown there); freeing it unasked would drop
     # a holding one.  It is asked about with the lost line's joints, and the answer goes for it too.
-    name = f"web-robot-{next(_names)}"
-    path = tmp_path / "two.toml"
-    path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2"\nrate_hz = 200\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2"\nrate_hz = 200\n'
+    joints = (
         '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
         '[joints.arm]\nline = "upper"\nid = 2\n[joints.knee]\nline = "lower"\nid = 2\n'
         '[safety]\naction = "hold"\n'
     )
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
-        try:
+    with two_line_page(tmp_path, joints) as (client, upper, lower):
 
-            def joint(name: str) -> Any:
-                return next(j for j in client.get("/api/robot").json()["joints"] if j["name"] == name)
+        def joint(name: str) -> Any:
+            return next(j for j in client.get("/api/robot").json()["joints"] if j["name"] == name)
 
-            post(client, "/api/robot/motion", {"enabled": True})
-            post(client, "/api/robot/move", {"pose": {"arm": 40, "knee": 30}, "duration": 0.1})
-            wait_for(lambda: upper.servo(2).target == degrees_to_position(40))
-            wait_for(lambda: lower.servo(2).target == degrees_to_position(30))
-            for line, name in ((upper, "arm"), (lower, "knee")):  # offline, and back restarted (free)
-                servo = line.remove_servo(2)
-                wait_for(lambda: joint(name)["offline"])  # noqa: B023  (waited for here, in its own pass)
-                servo.power_cycle()
-                line.add_device(servo)
-            wait_for(lambda: joint("arm")["held"] == "rejoined" and joint("knee")["held"] == "rejoined")
-            view = lose_and_replug(client, lower)
-            choice = view["reconnect_choice"]
-            assert choice["lines"] == ["lower"] and sorted(choice["joints"]) == ["arm", "hip", "knee"], view
-            assert upper.servo(2).free  # (nothing sent to it meanwhile)
-            assert post(client, "/api/robot/reopen", {"lost_joints": answer}).json()["open"]
-            time.sleep(0.2)  # some cycles on the wire
-            if answer == "hold":  # the person says they kept their power: held at their targets
-                assert upper.servo(2).target == degrees_to_position(40) and not upper.servo(2).free
-                assert lower.servo(2).target == degrees_to_position(30) and not lower.servo(2).free
-            else:
-                assert upper.servo(2).free and lower.servo(2).free
-                assert joint("arm")["target"] is None and joint("knee")["target"] is None
-        finally:
-            upper.close()
-            lower.close()
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"arm": 40, "knee": 30}, "duration": 0.1})
+        wait_for(lambda: upper.servo(2).target == degrees_to_position(40))
+        wait_for(lambda: lower.servo(2).target == degrees_to_position(30))
+        for line, name in ((upper, "arm"), (lower, "knee")):  # offline, and back restarted (free)
+            servo = line.remove_servo(2)
+            wait_for(lambda: joint(name)["offline"])  # noqa: B023  (waited for here, in its own pass)
+            servo.power_cycle()
+            line.add_device(servo)
+        wait_for(lambda: joint("arm")["held"] == "rejoined" and joint("knee")["held"] == "rejoined")
+        view = lose_and_replug(client, lower)
+        choice = view["reconnect_choice"]
+        assert choice["lines"] == ["lower"] and sorted(choice["joints"]) == ["arm", "hip", "knee"], view
+        assert upper.servo(2).free  # (nothing sent to it meanwhile)
+        assert post(client, "/api/robot/reopen", {"lost_joints": answer}).json()["open"]
+        time.sleep(0.2)  # some cycles on the wire
+        if answer == "hold":  # the person says they kept their power: held at their targets
+            assert upper.servo(2).target == degrees_to_position(40) and not upper.servo(2).free
+            assert lower.servo(2).target == degrees_to_position(30) and not lower.servo(2).free
+        else:
+            assert upper.servo(2).free and lower.servo(2).free
+            assert joint("arm")["target"] is None and joint("knee")["target"] is None
 
 
 def test_a_start_pose_given_to_the_server_holds_those_joints_from_the_first_command(tmp_path: Path) -> None:
@@ -800,86 +771,52 @@ def test_a_move_asked_as_motion_goes_off_does_not_start_once_the_last_motion_sto
     asyncio.run(main())
 
 
-def two_line_robot(tmp_path: Path) -> tuple[str, Path]:
-    """Two lines of two ICS 3.5 joints each (upper: neck 1, arm 2; lower: hip 1, knee 2); the name of the lines."""
-    name = f"web-robot-{next(_names)}"
-    path = tmp_path / "two.toml"
-    path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1-2"\nrate_hz = 200\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1-2"\nrate_hz = 200\n'
-        '[joints.neck]\nline = "upper"\nid = 1\n[joints.arm]\nline = "upper"\nid = 2\n'
-        '[joints.hip]\nline = "lower"\nid = 1\n[joints.knee]\nline = "lower"\nid = 2\n'
-    )
-    return name, path
-
-
 def test_free_all_while_a_line_is_lost_frees_the_other_lines_and_names_the_lost_ones(tmp_path: Path) -> None:
     # A lost line closed the robot, and Free all was refused, while the other line's joints went on holding their
     # last targets: a robot half-stopped could not be made limp.
-    name, path = two_line_robot(tmp_path)
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
-        try:
-            post(client, "/api/robot/motion", {"enabled": True})
-            post(client, "/api/robot/move", {"pose": {"neck": 10, "arm": 20, "hip": -10, "knee": 30}, "duration": 0.1})
-            wait_for(lambda: not any(s.free for s in (*upper.servos, *lower.servos)))
-            lower.unplug()
-            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-            early = post(client, "/api/robot/reopen")  # (before the line is back: the robot stays as it is)
-            assert early.status_code == 409 and "still lost" in early.json()["error"], early.json()
-            freed = post(client, "/api/robot/free")
-            assert freed.status_code == 200, freed.json()
-            # Confirmed on the wire when it answers: the upper line's servos are free now.
-            assert upper.servo(1).free and upper.servo(2).free
-            assert not lower.servo(1).free and not lower.servo(2).free  # (not reached: they hold on)
-            view = freed.json()
-            said = view["outcome"]
-            assert "hip, knee" in said and "may still hold" in said and "neck" not in said, said
-            assert [j["target"] for j in view["joints"]] == [None, None, None, None], view
-            # Reconnect follows the freeing: nothing to ask about, and nothing held again.
-            assert view["reconnect_choice"] is None, view
-            lower.replug()
-            reopened = post(client, "/api/robot/reopen")
-            assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
-            wait_for(lambda: all(s.free for s in (*upper.servos, *lower.servos)))
-            time.sleep(0.2)  # some cycles on the wire: nothing takes hold again
-            assert all(s.free for s in (*upper.servos, *lower.servos))
-            assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None] * 4
-        finally:
-            upper.close()
-            lower.close()
+    with two_line_page(tmp_path) as (client, upper, lower):
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"neck": 10, "arm": 20, "hip": -10, "knee": 30}, "duration": 0.1})
+        wait_for(lambda: not any(s.free for s in (*upper.servos, *lower.servos)))
+        lower.unplug()
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+        early = post(client, "/api/robot/reopen")  # (before the line is back: the robot stays as it is)
+        assert early.status_code == 409 and "still lost" in early.json()["error"], early.json()
+        freed = post(client, "/api/robot/free")
+        assert freed.status_code == 200, freed.json()
+        # Confirmed on the wire when it answers: the upper line's servos are free now.
+        assert upper.servo(1).free and upper.servo(2).free
+        assert not lower.servo(1).free and not lower.servo(2).free  # (not reached: they hold on)
+        view = freed.json()
+        said = view["outcome"]
+        assert "hip, knee" in said and "may still hold" in said and "neck" not in said, said
+        assert [j["target"] for j in view["joints"]] == [None, None, None, None], view
+        # Reconnect follows the freeing: nothing to ask about, and nothing held again.
+        assert view["reconnect_choice"] is None, view
+        lower.replug()
+        reopened = post(client, "/api/robot/reopen")
+        assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
+        wait_for(lambda: all(s.free for s in (*upper.servos, *lower.servos)))
+        time.sleep(0.2)  # some cycles on the wire: nothing takes hold again
+        assert all(s.free for s in (*upper.servos, *lower.servos))
+        assert [j["target"] for j in client.get("/api/robot").json()["joints"]] == [None] * 4
 
 
 def test_free_all_frees_a_lost_lines_ics36_joint_at_reconnect(tmp_path: Path) -> None:
     # An ICS 3.6 joint is read at an open, its torque left as it is: freed by Free all while its line was lost, it
     # went on holding after Reconnect.
-    name = f"web-robot-{next(_names)}"
-    path = tmp_path / "two.toml"
-    path.write_text(
-        f'[lines.upper]\nport = "sim://{name}-upper?ids=1"\nrate_hz = 200\n'
-        f'[lines.lower]\nport = "sim://{name}-lower?ids=1&ics36=1"\nrate_hz = 200\n'
-        '[joints.neck]\nline = "upper"\nid = 1\n[joints.tail]\nline = "lower"\nid = 1\n'
-    )
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
-        try:
-            post(client, "/api/robot/motion", {"enabled": True})
-            post(client, "/api/robot/move", {"pose": {"neck": 10, "tail": 30}, "duration": 0.1})
-            wait_for(lambda: lower.servo(1).target == degrees_to_position(30) and not upper.servo(1).free)
-            lower.unplug()
-            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-            assert post(client, "/api/robot/free").status_code == 200
-            assert upper.servo(1).free and not lower.servo(1).free
-            lower.replug()
-            assert post(client, "/api/robot/reopen").json()["open"]
-            wait_for(lambda: lower.servo(1).free)
-        finally:
-            upper.close()
-            lower.close()
+    joints = '[joints.neck]\nline = "upper"\nid = 1\n[joints.tail]\nline = "lower"\nid = 1\n'
+    with two_line_page(tmp_path, joints, "ids=1", "ids=1&ics36=1") as (client, upper, lower):
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"neck": 10, "tail": 30}, "duration": 0.1})
+        wait_for(lambda: lower.servo(1).target == degrees_to_position(30) and not upper.servo(1).free)
+        lower.unplug()
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+        assert post(client, "/api/robot/free").status_code == 200
+        assert upper.servo(1).free and not lower.servo(1).free
+        lower.replug()
+        assert post(client, "/api/robot/reopen").json()["open"]
+        wait_for(lambda: lower.servo(1).free)
 
 
 def test_free_all_on_a_robot_whose_only_line_is_lost_answers_at_once(robot: Any) -> None:
@@ -914,29 +851,20 @@ def test_a_lost_line_back_before_the_motion_playing_has_slowed_to_rest_is_still_
     # The page worked the lost line out again from the buses' states once the motion playing on the other line had
     # slowed to rest: a line back by then (an adapter that only wiggled) was no lost line, and Reconnect's question
     # named no line ("line  held joints hip, knee"), or, a cycle earlier, its joints were held again unasked.
-    name, path = two_line_robot(tmp_path)
-    app = create_app(LineSession(LineConfig(port=f"sim://{name}-config")), TOKEN, robot=RobotSession(str(path)))
-    with TestClient(app, base_url=BASE) as client:
-        client.cookies.set(COOKIE, TOKEN)
-        upper, lower = sim.named(f"{name}-upper"), sim.named(f"{name}-lower")
-        try:
-            post(client, "/api/robot/motion", {"enabled": True})
-            post(client, "/api/robot/move", {"pose": {"hip": -10, "knee": 30}, "duration": 0.1})
-            wait_for(lambda: lower.servo(1).target == degrees_to_position(-10))
-            # A long move on the other line: the lost line's stop slows it to rest over the stop's ramp.
-            assert post(client, "/api/robot/move", {"pose": {"neck": 60}, "duration": 3}).status_code == 200
-            wait_for(lambda: upper.servo(1).target > degrees_to_position(10))  # (under way: a stop has a ramp)
-            lower.unplug()
-            lower.replug()  # (back at the first reconnect attempt, within the stop's ramp)
-            wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
-            # (the stop's ramp over, Reconnect's question is there: it was never asked, or named no line)
-            wait_for(lambda: client.get("/api/robot").json()["reconnect_choice"] is not None, 3.0)
-            view = client.get("/api/robot").json()
-            assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip", "knee"]}, view
-            unsaid = post(client, "/api/robot/reopen")
-            assert unsaid.status_code == 400 and "line lower held joints hip, knee" in unsaid.json()["error"]
-            assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
-            wait_for(lambda: lower.servo(1).free and lower.servo(2).free)
-        finally:
-            upper.close()
-            lower.close()
+    with two_line_page(tmp_path) as (client, upper, lower):
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"hip": -10, "knee": 30}, "duration": 0.1})
+        wait_for(lambda: lower.servo(1).target == degrees_to_position(-10))
+        # A long move on the other line: the lost line's stop slows it to rest over the stop's ramp.
+        assert post(client, "/api/robot/move", {"pose": {"neck": 60}, "duration": 3}).status_code == 200
+        wait_for(lambda: upper.servo(1).target > degrees_to_position(10))  # (under way: a stop has a ramp)
+        lower.unplug()
+        lower.replug()  # (back at the first reconnect attempt, within the stop's ramp)
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None)
+        # Reconnect's question with its offer (it came only once the stop's ramp was over), naming the line
+        view = client.get("/api/robot").json()
+        assert view["reconnect_choice"] == {"lines": ["lower"], "joints": ["hip", "knee"]}, view
+        unsaid = post(client, "/api/robot/reopen")
+        assert unsaid.status_code == 400 and "line lower held joints hip, knee" in unsaid.json()["error"]
+        assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
+        wait_for(lambda: lower.servo(1).free and lower.servo(2).free)
