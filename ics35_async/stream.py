@@ -109,7 +109,8 @@ class Stream(FrameIterator[Frame]):
             offline ID does.
 
     Raises:
-        InvalidArgument: a bad, duplicate or missing ID, or an option out of range.
+        InvalidArgument: a bad, duplicate or missing ID (in ``ids``, ``watch`` or ``offline``: theirs must be
+            among ``ids``), or an option out of range.
     """
 
     _used_with = (
@@ -242,13 +243,25 @@ class Stream(FrameIterator[Frame]):
         self._hooks = BoundSource.of(self)  # what the engine calls, kept off the public face
         # As if each had failed offline_after cycles (the caller's silence stands for them): a free one comes
         # back once its probe is answered (see _complete), one with a position target is probed with a read.
-        self._offline_at_start = [self._slot(i) for i in units.check_ids("offline", offline)]
+        self._offline_at_start = self._option_slots("offline", offline)
+        watched = self._option_slots("watch", watch)  # (both checked before either takes effect)
         for k in self._offline_at_start:
             self._offline[k] = True
             self._fail_run[k] = offline_after
-        self.watch(units.check_ids("watch", watch))
+        self.watch([self.ids[k] for k in watched])
         for k in self._offline_at_start:
             self._renew_job(k)
+
+    def _option_slots(self, name: str, ids: Iterable[int]) -> list[int]:
+        """The slots of the IDs an option of the stream's names (``offline``, ``watch``), checked as its own IDs
+        are: a repeated one, or one the stream does not carry, is a mistake said with the option's name."""
+        id_list = units.check_ids(name, ids)
+        if len(set(id_list)) != len(id_list):
+            raise InvalidArgument(f"duplicate IDs in {name} {id_list}")
+        for sid in id_list:
+            if sid not in self._index:
+                raise InvalidArgument(f"{name}: ID {sid} is not in this stream {list(self.ids)}")
+        return [self._index[sid] for sid in id_list]
 
     # ------------------------------------------------------------------ targets
 

@@ -202,6 +202,10 @@ BAD_CALLS: list[Any] = [
     ("stream history str", lambda e: e.bus.stream([1], history="x")),
     ("stream unknown option", lambda e: e.bus.stream([1], bogus=1)),
     ("stream offline_after True", lambda e: e.bus.stream([1], offline_after=True)),
+    ("stream offline duplicate id", lambda e: e.bus.stream([1, 2], offline=[1, 1])),
+    ("stream offline id not in stream", lambda e: e.bus.stream([1, 2], offline=[3])),
+    ("stream watch duplicate id", lambda e: e.bus.stream([1, 2], watch=[2, 2])),
+    ("stream watch id not in stream", lambda e: e.bus.stream([1, 2], watch=[3])),
     # BusGroup / GroupStream
     ("group empty", lambda e: BusGroup({})),
     ("group not a bus", lambda e: BusGroup({"a": 1})),  # type: ignore[dict-item]
@@ -280,6 +284,25 @@ async def test_an_async_context_manager_used_with_plain_with_says_how_to_use_it(
         with pytest.raises(TypeError, match=r"`async with robot\.stream\(\) as stream:`"), robot.stream():  # type: ignore[attr-defined]
             pytest.fail("entered")
         assert set(await robot.read_pose()) == {"j"}
+
+
+@pytest.mark.parametrize(
+    ("options", "said"),
+    [
+        ({"offline": [1, 1]}, "duplicate IDs in offline [1, 1]"),
+        ({"offline": [2, 3]}, "offline: ID 3 is not in this stream [1, 2]"),
+        ({"watch": [2, 2]}, "duplicate IDs in watch [2, 2]"),
+        ({"watch": [5]}, "watch: ID 5 is not in this stream [1, 2]"),
+    ],
+)
+async def test_a_streams_offline_and_watch_ids_are_checked_as_its_ids_are(
+    env: Env, options: dict[str, list[int]], said: str
+) -> None:
+    # offline=[1, 1] was taken without a word (each ID listed as many times as given), and an ID the stream does
+    # not carry was said as if it were the stream's own argument: the option is named, as for the stream's IDs.
+    with pytest.raises(InvalidArgument) as info:
+        env.bus.stream([1, 2], **options)  # type: ignore[arg-type]
+    assert str(info.value) == said
 
 
 # (label, call, expected result or a check): values just inside a boundary work.
