@@ -241,3 +241,37 @@ def test_ctrl_c_during_a_motion_cancels_it_and_closes_the_robot() -> None:
         rig.close()
     time.sleep(0)  # the helper thread has ended once interrupt_main returned
     assert {t for t in set(threading.enumerate()) - before if t.name.startswith("ics35")} == set()
+
+
+def test_lost_lines_and_line_change_say_a_lost_line_as_the_async_robots_do() -> None:
+    # A program without an event loop had no way to hear of a line lost and back (reconnect=True) but polling
+    # the frames: the blocking robot lacked lost, lost_lines and line_change().
+    rig = make_rig()
+    for line in rig.description["lines"].values():
+        line["rate_hz"] = 200  # (paced: an unpaced line's stream still gives a frame as its port goes)
+    lower = frozenset(name for name, spec in JOINTS.items() if spec["line"] == "lower")
+    try:
+        with blocking.open_robot(rig.description, reconnect=True, **FAST) as robot:
+            robot.set_targets({"hip": 5.0})
+            robot.on_wire()
+            assert robot.lost == frozenset() and robot.lost_lines == frozenset()
+            started = time.monotonic()
+            with pytest.raises(TimeoutError, match=r"no line lost or back within 0\.1 s"):
+                robot.line_change((), timeout=0.1)  # (no line lost: it waits, then gives up)
+            assert time.monotonic() - started >= 0.1
+            rig.lower.unplug()
+            lost = robot.line_change((), timeout=GUARD)
+            assert lost == frozenset({"lower"}) and robot.lost_lines == lost and robot.lost == lower
+            rig.lower.replug()
+            assert robot.line_change(lost, timeout=GUARD) == frozenset()
+            assert robot.lost == frozenset() and robot.held == {"hip": "resumed"}
+            with pytest.raises(InvalidArgument, match="no line 'middle'"):
+                robot.line_change(["middle"])
+            with pytest.raises(InvalidArgument, match="timeout"):
+                robot.line_change((), timeout=-1.0)
+            assert robot.is_open  # (a wait that timed out, or a refused one, leaves the robot as it was)
+        assert robot.lost_lines == frozenset()  # (a snapshot: read after the block too)
+        with pytest.raises(BusClosed):
+            robot.line_change(())
+    finally:
+        rig.close()

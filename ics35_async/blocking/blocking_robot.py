@@ -21,12 +21,13 @@ from collections.abc import Awaitable, Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar, Unpack
 
+from .. import units
 from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from ..robot.startup import warn_at_open, warn_program
 from ..running import check_async_function, close_step
-from .loop_thread import LoopThread, awaited
+from .loop_thread import LoopThread, awaited, within
 from .owner import LoopOwner
 
 P = ParamSpec("P")
@@ -194,6 +195,25 @@ class BlockingRobot(LoopOwner[Robot]):
         """Wait until the targets set so far have gone out to ``joints`` (default: all)."""
         self.run(self._async.on_wire, joints)
 
+    def line_change(self, lost: Iterable[str] | None = None, timeout: float | None = None) -> frozenset[str]:
+        """Wait until the lines whose port is lost (:attr:`lost_lines`) are others than ``lost`` (default: those
+        lost now), at most ``timeout`` seconds (then ``TimeoutError``), and return the lines lost then: a line
+        lost (``reconnect=True``: as soon as its bus knows) or back (at the frame whose ``resumed`` names it,
+        its joints held).  See ``Robot.line_change``; a program that stops when a line goes::
+
+            lost = robot.line_change(())  # returns once a line is lost
+            while lost:
+                lost = robot.line_change(lost)  # every line back: an empty set
+
+        Raises:
+            InvalidArgument: ``lost`` is not line names or names a line the robot does not have, or a bad
+                ``timeout``.
+            BusClosed, PortLost: the robot is closed, or a line is gone (without ``reconnect``).
+        """
+        if timeout is not None:
+            units.check_seconds("timeout", timeout, 0.0, 1e9)
+        return self.run(within, timeout, "line lost or back", self._async.line_change, lost)
+
     # ------------------------------------------------------------------ plain calls, run on the loop thread
 
     def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
@@ -262,6 +282,18 @@ class BlockingRobot(LoopOwner[Robot]):
         return self._loop.read(_held_of, self._async)
 
     @property
+    def lost(self) -> frozenset[str]:
+        """Joints on a line whose port is lost now (``reconnect=True``), until the frame whose ``resumed`` names
+        the line back (see ``Robot.lost``)."""
+        return self._loop.read(_lost_of, self._async)
+
+    @property
+    def lost_lines(self) -> frozenset[str]:
+        """The lines whose port is lost now: the lines of :attr:`lost`'s joints (see ``Robot.lost_lines``);
+        :meth:`line_change` waits for it to change."""
+        return self._loop.read(_lost_lines_of, self._async)
+
+    @property
     def warnings(self) -> list[str]:
         """What opening found worth knowing (e.g. limits wider than a servo's EEPROM limits)."""
         return self._loop.read(_warnings_of, self._async)
@@ -295,6 +327,14 @@ def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:
 
 def _held_of(robot: Robot) -> dict[str, str]:
     return robot.held
+
+
+def _lost_of(robot: Robot) -> frozenset[str]:
+    return robot.lost
+
+
+def _lost_lines_of(robot: Robot) -> frozenset[str]:
+    return robot.lost_lines
 
 
 def _warnings_of(robot: Robot) -> list[str]:

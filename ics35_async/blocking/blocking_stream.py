@@ -12,14 +12,13 @@ from __future__ import annotations
 from types import TracebackType
 from typing import TYPE_CHECKING, NoReturn
 
-import anyio
-
 from .. import units
 from ..errors import BusClosed
 from ..frames import Frame, StreamStats
 from ..running import close_step
 from ..stream import Stream
 from .forward import ReadThrough, Wrapper, on_loop, read_on_loop
+from .loop_thread import within
 
 
 class BlockingStream(Wrapper[Stream]):
@@ -77,7 +76,7 @@ class BlockingStream(Wrapper[Stream]):
         """
         if timeout is not None:
             units.check_seconds("timeout", timeout, 0.0, 1e9)
-        return self._loop.call(_next_frame, self._async, timeout)
+        return self._loop.call(within, timeout, "frame", self._async.next_frame)
 
     def __iter__(self) -> BlockingStream:
         return self
@@ -125,16 +124,6 @@ class BlockingStream(Wrapper[Stream]):
 
     def __repr__(self) -> str:
         return f"<BlockingStream {list(self.ids)} on {self._async.bus!r}>"
-
-
-async def _next_frame(stream: Stream, timeout: float | None) -> Frame:
-    try:
-        with anyio.fail_after(timeout):
-            return await stream.next_frame()
-    except TimeoutError:
-        if timeout is None:
-            raise
-        raise TimeoutError(f"no frame within {timeout:g} s") from None
 
 
 def _stats_of(stream: Stream) -> StreamStats:

@@ -40,6 +40,8 @@ from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Generic, ParamSpec, TypeVar, cast
 
+import anyio
+
 from ..errors import BusClosed, IcsError
 from ..running import not_async, stop_signals
 from ..tasks import again
@@ -157,6 +159,20 @@ async def awaited(taker: str, fn: Callable[P, Awaitable[T]], /, *args: P.args, *
     if not inspect.isawaitable(result):
         raise not_async(fn, result, f"{taker}()")
     return await result
+
+
+async def within(
+    timeout: float | None, what: str, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs
+) -> T:
+    """``fn(*args, **kwargs)`` awaited for at most ``timeout`` seconds (``None``: for as long as it takes): a
+    blocking wait that gives up raises ``TimeoutError("no WHAT within T s")`` in the caller's thread."""
+    try:
+        with anyio.fail_after(timeout):
+            return await fn(*args, **kwargs)
+    except TimeoutError:
+        if timeout is None:
+            raise  # (the awaited call's own: a ReplyTimeout is a TimeoutError too)
+        raise TimeoutError(f"no {what} within {timeout:g} s") from None
 
 
 class LoopThread:
