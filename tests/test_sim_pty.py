@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import subprocess
 import sys
 import termios
@@ -330,6 +331,45 @@ def test_scheduled_unplug_from_the_command_line(pty_sim: Any) -> None:
         time.sleep(0.01)
     with open_port(path) as port:
         assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+
+
+SCHEDULED = ("--unplug-after", "0.3", "--replug-after", "0.5")
+
+
+def test_a_scheduled_unplug_is_said_on_the_simulators_terminal_with_when_the_port_comes_back() -> None:
+    # ics35 sim --unplug-after said nothing as the port went: a person watching its terminal could not tell the
+    # simulator's doing from their program's fault, nor when to expect the port back.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", "--fast", *SCHEDULED],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        path = proc.stdout.readline().strip()
+        deadline = time.monotonic() + GUARD
+        while os.path.exists(path):
+            assert time.monotonic() < deadline, "the port was never unplugged"
+            time.sleep(0.01)
+        while not os.path.exists(path):
+            assert time.monotonic() < deadline, "the port did not come back"
+            time.sleep(0.01)
+        proc.terminate()
+        _, err = proc.communicate(timeout=GUARD)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    said = [line for line in err.splitlines() if "unplugged" in line]
+    assert len(said) == 1, err  # one line, between the serving line and the end's
+    assert re.fullmatch(
+        r"ics35 sim: the port was unplugged \(\d+\.\d s after the start\): it comes back in 0\.5 s, at the same path",
+        said[0],
+    ), said
+    lines = err.splitlines()
+    assert lines.index(said[0]) > 0 and lines[-1].startswith("ics35 sim: served"), err
 
 
 def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path, pty_sim: Any) -> None:

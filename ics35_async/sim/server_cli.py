@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from types import FrameType
 from typing import Any
@@ -170,9 +171,23 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         ics36=parse_ids(args.ics36) if args.ics36 else (),
         **options,
     )
-    if args.unplug_after is not None:
-        bus.schedule_unplug(parse_seconds(args.unplug_after, "--unplug-after"), replug_after)
     return bus
+
+
+def say_unplugs(device: VirtualLine, started: float) -> None:
+    """Say on stderr, one line each time, that the port went (``--unplug-after``, an ``unplug`` fault) and when
+    it comes back: a person watching the simulator's terminal tells its doing from their own program's fault."""
+
+    def said(plugged: bool) -> None:
+        if not plugged:
+            print(
+                f"ics35 sim: the port was unplugged ({time.monotonic() - started:.1f} s after the start): it comes "
+                f"back in {device.replug_after:g} s, at the same path",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    device.add_listener(said)
 
 
 def main(
@@ -190,14 +205,20 @@ def main(
             "--console reads the terminal, but this simulator runs in its background (as with &): the first line "
             "typed would stop it, and the pty with it; run it in the foreground, or without --console"
         )
+    started = time.monotonic()  # (what --unplug-after counts from)
     try:
         device = build_device(args)
+        unplug_after = None if args.unplug_after is None else parse_seconds(args.unplug_after, "--unplug-after")
     except InvalidArgument as exc:
         parser.error(str(exc))
     except OSError as exc:  # (only the --replay or --record file is opened here: named with its option)
         option = "--replay" if args.replay is not None else "--record"
         path = args.replay if args.replay is not None else args.record
         parser.error(f"{option} {path}: {exc.strerror or error_text(exc)}")
+    if isinstance(device, VirtualLine):
+        say_unplugs(device, started)
+        if unplug_after is not None:  # (scheduled once it will be said, however soon it comes)
+            device.schedule_unplug(unplug_after, device.replug_after)
     if args.tap is not None and not isinstance(device, VirtualLine):
         parser.error("--tap needs a simulated line, not --replay")
     if args.console and not isinstance(device, VirtualLine):
