@@ -36,6 +36,23 @@ def test_telemetry_does_not_keep_reading_an_id_the_stream_marked_offline(
     assert min(reads[1], reads[2], reads[3]) >= 20, reads  # telemetry did run
 
 
+def test_monitor_starts_an_id_its_probes_found_silent_offline(cli: Any, sim_line: Any) -> None:
+    # monitor probes each ID before it streams (nothing that frees a servo it may not), and ID 4 answered none
+    # of it; its stream then asked ID 4 again in each of its first three cycles, a whole --timeout each, before
+    # taking it out of the cycle: the first frames of a humanoid with its legs unplugged came seconds late.
+    sim, url = sim_line([1, 2, 3], log_size=None)
+    result = cli("--port", url, "--timeout", "0.05", "monitor", "1-4", "--free", "--seconds", "0.3")
+    assert result.code == 0, result.err
+    log = list(sim.log_since(0))
+    # The stream's cycles go 1, 2, 3, 4 (the probes before it send no free command): its first three cycles are
+    # what comes before the fourth free to ID 1.
+    frees = [k for k, t in enumerate(log) if t.command == "free" and t.servo_id == 1]
+    assert len(frees) >= 4, frees
+    first_cycles = log[frees[0] : frees[3]]
+    assert [t.command for t in first_cycles if t.servo_id == 4] == [], first_cycles
+    assert {t.servo_id for t in first_cycles} == {1, 2, 3}
+
+
 @pytest.mark.parametrize("command", [["monitor", "1"], ["demo", "--ids", "1"]], ids=["monitor", "demo"])
 @pytest.mark.parametrize(
     ("plot", "says"),

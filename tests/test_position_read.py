@@ -260,10 +260,30 @@ async def planned_and_streamed(bus: Any, frames: int) -> Any:
     from ics35_async import policies
 
     plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
-    async with bus.stream(plan.streamed, watch=plan.watch) as stream:
+    async with bus.stream(plan.streamed, **plan.stream_options()) as stream:
         for _ in range(frames):
             await stream.next_frame()
     return plan
+
+
+def test_a_stream_with_the_plans_options_has_its_silent_ids_offline_from_the_first_frame() -> None:
+    # The plan names the IDs silent to its probes; a stream of it asked each of them offline_after cycles more, at
+    # its whole reply allowance each, before taking it out of the cycle (`monitor 0-17` with two legs unplugged).
+    from ics35_async import policies
+
+    sim = VirtualLine([1, 2], ics36=[2], log_size=None)
+
+    async def body(bus: Any) -> Any:
+        plan = await policies.plan_position_stream(bus, [1, 2, 5], free_ics35=True)
+        start = sim.transactions
+        async with bus.stream(plan.streamed, probe_interval=60.0, **plan.stream_options()) as stream:
+            frames = [await stream.next_frame() for _ in range(5)]
+        return plan, start, frames
+
+    plan, start, frames = run(sim, body)
+    assert plan.silent == [5] and plan.stream_options() == {"watch": [2, 5], "offline": [5]}
+    assert all(f.offline == {5} and not f.failed and set(f.positions) == {1, 2} for f in frames), frames
+    assert [t.command for t in sim.log_since(start) if t.servo_id == 5] == []  # (first probed a minute on)
 
 
 def test_the_stream_plan_frees_ics35_servos_only_when_asked_and_sends_no_torque_command() -> None:

@@ -604,6 +604,28 @@ def test_the_live_stream_reaches_the_page_over_the_websocket(serve: Any) -> None
     assert client.get("/api/status").json()["live"] is None
 
 
+def test_the_live_plots_start_an_id_their_probes_found_silent_offline(serve: Any) -> None:
+    # The plot's probes found nobody at ID 5; its stream then asked ID 5 again in each of its first three cycles, a
+    # whole reply allowance each, before taking it out of the cycle.
+    client, sim = serve((1, 3), log_size=None)
+    post(client, "/api/live/start", {"free_ics35": True, "ids": [1, 3, 5]})
+    frames: list[dict[str, Any]] = []
+    deadline = time.monotonic() + GUARD
+    while (not frames or frames[-1]["cycle"] < 4) and time.monotonic() < deadline:
+        frame = client.get("/api/live").json()
+        if frame is not None:
+            frames.append(frame)
+        time.sleep(0.01)
+    post(client, "/api/live/stop")
+    assert frames and all(f["offline"] == [5] for f in frames), frames
+    log = list(sim.log_since(0))
+    # The stream's cycles go 1, 3, 5 (the probes before it send no free command): its first three cycles are what
+    # comes before the fourth free to ID 1.
+    frees = [k for k, t in enumerate(log) if t.command == "free" and t.servo_id == 1]
+    assert len(frees) >= 4, frees
+    assert [t.command for t in log[frees[0] : frees[3]] if t.servo_id == 5] == []
+
+
 def test_the_live_stream_is_paced_so_an_instant_line_does_not_take_the_servers_cpu(serve: Any) -> None:
     # The simulator answers at once: an unpaced stream would cycle thousands of times a second on one
     # core, for a page sent 25 updates a second.  The rate is taken from the frames' own times.

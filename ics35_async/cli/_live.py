@@ -23,7 +23,8 @@ from .. import protocol
 from ..bus import Bus
 from ..errors import BusClosed, IcsError, PortLost
 from ..frames import Frame
-from ..stream import Stream
+from ..policies import StreamPlan
+from ..stream import Stream, StreamOptions
 from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
 from ._common import (
@@ -66,18 +67,20 @@ async def run_live(
     state: LiveState,
     options: LiveOptions,
     targets: TargetFunction | None,
-    watch: Sequence[int] = (),
+    plan: StreamPlan | None = None,
 ) -> tuple[LiveState, Telemetry, Recorder]:
-    """Stream to ``ids`` (``watch``: read with ICS 3.6's read) until the time is up or Ctrl-C; then free every
-    streamed servo if ``options.free_at_end``.  Telemetry covers every ID of ``state``.
+    """Stream to ``ids`` (as ``plan`` says: its watched IDs read with ICS 3.6's read, its silent ones offline from
+    the start) until the time is up or Ctrl-C; then free every streamed servo if ``options.free_at_end``.
+    Telemetry covers every ID of ``state``.
 
     Servos sent targets that could not be freed at the end (the port lost) may still hold them: the
     command then fails saying so, with the command that frees them (:func:`still_holding`)."""
     loop = asyncio.get_running_loop()
+    planned: StreamOptions = plan.stream_options(ids) if plan is not None else {}
+    watch = set(planned.get("watch", ()))
     # A watched servo is never freed: on_close="free" would free every ID, so the end frees the others itself.
-    stream = bus.stream(
-        ids, rate_hz=options.rate_hz, on_close="free" if options.free_at_end and not watch else "hold", watch=watch
-    )
+    planned["on_close"] = "free" if options.free_at_end and not watch else "hold"
+    stream = bus.stream(ids, rate_hz=options.rate_hz, **planned)
     telemetry = Telemetry(bus, state.ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json

@@ -56,7 +56,7 @@ def monitor(
         async with settings.bus() as bus:
             chosen = ids if ids and not every_id(ids) else await discover(bus, settings, as_json, asked_all=bool(ids))
             plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
-            watch, freed = plan.watch, plan.free
+            freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
             silent = plan.streamed if plan.left_out and set(plan.streamed) <= set(plan.silent) else []
@@ -76,7 +76,7 @@ def monitor(
             if missing and not as_json:
                 for sid, why in missing.items():
                     err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
-            return await run_live(settings, bus, plan.streamed, state, options, None, watch=watch)
+            return await run_live(settings, bus, plan.streamed, state, options, None, plan)
 
     state, telemetry, recorder = run(settings, body)
     final_report(settings, state, telemetry, recorder, options, f"ics35 monitor: {shown}")

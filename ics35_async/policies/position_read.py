@@ -10,12 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from .. import protocol
 from ..errors import ReplyError
 from ..line import Line
 from ..servo import Servo
 from .scan import probe_ids
+
+if TYPE_CHECKING:
+    from ..stream import StreamOptions
 
 NO_READ_ICS35 = "ICS 3.5 servo: it reads a position only with the free command (the servo goes limp)"
 
@@ -72,6 +76,18 @@ class StreamPlan:
     def streamed(self) -> list[int]:
         """Every ID the stream carries (watched or freed), sorted."""
         return sorted(self.watch + self.free)
+
+    def stream_options(self, ids: Iterable[int] | None = None) -> StreamOptions:
+        """The options of a stream over ``ids`` (default: :attr:`streamed`) that follows the plan:
+        ``bus.stream(plan.streamed, **plan.stream_options())``.  ``watch``: the IDs read with ICS 3.6's read;
+        ``offline``: the ``silent`` ones, out of the cycle from the first frame and probed, instead of each
+        asked ``offline_after`` cycles first at its whole reply allowance (a servo there after all comes back
+        as any offline ID does: held, with a position target)."""
+        chosen = set(self.streamed if ids is None else ids)
+        return {
+            "watch": [sid for sid in self.watch if sid in chosen],
+            "offline": [sid for sid in self.silent if sid in chosen],
+        }
 
 
 async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bool = False) -> StreamPlan:

@@ -115,7 +115,7 @@ class LiveView:
                 "hand), or hold one on its Servo page first (it is then plotted at its target); nothing that moves or "
                 "frees a servo was sent"
             )
-        stream = bus.stream(streamed, rate_hz=rate_hz, watch=plan.watch)
+        stream = bus.stream(streamed, rate_hz=rate_hz, **plan.stream_options(streamed))
         if kept:
             stream.set_targets(kept)  # (before it starts: its first command to them is their target, not a free)
         await stream.start()
