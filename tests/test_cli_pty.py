@@ -1067,3 +1067,43 @@ def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_scre
     done = script_on_loop(loop, _FORCED_OUT_AS_IT_STARTS_WORK)
     assert done.stdout == "interrupted\n", done.stderr
     assert done.stderr == "", done.stderr
+
+
+NARROW = 60  # columns: fewer than a live view's status line with its hint
+
+
+def test_q_typed_on_a_narrow_terminal_leaves_teachs_view_whole_and_its_last_words_on_their_own_line(
+    tmp_path: Path,
+) -> None:
+    # On a terminal narrower than teach's status line, the line was cut at the last column ("q then Enter (or
+    # Ctrl") and the cursor rested there: the q typed wrapped to a line of its own, and the view's next redraw
+    # began a line low, leaving its title twice on the screen above the last words.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    args = ["teach", str(robot), str(tmp_path / "wave.json"), "--yes"]
+    code, written = typed_on_a_terminal(args, [("0 pose(s) captured", b"q\r")], columns=NARROW)
+    screen = [line for line in screen_of(written, width=NARROW) if line]
+    said = "\n".join(screen)
+    assert code == 5, said  # (refused: no pose captured)
+    assert sum(line.startswith("teach: wave.json") for line in screen) == 1, said
+    end = next(k for k, line in enumerate(screen) if line.startswith("error: no pose captured"))
+    assert screen[end - 1].startswith("t=") and screen[end - 1].endswith("0 pose(s) captured"), said
+    assert "q" not in [line.strip() for line in screen], said
+
+
+def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:
+    # monitor's status line was cut at a narrow terminal's last column (its "Ctrl-C to stop" hint gone), and a key
+    # typed there (q, as other programs quit) or the ^C the terminal echoed wrapped to a line of their own: each
+    # left the view's title on the screen once more.
+    args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
+    keys = [("cycle", b""), (scaled(0.5), b"q"), (scaled(0.5), b"\x03")]
+    _, written = typed_on_a_terminal(args, keys, columns=NARROW)
+    screen = [line for line in screen_of(written, width=NARROW) if line]
+    said = "\n".join(screen)
+    assert "Traceback" not in written, said
+    assert sum(line.startswith("monitor sim://") for line in screen) == 1, said
+    assert "q" not in [line.strip() for line in screen], said
+    # The last status line whole, its words wrapped at the terminal's width, not cut there.
+    status = " ".join(screen[next(k for k, line in enumerate(screen) if line.startswith("t=")) :]).split()
+    assert status[-2:] == ["errors", "0"] and "answering" in status, said
+    assert "Ctrl-C to stop" in " ".join(written.split()), said  # (the hint, as the view ran: wrapped, not cut)

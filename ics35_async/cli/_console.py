@@ -10,10 +10,12 @@ from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 import click
-from rich.console import Console
+from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
 from rich.file_proxy import FileProxy
 from rich.live import Live
 from rich.markup import escape
+from rich.segment import Segment
+from rich.text import Text
 
 from .. import units
 from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c
@@ -37,9 +39,53 @@ out = _Console(highlight=False, soft_wrap=True)
 err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
 
+def view_words(text: Text) -> Text:
+    """``text``, a line of words in a live view (its status line, a note), wrapped at the terminal's width: the
+    consoles soft-wrap, so rich would cut it at the last column (the status line's hint lost on a narrow one)."""
+    text.no_wrap = False
+    text.overflow = "fold"
+    return text
+
+
+class _Drawn:
+    """What a live view draws of ``renderable``: with ``resting``, an empty line below it (see :class:`_LiveView`)."""
+
+    def __init__(self, renderable: RenderableType, *, resting: bool) -> None:
+        self.renderable = renderable
+        self.resting = resting
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        yield self.renderable
+        if self.resting:
+            yield Segment.line()
+
+
+class _LiveView(Live):
+    """rich's ``Live`` with the cursor resting on an empty line below the view while it runs.
+
+    Rich leaves the cursor at the end of the view's last line (the status line), and redraws from there.  What
+    the terminal echoes went there: a key typed (q, or Enter for teach), or Ctrl-C's ``^C``; and a line filling
+    the terminal's width leaves the cursor past its last column, so that echo wrapped to a line of its own, and
+    the next redraw, counting up from one line too low, left the view's title on the screen once more.  On the
+    empty line the echo goes where the next redraw clears it.  The last drawing, as the view stops, leaves it
+    out: what the command says next starts on the line below the view.
+    """
+
+    _content: RenderableType = ""
+
+    def update(self, renderable: RenderableType, *, refresh: bool = False) -> None:
+        self._content = renderable
+        super().update(_Drawn(renderable, resting=True), refresh=refresh)
+
+    def stop(self) -> None:
+        super().update(_Drawn(self._content, resting=False))
+        super().stop()
+
+
 def live_view(**options: Any) -> Live:
-    """A live view (rich's ``Live``) on stdout, ended by :func:`end_live_views` should its own stop be cut short."""
-    live = Live(console=out, **options)
+    """A live view (rich's ``Live``: see :class:`_LiveView`) on stdout, ended by :func:`end_live_views` should its
+    own stop be cut short."""
+    live = _LiveView(console=out, **options)
     _live_views.add(live)
     return live
 

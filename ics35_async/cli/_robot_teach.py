@@ -128,7 +128,7 @@ async def wait_for_line(
             screen.update(hint)
         line = pending.result()
         if line is not None:
-            screen.typed()
+            screen.typed(line)
         return line
     finally:
         pending.cancel()

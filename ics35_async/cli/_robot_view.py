@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from types import TracebackType
 
 from rich import box
+from rich.cells import cell_len
 from rich.console import Group
 from rich.table import Table
 from rich.text import Text
@@ -21,7 +22,7 @@ from ..engine import State
 from ..robot import Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import live_view, signed_tenths
+from ._console import live_view, signed_tenths, view_words
 
 Extra = Callable[[str], Sequence[str]]
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
@@ -115,16 +116,18 @@ class Screen:
         self._said = message
         self.update(force=True)
 
-    def typed(self) -> None:
-        """A line was typed on the terminal: its echoed newline moved the cursor below the live view, so the
-        next redraw would start one line low and leave the old title on the screen; step back up."""
+    def typed(self, line: str) -> None:
+        """``line`` was typed on the terminal: echoed on the live view's empty last line (where the cursor rests:
+        see ``live_view``), it and its newline moved the cursor below, so the next redraw would start that low and
+        leave the old title on the screen; step back up."""
         if self._live is not None and sys.stdin.isatty():
-            out.file.write("\x1b[1A")
+            rows = 1 + max(0, cell_len(line) - 1) // max(1, out.width)  # (a line longer than the width wrapped)
+            out.file.write(f"\x1b[{rows}A")
             out.file.flush()
 
     def _lines(self, hint: str) -> Group:
-        said = [Text.from_markup(self._said)] if self._said else []
-        return Group(self.render(), *said, Text(f"{self.summary()}   {hint}".rstrip()))
+        said = [view_words(Text.from_markup(self._said))] if self._said else []
+        return Group(self.render(), *said, view_words(Text(f"{self.summary()}   {hint}".rstrip())))
 
     def __enter__(self) -> Screen:
         if self._live is not None:

@@ -19,8 +19,12 @@ from pathlib import Path
 _CONTROL = re.compile(r"\x1b\[([0-9;?]*)([A-Za-z])|\x1b[()][A-Za-z0-9]|\x1b.|\r|\n|\x08|[^\x1b\r\n\x08]+")
 
 
-def screen_of(output: str) -> list[str]:
-    """The lines on the screen once ``output`` has been written to a terminal (no scrolling limit)."""
+def screen_of(output: str, width: int | None = None) -> list[str]:
+    """The lines on the screen once ``output`` has been written to a terminal (no scrolling limit).
+
+    ``width``: the terminal's columns, wrapping as a terminal does (a character written past the last column
+    starts the next line; one that fills the last column leaves the cursor there, the wrap pending until
+    the next character); without it, lines never wrap."""
     lines: list[list[str]] = [[]]
     row = col = 0
     for match in _CONTROL.finditer(output):
@@ -38,6 +42,7 @@ def screen_of(output: str) -> list[str]:
             command = match.group(2)
             if command == "A":
                 row = max(row - count, 0)
+                col = col if width is None else min(col, width - 1)  # (a pending wrap ends with the move)
             elif command == "B":
                 row = min(row + count, len(lines) - 1)
             elif command == "K":
@@ -46,10 +51,15 @@ def screen_of(output: str) -> list[str]:
             elif command == "G":
                 col = count - 1
         elif not text.startswith("\x1b"):
-            line = lines[row]
-            line.extend(" " * (col - len(line)))
-            line[col : col + len(text)] = list(text)
-            col += len(text)
+            for part in [text] if width is None else list(text):
+                if width is not None and col >= width:  # (the wrap pending at the last column)
+                    row, col = row + 1, 0
+                    if row == len(lines):
+                        lines.append([])
+                line = lines[row]
+                line.extend(" " * (col - len(line)))
+                line[col : col + len(part)] = list(part)
+                col += len(part)
     return ["".join(line).rstrip() for line in lines]
 
 
@@ -91,12 +101,14 @@ def typed_on_a_terminal(
     *,
     timeout: float = 60,
     stdout: Path | None = None,
+    columns: int = 120,
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
     ``when`` seconds, or until ``when()`` is true (e.g. a line in the ``stdout`` file), then types ``key``
     (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).  ``stdout``: a file for stdout instead
-    (``ics35 ... > FILE``).  Returns the exit code and everything written to the terminal."""
+    (``ics35 ... > FILE``); ``columns``: the terminal's width.  Returns the exit code and everything written to
+    the terminal."""
     import fcntl
     import struct
     import subprocess
@@ -104,7 +116,7 @@ def typed_on_a_terminal(
     import termios
 
     master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, columns, 0, 0))
 
     def own_terminal() -> None:
         os.setsid()
@@ -118,7 +130,7 @@ def typed_on_a_terminal(
         stdout=slave if output is None else output,
         stderr=slave,
         preexec_fn=own_terminal,
-        env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
+        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns)},
     )
     os.close(slave)
     screen = TerminalOutput(master)
