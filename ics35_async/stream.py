@@ -96,9 +96,9 @@ class Stream(FrameIterator[Frame]):
         free_on_close: deprecated: ``on_close="free"``.
         history: how many cycles the statistics look back over.
         on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
-            since the last cycle is sent as the stream closes) or ``"free"`` (torque off).  An ID that failed
-            twice and never answered gets its close command once, without the bus's retries (a free: with a
-            probe's short wait).
+            since the last cycle is sent as the stream closes) or ``"free"`` (torque off).  An offline ID, and
+            one that failed twice and never answered, gets its close command once, without the bus's retries (a
+            free: with a probe's short wait; an offline ID's even on a line where nothing has answered yet).
         on_resume: after a lost port comes back, or an offline ID answers again: ``"wait"`` (hold each
             such ID that had a position target, sending no command, until the program sets its target
             again) or ``"free"``.
@@ -1036,16 +1036,22 @@ class Stream(FrameIterator[Frame]):
 
     async def _send_quietly(self, servo_id: int, position: int) -> None:
         k = self._index[servo_id]
-        # An ID that never answered and failed twice or more (offline, or not yet: a short run, a long allowance)
-        # has no servo, most likely: two silences say nobody answers there.  It gets its command once: a retry,
-        # and the guard read before it, would each wait a whole reply allowance more at the end of the program,
-        # for each such ID.
-        unheard = self._positions[k] < 0 and (self._offline[k] or self._failures[k] >= 2)
+        # An offline ID (silent offline_after times in a row), or one that never answered and failed twice or more
+        # (not yet offline: a short run, a long allowance), does not answer, most likely.  It gets its command
+        # once: a retry, and the guard read before it, would each wait a whole reply allowance more at the end of
+        # the program, for each such ID.
+        offline = self._offline[k]
+        unheard = offline or (self._positions[k] < 0 and self._failures[k] >= 2)
         baudrate = self.bus.baudrate
         command: protocol.Position = protocol.Position(servo_id, position, baudrate=baudrate)
-        if unheard and position == protocol.FREE:
-            # Nor a whole allowance for its silence: as `free all` frees an ID that may be empty, it waits only as
-            # long as this line's answers take (five IDs of an unplugged leg under a 1 s allowance: five seconds).
+        if offline and position == protocol.FREE:
+            # Nor a whole allowance for its silence, which the stream has already waited for: the free goes out
+            # (a servo back executes it), its reply, which would only confirm it, waited for as briefly as a probe's,
+            # even on a line where nothing has answered yet (ten joints of an unplugged leg line under a 1 s
+            # allowance: ten seconds).  Unanswered, it counts as sent (targets_sent_on_close), not as confirmed.
+            command = protocol.SilentFree(servo_id, baudrate=baudrate)
+        elif unheard and position == protocol.FREE:
+            # As `free all` frees an ID that may be empty: it waits only as long as this line's answers take.
             command = protocol.ProbeFree(servo_id, baudrate=baudrate)
         try:
             await self.bus.request(command, retries=0 if unheard else None)

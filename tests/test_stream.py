@@ -926,6 +926,46 @@ async def test_on_close_free_to_ids_never_heard_waits_as_long_as_the_line_answer
     assert took < 2 * PATIENT["adapter_latency"], took  # (three allowances before)
 
 
+async def test_on_close_free_to_offline_ids_on_a_line_where_nothing_answers_waits_no_whole_allowance() -> None:
+    # A robot's leg line unplugged under `ics35 teach --timeout 1`: nothing on that line had ever answered, so the
+    # probe's wait had nothing to learn from and each close-out free waited the whole allowance (ten leg joints:
+    # about eleven seconds after q).  The stream had already found them silent: each free still goes out (a
+    # servo plugged back in executes it), its reply waited for only briefly.
+    ids = [5, 6, 7]
+    sim = make_sim([])
+    allowance = PATIENT["adapter_latency"]
+    async with open_bus(sim, **{**PATIENT, "retries": 1}) as bus:
+        async with bus.stream(ids, on_close="free", offline_after=1, probe_interval=60.0) as stream:
+            await frames_until(stream, lambda f: set(ids) <= f.offline)
+            seq = sim.transactions
+            closing = time.monotonic()
+        took = time.monotonic() - closing
+    assert [(t.servo_id, t.command) for t in sim.log_since(seq)] == [(i, "free") for i in ids]
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)  # (on the wire: unconfirmed, not unsent)
+    assert took < allowance / 2, took  # (one whole allowance per ID before)
+
+
+async def test_on_close_free_to_a_servo_gone_offline_waits_no_whole_allowance() -> None:
+    # A servo that answered, then stopped (its cable pulled mid-run): its close-out free went with the whole
+    # allowance and the bus's retries, each after a guard read (three allowances at retries=1), as if it were
+    # there.  Offline, it gets its free once, with the short wait; the servo still there keeps its whole one.
+    ids = [1, 2]
+    sim = make_sim(ids)
+    allowance = PATIENT["adapter_latency"]
+    async with open_bus(sim, **{**PATIENT, "retries": 1}) as bus:
+        async with bus.stream(ids, on_close="free", offline_after=1, probe_interval=60.0) as stream:
+            await frames_until(stream, lambda f: 2 in f.positions)
+            sim.remove_servo(2)
+            await frames_until(stream, lambda f: 2 in f.offline)
+            seq = sim.transactions
+            closing = time.monotonic()
+        took = time.monotonic() - closing
+    assert sorted((t.servo_id, t.command) for t in sim.log_since(seq)) == [(1, "free"), (2, "free")]
+    assert sim.servo(1).free
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+    assert took < allowance / 2, took
+
+
 async def test_on_close_free_still_retries_an_id_that_failed_only_once() -> None:
     # One silence is not two: a servo whose only reply so far was lost gets the bus's retries as ever.
     ids = [1, 5]

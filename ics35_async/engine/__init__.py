@@ -33,7 +33,8 @@ The rules, each in one place:
 * a slow link: late bytes raise every allowance (see :mod:`.link`);
 * probes: a ``Timing.PROBE`` read waits as long as this link's answers have
   taken, not the adapter's worst case, and its silence resyncs as briefly
-  (see :mod:`.probe`);
+  (see :mod:`.probe`); a ``Timing.SILENT`` command (to a servo already found
+  silent) waits as a probe, and briefly even before anything has answered;
 * the stream's wait: its transactions wait what this link's answers take
   too; after such a short wait fails, its servo is held back (the stream
   skips it, a request to it waits) until the reply could no longer come,

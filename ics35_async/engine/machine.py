@@ -42,6 +42,7 @@ BUSY, IDLE, QUIET, DRAINING, CLOSED = State.BUSY, State.IDLE, State.QUIET, State
 OFFLINE, LOST = State.OFFLINE, State.LOST
 NORMAL = Timing.NORMAL
 PROBE = Timing.PROBE
+SILENT = Timing.SILENT
 URGENT = Priority.URGENT
 LOW = Priority.LOW
 ANOTHER_STREAM = "this bus already runs a stream; close it first"  # (the bus refuses it too: see Bus.attach_source)
@@ -675,9 +676,11 @@ class LineEngine:
         # The link's bookkeeping (lateness learnt, replies owed) is measured against the full
         # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
-        self._short = timing is PROBE
-        if self._short:
+        self._short = timing is PROBE or timing is SILENT
+        if timing is PROBE:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
+        elif timing is SILENT:
+            allowance = self.answers.silent_allowance(allowance, self._wire_time(nbytes))
         elif req is None:
             wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
             if wait < allowance:

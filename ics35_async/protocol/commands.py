@@ -170,6 +170,25 @@ class ProbeFree(Position):
         super().__init__(servo_id, FREE, baudrate=baudrate)
 
 
+class SilentFree(Position):
+    """The free command to a servo a stream has found silent (offline), as the stream closes.
+
+    The same bytes as ``Position(servo_id, FREE, baudrate=...)``: a servo that came back
+    executes it.  Its reply would only confirm that, and the stream already waited the whole
+    allowance for this servo and heard nothing, so ``Timing.SILENT`` waits as a probe does,
+    and on a line where nothing has answered yet (nothing to learn a probe's wait from: an
+    unplugged line) only a probe's least wait, not the whole allowance once more.
+    """
+
+    __slots__ = ()
+
+    timing = Timing.SILENT
+    silence = "no reply to the free: the servo was already silent (offline)"
+
+    def __init__(self, servo_id: int, *, baudrate: int) -> None:
+        super().__init__(servo_id, FREE, baudrate=baudrate)
+
+
 class SecondLookFree(Position):
     """The free command again, with the full allowance, to an ID its :class:`ProbeFree` found silent
     (or answered garbled): silence is its usual answer too."""

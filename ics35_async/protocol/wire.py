@@ -53,6 +53,7 @@ class Timing(enum.Enum):
     EEPROM_WRITE = "eeprom_write"  # the servo answers noticeably later
     ID = "id"
     PROBE = "probe"  # asks whether anybody is there: silence is the usual answer (see ProbeRead)
+    SILENT = "silent"  # to a servo already found silent: its reply would only confirm (see SilentFree)
 
 
 def wire_time(nbytes: int, baudrate: int) -> float:
