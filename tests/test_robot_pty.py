@@ -15,7 +15,7 @@ import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
-from tests.support.terminal import TerminalOutput, screen_of
+from tests.support.terminal import TerminalOutput, screen_of, typed_on_a_terminal
 from tests.support.timing import NO_TIMEOUTS_OPTION, scaled
 
 pytestmark = [
@@ -318,3 +318,37 @@ def test_an_enter_typed_while_the_robot_opens_is_no_answer(port: str, tmp_path: 
     assert "Traceback" not in text, text
     assert proc.returncode == 5, text
     assert "pose 1 at" not in text and "now move each joint" not in text, text
+
+
+@pytest.mark.parametrize("key", [b"q\n", b"\x03"], ids=["q", "ctrl-c"])
+def test_teach_quits_at_once_with_a_line_where_nothing_answers(port: str, tmp_path: Path, key: bytes) -> None:
+    # A robot's leg line unplugged (nothing answers there) under `teach --timeout 1`: after q each leg joint's free
+    # waited the whole allowance for a reply, one after the other (ten joints: eleven seconds with nothing said),
+    # though the stream had found them all silent.  Their frees still go out, but are waited for only briefly.
+    allowance = scaled(1.0)  # (what the test is about: each silent joint cost one of these)
+    legs = range(1, 6)
+    robot = tmp_path / "robot.toml"
+    robot.write_text(
+        ROBOT.format(port=port)
+        + f'\n[lines.legs]\nport = "sim://teach-quit-{key[0]}?ids="\n'
+        + "".join(f'\n[joints.leg{i}]\nline = "legs"\nid = {i}\n' for i in legs)
+    )
+    typed: list[float] = []
+
+    def now() -> bool:
+        typed.append(time.monotonic())
+        return True
+
+    code, shown = typed_on_a_terminal(
+        ["--timeout", str(allowance), "teach", str(robot), str(tmp_path / "taught.json"), "--yes"],
+        [("captured", b""), (now, key)],
+    )
+    took = time.monotonic() - typed[0]
+    screen = "\n".join(screen_of(shown))
+    assert "Traceback" not in shown, screen
+    assert code == 5 and "no pose captured" in screen, screen  # (nothing captured: nothing written)
+    said = " ".join(screen.split())
+    assert "leg1, leg2, leg3, leg4, leg5 (servo IDs 1, 2, 3, 4, 5 on line legs) did not answer" in said, screen
+    # At most the leg line's transaction on the wire as q came (an offline joint's probe, a whole allowance), and
+    # a little more: well under an allowance per silent joint (six allowances before).
+    assert took < 2.5 * allowance, took
