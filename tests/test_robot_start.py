@@ -219,6 +219,36 @@ def test_a_line_where_nothing_answers_costs_the_open_one_question_not_one_per_jo
 
 
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
+def test_a_robot_closing_free_frees_a_line_where_nothing_answers_without_waiting_an_allowance_a_joint() -> None:
+    # The legs' line unplugged, the robot closed with on_close="free" (ics35 teach's q): each leg joint's free
+    # waited the whole allowance for its reply, one after the other, though the open had found them all silent
+    # (nothing had answered there to learn a shorter wait from).  The frees still go out, waited for briefly.
+    rig = make_rig()
+    rig.description["joints"]["ankle"] = {"line": "lower", "id": 3}  # (no servo: the leg's third joint)
+    for servo_id in (1, 2):
+        rig.lower.remove_servo(servo_id)
+    legs = {"hip": 1, "knee": 2, "ankle": 3}
+    allowance = PATIENT["adapter_latency"]
+
+    async def main() -> tuple[Robot, float, int]:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, on_close="free", probe_interval=60.0, **PATIENT) as robot:
+                assert robot.latest is not None and set(legs) <= robot.latest.offline
+                seq = rig.lower.transactions
+                closing = time.monotonic()
+            return robot, time.monotonic() - closing, seq
+
+    try:
+        robot, took, seq = anyio.run(main)
+    finally:
+        rig.close()
+    assert [(t.servo_id, t.command) for t in rig.lower.log_since(seq)] == [(i, "free") for i in legs.values()]
+    assert all(robot.targets[name] is None for name in JOINTS)  # (each was sent its free: targets say so)
+    assert "joints hip, knee, ankle never answered" in robot.joints_left(), robot.joints_left()  # (still true)
+    assert took < allowance / 2, took  # (three allowances before)
+
+
+@pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
 def test_a_line_whose_first_joint_is_absent_is_asked_once_and_its_other_joints_as_fully_as_ever() -> None:
     # The ID read after the first silence: the others answer it (garbled, several at once), so the line is not
     # taken for empty and each of its joints is read and probed as before.
