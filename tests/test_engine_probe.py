@@ -11,7 +11,7 @@ from ics35_async import protocol
 from ics35_async.engine import State
 from ics35_async.engine.probe import FACTOR, FLOOR, MARGIN, REFRESH, AnswerTimes
 from ics35_async.errors import InvalidArgument, ReplyTimeout
-from tests.support.engine_support import Recorded, Servos, Wire, read, ready_engine, wire_time
+from tests.support.engine_support import BAUD, Recorded, Servos, Wire, read, ready_engine, wire_time
 
 NORMAL_WAIT = 0.0005 + 0.020  # BusTiming's turnaround + adapter latency
 
@@ -82,6 +82,25 @@ def test_a_silent_probe_times_out_early_and_resyncs_for_as_long_as_it_waited() -
     # wait (wire + FLOOR) + the resync's quiet (FLOOR) instead of 20.5 ms + 10 ms
     assert wire.now - sent == pytest.approx(wire_time(5) + 2 * FLOOR, abs=1e-6)
     assert wire.engine.counters.resyncs == 1
+
+
+def silent_free_deadline(wire: Wire, sid: int) -> float:
+    """The deadline the engine gives a closing stream's free to offline ``sid`` sent now, from its write."""
+    start = wire.now
+    wire.submit(Recorded(protocol.SilentFree(sid, baudrate=BAUD)))
+    return wire.engine.deadline - start
+
+
+def test_a_free_to_a_servo_already_found_silent_waits_little_even_before_any_answer() -> None:
+    # A robot's leg line where nothing answers: a probe's wait there is the whole allowance (nothing to learn a
+    # shorter one from), and a closing stream's free to each offline joint waited it, one after the other.
+    assert protocol.SilentFree(5, baudrate=BAUD).tx == protocol.Position(5, protocol.FREE, baudrate=BAUD).tx
+    fresh, _ = line(set())
+    assert silent_free_deadline(fresh, 4) == pytest.approx(wire_time(6) + FLOOR + MARGIN)
+    answered, _ = line({1}, turnaround=0.003)  # once something has answered: a probe's wait
+    answered.submit(Recorded(read(1)))
+    answered.settle()
+    assert silent_free_deadline(answered, 4) == pytest.approx(wire_time(6) + 2 * 0.003 + 0.001, abs=1e-6)
 
 
 def test_a_plain_read_keeps_the_normal_wait_and_quiet_time() -> None:

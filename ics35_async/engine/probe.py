@@ -9,7 +9,8 @@ a millisecond, never under ``FLOOR`` and never over the normal allowance.
 Until something has answered (a fresh port, a new baud rate) a probe gets
 the normal allowance; a command to a servo already found silent
 (``Timing.SILENT``: a closing stream's free to an offline servo) waits its
-wire time plus ``FLOOR`` then: its silence has cost the whole allowance already.
+wire time plus ``FLOOR`` and a millisecond then: its silence has cost the whole
+allowance already.
 
 A probe that timed out with no reply bytes is followed by a resync of
 ``latency`` (plus the link's learnt extra) instead of the full quiet time.
@@ -124,8 +125,9 @@ class AnswerTimes:
 
     def silent_allowance(self, normal: float, wire: float) -> float:
         """The allowance of a command to a servo already found silent (``Timing.SILENT``): a probe's, but the
-        least one (``FLOOR``) until something has answered, not ``normal``.  Its reply would only confirm what
-        the command did, and its silence has already cost the whole allowance: on a line where nothing answers
-        (an unplugged line) waiting that once more for each such servo only delays the program's end."""
+        least one (``FLOOR`` and a millisecond) until something has answered, not ``normal``.  Its reply would
+        only confirm what the command did, and its silence has already cost the whole allowance: on a line where
+        nothing answers (an unplugged line) waiting that once more for each such servo only delays the program's
+        end."""
         latency = self.latency
         return min(normal, wire + (FLOOR + MARGIN if latency is None else latency))
