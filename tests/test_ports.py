@@ -12,6 +12,7 @@ import contextlib
 import errno
 import logging
 import os
+import re
 import socket
 import sys
 import termios
@@ -281,6 +282,14 @@ def test_missing_port_is_a_clear_error() -> None:
     printed = "".join(traceback.format_exception(info.value))
     assert printed.count("Traceback (most recent call last)") == 1, printed
     assert isinstance(info.value.__context__, serial.SerialException)
+
+
+@pytest.mark.parametrize(("port", "meant"), [("sim:/?ids=1-3", "sim://?ids=1-3"), ("sim:x", "sim://x")])
+def test_a_url_with_its_slashes_mistyped_says_so_to_a_program(port: str, meant: str) -> None:
+    # A program's open_bus("sim:/?ids=1-3") was told to check the cable: only the command line said what was meant.
+    with pytest.raises(PortNotFound, match=f"a URL starts with sim://: {re.escape(meant)}") as info:
+        open_at(port)
+    assert "cable" not in str(info.value)
 
 
 def test_a_dangling_link_is_named_as_such(tmp_path: Path) -> None:

@@ -38,9 +38,10 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
             )
         return CliError(ExitCode.PORT, text, permission_hint())
     if isinstance(exc, errors.PortNotFound):
-        # The library's message already says where to look, for callers who see no hints.
-        hints = [] if port_names_hint() in text else [f"list ports with: {port_names_hint()}"]
-        return CliError(ExitCode.PORT, text, *misnamed_port_hints(settings.port), *hints)
+        # The library's message already says where to look, or what a misnamed port meant (sim:/x, ttyUSB0),
+        # for callers who see no hints.
+        told = port_names_hint() in text or misnamed_port_hints(settings.port)
+        return CliError(ExitCode.PORT, text, *([] if told else [f"list ports with: {port_names_hint()}"]))
     if isinstance(exc, errors.PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")
     if isinstance(exc, errors.DirectionControlNotSupported):

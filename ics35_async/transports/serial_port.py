@@ -32,7 +32,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
 
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
-from .platforms import is_pty, permission_hint, port_names_hint
+from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
 
 log = logging.getLogger("ics35_async.transports")
 
@@ -115,6 +115,9 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
                 f"no serial port at {port!r}: it is a link to {dangling}, which is not there (a simulator that "
                 f"stopped, or an adapter unplugged; {port_names_hint()})",
             )
+        misnamed = misnamed_port_hints(port)
+        if misnamed:  # (sim:/?ids=1-3, ttyUSB0: the cable is not what to check)
+            return PortNotFound(errno.ENOENT, f"no serial port at {port!r}: {'; '.join(misnamed)}")
         return PortNotFound(
             errno.ENOENT,
             f"no serial port at {port!r}: check the cable/adapter is plugged in and the name ({port_names_hint()})",

@@ -34,7 +34,6 @@ from ..errors import (
     InvalidArgument,
     PartialReply,
     PortLost,
-    PortNotFound,
     ReplyError,
     ReplyTimeout,
     SerialPortError,
@@ -64,7 +63,6 @@ from ..policies import (
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
 from ..transports import carries_line_settings, same_port
-from ..transports.platforms import misnamed_port_hints
 from .config import LineConfig
 from .edits import allowances, edit_of
 from .live import LIVE_RATE_HZ, LiveView, read_health
@@ -262,8 +260,7 @@ class LineSession:
             try:
                 await bus.open()
             except (OSError, InvalidArgument) as exc:
-                hints = misnamed_port_hints(config.port) if isinstance(exc, PortNotFound) else []
-                self.error = "; ".join([error_text(exc), *hints])
+                self.error = error_text(exc)  # (a misnamed port's, sim:/x or ttyUSB0, says what it meant)
                 raise
             if self.config is not config:  # another port, open now: the old one goes
                 await self.disconnect()
