@@ -266,9 +266,13 @@ class Stream(FrameIterator[Frame]):
     # ------------------------------------------------------------------ targets
 
     def _slot(self, servo_id: int) -> int:
+        # (1.0 and True would find ID 1 in the index: an ID is a whole number here as everywhere, as bus.servo's)
+        number = units.whole_number(servo_id)
+        if number is None:
+            raise InvalidArgument(f"servo ID must be an int, not {type(servo_id).__name__}")
         try:
-            return self._index[servo_id]
-        except (KeyError, TypeError):
+            return self._index[number]
+        except KeyError:
             raise InvalidArgument(f"ID {servo_id!r} is not in this stream {list(self.ids)}") from None
 
     def set_target(self, servo_id: int, position: int) -> None:

@@ -185,6 +185,13 @@ BAD_CALLS: list[Any] = [
     ("stream probe_interval nan", lambda e: e.bus.stream([1], probe_interval=math.nan)),
     ("set_target id not in stream", lambda e: e.stream.set_target(9, 7500)),
     ("set_target id str", lambda e: e.stream.set_target("1", 7500)),
+    ("set_target id float", lambda e: e.stream.set_target(1.0, 7500)),  # (servo(1.0) is refused: so is this)
+    ("set_target id True", lambda e: e.stream.set_target(True, 7500)),
+    ("set_targets id float", lambda e: e.stream.set_targets({1.0: 7500})),
+    ("set_targets_degrees id float", lambda e: e.stream.set_targets_degrees({2.0: 10})),
+    ("stream target id True", lambda e: e.stream.target(True)),
+    ("stream watch id float", lambda e: e.stream.watch([1.0])),
+    ("group set_target id float", lambda e: e.group.set_target("a", 1.0, 7500)),
     ("set_target 16384", lambda e: e.stream.set_target(1, 16384)),
     ("set_target -1", lambda e: e.stream.set_target(1, -1)),
     ("set_target float", lambda e: e.stream.set_target(1, 7500.0)),
