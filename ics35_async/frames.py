@@ -34,6 +34,12 @@ class FrameIterator(Generic[F]):
         def __exit__(self, *exc: object) -> None:
             return None
 
+        def __iter__(self) -> NoReturn:  # (`for`, as the blocking API's streams are iterated, in async code)
+            raise TypeError(
+                "a stream's frames come with `async for frame in stream:` (or `await stream.next_frame()`); in code"
+                " without an event loop, a bus of `ics35_async.blocking` gives a stream for `for`"
+            )
+
     def __aiter__(self) -> Self:
         return self
 

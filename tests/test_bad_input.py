@@ -312,6 +312,22 @@ async def test_a_streams_offline_and_watch_ids_are_checked_as_its_ids_are(
     assert str(info.value) == said
 
 
+async def test_a_stream_iterated_with_plain_for_says_how_to_use_it(env: Env) -> None:
+    # `for frame in stream:` in async code (as the blocking API's page writes it) was "'Stream' object is not
+    # iterable": how to write it is said instead, for a bus's, a group's and a robot's stream alike.
+    how = r"`async for frame in stream:`"
+    for stream in (env.stream, env.group):
+        with pytest.raises(TypeError, match=how):
+            for _ in stream:  # type: ignore[union-attr]
+                pytest.fail("iterated")
+    robot_line = {"lines": {"m": {"port": "sim://bad-input-robot-for?ids=1"}}, "joints": {"j": {"line": "m", "id": 1}}}
+    async with open_robot(robot_line, **FAST) as robot, robot.stream() as frames:
+        with pytest.raises(TypeError, match=how):
+            list(frames)  # type: ignore[call-overload]
+        assert set((await frames.next_frame()).positions) == {"j"}
+    assert await env.bus.servo(2).read_stretch() == 30
+
+
 # (label, call, expected result or a check): values just inside a boundary work.
 GOOD_CALLS: list[tuple[str, Callable[[Env], Any], Callable[[Any, Env], bool]]] = [
     ("set_position 1", lambda e: e.servo.set_position(1), lambda r, e: e.sim.servo(1).target == 3500),
