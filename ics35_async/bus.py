@@ -27,7 +27,7 @@ from .stats import BusStats
 from .tasks import despite_cancellation
 from .transports.direction import check_direction
 from .transports.wire_device import TRANSPORT_KINDS, WireDevice, port_argument
-from .units import check_bool, check_ids, check_int, check_seconds
+from .units import check_bool, check_ids, check_int, check_seconds, unknown_options
 
 if TYPE_CHECKING:
     from .servo import Device, Servo
@@ -95,6 +95,10 @@ class BusOptions(TimingOverrides, total=False):
     ``ics35_async.transports.direction``)."""
 
 
+# open_bus's names for what the ics35 commands' options of another name set (a program written after them).
+CLI_OPTION_NAMES = {"timeout": "the reply allowance is adapter_latency, in seconds: the ics35 commands' --timeout"}
+
+
 class Bus:
     """One ICS line.  Create it with [`open_bus`][ics35_async.bus.open_bus], which documents every option.
 
@@ -111,7 +115,7 @@ class Bus:
         port = port_argument(port)  # here, not at the open: an empty port is refused before anything starts
         unknown = set(options) - BusOptions.__optional_keys__
         if unknown:
-            raise InvalidArgument(f"unknown open_bus option(s): {', '.join(sorted(unknown))}")
+            raise InvalidArgument(unknown_options("open_bus", unknown, BusOptions.__optional_keys__, CLI_OPTION_NAMES))
         timing = options.get("timing")
         if timing is not None and not isinstance(timing, BusTiming):
             raise InvalidArgument(f"timing must be a BusTiming, not {type(timing).__name__}")
@@ -585,7 +589,7 @@ class Bus:
 
         unknown = set(options) - STREAM_OPTIONS
         if unknown:
-            raise InvalidArgument(f"unknown stream option(s): {', '.join(sorted(unknown))}")
+            raise InvalidArgument(unknown_options("stream", unknown, STREAM_OPTIONS))
         return Stream(self, ids, rate_hz=rate_hz, **options)
 
     async def read_id(self, *, exactly_one_device: bool = False) -> int:

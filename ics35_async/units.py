@@ -10,11 +10,12 @@ about 125 C): an approximation, good for warnings, not for measurement.
 
 from __future__ import annotations
 
+import difflib
 import math
 import numbers
 import operator
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import NamedTuple
 
 from .errors import InvalidArgument
@@ -124,6 +125,20 @@ def check_ids(name: str, ids: object) -> list[int]:
     if isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable):
         raise InvalidArgument(f"{name} must be an iterable of IDs 0..31, not {ids!r}")
     return [check_int("servo ID", i, 0, 31) for i in ids]
+
+
+def unknown_options(what: str, unknown: Iterable[str], known: Iterable[str], meant: Mapping[str, str] = {}) -> str:
+    """What an :class:`InvalidArgument` says of keyword options ``unknown`` to ``what`` (``"open_bus"``): each
+    with the ``known`` one it is closest to, or what ``meant`` says of it (an option of the ``ics35``
+    commands a program passes by the same name), so the reader learns what to write, not only what not to."""
+    known = sorted(known)
+    told = []
+    for name in sorted(unknown):
+        close = difflib.get_close_matches(name, known, n=1)
+        told.append(
+            f"{name} ({meant[name]})" if name in meant else f"{name} (did you mean {close[0]}?)" if close else name
+        )
+    return f"unknown {what} option(s): {', '.join(told)}"
 
 
 def parse_ids(text: str) -> list[int]:

@@ -328,6 +328,31 @@ async def test_a_stream_iterated_with_plain_for_says_how_to_use_it(env: Env) -> 
     assert await env.bus.servo(2).read_stretch() == 30
 
 
+async def _entered(block: contextlib.AbstractAsyncContextManager[Any]) -> None:
+    async with block:
+        pytest.fail("entered")
+
+
+@pytest.mark.parametrize(
+    ("call", "told"),
+    [
+        (lambda e: open_bus(e.sim, adapter_latncy=0.002), r"adapter_latncy \(did you mean adapter_latency\?\)"),
+        (lambda e: open_bus(e.sim, baud=115200), r"baud \(did you mean baudrate\?\)"),
+        # The ics35 commands' --timeout is open_bus's reply allowance: a program written after them says timeout=.
+        (lambda e: open_bus(e.sim, timeout=0.05), r"timeout \(the reply allowance is adapter_latency"),
+        (lambda e: e.bus.stream([1], on_clsoe="free"), r"on_clsoe \(did you mean on_close\?\)"),
+        (lambda e: _entered(open_robot({}, onclose="free")), r"onclose \(did you mean on_close\?\)"),
+        (lambda e: VirtualLine([1], turnarond=0.0001), r"turnarond \(did you mean turnaround\?\)"),
+    ],
+)
+async def test_a_misspelt_option_is_named_with_the_one_it_probably_meant(
+    env: Env, call: Callable[[Env], Any], told: str
+) -> None:
+    # "unknown open_bus option(s): adapter_latncy" said what was wrong, not what to write instead.
+    with pytest.raises(InvalidArgument, match=told):
+        await outcome(call, env)
+
+
 # (label, call, expected result or a check): values just inside a boundary work.
 GOOD_CALLS: list[tuple[str, Callable[[Env], Any], Callable[[Any, Env], bool]]] = [
     ("set_position 1", lambda e: e.servo.set_position(1), lambda r, e: e.sim.servo(1).target == 3500),

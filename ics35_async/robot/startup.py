@@ -27,7 +27,7 @@ from typing import Any, NoReturn, TypeVar, Unpack
 import anyio
 
 from .. import units
-from ..bus import Bus, BusOptions, open_bus
+from ..bus import CLI_OPTION_NAMES, Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
 from ..engine import State
 from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError, error_text
@@ -173,9 +173,8 @@ async def _robot_session(
     unknown = set(options) - BusOptions.__optional_keys__
     if unknown:
         own = ", ".join(sorted(RobotOptions.__optional_keys__ - BusOptions.__optional_keys__))
-        raise InvalidArgument(
-            f"unknown open_robot option(s): {', '.join(sorted(unknown))} (the robot's own: {own}; and open_bus's)"
-        )
+        told = units.unknown_options("open_robot", unknown, RobotOptions.__optional_keys__, CLI_OPTION_NAMES)
+        raise InvalidArgument(f"{told} (the robot's own: {own}; and open_bus's)")
     bus_options: BusOptions = options
     description = source if isinstance(source, RobotDescription) else load_description(source)
     stated = check_start_pose(description, start_pose)

@@ -31,6 +31,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, WriteEeprom
 from ..transports.usb_timing import FtdiAdapter
+from ..units import unknown_options
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
 from .framing import CommandFramer
@@ -122,7 +123,7 @@ class LineModel:
     def __init__(self, servos: Iterable[VirtualServo | int] | None = None, **options: Unpack[LineModelOptions]) -> None:
         unknown = set(options) - LineModelOptions.__optional_keys__
         if unknown:
-            raise InvalidArgument(f"unknown simulated line option(s): {', '.join(sorted(unknown))}")
+            raise InvalidArgument(unknown_options("simulated line", unknown, LineModelOptions.__optional_keys__))
         line_baud = BaudRate.parse(options.get("baudrate", BaudRate.B115200))
         turnaround = options.get("turnaround", DEFAULT_TURNAROUND)
         eeprom_write_delay = options.get("eeprom_write_delay", DEFAULT_EEPROM_WRITE_DELAY)
