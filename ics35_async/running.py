@@ -282,7 +282,11 @@ def _check_plain_function(main: object) -> None:
             "not blocking.run(main())"
         )
     if not callable(main):
-        raise InvalidArgument(f"blocking.run() takes a plain function, not {type(main).__name__}")
+        # (None, most likely what main() returned: the call in blocking.run(main()) ran it first, without run)
+        raise InvalidArgument(
+            f"blocking.run() takes a plain function, not {type(main).__name__}: the function itself, "
+            "blocking.run(main), not blocking.run(main()), which calls main before blocking.run can start"
+        )
     if inspect.iscoroutinefunction(main) or inspect.isasyncgenfunction(main):
         raise _not_plain(main)
 

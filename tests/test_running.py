@@ -852,6 +852,9 @@ def test_misuses_of_blocking_run_are_said_before_anything_runs() -> None:
         blocking.run(coroutine)  # type: ignore[arg-type]
     with pytest.raises(InvalidArgument, match="plain function"):
         blocking.run(42)  # type: ignore[arg-type]
+    # blocking.run(main()): main has run already, outside blocking.run, and gave None; "not NoneType" said only that.
+    with pytest.raises(InvalidArgument, match=r"blocking\.run\(main\), not blocking\.run\(main\(\)\)"):
+        blocking.run(None)  # type: ignore[arg-type]
 
     def plain() -> None:
         pass
