@@ -492,6 +492,21 @@ async def test_works_from_inside_a_running_asyncio_loop() -> None:
             assert stream.next_frame().positions.keys() == {1, 2}
 
 
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_works_from_inside_an_async_main_under_anyio_or_ics35_async_run(backend: str) -> None:
+    # anyio.run (and so ics35_async.run) names its library in a context variable of the caller's context: the bus's
+    # loop ran the calls in that context, took itself for trio, and opening failed ("must be called from async
+    # context").  The bus's loop is asyncio's whatever the caller's is.
+    import anyio
+
+    async def main() -> list[int]:
+        with blocking.open_bus("sim://?ids=1-2") as bus, bus.stream([1, 2]) as stream:
+            assert stream.next_frame().positions.keys() == {1, 2}
+            return bus.scan([1, 2, 3])
+
+    assert anyio.run(main, backend=backend) == [1, 2]
+
+
 async def test_async_with_on_a_blocking_object_says_how_and_releases_the_port() -> None:
     # `async with blocking.open_bus(...)` in async code: said how to write it (with, or the async API), and
     # the port the blocking bus had opened is released at once: the async bus opens it next.

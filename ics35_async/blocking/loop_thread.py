@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import inspect
 import threading
 from collections.abc import Awaitable, Callable
@@ -294,7 +295,9 @@ class LoopThread:
 
     def _schedule(self, callback: Callable[..., object], *args: object) -> None:
         try:
-            self._loop.call_soon_threadsafe(callback, *args)
+            # In a context of its own, not the caller's: anyio.run (so ics35_async.run) names its library (trio) in
+            # a context variable there, and the call's task, on this asyncio loop, took it for its own.
+            self._loop.call_soon_threadsafe(callback, *args, context=contextvars.Context())
         except RuntimeError:  # the loop is closed
             raise self._closed_error() from None
 
