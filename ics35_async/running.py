@@ -80,7 +80,6 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     received: list[int] = []
     exited: list[SystemExit] = []
     misused: list[InvalidArgument] = []  # main was a plain function: `def main()` meant as `async def main()`
-    presses = _Presses()
 
     def outside(signum: int, frame: FrameType | None) -> None:
         """A stop signal while the receiver below is not open (the loop starting, or ending): one before a stop
@@ -97,6 +96,12 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         receiver = anyio.open_signal_receiver(*stopping)
         signals = receiver.__enter__()
         try:
+            if threading.current_thread() is threading.main_thread():
+                # A blocking call of ics35_async.blocking in main holds the event loop, and so the receiver: the
+                # signal's Python handler, run in the main thread whatever it waits for, hands it to that call.
+                _hand_back([(signum, _after_the_loop_s(signal.getsignal(signum))) for signum in stopping])
+                if received and stop_signals.signum is None:  # (one came as the loop started: the next is a press)
+                    stop_signals.signum = received[0]
             await listening(signals)
         finally:
             try:
@@ -121,17 +126,18 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
                             await awaitable
                         else:  # (raised below, as run()'s misuse: not printed as main's IcsError)
                             misused.append(not_async(main, awaitable))
+                except _Stopped:  # a blocking call in main took the stop signal (see _after_the_loop_s)
+                    pass
                 except SystemExit as exc:  # sys.exit() in main: its code, once everything has closed
                     exited.append(exc)
                 tasks.cancel_scope.cancel()  # main is done (or cancelled): stop listening
 
             async def listen() -> None:
-                async for signum in signals:
+                async for signum in signals:  # (a second or third press is said, or forces out, in its handler)
                     if not received:
                         received.append(int(signum))
+                        stop_signals.deferred = False  # (main is cancelled: its blocking calls, closes, go on)
                         main_scope.cancel()
-                    else:
-                        presses.again(int(signum))
 
             tasks.start_soon(main_then_stop)
             tasks.start_soon(listen)
@@ -147,7 +153,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     try:
         if threading.current_thread() is threading.main_thread():  # (else the receiver refuses, as it should)
             before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in stopping]
-        with _Runs.under_way():
+        with _Runs.under_way(), stop_signals.in_run():
             anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
         if _said(exc):
@@ -156,6 +162,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         # below, out of this handler, so that its cause and context stay as main left them.
         failure = exc.exceptions[0] if isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1 else exc
     finally:
+        if not received and stop_signals.signum is not None:  # taken by a blocking call, main ended before the loop
+            received.append(stop_signals.signum)
         if received:
             _after_stop(dict(before))  # (a double press's second one may still come, as the program ends)
         else:
@@ -297,6 +305,20 @@ def _not_plain(main: Callable[..., object]) -> InvalidArgument:
     return InvalidArgument(
         f"blocking.run() takes a plain function: async def {name}() runs with ics35_async.run({name})"
     )
+
+
+def _after_the_loop_s(handler: object) -> Callable[[int, FrameType | None], None]:
+    """A stop signal's Python handler under :func:`run`: the event loop's own ``handler`` (which notes it for the
+    loop's receiver), then :meth:`_StopSignals.heard_by_run`."""
+
+    def heard(signum: int, frame: FrameType | None) -> None:
+        try:
+            if callable(handler):
+                handler(signum, frame)
+        finally:
+            stop_signals.heard_by_run(signum)
+
+    return heard
 
 
 def _heard() -> tuple[signal.Signals, ...]:
@@ -567,6 +589,38 @@ class _StopSignals:
             raise _Stopped(self.signum)
         self.deferred = True
         if not holding:
+            wait.wake()
+
+    @contextlib.contextmanager
+    def in_run(self) -> Iterator[None]:
+        """While :func:`run` runs ``main`` (unless inside a :func:`stop_on_signals`, which then stops the program):
+        blocking waits are registered, as under :func:`stop_on_signals`, for :meth:`heard_by_run`."""
+        if self.active:
+            yield
+            return
+        self.start()
+        try:
+            yield
+        finally:
+            self.active = False
+
+    def heard_by_run(self, signum: int) -> None:
+        """A stop signal under :func:`run`, after the event loop's own handler noted it for the loop's receiver.
+
+        The first, while the main thread waits for a blocking call (the loop held by it, its receiver too), is
+        that call's to raise, as :func:`stop_on_signals` has it; otherwise the loop's receiver cancels ``main``.
+        A second is said, a third forces out, wherever the main thread is (a blocking close holding the loop
+        could not be forced out from the loop)."""
+        if not self.active:
+            return
+        if self.signum is not None:
+            self.presses.again(signum)
+            return
+        # Owed to the next blocking call too: one landing between two (main's own code, the loop held all along)
+        # raises it there; the loop's receiver takes it back if the loop runs first (see run's listen).
+        self.signum, self.deferred = signum, True
+        wait, holding = self._current
+        if wait is not None and not holding:
             wait.wake()
 
     def waiting(self, wait: Wakeable) -> contextlib.AbstractContextManager[None]:

@@ -206,6 +206,52 @@ def test_a_blocking_program_under_stop_on_signals_ends_cleanly(signum: int, code
     assert "Traceback" not in err, err
 
 
+# The blocking API inside an async main under ics35_async.run: each blocking call holds the event loop, so the
+# loop's signal receiver never ran and Ctrl-C did nothing (the stream streamed on; SIGHUP at last killed it holding).
+BLOCKING_IN_ASYNC_PROGRAM = textwrap.dedent(
+    """
+    import sys
+    import ics35_async
+    from ics35_async import blocking
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+
+    async def main() -> None:
+        with blocking.open_bus(sim) as bus, bus.stream([1, 2], rate_hz=50, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            for n, frame in enumerate(s):
+                if n == 5:
+                    print("streaming", flush=True)
+
+    code = ics35_async.run(main, backend=sys.argv[1])
+    print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    sys.exit(code)
+    """
+)
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "uvloop", "trio"])
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_stops_a_blocking_call_made_inside_an_async_main(backend: str, signum: int, code: int) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", BLOCKING_IN_ASYNC_PROGRAM, backend],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "streaming"
+        os.kill(proc.pid, signum)
+        out, err = proc.communicate(timeout=scaled(10))
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert out.strip() == "free"
+    assert "Traceback" not in err, err
+
+
 THREADS_AT_EXIT = textwrap.dedent(
     """
     import sys, threading
