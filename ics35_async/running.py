@@ -20,6 +20,7 @@ import asyncio
 import atexit
 import contextlib
 import functools
+import importlib
 import inspect
 import logging
 import os
@@ -69,7 +70,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
     Raises:
         InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
-            an unknown ``backend``, or an event loop already runs in this thread; or ``main()`` gave nothing
+            an unknown ``backend`` or one not installed (``pip install 'ics35_async[uvloop]'``), or an event loop
+            already runs in this thread; or ``main()`` gave nothing
             to await (``def main()`` for ``async def main()``: said once that call has returned; a program with
             no async code at all runs with :func:`run_blocking`).
     """
@@ -343,6 +345,13 @@ def _check_run(main: object, backend: str) -> None:
         raise not_async(main, main())
     if backend not in typing.get_args(Backend):
         raise InvalidArgument(f"backend must be one of {', '.join(typing.get_args(Backend))}, not {backend!r}")
+    if backend != "asyncio":  # (an extra: its absence said here, not as an import's traceback from inside the run)
+        try:
+            importlib.import_module(backend)
+        except ImportError:
+            raise InvalidArgument(
+                f"backend={backend!r} needs {backend}: pip install 'ics35_async[{backend}]' (or run on asyncio)"
+            ) from None
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
 

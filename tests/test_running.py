@@ -134,6 +134,21 @@ def test_misuses_of_run_are_said_before_anything_runs() -> None:
         asyncio.run(inside())
 
 
+@pytest.mark.parametrize("backend", ["uvloop", "trio"])
+def test_a_backend_not_installed_is_said_with_the_extra_that_installs_it(
+    backend: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # run(main, backend="uvloop") without uvloop was a ModuleNotFoundError's traceback (trio: anyio's LookupError
+    # naming anyio's extra), from inside the run; said before anything starts, with this package's extra.
+    monkeypatch.setitem(sys.modules, backend, None)  # (as if not installed: its import fails)
+
+    async def main() -> None:
+        pytest.fail("ran")
+
+    with pytest.raises(InvalidArgument, match=rf"backend='{backend}' needs {backend}: .*\[{backend}\]"):
+        ics35_async.run(main, backend=backend)  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("backend", ["asyncio", "trio"])
 def test_a_main_that_is_not_async_is_said_plainly(backend: str) -> None:
     # `def main()` where `async def main()` was meant: said as run()'s misuse, not as a TypeError from
