@@ -23,6 +23,10 @@ from tests.support.terminal import write_until_refused
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, scaled
 
 RUN_GUARD = scaled(120.0)  # a run this long means a reply or a frame stopped coming (4-9 s, 60+ once under stress)
+# The test's own guard goes first, then the bus closes: pytest-timeout's alarm, landing in one of the loop's callbacks,
+# once dropped the bus task's wake-up there (the guard and the alarm both at 120 s under load), and the task then
+# outlived the test, keeping the worker's loop from closing for ever.
+pytestmark = pytest.mark.timeout(RUN_GUARD + scaled(120.0))
 on_trio_and_asyncio = pytest.mark.parametrize("anyio_backend", ["trio", "asyncio"], indirect=True)
 
 

@@ -735,6 +735,11 @@ ASIDE_LINE = textwrap.dedent(
 )
 
 
+# The simulator's port goes this long after it starts, once the program streams (it prints "streaming" at its fifth
+# cycle): a second was not always enough for a loaded machine to open the port and run five cycles.
+UNPLUG_AFTER_STREAMING = ("--unplug-after", str(scaled(2.0)))
+
+
 def gait_on_a_pty(
     pty_sim: Any, mode: str, *sim_args: str, program: str = BLOCKING_GAIT
 ) -> subprocess.CompletedProcess[str]:
@@ -759,7 +764,7 @@ def gait_on_a_pty(
 
 
 def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> None:
-    done = gait_on_a_pty(pty_sim, "end", "--unplug-after", "1", "--replug-after", "60")
+    done = gait_on_a_pty(pty_sim, "end", *UNPLUG_AFTER_STREAMING, "--replug-after", "60")
     path, *said = done.stdout.split()
     assert done.returncode == 1, done.stderr
     assert said == ["streaming"]
@@ -771,7 +776,7 @@ def test_a_blocking_program_s_lost_port_is_one_line_and_exit_1(pty_sim: Any) -> 
 def test_a_library_error_s_traceback_under_stop_on_signals_alone_ends_at_the_program_s_call(pty_sim: Any) -> None:
     # The error is met on the bus's loop thread; the frames it went through there mean nothing to the
     # program's author, and the traceback's last of the program's own lines is the call that failed.
-    done = gait_on_a_pty(pty_sim, "alone", "--unplug-after", "1", "--replug-after", "60")
+    done = gait_on_a_pty(pty_sim, "alone", *UNPLUG_AFTER_STREAMING, "--replug-after", "60")
     path, *said = done.stdout.split()
     assert done.returncode == 1, done.stderr
     assert said == ["streaming"]
@@ -788,7 +793,7 @@ def test_a_library_error_s_traceback_under_stop_on_signals_alone_ends_at_the_pro
 
 
 def test_an_async_program_s_lost_port_is_said_once_and_exit_1(pty_sim: Any) -> None:
-    done = gait_on_a_pty(pty_sim, "", "--unplug-after", "1", "--replug-after", "60", program=ASYNC_GAIT)
+    done = gait_on_a_pty(pty_sim, "", *UNPLUG_AFTER_STREAMING, "--replug-after", "60", program=ASYNC_GAIT)
     path, *said = done.stdout.split()
     assert done.returncode == 1, done.stderr
     assert said == ["streaming"]
@@ -796,7 +801,7 @@ def test_an_async_program_s_lost_port_is_said_once_and_exit_1(pty_sim: Any) -> N
 
 
 def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) -> None:
-    done = gait_on_a_pty(pty_sim, "catch", "--unplug-after", "1", "--replug-after", "60")
+    done = gait_on_a_pty(pty_sim, "catch", *UNPLUG_AFTER_STREAMING, "--replug-after", "60")
     path, *said = done.stdout.split()
     assert done.returncode == 0, done.stderr
     assert said == ["streaming", "caught"]
@@ -806,7 +811,7 @@ def test_a_blocking_program_catching_a_lost_port_itself_goes_on(pty_sim: Any) ->
 
 
 def test_a_port_lost_for_good_that_does_not_end_the_program_is_still_said_once(pty_sim: Any) -> None:
-    done = gait_on_a_pty(pty_sim, "", "--unplug-after", "1", "--replug-after", "60", program=ASIDE_LINE)
+    done = gait_on_a_pty(pty_sim, "", *UNPLUG_AFTER_STREAMING, "--replug-after", "60", program=ASIDE_LINE)
     path, *said = done.stdout.split()
     assert done.returncode == 0, done.stderr
     assert said == ["gone"]
@@ -827,7 +832,7 @@ def test_a_blocking_program_s_mistyped_port_is_one_line_with_its_hint() -> None:
 def test_a_plain_program_hears_its_port_lost_and_back(pty_sim: Any) -> None:
     # No logging set up: Python's last-resort handler prints the library's warnings, the port lost and,
     # once reopened, back (were it logged below WARNING, the program would never hear of it).
-    done = gait_on_a_pty(pty_sim, "reconnect", "--unplug-after", "1", "--replug-after", "0.3")
+    done = gait_on_a_pty(pty_sim, "reconnect", *UNPLUG_AFTER_STREAMING, "--replug-after", "0.3")
     path, *said = done.stdout.split()
     assert done.returncode == 0, done.stderr
     assert said == ["streaming", "resumed"]

@@ -24,6 +24,7 @@ from tests.support.timing import FAST, NO_TIMEOUTS, PATIENT, or_describe, scaled
 # A few seconds' work against a fast simulator: a run this long means a reply or a frame stopped coming
 # (then the failure says what the line was doing, rather than pytest's timeout giving only the stacks).
 RUN_GUARD = scaled(60.0)
+pytestmark = pytest.mark.timeout(RUN_GUARD + scaled(120.0))  # (the guard first: see test_anyio_bursts.py)
 
 
 async def test_a_request_to_a_silent_servo_times_out_while_the_line_idles() -> None:
