@@ -1,5 +1,5 @@
-"""The terminal a command runs on: whether the process runs in the background of it, the ``^C`` it echoes, and
-what it keeps of the command's last words at Ctrl-C.
+"""The terminal a command runs on: whether the process runs in the background of it, the ``^C`` it echoes, what
+it keeps of the command's last words at Ctrl-C, and what is written once it is gone (hung up).
 
 The command line and the simulator's server share these rules; the console script's entry module
 (``_ics35_async_entry``) keeps a copy of the second, since it runs before the package can be imported.
@@ -10,6 +10,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import stat
 import sys
 import time
 from typing import TextIO
@@ -139,3 +140,20 @@ def clear_after_ctrl_c() -> None:
     by :func:`ctrl_c_typed` left, cleared once (see :func:`clear_echoed_ctrl_c`)."""
     if _echoed:
         clear_echoed_ctrl_c()
+
+
+def leave_the_terminal() -> None:
+    """The terminal is gone (SIGHUP: a window closed, an ssh link dropped): a write to it would fail (EIO) and cut
+    the program's cleanup short, so what is written from now on goes to /dev/null instead.  Output to a file or a
+    pipe still goes there.  (A hung-up terminal may no longer pass isatty(): any character device is taken for
+    one.  Nothing is flushed: called from a signal handler, the main thread may be inside a write to it.)"""
+    with contextlib.suppress(OSError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            for stream in (sys.stdout, sys.stderr):
+                with contextlib.suppress(OSError, ValueError, AttributeError):  # (None, or no descriptor)
+                    fd = stream.fileno()
+                    if stat.S_ISCHR(os.fstat(fd).st_mode):
+                        os.dup2(devnull, fd)
+        finally:
+            os.close(devnull)

@@ -16,15 +16,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import signal
-import stat
-import sys
 import threading
 import weakref
 from collections.abc import Iterator
 from types import FrameType
 from typing import Any
+
+from ..terminal import leave_the_terminal
 
 _received: list[int] = []  # the stop signals received, first first
 _tasks: list[asyncio.Task[Any]] = []  # the command's task on the event loop, while it runs
@@ -94,7 +93,7 @@ def _stop(signum: int, frame: FrameType | None) -> None:
     if len(_received) > 1:
         return  # the first is being acted on (see the module's docstring)
     if signum == getattr(signal, "SIGHUP", None):
-        _leave_the_terminal()
+        leave_the_terminal()
     task = _tasks[-1] if _tasks else None
     # A question waiting for its answer blocks the loop: there Ctrl-C raises (see _prompt), and so do these.
     if task is not None and not task.done() and not _questions:
@@ -102,23 +101,6 @@ def _stop(signum: int, frame: FrameType | None) -> None:
         task.get_loop().call_soon_threadsafe(task.cancel)
         return
     raise KeyboardInterrupt  # outside the loop, or at a question: as a Ctrl-C there
-
-
-def _leave_the_terminal() -> None:
-    """The terminal is gone: a write to it would fail (EIO) and cut the cleanup short, so what is
-    written from now on goes to /dev/null instead.  Output to a file or a pipe still goes there.  (A
-    hung-up terminal may no longer pass isatty(): any character device is taken for one.  Nothing is
-    flushed: the main thread may be inside a write to it.)"""
-    with contextlib.suppress(OSError):
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        try:
-            for stream in (sys.stdout, sys.stderr):
-                with contextlib.suppress(OSError, ValueError):
-                    fd = stream.fileno()
-                    if stat.S_ISCHR(os.fstat(fd).st_mode):
-                        os.dup2(devnull, fd)
-        finally:
-            os.close(devnull)
 
 
 def same_stop_for_a_moment() -> None:
