@@ -1,17 +1,22 @@
-"""Running a controller program until it ends or is told to stop (Ctrl-C, SIGTERM), servos at rest.
+"""Running a controller program until it ends or is told to stop (Ctrl-C, SIGTERM, SIGHUP), servos at rest.
 
-A robot program is stopped by Ctrl-C at a terminal and by SIGTERM from a
-service manager (systemd, Docker, a supervisor).  Without help, SIGTERM ends
-the process on the spot (no ``finally``, no ``async with`` exit: the servos
-keep whatever they were last told), and Ctrl-C prints asyncio's
-``KeyboardInterrupt`` traceback.  :func:`run` turns both signals into a
-cancellation of ``main``: its ``async with`` blocks unwind in order (a stream
+A robot program is stopped by Ctrl-C at a terminal, by SIGTERM from a
+service manager (systemd, Docker, a supervisor) and by SIGHUP when its
+terminal goes (the window closed, the ssh link dropped).  Without help,
+SIGTERM and SIGHUP end the process on the spot (no ``finally``, no ``async
+with`` exit: the servos keep whatever they were last told), and Ctrl-C
+prints asyncio's ``KeyboardInterrupt`` traceback.  :func:`run` turns these
+signals into a cancellation of ``main``: its ``async with`` blocks unwind in order (a stream
 closes as its ``on_close`` says, a robot's joints hold or go free as its own
 says, a bus drains and releases its port), then it returns an exit code for ``sys.exit``.  A second
 signal while that unwinding runs is said with one line and the unwinding goes on
 (the servos are being put to rest); a third forces the program out at once,
 cutting it short.  One just after it ended (a double Ctrl-C) is taken for the
 same stop: the program ends as the first one had it, with no traceback.
+SIGHUP is taken only where it has its default handler (a program's own, a
+configuration reloaded, is left to it; ``nohup`` leaves it ignored), and
+once it has come the terminal is gone: what is written to it from then on
+is dropped, not an error cutting the close short.
 """
 
 from __future__ import annotations
@@ -35,28 +40,33 @@ from typing import Any, Literal, NoReturn, Protocol, TypeVar, cast
 
 from .errors import IcsError, InvalidArgument, error_text
 from .tasks import only_error
-from .terminal import ctrl_c_typed
+from .terminal import ctrl_c_typed, leave_the_terminal
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # main raised an IcsError (printed as one line)
 EXIT_SIGINT = 128 + signal.SIGINT  # 130, as a shell reports a Ctrl-C'd program
 EXIT_SIGTERM = 128 + signal.SIGTERM  # 143
-STOPPING = (signal.SIGINT, signal.SIGTERM)
+EXIT_SIGHUP = 128 + 1  # 129: 128 + SIGHUP's number (the name is not there on Windows)
+_SIGHUP: signal.Signals | None = getattr(signal, "SIGHUP", None)
+STOPPING: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, *([] if _SIGHUP is None else [_SIGHUP]))
 AFTER_STOP = 1.0  # seconds after a stop's close when another stop signal is taken for the same press
 
 Backend = Literal["asyncio", "uvloop", "trio"]
 
 
 def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") -> int:
-    """Run ``main()`` until it returns, or until SIGINT (Ctrl-C) or SIGTERM cancels it; return an exit code.
+    """Run ``main()`` until it returns, or until SIGINT (Ctrl-C), SIGTERM or SIGHUP cancels it; return an exit code.
 
-    0 when ``main`` returned; 130 after SIGINT and 143 after SIGTERM, once ``main``'s
+    0 when ``main`` returned; 130 after SIGINT, 143 after SIGTERM and 129 after SIGHUP, once ``main``'s
     ``async with`` blocks have closed (streams, robots, buses, in that order); 1 when
     ``main`` raised an :class:`~ics35_async.IcsError`, printed to stderr as one line
     without a traceback.  A second signal while the blocks close is said with one line and they go on
     closing; a third forces the program out at once (by that signal), cutting the close short.  Other
     exceptions propagate (main's own, not the task group that ran it); ``sys.exit()`` in ``main`` ends the
     program with its code once everything has closed.
+    SIGHUP (the terminal gone) is taken only where its handler is the default one as ``run`` starts: a handler of
+    the program's own keeps it, and one ``nohup`` left ignored stays so; after it, what the program writes to
+    that terminal is dropped rather than failing its close.
     ``backend``: ``"asyncio"``, ``"uvloop"`` (needs the uvloop package) or ``"trio"``.  Call it
     from the main thread, outside any event loop::
 
@@ -88,6 +98,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         is the stop (main, if it has not started, never does); one after it is the same press, ignored.  Without
         it such a signal meets Python's handler (or trio's): a KeyboardInterrupt's traceback, or the program
         killed; and trio gives its receiver's signals still queued as it closes to the handler it puts back."""
+        _hung_up(signum)
         if not received:
             received.append(signum)
 
@@ -178,7 +189,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
         raise exited[0]
     if not received:
         return EXIT_OK
-    return EXIT_SIGINT if received[0] == signal.SIGINT else EXIT_SIGTERM
+    return _exit_code(received[0])
 
 
 class _Runs:
@@ -239,12 +250,13 @@ def run_blocking(main: Callable[[], object]) -> int:
     """:func:`run` for programs without an event loop (``ics35_async.blocking.run``): call the plain function
     ``main()`` under :func:`stop_on_signals` and return an exit code, the same as :func:`run`'s.
 
-    0 when ``main`` returned; 130 after SIGINT (Ctrl-C) and 143 after SIGTERM, once its ``with`` blocks have
-    closed (a stream frees or holds as its ``on_close`` says, a bus releases its port); 1 when ``main`` raised
-    an :class:`~ics35_async.IcsError` (a lost port, a mistyped one), printed to stderr as one line, with its hint,
-    without a traceback.  Other exceptions propagate as ``main`` raised them, with their traceback (a bug);
-    ``sys.exit()`` in ``main`` ends the program with its code.  An error ``main`` catches itself (``except
-    PortLost``) is its own, as without ``run``.  Call it from the main thread::
+    0 when ``main`` returned; 130 after SIGINT (Ctrl-C), 143 after SIGTERM and 129 after SIGHUP (taken as
+    :func:`run` takes it), once its ``with`` blocks have closed (a stream frees or holds as its ``on_close``
+    says, a bus releases its port); 1 when ``main`` raised an :class:`~ics35_async.IcsError` (a lost port, a
+    mistyped one), printed to stderr as one line, with its hint, without a traceback.  Other exceptions propagate
+    as ``main`` raised them, with their traceback (a bug); ``sys.exit()`` in ``main`` ends the program with its
+    code.  An error ``main`` catches itself (``except PortLost``) is its own, as without ``run``.  Call it from
+    the main thread::
 
         def main() -> None:
             with blocking.open_bus("/dev/ttyUSB0") as bus, bus.stream(ids, rate_hz=50, on_close="free") as s:
@@ -314,6 +326,7 @@ def _after_the_loop_s(handler: object) -> Callable[[int, FrameType | None], None
     loop's receiver), then :meth:`_StopSignals.heard_by_run`."""
 
     def heard(signum: int, frame: FrameType | None) -> None:
+        _hung_up(signum)
         try:
             if callable(handler):
                 handler(signum, frame)
@@ -326,8 +339,22 @@ def _after_the_loop_s(handler: object) -> Callable[[int, FrameType | None], None
 def _heard() -> tuple[signal.Signals, ...]:
     """The stop signals the program takes: those it was not started ignoring.  A shell without job control
     (a script) starts a background command with SIGINT ignored, so that the Ctrl-C typed for its foreground
-    command does not stop it too, and ``nohup`` has SIGHUP ignored the same way: such a signal stays ignored."""
-    return tuple(signum for signum in STOPPING if signal.getsignal(signum) is not signal.SIG_IGN)
+    command does not stop it too, and ``nohup`` has SIGHUP ignored the same way: such a signal stays ignored.
+    SIGHUP is taken only from its default handler (the process dies): a program's own handler of it (a
+    configuration reloaded) is the program's way of taking it, kept as it is."""
+    return tuple(
+        signum
+        for signum in STOPPING
+        if signal.getsignal(signum) is not signal.SIG_IGN
+        and (signum != _SIGHUP or _unwrapped(signal.getsignal(signum)) is signal.SIG_DFL)
+    )
+
+
+def _hung_up(signum: int) -> None:
+    """In each of the stop signals' handlers, first: after SIGHUP the terminal is gone, and a write to it (the
+    program's, the library's last words) would fail and cut the close short; from then on it is dropped."""
+    if signum == _SIGHUP:
+        leave_the_terminal()
 
 
 async def _no_signals() -> AsyncIterator[int]:
@@ -413,7 +440,9 @@ class _Stopped(SystemExit):
 
 
 def _exit_code(signum: int) -> int:
-    return EXIT_SIGINT if signum == signal.SIGINT else EXIT_SIGTERM
+    if signum == signal.SIGINT:
+        return EXIT_SIGINT
+    return EXIT_SIGHUP if signum == _SIGHUP else EXIT_SIGTERM
 
 
 def _signal_name(signum: int) -> str:
@@ -446,6 +475,10 @@ class _Presses:
         self.count = 0
 
     def again(self, signum: int) -> None:
+        if signum == _SIGHUP:
+            # No one's press: a closed terminal sends it twice or more (the kernel to the foreground group, the
+            # shell to its jobs), and a third must not cut the close short; no one is there to read a line.
+            return
         self.count += 1
         name = _signal_name(signum)
         if self.count == 1:
@@ -481,6 +514,7 @@ class _AfterStop:
         self.until = time.monotonic() + AFTER_STOP
 
     def __call__(self, signum: int, frame: FrameType | None) -> None:
+        _hung_up(signum)
         if time.monotonic() < self.until:
             if signum == signal.SIGINT:
                 ctrl_c_typed()  # (its ^C is echoed where the program's last words go: they clear it first)
@@ -580,6 +614,7 @@ class _StopSignals:
         self.presses = _Presses()
 
     def handle(self, signum: int, frame: FrameType | None) -> None:
+        _hung_up(signum)
         if not self.active:  # stop_on_signals is ending: noted, and raised once its handlers are given back
             self.signum = self.signum or signum
             return
@@ -704,12 +739,15 @@ _CLOSING = close_step(lambda: None).__code__  # the code every close runs in (cl
 
 @contextlib.contextmanager
 def stop_on_signals() -> Iterator[None]:
-    """For programs without an event loop: SIGINT (Ctrl-C) and SIGTERM end the ``with`` block like an
+    """For programs without an event loop: SIGINT (Ctrl-C), SIGTERM and SIGHUP end the ``with`` block like an
     exception, so the ``with`` blocks inside it close in order (a blocking stream frees or holds as its
-    ``on_close`` says, a bus releases its port), then the program exits with 130 or 143 and no
-    traceback (``SystemExit``).  A second signal while they close is said with one line and they go on
-    closing; a third forces the program out at once, cutting the close short; one just after they closed
-    (a double Ctrl-C) is taken for the same stop.  Use it around everything, in the main thread::
+    ``on_close`` says, a bus releases its port), then the program exits with 130, 143 or 129 and no
+    traceback (``SystemExit``).  SIGHUP (the terminal gone) is taken only where its handler is the default one
+    as the block starts: a handler of the program's own keeps it, ``nohup``'s ignoring stays; after it, what
+    is written to that terminal is dropped rather than failing the close.  A second signal while they close
+    is said with one line and they go on closing; a third forces the program out at once, cutting the close
+    short (a SIGHUP again counts for neither: a closed terminal sends it more than once); one just after they
+    closed (a double Ctrl-C) is taken for the same stop.  Use it around everything, in the main thread::
 
         with stop_on_signals(), blocking.open_bus(port) as bus, bus.stream(ids, on_close="free") as s:
             ...
@@ -756,4 +794,13 @@ def _hand_back(handlers: list[tuple[int, object]]) -> None:
             _hand_back(rest)
 
 
-__all__ = ["EXIT_ERROR", "EXIT_OK", "EXIT_SIGINT", "EXIT_SIGTERM", "run", "run_blocking", "stop_on_signals"]
+__all__ = [
+    "EXIT_ERROR",
+    "EXIT_OK",
+    "EXIT_SIGHUP",
+    "EXIT_SIGINT",
+    "EXIT_SIGTERM",
+    "run",
+    "run_blocking",
+    "stop_on_signals",
+]

@@ -1,4 +1,4 @@
-"""Ending a controller program with a signal: ics35_async.run, in a real process sent SIGINT or SIGTERM."""
+"""Ending a controller program with a signal: ics35_async.run, in a real process sent SIGINT, SIGTERM or SIGHUP."""
 
 from __future__ import annotations
 
@@ -47,8 +47,12 @@ PROGRAM = textwrap.dedent(
 @pytest.mark.parametrize("backend", ["asyncio", "uvloop", "trio"])
 @pytest.mark.parametrize(
     ("signum", "code", "on_close", "state"),
-    [(signal.SIGTERM, 143, "free", "free"), (signal.SIGINT, 130, "hold", "holding")],
-    ids=["SIGTERM-free", "SIGINT-hold"],
+    [
+        (signal.SIGTERM, 143, "free", "free"),
+        (signal.SIGINT, 130, "hold", "holding"),
+        (signal.SIGHUP, 129, "free", "free"),
+    ],
+    ids=["SIGTERM-free", "SIGINT-hold", "SIGHUP-free"],
 )
 def test_a_signal_ends_the_program_cleanly_with_the_servos_as_chosen(
     backend: str, signum: int, code: int, on_close: str, state: str
@@ -204,7 +208,7 @@ BLOCKING_PROGRAM = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_a_blocking_program_under_stop_on_signals_ends_cleanly(signum: int, code: int) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-c", BLOCKING_PROGRAM], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -247,7 +251,7 @@ BLOCKING_IN_ASYNC_PROGRAM = textwrap.dedent(
 
 
 @pytest.mark.parametrize("backend", ["asyncio", "uvloop", "trio"])
-@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_a_signal_stops_a_blocking_call_made_inside_an_async_main(backend: str, signum: int, code: int) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-c", BLOCKING_IN_ASYNC_PROGRAM, backend],
@@ -554,9 +558,11 @@ SLOW_CLOSE_BLOCKING = textwrap.dedent(
 )
 
 
-def press_ctrl_c(program: str, pause: float, gaps: list[float], wait_for_close: bool) -> tuple[int, str, str]:
-    """Run ``program``, then SIGINT once it streams, and again after each of ``gaps`` (seconds; from
-    "closing" on, with ``wait_for_close``): its exit code, stdout and stderr."""
+def press_ctrl_c(
+    program: str, pause: float, gaps: list[float], wait_for_close: bool, signum: int = signal.SIGINT
+) -> tuple[int, str, str]:
+    """Run ``program``, then SIGINT (or ``signum``) once it streams, and again after each of ``gaps`` (seconds;
+    from "closing" on, with ``wait_for_close``): its exit code, stdout and stderr."""
     proc = subprocess.Popen(
         [sys.executable, "-c", program, str(pause)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -564,13 +570,13 @@ def press_ctrl_c(program: str, pause: float, gaps: list[float], wait_for_close: 
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "streaming"
         lines = ["streaming"]
-        os.kill(proc.pid, signal.SIGINT)
+        os.kill(proc.pid, signum)
         if wait_for_close:
             lines.append(proc.stdout.readline().strip())
             assert lines[-1] == "closing"
         for gap in gaps:
             time.sleep(gap)
-            os.kill(proc.pid, signal.SIGINT)
+            os.kill(proc.pid, signum)
         out, err = proc.communicate(timeout=scaled(30))
     finally:
         proc.kill()
@@ -603,6 +609,16 @@ def test_a_third_ctrl_c_during_the_close_forces_the_program_out(program: str) ->
     assert code in (130, -signal.SIGINT), err  # (as a shell reports either: 130)
     assert "closed" not in out.split(), out
     assert "Traceback" not in err and "forced out" in err and "cut short" in err, err
+
+
+@pytest.mark.parametrize("program", [SLOW_CLOSE_ASYNC, SLOW_CLOSE_BLOCKING], ids=["run", "stop_on_signals"])
+def test_sighup_again_during_the_close_neither_is_said_nor_forces_out(program: str) -> None:
+    # A closed terminal sends SIGHUP more than once (the kernel to the foreground group, the shell to its jobs):
+    # no one pressed anything, and the servos' rest must not be cut short by the third.
+    code, out, err = press_ctrl_c(program, 1.0, [0.1, 0.1, 0.1], wait_for_close=True, signum=signal.SIGHUP)
+    assert code == 129, err
+    assert out.split()[-2:] == ["closed", "free"], out
+    assert err == "", err
 
 
 def _started_ignoring_sigint() -> None:
@@ -643,6 +659,162 @@ def test_a_program_started_ignoring_sigint_keeps_ignoring_it(program: list[str])
     assert proc.returncode == 143, err
     assert out.strip() == "free"
     assert "Traceback" not in err, err
+
+
+# A program under run (argv[1] "run") or blocking.run ("blocking"), its SIGHUP its own: argv[2] "own" (a handler
+# of its own, as a program that reloads its configuration on SIGHUP has) or "ignored" (started under nohup).
+HANGUP_KEPT = textwrap.dedent(
+    """
+    import os, signal, sys
+    import ics35_async
+    from ics35_async import blocking, open_bus
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+
+    def reload(signum, frame):
+        os.write(1, b"reloaded\\n")
+
+    if sys.argv[2] == "own":
+        signal.signal(signal.SIGHUP, reload)
+    before = signal.getsignal(signal.SIGHUP)
+
+    async def async_main() -> None:
+        async with open_bus(sim) as bus, bus.stream([1, 2], rate_hz=50, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            async for frame in s:
+                if frame.cycle == 5:
+                    print("streaming", flush=True)
+
+    def blocking_main() -> None:
+        with blocking.open_bus(sim) as bus, bus.stream([1, 2], rate_hz=50, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            for frame in s:
+                if frame.cycle == 5:
+                    print("streaming", flush=True)
+
+    code = ics35_async.run(async_main) if sys.argv[1] == "run" else blocking.run(blocking_main)
+    print("free" if all(sim.servo(i).free for i in (1, 2)) else "holding", flush=True)
+    print("kept" if signal.getsignal(signal.SIGHUP) is before else "replaced", flush=True)
+    sys.exit(code)
+    """
+)
+
+
+def _started_under_nohup() -> None:
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize("runner", ["run", "blocking"])
+@pytest.mark.parametrize("handler", ["own", "ignored"])
+def test_a_program_s_own_or_ignored_sighup_is_left_to_it(runner: str, handler: str) -> None:
+    # run() and blocking.run take SIGHUP only where it has Python's default (the process dies): a handler of the
+    # program's own (a configuration reloaded) runs as before and the program goes on; under nohup it stays
+    # ignored.  SIGTERM still stops the program, and the handler is still there once run() has returned.
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HANGUP_KEPT, runner, handler],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_started_under_nohup if handler == "ignored" else None,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "streaming"
+        os.kill(proc.pid, signal.SIGHUP)
+        if handler == "own":
+            assert proc.stdout.readline().strip() == "reloaded"
+        time.sleep(scaled(0.5))
+        assert proc.poll() is None, proc.communicate()
+        os.kill(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=scaled(30))
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert out.split() == ["free", "kept"], out
+    assert "Traceback" not in err, err
+
+
+# A program whose stdout and stderr are a terminal, stopped by SIGHUP under run (argv[1] "run") or blocking.run
+# ("blocking"): its close writes to both once the terminal is gone (hung up), then its servos' state goes to the
+# file argv[2].
+HANGUP_ON_A_TERMINAL = textwrap.dedent(
+    """
+    import sys, time
+    import anyio
+    import ics35_async
+    from ics35_async import blocking, open_bus
+    from ics35_async.sim import VirtualLine
+
+    sim = VirtualLine([1, 2], realtime=True)
+
+    def said_after_the_terminal_went() -> None:
+        time.sleep(0.5)  # (the terminal is hung up meanwhile)
+        for stream in (sys.stdout, sys.stderr):
+            print("closing", file=stream, flush=True)
+
+    async def async_main() -> None:
+        async with open_bus(sim) as bus, bus.stream([1, 2], rate_hz=50, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            try:
+                async for frame in s:
+                    if frame.cycle == 5:
+                        print("streaming", flush=True)
+            finally:
+                with anyio.CancelScope(shield=True):
+                    said_after_the_terminal_went()
+
+    def blocking_main() -> None:
+        with blocking.open_bus(sim) as bus, bus.stream([1, 2], rate_hz=50, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000})
+            try:
+                for frame in s:
+                    if frame.cycle == 5:
+                        print("streaming", flush=True)
+            finally:
+                said_after_the_terminal_went()
+
+    code = ics35_async.run(async_main) if sys.argv[1] == "run" else blocking.run(blocking_main)
+    with open(sys.argv[2], "w") as state:
+        state.write("free" if all(sim.servo(i).free for i in (1, 2)) else "holding")
+    print("stopped", flush=True)
+    sys.exit(code)
+    """
+)
+
+
+@pytest.mark.parametrize("runner", ["run", "blocking"])
+def test_a_program_whose_terminal_hung_up_closes_without_a_traceback(runner: str, tmp_path: Any) -> None:
+    # The terminal closed (ssh gone, the window shut): after its SIGHUP a write to it fails (EIO), and a print in
+    # the program's close, or the library's own last words, would end the stop in a traceback, the close cut
+    # short.  What goes to the terminal from then on is dropped instead.
+    master, slave = os.openpty()
+    state = tmp_path / "state"
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", HANGUP_ON_A_TERMINAL, runner, str(state)],
+            stdin=subprocess.DEVNULL,
+            stdout=slave,
+            stderr=slave,
+        )
+        os.close(slave)
+        slave = -1
+        seen = b""
+        deadline = time.monotonic() + scaled(30)
+        while b"streaming" not in seen and time.monotonic() < deadline:
+            seen += os.read(master, 1024)
+        assert b"streaming" in seen, seen
+        os.kill(proc.pid, signal.SIGHUP)
+    finally:
+        os.close(master)  # hung up: the program's writes to it fail from now on
+        if slave >= 0:
+            os.close(slave)
+    try:
+        proc.wait(timeout=scaled(30))
+    finally:
+        proc.kill()
+    assert proc.returncode == 129
+    assert state.read_text() == "free"
 
 
 # A plain 50 Hz gait script under blocking.run: argv[1] what it does once its port is lost ("end": nothing,
@@ -864,7 +1036,7 @@ BLOCKING_RUN_PROGRAM = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_blocking_run_ends_on_a_signal_as_the_async_run_does(signum: int, code: int) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-c", BLOCKING_RUN_PROGRAM], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
