@@ -6,6 +6,7 @@ import asyncio
 import json
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -790,28 +791,26 @@ def test_a_program_whose_terminal_hung_up_closes_without_a_traceback(runner: str
     # short.  What goes to the terminal from then on is dropped instead.
     master, slave = os.openpty()
     state = tmp_path / "state"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HANGUP_ON_A_TERMINAL, runner, str(state)],
+        stdin=subprocess.DEVNULL,
+        stdout=slave,
+        stderr=slave,
+    )
+    os.close(slave)
     try:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", HANGUP_ON_A_TERMINAL, runner, str(state)],
-            stdin=subprocess.DEVNULL,
-            stdout=slave,
-            stderr=slave,
-        )
-        os.close(slave)
-        slave = -1
         seen = b""
         deadline = time.monotonic() + scaled(30)
-        while b"streaming" not in seen and time.monotonic() < deadline:
+        while b"streaming" not in seen and select.select([master], [], [], max(0, deadline - time.monotonic()))[0]:
             seen += os.read(master, 1024)
         assert b"streaming" in seen, seen
         os.kill(proc.pid, signal.SIGHUP)
-    finally:
         os.close(master)  # hung up: the program's writes to it fail from now on
-        if slave >= 0:
-            os.close(slave)
-    try:
+        master = -1
         proc.wait(timeout=scaled(30))
     finally:
+        if master >= 0:
+            os.close(master)
         proc.kill()
     assert proc.returncode == 129
     assert state.read_text() == "free"
