@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import warnings
+import weakref
 from collections.abc import Awaitable, Callable, Generator, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar, Unpack
 
@@ -158,7 +160,9 @@ class Bus:
         self._closing_outs: set[Any] = set()  # streams' close-outs under way (see close_out_begins)
         self._leaving: BackgroundSource | None = None  # detached by its program, maybe at a burst's end (see reopen)
         self._closed_event: Any = None  # an anyio.Event, set once aclose() is done (see aclose)
-        self._engine.on_state_change = self._state_changed
+        # Weakly: a driver's I/O thread holds the engine, and through it would keep a bus its program dropped
+        # unclosed alive for ever (never collected, never warned of: see __del__).
+        self._engine.on_state_change = _state_callback(weakref.ref(self))
 
     @property
     def port(self) -> str | WireDevice:
@@ -396,6 +400,23 @@ class Bus:
             await self._close()
         finally:
             closed.set()
+
+    def __del__(self, _warn: Callable[..., None] = warnings.warn) -> None:
+        # As asyncio's transports do: a bus dropped open (`bus = await open_bus(...)`, never closed) is said
+        # once it is collected.  Closing is async (a stream's on_close, the request on the wire), so it cannot
+        # be done from here: its servos keep their last command.  (_warn is bound at definition: at
+        # interpreter shutdown the module's globals may already be gone.)
+        try:
+            unclosed = self._driver is not None and self._closed_event is None and self.is_open
+        except Exception:  # half-made (its __init__ raised), or the interpreter is shutting down
+            return
+        if unclosed:
+            _warn(
+                f"unclosed bus {self._port!s}: use `async with open_bus(...) as bus:` or `await bus.aclose()`"
+                " (its servos keep their last command; a stream's on_close did not run)",
+                ResourceWarning,
+                source=self,
+            )
 
     async def _close(self) -> None:
         close_out, self._close_out = self._close_out, None
@@ -693,6 +714,15 @@ class Bus:
 
     def __repr__(self) -> str:
         return f"<Bus {self.port!s} {int(self.baudrate)} baud {self._engine.state.value}>"
+
+
+def _state_callback(bus: weakref.ref[Bus]) -> Callable[[State], None]:
+    def state_changed(state: State) -> None:
+        alive = bus()
+        if alive is not None:
+            alive._state_changed(state)
+
+    return state_changed
 
 
 def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> Bus:

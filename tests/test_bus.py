@@ -1005,3 +1005,27 @@ async def test_a_bus_closed_while_a_cancelled_commands_reply_is_due_waits_for_it
     async with open_bus(path, driver=driver, **NO_TIMEOUTS) as again:
         assert (await again.servo(1).read_eeprom()).servo_id == 1
         assert again.stats.total.errors == 0 and again.stats.stray_bytes == 0
+
+
+@pytest.mark.parametrize("driver", ["asyncio", "thread", "anyio"])
+def test_a_bus_left_unclosed_when_its_run_ends_is_warned_of_at_garbage_collection(driver: str) -> None:
+    # `bus = await open_bus(...)` and no close: asyncio.run returned and nothing was said, not even under
+    # `python -X dev`, while a stream's on_close never ran (the servos kept holding).
+    import gc
+    import warnings
+
+    async def main(close: bool) -> None:
+        bus = await open_bus("sim://?ids=1", driver=driver, **FAST)
+        await bus.servo(1).read_stretch()
+        if close:
+            await bus.aclose()
+
+    with pytest.warns(ResourceWarning, match=r"unclosed bus sim://\?ids=1.*async with open_bus.*aclose"):
+        asyncio.run(main(close=False))
+        gc.collect()
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        asyncio.run(main(close=True))  # a closed bus goes quietly
+        open_bus("sim://?ids=1")  # and so does one never opened
+        gc.collect()
+    assert [w for w in said if "unclosed bus" in str(w.message)] == []
