@@ -5,6 +5,7 @@ from __future__ import annotations
 import pathlib
 import threading
 import time
+from typing import Any
 
 import anyio
 import pytest
@@ -225,3 +226,21 @@ def test_ids_none_is_a_line_without_servos_as_ics35_sim_takes_it() -> None:
     line = open_url("sim://?ids=none")
     assert isinstance(line, VirtualLine) and not line.servos
     line.close()
+
+
+@pytest.mark.parametrize("url", ["SIM://?ids=1-3", "Sim://?ids=1-3"])
+async def test_a_url_scheme_in_capitals_opens_the_same_port(url: str) -> None:
+    # URL schemes are case-insensitive (RFC 3986): SIM:// was refused as "protocol 'sim' not known".
+    async with open_bus(url) as bus:
+        assert await bus.scan(range(5)) == [1, 2, 3]
+
+
+def test_the_cli_takes_a_url_scheme_in_capitals_for_the_simulator_it_names(cli: Any) -> None:
+    lower = cli("--port", "sim://?ids=1-3", "scan", "--quick")
+    upper = cli("--port", "SIM://?ids=1-3", "scan", "--quick")
+    assert lower.code == 0
+    assert (upper.code, upper.out, upper.err) == (0, lower.out.replace("sim://", "SIM://"), lower.err)
+    # What the CLI does for the simulator (no serial port to listen on) it does for SIM:// as for sim://.
+    refused = [cli("--port", port, "sniff") for port in ("sim://", "SIM://")]
+    assert refused[0].code != 0 and "listens on a serial port" in refused[0].err
+    assert (refused[1].code, refused[1].err) == (refused[0].code, refused[0].err)

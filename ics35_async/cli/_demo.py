@@ -92,7 +92,7 @@ def demo(
     """
     settings = settings_of(ctx)
     asked_all = every_id(ids)  # "all": the servos that answer, as the user asked for every one (no question)
-    if settings.port == "sim://":
+    if settings.is_bare_sim:
         ids = ids or list(range(32))
     shown = live_port(settings, plot, "ids=0-31&")
     if amplitude is None:

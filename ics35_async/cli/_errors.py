@@ -10,6 +10,7 @@ from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
+from ..transports.wire_device import url_scheme
 from ._console import ids_text
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
@@ -113,7 +114,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
 
 def is_network_link(port: str) -> bool:
     """Whether ``port`` is a line on another machine (a TCP bridge or RFC 2217 server)."""
-    return port.partition("://")[0].lower() in ("socket", "rfc2217")
+    return url_scheme(port) in ("socket", "rfc2217")
 
 
 def bridge_hints(settings: Settings) -> tuple[str, ...]:

@@ -243,7 +243,7 @@ def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:
     """
     if plot is not None:
         check_plot_path(plot)
-    if settings.port != "sim://":
+    if not settings.is_bare_sim:
         return settings.port
     settings.port = f"sim://?{sim_query}realtime=1&baud={settings.baud}"
     return "the built-in simulator"

@@ -38,6 +38,7 @@ from ..robot import (
     load_description,
     open_robot,
 )
+from ..transports.wire_device import url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
 
@@ -165,7 +166,7 @@ async def first_pose(robot: Robot) -> dict[str, float]:
 @contextlib.contextmanager
 def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
     """Simulated lines the robot file names live for this command only (unless they existed before it)."""
-    named = [line.port for line in description.lines.values() if line.port.startswith("sim://")]
+    named = [line.port for line in description.lines.values() if url_scheme(line.port) == "sim"]
     if not named:
         yield
         return

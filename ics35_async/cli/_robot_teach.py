@@ -24,6 +24,7 @@ from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFr
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
 from ..robot.startup import limit_problem
+from ..transports.wire_device import url_scheme
 from ._common import (
     CliError,
     ExitCode,
@@ -75,7 +76,7 @@ async def freed_robot(
 def ask_before_freeing_all(description: RobotDescription, robot_file: str, joints: str | None, yes: bool) -> None:
     """Without ``--joints`` every joint goes free at once: a humanoid standing on them falls while an arm's wave
     is taught or a knee calibrated.  On a serial line (not the simulator) ask first; ``--yes`` skips it."""
-    if joints is not None or all(line.port.startswith("sim://") for line in description.lines.values()):
+    if joints is not None or all(url_scheme(line.port) == "sim" for line in description.lines.values()):
         return
     robot_name = description.name or robot_file
     if len(description.joints) == 1:

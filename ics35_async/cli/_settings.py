@@ -105,7 +105,14 @@ class Settings:
 
     @property
     def is_sim(self) -> bool:
-        return self.port.startswith("sim://")
+        from ..transports.wire_device import url_scheme  # (here: `ics35 --version` loads no transport)
+
+        return url_scheme(self.port) == "sim"
+
+    @property
+    def is_bare_sim(self) -> bool:
+        """The simulator with nothing asked of it (``sim://``, the default): a command may shape it its way."""
+        return self.is_sim and not self.port.partition("://")[2]
 
     @property
     def url(self) -> str:

@@ -25,6 +25,7 @@ from .wire_device import (
     WireDeviceFactory,
     device_factory,
     register_url_scheme,
+    url_scheme,
 )
 
 if TYPE_CHECKING:
@@ -87,4 +88,5 @@ __all__ = [
     "open_port",
     "rate_blind_note",
     "register_url_scheme",
+    "url_scheme",
 ]

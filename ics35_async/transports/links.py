@@ -17,6 +17,8 @@ import threading
 
 import serial
 
+from .wire_device import url_scheme
+
 log = logging.getLogger("ics35_async.transports")
 
 # Schemes whose bytes reach a wire we set nothing on: the far end's settings rule.
@@ -44,8 +46,7 @@ def carries_line_settings(port: object) -> bool:
     """
     if not isinstance(port, str):
         return True
-    scheme, sep, _ = port.partition("://")
-    return not (sep and scheme.lower() in _RATE_BLIND_SCHEMES)
+    return url_scheme(port) not in _RATE_BLIND_SCHEMES
 
 
 def rate_blind_note(port: str) -> str:

@@ -29,7 +29,7 @@ from .device_port import DevicePort
 from .pyserial_port import SERIAL_POLL, ReaderThread, SerialPort
 from .serial_port import READ_POLL, open_serial, posix_fd
 from .tty_port import TtyPort
-from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory, port_argument
+from .wire_device import TRANSPORT_KINDS, WireDevice, device_factory, port_argument, url_scheme
 
 log = logging.getLogger("ics35_async.transports")
 
@@ -70,8 +70,8 @@ def open_port(
     port = port_argument(port)
     if not isinstance(port, str):
         return _device_port(port, baudrate)
-    scheme, sep, _ = port.partition("://")
-    factory = device_factory(scheme) if sep else None
+    scheme = url_scheme(port)
+    factory = device_factory(scheme) if scheme else None
     if factory is not None:
         return _device_port(factory(port), baudrate)
     ser = open_serial(port, baudrate, True, direction)

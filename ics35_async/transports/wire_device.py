@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
 
@@ -56,8 +57,24 @@ _URL_SCHEMES: dict[str, WireDeviceFactory] = {}
 
 
 def register_url_scheme(scheme: str, factory: WireDeviceFactory) -> None:
-    """Make ``open_port("<scheme>://...")`` (and so ``open_bus``) build its device with ``factory(url)``."""
-    _URL_SCHEMES[scheme] = factory
+    """Make ``open_port("<scheme>://...")`` (and so ``open_bus``) build its device with ``factory(url)``.
+
+    ``scheme`` in any case: URL schemes are case-insensitive (``SIM://`` is ``sim://``)."""
+    _URL_SCHEMES[scheme.lower()] = factory
+
+
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*)://")
+
+
+def url_scheme(port: object) -> str:
+    """The URL scheme ``port`` names, in lower case (``"sim"`` for ``SIM://?ids=1``; ``"socket"``,
+    ``"rfc2217"``, ...); ``""`` for a device path (``/dev/ttyUSB0``, ``COM3``) or a :class:`WireDevice`.
+
+    The one place a port's scheme is read: schemes are case-insensitive (RFC 3986), so every check of one
+    ("is this the simulator?", "a network link?") goes through here rather than comparing text.
+    """
+    match = _SCHEME.match(port) if isinstance(port, str) else None
+    return match[1].lower() if match is not None else ""
 
 
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
@@ -91,6 +108,7 @@ def port_argument(port: object) -> str | WireDevice:
 
 def device_factory(scheme: str) -> WireDeviceFactory | None:
     """The factory registered for ``scheme``, importing its module on first use; None if unknown."""
+    scheme = scheme.lower()
     factory = _URL_SCHEMES.get(scheme)
     if factory is None and scheme in _LAZY_SCHEMES:
         module, _, name = _LAZY_SCHEMES[scheme].partition(":")

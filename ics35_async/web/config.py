@@ -6,6 +6,8 @@ import hashlib
 import os
 from dataclasses import dataclass
 
+from ..transports.wire_device import url_scheme
+
 
 @dataclass(frozen=True)
 class LineConfig:
@@ -21,16 +23,16 @@ class LineConfig:
 
     @property
     def is_sim(self) -> bool:
-        return self.port.startswith("sim://")
+        return url_scheme(self.port) == "sim"
 
     @property
     def url(self) -> str:
         """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos;
         one of its own for each set of options (``sim://?ids=5`` is not the ``sim://`` opened before it)."""
-        if self.port == "sim://" or self.port.startswith("sim://?"):
+        options = self.port.partition("://")[2]
+        if self.is_sim and (not options or options.startswith("?")):
             from ..sim.url import url_options  # (the simulator loads only for a sim:// line)
 
-            options = self.port[len("sim://") :]
             digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
             return f"sim://ics35-web-{os.getpid()}-{digest}{options}"
         return self.port

@@ -27,6 +27,7 @@ from ..robot.safety import SafetyStop
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
+from ..transports.wire_device import url_scheme
 from ..units import check_seconds
 
 # How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
@@ -248,7 +249,7 @@ class RobotSession:
         stream (on hardware the wire does), so it runs as fast as the CPU allows, in this server's loop."""
         said = []
         for line in self.description.lines.values():
-            if line.rate_hz is not None or not line.port.lower().startswith("sim://"):
+            if line.rate_hz is not None or url_scheme(line.port) != "sim":
                 continue
             try:
                 realtime = parse_url(line.port)[1].get("realtime", False)
