@@ -1830,3 +1830,28 @@ async def test_the_bus_closing_waits_for_an_earlier_streams_close_out_when_anoth
     await asyncio.gather(closing, bus.aclose())
     assert first.targets_sent_on_close == dict.fromkeys([1, 2, 3], FREE)
     assert all(sim.servo(i).free for i in (1, 2, 3))
+
+
+@pytest.mark.parametrize("anyio_backend", ["asyncio", "uvloop"], indirect=True)
+@pytest.mark.parametrize("unplugged_from", ["the program", "another thread"])
+async def test_a_stream_on_an_unplugged_simulated_port_says_it_was_unplugged(unplugged_from: str) -> None:
+    # The loss raced the stream's next write: a write that came first met the line already gone and said "the
+    # simulated port is gone" (most often on uvloop) instead of why it went.
+    from ics35_async import sim
+
+    for attempt in range(5):
+        name = f"unplug-words-{unplugged_from.replace(' ', '-')}-{attempt}"
+        async with open_bus(f"sim://{name}?ids=1", **FAST) as bus:
+            line = sim.named(name)
+            try:
+                with pytest.raises(PortLost) as lost:
+                    async with bus.stream([1]) as stream:
+                        async for frame in stream:
+                            if frame.cycle == 2:
+                                if unplugged_from == "the program":
+                                    line.unplug()
+                                else:
+                                    threading.Thread(target=line.unplug).start()
+                assert str(lost.value).endswith("the simulated port was unplugged"), str(lost.value)
+            finally:
+                line.close()

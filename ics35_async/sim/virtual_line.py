@@ -239,11 +239,13 @@ class VirtualLine(LineModel):
         wire time (real time).
 
         Raises:
-            OSError: the port is not open or is gone (``EIO``).
+            OSError: the port is not open (``EIO``) or was unplugged (``ENODEV``).
         """
         host = self._host
         if host is None:
-            raise OSError(errno.EIO, "the simulated port is not open" if self.plugged else "the simulated port is gone")
+            if not self.plugged:  # (a write between unplug() taking the host and telling it: the same words)
+                raise OSError(errno.ENODEV, "the simulated port was unplugged")
+            raise OSError(errno.EIO, "the simulated port is not open")
         chunks = self.process(data)
         if self.realtime:
             deliverer = self._deliverer
