@@ -140,7 +140,11 @@ class Servo:
     # ------------------------------------------------------------------ ICS 3.6 position read
 
     def known_position_read(self) -> bool | None:
-        """Whether this servo answers ICS 3.6's position read, if already probed on this line; else ``None``."""
+        """Whether this servo answers ICS 3.6's position read, if already probed on this line; else ``None``.
+
+        A plain method, not a coroutine: it sends nothing, so it is called without ``await`` (awaiting its
+        answer raises ``TypeError: object NoneType can't be used in 'await' expression``, or ``bool``).
+        """
         return _POSITION_READS.get(self._bus, {}).get(self.id)
 
     async def has_position_read(self, *, silent_before: bool = False) -> bool:
