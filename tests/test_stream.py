@@ -44,6 +44,7 @@ from ics35_async.bus import Bus
 from ics35_async.protocol import FREE, ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
 from ics35_async.stream import RATE_CHECK_CYCLES
+from tests.conftest import every_backend
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
 
 POSITION_COMMANDS = ("position", "free")  # the sim logs a position-0 command as "free"
@@ -1832,7 +1833,7 @@ async def test_the_bus_closing_waits_for_an_earlier_streams_close_out_when_anoth
     assert all(sim.servo(i).free for i in (1, 2, 3))
 
 
-@pytest.mark.parametrize("anyio_backend", ["asyncio", "uvloop"], indirect=True)
+@every_backend
 @pytest.mark.parametrize("unplugged_from", ["the program", "another thread"])
 async def test_a_stream_on_an_unplugged_simulated_port_says_it_was_unplugged(unplugged_from: str) -> None:
     # The loss raced the stream's next write: a write that came first met the line already gone and said "the
@@ -1847,7 +1848,7 @@ async def test_a_stream_on_an_unplugged_simulated_port_says_it_was_unplugged(unp
                 with pytest.raises(PortLost) as lost:
                     async with bus.stream([1]) as stream:
                         async for frame in stream:
-                            if frame.cycle == 2:
+                            if frame.cycle >= 2 and line.plugged:  # (>=: a consumer slower than the line skips frames)
                                 if unplugged_from == "the program":
                                     line.unplug()
                                 else:
