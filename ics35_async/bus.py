@@ -610,7 +610,8 @@ class Bus:
 
         unknown = set(options) - STREAM_OPTIONS
         if unknown:
-            raise InvalidArgument(unknown_options("stream", unknown, STREAM_OPTIONS))
+            # (rate_hz among them, though a parameter of its own: `rate=50` most likely meant it)
+            raise InvalidArgument(unknown_options("stream", unknown, STREAM_OPTIONS | {"rate_hz"}))
         return Stream(self, ids, rate_hz=rate_hz, **options)
 
     async def read_id(self, *, exactly_one_device: bool = False) -> int:
