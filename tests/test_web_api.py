@@ -196,6 +196,16 @@ def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) 
     )
 
 
+def test_the_open_port_named_with_its_scheme_in_capitals_is_reopened_not_refused_as_busy(serve: Any) -> None:
+    # SIM://name is sim://name (a URL's scheme is read in any case): the same line, closed before it is opened
+    # again, not opened beside itself ("already open: a simulated line takes one bus at a time").
+    client, _ = serve((1, 3))
+    port = client.get("/api/status").json()["port"]
+    switched = post(client, "/api/connect", {"port": port.replace("sim://", "SIM://")})
+    assert switched.status_code == 200, switched.json()
+    assert [s["id"] for s in post(client, "/api/scan", {"bauds": [115200]}).json()["servos"]] == [1, 3]
+
+
 def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: Any) -> None:
     client, _ = serve((1, 3))
     not_a_port = tmp_path / "notes.txt"

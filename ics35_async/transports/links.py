@@ -31,9 +31,11 @@ _warned_lock = threading.Lock()
 def same_port(a: str, b: str) -> bool:
     """Whether two port names open the same line: equal URLs, or device paths that lead to the same
     device (``/dev/serial/by-id/...`` and the ``/dev/ttyUSB0`` it links to).  A device cannot be open
-    twice, so whoever switches between them closes the one first."""
-    if "://" in a or "://" in b:
-        return a == b
+    twice, so whoever switches between them closes the one first.  A URL's scheme is read in any case
+    (``SIM://x`` is ``sim://x``), as opening it reads it."""
+    scheme = url_scheme(a)
+    if scheme or url_scheme(b):
+        return scheme == url_scheme(b) and a.partition("://")[2] == b.partition("://")[2]
     return a == b or os.path.realpath(a) == os.path.realpath(b)
 
 
