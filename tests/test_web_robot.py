@@ -591,6 +591,16 @@ def test_the_pages_work_on_a_robot_line_without_fighting_the_robot_for_its_servo
     assert post(client, "/api/robot/move", {"pose": {"shoulder": 10}, "duration": 0.1}).status_code == 200
 
 
+def test_a_robot_lines_port_named_with_its_scheme_in_capitals_is_that_robot_line(robot: Any) -> None:
+    # SIM://x is sim://x: Connect to the robot's line port so written works on the robot's line, as its own name
+    # does, instead of opening the port beside the robot ("already open: a simulated line takes one bus at a time").
+    client, _ = robot
+    port = client.get("/api/status").json()["robot"]["lines"][0]["port"]
+    used = post(client, "/api/connect", {"port": port.replace("sim://", "SIM://")})
+    assert used.status_code == 200, used.json()
+    assert used.json()["robot_line"] == "arm" and used.json()["connected"]
+
+
 def test_on_a_robot_line_a_silent_servo_is_not_looked_for_at_other_rates_and_the_message_says_so(robot: Any) -> None:
     client, line = robot
     line.add_device(sim.VirtualServo(5, baud_rate=1250000))

@@ -27,6 +27,7 @@ from ..robot.safety import SafetyStop
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
+from ..transports import same_port
 from ..transports.wire_device import url_scheme
 from ..units import check_seconds
 
@@ -285,8 +286,9 @@ class RobotSession:
         return self._robot().group.buses[spec.name], spec
 
     def line_named_by_port(self, port: str) -> LineSpec | None:
-        """The robot's line on ``port``, if one is."""
-        return next((spec for spec in self.description.lines.values() if spec.port == port), None)
+        """The robot's line on ``port``, if one is (under any name of it: ``SIM://x`` for ``sim://x``, a device's
+        link for the device: the port is the robot's either way, and cannot be opened beside it)."""
+        return next((spec for spec in self.description.lines.values() if same_port(spec.port, port)), None)
 
     def joint_at(self, line: str, servo_id: int) -> str | None:
         """The joint driven by servo ``servo_id`` on ``line``, if any."""
