@@ -206,8 +206,8 @@ class RobotSession:
         self._carry_on_from(robot)
 
     def _carry_on_from(self, robot: Robot) -> None:
-        """What Reconnect starts from (see :meth:`reopen`), taken once a lost line has stopped ``robot`` (and again
-        once Free all has freed joints, and at Reconnect: what it is then)."""
+        """What Reconnect starts from (see :meth:`reopen`), taken as a lost line stops ``robot`` and again once the
+        other lines have slowed to rest (and once Free all has freed joints, and at Reconnect: what it is then)."""
         self.ics36.update(name for name, mode in robot.start_modes.items() if mode == "read")
         # A joint held since its servo answered again was sent nothing: its servo may have restarted (free and
         # elsewhere: its old target would throw it there) or kept its power (holding: freeing it drops what it
