@@ -878,3 +878,22 @@ def test_a_lost_line_back_before_the_motion_playing_has_slowed_to_rest_is_still_
         assert unsaid.status_code == 400 and "line lower held joints hip, knee" in unsaid.json()["error"]
         assert post(client, "/api/robot/reopen", {"lost_joints": "free"}).json()["open"]
         wait_for(lambda: lower.servo(1).free and lower.servo(2).free)
+
+
+def test_reconnect_pressed_while_the_other_lines_slow_to_rest_does_not_send_them_back(tmp_path: Path) -> None:
+    # The lost line back at once (a reconnect delay: 0.05 s), Reconnect pressed within the stop's ramp: the robot
+    # reopened holding the other lines' joints where the ramp was as Reconnect was pressed, and the neck, come to
+    # rest further on, was sent back there.
+    with two_line_page(tmp_path) as (client, upper, lower):
+        post(client, "/api/robot/motion", {"enabled": True})
+        post(client, "/api/robot/move", {"pose": {"neck": 60}, "duration": 3.0})
+        time.sleep(0.5)
+        since = upper.transactions
+        lower.unplug()
+        wait_for(lambda: client.get("/api/robot").json()["error"] is not None, 5)
+        lower.replug()
+        answer = post(client, "/api/robot/reopen", {"lost_joints": "free"})
+        assert answer.status_code == 200, answer.json()
+        time.sleep(0.5)
+        sent = [(t.tx[1] << 7) | t.tx[2] for t in upper.log_since(since) if t.servo_id == 1 and t.command == "position"]
+        assert len(set(sent)) > 2 and sent == sorted(sent), sent  # (moving up to 60 degrees, then at rest)

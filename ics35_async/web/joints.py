@@ -122,17 +122,18 @@ class RobotSession:
                     "in, then press Reconnect; meanwhile Free all reaches the joints on the other lines"
                 )
             self._carry_on_from(stopped)  # (as it is now: a safety stop since, a joint back held)
-        pose = dict(self.start_pose)
-        if self.lost_pose:
-            if lost_joints not in ("hold", "free"):
-                raise InvalidArgument(
-                    f"line {', '.join(self.lost_lines)} held joints {', '.join(self.lost_pose)} when it was lost:"
-                    " say whether they hold their last targets ('hold': right if their servos kept their power)"
-                    " or start free ('free': right if they restarted, free and elsewhere)"
-                )
-            if lost_joints == "hold":
-                pose.update(self.lost_pose)
+        if self.lost_pose and lost_joints not in ("hold", "free"):
+            raise InvalidArgument(
+                f"line {', '.join(self.lost_lines)} held joints {', '.join(self.lost_pose)} when it was lost:"
+                " say whether they hold their last targets ('hold': right if their servos kept their power)"
+                " or start free ('free': right if they restarted, free and elsewhere)"
+            )
         await self.close()
+        # The pose as the close left it: pressed while the other lines still slowed to rest, the stop's end
+        # (see _stop_at_loss) takes it again where they came to rest; taken before, they were sent back.
+        pose = dict(self.start_pose)
+        if lost_joints == "hold":
+            pose.update(self.lost_pose)
         await self._open(pose)
         robot = self.robot
         if robot is not None:
