@@ -96,9 +96,10 @@ class Stream(FrameIterator[Frame]):
         free_on_close: deprecated: ``on_close="free"``.
         history: how many cycles the statistics look back over.
         on_close: what the servos do when the stream ends: ``"hold"`` (keep their last target: one set
-            since the last cycle is sent as the stream closes) or ``"free"`` (torque off).  An offline ID, and
-            one that failed twice and never answered, gets its close command once, without the bus's retries (a
-            free: with a probe's short wait; an offline ID's even on a line where nothing has answered yet).
+            since the last cycle is sent as the stream closes; an offline ID gets nothing) or ``"free"`` (torque
+            off).  An offline ID's free, and the close command of one that failed twice and never answered, goes
+            once, without the bus's retries (a free: with a probe's short wait; an offline ID's even on a line
+            where nothing has answered yet).
         on_resume: after a lost port comes back, or an offline ID answers again: ``"wait"`` (hold each
             such ID that had a position target, sending no command, until the program sets its target
             again) or ``"free"``.
