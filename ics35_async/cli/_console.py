@@ -39,7 +39,7 @@ out = _Console(highlight=False, soft_wrap=True)
 err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
 
-def view_words(text: Text) -> Text:
+def wrapped_at_width(text: Text) -> Text:
     """``text``, a line of words in a live view (its status line, a note), wrapped at the terminal's width: the
     consoles soft-wrap, so rich would cut it at the last column (the status line's hint lost on a narrow one)."""
     text.no_wrap = False

@@ -40,7 +40,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import ids_argument, live_view, view_words
+from ._console import ids_argument, live_view, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -98,7 +98,7 @@ async def run_live(
             emit_json({**state.snapshot(telemetry), "final": final})
         elif live is not None:
             hint = "" if final else hint
-            status = view_words(Text(state.summary(telemetry) + hint))
+            status = wrapped_at_width(Text(state.summary(telemetry) + hint))
             live.update(Group(state.table(telemetry, options.with_targets), status))
             live.refresh()
         elif not final:

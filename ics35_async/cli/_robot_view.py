@@ -22,7 +22,7 @@ from ..engine import State
 from ..robot import Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import live_view, signed_tenths, view_words
+from ._console import live_view, signed_tenths, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
@@ -126,8 +126,8 @@ class Screen:
             out.file.flush()
 
     def _lines(self, hint: str) -> Group:
-        said = [view_words(Text.from_markup(self._said))] if self._said else []
-        return Group(self.render(), *said, view_words(Text(f"{self.summary()}   {hint}".rstrip())))
+        said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
+        return Group(self.render(), *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())))
 
     def __enter__(self) -> Screen:
         if self._live is not None:
