@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import select
 import signal
 import subprocess
@@ -531,7 +532,9 @@ def _last_words_lost_on_a_terminal(script: str, lines: int, *, pressing: bool) -
         os.close(master)
         os.close(slave)
     assert proc.wait(scaled(30)) == 0
-    said = {int(word) for word in written.replace(b"^C", b" ").split() if word.isdigit()}
+    # (A press's echoed ^C lands between two of the terminal's output blocks, which on a full pty buffer can be in
+    # the middle of a line's number: "line 6^C0".)
+    said = {int(number) for number in re.findall(rb"line (\d+)", written.replace(b"^C", b""))}
     return sorted(set(range(lines)) - said), no_flush_after
 
 
