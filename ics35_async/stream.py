@@ -267,8 +267,9 @@ class Stream(FrameIterator[Frame]):
     # ------------------------------------------------------------------ targets
 
     def _slot(self, servo_id: int) -> int:
-        # (1.0 and True would find ID 1 in the index: an ID is a whole number here as everywhere, as bus.servo's)
-        number = units.whole_number(servo_id)
+        # (1.0 and True would find ID 1 in the index: an ID is a whole number here as everywhere, as bus.servo's;
+        # a plain int, every ID of a control loop's targets each cycle, goes straight to the index)
+        number = servo_id if type(servo_id) is int else units.whole_number(servo_id)
         if number is None:
             raise InvalidArgument(f"servo ID must be an int, not {type(servo_id).__name__}")
         try:
