@@ -7,6 +7,7 @@ byte of every command against the spec.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import re
@@ -205,6 +206,24 @@ def run_sim(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@contextlib.contextmanager
+def serving_sim(*args: str) -> Iterator[subprocess.Popen[str]]:
+    """``ics35 sim --ids 1 --fast`` with ``args`` in a process of its own, its output piped (its first line: the
+    port's path); killed after the block if it still runs."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", "--fast", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("option", ["--link", "--tap"])
 def test_a_link_path_that_is_not_the_simulators_own_is_refused_and_left_alone(tmp_path: Path, option: str) -> None:
     precious = tmp_path / "notes.txt"
@@ -282,21 +301,11 @@ def test_a_link_whose_folder_is_removed_while_serving_stops_the_simulator_in_wor
     folder.mkdir()
     link = folder / "tty"
     replug = ["--unplug-after", "0.3", "--replug-after", "0.3"]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", "--fast", "--link", str(link), *replug],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    with serving_sim("--link", str(link), *replug) as proc:
         assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
         (folder / "tty").unlink(missing_ok=True)
         folder.rmdir()
         _, err = proc.communicate(timeout=GUARD)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 1, err
     assert "Traceback" not in err and f"{folder}" in err and "gone" in err, err
     assert "served 0 transactions" in err  # its end said as ever
@@ -339,13 +348,7 @@ SCHEDULED = ("--unplug-after", "0.3", "--replug-after", "0.5")
 def test_a_scheduled_unplug_is_said_on_the_simulators_terminal_with_when_the_port_comes_back() -> None:
     # ics35 sim --unplug-after said nothing as the port went: a person watching its terminal could not tell the
     # simulator's doing from their program's fault, nor when to expect the port back.
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "sim", "--ids", "1", "--fast", *SCHEDULED],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    with serving_sim(*SCHEDULED) as proc:
         assert proc.stdout is not None and proc.stderr is not None
         path = proc.stdout.readline().strip()
         deadline = time.monotonic() + GUARD
@@ -357,10 +360,6 @@ def test_a_scheduled_unplug_is_said_on_the_simulators_terminal_with_when_the_por
             time.sleep(0.01)
         proc.terminate()
         _, err = proc.communicate(timeout=GUARD)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 0, err
     said = [line for line in err.splitlines() if "unplugged" in line]
     assert len(said) == 1, err  # one line, between the serving line and the end's
