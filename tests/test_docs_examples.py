@@ -47,13 +47,40 @@ def test_example_runs(name: str, code: str, tmp_path: Path) -> None:
     assert "Traceback" not in done.stderr
 
 
-def test_the_quick_start_servo_gets_where_its_comments_say() -> None:
+def _quick_start() -> str:
+    (code,) = [code for name, code in BLOCKS if name.startswith("docs/getting-started/quick-start.md")]
+    return code
+
+
+def test_the_quick_start_servo_gets_where_its_comments_say(tmp_path: Path) -> None:
     """The quick start moves a servo to +30 degrees, waits and prints where it is: the simulated servo must
     have moved in that real wait (a fast-mode simulator's clock does not follow sleeps), so it prints about
     7500 + 30 * 8000 / 270 counts."""
-    (code,) = [code for name, code in BLOCKS if name.startswith("docs/getting-started/quick-start.md")]
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-c", _quick_start()], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
     assert done.returncode == 0, done.stderr
     found = re.search(r"^now at (\d+)", done.stdout, flags=re.M)
     assert found, done.stdout
     assert abs(int(found.group(1)) - 8389) <= 30, done.stdout
+
+
+def test_the_quick_start_backups_are_what_eeprom_restore_reads(tmp_path: Path) -> None:
+    """The quick start's Python twin of `ics35 eeprom dump all -o backup/` writes backups that
+    `ics35 eeprom restore backup/` takes, as the page says of them: restored onto servos that already
+    hold those settings, each is checked whole and nothing is written."""
+    made = subprocess.run(
+        [sys.executable, "-c", _quick_start()], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
+    assert made.returncode == 0, made.stderr
+    saved = sorted(path.name for path in (tmp_path / "backup").iterdir())
+    assert saved == ["servo-01.json", "servo-02.json", "servo-03.json"], made.stdout
+    restored = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", "sim://?ids=1-3", "eeprom", "restore", "backup/", "--yes"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert restored.returncode == 0, restored.stderr
+    assert restored.stdout.count("EEPROM already matches, nothing to write") == 3, restored.stdout
