@@ -110,6 +110,17 @@ def test_scan_finds_servos_at_every_baud(cli: Any, sim_line: Any) -> None:
     assert "eeprom set ID baud_rate=" in result.err and "--change-baud" in result.err, result.err
 
 
+def test_scan_names_one_baud_rate_in_the_command_that_moves_a_servo_to_another(cli: Any, sim_line: Any) -> None:
+    """Scanned with --baud 1250000, the command the note gives reaches the servo at ITS_RATE only: the line's
+    own --baud (the scan's) is left out of it, not given twice."""
+    _, url = sim_line([VirtualServo(1), VirtualServo(2), VirtualServo(3, baud_rate=1250000)])
+    result = cli("--port", url, "--baud", "1250000", "scan", "--ids", "0-4", "--timeout", "0.005")
+    assert result.code == 0, result.err
+    note = " ".join(line for line in result.err.splitlines() if "to bring one to" in line or "--change-baud" in line)
+    assert "--baud ITS_RATE eeprom set ID baud_rate=115200 --change-baud" in note, result.err
+    assert note.count("--baud") == 1, result.err
+
+
 @pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
 def test_scan_whose_port_is_lost_part_way_shows_what_it_found_then_the_loss(
     cli: Any, sim_line: Any, as_json: bool

@@ -136,9 +136,10 @@ class Settings:
             text = text.replace(urlunsplit(parts._replace(netloc=name)), self.port)
         return text
 
-    def line_args(self) -> list[str]:
+    def line_args(self, without: tuple[str, ...] = ()) -> list[str]:
         """The line options that reach this line again, as arguments: --port unless the implicit simulator,
-        and every other option that differs from its default."""
+        and every other option that differs from its default, but for the flags in ``without`` (a command
+        that gives one of its own: the same flag twice would leave which one counts to the reader)."""
         args = [] if self.port_defaulted else ["--port", self.port]
         defaults = Settings()
         for flag, name in (
@@ -150,7 +151,7 @@ class Settings:
             ("--transport", "transport"),
         ):
             value = getattr(self, name)
-            if value == getattr(defaults, name):
+            if value == getattr(defaults, name) or flag in without:
                 continue
             if isinstance(value, bool):
                 args.append(flag)  # --no-echo: echo off
@@ -161,8 +162,9 @@ class Settings:
     def command_line(self, *words: str) -> str:
         """``ics35 [the line options of this command] WORDS...``, quoted for a shell: every hint that names a
         command to run renders it here, so it reaches the same line (without --port it would read the
-        simulator, or refuse to write)."""
-        return shlex.join(["ics35", *self.line_args(), *words])
+        simulator, or refuse to write).  A line option among ``WORDS`` replaces this command's."""
+        given = tuple(word for word in words if word.startswith("--"))
+        return shlex.join(["ics35", *self.line_args(without=given), *words])
 
     def release_sim(self) -> None:
         """Close the simulated line :attr:`url` named, if any (it lives for one command)."""
