@@ -184,6 +184,17 @@ def test_scan_says_a_rate_is_unconfirmed_when_the_eeprom_cannot_be_read(cli: Any
     )
 
 
+def test_the_command_that_reads_an_unconfirmed_servo_again_reaches_the_same_line(cli: Any, sim_line: Any) -> None:
+    """The hint's command carries the scan's line options (here --timeout and --no-echo, without which it
+    would not hear that line), with the servo's own rate instead of the scan's --baud."""
+    _, url = sim_line([VirtualServo(1), EepromUnreadable(2)], follow_host_baud=False, echo=False)
+    text = cli("--port", url, "--no-echo", "--timeout", "0.005", "--baud", "625000", "scan", "--ids", "0-3")
+    assert text.code == 0, text.err
+    said = " ".join(text.err.split())
+    expected = f"read it again with: ics35 --port {url} --timeout 0.005 --no-echo --baud 115200 eeprom dump 2 --table"
+    assert expected in said, said
+
+
 @pytest.mark.parametrize("level", [0.15, 0.30])
 @pytest.mark.slow
 def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(cli: Any, sim_line: Any, level: float) -> None:

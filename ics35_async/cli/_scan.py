@@ -151,14 +151,14 @@ def scan_notes(settings: Settings, report: ScanReport) -> None:
         )
     for baud, why in report.skipped.items():
         err.print(f"[yellow]warning:[/yellow] skipped {baud} baud: {escape(why)}")
-    port = "" if settings.port_defaulted else f" --port {escape(settings.port)}"
     for s in report.servos:
         if s.eeprom_error is not None:
             heard = ", ".join(str(b) for b in s.answered_at)
+            again = settings.command_line("--baud", str(s.baud), "eeprom", "dump", str(s.servo_id), "--table")
             err.print(
                 f"[yellow]warning:[/yellow] servo {s.servo_id}: its EEPROM could not be read (after retries), so its "
-                f"rate is unconfirmed: it answered at {heard} baud; read it again with: ics35{port} --baud {s.baud} "
-                f"eeprom dump {s.servo_id} --table  (last error: {escape(str(s.eeprom_error))})",
+                f"rate is unconfirmed: it answered at {heard} baud; read it again with: {escape(again)}  "
+                f"(last error: {escape(str(s.eeprom_error))})",
                 soft_wrap=True,
             )
     if report.garbled and report.echo_evidence is None:
