@@ -134,6 +134,8 @@ def test_demo_on_hardware_without_ids_asks_first(cli: Any, pty_port: str) -> Non
     result = cli("--port", pty_port, "demo", "--seconds", "0.2", stdin="n\n")
     assert result.code == ExitCode.REFUSED, result.err
     assert "1, 2" in result.err and "[y/N]" in result.err
+    # A robot standing on these servos would fall: the question says they go limp, as they start and at the end.
+    assert "limp as it starts and when it ends" in " ".join(result.err.split()), result.err
     assert "demo done" not in result.out
     result = cli("--port", pty_port, "demo", "--seconds", "0.2", "--telemetry", "0", stdin="y\n")
     assert result.code == 0, result.err

@@ -85,6 +85,9 @@ def demo(
 ) -> int:
     """A smooth wave streamed to every servo, with a live table; leaves the servos free.
 
+    Every servo goes limp for the first cycle (where it stands is read with the free command) and at the
+    end: servos on the desk, or a robot held up, not one standing on them.
+
     \b
     No hardware:   ics35 demo                      (built-in simulator, 32 servos)
     Hardware:      ics35 --port /dev/ttyUSB0 demo --ids 1-12 --amplitude 20
@@ -108,7 +111,10 @@ def demo(
             chosen = ids if ids and not asked_all else await discover(bus, settings, False, asked_all=asked_all)
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
-                question = f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave?"
+                question = (
+                    f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave (they go "
+                    "limp as it starts and when it ends)?"
+                )
                 confirm(question, yes, "nothing moved")
             title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
