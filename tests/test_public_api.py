@@ -130,6 +130,17 @@ def test_bus_options_are_declared_once_and_every_opener_takes_them() -> None:
     assert {"baudrate", "reconnect", "adapter_latency", "quiet_time"} <= BusOptions.__optional_keys__
 
 
+def test_stream_options_come_from_the_package_as_bus_options_do() -> None:
+    """A program annotating its stream options imports them where it imports BusOptions."""
+    from ics35_async import StreamOptions
+    from ics35_async.bus import Bus
+
+    assert "StreamOptions" in ics35_async.__all__
+    (options,) = [p for p in inspect.signature(Bus.stream).parameters.values() if p.kind is p.VAR_KEYWORD]
+    assert options.annotation == "Unpack[StreamOptions]"
+    assert {"on_close", "offline", "watch"} <= StreamOptions.__optional_keys__
+
+
 async def test_bus_takes_timing_fields_as_open_bus_does_and_refuses_unknown_options() -> None:
     from ics35_async.bus import Bus
 
