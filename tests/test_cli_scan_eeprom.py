@@ -195,6 +195,20 @@ def test_the_command_that_reads_an_unconfirmed_servo_again_reaches_the_same_line
     assert expected in said, said
 
 
+@pytest.mark.parametrize(("allowance", "carried"), [("0.1", " --timeout 0.1"), ("0.005", "")])
+def test_the_scans_own_longer_allowance_goes_into_the_commands_it_names(
+    cli: Any, sim_line: Any, allowance: str, carried: str
+) -> None:
+    """A scan given a longer --timeout than the line's (a slow link) names commands with it, or they would not
+    hear what the scan heard; a shorter one (a quick scan) leaves the line's own allowance to them."""
+    _, url = sim_line([VirtualServo(1), EepromUnreadable(2)], follow_host_baud=False)
+    text = cli("--port", url, "scan", "--ids", "0-3", "--timeout", allowance)
+    assert text.code == 0, text.err
+    said = " ".join(text.err.split())
+    expected = f"read it again with: ics35 --port {url}{carried} --baud 115200 eeprom dump 2 --table"
+    assert expected in said, said
+
+
 @pytest.mark.parametrize("level", [0.15, 0.30])
 @pytest.mark.slow
 def test_scan_on_a_noisy_line_lists_each_servo_once_at_its_own_rate(cli: Any, sim_line: Any, level: float) -> None:

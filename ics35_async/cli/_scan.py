@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import click
 from rich import box
@@ -238,19 +239,22 @@ def scan(
             settings, bauds, ids, read_eeprom=not quick, timeout=timeout, show_progress=not as_json
         ),
     )
+    # The commands the notes name must hear what the scan heard: a longer allowance than the line's (a slow
+    # link) goes into them; a shorter one (a quick scan) leaves them the line's own.
+    named = settings if timeout is None or timeout <= settings.timeout else replace(settings, timeout=timeout)
     if as_json:
         scan_json(settings, bauds, report)
     else:
         if report.servos:
             out.print(scan_table(report.servos))
-        scan_notes(settings, report)
+        scan_notes(named, report)
     if report.lost is not None:  # what was found is shown above; then the loss, not "no servo answered"
         failure = translate(settings, report.lost)
         if report.servos:
             shown = "listed" if as_json else "shown above"
             failure.hints.append(
                 f"servo(s) {ids_text(sorted({s.servo_id for s in report.servos}))} were found before the line was "
-                f"lost ({shown}; the rates after it were not scanned); when it is back: {settings.command_line('scan')}"
+                f"lost ({shown}; the rates after it were not scanned); when it is back: {named.command_line('scan')}"
             )
         raise failure
     if not report.servos:
