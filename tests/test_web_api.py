@@ -196,6 +196,19 @@ def test_connecting_to_another_unnamed_simulator_url_gets_that_line(serve: Any) 
     )
 
 
+@pytest.mark.parametrize("url", ["sim://?ids=5", "sim:///?ids=5", "SIM:///?ids=5"])
+def test_an_unnamed_simulator_url_keeps_a_write_through_a_scan_at_other_rates(serve: Any, url: str) -> None:
+    # sim:///?ids=5 names no line either (the simulator reads its name from between the slashes): reopened at
+    # each rate of a scan, it is still the line the page wrote to, as the command line's is.
+    client, _ = serve()
+    assert post(client, "/api/connect", {"port": url}).status_code == 200
+    assert post(client, "/api/servo/5/write", {"changes": {"speed": 50}}).json()["verified"]
+    report = post(client, "/api/scan", {"bauds": [625000, 115200]}).json()
+    assert [s["id"] for s in report["servos"]] == [5], report
+    fields = client.get("/api/servo/5/eeprom").json()["fields"]
+    assert [f["value"] for f in fields if f["name"] == "speed"] == [50]
+
+
 def test_the_open_port_named_with_its_scheme_in_capitals_is_reopened_not_refused_as_busy(serve: Any) -> None:
     # SIM://name is sim://name (a URL's scheme is read in any case): the same line, closed before it is opened
     # again, not opened beside itself ("already open: a simulated line takes one bus at a time").

@@ -15,7 +15,6 @@ import shlex
 import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
-from urllib.parse import urlsplit, urlunsplit
 
 if TYPE_CHECKING:
     import click
@@ -120,20 +119,24 @@ class Settings:
         within this command (scan at each baud, a read-back) finds the same simulated servos."""
         if not self.is_sim:
             return self.port
-        parts = urlsplit(self.port)
-        if parts.netloc or parts.path.strip("/"):
+        from ..sim.url import line_name, named_url
+
+        if line_name(self.port) is not None:
             return self.port
         if self._sim_name is None:
             self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
             self._sim_names.append(self._sim_name)
-        return urlunsplit(parts._replace(netloc=self._sim_name))
+        return named_url(self.port, self._sim_name)
 
     def as_given(self, text: str) -> str:
         """``text`` (a library error's) with the port as it was given where it names :attr:`url`: the name an
         unnamed sim:// line got is the command's own, also after :meth:`release_sim` closed that line."""
-        parts = urlsplit(self.port)
+        if not self._sim_names:
+            return text
+        from ..sim.url import named_url
+
         for name in self._sim_names:
-            text = text.replace(urlunsplit(parts._replace(netloc=name)), self.port)
+            text = text.replace(named_url(self.port, name), self.port)
         return text
 
     def line_args(self, without: tuple[str, ...] = ()) -> list[str]:

@@ -2,14 +2,15 @@
 
 :func:`open_url` is what the core calls for a ``sim://`` port;
 :func:`parse_url` splits a URL into a line name and :class:`VirtualLine`
-options; :func:`parse_seconds` reads the durations both the URL and the pty
-server's command line take.
+options (:func:`line_name` reads the name alone, :func:`named_url` gives one);
+:func:`parse_seconds` reads the durations both the URL and the pty server's
+command line take.
 """
 
 from __future__ import annotations
 
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
@@ -63,6 +64,19 @@ def url_options(url: str) -> str:
     """A ``sim://`` URL's options in one form (keys in order): the same options compare equal in whatever
     order they were written.  (Values are compared as written: ``ids=1-3`` is not ``ids=1,2,3``.)"""
     return "&".join(sorted(part for part in urlsplit(url).query.split("&") if part))
+
+
+def line_name(url: str) -> str | None:
+    """The name of the simulated line a ``sim://`` URL names (``sim://arm?ids=1-6``: ``"arm"``), between the
+    slashes; None for an unnamed one (``sim://``, ``sim:///?ids=5``), which opens a line of its own each time."""
+    parts = urlsplit(url)
+    return (parts.netloc + parts.path).strip("/") or None
+
+
+def named_url(url: str, name: str) -> str:
+    """``url`` naming the line ``name``, its options kept: what a program that reopens an unnamed ``sim://``
+    line (a scan at each rate, a read-back) opens instead, so that each opening finds the same servos."""
+    return urlunsplit(urlsplit(url)._replace(netloc=name, path=""))
 
 
 _TRUE = {"1", "true", "yes", "on"}
@@ -135,7 +149,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     parts = urlsplit(url)
     if parts.scheme != "sim":
         raise InvalidArgument(f"not a sim:// URL: {url!r}")
-    name = (parts.netloc + parts.path).strip("/") or None
+    name = line_name(url)
     query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
     options: dict[str, Any] = {}
     for key, values in query.items():

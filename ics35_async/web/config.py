@@ -29,10 +29,11 @@ class LineConfig:
     def url(self) -> str:
         """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos;
         one of its own for each set of options (``sim://?ids=5`` is not the ``sim://`` opened before it)."""
-        options = self.port.partition("://")[2]
-        if self.is_sim and (not options or options.startswith("?")):
-            from ..sim.url import url_options  # (the simulator loads only for a sim:// line)
+        if not self.is_sim:
+            return self.port
+        from ..sim.url import line_name, named_url, url_options  # (the simulator loads only for a sim:// line)
 
-            digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
-            return f"sim://ics35-web-{os.getpid()}-{digest}{options}"
-        return self.port
+        if line_name(self.port) is not None:
+            return self.port
+        digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
+        return named_url(self.port, f"ics35-web-{os.getpid()}-{digest}")
