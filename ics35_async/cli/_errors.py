@@ -10,7 +10,7 @@ from .. import errors
 from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
-from ..transports.wire_device import url_scheme
+from ..transports.wire_device import is_url, url_scheme
 from ._console import ids_text
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
@@ -63,7 +63,7 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
     if isinstance(exc, errors.UnsafeOperation):
         return CliError(ExitCode.REFUSED, f"refused: {text}")
     if isinstance(exc, errors.InvalidArgument):
-        if "://" in settings.port and "cannot open" in text:
+        if is_url(settings.port) and "cannot open" in text:
             return CliError(ExitCode.PORT, text, "ports are device paths (/dev/ttyUSB0), pyserial URLs or sim://")
         return CliError(ExitCode.USAGE, f"{text} (nothing was written)")
     if isinstance(exc, errors.ReplyError) and echo_setting_wrong(exc, settings.echo):

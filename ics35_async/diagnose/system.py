@@ -26,6 +26,7 @@ from ..transports.listing import (
     linux_adapter_steps,
 )
 from ..transports.platforms import latency_timer_advice, port_names_hint
+from ..transports.wire_device import is_url
 from .findings import Finding
 from .udev import system_groups
 
@@ -361,7 +362,7 @@ def check_system(
     platform = platform or sys.platform
     linux = platform.startswith("linux")
     report = SystemReport(ports=list(ports))
-    device = port if port and "://" not in port and not port.upper().startswith("COM") else None
+    device = port if port and not is_url(port) and not port.upper().startswith("COM") else None
     if linux:
         report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
     # (A port on a board's own UART or a PC's serial port needs no USB adapter: none missing is no news.)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from .wire_device import is_url
+
 _LATENCY_FIX = (
     "{path} is {ms} ms: a USB adapter holds received bytes up to that long, which slows every "
     "transaction. Set it to 1 ms now with: echo 1 | sudo tee {path}  -- or for good with the udev rules "
@@ -41,7 +43,7 @@ def adapter_advice(port: str, *, sysfs_root: str | os.PathLike[str] = "/sys") ->
     Today: an FTDI latency timer above 1 ms, a Raspberry Pi's mini UART (Linux).  Empty when nothing is
     wrong or nothing applies (URLs, ptys, other systems).
     """
-    if "://" in port:
+    if is_url(port):
         return []
     tty = os.path.basename(os.path.realpath(port))
     if tty_driver(tty, sysfs_root=sysfs_root) == MINI_UART_DRIVER:

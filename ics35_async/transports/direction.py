@@ -21,6 +21,7 @@ import serial
 import serial.rs485
 
 from ..errors import DirectionControlNotSupported, InvalidArgument
+from .wire_device import is_url
 
 # "none": the interface switches direction itself (ICS adapters, auto-direction transceivers).
 # "rts": RTS high while sending, low while receiving.  "rts-inverted": the other way round.
@@ -33,7 +34,7 @@ def check_direction(direction: str | None, port: object) -> str:
         return "none"
     if direction not in DIRECTIONS:
         raise InvalidArgument(f"direction must be one of {', '.join(DIRECTIONS)}, not {direction!r}")
-    if direction != "none" and (not isinstance(port, str) or "://" in port):
+    if direction != "none" and (not isinstance(port, str) or is_url(port)):
         raise InvalidArgument(
             f"direction={direction!r} drives a local serial port's RTS pin; {port!r} is not one "
             "(set direction control on the far end of a link)"

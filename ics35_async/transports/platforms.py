@@ -11,6 +11,8 @@ import os
 import re
 import sys
 
+from .wire_device import is_url
+
 # The names pty slaves get: Linux and FreeBSD /dev/pts/N, macOS /dev/ttysNNN (lower-case s:
 # Linux's /dev/ttyS0 is a real UART), and the legacy BSD /dev/tty[p-za-e][0-9a-f].
 _PTY_NAME = re.compile(r"/dev/(pts/\d+|ttys\d+|tty[p-za-e][0-9a-f])")
@@ -103,7 +105,7 @@ def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
     if url:  # sim:/?ids=1-6, rfc2217:host:2217
         scheme, rest = url.groups()
         return [f"a URL starts with {scheme}://: {scheme}://{rest}"]
-    if platform == "win32" or "://" in port or "/" in port:
+    if platform == "win32" or is_url(port) or "/" in port:
         return []
     if port.upper().startswith("COM"):
         return ["COM names are Windows' own: here a serial port is a /dev/ path"]

@@ -33,7 +33,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
-from .wire_device import url_scheme
+from .wire_device import is_url, url_scheme
 
 log = logging.getLogger("ics35_async.transports")
 
@@ -166,7 +166,7 @@ def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "n
     """
     direction = check_direction(direction, port)
     rs485 = rs485_settings(direction)
-    is_device_path = "://" not in port
+    is_device_path = not is_url(port)
     scheme = url_scheme(port)
     settings: dict[str, Any] = {
         "baudrate": baudrate,

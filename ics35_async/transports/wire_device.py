@@ -77,6 +77,15 @@ def url_scheme(port: object) -> str:
     return match[1].lower() if match is not None else ""
 
 
+def is_url(port: object) -> bool:
+    """Whether ``port`` is a URL rather than a device path (or a :class:`WireDevice`): any text with ``://``.
+
+    The rule opening follows: pyserial takes such a name for a URL and refuses a scheme it does not know
+    (``9p://x``), so it never names a device, whether or not :func:`url_scheme` can read its scheme.
+    """
+    return isinstance(port, str) and "://" in port
+
+
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
 _LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
 
