@@ -145,6 +145,8 @@ class StreamStats:
 
 
 def percentile(sorted_values: Sequence[float], p: float) -> float:
+    """The ``p``-th percentile (0..100) by the nearest-rank rule: a value measured, never one interpolated
+    between two; 0.0 for no values."""
     if not sorted_values:
         return 0.0
     k = min(len(sorted_values) - 1, max(0, math.ceil(len(sorted_values) * p / 100) - 1))

@@ -13,7 +13,6 @@ say it.
 
 from __future__ import annotations
 
-import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -21,6 +20,7 @@ from typing import Any
 
 from ..bus import Bus
 from ..errors import ReplyError
+from ..frames import percentile
 from ..protocol import wire_time
 from ..transports.platforms import latency_timer_advice
 from ..transports.usb_timing import FtdiAdapter, adapter_cycle_time
@@ -35,12 +35,6 @@ SLOW_EXCESS = 3e-3
 """Round trips this much above the wire's need point to something holding bytes back."""
 DEFAULT_BUDGET = 200
 MIN_PER_SERVO = 5
-
-
-def percentile(values: list[float], q: float) -> float:
-    """The ``q`` quantile (0..1) by the nearest-rank rule (a measured value, never an interpolation)."""
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
 async def measure_round_trips(
@@ -111,7 +105,7 @@ class LineReport:
 
     @property
     def p99(self) -> float | None:
-        return percentile(self.all_samples, 0.99) if self.all_samples else None
+        return percentile(sorted(self.all_samples), 99) if self.all_samples else None
 
     @property
     def suspected_timer_ms(self) -> int | None:
@@ -231,7 +225,7 @@ class LineReport:
                 "per_servo": {
                     str(i): {
                         "median": round(statistics.median(s) * 1e3, 3),
-                        "p99": round(percentile(s, 0.99) * 1e3, 3),
+                        "p99": round(percentile(sorted(s), 99) * 1e3, 3),
                     }
                     for i, s in self.samples.items()
                     if s
