@@ -36,7 +36,7 @@ def wave(ids: Sequence[int], amplitude: float, frequency: float, ramp: float) ->
         for sid in ids:
             if sid not in start and sid in frame.positions:
                 # Start from where the servo is, clamped into the safe range, so nothing jumps.
-                start[sid] = min(max(frame.positions[sid], 3500), 11500)
+                start[sid] = min(max(frame.positions[sid], units.TRAVEL_MIN), units.TRAVEL_MAX)
         s = 1.0 if ramp <= 0 else min(1.0, t / ramp)
         s = s * s * (3 - 2 * s)  # smoothstep: no jerk at either end of the blend
         wanted = {}
