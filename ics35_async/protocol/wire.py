@@ -9,11 +9,11 @@ from __future__ import annotations
 import enum
 
 from ..eeprom import BaudRate
+from ..units import POSITION_MAX as POSITION_MAX  # (the 14-bit position field: units keeps the one number)
 from ..units import check_int
 
 BITS_PER_BYTE = 11  # start + 8 data + even parity + stop
 MAX_ID = 31
-POSITION_MAX = 16383
 FREE = 0
 
 CMD_POSITION = 0x80
