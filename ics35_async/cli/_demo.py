@@ -10,6 +10,7 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
+from ..policies import ALL_IDS
 from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._live import (
     LiveOptions,
@@ -96,7 +97,7 @@ def demo(
     settings = settings_of(ctx)
     asked_all = every_id(ids)  # "all": the servos that answer, as the user asked for every one (no question)
     if settings.is_bare_sim:
-        ids = ids or list(range(32))
+        ids = ids or list(ALL_IDS)
     shown = live_port(settings, plot, "ids=0-31&")
     if amplitude is None:
         # A real robot's joints may hit each other or the frame: start small there.

@@ -23,7 +23,7 @@ from .. import protocol
 from ..bus import Bus
 from ..errors import BusClosed, IcsError, PortLost
 from ..frames import Frame
-from ..policies import StreamPlan
+from ..policies import ALL_IDS, StreamPlan
 from ..stream import Stream, StreamOptions
 from ..terminal import clear_echoed_ctrl_c
 from ._basic import probe_ids
@@ -218,13 +218,13 @@ async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool
     IDs that answered garbled (left out: two servos sharing one, most often) are named whatever was asked."""
     if not quiet and not asked_all:
         err.print(f"no IDs given: scanning {escape(settings.port)} at {settings.baud} baud ...")
-    answered, garbled = await probe_ids(bus, range(32))
+    answered, garbled = await probe_ids(bus, ALL_IDS)
     where = f"{settings.port} at {settings.baud} baud"
     if not answered and garbled:  # new servos, all at ID 0: not the unpowered line NobodyAnswered tells of
         raise answered_garbled(settings, where, [(settings.baud, i) for i in garbled])
     if not answered:
         raise NobodyAnswered(settings, where, silent=bus.stats.total.bytes_rx == 0)
-    absent = sorted(set(range(32)) - set(answered) - set(garbled))
+    absent = sorted(set(ALL_IDS) - set(answered) - set(garbled))
     if asked_all and absent and not quiet:
         err.print(f"no answer from ID(s) {id_ranges(absent)} at {settings.baud} baud: no servo there")
     if garbled:  # left out of the stream, said whatever was asked: servos there, which it will not move or read

@@ -11,18 +11,18 @@ import click
 from .. import protocol
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
+from ..protocol.wire import ALL_BAUDS as ALL_BAUDS  # (re-exported to the commands: _common)
+from ..protocol.wire import ALL_IDS
 from ..units import parse_ids
 from ._settings import Settings
 
 T = TypeVar("T")
 
-ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
-
 
 def parse_id_list(text: str) -> list[int]:
     """``"1-12"``, ``"0,3,5-7"``, ``"all"`` -> sorted unique IDs; InvalidArgument on anything else (or nothing)."""
     if text.strip().lower() in ("all", "*"):
-        return list(range(32))
+        return list(ALL_IDS)
     ids = parse_ids(text)
     if not ids:
         raise InvalidArgument("no IDs given")
@@ -32,7 +32,7 @@ def parse_id_list(text: str) -> list[int]:
 def every_id(ids: Sequence[int] | None) -> bool:
     """IDS ``all`` (or 0-31): every servo there is, not 32 servos the user expects on the line (a command asks
     which answer, and those that do not are no failure)."""
-    return ids is not None and set(ids) == set(range(32))
+    return ids is not None and set(ids) == set(ALL_IDS)
 
 
 class ServoIdType(click.ParamType[int]):

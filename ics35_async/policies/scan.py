@@ -54,6 +54,8 @@ from .. import protocol
 from ..eeprom import BaudRate, Eeprom
 from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Param
+from ..protocol.wire import ALL_BAUDS as ALL_BAUDS  # (re-exported: policies.ALL_BAUDS)
+from ..protocol.wire import ALL_IDS as ALL_IDS
 from ..tasks import task_group
 from ..transports import PortBusy, PortNotFound, PortPermissionDenied, SerialPortError, carries_line_settings
 from ..units import check_int
@@ -66,9 +68,6 @@ from .scan_units import (
     read_missing_images,
     servos_of,
 )
-
-ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
-ALL_IDS: tuple[int, ...] = tuple(range(32))
 
 # Below this many IDs the ID read's longer allowance costs more than the probes it can save.
 ID_READ_MIN_IDS = 8

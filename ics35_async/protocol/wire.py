@@ -14,6 +14,7 @@ from ..units import check_int
 
 BITS_PER_BYTE = 11  # start + 8 data + even parity + stop
 MAX_ID = 31
+ALL_IDS: tuple[int, ...] = tuple(range(MAX_ID + 1))
 FREE = 0
 
 CMD_POSITION = 0x80
@@ -65,6 +66,7 @@ def check_id(servo_id: object) -> int:
     return check_int("servo ID", servo_id, 0, MAX_ID)
 
 
+ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)
 _BAUD_BY_INT = {int(b): b for b in BaudRate}  # check_baud's common case, without building an enum member
 
 

@@ -42,6 +42,7 @@ from ..errors import (
 )
 from ..policies import (
     ALL_BAUDS,
+    ALL_IDS,
     EepromPlan,
     FoundServo,
     IdSurvey,
@@ -402,7 +403,7 @@ class LineSession:
     async def scan(self, bauds: list[int] | None = None, ids: list[int] | None = None) -> dict[str, Any]:
         """Probe ``ids`` at ``bauds`` (policies.scan), then return the line to its own rate."""
         bauds = bauds or [self.config.baud]
-        wanted = list(range(32)) if ids is None else [protocol.check_id(i) for i in ids]
+        wanted = list(ALL_IDS) if ids is None else [protocol.check_id(i) for i in ids]
         checked = [int(BaudRate.parse(b)) for b in bauds]
         if checked != [self.config.baud]:
             self._refuse_on_robot_line("a scan at other baud rates", f"scan it at its own rate ({self.config.baud})")
