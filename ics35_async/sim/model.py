@@ -30,7 +30,7 @@ from typing import Any, TypedDict, Unpack
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, WriteEeprom
-from ..transports.usb_timing import FtdiAdapter
+from ..transports.usb_timing import Chunks, FtdiAdapter
 from ..units import unknown_options
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
@@ -53,8 +53,6 @@ DEFAULT_TAIL_BYTES = 4
 DEFAULT_TAIL_DELAY = 40e-3
 """The held-tail fault's defaults: what ser2net with Nagle's algorithm did to a
 68-byte EEPROM answer (64 bytes, then 4 about 40 ms later: a delayed ACK)."""
-
-Chunks = list[tuple[float, bytes]]
 
 
 class LineModelOptions(TypedDict, total=False):

@@ -37,6 +37,7 @@ PACKET_PAYLOAD = 62
 """Data bytes in one 64-byte USB packet (2 bytes carry the modem status)."""
 
 Chunks = list[tuple[float, bytes]]
+"""Bytes in delivery order, each chunk with the time its last byte arrived (the simulated line's output too)."""
 
 _EPS = 1e-9  # times within this of a frame start count as on it (float sums of byte times)
 
