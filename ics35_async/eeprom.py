@@ -99,6 +99,11 @@ class Flags(enum.IntFlag):
     SLAVE = 0x80
 
 
+def flag_names(bits: int) -> list[str]:
+    """The names of the flags set in ``bits``, lowest bit first (bits no flag names are left out)."""
+    return [f.name or "" for f in Flags if f in Flags(bits)]
+
+
 def flags_value(value: object) -> int:
     """A ``flags`` value (``Flags`` or an int 0..255) as a plain int; InvalidArgument otherwise."""
     number = whole_number(value)
@@ -413,7 +418,7 @@ class Eeprom:
         ``baud_rate`` is in bit/s, or the raw code when ``unknown_codes`` lists it.
         """
         out: dict[str, Any] = {name: int(getattr(self, name)) for name in _LAYOUT}
-        out["flags_names"] = [f.name for f in Flags if f in self.flags]
+        out["flags_names"] = flag_names(self.flags)
         out["raw"] = self.to_bytes().hex()
         out["unknown_codes"] = self.unknown_codes
         return out

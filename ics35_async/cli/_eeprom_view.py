@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from rich.table import Table
 
-from ..eeprom import BaudRate, Eeprom, Flags
+from ..eeprom import BaudRate, Eeprom, flag_names
 from ..policies import EepromPlan
 
 
-def flag_names(flags: int) -> str:
-    return "|".join(f.name or "" for f in Flags if f in Flags(flags)) or "-"
+def flags_text(flags: int) -> str:
+    """A flags field as shown: the names set, ``|`` between them; ``-`` for none."""
+    return "|".join(flag_names(flags)) or "-"
 
 
 def unknown_code_text(code: int) -> str:
@@ -36,7 +37,7 @@ def eeprom_table(eeprom: Eeprom, title: str = "EEPROM") -> Table:
         if name in unknown:
             shown = unknown_code_text(unknown[name])
         else:
-            shown = f"{value} ({flag_names(eeprom.flags)})" if name == "flags" else str(value)
+            shown = f"{value} ({flags_text(eeprom.flags)})" if name == "flags" else str(value)
         table.add_row(name, shown)
     return table
 
@@ -49,11 +50,11 @@ def diff_table(plan: EepromPlan) -> Table:
     table.add_column("new", justify="right")
     for name, (old, new) in plan.diff.items():
         if name == "flags":
-            table.add_row(name, f"{int(old)} ({flag_names(old)})", f"{int(new)} ({flag_names(new)})")
+            table.add_row(name, f"{int(old)} ({flags_text(old)})", f"{int(new)} ({flags_text(new)})")
             if plan.added_flags:
-                table.add_row("  flags set", "", flag_names(plan.added_flags))
+                table.add_row("  flags set", "", flags_text(plan.added_flags))
             if plan.cleared_flags:
-                table.add_row("  flags CLEARED", "", flag_names(plan.cleared_flags))
+                table.add_row("  flags CLEARED", "", flags_text(plan.cleared_flags))
         else:
             table.add_row(name, str(int(old)), str(int(new)))
     return table

@@ -32,7 +32,7 @@ from ._common import (
     out,
     translate,
 )
-from ._eeprom_view import baud_text, diff_table, flag_names
+from ._eeprom_view import baud_text, diff_table, flags_text
 
 BAUD_CONSEQUENCE = (
     "from its next power-up the servo answers ONLY at {new} baud: every later command needs --baud {new}"
@@ -104,7 +104,7 @@ def show_plan(
         )
         advice = f"; {escape(flag_advice(plan))}" if unasked else ""
         err.print(
-            f"[yellow]warning:[/yellow] this clears flag(s) {flag_names(plan.cleared_flags)}{note}{advice}",
+            f"[yellow]warning:[/yellow] this clears flag(s) {flags_text(plan.cleared_flags)}{note}{advice}",
             soft_wrap=True,
         )
     if plan.changes_baud:

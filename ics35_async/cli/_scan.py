@@ -37,7 +37,7 @@ from ._common import (
     translate,
     yes_option,
 )
-from ._eeprom_view import baud_text, flag_names
+from ._eeprom_view import baud_text, flags_text
 
 # --------------------------------------------------------------------------- scan
 
@@ -114,7 +114,7 @@ def scan_table(servos: Sequence[FoundServo]) -> Table:
             str(e.temperature_limit),
             f"{e.pulse_limit_low}-{e.pulse_limit_high}",
             f"{e.user_offset:+d}",
-            flag_names(e.flags),
+            flags_text(e.flags),
         )
     return table
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import protocol
-from ..eeprom import READ_ONLY_FLAGS, UNUSED_FLAG_BITS, BaudRate, Eeprom, Flags, flags_value
+from ..eeprom import READ_ONLY_FLAGS, UNUSED_FLAG_BITS, BaudRate, Eeprom, Flags, flag_names, flags_value
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
 from ..tasks import despite_cancellation
 from ..units import check_int, stretch_from_eeprom
@@ -70,7 +70,7 @@ def power_up_note(changed: Mapping[str, int], set_now: Callable[[str, int], str]
 def _refuse_read_only(bits: int) -> None:
     """Refuse an edit naming a read-only flag, in the words every caller (command line, configurator) gives."""
     if bits & READ_ONLY_FLAGS:
-        names = "|".join(f.name or "" for f in Flags if f in Flags(bits & READ_ONLY_FLAGS))
+        names = "|".join(flag_names(bits & READ_ONLY_FLAGS))
         raise InvalidArgument(
             f"{names}: the FREE and PCM flags are read-only (they report the servo's state and cannot be set "
             "or cleared)"

@@ -5,13 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range
+from ..eeprom import FIELD_MEANINGS, READ_ONLY_FLAGS, BaudRate, Eeprom, Flags, field_range, flag_names
 from ..policies import EepromPlan, EepromWriteResult, IdSurvey, power_up_note
 from ..units import CURRENT_NOTE, TEMPERATURE_NOTE, current_text, temperature_text
-
-
-def flag_names(flags: int) -> list[str]:
-    return [f.name or "" for f in Flags if f in Flags(flags)]
 
 
 def field_rows(image: Eeprom) -> list[dict[str, Any]]:
