@@ -1255,6 +1255,10 @@ def test_a_scan_or_an_eeprom_write_forgets_what_the_other_rates_told_of_a_servo(
 def test_bad_input_is_answered_in_words(serve: Any) -> None:
     client, _ = serve()
     assert client.get("/api/servo/40/eeprom").json()["error"] == "servo ID '40' is not 0..31"
+    # Digits of other scripts are no ID either (int() reads '٣' as 3 and refuses '²' in its own words).
+    for text in ("²", "٣"):
+        answer = client.get(f"/api/servo/{text}/eeprom")
+        assert answer.status_code == 400 and answer.json()["error"] == f"servo ID {text!r} is not 0..31"
     not_json = client.post("/api/scan", content="{", headers=JSON)
     assert not_json.status_code == 400 and "not JSON" in not_json.json()["error"]
     wrong_port = post(client, "/api/connect", {"port": "/dev/does-not-exist"})

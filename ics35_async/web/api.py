@@ -37,6 +37,7 @@ from ..errors import (
     VerifyError,
     error_text,
 )
+from ..protocol import MAX_ID
 from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
 from .joints import RobotSession
@@ -143,8 +144,9 @@ async def body(request: Request) -> dict[str, Any]:
 
 def servo_id(request: Request) -> int:
     text = request.path_params["servo_id"]
-    if not text.isdigit() or not 0 <= int(text) <= 31:
-        raise InvalidArgument(f"servo ID {text!r} is not 0..31")
+    # (isascii: str.isdigit takes other scripts' digits, which int() reads or refuses in its own words)
+    if not (text.isascii() and text.isdigit()) or not 0 <= int(text) <= MAX_ID:
+        raise InvalidArgument(f"servo ID {text!r} is not 0..{MAX_ID}")
     return int(text)
 
 
