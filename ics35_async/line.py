@@ -25,7 +25,7 @@ class Line(Protocol):
     ``close_out_begins(done)``, told when a stream's close-out (its ``on_close`` commands) begins, until
     ``done`` (an ``anyio.Event``) is set, and ``close_out_ends(done)`` when it has ended.  A line whose own
     close waits for the close-outs under way (as :class:`~ics35_async.bus.Bus` does) has them; without them a
-    stream closes out as before, and the line's close does not wait for it.
+    stream closes out all the same, and the line's close does not wait for it.
     """
 
     @property

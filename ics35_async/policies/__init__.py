@@ -1,8 +1,8 @@
 """The line's policies: finding servos, telling why one did not answer, renumbering the only one, changing an
 EEPROM safely, reading positions without freeing what may not go limp, freeing every servo there.
 
-They sit above the bus and use only its public surface (:class:`~.failure_kinds.Line`),
-so library users get the same rules the ``ics35`` command follows.
+They need no bus, only a line's small protocol (:class:`ics35_async.line.Line`, which the bus
+offers), so library users get the same rules the ``ics35`` command follows.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """What the policies need from a line (:class:`ics35_async.line.Line`), and how to tell its failures apart.
 
-The policies sit above the bus and use only that protocol, so they survive a
+The policies use only that protocol, not the bus, so they survive a
 rewrite of the core and can be driven by any object with its members
 (``Bus`` from :func:`ics35_async.open_bus` is the usual one).
 """
