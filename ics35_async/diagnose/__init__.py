@@ -3,7 +3,7 @@ adapter's latency timer) and the line's (round trips, what they say about the ad
 
 :mod:`.system` reads system files from a root directory (``/`` by default,
 a fake tree in tests); :mod:`.line_report` measures a line through a bus;
-:mod:`.udev` writes the udev rules.  ``ics35 doctor`` and ``ics35 udev``
+:mod:`.udev` writes the udev rules; :mod:`.findings` is what each finds, in words.  ``ics35 doctor`` and ``ics35 udev``
 print what these find.
 """
 

@@ -6,7 +6,8 @@ The package's modules, each with one job:
 - :mod:`.hot_path`: allocation-free position helpers for the streaming hot path;
 - :mod:`.commands`: the servo commands (host side) and their base class :class:`Command`;
 - :mod:`.memory`: the generic commands for non-servo devices' memory;
-- :mod:`.device`: :func:`decode_request`, the device side's framing of a host byte stream.
+- :mod:`.device`: :func:`decode_request`, the device side's framing of a host byte stream;
+- :mod:`.listening`: a line one only listens to, cut into transactions (``ics35 sniff``).
 
 Import from the package (``from ics35_async.protocol import X``); the split is an
 implementation detail.

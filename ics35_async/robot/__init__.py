@@ -2,12 +2,15 @@
 
 * :mod:`.description`: the TOML robot description, checked key by key;
 * :mod:`.profiles`: motion profiles (``minjerk``, ``linear``) and trajectories;
+* :mod:`.host`: what motions and the joint-space stream need from the robot (a small protocol);
+* :mod:`.frame`: what the robot's stream publishes, every line's newest cycle in joint degrees;
 * :mod:`.joint_stream`: frames and targets in joint space;
 * :mod:`.safety`: the temperature / current / offline watch and :class:`SafetyStop`;
 * :mod:`.plans`: the running motions' bookkeeping;
 * :mod:`.robot`: :class:`Robot`, streaming to every joint while it is open;
 * :mod:`.startup`: :func:`open_robot`;
-* :mod:`.motion`: the keyframe motion file format and playing it.
+* :mod:`.motion`: the keyframe motion file format and playing it;
+* :mod:`.calibration`: calibration results written back into the robot file, its comments kept.
 """
 
 from __future__ import annotations

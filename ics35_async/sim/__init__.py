@@ -14,17 +14,17 @@ Two ways in:
   parity quirk on ptys).  It runs in real time unless ``--fast``: programs
   on the other end of a serial port expect time to pass between commands.
 
-Modules, each using only those listed before it: :mod:`.transaction` (a log
-entry), :mod:`.virtual_servo` (the devices), :mod:`.faults`, :mod:`.precise_wait` (precise
-waiting), :mod:`.record` (record and replay), :mod:`.devices` (which devices
-answer a command), :mod:`.model` (the sans-IO wire model, optionally behind
-a USB adapter model from :mod:`ics35_async.transports.usb_timing`),
-:mod:`.virtual_line` (:class:`VirtualLine`: the model as an in-process port),
-:mod:`.adapter` (adapter models by name), :mod:`.url` (``sim://`` URLs;
-:func:`open_url` is what the core calls); then, POSIX only and loaded on
-demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap` (a pty that hears the
-line), :mod:`.pty_server` (the pty driver) and :mod:`.server_cli` (its
-command line); :mod:`.launch` runs that in a subprocess.
+Modules, each using only those listed before it: :mod:`.transaction` (a log entry),
+:mod:`.virtual_servo` (the devices), :mod:`.faults`, :mod:`.precise_wait` (precise waiting),
+:mod:`.record` (record and replay), :mod:`.devices` (which devices answer a command),
+:mod:`.framing` (the host's bytes cut into commands), :mod:`.model` (the sans-IO wire model,
+optionally behind a USB adapter model from :mod:`ics35_async.transports.usb_timing`),
+:mod:`.virtual_line` (:class:`VirtualLine`: the model as an in-process port), :mod:`.adapter`
+(adapter models by name), :mod:`.url` (``sim://`` URLs; :func:`open_url` is what the core calls);
+then, POSIX only and loaded on demand, :mod:`.pty_port` (pty plumbing), :mod:`.tap` (a pty that
+hears the line), :mod:`.pty_server` (the pty driver), :mod:`.console` (plugging and unplugging
+servos while it serves) and :mod:`.server_cli` (its command line); :mod:`.launch` runs that in a
+subprocess.
 
 URL syntax: ``sim://[NAME][?key=value&...]``.  ``sim://`` alone is 32
 factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
