@@ -21,6 +21,7 @@ from . import protocol
 from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
 from .drivers.settings import LineSettings
+from .eeprom import FACTORY_BAUD
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, RequestHandle, State, TimingOverrides
 from .engine.machine import ANOTHER_STREAM
 from .errors import BusClosed, ClosedByPortLoss, InvalidArgument, PortLost, UnsafeOperation, error_text
@@ -146,7 +147,7 @@ class Bus:
             reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in backoff) or (0.5,),
         )
         self._engine = LineEngine(
-            baudrate=protocol.check_baud(options.get("baudrate", 115200)),
+            baudrate=protocol.check_baud(options.get("baudrate", FACTORY_BAUD)),
             echo=check_bool("echo", options.get("echo", True)),
             timing=timing or BusTiming(),
             max_requests_between=check_int("max_requests_between", options.get("max_requests_between", 16), 1, 10_000),

@@ -30,6 +30,8 @@ from .units import check_int, whole_number
 
 EEPROM_SIZE = 64
 HEADER = 0x5A
+FACTORY_BAUD = 115200
+"""The rate servos leave the factory at: a line opens at it unless told another."""
 
 
 class BaudRate(enum.IntEnum):

@@ -14,6 +14,8 @@ from typing import Any, TypeVar
 
 import click
 
+from ..eeprom import FACTORY_BAUD
+from ..protocol.wire import ALL_BAUDS
 from ._settings import DEFAULT_PORT, Settings, setup_logging
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -40,8 +42,8 @@ LINE_OPTIONS = (
         "baud",
         ("--baud", "-b"),
         "Line baud rate (625000 and 1250000 need the ICS USB adapter HS).",
-        {"default": "115200", "show_default": True, "envvar": "ICS35_BAUD"},
-        {"type": click.Choice(["115200", "625000", "1250000"])},
+        {"default": str(FACTORY_BAUD), "show_default": True, "envvar": "ICS35_BAUD"},
+        {"type": click.Choice([str(b) for b in ALL_BAUDS])},
     ),
     LineOption(
         "timeout",

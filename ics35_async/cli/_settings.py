@@ -16,6 +16,8 @@ import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from ..eeprom import FACTORY_BAUD
+
 if TYPE_CHECKING:
     import click
 
@@ -86,7 +88,7 @@ class Settings:
     """The line options, shared with every command through ``ctx.obj``."""
 
     port: str = DEFAULT_PORT
-    baud: int = 115200
+    baud: int = FACTORY_BAUD
     timeout: float = 0.020
     retries: int = 1
     echo: bool = True

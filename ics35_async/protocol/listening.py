@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from ..eeprom import FACTORY_BAUD
 from ..errors import IcsError
 from .commands import Command, Position, ReadId, WriteId
 from .device import decode_request
@@ -89,7 +90,7 @@ def _reply_headers(command: Command[Any]) -> range | frozenset[int]:
 class LineListener:
     """Cuts the heard byte stream of a line at ``baudrate`` into :class:`HeardTransaction` s."""
 
-    def __init__(self, baudrate: int = 115200, *, gap: float = DEFAULT_GAP) -> None:
+    def __init__(self, baudrate: int = FACTORY_BAUD, *, gap: float = DEFAULT_GAP) -> None:
         self.baudrate = check_baud(baudrate)
         self.gap = gap
         self._sent = bytearray()  # a command (or junk) still arriving

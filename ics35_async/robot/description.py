@@ -17,6 +17,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from .. import protocol, units
+from ..eeprom import FACTORY_BAUD
 from ..errors import FileContentError, InvalidArgument
 from ..transports.direction import DIRECTIONS
 from ..user_files import UnreadableText, read_user_text
@@ -37,7 +38,7 @@ class LineSpec:
 
     name: str
     port: str
-    baudrate: int = 115200
+    baudrate: int = FACTORY_BAUD
     echo: bool = True
     rate_hz: float | None = None
     retries: int = 0
@@ -332,7 +333,7 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
         lines[name] = LineSpec(
             name=name,
             port=port,
-            baudrate=115200 if baud is None else baud,
+            baudrate=FACTORY_BAUD if baud is None else baud,
             echo=True if echo is None else echo,
             rate_hz=rate,
             retries=0 if retries is None else retries,

@@ -6,6 +6,7 @@ import hashlib
 import os
 from dataclasses import dataclass
 
+from ..eeprom import FACTORY_BAUD
 from ..transports.wire_device import url_scheme
 
 
@@ -14,7 +15,7 @@ class LineConfig:
     """How to open the line (the CLI's line options)."""
 
     port: str = "sim://"
-    baud: int = 115200
+    baud: int = FACTORY_BAUD
     echo: bool = True
     adapter_latency: float = 0.020
     retries: int = 1
