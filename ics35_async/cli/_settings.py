@@ -182,8 +182,6 @@ class Settings:
 
     def bus(self, baud: int | None = None, *, timeout: float | None = None, retries: int | None = None) -> Bus:
         """A not-yet-open bus with these settings (``async with`` it)."""
-        if self.is_sim:
-            from .. import sim  # noqa: F401  (registers the sim:// URL scheme; a real port does without it)
         from ..bus import open_bus
 
         return open_bus(

@@ -3,8 +3,8 @@
 Two ways in:
 
 * **In process**: :class:`VirtualLine` is a :class:`~ics35_async.transports.WireDevice`;
-  importing this package registers the ``sim://`` URL scheme, so
-  ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
+  a ``sim://`` port makes one (the scheme is known to the transports, which load this package for
+  the first such port), so ``open_bus("sim://?ids=0-31&baud=1250000&realtime=1")`` talks to it.
   Tests build one from Python objects
   (``VirtualLine([VirtualServo(1), VirtualServo(2, position=9000)], faults="drop:0.1", seed=3, name="t")``)
   and reach it by name (``sim://t``).

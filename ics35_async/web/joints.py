@@ -17,7 +17,6 @@ import contextlib
 from collections.abc import Collection, Iterable, Mapping
 from typing import Any
 
-from .. import sim  # noqa: F401  (registers sim:// for robot files that name simulated lines)
 from ..bus import Bus
 from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion

@@ -310,8 +310,6 @@ class LineSession:
             self._refuse_on_robot_line(who, "move or free it on the Robot page")
 
     def _open(self, baud: int, config: LineConfig | None = None) -> Bus:
-        from .. import sim  # noqa: F401  (registers the sim:// URL scheme)
-
         c = self.config if config is None else config
         return open_bus(
             c.url,
