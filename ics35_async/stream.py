@@ -148,9 +148,9 @@ class Stream(FrameIterator[Frame]):
             warnings.warn("free_on_close is deprecated: use on_close='free'", DeprecationWarning, stacklevel=2)
             on_close = "free" if free_on_close else "hold"
         if on_close not in ON_CLOSE:
-            raise InvalidArgument(f"on_close must be one of {ON_CLOSE}, not {on_close!r}")
+            raise InvalidArgument(f"on_close must be one of {', '.join(ON_CLOSE)}, not {on_close!r}")
         if on_resume not in ON_RESUME:
-            raise InvalidArgument(f"on_resume must be one of {ON_RESUME}, not {on_resume!r}")
+            raise InvalidArgument(f"on_resume must be one of {', '.join(ON_RESUME)}, not {on_resume!r}")
         self.bus = bus
         self.ids: tuple[int, ...] = tuple(id_list)
         self.rate_hz = rate_hz

@@ -1488,6 +1488,11 @@ async def test_bad_input_raises_invalid_argument_and_writes_nothing() -> None:
         ):
             with pytest.raises(InvalidArgument):
                 bus.stream(ids, **options)
+        # A choice refused names the choices in words, as open_robot's and open_bus's do (not a tuple's repr).
+        with pytest.raises(InvalidArgument, match=r"^on_close must be one of hold, free, not 'drop'$"):
+            bus.stream(ids, on_close="drop")  # type: ignore[arg-type]
+        with pytest.raises(InvalidArgument, match=r"^on_resume must be one of [a-z]+, [a-z]+, not 'go'$"):
+            bus.stream(ids, on_resume="go")  # type: ignore[arg-type]
         with pytest.raises(InvalidArgument):
             BusGroup({})
         with pytest.raises(InvalidArgument):
