@@ -16,7 +16,7 @@ from typing import Any
 from ..protocol import ReadId, WriteEeprom, WriteId
 from .virtual_servo import NO_REPLY, MemoryDevice, VirtualServo
 
-Device = VirtualServo | MemoryDevice
+VirtualDevice = VirtualServo | MemoryDevice
 MemorySpec = Mapping[int, bytes | bytearray | MemoryDevice] | Iterable[MemoryDevice]
 
 
@@ -25,13 +25,13 @@ def build_devices(
     memory: MemorySpec | None,
     baudrate: int,
     ics36: Iterable[int] = (),
-) -> list[Device]:
+) -> list[VirtualDevice]:
     """Servos (objects, or IDs for factory servos at ``baudrate``; ``None``: IDs 0..31) and memory devices.
 
     Servos built from an ID in ``ics36`` speak ICS 3.6 (they answer the position read).
     """
     newer = frozenset(ics36)
-    built: list[Device] = []
+    built: list[VirtualDevice] = []
     for item in range(32) if servos is None else servos:
         if not isinstance(item, VirtualServo):
             item = VirtualServo(item, baud_rate=baudrate, ics36=item in newer)
@@ -65,7 +65,7 @@ class Answer:
 
     __slots__ = ("reply", "responders", "value", "values")
 
-    def __init__(self, command: Any, responders: list[Device], values: list[Any]) -> None:
+    def __init__(self, command: Any, responders: list[VirtualDevice], values: list[Any]) -> None:
         self.responders = responders
         self.values = values
         replies = [command.encode_reply(v) for v in values]
@@ -80,22 +80,22 @@ NO_ANSWER = Answer(None, [], [])
 class DeviceTable:
     """The devices of one line, indexed by their current ID."""
 
-    def __init__(self, devices: list[Device]) -> None:
+    def __init__(self, devices: list[VirtualDevice]) -> None:
         self.devices = devices
         self.reindex()
 
     def reindex(self) -> None:
         """Rebuild the ID index (after a device changed its ID, or the list changed)."""
-        index: dict[int, list[Device]] = {}
+        index: dict[int, list[VirtualDevice]] = {}
         for device in self.devices:
             index.setdefault(device.servo_id, []).append(device)
         self._by_id = index
 
-    def add(self, device: Device) -> None:
+    def add(self, device: VirtualDevice) -> None:
         self.devices.append(device)
         self.reindex()
 
-    def remove(self, device: Device) -> None:
+    def remove(self, device: VirtualDevice) -> None:
         """Take ``device`` (that object, not another at its ID) off the line.
 
         Raises:
@@ -137,10 +137,10 @@ class DeviceTable:
     def dispatch(self, command: Any, now: float, baudrate: int) -> Answer:
         """Let every device the decoded ``command`` reaches handle it at ``now``."""
         if isinstance(command, (ReadId, WriteId)):
-            candidates: Iterable[Device] = self.servos  # the ID command reaches every servo
+            candidates: Iterable[VirtualDevice] = self.servos  # the ID command reaches every servo
         else:
             candidates = self._by_id.get(command.servo_id, ())
-        responders: list[Device] = []
+        responders: list[VirtualDevice] = []
         values: list[Any] = []
         for device in candidates:
             # Devices advance lazily: only the ones a command reaches (and all of

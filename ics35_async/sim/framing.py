@@ -18,7 +18,7 @@ from ..protocol import decode_request
 
 _ICS_BAUDS = frozenset(int(b) for b in BaudRate)
 
-Frame = tuple[Any, bytes, int]
+HostFrame = tuple[Any, bytes, int]
 """``(command, bytes, fresh)``: the decoded request (``None`` for junk), its
 bytes, and how many of them (at the end) have not been echoed yet."""
 
@@ -37,7 +37,7 @@ class CommandFramer:
         self._rx.clear()
         self._echoed = 0
 
-    def feed(self, data: bytes, now: float, baudrate: int) -> tuple[list[Frame], bytes]:
+    def feed(self, data: bytes, now: float, baudrate: int) -> tuple[list[HostFrame], bytes]:
         """The frames ``data`` (written at ``now``) completes, and the fresh bytes of a command still arriving.
 
         Those last bytes count as echoed from now on.
@@ -48,7 +48,7 @@ class CommandFramer:
         rx = self._rx
         rx += data
         ics_baud = baudrate in _ICS_BAUDS
-        frames: list[Frame] = []
+        frames: list[HostFrame] = []
         junk = bytearray()
         junk_fresh = 0
         while rx:

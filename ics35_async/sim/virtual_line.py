@@ -24,7 +24,7 @@ from ..eeprom import BaudRate
 from ..errors import PortBusy
 from ..transports import HostSide
 from ..units import POSITION_MAX, check_int
-from .devices import Device
+from .devices import VirtualDevice
 from .model import LineModel, LineModelOptions
 from .precise_wait import SPIN_MARGIN, Deliverer
 from .virtual_servo import MemoryDevice, VirtualServo
@@ -101,7 +101,7 @@ class VirtualLine(LineModel):
     # ------------------------------------------------------------------ devices
 
     @property
-    def devices(self) -> list[Device]:
+    def devices(self) -> list[VirtualDevice]:
         """Every device on the line, servos and memory devices."""
         return self.table.devices
 
@@ -123,12 +123,12 @@ class VirtualLine(LineModel):
         with self._lock:
             return self.table.servos_at(servo_id)
 
-    def add_device(self, device: Device) -> None:
+    def add_device(self, device: VirtualDevice) -> None:
         """Put one more device on the line (as if plugged in while it runs)."""
         with self._lock:
             self.table.add(device)
 
-    def remove_device(self, device: Device) -> None:
+    def remove_device(self, device: VirtualDevice) -> None:
         """Take ``device`` off the line (as if unplugged while it runs); it keeps its EEPROM.
 
         Raises:

@@ -98,11 +98,11 @@ def _held(param: Param, value: int) -> int:
     return min(high, max(low, value))
 
 
-class NoReply:
+class Silence:
     """Marker: the device heard the command but stays silent."""
 
 
-NO_REPLY = NoReply()
+NO_REPLY = Silence()
 
 
 class VirtualServo:
