@@ -36,7 +36,7 @@ def text_line(h: HeardTransaction) -> str:
     return f"{h.t:11.6f}  {who}  {h.kind:<24} {shown:<28} {sent} | {reply}"
 
 
-class Output:
+class HeardOutput:
     """Each transaction, as it is decoded, to the screen and to the file (flushed: Ctrl-C or a lost port loses none)."""
 
     def __init__(self, as_json: bool, file: IO[str] | None, limit: int | None = None) -> None:
@@ -68,7 +68,7 @@ class Output:
                 self.file.flush()
 
 
-def listen(settings: Settings, listener: LineListener, output: Output, duration: float | None) -> str:
+def listen(settings: Settings, listener: LineListener, output: HeardOutput, duration: float | None) -> str:
     """Read until Ctrl-C, ``duration`` or the output's limit; returns why it stopped."""
     try:
         ser = open_serial(settings.port, settings.baud, low_latency=True)
@@ -142,7 +142,7 @@ def sniff(
     file = None
     if output_path is not None:
         file = check_output_path(output_path, "--output").open("w", encoding="utf-8")
-    output = Output(as_json, file, limit=count)
+    output = HeardOutput(as_json, file, limit=count)
     try:
         why = listen(settings, LineListener(settings.baud, gap=gap * 1e-3), output, duration)
     finally:
