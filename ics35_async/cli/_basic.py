@@ -282,10 +282,10 @@ WRITE_PARAMS: dict[str, Param] = {
     "temperature-limit": Param.TEMPERATURE,
 }
 _PARAM_NOTES = {
-    "stretch": "holding gain 1..127",
-    "speed": "1..127",
-    "current": "measured; magnitude 0..63, sign = direction",
-    "temperature": "measured; smaller is hotter",
+    "stretch": "holding gain {}..{}".format(*protocol.WRITE_RANGES[Param.STRETCH]),
+    "speed": "{}..{}".format(*protocol.WRITE_RANGES[Param.SPEED]),
+    "current": f"measured; {units.CURRENT_NOTE}",
+    "temperature": f"measured; {units.TEMPERATURE_NOTE}",
 }
 _EEPROM_TWIN = {
     "stretch": "stretch_gain (EEPROM stores 2x: 2..254)",
@@ -297,7 +297,7 @@ _EEPROM_TWIN = {
 
 # A temperature limit counts the other way from degrees (60 is about 96 C, hotter than the factory 80): shown
 # in Celsius and said, or a limit meant as "60 C" loosens the servo's protection unnoticed.
-HOTTER = {"temperature-limit": "smaller is hotter; "}
+HOTTER = {"temperature-limit": f"{units.TEMPERATURE_NOTE}; "}
 
 
 def limit_text(param: str, value: int) -> str:
