@@ -157,6 +157,16 @@ def test_the_timer_is_inferred_from_round_trips() -> None:
     assert report.suspected_timer_ms == 16  # the system shows one: it counts even if the times hide it
 
 
+def test_slow_round_trips_beside_a_timer_the_system_shows_at_1_ms_are_not_blamed_on_the_timer() -> None:
+    # A busy machine (or a bridge) can make round trips look like a 16 ms timer's; with the system showing the
+    # port's timer at 1 ms, doctor said they "sit at a 16 ms USB latency timer" and advised setting it to 1 ms.
+    report = LineReport(115200, {1: [0.016] * 20}, system_latency_timer_ms=1)
+    assert report.suspected_timer_ms is None
+    found = report.judge()
+    assert [f.check for f in found] == ["round_trip"], found
+    assert report.cycle_hz()["after_fixes"] == []
+
+
 def test_udev_rules_bind_both_adapters_and_set_the_timer() -> None:
     text = rules_text("uucp")
     for pid in ("0006", "0008"):

@@ -109,10 +109,11 @@ class LineReport:
 
     @property
     def suspected_timer_ms(self) -> int | None:
-        inferred = suspect_latency_timer(self.all_samples, self.baudrate)
-        if inferred is None and self.system_latency_timer_ms is not None and self.system_latency_timer_ms > 1:
-            return self.system_latency_timer_ms
-        return inferred
+        # The timer the system shows is the one the adapter uses: round trips that look like a timer's beside a
+        # timer of 1 ms are a busy machine's or a bridge's, and a timer above 1 ms counts even if they hide it.
+        if self.system_latency_timer_ms is not None:
+            return self.system_latency_timer_ms if self.system_latency_timer_ms > 1 else None
+        return suspect_latency_timer(self.all_samples, self.baudrate)
 
     def position_round_trip(self) -> float | None:
         """Seconds a position command's round trip is expected to take, from the measured reads.
