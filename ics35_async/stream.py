@@ -468,6 +468,11 @@ class Stream(FrameIterator[Frame]):
         self._cur_job = job = self._jobs[k]
         return job
 
+    def _probing_silent(self) -> bool:
+        # (Asked by the engine as it detaches this stream with its transaction on the wire: see BackgroundSource.)
+        k = self._cur
+        return k >= 0 and self._offline[k]
+
     def _planned_next(self) -> bool:
         """Has a running burst put this stream's next transaction on the line already (see _upcoming)?"""
         if self._pos < len(self._order):

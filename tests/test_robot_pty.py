@@ -341,7 +341,9 @@ def test_teach_quits_at_once_with_a_line_where_nothing_answers(port: str, tmp_pa
 
     code, shown = typed_on_a_terminal(
         ["--timeout", str(allowance), "teach", str(robot), str(tmp_path / "taught.json"), "--yes"],
-        [("captured", b""), (now, key)],
+        # (q an allowance after the screen shows: the offline joints' probes, due half a second after the start,
+        # each waiting the whole allowance, are on the wire one after the other by then)
+        [("captured", b""), (allowance, b""), (now, key)],
     )
     took = time.monotonic() - typed[0]
     screen = "\n".join(screen_of(shown))
@@ -349,6 +351,6 @@ def test_teach_quits_at_once_with_a_line_where_nothing_answers(port: str, tmp_pa
     assert code == 5 and "no pose captured" in screen, screen  # (nothing captured: nothing written)
     said = " ".join(screen.split())
     assert "leg1, leg2, leg3, leg4, leg5 (servo IDs 1, 2, 3, 4, 5 on line legs) did not answer" in said, screen
-    # At most the leg line's transaction on the wire as q came (an offline joint's probe, a whole allowance), and
-    # a little more: well under an allowance per silent joint (six allowances before).
-    assert took < 2.5 * allowance, took
+    # Not even the leg line's transaction on the wire as q came (an offline joint's probe, a whole allowance, then
+    # a guard read's before that joint's free): under one allowance in all (six allowances before, then two).
+    assert took < allowance, took

@@ -946,6 +946,32 @@ async def test_on_close_free_to_offline_ids_on_a_line_where_nothing_answers_wait
     assert took < allowance / 2, took  # (one whole allowance per ID before)
 
 
+@pytest.mark.parametrize("target", ["free", "position"])
+async def test_a_closing_stream_waits_out_no_probe_of_an_offline_servo(target: str) -> None:
+    # A robot's leg line unplugged under `ics35 teach --timeout 1`: q came while the stream's probe of an offline
+    # joint was on the wire, nothing on that line had ever answered, and the close waited that probe's whole
+    # allowance, then a guard read's (the joint's free has the probe's command byte): two seconds after q.  Its
+    # stream gone, nobody hears the probe's answer; each offline ID's free still goes out.
+    ids = [5, 6]
+    sim = make_sim([])
+    allowance = PATIENT["adapter_latency"]
+    async with open_bus(sim, **{**PATIENT, "retries": 1}) as bus:
+        async with bus.stream(ids, on_close="free", offline_after=1, probe_interval=0.001) as stream:
+            if target == "position":  # (probed with a read: another command byte than its free's)
+                stream.set_targets(dict.fromkeys(ids, 7500))
+            await frames_until(stream, lambda f: set(ids) <= f.offline)
+            seq = sim.transactions
+            await wait_for_sim(lambda: sim.transactions > seq, "a probe of an offline ID on the wire")
+            probed = sim.log_since(seq)[0]
+            assert probed.servo_id in ids and probed.command in STREAM_COMMANDS, probed
+            closing = time.monotonic()
+        took = time.monotonic() - closing
+    after = [(t.servo_id, t.command) for t in sim.log_since(seq + 1)]
+    assert sorted(after) == [(i, "free") for i in ids], after  # (no guard read, no retry)
+    assert stream.targets_sent_on_close == dict.fromkeys(ids, FREE)
+    assert took < allowance / 4, took  # (two allowances before)
+
+
 async def test_on_close_free_to_a_servo_gone_offline_waits_no_whole_allowance() -> None:
     # A servo that answered, then stopped (its cable pulled mid-run): its close-out free went with the whole
     # allowance and the bus's retries, each after a guard read (three allowances at retries=1), as if it were

@@ -34,7 +34,9 @@ The rules, each in one place:
 * probes: a ``Timing.PROBE`` read waits as long as this link's answers have
   taken, not the adapter's worst case, and its silence resyncs as briefly
   (see :mod:`.probe`); a ``Timing.SILENT`` command (to a servo already found
-  silent) waits as a probe, and briefly even before anything has answered;
+  silent) waits as a probe, and briefly even before anything has answered,
+  with no guard read or hold before it; so does a stream's probe of a servo it
+  found silent once the stream has left (``LineEngine.detach_source``);
 * the stream's wait: its transactions wait what this link's answers take
   too; after such a short wait fails, its servo is held back (the stream
   skips it, a request to it waits) until the reply could no longer come,

@@ -310,6 +310,24 @@ class LineEngine:
     def detach_source(self, source: BackgroundSource) -> None:
         if self._source is source:
             self._source = None
+            if self.state is BUSY and self._current is None and self._owner is source and source.probing_silent():
+                self._unheeded_probe()
+
+    def _unheeded_probe(self) -> None:
+        """The source left while its probe of a servo it had found silent was on the wire (a stream closing as
+        it probes an offline ID): nobody will hear the answer that would have brought the servo back, and
+        silence tells nothing new, so the probe waits no longer than a command to such a servo does
+        (``Timing.SILENT``).  Before anything has answered the stream's probe waits the whole allowance (only
+        that is known to cover this link), and the close waited it out.  A reply that still comes is held off as
+        after any stream transaction that gave up early (see _hold)."""
+        if self._settling:
+            return  # its reply is in
+        nbytes = len(self._tx) + self._expect - self._echo_len
+        wait = self.answers.silent_allowance(self._base, self._wire_time(nbytes))
+        deadline = self._t_start + wait + self.link.extra
+        if deadline < self.deadline:
+            self.deadline = deadline
+            self._short = True
 
     def kick(self, now: float) -> bytes | None:
         """The source has work again (new targets, or it was just attached)."""
@@ -587,7 +605,8 @@ class LineEngine:
         """Put the queue's next request on the wire; None if only abandoned ones were left."""
         if self._held:  # a request whose reply a held one could pass for waits for the hold to end
             head = self.queue.peek()
-            until = 0.0 if head is None else self._held.get(head.command.tx[0], 0.0)
+            # (but a command to a servo already found silent: as for the guard read, see _begin)
+            until = 0.0 if head is None or head.command.timing is SILENT else self._held.get(head.command.tx[0], 0.0)
             if until > now:
                 self._hold_wake = min(self._hold_wake, until)
                 return None
@@ -651,7 +670,10 @@ class LineEngine:
     def _begin(
         self, tx: bytes, reply_len: int, servo_id: int | None, req: Request | None, timing: Timing, now: float
     ) -> bytes:
-        if self.guard.suspect:  # a reply may still come (see .guard)
+        # A reply may still come (see .guard).  A command to a servo already found silent goes without the guard
+        # read, which would wait a whole allowance: its own reply would only confirm it, so a late one passing for
+        # it misleads nobody; the suspicion stays for the command after it.
+        if self.guard.suspect and timing is not SILENT:
             guard = self.guard.before(tx, servo_id)
             if guard is not None:  # a read of another shape first (see .guard)
                 if req is not None:

@@ -36,7 +36,9 @@ class BackgroundSource(Protocol):
     then calls ``fail`` with it, as it does for a timeout or echo fault (so a
     frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
     the line closes for good (or loses its port with reconnect off); ``line_resumed`` when it
-    comes back after a lost port.  ``slot_due`` says whether the source keeps a schedule
+    comes back after a lost port.  ``probing_silent`` is asked as the source is detached with its
+    transaction on the wire: is that a probe of a servo it has found silent (see
+    ``LineEngine.detach_source``)?  ``slot_due`` says whether the source keeps a schedule
     (see the engine's sharing rule).  ``upcoming`` and ``upcoming_done`` serve a burst (see
     :meth:`LineEngine.plan_burst <ics35_async.engine.LineEngine.plan_burst>`).
     """
@@ -67,6 +69,11 @@ class BackgroundSource(Protocol):
     def line_resumed(self, now: float) -> None:
         """The line came back after a lost port (a reconnect): the servos may have restarted or
         moved meanwhile."""
+        ...
+
+    def probing_silent(self) -> bool:
+        """Is the transaction this source last offered a probe of a servo it has found silent (an offline
+        ID's)?  Asked only while that transaction is on the wire."""
         ...
 
     def upcoming(self, limit: int) -> list[Upcoming]:
@@ -102,11 +109,12 @@ class BoundSource:
     skip: Callable[[float], None]
     upcoming: Callable[[int], list[Upcoming]]
     upcoming_done: Callable[[], None]
+    probing_silent: Callable[[], bool]
 
     @classmethod
     def of(cls, owner: Any) -> BoundSource:
         """``owner``'s hooks: ``_next_transaction``, ``_complete``, ``_fail``, ``_line_closed``, ``_wake_at``,
-        ``_slot_due``, ``_line_resumed``, ``_skip``, ``_upcoming``, ``_upcoming_done``."""
+        ``_slot_due``, ``_line_resumed``, ``_skip``, ``_upcoming``, ``_upcoming_done``, ``_probing_silent``."""
         return cls(
             owner._next_transaction,
             owner._complete,
@@ -118,6 +126,7 @@ class BoundSource:
             owner._skip,
             owner._upcoming,
             owner._upcoming_done,
+            owner._probing_silent,
         )
 
     @property

@@ -361,6 +361,9 @@ class FakeSource:
     def upcoming_done(self) -> None:
         pass
 
+    def probing_silent(self) -> bool:
+        return False  # (it never takes a servo out of its cycle)
+
 
 class StalledOnce(Servos):
     """Write ``stalled`` comes round ``delay`` seconds late, its echo and reply together: the host or the

@@ -94,6 +94,9 @@ class PacedCycle:
     def upcoming_done(self) -> None:
         pass
 
+    def probing_silent(self) -> bool:
+        return False  # (it never takes a servo out of its cycle)
+
 
 class FaultyServos(Servos):
     """Servos whose replies are dropped, cut short, garbled or late, each kind at ``rate / 4``."""
