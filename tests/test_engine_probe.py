@@ -11,7 +11,7 @@ from ics35_async import protocol
 from ics35_async.engine import State
 from ics35_async.engine.probe import FACTOR, FLOOR, MARGIN, REFRESH, AnswerTimes
 from ics35_async.errors import InvalidArgument, ReplyTimeout
-from tests.support.engine_support import BAUD, Recorded, Servos, Wire, read, ready_engine, wire_time
+from tests.support.engine_support import BAUD, FakeSource, Recorded, Servos, Wire, read, ready_engine, wire_time
 
 NORMAL_WAIT = 0.0005 + 0.020  # BusTiming's turnaround + adapter latency
 
@@ -101,6 +101,37 @@ def test_a_free_to_a_servo_already_found_silent_waits_little_even_before_any_ans
     answered.submit(Recorded(read(1)))
     answered.settle()
     assert silent_free_deadline(answered, 4) == pytest.approx(wire_time(6) + 2 * 0.003 + 0.001, abs=1e-6)
+
+
+class OfflineProbes(FakeSource):
+    """A stream that has found every ID it offers silent: each of its transactions is an offline ID's probe."""
+
+    def probing_silent(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("silent", [True, False], ids=["offline-probe", "online"])
+def test_a_stream_leaving_gives_up_briefly_only_on_its_probe_of_a_silent_servo(silent: bool) -> None:
+    # A robot's leg line where nothing answers: the stream's probe of an offline joint waited the whole allowance
+    # (nothing to learn a shorter one from) as the stream closed, then a guard read's before that joint's free.
+    wire, _ = line(set())
+    engine = wire.engine
+    source = OfflineProbes([4]) if silent else FakeSource([4])
+    start = wire.now
+    probe = wire.emit(engine.attach_source(source, start))
+    full = wire_time(6) + NORMAL_WAIT
+    assert engine.deadline - start == pytest.approx(full)
+    source.active = False
+    engine.detach_source(source)
+    free = Recorded(protocol.SilentFree(4, baudrate=BAUD))
+    wire.submit(free)
+    wire.settle()
+    assert [tx for _, tx in wire.writes] == [probe, free.command.tx]  # no guard read before the free
+    freed_at = wire.writes[1][0] - start
+    if silent:  # nobody hears the probe's answer now: it waits as the free does
+        assert freed_at < wire_time(6) + FLOOR + MARGIN + 0.002, freed_at
+    else:  # a transaction to a servo that may well answer keeps its whole allowance
+        assert freed_at >= full, freed_at
 
 
 def test_a_plain_read_keeps_the_normal_wait_and_quiet_time() -> None:
