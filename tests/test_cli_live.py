@@ -15,6 +15,7 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualServo
+from tests.support.terminal import screen_of, typed_on_a_terminal
 
 TELEMETRY_READS = ("read_current", "read_temperature")
 
@@ -187,3 +188,16 @@ def test_a_reader_that_leaves_the_pipe_ends_monitor_quietly(json_lines: bool) ->
     assert proc.wait(timeout=30) == 1, err
     assert "Traceback" not in err and "rror" not in err, err
     assert "closed sim://" in err, err
+
+
+def test_the_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -> None:
+    # `monitor 1 --free --timeout 1` where servo 1 does not answer at the line's rate: the command then asked the
+    # other rates, a whole allowance each at least, with nothing said until its error.
+    port = "sim://search-said?ids=1&baud=1250000"  # (servo 1 at 1250000, the line at the default 115200)
+    code, shown = typed_on_a_terminal(
+        ["--port", port, "--timeout", "0.05", "monitor", "1", "--free", "--seconds", "0.3"], []
+    )
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.WRONG_BAUD, screen
+    tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 115200 baud: trying 1250000 baud ..."
+    assert tried in screen and "--baud 1250000" in screen, screen

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import AbstractAsyncContextManager
 from typing import Any
@@ -18,7 +19,7 @@ from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.transports import PortNotFound, SerialPortError
 from tests.support.engine_support import Recorded, Wire, ready_engine
 from tests.support.sim_servos import UnplugsWhenAsked
-from tests.support.timing import FAST
+from tests.support.timing import FAST, PATIENT
 
 
 @pytest.fixture
@@ -266,6 +267,26 @@ async def test_servo_rates_never_offers_a_rate_the_eeprom_contradicts(lines: Any
     sim = lines([LossyAt115200(1), VirtualServo(2, baud_rate=1250000)])
     assert await servo_rates(opener(sim), 1, [625000, 1250000]) == ()
     assert await servo_rates(opener(sim), 2, [115200, 625000, 1250000]) == (1250000,)
+
+
+async def test_servo_rates_asks_each_other_rate_once_with_the_whole_allowance(lines: Any) -> None:
+    # `ics35 monitor 1-4 --free --timeout 1` on a line where nothing answers: the search of the other rates for
+    # servo 1 asked each rate three times (the read, the bus's retry and the guard read before it), three whole
+    # allowances a rate.  Whether anything answers there is all it asks: once a rate, with the whole allowance
+    # (nothing has answered to learn a shorter wait from, and a slow link delays a reply at every rate alike).
+    sim = lines([VirtualServo(2, baud_rate=1250000)])
+    allowance = PATIENT["adapter_latency"]
+    tried: list[int] = []
+    start = time.monotonic()
+    found = await servo_rates(
+        opener(sim, adapter_latency=allowance, retries=1), 1, [625000, 1250000], on_rate=tried.append
+    )
+    took = time.monotonic() - start
+    assert found == () and tried == [625000, 1250000]
+    assert [(t.servo_id, t.command) for t in sim.log] == [(1, "read_stretch")] * 2
+    assert 2 * allowance <= took < 3 * allowance, took  # (six allowances before)
+    # A servo there is still found (its EEPROM read, the longest reply, with the bus's retries as ever).
+    assert await servo_rates(opener(sim, retries=1), 2, [625000, 1250000]) == (1250000,)
 
 
 @pytest.mark.parametrize("seed", range(4))

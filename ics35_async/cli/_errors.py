@@ -11,7 +11,7 @@ from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
 from ..transports.wire_device import is_url, url_scheme
-from ._console import ids_text
+from ._console import err, ids_text
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
 
@@ -146,15 +146,28 @@ def _opener(settings: Settings) -> Callable[[int], Bus]:
     return open_at
 
 
+def _trying(settings: Settings) -> Callable[[int], None]:
+    """A search of the other rates' progress (its ``on_rate``), for a person watching: where nothing answers,
+    each rate costs a whole --timeout (raised for a slow link, the search must keep it: see policies.scan)."""
+
+    def tell(baud: int) -> None:
+        if err.is_terminal:
+            err.print(f"no answer at {settings.baud} baud: trying {baud} baud ...")
+
+    return tell
+
+
 def _rate_elsewhere(
-    settings: Settings, search: Callable[[Callable[[int], Bus], list[int]], Awaitable[tuple[int, ...]]]
+    settings: Settings,
+    search: Callable[[Callable[[int], Bus], list[int], Callable[[int], None]], Awaitable[tuple[int, ...]]],
 ) -> int | None:
-    """The first of the line's other rates ``search(open_at, rates)`` (a policy) finds, or None: also when the
-    port cannot be opened again (advice only: what was said stands)."""
+    """The first of the line's other rates ``search(open_at, rates, on_rate)`` (a policy) finds, or None: also
+    when the port cannot be opened again (advice only: what was said stands)."""
     from ..policies import ALL_BAUDS
 
+    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
     try:
-        found = run_loop(lambda: search(_opener(settings), [rate for rate in ALL_BAUDS if rate != settings.baud]))
+        found = run_loop(lambda: search(_opener(settings), others, _trying(settings)))
     except (errors.IcsError, OSError):
         return None
     return found[0] if found else None
@@ -165,7 +178,9 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     to check."""
     from ..policies import NoReplyCause, why_no_reply
 
-    finding = run_loop(lambda: why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo))
+    finding = run_loop(
+        lambda: why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo, on_rate=_trying(settings))
+    )
     if finding.cause is NoReplyCause.NO_ECHO:
         # Not even our own echo came back: the adapter or its wiring, not the servo.
         return CliError(
@@ -206,7 +221,9 @@ def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
     the one-shot commands say it, else what to check."""
     from ..policies import servo_rates
 
-    rate = _rate_elsewhere(settings, lambda open_at, others: servo_rates(open_at, ids[0], others))
+    rate = _rate_elsewhere(
+        settings, lambda open_at, others, on_rate: servo_rates(open_at, ids[0], others, on_rate=on_rate)
+    )
     which = ids_text(ids)
     if rate is not None:
         return CliError(
@@ -250,7 +267,7 @@ def nobody_at_this_rate(settings: Settings, nobody: NobodyAnswered) -> CliError:
 
     if nobody.silent and settings.echo:
         return nobody  # not even the echo came back: the adapter or its wiring, which no rate mends
-    rate = _rate_elsewhere(settings, device_rates)
+    rate = _rate_elsewhere(settings, lambda open_at, others, on_rate: device_rates(open_at, others, on_rate=on_rate))
     if rate is None:
         return nobody
     return CliError(

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from ..errors import IcsError, ReplyTimeout
 from .failure_kinds import LineOpener, answers_short_read
-from .scan import ALL_BAUDS, servo_rates
+from .scan import ALL_BAUDS, RateCallback, servo_rates
 
 
 class NoReplyCause(enum.Enum):
@@ -57,7 +57,13 @@ class NoReply:
 
 
 async def why_no_reply(
-    exc: ReplyTimeout, open_at: LineOpener, baud: int, *, echo: bool = True, other_rates: bool = True
+    exc: ReplyTimeout,
+    open_at: LineOpener,
+    baud: int,
+    *,
+    echo: bool = True,
+    other_rates: bool = True,
+    on_rate: RateCallback | None = None,
 ) -> NoReply:
     """Why the command of ``exc``, sent at ``baud``, went unanswered (see the module's checks, in order).
 
@@ -65,7 +71,8 @@ async def why_no_reply(
     ``baud`` itself it is asked for one short read, at every other rate (unless
     ``other_rates`` is False) for a stretch read and, when that is answered, the
     EEPROM.  ``echo``: whether the line loops what it sends back.  An ID command
-    names no servo: nothing is asked, the cause is UNKNOWN.
+    names no servo: nothing is asked, the cause is UNKNOWN.  ``on_rate(baud)`` is
+    told each other rate as it is tried (see :func:`~.scan.servo_rates`).
     """
     servo_id = exc.servo_id
     if servo_id is None:
@@ -78,7 +85,7 @@ async def why_no_reply(
         return NoReply(NoReplyCause.UNKNOWN, servo_id, baud)
     others = [rate for rate in ALL_BAUDS if rate != baud]
     try:
-        found = await servo_rates(open_at, servo_id, others)
+        found = await servo_rates(open_at, servo_id, others, on_rate=on_rate)
     except (IcsError, OSError):
         found = ()
     cause = NoReplyCause.OTHER_RATE if found else NoReplyCause.UNKNOWN

@@ -34,6 +34,15 @@ listed at its EEPROM's rate only, and an answer whose image could not be
 read adds no entry beside the servo read under that ID.  An ID none of
 whose images could be read is listed once, ``rate_unconfirmed``.
 
+A search of the other rates after nothing answered at a line's own
+(:func:`device_rates`, :func:`servo_rates`) asks each rate once: it only
+needs to hear whether anything answers there, and a retry at a silent rate
+would cost two whole allowances more (the retry, and the guard read before
+it).  Each ask keeps the line's whole allowance: nothing has answered to
+learn a shorter wait from, and a link slow enough to need a long one (a
+bridge) delays a reply at every rate alike.  ``on_rate`` hears each rate as
+it is tried, so that a person waiting sees why.
+
 A link known not to carry the baud rate at all (``socket://``: the far end
 keeps its own settings) is probed once, at the first rate asked for: every
 other rate would be the same line again.  Its servos are listed at the rate
@@ -73,6 +82,7 @@ from .scan_units import (
 ID_READ_MIN_IDS = 8
 
 ProbeCallback = Callable[[int], None]  # called with the number of IDs just finished
+RateCallback = Callable[[int], object]  # called with the baud rate a search of other rates tries next
 
 
 @dataclass(frozen=True)
@@ -414,11 +424,14 @@ async def _read_images(
 
 
 async def _rates_where(
-    open_at: LineOpener, bauds: Iterable[int], answers: Callable[[Line, int], Awaitable[bool]]
+    open_at: LineOpener,
+    bauds: Iterable[int],
+    answers: Callable[[Line, int], Awaitable[bool]],
+    on_rate: RateCallback | None,
 ) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``answers(line, baud)`` is True, the line opened there with
-    ``open_at(baud)``.  A rate the port cannot be opened at is left out; on a line that ignores rates none
-    is offered (every rate is the far end's one rate)."""
+    ``open_at(baud)`` (``on_rate(baud)`` told first).  A rate the port cannot be opened at is left out; on a
+    line that ignores rates none is offered (every rate is the far end's one rate)."""
     found: list[int] = []
     skipped: dict[int, IcsError] = {}
     for baud in _check_bauds(bauds):
@@ -428,31 +441,40 @@ async def _rates_where(
                 continue
             if not carries_line_settings(getattr(line, "port", None)):
                 return ()
+            if on_rate is not None:
+                on_rate(baud)
             if await answers(line, baud):
                 found.append(baud)
     return tuple(found)
 
 
-async def device_rates(open_at: LineOpener, bauds: Iterable[int]) -> tuple[int, ...]:
+async def device_rates(
+    open_at: LineOpener, bauds: Iterable[int], *, on_rate: RateCallback | None = None
+) -> tuple[int, ...]:
     """The rates among ``bauds`` at which some device answers the ID read (garbled counts: several answer).
 
     For advice after nothing answered at a line's rate, where no servo ID is known (an ID write).
-    ``open_at(baud)`` opens the line at a rate, as for :func:`scan`.
+    ``open_at(baud)`` opens the line at a rate, as for :func:`scan`; ``on_rate(baud)`` is told each rate as it
+    is tried (each costs a whole reply allowance where nothing answers: see the module's search rule).
     """
 
     async def answers(line: Line, baud: int) -> bool:
         return await anyone_there(line)
 
-    return await _rates_where(open_at, bauds, answers)
+    return await _rates_where(open_at, bauds, answers, on_rate)
 
 
-async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) -> tuple[int, ...]:
+async def servo_rates(
+    open_at: LineOpener, servo_id: int, bauds: Iterable[int], *, on_rate: RateCallback | None = None
+) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``servo_id`` answers and its EEPROM names that rate.
 
     For advice after a servo did not answer: a rate is offered only when the
     servo's own EEPROM agrees with it, never one its EEPROM contradicts (on a
     line that ignores rates a servo answers at all of them).  ``open_at(baud)``
-    opens the line at a rate, as for :func:`scan`.
+    opens the line at a rate, as for :func:`scan`; ``on_rate`` as for
+    :func:`device_rates`.  The servo is asked once at each rate (see the module's search rule); one that
+    answers has its EEPROM read with the line's retries.
 
     Raises:
         InvalidArgument: ``servo_id`` is not 0..31.
@@ -461,10 +483,10 @@ async def servo_rates(open_at: LineOpener, servo_id: int, bauds: Iterable[int]) 
 
     async def answers(line: Line, baud: int) -> bool:
         try:
-            await line.request(protocol.ReadParam(servo_id, Param.STRETCH))
+            await line.request(protocol.ReadParam(servo_id, Param.STRETCH), retries=0)
         except ReplyError:
             return False
         image = await read_eeprom_or_error(line, servo_id)
         return isinstance(image, Eeprom) and int(image.baud_rate) == baud
 
-    return await _rates_where(open_at, bauds, answers)
+    return await _rates_where(open_at, bauds, answers, on_rate)
