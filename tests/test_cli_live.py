@@ -16,6 +16,7 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualServo
 from tests.support.terminal import screen_of, typed_on_a_terminal
+from tests.support.timing import scaled
 
 TELEMETRY_READS = ("read_current", "read_temperature")
 
@@ -201,3 +202,24 @@ def test_the_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -> No
     assert code == ExitCode.WRONG_BAUD, screen
     tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 115200 baud: trying 1250000 baud ..."
     assert tried in screen and "--baud 1250000" in screen, screen
+
+
+def test_monitor_stopped_on_a_line_where_nothing_answers_ends_within_its_search_of_the_other_rates() -> None:
+    # `ics35 monitor 1-4 --free --timeout 1` on a line where nothing answers, Ctrl-C: ten seconds to the prompt.  The
+    # stop waited for two of the stream's cycles to carry a free to no ID (every ID watched: a servo that answers
+    # ICS 3.6's read is never freed), each cycle a whole allowance per offline ID, then the search of the other
+    # rates asked each three times.  Left: that search, one allowance a rate.
+    allowance = scaled(0.5)
+    typed: list[float] = []
+
+    def now() -> bool:
+        typed.append(time.monotonic())
+        return True
+
+    args = ["--port", "sim://stop-silent?ids=", "--timeout", str(allowance), "monitor", "1-4", "--free"]
+    code, shown = typed_on_a_terminal(args, [("answering 0/4", b""), (now, b"\x03")])
+    took = time.monotonic() - typed[0]
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.NO_REPLY and "no servo among 1, 2, 3, 4 answered" in screen, screen
+    assert "trying 625000 baud" in screen and "trying 1250000 baud" in screen, screen
+    assert took < 4 * allowance, took  # (two allowances of search; fourteen and more before)
