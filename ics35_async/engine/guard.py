@@ -13,6 +13,12 @@ and sub-command) instead: the command it protects differs from it in
 sub-command and goes straight on (a silent servo never loops through
 guards), while another read of the guard's own shape gets a guard too, so
 the guard's late reply cannot pass for its answer.
+
+A command to a servo already found silent (``Timing.SILENT``: a closing
+stream's free to an offline servo) goes without a guard read: its reply
+would only confirm it, so a late one passing for it misleads nobody, while
+the guard would wait a whole allowance.  The suspicion stays for the command
+after it.
 """
 
 from __future__ import annotations

@@ -10,7 +10,10 @@ Until something has answered (a fresh port, a new baud rate) a probe gets
 the normal allowance; a command to a servo already found silent
 (``Timing.SILENT``: a closing stream's free to an offline servo) waits its
 wire time plus ``FLOOR`` and a millisecond then: its silence has cost the whole
-allowance already.
+allowance already.  A stream's probe of an offline servo waits as the stream's
+other transactions do (its answer brings the servo back), but no longer than
+that once its stream has left with it on the wire: nobody hears its answer
+then (see ``LineEngine.detach_source``).
 
 A probe that timed out with no reply bytes is followed by a resync of
 ``latency`` (plus the link's learnt extra) instead of the full quiet time.
