@@ -287,6 +287,31 @@ class Eeprom:
             + "; ".join(problems)
         )
 
+    def write_refusal(
+        self, current: Eeprom, servo_id: int, *, allow_baud_change: bool = False, allow_id_change: bool = False
+    ) -> str | None:
+        """Why this image must not be written over ``current``, servo ``servo_id``'s image now (``None``: it
+        may), with what to do instead: it changes the factory calibration bytes, or the baud rate or the ID
+        without ``allow_baud_change`` / ``allow_id_change``.  ``Servo.write_eeprom`` and the EEPROM write
+        policy refuse by this one rule, in these words."""
+        if self.calibration != current.calibration:
+            return (
+                f"servo {servo_id}: the image's factory calibration bytes differ from the servo's; start from the "
+                "servo's own image (read_eeprom()) and change fields with Eeprom.replace()"
+            )
+        if self.baud_rate != current.baud_rate and not allow_baud_change:
+            return (
+                f"servo {servo_id}: the image changes the baud rate from {int(current.baud_rate)} to "
+                f"{int(self.baud_rate)}, after which the servo answers only at the new rate; to do it, allow the "
+                "baud change (allow_baud_change=True)"
+            )
+        if self.servo_id != current.servo_id and not allow_id_change:
+            return (
+                f"servo {servo_id}: the image changes its ID to {self.servo_id}; to do it, allow the ID change "
+                "(allow_id_change=True)"
+            )
+        return None
+
     def check_values(self, since: Eeprom | None = None) -> None:
         """Raise InvalidArgument for a field outside the reference's range (the checks :meth:`replace` makes).
 

@@ -381,22 +381,11 @@ class Servo:
         units.check_bool("allow_id_change", allow_id_change)
         eeprom.check_writable()  # (an undefined header or baud code: refused before the read goes out)
         current = await self.read_eeprom()
-        if eeprom.calibration != current.calibration:
-            raise UnsafeOperation(
-                f"servo {self.id}: the image's factory calibration bytes differ from the servo's; "
-                "start from read_eeprom() and change fields with Eeprom.replace()"
-            )
-        if eeprom.baud_rate != current.baud_rate and not allow_baud_change:
-            raise UnsafeOperation(
-                f"servo {self.id}: changing the baud rate from {int(current.baud_rate)} to {int(eeprom.baud_rate)} "
-                "makes it answer only at the new rate (625k/1.25M need the HS adapter); "
-                "pass allow_baud_change=True to do it"
-            )
-        if eeprom.servo_id != current.servo_id and not allow_id_change:
-            raise UnsafeOperation(
-                f"servo {self.id}: the image changes the EEPROM ID to {eeprom.servo_id}; "
-                "pass allow_id_change=True to do it"
-            )
+        reason = eeprom.write_refusal(
+            current, self.id, allow_baud_change=allow_baud_change, allow_id_change=allow_id_change
+        )
+        if reason:
+            raise UnsafeOperation(f"{reason}; nothing was written")
         # Each field the image changes passes replace()'s checks (the reference's range, even stretch, flag
         # rules), as if it had been made so; a value the servo already holds is written back as read.
         command = protocol.WriteEeprom(self.id, eeprom, current=current)

@@ -440,3 +440,28 @@ async def test_plan_restores_cancelled_at_another_rate_returns_the_line_to_its_o
             group.cancel_scope.cancel()
         assert bus.baudrate == 115200 and bus.is_open
         assert await bus.request(protocol.ReadEeprom(1)) == sim.servo(1).eeprom  # the line works at its rate
+
+
+@pytest.mark.parametrize("change", ["calibration", "baud_rate", "servo_id"])
+async def test_servo_write_eeprom_and_a_plan_refuse_in_the_same_words(change: str) -> None:
+    """The two ways to write an image (``Servo.write_eeprom`` and a plan) refuse a change of the calibration
+    bytes, the rate or the ID by one rule: the same words, naming what to do instead, and nothing written."""
+    async with line([VirtualServo(1), VirtualServo(2)]) as (sim, bus):
+        current = await bus.servo(1).read_eeprom()
+        if change == "calibration":  # another servo's bytes: a plan made by hand from its image
+            foreign = await bus.servo(2).read_eeprom()
+            image = dataclasses.replace(current, calibration=foreign.calibration)
+            plan = dataclasses.replace(await plan_eeprom_write(bus, 1, {}), after=image)
+        else:
+            value = {"baud_rate": 625000, "servo_id": 7}[change]
+            image = current.replace(**{change: value})
+            plan = await plan_eeprom_write(bus, 1, {change: value})
+        with pytest.raises(UnsafeOperation) as by_servo:
+            await bus.servo(1).write_eeprom(image)
+        with pytest.raises(UnsafeOperation) as by_plan:
+            await write_eeprom_plan(bus, plan)
+        assert str(by_servo.value) == str(by_plan.value)
+        assert str(by_plan.value) == f"{plan.refusal()}; nothing was written"
+        hint = {"calibration": "Eeprom.replace()", "baud_rate": "allow_baud_change", "servo_id": "allow_id_change"}
+        assert hint[change] in str(by_plan.value)
+        assert eeprom_writes(sim) == 0

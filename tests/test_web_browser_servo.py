@@ -208,13 +208,13 @@ def test_a_tick_allowing_an_id_or_baud_change_is_for_one_servos_write_not_the_ne
 
 
 def test_a_write_refused_for_its_id_or_baud_change_names_the_tick_that_allows_it(browser: Browser) -> None:
-    # "refused: servo 1: the write changes its ID to 7", and nothing said the tick below the table allows it.
+    # The refusal names the change and the allowance; the page names the tick that gives it.
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         p.fill("#eeprom-table [name=servo_id]", "7")
         p.click("#plan-btn")
-        expect(p.locator("#diff .refusal")).to_contain_text("the write changes its ID to 7")
+        expect(p.locator("#diff .refusal")).to_contain_text("the image changes its ID to 7")
         expect(p.locator("#diff")).to_contain_text("tick “allow ID change” to write it")
         p.fill("#eeprom-table [name=servo_id]", "1")
         p.select_option("#eeprom-table [name=baud_rate]", "1250000")

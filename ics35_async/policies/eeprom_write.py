@@ -222,15 +222,11 @@ class EepromPlan:
     def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
         """Why this write must not happen (``None``: it may), given whether a baud change
         (``allow_baud_change``) and an ID change (``allow_id_change``) are allowed."""
-        if self.after.calibration != self.before.calibration:
-            return f"servo {self.servo_id}: the image's factory calibration bytes differ from the servo's"
-        if self.changes_baud and not allow_baud_change:
-            return (
-                f"servo {self.servo_id}: the write changes the baud rate from {int(self.before.baud_rate)} to "
-                f"{int(self.after.baud_rate)}, after which it answers only at the new rate"
-            )
-        if self.changes_id and not allow_id_change:
-            return f"servo {self.servo_id}: the write changes its ID to {self.after.servo_id}"
+        reason = self.after.write_refusal(
+            self.before, self.servo_id, allow_baud_change=allow_baud_change, allow_id_change=allow_id_change
+        )
+        if reason:
+            return reason
         if self.changes_id and self.id_taken:
             return f"ID {self.after.servo_id} already answers on this line; two servos with one ID garble every reply"
         return None

@@ -477,7 +477,7 @@ async function planWrite() {
   $("#write-result").replaceChildren();  // an earlier write's outcome is not this one's
   $("#write-btn").disabled = true;
   state.plan = await api(`/api/servo/${servoId()}/plan`, { changes: editedFields(), ...allowances() });
-  // Refused for a change of ID or rate that its tick allows: said which tick (the refusal names only the change).
+  // Refused for a change of ID or rate that its tick allows: said which tick (the refusal names the library's flag).
   const changed = (name) => state.plan.refusal && state.plan.diff.some((d) => d.name === name);
   const ticks = [["servo_id", "#allow-id-change", "allow ID change"], ["baud_rate", "#allow-baud-change", "allow baud change"]]
     .filter(([name, box]) => changed(name) && !$(box).checked)
