@@ -38,6 +38,26 @@ def _check_bus(bus: object) -> Line:
     return bus
 
 
+def check_pulse_limits(servo_id: int, position: object, low: int, high: int) -> int:
+    """``position`` if it is a whole number within servo ``servo_id``'s EEPROM pulse limits ``low..high``.
+
+    The servo clamps a target beyond them itself, but a tool that sends one (``ics35 move``, the
+    configurator's jog) refuses it first, by this rule and in these words, rather than send what the
+    servo will not do.
+
+    Raises:
+        InvalidArgument: ``position`` is not a whole number, or is outside ``low..high`` (nothing was sent).
+    """
+    number = units.whole_number(position)
+    if number is None:
+        raise InvalidArgument(f"position must be an int, not {type(position).__name__}")
+    if not low <= number <= high:
+        raise InvalidArgument(
+            f"position {number} is outside servo {servo_id}'s EEPROM pulse limits {low}..{high}; nothing was sent"
+        )
+    return number
+
+
 class Servo:
     """One servo ID on a bus.  Every call is one transaction (two for verified writes).
 

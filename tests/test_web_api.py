@@ -515,6 +515,26 @@ def test_jog_moves_only_after_motion_is_enabled_and_only_within_the_eeprom_limit
     assert post(client, "/api/servo/1/move", {"position": 8000}).status_code == 409  # free switches motion off
 
 
+def test_a_jog_and_ics35_move_refuse_a_target_outside_the_pulse_limits_in_the_same_words(serve: Any, cli: Any) -> None:
+    """The configurator's jog and ``ics35 move`` check a target against the servo's EEPROM pulse limits by the
+    library's one rule: the same target refused, in the same words, and nothing sent either way."""
+    client, sim = serve()
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)
+    assert post(client, "/api/servo/1/motion", {"enabled": True}).status_code == 200
+    held = sim.servo(1).target
+    by_page = post(client, "/api/servo/1/move", {"position": 9500}).json()["error"]
+    assert sim.servo(1).target == held
+    servo = VirtualServo(1)
+    servo.eeprom = servo.eeprom.replace(pulse_limit_low=6000, pulse_limit_high=9000)
+    other = VirtualLine([servo], name=f"web-api-cli-{next(_names)}")
+    try:
+        result = cli("--port", f"sim://{other.name}", "move", "1", "9500")
+    finally:
+        other.close()
+    assert result.code != 0 and servo.target is None
+    assert "6000..9000" in by_page and by_page in " ".join(result.err.split())
+
+
 def test_the_motion_count_moves_only_when_motion_changes_and_the_answer_to_a_switch_carries_it(serve: Any) -> None:
     # A page takes a pushed status older than the server's answer to its own switch (the two travel apart)
     # for what it is: the count orders them.

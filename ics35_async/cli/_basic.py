@@ -39,7 +39,7 @@ from ._common import (
     translate,
 )
 from ._eeprom_view import eeprom_table
-from ._targets import check_pulse_limits, parse_target
+from ._targets import parse_target, refuse_outside_pulse_limits
 
 # --------------------------------------------------------------------------- probing
 
@@ -173,7 +173,7 @@ def move(ctx: click.Context, servo_id: int, position: str, degrees: bool, force:
         async with settings.bus() as bus:
             servo = bus.servo(servo_id)
             if not force:
-                await check_pulse_limits(servo, target)
+                await refuse_outside_pulse_limits(servo, target)
             return await servo.set_position(target)
 
     reported = run(settings, body)

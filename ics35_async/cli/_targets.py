@@ -11,7 +11,7 @@ import math
 
 from .. import protocol, units
 from ..errors import InvalidArgument, MalformedEeprom, ReplyDataError
-from ..servo import Servo
+from ..servo import Servo, check_pulse_limits
 from ._console import err
 from ._settings import CliError, ExitCode, Settings
 
@@ -48,19 +48,19 @@ def parse_target(settings: Settings, text: str, servo_id: int, *, degrees: bool,
         raise
 
 
-async def check_pulse_limits(servo: Servo, target: int) -> None:
+async def refuse_outside_pulse_limits(servo: Servo, target: int) -> None:
     """Refuse ``target`` outside the servo's EEPROM pulse limits (read first; 3500..11500 when unreadable)."""
     try:
         image = await servo.read_eeprom()
     except (ReplyDataError, MalformedEeprom) as exc:
         err.print(f"note: servo {servo.id}'s EEPROM is unreadable ({exc}); its pulse limits are taken as 3500..11500")
         return
-    low, high = image.pulse_limit_low, image.pulse_limit_high
-    if not low <= target <= high:
+    try:
+        check_pulse_limits(servo.id, target, image.pulse_limit_low, image.pulse_limit_high)
+    except InvalidArgument as exc:
         raise CliError(
             ExitCode.REFUSED,
-            f"position {target} is outside servo {servo.id}'s EEPROM pulse limits {low}..{high}: "
-            "the servo was not moved",
+            str(exc),
             FORCE_HINT,
             "the limits are the EEPROM fields pulse_limit_low and pulse_limit_high (see: ics35 info)",
-        )
+        ) from None

@@ -63,6 +63,7 @@ from ..policies import (
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
+from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
 from .config import LineConfig
 from .edits import allowances, edit_of
@@ -961,10 +962,7 @@ class LineSession:
         limits = self._limits.get(servo_id)
         if limits is None:
             raise InvalidArgument(f"servo {servo_id}'s limits are not known yet: open its page (reads its EEPROM)")
-        low, high = limits
-        if isinstance(position, bool) or not isinstance(position, int) or not low <= position <= high:
-            raise InvalidArgument(f"position {position} is outside servo {servo_id}'s limits {low}..{high}")
-        return position
+        return check_pulse_limits(servo_id, position, *limits)
 
     async def read_position(self, servo_id: int) -> dict[str, Any]:
         """The Servo page's "reported" position: read now, moving and freeing nothing (policies.position_read).
