@@ -138,7 +138,7 @@ class Bus:
         self._port = port
         self.driver_kind = driver
         """The driver asked for (``"auto"``, ``"asyncio"``, ``"thread"``, ``"anyio"``); ``driver``: the one running."""
-        self.retries = check_int("retries", options.get("retries", 0), 0, 10)
+        self.retries = protocol.check_retries(options.get("retries", 0))
         """Retries for idempotent requests that do not give their own (0..10); may be changed at any time."""
         self._settings = LineSettings(
             transport="thread" if driver == "thread" else transport,
@@ -487,7 +487,7 @@ class Bus:
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")
         level = check_int("priority", priority, _URGENT, _LOW)
-        retries = self.retries if retries is None else check_int("retries", retries, 0, 10)
+        retries = self.retries if retries is None else protocol.check_retries(retries)
         driver = self._driver
         if driver is None:
             raise self._not_open_error()

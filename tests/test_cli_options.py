@@ -487,3 +487,36 @@ def test_ctrl_c_landing_in_a_class_as_it_is_made_ends_in_one_line() -> None:
         # as any press there does (click's word for it).
         assert done.returncode == ExitCode.INTERRUPTED, done.stderr
         assert done.stderr.strip().splitlines() == ["aborted"], done.stderr
+
+
+# --------------------------------------------------------------------------- one home for the line's numbers
+
+
+async def test_the_reply_allowance_and_the_retries_bound_are_one_constant_everywhere(cli: Any) -> None:
+    """The CLI's --help, the configurator's line, the robot file's check and the bus's check all read
+    ``protocol.ADAPTER_LATENCY`` and ``protocol.MAX_RETRIES``: none keeps a copy that could drift."""
+    from ics35_async import open_bus
+    from ics35_async.engine.timing import BusTiming
+    from ics35_async.errors import InvalidArgument
+    from ics35_async.protocol import ADAPTER_LATENCY, MAX_RETRIES, Param, ReadParam
+    from ics35_async.robot.description import DescriptionError, load_description
+    from ics35_async.web.config import LineConfig
+
+    shown = " ".join(cli("--help").out.split())
+    assert f"[default: {ADAPTER_LATENCY:g}; 0.0<=x<=5.0]" in shown
+    assert f"0<=x<={MAX_RETRIES}]" in shown
+    assert BusTiming().adapter_latency == LineConfig().adapter_latency == ADAPTER_LATENCY
+
+    def robot(retries: int) -> object:
+        line = {"port": "sim://?ids=1", "retries": retries}
+        return load_description({"lines": {"a": line}, "joints": {"x": {"line": "a", "id": 1}}})
+
+    assert robot(MAX_RETRIES)
+    with pytest.raises(DescriptionError, match=f"0..{MAX_RETRIES}"):
+        robot(MAX_RETRIES + 1)
+    async with open_bus("sim://?ids=1", retries=MAX_RETRIES) as bus:
+        assert bus.retries == MAX_RETRIES
+        with pytest.raises(InvalidArgument, match=f"0..{MAX_RETRIES}"):
+            await bus.request(ReadParam(1, Param.STRETCH), retries=MAX_RETRIES + 1)
+    with pytest.raises(InvalidArgument, match=f"0..{MAX_RETRIES}"):
+        await open_bus("sim://?ids=1", retries=MAX_RETRIES + 1)

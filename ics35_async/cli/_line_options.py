@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 import click
 
 from ..eeprom import FACTORY_BAUD
-from ..protocol.wire import ALL_BAUDS
+from ..protocol.wire import ADAPTER_LATENCY, ALL_BAUDS, MAX_RETRIES
 from ._settings import DEFAULT_PORT, Settings, setup_logging
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -49,7 +49,7 @@ LINE_OPTIONS = (
         "timeout",
         ("--timeout",),
         "Seconds allowed on top of the wire time for each reply (USB adapter latency).",
-        {"default": 0.020, "show_default": True},
+        {"default": ADAPTER_LATENCY, "show_default": True},
         {"type": click.FloatRange(0.0, 5.0), "metavar": "SECONDS"},
     ),
     LineOption(
@@ -57,7 +57,7 @@ LINE_OPTIONS = (
         ("--retries",),
         "Retries for reads and positions.",
         {"default": 1, "show_default": True},
-        {"type": click.IntRange(0, 10)},
+        {"type": click.IntRange(0, MAX_RETRIES)},
     ),
     LineOption(
         "no_echo",

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from ..eeprom import FACTORY_BAUD
+from ..protocol.wire import ADAPTER_LATENCY
 
 if TYPE_CHECKING:
     import click
@@ -89,7 +90,7 @@ class Settings:
 
     port: str = DEFAULT_PORT
     baud: int = FACTORY_BAUD
-    timeout: float = 0.020
+    timeout: float = ADAPTER_LATENCY
     retries: int = 1
     echo: bool = True
     transport: str = "auto"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TypedDict
 
-from ..protocol import Timing, wire_time
+from ..protocol import ADAPTER_LATENCY, Timing, wire_time
 from ..units import check_seconds
 
 
@@ -20,7 +20,7 @@ class BusTiming:
     """
 
     turnaround: float = 0.0005
-    adapter_latency: float = 0.020  # USB adapters add 0.1-16 ms (FTDI latency timer)
+    adapter_latency: float = ADAPTER_LATENCY  # USB adapters add 0.1-16 ms (FTDI latency timer)
     eeprom_write: float = 0.200
     id_command: float = 0.050
     quiet_time: float = 0.010  # silence required before the next transaction after a fault

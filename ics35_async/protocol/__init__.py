@@ -39,6 +39,7 @@ from .device import decode_request
 from .hot_path import position_from_reply, position_reply_header, position_reply_shape, position_tx
 from .memory import ReadMemory, WriteMemory
 from .wire import (
+    ADAPTER_LATENCY,
     BITS_PER_BYTE,
     CMD_ID,
     CMD_POSITION,
@@ -46,6 +47,7 @@ from .wire import (
     CMD_WRITE,
     FREE,
     MAX_ID,
+    MAX_RETRIES,
     MEMORY_SIZE,
     POSITION_MAX,
     SC_MEMORY,
@@ -56,6 +58,7 @@ from .wire import (
     bytes_from_nibbles,
     check_baud,
     check_id,
+    check_retries,
     join7,
     nibbles_from_bytes,
     split7,
@@ -63,6 +66,7 @@ from .wire import (
 )
 
 __all__ = [
+    "ADAPTER_LATENCY",
     "BITS_PER_BYTE",
     "CMD_ID",
     "CMD_POSITION",
@@ -71,6 +75,7 @@ __all__ = [
     "EEPROM_SIZE",
     "FREE",
     "MAX_ID",
+    "MAX_RETRIES",
     "MEMORY_SIZE",
     "POSITION_MAX",
     "SC_MEMORY",
@@ -103,6 +108,7 @@ __all__ = [
     "bytes_from_nibbles",
     "check_baud",
     "check_id",
+    "check_retries",
     "decode_request",
     "guard_read",
     "join7",

@@ -13,6 +13,11 @@ from ..units import POSITION_MAX as POSITION_MAX  # (the 14-bit position field: 
 from ..units import check_int
 
 BITS_PER_BYTE = 11  # start + 8 data + even parity + stop
+# Seconds an interface may add to a reply by default (USB adapters add 0.1-16 ms: the FTDI latency timer), and
+# the most retries a request may have.  Kept here, below everything that reads them (the engine's timing, the
+# bus, a robot file, the configurator, the CLI's line options, which load no engine to show --help).
+ADAPTER_LATENCY = 0.020
+MAX_RETRIES = 10
 MAX_ID = 31
 ALL_IDS: tuple[int, ...] = tuple(range(MAX_ID + 1))
 FREE = 0
@@ -64,6 +69,10 @@ def wire_time(nbytes: int, baudrate: int) -> float:
 
 def check_id(servo_id: object) -> int:
     return check_int("servo ID", servo_id, 0, MAX_ID)
+
+
+def check_retries(retries: object) -> int:
+    return check_int("retries", retries, 0, MAX_RETRIES)
 
 
 ALL_BAUDS: tuple[int, ...] = tuple(int(b) for b in BaudRate)

@@ -322,7 +322,7 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
                 raise r.error("baudrate", f"must be 115200, 625000 or 1250000, got {baud}") from None
         echo = r.flag("echo")
         rate = r.number("rate_hz", 0.1, 10_000)
-        retries = r.integer("retries", 0, 10)
+        retries = r.integer("retries", 0, protocol.MAX_RETRIES)
         direction = r.text("direction")
         if direction is not None and direction not in DIRECTIONS:
             raise r.error("direction", f"must be one of {', '.join(DIRECTIONS)}, got {direction!r}")

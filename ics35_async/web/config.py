@@ -7,6 +7,7 @@ import os
 from dataclasses import dataclass
 
 from ..eeprom import FACTORY_BAUD
+from ..protocol import ADAPTER_LATENCY
 from ..transports.wire_device import url_scheme
 
 
@@ -17,7 +18,7 @@ class LineConfig:
     port: str = "sim://"
     baud: int = FACTORY_BAUD
     echo: bool = True
-    adapter_latency: float = 0.020
+    adapter_latency: float = ADAPTER_LATENCY
     retries: int = 1
     transport: str = "auto"
     direction: str = "none"
