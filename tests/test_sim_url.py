@@ -244,3 +244,27 @@ def test_the_cli_takes_a_url_scheme_in_capitals_for_the_simulator_it_names(cli: 
     refused = [cli("--port", port, "sniff") for port in ("sim://", "SIM://")]
     assert refused[0].code != 0 and "listens on a serial port" in refused[0].err
     assert (refused[1].code, refused[1].err) == (refused[0].code, refused[0].err)
+
+
+@pytest.mark.parametrize(
+    "url", ["sim://", "sim:///?ids=5", "SIM://?ids=1-2", "sim://arm", "sim://arm/?ids=1", "sim:///arm"]
+)
+def test_a_robot_file_shares_a_sim_port_between_lines_only_when_each_opening_is_a_line_of_its_own(url: str) -> None:
+    """A robot file refuses two lines on one port unless opening it twice gives two lines: the simulator's
+    rule for an unnamed URL, which the robot layer reads from the transports, not a copy of its own."""
+    from ics35_async.robot.description import DescriptionError, load_description
+
+    first, second = open_url(url), open_url(url)
+    try:
+        own = first is not second
+    finally:
+        for line in {id(first): first, id(second): second}.values():
+            assert isinstance(line, VirtualLine)
+            line.close()
+    joints = {"x": {"line": "a", "id": 1}, "y": {"line": "b", "id": 1}}
+    description = {"lines": {"a": {"port": url}, "b": {"port": url}}, "joints": joints}
+    if own:
+        assert load_description(description)
+    else:
+        with pytest.raises(DescriptionError, match=r"already the port of lines\.a"):
+            load_description(description)

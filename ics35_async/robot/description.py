@@ -14,12 +14,12 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 from .. import protocol, units
 from ..eeprom import FACTORY_BAUD
 from ..errors import FileContentError, InvalidArgument
 from ..transports.direction import DIRECTIONS
+from ..transports.wire_device import opens_anew
 from ..user_files import UnreadableText, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
@@ -327,7 +327,7 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
         if direction is not None and direction not in DIRECTIONS:
             raise r.error("direction", f"must be one of {', '.join(DIRECTIONS)}, got {direction!r}")
         r.done()
-        if port in ports and not _fresh_sim(port):
+        if port in ports and not opens_anew(port):
             raise r.error("port", f"{port!r} is already the port of lines.{ports[port]}")
         ports[port] = name
         lines[name] = LineSpec(
@@ -340,12 +340,6 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
             direction="none" if direction is None else direction,
         )
     return lines
-
-
-def _fresh_sim(port: str) -> bool:
-    """An unnamed ``sim://`` URL opens a new simulated line each time, so two lines may share it."""
-    parts = urlsplit(port)
-    return parts.scheme == "sim" and not (parts.netloc + parts.path).strip("/")
 
 
 def _joints(source: str, value: object, lines: Mapping[str, LineSpec]) -> dict[str, JointSpec]:

@@ -15,6 +15,7 @@ from urllib.parse import parse_qs, urlsplit, urlunsplit
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..transports import WireDevice
+from ..transports.wire_device import url_name
 from ..units import parse_ids
 from .adapter import make_adapter
 from .faults import FaultConfig
@@ -69,8 +70,7 @@ def url_options(url: str) -> str:
 def line_name(url: str) -> str | None:
     """The name of the simulated line a ``sim://`` URL names (``sim://arm?ids=1-6``: ``"arm"``), between the
     slashes; None for an unnamed one (``sim://``, ``sim:///?ids=5``), which opens a line of its own each time."""
-    parts = urlsplit(url)
-    return (parts.netloc + parts.path).strip("/") or None
+    return url_name(url)
 
 
 def named_url(url: str, name: str) -> str:

@@ -14,6 +14,7 @@ import os
 import re
 from collections.abc import Callable
 from typing import Literal, Protocol, cast, get_args, runtime_checkable
+from urllib.parse import urlsplit
 
 from ..errors import InvalidArgument
 
@@ -84,6 +85,21 @@ def is_url(port: object) -> bool:
     (``9p://x``), so it never names a device, whether or not :func:`url_scheme` can read its scheme.
     """
     return isinstance(port, str) and "://" in port
+
+
+def url_name(url: str) -> str | None:
+    """What a URL names between its ``scheme://`` and its options, the slashes stripped (``sim://arm?ids=1-6``:
+    ``"arm"``, the simulated line's name); None when it names nothing (``sim://``, ``sim:///?ids=5``)."""
+    parts = urlsplit(url)
+    return (parts.netloc + parts.path).strip("/") or None
+
+
+def opens_anew(port: object) -> bool:
+    """Whether each opening of ``port`` makes a line of its own, so that two lines may share it: an unnamed
+    ``sim://`` URL (``sim://``, ``sim:///?ids=5``).  A named one (``sim://arm``) is one line however often it
+    is opened, as a device or any other URL is.  Here, below the robot layer and the simulator, so that both
+    read one rule (the robot layer may not import the simulator)."""
+    return isinstance(port, str) and url_scheme(port) == "sim" and url_name(port) is None
 
 
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
