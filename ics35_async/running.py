@@ -40,7 +40,7 @@ from typing import Any, Literal, NoReturn, Protocol, TypeVar, cast
 
 from .errors import IcsError, InvalidArgument, error_text
 from .tasks import only_error
-from .terminal import ctrl_c_typed, leave_the_terminal
+from .terminal import ctrl_c_typed, leave_the_terminal, losses_said_at_the_end
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # main raised an IcsError (printed as one line)
@@ -166,7 +166,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     try:
         if threading.current_thread() is threading.main_thread():  # (else the receiver refuses, as it should)
             before = [(signum, _unwrapped(signal.signal(signum, outside))) for signum in stopping]
-        with _Runs.under_way(), stop_signals.in_run():
+        with _run_under_way(), stop_signals.in_run():
             anyio.run(until_signal, backend=name, backend_options=options)
     except BaseException as exc:
         if _said(exc):
@@ -192,48 +192,25 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
     return _exit_code(received[0])
 
 
-class _Runs:
-    """The :func:`run` or :func:`run_blocking` call under way (one at a time: each runs in the main thread), and the
-    ports lost for good while it runs (see :func:`said_by_the_run`)."""
-
-    losses: list[tuple[logging.Logger, str]] | None = None  # None: no run under way
-    lock = threading.Lock()  # (a driver may tell its loss from a thread of its own)
-
-    @classmethod
-    @contextlib.contextmanager
-    def under_way(cls) -> Iterator[None]:
-        with cls.lock:
-            outer, cls.losses = cls.losses, []
-            kept = cls.losses
-        ending = ""
-        try:
+@contextlib.contextmanager
+def _run_under_way() -> Iterator[None]:
+    """The :func:`run` or :func:`run_blocking` call under way: the ports lost for good while it runs are said
+    once, as it ends (see :func:`~ics35_async.terminal.said_at_the_end`)."""
+    kept: list[tuple[logging.Logger, str]] = []
+    ending = ""
+    try:
+        with losses_said_at_the_end() as kept:
             yield
-        except BaseException as exc:
-            error = only_error(exc)
-            ending = str(error) if isinstance(error, IcsError) else ""  # (what _said then prints)
-            raise
-        finally:
-            with cls.lock:
-                cls.losses = outer
-            # Before the program's last line: a loss the ending says is not said twice, and one it does not say
-            # (the program went on without that port, or caught its PortLost) is not left unsaid.
-            for logger, message in kept:
-                if message not in ending:
-                    logger.warning("%s", message)
-
-
-def said_by_the_run(logger: logging.Logger, message: str) -> bool:
-    """A port lost for good (no ``reconnect``), told by the library's ``logger``: while :func:`run` or
-    :func:`run_blocking` runs the program, ``message`` is logged at INFO now and True is returned; the run says it
-    once, as the program ends: as its last line when the PortLost ends it, else as a warning then.  So the
-    person at the terminal reads the loss once, not as the library's warning and again as the program's end,
-    and never not at all.  False (nothing logged) without a run under way: the caller warns."""
-    with _Runs.lock:
-        if _Runs.losses is None:
-            return False
-        _Runs.losses.append((logger, message))
-    logger.info("%s", message)
-    return True
+    except BaseException as exc:
+        error = only_error(exc)
+        ending = str(error) if isinstance(error, IcsError) else ""  # (what _said then prints)
+        raise
+    finally:
+        # Before the program's last line: a loss the ending says is not said twice, and one it does not say
+        # (the program went on without that port, or caught its PortLost) is not left unsaid.
+        for logger, message in kept:
+            if message not in ending:
+                logger.warning("%s", message)
 
 
 def _said(exc: BaseException) -> bool:
@@ -274,7 +251,7 @@ def run_blocking(main: Callable[[], object]) -> int:
     inside = stop_signals.active  # inside a stop_on_signals of the program's own: that one stops the program
     misused: InvalidArgument | None = None  # (raised below, as run_blocking's misuse: not printed as main's error)
     try:
-        with _Runs.under_way(), stop_on_signals():
+        with _run_under_way(), stop_on_signals():
             returned = main()
             if inspect.isawaitable(returned):  # (a partial of an async function, say)
                 if inspect.iscoroutine(returned):

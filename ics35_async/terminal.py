@@ -1,5 +1,6 @@
 """The terminal a command runs on: whether the process runs in the background of it, the ``^C`` it echoes, what
-it keeps of the command's last words at Ctrl-C, and what is written once it is gone (hung up).
+it keeps of the command's last words at Ctrl-C, what is written once it is gone (hung up), and who tells it a
+port lost for good (the run that ends the program, once, or the library's warning at once).
 
 The command line and the simulator's server share these rules; the console script's entry module
 (``_ics35_async_entry``) keeps a copy of the second, since it runs before the package can be imported.
@@ -12,8 +13,13 @@ import contextlib
 import os
 import stat
 import sys
+import threading
 import time
-from typing import TextIO
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    import logging
 
 try:
     import termios  # (here, not in keep_last_words: that runs in a signal handler, which must not import)
@@ -157,3 +163,39 @@ def leave_the_terminal() -> None:
                         os.dup2(devnull, fd)
         finally:
             os.close(devnull)
+
+
+# Ports lost for good while run() or run_blocking() runs a program (None: no run under way).  The run fills
+# and says them; the drivers' core, which hears of a loss, asks said_at_the_end: here, below the drivers, so
+# that they need not import the runner of programs.
+_losses: list[tuple[logging.Logger, str]] | None = None
+_losses_lock = threading.Lock()  # (a driver may tell its loss from a thread of its own)
+
+
+def said_at_the_end(logger: logging.Logger, message: str) -> bool:
+    """A port lost for good (no ``reconnect``), told by the library's ``logger``: while :func:`run` or
+    :func:`run_blocking` runs the program, ``message`` is logged at INFO now and True is returned; the run says it
+    once, as the program ends: as its last line when the PortLost ends it, else as a warning then.  So the
+    person at the terminal reads the loss once, not as the library's warning and again as the program's end,
+    and never not at all.  False (nothing logged) without a run under way: the caller warns."""
+    with _losses_lock:
+        if _losses is None:
+            return False
+        _losses.append((logger, message))
+    logger.info("%s", message)
+    return True
+
+
+@contextlib.contextmanager
+def losses_said_at_the_end() -> Iterator[list[tuple[logging.Logger, str]]]:
+    """While it lasts, :func:`said_at_the_end` keeps each loss (logger, message) in the list it gives, for the
+    run to say as the program ends; a run inside another keeps its own, and the outer one's are kept again after."""
+    global _losses
+    with _losses_lock:
+        outer, _losses = _losses, []
+        kept = _losses
+    try:
+        yield kept
+    finally:
+        with _losses_lock:
+            _losses = outer

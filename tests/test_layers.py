@@ -175,3 +175,10 @@ def test_the_package_and_the_cli_start_up_without_the_web_configurator() -> None
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_the_drivers_do_not_ask_the_program_runner() -> None:
+    """Whether a run says a lost port itself is a registry below the drivers (``terminal``), which ``running``
+    fills: the drivers' core reads it there, not from the runner of programs, which uses lines."""
+    asking = sorted(m for m, targets in graph().items() if part(m) == "drivers" and "ics35_async.running" in targets)
+    assert asking == []

@@ -40,8 +40,8 @@ import anyio
 from ..engine import FlushInput, LineEngine, Output, Request, State
 from ..errors import IcsError, InvalidArgument, PortBusy, PortLost, error_text
 from ..protocol import Command
-from ..running import said_by_the_run
 from ..tasks import despite_cancellation
+from ..terminal import said_at_the_end
 from ..transports.opening import Port, open_port
 from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
@@ -441,8 +441,8 @@ class DriverCore:
         engine = self.engine
         reason = f"port {self.target} lost: {error_text(exc)}" if exc else f"port {self.target} closed"
         reconnect = reconnect and self.settings.reconnect
-        # (A loss for good under run() is said by the run, once: see said_by_the_run.)
-        if engine.state not in (CLOSED, DRAINING) and (reconnect or not said_by_the_run(log, reason)):
+        # (A loss for good under run() is said by the run, once: see said_at_the_end.)
+        if engine.state not in (CLOSED, DRAINING) and (reconnect or not said_at_the_end(log, reason)):
             log.warning("%s", reason)
         engine.lost(reason, reconnect=reconnect)
         self._release_idle()
