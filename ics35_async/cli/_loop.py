@@ -157,6 +157,9 @@ def _quiet_executor_shutdown() -> None:
     threading.excepthook = hook
 
 
+_SHUTDOWN = "unhandled exception during asyncio.run() shutdown"  # (the runner's words for a task its close ended)
+
+
 def _reports_when_forced_out(
     loop: asyncio.AbstractEventLoop, pressed: list[int], forced: list[asyncio.Task[Any]]
 ) -> None:
@@ -169,12 +172,16 @@ def _reports_when_forced_out(
     (play's ``retrieved(robot.stop())``, its first step taken as the runner closed, the robot closed under it)
     never had its done callback run, the one that retrieves its error: the loop's close dropped the task and
     Python printed "Task exception was never retrieved" and the error's traceback under the command's message.
-    What was cut short is the message's to say: those reports are dropped; every other goes to the default."""
+    So did a task the press cut off from the task group it ran in (the robot's cycles, anyio's cancel scope
+    left mid-exit: "Attempted to exit a cancel scope that isn't the current task's"), which the runner's close
+    cancelled and reported as its own shutdown's.  What was cut short is the message's to say: those reports
+    are dropped; every other goes to the default."""
 
     def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         if forced and context.get("task") is forced[0]:
             return
-        if len(pressed) >= 2 and str(context.get("message", "")).endswith("exception was never retrieved"):
+        message = str(context.get("message", ""))
+        if len(pressed) >= 2 and (message.endswith("exception was never retrieved") or message == _SHUTDOWN):
             return
         loop.default_exception_handler(context)
 
