@@ -518,6 +518,253 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
     expect(page.locator("#jog-plus")).to_be_disabled()
 
 
+@contextlib.contextmanager
+def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[tuple[PtyLine, Page]]:
+    """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90) on a line of its own with ``safety`` (the
+    robot file's table), served by ``ics35 web --robot``: its Robot page with motion switched on."""
+    line = PtyLine((1, 2))
+    robot = folder / "arm.toml"
+    robot.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n' + safety
+    )
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        yield line, p
+
+
+def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_again(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A free servo draws no current, so a current trip of a joint the watch freed stands until the person says
+    # its cause is dealt with: the joint's Reset button, and nothing else, lets it move again.
+    with arm_with_motion_on(browser, tmp_path, '[safety]\nmax_current = 20\naction = "free"\n') as (line, p):
+        elbow = p.locator("tr[data-joint='elbow']")
+        line.sim.servo(2).load = 40  # a load the elbow cannot carry
+        expect(elbow.locator(".safety")).to_contain_text("draws current")
+        until(lambda: line.sim.servo(2).free, "the watch did not free the elbow")
+        expect(elbow.locator(".current")).to_have_text("0")  # read free: within the limits, still stopped
+        expect(elbow.locator(".safety")).to_contain_text("draws current")
+        line.sim.servo(2).load = 0
+        elbow.get_by_role("button", name="Reset").click()
+        expect(elbow.locator(".safety")).to_have_text("ok")
+        expect(p.locator("#robot-state")).to_contain_text("joint elbow: safety stop reset")
+        assert line.sim.servo(2).free  # reset moves nothing
+        elbow.locator("input[type=range]").fill("30")
+        expect(elbow.locator(".target")).to_have_text("30")
+        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
+
+
+def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_with_the_next_move(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A refused slider move left the slider where it was put (the joint's target elsewhere); the refusal stayed
+    # at the top of the page after the next slider move had gone out; and a free joint's slider stood at the
+    # target it had before it was freed, wherever the joint was turned since.
+    with arm_with_motion_on(browser, tmp_path, '[safety]\naction = "hold"\n') as (line, p):
+        shoulder, elbow = p.locator("tr[data-joint='shoulder']"), p.locator("tr[data-joint='elbow']")
+        expect(elbow.locator(".target")).not_to_have_text("free")
+        held = elbow.locator(".target").text_content() or ""
+        line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        elbow.locator("input[type=range]").fill("40")
+        expect(p.locator("#message")).to_contain_text("offline")
+        expect(elbow.locator("input[type=range]")).to_have_value(held)
+        shoulder.locator("input[type=range]").fill("20")
+        expect(shoulder.locator(".target")).to_have_text("20")
+        expect(p.locator("#message")).to_be_hidden()
+        p.click("#robot-free")
+        expect(shoulder.locator(".target")).to_have_text("free")
+        # (The page says "free" once the robot's target is; its servo is free once the command is on the wire: a
+        # servo turned by hand before then turns back to 20.)
+        until(lambda: line.sim.servo(1).free, "the shoulder was never freed")
+        line.sim.servo(1).move_by_hand(degrees_to_position(-25))
+        expect(shoulder.locator("input[type=range]")).to_have_value("-25")
+
+
+def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_moved_again(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A servo that stopped answering and came back (continue_on_offline: the watch let the robot play on) is
+    # held, sent nothing: it may have restarted, free, elsewhere.  Its slider's move was refused only in the
+    # state line, in the library's words ("set its target (set_targets) or free it first"), and the page had no
+    # way out but Free all (every joint limp).  The refusal is the move's answer now, in the page's words, and
+    # the joint's row has a Free button: freed (read where it stands), it moves again from there.
+    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
+        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
+        elbow = p.locator("tr[data-joint='elbow']")
+        servo = line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        line.sim.add_device(servo)
+        expect(elbow.locator(".target")).to_contain_text("held: rejoined")
+        target = servo.target
+        elbow.locator("input[type=range]").fill("30")
+        expect(p.locator("#message")).to_contain_text("joint elbow is held")
+        expect(p.locator("#message")).to_contain_text("Free")
+        expect(p.locator("#message")).not_to_contain_text("set_targets")
+        assert servo.target == target  # nothing sent
+        elbow.get_by_role("button", name="Free").click()
+        until(lambda: line.sim.servo(2).free, "the elbow was not freed")
+        expect(elbow.locator(".target")).to_have_text("free")
+        assert not line.sim.servo(1).free  # the shoulder holds on
+        elbow.locator("input[type=range]").fill("30")
+        expect(elbow.locator(".target")).to_have_text("30")
+        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
+
+
+def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
+    # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
+    # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).
+    line = PtyLine((1, 2), ics36=(1,))
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
+        '[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
+        p.click("#robot-link")
+        expect(p.locator("#robot-cycle")).not_to_have_text("-")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        # (Once the robot has read where elbow stands: on a loaded machine its first cycles may not have, and
+        # motion on leaves a joint not read yet as it is.)
+        expect(p.locator('tr[data-joint="elbow"] .angle')).to_have_text(re.compile(r"^-?\d"))
+        p.check("#robot-motion")  # the joints hold where they stand: elbow's servo holds a target
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        until(lambda: line.sim.servo(2).target is not None, "elbow's servo never got a target")
+        elbow = line.sim.servo(2).target
+        line.sim.unplug()
+        expect(p.locator("#robot-error")).to_contain_text("lost")
+        expect(p.locator("#robot-reopen-choice")).to_be_visible()  # elbow held a target: the page asks
+        # (one joint: its grammar, not "elbow had targets their servos may no longer hold")
+        question = "Line arm was lost. elbow had a target its servo may no longer hold"
+        expect(p.locator("#robot-reopen-question")).to_contain_text(question)
+        expect(p.locator("#robot-reopen-question")).to_contain_text("If its servo kept its power it still holds it")
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        expect(p.locator("#robot-motion")).to_be_disabled()
+        line.sim.replug()
+        p.click("#robot-reopen-hold")
+        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+        expect(p.locator("#robot-reopen")).to_be_hidden()
+        expect(p.locator("#robot-error")).to_have_text("")
+        assert line.sim.servo(2).target == elbow and not line.sim.servo(2).free  # never went limp
+        line.sim.unplug()  # again, with motion off now: the same question, and the plain button stays hidden
+        expect(p.locator("#robot-reopen-choice")).to_be_visible()
+        line.sim.replug()
+        p.click("#robot-reopen-free")
+        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+        until(lambda: line.sim.servo(2).free, "elbow's servo was not freed")
+        expect(p.locator("#robot-error")).to_have_text("")
+        expect(p.locator("#robot-motion")).to_be_enabled()
+        p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+
+
+def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints_it_could_not_reach(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A lost line closed the robot, and Free all was refused, while the other line's joints held their last
+    # targets: a robot half-stopped could not be made limp at once.
+    upper, lower = PtyLine((1,)), PtyLine((1, 2))
+    robot = tmp_path / "two.toml"
+    robot.write_text(
+        f'[lines.upper]\nport = "{upper.path}"\n[lines.lower]\nport = "{lower.path}"\n'
+        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
+        '[joints.knee]\nline = "lower"\nid = 2\n'
+    )
+    try:
+        with web_server_page(browser, upper, ["--robot", str(robot)]) as p:
+            p.click("#robot-link")
+            for name in ("neck", "hip", "knee"):  # (read, so that motion on holds them where they stand)
+                expect(p.locator(f'tr[data-joint="{name}"] .angle')).to_have_text(re.compile(r"^-?\d"))
+            p.check("#robot-motion")
+            expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+            servos = (upper.sim.servo(1), lower.sim.servo(1), lower.sim.servo(2))
+            until(lambda: not any(servo.free for servo in servos), "the joints never held")
+            lower.sim.unplug()
+            expect(p.locator("#robot-error")).to_contain_text("lost")
+            expect(p.locator("#robot-reopen-choice")).to_be_visible()
+            question = "Line lower was lost. hip, knee had targets their servos may no longer hold"
+            expect(p.locator("#robot-reopen-question")).to_contain_text(question)
+            p.click("#robot-stop")  # (it said nothing: the robot is not open, nothing plays)
+            expect(p.locator("#message")).to_contain_text("nothing to stop: the robot is not open")
+            expect(p.locator("#message")).to_contain_text("Free all")
+            p.click("#robot-free")
+            expect(p.locator("#robot-state")).to_contain_text("hip, knee not reached")
+            expect(p.locator("#robot-state")).to_contain_text("their servos may still hold")
+            until(lambda: upper.sim.servo(1).free, "the neck was not freed")
+            assert not lower.sim.servo(1).free and not lower.sim.servo(2).free  # (their line is lost)
+            expect(p.locator('tr[data-joint="neck"] .target')).to_have_text("free")
+            # Reconnect follows the freeing: nothing to ask about, and it frees the joint it could not reach.
+            expect(p.locator("#robot-reopen-choice")).to_be_hidden()
+            expect(p.locator("#robot-reopen")).to_be_visible()
+            lower.sim.replug()
+            p.click("#robot-reopen")
+            expect(p.locator("#robot-error")).to_have_text("")
+            expect(p.locator("#robot-state")).to_contain_text("hip, knee freed")
+            until(lambda: all(servo.free for servo in servos), "the lower line was not freed once it was back")
+            assert upper.sim.servo(1).free
+    finally:
+        lower.close()
+
+
+def test_the_robot_page_of_a_server_started_again_with_a_new_token_shows_nothing_live(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # The server stopped and started again with a new token before the page had noticed: the page said to open the
+    # new address, but its Robot page went on showing motion on (its sliders live) and the joints' angles as read.
+    with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
+        probe.bind(("127.0.0.1", 0))
+        listen = f"127.0.0.1:{probe.getsockname()[1]}"
+    robot = tmp_path / "arm.toml"
+    robot.write_text(
+        '[lines.arm]\nport = "sim://again-arm?ids=1-2&realtime=1"\nrate_hz = 50\n'
+        '[joints.shoulder]\nline = "arm"\nid = 1\n[joints.elbow]\nline = "arm"\nid = 2\n'
+    )
+    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
+
+    def start() -> tuple[subprocess.Popen[str], str]:
+        command = [*WEB, "--listen", listen, "--robot", str(robot)]
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=environment)
+        assert proc.stdout is not None
+        return proc, proc.stdout.readline().strip()
+
+    first, url = start()
+    second: subprocess.Popen[str] | None = None
+    context = browser.new_context()
+
+    def restarted_first(route: Route) -> None:
+        # The page asks the server's status once its socket closes: the new server answers it, as it does when
+        # the restart is quicker than the page.
+        nonlocal second
+        if first.poll() is not None and second is None:
+            second, _ = start()
+        route.continue_()
+
+    try:
+        p = context.new_page()
+        p.goto(url)
+        p.route("**/api/status", restarted_first)
+        p.click("#robot-link")
+        p.check("#robot-motion")
+        shoulder = p.locator("tr[data-joint='shoulder']")
+        expect(shoulder.locator("input[type=range]")).to_be_enabled()
+        expect(shoulder.locator(".angle")).to_have_text("0")
+        first.terminate()
+        first.wait(10)
+        expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
+        expect(p.locator("#robot-error")).to_contain_text("another token")
+        expect(p.locator("#robot-motion")).not_to_be_checked()
+        expect(p.locator("#robot-motion")).to_be_disabled()
+        expect(shoulder.locator("input[type=range]")).to_be_disabled()
+        expect(shoulder.locator(".angle")).to_have_text("-")
+        expect(p.locator("#robot-reopen")).to_be_hidden()  # (nothing this page can reconnect to)
+    finally:
+        context.close()
+        stop_servers(first, second)
+
+
 @dataclass
 class RobotServer:
     """``ics35 web --robot`` running: its URL, its process and the file its stderr goes to."""
@@ -537,8 +784,9 @@ class RobotServer:
 ROBOT_WEB = DUMP_ON_USR1 + "import sys; from ics35_async.cli import main; sys.argv[0] = 'ics35'; sys.exit(main())"
 
 
-# The robot's server streams its 17 joints for as long as it runs: its tests come last, so it is started
-# after the other pages' tests and stopped with the module.
+# The robot's server streams its 17 joints for as long as it runs (about a third of a core): its tests come last,
+# together, so it is started after every other test here and stopped with the module (a test of its own server put
+# after them would pay for that stream all along).
 @pytest.fixture(scope="module")
 def robot_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RobotServer]:
     """``ics35 web --robot``: the 17-joint humanoid of ``examples/humanoid.toml`` on two simulated lines,
@@ -734,149 +982,6 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
     context.close()
 
 
-@contextlib.contextmanager
-def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[tuple[PtyLine, Page]]:
-    """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90) on a line of its own with ``safety`` (the
-    robot file's table), served by ``ics35 web --robot``: its Robot page with motion switched on."""
-    line = PtyLine((1, 2))
-    robot = folder / "arm.toml"
-    robot.write_text(
-        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\nmin = -90\nmax = 90\n' + safety
-    )
-    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
-        p.click("#robot-link")
-        p.check("#robot-motion")
-        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-        yield line, p
-
-
-def test_a_joint_freed_for_over_current_is_reset_on_the_robot_page_and_moves_again(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # A free servo draws no current, so a current trip of a joint the watch freed stands until the person says
-    # its cause is dealt with: the joint's Reset button, and nothing else, lets it move again.
-    with arm_with_motion_on(browser, tmp_path, '[safety]\nmax_current = 20\naction = "free"\n') as (line, p):
-        elbow = p.locator("tr[data-joint='elbow']")
-        line.sim.servo(2).load = 40  # a load the elbow cannot carry
-        expect(elbow.locator(".safety")).to_contain_text("draws current")
-        until(lambda: line.sim.servo(2).free, "the watch did not free the elbow")
-        expect(elbow.locator(".current")).to_have_text("0")  # read free: within the limits, still stopped
-        expect(elbow.locator(".safety")).to_contain_text("draws current")
-        line.sim.servo(2).load = 0
-        elbow.get_by_role("button", name="Reset").click()
-        expect(elbow.locator(".safety")).to_have_text("ok")
-        expect(p.locator("#robot-state")).to_contain_text("joint elbow: safety stop reset")
-        assert line.sim.servo(2).free  # reset moves nothing
-        elbow.locator("input[type=range]").fill("30")
-        expect(elbow.locator(".target")).to_have_text("30")
-        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
-
-
-def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_with_the_next_move(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # A refused slider move left the slider where it was put (the joint's target elsewhere); the refusal stayed
-    # at the top of the page after the next slider move had gone out; and a free joint's slider stood at the
-    # target it had before it was freed, wherever the joint was turned since.
-    with arm_with_motion_on(browser, tmp_path, '[safety]\naction = "hold"\n') as (line, p):
-        shoulder, elbow = p.locator("tr[data-joint='shoulder']"), p.locator("tr[data-joint='elbow']")
-        expect(elbow.locator(".target")).not_to_have_text("free")
-        held = elbow.locator(".target").text_content() or ""
-        line.sim.remove_servo(2)
-        expect(elbow.locator(".angle")).to_have_text("offline")
-        elbow.locator("input[type=range]").fill("40")
-        expect(p.locator("#message")).to_contain_text("offline")
-        expect(elbow.locator("input[type=range]")).to_have_value(held)
-        shoulder.locator("input[type=range]").fill("20")
-        expect(shoulder.locator(".target")).to_have_text("20")
-        expect(p.locator("#message")).to_be_hidden()
-        p.click("#robot-free")
-        expect(shoulder.locator(".target")).to_have_text("free")
-        # (The page says "free" once the robot's target is; its servo is free once the command is on the wire: a
-        # servo turned by hand before then turns back to 20.)
-        until(lambda: line.sim.servo(1).free, "the shoulder was never freed")
-        line.sim.servo(1).move_by_hand(degrees_to_position(-25))
-        expect(shoulder.locator("input[type=range]")).to_have_value("-25")
-
-
-def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_moved_again(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # A servo that stopped answering and came back (continue_on_offline: the watch let the robot play on) is
-    # held, sent nothing: it may have restarted, free, elsewhere.  Its slider's move was refused only in the
-    # state line, in the library's words ("set its target (set_targets) or free it first"), and the page had no
-    # way out but Free all (every joint limp).  The refusal is the move's answer now, in the page's words, and
-    # the joint's row has a Free button: freed (read where it stands), it moves again from there.
-    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
-        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
-        elbow = p.locator("tr[data-joint='elbow']")
-        servo = line.sim.remove_servo(2)
-        expect(elbow.locator(".angle")).to_have_text("offline")
-        line.sim.add_device(servo)
-        expect(elbow.locator(".target")).to_contain_text("held: rejoined")
-        target = servo.target
-        elbow.locator("input[type=range]").fill("30")
-        expect(p.locator("#message")).to_contain_text("joint elbow is held")
-        expect(p.locator("#message")).to_contain_text("Free")
-        expect(p.locator("#message")).not_to_contain_text("set_targets")
-        assert servo.target == target  # nothing sent
-        elbow.get_by_role("button", name="Free").click()
-        until(lambda: line.sim.servo(2).free, "the elbow was not freed")
-        expect(elbow.locator(".target")).to_have_text("free")
-        assert not line.sim.servo(1).free  # the shoulder holds on
-        elbow.locator("input[type=range]").fill("30")
-        expect(elbow.locator(".target")).to_have_text("30")
-        until(lambda: not line.sim.servo(2).free, "the elbow was not moved again")
-
-
-def test_the_robot_page_says_a_lost_line_and_reconnects_when_it_is_back(browser: Browser, tmp_path: Path) -> None:
-    # The page said nothing and kept saying "open" after a line was lost; only a restart brought it back.
-    # shoulder on an ICS 3.6 servo (read again at a reconnect), elbow on an ICS 3.5 one (asked about).
-    line = PtyLine((1, 2), ics36=(1,))
-    robot = tmp_path / "arm.toml"
-    robot.write_text(
-        f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
-        '[joints.elbow]\nline = "arm"\nid = 2\n'
-    )
-    with web_server_page(browser, line, ["--robot", str(robot)]) as p:
-        p.click("#robot-link")
-        expect(p.locator("#robot-cycle")).not_to_have_text("-")
-        expect(p.locator("#robot-reopen")).to_be_hidden()
-        # (Once the robot has read where elbow stands: on a loaded machine its first cycles may not have, and
-        # motion on leaves a joint not read yet as it is.)
-        expect(p.locator('tr[data-joint="elbow"] .angle')).to_have_text(re.compile(r"^-?\d"))
-        p.check("#robot-motion")  # the joints hold where they stand: elbow's servo holds a target
-        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-        until(lambda: line.sim.servo(2).target is not None, "elbow's servo never got a target")
-        elbow = line.sim.servo(2).target
-        line.sim.unplug()
-        expect(p.locator("#robot-error")).to_contain_text("lost")
-        expect(p.locator("#robot-reopen-choice")).to_be_visible()  # elbow held a target: the page asks
-        # (one joint: its grammar, not "elbow had targets their servos may no longer hold")
-        question = "Line arm was lost. elbow had a target its servo may no longer hold"
-        expect(p.locator("#robot-reopen-question")).to_contain_text(question)
-        expect(p.locator("#robot-reopen-question")).to_contain_text("If its servo kept its power it still holds it")
-        expect(p.locator("#robot-reopen")).to_be_hidden()
-        expect(p.locator("#robot-motion")).to_be_disabled()
-        line.sim.replug()
-        p.click("#robot-reopen-hold")
-        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
-        expect(p.locator("#robot-reopen")).to_be_hidden()
-        expect(p.locator("#robot-error")).to_have_text("")
-        assert line.sim.servo(2).target == elbow and not line.sim.servo(2).free  # never went limp
-        line.sim.unplug()  # again, with motion off now: the same question, and the plain button stays hidden
-        expect(p.locator("#robot-reopen-choice")).to_be_visible()
-        line.sim.replug()
-        p.click("#robot-reopen-free")
-        expect(p.locator("#robot-reopen-choice")).to_be_hidden()
-        until(lambda: line.sim.servo(2).free, "elbow's servo was not freed")
-        expect(p.locator("#robot-error")).to_have_text("")
-        expect(p.locator("#robot-motion")).to_be_enabled()
-        p.check("#robot-motion")  # and the robot answers again: motion on, the joints held where they stand
-        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-
-
 def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
     browser: Browser, robot_server: RobotServer
 ) -> None:
@@ -897,107 +1002,3 @@ def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
         expect(yaw.locator(".target")).to_have_text(target or "")
         p.uncheck("#robot-motion")
     context.close()
-
-
-def test_free_all_while_a_line_is_lost_frees_the_other_line_and_names_the_joints_it_could_not_reach(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # A lost line closed the robot, and Free all was refused, while the other line's joints held their last
-    # targets: a robot half-stopped could not be made limp at once.
-    upper, lower = PtyLine((1,)), PtyLine((1, 2))
-    robot = tmp_path / "two.toml"
-    robot.write_text(
-        f'[lines.upper]\nport = "{upper.path}"\n[lines.lower]\nport = "{lower.path}"\n'
-        '[joints.neck]\nline = "upper"\nid = 1\n[joints.hip]\nline = "lower"\nid = 1\n'
-        '[joints.knee]\nline = "lower"\nid = 2\n'
-    )
-    try:
-        with web_server_page(browser, upper, ["--robot", str(robot)]) as p:
-            p.click("#robot-link")
-            for name in ("neck", "hip", "knee"):  # (read, so that motion on holds them where they stand)
-                expect(p.locator(f'tr[data-joint="{name}"] .angle')).to_have_text(re.compile(r"^-?\d"))
-            p.check("#robot-motion")
-            expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
-            servos = (upper.sim.servo(1), lower.sim.servo(1), lower.sim.servo(2))
-            until(lambda: not any(servo.free for servo in servos), "the joints never held")
-            lower.sim.unplug()
-            expect(p.locator("#robot-error")).to_contain_text("lost")
-            expect(p.locator("#robot-reopen-choice")).to_be_visible()
-            question = "Line lower was lost. hip, knee had targets their servos may no longer hold"
-            expect(p.locator("#robot-reopen-question")).to_contain_text(question)
-            p.click("#robot-stop")  # (it said nothing: the robot is not open, nothing plays)
-            expect(p.locator("#message")).to_contain_text("nothing to stop: the robot is not open")
-            expect(p.locator("#message")).to_contain_text("Free all")
-            p.click("#robot-free")
-            expect(p.locator("#robot-state")).to_contain_text("hip, knee not reached")
-            expect(p.locator("#robot-state")).to_contain_text("their servos may still hold")
-            until(lambda: upper.sim.servo(1).free, "the neck was not freed")
-            assert not lower.sim.servo(1).free and not lower.sim.servo(2).free  # (their line is lost)
-            expect(p.locator('tr[data-joint="neck"] .target')).to_have_text("free")
-            # Reconnect follows the freeing: nothing to ask about, and it frees the joint it could not reach.
-            expect(p.locator("#robot-reopen-choice")).to_be_hidden()
-            expect(p.locator("#robot-reopen")).to_be_visible()
-            lower.sim.replug()
-            p.click("#robot-reopen")
-            expect(p.locator("#robot-error")).to_have_text("")
-            expect(p.locator("#robot-state")).to_contain_text("hip, knee freed")
-            until(lambda: all(servo.free for servo in servos), "the lower line was not freed once it was back")
-            assert upper.sim.servo(1).free
-    finally:
-        lower.close()
-
-
-def test_the_robot_page_of_a_server_started_again_with_a_new_token_shows_nothing_live(
-    browser: Browser, tmp_path: Path
-) -> None:
-    # The server stopped and started again with a new token before the page had noticed: the page said to open the
-    # new address, but its Robot page went on showing motion on (its sliders live) and the joints' angles as read.
-    with socket.socket() as probe:  # a free port, for both servers: the page comes back to the same address
-        probe.bind(("127.0.0.1", 0))
-        listen = f"127.0.0.1:{probe.getsockname()[1]}"
-    robot = tmp_path / "arm.toml"
-    robot.write_text(
-        '[lines.arm]\nport = "sim://again-arm?ids=1-2&realtime=1"\nrate_hz = 50\n'
-        '[joints.shoulder]\nline = "arm"\nid = 1\n[joints.elbow]\nline = "arm"\nid = 2\n'
-    )
-    environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
-
-    def start() -> tuple[subprocess.Popen[str], str]:
-        command = [*WEB, "--listen", listen, "--robot", str(robot)]
-        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=environment)
-        assert proc.stdout is not None
-        return proc, proc.stdout.readline().strip()
-
-    first, url = start()
-    second: subprocess.Popen[str] | None = None
-    context = browser.new_context()
-
-    def restarted_first(route: Route) -> None:
-        # The page asks the server's status once its socket closes: the new server answers it, as it does when
-        # the restart is quicker than the page.
-        nonlocal second
-        if first.poll() is not None and second is None:
-            second, _ = start()
-        route.continue_()
-
-    try:
-        p = context.new_page()
-        p.goto(url)
-        p.route("**/api/status", restarted_first)
-        p.click("#robot-link")
-        p.check("#robot-motion")
-        shoulder = p.locator("tr[data-joint='shoulder']")
-        expect(shoulder.locator("input[type=range]")).to_be_enabled()
-        expect(shoulder.locator(".angle")).to_have_text("0")
-        first.terminate()
-        first.wait(10)
-        expect(p.locator("#line-status")).to_have_text("server started again: open its new address")
-        expect(p.locator("#robot-error")).to_contain_text("another token")
-        expect(p.locator("#robot-motion")).not_to_be_checked()
-        expect(p.locator("#robot-motion")).to_be_disabled()
-        expect(shoulder.locator("input[type=range]")).to_be_disabled()
-        expect(shoulder.locator(".angle")).to_have_text("-")
-        expect(p.locator("#robot-reopen")).to_be_hidden()  # (nothing this page can reconnect to)
-    finally:
-        context.close()
-        stop_servers(first, second)
