@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import itertools
+import os
 import re
 import signal
 import subprocess
@@ -48,11 +49,26 @@ settings.load_profile("suite")
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Ctrl-C as a terminal gives it, however the suite was started.  A shell without job control starts a
-    background command with SIGINT ignored, and that is inherited: the Ctrl-C tests (a SIGINT to a
+    """Ctrl-C and a hang-up as a terminal gives them, however the suite was started.  A shell without job control
+    starts a background command with SIGINT ignored, and that is inherited: the Ctrl-C tests (a SIGINT to a
     subprocess or to this process, ``_thread.interrupt_main``) would then test nothing and wait forever."""
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    # nohup (or a service manager) starts it with SIGHUP ignored, and every program a test starts inherits that: the
+    # tests of a hang-up (a terminal closed on a command) then wait out their timeouts and fail.  A handler that does
+    # nothing keeps the suite's processes going on a hang-up, as nohup asked, and the programs they start get the
+    # default (an exec resets a handled signal, never an ignored one).  pytest-xdist's workers start with the
+    # default: the environment tells them.
+    if signal.getsignal(signal.SIGHUP) is signal.SIG_IGN or os.environ.get(_HANG_UP_IGNORED):
+        os.environ[_HANG_UP_IGNORED] = "1"
+        signal.signal(signal.SIGHUP, _hang_up_ignored)
+
+
+_HANG_UP_IGNORED = "ICS35_TEST_SUITE_IGNORES_SIGHUP"
+
+
+def _hang_up_ignored(signum: int, frame: object) -> None:
+    """SIGHUP to the suite's own process: nothing (see pytest_configure)."""
 
 
 # The async libraries a test can run on, as anyio's plugin names them: asyncio on its default loop and on
