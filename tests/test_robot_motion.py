@@ -14,7 +14,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, Robot, SafetyStop, open_robot
-from ics35_async.robot import Keyframe, Motion, MotionError, load_description, load_motion, save_motion
+from ics35_async.robot import (
+    Keyframe,
+    Motion,
+    MotionError,
+    MotionStopped,
+    load_description,
+    load_motion,
+    save_motion,
+)
 from tests.support.robot_rig import JOINTS, Rig, joint_position, make_rig, sent_position, targets_sent
 from tests.support.timing import FAST, GUARD
 
@@ -307,3 +315,42 @@ def test_files_from_an_editor_that_writes_a_byte_order_mark_read(tmp_path: Path)
         b'\xef\xbb\xbf[lines.main]\r\nport = "sim://"\r\n\r\n[joints.neck]\r\nline = "main"\r\nid = 1\r\n'
     )
     assert list(load_description(robot).joints) == ["neck"]
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_a_stop_between_two_passes_of_a_looping_play_ends_the_loop(backend: str) -> None:
+    # A stop() that came as one pass ended, before the play had started the next: there was no motion to stop,
+    # stop() returned, and the next pass then started, moving the neck after the stop.
+    rig = make_rig()
+    data = motion({"time": 0.05, "pose": {"neck": 20.0}}, {"time": 0.1, "pose": {"neck": -20.0}})
+    outcome: list[BaseException | None] = []
+
+    async def main() -> int:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST) as robot, anyio.create_task_group() as tasks:
+
+                async def player() -> None:
+                    try:
+                        await robot.play(data, loop=True)
+                    except MotionStopped as exc:
+                        outcome.append(exc)
+                    else:
+                        outcome.append(None)
+
+                tasks.start_soon(player)
+                # Polled at every turn of the loop, so that the stop comes in the turn the pass ends in.
+                while robot.targets["neck"] != -20.0:
+                    await anyio.sleep(0)
+                await robot.stop(ramp=0.2)
+                mark = rig.upper.transactions
+                await anyio.sleep(0.3)
+                tasks.cancel_scope.cancel()
+                return mark
+
+    try:
+        mark = anyio.run(main, backend=backend)
+    finally:
+        rig.close()
+    neck = targets_sent(rig.upper, JOINTS["neck"]["id"], mark)
+    assert set(neck) == {sent_position(JOINTS["neck"], -20.0)}, sorted(set(neck))
+    assert outcome and isinstance(outcome[0], MotionStopped), outcome

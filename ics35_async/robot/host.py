@@ -36,7 +36,12 @@ class RobotHost(PoseChecker, Protocol):
 
     async def wait_frame(self, after: int) -> RobotFrame: ...
 
-    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> frozenset[str]: ...
+    @property
+    def stops(self) -> int: ...
+
+    async def run(
+        self, trajectory: Trajectory, *, wait_on_wire: bool = True, unless_stopped_since: int | None = None
+    ) -> frozenset[str]: ...
 
     def set_targets(
         self, pose: Mapping[str, float | None], *, allow_free: bool = False, lift_holds: bool = True

@@ -215,6 +215,9 @@ async def play_motion(
         return
     first = motion.keyframes[0].pose
     owned = set(joints)  # a joint another command takes over is given up, for this pass and the next ones
+    # A stop (or a safety trip) that comes between two passes finds no pass running to end: it ends the loop all
+    # the same, rather than the next pass moving the joints after stop() has returned.
+    stops = robot.stops
     while owned:
         # A joint never read starts at its first angle in the motion (nothing to interpolate from).
         start = {j: first.get(j, _first_angle(motion, j)) for j in owned}
@@ -223,7 +226,9 @@ async def play_motion(
             (f.time / rate, {j: a for j, a in f.pose.items() if j in owned}, f.profile or motion.profile)
             for f in motion.keyframes
         ]
-        owned &= await robot.run(Trajectory.through(start, keyframes), wait_on_wire=not loop)
+        owned &= await robot.run(
+            Trajectory.through(start, keyframes), wait_on_wire=not loop, unless_stopped_since=stops
+        )
         if not loop:
             return
 

@@ -93,6 +93,10 @@ class Robot:
         self._gstream: GroupStream | None = None
         self._streams: dict[str, Stream] = {}  # every line's, once the open has made them (see started)
         self._heard_at_open: set[str] = set()  # (see started)
+        # Every stop() and safety trip so far, and the newest one's error: a looping play between two passes has
+        # no plan for them to end, and its next pass must not start after them (see run's ``unless_stopped_since``).
+        self._stops = 0
+        self._last_stop: IcsError | None = None
 
     def __repr__(self) -> str:
         name = self.description.name or self.description.source
@@ -188,6 +192,12 @@ class Robot:
             if now != before:
                 return now
             await self._lines_changed.wait()
+
+    @property
+    def stops(self) -> int:
+        """How many times motions were ended so far (``stop()`` and safety trips): what a motion made of several
+        runs (a looping play) passes to :meth:`run` as ``unless_stopped_since``."""
+        return self._stops
 
     def has_answered(self, joint: str) -> bool:
         """Whether ``joint``'s servo has answered since the robot opened (a position, or a probe once offline):
@@ -578,23 +588,31 @@ class Robot:
                 start[name] = target
         return start
 
-    async def run(self, trajectory: Trajectory, *, wait_on_wire: bool = True) -> frozenset[str]:
+    async def run(
+        self, trajectory: Trajectory, *, wait_on_wire: bool = True, unless_stopped_since: int | None = None
+    ) -> frozenset[str]:
         """Play a trajectory from the next frame on; returns when it is done (its end on the wire, with
         ``wait_on_wire``).  Its time zero is that frame's: a host stall before it delays the motion rather
         than skipping its start.  Returns the joints it still drove at its end (a joint another command
-        took over meanwhile is not among them).
+        took over meanwhile is not among them).  ``unless_stopped_since``: a count of :attr:`stops` taken
+        when the motion this trajectory belongs to began; a stop since (one that came between two of its
+        runs, with no plan of it to end) is raised at once, nothing sent.
 
         Raises:
+            MotionStopped: ``stop()`` was called since ``unless_stopped_since``.
             SafetyStop: the trajectory names a joint the safety watch tripped (at once, nothing sent), or the watch
                 stopped it.
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
         """
-        return await self._played(self._planned(trajectory, wait_on_wire))
+        return await self._played(self._planned(trajectory, wait_on_wire, unless_stopped_since))
 
-    def _planned(self, trajectory: Trajectory, wait_on_wire: bool) -> Plan:
+    def _planned(self, trajectory: Trajectory, wait_on_wire: bool, unless_stopped_since: int | None = None) -> Plan:
         """The trajectory's plan, stepped from the next frame on: registered at once, with no await, so a stop()
         called in the same moment as another finds the other's ramp to take over (not a joint at rest)."""
         self._check_watched()  # (no pump would ever step it)
+        if unless_stopped_since is not None and self._stops != unless_stopped_since:
+            assert self._last_stop is not None
+            raise again(self._last_stop)
         plan = Plan(trajectory, wait_on_wire)
         # A trajectory does not drive a tripped joint: a motion checks that before it starts (check_ready), but a
         # trip may have landed since (a stop()'s ramp comes from the motions it stops).
@@ -634,6 +652,8 @@ class Robot:
         self._check_watched()  # (no frames: nothing to ramp by)
         stopped, self._plans = self._plans, []  # no longer stepped: the ramp drives their joints now
         stopped_here = MotionStopped("the motion was stopped (Robot.stop)")
+        self._stops += 1
+        self._last_stop = stopped_here
         outcome: IcsError = stopped_here
         try:
             await self._come_to_rest(seconds)
@@ -1016,6 +1036,8 @@ class Robot:
         self._latched[stop.joint] = stop
         self.trips.append(stop)
         log.warning("safety stop: %s", stop)
+        self._stops += 1
+        self._last_stop = stop
         for plan in self._plans:
             plan.finish(stop)
         self._plans.clear()
