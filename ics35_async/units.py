@@ -49,10 +49,13 @@ def whole_number(value: object) -> int | None:
 def real_number(value: object) -> float | None:
     """``value`` as a Python float if it is a real-number type (int, float, NumPy's numbers: any
     ``numbers.Real``; ``np.float32`` is not a float), else None.  Not a bool.  NaN and inf pass: the
-    caller says whether they are allowed."""
+    caller says whether they are allowed; so does a number too big for a float (``10**400``: ``inf``)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         return None
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # a whole number past a float's range (JSON and TOML have no limit): an infinity
+        return -math.inf if operator.lt(value, 0) else math.inf
 
 
 def finite_number(value: object) -> float | None:

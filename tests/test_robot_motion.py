@@ -127,6 +127,12 @@ def test_played_commands_stay_within_limits_and_turn_only_at_keyframes(
     check_played(rig, since, load_motion(data))
 
 
+def test_an_angle_too_big_for_a_float_is_refused_as_outside_the_limits() -> None:
+    description = load_description({"lines": {"upper": {"port": "sim://unopened"}}, "joints": {"neck": JOINTS["neck"]}})
+    with pytest.raises(InvalidArgument, match="outside its limits"):
+        description.check_pose({"neck": 10**400})
+
+
 def test_save_and_load_round_trip(tmp_path: Path) -> None:
     original = load_motion(motion({"time": 1.0, "pose": {"neck": 5}}, {"time": 2, "pose": {}, "profile": "linear"}))
     save_motion(original, tmp_path / "out.json")
@@ -142,6 +148,9 @@ BAD: list[tuple[Any, str, str]] = [
     (motion({"time": 1, "pose": {}}, {"time": 1, "pose": {}}), "keyframes[1].time", "after 1"),
     (motion({"time": "1", "pose": {}}), "keyframes[0].time", "number of seconds"),
     (motion({"time": 1, "pose": {"neck": "up"}}), "keyframes[0].pose.neck", "number of degrees"),
+    # A whole number too big for a float (JSON has no limit): refused as any other, not an OverflowError.
+    (motion({"time": 10**400, "pose": {}}), "keyframes[0].time", "number of seconds"),
+    (motion({"time": 1, "pose": {"neck": -(10**400)}}), "keyframes[0].pose.neck", "number of degrees"),
     (motion({"time": 1, "pose": {}, "profile": "cubic"}), "keyframes[0].profile", "minjerk, linear"),
     (motion({"time": 1, "pose": {}, "speed": 3}), "keyframes[0].speed", "unknown key"),
     (motion({"time": 1, "pose": {}}, loop=True), "loop", "unknown key"),
