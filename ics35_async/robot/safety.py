@@ -4,7 +4,9 @@ Each line has its own watch task.  After every merged frame it reads the
 temperature and current of the next ``telemetry_per_cycle`` joints of its
 line (round robin), at low priority, so the reads slip in between the
 stream's position transactions.  A *telemetry round* is every joint of a
-line read once; a joint crossing a threshold is reported within one round.
+line read once; a joint crossing a threshold is reported within one round, once a
+second reading taken at once confirms it (a reply has no checksum: one garbled
+byte can read as any value).
 A joint the stream has marked offline is skipped (each read of a dead ID
 costs a whole reply timeout); the robot itself watches offline joints.  So
 is one whose servo has not answered since the robot opened (an unplugged
@@ -134,31 +136,52 @@ class SafetyWatch:
 
     async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
         seen = self.telemetry[joint.name]
+        reading = await self._reading(servo, seen)
+        if reading is not None and self._crossings(joint, *reading):
+            # An ICS reply carries no checksum: a byte garbled on the wire reads as another value (a servo at 25 C
+            # as 120 C), and one such reading would free a joint of a robot standing on it.  A crossing is read
+            # once more at once, and trips only if that reading crosses too.
+            reading = await self._reading(servo, seen)
+        if reading is None:
+            return
+        seen.reads += 1
+        seen.temperature_c, seen.current = reading
+        self.check(robot, joint, seen)
+
+    @staticmethod
+    async def _reading(servo: Servo, seen: JointTelemetry) -> tuple[float, int] | None:
+        """The servo's temperature (Celsius) and current, or None (counted in ``seen.errors``) if a reply was
+        garbled."""
         try:
             raw_temperature = await servo.read_temperature()
             raw_current = await servo.read_current()
         except ReplyError:
             seen.errors += 1
-            return
-        seen.reads += 1
-        seen.temperature_c = units.temperature_to_celsius(raw_temperature)
-        seen.current = units.current_from_raw(raw_current).magnitude
-        self.check(robot, joint, seen)
+            return None
+        return units.temperature_to_celsius(raw_temperature), units.current_from_raw(raw_current).magnitude
 
     def check(self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry) -> None:
+        crossed = self._crossings(joint, seen.temperature_c, seen.current)
+        if crossed:
+            robot.trip(crossed[0])
+        else:
+            robot.clear_trip(joint.name, ("temperature", "current"))
+
+    def _crossings(self, joint: JointSpec, temperature_c: float | None, current: int | None) -> list[SafetyStop]:
+        """The stops a reading calls for, the first one to act on first (none: within every limit)."""
         spec = self.spec
         where = f"joint {joint.name} (line {joint.line}, ID {joint.id})"
         # (reason, what is seen, its limit, how the stop words it); the first crossed trips
         checks = (
             (
                 "temperature",
-                seen.temperature_c,
+                temperature_c,
                 spec.max_temperature_c,
                 "is at about {:.0f} C, over max_temperature_c {:g}",
             ),
-            ("current", seen.current, spec.max_current, "draws current {}, over max_current {}"),
+            ("current", current, spec.max_current, "draws current {}, over max_current {}"),
         )
-        crossed = [
+        return [
             SafetyStop(
                 f"{where} {words.format(value, limit)}; action: {spec.action}",
                 joint=joint.name,
@@ -170,7 +193,3 @@ class SafetyWatch:
             for reason, value, limit, words in checks
             if value is not None and limit is not None and value > limit
         ]
-        if crossed:
-            robot.trip(crossed[0])
-        else:
-            robot.clear_trip(joint.name, ("temperature", "current"))
