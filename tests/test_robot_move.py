@@ -24,6 +24,7 @@ from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperatio
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import MotionStopped, RobotWarning
+from ics35_async.sim import VirtualLine
 from tests.support.robot_rig import (
     JOINTS,
     Rig,
@@ -945,3 +946,42 @@ def test_line_change_over_a_pty_whose_port_goes_away_and_comes_back(pty_sim: Any
                 assert robot.group["main"].stats.reconnects >= 1
 
     anyio.run(main)
+
+
+NOT_A_GARBLE = 10.0  # degrees: a move of a free joint no servo turned by hand makes within a few milliseconds
+
+
+def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held() -> None:
+    # ICS replies carry no checksum: a byte garbled on the wire reads as another position, 100 degrees from where
+    # the servo stands, and hold() (a motion from a free joint alike) took that one reading as where to hold it:
+    # the servo was thrown there at full speed.  The free servos here stand still, so each hold must be where it
+    # is, but for a garble of a few degrees, which no check can tell from a servo turned by hand within a cycle.
+    line = VirtualLine([1, 2, 3, 4], name="garbled-holds", faults="corrupt:0.05", seed=1, log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://garbled-holds"}},
+        "joints": {f"j{i}": {"line": "main", "id": i} for i in range(1, 5)},  # the servo's whole range
+    }
+    jumps: list[tuple[int, float, float]] = []
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description, **FAST) as robot:  # ICS 3.5: every joint starts free
+                for _ in range(60):
+                    await robot.wait_frame(robot.latest.cycle + 2 if robot.latest else 0)
+                    where = {s.servo_id: units.position_to_degrees(s.position) for s in line.servos}
+                    since = line.transactions
+                    robot.hold()
+                    await robot.on_wire()
+                    for servo_id, at in where.items():
+                        sent = targets_sent(line, servo_id, since)
+                        if sent and abs(units.position_to_degrees(sent[0]) - at) > NOT_A_GARBLE:
+                            jumps.append((servo_id, at, units.position_to_degrees(sent[0])))
+                    await robot.free()
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RobotWarning)  # (an EEPROM read garbled at the open)
+            anyio.run(main)
+    finally:
+        line.close()
+    assert jumps == []

@@ -44,6 +44,12 @@ CLOSED = "the robot is closed (its `async with open_robot(...)` block has ended)
 # servo's own speed): a joint resting at its limit reads a little either side of it.  Farther past, the first
 # command would throw it there at full speed (see Robot.check_ready and Robot.hold).
 LIMIT_SLACK = 2.0
+# A reply has no checksum: a byte garbled on the wire reads as another position (100 degrees away), and holding
+# or moving a free joint from that one reading throws its servo there at full speed.  A reading is taken as where
+# a joint is only when it agrees with the reading before it: within what no servo turns in the time between the
+# two (under power or by hand), in degrees per second, plus a slack in degrees for the counts' rounding.
+TURN_SPEED = 1000.0
+TURN_SLACK = 1.0
 
 
 class Robot:
@@ -74,6 +80,7 @@ class Robot:
         self.start_modes: dict[str, str] = dict.fromkeys(self.joints, "free")
         self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
+        self._last_read: dict[str, tuple[float, float]] = {}  # each joint's newest reading and its stamp (_agreed)
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
@@ -797,9 +804,9 @@ class Robot:
         lost = self.lost
         by_key, joints = self._by_key, self.joints
         positions = {by_key[k]: joints[by_key[k]].degrees(p) for k, p in frame.positions.items() if k in by_key}
-        self._positions.update(positions)
-        self._answered.update(positions)
         stamps = {by_key[k]: t for k, t in frame.timestamps.items() if k in by_key}
+        self._positions.update(self._agreed(positions, stamps))
+        self._answered.update(positions)
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
@@ -835,6 +842,19 @@ class Robot:
         self._latest = dataclasses.replace(merged, targets=dict(self._targets))
         event, self._new_frame = self._new_frame, anyio.Event()
         event.set()
+
+    def _agreed(self, readings: Mapping[str, float], stamps: Mapping[str, float]) -> dict[str, float]:
+        """Those of ``readings`` that agree with their joint's reading before (see TURN_SPEED): where the joints
+        are.  A garbled one, and the one after it, are left out."""
+        agreed = {}
+        for name, degrees in readings.items():
+            stamp = stamps.get(name, 0.0)
+            before = self._last_read.get(name)
+            self._last_read[name] = (degrees, stamp)
+            # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
+            if before is None or abs(degrees - before[0]) <= TURN_SPEED * abs(stamp - before[1]) + TURN_SLACK:
+                agreed[name] = degrees
+        return agreed
 
     async def watch_lines(self) -> None:
         """Tell the robot of each line's port lost or back as its bus knows it (see :meth:`_line_changed`);
