@@ -144,6 +144,10 @@ def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says
     client, line = robot
     line.servo(2).move_by_hand(degrees_to_position(120))
     wait_for(lambda: (client.get("/api/robot").json()["joints"][1]["position"] or 0) > 119)
+    # A reading counts once the next one agrees (a jump of 120 degrees between two is a garbled reply to a
+    # robot, unless confirmed; a simulated hand turns the servo there at once): a cycle later.
+    seen = client.get("/api/robot").json()["cycle"]
+    wait_for(lambda: client.get("/api/robot").json()["cycle"] > seen + 2)
     view = post(client, "/api/robot/motion", {"enabled": True}).json()
     assert "elbow left as it is: stands at 120.0 degrees, past its limit 90" in view["outcome"], view["outcome"]
     refused = post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": 0.2})

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import anyio
 
 from ..errors import IcsError
-from .frame import RobotFrame
 from .profiles import Trajectory
 
 
@@ -25,8 +24,9 @@ class Replies:
         self.counts = dict.fromkeys(joints, 0)
         self._last: dict[str, float] = {}
 
-    def add(self, frame: RobotFrame) -> None:
-        for name, stamp in frame.stamps.items():
+    def add(self, stamps: Mapping[str, float]) -> None:
+        """Count the replies among ``stamps`` (``{joint: reply time}``, a frame's or the readings a robot took)."""
+        for name, stamp in stamps.items():
             if name in self.counts and stamp > self.since and stamp != self._last.get(name):
                 self.counts[name] += 1
                 self._last[name] = stamp

@@ -81,6 +81,7 @@ class Robot:
         self.untouched: set[str] = set()  # read with ICS 3.6's read, not commanded since: torque as found
         self._positions: dict[str, float] = {}
         self._last_read: dict[str, tuple[float, float]] = {}  # each joint's newest reading and its stamp (_agreed)
+        self._agreed_stamps: dict[str, float] = {}  # the stamp of each joint's newest reading taken (_agreed)
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
@@ -260,13 +261,15 @@ class Robot:
         so is a joint held since its line came back after a lost port (``robot.latest.held``).
         """
         # The servo measures when the command reaches it: the reply after a reply is a command sent after now.
-        await self.fresh_replies(self.joints, 2)
+        # Only readings taken as where the joints are count (see TURN_SPEED): not a garbled one.
+        await self.fresh_replies(self.joints, 2, agreed=True)
         return {name: self._positions[name] for name in self.joints if name in self._positions}
 
-    async def fresh_replies(self, joints: Iterable[str], replies: int) -> None:
+    async def fresh_replies(self, joints: Iterable[str], replies: int, *, agreed: bool = False) -> None:
         """Wait until each of ``joints`` (but the offline ones, those on a line whose port is lost, and those
         held after their line came back) has answered ``replies`` times from now on: a line reconnecting
-        answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it."""
+        answers nothing for as long as it is away, and the other lines' joints are not kept waiting for it.
+        ``agreed``: count only the readings taken as where the joints are (see TURN_SPEED)."""
         counter = Replies(joints, time.monotonic())
         frame = self._latest
         while frame is None or not counter.reached(replies, frame.offline | self._held.keys() | self.lost):
@@ -275,7 +278,7 @@ class Robot:
             await self._new_frame.wait()  # a frame, or a line lost (with every line lost no frame comes)
             if self._latest is not frame and self._latest is not None:
                 frame = self._latest
-                counter.add(frame)
+                counter.add(self._agreed_stamps if agreed else frame.stamps)
 
     def stream(self) -> RobotStream:
         """Frames in joint space and targets by name; ``async with robot.stream() as s: async for frame in s``."""
@@ -729,7 +732,7 @@ class Robot:
             self._give_up_lost(driven_lost)
         for plan in list(self._plans):
             if plan.ending is not None:
-                plan.ending.add(frame)
+                plan.ending.add(frame.stamps)
             unknown = frame.offline | self._held.keys() | lost  # (joints that cannot answer)
             if not plan.joints or (plan.ending is not None and plan.ending.reached(2, unknown)):
                 plan.finish()
@@ -854,6 +857,7 @@ class Robot:
             # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
             if before is None or abs(degrees - before[0]) <= TURN_SPEED * abs(stamp - before[1]) + TURN_SLACK:
                 agreed[name] = degrees
+                self._agreed_stamps[name] = stamp
         return agreed
 
     async def watch_lines(self) -> None:
