@@ -499,6 +499,37 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     load_description(robot_file)  # still a valid robot file
 
 
+def test_calibrate_does_not_take_a_garbled_reading_for_an_end_of_a_range(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # ICS replies carry no checksum: a byte garbled on the wire reads as a position far from the servo's, and
+    # calibrate took every reading in a frame as a place the joint was turned to: one such reading widened the
+    # range written to the file by tens of degrees, limits the robot then moved its joint to.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims = make_rig(faults="corrupt:0.03", seed=4)
+    try:
+        ports = {name: line["port"] for name, line in sims.description["lines"].items()}
+        robot_file = tmp_path / "arm.toml"
+        robot_file.write_text(CALIBRATE_FILE.format(**ports))
+        at = by_hand(sims)
+        result = run_with_hands(
+            ["calibrate", str(robot_file)],
+            [
+                ("neutral (every joint at 0)", at({"neck": 12.0, "hip": -3.0}), "\n"),
+                ("whole range", at({"neck": -50.0, "hip": -60.0}), ""),
+                (None, at({"neck": 70.0, "hip": 40.0}), "\n"),
+            ],
+            [sims.upper, sims.lower],
+        )
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    data = tomllib.loads(robot_file.read_text())
+    # (a garble of a few degrees cannot be told from a joint turned by hand within a cycle: those pass)
+    assert {k: data["joints"]["neck"][k] for k in ("min", "max")} == pytest.approx({"min": -62.0, "max": 58.0}, abs=5)
+    assert {k: data["joints"]["hip"][k] for k in ("min", "max")} == pytest.approx({"min": -57.0, "max": 43.0}, abs=5)
+
+
 def test_calibrate_warns_when_a_calibrated_range_reaches_past_the_servos_pulse_limits(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:

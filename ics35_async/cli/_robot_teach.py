@@ -396,8 +396,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                 )
 
             def track(frame: RobotFrame | None) -> None:
-                for name, deg in frame.positions.items() if frame else ():
-                    if name in names:
+                # The robot's readings, not the frame's: a garbled reply would be an end of the range.
+                where = robot.positions
+                for name in frame.positions if frame else ():
+                    if name in names and (deg := where.get(name)) is not None:
                         servo = robot.joints[name].servo_degrees(deg)
                         low[name] = min(servo, low.get(name, servo))
                         high[name] = max(servo, high.get(name, servo))

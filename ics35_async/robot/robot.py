@@ -118,6 +118,13 @@ class Robot:
         return self._latest
 
     @property
+    def positions(self) -> dict[str, float]:
+        """Where each joint was last read, in degrees: its newest reading that agrees with the one before it
+        (see :data:`TURN_SPEED`; a frame's ``positions`` are the replies as they came, a garbled one
+        included).  A joint not read yet, or held since its servo or line came back, is left out."""
+        return dict(self._positions)
+
+    @property
     def targets(self) -> dict[str, float | None]:
         """Every joint's target in degrees (``None``: free, or never commanded: see ``start_modes``).  A held
         joint (see :attr:`held`) shows the newest target set for it, not being sent."""
