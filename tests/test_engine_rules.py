@@ -14,7 +14,18 @@ from ics35_async import protocol
 from ics35_async.engine import FlushInput, Priority, State
 from ics35_async.errors import ReplyTimeout
 from ics35_async.protocol import Param, guard_read
-from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, position, read, ready_engine
+from tests.support.engine_support import (
+    BAUD,
+    FakeSource,
+    Recorded,
+    Servos,
+    Wire,
+    misattributed,
+    position,
+    read,
+    ready_engine,
+    wire_time,
+)
 
 
 def line(ids: set[int], **options: object) -> tuple[Wire, Servos]:
@@ -104,6 +115,32 @@ def test_a_wrong_echo_at_the_deadline_arms_no_guard() -> None:
     engine.submit(Recorded(read(3)), engine.deadline)
     assert engine.tick(engine.deadline) == FlushInput(read(3).tx)  # after the resync: no guard read first
     assert engine.counters.guards == 0
+
+
+@pytest.mark.parametrize("silent_answers", [False, True], ids=["silent stays silent", "silent answers"])
+def test_a_free_to_a_silent_servo_between_a_timeout_and_its_twin_leaves_the_guard_read(silent_answers: bool) -> None:
+    # A stream closing while a read of servo 3 had timed out: its free to offline servo 4 goes without a guard
+    # read, and whether that free times out too or is answered, the twin of the read still gets one, so the
+    # read's late reply cannot pass for the twin's.
+    wire, servos = line({3, 4} if silent_answers else {3})
+    servos.mute = {0}
+    first, twin = Recorded(read(3)), Recorded(read(3), wire=wire)
+    free = Recorded(protocol.SilentFree(4, baudrate=BAUD))
+    wire.submit(first)
+    wire.submit(free)
+    wire.submit(twin)
+    late = read(3).encode_reply(99)
+
+    def late_reply_after_the_next_echo() -> None:  # as late as the late reply a guard exists for
+        if len(wire.writes) == 2:  # (the write after the free's is going out)
+            wire.schedule(wire.now + wire_time(len(read(3).tx)) + 0.0003, late)
+
+    wire.run_until(wire.engine.deadline)  # the read timed out
+    wire.on_write = late_reply_after_the_next_echo
+    wire.settle()
+    assert isinstance(first.error, ReplyTimeout)
+    assert misattributed(twin, servos) is None, twin.value
+    assert wire.sent() == [read(3).tx, free.command.tx, read(3, Param.STRETCH).tx, read(3).tx]
 
 
 # ---------------------------------------------------------------- priorities and the stream's share

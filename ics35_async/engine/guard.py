@@ -18,7 +18,8 @@ A command to a servo already found silent (``Timing.SILENT``: a closing
 stream's free to an offline servo) goes without a guard read: its reply
 would only confirm it, so a late one passing for it misleads nobody, while
 the guard would wait a whole allowance.  The suspicion stays for the command
-after it.
+after it, and if that free times out too, its own suspicion joins the one it
+went past rather than replacing it: the earlier reply may still come.
 """
 
 from __future__ import annotations
@@ -30,16 +31,18 @@ class GuardRule:
     __slots__ = ("suspect",)
 
     def __init__(self) -> None:
-        self.suspect = b""  # what a command must start with to fit a reply that may still come
+        self.suspect: tuple[bytes, ...] = ()  # what a command may start with to fit a reply that may still come
 
-    def timed_out(self, tx: bytes, *, heard: bool, was_guard: bool) -> None:
-        """A transaction timed out; ``heard``: its echo was right, so a servo may still answer."""
+    def timed_out(self, tx: bytes, *, heard: bool, was_guard: bool, went_past: bool = False) -> None:
+        """A transaction timed out; ``heard``: its echo was right, so a servo may still answer.  ``went_past``: it
+        went without the guard read the suspicion standing would have asked for (see above), so that stays."""
         if heard:
-            self.suspect = tx[:2] if was_guard else tx[:1]  # a guard is a parameter read: header + sub-command
+            shape = tx[:2] if was_guard else tx[:1]  # a guard is a parameter read: header + sub-command
+            self.suspect = (*self.suspect, shape) if went_past else (shape,)
 
     def before(self, tx: bytes, servo_id: int | None) -> ReadParam | None:
         """The guard read to send before ``tx``, if it needs one (the suspicion lasts one command)."""
-        suspect, self.suspect = self.suspect, b""
+        suspect, self.suspect = self.suspect, ()
         if suspect and servo_id is not None and tx.startswith(suspect):
             return guard_read(tx, servo_id)
         return None

@@ -271,7 +271,7 @@ class LineEngine:
             "stream": None if source is None else repr(source),
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
-            "guard_suspect": self.guard.suspect.hex(" "),
+            "guard_suspect": ", ".join(shape.hex(" ") for shape in self.guard.suspect),
             "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
         }
 
@@ -865,7 +865,12 @@ class LineEngine:
         req = self._current
         heard = not isinstance(error, EchoMismatch)  # the echo came, or as much of it as came matched
         partial = len(buf) > echo_len
-        self.guard.timed_out(tx, heard=heard, was_guard=req is not None and req.is_guard)
+        self.guard.timed_out(
+            tx,
+            heard=heard,
+            was_guard=req is not None and req.is_guard,
+            went_past=req is not None and req.command.timing is SILENT,
+        )
         link, due = self.link, self._t_start + self._base
         if link.owed_since != INF:
             link.judge(buf, tx, echo_len, self._expect, self._t_first, due)
@@ -913,7 +918,12 @@ class LineEngine:
             return
         if self.state is not QUIET:
             return
-        self.guard.timed_out(self._tx, heard=True, was_guard=req is not None and req.is_guard)
+        self.guard.timed_out(
+            self._tx,
+            heard=True,
+            was_guard=req is not None and req.is_guard,
+            went_past=req is not None and req.command.timing is SILENT,
+        )
         self._quiet_until = max(self._quiet_until, self._resync_end(due))
         self._resync_limit = max(self._resync_limit, self._resync_give_up(due))
         self.deadline = min(self._quiet_until, self._resync_limit)
