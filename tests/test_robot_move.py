@@ -985,3 +985,41 @@ def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held() 
     finally:
         line.close()
     assert jumps == []
+
+
+def test_a_garbled_position_reply_seen_again_in_the_next_frame_is_still_left_out() -> None:
+    # A robot on two lines: each frame carries every line's newest cycle, so a line's garbled reading comes again,
+    # with the same reply time, in the frame the other line's cycle brings.  Seen twice, it agreed with itself and
+    # was taken as where its joint stands (Robot.positions, what hold() holds a free joint at).  The free servos
+    # here stand still: each joint's position is where its servo is, but for a garble of a few degrees.
+    line = VirtualLine([1, 2, 3, 4], name="garbled-of-two", faults="corrupt:0.05", seed=1, log_size=None)
+    clean = VirtualLine([1], name="clean-of-two", log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://garbled-of-two"}, "other": {"port": "sim://clean-of-two"}},
+        "joints": {
+            **{f"j{i}": {"line": "main", "id": i} for i in range(1, 5)},  # the servo's whole range
+            "other": {"line": "other", "id": 1},
+        },
+    }
+    wrong: list[tuple[str, float, float]] = []
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description, **FAST) as robot:  # ICS 3.5: every joint starts free
+                await robot.read_pose()  # (a joint's first reading is taken as it comes)
+                for _ in range(300):
+                    await robot.wait_frame(robot.latest.cycle + 1 if robot.latest else 0)
+                    taken = robot.positions
+                    for servo in line.servos:
+                        name, at = f"j{servo.servo_id}", units.position_to_degrees(servo.position)
+                        if name in taken and abs(taken[name] - at) > NOT_A_GARBLE:
+                            wrong.append((name, at, taken[name]))
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RobotWarning)  # (an EEPROM read garbled at the open)
+            anyio.run(main)
+    finally:
+        line.close()
+        clean.close()
+    assert wrong == []

@@ -860,6 +860,10 @@ class Robot:
         for name, degrees in readings.items():
             stamp = stamps.get(name, 0.0)
             before = self._last_read.get(name)
+            if before is not None and stamp == before[1]:
+                # The same reply again: a frame carries each line's newest cycle, so a line that ran no cycle since
+                # the one before brings its readings once more.  A reading cannot agree with itself.
+                continue
             self._last_read[name] = (degrees, stamp)
             # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
             if before is None or abs(degrees - before[0]) <= TURN_SPEED * abs(stamp - before[1]) + TURN_SLACK:
