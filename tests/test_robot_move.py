@@ -951,6 +951,17 @@ def test_line_change_over_a_pty_whose_port_goes_away_and_comes_back(pty_sim: Any
 NOT_A_GARBLE = 10.0  # degrees: a move of a free joint no servo turned by hand makes within a few milliseconds
 
 
+def run_on_garbled_lines(main: Callable[[], Awaitable[None]], *lines: VirtualLine) -> None:
+    """Run ``main`` (a robot on ``lines``, some garbling replies), then close the lines."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RobotWarning)  # (an EEPROM read garbled at the open)
+            anyio.run(main)
+    finally:
+        for line in lines:
+            line.close()
+
+
 def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held() -> None:
     # ICS replies carry no checksum: a byte garbled on the wire reads as another position, 100 degrees from where
     # the servo stands, and hold() (a motion from a free joint alike) took that one reading as where to hold it:
@@ -978,12 +989,7 @@ def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held() 
                             jumps.append((servo_id, at, units.position_to_degrees(sent[0])))
                     await robot.free()
 
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RobotWarning)  # (an EEPROM read garbled at the open)
-            anyio.run(main)
-    finally:
-        line.close()
+    run_on_garbled_lines(main, line)
     assert jumps == []
 
 
@@ -1015,11 +1021,5 @@ def test_a_garbled_position_reply_seen_again_in_the_next_frame_is_still_left_out
                         if name in taken and abs(taken[name] - at) > NOT_A_GARBLE:
                             wrong.append((name, at, taken[name]))
 
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RobotWarning)  # (an EEPROM read garbled at the open)
-            anyio.run(main)
-    finally:
-        line.close()
-        clean.close()
+    run_on_garbled_lines(main, line, clean)
     assert wrong == []
