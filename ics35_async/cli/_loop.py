@@ -157,7 +157,8 @@ def _quiet_executor_shutdown() -> None:
     threading.excepthook = hook
 
 
-_SHUTDOWN = "unhandled exception during asyncio.run() shutdown"  # (the runner's words for a task its close ended)
+# The runner's words for a task its close ended.
+_SHUTDOWN_REPORT = "unhandled exception during asyncio.run() shutdown"
 
 
 def _reports_when_forced_out(
@@ -181,7 +182,7 @@ def _reports_when_forced_out(
         if forced and context.get("task") is forced[0]:
             return
         message = str(context.get("message", ""))
-        if len(pressed) >= 2 and (message.endswith("exception was never retrieved") or message == _SHUTDOWN):
+        if len(pressed) >= 2 and (message.endswith("exception was never retrieved") or message == _SHUTDOWN_REPORT):
             return
         loop.default_exception_handler(context)
 
