@@ -13,7 +13,8 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import InvalidArgument, Robot, SafetyStop, State, UnsafeOperation, open_robot
+from ics35_async import InvalidArgument, Robot, SafetyStop, State, UnsafeOperation, open_robot, units
+from ics35_async.protocol import Param
 from ics35_async.robot import MotionStopped
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from tests.support.robot_rig import JOINTS, Rig, commanded, make_rig, targets_sent
@@ -575,3 +576,46 @@ def test_a_garbled_telemetry_reply_does_not_trip_the_watch() -> None:
     for line in ("upper", "lower"):
         assert [t for t in rig.sim(line).log if t.command == "free"] == []
     assert all(s.temperature_celsius < 70 and s.load == 0 for line in ("upper", "lower") for s in rig.sim(line).servos)
+
+
+class ReadsOnce(VirtualServo):
+    """A servo whose next telemetry reads return ``scripted``'s values in turn (as a line garbling those replies
+    would), its own after them."""
+
+    def __init__(self, servo_id: int) -> None:
+        super().__init__(servo_id)
+        self.scripted: dict[Param, list[int]] = {}
+
+    def _read_param(self, param: Param) -> int:
+        script = self.scripted.get(param)
+        return script.pop(0) if script else super()._read_param(param)
+
+
+def test_two_garbled_telemetry_replies_crossing_different_limits_do_not_trip_the_watch() -> None:
+    # A crossing is read again at once and trips only if confirmed: a garbled temperature reply (over 100 C) and,
+    # in the read confirming it, a garbled current reply are two single readings, each crossing once.
+    rig = make_rig(safety={"max_temperature_c": 70, "max_current": 30, "action": "free"})
+    neck = ReadsOnce(JOINTS["neck"]["id"])
+    rig.upper.remove_servo(neck.servo_id)
+    rig.upper.add_device(neck)
+
+    async def main() -> Robot:
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST, start_pose=dict.fromkeys(JOINTS, 0.0)) as robot:
+                await frames_until(robot, lambda: min(robot.watch.rounds.values()) >= 2)
+                cool = units.current_to_raw(units.Current(1, False))
+                neck.scripted = {
+                    Param.TEMPERATURE: [units.celsius_to_temperature(120)],  # the first read: too hot
+                    Param.CURRENT: [cool, units.current_to_raw(units.Current(60, False))],  # the second: too much
+                }
+                await frames_until(robot, lambda: not any(neck.scripted.values()))
+                rounds = robot.watch.rounds["upper"]
+                await frames_until(robot, lambda: robot.watch.rounds["upper"] >= rounds + 2)
+                return robot
+
+    try:
+        robot = anyio.run(main)
+    finally:
+        rig.close()
+    assert robot.trips == []
+    assert not neck.free

@@ -137,16 +137,25 @@ class SafetyWatch:
     async def _read(self, robot: WatchedRobot, joint: JointSpec, servo: Servo) -> None:
         seen = self.telemetry[joint.name]
         reading = await self._reading(servo, seen)
-        if reading is not None and self._crossings(joint, *reading):
-            # An ICS reply carries no checksum: a byte garbled on the wire reads as another value (a servo at 25 C
-            # as 120 C), and one such reading would free a joint of a robot standing on it.  A crossing is read
-            # once more at once, and trips only if that reading crosses too.
-            reading = await self._reading(servo, seen)
         if reading is None:
             return
+        crossed = self._crossings(joint, *reading)
+        confirmed: set[str] | None = None  # (the limits a second reading must cross too to trip)
+        if crossed:
+            # An ICS reply carries no checksum: a byte garbled on the wire reads as another value (a servo at 25 C
+            # as 120 C), and one such reading would free a joint of a robot standing on it.  A crossing is read
+            # once more at once, and trips only if that reading crosses the same limit: two garbled replies, one
+            # in each reading, are two single readings still.
+            confirmed = {stop.reason for stop in crossed}
+            reading = await self._reading(servo, seen)
+            if reading is None:
+                return
+            crossed = self._crossings(joint, *reading)
+            if crossed and not confirmed & {stop.reason for stop in crossed}:
+                return  # each limit crossed by one reading only: read again next round
         seen.reads += 1
         seen.temperature_c, seen.current = reading
-        self.check(robot, joint, seen)
+        self.check(robot, joint, seen, confirmed)
 
     @staticmethod
     async def _reading(servo: Servo, seen: JointTelemetry) -> tuple[float, int] | None:
@@ -160,8 +169,16 @@ class SafetyWatch:
             return None
         return units.temperature_to_celsius(raw_temperature), units.current_from_raw(raw_current).magnitude
 
-    def check(self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry) -> None:
-        crossed = self._crossings(joint, seen.temperature_c, seen.current)
+    def check(
+        self, robot: WatchedRobot, joint: JointSpec, seen: JointTelemetry, confirmed: set[str] | None = None
+    ) -> None:
+        """Trip on ``seen``'s first crossing (of those whose reason is in ``confirmed``, if given), or clear the
+        joint's trip when it crosses nothing."""
+        crossed = [
+            stop
+            for stop in self._crossings(joint, seen.temperature_c, seen.current)
+            if confirmed is None or stop.reason in confirmed
+        ]
         if crossed:
             robot.trip(crossed[0])
         else:
