@@ -120,12 +120,12 @@ class Settings:
     def url(self) -> str:
         """The port to open.  An unnamed sim:// line gets a name, so that every reopening
         within this command (scan at each baud, a read-back) finds the same simulated servos."""
-        if not self.is_sim:
-            return self.port
-        from ..sim.url import line_name, named_url
+        from ..transports.wire_device import opens_anew
 
-        if line_name(self.port) is not None:
+        if not opens_anew(self.port):
             return self.port
+        from ..sim.url import named_url
+
         if self._sim_name is None:
             self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
             self._sim_names.append(self._sim_name)

@@ -2,7 +2,7 @@
 
 :func:`open_url` is what the core calls for a ``sim://`` port;
 :func:`parse_url` splits a URL into a line name and :class:`VirtualLine`
-options (:func:`line_name` reads the name alone, :func:`named_url` gives one);
+options (:func:`named_url` gives an unnamed one a name);
 :func:`parse_seconds` reads the durations both the URL and the pty server's
 command line take.
 """
@@ -65,12 +65,6 @@ def url_options(url: str) -> str:
     """A ``sim://`` URL's options in one form (keys in order): the same options compare equal in whatever
     order they were written.  (Values are compared as written: ``ids=1-3`` is not ``ids=1,2,3``.)"""
     return "&".join(sorted(part for part in urlsplit(url).query.split("&") if part))
-
-
-def line_name(url: str) -> str | None:
-    """The name of the simulated line a ``sim://`` URL names (``sim://arm?ids=1-6``: ``"arm"``), between the
-    slashes; None for an unnamed one (``sim://``, ``sim:///?ids=5``), which opens a line of its own each time."""
-    return url_name(url)
 
 
 def named_url(url: str, name: str) -> str:
@@ -149,7 +143,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     parts = urlsplit(url)
     if parts.scheme != "sim":
         raise InvalidArgument(f"not a sim:// URL: {url!r}")
-    name = line_name(url)
+    name = url_name(url)  # (None: an unnamed line, one of its own at each opening)
     query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
     options: dict[str, Any] = {}
     for key, values in query.items():

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from ..eeprom import FACTORY_BAUD
 from ..protocol import ADAPTER_LATENCY
-from ..transports.wire_device import url_scheme
+from ..transports.wire_device import opens_anew, url_scheme
 
 
 @dataclass(frozen=True)
@@ -31,11 +31,9 @@ class LineConfig:
     def url(self) -> str:
         """An unnamed ``sim://`` gets a name, so every reopening (scan at each rate) finds the same servos;
         one of its own for each set of options (``sim://?ids=5`` is not the ``sim://`` opened before it)."""
-        if not self.is_sim:
+        if not opens_anew(self.port):
             return self.port
-        from ..sim.url import line_name, named_url, url_options  # (the simulator loads only for a sim:// line)
+        from ..sim.url import named_url, url_options  # (the simulator loads only for a sim:// line)
 
-        if line_name(self.port) is not None:
-            return self.port
         digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
         return named_url(self.port, f"ics35-web-{os.getpid()}-{digest}")
