@@ -556,6 +556,14 @@ def test_the_watch_goes_on_reading_a_line_that_comes_back_after_its_port_was_los
     assert rig.servo("knee").free  # action "free"
 
 
+def run_standing(rig: Rig, main: Callable[[], Awaitable[Robot]]) -> Robot:
+    """The robot ``main`` opened on ``rig`` (standing at its start pose), the rig closed after it."""
+    try:
+        return anyio.run(main)
+    finally:
+        rig.close()
+
+
 def test_a_garbled_telemetry_reply_does_not_trip_the_watch() -> None:
     # ICS replies carry no checksum: a reply byte garbled on the wire reads as another value (a servo at 25 C as
     # over 100 C, a current of 50 at rest), and the watch tripped on that one reading, freeing joints of a robot
@@ -568,10 +576,7 @@ def test_a_garbled_telemetry_reply_does_not_trip_the_watch() -> None:
                 await frames_until(robot, lambda: min(robot.watch.rounds.values()) >= 100)
                 return robot
 
-    try:
-        robot = anyio.run(main)
-    finally:
-        rig.close()
+    robot = run_standing(rig, main)
     assert robot.trips == []
     for line in ("upper", "lower"):
         assert [t for t in rig.sim(line).log if t.command == "free"] == []
@@ -613,9 +618,6 @@ def test_two_garbled_telemetry_replies_crossing_different_limits_do_not_trip_the
                 await frames_until(robot, lambda: robot.watch.rounds["upper"] >= rounds + 2)
                 return robot
 
-    try:
-        robot = anyio.run(main)
-    finally:
-        rig.close()
+    robot = run_standing(rig, main)
     assert robot.trips == []
     assert not neck.free
