@@ -221,7 +221,7 @@ async def play_motion(
     while owned:
         # A joint never read starts at its first angle in the motion (nothing to interpolate from).
         start = {j: first.get(j, _first_angle(motion, j)) for j in owned}
-        start.update(robot.start_pose(owned))
+        start.update(await robot.start_pose(owned))
         keyframes: Sequence[tuple[float, Mapping[str, float], str]] = [
             (f.time / rate, {j: a for j, a in f.pose.items() if j in owned}, f.profile or motion.profile)
             for f in motion.keyframes

@@ -47,8 +47,12 @@ LIMIT_SLACK = 2.0
 # A reply has no checksum: a byte garbled on the wire reads as another position (100 degrees away), and holding
 # or moving a free joint from that one reading throws its servo there at full speed.  A reading is taken as where
 # a joint is only when it agrees with the reading before it: within what no servo turns in the time between the
-# two (under power or by hand), in degrees per second, plus a slack in degrees for the counts' rounding.
+# two (under power or by hand), in degrees per second, but never more than TURN_STEP degrees (on a slow line, or
+# beside a busy host, readings 40 ms apart would let a garble of 40 degrees through), plus a slack in degrees for
+# the counts' rounding.  A joint turning faster than that (a limb falling free) is not taken anywhere until its
+# readings settle: hold() leaves it free rather than hold it where it was read before.
 TURN_SPEED = 1000.0
+TURN_STEP = 8.0
 TURN_SLACK = 1.0
 
 
@@ -82,6 +86,7 @@ class Robot:
         self._positions: dict[str, float] = {}
         self._last_read: dict[str, tuple[float, float]] = {}  # each joint's newest reading and its stamp (_agreed)
         self._agreed_stamps: dict[str, float] = {}  # the stamp of each joint's newest reading taken (_agreed)
+        self._unsettled: set[str] = set()  # joints whose newest reading did not agree with the one before (_agreed)
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
@@ -401,7 +406,8 @@ class Robot:
         one a motion drives at the target last sent (its servo is on its way there: where it was last read lags
         it), the others where they were last read.  Left out, as they are, and returned with why
         (``{joint: why}``): a held joint (see :attr:`held`: where it is is unknown), one whose position was not
-        read yet, and a free one standing more than :data:`LIMIT_SLACK` degrees past a limit (turned there by
+        read yet, one whose newest reading did not agree with the one before (see :data:`TURN_SPEED`), and a free
+        one standing more than :data:`LIMIT_SLACK` degrees past a limit (turned there by
         hand: holding it would throw it to the limit at full speed; bring it within its limits first).
 
         Raises:
@@ -431,6 +437,11 @@ class Robot:
             (n, "its position is not read yet")
             for n in names
             if n not in self._positions and n not in driven and n not in left
+        )
+        left.update(
+            (n, "its last two readings disagree (turning fast, or a garbled reply): hold it again once it settles")
+            for n in names
+            if n in self._unsettled and n not in driven and n not in left
         )
         left.update((n, why) for n, why in self._past_limits(names).items() if n not in left)
         self._apply(
@@ -522,8 +533,9 @@ class Robot:
         self.check_ready(goal)
         if goal:
             # A joint whose position was never read starts at its goal: nothing to interpolate from.
-            start = {**goal, **self.start_pose(goal)}
-            await self.run(Trajectory([Segment(0.0, seconds, start, goal, shape)]))
+            stops = self._stops  # (a stop() while start_pose waits for a joint to settle ends this motion too)
+            start = {**goal, **await self.start_pose(goal)}
+            await self.run(Trajectory([Segment(0.0, seconds, start, goal, shape)]), unless_stopped_since=stops)
 
     async def play(
         self, motion: Motion | str | Path | Mapping[str, Any], *, speed: float = 1.0, loop: bool = False
@@ -594,8 +606,15 @@ class Robot:
             "wiring, IDs and the lines' baud rates): a motion would drive them blind"
         )
 
-    def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
-        """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits)."""
+    async def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
+        """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits).  A free
+        joint whose newest reading did not agree with the one before (turned fast, or a garbled reply: see
+        :data:`TURN_SPEED`) is waited for until one does: started where it was read before, its first target
+        would throw it back there."""
+        joints = list(joints)
+        unsettled = [n for n in joints if n in self._unsettled and self._targets[n] is None]
+        if unsettled:
+            await self.fresh_replies(unsettled, 1, agreed=True)
         start = {}
         for name in joints:
             target = self._targets[name]
@@ -866,9 +885,13 @@ class Robot:
                 continue
             self._last_read[name] = (degrees, stamp)
             # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
-            if before is None or abs(degrees - before[0]) <= TURN_SPEED * abs(stamp - before[1]) + TURN_SLACK:
+            step = min(TURN_SPEED * abs(stamp - before[1]), TURN_STEP) if before is not None else 0.0
+            if before is None or abs(degrees - before[0]) <= step + TURN_SLACK:
                 agreed[name] = degrees
                 self._agreed_stamps[name] = stamp
+                self._unsettled.discard(name)
+            else:
+                self._unsettled.add(name)
         return agreed
 
     async def watch_lines(self) -> None:
