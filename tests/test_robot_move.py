@@ -962,46 +962,23 @@ def run_on_garbled_lines(main: Callable[[], Awaitable[None]], *lines: VirtualLin
             line.close()
 
 
-def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held() -> None:
+@pytest.mark.parametrize(("rate_hz", "rounds", "seed"), [(None, 60, 1), (25, 30, 3)], ids=["back-to-back", "25-hz"])
+def test_a_garbled_position_reply_does_not_throw_a_free_joint_when_it_is_held(
+    rate_hz: float | None, rounds: int, seed: int
+) -> None:
     # ICS replies carry no checksum: a byte garbled on the wire reads as another position, 100 degrees from where
     # the servo stands, and hold() (a motion from a free joint alike) took that one reading as where to hold it:
     # the servo was thrown there at full speed.  The free servos here stand still, so each hold must be where it
     # is, but for a garble of a few degrees, which no check can tell from a servo turned by hand within a cycle.
-    line = VirtualLine([1, 2, 3, 4], name="garbled-holds", faults="corrupt:0.05", seed=1, log_size=None)
+    # On a slow line (25 Hz, or a busy host) two readings 40 ms apart were taken as agreeing within 40 degrees
+    # (what a servo turns at the agreement's 1000 degrees a second): a garble of 35 degrees passed; no reading
+    # agrees past a step of a few degrees, and a joint whose newest reading did not agree is left free by hold().
+    name = f"garbled-holds-{seed}"
+    line = VirtualLine([1, 2, 3, 4], name=name, faults="corrupt:0.05", seed=seed, log_size=None)
+    main_line: dict[str, Any] = {"port": f"sim://{name}"} | ({} if rate_hz is None else {"rate_hz": rate_hz})
     description = {
-        "lines": {"main": {"port": "sim://garbled-holds"}},
+        "lines": {"main": main_line},
         "joints": {f"j{i}": {"line": "main", "id": i} for i in range(1, 5)},  # the servo's whole range
-    }
-    jumps: list[tuple[int, float, float]] = []
-
-    async def main() -> None:
-        with anyio.fail_after(2 * GUARD):
-            async with open_robot(description, **FAST) as robot:  # ICS 3.5: every joint starts free
-                for _ in range(60):
-                    await robot.wait_frame(robot.latest.cycle + 2 if robot.latest else 0)
-                    where = {s.servo_id: units.position_to_degrees(s.position) for s in line.servos}
-                    since = line.transactions
-                    robot.hold()
-                    await robot.on_wire()
-                    for servo_id, at in where.items():
-                        sent = targets_sent(line, servo_id, since)
-                        if sent and abs(units.position_to_degrees(sent[0]) - at) > NOT_A_GARBLE:
-                            jumps.append((servo_id, at, units.position_to_degrees(sent[0])))
-                    await robot.free()
-
-    run_on_garbled_lines(main, line)
-    assert jumps == []
-
-
-def test_a_garbled_position_reply_on_a_slow_line_does_not_throw_a_free_joint_when_it_is_held() -> None:
-    # Two readings 40 ms apart (a line paced at 25 Hz, or a busy host) were taken as agreeing within 40 degrees (what
-    # a servo turns at the agreement's 1000 degrees a second): a garble of 35 degrees passed, and a hold threw the
-    # servo there.  No reading agrees past a step no garble-free pair on any line makes in one cycle, and a joint
-    # whose newest reading did not agree is left free by hold(), not held where it was read before.
-    line = VirtualLine([1, 2, 3, 4], name="garbled-slow-holds", faults="corrupt:0.05", seed=3, log_size=None)
-    description = {
-        "lines": {"main": {"port": "sim://garbled-slow-holds", "rate_hz": 25}},
-        "joints": {f"j{i}": {"line": "main", "id": i} for i in range(1, 5)},
     }
     jumps: list[tuple[int, float, float]] = []
     left: list[int] = []  # each round's count of joints hold() left free
@@ -1009,7 +986,7 @@ def test_a_garbled_position_reply_on_a_slow_line_does_not_throw_a_free_joint_whe
     async def main() -> None:
         with anyio.fail_after(2 * GUARD):
             async with open_robot(description, **FAST) as robot:  # ICS 3.5: every joint starts free
-                for _ in range(30):
+                for _ in range(rounds):
                     await robot.wait_frame(robot.latest.cycle + 2 if robot.latest else 0)
                     where = {s.servo_id: units.position_to_degrees(s.position) for s in line.servos}
                     since = line.transactions
