@@ -841,11 +841,19 @@ def explained(p: Page, server: RobotServer) -> Iterator[None]:
         ) from exc
 
 
+@contextlib.contextmanager
+def robot_server_page(browser: Browser, server: RobotServer, **context: Any) -> Iterator[Page]:
+    """A new page on the robot server's configurator, its failures explained (see :func:`explained`)."""
+    ctx = browser.new_context(**context)
+    p = ctx.new_page()
+    with explained(p, server):
+        p.goto(server.url)
+        yield p
+    ctx.close()
+
+
 def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot_server: RobotServer) -> None:
-    context = browser.new_context(viewport={"width": 1280, "height": 1000})
-    p = context.new_page()
-    with explained(p, robot_server):
-        p.goto(robot_server.url)
+    with robot_server_page(browser, robot_server, viewport={"width": 1280, "height": 1000}) as p:
         p.click("#robot-link")
         expect(p.locator("#robot-table tbody tr")).to_have_count(17)
         elbow = p.locator("tr[data-joint='right_elbow']")
@@ -862,7 +870,6 @@ def test_the_robot_page_moves_a_joint_and_plays_a_motion(browser: Browser, robot
         shot(p, "robot")
         expect(p.locator("#robot-state")).to_contain_text("wave: done", timeout=30_000)
         expect(p.locator("#robot-state")).to_contain_text("all within limits")
-    context.close()
 
 
 def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
@@ -870,10 +877,7 @@ def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
 ) -> None:
     # The robot's state comes pushed several times a second, saying motion is off until the server
     # has taken the tick: the box must not flip back meanwhile (a user would see it untick itself).
-    context = browser.new_context()
-    p = context.new_page()
-    with explained(p, robot_server):
-        p.goto(robot_server.url)
+    with robot_server_page(browser, robot_server) as p:
         p.click("#robot-link")
         box = p.locator("#robot-motion")
         # The first pushed state sets the box: before it, a test before this one that left motion on
@@ -898,7 +902,6 @@ def test_ticking_enable_motion_stays_ticked_while_the_server_has_not_answered(
         p.unroute("**/api/robot/motion")
         p.uncheck("#robot-motion")  # as the other robot tests expect to find it
         expect(elbow).to_be_disabled()
-    context.close()
 
 
 def test_the_robots_motion_goes_off_with_the_page_that_switched_it_on_and_the_other_tabs_follow(
@@ -945,10 +948,7 @@ def test_the_robots_motion_goes_off_with_the_page_that_switched_it_on_and_the_ot
 def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_the_robot_page(
     browser: Browser, robot_server: RobotServer
 ) -> None:
-    context = browser.new_context(viewport={"width": 1280, "height": 1000})
-    p = context.new_page()
-    with explained(p, robot_server):
-        p.goto(robot_server.url)
+    with robot_server_page(browser, robot_server, viewport={"width": 1280, "height": 1000}) as p:
         expect(p.locator("#line-status")).to_contain_text("the robot's line upper")  # no --port: the robot's line
         pages = ("line", "servo", "id", "many", "live", "traffic", "robot")
         for here in pages:
@@ -979,16 +979,12 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
         p.click("#robot-line-links button[data-line='legs']")
         expect(p.locator("#page-line")).to_be_visible()
         scan_lists(p, 10)
-    context.close()
 
 
 def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
     browser: Browser, robot_server: RobotServer
 ) -> None:
-    context = browser.new_context(viewport={"width": 1280, "height": 1000})
-    p = context.new_page()
-    with explained(p, robot_server):
-        p.goto(robot_server.url)
+    with robot_server_page(browser, robot_server, viewport={"width": 1280, "height": 1000}) as p:
         p.click("#robot-link")
         expect(p.locator("#robot-table tbody tr")).to_have_count(17)
         p.check("#robot-motion")
@@ -1001,4 +997,3 @@ def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(
         p.wait_for_timeout(500)
         expect(yaw.locator(".target")).to_have_text(target or "")
         p.uncheck("#robot-motion")
-    context.close()
