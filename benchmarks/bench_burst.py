@@ -19,6 +19,8 @@ Rows, every one alternated with its baseline in each run, medians of the ratios:
   temperature, 10 times a second each): their p99 wait in position-transaction times and their
   latency, on the burst path as it runs (no burst starts while requests come), with bursts
   beside the requests (what that pause avoids), on the ordinary path, and on uvloop (the goal: at most 1.5);
+  and the same polls served by a bare loop between its own 32 position transactions (``bench_sharing.bare_floor``:
+  what the pty and the host leave any client, in that loop's own T);
 * sequential awaited ``set_position`` against raw pyserial, and the batched forms (``gather`` of
   one cycle's 32 commands; a stream) that replace it.
 
@@ -45,6 +47,7 @@ from bench_common import IDS, NEUTRAL, burst_setting, median, progress, run_on
 from bench_cpu import BUS_OPTIONS, sequential, stream
 from bench_lines import group_stream
 from bench_overhead import lean_loop, raw_loop
+from bench_sharing import bare_floor
 from bench_sharing import measure as telemetry_beside_stream
 from lean_responder import lean_lines
 
@@ -260,17 +263,21 @@ def run(runs: int = 3, duration: float = 1.0) -> dict[str, Any]:
             note("thread progress beside trio burst", beside_trio_burst["spins_per_s"] / base, beside_trio_burst)
             note("thread progress beside trio ordinary", beside_trio_plain["spins_per_s"] / base, beside_trio_plain)
             # The burst path as it runs (no burst starts while requests come), with bursts beside the
-            # requests (what that pause avoids), the ordinary path, and the first on uvloop (its own order of
-            # timers and I/O in a pass); a different one first each run.
+            # requests (what that pause avoids), the ordinary path, the first on uvloop (its own order of
+            # timers and I/O in a pass), and the floor; a different one first each run.
             variants = [
                 ("burst", "1", False, "asyncio"),
                 ("burst beside requests", "1", True, "asyncio"),
                 ("ordinary", "0", False, "asyncio"),
                 ("burst uvloop", "1", False, "uvloop"),
+                ("floor", "", False, ""),  # the same polls served by a bare loop
             ]
-            for name, setting, beside, loop in variants[r % 4 :] + variants[: r % 4]:
-                with burst_setting(setting, beside_requests=beside):
-                    tele = telemetry_beside_stream(paths[0], loop, BAUD, alone=duration, shared=1.5 * duration)
+            for name, setting, beside, loop in variants[r % 5 :] + variants[: r % 5]:
+                if name == "floor":
+                    tele = bare_floor(paths[0], BAUD, alone=duration, shared=1.5 * duration)
+                else:
+                    with burst_setting(setting, beside_requests=beside):
+                        tele = telemetry_beside_stream(paths[0], loop, BAUD, alone=duration, shared=1.5 * duration)
                 note(f"telemetry wait_p99_tx {name}", tele["wait_p99_tx"], tele)
     return {
         "path": on_path(True, lambda: {"path": burst_path()[1]})["path"],
@@ -358,6 +365,7 @@ def print_table(r: dict[str, Any]) -> None:
         "burst beside requests": "burst path, bursts beside requests",
         "ordinary": "ordinary path",
         "burst uvloop": "burst path, on uvloop",
+        "floor": "bare os.write/poll/os.read loop (the floor)",
     }
     for name, label in labels.items():
         figs = r["figures"][f"telemetry wait_p99_tx {name}"]

@@ -21,6 +21,14 @@ scheduling hiccups, which a poll waits through too.
 A flat-out variant (every poller loops without sleeping) shows the bus's
 fairness limit (``Bus.max_requests_between``) instead of typical use.
 
+The floor, ``bare_floor``: a bare ``os.write``/``poll``/``os.read`` loop
+that streams the same 32 position transactions and serves the same polls
+(each due at its poller's time, sent at the next transaction boundary,
+current then temperature) with no checks, no event loop and no engine.  Its
+figures, in its own T, are what the pty and the host leave to any client:
+a poll's wait can be no shorter than the transaction in flight as it comes,
+and the host's stalls fall on polls and transactions alike.
+
     .venv/bin/python benchmarks/bench_sharing.py [--runs 3]
 """
 
@@ -29,14 +37,19 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import heapq
 import json
+import os
+import select
 import time
 from typing import Any
 
+import serial
 from bench_common import (
     IDS,
     NEUTRAL,
     POSITION_BYTES,
+    POSITION_TXS,
     PTY_BUS_OPTIONS,
     READ_PARAM_BYTES,
     loop_names,
@@ -133,22 +146,14 @@ def measure(
         in_window = [(a, b) for a, b in polls if first[1] <= b <= last[1]]
         t_pos = 1 / (r0 * len(IDS))
         t_read = t_pos + protocol.wire_time(READ_PARAM_BYTES - POSITION_BYTES, baud)
-        latency = [(b - a) / t_pos for a, b in in_window]
-        wait = [max(0.0, (b - a - t_read) / t_pos) for a, b in in_window]
         elapsed = last[1] - first[1]
         used = len(in_window) * t_read / elapsed
         loss = 1 - r1 / r0
         return {
-            # host stalls seen by the stream alone: p99 minus p50 of the time between frames, in T
-            "stall_p99_tx": (percentile(gaps, 99) - percentile(gaps, 50)) / t_pos,
+            **_figures(in_window, gaps, t_pos, baud),
             "rate_alone_cycles_per_s": r0,
             "rate_shared_cycles_per_s": r1,
-            "position_tx_us": t_pos * 1e6,
             "polls_per_s": len(in_window) / elapsed,
-            "latency_p50_tx": percentile(latency, 50),
-            "latency_p99_tx": percentile(latency, 99),
-            "wait_p50_tx": percentile(wait, 50),
-            "wait_p99_tx": percentile(wait, 99),
             "line_share_used_by_polls": used,
             "stream_rate_loss": loss,
             "loss_per_line_time_used": loss / used if used else float("nan"),
@@ -158,6 +163,79 @@ def measure(
         }
 
     return run_on(loop, main)
+
+
+def _figures(polls: list[tuple[float, float]], gaps: list[float], t_pos: float, baud: int) -> Figures:
+    """A measure's figures from its polls' (call, result) times and the stream alone's gaps, in units of T."""
+    t_read = t_pos + protocol.wire_time(READ_PARAM_BYTES - POSITION_BYTES, baud)
+    latency = [(b - a) / t_pos for a, b in polls]
+    wait = [max(0.0, (b - a - t_read) / t_pos) for a, b in polls]
+    return {
+        # host stalls seen by the stream alone: p99 minus p50 of the time between frames, in T
+        "stall_p99_tx": (percentile(gaps, 99) - percentile(gaps, 50)) / t_pos,
+        "position_tx_us": t_pos * 1e6,
+        "latency_p50_tx": percentile(latency, 50),
+        "latency_p99_tx": percentile(latency, 99),
+        "wait_p50_tx": percentile(wait, 50),
+        "wait_p99_tx": percentile(wait, 99),
+    }
+
+
+def bare_floor(path: str, baud: int, *, alone: float, shared: float) -> Figures:
+    """The polls' wait with nothing of ours around: see the module's docstring.  Figures as :func:`measure`'s
+    (those that concern its engine or its stream's rate left out)."""
+    reads = [
+        tuple(bytes((0xA0 | servo, param)) for param in (protocol.Param.CURRENT, protocol.Param.TEMPERATURE))
+        for servo in range(0, 2 * POLLERS, 2)
+    ]
+    ser = serial.Serial(path, baud, parity=serial.PARITY_NONE, timeout=1)
+    fd = ser.fileno()
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    write, read, poll, clock = os.write, os.read, poller.poll, time.perf_counter
+
+    def transaction(tx: bytes, expect: int) -> float:
+        write(fd, tx)
+        got = 0
+        while got < expect:
+            if not poll(1000):
+                raise RuntimeError(f"the responder did not answer {tx.hex(' ')} within 1 s")
+            got += len(read(fd, 64))
+        return clock()
+
+    try:
+        for tx in POSITION_TXS:  # warm-up
+            transaction(tx, 6)
+        t0 = last = clock()
+        cycles = 0
+        gaps: list[float] = []
+        while last - t0 < alone:
+            for tx in POSITION_TXS:
+                transaction(tx, 6)
+            now = clock()
+            gaps.append(now - last)
+            last = now
+            cycles += 1
+        t_pos = (last - t0) / (cycles * len(IDS))
+        period = 1 / POLL_HZ
+        start = clock() + 2 * period / POLLERS
+        due = [(start + k * period / POLLERS, k) for k in range(POLLERS)]  # the pollers' next turns
+        polls: list[tuple[float, float]] = []
+        end = clock() + shared
+        while clock() < end:
+            for tx in POSITION_TXS:
+                transaction(tx, 6)
+                while due[0][0] <= clock():
+                    when, k = heapq.heappop(due)
+                    call = when
+                    for read_tx in reads[k]:
+                        done = transaction(read_tx, 5)
+                        polls.append((call, done))
+                        call = done
+                    heapq.heappush(due, (when + period, k))
+    finally:
+        ser.close()
+    return {**_figures(polls, gaps, t_pos, baud), "polls_per_s": len(polls) / shared}
 
 
 def run(runs: int = 3, alone: float = 1.5, shared: float = 2.5, bauds: tuple[int, ...] = BAUDS) -> dict[str, Any]:

@@ -18,3 +18,16 @@ def test_the_engine_alone_runs_the_stream_as_the_bus_attaches_it() -> None:
         warnings.simplefilter("error")
         figures = bench_floors.engine_alone(transactions=2_000)
     assert figures["transactions"] == 2_000
+
+
+def test_the_telemetry_floor_serves_the_pollers_reads_between_its_transactions() -> None:
+    # The lean responder drops what it does not know byte by byte: a read the floor framed wrong would go
+    # unanswered (the floor raises after 1 s) rather than be counted as a poll.
+    import bench_sharing
+    from lean_responder import lean_lines
+
+    with lean_lines(1, baud=1250000, wire=True) as (path,):
+        figures = bench_sharing.bare_floor(path, 1250000, alone=0.2, shared=0.5)
+    assert figures["polls_per_s"] > 0
+    assert 0 <= figures["wait_p50_tx"] <= figures["wait_p99_tx"]
+    assert figures["latency_p50_tx"] > 0
