@@ -16,6 +16,7 @@ from ics35_async.errors import InvalidArgument, PortBusy
 from ics35_async.protocol import Position, ReadParam
 from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
 from ics35_async.sim import url as sim_url
+from ics35_async.sim.virtual_servo import NOISY_JUMP
 from ics35_async.transports import DevicePort, WireDevice, open_port
 
 
@@ -52,6 +53,21 @@ def test_full_query() -> None:
     bus.close()
 
 
+async def test_a_noisy_servos_readings_jump_either_side_of_where_it_is_and_never_agree() -> None:
+    # A broken potentiometer: what a robot must not take as where the joint is, nor wait on for ever.
+    try:
+        async with open_bus("sim://noisy-url?ids=1-2&noisy=2", adapter_latency=0.003) as bus:
+            line = named("noisy-url")
+            assert line.servo(2).noisy and not line.servo(1).noisy
+            clean = [await bus.servo(1).free() for _ in range(4)]
+            noisy = [await bus.servo(2).free() for _ in range(4)]
+        at = line.servo(2).position
+        assert clean == [line.servo(1).position] * 4
+        assert sorted(set(noisy)) == [at - NOISY_JUMP, at + NOISY_JUMP] and noisy[0] != noisy[1], noisy
+    finally:
+        line.close()
+
+
 @pytest.mark.parametrize(
     "url",
     [
@@ -64,6 +80,7 @@ def test_full_query() -> None:
         "sim://?turnaround=-1",
         "sim://?colour=red",
         "sim://?ids=1&ids=2",
+        "sim://?noisy=40",
     ],
 )
 def test_bad_urls(url: str) -> None:

@@ -33,7 +33,8 @@ factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
 ``drop:0.01,late@3:0.1,tail:0.05``, see :mod:`.faults`), ``turnaround``,
 ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
 ``replug_after`` (seconds, or with ``us``/``ms``/``s``), ``tail_bytes``
-(what the held-tail fault holds back), ``memory`` (IDs of generic devices),
+(what the held-tail fault holds back), ``ics36`` (IDs of servos that speak ICS 3.6),
+``noisy`` (IDs of servos whose position readings jump at each reply), ``memory`` (IDs of generic devices),
 ``log`` (log size, ``all``), ``record`` (file), ``replay`` (file: serve a
 recording), ``adapter=ftdi`` with ``latency_timer`` (ms): a USB adapter
 model between line and host (:mod:`.adapter`; implies real time).  With a

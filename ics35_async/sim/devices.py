@@ -25,16 +25,18 @@ def build_devices(
     memory: MemorySpec | None,
     baudrate: int,
     ics36: Iterable[int] = (),
+    noisy: Iterable[int] = (),
 ) -> list[VirtualDevice]:
     """Servos (objects, or IDs for factory servos at ``baudrate``; ``None``: IDs 0..31) and memory devices.
 
-    Servos built from an ID in ``ics36`` speak ICS 3.6 (they answer the position read).
+    Servos built from an ID in ``ics36`` speak ICS 3.6 (they answer the position read); those from an ID in
+    ``noisy`` report positions that jump at each reply (see :class:`VirtualServo`).
     """
-    newer = frozenset(ics36)
+    newer, jumping = frozenset(ics36), frozenset(noisy)
     built: list[VirtualDevice] = []
     for item in range(32) if servos is None else servos:
         if not isinstance(item, VirtualServo):
-            item = VirtualServo(item, baud_rate=baudrate, ics36=item in newer)
+            item = VirtualServo(item, baud_rate=baudrate, ics36=item in newer, noisy=item in jumping)
         built.append(item)
     if isinstance(memory, Mapping):
         for device_id, content in memory.items():

@@ -102,6 +102,9 @@ class LineModelOptions(TypedDict, total=False):
     ``ics35_async.sim.adapter``)."""
     ics36: Iterable[int]
     """The IDs of servos built from IDs that speak ICS 3.6 (default none: all ICS 3.5)."""
+    noisy: Iterable[int]
+    """The IDs of servos built from IDs whose reported position jumps at each reply, no two readings in a row
+    agreeing (a broken potentiometer; default none)."""
 
 
 class LineModel:
@@ -137,7 +140,7 @@ class LineModel:
         if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
             raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
         memory, ics36 = options.get("memory"), options.get("ics36", ())
-        self.table = DeviceTable(build_devices(servos, memory, line_baud, ics36))
+        self.table = DeviceTable(build_devices(servos, memory, line_baud, ics36, options.get("noisy", ())))
         self.baudrate: int = int(line_baud)
         self.realtime = options.get("realtime", False)
         self.echo = options.get("echo", True)

@@ -130,7 +130,10 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
     ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
     ``ics36`` (IDs of servos that speak ICS 3.6 and answer its position
-    read; the others are ICS 3.5), ``memory`` (IDs of zero-filled generic memory devices), ``log`` (log
+    read; the others are ICS 3.5), ``noisy`` (IDs of servos whose reported
+    position jumps about 30 degrees either side of where they are at each
+    reply: a broken potentiometer), ``memory`` (IDs of zero-filled generic
+    memory devices), ``log`` (log
     size, ``all`` for unbounded), ``record`` (file to record to), ``replay``
     (a recording to serve instead of a simulated line), ``adapter`` (``ftdi``:
     the USB adapter model of :mod:`.adapter`; it implies ``realtime=1``, since
@@ -170,11 +173,11 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             options[key] = _int(key, value)
         elif key in ("late_delay", "tail_delay", "unplug_after", "replug_after"):
             options[key] = parse_seconds(value, key)
-        elif key == "ics36":
+        elif key in ("ics36", "noisy"):
             try:
-                options["ics36"] = parse_ids(value)
+                options[key] = parse_ids(value)
             except (InvalidArgument, ValueError) as exc:
-                raise InvalidArgument(f"sim URL: ics36={value!r}: {exc}") from None
+                raise InvalidArgument(f"sim URL: {key}={value!r}: {exc}") from None
         elif key == "memory":
             options["memory"] = {i: b"" for i in parse_ids(value)}
         elif key == "log":

@@ -25,6 +25,10 @@ Model of a servo, in brief (all of it deliberately simple and deterministic):
 * **ICS 3.6.**  With ``ics36`` the servo also answers the position read
   (:class:`~ics35_async.protocol.ReadPosition`) with where it is, torque
   and target unchanged; an ICS 3.5 servo (the default) stays silent to it.
+* **Noisy readings.**  With ``noisy`` (a broken potentiometer, a noisy wiper)
+  every position it reports is :data:`NOISY_JUMP` counts off where it is,
+  alternately above and below, so no two readings in a row agree; it moves
+  as any servo does.
 * **Free.**  Position 0 turns the torque off: the servo stays where it is and
   :meth:`VirtualServo.move_by_hand` may turn it.  A servo powers up free.
 * **Current** (0..63, bit 6 = direction): about 1 when holding, more while
@@ -84,6 +88,8 @@ CALIBRATION_NIBBLES = len(PROTECTED_OFFSETS)
 HOLDING_CURRENT = 1
 MOVING_CURRENT = 8
 """Extra current while moving at full speed (scaled by speed / 127)."""
+NOISY_JUMP = 900
+"""Counts (about 30 degrees) a ``noisy`` servo's reported position is off where it is, alternately either side."""
 
 
 def factory_calibration(servo_id: int) -> bytes:
@@ -117,6 +123,7 @@ class VirtualServo:
     ``ignores``: names of commands it leaves unanswered (``{"read_eeprom"}``),
     as a device that half-answers does (another firmware, not a servo).
     ``ambient_celsius`` is the temperature it starts at and cools towards.
+    ``noisy``: every position it reports jumps :data:`NOISY_JUMP` counts either side of where it is.
 
     Raises:
         InvalidArgument: a bad ID, baud rate, position or image.
@@ -133,6 +140,7 @@ class VirtualServo:
         ambient_celsius: float = AMBIENT_CELSIUS,
         ignores: Iterable[str] = (),
         ics36: bool = False,
+        noisy: bool = False,
     ) -> None:
         self.ignores = frozenset(ignores)
         if eeprom is None:
@@ -147,6 +155,8 @@ class VirtualServo:
         self._position = float(check_int("position", position, 1, POSITION_MAX))
         self.load = load
         self.ics36 = bool(ics36)
+        self.noisy = bool(noisy)
+        self._jump = NOISY_JUMP  # (the next report's offset when noisy: its sign flips at each report)
         self.ambient_celsius = ambient_celsius
         self.temperature_celsius = ambient_celsius
         self._target: int | None = None
@@ -316,11 +326,11 @@ class VirtualServo:
         if command.name in self.ignores:
             return NO_REPLY
         if isinstance(command, Position):
-            reported = self.position
+            reported = self._reported()
             self.command_position(command.position)
             return reported
         if isinstance(command, ReadPosition):
-            return self.position if self.ics36 else NO_REPLY
+            return self._reported() if self.ics36 else NO_REPLY
         if isinstance(command, ReadParam):
             return self._read_param(command.param)
         if isinstance(command, WriteParam):
@@ -338,6 +348,13 @@ class VirtualServo:
             self._eeprom = self._eeprom.replace(servo_id=command.new_id)
             return command.new_id
         return NO_REPLY  # generic memory commands: a servo has no such memory
+
+    def _reported(self) -> int:
+        """The position a reply carries: where it is, or with ``noisy`` a jump either side of it."""
+        if not self.noisy:
+            return self.position
+        self._jump = -self._jump
+        return min(POSITION_MAX, max(1, self.position + self._jump))
 
     def _read_param(self, param: Param) -> int:
         if param == Param.STRETCH:
@@ -361,6 +378,7 @@ class VirtualServo:
     def __repr__(self) -> str:
         state = "free" if self._target is None else f"target={self._target}"
         version = " ICS 3.6" if self.ics36 else ""
+        version += " noisy" if self.noisy else ""
         return f"<VirtualServo id={self.servo_id}{version} pos={self.position} {state} baud={int(self.baud_rate)}>"
 
 
