@@ -311,6 +311,31 @@ def test_play_refused_as_it_starts_says_the_joints_it_freed_to_read_are_left_fre
     assert "joints left free (those it opened" in said, result.err
 
 
+@pytest.mark.parametrize("command", ["play", "teach", "calibrate"])
+def test_a_joint_whose_readings_never_agree_ends_the_command_in_one_line_not_a_hang(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, command: str
+) -> None:
+    # A servo with a broken potentiometer answers, but no reading agrees with the one before: play's start, teach's
+    # and calibrate's first read of the pose waited for one that does, and the command hung.
+    sims, robot_file = rig
+    sims.servo("elbow").noisy = True
+    if command == "play":
+        motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"elbow": 10, "neck": 5}})
+        result = cli("play", str(robot_file), str(motion))
+    elif command == "teach":
+        result = cli("teach", str(robot_file), str(tmp_path / "taught.json"), "--yes", stdin="\nq\n")
+    else:
+        result = cli("calibrate", str(robot_file), "--yes", stdin="\n\n")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = " ".join(result.err.split())
+    assert "joint elbow (line upper, ID 3) last read at" in said and "Traceback" not in said, result.err
+    assert "neck" not in said.split("last read at")[0], said  # (only the joint at fault is named)
+    assert all(
+        targets_sent(sims.sim(line), servo_id) == []
+        for line, servo_id in ((s["line"], s["id"]) for s in JOINTS.values())
+    )
+
+
 def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
     sims = make_rig(safety={"max_current": 20, "action": "free"})
     try:

@@ -23,8 +23,8 @@ from rich.console import Console
 from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
-from ics35_async.robot import MotionStopped, RobotWarning
-from ics35_async.sim import VirtualLine
+from ics35_async.robot import MotionStopped, RobotWarning, UnsettledReadings
+from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.robot_rig import (
     JOINTS,
     Rig,
@@ -1058,3 +1058,30 @@ def test_a_garbled_position_reply_seen_again_in_the_next_frame_is_still_left_out
 
     run_on_garbled_lines(main, line, clean)
     assert wrong == []
+
+
+def test_read_pose_and_a_motion_from_a_joint_whose_readings_never_agree_raise_instead_of_waiting_for_ever() -> None:
+    # A servo with a broken potentiometer answers every cycle, but no reading agrees with the one before: read_pose()
+    # and a motion starting from the free joint waited for one that does, and the program hung.  They give up once
+    # no turn explains the readings, naming the joint and its readings, and nothing is sent that moves a joint.
+    line = VirtualLine([VirtualServo(1), VirtualServo(2, noisy=True)], name="never-agrees", log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://never-agrees"}},
+        "joints": {"good": {"line": "main", "id": 1}, "broken": {"line": "main", "id": 2}},
+    }
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description, **FAST) as robot:  # ICS 3.5: both start free
+                with pytest.raises(UnsettledReadings, match="broken") as caught:
+                    await robot.read_pose()
+                assert "good" not in str(caught.value) and set(caught.value.readings) == {"broken"}
+                assert len(set(caught.value.readings["broken"])) > 1  # (its readings, as they came)
+                since = line.transactions
+                with pytest.raises(UnsettledReadings, match="broken"):
+                    await robot.move_to({"good": 20.0, "broken": 20.0}, duration=0.1)
+                await robot.on_wire()
+                assert targets_sent(line, 1, since) == targets_sent(line, 2, since) == []
+                assert robot.targets == {"good": None, "broken": None}
+
+    run_on_garbled_lines(main, line)

@@ -210,6 +210,25 @@ def test_a_joint_freed_for_over_current_stays_stopped_across_a_reconnect_until_r
         wait_for(lambda: not line.servo(2).free)
 
 
+def test_a_move_of_a_joint_whose_readings_never_agree_ends_in_one_line_on_the_page_and_moves_nothing(
+    tmp_path: Path,
+) -> None:
+    # A servo with a broken potentiometer: its readings never agree, and a move waited for one that does, for ever.
+    name = f"web-robot-{next(_names)}"
+    path = arm_file(tmp_path, name)
+    path.write_text(path.read_text().replace("?ids=1-2", "?ids=1-2&noisy=1"))
+    with robot_page(path, name, name) as client:
+        line = sim.named(name)
+        view = post(client, "/api/robot/motion", {"enabled": True}).json()
+        assert "shoulder left as it is" in view["outcome"], view["outcome"]
+        assert post(client, "/api/robot/move", {"pose": {"shoulder": 45}, "duration": 0.2}).status_code == 200
+        wait_for(lambda: client.get("/api/robot").json()["outcome"] is not None)
+        outcome = client.get("/api/robot").json()["outcome"]
+        assert outcome.startswith("move shoulder: joint shoulder (line arm, ID 1) last read at"), outcome
+        assert "\n" not in outcome and "Traceback" not in outcome
+        assert line.servo(1).free
+
+
 def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: Any) -> None:
     client, line = robot
     nod = [{"time": 0.3, "pose": {"shoulder": 20}}, {"time": 0.6, "pose": {"shoulder": 0}}]

@@ -29,7 +29,7 @@ from .joint_stream import RobotStream
 from .motion import Keyframe, Motion, MotionError, load_motion, parse_motion, save_motion
 from .profiles import PROFILES, Segment, Trajectory
 from .robot import Robot
-from .safety import JointTelemetry, MotionStopped, SafetyStop
+from .safety import JointTelemetry, MotionStopped, SafetyStop, UnsettledReadings
 from .startup import RobotBlock, RobotOptions, RobotWarning, check_servo_limits, open_robot
 
 __all__ = [
@@ -53,6 +53,7 @@ __all__ = [
     "SafetyStop",
     "Segment",
     "Trajectory",
+    "UnsettledReadings",
     "check_servo_limits",
     "load_description",
     "load_motion",

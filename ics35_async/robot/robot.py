@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
+from collections import deque
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,7 @@ from .joint_stream import RobotStream
 from .motion import Motion, play_motion
 from .plans import Plan, Replies
 from .profiles import Segment, Trajectory, check_profile, stopping
-from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch
+from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch, UnsettledReadings
 
 log = logging.getLogger("ics35_async.robot")
 CLOSED = "the robot is closed (its `async with open_robot(...)` block has ended)"
@@ -54,6 +56,14 @@ LIMIT_SLACK = 2.0
 TURN_SPEED = 1000.0
 TURN_STEP = 8.0
 TURN_SLACK = 1.0
+# Readings in a row that disagree with the one before, after which a wait for one that agrees (read_pose(), a
+# motion starting from a free joint) gives up with UnsettledReadings.  Readings disagree only while the joint turns
+# more than TURN_STEP degrees between two of them, and no joint turns farther one way than its servo's whole travel
+# (270 degrees: 34 such steps): past that, what the servo reports is not where it is (a broken potentiometer, a
+# noisy line), and the wait would never end.  Counted in readings, not seconds: a slow line or a stalled host
+# gives every joint as many chances to agree before it is given up.
+UNSETTLED_READINGS = math.ceil(2 * units.DEGREES_MAX / TURN_STEP) + 1
+SHOWN_READINGS = 3  # a joint's last readings an UnsettledReadings names
 
 
 class Robot:
@@ -86,7 +96,10 @@ class Robot:
         self._positions: dict[str, float] = {}
         self._last_read: dict[str, tuple[float, float]] = {}  # each joint's newest reading and its stamp (_agreed)
         self._agreed_stamps: dict[str, float] = {}  # the stamp of each joint's newest reading taken (_agreed)
-        self._unsettled: set[str] = set()  # joints whose newest reading did not agree with the one before (_agreed)
+        # Joints whose newest reading did not agree with the one before, and how many in a row did not (_agreed);
+        # each joint's last readings, for a message.
+        self._unsettled: dict[str, int] = {}
+        self._recent: dict[str, deque[float]] = {}
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
         # and since when (for messages): they answer nothing (see _give_up).
         self._held: dict[str, str] = {}
@@ -271,6 +284,11 @@ class Robot:
         A joint whose servo has not answered once since the robot opened has no angle to give: it is
         left out (``robot.latest.offline`` names it), so index the result only by joints you know answer;
         so is a joint held since its line came back after a lost port (``robot.latest.held``).
+
+        Raises:
+            UnsettledReadings: a joint's readings disagreed :data:`UNSETTLED_READINGS` times in a row (a broken
+                potentiometer, a noisy line): no reading of it would ever be taken.
+            BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         # The servo measures when the command reaches it: the reply after a reply is a command sent after now.
         # Only readings taken as where the joints are count (see TURN_SPEED): not a garbled one.
@@ -291,6 +309,36 @@ class Robot:
             if self._latest is not frame and self._latest is not None:
                 frame = self._latest
                 counter.add(self._agreed_stamps if agreed else frame.stamps)
+                if agreed:
+                    self._give_up_unsettled(counter, replies, frame.offline | self._held.keys() | self.lost)
+
+    def _give_up_unsettled(self, counter: Replies, replies: int, skipped: Iterable[str]) -> None:
+        """Raise UnsettledReadings naming the joints ``counter`` still waits for whose readings disagreed
+        UNSETTLED_READINGS times in a row, the newest since the wait began (a joint that rests after being
+        turned gets its chance to agree)."""
+        skip = set(skipped)
+        stuck = [
+            name
+            for name, count in counter.counts.items()
+            if count < replies
+            and name not in skip
+            and self._unsettled.get(name, 0) >= UNSETTLED_READINGS
+            and self._last_read[name][1] > counter.since
+        ]
+        if not stuck:
+            return
+        told = "; ".join(
+            f"joint {name} (line {self.joints[name].line}, ID {self.joints[name].id}) last read at "
+            f"{', '.join(f'{deg:.1f}' for deg in self._recent[name])} degrees"
+            for name in stuck
+        )
+        raise UnsettledReadings(
+            f"{told}: {UNSETTLED_READINGS} position readings in a row and more, each farther from the one before "
+            "than a joint turns between two, no two agreeing: not where the joint is (a broken potentiometer, a noisy "
+            "line or loose wiring); nothing was moved on them: check the servo and its cable, or free the joint and "
+            "leave it out",
+            readings={name: self._recent[name] for name in stuck},
+        )
 
     def stream(self) -> RobotStream:
         """Frames in joint space and targets by name; ``async with robot.stream() as s: async for frame in s``."""
@@ -524,6 +572,7 @@ class Robot:
 
         Raises:
             InvalidArgument: an unknown joint, an angle outside its limits, a bad duration or profile.
+            UnsettledReadings: a free joint's readings never agreed (see :meth:`start_pose`; nothing moved).
             SafetyStop: the safety watch stopped the motion (or a stop still stands for a joint).
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
@@ -610,7 +659,12 @@ class Robot:
         """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits).  A free
         joint whose newest reading did not agree with the one before (turned fast, or a garbled reply: see
         :data:`TURN_SPEED`) is waited for until one does: started where it was read before, its first target
-        would throw it back there."""
+        would throw it back there.
+
+        Raises:
+            UnsettledReadings: such a joint's readings disagreed :data:`UNSETTLED_READINGS` times in a row (nothing
+                was moved).
+        """
         joints = list(joints)
         unsettled = [n for n in joints if n in self._unsettled and self._targets[n] is None]
         if unsettled:
@@ -884,14 +938,15 @@ class Robot:
                 # the one before brings its readings once more.  A reading cannot agree with itself.
                 continue
             self._last_read[name] = (degrees, stamp)
+            self._recent.setdefault(name, deque(maxlen=SHOWN_READINGS)).append(degrees)
             # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
             step = min(TURN_SPEED * abs(stamp - before[1]), TURN_STEP) if before is not None else 0.0
             if before is None or abs(degrees - before[0]) <= step + TURN_SLACK:
                 agreed[name] = degrees
                 self._agreed_stamps[name] = stamp
-                self._unsettled.discard(name)
+                self._unsettled.pop(name, None)
             else:
-                self._unsettled.add(name)
+                self._unsettled[name] = self._unsettled.get(name, 0) + 1
         return agreed
 
     async def watch_lines(self) -> None:

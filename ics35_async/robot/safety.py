@@ -65,6 +65,16 @@ class MotionStopped(IcsError):
     elsewhere: the motion gave it up)."""
 
 
+class UnsettledReadings(IcsError):
+    """Joints whose position readings kept disagreeing with one another (a broken potentiometer, a noisy line):
+    a wait for a reading that agrees (``Robot.read_pose()``, a motion starting from a free joint) gave up, no
+    joint moved on them.  ``readings``: ``{joint: its last readings in degrees, oldest first}``."""
+
+    def __init__(self, message: str, *, readings: Mapping[str, Sequence[float]]) -> None:
+        self.readings = {name: tuple(values) for name, values in readings.items()}
+        super().__init__(message)
+
+
 @dataclass
 class JointTelemetry:
     """The newest temperature (approximate Celsius) and current (0..63) read from a joint's servo."""
