@@ -213,6 +213,11 @@ def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
             "keyframes[0]: joint neck: 99 degrees is outside its limits -60..60 (nothing was sent)",
         ),
         (lambda robot, motion: (robot, motion.write_text("{}")), 2, "format: must be 'ics35-motion'"),
+        (
+            lambda robot, motion: (robot, write_motion(motion, {"time": 1e308, "pose": {"neck": 10}})),
+            2,
+            "keyframes[0].time: 1e+308 must be at most 3600 seconds (an hour) from the start (nothing was sent)",
+        ),
         (lambda robot, motion: (robot.unlink(), motion), 2, "ROBOT.toml"),
     ],
 )

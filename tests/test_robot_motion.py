@@ -151,13 +151,22 @@ BAD: list[tuple[Any, str, str]] = [
     # A whole number too big for a float (JSON has no limit): refused as any other, not an OverflowError.
     (motion({"time": 10**400, "pose": {}}), "keyframes[0].time", "number of seconds"),
     (motion({"time": 1, "pose": {"neck": -(10**400)}}), "keyframes[0].pose.neck", "number of degrees"),
+    # A finite number, but no motion: one that far never ends while it looks as if it runs (its joints creep).
+    (motion({"time": 1e308, "pose": {}}), "keyframes[0].time", "at most 3600 seconds"),
+    (motion({"time": 1, "pose": {}}, {"time": 3600.5, "pose": {}}), "keyframes[1].time", "at most 3600 seconds"),
+    (motion({"time": float("nan"), "pose": {}}), "keyframes[0].time", "number of seconds, not nan"),
+    (motion({"time": float("inf"), "pose": {}}), "keyframes[0].time", "number of seconds, not inf"),
+    (motion({"time": -1, "pose": {}}), "keyframes[0].time", "above 0"),
+    (motion({"time": True, "pose": {}}), "keyframes[0].time", "number of seconds"),
+    (motion({"time": 1, "pose": {"neck": float("nan")}}), "keyframes[0].pose.neck", "number of degrees, not nan"),
+    (motion({"time": 1, "pose": {"neck": float("-inf")}}), "keyframes[0].pose.neck", "number of degrees, not -inf"),
     (motion({"time": 1, "pose": {}, "profile": "cubic"}), "keyframes[0].profile", "minjerk, linear"),
     (motion({"time": 1, "pose": {}, "speed": 3}), "keyframes[0].speed", "unknown key"),
     (motion({"time": 1, "pose": {}}, loop=True), "loop", "unknown key"),
 ]
 
 
-@pytest.mark.parametrize(("data", "key", "phrase"), BAD, ids=[b[1] for b in BAD])
+@pytest.mark.parametrize(("data", "key", "phrase"), BAD, ids=[f"{b[1]}-{k}" for k, b in enumerate(BAD)])
 def test_each_format_mistake_names_the_file_and_key(tmp_path: Path, data: Any, key: str, phrase: str) -> None:
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(data))
@@ -165,6 +174,25 @@ def test_each_format_mistake_names_the_file_and_key(tmp_path: Path, data: Any, k
         load_motion(path)
     assert str(caught.value).startswith(f"{path}: {key}: ") and phrase in str(caught.value)
     assert isinstance(caught.value, InvalidArgument)
+
+
+@pytest.mark.parametrize(
+    ("keyframes", "phrase"),
+    [
+        ((Keyframe(1e308, {"neck": 5.0}),), r"keyframes\[0\]\.time: 1e\+308 .*at most 3600 seconds"),
+        ((Keyframe(float("nan"), {"neck": 5.0}),), r"keyframes\[0\]\.time: must be a number of seconds, not nan"),
+        ((Keyframe(0.0, {"neck": 5.0}),), r"keyframes\[0\]\.time: 0 must be above 0"),
+        ((Keyframe(1.0, {"neck": 5.0}), Keyframe(0.5, {"neck": 0.0})), r"keyframes\[1\]\.time: 0\.5 must be after 1"),
+        ((Keyframe(1.0, {"neck": float("inf")}),), r"keyframes\[0\]\.pose\.neck: must be a number of degrees"),
+        ((Keyframe(1.0, {"neck": 5.0}, "cubic"),), r"keyframes\[0\]\.profile: must be one of minjerk, linear"),
+        ((), "at least one keyframe"),
+    ],
+)
+def test_a_motion_built_in_python_is_held_to_the_files_rules(keyframes: tuple[Keyframe, ...], phrase: str) -> None:
+    # parse_motion checked a file's keyframes, but a Motion built from Keyframes was played as it was: a time of 0
+    # threw the joint to its pose at full speed, one of 1e308 never ended.
+    with pytest.raises(InvalidArgument, match=phrase):
+        Motion(keyframes)
 
 
 def test_not_json_and_missing_files(tmp_path: Path) -> None:

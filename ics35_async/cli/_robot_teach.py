@@ -23,6 +23,7 @@ from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, save_motion
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
+from ..robot.motion import LONGEST_MOTION
 from ..robot.startup import limit_problem
 from ..transports.wire_device import url_scheme
 from ._common import (
@@ -338,6 +339,9 @@ async def capture(
         taken[name] = round(spec.clamp(pose[name]), 2)
     previous = keyframes[-1].time if keyframes else 0.0
     when = max(times.at(now), round(previous + 0.001, 3))
+    if when > LONGEST_MOTION:  # (a motion that long is refused as it is built: the poses so far would be lost)
+        screen.say(f"pose not captured: at {when:.0f} s it is past {LONGEST_MOTION:g} s, the longest a motion lasts")
+        return
     keyframes.append(Keyframe(when, taken))
     # Through the screen: on a terminal a line printed beside the live view is written over by its next redraw.
     screen.say("\n".join([f"pose {len(keyframes)} at {when:.2f} s", *warnings]))

@@ -13,8 +13,8 @@ Format (version 1)::
       ]
     }
 
-``time`` is seconds from the start of the motion, strictly increasing and
-above 0: the first keyframe is reached from wherever the robot is when the
+``time`` is seconds from the start of the motion, strictly increasing,
+above 0 and at most :data:`LONGEST_MOTION` (an hour): the first keyframe is reached from wherever the robot is when the
 motion starts, in that keyframe's time.  ``profile`` on a keyframe shapes
 the segment that ends there.  A pose names any of the robot's joints; a
 joint a keyframe leaves out keeps its angle from the keyframe before, and
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 from .. import units
 from ..errors import FileContentError, InvalidArgument
 from ..user_files import UnreadableText, read_user_text, replace_keeping_backup
-from .profiles import PROFILES, Trajectory
+from .profiles import PROFILES, Trajectory, check_profile
 
 if TYPE_CHECKING:
     from .host import PoseChecker
@@ -44,6 +44,11 @@ if TYPE_CHECKING:
 
 FORMAT = "ics35-motion"
 VERSION = 1
+LONGEST_MOTION = 3600.0
+"""Seconds: the latest a keyframe may come, and the longest ``Robot.move_to``.  An hour is longer than any motion a
+servo robot plays in one go; a keyframe later than that is a slip (milliseconds written for seconds, a stray
+exponent), and a time such as 1e308 makes a motion that never ends while it looks as if it runs (its joints creep
+too slowly to see), with the robot's motion taken until it is stopped."""
 
 
 class MotionError(FileContentError):
@@ -59,9 +64,26 @@ class Keyframe:
 
 @dataclass(frozen=True)
 class Motion:
+    """Keyframes to play, held to the file format's rules (:func:`check_keyframe`) as it is built.
+
+    Raises:
+        InvalidArgument: no keyframe, or one breaking a rule (the message names it: ``keyframes[2].time``).
+    """
+
     keyframes: tuple[Keyframe, ...]
     profile: str = "minjerk"
     name: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.keyframes:
+            raise InvalidArgument("a motion needs at least one keyframe")
+        check_profile(self.profile)
+        previous = 0.0
+        for k, frame in enumerate(self.keyframes):
+            try:
+                previous = check_keyframe(frame.time, frame.pose, frame.profile, previous)[0]
+            except KeyframeError as exc:
+                raise InvalidArgument(f"keyframes[{k}]{exc.key}: {exc}") from None
 
     @property
     def duration(self) -> float:
@@ -90,6 +112,47 @@ class Motion:
             frames.append(entry)
         data["keyframes"] = frames
         return data
+
+
+class KeyframeError(InvalidArgument):
+    """A keyframe breaks a rule of the format; ``key`` is where in the keyframe (``.time``, ``.pose.neck``)."""
+
+    def __init__(self, key: str, message: str) -> None:
+        self.key = key
+        super().__init__(message)
+
+
+def check_keyframe(
+    time: object, pose: object, profile: object, previous: float
+) -> tuple[float, dict[str, float], str | None]:
+    """A keyframe's ``time``, ``pose`` and ``profile`` checked: the one rule of a motion file's keyframes
+    (:func:`parse_motion`), of a :class:`Motion` built in Python, and so of ``ics35 play``'s files and the
+    configurator's uploads.  ``previous``: the time of the keyframe before (0 for the first).  The time is a
+    finite number of seconds after ``previous`` and at most :data:`LONGEST_MOTION`; every angle a finite
+    number of degrees (the robot's limits are checked against the robot: :func:`check_motion`).
+
+    Raises:
+        KeyframeError: which part breaks which rule.
+    """
+    seconds = units.finite_number(time)
+    if seconds is None:
+        raise KeyframeError(".time", f"must be a number of seconds, not {units.said(time)}")
+    if seconds <= previous:
+        why = "above 0 (the time to reach it from where the robot is)" if previous == 0 else f"after {previous:g}"
+        raise KeyframeError(".time", f"{seconds:g} must be {why}")
+    if seconds > LONGEST_MOTION:
+        raise KeyframeError(".time", f"{seconds:g} must be at most {LONGEST_MOTION:g} seconds (an hour) from the start")
+    if not isinstance(pose, Mapping):
+        raise KeyframeError(".pose", "must be an object {joint: degrees}")
+    angles = {}
+    for joint, deg in pose.items():
+        angle = units.finite_number(deg)
+        if angle is None:
+            raise KeyframeError(f".pose.{joint}", f"must be a number of degrees, not {units.said(deg)}")
+        angles[joint] = angle
+    if profile is not None and profile not in PROFILES:
+        raise KeyframeError(".profile", f"must be one of {', '.join(PROFILES)}, not {profile!r}")
+    return seconds, angles, profile if isinstance(profile, str) else None
 
 
 def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
@@ -161,26 +224,13 @@ def parse_motion(data: object, source: str = "<mapping>") -> Motion:
         extra = set(frame) - {"time", "pose", "profile"}
         if extra:
             raise MotionError(source, f"{key}.{sorted(extra)[0]}", "unknown key (known: time, pose, profile)")
-        time = units.finite_number(frame.get("time"))
-        if time is None:
-            raise MotionError(source, f"{key}.time", f"must be a number of seconds, not {frame.get('time')!r}")
-        if time <= previous:
-            why = "above 0 (the time to reach it from where the robot is)" if k == 0 else f"after {previous:g}"
-            raise MotionError(source, f"{key}.time", f"{time:g} must be {why}")
-        previous = time
-        pose = frame.get("pose")
-        if not isinstance(pose, Mapping):
-            raise MotionError(source, f"{key}.pose", "must be an object {joint: degrees}")
-        angles = {}
-        for joint, deg in pose.items():
-            angle = units.finite_number(deg)
-            if angle is None:
-                raise MotionError(source, f"{key}.pose.{joint}", f"must be a number of degrees, not {deg!r}")
-            angles[joint] = angle
-        shape = frame.get("profile")
-        if shape is not None and shape not in PROFILES:
-            raise MotionError(source, f"{key}.profile", f"must be one of {', '.join(PROFILES)}, not {shape!r}")
-        keyframes.append(Keyframe(time, angles, shape))
+        try:
+            previous, angles, shape = check_keyframe(
+                frame.get("time"), frame.get("pose"), frame.get("profile"), previous
+            )
+        except KeyframeError as exc:
+            raise MotionError(source, f"{key}{exc.key}", str(exc)) from None
+        keyframes.append(Keyframe(previous, angles, shape))
     return Motion(tuple(keyframes), profile, name)
 
 

@@ -35,7 +35,7 @@ from ..tasks import again
 from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
 from .joint_stream import RobotStream
-from .motion import Motion, play_motion
+from .motion import LONGEST_MOTION, Motion, play_motion
 from .plans import Plan, Replies
 from .profiles import Segment, Trajectory, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch, UnsettledReadings
@@ -577,7 +577,7 @@ class Robot:
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         goal = self.check_pose(pose)
-        seconds = units.check_seconds("duration", duration, 0.0, 3600.0)
+        seconds = units.check_seconds("duration", duration, 0.0, LONGEST_MOTION)
         shape = check_profile(profile)
         self.check_ready(goal)
         if goal:
