@@ -1047,7 +1047,7 @@ def test_a_garbled_position_reply_seen_again_in_the_next_frame_is_still_left_out
     async def main() -> None:
         with anyio.fail_after(2 * GUARD):
             async with open_robot(description, **FAST) as robot:  # ICS 3.5: every joint starts free
-                await robot.read_pose()  # (a joint's first reading is taken as it comes)
+                await robot.read_pose()
                 for _ in range(300):
                     await robot.wait_frame(robot.latest.cycle + 1 if robot.latest else 0)
                     taken = robot.positions
@@ -1083,5 +1083,58 @@ def test_read_pose_and_a_motion_from_a_joint_whose_readings_never_agree_raise_in
                 await robot.on_wire()
                 assert targets_sent(line, 1, since) == targets_sent(line, 2, since) == []
                 assert robot.targets == {"good": None, "broken": None}
+
+    run_on_garbled_lines(main, line)
+
+
+def test_a_joints_first_reading_at_the_open_is_not_where_hold_holds_it() -> None:
+    # A joint's first reading has none before it to agree with, and was taken as it came: a garbled one (here a servo
+    # whose readings jump) was where hold() right after the open held it, throwing the servo 30 degrees at full speed.
+    line = VirtualLine([VirtualServo(1), VirtualServo(2, noisy=True)], name="first-at-open", log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://first-at-open", "rate_hz": 25}},
+        "joints": {"good": {"line": "main", "id": 1}, "broken": {"line": "main", "id": 2}},
+    }
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description, **FAST) as robot:  # ICS 3.5: both start free, read once
+                since = line.transactions
+                left = robot.hold()
+                await robot.on_wire()
+                assert "broken" in left and targets_sent(line, 2, since) == [], left
+                await robot.fresh_replies(["good"], 2, agreed=True)  # (the good joint once read: held where it is)
+                assert robot.hold() == {"broken": left["broken"]}
+
+    run_on_garbled_lines(main, line)
+
+
+def test_a_joints_first_reading_once_its_servo_answers_again_is_not_held_or_moved_from() -> None:
+    # A servo that did not answer the open (unplugged) starts offline; plugged in, its first reading was taken as it
+    # came, with none before it to agree with: a garbled one (here a servo whose readings jump) was where hold() held
+    # it and where a motion started from.  It waits for the next reading to agree, as any free joint's does.
+    line = VirtualLine([VirtualServo(1), VirtualServo(2, noisy=True)], name="first-after-offline", log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://first-after-offline", "rate_hz": 25}},
+        "joints": {"good": {"line": "main", "id": 1}, "broken": {"line": "main", "id": 2}},
+    }
+    unplugged = line.remove_servo(2)
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description, **FAST, probe_interval=0.01) as robot:
+                await robot.read_pose()  # (the broken joint left out: it has not answered)
+                line.add_device(unplugged)
+                frame = await robot.wait_frame(0)
+                while "broken" not in frame.positions:
+                    frame = await robot.wait_frame(frame.cycle)
+                since = line.transactions
+                left = robot.hold(["broken"])
+                await robot.on_wire()
+                assert "broken" in left and targets_sent(line, 2, since) == [], left
+                with pytest.raises(UnsettledReadings, match="broken"):
+                    await robot.move_to({"broken": 10.0}, duration=0.1)
+                await robot.on_wire()
+                assert targets_sent(line, 2, since) == [] and unplugged.free
 
     run_on_garbled_lines(main, line)

@@ -323,7 +323,7 @@ class Robot:
             if count < replies
             and name not in skip
             and self._unsettled.get(name, 0) >= UNSETTLED_READINGS
-            and self._last_read[name][1] > counter.since
+            and self._last_read.get(name, (0.0, 0.0))[1] > counter.since
         ]
         if not stuck:
             return
@@ -487,7 +487,11 @@ class Robot:
             if n not in self._positions and n not in driven and n not in left
         )
         left.update(
-            (n, "its last two readings disagree (turning fast, or a garbled reply): hold it again once it settles")
+            (
+                n,
+                "its newest reading is not confirmed by one agreeing with it (turning fast, a garbled reply, or its "
+                "first since it answered again): hold it again once it settles",
+            )
             for n in names
             if n in self._unsettled and n not in driven and n not in left
         )
@@ -892,6 +896,11 @@ class Robot:
         self._answered.update(positions)
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
+        # A joint offline, or on a line whose port is lost, may come back restarted elsewhere: its next reading is a
+        # first one again (see _agreed), not one that agrees with a reading from before.  (After _agreed: a lost
+        # line's frame, brought again with every frame, is no reading from after it is back.)
+        for name in offline | lost:
+            self._last_read.pop(name, None)
         held = frozenset(by_key[k] for k in frame.held if k in by_key)
         # What the streams hold now, not as of this frame's cycles: a joint whose target was set since is held
         # no more, and one that came back from offline since is (the robot may lag behind its frames).
@@ -939,9 +948,13 @@ class Robot:
                 continue
             self._last_read[name] = (degrees, stamp)
             self._recent.setdefault(name, deque(maxlen=SHOWN_READINGS)).append(degrees)
-            # (A joint's first reading is taken: a motion right after the open would otherwise start at its goal.)
-            step = min(TURN_SPEED * abs(stamp - before[1]), TURN_STEP) if before is not None else 0.0
-            if before is None or abs(degrees - before[0]) <= step + TURN_SLACK:
+            if before is None:
+                # A joint's first reading (at the open, or since it answered again: see _on_frame) has none to agree
+                # with: a garbled one would be held or moved from.  Unsettled until the next agrees, as any is.
+                self._unsettled.setdefault(name, 0)
+                continue
+            step = min(TURN_SPEED * abs(stamp - before[1]), TURN_STEP)
+            if abs(degrees - before[0]) <= step + TURN_SLACK:
                 agreed[name] = degrees
                 self._agreed_stamps[name] = stamp
                 self._unsettled.pop(name, None)

@@ -250,6 +250,10 @@ async def _robot_session(
                         tasks.start_soon(cycles, robot.watch_lines)
                         try:
                             await waits.first_frame(robot)
+                            # A joint's first reading counts only once the next agrees (see Robot._agreed): one
+                            # more reply of each, so that hold() or a motion right after the open finds where the
+                            # joints are, as before, rather than leaving them all out as not read yet.
+                            await robot.fresh_replies(robot.joints, 1)
                             yield robot
                         finally:
                             # From here on nothing commands the joints but the streams' close (a task that
