@@ -16,19 +16,24 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
+from rich.table import Table
 
-from ics35_async import PortLost
+from ics35_async import PortLost, open_robot
 from ics35_async.cli import ExitCode, main
 from ics35_async.cli._robot_common import lost_line_hint
+from ics35_async.cli._robot_teach import TaughtTimes, capture
+from ics35_async.cli._robot_view import Screen
 from ics35_async.cli._settings import Settings
 from ics35_async.eeprom import Flags
-from ics35_async.robot import load_description
+from ics35_async.robot import Keyframe, Motion, load_description
 from ics35_async.robot.calibration import dump_description
+from ics35_async.robot.motion import LONGEST_MOTION
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_position, make_rig, targets_sent
-from tests.support.timing import GUARD, NO_TIMEOUTS_OPTION, scaled
+from tests.support.timing import FAST, GUARD, NO_TIMEOUTS_OPTION, scaled
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -1364,3 +1369,25 @@ def test_each_robot_commands_help_says_the_joints_it_leaves_unopened_are_not_wat
     shown = " ".join(cli(command, "--help").out.split())
     joints = shown[shown.index("--joints") :]
     assert "not opened" in joints and "watched by the file's [safety]" in joints, shown
+
+
+def test_teach_does_not_capture_a_pose_past_the_longest_motion_so_the_poses_so_far_are_kept(
+    rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A keyframe later than an hour is refused as a Motion is built: a pose captured past it made the write of
+    # every pose taught so far fail at the end.
+    sims, _ = rig
+    keyframes: list[Keyframe] = []
+
+    async def main() -> None:
+        async with open_robot(sims.description, **FAST) as robot:
+            screen = Screen(Table, str)
+            times = TaughtTimes(1.0)
+            await capture(robot, ["neck"], times, keyframes, screen)
+            assert times.first is not None
+            times.first -= LONGEST_MOTION  # (an hour of posing later)
+            await capture(robot, ["neck"], times, keyframes, screen)
+
+    anyio.run(main)
+    assert len(keyframes) == 1 and Motion(tuple(keyframes)).duration == 1.0
+    assert "pose not captured" in capsys.readouterr().err
