@@ -96,8 +96,8 @@ class Robot:
         self._positions: dict[str, float] = {}
         self._last_read: dict[str, tuple[float, float]] = {}  # each joint's newest reading and its stamp (_agreed)
         self._agreed_stamps: dict[str, float] = {}  # the stamp of each joint's newest reading taken (_agreed)
-        # Joints whose newest reading did not agree with the one before, and how many in a row did not (_agreed);
-        # each joint's last readings, for a message.
+        # Joints whose newest reading is not taken as where they are (it did not agree with the one before, or it
+        # is a first one), and how many in a row disagreed (_agreed); each joint's last readings, for a message.
         self._unsettled: dict[str, int] = {}
         self._recent: dict[str, deque[float]] = {}
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
@@ -454,9 +454,10 @@ class Robot:
         one a motion drives at the target last sent (its servo is on its way there: where it was last read lags
         it), the others where they were last read.  Left out, as they are, and returned with why
         (``{joint: why}``): a held joint (see :attr:`held`: where it is is unknown), one whose position was not
-        read yet, one whose newest reading did not agree with the one before (see :data:`TURN_SPEED`), and a free
-        one standing more than :data:`LIMIT_SLACK` degrees past a limit (turned there by
-        hand: holding it would throw it to the limit at full speed; bring it within its limits first).
+        read yet, one whose newest reading did not agree with the one before or is its first since it answered
+        again (see :data:`TURN_SPEED`), and a free one standing more than :data:`LIMIT_SLACK` degrees past a limit
+        (turned there by hand: holding it would throw it to the limit at full speed; bring it within its limits
+        first).
 
         Raises:
             InvalidArgument: an unknown joint.
@@ -662,8 +663,8 @@ class Robot:
     async def start_pose(self, joints: Iterable[str]) -> dict[str, float]:
         """Where a motion of ``joints`` starts: each one's target, else where it is (within its limits).  A free
         joint whose newest reading did not agree with the one before (turned fast, or a garbled reply: see
-        :data:`TURN_SPEED`) is waited for until one does: started where it was read before, its first target
-        would throw it back there.
+        :data:`TURN_SPEED`), or is its first since it answered again, is waited for until one does: started
+        where it was read before, its first target would throw it back there.
 
         Raises:
             UnsettledReadings: such a joint's readings disagreed :data:`UNSETTLED_READINGS` times in a row (nothing
