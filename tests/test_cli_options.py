@@ -520,3 +520,18 @@ async def test_the_reply_allowance_and_the_retries_bound_are_one_constant_everyw
             await bus.request(ReadParam(1, Param.STRETCH), retries=MAX_RETRIES + 1)
     with pytest.raises(InvalidArgument, match=f"0..{MAX_RETRIES}"):
         await open_bus("sim://?ids=1", retries=MAX_RETRIES + 1)
+
+
+def test_the_tools_retries_default_is_one_constant(cli: Any) -> None:
+    """The retries the tools give a line when --retries is not given (the CLI's --help and its settings, the
+    configurator's line) are ``protocol.TOOL_RETRIES``: a copy that drifted would make the two tools differ."""
+    from ics35_async.cli._settings import Settings
+    from ics35_async.protocol import TOOL_RETRIES
+    from ics35_async.web.config import LineConfig
+
+    shown = " ".join(cli("--help").out.split())
+    default = re.search(r"--retries INTEGER RANGE Retries for reads and positions\. \[default: (\d+);", shown)
+    assert default is not None, shown
+    assert int(default[1]) == TOOL_RETRIES
+    assert Settings().retries == LineConfig().retries == TOOL_RETRIES
+    assert Settings().bus().retries == TOOL_RETRIES

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 import click
 
 from ..eeprom import FACTORY_BAUD
-from ..protocol.wire import ADAPTER_LATENCY, ALL_BAUDS, MAX_RETRIES
+from ..protocol.wire import ADAPTER_LATENCY, ALL_BAUDS, MAX_RETRIES, TOOL_RETRIES
 from ._settings import DEFAULT_PORT, Settings, setup_logging
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -56,7 +56,7 @@ LINE_OPTIONS = (
         "retries",
         ("--retries",),
         "Retries for reads and positions.",
-        {"default": 1, "show_default": True},
+        {"default": TOOL_RETRIES, "show_default": True},
         {"type": click.IntRange(0, MAX_RETRIES)},
     ),
     LineOption(

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from ..eeprom import FACTORY_BAUD
-from ..protocol.wire import ADAPTER_LATENCY
+from ..protocol.wire import ADAPTER_LATENCY, TOOL_RETRIES
 
 if TYPE_CHECKING:
     import click
@@ -91,7 +91,7 @@ class Settings:
     port: str = DEFAULT_PORT
     baud: int = FACTORY_BAUD
     timeout: float = ADAPTER_LATENCY
-    retries: int = 1
+    retries: int = TOOL_RETRIES
     echo: bool = True
     transport: str = "auto"
     direction: str = "none"  # RTS direction control for DIY half-duplex interfaces

@@ -13,11 +13,14 @@ from ..units import POSITION_MAX as POSITION_MAX  # (the 14-bit position field: 
 from ..units import check_int
 
 BITS_PER_BYTE = 11  # start + 8 data + even parity + stop
-# Seconds an interface may add to a reply by default (USB adapters add 0.1-16 ms: the FTDI latency timer), and
-# the most retries a request may have.  Kept here, below everything that reads them (the engine's timing, the
+# Seconds an interface may add to a reply by default (USB adapters add 0.1-16 ms: the FTDI latency timer), the
+# most retries a request may have, and the retries the tools (the ics35 commands, the configurator) give a line
+# unless told otherwise: one, so that a single reply lost on a healthy line does not fail a person's command (a
+# program's bus has none unless it asks).  Kept here, below everything that reads them (the engine's timing, the
 # bus, a robot file, the configurator, the CLI's line options, which load no engine to show --help).
 ADAPTER_LATENCY = 0.020
 MAX_RETRIES = 10
+TOOL_RETRIES = 1
 MAX_ID = 31
 ALL_IDS: tuple[int, ...] = tuple(range(MAX_ID + 1))
 FREE = 0

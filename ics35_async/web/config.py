@@ -7,7 +7,7 @@ import os
 from dataclasses import dataclass
 
 from ..eeprom import FACTORY_BAUD
-from ..protocol import ADAPTER_LATENCY
+from ..protocol import ADAPTER_LATENCY, TOOL_RETRIES
 from ..transports.wire_device import opens_anew, url_scheme
 
 
@@ -19,7 +19,7 @@ class LineConfig:
     baud: int = FACTORY_BAUD
     echo: bool = True
     adapter_latency: float = ADAPTER_LATENCY
-    retries: int = 1
+    retries: int = TOOL_RETRIES
     transport: str = "auto"
     direction: str = "none"
 
