@@ -221,6 +221,22 @@ def _put(image: bytearray, offset: int, nibbles: int, value: int) -> None:
 
 
 @dataclass(frozen=True)
+class WriteRefusal:
+    """Why an EEPROM write is refused (see :meth:`Eeprom.why_refused`), in parts: a tool words the reason once, as
+    the library does, and says in its own terms what allows the write (a command-line flag, a tick)."""
+
+    reason: str
+    """What the write would do that it must not, e.g. ``"servo 1: the image changes its ID to 7"``."""
+    allowed_by: str | None = None
+    """The keyword that allows it (``"allow_baud_change"``, ``"allow_id_change"``); ``None``: nothing does."""
+    advice: str = ""
+    """What a program does instead, in the library's terms (``""``: nothing to add)."""
+
+    def __str__(self) -> str:
+        return f"{self.reason}; {self.advice}" if self.advice else self.reason
+
+
+@dataclass(frozen=True)
 class Eeprom:
     """A decoded EEPROM image.  Build one with :meth:`from_bytes` or :meth:`factory`.
 
@@ -293,22 +309,33 @@ class Eeprom:
         """Why this image must not be written over ``current``, servo ``servo_id``'s image now (``None``: it
         may), with what to do instead: it changes the factory calibration bytes, or the baud rate or the ID
         without ``allow_baud_change`` / ``allow_id_change``.  ``Servo.write_eeprom`` and the EEPROM write
-        policy refuse by this one rule, in these words."""
+        policy refuse by this one rule, in these words (:meth:`why_refused`'s, its advice added)."""
+        why = self.why_refused(current, servo_id, allow_baud_change=allow_baud_change, allow_id_change=allow_id_change)
+        return None if why is None else str(why)
+
+    def why_refused(
+        self, current: Eeprom, servo_id: int, *, allow_baud_change: bool = False, allow_id_change: bool = False
+    ) -> WriteRefusal | None:
+        """:meth:`write_refusal`'s rule, its parts apart: the reason, the keyword that allows the write, and what a
+        program does instead; a tool says the reason as it is and names its own way to allow it.  ``current``,
+        ``servo_id``, ``allow_baud_change`` and ``allow_id_change`` are as for :meth:`write_refusal`."""
         if self.calibration != current.calibration:
-            return (
-                f"servo {servo_id}: the image's factory calibration bytes differ from the servo's; start from the "
-                "servo's own image (read_eeprom()) and change fields with Eeprom.replace()"
+            return WriteRefusal(
+                f"servo {servo_id}: the image's factory calibration bytes differ from the servo's",
+                advice="start from the servo's own image (read_eeprom()) and change fields with Eeprom.replace()",
             )
         if self.baud_rate != current.baud_rate and not allow_baud_change:
-            return (
+            return WriteRefusal(
                 f"servo {servo_id}: the image changes the baud rate from {int(current.baud_rate)} to "
-                f"{int(self.baud_rate)}, after which the servo answers only at the new rate; to do it, allow the "
-                "baud change (allow_baud_change=True)"
+                f"{int(self.baud_rate)}: from its next power-up the servo answers ONLY at {int(self.baud_rate)} baud",
+                "allow_baud_change",
+                "to do it, allow the baud change (allow_baud_change=True)",
             )
         if self.servo_id != current.servo_id and not allow_id_change:
-            return (
-                f"servo {servo_id}: the image changes its ID to {self.servo_id}; to do it, allow the ID change "
-                "(allow_id_change=True)"
+            return WriteRefusal(
+                f"servo {servo_id}: the image changes its ID to {self.servo_id}",
+                "allow_id_change",
+                "to do it, allow the ID change (allow_id_change=True)",
             )
         return None
 

@@ -544,6 +544,44 @@ def test_eeprom_baud_change_needs_its_own_flag(cli: Any, sim_line: Any) -> None:
     assert cli("--port", url, "--baud", "1250000", "get", "1", "speed").code == 0
 
 
+def test_an_eeprom_refusal_is_the_librarys_reason_and_the_flag_that_allows_it(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    """The CLI says why a write is refused in the library's words (``EepromPlan.why_refused``: the one rule) and
+    adds only which of its flags allows it, not the keyword a program passes."""
+    from ics35_async import open_bus
+    from ics35_async.eeprom import WriteRefusal
+    from ics35_async.policies import plan_eeprom_write
+
+    sim, url = sim_line([1])
+
+    def refusal(baud: int) -> WriteRefusal:
+        async def plan() -> WriteRefusal | None:
+            async with open_bus(url) as bus:
+                return (await plan_eeprom_write(bus, 1, {"baud_rate": baud})).why_refused()
+
+        why = anyio.run(plan)
+        assert why is not None and why.allowed_by == "allow_baud_change"
+        return why
+
+    why = refusal(1250000)
+    result = cli("--port", url, "eeprom", "set", "1", "baud=1250000", "--yes")
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.REFUSED
+    assert f"refused: {why.reason}. Nothing was written" in said, said
+    assert "to do it anyway, add --change-baud" in said and "allow_baud_change" not in said, said
+
+    assert cli("--port", url, "eeprom", "dump", "1", "-o", str(tmp_path / "one.json")).code == 0
+    sim.servo(1).eeprom = sim.servo(1).eeprom.replace(baud_rate=BaudRate.B625000)  # the backup's rate is now another
+    why = refusal(115200)
+    result = cli("--port", url, "eeprom", "restore", "1", str(tmp_path / "one.json"), "--yes")
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.REFUSED
+    assert f"refused: {why.reason}. Nothing was written" in said, said
+    assert "add --keep-baud" in said and "add --change-baud" in said and "allow_baud_change" not in said, said
+    assert sim.servo(1).eeprom_writes == 0
+
+
 def test_eeprom_id_change_refused_on_collision(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([1, 2])
     result = cli("--port", url, "eeprom", "set", "1", "id=2", "--yes")

@@ -34,14 +34,11 @@ from ._common import (
 )
 from ._eeprom_view import baud_text, diff_table, flags_text
 
-BAUD_CONSEQUENCE = (
-    "from its next power-up the servo answers ONLY at {new} baud: every later command needs --baud {new}"
-    "{hs}, and servos at different rates cannot share one bus session"
-)
 
-
-def _hs(new: int) -> str:
-    return " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
+def _later_commands(new: int) -> str:
+    """What a change to baud rate ``new`` asks of every command after it (the servo's side the library says)."""
+    hs = " and 625000/1250000 need the ICS USB adapter HS" if new != BaudRate.B115200 else ""
+    return f"every later command needs --baud {new}{hs}, and servos at different rates cannot share one bus session"
 
 
 CHANGE_BAUD_ADVICE = ("to do it anyway, add --change-baud",)
@@ -50,28 +47,19 @@ CHANGE_BAUD_ADVICE = ("to do it anyway, add --change-baud",)
 def check_allowed(
     plan: EepromPlan, *, change_baud: bool, allow_id_change: bool, baud_advice: Sequence[str] = CHANGE_BAUD_ADVICE
 ) -> None:
-    """Refuse (exit 5, nothing written) what the person did not ask for, with what to do instead
-    (``baud_advice``: for a baud change, in the command's own terms)."""
-    if plan.changes_baud and not change_baud:
-        new = int(plan.after.baud_rate)
-        raise CliError(
-            ExitCode.REFUSED,
-            f"refused: this changes servo {plan.servo_id}'s baud rate "
-            f"from {baud_text(plan.before.baud_rate)} to {new}; "
-            + BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))
-            + ". Nothing was written",
-            *baud_advice,
-        )
-    if plan.changes_id and plan.id_taken:
-        raise CliError(
-            ExitCode.REFUSED,
-            f"refused: ID {plan.after.servo_id} already answers on this line; two servos with one ID garble "
-            "every reply. Nothing was written",
-            "pick a free ID (see: ics35 scan)",
-        )
-    reason = plan.refusal(allow_baud_change=change_baud, allow_id_change=allow_id_change)
-    if reason:
-        raise CliError(ExitCode.REFUSED, f"refused: {reason}. Nothing was written")
+    """Refuse (exit 5, nothing written) what the person did not ask for: the library's reason (the one rule, in
+    its words), and what to do instead in this command's terms (``baud_advice``: the flags that allow a baud
+    change)."""
+    why = plan.why_refused(allow_baud_change=change_baud, allow_id_change=allow_id_change)
+    if why is None:
+        return
+    if why.allowed_by == "allow_baud_change":
+        hints: Sequence[str] = (f"then {_later_commands(int(plan.after.baud_rate))}", *baud_advice)
+    elif plan.changes_id and plan.id_taken:
+        hints = ("pick a free ID (see: ics35 scan)",)
+    else:  # (eeprom set allows the ID it is given, restore the backup's with --restore-id: no ID change is refused)
+        hints = ()
+    raise CliError(ExitCode.REFUSED, f"refused: {why.reason}. Nothing was written", *hints)
 
 
 SET_FLAG_ADVICE = "to change one flag and keep the others use flags+=NAME / flags-=NAME"
@@ -109,7 +97,11 @@ def show_plan(
         )
     if plan.changes_baud:
         new = int(plan.after.baud_rate)
-        err.print(f"[yellow]warning:[/yellow] {BAUD_CONSEQUENCE.format(new=new, hs=_hs(new))}", soft_wrap=True)
+        err.print(
+            f"[yellow]warning:[/yellow] from its next power-up the servo answers ONLY at {new} baud: "
+            f"{_later_commands(new)}",
+            soft_wrap=True,
+        )
 
 
 def report_of(plan: EepromPlan, report: ServoWriteReport | None) -> dict[str, Any]:

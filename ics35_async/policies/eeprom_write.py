@@ -32,7 +32,16 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import protocol
-from ..eeprom import READ_ONLY_FLAGS, UNUSED_FLAG_BITS, BaudRate, Eeprom, Flags, flag_names, flags_value
+from ..eeprom import (
+    READ_ONLY_FLAGS,
+    UNUSED_FLAG_BITS,
+    BaudRate,
+    Eeprom,
+    Flags,
+    WriteRefusal,
+    flag_names,
+    flags_value,
+)
 from ..errors import IcsError, InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation, VerifyError
 from ..tasks import despite_cancellation
 from ..units import check_int, stretch_from_eeprom
@@ -222,14 +231,20 @@ class EepromPlan:
     def refusal(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> str | None:
         """Why this write must not happen (``None``: it may), given whether a baud change
         (``allow_baud_change``) and an ID change (``allow_id_change``) are allowed."""
-        reason = self.after.write_refusal(
+        why = self.why_refused(allow_baud_change=allow_baud_change, allow_id_change=allow_id_change)
+        return None if why is None else str(why)
+
+    def why_refused(self, *, allow_baud_change: bool = False, allow_id_change: bool = False) -> WriteRefusal | None:
+        """:meth:`refusal`, its parts apart (see ``Eeprom.why_refused``), ``allow_baud_change`` and
+        ``allow_id_change`` as there: the ID another servo answers at is allowed by nothing."""
+        why = self.after.why_refused(
             self.before, self.servo_id, allow_baud_change=allow_baud_change, allow_id_change=allow_id_change
         )
-        if reason:
-            return reason
-        if self.changes_id and self.id_taken:
-            return f"ID {self.after.servo_id} already answers on this line; two servos with one ID garble every reply"
-        return None
+        if why is None and self.changes_id and self.id_taken:
+            why = WriteRefusal(
+                f"ID {self.after.servo_id} already answers on this line; two servos with one ID garble every reply"
+            )
+        return why
 
 
 async def plan_eeprom_write(
