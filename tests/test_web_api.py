@@ -1442,3 +1442,18 @@ def test_hold_here_on_a_servo_a_second_one_answers_with_lets_go_of_neither(serve
     assert refused.status_code == 502 and "sharing ID 0" in refused.json()["error"], refused.text
     assert not holding.free and holding.target == 7500
     assert new.free and new.position == 6000
+
+
+def test_a_refused_write_gives_the_librarys_reason_and_what_allows_it(serve: Any) -> None:
+    """The configurator refuses an ID or baud change in the library's words (``Eeprom.why_refused``) and says
+    which allowance would let it through, for the page to name its tick, not the keyword a program passes."""
+    client, sim = serve((1,))
+    image = sim.servo(1).eeprom
+    for changes, allowed_by in (({"servo_id": 7}, "allow_id_change"), ({"baud_rate": 625000}, "allow_baud_change")):
+        why = image.replace(**changes).why_refused(image, 1)
+        assert why is not None and why.allowed_by == allowed_by
+        plan = post(client, "/api/servo/1/plan", {"changes": changes}).json()
+        assert (plan["refusal"], plan["allowed_by"]) == (why.reason, allowed_by), plan
+        allowed = post(client, "/api/servo/1/plan", {"changes": changes, allowed_by: True}).json()
+        assert allowed["refusal"] is None and allowed["allowed_by"] is None, allowed
+    assert sim.servo(1).eeprom_writes == 0

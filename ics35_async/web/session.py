@@ -658,8 +658,12 @@ class LineSession:
         plan = await plan_eeprom_write(
             bus, servo_id, changes, set_flags=set_flags, clear_flags=clear_flags, keep_read_only=keep
         )
-        allow = allowances(edit)
-        return plan, plan_view(plan, self._robot_line_refusal(plan) or plan.refusal(**allow))
+        robot_line = self._robot_line_refusal(plan)
+        if robot_line is not None:
+            return plan, plan_view(plan, robot_line)
+        # The library's reason, as it words it; what allows the write is the page's tick, not a program's keyword.
+        why = plan.why_refused(**allowances(edit))
+        return plan, plan_view(plan, None if why is None else why.reason, None if why is None else why.allowed_by)
 
     def _robot_line_refusal(self, plan: EepromPlan) -> str | None:
         if self.robot_line is None or not (plan.changes_id or plan.changes_baud):

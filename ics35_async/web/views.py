@@ -54,7 +54,9 @@ def _plain(value: Any) -> Any:
     return int(value) if isinstance(value, int) else value
 
 
-def plan_view(plan: EepromPlan, refusal: str | None) -> dict[str, Any]:
+def plan_view(plan: EepromPlan, refusal: str | None, allowed_by: str | None = None) -> dict[str, Any]:
+    """``refusal``: why the plan may not be written (None: it may); ``allowed_by``: the allowance that would let
+    it through (``allow_id_change``, ``allow_baud_change``), for the page to name its tick."""
     return {
         "servo_id": plan.servo_id,
         "before": plan.before.to_bytes().hex(),
@@ -64,6 +66,7 @@ def plan_view(plan: EepromPlan, refusal: str | None) -> dict[str, Any]:
         "changes_id": plan.changes_id,
         "changes_baud": plan.changes_baud,
         "refusal": refusal,
+        "allowed_by": allowed_by,
         "note": plan.kept_note,
     }
 

@@ -477,10 +477,9 @@ async function planWrite() {
   $("#write-result").replaceChildren();  // an earlier write's outcome is not this one's
   $("#write-btn").disabled = true;
   state.plan = await api(`/api/servo/${servoId()}/plan`, { changes: editedFields(), ...allowances() });
-  // Refused for a change of ID or rate that its tick allows: said which tick (the refusal names the library's flag).
-  const changed = (name) => state.plan.refusal && state.plan.diff.some((d) => d.name === name);
-  const ticks = [["servo_id", "#allow-id-change", "allow ID change"], ["baud_rate", "#allow-baud-change", "allow baud change"]]
-    .filter(([name, box]) => changed(name) && !$(box).checked)
+  // Refused for a change of ID or rate that a tick allows (the server says which allowance): said which tick.
+  const ticks = [["allow_id_change", "#allow-id-change", "allow ID change"], ["allow_baud_change", "#allow-baud-change", "allow baud change"]]
+    .filter(([allowance, box]) => state.plan.allowed_by === allowance && !$(box).checked)
     .map(([, , label]) => el("p", {}, `tick “${label}” to write it, then Show changes again`));
   $("#diff").replaceChildren(diffTable(state.plan), ...ticks);
   $("#write-btn").disabled = !state.plan.diff.length || !!state.plan.refusal;
