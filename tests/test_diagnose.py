@@ -599,3 +599,17 @@ def test_the_kernel_console_on_the_servo_port_is_named(tmp_path: Path, cmdline: 
     assert "cmdline.txt" in finding.fix and "raspi-config" in finding.fix
     (root / "proc" / "cmdline").write_text("console=tty1 root=/dev/x\n")
     assert by_check(check_system([], "/dev/ttyAMA0", root=root, platform="linux", uid=0, gids=set()), "console") == []
+
+
+def test_doctors_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -> None:
+    # Nothing answers at the line's rate: doctor asks the other rates, a whole allowance each where nothing
+    # answers, and says which it tries as every command's search does (the policy's on_rate).
+    from ics35_async.cli import ExitCode
+    from tests.support.terminal import screen_of, typed_on_a_terminal
+
+    port = "sim://doctor-search?ids=1&baud=1250000"  # (servo 1 at 1250000, the line at the default 115200)
+    code, shown = typed_on_a_terminal(["--port", port, "--timeout", "0.05", "doctor", "--ids", "1"], [])
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.WRONG_BAUD, screen
+    tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 115200 baud: trying 1250000 baud ..."
+    assert tried in screen and "--baud 1250000" in screen, screen

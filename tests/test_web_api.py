@@ -1457,3 +1457,35 @@ def test_a_refused_write_gives_the_librarys_reason_and_what_allows_it(serve: Any
         allowed = post(client, "/api/servo/1/plan", {"changes": changes, allowed_by: True}).json()
         assert allowed["refusal"] is None and allowed["allowed_by"] is None, allowed
     assert sim.servo(1).eeprom_writes == 0
+
+
+async def test_the_line_pages_search_of_the_other_rates_says_which_it_tries_in_the_status() -> None:
+    # A scan at the line's rate where nothing answers looks for a device at the other rates, a whole allowance each:
+    # the status (pushed to the pages, shown in their status area) says which rate it tries, in the words
+    # `ics35 doctor` and `ics35 monitor --free` print (the search policy's on_rate), and nothing once it is done.
+    from ics35_async.policies import trying_rate
+
+    name = f"web-api-{next(_names)}"
+    sim = VirtualLine([], name=name)  # (nothing answers at any rate: each rate tried costs the whole allowance)
+    session = LineSession(LineConfig(port=f"sim://{name}", adapter_latency=0.05))
+    said: list[str] = []
+
+    async def watch() -> None:
+        while True:
+            searching = session.status()["searching"]
+            if searching is not None and searching not in said:
+                said.append(searching)
+            await asyncio.sleep(0.002)
+
+    try:
+        await session.connect()
+        watcher = asyncio.create_task(watch())
+        report = await session.scan()
+        watcher.cancel()
+        assert report["servos"] == [] and report["answers_at"] is None, report
+        assert said == [trying_rate(115200, 625000), trying_rate(115200, 1250000)], said
+        assert "trying 625000 baud" in said[0]
+        assert session.status()["searching"] is None
+    finally:
+        await session.close()
+        sim.close()

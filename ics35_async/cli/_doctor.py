@@ -21,7 +21,7 @@ from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
 from ..transports.platforms import misnamed_port_hints
 from ._common import CliError, ExitCode, all_ids_option, emit_json, err, ids_text, json_option, out, run, settings_of
-from ._errors import answered_garbled, nothing_answered
+from ._errors import answered_garbled, nothing_answered, trying_rates
 from ._settings import Settings
 
 SEVERITY_STYLE = {"error": "bold red", "warning": "yellow", "info": "cyan"}
@@ -45,7 +45,7 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) ->
     if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
         try:
             others = [rate for rate in policies.ALL_BAUDS if rate != settings.baud]
-            rates = await policies.device_rates(policies.reopening(bus), others)
+            rates = await policies.device_rates(policies.reopening(bus), others, on_rate=trying_rates(settings))
         except (IcsError, OSError):
             pass  # advice only: a port that cannot be opened again leaves what was said
     if probed.garbled:

@@ -146,13 +146,15 @@ def _opener(settings: Settings) -> Callable[[int], Bus]:
     return open_at
 
 
-def _trying(settings: Settings) -> Callable[[int], None]:
+def trying_rates(settings: Settings) -> Callable[[int], None]:
     """A search of the other rates' progress (its ``on_rate``), for a person watching: where nothing answers,
     each rate costs a whole --timeout (raised for a slow link, the search must keep it: see policies.scan)."""
 
+    from ..policies import trying_rate
+
     def tell(baud: int) -> None:
         if err.is_terminal:
-            err.print(f"no answer at {settings.baud} baud: trying {baud} baud ...")
+            err.print(trying_rate(settings.baud, baud))
 
     return tell
 
@@ -167,7 +169,7 @@ def _rate_elsewhere(
 
     others = [rate for rate in ALL_BAUDS if rate != settings.baud]
     try:
-        found = run_loop(lambda: search(_opener(settings), others, _trying(settings)))
+        found = run_loop(lambda: search(_opener(settings), others, trying_rates(settings)))
     except (errors.IcsError, OSError):
         return None
     return found[0] if found else None
@@ -179,7 +181,7 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     from ..policies import NoReplyCause, why_no_reply
 
     finding = run_loop(
-        lambda: why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo, on_rate=_trying(settings))
+        lambda: why_no_reply(exc, _opener(settings), settings.baud, echo=settings.echo, on_rate=trying_rates(settings))
     )
     if finding.cause is NoReplyCause.NO_ECHO:
         # Not even our own echo came back: the adapter or its wiring, not the servo.

@@ -39,7 +39,18 @@ from .position_read import (
     plan_position_stream,
     read_position_without_freeing,
 )
-from .scan import ALL_BAUDS, ALL_IDS, RateScan, ScanReport, anyone_there, device_rates, probe_ids, scan, servo_rates
+from .scan import (
+    ALL_BAUDS,
+    ALL_IDS,
+    RateScan,
+    ScanReport,
+    anyone_there,
+    device_rates,
+    probe_ids,
+    scan,
+    servo_rates,
+    trying_rate,
+)
 from .scan_units import FoundServo, read_eeprom_agreed
 
 __all__ = [
@@ -84,6 +95,7 @@ __all__ = [
     "scan",
     "servo_rates",
     "survey_for_id_write",
+    "trying_rate",
     "write_eeprom_plan",
     "write_eeprom_plans",
     "why_no_reply",

@@ -33,7 +33,7 @@ from .. import protocol
 from ..errors import IcsError, ReplyError, UnsafeOperation, VerifyError
 from ..protocol import Param
 from .failure_kinds import Line, LineOpener, answers_short_read, nothing_came_back
-from .scan import ALL_BAUDS, ALL_IDS, device_rates, probe_ids
+from .scan import ALL_BAUDS, ALL_IDS, RateCallback, device_rates, probe_ids
 
 
 class Refusal(enum.Enum):
@@ -147,18 +147,21 @@ async def survey_for_id_write(line: Line) -> IdSurvey:
     return IdSurvey(baud, seen, error, rate.answered, rate.garbled, line.stats.total.bytes_rx == rx_before)
 
 
-async def look_elsewhere(survey: IdSurvey, open_at: LineOpener, *, echo: bool = True) -> IdSurvey:
+async def look_elsewhere(
+    survey: IdSurvey, open_at: LineOpener, *, echo: bool = True, on_rate: RateCallback | None = None
+) -> IdSurvey:
     """``survey``, with the other rates a device answers at (``elsewhere``) when none answered at its own.
 
     A servo set to another baud rate is silent at this one: the refusal then names the rate to open the
     line at.  Not looked for when not even the echo came back (``echo``: the line loops what it sends):
     the adapter or its wiring, which no rate mends.  ``open_at(baud)`` opens the line at a rate, as for
-    :func:`~.scan.scan` (:func:`~.failure_kinds.reopening` leaves a line at the last rate tried).
+    :func:`~.scan.scan` (:func:`~.failure_kinds.reopening` leaves a line at the last rate tried); ``on_rate(baud)``
+    is told each rate as it is tried (see :func:`~.scan.device_rates`).
     """
     if survey.refusal is not Refusal.NOBODY or (survey.silent and echo):
         return survey
     try:
-        found = await device_rates(open_at, [rate for rate in ALL_BAUDS if rate != survey.baud])
+        found = await device_rates(open_at, [rate for rate in ALL_BAUDS if rate != survey.baud], on_rate=on_rate)
     except (IcsError, OSError):
         found = ()  # advice only: a port that cannot be opened again leaves the refusal as it was
     return dataclasses.replace(survey, elsewhere=found)

@@ -85,6 +85,12 @@ ProbeCallback = Callable[[int], None]  # called with the number of IDs just fini
 RateCallback = Callable[[int], object]  # called with the baud rate a search of other rates tries next
 
 
+def trying_rate(line_baud: int, baud: int) -> str:
+    """What a search of the other rates (``on_rate``) tells a person as it tries ``baud``, nothing having answered
+    at the line's rate ``line_baud``: each rate may cost a whole reply allowance, so the wait is said."""
+    return f"no answer at {line_baud} baud: trying {baud} baud ..."
+
+
 @dataclass(frozen=True)
 class RateScan:
     """What probing some IDs at one baud rate found."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import AsyncIterator, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +57,7 @@ from ..policies import (
     reopening,
     scan,
     survey_for_id_write,
+    trying_rate,
     why_no_reply,
     write_eeprom_plan,
     write_lone_id,
@@ -122,6 +123,7 @@ class LineSession:
         self.error: str | None = None  # why the last connect failed
         self.found: list[FoundServo] = []
         self.progress = ScanProgress()
+        self.searching: str | None = None  # the rate a search of the other rates tries now, in words (its on_rate)
         self.exclusive = asyncio.Lock()
         self.traffic = TrafficLog()
         self.live: LiveView | None = None
@@ -224,6 +226,7 @@ class LineSession:
             "error": error,
             "live": None if self.live is None else list(self.live.ids),
             "scanning": self.progress.running,
+            "searching": self.searching,
             "robot_line": self.robot_line,
             "robot": None if self.robot is None else self.robot.lines_view(),
             "motion_off": {str(k): v for k, v in sorted(self.motion_off.items())},  # (the page unticks them)
@@ -449,10 +452,24 @@ class LineSession:
         if (report.silent and self.config.echo) or self._other_rates_not_tried() is not None:
             return None
         try:
-            found = await device_rates(reopening(bus), others)
+            with self._searching():
+                found = await device_rates(reopening(bus), others, on_rate=self._trying)
         except (IcsError, OSError):
             return None  # advice only: the scan's own outcome stands
         return found[0] if found else None
+
+    def _trying(self, baud: int) -> None:
+        """A search of the other rates' progress (its ``on_rate``): said in the status the pages show, as the
+        command line prints it (each rate may cost a whole reply allowance)."""
+        self.searching = trying_rate(self.config.baud, baud)
+
+    @contextlib.contextmanager
+    def _searching(self) -> Iterator[None]:
+        """Around a search of the other rates: once it has ended, the status no longer names a rate it tries."""
+        try:
+            yield
+        finally:
+            self.searching = None
 
     def found_view(self, servo: FoundServo) -> dict[str, Any]:
         return {
@@ -562,7 +579,10 @@ class LineSession:
                 search = not_tried is None and looked is None
                 try:
                     opener, echo = reopening(bus), self.config.echo
-                    finding = await why_no_reply(exc, opener, baud, echo=echo, other_rates=search)
+                    with self._searching():
+                        finding = await why_no_reply(
+                            exc, opener, baud, echo=echo, other_rates=search, on_rate=self._trying
+                        )
                 finally:
                     if bus.is_open and bus.baudrate != baud:
                         await bus.reopen(baudrate=baud)
@@ -1056,7 +1076,8 @@ class LineSession:
             return survey
         baud = int(bus.baudrate)
         try:
-            return await look_elsewhere(survey, reopening(bus), echo=self.config.echo)
+            with self._searching():
+                return await look_elsewhere(survey, reopening(bus), echo=self.config.echo, on_rate=self._trying)
         finally:
             if bus.is_open and bus.baudrate != baud:
                 await bus.reopen(baudrate=baud)

@@ -117,7 +117,9 @@ function showStatus(s) {
   $("#scan-progress").hidden = !s.scanning;
   $("#servo-table").classList.toggle("stale", !!s.lost || !s.connected);  // the last values read, not now's
   const where = (s.robot_line ? `the robot's line ${s.robot_line}: ` : "") + `${s.port} at ${s.baud} baud`;
-  $("#line-status").textContent = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
+  // A search of the other rates (after nothing answered) says which it tries: each may cost a whole allowance.
+  const line = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
+  $("#line-status").textContent = s.searching ? `${line} (${s.searching})` : line;
   if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
   // Motion the server switched off (a lost port; a live plot that took the servo over and freed it). Not
   // over a tick the server has yet to take: a status pushed meanwhile still says motion is off; nor from a
