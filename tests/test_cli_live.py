@@ -204,6 +204,29 @@ def test_the_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -> No
     assert tried in screen and "--baud 1250000" in screen, screen
 
 
+def test_monitor_of_listed_ids_on_a_line_where_nothing_answers_says_what_it_asks_and_asks_each_id_once() -> None:
+    # `ics35 monitor 1-4 --timeout 1` on a line where nothing answers: ten seconds of a blank terminal before the first
+    # cycle.  The wait is said as it starts, and each silent ID costs one allowance, not two: the line is asked once
+    # whether anybody is there (the ID read), instead of each ID again.
+    allowance = scaled(0.5)
+    started: list[float] = []
+
+    def now() -> bool:
+        started.append(time.monotonic())
+        return True
+
+    args = ["--port", "sim://listed-silent?ids=", "--timeout", str(allowance), "monitor", "1-6", "--seconds", "0.1"]
+    code, shown = typed_on_a_terminal(
+        args, [("asking IDs 1-6 on sim://listed-silent?ids= at 115200 baud", b""), (now, b"")]
+    )
+    took = time.monotonic() - started[0]
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.NO_REPLY and "no servo among 1, 2, 3, 4, 5, 6 answered" in screen, screen
+    # Six probes, the last one's second look behind its guard read, the ID read, then the other two rates: eleven
+    # allowances and the rest of the run, where each ID's position-read probe more made it seventeen.
+    assert took < 14 * allowance, took
+
+
 def test_monitor_stopped_on_a_line_where_nothing_answers_ends_within_its_search_of_the_other_rates() -> None:
     # `ics35 monitor 1-4 --free --timeout 1` on a line where nothing answers, Ctrl-C: ten seconds to the prompt.  The
     # stop waited for two of the stream's cycles to carry a free to no ID (every ID watched: a servo that answers

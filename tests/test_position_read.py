@@ -15,7 +15,7 @@ from ics35_async.errors import ReplyHeaderError, ReplyLengthError, ReplySubcomma
 from ics35_async.policies.scan import probe_ids
 from ics35_async.sim import VirtualLine, VirtualServo, parse_url
 from ics35_async.stream import WATCH
-from tests.support.sim_servos import LosesPositionReplies
+from tests.support.sim_servos import LosesPositionReplies, LosesStretchReplies
 from tests.support.timing import GUARD
 
 TORQUE_COMMANDS = {"position", "free"}
@@ -353,6 +353,33 @@ def test_an_absent_id_costs_the_stream_plan_two_short_probes_and_the_servos_ther
     ics35 = ["read_stretch", "read_position", "read_speed", "read_stretch", "read_position"]
     assert commands(sim, 1) == commands(sim, 6) == [*ics35, "read_stretch", "read_position"]
     assert not TORQUE_COMMANDS & {t.command for t in sim.log_since(0)}
+
+
+def test_on_a_line_where_nothing_answers_the_stream_plan_asks_each_id_once_and_the_line_once() -> None:
+    # `monitor 1-4 --timeout 1` on a line where nothing answers: until something has answered, every probe waits the
+    # whole allowance, and each silent ID's position-read probe more waited it once again (ten seconds before the
+    # first cycle).  Where no ID answered, one ID read (which every device at the line's rate answers) says whether
+    # anyone is there: nobody, and no ID is asked again; a device there, and each silent ID is, as before.
+    from ics35_async import policies
+
+    def plan_of(sim: VirtualLine) -> Any:
+        return run_with(sim, lambda bus: policies.plan_position_stream(bus, range(1, 5), free_ics35=True), retries=1)
+
+    empty = VirtualLine([], log_size=None)
+    plan = plan_of(empty)
+    assert (plan.watch, plan.free, plan.silent) == ([1, 2, 3, 4], [], [1, 2, 3, 4])
+    for absent in (1, 2, 3):
+        assert commands(empty, absent) == ["read_stretch"], absent
+    assert commands(empty, 4) == ["read_stretch", "read_speed", "read_stretch"]  # (the scan's second look)
+    assert [t.command for t in empty.log_since(0) if t.servo_id is None] == ["read_id"]
+
+    # A servo whose reply to the scan's probe was lost answers the ID read: it is asked again and told apart.
+    lossy = VirtualLine([LosesStretchReplies(2, lost=1, ics36=True)], log_size=None)
+    plan = plan_of(lossy)
+    assert (plan.watch, plan.free, plan.silent) == ([1, 2, 3, 4], [], [1, 3, 4]), plan
+    assert commands(lossy, 2) == ["read_stretch", "read_position"]
+    assert commands(lossy, 3) == ["read_stretch", "read_position"]
+    assert not TORQUE_COMMANDS & {t.command for t in lossy.log_since(0)}
 
 
 def test_a_known_ics35_servo_gone_silent_is_still_left_out_of_a_plan_that_may_not_free() -> None:

@@ -7,7 +7,19 @@ from rich.markup import escape
 
 from .. import policies
 from ._basic import NO_READ_35
-from ._common import ID_LIST, CliError, ExitCode, err, every_id, ids_text, json_option, run, seconds_option, settings_of
+from ._common import (
+    ID_LIST,
+    CliError,
+    ExitCode,
+    err,
+    every_id,
+    id_ranges,
+    ids_text,
+    json_option,
+    run,
+    seconds_option,
+    settings_of,
+)
 from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -55,6 +67,10 @@ def monitor(
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
             chosen = ids if ids and not every_id(ids) else await discover(bus, settings, as_json, asked_all=bool(ids))
+            if chosen is ids and not as_json and err.is_terminal:
+                # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
+                # said, as a scan says it scans, so a wait of seconds is not a blank terminal.
+                err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
             plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
             freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)

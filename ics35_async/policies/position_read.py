@@ -16,7 +16,7 @@ from .. import protocol
 from ..errors import ReplyError
 from ..line import Line
 from ..servo import Servo
-from .scan import probe_ids
+from .scan import anyone_there, probe_ids
 
 if TYPE_CHECKING:
     from ..stream import StreamOptions
@@ -100,7 +100,12 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     several reply allowances.  A silent one gets one short position-read
     probe more (``has_position_read(silent_before=True)``): an ICS 3.6 servo
     whose first reply was lost answers it; silent twice, the ID is
-    ``silent``.  A servo that answered is probed as ever: its position read,
+    ``silent``.  Where no ID answered at all, the line is asked once instead,
+    by the ID read every device at its rate answers (the scan's question
+    whether anyone is there): until something has answered each probe waits
+    the whole allowance, so asking every ID again would cost one allowance an
+    ID; nobody answers, and every ID is ``silent``, else each is asked again
+    as above.  A servo that answered is probed as ever: its position read,
     and if it is silent to that, a parameter read and the position read
     again, so an ICS 3.5 servo is told from an ICS 3.6 one.
 
@@ -124,19 +129,28 @@ async def plan_position_stream(line: Line, ids: Iterable[int], *, free_ics35: bo
     3.6 servo watched, never freed).
     """
     wanted = [protocol.check_id(i) for i in ids]
-    present = set((await probe_ids(line, wanted, id_read_first=False)).answered) if wanted else set()
+    probed = await probe_ids(line, wanted, id_read_first=False) if wanted else None
+    present = set(probed.answered) if probed is not None else set()
+    # No ID answered: until something has, every probe waits the whole allowance, and asking each silent ID again
+    # would wait it once more for each.  One ID read, which every device at this rate answers (the scan's rule, see
+    # probe_ids), says whether anyone is there; nobody, and every ID has been asked twice without an answer (its
+    # probe, and the line).
+    nobody = probed is not None and not present and not probed.garbled and not await anyone_there(line)
     plan = StreamPlan()
     for sid in wanted:
         servo = Servo(line, sid)
         readable = servo.known_position_read()
-        try:
-            if readable is None:
-                # (probed: which asks the servo; silent to the scan's probe, one silent probe more says nobody)
-                readable = await servo.has_position_read(silent_before=sid not in present)
-            elif sid not in present:
-                await (servo.read_position() if readable else servo.read_temperature())
-        except ReplyError:
+        if nobody:
             plan.silent.append(sid)
+        else:
+            try:
+                if readable is None:
+                    # (probed: which asks the servo; silent to the scan's probe, one silent probe more says nobody)
+                    readable = await servo.has_position_read(silent_before=sid not in present)
+                elif sid not in present:
+                    await (servo.read_position() if readable else servo.read_temperature())
+            except ReplyError:
+                plan.silent.append(sid)
         if readable is False and free_ics35:
             try:
                 if await servo.read_position_once_more() is not None:

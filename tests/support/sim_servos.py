@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from ics35_async.protocol import Position, ReadPosition
+from ics35_async.protocol import Param, Position, ReadParam, ReadPosition
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
 
@@ -50,6 +50,22 @@ class LosesPositionReplies(VirtualServo):
     def handle(self, command: Any) -> Any:
         reply = super().handle(command)
         if isinstance(command, ReadPosition) and self.lost > 0:
+            self.lost -= 1
+            return NO_REPLY
+        return reply
+
+
+class LosesStretchReplies(VirtualServo):
+    """A servo whose first ``lost`` replies to the stretch read (a scan's probe) never reach the host: it hears each
+    read, as a servo whose reply is lost does, and answers every other command."""
+
+    def __init__(self, servo_id: int, lost: int, **options: Any) -> None:
+        super().__init__(servo_id, **options)
+        self.lost = lost
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if isinstance(command, ReadParam) and command.param is Param.STRETCH and self.lost > 0:
             self.lost -= 1
             return NO_REPLY
         return reply
