@@ -107,6 +107,20 @@ def test_a_scan_that_finds_no_servo_at_any_rate_says_what_to_check(browser: Brow
         expect(p.locator("#scan-summary")).to_contain_text("no servo answered at any baud rate")
 
 
+def test_the_search_of_the_other_rates_says_in_the_status_line_which_rate_it_tries(browser: Browser) -> None:
+    # Nothing answers at the line's rate: the page asks the other rates, a whole allowance each where nothing answers,
+    # and its status line says which (as `ics35 doctor` and `monitor --free` print it), then no more once done.
+    line = PtyLine(())
+    with web_server_page(browser, line) as p:
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        status = p.locator("#line-status")
+        expect(status).to_contain_text("no answer at 115200 baud: trying 625000 baud ...", timeout=SCAN_WAIT_MS)
+        expect(status).to_contain_text("no answer at 115200 baud: trying 1250000 baud ...", timeout=SCAN_WAIT_MS)
+        expect(p.locator("#scan-summary")).to_contain_text("no servo answered at 115,200 baud", timeout=SCAN_WAIT_MS)
+        expect(status).not_to_contain_text("trying")
+
+
 def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) -> None:
     line = PtyLine((0, 2))
     with web_server_page(browser, line) as p:
