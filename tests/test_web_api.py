@@ -1348,7 +1348,7 @@ def test_an_old_backup_is_restored_keeping_the_servos_new_rate(serve: Any) -> No
     servo.power_cycle()  # it talks only at 1,250,000 now
     assert post(client, "/api/connect", {"baud": 1250000}).json()["baud"] == 1250000
     plan = post(client, "/api/servo/1/restore/plan", {"doc": doc}).json()
-    assert "baud rate" in plan["refusal"]
+    assert "baud rate" in plan["refusal"] and plan["allowed_by"] == "allow_baud_change"  # (the page names its ticks)
     kept = post(client, "/api/servo/1/restore/plan", {"doc": doc, "keep_baud": True}).json()
     assert kept["refusal"] is None and {d["name"] for d in kept["diff"]} == {"speed"}
     result = post(client, "/api/servo/1/restore", {"doc": doc, "keep_baud": True, "before": kept["before"]}).json()

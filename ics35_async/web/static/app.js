@@ -544,7 +544,7 @@ async function planRestore() {
   const plan = await api(`/api/servo/${servoId()}/restore/plan`, request);
   state.restore = { ...request, before: plan.before };
   const note = plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
-  const baud = plan.refusal && plan.diff.some((d) => d.name === "baud_rate")
+  const baud = plan.allowed_by === "allow_baud_change"
     ? el("p", {}, "to restore the rest and keep the servo at its rate, tick “keep its baud rate”") : "";
   $("#restore-diff").replaceChildren(note, diffTable(plan), baud);
   $("#restore-btn").disabled = !plan.diff.length || !!plan.refusal;
