@@ -246,3 +246,22 @@ def test_monitor_stopped_on_a_line_where_nothing_answers_ends_within_its_search_
     assert code == ExitCode.NO_REPLY and "no servo among 1, 2, 3, 4 answered" in screen, screen
     assert "trying 625000 baud" in screen and "trying 1250000 baud" in screen, screen
     assert took < 4 * allowance, took  # (two allowances of search; fourteen and more before)
+
+
+@pytest.mark.parametrize("port", ["sim://", "SIM://", "sim:///"])
+def test_the_simulator_with_nothing_asked_of_it_runs_in_real_time_however_its_url_is_written(
+    cli: Any, port: str
+) -> None:
+    # The bare simulator becomes a real-time one for a live command, so the rate shown is a line's; written with the
+    # slash an unnamed URL may have (sim:///, the same line as sim://), it ran in fast mode at thousands of cycles a
+    # second, more than the wire carries.
+    import json
+
+    from ics35_async.protocol import wire_time
+
+    result = cli("--port", port, "monitor", "1", "--free", "--seconds", "0.2", "--json")
+    assert result.code == 0, result.err
+    final = json.loads(result.out.splitlines()[-1])
+    assert final["final"] and final["servos"]["1"]["position"] is not None, final
+    wire_limit_hz = 1 / wire_time(3 + 3, 115200)  # (the free command and its reply, at the default rate)
+    assert 0 < final["rate_avg_hz"] < wire_limit_hz, final

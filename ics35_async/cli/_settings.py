@@ -114,7 +114,9 @@ class Settings:
     @property
     def is_bare_sim(self) -> bool:
         """The simulator with nothing asked of it (``sim://``, the default): a command may shape it its way."""
-        return self.is_sim and not self.port.partition("://")[2]
+        from ..transports.wire_device import asks_nothing
+
+        return asks_nothing(self.port)
 
     @property
     def url(self) -> str:

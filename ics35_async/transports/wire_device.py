@@ -102,6 +102,13 @@ def opens_anew(port: object) -> bool:
     return isinstance(port, str) and url_scheme(port) == "sim" and url_name(port) is None
 
 
+def asks_nothing(port: object) -> bool:
+    """Whether ``port`` is the simulator with nothing asked of it: an unnamed ``sim://`` URL without options
+    (``sim://``, ``sim:///``, ``SIM://``, one line however written: see :func:`opens_anew`), which a tool may
+    shape its way (real time for a live command, every ID for a demo)."""
+    return isinstance(port, str) and opens_anew(port) and not urlsplit(port).query
+
+
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
 _LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
 
