@@ -138,10 +138,11 @@ def link_hints(settings: Settings) -> tuple[str, ...]:
 
 
 def _opener(settings: Settings) -> Callable[[int], Bus]:
-    """How the diagnoses below open the line at a rate (``open_at(baud)``, as the policies take it)."""
+    """How the diagnoses below open the line at a rate (``open_at(baud)``, as the policies take it): as the
+    command's line, at that rate (each request the diagnoses send names its own retries)."""
 
     def open_at(baud: int) -> Bus:
-        return settings.bus(baud, retries=1)
+        return settings.bus(baud)
 
     return open_at
 

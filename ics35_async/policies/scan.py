@@ -480,7 +480,7 @@ async def servo_rates(
     line that ignores rates a servo answers at all of them).  ``open_at(baud)``
     opens the line at a rate, as for :func:`scan`; ``on_rate`` as for
     :func:`device_rates`.  The servo is asked once at each rate (see the module's search rule); one that
-    answers has its EEPROM read with the line's retries.
+    answers has its EEPROM read until two reads agree (see :func:`~.scan_units.read_eeprom_agreed`).
 
     Raises:
         InvalidArgument: ``servo_id`` is not 0..31.
