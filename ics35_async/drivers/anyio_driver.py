@@ -40,7 +40,7 @@ from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
-from .core import INF, CallerRequest, DriverCore
+from .core import INF, STALL, CallerRequest, DriverCore
 from .settings import LineSettings
 
 
@@ -73,12 +73,13 @@ class EventWaiter:
     too: there is no other exception for a request cancelled outside any cancel scope).  Not thread-safe,
     as a future is not: its methods are for the bus's own event loop."""
 
-    __slots__ = ("_cancelled", "event", "request")
+    __slots__ = ("_cancelled", "_check", "event", "request")
 
-    def __init__(self) -> None:
+    def __init__(self, check: Callable[[float], float]) -> None:
         self.event = anyio.Event()  # set once the outcome is in, or the request is cancelled
         self.request: CallerRequest | None = None
         self._cancelled = False
+        self._check = check  # the driver's check_progress
 
     def done(self) -> bool:
         return self.event.is_set()
@@ -119,8 +120,14 @@ class EventWaiter:
         return self.request.error
 
     async def wait(self) -> Any:
+        suspect = INF
         try:
-            await self.event.wait()
+            while not self.event.is_set():
+                # In looks of STALL seconds, not one wait: the bus task's own wake-up may be lost (see check_progress).
+                with anyio.move_on_after(STALL):
+                    await self.event.wait()
+                if not self.event.is_set():
+                    suspect = self._check(suspect)
         except BaseException:
             self.cancel()  # the caller gave up (a timeout, a cancelled task): as its future would be
             raise
@@ -148,6 +155,7 @@ class AnyioDriver(DriverCore):
         self._task: Any = None  # the asyncio task (kept referenced), when the backend is asyncio
         self._soon = soon_threadsafe()
         self._in_bus_task = False  # the bus task acts on the engine's answer now: it may start a burst
+        self._turn_at = -INF  # when the bus task last began a turn of its loop (see check_progress)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -184,13 +192,30 @@ class AnyioDriver(DriverCore):
                 if self._task_ended is not None:
                     # At once (nothing in the task outlasts its scope), and before the port closes under
                     # its wait for input; shielded, since the closer may itself be cancelled.
-                    with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
-                        await self._task_ended.wait()
+                    with anyio.CancelScope(shield=True):
+                        with anyio.move_on_after(1.0):
+                            await self._task_ended.wait()
+                        if not self._task_ended.is_set():
+                            await self._end_stuck_task()
             finally:  # even if the closing task is cancelled meanwhile: the port is released
                 self._drop_port()
         error, self._task_error = self._task_error, None
         if error is not None:
             raise error
+
+    async def _end_stuck_task(self) -> None:
+        """The bus task outlived its scope's cancellation: an exception raised inside an event loop callback (by a
+        signal handler) dropped its wake-up.  Left as it is, asyncio.run() would wait for it for ever as it ends."""
+        task = self._task
+        if task is None:  # (trio: its run's end cancels the system task as it can)
+            return
+        task.cancel()  # a scope's delivery lost, the task still waits on a future: a plain cancellation ends it
+        with anyio.move_on_after(0.5):
+            await self._task_ended.wait()  # type: ignore[union-attr]
+        if not task.done():
+            # Its own wake-up lost, the task never runs again and no cancellation reaches it: marked cancelled as
+            # a plain future is (Task.cancel only asks its next step to raise), so that nothing waits for it.
+            asyncio.Future.cancel(task)
 
     # ------------------------------------------------------------------ the bus task
 
@@ -207,12 +232,20 @@ class AnyioDriver(DriverCore):
             else:
                 self.engine.lost(f"the bus task for {self.target} failed: {error_text(exc)}", reconnect=False)
                 self._release_idle()
+        except BaseException as exc:
+            # Not aclose()'s cancellation (its scope ends the task quietly): the run's end cancelling every task
+            # (asyncio.run's, after a KeyboardInterrupt out of the loop), or an exception a signal handler raised in
+            # the task.  No task runs the line any more: its callers hear so instead of waiting for ever.
+            cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
+            self._fail_line(f"the bus task for {self.target} ended: {type(exc).__name__}", warn=not cancelled)
+            raise
         finally:
             self._task_ended.set()
 
     async def _run(self) -> None:
         engine = self.engine
         while True:
+            self._turn_at = now()
             port = self.port
             if port is None or engine.state is State.LOST:
                 if engine.state is State.LOST:
@@ -307,6 +340,9 @@ class AnyioDriver(DriverCore):
             with contextlib.suppress(RuntimeError):  # the loop has ended: nobody is left to tell
                 self._soon(self._rewait)
 
+    def _turned_since(self, t: float) -> bool:
+        return self._turn_at >= t or self._task_ended is None or self._task_ended.is_set()
+
     def _rewait(self) -> None:
         if self._scope is not None:
             self._scope.cancel()
@@ -331,6 +367,6 @@ class AnyioDriver(DriverCore):
     # ------------------------------------------------------------------ the user's side
 
     def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
-        waiter = EventWaiter()
+        waiter = EventWaiter(self.check_progress)
         waiter.request = CallerRequest(command, priority, retries, waiter, _set_event)
         return waiter.request, waiter

@@ -52,6 +52,9 @@ from .settings import LineSettings
 log = logging.getLogger("ics35_async")
 
 INF = math.inf
+STALL = 1.0
+"""Seconds between the looks a waiting caller takes at its line under the anyio driver (see
+:meth:`DriverCore.check_progress`); a driver's wait found overdue at two looks in a row has lost its wake-up."""
 LOST, CLOSED, DRAINING, OFFLINE = State.LOST, State.CLOSED, State.DRAINING, State.OFFLINE
 
 
@@ -335,6 +338,44 @@ class DriverCore:
 
     def _write_failed(self, port: Port, exc: Exception) -> None:
         self._lose(port, exc)
+
+    def _fail_line(self, reason: str, *, warn: bool = True) -> None:
+        """The driver can no longer run the line: it closes for good, every request failing with PortLost(``reason``)
+        (none waits for ever), with or without a port."""
+        port = self.port
+        if port is not None:
+            self.port = None
+            self._unwatch(port)
+            port.close()
+        if warn and self.engine.state not in (CLOSED, DRAINING):
+            log.warning("%s", reason)
+        self.engine.lost(reason, reconnect=False)
+        self._release_idle()
+
+    # ------------------------------------------------------------------ a lost wake-up
+
+    def _turned_since(self, t: float) -> bool:
+        """Whether the driver's own wait has run (begun a wait, or acted on one's end) at or after ``t``."""
+        return True
+
+    def check_progress(self, suspect: float) -> float:
+        """A level check from a caller that waited :data:`STALL` seconds: the driver's wait must have run since the
+        engine's deadline went by.  An exception raised inside one of the event loop's callbacks (a signal handler's:
+        pytest-timeout's alarm, a program's handler raising KeyboardInterrupt) drops what that callback was doing,
+        and with it perhaps the wake-up of the driver's wait, edge-triggered: the line would stand still for ever.
+        ``suspect`` is the overdue deadline this caller's previous look found (``INF``: none); the same one found
+        again, a whole look later (a loop merely stalled by the program has run the driver's wait meanwhile), means
+        the wake-up is lost: the line fails for good, saying so.  Returns the overdue deadline found now, or ``INF``."""
+        deadline = self.engine.deadline
+        if deadline == INF or self.bursting or now() < deadline or self._turned_since(deadline):
+            return INF
+        if deadline != suspect:
+            return deadline
+        self._fail_line(
+            f"the {self.name} driver's wait for port {self.target} stopped running: an exception raised inside an"
+            " event loop callback (by a signal handler) dropped its wake-up"
+        )
+        return INF
 
     def _after(self, out: Output) -> None:
         """After an engine call from the user's side: act on the answer, re-aim the wait, wake idle waiters."""

@@ -1,0 +1,131 @@
+"""An exception raised inside one of the event loop's callbacks (a signal handler's, as pytest-timeout's alarm or a
+program's own handler raising KeyboardInterrupt) under the anyio driver: no request is left unanswered, no hang.
+
+Such an exception drops what the interrupted callback was doing: a task's wake-up (the task never runs again) or a
+cancel scope's delivery (its cancellation never reaches the task).  The program here raises it, through a trace
+function, exactly where a signal handler's would land: at the start of the bus task's wake-up callback or of anyio's
+cancellation delivery, the Nth time.  Each run is a subprocess with a time limit: a hang fails, it never hangs the
+suite.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from typing import Any
+
+import pytest
+
+from tests.support.timing import scaled
+
+PROGRAM = textwrap.dedent(
+    """
+    import asyncio, inspect, sys
+    from ics35_async import IcsError, open_bus
+
+    port, kind, nth, raised = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+
+    class Alarm(BaseException):  # as pytest-timeout's Failed: not an Exception, nor KeyboardInterrupt
+        pass
+
+    EXC = {"KeyboardInterrupt": KeyboardInterrupt, "Alarm": Alarm}[raised]
+    seen = [0]
+    bus_task = []
+
+    def target(frame):
+        if frame.f_code.co_name != "_run" or not frame.f_code.co_filename.endswith("events.py"):
+            return False
+        callback = getattr(frame.f_locals.get("self"), "_callback", None)
+        if kind == "wakeup":  # the bus task's own step: lost, the task never runs again
+            return getattr(callback, "__self__", None) is bus_task[0]
+        return getattr(callback, "__name__", "") == "_deliver_cancellation"  # a cancel scope's delivery
+
+    # KeyboardInterrupt lands at the callback's start (out of the loop, as asyncio lets it); Alarm inside the
+    # callback's call, where the loop catches it, says so and goes on.
+    lines, first = inspect.getsourcelines(asyncio.Handle._run)
+    inside = first + next(i for i, line in enumerate(lines) if "_context.run" in line)
+
+    def raise_there(frame, event, arg):
+        if EXC is KeyboardInterrupt or (event == "line" and frame.f_lineno == inside):
+            sys.settrace(None)
+            raise EXC("raised by a signal handler")
+        return raise_there
+
+    def tracer(frame, event, arg):
+        if event == "call" and target(frame):
+            seen[0] += 1
+            if seen[0] == nth:
+                return raise_there(frame, event, arg)
+        return None
+
+    async def read(bus, servo):
+        try:
+            await asyncio.wait_for(bus.servo(servo).read_temperature(), 5)
+        except IcsError as exc:
+            return f"failed: {type(exc).__name__}: {exc}"
+        except TimeoutError:
+            return "unanswered"
+        return "ok"
+
+    async def main():
+        async with open_bus(port, driver="anyio") as bus:
+            bus_task.append(bus._driver._task)
+            sys.settrace(tracer)
+            try:
+                for _ in range(100):
+                    outcome = await read(bus, 1)
+                    if outcome != "ok":
+                        break
+                print("reads:", outcome, flush=True)
+            finally:
+                sys.settrace(None)
+                print("injected:", seen[0] >= nth, flush=True)
+                print("after:", await read(bus, 2), flush=True)
+
+    try:
+        asyncio.run(main())
+    except BaseException as exc:
+        print("end:", type(exc).__name__, flush=True)
+    else:
+        print("end: returned", flush=True)
+    """
+)
+
+
+def run_program(port: str, kind: str, nth: int, raised: str) -> dict[str, str]:
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", PROGRAM, port, kind, str(nth), raised],
+            capture_output=True,
+            text=True,
+            timeout=scaled(30.0),
+        )
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"the program hung: {exc.stdout!r} {exc.stderr!r}")
+    lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
+    assert "end" in lines, (done.stdout, done.stderr)
+    return lines
+
+
+def answered(outcome: str) -> bool:
+    """A request's outcome: done, or failed with a library error saying why; never left waiting."""
+    return outcome == "ok" or outcome.startswith("failed: ")
+
+
+@pytest.mark.parametrize("nth", [1, 3])
+@pytest.mark.parametrize("raised", ["KeyboardInterrupt", "Alarm"])
+@pytest.mark.parametrize("kind", ["wakeup", "deliver"])
+@pytest.mark.parametrize("on", ["sim", "pty"])
+def test_an_exception_raised_in_a_loop_callback_leaves_no_request_waiting_and_no_hang(
+    on: str, kind: str, raised: str, nth: int, pty_sim: Any
+) -> None:
+    port = "sim://?ids=1-4" if on == "sim" else pty_sim("--fast", "--ids", "1-4").path
+    lines = run_program(port, kind, nth, raised)
+    assert lines["injected"] == "True", lines
+    assert answered(lines["after"]), lines
+    if raised == "KeyboardInterrupt":  # out of asyncio.run, as the program's own Ctrl-C would be
+        assert lines["end"] == "KeyboardInterrupt", lines
+    else:  # dropped by the loop (it says so on stderr), the program goes on
+        assert answered(lines["reads"]), lines
+        assert lines["end"] == "returned", lines
