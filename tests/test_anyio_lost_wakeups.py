@@ -1,5 +1,6 @@
 """An exception raised inside one of the event loop's callbacks (a signal handler's, as pytest-timeout's alarm or a
-program's own handler raising KeyboardInterrupt) under the anyio driver: no request is left unanswered, no hang.
+program's own handler raising KeyboardInterrupt): no request is left unanswered, no hang, under the anyio driver and
+the others.
 
 Such an exception drops what the interrupted callback was doing: a task's wake-up (the task never runs again) or a
 cancel scope's delivery (its cancellation never reaches the task).  The program here raises it, through a trace
@@ -24,7 +25,7 @@ PROGRAM = textwrap.dedent(
     import asyncio, inspect, sys
     from ics35_async import IcsError, open_bus
 
-    port, kind, nth, raised = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+    port, kind, nth, raised, driver, servo = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4], *sys.argv[5:]
 
     class Alarm(BaseException):  # as pytest-timeout's Failed: not an Exception, nor KeyboardInterrupt
         pass
@@ -39,7 +40,9 @@ PROGRAM = textwrap.dedent(
         callback = getattr(frame.f_locals.get("self"), "_callback", None)
         if kind == "wakeup":  # the bus task's own step: lost, the task never runs again
             return getattr(callback, "__self__", None) is bus_task[0]
-        return getattr(callback, "__name__", "") == "_deliver_cancellation"  # a cancel scope's delivery
+        if kind == "deliver":  # a cancel scope's delivery
+            return getattr(callback, "__name__", "") == "_deliver_cancellation"
+        return getattr(callback, "__name__", "") == kind  # one of the asyncio or thread driver's own callbacks
 
     # KeyboardInterrupt lands at the callback's start (out of the loop, as asyncio lets it); Alarm inside the
     # callback's call, where the loop catches it, says so and goes on.
@@ -69,12 +72,12 @@ PROGRAM = textwrap.dedent(
         return "ok"
 
     async def main():
-        async with open_bus(port, driver="anyio") as bus:
-            bus_task.append(bus._driver._task)
+        async with open_bus(port, driver=driver) as bus:
+            bus_task.append(getattr(bus._driver, "_task", None))
             sys.settrace(tracer)
             try:
                 for _ in range(100):
-                    outcome = await read(bus, 1)
+                    outcome = await read(bus, int(servo))
                     if outcome != "ok":
                         break
                 print("reads:", outcome, flush=True)
@@ -93,10 +96,10 @@ PROGRAM = textwrap.dedent(
 )
 
 
-def run_program(port: str, kind: str, nth: int, raised: str) -> dict[str, str]:
+def run_program(port: str, kind: str, nth: int, raised: str, driver: str = "anyio", servo: int = 1) -> dict[str, str]:
     try:
         done = subprocess.run(
-            [sys.executable, "-c", PROGRAM, port, kind, str(nth), raised],
+            [sys.executable, "-c", PROGRAM, port, kind, str(nth), raised, driver, str(servo)],
             capture_output=True,
             text=True,
             timeout=scaled(30.0),
@@ -129,3 +132,23 @@ def test_an_exception_raised_in_a_loop_callback_leaves_no_request_waiting_and_no
     else:  # dropped by the loop (it says so on stderr), the program goes on
         assert answered(lines["reads"]), lines
         assert lines["end"] == "returned", lines
+
+
+@pytest.mark.parametrize(
+    ("driver", "callback", "servo"),
+    [
+        ("asyncio", "_on_timer", 9),  # the timer that judges a silent servo's transaction
+        ("asyncio", "_hop", 9),  # its second look
+        ("asyncio", "_readable", 1),  # an in-process device's input, told once
+        ("thread", "_settle", 1),  # a request's outcome, handed to the loop's thread
+    ],
+)
+def test_a_callback_of_the_other_drivers_dropped_by_an_exception_leaves_no_request_waiting(
+    driver: str, callback: str, servo: int
+) -> None:
+    # Servo 9 is not on the line: its reads end only when the driver's timer judges them.
+    lines = run_program("sim://?ids=1-4", callback, 1, "Alarm", driver, servo)
+    assert lines["injected"] == "True", lines
+    assert answered(lines["reads"]), lines
+    assert answered(lines["after"]), lines
+    assert lines["end"] == "returned", lines

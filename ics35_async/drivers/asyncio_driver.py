@@ -29,7 +29,7 @@ from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
-from .core import INF, CallerRequest, LoopDriver, settle_future
+from .core import INF, STALL, CallerRequest, LoopDriver, settle_future
 from .settings import LineSettings
 
 IDLE = State.IDLE
@@ -209,6 +209,15 @@ class AsyncioDriver(LoopDriver):
 
     def _hop(self) -> None:
         self._timer = self.loop.call_soon(self._on_timer)
+
+    def _look(self) -> None:
+        port = self.port
+        if port is None or self.bursting:
+            return
+        if isinstance(port, DevicePort) and port.has_input:
+            self._readable()  # told once (an edge), and that callback dropped
+        if self.engine.deadline + STALL < now():
+            self._arm()  # the timer's callback (or its second look) dropped: the line would wait for ever
 
     # ------------------------------------------------------------------ the user's side
 

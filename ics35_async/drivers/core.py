@@ -53,8 +53,9 @@ log = logging.getLogger("ics35_async")
 
 INF = math.inf
 STALL = 1.0
-"""Seconds between the looks a waiting caller takes at its line under the anyio driver (see
-:meth:`DriverCore.check_progress`); a driver's wait found overdue at two looks in a row has lost its wake-up."""
+"""Seconds between the looks taken at a line for a wake-up an exception raised inside an event loop callback (by a
+signal handler) dropped: by a waiting caller under the anyio driver (see :meth:`DriverCore.check_progress`), by the
+supervisor under the asyncio and thread drivers (see :meth:`LoopDriver._supervisor_task`)."""
 LOST, CLOSED, DRAINING, OFFLINE = State.LOST, State.CLOSED, State.DRAINING, State.OFFLINE
 
 
@@ -702,10 +703,20 @@ class LoopDriver(DriverCore):
 
     async def _supervisor_task(self) -> None:
         while True:
-            await self._lost.wait()
+            # A look at the line every STALL seconds meanwhile: a callback of the driver's (a timer, a delivery)
+            # that an exception raised inside it (by a signal handler) dropped is made good there, instead of
+            # leaving a request waiting for ever.
+            with anyio.move_on_after(STALL):
+                await self._lost.wait()
+            if not self._lost.is_set():
+                self._look()
+                continue
             self._lost.clear()
             await self._before_reconnect()
             await self._reconnect()
+
+    def _look(self) -> None:
+        """Make good what a callback dropped by an exception would have done (see _supervisor_task)."""
 
     async def _before_reconnect(self) -> None:
         """Anything to end before the port is reopened."""

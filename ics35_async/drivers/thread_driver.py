@@ -217,6 +217,8 @@ class ThreadDriver(LoopDriver):
         self._wait: _Wait | None = None
         self._running = _Run()
         self._write_error: tuple[Port, OSError] | None = None  # from a write in the caller's thread
+        self._unsettled: set[CallerRequest] = set()  # outcomes handed to the loop's thread, not yet settled there
+        self._unsettled_before: set[CallerRequest] = set()  # those of them the previous look found
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
 
@@ -376,8 +378,20 @@ class ThreadDriver(LoopDriver):
             self.loop.call_soon_threadsafe(callback)
 
     def _deliver(self, request: CallerRequest) -> None:
+        self._unsettled.add(request)  # (a set's add and discard are atomic: no lock between the threads)
         with contextlib.suppress(RuntimeError):
-            self.loop.call_soon_threadsafe(settle_future, request)
+            self.loop.call_soon_threadsafe(self._settle, request)
+
+    def _settle(self, request: CallerRequest) -> None:
+        self._unsettled.discard(request)
+        settle_future(request)
+
+    def _look(self) -> None:
+        # An outcome still unsettled a whole look later: its callback was dropped (see _supervisor_task).
+        unsettled = set(self._unsettled)
+        for request in unsettled & self._unsettled_before:
+            self._settle(request)
+        self._unsettled_before = unsettled - self._unsettled_before
 
     def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
         future = self.loop.create_future()
