@@ -333,9 +333,10 @@ class Bus:
         """
         new_baud = self.baudrate if baudrate is None else protocol.check_baud(baudrate)
         driver = self._driver
+        if driver is not None:  # first, as for a request: a bus from another loop is that mistake, open or not
+            driver.check_caller()
         if driver is None or not self.is_open:
             raise self._engine.closed_error()
-        driver.check_caller()
         if self._engine.source is not None and self._engine.source is self._leaving and not self._reopening:
             # A stream closed during a burst is detached where the burst stops (see attach_source): stop it now
             # (one transaction at most), so that a reopen right after the close finds the stream gone.  Only
@@ -514,9 +515,10 @@ class Bus:
         if self._reopening:
             raise InvalidArgument("the bus is reopening; start the stream afterwards")
         driver = self._driver
+        if driver is not None:  # first, as for a request: a bus from another loop is that mistake, open or not
+            driver.check_caller()
         if driver is None or not self.is_open:
             raise self._not_open_error()
-        driver.check_caller()
         running = engine.source
         if running is not None and running is not source and running is not self._leaving:
             # Refused before the running burst is stopped: the stream that runs on would pay for it.
