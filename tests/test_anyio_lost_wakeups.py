@@ -152,3 +152,83 @@ def test_a_callback_of_the_other_drivers_dropped_by_an_exception_leaves_no_reque
     assert answered(lines["reads"]), lines
     assert answered(lines["after"]), lines
     assert lines["end"] == "returned", lines
+
+
+IN_THE_BUS_TASK = textwrap.dedent(
+    """
+    import inspect, sys, anyio
+    from ics35_async import IcsError, open_bus
+    from ics35_async.drivers.anyio_driver import AnyioDriver
+
+    port, backend = sys.argv[1:3]
+    armed = [False]
+    # In the bus task's own code, just after a wait for input ended (not in the middle of anyio's cancel scopes,
+    # whose books an exception raised there leaves corrupt).
+    lines, first = inspect.getsourcelines(AnyioDriver._run)
+    there = first + next(i for i, line in enumerate(lines) if "self._waiting_until = INF" in line)
+
+    def raise_there(frame, event, arg):
+        if event == "line" and frame.f_lineno == there and armed[0]:
+            armed[0] = False
+            sys.settrace(None)
+            raise KeyboardInterrupt("raised by a signal handler")
+        return raise_there
+
+    def tracer(frame, event, arg):  # the bus task's loop, as it resumes
+        if event == "call" and frame.f_code.co_name == "_run" and frame.f_code.co_filename.endswith("anyio_driver.py"):
+            return raise_there
+        return None
+
+    async def read(bus, servo):
+        try:
+            with anyio.fail_after(5):
+                await bus.servo(servo).read_temperature()
+        except IcsError as exc:
+            return f"failed: {type(exc).__name__}: {exc}"
+        except TimeoutError:
+            return "unanswered"
+        return "ok"
+
+    async def main():
+        async with open_bus(port, driver="anyio") as bus:
+            sys.settrace(tracer)
+            try:
+                for i in range(100):
+                    armed[0] = i == 20
+                    outcome = await read(bus, 1)
+                    if outcome != "ok":
+                        break
+                print("reads:", outcome, flush=True)
+            finally:
+                sys.settrace(None)
+                with anyio.CancelScope(shield=True):
+                    print("after:", await read(bus, 2), flush=True)
+
+    try:
+        anyio.run(main, backend=backend)
+    except BaseException as exc:
+        print("end:", type(exc).__name__, flush=True)
+    else:
+        print("end: returned", flush=True)
+    """
+)
+
+
+@pytest.mark.parametrize("backend", ["asyncio", "trio"])
+def test_a_keyboard_interrupt_raised_in_the_bus_task_fails_its_requests_and_still_interrupts_the_program(
+    backend: str,
+) -> None:
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", IN_THE_BUS_TASK, "sim://?ids=1-4", backend],
+            capture_output=True,
+            text=True,
+            timeout=scaled(30.0),
+        )
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"the program hung: {exc.stdout!r} {exc.stderr!r}")
+    lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
+    assert "after" in lines, (done.stdout, done.stderr)
+    assert answered(lines["after"]), lines
+    assert "KeyboardInterrupt" in lines["after"] or backend == "asyncio", lines  # the line says what stopped it
+    assert lines["end"] == "KeyboardInterrupt", (lines, done.stderr)  # the program is interrupted, as the signal meant

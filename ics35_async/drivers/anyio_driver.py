@@ -151,7 +151,7 @@ class AnyioDriver(DriverCore):
         self._scope: anyio.CancelScope | None = None
         self._task_scope = anyio.CancelScope()  # the bus task's own (see open)
         self._task_ended: anyio.Event | None = None
-        self._task_error: Exception | None = None
+        self._task_error: BaseException | None = None
         self._task: Any = None  # the asyncio task (kept referenced), when the backend is asyncio
         self._soon = soon_threadsafe()
         self._in_bus_task = False  # the bus task acts on the engine's answer now: it may start a burst
@@ -238,7 +238,10 @@ class AnyioDriver(DriverCore):
             # the task.  No task runs the line any more: its callers hear so instead of waiting for ever.
             cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
             self._fail_line(f"the bus task for {self.target} ended: {type(exc).__name__}", warn=not cancelled)
-            raise
+            if cancelled or self._task is not None:
+                raise  # (on asyncio, a KeyboardInterrupt or SystemExit goes on out of the loop, as the signal meant)
+            # Out of a trio system task it would crash the run (TrioInternalError): the program hears it at aclose().
+            self._task_error = exc
         finally:
             self._task_ended.set()
 
