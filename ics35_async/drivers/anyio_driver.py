@@ -75,11 +75,11 @@ class EventWaiter:
 
     __slots__ = ("_cancelled", "_check", "event", "request")
 
-    def __init__(self, check: Callable[[float], float]) -> None:
+    def __init__(self, check: Callable[[float], float] | None) -> None:
         self.event = anyio.Event()  # set once the outcome is in, or the request is cancelled
         self.request: CallerRequest | None = None
         self._cancelled = False
-        self._check = check  # the driver's check_progress
+        self._check = check  # the driver's check_progress, for the wait to call (None: the driver's timer does)
 
     def done(self) -> bool:
         return self.event.is_set()
@@ -122,11 +122,16 @@ class EventWaiter:
     async def wait(self) -> Any:
         suspect = INF
         try:
+            if self._check is None:
+                await self.event.wait()
             while not self.event.is_set():
-                # In looks of STALL seconds, not one wait: the bus task's own wake-up may be lost (see check_progress).
+                # Under trio in looks of STALL seconds, not one wait: the bus task's own wake-up may be lost (see
+                # check_progress).  (Under asyncio, a cancel scope a request costs as much as the rest of it: there,
+                # one timer of the driver's looks.)
                 with anyio.move_on_after(STALL):
                     await self.event.wait()
                 if not self.event.is_set():
+                    assert self._check is not None
                     suspect = self._check(suspect)
         except BaseException:
             self.cancel()  # the caller gave up (a timeout, a cancelled task): as its future would be
@@ -156,6 +161,8 @@ class AnyioDriver(DriverCore):
         self._soon = soon_threadsafe()
         self._in_bus_task = False  # the bus task acts on the engine's answer now: it may start a burst
         self._turn_at = -INF  # when the bus task last began a turn of its loop (see check_progress)
+        self._look_timer: asyncio.TimerHandle | None = None  # under asyncio: the next look (see _look_soon)
+        self._suspect = INF  # the overdue deadline its previous look found
 
     # ------------------------------------------------------------------ life cycle
 
@@ -369,7 +376,24 @@ class AnyioDriver(DriverCore):
 
     # ------------------------------------------------------------------ the user's side
 
+    def _look_soon(self) -> None:
+        """Under asyncio: one timer looks at the line every STALL seconds while it has work (see check_progress)."""
+        loop = asyncio.get_running_loop()
+        timer = self._look_timer
+        if timer is not None and timer.when() > loop.time() - STALL:
+            return  # armed (one run a whole look ago was dropped: armed again)
+        self._look_timer = loop.call_later(STALL, self._look)
+
+    def _look(self) -> None:
+        self._look_timer = None
+        self._suspect = self.check_progress(self._suspect)
+        if not self.engine.idle:
+            self._look_soon()
+
     def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
-        waiter = EventWaiter(self.check_progress)
+        on_asyncio = self._task is not None
+        if on_asyncio:
+            self._look_soon()
+        waiter = EventWaiter(None if on_asyncio else self.check_progress)
         waiter.request = CallerRequest(command, priority, retries, waiter, _set_event)
         return waiter.request, waiter
