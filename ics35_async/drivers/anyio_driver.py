@@ -206,6 +206,9 @@ class AnyioDriver(DriverCore):
                             await self._end_stuck_task()
             finally:  # even if the closing task is cancelled meanwhile: the port is released
                 self._drop_port()
+                if self._look_timer is not None:
+                    self._look_timer.cancel()
+                    self._look_timer = None
         error, self._task_error = self._task_error, None
         if error is not None:
             raise error

@@ -360,13 +360,14 @@ class DriverCore:
         return True
 
     def check_progress(self, suspect: float) -> float:
-        """A level check from a caller that waited :data:`STALL` seconds: the driver's wait must have run since the
-        engine's deadline went by.  An exception raised inside one of the event loop's callbacks (a signal handler's:
-        pytest-timeout's alarm, a program's handler raising KeyboardInterrupt) drops what that callback was doing,
-        and with it perhaps the wake-up of the driver's wait, edge-triggered: the line would stand still for ever.
-        ``suspect`` is the overdue deadline this caller's previous look found (``INF``: none); the same one found
-        again, a whole look later (a loop merely stalled by the program has run the driver's wait meanwhile), means
-        the wake-up is lost: the line fails for good, saying so.  Returns the overdue deadline found now, or ``INF``."""
+        """A level check every :data:`STALL` seconds (by a waiting caller, or a timer of the driver's): the driver's
+        wait must have run since the engine's deadline went by.  An exception raised inside one of the event loop's
+        callbacks (a signal handler's: pytest-timeout's alarm, a program's handler raising KeyboardInterrupt) drops
+        what that callback was doing, and with it perhaps the wake-up of the driver's wait, edge-triggered: the line
+        would stand still for ever.  ``suspect`` is the overdue deadline the previous look found (``INF``: none); the
+        same one found again, a whole look later (a loop merely stalled by the program has run the driver's wait
+        meanwhile), means the wake-up is lost: the line fails for good, saying so.  Returns the overdue deadline found
+        now, or ``INF``."""
         deadline = self.engine.deadline
         if deadline == INF or self.bursting or now() < deadline or self._turned_since(deadline):
             return INF
