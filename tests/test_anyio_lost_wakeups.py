@@ -150,6 +150,8 @@ def test_a_callback_of_the_other_drivers_dropped_by_an_exception_leaves_no_reque
     lines = run_program("sim://?ids=1-4", callback, 1, "Alarm", driver, servo)
     assert lines["injected"] == "True", lines
     assert answered(lines["reads"]), lines
+    if servo != 9:  # a reply that came in time is its request's, however late the driver takes it
+        assert lines["reads"] == "ok", lines
     assert answered(lines["after"]), lines
     assert lines["end"] == "returned", lines
 

@@ -184,6 +184,12 @@ class AsyncioDriver(LoopDriver):
         port = self.port
         if port is None:
             return
+        if isinstance(port, DevicePort) and port.has_input:
+            # An in-process device tells its input once: were that callback dropped (an exception raised inside it
+            # by a signal handler), the reply would sit unread, judged missing, and every later one behind it.
+            self._readable()
+            if self._timer is not None:  # (re-armed for the engine's next deadline)
+                return
         t = now()
         deadline = engine.deadline
         if t < deadline:
