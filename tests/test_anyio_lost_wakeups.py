@@ -116,6 +116,7 @@ def answered(outcome: str) -> bool:
     return outcome == "ok" or outcome.startswith("failed: ")
 
 
+@pytest.mark.slow  # (a lost wake-up is told after two looks of a second, and the close waits for the task 1.5 s)
 @pytest.mark.parametrize("nth", [1, 3])
 @pytest.mark.parametrize("raised", ["KeyboardInterrupt", "Alarm"])
 @pytest.mark.parametrize("kind", ["wakeup", "deliver"])
