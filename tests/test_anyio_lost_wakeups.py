@@ -235,3 +235,58 @@ def test_a_keyboard_interrupt_raised_in_the_bus_task_fails_its_requests_and_stil
     assert answered(lines["after"]), lines
     assert "KeyboardInterrupt" in lines["after"] or backend == "asyncio", lines  # the line says what stopped it
     assert lines["end"] == "KeyboardInterrupt", (lines, done.stderr)  # the program is interrupted, as the signal meant
+
+
+WAIT_IDLE = textwrap.dedent(
+    """
+    import asyncio, inspect, sys
+    from ics35_async import open_bus
+
+    driver = sys.argv[1]
+    armed = [False]
+
+    class Alarm(BaseException):  # as pytest-timeout's Failed: the loop says so and goes on
+        pass
+
+    lines, first = inspect.getsourcelines(asyncio.Handle._run)
+    inside = first + next(i for i, line in enumerate(lines) if "_context.run" in line)
+
+    def raise_there(frame, event, arg):
+        if event == "line" and frame.f_lineno == inside:
+            sys.settrace(None)
+            raise Alarm("raised by a signal handler")
+        return raise_there
+
+    def tracer(frame, event, arg):  # the callback that tells a wait_idle() the line is idle, dropped once
+        if event == "call" and armed[0] and frame.f_code.co_name == "_run" and frame.f_code.co_filename.endswith(
+            "events.py"
+        ):
+            if getattr(getattr(frame.f_locals.get("self"), "_callback", None), "__name__", "") == "set":
+                armed[0] = False
+                return raise_there
+        return None
+
+    async def main():
+        async with open_bus("sim://?ids=1-4", driver=driver) as bus:
+            sys.settrace(tracer)
+            armed[0] = True
+            try:
+                for _ in range(20):
+                    read = asyncio.ensure_future(bus.servo(1).read_temperature())
+                    await asyncio.wait_for(bus.wait_idle(), 5)
+                    await read
+                print("idle: ok", armed[0], flush=True)
+            except TimeoutError:
+                print("idle: never told", flush=True)
+
+    asyncio.run(main())
+    """
+)
+
+
+def test_a_wait_for_an_idle_line_whose_wake_up_was_dropped_still_ends() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", WAIT_IDLE, "thread"], capture_output=True, text=True, timeout=scaled(30.0)
+    )
+    assert "idle: ok False" in done.stdout, (done.stdout, done.stderr)  # (False: the callback was dropped)
+    assert "never told" not in done.stdout, (done.stdout, done.stderr)

@@ -645,13 +645,18 @@ class DriverCore:
 
     async def wait_idle(self) -> None:
         """Return once nothing is on the wire, resyncing or queued (or the port is gone)."""
+        event: anyio.Event | None = None
         while True:
             with self.lock:
                 if self._idle_now():
                     return
-                event = anyio.Event()
-                self._idle.append(event)
-            await event.wait()
+                if event is None or event not in self._idle:  # (a new one once the last was released)
+                    event = anyio.Event()
+                    self._idle.append(event)
+            # Looking again every STALL seconds: the callback that sets the event may be dropped (an exception
+            # raised inside it by a signal handler), and with it the only word that the line is idle.
+            with anyio.move_on_after(STALL):
+                await event.wait()
 
     def _release_idle(self) -> None:
         waiters, self._idle = self._idle, []
