@@ -290,3 +290,54 @@ def test_a_wait_for_an_idle_line_whose_wake_up_was_dropped_still_ends() -> None:
     )
     assert "idle: ok False" in done.stdout, (done.stdout, done.stderr)  # (False: the callback was dropped)
     assert "never told" not in done.stdout, (done.stdout, done.stderr)
+
+
+# A stream's frames wait on the bus task too, with no request made: the Nth wake-up of the bus task dropped by an
+# exception the loop catches (as pytest-timeout's), inside the callback's call.
+A_STREAM = """
+import asyncio, inspect, sys
+from ics35_async import IcsError, open_bus
+nth = int(sys.argv[1])
+seen = [0]
+bus_task = []
+class Alarm(BaseException):  # as pytest-timeout's Failed
+    pass
+lines, first = inspect.getsourcelines(asyncio.Handle._run)
+inside = first + next(i for i, line in enumerate(lines) if "_context.run" in line)
+def raise_there(frame, event, arg):
+    if event == "line" and frame.f_lineno == inside:
+        sys.settrace(None)
+        raise Alarm("raised by a signal handler")
+    return raise_there
+def tracer(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == "_run" and frame.f_code.co_filename.endswith("events.py"):
+        cb = getattr(frame.f_locals.get("self"), "_callback", None)
+        if bus_task and getattr(cb, "__self__", None) is bus_task[0]:
+            seen[0] += 1
+            if seen[0] == nth:
+                return raise_there
+    return None
+async def main():
+    async with open_bus("sim://?ids=1-4", driver="anyio") as bus, bus.stream([1, 2]) as stream:
+        bus_task.append(bus._driver._task)
+        sys.settrace(tracer)
+        try:
+            for _ in range(300):
+                await asyncio.wait_for(stream.next_frame(), 5)
+            print("frames: ok", seen[0], flush=True)
+        except IcsError as exc:
+            print("frames: failed:", type(exc).__name__, exc, flush=True)
+        except TimeoutError:
+            print("frames: unanswered", flush=True)
+try:
+    asyncio.run(main())
+except BaseException as exc:
+    print("end:", type(exc).__name__, flush=True)
+"""
+
+
+@pytest.mark.slow  # (a lost wake-up is told after two looks of a second)
+def test_a_stream_whose_bus_task_lost_its_wake_up_fails_its_frames_rather_than_waiting() -> None:
+    done = subprocess.run([sys.executable, "-c", A_STREAM, "5"], capture_output=True, text=True, timeout=scaled(30.0))
+    lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
+    assert lines.get("frames", "").startswith("failed: PortLost"), (done.stdout, done.stderr)

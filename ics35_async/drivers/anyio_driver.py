@@ -189,6 +189,7 @@ class AnyioDriver(DriverCore):
             trio.lowlevel.spawn_system_task(self._run_task, name=name)
         else:
             self._task = loop.create_task(self._run_task(), name=name)
+            self._look_soon()
 
     async def aclose(self) -> None:
         try:
@@ -380,7 +381,8 @@ class AnyioDriver(DriverCore):
     # ------------------------------------------------------------------ the user's side
 
     def _look_soon(self) -> None:
-        """Under asyncio: one timer looks at the line every STALL seconds while it has work (see check_progress)."""
+        """Under asyncio: one timer looks at the line every STALL seconds while the bus is open (see check_progress):
+        for its requests, and for its stream, whose frames wait on the bus task too."""
         loop = asyncio.get_running_loop()
         timer = self._look_timer
         if timer is not None and timer.when() > loop.time() - STALL:
@@ -390,7 +392,7 @@ class AnyioDriver(DriverCore):
     def _look(self) -> None:
         self._look_timer = None
         self._suspect = self.check_progress(self._suspect)
-        if not self.engine.idle:
+        if self.engine.state is not State.CLOSED:
             self._look_soon()
 
     def _new_request(self, command: Command[Any], priority: int, retries: int) -> tuple[CallerRequest, Any]:
