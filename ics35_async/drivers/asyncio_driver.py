@@ -47,6 +47,8 @@ class AsyncioDriver(LoopDriver):
         self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self._writing = False  # a writer waits for a tty to take what a partial write left
         self._reading = False  # the loop's reader watches the tty (not while a burst's executor reads it)
+        self._reads = 0  # calls of _readable, and their count at the last look (see _look)
+        self._reads_at_look = -1
 
     # ------------------------------------------------------------------ life cycle
 
@@ -100,6 +102,7 @@ class AsyncioDriver(LoopDriver):
                 self.loop.call_soon_threadsafe(self._readable)
 
     def _readable(self) -> None:
+        self._reads += 1
         port = self.port
         if port is None:
             return
@@ -184,12 +187,6 @@ class AsyncioDriver(LoopDriver):
         port = self.port
         if port is None:
             return
-        if isinstance(port, DevicePort) and port.has_input:
-            # An in-process device tells its input once: were that callback dropped (an exception raised inside it
-            # by a signal handler), the reply would sit unread, judged missing, and every later one behind it.
-            self._readable()
-            if self._timer is not None:  # (re-armed for the engine's next deadline)
-                return
         t = now()
         deadline = engine.deadline
         if t < deadline:
@@ -209,6 +206,15 @@ class AsyncioDriver(LoopDriver):
             self._waiting_until = t  # already passed: a new transaction's later deadline arms its own timer
             self._timer = self.loop.call_soon(self._hop)
             return
+        if isinstance(port, DevicePort) and port.has_input:
+            # An in-process device tells its input once, and its callback has run by the end of the second look:
+            # input still waiting means an exception raised inside that callback (by a signal handler) dropped it.
+            # Read now, or the reply would be judged missing, and every later one behind it.  (Only here: read at
+            # the timer's first call, it would go before callbacks already queued, a stream's frame among them.)
+            self._readable()
+            if self._timer is None and engine.deadline < INF:
+                self._arm()
+            return
         self._step(port, b"", t)
         if self._timer is None and engine.deadline < INF:
             self._arm()
@@ -221,7 +227,9 @@ class AsyncioDriver(LoopDriver):
         if port is None or self.bursting:
             return
         if isinstance(port, DevicePort) and port.has_input:
-            self._readable()  # told once (an edge), and that callback dropped
+            if self._reads == self._reads_at_look:
+                self._readable()  # told once (an edge), and that callback dropped: nothing was read for a whole look
+            self._reads_at_look = self._reads
         if self.engine.deadline + STALL < now():
             self._arm()  # the timer's callback (or its second look) dropped: the line would wait for ever
 
