@@ -17,6 +17,8 @@ import pytest
 import uvloop
 
 from ics35_async import open_bus, protocol
+from ics35_async.drivers.core import STALL
+from ics35_async.errors import ReplyTimeout
 from ics35_async.sim import VirtualLine, VirtualServo
 
 LOOPS: dict[str, Callable[[], asyncio.AbstractEventLoop]] = {
@@ -51,6 +53,31 @@ def test_a_stalled_loop_gives_no_false_timeout_and_no_exception(loop_name: str) 
                 values = await asyncio.wait_for(asyncio.gather(*futures), 2)
                 assert values == [sim.servo(i).stretch for i in range(4)]
             assert bus.stats.total.timeouts == 0
+
+    assert run_with_errors(LOOPS[loop_name], main) == []
+    sim.close()
+
+
+@pytest.mark.slow  # (stalls of seconds: a look is a second)
+@pytest.mark.parametrize("loop_name", sorted(LOOPS))
+def test_the_anyio_driver_takes_a_loop_stalled_again_and_again_for_a_stall_not_a_lost_wake_up(loop_name: str) -> None:
+    # The anyio driver looks at its line once a second for a wake-up an exception dropped (see
+    # DriverCore.check_progress): the same overdue deadline found at two looks a whole look apart.  A program that
+    # stalls its loop for seconds (a synchronous load, a plot) makes the looks late, never two of them in one go.
+    sim = VirtualLine([VirtualServo(i) for i in range(4)], log_size=None)
+    stall = 2.5 * STALL
+
+    async def main() -> None:
+        async with open_bus(sim, driver="anyio") as bus:
+            for _ in range(2):
+                time.sleep(stall)  # the look due meanwhile is overdue by more than a look as the request comes
+                assert await bus.servo(1).read_temperature() >= 0
+                # On the wire, to an ID where nobody is: its deadline, and the looks, pass during the stall.
+                read = asyncio.ensure_future(bus.servo(9).read_temperature())
+                await asyncio.sleep(0)
+                time.sleep(stall)
+                with pytest.raises(ReplyTimeout):
+                    await asyncio.wait_for(read, 5)
 
     assert run_with_errors(LOOPS[loop_name], main) == []
     sim.close()

@@ -385,8 +385,12 @@ class AnyioDriver(DriverCore):
         for its requests, and for its stream, whose frames wait on the bus task too."""
         loop = asyncio.get_running_loop()
         timer = self._look_timer
-        if timer is not None and timer.when() > loop.time() - STALL:
-            return  # armed (one run a whole look ago was dropped: armed again)
+        if timer is not None:
+            if timer.when() > loop.time() - STALL:
+                return  # armed
+            # Due a whole look ago: dropped, or late behind a loop the program stalled, to run with the next.  Two
+            # chains of looks would look twice in one go after a stall, and take the stall for a lost wake-up.
+            timer.cancel()
         self._look_timer = loop.call_later(STALL, self._look)
 
     def _look(self) -> None:

@@ -54,8 +54,9 @@ log = logging.getLogger("ics35_async")
 INF = math.inf
 STALL = 1.0
 """Seconds between the looks taken at a line for a wake-up an exception raised inside an event loop callback (by a
-signal handler) dropped: by a waiting caller under the anyio driver (see :meth:`DriverCore.check_progress`), by the
-supervisor under the asyncio and thread drivers (see :meth:`LoopDriver._supervisor_task`)."""
+signal handler) dropped: under the anyio driver by a timer of the driver's on asyncio and by a waiting caller under
+trio (see :meth:`DriverCore.check_progress`), by the supervisor under the asyncio and thread drivers (see
+:meth:`LoopDriver._supervisor_task`)."""
 LOST, CLOSED, DRAINING, OFFLINE = State.LOST, State.CLOSED, State.DRAINING, State.OFFLINE
 
 
