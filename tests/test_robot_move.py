@@ -1087,9 +1087,28 @@ def test_read_pose_and_a_motion_from_a_joint_whose_readings_never_agree_raise_in
     run_on_garbled_lines(main, line)
 
 
+def test_a_joint_whose_readings_never_agree_is_given_up_by_a_robot_that_takes_every_few_cycles() -> None:
+    # A robot at its own pace takes each line's newest cycle, not every cycle: two readings it compares may be a few
+    # reports apart.  The simulator's broken potentiometer must not agree with itself there either, or its readings,
+    # far from where it is, were taken as where the joint is (read_pose() gave them, a motion started from them).
+    line = VirtualLine([VirtualServo(1), VirtualServo(2, noisy=True)], name="never-agrees-paced", log_size=None)
+    description = {
+        "lines": {"main": {"port": "sim://never-agrees-paced"}},
+        "joints": {"good": {"line": "main", "id": 1}, "broken": {"line": "main", "id": 2}},
+    }
+
+    async def main() -> None:
+        with anyio.fail_after(2 * GUARD):
+            async with open_robot(description) as robot:  # (its default pace: not every cycle of the line)
+                with pytest.raises(UnsettledReadings, match="broken"):
+                    await robot.read_pose()
+
+    run_on_garbled_lines(main, line)
+
+
 def test_a_joints_first_reading_at_the_open_is_not_where_hold_holds_it() -> None:
     # A joint's first reading has none before it to agree with, and was taken as it came: a garbled one (here a servo
-    # whose readings jump) was where hold() right after the open held it, throwing the servo 30 degrees at full speed.
+    # whose readings jump) was where hold() right after the open held it, throwing the servo there at full speed.
     line = VirtualLine([VirtualServo(1), VirtualServo(2, noisy=True)], name="first-at-open", log_size=None)
     description = {
         "lines": {"main": {"port": "sim://first-at-open", "rate_hz": 25}},

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import pathlib
 import threading
 import time
@@ -10,11 +11,11 @@ from typing import Any
 import anyio
 import pytest
 
-from ics35_async import open_bus
+from ics35_async import open_bus, units
 from ics35_async.eeprom import BaudRate
 from ics35_async.errors import InvalidArgument, PortBusy
 from ics35_async.protocol import Position, ReadParam
-from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, named, open_url, parse_url
+from ics35_async.sim import FaultConfig, ReplayDevice, VirtualLine, VirtualServo, named, open_url, parse_url
 from ics35_async.sim import url as sim_url
 from ics35_async.sim.virtual_servo import NOISY_JUMP
 from ics35_async.transports import DevicePort, WireDevice, open_port
@@ -63,9 +64,22 @@ async def test_a_noisy_servos_readings_jump_either_side_of_where_it_is_and_never
             noisy = [await bus.servo(2).free() for _ in range(4)]
         at = line.servo(2).position
         assert clean == [line.servo(1).position] * 4
-        assert sorted(set(noisy)) == [at - NOISY_JUMP, at + NOISY_JUMP] and noisy[0] != noisy[1], noisy
+        assert all(abs(p - at) <= NOISY_JUMP for p in noisy) and len(set(noisy)) == len(noisy), noisy
     finally:
         line.close()
+
+
+@pytest.mark.parametrize("every", [1, 2, 3, 4, 7, 11, 25])
+def test_a_noisy_servos_readings_disagree_however_many_a_reader_skips(every: int) -> None:
+    # A reader at its own pace (a robot takes each line's newest cycle) sees every few reports: no two of those agree
+    # either, or the readings, far from where the servo is, would be taken as where it is.
+    from ics35_async.robot.robot import TURN_SLACK, TURN_STEP
+
+    servo = VirtualServo(2, noisy=True)
+    reports = [servo.handle(Position(2, 0, baudrate=115200)) for _ in range(12 * every)][::every]
+    apart = [abs(b - a) / units.COUNTS_PER_DEGREE for a, b in itertools.pairwise(reports)]
+    assert min(apart) > TURN_STEP + TURN_SLACK, (reports, apart)
+    assert all(abs(p - servo.position) <= NOISY_JUMP for p in reports), reports
 
 
 @pytest.mark.parametrize(

@@ -26,9 +26,10 @@ Model of a servo, in brief (all of it deliberately simple and deterministic):
   (:class:`~ics35_async.protocol.ReadPosition`) with where it is, torque
   and target unchanged; an ICS 3.5 servo (the default) stays silent to it.
 * **Noisy readings.**  With ``noisy`` (a broken potentiometer, a noisy wiper)
-  every position it reports is :data:`NOISY_JUMP` counts off where it is,
-  alternately above and below, so no two readings in a row agree; it moves
-  as any servo does.
+  every position it reports is up to :data:`NOISY_JUMP` counts off where it is,
+  either side, so that no two of any 25 reports in a row agree (a reader that
+  takes every few, as a robot at its own pace does, sees none agree either); it
+  moves as any servo does.
 * **Free.**  Position 0 turns the torque off: the servo stays where it is and
   :meth:`VirtualServo.move_by_hand` may turn it.  A servo powers up free.
 * **Current** (0..63, bit 6 = direction): about 1 when holding, more while
@@ -88,8 +89,13 @@ CALIBRATION_NIBBLES = len(PROTECTED_OFFSETS)
 HOLDING_CURRENT = 1
 MOVING_CURRENT = 8
 """Extra current while moving at full speed (scaled by speed / 127)."""
-NOISY_JUMP = 900
-"""Counts (about 30 degrees) a ``noisy`` servo's reported position is off where it is, alternately either side."""
+NOISY_JUMP = 4000
+"""Counts (135 degrees): the farthest a ``noisy`` servo's reported position is off where it is, either side."""
+# A noisy servo's offset walks NOISY_STRIDE counts a report, wrapping within 2 * NOISY_JUMP: reports up to 25 apart
+# are then at least 307 counts (10.4 degrees) apart, more than a robot lets two readings differ by (TURN_STEP and
+# TURN_SLACK), so readings taken every few reports (a robot takes each line's newest cycle, more than 20 apart on a
+# loaded host) never agree either.  Two offsets alternating agreed with themselves every other report.
+NOISY_STRIDE = 2769
 
 
 def factory_calibration(servo_id: int) -> bytes:
@@ -123,7 +129,7 @@ class VirtualServo:
     ``ignores``: names of commands it leaves unanswered (``{"read_eeprom"}``),
     as a device that half-answers does (another firmware, not a servo).
     ``ambient_celsius`` is the temperature it starts at and cools towards.
-    ``noisy``: every position it reports jumps :data:`NOISY_JUMP` counts either side of where it is.
+    ``noisy``: every position it reports jumps up to :data:`NOISY_JUMP` counts either side of where it is.
 
     Raises:
         InvalidArgument: a bad ID, baud rate, position or image.
@@ -156,7 +162,7 @@ class VirtualServo:
         self.load = load
         self.ics36 = bool(ics36)
         self.noisy = bool(noisy)
-        self._jump = NOISY_JUMP  # (the next report's offset when noisy: its sign flips at each report)
+        self._reports = 0  # positions reported (with ``noisy``: which offset the next one has)
         self.ambient_celsius = ambient_celsius
         self.temperature_celsius = ambient_celsius
         self._target: int | None = None
@@ -353,8 +359,9 @@ class VirtualServo:
         """The position a reply carries: where it is, or with ``noisy`` a jump either side of it."""
         if not self.noisy:
             return self.position
-        self._jump = -self._jump
-        return min(POSITION_MAX, max(1, self.position + self._jump))
+        self._reports += 1
+        offset = (self._reports * NOISY_STRIDE) % (2 * NOISY_JUMP) - NOISY_JUMP
+        return min(POSITION_MAX, max(1, self.position + offset))
 
     def _read_param(self, param: Param) -> int:
         if param == Param.STRETCH:
