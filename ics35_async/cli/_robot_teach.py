@@ -20,7 +20,7 @@ from rich.table import Table
 
 from ..eeprom import Eeprom
 from ..errors import IcsError, ReplyError, error_text
-from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, save_motion
+from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, UnsettledReadings, save_motion
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
 from ..robot.motion import LONGEST_MOTION
@@ -327,7 +327,15 @@ async def capture(
     """Read the pose and add it as a keyframe, timed by ``times``."""
     now = time.monotonic()
     warnings: list[str] = []
-    pose = await answering_pose(robot, names, "left out of this pose", warnings)
+    try:
+        pose = await answering_pose(robot, names, "left out of this pose", warnings)
+    except UnsettledReadings as exc:
+        # Most often a hand still turning a joint as Enter is pressed: this pose only is not taken, teaching goes on.
+        screen.say(
+            f"pose not captured: {escape(str(exc))}\nhold the robot still and press Enter again (a joint that never "
+            "settles: leave it out with --joints)"
+        )
+        return
     taken = {}
     for name in pose:
         spec = robot.joints[name]
