@@ -251,9 +251,13 @@ async def _robot_session(
                         try:
                             await waits.first_frame(robot)
                             # A joint's first reading counts only once the next agrees (see Robot._agreed): one
-                            # more reply of each, so that hold() or a motion right after the open finds where the
-                            # joints are, as before, rather than leaving them all out as not read yet.
-                            await robot.fresh_replies(robot.joints, 1)
+                            # more reply of each read in the first frame, so that hold() or a motion right after the
+                            # open finds where they are, as before, rather than leaving them all out as not read yet.
+                            # (Not of one unread there: it was not found before either, and a servo that does not
+                            # answer would keep the open waiting until it is taken offline.)
+                            first = robot.latest
+                            read = [n for n in first.positions if n not in first.failed] if first is not None else []
+                            await robot.fresh_replies(read, 1)
                             yield robot
                         finally:
                             # From here on nothing commands the joints but the streams' close (a task that
