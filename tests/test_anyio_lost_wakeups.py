@@ -237,15 +237,13 @@ def test_a_keyboard_interrupt_raised_in_the_bus_task_fails_its_requests_and_stil
     assert lines["end"] == "KeyboardInterrupt", (lines, done.stderr)  # the program is interrupted, as the signal meant
 
 
-WAIT_IDLE = textwrap.dedent(
+# The exception a signal handler such as pytest-timeout's raises (not an Exception, nor KeyboardInterrupt), raised
+# inside a loop callback's call, where the loop catches it, says so and goes on: what the programs below share.
+ALARM_INSIDE_A_CALLBACK = textwrap.dedent(
     """
     import asyncio, inspect, sys
-    from ics35_async import open_bus
 
-    driver = sys.argv[1]
-    armed = [False]
-
-    class Alarm(BaseException):  # as pytest-timeout's Failed: the loop says so and goes on
+    class Alarm(BaseException):
         pass
 
     lines, first = inspect.getsourcelines(asyncio.Handle._run)
@@ -256,6 +254,15 @@ WAIT_IDLE = textwrap.dedent(
             sys.settrace(None)
             raise Alarm("raised by a signal handler")
         return raise_there
+    """
+)
+
+WAIT_IDLE = ALARM_INSIDE_A_CALLBACK + textwrap.dedent(
+    """
+    from ics35_async import open_bus
+
+    driver = sys.argv[1]
+    armed = [False]
 
     def tracer(frame, event, arg):  # the callback that tells a wait_idle() the line is idle, dropped once
         if event == "call" and armed[0] and frame.f_code.co_name == "_run" and frame.f_code.co_filename.endswith(
@@ -294,21 +301,13 @@ def test_a_wait_for_an_idle_line_whose_wake_up_was_dropped_still_ends() -> None:
 
 # A stream's frames wait on the bus task too, with no request made: the Nth wake-up of the bus task dropped by an
 # exception the loop catches (as pytest-timeout's), inside the callback's call.
-A_STREAM = """
-import asyncio, inspect, sys
+A_STREAM = (
+    ALARM_INSIDE_A_CALLBACK
+    + """
 from ics35_async import IcsError, open_bus
 nth = int(sys.argv[1])
 seen = [0]
 bus_task = []
-class Alarm(BaseException):  # as pytest-timeout's Failed
-    pass
-lines, first = inspect.getsourcelines(asyncio.Handle._run)
-inside = first + next(i for i, line in enumerate(lines) if "_context.run" in line)
-def raise_there(frame, event, arg):
-    if event == "line" and frame.f_lineno == inside:
-        sys.settrace(None)
-        raise Alarm("raised by a signal handler")
-    return raise_there
 def tracer(frame, event, arg):
     if event == "call" and frame.f_code.co_name == "_run" and frame.f_code.co_filename.endswith("events.py"):
         cb = getattr(frame.f_locals.get("self"), "_callback", None)
@@ -334,6 +333,7 @@ try:
 except BaseException as exc:
     print("end:", type(exc).__name__, flush=True)
 """
+)
 
 
 @pytest.mark.slow  # (a lost wake-up is told after two looks of a second)
