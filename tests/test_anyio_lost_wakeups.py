@@ -96,19 +96,22 @@ PROGRAM = textwrap.dedent(
 )
 
 
-def run_program(port: str, kind: str, nth: int, raised: str, driver: str = "anyio", servo: int = 1) -> dict[str, str]:
+def said(program: str, *args: str, needs: str) -> dict[str, str]:
+    """What ``program`` (one of the texts here, run in a Python of its own) printed, ``key: value`` a line; a
+    program that hangs, or that never printed ``needs``, fails the test with all it printed."""
     try:
         done = subprocess.run(
-            [sys.executable, "-c", PROGRAM, port, kind, str(nth), raised, driver, str(servo)],
-            capture_output=True,
-            text=True,
-            timeout=scaled(30.0),
+            [sys.executable, "-c", program, *args], capture_output=True, text=True, timeout=scaled(30.0)
         )
     except subprocess.TimeoutExpired as exc:
         pytest.fail(f"the program hung: {exc.stdout!r} {exc.stderr!r}")
     lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
-    assert "end" in lines, (done.stdout, done.stderr)
+    assert needs in lines, (done.stdout, done.stderr)
     return lines
+
+
+def run_program(port: str, kind: str, nth: int, raised: str, driver: str = "anyio", servo: int = 1) -> dict[str, str]:
+    return said(PROGRAM, port, kind, str(nth), raised, driver, str(servo), needs="end")
 
 
 def answered(outcome: str) -> bool:
@@ -221,20 +224,10 @@ IN_THE_BUS_TASK = textwrap.dedent(
 def test_a_keyboard_interrupt_raised_in_the_bus_task_fails_its_requests_and_still_interrupts_the_program(
     backend: str,
 ) -> None:
-    try:
-        done = subprocess.run(
-            [sys.executable, "-c", IN_THE_BUS_TASK, "sim://?ids=1-4", backend],
-            capture_output=True,
-            text=True,
-            timeout=scaled(30.0),
-        )
-    except subprocess.TimeoutExpired as exc:
-        pytest.fail(f"the program hung: {exc.stdout!r} {exc.stderr!r}")
-    lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
-    assert "after" in lines, (done.stdout, done.stderr)
+    lines = said(IN_THE_BUS_TASK, "sim://?ids=1-4", backend, needs="after")
     assert answered(lines["after"]), lines
     assert "KeyboardInterrupt" in lines["after"] or backend == "asyncio", lines  # the line says what stopped it
-    assert lines["end"] == "KeyboardInterrupt", (lines, done.stderr)  # the program is interrupted, as the signal meant
+    assert lines.get("end") == "KeyboardInterrupt", lines  # the program is interrupted, as the signal meant
 
 
 # The exception a signal handler such as pytest-timeout's raises (not an Exception, nor KeyboardInterrupt), raised
@@ -292,11 +285,9 @@ WAIT_IDLE = ALARM_INSIDE_A_CALLBACK + textwrap.dedent(
 
 
 def test_a_wait_for_an_idle_line_whose_wake_up_was_dropped_still_ends() -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", WAIT_IDLE, "thread"], capture_output=True, text=True, timeout=scaled(30.0)
-    )
-    assert "idle: ok False" in done.stdout, (done.stdout, done.stderr)  # (False: the callback was dropped)
-    assert "never told" not in done.stdout, (done.stdout, done.stderr)
+    lines = said(WAIT_IDLE, "thread", needs="idle")
+    assert lines["idle"] == "ok False", lines  # (False: the callback was dropped)
+    assert lines["idle"] != "never told", lines
 
 
 # A stream's frames wait on the bus task too, with no request made: the Nth wake-up of the bus task dropped by an
@@ -338,6 +329,5 @@ except BaseException as exc:
 
 @pytest.mark.slow  # (a lost wake-up is told after two looks of a second)
 def test_a_stream_whose_bus_task_lost_its_wake_up_fails_its_frames_rather_than_waiting() -> None:
-    done = subprocess.run([sys.executable, "-c", A_STREAM, "5"], capture_output=True, text=True, timeout=scaled(30.0))
-    lines = dict(line.split(": ", 1) for line in done.stdout.splitlines() if ": " in line)
-    assert lines.get("frames", "").startswith("failed: PortLost"), (done.stdout, done.stderr)
+    lines = said(A_STREAM, "5", needs="frames")
+    assert lines["frames"].startswith("failed: PortLost"), lines
