@@ -220,6 +220,12 @@ def _put(image: bytearray, offset: int, nibbles: int, value: int) -> None:
         image[offset + i] = (value >> (4 * (nibbles - 1 - i))) & 0x0F
 
 
+def after_baud_change(new: int) -> str:
+    """What writing baud rate ``new`` to a servo's EEPROM does, in the words the refusal and every tool's
+    warning say it in."""
+    return f"from its next power-up the servo answers ONLY at {new} baud"
+
+
 @dataclass(frozen=True)
 class WriteRefusal:
     """Why an EEPROM write is refused (see :meth:`Eeprom.why_refused`), in parts: a tool words the reason once, as
@@ -327,7 +333,7 @@ class Eeprom:
         if self.baud_rate != current.baud_rate and not allow_baud_change:
             return WriteRefusal(
                 f"servo {servo_id}: the image changes the baud rate from {int(current.baud_rate)} to "
-                f"{int(self.baud_rate)}: from its next power-up the servo answers ONLY at {int(self.baud_rate)} baud",
+                f"{int(self.baud_rate)}: {after_baud_change(int(self.baud_rate))}",
                 "allow_baud_change",
                 "to do it, allow the baud change (allow_baud_change=True)",
             )

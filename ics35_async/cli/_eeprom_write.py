@@ -17,7 +17,7 @@ from typing import Any
 from rich.markup import escape
 
 from ..bus import Bus
-from ..eeprom import BaudRate, Flags
+from ..eeprom import BaudRate, Flags, after_baud_change
 from ..errors import IcsError, ReplyTimeout
 from ..policies import EepromPlan, ServoWriteReport, WriteOutcome, power_up_note, write_eeprom_plans
 from ._common import (
@@ -98,8 +98,7 @@ def show_plan(
     if plan.changes_baud:
         new = int(plan.after.baud_rate)
         err.print(
-            f"[yellow]warning:[/yellow] from its next power-up the servo answers ONLY at {new} baud: "
-            f"{_later_commands(new)}",
+            f"[yellow]warning:[/yellow] {after_baud_change(new)}: {_later_commands(new)}",
             soft_wrap=True,
         )
 
