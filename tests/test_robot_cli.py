@@ -29,7 +29,7 @@ from ics35_async.cli._settings import Settings
 from ics35_async.eeprom import Flags
 from ics35_async.robot import Keyframe, Motion, load_description
 from ics35_async.robot.calibration import dump_description
-from ics35_async.robot.motion import LONGEST_MOTION
+from ics35_async.robot.profiles import LONGEST_MOTION
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
 from tests.support.robot_rig import JOINTS, Rig, commanded, joint_position, make_rig, targets_sent

@@ -70,7 +70,7 @@ def test_a_stop_ends_at_or_before_the_motions_target() -> None:
     at_rest_when_told: list[bool] = []
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"shoulder": 0.0}, duration=0.0)
+        await robot.move_to({"shoulder": 0.0}, duration=0.05)
         since.update(seq_now(rig))
 
         async def mover() -> None:
@@ -109,7 +109,7 @@ def test_a_stop_with_room_left_still_slows_down_over_its_ramp() -> None:
     since: dict[str, int] = {}
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"knee": -90.0}, duration=0.0)
+        await robot.move_to({"knee": -90.0}, duration=0.05)
         since.update(seq_now(rig))
         async with anyio.create_task_group() as tasks:
             tasks.start_soon(knee_up_until_stopped, robot)
@@ -142,7 +142,7 @@ def test_a_stop_ends_at_or_before_the_keyframe_its_joint_is_heading_for() -> Non
     at_stop: list[float] = []
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"knee": 0.0}, duration=0.0)
+        await robot.move_to({"knee": 0.0}, duration=0.05)
         async with anyio.create_task_group() as tasks:
 
             async def player() -> None:
@@ -170,7 +170,7 @@ def test_a_stop_taken_over_by_another_stop_returns_once_the_joints_are_at_rest()
     since: dict[str, int] = {}
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"knee": -90.0}, duration=0.0)
+        await robot.move_to({"knee": -90.0}, duration=0.05)
         since.update(seq_now(rig))
         async with anyio.create_task_group() as tasks:
 
@@ -203,7 +203,7 @@ def test_a_second_stop_in_the_same_moment_as_the_first_returns_once_the_joints_a
     outcomes: dict[str, float | None] = {}
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"knee": -90.0}, duration=0.0)
+        await robot.move_to({"knee": -90.0}, duration=0.05)
         async with anyio.create_task_group() as tasks:
 
             async def stopper(name: str) -> None:
@@ -228,7 +228,7 @@ def test_a_stop_leaves_a_joint_at_rest_since_its_motion_was_cancelled() -> None:
     rested: list[float] = []
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"shoulder": 0.0, "knee": 0.0}, duration=0.0)
+        await robot.move_to({"shoulder": 0.0, "knee": 0.0}, duration=0.05)
         with anyio.move_on_after(0.3):
             await robot.move_to({"shoulder": -80.0}, duration=1.0, profile="linear")
         await anyio.sleep(0.3)  # the shoulder holds where the motion left it
@@ -258,7 +258,7 @@ def test_a_stop_right_after_a_cancelled_motion_slows_its_joint_down() -> None:
     at_cancel: list[float] = []
 
     async def body(robot: Robot) -> None:
-        await robot.move_to({"knee": -90.0}, duration=0.0)
+        await robot.move_to({"knee": -90.0}, duration=0.05)
         since.update(seq_now(rig))
         with anyio.move_on_after(0.2):
             try:
@@ -314,7 +314,7 @@ def test_no_command_leaves_the_motions_envelope(
     data = {"format": "ics35-motion", "version": 1, "profile": profile, "keyframes": keyframes}
 
     async def body(robot: Robot) -> None:
-        await robot.move_to(start, duration=0.0)
+        await robot.move_to(start, duration=0.05)
         since.update(seq_now(rig))
         playing = anyio.CancelScope()
 

@@ -256,6 +256,17 @@ def test_a_bad_speed_is_refused_in_words_about_a_time_scale(speed: Any) -> None:
     assert "seconds" not in str(refused.value) and "twice as fast" in str(refused.value), refused.value
 
 
+def test_a_motion_slowed_past_an_hour_is_refused_before_anything_is_sent() -> None:
+    # A motion's keyframes are held to an hour, but played at speed 0.01 a 3600 s one lasted a hundred hours: its
+    # joints crept too slowly to see, the robot's motion taken.  At that speed it is the slip a keyframe's is.
+    rig = make_rig()
+    data = motion({"time": 0.2, "pose": {"neck": 5}}, {"time": 3600, "pose": {"neck": 6}})
+    with pytest.raises(InvalidArgument, match=r"at speed 0\.5, keyframes\[1\]\.time: 7200 must be at most 3600"):
+        play_on(rig, data, speed=0.5)
+    for spec in JOINTS.values():
+        assert targets_sent(rig.sim(spec["line"]), spec["id"]) == []
+
+
 def test_saving_over_a_link_writes_through_it_and_keeps_the_files_mode(tmp_path: Path) -> None:
     # A motion kept in a shared folder and linked from the robot's: the link stays a link, its target
     # gets the new motion, and the file's permissions are the ones it had.

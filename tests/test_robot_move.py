@@ -23,7 +23,8 @@ from rich.console import Console
 from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
-from ics35_async.robot import MotionStopped, RobotWarning, UnsettledReadings
+from ics35_async.robot import Keyframe, Motion, MotionStopped, RobotWarning, Segment, Trajectory, UnsettledReadings
+from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.robot_rig import (
     JOINTS,
@@ -96,7 +97,7 @@ pose_strategy = st.fixed_dictionaries(
 @given(
     first=pose_strategy,
     second=pose_strategy,
-    durations=st.tuples(st.floats(0.0, 0.25), st.floats(0.0, 0.25)),
+    durations=st.tuples(st.floats(0.0, 0.25, exclude_min=True), st.floats(0.0, 0.25, exclude_min=True)),
     profiles=st.tuples(st.sampled_from(["minjerk", "linear"]), st.sampled_from(["minjerk", "linear"])),
 )
 def test_move_to_stays_within_limits_ends_exactly_and_moves_monotonically(
@@ -209,10 +210,116 @@ def test_a_bad_target_raises_before_anything_is_sent(pose: dict[str, Any], messa
         await robot.read_pose()
         for name, spec in JOINTS.items():
             assert targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]]) == [], name
-        with pytest.raises(InvalidArgument, match="duration must be"):
+        with pytest.raises(InvalidArgument, match="duration: -1 must be above 0"):
             await robot.move_to({"neck": 1.0}, duration=-1)
         with pytest.raises(InvalidArgument, match="profile must be one of minjerk, linear"):
             await robot.move_to({"neck": 1.0}, duration=1, profile="cubic")
+
+    run_robot(rig, body)
+
+
+# Trajectories built in Python, each from the neck's start angle: what each broke, and the words that say so.
+BAD_TRAJECTORIES: dict[str, tuple[Callable[[float], list[Segment]], str]] = {
+    # A time of 0 threw the joint to its end at full speed; a negative one too.
+    "zero time": (lambda a: [Segment(0.0, 0.0, {"neck": a}, {"neck": 50.0})], r"end_time: 0 must be above 0"),
+    "negative time": (lambda a: [Segment(0.0, -1.0, {"neck": a}, {"neck": 50.0})], r"end_time: -1 must be above 0"),
+    # NaN, an infinity or 1e308: the motion never ended (the joint held its start, the robot's motion taken).
+    "nan time": (lambda a: [Segment(0.0, math.nan, {"neck": a}, {"neck": 50.0})], r"end_time: must be a number of s"),
+    "inf time": (lambda a: [Segment(0.0, math.inf, {"neck": a}, {"neck": 50.0})], r"end_time: must be a number of s"),
+    "1e308 time": (lambda a: [Segment(0.0, 1e308, {"neck": a}, {"neck": 50.0})], r"end_time: 1e\+308 must be at most"),
+    "nan start": (lambda a: [Segment(math.nan, 1.0, {"neck": a}, {"neck": 50.0})], r"start_time: must be a number"),
+    "later than before": (
+        lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 5.0}), Segment(0.3, 0.1, {"neck": 5.0}, {"neck": 9.0})],
+        r"end_time: 0\.1 must be after 0\.3",
+    ),
+    # A NaN angle threw the joint to its lower limit at full speed, an infinite one to both limits in turn.
+    "nan angle": (lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": math.nan})], r"end\.neck: must be a number of d"),
+    "inf angle": (lambda a: [Segment(0.0, 0.3, {"neck": math.inf}, {"neck": a})], r"start\.neck: must be a number"),
+    # An unknown joint, or an end without a joint of its start, ended the robot with a KeyError.
+    "unknown joint": (
+        lambda a: [Segment(0.0, 0.3, {"neck": a, "tail": 0.0}, {"neck": 20.0, "tail": 5.0})],
+        r"segments\[0\]\.start: unknown joint\(s\): tail",
+    ),
+    "end without a joint": (lambda a: [Segment(0.0, 0.3, {"neck": a}, {})], r"start and end name the same joints"),
+    # An unknown profile ended the robot (raised in its frames' pump).
+    "unknown profile": (lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": 5.0}, "cubic")], r"profile must be one"),
+    # An angle past a limit was sent as the limit instead of refused.
+    "past a limit": (
+        lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": 120.0})],
+        r"segments\[0\]\.end: joint neck: 120 degrees is outside its limits -60\.\.60",
+    ),
+    # Segments not back to back: the second one's start was sent at full speed, or its joint held for nothing.
+    "a jump between segments": (
+        lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 0.0}), Segment(0.2, 0.4, {"neck": -55.0}, {"neck": -50.0})],
+        r"segments\[1\] starts at neck -55, not where segments\[0\] ends \(0\)",
+    ),
+    "a gap between segments": (
+        lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 0.0}), Segment(0.5, 0.7, {"neck": 0.0}, {"neck": 9.0})],
+        r"segments\[1\] starts at 0\.5 s, not where segments\[0\] ends \(0\.2 s\)",
+    ),
+    "other joints later": (
+        lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 0.0}), Segment(0.2, 0.4, {"hip": 0.0}, {"hip": 9.0})],
+        r"segments\[1\] moves hip, not the joints of segments\[0\] \(neck\)",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_TRAJECTORIES))
+def test_a_trajectory_built_in_python_is_held_to_the_motion_rules_before_anything_is_sent(case: str) -> None:
+    """A Trajectory of Segments given to Robot.run meets a keyframe's rules and the robot's limits, refused
+    (InvalidArgument) before any command goes out; the robot goes on moving after."""
+    build, message = BAD_TRAJECTORIES[case]
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        start = (await robot.read_pose())["neck"]
+        since = seq_now(rig)
+        with pytest.raises(InvalidArgument, match=message):
+            await robot.run(Trajectory(build(start)))
+        await robot.read_pose()
+        await robot.read_pose()
+        for name, spec in JOINTS.items():
+            assert targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]]) == [], name
+        await robot.move_to({"neck": 5.0}, duration=0.05)
+        assert (await settled_pose(robot, {"neck": 5.0}))["neck"] == pytest.approx(5.0, abs=0.1)
+
+    run_robot(rig, body)
+
+
+def test_a_segment_keyframe_and_move_to_say_the_same_rule_in_the_same_words() -> None:
+    """One rule of a motion's times and angles: a Segment, a Keyframe of a Motion and move_to's duration."""
+    for seconds in (0.0, -1.0, math.nan, math.inf, 1e308, LONGEST_MOTION * 2):
+        with pytest.raises(InvalidArgument) as by_keyframe:
+            Motion((Keyframe(seconds, {"neck": 5.0}),))
+        with pytest.raises(InvalidArgument) as by_segment:
+            Segment(0.0, seconds, {"neck": 0.0}, {"neck": 5.0})
+        with pytest.raises(InvalidArgument) as by_duration:
+            check_duration(seconds)
+        rule = str(by_keyframe.value).split(": ", 1)[1]
+        assert str(by_segment.value).endswith(f"end_time: {rule}"), (by_segment.value, rule)
+        assert str(by_duration.value) == f"duration: {rule}", (by_duration.value, rule)
+    for angle in (math.nan, math.inf, "5"):
+        with pytest.raises(InvalidArgument) as by_keyframe:
+            Motion((Keyframe(1.0, {"neck": angle}),))  # type: ignore[dict-item]
+        with pytest.raises(InvalidArgument) as by_segment:
+            Segment(0.0, 1.0, {"neck": 0.0}, {"neck": angle})  # type: ignore[dict-item]
+        rule = str(by_keyframe.value).split(": ", 1)[1]
+        assert str(by_segment.value).endswith(f"end.neck: {rule}"), (by_segment.value, rule)
+    assert check_duration(LONGEST_MOTION) == LONGEST_MOTION
+
+
+def test_move_to_in_no_time_is_refused_before_anything_is_sent() -> None:
+    """A move in 0 s threw the joints to the pose at full speed: refused, as a keyframe at 0 s is."""
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        since = seq_now(rig)
+        for duration in (0, 0.0, LONGEST_MOTION + 1):
+            with pytest.raises(InvalidArgument, match=r"^duration: "):
+                await robot.move_to({"neck": 50.0}, duration=duration)
+        await robot.read_pose()
+        await robot.read_pose()
+        assert targets_sent(rig.upper, JOINTS["neck"]["id"], since["upper"]) == []
 
     run_robot(rig, body)
 

@@ -509,7 +509,7 @@ def test_a_loop_that_catches_the_stop_at_every_pass_does_not_pile_up_its_traceba
     async def main() -> None:
         with anyio.fail_after(GUARD):
             async with open_robot(rig.description, **FAST) as robot:
-                await robot.move_to({"hip": 10.0, "knee": 0.0}, duration=0.0)
+                await robot.move_to({"hip": 10.0, "knee": 0.0}, duration=0.05)
                 hip.temperature_celsius = 90.0
                 hip.temperature_limit = 1  # the servo's own cut-out out of the way
                 await frames_until(robot, lambda: "hip" in robot.tripped)

@@ -23,7 +23,7 @@ from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, UnsettledReadings, save_motion
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
 from ..robot.description import JointSpec
-from ..robot.motion import LONGEST_MOTION
+from ..robot.profiles import LONGEST_MOTION
 from ..robot.startup import limit_problem
 from ..transports.wire_device import url_scheme
 from ._common import (

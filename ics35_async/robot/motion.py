@@ -14,8 +14,8 @@ Format (version 1)::
     }
 
 ``time`` is seconds from the start of the motion, strictly increasing,
-above 0 and at most :data:`LONGEST_MOTION` (an hour): the first keyframe is reached from wherever the robot is when the
-motion starts, in that keyframe's time.  ``profile`` on a keyframe shapes
+above 0 and at most :data:`~.profiles.LONGEST_MOTION` (an hour): the first keyframe is reached from wherever the
+robot is when the motion starts, in that keyframe's time.  ``profile`` on a keyframe shapes
 the segment that ends there.  A pose names any of the robot's joints; a
 joint a keyframe leaves out keeps its angle from the keyframe before, and
 joints no keyframe names are not touched.  Every angle is checked against
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 from .. import units
 from ..errors import FileContentError, InvalidArgument
 from ..user_files import UnreadableText, read_user_text, replace_keeping_backup
-from .profiles import PROFILES, Trajectory, check_profile
+from .profiles import PROFILES, KeyframeError, Trajectory, check_angles, check_profile, check_time
 
 if TYPE_CHECKING:
     from .host import PoseChecker
@@ -44,11 +44,6 @@ if TYPE_CHECKING:
 
 FORMAT = "ics35-motion"
 VERSION = 1
-LONGEST_MOTION = 3600.0
-"""Seconds: the latest a keyframe may come, and the longest ``Robot.move_to``.  An hour is longer than any motion a
-servo robot plays in one go; a keyframe later than that is a slip (milliseconds written for seconds, a stray
-exponent), and a time such as 1e308 makes a motion that never ends while it looks as if it runs (its joints creep
-too slowly to see), with the robot's motion taken until it is stopped."""
 
 
 class MotionError(FileContentError):
@@ -114,42 +109,21 @@ class Motion:
         return data
 
 
-class KeyframeError(InvalidArgument):
-    """A keyframe breaks a rule of the format; ``key`` is where in the keyframe (``.time``, ``.pose.neck``)."""
-
-    def __init__(self, key: str, message: str) -> None:
-        self.key = key
-        super().__init__(message)
-
-
 def check_keyframe(
     time: object, pose: object, profile: object, previous: float
 ) -> tuple[float, dict[str, float], str | None]:
     """A keyframe's ``time``, ``pose`` and ``profile`` checked: the one rule of a motion file's keyframes
     (:func:`parse_motion`), of a :class:`Motion` built in Python, and so of ``ics35 play``'s files and the
     configurator's uploads.  ``previous``: the time of the keyframe before (0 for the first).  The time is a
-    finite number of seconds after ``previous`` and at most :data:`LONGEST_MOTION`; every angle a finite
-    number of degrees (the robot's limits are checked against the robot: :func:`check_motion`).
+    finite number of seconds after ``previous`` and at most :data:`~.profiles.LONGEST_MOTION`; every angle a finite
+    number of degrees (the robot's limits are checked against the robot: :func:`check_motion`).  The time and
+    angle rules are a trajectory's segments' too (:func:`~.profiles.check_time`, :func:`~.profiles.check_angles`).
 
     Raises:
         KeyframeError: which part breaks which rule.
     """
-    seconds = units.finite_number(time)
-    if seconds is None:
-        raise KeyframeError(".time", f"must be a number of seconds, not {units.said(time)}")
-    if seconds <= previous:
-        why = "above 0 (the time to reach it from where the robot is)" if previous == 0 else f"after {previous:g}"
-        raise KeyframeError(".time", f"{seconds:g} must be {why}")
-    if seconds > LONGEST_MOTION:
-        raise KeyframeError(".time", f"{seconds:g} must be at most {LONGEST_MOTION:g} seconds (an hour) from the start")
-    if not isinstance(pose, Mapping):
-        raise KeyframeError(".pose", "must be an object {joint: degrees}")
-    angles = {}
-    for joint, deg in pose.items():
-        angle = units.finite_number(deg)
-        if angle is None:
-            raise KeyframeError(f".pose.{joint}", f"must be a number of degrees, not {units.said(deg)}")
-        angles[joint] = angle
+    seconds = check_time(time, previous)
+    angles = check_angles(pose)
     if profile is not None and profile not in PROFILES:
         raise KeyframeError(".profile", f"must be one of {', '.join(PROFILES)}, not {profile!r}")
     return seconds, angles, profile if isinstance(profile, str) else None
@@ -260,10 +234,19 @@ async def play_motion(
     units.check_bool("loop", loop)
     check_motion(robot, motion)
     joints = motion.joints
+    timeline = [(f.time / rate, f.pose, f.profile or motion.profile) for f in motion.keyframes]
+    first = motion.keyframes[0].pose
+    # Played faster or slower, a motion's times meet their rule again: a keyframe at an hour, played at half speed,
+    # comes after two (and two close ones, sped up, may come at the same time).  Refused before anything moves.
+    previous = 0.0
+    for k, (time, _, _) in enumerate(timeline):
+        try:
+            previous = check_time(time, previous)
+        except KeyframeError as exc:
+            raise InvalidArgument(f"at speed {rate:g}, keyframes[{k}]{exc.key}: {exc}") from None
     robot.check_ready(joints)
     if not joints:
         return
-    first = motion.keyframes[0].pose
     owned = set(joints)  # a joint another command takes over is given up, for this pass and the next ones
     # A stop (or a safety trip) that comes between two passes finds no pass running to end: it ends the loop all
     # the same, rather than the next pass moving the joints after stop() has returned.
@@ -273,8 +256,7 @@ async def play_motion(
         start = {j: first.get(j, _first_angle(motion, j)) for j in owned}
         start.update(await robot.start_pose(owned))
         keyframes: Sequence[tuple[float, Mapping[str, float], str]] = [
-            (f.time / rate, {j: a for j, a in f.pose.items() if j in owned}, f.profile or motion.profile)
-            for f in motion.keyframes
+            (time, {j: a for j, a in pose.items() if j in owned}, profile) for time, pose, profile in timeline
         ]
         owned &= await robot.run(
             Trajectory.through(start, keyframes), wait_on_wire=not loop, unless_stopped_since=stops

@@ -10,6 +10,10 @@ segment and never leaves the interval between its two ends:
 * ``linear``: ``s``, constant speed (starts and stops abruptly);
 * ``decel`` (internal, for a smooth stop): ``2 s - s^2``, from the speed a
   joint has down to rest, covering half the distance that speed would.
+
+The rule of a motion's times and angles lives here too (:func:`check_time`,
+:func:`check_angles`): a motion file's keyframes, a :class:`Segment` built in
+Python and ``Robot.move_to``'s duration all meet it.
 """
 
 from __future__ import annotations
@@ -17,10 +21,73 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from .. import units
 from ..errors import InvalidArgument
 
 PROFILES = ("minjerk", "linear")
 _ALL = (*PROFILES, "decel")
+LONGEST_MOTION = 3600.0
+"""Seconds: the latest a keyframe may come, the longest ``Robot.move_to`` and the latest a trajectory's segment may
+end.  An hour is longer than any motion a servo robot plays in one go; a time later than that is a slip
+(milliseconds written for seconds, a stray exponent), and a time such as 1e308 makes a motion that never ends while
+it looks as if it runs (its joints creep too slowly to see), with the robot's motion taken until it is stopped."""
+
+
+class KeyframeError(InvalidArgument):
+    """A keyframe breaks a rule of the format; ``key`` is where in the keyframe (``.time``, ``.pose.neck``)."""
+
+    def __init__(self, key: str, message: str) -> None:
+        self.key = key
+        super().__init__(message)
+
+
+def check_time(time: object, previous: float, key: str = ".time") -> float:
+    """The rule of a motion's times: ``time`` is a finite number of seconds after ``previous`` (the time
+    before it: 0 for the first) and at most :data:`LONGEST_MOTION`.  Not 0: a pose reached in no time is sent
+    at once, its joints thrown there at full speed.
+
+    Raises:
+        KeyframeError: which rule ``time`` breaks, at ``key``.
+    """
+    seconds = units.finite_number(time)
+    if seconds is None:
+        raise KeyframeError(key, f"must be a number of seconds, not {units.said(time)}")
+    if seconds <= previous:
+        why = "above 0 (the time to reach it from where the robot is)" if previous == 0 else f"after {previous:g}"
+        raise KeyframeError(key, f"{seconds:g} must be {why}")
+    if seconds > LONGEST_MOTION:
+        raise KeyframeError(key, f"{seconds:g} must be at most {LONGEST_MOTION:g} seconds (an hour) from the start")
+    return seconds
+
+
+def check_angles(pose: object, key: str = ".pose") -> dict[str, float]:
+    """The rule of a motion's poses: ``pose`` is a mapping ``{joint: degrees}``, every angle a finite number (a
+    robot's joints and limits are checked against the robot: ``check_pose``).  The angles as floats, in a new dict.
+
+    Raises:
+        KeyframeError: which joint breaks the rule (``key`` and the joint: ``.pose.neck``).
+    """
+    if not isinstance(pose, Mapping):
+        raise KeyframeError(key, "must be an object {joint: degrees}")
+    angles = {}
+    for joint, deg in pose.items():
+        angle = units.finite_number(deg)
+        if angle is None:
+            raise KeyframeError(f"{key}.{joint}", f"must be a number of degrees, not {units.said(deg)}")
+        angles[joint] = angle
+    return angles
+
+
+def check_duration(duration: object, name: str = "duration") -> float:
+    """A move's time (``Robot.move_to``'s ``duration``): a first keyframe's time (:func:`check_time`).
+
+    Raises:
+        InvalidArgument: the rule it breaks, in the words of a keyframe's, after ``name``.
+    """
+    try:
+        return check_time(duration, 0.0)
+    except KeyframeError as exc:
+        raise InvalidArgument(f"{name}: {exc}") from None
 
 
 def check_profile(profile: object) -> str:
@@ -57,13 +124,42 @@ def slope(profile: str, s: float) -> float:
 
 @dataclass(frozen=True)
 class Segment:
-    """Every joint of ``start`` goes to its angle in ``end`` between ``start_time`` and ``end_time``."""
+    """Every joint of ``start`` goes to its angle in ``end`` between ``start_time`` and ``end_time``.
+
+    Held to a keyframe's rules as it is built (:func:`check_time`, :func:`check_angles`): ``end_time`` after
+    ``start_time`` (from 0) and at most :data:`LONGEST_MOTION`, every angle a finite number, ``start`` and ``end``
+    naming the same joints.  ``start`` and ``end`` are kept as copies: a mapping changed after is not played.
+
+    Raises:
+        InvalidArgument: the rule broken (``a segment's end_time: 0 must be above 0 ...``).
+    """
 
     start_time: float
     end_time: float
     start: Mapping[str, float]
     end: Mapping[str, float]
     profile: str = "minjerk"
+
+    def __post_init__(self) -> None:
+        begins = units.finite_number(self.start_time)
+        if begins is None or begins < 0:
+            raise InvalidArgument(
+                f"a segment's start_time: must be a number of seconds from 0, not {units.said(self.start_time)}"
+            )
+        try:
+            ends = check_time(self.end_time, begins, ".end_time")
+            start, end = check_angles(self.start, ".start"), check_angles(self.end, ".end")
+        except KeyframeError as exc:
+            raise InvalidArgument(f"a segment's {exc.key[1:]}: {exc}") from None
+        if start.keys() != end.keys():
+            raise InvalidArgument(
+                f"a segment's start and end name the same joints, not {', '.join(start) or 'none'} and "
+                f"{', '.join(end) or 'none'}"
+            )
+        if self.profile not in _ALL:
+            check_profile(self.profile)
+        for field, value in (("start_time", begins), ("end_time", ends), ("start", start), ("end", end)):
+            object.__setattr__(self, field, value)  # (frozen: checked once, kept as checked)
 
     def fraction(self, t: float) -> float:
         """How far through the segment time ``t`` is (0 at its start, 1 at its end or after)."""
@@ -95,15 +191,37 @@ class Segment:
 class Trajectory:
     """``segments`` back to back; each joint moves along the current segment, then holds its last angle.
 
+    Each segment starts when and where the one before ends, with the same joints: a segment starting elsewhere
+    would be sent at once, its joints thrown there at full speed.  The robot's joints and limits are checked when
+    it is played (``Robot.run``).
+
     Raises:
-        InvalidArgument: no segment.
+        InvalidArgument: no segment, not a :class:`Segment`, or one not starting where the one before ends.
     """
 
     def __init__(self, segments: Sequence[Segment]) -> None:
         if not segments:
             raise InvalidArgument("a trajectory needs at least one segment")
-        self.segments = list(segments)
-        self.joints = frozenset(segments[0].start)
+        self.segments: tuple[Segment, ...] = tuple(segments)
+        for k, segment in enumerate(self.segments):
+            if not isinstance(segment, Segment):
+                raise InvalidArgument(f"segments[{k}] must be a Segment, not {type(segment).__name__}")
+            if k == 0:
+                continue
+            before, there = self.segments[k - 1], f"not where segments[{k - 1}] ends"
+            if segment.start.keys() != before.end.keys():
+                raise InvalidArgument(
+                    f"segments[{k}] moves {', '.join(segment.start)}, not the joints of segments[{k - 1}] "
+                    f"({', '.join(before.end)})"
+                )
+            if segment.start_time != before.end_time:
+                raise InvalidArgument(
+                    f"segments[{k}] starts at {segment.start_time:g} s, {there} ({before.end_time:g} s)"
+                )
+            for joint, deg in segment.start.items():
+                if deg != before.end[joint]:
+                    raise InvalidArgument(f"segments[{k}] starts at {joint} {deg:g}, {there} ({before.end[joint]:g})")
+        self.joints = frozenset(self.segments[0].start)
         self.duration = self.segments[-1].end_time
 
     @classmethod
@@ -151,8 +269,9 @@ def stopping(moving: Mapping[str, tuple[float, float, tuple[float, float]]], ram
         if not speed or ramp <= 0:
             continue
         end = min(max(angle + speed * ramp / 2, low), high)
-        duration = 2 * abs(end - angle) / abs(speed)
+        # (Rounded first: a joint at rest within a tenth of a millisecond needs no segment, and gets none of 0 s.)
+        duration = round(2 * abs(end - angle) / abs(speed), 4)
         if duration > 0:
-            start, ends = groups.setdefault(round(duration, 4), ({}, {}))
+            start, ends = groups.setdefault(duration, ({}, {}))
             start[joint], ends[joint] = angle, end
     return [Segment(0.0, duration, start, ends, "decel") for duration, (start, ends) in groups.items()]

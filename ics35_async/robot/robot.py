@@ -35,9 +35,9 @@ from ..tasks import again
 from .description import JointSpec, RobotDescription
 from .frame import RobotFrame
 from .joint_stream import RobotStream
-from .motion import LONGEST_MOTION, Motion, play_motion
+from .motion import Motion, play_motion
 from .plans import Plan, Replies
-from .profiles import Segment, Trajectory, check_profile, stopping
+from .profiles import Segment, Trajectory, check_duration, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch, UnsettledReadings
 
 log = logging.getLogger("ics35_async.robot")
@@ -574,6 +574,9 @@ class Robot:
         Every target is checked against its joint's limits before anything is
         sent.  Returns when the final targets have gone out on every line.
         ``profile``: ``"minjerk"`` (smooth start and stop) or ``"linear"``.
+        ``duration`` meets a keyframe's rule (:func:`~.profiles.check_duration`): above 0 (a move in no time
+        throws the joints to the pose at full speed; :meth:`set_targets` sets targets at once) and at most
+        :data:`~.profiles.LONGEST_MOTION`.
 
         Raises:
             InvalidArgument: an unknown joint, an angle outside its limits, a bad duration or profile.
@@ -582,7 +585,7 @@ class Robot:
             BusClosed, PortLost: the robot was closed, or a line is gone.
         """
         goal = self.check_pose(pose)
-        seconds = units.check_seconds("duration", duration, 0.0, LONGEST_MOTION)
+        seconds = check_duration(duration)
         shape = check_profile(profile)
         self.check_ready(goal)
         if goal:
@@ -691,14 +694,25 @@ class Robot:
         than skipping its start.  Returns the joints it still drove at its end (a joint another command
         took over meanwhile is not among them).  ``unless_stopped_since``: a count of :attr:`stops` taken
         when the motion this trajectory belongs to began; a stop since (one that came between two of its
-        runs, with no plan of it to end) is raised at once, nothing sent.
+        runs, with no plan of it to end) is raised at once, nothing sent.  Every segment's ends are checked
+        against the robot's joints and limits first (a segment moves each joint between its two ends).
 
         Raises:
+            InvalidArgument: not a :class:`~.profiles.Trajectory`, an unknown joint or an angle outside its
+                limits (nothing sent).
             MotionStopped: ``stop()`` was called since ``unless_stopped_since``.
             SafetyStop: the trajectory names a joint the safety watch tripped (at once, nothing sent), or the watch
                 stopped it.
             BusClosed, PortLost: the robot was closed, or a line is gone (at once, or when it happens).
         """
+        if not isinstance(trajectory, Trajectory):
+            raise InvalidArgument(f"a trajectory is a Trajectory of Segments, not {type(trajectory).__name__}")
+        for k, segment in enumerate(trajectory.segments):
+            for end, pose in (("start", segment.start), ("end", segment.end)):
+                try:
+                    self.check_pose(pose)
+                except InvalidArgument as exc:
+                    raise InvalidArgument(f"segments[{k}].{end}: {exc}") from None
         return await self._played(self._planned(trajectory, wait_on_wire, unless_stopped_since))
 
     def _planned(self, trajectory: Trajectory, wait_on_wire: bool, unless_stopped_since: int | None = None) -> Plan:
