@@ -17,8 +17,9 @@ from typing import Any
 import pytest
 from starlette.testclient import TestClient
 
-from ics35_async import UnsafeOperation, sim
+from ics35_async import InvalidArgument, UnsafeOperation, sim
 from ics35_async.robot import RobotWarning
+from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
 from ics35_async.units import degrees_to_position
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.api import updates
@@ -137,6 +138,25 @@ def test_joints_move_only_with_motion_on_and_within_their_limits(robot: Any) -> 
     post(client, "/api/robot/free")
     wait_for(lambda: line.servo(1).free and line.servo(2).free)
     assert client.get("/api/robot").json()["motion_enabled"] is False
+
+
+def test_a_moves_time_is_held_to_the_librarys_rule_in_its_words(robot: Any) -> None:
+    # The page's move had a rule of its own, 0..30 s: 0 threw the joint to its target at full speed (the library
+    # refuses a keyframe at 0 s), and a move longer than 30 s was refused though the library plays up to an hour.
+    client, line = robot
+    assert post(client, "/api/robot/motion", {"enabled": True}).json()["motion_enabled"]
+    wait_for(lambda: line.servo(2).target is not None)  # held where it stood
+    held = line.servo(2).target
+    for duration in (0, -1, 1e308, LONGEST_MOTION + 1, "1"):
+        refused = post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": duration})
+        with pytest.raises(InvalidArgument) as rule:
+            check_duration(duration)
+        assert refused.status_code == 400 and refused.json()["error"] == str(rule.value), (duration, refused.text)
+    assert line.servo(2).target == held  # nothing moved
+    longer = post(client, "/api/robot/move", {"pose": {"elbow": 45}, "duration": 60})
+    assert longer.status_code == 200, longer.text
+    wait_for(lambda: line.servo(2).target != held)  # on its way, slowly
+    post(client, "/api/robot/stop")
 
 
 def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says_so(robot: Any) -> None:

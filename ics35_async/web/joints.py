@@ -22,13 +22,13 @@ from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion
+from ..robot.profiles import check_duration
 from ..robot.safety import SafetyStop
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
 from ..transports import same_port
 from ..transports.wire_device import url_scheme
-from ..units import check_seconds
 
 # How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
 # longest, 0.4 s, with room for a loaded machine) before it says the line is still lost.
@@ -401,7 +401,7 @@ class RobotSession:
         refuses to start is the request's answer: see _check_ready)."""
         robot = self._moving_allowed()
         checked = robot.check_pose(pose)
-        seconds = check_seconds("duration", duration, 0.0, 30.0)
+        seconds = check_duration(duration)  # (move_to's own rule, checked here to be the request's answer)
         _check_ready(robot, checked)
         await self._run(robot.move_to(checked, seconds), f"move {', '.join(checked)}", alongside=True)
 
