@@ -397,6 +397,23 @@ def test_record_over_the_pty_then_replay_the_recording(tmp_path: Path, pty_sim: 
         assert port.in_waiting == 0  # nothing more than was recorded
 
 
+def test_noisy_servos_from_the_command_line_report_positions_that_never_agree() -> None:
+    # The URL's noisy=IDS (a broken potentiometer) had no ics35 sim option: a program across a pty could not be
+    # tried against one.  Servo 2 is noisy, servo 1 beside it is not; both stand still, free.
+    with serving_sim("--ids", "1-2", "--noisy", "2") as proc:
+        assert proc.stdout is not None
+        with open_port(proc.stdout.readline().strip()) as port:
+            reports = {sid: [] for sid in (1, 2)}
+            for _ in range(6):
+                for sid, positions in reports.items():
+                    reply = transact(port, bytes([0x80 | sid, 0, 0]), 3)  # free: its reply reports the position
+                    positions.append((reply[1] << 7) | reply[2])
+        proc.terminate()
+        proc.communicate(timeout=GUARD)
+    assert len(set(reports[1])) == 1, reports
+    assert all(a != b for a, b in itertools.pairwise(reports[2])), reports
+
+
 def position_after_a_pause(pty_sim: Any, args: list[str], pause: float = 0.5) -> int:
     """Send servo 1 towards 9040, wait ``pause`` s of wall time, then free it: the position it reports."""
     path = pty_sim("--ids", "1", *args).path

@@ -51,6 +51,13 @@ def build_parser(
         metavar="IDS",
         help="IDs of servos that speak ICS 3.6 (answer its position read); default: none",
     )
+    parser.add_argument(
+        "--noisy",
+        default=None,
+        metavar="IDS",
+        help="IDs of servos whose reported position jumps up to 135 degrees either side of where they are at each "
+        "reply, no two of 25 in a row agreeing (a broken potentiometer); default: none",
+    )
     parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
@@ -159,7 +166,7 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     bus = VirtualLine(
         ids,
         baudrate=BaudRate.parse(args.baud),
-        memory={i: b"" for i in parse_ids(args.memory)} if args.memory else None,
+        memory={i: b"" for i in option_ids(args.memory, "--memory")} if args.memory else None,
         realtime=args.realtime,
         echo=not args.no_echo,
         faults=FaultConfig.parse(args.faults),
@@ -168,10 +175,21 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
         replug_after=replug_after,
         record=args.record,
         adapter=adapter,
-        ics36=parse_ids(args.ics36) if args.ics36 else (),
+        ics36=option_ids(args.ics36, "--ics36"),
+        noisy=option_ids(args.noisy, "--noisy"),
         **options,
     )
     return bus
+
+
+def option_ids(text: str | None, option: str) -> list[int]:
+    """The IDs given to ``option`` (none when it is not given), an error naming the option as written."""
+    if text is None:
+        return []
+    try:
+        return parse_ids(text)
+    except InvalidArgument as exc:
+        raise InvalidArgument(f"{option} {text}: {exc}") from None
 
 
 def say_unplugs(device: VirtualLine, started: float) -> None:
