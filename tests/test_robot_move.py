@@ -25,6 +25,7 @@ from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import Keyframe, Motion, MotionStopped, RobotWarning, Segment, Trajectory, UnsettledReadings
 from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
+from ics35_async.robot.robot import LIMIT_SLACK
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.robot_rig import (
     JOINTS,
@@ -257,6 +258,11 @@ BAD_TRAJECTORIES: dict[str, tuple[Callable[[float], list[Segment]], str]] = {
         lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 0.0}), Segment(0.5, 0.7, {"neck": 0.0}, {"neck": 9.0})],
         r"segments\[1\] starts at 0\.5 s, not where segments\[0\] ends \(0\.2 s\)",
     ),
+    # A first segment starting away from the joint: its start was sent at once, the joint thrown there.
+    "starting away from the joint": (
+        lambda a: [Segment(0.0, 0.3, {"neck": a + 30.0}, {"neck": a + 35.0})],
+        r"segments\[0\] starts neck at 20 degrees, not where a motion of it starts \(-10",
+    ),
     "other joints later": (
         lambda a: [Segment(0.0, 0.2, {"neck": a}, {"neck": 0.0}), Segment(0.2, 0.4, {"hip": 0.0}, {"hip": 9.0})],
         r"segments\[1\] moves hip, not the joints of segments\[0\] \(neck\)",
@@ -282,6 +288,25 @@ def test_a_trajectory_built_in_python_is_held_to_the_motion_rules_before_anythin
             assert targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]]) == [], name
         await robot.move_to({"neck": 5.0}, duration=0.05)
         assert (await settled_pose(robot, {"neck": 5.0}))["neck"] == pytest.approx(5.0, abs=0.1)
+
+    run_robot(rig, body)
+
+
+def test_a_trajectory_from_where_its_joints_start_plays_to_its_end() -> None:
+    """Built from start_pose(), or within LIMIT_SLACK of it (a reading a count off), a trajectory plays through."""
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        start = await robot.start_pose(["neck", "hip"])
+        near = {"neck": start["neck"] + LIMIT_SLACK / 2, "hip": start["hip"]}
+        middle = {"neck": 20.0, "hip": -10.0}
+        since = seq_now(rig)
+        await robot.run(
+            Trajectory([Segment(0.0, 0.1, near, middle), Segment(0.1, 0.2, middle, {"neck": 25.0, "hip": -5.0})])
+        )
+        for name, goal in (("neck", 25.0), ("hip", -5.0)):
+            spec = JOINTS[name]
+            assert targets_sent(rig.sim(spec["line"]), spec["id"], since[spec["line"]])[-1] == sent_position(spec, goal)
 
     run_robot(rig, body)
 

@@ -695,11 +695,16 @@ class Robot:
         took over meanwhile is not among them).  ``unless_stopped_since``: a count of :attr:`stops` taken
         when the motion this trajectory belongs to began; a stop since (one that came between two of its
         runs, with no plan of it to end) is raised at once, nothing sent.  Every segment's ends are checked
-        against the robot's joints and limits first (a segment moves each joint between its two ends).
+        against the robot's joints and limits first (a segment moves each joint between its two ends), and the
+        first segment's start against where a motion of each joint starts (:meth:`start_pose`), within
+        :data:`LIMIT_SLACK` degrees.
 
         Raises:
             InvalidArgument: not a :class:`~.profiles.Trajectory`, an unknown joint or an angle outside its
                 limits (nothing sent).
+            UnsafeOperation: the first segment starts a joint farther than :data:`LIMIT_SLACK` from where a
+                motion of it starts: its first command would throw it there at full speed (nothing sent).
+            UnsettledReadings: a free joint's readings never agreed (see :meth:`start_pose`; nothing sent).
             MotionStopped: ``stop()`` was called since ``unless_stopped_since``.
             SafetyStop: the trajectory names a joint the safety watch tripped (at once, nothing sent), or the watch
                 stopped it.
@@ -713,6 +718,17 @@ class Robot:
                     self.check_pose(pose)
                 except InvalidArgument as exc:
                     raise InvalidArgument(f"segments[{k}].{end}: {exc}") from None
+        self._check_watched()  # (a closed robot says so: where its joints stand is no longer known)
+        first = trajectory.segments[0].start
+        for name, here in (await self.start_pose(trajectory.joints)).items():
+            # (The slack a free joint may stand past a limit and still be moved from it: a step the robot takes
+            # at the servo's own speed anyway, and room for a reading a count off where it was read before.)
+            if abs(first[name] - here) > LIMIT_SLACK:
+                raise UnsafeOperation(
+                    f"segments[0] starts {name} at {first[name]:g} degrees, not where a motion of it starts "
+                    f"({here:g}: its target, or where it stands if free; see Robot.start_pose): its first command "
+                    "would throw it there at full speed"
+                )
         return await self._played(self._planned(trajectory, wait_on_wire, unless_stopped_since))
 
     def _planned(self, trajectory: Trajectory, wait_on_wire: bool, unless_stopped_since: int | None = None) -> Plan:
