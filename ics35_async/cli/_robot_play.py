@@ -19,7 +19,7 @@ from rich.markup import escape
 
 from ..errors import BusClosed, IcsError, PortLost, UnsafeOperation
 from ..robot import Motion, MotionStopped, Robot, RobotDescription, load_motion
-from ..robot.motion import check_motion
+from ..robot.motion import SPEEDS, check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
@@ -90,7 +90,7 @@ async def stop_smoothly(robot: Robot, ramp: float, on_stop: str) -> None:
 @click.argument("motion_file", metavar="MOTION.json")
 @click.option(
     "--speed",
-    type=click.FloatRange(0.05, 10),
+    type=click.FloatRange(*SPEEDS),
     default=1.0,
     show_default=True,
     help="Time scale: 0.5 plays at half speed.",

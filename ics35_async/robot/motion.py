@@ -44,6 +44,19 @@ if TYPE_CHECKING:
 
 FORMAT = "ics35-motion"
 VERSION = 1
+SPEEDS = (0.05, 10.0)
+"""The time scales a motion plays at (``Robot.play``'s ``speed``, ``ics35 play --speed``, the configurator's): from
+twenty times slower to ten times faster.  Faster, a motion's keyframes come milliseconds apart, its joints
+thrown between them at the servos' own speed; slower, a motion of a few seconds creeps for minutes."""
+
+
+def check_speed(speed: object) -> float:
+    """A motion's time scale (2: twice as fast), within :data:`SPEEDS`.
+
+    Raises:
+        InvalidArgument: not a number, or outside :data:`SPEEDS`.
+    """
+    return units.check_number("speed", speed, *SPEEDS, "times the motion's own pace (2: twice as fast)")
 
 
 class MotionError(FileContentError):
@@ -230,7 +243,7 @@ async def play_motion(
     another command takes over is given up: the passes go on with the others, and end when none is left."""
     if not isinstance(motion, Motion):
         motion = load_motion(motion)
-    rate = units.check_number("speed", speed, 0.01, 100.0, "times the motion's own pace (2: twice as fast)")
+    rate = check_speed(speed)
     units.check_bool("loop", loop)
     check_motion(robot, motion)
     joints = motion.joints

@@ -599,8 +599,9 @@ class Robot:
     ) -> None:
         """Play a motion (a :class:`~.motion.Motion`, a JSON file's path or its mapping); see :mod:`.motion`.
 
-        ``speed`` scales time (2: twice as fast); with ``loop`` it repeats
-        until cancelled.  Checked against the limits before anything moves.
+        ``speed`` scales time (2: twice as fast), from 0.05 to 10 (:data:`~.motion.SPEEDS`, the rule
+        ``ics35 play`` and the configurator follow too); with ``loop`` it repeats until cancelled.  Checked
+        against the limits before anything moves.
 
         Raises:
             MotionError: the motion file breaks its format.
