@@ -331,3 +331,98 @@ except BaseException as exc:
 def test_a_stream_whose_bus_task_lost_its_wake_up_fails_its_frames_rather_than_waiting() -> None:
     lines = said(A_STREAM, "5", needs="frames")
     assert lines["frames"].startswith("failed: PortLost"), lines
+
+
+# Ctrl-C under plain asyncio.run where the signal raises KeyboardInterrupt out of the loop: the first press under a
+# SIGINT handler of the program's own ("own"), or the second press under asyncio.run's own handling, whose first
+# cancelled main, during a close of the program's that takes its time ("twice").  asyncio.run then cancels every
+# task, the program's and the bus's alike, and runs them to their ends: the program's closes must still put the
+# servos to rest.  The signals are real, sent from a thread of the program's while the loop waits; the line is served
+# in process (in-process, or on a pty by a thread of the program's) so that the program can tell how it was left.
+CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
+    """
+    import asyncio, os, signal, sys, threading, time
+    from ics35_async import open_bus
+    from ics35_async.robot import open_robot
+    from ics35_async.sim import VirtualLine
+    from ics35_async.sim.pty_server import PtyServer
+
+    on, driver, closer, presses = sys.argv[1:5]
+    sim = VirtualLine([1, 2, 3], realtime=True)
+    port = sim
+    if on == "pty":
+        server = PtyServer(sim)
+        port = str(server.open())
+        threading.Thread(target=server.serve, daemon=True).start()
+
+    if presses == "own":
+        def interrupt(signum, frame):
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, interrupt)
+
+    def press_ctrl_c():
+        def press():
+            time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)
+
+        threading.Thread(target=press).start()
+
+    async def slow_close():
+        if presses == "twice":  # (cut short by the second press: asyncio.run cancels main again)
+            press_ctrl_c()
+            await asyncio.sleep(10)
+
+    async def stream():
+        async with open_bus(port, driver=driver) as bus, bus.stream([1, 2, 3], rate_hz=100, on_close="free") as s:
+            s.set_targets({1: 8000, 2: 7000, 3: 7500})
+            try:
+                async for frame in s:
+                    if frame.cycle == 5:
+                        press_ctrl_c()
+            finally:
+                await slow_close()
+
+    async def robot():
+        joints = {name: {"line": "main", "id": i} for i, name in enumerate("abc", 1)}
+        pose = {"a": 10, "b": -10, "c": 5}
+        async with open_robot(
+            {"lines": {"main": {"port": port}}, "joints": joints}, driver=driver, on_close="free", start_pose=pose
+        ) as robot:
+            await robot.wait_frame(5)
+            press_ctrl_c()
+            try:
+                await robot.move_to({"a": 30, "b": 20, "c": -20}, duration=30)
+            finally:
+                await slow_close()
+
+    async def main():
+        try:
+            await (stream() if closer == "stream" else robot())
+        finally:
+            print("tasks left:", len(asyncio.all_tasks()) - 1, flush=True)
+
+    started = time.monotonic()
+    try:
+        asyncio.run(main())
+    except BaseException as exc:
+        print("end:", type(exc).__name__, flush=True)
+    print("seconds:", round(time.monotonic() - started), flush=True)
+    print("servos:", " ".join("free" if sim.servo(i).free else "holding" for i in (1, 2, 3)), flush=True)
+    """
+)
+
+
+@pytest.mark.parametrize(
+    ("on", "closer"), [("sim", "stream"), ("pty", "stream"), ("pty", "robot")], ids=["sim", "pty", "robot"]
+)
+@pytest.mark.parametrize("presses", ["own", "twice"])
+@pytest.mark.parametrize("driver", ["asyncio", "anyio"])
+def test_a_keyboard_interrupt_out_of_asyncio_run_still_puts_the_servos_to_rest(
+    driver: str, presses: str, on: str, closer: str
+) -> None:
+    lines = said(CTRL_C_OUT_OF_THE_LOOP, on, driver, closer, presses, needs="servos")
+    assert lines.get("end") == "KeyboardInterrupt", lines  # the program is interrupted, as the signal meant
+    assert lines["servos"] == "free free free", lines
+    assert lines["tasks left"] == "0", lines  # the closed bus left no task of its own behind
+    assert int(lines["seconds"]) < 10, lines  # (the slow close was cut short: nothing waited for it)

@@ -40,7 +40,7 @@ from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
-from .core import INF, STALL, CallerRequest, DriverCore
+from .core import INF, STALL, CallerRequest, DriverCore, outlive_cancellation
 from .settings import LineSettings
 
 
@@ -175,6 +175,9 @@ class AnyioDriver(DriverCore):
         closed it.  Detached, the line also outlives the program's own cancellation (Ctrl-C, a
         timeout) while it puts its servos to rest on the way out (a stream's on_close, a robot's
         stop); :meth:`aclose` ends it, and under trio the run's end does, for a bus never closed.
+        On asyncio, whose run's end cancels every task at once (after a KeyboardInterrupt out of
+        the loop), the task's own cancellation waits for the program's tasks to end (see
+        outlive_cancellation).
         """
         self._connected(await self._open())
         # Made here, not in the task: aclose() may cancel it before the task has even started.
@@ -234,7 +237,10 @@ class AnyioDriver(DriverCore):
         assert self._task_ended is not None
         try:
             with self._task_scope:
-                await self._run()
+                if self._task is None:  # (trio: a system task, cancelled only as the run ends, after the program)
+                    await self._run()
+                else:
+                    await outlive_cancellation(self._run, self._task_scope)
         except Exception as exc:  # a bug: told at aclose(); out of a system task it would kill trio
             self._task_error = exc
             # Every caller waiting hears it (PortLost), none waits forever, with or without a port.
@@ -245,8 +251,9 @@ class AnyioDriver(DriverCore):
                 self._release_idle()
         except BaseException as exc:
             # Not aclose()'s cancellation (its scope ends the task quietly): the run's end cancelling every task
-            # (asyncio.run's, after a KeyboardInterrupt out of the loop), or an exception a signal handler raised in
-            # the task.  No task runs the line any more: its callers hear so instead of waiting for ever.
+            # (asyncio.run's, after a KeyboardInterrupt out of the loop: here once the program's tasks have ended), or
+            # an exception a signal handler raised in the task.  No task runs the line any more: its callers hear so
+            # instead of waiting for ever.
             cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
             self._fail_line(f"the bus task for {self.target} ended: {type(exc).__name__}", warn=not cancelled)
             if cancelled or self._task is not None:

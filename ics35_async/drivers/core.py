@@ -32,7 +32,8 @@ import math
 import os
 import sys
 import threading
-from collections.abc import Callable, Iterator
+import weakref
+from collections.abc import Awaitable, Callable, Iterator
 from typing import Any, Protocol
 
 import anyio
@@ -167,6 +168,55 @@ def _opening_ended(key: object, ended: threading.Event) -> None:
         ended.set()
         if _OPENINGS.get(key) is ended:
             del _OPENINGS[key]
+
+
+# The asyncio tasks of this process's lines' own (the anyio driver's bus tasks), which outlive a cancellation from
+# outside for the program's other tasks (see outlive_cancellation), never for one another.
+_LINE_TASKS: weakref.WeakSet[asyncio.Task[Any]] = weakref.WeakSet()
+
+
+async def outlive_cancellation(run: Callable[[], Awaitable[None]], closing: anyio.CancelScope) -> None:
+    """Run ``run()``, the loop of a line's own asyncio task, and run it again after a ``Task.cancel()`` from outside,
+    until every other task unfinished at that cancellation (other lines' own tasks aside) has ended; then raise it.
+
+    ``asyncio.run()`` ended by an exception out of its loop (a KeyboardInterrupt that its first-Ctrl-C handling did
+    not take: a program's own SIGINT handler, a second Ctrl-C) cancels every task at once and runs them to their
+    ends: the program's tasks close their streams, robots and buses as they go, putting the servos to rest with
+    commands only the line's task carries.  Ended with them, the line would fail those closes at once.  ``closing`` is
+    the task's own scope, whose cancellation (the bus closing) ends it at once as ever: a line the program never
+    closed ends as soon as the program's tasks have, and the run with them."""
+    task = asyncio.current_task()
+    assert task is not None
+    _LINE_TASKS.add(task)
+    waited: set[asyncio.Task[Any]] | None = None  # the tasks outlived, once cancelled from outside
+    ending = False
+
+    def ended(other: asyncio.Future[Any]) -> None:
+        nonlocal ending
+        assert waited is not None
+        waited.discard(other)
+        if not waited and not ending:
+            ending = True
+            task.cancel()  # (this time from here: raised, below)
+
+    try:
+        while True:
+            try:
+                await run()
+                return
+            except asyncio.CancelledError:
+                if closing.cancel_called or ending:
+                    raise
+                if waited is None:
+                    waited = {other for other in asyncio.all_tasks() if other not in _LINE_TASKS}
+                    if not waited:
+                        raise
+                    for other in waited:
+                        other.add_done_callback(ended)
+                task.uncancel()  # (left counted, it would make anyio's cancel scopes in run() take theirs for it)
+    finally:
+        for other in waited or ():
+            other.remove_done_callback(ended)
 
 
 class DriverCore:
