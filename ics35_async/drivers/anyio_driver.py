@@ -40,7 +40,7 @@ from ..transports.tty_port import TtyPort
 from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
-from .core import INF, STALL, CallerRequest, DriverCore, outlive_cancellation
+from .core import INF, STALL, CallerRequest, DriverCore, outlive_the_program
 from .settings import LineSettings
 
 
@@ -176,8 +176,7 @@ class AnyioDriver(DriverCore):
         timeout) while it puts its servos to rest on the way out (a stream's on_close, a robot's
         stop); :meth:`aclose` ends it, and under trio the run's end does, for a bus never closed.
         On asyncio, whose run's end cancels every task at once (after a KeyboardInterrupt out of
-        the loop), the task's own cancellation waits for the program's tasks to end (see
-        outlive_cancellation).
+        the loop), it runs on until the program's tasks have ended (see outlive_the_program).
         """
         self._connected(await self._open())
         # Made here, not in the task: aclose() may cancel it before the task has even started.
@@ -240,7 +239,7 @@ class AnyioDriver(DriverCore):
                 if self._task is None:  # (trio: a system task, cancelled only as the run ends, after the program)
                     await self._run()
                 else:
-                    await outlive_cancellation(self._run, self._task_scope)
+                    await outlive_the_program(self._run, self._task_scope)
         except Exception as exc:  # a bug: told at aclose(); out of a system task it would kill trio
             self._task_error = exc
             # Every caller waiting hears it (PortLost), none waits forever, with or without a port.
@@ -252,8 +251,9 @@ class AnyioDriver(DriverCore):
         except BaseException as exc:
             # Not aclose()'s cancellation (its scope ends the task quietly): the run's end cancelling every task
             # (asyncio.run's, after a KeyboardInterrupt out of the loop: here once the program's tasks have ended), or
-            # an exception a signal handler raised in the task.  No task runs the line any more: its callers hear so
-            # instead of waiting for ever.
+            # an exception a signal handler raised in the task (on asyncio, not a KeyboardInterrupt or SystemExit:
+            # outlive_the_program sends those out of the loop and the line goes on, unless the bus is closing).  No
+            # task runs the line any more: its callers hear so instead of waiting for ever.
             cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
             self._fail_line(f"the bus task for {self.target} ended: {type(exc).__name__}", warn=not cancelled)
             if cancelled or self._task is not None:

@@ -171,20 +171,25 @@ def _opening_ended(key: object, ended: threading.Event) -> None:
 
 
 # The asyncio tasks of this process's lines' own (the anyio driver's bus tasks), which outlive a cancellation from
-# outside for the program's other tasks (see outlive_cancellation), never for one another.
+# outside for the program's other tasks (see outlive_the_program), never for one another.
 _LINE_TASKS: weakref.WeakSet[asyncio.Task[Any]] = weakref.WeakSet()
 
 
-async def outlive_cancellation(run: Callable[[], Awaitable[None]], closing: anyio.CancelScope) -> None:
-    """Run ``run()``, the loop of a line's own asyncio task, and run it again after a ``Task.cancel()`` from outside,
-    until every other task unfinished at that cancellation (other lines' own tasks aside) has ended; then raise it.
+async def outlive_the_program(run: Callable[[], Awaitable[None]], closing: anyio.CancelScope) -> None:
+    """Run ``run()``, the loop of a line's own asyncio task, until ``closing`` (the task's own scope: the bus closing)
+    is cancelled, and through the end of the program's run, for the program's closes to put the servos to rest.
 
-    ``asyncio.run()`` ended by an exception out of its loop (a KeyboardInterrupt that its first-Ctrl-C handling did
-    not take: a program's own SIGINT handler, a second Ctrl-C) cancels every task at once and runs them to their
-    ends: the program's tasks close their streams, robots and buses as they go, putting the servos to rest with
-    commands only the line's task carries.  Ended with them, the line would fail those closes at once.  ``closing`` is
-    the task's own scope, whose cancellation (the bus closing) ends it at once as ever: a line the program never
-    closed ends as soon as the program's tasks have, and the run with them."""
+    ``asyncio.run()`` ended by a KeyboardInterrupt out of its loop (one its first-Ctrl-C handling did not take: a
+    SIGINT handler of the program's own, a second Ctrl-C) cancels every task at once and runs them to their ends: the
+    program's tasks close their streams, robots and buses as they go, with commands only the line's task carries.
+    Ended with them, the line would fail those closes at once.  So a ``Task.cancel()`` from outside runs ``run()``
+    again, until every other task unfinished at that cancellation (other lines' own tasks aside) has ended; then it is
+    raised: a line the program never closed ends with the program's tasks, and the run with them.
+
+    A KeyboardInterrupt or SystemExit that a signal handler raised inside this task, rather than in the loop's wait,
+    would end the task with it: raised in this library's own code, it goes on out of the loop from a callback of its
+    own, as from any callback, and ``run()`` runs again.  Raised inside asyncio's or anyio's (a selector's or a cancel
+    scope's bookkeeping half done), it ends the task as before: the line could not be trusted to run on."""
     task = asyncio.current_task()
     assert task is not None
     _LINE_TASKS.add(task)
@@ -214,9 +219,39 @@ async def outlive_cancellation(run: Callable[[], Awaitable[None]], closing: anyi
                     for other in waited:
                         other.add_done_callback(ended)
                 task.uncancel()  # (left counted, it would make anyio's cancel scopes in run() take theirs for it)
+            except (KeyboardInterrupt, SystemExit) as exc:
+                if closing.cancel_called or not _raised_in_the_library(exc):
+                    raise
+                asyncio.get_running_loop().call_soon(_raise, exc)
     finally:
         for other in waited or ():
             other.remove_done_callback(ended)
+
+
+def _raise(exc: BaseException) -> None:
+    raise exc
+
+
+_LIBRARY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_THE_LOOPS = (os.path.dirname(os.path.abspath(anyio.__file__)), os.path.dirname(os.path.abspath(asyncio.__file__)))
+
+
+def _raised_in_the_library(exc: BaseException) -> bool:
+    """Whether a signal handler raised ``exc`` (caught in the calling frame) in this library's own code, not inside
+    anyio's or asyncio's (a selector's too).  The frames past the one it landed in are the handler's own."""
+    landed = None
+    tb = exc.__traceback__
+    tb = None if tb is None else tb.tb_next  # (the catching frame's own entry)
+    while tb is not None:
+        path = os.path.abspath(tb.tb_frame.f_code.co_filename)
+        if path.startswith(_LIBRARY + os.sep):
+            landed = "library"
+        elif path.startswith(_THE_LOOPS) or os.path.basename(path) == "selectors.py":
+            landed = "loop"
+        else:
+            break  # (the handler's)
+        tb = tb.tb_next
+    return landed == "library"
 
 
 class DriverCore:
