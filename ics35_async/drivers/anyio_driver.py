@@ -190,7 +190,10 @@ class AnyioDriver(DriverCore):
 
             trio.lowlevel.spawn_system_task(self._run_task, name=name)
         else:
+            # (Its error retrieved: how it ended is said by the line, its warning and its callers' errors; asyncio would
+            # print a KeyboardInterrupt that ended it again, with the task's traceback, as the program exits.)
             self._task = loop.create_task(self._run_task(), name=name)
+            self._task.add_done_callback(lambda task: None if task.cancelled() else task.exception())
             self._look_soon()
 
     async def aclose(self) -> None:
@@ -235,11 +238,7 @@ class AnyioDriver(DriverCore):
     async def _run_task(self) -> None:
         assert self._task_ended is not None
         try:
-            with self._task_scope:
-                if self._task is None:  # (trio: a system task, cancelled only as the run ends, after the program)
-                    await self._run()
-                else:
-                    await outlive_the_program(self._run, self._task_scope)
+            await self._run_in_scope()
         except Exception as exc:  # a bug: told at aclose(); out of a system task it would kill trio
             self._task_error = exc
             # Every caller waiting hears it (PortLost), none waits forever, with or without a port.
@@ -251,9 +250,9 @@ class AnyioDriver(DriverCore):
         except BaseException as exc:
             # Not aclose()'s cancellation (its scope ends the task quietly): the run's end cancelling every task
             # (asyncio.run's, after a KeyboardInterrupt out of the loop: here once the program's tasks have ended), or
-            # an exception a signal handler raised in the task (on asyncio, not a KeyboardInterrupt or SystemExit:
-            # outlive_the_program sends those out of the loop and the line goes on, unless the bus is closing).  No
-            # task runs the line any more: its callers hear so instead of waiting for ever.
+            # an exception a signal handler raised in the task (on asyncio, a KeyboardInterrupt or SystemExit only
+            # inside asyncio's or anyio's code, or as the bus closes: see outlive_the_program).  No task runs the line
+            # any more: its callers hear so instead of waiting for ever.
             cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
             self._fail_line(f"the bus task for {self.target} ended: {type(exc).__name__}", warn=not cancelled)
             if cancelled or self._task is not None:
@@ -262,6 +261,21 @@ class AnyioDriver(DriverCore):
             self._task_error = exc
         finally:
             self._task_ended.set()
+
+    async def _run_in_scope(self) -> None:
+        try:
+            with self._task_scope:
+                if self._task is None:  # (trio: a system task, cancelled only as the run ends, after the program)
+                    await self._run()
+                else:
+                    await outlive_the_program(self._run, self._task_scope)
+        except RuntimeError as exc:
+            interrupt = exc.__context__
+            if not isinstance(interrupt, (KeyboardInterrupt, SystemExit)):
+                raise
+            # Raised by a signal handler inside anyio's cancel scopes, it left their books half done, and the task
+            # scope refuses its exit (RuntimeError): the interrupt ended the task, not a bug nor the port.
+            raise interrupt from None
 
     async def _run(self) -> None:
         engine = self.engine
