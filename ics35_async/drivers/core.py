@@ -238,20 +238,20 @@ _THE_LOOPS = (os.path.dirname(os.path.abspath(anyio.__file__)), os.path.dirname(
 
 def _raised_in_the_library(exc: BaseException) -> bool:
     """Whether a signal handler raised ``exc`` (caught in the calling frame) in this library's own code, not inside
-    anyio's or asyncio's (a selector's too).  The frames past the one it landed in are the handler's own."""
-    landed = None
+    anyio's or asyncio's (a selector's too).  The frames past the one it landed in are the handler's own (whose first
+    not of this library's ends the walk)."""
     tb = exc.__traceback__
     tb = None if tb is None else tb.tb_next  # (the catching frame's own entry)
+    library = False
     while tb is not None:
         path = os.path.abspath(tb.tb_frame.f_code.co_filename)
-        if path.startswith(_LIBRARY + os.sep):
-            landed = "library"
-        elif path.startswith(_THE_LOOPS) or os.path.basename(path) == "selectors.py":
-            landed = "loop"
-        else:
-            break  # (the handler's)
+        if path.startswith(_THE_LOOPS) or os.path.basename(path) == "selectors.py":
+            return False  # (this library's code runs in neither: a frame of this library's past it is the handler's)
+        if not path.startswith(_LIBRARY + os.sep):
+            break
+        library = True
         tb = tb.tb_next
-    return landed == "library"
+    return library
 
 
 class DriverCore:
