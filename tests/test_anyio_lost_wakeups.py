@@ -358,11 +358,12 @@ def test_a_stream_whose_bus_task_lost_its_wake_up_fails_its_frames_rather_than_w
 # signal is real, sent from a thread of the program's; its handler raises from a loop callback of its own, so that it
 # lands where the test says (raised from the handler itself, it lands wherever the loop is, at times inside asyncio's
 # or anyio's bookkeeping: see the docs).  "in-driver": it lands in the driver's own code as it takes a reply, raised
-# there by a trace function.  The line is served in process (in-process, or on a pty by a thread of the program's)
-# so that the program can tell how it was left.
+# there by a trace function.  "trio": trio.run's own Ctrl-C (a KeyboardInterrupt in the program's task).  The line
+# is served in process (in-process, or on a pty by a thread of the program's) so that the program can tell how it was
+# left.
 CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
     """
-    import asyncio, inspect, os, signal, sys, threading, time
+    import asyncio, inspect, os, signal, sys, threading, time, trio
     from ics35_async import open_bus
     from ics35_async.drivers.anyio_driver import AnyioDriver
     from ics35_async.robot import open_robot
@@ -383,7 +384,8 @@ CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
 
         loop.call_soon_threadsafe(out_of_the_loop)
 
-    signal.signal(signal.SIGINT, interrupt)
+    if presses != "trio":
+        signal.signal(signal.SIGINT, interrupt)
 
     def press_ctrl_c():
         if presses == "in-driver":
@@ -434,6 +436,9 @@ CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
 
     async def main():
         global loop
+        if presses == "trio":
+            await (stream() if closer == "stream" else robot())
+            return
         loop = asyncio.get_running_loop()
         try:
             await (stream() if closer == "stream" else robot())
@@ -441,7 +446,7 @@ CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
             print("tasks left:", len(asyncio.all_tasks()) - 1, flush=True)
 
     try:
-        asyncio.run(main())
+        trio.run(main) if presses == "trio" else asyncio.run(main())
     except BaseException as exc:
         print("end:", type(exc).__name__, flush=True)
     print("servos:", " ".join("free" if sim.servo(i).free else "holding" for i in (1, 2, 3)), flush=True)
@@ -461,3 +466,12 @@ def test_a_keyboard_interrupt_out_of_asyncio_run_still_puts_the_servos_to_rest(
     assert lines.get("end") == "KeyboardInterrupt", lines  # the program is interrupted, as the signal meant
     assert lines["servos"] == "free free free", lines
     assert lines["tasks left"] == "0", lines  # the closed bus left no task of its own behind
+
+
+@pytest.mark.parametrize(
+    ("on", "closer"), [("sim", "stream"), ("pty", "stream"), ("pty", "robot")], ids=["sim", "pty", "robot"]
+)
+def test_ctrl_c_under_trio_puts_the_servos_to_rest(on: str, closer: str) -> None:
+    lines = said(CTRL_C_OUT_OF_THE_LOOP, on, "anyio", closer, "trio", needs="servos")
+    assert lines.get("end") == "KeyboardInterrupt", lines
+    assert lines["servos"] == "free free free", lines
