@@ -17,7 +17,15 @@ import pytest
 from ics35_async import BusClosed, InvalidArgument, SafetyStop, blocking
 from ics35_async.eeprom import Eeprom
 from ics35_async.robot import DescriptionError, RobotWarning
-from tests.support.robot_rig import JOINTS, joint_position, make_rig, sent_position, targets_sent
+from tests.support.robot_rig import (
+    ALL_ICS36,
+    JOINTS,
+    ics36_humanoid,
+    joint_position,
+    make_rig,
+    sent_position,
+    targets_sent,
+)
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS
 
 HUMANOID = Path(__file__).resolve().parent.parent / "examples" / "humanoid.toml"
@@ -44,9 +52,9 @@ def settled_pose(robot: blocking.BlockingRobot, goal: dict[str, float]) -> dict[
             return pose
 
 
-def test_humanoid_file_opens_moves_and_reads_back() -> None:
+def test_humanoid_file_opens_moves_and_reads_back(tmp_path: Path) -> None:
     before = set(threading.enumerate())
-    with blocking.open_robot(HUMANOID, **NO_TIMEOUTS) as robot:
+    with blocking.open_robot(ics36_humanoid(tmp_path), **NO_TIMEOUTS) as robot:
         assert robot.thread in threading.enumerate()
         pose = robot.read_pose()
         assert set(pose) == set(robot.joints)
@@ -169,7 +177,7 @@ def test_on_close_free_frees_every_joint() -> None:
 
 def test_a_pose_set_just_before_the_block_ends_reaches_the_servos() -> None:
     # set_targets() then the block's end: the last pose (a robot sitting down) was dropped.
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
     try:
         with blocking.open_robot(rig.description, **NO_TIMEOUTS) as robot:
             robot.move_to({"hip": 5.0, "neck": 0.0}, duration=0.05)

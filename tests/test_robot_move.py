@@ -28,6 +28,7 @@ from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
 from ics35_async.robot.robot import LIMIT_SLACK
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.robot_rig import (
+    ALL_ICS36,
     JOINTS,
     Rig,
     commanded,
@@ -123,7 +124,7 @@ def test_move_to_stays_within_limits_ends_exactly_and_moves_monotonically(
 @pytest.mark.parametrize("profile", ["minjerk", "linear"])
 def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profile: str) -> None:
     # Real time: the simulated servos move at their speed in wall-clock time, as the motion is timed.
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
     goal = {"neck": 33.3, "shoulder": -71.0, "elbow": 88.8, "knee": -45.5}
 
     async def body(robot: Robot) -> None:
@@ -165,7 +166,7 @@ def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> Non
 
 
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
 
     async def body(robot: Robot) -> None:
         # Joint -> servo: where the simulated servos end up.
@@ -351,7 +352,7 @@ def test_move_to_in_no_time_is_refused_before_anything_is_sent() -> None:
 
 def test_a_pose_set_just_before_the_block_ends_reaches_the_servos() -> None:
     # set_targets() then the block's end (on_close="hold"): the last pose was dropped.
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
 
     async def body(robot: Robot) -> None:
         await robot.move_to({"hip": 5.0, "neck": 0.0}, duration=0.05)
@@ -412,7 +413,7 @@ def test_a_motion_goes_on_with_the_other_lines_joints_while_one_line_is_lost_and
     # A robot builder's finding (a hexapod on two lines, reconnect=True): one line's adapter pulled mid-stride
     # froze the other line's joints too (the motion waited for a cycle of every line it moves), and when the
     # line came back they jumped to where the motion was by then: 35 degrees in one command.
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
     outage: dict[str, int] = {}
 
     async def body(robot: Robot) -> None:
@@ -841,7 +842,7 @@ async def _warnings(robot: Robot) -> list[str]:
 
 
 def test_move_to_under_trio() -> None:
-    rig = make_rig(realtime=True)
+    rig = make_rig(realtime=True, ics36=ALL_ICS36)
 
     async def main() -> dict[str, float]:
         async with open_robot(rig.description, **NO_TIMEOUTS) as robot:  # the buses pick their anyio driver

@@ -15,6 +15,7 @@ import pytest
 
 from ics35_async import units
 from ics35_async.sim import serving
+from tests.support.robot_rig import ics36_humanoid
 from tests.support.terminal import TerminalOutput, screen_of, typed_on_a_terminal
 from tests.support.timing import NO_TIMEOUTS_OPTION, scaled
 
@@ -117,32 +118,31 @@ def test_without_joints_on_hardware_asks_before_freeing_every_joint(port: str, t
     [(signal.SIGINT, 0, "Ctrl-C"), (signal.SIGTERM, 128 + signal.SIGTERM, "SIGTERM")],
     ids=["Ctrl-C", "SIGTERM"],
 )
-def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, name: str) -> None:
-    returncode, out, err = play_stopped_a_second_in(signum, "--loop", "--on-stop", "free")
+def test_ctrl_c_stops_play_smoothly_and_frees_as_asked(signum: int, code: int, name: str, tmp_path: Path) -> None:
+    returncode, out, err = play_stopped_a_second_in(tmp_path, signum, "--loop", "--on-stop", "free")
     assert returncode == code, err
     assert f"stopped by {name}: slowing to rest, then the joints free" in err
     assert "joints left free" in out
     assert "Traceback" not in err
 
 
-def test_play_stopped_by_ctrl_c_counts_the_same_time_played_in_its_table_and_its_summary() -> None:
+def test_play_stopped_by_ctrl_c_counts_the_same_time_played_in_its_table_and_its_summary(tmp_path: Path) -> None:
     # The table's last line counted the slow-down after the stop as motion played ("motion 2.0/3.6 s", with
     # --ramp 1), where the summary said "1.0 s of 3.6 s played".
-    returncode, out, err = play_stopped_a_second_in(signal.SIGINT, "--ramp", "1")
+    returncode, out, err = play_stopped_a_second_in(tmp_path, signal.SIGINT, "--ramp", "1")
     assert returncode == 0, err
     *_, table_line, summary = out.strip().splitlines()
     played = summary.split(": ")[1].split(" s of ")[0]
     assert f"motion {played:>4}/3.6 s" in table_line, out
 
 
-PLAYED = (str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"))
-
-
-def play_stopped_a_second_in(signum: int, *options: str) -> tuple[int, str, str]:
+def play_stopped_a_second_in(folder: Path, signum: int, *options: str) -> tuple[int, str, str]:
     """``ics35 play`` of the humanoid's wave with ``options``, sent ``signum`` a second into the motion: its exit
-    code, stdout and stderr."""
+    code, stdout and stderr.  Its servos speak ICS 3.6 (written into ``folder``): what its tests are about is
+    the stop, and the open does not read each ICS 3.5 joint once more at the whole allowance first."""
+    played = (str(ics36_humanoid(folder)), str(EXAMPLES / "wave.json"))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", *NO_TIMEOUTS_OPTION, "play", *PLAYED, *options],
+        [sys.executable, "-m", "ics35_async.cli", *NO_TIMEOUTS_OPTION, "play", *played, *options],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

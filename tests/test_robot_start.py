@@ -23,6 +23,7 @@ from ics35_async.robot import Segment, Trajectory, startup
 from ics35_async.sim import VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
 from tests.support.robot_rig import (
+    ALL_ICS36,
     JOINTS,
     Rig,
     commanded,
@@ -785,7 +786,7 @@ def test_a_stop_in_the_body_s_finally_runs_when_a_scope_around_the_robot_is_canc
     # cancelled with it, and a shielded robot.stop() in the body's finally (what the docs advise after a
     # cancellation) waited for frames that never came, for ever.  The stop must slow the joint to rest.
     trio = backend == "trio"
-    rig = make_rig(realtime=trio)
+    rig = make_rig(realtime=trio, ics36=ALL_ICS36)
     stopped: list[bool] = []
     marks: dict[str, int] = {}
     under_way: list[float] = []  # the joint's target as the scope is cancelled

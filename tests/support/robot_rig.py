@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from ics35_async import units
@@ -47,6 +48,28 @@ JOINTS: dict[str, dict[str, Any]] = {
     "hip": {"line": "lower", "id": 1, "min": -30.0, "max": 30.0},
     "knee": {"line": "lower", "id": 2, "offset": 5.5, "min": -100.0, "max": 20.0},
 }
+
+
+# The rig's IDs, for ``make_rig(ics36=ALL_ICS36)``: every servo speaks ICS 3.6.  For a test at the NO_TIMEOUTS
+# allowance that is not about ICS 3.5 joints: the open reads an ICS 3.5 joint once more with the whole allowance
+# before it starts free (two seconds each, a line's joints one after the other), where an ICS 3.6 servo answers
+# its position read at once.
+ALL_ICS36 = (1, 2, 3)
+
+
+EXAMPLE_HUMANOID = Path(__file__).resolve().parents[2] / "examples" / "humanoid.toml"
+
+
+def ics36_humanoid(folder: Path) -> Path:
+    """The example humanoid with every servo of its simulated lines speaking ICS 3.6 (see ``ALL_ICS36``), written
+    into ``folder``: for a test at the NO_TIMEOUTS allowance that is about the robot, not its ICS 3.5 joints."""
+    text = EXAMPLE_HUMANOID.read_text(encoding="utf-8")
+    for ids in ("1-7", "1-10"):
+        assert f"ids={ids}&" in text, f"{EXAMPLE_HUMANOID}: its lines are no longer ids={ids}"
+        text = text.replace(f"ids={ids}&", f"ids={ids}&ics36={ids}&")
+    path = folder / EXAMPLE_HUMANOID.name
+    path.write_text(text, encoding="utf-8")
+    return path
 
 
 def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
