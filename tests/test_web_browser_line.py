@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import sys
+import time
 
 import pytest
 
@@ -118,10 +119,18 @@ def test_the_search_of_the_other_rates_says_in_the_status_line_which_rate_it_tri
     with web_server_page(browser, line) as p:
         p.fill("#scan-ids", "0-4")
         p.click("#scan-btn")
-        status = p.locator("#line-status")
-        expect(status).to_contain_text("no answer at 115200 baud: trying 625000 baud ...", timeout=SCAN_WAIT_MS)
-        expect(status).to_contain_text("no answer at 115200 baud: trying 1250000 baud ...", timeout=SCAN_WAIT_MS)
-        expect(p.locator("#scan-summary")).to_contain_text("no servo answered at 115,200 baud", timeout=SCAN_WAIT_MS)
+        status, summary = p.locator("#line-status"), p.locator("#scan-summary")
+        # Read back to back until the scan's summary: each rate's status shows for one allowance, half a second,
+        # and expect()'s polls come a second apart once it has waited a while (one fell on either side of it).
+        shown: list[str] = []
+        deadline = time.monotonic() + SCAN_WAIT_MS / 1000
+        while "no servo answered" not in (summary.text_content() or "") and time.monotonic() < deadline:
+            text = status.text_content() or ""
+            if not shown or shown[-1] != text:
+                shown.append(text)
+        for rate in (625000, 1250000):
+            assert any(f"no answer at 115200 baud: trying {rate} baud ..." in text for text in shown), shown
+        expect(summary).to_contain_text("no servo answered at 115,200 baud")
         expect(status).not_to_contain_text("trying")
 
 
