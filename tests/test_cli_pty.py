@@ -682,6 +682,7 @@ def test_ctrl_c_as_a_robot_command_reads_its_servos_says_nothing_was_sent_that_m
     assert "no joint was sent anything that moves or frees it" in said.replace("\n", " "), said
 
 
+@pytest.mark.slow  # (its open waits whole allowances: the unplugged hand, joint a read once more)
 def test_ctrl_c_as_a_robot_command_waits_for_its_first_pose_names_the_joints_it_freed_and_those_it_holds(
     tmp_path: Path,
 ) -> None:

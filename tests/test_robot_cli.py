@@ -53,6 +53,7 @@ def write_motion(path: Path, *keyframes: dict[str, Any]) -> Path:
     return path
 
 
+@pytest.mark.slow  # (its open reads each ICS 3.5 joint once more with the whole allowance, a line's in turn)
 def test_play_the_example_humanoid_with_no_hardware(cli: Any) -> None:
     # Its lines are real-time simulators: the no-timeouts allowance, as for any test across a real-time boundary.
     files = (str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"))
