@@ -245,6 +245,11 @@ BAD_TRAJECTORIES: dict[str, tuple[Callable[[float], list[Segment]], str]] = {
     "end without a joint": (lambda a: [Segment(0.0, 0.3, {"neck": a}, {})], r"start and end name the same joints"),
     # An unknown profile ended the robot (raised in its frames' pump).
     "unknown profile": (lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": 5.0}, "cubic")], r"profile must be one"),
+    # The stop's own profile: stop() took such a run for its ramp, to take over rather than to stop.
+    "the stop's profile": (
+        lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": 5.0}, "decel")],
+        r"segments\[0\]: profile 'decel' is Robot\.stop's own ramp; a trajectory's segments are minjerk or linear",
+    ),
     # An angle past a limit was sent as the limit instead of refused.
     "past a limit": (
         lambda a: [Segment(0.0, 0.3, {"neck": a}, {"neck": 120.0})],

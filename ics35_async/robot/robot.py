@@ -37,7 +37,7 @@ from .frame import RobotFrame
 from .joint_stream import RobotStream
 from .motion import Motion, play_motion
 from .plans import Plan, Replies
-from .profiles import Segment, Trajectory, check_duration, check_profile, stopping
+from .profiles import PROFILES, Segment, Trajectory, check_duration, check_profile, stopping
 from .safety import JointTelemetry, MotionStopped, SafetyStop, SafetyWatch, UnsettledReadings
 
 log = logging.getLogger("ics35_async.robot")
@@ -702,7 +702,7 @@ class Robot:
 
         Raises:
             InvalidArgument: not a :class:`~.profiles.Trajectory`, an unknown joint or an angle outside its
-                limits (nothing sent).
+                limits, a segment with the stop's own profile (``decel``) (nothing sent).
             UnsafeOperation: the first segment starts a joint farther than :data:`LIMIT_SLACK` from where a
                 motion of it starts: its first command would throw it there at full speed (nothing sent).
             UnsettledReadings: a free joint's readings never agreed (see :meth:`start_pose`; nothing sent).
@@ -714,6 +714,11 @@ class Robot:
         if not isinstance(trajectory, Trajectory):
             raise InvalidArgument(f"a trajectory is a Trajectory of Segments, not {type(trajectory).__name__}")
         for k, segment in enumerate(trajectory.segments):
+            if segment.profile not in PROFILES:  # (a stop's ramp is taken over by the next stop, not stopped: see stop)
+                raise InvalidArgument(
+                    f"segments[{k}]: profile {segment.profile!r} is Robot.stop's own ramp; a trajectory's segments are "
+                    f"{' or '.join(PROFILES)}"
+                )
             for end, pose in (("start", segment.start), ("end", segment.end)):
                 try:
                     self.check_pose(pose)
