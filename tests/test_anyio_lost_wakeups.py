@@ -164,7 +164,30 @@ def test_a_callback_of_the_other_drivers_dropped_by_an_exception_leaves_no_reque
     assert lines["end"] == "returned", lines
 
 
-IN_THE_BUS_TASK = textwrap.dedent(
+# A trace function raising an exception where a signal handler's might land: what the programs below share.
+RAISING_AT = textwrap.dedent(
+    """
+    import inspect, sys
+
+    def raising_at(function, marker, exc, armed=None):
+        # A trace function raising exc once, at the first line of function holding marker (while armed[0], if given).
+        lines, first = inspect.getsourcelines(function)
+        at = first + next(i for i, line in enumerate(lines) if marker in line)
+
+        def raise_there(frame, event, arg):
+            if event == "line" and frame.f_lineno == at and (armed is None or armed[0]):
+                if armed is not None:
+                    armed[0] = False
+                sys.settrace(None)
+                raise exc
+            return raise_there
+
+        return raise_there
+    """
+)
+
+
+IN_THE_BUS_TASK = RAISING_AT + textwrap.dedent(
     """
     import asyncio, inspect, logging, sys, anyio
     from ics35_async import IcsError, open_bus
@@ -174,15 +197,9 @@ IN_THE_BUS_TASK = textwrap.dedent(
     armed = [False]
     # "driver": in the bus task's own code, just after a wait for input ended.  "anyio": as the bus task leaves one of
     # anyio's cancel scopes, its books left half done (asyncio only).
-    lines, first = inspect.getsourcelines(AnyioDriver._run)
-    there = first + next(i for i, line in enumerate(lines) if "self._waiting_until = INF" in line)
-
-    def raise_there(frame, event, arg):
-        if event == "line" and frame.f_lineno == there and armed[0]:
-            armed[0] = False
-            sys.settrace(None)
-            raise KeyboardInterrupt("raised by a signal handler")
-        return raise_there
+    raise_there = raising_at(
+        AnyioDriver._run, "self._waiting_until = INF", KeyboardInterrupt("raised by a signal handler"), armed
+    )
 
     def tracer(frame, event, arg):  # the bus task's loop, as it resumes
         code = frame.f_code
@@ -255,21 +272,14 @@ def test_a_keyboard_interrupt_raised_in_the_bus_task_interrupts_the_program_and_
 
 # The exception a signal handler such as pytest-timeout's raises (not an Exception, nor KeyboardInterrupt), raised
 # inside a loop callback's call, where the loop catches it, says so and goes on: what the programs below share.
-ALARM_INSIDE_A_CALLBACK = textwrap.dedent(
+ALARM_INSIDE_A_CALLBACK = RAISING_AT + textwrap.dedent(
     """
-    import asyncio, inspect, sys
+    import asyncio
 
     class Alarm(BaseException):
         pass
 
-    lines, first = inspect.getsourcelines(asyncio.Handle._run)
-    inside = first + next(i for i, line in enumerate(lines) if "_context.run" in line)
-
-    def raise_there(frame, event, arg):
-        if event == "line" and frame.f_lineno == inside:
-            sys.settrace(None)
-            raise Alarm("raised by a signal handler")
-        return raise_there
+    raise_there = raising_at(asyncio.Handle._run, "_context.run", Alarm("raised by a signal handler"))
     """
 )
 
@@ -365,7 +375,7 @@ def test_a_stream_whose_bus_task_lost_its_wake_up_fails_its_frames_rather_than_w
 # there by a trace function.  "trio": trio.run's own Ctrl-C (a KeyboardInterrupt in the program's task).  The line
 # is served in process (in-process, or on a pty by a thread of the program's) so that the program can tell how it was
 # left.
-CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
+CTRL_C_OUT_OF_THE_LOOP = RAISING_AT + textwrap.dedent(
     """
     import asyncio, inspect, os, signal, sys, threading, time, trio
     from ics35_async import open_bus
@@ -404,14 +414,9 @@ CTRL_C_OUT_OF_THE_LOOP = textwrap.dedent(
 
     # Where the driver takes what came from the port: the asyncio driver's reader callback, the anyio driver's bus
     # task just after its wait for input ended (not inside anyio's cancel scopes, whose books that would corrupt).
-    lines, first = inspect.getsourcelines(AnyioDriver._run)
-    after_the_wait = first + next(i for i, line in enumerate(lines) if "self._waiting_until = INF" in line)
-
-    def raise_there(frame, event, arg):
-        if event == "line" and frame.f_lineno == after_the_wait:
-            sys.settrace(None)
-            raise KeyboardInterrupt("raised by a signal handler")
-        return raise_there
+    raise_there = raising_at(
+        AnyioDriver._run, "self._waiting_until = INF", KeyboardInterrupt("raised by a signal handler")
+    )
 
     def in_the_driver(frame, event, arg):
         if event != "call" or not frame.f_code.co_filename.endswith(f"{driver}_driver.py"):

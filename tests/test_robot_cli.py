@@ -322,24 +322,35 @@ def test_play_refused_as_it_starts_says_the_joints_it_freed_to_read_are_left_fre
     assert "joints left free (those it opened" in said, result.err
 
 
-def test_teach_goes_on_when_a_pose_is_not_captured_for_readings_that_disagree(
-    rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
-) -> None:
-    # Enter pressed while a hand still turns a joint (or a joint's readings stop agreeing after the open): that pose
-    # is not captured and teaching goes on; the poses before it are kept.  The error ended teaching before.
-    sims, _ = rig
+def captures(sims: Rig, joints: list[str], *changes: Callable[[TaughtTimes], object]) -> list[Keyframe]:
+    """The poses ``teach`` keeps of its captures (Enter pressed) on a robot of ``sims``'s: one, then one more after
+    each of ``changes`` (given the times taught so far)."""
     keyframes: list[Keyframe] = []
 
     async def main() -> None:
         async with open_robot(sims.description, **FAST) as robot:
             screen = Screen(Table, str)
             times = TaughtTimes(1.0)
-            await capture(robot, ["elbow", "neck"], times, keyframes, screen)
-            sims.servo("elbow").noisy = True
-            await capture(robot, ["elbow", "neck"], times, keyframes, screen)
-            await capture(robot, ["elbow", "neck"], times, keyframes, screen)
+            await capture(robot, joints, times, keyframes, screen)
+            for change in changes:
+                change(times)
+                await capture(robot, joints, times, keyframes, screen)
 
     anyio.run(main)
+    return keyframes
+
+
+def test_teach_goes_on_when_a_pose_is_not_captured_for_readings_that_disagree(
+    rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Enter pressed while a hand still turns a joint (or a joint's readings stop agreeing after the open): that pose
+    # is not captured and teaching goes on; the poses before it are kept.  The error ended teaching before.
+    sims, _ = rig
+
+    def broken_potentiometer(_: TaughtTimes) -> None:
+        sims.servo("elbow").noisy = True
+
+    keyframes = captures(sims, ["elbow", "neck"], broken_potentiometer, lambda _: None)
     assert len(keyframes) == 1
     said = " ".join(capsys.readouterr().err.split())
     assert said.count("pose not captured: joint elbow (line upper, ID 3)") == 2, said
@@ -1400,17 +1411,11 @@ def test_teach_does_not_capture_a_pose_past_the_longest_motion_so_the_poses_so_f
     # A keyframe later than an hour is refused as a Motion is built: a pose captured past it made the write of
     # every pose taught so far fail at the end.
     sims, _ = rig
-    keyframes: list[Keyframe] = []
 
-    async def main() -> None:
-        async with open_robot(sims.description, **FAST) as robot:
-            screen = Screen(Table, str)
-            times = TaughtTimes(1.0)
-            await capture(robot, ["neck"], times, keyframes, screen)
-            assert times.first is not None
-            times.first -= LONGEST_MOTION  # (an hour of posing later)
-            await capture(robot, ["neck"], times, keyframes, screen)
+    def an_hour_of_posing_later(times: TaughtTimes) -> None:
+        assert times.first is not None
+        times.first -= LONGEST_MOTION
 
-    anyio.run(main)
+    keyframes = captures(sims, ["neck"], an_hour_of_posing_later)
     assert len(keyframes) == 1 and Motion(tuple(keyframes)).duration == 1.0
     assert "pose not captured" in capsys.readouterr().err
