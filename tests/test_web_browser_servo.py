@@ -34,6 +34,7 @@ from tests.support.browser_pages import (
     servo_read,
     stop_servers,
     until,
+    until_on,
     web_server_page,
 )
 from tests.support.timing import GUARD, PATIENT_OPTION
@@ -268,10 +269,7 @@ def test_a_refused_jog_leaves_the_target_at_the_last_one_sent(browser: Browser) 
         p.route("**/api/servo/1/move", lambda route: held.append(route))  # the request waits here until continued
         p.click("#jog-plus")
         expect(p.locator("#jog-target")).to_have_text("8100")  # (shown at the click)
-        deadline = time.monotonic() + GUARD
-        while not held:
-            assert time.monotonic() < deadline, "the jog was never asked"
-            p.wait_for_timeout(20)
+        until_on(p, lambda: bool(held), "the jog was never asked")
         off = p.request.post(p.url.split("#")[0] + "api/servo/1/motion", data={"enabled": False})
         assert off.status == 200, off.text()
         held[0].continue_()
@@ -350,7 +348,7 @@ def test_a_status_pushed_while_enable_motion_is_asked_leaves_the_switch_ticked(b
         held: list[Route] = []
         p.route("**/api/servo/1/motion", lambda route: held.append(route))  # the request waits here until continued
         p.click("#motion-switch")
-        until(lambda: len(held) == 1, "enable motion was never asked")
+        until_on(p, lambda: len(held) == 1, "enable motion was never asked")
         # Another change on the server (servo 3's motion switched on elsewhere): a status is pushed.
         other = p.request.post(p.url.split("#")[0] + "api/servo/3/motion", data={"enabled": True})
         assert other.status == 200, other.text()

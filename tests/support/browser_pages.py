@@ -115,6 +115,15 @@ def until(condition: Callable[[], bool], failure: str) -> None:
         time.sleep(0.01)
 
 
+def until_on(page: Page, condition: Callable[[], bool], failure: str) -> None:
+    """Wait for what the page's own events do (a route's handler): Playwright runs them only inside its own calls,
+    so the wait is the page's (:func:`until` sleeps, and a request the page made after a click went unseen)."""
+    deadline = time.monotonic() + GUARD
+    while not condition():
+        assert time.monotonic() < deadline, failure
+        page.wait_for_timeout(20)
+
+
 def backed_up(page: Page, folder: Path) -> Path:
     """The Servo page's **Back up to a file**, its download saved in ``folder`` under the name it was offered."""
     with page.expect_download() as download:
