@@ -144,6 +144,7 @@ def test_sim_help_names_every_command_its_console_takes(cli: Any) -> None:
         (["--ids", "x"], "Error: 'x' is not an ID or a range of IDs"),
         (["--noisy", "40"], "Error: --noisy 40: the IDs '40' must lie within 0..31"),
         (["--ics36", "x"], "Error: --ics36 x: 'x' is not an ID or a range of IDs"),
+        (["--ids", "1-3", "--noisy", "7"], "Error: No servo of this line is built from ID 7 given in noisy"),
         (["--baud", "3"], "Error: Baud rate must be one of 115200, 625000, 1250000, got 3"),
         (["--baud", "fast"], "Error: Argument --baud: invalid int value: 'fast'"),
     ],

@@ -163,6 +163,17 @@ def test_ics35_servo_echoes_the_ics36_position_read_only_and_an_ics36_one_answer
     assert bus.servo(2).free  # the read changed nothing
 
 
+@pytest.mark.parametrize("option", ["ics36", "noisy"])
+def test_an_ics36_or_noisy_id_with_no_servo_built_from_it_is_refused(option: str) -> None:
+    # (a typo, or an ID left out of the servos, would otherwise give an ICS 3.5 or steady servo without a word)
+    said = rf"no servo of this line is built from IDs 5, 9 given in {option} \(built from IDs: 1, 2, 3\)"
+    with pytest.raises(InvalidArgument, match=said):
+        VirtualLine([1, 2, 3], **{option: [2, 5, 9]})
+    with pytest.raises(InvalidArgument, match=rf"built from ID 4 given in {option} \(built from IDs: 1\)"):
+        VirtualLine([VirtualServo(4), 1], **{option: [4]})  # (an object keeps its own)
+    assert VirtualLine(None, **{option: [31]}).servo(31) is not None  # (None: 0-31)
+
+
 def test_absent_id_gets_echo_only() -> None:
     bus = VirtualLine([1, 2])
     assert xfer(bus, "83 3A 4C") == h("83 3A 4C")

@@ -102,6 +102,12 @@ def test_bad_urls(url: str) -> None:
         parse_url(url)
 
 
+@pytest.mark.parametrize("url", ["sim://?ids=1-2&noisy=3", "sim://?ids=1-2&ics36=0"])
+def test_an_ics36_or_noisy_id_outside_the_urls_ids_is_refused(url: str) -> None:
+    with pytest.raises(InvalidArgument, match="no servo of this line is built from ID"):
+        open_url(url)
+
+
 def test_named_line_is_shared_until_closed() -> None:
     bus = open_url("sim://robot?ids=1-2")
     assert isinstance(bus, VirtualLine)

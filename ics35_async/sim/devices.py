@@ -13,6 +13,7 @@ import functools
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from ..errors import InvalidArgument
 from ..protocol import ReadId, WriteEeprom, WriteId
 from .virtual_servo import NO_REPLY, MemoryDevice, VirtualServo
 
@@ -31,13 +32,27 @@ def build_devices(
 
     Servos built from an ID in ``ics36`` speak ICS 3.6 (they answer the position read); those from an ID in
     ``noisy`` report positions that jump at each reply (see :class:`VirtualServo`).
+
+    Raises:
+        InvalidArgument: an ID in ``ics36`` or ``noisy`` that no servo is built from.
     """
     newer, jumping = frozenset(ics36), frozenset(noisy)
     built: list[VirtualDevice] = []
+    from_ids: set[int] = set()
     for item in range(32) if servos is None else servos:
         if not isinstance(item, VirtualServo):
+            from_ids.add(item)
             item = VirtualServo(item, baud_rate=baudrate, ics36=item in newer, noisy=item in jumping)
         built.append(item)
+    for what, listed in (("ics36", newer), ("noisy", jumping)):
+        # (an ID no servo is built from would be ignored: a typo, or a servo left out, gives a line unlike the
+        # one asked for without a word; a servo object carries its own settings)
+        if stray := sorted(listed - from_ids):
+            raise InvalidArgument(
+                f"no servo of this line is built from ID{'s' if len(stray) > 1 else ''} "
+                f"{', '.join(map(str, stray))} given in {what} "
+                f"(built from IDs: {', '.join(map(str, sorted(from_ids))) or 'none'})"
+            )
     if isinstance(memory, Mapping):
         for device_id, content in memory.items():
             built.append(content if isinstance(content, MemoryDevice) else MemoryDevice(device_id, bytes(content)))

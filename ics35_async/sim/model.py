@@ -101,10 +101,11 @@ class LineModelOptions(TypedDict, total=False):
     """A USB adapter model between line and host (default ``None``: a bare UART; see
     ``ics35_async.sim.adapter``)."""
     ics36: Iterable[int]
-    """The IDs of servos built from IDs that speak ICS 3.6 (default none: all ICS 3.5)."""
+    """The IDs of servos built from IDs that speak ICS 3.6 (default none: all ICS 3.5; an ID no servo is built from
+    is refused)."""
     noisy: Iterable[int]
     """The IDs of servos built from IDs whose reported position jumps at each reply, no two readings in a row
-    agreeing (a broken potentiometer; default none)."""
+    agreeing (a broken potentiometer; default none; an ID no servo is built from is refused)."""
 
 
 class LineModel:

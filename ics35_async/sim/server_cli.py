@@ -49,14 +49,14 @@ def build_parser(
         "--ics36",
         default=None,
         metavar="IDS",
-        help="IDs of servos that speak ICS 3.6 (answer its position read); default: none",
+        help="IDs of servos that speak ICS 3.6 (answer its position read), among --ids; default: none",
     )
     parser.add_argument(
         "--noisy",
         default=None,
         metavar="IDS",
         help="IDs of servos whose reported position jumps up to 135 degrees either side of where they are at each "
-        "reply, no two of 25 in a row agreeing (a broken potentiometer); default: none",
+        "reply, no two of 25 in a row agreeing (a broken potentiometer), among --ids; default: none",
     )
     parser.add_argument("--baud", type=int, default=115200, help="servos' baud rate (115200, 625000, 1250000)")
     mode = parser.add_mutually_exclusive_group()

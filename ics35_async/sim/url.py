@@ -130,7 +130,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
     ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
     ``ics36`` (IDs of servos that speak ICS 3.6 and answer its position
-    read; the others are ICS 3.5), ``noisy`` (IDs of servos whose reported
+    read; the others are ICS 3.5; IDs among ``ids``), ``noisy`` (IDs among ``ids`` of servos whose reported
     position jumps up to 135 degrees either side of where they are at each
     reply, no two of 25 in a row agreeing: a broken potentiometer), ``memory`` (IDs of zero-filled generic
     memory devices), ``log`` (log

@@ -76,7 +76,7 @@ def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
     n = next(_names)
     line_options.setdefault("log_size", None)
     upper = VirtualLine([1, 2, 3], name=f"robot-upper-{n}", **line_options)
-    lower = VirtualLine([1, 2], name=f"robot-lower-{n}", **line_options)
+    lower = VirtualLine([1, 2], name=f"robot-lower-{n}", **_options_for([1, 2], line_options))
     # At its neutral the elbow's servo stands 20 degrees past the joint's lower limit (offset -20, reversed): a
     # robot refuses to move or hold a free joint so far out (it would throw it to the limit), so it starts within.
     upper.servo(3).move_by_hand(joint_position(JOINTS["elbow"], 10.0))
@@ -87,6 +87,15 @@ def make_rig(safety: dict[str, Any] | None = None, **line_options: Any) -> Rig:
     if safety is not None:
         description["safety"] = safety
     return Rig(upper, lower, description)
+
+
+def _options_for(ids: list[int], line_options: dict[str, Any]) -> dict[str, Any]:
+    """``line_options`` with the IDs it names of servos (``ics36``, ``noisy``) cut to ``ids``: a line refuses an ID
+    no servo of it is built from, and the rig's options go to both lines."""
+    return {
+        key: [i for i in value if i in ids] if key in ("ics36", "noisy") else value
+        for key, value in line_options.items()
+    }
 
 
 def joint_degrees(spec: dict[str, Any], position: int) -> float:
