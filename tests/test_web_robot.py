@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import itertools
 import json
+import threading
 import time
 import warnings
 from collections.abc import Iterator, Mapping
@@ -178,6 +179,30 @@ def test_enable_motion_leaves_a_free_joint_standing_past_its_limit_free_and_says
     assert refused.status_code == 409 and "past its limit 90" in refused.json()["error"], refused.text
     wait_for(lambda: not line.servo(1).free)  # the shoulder holds
     assert line.servo(2).free
+
+
+def test_enable_motion_holds_a_joint_whose_readings_settle_once_they_agree(robot: Any) -> None:
+    # A joint posed by hand and held at once, its newest reading agreeing with none before it (turning fast, or a
+    # garbled reply): "enable motion" left it free (to drop) with "hold it again once it settles".  It waits for
+    # a reading that agrees, as a motion's start does, then holds it there.  (Readings that disagree stand in for
+    # the turning hand: a noisy potentiometer's for a moment.)
+    client, line = robot
+    servo = line.servo(2)
+    servo.move_by_hand(degrees_to_position(5))
+    seen = client.get("/api/robot").json()["cycle"]
+    wait_for(lambda: client.get("/api/robot").json()["cycle"] > seen + 2)  # (5 degrees read, and agreed)
+    servo.noisy = True
+    seen = client.get("/api/robot").json()["cycle"]
+    wait_for(lambda: client.get("/api/robot").json()["cycle"] > seen + 2)  # (its newest readings disagree)
+    settles = threading.Timer(0.04, lambda: setattr(servo, "noisy", False))
+    settles.start()
+    try:
+        view = post(client, "/api/robot/motion", {"enabled": True}).json()
+    finally:
+        settles.join()
+    assert view["outcome"] == "joints hold where they stand", view["outcome"]
+    wait_for(lambda: not servo.free)
+    assert servo.target == degrees_to_position(5)
 
 
 def test_a_joint_freed_for_over_current_stays_stopped_until_reset_on_the_page(tmp_path: Path) -> None:

@@ -327,7 +327,7 @@ async def robot_motion(request: Request, session: LineSession) -> Any:
     robot, data = joints_of(request), await body(request)
     enabled, page = data.get("enabled") is True, data.get("page")  # (the page's name: see updates)
     if enabled:
-        await robot.settled()  # (a gone page's smooth stop first: the check below then holds for the switch)
+        await robot.ready_for_motion()  # (readings, then a gone page's stop: the check below holds for the switch)
         session.refuse_absent_page(page, "again")
     await robot.set_motion(enabled, page if enabled and isinstance(page, str) else None)
     return robot.view()

@@ -23,7 +23,7 @@ from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
 from ..robot.motion import check_motion, check_speed
 from ..robot.profiles import check_duration
-from ..robot.safety import SafetyStop
+from ..robot.safety import SafetyStop, UnsettledReadings
 from ..robot.startup import check_start_pose, warn_at_open
 from ..sim.url import parse_url
 from ..tasks import retrieved
@@ -359,7 +359,8 @@ class RobotSession:
         whose going switches it off again (:meth:`page_gone`); the last page to switch it on is the one.
         Without one (a script), it stays on until it is switched off.  Switching on waits for nothing but
         the smooth stop a gone page started (:meth:`settled`), so a caller's check that the page is connected,
-        made once that stop is over, still holds when motion goes on.
+        made once that stop is over, still holds when motion goes on; a caller waits for
+        :meth:`ready_for_motion` first (the joints' readings confirmed, so that hold() holds them all).
         """
         await self.settled()
         robot = self._robot()
@@ -388,6 +389,16 @@ class RobotSession:
         if self.playing is None:
             self.outcome = said  # (else the motion's own "stopped (...)" says it)
         self._page_stop = retrieved(self._stop(why=said))
+
+    async def ready_for_motion(self) -> None:
+        """Returns once motion may be switched on: every joint read twice from now on, each reading agreeing with
+        the one before it (``Robot.read_pose``), then the smooth stop a gone page started over (:meth:`settled`).
+        A joint posed by hand just before, its newest reading not yet confirmed, is then held where it stands
+        rather than left free; one whose readings keep disagreeing (``UnsettledReadings``) is left to ``hold()``,
+        which leaves it free and says why."""
+        with contextlib.suppress(UnsettledReadings):
+            await self._robot().read_pose()
+        await self.settled()
 
     async def settled(self) -> None:
         """Returns once the smooth stop a gone page started is over (at once, without yielding, if none is
