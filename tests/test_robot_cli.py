@@ -1419,3 +1419,45 @@ def test_teach_does_not_capture_a_pose_past_the_longest_motion_so_the_poses_so_f
     keyframes = captures(sims, ["neck"], an_hour_of_posing_later)
     assert len(keyframes) == 1 and Motion(tuple(keyframes)).duration == 1.0
     assert "pose not captured" in capsys.readouterr().err
+
+
+def test_play_a_motion_that_moves_no_joint_is_a_usage_error(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # A robot builder's finding: a motion whose every pose is empty (taught with every joint's servo silent) made
+    # `ics35 play` end in a traceback ("name at least one joint"), with nothing said of the file.
+    sims, robot_file = rig
+    marks = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
+    motion = write_motion(tmp_path / "empty.json", {"time": 0.5, "pose": {}}, {"time": 1.0, "pose": {}})
+    for extra in ([], ["--start-pose", "neck=0"]):
+        result = cli("play", str(robot_file), str(motion), *extra)
+        assert result.code == ExitCode.USAGE, result.err
+        said = " ".join(result.err.split())
+        assert "Traceback" not in said
+        assert f"{motion}: the motion moves no joint (every keyframe's pose is empty): nothing to play" in said, said
+    assert (sims.upper.transactions, sims.lower.transactions) == (marks["upper"], marks["lower"])  # nothing sent
+
+
+def test_teach_does_not_capture_a_pose_no_joint_answers_in(
+    rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A robot builder's finding: teach of one leg's joints, the leg's servos unplugged after the first pose: each
+    # Enter then captured an empty pose, and a motion of empty poses (one taught with the servos silent from the
+    # start) was written, which plays nothing.  A pose with no joint in it is not captured, and teach says why.
+    monkeypatch.delenv("ICS35_PORT", raising=False)
+    sims, robot_file = rig
+    out_file = tmp_path / "taught.json"
+
+    def unplug_the_lower_line() -> None:
+        for name in ("hip", "knee"):
+            sims.lower.remove_servo(JOINTS[name]["id"])
+        # (a line where nothing answers is only probed now and then: its transactions do not tell the time)
+        time.sleep(scaled(1.0))
+
+    result = run_with_hands(
+        ["teach", str(robot_file), str(out_file), "--joints", "hip,knee"],
+        [("Enter captures", None, "\n"), ("pose 1 at", unplug_the_lower_line, "\n"), (None, None, "q\n")],
+        [],
+    )
+    assert result.code == 0, result.err
+    assert len(json.loads(out_file.read_text())["keyframes"]) == 1
+    said = " ".join(result.err.split())
+    assert "pose not captured: none of its joints answers (hip, knee): nothing to capture" in said, said

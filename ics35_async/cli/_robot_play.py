@@ -19,7 +19,7 @@ from rich.markup import escape
 
 from ..errors import BusClosed, IcsError, PortLost, UnsafeOperation
 from ..robot import Motion, MotionStopped, Robot, RobotDescription, load_motion
-from ..robot.motion import SPEEDS, check_motion
+from ..robot.motion import SPEEDS, MotionError, check_motion
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
@@ -47,6 +47,8 @@ def load_motion_file(path: str, description: RobotDescription) -> Motion:
     def load(source: str) -> Motion:
         motion = load_motion(source)
         check_motion(description, motion, source)
+        if not motion.joints:  # (one taught with every servo silent): play would open no joint, and play nothing
+            raise MotionError(source, "", "the motion moves no joint (every keyframe's pose is empty): nothing to play")
         return motion
 
     return load_input_file(path, "MOTION.json", load)

@@ -336,6 +336,18 @@ async def capture(
             "settles: leave it out with --joints)"
         )
         return
+    if not pose:
+        # An empty keyframe moves nothing: kept, it would be a pose in name only (and a motion of such poses, taught
+        # with the servos silent, one that plays nothing).
+        screen.say(
+            "\n".join(
+                [
+                    *warnings,
+                    f"pose not captured: none of its joints answers ({escape(', '.join(names))}): nothing to capture",
+                ]
+            )
+        )
+        return
     taken = {}
     for name in pose:
         spec = robot.joints[name]
