@@ -195,6 +195,18 @@ def test_play_names_the_line_options_the_robot_file_decides(cli: Any, rig: tuple
     assert "--port" not in note  # (not given)
 
 
+def test_play_names_a_baud_rate_given_alone_as_not_used(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # A robot builder's finding: `--baud 625000` alone was dropped without a word (the note named --port and --baud
+    # together, and only when --port was given), and `--port` alone was said as "--port and --baud".
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    for given, unsaid in ((["--baud", "625000"], "--port"), (["--port", "/dev/ttyUSB7"], "--baud")):
+        result = cli("play", str(robot_file), str(motion), *given)
+        assert result.code == 0, result.err
+        note = next((line for line in result.err.splitlines() if "not used" in line), "")
+        assert f"{given[0]} is not used" in note and unsaid not in note, result.err
+
+
 def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:

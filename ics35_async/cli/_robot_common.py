@@ -100,10 +100,11 @@ def note_ports(settings: Settings, robot_file: str) -> None:
     """Name the line options given that the robot file decides (see :func:`robot_options` for those that apply):
     each line's port, baud rate, echo, retries and a DIY interface's direction control are the file's.  Left unsaid,
     a --direction meant for a DIY interface would be dropped without a word."""
-    unused = [] if settings.port_defaulted else ["--port", "--baud"]
-    unused += [
+    unused = [
         option
         for option, given in (
+            ("--port", not settings.port_defaulted),
+            ("--baud", settings.baud != Settings.baud),
             ("--retries", settings.retries != Settings.retries),
             ("--no-echo", not settings.echo),
             ("--direction", settings.direction != Settings.direction),
