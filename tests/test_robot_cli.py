@@ -1473,3 +1473,20 @@ def test_teach_does_not_capture_a_pose_no_joint_answers_in(
     assert len(json.loads(out_file.read_text())["keyframes"]) == 1
     said = " ".join(result.err.split())
     assert "pose not captured: none of its joints answers (hip, knee): nothing to capture" in said, said
+
+
+def test_play_refuses_a_speed_that_puts_a_keyframe_past_an_hour_before_the_robot_opens(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A robot builder's finding: `--speed 0.05` on a motion with a keyframe at 200 s (4000 s at that speed) was
+    # refused only once the robot had opened, its joints freed to be read, and the error said "nothing was sent".
+    sims, robot_file = rig
+    sims.servo("neck").command_position(8000)  # holding, as a move left it
+    marks = {"upper": sims.upper.transactions, "lower": sims.lower.transactions}
+    motion = write_motion(tmp_path / "m.json", {"time": 1, "pose": {"neck": 10}}, {"time": 200, "pose": {"neck": 0}})
+    result = cli("play", str(robot_file), str(motion), "--speed", "0.05")
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert "at speed 0.05, keyframes[1].time: 4000 must be at most 3600 seconds" in said, said
+    assert (sims.upper.transactions, sims.lower.transactions) == (marks["upper"], marks["lower"])  # nothing sent
+    assert not sims.servo("neck").free

@@ -290,6 +290,9 @@ def test_a_motion_plays_and_a_bad_one_is_refused_before_anything_moves(robot: An
     assert bad.status_code == 400 and "keyframes[0].time: 1e+308 must be at most 3600" in bad.json()["error"], bad.text
     bad = post(client, "/api/robot/play", {"motion": motion, "speed": 0.01})  # (the library's rule: Robot.play's)
     assert bad.status_code == 400 and "speed must be in 0.05..10.0 times" in bad.json()["error"], bad.text
+    slow = {**motion, "keyframes": [{"time": 200, "pose": {"shoulder": 20}}]}  # (4000 s at speed 0.05: over an hour)
+    bad = post(client, "/api/robot/play", {"motion": slow, "speed": 0.05})
+    assert bad.status_code == 400 and "at speed 0.05, keyframes[0].time: 4000" in bad.json()["error"], bad.text
     time.sleep(0.2)
     assert line.servo(1).target == held
     assert post(client, "/api/robot/play", {"motion": motion}).json()["playing"] == "nod"

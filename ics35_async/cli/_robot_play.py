@@ -17,9 +17,9 @@ from collections.abc import Iterable
 import click
 from rich.markup import escape
 
-from ..errors import BusClosed, IcsError, PortLost, UnsafeOperation
+from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, UnsafeOperation
 from ..robot import Motion, MotionStopped, Robot, RobotDescription, load_motion
-from ..robot.motion import SPEEDS, MotionError, check_motion
+from ..robot.motion import SPEEDS, MotionError, check_motion, check_pace
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
@@ -140,6 +140,10 @@ def play(
     start_pose = parse_start_pose(start_pose_text)
     description = load_robot_file(robot_file)
     motion = motion_joints(description, load_motion_file(motion_file, description), joints, motion_file)
+    try:
+        check_pace(motion, speed)  # (before the robot opens: it frees its joints to read them)
+    except InvalidArgument as exc:
+        raise CliError(ExitCode.USAGE, f"{motion_file}: {exc} (nothing was sent)") from None
     note_ports(settings, robot_file)
     name = description.name or robot_file
     title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"

@@ -59,6 +59,25 @@ def check_speed(speed: object) -> float:
     return units.check_number("speed", speed, *SPEEDS, "times the motion's own pace (2: twice as fast)")
 
 
+def check_pace(motion: Motion, speed: object) -> float:
+    """``speed`` (:func:`check_speed`) for ``motion``: played faster or slower, a motion's times meet their rule
+    again (a keyframe at an hour, played at half speed, comes after two; two close ones, sped up, may come at the
+    same time).  ``ics35 play`` asks it before any port opens, as ``Robot.play`` does before anything moves.
+
+    Raises:
+        InvalidArgument: ``speed`` breaks its rule, or a keyframe played at it breaks a time's (the message names
+            the speed and the keyframe).
+    """
+    rate = check_speed(speed)
+    previous = 0.0
+    for k, frame in enumerate(motion.keyframes):
+        try:
+            previous = check_time(frame.time / rate, previous)
+        except KeyframeError as exc:
+            raise InvalidArgument(f"at speed {rate:g}, keyframes[{k}]{exc.key}: {exc}") from None
+    return rate
+
+
 class MotionError(FileContentError):
     """A motion file breaks the format; the message names the file and the key (``keyframes[2].time``)."""
 
@@ -243,20 +262,12 @@ async def play_motion(
     another command takes over is given up: the passes go on with the others, and end when none is left."""
     if not isinstance(motion, Motion):
         motion = load_motion(motion)
-    rate = check_speed(speed)
+    rate = check_pace(motion, speed)
     units.check_bool("loop", loop)
     check_motion(robot, motion)
     joints = motion.joints
     timeline = [(f.time / rate, f.pose, f.profile or motion.profile) for f in motion.keyframes]
     first = motion.keyframes[0].pose
-    # Played faster or slower, a motion's times meet their rule again: a keyframe at an hour, played at half speed,
-    # comes after two (and two close ones, sped up, may come at the same time).  Refused before anything moves.
-    previous = 0.0
-    for k, (time, _, _) in enumerate(timeline):
-        try:
-            previous = check_time(time, previous)
-        except KeyframeError as exc:
-            raise InvalidArgument(f"at speed {rate:g}, keyframes[{k}]{exc.key}: {exc}") from None
     robot.check_ready(joints)
     if not joints:
         return

@@ -21,7 +21,7 @@ from ..bus import Bus
 from ..errors import IcsError, InvalidArgument, UnsafeOperation, error_text
 from ..robot import Robot, load_description, open_robot, parse_motion
 from ..robot.description import LineSpec
-from ..robot.motion import check_motion, check_speed
+from ..robot.motion import check_motion, check_pace
 from ..robot.profiles import check_duration
 from ..robot.safety import SafetyStop, UnsettledReadings
 from ..robot.startup import check_start_pose, warn_at_open
@@ -420,7 +420,9 @@ class RobotSession:
         """Play a motion file's content (``parse_motion`` checks it; ``Robot.play`` checks it against the robot)."""
         robot = self._moving_allowed()
         motion = parse_motion(doc, "the uploaded motion")
-        speed = check_speed(speed)  # (Robot.play's own rule, checked here to be the request's answer)
+        # (Robot.play's own rule, a keyframe played at that speed past an hour included, checked here to be the
+        # request's answer rather than the outcome of a play that stopped the motion playing first)
+        speed = check_pace(motion, speed)
         # Unknown joints, limits: against the description, as `ics35 play` does, before anything moves.
         check_motion(self.description, motion, "the uploaded motion")
         _check_ready(robot, motion.joints)
