@@ -1490,3 +1490,25 @@ def test_play_refuses_a_speed_that_puts_a_keyframe_past_an_hour_before_the_robot
     assert "at speed 0.05, keyframes[1].time: 4000 must be at most 3600 seconds" in said, said
     assert (sims.upper.transactions, sims.lower.transactions) == (marks["upper"], marks["lower"])  # nothing sent
     assert not sims.servo("neck").free
+
+
+@pytest.mark.parametrize("on_stop", ["hold", "free"])
+def test_play_with_a_line_lost_as_the_robot_opens_says_what_the_open_left(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, on_stop: str
+) -> None:
+    # A robot builder's finding: the legs' adapter pulled while `ics35 play` opened the robot said the other
+    # lines' joints "were left holding their last targets (the motion stopped there at once ...)": no motion had
+    # started and no joint had a target; the open had freed them to read them, as a Ctrl-C then says.
+    sims, robot_file = rig
+    lost = VirtualLine([1, 2], name=f"{sims.lower.name}-lost", faults="unplug:1", replug_after=60, log_size=None)
+    try:
+        sims.description["lines"]["lower"]["port"] = f"sim://{lost.name}"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"neck": 20, "hip": 5}})
+        result = cli("play", str(robot_file), str(motion), "--on-stop", on_stop)
+    finally:
+        lost.close()
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = " ".join(result.err.split())
+    assert "lost" in said and "the motion stopped there" not in said and "last targets" not in said, said
+    assert "the port was lost as the robot opened: " in said, said

@@ -203,10 +203,17 @@ def other_lines_hint(description: RobotDescription, exc: IcsError) -> list[str]:
     return [f"--joints can open only the joints on {where} meanwhile: --joints {','.join(others)}"]
 
 
-def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsError, others_left: str | None) -> str:
+def lost_line_hint(
+    settings: Settings,
+    description: RobotDescription,
+    exc: IcsError,
+    others_left: str | None,
+    opening_left: str | None = None,
+) -> str:
     """What the servos of the line whose port ``exc`` reports lost do now, and the command that frees them
     (that line's port, baud rate, echo and direction control: the robot file's; ``others_left``: what the
-    command left the other lines' joints in, when it has several)."""
+    command left the other lines' joints in, when it has several; ``opening_left``: what the open left every
+    joint in, when the port was lost as the robot opened: the command had done nothing with them yet)."""
     line = _line_of(description, exc)
     free = "ics35 free all -p PORT"
     if line is not None:
@@ -221,6 +228,8 @@ def lost_line_hint(settings: Settings, description: RobotDescription, exc: IcsEr
         # Its joints' IDs, not "all": the 32 IDs' absent ones would end it "did not go free", exit code 4.
         free = here.command_line("free", ids_argument(j.id for j in description.joints_on(line.name)))
     others = f"; the other lines' joints were left {others_left}" if others_left and len(description.lines) > 1 else ""
+    if opening_left is not None:
+        others = f"; the port was lost as the robot opened: {opening_left}"
     return (
         "the servos on the lost line keep their last command (a holding joint stays stiff) until they lose"
         f" power or, with the line back, get: {free}{others}"
@@ -281,7 +290,9 @@ def run_robot(
             raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
         except (PortLost, ClosedByPortLoss) as exc:
             error = translate(settings, exc)
-            error.hints.append(lost_line_hint(settings, description, exc, others_left))
+            # Lost before the command had its robot: what others_left says of a running command is not so yet.
+            opened = opening.joints_left() if opening is not None else None
+            error.hints.append(lost_line_hint(settings, description, exc, others_left, opened))
             raise error from None
         except SerialPortError as exc:
             error = translate(settings, exc)
