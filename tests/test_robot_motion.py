@@ -222,6 +222,17 @@ def test_a_motion_outside_the_robot_moves_nothing(data: Any, phrase: str) -> Non
         assert targets_sent(rig.sim(spec["line"]), spec["id"]) == []
 
 
+def test_a_motion_file_outside_the_robot_is_named_in_the_error(tmp_path: Path) -> None:
+    # A robot builder's finding: `robot.play("walk.json")` of a file for another robot said "motion: keyframes[0]:
+    # unknown joint(s) ...", not which file, as ics35 play and load_motion do.
+    path = tmp_path / "walk.json"
+    path.write_text(json.dumps(motion({"time": 1, "pose": {"tail": 10}})))
+    rig = make_rig()
+    with pytest.raises(MotionError) as caught:
+        play_on(rig, str(path))
+    assert str(caught.value).startswith(f"{path}: keyframes[0]: unknown joint(s): tail"), caught.value
+
+
 def test_a_safety_stop_reaches_plays_caller() -> None:
     rig = make_rig(safety={"max_current": 20, "action": "free"})
     data = motion({"time": 2.0, "pose": {"knee": -90.0}}, {"time": 4.0, "pose": {"knee": 0.0}})

@@ -260,11 +260,13 @@ async def play_motion(
     """Play ``motion`` on ``robot`` (``speed`` 2 plays twice as fast); with ``loop``, again and again until
     cancelled, each pass reaching the first keyframe from the last in the first keyframe's time.  A joint
     another command takes over is given up: the passes go on with the others, and end when none is left."""
+    # A file's mistakes name the file, as load_motion's own do.
+    source = str(motion) if isinstance(motion, (str, os.PathLike)) else "motion"
     if not isinstance(motion, Motion):
         motion = load_motion(motion)
     rate = check_pace(motion, speed)
     units.check_bool("loop", loop)
-    check_motion(robot, motion)
+    check_motion(robot, motion, source)
     joints = motion.joints
     timeline = [(f.time / rate, f.pose, f.profile or motion.profile) for f in motion.keyframes]
     first = motion.keyframes[0].pose
