@@ -16,7 +16,7 @@ import pytest
 
 from ics35_async import BusClosed, InvalidArgument, SafetyStop, blocking
 from ics35_async.eeprom import Eeprom
-from ics35_async.robot import DescriptionError, RobotWarning
+from ics35_async.robot import DescriptionError, RobotWarning, Segment, Trajectory
 from tests.support.robot_rig import (
     ALL_ICS36,
     JOINTS,
@@ -150,7 +150,7 @@ def test_run_says_plainly_what_it_takes_and_the_robot_carries_on() -> None:
         with blocking.open_robot(rig.description, **FAST) as robot:
             coroutine = robot.async_robot.read_pose()
             with pytest.raises(InvalidArgument, match=r"robot\.run\(fn, \*args\), not robot\.run\(fn\(\*args\)\)"):
-                robot.run(coroutine)  # type: ignore[arg-type]
+                robot.run(coroutine)  # type: ignore[call-overload]
 
             def plain() -> None:
                 pass
@@ -158,8 +158,31 @@ def test_run_says_plainly_what_it_takes_and_the_robot_carries_on() -> None:
             with pytest.raises(
                 InvalidArgument, match=r"async function \(async def plain\(\)\): plain\(\) returned None"
             ):
-                robot.run(plain)  # type: ignore[arg-type]
+                robot.run(plain)  # type: ignore[call-overload]
             assert set(robot.run(robot.async_robot.read_pose)) == set(JOINTS)
+    finally:
+        rig.close()
+
+
+def test_run_plays_a_trajectory_as_the_async_robots_run_does() -> None:
+    # A robot builder's finding: `robot.run(Trajectory([...]))`, as the async robot plays one, was refused on the
+    # blocking robot ("robot.run() takes an async function, not Trajectory"), which had no other way to play it.
+    rig = make_rig()
+    try:
+        with blocking.open_robot(rig.description, start_pose={"neck": 0.0}, **FAST) as robot:
+            since = rig.upper.transactions
+            trajectory = Trajectory(
+                [
+                    Segment(0.0, 0.1, {"neck": 0.0}, {"neck": 20.0}, "linear"),
+                    Segment(0.1, 0.2, {"neck": 20.0}, {"neck": 10.0}),
+                ]
+            )
+            assert robot.run(trajectory) == {"neck"}
+            sent = targets_sent(rig.upper, JOINTS["neck"]["id"], since)
+            assert sent[-1] == joint_position(JOINTS["neck"], 10.0)
+            assert max(sent) == joint_position(JOINTS["neck"], 20.0)
+            with pytest.raises(InvalidArgument, match="outside its limits"):
+                robot.run(Trajectory([Segment(0.0, 0.1, {"neck": 10.0}, {"neck": 90.0})]))
     finally:
         rig.close()
 

@@ -19,10 +19,10 @@ import contextlib
 import copy
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar, Unpack
+from typing import Any, ParamSpec, TypeVar, Unpack, overload
 
 from .. import units
-from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop
+from ..robot import JointSpec, Motion, Robot, RobotDescription, RobotFrame, RobotOptions, SafetyStop, Trajectory
 from ..robot import open_robot as open_async_robot
 from ..robot.safety import JointTelemetry
 from ..robot.startup import warn_at_open, warn_program
@@ -141,13 +141,26 @@ class BlockingRobot(LoopOwner[Robot]):
     def __repr__(self) -> str:
         return f"<BlockingRobot {self._async!r}>"
 
-    def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T:
+    @overload
+    def run(self, fn: Trajectory, /) -> frozenset[str]: ...
+
+    @overload
+    def run(self, fn: Callable[P, Awaitable[T]], /, *args: P.args, **kwargs: P.kwargs) -> T: ...
+
+    def run(self, fn: Any, /, *args: Any, **kwargs: Any) -> Any:
         """Await ``fn(*args, **kwargs)`` on the robot's loop; Ctrl-C cancels it and closes the robot.
+
+        ``robot.run(trajectory)`` plays a :class:`~ics35_async.robot.Trajectory` as :meth:`Robot.run` does (its
+        checks first, nothing sent if one fails) and returns the joints it drove to the end.
 
         Raises:
             InvalidArgument: ``fn`` is a coroutine (``robot.run(fn(*args))``: pass ``fn`` and its arguments) or
-                not callable, or its call gave nothing to await (a plain ``def``: said once that call has returned).
+                not callable, or its call gave nothing to await (a plain ``def``: said once that call has returned);
+                or a trajectory that does not fit the robot (see :meth:`Robot.run`).
         """
+        if isinstance(fn, Trajectory) and not args and not kwargs:
+            # (Robot.run's own call, as the async robot's documentation shows it)
+            return self.run(self._async.run, fn)
         check_async_function(fn, "robot.run", with_args=True)
         try:
             return self._loop.call(awaited, "robot.run", fn, *args, **kwargs)
