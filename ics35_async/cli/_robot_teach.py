@@ -338,15 +338,9 @@ async def capture(
         return
     if not pose:
         # An empty keyframe moves nothing: kept, it would be a pose in name only (and a motion of such poses, taught
-        # with the servos silent, one that plays nothing).
-        screen.say(
-            "\n".join(
-                [
-                    *warnings,
-                    f"pose not captured: none of its joints answers ({escape(', '.join(names))}): nothing to capture",
-                ]
-            )
-        )
+        # with the servos silent, one that plays nothing).  (Not the warnings: "left out of this pose" of no pose.)
+        names_said = escape(", ".join(names))
+        screen.say(f"pose not captured: none of its joints answers ({names_said}): nothing to capture")
         return
     taken = {}
     for name in pose:
