@@ -1334,7 +1334,14 @@ def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
 
 
 def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float) -> None:
-    """As :func:`unplug_once_answered`, then plug the servo back in ``away`` seconds later, powered up (free)."""
+    """As :func:`unplug_once_answered`, then plug the servo back in ``away`` seconds later, powered up (free), once
+    the stream has taken it offline (its probe, a read, went unanswered): under load, fewer cycles than that
+    may have run in ``away`` seconds, and a servo back before then has not come back to the robot."""
+
+    def probed(since: int) -> bool:
+        return any(
+            t.servo_id == servo_id and t.command.startswith("read_") and not t.responders for t in sim.log_since(since)
+        )
 
     def run() -> None:
         deadline = time.monotonic() + scaled(30.0)
@@ -1342,7 +1349,10 @@ def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float
             if any(t.servo_id == servo_id and t.reply and t.command == "position" for t in sim.log_since(0)):
                 time.sleep(0.2)
                 servo = sim.remove_servo(servo_id)
+                since = sim.log_since(0)[-1].seq
                 time.sleep(away)
+                while not probed(since) and time.monotonic() < deadline:
+                    time.sleep(0.01)
                 servo.power_cycle()
                 sim.add_device(servo)
                 return
