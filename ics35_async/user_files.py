@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import codecs
 import errno
+import json
 import os
 import re
 import secrets
@@ -81,6 +82,20 @@ def decode_user_text(raw: bytes, expected: str) -> str:
         raise UnreadableText(
             f"not UTF-8 text: byte 0x{body[exc.start]:02x} on line {line} ({expected}: save it as UTF-8)"
         ) from None
+
+
+def parse_json(text: str | bytes) -> object:
+    """``json.loads(text)``, with brackets nested deeper than Python's parser goes (a file edited into nonsense)
+    refused as any malformed JSON is, not as a ``RecursionError`` that would reach a person as a traceback.
+
+    Raises:
+        json.JSONDecodeError: not JSON, or nested too deeply.
+    """
+    try:
+        return json.loads(text)
+    except RecursionError:
+        doc = text.decode("utf-8", "replace") if isinstance(text, bytes) else text
+        raise json.JSONDecodeError("nested too deeply", doc, 0) from None
 
 
 def replace_keeping_backup(target: Path, text: str) -> Path | None:

@@ -621,6 +621,11 @@ def test_restore_rejects_a_broken_backup(cli: Any, sim_line: Any, tmp_path: Path
     bad.write_bytes(b"\x7fELF\x02\x01\xd0\xd1")  # a program given by mistake: no traceback
     result = cli("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
     assert result.code == ExitCode.USAGE and "not a text file" in result.err, result.err
+    # Brackets nested deeper than Python's parser goes (a file edited into nonsense): refused as not JSON.
+    for nested in ('{"a":' * 100_000, "[" * 100_000 + "]" * 100_000):
+        bad.write_text(nested)
+        result = cli("--port", url, "eeprom", "restore", "1", str(bad), "--yes")
+        assert result.code == ExitCode.USAGE and "bad.json: not JSON: nested too deeply" in result.err, result.err
     assert sim.transactions == 0
 
 

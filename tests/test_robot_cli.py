@@ -282,6 +282,24 @@ def test_a_file_that_is_not_utf8_text_is_named_so(
     assert sims.upper.transactions == 0 and sims.lower.transactions == 0
 
 
+@pytest.mark.parametrize("which", ["MOTION.json", "--start-pose"])
+def test_json_nested_deeper_than_python_parses_is_not_json(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, which: str
+) -> None:
+    sims, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    bad = tmp_path / "bad.json"
+    bad.write_text("[" * 100_000)  # a file edited into nonsense: once a RecursionError's traceback
+    args = {
+        "MOTION.json": [str(robot_file), str(bad)],
+        "--start-pose": [str(robot_file), str(motion), "--start-pose", str(bad)],
+    }[which]
+    result = cli("play", *args)
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.USAGE and "not valid JSON" in said and "nested too deeply" in said, said
+    assert sims.upper.transactions == 0 and sims.lower.transactions == 0
+
+
 @pytest.mark.parametrize(
     ("pose", "phrase"),
     [

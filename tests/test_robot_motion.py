@@ -199,6 +199,9 @@ def test_not_json_and_missing_files(tmp_path: Path) -> None:
     (tmp_path / "x.json").write_text("{nope")
     with pytest.raises(MotionError, match="not valid JSON"):
         load_motion(tmp_path / "x.json")
+    (tmp_path / "x.json").write_text("[" * 100_000)  # deeper than Python's parser goes: no RecursionError
+    with pytest.raises(MotionError, match="not valid JSON: nested too deeply"):
+        load_motion(tmp_path / "x.json")
     with pytest.raises(MotionError, match="no such file"):
         load_motion(tmp_path / "y.json")
     # robot.play(5) raised TypeError from pathlib ("expected str, bytes or os.PathLike object").

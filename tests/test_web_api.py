@@ -1281,6 +1281,10 @@ def test_bad_input_is_answered_in_words(serve: Any) -> None:
         assert answer.status_code == 400 and answer.json()["error"] == f"servo ID {text!r} is not 0..31"
     not_json = client.post("/api/scan", content="{", headers=JSON)
     assert not_json.status_code == 400 and "not JSON" in not_json.json()["error"]
+    # A backup a browser parsed (its parser goes deeper than Python's) and sent nested too deeply: in words too.
+    nested = '{"doc": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    too_deep = client.post("/api/servo/1/restore/plan", content=nested, headers=JSON)
+    assert too_deep.status_code == 400 and "not JSON: nested too deeply" in too_deep.json()["error"]
     wrong_port = post(client, "/api/connect", {"port": "/dev/does-not-exist"})
     assert wrong_port.status_code == 503 and "does-not-exist" in wrong_port.json()["error"]
 

@@ -17,7 +17,14 @@ from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import backup_changes, backup_document, plan_restores
-from ..user_files import UnreadableText, decode_user_text, empty_path, read_user_text, replace_keeping_backup
+from ..user_files import (
+    UnreadableText,
+    decode_user_text,
+    empty_path,
+    parse_json,
+    read_user_text,
+    replace_keeping_backup,
+)
 from ._common import (
     ID_LIST,
     SERVO_ID,
@@ -234,7 +241,7 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
             text = decode_user_text(raw, BACKUP_IS)
         else:
             text = read_user_text(source, BACKUP_IS)
-        doc = json.loads(text)
+        doc = parse_json(text)
         changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
         fields, saved_id = changes.fields, changes.saved_id
         if target is None:

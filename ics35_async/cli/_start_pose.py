@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from ..user_files import UnreadableText, read_user_text
+from ..user_files import UnreadableText, parse_json, read_user_text
 
 start_pose_option = click.option(
     "--start-pose",
@@ -32,7 +32,7 @@ def parse_start_pose(text: str | None) -> dict[str, float] | None:
         raise click.BadParameter("is empty: give joint=degrees,... or a JSON file", param_hint="--start-pose")
     if "=" not in text:
         try:
-            data = json.loads(read_user_text(text, "a start pose is UTF-8 JSON"))
+            data = parse_json(read_user_text(text, "a start pose is UTF-8 JSON"))
         except (UnreadableText, json.JSONDecodeError) as exc:
             # A file that is there: what is wrong with it (not which of the two forms it was taken for).
             if not Path(text).exists():

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 from .. import units
 from ..errors import FileContentError, InvalidArgument
-from ..user_files import UnreadableText, read_user_text, replace_keeping_backup
+from ..user_files import UnreadableText, parse_json, read_user_text, replace_keeping_backup
 from .profiles import PROFILES, KeyframeError, Trajectory, check_angles, check_profile, check_time
 
 if TYPE_CHECKING:
@@ -174,7 +174,7 @@ def load_motion(source: str | Path | Mapping[str, Any]) -> Motion:
         raise InvalidArgument(f"a motion is a Motion, a JSON file's path or a mapping, not {type(source).__name__}")
     path = Path(source)
     try:
-        data = json.loads(read_user_text(source if isinstance(source, str) else path, "a motion is UTF-8 JSON"))
+        data = parse_json(read_user_text(source if isinstance(source, str) else path, "a motion is UTF-8 JSON"))
     except UnreadableText as exc:
         raise MotionError(str(path), "", str(exc)) from None
     except json.JSONDecodeError as exc:

@@ -40,6 +40,7 @@ from ..errors import (
 from ..protocol import MAX_ID
 from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
+from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
 from .session import PAGE_NAME_MAX, LineSession
@@ -134,7 +135,7 @@ def endpoint(handler: Handler, *, look_at_other_rates: bool = False) -> Callable
 
 async def body(request: Request) -> dict[str, Any]:
     try:
-        data = await request.json()
+        data = parse_json(await request.body())
     except json.JSONDecodeError as exc:
         raise InvalidArgument(f"the request is not JSON: {exc}") from None
     if not isinstance(data, dict):
