@@ -17,7 +17,7 @@ from ics35_async.eeprom import Flags
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
-from tests.support.sim_servos import UnplugsWhenAsked, free_command
+from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked, free_command
 
 Damage = Callable[[dict[str, Any]], None]
 
@@ -169,6 +169,21 @@ def ics35_cli(*args: str) -> int:
     with pytest.raises(SystemExit) as exited:
         main(list(args))
     return int(exited.value.code or 0)
+
+
+def test_a_servo_unplugged_after_acknowledging_a_write_is_said_written_not_verified(cli: Any, sim_line: Any) -> None:
+    servo = UnpluggedAfterWrite(2)
+    sim, url = sim_line([VirtualServo(1), servo])
+    servo.line = sim
+    result = cli("--port", url, "eeprom", "set", "2", "speed=50", "--yes")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    out, err = " ".join(result.out.split()), " ".join(result.err.split())
+    told = f"servo 2: 1 EEPROM field(s) written, not verified: no read-back came; check with: ics35 --port {url}"
+    assert f"{told} eeprom dump 2 --table" in out, out
+    # It was "servo 2 answers as neither ID 2": a sentence cut short, no word of what to do.
+    assert "servo 2 acknowledged the EEPROM write, then did not answer its read-back (asked as ID 2)" in err, err
+    assert "check its power and cable, then read it again" in err and "neither" not in err, err
+    assert servo.eeprom.speed == 50
 
 
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ from ics35_async.policies import (
 from ics35_async.policies.eeprom_backup import plan_restores, restore_rates
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.conftest import every_backend
+from tests.support.sim_servos import UnpluggedAfterWrite
 from tests.support.timing import FAST, NO_TIMEOUTS
 
 
@@ -259,6 +260,29 @@ async def test_a_write_the_servo_does_not_keep_fails_verification() -> None:
         plan = await plan_eeprom_write(bus, 1, {"speed": 90})
         with pytest.raises(VerifyError, match="differs"):
             await write_eeprom_plan(bus, plan)
+
+
+@pytest.mark.parametrize(
+    ("changes", "said"),
+    [
+        ({"speed": 90}, "servo 1 acknowledged the EEPROM write, then did not answer its read-back (asked as ID 1)"),
+        ({"servo_id": 7}, "then did not answer its read-back (asked as ID 7 and as ID 1)"),
+    ],
+)
+async def test_a_servo_gone_after_acknowledging_a_write_is_said_written_not_verified(
+    changes: dict[str, Any], said: str
+) -> None:
+    servo = UnpluggedAfterWrite(1)
+    async with line([servo]) as (sim, bus):
+        servo.line = sim
+        plan = await plan_eeprom_write(bus, 1, changes)
+        # Said once in sentences that end: it was "servo 1 answers as neither ID 1", with no word of what to do.
+        with pytest.raises(VerifyError) as raised:
+            await write_eeprom_plan(bus, plan, allow_id_change=True)
+    message = str(raised.value)
+    assert said in message and "written, not verified" in message, message
+    assert "check its power and cable, then read it again" in message, message
+    assert servo.eeprom.to_bytes() == plan.after.to_bytes()  # it did take the write: "not verified" was honest
 
 
 async def test_a_batch_cancelled_mid_write_still_accounts_for_every_servo() -> None:

@@ -221,8 +221,9 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
         WriteOutcome.NOT_WRITTEN: "[bold]not written[/bold] (its EEPROM is as it was)",
         WriteOutcome.UNKNOWN: "[bold red]unknown[/bold red]: the command stopped while the write was on its way, "
         f"so the servo holds its old or its new EEPROM; see which with: {check}",
-        WriteOutcome.UNVERIFIED: f"{len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: the command "
-        f"stopped before the read-back; check with: {check}",
+        # (no read-back came: the command stopped first, or the servo did not answer it; the error line says which)
+        WriteOutcome.UNVERIFIED: f"{len(changes)} EEPROM field(s) [bold]written, not verified[/bold]: no read-back "
+        f"came; check with: {check}",
         WriteOutcome.DIFFERS: "[bold red]written, but the image read back differs[/bold red]",
     }
     if outcome in short_of_verified:

@@ -398,9 +398,15 @@ async def _write(
     )
     progress.read_back = read_back
     if read_back is None:
-        where = " or ".join(f"ID {i}" for i in ids)
-        rates = f" at {plan.baud} or {int(plan.after.baud_rate)} baud" if plan.changes_baud else ""
-        raise VerifyError(f"after the EEPROM write servo {plan.servo_id} answers as neither {where}{rates}")
+        # Most often the servo's power or cable went mid-write: say what it may hold and what to do, in the
+        # words a person reads on the command line and the configurator alike.
+        asked = " and as ".join(f"ID {i}" for i in ids)
+        rates = f", at {plan.baud} and at {int(plan.after.baud_rate)} baud" if plan.changes_baud else ""
+        heard = "acknowledged the EEPROM write" if acknowledged else "did not acknowledge the EEPROM write"
+        raise VerifyError(
+            f"servo {plan.servo_id} {heard}, then did not answer its read-back (asked as {asked}{rates}): "
+            "written, not verified; check its power and cable, then read it again"
+        )
     if read_back != plan.after:
         raise VerifyError(f"servo {plan.servo_id}: EEPROM read back differs: {read_back.diff(plan.after)}")
     return result

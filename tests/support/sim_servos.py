@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from ics35_async.protocol import Param, Position, ReadParam, ReadPosition
+from ics35_async.protocol import Param, Position, ReadParam, ReadPosition, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
 
@@ -37,6 +37,20 @@ class UnplugsWhenAsked(VirtualServo):
             if self.replug_after is not None:
                 self.line = None
         return super().handle(command)
+
+
+class UnpluggedAfterWrite(VirtualServo):
+    """A servo that acknowledges an EEPROM write, then leaves the line (its cable pulled, the adapter still there):
+    the read-back gets no answer.  ``line`` is set once the line holds it."""
+
+    line: VirtualLine | None = None
+
+    def handle(self, command: Any) -> Any:
+        known_as = self.servo_id  # (the ID the line knows it by: the write may give it another)
+        reply = super().handle(command)
+        if isinstance(command, WriteEeprom) and self.line is not None:
+            self.line.remove_servo(known_as)
+        return reply
 
 
 class LosesPositionReplies(VirtualServo):
