@@ -291,6 +291,30 @@ def test_a_jog_whose_answer_was_lost_shows_its_target_as_uncertain(browser: Brow
         expect(p.locator("#jog-target")).to_have_attribute("title", re.compile("may"))
 
 
+@pytest.mark.parametrize("how", ["write", "restore"])
+def test_a_write_whose_read_after_fails_still_shows_its_outcome(browser: Browser, tmp_path: Path, how: str) -> None:
+    # The server stopped (Ctrl-C) as it answered the write: the write was verified, but the page read the servo
+    # again before showing it, that read failed, and the page said only "the server does not answer".
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        if how == "write":
+            p.fill("#eeprom-table [name=speed]", "90")
+            p.click("#plan-btn")
+            button, result = "#write-btn", "#write-result"
+        else:
+            backup = backed_up(p, tmp_path)
+            line.sim.servo(1).eeprom = line.sim.servo(1).eeprom.replace(speed=33)
+            p.set_input_files("#restore-file", str(backup))
+            button, result = "#restore-btn", "#restore-result"
+        expect(p.locator(button)).to_be_enabled()
+        p.route("**/api/servo/1/eeprom", lambda route: route.abort())  # the read after it fails as with no server
+        p.click(button)
+        expect(p.locator("#message")).to_contain_text("the configurator's server does not answer")
+        expect(p.locator(result)).to_contain_text("written and verified by reading it back")
+        assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
+
+
 def test_a_jog_the_server_never_answered_says_so_not_that_its_answer_was_lost(browser: Browser) -> None:
     # With the server gone (stopped, its network down), the jog's target showed "not confirmed" and its title said
     # the jog "was sent but its answer was lost", though it may never have left the browser.

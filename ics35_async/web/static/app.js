@@ -516,8 +516,9 @@ async function writeEeprom() {
   $("#write-btn").disabled = true;
   const who = followNewId(result);
   const wasOn = $("#motion-switch").checked;
-  await loadServo();
-  $("#write-result").replaceChildren(resultText(result));
+  // The outcome is shown whatever the read after it meets (the server stopped, the servo unplugged): hidden
+  // behind that read's error, a verified write left the person guessing what the servo holds.
+  try { await loadServo(); } finally { $("#write-result").replaceChildren(resultText(result)); }
   say(`${who}: ${result.written ? (result.verified ? "written and verified" : "read-back differs") : "nothing to write"}${motionOffAfter(wasOn)}`,
     result.verified || !result.written ? "info" : "error");
 }
@@ -555,8 +556,7 @@ async function restoreServo() {
   $("#restore-btn").disabled = true;
   followNewId(result);  // "also its ID": the servo answers at the backup's
   const wasOn = $("#motion-switch").checked;
-  await loadServo();
-  $("#restore-result").replaceChildren(resultText(result));
+  try { await loadServo(); } finally { $("#restore-result").replaceChildren(resultText(result)); }  // (as a write's)
   if (wasOn) say(`servo ${servoId()}${motionOffAfter(wasOn)}`, "info");
 }
 
