@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -25,7 +26,7 @@ from ics35_async.cli._live import forced_out
 from ics35_async.cli._live_view import LiveState
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
-from ics35_async.protocol import ReadEeprom
+from ics35_async.protocol import ReadEeprom, ReadParam, WriteId
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied
 from tests.support.sim_servos import UnplugsWhenAsked
@@ -661,6 +662,36 @@ def test_set_id_names_the_rate_a_lone_servo_answers_at(cli: Any, sim_line: Any) 
     assert [s.servo_id for s in sim.servos] == [3]  # nothing written
     assert cli("--port", url, "--baud", "625000", "set-id", "9", "--yes").code == 0
     assert [s.servo_id for s in sim.servos] == [9]
+
+
+class CtrlCWhenAsked(VirtualServo):
+    """A servo at whose command ``what`` Ctrl-C is pressed: the command still reaches it (it acts on it)."""
+
+    def __init__(self, servo_id: int, what: type) -> None:
+        super().__init__(servo_id)
+        self.what = what
+
+    def handle(self, command: Any) -> Any:
+        if isinstance(command, self.what):
+            signal.raise_signal(signal.SIGINT)
+        return super().handle(command)
+
+
+def test_set_id_interrupted_says_whether_the_id_write_was_on_its_way(cli: Any, sim_line: Any) -> None:
+    # Ctrl-C as the ID command went out: the servo took ID 3, and all that was said was "error: interrupted".
+    sim, url = sim_line([CtrlCWhenAsked(0, WriteId)])
+    result = cli("--port", url, "set-id", "3", "--yes")
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    said = " ".join(result.err.split())
+    assert "interrupted while the ID write was on its way: the servo answers as ID 0 or as ID 3 now" in said, said
+    assert f"see which with: ics35 --port {url} scan --ids 0,3 --bauds 115200 --quick" in said, said
+    assert [s.servo_id for s in sim.servos] == [3]
+    # Ctrl-C while the line is surveyed: nothing was written, and that is said.
+    sim, url = sim_line([CtrlCWhenAsked(0, ReadParam)])
+    result = cli("--port", url, "set-id", "3", "--yes")
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    assert "interrupted before the ID write: nothing was written" in result.err, result.err
+    assert [s.servo_id for s in sim.servos] == [0]
 
 
 def test_set_id_on_an_empty_line_says_nothing_answered(cli: Any, sim_line: Any) -> None:

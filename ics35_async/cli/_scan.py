@@ -310,6 +310,9 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     ID) and refuses otherwise.
     """
     settings = settings_of(ctx)
+    # How far it got, for what Ctrl-C leaves: "asking" (the question says so itself), then the ID the servo had
+    # once the ID command is on its way.
+    stage: list[str | int] = []
 
     async def body() -> tuple[int, int]:
         async with settings.bus() as bus:
@@ -320,11 +323,26 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
                 return old, new_id
             if not as_json:
                 out.print(f"one servo on the line: ID {old}")
+            stage.append("asking")
             confirm(f"Change servo ID {old} -> {new_id} (stored in its EEPROM)?", yes)
-            await policies.write_lone_id(bus, new_id, survey=survey)
+            await policies.write_lone_id(bus, new_id, survey=survey, on_sent=lambda: stage.append(old))
             return old, new_id
 
-    old, new = run(settings, body)
+    try:
+        old, new = run(settings, body)
+    except CliError as exc:
+        if exc.code is not ExitCode.INTERRUPTED or stage[-1:] == ["asking"]:
+            raise
+        if not stage:
+            raise CliError(ExitCode.INTERRUPTED, "interrupted before the ID write: nothing was written") from None
+        # Ctrl-C as the ID command went out, or before the new ID was seen to answer: the servo took it or not.
+        was = stage[-1]
+        ids = f"{was},{new_id}"
+        raise CliError(
+            ExitCode.INTERRUPTED,
+            f"interrupted while the ID write was on its way: the servo answers as ID {was} or as ID {new_id} now",
+            f"see which with: {settings.command_line('scan', '--ids', ids, '--bauds', str(settings.baud), '--quick')}",
+        ) from None
     if as_json:
         emit_json({"old": old, "new": new, "changed": old != new})
     elif old == new:

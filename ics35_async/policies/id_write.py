@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from .. import protocol
@@ -167,11 +167,15 @@ async def look_elsewhere(
     return dataclasses.replace(survey, elsewhere=found)
 
 
-async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = None) -> IdChange:
+async def write_lone_id(
+    line: Line, new_id: int, *, survey: IdSurvey | None = None, on_sent: Callable[[], None] | None = None
+) -> IdChange:
     """Give the only device on the line the ID ``new_id`` (stored in its EEPROM), then check it answers.
 
     ``survey`` (from :func:`survey_for_id_write`, e.g. shown to a person
-    before confirming) saves proving it again.  Raises UnsafeOperation,
+    before confirming) saves proving it again.  ``on_sent`` is called just
+    before the ID command goes out: a call cancelled (Ctrl-C) after it leaves
+    the device at its old or its new ID, one cancelled before it wrote nothing.  Raises UnsafeOperation,
     writing nothing, unless exactly one device is proven on the line; raises
     VerifyError if the new ID does not answer after the write.  A write whose
     acknowledgement is lost is settled by asking who answers now: the new ID
@@ -188,6 +192,8 @@ async def write_lone_id(line: Line, new_id: int, *, survey: IdSurvey | None = No
         )
     if old_id == new_id:
         return IdChange(old_id, new_id, written=False)
+    if on_sent is not None:
+        on_sent()
     try:
         # Sent once: the ID command renames every device that hears it, so it is never retried blindly.
         await line.request(protocol.WriteId(new_id), retries=0)
