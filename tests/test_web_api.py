@@ -27,7 +27,7 @@ from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
-from tests.support.sim_servos import UnplugsWhenAsked
+from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked
 from tests.support.timing import GUARD
 
 TOKEN = "test-token-0123456789abcdef"
@@ -602,6 +602,23 @@ def test_many_servos_do_not_say_nothing_was_written_of_a_write_left_unanswered()
     assert "nothing written" in unread, unread
     unanswered = session._many_words(ReplyTimeout("no reply", command="write_eeprom", servo_id=5, raw=b"\xc5"))
     assert "nothing written" not in unanswered and "may" in unanswered and "5" not in unanswered.split(), unanswered
+
+
+def test_many_servos_say_a_write_acknowledged_then_unanswered_was_written_not_verified(serve: Any) -> None:
+    # Its cable pulled as it acknowledged the write: the row said "failed" of a servo that took the write, and
+    # the words above named it twice ("servo 2: servo 2 answers as neither ID 2").
+    client, sim = serve((1, 3))
+    gone = UnpluggedAfterWrite(2)
+    sim.add_device(gone)
+    gone.line = sim
+    results = post(client, "/api/many/apply", {"ids": [1, 2, 3], "changes": {"speed": 40}}).json()["results"]
+    assert [r["id"] for r in results] == [1, 2, 3] and results[0]["verified"] and results[2]["verified"], results
+    two = results[1]
+    assert two["kind"] == "VerifyError" and two["written"] is True, two
+    words = two["error"]
+    assert words.startswith("acknowledged the EEPROM write, then did not answer its read-back"), words
+    assert "written, not verified" in words and "servo 2" not in words, words
+    assert gone.eeprom.speed == 40
 
 
 def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any) -> None:

@@ -37,6 +37,7 @@ from tests.support.browser_pages import (
     until_on,
     web_server_page,
 )
+from tests.support.sim_servos import UnpluggedAfterWrite
 from tests.support.timing import GUARD, PATIENT_OPTION
 
 # Each module's tests share its browser (and the first module's, one page walked in order): `make test`
@@ -454,6 +455,26 @@ def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(b
         expect(p.locator("#many-results tr[data-id='6']")).to_contain_text("failed (see above)")
         assert "raw" not in (p.locator("#page-many").text_content() or "")
         assert line.sim.servo(1).eeprom.punch == 3
+
+
+def test_the_many_servos_page_says_a_write_taken_but_not_read_back_is_written_not_verified(browser: Browser) -> None:
+    # Servo 2's cable pulled as it acknowledged the write: its row said "failed" of a servo that took it.
+    line = PtyLine((1,))
+    gone = UnpluggedAfterWrite(2)
+    line.sim.add_device(gone)
+    gone.line = line.sim
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#many")
+        p.fill("#many-ids", "1,2")
+        p.check("[name=use-punch]")
+        p.fill("[name=value-punch]", "3")
+        p.click("#many-apply")
+        expect(p.locator("#many-results tr[data-id='2']")).to_contain_text("written, not verified")
+        expect(p.locator("#many-errors li")).to_have_text(
+            re.compile(r"^servo 2: acknowledged the EEPROM write, then did not answer its read-back")
+        )
+        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("written, verified")
+        assert gone.eeprom.punch == 3
 
 
 def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser: Browser) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
+import re
 from collections.abc import AsyncIterator, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
@@ -38,6 +39,7 @@ from ..errors import (
     ReplyTimeout,
     SerialPortError,
     UnsafeOperation,
+    VerifyError,
     error_text,
 )
 from ..policies import (
@@ -781,6 +783,8 @@ class LineSession:
                 rest = f"not tried: the line was lost at servo {sid}; apply again once it is back"
                 results += [{"id": i, "error": rest, "kind": "NotTried", "not_tried": True} for i in checked[k + 1 :]]
                 break
+            except VerifyError as exc:  # (the write went out and was taken, or partly: never "failed")
+                results.append({"id": sid, "error": self._many_words(exc), "kind": "VerifyError", "written": True})
             except IcsError as exc:
                 results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
         return results
@@ -788,6 +792,8 @@ class LineSession:
     def _many_words(self, exc: IcsError) -> str:
         """``exc``'s words for the Many servos page, naming no servo and showing no bytes (the Traffic page
         has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent)."""
+        if isinstance(exc, VerifyError):  # "servo 2 acknowledged the write, then ...": the row names the servo
+            return re.sub(r"^servo \d+:? ", "", error_text(exc))
         if not isinstance(exc, ReplyError):
             return error_text(exc)  # (a refusal's words: the same for each servo the edit is refused for)
         if isinstance(exc, ReplyTimeout):
