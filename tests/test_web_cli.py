@@ -89,6 +89,31 @@ def test_the_url_comes_first_and_the_default_port_is_the_simulator_said_so() -> 
     assert "built-in simulator" in err and "Traceback" not in err
 
 
+def test_a_second_ctrl_c_as_the_server_stops_is_the_same_stop() -> None:
+    # uvicorn took a second press for "quit now": the requests and pages still being served were cancelled
+    # mid-way (a write's answer lost, the page told "Internal Server Error") and tracebacks filled the terminal.
+    with web() as (proc, url):
+        base, token = split(url)
+        host, port = base.removeprefix("http://").rsplit(":", 1)
+        # A page's WebSocket that never answers the server's close: the stop waits for it a moment.
+        page = socket.create_connection((host, int(port)))
+        key = base64.b64encode(os.urandom(16)).decode()
+        page.sendall(
+            f"GET /ws?page=p1 HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nOrigin: {base}\r\n"
+            f"Cookie: ics35_token={token}\r\n\r\n".encode()
+        )
+        assert page.recv(100).startswith(b"HTTP/1.1 101"), "no WebSocket"
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)  # and again, at once, as the server stops
+        code = proc.wait(10)
+        page.close()
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+    assert code == 0 and "Traceback" not in err and "Error" not in err, err
+
+
 def test_a_server_started_ignoring_sigint_keeps_ignoring_it() -> None:
     # `ics35 web &` in a script (or under nohup's kin): the shell starts it with SIGINT ignored, so that the
     # Ctrl-C typed for the script's foreground command is not for it.  The web server turned Ctrl-C back on:

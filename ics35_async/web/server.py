@@ -170,12 +170,18 @@ def _server_class() -> type[Any]:
     import uvicorn
 
     class Server(uvicorn.Server):
-        """uvicorn's server, but a stop signal the process was started ignoring stays ignored.
+        """uvicorn's server, but a stop signal the process was started ignoring stays ignored, and a second one
+        as it stops is the same stop.
 
         A shell without job control (a script) starts ``ics35 web &`` with SIGINT ignored, so that the Ctrl-C
         typed for its foreground command is not for it; uvicorn puts its handlers in for SIGINT and SIGTERM
         whatever was there, and that Ctrl-C would stop the server too.  (The other commands keep such a
         signal ignored: see ics35_async.running._heard.)
+
+        uvicorn takes a second Ctrl-C for "quit now": the requests still being answered (an EEPROM write on its
+        way) and the pages' connections were cancelled mid-way, the robot not brought to rest, and tracebacks
+        filled the terminal.  A stop lets what was under way end (as every ``ics35`` command takes a second
+        press for the first's stop): it takes as long as the longest request still being answered.
         """
 
         def __init__(self, config: uvicorn.Config) -> None:
@@ -183,7 +189,7 @@ def _server_class() -> type[Any]:
             self.ignored = {sig for sig in _STOPPING if signal.getsignal(sig) is signal.SIG_IGN}
 
         def handle_exit(self, sig: int, frame: FrameType | None) -> None:
-            if sig not in self.ignored:
+            if sig not in self.ignored and not self.should_exit:
                 super().handle_exit(sig, frame)
 
     return Server
