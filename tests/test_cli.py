@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -29,7 +28,7 @@ from ics35_async.errors import InvalidArgument
 from ics35_async.protocol import ReadEeprom, ReadParam, WriteId
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied
-from tests.support.sim_servos import UnplugsWhenAsked
+from tests.support.sim_servos import CtrlCWhenAsked, UnplugsWhenAsked
 
 # --------------------------------------------------------------------------- bad arguments
 
@@ -662,19 +661,6 @@ def test_set_id_names_the_rate_a_lone_servo_answers_at(cli: Any, sim_line: Any) 
     assert [s.servo_id for s in sim.servos] == [3]  # nothing written
     assert cli("--port", url, "--baud", "625000", "set-id", "9", "--yes").code == 0
     assert [s.servo_id for s in sim.servos] == [9]
-
-
-class CtrlCWhenAsked(VirtualServo):
-    """A servo at whose command ``what`` Ctrl-C is pressed: the command still reaches it (it acts on it)."""
-
-    def __init__(self, servo_id: int, what: type) -> None:
-        super().__init__(servo_id)
-        self.what = what
-
-    def handle(self, command: Any) -> Any:
-        if isinstance(command, self.what):
-            signal.raise_signal(signal.SIGINT)
-        return super().handle(command)
 
 
 def test_set_id_interrupted_says_whether_the_id_write_was_on_its_way(cli: Any, sim_line: Any) -> None:

@@ -17,7 +17,7 @@ from ics35_async.eeprom import Flags
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
-from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked, free_command
+from tests.support.sim_servos import CtrlCWhenAsked, UnpluggedAfterWrite, UnplugsWhenAsked, free_command
 
 Damage = Callable[[dict[str, Any]], None]
 
@@ -184,6 +184,20 @@ def test_a_servo_unplugged_after_acknowledging_a_write_is_said_written_not_verif
     assert "servo 2 acknowledged the EEPROM write, then did not answer its read-back (asked as ID 2)" in err, err
     assert "check its power and cable, then read it again" in err and "neither" not in err, err
     assert servo.eeprom.speed == 50
+
+
+def test_a_dump_interrupted_while_reading_says_nothing_was_saved(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    # Ctrl-C while the servos were read: "error: interrupted", and no word of whether the backups there were.
+    folder = tmp_path / "backup"
+    folder.mkdir()
+    (folder / "servo-01.json").write_text("an earlier backup")
+    _, url = sim_line([VirtualServo(1), CtrlCWhenAsked(2, ReadEeprom), VirtualServo(3)])
+    result = cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/")
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    said = " ".join(result.err.split())
+    assert "interrupted while the servos were read: nothing was saved (the files there are as they were)" in said
+    assert sorted(p.name for p in folder.iterdir()) == ["servo-01.json"]
+    assert (folder / "servo-01.json").read_text() == "an earlier backup"
 
 
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:

@@ -157,7 +157,15 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     if path is not None and not as_table:  # (an earlier backup there is kept as NAME.bak: room for it first)
         for target in [path / backup_name(i) for i in ids] if kind == "dir" else [path]:
             check_backup_path(target, "--output")
-    read = run(settings, lambda: read_images(settings, ids))
+    try:
+        read = run(settings, lambda: read_images(settings, ids))
+    except CliError as exc:
+        if exc.code is not ExitCode.INTERRUPTED:
+            raise
+        # (the files are written once every servo is read: a backup already there is untouched)
+        untouched = "the files there are as they were" if kind == "dir" else "a file there is as it was"
+        saved = "nothing was shown" if as_table or path is None else f"nothing was saved ({untouched})"
+        raise CliError(ExitCode.INTERRUPTED, f"interrupted while the servos were read: {saved}") from None
     images = read.images
     for i, image in images.items():
         if image.unknown_codes:

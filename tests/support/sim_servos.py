@@ -3,6 +3,7 @@ replies go astray."""
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable
 from typing import Any
 
@@ -36,6 +37,20 @@ class UnplugsWhenAsked(VirtualServo):
             self.line.unplug(replug_after=self.replug_after)
             if self.replug_after is not None:
                 self.line = None
+        return super().handle(command)
+
+
+class CtrlCWhenAsked(VirtualServo):
+    """A servo at whose command ``what`` Ctrl-C is pressed (SIGINT to this process): the command still reaches it
+    (it acts on it)."""
+
+    def __init__(self, servo_id: int, what: type) -> None:
+        super().__init__(servo_id)
+        self.what = what
+
+    def handle(self, command: Any) -> Any:
+        if isinstance(command, self.what):
+            signal.raise_signal(signal.SIGINT)
         return super().handle(command)
 
 
