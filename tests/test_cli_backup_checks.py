@@ -200,6 +200,20 @@ def test_a_dump_interrupted_while_reading_says_nothing_was_saved(cli: Any, sim_l
     assert (folder / "servo-01.json").read_text() == "an earlier backup"
 
 
+def test_eeprom_set_stopped_while_reading_says_nothing_was_written(cli: Any, sim_line: Any) -> None:
+    # Ctrl-C, or two new servos answering at ID 0 at once, while the servo was read: "error: interrupted" (or
+    # the garbled reply's words), and no word that nothing was written, as `eeprom restore` says it.
+    sim, url = sim_line([VirtualServo(1), CtrlCWhenAsked(2, ReadEeprom)])
+    result = cli("--port", url, "eeprom", "set", "2", "speed=50", "--yes")
+    assert result.code == ExitCode.INTERRUPTED, result.err
+    assert "nothing was written (it stopped while reading the servo)" in " ".join(result.err.split()), result.err
+    sim, url = sim_line([VirtualServo(0), VirtualServo(0)])
+    result = cli("--port", url, "eeprom", "set", "0", "speed=50", "--yes")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "nothing was written (it stopped while reading the servo)" in " ".join(result.err.split()), result.err
+    assert all(s.eeprom_writes == 0 for s in sim.servos)
+
+
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url, folder, _ = drifted_line(sim_line, tmp_path, "write")
     result = cli("--port", url, "--timeout", "0.05", "eeprom", "restore", str(folder), "--yes")

@@ -17,7 +17,7 @@ import click
 from ..eeprom import EEPROM_FIELDS, READ_ONLY_FLAGS, BaudRate, Flags
 from ..errors import InvalidArgument, MalformedEeprom
 from ..policies import check_changes, plan_eeprom_write
-from ._common import SERVO_ID, json_option, run, settings_of, yes_option
+from ._common import SERVO_ID, CliError, json_option, run, settings_of, yes_option
 from ._eeprom_backup import dump, restore
 from ._eeprom_write import WriteBatch, finish, write_plans
 
@@ -134,11 +134,17 @@ def set_fields(
     except (InvalidArgument, MalformedEeprom) as exc:
         raise click.BadParameter(str(exc), param_hint="FIELD=VALUE") from None
 
+    reading = False  # the line open, the servo being read: a failure then comes before any write
+    planned = False  # the servo read and its write planned: until then nothing was written
+
     async def body() -> WriteBatch:
+        nonlocal reading, planned
         async with settings.bus() as bus:
+            reading = True
             plan = await plan_eeprom_write(
                 bus, servo_id, edit.changes, set_flags=edit.set_flags, clear_flags=edit.clear_flags
             )
+            planned = True
             return await write_plans(
                 bus,
                 [plan],
@@ -149,7 +155,14 @@ def set_fields(
                 asked_cleared=edit.clear_flags,
             )
 
-    finish(settings, run(settings, body), as_json)
+    try:
+        batch = run(settings, body)
+    except CliError as exc:
+        # (as `eeprom restore` says it)
+        if reading and not planned and "nothing was written" not in exc.message.lower():
+            exc.hints.insert(0, "nothing was written (it stopped while reading the servo)")
+        raise
+    finish(settings, batch, as_json)
     return 0
 
 
