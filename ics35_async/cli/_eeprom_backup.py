@@ -68,7 +68,11 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
     path = Path(output)
     is_dir = output.endswith(("/", os.sep)) or path.is_dir()
     if not is_dir and len(ids) > 1:
-        raise click.BadParameter(f"several servos go to a directory: -o {output}/", param_hint="--output")
+        # A backup's name (or a file there) is not a directory to make: the folder it is in is the one meant.
+        folder = str(path.parent) if path.suffix.lower() == ".json" or path.exists() else output
+        raise click.BadParameter(
+            f"several servos go to a directory, one file each: -o {folder.rstrip('/' + os.sep)}/", param_hint="--output"
+        )
     # The directory that must exist and take a new file: a file's own; for DIR/ (created when
     # written) the nearest one that exists.
     existing = path if is_dir else path.parent
