@@ -214,6 +214,22 @@ def test_eeprom_set_stopped_while_reading_says_nothing_was_written(cli: Any, sim
     assert all(s.eeprom_writes == 0 for s in sim.servos)
 
 
+def test_a_directory_restore_with_one_servo_missing_says_how_to_restore_the_others(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    # The whole restore was refused (rightly: every servo is read first) with what to check for the missing
+    # one, and no word of how to restore the others without it.
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2), VirtualServo(3)])
+    folder = tmp_path / "backup"
+    assert cli("--port", url, "eeprom", "dump", "1-3", "-o", f"{folder}/").code == 0
+    sim.remove_servo(2)
+    result = cli("--port", url, "--timeout", "0.005", "eeprom", "restore", str(folder), "--yes")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    assert "nothing was written" in said, said
+    assert f"to restore the others without servo 2, move {folder}/servo-02.json out of {folder}" in said, said
+
+
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url, folder, _ = drifted_line(sim_line, tmp_path, "write")
     result = cli("--port", url, "--timeout", "0.05", "eeprom", "restore", str(folder), "--yes")

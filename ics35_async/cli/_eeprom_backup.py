@@ -379,13 +379,18 @@ def restore(
 
     reading = False  # the servos are being read (the line opened): a failure then comes before any write
     planned = False  # every servo read and its write planned: until then nothing was written
+    silent: list[int] = []  # the servo whose read failed, then
     bulk = len(args) == 1 and Path(args[0]).is_dir()
 
     async def body() -> WriteBatch:
         nonlocal reading, planned
         async with settings.bus() as bus:
             reading = True
-            plans = await plan_restore(bus, backups, bulk)
+            try:
+                plans = await plan_restore(bus, backups, bulk)
+            except ReplyError as exc:
+                silent.extend([] if exc.servo_id is None else [exc.servo_id])
+                raise
             planned = True
             return await write_plans(
                 bus,
@@ -409,6 +414,13 @@ def restore(
     except CliError as exc:
         if reading and not planned and "nothing was written" not in exc.message:
             exc.hints.insert(0, "nothing was written (it stopped while reading the servos)")
+            # Every servo is read before any is written: one missing servo holds the others back until it is
+            # back, or until its backup is out of the way.
+            missing = [b.source for b in backups if b.target in silent] if bulk and len(backups) > 1 else []
+            if missing:
+                exc.hints.insert(
+                    1, f"to restore the others without servo {silent[0]}, move {missing[0]} out of {args[0]}"
+                )
         if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
             source = backups[0].source
             exc.hints.append(
