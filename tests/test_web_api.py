@@ -621,6 +621,31 @@ def test_many_servos_say_a_write_acknowledged_then_unanswered_was_written_not_ve
     assert gone.eeprom.speed == 40
 
 
+class FlippedFirstEepromReply(VirtualServo):
+    """A servo whose first EEPROM reply has a flipped bit (noise on the line): still nibbles, so it reads as an image,
+    valid and wrong (an EEPROM reply carries no checksum)."""
+
+    flipped = False
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        if isinstance(command, ReadEeprom) and not self.flipped:
+            self.flipped = True
+            return reply.replace(speed=reply.speed ^ 0x04)
+        return reply
+
+
+def test_a_backup_from_the_page_is_read_until_two_reads_agree(serve: Any) -> None:
+    # The page's backup took one read, where `ics35 eeprom dump` (the same file) reads until two agree: one
+    # flipped bit on a noisy line gave a valid-looking, wrong backup to be written back one day.
+    client, sim = serve(())
+    noisy = FlippedFirstEepromReply(1)
+    sim.add_device(noisy)
+    doc = client.get("/api/servo/1/backup").json()
+    assert noisy.flipped, "the flip never happened"
+    assert doc["fields"]["speed"] == noisy.eeprom.speed == 127, doc
+
+
 def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any) -> None:
     # Each servo after the first was tried on the lost port, one "the port is lost" each; and a port back
     # half-way through would have written some and not others with no word of it.

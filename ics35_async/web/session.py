@@ -55,6 +55,7 @@ from ..policies import (
     device_rates,
     look_elsewhere,
     plan_eeprom_write,
+    read_eeprom_agreed,
     read_position_without_freeing,
     reopening,
     scan,
@@ -745,7 +746,9 @@ class LineSession:
 
     async def backup(self, servo_id: int) -> dict[str, Any]:
         async with self._quiet() as bus:
-            image: Eeprom = await bus.request(protocol.ReadEeprom(protocol.check_id(servo_id)))
+            # Read until two reads agree, as `ics35 eeprom dump` reads the same file: a reply carries no checksum,
+            # and one flipped bit would be a valid-looking, wrong backup.
+            image = await read_eeprom_agreed(bus, protocol.check_id(servo_id))
             return backup_document(image, servo_id, baud=bus.baudrate, port=self.config.port)
 
     def restore_edit(self, doc: object, *, restore_id: bool, keep_baud: bool = False) -> dict[str, Any]:
