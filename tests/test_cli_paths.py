@@ -12,6 +12,7 @@ import pytest
 
 from ics35_async.cli import CliError, ExitCode
 from ics35_async.cli._paths import check_output_path
+from tests.support.terminal import screen_of, typed_on_a_terminal
 
 
 def test_a_sim_record_file_in_a_missing_directory(cli: Any) -> None:
@@ -100,3 +101,16 @@ def test_check_output_path(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("")
     with pytest.raises(CliError, match="not a directory"):
         check_output_path(str(tmp_path / "file" / "x.json"), "-o")
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a pty")
+def test_a_backup_read_from_a_terminal_says_it_waits_for_one(tmp_path: Path) -> None:
+    # `eeprom restore 1 -` typed at a terminal waited for standard input without a word: it looked hung.
+    code, shown = typed_on_a_terminal(
+        ["--port", "sim://?ids=1", "eeprom", "restore", "1", "-", "--yes"],
+        [("standard input", b"\x04")],  # Ctrl-D: nothing pasted
+    )
+    said = " ".join(" ".join(screen_of(shown)).split())
+    assert "reading the backup from standard input: paste it, then Ctrl-D" in said, said
+    assert code == ExitCode.USAGE and "not JSON" in said, said

@@ -248,6 +248,8 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
     """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
     try:
         if source == "-":
+            if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
+                err.print("reading the backup from standard input: paste it, then Ctrl-D (Windows: Ctrl-Z, Enter)")
             stdin = getattr(sys.stdin, "buffer", None)  # (the bytes, decoded as UTF-8 whatever the locale)
             raw = stdin.read() if stdin is not None else sys.stdin.read().encode("utf-8")
             text = decode_user_text(raw, BACKUP_IS)
