@@ -22,7 +22,9 @@ import os
 import re
 import secrets
 import shutil
+import tomllib
 from pathlib import Path
+from typing import Any
 
 from .errors import error_text
 
@@ -96,6 +98,19 @@ def parse_json(text: str | bytes) -> object:
     except RecursionError:
         doc = text.decode("utf-8", "replace") if isinstance(text, bytes) else text
         raise json.JSONDecodeError("nested too deeply", doc, 0) from None
+
+
+def parse_toml(text: str) -> dict[str, Any]:
+    """``tomllib.loads(text)``, with arrays or tables nested deeper than Python's parser goes refused as any
+    malformed TOML is (as :func:`parse_json` does for JSON).
+
+    Raises:
+        tomllib.TOMLDecodeError: not TOML, or nested too deeply.
+    """
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise tomllib.TOMLDecodeError("nested too deeply") from None
 
 
 def replace_keeping_backup(target: Path, text: str) -> Path | None:

@@ -208,6 +208,7 @@ MISTAKES: list[tuple[str, str, str]] = [
     ('[lines.main]\nport = "sim://a"\n', "joints", "is required"),
     ('joints = 3\n[lines.main]\nport = "sim://a"\n', "joints", "must be a table"),
     ("this is = not toml [", "", "not valid TOML"),
+    ("a = " + "[" * 100_000, "", "not valid TOML: nested too deeply"),  # (once a RecursionError's traceback)
 ]
 
 

@@ -20,7 +20,7 @@ from ..eeprom import FACTORY_BAUD
 from ..errors import FileContentError, InvalidArgument
 from ..transports.direction import DIRECTIONS
 from ..transports.wire_device import opens_anew
-from ..user_files import UnreadableText, read_user_text
+from ..user_files import UnreadableText, parse_toml, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
@@ -197,7 +197,7 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
     except UnreadableText as exc:
         raise DescriptionError(str(path), "", str(exc)) from None
     try:
-        data = tomllib.loads(text)
+        data = parse_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise DescriptionError(str(path), "", f"not valid TOML: {exc}") from None
     return parse_description(data, str(path))
