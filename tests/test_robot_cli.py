@@ -1203,6 +1203,12 @@ def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     assert f"{hip} does not answer (offline): left out of this pose" in " ".join(result.err.split())
 
 
+def unplug_the_legs(sims: Rig) -> None:
+    """Every servo of the rig's lower line (the hip's and the knee's) unplugged."""
+    for name in ("hip", "knee"):
+        sims.lower.remove_servo(JOINTS[name]["id"])
+
+
 def test_teach_says_the_joints_gone_offline_on_a_line_in_one_warning(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -1213,8 +1219,7 @@ def test_teach_says_the_joints_gone_offline_on_a_line_in_one_warning(
     out_file = tmp_path / "taught.json"
 
     def unplug_the_lower_line() -> None:
-        for name in ("hip", "knee"):
-            sims.lower.remove_servo(JOINTS[name]["id"])
+        unplug_the_legs(sims)
         for _ in range(2):  # (and the settling after it: as until_offline's three)
             settle_on(sims.upper)
 
@@ -1487,8 +1492,7 @@ def test_teach_does_not_capture_a_pose_no_joint_answers_in(
     out_file = tmp_path / "taught.json"
 
     def unplug_the_lower_line() -> None:
-        for name in ("hip", "knee"):
-            sims.lower.remove_servo(JOINTS[name]["id"])
+        unplug_the_legs(sims)
         # (a line where nothing answers is only probed now and then: its transactions do not tell the time)
         time.sleep(scaled(1.0))
 

@@ -438,16 +438,21 @@ def test_the_live_plot_says_a_servo_held_after_a_lost_port_and_why(browser: Brow
         p.click("#live-stop")
 
 
+def apply_punch_to_many(p: Page, ids: str, punch: int) -> None:
+    """On the Many servos page: ``punch`` for the servos ``ids`` (as the page's field takes them), applied."""
+    p.goto(p.url.split("#")[0] + "#many")
+    p.fill("#many-ids", ids)
+    p.check("[name=use-punch]")
+    p.fill("[name=value-punch]", str(punch))
+    p.click("#many-apply")
+
+
 def test_the_many_servos_page_says_one_failure_once_naming_its_servos_in_words(browser: Browser) -> None:
     # Each absent ID had a row of the library's words with the bytes sent ("read_eeprom to ID 5: no reply
     # ... (raw: a5 00)"), the same news once per servo.
     line = PtyLine((1,))
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#many")
-        p.fill("#many-ids", "1,5,6")
-        p.check("[name=use-punch]")
-        p.fill("[name=value-punch]", "3")
-        p.click("#many-apply")
+        apply_punch_to_many(p, "1,5,6", 3)
         expect(p.locator("#many-results tbody tr")).to_have_count(3)
         expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("verified")
         expect(p.locator("#many-errors li")).to_have_count(1)
@@ -464,11 +469,7 @@ def test_the_many_servos_page_says_a_write_taken_but_not_read_back_is_written_no
     line.sim.add_device(gone)
     gone.line = line.sim
     with web_server_page(browser, line) as p:
-        p.goto(p.url.split("#")[0] + "#many")
-        p.fill("#many-ids", "1,2")
-        p.check("[name=use-punch]")
-        p.fill("[name=value-punch]", "3")
-        p.click("#many-apply")
+        apply_punch_to_many(p, "1,2", 3)
         expect(p.locator("#many-results tr[data-id='2']")).to_contain_text("written, not verified")
         expect(p.locator("#many-errors li")).to_have_text(
             re.compile(r"^servo 2: acknowledged the EEPROM write, then did not answer its read-back")
