@@ -205,6 +205,21 @@ def test_doctor_names_a_16_ms_latency_timer_on_the_adapter_model(cli: Any) -> No
     assert "16 ms USB latency timer" in finding["problem"] and finding["fix"]
 
 
+# Real time, as above.
+@pytest.mark.realtime
+def test_doctor_on_the_simulators_adapter_model_gives_the_simulators_fix(cli: Any) -> None:
+    # "fix: echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer" for a timer that is a URL key:
+    # on the simulator there is no such file, and the page that shows the model asks to try the fix.
+    port = "sim://?ids=1,2&adapter=ftdi&latency_timer=16"
+    line = ("--ids", "1,2", *NO_TIMEOUTS_OPTION, "--samples", "8", "--json")
+    data = cli("doctor", "--port", port, *line).json()
+    (finding,) = [f for f in data["findings"] if f["check"] == "latency_timer"]
+    assert "latency_timer=1" in finding["fix"] and "sudo" not in finding["fix"], finding
+    fixed = cli("doctor", "--port", port.replace("latency_timer=16", "latency_timer=1"), *line).json()
+    assert fixed["latency_timer_suspected_ms"] is None, fixed
+    assert not [f for f in fixed["findings"] if f["check"] == "latency_timer"], fixed["findings"]
+
+
 def test_doctor_reports_a_round_trip_and_no_timer_without_the_adapter(cli: Any) -> None:
     result = cli("doctor", "--port", "sim://?ids=3&realtime=1", "--samples", "20", "--json")
     assert result.code == 0, result.err

@@ -82,6 +82,7 @@ def measure(
                 failed=failed,
                 system_latency_timer_ms=system.latency_timer_ms,
                 platform=sys.platform,
+                simulated=settings.is_sim,
             )
             return report, bool(bus.describe()["burst_path"]), nobody
 

@@ -80,6 +80,12 @@ def suspect_latency_timer(round_trips: list[float], baudrate: int) -> int | None
     return None
 
 
+SIMULATED_TIMER_FIX = (
+    "the simulator's adapter model takes its timer from the port: latency_timer=1 in the sim:// URL "
+    "(ics35 sim --latency-timer 1 on a pty); on hardware, ics35 doctor --port PORT gives this system's fix"
+)
+
+
 @dataclass
 class LineReport:
     """The measurement and what it means; times in seconds, shown in ms by :meth:`to_dict`."""
@@ -89,6 +95,8 @@ class LineReport:
     failed: int = 0
     system_latency_timer_ms: int | None = None
     platform: str = "linux"
+    # A sim:// line: its latency timer is the adapter model's, set in the URL, not in this system's files.
+    simulated: bool = False
     findings: list[Finding] = field(default_factory=list)
 
     @property
@@ -175,9 +183,12 @@ class LineReport:
         # the round trips may not show it at all, as the library asks the driver for low latency.
         system_timer = self.system_latency_timer_ms is not None and self.system_latency_timer_ms > 1
         if timer is not None and not system_timer:
-            fix = latency_timer_advice(self.platform)
-            if self.platform.startswith("linux"):
-                fix += "  (or: ics35 udev --install)"
+            if self.simulated:
+                fix = SIMULATED_TIMER_FIX
+            else:
+                fix = latency_timer_advice(self.platform)
+                if self.platform.startswith("linux"):
+                    fix += "  (or: ics35 udev --install)"
             after = rates["after_fixes"][0]["cycle_hz_32"]
             found.append(
                 Finding(
