@@ -302,6 +302,19 @@ def test_a_dangling_link_is_named_as_such(tmp_path: Path) -> None:
     assert "simulator" in str(info.value)
 
 
+def test_the_path_of_a_simulator_that_stopped_says_so(pty_sim: Any, cli: Any) -> None:
+    # ics35 sim's path, used after the simulator stopped (its terminal closed, ICS35_PORT still set to it):
+    # "check the cable/adapter is plugged in" sent a newcomer without hardware to a cable there is not.
+    server = pty_sim("--ids", "1")
+    assert server.stop() == 0
+    with pytest.raises(PortNotFound) as info:
+        open_at(server.path)
+    said = str(info.value)
+    assert "ics35 sim" in said and "stopped" in said and "cable" not in said, said
+    result = cli("--port", server.path, "get", "1", "speed")
+    assert result.code == 3 and "ics35 sim" in result.err and "cable" not in result.err, result.err
+
+
 def test_not_a_tty_is_a_clear_error() -> None:
     with pytest.raises(SerialPortError, match="not a serial port"):
         open_at(os.devnull)

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InvalidArgument
+from ..transports.platforms import SIM_PTY_DIR_PREFIX, SIM_PTY_NAME
 from ..user_files import empty_path
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
@@ -193,8 +194,8 @@ class PtyPort:
 
     def __init__(self, link: str | Path | None = None) -> None:
         if link is None:
-            self._tmpdir: str | None = tempfile.mkdtemp(prefix="ics35-sim-")
-            self.path = Path(self._tmpdir) / "ttyICS0"
+            self._tmpdir: str | None = tempfile.mkdtemp(prefix=SIM_PTY_DIR_PREFIX)
+            self.path = Path(self._tmpdir) / SIM_PTY_NAME
         else:
             self._tmpdir = None
             if empty_path(str(link)):

@@ -10,6 +10,7 @@ import functools
 import os
 import re
 import sys
+from pathlib import PurePath
 
 from .wire_device import is_url
 
@@ -96,11 +97,23 @@ def port_names_hint(platform: str | None = None) -> str:
     return _for_platform(_PORT_NAMES, platform)
 
 
+# Where ``ics35 sim`` serves its pty unless given --link: a directory of its own, removed when it stops.
+SIM_PTY_DIR_PREFIX = "ics35-sim-"
+SIM_PTY_NAME = "ttyICS0"
+
+
 def misnamed_port_hints(port: str, platform: str | None = None) -> list[str]:
     """What a port name that opened nothing probably meant on ``platform`` (default: this one): a URL without
     the ``//`` after its scheme, a Windows ``COM`` name elsewhere, a device's name without its ``/dev/``
-    directory.  Empty: nothing to say."""
+    directory, the path of a pty simulator that has stopped.  Empty: nothing to say."""
     platform = platform or sys.platform
+    path = PurePath(port)
+    if path.name == SIM_PTY_NAME and path.parent.name.startswith(SIM_PTY_DIR_PREFIX):
+        # (its directory went with it: no cable or adapter to check, and the next one gets a new path)
+        return [
+            "the path a pty simulator printed (ics35 sim); that simulator has stopped: start it again and use "
+            "the new path it prints (ics35 sim --link PATH keeps one path across runs)"
+        ]
     url = re.match(r"([A-Za-z][A-Za-z0-9+.-]+):(?!//)/?(.*)", port)  # (two letters at least: not C:)
     if url:  # sim:/?ids=1-6, rfc2217:host:2217
         scheme, rest = url.groups()
