@@ -41,18 +41,6 @@ def test_at_five_percent_faults_the_loop_holds_95_hz(seed: int) -> None:
     assert rate >= 95, f"{rate:.1f} Hz, {source.failed} failures"
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_a_short_adapter_allowance_costs_a_failure_no_more_than_the_default(seed: int) -> None:
-    # adapter_latency=0.003 (what the docs' 100 Hz loop passes; 0.002 is the advice with a 1 ms latency timer):
-    # the stream's learnt wait (4 ms at least) was no shorter than that full allowance, so a failure took the
-    # whole quiet_time (10 ms) of silence after it, not the stream's 1 ms resync: a smaller allowance made
-    # every failure dearer, a slot missed for each, and the loop fell to about 85 Hz at 5 % faults.
-    source = run(0.05, seed, timing=BusTiming(adapter_latency=0.003))
-    rate = (len(source.starts) - 1) / (source.starts[-1] - source.starts[0])
-    assert source.failed > 100  # the faults did happen
-    assert rate >= 95, f"{rate:.1f} Hz, {source.failed} failures"
-
-
 def test_a_clean_line_holds_the_rate_exactly() -> None:
     source = run(0.0, 1, seconds=2.0)
     assert source.failed == 0

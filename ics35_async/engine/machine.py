@@ -131,9 +131,6 @@ class LineEngine:
         self._t_start = 0.0
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
         self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
-        # A stream transaction on a line whose answers are learnt, waiting its full allowance since that is shorter
-        # than the learnt wait (a small adapter_latency): one that fails is held back as a short one is (see _hold).
-        self._learnt_stream = False
         self._wire: dict[int, float] = {}  # wire time by transaction size
         # First bytes (command and ID) whose reply may still come after a short wait: no command
         # that starts with one goes on the wire before its time here (see _hold).
@@ -702,7 +699,6 @@ class LineEngine:
         # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
         self._short = timing is PROBE or timing is SILENT
-        self._learnt_stream = False
         if timing is PROBE:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
         elif timing is SILENT:
@@ -712,8 +708,6 @@ class LineEngine:
             if wait < allowance:
                 self._short = True
                 allowance = wait
-            else:  # (the full allowance is the shorter: a small adapter_latency)
-                self._learnt_stream = self.answers.stream_latency is not None
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -886,9 +880,7 @@ class LineEngine:
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         out = self._failed(error, sid, now)
-        # (A learnt stream's transaction whose full allowance was shorter than its learnt wait, its echo heard: its
-        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.)
-        if req is None and (probe or (self._learnt_stream and heard)):
+        if probe and req is None:
             self._hold(now)
             if partial:
                 self._tail_until = self._held[tx[0]]  # see _settle
@@ -921,7 +913,7 @@ class LineEngine:
         timeout would have: quiet until a quiet time after its deadline, then, if the next
         command has the same command byte (a retry), a guard read first (see .guard).
         """
-        if req is None and (self._short or self._learnt_stream):
+        if req is None and self._short:
             self._hold(now)
             return
         if self.state is not QUIET:
