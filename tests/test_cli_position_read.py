@@ -96,3 +96,19 @@ def test_monitor_free_does_not_free_an_ics36_servo_whose_replies_are_lost(cli: A
     assert "free" in sent(sim, 1) and sim.servo(1).free  # the ICS 3.5 servo, as asked
     assert not TORQUE_COMMANDS & set(sent(sim, 2)) and sim.servo(2).target == 7000
     assert sent(sim, 2).count("read_position") >= 2  # watched (its probe is the read), not left out
+
+
+def test_monitor_json_says_what_the_current_and_temperature_readings_mean(cli: Any, sim_line: Any) -> None:
+    # The table shows the temperature in about °C and the current with its sign; the JSON line gave the raw
+    # parameters alone (127 for a servo at about 42 °C, 70 for a reverse current of 6), which a log read as
+    # a servo at 127 °C drawing 70.  It gives them as `ics35 get` and `info` do: raw beside what they mean.
+    sim, url = sim_line([VirtualServo(1, ics36=True, load=-5, ambient_celsius=60.0)])
+    sim.servo(1).temperature_celsius = 60.0
+    sim.servo(1).command_position(7500)  # holding against a reverse load: a reverse current
+    result = cli("--port", url, "--timeout", "0.005", "monitor", "1", "--seconds", "0.3", "--json")
+    assert result.code == 0, result.err
+    seen = [json.loads(ln) for ln in result.out.splitlines()][-1]["servos"]["1"]
+    current, temperature = seen["current"], seen["temperature"]
+    assert current == {"raw": sim.servo(1).current_raw, "magnitude": sim.servo(1).current, "reverse": True}, seen
+    assert temperature["raw"] == sim.servo(1).temperature, seen
+    assert abs(temperature["celsius_approx"] - sim.servo(1).temperature_celsius) < 5, seen

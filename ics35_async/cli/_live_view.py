@@ -14,7 +14,7 @@ from rich.text import Text
 from .. import units
 from ..frames import Frame
 from ..stream import Stream
-from ._console import signed_tenths
+from ._console import current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
 
 
@@ -127,6 +127,16 @@ class LiveState:
         return cells
 
     def snapshot(self, telemetry: Telemetry) -> dict[str, Any]:
+        # The raw current and temperature alone read as a servo at 127 degrees drawing 70 (a cool one with a
+        # reverse current of 6): each goes with what it means, as in `ics35 get` and `info`.
+        def current(sid: int) -> dict[str, Any] | None:
+            raw = telemetry.current.get(sid)
+            return None if raw is None else current_json(raw)
+
+        def temperature(sid: int) -> dict[str, Any] | None:
+            raw = telemetry.temperature.get(sid)
+            return None if raw is None else temperature_json(raw)
+
         return {
             "t": round(self.elapsed, 3),
             "cycle": self.cycle,
@@ -135,8 +145,8 @@ class LiveState:
             "servos": {
                 str(sid): {
                     "position": self.positions.get(sid),
-                    "current": telemetry.current.get(sid),
-                    "temperature": telemetry.temperature.get(sid),
+                    "current": current(sid),
+                    "temperature": temperature(sid),
                     "errors": self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0),
                     "offline": sid in self.offline,
                     "no_position_because": self.no_position.get(sid),
