@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -129,6 +130,30 @@ def test_a_servo_gone_offline_shows_no_position(
     assert rows["3"][position_cells] == ["-"] * len(rows["3"][position_cells]), result.out
     assert rows["3"][-3:-1] == ["-", "-"], result.out  # current, temperature
     assert "-" not in rows["1"][position_cells], result.out  # (a servo still there shows where it is)
+
+
+def test_a_servo_gone_offline_has_no_readings_in_monitor_json(cli: Any, sim_line: Any) -> None:
+    # As in the table: a log of the JSON lines took the last readings of an unplugged servo, repeated each
+    # second, for where it was and what it drew.
+    sim, url = sim_line([3], realtime=True)
+    ended = threading.Event()
+
+    def unplug_once_it_answered() -> None:  # (its position read, and its temperature: readings to go stale)
+        while not ended.is_set() and not {"free", "read_temperature"} <= {t.command for t in sim.log_since(0)}:
+            time.sleep(0.01)
+        sim.remove_servo(3)
+
+    unplugging = threading.Thread(target=unplug_once_it_answered)
+    unplugging.start()
+    try:
+        result = cli("--port", url, "--timeout", "0.02", "monitor", "3", "--free", "--json", "--seconds", "4")
+    finally:
+        ended.set()
+        unplugging.join()
+    assert result.code == 0, result.err
+    servos = json.loads(result.out.splitlines()[-1])["servos"]
+    assert servos["3"]["offline"] is True, servos
+    assert [servos["3"][k] for k in ("position", "current", "temperature")] == [None, None, None], servos
 
 
 @pytest.mark.parametrize("command", [["monitor", "all", "--free"], ["demo", "--ids", "all"]], ids=["monitor", "demo"])

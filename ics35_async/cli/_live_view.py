@@ -97,12 +97,15 @@ class LiveState:
             table.add_row(*cells)
         return table
 
-    def _cells(self, sid: int, telemetry: Telemetry, with_targets: bool) -> list[str | Text]:
+    def readings(self, sid: int, telemetry: Telemetry) -> tuple[int | None, int | None, int | None]:
+        """Position, raw current and raw temperature to show for ``sid`` (None: none to show)."""
         # An offline servo's last readings no longer say what it does (a hand or gravity may move it): none shown.
-        gone = sid in self.offline
-        pos = None if gone else self.positions.get(sid)
-        cur = None if gone else telemetry.current.get(sid)
-        temp = None if gone else telemetry.temperature.get(sid)
+        if sid in self.offline:
+            return None, None, None
+        return self.positions.get(sid), telemetry.current.get(sid), telemetry.temperature.get(sid)
+
+    def _cells(self, sid: int, telemetry: Telemetry, with_targets: bool) -> list[str | Text]:
+        pos, cur, temp = self.readings(sid, telemetry)
         errors = self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0)
         if sid in self.offline:
             state: str | Text = Text("off", style="red")
@@ -129,28 +132,21 @@ class LiveState:
     def snapshot(self, telemetry: Telemetry) -> dict[str, Any]:
         # The raw current and temperature alone read as a servo at 127 degrees drawing 70 (a cool one with a
         # reverse current of 6): each goes with what it means, as in `ics35 get` and `info`.
-        def current(sid: int) -> dict[str, Any] | None:
-            raw = telemetry.current.get(sid)
-            return None if raw is None else current_json(raw)
-
-        def temperature(sid: int) -> dict[str, Any] | None:
-            raw = telemetry.temperature.get(sid)
-            return None if raw is None else temperature_json(raw)
+        def servo(sid: int) -> dict[str, Any]:
+            pos, cur, temp = self.readings(sid, telemetry)
+            return {
+                "position": pos,
+                "current": None if cur is None else current_json(cur),
+                "temperature": None if temp is None else temperature_json(temp),
+                "errors": self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0),
+                "offline": sid in self.offline,
+                "no_position_because": self.no_position.get(sid),
+            }
 
         return {
             "t": round(self.elapsed, 3),
             "cycle": self.cycle,
             "rate_hz": round(self.rate_now, 2),
             "rate_avg_hz": round(self.rate_avg, 2),
-            "servos": {
-                str(sid): {
-                    "position": self.positions.get(sid),
-                    "current": current(sid),
-                    "temperature": temperature(sid),
-                    "errors": self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0),
-                    "offline": sid in self.offline,
-                    "no_position_because": self.no_position.get(sid),
-                }
-                for sid in self.ids
-            },
+            "servos": {str(sid): servo(sid) for sid in self.ids},
         }
