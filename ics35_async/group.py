@@ -17,7 +17,7 @@ from . import units
 from .bus import Bus, BusOptions, open_bus
 from .errors import BusClosed, IcsError, InvalidArgument
 from .frames import Frame, FrameIterator, GroupFrame, StreamStats
-from .stream import Stream, StreamOptions
+from .stream import LineStreamOptions, Stream
 from .tasks import again, first_library_error
 from .transports.wire_device import WireDevice
 
@@ -329,12 +329,19 @@ class BusGroup:
         return self.buses[line]
 
     def stream(
-        self, ids: Mapping[str, Iterable[int]], *, rate_hz: float | None = None, **stream_options: Unpack[StreamOptions]
+        self,
+        ids: Mapping[str, Iterable[int]],
+        *,
+        rate_hz: float | None = None,
+        watch: Iterable[int | tuple[str, int]] = (),
+        offline: Iterable[int | tuple[str, int]] = (),
+        **stream_options: Unpack[LineStreamOptions],
     ) -> GroupStream:
         """A [`GroupStream`][ics35_async.group.GroupStream] over ``{line: ids}``; use as ``async with``.
 
         ``rate_hz`` and ``stream_options`` are each line's stream's, as [`Bus.stream`][ics35_async.bus.Bus.stream]
-        takes them.
+        takes them; ``offline`` and ``watch`` also take ``(line, id)`` pairs, as the group's frames name servos,
+        each for its own line only (a plain ID is for every line).
 
         Raises:
             InvalidArgument: no line, an unknown line, a bad ID or option.
@@ -344,8 +351,15 @@ class BusGroup:
         unknown = set(ids) - set(self.buses)
         if unknown:
             raise InvalidArgument(f"unknown line(s): {', '.join(sorted(unknown))}")
+        watched = _ids_per_line("watch", watch, ids)
+        silent = _ids_per_line("offline", offline, ids)
         return GroupStream(
-            {line: self.buses[line].stream(i, rate_hz=rate_hz, **stream_options) for line, i in ids.items()}
+            {
+                line: self.buses[line].stream(
+                    i, rate_hz=rate_hz, watch=watched[line], offline=silent[line], **stream_options
+                )
+                for line, i in ids.items()
+            }
         )
 
     async def __aenter__(self) -> BusGroup:
@@ -374,3 +388,19 @@ class BusGroup:
         for bus in reversed(self.buses.values()):
             with contextlib.suppress(IcsError, OSError):
                 await bus.aclose()
+
+
+def _ids_per_line(name: str, given: Iterable[int | tuple[str, int]], lines: Iterable[str]) -> dict[str, list[int]]:
+    """``given`` (``watch`` or ``offline`` of a group stream) split by line: a ``(line, id)`` pair for its line,
+    as the group's frames name servos; a plain ID for every line."""
+    per_line: dict[str, list[int]] = {line: [] for line in lines}
+    for item in given:
+        if isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str):
+            line, sid = item
+            if line not in per_line:
+                raise InvalidArgument(f"{name}: {item!r} names line {line!r}, not one of this stream's")
+            per_line[line].append(sid)
+        else:
+            for ids in per_line.values():
+                ids.append(item)  # (checked by each line's stream: an int 0..31)
+    return per_line

@@ -62,18 +62,24 @@ OnClose = Literal["hold", "free"]
 OnResume = Literal["wait", "free"]
 
 
-class StreamOptions(TypedDict, total=False):
-    """The options of :meth:`Bus.stream <ics35_async.Bus.stream>` beyond the IDs and ``rate_hz``
-    (see :class:`Stream`); a misspelt name is a type error."""
+class LineStreamOptions(TypedDict, total=False):
+    """The options a stream takes beyond its IDs, ``rate_hz``, ``watch`` and ``offline``: the same for a
+    line's stream and each line of a group's."""
 
     offline_after: int
     probe_interval: float
     on_close: OnClose
     on_resume: OnResume
     history: int
+    free_on_close: bool  # deprecated: on_close="free"
+
+
+class StreamOptions(LineStreamOptions, total=False):
+    """The options of :meth:`Bus.stream <ics35_async.Bus.stream>` beyond the IDs and ``rate_hz``
+    (see :class:`Stream`); a misspelt name is a type error."""
+
     watch: Iterable[int]
     offline: Iterable[int]
-    free_on_close: bool  # deprecated: on_close="free"
 
 
 class Stream(FrameIterator[Frame]):

@@ -547,6 +547,25 @@ async def test_a_group_with_one_line_closed_still_frees_the_others_and_sets_no_t
         await wait_for_sim(lambda: sims[1].servo(1).free, "line b freed")
 
 
+async def test_a_group_stream_takes_the_ids_it_starts_offline_per_line() -> None:
+    # A group's frames name offline servos as (line, id), and a program that restarts its stream gives it
+    # those: `offline=frame.offline` was refused ("servo ID must be an int, not tuple"), and a plain ID was
+    # taken for every line (refused where a line had no such ID). A pair starts that one servo offline.
+    sims = [make_sim([1, 2]), make_sim([1, 3])]
+    sims[0].remove_servo(2)
+    group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
+    async with group:
+        with pytest.raises(InvalidArgument, match=r"offline: .*line 'c'"):
+            group.stream({"a": [1, 2], "b": [1, 3]}, offline=[("c", 2)])
+        with pytest.raises(InvalidArgument, match=r"offline: ID 3 is not in this stream"):
+            group.stream({"a": [1, 2], "b": [1, 3]}, offline=[("a", 3)])
+        async with group.stream({"a": [1, 2], "b": [1, 3]}, offline=[("a", 2)], probe_interval=60.0) as gstream:
+            frames = [await next_frame(gstream) for _ in range(3)]
+    assert all(f.offline == {("a", 2)} and not f.failed for f in frames), frames
+    assert set(frames[-1].positions) == {("a", 1), ("b", 1), ("b", 3)}
+    assert [t for t in sims[0].log_since(0) if t.servo_id == 2] == []  # never asked
+
+
 async def test_a_group_stream_asked_for_a_frame_before_it_started_works_once_started() -> None:
     sims = [make_sim([1]), make_sim([1])]
     group = BusGroup({"a": open_bus(sims[0], **FAST), "b": open_bus(sims[1], **FAST)})
