@@ -206,6 +206,30 @@ def settings_of(ctx: click.Context) -> Settings:
 _QUIET = logging.NullHandler()
 
 
+class _StreamWarnings(logging.Handler):
+    """Says a stream's warnings on stderr (``warning: ...``) when the library's other records are quiet: a rate
+    not kept, an ID silent to the watch read.  The command reports nothing of them itself, and without them a
+    monitor asked for 100 Hz ran at 40 with not a word why."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.module == "stream" and super().filter(record)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        # sys.stderr as it is now: while a live view runs, its proxy puts the line above the view (rich's own
+        # stderr console would write past it, and the view's next redraw would overwrite the line).
+        try:
+            sys.stderr.write(f"warning: {record.getMessage()}\n")
+            sys.stderr.flush()
+        except Exception:  # (a log record must never end the command)
+            self.handleError(record)
+
+
+_STREAM_WARNINGS = _StreamWarnings()
+
+
 def _after_ctrl_c(record: logging.LogRecord) -> bool:
     """The log's filter: a record written as a command stops on Ctrl-C followed the echoed ``^C`` on its line."""
     from ..terminal import clear_after_ctrl_c  # (not at the top: ics35 --version stays light)
@@ -215,12 +239,15 @@ def _after_ctrl_c(record: logging.LogRecord) -> bool:
 
 
 def setup_logging(verbose: int) -> None:
+    library = logging.getLogger("ics35_async")
     if not verbose:
         # The library logs a lost port as a warning, which Python's last-resort handler would
         # print; the command reports it itself, once.  (Configured handlers still get records.)
-        logging.getLogger("ics35_async").addHandler(_QUIET)
+        library.addHandler(_QUIET)
+        library.addHandler(_STREAM_WARNINGS)
         return
-    logging.getLogger("ics35_async").removeHandler(_QUIET)
+    library.removeHandler(_QUIET)
+    library.removeHandler(_STREAM_WARNINGS)  # (the log below says them, with everything else)
     level = logging.DEBUG if verbose > 1 else logging.INFO
     root = logging.getLogger()
     ours = not root.handlers  # (a program that set up logging itself keeps its own handlers as they are)
