@@ -44,6 +44,7 @@ from ._console import ids_argument, live_view, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
+from ._settings import stream_warnings_said
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]
@@ -107,69 +108,70 @@ async def run_live(
     # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
     commanded = [i for i in ids if i not in watch] if options.with_targets and options.free_at_end else []
     freed = not commanded
-    try:
-        if live is not None:
-            live.start()
+    with stream_warnings_said():  # (a rate not kept: the stream's warning says so and why)
         try:
-            async with stream:
-                try:
-                    # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
-                    # cancellation when a frame arrives at the same moment.  --seconds counts from the
-                    # start but is set once the first cycle has ended: before it nothing is known of the
-                    # servos (a slow adapter or a loaded machine can take longer than a short --seconds).
-                    timer = asyncio.timeout(None)
-                    async with timer:
-                        while True:
-                            frame = await stream.next_frame()
-                            now = loop.time()
-                            elapsed = now - start
-                            state.update(frame, elapsed, stream)
-                            if targets is not None:
-                                wanted = targets(elapsed, frame)
-                                stream.set_targets(wanted)
-                                state.targets.update(wanted)
-                            telemetry.after_frame(frame.unanswered)
-                            if options.plot:
-                                recorder.add(elapsed, frame)
-                            if now - last_render >= render_every:
-                                last_render = now
-                                render()
-                            if deadline is not None and timer.when() is None:
-                                timer.reschedule(deadline)  # (if already past, it fires at the next wait)
-                except TimeoutError:
-                    if not timer.expired():
-                        raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
-                    # --seconds is up
-                except asyncio.CancelledError:
-                    # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
-                    state.stopped_by_signal = True
-                    if live is not None:
-                        # In the live view itself: a line printed beside it (stderr) garbles the redraw,
-                        # leaving the table's title twice on the screen.
-                        render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
-                    elif not options.as_json:
-                        clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
-                        err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
-                finally:
-                    # The run's time, not its last frame's (the next one may have been due after the time was up).
-                    state.elapsed = max(state.elapsed, loop.time() - start)
-                    telemetry.stop()
-                    if options.free_at_end:
-                        done = await _free_all(stream, [i for i in ids if i not in watch], state)
-                        freed = freed or done
-                        state.freed = done
-        except (IcsError, OSError) as exc:
+            if live is not None:
+                live.start()
+            try:
+                async with stream:
+                    try:
+                        # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the Ctrl-C
+                        # cancellation when a frame arrives at the same moment.  --seconds counts from the
+                        # start but is set once the first cycle has ended: before it nothing is known of the
+                        # servos (a slow adapter or a loaded machine can take longer than a short --seconds).
+                        timer = asyncio.timeout(None)
+                        async with timer:
+                            while True:
+                                frame = await stream.next_frame()
+                                now = loop.time()
+                                elapsed = now - start
+                                state.update(frame, elapsed, stream)
+                                if targets is not None:
+                                    wanted = targets(elapsed, frame)
+                                    stream.set_targets(wanted)
+                                    state.targets.update(wanted)
+                                telemetry.after_frame(frame.unanswered)
+                                if options.plot:
+                                    recorder.add(elapsed, frame)
+                                if now - last_render >= render_every:
+                                    last_render = now
+                                    render()
+                                if deadline is not None and timer.when() is None:
+                                    timer.reschedule(deadline)  # (if already past, it fires at the next wait)
+                    except TimeoutError:
+                        if not timer.expired():
+                            raise  # a line's own error (a ReplyTimeout is a TimeoutError too)
+                        # --seconds is up
+                    except asyncio.CancelledError:
+                        # Ctrl-C (asyncio.run cancels us): the normal way to stop; fall through to freeing the servos.
+                        state.stopped_by_signal = True
+                        if live is not None:
+                            # In the live view itself: a line printed beside it (stderr) garbles the redraw,
+                            # leaving the table's title twice on the screen.
+                            render(hint="   stopping: freeing the servos" if options.free_at_end else "   stopping")
+                        elif not options.as_json:
+                            clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
+                            err.print("stopping: freeing the servos" if options.free_at_end else "stopping")
+                    finally:
+                        # The run's time, not its last frame's (the next one may have been due after the time was up).
+                        state.elapsed = max(state.elapsed, loop.time() - start)
+                        telemetry.stop()
+                        if options.free_at_end:
+                            done = await _free_all(stream, [i for i in ids if i not in watch], state)
+                            freed = freed or done
+                            state.freed = done
+            except (IcsError, OSError) as exc:
+                if not freed:
+                    lost = isinstance(exc, (PortLost, OSError))
+                    raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
+                raise
             if not freed:
-                lost = isinstance(exc, (PortLost, OSError))
-                raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
-            raise
-        if not freed:
-            failure = CliError(ExitCode.COMMUNICATION, "the servos did not confirm the free command at the end")
-            raise still_holding(settings, commanded, failure)
-        render(final=True)
-    finally:
-        if live is not None:
-            live.stop()
+                failure = CliError(ExitCode.COMMUNICATION, "the servos did not confirm the free command at the end")
+                raise still_holding(settings, commanded, failure)
+            render(final=True)
+        finally:
+            if live is not None:
+                live.stop()
     return state, telemetry, recorder
 
 

@@ -20,6 +20,8 @@ from ..eeprom import FACTORY_BAUD
 from ..protocol.wire import ADAPTER_LATENCY, TOOL_RETRIES
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     import click
 
     from ..bus import Bus
@@ -207,9 +209,9 @@ _QUIET = logging.NullHandler()
 
 
 class _StreamWarnings(logging.Handler):
-    """Says a stream's warnings on stderr (``warning: ...``) when the library's other records are quiet: a rate
-    not kept, an ID silent to the watch read.  The command reports nothing of them itself, and without them a
-    monitor asked for 100 Hz ran at 40 with not a word why."""
+    """Says a stream's warnings on stderr (``warning: ...``): a rate not kept, an ID silent to the watch read.
+    The command reports nothing of them itself, and without them a monitor asked for 100 Hz ran at 40 with not a
+    word why."""
 
     def __init__(self) -> None:
         super().__init__(logging.WARNING)
@@ -230,6 +232,22 @@ class _StreamWarnings(logging.Handler):
 _STREAM_WARNINGS = _StreamWarnings()
 
 
+@contextlib.contextmanager
+def stream_warnings_said() -> Iterator[None]:
+    """Within: a stream's warnings are said on stderr, where the library's records are otherwise quiet (without
+    -v, which logs them with everything else).  For the commands whose stream is theirs to tell of (monitor,
+    demo); the configurator's live stream runs at its line's own pace by design, and its page shows warnings."""
+    library = logging.getLogger("ics35_async")
+    quiet = _QUIET in library.handlers
+    if quiet:
+        library.addHandler(_STREAM_WARNINGS)
+    try:
+        yield
+    finally:
+        if quiet:
+            library.removeHandler(_STREAM_WARNINGS)
+
+
 def _after_ctrl_c(record: logging.LogRecord) -> bool:
     """The log's filter: a record written as a command stops on Ctrl-C followed the echoed ``^C`` on its line."""
     from ..terminal import clear_after_ctrl_c  # (not at the top: ics35 --version stays light)
@@ -239,15 +257,12 @@ def _after_ctrl_c(record: logging.LogRecord) -> bool:
 
 
 def setup_logging(verbose: int) -> None:
-    library = logging.getLogger("ics35_async")
     if not verbose:
         # The library logs a lost port as a warning, which Python's last-resort handler would
         # print; the command reports it itself, once.  (Configured handlers still get records.)
-        library.addHandler(_QUIET)
-        library.addHandler(_STREAM_WARNINGS)
+        logging.getLogger("ics35_async").addHandler(_QUIET)
         return
-    library.removeHandler(_QUIET)
-    library.removeHandler(_STREAM_WARNINGS)  # (the log below says them, with everything else)
+    logging.getLogger("ics35_async").removeHandler(_QUIET)
     level = logging.DEBUG if verbose > 1 else logging.INFO
     root = logging.getLogger()
     ours = not root.handlers  # (a program that set up logging itself keeps its own handlers as they are)
