@@ -144,6 +144,17 @@ def test_monitor_that_cannot_keep_its_rate_says_so(cli: Any, sim_line: Any, json
     assert "115200 baud" in result.err and "lower rate" in result.err, result.err
 
 
+def test_monitor_json_that_loses_its_port_still_ends_with_a_final_line(cli: Any) -> None:
+    # A log of the JSON lines is told the run is over by "final": true; a lost port ended it after a line of
+    # "final": false (or none at all under a second), as if cut off, with the servos' last readings unsaid.
+    url = "sim://?ids=1-2&realtime=1&unplug_after=0.5"
+    result = cli("--port", url, "monitor", "1-2", "--free", "--json", "--seconds", "5")
+    assert result.code == ExitCode.COMMUNICATION and "lost" in result.err, result.err
+    docs = [json.loads(line) for line in result.out.splitlines()]
+    assert docs and docs[-1]["final"] is True, result.out
+    assert docs[-1]["servos"]["1"]["position"] is not None and docs[-1]["cycle"] > 0, docs[-1]
+
+
 def test_a_servo_gone_offline_has_no_readings_in_monitor_json(cli: Any, sim_line: Any) -> None:
     # As in the table: a log of the JSON lines took the last readings of an unplugged servo, repeated each
     # second, for where it was and what it drew.

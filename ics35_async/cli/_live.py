@@ -161,6 +161,10 @@ async def run_live(
                             freed = freed or done
                             state.freed = done
             except (IcsError, OSError) as exc:
+                if options.as_json and state.cycle:
+                    # A log of the lines is told the run is over, with the readings it ended on (the error
+                    # itself goes to stderr).
+                    render(final=True)
                 if not freed:
                     lost = isinstance(exc, (PortLost, OSError))
                     raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
