@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from .robot import Robot, RobotStream, SafetyStop, open_robot
     from .running import run
     from .servo import Device, Servo
-    from .stream import Stream, StreamOptions
+    from .stream import LineStreamOptions, Stream, StreamOptions
 
 __version__ = "0.1.0"  # the one place the version is written (pyproject.toml reads it)
 
@@ -71,6 +71,7 @@ _LAZY = {
     "Device": ".servo",
     "Servo": ".servo",
     "Stream": ".stream",
+    "LineStreamOptions": ".stream",
     "StreamOptions": ".stream",
     "Robot": ".robot",
     "RobotStream": ".robot",
@@ -106,6 +107,7 @@ __all__ = [
     "GroupFrame",
     "GroupStream",
     "Line",
+    "LineStreamOptions",
     "Priority",
     "RequestHandle",
     "Robot",

@@ -138,7 +138,8 @@ def test_monitor_that_cannot_keep_its_rate_says_so(cli: Any, sim_line: Any, json
     # (the stream's warning, which names the cause, was silenced with the library's other log records).
     _, url = sim_line(list(range(32)), realtime=True)
     json_option = ["--json"] if json_lines else []
-    result = cli("--port", url, "monitor", "0-31", "--free", "--rate", "100", "--seconds", "1", *json_option)
+    # (the stream judges its rate at its 20th cycle: about half a second here, idle; under load three times that)
+    result = cli("--port", url, "monitor", "0-31", "--free", "--rate", "100", "--seconds", "3", *json_option)
     assert result.code == 0, result.err
     assert "warning: stream of 32 IDs cannot keep rate_hz=100" in result.err, result.err
     assert "115200 baud" in result.err and "lower rate" in result.err, result.err
