@@ -19,7 +19,7 @@ from ..errors import InvalidArgument, MalformedEeprom
 from ..policies import check_changes, plan_eeprom_write
 from ._common import SERVO_ID, CliError, json_option, run, settings_of, yes_option
 from ._eeprom_backup import dump, restore
-from ._eeprom_write import WriteBatch, finish, write_plans
+from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 
 FIELD_ALIASES = {"baud": "baud_rate", "id": "servo_id", "stretch": "stretch_gain"}
 
@@ -158,9 +158,8 @@ def set_fields(
     try:
         batch = run(settings, body)
     except CliError as exc:
-        # (as `eeprom restore` says it)
-        if reading and not planned and "nothing was written" not in exc.message.lower():
-            exc.hints.insert(0, "nothing was written (it stopped while reading the servo)")
+        if reading and not planned:
+            said_nothing_written(exc, "the servo")
         raise
     finish(settings, batch, as_json)
     return 0

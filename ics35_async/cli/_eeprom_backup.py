@@ -45,7 +45,7 @@ from ._common import (
 )
 from ._console import SIMULATED_KEY
 from ._eeprom_view import eeprom_table
-from ._eeprom_write import WriteBatch, finish, write_plans
+from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 from ._paths import check_backup_path
 from ._runner import line_error
 
@@ -414,8 +414,7 @@ def restore(
     try:
         batch = run(settings, body)
     except CliError as exc:
-        if reading and not planned and "nothing was written" not in exc.message:
-            exc.hints.insert(0, "nothing was written (it stopped while reading the servos)")
+        if reading and not planned and said_nothing_written(exc, "the servos"):
             # Every servo is read before any is written: one missing servo holds the others back until it is
             # back, or until its backup is out of the way.
             missing = [b.source for b in backups if b.target in silent] if bulk and len(backups) > 1 else []

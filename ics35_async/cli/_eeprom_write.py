@@ -261,6 +261,15 @@ def print_done(settings: Settings, report: dict[str, Any], *, whole: bool) -> No
             out.print(f"neither ID {new} nor ID {old} answers at this rate now (the write was verified elsewhere)")
 
 
+def said_nothing_written(exc: CliError, servos: str) -> bool:
+    """Add to ``exc``, a command's failure while it read ``servos`` ("the servo", "the servos") before writing any,
+    that nothing was written, unless its message says so already; True if added."""
+    if "nothing was written" in exc.message.lower():
+        return False
+    exc.hints.insert(0, f"nothing was written (it stopped while reading {servos})")
+    return True
+
+
 def finish(
     settings: Settings, batch: WriteBatch, as_json: bool, *, bulk: bool = False, again: Sequence[str] = ()
 ) -> None:

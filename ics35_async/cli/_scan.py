@@ -310,11 +310,17 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
     ID) and refuses otherwise.
     """
     settings = settings_of(ctx)
-    # How far it got, for what Ctrl-C leaves: "asking" (the question says so itself), then the ID the servo had
+    # How far it got, for what Ctrl-C leaves: at the question (which says so itself), then the ID the servo had
     # once the ID command is on its way.
-    stage: list[str | int] = []
+    asking = False
+    sent_from: int | None = None
+
+    def sent(old: int) -> None:
+        nonlocal sent_from
+        sent_from = old
 
     async def body() -> tuple[int, int]:
+        nonlocal asking
         async with settings.bus() as bus:
             survey = await policies.survey_for_id_write(bus)
             survey = await policies.look_elsewhere(survey, policies.reopening(bus), echo=settings.echo)
@@ -323,20 +329,20 @@ def set_id(ctx: click.Context, new_id: int, yes: bool, as_json: bool) -> int:
                 return old, new_id
             if not as_json:
                 out.print(f"one servo on the line: ID {old}")
-            stage.append("asking")
+            asking = True
             confirm(f"Change servo ID {old} -> {new_id} (stored in its EEPROM)?", yes)
-            await policies.write_lone_id(bus, new_id, survey=survey, on_sent=lambda: stage.append(old))
+            await policies.write_lone_id(bus, new_id, survey=survey, on_sent=lambda: sent(old))
             return old, new_id
 
     try:
         old, new = run(settings, body)
     except CliError as exc:
-        if exc.code is not ExitCode.INTERRUPTED or stage[-1:] == ["asking"]:
+        if exc.code is not ExitCode.INTERRUPTED or (asking and sent_from is None):
             raise
-        if not stage:
+        if sent_from is None:
             raise CliError(ExitCode.INTERRUPTED, "interrupted before the ID write: nothing was written") from None
         # Ctrl-C as the ID command went out, or before the new ID was seen to answer: the servo took it or not.
-        was = stage[-1]
+        was = sent_from
         ids = f"{was},{new_id}"
         raise CliError(
             ExitCode.INTERRUPTED,
