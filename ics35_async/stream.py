@@ -47,10 +47,13 @@ IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with e
 FREE_ON_CLOSE_BOUND = 2.0
 ON_CLOSE = ("hold", "free")
 ON_RESUME = ("wait", "free")
-# After this many cycles, a paced stream that ran past nearly every slot says once that its rate cannot
-# be kept (stats.overruns counts it too, but a program that never reads it runs slow without a word).
+# A paced stream judges its rate over each window of this many cycles: one that ran past nearly every slot
+# of one says that its rate cannot be kept (stats.overruns counts it too, but a program that never reads it
+# runs slow without a word).  Said once an episode: again only once the stream has kept its rate (at most
+# the complement late) for RATE_KEPT_WINDOWS windows in a row, a flood never (a stream that stays behind).
 RATE_CHECK_CYCLES = 20
 RATE_CHECK_LATE = 18
+RATE_KEPT_WINDOWS = 5
 # Requests whose transaction outlasts a paced stream's slack (a whole 64-byte image each way): each goes once
 # passed over in two slots, delaying that cycle (see _tell_rate_not_kept).
 LONG_REQUESTS = ("read_eeprom", "write_eeprom", "read_memory", "write_memory")
@@ -60,6 +63,19 @@ NOT_STARTED = (
 )
 OnClose = Literal["hold", "free"]
 OnResume = Literal["wait", "free"]
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _RateWindow:
+    """Where a paced stream's window of cycles judged for its rate began: when, after which cycle, and the
+    counts then of what a cycle's time can go to (see Stream._tell_rate_not_kept)."""
+
+    started: float
+    cycle: int
+    overruns: int
+    failures: list[int]  # the stream's per-slot failures
+    others: dict[int, int]  # other IDs' unanswered requests on the line
+    long: int  # the line's EEPROM and memory requests
 
 
 class LineStreamOptions(TypedDict, total=False):
@@ -236,8 +252,10 @@ class Stream(FrameIterator[Frame]):
         self._overruns = 0
         self._slot_checked = True
         self._first_start = 0.0
-        self._others_at_start: dict[int, int] = {}  # other IDs' unanswered requests when the stream began
-        self._long_at_start = 0  # the line's EEPROM and memory requests when the stream began
+        self._window = _RateWindow(0.0, 0, 0, [], {}, 0)  # what the rate check judges, since its window began
+        self._checked = 0  # cycles checked against their slot in the window
+        self._behind = False  # told the rate is not kept, and not kept since (see RATE_KEPT_WINDOWS)
+        self._kept_windows = 0
         self._missed = 0  # slots passed with no cycle, in all...
         self._frame_missed = 0  # ...and before the cycle in progress
         self._resumed = False  # the cycle in progress is the first since the line came back
@@ -664,14 +682,17 @@ class Stream(FrameIterator[Frame]):
             self._reanchor(now, self._t0 + self._cycle / self.rate_hz)  # (the outage's slots count as missed)
 
     def _tell_rate_not_kept(self, now: float) -> None:
-        """Warn once that the rate is not kept, naming every cause it can count that cost the cycles (the
-        stream's own silent servos, requests to silent servos on the line, the program's EEPROM and memory
-        requests) when together they could account for half the late cycles; or else the wire time of its
-        cycle (or, where the wire leaves half the period, the answers' waits and a busy host)."""
-        n, baud = len(self.ids), int(self.bus.baudrate)
+        """Warn that the rate is not kept in the window ending ``now`` (its first cycles, or a later window),
+        naming every cause it can count that cost the window's cycles (the stream's own silent servos, requests
+        to silent servos on the line, the program's EEPROM and memory requests) when together they could
+        account for half the late cycles; or else the wire time of its cycle (or, where the wire leaves half
+        the period, the answers' waits and a busy host)."""
+        n, baud, window = len(self.ids), int(self.bus.baudrate), self._window
+        overruns, cycles = self._overruns - window.overruns, self._cycle - window.cycle
+        which = f"its first {cycles}" if not window.cycle else f"its last {cycles}"
         late = (
-            f"stream of {n} IDs cannot keep rate_hz={self.rate_hz:g}: {self._overruns} of its first {self._cycle} "
-            f"cycles ran past their slot (about {self._cycle / max(now - self._first_start, 1e-9):.0f} cycles/s)"
+            f"stream of {n} IDs cannot keep rate_hz={self.rate_hz:g}: {overruns} of {which} cycles ran past "
+            f"their slot (about {cycles / max(now - window.started, 1e-9):.0f} cycles/s)"
         )
         # Each cause the stream can count, with what it cost: the stream's own IDs that never answered, or
         # failed in half its cycles (each costs its whole reply allowance a cycle until it goes offline: a wrong
@@ -680,17 +701,18 @@ class Stream(FrameIterator[Frame]):
         # LONG_REQUESTS).  Told when together they could account for half the late cycles (one ID gone offline
         # early could not), every one that cost any: the first alone would send the program to mend one of them.
         causes: list[tuple[str, int]] = []  # (what to say, the transactions it cost)
-        own = [sid for sid, seen, failed in zip(self.ids, self._positions, self._failures, strict=True)
-               if failed and (seen < 0 or 2 * failed >= self._cycle)]  # fmt: skip
+        failures = [now_ - then for now_, then in zip(self._failures, window.failures, strict=True)]
+        own = [sid for sid, seen, failed in zip(self.ids, self._positions, failures, strict=True)
+               if failed and (seen < 0 or 2 * failed >= cycles)]  # fmt: skip
         if own:
             said = (
                 f"its ID(s) {', '.join(map(str, own))} did not answer: each silent servo costs its whole reply "
                 f"allowance every cycle until it goes offline (offline_after={self.offline_after}): check its "
                 "power, wiring, ID and baud rate (ics35 scan looks at every ID at every rate)"
             )
-            causes.append((said, sum(self._failures[self._index[sid]] for sid in own)))
+            causes.append((said, sum(failures[self._index[sid]] for sid in own)))
         others = self._others_unanswered()
-        grown = {i: count - self._others_at_start.get(i, 0) for i, count in others.items()}
+        grown = {i: count - window.others.get(i, 0) for i, count in others.items()}
         silent = sorted(i for i, more in grown.items() if more > 0)
         if silent:
             said = (
@@ -699,7 +721,7 @@ class Stream(FrameIterator[Frame]):
                 "whole reply allowance (poll such a servo less often)"
             )
             causes.append((said, sum(grown.values())))
-        long = self._long_requests() - self._long_at_start
+        long = self._long_requests() - window.long
         if long:
             image = protocol.ReadEeprom(0)
             said = (
@@ -709,7 +731,7 @@ class Stream(FrameIterator[Frame]):
                 "that cycle (read and write EEPROMs with the stream stopped, or ask a lower rate)"
             )
             causes.append((said, long))
-        if causes and 2 * sum(cost for _, cost in causes) >= self._overruns:
+        if causes and 2 * sum(cost for _, cost in causes) >= overruns:
             first = ", and " if own else ", while "
             log.warning("%s%s", late + first, "; and ".join(said for said, _ in causes))
             return
@@ -776,8 +798,7 @@ class Stream(FrameIterator[Frame]):
             for k in self._offline_at_start:  # (not in the first cycle: the caller has just asked them)
                 self._next_probe[k] = now + self.probe_interval
             if self.rate_hz is not None:  # (what the rate check tells apart, see _tell_rate_not_kept)
-                self._others_at_start = self._others_unanswered()
-                self._long_at_start = self._long_requests()
+                self._window = self._window_from(now)
         self._cycle += 1
         n = len(self.ids)
         self._answered[:] = self._none_answered  # (slices: this runs once a cycle, in C)
@@ -814,8 +835,34 @@ class Stream(FrameIterator[Frame]):
         self._slot_checked = True
         if now > due:
             self._overruns += 1
-        if self._cycle == RATE_CHECK_CYCLES and self._overruns >= RATE_CHECK_LATE:
-            self._tell_rate_not_kept(now)
+        self._checked += 1
+        if self._checked == RATE_CHECK_CYCLES:
+            self._judge_rate(now)
+
+    def _judge_rate(self, now: float) -> None:
+        """A window of cycles is checked: tell the rate not kept if nearly all of them were late and it is
+        not told already in this episode; end the episode once the rate has been kept a while; open the next
+        window."""
+        late = self._overruns - self._window.overruns
+        if late >= RATE_CHECK_LATE:
+            if not self._behind:
+                self._tell_rate_not_kept(now)
+            self._behind = True
+            self._kept_windows = 0
+        elif late <= RATE_CHECK_CYCLES - RATE_CHECK_LATE:
+            self._kept_windows += 1
+            if self._kept_windows >= RATE_KEPT_WINDOWS:
+                self._behind = False
+        else:  # (neither kept nor lost: the episode goes on)
+            self._kept_windows = 0
+        self._window = self._window_from(now)
+        self._checked = 0
+
+    def _window_from(self, now: float) -> _RateWindow:
+        """A rate window beginning ``now``: the counts its causes are told from (see _tell_rate_not_kept)."""
+        return _RateWindow(
+            now, self._cycle, self._overruns, self._failures[:], self._others_unanswered(), self._long_requests()
+        )
 
     def _reanchor(self, now: float, due: float) -> None:
         """A paced stream's next cycle starts now (on a fresh schedule, rather than bursting to catch up),

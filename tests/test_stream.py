@@ -1495,6 +1495,52 @@ async def test_a_rate_lost_beyond_the_wire_is_not_blamed_on_the_baud_rate(
     assert "raise the baud rate" not in said, said
 
 
+@pytest.mark.realtime
+async def test_a_stream_that_falls_behind_later_says_so_once_an_episode(caplog: pytest.LogCaptureFixture) -> None:
+    # A stream that kept its rate through its first cycles and fell behind later (a program starting to poll an
+    # unplugged servo: each request holds the line for a whole reply allowance) ran at 36 Hz of 100 with not a
+    # word: the warning judged the first 20 cycles only.  It is told once an episode: again only after the
+    # stream kept its rate for a while and fell behind again.
+    ids = list(range(6))
+    sim = make_sim(ids, realtime=True, baudrate=1250000)
+    told_at: list[int] = []  # the cycle of the newest frame when each warning was seen
+
+    def rate_warnings() -> list[str]:
+        return [r.getMessage() for r in caplog.records if "rate_hz" in r.getMessage()]
+
+    async def frames_while(stream: Stream, cycles: int) -> None:
+        until = (await next_frame(stream)).cycle + cycles
+        while (frame := await next_frame(stream)).cycle < until:
+            if len(rate_warnings()) > len(told_at):
+                told_at.append(frame.cycle)
+
+    async def polling(bus: Bus) -> None:
+        while True:
+            with contextlib.suppress(ReplyError):
+                await poll_unplugged_servo(bus)
+
+    try:
+        with caplog.at_level("WARNING", logger="ics35_async"):
+            async with open_bus(sim, baudrate=1250000, **REAL_TIME) as bus, bus.stream(ids, rate_hz=100) as stream:
+                await frames_while(stream, 2 * RATE_CHECK_CYCLES)  # the rate kept: nothing said
+                assert not told_at, rate_warnings()
+                for _ in range(2):  # two episodes of falling behind, the rate kept in between
+                    poller = asyncio.ensure_future(polling(bus))
+                    try:
+                        await frames_while(stream, 4 * RATE_CHECK_CYCLES)  # (told once, not once a window)
+                    finally:
+                        poller.cancel()
+                    await frames_while(stream, 8 * RATE_CHECK_CYCLES)
+    finally:
+        sim.close()
+    said = rate_warnings()
+    assert len(said) == 2 and told_at[0] > 2 * RATE_CHECK_CYCLES, (told_at, said)
+    for warning in said:
+        assert "stream of 6 IDs cannot keep rate_hz=100" in warning and "of its last 20 cycles" in warning, warning
+        assert "ID(s) 20 went unanswered" in warning and "does not answer" in warning, warning
+        assert "raise the baud rate" not in warning, warning
+
+
 async def test_a_request_beside_a_stream_that_cannot_keep_its_rate_is_still_answered() -> None:
     # 32 servos at 115200 in real time: a cycle takes over 20 ms, so a 100 Hz stream is always late and
     # never leaves a slack; a request still gets the line within two cycles (the engine's rule).
