@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -314,3 +315,24 @@ def test_the_simulator_with_nothing_asked_of_it_runs_in_real_time_however_its_ur
     assert final["final"] and final["servos"]["1"]["position"] is not None, final
     wire_limit_hz = 1 / wire_time(3 + 3, 115200)  # (the free command and its reply, at the default rate)
     assert 0 < final["rate_avg_hz"] < wire_limit_hz, final
+
+
+@pytest.mark.parametrize("rate", [["--rate", "50"], []], ids=["paced", "unpaced"])
+def test_monitor_shows_the_rate_asked_beside_the_rate_reached(rate: list[str]) -> None:
+    # `ics35 monitor --rate 100` showed "rate  35.8 Hz": whether that is the rate asked, or far below it, the
+    # reader had to remember.  The table's status line and each JSON line say the rate asked too.
+    port = "sim://rate-asked?ids=1-2&realtime=1"
+    args = ["--port", port, "monitor", "1-2", "--free", *rate, "--seconds", "1.5"]
+    code, shown = typed_on_a_terminal(args, [])
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == 0, screen
+    status = re.findall(r"rate +[\d.]+ (?:of \d+ )?Hz", screen)
+    assert status, screen
+    assert all(s.endswith(" of 50 Hz") if rate else " of " not in s for s in status), status
+    result = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", *args, "--json"], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stderr
+    docs = [json.loads(line) for line in result.stdout.splitlines()]
+    assert docs and all(d["rate_asked_hz"] == (50 if rate else None) for d in docs), docs
+    assert all(d["rate_hz"] > 0 for d in docs), docs

@@ -82,6 +82,7 @@ async def run_live(
     # A watched servo is never freed: on_close="free" would free every ID, so the end frees the others itself.
     planned["on_close"] = "free" if options.free_at_end and not watch else "hold"
     stream = bus.stream(ids, rate_hz=options.rate_hz, **planned)
+    state.rate_asked = options.rate_hz
     telemetry = Telemetry(bus, state.ids, options.telemetry_per_cycle, probe_interval=stream.probe_interval)
     recorder = Recorder()
     tty = out.is_terminal and not options.as_json

@@ -34,6 +34,7 @@ class LiveState:
     elapsed: float = 0.0
     rate_now: float = 0.0
     rate_avg: float = 0.0
+    rate_asked: float | None = None  # --rate (None: as fast as the line goes)
     answered_ever: set[int] = field(default_factory=set)
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
@@ -63,8 +64,10 @@ class LiveState:
         answering = len(self.ids) - len(self.failed | self.offline) if self.cycle else 0
         limit = f"/{self.seconds:g}" if self.seconds else ""
         errors = sum(self.position_errors.values()) + sum(telemetry.errors.values())
+        # The rate asked beside the rate reached: "35.8 Hz" alone leaves the reader to remember whether it is short.
+        asked = f" of {self.rate_asked:g}" if self.rate_asked is not None else ""
         return (
-            f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}  rate {self.rate_now:5.1f} Hz "
+            f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}  rate {self.rate_now:5.1f}{asked} Hz "
             f"(avg {self.rate_avg:5.1f})  answering {answering}/{len(self.ids)}  errors {errors}"
         )
 
@@ -148,5 +151,6 @@ class LiveState:
             "cycle": self.cycle,
             "rate_hz": round(self.rate_now, 2),
             "rate_avg_hz": round(self.rate_avg, 2),
+            "rate_asked_hz": self.rate_asked,
             "servos": {str(sid): servo(sid) for sid in self.ids},
         }
