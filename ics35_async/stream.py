@@ -830,8 +830,8 @@ class Stream(FrameIterator[Frame]):
 
     def _check_slot(self, now: float, due: float) -> None:
         """The cycle just published ended ``now``; the next is due at ``due``: count it an overrun if late, and
-        tell the rate not kept after the first cycles.  An overrun is a cycle whose own work ran past the next
-        slot, not a timer that fired late (the loop's timers have ~1 ms resolution)."""
+        judge the rate at the end of each window of cycles (see _judge_rate).  An overrun is a cycle whose own
+        work ran past the next slot, not a timer that fired late (the loop's timers have ~1 ms resolution)."""
         self._slot_checked = True
         if now > due:
             self._overruns += 1

@@ -43,7 +43,7 @@ from ics35_async import (
 from ics35_async.bus import Bus
 from ics35_async.protocol import FREE, ReadParam, position_tx
 from ics35_async.sim import Transaction, VirtualLine, VirtualServo
-from ics35_async.stream import RATE_CHECK_CYCLES
+from ics35_async.stream import RATE_CHECK_CYCLES, RATE_KEPT_WINDOWS
 from tests.conftest import every_backend
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
 
@@ -1530,7 +1530,8 @@ async def test_a_stream_that_falls_behind_later_says_so_once_an_episode(caplog: 
                         await frames_while(stream, 4 * RATE_CHECK_CYCLES)  # (told once, not once a window)
                     finally:
                         poller.cancel()
-                    await frames_while(stream, 8 * RATE_CHECK_CYCLES)
+                    # (kept for RATE_KEPT_WINDOWS whole windows: the one the poller ended in is neither)
+                    await frames_while(stream, (RATE_KEPT_WINDOWS + 5) * RATE_CHECK_CYCLES)
     finally:
         sim.close()
     said = rate_warnings()
