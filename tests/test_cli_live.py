@@ -336,3 +336,15 @@ def test_monitor_shows_the_rate_asked_beside_the_rate_reached(rate: list[str]) -
     docs = [json.loads(line) for line in result.stdout.splitlines()]
     assert docs and all(d["rate_asked_hz"] == (50 if rate else None) for d in docs), docs
     assert all(d["rate_hz"] > 0 for d in docs), docs
+
+
+def test_monitor_on_the_built_in_simulator_names_it_as_its_other_lines_do(cli: Any) -> None:
+    # `ics35 monitor` without --port said "scanning sim://?realtime=1&baud=115200 ...", a URL nobody typed (the
+    # live view's own), where its other lines say "the built-in simulator"; and its refusal of the 32 ICS 3.5
+    # servos listed their IDs one by one, 0, 1, 2, ... 31, where every other list of IDs gives ranges.
+    result = cli("monitor", "--seconds", "0.2")
+    assert result.code == ExitCode.REFUSED, result.err
+    said = " ".join(result.err.split())
+    assert "scanning the built-in simulator at 115200 baud" in said, said
+    assert "realtime" not in said, said
+    assert "no servo among 0-31 can report its position" in said, said

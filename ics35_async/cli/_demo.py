@@ -109,7 +109,7 @@ def demo(
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = ids if ids and not asked_all else await discover(bus, settings, False, asked_all=asked_all)
+            chosen = ids if ids and not asked_all else await discover(bus, settings, shown, False, asked_all=asked_all)
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
                 question = (

@@ -223,14 +223,16 @@ def still_holding(settings: Settings, ids: Sequence[int], error: CliError, *, li
     return error
 
 
-async def discover(bus: Bus, settings: Settings, quiet: bool, *, asked_all: bool = False) -> list[int]:
+async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, asked_all: bool = False) -> list[int]:
     """The IDs that answer a probe (no IDs given, or "all": each absent one would cost a reply timeout every
     cycle and a row of errors); none answering is an error.  Asked for "all", the others are named in one line;
-    IDs that answered garbled (left out: two servos sharing one, most often) are named whatever was asked."""
+    IDs that answered garbled (left out: two servos sharing one, most often) are named whatever was asked.
+    ``shown`` is the port as the command's other lines name it (:func:`live_port`): the default simulator's
+    URL is the live view's own, which the user never typed."""
     if not quiet and not asked_all:
-        err.print(f"no IDs given: scanning {escape(settings.port)} at {settings.baud} baud ...")
+        err.print(f"no IDs given: scanning {escape(shown)} at {settings.baud} baud ...")
     answered, garbled = await probe_ids(bus, ALL_IDS)
-    where = f"{settings.port} at {settings.baud} baud"
+    where = f"{shown} at {settings.baud} baud"
     if not answered and garbled:  # new servos, all at ID 0: not the unpowered line NobodyAnswered tells of
         raise answered_garbled(settings, where, [(settings.baud, i) for i in garbled])
     if not answered:

@@ -14,7 +14,6 @@ from ._common import (
     err,
     every_id,
     id_ranges,
-    ids_text,
     json_option,
     run,
     seconds_option,
@@ -66,7 +65,9 @@ def monitor(
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = ids if ids and not every_id(ids) else await discover(bus, settings, as_json, asked_all=bool(ids))
+            chosen = (
+                ids if ids and not every_id(ids) else await discover(bus, settings, shown, as_json, asked_all=bool(ids))
+            )
             if chosen is ids and not as_json and err.is_terminal:
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
                 # said, as a scan says it scans, so a wait of seconds is not a blank terminal.
@@ -77,11 +78,13 @@ def monitor(
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
             silent = plan.streamed if plan.left_out and set(plan.streamed) <= set(plan.silent) else []
             if not plan.streamed or silent:
-                which = f"{ids_text(list(plan.left_out))} speak" if silent else "they speak"
-                absent = f", and no answer from ID{'s' if len(silent) > 1 else ''} {ids_text(silent)}" if silent else ""
+                which = f"{id_ranges(plan.left_out)} speak" if silent else "they speak"
+                absent = (
+                    f", and no answer from ID{'s' if len(silent) > 1 else ''} {id_ranges(silent)}" if silent else ""
+                )
                 raise CliError(
                     ExitCode.REFUSED,
-                    f"no servo among {ids_text(chosen)} can report its position without going limp: {which} "
+                    f"no servo among {id_ranges(chosen)} can report its position without going limp: {which} "
                     f"ICS 3.5, which reads a position only with the free command{absent} (nothing was sent that "
                     "moves or frees them)",
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",
