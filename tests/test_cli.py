@@ -185,6 +185,18 @@ def test_info_json_matches_the_servo(cli: Any, sim_line: Any) -> None:
     assert doc["temperature"]["raw"] == sim.servo(7).temperature
 
 
+def test_info_no_position_says_why_once(cli: Any, sim_line: Any) -> None:
+    # `ics35 info 1 --no-position` showed "position  not read: not read (--no-position)".
+    _, url = sim_line([1])
+    result = cli("--port", url, "info", "1", "--no-position")
+    assert result.code == 0, result.err
+    row = next(line for line in result.out.splitlines() if "position" in line)
+    assert row.count("not read") == 1 and "--no-position" in row, row
+    doc = cli("--port", url, "info", "1", "--no-position", "--json").json()
+    assert doc["position"] is None and "--no-position" in doc["no_position_because"], doc
+    assert not doc["no_position_because"].startswith("not read"), doc
+
+
 def test_info_no_position_keeps_the_servo_holding(cli: Any, sim_line: Any) -> None:
     sim, url = sim_line([1])
     assert cli("--port", url, "move", "1", "8000").code == 0

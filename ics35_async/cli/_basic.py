@@ -95,7 +95,7 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
             temperature = await servo.read_temperature()
             where: dict[str, Any]
             if no_position:
-                where = {"position": None, "how": None, "protocol": None, "why": "not read (--no-position)"}
+                where = {"position": None, "how": None, "protocol": None, "why": "asked not to (--no-position)"}
             else:
                 reading = await policies.read_position_without_freeing(servo, free_ics35=free_servo)
                 where = {
