@@ -1358,13 +1358,15 @@ def unplug_once_answered(sim: VirtualLine, servo_id: int) -> None:
 
 def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float) -> None:
     """As :func:`unplug_once_answered`, then plug the servo back in ``away`` seconds later, powered up (free), once
-    the stream has taken it offline (its probe, a read, went unanswered): under load, fewer cycles than that
-    may have run in ``away`` seconds, and a servo back before then has not come back to the robot."""
+    the stream has taken it offline (its position commands unanswered ``offline_after`` cycles in a row): under
+    load, fewer cycles than that may have run in ``away`` seconds, and a servo back before then has not come back
+    to the robot.  (Not once any read to it went unanswered: the safety watch's telemetry reads go unanswered
+    the moment it is unplugged, cycles before the stream's third position command.)"""
+    offline_after = 3  # (the stream's default: the robot's lines keep it)
 
     def probed(since: int) -> bool:
-        return any(
-            t.servo_id == servo_id and t.command.startswith("read_") and not t.responders for t in sim.log_since(since)
-        )
+        unanswered = [t for t in sim.log_since(since) if t.servo_id == servo_id and t.command == "position"]
+        return sum(not t.responders for t in unanswered) >= offline_after
 
     def run() -> None:
         deadline = time.monotonic() + scaled(30.0)
