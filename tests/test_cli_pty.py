@@ -771,6 +771,13 @@ def test_a_double_ctrl_c_in_demo_says_what_the_servos_were_left_in(gaps: list[fl
     assert code == 0 or "error: interrupted" in said, said
 
 
+def test_the_screen_shows_no_control_character_a_terminal_does_not_print() -> None:
+    # Once a Ctrl-C has stopped the command the terminal echoes a later press raw (ECHOCTL off: see
+    # ics35_async.terminal.keep_last_words), which a terminal does not print; the screen model printed it, in front of
+    # the last words ("\x03error: interrupted"), and failed a test on what no one sees.
+    assert screen_of("\x03error: interrupted\x07\r\n\x03\x03ok") == ["error: interrupted", "ok"]
+
+
 @pytest.mark.parametrize(
     ("args", "when", "said"),
     [

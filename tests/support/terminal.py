@@ -16,7 +16,12 @@ import signal
 from collections.abc import Callable
 from pathlib import Path
 
-_CONTROL = re.compile(r"\x1b\[([0-9;?]*)([A-Za-z])|\x1b[()][A-Za-z0-9]|\x1b.|\r|\n|\x08|[^\x1b\r\n\x08]+")
+# (The other C0 control characters are matched alone and print nothing, as on a terminal: a Ctrl-C's raw echo, \x03,
+# once ECHOCTL is off.)
+_CONTROL = re.compile(
+    r"\x1b\[([0-9;?]*)([A-Za-z])|\x1b[()][A-Za-z0-9]|\x1b.|\r|\n|\x08|[\x00-\x07\x0b\x0c\x0e-\x1a\x1c-\x1f]"
+    r"|[^\x00-\x08\x0a-\x1f]+"
+)
 
 
 def screen_of(output: str, width: int | None = None) -> list[str]:
@@ -50,7 +55,7 @@ def screen_of(output: str, width: int | None = None) -> list[str]:
                 lines[row] = [] if mode == "2" else lines[row][:col]
             elif command == "G":
                 col = count - 1
-        elif not text.startswith("\x1b"):
+        elif not text.startswith("\x1b") and not (len(text) == 1 and text < " " and text != "\t"):
             for part in [text] if width is None else list(text):
                 if width is not None and col >= width:  # (the wrap pending at the last column)
                     row, col = row + 1, 0
