@@ -1,21 +1,23 @@
 """A paced stream on a faulty line in simulated time: the engine, a stream-like source and servos, no clock.
 
 Twelve servos at 100 Hz on a 1.25 Mbit/s line (the control loop the library
-promises), replies dropped, cut short, garbled or late at a chosen rate.  Used
-by tests/test_engine_paced_faults.py and benchmarks/bench_control_loop.py.
+promises), replies dropped, cut short, garbled or late at a chosen rate, and
+a program reading temperatures beside it.  Used by tests/test_engine_paced_faults.py,
+tests/test_engine_paced_requests.py and benchmarks/bench_control_loop.py.
 """
 
 from __future__ import annotations
 
 import math
 import random
+from typing import Any
 
 from ics35_async import protocol
-from ics35_async.engine import BusTiming, LineEngine
+from ics35_async.engine import BusTiming, LineEngine, Priority
 from ics35_async.engine.source import Upcoming
-from ics35_async.errors import IcsError, ReplyError
+from ics35_async.errors import IcsError, ReplyError, ReplyTimeout
 
-from .engine_support import Servos, Wire
+from .engine_support import Recorded, Servos, Wire
 
 BAUD = 1_250_000
 PERIOD = 0.010
@@ -34,6 +36,8 @@ class PacedCycle:
         self.cycle = 0
         self.pos = len(ids)
         self.starts: list[float] = []
+        self.late: list[float] = []  # how long after its slot each cycle started
+        self.missed = 0  # cycles that started more than a period after their slot (the schedule re-anchored)
         self.failed = 0
 
     def slot_due(self, now: float) -> float | None:
@@ -46,7 +50,9 @@ class PacedCycle:
                 if now < due:
                     self.wake_at = due
                     return None
+                self.late.append(now - due)
                 if now - due > self.period:
+                    self.missed += 1
                     self.t0 = now - self.cycle * self.period
             else:
                 self.t0 = now
@@ -120,6 +126,108 @@ class FaultyServos(Servos):
             wire.schedule(at + self.late, reply)  # late: past even the full 20 ms allowance
         else:
             wire.schedule(at, reply)
+
+
+class DroppingServos(Servos):
+    """Servos that drop each reply with probability ``rate`` (its echo still comes: a servo that missed the
+    command, or a reply lost on the line); ``reads_only``: only their replies to reads (the stream's come)."""
+
+    def __init__(self, ids: list[int], rate: float, seed: int, *, reads_only: bool = False) -> None:
+        super().__init__(ids, baudrate=BAUD, turnaround=0.0001)
+        self.rng = random.Random(seed)
+        self.rate = rate
+        self.reads_only = reads_only
+
+    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
+        if (self.reads_only and tx[0] & 0xE0 != protocol.CMD_READ) or self.rng.random() >= self.rate:
+            super().deliver(wire, tx, reply)
+
+
+class Telemetry:
+    """A program reading temperatures beside the stream, one read at a time round ``ids``: the next is asked in
+    the program's next turn after each ends (a coroutine awaiting each read in a loop).  A servo whose read timed
+    out is left alone for ``leave_alone`` seconds, as the control-loop page's telemetry does."""
+
+    def __init__(
+        self,
+        wire: Wire,
+        ids: list[int],
+        priority: Priority = Priority.NORMAL,
+        retries: int = 0,
+        leave_alone: float = 0.0,
+    ) -> None:
+        self.wire = wire
+        self.ids = ids
+        self.priority = priority
+        self.retries = retries
+        self.leave_alone = leave_alone
+        self.alone_until = dict.fromkeys(ids, 0.0)
+        self.reads: list[Recorded] = []
+        self._turn = 0
+
+    def start(self, at: float) -> None:
+        self.wire.at(at, self._next)
+
+    def _next(self) -> None:
+        now = self.wire.now
+        waiting = [sid for sid in self.ids if self.alone_until[sid] <= now]
+        if not waiting:
+            self.wire.at(min(self.alone_until.values()), self._next)
+            return
+        while self.alone_until[sid := self.ids[self._turn % len(self.ids)]] > now:
+            self._turn += 1
+        self._turn += 1
+        command = protocol.ReadParam(sid, protocol.Param.TEMPERATURE)
+        read = _TelemetryRead(self, command, self.priority, self.retries, wire=self.wire)
+        self.reads.append(read)
+        self.wire.submit(read)
+
+    def ended(self, read: Recorded) -> None:
+        if isinstance(read.error, ReplyTimeout):
+            assert read.command.servo_id is not None
+            self.alone_until[read.command.servo_id] = self.wire.now + self.leave_alone
+        self.wire.at(self.wire.now, self._next)
+
+
+class _TelemetryRead(Recorded):
+    __slots__ = ("telemetry",)
+
+    def __init__(self, telemetry: Telemetry, command: protocol.Command[Any], *args: Any, **kwargs: Any) -> None:
+        super().__init__(command, *args, **kwargs)
+        self.telemetry = telemetry
+
+    def resolve(self, value: Any) -> None:
+        super().resolve(value)
+        self.telemetry.ended(self)  # (in the program's next turn: the engine is not called back)
+
+    def reject(self, error: IcsError) -> None:
+        super().reject(error)
+        self.telemetry.ended(self)
+
+
+def run_with_telemetry(
+    drop: float,
+    seed: int,
+    timing: BusTiming,
+    seconds: float = 10.0,
+    *,
+    retries: int = 0,
+    leave_alone: float = 0.0,
+    reads_only: bool = False,
+) -> tuple[PacedCycle, Telemetry, DroppingServos]:
+    """The paced stream and :class:`Telemetry` beside it over ``seconds`` of simulated time, each reply
+    (or each reply to a read: ``reads_only``) dropped with probability ``drop``."""
+    engine = LineEngine(baudrate=BAUD, timing=timing)
+    assert engine.connected(0.0) is None
+    servos = DroppingServos(IDS, drop, seed, reads_only=reads_only)
+    wire = Wire(engine, servos)
+    source = PacedCycle(IDS, PERIOD)
+    wire.emit(engine.attach_source(source, 0.0))
+    telemetry = Telemetry(wire, IDS, retries=retries, leave_alone=leave_alone)
+    telemetry.start(0.05)
+    for second in range(1, math.ceil(seconds) + 1):  # (a second at a time: its steps are many)
+        wire.run_until(min(second, seconds))
+    return source, telemetry, servos
 
 
 def run(
