@@ -1376,8 +1376,9 @@ async def rate_warning_beside(
     return rate_warning(caplog)
 
 
-def poll_unplugged_servo(bus: Bus) -> Awaitable[object]:
-    return bus.servo(20).read_temperature()
+def write_to_unplugged_servo(bus: Bus) -> Awaitable[object]:
+    # (a write: a read of a silent servo in a paced stream's slack gives up sooner and holds only that servo back)
+    return bus.servo(20).write_speed(100)
 
 
 def read_eeprom_of(sid: int) -> Callable[[Bus], Awaitable[object]]:
@@ -1422,12 +1423,12 @@ async def test_a_servo_gone_offline_early_is_not_blamed_for_a_rate_the_wire_cann
 
 
 async def test_a_rate_lost_to_requests_for_a_silent_servo_is_told_as_such(caplog: pytest.LogCaptureFixture) -> None:
-    # Six servos at 1.25 Mbit/s need 0.4 ms of a 10 ms period; a program polling an unplugged servo takes a
-    # whole reply allowance each time.  The warning said "raise the baud rate, stream fewer IDs": the stream
-    # was never the cause.
+    # Six servos at 1.25 Mbit/s need 0.4 ms of a 10 ms period; a program writing to an unplugged servo over and
+    # over takes a whole reply allowance and a quiet time each time.  The warning said "raise the baud rate,
+    # stream fewer IDs": the stream was never the cause.
     ids = list(range(6))
     sim = make_sim(ids, realtime=True, baudrate=1250000)
-    said = await rate_warning_beside(caplog, sim, ids, 100, [poll_unplugged_servo], baudrate=1250000, **REAL_TIME)
+    said = await rate_warning_beside(caplog, sim, ids, 100, [write_to_unplugged_servo], baudrate=1250000, **REAL_TIME)
     assert "requests" in said and "does not answer" in said, said
     assert "raise the baud rate" not in said, said
 
@@ -1445,11 +1446,11 @@ async def test_a_rate_lost_to_the_programs_eeprom_requests_is_told_as_such(caplo
 
 @pytest.mark.realtime
 async def test_a_rate_lost_to_several_causes_names_each(caplog: pytest.LogCaptureFixture) -> None:
-    # The program polls an unplugged servo and reads EEPROMs beside a 150 Hz stream: both cost its cycles.  The
+    # The program writes to an unplugged servo and reads EEPROMs beside a 150 Hz stream: both cost its cycles.  The
     # warning named the first cause it checked that could account for half the late cycles and stopped there.
     ids = list(range(6))
     sim = make_sim([*ids, 9, 10], realtime=True)
-    requests = [read_eeprom_of(9), read_eeprom_of(10), poll_unplugged_servo]
+    requests = [read_eeprom_of(9), read_eeprom_of(10), write_to_unplugged_servo]
     said = await rate_warning_beside(caplog, sim, ids, 150, requests, **REAL_TIME)
     assert "ID(s) 20 went unanswered" in said and "EEPROM" in said, said
     assert "latency timer" not in said and "raise the baud rate" not in said, said
@@ -1497,8 +1498,8 @@ async def test_a_rate_lost_beyond_the_wire_is_not_blamed_on_the_baud_rate(
 
 @pytest.mark.realtime
 async def test_a_stream_that_falls_behind_later_says_so_once_an_episode(caplog: pytest.LogCaptureFixture) -> None:
-    # A stream that kept its rate through its first cycles and fell behind later (a program starting to poll an
-    # unplugged servo: each request holds the line for a whole reply allowance) ran at 36 Hz of 100 with not a
+    # A stream that kept its rate through its first cycles and fell behind later (a program starting to write to
+    # an unplugged servo: each request holds the line for a whole reply allowance) ran at 36 Hz of 100 with not a
     # word: the warning judged the first 20 cycles only.  It is told once an episode: again only after the
     # stream kept its rate for a while and fell behind again.
     ids = list(range(6))
@@ -1514,10 +1515,10 @@ async def test_a_stream_that_falls_behind_later_says_so_once_an_episode(caplog: 
             if len(rate_warnings()) > len(told_at):
                 told_at.append(frame.cycle)
 
-    async def polling(bus: Bus) -> None:
+    async def writing(bus: Bus) -> None:
         while True:
             with contextlib.suppress(ReplyError):
-                await poll_unplugged_servo(bus)
+                await write_to_unplugged_servo(bus)
 
     try:
         with caplog.at_level("WARNING", logger="ics35_async"):
@@ -1525,12 +1526,12 @@ async def test_a_stream_that_falls_behind_later_says_so_once_an_episode(caplog: 
                 await frames_while(stream, 2 * RATE_CHECK_CYCLES)  # the rate kept: nothing said
                 assert not told_at, rate_warnings()
                 for _ in range(2):  # two episodes of falling behind, the rate kept in between
-                    poller = asyncio.ensure_future(polling(bus))
+                    writer = asyncio.ensure_future(writing(bus))
                     try:
                         await frames_while(stream, 4 * RATE_CHECK_CYCLES)  # (told once, not once a window)
                     finally:
-                        poller.cancel()
-                    # (kept for RATE_KEPT_WINDOWS whole windows: the one the poller ended in is neither)
+                        writer.cancel()
+                    # (kept for RATE_KEPT_WINDOWS whole windows: the one the writer ended in is neither)
                     await frames_while(stream, (RATE_KEPT_WINDOWS + 5) * RATE_CHECK_CYCLES)
     finally:
         sim.close()

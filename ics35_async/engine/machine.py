@@ -131,11 +131,15 @@ class LineEngine:
         self._t_start = 0.0
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
         self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
+        self._read_in_slack = False  # this transaction is a read beside a paced stream (see _begin)
         self._wire: dict[int, float] = {}  # wire time by transaction size
-        # First bytes (command and ID) whose reply may still come after a short wait: no command
-        # that starts with one goes on the wire before its time here (see _hold).
+        # First bytes (command and ID) whose reply may still come after a short wait (or a read's in a paced
+        # stream's slack): no command that starts with one goes on the wire before its time here (see _hold).
         self._held: dict[int, float] = {}
         self._hold_wake = INF
+        # First bytes of reads held back after a timeout (see _hold_read), and when their hold ends: the first
+        # command after that gets the guard read the end of a timeout's resync would have given it.
+        self._guard_after_hold: dict[int, float] = {}
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
         self._planned = False  # a burst runs what plan_burst planned: until burst_over, it goes first
@@ -162,6 +166,7 @@ class LineEngine:
         self.answers.reset()
         self._wire.clear()
         self._held.clear()
+        self._guard_after_hold.clear()
         self.state = IDLE
         if resumed:
             if self._source is not None:
@@ -673,6 +678,8 @@ class LineEngine:
         # A reply may still come (see .guard).  A command to a servo already found silent goes without the guard
         # read, which would wait a whole allowance: its own reply would only confirm it, so a late one passing for
         # it misleads nobody; the suspicion stays for the command after it.
+        if self._guard_after_hold:
+            self._guard_after_holds(now)
         if self.guard.suspect and timing is not SILENT:
             guard = self.guard.before(tx, servo_id)
             if guard is not None:  # a read of another shape first (see .guard)
@@ -699,17 +706,41 @@ class LineEngine:
         # allowance; a probe only gives up sooner, since silence is its usual answer (see .probe).
         self._base = allowance
         self._short = timing is PROBE or timing is SILENT
+        self._read_in_slack = False
         if timing is PROBE:
             allowance = self.answers.allowance(allowance, self._wire_time(nbytes))
         elif timing is SILENT:
             allowance = self.answers.silent_allowance(allowance, self._wire_time(nbytes))
-        elif req is None:
+        elif req is None or self._in_slack(req, timing, now):
+            # The stream's transaction, or a read beside a paced stream: it waits what this line's answers
+            # take, and a failure holds it back rather than the line (see _hold, _hold_read).
+            self._read_in_slack = req is not None
             wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
             if wait < allowance:
                 self._short = True
                 allowance = wait
         self.deadline = now + allowance + self.link.extra
         return tx
+
+    def _in_slack(self, req: Request, timing: Timing, now: float) -> bool:
+        """Is ``req`` a read in a paced stream's slack, which waits and fails as the stream's transactions do?
+
+        A read (nothing changes for it: giving up on its reply sooner, and asking again, does nothing to the
+        servo) with the normal allowance, whose silence is not an answer (a scan's second look waits its whole
+        allowance), below ``URGENT`` (which takes the line whatever the stream's slot), beside a stream that
+        keeps a schedule: there a failure that waited its allowance and then a quiet time would run past the
+        next slot.  Without a schedule there is no slot to keep, and the ordinary rule stands.
+        """
+        if timing is not NORMAL or req.priority == URGENT or req.is_guard:
+            return False
+        command = req.command
+        source = self._source
+        return (
+            command.changes_nothing
+            and command.silence is None
+            and source is not None
+            and source.slot_due(now) is not None
+        )
 
     def _stream_wait(self, nbytes: int, allowance: float, latency: float | None) -> float:
         """How long a stream transaction of ``nbytes`` waits, given its full allowance.
@@ -848,10 +879,10 @@ class LineEngine:
     def _timeout(self, now: float) -> bytes | None:
         if self._settling:  # nothing more came: the reply is this command's own (see _settle)
             return self._finish(now)
-        if self._short and self._current is None and len(self._buf) < self._echo_len:
-            # A stream transaction's short wait is for silence after the echo: a servo that does not
-            # answer still echoes.  With the echo not yet round, the host or the link is late, and
-            # giving up would only fail whatever the bytes land in: wait the full allowance.
+        if self._short and (self._current is None or self._read_in_slack) and len(self._buf) < self._echo_len:
+            # A stream transaction's (or a read's in its slack) short wait is for silence after the echo: a
+            # servo that does not answer still echoes.  With the echo not yet round, the host or the link is
+            # late, and giving up would only fail whatever the bytes land in: wait the full allowance.
             self._short = False
             full = self._full_deadline()
             if now < full:
@@ -879,8 +910,15 @@ class LineEngine:
             # (A probe's short wait says nothing of the link: its late reply must not raise the
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
+        read_in_slack, only_echo = self._read_in_slack, len(buf) == echo_len  # (before the resync clears buf)
         out = self._failed(error, sid, now)
-        if probe and req is None:
+        if read_in_slack:
+            if heard and only_echo:
+                self._hold_read(now)
+            elif self.state is QUIET:  # (partial, or the echo wrong: the resync listens as after its whole wait)
+                self._quiet_until = max(self._quiet_until, self._resync_end(self._full_deadline()))
+                self.deadline = min(self._quiet_until, self._resync_limit)
+        elif probe and req is None:
             self._hold(now)
             if partial:
                 self._tail_until = self._held[tx[0]]  # see _settle
@@ -918,6 +956,8 @@ class LineEngine:
             return
         if self.state is not QUIET:
             return
+        if self._read_in_slack:  # (it may have waited less than its full allowance: its reply may come after that)
+            due = max(due, self._full_deadline())
         self.guard.timed_out(
             self._tx,
             heard=True,
@@ -942,6 +982,30 @@ class LineEngine:
         """
         self._held[self._tx[0]] = self._resync_end(self._full_deadline())
         self._short_resync(now, STREAM_RESYNC)
+
+    def _hold_read(self, now: float) -> None:
+        """A read in a paced stream's slack (see _in_slack) timed out with its echo and nothing more.
+
+        Its servo is held back as after a stream transaction's short wait (see _hold): no command with the
+        read's first byte goes until its reply could no longer come, while the stream and other commands go
+        on after a resync as short as the stream's; a retry waits.  A reply from it that lands in another
+        command's transaction has another header and fails it.  One later still, after the hold, is what a
+        guard read is for after a timeout's resync (see .guard): the first command after the hold gets one
+        if it has the read's first byte (see _guard_after_holds).  Only a timeout with nothing but the echo:
+        after a partial reply (a tail has no header) or bytes that were not its own, the read resyncs as after
+        its whole wait.
+        """
+        self._hold(now)
+        first = self._tx[0]
+        self._guard_after_hold[first] = self._held[first]
+
+    def _guard_after_holds(self, now: float) -> None:
+        """Holds of reads (see _hold_read) over by ``now``: the next command is the first after them, and
+        gets a guard read if it has such a read's first byte (the suspicion lasts that one command)."""
+        after = self._guard_after_hold
+        for first in [first for first, until in after.items() if until <= now]:
+            del after[first]
+            self.guard.suspect = (*self.guard.suspect, bytes((first,)))
 
     def _full_deadline(self) -> float:
         """The transaction's deadline with its full allowance (and the link's extra), whatever it waited."""

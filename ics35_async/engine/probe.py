@@ -42,7 +42,9 @@ back, with no command, for the rest of its allowance (see
 ``LineEngine._hold``); a reply later than the wait fails whatever it lands in,
 never passes for another answer.  It gives up early only once its echo has
 come round: until then the host or the link is late, not the servo (a silent
-servo still echoes), and it waits the full allowance.
+servo still echoes), and it waits the full allowance.  A read in a paced
+stream's slack waits as the stream's transactions do (see
+``LineEngine._in_slack``).
 """
 
 from __future__ import annotations

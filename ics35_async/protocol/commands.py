@@ -72,6 +72,9 @@ class Command(Generic[T]):
     __slots__ = ("name", "reply_len", "servo_id", "tx")
 
     idempotent: ClassVar[bool] = True
+    changes_nothing: ClassVar[bool] = False
+    """A read: the device changes nothing for it (the engine may give up on its reply sooner beside a paced
+    stream, see ``LineEngine._begin``)."""
     timing: ClassVar[Timing] = Timing.NORMAL
     silence: ClassVar[str | None] = None
     """What no reply at all means, for a command to which silence is a usual answer (a probe's)."""
@@ -205,6 +208,7 @@ class ReadParam(Command[int]):
     """Parameter read (0xA0), SC 1..4: one 7-bit value."""
 
     __slots__ = ("param",)
+    changes_nothing = True
 
     def __init__(self, servo_id: int, param: Param | int) -> None:
         self.servo_id = check_id(servo_id)
@@ -247,6 +251,7 @@ class ReadPosition(Command[int]):
     """
 
     __slots__ = ()
+    changes_nothing = True
 
     def __init__(self, servo_id: int) -> None:
         self.servo_id = check_id(servo_id)
@@ -322,6 +327,7 @@ class ReadEeprom(Command[Eeprom]):
     """Parameter read SC 0: the 64-byte EEPROM image."""
 
     __slots__ = ()
+    changes_nothing = True
 
     def __init__(self, servo_id: int) -> None:
         self.servo_id = check_id(servo_id)
@@ -424,6 +430,7 @@ class ReadId(Command[int]):
     """ID read: only safe with exactly one device on the line."""
 
     __slots__ = ()
+    changes_nothing = True
     timing = Timing.ID
 
     def __init__(self, servo_id: int = MAX_ID) -> None:

@@ -50,6 +50,7 @@ class ReadMemory(_MemoryCommand[bytes]):
     """Generic read (0xA0, SC 0x7F): ``count`` bytes from a device's 128-byte memory."""
 
     __slots__ = ()
+    changes_nothing = True
 
     def __init__(self, device_id: int, address: int, count: int) -> None:
         self.servo_id = check_id(device_id)
