@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import io
 import os
 import stat
 import sys
 import threading
 import time
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, TextIO
+from typing import IO, TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
     import logging
@@ -42,7 +43,7 @@ def in_background_of_terminal(fd: int = 0) -> bool:
         return False  # a terminal, but not this process's controlling one: reading it never stops the process
 
 
-def in_foreground_of_terminal(stream: TextIO) -> bool:
+def in_foreground_of_terminal(stream: IO[str]) -> bool:
     """Whether ``stream`` writes to this process's controlling terminal and the process is in its foreground
     process group: where a Ctrl-C typed there came from, and the terminal echoed ``^C``."""
     if sys.platform == "win32":
@@ -52,6 +53,36 @@ def in_foreground_of_terminal(stream: TextIO) -> bool:
         return os.isatty(fd) and os.tcgetpgrp(fd) == os.getpgrp()
     except (AttributeError, OSError, ValueError):  # no descriptor (a test's capture), or not the controlling one
         return False
+
+
+class _WholeWrites(io.TextIOWrapper):
+    """Text written at once, all of it (see :func:`whole_writes`)."""
+
+    def write(self, text: str) -> int:
+        written = super().write(text)
+        self.flush()
+        return written
+
+
+def whole_writes(stream: TextIO) -> TextIO:
+    """``stream``, or where Python runs unbuffered (``-u``, ``PYTHONUNBUFFERED``: many container images set it) a
+    stream on the same descriptor that writes all it is given, at once as the unbuffered one does.
+
+    Unbuffered, Python hands text straight to the descriptor and drops what a write cut short did not take: a
+    write waiting for a terminal that reads behind (a loaded machine, an ssh link) is cut short by a signal (a
+    Ctrl-C), so a live view's redraw lost its rest, and the next, moving up by the view's height from a line it
+    never reached, overwrote the lines above the view.  Buffered, the rest is written after the signal's handler
+    (or at the next write, should the handler raise)."""
+    if not isinstance(stream, io.TextIOWrapper) or not isinstance(stream.buffer, io.FileIO):
+        return stream  # (buffered already, or not a file: a test's capture)
+    raw = io.FileIO(stream.fileno(), "w", closefd=False)  # (the descriptor stays open when this one goes)
+    return _WholeWrites(
+        io.BufferedWriter(raw),
+        encoding=stream.encoding,
+        errors=stream.errors,
+        line_buffering=stream.line_buffering,
+        write_through=True,
+    )
 
 
 def clear_echoed_ctrl_c() -> None:
@@ -82,8 +113,25 @@ def ctrl_c_typed() -> None:
     keep_last_words()
 
 
-_kept: list[int] = []  # the terminal's descriptor once keep_last_words has acted (-1: nothing to put back)
-_set: list[int] = []  # the local-mode bits keep_last_words turned on, and those it turned off (to put back)
+_kept: list[int] = []  # the terminal's descriptor once its settings were changed here
+_set: list[int] = [0, 0]  # the local-mode bits turned on here, and those turned off (to put back)
+_last_words_kept: list[bool] = []  # keep_last_words has acted
+
+
+def keep_output_at_ctrl_c(stream: IO[str]) -> None:
+    """A live view is about to redraw in place on ``stream``: the terminal it writes to (the process in its
+    foreground) is set to keep its output at Ctrl-C until the process ends (POSIX's NOFLSH; see
+    :func:`keep_last_words` for when the setting is put back).
+
+    A terminal discards what the program wrote and it has not shown yet at each Ctrl-C: a terminal behind (a
+    loaded machine, an ssh link, a busy tmux) lost the rest of a redraw, so the cursor was not where the view
+    left it, and the view's next redraw, moving up by its height from there, overwrote the lines above it (a
+    warning, the command's title).  No way of drawing can tell where the terminal's cursor is once it has
+    discarded an unknown part of the output: a cursor saved on the terminal (ESC 7) is lost with the rest, and
+    one saved before the view scrolls the screen is no longer where the view starts.  Kept, every redraw arrives
+    whole.  Nothing on a terminal the process runs in the background of, in a file or a pipe, or on Windows."""
+    if termios is not None:
+        _change_local_modes((stream,), on=termios.NOFLSH, off=0)
 
 
 def keep_last_words() -> None:
@@ -96,28 +144,42 @@ def keep_last_words() -> None:
     the program reads none as it stops) until the process ends, when its own setting is put back a tenth of a
     second later (see ``_LAST_WORDS_SHOWN``).  It also echoes no more ``^C`` meanwhile (ECHOCTL off): a later
     press's, echoed between the first one's clearing and the last words, came in front of them ("^Cwrote 1
-    pose(s)"); the press itself still interrupts.  Nothing on a terminal the process runs in the background of
-    (changing its settings would stop the process), in a file or a pipe, or on Windows."""
-    if _kept or termios is None:
+    pose(s)"); the press itself still interrupts.  Where a live view had the output kept already
+    (:func:`keep_output_at_ctrl_c`), the press that stopped the program found it so and the terminal kept what
+    had been typed ahead too: that is discarded now, as the press would have (a half-typed line is not left to
+    the shell).  Nothing on a terminal the process runs in the background of (changing its settings would stop
+    the process), in a file or a pipe, or on Windows."""
+    if _last_words_kept or termios is None:
         return
+    _last_words_kept.append(True)
+    kept_before = _kept[0] if _kept and _set[0] & termios.NOFLSH else None
     echoctl = getattr(termios, "ECHOCTL", 0)  # (POSIX leaves it out; Linux, macOS and the BSDs have it)
-    for stream in (sys.stderr, sys.stdout):
-        if in_foreground_of_terminal(stream):
-            fd = stream.fileno()
-            try:
-                attrs = termios.tcgetattr(fd)
-                on, off = ~attrs[3] & termios.NOFLSH, attrs[3] & echoctl
-                if not on and not off:
-                    break  # (already so: nothing to put back)
-                attrs[3] = (attrs[3] | on) & ~off
-                termios.tcsetattr(fd, termios.TCSANOW, attrs)
-            except (termios.error, OSError):
-                break
-            _kept.append(fd)
-            _set[:] = [on, off]
-            atexit.register(_put_back_setting, fd)
+    _change_local_modes((sys.stderr, sys.stdout), on=termios.NOFLSH, off=echoctl)
+    if kept_before is not None:
+        with contextlib.suppress(termios.error, OSError):
+            termios.tcflush(kept_before, termios.TCIFLUSH)
+
+
+def _change_local_modes(streams: tuple[IO[str], ...], *, on: int, off: int) -> None:
+    """The local-mode bits ``on`` turned on and ``off`` turned off on the terminal changed here before, else on that
+    of the first of ``streams`` the process is in the foreground of; what was changed is put back as the process
+    ends (:func:`_put_back_setting`), a bit already so left as the terminal had it."""
+    foreground = (stream.fileno() for stream in streams if in_foreground_of_terminal(stream))
+    fd = _kept[0] if _kept else next(foreground, -1)
+    with contextlib.suppress(termios.error, OSError):
+        if fd < 0 or os.tcgetpgrp(fd) != os.getpgrp():
+            return  # (in the background now: changing the settings would stop the process)
+        attrs = termios.tcgetattr(fd)
+        turned_on, turned_off = on & ~attrs[3], off & attrs[3]
+        if not turned_on and not turned_off:
             return
-    _kept.append(-1)
+        attrs[3] = (attrs[3] | turned_on) & ~turned_off
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        if not _kept:
+            _kept.append(fd)
+            atexit.register(_put_back_setting, fd)
+        _set[0] |= turned_on
+        _set[1] |= turned_off
 
 
 # How long the terminal keeps its output at Ctrl-C once the process has said its last words: what was written and

@@ -10,6 +10,7 @@ loaded CI machine, and ``--retries`` covers a rare late reply.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import re
@@ -27,7 +28,7 @@ import pytest
 
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
-from tests.support.terminal import screen_of, typed_on_a_terminal
+from tests.support.terminal import TerminalOutput, Unread, screen_of, typed_on_a_terminal
 from tests.support.timing import PATIENT_OPTION, scaled
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -197,6 +198,82 @@ def demo_interrupted(
             proc.kill()
             proc.wait()
     return proc, out, err
+
+
+@pytest.mark.parametrize(
+    ("command", "above", "unbuffered"),
+    [
+        (["demo"], ["note: no --port given: this is the built-in simulator", "demo: wave on 32 servo(s)"], ""),
+        (["demo"], ["note: no --port given: this is the built-in simulator", "demo: wave on 32 servo(s)"], "1"),
+        (["teach", "{robot}", "{taught}", "--yes"], ["the joints are free: pose the robot by hand", "teach: wave"], ""),
+    ],
+    ids=["demo", "demo-unbuffered", "teach"],
+)
+def test_ctrl_c_while_a_terminal_is_behind_leaves_the_lines_above_a_live_view(
+    tmp_path: Path, command: list[str], above: list[str], unbuffered: str
+) -> None:
+    # At Ctrl-C a terminal discards what the program wrote and it has not read yet, and Python run unbuffered
+    # (PYTHONUNBUFFERED, as many container images set it) drops what a write cut short by the signal had left: a
+    # terminal behind (a loaded machine, an ssh link) lost the rest of a redraw, the cursor was not where the view
+    # thought, and its next redraw, moving up by the view's height from there, wiped the lines above it.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    args = [word.format(robot=robot, taught=tmp_path / "wave.json") for word in command]
+    shown = "answering" if command == ["demo"] else "captured"
+    # (a few seconds unread: ten redraws a second fill the pty's buffer, and the view's writes wait for room)
+    keys = [(shown, b""), (Unread(scaled(3)), b"\x03")]
+    _, written = typed_on_a_terminal(args, keys, env={"PYTHONUNBUFFERED": unbuffered})
+    screen = screen_of(written, width=120)
+    said = "\n".join(screen)
+    assert "Traceback" not in written, said
+    # The lines above the view, then the view's title (its first line) once: not overwritten, nor left behind by a
+    # redraw starting elsewhere.
+    assert [sum(shown.startswith(line) for shown in screen) for line in above] == [1] * len(above), said
+
+
+def test_a_live_views_ctrl_c_discards_a_half_typed_line_and_the_terminal_gets_its_setting_back() -> None:
+    # The terminal keeps its output at Ctrl-C while a live view runs (so that a redraw arrives whole), which keeps
+    # what was typed ahead too: a half-typed line was left to the shell's prompt, where the press discarded it.
+    master, slave = os.openpty()
+    before = termios.tcgetattr(slave)
+
+    def own_terminal() -> None:
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", *args],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        preexec_fn=own_terminal,
+        env={**os.environ, "TERM": "xterm", "COLUMNS": "120"},
+    )
+    screen = TerminalOutput(master)
+    try:
+        screen.read_until(screen.shows("cycle"), scaled(30))
+        os.write(master, b"half a line")
+        screen.read_until(screen.shows("half a line"), scaled(10))  # (echoed: in the terminal's input)
+        os.write(master, b"\x03")
+        screen.read_until(lambda: proc.poll() is not None, scaled(30))
+        assert proc.wait(scaled(30)) == 0, screen.text
+        after = termios.tcgetattr(slave)
+        raw = list(after)
+        raw[3] &= ~termios.ICANON  # (what a shell's line editor does: a half-typed line becomes its input)
+        raw[6] = list(raw[6])
+        raw[6][termios.VMIN], raw[6][termios.VTIME] = 0, 0
+        termios.tcsetattr(slave, termios.TCSANOW, raw)
+        left = os.read(slave, 100)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+        os.close(slave)
+    assert left == b"", left
+    assert after[3] == before[3], "the terminal's own setting is put back as the command ends"
 
 
 def assert_demos_servos_free(port: str) -> None:

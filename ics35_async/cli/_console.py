@@ -18,7 +18,7 @@ from rich.segment import Segment
 from rich.text import Text
 
 from .. import units
-from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c
+from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c
 from ._settings import CliError, ExitCode, Settings
 from ._signals import same_stop_for_a_moment
 
@@ -69,9 +69,16 @@ class _LiveView(Live):
     the next redraw, counting up from one line too low, left the view's title on the screen once more.  On the
     empty line the echo goes where the next redraw clears it.  The last drawing, as the view stops, leaves it
     out: what the command says next starts on the line below the view.
+
+    Its terminal keeps its output at Ctrl-C from the start (see ``keep_output_at_ctrl_c``): a redraw cut short by
+    the terminal left the cursor elsewhere, and the next one overwrote the lines above the view.
     """
 
     _content: RenderableType = ""
+
+    def start(self, refresh: bool = False) -> None:
+        keep_output_at_ctrl_c(self.console.file)
+        super().start(refresh=refresh)
 
     def update(self, renderable: RenderableType, *, refresh: bool = False) -> None:
         self._content = renderable

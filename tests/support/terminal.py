@@ -3,8 +3,8 @@
 Only what the live views write is modelled (rich's ``Live`` redraws in place with carriage returns,
 cursor-up and erase-line); colours and other control sequences are dropped.  A line printed beside a live
 view by another console is overwritten by the view's next redraw, as on a real terminal: that is what
-this is for.  :func:`typed_on_a_terminal` runs a command on a pty of its own, Ctrl-C typed as a person types it;
-:func:`write_until_refused` fills a pty nobody reads.
+this is for.  :func:`typed_on_a_terminal` runs a command on a pty of its own, Ctrl-C typed as a person types it
+(and :class:`Unread`, a terminal reading nothing for a while); :func:`write_until_refused` fills a pty nobody reads.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import os
 import re
 import signal
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 # (The other C0 control characters are matched alone and print nothing, as on a terminal: a Ctrl-C's raw echo, \x03,
@@ -100,25 +101,36 @@ class TerminalOutput:
                 self.written += chunk
 
 
+@dataclass(frozen=True)
+class Unread:
+    """A wait in :func:`typed_on_a_terminal`'s keys during which the terminal reads nothing of what the command
+    writes (a terminal behind: a loaded machine, an ssh link): the pty's buffer fills and the command's writes
+    wait for room.  A Ctrl-C typed next makes the pty discard the output not read, as a terminal does."""
+
+    seconds: float
+
+
 def typed_on_a_terminal(
     args: list[str],
-    keys: list[tuple[str | float | Callable[[], bool], bytes]],
+    keys: list[tuple[str | float | Unread | Callable[[], bool], bytes]],
     *,
     timeout: float = 60,
     stdout: Path | None = None,
     columns: int = 120,
+    env: dict[str, str] | None = None,
 ) -> tuple[int, str]:
     """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
-    ``when`` seconds, or until ``when()`` is true (e.g. a line in the ``stdout`` file), then types ``key``
-    (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).  ``stdout``: a file for stdout instead
-    (``ics35 ... > FILE``); ``columns``: the terminal's width.  Returns the exit code and everything written to
-    the terminal."""
+    ``when`` seconds (an :class:`Unread`'s reading nothing), or until ``when()`` is true (e.g. a line in the
+    ``stdout`` file), then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
+    ``stdout``: a file for stdout instead (``ics35 ... > FILE``); ``columns``: the terminal's width; ``env``: more
+    environment variables.  Returns the exit code and everything written to the terminal."""
     import fcntl
     import struct
     import subprocess
     import sys
     import termios
+    import time
 
     master, slave = os.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, columns, 0, 0))
@@ -135,7 +147,7 @@ def typed_on_a_terminal(
         stdout=slave if output is None else output,
         stderr=slave,
         preexec_fn=own_terminal,
-        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns)},
+        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns), **(env or {})},
     )
     os.close(slave)
     screen = TerminalOutput(master)
@@ -149,6 +161,8 @@ def typed_on_a_terminal(
                 assert done(), f"not shown within {timeout} s: {when!r}; the screen:\n" + "\n".join(
                     screen_of(screen.text)
                 )
+            elif isinstance(when, Unread):
+                time.sleep(when.seconds)
             else:
                 screen.read_until(lambda: False, when)
             os.write(master, key)
