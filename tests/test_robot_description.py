@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ics35_async import InvalidArgument, open_robot, units
-from ics35_async.robot import DescriptionError, JointSpec, load_description
+from ics35_async.robot import DescriptionError, JointSpec, load_description, parse_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
 from tests.support.timing import FAST
@@ -69,6 +69,14 @@ def test_a_good_file_reads_with_its_defaults(tmp_path: Path) -> None:
     assert (wrist.offset, wrist.reverse, wrist.min, wrist.max) == (0.0, False, -135.0, 135.0)
     assert (robot.safety.max_temperature_c, robot.safety.max_current, robot.safety.action) == (70.0, 30, "hold")
     assert robot.safety.continue_on_offline is False
+
+
+def test_a_line_rate_of_twenty_cycles_a_second_reads() -> None:
+    # The fewest a motion needs (lower is refused: see MISTAKES); no rate_hz at all streams as fast as the line allows.
+    lines = {"main": {"port": "sim://a", "rate_hz": 20}, "fast": {"port": "sim://b"}}
+    joints = {"x": {"line": "main", "id": 1}, "y": {"line": "fast", "id": 1}}
+    robot = parse_description({"lines": lines, "joints": joints})
+    assert (robot.lines["main"].rate_hz, robot.lines["fast"].rate_hz) == (20.0, None)
 
 
 def test_only_some_joints_keeps_their_lines_and_the_rest_of_the_robot() -> None:
@@ -156,6 +164,14 @@ MISTAKES: list[tuple[str, str, str]] = [
         "115200, 625000 or 1250000",
     ),
     ('[lines.main]\nbaudrate = 115200\n[joints.x]\nline="main"\nid=1', "lines.main.port", "is required"),
+    # A motion goes out as one target a cycle: at 0.5 Hz the joints jumped from one target to the next, two seconds
+    # apart, at the servos' full speed.
+    (
+        '[lines.main]\nport = "sim://a"\nrate_hz = 0.5\n[joints.x]\nline="main"\nid=1',
+        "lines.main.rate_hz",
+        "must be at least 20 cycles per second",
+    ),
+    ('[lines.main]\nport = "sim://a"\nrate_hz = 19.9\n[joints.x]\nline="main"\nid=1', "lines.main.rate_hz", "got 19.9"),
     (
         '[lines.main]\nport = "sim://a"\ndirection = "up"\n[joints.x]\nline="main"\nid=1',
         "lines.main.direction",

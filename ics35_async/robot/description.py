@@ -9,6 +9,7 @@ reverse else +1) * joint degrees``.
 from __future__ import annotations
 
 import difflib
+import math
 import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
@@ -26,6 +27,12 @@ SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
 # A count is 270/8000 = 0.03375 degree exactly: an angle a servo reports has 5 decimals (plus the offset's).
 COUNT_DECIMALS = 5
+# The fewest position cycles per second a robot line's rate_hz may ask.  A motion goes out as one target a cycle,
+# each reached at the servo's full speed: at 0.5 Hz the joints jumped between targets two seconds apart, and the
+# safety watch's temperature and current reads, a few joints a cycle, came seconds late.  Every line can keep it:
+# 32 servos at 115200 baud, the slowest line, cycle about 30 times a second.
+MIN_LINE_RATE_HZ = 20.0
+MAX_LINE_RATE_HZ = 10_000.0
 
 
 class DescriptionError(FileContentError):
@@ -321,7 +328,16 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
             except InvalidArgument:
                 raise r.error("baudrate", f"must be 115200, 625000 or 1250000, got {baud}") from None
         echo = r.flag("echo")
-        rate = r.number("rate_hz", 0.1, 10_000)
+        rate = r.number("rate_hz", -math.inf, math.inf)
+        if rate is not None and rate > MAX_LINE_RATE_HZ:
+            raise r.error("rate_hz", f"must be in {MIN_LINE_RATE_HZ:g}..{MAX_LINE_RATE_HZ:g}, got {rate:g}")
+        if rate is not None and rate < MIN_LINE_RATE_HZ:
+            raise r.error(
+                "rate_hz",
+                f"must be at least {MIN_LINE_RATE_HZ:g} cycles per second, got {rate:g}: a motion goes out as one "
+                "target a cycle, and fewer cycles would move the joints in jumps at the servos' full speed (leave "
+                "rate_hz out to cycle as fast as the line allows)",
+            )
         retries = r.integer("retries", 0, protocol.MAX_RETRIES)
         direction = r.text("direction")
         if direction is not None and direction not in DIRECTIONS:
