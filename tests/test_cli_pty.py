@@ -231,6 +231,17 @@ def test_ctrl_c_while_a_terminal_is_behind_leaves_the_lines_above_a_live_view(
     assert [sum(shown.startswith(line) for shown in screen) for line in above] == [1] * len(above), said
 
 
+def test_ctrl_c_leaves_a_live_view_right_below_the_line_above_it() -> None:
+    # The ^C the terminal echoed was cleared as the view stopped, through the view's own redirection of stderr,
+    # which printed that clearing as a line above the view: an empty line came between the note and the table.
+    _, written = typed_on_a_terminal(["demo"], [("answering", b""), (scaled(0.5), b"\x03")])
+    screen = screen_of(written, width=120)
+    said = "\n".join(screen)
+    assert "Traceback" not in written, said
+    title = next(k for k, line in enumerate(screen) if line.startswith("demo: wave on 32 servo(s)"))
+    assert screen[title - 1].startswith("note: no --port given: this is the built-in simulator"), said
+
+
 def test_a_live_views_ctrl_c_discards_a_half_typed_line_and_the_terminal_gets_its_setting_back() -> None:
     # The terminal keeps its output at Ctrl-C while a live view runs (so that a redraw arrives whole), which keeps
     # what was typed ahead too: a half-typed line was left to the shell's prompt, where the press discarded it.

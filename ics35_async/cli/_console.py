@@ -26,15 +26,17 @@ from ._signals import same_stop_for_a_moment
 class _Console(Console):
     """A console whose first words after a Ctrl-C start a line of their own: a press taken for the stop before
     it (a double Ctrl-C's second, landing as the command ends) has its ``^C`` echoed where they go next
-    (``^Cwrote 1 pose(s) ...``).  Not while a live view runs: it redraws its own lines."""
+    (``^Cwrote 1 pose(s) ...``).  Not while a live view runs, nor as it stops: it redraws its own lines, the
+    echoed ``^C``'s among them, and stderr still goes through the view then, which would print the clearing as
+    a line of its own above the view (an empty line between the lines above and the table)."""
 
     def print(self, *objects: Any, **options: Any) -> None:
-        if not any(view.is_started for view in _live_views):
+        if not any(view.drawing for view in _live_views):
             clear_after_ctrl_c()
         super().print(*objects, **options)
 
 
-_live_views: weakref.WeakSet[Live] = weakref.WeakSet()
+_live_views: weakref.WeakSet[_LiveView] = weakref.WeakSet()
 out = _Console(highlight=False, soft_wrap=True)
 err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -75,6 +77,12 @@ class _LiveView(Live):
     """
 
     _content: RenderableType = ""
+    _stopping = False
+
+    @property
+    def drawing(self) -> bool:
+        """Whether the view is on the screen and redrawn: started, or drawn a last time as it stops."""
+        return self.is_started or self._stopping
 
     def start(self, refresh: bool = False) -> None:
         keep_output_at_ctrl_c(self.console.file)
@@ -85,11 +93,15 @@ class _LiveView(Live):
         super().update(_Drawn(renderable, resting=True), refresh=refresh)
 
     def stop(self) -> None:
-        super().update(_Drawn(self._content, resting=False))
-        super().stop()
+        self._stopping = True
+        try:
+            super().update(_Drawn(self._content, resting=False))
+            super().stop()
+        finally:
+            self._stopping = False
 
 
-def live_view(**options: Any) -> Live:
+def live_view(**options: Any) -> _LiveView:
     """A live view (rich's ``Live``: see :class:`_LiveView`) on stdout, ended by :func:`end_live_views` should its
     own stop be cut short."""
     live = _LiveView(console=out, **options)
