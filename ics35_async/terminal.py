@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from typing import IO, TYPE_CHECKING, TextIO
+from typing import IO, TYPE_CHECKING
 
 if TYPE_CHECKING:
     import logging
@@ -64,7 +64,7 @@ class _WholeWrites(io.TextIOWrapper):
         return written
 
 
-def whole_writes(stream: TextIO) -> TextIO:
+def whole_writes(stream: IO[str]) -> IO[str]:
     """``stream``, or where Python runs unbuffered (``-u``, ``PYTHONUNBUFFERED``: many container images set it) a
     stream on the same descriptor that writes all it is given, at once as the unbuffered one does.
 

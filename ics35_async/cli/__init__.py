@@ -21,7 +21,6 @@ from typing import Any, NoReturn
 import click
 
 from .. import __version__
-from ..terminal import whole_writes
 from . import _signals
 from ._line_options import add_line_options, group_line_options, settings_from
 from ._settings import CliError, ExitCode
@@ -163,7 +162,6 @@ cli.help = f"{inspect.cleandoc(cli.help or '')}\n\nExit codes: {_CODES} (the doc
 def main(argv: Sequence[str] | None = None) -> None:
     """Console-script entry point: runs ``ics35`` and exits with its code."""
     try:
-        sys.stdout, sys.stderr = whole_writes(sys.stdout), whole_writes(sys.stderr)
         _signals.install()  # (within the try: a Ctrl-C as main begins ends in one line too)
         code = cli.main(args=list(argv) if argv is not None else None, prog_name="ics35", standalone_mode=False)
         # (Within the try: a Ctrl-C as the exit code is worked out, the command over, ends in one line too.)

@@ -18,7 +18,7 @@ from rich.segment import Segment
 from rich.text import Text
 
 from .. import units
-from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c
+from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c, whole_writes
 from ._settings import CliError, ExitCode, Settings
 from ._signals import same_stop_for_a_moment
 
@@ -72,8 +72,10 @@ class _LiveView(Live):
     empty line the echo goes where the next redraw clears it.  The last drawing, as the view stops, leaves it
     out: what the command says next starts on the line below the view.
 
-    Its terminal keeps its output at Ctrl-C from the start (see ``keep_output_at_ctrl_c``): a redraw cut short by
-    the terminal left the cursor elsewhere, and the next one overwrote the lines above the view.
+    Its redraws reach the terminal whole: the terminal keeps its output at Ctrl-C from the start (see
+    ``keep_output_at_ctrl_c``), and the view writes all it is given where Python runs unbuffered (see
+    ``whole_writes``).  A redraw cut short left the cursor elsewhere, and the next one overwrote the lines above
+    the view.
     """
 
     _content: RenderableType = ""
@@ -86,6 +88,8 @@ class _LiveView(Live):
 
     def start(self, refresh: bool = False) -> None:
         keep_output_at_ctrl_c(self.console.file)
+        # (the console's own stream meanwhile, stdout as the view starts: live_view's console is stdout's)
+        self.console.file = whole_writes(self.console.file)
         super().start(refresh=refresh)
 
     def update(self, renderable: RenderableType, *, refresh: bool = False) -> None:
@@ -99,6 +103,9 @@ class _LiveView(Live):
             super().stop()
         finally:
             self._stopping = False
+            with contextlib.suppress(OSError, ValueError):  # (a hung-up terminal, a closed stream)
+                self.console.file.flush()
+            self.console.file = None  # type: ignore[assignment]  # (stdout again, whatever it is then)
 
 
 def live_view(**options: Any) -> _LiveView:
