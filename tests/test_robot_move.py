@@ -144,10 +144,11 @@ def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profi
 def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> None:
     # A robot builder's finding: the robot stepped its motions on frames merged from every line, so a
     # line at 10 Hz (or one slowed by a silent servo) made a 100 Hz line's motion a staircase of 10 steps
-    # a second.  Counted against the slow line's own cycles in the same span: no wall-clock figure.
+    # a second.  Counted against the slow line's own cycles in the same span: no wall-clock figure.  (20 Hz
+    # beside 200 Hz here: a robot file asks 20 Hz at least.)
     rig = make_rig()
-    rig.description["lines"]["upper"]["rate_hz"] = 100
-    rig.description["lines"]["lower"]["rate_hz"] = 10
+    rig.description["lines"]["upper"]["rate_hz"] = 200
+    rig.description["lines"]["lower"]["rate_hz"] = 20
 
     async def body(robot: Robot) -> dict[str, int]:
         robot.hold()

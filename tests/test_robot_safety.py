@@ -475,10 +475,11 @@ def test_an_over_current_trip_with_action_hold_clears_once_the_load_is_gone() ->
 def test_the_watch_reads_at_each_lines_own_pace_beside_a_faster_line() -> None:
     # The robot's frames come as each line ends a cycle: the watch of a 10 Hz line read a joint at every
     # frame of the 100 Hz line too (11 reads a cycle of its own for telemetry_per_cycle=1), taking that
-    # line's slack.  One read a cycle of its own line, whatever the others do.
+    # line's slack.  One read a cycle of its own line, whatever the others do.  (20 Hz beside 200 Hz here: a robot
+    # file asks 20 Hz at least.)
     rig = make_rig(safety={"telemetry_per_cycle": 1})
-    rig.description["lines"]["upper"]["rate_hz"] = 100
-    rig.description["lines"]["lower"]["rate_hz"] = 10
+    rig.description["lines"]["upper"]["rate_hz"] = 200
+    rig.description["lines"]["lower"]["rate_hz"] = 20
 
     async def main() -> tuple[int, int, int]:
         with anyio.fail_after(GUARD):
