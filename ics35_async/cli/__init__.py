@@ -174,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
         fail(_stopped_by_signal(exc))
     except click.exceptions.Abort:  # (click's form of a KeyboardInterrupt outside a command's handling)
-        _interrupted("aborted")
+        _interrupted("interrupted")  # (a Ctrl-C has one name wherever it lands, not click's "aborted")
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)

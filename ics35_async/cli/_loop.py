@@ -290,7 +290,7 @@ def _ctrl_c(command: list[asyncio.Task[T]], loops: list[asyncio.AbstractEventLoo
         if signal.getsignal(signal.SIGINT) is on_sigint:
             if pressed:
                 # A double Ctrl-C's second press landing once the loop is over would raise KeyboardInterrupt
-                # wherever the command then is (making its message, which would become a bare "aborted"), or kill
+                # wherever the command then is (making its message: a bare "interrupted" instead), or kill
                 # the process as Python ends: within a moment it is the same press, as the library's run() has it.
                 _after_stop({signal.SIGINT: signal.default_int_handler})
             else:
