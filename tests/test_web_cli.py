@@ -87,6 +87,7 @@ def test_the_url_comes_first_and_the_default_port_is_the_simulator_said_so() -> 
         assert proc.stderr is not None
         err = proc.stderr.read()
     assert "built-in simulator" in err and "Traceback" not in err
+    assert err.count("no --port given") == 1 and "for hardware: --port /dev/ttyUSB0" in err, err
 
 
 def test_a_second_ctrl_c_as_the_server_stops_is_the_same_stop() -> None:

@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from ..errors import IcsError, ReplyTimeout
 from ..transports import adapter_advice
-from ._console import err, out
+from ._console import err
 from ._errors import NobodyAnswered, no_reply_error, nobody_at_this_rate, translate
 from ._loop import run_loop
 from ._paths import check_line_files
@@ -22,7 +22,6 @@ T = TypeVar("T")
 _advised: set[str] = set()
 
 SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
-SIMULATED_LINE = "[bold]simulated servos[/bold] (the built-in simulator: no --port given)"
 
 
 def advise(port: str) -> None:
@@ -35,16 +34,13 @@ def advise(port: str) -> None:
 
 
 def note_simulator(settings: Settings) -> None:
-    """Say once, on stderr, that the implicit default simulator is what the command talks to; and in the
-    command's own output too (a line on stdout, ``"simulated": true`` in JSON), since its plausible fake
-    data, read with a robot plugged in, would pass for the robot's."""
+    """Say once, on stderr, that the implicit default simulator is what the command talks to: its plausible fake
+    data, read with a robot plugged in, would pass for the robot's.  Not on stdout, which carries results only
+    (``ics35 get 1 speed | cut ...``); a JSON result says it as data instead (``"simulated": true``)."""
     if settings.port_defaulted:
         settings.port_defaulted = False
         err.print(f"[dim]{escape(SIMULATOR_NOTE)}[/dim]")
         settings.simulated = True
-        params = context.params if (context := click.get_current_context(silent=True)) is not None else {}
-        if params.get("as_json") is False or params.get("as_table") is True:  # text on stdout
-            out.print(SIMULATED_LINE)
 
 
 def require_port(settings: Settings, action: str) -> None:

@@ -74,7 +74,10 @@ def web(
     if line_from_robot:
         err.print("[dim]note: no --port given: the pages start on the robot's first line[/dim]")
     elif settings.port_defaulted:
-        err.print("[dim]note: no --port given: the page serves the built-in simulator[/dim]")
+        err.print(
+            "[dim]note: no --port given: the page serves the built-in simulator (for hardware: --port "
+            "/dev/ttyUSB0)[/dim]"
+        )
     config = LineConfig(
         port=settings.port,
         baud=settings.baud,
