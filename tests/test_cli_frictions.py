@@ -235,3 +235,32 @@ def test_negative_values_still_reach_move_and_set(cli: Any) -> None:
     assert cli("--port", "sim://?ids=1", "move", "1", "-30", "--deg").code == 0
     refused = cli("--port", "sim://?ids=1", "set", "1", "speed", "-5")
     assert refused.code == ExitCode.USAGE and "No such option" not in refused.err, refused.err
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["get", "1", "speed", "--json"],
+        ["info", "1", "--json"],
+        ["info", "1", "--free", "--json"],
+        ["scan", "--ids", "1-2", "--json"],
+        ["eeprom", "dump", "1"],
+        ["monitor", "1", "--free", "--seconds", "0.2", "--json"],
+        ["demo", "--ids", "1-2", "--seconds", "0.2"],
+    ],
+    ids=lambda words: " ".join(words),
+)
+@pytest.mark.parametrize("port", [[], ["--port", "sim://"]], ids=["no port", "sim://"])
+def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_given(
+    cli: Any, command: list[str], port: list[str]
+) -> None:
+    # `get 1 speed --baud 625000` exited 6 ("servo 1 does not answer at 625000 baud, but does at 115200 baud")
+    # while monitor and demo ran the simulator's servos at that rate: it stands in for servos set up for the line.
+    result = cli(*port, *command, "--baud", "625000")
+    assert result.code == 0, result.err
+    if command[0] == "scan":  # (it tries every rate: the servos answer at one)
+        assert [servo["answered_at"] for servo in result.json()["servos"]] == [[625000], [625000]]
+    else:
+        assert "115200" not in result.err + result.out, result.err + result.out
+    if command[:2] == ["eeprom", "dump"]:
+        assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000

@@ -90,6 +90,18 @@ def test_the_url_comes_first_and_the_default_port_is_the_simulator_said_so() -> 
     assert err.count("no --port given") == 1 and "for hardware: --port /dev/ttyUSB0" in err, err
 
 
+def test_without_port_the_simulators_servos_answer_at_the_baud_rate_given() -> None:
+    # As every command's: the built-in simulator stands in for servos set up for the line (they answered only at
+    # 115200, and the page opened on a line where none did).
+    with web("--baud", "625000") as (_, url):
+        base, token = split(url)
+        status, body = get(f"{base}/api/status", token)
+        assert status == 200 and body["baud"] == 625000 and body["connected"] is True, body
+        status, servo = get(f"{base}/api/servo/1/eeprom", token)
+        rate = next(field["value"] for field in servo["fields"] if field["name"] == "baud_rate")
+        assert status == 200 and rate == 625000, servo
+
+
 def test_a_second_ctrl_c_as_the_server_stops_is_the_same_stop() -> None:
     # uvicorn took a second press for "quit now": the requests and pages still being served were cancelled
     # mid-way (a write's answer lost, the page told "Internal Server Error") and tracebacks filled the terminal.

@@ -258,7 +258,7 @@ def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:
         check_plot_path(plot)
     if not settings.is_bare_sim:
         return settings.port
-    settings.port = f"sim://?{sim_query}realtime=1&baud={settings.baud}"
+    settings.port = settings.builtin_sim(f"{sim_query}realtime=1&")
     return "the built-in simulator"
 
 

@@ -104,8 +104,8 @@ class Settings:
     json_output: bool = False  # --json given before the command
     from_environment: tuple[str, ...] = ()  # "ICS35_PORT=/dev/ttyUSB0": line options the environment set
     _sim_name: str | None = field(default=None, init=False, repr=False)
-    # Every name url gave: an error may be said once release_sim has closed its line (see as_given)
-    _sim_names: list[str] = field(default_factory=list, init=False, repr=False)
+    # Every named URL url gave: an error may be said once release_sim has closed its line (see as_given)
+    _sim_urls: list[str] = field(default_factory=list, init=False, repr=False)
 
     @property
     def is_sim(self) -> bool:
@@ -120,30 +120,41 @@ class Settings:
 
         return asks_nothing(self.port)
 
+    def builtin_sim(self, options: str = "") -> str:
+        """The built-in simulator's URL for this command: its servos at the command's baud rate (it stands in for
+        servos set up for this line, so every command finds them at ``--baud``); ``options``: more of its URL's
+        (``realtime=1&``)."""
+        return f"sim://?{options}baud={self.baud}"
+
+    @property
+    def port_to_open(self) -> str:
+        """The port as given, but the simulator with nothing asked of it (``sim://``, the default), which is
+        :meth:`builtin_sim`."""
+        return self.builtin_sim() if self.is_bare_sim else self.port
+
     @property
     def url(self) -> str:
-        """The port to open.  An unnamed sim:// line gets a name, so that every reopening
+        """The port to open (:attr:`port_to_open`).  An unnamed sim:// line gets a name, so that every reopening
         within this command (scan at each baud, a read-back) finds the same simulated servos."""
         from ..transports.wire_device import opens_anew
 
-        if not opens_anew(self.port):
-            return self.port
+        port = self.port_to_open
+        if not opens_anew(port):
+            return port
         from ..sim.url import named_url
 
         if self._sim_name is None:
             self._sim_name = f"ics35-cli-{os.getpid()}-{next(_SIM_NAMES)}"
-            self._sim_names.append(self._sim_name)
-        return named_url(self.port, self._sim_name)
+        url = named_url(port, self._sim_name)
+        if url not in self._sim_urls:
+            self._sim_urls.append(url)
+        return url
 
     def as_given(self, text: str) -> str:
         """``text`` (a library error's) with the port as it was given where it names :attr:`url`: the name an
         unnamed sim:// line got is the command's own, also after :meth:`release_sim` closed that line."""
-        if not self._sim_names:
-            return text
-        from ..sim.url import named_url
-
-        for name in self._sim_names:
-            text = text.replace(named_url(self.port, name), self.port)
+        for url in self._sim_urls:
+            text = text.replace(url, self.port)
         return text
 
     def line_args(self, without: tuple[str, ...] = ()) -> list[str]:

@@ -79,7 +79,7 @@ def web(
             "/dev/ttyUSB0)[/dim]"
         )
     config = LineConfig(
-        port=settings.port,
+        port=settings.port_to_open,
         baud=settings.baud,
         echo=settings.echo,
         adapter_latency=settings.timeout,
