@@ -8,8 +8,10 @@ import click
 from rich.markup import escape
 
 from ..errors import InvalidArgument
+from ..terminal import clear_after_ctrl_c
 from ._common import CliError, ExitCode, err, settings_of
 from ._extras import extra_hint
+from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option
 
 
@@ -103,8 +105,12 @@ def web(
     def warn(text: str) -> None:
         err.print(f"[yellow]warning:[/yellow] {escape(text)}", soft_wrap=True)
 
+    def note(text: str) -> None:
+        clear_after_ctrl_c()  # (said as the server stops: the ^C echoed before it goes)
+        err.print(f"[dim]{escape(text)}[/dim]", soft_wrap=True)
+
     try:
-        serve(
+        cut_short = serve(
             config,
             token,
             where,
@@ -115,11 +121,23 @@ def web(
             robot_options=options,
             robot_start_pose=start_pose,
             line_from_robot=line_from_robot,
+            note=note,
         )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
         raise CliError(ExitCode.USAGE, str(exc)) from None
     except KeyboardInterrupt:
-        pass
+        cut_short = 0
+    # Stopped (the server runs until a stop signal): a double Ctrl-C's later press, landing as the command ends, is
+    # the same stop, not a death by SIGINT as Python ends.
+    same_stop_for_a_moment()
+    if cut_short:
+        which = "a request" if cut_short == 1 else f"{cut_short} requests"
+        raise CliError(
+            ExitCode.INTERRUPTED,
+            f"interrupted: Ctrl-C again stopped the server at once: {which} it was still answering cut short (a "
+            "write on its way may not have been read back: read the servo again); the live plots and motion "
+            "stopped as at any stop, every servo left as it was (holding ones hold)",
+        )
     return 0
 
 

@@ -3,7 +3,9 @@ running it with uvicorn on a socket bound before the URL is printed."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import logging
 import signal
 import socket
 import webbrowser
@@ -20,6 +22,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from ..errors import InvalidArgument, error_text
+from ..terminal import ctrl_c_typed
 from .api import ROUTES
 from .config import LineConfig
 from .joints import RobotSession
@@ -166,31 +169,102 @@ def url_of(sock: socket.socket, token: str) -> str:
     return f"http://{shown}:{port}/?token={token}"
 
 
+class _Answering:
+    """The app, counting the requests it is still answering (WebSockets and the lifespan pass through): what a
+    stop waits for, and what a second Ctrl-C cuts short."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+        self.requests = 0
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        self.requests += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.requests -= 1
+
+
+# How long a stop waits before it says what it waits for (a stop that ends sooner says nothing).
+_SAY_WAITING_AFTER = 1.0
+
+
+class _CutShort(logging.Filter):
+    """uvicorn's report of a request a second Ctrl-C cancelled ("Exception in ASGI application" and the
+    CancelledError's traceback): the command's last line says what was cut short."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.exc_info and record.exc_info[0] is asyncio.CancelledError)
+
+
 def _server_class() -> type[Any]:
     import uvicorn
 
     class Server(uvicorn.Server):
-        """uvicorn's server, but a stop signal the process was started ignoring stays ignored, and a second one
-        as it stops is the same stop.
+        """uvicorn's server, but a stop signal the process was started ignoring stays ignored, and a second
+        Ctrl-C quits at once with the servos left as the stop leaves them.
 
         A shell without job control (a script) starts ``ics35 web &`` with SIGINT ignored, so that the Ctrl-C
         typed for its foreground command is not for it; uvicorn puts its handlers in for SIGINT and SIGTERM
         whatever was there, and that Ctrl-C would stop the server too.  (The other commands keep such a
         signal ignored: see ics35_async.running._heard.)
 
-        uvicorn takes a second Ctrl-C for "quit now": the requests still being answered (an EEPROM write on its
-        way) and the pages' connections were cancelled mid-way, the robot not brought to rest, and tracebacks
-        filled the terminal.  A stop lets what was under way end (as every ``ics35`` command takes a second
-        press for the first's stop): it takes as long as the longest request still being answered.
+        A stop lets what was under way end (an EEPROM write on its way is answered, written and read back),
+        which takes as long as the longest request still being answered.  A second Ctrl-C meanwhile is "quit
+        now", as for every ``ics35`` command: those requests are cancelled, and the app's shutdown still runs
+        (uvicorn's own "quit now" skipped it: a live plot's stream and a robot's motion were dropped mid-way,
+        not stopped).  A later SIGTERM is the same stop.
         """
+
+        answering: _Answering | None = None
+        note: Callable[[str], None] | None = None
+        cut_short = 0
 
         def __init__(self, config: uvicorn.Config) -> None:
             super().__init__(config)
             self.ignored = {sig for sig in _STOPPING if signal.getsignal(sig) is signal.SIG_IGN}
 
         def handle_exit(self, sig: int, frame: FrameType | None) -> None:
-            if sig not in self.ignored and not self.should_exit:
+            if sig in self.ignored:
+                return
+            if sig == signal.SIGINT:
+                ctrl_c_typed()  # (what is said next clears the echoed ^C first)
+            if not self.should_exit:
                 super().handle_exit(sig, frame)
+            elif sig == signal.SIGINT:
+                self.force_exit = True  # (uvicorn's shutdown stops waiting for what is being answered)
+
+        async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+            saying = asyncio.create_task(self._say_what_the_stop_waits_for())
+            try:
+                await super().shutdown(sockets)
+            finally:
+                saying.cancel()
+            if self.force_exit and not self.lifespan.shutdown_event.is_set():
+                # Forced out before the app's shutdown, which uvicorn then skips: the requests still being
+                # answered are cancelled first (they would find the line closed under them), then it runs.
+                self.cut_short = self.answering.requests if self.answering is not None else 0
+                left = [task for task in self.server_state.tasks if not task.done()]
+                quiet = _CutShort()
+                logging.getLogger("uvicorn.error").addFilter(quiet)
+                try:
+                    for task in left:
+                        task.cancel()
+                    if left:
+                        await asyncio.wait(left)
+                finally:
+                    logging.getLogger("uvicorn.error").removeFilter(quiet)
+                await self.lifespan.shutdown()
+
+        async def _say_what_the_stop_waits_for(self) -> None:
+            await asyncio.sleep(_SAY_WAITING_AFTER)
+            requests = self.answering.requests if self.answering is not None else 0
+            if requests and not self.force_exit and self.note is not None:
+                which = "a request" if requests == 1 else f"{requests} requests"
+                self.note(f"stopping: waiting for {which} still being answered (Ctrl-C again: stop at once)")
 
     return Server
 
@@ -210,8 +284,14 @@ def serve(
     robot_options: Mapping[str, Any] | None = None,
     robot_start_pose: Mapping[str, float] | None = None,
     line_from_robot: bool = False,
-) -> None:
-    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong.
+    note: Callable[[str], None] | None = None,
+) -> int:
+    """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
+    ``note`` what the server does as it stops (a stop that waits for requests still being answered).
+
+    A stop lets the requests under way end; a second Ctrl-C meanwhile cuts them short.  Either way the app's
+    own shutdown then runs: the live plots and a playing motion stop as at any stop.  Returns how many requests
+    a second Ctrl-C cut short (0: every one was answered).
 
     ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``);
     ``robot_start_pose``: its ``start_pose`` (where the robot stands: those joints hold there from the start).
@@ -220,8 +300,15 @@ def serve(
     # A bad robot file is refused here, before binding.
     robot = None if robot_file is None else RobotSession(robot_file, robot_options, robot_start_pose)
     sock = bind(listen)
-    app = create_app(
-        LineSession(config), token, loopback=listen.loopback, warn=warn, robot=robot, line_from_robot=line_from_robot
+    app = _Answering(
+        create_app(
+            LineSession(config),
+            token,
+            loopback=listen.loopback,
+            warn=warn,
+            robot=robot,
+            line_from_robot=line_from_robot,
+        )
     )
     url = url_of(sock, token)
     announce(url)  # the socket listens already: a browser that comes now waits in its backlog
@@ -237,10 +324,17 @@ def serve(
             ws_ping_timeout=PAGE_PING_TIMEOUT,
         )
     )
+    server.answering = app
+    server.note = note
     if open_browser:
         with contextlib.suppress(Exception):
             webbrowser.open(url)
     try:
         server.run(sockets=[sock])
+    except KeyboardInterrupt:
+        if not server.should_exit:
+            raise  # (a Ctrl-C before the server took the signals over)
+        # (else uvicorn raising the stop signal again for the program, once stopped: the stop it has made)
     finally:
         sock.close()
+    return int(server.cut_short)
