@@ -65,7 +65,7 @@ def run_loop(make: Callable[[], Awaitable[T]]) -> T:
     started: list[asyncio.Task[T]] = []
     forced: list[asyncio.Task[T]] = []
     presses: list[int] = []
-    _quiet_executor_shutdown()
+    quiet_executor_shutdown()
     loops: list[asyncio.AbstractEventLoop] = []
     awaiting: list[Coroutine[Any, Any, T]] = []  # the coroutine the runner runs, once made
     try:
@@ -138,7 +138,7 @@ def _unstarted(value: object) -> TypeGuard[CoroutineType[Any, Any, Any]]:
     return inspect.iscoroutine(value) and inspect.getcoroutinestate(value) == inspect.CORO_CREATED
 
 
-def _quiet_executor_shutdown() -> None:
+def quiet_executor_shutdown() -> None:
     """Forced out (a later Ctrl-C cut the runner's close short), uvloop's thread that shuts the loop's executor
     down (the one the driver opens ports in) finds the loop closed as it reports back, and Python prints that
     thread's RuntimeError as a traceback.  Nothing is lost there: that one report is dropped (asyncio's own

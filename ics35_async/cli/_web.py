@@ -11,6 +11,7 @@ from ..errors import InvalidArgument
 from ..terminal import clear_after_ctrl_c
 from ._common import CliError, ExitCode, err, settings_of
 from ._extras import extra_hint
+from ._loop import quiet_executor_shutdown
 from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option
 
@@ -109,6 +110,9 @@ def web(
         clear_after_ctrl_c()  # (said as the server stops: the ^C echoed before it goes)
         err.print(f"[dim]{escape(text)}[/dim]", soft_wrap=True)
 
+    # A double Ctrl-C's later press may land as the server's event loop closes, cutting short its executor's
+    # shutdown, whose thread then reported a closed loop with a traceback: that one report is dropped.
+    quiet_executor_shutdown()
     try:
         cut_short = serve(
             config,
