@@ -20,25 +20,27 @@ from ics35_async.sim.console import LineConsole
 SIMULATOR_NOTE = "note: no --port given: this is the built-in simulator (for hardware: --port /dev/ttyUSB0)"
 
 
+_WITH_JSON = [
+    ["get", "1", "speed"],
+    ["info", "1"],
+    ["info", "1", "--free"],
+    ["scan", "--ids", "1-2"],
+    ["eeprom", "dump", "1"],
+    ["monitor", "1", "--free", "--seconds", "0.2"],
+]
+
+
 @pytest.mark.parametrize(
-    "command",
+    ("command", "as_json"),
     [
-        ["get", "1", "speed"],
-        ["info", "1"],
-        ["info", "1", "--free"],
-        ["scan", "--ids", "1-2"],
-        ["eeprom", "dump", "1"],
-        ["monitor", "1", "--free", "--seconds", "0.2"],
-        ["demo", "--ids", "1-2", "--seconds", "0.2"],
+        *((command, as_json) for command in _WITH_JSON for as_json in (False, True)),
+        (["demo", "--ids", "1-2", "--seconds", "0.2"], False),  # (demo has no --json)
     ],
-    ids=lambda words: " ".join(words),
+    ids=lambda value: " ".join(value) if isinstance(value, list) else ("json" if value else "text"),
 )
-@pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
 def test_a_command_without_port_names_the_simulator_once_on_stderr(cli: Any, command: list[str], as_json: bool) -> None:
     # It was said twice: a note on stderr and a line on stdout ("simulated servos (the built-in simulator: no
     # --port given)"), which a pipe (`ics35 get 1 speed | cut -d' ' -f3`) took for a result.
-    if as_json and command[0] == "demo":
-        pytest.skip("demo has no --json")
     result = cli(*command, *(["--json"] if as_json and command[:2] != ["eeprom", "dump"] else []))
     assert result.code == 0, result.err
     assert result.err.splitlines().count(SIMULATOR_NOTE) == 1, result.err

@@ -124,8 +124,10 @@ class Settings:
     def builtin_sim(self, options: str = "") -> str:
         """The built-in simulator's URL for this command: its servos at the command's baud rate (it stands in for
         servos set up for this line, so every command finds them at ``--baud``); ``options``: more of its URL's
-        (``realtime=1&``)."""
-        return f"sim://?{options}baud={self.baud}"
+        (``realtime=1&``).  At its servos' own rate (115200) the URL names none: the configurator's port field
+        shows ``sim://``, as its list of ports does."""
+        query = options if int(self.baud) == FACTORY_BAUD else f"{options}baud={self.baud}"
+        return f"sim://?{query.rstrip('&')}" if query else "sim://"
 
     @property
     def port_to_open(self) -> str:
