@@ -429,9 +429,15 @@ def test_console_refuses_a_replay(tmp_path: Path) -> None:
     assert "--console needs a simulated line, not --replay" in done.stderr
 
 
-def test_ctrl_c_ends_it_while_nobody_reads_its_answers(tmp_path: Path) -> None:
+@pytest.mark.parametrize("buffered", [True, False], ids=["buffered", "unbuffered"])
+def test_ctrl_c_ends_it_while_nobody_reads_its_answers(tmp_path: Path, buffered: bool) -> None:
     # Its stdout a pipe nobody empties: the answers fill it and the console blocks writing one; SIGINT
-    # must still end the simulator (the console is not waited for without end).
+    # must still end the simulator (the console is not waited for without end).  With Python's stdout buffered
+    # (its default; PYTHONUNBUFFERED, set in many containers, hid it) the console's thread, blocked in a write,
+    # held the buffer's lock as Python ended, which then aborted: "Fatal Python error: _enter_buffered_busy".
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONUNBUFFERED"}
+    if not buffered:
+        env["PYTHONUNBUFFERED"] = "1"
     out_r, out_w = os.pipe()
     with open(tmp_path / "notes.log", "w", encoding="utf-8") as err:
         proc = subprocess.Popen(
@@ -439,6 +445,7 @@ def test_ctrl_c_ends_it_while_nobody_reads_its_answers(tmp_path: Path) -> None:
             stdin=subprocess.PIPE,
             stdout=out_w,
             stderr=err,
+            env=env,
         )
     os.close(out_w)
     try:

@@ -256,6 +256,8 @@ class ConsoleReader:
         self._thread = threading.Thread(target=self._run, name="ics35-sim-console", daemon=True)
 
     def start(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            self.out.flush()  # (what was printed before goes first: the answers bypass the stream's buffer)
         self._thread.start()
 
     def close(self) -> None:
@@ -268,6 +270,21 @@ class ConsoleReader:
         for fd in (self._stop_r, self._stop_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+    def _write(self, text: str) -> None:
+        """``text`` to ``out``: on its descriptor directly where it has one.  Through a buffered stream (Python's
+        stdout unless PYTHONUNBUFFERED), a write blocked on a pipe nobody reads held the stream's lock, and Python
+        ending meanwhile (Ctrl-C) aborted on it ("Fatal Python error: _enter_buffered_busy"): a blocked
+        ``os.write`` holds none, and the thread, a daemon, ends with the process."""
+        try:
+            fd = self.out.fileno()
+        except (OSError, ValueError, AttributeError):  # (not a file: a test's StringIO)
+            self.out.write(text)
+            self.out.flush()
+            return
+        data = memoryview(text.encode(self.out.encoding or "utf-8", "replace"))
+        while data:
+            data = data[os.write(fd, data) :]
 
     def _run(self) -> None:
         pending = b""
@@ -286,11 +303,8 @@ class ConsoleReader:
             *lines, pending = pending.split(b"\n")
             for line in lines:
                 answer = self.console.execute(line.decode("utf-8", "replace"))
-                try:
-                    self.out.write(answer + "\n")
-                    self.out.flush()
-                except (OSError, ValueError):
-                    pass  # nobody reads the answers any more: the commands still count
+                with contextlib.suppress(OSError, ValueError):  # (nobody reads them any more: the commands count)
+                    self._write(answer + "\n")
                 if self.console.quit:
                     self.on_end()
                     return
