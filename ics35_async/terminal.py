@@ -12,6 +12,7 @@ import atexit
 import contextlib
 import io
 import os
+import signal
 import stat
 import sys
 import threading
@@ -192,7 +193,11 @@ def _put_back_setting(fd: int) -> None:
     """The terminal's own setting put back (output flushed at Ctrl-C, ``^C`` echoed), as the process ends (unless
     it is no longer the foreground's: a background process changing it would be stopped).  A later press's
     ``^C``, where the terminal still echoed one below the last words, is cleared first: the shell's prompt would
-    follow it ("^C$ "), the process having ended with its exit code."""
+    follow it ("^C$ "), the process having ended with its exit code.  A press from here on is the same stop: it
+    is ignored (one landing in the wait raised KeyboardInterrupt out of it, with its traceback, and the terminal was
+    left keeping its output at Ctrl-C and not echoing ``^C`` for every command after)."""
+    with contextlib.suppress(ValueError):  # (atexit runs this in the main thread: only there can it be set)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     with contextlib.suppress(termios.error, OSError):
         if os.tcgetpgrp(fd) == os.getpgrp():
             time.sleep(_LAST_WORDS_SHOWN)

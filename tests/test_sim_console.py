@@ -22,6 +22,7 @@ import pytest
 from ics35_async import blocking
 from ics35_async.eeprom import BaudRate
 from tests.support.cli_runs import run_process
+from tests.support.terminal import typed_on_a_terminal
 from tests.support.timing import GUARD, PATIENT, PATIENT_OPTION
 
 pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
@@ -464,3 +465,13 @@ def test_ctrl_c_ends_it_while_nobody_reads_its_answers(tmp_path: Path, buffered:
             proc.wait()
     notes = (tmp_path / "notes.log").read_text()
     assert "Traceback" not in notes and "served 0 transactions" in notes, notes
+
+
+@pytest.mark.parametrize("gap", [0.05, 0.1])
+def test_a_double_ctrl_c_ends_it_once_and_puts_the_terminal_back(gap: float) -> None:
+    # The second press landed as the process ended, in the wait that lets the last words reach the terminal before
+    # its own setting is put back: "Exception ignored in atexit callback" and a KeyboardInterrupt's traceback, and
+    # the terminal left keeping its output at Ctrl-C and not echoing ^C for every command after.
+    code, written = typed_on_a_terminal(["sim", "--console", "--ids", "1"], [("type help", b"\x03"), (gap, b"\x03")])
+    assert "Traceback" not in written and "Exception ignored" not in written, written
+    assert code == 0, written
