@@ -75,7 +75,11 @@ time at the device, and what remains is host-side latency (the event loop's
 wake-up, the pty), the same as without the wire model.  Outliers of a few
 ms come from the machine (other processes, the GIL: a delivery thread that
 must wait for an event loop busy running Python code can be held up to
-``sys.getswitchinterval()``, 5 ms).  Fast-mode throughput: about 75 000
+``sys.getswitchinterval()``, 5 ms).  In process such a delay is never the
+servo's: a host that looks for input takes what is due by then on its own
+thread (``deliver_due``), as a real port's bytes wait in the operating
+system's buffer, so a busy program does not see a simulated reply late or
+missing.  Fast-mode throughput: about 75 000
 transactions/s (13 us each) through :meth:`VirtualLine.process`.
 """
 

@@ -57,6 +57,11 @@ class Deliverer:
     yet delivered, e.g. when the port is unplugged.  While it waits the thread
     holds no lock and no GIL except during the final spin.
 
+    A reader may also take what is due on its own thread (:meth:`deliver_due`):
+    the thread is only as punctual as the interpreter lets it be, and a busy
+    program holds it back, where a real device's bytes wait in the operating
+    system's buffer from the moment they arrive.
+
     Args:
         spin_margin: seconds spun (not slept) before each chunk's time.
         name: the thread's name.
@@ -64,26 +69,35 @@ class Deliverer:
 
     def __init__(self, spin_margin: float = SPIN_MARGIN, name: str = "ics35-sim-delivery") -> None:
         self.spin_margin = spin_margin
-        self._heap: list[tuple[float, int, int, Callable[[bytes], None], bytes]] = []
+        self._heap: list[tuple[float, int, bool, Callable[[bytes], None], bytes]] = []
         self._order = itertools.count()
-        self._generation = 0
         self._cond = threading.Condition(threading.Lock())
+        # Held while chunks are handed over, by the thread or a reader taking what is due: one at a time, so
+        # that a chunk popped by one is not overtaken by a later one the other pops.
+        self._handing = threading.Lock()
         self._closed = False
         self.lateness_max = 0.0
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def schedule(self, when: float, data: bytes, sink: Callable[[bytes], None]) -> None:
-        """Call ``sink(data)`` at ``when`` (a ``time.perf_counter()`` value)."""
+    def schedule(self, when: float, data: bytes, sink: Callable[[bytes], None], *, thread_only: bool = False) -> None:
+        """Call ``sink(data)`` at ``when`` (a ``time.perf_counter()`` value).
+
+        ``thread_only``: only the delivery thread calls it (an event, such as an unplug, that stops this
+        deliverer: :meth:`deliver_due` stops in front of it)."""
         with self._cond:
-            heapq.heappush(self._heap, (when, next(self._order), self._generation, sink, data))
+            heapq.heappush(self._heap, (when, next(self._order), thread_only, sink, data))
             self._cond.notify()
+
+    def deliver_due(self, now: float | None = None) -> int:
+        """Hand over now, on the calling thread and in order, every chunk due by ``now`` (default: the present)
+        that the thread has not delivered yet, up to the first that is ``thread_only``; return how many."""
+        return self._hand_over(time.perf_counter() if now is None else now, by_thread=False)
 
     def cancel(self) -> None:
         """Drop every chunk not yet delivered."""
         with self._cond:
             self._heap.clear()
-            self._generation += 1
 
     def pending(self) -> int:
         """How many chunks wait to be delivered."""
@@ -114,12 +128,22 @@ class Deliverer:
                     # Wakes early if an earlier chunk is scheduled meanwhile.
                     cond.wait(remaining - self.spin_margin)
                     continue
-                _, _, generation, sink, data = heapq.heappop(self._heap)
-                stale = generation != self._generation
             while time.perf_counter() < when:
                 pass
-            if stale:
-                continue
-            self.lateness_max = max(self.lateness_max, time.perf_counter() - when)
-            with contextlib.suppress(Exception):  # a host gone away must not kill the thread
-                sink(data)
+            self._hand_over(time.perf_counter(), by_thread=True)
+
+    def _hand_over(self, now: float, *, by_thread: bool) -> int:
+        count = 0
+        cond, heap = self._cond, self._heap
+        with self._handing:
+            while True:
+                with cond:
+                    # (popped under the lock, as a cancel or close empties the heap: what they drop is never handed over)
+                    if not heap or heap[0][0] > now or (heap[0][2] and not by_thread):
+                        return count
+                    when, _, _, sink, data = heapq.heappop(heap)
+                if by_thread:  # (the thread's own punctuality: a reader's look is as late as the reader)
+                    self.lateness_max = max(self.lateness_max, time.perf_counter() - when)
+                with contextlib.suppress(Exception):  # a host gone away must not kill the thread
+                    sink(data)
+                count += 1

@@ -255,12 +255,21 @@ class VirtualLine(LineModel):
                 deliverer.schedule(self.epoch + when, chunk, host.deliver)
             if self.take_unplug_request():
                 when = self.epoch + self.line_free
-                deliverer.schedule(when, b"", lambda _: self.unplug(replug_after=self.replug_after))
+                # (the delivery thread's alone: the unplug stops that deliverer, which a reader must not wait on)
+                deliverer.schedule(when, b"", lambda _: self.unplug(replug_after=self.replug_after), thread_only=True)
         else:
             if chunks:
                 host.deliver(b"".join(chunk for _, chunk in chunks))
             if self.take_unplug_request():
                 self.unplug(replug_after=self.replug_after)
+
+    def deliver_due(self) -> None:
+        """Deliver now, on the calling thread, what is due by now (real time; the WireDevice face): the host
+        looks for input, and a servo's reply that came off the wire is there whatever held the delivery
+        thread back."""
+        deliverer = self._deliverer
+        if deliverer is not None:
+            deliverer.deliver_due()
 
     def disconnect(self) -> None:
         """Close the port for its host (what is still to be delivered is dropped)."""

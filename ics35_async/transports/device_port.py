@@ -35,6 +35,9 @@ class DevicePort:
         # before anything can arrive that it must hear of, and reads on its own side.
         self.on_input: Callable[[], None] = _nobody
         self._chunks: deque[bytes] = deque()  # append and popleft only: safe across threads
+        # A device that delivers from a thread of its own may hand over what is due when the driver looks (see
+        # WireDevice): a busy program holds that thread back, where a real port's bytes wait in the OS's buffer.
+        self._take_due: Callable[[], object] | None = getattr(device, "deliver_due", None)
         self._lost: Exception | None = None
         self._gone = False
 
@@ -62,6 +65,8 @@ class DevicePort:
     @property
     def has_input(self) -> bool:
         """Something to read: bytes, or the news that the device went away."""
+        if self._take_due is not None:
+            self._take_due()
         return bool(self._chunks) or self._lost is not None
 
     def read(self) -> bytes:
@@ -69,6 +74,8 @@ class DevicePort:
 
         Bytes that came before a loss are read first.
         """
+        if self._take_due is not None:
+            self._take_due()
         chunks = self._chunks
         if chunks:
             data = chunks.popleft()

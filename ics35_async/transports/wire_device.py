@@ -43,7 +43,9 @@ class WireDevice(Protocol):
 
     A device may also offer ``discard_input()`` (drop what it has not
     delivered yet, returning how many bytes that was if it knows), called
-    when the line resyncs; it is optional.
+    when the line resyncs, and ``deliver_due()`` (call ``host.deliver`` now,
+    on the calling thread, with whatever is due by now and not yet
+    delivered), called whenever the host looks for input; both are optional.
     """
 
     def connect(self, host: HostSide, baudrate: int) -> None: ...
