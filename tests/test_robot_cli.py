@@ -221,6 +221,27 @@ def test_play_stopped_before_the_first_pass_ends_says_how_far_it_got(
     assert shown and max(shown) <= 0.5  # the clock stops at the limit
 
 
+def test_play_looping_stopped_mid_pass_says_the_pass_its_status_line_said(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A user's trial: Ctrl-C in the second pass of a --loop left the status line at "pass 2" right above a summary
+    # of "1 pass": how far it got could not be told.  The summary counts the whole passes and names the one stopped
+    # part-way with how far into it, as the status line shows them.  (--seconds stops it as Ctrl-C does.)
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 0.5, "pose": {"neck": 30}})
+    result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", "1.5")
+    assert result.code == 0, result.err
+    status = [line for line in result.out.splitlines() if line.startswith("t=")][-1]
+    shown = re.search(r"motion +([\d.]+)/0\.5 s +pass (\d+) ", status)
+    assert shown, result.out
+    into, count = shown[1], int(shown[2])
+    summary = next(line for line in result.out.splitlines() if line.startswith("play time is up after"))
+    assert count >= 2, result.out  # (1.5 s leaves more than one 0.5 s pass, even on a loaded machine)
+    whole = f"{count - 1} pass{'' if count == 2 else 'es'} of 0.5 s"
+    part = f"pass {count} stopped as it began" if float(into) < 0.05 else f"pass {count} stopped {into} s in"
+    assert f": {whole}, then {part};" in summary, result.out
+
+
 @pytest.mark.parametrize(
     ("change", "code", "phrase"),
     [

@@ -150,6 +150,9 @@ def play(
     began = time.monotonic()
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
+    # Seconds into the pass stopped part-way, once a --loop has finished one: the status line showed that pass's
+    # number, so the summary names it too (a first pass stopped is told as the time played).
+    unfinished: list[float] = []
     silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
     rejoined: list[str] = []  # the joints whose servo came back after going offline: given up, sent nothing since
     untargeted: list[str] = []  # the joints opened that never got a target (stopped as it began): left free
@@ -193,12 +196,16 @@ def play(
             # waits for its last targets to go out), so the time into it is not the time modulo the motion's.
             pass_began = [0.0]
 
-            def summary() -> str:
-                # The smooth stop after it (--ramp) is not playing time: the motion stands where it stopped.
+            def clock() -> tuple[float, float]:
+                """Seconds since the motion began and into the pass playing, as the status line and summary say
+                them: the smooth stop after it (--ramp) is not playing time, the motion stands where it stopped."""
                 t = stopped_at[0] if stopped_at else time.monotonic() - start
                 if seconds:
                     t = min(t, seconds)
-                into = min(max(0.0, t - pass_began[0]), total)
+                return t, min(max(0.0, t - pass_began[0]), total)
+
+            def summary() -> str:
+                t, into = clock()
                 limit = f"/{seconds:g}" if seconds else ""
                 count = f"pass {passes + 1}  " if loop else ""
                 return f"t={t:5.1f}{limit} s  motion {into:4.1f}/{total:.1f} s  {count}" + (
@@ -269,6 +276,8 @@ def play(
                     stopped_at.append(time.monotonic() - start)
                     played = min(stopped_at[0], seconds or math.inf, total)
                     if not task.done():
+                        if passes:
+                            unfinished.append(clock()[1])
                         task.cancel()
                         with contextlib.suppress(asyncio.CancelledError, IcsError):
                             await task
@@ -303,6 +312,9 @@ def play(
     length = f"{motion.duration / speed:.1f} s"
     if passes:
         what = f"{passes} pass{'' if passes == 1 else 'es'} of {length}"
+        if unfinished:
+            into = unfinished[0]
+            what += f", then pass {passes + 1} stopped " + ("as it began" if into < 0.05 else f"{into:.1f} s in")
     else:  # (stopped as it began: not "0.0 s", which reads as if nothing could have moved)
         what = f"{'under 0.1' if played < 0.05 else f'{played:.1f}'} s of {length} played"
     left = "free (those it opened)" if on_stop == "free" else _left_holding(moved.joints, untargeted, found)
