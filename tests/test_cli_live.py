@@ -241,6 +241,29 @@ def test_a_reader_that_leaves_the_pipe_ends_monitor_quietly(json_lines: bool) ->
     assert "closed sim://" in err, err
 
 
+@pytest.mark.parametrize("command", [["monitor", "1-4", "--free"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
+def test_a_live_command_into_a_pipe_reads_in_the_order_things_happened(command: list[str]) -> None:
+    # `ics35 monitor 1-4 2>&1 | cat`: its "t=" lines came first, its title only with the table at the end, and the
+    # line saying which IDs it asks not at all, where a terminal shows the title, the asking line, then the table.
+    # Into a pipe each line goes out as it is said, stdout's and stderr's in turn, the title first of stdout's.
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", "sim://?ids=1-4", *command, "--seconds", "1.5"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "100"},
+    )
+    assert proc.returncode == 0, proc.stdout
+    lines = proc.stdout.splitlines()
+    title = next((i for i, line in enumerate(lines) if "one line per second, table at the end" in line), None)
+    first = next((i for i, line in enumerate(lines) if line.startswith("t=")), None)
+    assert title is not None and first is not None and title < first, proc.stdout
+    if command[0] == "monitor":
+        asking = next((i for i, line in enumerate(lines) if line.startswith("asking IDs 1-4 on sim://")), None)
+        assert asking is not None and asking < title, proc.stdout
+
+
 def test_the_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -> None:
     # `monitor 1 --free --timeout 1` where servo 1 does not answer at the line's rate: the command then asked the
     # other rates, a whole allowance each at least, with nothing said until its error.

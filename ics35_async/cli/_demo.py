@@ -120,8 +120,6 @@ def demo(
             title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
             state = LiveState(chosen, title, seconds)
             started.append(state)
-            if not out.is_terminal:
-                out.print(f"{title}; one line per second, table at the end")
             return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
 
     try:

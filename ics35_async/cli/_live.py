@@ -113,6 +113,8 @@ async def run_live(
         try:
             if live is not None:
                 live.start()
+            elif not options.as_json:  # (a log's lines name no command: what they are comes first)
+                out.print(f"{state.title}; one line per second, table at the end")
             try:
                 async with stream:
                     try:

@@ -68,9 +68,10 @@ def monitor(
             chosen = (
                 ids if ids and not every_id(ids) else await discover(bus, settings, shown, as_json, asked_all=bool(ids))
             )
-            if chosen is ids and not as_json and err.is_terminal:
+            if chosen is ids and not as_json:
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
-                # said, as a scan says it scans, so a wait of seconds is not a blank terminal.
+                # said, as a scan says it scans, so a wait of seconds is not a blank terminal (nor a log silent
+                # about what came before its first line).
                 err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
             plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
             freed = plan.free
