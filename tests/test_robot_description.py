@@ -169,7 +169,7 @@ MISTAKES: list[tuple[str, str, str]] = [
     (
         '[lines.main]\nport = "sim://a"\nrate_hz = 0.5\n[joints.x]\nline="main"\nid=1',
         "lines.main.rate_hz",
-        "must be at least 20 cycles per second",
+        "must be a number in 20..10000 cycles per second, got 0.5: a motion goes out as one target a cycle",
     ),
     ('[lines.main]\nport = "sim://a"\nrate_hz = 19.9\n[joints.x]\nline="main"\nid=1', "lines.main.rate_hz", "got 19.9"),
     (
@@ -192,7 +192,11 @@ MISTAKES: list[tuple[str, str, str]] = [
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=32', "joints.x.id", "0..31"),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"', "joints.x.id", "is required"),
     # A float that happens to be whole is named as written: "not 1" would read as nonsense.
-    ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1.0', "joints.x.id", "whole number, not 1.0"),
+    (
+        '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1.0',
+        "joints.x.id",
+        "whole number in 0..31, got 1.0",
+    ),
     (
         '[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\noffset="2"',
         "joints.x.offset",
@@ -257,6 +261,38 @@ def test_each_mistake_names_the_file_and_key_and_opens_nothing(
     finally:
         for sim in sims:
             sim.close()
+
+
+# A user's trial: `rate_hz = 1e9` was told as "got 1e+09", `rate_hz = true` as "not True", and the allowed range only
+# when too high.  Each refusal of a number names the range and shows the value as TOML writes it.
+NUMBER_REFUSALS = [
+    ("rate_hz = 1e9", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got 1000000000"),
+    ("rate_hz = 1000000000", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got 1000000000"),
+    ("rate_hz = 1e300", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got 1e300"),
+    ("rate_hz = true", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got true"),
+    ("rate_hz = nan", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got nan"),
+    ("rate_hz = -inf", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got -inf"),
+    ('rate_hz = "fast"', "lines.main.rate_hz", 'must be a number in 20..10000 cycles per second, got "fast"'),
+    ("rate_hz = [50]", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got an array"),
+    ("rate_hz = 1.5e-7", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got 1.5e-7: a motion"),
+    ("rate_hz = 5", "lines.main.rate_hz", "must be a number in 20..10000 cycles per second, got 5: a motion"),
+    ("retries = false", "lines.main.retries", "must be a whole number in 0..10, got false"),
+    ("retries = 1.0", "lines.main.retries", "must be a whole number in 0..10, got 1.0"),
+    ("retries = 11", "lines.main.retries", "must be a whole number in 0..10, got 11"),
+    ("echo = 1", "lines.main.echo", "must be true or false, got 1"),
+    ("echo = 'yes'", "lines.main.echo", 'must be true or false, got "yes"'),
+    ("direction = false", "lines.main.direction", "must be a non-empty string, got false"),
+]
+
+
+@pytest.mark.parametrize(("line", "key", "phrase"), NUMBER_REFUSALS, ids=[r[0] for r in NUMBER_REFUSALS])
+def test_a_refused_value_is_shown_as_toml_writes_it_beside_what_is_allowed(
+    tmp_path: Path, line: str, key: str, phrase: str
+) -> None:
+    path = write(tmp_path, f'[lines.main]\nport = "sim://a"\n{line}\n[joints.x]\nline = "main"\nid = 1\n')
+    with pytest.raises(DescriptionError) as caught:
+        load_description(path)
+    assert caught.value.key == key and f": {key}: {phrase}" in str(caught.value), caught.value
 
 
 def test_a_lines_direction_control_reaches_its_bus(tmp_path: Path) -> None:

@@ -9,7 +9,9 @@ reverse else +1) * joint degrees``.
 from __future__ import annotations
 
 import difflib
+import json
 import math
+import re
 import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
@@ -240,18 +242,21 @@ class _Reader:
         if not isinstance(value, str) or not value:
             if value is None:
                 raise self.missing(name)
-            raise self.error(name, f"must be a non-empty string, not {value!r}")
+            raise self.error(name, f"must be a non-empty string, got {_toml_said(value)}")
         return value
 
-    def number(self, name: str, low: float, high: float) -> float | None:
+    def number(self, name: str, low: float, high: float, *, unit: str = "", too_low: str = "") -> float | None:
+        """The number ``name`` holds, in ``low..high`` (``unit`` follows the range where it is said); each refusal
+        names the range and the value as the file has it, with ``too_low``, the reason for ``low``, when below it."""
         value = self.get(name)
         if value is None:
             return None
         number = units.finite_number(value)  # (a description built by a program may hold NumPy numbers)
-        if number is None:
-            raise self.error(name, f"must be a number, not {units.said(value)}")
-        if not low <= number <= high:
-            raise self.error(name, f"must be in {low:g}..{high:g}, got {number:g}")
+        if number is None or not low <= number <= high:
+            below = f": {too_low}" if too_low and number is not None and number < low else ""
+            raise self.error(
+                name, f"must be a number in {low:g}..{high:g}{unit and ' '}{unit}, got {_toml_said(value)}{below}"
+            )
         return number
 
     def integer(self, name: str, low: int, high: int, *, required: bool = False) -> int | None:
@@ -261,10 +266,8 @@ class _Reader:
                 raise self.missing(name)
             return None
         number = units.whole_number(value)
-        if number is None:
-            raise self.error(name, f"must be a whole number, not {units.said_not_whole(value)}")
-        if not low <= number <= high:
-            raise self.error(name, f"must be in {low}..{high}, got {number}")
+        if number is None or not low <= number <= high:
+            raise self.error(name, f"must be a whole number in {low}..{high}, got {_toml_said(value, whole=True)}")
         return number
 
     def flag(self, name: str) -> bool | None:
@@ -272,13 +275,38 @@ class _Reader:
         if value is None:
             return None
         if not isinstance(value, bool):
-            raise self.error(name, f"must be true or false, not {value!r}")
+            raise self.error(name, f"must be true or false, got {_toml_said(value)}")
         return value
 
     def done(self) -> None:
         unknown = [k for k in self.table if k not in self.taken]
         if unknown:
             raise self.error(str(unknown[0]), f"unknown key (known: {', '.join(sorted(self.taken))})")
+
+
+def _toml_said(value: object, *, whole: bool = False) -> str:
+    """``value`` as a robot file has it, for a message refusing it: in TOML's words (``true``, ``"fast"``, ``nan``,
+    ``1e300``), a whole float as digits (``rate_hz = 1e9``: ``1000000000``), but as a float (``1.0``) where a
+    ``whole`` number is asked (its digits alone would read as the number asked for)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)  # (a TOML basic string: the quotes and escapes are the same)
+    if isinstance(value, (list, tuple)):
+        return "an array"
+    if isinstance(value, Mapping):
+        return "a table"
+    integer = units.whole_number(value)
+    if integer is not None:
+        return str(integer)
+    number = units.real_number(value)
+    if number is None:
+        return type(value).__name__  # (only a description built by a program holds other things)
+    if not math.isfinite(number):
+        return str(number)  # nan, inf, -inf: TOML's own
+    if number.is_integer() and not whole and abs(number) < 1e16:  # (past it, a float's digits are not all its own)
+        return str(int(number))
+    return re.sub(r"e\+?(-?)0*(?=\d)", r"e\1", repr(number))  # 1e+300 -> 1e300, 1.5e-07 -> 1.5e-7
 
 
 def _kind(value: object) -> str:
@@ -328,16 +356,14 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
             except InvalidArgument:
                 raise r.error("baudrate", f"must be 115200, 625000 or 1250000, got {baud}") from None
         echo = r.flag("echo")
-        rate = r.number("rate_hz", -math.inf, math.inf)
-        if rate is not None and rate > MAX_LINE_RATE_HZ:
-            raise r.error("rate_hz", f"must be in {MIN_LINE_RATE_HZ:g}..{MAX_LINE_RATE_HZ:g}, got {rate:g}")
-        if rate is not None and rate < MIN_LINE_RATE_HZ:
-            raise r.error(
-                "rate_hz",
-                f"must be at least {MIN_LINE_RATE_HZ:g} cycles per second, got {rate:g}: a motion goes out as one "
-                "target a cycle, and fewer cycles would move the joints in jumps at the servos' full speed (leave "
-                "rate_hz out to cycle as fast as the line allows)",
-            )
+        rate = r.number(
+            "rate_hz",
+            MIN_LINE_RATE_HZ,
+            MAX_LINE_RATE_HZ,
+            unit="cycles per second",
+            too_low="a motion goes out as one target a cycle, and fewer cycles would move the joints in jumps at the "
+            "servos' full speed (leave rate_hz out to cycle as fast as the line allows)",
+        )
         retries = r.integer("retries", 0, protocol.MAX_RETRIES)
         direction = r.text("direction")
         if direction is not None and direction not in DIRECTIONS:
