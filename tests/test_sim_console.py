@@ -22,7 +22,7 @@ import pytest
 from ics35_async import blocking
 from ics35_async.eeprom import BaudRate
 from tests.support.cli_runs import run_process
-from tests.support.terminal import typed_on_a_terminal
+from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import GUARD, PATIENT, PATIENT_OPTION
 
 pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
@@ -428,6 +428,70 @@ def test_console_refuses_a_replay(tmp_path: Path) -> None:
     done = run_process("sim", "--console", "--replay", str(recording), timeout=GUARD)
     assert done.returncode == 2
     assert "--console needs a simulated line, not --replay" in done.stderr
+
+
+# A user's trial: on a terminal nothing said that the console waits for a command.  It prompts there, after each
+# answer too; piped, its stdout holds the answers alone (programs read them), and Ctrl-D or Ctrl-C at the prompt
+# ends it with its last words on lines of their own.
+PROMPT = "sim> "
+
+
+@pytest.mark.parametrize(
+    ("key", "last_words"), [(b"\x04", "end of input"), (b"\x03", "served")], ids=["ctrl-d", "ctrl-c"]
+)
+def test_on_a_terminal_the_console_prompts_for_each_command(key: bytes, last_words: str) -> None:
+    code, written = typed_on_a_terminal(
+        ["sim", "--console", "--ids", "1"], [(PROMPT, b"list\n"), ("ID 1: ICS 3.5", b""), (0.3, key)]
+    )
+    screen = screen_of(written)
+    assert code == 0 and "Traceback" not in written, "\n".join(screen)
+    assert f"{PROMPT}list" in screen, "\n".join(screen)  # (the command typed after its prompt)
+    after = screen[screen.index(f"{PROMPT}list") :]
+    assert written.count(PROMPT) == 2, written  # prompted again once answered (Ctrl-C's stop then clears it)
+    ends = [line for line in after if last_words in line]
+    assert ends and all(line.startswith("ics35 sim: ") for line in ends), "\n".join(screen)
+
+
+def test_a_prompt_never_reaches_the_answers_a_program_reads(tmp_path: Path) -> None:
+    # Commands from a pipe: no prompt anywhere.  Typed on a terminal with stdout to a file (as `... | tee log`,
+    # whose answers would reach the terminal after the prompt meant to follow them): the file holds the answers
+    # alone, and no prompt waits on the terminal.
+    piped = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "sim", "--fast", "--console", "--ids", "1"],
+        input="list\n",
+        capture_output=True,
+        text=True,
+        timeout=GUARD,
+    )
+    assert piped.returncode == 0, piped.stderr
+    assert piped.stdout.splitlines()[1:] == ["list: 1 servo", "  ID 1: ICS 3.5, 115200 bit/s, at 7500, free"]
+    assert PROMPT.strip() not in piped.stdout + piped.stderr, piped.stderr
+    answers = tmp_path / "answers.txt"
+    code, written = typed_on_a_terminal(
+        ["sim", "--console", "--ids", "1"],
+        [("type help", b"list\n"), (lambda: "ID 1:" in answers.read_text(), b"quit\n")],
+        stdout=answers,
+    )
+    assert code == 0 and PROMPT.strip() not in written, written
+    assert answers.read_text().splitlines()[1:] == [
+        "list: 1 servo",
+        "  ID 1: ICS 3.5, 115200 bit/s, at 7500, free",
+        "quit: the simulator stops",
+    ]
+
+
+def test_the_simulators_own_line_keeps_the_prompt_below_it() -> None:
+    # `--unplug-after` says the port went while the prompt waits: "sim> ics35 sim: the port was unplugged ...".
+    # The prompt comes back below it, and the console still answers.
+    code, written = typed_on_a_terminal(
+        ["sim", "--console", "--ids", "1", "--unplug-after", "0.5"],
+        [(PROMPT, b""), ("the port was unplugged", b"list\n"), ("list: 1 servo", b"\x03")],
+    )
+    screen = screen_of(written)
+    assert code == 0 and "Traceback" not in written, "\n".join(screen)
+    said = [line for line in screen if "the port was unplugged" in line]
+    assert said and said[0].startswith("ics35 sim: "), "\n".join(screen)
+    assert written.rindex(PROMPT) > written.index("the port was unplugged"), written  # (prompted again below)
 
 
 @pytest.mark.parametrize("buffered", [True, False], ids=["buffered", "unbuffered"])

@@ -30,10 +30,12 @@ from typing import ClassVar, TextIO
 
 from ..eeprom import BaudRate
 from ..errors import InvalidArgument, error_text
+from ..terminal import ERASE_LINE
 from ..units import TRAVEL_MAX, TRAVEL_MIN, position_to_degrees
 from .virtual_line import ServoState, VirtualLine
 from .virtual_servo import VirtualServo
 
+PROMPT = "sim> "  # (on a terminal only: see ConsoleReader)
 HELP = (
     "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], power [ID], "
     "turn ID POSITION (by hand, 3500..11500), list, help, quit"
@@ -243,15 +245,30 @@ class LineConsole:
 class ConsoleReader:
     """Reads commands from ``fd`` in a thread, one a line, and writes each answer to ``out``.
 
-    ``on_end`` is called (from that thread) at the end of input and after ``quit``; :meth:`close`
-    stops the thread, from any other thread.
+    ``prompt``, when given, is written to ``prompt_out`` (the terminal a person types on, not a program reading
+    the answers) before each command is read; a line said meanwhile goes through :meth:`aside`.  ``on_end`` is
+    called (from that thread) at the end of input and after ``quit``; :meth:`close` stops the thread, from any
+    other thread.
     """
 
-    def __init__(self, console: LineConsole, on_end: Callable[[], None], *, fd: int = 0, out: TextIO) -> None:
+    def __init__(
+        self,
+        console: LineConsole,
+        on_end: Callable[[], None],
+        *,
+        fd: int = 0,
+        out: TextIO,
+        prompt: str = "",
+        prompt_out: TextIO | None = None,
+    ) -> None:
         self.console = console
         self.on_end = on_end
         self.fd = fd
         self.out = out
+        self.prompt = prompt
+        self.prompt_out = prompt_out
+        self._prompted = False  # the cursor stands after a prompt: what is written next must not follow it
+        self._prompt_lock = threading.Lock()  # (a line said aside comes from another thread)
         self._stop_r, self._stop_w = os.pipe()
         self._thread = threading.Thread(target=self._run, name="ics35-sim-console", daemon=True)
 
@@ -267,27 +284,59 @@ class ConsoleReader:
             # Bounded: the thread may be blocked writing an answer to a stdout nobody reads (a full pipe),
             # where the stop pipe cannot reach it; a daemon, it then ends with the process.
             self._thread.join(timeout=1.0)
+        if not self._thread.is_alive():
+            # Stopped at the prompt (a signal): it goes, with the ^C a Ctrl-C echoed after it, so the last words
+            # start a line of their own.
+            with self._prompt_lock:
+                if self._prompted:
+                    self._prompted = False
+                    self._write_to(self.prompt_out, ERASE_LINE)
         for fd in (self._stop_r, self._stop_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
 
+    def aside(self, say: Callable[[], None]) -> None:
+        """``say()`` writes a line of the simulator's own (the port unplugged): where the prompt waits, it goes
+        first and comes back below that line, so the line starts where it should and the prompt stays last."""
+        with self._prompt_lock:
+            if self._prompted:
+                self._write_to(self.prompt_out, ERASE_LINE)
+            say()
+            if self._prompted:
+                self._write_to(self.prompt_out, self.prompt)
+
     def _write(self, text: str) -> None:
-        """``text`` to ``out``: on its descriptor directly where it has one.  Through a buffered stream (Python's
-        stdout unless PYTHONUNBUFFERED), a write blocked on a pipe nobody reads held the stream's lock, and Python
-        ending meanwhile (Ctrl-C) aborted on it ("Fatal Python error: _enter_buffered_busy"): a blocked
+        self._write_to(self.out, text)
+
+    @staticmethod
+    def _write_to(stream: TextIO | None, text: str) -> None:
+        """``text`` to ``stream``: on its descriptor directly where it has one.  Through a buffered stream
+        (Python's stdout unless PYTHONUNBUFFERED), a write blocked on a pipe nobody reads held the stream's lock,
+        and Python ending meanwhile (Ctrl-C) aborted on it ("Fatal Python error: _enter_buffered_busy"): a blocked
         ``os.write`` holds none, and the thread, a daemon, ends with the process."""
-        try:
-            fd = self.out.fileno()
-        except (OSError, ValueError, AttributeError):  # (not a file: a test's StringIO)
-            self.out.write(text)
-            self.out.flush()
+        if stream is None:
             return
-        data = memoryview(text.encode(self.out.encoding or "utf-8", "replace"))
-        while data:
-            data = data[os.write(fd, data) :]
+        with contextlib.suppress(OSError, ValueError):  # (nobody reads them any more: the commands count)
+            try:
+                fd = stream.fileno()
+            except (OSError, ValueError, AttributeError):  # (not a file: a test's StringIO)
+                stream.write(text)
+                stream.flush()
+                return
+            data = memoryview(text.encode(stream.encoding or "utf-8", "replace"))
+            while data:
+                data = data[os.write(fd, data) :]
+
+    def _ask(self) -> None:
+        """The prompt, where a person types the commands."""
+        if self.prompt and self.prompt_out is not None:
+            with self._prompt_lock:
+                self._write_to(self.prompt_out, self.prompt)
+                self._prompted = True
 
     def _run(self) -> None:
         pending = b""
+        self._ask()
         while True:
             try:
                 readable, _, _ = select.select([self.fd, self._stop_r], [], [])
@@ -297,14 +346,22 @@ class ConsoleReader:
             except OSError:
                 data = b""  # no input to read (closed, or not readable): as at its end
             if not data:
+                with self._prompt_lock:
+                    if self._prompted:  # (Ctrl-D at the prompt: the words saying so go below it, as a shell's do)
+                        self._prompted = False
+                        self._write_to(self.prompt_out, "\n")
                 self.on_end()
                 return
             pending += data
             *lines, pending = pending.split(b"\n")
+            if lines:
+                with self._prompt_lock:
+                    self._prompted = False  # (the line typed ended with its newline, echoed by the terminal)
             for line in lines:
                 answer = self.console.execute(line.decode("utf-8", "replace"))
-                with contextlib.suppress(OSError, ValueError):  # (nobody reads them any more: the commands count)
-                    self._write(answer + "\n")
+                self._write(answer + "\n")
                 if self.console.quit:
                     self.on_end()
                     return
+            if lines:
+                self._ask()

@@ -8,10 +8,11 @@ SIGTERM (see :mod:`.pty_server`); with ``--console`` it also takes commands on s
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import FrameType
 from typing import Any
 
@@ -20,7 +21,7 @@ from ..errors import InvalidArgument, error_text
 from ..terminal import clear_echoed_ctrl_c, in_background_of_terminal
 from ..units import parse_ids
 from .adapter import ADAPTER_KINDS, DEFAULT_LATENCY_TIMER_MS, make_adapter
-from .console import ConsoleReader, LineConsole
+from .console import PROMPT, ConsoleReader, LineConsole
 from .faults import FaultConfig
 from .model import DEFAULT_EEPROM_WRITE_DELAY, DEFAULT_TAIL_BYTES, DEFAULT_TAIL_DELAY, DEFAULT_TURNAROUND
 from .pty_port import LinkFolderGone
@@ -192,17 +193,15 @@ def option_ids(text: str | None, option: str) -> list[int]:
         raise InvalidArgument(f"{option} {text}: {exc}") from None
 
 
-def say_unplugs(device: VirtualLine, started: float) -> None:
-    """Say on stderr, one line each time, that the port went (``--unplug-after``, an ``unplug`` fault) and when
-    it comes back: a person watching the simulator's terminal tells its doing from their own program's fault."""
+def say_unplugs(device: VirtualLine, started: float, say: Callable[[str], None]) -> None:
+    """``say`` a line each time the port goes (``--unplug-after``, an ``unplug`` fault) and when it comes back: a
+    person watching the simulator's terminal tells its doing from their own program's fault."""
 
     def said(plugged: bool) -> None:
         if not plugged:
-            print(
+            say(
                 f"ics35 sim: the port was unplugged ({time.monotonic() - started:.1f} s after the start): it comes "
-                f"back in {device.replug_after:g} s, at the same path",
-                file=sys.stderr,
-                flush=True,
+                f"back in {device.replug_after:g} s, at the same path"
             )
 
     device.add_listener(said)
@@ -233,8 +232,17 @@ def main(
         option = "--replay" if args.replay is not None else "--record"
         path = args.replay if args.replay is not None else args.record
         parser.error(f"{option} {path}: {exc.strerror or error_text(exc)}")
+    console: ConsoleReader | None = None
+
+    def note(text: str) -> None:
+        """A line of the simulator's own on stderr, from any thread: with the console's prompt kept last."""
+        if console is None:
+            print(text, file=sys.stderr, flush=True)
+        else:
+            console.aside(lambda: print(text, file=sys.stderr, flush=True))
+
     if isinstance(device, VirtualLine):
-        say_unplugs(device, started)
+        say_unplugs(device, started, note)
         if unplug_after is not None:  # (scheduled once it will be said, however soon it comes)
             device.schedule_unplug(unplug_after, device.replug_after)
     if args.tap is not None and not isinstance(device, VirtualLine):
@@ -268,7 +276,6 @@ def main(
         if signal.getsignal(sig) is not signal.SIG_IGN
     ]
     previous = {sig: signal.signal(sig, on_signal) for sig in stops}
-    console: ConsoleReader | None = None
     code = 0
     try:
         path = server.open()
@@ -296,12 +303,18 @@ def main(
                     print("ics35 sim: console: end of input: the simulator stops", file=sys.stderr, flush=True)
                 server.stop()
 
-            console = ConsoleReader(commands, on_end, out=sys.stdout)
+            # A prompt only for a person typing on the terminal the answers go to, as Python's input() has it:
+            # never in the answers a program reads (stdout a pipe or a file: through `| cat` they would also come
+            # after the prompt that should follow them).
+            prompting = os.isatty(0) and sys.stdout.isatty()
+            console = ConsoleReader(
+                commands, on_end, out=sys.stdout, prompt=PROMPT, prompt_out=sys.stdout if prompting else None
+            )
             print("ics35 sim: console: type help for its commands, quit to stop", file=sys.stderr, flush=True)
             console.start()
         server.serve()
     except LinkFolderGone as exc:
-        print(f"ics35 sim: {exc}; the simulator stops", file=sys.stderr, flush=True)
+        note(f"ics35 sim: {exc}; the simulator stops")
         code = 1
     finally:
         if console is not None:
