@@ -152,6 +152,39 @@ def test_a_second_ctrl_c_stops_the_server_at_once_saying_what_it_cut_short() -> 
     assert "cut short" in last and "every servo left as it was" in last, err
 
 
+def answer_of(asking: socket.socket) -> bytes:
+    """Everything the server sent on ``asking`` until it closed it."""
+    asking.settimeout(scaled(10))
+    answer = b""
+    while chunk := asking.recv(4096):
+        answer += chunk
+    return answer
+
+
+def test_a_request_a_second_ctrl_c_cuts_short_is_answered_service_unavailable() -> None:
+    # The request cut short was answered "500 Internal Server Error": a fault of the server, where the person
+    # stopped it.  It is answered 503 with the reason in plain words, and nothing is logged about it.
+    with web("--port", "sim://?ids=1", "--timeout", "2") as (proc, url):
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200  # (the server runs: the URL comes before it starts)
+        asking = request_under_way(base, token, "/api/servo/5/eeprom")
+        time.sleep(0.5)  # (under way: the server has it)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)  # and again: now
+        try:
+            answer = answer_of(asking)
+            code = proc.wait(scaled(10))
+        finally:
+            asking.close()
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+    head, _, body = answer.partition(b"\r\n\r\n")
+    assert head.startswith(b"HTTP/1.1 503 "), answer
+    assert b"content-type: text/plain" in head.lower() and body == b"the server is stopping", answer
+    assert code == 130 and "Traceback" not in err and "Exception" not in err, err
+
+
 @pytest.mark.parametrize("gap", [0.05, 0.3, 0.4, 0.5])
 def test_a_second_ctrl_c_with_nothing_left_to_wait_for_is_the_same_stop(gap: float) -> None:
     # Only pages open: the stop ends them at once, and a double press, as a person types it, ends as one does

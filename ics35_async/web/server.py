@@ -171,21 +171,55 @@ def url_of(sock: socket.socket, token: str) -> str:
 
 class _Answering:
     """The app, counting the requests it is still answering (WebSockets and the lifespan pass through): what a
-    stop waits for, and what a second Ctrl-C cuts short."""
+    stop waits for, and what a second Ctrl-C cuts short.
+
+    A request cut short before its answer began is answered 503 with the reason (:data:`STOPPING_REASON`): the
+    person stopped the server, which is no fault of its own (uvicorn would answer 500 and log the cancellation).
+    """
 
     def __init__(self, app: Any) -> None:
         self.app = app
         self.requests = 0
+        self.cutting_short = False  # (set by a second Ctrl-C, before the requests under way are cancelled)
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        answer_begun = False
+
+        async def sending(message: Any) -> None:
+            nonlocal answer_begun
+            answer_begun = answer_begun or message["type"] == "http.response.start"
+            await send(message)
+
         self.requests += 1
         try:
-            await self.app(scope, receive, send)
+            await self.app(scope, receive, sending)
+        except asyncio.CancelledError:
+            if not self.cutting_short or answer_begun:
+                raise  # (an answer under way can only be broken off: uvicorn closes its connection)
+            await _stopping_answer(send)
         finally:
             self.requests -= 1
+
+
+STOPPING_REASON = b"the server is stopping"
+
+
+async def _stopping_answer(send: Any) -> None:
+    await send(
+        {
+            "type": "http.response.start",
+            "status": 503,
+            "headers": [
+                (b"content-type", b"text/plain; charset=utf-8"),
+                (b"content-length", str(len(STOPPING_REASON)).encode()),
+                (b"connection", b"close"),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": STOPPING_REASON})
 
 
 # How long a stop waits before it says what it waits for (a stop that ends sooner says nothing).
@@ -193,8 +227,8 @@ _SAY_WAITING_AFTER = 1.0
 
 
 class _CutShort(logging.Filter):
-    """uvicorn's report of a request a second Ctrl-C cancelled ("Exception in ASGI application" and the
-    CancelledError's traceback): the command's last line says what was cut short."""
+    """uvicorn's report of a request a second Ctrl-C cancelled once its answer had begun ("Exception in ASGI
+    application" and the CancelledError's traceback): the command's last line says what was cut short."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return not (record.exc_info and record.exc_info[0] is asyncio.CancelledError)
@@ -214,7 +248,8 @@ def _server_class() -> type[Any]:
 
         A stop lets what was under way end (an EEPROM write on its way is answered, written and read back),
         which takes as long as the longest request still being answered.  A second Ctrl-C meanwhile is "quit
-        now", as for every ``ics35`` command: those requests are cancelled, and the app's shutdown still runs
+        now", as for every ``ics35`` command: those requests are cancelled (answered 503, the server is stopping,
+        when their answer had not begun), and the app's shutdown still runs
         (uvicorn's own "quit now" skipped it: a live plot's stream and a robot's motion were dropped mid-way,
         not stopped).  A later SIGTERM is the same stop.
         """
@@ -247,6 +282,8 @@ def _server_class() -> type[Any]:
                 # Forced out before the app's shutdown, which uvicorn then skips: the requests still being
                 # answered are cancelled first (they would find the line closed under them), then it runs.
                 self.cut_short = self.answering.requests if self.answering is not None else 0
+                if self.answering is not None:
+                    self.answering.cutting_short = True
                 left = [task for task in self.server_state.tasks if not task.done()]
                 quiet = _CutShort()
                 logging.getLogger("uvicorn.error").addFilter(quiet)
@@ -289,7 +326,8 @@ def serve(
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
     ``note`` what the server does as it stops (a stop that waits for requests still being answered).
 
-    A stop lets the requests under way end; a second Ctrl-C meanwhile cuts them short.  Either way the app's
+    A stop lets the requests under way end; a second Ctrl-C meanwhile cuts them short (answered 503, "the server
+    is stopping").  Either way the app's
     own shutdown then runs: the live plots and a playing motion stop as at any stop.  Returns how many requests
     a second Ctrl-C cut short (0: every one was answered).
 
