@@ -220,6 +220,56 @@ def test_a_server_started_ignoring_sigint_keeps_ignoring_it() -> None:
     assert "Traceback" not in err, err
 
 
+def with_browser(browser: str, *args: str) -> tuple[str, str]:
+    """``ics35 web`` (stdout's first line, stderr) stopped once it answers, with ``$BROWSER`` the only browser there
+    is: no display, no terminal browser (as on a headless machine or across ssh)."""
+    gone = ("ICS35_PORT", "ICS35_WEB_TOKEN", "DISPLAY", "WAYLAND_DISPLAY", "TERM")
+    environment = {k: v for k, v in os.environ.items() if k not in gone}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ics35_async.cli", "web", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**environment, "BROWSER": browser},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    try:
+        url = proc.stdout.readline().strip()
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200  # (the server runs, the browser tried before it)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(scaled(10)) == 0
+        return url, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+NO_BROWSER_OPENED = "no browser could be opened here: open the address above in one yourself"
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="another system has a browser of its own besides $BROWSER")
+def test_where_no_browser_can_be_opened_the_command_says_so_once(tmp_path: Path) -> None:
+    # A headless machine, an ssh session: the browser fails to open, and the command said nothing of it.
+    url, err = with_browser("false")
+    assert url.startswith("http://127.0.0.1:") and "/?token=" in url
+    assert err.count(NO_BROWSER_OPENED) == 1 and "Traceback" not in err, err
+    # A browser that opens: nothing said; it was given the address.
+    opened = tmp_path / "opened"
+    browser = tmp_path / "browser"
+    browser.write_text(f'#!/bin/sh\necho "$1" > {opened}\n')
+    browser.chmod(0o755)
+    url, err = with_browser(str(browser))
+    assert opened.read_text().strip() == url and NO_BROWSER_OPENED not in err, err
+    # --no-browser: none tried, and nothing said about it.
+    opened.unlink()
+    url, err = with_browser(str(browser), "--no-browser")
+    assert not opened.exists() and NO_BROWSER_OPENED not in err and url.startswith("http://"), err
+
+
 def test_a_token_from_the_environment_or_a_file_is_the_one_asked_for(tmp_path: Path) -> None:
     token = "robot-board-token-1234567890"
     with web(env={"ICS35_WEB_TOKEN": token}) as (_, url):

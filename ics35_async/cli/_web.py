@@ -110,6 +110,14 @@ def web(
         clear_after_ctrl_c()  # (said as the server stops: the ^C echoed before it goes)
         err.print(f"[dim]{escape(text)}[/dim]", soft_wrap=True)
 
+    def no_browser_opened() -> None:
+        # (said once: the page is there all the same, at the address on stdout's first line)
+        err.print(
+            "[dim]note: no browser could be opened here: open the address above in one yourself "
+            "(--no-browser: none is tried)[/dim]",
+            soft_wrap=True,
+        )
+
     # A double Ctrl-C's later press may land as the server's event loop closes, cutting short its executor's
     # shutdown, whose thread then reported a closed loop with a traceback: that one report is dropped.
     quiet_executor_shutdown()
@@ -126,6 +134,7 @@ def web(
             robot_start_pose=start_pose,
             line_from_robot=line_from_robot,
             note=note,
+            no_browser_opened=no_browser_opened,
         )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
         raise CliError(ExitCode.USAGE, str(exc)) from None

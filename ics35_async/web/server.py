@@ -309,6 +309,15 @@ def _server_class() -> type[Any]:
 _STOPPING = (signal.SIGINT, signal.SIGTERM)
 
 
+def _browser_opened(url: str) -> bool:
+    """Whether the default browser took ``url``: False where none could be started (no display, no browser
+    installed, ``$BROWSER`` failing), which :func:`webbrowser.open` says by returning False or by raising."""
+    try:
+        return webbrowser.open(url)
+    except Exception:  # (whatever a platform's browser launcher raises: the address is printed all the same)
+        return False
+
+
 def serve(
     config: LineConfig,
     token: str,
@@ -322,9 +331,12 @@ def serve(
     robot_start_pose: Mapping[str, float] | None = None,
     line_from_robot: bool = False,
     note: Callable[[str], None] | None = None,
+    no_browser_opened: Callable[[], None] | None = None,
 ) -> int:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
-    ``note`` what the server does as it stops (a stop that waits for requests still being answered).
+    ``note`` what the server does as it stops (a stop that waits for requests still being answered),
+    ``no_browser_opened`` that ``open_browser`` was asked for and no browser could be opened (a headless machine,
+    an ssh session): the address announced is then for the person to open.
 
     A stop lets the requests under way end; a second Ctrl-C meanwhile cuts them short (answered 503, "the server
     is stopping").  Either way the app's
@@ -364,9 +376,8 @@ def serve(
     )
     server.answering = app
     server.note = note
-    if open_browser:
-        with contextlib.suppress(Exception):
-            webbrowser.open(url)
+    if open_browser and not _browser_opened(url) and no_browser_opened is not None:
+        no_browser_opened()
     try:
         server.run(sockets=[sock])
     except KeyboardInterrupt:
