@@ -540,6 +540,21 @@ def test_doctor_says_why_no_servo_answered_as_the_other_commands_do(cli: Any) ->
     assert "no servo answered" in nobody.err and "hint: check the servo has power" in nobody.err
 
 
+def test_doctor_says_which_other_rates_it_tried_when_nothing_answered_at_any(cli: Any) -> None:
+    # Nothing at the line's rate, nor at the others doctor then asks (a whole allowance each): the wait went
+    # unexplained, and the advice read as if the other rates were still to be tried.  One line names them, in the
+    # text and in the JSON's finding alike (on a terminal each is also said as it is tried: see below).
+    text = cli("doctor", "--port", "sim://?ids=9", "--ids", "0-3")
+    assert text.code == 4, text.err
+    assert text.err.count("nor any device at 625000 or 1250000 baud") == 1, text.err
+    assert "error: no servo answered on sim://?ids=9 at 115200 baud, nor any device at 625000 or 1250000 baud" in (
+        text.err
+    )
+    report = cli("doctor", "--port", "sim://?ids=none", "--baud", "625000", "--json")
+    (line,) = [f for f in report.json()["findings"] if f["check"] == "line"]
+    assert line["problem"].endswith("at 625000 baud, nor any device at 115200 or 1250000 baud"), line
+
+
 async def test_a_port_lost_while_measuring_is_the_ports_error_not_failed_reads() -> None:
     # An adapter pulled during doctor's measurement was "N of M reads failed: check the wiring and the
     # servos' power", exit 0.

@@ -289,6 +289,25 @@ async def test_servo_rates_asks_each_other_rate_once_with_the_whole_allowance(li
     assert await servo_rates(opener(sim, retries=1), 2, [625000, 1250000]) == (1250000,)
 
 
+async def test_a_search_of_the_other_rates_says_which_it_tried_and_where_a_device_answers(lines: Any) -> None:
+    # After nothing answered at a line's rate, doctor and the configurator's Line page look at the other rates, and
+    # said nothing of which once the search found nothing: the search tells which rates it tried, in words too.
+    from ics35_async.policies import search_other_rates
+
+    sim = lines([VirtualServo(2, baud_rate=1250000)])
+    told: list[int] = []
+    search = await search_other_rates(opener(sim), [115200], on_rate=told.append)
+    assert (search.tried, search.found) == ((625000, 1250000), (1250000,)) and told == [625000, 1250000]
+    assert search.nothing_elsewhere() is None  # (a device answers at 1250000)
+    empty = lines([])
+    nobody = await search_other_rates(opener(empty), [625000])
+    assert (nobody.tried, nobody.found) == ((115200, 1250000), ())
+    assert nobody.nothing_elsewhere() == "nor any device at 115200 or 1250000 baud"
+    assert (await search_other_rates(opener(empty), ALL_BAUDS)).tried == ()  # (no other rate to try)
+    with pytest.raises(InvalidArgument):
+        await search_other_rates(opener(empty), [9600])
+
+
 @pytest.mark.parametrize("seed", range(4))
 async def test_a_cut_reply_is_garbled_and_no_reply_is_silence(lines: Any, seed: int) -> None:
     sim = lines([VirtualServo(2)], faults="truncate@2:1.0", seed=seed)

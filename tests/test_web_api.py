@@ -161,6 +161,20 @@ def test_a_scan_where_nothing_answers_at_the_lines_rate_names_the_rate_a_device_
     assert [s["id"] for s in report["servos"]] == [3] and report["answers_at"] is None, report
 
 
+def test_a_scan_where_nothing_answers_anywhere_names_the_other_rates_it_tried(serve: Any) -> None:
+    # The page said "tick every baud rate" after a scan that had just looked at every other rate (a whole
+    # allowance each) and found nothing there: the report names the rates tried, which the page says.
+    client, sim = serve(())
+    report = post(client, "/api/scan").json()
+    assert report["servos"] == [] and report["answers_at"] is None and report["rates_tried"] == [625000, 1250000]
+    three = VirtualServo(3)
+    sim.add_device(three)
+    assert post(client, "/api/scan").json()["rates_tried"] == []  # (one answered: no other rate asked)
+    sim.remove_device(three)
+    everywhere = post(client, "/api/scan", {"bauds": [115200, 625000, 1250000]}).json()
+    assert everywhere["servos"] == [] and everywhere["rates_tried"] == [], everywhere  # (none left to try)
+
+
 def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_found_before_it_with_the_loss() -> None:
     # Nothing found is lost work: the page lists servos 1, 2 and 20 (its EEPROM unread), then says the line went.
     puller = UnplugsWhenAsked(20, ReadEeprom)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from typing import Any
@@ -41,13 +42,14 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) ->
     where = f"{settings.port} at {settings.baud} baud"
     if probed.silent and settings.echo:
         return nothing_answered(settings, where, silent=True)
-    rates: tuple[int, ...] = ()
+    search = policies.RateSearch((settings.baud,))
     if carries_line_settings(settings.port):  # (a link blind to the rate would answer at every one)
-        try:
-            others = [rate for rate in policies.ALL_BAUDS if rate != settings.baud]
-            rates = await policies.device_rates(policies.reopening(bus), others, on_rate=trying_rates(settings))
-        except (IcsError, OSError):
-            pass  # advice only: a port that cannot be opened again leaves what was said
+        # (advice only: a port that cannot be opened again leaves what was said)
+        with contextlib.suppress(IcsError, OSError):
+            search = await policies.search_other_rates(
+                policies.reopening(bus), [settings.baud], on_rate=trying_rates(settings)
+            )
+    rates = search.found
     if probed.garbled:
         garbled = answered_garbled(settings, where, [(settings.baud, i) for i in sorted(probed.garbled)])
         if rates:  # (a servo at another rate can garble what it hears at this one)
@@ -59,7 +61,10 @@ async def why_nobody(settings: Settings, bus: Bus, probed: policies.RateScan) ->
             f"no servo answered on {where}, but a device does at {rates[0]} baud",
             f"pass --baud {rates[0]}",
         )
-    return nothing_answered(settings, where, silent=False)
+    # The rates tried, said once (a terminal also saw each as it was tried): the wait is explained, and the advice
+    # is not read as if they were still to be tried.
+    elsewhere = search.nothing_elsewhere()
+    return nothing_answered(settings, where if elsewhere is None else f"{where}, {elsewhere}", silent=False)
 
 
 def measure(

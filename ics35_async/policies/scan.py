@@ -35,7 +35,7 @@ read adds no entry beside the servo read under that ID.  An ID none of
 whose images could be read is listed once, ``rate_unconfirmed``.
 
 A search of the other rates after nothing answered at a line's own
-(:func:`device_rates`, :func:`servo_rates`) asks each rate once: it only
+(:func:`device_rates`, :func:`search_other_rates`, :func:`servo_rates`) asks each rate once: it only
 needs to hear whether anything answers there, and a retry at a silent rate
 would cost two whole allowances more (the retry, and the guard read before
 it).  Each ask keeps the line's whole allowance: nothing has answered to
@@ -434,10 +434,11 @@ async def _rates_where(
     bauds: Iterable[int],
     answers: Callable[[Line, int], Awaitable[bool]],
     on_rate: RateCallback | None,
+    tried: list[int] | None = None,
 ) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``answers(line, baud)`` is True, the line opened there with
-    ``open_at(baud)`` (``on_rate(baud)`` told first).  A rate the port cannot be opened at is left out; on a
-    line that ignores rates none is offered (every rate is the far end's one rate)."""
+    ``open_at(baud)`` (``on_rate(baud)`` told first, and the rate added to ``tried``).  A rate the port cannot be
+    opened at is left out; on a line that ignores rates none is offered (every rate is the far end's one rate)."""
     found: list[int] = []
     skipped: dict[int, IcsError] = {}
     for baud in _check_bauds(bauds):
@@ -449,9 +450,53 @@ async def _rates_where(
                 return ()
             if on_rate is not None:
                 on_rate(baud)
+            if tried is not None:
+                tried.append(baud)
             if await answers(line, baud):
                 found.append(baud)
     return tuple(found)
+
+
+@dataclass(frozen=True)
+class RateSearch:
+    """What :func:`search_other_rates` found, after nothing answered at the rates ``asked``."""
+
+    asked: tuple[int, ...]  # the rates nothing answered at before the search (a line's own, or a scan's)
+    # The other rates asked, in order: not one the port cannot be opened at, nor any on a link that does not
+    # carry the rate (``socket://``, where every rate is the far end's one).
+    tried: tuple[int, ...] = ()
+    found: tuple[int, ...] = ()  # those a device answers the ID read at, the one to use first
+
+    def nothing_elsewhere(self) -> str | None:
+        """The search's outcome in words when it tried rates and found nothing at any (``nor any device at 625000
+        or 1250000 baud``, to follow what did not answer at the line's rate); None otherwise."""
+        if self.found or not self.tried:
+            return None
+        *first, last = (str(rate) for rate in self.tried)
+        return f"nor any device at {', '.join(first) + ' or ' if first else ''}{last} baud"
+
+
+async def search_other_rates(
+    open_at: LineOpener, asked: Iterable[int], *, on_rate: RateCallback | None = None
+) -> RateSearch:
+    """After nothing answered at the rates ``asked``: the other rates (of :data:`ALL_BAUDS`) at which some device
+    answers the ID read, as :func:`device_rates` looks for them, and which rates were tried.
+
+    ``open_at`` and ``on_rate`` as for :func:`device_rates` (each rate tried may cost a whole reply allowance:
+    a person waiting is told which, and afterwards :meth:`RateSearch.nothing_elsewhere` says they were tried).
+
+    Raises:
+        InvalidArgument: a rate in ``asked`` is no ICS rate.
+    """
+    done = tuple(_check_bauds(asked))
+    others = [rate for rate in ALL_BAUDS if rate not in done]
+    tried: list[int] = []
+    found = await _rates_where(open_at, others, _anyone_at, on_rate, tried) if others else ()
+    return RateSearch(done, tuple(tried), found)
+
+
+async def _anyone_at(line: Line, baud: int) -> bool:
+    return await anyone_there(line)
 
 
 async def device_rates(
@@ -464,10 +509,7 @@ async def device_rates(
     is tried (each costs a whole reply allowance where nothing answers: see the module's search rule).
     """
 
-    async def answers(line: Line, baud: int) -> bool:
-        return await anyone_there(line)
-
-    return await _rates_where(open_at, bauds, answers, on_rate)
+    return await _rates_where(open_at, bauds, _anyone_at, on_rate)
 
 
 async def servo_rates(

@@ -43,22 +43,22 @@ from ..errors import (
     error_text,
 )
 from ..policies import (
-    ALL_BAUDS,
     ALL_IDS,
     EepromPlan,
     FoundServo,
     IdSurvey,
     NoReply,
     NoReplyCause,
+    RateSearch,
     Refusal,
     ScanReport,
-    device_rates,
     look_elsewhere,
     plan_eeprom_write,
     read_eeprom_agreed,
     read_position_without_freeing,
     reopening,
     scan,
+    search_other_rates,
     survey_for_id_write,
     trying_rate,
     why_no_reply,
@@ -423,7 +423,7 @@ class LineSession:
 
             try:
                 report = await scan(reopening(bus), bauds=checked, ids=wanted, on_probe=step)
-                elsewhere = await self._answered_elsewhere(bus, report, checked)
+                search = await self._answered_elsewhere(bus, report, checked)
             finally:
                 self.progress.running = False
                 if bus.is_open and bus.baudrate != self.config.baud:
@@ -441,25 +441,27 @@ class LineSession:
             "silent": report.silent,
             "echo_wrong": None if report.echo_evidence is None else str(report.echo_evidence),
             "lost": None if report.lost is None else str(report.lost),
-            "answers_at": elsewhere,  # nothing here: the rate a device answers at, which the page offers
+            # Nothing here: the rate a device answers at, which the page offers; the rates looked at (in vain, when
+            # nothing answers at any: the page says so, not to tick "every baud rate").
+            "answers_at": search.found[0] if search.found else None,
+            "rates_tried": list(search.tried),
         }
 
-    async def _answered_elsewhere(self, bus: Bus, report: ScanReport, scanned: list[int]) -> int | None:
-        """After a scan where nothing answered: a rate not scanned that a device answers the ID read at
-        (policies.device_rates, as the ID page looks), to reopen the line at; None when something answered, not
-        even the echo came back (the adapter or its wiring, which no rate mends), or the other rates may not be
-        tried on this line.  The port is left at the last rate tried (the scan's close puts it back)."""
-        others = [rate for rate in ALL_BAUDS if rate not in scanned]
-        if report.servos or report.garbled or report.lost is not None or not others:
-            return None
+    async def _answered_elsewhere(self, bus: Bus, report: ScanReport, scanned: list[int]) -> RateSearch:
+        """After a scan where nothing answered: the rates not scanned, and those a device answers the ID read at
+        (policies.search_other_rates, as ``ics35 doctor`` looks), to reopen the line at; none tried when something
+        answered, not even the echo came back (the adapter or its wiring, which no rate mends), or the other rates
+        may not be tried on this line.  The port is left at the last rate tried (the scan's close puts it back)."""
+        none = RateSearch(tuple(scanned))
+        if report.servos or report.garbled or report.lost is not None:
+            return none
         if (report.silent and self.config.echo) or self._other_rates_not_tried() is not None:
-            return None
+            return none
         try:
             with self._searching():
-                found = await device_rates(reopening(bus), others, on_rate=self._trying)
+                return await search_other_rates(reopening(bus), scanned, on_rate=self._trying)
         except (IcsError, OSError):
-            return None  # advice only: the scan's own outcome stands
-        return found[0] if found else None
+            return none  # advice only: the scan's own outcome stands
 
     def _trying(self, baud: int) -> None:
         """A search of the other rates' progress (its ``on_rate``): said in the status the pages show, as the

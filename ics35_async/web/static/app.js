@@ -228,6 +228,12 @@ function showServos(servos) {
   }
 }
 
+// Baud rates in words: "625,000 or 1,250,000".
+function rateList(rates) {
+  const words = rates.map((rate) => rate.toLocaleString("en-US"));
+  return words.length > 1 ? `${words.slice(0, -1).join(", ")} or ${words[words.length - 1]}` : words.join("");
+}
+
 async function scanLine() {
   const bauds = $("#scan-all-bauds").checked ? [115200, 625000, 1250000] : null;
   const text = $("#scan-ids").value.trim();
@@ -244,10 +250,14 @@ async function scanLine() {
     for (const g of report.garbled) notes.push(`ID ${g.id} at ${g.baud} answered garbled twice (two servos sharing it?)`);
     for (const [b, why] of Object.entries(report.skipped)) notes.push(`${b} baud skipped: ${why}`);
     // The echo came back but no servo answered (nor one at another rate, said below): their power, most often.
+    // The other rates the server then looked at (a whole allowance each) are named: they need no scan of their own.
     if (!report.servos.length && !report.garbled.length && !report.silent && !report.lost && !report.answers_at) {
       const rate = state.status ? `${state.status.baud.toLocaleString("en-US")} baud` : "the line's rate";
-      notes.push(`no servo answered at ${bauds ? "any baud rate" : rate}: check their power (6-12 V on the servo line, ` +
-        "not just USB) and wiring" + (bauds ? "" : "; a servo set to another rate answers only at it (tick “every baud rate”)"));
+      const tried = report.rates_tried || [];
+      const elsewhere = tried.length ? `, nor any device at ${rateList(tried)} baud` : "";
+      notes.push(`no servo answered at ${bauds ? "any baud rate" : rate}${elsewhere}: ` +
+        "check their power (6-12 V on the servo line, not just USB) and wiring" +
+        (bauds || tried.length ? "" : "; a servo set to another rate answers only at it (tick “every baud rate”)"));
     }
     if (report.lost) {  // the servos found before the line went are listed; the rest of the scan did not run
       say(report.lost);
