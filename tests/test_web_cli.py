@@ -220,17 +220,17 @@ def test_a_server_started_ignoring_sigint_keeps_ignoring_it() -> None:
     assert "Traceback" not in err, err
 
 
-def with_browser(browser: str, *args: str) -> tuple[str, str]:
+def with_browser(browser: str | None, *args: str, environment: dict[str, str] | None = None) -> tuple[str, str]:
     """``ics35 web`` (stdout's first line, stderr) stopped once it answers, with ``$BROWSER`` the only browser there
     is: no display, no terminal browser (as on a headless machine or across ssh)."""
-    gone = ("ICS35_PORT", "ICS35_WEB_TOKEN", "DISPLAY", "WAYLAND_DISPLAY", "TERM")
-    environment = {k: v for k, v in os.environ.items() if k not in gone}
+    gone = ("ICS35_PORT", "ICS35_WEB_TOKEN", "DISPLAY", "WAYLAND_DISPLAY", "TERM", "BROWSER")
+    kept = {k: v for k, v in os.environ.items() if k not in gone}
     proc = subprocess.Popen(
         [sys.executable, "-m", "ics35_async.cli", "web", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**environment, "BROWSER": browser},
+        env={**kept, **({} if browser is None else {"BROWSER": browser}), **(environment or {})},
     )
     assert proc.stdout is not None and proc.stderr is not None
     try:
@@ -268,6 +268,22 @@ def test_where_no_browser_can_be_opened_the_command_says_so_once(tmp_path: Path)
     opened.unlink()
     url, err = with_browser(str(browser), "--no-browser")
     assert not opened.exists() and NO_BROWSER_OPENED not in err and url.startswith("http://"), err
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="another system has a browser of its own, display or not")
+def test_without_a_display_no_terminal_browser_is_started_in_the_commands_terminal(tmp_path: Path) -> None:
+    # Across ssh (a terminal, no display) the default browser is a terminal one where installed (www-browser,
+    # lynx, w3m): it took the terminal over, the server waiting for it to quit, on a page it cannot run (the
+    # configurator's scripts).  None is started: the command says to open the address, as where none is.
+    opened = tmp_path / "opened"
+    (tmp_path / "www-browser").write_text(f'#!/bin/sh\necho "$1" > {opened}\n')
+    (tmp_path / "www-browser").chmod(0o755)
+    path = f"{tmp_path}{os.pathsep}{os.environ.get('PATH', '')}"
+    url, err = with_browser(None, environment={"TERM": "xterm", "PATH": path})
+    assert not opened.exists() and err.count(NO_BROWSER_OPENED) == 1, err
+    # $BROWSER names the one to use: it is used, display or not (a person's own choice).
+    url, err = with_browser(f"{tmp_path}/www-browser", environment={"TERM": "xterm", "PATH": path})
+    assert opened.read_text().strip() == url and NO_BROWSER_OPENED not in err, err
 
 
 def test_a_token_from_the_environment_or_a_file_is_the_one_asked_for(tmp_path: Path) -> None:

@@ -6,8 +6,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import signal
 import socket
+import sys
 import webbrowser
 from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass
@@ -309,9 +311,22 @@ def _server_class() -> type[Any]:
 _STOPPING = (signal.SIGINT, signal.SIGTERM)
 
 
+def _only_terminal_browsers() -> bool:
+    # (macOS and Windows open their browsers without a display variable; elsewhere a graphical one needs one)
+    if sys.platform in ("darwin", "win32") or os.environ.get("BROWSER"):
+        return False
+    return not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def _browser_opened(url: str) -> bool:
     """Whether the default browser took ``url``: False where none could be started (no display, no browser
-    installed, ``$BROWSER`` failing), which :func:`webbrowser.open` says by returning False or by raising."""
+    installed, ``$BROWSER`` failing), which :func:`webbrowser.open` says by returning False or by raising.
+
+    Without a display (an ssh session) and without ``$BROWSER``, none is tried: all :mod:`webbrowser` finds
+    there is a terminal browser (www-browser, lynx, w3m), which it runs in the foreground on the command's own
+    terminal, the server waiting until it quits, on a page whose scripts it cannot run."""
+    if _only_terminal_browsers():
+        return False
     try:
         return webbrowser.open(url)
     except Exception:  # (whatever a platform's browser launcher raises: the address is printed all the same)
