@@ -138,7 +138,7 @@ class Deliverer:
         with self._handing:
             while True:
                 with cond:
-                    # (popped under the lock, as a cancel or close empties the heap: what they drop is never handed over)
+                    # (popped under the lock, as cancel and close empty the heap: what they drop is never handed over)
                     if not heap or heap[0][0] > now or (heap[0][2] and not by_thread):
                         return count
                     when, _, _, sink, data = heapq.heappop(heap)
