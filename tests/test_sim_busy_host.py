@@ -18,6 +18,7 @@ import pytest
 
 from ics35_async import open_bus, protocol
 from ics35_async.sim import Deliverer, VirtualLine, VirtualServo
+from ics35_async.transports import HostSide
 
 
 @pytest.fixture
@@ -70,3 +71,50 @@ def test_deliver_due_hands_over_what_is_due_in_order_and_nothing_early() -> None
         assert deliverer.pending() == 1
     finally:
         deliverer.close()
+
+
+class HandedOverWhenLooked:
+    """A line whose answers reach the host only as it looks for input (``deliver_due``), one chunk a look, handed
+    over by another thread the look waits for: as the real-time simulator's delivery thread may be handing a chunk
+    over just as the driver looks (each then waits for the other's hand-over to end)."""
+
+    def __init__(self, line: VirtualLine) -> None:
+        self.line = line
+        self.chunks: list[bytes] = []
+        self.stuck = 0  # hand-overs that could not finish while the look waited for them
+        self.host: HostSide | None = None
+
+    def connect(self, host: HostSide, baudrate: int) -> None:
+        self.host = host
+        self.line.connect(self, baudrate)
+
+    def deliver(self, data: bytes) -> None:  # (the line's answers, kept until the host looks)
+        self.chunks.extend(data[i : i + 1] for i in range(len(data)))
+
+    def lost(self, exc: Exception | None) -> None:
+        assert self.host is not None
+        self.host.lost(exc)
+
+    def write(self, data: bytes) -> None:
+        self.line.write(data)
+
+    def disconnect(self) -> None:
+        self.line.disconnect()
+
+    def deliver_due(self) -> None:
+        if not self.chunks or self.host is None:
+            return
+        hand_over = threading.Thread(target=self.host.deliver, args=(self.chunks.pop(0),))
+        hand_over.start()
+        hand_over.join(1.0)
+        if hand_over.is_alive():  # (it finishes once the driver lets go of what it held: no join again)
+            self.stuck += 1
+
+
+@pytest.mark.parametrize("driver", ["thread", "asyncio", "anyio"])
+async def test_a_driver_holds_nothing_a_device_handing_input_over_needs_while_it_looks(driver: str) -> None:
+    device = HandedOverWhenLooked(VirtualLine([VirtualServo(1)]))
+    async with open_bus(device, driver=driver, adapter_latency=0.05, retries=0) as bus:
+        for _ in range(5):
+            assert await bus.submit(protocol.ReadParam(1, protocol.Param.STRETCH)) == VirtualServo(1).stretch
+    assert device.stuck == 0

@@ -158,12 +158,16 @@ class _DeviceWait:
 
     def wait(self, timeout: float | None) -> bytes:
         port = self.port
-        if port.has_input and timeout != 0:
+        # Looked at outside the lock: a device may hand input over as it is looked for, from a thread of its own
+        # that this look waits for (the real-time simulator), and that hand-over wakes this waiter, taking the lock.
+        # Input that comes after the look sets _woken first, under the lock: no wake-up is lost.
+        ready = port.has_input
+        if ready and timeout != 0:
             # The device answered inside write (a fast simulator): pause as a wire would.  A thread
             # that never blocks would keep the engine's lock from the loop's callers for good.
             time.sleep(INLINE_PAUSE)
         with self._cond:
-            if not port.has_input and not self._woken:
+            if not ready and not self._woken:
                 self._cond.wait(timeout)
             self._woken = False
         return port.read()

@@ -37,6 +37,8 @@ class DevicePort:
         self._chunks: deque[bytes] = deque()  # append and popleft only: safe across threads
         # A device that delivers from a thread of its own may hand over what is due when the driver looks (see
         # WireDevice): a busy program holds that thread back, where a real port's bytes wait in the OS's buffer.
+        # So a driver looks (has_input, read) holding nothing that on_input takes: the look may wait for that
+        # thread's own hand-over, which tells on_input.
         self._take_due: Callable[[], object] | None = getattr(device, "deliver_due", None)
         self._lost: Exception | None = None
         self._gone = False
