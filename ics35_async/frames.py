@@ -56,7 +56,8 @@ class Frame:
 
     ``positions`` (0..16383) and ``timestamps`` (``time.monotonic()`` of each reply) hold the
     IDs that answered this cycle; ``failed`` the IDs in the cycle that did not (their
-    transaction failed, or was held back after a failure while its late reply could still come);
+    transaction failed, or was held back after a failure while its late reply could still come:
+    those, sent nothing this cycle, are in ``not_sent`` too);
     ``offline`` the IDs currently out of the cycle (an ID whose failure this cycle took it out is in
     both, in this frame).  ``skipped`` counts the
     frames this consumer missed since its previous one.
@@ -81,6 +82,7 @@ class Frame:
     missed_slots: int = 0
     resumed: bool = False
     held: frozenset[int] = frozenset()
+    not_sent: frozenset[int] = frozenset()
 
     @property
     def unanswered(self) -> frozenset[int]:
@@ -108,6 +110,7 @@ class Frame:
             "missed_slots": self.missed_slots,
             "resumed": self.resumed,
             "held": sorted(self.held),
+            "not_sent": sorted(self.not_sent),
         }
 
 
@@ -174,6 +177,9 @@ class GroupFrame:
     held: frozenset[tuple[str, int]] = frozenset()
     """The servos held after their line came back (or they came back from offline), sent nothing until their
     target is set again."""
+    not_sent: frozenset[tuple[str, int]] = frozenset()
+    """The servos of ``failed`` sent nothing in their line's cycle: held back after a failure while its late reply
+    could still come (see :attr:`Frame.not_sent`)."""
 
     def degrees(self) -> dict[tuple[str, int], float]:
         """The positions of this frame in degrees, by ``(line, id)`` (7500 counts is 0 degrees)."""
@@ -206,4 +212,5 @@ class GroupFrame:
             "missed_slots": self.missed_slots,
             "resumed": sorted(self.resumed),
             "held": listed(self.held),
+            "not_sent": listed(self.not_sent),
         }

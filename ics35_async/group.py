@@ -188,6 +188,7 @@ class GroupStream(FrameIterator[GroupFrame]):
         failed: set[tuple[str, int]] = set()
         offline: set[tuple[str, int]] = set()
         held: set[tuple[str, int]] = set()
+        not_sent: set[tuple[str, int]] = set()
         for line in self.streams:
             f = frames[line]
             positions.update(((line, i), p) for i, p in f.positions.items())
@@ -195,6 +196,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             failed.update((line, i) for i in f.failed)
             offline.update((line, i) for i in f.offline)
             held.update((line, i) for i in f.held)
+            not_sent.update((line, i) for i in f.not_sent)
         return GroupFrame(
             cycle=cycle,
             positions=positions,
@@ -208,6 +210,7 @@ class GroupStream(FrameIterator[GroupFrame]):
             missed_slots=sum(f.missed_slots for f in new.values()),
             resumed=frozenset(line for line, f in new.items() if f.resumed),
             held=frozenset(held),
+            not_sent=frozenset(not_sent),
         )
 
     @property

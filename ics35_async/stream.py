@@ -210,6 +210,7 @@ class Stream(FrameIterator[Frame]):
         # while calling into the bus (the driver's lock is taken first by the hooks' callers).
         self._slot_lock = threading.Lock()
         self._rejoined: set[int] = set()  # slots back from offline in the cycle in progress (see _rejoin)
+        self._not_sent: list[int] = []  # the IDs the engine held back in the cycle in progress (see _skip)
         self._probes = 0  # offline IDs' probe reads (see _renew_job) that ended, answered or not
         # Slots whose target changed since a transaction last carried one for them: with on_close="hold"
         # the close sends these (a final pose set just before the block ends would be dropped otherwise).
@@ -647,8 +648,9 @@ class Stream(FrameIterator[Frame]):
 
     def _skip(self, now: float) -> None:
         # The engine held this ID's transaction back (its reply to a failed command may still
-        # come): the frame shows it unanswered this cycle; nothing failed, so nothing is counted.
+        # come): the frame shows it unanswered this cycle, and sent nothing; nothing failed, so nothing is counted.
         if self._cur >= 0:
+            self._not_sent.append(self.ids[self._cur])
             self._advance(now)
 
     def _advance(self, now: float) -> None:
@@ -673,6 +675,7 @@ class Stream(FrameIterator[Frame]):
                         self._held[k] = "resumed"
         # The cycle the loss cut short is dropped; the next starts on a fresh schedule.
         self._rejoined.clear()
+        self._not_sent.clear()
         self._order = []
         self._pos = 0
         self._cur = -1
@@ -892,6 +895,8 @@ class Stream(FrameIterator[Frame]):
                 elif k not in rejoined:  # (back from offline: answered a read that gives no position)
                     failed.append(ids[k])
         self._rejoined.clear()
+        not_sent = frozenset(self._not_sent) if self._not_sent else frozenset()
+        self._not_sent.clear()
         self._order = []
         self._pos = 0
         self._cycle_times.append(now - self._cycle_start)
@@ -911,6 +916,7 @@ class Stream(FrameIterator[Frame]):
             held=frozenset(sid for sid, held in zip(ids, self._held, strict=True) if held)
             if any(self._held)
             else frozenset(),
+            not_sent=not_sent,
         )
         if self._resumed:
             self._resumes += 1

@@ -119,7 +119,9 @@ def split_cycles(entries: Sequence[Transaction], ids: Sequence[int]) -> list[lis
 def check_frame(frame: Frame, cycle_log: Sequence[Transaction]) -> None:
     """The frame holds exactly what the servos reported in that cycle; silent IDs are ``failed``."""
     assert frame.positions == {t.servo_id: t.value for t in cycle_log if t.reply and t.command != "read_stretch"}
-    assert frame.failed == {t.servo_id for t in cycle_log if not t.reply}, frame.cycle
+    # (an ID held back after a failure is failed and was sent nothing: not_sent)
+    assert frame.failed - frame.not_sent == {t.servo_id for t in cycle_log if not t.reply}, frame.cycle
+    assert frame.not_sent <= frame.failed and not frame.not_sent & {t.servo_id for t in cycle_log}, frame.cycle
     assert set(frame.timestamps) == set(frame.positions)
     assert frame.started <= min(frame.timestamps.values(), default=frame.started)
     assert max(frame.timestamps.values(), default=frame.finished) <= frame.finished
@@ -1954,3 +1956,21 @@ async def test_a_stream_on_an_unplugged_simulated_port_says_it_was_unplugged(unp
                 assert str(lost.value).endswith("the simulated port was unplugged"), str(lost.value)
             finally:
                 line.close()
+
+
+async def test_a_frame_tells_the_failed_ids_that_were_sent_nothing() -> None:
+    # A servo whose reply the stream gave up on after its short, learnt wait is held back while that reply could
+    # still come: the stream skips it, sending nothing, and the frame lists it as failed.  The frame says which
+    # failed IDs were sent nothing (``not_sent``): lining frames up with the line's traffic (a recording, a log
+    # of the wire) took each failed ID for a command that went out, and every later one of that ID off by one.
+    ids = [1, 2, 3, 4]
+    sim = make_sim(ids, faults="drop@3:0.3", seed=1)
+    # (an allowance far above what the servos take, so the stream's learnt wait is the shorter: a failure holds)
+    async with open_bus(sim, adapter_latency=0.05, quiet_time=0.01, retries=0) as bus:
+        async with bus.stream(ids, rate_hz=200) as stream:
+            frames = [await next_frame(stream) for _ in range(100)]
+        held_back = bus.stats.held_back
+    assert held_back and any(3 in frame.not_sent for frame in frames), held_back
+    assert all(frame.not_sent <= {3} for frame in frames)
+    check_frames(frames, sim, ids)
+    assert frames[0].to_dict()["not_sent"] == sorted(frames[0].not_sent)

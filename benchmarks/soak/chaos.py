@@ -266,6 +266,7 @@ class ChaosReport:
     late_reply_to_own_retry: int
     guard_reads: int
     failed_probes: int  # offline IDs' probes (stretch reads, among the guard reads) that failed
+    held_back_slots: int  # stream slots held back after a failure (failed in their frame, nothing sent)
     noise_accepted: int
     extra_attempts: int
     accepted: int
@@ -403,6 +404,7 @@ async def chaos_soak(
         late_reply_to_own_retry=counts.late_reply_to_own_retry,
         guard_reads=counts.guards,
         failed_probes=counts.failed_probes,
+        held_back_slots=counts.held_back,
         noise_accepted=counts.noise_accepted,
         extra_attempts=counts.extra_attempts,
         accepted=ok_entries,

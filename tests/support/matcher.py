@@ -9,7 +9,8 @@ simulator logs them, so:
   belongs to the n-th stream log entry addressed to ``i``; a frame the consumer never took (skipped: on the
   burst path a loop held up while the executor ran several cycles is fed them at once, and takes the last
   frame) has its cycle's entries set aside unchecked, one per ID (see :meth:`LogMatcher.add_frame`); an
-  offline ID's probe is a stretch read (a guard read's bytes), so a frame's failed probe has no stream entry;
+  offline ID's probe is a stretch read (a guard read's bytes), so a frame's failed probe has no stream entry,
+  nor has a failed ID the frame says was sent nothing (``not_sent``: held back after a failure);
 * a request is the only one in flight for its servo ID (the workers take an
   ID at a time), and two requests in a row to one ID never send the same
   bytes, so the request log entries of ID ``i`` split into runs of equal
@@ -95,6 +96,7 @@ class MatchCounts:
     cancelled_in_flight: int = 0  # cancelled with an attempt on the wire (or between attempts)
     skipped_cycle_entries: int = 0  # stream entries of cycles whose frame was skipped: no outcome to check
     failed_probes: int = 0  # offline IDs' probes that failed (in a frame's failed, with no stream entry)
+    held_back: int = 0  # stream slots the engine held back after a failure (a frame's not_sent: no stream entry)
     examples: list[str] = field(default_factory=list)
 
     def note(self, text: str) -> None:
@@ -240,6 +242,8 @@ class LogMatcher:
         for sid in frame.failed:
             if sid in probed:
                 self.counts.failed_probes += 1
+            elif sid in frame.not_sent:  # held back after a failure: sent nothing, so no log entry
+                self.counts.held_back += 1
             else:
                 outcomes[sid].append((False, None, 0.0))
                 self.counts.stream_outcomes += 1
