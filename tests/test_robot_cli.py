@@ -451,10 +451,17 @@ def test_a_safety_stop_is_exit_code_7(cli: Any, tmp_path: Path) -> None:
 Step = tuple[str | None, Callable[[], None] | None, str]
 
 
+# How many transactions a line runs after a hand's move before the test goes on ("the robot has seen it"): the
+# command reads each joint once a cycle, and takes each frame on the loop that serves its in-process simulated lines,
+# so a few tens of cycles are a wide margin.  No more: each costs CPU (the commands cycle as fast as the simulator
+# answers), and the settling is most of what these tests' commands transact.
+SETTLE_TRANSACTIONS = 60
+
+
 def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) -> CliResult:
     """Run ``ics35 ARGS`` with a pipe as stdin.  For each ``(phrase, move, text)`` step a helper thread waits
     until the command has printed ``phrase`` (it has done what came before), does the hand ``move``, lets
-    the robot see it (a few hundred transactions on every line), then types ``text``."""
+    the robot see it (``SETTLE_TRANSACTIONS`` on every line), then types ``text``."""
     read_end, write_end = os.pipe()
     stdin = os.fdopen(read_end, "r")
     writer = os.fdopen(write_end, "w")
@@ -464,7 +471,7 @@ def run_with_hands(args: list[str], steps: list[Step], sims: list[VirtualLine]) 
         marks = [sim.transactions for sim in sims]
         give_up = time.monotonic() + GUARD  # (a line the command did not open would be waited for for ever;
         # going on then leaves the command to show what it saw, rather than a hang in a helper thread)
-        while any(sim.transactions < mark + 300 for sim, mark in zip(sims, marks, strict=True)):
+        while any(sim.transactions < mark + SETTLE_TRANSACTIONS for sim, mark in zip(sims, marks, strict=True)):
             if time.monotonic() > give_up:
                 return
             threading.Event().wait(0.005)
@@ -739,9 +746,9 @@ def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(
 
 
 def settle_on(sim: VirtualLine) -> None:
-    """Let the robot see a hand move: a few hundred transactions on its line."""
+    """Let the robot see a hand move: ``SETTLE_TRANSACTIONS`` on its line."""
     mark = sim.transactions
-    while sim.transactions < mark + 300:
+    while sim.transactions < mark + SETTLE_TRANSACTIONS:
         threading.Event().wait(0.005)
 
 
@@ -1120,7 +1127,7 @@ def test_the_lost_line_hint_frees_that_lines_servos_by_their_ids_not_every_id() 
 
 def until_offline(sims: Rig, joint: str) -> Callable[[], None]:
     """A step that unplugs ``joint``'s servo and waits until the robot has had time to take it out of its
-    cycle (a few hundred transactions on its line, the other servos answering)."""
+    cycle (three settles' transactions on its line, the other servos answering)."""
 
     def unplug() -> None:
         spec = JOINTS[joint]
