@@ -41,6 +41,18 @@ def test_at_five_percent_faults_the_loop_holds_95_hz(seed: int) -> None:
     assert rate >= 95, f"{rate:.1f} Hz, {source.failed} failures"
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_short_adapter_allowance_costs_a_failure_no_more_than_the_default(seed: int) -> None:
+    # adapter_latency=0.003 (what the docs' 100 Hz loop passes; 0.002 is the advice with a 1 ms latency timer):
+    # the stream's learnt wait (4 ms at least) was no shorter than that full allowance, so a failure took the
+    # whole quiet_time (10 ms) of silence after it, not the stream's 1 ms resync: a smaller allowance made
+    # every failure dearer, a slot missed for each, and the loop fell to about 85 Hz at 5 % faults.
+    source = run(0.05, seed, timing=BusTiming(adapter_latency=0.003))
+    rate = (len(source.starts) - 1) / (source.starts[-1] - source.starts[0])
+    assert source.failed > 100  # the faults did happen
+    assert rate >= 95, f"{rate:.1f} Hz, {source.failed} failures"
+
+
 def test_a_clean_line_holds_the_rate_exactly() -> None:
     source = run(0.0, 1, seconds=2.0)
     assert source.failed == 0
@@ -175,6 +187,34 @@ def test_a_partial_replys_tail_after_another_commands_echo_does_not_pass_for_its
     wrong = [(k, v, servos.answers[k]) for k, v in taken if v != servos.answers[k]]
     assert not wrong, f"(write, value taken, value that write was answered) {wrong}"
     assert len(taken) > 50
+
+
+@pytest.mark.parametrize("echo", [True, False])
+def test_a_failure_at_a_short_adapter_allowance_holds_its_servo_and_the_line_goes_on(echo: bool) -> None:
+    # adapter_latency=0.003: the stream waits its full allowance (shorter than its learnt wait), and write 60 (to
+    # ID 1) gets no reply.  The line goes on to ID 2 after the stream's 1 ms resync, not a whole quiet_time; ID 1
+    # is held back until its reply could no longer come, and a request to it waits for that and gets its own
+    # answer.  (Without the echo, nothing tells a late link from a silent servo: the hold covers the window the
+    # quiet_time would have listened in, so a late reply lands in a hold, never in ID 1's next transaction.)
+    timing = BusTiming(adapter_latency=0.003)
+    engine = ready_engine(echo, timing=timing)
+    servos = Servos([1, 2], echo=echo)
+    servos.mute.add(60)
+    wire = Wire(engine, servos)
+    wire.emit(engine.attach_source(FakeSource([1, 2]), wire.now))
+    while len(wire.writes) <= 60:
+        wire.run_for(0.0005)
+    t_failed, tx_failed = wire.writes[60]
+    assert tx_failed == position(1, protocol.FREE).tx  # (the scene: write 60 is ID 1's)
+    req = Recorded(position(1), wire=wire)
+    wire.submit(req)
+    wire.run_for(0.1)
+    full = timing.allowance(6, engine.baudrate, protocol.Timing.NORMAL)
+    t_next, tx_next = wire.writes[61]
+    assert tx_next[0] == tx_failed[0] + 1 and t_next <= t_failed + full + 0.0015, (t_next - t_failed, tx_next)
+    assert wire.engine.counters.held_back > 0
+    assert req.state == "done" and misattributed(req, servos) is None
+    assert wire.writes[req.write_index][0] >= t_failed + full + timing.quiet_time - 1e-9
 
 
 def test_without_answers_measured_yet_the_stream_waits_the_full_allowance() -> None:
