@@ -925,7 +925,9 @@ class LineEngine:
                 self._quiet_until = max(self._quiet_until, self._resync_end(self._full_deadline()))
                 self.deadline = min(self._quiet_until, self._resync_limit)
         # (A learnt stream's transaction whose full allowance was shorter than its learnt wait, its echo heard: its
-        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.)
+        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.  On a line
+        # without echo `heard` is always true: nothing there tells a late link from a silent servo, as after a short
+        # wait, and the hold lasts as long as the quiet_time would have listened, so a late reply still fails.)
         elif req is None and (probe or (self._learnt_stream and heard)):
             self._hold(now)
             if partial:
@@ -977,7 +979,8 @@ class LineEngine:
         self.deadline = min(self._quiet_until, self._resync_limit)
 
     def _hold(self, now: float) -> None:
-        """A stream transaction that waited less than its full allowance failed (after the resync began).
+        """A stream transaction that waited less than its full allowance, or its full allowance where that is
+        shorter than the stream's learnt wait (a small adapter_latency), failed (after the resync began).
 
         Its reply may still come, as late as a timeout at its full deadline would still listen for
         it: that deadline (the full allowance and the link's extra), then the resync's quiet time
