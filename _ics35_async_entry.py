@@ -14,7 +14,7 @@ import sys
 
 TYPE_CHECKING = False  # (typing is not imported at run time: it is not loaded with the interpreter)
 if TYPE_CHECKING:
-    from typing import NoReturn
+    from typing import Any, NoReturn
 
 # ExitCode.INTERRUPTED (128 + SIGINT): the enum is in the package whose import this guards.
 INTERRUPTED = 130
@@ -22,6 +22,19 @@ INTERRUPTED = 130
 
 def main() -> None:
     """``ics35``: the command line of :mod:`ics35_async.cli`, imported with Ctrl-C caught."""
+    # Ctrl-C landing in a weakref callback (one runs as each import lets its module lock go): Python prints
+    # "Exception ignored in ..." and drops the KeyboardInterrupt there, and the import goes on.  Kept, and the
+    # command line stopped once loaded (as it begins, the command line raises one it drops again itself).
+    dropped: list[bool] = []
+    previous = sys.unraisablehook
+
+    def keep(unraisable: Any) -> None:
+        if unraisable.exc_type is KeyboardInterrupt:
+            dropped.append(True)
+        else:
+            previous(unraisable)
+
+    sys.unraisablehook = keep
     try:
         from ics35_async.cli import main as cli_main
     except KeyboardInterrupt:
@@ -31,6 +44,10 @@ def main() -> None:
         # hands the KeyboardInterrupt on inside a RuntimeError ("Error calling __set_name__ ...").
         if not isinstance(exc.__cause__, KeyboardInterrupt):
             raise
+        _interrupted()
+    finally:
+        sys.unraisablehook = previous
+    if dropped:
         _interrupted()
     cli_main()
 

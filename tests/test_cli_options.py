@@ -292,6 +292,54 @@ def test_ctrl_c_as_a_command_starts_or_ends_ends_in_one_line(where: str, said: s
     assert (done.returncode, done.stderr.strip()) == (ExitCode.INTERRUPTED, said), done.stderr
 
 
+# A Ctrl-C landing inside a weakref callback (one runs as each import's module lock is let go): Python prints
+# "Exception ignored in ..." and drops the KeyboardInterrupt there, and the command went on as if never pressed
+# (seen: `get` at a silent servo ran its four waits to the end, the Ctrl-C's traceback at the top of the screen).
+# Pressed as the package loads (through the console script's entry point) or as click parses the command line.
+PRESS_IN_A_WEAKREF_CALLBACK = """
+import os, signal, sys, weakref
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == {function!r}:
+        sys.setprofile(None)
+
+        class Lock:
+            pass
+
+        def callback(ref):
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(100_000):  # (the default handler raises here: in the callback, where it is dropped)
+                pass
+
+        lock = Lock()
+        ref = weakref.ref(lock, callback)
+        del lock
+
+sys.setprofile(press)
+from {module} import main
+main({args})
+"""
+
+
+@pytest.mark.parametrize(
+    ("module", "function", "args"),
+    [
+        ("_ics35_async_entry", "dataclass", ""),  # (the package's import: a dataclass made)
+        ("ics35_async.cli", "parse_args", '["--port", "sim://", "get", "1", "stretch"]'),
+    ],
+    ids=["loading", "parsing"],
+)
+def test_a_ctrl_c_python_drops_in_a_weakref_callback_still_stops_the_command(
+    module: str, function: str, args: str
+) -> None:
+    script = PRESS_IN_A_WEAKREF_CALLBACK.format(function=function, module=module, args=args)
+    argv = ["--port", "sim://", "get", "1", "stretch"] if not args else []
+    done = subprocess.run(
+        [sys.executable, "-c", script, *argv], capture_output=True, text=True, timeout=60, env=os.environ
+    )
+    assert (done.returncode, done.stderr.strip()) == (ExitCode.INTERRUPTED, "interrupted"), (done.stdout, done.stderr)
+
+
 COMMAND_PROBE = """
 import json, sys
 from ics35_async.cli import main

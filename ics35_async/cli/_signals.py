@@ -14,13 +14,16 @@ program the same for SIGTERM).
 
 from __future__ import annotations
 
+import _thread
 import asyncio
 import contextlib
 import signal
+import sys
 import threading
+import time
 import weakref
 from collections.abc import Iterator
-from types import FrameType
+from types import CodeType, FrameType
 from typing import Any
 
 from ..terminal import leave_the_terminal
@@ -44,6 +47,34 @@ def install() -> None:
     for signum in _stop_signals():
         if signal.getsignal(signum) is signal.SIG_DFL:
             signal.signal(signum, _stop)
+    keep_dropped_ctrl_c()
+
+
+def keep_dropped_ctrl_c() -> None:
+    """A Ctrl-C Python drops is raised again, at the main thread's next step (for the rest of the process).
+
+    Python's handler raises ``KeyboardInterrupt`` wherever the main thread is; inside a weakref callback (one
+    runs as each import lets its module lock go) or a finalizer Python prints "Exception ignored in ..." with
+    a traceback and drops it, and the command went on as if the key had never been pressed.  So does this
+    module's own raise for SIGTERM and SIGHUP outside the loop.  Only while Python's own handler takes Ctrl-C
+    (the event loop's handler cancels the command's task instead, and handles its own drops)."""
+    previous = sys.unraisablehook
+    if getattr(previous, "keeps_ctrl_c", False):  # (once: main may run many times in one process)
+        return
+
+    def hook(unraisable: Any) -> None:
+        if unraisable.exc_type is KeyboardInterrupt and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            # Python's handler run again, by a thread of its own once this hook has returned: run from here, the
+            # handler would raise at once, in the hook, where Python drops it too.  (The thread is started bare:
+            # threading's start would wait for it, and it could press while the hook still runs.)
+            main = threading.main_thread().ident
+            assert main is not None  # (the main thread has started)
+            _thread.start_new_thread(_press_again, (main, hook.__code__))
+            return
+        previous(unraisable)
+
+    hook.keeps_ctrl_c = True  # type: ignore[attr-defined]
+    sys.unraisablehook = hook
 
 
 @contextlib.contextmanager
@@ -86,6 +117,13 @@ def stop_cuts_nothing(task: asyncio.Task[Any]) -> bool:
 def current_task() -> asyncio.Task[Any] | None:
     """The command's task on the event loop, while it runs."""
     return _tasks[-1] if _tasks else None
+
+
+def _press_again(main: int, hook: CodeType) -> None:
+    """Ctrl-C again for the main thread (``main``), once it has left the unraisable ``hook`` it was dropped in."""
+    while (frame := sys._current_frames().get(main)) is not None and frame.f_code is hook:
+        time.sleep(0.001)
+    _thread.interrupt_main(signal.SIGINT)
 
 
 def _stop(signum: int, frame: FrameType | None) -> None:
