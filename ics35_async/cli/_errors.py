@@ -166,11 +166,10 @@ def _rate_elsewhere(
 ) -> int | None:
     """The first of the line's other rates ``search(open_at, rates, on_rate)`` (a policy) finds, or None: also
     when the port cannot be opened again (advice only: what was said stands)."""
-    from ..policies import ALL_BAUDS
+    from ..policies import other_bauds
 
-    others = [rate for rate in ALL_BAUDS if rate != settings.baud]
     try:
-        found = run_loop(lambda: search(_opener(settings), others, trying_rates(settings)))
+        found = run_loop(lambda: search(_opener(settings), other_bauds([settings.baud]), trying_rates(settings)))
     except (errors.IcsError, OSError):
         return None
     return found[0] if found else None

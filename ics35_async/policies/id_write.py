@@ -33,7 +33,7 @@ from .. import protocol
 from ..errors import IcsError, ReplyError, UnsafeOperation, VerifyError
 from ..protocol import Param
 from .failure_kinds import Line, LineOpener, answers_short_read, nothing_came_back
-from .scan import ALL_BAUDS, ALL_IDS, RateCallback, device_rates, probe_ids
+from .scan import ALL_IDS, RateCallback, probe_ids, search_other_rates
 
 
 class Refusal(enum.Enum):
@@ -156,15 +156,15 @@ async def look_elsewhere(
     line at.  Not looked for when not even the echo came back (``echo``: the line loops what it sends):
     the adapter or its wiring, which no rate mends.  ``open_at(baud)`` opens the line at a rate, as for
     :func:`~.scan.scan` (:func:`~.failure_kinds.reopening` leaves a line at the last rate tried); ``on_rate(baud)``
-    is told each rate as it is tried (see :func:`~.scan.device_rates`).
+    is told each rate as it is tried (see :func:`~.scan.search_other_rates`).
     """
     if survey.refusal is not Refusal.NOBODY or (survey.silent and echo):
         return survey
     try:
-        found = await device_rates(open_at, [rate for rate in ALL_BAUDS if rate != survey.baud], on_rate=on_rate)
+        search = await search_other_rates(open_at, [survey.baud], on_rate=on_rate)
     except (IcsError, OSError):
-        found = ()  # advice only: a port that cannot be opened again leaves the refusal as it was
-    return dataclasses.replace(survey, elsewhere=found)
+        return survey  # advice only: a port that cannot be opened again leaves the refusal as it was
+    return dataclasses.replace(survey, elsewhere=search.found)
 
 
 async def write_lone_id(

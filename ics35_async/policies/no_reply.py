@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from ..errors import IcsError, ReplyTimeout
 from .failure_kinds import LineOpener, answers_short_read
-from .scan import ALL_BAUDS, RateCallback, servo_rates
+from .scan import RateCallback, other_bauds, servo_rates
 
 
 class NoReplyCause(enum.Enum):
@@ -83,9 +83,8 @@ async def why_no_reply(
         return NoReply(NoReplyCause.LONG_REPLY_LOST, servo_id, baud)
     if not other_rates:
         return NoReply(NoReplyCause.UNKNOWN, servo_id, baud)
-    others = [rate for rate in ALL_BAUDS if rate != baud]
     try:
-        found = await servo_rates(open_at, servo_id, others, on_rate=on_rate)
+        found = await servo_rates(open_at, servo_id, other_bauds([baud]), on_rate=on_rate)
     except (IcsError, OSError):
         found = ()
     cause = NoReplyCause.OTHER_RATE if found else NoReplyCause.UNKNOWN

@@ -489,10 +489,17 @@ async def search_other_rates(
         InvalidArgument: a rate in ``asked`` is no ICS rate.
     """
     done = tuple(_check_bauds(asked))
-    others = [rate for rate in ALL_BAUDS if rate not in done]
+    others = other_bauds(done)
     tried: list[int] = []
     found = await _rates_where(open_at, others, _anyone_at, on_rate, tried) if others else ()
     return RateSearch(done, tuple(tried), found)
+
+
+def other_bauds(asked: Iterable[int]) -> list[int]:
+    """The ICS rates (:data:`ALL_BAUDS`, in its order) other than ``asked``: where to look for a servo or device
+    after nothing answered at the rates asked."""
+    done = set(asked)
+    return [rate for rate in ALL_BAUDS if rate not in done]
 
 
 async def _anyone_at(line: Line, baud: int) -> bool:
