@@ -23,10 +23,19 @@ from rich.console import Console
 from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
-from ics35_async.robot import Keyframe, Motion, MotionStopped, RobotWarning, Segment, Trajectory, UnsettledReadings
+from ics35_async.robot import (
+    Keyframe,
+    Motion,
+    MotionStopped,
+    RobotFrame,
+    RobotWarning,
+    Segment,
+    Trajectory,
+    UnsettledReadings,
+)
 from ics35_async.robot.profiles import LONGEST_MOTION, check_duration
 from ics35_async.robot.robot import LIMIT_SLACK
-from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from tests.support.robot_rig import (
     ALL_ICS36,
     JOINTS,
@@ -949,6 +958,29 @@ def test_a_robot_frame_is_plain_json_for_a_log_or_a_web_page() -> None:
         assert doc["held"] == sorted(frame.held) and doc["offline"] == sorted(frame.offline)
 
     run_robot(rig, body)
+
+
+def test_a_robot_frame_tells_the_failed_joints_that_were_sent_nothing() -> None:
+    # A stream's frame says which failed IDs were sent nothing (held back while a late reply could still come);
+    # the robot's frame merged them into `failed` and dropped the difference: lining robot frames up with the
+    # line's traffic took each such joint for a command that went out.
+    rig = make_rig()
+    rig.description["lines"]["upper"]["retries"] = 0
+    frames: list[RobotFrame] = []
+
+    async def body(robot: Robot) -> None:
+        rig.upper.faults = FaultInjector(FaultConfig.parse("drop@3:0.3"), seed=1)  # (the elbow's replies, once open)
+        cycle = (await robot.wait_frame(0)).cycle
+        while len(frames) < 150 and not any(f.not_sent for f in frames):
+            frames.append(await robot.wait_frame(cycle + 1))
+            cycle = frames[-1].cycle
+
+    # (an allowance far above what the servos take, so the stream's learnt wait is the shorter: a failure holds)
+    run_robot(rig, body, adapter_latency=0.05, quiet_time=0.01)
+    assert any(f.not_sent == {"elbow"} for f in frames), [f.failed for f in frames]
+    assert all(f.not_sent <= f.failed for f in frames)
+    shown = next(f for f in frames if f.not_sent)
+    assert json.loads(json.dumps(shown.to_dict()))["not_sent"] == ["elbow"]
 
 
 def test_robot_lost_names_the_joints_on_a_lost_line_as_of_now() -> None:

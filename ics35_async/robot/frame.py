@@ -13,7 +13,7 @@ class RobotFrame:
 
     ``positions`` holds the joints that answered in their line's newest cycle; ``targets`` every
     joint's target (``None``: free); ``failed`` the joints tried that did not
-    answer; ``offline`` the joints the stream has taken out of its cycle;
+    answer (or held back: :attr:`not_sent`); ``offline`` the joints the stream has taken out of its cycle;
     ``time`` is ``anyio.current_time()`` when the frame arrived; ``stamps``
     the ``time.monotonic()`` of each answering joint's reply.
     """
@@ -39,6 +39,9 @@ class RobotFrame:
     moving them; a target the program sets for one (``set_targets``, ``hold``, ``free``; not a motion's
     next step, nor ``set_targets(..., lift_holds=False)``) ends its hold.  ``Robot.held`` is the same,
     live."""
+    not_sent: frozenset[str] = frozenset()
+    """The joints of :attr:`failed` that were sent nothing in their line's newest cycle: held back after a failure
+    while its late reply could still come (see ``Frame.not_sent``), where the others' commands went out."""
     lost: frozenset[str] = frozenset()
     """The joints on a line whose port is lost now (opened with ``reconnect=True``: its bus reconnecting), until
     the frame that says it is back (:attr:`resumed`): their servos keep their last command, the motions have
@@ -54,6 +57,7 @@ class RobotFrame:
             "positions": {name: round(deg, 2) for name, deg in self.positions.items()},
             "targets": {name: None if deg is None else round(deg, 2) for name, deg in self.targets.items()},
             "failed": sorted(self.failed),
+            "not_sent": sorted(self.not_sent),
             "offline": sorted(self.offline),
             "stamps": dict(self.stamps),
             "skipped": self.skipped,

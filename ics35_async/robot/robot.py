@@ -932,6 +932,7 @@ class Robot:
         self._positions.update(self._agreed(positions, stamps))
         self._answered.update(positions)
         failed = frozenset(by_key[k] for k in frame.failed if k in by_key)
+        not_sent = frozenset(by_key[k] for k in frame.not_sent if k in by_key)
         offline = frozenset(by_key[k] for k in frame.offline if k in by_key)
         # A joint offline, or on a line whose port is lost, may come back restarted elsewhere: its next reading is a
         # first one again (see _agreed), not one that agrees with a reading from before.  (After _agreed: a lost
@@ -964,6 +965,7 @@ class Robot:
             line_cycles=frame.line_cycles,
             resumed=frame.resumed,
             held=held,
+            not_sent=not_sent,
             lost=lost,
         )
         self._settle(frame.line_cycles, frame.line_started)
