@@ -21,6 +21,7 @@ from tests.support.robot_rig import (
     ALL_ICS36,
     JOINTS,
     ics36_humanoid,
+    joint_degrees,
     joint_position,
     make_rig,
     sent_position,
@@ -183,6 +184,26 @@ def test_run_plays_a_trajectory_as_the_async_robots_run_does() -> None:
             assert max(sent) == joint_position(JOINTS["neck"], 20.0)
             with pytest.raises(InvalidArgument, match="outside its limits"):
                 robot.run(Trajectory([Segment(0.0, 0.1, {"neck": 10.0}, {"neck": 90.0})]))
+    finally:
+        rig.close()
+
+
+def test_positions_and_untouched_read_as_the_async_robots_do() -> None:
+    # The readings hold(), read_pose() and calibrate go by, and the ICS 3.6 joints whose torque is as found:
+    # both snapshots the async robot has, which the robot pages name without saying which robot.
+    rig = make_rig(ics36=(1,))  # neck and hip (ID 1 of each line) speak ICS 3.6: read at the open, not freed
+    try:
+        with blocking.open_robot(rig.description, **FAST) as robot:
+            assert robot.untouched == {"neck", "hip"}
+            positions = robot.positions
+            assert set(positions) == set(JOINTS)
+            for name, spec in JOINTS.items():
+                assert positions[name] == pytest.approx(joint_degrees(spec, rig.servo(name).position), abs=0.1)
+            robot.move_to({"neck": 15.0}, duration=0.05)
+            assert robot.untouched == {"hip"}
+            settled_pose(robot, {"neck": 15.0})
+            positions["neck"] = 99.0  # a snapshot: the robot's own readings are not the caller's to change
+            assert robot.positions["neck"] == pytest.approx(15.0, abs=0.1)
     finally:
         rig.close()
 

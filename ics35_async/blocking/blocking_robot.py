@@ -285,6 +285,18 @@ class BlockingRobot(LoopOwner[Robot]):
         return self._loop.read(_telemetry_of, self._async)
 
     @property
+    def positions(self) -> dict[str, float]:
+        """Where each joint was last read, in degrees: its newest reading that agrees with the one before it (see
+        ``Robot.positions``; the frames' ``positions`` are the replies as they came)."""
+        return self._loop.read(_positions_of, self._async)
+
+    @property
+    def untouched(self) -> frozenset[str]:
+        """The ICS 3.6 joints not commanded since the robot opened: their torque is as it was found (see
+        ``Robot.untouched``)."""
+        return self._loop.read(_untouched_of, self._async)
+
+    @property
     def tripped(self) -> dict[str, SafetyStop]:
         """Joints whose safety stop still stands (see ``Robot.tripped``; :meth:`reset_trip`)."""
         return self._loop.read(_tripped_of, self._async)
@@ -332,6 +344,14 @@ def _targets_of(robot: Robot) -> dict[str, float | None]:
 
 def _telemetry_of(robot: Robot) -> dict[str, JointTelemetry]:
     return {name: copy.copy(seen) for name, seen in robot.telemetry.items()}
+
+
+def _positions_of(robot: Robot) -> dict[str, float]:
+    return robot.positions
+
+
+def _untouched_of(robot: Robot) -> frozenset[str]:
+    return frozenset(robot.untouched)
 
 
 def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:
