@@ -182,8 +182,10 @@ def test_cli_scan_over_socket_lists_each_servo_once(tcp_bridge: TcpBridge, cli: 
 
 
 def test_cli_no_reply_over_socket_names_the_bridge_settings(tcp_bridge: TcpBridge, cli: Any) -> None:
-    result = cli("--port", tcp_bridge.url, "get", "9", "stretch")
-    assert result.code == 4
+    # (A patient allowance: on a loaded machine the bridge held the first try's echo past the default 20 ms, and
+    # the retry took that late echo for its own, its own echo for a reply: "reply command byte 0xA9".)
+    result = cli("--port", tcp_bridge.url, *PATIENT_OPTION, "get", "9", "stretch")
+    assert result.code == 4, result.err
     assert "bridge's serial side" in result.err
     assert "does at" not in result.err  # no other baud rate offered: every rate is the bridge's one
 
