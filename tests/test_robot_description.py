@@ -225,6 +225,13 @@ MISTAKES: list[tuple[str, str, str]] = [
         "never be checked",
     ),
     ('[lines.main]\nport = "sim://a"\n[joints.x]\nline="main"\nid=1\n[servos]\n', "servos", "unknown key"),
+    # A misspelt table is named as such, not as the unknown line its joints then point at.
+    (
+        '[lines.main]\nport = "sim://a"\n[line.arms]\nport = "sim://b"\n[joints.x]\nline="main"\nid=1\n'
+        '[joints.y]\nline="arms"\nid=1',
+        "line",
+        "unknown key (known: joints, lines, name, safety)",
+    ),
     ('[lines.main]\nport = "sim://a"\n', "joints", "is required"),
     ('joints = 3\n[lines.main]\nport = "sim://a"\n', "joints", "must be a table"),
     ("this is = not toml [", "", "not valid TOML"),

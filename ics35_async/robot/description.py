@@ -325,10 +325,11 @@ def parse_description(data: Mapping[str, Any], source: str = "<mapping>") -> Rob
     """
     top = _Reader(source, "", data)
     name = top.text("name")
-    lines = _lines(source, top.get("lines"))
-    joints = _joints(source, top.get("joints"), lines)
-    safety = _safety(source, top.get("safety"))
-    top.done()
+    tables = top.get("lines"), top.get("joints"), top.get("safety")
+    top.done()  # first: a misspelt [line.arms] is named, not the unknown line 'arms' its joints then point at
+    lines = _lines(source, tables[0])
+    joints = _joints(source, tables[1], lines)
+    safety = _safety(source, tables[2])
     return RobotDescription(source=source, lines=lines, joints=joints, safety=safety, name=name)
 
 
