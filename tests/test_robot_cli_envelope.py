@@ -133,8 +133,9 @@ def test_start_pose_keeps_ics35_joints_holding_from_the_first_command(
 @pytest.mark.parametrize(
     ("given", "phrase"),
     [
-        ("tail=3", "unknown joint(s): tail"),
-        ("neck=99", "outside its limits"),
+        # The option is named as typed: "start_pose" is the library's word for it.
+        ("tail=3", "--start-pose: unknown joint(s): tail"),
+        ("neck=99", "--start-pose: joint neck: 99 degrees is outside its limits"),
         ("neck=x", "joint=degrees"),
         ("/nonexistent.json", "nor a readable JSON file"),
         ("neck=10,neck=20", "neck given twice"),

@@ -306,8 +306,8 @@ def test_bad_options_are_refused_in_words(cli: Any, tmp_path: Path) -> None:
     robot = tmp_path / "arm.toml"
     robot.write_text('[lines.arm]\nport = "sim://web-cli-pose"\n[joints.knee]\nline = "arm"\nid = 1\nmax = 40\n')
     for pose, words in (
-        ("hip=10", "start_pose: unknown joint"),
-        ("knee=50", "start_pose: joint knee"),
+        ("hip=10", "--start-pose: unknown joint"),
+        ("knee=50", "--start-pose: joint knee"),
         ("knee", "joint=degrees"),
     ):
         refused = cli("web", "--no-browser", "--robot", str(robot), "--start-pose", pose)

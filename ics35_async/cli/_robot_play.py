@@ -170,7 +170,7 @@ def play(
     async def body() -> str:
         nonlocal passes, played, silent, rejoined, untargeted, found
         options = robot_options(settings)
-        check_start_pose(description, start_pose)  # (against the whole robot: a typo names every joint)
+        check_start_pose(description, start_pose, named="--start-pose")  # (the whole robot: a typo names every joint)
         async with opening.open(moved, on_close=on_stop, start_pose=start_pose, **options) as robot:
             show_warnings(robot)
             if untouched:

@@ -98,6 +98,14 @@ def web(
         from ._robot_common import robot_options
 
         options = robot_options(settings)
+        if start_pose is not None:  # (named as typed here: the server's own check says start_pose)
+            from ..robot.startup import check_start_pose
+            from ._robot_common import load_robot_file
+
+            try:
+                check_start_pose(load_robot_file(robot_file), start_pose, named="--start-pose")
+            except InvalidArgument as exc:
+                raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)") from None
 
     def announce(url: str) -> None:
         click.echo(url)

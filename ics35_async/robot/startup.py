@@ -367,14 +367,17 @@ def _line_options(shared: BusOptions, line: LineSpec) -> BusOptions:
     }
 
 
-def check_start_pose(description: RobotDescription, pose: Mapping[str, float] | None) -> dict[str, float]:
-    """``pose`` checked against ``description`` as ``open_robot``'s ``start_pose`` (InvalidArgument naming it)."""
+def check_start_pose(
+    description: RobotDescription, pose: Mapping[str, float] | None, *, named: str = "start_pose"
+) -> dict[str, float]:
+    """``pose`` checked against ``description`` as ``open_robot``'s ``start_pose`` (InvalidArgument naming it
+    ``named``: a command line names its option, ``--start-pose``, as typed)."""
     if pose is None:
         return {}
     try:
         return description.check_pose(pose)
     except InvalidArgument as exc:
-        raise InvalidArgument(f"start_pose: {exc}") from None
+        raise InvalidArgument(f"{named}: {exc}") from None
 
 
 async def _silent_to(
