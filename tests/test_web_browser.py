@@ -132,6 +132,7 @@ def test_the_built_in_simulator_is_labelled_on_every_page(browser: Browser, simu
         p.click(f"a[href='#{name}']")
         expect(p.locator("#sim-banner")).to_be_visible()
         expect(p.locator("#sim-banner")).to_contain_text("SIMULATOR")
+    expect(p.locator("#sim-banner")).to_contain_text("start with ics35 web --port /dev/ttyUSB0 for that")
     context.close()
 
 
@@ -979,6 +980,20 @@ def test_with_a_robot_every_page_leads_to_every_other_and_its_servos_open_from_t
         p.click("#robot-line-links button[data-line='legs']")
         expect(p.locator("#page-line")).to_be_visible()
         scan_lists(p, 10)
+
+
+def test_on_a_robot_line_the_simulator_banner_points_at_the_robot_file_not_at_port(
+    browser: Browser, robot_server: RobotServer
+) -> None:
+    # A robot's lines come from its file (--port opens another line beside them): the banner sent a builder of a
+    # simulated robot to `ics35 web --port`, which leaves the robot simulated.
+    with robot_server_page(browser, robot_server) as p:
+        banner = p.locator("#sim-banner")
+        for line in ("upper", "legs"):  # (the server's line is what the tests before left it on)
+            p.click(f"#robot-lines-table tr[data-line='{line}'] button")
+            expect(p.locator("#line-status")).to_contain_text(f"the robot's line {line}")
+            expect(banner).to_contain_text(f'for that: port = "/dev/ttyUSB0" in the robot file\'s [lines.{line}]')
+            expect(banner).not_to_contain_text("--port")
 
 
 def test_the_robot_page_refuses_an_emptied_move_time_instead_of_moving_at_once(

@@ -112,6 +112,7 @@ function show() {
 function showStatus(s) {
   state.status = s;
   $("#sim-banner").hidden = !s.simulator;
+  showSimHint(s.simulator ? s.robot_line : null);
   $("#lost-banner").hidden = !s.lost;
   showRobotLines(s.robot);
   $("#scan-progress").hidden = !s.scanning;
@@ -150,6 +151,17 @@ function showLineInBoxes(s) {
 }
 
 // With --robot: the robot's lines on the Line page and the Robot page, so either leads to the other.
+// A robot's line has the port its file gives it (--port opens another line beside the robot's), so the banner
+// over one sends a builder to that file for hardware.
+function showSimHint(robotLine) {
+  const key = robotLine || "";
+  if (state.simHintShown === key) return;
+  state.simHintShown = key;
+  $("#sim-hint").replaceChildren(...(robotLine
+    ? ["for that: ", el("code", {}, 'port = "/dev/ttyUSB0"'), ` in the robot file's [lines.${robotLine}]`]
+    : ["start with ", el("code", {}, "ics35 web --port /dev/ttyUSB0"), " for that"]));
+}
+
 function showRobotLines(robot) {
   $("#robot-link").hidden = !robot;
   $("#robot-lines").hidden = !robot;
