@@ -357,6 +357,26 @@ def test_play_refusing_a_joint_whose_servo_never_answered_is_exit_code_5_not_a_u
     assert "no motion was started" in " ".join(result.err.split()), result.err
 
 
+def test_a_line_where_nothing_answers_gives_its_scan_and_the_baud_rate_the_file_sets(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A builder's first-day slip: the file's baudrate is the HS adapter's 1250000, the servos still at their
+    # factory 115200. The hints said to check the wiring and that "ics35 scan" looks at every rate, without the
+    # line's port to scan nor the rate the file had the line talk at.
+    _, robot_file = rig
+    port = load_description(robot_file).lines["upper"].port  # (a name of its own in each test)
+    text = robot_file.read_text()
+    assert text.count("baudrate = 115200") == 2
+    robot_file.write_text(text.replace("baudrate = 115200", "baudrate = 1250000", 1))  # the upper line's
+    motion = write_motion(tmp_path / "m.json", {"time": 0.1, "pose": {"neck": 10}})
+    result = cli("play", str(robot_file), str(motion))
+    said = " ".join(result.err.split())
+    assert result.code == 4, result.err
+    assert f"no joint's servo answered on line(s) upper ({port})" in said, said
+    assert f"ics35 --port {port} scan tries every ID at every baud rate" in said, said
+    assert "line upper talks at 1250000 baud, the robot file's baudrate" in said, said
+
+
 @pytest.mark.parametrize("on_stop", ["hold", "free"])
 def test_play_refused_as_it_starts_says_the_joints_it_freed_to_read_are_left_free(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path, on_stop: str

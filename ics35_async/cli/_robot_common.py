@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import shlex
 import sys
 import threading
 import warnings
@@ -159,9 +160,30 @@ async def first_pose(robot: Robot) -> dict[str, float]:
     """The pose after open; a robot whose servos all stay silent is exit code 4."""
     pose = await robot.read_pose()
     if not pose:
-        lines = ", ".join(f"{name} ({line.port})" for name, line in robot.description.lines.items())
-        raise CliError(ExitCode.NO_REPLY, f"no joint's servo answered on line(s) {lines}", *NO_REPLY_HINTS)
+        specs = robot.description.lines.values()
+        lines = ", ".join(f"{line.name} ({line.port})" for line in specs)
+        # The scan of each silent line, and the rate the file has it talk at: a servo at another rate (a factory
+        # 115200 on a line set to the HS adapter's 1250000) is the first day's most likely silence.
+        scans = [
+            f"check the wiring and the servo IDs: {_scan_command(line)} tries every ID at every baud rate "
+            f"(line {line.name} talks at {line.baudrate} baud, the robot file's baudrate)"
+            for line in specs
+        ]
+        raise CliError(
+            ExitCode.NO_REPLY,
+            f"no joint's servo answered on line(s) {lines}",
+            NO_REPLY_HINTS[0],
+            *scans,
+            *NO_REPLY_HINTS[2:],
+        )
     return pose
+
+
+def _scan_command(line: LineSpec) -> str:
+    """``ics35 scan`` on ``line``'s port as the robot file has it reached (its echo and direction control), quoted
+    for a shell (a ``sim://`` URL's ``?`` and ``&``)."""
+    reach = ([] if line.echo else ["--no-echo"]) + ([] if line.direction == "none" else ["--direction", line.direction])
+    return shlex.join(["ics35", "--port", line.port, *reach, "scan"])
 
 
 @contextlib.contextmanager
