@@ -609,12 +609,13 @@ class Bus:
         Raises:
             InvalidArgument: an unknown option, a bad ID, a duplicate ID or an out-of-range value.
         """
-        from .stream import STREAM_OPTIONS, Stream
+        from .stream import DEPRECATED_STREAM_OPTIONS, STREAM_OPTIONS, Stream
 
         unknown = set(options) - STREAM_OPTIONS
         if unknown:
             # (rate_hz among them, though a parameter of its own: `rate=50` most likely meant it)
-            raise InvalidArgument(unknown_options("stream", unknown, STREAM_OPTIONS | {"rate_hz"}))
+            suggested = STREAM_OPTIONS - DEPRECATED_STREAM_OPTIONS | {"rate_hz"}
+            raise InvalidArgument(unknown_options("stream", unknown, suggested))
         return Stream(self, ids, rate_hz=rate_hz, **options)
 
     async def read_id(self, *, exactly_one_device: bool = False) -> int:

@@ -39,6 +39,7 @@ INF = math.inf
 STREAM_OPTIONS = frozenset(
     {"offline_after", "probe_interval", "free_on_close", "on_close", "on_resume", "history", "watch", "offline"}
 )
+DEPRECATED_STREAM_OPTIONS = frozenset({"free_on_close"})  # (taken, never suggested for a misspelt option)
 WATCH = -1
 """The target of a watched ID: ICS 3.6's position read each cycle, torque and target left alone."""
 IDLE_FRAME_INTERVAL = 0.01  # seconds between frames of an unpaced stream with every ID held

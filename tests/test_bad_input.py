@@ -341,6 +341,8 @@ async def _entered(block: contextlib.AbstractAsyncContextManager[Any]) -> None:
         # The ics35 commands' --timeout is open_bus's reply allowance: a program written after them says timeout=.
         (lambda e: open_bus(e.sim, timeout=0.05), r"timeout \(the reply allowance is adapter_latency"),
         (lambda e: e.bus.stream([1], on_clsoe="free"), r"on_clsoe \(did you mean on_close\?\)"),
+        # (not the deprecated free_on_close, the nearer spelling: the reader is told what to write now)
+        (lambda e: e.bus.stream([1], free_on_clsoe=True), r"free_on_clsoe \(did you mean on_close\?\)"),
         # (rate_hz is the stream's own argument, not one of its options: the likeliest slip is named all the same)
         (lambda e: e.bus.stream([1], rate=50), r"rate \(did you mean rate_hz\?\)"),
         (lambda e: _entered(open_robot({}, onclose="free")), r"onclose \(did you mean on_close\?\)"),
