@@ -167,12 +167,16 @@ def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> Non
         return before
 
     before = run_robot(rig, body)
-    distinct = len(set(targets_sent(rig.upper, 1, before["upper"])))
+    sent = targets_sent(rig.upper, 1, before["upper"])  # one a cycle of the fast line
+    moving = sent[: sent.index(sent[-1]) + 1]  # its cycles until the motion's end was sent
+    steps = sum(a != b for a, b in itertools.pairwise(moving))
     slow_cycles = len(list(commanded(rig.lower, 1, before["lower"])))  # one position command a cycle
-    # (stepped on the slow line's frames, the two counts are alike; 10 to 1 on a quiet machine, 2.6 to 1 once
-    # under a stress run's two CPU burners, the 100 Hz line then at about 30 Hz, and 1.56 to 1 once at load
-    # average 6 on two cores, the 100 Hz line at about 15 Hz)
-    assert distinct >= 1.4 * slow_cycles, (distinct, slow_cycles)
+    # Stepped on the slow line's frames, the fast line sends each target for several of its cycles in a row: one
+    # new target in 10 of its cycles here on a quiet machine.  Its own pace, a new one nearly every cycle (a few
+    # repeat where the motion eases in and out by less than a count a cycle).  (The machine's load sets how many
+    # cycles the fast line runs: on a suite's load on a slow hour it ran no faster than the slow line, 17 cycles
+    # to 16, where a count of distinct targets against the slow line's cycles could not tell the two apart.)
+    assert steps >= 0.7 * (len(moving) - 1), (steps, len(moving), slow_cycles)
 
 
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:

@@ -211,7 +211,9 @@ def test_play_stopped_as_it_begins_says_what_played_and_what_the_joints_were_lef
     if states == {"held"}:
         assert "joints left holding" in summary and "found" not in summary, out
         return
-    assert "holding" not in summary and "under 0.1 s of 3.6 s played" in summary, summary
+    # (Seconds played count on the motion's clock from its start: on a loaded machine 0.1 s passed before the
+    # stop with no target sent yet.)
+    assert "holding" not in summary and "none had a target yet" in summary, summary
     if servos == "ICS 3.5":
         assert states == {"free"} and "joints left free" in summary, out
     elif servos == "ICS 3.6":
