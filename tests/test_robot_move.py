@@ -981,22 +981,31 @@ def test_a_robot_frame_tells_the_failed_joints_that_were_sent_nothing() -> None:
     # A stream's frame says which failed IDs were sent nothing (held back while a late reply could still come);
     # the robot's frame merged them into `failed` and dropped the difference: lining robot frames up with the
     # line's traffic took each such joint for a command that went out.
-    rig = make_rig()
-    rig.description["lines"]["upper"]["retries"] = 0
-    frames: list[RobotFrame] = []
 
-    async def body(robot: Robot) -> None:
-        rig.upper.faults = FaultInjector(FaultConfig.parse("drop@3:0.3"), seed=1)  # (the elbow's replies, once open)
-        cycle = (await robot.wait_frame(0)).cycle
-        while len(frames) < 150 and not any(f.not_sent for f in frames):
-            frames.append(await robot.wait_frame(cycle + 1))
-            cycle = frames[-1].cycle
+    def frames_of_a_robot_losing_elbow_replies() -> list[RobotFrame]:
+        rig = make_rig()
+        rig.description["lines"]["upper"]["retries"] = 0
+        frames: list[RobotFrame] = []
 
-    # (An allowance far above what the servos take, so the stream's learnt wait is the shorter and a failure holds:
-    # at a 3 ms one, below the learnt wait, a loaded machine's late link lets the quiet time follow it instead.
-    # The elbow kept from going offline, which trips the robot and frees it.)
-    run_robot(rig, body, adapter_latency=0.05, quiet_time=0.01, offline_after=1000)
-    assert any(f.not_sent == {"elbow"} for f in frames), [f.failed for f in frames]
+        async def body(robot: Robot) -> None:
+            rig.upper.faults = FaultInjector(FaultConfig.parse("drop@3:0.3"), seed=1)  # (the elbow's, once open)
+            cycle = (await robot.wait_frame(0)).cycle
+            while len(frames) < 150 and not any(f.not_sent for f in frames):
+                frames.append(await robot.wait_frame(cycle + 1))
+                cycle = frames[-1].cycle
+
+        # (An allowance far above what the servos take, so the stream's learnt wait is the shorter and a failure
+        # holds its servo back; the elbow kept from going offline, which trips the robot and frees it.)
+        run_robot(rig, body, adapter_latency=0.05, quiet_time=0.01, offline_after=1000)
+        return frames
+
+    # A loaded machine's learnt wait can reach the allowance (a suite's load on a slow hour), and a failure then
+    # waits out a quiet time instead, holding nothing back: run again until a slot was held back, up to 4 runs.
+    for _ in range(4):
+        frames = frames_of_a_robot_losing_elbow_replies()
+        if any(f.not_sent for f in frames):
+            break
+    assert any(f.not_sent == {"elbow"} for f in frames), (len(frames), sum("elbow" in f.failed for f in frames))
     assert all(f.not_sent <= f.failed for f in frames)
     shown = next(f for f in frames if f.not_sent)
     assert json.loads(json.dumps(shown.to_dict()))["not_sent"] == ["elbow"]
