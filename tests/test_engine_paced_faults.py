@@ -192,10 +192,11 @@ def test_a_partial_replys_tail_after_another_commands_echo_does_not_pass_for_its
 @pytest.mark.parametrize("echo", [True, False])
 def test_a_failure_at_a_short_adapter_allowance_holds_its_servo_and_the_line_goes_on(echo: bool) -> None:
     # adapter_latency=0.003: the stream waits its full allowance (shorter than its learnt wait), and write 60 (to
-    # ID 1) gets no reply.  The line goes on to ID 2 after the stream's 1 ms resync, not a whole quiet_time; ID 1
-    # is held back until its reply could no longer come, and a request to it waits for that and gets its own
-    # answer.  (Without the echo, nothing tells a late link from a silent servo: the hold covers the window the
-    # quiet_time would have listened in, so a late reply lands in a hold, never in ID 1's next transaction.)
+    # ID 1) gets no reply.  On a line that echoes the line goes on to ID 2 after the stream's 1 ms resync, not a
+    # whole quiet_time; ID 1 is held back until its reply could no longer come, and a request to it waits for that
+    # and gets its own answer.  Without the echo the line stays quiet its quiet_time first, as for any failure: the
+    # engine's model (a 3 ms allowance, noise, garbled replies) found a request taking a reply not its own after
+    # such a hold there.
     timing = BusTiming(adapter_latency=0.003)
     engine = ready_engine(echo, timing=timing)
     servos = Servos([1, 2], echo=echo)
@@ -211,8 +212,12 @@ def test_a_failure_at_a_short_adapter_allowance_holds_its_servo_and_the_line_goe
     wire.run_for(0.1)
     full = timing.allowance(6, engine.baudrate, protocol.Timing.NORMAL)
     t_next, tx_next = wire.writes[61]
-    assert tx_next[0] == tx_failed[0] + 1 and t_next <= t_failed + full + 0.0015, (t_next - t_failed, tx_next)
-    assert wire.engine.counters.held_back > 0
+    if echo:
+        assert tx_next[0] == tx_failed[0] + 1 and t_next <= t_failed + full + 0.0015, (t_next - t_failed, tx_next)
+        assert wire.engine.counters.held_back > 0
+    else:  # (the request's guard read first, after the quiet time)
+        assert t_next >= t_failed + full + timing.quiet_time - 1e-9, (t_next - t_failed, tx_next)
+        assert wire.engine.counters.held_back == 0
     assert req.state == "done" and misattributed(req, servos) is None
     assert wire.writes[req.write_index][0] >= t_failed + full + timing.quiet_time - 1e-9
 

@@ -925,10 +925,10 @@ class LineEngine:
                 self._quiet_until = max(self._quiet_until, self._resync_end(self._full_deadline()))
                 self.deadline = min(self._quiet_until, self._resync_limit)
         # (A learnt stream's transaction whose full allowance was shorter than its learnt wait, its echo heard: its
-        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.  On a line
-        # without echo `heard` is always true: nothing there tells a late link from a silent servo, as after a short
-        # wait, and the hold lasts as long as the quiet_time would have listened, so a late reply still fails.)
-        elif req is None and (probe or (self._learnt_stream and heard)):
+        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.  Only on a
+        # line that echoes: without the echo the engine's model found a request taking a reply not its own after
+        # such a hold (a 3 ms allowance, noise and garbled replies), so there the quiet_time stands.)
+        elif req is None and (probe or (self._learnt_stream and heard and self.echo)):
             self._hold(now)
             if partial:
                 self._tail_until = self._held[tx[0]]  # see _settle
@@ -961,7 +961,7 @@ class LineEngine:
         timeout would have: quiet until a quiet time after its deadline, then, if the next
         command has the same command byte (a retry), a guard read first (see .guard).
         """
-        if req is None and (self._short or self._learnt_stream):
+        if req is None and (self._short or (self._learnt_stream and self.echo)):  # (see _timeout)
             self._hold(now)
             return
         if self.state is not QUIET:
