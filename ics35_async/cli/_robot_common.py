@@ -169,13 +169,8 @@ async def first_pose(robot: Robot) -> dict[str, float]:
             f"(line {line.name} talks at {line.baudrate} baud, the robot file's baudrate)"
             for line in specs
         ]
-        raise CliError(
-            ExitCode.NO_REPLY,
-            f"no joint's servo answered on line(s) {lines}",
-            NO_REPLY_HINTS[0],
-            *scans,
-            *NO_REPLY_HINTS[2:],
-        )
+        power, _wiring, pwm_mode = NO_REPLY_HINTS  # (the wiring hint's general scan: each line's own above)
+        raise CliError(ExitCode.NO_REPLY, f"no joint's servo answered on line(s) {lines}", power, *scans, pwm_mode)
     return pose
 
 

@@ -132,8 +132,10 @@ class LineEngine:
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
         self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
         self._read_in_slack = False  # this transaction is a read beside a paced stream (see _begin)
-        # A stream transaction on a line whose answers are learnt, waiting its full allowance since that is shorter
-        # than the learnt wait (a small adapter_latency): one that fails is held back as a short one is (see _hold).
+        # A stream transaction on a line that echoes and whose answers are learnt, waiting its full allowance since
+        # that is shorter than the learnt wait (a small adapter_latency): one that fails is held back as a short one
+        # is (see _hold).  Not without the echo: there the engine's model found a request taking a reply not its
+        # own after such a hold (a 3 ms allowance, noise and garbled replies), so the quiet_time stands.
         self._learnt_stream = False
         self._wire: dict[int, float] = {}  # wire time by transaction size
         # First bytes (command and ID) whose reply may still come after a short wait (or a read's in a paced
@@ -724,7 +726,7 @@ class LineEngine:
                 self._short = True
                 allowance = wait
             else:  # (the full allowance is the shorter: a small adapter_latency)
-                self._learnt_stream = req is None and self.answers.stream_latency is not None
+                self._learnt_stream = req is None and self.echo and self.answers.stream_latency is not None
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -925,10 +927,8 @@ class LineEngine:
                 self._quiet_until = max(self._quiet_until, self._resync_end(self._full_deadline()))
                 self.deadline = min(self._quiet_until, self._resync_limit)
         # (A learnt stream's transaction whose full allowance was shorter than its learnt wait, its echo heard: its
-        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.  Only on a
-        # line that echoes: without the echo the engine's model found a request taking a reply not its own after
-        # such a hold (a 3 ms allowance, noise and garbled replies), so there the quiet_time stands.)
-        elif req is None and (probe or (self._learnt_stream and heard and self.echo)):
+        # servo is held back as after a short wait, so the line need not stay quiet a whole quiet_time.)
+        elif req is None and (probe or (self._learnt_stream and heard)):
             self._hold(now)
             if partial:
                 self._tail_until = self._held[tx[0]]  # see _settle
@@ -961,7 +961,7 @@ class LineEngine:
         timeout would have: quiet until a quiet time after its deadline, then, if the next
         command has the same command byte (a retry), a guard read first (see .guard).
         """
-        if req is None and (self._short or (self._learnt_stream and self.echo)):  # (see _timeout)
+        if req is None and (self._short or self._learnt_stream):
             self._hold(now)
             return
         if self.state is not QUIET:

@@ -325,11 +325,11 @@ def parse_description(data: Mapping[str, Any], source: str = "<mapping>") -> Rob
     """
     top = _Reader(source, "", data)
     name = top.text("name")
-    tables = top.get("lines"), top.get("joints"), top.get("safety")
+    lines_table, joints_table, safety_table = top.get("lines"), top.get("joints"), top.get("safety")
     top.done()  # first: a misspelt [line.arms] is named, not the unknown line 'arms' its joints then point at
-    lines = _lines(source, tables[0])
-    joints = _joints(source, tables[1], lines)
-    safety = _safety(source, tables[2])
+    lines = _lines(source, lines_table)
+    joints = _joints(source, joints_table, lines)
+    safety = _safety(source, safety_table)
     return RobotDescription(source=source, lines=lines, joints=joints, safety=safety, name=name)
 
 
