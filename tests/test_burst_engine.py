@@ -236,7 +236,9 @@ def test_the_librarys_stream_does_exactly_what_it_does_without_bursts(
     assert wire.runner.transactions > len(plain["writes"]) / (10 if mute_every or damage_every or absent else 3)
     assert len(plain["frames"]) > 50
     if not mute_every and not damage_every and not absent:
-        assert burst["mid_burst"] > len(burst["frames"]) / 3  # frames did not wait for their burst's end
+        # frames did not wait for their burst's end (the cycles around a slow answer's hold, and the guard read
+        # after it, run on the ordinary path)
+        assert burst["mid_burst"] > len(burst["frames"]) / 4
     assert burst["writes"] == plain["writes"]
     assert burst["frames"] == plain["frames"]
     assert {**burst, "mid_burst": 0} == plain

@@ -40,8 +40,10 @@ The rules, each in one place:
 * the stream's wait: its transactions wait what this link's answers take
   too; after such a short wait fails, its servo is held back (the stream
   skips it, a request to it waits) until the reply could no longer come,
-  and while a cut-short reply's tail could still come a reply arriving in
-  pieces is taken only once nothing more follows (``LineEngine._hold``);
+  and the first command after that hold gets the guard read a timeout's
+  resync would have given if it starts as the held one; while a cut-short
+  reply's tail could still come a reply arriving in pieces is taken only
+  once nothing more follows (``LineEngine._hold``);
 * reads in a paced stream's slack: a read (a command that changes nothing)
   below ``URGENT``, whose silence is no answer, beside a stream with a rate
   waits as the stream's transactions do; timed out with its echo and nothing
@@ -51,7 +53,7 @@ The rules, each in one place:
   stream and other commands go on), and the first command after that hold
   gets the guard read a timeout's resync would have given; any other failure
   of it resyncs as after its full wait (``LineEngine._in_slack``,
-  ``LineEngine._hold_read``).  Beside no stream or an unpaced one, and for
+  ``LineEngine._hold``).  Beside no stream or an unpaced one, and for
   anything else, the rules above stand.
 """
 

@@ -132,18 +132,16 @@ class LineEngine:
         self._base = 0.0  # this transaction's full allowance without the link's extra (a probe waits less)
         self._short = False  # this transaction waits less than its full allowance (a probe, the stream)
         self._read_in_slack = False  # this transaction is a read beside a paced stream (see _begin)
-        # A stream transaction on a line that echoes and whose answers are learnt, waiting its full allowance since
-        # that is shorter than the learnt wait (a small adapter_latency): one that fails is held back as a short one
-        # is (see _hold).  Not without the echo: there the engine's model found a request taking a reply not its
-        # own after such a hold (a 3 ms allowance, noise and garbled replies), so the quiet_time stands.
+        # A stream transaction whose answers are learnt, waiting its full allowance since that is shorter than the
+        # learnt wait (a small adapter_latency): one that fails is held back as a short one is (see _hold).
         self._learnt_stream = False
         self._wire: dict[int, float] = {}  # wire time by transaction size
         # First bytes (command and ID) whose reply may still come after a short wait (or a read's in a paced
         # stream's slack): no command that starts with one goes on the wire before its time here (see _hold).
         self._held: dict[int, float] = {}
         self._hold_wake = INF
-        # First bytes of reads held back after a timeout (see _hold_read), and when their hold ends: the first
-        # command after that gets the guard read the end of a timeout's resync would have given it.
+        # First bytes held back (see _hold), and when their hold ends: the first command after that gets the guard
+        # read the end of a timeout's resync would have given it.
         self._guard_after_hold: dict[int, float] = {}
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
@@ -719,14 +717,14 @@ class LineEngine:
             allowance = self.answers.silent_allowance(allowance, self._wire_time(nbytes))
         elif req is None or self._in_slack(req, timing, now):
             # The stream's transaction, or a read beside a paced stream: it waits what this line's answers
-            # take, and a failure holds it back rather than the line (see _hold, _hold_read).
+            # take, and a failure holds it back rather than the line (see _hold).
             self._read_in_slack = req is not None
             wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
             if wait < allowance:
                 self._short = True
                 allowance = wait
             else:  # (the full allowance is the shorter: a small adapter_latency)
-                self._learnt_stream = req is None and self.echo and self.answers.stream_latency is not None
+                self._learnt_stream = req is None and self.answers.stream_latency is not None
         self.deadline = now + allowance + self.link.extra
         return tx
 
@@ -921,8 +919,11 @@ class LineEngine:
         read_in_slack, only_echo = self._read_in_slack, len(buf) == echo_len  # (before the resync clears buf)
         out = self._failed(error, sid, now)
         if read_in_slack:
+            # A read in a paced stream's slack timed out with its echo and nothing more: its servo is held back as a
+            # stream transaction's is (a retry waits, the stream and other commands go on).  After a partial reply
+            # (a tail has no header) or bytes not its own, it resyncs as after its whole wait.
             if heard and only_echo:
-                self._hold_read(now)
+                self._hold(now)
             elif self.state is QUIET:  # (partial, or the echo wrong: the resync listens as after its whole wait)
                 self._quiet_until = max(self._quiet_until, self._resync_end(self._full_deadline()))
                 self.deadline = min(self._quiet_until, self._resync_limit)
@@ -980,7 +981,8 @@ class LineEngine:
 
     def _hold(self, now: float) -> None:
         """A stream transaction that waited less than its full allowance, or its full allowance where that is
-        shorter than the stream's learnt wait (a small adapter_latency), failed (after the resync began).
+        shorter than the stream's learnt wait (a small adapter_latency), failed (after the resync began); or a
+        read in a paced stream's slack timed out with its echo and nothing more (see _in_slack).
 
         Its reply may still come, as late as a timeout at its full deadline would still listen for
         it: that deadline (the full allowance and the link's extra), then the resync's quiet time
@@ -988,31 +990,21 @@ class LineEngine:
         the wire: the stream skips that servo, and a request to it waits.  A reply from it landing
         in another command's transaction cannot pass for that one's answer (another ID or command
         in its header), so it costs a failure there, never a value taken for another; and the
-        resync after this failure can be as short as a probe's (see .probe).  The tail of a
+        resync after this failure can be as short as a probe's (see .probe).  One later still, after
+        the hold, is what a guard read is for after a timeout's resync (see .guard): the first command
+        after the hold gets one if it has the held first byte (see _guard_after_holds); a command with
+        that byte, going right after the hold, would take such a reply for its own (on a line without
+        echo at once, on one with echo when it comes after the command's echo).  The tail of a
         partial reply has no header to tell it by: see _settle.
         """
-        self._held[self._tx[0]] = self._resync_end(self._full_deadline())
+        first = self._tx[0]
+        self._held[first] = until = self._resync_end(self._full_deadline())
+        self._guard_after_hold[first] = until
         self._short_resync(now, STREAM_RESYNC)
 
-    def _hold_read(self, now: float) -> None:
-        """A read in a paced stream's slack (see _in_slack) timed out with its echo and nothing more.
-
-        Its servo is held back as after a stream transaction's short wait (see _hold): no command with the
-        read's first byte goes until its reply could no longer come, while the stream and other commands go
-        on after a resync as short as the stream's; a retry waits.  A reply from it that lands in another
-        command's transaction has another header and fails it.  One later still, after the hold, is what a
-        guard read is for after a timeout's resync (see .guard): the first command after the hold gets one
-        if it has the read's first byte (see _guard_after_holds).  Only a timeout with nothing but the echo:
-        after a partial reply (a tail has no header) or bytes that were not its own, the read resyncs as after
-        its whole wait.
-        """
-        self._hold(now)
-        first = self._tx[0]
-        self._guard_after_hold[first] = self._held[first]
-
     def _guard_after_holds(self, now: float) -> None:
-        """Holds of reads (see _hold_read) over by ``now``: the next command is the first after them, and
-        gets a guard read if it has such a read's first byte (the suspicion lasts that one command)."""
+        """Holds (see _hold) over by ``now``: the next command is the first after them, and gets a guard read
+        if it has such a hold's first byte (the suspicion lasts that one command)."""
         after = self._guard_after_hold
         for first in [first for first, until in after.items() if until <= now]:
             del after[first]
