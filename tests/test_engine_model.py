@@ -8,7 +8,9 @@ echo, an extra byte); noise; a stream-like background source; the port lost and
 reconnected, or reopened.  Plain calls and simulated time only: no event loop.
 
 Late replies are kept to what the engine can tell apart: a late reply lands in
-the resync or in the first transaction after it (the guard read's window), and
+the resync or in the first transaction after it (the guard read's window; on a
+line that echoes, after that transaction's echo when it went right as the resync
+ended, where the echo cannot tell the reply from the transaction's own), and
 not after an early failure of the transaction it belongs to (noise is sent only
 when no late reply is in flight).  A guard read's reply is never very late:
 that case is ``test_a_timed_out_guards_late_reply_is_not_taken_for_the_next_commands_reply``
@@ -103,8 +105,9 @@ class FaultyServos(Servos):
             self.late_until = deadline + (0.05 + 0.85 * u) * (quiet + extra)
             wire.schedule(self.late_until, reply, tag=k)
         elif kind == "very_late":  # lands just after that resync: in the next transaction, if any
-            self.late_until = deadline + quiet + extra + 0.0001 + 0.0001 * u
-            wire.schedule(self.late_until, reply, tag=k)
+            land = deadline + quiet + extra + 0.0001 + 0.0001 * u
+            self.late_until = until = land + wire_time(8)  # (moved past an echo, it lands by then)
+            wire.at(land, lambda: self._land_very_late(wire, reply, k, land, u, until))
         elif kind == "tail_late":  # the head in time, the tail in the resync after the partial reply
             self.late_until = deadline + (0.05 + 0.85 * u) * max(quiet + extra, base)
             wire.schedule(on_time, reply[:1], tag=k)
@@ -116,6 +119,17 @@ class FaultyServos(Servos):
             wire.schedule(on_time, reply + b"\xff", tag=k)
         else:
             wire.schedule(on_time, reply, tag=k)
+
+    def _land_very_late(self, wire: Wire, reply: bytes, k: int, land: float, u: float, until: float) -> None:
+        # A command that went on the wire in the 0.1-0.2 ms just before (the first after the resync) has its echo
+        # on its way: the reply lands after that echo, where the echo cannot tell it from the command's own.
+        if self.late_until != until:
+            return  # the port was lost meanwhile (and the bytes with it)
+        at = land
+        if wire.writes and land - 0.0002 <= wire.writes[-1][0] <= land:
+            written, tx = wire.writes[-1]
+            at = written + wire_time(len(tx)) + 1e-6 + u * wire_time(1) if self.echo else land
+        wire.schedule(at, reply, tag=k)
 
 
 def pieces(n: int, cuts: list[int]) -> list[tuple[int, int]]:

@@ -200,10 +200,15 @@ class Wire:
         self.run_until(self.now + seconds)
 
     def settle(self, limit: float = 60.0) -> None:
-        """Run until the engine has nothing on the wire, nothing resyncing and nothing queued."""
+        """Run until the engine has nothing on the wire, nothing resyncing and nothing queued, and nothing is
+        due to arrive or be done."""
         end = self.now + limit
-        while not self.engine.idle or self._arrivals:
-            nxt = min(self.engine.deadline, self._arrivals[0][0] if self._arrivals else math.inf)
+        while not self.engine.idle or self._arrivals or self._calls:
+            nxt = min(
+                self.engine.deadline,
+                self._arrivals[0][0] if self._arrivals else math.inf,
+                self._calls[0][0] if self._calls else math.inf,
+            )
             if nxt > end:
                 raise AssertionError(f"not idle after {limit} s: {self.engine.state}")
             self.run_until(nxt)
