@@ -13,6 +13,7 @@ wall clock, so the figures are exact and repeatable.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import pytest
@@ -243,6 +244,66 @@ def test_a_reply_later_than_its_servos_hold_is_not_taken_by_the_next_command_to_
     wrong = [(k, v, servos.answers[k]) for k, v in taken if v != servos.answers[k]]
     assert not wrong, f"(write, value taken, value that write was answered) {wrong}"
     assert len(taken) > 50 and taken[-1][0] > servos.landed_in  # the stream carried on
+
+
+class AnsweredInTheFirstCommandAfterTheHold(Servos):
+    """Write ``late_write`` is answered very late: its reply lands in the first command that goes once its servo's
+    hold is over (a ``hold`` after the write: its full allowance and a quiet_time), after that command's echo."""
+
+    def __init__(self, ids: list[int], late_write: int, hold: float, echo: bool) -> None:
+        super().__init__(ids, echo=echo)
+        self.late_write = late_write
+        self.hold = hold
+        self.hold_ends = math.inf
+        self.held: bytes | None = None
+        self.landed_in: int | None = None
+
+    def __call__(self, wire: Wire, tx: bytes) -> None:
+        k = len(self.answers)
+        if k == self.late_write:
+            self.hold_ends = wire.now + self.hold
+        elif self.held is not None and wire.now >= self.hold_ends - 1e-9:
+            echoed = wire.now + (protocol.wire_time(len(tx), self.baudrate) if self.echo else 0.0)
+            wire.schedule(echoed + 1e-6, self.held, tag=self.late_write)
+            self.held, self.landed_in = None, k
+        super().__call__(wire, tx)
+
+    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
+        if len(self.answers) - 1 == self.late_write:
+            self.held = reply
+        else:
+            super().deliver(wire, tx, reply)
+
+
+@pytest.mark.parametrize("adapter_latency", [BusTiming().adapter_latency, 0.003], ids=["short wait", "small allowance"])
+@pytest.mark.parametrize("echo", [True, False], ids=["echo", "no echo"])
+@pytest.mark.parametrize("ids", [[1, 2], [1]], ids=["two servos", "one servo"])
+def test_the_first_command_after_a_stream_servos_hold_is_never_one_a_later_reply_could_pass_for(
+    ids: list[int], echo: bool, adapter_latency: float
+) -> None:
+    # As above, with no request: the reply lands in the first command once the hold is over.  The held servo's own
+    # transaction is not that command while the stream has another servo to send (it is skipped once more, no
+    # guard read needed: the reply fails the other servo's transaction, whose header it does not fit); with
+    # nothing else to send, a guard read goes before it.
+    timing = BusTiming(adapter_latency=adapter_latency)
+    engine = ready_engine(echo, timing=timing)
+    hold = timing.allowance(6, engine.baudrate, protocol.Timing.NORMAL) + timing.quiet_time
+    servos = AnsweredInTheFirstCommandAfterTheHold(ids, late_write=60, hold=hold, echo=echo)
+    wire = Wire(engine, servos)
+    source = FakeSource(ids)
+    taken: list[tuple[int, Any]] = []
+    source.on_value = lambda sid, value: taken.append((len(wire.writes) - 1, value))
+    wire.emit(engine.attach_source(source, wire.now))
+    wire.run_for(0.3)
+    assert wire.writes[60][1][0] & 0x1F == 1 and servos.landed_in is not None  # (the scene)
+    wrong = [(k, v, servos.answers[k]) for k, v in taken if v != servos.answers[k]]
+    assert not wrong, f"(write, value taken, value that write was answered) {wrong}"
+    first_after = wire.writes[servos.landed_in][1]
+    if len(ids) > 1:
+        assert first_after[0] & 0x1F == 2 and engine.counters.guards == 0, first_after
+    else:
+        assert first_after == protocol.guard_read(wire.writes[60][1], 1).tx, first_after
+    assert taken[-1][0] > servos.landed_in + 10  # the stream carried on
 
 
 @pytest.mark.parametrize("echo", [True, False])

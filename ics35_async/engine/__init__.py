@@ -40,8 +40,10 @@ The rules, each in one place:
 * the stream's wait: its transactions wait what this link's answers take
   too; after such a short wait fails, its servo is held back (the stream
   skips it, a request to it waits) until the reply could no longer come,
-  and the first command after that hold gets the guard read a timeout's
-  resync would have given if it starts as the held one; while a cut-short
+  and the first command after that hold is not one that reply could pass
+  for: the stream skips that servo once more while it has another to send,
+  and otherwise (or for a request to it) the guard read a timeout's resync
+  would have given goes first (``LineEngine._skip_held``); while a cut-short
   reply's tail could still come a reply arriving in pieces is taken only
   once nothing more follows (``LineEngine._hold``);
 * reads in a paced stream's slack: a read (a command that changes nothing)

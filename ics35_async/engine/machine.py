@@ -136,12 +136,14 @@ class LineEngine:
         # learnt wait (a small adapter_latency): one that fails is held back as a short one is (see _hold).
         self._learnt_stream = False
         self._wire: dict[int, float] = {}  # wire time by transaction size
-        # First bytes (command and ID) whose reply may still come after a short wait (or a read's in a paced
-        # stream's slack): no command that starts with one goes on the wire before its time here (see _hold).
+        # First bytes (command and ID) whose reply may still come after a stream transaction's or a slack read's
+        # failure that was followed by no whole quiet_time: no command that starts with one goes on the wire before
+        # its time here (see _hold).
         self._held: dict[int, float] = {}
         self._hold_wake = INF
-        # First bytes held back (see _hold), and when their hold ends: the first command after that gets the guard
-        # read the end of a timeout's resync would have given it.
+        # First bytes held back (see _hold), and when their hold ends: the first command after that, if it starts
+        # so, gets the guard read the end of a timeout's resync would have given it (the stream's own offer is
+        # skipped once more instead while it has another: see _skip_held).
         self._guard_after_hold: dict[int, float] = {}
         self._corrupted = False  # a byte of this transaction had a parity/framing error
         self._tail_until = 0.0  # until then a partial reply's tail may still come (see _settle)
@@ -386,7 +388,9 @@ class LineEngine:
         ):
             return None
         if self._held and max(self._held.values()) > self._t_start:
-            return None  # a late reply may still land in any transaction (see _hold)
+            # A late reply may still land in any transaction (see _hold); and a hold just over leaves the first
+            # command after it to _skip_held and _begin (the guard read after a hold), which a plan would pass by.
+            return None
         queue = self.queue
         if queue.count and self._request_goes(queue.peek(), self._t_start, note=False):
             return None  # a request takes the line at the next boundary
@@ -588,6 +592,11 @@ class LineEngine:
 
         A held offer is skipped (the source moves on without counting a failure); an offer the
         source comes back to within this call is left pending, offered again once its hold ends.
+        An offer whose hold is over but no command has gone since is skipped too, once: as the first
+        command after the hold it would need a guard read before it (see _guard_after_holds), a whole
+        transaction a cycle with a full allowance should its reply be lost; another servo's transaction
+        going first instead is where a reply later than the hold lands, and its header does not fit
+        there.  Only when the source has nothing else does the offer go, with its guard read.
         """
         held = self._held
         skipped: set[int] = set()
@@ -597,7 +606,7 @@ class LineEngine:
             until = held.get(first)
             if until is None:
                 return offer
-            if until <= now:
+            if until <= now and (first in skipped or first not in self._guard_after_hold):
                 del held[first]
                 return offer
             if first in skipped:
@@ -957,9 +966,10 @@ class LineEngine:
         """A transaction failed on what came before its deadline (after the resync began).
 
         What came may not have been its reply at all (another command's late reply, noise), so
-        its own may still come, as late as it could after a timeout.  The stream's short wait
-        holds its servo back (see _hold); anything else gets the resync and the guard read a
-        timeout would have: quiet until a quiet time after its deadline, then, if the next
+        its own may still come, as late as it could after a timeout.  A stream transaction that
+        waited less than its full allowance, or its full allowance where that is shorter than its
+        learnt wait, holds its servo back (see _hold); anything else gets the resync and the guard
+        read a timeout would have: quiet until a quiet time after its deadline, then, if the next
         command has the same command byte (a retry), a guard read first (see .guard).
         """
         if req is None and (self._short or self._learnt_stream):
