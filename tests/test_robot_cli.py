@@ -646,6 +646,71 @@ def test_calibrate_writes_neutral_and_range_back_keeping_comments(
     load_description(robot_file)  # still a valid robot file
 
 
+def test_calibrate_writes_the_offset_on_a_whole_count_so_a_joint_at_its_neutral_reads_zero(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # A count is 270/8000 = 0.03375 degree: an offset rounded to 0.1 degree left a joint at its neutral reading
+    # up to 0.05 degree (10.1 for a neutral at 10.125), however carefully it was posed.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    neutral = {"neck": 7800, "hip": 7499}  # 10.125 and -0.03375 servo degrees
+
+    def at_neutral() -> None:
+        for name, position in neutral.items():
+            sims.servo(name).move_by_hand(position)
+
+    def swing(sign: int) -> Callable[[], None]:
+        def move() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(7500 + sign * round(60 * 8000 / 270))
+
+        return move
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", at_neutral, "\n"), ("whole range", swing(-1), ""), (None, swing(1), "\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    joints = tomllib.loads(robot_file.read_text())["joints"]
+    assert {name: joints[name]["offset"] for name in neutral} == {"neck": 10.125, "hip": -0.03375}
+    assert "neck: offset +10.125," in result.out and "hip: offset -0.03375," in result.out, result.out
+    read_back = load_description(robot_file)
+    assert {name: read_back.joints[name].degrees(position) for name, position in neutral.items()} == {
+        "neck": 0.0,
+        "hip": 0.0,
+    }
+
+
+def test_calibrate_adds_no_offset_of_zero_to_a_joint_without_one_but_updates_an_offset_there(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # Every joint calibrated got an offset line, "offset = 0" too in a table that had none: noise in the file.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports).replace("offset = 0.0 ", "offset = 4.5 "))
+    at = by_hand(sims)
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 0.0, "hip": 0.0}), "\n"),
+            ("whole range", at({"neck": -50.0, "hip": -60.0}), ""),
+            (None, at({"neck": 70.0, "hip": 40.0}), "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    text = robot_file.read_text()
+    hip_table = text[text.index("[joints.hip]") :]
+    assert "offset" not in hip_table, hip_table
+    assert "offset = 0       # degrees: trimmed by calibrate\n" in text, text  # the neck's line, updated to 0
+    joints = tomllib.loads(text)["joints"]
+    assert {k: joints["hip"][k] for k in ("min", "max")} == pytest.approx({"min": -60.0, "max": 40.0}, abs=0.11)
+    assert load_description(robot_file).joints["hip"].offset == 0.0
+
+
 def test_calibrate_does_not_take_a_garbled_reading_for_an_end_of_a_range(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -1319,7 +1384,8 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     )
     assert result.code == 0, result.err
     calibrated = tomllib.loads(robot_file.read_text())
-    assert "offset" not in calibrated["joints"]["hip"]  # not calibrated (it was written with an offset of 30)
+    # Not calibrated (it was written with an offset of 30).
+    assert calibrated["joints"]["hip"].keys().isdisjoint({"offset", "min", "max"})
     said = " ".join(result.err.split())
     assert (
         f"joint hip (servo ID {JOINTS['hip']['id']} on line lower) does not answer (offline): no neutral taken" in said
@@ -1327,7 +1393,8 @@ def test_calibrate_does_not_take_an_offline_joints_last_angle_as_its_neutral(
     # Back at step 2 it answered: the end says why it is left out (it was said "did not answer" there).
     assert "joint hip did not answer" not in said, said
     assert "joint hip had no neutral (it did not answer at step 1): not calibrated" in said, said
-    assert calibrated["joints"]["knee"]["offset"] == pytest.approx(0.0, abs=0.1)
+    knee = load_description(robot_file).joints["knee"]  # (an offset of 0 is not written: read as the file means it)
+    assert "min" in calibrated["joints"]["knee"] and knee.offset == pytest.approx(0.0, abs=0.1)
 
 
 def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
@@ -1359,10 +1426,11 @@ def test_calibrate_goes_on_when_a_servo_stops_answering_during_the_ranges(
     )
     assert result.code == 0, result.err
     calibrated = tomllib.loads(robot_file.read_text())
-    assert "offset" not in calibrated["joints"]["hip"]
+    assert calibrated["joints"]["hip"].keys().isdisjoint({"offset", "min", "max"})
     assert "joint hip stopped answering during step 2: not calibrated" in " ".join(result.err.split())
     for name in ("neck", "knee"):
-        values = {k: calibrated["joints"][name][k] for k in ("offset", "min", "max")}
+        joint = load_description(robot_file).joints[name]  # (an offset of 0 is not written: read as the file means it)
+        values = {"offset": joint.offset, "min": joint.min, "max": joint.max}
         assert values == pytest.approx({"offset": 0.0, "min": -40.0, "max": 40.0}, abs=0.11), name
 
 

@@ -22,7 +22,7 @@ from ..eeprom import Eeprom
 from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, UnsettledReadings, save_motion
 from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
-from ..robot.description import JointSpec
+from ..robot.description import COUNT_DECIMALS, JointSpec
 from ..robot.profiles import LONGEST_MOTION
 from ..robot.startup import limit_problem
 from ..transports.wire_device import url_scheme
@@ -361,6 +361,13 @@ async def capture(
     screen.say("\n".join([f"pose {len(keyframes)} at {when:.2f} s", *warnings]))
 
 
+def signed_count_angle(value: float) -> str:
+    """``+10.125``: an angle on a whole count (0.03375 degree) to its last decimal, one at least; ``+0.0``, never
+    ``-0.0``."""
+    text = f"{round(value, COUNT_DECIMALS) + 0.0:+.{COUNT_DECIMALS}f}".rstrip("0")
+    return f"{text}0" if text.endswith(".") else text
+
+
 @click.command()
 @click.argument("robot_file", metavar="ROBOT.toml")
 @joints_option
@@ -535,7 +542,8 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     if not calibrated:
         raise CliError(ExitCode.NO_REPLY, "no joint answered: nothing written")
     for name, joint in calibrated.items():
-        offset, least, most = (signed_tenths(x) for x in (joint.offset, joint.min, joint.max))
+        # The offset as written: on a whole count, up to 5 decimals (limits are rounded inward to 0.1 degree).
+        offset, least, most = signed_count_angle(joint.offset), signed_tenths(joint.min), signed_tenths(joint.max)
         out.print(f"{name}: offset {offset}, min {least}, max {most}")
         # A free servo turns by hand past its pulse limits, which bound only the positions it is sent.
         problem = limit_problem(robot_file, joint, eeproms[name]) if name in eeproms else None

@@ -25,12 +25,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from .. import units
 from ..eeprom import Eeprom, Flags
 from ..errors import InvalidArgument
 from ..user_files import replace_keeping_backup
-from .description import SERVO_DEGREES, JointSpec, LineSpec, RobotDescription, parse_description
+from .description import COUNT_DECIMALS, SERVO_DEGREES, JointSpec, LineSpec, RobotDescription, parse_description
 
 CALIBRATED_KEYS = ("offset", "min", "max")
+# Keys not added to a joint's table that lacks them when their value is this: the file reads the same without
+# them.  (Not min or max: their defaults follow the offset.)
+_LEFT_OUT_AT = {"offset": 0.0}
 _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
 _KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)([^#]*?)(\s*#.*)?$")
 
@@ -55,11 +59,15 @@ def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -
     """``joint`` with the offset that makes ``neutral`` (servo degrees) read 0, and limits spanning
     ``low``..``high`` (servo degrees), rounded inward to 0.1 degree.
 
+    The offset is the angle of the whole position count nearest ``neutral`` (0.03375 degree a count): a
+    joint back at that count reads exactly 0, where an offset rounded coarser than a count would leave it
+    reading a few hundredths off.
+
     Raises :class:`NarrowRange` (an InvalidArgument) when the range is narrower than
     :data:`MIN_RANGE_DEGREES`: a joint not moved by hand (Enter pressed twice) would otherwise get limits
     that forbid every motion.
     """
-    offset = round(neutral, 1)
+    offset = count_angle(neutral)
     ends = sorted(((s - offset) * joint.sign) for s in (low, high))
     lo = math.ceil(round(ends[0] * 10, 6)) / 10
     hi = math.floor(round(ends[1] * 10, 6)) / 10
@@ -71,8 +79,16 @@ def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -
     return replace(joint, offset=offset, min=lo, max=hi)
 
 
+def count_angle(servo_degrees: float) -> float:
+    """The angle of the whole position count nearest ``servo_degrees`` (at most :data:`COUNT_DECIMALS` decimals:
+    the float noise of a count's angle, 10.125000000000002 for 300 counts, dropped)."""
+    counts = round(servo_degrees * units.COUNTS_PER_DEGREE)
+    return round(counts / units.COUNTS_PER_DEGREE, COUNT_DECIMALS) + 0.0
+
+
 def _number(value: float) -> str:
-    text = f"{round(value, 3):.3f}".rstrip("0").rstrip(".")
+    # To the servo's resolution: an offset on a whole count has up to 5 decimals (0.03375 a count).
+    text = f"{round(value, COUNT_DECIMALS):.{COUNT_DECIMALS}f}".rstrip("0").rstrip(".")
     return "0" if text in ("-0", "") else text
 
 
@@ -87,7 +103,11 @@ def _header_joint(header: str) -> str | None:
 
 
 def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> str | None:
-    """``text`` with the given keys of each ``[joints.NAME]`` table set; None if a joint has no such table."""
+    """``text`` with the given keys of each ``[joints.NAME]`` table set; None if a joint has no such table.
+
+    A key the table lacks is added after its last key, but for an ``offset`` of 0 (the file reads the same
+    without it); a key it has is updated whatever its value.
+    """
     lines = text.splitlines(keepends=True)
     out: list[str] = []
     current: str | None = None
@@ -98,8 +118,8 @@ def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> s
     def close_table() -> None:
         # Keys the table did not have go after its last key line.
         nonlocal pending
-        if pending:
-            added = [f"{key} = {_number(value)}\n" for key, value in pending.items()]
+        added = [f"{key} = {_number(value)}\n" for key, value in pending.items() if _LEFT_OUT_AT.get(key) != value]
+        if added:
             at = last_key_at + 1 if last_key_at >= 0 else len(out)
             if at > 0 and not out[at - 1].endswith("\n"):
                 out[at - 1] += "\n"
