@@ -1267,3 +1267,19 @@ def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_statu
     # (its last words "errors N": the count is the machine's load, a realtime simulator's replies late under it)
     assert status[-2] == "errors" and status[-1].isdigit() and "answering" in status, said
     assert "Ctrl-C to stop" in " ".join(written.split()), said  # (the hint, as the view ran: wrapped, not cut)
+
+
+@pytest.mark.parametrize("columns", [120, 50])
+def test_monitors_title_spans_the_terminal_and_is_cut_with_an_ellipsis_only_on_a_narrower_one(columns: int) -> None:
+    # The title is wider than the table below it: it is drawn at the terminal's width, not the table's.  On a
+    # terminal narrower than the title it was cut at the last column with nothing to say so ("... at 115200"
+    # reads as the whole title, a port's name cut short as another port's).
+    args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
+    _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert "Traceback" not in written, said
+    title = "monitor sim://?ids=1-3&realtime=1 at 115200 baud (ICS 3.5 servos free)"
+    titles = [line for line in screen if line.startswith("monitor sim://")]
+    expected = title if len(title) <= columns else title[: columns - 1] + "…"
+    assert titles == [expected], said

@@ -49,6 +49,16 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
+def cut_at_width(text: Text) -> Text:
+    """``text``, a live view's title, on one line cut with an ellipsis at the terminal's width where it is wider.
+    Not a table's own title: that is laid out at the table's width, often narrower than the title, and as the
+    consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a port's name cut
+    short reads as another port's)."""
+    text.no_wrap = True
+    text.overflow = "ellipsis"
+    return text
+
+
 class _Drawn:
     """What a live view draws of ``renderable``: with ``resting``, an empty line below it (see :class:`_LiveView`)."""
 

@@ -101,7 +101,8 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            live.update(Group(state.table(telemetry, options.with_targets), status))
+            table = state.table(telemetry, options.with_targets, titled=False)
+            live.update(Group(state.title_line(), table, status))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))
