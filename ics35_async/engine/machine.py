@@ -1002,7 +1002,8 @@ class LineEngine:
         in its header), so it costs a failure there, never a value taken for another; and the
         resync after this failure can be as short as a probe's (see .probe).  One later still, after
         the hold, is what a guard read is for after a timeout's resync (see .guard): the first command
-        after the hold gets one if it has the held first byte (see _guard_after_holds); a command with
+        after the hold gets one if it has the held first byte (see _guard_after_holds; the stream's own
+        transaction is skipped once more instead while it has another: see _skip_held); a command with
         that byte, going right after the hold, would take such a reply for its own (on a line without
         echo at once, on one with echo when it comes after the command's echo).  The tail of a
         partial reply has no header to tell it by: see _settle.
