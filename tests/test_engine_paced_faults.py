@@ -190,19 +190,26 @@ def test_a_partial_replys_tail_after_another_commands_echo_does_not_pass_for_its
     assert len(taken) > 50
 
 
-class AnsweredAfterTheHold(Servos):
-    """Write ``late_write`` is answered very late: its reply lands in the next command to its servo (after that
-    command's echo, on a line that echoes), however long the line keeps from that servo first."""
+class AnsweredVeryLate(Servos):
+    """Write ``late_write`` is answered very late: its reply lands after the echo (on a line that echoes) of the next
+    command to its servo, however long the line keeps from that servo first; or, given a ``hold`` (seconds after
+    the write: its full allowance and a quiet_time), of the first command once that hold is over."""
 
-    def __init__(self, ids: list[int], late_write: int, echo: bool) -> None:
+    def __init__(self, ids: list[int], late_write: int, echo: bool, hold: float | None = None) -> None:
         super().__init__(ids, echo=echo)
         self.late_write = late_write
+        self.hold = hold
+        self.hold_ends = math.inf
         self.held: bytes | None = None
         self.landed_in: int | None = None  # the write it landed in
 
     def __call__(self, wire: Wire, tx: bytes) -> None:
         k = len(self.answers)
-        if self.held is not None and tx[0] & 0x1F == self.held[0] & 0x1F:
+        if k == self.late_write and self.hold is not None:
+            self.hold_ends = wire.now + self.hold
+        elif self.held is not None and (
+            wire.now >= self.hold_ends - 1e-9 if self.hold is not None else tx[0] & 0x1F == self.held[0] & 0x1F
+        ):
             echoed = wire.now + (protocol.wire_time(len(tx), self.baudrate) if self.echo else 0.0)
             wire.schedule(echoed + 1e-6, self.held, tag=self.late_write)
             self.held, self.landed_in = None, k
@@ -226,7 +233,7 @@ def test_a_reply_later_than_its_servos_hold_is_not_taken_by_the_next_command_to_
     # resync: it lands in the first command after it.  Here that command is a request to the held servo (it waited
     # for the hold), and the reply comes after its echo: it must fail that request or a guard read before it, never
     # pass for the request's answer.  (The engine's model found it at a 3 ms allowance on a line without echo.)
-    servos = AnsweredAfterTheHold([1, 2], late_write=60, echo=echo)
+    servos = AnsweredVeryLate([1, 2], late_write=60, echo=echo)
     engine = ready_engine(echo, timing=BusTiming(adapter_latency=adapter_latency))
     wire = Wire(engine, servos)
     source = FakeSource([1, 2])
@@ -246,35 +253,6 @@ def test_a_reply_later_than_its_servos_hold_is_not_taken_by_the_next_command_to_
     assert len(taken) > 50 and taken[-1][0] > servos.landed_in  # the stream carried on
 
 
-class AnsweredInTheFirstCommandAfterTheHold(Servos):
-    """Write ``late_write`` is answered very late: its reply lands in the first command that goes once its servo's
-    hold is over (a ``hold`` after the write: its full allowance and a quiet_time), after that command's echo."""
-
-    def __init__(self, ids: list[int], late_write: int, hold: float, echo: bool) -> None:
-        super().__init__(ids, echo=echo)
-        self.late_write = late_write
-        self.hold = hold
-        self.hold_ends = math.inf
-        self.held: bytes | None = None
-        self.landed_in: int | None = None
-
-    def __call__(self, wire: Wire, tx: bytes) -> None:
-        k = len(self.answers)
-        if k == self.late_write:
-            self.hold_ends = wire.now + self.hold
-        elif self.held is not None and wire.now >= self.hold_ends - 1e-9:
-            echoed = wire.now + (protocol.wire_time(len(tx), self.baudrate) if self.echo else 0.0)
-            wire.schedule(echoed + 1e-6, self.held, tag=self.late_write)
-            self.held, self.landed_in = None, k
-        super().__call__(wire, tx)
-
-    def deliver(self, wire: Wire, tx: bytes, reply: bytes) -> None:
-        if len(self.answers) - 1 == self.late_write:
-            self.held = reply
-        else:
-            super().deliver(wire, tx, reply)
-
-
 @pytest.mark.parametrize("adapter_latency", [BusTiming().adapter_latency, 0.003], ids=["short wait", "small allowance"])
 @pytest.mark.parametrize("echo", [True, False], ids=["echo", "no echo"])
 @pytest.mark.parametrize("ids", [[1, 2], [1]], ids=["two servos", "one servo"])
@@ -288,7 +266,7 @@ def test_the_first_command_after_a_stream_servos_hold_is_never_one_a_later_reply
     timing = BusTiming(adapter_latency=adapter_latency)
     engine = ready_engine(echo, timing=timing)
     hold = timing.allowance(6, engine.baudrate, protocol.Timing.NORMAL) + timing.quiet_time
-    servos = AnsweredInTheFirstCommandAfterTheHold(ids, late_write=60, hold=hold, echo=echo)
+    servos = AnsweredVeryLate(ids, late_write=60, echo=echo, hold=hold)
     wire = Wire(engine, servos)
     source = FakeSource(ids)
     taken: list[tuple[int, Any]] = []
