@@ -1250,6 +1250,22 @@ def test_q_typed_on_a_narrow_terminal_leaves_teachs_view_whole_and_its_last_word
     assert "q" not in [line.strip() for line in screen], said
 
 
+def test_a_robot_views_title_wider_than_the_terminal_ends_in_an_ellipsis(tmp_path: Path) -> None:
+    # As monitor's: a title wider than the terminal was cut at its last column with nothing to say so (a motion
+    # file's name cut short reads as another file's).
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    name = "a_long_motion_for_the_walking_gait_of_the_hexapod_on_its_two_lines.json"
+    args = ["teach", str(robot), str(tmp_path / name), "--yes"]
+    code, written = typed_on_a_terminal(args, [("0 pose(s) captured", b"q\r")], columns=NARROW)
+    screen = [line for line in screen_of(written, width=NARROW) if line]
+    said = "\n".join(screen)
+    assert code == 5, said  # (refused: no pose captured)
+    title = f"teach: {name}"
+    assert len(title) > NARROW  # (the scene)
+    assert [line for line in screen if line.startswith("teach: a_long")] == [title[: NARROW - 1] + "…"], said
+
+
 def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:
     # monitor's status line was cut at a narrow terminal's last column (its "Ctrl-C to stop" hint gone), and a key
     # typed there (q, as other programs quit) or the ^C the terminal echoed wrapped to a line of their own: each
