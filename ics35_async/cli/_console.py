@@ -10,11 +10,12 @@ from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 import click
-from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
+from rich.console import Console, ConsoleOptions, Group, RenderableType, RenderResult
 from rich.file_proxy import FileProxy
 from rich.live import Live
 from rich.markup import escape
 from rich.segment import Segment
+from rich.table import Table
 from rich.text import Text
 
 from .. import units
@@ -49,14 +50,19 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
-def cut_at_width(text: Text) -> Text:
-    """``text``, a live view's title, on one line cut with an ellipsis at the terminal's width where it is wider.
-    Not a table's own title: that is laid out at the table's width, often narrower than the title, and as the
-    consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a port's name cut
-    short reads as another port's)."""
-    text.no_wrap = True
-    text.overflow = "ellipsis"
-    return text
+def title_above(table: Table) -> Group:
+    """``table`` for a live view: its title taken off it and drawn on a line of its own above it, cut with an
+    ellipsis at the terminal's width where it is wider.  A table's own title is laid out at the table's width,
+    often narrower than the title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with
+    nothing to say so (a port's or a file's name cut short reads as another's).  (A table printed whole, into a
+    log, keeps its title.)"""
+    title, table.title = table.title, None
+    if title is None:
+        return Group(table)
+    line = Text.from_markup(title) if isinstance(title, str) else title
+    line.no_wrap = True
+    line.overflow = "ellipsis"
+    return Group(line, table)
 
 
 class _Drawn:

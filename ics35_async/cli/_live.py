@@ -40,7 +40,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import ids_argument, live_view, wrapped_at_width
+from ._console import ids_argument, live_view, title_above, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -101,8 +101,7 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            table = state.table(telemetry, options.with_targets, titled=False)
-            live.update(Group(state.title_line(), table, status))
+            live.update(Group(title_above(state.table(telemetry, options.with_targets)), status))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))

@@ -14,7 +14,7 @@ from rich.text import Text
 from .. import units
 from ..frames import Frame
 from ..stream import Stream
-from ._console import current_json, cut_at_width, signed_tenths, temperature_json
+from ._console import current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
 
 
@@ -71,21 +71,10 @@ class LiveState:
             f"(avg {self.rate_avg:5.1f})  answering {answering}/{len(self.ids)}  errors {errors}"
         )
 
-    def title_line(self) -> Text:
-        """The title, for a live view to draw above :meth:`table` (given ``titled=False``): one line, cut with an
-        ellipsis at the terminal's width only where the terminal is narrower."""
-        return cut_at_width(Text.from_markup(self.title))
-
-    def table(self, telemetry: Telemetry, with_targets: bool, *, titled: bool = True) -> Table:
-        """The readings of every servo, titled (a log's table at the end) or not (a live view's: see
-        :meth:`title_line`)."""
+    def table(self, telemetry: Telemetry, with_targets: bool) -> Table:
         per_row = 2 if len(self.ids) > 16 else 1
         table = Table(
-            title=self.title if titled else None,
-            title_justify="left",
-            box=box.SIMPLE_HEAD,
-            pad_edge=False,
-            collapse_padding=True,
+            title=self.title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
         )
         names = (
             ("ID", "target°", "pos°", "cur", "temp", "err")

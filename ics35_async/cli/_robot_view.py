@@ -22,7 +22,7 @@ from ..engine import State
 from ..robot import Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import cut_at_width, live_view, signed_tenths, wrapped_at_width
+from ._console import live_view, signed_tenths, title_above, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
@@ -126,13 +126,8 @@ class Screen:
             out.file.flush()
 
     def _lines(self, hint: str) -> Group:
-        table = self.render()
-        # The title on a line of its own, cut with an ellipsis at a narrower terminal (see cut_at_width); the table
-        # printed whole when the output is no terminal keeps it.
-        title, table.title = table.title, None
-        head = [] if title is None else [cut_at_width(Text.from_markup(title) if isinstance(title, str) else title)]
         said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
-        return Group(*head, table, *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())))
+        return Group(title_above(self.render()), *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())))
 
     def __enter__(self) -> Screen:
         if self._live is not None:
