@@ -660,16 +660,15 @@ def test_calibrate_writes_the_offset_on_a_whole_count_so_a_joint_at_its_neutral_
         for name, position in neutral.items():
             sims.servo(name).move_by_hand(position)
 
-    def swing(sign: int) -> Callable[[], None]:
-        def move() -> None:
-            for name in ("neck", "hip"):
-                sims.servo(name).move_by_hand(7500 + sign * round(60 * 8000 / 270))
-
-        return move
+    at = by_hand(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],
-        [("neutral (every joint at 0)", at_neutral, "\n"), ("whole range", swing(-1), ""), (None, swing(1), "\n")],
+        [
+            ("neutral (every joint at 0)", at_neutral, "\n"),
+            ("whole range", at({"neck": -60.0, "hip": -60.0}), ""),
+            (None, at({"neck": 60.0, "hip": 60.0}), "\n"),
+        ],
         [sims.upper, sims.lower],
     )
     assert result.code == 0, result.err
