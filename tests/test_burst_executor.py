@@ -238,6 +238,48 @@ def test_a_wake_stops_it_at_the_next_boundary_and_other_threads_run_meanwhile() 
     assert progress > 1000  # the counting thread ran while the burst did
 
 
+def _sched(tid: str) -> tuple[int, int]:
+    """A thread's time slice (ns; the scheduler's own figure) and nice value, from /proc."""
+    with open(f"/proc/self/task/{tid}/sched") as f:
+        line = next(ln for ln in f if ln.startswith("se.slice"))
+    with open(f"/proc/self/task/{tid}/stat") as f:
+        nice = int(f.read().rsplit(")", 1)[1].split()[16])
+    return int(line.split(":")[1]), nice
+
+
+def test_the_executors_thread_asks_for_the_shortest_time_slice_and_keeps_its_nice(pty_pair: PtyPair) -> None:
+    # Woken by a reply while the program's Python has the core (its loop feeding the engine, a thread of its
+    # own), the executor must get the core at once, not at the end of the other thread's slice: on Linux 6.12 and
+    # later a thread that asks for a short slice gets an earlier deadline, so its wake-up preempts.  The request
+    # must not change its nice value (the program's, inherited: as root, a reset to 0 would raise its priority).
+    master, slave = pty_pair
+    responder = serve(master)
+    found: dict[str, tuple[int, int]] = {}
+
+    def run() -> None:
+        os.nice(3)  # this thread only (Linux): the executor's thread is made by it
+        before = set(os.listdir("/proc/self/task"))
+        burst = _burst.Burst(slave)
+        burst.start(time.monotonic() + ALLOWANCE, plan(8))
+        result = burst.wait()
+        assert result[0] == DONE and len(result[2]) == 8
+        found.update({tid: _sched(tid) for tid in set(os.listdir("/proc/self/task")) - before})
+        burst.close()
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    responder.stop()
+    assert len(found) == 1, found  # the executor's thread
+    (slice_ns, nice), base = found.popitem()[1], _sched(str(threading.get_native_id()))[0]
+    assert nice == 3
+    release = tuple(int(x) for x in os.uname().release.split(".")[:2] if x.isdigit())
+    if release >= (6, 12):  # (custom slices came with Linux 6.12; older kernels ignore the request)
+        assert slice_ns == 100_000 < base
+    else:
+        assert slice_ns == base
+
+
 def test_done_fd_turns_readable_when_a_started_burst_ends(pty_pair: PtyPair) -> None:
     master, slave = pty_pair
     responder = serve(master)
