@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 
 from ics35_async.sim import serving
-from tests.support.cli_runs import run_process
+from tests.support.cli_runs import PRESS_AT_A_CALL, run_process
 from tests.support.terminal import TerminalOutput, Unread, screen_of, typed_on_a_terminal
 from tests.support.timing import PATIENT_OPTION, scaled
 
@@ -1137,29 +1137,12 @@ def test_a_command_interrupted_before_its_loop_ran_it_ends_without_a_warning(whe
     assert done.stderr == "", done.stderr
 
 
-# A profile hook that presses Ctrl-C as the script's first argument (a function's name) is called for the second
-# argument's time.
-_PRESS_AT_A_CALL = """
-import os, signal, sys
-
-where, count = sys.argv[1], int(sys.argv[2])
-calls = [0]
-
-def press(frame, event, arg):
-    if event == "call" and frame.f_code.co_name == where:
-        calls[0] += 1
-        if calls[0] == count:
-            sys.setprofile(None)
-            os.kill(os.getpid(), signal.SIGINT)
-"""
-
-
 # Ctrl-C as the runner closes the loop, the command's work over: uvloop runs Python's socket bookkeeping inside its
 # own loop step (a profile hook presses there, as a press lands in the main thread between any two steps), and a
 # KeyboardInterrupt raised there left the loop running and unclosable ("RuntimeError: Cannot close a running event
 # loop", a traceback, exit code 1).
 _PRESS_AS_THE_LOOP_CLOSES = (
-    _PRESS_AT_A_CALL
+    PRESS_AT_A_CALL
     + """
 from ics35_async.cli import main
 
@@ -1188,7 +1171,7 @@ def test_ctrl_c_as_the_loop_closes_ends_in_one_line(loop: str, where: tuple[str,
 # loop running and unclosable: "RuntimeError: Cannot close a running event loop", tracebacks under demo's table
 # (three presses 30 ms and 5 ms apart), exit code 1.  A profile hook presses at the chosen socket call.
 _LATER_PRESS_IN_THE_LOOPS_OWN_STEP = (
-    _PRESS_AT_A_CALL
+    PRESS_AT_A_CALL
     + """
 import asyncio
 from ics35_async.cli._loop import run_loop

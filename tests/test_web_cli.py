@@ -21,17 +21,22 @@ from typing import Any
 import pytest
 
 from ics35_async.cli._extras import install_command, installed_from
+from tests.support.cli_runs import PRESS_AT_A_CALL
 from tests.support.timing import scaled
 
 
 @contextmanager
 def web(
-    *args: str, env: dict[str, str] | None = None, ignoring_sigint: bool = False
+    *args: str,
+    env: dict[str, str] | None = None,
+    ignoring_sigint: bool = False,
+    python: tuple[str, ...] = ("-m", "ics35_async.cli"),
 ) -> Iterator[tuple[subprocess.Popen[str], str]]:
-    """``ics35 web``; ``ignoring_sigint``: started as a script's background job is, SIGINT ignored."""
+    """``ics35 web``; ``ignoring_sigint``: started as a script's background job is, SIGINT ignored; ``python``:
+    Python's arguments before the command's (a ``-c`` program and its own, to run it another way)."""
     environment = {k: v for k, v in os.environ.items() if k not in ("ICS35_PORT", "ICS35_WEB_TOKEN")}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", "web", "--no-browser", *args],
+        [sys.executable, *python, "web", "--no-browser", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -181,6 +186,53 @@ def test_a_second_ctrl_c_with_nothing_left_to_wait_for_is_the_same_stop(gap: flo
         page.close()
         assert proc.stderr is not None
         err = proc.stderr.read()
+    assert code == 0 and "Traceback" not in err and "Exception" not in err and "error" not in err, err
+
+
+# A double Ctrl-C's second press landing as asyncio's runner closes the server's loop, the stop made (a profile
+# hook presses at the named call of the runner's close): inside uvloop's own step (its self-pipe's socket closed
+# as a run of the loop ends) Python's handler, back by then, raised KeyboardInterrupt, which left the loop running
+# and unclosable: "RuntimeError: Cannot close a running event loop", a traceback, exit code 1.
+_SECOND_PRESS_AS_THE_LOOP_CLOSES = (
+    PRESS_AT_A_CALL
+    + """
+import asyncio, atexit
+from ics35_async.cli import main
+
+close = asyncio.Runner.close
+
+def closing(self):
+    sys.setprofile(press)
+    close(self)
+
+asyncio.Runner.close = closing
+atexit.register(lambda: print("pressed" if calls[0] >= count else f"{where} was called {calls[0]} times"))
+main(sys.argv[3:])
+"""
+)
+
+
+@pytest.mark.parametrize(
+    ("loop", "where"),
+    [
+        ("uvloop", ("_decref_socketios", 1)),
+        ("uvloop", ("_real_close", 1)),
+        ("uvloop", ("_real_close", 2)),
+        ("asyncio", ("shutdown_asyncgens", 1)),
+        ("asyncio", ("shutdown_default_executor", 1)),
+    ],
+    ids=lambda value: value if isinstance(value, str) else f"{value[0]}-{value[1]}",
+)
+def test_a_second_ctrl_c_as_the_servers_loop_closes_is_the_same_stop(loop: str, where: tuple[str, int]) -> None:
+    python = ("-c", _SECOND_PRESS_AS_THE_LOOP_CLOSES, where[0], str(where[1]))
+    with web(env={"ICS35_LOOP": loop}, python=python) as (proc, url):
+        base, token = split(url)
+        assert get(f"{base}/api/status", token)[0] == 200  # (the server runs: the URL comes before it starts)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C: the second comes as the runner closes the loop
+        code = proc.wait(scaled(10))
+        assert proc.stdout is not None and proc.stderr is not None
+        out, err = proc.stdout.read(), proc.stderr.read()
+    assert out == "pressed\n", out
     assert code == 0 and "Traceback" not in err and "Exception" not in err and "error" not in err, err
 
 

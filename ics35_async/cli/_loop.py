@@ -15,7 +15,7 @@ import threading
 import warnings
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import CoroutineType, FrameType
-from typing import Any, TypeGuard, TypeVar, cast
+from typing import Any, Literal, TypeGuard, TypeVar, cast
 
 from ..running import _after_stop, _unwrapped
 from ..terminal import ctrl_c_typed
@@ -36,7 +36,7 @@ async def _await(make: Callable[[], Awaitable[T]], started: list[asyncio.Task[T]
         return await make()
 
 
-def loop_factory() -> tuple[str, Callable[[], asyncio.AbstractEventLoop] | None]:
+def loop_factory() -> tuple[Literal["asyncio", "uvloop"], Callable[[], asyncio.AbstractEventLoop] | None]:
     """The loop ``ICS35_LOOP`` asks for (``auto``: uvloop when installed, about 25% less CPU per transaction in
     section A of ``make bench``)."""
     choice = os.environ.get("ICS35_LOOP", "").strip().lower() or "auto"

@@ -11,7 +11,7 @@ from ..errors import InvalidArgument
 from ..terminal import clear_after_ctrl_c
 from ._common import CliError, ExitCode, err, settings_of
 from ._extras import extra_hint
-from ._loop import quiet_executor_shutdown
+from ._loop import loop_factory, quiet_executor_shutdown
 from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option
 
@@ -63,6 +63,7 @@ def web(
             f"ics35 web needs the web extra ({exc.name} is missing)",
             f"install it with: {extra_hint('web')}",
         ) from None
+    loop, _ = loop_factory()  # (ICS35_LOOP, as for every command; a bad one refused before anything is bound)
     try:
         where = Listen.parse(listen)
         token = load_token(token_file)
@@ -143,6 +144,7 @@ def web(
             line_from_robot=line_from_robot,
             note=note,
             no_browser_opened=no_browser_opened,
+            loop=loop,
         )
     except InvalidArgument as exc:  # a robot file's error (DescriptionError) included
         raise CliError(ExitCode.USAGE, str(exc)) from None

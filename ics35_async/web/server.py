@@ -10,12 +10,13 @@ import os
 import signal
 import socket
 import sys
+import threading
 import webbrowser
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, Literal
 
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
@@ -24,6 +25,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from ..errors import InvalidArgument, error_text
+from ..running import _after_stop
 from ..terminal import ctrl_c_typed
 from .api import ROUTES
 from .config import LineConfig
@@ -311,6 +313,40 @@ def _server_class() -> type[Any]:
 _STOPPING = (signal.SIGINT, signal.SIGTERM)
 
 
+@contextlib.contextmanager
+def _ctrl_c_stops(server: Any) -> Iterator[None]:
+    """Ctrl-C is ``server``'s stop for the whole of its run, the event loop's making and closing included.
+
+    uvicorn takes the stop signals over only while it serves; once stopped it hands the signal on to the
+    handler it found, which was asyncio's runner's (it cancels the finished main task and raises
+    KeyboardInterrupt), with Python's own back while the runner closes the loop.  A double Ctrl-C's second
+    press landing there raised KeyboardInterrupt wherever the main thread was: inside uvloop's own step as a run
+    of the loop ends (its self-pipe closed), it left the loop running and unclosable ("RuntimeError: Cannot
+    close a running event loop", a traceback, exit code 1).  With this handler there instead (the runner then
+    keeps out), a press before the server serves stops it as soon as it does, and uvicorn's handing on is the
+    stop made: from then a press within a moment is the same stop (see ``running._AfterStop``), a later one
+    Python's KeyboardInterrupt (a close that hangs can still be left).  Main thread, Python's handler only."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield  # (ignored, or the program's own handler: as uvicorn has it)
+        return
+
+    def on_sigint(signum: int, frame: FrameType | None) -> None:
+        if server.should_exit:  # (uvicorn handing its stop on, or a press after it)
+            _after_stop({signal.SIGINT: signal.default_int_handler})
+            return
+        server.handle_exit(signum, frame)
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        if signal.getsignal(signal.SIGINT) is on_sigint:  # (not stopped by Ctrl-C: as it was)
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def _only_terminal_browsers() -> bool:
     # (macOS and Windows open their browsers without a display variable; elsewhere a graphical one needs one)
     if sys.platform in ("darwin", "win32") or os.environ.get("BROWSER"):
@@ -347,6 +383,7 @@ def serve(
     line_from_robot: bool = False,
     note: Callable[[str], None] | None = None,
     no_browser_opened: Callable[[], None] | None = None,
+    loop: Literal["auto", "asyncio", "uvloop"] = "auto",
 ) -> int:
     """Serve until Ctrl-C; ``announce`` gets the URL first (with the token in it), ``warn`` what goes wrong,
     ``note`` what the server does as it stops (a stop that waits for requests still being answered),
@@ -361,6 +398,7 @@ def serve(
     ``robot_options``: what ``open_robot`` gets for every line of ``robot_file`` (e.g. ``adapter_latency``);
     ``robot_start_pose``: its ``start_pose`` (where the robot stands: those joints hold there from the start).
     ``line_from_robot``: the pages start on the robot's first line rather than ``config``'s port.
+    ``loop``: the event loop (``auto``: uvloop when it is installed, else asyncio's).
     """
     # A bad robot file is refused here, before binding.
     robot = None if robot_file is None else RobotSession(robot_file, robot_options, robot_start_pose)
@@ -387,6 +425,7 @@ def serve(
             ws="websockets-sansio",
             ws_ping_interval=PAGE_PING_PERIOD,
             ws_ping_timeout=PAGE_PING_TIMEOUT,
+            loop=loop,
         )
     )
     server.answering = app
@@ -394,11 +433,12 @@ def serve(
     if open_browser and not _browser_opened(url) and no_browser_opened is not None:
         no_browser_opened()
     try:
-        server.run(sockets=[sock])
+        with _ctrl_c_stops(server):
+            server.run(sockets=[sock])
     except KeyboardInterrupt:
         if not server.should_exit:
-            raise  # (a Ctrl-C before the server took the signals over)
-        # (else uvicorn raising the stop signal again for the program, once stopped: the stop it has made)
+            raise  # (a Ctrl-C before the server's handler was there)
+        # (else a press the stop's moment over, as the runner closes the loop: the stop made all the same)
     finally:
         sock.close()
     return int(server.cut_short)

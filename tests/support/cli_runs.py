@@ -21,6 +21,23 @@ from ics35_async.eeprom import EEPROM_FIELDS, Eeprom
 # outlives what it was told can say where it is before killing it.
 DUMP_ON_USR1 = "import faulthandler, signal; faulthandler.register(signal.SIGUSR1, all_threads=True); "
 
+# The start of a ``python -c`` program (its arguments: a function's name, a count) that presses Ctrl-C at that
+# call of the function, once ``sys.setprofile(press)`` arms it in the main thread: a press lands in the main
+# thread between any two steps, and this one at the step a test names, however unlikely its timing.
+PRESS_AT_A_CALL = """
+import os, signal, sys
+
+where, count = sys.argv[1], int(sys.argv[2])
+calls = [0]
+
+def press(frame, event, arg):
+    if event == "call" and frame.f_code.co_name == where:
+        calls[0] += 1
+        if calls[0] == count:
+            sys.setprofile(None)
+            os.kill(os.getpid(), signal.SIGINT)
+"""
+
 
 @dataclasses.dataclass
 class CliResult:
