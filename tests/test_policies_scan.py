@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 from contextlib import AbstractAsyncContextManager
 from typing import Any
 
@@ -380,3 +381,31 @@ async def test_a_port_lost_part_way_keeps_the_servos_found_before_it(lines: Any,
     if pulled_at is ReadEeprom:  # the probes were over: servo 1's EEPROM was read before the loss
         assert report.servos[0].eeprom == sim.servo(1).eeprom
     assert isinstance(report.lost, (PortLost, BusClosed)), report.lost
+
+
+async def test_a_port_lost_between_two_rates_of_one_reopened_line_keeps_the_servos_found_before_it(
+    lines: Any,
+) -> None:
+    # One line reopened at each rate (as the configurator scans): its port went after the first rate's last read,
+    # before the reopen at the next.  The reopen's PortLost ("cannot reopen now")
+    # came out of the scan, and the servos found at 115200 with it.
+    from ics35_async import State
+    from ics35_async.policies import reopening
+
+    sim = lines([VirtualServo(1), VirtualServo(2), VirtualServo(7, baud_rate=625000)])
+    async with open_bus(sim, reconnect=True, **FAST) as bus:
+        reopen_at = reopening(bus)
+
+        @contextlib.asynccontextmanager
+        async def open_at(baud: int) -> AsyncIterator[Line]:
+            if baud != int(bus.baudrate):  # between two rates: the adapter pulled out
+                sim.unplug()
+                while bus.state is not State.LOST:
+                    await bus.state_change()
+            async with reopen_at(baud) as line:
+                yield line
+
+        report = await scan(open_at, bauds=[115200, 625000], ids=range(8))
+    assert [s.servo_id for s in report.servos] == [1, 2], report
+    assert report.servos[0].eeprom == sim.servo(1).eeprom
+    assert isinstance(report.lost, PortLost), report.lost

@@ -15,7 +15,7 @@ if not sys.platform.startswith("linux"):
 
 from playwright.sync_api import Browser, expect
 
-from ics35_async.protocol import ReadEeprom
+from ics35_async.protocol import ReadEeprom, ReadParam
 from ics35_async.sim import VirtualServo
 from tests.support.browser_pages import (
     SCAN_WAIT_MS,
@@ -81,6 +81,31 @@ def test_a_scan_whose_port_is_lost_part_way_lists_the_servos_it_found_and_says_t
         line.sim.replug()
         expect(p.locator("#message")).to_contain_text("the line is back")
         scan_finds(p, 3, ids="0-4")
+
+
+def test_a_scan_at_every_rate_whose_port_is_lost_at_another_rate_lists_the_servos_it_found(browser: Browser) -> None:
+    # The port went while the scan probed 625000 baud: putting the line back at its own rate then failed (no port
+    # to reopen), and that failure took the scan's report with it: "the scan did not finish", the servos found at
+    # 115200 dropped.  (The line comes back by itself at the rate it was lost at; the next action puts it back.)
+    line = PtyLine((1, 2))
+    puller = UnplugsWhenAsked(3, ReadParam, baud_rate=625000)
+    line.sim.add_device(puller)
+    with web_server_page(browser, line) as p:
+        puller.line = line.sim
+        p.check("#scan-all-bauds")
+        p.fill("#scan-ids", "0-4")
+        p.click("#scan-btn")
+        expect(p.locator("#scan-summary")).to_contain_text(
+            "2 servo(s) found before the line was lost", timeout=SCAN_WAIT_MS
+        )
+        expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+        expect(p.locator("#lost-banner")).to_be_visible()
+        puller.line = None
+        line.sim.replug()
+        expect(p.locator("#message")).to_contain_text("the line is back")
+        p.uncheck("#scan-all-bauds")
+        scan_finds(p, 2, ids="0-4")
+        expect(p.locator("#line-status")).to_contain_text("at 115200 baud")
 
 
 def test_a_scan_that_finds_nothing_at_the_lines_rate_offers_the_rate_a_device_answers_at(browser: Browser) -> None:

@@ -381,7 +381,7 @@ async def scan(
         async with contextlib.AsyncExitStack() as stack:
             try:
                 line = await _open_or_skip(stack, open_at, baud, skipped)
-            except (SerialPortError, BusClosed) as exc:
+            except (SerialPortError, BusClosed, PortLost) as exc:  # (PortLost: a line reopened at each rate)
                 if not rates:
                     raise
                 lost = exc  # it opened before: the port went away between two rates

@@ -394,6 +394,18 @@ class LineSession:
             await bus.reopen(baudrate=self.config.baud)
         return bus
 
+    @staticmethod
+    async def _back_at(bus: Bus, baud: int) -> None:
+        """``bus`` reopened at ``baud`` after a look at other rates (a scan, a search for a silent servo).
+
+        A port lost meanwhile cannot be reopened now, and is left to come back by itself at the rate it was
+        lost at (:meth:`_line_at_its_rate` puts it back where the line is next handed out): raised from here,
+        the loss would take with it what the look found before it (a scan's servos, listed with the loss).
+        """
+        if bus.is_open and bus.baudrate != baud:
+            with contextlib.suppress(PortLost):
+                await bus.reopen(baudrate=baud)
+
     @contextlib.asynccontextmanager
     async def _quiet(self) -> AsyncIterator[Bus]:
         """The line at its own rate for one action: it waits while a scan (which reopens the port at
@@ -426,8 +438,7 @@ class LineSession:
                 search = await self._answered_elsewhere(bus, report, checked)
             finally:
                 self.progress.running = False
-                if bus.is_open and bus.baudrate != self.config.baud:
-                    await bus.reopen(baudrate=self.config.baud)
+                await self._back_at(bus, self.config.baud)
         # A line lost part-way: the servos found before it are listed all the same (nothing found is lost
         # work), with the loss, which the page says beside them (and the line's status, pushed, shows it lost).
         self.found = list(report.servos)
@@ -589,8 +600,7 @@ class LineSession:
                             exc, opener, baud, echo=echo, other_rates=search, on_rate=self._trying
                         )
                 finally:
-                    if bus.is_open and bus.baudrate != baud:
-                        await bus.reopen(baudrate=baud)
+                    await self._back_at(bus, baud)
                 if finding.rates_tried:
                     self._looked[key] = finding
                 elif looked is not None and finding.cause is NoReplyCause.UNKNOWN:
@@ -1090,8 +1100,7 @@ class LineSession:
             with self._searching():
                 return await look_elsewhere(survey, reopening(bus), echo=self.config.echo, on_rate=self._trying)
         finally:
-            if bus.is_open and bus.baudrate != baud:
-                await bus.reopen(baudrate=baud)
+            await self._back_at(bus, baud)
 
     # ------------------------------------------------------------------ live
 
