@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from ics35_async import open_bus, policies, protocol
-from ics35_async.errors import PortLost, ReplyError, ReplyTimeout, SerialPortError
+from ics35_async.errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError
 from ics35_async.protocol import Param
 from ics35_async.sim import start_subprocess, stop_subprocess
 from ics35_async.transports import links
@@ -206,6 +206,75 @@ def test_cli_refused_connection_exits_3(scheme: str, cli: Any) -> None:
     result = cli("--port", f"{scheme}://127.0.0.1:{free_tcp_port()}", "get", "1", "stretch")
     assert result.code == 3, result.err
     assert "refused" in result.err
+
+
+# A link URL pyserial cannot read: its own message for each is a Python error of its own (a format string's
+# braces, None compared with a number), so the library reads the URL first.
+MALFORMED_LINKS = {
+    "socket://localhost": "no TCP port",
+    "rfc2217://localhost": "no TCP port",
+    "socket://127.0.0.1:99999": "1..65535, got '99999'",
+    "rfc2217://127.0.0.1:99999": "1..65535, got '99999'",
+    "socket://127.0.0.1:abc": "1..65535, got 'abc'",
+    "socket://:4000": "no host",
+    "socket://127.0.0.1:4000?logging=loud": "logging must be one of debug, info, warning, error, got 'loud'",
+    "rfc2217://127.0.0.1:4000?logging=loud": "logging must be one of debug, info, warning, error, got 'loud'",
+    "socket://127.0.0.1:4000?speed=1": "unknown option 'speed'",
+    "rfc2217://127.0.0.1:4000?timeout=soon": "timeout must be a number of seconds, got 'soon'",
+}
+
+
+@pytest.fixture
+def listener() -> Iterator[tuple[int, list[object]]]:
+    """A TCP port that accepts and counts its connections, for URLs that must not reach it."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted: list[object] = []
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            accepted.append(conn)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    yield int(server.getsockname()[1]), accepted
+    with contextlib.suppress(OSError):
+        server.shutdown(socket.SHUT_RDWR)
+    server.close()
+    thread.join(5)
+
+
+@pytest.mark.parametrize(("url", "said"), MALFORMED_LINKS.items())
+async def test_a_malformed_link_url_is_refused_saying_what_is_wrong(url: str, said: str) -> None:
+    with pytest.raises(InvalidArgument) as caught:
+        async with open_bus(url):
+            pass
+    assert said in str(caught.value)
+    assert "socket://HOST:PORT" in str(caught.value) or "rfc2217://HOST:PORT" in str(caught.value)
+
+
+@pytest.mark.parametrize("scheme", BRIDGES)
+async def test_a_link_url_with_a_bad_option_connects_to_nothing(
+    scheme: str, listener: tuple[int, list[object]]
+) -> None:
+    port, accepted = listener
+    with pytest.raises(InvalidArgument, match="logging must be"):
+        async with open_bus(f"{scheme}://127.0.0.1:{port}?logging=loud"):
+            pass
+    await asyncio.sleep(0.1)  # (a connection made would have been accepted by now)
+    assert accepted == []
+
+
+def test_cli_malformed_link_url_exits_3_saying_what_is_wrong(cli: Any) -> None:
+    result = cli("--port", "socket://localhost", "get", "1", "stretch")
+    assert result.code == 3, result.err
+    assert "no TCP port" in result.err
+    assert "Traceback" not in result.err and "NoneType" not in result.err
 
 
 @pytest.fixture

@@ -14,9 +14,11 @@ import logging
 import os
 import socket
 import threading
+from urllib.parse import parse_qs, urlsplit
 
 import serial
 
+from ..errors import InvalidArgument
 from .wire_device import url_scheme
 
 log = logging.getLogger("ics35_async.transports")
@@ -37,6 +39,55 @@ def same_port(a: str, b: str) -> bool:
     if scheme or url_scheme(b):
         return scheme == url_scheme(b) and a.partition("://")[2] == b.partition("://")[2]
     return a == b or os.path.realpath(a) == os.path.realpath(b)
+
+
+# The options pyserial's handlers take, by scheme, each with what its value must be (None: any, or none).
+_LOGGING_LEVELS = ("debug", "info", "warning", "error")
+_LINK_OPTIONS: dict[str, dict[str, tuple[str, ...] | None]] = {
+    "socket": {"logging": _LOGGING_LEVELS},
+    "rfc2217": {"logging": _LOGGING_LEVELS, "ign_set_control": None, "poll_modem": None, "timeout": None},
+}
+
+
+def check_link_url(port: str) -> None:
+    """Refuse a ``socket://`` or ``rfc2217://`` URL pyserial cannot read, saying what is wrong with it.
+
+    pyserial's own words for these are Python errors of its handlers (a format string's braces taken for a
+    field, ``None`` compared with a number): a URL without a port, a port out of range, an unknown option.
+    Read here first, before anything connects.  Other ports pass untouched.
+
+    Raises:
+        InvalidArgument: the URL has no host, no port or one outside 1..65535, or an option its scheme
+            does not take (or a value it cannot).
+    """
+    scheme = url_scheme(port)
+    options = _LINK_OPTIONS.get(scheme)
+    if options is None:
+        return
+    form = f"{scheme}://HOST:PORT, e.g. {scheme}://192.168.1.20:4000"
+
+    def refuse(what: str) -> InvalidArgument:
+        return InvalidArgument(f"cannot open {port!r}: {what} (write {form})")
+
+    parts = urlsplit(port)
+    if not parts.hostname:
+        raise refuse("the URL names no host")
+    _, colon, number = parts.netloc.rpartition(":")
+    if not colon or not number or number.endswith("]"):  # (an IPv6 host's bracket: no port after it)
+        raise refuse("the URL names no TCP port")
+    if not number.isdigit() or not 1 <= int(number) <= 65535:
+        raise refuse(f"the TCP port must be a number in 1..65535, got {number!r}")
+    for option, values in parse_qs(parts.query, keep_blank_values=True).items():
+        if option not in options:
+            raise refuse(f"unknown option {option!r} ({scheme}:// takes {', '.join(options)})")
+        allowed = options[option]
+        if allowed is not None and values[-1] not in allowed:
+            raise refuse(f"{option} must be one of {', '.join(allowed)}, got {values[-1]!r}")
+        if option == "timeout":
+            try:
+                float(values[-1])
+            except ValueError:
+                raise refuse(f"timeout must be a number of seconds, got {values[-1]!r}") from None
 
 
 def carries_line_settings(port: object) -> bool:

@@ -31,7 +31,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
     TermiosError = OSError
 
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
-from .links import carries_line_settings, set_no_delay, warn_once_if_rate_blind
+from .links import carries_line_settings, check_link_url, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
 from .wire_device import is_url, url_scheme
 
@@ -165,6 +165,7 @@ def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "n
     ``direction`` (see :mod:`.direction`) asks the driver to toggle RTS while sending.
     """
     direction = check_direction(direction, port)
+    check_link_url(port)
     rs485 = rs485_settings(direction)
     is_device_path = not is_url(port)
     scheme = url_scheme(port)
