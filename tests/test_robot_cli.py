@@ -1293,6 +1293,23 @@ def test_a_robot_command_names_the_line_whose_adapter_is_missing(
     assert f"--joints can open only the joints on the other line meanwhile: --joints {others}" in said, said
 
 
+def test_a_robot_file_whose_sim_url_has_a_typo_is_a_usage_error_naming_its_line(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path
+) -> None:
+    # A misspelt option in a line's sim:// URL ended play with a traceback (the command reads the file's simulated
+    # lines before it opens them) and exit code 1.
+    sims, robot_file = rig
+    sims.description["lines"]["lower"]["port"] = "sim://robot-cli-typo?ids=1-3&realtme=1"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": 5}})
+    result = cli("play", str(robot_file), str(motion))
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert f"{robot_file}: line lower: sim URL: unknown option 'realtme'" in said, said
+    assert "Traceback" not in result.err
+    assert sims.upper.transactions == 0
+
+
 def test_teach_leaves_a_joint_whose_servo_went_offline_out_of_the_pose(
     rig: tuple[Rig, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -980,6 +980,26 @@ def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any)
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
 
 
+@pytest.mark.parametrize("port", ["sim://robot-start-typo?ids=1-3&realtme=1", "socket://legs-pi"])
+def test_a_line_whose_port_is_refused_as_written_is_named_by_the_robots_line(port: str) -> None:
+    # A port the open refuses as written (a misspelt sim:// option, a bridge URL without its TCP port): the port's
+    # own words alone ("sim URL: unknown option 'realtme'") did not say which line of the robot file it was.
+    rig = make_rig()
+    rig.description["lines"]["lower"]["port"] = port
+
+    async def main() -> None:
+        async with open_robot(rig.description, **FAST):
+            pass
+
+    try:
+        with pytest.raises(InvalidArgument) as refused:
+            anyio.run(main)
+    finally:
+        rig.close()
+    assert str(refused.value).startswith("<mapping>: line lower: "), refused.value
+    assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
+
+
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")
 def test_each_fault_logged_names_its_lines_port(caplog: pytest.LogCaptureFixture) -> None:
     # `ics35 -v` on a robot of two lines: "read_position to ID 1: no reply" alone could be either line's ID 1.

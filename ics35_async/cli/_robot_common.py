@@ -190,7 +190,12 @@ def _sim_lines_of(description: RobotDescription) -> Iterator[None]:
         return
     from .. import sim
 
-    names = {sim.parse_url(port)[0] for port in named} - {None}
+    names = set()
+    for port in named:
+        # A URL the simulator refuses as written is left to the open, which says so naming the robot file's line.
+        with contextlib.suppress(InvalidArgument):
+            names.add(sim.parse_url(port)[0])
+    names -= {None}
     before = set()
     for name in names:
         with contextlib.suppress(KeyError):

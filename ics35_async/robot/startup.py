@@ -148,7 +148,8 @@ def open_robot(
     Raises:
         DescriptionError: the description is not valid (nothing is opened).
         InvalidArgument: an unknown or bad option, a ``start_pose`` naming an unknown joint or an
-            angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here.
+            angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here;
+            or a line's port refused as written (a misspelt ``sim://`` option; its message names the line).
         SerialPortError: a line's port cannot be opened (its message names the line; a servo that does not
             answer is not an error: its joint starts free and, with ``check_limits``, gets a warning).
         PortLost: a line's port was lost during the open: at once without ``reconnect``; with
@@ -194,6 +195,8 @@ async def _robot_session(
                 await stack.enter_async_context(bus)
             except SerialPortError as exc:
                 raise _on_line(exc, description.source, name) from exc
+            except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, a URL's lost port)
+                raise InvalidArgument(f"{description.source}: line {name}: {exc}") from exc
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)
         waits = _LostAtOpen(buses)
