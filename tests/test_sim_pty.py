@@ -11,9 +11,11 @@ import contextlib
 import itertools
 import os
 import re
+import select
 import subprocess
 import sys
 import termios
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,8 +24,11 @@ from typing import Any
 import pytest
 import serial
 
-from ics35_async.sim import start_subprocess, stop_subprocess
+from ics35_async.protocol import Param, ReadParam
+from ics35_async.sim import VirtualLine, start_subprocess, stop_subprocess
 from ics35_async.sim.pty_port import PtyPort
+from ics35_async.sim.pty_server import PtyServer
+from tests.support.sim_servos import UnplugsWhenAsked
 from tests.support.timing import GUARD
 
 pytestmark = [pytest.mark.pty, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")]
@@ -189,6 +194,45 @@ def test_unplug_and_replug_keep_the_path(pty_sim: Any) -> None:
         time.sleep(0.02)
     with open_port(path) as port:
         assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+
+
+def test_a_servo_that_pulls_its_line_as_it_hears_a_command_gets_no_reply_out() -> None:
+    # A device that unplugs the line from inside its own handling (the tests' servo that pulls the line as a scan
+    # probes it) still gave its answer: the server wrote the reply when it was due at once, and only then
+    # followed the unplug.  A scan then counted the servo whose line went (a browser test, now and then).
+    puller = UnplugsWhenAsked(3, ReadParam)
+    line = VirtualLine([puller], realtime=False)  # every answer due at once: the reply is never late for the race
+    server = PtyServer(line)
+    path = str(server.open())
+    thread = threading.Thread(target=server.serve, daemon=True)
+    thread.start()
+    try:
+        puller.line = line
+        probe = ReadParam(3, Param.STRETCH)
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        received = b""
+        try:
+            os.write(fd, probe.tx)
+            deadline = time.monotonic() + GUARD
+            while time.monotonic() < deadline:
+                readable, _, _ = select.select([fd], [], [], 0.05)
+                if readable:
+                    try:
+                        chunk = os.read(fd, 64)
+                    except OSError:  # the hang-up
+                        break
+                    if not chunk:
+                        break
+                    received += chunk
+        finally:
+            os.close(fd)
+        assert not line.plugged
+        assert received[probe.echo_len :] == b"", f"a reply got out after the line was pulled: {received.hex(' ')}"
+    finally:
+        server.stop()
+        thread.join(5)
+        server.close()
+        line.close()
 
 
 def test_bad_arguments_exit_with_usage_error() -> None:

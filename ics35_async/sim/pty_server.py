@@ -149,6 +149,11 @@ class PtyServer:
             self.port.park_speed(only_if=baud)
         realtime = device.realtime
         chunks = device.process(data)
+        if not getattr(device, "plugged", True):
+            # A device pulled the line while handling these bytes (a servo that unplugs as it hears a
+            # command): nothing it answered gets out, as nothing would through a pulled cable.
+            self._follow_plug_state()
+            return
         epoch = device.epoch
         for when, chunk in chunks:
             heapq.heappush(self._heap, (epoch + when if realtime else 0.0, next(self._order), chunk))
