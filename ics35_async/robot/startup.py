@@ -195,7 +195,7 @@ async def _robot_session(
                 await stack.enter_async_context(bus)
             except SerialPortError as exc:
                 raise _on_line(exc, description.source, name) from exc
-            except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, a URL's lost port)
+            except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, no TCP port)
                 raise InvalidArgument(f"{description.source}: line {name}: {exc}") from exc
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)
