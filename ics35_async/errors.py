@@ -162,6 +162,11 @@ class SerialPortError(IcsError, OSError):
     working; ``errno`` is set when the system gave one.
     """
 
+    def __str__(self) -> str:
+        # The words a program prints are for a person: OSError's "[Errno 2] " in front of them is noise
+        # (the number stays in ``errno`` for code).
+        return error_text(self) if self.strerror else super().__str__()
+
 
 class PortNotFound(SerialPortError, FileNotFoundError):
     """No device exists at that path."""

@@ -278,6 +278,8 @@ def test_missing_port_is_a_clear_error() -> None:
     with pytest.raises(PortNotFound, match="no serial port at '/dev/ttyUSB-nonexistent'") as info:
         open_at("/dev/ttyUSB-nonexistent")
     assert isinstance(info.value, FileNotFoundError) and info.value.errno == errno.ENOENT
+    # Its words as a program prints them, the number kept in errno: "[Errno 2] no serial port at ..." read as noise.
+    assert str(info.value).startswith("no serial port at "), str(info.value)
     # One traceback on screen, ours (it says all pyserial's two chained ones said); theirs kept for a debugger.
     printed = "".join(traceback.format_exception(info.value))
     assert printed.count("Traceback (most recent call last)") == 1, printed
