@@ -22,7 +22,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from ics35_async import Eeprom
 from ics35_async.errors import ReplyTimeout
-from ics35_async.protocol import ReadEeprom
+from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
@@ -616,6 +616,36 @@ def test_many_servos_do_not_say_nothing_was_written_of_a_write_left_unanswered()
     assert "nothing written" in unread, unread
     unanswered = session._many_words(ReplyTimeout("no reply", command="write_eeprom", servo_id=5, raw=b"\xc5"))
     assert "nothing written" not in unanswered and "may" in unanswered and "5" not in unanswered.split(), unanswered
+
+
+@pytest.mark.parametrize(
+    ("moment", "said", "speed"),
+    [
+        ("before", "port", 127),  # at the read right before writing: nothing went out
+        ("write", "as the EEPROM write went out: the write may have reached servo 1", 40),
+        ("read-back", "after servo 1 acknowledged the EEPROM write, before its read-back: written, not verified", 40),
+    ],
+)
+def test_a_write_whose_port_is_lost_says_what_the_servo_may_hold(
+    serve: Any, moment: str, said: str, speed: int
+) -> None:
+    # The port lost part-way through the Servo page's write: said only "port lost", whether the write had gone or not.
+    client, sim = serve(())
+    pulls = {
+        "before": lambda command: isinstance(command, ReadEeprom),
+        "write": lambda command: isinstance(command, WriteEeprom),
+        "read-back": lambda command: isinstance(command, ReadEeprom) and puller.eeprom.speed == 40,
+    }
+    puller = UnplugsWhenAsked(1, pulls[moment])
+    sim.add_device(puller)
+    before = client.get("/api/servo/1/eeprom").json()["raw"]
+    puller.line = sim
+    answer = post(client, "/api/servo/1/write", {"changes": {"speed": 40}, "before": before})
+    assert answer.status_code == 503 and answer.json()["kind"] == "PortLost", answer.json()
+    words = answer.json()["error"]
+    assert said in words and words.startswith("port "), words
+    assert ("once the line is back" in words) == (moment != "before"), words
+    assert puller.eeprom.speed == speed
 
 
 def test_many_servos_say_a_write_acknowledged_then_unanswered_was_written_not_verified(serve: Any) -> None:

@@ -24,6 +24,7 @@ if not sys.platform.startswith("linux"):
 from playwright.sync_api import Browser, Page, Route, expect
 
 from ics35_async.eeprom import Eeprom
+from ics35_async.protocol import WriteEeprom
 from ics35_async.sim import VirtualServo
 from tests.support.browser_pages import (
     PAGE_GONE_BOUND,
@@ -37,7 +38,7 @@ from tests.support.browser_pages import (
     until_on,
     web_server_page,
 )
-from tests.support.sim_servos import UnpluggedAfterWrite
+from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked
 from tests.support.timing import GUARD, PATIENT_OPTION
 
 # Each module's tests share its browser (and the first module's, one page walked in order): `make test`
@@ -314,6 +315,38 @@ def test_a_write_whose_read_after_fails_still_shows_its_outcome(browser: Browser
         expect(p.locator("#message")).to_contain_text("the configurator's server does not answer")
         expect(p.locator(result)).to_contain_text("written and verified by reading it back")
         assert line.sim.servo(1).eeprom.speed == (90 if how == "write" else 127)
+
+
+def test_an_eeprom_write_whose_port_was_lost_as_it_went_says_it_may_have_reached_the_servo(browser: Browser) -> None:
+    # The port went as the servo heard the write (it took it): the page said only "port lost", then, the line back
+    # and Write pressed again, "EEPROM changed since the diff": nothing told whether the write had reached it.
+    line = PtyLine(())
+    puller = UnplugsWhenAsked(1, WriteEeprom)
+    line.sim.add_device(puller)
+    with web_server_page(browser, line) as p:
+        open_servo_page(p, 1)
+        puller.line = line.sim
+        p.fill("#eeprom-table [name=speed]", "90")
+        p.click("#plan-btn")
+        p.click("#write-btn")
+        expect(p.locator("#lost-banner")).to_be_visible()
+        expect(p.locator("#message")).to_contain_text("the write may have reached servo 1")
+        expect(p.locator("#message")).to_contain_text("read it once the line is back")
+        expect(p.locator("#eeprom-table [name=speed]")).to_have_value("90")  # (the edit is still there to write)
+        puller.line = None
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
+        expect(p.locator("#message")).to_contain_text("the line is back")
+        expect(p.locator("#message")).to_contain_text("read servo 1")  # (not "try again": the write may be done)
+        p.click("#write-btn")  # pressed again all the same: refused, pointing at the read
+        expect(p.locator("#message")).to_contain_text("changed since the diff was shown")
+        expect(p.locator("#message")).to_contain_text("press Read")
+        p.click("#servo-load")
+        servo_read(p, 1)
+        expect(p.locator("#eeprom-table [name=speed]")).to_have_value("90")  # the edit kept through the read
+        p.click("#plan-btn")
+        expect(p.locator("#diff")).to_contain_text("the servo already has these values")  # it had reached it
+        assert puller.eeprom.speed == 90
 
 
 def test_a_jog_the_server_never_answered_says_so_not_that_its_answer_was_lost(browser: Browser) -> None:

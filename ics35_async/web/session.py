@@ -52,6 +52,8 @@ from ..policies import (
     RateSearch,
     Refusal,
     ScanReport,
+    ServoWriteReport,
+    WriteOutcome,
     look_elsewhere,
     plan_eeprom_write,
     read_eeprom_agreed,
@@ -62,7 +64,7 @@ from ..policies import (
     survey_for_id_write,
     trying_rate,
     why_no_reply,
-    write_eeprom_plan,
+    write_eeprom_plans,
     write_lone_id,
 )
 from ..policies.eeprom_backup import backup_changes, backup_document
@@ -115,6 +117,22 @@ class ScanProgress:
     done: int = 0
     total: int = 0
     running: bool = False
+
+
+def _lost_mid_write(report: ServoWriteReport) -> IcsError:
+    """The error of a write that failed (``report``'s): a port lost while the write was on its way, or before its
+    read-back, says what the servo may hold and that it is read once the line is back (the write's own words
+    are the command line's); any other failure as it is."""
+    error = report.error
+    assert error is not None
+    if not isinstance(error, PortLost) or report.outcome not in (WriteOutcome.UNKNOWN, WriteOutcome.UNVERIFIED):
+        return error
+    sid = report.plan.servo_id
+    if report.outcome is WriteOutcome.UNKNOWN:
+        what = f"as the EEPROM write went out: the write may have reached servo {sid}"
+    else:
+        what = f"after servo {sid} acknowledged the EEPROM write, before its read-back: written, not verified"
+    return PortLost(f"{error_text(error)} {what}; read it once the line is back")
 
 
 class LineSession:
@@ -712,20 +730,37 @@ class LineSession:
         """Plan and write ``edit`` (policies.eeprom_write: refusals, the re-read before, the read-back after).
 
         ``edit["before"]`` (the raw image the person saw the diff against) must
-        still be the servo's, so what is written is what was shown.
+        still be the servo's, so what is written is what was shown.  A port lost
+        with the write on its way, or before its read-back, raises a ``PortLost``
+        saying what the servo may hold and to read it once the line is back.
         """
         async with self._quiet() as bus:
             self._looked = {}  # a write may move a servo to another ID or rate: look for silent ones anew
             plan, _ = await self._plan(bus, servo_id, edit)
             seen = edit.get("before")
             if seen is not None and seen != plan.before.to_bytes().hex():
+                # Most often a write of these very values that reached it, its answer lost with the port.
                 raise UnsafeOperation(
-                    f"servo {servo_id}'s EEPROM changed since the diff was shown; look again; nothing was written"
+                    f"servo {servo_id}'s EEPROM changed since the diff was shown (a write may have reached it, or "
+                    "another program wrote to it): press Read to see what it holds now, then show the changes "
+                    "again; nothing was written"
                 )
             refusal = self._robot_line_refusal(plan)
             if refusal:
                 raise UnsafeOperation(f"{refusal}; nothing was written")
-            result = await write_eeprom_plan(bus, plan, **allowances(edit))
+            # The batch's report (of one) says how far the write got when it fails: a port lost with the write
+            # on its way is told as a write that may have reached the servo, not as a bare "port lost".
+            allowed = allowances(edit)
+            [report] = await write_eeprom_plans(
+                bus,
+                [plan],
+                allow_baud_change=allowed["allow_baud_change"],
+                allow_id_change=allowed["allow_id_change"],
+            )
+            if report.error is not None:
+                raise _lost_mid_write(report) from report.error
+            assert report.result is not None  # (a report without an error is a finished write's)
+            result = report.result
         after = result.read_back or plan.after
         if plan.changes_id:
             self._limits.pop(servo_id, None)

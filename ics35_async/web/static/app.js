@@ -10,6 +10,7 @@ const state = { status: null, servos: [], eeprom: null, plan: null, restore: nul
 
 function say(text, kind = "error", action = null) {
   state.sayingLost = false;  // set by api() when this is the words of a lost port
+  state.backThen = null;  // what to do once the line is back, when not "try again" (set after api() said the loss)
   const box = $("#message");
   box.textContent = text;
   if (action) box.append(" ", el("button", { type: "button", onclick: () => { say(""); Promise.resolve(action.run()).catch(() => {}); } }, action.label));
@@ -121,7 +122,8 @@ function showStatus(s) {
   // A search of the other rates (after nothing answered) says which it tries: each may cost a whole allowance.
   const line = s.connected ? (s.lost ? `${where}: LOST` : where) : `not connected${s.error ? ": " + s.error : ""}`;
   $("#line-status").textContent = s.searching ? `${line} (${s.searching})` : line;
-  if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): try again`, "info");
+  // (What to do once back is the lost action's when it left something to look at first: see writeEeprom.)
+  if (state.sayingLost && s.connected && !s.lost) say(`the line is back (${s.port}): ${state.backThen || "try again"}`, "info");
   // Motion the server switched off (a lost port; a live plot that took the servo over and freed it). Not
   // over a tick the server has yet to take: a status pushed meanwhile still says motion is off; nor from a
   // status sent before the server's answer to it (counting fewer changes of motion), come after it.
@@ -534,7 +536,18 @@ function motionOffAfter(wasOn) {
 }
 
 async function writeEeprom() {
-  const result = await api(`/api/servo/${servoId()}/write`, { changes: editedFields(), ...allowances(), before: state.plan.before });
+  const id = servoId(), typed = typedEdits();
+  const request = { changes: editedFields(), ...allowances(), before: state.plan.before };
+  let result;
+  try {
+    result = await api(`/api/servo/${id}/write`, request);
+  } catch (e) {
+    // Not refused (400, 409): the write may have reached the servo, which is read before writing again. The edits
+    // stay through that read (in the boxes, for Show changes to diff against what the servo holds then).
+    if (e.status !== 400 && e.status !== 409) state.typedFor = { id, typed };
+    if (state.sayingLost) state.backThen = `read servo ${id} (Read) to see whether the write reached it; your edits are kept`;
+    throw e;
+  }
   $("#write-btn").disabled = true;
   const who = followNewId(result);
   const wasOn = $("#motion-switch").checked;
