@@ -156,6 +156,41 @@ def test_a_stopped_live_plot_no_longer_shows_the_streams_rate_as_now(browser: Br
         p.click("#live-stop")
 
 
+def test_the_live_plots_words_on_servos_not_plotted_or_held_say_servos_of_several(browser: Browser) -> None:
+    # "servo 5, 6 not plotted: ... to plot them limp": one servo's words, of two.
+    line = PtyLine((5, 6, 7), ics36=(7,))
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#live")
+        for ids, said in (
+            ("5-7", 'servos 5, 6 not plotted: ICS 3.5 reads a position only by going free (tick "free ICS 3.5 servos" '
+             "to plot them limp)"),
+            ("5,7", 'servo 5 not plotted: ICS 3.5 reads a position only by going free (tick "free ICS 3.5 servos" '
+             "to plot it limp)"),
+            ("5,6", "servos 5, 6 speak ICS 3.5, which reads a position only by going free (limp): tick "
+             '"free ICS 3.5 servos" to plot them'),
+            ("6", 'servo 6 speaks ICS 3.5, which reads a position only by going free (limp): tick "free ICS 3.5 '
+             'servos" to plot it (turn it by hand)'),
+        ):  # fmt: skip
+            p.fill("#live-ids", ids)
+            p.click("#live-start")
+            expect(p.locator("#message")).to_contain_text(said)
+            p.click("#live-stop")
+        base = p.url.split("#")[0]
+        for held in ("5", "5,6"):
+            for sid in held.split(","):  # (Hold, as its page sends it once it has read the servo's limits)
+                assert p.request.get(f"{base}api/servo/{sid}/eeprom").status == 200
+                held_now = p.request.post(f"{base}api/servo/{sid}/hold", data={})
+                assert held_now.status == 200, held_now.text()
+            p.fill("#live-ids", "5-7")
+            p.check("#live-free")
+            p.click("#live-start")
+            one = held == "5"
+            said = "servo 5: held by its Servo page, so streamed its target" if one else (
+                "servos 5, 6: held by their Servo pages, so streamed their targets")  # fmt: skip
+            expect(p.locator("#message")).to_contain_text(said)
+            p.click("#live-stop")
+
+
 def test_a_live_plot_whose_port_is_lost_no_longer_shows_the_streams_rate_as_now(browser: Browser) -> None:
     # The adapter pulled mid-plot: the page went on saying "stream 99.9 cycles/s, page 26 updates/s" (the same
     # last frame pushed again and again), its cycle standing still, as if the servos were read.

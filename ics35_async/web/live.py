@@ -109,11 +109,12 @@ class LiveView:
         left_out = sorted(set(plan.left_out) - kept.keys())
         streamed = sorted(set(plan.streamed) | kept.keys())
         if not streamed:
+            names = ", ".join(map(str, left_out))
+            who, them = (f"servo {names} speaks", "it") if len(left_out) == 1 else (f"servos {names} speak", "them")
             raise UnsafeOperation(
-                f"servo {', '.join(map(str, left_out))} speak{'s' if len(left_out) == 1 else ''} ICS 3.5, which "
-                'reads a position only by going free (limp): tick "free ICS 3.5 servos" to plot them (turn them by '
-                "hand), or hold one on its Servo page first (it is then plotted at its target); nothing that moves or "
-                "frees a servo was sent"
+                f'{who} ICS 3.5, which reads a position only by going free (limp): tick "free ICS 3.5 servos" to '
+                f"plot {them} (turn {them} by hand), or hold one on its Servo page first (it is then plotted at its "
+                "target); nothing that moves or frees a servo was sent"
             )
         stream = bus.stream(streamed, rate_hz=rate_hz, **plan.stream_options(streamed))
         if kept:

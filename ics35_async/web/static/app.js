@@ -54,6 +54,11 @@ async function api(path, data) {
   return body;
 }
 
+// "servo 5", "servos 5, 6": IDs named in words.
+function servosNamed(ids) {
+  return `${ids.length > 1 ? "servos" : "servo"} ${ids.join(", ")}`;
+}
+
 function el(tag, props = {}, ...children) {
   const node = document.createElement(tag);
   for (const [k, v] of Object.entries(props)) {
@@ -747,7 +752,7 @@ async function applyMany() {
   const failed = new Map();
   for (const r of reply.results) if (r.error) failed.set(r.error, [...(failed.get(r.error) || []), r.id]);
   $("#many-errors").replaceChildren(...[...failed].map(([words, who]) =>
-    el("li", {}, `${who.length > 1 ? "servos" : "servo"} ${who.join(", ")}: ${words}`)));
+    el("li", {}, `${servosNamed(who)}: ${words}`)));
   // (a write the servo took whose read-back failed is no "failed": it holds the new values, or part of them)
   const outcome = (r) => r.error ? (r.not_tried ? "not tried" : r.written ? "written, not verified" : "failed (see above)")
     : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so";
@@ -769,9 +774,10 @@ async function startLive() {
   const started = await api("/api/live/start", { ids, free_ics35: $("#live-free").checked });
   const kept = started.kept_held || [];  // (not freed: a joint of a standing robot stays up)
   const notes = [];
-  if (kept.length) notes.push(`servo ${kept.join(", ")}: held by its Servo page, so streamed its target, not freed`);
+  if (kept.length) notes.push(kept.length > 1 ? `${servosNamed(kept)}: held by their Servo pages, so streamed their targets, not freed`
+    : `${servosNamed(kept)}: held by its Servo page, so streamed its target, not freed`);
   const left = started.left_out || [];  // (ICS 3.5, not freed: "free ICS 3.5 servos" was not ticked)
-  if (left.length) notes.push(`servo ${left.join(", ")} not plotted: ICS 3.5 reads a position only by going free (tick "free ICS 3.5 servos" to plot them limp)`);
+  if (left.length) notes.push(`${servosNamed(left)} not plotted: ICS 3.5 reads a position only by going free (tick "free ICS 3.5 servos" to plot ${left.length > 1 ? "them" : "it"} limp)`);
   if (notes.length) say(notes.join("; "), "info");
 }
 
