@@ -905,6 +905,22 @@ def test_free_all_frees_a_lost_lines_ics36_joint_at_reconnect(tmp_path: Path) ->
         wait_for(lambda: lower.servo(1).free)
 
 
+def test_a_motion_on_a_robot_whose_only_line_is_lost_says_it_stopped_not_that_it_went_on_with_others(
+    robot: Any,
+) -> None:
+    # "line arm lost its port: the motion gave its joints up ... and went on with the others": there were none.
+    client, line = robot
+    post(client, "/api/robot/motion", {"enabled": True})
+    wait_for(lambda: line.servo(1).target is not None)
+    reach = [{"time": 5.0, "pose": {"shoulder": 50, "elbow": 60}}]
+    motion = {"format": "ics35-motion", "version": 1, "name": "reach", "keyframes": reach}
+    assert post(client, "/api/robot/play", {"motion": motion}).json()["playing"] == "reach"
+    line.unplug()
+    wait_for(lambda: client.get("/api/robot").json()["outcome"] is not None)
+    said = client.get("/api/robot").json()["outcome"]
+    assert said.startswith("reach: ") and "lost" in said and "stopped" in said and "other" not in said, said
+
+
 def test_free_all_on_a_robot_whose_only_line_is_lost_answers_at_once(robot: Any) -> None:
     client, line = robot
     post(client, "/api/robot/motion", {"enabled": True})

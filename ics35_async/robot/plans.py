@@ -55,6 +55,7 @@ class Plan:
         # Why it gave up joints no other command took over (their line came back after a lost port): its
         # caller hears it at the end, since the pose was not reached.
         self.given_up: IcsError | None = None
+        self.lost_lines: set[str] = set()  # the lines whose lost port took joints from it (see Robot._give_up_lost)
 
     @property
     def slowing_down(self) -> bool:

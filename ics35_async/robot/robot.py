@@ -66,6 +66,19 @@ UNSETTLED_READINGS = math.ceil(2 * units.DEGREES_MAX / TURN_STEP) + 1
 SHOWN_READINGS = 3  # a joint's last readings an UnsettledReadings names
 
 
+def _lost_words(lines: list[str], *, went_on: bool) -> str:
+    """Why a motion gave up the joints on ``lines``, whose port is lost: it ``went_on`` with joints on other
+    lines, or had none left and stopped (a robot of one line, or every line it moves lost)."""
+    which = f"line {lines[0]} lost its port" if len(lines) == 1 else f"lines {', '.join(lines)} lost their ports"
+    kept = (
+        "their servos keep their last command; once the line is back, they are sent nothing until a target is set again"
+    )
+    if went_on:
+        return f"{which}: the motion gave its joints up ({kept}) and went on with its joints on the other lines"
+    where = "that line" if len(lines) == 1 else "those lines"
+    return f"{which}: the motion stopped, all its joints being on {where} ({kept})"
+
+
 class Robot:
     """A robot over its lines; get one from :func:`~ics35_async.open_robot`.
 
@@ -1074,16 +1087,17 @@ class Robot:
 
     def _give_up_lost(self, joints: frozenset[str]) -> None:
         """The motions stop driving ``joints``, on lines whose port is lost: they go on with their others, then
-        raise MotionStopped."""
-        lines = ", ".join(sorted({self.joints[name].line for name in joints}))
-        self._give_up(
-            joints,
-            MotionStopped(
-                f"line {lines} lost its port: the motion gave its joints up (their servos keep their last command;"
-                " once the line is back, they are sent nothing until a target is set again) and went on with the"
-                " others"
-            ),
-        )
+        raise MotionStopped; a motion left with none ends at once (one line, or every line it moves, lost)."""
+        for plan in self._plans:
+            mine = plan.joints & joints
+            if not mine:
+                continue
+            plan.joints -= mine
+            if plan.given_up is not None and not plan.lost_lines:
+                continue  # (given up first as a line came back: said so, as _give_up keeps the first reason)
+            plan.lost_lines |= {self.joints[name].line for name in mine}
+            # Said as it stands: a later loss that takes a motion's last joints makes "went on" untrue.
+            plan.given_up = MotionStopped(_lost_words(sorted(plan.lost_lines), went_on=bool(plan.joints)))
         for name in joints:  # (nothing moves them now: a stop has nothing to slow down)
             self._velocity[name] = 0.0
             self._coasting.pop(name, None)

@@ -60,9 +60,9 @@ class SafetyStop(IcsError):
 
 class MotionStopped(IcsError):
     """A motion ended early: :meth:`Robot.stop` was called (from another task), a line it moves lost its port
-    or came back after that (``reconnect=True``: the motion gave that line's joints up and went on with the
-    others), or a joint it moves came back after going offline (its servo may have restarted, free and
-    elsewhere: the motion gave it up)."""
+    or came back after that (``reconnect=True``: the motion gave that line's joints up and went on with its
+    joints on the other lines, or stopped with none left), or a joint it moves came back after going offline
+    (its servo may have restarted, free and elsewhere: the motion gave it up)."""
 
 
 class UnsettledReadings(IcsError):
