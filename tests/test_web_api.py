@@ -24,6 +24,7 @@ from ics35_async import Eeprom
 from ics35_async.errors import ReplyTimeout
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.virtual_servo import NO_REPLY
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
@@ -646,6 +647,28 @@ def test_a_write_whose_port_is_lost_says_what_the_servo_may_hold(
     assert said in words and words.startswith("port "), words
     assert ("once the line is back" in words) == (moment != "before"), words
     assert puller.eeprom.speed == speed
+
+
+class TakesTheWriteSilently(VirtualServo):
+    """A servo that writes its EEPROM as told, its acknowledgement never reaching the host (noise, a long line)."""
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        return NO_REPLY if isinstance(command, WriteEeprom) else reply
+
+
+def test_a_write_the_servo_took_without_an_answer_says_it_may_have_reached_it(serve: Any) -> None:
+    # The Servo page's write, unanswered: the words were those of a servo that never answers (its power, its
+    # wiring), nothing telling that the write may be in it, to be read before anything is written again.
+    client, sim = serve(())
+    quiet = TakesTheWriteSilently(1)
+    sim.add_device(quiet)
+    before = client.get("/api/servo/1/eeprom").json()["raw"]
+    answer = post(client, "/api/servo/1/write", {"changes": {"speed": 40}, "before": before})
+    assert answer.status_code == 504 and answer.json()["kind"] == "ReplyTimeout", answer.json()
+    words = answer.json()["error"]
+    assert "the write may have reached servo 1" in words and "read it" in words, words
+    assert quiet.eeprom.speed == 40, words
 
 
 def test_many_servos_say_a_write_acknowledged_then_unanswered_was_written_not_verified(serve: Any) -> None:

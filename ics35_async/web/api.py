@@ -85,6 +85,8 @@ def error_response(exc: BaseException, said: str | None = None, **more: Any) -> 
         message = f"missing {exc}"
     else:
         message = error_text(exc)
+    for note in getattr(exc, "__notes__", ()):  # (what the session knows beyond the error: a write that went out)
+        message = f"{message}; {note}"
     return JSONResponse({"error": message, "kind": type(exc).__name__, **more}, status_code=status)
 
 

@@ -122,12 +122,18 @@ class ScanProgress:
 def _lost_mid_write(report: ServoWriteReport) -> IcsError:
     """The error of a write that failed (``report``'s): a port lost while the write was on its way, or before its
     read-back, says what the servo may hold and that it is read once the line is back (the write's own words
-    are the command line's); any other failure as it is."""
+    are the command line's); a write that went out unanswered gets a note saying so; any other failure as it
+    is."""
     error = report.error
     assert error is not None
+    sid = report.plan.servo_id
+    if not isinstance(error, PortLost) and report.outcome is WriteOutcome.UNKNOWN:
+        # Unanswered (a ReplyTimeout): the page's words on it are why a servo would not answer; the write went
+        # out all the same (an error_response adds a note to them).
+        error.add_note(f"the write may have reached servo {sid} (it went out, no answer came back): read it first")
+        return error
     if not isinstance(error, PortLost) or report.outcome not in (WriteOutcome.UNKNOWN, WriteOutcome.UNVERIFIED):
         return error
-    sid = report.plan.servo_id
     if report.outcome is WriteOutcome.UNKNOWN:
         what = f"as the EEPROM write went out: the write may have reached servo {sid}"
     else:
