@@ -517,6 +517,41 @@ def test_read_pose_and_on_wire_do_not_wait_for_a_line_whose_port_is_lost() -> No
     run_robot(rig, body, reconnect=True)
 
 
+def test_hold_says_which_joints_it_left_out_because_their_line_is_lost_or_came_back() -> None:
+    # A robot builder's finding (reconnect=True): hold() left a lost line's joints out saying "its newest reading is
+    # not confirmed", as if a joint were turning fast, and once the line was back, "held since its servo answered
+    # again", as if a servo had gone offline; neither said the line, nor what would get them held.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.read_pose()
+        assert robot.hold() == {}
+        await robot.on_wire()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while robot.group["lower"].state is not State.LOST:
+                await anyio.sleep(0.01)
+            await robot.wait_frame(robot.latest.cycle if robot.latest else 0)  # (a frame with lower lost)
+        left = robot.hold()
+        assert set(left) == {"hip", "knee"}, left  # the upper line's joints were held
+        for why in left.values():
+            assert why.startswith("its line lower is lost (its port reconnecting)"), why
+        rig.lower.replug()
+        with anyio.fail_after(GUARD):
+            while not (await robot.wait_frame(robot.latest.cycle if robot.latest else 0)).resumed:
+                pass
+        since = rig.lower.transactions
+        left = robot.hold()
+        assert set(left) == {"hip", "knee"}, left
+        for why in left.values():
+            assert why.startswith("held since line lower came back after its port was lost"), why
+            assert "set_targets" in why and "free" in why, why
+        await robot.on_wire(["neck"])
+        assert targets_sent(rig.lower, 1, since) == [] and targets_sent(rig.lower, 2, since) == []
+
+    run_robot(rig, body, reconnect=True)
+
+
 def paced_rig() -> Rig:
     """The rig with both lines paced (200 Hz): an unpaced line's stream still gives a frame as its port goes."""
     rig = make_rig()

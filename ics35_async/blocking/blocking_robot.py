@@ -231,7 +231,8 @@ class BlockingRobot(LoopOwner[Robot]):
 
     def hold(self, joints: Iterable[str] | None = None) -> dict[str, str]:
         """Hold ``joints`` (default: all but the tripped and the held ones) where they are now, torque on; returns
-        those left out and why (see ``Robot.hold``: a held joint, one not read yet, a free one past a limit).
+        those left out and why (see ``Robot.hold``: one on a lost line, a held joint, one not read yet, a free one
+        past a limit).
 
         Raises:
             SafetyStop: ``joints`` names a tripped joint (see ``Robot.hold``).

@@ -114,7 +114,7 @@ class Robot:
         self._unsettled: dict[str, int] = {}
         self._recent: dict[str, deque[float]] = {}
         # Joints held since their line came back or their servo came back from offline, not yet given a target,
-        # and since when (for messages): they answer nothing (see _give_up).
+        # and why, as the streams say it ("resumed", "rejoined": see _held_since): they answer nothing.
         self._held: dict[str, str] = {}
         # Joints whose servo has answered since the robot opened: only these are under control, so only their
         # going offline trips the watch (one never heard from is refused by motions instead: see check_ready).
@@ -466,11 +466,12 @@ class Robot:
         """Hold ``joints`` (default: all but the tripped ones) where they are now (within their limits), torque on:
         one a motion drives at the target last sent (its servo is on its way there: where it was last read lags
         it), the others where they were last read.  Left out, as they are, and returned with why
-        (``{joint: why}``): a held joint (see :attr:`held`: where it is is unknown), one whose position was not
-        read yet, one whose newest reading did not agree with the one before or is its first since it answered
-        again (see :data:`TURN_SPEED`), and a free one standing more than :data:`LIMIT_SLACK` degrees past a limit
-        (turned there by hand: holding it would throw it to the limit at full speed; bring it within its limits
-        first).
+        (``{joint: why}``): one on a line whose port is lost now (see :attr:`lost`: nothing reaches its servo), a
+        held joint (see :attr:`held`: its servo may have restarted, so where it is is unknown and nothing reads it;
+        set its target once you know, or free it), one whose position was not read yet, one whose newest reading
+        did not agree with the one before or is its first since it answered again (see :data:`TURN_SPEED`), and a
+        free one standing more than :data:`LIMIT_SLACK` degrees past a limit (turned there by hand: holding it
+        would throw it to the limit at full speed; bring it within its limits first).
 
         Raises:
             InvalidArgument: an unknown joint.
@@ -491,10 +492,29 @@ class Robot:
             and (self._velocity[n] or any(n in plan.joints for plan in self._plans))
         }
         self._release(names)
+        # A lost line's joints first: nothing reaches their servos, and whatever their readings say is from before.
+        lost = self.lost
+        left = {
+            n: f"its line {self.joints[n].line} is lost (its port reconnecting): nothing reaches its servo, which "
+            "keeps its last command; once the line is back, one that had a target is held until a target is set (see "
+            "Robot.held)"
+            for n in names
+            if n in lost
+        }
         # (the streams' holds now, not only those a frame has told the robot of: a servo back from offline
         # since has no position but the one from before it fell silent)
-        unknown = self.held.keys() | self._held.keys()
-        left = {n: "held since its servo answered again: where it stands is unknown" for n in names if n in unknown}
+        held = {**self._held, **self.held}
+        left.update(
+            (
+                n,
+                f"held since {self._held_since(n, held[n])}: its servo may have restarted, free and elsewhere, so "
+                "where it stands is unknown and nothing is read of it; set its target (set_targets) once you know "
+                f"where it is (an ICS 3.6 servo's position can be read: robot.group[{self.joints[n].line!r}]"
+                f".servo({self.joints[n].id}).read_position()), or free it (free) to have it read where it stands",
+            )
+            for n in names
+            if n in held and n not in left
+        )
         left.update(
             (n, "its position is not read yet")
             for n in names
@@ -514,6 +534,12 @@ class Robot:
             {n: driven[n] if n in driven else self.joints[n].clamp(self._positions[n]) for n in names if n not in left}
         )
         return left
+
+    def _held_since(self, name: str, why: str) -> str:
+        """What ``name`` is held since, in words, from its stream's why (``"resumed"`` or ``"rejoined"``)."""
+        if why == "resumed":
+            return f"line {self.joints[name].line} came back after its port was lost"
+        return "it came back after going offline"
 
     def _past_limits(self, joints: Iterable[str]) -> dict[str, str]:
         """Those of ``joints`` sent no target (free, or read and left alone) that stand more than LIMIT_SLACK
@@ -640,7 +666,7 @@ class Robot:
                 raise self._unheard_error([n for n in joints if self._unheard(n)])
             if name in self._held:
                 raise UnsafeOperation(
-                    f"joint {name} is held since {self._held[name]}: where it is is unknown "
+                    f"joint {name} is held since {self._held_since(name, self._held[name])}: where it is is unknown "
                     "(its servo may have restarted elsewhere), and a motion would start from the target it had; "
                     "set its target (set_targets) or free it first"
                 )
@@ -1083,7 +1109,7 @@ class Robot:
         on = {name for name, joint in self.joints.items() if joint.line in lines}
         self._give_up(on, error)
         for name in held:
-            self._hold_unknown(name, f"line {self.joints[name].line} came back after a lost port")
+            self._hold_unknown(name, "resumed")
 
     def _give_up_lost(self, joints: frozenset[str]) -> None:
         """The motions stop driving ``joints``, on lines whose port is lost: they go on with their others, then
@@ -1114,7 +1140,7 @@ class Robot:
             ),
         )
         for name in joints:
-            self._hold_unknown(name, "it came back after going offline")
+            self._hold_unknown(name, "rejoined")
 
     def _give_up(self, joints: set[str] | frozenset[str], error: MotionStopped) -> None:
         """Running motions stop driving ``joints`` (going on with their others, then raising ``error``)."""
@@ -1123,10 +1149,10 @@ class Robot:
                 plan.joints -= joints
                 plan.given_up = plan.given_up or error
 
-    def _hold_unknown(self, name: str, since: str) -> None:
-        """``name`` is held (sent nothing until a target is set) ``since`` something after which where it is
-        is unknown: nothing to ramp, hold or read for it."""
-        self._held[name] = since
+    def _hold_unknown(self, name: str, why: str) -> None:
+        """``name`` is held (sent nothing until a target is set) since something (``why``: ``"resumed"``,
+        ``"rejoined"``) after which where it is is unknown: nothing to ramp, hold or read for it."""
+        self._held[name] = why
         self._velocity[name] = 0.0
         self._envelope.pop(name, None)
         self._positions.pop(name, None)
