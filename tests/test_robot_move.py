@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from ics35_async import BusClosed, InvalidArgument, Robot, State, UnsafeOperation, open_robot, units
+from ics35_async import BusClosed, InvalidArgument, PortLost, Robot, State, UnsafeOperation, open_robot, units
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.eeprom import Eeprom, Flags
 from ics35_async.robot import (
@@ -548,6 +548,46 @@ def test_hold_says_which_joints_it_left_out_because_their_line_is_lost_or_came_b
             assert "set_targets" in why and "free" in why, why
         await robot.on_wire(["neck"])
         assert targets_sent(rig.lower, 1, since) == [] and targets_sent(rig.lower, 2, since) == []
+
+    run_robot(rig, body, reconnect=True)
+
+
+def test_set_targets_refuses_a_target_for_a_joint_on_a_lost_line_naming_it_and_its_line() -> None:
+    # A robot builder's finding (reconnect=True): set_targets({"neck": 5, "hip": 10}) with the hip's line lost took
+    # both, robot.targets showed hip at 10, and hip's target never went out (its line came back with it held).
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        await robot.read_pose()
+        robot.set_targets({"neck": 0.0, "hip": 0.0})
+        await robot.on_wire()
+        rig.lower.unplug()
+        with anyio.fail_after(GUARD):
+            while robot.group["lower"].state is not State.LOST:
+                await anyio.sleep(0.01)
+        since = rig.upper.transactions
+        with pytest.raises(PortLost, match=r"joint hip \(line lower, ID 1\).*line lower.*lost.*nothing was applied"):
+            robot.set_targets({"neck": 5.0, "hip": 10.0})
+        with pytest.raises(PortLost, match="joint hip"):
+            robot.stream().set_target("hip", 10.0)
+        assert robot.targets["neck"] == 0.0 and robot.targets["hip"] == 0.0  # nothing applied
+        await robot.on_wire(["neck"])
+        assert set(targets_sent(rig.upper, 1, since)) == {sent_position(JOINTS["neck"], 0.0)}
+        # A loop that sets every joint each pass goes on with the others: the frames' lost name the joints left.
+        robot.set_targets({"neck": 5.0, "hip": 10.0}, lift_holds=False)
+        await robot.on_wire(["neck"])
+        assert targets_sent(rig.upper, 1, since)[-1] == sent_position(JOINTS["neck"], 5.0)
+        assert robot.latest is not None and "hip" in robot.latest.lost
+        robot.set_targets({"knee": None}, allow_free=True)  # (freeing goes out as the line comes back)
+        rig.lower.replug()
+        with anyio.fail_after(GUARD):
+            while not (await robot.wait_frame(robot.latest.cycle)).resumed:
+                pass
+        assert robot.held == {"hip": "resumed"}  # (sent nothing: it may have restarted elsewhere)
+        since = rig.lower.transactions
+        robot.set_targets({"hip": 10.0})
+        await robot.on_wire(["hip"])
+        assert targets_sent(rig.lower, 1, since)[-1] == sent_position(JOINTS["hip"], 10.0)
 
     run_robot(rig, body, reconnect=True)
 

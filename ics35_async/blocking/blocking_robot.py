@@ -249,8 +249,8 @@ class BlockingRobot(LoopOwner[Robot]):
         Raises:
             InvalidArgument: an unknown joint, an angle outside its limits or a ``None`` without ``allow_free``.
             SafetyStop: an angle for a tripped joint (see ``Robot.set_targets``).
-            PortLost: an angle after a line was lost (without ``reconnect``): nothing applied, freeing is
-                allowed (see ``Robot.set_targets``).
+            PortLost: an angle after a line was lost (without ``reconnect``), or, with it, for a joint on a line
+                lost now and ``lift_holds`` true: nothing applied, freeing is allowed (see ``Robot.set_targets``).
         """
         self._loop.call_sync(self._async.set_targets, pose, allow_free=allow_free, lift_holds=lift_holds)
 

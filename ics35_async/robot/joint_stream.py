@@ -55,7 +55,8 @@ class RobotStream(FrameIterator[RobotFrame]):
             InvalidArgument: an unknown joint or an angle outside its limits.
             SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
-            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
+            PortLost: a line was lost (without ``reconnect``), or, with it, the joint's line is lost now: nothing
+                applied (see ``Robot.set_targets``).
         """
         self.robot.set_targets({joint: degrees})
 
@@ -67,7 +68,8 @@ class RobotStream(FrameIterator[RobotFrame]):
             InvalidArgument: an unknown joint or an angle outside its limits (nothing applied).
             SafetyStop: a joint the safety watch tripped (see ``Robot.set_targets``).
             BusClosed: the robot was closed (its ``async with`` block has ended).
-            PortLost: a line was lost (without ``reconnect``): nothing applied (see ``Robot.set_targets``).
+            PortLost: a line was lost (without ``reconnect``), or, with it, an angle for a joint on a line lost now
+                and ``lift_holds`` true: nothing applied (see ``Robot.set_targets``).
         """
         self.robot.set_targets(pose, lift_holds=lift_holds)
 

@@ -27,7 +27,7 @@ import anyio
 from .. import protocol, units
 from ..bus import Bus
 from ..engine import State
-from ..errors import BusClosed, IcsError, InvalidArgument, UnsafeOperation
+from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, UnsafeOperation
 from ..frames import GroupFrame
 from ..group import BusGroup, GroupStream
 from ..stream import WATCH, Stream
@@ -374,13 +374,20 @@ class Robot:
         target: the program has decided; ``lift_holds=False`` (a loop that sets every joint each pass) leaves
         it held, sent nothing.  A joint whose servo does not answer (offline, or never heard from since the
         robot opened) takes the target, but its servo, once it answers, is not thrown there from wherever it
-        stands: it comes back held, until the program sets its target again.
+        stands: it comes back held, until the program sets its target again.  An angle for a joint on a line
+        whose port is lost (``reconnect=True``: see :attr:`lost`) would never go out (the line comes back with
+        its joints held): it is refused, nothing applied; with ``lift_holds=False`` the others' targets are
+        set and that joint takes its target as a held one does, sent nothing (its frames list it in ``lost``,
+        then in ``held`` once the line is back).
 
         Raises:
             InvalidArgument: not a mapping, an unknown joint, an angle outside its limits or a ``None``
                 without ``allow_free`` (nothing applied).
             SafetyStop: an angle for a joint the safety watch tripped (``tripped``), until it is back within
                 its limits: the target would undo the safety action (nothing applied; freeing it is allowed).
+            PortLost: an angle for a joint on a line whose port is lost (``reconnect=True``), unless
+                ``lift_holds=False``: the message names the joints and their lines (nothing applied; freeing it
+                is allowed: the free goes out as the line comes back).
             BusClosed, PortLost: the robot was closed (its ``async with`` block has ended), or a line is gone
                 (without ``reconnect``: the robot's frames have ended; nothing applied unless every target frees).
         """
@@ -391,8 +398,37 @@ class Robot:
         if any(d is not None for d in checked.values()):
             self._check_watched()  # (freeing alone still reaches the lines left)
         self._refuse_tripped(n for n, d in checked.items() if d is not None)
+        if lift_holds:
+            self._refuse_lost(n for n, d in checked.items() if d is not None)
         self._release(checked)
         self._apply(checked, lift_holds=lift_holds)
+
+    def _port_lost_now(self, joints: Iterable[str]) -> list[str]:
+        """Those of ``joints`` whose line's bus has lost its port now.  Not :attr:`lost`, which lasts until a
+        frame says the line is back: by then its stream has held the joints that had a target (one set now lifts
+        the hold and goes out), where a target set while the port is away is held with them as it comes back."""
+        buses = self.group.buses
+        return [name for name in joints if buses[self.joints[name].line].state is State.LOST]
+
+    def _refuse_lost(self, joints: Iterable[str]) -> None:
+        """Raise PortLost naming those of ``joints`` on a line whose port is lost (``reconnect=True``): their
+        target would not reach their servos, and once the line is back they are held, sent nothing until a target
+        is set again (see _line_resumed), so it would never go out.  The program decided for those joints: it
+        hears so, nothing applied, as for a tripped one (a motion, or a loop passing ``lift_holds=False``, goes on
+        with the other joints and says so afterwards: MotionStopped, a frame's ``lost``)."""
+        named = self._port_lost_now(joints)
+        if not named:
+            return
+        lines = sorted({self.joints[name].line for name in named})
+        which = ", ".join(f"{name} (line {self.joints[name].line}, ID {self.joints[name].id})" for name in named)
+        several, many_lines = len(named) > 1, len(lines) > 1
+        raise PortLost(
+            f"joint{'s' if several else ''} {which}: line{'s' if many_lines else ''} {', '.join(lines)} lost "
+            f"{'their' if many_lines else 'its'} port (reconnecting): a target would not reach "
+            f"{'their servos' if several else 'its servo'}, and once the line is back a joint that had a target is "
+            "held, sent nothing until a target is set again; nothing was applied (robot.lost names the joints on a "
+            "lost line: leave them out, or pass lift_holds=False to set the others' targets and leave them)"
+        )
 
     def started(
         self, stated: Mapping[str, float], read: Iterable[str], streams: Mapping[str, Stream], heard: Iterable[str] = ()
@@ -493,7 +529,7 @@ class Robot:
         }
         self._release(names)
         # A lost line's joints first: nothing reaches their servos, and whatever their readings say is from before.
-        lost = self.lost
+        lost = self._port_lost_now(names)
         left = {
             n: f"its line {self.joints[n].line} is lost (its port reconnecting): nothing reaches its servo, which "
             "keeps its last command; once the line is back, one that had a target is held until a target is set (see "
