@@ -977,7 +977,35 @@ def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any)
     said = error_text(refused.value)
     assert said.startswith("<mapping>: line lower: no serial port at "), said
     assert missing in said and refused.value.errno == errno.ENOENT
+    assert "reconnecting" not in said  # (opened without reconnect=True: nothing to say of it)
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
+
+
+def test_a_line_whose_port_is_missing_with_reconnect_says_reconnecting_does_not_wait_for_it(tmp_path: Any) -> None:
+    # A robot builder's finding: open_robot(..., reconnect=True) with one adapter not plugged in yet failed at once,
+    # saying only "no serial port", where reconnect=True led them to expect a wait for it: it rides out a port lost
+    # once its line is open (during the open too), not one missing as the robot opens.
+    rig = make_rig()
+    missing = str(tmp_path / "nothing" / "lower")
+    rig.description["lines"]["lower"]["port"] = missing
+
+    async def main() -> None:
+        with anyio.fail_after(GUARD):  # (at once: no wait for a port that was never there)
+            async with open_robot(rig.description, reconnect=True, **FAST):
+                pass
+
+    try:
+        with pytest.raises(PortNotFound) as refused:
+            anyio.run(main)
+    finally:
+        rig.close()
+    said = error_text(refused.value)
+    assert said.startswith("<mapping>: line lower: no serial port at "), said
+    assert said.endswith(
+        "; reconnecting rides out a port lost once its line is open, not one missing as the robot opens: plug the "
+        "adapter in, then open the robot again"
+    ), said
+    assert refused.value.errno == errno.ENOENT
 
 
 @pytest.mark.parametrize("port", ["sim://robot-start-typo?ids=1-3&realtme=1", "socket://legs-pi"])

@@ -30,7 +30,7 @@ from .. import units
 from ..bus import CLI_OPTION_NAMES, Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
 from ..engine import State
-from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError, error_text
+from ..errors import InvalidArgument, PortLost, PortNotFound, ReplyError, ReplyTimeout, SerialPortError, error_text
 from ..group import BusGroup, GroupStream
 from ..policies.scan import anyone_there
 from ..protocol import FREE
@@ -151,7 +151,9 @@ def open_robot(
             angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here;
             or a line's port refused as written (a misspelt ``sim://`` option; its message names the line).
         SerialPortError: a line's port cannot be opened (its message names the line; a servo that does not
-            answer is not an error: its joint starts free and, with ``check_limits``, gets a warning).
+            answer is not an error: its joint starts free and, with ``check_limits``, gets a warning).  At once,
+            ``reconnect=True`` or not: it rides out a port lost once its line is open, not one missing (a
+            ``PortNotFound`` then says so).
         PortLost: a line's port was lost during the open: at once without ``reconnect``; with
             ``reconnect=True`` only if it was not back within ``LOST_AT_OPEN`` (5) seconds, the open's reads made
             again once it is (they move and free nothing).
@@ -194,7 +196,7 @@ async def _robot_session(
             try:
                 await stack.enter_async_context(bus)
             except SerialPortError as exc:
-                raise _on_line(exc, description.source, name) from exc
+                raise _on_line(exc, description.source, name, reconnect=bus.reconnect) from exc
             except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, no TCP port)
                 raise InvalidArgument(f"{description.source}: line {name}: {exc}") from exc
         group = BusGroup(buses)
@@ -352,11 +354,17 @@ class _LostAtOpen:
         ) from None
 
 
-def _on_line(exc: SerialPortError, source: str, line: str) -> SerialPortError:
+def _on_line(exc: SerialPortError, source: str, line: str, *, reconnect: bool) -> SerialPortError:
     """``exc`` (a line's port that could not be opened) naming the robot file's line too: the port's own words
     do not say which line of the robot it is, and a robot has one adapter a line.  The same class and errno, so a
-    caller that tells a missing port from a busy one still can."""
+    caller that tells a missing port from a busy one still can.  A port missing with ``reconnect``: the bus
+    reopens a port lost once it was open, and a person who asked for that expected a wait for this one too."""
     text = f"{source}: line {line}: {error_text(exc)}"
+    if reconnect and isinstance(exc, PortNotFound):
+        text += (
+            "; reconnecting rides out a port lost once its line is open, not one missing as the robot opens: plug the "
+            "adapter in, then open the robot again"
+        )
     return type(exc)(text) if exc.errno is None else type(exc)(exc.errno, text)
 
 
