@@ -545,7 +545,7 @@ def test_hold_says_which_joints_it_left_out_because_their_line_is_lost_or_came_b
         assert set(left) == {"hip", "knee"}, left
         for why in left.values():
             assert why.startswith("held since line lower came back after its port was lost"), why
-            assert "set_targets" in why and "free" in why, why
+            assert "set its target" in why and "free it" in why, why
         await robot.on_wire(["neck"])
         assert targets_sent(rig.lower, 1, since) == [] and targets_sent(rig.lower, 2, since) == []
 

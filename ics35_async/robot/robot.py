@@ -543,10 +543,9 @@ class Robot:
         left.update(
             (
                 n,
-                f"held since {self._held_since(n, held[n])}: its servo may have restarted, free and elsewhere, so "
-                "where it stands is unknown and nothing is read of it; set its target (set_targets) once you know "
-                f"where it is (an ICS 3.6 servo's position can be read: robot.group[{self.joints[n].line!r}]"
-                f".servo({self.joints[n].id}).read_position()), or free it (free) to have it read where it stands",
+                f"held since {self._held_since(n, held[n])}: its servo may have restarted, free and elsewhere, and "
+                "nothing reads it, so where it stands is unknown; set its target once you know where it is, or free "
+                "it to have it read where it stands",
             )
             for n in names
             if n in held and n not in left
