@@ -189,7 +189,8 @@ class Robot:
     def lost(self) -> frozenset[str]:
         """Joints on a line whose port is lost now (``reconnect=True``: its bus reconnecting), until the frame
         whose ``resumed`` names the line back: nothing sent to them is confirmed meanwhile (``free()`` and
-        ``on_wire()`` do not wait for them).  A frame's ``lost`` as of now: with every line lost no frame comes."""
+        ``on_wire()`` do not wait for them), and while the port is away :meth:`set_targets` refuses an angle for
+        them and :meth:`hold` leaves them out.  A frame's ``lost`` as of now: with every line lost no frame comes."""
         lines = self.lost_lines
         return frozenset(n for n, j in self.joints.items() if j.line in lines) if lines else frozenset()
 
