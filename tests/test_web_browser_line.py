@@ -141,6 +141,19 @@ def test_a_scan_that_finds_no_servo_at_any_rate_says_what_to_check(browser: Brow
         expect(p.locator("#scan-summary")).to_contain_text("no servo answered at any baud rate")
 
 
+def test_a_scan_of_ids_the_server_refuses_says_nothing_was_scanned(browser: Browser) -> None:
+    # IDs "40" typed: the server refused them before anything went on the wire, and the summary said "the scan did
+    # not finish", as of a scan that had started and stopped part-way.
+    line = PtyLine((1,))
+    with web_server_page(browser, line) as p:
+        p.fill("#scan-ids", "40")
+        p.click("#scan-btn")
+        expect(p.locator("#message")).to_contain_text("servo ID must be in 0..31, got 40")
+        expect(p.locator("#scan-summary")).to_contain_text("nothing was scanned (the message above says why)")
+        expect(p.locator("#scan-summary")).not_to_contain_text("did not finish")
+        scan_finds(p, 1, ids="0-4")  # (the line is as it was)
+
+
 def test_the_search_of_the_other_rates_says_in_the_status_line_which_rate_it_tries(browser: Browser) -> None:
     # Nothing answers at the line's rate: the page asks the other rates, a whole allowance each where nothing answers,
     # and its status line says which (as `ics35 doctor` and `monitor --free` print it), then no more once done.

@@ -292,7 +292,10 @@ async function scanLine() {
         reopenAt(report.answers_at));
     }
   } catch (e) {
-    $("#scan-summary").textContent = "the scan did not finish (the message above says why)";
+    // A refusal (IDs out of range, a robot streaming) came before anything went on the wire: not a scan cut short.
+    const refused = e.status === 400 || e.status === 409;
+    $("#scan-summary").textContent = `${refused ? "nothing was scanned" : "the scan did not finish"} ` +
+      "(the message above says why)";
     throw e;
   } finally { $("#scan-btn").disabled = false; }
 }
