@@ -24,7 +24,15 @@ from .drivers.settings import LineSettings
 from .eeprom import FACTORY_BAUD
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, RequestHandle, State, TimingOverrides
 from .engine.machine import ANOTHER_STREAM
-from .errors import BusClosed, ClosedByPortLoss, InvalidArgument, PortLost, UnsafeOperation, error_text
+from .errors import (
+    BusClosed,
+    ClosedByPortLoss,
+    InvalidArgument,
+    PortLost,
+    PortNotFound,
+    UnsafeOperation,
+    error_text,
+)
 from .protocol import Command
 from .stats import BusStats
 from .tasks import despite_cancellation
@@ -288,7 +296,8 @@ class Bus:
             BusClosed: the bus was closed, or an ``open()`` running at the same time failed.
             SerialPortError: the port cannot be opened ([`PortNotFound`][ics35_async.errors.PortNotFound],
                 [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
-                [`PortBusy`][ics35_async.errors.PortBusy], ...).
+                [`PortBusy`][ics35_async.errors.PortBusy], ...).  At once, ``reconnect=True`` or not: it rides
+                out a port lost once the bus is open, not one missing (a ``PortNotFound`` then says so).
         """
         if self._engine.state is State.CLOSED or self._engine.state is State.DRAINING:
             raise self._engine.closed_error()
@@ -305,7 +314,12 @@ class Bus:
         try:
             driver = make_driver(self.driver_kind, self._engine, self._port, self._settings)
             self._engine.debug = log.isEnabledFor(logging.DEBUG)
-            await driver.open()
+            try:
+                await driver.open()
+            except PortNotFound as exc:
+                if not self._settings.reconnect:
+                    raise
+                raise _missing_with_reconnect(exc) from exc
             self._driver = driver
         finally:
             self._opening.set()
@@ -730,6 +744,17 @@ def _state_callback(bus: weakref.ref[Bus]) -> Callable[[State], None]:
     return state_changed
 
 
+def _missing_with_reconnect(exc: PortNotFound) -> PortNotFound:
+    """``exc`` (the port missing as a bus with ``reconnect`` opens) saying that reconnecting does not wait for it:
+    a person who asked for a lost port to be reopened expected a wait for this one too.  The same errno, so a
+    caller that tells a missing port from a busy one still can."""
+    text = (
+        f"{error_text(exc)}; reconnecting rides out a port lost once the bus is open, not one missing as it opens:"
+        " plug the adapter in, then open it again"
+    )
+    return PortNotFound(text) if exc.errno is None else PortNotFound(exc.errno, text)
+
+
 def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> Bus:
     """A :class:`Bus` on ``port``: use ``async with open_bus(...) as bus`` or ``bus = await open_bus(...)``.
 
@@ -752,6 +777,8 @@ def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOpt
             [`SerialPortError`][ics35_async.errors.SerialPortError]
             ([`ParityNotSupported`][ics35_async.errors.ParityNotSupported],
             [`DirectionControlNotSupported`][ics35_async.errors.DirectionControlNotSupported]).
+            A port missing as the bus opens fails at once with ``reconnect=True`` too (it rides out a port lost
+            once the bus is open): its ``PortNotFound`` then says so.
     """
     return Bus(port, **options)
 

@@ -8,6 +8,7 @@ shows up as a wrong value.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import random
 import threading
@@ -26,6 +27,7 @@ from ics35_async import (
     InvalidArgument,
     PortBusy,
     PortLost,
+    PortNotFound,
     Priority,
     ReplyError,
     ReplyTimeout,
@@ -35,6 +37,7 @@ from ics35_async import (
 )
 from ics35_async.bus import Bus
 from ics35_async.drivers import burst, core
+from ics35_async.errors import error_text
 from ics35_async.protocol import BaudRate
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo, serving
 from ics35_async.sim.virtual_servo import factory_calibration
@@ -431,6 +434,28 @@ async def test_port_vanishing_fails_pending_requests_and_closes_the_bus(driver: 
     await bus.aclose()
     with pytest.raises(ClosedByPortLoss, match=r"closed itself: port .* lost"):  # closed by the program now: still why
         await bus.servo(0).read_stretch()
+
+
+@pytest.mark.parametrize("reconnect", [True, False])
+async def test_a_missing_port_with_reconnect_says_reconnecting_does_not_wait_for_it(
+    reconnect: bool, tmp_path: Any
+) -> None:
+    # open_bus(port, reconnect=True) with the adapter not plugged in yet failed at once saying only "no serial
+    # port", where reconnect=True led a person to expect a wait for it: it rides out a port lost once the bus is
+    # open, not one missing as it opens.  Without reconnect there is nothing to say of it.
+    missing = str(tmp_path / "nothing" / "ttyUSB0")
+    bus = open_bus(missing, reconnect=reconnect, **FAST)
+    with pytest.raises(PortNotFound) as refused:
+        await asyncio.wait_for(bus.open(), GUARD)  # (at once: no wait for a port that was never there)
+    said = error_text(refused.value)
+    assert said.startswith(f"no serial port at {missing!r}: check the cable/adapter is plugged in"), said
+    sentence = (
+        "; reconnecting rides out a port lost once the bus is open, not one missing as it opens: plug the adapter"
+        " in, then open it again"
+    )
+    assert said.endswith(sentence) if reconnect else "reconnecting" not in said, said
+    assert refused.value.errno == errno.ENOENT
+    assert not bus.is_open
 
 
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])

@@ -1002,8 +1002,8 @@ def test_a_line_whose_port_is_missing_with_reconnect_says_reconnecting_does_not_
     said = error_text(refused.value)
     assert said.startswith("<mapping>: line lower: no serial port at "), said
     assert said.endswith(
-        "; reconnecting rides out a port lost once its line is open, not one missing as the robot opens: plug the "
-        "adapter in, then open the robot again"
+        "; reconnecting rides out a port lost once the bus is open, not one missing as it opens: plug the adapter"
+        " in, then open it again"
     ), said
     assert refused.value.errno == errno.ENOENT
 

@@ -278,6 +278,8 @@ def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOpt
         InvalidArgument: an unknown option, or one with the wrong type or out of range (nothing is opened).
         SerialPortError: the port cannot be opened: [`PortNotFound`][ics35_async.errors.PortNotFound],
             [`PortPermissionDenied`][ics35_async.errors.PortPermissionDenied],
-            [`PortBusy`][ics35_async.errors.PortBusy] and the others.
+            [`PortBusy`][ics35_async.errors.PortBusy] and the others.  A port missing as the bus opens fails
+            at once with ``reconnect=True`` too (it rides out a port lost once the bus is open): its
+            ``PortNotFound`` then says so.
     """
     return BlockingBus(open_async_bus(port, **options))

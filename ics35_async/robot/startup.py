@@ -30,7 +30,7 @@ from .. import units
 from ..bus import CLI_OPTION_NAMES, Bus, BusOptions, open_bus
 from ..eeprom import Eeprom
 from ..engine import State
-from ..errors import InvalidArgument, PortLost, PortNotFound, ReplyError, ReplyTimeout, SerialPortError, error_text
+from ..errors import InvalidArgument, PortLost, ReplyError, ReplyTimeout, SerialPortError, error_text
 from ..group import BusGroup, GroupStream
 from ..policies.scan import anyone_there
 from ..protocol import FREE
@@ -196,7 +196,7 @@ async def _robot_session(
             try:
                 await stack.enter_async_context(bus)
             except SerialPortError as exc:
-                raise _on_line(exc, description.source, name, reconnect=bus.reconnect) from exc
+                raise _on_line(exc, description.source, name) from exc
             except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, no TCP port)
                 raise InvalidArgument(f"{description.source}: line {name}: {exc}") from exc
         group = BusGroup(buses)
@@ -354,17 +354,12 @@ class _LostAtOpen:
         ) from None
 
 
-def _on_line(exc: SerialPortError, source: str, line: str, *, reconnect: bool) -> SerialPortError:
+def _on_line(exc: SerialPortError, source: str, line: str) -> SerialPortError:
     """``exc`` (a line's port that could not be opened) naming the robot file's line too: the port's own words
     do not say which line of the robot it is, and a robot has one adapter a line.  The same class and errno, so a
-    caller that tells a missing port from a busy one still can.  A port missing with ``reconnect``: the bus
-    reopens a port lost once it was open, and a person who asked for that expected a wait for this one too."""
+    caller that tells a missing port from a busy one still can.  (A port missing with ``reconnect``: the bus's
+    own words already say that reconnecting does not wait for it.)"""
     text = f"{source}: line {line}: {error_text(exc)}"
-    if reconnect and isinstance(exc, PortNotFound):
-        text += (
-            "; reconnecting rides out a port lost once its line is open, not one missing as the robot opens: plug the "
-            "adapter in, then open the robot again"
-        )
     return type(exc)(text) if exc.errno is None else type(exc)(exc.errno, text)
 
 
