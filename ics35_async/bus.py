@@ -744,14 +744,18 @@ def _state_callback(bus: weakref.ref[Bus]) -> Callable[[State], None]:
     return state_changed
 
 
+MISSING_AS_IT_OPENS = (
+    "reconnecting rides out a port lost once the bus is open, not one missing as it opens: plug the adapter in, then"
+    " open it again"
+)
+"""What a ``PortNotFound`` adds as a bus with ``reconnect`` opens (the configurator says it in its pages' words)."""
+
+
 def _missing_with_reconnect(exc: PortNotFound) -> PortNotFound:
     """``exc`` (the port missing as a bus with ``reconnect`` opens) saying that reconnecting does not wait for it:
     a person who asked for a lost port to be reopened expected a wait for this one too.  The same errno, so a
     caller that tells a missing port from a busy one still can."""
-    text = (
-        f"{error_text(exc)}; reconnecting rides out a port lost once the bus is open, not one missing as it opens:"
-        " plug the adapter in, then open it again"
-    )
+    text = f"{error_text(exc)}; {MISSING_AS_IT_OPENS}"
     return PortNotFound(text) if exc.errno is None else PortNotFound(exc.errno, text)
 
 

@@ -247,6 +247,36 @@ def test_a_refused_connect_leaves_the_line_that_was_open(serve: Any, tmp_path: A
     assert [s["id"] for s in report["servos"]] == [1, 3]
 
 
+def test_a_connect_to_a_missing_port_says_the_line_reconnects_only_once_open_in_the_pages_words(
+    serve: Any, tmp_path: Any
+) -> None:
+    # The page's line reconnects by itself to a port lost once it is open, so a person expects a wait for an adapter
+    # not plugged in yet too; the library's words for that ("open it again", "the bus") are not the page's.
+    client, _ = serve()
+    missing = str(tmp_path / "nothing" / "ttyUSB0")
+    refused = post(client, "/api/connect", {"port": missing})
+    said = refused.json()["error"]
+    assert refused.status_code == 503 and said.startswith(f"no serial port at {missing!r}"), said
+    assert said.endswith(
+        "; the line reconnects by itself to a port lost once it is open, not to one missing as it opens: plug the"
+        " adapter in, then press Connect on the Line page"
+    ), said
+    assert "open it again" not in said and "bus" not in said, said
+    assert client.get("/api/status").json()["error"] == said  # (said on the Line page too)
+
+
+def test_a_server_started_on_a_missing_port_says_so_in_the_pages_words(tmp_path: Any) -> None:
+    missing = str(tmp_path / "nothing" / "ttyUSB0")
+    warned: list[str] = []
+    with TestClient(create_app(LineSession(LineConfig(port=missing)), TOKEN, warn=warned.append), base_url=BASE):
+        pass
+    assert len(warned) == 1 and warned[0].startswith(f"{missing}: no serial port at {missing!r}"), warned
+    assert warned[0].endswith(
+        "; the line reconnects by itself to a port lost once it is open, not to one missing as it opens: plug the"
+        " adapter in, then press Connect on the Line page (or choose another port there)"
+    ), warned
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="a COM name is a real port name there")
 def test_a_refused_connect_answers_with_the_hints_the_page_shows(serve: Any) -> None:
     client, _ = serve()

@@ -719,6 +719,10 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
     assert len(warned) == 2, warned
     opened = f"the robot's lines could not be opened: {path}: line arm: no serial port at '/dev/ttyUSB-ics35-none'"
     assert warned[0].startswith(opened), warned
+    assert warned[0].endswith(  # (the library's "open it again" is the Robot page's Reconnect here)
+        "; its lines reconnect by themselves to a port lost once the robot is open, not to one missing as it opens:"
+        " plug the adapter in, then press Reconnect on the Robot page"
+    ), warned
     assert "[Errno" not in warned[0]
     assert f"the pages start on sim://{name}?ids=2 instead" in warned[1]
     sim.named(name).close()

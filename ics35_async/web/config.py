@@ -6,7 +6,9 @@ import hashlib
 import os
 from dataclasses import dataclass
 
+from ..bus import MISSING_AS_IT_OPENS
 from ..eeprom import FACTORY_BAUD
+from ..errors import error_text
 from ..protocol import ADAPTER_LATENCY, TOOL_RETRIES
 from ..transports.wire_device import opens_anew, url_scheme
 
@@ -37,3 +39,10 @@ class LineConfig:
 
         digest = hashlib.sha1(url_options(self.port).encode(), usedforsecurity=False).hexdigest()[:8]
         return named_url(self.port, f"ics35-web-{os.getpid()}-{digest}")
+
+
+def said_on_the_page(exc: BaseException, missing: str) -> str:
+    """``exc``'s words, a port missing as the configurator opens it told with ``missing`` instead of the library's
+    words for it: the configurator opens with ``reconnect=True`` (its docs say the line comes back by itself), so
+    a person expects a wait for an adapter not plugged in yet too, and "open it again" is a button here."""
+    return error_text(exc).replace(MISSING_AS_IT_OPENS, missing)

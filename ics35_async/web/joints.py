@@ -29,7 +29,13 @@ from ..sim.url import parse_url
 from ..tasks import retrieved
 from ..transports import same_port
 from ..transports.wire_device import url_scheme
+from .config import said_on_the_page
 
+# A robot's line missing as the robot opens (see said_on_the_page): its lines come back by themselves only once open.
+MISSING_AT_OPEN = (
+    "its lines reconnect by themselves to a port lost once the robot is open, not to one missing as it opens: plug"
+    " the adapter in, then press Reconnect on the Robot page"
+)
 # How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
 # longest, 0.4 s, with room for a loaded machine) before it says the line is still lost.
 RECONNECT_WAIT = 2.0
@@ -183,7 +189,7 @@ class RobotSession:
                     for task in (asked, ended, lost):
                         task.cancel()
         except (IcsError, OSError) as exc:
-            self.error = f"the robot's lines could not be opened: {error_text(exc)}"
+            self.error = f"the robot's lines could not be opened: {said_on_the_page(exc, MISSING_AT_OPEN)}"
         finally:
             self.robot = self._stopped_robot = None
             self.motion_enabled = False

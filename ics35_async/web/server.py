@@ -31,7 +31,7 @@ from .api import ROUTES
 from .config import LineConfig
 from .joints import RobotSession
 from .security import TokenGuard, is_loopback
-from .session import LineSession
+from .session import MISSING_AT_CONNECT, LineSession
 
 STATIC = Path(__file__).with_name("static")
 
@@ -133,7 +133,9 @@ def create_app(
                 await session.connect()
         except Exception as exc:
             if warn is not None:
-                warn(f"{session.config.port}: {error_text(exc)} (choose another port on the Line page)")
+                said = session.error or error_text(exc)  # (in the page's words: its Connect for a missing port)
+                there = "or choose another port there" if said.endswith(MISSING_AT_CONNECT) else None
+                warn(f"{session.config.port}: {said} ({there or 'choose another port on the Line page'})")
         try:
             yield
         finally:

@@ -71,7 +71,7 @@ from ..policies.eeprom_backup import backup_changes, backup_document
 from ..protocol import Param
 from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
-from .config import LineConfig
+from .config import LineConfig, said_on_the_page
 from .edits import allowances, edit_of
 from .live import LIVE_RATE_HZ, LiveView, read_health
 from .traffic import TrafficLog
@@ -98,6 +98,11 @@ POSITION_AT_COMMAND = (
 
 # Why the server switched a servo's motion off when the page that switched it on went (see page_gone).
 PAGE_GONE = "the page that switched it on was closed or lost its connection to the server"
+# A port missing as the Line page connects (see said_on_the_page): the line comes back by itself only once open.
+MISSING_AT_CONNECT = (
+    "the line reconnects by itself to a port lost once it is open, not to one missing as it opens: plug the adapter"
+    " in, then press Connect on the Line page"
+)
 # A page's name for itself (see page_came), as long as it may be.
 PAGE_NAME_MAX = 64
 
@@ -292,7 +297,7 @@ class LineSession:
             try:
                 await bus.open()
             except (OSError, InvalidArgument) as exc:
-                self.error = error_text(exc)  # (a misnamed port's, sim:/x or ttyUSB0, says what it meant)
+                self.error = said_on_the_page(exc, MISSING_AT_CONNECT)  # (a misnamed port's says what it meant)
                 raise
             if self.config is not config:  # another port, open now: the old one goes
                 await self.disconnect()
