@@ -21,14 +21,13 @@ from starlette.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from ics35_async import Eeprom
-from ics35_async.errors import ReplyTimeout
+from ics35_async.errors import ReplyHeaderError, ReplyTimeout
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
-from ics35_async.sim.virtual_servo import NO_REPLY
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
 from ics35_async.web.security import COOKIE
-from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked
+from tests.support.sim_servos import TakesTheWriteSilently, UnpluggedAfterWrite, UnplugsWhenAsked
 from tests.support.timing import GUARD
 
 TOKEN = "test-token-0123456789abcdef"
@@ -647,6 +646,10 @@ def test_many_servos_do_not_say_nothing_was_written_of_a_write_left_unanswered()
     assert "nothing written" in unread, unread
     unanswered = session._many_words(ReplyTimeout("no reply", command="write_eeprom", servo_id=5, raw=b"\xc5"))
     assert "nothing written" not in unanswered and "may" in unanswered and "5" not in unanswered.split(), unanswered
+    # Garbled (its row: "may be written"): the servo may have taken the write all the same.
+    garbled = session._many_words(ReplyHeaderError("wrong header", command="write_eeprom", servo_id=5, raw=b"\xc5\x45"))
+    assert garbled.startswith("wrong header; it may or may not have been written"), garbled
+    assert "nothing written" not in garbled and "Traffic page" in garbled, garbled
 
 
 @pytest.mark.parametrize(
@@ -679,14 +682,6 @@ def test_a_write_whose_port_is_lost_says_what_the_servo_may_hold(
     assert puller.eeprom.speed == speed
 
 
-class TakesTheWriteSilently(VirtualServo):
-    """A servo that writes its EEPROM as told, its acknowledgement never reaching the host (noise, a long line)."""
-
-    def handle(self, command: Any) -> Any:
-        reply = super().handle(command)
-        return NO_REPLY if isinstance(command, WriteEeprom) else reply
-
-
 def test_a_write_the_servo_took_without_an_answer_says_it_may_have_reached_it(serve: Any) -> None:
     # The Servo page's write, unanswered: the words were those of a servo that never answers (its power, its
     # wiring), nothing telling that the write may be in it, to be read before anything is written again.
@@ -716,6 +711,50 @@ def test_many_servos_say_a_write_acknowledged_then_unanswered_was_written_not_ve
     assert words.startswith("acknowledged the EEPROM write, then did not answer its read-back"), words
     assert "written, not verified" in words and "servo 2" not in words, words
     assert gone.eeprom.speed == 40
+
+
+@pytest.mark.parametrize(
+    ("moment", "row", "said"),
+    [
+        ("write", {"maybe_written": True}, "as the EEPROM write went out: the write may have reached servo 2"),
+        ("read-back", {"written": True}, "after servo 2 acknowledged the EEPROM write, before its read-back"),
+    ],
+)
+def test_many_servos_row_says_what_a_write_cut_short_by_a_lost_port_may_hold(
+    serve: Any, moment: str, row: dict[str, bool], said: str
+) -> None:
+    # The port lost as servo 2's write went out: the words said the write may have reached it (read it once the
+    # line is back), its row "failed" of a servo that may hold the new values; lost before the read-back of a write
+    # it acknowledged, "failed" of one that holds them.
+    client, sim = serve((1, 3))
+    pulls = {
+        "write": lambda command: isinstance(command, WriteEeprom),
+        "read-back": lambda command: isinstance(command, ReadEeprom) and puller.eeprom.speed == 40,
+    }
+    puller = UnplugsWhenAsked(2, pulls[moment])
+    sim.add_device(puller)
+    puller.line = sim
+    results = post(client, "/api/many/apply", {"ids": [1, 2, 3], "changes": {"speed": 40}}).json()["results"]
+    assert [r["id"] for r in results] == [1, 2, 3] and results[0]["verified"], results
+    two = results[1]
+    assert two["kind"] == "PortLost" and said in two["error"] and "once the line is back" in two["error"], two
+    assert {k: two.get(k) for k in ("written", "maybe_written")} == {"written": None, "maybe_written": None, **row}
+    assert results[2]["not_tried"], results
+    assert puller.eeprom.speed == 40
+
+
+def test_many_servos_row_says_a_write_left_unanswered_may_be_written(serve: Any) -> None:
+    # The words said it may or may not have been written; the row said "failed".
+    client, sim = serve((1,))
+    sim.add_device(TakesTheWriteSilently(2))
+    results = post(client, "/api/many/apply", {"ids": [1, 2], "changes": {"speed": 40}}).json()["results"]
+    two = results[1]
+    assert two["kind"] == "ReplyTimeout" and "may or may not have been written" in two["error"], two
+    assert two.get("maybe_written") is True and not two.get("written"), two
+    assert sim.servo(2).eeprom.speed == 40
+    # A servo that never answers (nothing went out to write) is not one that may be written.
+    absent = post(client, "/api/many/apply", {"ids": [7], "changes": {"speed": 40}}).json()["results"][0]
+    assert absent["kind"] == "ReplyTimeout" and not absent.get("maybe_written"), absent
 
 
 class FlippedFirstEepromReply(VirtualServo):

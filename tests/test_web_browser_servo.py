@@ -38,7 +38,7 @@ from tests.support.browser_pages import (
     until_on,
     web_server_page,
 )
-from tests.support.sim_servos import UnpluggedAfterWrite, UnplugsWhenAsked
+from tests.support.sim_servos import TakesTheWriteSilently, UnpluggedAfterWrite, UnplugsWhenAsked
 from tests.support.timing import GUARD, PATIENT_OPTION
 
 # Each module's tests share its browser (and the first module's, one page walked in order): `make test`
@@ -544,6 +544,25 @@ def test_the_many_servos_page_says_a_write_taken_but_not_read_back_is_written_no
         )
         expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("written, verified")
         assert gone.eeprom.punch == 3
+
+
+def test_the_many_servos_page_says_a_write_cut_short_as_it_went_may_be_written(browser: Browser) -> None:
+    # The port lost as servo 2's write went out (or servo 1's write left unanswered): the words above said the write
+    # may have reached it, its row "failed (see above)".
+    line = PtyLine((3,))
+    line.sim.add_device(TakesTheWriteSilently(1))
+    puller = UnplugsWhenAsked(2, WriteEeprom)
+    line.sim.add_device(puller)
+    puller.line = line.sim
+    with web_server_page(browser, line) as p:
+        apply_punch_to_many(p, "1-3", 3)
+        expect(p.locator("#many-results tr[data-id='2']")).to_contain_text(
+            "may be written (port lost as it went): read it"
+        )
+        expect(p.locator("#many-results tr[data-id='1']")).to_contain_text("may be written (no answer): read it")
+        expect(p.locator("#many-results tr[data-id='3']")).to_contain_text("not tried")
+        expect(p.locator("#many-errors li").nth(1)).to_contain_text("the write may have reached servo 2")
+        assert puller.eeprom.punch == 3
 
 
 def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser: Browser) -> None:

@@ -146,6 +146,19 @@ def _lost_mid_write(report: ServoWriteReport) -> IcsError:
     return PortLost(f"{error_text(error)} {what}; read it once the line is back")
 
 
+def _how_far(report: ServoWriteReport | None) -> dict[str, bool]:
+    """What a Many servos row says of a write that failed (``report``, None if it failed before the write went out)
+    beyond "failed", as its words do: it may be written (the port lost, or no answer, as it went) or it is
+    (acknowledged, then the port lost before its read-back)."""
+    if report is None:
+        return {}
+    if report.outcome is WriteOutcome.UNKNOWN:
+        return {"maybe_written": True}
+    if report.outcome is WriteOutcome.UNVERIFIED:
+        return {"written": True}
+    return {}
+
+
 class LineSession:
     """The line the pages work on (one per server)."""
 
@@ -745,6 +758,10 @@ class LineSession:
         with the write on its way, or before its read-back, raises a ``PortLost``
         saying what the servo may hold and to read it once the line is back.
         """
+        return self._written(servo_id, await self._write_report(servo_id, edit))
+
+    async def _write_report(self, servo_id: int, edit: Mapping[str, Any]) -> ServoWriteReport:
+        """How far :meth:`write`'s write got (refusals raised, nothing written)."""
         async with self._quiet() as bus:
             self._looked = {}  # a write may move a servo to another ID or rate: look for silent ones anew
             plan, _ = await self._plan(bus, servo_id, edit)
@@ -768,10 +785,15 @@ class LineSession:
                 allow_baud_change=allowed["allow_baud_change"],
                 allow_id_change=allowed["allow_id_change"],
             )
-            if report.error is not None:
-                raise _lost_mid_write(report) from report.error
-            assert report.result is not None  # (a report without an error is a finished write's)
-            result = report.result
+            return report
+
+    def _written(self, servo_id: int, report: ServoWriteReport) -> dict[str, Any]:
+        """The page's view of a finished write (``report``), the Line page's list brought up to date with it; a
+        failed one raised in the page's words (see _lost_mid_write)."""
+        if report.error is not None:
+            raise _lost_mid_write(report) from report.error
+        assert report.result is not None  # (a report without an error is a finished write's)
+        plan, result = report.plan, report.result
         after = result.read_back or plan.after
         if plan.changes_id:
             self._limits.pop(servo_id, None)
@@ -833,14 +855,17 @@ class LineSession:
         profile = {k: v for k, v in edit.items() if k in ("changes", "set_flags", "clear_flags")}
         results: list[dict[str, Any]] = []
         for k, sid in enumerate(checked):
+            report: ServoWriteReport | None = None  # (None: it failed before the write went out)
             try:
-                results.append({"id": sid, **await self.write(sid, profile)})
+                report = await self._write_report(sid, profile)
+                results.append({"id": sid, **self._written(sid, report)})
             except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
-                results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
+                words = self._many_words(exc)
+                results.append({"id": sid, "error": words, "kind": type(exc).__name__, **_how_far(report)})
                 if isinstance(exc, ReplyTimeout):
                     self.lost_touch([sid])
             except (PortLost, BusClosed, SerialPortError, OSError) as exc:
-                results.append({"id": sid, "error": error_text(exc), "kind": type(exc).__name__})
+                results.append({"id": sid, "error": error_text(exc), "kind": type(exc).__name__, **_how_far(report)})
                 rest = f"not tried: the line was lost at servo {sid}; apply again once it is back"
                 results += [{"id": i, "error": rest, "kind": "NotTried", "not_tried": True} for i in checked[k + 1 :]]
                 break
@@ -871,6 +896,11 @@ class LineSession:
             )
         text = str(exc)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
         what = text.partition(": ")[2].rpartition(" (raw: ")[0]
+        if exc.command == "write_eeprom":  # (garbled, but the write went out: the servo may have taken it)
+            return (
+                f"{what or text}; it may or may not have been written: open its Servo page to read what it has (the "
+                "bytes are on the Traffic page)"
+            )
         return f"{what or text}; nothing written (the bytes are on the Traffic page)"
 
     # ------------------------------------------------------------------ torque and motion

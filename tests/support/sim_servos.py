@@ -54,6 +54,14 @@ class CtrlCWhenAsked(VirtualServo):
         return super().handle(command)
 
 
+class TakesTheWriteSilently(VirtualServo):
+    """A servo that writes its EEPROM as told, its acknowledgement never reaching the host (noise, a long line)."""
+
+    def handle(self, command: Any) -> Any:
+        reply = super().handle(command)
+        return NO_REPLY if isinstance(command, WriteEeprom) else reply
+
+
 class UnpluggedAfterWrite(VirtualServo):
     """A servo that acknowledges an EEPROM write, then leaves the line (its cable pulled, the adapter still there):
     the read-back gets no answer.  ``line`` is set once the line holds it."""

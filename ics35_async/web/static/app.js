@@ -756,8 +756,11 @@ async function applyMany() {
   for (const r of reply.results) if (r.error) failed.set(r.error, [...(failed.get(r.error) || []), r.id]);
   $("#many-errors").replaceChildren(...[...failed].map(([words, who]) =>
     el("li", {}, `${servosNamed(who)}: ${words}`)));
-  // (a write the servo took whose read-back failed is no "failed": it holds the new values, or part of them)
-  const outcome = (r) => r.error ? (r.not_tried ? "not tried" : r.written ? "written, not verified" : "failed (see above)")
+  // (a write the servo took whose read-back failed is no "failed": it holds the new values, or part of them; nor is
+  // one cut short as it went out, which may have reached it)
+  const cutShort = (r) => ({ PortLost: " (port lost as it went)", ReplyTimeout: " (no answer)" })[r.kind] || "";
+  const outcome = (r) => r.error ? (r.not_tried ? "not tried" : r.written ? "written, not verified"
+    : r.maybe_written ? `may be written${cutShort(r)}: read it` : "failed (see above)")
     : r.written ? (r.verified ? "written, verified" : "read-back differs") : "already so";
   $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
     el("td", { class: r.error ? "bad" : "good", title: r.error || "" }, outcome(r)),
