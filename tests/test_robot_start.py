@@ -9,7 +9,7 @@ import itertools
 import time
 import traceback
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import anyio
 import pytest
@@ -37,6 +37,9 @@ from tests.support.sim_servos import LosesPositionReplies, UnplugsWhenAsked, fre
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT
 
 HALF_COUNT = 0.5 / (8000 / 270) + 1e-9
+
+
+E = TypeVar("E", bound=BaseException)
 
 
 def run_robot(rig: Rig, body: Any, **options: Any) -> Any:
@@ -958,25 +961,33 @@ def test_start_free_must_be_a_bool(value: Any) -> None:
         rig.close()
 
 
-def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any) -> None:
-    # A robot of two lines, one adapter unplugged: the port's own words alone ("no serial port at ...") did not say
-    # which line of the robot file it was.
+def open_refused(lower_port: str, error: type[E], **options: Any) -> tuple[E, Rig]:
+    """A two-line robot whose lower line's port is ``lower_port``, opened with ``options``: the ``error`` its open
+    raises (at once: no wait), and the rig, closed."""
     rig = make_rig()
-    missing = str(tmp_path / "nothing" / "lower")
-    rig.description["lines"]["lower"]["port"] = missing
+    rig.description["lines"]["lower"]["port"] = lower_port
 
     async def main() -> None:
-        async with open_robot(rig.description, **FAST):
-            pass
+        with anyio.fail_after(GUARD):
+            async with open_robot(rig.description, **FAST, **options):
+                pass
 
     try:
-        with pytest.raises(PortNotFound) as refused:
+        with pytest.raises(error) as refused:
             anyio.run(main)
     finally:
         rig.close()
-    said = error_text(refused.value)
+    return refused.value, rig
+
+
+def test_a_line_whose_port_is_missing_is_named_by_the_robots_line(tmp_path: Any) -> None:
+    # A robot of two lines, one adapter unplugged: the port's own words alone ("no serial port at ...") did not say
+    # which line of the robot file it was.
+    missing = str(tmp_path / "nothing" / "lower")
+    refused, rig = open_refused(missing, PortNotFound)
+    said = error_text(refused)
     assert said.startswith("<mapping>: line lower: no serial port at "), said
-    assert missing in said and refused.value.errno == errno.ENOENT
+    assert missing in said and refused.errno == errno.ENOENT
     assert "reconnecting" not in said  # (opened without reconnect=True: nothing to say of it)
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
 
@@ -985,46 +996,22 @@ def test_a_line_whose_port_is_missing_with_reconnect_says_reconnecting_does_not_
     # A robot builder's finding: open_robot(..., reconnect=True) with one adapter not plugged in yet failed at once,
     # saying only "no serial port", where reconnect=True led them to expect a wait for it: it rides out a port lost
     # once its line is open (during the open too), not one missing as the robot opens.
-    rig = make_rig()
-    missing = str(tmp_path / "nothing" / "lower")
-    rig.description["lines"]["lower"]["port"] = missing
-
-    async def main() -> None:
-        with anyio.fail_after(GUARD):  # (at once: no wait for a port that was never there)
-            async with open_robot(rig.description, reconnect=True, **FAST):
-                pass
-
-    try:
-        with pytest.raises(PortNotFound) as refused:
-            anyio.run(main)
-    finally:
-        rig.close()
-    said = error_text(refused.value)
+    refused, _ = open_refused(str(tmp_path / "nothing" / "lower"), PortNotFound, reconnect=True)
+    said = error_text(refused)
     assert said.startswith("<mapping>: line lower: no serial port at "), said
     assert said.endswith(
         "; reconnecting rides out a port lost once the bus is open, not one missing as it opens: plug the adapter"
         " in, then open it again"
     ), said
-    assert refused.value.errno == errno.ENOENT
+    assert refused.errno == errno.ENOENT
 
 
 @pytest.mark.parametrize("port", ["sim://robot-start-typo?ids=1-3&realtme=1", "socket://legs-pi"])
 def test_a_line_whose_port_is_refused_as_written_is_named_by_the_robots_line(port: str) -> None:
     # A port the open refuses as written (a misspelt sim:// option, a bridge URL without its TCP port): the port's
     # own words alone ("sim URL: unknown option 'realtme'") did not say which line of the robot file it was.
-    rig = make_rig()
-    rig.description["lines"]["lower"]["port"] = port
-
-    async def main() -> None:
-        async with open_robot(rig.description, **FAST):
-            pass
-
-    try:
-        with pytest.raises(InvalidArgument) as refused:
-            anyio.run(main)
-    finally:
-        rig.close()
-    assert str(refused.value).startswith("<mapping>: line lower: "), refused.value
+    refused, rig = open_refused(port, InvalidArgument)
+    assert str(refused).startswith("<mapping>: line lower: "), refused
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
 
 
