@@ -24,7 +24,7 @@ from ..errors import IcsError, UnsafeOperation
 from ..policies import plan_position_stream
 from ..protocol import Param
 from ..stream import WATCH, Stream
-from ..units import current_from_raw, temperature_to_celsius
+from ..units import current_from_raw, temperature_text, temperature_to_celsius
 
 # The stream's pace.  The page is sent the newest frame 25 times a second; at 100 cycles a second that
 # frame is at most 10 ms old and a jog's target goes out within 10 ms.  Unpaced, a fast line (one servo
@@ -46,6 +46,7 @@ async def read_health(bus: Bus, servo_id: int) -> dict[str, Any]:
     return {
         "temperature": temp,
         "temperature_c": round(temperature_to_celsius(temp), 1),
+        "temperature_text": temperature_text(temp),  # (the words every page and command show it in)
         "current": current_from_raw(current).magnitude,
     }
 
@@ -61,7 +62,8 @@ class LiveView:
         self.freed: list[int] = []  # ICS 3.5 servos it frees to read them
         self.left_out: list[int] = []  # ICS 3.5 servos not plotted: freeing them was not asked for
         self.current: dict[int, int] = {}
-        self.temperature: dict[int, float] = {}
+        self.temperature: dict[int, float] = {}  # (Celsius: the plots')
+        self.temperature_text: dict[int, str] = {}  # (the Line page's, in its words)
         self._task: asyncio.Task[None] | None = None
         self._marks: deque[tuple[float, int]] = deque()  # (frame time, cycle) of the last second's snapshots
 
@@ -139,6 +141,7 @@ class LiveView:
             with contextlib.suppress(IcsError):
                 health = await read_health(self.bus, sid)
                 self.temperature[sid] = health["temperature_c"]
+                self.temperature_text[sid] = health["temperature_text"]
                 self.current[sid] = health["current"]
 
     def position(self, servo_id: int) -> int:

@@ -557,6 +557,7 @@ class LineSession:
             row["position_note"] = "from the live stream" if position >= 0 else "not yet read by the live stream"
             if sid in live.temperature:
                 row["temperature_c"], row["temperature"] = live.temperature[sid], None
+                row["temperature_text"] = live.temperature_text[sid]
             if sid in live.current:
                 row["current"] = live.current[sid]
         return rows

@@ -236,7 +236,7 @@ function showServos(servos) {
     const elsewhere = !silent && lineBaud && s.baud !== lineBaud && s.temperature_c === undefined;
     const temp = silent ? (s.garbled ? `answers garbled: two servos sharing ID ${s.id}?` : "not answering (open it to see why)")
       : elsewhere ? `not read: the line is at ${lineBaud} baud (Connect at ${s.baud} to read it)`
-      : s.temperature_c === undefined ? "…" : `${s.temperature_c} °C` + (s.temperature == null ? "" : ` (${s.temperature})`);
+      : s.temperature_c === undefined ? "…" : s.temperature_text;
     const current = silent || elsewhere ? "-" : s.current === undefined ? "…" : String(s.current);
     const ics = elsewhere ? "-" : s.protocol === undefined ? "…" : s.protocol.replace("ICS ", "");
     const position = silent || elsewhere ? "-" : s.protocol === undefined ? "…" : s.position ?? "not read";
