@@ -7,6 +7,8 @@ from __future__ import annotations
 import re
 import sys
 import time
+from datetime import datetime, timedelta
+from zoneinfo import ZoneInfo
 
 import pytest
 
@@ -266,3 +268,18 @@ def test_a_servo_found_at_another_rate_is_listed_as_not_read_at_this_one(browser
         expect(p.locator("#legend span[data-id='1']")).to_be_visible()
         expect(p.locator("#legend span[data-id='5']")).to_have_count(0)
         p.click("#live-stop")
+
+
+def test_the_traffic_pages_times_are_the_browsers_own_clock(browser: Browser) -> None:
+    # The times were UTC, unlabelled: a person in Tokyo read the line's traffic nine hours off their own clock.
+    line = PtyLine((1,))
+    with web_server_page(browser, line, timezone_id="Asia/Tokyo") as p:
+        p.click("a[href='#traffic']")  # (the recording starts with the page's first visit)
+        p.click("a[href='#line']")
+        scan_finds(p, 1, ids="0-2")
+        p.click("a[href='#traffic']")
+        first = p.locator("#traffic-table tbody tr td").first
+        expect(first).to_have_text(re.compile(r"^\d\d:\d\d:\d\d\.\d{3}$"))
+        now = datetime.now(ZoneInfo("Asia/Tokyo"))
+        clock = {(now - timedelta(minutes=m)).strftime("%H:%M") for m in (0, 1)}
+        assert (first.text_content() or "")[:5] in clock, (first.text_content(), clock)

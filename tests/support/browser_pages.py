@@ -153,9 +153,12 @@ def stop_servers(*procs: subprocess.Popen[str] | None) -> None:
 
 
 @contextlib.contextmanager
-def web_server_page(browser: Browser, line: PtyLine, args: list[str] | None = None) -> Iterator[Page]:
-    """``ics35 web ARGS`` (by default ``--port`` ``line``'s pty) in a process of its own and a page on it; at the
-    end the server is stopped and ``line`` closed, and the server must have printed no traceback."""
+def web_server_page(
+    browser: Browser, line: PtyLine, args: list[str] | None = None, *, timezone_id: str | None = None
+) -> Iterator[Page]:
+    """``ics35 web ARGS`` (by default ``--port`` ``line``'s pty) in a process of its own and a page on it (a
+    browser in ``timezone_id``, when given); at the end the server is stopped and ``line`` closed, and the server
+    must have printed no traceback."""
     proc = subprocess.Popen(
         [*WEB, *(["--port", line.path] if args is None else args), *PATIENT_OPTION],
         stdout=subprocess.PIPE,
@@ -164,7 +167,7 @@ def web_server_page(browser: Browser, line: PtyLine, args: list[str] | None = No
         env={**os.environ, "ICS35_WEB_TOKEN": ""},
     )
     assert proc.stdout is not None and proc.stderr is not None
-    context = browser.new_context()
+    context = browser.new_context(timezone_id=timezone_id)
     try:
         page = context.new_page()
         page.set_default_timeout(WAIT_MS)

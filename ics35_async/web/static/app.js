@@ -892,10 +892,17 @@ function onTraffic(entries) {
   if (!state.trafficPaused) drawTraffic();
 }
 
+// A time of day on the person's own clock, to the millisecond ("16:14:36.361"): what they compare with the robot.
+function clockTime(seconds) {
+  const d = new Date(seconds * 1000);
+  const two = (n) => String(n).padStart(2, "0");
+  return `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}.${String(d.getMilliseconds()).padStart(3, "0")}`;
+}
+
 function drawTraffic() {
   const filter = $("#traffic-filter").value.trim().toLowerCase();
   const rows = state.traffic.filter((e) => !filter || `${e.id} ${e.command} ${e.outcome}`.toLowerCase().includes(filter)).slice(-300).reverse();
-  $("#traffic-table tbody").replaceChildren(...rows.map((e) => el("tr", {}, el("td", {}, new Date(e.time * 1000).toISOString().slice(11, 23)),
+  $("#traffic-table tbody").replaceChildren(...rows.map((e) => el("tr", {}, el("td", {}, clockTime(e.time)),
     el("td", {}, e.id ?? "-"), el("td", {}, e.command), el("td", {}, e.sent), el("td", {}, e.received || "-"), el("td", { class: e.outcome === "ok" ? "" : "bad" }, e.outcome))));
   $("#traffic-count").textContent = `${rows.length} shown of ${state.traffic.length}`;
 }
