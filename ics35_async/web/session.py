@@ -133,9 +133,9 @@ def _lost_mid_write(report: ServoWriteReport) -> IcsError:
     assert error is not None
     sid = report.plan.servo_id
     if not isinstance(error, PortLost) and report.outcome is WriteOutcome.UNKNOWN:
-        # Unanswered (a ReplyTimeout): the page's words on it are why a servo would not answer; the write went
-        # out all the same (an error_response adds a note to them).
-        error.add_note(f"the write may have reached servo {sid} (it went out, no answer came back): read it first")
+        # Unanswered or answered garbled: the page's words on it are why a servo would not answer (or why two
+        # would answer at once); the write went out all the same (an error_response adds a note to them).
+        error.add_note(f"the write may have reached servo {sid} (it went out; no answer confirmed it): read it first")
         return error
     if not isinstance(error, PortLost) or report.outcome not in (WriteOutcome.UNKNOWN, WriteOutcome.UNVERIFIED):
         return error
