@@ -15,7 +15,7 @@ import contextlib
 import logging
 import socket
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -225,13 +225,12 @@ MALFORMED_LINKS = {
 }
 
 
-@pytest.fixture
-def listener() -> Iterator[tuple[int, list[object]]]:
-    """A TCP port that accepts and counts its connections, for URLs that must not reach it."""
+@contextlib.contextmanager
+def accepting(on_accept: Callable[[socket.socket], object]) -> Iterator[int]:
+    """A TCP port on 127.0.0.1 (its number) whose thread hands each connection it accepts to ``on_accept``."""
     server = socket.socket()
     server.bind(("127.0.0.1", 0))
     server.listen(8)
-    accepted: list[object] = []
 
     def serve() -> None:
         while True:
@@ -239,15 +238,27 @@ def listener() -> Iterator[tuple[int, list[object]]]:
                 conn, _ = server.accept()
             except OSError:
                 return
-            accepted.append(conn)
+            on_accept(conn)
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
-    yield int(server.getsockname()[1]), accepted
-    with contextlib.suppress(OSError):
-        server.shutdown(socket.SHUT_RDWR)
-    server.close()
-    thread.join(5)
+    try:
+        yield int(server.getsockname()[1])
+    finally:
+        # close() alone does not wake a thread blocked in accept() on Linux; shutdown() does.
+        with contextlib.suppress(OSError):
+            server.shutdown(socket.SHUT_RDWR)
+        server.close()
+        thread.join(5)
+    assert not thread.is_alive()
+
+
+@pytest.fixture
+def listener() -> Iterator[tuple[int, list[socket.socket]]]:
+    """A TCP port that accepts and keeps its connections, for URLs that must not reach it."""
+    accepted: list[socket.socket] = []
+    with accepting(accepted.append) as port:
+        yield port, accepted
 
 
 @pytest.mark.parametrize(("url", "said"), MALFORMED_LINKS.items())
@@ -261,7 +272,7 @@ async def test_a_malformed_link_url_is_refused_saying_what_is_wrong(url: str, sa
 
 @pytest.mark.parametrize("scheme", BRIDGES)
 async def test_a_link_url_with_a_bad_option_connects_to_nothing(
-    scheme: str, listener: tuple[int, list[object]]
+    scheme: str, listener: tuple[int, list[socket.socket]]
 ) -> None:
     port, accepted = listener
     with pytest.raises(InvalidArgument, match="logging must be"):
@@ -281,27 +292,8 @@ def test_cli_malformed_link_url_exits_3_saying_what_is_wrong(cli: Any) -> None:
 @pytest.fixture
 def hang_up_server() -> Iterator[int]:
     """A TCP port whose server accepts and hangs up at once (a bridge whose serial port is taken)."""
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(8)
-
-    def serve() -> None:
-        while True:
-            try:
-                conn, _ = listener.accept()
-            except OSError:
-                return
-            conn.close()
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    yield int(listener.getsockname()[1])
-    # close() alone does not wake a thread blocked in accept() on Linux; shutdown() does.
-    with contextlib.suppress(OSError):
-        listener.shutdown(socket.SHUT_RDWR)
-    listener.close()
-    thread.join(5)
-    assert not thread.is_alive()
+    with accepting(lambda conn: conn.close()) as port:
+        yield port
 
 
 def test_cli_dropped_connection_exits_3(hang_up_server: int, cli: Any) -> None:
