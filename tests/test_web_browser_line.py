@@ -198,6 +198,8 @@ def test_the_line_page_lists_a_renumbered_servo_at_its_new_id(browser: Browser) 
         p.click("a[href='#line']")
         # Listed at their IDs now, and read there: not the old IDs, which no longer answer.
         expect(p.locator("#servo-table tbody tr")).to_have_count(2)
+        # In ID order, as a scan lists them (ID 5 stayed in ID 0's place, above 3).
+        expect(p.locator("#servo-table tbody tr").first).to_have_attribute("data-id", "3")
         expect(p.locator("#servo-table tr[data-id='5'] td.temp")).to_contain_text("°C")
         expect(p.locator("#servo-table tr[data-id='3'] td.temp")).to_contain_text("°C")
         expect(p.locator("#servo-table tr[data-id='0']")).to_have_count(0)

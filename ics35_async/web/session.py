@@ -820,7 +820,7 @@ class LineSession:
                 found.append(replace(servo, servo_id=new_id, eeprom=eeprom))
             elif not (servo.baud == baud and servo.servo_id == new_id):  # (one listed there is gone since the
                 found.append(servo)  # scan: the write is refused while new_id answers)
-        self.found = found
+        self.found = sorted(found, key=lambda s: (s.servo_id, s.baud))  # (in ID order, as a scan lists them)
         if old_id != new_id:
             self.telemetry.pop(old_id, None)
             self.telemetry.pop(new_id, None)
