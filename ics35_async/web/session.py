@@ -124,11 +124,11 @@ class ScanProgress:
     running: bool = False
 
 
-def _lost_mid_write(report: ServoWriteReport) -> IcsError:
+def _lost_mid_write(report: ServoWriteReport, who: str | None = None) -> IcsError:
     """The error of a write that failed (``report``'s): a port lost while the write was on its way, or before its
     read-back, says what the servo may hold and that it is read once the line is back (the write's own words
     are the command line's); a write that went out unanswered gets a note saying so; any other failure as it
-    is."""
+    is.  ``who``: the servo in those words (default "servo N"; the Many servos page's rows name it already)."""
     error = report.error
     assert error is not None
     sid = report.plan.servo_id
@@ -139,10 +139,11 @@ def _lost_mid_write(report: ServoWriteReport) -> IcsError:
         return error
     if not isinstance(error, PortLost) or report.outcome not in (WriteOutcome.UNKNOWN, WriteOutcome.UNVERIFIED):
         return error
+    who = who or f"servo {sid}"
     if report.outcome is WriteOutcome.UNKNOWN:
-        what = f"as the EEPROM write went out: the write may have reached servo {sid}"
+        what = f"as the EEPROM write went out: the write may have reached {who}"
     else:
-        what = f"after servo {sid} acknowledged the EEPROM write, before its read-back: written, not verified"
+        what = f"after {who} acknowledged the EEPROM write, before its read-back: written, not verified"
     return PortLost(f"{error_text(error)} {what}; read it once the line is back")
 
 
@@ -788,11 +789,11 @@ class LineSession:
             )
             return report
 
-    def _written(self, servo_id: int, report: ServoWriteReport) -> dict[str, Any]:
+    def _written(self, servo_id: int, report: ServoWriteReport, who: str | None = None) -> dict[str, Any]:
         """The page's view of a finished write (``report``), the Line page's list brought up to date with it; a
-        failed one raised in the page's words (see _lost_mid_write)."""
+        failed one raised in the page's words (see _lost_mid_write, and ``who`` there)."""
         if report.error is not None:
-            raise _lost_mid_write(report) from report.error
+            raise _lost_mid_write(report, who) from report.error
         assert report.result is not None  # (a report without an error is a finished write's)
         plan, result = report.plan, report.result
         after = result.read_back or plan.after
@@ -859,7 +860,7 @@ class LineSession:
             report: ServoWriteReport | None = None  # (None: it failed before the write went out)
             try:
                 report = await self._write_report(sid, profile)
-                results.append({"id": sid, **self._written(sid, report)})
+                results.append({"id": sid, **self._written(sid, report, who="it")})  # (its row names it)
             except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
                 words = self._many_words(exc)
                 results.append({"id": sid, "error": words, "kind": type(exc).__name__, **_how_far(report)})
