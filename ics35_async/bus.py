@@ -319,7 +319,8 @@ class Bus:
             except PortNotFound as exc:
                 if not self._settings.reconnect:
                     raise
-                raise _missing_with_reconnect(exc) from exc
+                # (one who asked for a lost port to be reopened expects a wait for a missing one too: it is not)
+                raise exc.reworded(f"{error_text(exc)}; {MISSING_AS_IT_OPENS}") from exc
             self._driver = driver
         finally:
             self._opening.set()
@@ -749,14 +750,6 @@ MISSING_AS_IT_OPENS = (
     " open it again"
 )
 """What a ``PortNotFound`` adds as a bus with ``reconnect`` opens (the configurator says it in its pages' words)."""
-
-
-def _missing_with_reconnect(exc: PortNotFound) -> PortNotFound:
-    """``exc`` (the port missing as a bus with ``reconnect`` opens) saying that reconnecting does not wait for it:
-    a person who asked for a lost port to be reopened expected a wait for this one too.  The same errno, so a
-    caller that tells a missing port from a busy one still can."""
-    text = f"{error_text(exc)}; {MISSING_AS_IT_OPENS}"
-    return PortNotFound(text) if exc.errno is None else PortNotFound(exc.errno, text)
 
 
 def open_bus(port: str | os.PathLike[str] | WireDevice, **options: Unpack[BusOptions]) -> Bus:

@@ -8,7 +8,7 @@ wiring or baud problem.
 
 from __future__ import annotations
 
-from typing import Required, TypedDict, Unpack
+from typing import Required, Self, TypedDict, Unpack
 
 
 class IcsError(Exception):
@@ -166,6 +166,11 @@ class SerialPortError(IcsError, OSError):
         # The words a program prints are for a person: OSError's "[Errno 2] " in front of them is noise
         # (the number stays in ``errno`` for code).
         return error_text(self) if self.strerror else super().__str__()
+
+    def reworded(self, text: str) -> Self:
+        """The same error in the words ``text`` (a caller adding what it knows): the same class and errno, so code
+        that tells a missing port from a busy one still can."""
+        return type(self)(text) if self.errno is None else type(self)(self.errno, text)
 
 
 class PortNotFound(SerialPortError, FileNotFoundError):

@@ -356,11 +356,9 @@ class _LostAtOpen:
 
 def _on_line(exc: SerialPortError, source: str, line: str) -> SerialPortError:
     """``exc`` (a line's port that could not be opened) naming the robot file's line too: the port's own words
-    do not say which line of the robot it is, and a robot has one adapter a line.  The same class and errno, so a
-    caller that tells a missing port from a busy one still can.  (A port missing with ``reconnect``: the bus's
-    own words already say that reconnecting does not wait for it.)"""
-    text = f"{source}: line {line}: {error_text(exc)}"
-    return type(exc)(text) if exc.errno is None else type(exc)(exc.errno, text)
+    do not say which line of the robot it is, and a robot has one adapter a line.  (A port missing with
+    ``reconnect``: the bus's own words already say that reconnecting does not wait for it.)"""
+    return exc.reworded(f"{source}: line {line}: {error_text(exc)}")
 
 
 def _line_options(shared: BusOptions, line: LineSpec) -> BusOptions:

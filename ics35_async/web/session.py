@@ -131,15 +131,14 @@ def _lost_mid_write(report: ServoWriteReport, who: str | None = None) -> IcsErro
     is.  ``who``: the servo in those words (default "servo N"; the Many servos page's rows name it already)."""
     error = report.error
     assert error is not None
-    sid = report.plan.servo_id
+    who = who or f"servo {report.plan.servo_id}"
     if not isinstance(error, PortLost) and report.outcome is WriteOutcome.UNKNOWN:
         # Unanswered or answered garbled: the page's words on it are why a servo would not answer (or why two
         # would answer at once); the write went out all the same (an error_response adds a note to them).
-        error.add_note(f"the write may have reached servo {sid} (it went out; no answer confirmed it): read it first")
+        error.add_note(f"the write may have reached {who} (it went out; no answer confirmed it): read it first")
         return error
     if not isinstance(error, PortLost) or report.outcome not in (WriteOutcome.UNKNOWN, WriteOutcome.UNVERIFIED):
         return error
-    who = who or f"servo {sid}"
     if report.outcome is WriteOutcome.UNKNOWN:
         what = f"as the EEPROM write went out: the write may have reached {who}"
     else:
