@@ -80,7 +80,7 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
     Raises:
         InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
-            an unknown ``backend`` or one not installed (``pip install 'ics35_async[uvloop]'``), or an event loop
+            an unknown ``backend`` or one not installed (the message names the extra that installs it), or an event loop
             already runs in this thread; or ``main()`` gave nothing
             to await (``def main()`` for ``async def main()``: said once that call has returned; a program with
             no async code at all runs with :func:`run_blocking`).
@@ -353,8 +353,10 @@ def _check_run(main: object, backend: str) -> None:
         try:
             importlib.import_module(backend)
         except ImportError:
+            from .extras import extra_hint  # (said the way this copy was installed: a clone's extras come from it)
+
             raise InvalidArgument(
-                f"backend={backend!r} needs {backend}: pip install 'ics35_async[{backend}]' (or run on asyncio)"
+                f"backend={backend!r} needs {backend}: {extra_hint(backend)} (or run on asyncio)"
             ) from None
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")

@@ -20,11 +20,11 @@ import pytest
 from ics35_async import units
 from ics35_async.cli import ExitCode
 from ics35_async.cli._common import CliError, Settings, parse_id_list, translate
-from ics35_async.cli._extras import install_command, installed_from
 from ics35_async.cli._live import forced_out
 from ics35_async.cli._live_view import LiveState
 from ics35_async.eeprom import BaudRate, Flags
 from ics35_async.errors import InvalidArgument
+from ics35_async.extras import install_command, installed_from
 from ics35_async.protocol import ReadEeprom, ReadParam, WriteId
 from ics35_async.sim import VirtualServo
 from ics35_async.transports import PortPermissionDenied

@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "ics35_async"
 # its own layer or lower ones only.  The package root (__init__) re-exports from everywhere.
 LAYERS = {
     "errors": 1, "units": 1, "eeprom": 1, "protocol": 1, "stats": 1, "running": 1, "tasks": 1, "user_files": 1,
-    "terminal": 1,
+    "terminal": 1, "extras": 1,
     "engine": 2, "compiled": 2,
     "drivers": 3, "transports": 3,
     "line": 4, "frames": 4,

@@ -19,6 +19,7 @@ import pytest
 
 import ics35_async
 from ics35_async import InvalidArgument
+from ics35_async.extras import install_command, installed_from
 from tests.support.timing import scaled
 
 PROGRAM = textwrap.dedent(
@@ -150,8 +151,13 @@ def test_a_backend_not_installed_is_said_with_the_extra_that_installs_it(
     async def main() -> None:
         pytest.fail("ran")
 
-    with pytest.raises(InvalidArgument, match=rf"backend='{backend}' needs {backend}: .*\[{backend}\]"):
+    with pytest.raises(InvalidArgument, match=rf"backend='{backend}' needs {backend}: .*\[{backend}\]") as raised:
         ics35_async.run(main, backend=backend)  # type: ignore[arg-type]
+    # Said the way this copy was installed: a clone installed with `pip install -e` gets the extra from the clone
+    # (the package index would fetch a second copy, if it has one at all), as `ics35 web` says it.
+    assert install_command(backend, installed_from()) in str(raised.value)
+    if installed_from()[0] == "editable":
+        assert f"pip install 'ics35_async[{backend}]'" not in str(raised.value)
 
 
 @pytest.mark.parametrize("backend", ["asyncio", "trio"])

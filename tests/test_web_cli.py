@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from ics35_async.cli._extras import install_command, installed_from
+from ics35_async.extras import install_command, installed_from
 from tests.support.cli_runs import PRESS_AT_A_CALL
 from tests.support.timing import scaled
 

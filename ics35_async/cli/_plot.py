@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 
 from .. import units
+from ..extras import extra_hint
 from ..frames import Frame
-from ._extras import extra_hint
 from ._paths import check_output_path
 from ._settings import CliError, ExitCode
 

@@ -8,9 +8,9 @@ import click
 from rich.markup import escape
 
 from ..errors import InvalidArgument
+from ..extras import extra_hint
 from ..terminal import clear_after_ctrl_c
 from ._common import CliError, ExitCode, err, settings_of
-from ._extras import extra_hint
 from ._loop import loop_factory, quiet_executor_shutdown
 from ._signals import same_stop_for_a_moment
 from ._start_pose import parse_start_pose, start_pose_option

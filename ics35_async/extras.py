@@ -1,4 +1,5 @@
-"""How to install an optional extra (``web``, ``plot``, ...), said the way this copy was installed.
+"""How to install an optional extra (``web``, ``plot``, ``uvloop``, ``trio``), said the way this copy was installed:
+what ``ics35 web``, ``--plot`` and :func:`ics35_async.run` say when the extra they need is missing.
 
 A clone installed with ``pip install -e .`` gets its extras from the clone, not from the
 package index: ``pip install 'ics35_async[web]'`` there would fetch a second copy.  pip
