@@ -194,13 +194,14 @@ def test_the_text_line_names_the_value_or_why_there_is_none() -> None:
     assert "! no reply" in text_line(absent) and text_line(absent).endswith("a9 04 | -")
 
 
-def test_sniff_count_stops_at_that_many_transactions(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("count", "heard"), [(1, "1 transaction heard"), (2, "2 transactions heard")])
+def test_sniff_count_stops_at_that_many_transactions(tmp_path: Path, count: int, heard: str) -> None:
     """``--count N`` prints N transactions, also when more were decoded at once: here four commands written
     in one go, so their transactions reach the listener together."""
     tap = tmp_path / "tap"
     with serving(["--ids", "1-3", "--tap", str(tap)]) as port:
         sniffer = subprocess.Popen(
-            [sys.executable, "-m", "ics35_async.cli", "sniff", "--port", str(tap), "--json", "--count", "2"],
+            [sys.executable, "-m", "ics35_async.cli", "sniff", "--port", str(tap), "--json", "--count", str(count)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -219,8 +220,8 @@ def test_sniff_count_stops_at_that_many_transactions(tmp_path: Path) -> None:
                 sniffer.send_signal(2)
                 sniffer.communicate(timeout=20)
     assert sniffer.returncode == 0, stderr
-    assert [json.loads(line)["id"] for line in stdout.splitlines()] == [1, 2], stdout
-    assert "count reached: 2 transactions heard" in stderr
+    assert [json.loads(line)["id"] for line in stdout.splitlines()] == [1, 2][:count], stdout
+    assert f"count reached: {heard} (" in stderr
 
 
 def test_the_json_options_help_names_every_key_a_line_carries() -> None:

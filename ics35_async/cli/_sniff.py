@@ -149,7 +149,8 @@ def sniff(
         if file is not None:
             file.close()
     saved = f", written to {Path(output_path)}" if output_path else ""
-    err.print(f"[dim]{why}: {output.count} transactions heard ({output.unknown} unknown){escape(saved)}[/dim]")
+    heard = f"{output.count} transaction{'' if output.count == 1 else 's'}"
+    err.print(f"[dim]{why}: {heard} heard ({output.unknown} unknown){escape(saved)}[/dim]")
     return 0
 
 
