@@ -710,6 +710,34 @@ def test_calibrate_adds_no_offset_of_zero_to_a_joint_without_one_but_updates_an_
     assert load_description(robot_file).joints["hip"].offset == 0.0
 
 
+def test_calibrate_leaves_a_value_the_file_already_has_as_it_is_written(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # A joint calibrated where it was before had its lines rewritten all the same ("offset = 0.0" became
+    # "offset = 0", "min = -60.0" became "min = -60"): a diff against the backup showed changes that were none.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    original = CALIBRATE_FILE.format(**ports).replace("min = -60\nmax = 60\n", "min = -60.0\nmax = +60  # ends\n")
+    robot_file.write_text(original)
+    at = by_hand(sims)
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at({"neck": 0.0, "hip": 0.0}), "\n"),
+            ("whole range", at({"neck": -60.0, "hip": -60.0}), ""),  # the neck's range as the file has it
+            (None, at({"neck": 60.0, "hip": 40.0}), "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    assert "neck: offset +0.0, min -60.0, max +60.0" in result.out, result.out
+    text = robot_file.read_text()
+    neck_table = text[: text.index("[joints.hip]")]
+    assert neck_table == original[: original.index("[joints.hip]")]
+    assert text.count("offset") == 1, text  # (the hip's table gets its range only)
+
+
 def test_calibrate_does_not_take_a_garbled_reading_for_an_end_of_a_range(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -92,6 +92,15 @@ def _number(value: float) -> str:
     return "0" if text in ("-0", "") else text
 
 
+def _written_value(text: str) -> float | None:
+    """The number a key's value ``text`` is (``-60.0``, ``+60``, ``1_0``), None for anything else."""
+    try:
+        value = tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return None
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
 def _header_joint(header: str) -> str | None:
     parts = header.split(".", 1)
     if len(parts) != 2 or parts[0].strip() != "joints":
@@ -106,7 +115,8 @@ def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> s
     """``text`` with the given keys of each ``[joints.NAME]`` table set; None if a joint has no such table.
 
     A key the table lacks is added after its last key, but for an ``offset`` of 0 (the file reads the same
-    without it); a key it has is updated whatever its value.
+    without it); a key it has is updated, unless it already holds that value (its line is then left as it is
+    written, so a diff against the old file shows only what changed).
     """
     lines = text.splitlines(keepends=True)
     out: list[str] = []
@@ -143,8 +153,10 @@ def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> s
             match = _KEY.match(line.rstrip("\r\n"))
             if match and match.group(2) in pending:
                 ending = line[len(line.rstrip("\r\n")) :]
-                indent, key, equals, _old, comment = match.groups()
-                line = f"{indent}{key}{equals}{_number(pending.pop(key))}{comment or ''}{ending}"
+                indent, key, equals, old, comment = match.groups()
+                value = pending.pop(key)
+                if _written_value(old) != value:  # (one it already holds stays as written: "0.0", "+60")
+                    line = f"{indent}{key}{equals}{_number(value)}{comment or ''}{ending}"
             if match:
                 last_key_at = len(out)
         out.append(line)
