@@ -682,6 +682,41 @@ def test_calibrate_writes_the_offset_on_a_whole_count_so_a_joint_at_its_neutral_
     }
 
 
+def test_calibrate_shows_the_neutral_as_the_offset_it_writes(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # The live table showed the neutral to 0.1 degree (+10.1) while the file got the whole count's angle (10.125).
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports))
+    neutral = {"neck": 7800, "hip": 7499}  # 10.125 and -0.03375 servo degrees
+
+    def at_neutral() -> None:
+        for name, position in neutral.items():
+            sims.servo(name).move_by_hand(position)
+
+    def swing(sign: int) -> Callable[[], None]:
+        def move() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(7500 + sign * 2000)
+
+        return move
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [("neutral (every joint at 0)", at_neutral, "\n"), ("whole range", swing(-1), ""), (None, swing(1), "\n")],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    joints = tomllib.loads(robot_file.read_text())["joints"]
+    # The table's last three columns: neutral, min and max (servo degrees), in the row of each joint.
+    rows = {
+        cells[0]: cells[-3:] for cells in map(str.split, result.out.splitlines()) if cells[:1] in (["neck"], ["hip"])
+    }
+    shown = {name: float(row[0]) for name, row in rows.items()}
+    assert shown == {name: joints[name]["offset"] for name in neutral} == {"neck": 10.125, "hip": -0.03375}, rows
+
+
 def test_calibrate_adds_no_offset_of_zero_to_a_joint_without_one_but_updates_an_offset_there(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:

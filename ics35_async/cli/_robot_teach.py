@@ -21,7 +21,14 @@ from rich.table import Table
 from ..eeprom import Eeprom
 from ..errors import IcsError, ReplyError, error_text
 from ..robot import PROFILES, Keyframe, Motion, Robot, RobotDescription, RobotFrame, UnsettledReadings, save_motion
-from ..robot.calibration import MIN_RANGE_DEGREES, NarrowRange, calibrate_joint, reverse_note, write_calibration
+from ..robot.calibration import (
+    MIN_RANGE_DEGREES,
+    NarrowRange,
+    calibrate_joint,
+    count_angle,
+    reverse_note,
+    write_calibration,
+)
 from ..robot.description import COUNT_DECIMALS, JointSpec
 from ..robot.profiles import LONGEST_MOTION
 from ..robot.startup import limit_problem
@@ -399,7 +406,10 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
 
     def extra(name: str) -> list[str]:
-        return [signed_tenths(v[name]) if name in v else "-" for v in (neutral, low, high)]
+        # The neutral as its offset is written (on a whole count, up to 5 decimals), not to 0.1 degree: the
+        # table and the file agree.
+        found = signed_count_angle(count_angle(neutral[name])) if name in neutral else "-"
+        return [found, *(signed_tenths(v[name]) if name in v else "-" for v in (low, high))]
 
     async def body() -> None:
         async with freed_robot(description, settings, names, opening) as robot:
