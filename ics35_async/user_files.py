@@ -113,9 +113,10 @@ def parse_toml(text: str) -> dict[str, Any]:
         raise tomllib.TOMLDecodeError("nested too deeply") from None
 
 
-def replace_keeping_backup(target: Path, text: str) -> Path | None:
+def replace_keeping_backup(target: Path, text: str, *, like: Path | None = None) -> Path | None:
     """Write ``text`` to ``target`` whole, the old content kept as ``NAME.bak`` beside it; returns that
-    backup (``None`` when there was no file to keep).
+    backup (``None`` when there was no file to keep).  Its line endings are those ``target`` has (CRLF from a
+    Windows editor stays CRLF), or given ``like``, those of that file.
 
     Raises:
         OSError: the file (or its backup) cannot be written; ``target`` and ``NAME.bak`` are then as they
@@ -125,7 +126,8 @@ def replace_keeping_backup(target: Path, text: str) -> Path | None:
         target = target.resolve()
     check_backup_room(target)
     newline = "\n"
-    if target.exists() and b"\r\n" in target.read_bytes():
+    model = target if like is None else like
+    if model.exists() and b"\r\n" in model.read_bytes():
         newline = "\r\n"
     fresh = _beside(target, "new")
     # Created as any new file is (the umask applies), then given the old file's permissions.

@@ -28,7 +28,7 @@ from ics35_async.cli._robot_view import Screen
 from ics35_async.cli._settings import Settings
 from ics35_async.eeprom import Flags
 from ics35_async.robot import Keyframe, Motion, load_description
-from ics35_async.robot.calibration import dump_description
+from ics35_async.robot.calibration import dump_description, edit_joint_values
 from ics35_async.robot.profiles import LONGEST_MOTION
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
@@ -888,8 +888,96 @@ def test_calibrate_writes_a_new_file_when_the_joints_are_inline_tables(
     assert robot_file.read_text() == original
     beside = tmp_path / "inline.calibrated.toml"
     assert "inline.calibrated.toml" in result.err
-    assert load_description(beside).joints["neck"].offset == pytest.approx(0.0)
+    # The robot file with the range added to the joint's inline table (6000..9000 is -50.625..+50.625 degrees).
+    assert beside.read_text() == original.replace("id = 1}", "id = 1, min = -50.6, max = 50.6}")
     assert not Path(f"{robot_file}.bak").exists()  # the robot file itself was not touched
+
+
+def test_calibrate_writes_beside_a_compact_robot_file_that_file_with_only_the_calibration_changed(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # The file written beside was a new one listing every key (offset = 0, reverse = false, ...) without the
+    # comments: a diff against the robot file showed the whole file, the calibration lost in it.
+    sims, ports = calibrating
+    robot_file = tmp_path / "compact.toml"
+    original = (
+        "# my arm, written compactly\r\n"
+        'name = "arm"\r\n'
+        f'lines.upper.port = "{ports["upper"]}"   # the left adapter\r\n'
+        f'lines.lower = {{ port = "{ports["lower"]}" }}\r\n'
+        "\r\n"
+        "[joints]\r\n"
+        'neck = { line = "upper", id = 1, offset = 0.0 }   # the head\r\n'
+        'hip.line = "lower"\r\n'
+        "hip.id = 1\r\n"
+        "hip.min = -80   # a stop\r\n"
+        "\r\n"
+        "[safety]\r\n"
+        'action = "free"\r\n'
+    )
+    robot_file.write_bytes(original.encode())
+    positions = {"neck": 7500, "hip": 7800}  # the neutral: 0 and 10.125 servo degrees
+
+    def hands(move: Callable[[str], int]) -> Callable[[], None]:
+        def turn() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(move(name))
+
+        return turn
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", hands(positions.__getitem__), "\n"),
+            ("whole range", hands(lambda _: 5500), ""),  # -67.5 servo degrees
+            (None, hands(lambda _: 9500), "\n"),  # +67.5
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    assert robot_file.read_bytes() == original.encode()
+    assert not Path(f"{robot_file}.bak").exists()
+    beside = tmp_path / "compact.calibrated.toml"
+    assert str(beside) in " ".join(result.err.split()), result.err
+    # Only the calibration: the neck's range added (its offset of 0 is there already), the hip's min changed and
+    # its offset and max added (joint degrees: -67.5 - 10.125 and 67.5 - 10.125, rounded inward), the line
+    # endings kept.
+    expected = original.replace("offset = 0.0 }", "offset = 0.0, min = -67.5, max = 67.5 }").replace(
+        "hip.min = -80   # a stop\r\n", "hip.min = -77.6   # a stop\r\nhip.offset = 10.125\r\nhip.max = 57.3\r\n"
+    )
+    assert beside.read_bytes() == expected.encode()
+
+
+@pytest.mark.parametrize(
+    ("written", "edited", "tables_only"),
+    [
+        (
+            '[ joints . "neck" ]\nline = "upper"\n"offset" = 2   # trimmed\n',
+            '[ joints . "neck" ]\nline = "upper"\n"offset" = 10.125   # trimmed\nmin = -50\nmax = 40\n',
+            True,
+        ),
+        (
+            'joints.neck = { line = "a, b}", id = 1 }\n',
+            'joints.neck = { line = "a, b}", id = 1, offset = 10.125, min = -50, max = 40 }\n',
+            False,
+        ),
+        ('[joints]\n"neck" = {min=-50,id=1}', '[joints]\n"neck" = {min=-50,id=1, offset = 10.125, max = 40}', False),
+        (
+            "joints.neck.id = 1   # the head\njoints.neck.max = 45",
+            "joints.neck.id = 1   # the head\njoints.neck.max = 40\n"
+            "joints.neck.offset = 10.125\njoints.neck.min = -50\n",
+            False,
+        ),
+        ('[joints.head]\nline = "upper"\n', None, True),  # no joint neck: nothing to edit
+    ],
+    ids=["table, quoted keys", "inline", "inline in [joints]", "dotted keys", "no such joint"],
+)
+def test_calibration_edits_a_joint_the_way_it_is_written_and_nothing_else(
+    written: str, edited: str | None, tables_only: bool
+) -> None:
+    done = edit_joint_values(written, {"neck": {"offset": 10.125, "min": -50.0, "max": 40.0}})
+    assert (done and done.text) == edited
+    assert done is None or done.tables_only == tables_only
 
 
 def settle_on(sim: VirtualLine) -> None:

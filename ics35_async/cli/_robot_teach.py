@@ -386,8 +386,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     \b
     1. the joints go free: pose the robot at its neutral (every joint at 0 degrees), Enter;
     2. move each joint through its whole range by hand, watching the table, Enter.
-    The file keeps its comments and its previous content as ROBOT.toml.bak; where it cannot be edited
-    in place, ROBOT.calibrated.toml is written beside it.  A joint moved over less than 5 degrees
+    The file keeps its comments and its previous content as ROBOT.toml.bak; where a joint is an inline
+    table or dotted keys, ROBOT.calibrated.toml is written beside it instead: ROBOT.toml with only the
+    calibration changed.  A joint moved over less than 5 degrees
     is refused, and then nothing is written.
     Without --joints on a serial line, calibrate asks before freeing every joint (--yes skips that).
     """
@@ -565,8 +566,15 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
         raise CliError(
             ExitCode.USAGE, f"cannot write {robot_file}: {error_text(exc)}; the calibrated values are printed above"
         ) from None
-    if written.comments_kept:
+    if written.in_place:
         out.print(f"written into {escape(str(written.path))} (comments kept)")
+    elif written.comments_kept:
+        err.print(
+            f"[yellow]note:[/yellow] {escape(robot_file)} has joints written as inline tables or dotted keys, "
+            f"which calibrate does not edit in place; wrote {escape(str(written.path))}: that file with only the "
+            "calibration changed (compare the two, then rename it over)",
+            soft_wrap=True,
+        )
     else:
         err.print(
             f"[yellow]note:[/yellow] {escape(robot_file)} could not be edited in place; wrote "

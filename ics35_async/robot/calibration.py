@@ -4,10 +4,11 @@
 at the joint's neutral, and the extremes it was moved to) into ``offset``,
 ``min`` and ``max``.  :func:`write_calibration` edits the ``offset`` /
 ``min`` / ``max`` lines of each ``[joints.NAME]`` table in place, keeping
-every comment and every other line; when a joint is not written as such a
-table (an inline table, a dotted key) or the edit would not read back as
-intended, it writes a complete new file beside the original instead
-(``NAME.calibrated.toml``; comments are lost there) and says so.  A file it
+every comment and every other line; when a joint is written otherwise (an
+inline table, dotted keys) it writes the file so edited beside the original
+instead (``NAME.calibrated.toml``: the original with only the calibration
+changed), and when the edit would not read back as intended, a complete new
+file there (comments are lost in that one).  A file it
 overwrites is kept as ``NAME.bak`` first, and the new content is written whole
 before it replaces the old (a crash mid-write leaves the old file).
 :func:`reverse_note` tells, as calibration begins, of a joint reversed both in
@@ -35,8 +36,13 @@ CALIBRATED_KEYS = ("offset", "min", "max")
 # Keys not added to a joint's table that lacks them when their value is this: the file reads the same without
 # them.  (Not min or max: their defaults follow the offset.)
 _LEFT_OUT_AT = {"offset": 0.0}
-_HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
-_KEY = re.compile(r"^(\s*)([A-Za-z0-9_-]+)(\s*=\s*)([^#]*?)(\s*#.*)?$")
+# A TOML key, bare or quoted, and a dotted path of them (``joints."left arm".min``).
+_PART = r"""(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|'[^']*')"""
+_PATH = rf"{_PART}(?:\s*\.\s*{_PART})*"
+_HEADER = re.compile(rf"^\s*\[\s*({_PATH})\s*\]\s*(?:#.*)?$")
+_KEY = re.compile(rf"^(\s*)({_PATH})(\s*=\s*)(.*)$")
+_SCALAR = re.compile(r"^([^#]*?)(\s*#.*)?$")  # a number, and the comment after it
+_ITEM = re.compile(rf"^(\s*)({_PATH})(\s*=\s*)(.*?)(\s*)$", re.DOTALL)  # an inline table's key = value
 
 
 MIN_RANGE_DEGREES = 5.0  # narrower, the joint was not moved through its range: limits that would lock it
@@ -101,69 +107,151 @@ def _written_value(text: str) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def _header_joint(header: str) -> str | None:
-    parts = header.split(".", 1)
-    if len(parts) != 2 or parts[0].strip() != "joints":
+def _key_parts(path: str) -> tuple[str, ...] | None:
+    """The keys of a dotted key as TOML reads them (``joints."a.b".min``: joints, a.b, min); None if it is not one."""
+    try:
+        node: object = tomllib.loads(f"{path} = 0")
+    except tomllib.TOMLDecodeError:
         return None
-    name = parts[1].strip()
-    if len(name) >= 2 and name[0] == name[-1] and name[0] in "\"'":
-        name = name[1:-1]
-    return name
+    parts: list[str] = []
+    while isinstance(node, dict) and len(node) == 1:
+        ((key, node),) = node.items()
+        parts.append(key)
+    return tuple(parts)
 
 
-def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> str | None:
-    """``text`` with the given keys of each ``[joints.NAME]`` table set; None if a joint has no such table.
+def _bare_or_quoted(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
 
-    A key the table lacks is added after its last key, but for an ``offset`` of 0 (the file reads the same
-    without it); a key it has is updated, unless it already holds that value (its line is then left as it is
-    written, so a diff against the old file shows only what changed).
+
+def _inline_items(text: str) -> tuple[list[str], int] | None:
+    """The ``key = value`` items of the inline table ``text`` starts with, as written, and where its ``}`` is;
+    None if it does not close on this line."""
+    items: list[str] = []
+    depth, quote, start, at = 0, "", 1, 1
+    while at < len(text):
+        char = text[at]
+        if quote:
+            if char == "\\" and quote == '"':
+                at += 1
+            elif char == quote:
+                quote = ""
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char == "," and depth == 0:
+            items.append(text[start:at])
+            start = at + 1
+        elif char in "]}":
+            if depth == 0:
+                items.append(text[start:at])
+                return [item for item in items if item.strip()], at
+            depth -= 1
+        at += 1
+    return None
+
+
+def _edit_inline(text: str, values: dict[str, float]) -> str | None:
+    """``text`` (an inline table and the rest of its line) with ``values`` set in the table, as
+    :func:`edit_joint_values` sets a table's keys; None if the table does not close on this line."""
+    found = _inline_items(text)
+    if found is None:
+        return None
+    items, close = found
+    values = dict(values)
+    for at, item in enumerate(items):
+        match = _ITEM.match(item)
+        parts = _key_parts(match.group(2)) if match else None
+        if match and parts is not None and len(parts) == 1 and parts[0] in values:
+            value = values.pop(parts[0])
+            if _written_value(match.group(4)) != value:
+                lead, key, equals, _old, trail = match.groups()
+                items[at] = f"{lead}{key}{equals}{_number(value)}{trail}"
+    added = [f"{key} = {_number(value)}" for key, value in values.items() if _LEFT_OUT_AT.get(key) != value]
+    if not items:
+        return "{" + ", ".join(added) + text[close:]
+    if added:  # after the last item, before the spaces that end the table ("{ a = 1 }")
+        last = items[-1].rstrip()
+        items[-1] = last + "".join(f", {item}" for item in added) + items[-1][len(last) :]
+    return "{" + ",".join(items) + text[close:]
+
+
+@dataclass(frozen=True)
+class JointsEdited:
+    """What :func:`edit_joint_values` made of a robot file."""
+
+    text: str
+    tables_only: bool  # every joint edited is a ``[joints.NAME]`` table (none an inline table or dotted keys)
+
+
+def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> JointsEdited | None:
+    """``text`` with the given keys of each joint set, however the joint is written: a ``[joints.NAME]`` table, an
+    inline table (``neck = {line = "upper", id = 1}`` in ``[joints]``, or ``joints.neck = {...}``) or dotted keys
+    (``hip.id = 1`` in ``[joints]``, or ``joints.hip.id = 1``); None if a joint is not found so.
+
+    A key the joint lacks is added after its last key, in the joint's own way of writing them, but for an
+    ``offset`` of 0 (the file reads the same without it); a key it has is updated, unless it already holds that
+    value (its line is then left as it is written, so a diff against the old file shows only what changed).
+    Every other line is kept as it is, comments too.
     """
-    lines = text.splitlines(keepends=True)
     out: list[str] = []
-    current: str | None = None
-    pending: dict[str, float] = {}
-    last_key_at = -1
-    found: set[str] = set()
+    header: tuple[str, ...] | None = ()  # the table the lines are in (None: an array of tables')
+    pending = {name: dict(keys) for name, keys in values.items()}
+    tables: set[str] = set()
+    last_at: dict[str, int] = {}  # the line after which a joint's missing keys go
+    prefix: dict[str, str] = {}  # how they are written: "hip." for a joint of dotted keys in [joints]
 
-    def close_table() -> None:
-        # Keys the table did not have go after its last key line.
-        nonlocal pending
-        added = [f"{key} = {_number(value)}\n" for key, value in pending.items() if _LEFT_OUT_AT.get(key) != value]
-        if added:
-            at = last_key_at + 1 if last_key_at >= 0 else len(out)
-            if at > 0 and not out[at - 1].endswith("\n"):
-                out[at - 1] += "\n"
-            out[at:at] = added
-        pending = {}
-
-    for line in lines:
-        header = _HEADER.match(line)
-        if header and not line.lstrip().startswith("[["):
-            close_table()
-            current = _header_joint(header.group(1))
-            if current is not None and current in values:
-                found.add(current)
-                pending = dict(values[current])
-                last_key_at = len(out)
-            else:
-                current = None
+    for line in text.splitlines(keepends=True):
+        body = line.rstrip("\r\n")
+        ending = line[len(body) :]
+        if body.lstrip().startswith("[["):
+            header = None
             out.append(line)
             continue
-        if current is not None:
-            match = _KEY.match(line.rstrip("\r\n"))
-            if match and match.group(2) in pending:
-                ending = line[len(line.rstrip("\r\n")) :]
-                indent, key, equals, old, comment = match.groups()
-                value = pending.pop(key)
-                if _written_value(old) != value:  # (one it already holds stays as written: "0.0", "+60")
-                    line = f"{indent}{key}{equals}{_number(value)}{comment or ''}{ending}"
-            if match:
-                last_key_at = len(out)
+        if (table := _HEADER.match(body)) is not None:
+            header = _key_parts(table.group(1))
+            if header is not None and len(header) == 2 and header[0] == "joints" and header[1] in values:
+                tables.add(header[1])
+                last_at[header[1]] = len(out)
+                prefix[header[1]] = ""
+            out.append(line)
+            continue
+        key = _KEY.match(body)
+        parts = _key_parts(key.group(2)) if key is not None and header is not None else None
+        path = (*header, *parts) if header is not None and parts is not None else ()
+        if key is None or len(path) < 2 or path[0] != "joints" or path[1] not in values:
+            out.append(line)
+            continue
+        indent, written, equals, rest = key.groups()
+        name = path[1]
+        if len(path) == 2:  # the joint as an inline table
+            edited = _edit_inline(rest, pending.pop(name)) if rest.startswith("{") else None
+            if edited is None:
+                return None
+            line = f"{indent}{written}{equals}{edited}{ending}"
+        else:
+            if name not in tables:
+                prefix[name] = indent + "".join(f"{_bare_or_quoted(part)}." for part in path[len(header or ()) : -1])
+            scalar = _SCALAR.match(rest)
+            if len(path) == 3 and path[2] in pending.get(name, {}) and scalar is not None:
+                value = pending[name].pop(path[2])
+                if _written_value(scalar.group(1)) != value:  # (one it already holds stays as written: "0.0")
+                    line = f"{indent}{written}{equals}{_number(value)}{scalar.group(2) or ''}{ending}"
+            last_at[name] = len(out)
         out.append(line)
-    close_table()
-    if found != set(values):
+    if set(last_at) | (set(values) - set(pending)) != set(values):
         return None
-    return "".join(out)
+    for name, at in last_at.items():
+        added = [
+            f"{prefix[name]}{key} = {_number(value)}\n"
+            for key, value in pending.get(name, {}).items()
+            if _LEFT_OUT_AT.get(key) != value
+        ]
+        if added and not out[at].endswith("\n"):
+            out[at] += "\n"
+        out[at] += "".join(added)
+    return JointsEdited("".join(out), tables_only=set(values) <= tables)
 
 
 def dump_description(description: RobotDescription) -> str:
@@ -196,12 +284,20 @@ def dump_description(description: RobotDescription) -> str:
     return "".join(text).lstrip("\n")
 
 
-def _reads_back(text: str, source: str, joints: Mapping[str, JointSpec]) -> bool:
+def _reads_back(text: str, before: str, source: str, values: Mapping[str, Mapping[str, float]]) -> bool:
+    """``text`` reads as ``before`` (the robot file) with only the joints' ``values`` set (a key with the value
+    :func:`edit_joint_values` leaves out left out), and as a robot file with them."""
     try:
-        again = parse_description(tomllib.loads(text), source)
+        data, expected = tomllib.loads(text), tomllib.loads(before)
+        again = parse_description(data, source)
     except (tomllib.TOMLDecodeError, ValueError):
         return False
-    return all(again.joints.get(name) == joint for name, joint in joints.items())
+    for name, keys in values.items():
+        joint = expected["joints"][name]
+        joint.update({key: value for key, value in keys.items() if key in joint or _LEFT_OUT_AT.get(key) != value})
+    return data == expected and all(
+        getattr(again.joints[name], key) == value for name, keys in values.items() for key, value in keys.items()
+    )
 
 
 @dataclass(frozen=True)
@@ -209,6 +305,7 @@ class CalibrationWritten:
     """Where :func:`write_calibration` put its result."""
 
     path: Path  # the file written: the robot file itself, or NAME.calibrated.toml beside it
+    in_place: bool  # the robot file itself (False: NAME.calibrated.toml beside it, the robot file untouched)
     comments_kept: bool  # False: a complete new file, written beside the robot file
     backup: Path | None  # the previous content of ``path`` (None: there was no such file)
 
@@ -216,17 +313,27 @@ class CalibrationWritten:
 def write_calibration(
     path: str | Path, description: RobotDescription, joints: Mapping[str, JointSpec]
 ) -> CalibrationWritten:
-    """Write the calibrated ``joints`` into the robot file, keeping its previous content as ``NAME.bak``."""
+    """Write the calibrated ``joints`` into the robot file, keeping its previous content as ``NAME.bak``; or,
+    where a joint is not a ``[joints.NAME]`` table, beside it (``NAME.calibrated.toml``)."""
     target = Path(path)
     text = target.read_text(encoding="utf-8")
     bom = "\ufeff" if text.startswith("\ufeff") else ""  # (a Windows editor's byte order mark: kept as it was)
+    text = text.removeprefix(bom)
     values = {name: {key: float(getattr(j, key)) for key in CALIBRATED_KEYS} for name, j in joints.items()}
-    edited = edit_joint_values(text.removeprefix(bom), values)
-    if edited is not None and _reads_back(edited, str(target), joints):
-        return CalibrationWritten(target, True, replace_keeping_backup(target, bom + edited))
+    edited = edit_joint_values(text, values)
+    if edited is not None and not _reads_back(edited.text, text, str(target), values):
+        edited = None
+    if edited is not None and edited.tables_only:
+        return CalibrationWritten(target, True, True, replace_keeping_backup(target, bom + edited.text))
     beside = target.with_name(f"{target.stem}.calibrated.toml")
+    if edited is not None:
+        # The robot file with only the calibration changed, its comments and line endings kept: a diff against it
+        # shows the calibration.  Beside it, not over it: the line edit of a [joints.NAME] table, one key a line,
+        # is the only one calibrate makes in the person's own file.
+        written = replace_keeping_backup(beside, bom + edited.text, like=target)
+        return CalibrationWritten(beside, False, True, written)
     whole = replace(description, joints={**description.joints, **joints})
-    return CalibrationWritten(beside, False, replace_keeping_backup(beside, dump_description(whole)))
+    return CalibrationWritten(beside, False, False, replace_keeping_backup(beside, dump_description(whole)))
 
 
 def reverse_note(source: str, joint: JointSpec, line: LineSpec, eeprom: Eeprom) -> str | None:
