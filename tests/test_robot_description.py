@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -322,6 +324,24 @@ def test_a_lines_direction_control_reaches_its_bus(tmp_path: Path) -> None:
     plain = tmp_path / "plain.toml"
     plain.write_text('[lines.main]\nport = "sim://dir"\n[joints.x]\nline="main"\nid=1')
     assert load_description(plain).lines["main"].direction == "none"
+
+
+def test_a_whole_file_written_anew_reads_back_the_same_and_leaves_defaults_out(tmp_path: Path) -> None:
+    # The complete file calibrate writes where it cannot edit a robot file listed every key at its default too
+    # (offset = 0, reverse = false, the servo's whole travel as min and max, a [safety] table of defaults): noise
+    # against the robot file it stands in for.
+    described = load_description(write(tmp_path, GOOD))
+    again = tmp_path / "again.toml"
+    again.write_text(dump_description(described))
+    assert replace(load_description(again), source=described.source) == described
+    data = tomllib.loads(again.read_text())
+    assert data["joints"] == {
+        "left_elbow": {"line": "main", "id": 3, "offset": 2.5, "reverse": True, "min": -90, "max": 45},
+        "wrist": {"line": "main", "id": 1},
+    }
+    assert data["safety"] == {"max_temperature_c": 70, "max_current": 30, "action": "hold"}
+    plain = load_description(write(tmp_path, '[lines.main]\nport = "sim://x"\n[joints.x]\nline="main"\nid=1\n'))
+    assert "safety" not in tomllib.loads(dump_description(plain))
 
 
 def test_a_missing_file_is_a_description_error(tmp_path: Path) -> None:

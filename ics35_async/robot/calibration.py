@@ -30,7 +30,15 @@ from .. import units
 from ..eeprom import Eeprom, Flags
 from ..errors import InvalidArgument
 from ..user_files import replace_keeping_backup
-from .description import COUNT_DECIMALS, SERVO_DEGREES, JointSpec, LineSpec, RobotDescription, parse_description
+from .description import (
+    COUNT_DECIMALS,
+    SERVO_DEGREES,
+    JointSpec,
+    LineSpec,
+    RobotDescription,
+    SafetySpec,
+    parse_description,
+)
 
 CALIBRATED_KEYS = ("offset", "min", "max")
 # Keys not added to a joint's table that lacks them when their value is this: the file reads the same without
@@ -255,7 +263,8 @@ def edit_joint_values(text: str, values: Mapping[str, Mapping[str, float]]) -> J
 
 
 def dump_description(description: RobotDescription) -> str:
-    """A complete TOML file for ``description`` (no comments)."""
+    """A complete TOML file for ``description`` (no comments), a key at its default left out, as a person leaves
+    it out: the file stands in for one they wrote."""
     text = []
     if description.name is not None:
         text.append(f"name = {json.dumps(description.name)}\n")
@@ -271,16 +280,27 @@ def dump_description(description: RobotDescription) -> str:
             text.append(f"direction = {json.dumps(line.direction)}\n")
     for joint in description.joints.values():
         text.append(f"\n[joints.{json.dumps(joint.name)}]\nline = {json.dumps(joint.line)}\nid = {joint.id}\n")
-        text.append(f"offset = {_number(joint.offset)}\nreverse = {'true' if joint.reverse else 'false'}\n")
-        text.append(f"min = {_number(joint.min)}\nmax = {_number(joint.max)}\n")
-    safety = description.safety
-    text.append(f"\n[safety]\naction = {json.dumps(safety.action)}\n")
-    if safety.max_temperature_c is not None:
-        text.append(f"max_temperature_c = {_number(safety.max_temperature_c)}\n")
-    if safety.max_current is not None:
-        text.append(f"max_current = {safety.max_current}\n")
-    text.append(f"continue_on_offline = {'true' if safety.continue_on_offline else 'false'}\n")
-    text.append(f"telemetry_per_cycle = {safety.telemetry_per_cycle}\n")
+        if joint.offset:
+            text.append(f"offset = {_number(joint.offset)}\n")
+        if joint.reverse:
+            text.append("reverse = true\n")
+        # The limits by default: the servo's whole travel in this joint's degrees (as the file is read).
+        travel = sorted((end - joint.offset) * joint.sign for end in (-SERVO_DEGREES, SERVO_DEGREES))
+        for key, limit, default in (("min", joint.min, travel[0]), ("max", joint.max, travel[1])):
+            if limit != default:
+                text.append(f"{key} = {_number(limit)}\n")
+    safety, defaults = description.safety, SafetySpec()
+    kept = [
+        f"action = {json.dumps(safety.action)}\n" if safety.action != defaults.action else "",
+        f"max_temperature_c = {_number(safety.max_temperature_c)}\n" if safety.max_temperature_c is not None else "",
+        f"max_current = {safety.max_current}\n" if safety.max_current is not None else "",
+        "continue_on_offline = true\n" if safety.continue_on_offline else "",
+        f"telemetry_per_cycle = {safety.telemetry_per_cycle}\n"
+        if safety.telemetry_per_cycle != defaults.telemetry_per_cycle
+        else "",
+    ]
+    if any(kept):
+        text.append("\n[safety]\n" + "".join(kept))
     return "".join(text).lstrip("\n")
 
 
