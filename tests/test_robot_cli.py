@@ -717,6 +717,43 @@ def test_calibrate_shows_the_neutral_as_the_offset_it_writes(
     assert shown == {name: joints[name]["offset"] for name in neutral} == {"neck": 10.125, "hip": -0.03375}, rows
 
 
+def test_calibrate_shows_the_limits_as_it_writes_them(calibrating: tuple[Rig, dict[str, str]], tmp_path: Path) -> None:
+    # The live table showed the extremes in servo degrees (-67.5..+67.5) while the file got the joint's limits
+    # (-77.6..57.3 for a neutral at 10.125): a person checking the table against the file found them apart.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text(CALIBRATE_FILE.format(**ports) + "reverse = true\n")  # the hip turns the other way
+    neutral = {"neck": 7800, "hip": 7499}
+
+    def turn(positions: Callable[[str], int]) -> Callable[[], None]:
+        def move() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(positions(name))
+
+        return move
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", turn(neutral.__getitem__), "\n"),
+            ("whole range", turn(lambda _: 5500), ""),
+            (None, turn(lambda _: 9500), "\n"),
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    joints = tomllib.loads(robot_file.read_text())["joints"]
+    written = {name: [joints[name][key] for key in ("offset", "min", "max")] for name in neutral}
+    assert written == {"neck": [10.125, -77.6, 57.3], "hip": [-0.03375, -67.5, 67.4]}
+    # The table's last three columns, in the row of each joint.
+    rows = {
+        cells[0]: [float(cell) for cell in cells[-3:]]
+        for cells in map(str.split, result.out.splitlines())
+        if cells[:1] in (["neck"], ["hip"])
+    }
+    assert rows == written
+
+
 def test_calibrate_adds_no_offset_of_zero_to_a_joint_without_one_but_updates_an_offset_there(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:

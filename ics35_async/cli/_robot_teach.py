@@ -25,6 +25,7 @@ from ..robot.calibration import (
     MIN_RANGE_DEGREES,
     NarrowRange,
     calibrate_joint,
+    calibrated_limits,
     count_angle,
     reverse_note,
     write_calibration,
@@ -407,10 +408,16 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     lost: list[bool] = []  # the lines ended (a port lost): the view says so, and calibrate ends at once
 
     def extra(name: str) -> list[str]:
-        # The neutral as its offset is written (on a whole count, up to 5 decimals), not to 0.1 degree: the
-        # table and the file agree.
-        found = signed_count_angle(count_angle(neutral[name])) if name in neutral else "-"
-        return [found, *(signed_tenths(v[name]) if name in v else "-" for v in (low, high))]
+        # What the file will get, as it will get it: the offset on a whole count (up to 5 decimals), the limits
+        # in joint degrees from that offset, rounded inward (not the servo's extremes: a person checking the
+        # table against the file found them apart).
+        if name not in neutral:
+            return ["-", "-", "-"]
+        offset = count_angle(neutral[name])
+        if name not in low:
+            return [signed_count_angle(offset), "-", "-"]
+        limits = sorted(calibrated_limits(description.joints[name], offset, low[name], high[name]))
+        return [signed_count_angle(offset), *map(signed_tenths, limits)]
 
     async def body() -> None:
         async with freed_robot(description, settings, names, opening) as robot:
@@ -425,9 +432,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             def table() -> Table:
                 return joint_table(
                     robot,
-                    f"calibrate: {escape(robot_file)} (servo degrees on the right)",
+                    f"calibrate: {escape(robot_file)} (on the right: offset, min and max as the file will get them)",
                     names,
-                    (("neutral°", "min°", "max°"), extra),
+                    (("offset°", "min°", "max°"), extra),
                     lost=bool(lost),
                 )
 

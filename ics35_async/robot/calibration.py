@@ -82,15 +82,21 @@ def calibrate_joint(joint: JointSpec, neutral: float, low: float, high: float) -
     that forbid every motion.
     """
     offset = count_angle(neutral)
+    lo, hi = calibrated_limits(joint, offset, low, high)
+    if hi - lo < MIN_RANGE_DEGREES:
+        raise NarrowRange(joint.name, max(0.0, high - low))
+    return replace(joint, offset=offset, min=lo, max=hi)
+
+
+def calibrated_limits(joint: JointSpec, offset: float, low: float, high: float) -> tuple[float, float]:
+    """``min`` and ``max`` for ``joint`` given ``offset``: ``low``..``high`` (servo degrees) in its joint degrees,
+    rounded inward to 0.1 degree and within the servo's travel (a range too narrow is not refused here)."""
     ends = sorted(((s - offset) * joint.sign) for s in (low, high))
     lo = math.ceil(round(ends[0] * 10, 6)) / 10
     hi = math.floor(round(ends[1] * 10, 6)) / 10
     # Within the servo's travel whatever the rounding did.
     bound = sorted(((e - offset) * joint.sign) for e in (-SERVO_DEGREES, SERVO_DEGREES))
-    lo, hi = max(lo, bound[0]), min(hi, bound[1])
-    if hi - lo < MIN_RANGE_DEGREES:
-        raise NarrowRange(joint.name, max(0.0, high - low))
-    return replace(joint, offset=offset, min=lo, max=hi)
+    return max(lo, bound[0]), min(hi, bound[1])
 
 
 def count_angle(servo_degrees: float) -> float:
