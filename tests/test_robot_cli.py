@@ -28,7 +28,7 @@ from ics35_async.cli._robot_view import Screen
 from ics35_async.cli._settings import Settings
 from ics35_async.eeprom import Flags
 from ics35_async.robot import Keyframe, Motion, load_description
-from ics35_async.robot.calibration import dump_description, edit_joint_values
+from ics35_async.robot.calibration import calibrate_joint, dump_description, edit_joint_values, write_calibration
 from ics35_async.robot.profiles import LONGEST_MOTION
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
@@ -1015,6 +1015,27 @@ def test_calibration_edits_a_joint_the_way_it_is_written_and_nothing_else(
     done = edit_joint_values(written, {"neck": {"offset": 10.125, "min": -50.0, "max": 40.0}})
     assert (done and done.text) == edited
     assert done is None or done.tables_only == tables_only
+
+
+def test_calibration_of_a_robot_file_changed_meanwhile_out_of_recognition_writes_a_whole_file_beside_it(
+    tmp_path: Path,
+) -> None:
+    # Edited during calibration, the file kept "[joints.neck]" only inside a string: the edit took that for the
+    # joint's table, and checking it against the file ended in a KeyError (a traceback for the person).
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_text('[lines.upper]\nport = "sim://x"\n\n[joints.neck]\nline = "upper"\nid = 1\n')
+    description = load_description(robot_file)
+    changed = (
+        'name = """\n[joints.neck]\n"""\n[lines.upper]\nport = "sim://x"\n\n[joints.head]\nline = "upper"\nid = 1\n'
+    )
+    robot_file.write_text(changed)
+    neck = calibrate_joint(description.joints["neck"], 10.125, -50.0, 50.0)
+
+    written = write_calibration(robot_file, description, {"neck": neck})
+
+    assert (written.path.name, written.in_place, written.comments_kept) == ("arm.calibrated.toml", False, False)
+    assert load_description(written.path).joints["neck"] == neck
+    assert robot_file.read_text() == changed
 
 
 def settle_on(sim: VirtualLine) -> None:

@@ -319,7 +319,9 @@ def _reads_back(text: str, before: str, source: str, values: Mapping[str, Mappin
     except (tomllib.TOMLDecodeError, ValueError):
         return False
     for name, keys in values.items():
-        joint = expected["joints"][name]
+        joint = expected.get("joints", {}).get(name)
+        if not isinstance(joint, dict):  # (what the edit took for the joint was not it: inside a multi-line string)
+            return False
         joint.update({key: value for key, value in keys.items() if key in joint or _LEFT_OUT_AT.get(key) != value})
     return data == expected and all(
         getattr(again.joints[name], key) == value for name, keys in values.items() for key, value in keys.items()
