@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import anyio
+import hypothesis
 import pytest
+from hypothesis import strategies as st
 from rich.table import Table
 
 from ics35_async import PortLost, open_robot
@@ -1015,6 +1017,45 @@ def test_calibration_edits_a_joint_the_way_it_is_written_and_nothing_else(
     done = edit_joint_values(written, {"neck": {"offset": 10.125, "min": -50.0, "max": 40.0}})
     assert (done and done.text) == edited
     assert done is None or done.tables_only == tables_only
+
+
+JOINT_SHAPES = {
+    "table": '[joints.neck]   # the head\nline = "upper"\nid = 1\n{keys}',
+    "inline": 'joints.neck = {{ line = "upper", id = 1{inline} }}   # the head\n',
+    "inline in [joints]": '[joints]\nneck = {{line = "upper", id = 1{inline}}}\n',
+    "dotted": 'joints.neck.line = "upper"\njoints.neck.id = 1\n{dotted}',
+    "dotted in [joints]": '[joints]\n  neck.line = "upper"   # the head\n  neck.id = 1\n{dotted_indented}',
+}
+OTHER_TABLES = '\n[joints.head]\nline = "upper"\nid = 2\nmin = -10\n\n[safety]\naction = "hold"\n'
+TENTHS = st.integers(-1000, 1000).map(lambda tenths: tenths / 10)
+
+
+@hypothesis.given(
+    shape=st.sampled_from(sorted(JOINT_SHAPES)),
+    there=st.dictionaries(st.sampled_from(["offset", "min", "max"]), TENTHS),
+    offset=st.sampled_from([0.0, 10.125, -0.03375]) | st.integers(-2900, 2900).map(lambda n: round(n * 0.03375, 5)),
+    limits=st.tuples(TENTHS, TENTHS),
+)
+def test_calibration_edit_changes_only_the_joints_values_whatever_its_shape(
+    shape: str, there: dict[str, float], offset: float, limits: tuple[float, float]
+) -> None:
+    written = "# my arm\n" + JOINT_SHAPES[shape].format(
+        keys="".join(f"{key} = {value}   # {key}\n" for key, value in there.items()),
+        inline="".join(f", {key} = {value}" for key, value in there.items()),
+        dotted="".join(f"joints.neck.{key} = {value}\n" for key, value in there.items()),
+        dotted_indented="".join(f"  neck.{key} = {value}\n" for key, value in there.items()),
+    )
+    written += OTHER_TABLES
+    values = {"offset": offset, "min": min(limits), "max": max(limits)}
+    done = edit_joint_values(written, {"neck": values})
+    assert done is not None and done.tables_only == (shape == "table")
+    expected = tomllib.loads(written)
+    neck = expected["joints"]["neck"]
+    neck.update({key: value for key, value in values.items() if key in neck or key != "offset" or value != 0})
+    assert tomllib.loads(done.text) == expected
+    # The other joint and tables as they were, every comment kept.
+    assert done.text.endswith(OTHER_TABLES)
+    assert done.text.count("#") == written.count("#")
 
 
 def test_calibration_of_a_robot_file_changed_meanwhile_out_of_recognition_writes_a_whole_file_beside_it(
