@@ -389,8 +389,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
     2. move each joint through its whole range by hand, watching the table, Enter.
     The file keeps its comments and its previous content as ROBOT.toml.bak; where a joint is an inline
     table or dotted keys, ROBOT.calibrated.toml is written beside it instead: ROBOT.toml with only the
-    calibration changed.  A joint moved over less than 5 degrees
-    is refused, and then nothing is written.
+    calibration changed.  A joint moved over less than 5 degrees is refused, and then nothing is written.
     Without --joints on a serial line, calibrate asks before freeing every joint (--yes skips that).
     """
     settings = settings_of(ctx)
