@@ -19,6 +19,8 @@ from rich.table import Table
 from rich.text import Text
 
 from .. import units
+from ..protocol.wire import id_ranges as id_ranges
+from ..protocol.wire import id_runs as id_runs
 from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c, whole_writes
 from ._settings import CliError, ExitCode, Settings
 from ._signals import same_stop_for_a_moment
@@ -196,23 +198,6 @@ def ids_text(ids: Sequence[int] | Iterable[int]) -> str:
     return ", ".join(str(i) for i in ids) or "none"
 
 
-def id_runs(ids: Iterable[int]) -> list[list[int]]:
-    """``ids`` sorted, without repeats, in runs of neighbours: ``[[0], [4, 5, 6]]``."""
-    runs: list[list[int]] = []
-    for i in sorted(set(ids)):
-        if runs and i == runs[-1][-1] + 1:
-            runs[-1].append(i)
-        else:
-            runs.append([i])
-    return runs
-
-
 def ids_argument(ids: Iterable[int]) -> str:
     """``ids`` as the ID lists of the command line take them, runs of neighbours as ranges: ``2-4,9``."""
     return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in id_runs(ids))
-
-
-def id_ranges(ids: Iterable[int]) -> str:
-    """``0, 4-31``, for a person: a run of three or more IDs as a range (29 empty IDs in one short line), the
-    rest one by one."""
-    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in id_runs(ids)) or "none"

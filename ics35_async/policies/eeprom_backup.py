@@ -1,7 +1,11 @@
 """The EEPROM backup file: what ``ics35 eeprom dump`` writes and ``eeprom restore`` (and ``ics35 web``) read back.
 
 One JSON object per servo (format ``ics35-eeprom/1``): the decoded fields,
-the flag names, the raw image and any code ICS 3.5 does not define.  On the
+the flag names, the raw image and any code ICS 3.5 does not define.  The
+configurator's Back up all puts several servos' in one file (format
+``ics35-eeproms/1``: each servo's object as it would be alone, and the servos
+asked for that are not in it, with why); :func:`backups_in` reads either kind,
+and :meth:`Backups.backup_for` picks the backup a servo is restored from.  On the
 way back the whole document is checked before anything is sent (format and
 version, a whole ``raw`` image, every field agreeing with it), and only the
 editable fields are taken, so a restore goes through :func:`.eeprom_write.plan_eeprom_write`
@@ -32,12 +36,14 @@ from typing import Any
 from .. import protocol
 from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
 from ..errors import InvalidArgument, UnsafeOperation
+from ..protocol.wire import id_ranges
 from ..transports import carries_line_settings
 from .eeprom_write import EepromPlan, back_at_rate, check_changes, plan_eeprom_write
 from .failure_kinds import Line, reopening
 from .scan import ALL_BAUDS, probe_ids, scan
 
 BACKUP_FORMAT = "ics35-eeprom/1"
+BACKUPS_FORMAT = "ics35-eeproms/1"  # several servos' backups in one file
 
 
 def backup_document(image: Eeprom, servo_id: int, *, baud: int, port: str) -> dict[str, Any]:
@@ -56,7 +62,22 @@ def backup_document(image: Eeprom, servo_id: int, *, baud: int, port: str) -> di
     }
 
 
+def backups_document(
+    backups: Iterable[Mapping[str, Any]], not_saved: Mapping[int, str] | None = None
+) -> dict[str, Any]:
+    """Several servos' backups (each as :func:`backup_document` makes it) in one document, in ID order, and
+    the servos asked for that are not in it (``not_saved``: ID -> why, in the words said of it then)."""
+    servos = sorted(backups, key=lambda doc: int(doc["servo_id"]))
+    return {
+        "format": BACKUPS_FORMAT,
+        "saved": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "servos": [dict(doc) for doc in servos],
+        "not_saved": [{"servo_id": i, "why": why} for i, why in sorted((not_saved or {}).items())],
+    }
+
+
 BACKUP_NAME, _, BACKUP_VERSION = BACKUP_FORMAT.partition("/")
+BACKUPS_NAME, _, BACKUPS_VERSION = BACKUPS_FORMAT.partition("/")
 RAW_HEX_LENGTH = 2 * EEPROM_SIZE  # two hex digits per wire byte
 
 
@@ -88,7 +109,10 @@ def _check_format(doc: dict[str, Any]) -> None:
     if fmt is None:
         raise InvalidArgument(f"no 'format' (a backup made by `ics35 eeprom dump` says {BACKUP_FORMAT!r})")
     if not isinstance(fmt, str) or fmt.partition("/")[0] != BACKUP_NAME:
-        raise InvalidArgument(f"format {fmt!r} is not an ics35 EEPROM backup ({BACKUP_FORMAT!r})")
+        raise InvalidArgument(
+            f"format {fmt!r} is not an ics35 EEPROM backup ({BACKUP_FORMAT!r}, "
+            f"or {BACKUPS_FORMAT!r} for several servos)"
+        )
     if fmt != BACKUP_FORMAT:
         raise InvalidArgument(
             f"format {fmt!r}: this ics35 reads version {BACKUP_VERSION} of EEPROM backups only ({BACKUP_FORMAT!r})"
@@ -139,6 +163,106 @@ def fields_from_document(doc: object) -> dict[str, int]:
     return {name: int(stated[name]) for name in EEPROM_FIELDS}
 
 
+def _saved_id(doc: Mapping[str, Any], fields: Mapping[str, int]) -> int:
+    """The ID a checked backup was saved from: its ``servo_id``, else the one its image holds."""
+    saved = doc.get("servo_id")
+    return saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
+
+
+@dataclass(frozen=True)
+class Backups:
+    """The backups a file holds (:func:`backups_in`), each checked whole."""
+
+    servos: dict[int, dict[str, Any]]  # the ID each was saved from -> its backup, as one servo's file holds it
+    several: bool  # a file of several servos' backups (one servo's may go to any servo)
+    not_saved: dict[int, str] = field(default_factory=dict)  # IDs asked for and not in the file -> why
+
+    def backup_for(self, servo_id: int) -> dict[str, Any]:
+        """The backup to restore servo ``servo_id`` from: one servo's file whichever servo it was saved from (a
+        servo may take another's settings); from a file of several, the one saved from ``servo_id``.
+
+        Raises:
+            InvalidArgument: a file of several that holds none of ``servo_id`` (the words name those it holds,
+                and why ``servo_id`` is not among them when the file says).
+        """
+        protocol.check_id(servo_id)
+        if not self.several:
+            [doc] = self.servos.values()
+            return doc
+        if servo_id in self.servos:
+            return self.servos[servo_id]
+        held = f"the backups of servos {id_ranges(self.servos)}" if self.servos else "no servo's backup"
+        why = self.not_saved.get(servo_id)
+        because = f" (servo {servo_id} was not saved: {why})" if why else ""
+        raise InvalidArgument(f"the file holds {held}, none of servo {servo_id}{because}")
+
+
+def backups_in(doc: object) -> Backups:
+    """The backups in ``doc``: one servo's (``ics35 eeprom dump``'s) or several servos' (:func:`backups_document`).
+
+    Everything is checked before any servo is chosen: each servo's backup as
+    :func:`fields_from_document` checks one (the words name the servo and its
+    place in the file), and a file holding two backups of one servo is refused
+    (which one is meant cannot be told).
+
+    Raises:
+        InvalidArgument: not a backup, or a damaged one.
+    """
+    if not isinstance(doc, dict):
+        raise InvalidArgument("an EEPROM backup is a JSON object (made by `ics35 eeprom dump` or `ics35 web`)")
+    fmt = doc.get("format")
+    if not isinstance(fmt, str) or fmt.partition("/")[0] != BACKUPS_NAME:
+        fields = fields_from_document(doc)
+        return Backups({_saved_id(doc, fields): doc}, several=False)
+    if fmt != BACKUPS_FORMAT:
+        raise InvalidArgument(
+            f"format {fmt!r}: this ics35 reads version {BACKUPS_VERSION} of backups of several servos only "
+            f"({BACKUPS_FORMAT!r})"
+        )
+    members = doc.get("servos")
+    if not isinstance(members, list):
+        raise InvalidArgument("'servos' must be a list: the backup of each servo the file holds")
+    servos: dict[int, dict[str, Any]] = {}
+    place: dict[int, int] = {}
+    for n, member in enumerate(members, 1):
+        if not isinstance(member, dict):
+            raise InvalidArgument(f"number {n} in 'servos' is not a servo's backup (a JSON object)")
+        named = member.get("servo_id")
+        who = f"servo {named}" if isinstance(named, int) and not isinstance(named, bool) else "a servo"
+        try:
+            fields = fields_from_document(member)
+        except InvalidArgument as exc:
+            raise InvalidArgument(f"the backup of {who} (number {n} in 'servos'): {exc}") from None
+        sid = _saved_id(member, fields)
+        if sid in servos:
+            raise InvalidArgument(
+                f"two backups of servo {sid} (numbers {place[sid]} and {n} in 'servos'): which one is meant "
+                "cannot be told"
+            )
+        servos[sid], place[sid] = member, n
+    return Backups(servos, several=True, not_saved=_not_saved(doc.get("not_saved", [])))
+
+
+def _not_saved(listed: object) -> dict[int, str]:
+    """A file of several's ``not_saved``: ID -> why."""
+    shape = '\'not_saved\' must list the servos not saved, each as {"servo_id": 0..31, "why": words}'
+    if not isinstance(listed, list):
+        raise InvalidArgument(shape)
+    missing: dict[int, str] = {}
+    for entry in listed:
+        sid = entry.get("servo_id") if isinstance(entry, dict) else None
+        why = entry.get("why") if isinstance(entry, dict) else None
+        if (
+            isinstance(sid, bool)
+            or not isinstance(sid, int)
+            or not 0 <= sid <= protocol.MAX_ID
+            or not isinstance(why, str)
+        ):
+            raise InvalidArgument(f"{shape}, not {entry!r}")
+        missing[sid] = why
+    return missing
+
+
 @dataclass(frozen=True)
 class BackupChanges:
     """A checked backup, as the changes to plan for its target servo."""
@@ -158,9 +282,7 @@ def backup_changes(doc: object, *, restore_id: bool = False, keep_baud: bool = F
     """
     fields = fields_from_document(doc)
     assert isinstance(doc, dict)  # fields_from_document refused anything else
-    saved = doc.get("servo_id")
-    saved_id = saved if isinstance(saved, int) and not isinstance(saved, bool) else fields["servo_id"]
-    protocol.check_id(saved_id)
+    saved_id = protocol.check_id(_saved_id(doc, fields))
     saved_baud = fields["baud_rate"]
     if not restore_id:
         del fields["servo_id"]

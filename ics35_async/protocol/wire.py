@@ -7,6 +7,7 @@ knows about a particular command's reply rules.
 from __future__ import annotations
 
 import enum
+from collections.abc import Iterable
 
 from ..eeprom import BaudRate
 from ..units import POSITION_MAX as POSITION_MAX  # (the 14-bit position field: units keeps the one number)
@@ -72,6 +73,23 @@ def wire_time(nbytes: int, baudrate: int) -> float:
 
 def check_id(servo_id: object) -> int:
     return check_int("servo ID", servo_id, 0, MAX_ID)
+
+
+def id_runs(ids: Iterable[int]) -> list[list[int]]:
+    """``ids`` sorted, without repeats, in runs of neighbours: ``[[0], [4, 5, 6]]``."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return runs
+
+
+def id_ranges(ids: Iterable[int]) -> str:
+    """``0, 4-31``, for a person: a run of three or more IDs as a range (29 empty IDs in one short line), the
+    rest one by one."""
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in id_runs(ids)) or "none"
 
 
 def check_retries(retries: object) -> int:
