@@ -62,16 +62,18 @@ def test_a_file_without_a_servos_backup_names_the_servos_it_holds_and_why_the_ot
         held.backup_for(5)
     words = str(missing.value)
     assert "servos 1-4, 7" in words and "none of servo 5" in words, words
-    assert "servo 5 was not saved: no reply at 115,200 baud" in words, words
+    assert "(when it was saved, servo 5: no reply at 115,200 baud)" in words, words
     with pytest.raises(InvalidArgument) as never_asked:
         held.backup_for(9)
-    assert "none of servo 9" in str(never_asked.value) and "not saved" not in str(never_asked.value)
+    assert "none of servo 9" in str(never_asked.value) and "when it was saved" not in str(never_asked.value)
 
 
 def test_a_file_of_no_servo_says_so() -> None:
     held = backups_in(on_disk(backups_document([], {1: "no reply"})))
     assert held.servos == {}
-    with pytest.raises(InvalidArgument, match=r"holds no servo's backup.*servo 1 was not saved: no reply"):
+    with pytest.raises(
+        InvalidArgument, match=r"holds no servo's backup, none of servo 1 \(when it was saved, servo 1: no reply\)"
+    ):
         held.backup_for(1)
 
 
@@ -108,6 +110,11 @@ def test_a_damaged_file_of_several_servos_is_refused_in_words_before_any_servo_i
     with pytest.raises(InvalidArgument) as refused:
         backups_in(doc)
     assert said in str(refused.value), str(refused.value)
+
+
+def test_a_file_is_not_made_with_two_backups_of_one_servo() -> None:
+    with pytest.raises(InvalidArgument, match="two backups of servo"):
+        backups_document([saved(1), saved(2), saved(1)])
 
 
 def test_what_is_no_backup_at_all_is_refused_as_one_servos_backup_is() -> None:

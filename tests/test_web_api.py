@@ -22,6 +22,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from ics35_async import Eeprom
 from ics35_async.errors import ReplyHeaderError, ReplyTimeout
+from ics35_async.policies.eeprom_backup import backups_in
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
@@ -795,6 +796,78 @@ def test_many_servos_stop_at_a_lost_port_and_say_which_were_not_tried(serve: Any
     assert "not tried" in results[1]["error"] and "servo 1" in results[1]["error"], results[1]
     sim.replug()
     assert all(sim.servo(i).eeprom.speed != 40 for i in (1, 3, 4))
+
+
+def test_back_up_all_saves_every_servo_in_one_file_which_restores_each_servo_from_its_own(serve: Any) -> None:
+    client, sim = serve((1, 2, 3))
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i)
+    answer = post(client, "/api/many/backup", {"ids": [1, 2, 3]})
+    assert answer.status_code == 200, answer.text
+    assert answer.headers["content-disposition"] == 'attachment; filename="servos-01-03.json"'
+    doc = answer.json()
+    held = backups_in(doc)
+    assert held.several and sorted(held.servos) == [1, 2, 3] and held.not_saved == {}
+    assert [held.servos[i]["fields"]["speed"] for i in (1, 2, 3)] == [10, 20, 30]
+    # The Servo page's restore takes the file whole: servo 2 gets servo 2's backup, not the first in the file.
+    sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=99)
+    plan = post(client, "/api/servo/2/restore/plan", {"doc": doc}).json()
+    assert [(d["name"], d["new"]) for d in plan["diff"]] == [("speed", 20)] and plan["saved_id"] == 2, plan
+    assert post(client, "/api/servo/2/restore", {"doc": doc, "before": plan["before"]}).json()["verified"]
+    assert sim.servo(2).eeprom.speed == 20 and sim.servo(1).eeprom_writes == sim.servo(3).eeprom_writes == 0
+    # An ID named twice is read once: a file holding two backups of one servo could not be restored from.
+    twice = backups_in(post(client, "/api/many/backup", {"ids": [3, 1, 3]}).json())
+    assert sorted(twice.servos) == [1, 3], twice
+
+
+def test_a_file_of_several_servos_without_this_servos_backup_names_those_it_holds_and_sends_nothing(
+    serve: Any,
+) -> None:
+    client, sim = serve((1, 2, 3, 4, 5))
+    doc = post(client, "/api/many/backup", {"ids": [1, 2, 3, 6]}).json()
+    before = sim.transactions
+    refused = post(client, "/api/servo/5/restore/plan", {"doc": doc})
+    assert refused.status_code == 400, refused.text
+    words = refused.json()["error"]
+    assert words == "the file holds the backups of servos 1-3, none of servo 5", words
+    silent = post(client, "/api/servo/6/restore", {"doc": doc})
+    assert silent.status_code == 400 and "servo 6: no reply at 115,200 baud, not saved" in silent.json()["error"], (
+        silent.text
+    )
+    assert sim.transactions == before
+
+
+def test_back_up_all_keeps_the_servos_read_and_names_the_one_that_did_not_answer(serve: Any) -> None:
+    client, _ = serve((1, 3))
+    doc = post(client, "/api/many/backup", {"ids": [1, 5, 3]}).json()
+    held = backups_in(doc)
+    assert sorted(held.servos) == [1, 3] and list(held.not_saved) == [5], doc
+    words = held.not_saved[5]
+    # In the Many servos page's words for a servo that does not answer (no bytes, no ID), of a read, not a write.
+    assert words.startswith("no reply at 115,200 baud, not saved: check its power"), words
+    assert "written" not in words and "raw" not in words and "5" not in words.split(), words
+
+
+def test_back_up_all_keeps_the_servos_read_before_the_port_was_lost_and_names_those_after(serve: Any) -> None:
+    client, sim = serve((1, 3))
+    puller = UnplugsWhenAsked(2, ReadEeprom)
+    sim.add_device(puller)
+    puller.line = sim
+    answer = post(client, "/api/many/backup", {"ids": [1, 2, 3]})
+    assert answer.status_code == 200, answer.text
+    held = backups_in(answer.json())
+    assert list(held.servos) == [1] and sorted(held.not_saved) == [2, 3], held
+    assert held.not_saved[2].startswith("port ") and "lost" in held.not_saved[2], held.not_saved
+    assert held.not_saved[3] == ("not read: the line was lost at servo 2; back them up again once it is back")
+    sim.replug()
+
+
+def test_back_up_all_refuses_a_bad_choice_of_servos_before_anything_is_sent(serve: Any) -> None:
+    client, sim = serve((1,))
+    for ids, said in (([], "choose at least one servo"), ("1-3", "choose at least one servo"), ([1, 40], "0..31")):
+        refused = post(client, "/api/many/backup", {"ids": ids})
+        assert refused.status_code == 400 and said in refused.json()["error"], refused.text
+    assert sim.transactions == 0
 
 
 def test_many_servos_say_not_connected_once_when_no_line_is_open(tmp_path: Any) -> None:

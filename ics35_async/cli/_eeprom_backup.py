@@ -16,7 +16,7 @@ from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
-from ..policies.eeprom_backup import backup_changes, backup_document, plan_restores
+from ..policies.eeprom_backup import backup_changes, backup_document, backup_file_name, plan_restores
 from ..user_files import (
     UnreadableText,
     decode_user_text,
@@ -48,11 +48,6 @@ from ._eeprom_view import eeprom_table
 from ._eeprom_write import WriteBatch, finish, said_nothing_written, write_plans
 from ._paths import check_backup_path
 from ._runner import line_error
-
-
-def backup_name(servo_id: int) -> str:
-    return f"servo-{servo_id:02d}.json"
-
 
 # --------------------------------------------------------------------------- dump
 
@@ -159,7 +154,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     settings = settings_of(ctx)
     kind, path = output_target(ids, output, as_table)
     if path is not None and not as_table:  # (an earlier backup there is kept as NAME.bak: room for it first)
-        for target in [path / backup_name(i) for i in ids] if kind == "dir" else [path]:
+        for target in [path / backup_file_name([i]) for i in ids] if kind == "dir" else [path]:
             check_backup_path(target, "--output")
     try:
         read = run(settings, lambda: read_images(settings, ids))
@@ -204,7 +199,7 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
                 emit_json(doc)
                 continue
             assert path is not None
-            target = path / backup_name(i) if kind == "dir" else path
+            target = path / backup_file_name([i]) if kind == "dir" else path
             kept = write_backup(target, doc)
             also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
             err.print(f"EEPROM of servo {i} saved to {escape(str(target))}{also}")

@@ -29,7 +29,7 @@ both of them the one backup).
 from __future__ import annotations
 
 import datetime
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -68,12 +68,22 @@ def backups_document(
     """Several servos' backups (each as :func:`backup_document` makes it) in one document, in ID order, and
     the servos asked for that are not in it (``not_saved``: ID -> why, in the words said of it then)."""
     servos = sorted(backups, key=lambda doc: int(doc["servo_id"]))
+    twice = sorted({doc["servo_id"] for doc in servos if [d["servo_id"] for d in servos].count(doc["servo_id"]) > 1})
+    if twice:  # (the file would be refused when read back: which one is meant cannot be told)
+        raise InvalidArgument(f"two backups of servo(s) {id_ranges(twice)}: a file holds one backup per servo")
     return {
         "format": BACKUPS_FORMAT,
         "saved": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "servos": [dict(doc) for doc in servos],
         "not_saved": [{"servo_id": i, "why": why} for i, why in sorted((not_saved or {}).items())],
     }
+
+
+def backup_file_name(ids: Sequence[int]) -> str:
+    """The name a backup of ``ids`` is offered under: ``servo-05.json`` for one servo, ``servos-01-17.json``
+    for several (the first and the last asked for)."""
+    first, last = protocol.check_id(ids[0]), protocol.check_id(ids[-1])
+    return f"servo-{first:02d}.json" if len(ids) == 1 else f"servos-{first:02d}-{last:02d}.json"
 
 
 BACKUP_NAME, _, BACKUP_VERSION = BACKUP_FORMAT.partition("/")
@@ -193,7 +203,7 @@ class Backups:
             return self.servos[servo_id]
         held = f"the backups of servos {id_ranges(self.servos)}" if self.servos else "no servo's backup"
         why = self.not_saved.get(servo_id)
-        because = f" (servo {servo_id} was not saved: {why})" if why else ""
+        because = f" (when it was saved, servo {servo_id}: {why})" if why else ""
         raise InvalidArgument(f"the file holds {held}, none of servo {servo_id}{because}")
 
 

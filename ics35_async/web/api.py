@@ -37,6 +37,7 @@ from ..errors import (
     VerifyError,
     error_text,
 )
+from ..policies.eeprom_backup import backup_file_name
 from ..protocol import MAX_ID
 from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
@@ -224,23 +225,26 @@ async def write(request: Request, session: LineSession) -> Any:
 async def backup(request: Request, session: LineSession) -> Any:
     sid = servo_id(request)
     doc = await session.backup(sid)
-    return JSONResponse(doc, headers={"content-disposition": f'attachment; filename="servo-{sid:02d}.json"'})
+    return JSONResponse(doc, headers={"content-disposition": f'attachment; filename="{backup_file_name([sid])}"'})
 
 
-def restore_edit(session: LineSession, data: dict[str, Any]) -> dict[str, Any]:
-    """The request's edit: the backup's fields (its ID only with ``restore_id``, its rate not with ``keep_baud``)."""
+def restore_edit(session: LineSession, sid: int, data: dict[str, Any]) -> dict[str, Any]:
+    """The request's edit for servo ``sid``: the backup's fields (its ID only with ``restore_id``, its rate not with
+    ``keep_baud``), from a file of several servos' backups the one of ``sid``."""
     wanted = {"restore_id": data.get("restore_id") is True, "keep_baud": data.get("keep_baud") is True}
-    return {**data, **session.restore_edit(data.get("doc"), **wanted)}
+    return {**data, **session.restore_edit(data.get("doc"), sid, **wanted)}
 
 
 async def restore_plan(request: Request, session: LineSession) -> Any:
-    edit = restore_edit(session, await body(request))
-    _, view = await session.plan(servo_id(request), edit)
+    sid = servo_id(request)
+    edit = restore_edit(session, sid, await body(request))
+    _, view = await session.plan(sid, edit)
     return {**view, "saved_id": edit["saved_id"]}
 
 
 async def restore(request: Request, session: LineSession) -> Any:
-    return await session.write(servo_id(request), restore_edit(session, await body(request)))
+    sid = servo_id(request)
+    return await session.write(sid, restore_edit(session, sid, await body(request)))
 
 
 async def free(request: Request, session: LineSession) -> Any:
@@ -291,6 +295,15 @@ async def many_apply(request: Request, session: LineSession) -> Any:
     if not isinstance(ids, list) or not ids:
         raise InvalidArgument("choose at least one servo")
     return {"results": await session.apply_to_many(ids, data)}
+
+
+async def many_backup(request: Request, session: LineSession) -> Any:
+    ids = (await body(request)).get("ids")
+    if not isinstance(ids, list) or not ids:
+        raise InvalidArgument("choose at least one servo")
+    doc = await session.backup_many(ids)
+    name = backup_file_name(ids)
+    return JSONResponse(doc, headers={"content-disposition": f'attachment; filename="{name}"'})
 
 
 async def live_start(request: Request, session: LineSession) -> Any:
@@ -512,6 +525,7 @@ ROUTES = [
     Route("/api/id/survey", endpoint(id_survey), methods=["POST"]),
     Route("/api/id/write", endpoint(id_write), methods=["POST"]),
     Route("/api/many/apply", endpoint(many_apply), methods=["POST"]),
+    Route("/api/many/backup", endpoint(many_backup), methods=["POST"]),
     Route("/api/live/start", endpoint(live_start), methods=["POST"]),
     Route("/api/live/stop", endpoint(live_stop), methods=["POST"]),
     Route("/api/live", endpoint(live)),

@@ -67,7 +67,7 @@ from ..policies import (
     write_eeprom_plans,
     write_lone_id,
 )
-from ..policies.eeprom_backup import backup_changes, backup_document
+from ..policies.eeprom_backup import backup_changes, backup_document, backups_document, backups_in
 from ..protocol import Param
 from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
@@ -832,10 +832,37 @@ class LineSession:
             image = await read_eeprom_agreed(bus, protocol.check_id(servo_id))
             return backup_document(image, servo_id, baud=bus.baudrate, port=self.config.port)
 
-    def restore_edit(self, doc: object, *, restore_id: bool, keep_baud: bool = False) -> dict[str, Any]:
-        """The edit a backup asks for (policies.eeprom_backup's checks), for :meth:`plan` and :meth:`write`;
-        ``keep_baud``: all but the backup's baud rate (the servo stays at the rate the line reaches it at)."""
-        changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
+    async def backup_many(self, ids: list[Any]) -> dict[str, Any]:
+        """The backups of ``ids``, each read as :meth:`backup` reads one, in one document (policies.eeprom_backup's
+        backups_document), with the servos not saved and why in the Many servos page's words.
+
+        A servo that does not answer, or answers garbled, is left out and the others are read; a lost line ends
+        the reading, the servos after it "not read" (a port back half-way would have read them at another moment
+        with no word of it): what was read before is in the document all the same."""
+        checked = list(dict.fromkeys(protocol.check_id(i) for i in ids))  # (each once: a file holds one per servo)
+        self.line()  # (no line open: said once, not "lost at servo 1" for the others)
+        saved: list[dict[str, Any]] = []
+        not_saved: dict[int, str] = {}
+        for k, sid in enumerate(checked):
+            try:
+                saved.append(await self.backup(sid))
+            except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
+                not_saved[sid] = self._many_words(exc, "not saved")
+                if isinstance(exc, ReplyTimeout):
+                    self.lost_touch([sid])
+            except (PortLost, BusClosed, SerialPortError, OSError) as exc:
+                not_saved[sid] = error_text(exc)
+                rest = f"not read: the line was lost at servo {sid}; back them up again once it is back"
+                not_saved.update(dict.fromkeys(checked[k + 1 :], rest))
+                break
+        return backups_document(saved, not_saved)
+
+    def restore_edit(self, doc: object, servo_id: int, *, restore_id: bool, keep_baud: bool = False) -> dict[str, Any]:
+        """The edit a backup asks for servo ``servo_id`` (policies.eeprom_backup's checks; from a file of several
+        servos' backups, the one saved from ``servo_id``), for :meth:`plan` and :meth:`write`; ``keep_baud``: all
+        but the backup's baud rate (the servo stays at the rate the line reaches it at)."""
+        backup = backups_in(doc).backup_for(servo_id)
+        changes = backup_changes(backup, restore_id=restore_id, keep_baud=keep_baud)
         # Restoring the saved ID is what "restore its ID" asks for; otherwise the ID is not in the changes.  The
         # backup's read-only flags are another moment's state: the servo keeps its own (the plan names them).
         return {
@@ -876,9 +903,11 @@ class LineSession:
                 results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
         return results
 
-    def _many_words(self, exc: IcsError) -> str:
+    def _many_words(self, exc: IcsError, undone: str = "nothing written") -> str:
         """``exc``'s words for the Many servos page, naming no servo and showing no bytes (the Traffic page
-        has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent)."""
+        has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent).
+        ``undone``: what a servo that failed before anything was sent to change it missed (a backup's "not
+        saved")."""
         if isinstance(exc, VerifyError):  # "servo 2 acknowledged the write, then ...": the row names the servo
             return re.sub(r"^servo \d+:? ", "", error_text(exc))
         if not isinstance(exc, ReplyError):
@@ -892,7 +921,7 @@ class LineSession:
             if self.config.echo and not exc.raw:
                 return self._no_reply_words(NoReply(NoReplyCause.NO_ECHO, exc.servo_id, self.config.baud), None)
             return (
-                f"no reply at {self.config.baud:,} baud, nothing written: check its power (6-12 V on the servo "
+                f"no reply at {self.config.baud:,} baud, {undone}: check its power (6-12 V on the servo "
                 "line, not just USB), the wiring and its ID; its Servo page looks for it at the other baud rates"
             )
         text = str(exc)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
@@ -902,7 +931,7 @@ class LineSession:
                 f"{what or text}; it may or may not have been written: open its Servo page to read what it has (the "
                 "bytes are on the Traffic page)"
             )
-        return f"{what or text}; nothing written (the bytes are on the Traffic page)"
+        return f"{what or text}; {undone} (the bytes are on the Traffic page)"
 
     # ------------------------------------------------------------------ torque and motion
 
