@@ -6,6 +6,7 @@ server of its own: backups and restores, ticks, motion switched on and off, jogs
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import socket
@@ -24,7 +25,8 @@ if not sys.platform.startswith("linux"):
 from playwright.sync_api import Browser, Page, Route, expect
 
 from ics35_async.eeprom import Eeprom
-from ics35_async.protocol import WriteEeprom
+from ics35_async.policies.eeprom_backup import backups_in
+from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualServo
 from tests.support.browser_pages import (
     PAGE_GONE_BOUND,
@@ -32,6 +34,7 @@ from tests.support.browser_pages import (
     PtyLine,
     backed_up,
     open_servo_page,
+    scan_finds,
     servo_read,
     stop_servers,
     until,
@@ -564,6 +567,70 @@ def test_the_many_servos_page_says_a_write_cut_short_as_it_went_may_be_written(b
         said = p.locator("#many-errors li").nth(1)
         expect(said).to_have_text(re.compile(r"^servo 2: .*the write may have reached it; read it once the line"))
         assert puller.eeprom.punch == 3
+
+
+def backed_up_many(p: Page, folder: Path) -> Path:
+    """The Many servos page's **Back up all**, its download saved in ``folder`` under the name it was offered."""
+    with p.expect_download() as download:
+        p.click("#many-backup")
+    backup = folder / download.value.suggested_filename
+    download.value.save_as(backup)
+    return backup
+
+
+def test_back_up_all_saves_the_servos_found_in_one_file_that_a_servo_page_restores_from(
+    browser: Browser, tmp_path: Path
+) -> None:
+    line = PtyLine((1, 2, 3))
+    for i in (1, 2, 3):
+        line.sim.servo(i).eeprom = line.sim.servo(i).eeprom.replace(speed=10 * i)
+    sim = line.sim
+    with web_server_page(browser, line) as p:
+        scan_finds(p, 3, ids="0-4")
+        p.click("a[href='#many']")
+        expect(p.locator("#many-ids")).to_have_value("1,2,3")  # the servos the scan found, as the page lists them
+        backup = backed_up_many(p, tmp_path)
+        assert backup.name == "servos-01-03.json"
+        held = backups_in(json.loads(backup.read_text()))
+        assert {i: doc["fields"]["speed"] for i, doc in held.servos.items()} == {1: 10, 2: 20, 3: 30}
+        expect(p.locator("#message")).to_have_text("3 servo(s) saved as servos-01-03.json")
+        expect(p.locator("#many-backup-missing li")).to_have_count(0)
+        # Servo 2's page restores servo 2 from the file of three: its own backup, not the first in the file.
+        sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=99)
+        open_servo_page(p, 2)
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#restore-diff tr.changed")).to_contain_text("20")
+        p.click("#restore-btn")
+        expect(p.locator("#restore-result")).to_contain_text("verified")
+        assert sim.servo(2).eeprom.speed == 20 and sim.servo(1).eeprom_writes == sim.servo(3).eeprom_writes == 0
+
+
+def test_back_up_all_keeps_what_it_read_when_a_servo_is_silent_and_the_port_is_lost_and_names_the_rest(
+    browser: Browser, tmp_path: Path
+) -> None:
+    line = PtyLine((1, 4))
+    puller = UnplugsWhenAsked(3, ReadEeprom)  # (its cable pulled as its EEPROM is asked for)
+    line.sim.add_device(puller)
+    puller.line = line.sim
+    with web_server_page(browser, line) as p:
+        p.goto(p.url.split("#")[0] + "#many")
+        p.fill("#many-ids", "1,2,3,4")
+        backup = backed_up_many(p, tmp_path)
+        held = backups_in(json.loads(backup.read_text()))
+        assert list(held.servos) == [1] and sorted(held.not_saved) == [2, 3, 4], held
+        expect(p.locator("#message")).to_have_text(
+            "1 servo(s) saved as servos-01-04.json; not saved: servos 2, 3, 4 (see below)"
+        )
+        said = p.locator("#many-backup-missing li")
+        expect(said).to_have_count(3)
+        expect(said.nth(0)).to_have_text(re.compile(r"^servo 2: no reply at 115,200 baud, not saved: check its power"))
+        expect(said.nth(1)).to_have_text(re.compile(r"^servo 3: port .*lost"))
+        expect(said.nth(2)).to_have_text(
+            "servo 4: not read: the line was lost at servo 3; back them up again once it is back"
+        )
+        expect(p.locator("#lost-banner")).to_be_visible()
+        line.sim.replug()
+        expect(p.locator("#lost-banner")).to_be_hidden()
 
 
 def test_leaving_a_servos_page_switches_its_motion_off_on_the_server_too(browser: Browser) -> None:

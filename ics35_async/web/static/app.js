@@ -566,12 +566,23 @@ async function writeEeprom() {
     result.verified || !result.written ? "info" : "error");
 }
 
+// The name a backup of ids is offered under, as the server names it: servo-05.json, servos-01-17.json.
+function backupName(ids) {
+  const two = (i) => String(i).padStart(2, "0");
+  return ids.length === 1 ? `servo-${two(ids[0])}.json` : `servos-${two(ids[0])}-${two(ids[ids.length - 1])}.json`;
+}
+
+// A backup the server made, downloaded as the file name.
+function download(doc, name) {
+  const blob = new Blob([JSON.stringify(doc, null, 2) + "\n"], { type: "application/json" });
+  const link = el("a", { href: URL.createObjectURL(blob), download: name });
+  document.body.append(link); link.click(); link.remove();
+}
+
 async function backupServo() {
   const doc = await api(`/api/servo/${servoId()}/backup`);
-  const blob = new Blob([JSON.stringify(doc, null, 2) + "\n"], { type: "application/json" });
-  const link = el("a", { href: URL.createObjectURL(blob), download: `servo-${String(servoId()).padStart(2, "0")}.json` });
-  document.body.append(link); link.click(); link.remove();
-  say(`servo ${servoId()}'s EEPROM saved as ${link.download}`, "info");
+  download(doc, backupName([servoId()]));
+  say(`servo ${servoId()}'s EEPROM saved as ${backupName([servoId()])}`, "info");
 }
 
 async function planRestore() {
@@ -765,6 +776,26 @@ async function applyMany() {
   $("#many-results tbody").replaceChildren(...reply.results.map((r) => el("tr", { "data-id": r.id }, el("td", {}, r.id),
     el("td", { class: r.error ? "bad" : "good", title: r.error || "" }, outcome(r)),
     el("td", {}, r.diff ? r.diff.map((d) => `${d.name} ${d.now}→${d.new}`).join(", ") : ""))));
+}
+
+// One file of every chosen servo's EEPROM. A servo that does not answer is left out, and the port lost part-way ends
+// the reading: the file holds what was read all the same, and the list below the button names the servos it lacks.
+async function backupMany() {
+  let ids;
+  try { ids = parseIds($("#many-ids").value); } catch (e) { say(e.message); return; }
+  if (!ids.length) { say("name the servos to back up (e.g. 1-17), or scan the line first"); return; }
+  $("#many-backup-missing").replaceChildren();
+  const doc = await api("/api/many/backup", { ids });
+  // The same words for several servos (a lost port, a line of absent IDs) said once, naming them all.
+  const missing = new Map();
+  for (const m of doc.not_saved) missing.set(m.why, [...(missing.get(m.why) || []), m.servo_id]);
+  $("#many-backup-missing").replaceChildren(...[...missing].map(([words, who]) =>
+    el("li", { "data-ids": who.join(",") }, `${servosNamed(who)}: ${words}`)));
+  const lacking = doc.not_saved.map((m) => m.servo_id);
+  const notSaved = lacking.length ? `; not saved: ${servosNamed(lacking)} (see below)` : "";
+  if (!doc.servos.length) { say(`nothing saved: no servo was read${notSaved}`); return; }
+  download(doc, backupName(ids));
+  say(`${doc.servos.length} servo(s) saved as ${backupName(ids)}${notSaved}`, lacking.length ? "error" : "info");
 }
 
 // ---- Live
@@ -1148,6 +1179,7 @@ on("#jog-plus", "click", () => jog(+$("#jog-slider").value + 100));
 on("#survey-btn", "click", survey);
 on("#renumber-btn", "click", renumber);
 on("#many-apply", "click", applyMany);
+on("#many-backup", "click", backupMany);
 on("#many-ids", "input", () => { state.manyIdsTyped = true; });
 on("#live-start", "click", startLive);
 on("#live-stop", "click", () => api("/api/live/stop", {}));
