@@ -14,6 +14,7 @@ import pytest
 
 from ics35_async.cli import ExitCode, main
 from ics35_async.eeprom import Flags
+from ics35_async.policies.eeprom_backup import backup_document, backups_document
 from ics35_async.protocol import ReadEeprom, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from tests.support.cli_runs import edit_backup
@@ -228,6 +229,23 @@ def test_a_directory_restore_with_one_servo_missing_says_how_to_restore_the_othe
     said = " ".join(result.err.split())
     assert "nothing was written" in said, said
     assert f"to restore the others without servo 2, move {folder}/servo-02.json out of {folder}" in said, said
+
+
+def test_a_restore_of_a_file_of_several_with_one_servo_missing_says_how_to_restore_the_others(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    # The others' backups are in the same file: "move it out" would leave none of them.
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2), VirtualServo(3)])
+    docs = [backup_document(sim.servo(i).eeprom, i, baud=115200, port=url) for i in (1, 2, 3)]
+    backup = tmp_path / "servos-01-03.json"
+    backup.write_text(json.dumps(backups_document(docs)))
+    sim.remove_servo(2)
+    result = cli("--port", url, "--timeout", "0.005", "eeprom", "restore", str(backup), "--yes")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    assert "nothing was written" in said and "move" not in said, said
+    again = f"ics35 --port {url} --timeout 0.005 eeprom restore ID {backup} (ID: 1, 3)"
+    assert f"to restore the others without servo 2, restore each alone: {again}" in said, said
 
 
 def test_restore_lost_mid_write_says_what_each_servo_holds(cli: Any, sim_line: Any, tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
+from ics35_async.policies.eeprom_backup import backup_document, backups_document
 from ics35_async.protocol import ReadEeprom
 from ics35_async.sim import VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
@@ -346,6 +347,64 @@ def test_restore_one_file_to_the_servo_it_came_from(cli: Any, sim_line: Any, tmp
     assert result.code == 0, result.err
     assert result.json()["id"] == 2 and sim.servo(2).eeprom.speed == 127
     assert sim.servo(1).eeprom_writes == 0
+
+
+def saved_together(sim: Any, ids: tuple[int, ...], path: Path, not_saved: dict[int, str] | None = None) -> Path:
+    """Servos ``ids`` of ``sim`` backed up in one file at ``path``, as the configurator's Back up all saves them."""
+    docs = [backup_document(sim.servo(i).eeprom, i, baud=115200, port="/dev/ttyUSB0") for i in ids]
+    path.write_text(json.dumps(backups_document(docs, not_saved), indent=2) + "\n")
+    return path
+
+
+def test_restore_of_a_file_of_several_servos_restores_each_to_its_own_id(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    sim, url = sim_line([1, 2, 3])
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i)
+    backup = saved_together(sim, (1, 2, 3), tmp_path / "servos-01-05.json", {5: "no reply at 115,200 baud"})
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes", "--json")
+    assert result.code == 0, result.err
+    assert {s["id"]: s["outcome"] for s in result.json()["servos"]} == {1: "verified", 2: "verified", 3: "verified"}
+    assert [(sim.servo(i).eeprom.speed, sim.servo(i).eeprom.servo_id) for i in (1, 2, 3)] == [(10, 1), (20, 2), (30, 3)]
+    said = " ".join(result.err.split())
+    assert f"note: {backup} holds no backup of servo 5 (when it was saved: no reply at 115,200 baud)" in said, said
+
+
+def test_restore_of_one_servo_from_a_file_of_several_takes_that_servos_backup(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    sim, url = sim_line([1, 2, 3])
+    sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=20)
+    backup = saved_together(sim, (1, 2, 3), tmp_path / "servos.json", {4: "no reply at 115,200 baud"})
+    sim.servo(2).eeprom = sim.servo(2).eeprom.replace(speed=99)
+    result = cli("--port", url, "eeprom", "restore", "2", str(backup), "--yes", "--json")
+    assert result.code == 0, result.err
+    assert result.json()["id"] == 2 and sim.servo(2).eeprom.speed == 20
+    assert sim.servo(1).eeprom_writes == sim.servo(3).eeprom_writes == 0
+    before = sim.transactions
+    for target, why in (("5", ""), ("4", " (when it was saved, servo 4: no reply at 115,200 baud)")):
+        refused = cli("--port", url, "eeprom", "restore", target, str(backup), "--yes")
+        assert refused.code == ExitCode.USAGE, refused.err
+        said = " ".join(refused.err.split())
+        assert f"{backup}: the file holds the backups of servos 1-3, none of servo {target}{why}" in said, said
+    assert sim.transactions == before
+
+
+def test_a_directory_holding_two_backups_of_one_servo_in_a_file_of_several_is_refused(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    sim, url = sim_line([1, 2, 3])
+    saved_together(sim, (1, 2, 3), tmp_path / "servos-01-03.json")
+    assert cli("--port", url, "eeprom", "dump", "2", "-o", str(tmp_path / "servo-02.json")).code == 0
+    before = sim.transactions
+    refused = cli("--port", url, "eeprom", "restore", str(tmp_path), "--yes")
+    assert refused.code == ExitCode.USAGE, refused.err
+    said = " ".join(refused.err.split())
+    assert "are both backups of servo 2" in said and "servos-01-03.json" in said, said
+    assert sim.transactions == before
 
 
 def test_restore_says_which_read_only_flags_the_servo_keeps(cli: Any, sim_line: Any, tmp_path: Path) -> None:

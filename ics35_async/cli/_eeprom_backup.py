@@ -16,7 +16,14 @@ from ..bus import Bus
 from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
-from ..policies.eeprom_backup import backup_changes, backup_document, backup_file_name, plan_restores
+from ..policies.eeprom_backup import (
+    Backups,
+    backup_changes,
+    backup_document,
+    backup_file_name,
+    backups_in,
+    plan_restores,
+)
 from ..user_files import (
     UnreadableText,
     decode_user_text,
@@ -230,17 +237,18 @@ BACKUP_IS = "a backup is UTF-8 JSON"  # (what a file given as one should be, for
 
 @dataclass
 class Backup:
-    """One checked backup file and the servo it goes to."""
+    """One checked backup and the servo it goes to."""
 
-    source: str
+    source: str  # the file it is in
     target: int
     fields: dict[str, int]
     saved_id: int  # the ID the backup was saved from
     simulated: bool = False  # read from the implicit built-in simulator, not a servo
+    together: bool = False  # in a file of several servos' backups (one of them is restored by ID FILE)
 
 
-def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bool = False) -> Backup:
-    """Read and check one backup (BadParameter, naming the file, on anything wrong)."""
+def read_backups(source: str) -> Backups:
+    """One file's backups, checked whole (BadParameter, naming the file, on anything wrong)."""
     try:
         if source == "-":
             if sys.stdin.isatty():  # (typed at a terminal, nothing piped: waiting silently looked hung)
@@ -250,11 +258,7 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
             text = decode_user_text(raw, BACKUP_IS)
         else:
             text = read_user_text(source, BACKUP_IS)
-        doc = parse_json(text)
-        changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
-        fields, saved_id = changes.fields, changes.saved_id
-        if target is None:
-            target = saved_id
+        return backups_in(parse_json(text))
     except OSError as exc:
         raise click.BadParameter(f"{source}: {exc.strerror or exc}", param_hint="FILE") from None
     except UnreadableText as exc:
@@ -263,7 +267,43 @@ def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bo
         raise click.BadParameter(f"{source}: not JSON: {exc}", param_hint="FILE") from None
     except (InvalidArgument, MalformedEeprom) as exc:
         raise click.BadParameter(f"{source}: {exc}", param_hint="FILE") from None
-    return Backup(source, target, fields, saved_id, isinstance(doc, dict) and doc.get(SIMULATED_KEY) is True)
+
+
+def load_backup(source: str, target: int | None, restore_id: bool, keep_baud: bool = False) -> list[Backup]:
+    """The backups of one file, checked, each with the servo it goes to: ``target`` (one servo's backup whichever
+    servo it was saved from; from a file of several, the one of ``target``), or without it each to the servo it
+    was saved from (BadParameter, naming the file, on anything wrong)."""
+    held = read_backups(source)
+    try:
+        docs = list(held.servos.values()) if target is None else [held.backup_for(target)]
+        backups: list[Backup] = []
+        for doc in docs:
+            changes = backup_changes(doc, restore_id=restore_id, keep_baud=keep_baud)
+            saved_id = changes.saved_id
+            simulated = doc.get(SIMULATED_KEY) is True
+            goes_to = saved_id if target is None else target
+            backups.append(Backup(source, goes_to, changes.fields, saved_id, simulated, held.several))
+    except (InvalidArgument, MalformedEeprom) as exc:
+        raise click.BadParameter(f"{source}: {exc}", param_hint="FILE") from None
+    if not backups:
+        lacking = "; ".join(f"servo(s) {id_ranges(ids)}: {why}" for why, ids in not_saved_by_words(held).items())
+        when = f" (when it was saved, {lacking})" if lacking else ""
+        raise click.BadParameter(f"{source}: the file holds no servo's backup{when}", param_hint="FILE")
+    if target is None:
+        for why, ids in not_saved_by_words(held).items():
+            err.print(
+                f"note: {escape(source)} holds no backup of servo{'s' if len(ids) > 1 else ''} {id_ranges(ids)} "
+                f"(when it was saved: {escape(why)})"
+            )
+    return backups
+
+
+def not_saved_by_words(held: Backups) -> dict[str, list[int]]:
+    """The servos a file of several says it does not hold, by the words said of them (the same words once)."""
+    by_words: dict[str, list[int]] = {}
+    for servo_id, why in sorted(held.not_saved.items()):
+        by_words.setdefault(why, []).append(servo_id)
+    return by_words
 
 
 def load_backups(args: tuple[str, ...], restore_id: bool, keep_baud: bool = False) -> list[Backup]:
@@ -272,15 +312,15 @@ def load_backups(args: tuple[str, ...], restore_id: bool, keep_baud: bool = Fals
             target = SERVO_ID.convert(args[0], None, None)
         except click.BadParameter as exc:
             raise click.BadParameter(exc.message, param_hint="ID") from None
-        return [load_backup(args[1], target, restore_id, keep_baud)]
+        return load_backup(args[1], target, restore_id, keep_baud)
     if len(args) != 1:
         raise click.BadParameter("give ID FILE, FILE or DIR", param_hint="[ID] FILE|DIR")
     if not Path(args[0]).is_dir():
-        return [load_backup(args[0], None, restore_id, keep_baud)]
+        return load_backup(args[0], None, restore_id, keep_baud)
     files = sorted(str(p) for p in Path(args[0]).glob("*.json"))
     if not files:
         raise click.BadParameter(f"no *.json backups in {args[0]}", param_hint="DIR")
-    backups = [load_backup(name, None, restore_id, keep_baud) for name in files]
+    backups = [backup for name in files for backup in load_backup(name, None, restore_id, keep_baud)]
     seen: dict[int, str] = {}
     for backup in backups:
         if backup.target in seen:
@@ -301,7 +341,8 @@ async def plan_restore(bus: Bus, backups: list[Backup], bulk: bool) -> list[Eepr
     """Every backup's write, planned; nothing is written.
 
     One file goes to one servo at the line's rate: one that answers elsewhere is told "pass --baud" as by
-    every command.  A DIR's servos may answer at different rates (some moved to 1,250,000, others not), and
+    every command.  The servos of a DIR, or of a file of several servos' backups restored whole, may answer
+    at different rates (some moved to 1,250,000, others not), and
     no one --baud reaches them all: each is planned at the rate it answers at (policies.eeprom_backup's
     plan_restores), then written and verified there, after one question over every diff.
     """
@@ -351,12 +392,16 @@ def restore(
     ics35 eeprom restore 2 servo1.json   servo 2 gets servo 1's settings
     ics35 eeprom restore servo1.json     back to the servo the file was saved from
     ics35 eeprom restore backup/         every file in backup/ to its own servo
+    ics35 eeprom restore servos.json     a file of several (ics35 web's Back up all):
+                                         each servo in it to its own servo
+    ics35 eeprom restore 2 servos.json   servo 2 from its own backup in that file
 
     Each servo keeps its own factory calibration bytes and read-only flags, and
     its ID unless --restore-id.  A backup naming another baud rate than the
     servo's is refused unless --keep-baud (the servo keeps its rate) or
-    --change-baud (it takes the backup's).  A DIR's servos are each restored at
-    the rate they answer at.  Use - as FILE for stdin (then pass --yes).
+    --change-baud (it takes the backup's).  The servos of a DIR or of a file of
+    several are each restored at the rate they answer at.  Use - as FILE for
+    stdin (then pass --yes).
     """
     settings = settings_of(ctx)
     if keep_baud and change_baud:
@@ -377,7 +422,7 @@ def restore(
     reading = False  # the servos are being read (the line opened): a failure then comes before any write
     planned = False  # every servo read and its write planned: until then nothing was written
     silent: list[int] = []  # the servo whose read failed, then
-    bulk = len(args) == 1 and Path(args[0]).is_dir()
+    bulk = len(args) == 1 and (Path(args[0]).is_dir() or backups[0].together)  # (several servos, each its own)
 
     async def body() -> WriteBatch:
         nonlocal reading, planned
@@ -412,10 +457,18 @@ def restore(
         if reading and not planned and said_nothing_written(exc, "the servos"):
             # Every servo is read before any is written: one missing servo holds the others back until it is
             # back, or until its backup is out of the way.
-            missing = [b.source for b in backups if b.target in silent] if bulk and len(backups) > 1 else []
-            if missing:
+            missing = [b for b in backups if b.target in silent] if bulk and len(backups) > 1 else []
+            if missing and missing[0].together:  # (its file holds the others' too: they go one by one)
+                source = missing[0].source
+                others = [b.target for b in backups if b.source == source and b.target != silent[0]]
                 exc.hints.insert(
-                    1, f"to restore the others without servo {silent[0]}, move {missing[0]} out of {args[0]}"
+                    1,
+                    f"to restore the others without servo {silent[0]}, restore each alone: "
+                    f"{settings.command_line('eeprom', 'restore', 'ID', source)} (ID: {id_ranges(others)})",
+                )
+            elif missing:
+                exc.hints.insert(
+                    1, f"to restore the others without servo {silent[0]}, move {missing[0].source} out of {args[0]}"
                 )
         if exc.code in (ExitCode.NO_REPLY, ExitCode.WRONG_BAUD) and len(args) == 1 and not bulk:
             source = backups[0].source
