@@ -581,12 +581,12 @@ def backed_up_many(p: Page, folder: Path) -> Path:
 def test_back_up_all_saves_the_servos_found_in_one_file_that_a_servo_page_restores_from(
     browser: Browser, tmp_path: Path
 ) -> None:
-    line = PtyLine((1, 2, 3))
+    line = PtyLine((1, 2, 3, 4))
     for i in (1, 2, 3):
         line.sim.servo(i).eeprom = line.sim.servo(i).eeprom.replace(speed=10 * i)
     sim = line.sim
     with web_server_page(browser, line) as p:
-        scan_finds(p, 3, ids="0-4")
+        scan_finds(p, 3, ids="0-3")
         p.click("a[href='#many']")
         expect(p.locator("#many-ids")).to_have_value("1,2,3")  # the servos the scan found, as the page lists them
         backup = backed_up_many(p, tmp_path)
@@ -603,6 +603,14 @@ def test_back_up_all_saves_the_servos_found_in_one_file_that_a_servo_page_restor
         p.click("#restore-btn")
         expect(p.locator("#restore-result")).to_contain_text("verified")
         assert sim.servo(2).eeprom.speed == 20 and sim.servo(1).eeprom_writes == sim.servo(3).eeprom_writes == 0
+        # Servo 4's page: the file has none of it, and says which servos it holds (the file named, as it was chosen).
+        open_servo_page(p, 4)
+        p.set_input_files("#restore-file", str(backup))
+        expect(p.locator("#message")).to_have_text(
+            "servos-01-03.json: the file holds the backups of servos 1-3, none of servo 4"
+        )
+        expect(p.locator("#restore-btn")).to_be_disabled()
+        assert sim.servo(4).eeprom_writes == 0
 
 
 def test_back_up_all_keeps_what_it_read_when_a_servo_is_silent_and_the_port_is_lost_and_names_the_rest(

@@ -596,7 +596,15 @@ async function planRestore() {
   try { doc = JSON.parse(await file.text()); } catch (e) { say(`${file.name}: not JSON (${e.message})`); return; }
   const request = { doc, restore_id: $("#restore-id").checked, keep_baud: $("#restore-keep-baud").checked,
     allow_baud_change: $("#allow-baud-change").checked };
-  const plan = await api(`/api/servo/${servoId()}/restore/plan`, request);
+  let plan;
+  try {
+    plan = await api(`/api/servo/${servoId()}/restore/plan`, request);
+  } catch (e) {
+    // Refused for what the file holds (damaged, or none of this servo in a file of several): the file named, as
+    // its not-JSON refusal names it.
+    if (e.status === 400) say(`${file.name}: ${e.message}`);
+    throw e;
+  }
   state.restore = { ...request, before: plan.before };
   const note = plan.saved_id !== servoId() && !request.restore_id ? el("p", {}, `${file.name} is a backup of ID ${plan.saved_id}; servo ${servoId()} keeps its ID`) : "";
   const baud = plan.allowed_by === "allow_baud_change"
