@@ -341,6 +341,25 @@ def test_a_dump_cut_by_an_unplug_keeps_what_it_read(
         assert "eeprom dump 3,4 --table" in err
 
 
+def test_several_servos_dumped_to_one_file_as_the_port_goes_keep_what_was_read(
+    cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    """The adapter pulled out at servo 3's read: the file holds servos 1 and 2 and names 3 and 4 as not read;
+    the command to read the rest writes another file (the same name would put this one aside as .bak)."""
+    plug = PullsThePlug(3, "read")
+    sim, url = sim_line([VirtualServo(1), VirtualServo(2), plug, VirtualServo(4)])
+    plug.line = sim
+    backup = tmp_path / "robot.json"
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-4", "-o", str(backup))
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    doc = json.loads(backup.read_text())
+    assert [s["servo_id"] for s in doc["servos"]] == [1, 2]
+    assert [n["servo_id"] for n in doc["not_saved"]] == [3, 4]
+    assert all("port was lost" in n["why"] for n in doc["not_saved"]), doc["not_saved"]
+    err = " ".join(result.err.split())
+    assert f"read the rest: ics35 --port {url} --timeout 0.05 eeprom dump 3,4 -o {tmp_path}/servos-03-04.json" in err
+
+
 def test_free_of_several_servos_says_which_went_free_when_the_line_is_lost(cli: Any, sim_line: Any) -> None:
     puller = UnplugsWhenAsked(2, free_command)
     sim, url = sim_line([VirtualServo(1), puller, VirtualServo(3)])

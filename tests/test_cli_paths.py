@@ -21,17 +21,12 @@ def test_a_sim_record_file_in_a_missing_directory(cli: Any) -> None:
     assert "/nonexistent" in result.err and "does not exist" in result.err
 
 
-def test_several_servos_dumped_to_a_file_name_are_told_the_directory_to_give(cli: Any, tmp_path: Path) -> None:
-    # `-o backup/servo-01.json` for 1-3 was told "-o backup/servo-01.json/": a directory named like the backup file
-    # (refused in turn, the file being there).
-    (tmp_path / "servo-01.json").write_text("{}")
-    for given in (tmp_path / "servo-01.json", tmp_path / "servo-02.json"):  # (there, and not yet)
-        result = cli("--port", "sim://?ids=1-3", "eeprom", "dump", "1-3", "-o", str(given))
-        said = " ".join(result.err.split())
-        assert result.code == ExitCode.USAGE, result.err
-        assert f"several servos go to a directory, one file each: -o {tmp_path}/" in said, said
+def test_several_servos_dumped_to_a_name_that_is_not_a_json_file_are_told_both_ways(cli: Any, tmp_path: Path) -> None:
+    # `-o backup` for 1-3: a directory meant (backup/) or one file of them all (backup.json)?  Nothing is read.
     result = cli("--port", "sim://?ids=1-3", "eeprom", "dump", "1-3", "-o", str(tmp_path / "backup"))
-    assert f"several servos go to a directory, one file each: -o {tmp_path}/backup/" in " ".join(result.err.split())
+    said = " ".join(result.err.split())
+    assert result.code == ExitCode.USAGE, result.err
+    assert f"-o {tmp_path}/backup/ (one file per servo) or -o {tmp_path}/backup.json (one file of them all)" in said
 
 
 def test_a_sim_replay_file_that_is_not_there(cli: Any, tmp_path: Path) -> None:

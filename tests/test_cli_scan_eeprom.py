@@ -324,11 +324,33 @@ def test_bulk_restore_checks_every_file_before_writing_any(cli: Any, sim_line: A
     assert sim.servo(1).eeprom_writes == sim.servo(2).eeprom_writes == 0
 
 
-def test_several_servos_need_a_directory(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+def test_several_servos_need_a_directory_or_one_file(cli: Any, sim_line: Any, tmp_path: Path) -> None:
     sim, url = sim_line([1, 2])
-    assert cli("--port", url, "eeprom", "dump", "1-2").code == ExitCode.USAGE
-    assert cli("--port", url, "eeprom", "dump", "1-2", "-o", str(tmp_path / "x.json")).code == ExitCode.USAGE
+    result = cli("--port", url, "eeprom", "dump", "1-2")
+    assert result.code == ExitCode.USAGE
+    assert "-o DIR/ (one file per servo) or -o FILE.json (one file of them all)" in " ".join(result.err.split())
     assert sim.transactions == 0
+
+
+def test_several_servos_dumped_to_one_file_are_restored_from_it(cli: Any, sim_line: Any, tmp_path: Path) -> None:
+    """``-o FILE.json`` for several servos writes the file of several servos' backups (what the configurator's
+    Back up all downloads), the servos asked for that did not answer named in it; a restore reads it back."""
+    sim, url = sim_line([1, 2, 3])
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=10 * i)
+    backup = tmp_path / "robot.json"
+    result = cli("--port", url, "--timeout", "0.005", "eeprom", "dump", "1-4", "-o", str(backup))
+    assert result.code == 0, result.err
+    assert "EEPROMs of servos 1-3 saved to" in " ".join(result.err.split())
+    doc = json.loads(backup.read_text())
+    assert doc["format"] == "ics35-eeproms/1"
+    assert [(s["servo_id"], s["fields"]["speed"]) for s in doc["servos"]] == [(1, 10), (2, 20), (3, 30)]
+    assert [n["servo_id"] for n in doc["not_saved"]] == [4] and "no reply" in doc["not_saved"][0]["why"]
+    for i in (1, 2, 3):
+        sim.servo(i).eeprom = sim.servo(i).eeprom.replace(speed=99)
+    result = cli("--port", url, "eeprom", "restore", str(backup), "--yes")
+    assert result.code == 0, result.err
+    assert [sim.servo(i).eeprom.speed for i in (1, 2, 3)] == [10, 20, 30]
 
 
 def test_dump_checks_its_output_before_reading(cli: Any, sim_line: Any, tmp_path: Path) -> None:

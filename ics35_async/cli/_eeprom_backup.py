@@ -21,6 +21,7 @@ from ..policies.eeprom_backup import (
     backup_changes,
     backup_document,
     backup_file_name,
+    backups_document,
     backups_in,
     plan_restores,
 )
@@ -60,20 +61,25 @@ from ._runner import line_error
 
 
 def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[str, Path | None]:
-    """Where the dump goes ("stdout", "file" or "dir"), checked before the line is touched."""
+    """Where the dump goes ("stdout", "file", "dir" or "several": one file of several servos' backups), checked
+    before the line is touched."""
     if output is None:
         if len(ids) > 1 and not as_table:
-            raise click.BadParameter("several servos need -o DIR/ (one file per servo)", param_hint="IDS")
+            raise click.BadParameter(
+                "several servos need -o DIR/ (one file per servo) or -o FILE.json (one file of them all)",
+                param_hint="IDS",
+            )
         return "stdout", None
     if empty_path(output):
         raise click.BadParameter("the path is empty; give a file name or DIR/", param_hint="--output")
     path = Path(output)
     is_dir = output.endswith(("/", os.sep)) or path.is_dir()
-    if not is_dir and len(ids) > 1:
-        # A backup's name (or a file there) is not a directory to make: the folder it is in is the one meant.
-        folder = str(path.parent) if path.suffix.lower() == ".json" or path.exists() else output
+    if not is_dir and len(ids) > 1 and path.suffix.lower() != ".json" and not path.is_file():
+        # A name that is neither a JSON file's nor a folder's yet: which of the two is meant cannot be told.
+        name = output.rstrip("/" + os.sep)
         raise click.BadParameter(
-            f"several servos go to a directory, one file each: -o {folder.rstrip('/' + os.sep)}/", param_hint="--output"
+            f"several servos: -o {name}/ (one file per servo) or -o {name}.json (one file of them all)",
+            param_hint="--output",
         )
     # The directory that must exist and take a new file: a file's own; for DIR/ (created when
     # written) the nearest one that exists.
@@ -84,7 +90,7 @@ def output_target(ids: list[int], output: str | None, as_table: bool) -> tuple[s
         raise click.BadParameter(f"cannot write {output}: there is no directory {existing}", param_hint="--output")
     if not os.access(existing, os.W_OK) or (path.is_file() and not os.access(path, os.W_OK)):
         raise click.BadParameter(f"cannot write {output}: permission denied", param_hint="--output")
-    return ("dir" if is_dir else "file"), path
+    return ("dir" if is_dir else "file" if len(ids) == 1 else "several"), path
 
 
 def dump_document(image: Eeprom, servo_id: int, settings: Settings) -> dict[str, Any]:
@@ -146,7 +152,12 @@ def write_backup(path: Path, doc: dict[str, Any]) -> Path | None:
 
 @click.command()
 @click.argument("ids", metavar="IDS", type=ID_LIST)
-@click.option("--output", "-o", metavar="FILE|DIR/", help="Write to FILE, or one file per servo into DIR/.")
+@click.option(
+    "--output",
+    "-o",
+    metavar="FILE|DIR/",
+    help="Write to FILE (several servos: all in it), or one file per servo into DIR/.",
+)
 @click.option("--table", "as_table", is_flag=True, help="Print a readable table instead of JSON.")
 # Not "as_json": JSON is this command's default output, not a choice made with the flag.
 @click.option("--json", "json_default", is_flag=True, hidden=True, help="JSON (the default; accepted for scripts).")
@@ -157,11 +168,12 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     \b
     One servo:   ics35 eeprom dump 1 > servo1.json    (or -o servo1.json)
     Several:     ics35 eeprom dump 1-20 -o backup/    (backup/servo-01.json, ...)
+    In one file: ics35 eeprom dump 1-20 -o robot.json (as ics35 web's Back up all)
     """
     settings = settings_of(ctx)
     kind, path = output_target(ids, output, as_table)
     if path is not None and not as_table:  # (an earlier backup there is kept as NAME.bak: room for it first)
-        for target in [path / backup_file_name([i]) for i in ids] if kind == "dir" else [path]:
+        for target in [path / backup_file_name([i]) for i in ids] if kind == "dir" else [path]:  # (one: "several")
             check_backup_path(target, "--output")
     try:
         read = run(settings, lambda: read_images(settings, ids))
@@ -199,6 +211,21 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     if as_table:
         for i, image in images.items():
             out.print(eeprom_table(image, f"EEPROM of servo {i}"))
+    elif kind == "several":
+        assert path is not None
+        if images:  # (the servos asked for that are not in it named in the file too: see not_saved)
+            doc = backups_document(
+                [dump_document(image, i, settings) for i, image in images.items()],
+                {
+                    **({} if every_id(ids) else dict.fromkeys(missing, f"no reply at {settings.baud} baud")),
+                    **dict.fromkeys(read.garbled, "answered garbled (two servos sharing an ID, most likely)"),
+                    **dict.fromkeys(read.failed, "answered, but no two reads of its EEPROM agreed"),
+                    **dict.fromkeys(read.unread, "not read: the port was lost first"),
+                },
+            )
+            kept = write_backup(path, doc)
+            also = f" (the file there before kept as {escape(str(kept))})" if kept is not None else ""
+            err.print(f"EEPROMs of servos {id_ranges(images)} saved to {escape(str(path))}{also}")
     else:
         for i, image in images.items():
             doc = dump_document(image, i, settings)
@@ -213,7 +240,9 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
     if read.lost is not None:
         failure = read.lost
         rest = ",".join(str(i) for i in read.unread)
-        again = ["eeprom", "dump", rest, *(["--table"] if as_table else ["-o", str(output)])]
+        # (a file of several: the rest into another, the same name would put this one aside as .bak)
+        into = str(path.parent / backup_file_name(read.unread)) if kind == "several" and path else str(output)
+        again = ["eeprom", "dump", rest, *(["--table"] if as_table else ["-o", into])]
         failure.hints.append(
             f"servo(s) {ids_text(images)} {'shown above' if as_table else 'saved'}; when the line is back, "
             f"read the rest: {settings.command_line(*again)}"
