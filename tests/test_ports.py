@@ -299,9 +299,14 @@ def test_a_dangling_link_is_named_as_such(tmp_path: Path) -> None:
     # at 'ttyICS'" sent the user to the cable; the link and what it names say what happened.
     link = tmp_path / "ttyICS"
     link.symlink_to("/dev/pts/ics35-gone")
-    with pytest.raises(PortNotFound, match=r"a link to /dev/pts/ics35-gone, which is not there") as info:
+    with pytest.raises(PortNotFound, match=r"a link to /dev/pts/ics35-gone, a pty that no longer exists") as info:
         open_at(str(link))
-    assert "simulator" in str(info.value)
+    assert "simulator" in str(info.value) and "adapter" not in str(info.value)
+    adapter = tmp_path / "ttyKondo"
+    adapter.symlink_to("/dev/ttyUSB-ics35-gone")  # (a udev link whose adapter is unplugged)
+    with pytest.raises(PortNotFound, match=r"a link to /dev/ttyUSB-ics35-gone, which is not there") as info:
+        open_at(str(adapter))
+    assert "adapter unplugged" in str(info.value) and "simulator" not in str(info.value)
 
 
 def test_the_path_of_a_simulator_that_stopped_says_so(pty_sim: Any, cli: Any) -> None:

@@ -12,6 +12,7 @@ import itertools
 import os
 import re
 import select
+import signal
 import subprocess
 import sys
 import termios
@@ -347,7 +348,8 @@ def test_a_link_whose_folder_is_removed_while_serving_stops_the_simulator_in_wor
     replug = ["--unplug-after", "0.3", "--replug-after", "0.3"]
     with serving_sim("--link", str(link), *replug) as proc:
         assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
-        (folder / "tty").unlink(missing_ok=True)
+        for left in folder.iterdir():  # (the link, and the lock the simulator keeps beside it)
+            left.unlink()
         folder.rmdir()
         _, err = proc.communicate(timeout=GUARD)
     assert proc.returncode == 1, err
@@ -370,6 +372,107 @@ def test_a_link_to_a_pty_in_use_names_the_process_that_holds_it(tmp_path: Path) 
     finally:
         os.close(slave)
         os.close(master)
+
+
+@contextlib.contextmanager
+def killed_simulators_link(link: Path) -> Iterator[str]:
+    """``ics35 sim --link link`` started, then killed with SIGKILL (no chance to remove its link); yields the
+    /dev/pts path its link leads to."""
+    with serving_sim("--link", str(link)) as proc:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
+        pts = os.readlink(link)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=GUARD)
+    assert link.is_symlink() and not os.path.exists(pts)  # left, leading nowhere
+    yield pts
+
+
+@contextlib.contextmanager
+def pty_numbered(pts: str) -> Iterator[int]:
+    """The master of a new pty that is ``pts`` (a number a killed process freed), as another program (a terminal)
+    would take it; skips if the system hands out other numbers."""
+    held: list[tuple[int, int]] = []
+    try:
+        for _ in range(64):
+            master, slave = os.openpty()
+            held.append((master, slave))
+            if os.ttyname(slave) == pts:
+                break
+        else:
+            pytest.skip(f"{pts} was not handed out again")
+        for master, slave in held[:-1]:
+            os.close(master)
+            os.close(slave)
+        held = held[-1:]
+        os.set_blocking(held[0][0], False)
+        yield held[0][0]
+    finally:
+        for master, slave in held:
+            os.close(master)
+            os.close(slave)
+
+
+def test_a_killed_simulators_link_to_a_since_reused_pty_is_replaced_by_the_next(tmp_path: Path) -> None:
+    # A SIGKILLed simulator leaves its link; its /dev/pts number goes to the next program that opens a pty (a
+    # terminal). The next simulator at that path was refused ("in use") though no simulator served it: what the
+    # running simulator holds beside its link tells a running one from a killed one, whatever the pty number.
+    link = tmp_path / "tty"
+    with killed_simulators_link(link) as pts, pty_numbered(pts) as other:
+        with serving_sim("--link", str(link)) as proc:
+            assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
+            assert os.readlink(link) != pts
+            with open_port(str(link)) as port:
+                assert transact(port, h("81 3A 4C"), 3) == h("01 3A 4C")
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=GUARD)
+        assert proc.returncode == 0 and "Traceback" not in err, err
+        with pytest.raises(BlockingIOError):
+            os.read(other, 100)  # the other program's pty heard nothing
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # a simulator that stops leaves nothing
+
+
+def test_a_running_simulators_link_is_refused_naming_it(tmp_path: Path) -> None:
+    link = tmp_path / "tty"
+    with serving_sim("--link", str(link)) as first:
+        assert first.stdout is not None and first.stdout.readline().strip() == str(link)
+        pts = os.readlink(link)
+        proc = run_sim("--link", str(link))
+        said = " ".join(proc.stderr.split())
+        assert proc.returncode == 2 and f"simulator (process {first.pid})" in said, said
+        assert os.readlink(link) == pts
+
+
+def test_a_killed_simulators_link_to_a_since_reused_pty_is_not_opened(tmp_path: Path) -> None:
+    # ics35 --port LINK sent its frames to whatever program had taken the pty number since (a terminal's screen).
+    link = tmp_path / "tty"
+    with killed_simulators_link(link) as pts, pty_numbered(pts) as other:
+        proc = subprocess.run(
+            [sys.executable, "-m", "ics35_async.cli", "--port", str(link), "scan"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        said = " ".join(proc.stderr.split())
+        assert proc.returncode == 3 and "Traceback" not in said, said
+        assert "simulator" in said and "killed" in said and pts in said and "another program" in said, said
+        with pytest.raises(BlockingIOError):
+            os.read(other, 100)  # nothing written to it
+
+
+def test_a_killed_simulators_link_says_the_simulator_was_killed(tmp_path: Path) -> None:
+    link = tmp_path / "tty"
+    with killed_simulators_link(link) as pts:
+        proc = subprocess.run(
+            [sys.executable, "-m", "ics35_async.cli", "--port", str(link), "scan"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+    said = " ".join(proc.stderr.split())
+    assert proc.returncode == 3 and "Traceback" not in said, said
+    # (The number may have gone to a program of another user's meanwhile: said so, and still not opened.)
+    assert pts in said and "killed" in said and ("no longer exists" in said or "another program's" in said), said
+    assert "ics35 sim --link" in said and "cable" not in said and "list ports" not in said, said
 
 
 @pytest.mark.realtime

@@ -39,9 +39,9 @@ def translate(settings: Settings, exc: errors.IcsError) -> CliError:
             )
         return CliError(ExitCode.PORT, text, permission_hint())
     if isinstance(exc, errors.PortNotFound):
-        # The library's message already says where to look, or what a misnamed port meant (sim:/x, ttyUSB0),
-        # for callers who see no hints.
-        told = port_names_hint() in text or misnamed_port_hints(settings.port)
+        # The library's message already says where to look, or what a misnamed port meant (sim:/x, ttyUSB0), or
+        # that the port was a simulator's (no adapter to look for), for callers who see no hints.
+        told = port_names_hint() in text or misnamed_port_hints(settings.port) or "ics35 sim" in text
         return CliError(ExitCode.PORT, text, *([] if told else [f"list ports with: {port_names_hint()}"]))
     if isinstance(exc, errors.PortBusy):
         return CliError(ExitCode.PORT, text, "close the other program (another ics35, a serial monitor, ModemManager)")

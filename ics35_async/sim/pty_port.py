@@ -52,6 +52,7 @@ from typing import Any
 
 from ..errors import InvalidArgument
 from ..transports.platforms import SIM_PTY_DIR_PREFIX, SIM_PTY_NAME
+from ..transports.sim_link_lock import LinkInUse, LinkLock, NotALock, lock_path
 from ..user_files import empty_path
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2) on x86/arm
@@ -119,10 +120,12 @@ def _client_opened(master: int) -> bool:
     return not any(ev & select.POLLHUP for _, ev in poller.poll(0))
 
 
-def check_link_path(path: Path) -> None:
-    """Refuse a path the simulator's link may not take: one in no directory, one that is something else
-    than a link a simulator made (a file, a directory, another link), or a link to a pty still there
-    (a running simulator's; a killed one's link to a pty that is gone is taken over).
+def claim_link_path(path: Path) -> LinkLock:
+    """Take the lock of the simulator's link at ``path`` (see :mod:`~ics35_async.transports.sim_link_lock`), and
+    refuse a path the link may not take: one in no directory, one a running simulator serves, one that is
+    something else than a link a simulator made (a file, a directory, another link), or a link to a pty still
+    there that no lock tells about (one made by hand, or by a simulator that kept no lock: it may be served).
+    A link a killed simulator left (its lock unheld, or its pty gone) is taken over.
 
     The link is replaced while the simulator runs and removed when it stops, so a wrong path would
     destroy what was there.  (Its ``.new`` sibling, the link made before it takes the path, alike.)
@@ -136,21 +139,41 @@ def check_link_path(path: Path) -> None:
         raise InvalidArgument(f"no such directory for the link: {path.parent} (in {path})")
     if not os.access(path.parent, os.W_OK):
         raise InvalidArgument(f"no right to make the link in {path.parent} (in {path})")
-    for taken in (path, path.with_name(path.name + ".new")):
-        if not (taken.exists() or taken.is_symlink()):
-            continue
-        if not _pty_link(taken):
-            raise InvalidArgument(
-                f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
-            )
-        if taken.exists():  # (its pty is there: a simulator, or whatever holds that pty now, serves it)
-            pts = os.readlink(taken)
-            holder = _pty_holder(pts)
-            held = f", which {holder} holds" if holder else ""
-            raise InvalidArgument(
-                f"{taken} is in use: it leads to {pts}{held} (choose another path; if no simulator serves it, "
-                "a killed one left the link and the pty was reused since: remove it)"
-            )
+    try:
+        lock = LinkLock.claim(path)
+    except LinkInUse as exc:
+        serving = f"a running simulator (process {exc.pid})" if exc.pid else "a running simulator"
+        raise InvalidArgument(f"{path} is in use: {serving} serves it (choose another path, or stop it)") from None
+    except NotALock as exc:
+        raise InvalidArgument(
+            f"{exc} exists and is not a simulator's lock: refusing to replace it (choose another path)"
+        ) from None
+    except OSError as exc:
+        raise InvalidArgument(f"cannot make the link's lock {lock_path(path)}: {exc.strerror}") from None
+    try:
+        for taken in (path, path.with_name(path.name + ".new")):
+            _check_link_taken(taken, lock.found)
+    except BaseException:
+        lock.release(remove=not lock.found)
+        raise
+    return lock
+
+
+def _check_link_taken(taken: Path, killed: bool) -> None:
+    """Refuse ``taken`` unless it is free or a link a simulator left (``killed``: its lock was there, unheld)."""
+    if not (taken.exists() or taken.is_symlink()):
+        return
+    if not _pty_link(taken):
+        raise InvalidArgument(
+            f"{taken} exists and is not a simulator's link: refusing to replace it (choose another path)"
+        )
+    if taken.exists() and not killed:  # (its pty is there: a simulator, or whatever holds that pty now, serves it)
+        pts = os.readlink(taken)
+        holder = _pty_holder(pts)
+        held = f", which {holder} holds" if holder else ""
+        raise InvalidArgument(
+            f"{taken} is in use: it leads to {pts}{held} (choose another path; if no simulator serves it, remove it)"
+        )
 
 
 def _pty_holder(pts: str, proc: Path = Path("/proc")) -> str | None:
@@ -196,11 +219,12 @@ class PtyPort:
         if link is None:
             self._tmpdir: str | None = tempfile.mkdtemp(prefix=SIM_PTY_DIR_PREFIX)
             self.path = Path(self._tmpdir) / SIM_PTY_NAME
+            self._lock: LinkLock | None = None  # (a directory of its own: no other simulator comes there)
         else:
             self._tmpdir = None
             if empty_path(str(link)):
                 raise InvalidArgument("the path is empty: give the link's path (e.g. /tmp/ttyICS0)")
-            check_link_path(Path(link))
+            self._lock = claim_link_path(Path(link))
             # Absolute: the path printed is what another terminal, in another directory, opens as --port.
             self.path = Path(link).absolute()
         self.pts_name: str | None = None
@@ -251,8 +275,10 @@ class PtyPort:
         self.client_present = False
 
     def dispose(self) -> None:
-        """Close, and remove the private directory of the link, if any."""
+        """Close, let the link's lock go, and remove the private directory of the link, if any."""
         self.close()
+        if self._lock is not None:
+            self._lock.release()
         if self._tmpdir is not None:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
 

@@ -33,6 +33,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, check_link_url, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
+from .sim_link_lock import left_by_a_stopped_simulator
 from .wire_device import is_url, url_scheme
 
 log = logging.getLogger("ics35_async.transports")
@@ -105,16 +106,39 @@ def _dangling_link(port: str) -> str | None:
     return None
 
 
+_PTY_DIRS = ("/dev/pts/", "/dev/ttys")  # where a pty's node is: Linux, macOS
+
+
+def _check_not_left_by_a_killed_simulator(port: str) -> None:
+    """Refuse a simulator's link the simulator left as it was killed: its pty number may be another program's
+    now (a terminal's), which must hear no servo command."""
+    if not left_by_a_stopped_simulator(port):
+        return
+    pts = os.readlink(port)
+    now = "another program's pty now" if os.path.exists(pts) else "a pty that no longer exists"
+    raise PortNotFound(
+        errno.ENOENT,
+        f"no serial port at {port!r}: the simulator that made this link was killed and left it; it leads to {pts}, "
+        f"{now} (not opened; start the simulator again: ics35 sim --link {port} replaces the link)",
+    )
+
+
 def translate_open_error(port: str, exc: Exception) -> Exception:
     """Turn what pyserial raised into an error that says what to do."""
     code, winerror = _error_code(exc)
     if winerror in _WINERROR_NOT_FOUND or (winerror is None and code == errno.ENOENT):
         dangling = _dangling_link(port)
-        if dangling is not None:  # (a stopped simulator's --link, a udev link whose adapter is gone)
+        if dangling is not None and dangling.startswith(_PTY_DIRS):  # (a stopped simulator's --link)
             return PortNotFound(
                 errno.ENOENT,
-                f"no serial port at {port!r}: it is a link to {dangling}, which is not there (a simulator that "
-                f"stopped, or an adapter unplugged; {port_names_hint()})",
+                f"no serial port at {port!r}: it is a link to {dangling}, a pty that no longer exists (a simulator "
+                f"that stopped? start it again: ics35 sim --link {port})",
+            )
+        if dangling is not None:  # (a udev link whose adapter is gone)
+            return PortNotFound(
+                errno.ENOENT,
+                f"no serial port at {port!r}: it is a link to {dangling}, which is not there (an adapter unplugged; "
+                f"{port_names_hint()})",
             )
         misnamed = misnamed_port_hints(port)
         if misnamed:  # (sim:/?ids=1-3, ttyUSB0: the cable is not what to check)
@@ -181,6 +205,7 @@ def open_serial(port: str, baudrate: int, low_latency: bool, direction: str = "n
     }
     if is_device_path:
         settings["exclusive"] = True
+        _check_not_left_by_a_killed_simulator(port)
     try:
         try:
             ser = _serial_for_url(port, settings, rs485)
