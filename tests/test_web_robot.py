@@ -728,6 +728,54 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
     sim.named(name).close()
 
 
+def test_a_robot_line_missing_at_the_start_comes_with_reconnect_and_the_pages_follow_it(
+    tmp_path: Path, pty_sim: Any
+) -> None:
+    # The terminal said "press Reconnect on the Robot page" for the robot and "restart the command" for the pages
+    # that were to start on its first line: Reconnect, once the adapter is there, brings both.
+    link = tmp_path / "ttyArm"
+    path = tmp_path / "one.toml"
+    path.write_text(f'[lines.arm]\nport = "{link}"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    name = f"web-robot-{next(_names)}"
+    warned: list[str] = []
+    session = LineSession(LineConfig(port=f"sim://{name}?ids=2"))
+    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True, warn=warned.append)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        assert client.get("/api/status").json()["robot_line"] is None
+        assert len(warned) == 2 and not any("restart" in said for said in warned), warned
+        assert "press Reconnect on the Robot page" in warned[0], warned
+        assert f"the pages start on sim://{name}?ids=2 instead" in warned[1] and "Reconnect" in warned[1], warned
+        link.symlink_to(pty_sim("--ids", "1").path)  # the adapter plugged in
+        reopened = post(client, "/api/robot/reopen", {})
+        assert reopened.status_code == 200 and reopened.json()["open"], reopened.json()
+        status = client.get("/api/status").json()
+        assert status["robot_line"] == "arm" and status["port"] == str(link) and status["connected"], status
+        assert [s["id"] for s in post(client, "/api/scan").json()["servos"]] == [1]
+    sim.named(name).close()
+
+
+def test_a_port_chosen_while_the_robot_was_missing_stays_the_pages_at_reconnect(tmp_path: Path, pty_sim: Any) -> None:
+    # The pages follow the robot's first line only from where they stood in for it: a port the person chose
+    # meanwhile is theirs.
+    link = tmp_path / "ttyArm"
+    path = tmp_path / "one.toml"
+    path.write_text(f'[lines.arm]\nport = "{link}"\n[joints.shoulder]\nline = "arm"\nid = 1\n')
+    name = f"web-robot-{next(_names)}"
+    session = LineSession(LineConfig(port=f"sim://{name}?ids=2"))
+    app = create_app(session, TOKEN, robot=RobotSession(str(path)), line_from_robot=True)
+    with TestClient(app, base_url=BASE) as client:
+        client.cookies.set(COOKIE, TOKEN)
+        chosen = f"sim://{name}-chosen?ids=3"
+        assert post(client, "/api/connect", {"port": chosen}).json()["connected"]
+        link.symlink_to(pty_sim("--ids", "1").path)
+        assert post(client, "/api/robot/reopen", {}).json()["open"]
+        status = client.get("/api/status").json()
+        assert status["robot_line"] is None and status["port"] == chosen, status
+    sim.named(name).close()
+    sim.named(f"{name}-chosen").close()
+
+
 def test_the_robots_open_warnings_reach_the_servers_warn_not_a_raw_python_warning(tmp_path: Path) -> None:
     # A joint whose file allows more than its servo's EEPROM pulse limits: said as the command's other
     # start-up problems are, in its own words, not as a Python warning pointing into a library.

@@ -352,8 +352,11 @@ async def robot_motion(request: Request, session: LineSession) -> Any:
 async def robot_reopen(request: Request, session: LineSession) -> Any:
     robot = joints_of(request)
     await robot.reopen((await body(request)).get("lost_joints"))
-    if session.robot_line is not None and robot.robot is not None:
-        await session.use_robot_line(session.robot_line)  # the pages follow the line to the reopened robot
+    # The pages follow the line to the reopened robot (or go to the one they stood in for, the robot not open at
+    # the start).
+    line = session.robot_line or session.robot_line_to_come
+    if line is not None and robot.robot is not None:
+        await session.use_robot_line(line)
     return robot.view()
 
 

@@ -123,8 +123,8 @@ def create_app(
                 warn(robot.error)
                 if line_from_robot:
                     warn(
-                        f"the pages start on {session.config.port} instead: once the robot's lines are "
-                        "there, restart the command (or choose a port on the Line page)"
+                        f"the pages start on {session.config.port} instead: Reconnect on the Robot page, once the "
+                        "robot's lines are there, brings them to its first line (or choose a port on the Line page)"
                     )
         try:
             if robot is not None and robot.robot is not None and line_from_robot:
@@ -136,6 +136,8 @@ def create_app(
                 said = session.error or error_text(exc)  # (in the page's words: its Connect for a missing port)
                 there = "or choose another port there" if said.endswith(MISSING_AT_CONNECT) else None
                 warn(f"{session.config.port}: {said} ({there or 'choose another port on the Line page'})")
+        if robot is not None and robot.robot is None and line_from_robot:
+            session.robot_line_to_come = next(iter(robot.description.lines))
         try:
             yield
         finally:

@@ -195,6 +195,9 @@ class LineSession:
         self._looked: dict[tuple[int, int], NoReply] = {}  # (ID, the line's rate): what the other rates told
         self.robot: RobotSession | None = None  # the robot `ics35 web --robot` serves, if any
         self.robot_line: str | None = None  # the robot's line the pages work on (its bus is the robot's)
+        # The robot's line the pages were to start on, its robot not open at the start: they stand in on another
+        # port until Reconnect opens the robot, and go to that line then, unless a port was chosen meanwhile.
+        self.robot_line_to_come: str | None = None
 
     # ------------------------------------------------------------------ the line
 
@@ -318,6 +321,7 @@ class LineSession:
             self.bus = bus
             self.error = None
             self._looked = {}  # a Connect looks for a silent servo at the other rates again
+            self.robot_line_to_come = None  # (a port chosen: the pages stay there)
         return self.status()
 
     def _switch_to(self, config: LineConfig) -> None:
@@ -345,6 +349,7 @@ class LineSession:
             self._switch_to(replace(self.config, port=spec.port, baud=spec.baudrate))
             self.bus = bus
             self.robot_line = name
+            self.robot_line_to_come = None
             self.error = None
         return self.status()
 
