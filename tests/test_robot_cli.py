@@ -244,6 +244,20 @@ def test_play_looping_stopped_mid_pass_says_the_pass_its_status_line_said(
     assert f": {whole}, then {part};" in summary, result.out
 
 
+def test_play_looping_stopped_in_its_first_pass_names_the_pass(cli: Any, rig: tuple[Rig, Path], tmp_path: Path) -> None:
+    # Stopped in the first pass of a --loop, the status line said "pass 1" and the summary "0.5 s of 5.0 s played",
+    # as if it had not been looping: later passes' summaries name the pass stopped.
+    _, robot_file = rig
+    motion = write_motion(tmp_path / "m.json", {"time": 5.0, "pose": {"neck": 30}})
+    result = cli("play", str(robot_file), str(motion), "--loop", "--seconds", "0.5")
+    assert result.code == 0, result.err
+    status = [line for line in result.out.splitlines() if line.startswith("t=")][-1]
+    assert re.search(r"motion +[\d.]+/5\.0 s +pass 1 ", status), result.out
+    found = re.search(r"play time is up after [\d.]+ s: pass 1 of 5\.0 s stopped ([\d.]+) s in;", result.out)
+    assert found, result.out
+    assert 0.4 <= float(found[1]) <= 0.6
+
+
 @pytest.mark.parametrize(
     ("change", "code", "phrase"),
     [

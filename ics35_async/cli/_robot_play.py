@@ -151,7 +151,7 @@ def play(
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
     # Seconds into the pass stopped part-way, once a --loop has finished one: the status line showed that pass's
-    # number, so the summary names it too (a first pass stopped is told as the time played).
+    # number, so the summary names it too (a --loop's first pass stopped too; without --loop, the time played).
     unfinished: list[float] = []
     silent: list[str] = []  # the joints offline at the end (continue_on_offline): left as the summary does not say
     rejoined: list[str] = []  # the joints whose servo came back after going offline: given up, sent nothing since
@@ -315,7 +315,9 @@ def play(
         if unfinished:
             into = unfinished[0]
             what += f", then pass {passes + 1} stopped " + ("as it began" if into < 0.05 else f"{into:.1f} s in")
-    else:  # (stopped as it began: not "0.0 s", which reads as if nothing could have moved)
+    elif loop:  # (stopped as it began: not "0.0 s in", which reads as if nothing could have moved)
+        what = f"pass 1 of {length} stopped " + ("as it began" if played < 0.05 else f"{played:.1f} s in")
+    else:
         what = f"{'under 0.1' if played < 0.05 else f'{played:.1f}'} s of {length} played"
     left = "free (those it opened)" if on_stop == "free" else _left_holding(moved.joints, untargeted, found)
     # A servo that does not answer got neither the last targets nor the free: it is left as it last was told.
