@@ -1268,17 +1268,24 @@ def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_statu
     assert "Ctrl-C to stop" in " ".join(written.split()), said  # (the hint, as the view ran: wrapped, not cut)
 
 
-@pytest.mark.parametrize("columns", [120, 50])
-def test_monitors_title_spans_the_terminal_and_is_cut_with_an_ellipsis_only_on_a_narrower_one(columns: int) -> None:
+@pytest.mark.parametrize("columns", [120, 50, 40, 30])
+def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_and_its_rate(columns: int) -> None:
     # The title is wider than the table below it: it is drawn at the terminal's width, not the table's.  On a
-    # terminal narrower than the title it was cut at the last column with nothing to say so ("... at 115200"
-    # reads as the whole title, a port's name cut short as another port's).
+    # terminal narrower than the title it was cut at the last column ("... at 115200" read as the whole title),
+    # then with an ellipsis, which at 40 columns took what the servos are left in and, with a longer port's name,
+    # the line's rate: each part goes on a line of its own, the port's name cut at its start if it must be (its
+    # end, and the rate after it, are what tell one port from another).
     args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
     _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
     screen = [line for line in screen_of(written, width=columns) if line]
     said = "\n".join(screen)
     assert "Traceback" not in written, said
-    title = "monitor sim://?ids=1-3&realtime=1 at 115200 baud (ICS 3.5 servos free)"
-    titles = [line for line in screen if line.startswith("monitor sim://")]
-    expected = title if len(title) <= columns else title[: columns - 1] + "…"
-    assert titles == [expected], said
+    head, how = "monitor sim://?ids=1-3&realtime=1 at 115200 baud", "(ICS 3.5 servos free)"
+    top = next(k for k, line in enumerate(screen) if line.endswith(("baud", how)) and "scanning" not in line)
+    if len(f"{head} {how}") <= columns:
+        assert screen[top] == f"{head} {how}", said
+    else:
+        shown = head if len(head) <= columns else "…" + head[-(columns - 1) :]
+        assert screen[top : top + 2] == [shown, how], said
+        assert shown.endswith("realtime=1 at 115200 baud"), said
+    assert sum(line.endswith(("baud", how)) for line in screen) == (1 if len(f"{head} {how}") <= columns else 2), said

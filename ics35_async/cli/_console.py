@@ -52,19 +52,50 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
-def title_above(table: Table) -> Group:
+def title_above(table: Table, parts: Sequence[str] = ()) -> Group:
     """``table`` for a live view: its title taken off it and drawn on a line of its own above it, cut with an
-    ellipsis at the terminal's width where it is wider.  A table's own title is laid out at the table's width,
-    often narrower than the title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with
-    nothing to say so (a port's or a file's name cut short reads as another's).  (A table printed whole, into a
-    log, keeps its title.)"""
+    ellipsis at the terminal's width where it is wider (with ``parts``, its words in parts: see
+    :class:`_TitleInParts`).  A table's own title is laid out at the table's width, often narrower than the
+    title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a
+    port's or a file's name cut short reads as another's).  (A table printed whole, into a log, keeps its
+    title.)"""
     title, table.title = table.title, None
     if title is None:
         return Group(table)
-    line = Text.from_markup(title) if isinstance(title, str) else title
-    line.no_wrap = True
-    line.overflow = "ellipsis"
+    line = _cut_at_width(Text.from_markup(title) if isinstance(title, str) else title)
+    if parts:
+        return Group(_TitleInParts(line, [Text.from_markup(part) for part in parts]), table)
     return Group(line, table)
+
+
+def _cut_at_width(text: Text) -> Text:
+    text.no_wrap = True
+    text.overflow = "ellipsis"
+    return text
+
+
+class _TitleInParts:
+    """A title whole where the terminal is wide enough, else its ``parts`` each on a line of their own: the
+    first (what is watched: a port and its rate) cut at its start where it is still too wide, since a port's
+    name tells itself from another's by its end (``...-if00-port0``, ``?ids=1-3``) and the rate follows it, the
+    others at their end.  One line cut with an ellipsis lost whatever came last (what the servos are left in,
+    then the rate)."""
+
+    def __init__(self, whole: Text, parts: list[Text]) -> None:
+        self.whole = whole
+        self.parts = parts
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        width = options.max_width
+        if self.whole.cell_len <= width:
+            yield self.whole
+            return
+        first, *rest = self.parts
+        if first.cell_len > width:
+            first = Text("…").append_text(first[len(first) - max(0, width - 1) :])
+        yield _cut_at_width(first)
+        for part in rest:
+            yield _cut_at_width(part)
 
 
 class _Drawn:

@@ -101,7 +101,7 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            live.update(Group(title_above(state.table(telemetry, options.with_targets)), status))
+            live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title_parts), status))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))

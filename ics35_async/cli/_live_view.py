@@ -40,6 +40,9 @@ class LiveState:
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
     freed: bool = False  # the free at the end reached every streamed servo (a whole cycle carried it)
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
+    # The title's words in parts, each drawn on a line of its own where the terminal is narrower than the title
+    # (see title_above); none: cut with an ellipsis.
+    title_parts: tuple[str, ...] = ()
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
         self.positions.update(frame.positions)

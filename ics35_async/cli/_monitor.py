@@ -91,7 +91,8 @@ def monitor(
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",
                 )
             how = "ICS 3.5 servos free" if freed else "torque left alone"
-            state = LiveState(chosen, f"monitor {escape(shown)} at {settings.baud} baud ({how})", seconds)
+            watched, left = f"monitor {escape(shown)} at {settings.baud} baud", f"({how})"
+            state = LiveState(chosen, f"{watched} {left}", seconds, title_parts=(watched, left))
             state.no_position = missing
             if missing and not as_json:
                 for sid, why in missing.items():
