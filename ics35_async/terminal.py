@@ -86,7 +86,7 @@ def whole_writes(stream: IO[str]) -> IO[str]:
     )
 
 
-def clear_echoed_ctrl_c() -> None:
+def clear_echoed_ctrl_c(*, newline_on_stderr: bool = False) -> None:
     """After Ctrl-C, before anything more is written: the terminal echoed ``^C`` where the cursor was, and what
     comes next would follow it on that line (``^Cerror: interrupted``).
 
@@ -95,12 +95,15 @@ def clear_echoed_ctrl_c() -> None:
     in the foreground of (stderr's, else stdout's): a signal sent to a background process (``kill -INT``) echoes
     nothing, and the line where the cursor is then is the shell's, with what the person is typing; a file or a
     pipe gets nothing (not even where a setting such as ``FORCE_COLOR`` makes the output look like a terminal's).
+    ``newline_on_stderr``: a newline was written to stderr since the press (click's, as it takes a
+    KeyboardInterrupt): on that terminal the ``^C`` is on the line above, cleared too.
     """
     _echoed.clear()
     keep_last_words()
     for stream in (sys.stderr, sys.stdout):
         if in_foreground_of_terminal(stream):
-            stream.write(ERASE_LINE)
+            above = newline_on_stderr and stream is sys.stderr
+            stream.write(ERASE_LINE + ("\x1b[1A" + ERASE_LINE if above else ""))
             stream.flush()
             return
 

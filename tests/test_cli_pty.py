@@ -1211,6 +1211,37 @@ def test_work_a_forced_out_command_started_and_never_ran_is_not_reported_on_scre
     assert done.stderr == "", done.stderr
 
 
+# Ctrl-C typed while `ics35 web` loads what it serves with (the web extra's modules, a good part of a second),
+# before it takes Ctrl-C as its stop: a hook holds it there.
+_WEB_LOADING = """
+import sys, time
+import ics35_async.web
+from ics35_async.cli import main
+
+load_token = ics35_async.web.load_token
+
+def loading(*args, **kwargs):
+    print("loading", flush=True)
+    time.sleep(30)  # Ctrl-C typed here
+    return load_token(*args, **kwargs)
+
+ics35_async.web.load_token = loading
+main(sys.argv[1:])
+"""
+
+
+def test_ctrl_c_as_web_loads_leaves_no_echoed_ctrl_c_above_its_last_words() -> None:
+    # click, taking the KeyboardInterrupt, writes a newline to stderr before the command line says "interrupted":
+    # the ^C the terminal echoed was left on a line of its own above it, which the clearing of the line that
+    # every other stop does (the line below, empty) did not reach.
+    code, written = typed_on_a_terminal(["web", "--no-browser"], [("loading", b"\x03")], script=_WEB_LOADING)
+    screen = [line for line in screen_of(written) if line]
+    said = "\n".join(screen)
+    assert code == 130 and "Traceback" not in written, said
+    assert screen[-2:] == ["loading", "interrupted"], said
+    assert "^C" in written  # (the terminal echoed it: the scene)
+
+
 NARROW = 60  # columns: fewer than a live view's status line with its hint
 
 

@@ -173,8 +173,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         from ._console import fail
 
         fail(_stopped_by_signal(exc))
-    except click.exceptions.Abort:  # (click's form of a KeyboardInterrupt outside a command's handling)
-        _interrupted("interrupted")  # (a Ctrl-C has one name wherever it lands, not click's "aborted")
+    except click.exceptions.Abort as exc:  # (click's form of a KeyboardInterrupt outside a command's handling)
+        # (a Ctrl-C has one name wherever it lands, not click's "aborted"; click wrote a newline on stderr first)
+        _interrupted("interrupted", newline_on_stderr=isinstance(exc.__cause__, KeyboardInterrupt))
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
@@ -201,14 +202,15 @@ def main(argv: Sequence[str] | None = None) -> None:
 _SIGNAL_CODES = {int(code) - 128: code for code in (ExitCode.HANGUP, ExitCode.TERMINATED)}
 
 
-def _interrupted(word: str) -> NoReturn:
-    """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code."""
+def _interrupted(word: str, *, newline_on_stderr: bool = False) -> NoReturn:
+    """Ctrl-C (or a stop signal) outside a command's own handling: one line, the signal's exit code.
+    ``newline_on_stderr``: written there since the press (see clear_echoed_ctrl_c)."""
     _signals.same_stop_for_a_moment()
     stopped = _stopped_by_signal(CliError(ExitCode.INTERRUPTED, word))
     if stopped.code == ExitCode.INTERRUPTED:
         from ..terminal import clear_echoed_ctrl_c
 
-        clear_echoed_ctrl_c()
+        clear_echoed_ctrl_c(newline_on_stderr=newline_on_stderr)
     click.echo(stopped.message, err=True)
     sys.exit(int(stopped.code))
 

@@ -118,8 +118,10 @@ def typed_on_a_terminal(
     stdout: Path | None = None,
     columns: int = 120,
     env: dict[str, str] | None = None,
+    script: str | None = None,
 ) -> tuple[int, str]:
-    """``python -m ics35_async.cli ARGS`` with a pty as its controlling terminal (stdin, stdout and stderr), as
+    """``python -m ics35_async.cli ARGS`` (``python -c script ARGS`` with ``script``) with a pty as its controlling
+    terminal (stdin, stdout and stderr), as
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
     ``when`` seconds (an :class:`Unread`'s reading nothing), or until ``when()`` is true (e.g. a line in the
     ``stdout`` file), then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
@@ -142,7 +144,7 @@ def typed_on_a_terminal(
 
     output = None if stdout is None else stdout.open("wb")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ics35_async.cli", *args],
+        [sys.executable, *(["-m", "ics35_async.cli"] if script is None else ["-c", script]), *args],
         stdin=slave,
         stdout=slave if output is None else output,
         stderr=slave,
