@@ -440,6 +440,8 @@ def test_a_running_simulators_link_is_refused_naming_it(tmp_path: Path) -> None:
         said = " ".join(proc.stderr.split())
         assert proc.returncode == 2 and f"simulator (process {first.pid})" in said, said
         assert os.readlink(link) == pts
+        # Its lock left as it was: a third is refused too.
+        assert run_sim("--link", str(link)).returncode == 2
 
 
 def test_a_killed_simulators_link_to_a_since_reused_pty_is_not_opened(tmp_path: Path) -> None:

@@ -72,6 +72,7 @@ class LinkLock:
         while True:
             found = os.path.lexists(path)
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+            held = False
             try:
                 text = os.read(fd, 64).decode("ascii", "replace")
                 if not _is_a_simulators_lock(text):
@@ -84,6 +85,7 @@ class LinkLock:
                         time.sleep(0.02)
                         continue
                     raise LinkInUse(_holder_pid(text)) from None
+                held = True
                 # A simulator that stopped removes the file after we opened it: its inode is no lock anyone sees.
                 with contextlib.suppress(FileNotFoundError):
                     if os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino:
@@ -92,11 +94,13 @@ class LinkLock:
                         return cls(fd, path, found)
                 os.close(fd)
             except BaseException:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-                if not found:
+                # A file made here goes again, but only while held: unheld, another simulator may have it open
+                # already, and would hold a lock no one else sees.
+                if held and not found:
                     with contextlib.suppress(OSError):
                         os.unlink(path)
+                with contextlib.suppress(OSError):
+                    os.close(fd)
                 raise
 
     def release(self, remove: bool = True) -> None:
