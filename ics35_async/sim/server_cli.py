@@ -123,7 +123,11 @@ def build_parser(
     )
     parser.add_argument("--record", default=None, help="record the session to this file")
     parser.add_argument("--replay", default=None, help="serve this recording instead of a simulated line")
-    parser.add_argument("--link", default=None, help="path of the symlink to create (default: in a temp dir)")
+    parser.add_argument(
+        "--link",
+        default=None,
+        help="path of the symlink to create, with its lock PATH.lock beside it (default: in a temp dir)",
+    )
     parser.add_argument(
         "--fixed-baud", action="store_true", help="ignore the client's baud rate; the line runs at --baud"
     )
