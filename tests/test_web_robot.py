@@ -728,6 +728,7 @@ def test_a_robot_whose_line_is_missing_is_told_in_words_and_the_pages_say_where_
     sim.named(name).close()
 
 
+@pytest.mark.pty
 def test_a_robot_line_missing_at_the_start_comes_with_reconnect_and_the_pages_follow_it(
     tmp_path: Path, pty_sim: Any
 ) -> None:
@@ -755,6 +756,7 @@ def test_a_robot_line_missing_at_the_start_comes_with_reconnect_and_the_pages_fo
     sim.named(name).close()
 
 
+@pytest.mark.pty
 def test_a_port_chosen_while_the_robot_was_missing_stays_the_pages_at_reconnect(tmp_path: Path, pty_sim: Any) -> None:
     # The pages follow the robot's first line only from where they stood in for it: a port the person chose
     # meanwhile is theirs.
