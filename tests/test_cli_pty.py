@@ -1221,7 +1221,8 @@ from ics35_async.cli import main
 load_token = ics35_async.web.load_token
 
 def loading(*args, **kwargs):
-    print("loading", flush=True)
+    sys.stdout.write("loading\\n")  # (one write: print's two, unbuffered, let the press land between them)
+    sys.stdout.flush()
     time.sleep(30)  # Ctrl-C typed here
     return load_token(*args, **kwargs)
 
