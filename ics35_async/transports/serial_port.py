@@ -33,7 +33,7 @@ except ImportError:  # no POSIX terminals (Windows): nothing raises termios.erro
 from .direction import check_direction, is_rs485_refusal, refused, rs485_settings
 from .links import carries_line_settings, check_link_url, set_no_delay, warn_once_if_rate_blind
 from .platforms import is_pty, misnamed_port_hints, permission_hint, port_names_hint
-from .sim_link_lock import left_by_a_stopped_simulator
+from .sim_link_lock import PTY_DIRS, left_by_a_stopped_simulator
 from .wire_device import is_url, url_scheme
 
 log = logging.getLogger("ics35_async.transports")
@@ -106,9 +106,6 @@ def _dangling_link(port: str) -> str | None:
     return None
 
 
-_PTY_DIRS = ("/dev/pts/", "/dev/ttys")  # where a pty's node is: Linux, macOS
-
-
 def _check_not_left_by_a_killed_simulator(port: str) -> None:
     """Refuse a simulator's link the simulator left as it was killed: its pty number may be another program's
     now (a terminal's), which must hear no servo command."""
@@ -128,7 +125,7 @@ def translate_open_error(port: str, exc: Exception) -> Exception:
     code, winerror = _error_code(exc)
     if winerror in _WINERROR_NOT_FOUND or (winerror is None and code == errno.ENOENT):
         dangling = _dangling_link(port)
-        if dangling is not None and dangling.startswith(_PTY_DIRS):  # (a stopped simulator's --link)
+        if dangling is not None and dangling.startswith(PTY_DIRS):  # (a stopped simulator's --link)
             return PortNotFound(
                 errno.ENOENT,
                 f"no serial port at {port!r}: it is a link to {dangling}, a pty that no longer exists (a simulator "

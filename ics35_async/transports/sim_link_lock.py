@@ -14,6 +14,8 @@ import os
 import time
 from pathlib import Path
 
+PTY_DIRS = ("/dev/pts/", "/dev/ttys")  # where a pty's node is: Linux, macOS
+
 # How long a starting simulator tries for a lock a client holds for an instant, to look (see
 # :func:`left_by_a_stopped_simulator`), before taking it to be a running simulator's.
 _CLAIM_PATIENCE = 0.3
@@ -124,7 +126,7 @@ def left_by_a_stopped_simulator(link: str) -> bool:
         return False
     path = lock_path(Path(link))
     try:
-        if not os.readlink(link).startswith(("/dev/pts/", "/dev/ttys")):
+        if not os.readlink(link).startswith(PTY_DIRS):
             return False
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     except OSError:
