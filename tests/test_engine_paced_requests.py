@@ -16,10 +16,12 @@ import pytest
 
 from ics35_async import protocol
 from ics35_async.engine import BusTiming, LineEngine, Priority
+from ics35_async.engine.probe import FLOOR as STREAM_WAIT_FLOOR
+from ics35_async.engine.probe import STREAM_RESYNC
 from ics35_async.errors import ReplyTimeout
 from tests.support.engine_support import BAUD as BAUD_115200
 from tests.support.engine_support import FakeSource, Recorded, Servos, Wire, misattributed, ready_engine
-from tests.support.paced_line import BAUD, IDS, PERIOD, PacedCycle, Telemetry, run_with_telemetry
+from tests.support.paced_line import BAUD, IDS, PERIOD, DroppingServos, PacedCycle, Telemetry, run_with_telemetry
 
 ADAPTER_3MS = BusTiming(adapter_latency=0.003)  # the control-loop page's line (an adapter's latency timer at 1 ms)
 TIMINGS = pytest.mark.parametrize("timing", [ADAPTER_3MS, BusTiming()], ids=["adapter 3 ms", "adapter 20 ms"])
@@ -56,6 +58,48 @@ def test_a_read_fitted_into_the_slack_whose_reply_is_lost_leaves_the_next_cycle_
     assert isinstance(read.error, ReplyTimeout) and wire.writes[read.write_index][0] == slot - before_slot
     late = source.late[cycles]
     assert late < PERIOD / 2, f"the cycle after the read started {late * 1e3:.1f} ms after its slot"
+
+
+@TIMINGS
+@pytest.mark.parametrize("before_slot", [0.003, 0.002, 0.001])
+def test_a_read_fitted_into_the_slack_whose_reply_is_lost_gives_up_at_the_slot(
+    timing: BusTiming, before_slot: float
+) -> None:
+    # It fitted with a margin over what this line's answers take, so by the slot its reply is overdue: waiting
+    # on (its allowance, or the stream's learnt wait) would only start the cycle later, by what that wait has
+    # left.  Given up at the slot, the cycle waits only for the stream's short resync.
+    wire, source, servos = paced_stream(timing)
+    slot = source.t0 + source.cycle * PERIOD
+    wire.run_until(slot - before_slot)
+    cycles = len(source.late)
+    servos.mute.add(len(servos.answers))  # the next write, the read's: its echo comes, no reply
+    read = Recorded(protocol.ReadParam(3, protocol.Param.TEMPERATURE), wire=wire)
+    wire.submit(read)
+    wire.run_until(slot + 5 * PERIOD)
+    assert isinstance(read.error, ReplyTimeout) and wire.writes[read.write_index][0] == slot - before_slot
+    late = source.late[cycles]
+    assert late <= STREAM_RESYNC + 1e-9, f"the cycle after the read started {late * 1e3:.2f} ms after its slot"
+
+
+def test_a_read_that_did_not_fit_the_slack_waits_its_whole_wait() -> None:
+    # A stream whose cycles run past their slots leaves no slack: a read goes only once passed over in two
+    # slots, delaying a cycle by design; the overdue slot is no reason to give up on it sooner.
+    engine = LineEngine(baudrate=BAUD, timing=ADAPTER_3MS)
+    assert engine.connected(0.0) is None
+    servos = DroppingServos(IDS, 1.0, seed=1, reads_only=True)  # every read's reply lost, the stream's all come
+    wire = Wire(engine, servos)
+    source = PacedCycle(IDS, 0.002)  # twelve transactions take longer than that
+    wire.emit(engine.attach_source(source, 0.0))
+    wire.run_until(0.3)
+    read = Recorded(protocol.ReadParam(3, protocol.Param.TEMPERATURE), wire=wire)
+    wire.submit(read)
+    wire.run_until(0.4)
+    assert isinstance(read.error, ReplyTimeout)
+    t_sent, tx = wire.writes[read.write_index]
+    waited = wire.writes[read.write_index + 1][0] - t_sent
+    nbytes = len(tx) + read.command.reply_len
+    allowance = engine.timing.allowance(nbytes, engine.baudrate)
+    assert waited >= min(allowance, protocol.wire_time(nbytes, BAUD) + STREAM_WAIT_FLOOR) - 1e-9
 
 
 @TIMINGS
