@@ -48,7 +48,9 @@ The rules, each in one place:
   once nothing more follows (``LineEngine._hold``);
 * reads in a paced stream's slack: a read (a command that changes nothing)
   below ``URGENT``, whose silence is no answer, beside a stream with a rate
-  waits as the stream's transactions do; timed out with its echo and nothing
+  waits as the stream's transactions do, and, once its echo is in, no later
+  than the slot it was fitted before (``LineEngine._slack_left``: its reply is
+  overdue by then); timed out with its echo and nothing
   more, after the stream's short resync its first byte (command and ID) is
   held back as a stream transaction's servo is, whether or not it waited less
   than its full allowance (a retry or another command starting so waits, the

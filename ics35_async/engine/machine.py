@@ -729,6 +729,8 @@ class LineEngine:
             # take, and a failure holds it back rather than the line (see _hold).
             self._read_in_slack = req is not None
             wait = self._stream_wait(nbytes, allowance, self.answers.stream_latency)
+            if req is not None:
+                wait = min(wait, self._slack_left(nbytes, now))
             if wait < allowance:
                 self._short = True
                 allowance = wait
@@ -756,6 +758,22 @@ class LineEngine:
             and source is not None
             and source.slot_due(now) is not None
         )
+
+    def _slack_left(self, nbytes: int, now: float) -> float:
+        """How long a read in a paced stream's slack (see _in_slack) of ``nbytes`` waits at most: until the slot
+        it was fitted before (see _fits_before).
+
+        It fitted with its wire time, what this line's answers usually take and a margin, so by the slot its
+        reply is overdue; waiting on would start the cycle later by what its wait has left.  A reply that still
+        comes is held off as after the stream's own short wait (see _hold).  A read that went without fitting
+        (passed over in two slots, or before anything answered) delays the cycle by design: no limit (inf).
+        """
+        source = self._source
+        due = None if source is None else source.slot_due(now)
+        beyond_wire = self.answers.expected
+        if due is None or beyond_wire < 0 or now + (self._wire_time(nbytes) + beyond_wire + FIT_MARGIN) > due:
+            return INF
+        return due - now
 
     def _stream_wait(self, nbytes: int, allowance: float, latency: float | None) -> float:
         """How long a stream transaction of ``nbytes`` waits, given its full allowance.
