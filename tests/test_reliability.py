@@ -23,6 +23,7 @@ from benchmarks.soak.chaos import ChaosWorkload, chaos_soak
 from benchmarks.soak.common import consistency_check, fault_spec, served_on_a_pty
 from benchmarks.soak.unplug import new_unplug_tally, no_reconnect_session, reconnect_session, tally_request
 from ics35_async import BusClosed, Frame, Param, PortLost, ReplyError, ReplyTimeout, open_bus, protocol
+from ics35_async.bus import RECONNECT_BACKOFF
 from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw
 from tests.support.fuzzing import valid_value
@@ -463,6 +464,30 @@ def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -
     worst_wait = max(bus.reconnect_backoff)
     reopen_and_first_frame = 0.05  # generous: measured 2-30 ms over a pty
     assert worst_wait + reopen_and_first_frame < 1.0
+
+
+@pytest.mark.parametrize(
+    ("backoff", "after_replug"), [((0.05,), 0.03), (RECONNECT_BACKOFF, 0.13)], ids=["50 ms", "default"]
+)
+async def test_a_stream_resumes_at_the_first_reconnect_attempt_after_its_port_is_back(
+    backoff: tuple[float, ...], after_replug: float
+) -> None:
+    # The reconnect schedule alone sets how soon a stream is back: the port returns 0.22 s after the loss, between
+    # two attempts (every 50 ms: at 0.25 s; the default 0.05, 0.1, 0.2: at 0.35 s), clear of both.  What the
+    # control-loop page's example sets, and what it says the default costs.
+    sim = VirtualLine([VirtualServo(i) for i in (1, 2, 3)])
+    events: dict[bool, float] = {}
+    sim.add_listener(lambda plugged: events.setdefault(plugged, time.monotonic()))
+    async with (
+        open_bus(sim, reconnect=True, reconnect_backoff=backoff) as bus,
+        bus.stream([1, 2, 3], rate_hz=100) as stream,
+    ):
+        await stream.next_frame()
+        sim.unplug(replug_after=0.22)
+        while not (frame := await stream.next_frame()).resumed:
+            pass
+    late = frame.started - events[True]
+    assert after_replug - 0.01 <= late <= after_replug + 0.05, f"resumed {late * 1e3:.0f} ms after the port was back"
 
 
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
