@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, NoReturn, TypeVar, Unpack
 from . import protocol
 from .drivers.choice import DRIVERS, Driver, make_driver
 from .drivers.clock import now
-from .drivers.settings import LineSettings
+from .drivers.settings import RECONNECT_BACKOFF, LineSettings
 from .eeprom import FACTORY_BAUD
 from .engine import BackgroundSource, BusTiming, LineEngine, Priority, RequestHandle, State, TimingOverrides
 from .engine.machine import ANOTHER_STREAM
@@ -49,9 +49,6 @@ log = logging.getLogger("ics35_async")
 T = TypeVar("T")
 
 _URGENT, _LOW = int(Priority.URGENT), int(Priority.LOW)  # per request: no enum lookups on the way
-
-# Delays between reopen attempts; capped well under 1 s so a returning port is found fast.
-RECONNECT_BACKOFF = (0.05, 0.1, 0.2, 0.4)
 
 
 class BusOptions(TimingOverrides, total=False):
@@ -97,7 +94,7 @@ class BusOptions(TimingOverrides, total=False):
     request fails at once with ``PortLost`` and a stream pauses (it resumes once the port is back);
     to wait for the port, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
     reconnect_backoff: Sequence[float]
-    """Seconds between reopen attempts after a loss; the last repeats (default 0.05, 0.1, 0.2, 0.4)."""
+    """Seconds between reopen attempts after a loss; the last repeats (default 0.05, then every 0.1)."""
     max_requests_between: int
     """At most this many requests (1..10000, default 16) run between two of a stream's transactions."""
     direction: str | None

@@ -467,14 +467,16 @@ def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -
 
 
 @pytest.mark.parametrize(
-    ("backoff", "after_replug"), [((0.05,), 0.03), (RECONNECT_BACKOFF, 0.13)], ids=["50 ms", "default"]
+    ("backoff", "after_replug"),
+    [((0.05,), 0.03), (RECONNECT_BACKOFF, 0.03), ((0.05, 0.1, 0.2, 0.4), 0.13)],
+    ids=["50 ms", "default", "backing off to 0.4 s"],
 )
 async def test_a_stream_resumes_at_the_first_reconnect_attempt_after_its_port_is_back(
     backoff: tuple[float, ...], after_replug: float
 ) -> None:
     # The reconnect schedule alone sets how soon a stream is back: the port returns 0.22 s after the loss, between
-    # two attempts (every 50 ms: at 0.25 s; the default 0.05, 0.1, 0.2: at 0.35 s), clear of both.  What the
-    # control-loop page's example sets, and what it says the default costs.
+    # two attempts (every 50 ms: at 0.25 s; the default, 0.05 then every 0.1: at 0.25 s too; 0.05, 0.1, 0.2: at
+    # 0.35 s), clear of both.  A robot's stream is back within a tenth of a second of its adapter.
     sim = VirtualLine([VirtualServo(i) for i in (1, 2, 3)])
     events: dict[bool, float] = {}
     sim.add_listener(lambda plugged: events.setdefault(plugged, time.monotonic()))

@@ -37,7 +37,7 @@ MISSING_AT_OPEN = (
     " the adapter in, then press Reconnect on the Robot page"
 )
 # How long Reconnect waits for a lost line that the robot reopens by itself (a reconnect delay: RECONNECT_BACKOFF's
-# longest, 0.4 s, with room for a loaded machine) before it says the line is still lost.
+# longest, 0.1 s, with room for a loaded machine and a port slow to open) before it says the line is still lost.
 RECONNECT_WAIT = 2.0
 
 
