@@ -49,12 +49,13 @@ COMMAND_MODULES = {
     "play": "_robot_play",
     "teach": "_robot_teach",
     "calibrate": "_robot_teach",
+    "check": "_robot_check",
     "web": "_web",
 }
 # Commands that pass their arguments through untouched get no line options after them.
 PASS_THROUGH = frozenset({"sim"})
 # Commands that open no line: no line options after them either.
-NO_LINE = frozenset({"ports", "udev"})
+NO_LINE = frozenset({"ports", "udev", "check"})
 
 
 class LazyGroup(click.Group):

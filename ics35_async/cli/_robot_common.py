@@ -31,14 +31,17 @@ from ..errors import (
 )
 from ..robot import (
     LineSpec,
+    Motion,
     Robot,
     RobotBlock,
     RobotDescription,
     RobotWarning,
     SafetyStop,
     load_description,
+    load_motion,
     open_robot,
 )
+from ..robot.motion import MotionError, check_motion
 from ..transports.wire_device import url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
@@ -68,6 +71,20 @@ def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
 def load_robot_file(path: str) -> RobotDescription:
     """The checked description, or a usage error (exit code 2) naming the file and key."""
     return load_input_file(path, "ROBOT.toml", load_description)
+
+
+def load_motion_file(path: str, description: RobotDescription) -> Motion:
+    """The motion, checked against the robot's joints and limits before any port opens (a robot that
+    starts frees its joints), or a usage error (exit code 2) naming the file and key."""
+
+    def load(source: str) -> Motion:
+        motion = load_motion(source)
+        check_motion(description, motion, source)
+        if not motion.joints:  # (one taught with every servo silent): play would open no joint, and play nothing
+            raise MotionError(source, "", "the motion moves no joint (every keyframe's pose is empty): nothing to play")
+        return motion
+
+    return load_input_file(path, "MOTION.json", load)
 
 
 def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:

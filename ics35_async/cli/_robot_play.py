@@ -18,8 +18,8 @@ import click
 from rich.markup import escape
 
 from ..errors import BusClosed, IcsError, InvalidArgument, PortLost, UnsafeOperation
-from ..robot import Motion, MotionStopped, Robot, RobotDescription, load_motion
-from ..robot.motion import SPEEDS, MotionError, check_motion, check_pace
+from ..robot import Motion, MotionStopped, Robot, RobotDescription
+from ..robot.motion import SPEEDS, check_pace
 from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
@@ -28,7 +28,7 @@ from ._robot_common import (
     Opening,
     chosen_joints,
     first_pose,
-    load_input_file,
+    load_motion_file,
     load_robot_file,
     note_ports,
     robot_options,
@@ -38,20 +38,6 @@ from ._robot_common import (
 from ._robot_view import Screen, cycles_text, joint_table
 from ._signals import stop_name
 from ._start_pose import parse_start_pose, start_pose_option
-
-
-def load_motion_file(path: str, description: RobotDescription) -> Motion:
-    """The motion, checked against the robot's joints and limits before any port opens (a robot that
-    starts frees its joints), or a usage error (exit code 2) naming the file and key."""
-
-    def load(source: str) -> Motion:
-        motion = load_motion(source)
-        check_motion(description, motion, source)
-        if not motion.joints:  # (one taught with every servo silent): play would open no joint, and play nothing
-            raise MotionError(source, "", "the motion moves no joint (every keyframe's pose is empty): nothing to play")
-        return motion
-
-    return load_input_file(path, "MOTION.json", load)
 
 
 def motion_joints(description: RobotDescription, motion: Motion, text: str | None, motion_file: str) -> Motion:

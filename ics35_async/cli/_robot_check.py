@@ -1,0 +1,150 @@
+"""ics35 check ROBOT.toml [MOTION.json]...: a robot file, and motions against it, checked with no port opened.
+
+What ``play``, ``teach`` and ``calibrate`` check before they open anything (the library's
+``load_description`` and ``check_motion``), on its own: for editing a robot file away from the robot, or
+before the first power-up, with what the file says written out (the lines, each joint's servo and limits,
+what a safety trip does).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+from rich.markup import escape
+from rich.padding import Padding
+from rich.table import Table
+
+from ..robot import Motion, RobotDescription
+from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
+from ..units import shown
+from ._common import emit_json, id_ranges, json_option, out
+from ._robot_common import load_motion_file, load_robot_file
+
+# What a safety trip does, by [safety] action (see the robot-files page).
+TRIP_DOES = {
+    "free": "the joint that tripped goes free, the others keep their last targets",
+    "hold": "every joint keeps its last target",
+    "stop": "every joint goes free",
+}
+
+
+def _plural(count: int, word: str) -> str:
+    return f"{count} {word}{'' if count == 1 else 's'}"
+
+
+def _whole_travel(joint: JointSpec) -> bool:
+    """Limits at the servo's whole travel: the file gives none (never calibrated?)."""
+    ends = sorted(joint.joint_degrees(e) for e in (-SERVO_DEGREES, SERVO_DEGREES))
+    return abs(joint.min - ends[0]) < 1e-9 and abs(joint.max - ends[1]) < 1e-9
+
+
+def safety_text(safety: SafetySpec) -> str:
+    """What trips the robot's safety watch and what a trip does, in words."""
+    crossings = []
+    if safety.max_temperature_c is not None:
+        crossings.append(f"above {shown(safety.max_temperature_c)} °C (approximate)")
+    if safety.max_current is not None:
+        crossings.append(f"a current reading above {safety.max_current}")
+    if not safety.continue_on_offline:
+        crossings.append("a servo going offline")
+    if not crossings:
+        return "safety: no limit set, and a motion plays on without a servo gone offline"
+    return f"safety: {', or '.join(crossings)}: motions end and {TRIP_DOES[safety.action]} (action = {safety.action})"
+
+
+def robot_json(description: RobotDescription) -> dict[str, Any]:
+    safety = description.safety
+    return {
+        "file": description.source,
+        "name": description.name,
+        "lines": [
+            {"name": line.name, "port": line.port, "baudrate": line.baudrate, "rate_hz": line.rate_hz}
+            for line in description.lines.values()
+        ],
+        "joints": [
+            {
+                "name": joint.name,
+                "line": joint.line,
+                "id": joint.id,
+                "reverse": joint.reverse,
+                "offset": joint.offset,
+                "min": joint.min,
+                "max": joint.max,
+            }
+            for joint in description.joints.values()
+        ],
+        "safety": {
+            "max_temperature_c": safety.max_temperature_c,
+            "max_current": safety.max_current,
+            "action": safety.action,
+            "continue_on_offline": safety.continue_on_offline,
+        },
+        "whole_travel": [joint.name for joint in description.joints.values() if _whole_travel(joint)],
+    }
+
+
+def motion_json(path: str, motion: Motion) -> dict[str, Any]:
+    return {"file": path, "keyframes": len(motion.keyframes), "duration_s": motion.duration, "joints": motion.joints}
+
+
+def show_robot(path: str, description: RobotDescription) -> None:
+    lines, joints = description.lines, description.joints
+    called = f"robot {escape(description.name)}, " if description.name else ""
+    counts = f"{_plural(len(lines), 'line')}, {_plural(len(joints), 'joint')}"
+    out.print(f"{escape(path)}: {called}{counts} (no port opened)")
+    for line in lines.values():
+        rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
+        ids = id_ranges(joint.id for joint in description.joints_on(line.name))
+        out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, IDs {ids}")
+    table = Table("joint", "line", "ID", "reverse", "offset°", "min°", "max°", box=None, pad_edge=False)
+    for joint in joints.values():
+        table.add_row(
+            escape(joint.name),
+            escape(joint.line),
+            str(joint.id),
+            "reversed" if joint.reverse else "",
+            shown(joint.offset),
+            shown(joint.min),
+            shown(joint.max),
+        )
+    out.print(Padding(table, (0, 0, 0, 2), expand=False))
+    whole = [joint.name for joint in joints.values() if _whole_travel(joint)]
+    if whole:
+        out.print(
+            f"  {escape(', '.join(whole))}: {'its limits are' if len(whole) == 1 else 'their limits are each'} the "
+            "servo's whole travel (no min or max in the file: ics35 calibrate finds a joint's own)"
+        )
+    out.print(f"  {safety_text(description.safety)}")
+
+
+@click.command()
+@click.argument("robot_file", metavar="ROBOT.toml")
+@click.argument("motion_files", metavar="[MOTION.json]...", nargs=-1)
+@json_option
+def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
+    """Check a robot file, and motions against it, with no port opened.
+
+    \b
+    ics35 check robot.toml                 its lines, joints, limits and safety, written out
+    ics35 check robot.toml wave.json ...   and each motion: its joints known, every angle within limits
+
+    What play, teach and calibrate check before they open anything; a file that breaks a rule is named with
+    its key (exit code 2).
+    """
+    description = load_robot_file(robot_file)
+    motions = [(path, load_motion_file(path, description)) for path in motion_files]
+    if as_json:
+        emit_json({"robot": robot_json(description), "motions": [motion_json(p, m) for p, m in motions]})
+        return 0
+    show_robot(robot_file, description)
+    for path, motion in motions:
+        moves = ", ".join(motion.joints)
+        out.print(
+            f"{escape(path)}: {_plural(len(motion.keyframes), 'keyframe')}, {shown(motion.duration)} s, "
+            f"moves {escape(moves)}: fits the robot"
+        )
+    return 0
+
+
+COMMANDS = [check]

@@ -1,0 +1,120 @@
+"""ics35 check ROBOT.toml [MOTION.json]...: a robot file, and motions against it, checked with no port opened."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from ics35_async.cli import ExitCode
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+ROBOT = """\
+name = "arm"
+
+[lines.main]
+port = "{port}"
+baudrate = 1250000
+rate_hz = 100
+
+[safety]
+max_temperature_c = 70
+action = "hold"
+
+[joints.shoulder]
+line = "main"
+id = 1
+min = -90
+max = 45
+
+[joints.elbow]
+line = "main"
+id = 2
+reverse = true
+offset = 2.4975
+
+[joints.wrist]
+line = "main"
+id = 5
+min = -30
+max = 30
+"""
+
+
+def robot_file(tmp_path: Path, port: str = "/dev/ttyUSB9") -> Path:
+    path = tmp_path / "arm.toml"
+    path.write_text(ROBOT.format(port=port))
+    return path
+
+
+def motion_file(path: Path, *poses: dict[str, float]) -> Path:
+    keyframes = [{"time": 0.5 * (k + 1), "pose": pose} for k, pose in enumerate(poses)]
+    path.write_text(json.dumps({"format": "ics35-motion", "version": 1, "keyframes": keyframes}))
+    return path
+
+
+def test_a_robot_file_is_summed_up_with_no_port_opened(cli: Any, tmp_path: Path) -> None:
+    # Its port is a path no adapter has here: nothing is opened, so nothing is missing.
+    result = cli("check", str(robot_file(tmp_path)))
+    assert result.code == 0, result.err
+    said = " ".join(result.out.split())
+    assert "arm.toml: robot arm, 1 line, 3 joints (no port opened)" in said, said
+    assert "line main: /dev/ttyUSB9 at 1250000 baud, 100 cycles/s, IDs 1, 2, 5" in said, said
+    for row in ("shoulder main 1 0 -90 45", "elbow main 2 reversed 2.4975 -132.5025 137.4975", "wrist main 5 0 -30 30"):
+        assert row in said, said
+    # (the elbow's default limits: the servo's whole travel, in joint degrees from its offset)
+    # The joints at the servo's whole travel (no limits of their own, never calibrated?) are named.
+    assert "elbow: its limits are the servo's whole travel" in said, said
+    assert (
+        "safety: above 70 °C (approximate), or a servo going offline: motions end and every joint keeps its last "
+        "target (action = hold)"
+    ) in said, said
+
+
+def test_motions_are_checked_against_the_robot(cli: Any, tmp_path: Path) -> None:
+    robot = robot_file(tmp_path)
+    wave = motion_file(tmp_path / "wave.json", {"shoulder": 20, "wrist": -10}, {"shoulder": 0}, {"wrist": 0})
+    result = cli("check", str(robot), str(wave))
+    assert result.code == 0, result.err
+    said = " ".join(result.out.split())
+    assert "wave.json: 3 keyframes, 1.5 s, moves shoulder, wrist: fits the robot" in said, said
+
+    beyond = motion_file(tmp_path / "beyond.json", {"shoulder": 20}, {"wrist": 40})
+    result = cli("check", str(robot), str(wave), str(beyond))
+    assert result.code == ExitCode.USAGE, result.err
+    err = " ".join(result.err.split())
+    assert "beyond.json" in err and "keyframes[1]" in err and "wrist" in err and "-30..30" in err, err
+
+    stranger = motion_file(tmp_path / "stranger.json", {"knee": 20})
+    result = cli("check", str(robot), str(stranger))
+    assert result.code == ExitCode.USAGE and "knee" in result.err, result.err
+
+
+def test_a_robot_file_that_breaks_a_rule_is_refused_naming_its_key(cli: Any, tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(ROBOT.format(port="/dev/ttyUSB9").replace("id = 5", "id = 40"))
+    result = cli("check", str(path))
+    assert result.code == ExitCode.USAGE, result.err
+    assert "joints.wrist.id" in result.err and "arm.toml" in result.err, result.err
+    assert "Traceback" not in result.err
+
+
+def test_the_example_humanoid_and_its_wave_fit(cli: Any) -> None:
+    result = cli("check", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json"), "--json")
+    assert result.code == 0, result.err
+    doc = result.json()
+    assert doc["robot"]["name"] == "humanoid"
+    assert [line["name"] for line in doc["robot"]["lines"]] == ["upper", "legs"]
+    assert len(doc["robot"]["joints"]) == 17
+    assert doc["robot"]["joints"][0] == {
+        "name": "head_yaw",
+        "line": "upper",
+        "id": 1,
+        "reverse": False,
+        "offset": 0.0,
+        "min": -90.0,
+        "max": 90.0,
+    }
+    assert doc["motions"][0]["file"].endswith("wave.json") and doc["motions"][0]["keyframes"] > 1
+    assert doc["robot"]["safety"]["action"] == "hold"
