@@ -123,6 +123,23 @@ def test_the_same_servo_is_held_back_until_its_late_reply_can_no_longer_come() -
     assert engine.counters.snapshot(0).held_back == source.skipped
 
 
+def test_a_dump_of_the_line_names_a_held_servo_and_the_guard_read_still_due_after_its_hold() -> None:
+    # A hold over on a line with nothing to send leaves a guard read due for the next command with that first byte;
+    # describe() showed the hold while it lasted, then nothing of what the next such command still gets.
+    servos = LateOnce([1, 2], late_write=60, delay=0.012)
+    wire, source, _ = stream_over(servos, [1, 2])
+    engine = wire.engine
+    while not engine.describe(wire.now)["held_back_s"]:
+        wire.run_for(0.0005)
+    first = f"{wire.writes[60][1][0]:02x}"
+    dump = engine.describe(wire.now)
+    assert list(dump["held_back_s"]) == [first] and dump["guard_after_hold"] == [first], dump  # type: ignore[call-overload]
+    source.active = False  # the stream sends nothing more: the hold ends on an idle line
+    wire.run_for(0.1)
+    dump = engine.describe(wire.now)
+    assert dump["state"] == "idle" and not dump["held_back_s"] and dump["guard_after_hold"] == [first], dump
+
+
 def test_a_request_to_a_held_servo_waits_for_the_hold_and_gets_its_own_answer() -> None:
     servos = LateOnce([1, 2], late_write=60, delay=0.012)
     wire, _, _ = stream_over(servos, [1, 2])

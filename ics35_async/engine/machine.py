@@ -259,8 +259,8 @@ class LineEngine:
         until something happens), the transaction on the wire (bytes sent and so far received,
         who waits for it), every queued request in the order it would run, ``going_offline``
         (asked offline while busy, by a reopen: offline when the transaction or resync ends, the
-        queued requests waiting until the port is open again), and the slow-link and guard-read
-        rules' state.
+        queued requests waiting until the port is open again), and the slow-link, guard-read and hold
+        rules' state (the first bytes held back, and those whose next command still gets a guard read).
         """
         wire: dict[str, object] | None = None
         if self.state in (BUSY, DRAINING):
@@ -283,6 +283,8 @@ class LineEngine:
             "reply_owed": self.link.owed_since != INF,
             "guard_suspect": ", ".join(shape.hex(" ") for shape in self.guard.suspect),
             "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
+            # (first bytes whose next command gets a guard read once their hold is over, over or not: see _hold)
+            "guard_after_hold": sorted(f"{b:02x}" for b in self._guard_after_hold),
         }
 
     @property
