@@ -1321,3 +1321,27 @@ def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_
         assert screen[top : top + 2] == [shown, how], said
         assert shown.endswith("realtime=1 at 115200 baud"), said
     assert sum(line.endswith(("baud", how)) for line in screen) == (1 if len(f"{head} {how}") <= columns else 2), said
+
+
+@pytest.mark.parametrize("columns", [120, 70, 40, 30])
+def test_demos_title_on_a_narrower_terminal_keeps_the_port_its_rate_and_what_the_servos_are_left_in(
+    columns: int,
+) -> None:
+    # demo's title was cut with an ellipsis at the terminal's width: at 40 columns "demo: wave on 3 servo(s), the
+    # built-in …", the port and its rate gone.  As monitor's, its parts go on lines of their own where the whole
+    # does not fit (neighbours sharing one where they fit), the port's name cut at its start if it must be.
+    args = ["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "60"]
+    _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert "Traceback" not in written, said
+    lead, port, left = "demo: wave on 3 servo(s),", "sim://?ids=1-3&realtime=1 at 115200 baud", "(left free at the end)"
+    expected = {
+        120: [f"{lead} {port} {left}"],
+        70: [f"{lead} {port}", left],
+        40: [lead, port, left],
+        30: [lead, "…" + port[-29:], left],
+    }[columns]
+    top = next(k for k, line in enumerate(screen) if line.startswith("demo: wave"))
+    assert screen[top : top + len(expected)] == expected, said
+    assert sum(line.startswith("demo: wave") for line in screen) == 1, said  # (drawn once: no redraw left it twice)

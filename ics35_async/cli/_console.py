@@ -7,6 +7,7 @@ import json
 import sys
 import weakref
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any, NoReturn
 
 import click
@@ -52,20 +53,35 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
-def title_above(table: Table, parts: Sequence[str] = ()) -> Group:
+@dataclass(frozen=True)
+class TitleInParts:
+    """A live view's title in parts (rich markup), joined by spaces: drawn whole where the terminal is wide enough,
+    else a line per part (neighbours sharing one where they fit together).  Part ``port`` names the port and its
+    rate: cut at its start where it is still too wide, since a port's name tells itself from another's by its end
+    (``...-if00-port0``, ``?ids=1-3``) and the rate follows it; the others are cut at their end.  One line cut with
+    an ellipsis lost whatever came last (what the servos are left in, then the rate, then the port)."""
+
+    parts: tuple[str, ...]
+    port: int = 0
+
+    @property
+    def whole(self) -> str:
+        return " ".join(self.parts)
+
+
+def title_above(table: Table, in_parts: TitleInParts | None = None) -> Group:
     """``table`` for a live view: its title taken off it and drawn on a line of its own above it, cut with an
-    ellipsis at the terminal's width where it is wider (with ``parts``, its words in parts: see
-    :class:`_TitleInParts`).  A table's own title is laid out at the table's width, often narrower than the
+    ellipsis at the terminal's width where it is wider (``in_parts``: the title in parts, see
+    :class:`TitleInParts`).  A table's own title is laid out at the table's width, often narrower than the
     title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a
     port's or a file's name cut short reads as another's).  (A table printed whole, into a log, keeps its
     title.)"""
     title, table.title = table.title, None
+    if in_parts is not None:
+        return Group(_TitleLines(in_parts), table)
     if title is None:
         return Group(table)
-    line = _cut_at_width(Text.from_markup(title) if isinstance(title, str) else title)
-    if parts:
-        return Group(_TitleInParts(line, [Text.from_markup(part) for part in parts]), table)
-    return Group(line, table)
+    return Group(_cut_at_width(Text.from_markup(title) if isinstance(title, str) else title), table)
 
 
 def _cut_at_width(text: Text) -> Text:
@@ -74,28 +90,24 @@ def _cut_at_width(text: Text) -> Text:
     return text
 
 
-class _TitleInParts:
-    """A title whole where the terminal is wide enough, else its ``parts`` each on a line of their own: the
-    first (what is watched: a port and its rate) cut at its start where it is still too wide, since a port's
-    name tells itself from another's by its end (``...-if00-port0``, ``?ids=1-3``) and the rate follows it, the
-    others at their end.  One line cut with an ellipsis lost whatever came last (what the servos are left in,
-    then the rate)."""
+class _TitleLines:
+    """A :class:`TitleInParts` laid out at the width it is drawn at."""
 
-    def __init__(self, whole: Text, parts: list[Text]) -> None:
-        self.whole = whole
-        self.parts = parts
+    def __init__(self, title: TitleInParts) -> None:
+        self.title = title
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         width = options.max_width
-        if self.whole.cell_len <= width:
-            yield self.whole
-            return
-        first, *rest = self.parts
-        if first.cell_len > width:
-            first = Text("…").append_text(first[len(first) - max(0, width - 1) :])
-        yield _cut_at_width(first)
-        for part in rest:
-            yield _cut_at_width(part)
+        lines: list[Text] = []
+        for k, part in enumerate(Text.from_markup(part) for part in self.title.parts):
+            if lines and lines[-1].cell_len + 1 + part.cell_len <= width:
+                lines[-1] = Text(" ").join([lines[-1], part])
+                continue
+            if k == self.title.port and part.cell_len > width:
+                part = Text("…").append_text(part[len(part) - max(0, width - 1) :])
+            lines.append(part)
+        for line in lines:
+            yield _cut_at_width(line)
 
 
 class _Drawn:

@@ -12,6 +12,7 @@ from .. import units
 from ..frames import Frame
 from ..policies import ALL_IDS
 from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
+from ._console import TitleInParts
 from ._live import (
     LiveOptions,
     TargetFunction,
@@ -117,7 +118,8 @@ def demo(
                     "limp as it starts and when it ends)?"
                 )
                 confirm(question, yes, "nothing moved")
-            title = f"demo: wave on {len(chosen)} servo(s), {escape(shown)} at {settings.baud} baud"
+            where = f"{escape(shown)} at {settings.baud} baud"
+            title = TitleInParts((f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), port=1)
             state = LiveState(chosen, title, seconds)
             started.append(state)
             return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))

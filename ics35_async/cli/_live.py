@@ -101,7 +101,7 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title_parts), status))
+            live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title), status))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))
@@ -114,7 +114,7 @@ async def run_live(
             if live is not None:
                 live.start()
             elif not options.as_json:  # (a log's lines name no command: what they are comes first)
-                out.print(f"{state.title}; one line per second, table at the end")
+                out.print(f"{state.title.whole}; one line per second, table at the end")
             try:
                 async with stream:
                     try:

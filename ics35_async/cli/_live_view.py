@@ -14,7 +14,7 @@ from rich.text import Text
 from .. import units
 from ..frames import Frame
 from ..stream import Stream
-from ._console import current_json, signed_tenths, temperature_json
+from ._console import TitleInParts, current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
 
 
@@ -23,7 +23,7 @@ class LiveState:
     """Everything the table shows, updated per frame."""
 
     ids: list[int]
-    title: str
+    title: TitleInParts
     seconds: float | None
     positions: dict[int, int] = field(default_factory=dict)
     targets: dict[int, int] = field(default_factory=dict)
@@ -40,9 +40,6 @@ class LiveState:
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
     freed: bool = False  # the free at the end reached every streamed servo (a whole cycle carried it)
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
-    # The title's words in parts, each drawn on a line of its own where the terminal is narrower than the title
-    # (see title_above); none: cut with an ellipsis.
-    title_parts: tuple[str, ...] = ()
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
         self.positions.update(frame.positions)
@@ -77,7 +74,7 @@ class LiveState:
     def table(self, telemetry: Telemetry, with_targets: bool) -> Table:
         per_row = 2 if len(self.ids) > 16 else 1
         table = Table(
-            title=self.title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
+            title=self.title.whole, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
         )
         names = (
             ("ID", "target°", "pos°", "cur", "temp", "err")

@@ -19,6 +19,7 @@ from ._common import (
     seconds_option,
     settings_of,
 )
+from ._console import TitleInParts
 from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
@@ -91,8 +92,8 @@ def monitor(
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",
                 )
             how = "ICS 3.5 servos free" if freed else "torque left alone"
-            watched, left = f"monitor {escape(shown)} at {settings.baud} baud", f"({how})"
-            state = LiveState(chosen, f"{watched} {left}", seconds, title_parts=(watched, left))
+            title = TitleInParts((f"monitor {escape(shown)} at {settings.baud} baud", f"({how})"))
+            state = LiveState(chosen, title, seconds)
             state.no_position = missing
             if missing and not as_json:
                 for sid, why in missing.items():
