@@ -461,6 +461,7 @@ CLI_BAD = [
     ["demo", "--frequency", "10"],
     ["demo", "--seconds", "0.01"],
     ["demo", "--rate", "0"],
+    ["demo", "--rate", "0.5"],  # (below the 20 cycles/s a wave needs, see the test below)
     ["--baud", "9600", "scan"],
     ["--timeout", "6", "scan"],
     ["--timeout", "nan", "get", "1", "speed"],
@@ -503,6 +504,21 @@ def test_cli_bad_argument_exits_2_with_a_message_and_sends_nothing(args: list[st
         assert "Traceback" not in err
         assert "rror" in err or "Usage" in err, err
         assert sim.transactions == 0
+
+
+def test_demo_refuses_a_rate_that_would_move_the_wave_in_steps_and_says_which_option_slows_it() -> None:
+    # demo --rate 0.5 sent a target every two seconds, each reached at the servos' full speed: the wave moved in
+    # jumps, and at its default 0.5 Hz the same phase came round every cycle (the servos jumped once and stood).
+    # A slow wave is --frequency's; --rate is the stream's cycles, floored as a robot file's rate_hz is.
+    with named_line() as (sim, url):
+        code, _out, err = run_cli("--port", url, "demo", "--ids", "1-2", "--rate", "19.9")
+        assert code == 2 and "Traceback" not in err, err
+        said = " ".join(err.split())
+        assert "--rate" in said and "at least 20" in said and "--frequency" in said, said
+        assert sim.transactions == 0
+        code, _out, err = run_cli("--port", url, "demo", "--ids", "1-2", "--rate", "20", "--seconds", "0.1")
+        assert code == 0, err
+        assert sim.transactions > 0
 
 
 @pytest.mark.parametrize(

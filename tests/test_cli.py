@@ -20,6 +20,7 @@ import pytest
 from ics35_async import units
 from ics35_async.cli import ExitCode
 from ics35_async.cli._common import CliError, Settings, parse_id_list, translate
+from ics35_async.cli._console import TitleInParts
 from ics35_async.cli._live import forced_out
 from ics35_async.cli._live_view import LiveState
 from ics35_async.eeprom import BaudRate, Flags
@@ -727,16 +728,17 @@ def test_a_stop_forced_out_before_the_free_names_the_free_command_with_no_lost_l
     # A second Ctrl-C cutting demo's end short said "once the line is back, free them with: ..." though the line
     # was never lost: the command works at once.
     # (Neighbouring IDs as a range, as the robot commands write their free commands: "1,2,...,9" was demo's.)
-    state = LiveState([1, 2, 3, 7], "demo", 30.0, cycle=4)
+    state = LiveState([1, 2, 3, 7], TitleInParts(("demo",)), 30.0, cycle=4)
     error = forced_out(Settings(port="/dev/ttyUSB0"), state, CliError(ExitCode.INTERRUPTED, "interrupted"))
     assert "servo(s) 1, 2, 3, 7 may still be holding" in error.message, error.message
     assert error.hints == ["free them with: ics35 --port /dev/ttyUSB0 free 1-3,7"], error.hints
 
 
 def test_demo_counts_one_cycle_and_one_servo_in_the_singular(cli: Any, sim_line: Any) -> None:
-    # Paced at 2 Hz, 0.1 s ends it after its first cycle: it said "1 cycles ... over 1 servos".
-    sim, url = sim_line([1])
-    result = cli("--port", url, "demo", "--ids", "1", "--rate", "2", "--seconds", "0.1")
+    # A first cycle longer than --seconds (a servo that answers after 0.15 s) ends it after that cycle: it said
+    # "1 cycles ... over 1 servos".
+    sim, url = sim_line([1], realtime=True, turnaround=0.15)
+    result = cli("--port", url, "--timeout", "1", "demo", "--ids", "1", "--seconds", "0.1")
     assert result.code == 0, result.err
     assert ": 1 cycle, " in result.out and " over 1 servo; " in result.out, result.out
     assert sim.servo(1).free

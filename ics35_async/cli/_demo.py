@@ -11,6 +11,7 @@ from rich.markup import escape
 from .. import units
 from ..frames import Frame
 from ..policies import ALL_IDS
+from ..robot.description import MIN_LINE_RATE_HZ
 from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._console import TitleInParts
 from ._live import (
@@ -94,7 +95,20 @@ def demo(
     No hardware:   ics35 demo                      (built-in simulator, 32 servos)
     Hardware:      ics35 --port /dev/ttyUSB0 demo --ids 1-12 --amplitude 20
     Without --ids on hardware, demo scans and asks before moving every servo it finds (--yes skips that).
+
+    --rate is the stream's cycles per second, a target to each servo each cycle: at least 20 (fewer move the
+    servos in jumps); a slower wave is --frequency.
     """
+    if rate is not None and rate < MIN_LINE_RATE_HZ:
+        # A target a cycle, each reached at the servos' full speed: fewer cycles move the wave in jumps (and at a
+        # rate that divides --frequency, the same phase every cycle: one jump, then nothing), as a robot file's
+        # rate_hz is floored for its motions.
+        raise click.BadParameter(
+            f"{rate:g} cycles per second is too few: it must be at least {MIN_LINE_RATE_HZ:g}, as the wave goes out "
+            "as one target a cycle and fewer would move the servos in jumps at their full speed (a slower wave: "
+            "--frequency; leave --rate out to cycle as fast as the line allows)",
+            param_hint="'--rate'",
+        )
     settings = settings_of(ctx)
     asked_all = every_id(ids)  # "all": the servos that answer, as the user asked for every one (no question)
     if settings.is_bare_sim:
