@@ -1323,6 +1323,51 @@ def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_
     assert sum(line.endswith(("baud", how)) for line in screen) == (1 if len(f"{head} {how}") <= columns else 2), said
 
 
+# IDs 4-20 answer nothing on this line: each costs the whole --timeout of the request asking it.
+ASKING_SILENT_IDS = ["--port", "sim://?ids=1-3", "--timeout", "5", "monitor", "1-20", "--free"]
+
+
+@pytest.mark.parametrize(
+    ("args", "shown", "asked"),
+    [
+        (ASKING_SILENT_IDS, "asking IDs 1-20", "asking IDs 1-20"),
+        # (a line where nothing answers: each probe of the scan waits the whole --timeout)
+        (["--port", "sim://?ids=", "--timeout", "5", "monitor", "--free"], "no IDs given: scanning", "scanning"),
+        (["--port", "sim://?ids=", "--timeout", "5", "demo"], "no IDs given: scanning", "scanning"),
+    ],
+    ids=["monitor-ids", "monitor-scan", "demo-scan"],
+)
+def test_ctrl_c_while_a_live_command_asks_its_ids_says_at_once_what_it_waits_for_and_what_was_done(
+    args: list[str], shown: str, asked: str
+) -> None:
+    # Ctrl-C while monitor or demo asked IDs that do not answer waited out the request on the wire (the line's
+    # rule: its late reply must not reach the port's next command) with nothing on the screen, then said only
+    # "interrupted".
+    keys = [(shown, b""), (scaled(0.3), b"\x03")]
+    code, written = typed_on_a_terminal(args, keys)
+    screen = [line for line in screen_of(written) if line]
+    said = "\n".join(screen)
+    assert code == 130 and "Traceback" not in written, said
+    stopping = next(k for k, line in enumerate(screen) if line.startswith("stopping:"))
+    assert "up to 5 s" in screen[stopping] and "Ctrl-C again leaves at once" in screen[stopping], said
+    assert screen[stopping + 1 :] == [
+        f"error: interrupted while {asked}: nothing was sent that moves or frees a servo"
+    ], said
+
+
+def test_a_second_ctrl_c_while_monitor_asks_its_ids_leaves_at_once() -> None:
+    keys = [("asking IDs 1-20", b""), (scaled(0.3), b"\x03"), ("Ctrl-C again", b"\x03")]
+    began = time.monotonic()
+    code, written = typed_on_a_terminal(ASKING_SILENT_IDS, keys)
+    took = time.monotonic() - began
+    screen = [line for line in screen_of(written) if line]
+    said = "\n".join(screen)
+    assert code == 130 and "Traceback" not in written, said
+    assert screen[-1] == "error: interrupted while asking IDs 1-20: nothing was sent that moves or frees a servo"
+    # (the whole run, start-up and the wait before the first press included, within the 5 s the first would wait)
+    assert took < 5, (took, said)
+
+
 @pytest.mark.parametrize("columns", [120, 70, 40, 30])
 def test_demos_title_on_a_narrower_terminal_keeps_the_port_its_rate_and_what_the_servos_are_left_in(
     columns: int,

@@ -15,6 +15,7 @@ from ..robot.description import MIN_LINE_RATE_HZ
 from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
 from ._console import TitleInParts
 from ._live import (
+    AskingIds,
     LiveOptions,
     TargetFunction,
     discover,
@@ -121,10 +122,15 @@ def demo(
     options = LiveOptions(seconds, rate, per_cycle, with_targets=True, plot=plot)
 
     started: list[LiveState] = []  # (what it left the servos in, should a second Ctrl-C force it out)
+    asking = AskingIds(settings, False)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = ids if ids and not asked_all else await discover(bus, settings, shown, False, asked_all=asked_all)
+            if ids and not asked_all:
+                chosen = ids
+            else:
+                with asking.while_asking("scanning"):
+                    chosen = await discover(bus, settings, shown, False, asked_all=asked_all)
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
                 question = (
@@ -141,7 +147,7 @@ def demo(
     try:
         state, telemetry, recorder = run(settings, body)
     except CliError as exc:
-        raise forced_out(settings, started[0] if started else None, exc) from None
+        raise forced_out(settings, started[0] if started else None, asking.last_words(exc)) from None
     final_report(settings, state, telemetry, recorder, options, f"ics35 demo: {shown}")
     cycles = f"{state.cycle} cycle{'' if state.cycle == 1 else 's'}"
     servos = f"{len(state.ids)} servo{'' if len(state.ids) == 1 else 's'}"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -248,6 +248,47 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
             "an ID, most likely: connect them one at a time and renumber one; or noise)"
         )
     return answered
+
+
+# Seconds: a reply allowance (--timeout) a person notices when Ctrl-C waits it out.
+NOTICEABLE_WAIT = 0.2
+
+
+class AskingIds:
+    """A live command's asking of its IDs before its view begins (a scan, each named ID's probe), for a Ctrl-C
+    there: it ends the command with what was being asked, and that nothing sent moved or freed a servo.
+
+    The line first waits out the request on the wire, its whole reply allowance where the ID does not answer
+    (the bus's close: its late reply must not reach the port's next command), so with a --timeout of seconds the
+    press is answered at once with what it waits for, and that a second Ctrl-C leaves without waiting."""
+
+    def __init__(self, settings: Settings, quiet: bool) -> None:
+        self.settings = settings
+        self.quiet = quiet
+        self.asking: str | None = None  # what was being asked when the command ended
+
+    @contextlib.contextmanager
+    def while_asking(self, what: str) -> Iterator[None]:
+        """Around the asking of ``what`` (``scanning``, ``asking IDs 1-20``)."""
+        self.asking = what
+        try:
+            yield
+        except asyncio.CancelledError:
+            timeout = self.settings.timeout
+            if not self.quiet and timeout >= NOTICEABLE_WAIT:
+                clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
+                err.print(
+                    f"stopping: waiting out the request on the wire (up to {timeout:g} s, --timeout) so that its "
+                    "late reply cannot reach the port's next command; Ctrl-C again leaves at once"
+                )
+            raise
+        self.asking = None
+
+    def last_words(self, error: CliError) -> CliError:
+        """``error``, an interruption while asking, saying what was asked and that nothing moved or was freed."""
+        if error.code == ExitCode.INTERRUPTED and self.asking is not None and error.message == "interrupted":
+            error.message = f"interrupted while {self.asking}: nothing was sent that moves or frees a servo"
+        return error
 
 
 def live_port(settings: Settings, plot: str | None, sim_query: str = "") -> str:

@@ -20,7 +20,7 @@ from ._common import (
     settings_of,
 )
 from ._console import TitleInParts
-from ._live import LiveOptions, discover, final_report, live_port, run_live, stream_options
+from ._live import AskingIds, LiveOptions, discover, final_report, live_port, run_live, stream_options
 from ._live_view import LiveState
 from ._plot import Recorder
 from ._telemetry import Telemetry
@@ -64,17 +64,22 @@ def monitor(
         seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot, free_at_end=free_servos
     )
 
+    asking = AskingIds(settings, as_json)
+
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
-            chosen = (
-                ids if ids and not every_id(ids) else await discover(bus, settings, shown, as_json, asked_all=bool(ids))
-            )
+            if ids and not every_id(ids):
+                chosen = ids
+            else:
+                with asking.while_asking("scanning"):
+                    chosen = await discover(bus, settings, shown, as_json, asked_all=bool(ids))
             if chosen is ids and not as_json:
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
                 # said, as a scan says it scans, so a wait of seconds is not a blank terminal (nor a log silent
                 # about what came before its first line).
                 err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
-            plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
+            with asking.while_asking(f"asking IDs {id_ranges(chosen)}"):
+                plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
             freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
@@ -100,7 +105,10 @@ def monitor(
                     err.print(f"[yellow]servo {sid}: no position:[/yellow] {escape(why)}")
             return await run_live(settings, bus, plan.streamed, state, options, None, plan)
 
-    state, telemetry, recorder = run(settings, body)
+    try:
+        state, telemetry, recorder = run(settings, body)
+    except CliError as exc:
+        raise asking.last_words(exc) from None
     final_report(settings, state, telemetry, recorder, options, f"ics35 monitor: {shown}")
     return 0
 
