@@ -1334,8 +1334,12 @@ ASKING_SILENT_IDS = ["--port", "sim://?ids=1-3", "--timeout", "5", "monitor", "1
         # (a line where nothing answers: each probe of the scan waits the whole --timeout)
         (["--port", "sim://?ids=", "--timeout", "5", "monitor", "--free"], "no IDs given: scanning", "scanning"),
         (["--port", "sim://?ids=", "--timeout", "5", "demo"], "no IDs given: scanning", "scanning"),
+        # (demo asked nothing first: its stream's first cycles asked IDs 4-20 at the whole --timeout each, three
+        # cycles before leaving them out, the terminal blank, and a press waited for each cycle that carried the
+        # free: minutes)
+        (["--port", "sim://?ids=1-3", "--timeout", "5", "demo", "--ids", "1-20"], "asking IDs 1-20", "asking IDs 1-20"),
     ],
-    ids=["monitor-ids", "monitor-scan", "demo-scan"],
+    ids=["monitor-ids", "monitor-scan", "demo-scan", "demo-ids"],
 )
 def test_ctrl_c_while_a_live_command_asks_its_ids_says_at_once_what_it_waits_for_and_what_was_done(
     args: list[str], shown: str, asked: str

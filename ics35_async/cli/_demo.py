@@ -10,9 +10,23 @@ from rich.markup import escape
 
 from .. import units
 from ..frames import Frame
-from ..policies import ALL_IDS
+from ..policies import ALL_IDS, StreamPlan
 from ..robot.description import MIN_LINE_RATE_HZ
-from ._common import ID_LIST, CliError, confirm, every_id, ids_text, out, run, seconds_option, settings_of, yes_option
+from ._basic import probe_ids
+from ._common import (
+    ID_LIST,
+    CliError,
+    confirm,
+    err,
+    every_id,
+    id_ranges,
+    ids_text,
+    out,
+    run,
+    seconds_option,
+    settings_of,
+    yes_option,
+)
 from ._console import TitleInParts
 from ._live import (
     AskingIds,
@@ -112,6 +126,7 @@ def demo(
         )
     settings = settings_of(ctx)
     asked_all = every_id(ids)  # "all": the servos that answer, as the user asked for every one (no question)
+    builtin = settings.is_bare_sim  # (the built-in simulator: a servo at every ID, none to ask)
     if settings.is_bare_sim:
         ids = ids or list(ALL_IDS)
     shown = live_port(settings, plot, "ids=0-31&")
@@ -126,8 +141,19 @@ def demo(
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus() as bus:
+            silent: list[int] = []
             if ids and not asked_all:
                 chosen = ids
+                if not builtin:
+                    # Each named ID is asked first, as a scan asks (a short wait each once a servo has answered):
+                    # streamed unasked, an ID where no servo is cost the stream's first cycles its whole --timeout
+                    # each, three cycles before the stream left it out (the terminal blank meanwhile).
+                    err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
+                    with asking.while_asking(f"asking IDs {id_ranges(chosen)}"):
+                        answered, garbled = await probe_ids(bus, chosen)
+                    # (none answering: streamed as they are, the run's end says so and looks at other rates)
+                    if answered:
+                        silent = [i for i in chosen if i not in answered and i not in garbled]
             else:
                 with asking.while_asking("scanning"):
                     chosen = await discover(bus, settings, shown, False, asked_all=asked_all)
@@ -142,7 +168,10 @@ def demo(
             title = TitleInParts((f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), port=1)
             state = LiveState(chosen, title, seconds)
             started.append(state)
-            return await run_live(settings, bus, chosen, state, options, wave(chosen, swing, frequency, ramp=1.5))
+            # The silent IDs start out of the stream's cycle, probed as any servo that stops answering.
+            plan = StreamPlan(free=list(chosen), silent=silent)
+            targets = wave(chosen, swing, frequency, ramp=1.5)
+            return await run_live(settings, bus, chosen, state, options, targets, plan)
 
     try:
         state, telemetry, recorder = run(settings, body)
