@@ -34,7 +34,7 @@ from ics35_async.robot.calibration import calibrate_joint, dump_description, edi
 from ics35_async.robot.profiles import LONGEST_MOTION
 from ics35_async.sim import VirtualLine
 from tests.support.cli_runs import CliResult
-from tests.support.robot_rig import JOINTS, Rig, commanded, joint_position, make_rig, targets_sent
+from tests.support.robot_rig import JOINTS, Rig, commanded, joint_degrees, joint_position, make_rig, targets_sent
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS_OPTION, scaled
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -442,6 +442,22 @@ def test_teach_goes_on_when_a_pose_is_not_captured_for_readings_that_disagree(
     said = " ".join(capsys.readouterr().err.split())
     assert said.count("pose not captured: joint elbow (line upper, ID 3)") == 2, said
     assert "hold the robot still and press Enter again" in said, said
+
+
+def test_teach_says_how_far_past_its_limit_a_joint_stands_to_the_count(
+    rig: tuple[Rig, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A joint posed at the end of a calibrated range stands a count or two past a limit (calibrate rounds limits
+    # inward): "joint hip is at 30.0, beyond its limits -30..30" said it was at the limit and beyond it at once.
+    sims, _ = rig
+    past = joint_position(JOINTS["hip"], 30.0) + 1
+    sims.servo("hip").move_by_hand(past)
+    standing = joint_degrees(JOINTS["hip"], past)
+    assert 30.0 < standing < 30.05  # (a tenth of a degree would not tell it from the limit)
+    keyframes = captures(sims, ["hip"])
+    assert keyframes[0].pose == {"hip": 30.0}  # recorded at the limit
+    said = " ".join(capsys.readouterr().err.split())
+    assert f"joint hip is at {standing:+.5f}".rstrip("0") + ", beyond its limits -30..30" in said, said
 
 
 @pytest.mark.parametrize("command", ["play", "calibrate"])

@@ -355,7 +355,8 @@ async def capture(
         spec = robot.joints[name]
         if not spec.min <= pose[name] <= spec.max:
             warnings.append(
-                f"{WARNING} joint {escape(name)} is at {pose[name]:.1f}, beyond its limits "
+                # To the count: a tenth of a degree would show a joint a count past its limit as at it.
+                f"{WARNING} joint {escape(name)} is at {signed_count_angle(pose[name])}, beyond its limits "
                 f"{spec.min:g}..{spec.max:g}: recorded at the limit"
             )
         taken[name] = round(spec.clamp(pose[name]), 2)
