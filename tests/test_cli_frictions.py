@@ -87,6 +87,18 @@ def test_a_dump_to_files_without_port_says_so_in_the_files_and_a_restore_of_one_
     assert missing.code == 3 and "while reading the servos" not in missing.err, missing.err
 
 
+def test_a_restore_of_several_servos_saved_without_port_warns_once_for_the_file(
+    cli: Any, sim_line: Any, tmp_path: Any
+) -> None:
+    # A file of four servos' backups dumped from the built-in simulator repeated its warning four times.
+    several = tmp_path / "arm.json"
+    assert cli("eeprom", "dump", "1-4", "-o", str(several)).code == 0
+    _, url = sim_line([1, 2, 3, 4])
+    restored = cli("--port", url, "eeprom", "restore", str(several), "--yes")
+    assert restored.code == 0, restored.err
+    assert restored.err.count("read from the built-in simulator") == 1, restored.err
+
+
 def test_eeprom_help_shows_the_summary_of_set_whole(cli: Any) -> None:
     result = cli("eeprom", "--help")
     assert result.code == 0

@@ -436,12 +436,13 @@ def restore(
     if keep_baud and change_baud:
         raise click.UsageError("--keep-baud and --change-baud: choose one (keep the servo's rate, or the backup's)")
     backups = load_backups(args, restore_id, keep_baud)
+    # Once a file: a file of several servos' backups was saved from the simulator as a whole.
+    for source in dict.fromkeys(backup.source for backup in backups if backup.simulated):
+        err.print(
+            f"[yellow]warning:[/yellow] {escape(source)} was read from the built-in simulator "
+            "(no --port when it was saved), not from a servo"
+        )
     for backup in backups:
-        if backup.simulated:
-            err.print(
-                f"[yellow]warning:[/yellow] {escape(backup.source)} was read from the built-in simulator "
-                "(no --port when it was saved), not from a servo"
-            )
         if backup.saved_id != backup.target and not restore_id and not as_json:
             err.print(
                 f"note: {escape(backup.source)} is a backup of ID {backup.saved_id}; servo {backup.target} keeps "
