@@ -58,7 +58,7 @@ class ExitCode(enum.IntEnum):
     `set-id` with more or fewer than one servo, `move` outside the servo's EEPROM pulse limits, "no" (or end
     of input) at the prompt, `teach` with no pose captured, `calibrate` with its input ended early or a joint
     not moved far enough to both ends of its range, `play` with a joint whose servo has not answered since the
-    robot opened."""
+    robot opened or a joint turned past its limit by hand (its first command would throw it to the limit)."""
     WRONG_BAUD = 6
     """The servo answers, but at another baud rate than `--baud` (the message names it); for a command that asked
     every ID (`free all`, `monitor` without IDs), a device answers at another rate."""
