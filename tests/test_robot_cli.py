@@ -1821,6 +1821,11 @@ def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp
     summary = " ".join(result.out[result.out.index("play ") :].split()[-60:])
     assert "joints left holding (those it opened), but hip: its servo came back after going offline" in summary
     assert "neck" not in summary.split("but", 1)[1], summary
+    if loop:
+        # The loop ends after the pass the servo came back in: the last status line numbered a pass 2 that never
+        # began, beside the closing line's "1 pass".
+        shown = re.findall(r"motion .* pass (\d+) ", result.out)
+        assert shown and shown[-1] == "1" and "1 pass of 2.5 s;" in summary, result.out
 
 
 @pytest.mark.parametrize(

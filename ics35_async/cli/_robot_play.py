@@ -193,12 +193,14 @@ def play(
             def summary() -> str:
                 t, into = clock()
                 limit = f"/{seconds:g}" if seconds else ""
-                count = f"pass {passes + 1}  " if loop else ""
+                # The pass playing; once the loop has ended (a joint given up), the last one played.
+                count = f"pass {passes if given_up else passes + 1}  " if loop else ""
                 return f"t={t:5.1f}{limit} s  motion {into:4.1f}/{total:.1f} s  {count}" + (
                     cycles_text(robot.latest) if robot.latest else ""
                 )
 
             lost: list[bool] = []  # the lines ended (a port lost): the table's last look says so
+            given_up: list[bool] = []  # the loop ended early: a joint came back after going offline
 
             with Screen(lambda: joint_table(robot, title, motion.joints, lost=bool(lost)), summary) as screen:
                 if not screen.tty:
@@ -227,7 +229,6 @@ def play(
                     if not whole and loop:
                         given_up.append(True)
 
-                given_up: list[bool] = []  # the loop ended early: a joint came back after going offline
                 task = asyncio.ensure_future(player())
                 how = "done"
                 timer = asyncio.timeout(seconds)
