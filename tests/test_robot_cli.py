@@ -1821,6 +1821,9 @@ def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp
     summary = " ".join(result.out[result.out.index("play ") :].split()[-60:])
     assert "joints left holding (those it opened), but hip: its servo came back after going offline" in summary
     assert "neck" not in summary.split("but", 1)[1], summary
+    # Its row said "waiting for a target" beside the last target set before it went offline, sent no more.
+    row = next(line.split() for line in result.out.splitlines() if line.split()[:2] == ["hip", "lower:1"])
+    assert row[2] == "-" and " ".join(row[-4:]) == "waiting for a target", result.out
     if loop:
         # The loop ends after the pass the servo came back in: the last status line numbered a pass 2 that never
         # began, beside the closing line's "1 pass".

@@ -66,6 +66,7 @@ def joint_table(
         spec = robot.joints[name]
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
+        waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
@@ -76,12 +77,13 @@ def joint_table(
             state = Text("no reply", style="yellow")
         elif frame is not None and name in frame.held:  # (after its line or its servo came back: sent nothing)
             state = Text("waiting for a target", style="yellow")
+            waiting = True
         else:
             state = "as found" if name in robot.untouched else "free" if target is None else "held"
         cells: list[str | Text] = [
             name,
             f"{spec.line}:{spec.id}",
-            "-" if name in robot.untouched else "free" if target is None else _deg(target),
+            "-" if name in robot.untouched or waiting else "free" if target is None else _deg(target),
             _deg(positions.get(name)),
             "-" if seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
             "-" if seen is None or seen.current is None else str(seen.current),
