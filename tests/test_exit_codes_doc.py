@@ -55,6 +55,14 @@ def test_the_table_gives_play_refusing_a_joint_turned_past_its_limit_its_code(cl
     assert "a joint turned past its limit" in refused, refused
 
 
+def test_the_table_gives_the_robot_commands_interrupted_their_code() -> None:
+    # Row 0 names play and teach stopped with Ctrl-C; row 130 named neither calibrate stopped with it (nothing
+    # written: test_robot_cli) nor a robot command interrupted as its robot opens (test_cli_pty), which exit 130.
+    row = next(r for r in mkdocs_hooks.exit_code_table().splitlines() if r.startswith("| 130 |"))
+    assert "`calibrate` stopped before it writes" in row, row
+    assert "`play`, `teach` or `calibrate` interrupted while the robot opens" in row, row
+
+
 def test_docs_engine_diagram_comes_from_a_real_engine() -> None:
     transitions = mkdocs_hooks.engine_transitions()
     assert transitions[("IDLE", "BUSY")] == ["request submitted"]

@@ -70,8 +70,9 @@ class ExitCode(enum.IntEnum):
     written), with nothing more on the terminal."""
     INTERRUPTED = 130
     """Interrupted (Ctrl-C) during a one-shot command, or at a `[y/N]` question (the first Ctrl-C; nothing
-    written or moved); or a second Ctrl-C that cut a stop short (`demo`, `play`, `web`: the last line says what
-    it left)."""
+    written or moved); `calibrate` stopped before it writes (nothing written); `play`, `teach` or `calibrate`
+    interrupted while the robot opens (the error says what the open left the joints in); or a second Ctrl-C that
+    cut a stop short (`demo`, `play`, `web`: the last line says what it left)."""
     TERMINATED = 143
     """Stopped by SIGTERM (a service manager, `kill`): the command ended as Ctrl-C ends it (servos freed or
     held as then, poses written)."""
