@@ -118,3 +118,27 @@ def test_the_example_humanoid_and_its_wave_fit(cli: Any) -> None:
     }
     assert doc["motions"][0]["file"].endswith("wave.json") and doc["motions"][0]["keyframes"] > 1
     assert doc["robot"]["safety"]["action"] == "hold"
+
+
+def test_every_motion_is_checked_and_each_one_that_does_not_fit_is_named(cli: Any, tmp_path: Path) -> None:
+    # After a calibration, checking the motions taught before: the first that did not fit ended the command, and
+    # the others (and the robot's summary) went unsaid.
+    robot = robot_file(tmp_path)
+    beyond = motion_file(tmp_path / "beyond.json", {"shoulder": 20}, {"wrist": 40})
+    wave = motion_file(tmp_path / "wave.json", {"shoulder": 20, "wrist": -10}, {"shoulder": 0})
+    stranger = motion_file(tmp_path / "stranger.json", {"knee": 20})
+    result = cli("check", str(robot), str(beyond), str(wave), str(stranger))
+    assert result.code == ExitCode.USAGE, result.err
+    said, err = " ".join(result.out.split()), " ".join(result.err.split())
+    assert "arm.toml: robot arm, 1 line, 3 joints (no port opened)" in said, said
+    assert "wave.json: 2 keyframes, 1 s, moves shoulder, wrist: fits the robot" in said, said
+    assert "beyond.json: keyframes[1]: joint wrist: 40 degrees is outside its limits -30..30" in err, err
+    assert "stranger.json: keyframes[0]: unknown joint(s): knee" in err, err
+    assert f"2 of 3 motions do not fit {robot}" in err, err
+    assert "nothing was sent" not in err, err  # (check sends nothing, ever)
+
+    result = cli("check", str(robot), str(beyond), str(wave), "--json")
+    assert result.code == ExitCode.USAGE, result.err
+    motions = {Path(m["file"]).name: m for m in result.json()["motions"]}
+    assert motions["wave.json"]["fits"] is True and "error" not in motions["wave.json"], motions
+    assert motions["beyond.json"]["fits"] is False and "keyframes[1]" in motions["beyond.json"]["error"], motions

@@ -18,7 +18,7 @@ from rich.table import Table
 from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
-from ._common import emit_json, id_ranges, json_option, out
+from ._common import CliError, ExitCode, emit_json, err, id_ranges, json_option, out
 from ._robot_common import load_motion_file, load_robot_file
 
 # What a safety trip does, by [safety] action (see the robot-files page).
@@ -84,8 +84,16 @@ def robot_json(description: RobotDescription) -> dict[str, Any]:
     }
 
 
-def motion_json(path: str, motion: Motion) -> dict[str, Any]:
-    return {"file": path, "keyframes": len(motion.keyframes), "duration_s": motion.duration, "joints": motion.joints}
+def motion_json(path: str, motion: Motion | CliError) -> dict[str, Any]:
+    if isinstance(motion, CliError):
+        return {"file": path, "fits": False, "error": motion.message}
+    return {
+        "file": path,
+        "fits": True,
+        "keyframes": len(motion.keyframes),
+        "duration_s": motion.duration,
+        "joints": motion.joints,
+    }
 
 
 def show_robot(path: str, description: RobotDescription) -> None:
@@ -130,21 +138,46 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
     ics35 check robot.toml wave.json ...   and each motion: its joints known, every angle within limits
 
     What play, teach and calibrate check before they open anything; a file that breaks a rule is named with
-    its key (exit code 2).
+    its key (exit code 2), each motion that does not fit the robot in turn.
     """
-    description = load_robot_file(robot_file)
-    motions = [(path, load_motion_file(path, description)) for path in motion_files]
+    try:
+        description = load_robot_file(robot_file)
+    except CliError as exc:
+        raise _said_of_check(exc) from None
+    # Every motion, each on its own: checking the motions taught before a calibration wants each one's verdict.
+    checked: list[tuple[str, Motion | CliError]] = []
+    for path in motion_files:
+        try:
+            checked.append((path, load_motion_file(path, description)))
+        except CliError as exc:
+            checked.append((path, _said_of_check(exc)))
+    unfit = [error for _, error in checked if isinstance(error, CliError)]
     if as_json:
-        emit_json({"robot": robot_json(description), "motions": [motion_json(p, m) for p, m in motions]})
+        emit_json({"robot": robot_json(description), "motions": [motion_json(p, m) for p, m in checked]})
+    else:
+        show_robot(robot_file, description)
+        for path, motion in checked:
+            if isinstance(motion, CliError):
+                err.print(f"[bold red]error:[/bold red] {escape(motion.message)}", soft_wrap=True)
+                for hint in motion.hints:
+                    err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
+                continue
+            moves = ", ".join(motion.joints)
+            out.print(
+                f"{escape(path)}: {_plural(len(motion.keyframes), 'keyframe')}, {shown(motion.duration)} s, "
+                f"moves {escape(moves)}: fits the robot"
+            )
+    if not unfit:
         return 0
-    show_robot(robot_file, description)
-    for path, motion in motions:
-        moves = ", ".join(motion.joints)
-        out.print(
-            f"{escape(path)}: {_plural(len(motion.keyframes), 'keyframe')}, {shown(motion.duration)} s, "
-            f"moves {escape(moves)}: fits the robot"
-        )
-    return 0
+    not_fit = "does not fit" if len(unfit) == 1 else "do not fit"
+    raise CliError(ExitCode.USAGE, f"{len(unfit)} of {_plural(len(checked), 'motion')} {not_fit} {robot_file}")
+
+
+def _said_of_check(error: CliError) -> CliError:
+    """``error`` of a file check, said for ``check``: the loaders, shared with the commands that send once their
+    files are read, end it with "(nothing was sent)", and check never sends anything."""
+    error.message = error.message.removesuffix(" (nothing was sent)")
+    return error
 
 
 COMMANDS = [check]
