@@ -213,10 +213,15 @@ def fail(error: CliError) -> NoReturn:
     if error.code == ExitCode.INTERRUPTED:
         same_stop_for_a_moment()  # (a double Ctrl-C's second press, landing as this is said)
         clear_echoed_ctrl_c()
+    say_error(error)
+    sys.exit(int(error.code))
+
+
+def say_error(error: CliError) -> None:
+    """``error`` and its hints on stderr, as a command that ends with it says them (one that goes on may too)."""
     err.print(f"[bold red]error:[/bold red] {escape(error.message)}", soft_wrap=True)
     for hint in error.hints:
         err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
-    sys.exit(int(error.code))
 
 
 def signed_tenths(value: float) -> str:

@@ -18,7 +18,8 @@ from rich.table import Table
 from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
-from ._common import CliError, ExitCode, emit_json, err, id_ranges, json_option, out
+from ._common import CliError, ExitCode, emit_json, id_ranges, json_option, out
+from ._console import say_error
 from ._robot_common import load_motion_file, load_robot_file
 
 # What a safety trip does, by [safety] action (see the robot-files page).
@@ -158,9 +159,7 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
         show_robot(robot_file, description)
         for path, motion in checked:
             if isinstance(motion, CliError):
-                err.print(f"[bold red]error:[/bold red] {escape(motion.message)}", soft_wrap=True)
-                for hint in motion.hints:
-                    err.print(f"  [cyan]hint:[/cyan] {escape(hint)}", soft_wrap=True)
+                say_error(motion)
                 continue
             moves = ", ".join(motion.joints)
             out.print(
