@@ -489,7 +489,9 @@ async def test_a_stream_resumes_at_the_first_reconnect_attempt_after_its_port_is
         while not (frame := await stream.next_frame()).resumed:
             pass
     late = frame.started - events[True]
-    assert after_replug - 0.01 <= late <= after_replug + 0.05, f"resumed {late * 1e3:.0f} ms after the port was back"
+    # (30 ms of slack below: under load the replug's own note of the time comes late; the bounds still tell the
+    # schedules apart, the attempt after the port came back from the one after that)
+    assert after_replug - 0.03 <= late <= after_replug + 0.05, f"resumed {late * 1e3:.0f} ms after the port was back"
 
 
 async def test_queued_and_in_flight_requests_fail_with_port_lost_in_process() -> None:
