@@ -106,7 +106,11 @@ def show_robot(path: str, description: RobotDescription) -> None:
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
         ids = id_ranges(joint.id for joint in description.joints_on(line.name))
         out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, IDs {ids}")
-    table = Table("joint", "line", "ID", "reverse", "offset°", "min°", "max°", box=None, pad_edge=False)
+    table = Table(box=None, pad_edge=False)
+    for heading in ("joint", "line", "ID", "reverse"):
+        table.add_column(heading)
+    for heading in ("offset°", "min°", "max°"):  # (numbers to the right: their rows end where the table does)
+        table.add_column(heading, justify="right")
     for joint in joints.values():
         table.add_row(
             escape(joint.name),
