@@ -39,14 +39,9 @@ def paced_stream(timing: BusTiming) -> tuple[Wire, PacedCycle, Servos]:
     return wire, source, servos
 
 
-@TIMINGS
-@pytest.mark.parametrize("before_slot", [0.008, 0.005, 0.001])
-def test_a_read_fitted_into_the_slack_whose_reply_is_lost_leaves_the_next_cycle_under_half_a_period_late(
-    timing: BusTiming, before_slot: float
-) -> None:
-    # Asked early in the slack, in its middle, and as late as it still fits (its wire time and what answers
-    # take, a millisecond before the slot): its lost reply used to cost its full allowance and a whole quiet
-    # time, past the slot.
+def lost_read_in_the_slack(timing: BusTiming, before_slot: float) -> float:
+    """A read asked ``before_slot`` seconds before a paced stream's slot, its echo coming and no reply: how late the
+    cycle after it started (the read checked to have gone at once and failed with ReplyTimeout)."""
     wire, source, servos = paced_stream(timing)
     slot = source.t0 + source.cycle * PERIOD
     wire.run_until(slot - before_slot)
@@ -56,7 +51,18 @@ def test_a_read_fitted_into_the_slack_whose_reply_is_lost_leaves_the_next_cycle_
     wire.submit(read)
     wire.run_until(slot + 5 * PERIOD)
     assert isinstance(read.error, ReplyTimeout) and wire.writes[read.write_index][0] == slot - before_slot
-    late = source.late[cycles]
+    return source.late[cycles]
+
+
+@TIMINGS
+@pytest.mark.parametrize("before_slot", [0.008, 0.005, 0.001])
+def test_a_read_fitted_into_the_slack_whose_reply_is_lost_leaves_the_next_cycle_under_half_a_period_late(
+    timing: BusTiming, before_slot: float
+) -> None:
+    # Asked early in the slack, in its middle, and as late as it still fits (its wire time and what answers
+    # take, a millisecond before the slot): its lost reply used to cost its full allowance and a whole quiet
+    # time, past the slot.
+    late = lost_read_in_the_slack(timing, before_slot)
     assert late < PERIOD / 2, f"the cycle after the read started {late * 1e3:.1f} ms after its slot"
 
 
@@ -68,16 +74,7 @@ def test_a_read_fitted_into_the_slack_whose_reply_is_lost_gives_up_at_the_slot(
     # It fitted with a margin over what this line's answers take, so by the slot its reply is overdue: waiting
     # on (its allowance, or the stream's learnt wait) would only start the cycle later, by what that wait has
     # left.  Given up at the slot, the cycle waits only for the stream's short resync.
-    wire, source, servos = paced_stream(timing)
-    slot = source.t0 + source.cycle * PERIOD
-    wire.run_until(slot - before_slot)
-    cycles = len(source.late)
-    servos.mute.add(len(servos.answers))  # the next write, the read's: its echo comes, no reply
-    read = Recorded(protocol.ReadParam(3, protocol.Param.TEMPERATURE), wire=wire)
-    wire.submit(read)
-    wire.run_until(slot + 5 * PERIOD)
-    assert isinstance(read.error, ReplyTimeout) and wire.writes[read.write_index][0] == slot - before_slot
-    late = source.late[cycles]
+    late = lost_read_in_the_slack(timing, before_slot)
     assert late <= STREAM_RESYNC + 1e-9, f"the cycle after the read started {late * 1e3:.2f} ms after its slot"
 
 

@@ -619,6 +619,24 @@ def by_hand(sims: Rig) -> Callable[[dict[str, float]], Callable[[], None]]:
     return at
 
 
+def in_counts(sims: Rig) -> Callable[[dict[str, int]], Callable[[], None]]:
+    """``at(positions)``: a step that turns the neck and hip servos by hand to those positions (counts)."""
+
+    def at(positions: dict[str, int]) -> Callable[[], None]:
+        def move() -> None:
+            for name in ("neck", "hip"):
+                sims.servo(name).move_by_hand(positions[name])
+
+        return move
+
+    return at
+
+
+# Neutrals a whole count off 0.1 degree: 10.125 and -0.03375 servo degrees.
+NEUTRAL_COUNTS = {"neck": 7800, "hip": 7499}
+TRAVEL_ENDS = ({"neck": 5500, "hip": 5500}, {"neck": 9500, "hip": 9500})
+
+
 CALIBRATE_FILE = """\
 # my arm
 [lines.upper]
@@ -686,18 +704,13 @@ def test_calibrate_writes_the_offset_on_a_whole_count_so_a_joint_at_its_neutral_
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports))
-    neutral = {"neck": 7800, "hip": 7499}  # 10.125 and -0.03375 servo degrees
-
-    def at_neutral() -> None:
-        for name, position in neutral.items():
-            sims.servo(name).move_by_hand(position)
-
+    neutral = NEUTRAL_COUNTS
     at = by_hand(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],
         [
-            ("neutral (every joint at 0)", at_neutral, "\n"),
+            ("neutral (every joint at 0)", in_counts(sims)(neutral), "\n"),
             ("whole range", at({"neck": -60.0, "hip": -60.0}), ""),
             (None, at({"neck": 60.0, "hip": 60.0}), "\n"),
         ],
@@ -721,22 +734,16 @@ def test_calibrate_shows_the_neutral_as_the_offset_it_writes(
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports))
-    neutral = {"neck": 7800, "hip": 7499}  # 10.125 and -0.03375 servo degrees
-
-    def at_neutral() -> None:
-        for name, position in neutral.items():
-            sims.servo(name).move_by_hand(position)
-
-    def swing(sign: int) -> Callable[[], None]:
-        def move() -> None:
-            for name in ("neck", "hip"):
-                sims.servo(name).move_by_hand(7500 + sign * 2000)
-
-        return move
+    neutral = NEUTRAL_COUNTS
+    at = in_counts(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],
-        [("neutral (every joint at 0)", at_neutral, "\n"), ("whole range", swing(-1), ""), (None, swing(1), "\n")],
+        [
+            ("neutral (every joint at 0)", at(neutral), "\n"),
+            ("whole range", at(TRAVEL_ENDS[0]), ""),
+            (None, at(TRAVEL_ENDS[1]), "\n"),
+        ],
         [sims.upper, sims.lower],
     )
     assert result.code == 0, result.err
@@ -755,21 +762,15 @@ def test_calibrate_shows_the_limits_as_it_writes_them(calibrating: tuple[Rig, di
     sims, ports = calibrating
     robot_file = tmp_path / "arm.toml"
     robot_file.write_text(CALIBRATE_FILE.format(**ports) + "reverse = true\n")  # the hip turns the other way
-    neutral = {"neck": 7800, "hip": 7499}
-
-    def turn(positions: Callable[[str], int]) -> Callable[[], None]:
-        def move() -> None:
-            for name in ("neck", "hip"):
-                sims.servo(name).move_by_hand(positions(name))
-
-        return move
+    neutral = NEUTRAL_COUNTS
+    at = in_counts(sims)
 
     result = run_with_hands(
         ["calibrate", str(robot_file)],
         [
-            ("neutral (every joint at 0)", turn(neutral.__getitem__), "\n"),
-            ("whole range", turn(lambda _: 5500), ""),
-            (None, turn(lambda _: 9500), "\n"),
+            ("neutral (every joint at 0)", at(neutral), "\n"),
+            ("whole range", at(TRAVEL_ENDS[0]), ""),
+            (None, at(TRAVEL_ENDS[1]), "\n"),
         ],
         [sims.upper, sims.lower],
     )

@@ -444,16 +444,17 @@ def test_a_running_simulators_link_is_refused_naming_it(tmp_path: Path) -> None:
         assert run_sim("--link", str(link)).returncode == 2
 
 
+def scan_at(port: Path) -> subprocess.CompletedProcess[str]:
+    """``ics35 --port PORT scan``, as a person runs it."""
+    command = [sys.executable, "-m", "ics35_async.cli", "--port", str(port), "scan"]
+    return subprocess.run(command, capture_output=True, text=True, timeout=30)
+
+
 def test_a_killed_simulators_link_to_a_since_reused_pty_is_not_opened(tmp_path: Path) -> None:
     # ics35 --port LINK sent its frames to whatever program had taken the pty number since (a terminal's screen).
     link = tmp_path / "tty"
     with killed_simulators_link(link) as pts, pty_numbered(pts) as other:
-        proc = subprocess.run(
-            [sys.executable, "-m", "ics35_async.cli", "--port", str(link), "scan"],
-            capture_output=True,
-            text=True,
-            timeout=30,
-        )
+        proc = scan_at(link)
         said = " ".join(proc.stderr.split())
         assert proc.returncode == 3 and "Traceback" not in said, said
         assert "simulator" in said and "killed" in said and pts in said and "another program" in said, said
@@ -464,12 +465,7 @@ def test_a_killed_simulators_link_to_a_since_reused_pty_is_not_opened(tmp_path: 
 def test_a_killed_simulators_link_says_the_simulator_was_killed(tmp_path: Path) -> None:
     link = tmp_path / "tty"
     with killed_simulators_link(link) as pts:
-        proc = subprocess.run(
-            [sys.executable, "-m", "ics35_async.cli", "--port", str(link), "scan"],
-            capture_output=True,
-            text=True,
-            timeout=30,
-        )
+        proc = scan_at(link)
     said = " ".join(proc.stderr.split())
     assert proc.returncode == 3 and "Traceback" not in said, said
     # (The number may have gone to a program of another user's meanwhile: said so, and still not opened.)
