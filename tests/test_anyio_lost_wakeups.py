@@ -390,7 +390,8 @@ CTRL_C_OUT_OF_THE_LOOP = RAISING_AT + textwrap.dedent(
     if on == "pty":
         server = PtyServer(sim)
         port = str(server.open())
-        threading.Thread(target=server.serve, daemon=True).start()
+        serving = threading.Thread(target=server.serve, daemon=True)
+        serving.start()
 
     def interrupt(signum, frame):
         def out_of_the_loop():
@@ -459,6 +460,11 @@ CTRL_C_OUT_OF_THE_LOOP = RAISING_AT + textwrap.dedent(
     except BaseException as exc:
         print("end:", type(exc).__name__, flush=True)
     print("servos:", " ".join("free" if sim.servo(i).free else "holding" for i in (1, 2, 3)), flush=True)
+    if on == "pty":  # (its private folder, and the link in it, would be left in the temporary directory)
+        server.stop()
+        serving.join(5)
+        server.close()
+        print("pty folder left:", server.path.parent.exists(), flush=True)
     """
 )
 
@@ -475,6 +481,7 @@ def test_a_keyboard_interrupt_out_of_asyncio_run_still_puts_the_servos_to_rest(
     assert lines.get("end") == "KeyboardInterrupt", lines  # the program is interrupted, as the signal meant
     assert lines["servos"] == "free free free", lines
     assert lines["tasks left"] == "0", lines  # the closed bus left no task of its own behind
+    assert lines.get("pty folder left", "False") == "False", lines
 
 
 @pytest.mark.parametrize(
@@ -484,3 +491,4 @@ def test_ctrl_c_under_trio_puts_the_servos_to_rest(on: str, closer: str) -> None
     lines = said(CTRL_C_OUT_OF_THE_LOOP, on, "anyio", closer, "trio", needs="servos")
     assert lines.get("end") == "KeyboardInterrupt", lines
     assert lines["servos"] == "free free free", lines
+    assert lines.get("pty folder left", "False") == "False", lines
