@@ -21,6 +21,7 @@ import pytest
 
 from ics35_async import blocking
 from ics35_async.eeprom import BaudRate
+from ics35_async.errors import PortLost
 from tests.support.cli_runs import run_process
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import GUARD, PATIENT, PATIENT_OPTION
@@ -149,6 +150,39 @@ def test_servos_plugged_in_renumbered_unplugged_and_plugged_back(sim_console: Ca
 
 
 @pytest.mark.slow
+def test_the_port_unplugged_and_plugged_back_in_from_the_console(sim_console: Callable[..., Console]) -> None:
+    # As pulling the USB adapter out and putting it back: the link goes and a program on the port loses it; it
+    # stays out until told (no replug of its own), and the program's reconnect finds it at the same path.
+    sim = sim_console("--ids", "1-2")
+    with blocking.open_bus(sim.path, reconnect=True, **PATIENT) as bus:
+        assert bus.scan(range(3)) == [1, 2]
+        assert sim.say("unplug port") == (
+            f"unplugged the port: {sim.path} is gone and a program on it loses it (replug port plugs it back in)"
+        )
+        gone_by = time.monotonic() + GUARD  # (the server, a thread of its own, follows the unplug at once)
+        while os.path.lexists(sim.path):
+            assert time.monotonic() < gone_by, "the link stayed"
+            time.sleep(0.01)
+        with pytest.raises(PortLost):
+            bus.servo(1).read_temperature()
+        assert sim.say("unplug port") == "error: the port is unplugged already (replug port plugs it back in)"
+        assert sim.listing()[0] == "list: 2 servos, the port unplugged (replug port plugs it back in)"
+        time.sleep(0.5)  # longer than the simulator's own replug after an unplug fault: it stays out
+        assert not os.path.lexists(sim.path)
+        assert sim.say("replug port") == f"plugged the port back in at {sim.path}; 2 servos on the line"
+        assert sim.say("replug port") == "error: the port is plugged in (unplug port pulls it out)"
+        deadline = time.monotonic() + GUARD
+        while True:  # the program's reconnect brings its line back
+            try:
+                bus.servo(2).read_temperature()
+                break
+            except PortLost:
+                assert time.monotonic() < deadline, "the line did not come back"
+                time.sleep(0.05)
+    assert scan(sim.path, ids=range(3)) == [1, 2]
+    assert "comes back in" not in sim.notes.read_text()  # (only an unplug that replugs by itself says when)
+
+
 def test_new_servos_renumbered_one_at_a_time_with_set_id(sim_console: Callable[..., Console]) -> None:
     # The how-to's steps (docs/how-to/simulator.md), with ics35 set-id: it proves the servo alone on the
     # line first (31 IDs that do not answer, each waited for with the patient allowance: seconds).

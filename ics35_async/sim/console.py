@@ -8,6 +8,8 @@ Commands::
     plug ID [BAUD] [ics36]   a new servo, factory settings, at ID (at BAUD, else the simulator's --baud)
     unplug ID                the servo at ID leaves the line (of two at one ID, the one plugged in last)
     replug [ID]              an unplugged servo comes back, powered up (the last unplugged, or the one at ID)
+    unplug port              the port goes, as a USB adapter pulled out: a program on it loses it, until...
+    replug port              ...the port comes back at the same path (a program's reconnect finds it there)
     power [ID]               power-cycle every servo, or those at ID: a baud rate in their EEPROM applies now
     turn ID POSITION         turn the servo(s) at ID by hand to POSITION (3500..11500): a free one stays there,
                              a holding one turns back to its target
@@ -37,9 +39,12 @@ from .virtual_servo import VirtualServo
 
 PROMPT = "sim> "  # (on a terminal only: see ConsoleReader)
 HELP = (
-    "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], power [ID], "
-    "turn ID POSITION (by hand, 3500..11500), list, help, quit"
+    "commands: plug ID [BAUD] [ics36] (a new servo), unplug ID, replug [ID], unplug port, replug port, "
+    "power [ID], turn ID POSITION (by hand, 3500..11500), list, help, quit"
 )
+
+
+REPLUG_PORT = "replug port plugs it back in"
 
 
 class ConsoleError(Exception):
@@ -88,10 +93,12 @@ def _describe(state: ServoState) -> str:
 
 
 class LineConsole:
-    """Carries out console commands on ``line``; new servos come at ``baudrate`` unless told another."""
+    """Carries out console commands on ``line``; new servos come at ``baudrate`` unless told another.  ``path``:
+    where programs open the line (what ``unplug port`` takes away)."""
 
-    def __init__(self, line: VirtualLine, baudrate: int) -> None:
+    def __init__(self, line: VirtualLine, baudrate: int, path: str = "the port") -> None:
         self.line = line
+        self.path = path
         self.baudrate = int(BaudRate.parse(baudrate))
         self.unplugged: list[VirtualServo] = []  # off the line, EEPROM kept: replug brings one back
         self.quit = False
@@ -149,6 +156,11 @@ class LineConsole:
         return _parse_id(args[0])
 
     def _unplug(self, args: list[str]) -> str:
+        if [a.lower() for a in args] == ["port"]:
+            if not self.line.plugged:
+                raise ConsoleError(f"the port is unplugged already ({REPLUG_PORT})")
+            self.line.unplug()  # (no replug of its own: it stays out until told, as an adapter left on the desk)
+            return f"unplugged the port: {self.path} is gone and a program on it loses it ({REPLUG_PORT})"
         servo_id = self._one_id("unplug", args)
         shared = len(self.line.servos_at(servo_id)) > 1
         try:
@@ -163,6 +175,11 @@ class LineConsole:
         )
 
     def _replug(self, args: list[str]) -> str:
+        if [a.lower() for a in args] == ["port"]:
+            if self.line.plugged:
+                raise ConsoleError("the port is plugged in (unplug port pulls it out)")
+            self.line.replug()
+            return f"plugged the port back in at {self.path}; {self._on_line()}"
         if len(args) > 1:
             raise ConsoleError("replug takes at most one ID, e.g. replug 1")
         servo_id = _parse_id(args[0]) if args else None
@@ -220,7 +237,10 @@ class LineConsole:
         states = self.line.servo_states()
         if not states:
             return "list: no servos on the line (plug ID puts one in)"
-        return "\n".join([f"list: {_servos(len(states))}", *(_describe(state) for state in states)])
+        head = f"list: {_servos(len(states))}"
+        if not self.line.plugged:
+            head += f", the port unplugged ({REPLUG_PORT})"
+        return "\n".join([head, *(_describe(state) for state in states)])
 
     def _help(self, args: list[str]) -> str:
         return HELP

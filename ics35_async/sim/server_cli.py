@@ -202,7 +202,8 @@ def say_unplugs(device: VirtualLine, started: float, say: Callable[[str], None])
     person watching the simulator's terminal tells its doing from their own program's fault."""
 
     def said(plugged: bool) -> None:
-        if not plugged:
+        # (only an unplug that comes back by itself: the console's unplug port says so in its answer)
+        if not plugged and device.replug_pending:
             say(
                 f"ics35 sim: the port was unplugged ({time.monotonic() - started:.1f} s after the start): it comes "
                 f"back in {device.replug_after:g} s, at the same path"
@@ -300,7 +301,7 @@ def main(
                 flush=True,
             )
         if args.console and isinstance(device, VirtualLine):
-            commands = LineConsole(device, args.baud)
+            commands = LineConsole(device, args.baud, str(path))
 
             def on_end() -> None:
                 if not commands.quit:  # (quit said so on stdout already)

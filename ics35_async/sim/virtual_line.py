@@ -89,6 +89,7 @@ class VirtualLine(LineModel):
         self.name = name
         self.url_query: str | None = None  # the options of the sim:// URL that made it (see sim.url.open_url)
         self.plugged = True
+        self.replug_pending = False  # unplugged with a replug of its own to come (not one left out until told)
         self.unplug_count = 0
         self._host: HostSide | None = None
         self._deliverer: Deliverer | None = None
@@ -300,6 +301,7 @@ class VirtualLine(LineModel):
             if not self.plugged:
                 return
             self.plugged = False
+            self.replug_pending = replug_after is not None
             self.unplug_count += 1
             host, self._host = self._host, None
             self.reset_wire()
@@ -319,6 +321,7 @@ class VirtualLine(LineModel):
             if self.plugged:
                 return
             self.plugged = True
+            self.replug_pending = False
         for callback in list(self._listeners):
             callback(True)
 
@@ -326,9 +329,7 @@ class VirtualLine(LineModel):
         """Unplug ``after`` wall-clock seconds from now, replug ``replug_after`` later."""
 
         def fire() -> None:
-            self.unplug()
-            if replug_after is not None:
-                self._start_timer(replug_after, self.replug)
+            self.unplug(replug_after=replug_after)
 
         self._start_timer(after, fire)
 
