@@ -1334,12 +1334,15 @@ ASKING_SILENT_IDS = ["--port", "sim://?ids=1-3", "--timeout", "5", "monitor", "1
         # (a line where nothing answers: each probe of the scan waits the whole --timeout)
         (["--port", "sim://?ids=", "--timeout", "5", "monitor", "--free"], "no IDs given: scanning", "scanning"),
         (["--port", "sim://?ids=", "--timeout", "5", "demo"], "no IDs given: scanning", "scanning"),
+        # ("all": the servos that answer, found by the same scan, which said nothing: seconds of a blank screen)
+        (["--port", "sim://?ids=", "--timeout", "5", "monitor", "all", "--free"], "scanning sim://", "scanning"),
+        (["--port", "sim://?ids=", "--timeout", "5", "demo", "--ids", "all"], "scanning sim://", "scanning"),
         # (demo asked nothing first: its stream's first cycles asked IDs 4-20 at the whole --timeout each, three
         # cycles before leaving them out, the terminal blank, and a press waited for each cycle that carried the
         # free: minutes)
         (["--port", "sim://?ids=1-3", "--timeout", "5", "demo", "--ids", "1-20"], "asking IDs 1-20", "asking IDs 1-20"),
     ],
-    ids=["monitor-ids", "monitor-scan", "demo-scan", "demo-ids"],
+    ids=["monitor-ids", "monitor-scan", "demo-scan", "monitor-all", "demo-all", "demo-ids"],
 )
 def test_ctrl_c_while_a_live_command_asks_its_ids_says_at_once_what_it_waits_for_and_what_was_done(
     args: list[str], shown: str, asked: str
@@ -1357,6 +1360,34 @@ def test_ctrl_c_while_a_live_command_asks_its_ids_says_at_once_what_it_waits_for
     assert screen[stopping + 1 :] == [
         f"error: interrupted while {asked}: nothing was sent that moves or frees a servo"
     ], said
+    if asked == "scanning":  # (and how far, in the words and the bar of `ics35 scan`, gone once it ends)
+        assert re.search(r"scanning +115200 baud\S*\s.*\b0/32\b", written), written
+        assert not any("/32" in line for line in screen), said
+
+
+@pytest.mark.parametrize(
+    ("command", "stopped"),
+    [
+        (["scan", "--bauds", "115200"], "error: interrupted"),
+        (["monitor", "all", "--free"], "error: interrupted while scanning: nothing was sent that moves or frees a"),
+        (["demo", "--ids", "all"], "error: interrupted while scanning: nothing was sent that moves or frees a"),
+    ],
+    ids=["scan", "monitor-all", "demo-all"],
+)
+def test_ctrl_c_during_a_scan_on_a_narrow_terminal_takes_its_progress_bar_off_the_screen(
+    command: list[str], stopped: str
+) -> None:
+    # On a terminal narrower than the bar's line it fills the width, the cursor past its last column: the ^C
+    # the terminal echoed wrapped to a line of its own, and the bar, cleared from one line too low, stayed on the
+    # screen above an empty line.
+    args = ["--port", "sim://?ids=", "--timeout", "5", *command]
+    code, written = typed_on_a_terminal(args, [("/32", b""), (scaled(0.3), b"\x03")], columns=NARROW)
+    screen = [line for line in screen_of(written, width=NARROW)]
+    said = "\n".join(screen)
+    assert code == 130 and "Traceback" not in written, said
+    assert not any("/32" in line for line in screen), said
+    assert stopped in said.replace("\n", ""), said
+    assert "" not in screen[: next(k for k, line in enumerate(screen) if line.startswith("error:"))], said
 
 
 def test_a_second_ctrl_c_while_monitor_asks_its_ids_leaves_at_once() -> None:

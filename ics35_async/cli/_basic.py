@@ -45,16 +45,11 @@ from ._targets import parse_target, refuse_outside_pulse_limits
 
 
 async def probe_ids(
-    bus: Bus, ids: Sequence[int], on_done: Callable[[], None] | None = None
+    bus: Bus, ids: Sequence[int], on_probe: Callable[[int], None] | None = None
 ) -> tuple[list[int], list[int]]:
-    """IDs answering a stretch read (harmless), and IDs whose reply was garbled: the library's scan policy."""
-
-    def advance(n: int) -> None:
-        if on_done is not None:
-            for _ in range(n):
-                on_done()
-
-    rate = await policies.probe_ids(bus, ids, on_probe=advance)
+    """IDs answering a stretch read (harmless), and IDs whose reply was garbled: the library's scan policy
+    (``on_probe`` hears how many IDs each step finished)."""
+    rate = await policies.probe_ids(bus, ids, on_probe=on_probe)
     return list(rate.answered), sorted(rate.garbled)
 
 

@@ -6,7 +6,7 @@ import contextlib
 import json
 import sys
 import weakref
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
@@ -15,6 +15,7 @@ from rich.console import Console, ConsoleOptions, Group, RenderableType, RenderR
 from rich.file_proxy import FileProxy
 from rich.live import Live
 from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.segment import Segment
 from rich.table import Table
 from rich.text import Text
@@ -40,7 +41,7 @@ class _Console(Console):
         super().print(*objects, **options)
 
 
-_live_views: weakref.WeakSet[_LiveView] = weakref.WeakSet()
+_live_views: weakref.WeakSet[_LiveView | _ScanBar] = weakref.WeakSet()
 out = _Console(highlight=False, soft_wrap=True)
 err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -121,6 +122,59 @@ class _Drawn:
         yield self.renderable
         if self.resting:
             yield Segment.line()
+
+
+class _ScanBar(Progress):
+    """rich's ``Progress`` with the cursor resting on an empty line below the bar, as a live view's (see
+    :class:`_LiveView`): on a terminal narrower than the bar's line the bar fills the width, and the ``^C`` of a
+    Ctrl-C wrapped to a line of its own, so that the bar, cleared from one line too low, stayed on the screen.
+    The last drawing, as it stops, leaves the empty line out, as a live view's does.  Counted among the live
+    views (see :func:`live_view`), so that the consoles leave the ``^C`` to its redraw: their clearing of it,
+    written to stderr while the bar held it, came out above the bar as an empty line."""
+
+    _stopping = False
+
+    @property
+    def drawing(self) -> bool:
+        """Whether the bar is on the screen and redrawn (see :attr:`_LiveView.drawing`)."""
+        return self.live.is_started or self._stopping
+
+    def get_renderable(self) -> RenderableType:
+        return _Drawn(super().get_renderable(), resting=not self._stopping)
+
+    def stop(self) -> None:
+        self._stopping = True
+        try:
+            super().stop()
+        finally:
+            self._stopping = False
+
+
+@contextlib.contextmanager
+def scan_progress(bauds: Sequence[int], ids: int, *, show: bool = True) -> Iterator[Callable[[int], None]]:
+    """A scan's progress on a terminal (stderr), gone once it ends: ``scanning 115200 baud``, a bar and the probes
+    done of ``ids`` at each of ``bauds``.  Yields the callback that hears how many probes each step finished (the
+    library's ``on_probe``)."""
+    progress = _ScanBar(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        console=err,
+        transient=True,
+        disable=not show or not err.is_terminal,
+    )
+    _live_views.add(progress)
+    with progress:
+        task = progress.add_task(f"scanning {bauds[0]:>7} baud", total=len(bauds) * ids)
+        done = 0
+
+        def advance(n: int) -> None:
+            nonlocal done
+            done += n
+            rate = bauds[min(done // ids, len(bauds) - 1)]
+            progress.update(task, advance=n, description=f"scanning {rate:>7} baud")
+
+        yield advance
 
 
 class _LiveView(Live):

@@ -40,7 +40,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import ids_argument, live_view, title_above, wrapped_at_width
+from ._console import ids_argument, live_view, scan_progress, title_above, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -231,9 +231,12 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
     IDs that answered garbled (left out: two servos sharing one, most often) are named whatever was asked.
     ``shown`` is the port as the command's other lines name it (:func:`live_port`): the default simulator's
     URL is the live view's own, which the user never typed."""
-    if not quiet and not asked_all:
-        err.print(f"no IDs given: scanning {escape(shown)} at {settings.baud} baud ...")
-    answered, garbled = await probe_ids(bus, ALL_IDS)
+    if not quiet:
+        # (Said first, whatever was asked: on a line where IDs stay silent the scan takes a --timeout each, and a
+        # log keeps this line where the terminal's progress bar is gone once the scan ends.)
+        err.print(f"{'' if asked_all else 'no IDs given: '}scanning {escape(shown)} at {settings.baud} baud ...")
+    with scan_progress([settings.baud], len(ALL_IDS), show=not quiet) as advance:
+        answered, garbled = await probe_ids(bus, ALL_IDS, on_probe=advance)
     where = f"{shown} at {settings.baud} baud"
     if not answered and garbled:  # new servos, all at ID 0: not the unpowered line NobodyAnswered tells of
         raise answered_garbled(settings, where, [(settings.baud, i) for i in garbled])

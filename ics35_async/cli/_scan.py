@@ -8,7 +8,6 @@ from dataclasses import replace
 import click
 from rich import box
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
 from .. import policies
@@ -37,6 +36,7 @@ from ._common import (
     translate,
     yes_option,
 )
+from ._console import scan_progress
 from ._eeprom_view import baud_text, flags_text
 
 # --------------------------------------------------------------------------- scan
@@ -52,24 +52,7 @@ async def scan_with_progress(
     show_progress: bool,
 ) -> ScanReport:
     """The library's scan, opening the port at each rate, with a progress bar on a terminal."""
-    progress = Progress(
-        TextColumn("[progress.description]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        console=err,
-        transient=True,
-        disable=not show_progress or not err.is_terminal,
-    )
-    with progress:
-        task = progress.add_task(f"scanning {bauds[0]:>7} baud", total=len(bauds) * len(ids))
-        done = 0
-
-        def advance(n: int) -> None:
-            nonlocal done
-            done += n
-            rate = bauds[min(done // len(ids), len(bauds) - 1)]
-            progress.update(task, advance=n, description=f"scanning {rate:>7} baud")
-
+    with scan_progress(bauds, len(ids), show=show_progress) as advance:
         return await policies.scan(
             lambda baud: settings.bus(baud, timeout=timeout),
             bauds=bauds,
