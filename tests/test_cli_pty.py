@@ -1265,20 +1265,43 @@ def test_q_typed_on_a_narrow_terminal_leaves_teachs_view_whole_and_its_last_word
     assert "q" not in [line.strip() for line in screen], said
 
 
-def test_a_robot_views_title_wider_than_the_terminal_ends_in_an_ellipsis(tmp_path: Path) -> None:
-    # As monitor's: a title wider than the terminal was cut at its last column with nothing to say so (a motion
-    # file's name cut short reads as another file's).
+MOTION_NAME = "the_walking_gait_of_the_hexapod_on_both_of_its_lines"
+ROBOT_NAME = "hexapod_on_its_two_lines_left_and_right"
+
+
+@pytest.mark.parametrize(
+    ("command", "motion", "expected"),
+    [
+        # (each part fits the terminal, the whole does not: a line each, neighbours sharing one where they fit)
+        ("teach", f"{MOTION_NAME}.json", ["teach:", f"{MOTION_NAME}.json"]),
+        ("play", MOTION_NAME, [f"play {MOTION_NAME}", f"on {ROBOT_NAME}: 2 joint(s)"]),
+        # (a part wider than the terminal by itself: cut at its end, with an ellipsis)
+        ("teach", f"a_long_motion_for_{MOTION_NAME}.json", ["teach:", f"a_long_motion_for_{MOTION_NAME}"[:59] + "…"]),
+        ("play", f"a_long_motion_for_{MOTION_NAME}", [f"play a_long_motion_for_{MOTION_NAME}"[:59] + "…"]),
+    ],
+    ids=["teach", "play", "teach-too-wide", "play-too-wide"],
+)
+def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
+    tmp_path: Path, command: str, motion: str, expected: list[str]
+) -> None:
+    # As monitor's and demo's: a title wider than the terminal was cut with an ellipsis, what came last lost (the
+    # robot, the joints played); its parts go on lines of their own, each cut only where it alone is too wide.
     robot = tmp_path / "arm.toml"
-    robot.write_text(CALIBRATED)
-    name = "a_long_motion_for_the_walking_gait_of_the_hexapod_on_its_two_lines.json"
-    args = ["teach", str(robot), str(tmp_path / name), "--yes"]
-    code, written = typed_on_a_terminal(args, [("0 pose(s) captured", b"q\r")], columns=NARROW)
+    robot.write_text(f'name = "{ROBOT_NAME}"\n{CALIBRATED}')
+    if command == "teach":
+        args, keys = ["teach", str(robot), str(tmp_path / motion), "--yes"], [("0 pose(s) captured", b"q\r")]
+    else:
+        played = tmp_path / "motion.json"
+        keyframes = [{"time": 0.5, "pose": {"a": 5, "b": 5}}]
+        played.write_text(json.dumps({"format": "ics35-motion", "version": 1, "name": motion, "keyframes": keyframes}))
+        args, keys = ["play", str(robot), str(played), "--start-pose", "a=0,b=0"], []
+    code, written = typed_on_a_terminal(args, keys, columns=NARROW)
     screen = [line for line in screen_of(written, width=NARROW) if line]
     said = "\n".join(screen)
-    assert code == 5, said  # (refused: no pose captured)
-    title = f"teach: {name}"
-    assert len(title) > NARROW  # (the scene)
-    assert [line for line in screen if line.startswith("teach: a_long")] == [title[: NARROW - 1] + "…"], said
+    assert code == (5 if command == "teach" else 0), said  # (teach refused: no pose captured)
+    top = next(k for k, line in enumerate(screen) if line.startswith(expected[0]))
+    assert screen[top : top + len(expected)] == expected, said
+    assert sum(line.startswith(expected[0]) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
 
 
 def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:

@@ -24,6 +24,7 @@ from ..robot.startup import check_start_pose
 from ..stream import ON_CLOSE
 from ..tasks import retrieved
 from ._common import CliError, ExitCode, choice_option, err, out, seconds_option, settings_of
+from ._console import TitleInParts
 from ._robot_common import (
     Opening,
     chosen_joints,
@@ -132,7 +133,10 @@ def play(
         raise CliError(ExitCode.USAGE, f"{motion_file}: {exc} (nothing was sent)") from None
     note_ports(settings, robot_file)
     name = description.name or robot_file
-    title = f"play {escape(motion.name or motion_file)} on {escape(name)}: {len(motion.joints)} joint(s)"
+    title = TitleInParts(
+        (f"play {escape(motion.name or motion_file)}", f"on {escape(name)}:", f"{len(motion.joints)} joint(s)"),
+        port=None,
+    )
     began = time.monotonic()
     passes = 0
     played = 0.0  # seconds into the motion when it stopped
@@ -202,9 +206,11 @@ def play(
             lost: list[bool] = []  # the lines ended (a port lost): the table's last look says so
             given_up: list[bool] = []  # the loop ended early: a joint came back after going offline
 
-            with Screen(lambda: joint_table(robot, title, motion.joints, lost=bool(lost)), summary) as screen:
+            with Screen(
+                lambda: joint_table(robot, title.whole, motion.joints, lost=bool(lost)), summary, title
+            ) as screen:
                 if not screen.tty:
-                    out.print(f"{title}; one line per second, table at the end")
+                    out.print(f"{title.whole}; one line per second, table at the end")
 
                 async def one_pass() -> bool:
                     """Play the motion once; False if it gave up a joint whose servo came back after going offline

@@ -48,7 +48,7 @@ from ._common import (
     settings_of,
     yes_option,
 )
-from ._console import signed_tenths
+from ._console import TitleInParts, signed_tenths
 from ._robot_common import (
     Opening,
     TypedLines,
@@ -234,10 +234,12 @@ def teach(
                     return f"LINE LOST: no more poses; the {captured} are being saved"
                 return f"t={time.monotonic() - start:5.1f} s  {captured}"
 
-            def table() -> Table:
-                return joint_table(robot, f"teach: {escape(target.name)}", names, lost=bool(lost))
+            title = TitleInParts(("teach:", escape(target.name)), port=None)
 
-            with Screen(table, summary) as screen:
+            def table() -> Table:
+                return joint_table(robot, title.whole, names, lost=bool(lost))
+
+            with Screen(table, summary, title) as screen:
 
                 async def capture_loop() -> None:
                     while True:

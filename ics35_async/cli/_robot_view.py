@@ -22,7 +22,7 @@ from ..engine import State
 from ..robot import Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import live_view, signed_tenths, title_above, wrapped_at_width
+from ._console import TitleInParts, live_view, signed_tenths, title_above, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
@@ -96,11 +96,16 @@ def joint_table(
 
 
 class Screen:
-    """Where the table goes: redrawn in place on a terminal, a summary line a second elsewhere."""
+    """Where the table goes: redrawn in place on a terminal, a summary line a second elsewhere.  ``title``: the
+    view's title in parts, drawn above the table on a line each where the terminal is too narrow for the whole
+    (see :class:`TitleInParts`); else the table's own, cut with an ellipsis there."""
 
-    def __init__(self, render: Callable[[], Table], summary: Callable[[], str]) -> None:
+    def __init__(
+        self, render: Callable[[], Table], summary: Callable[[], str], title: TitleInParts | None = None
+    ) -> None:
         self.render = render
         self.summary = summary
+        self.title = title
         self.tty = out.is_terminal
         self._live = live_view(auto_refresh=False, transient=False) if self.tty else None
         self._last = time.monotonic()
@@ -129,7 +134,9 @@ class Screen:
 
     def _lines(self, hint: str) -> Group:
         said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
-        return Group(title_above(self.render()), *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())))
+        return Group(
+            title_above(self.render(), self.title), *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip()))
+        )
 
     def __enter__(self) -> Screen:
         if self._live is not None:
