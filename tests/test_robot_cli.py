@@ -1799,6 +1799,47 @@ def unplug_and_replug_once_answered(sim: VirtualLine, servo_id: int, away: float
     threading.Thread(target=run, daemon=True).start()
 
 
+def unplug_once_its_telemetry_answered(sim: VirtualLine, servo_id: int) -> None:
+    """Unplug ``servo_id`` once it has answered a current read and a temperature read (the robot's telemetry), from
+    a thread of its own."""
+
+    def run() -> None:
+        deadline = time.monotonic() + scaled(30.0)
+        while time.monotonic() < deadline:
+            answered = {t.command for t in sim.log_since(0) if t.servo_id == servo_id and t.reply}
+            if {"read_current", "read_temperature"} <= answered:
+                sim.remove_servo(servo_id)
+                return
+            time.sleep(0.01)
+
+    threading.Thread(target=run, daemon=True).start()
+
+
+def test_play_shows_no_temperature_or_current_for_a_joint_gone_offline(cli: Any, tmp_path: Path) -> None:
+    # With continue_on_offline the motion plays on without a servo unplugged mid-motion: its row said "offline"
+    # beside the last temperature and current read from it, shown as if they were current.
+    sims = make_rig(safety={"continue_on_offline": True})
+    try:
+        robot_file = tmp_path / "robot.toml"
+        robot_file.write_text(dump_description(load_description(sims.description)))
+        motion = write_motion(
+            tmp_path / "m.json",
+            {"time": 0.3, "pose": {"neck": 10, "hip": -5}},
+            {"time": 2.5, "pose": {"neck": 20, "hip": -10}},
+        )
+        unplug_once_its_telemetry_answered(sims.lower, JOINTS["hip"]["id"])
+        result = cli("play", str(robot_file), str(motion))
+    finally:
+        sims.close()
+    assert result.code == 0, result.err
+    rows = {
+        line.split()[0]: line.split() for line in result.out.splitlines() if line.split()[:1] in (["hip"], ["neck"])
+    }
+    # joint, line:ID, target°, pos°, temp, cur, state
+    assert rows["hip"][-1] == "offline" and rows["hip"][-3:-1] == ["-", "-"], result.out
+    assert re.fullmatch(r"\d+C", rows["neck"][-3]) and rows["neck"][-2].isdigit(), result.out  # (still read)
+
+
 @pytest.mark.parametrize("loop", [False, True])
 def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp_path: Path, loop: bool) -> None:
     # With continue_on_offline the motion plays on without a servo unplugged mid-motion; plugged back, the motion

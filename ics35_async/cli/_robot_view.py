@@ -51,7 +51,8 @@ def joint_table(
     """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns).
 
     ``lost``: the robot's lines stopped (a port lost); the joints of each line whose port is gone say
-    so (their positions are only the last ones read), the others keep their state.
+    so (their positions are only the last ones read), the others keep their state.  A joint whose servo is
+    offline shows no temperature or current ("-", as its position): the last ones read are not its own now.
     """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
@@ -67,12 +68,14 @@ def joint_table(
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
+        silent = False  # its servo offline: the last temperature and current read are not its own now
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
             state = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
         elif frame is not None and name in frame.offline:
             state = Text("offline", style="red")
+            silent = True
         elif frame is not None and name in frame.failed:
             state = Text("no reply", style="yellow")
         elif frame is not None and name in frame.held:  # (after its line or its servo came back: sent nothing)
@@ -85,8 +88,8 @@ def joint_table(
             f"{spec.line}:{spec.id}",
             "-" if name in robot.untouched or waiting else "free" if target is None else _deg(target),
             _deg(positions.get(name)),
-            "-" if seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
-            "-" if seen is None or seen.current is None else str(seen.current),
+            "-" if silent or seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
+            "-" if silent or seen is None or seen.current is None else str(seen.current),
             state,
         ]
         if extra is not None:
