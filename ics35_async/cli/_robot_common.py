@@ -138,19 +138,21 @@ def note_ports(settings: Settings, robot_file: str) -> None:
 def left_after_trip(exc: SafetyStop, left: str | None) -> str:
     """What the joints the command opened were left in by the trip's action (and then, on ``left == "free"``,
     by the command's own free as it closed): a bare "action: stop" read as if the robot had stopped and held."""
-    # A servo that went offline hears no command: not the free either.
-    unheard = f", but joint {exc.joint}'s silent servo may not have heard it" if exc.reason == "offline" else ""
+    # A servo that went offline hears no command: not the free either, so it may still hold.
+    unheard = "silent servo may not have heard it (its torque may still be on)"
+    offline = exc.reason == "offline"
+    among = f", but joint {exc.joint}'s {unheard}" if offline else ""  # (the joint named here first)
     if left == "free":
-        return f"the command then freed every joint it opened (--on-stop free){unheard}"
+        return f"the command then freed every joint it opened (--on-stop free){among}"
     if exc.action == "stop":
         return (
-            f'action = "stop": every joint it opened was freed (torque off: a standing robot falls){unheard}; '
+            f'action = "stop": every joint it opened was freed (torque off: a standing robot falls){among}; '
             '[safety] action = "hold" keeps every joint at its last target instead'
         )
     if exc.action == "free":
         return (
-            f'action = "free": joint {exc.joint} was freed{unheard}; the others keep their last targets (a free one '
-            "stays free)"
+            f'action = "free": joint {exc.joint} was freed{f", but its {unheard}" if offline else ""}; the others '
+            "keep their last targets (a free one stays free)"
         )
     return 'action = "hold": every joint it opened keeps its last target (a free one stays free)'
 
