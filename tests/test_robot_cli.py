@@ -1922,6 +1922,9 @@ def test_a_safety_stop_says_what_the_joints_were_left_in(
         hint = next(part for part in said.split("hint: ") if part.startswith(phrase[:20]))
         assert hint.count("hip") <= 1, said
         assert sims.servo("neck").free == ("neck" in free)
+        # Its row: the trip, and no temperature or current (the last ones read are not its own now).
+        row = next(line.split() for line in result.out.splitlines() if line.split()[:2] == ["hip", "lower:1"])
+        assert row[-2:] == ["STOP:", "offline"] and row[-4:-2] == ["-", "-"], result.out
     finally:
         sims.close()
 

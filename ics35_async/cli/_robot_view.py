@@ -68,14 +68,15 @@ def joint_table(
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
-        silent = False  # its servo offline: the last temperature and current read are not its own now
+        # Its servo offline (a trip for it said first, as its state): the last temperature and current read are not
+        # its own now.
+        silent = frame is not None and name in frame.offline
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:
             state = Text(f"STOP: {robot.tripped[name].reason}", style="bold red")
         elif frame is not None and name in frame.offline:
             state = Text("offline", style="red")
-            silent = True
         elif frame is not None and name in frame.failed:
             state = Text("no reply", style="yellow")
         elif frame is not None and name in frame.held:  # (after its line or its servo came back: sent nothing)
