@@ -142,3 +142,49 @@ def test_every_motion_is_checked_and_each_one_that_does_not_fit_is_named(cli: An
     motions = {Path(m["file"]).name: m for m in result.json()["motions"]}
     assert motions["wave.json"]["fits"] is True and "error" not in motions["wave.json"], motions
     assert motions["beyond.json"]["fits"] is False and "keyframes[1]" in motions["beyond.json"]["error"], motions
+
+
+def test_a_motion_file_missing_or_broken_is_said_so_not_that_it_does_not_fit(cli: Any, tmp_path: Path) -> None:
+    # A motion file not there, a folder, or not a motion at all was counted among the motions that "do not fit".
+    robot = robot_file(tmp_path)
+    missing = tmp_path / "gone.json"
+    folder = tmp_path / "folder.json"
+    folder.mkdir()
+    broken = tmp_path / "broken.json"
+    broken.write_text("{not json")
+    beyond = motion_file(tmp_path / "beyond.json", {"wrist": 40})
+    wave = motion_file(tmp_path / "wave.json", {"shoulder": 20})
+    paths = [str(p) for p in (missing, folder, broken, beyond, wave)]
+    result = cli("check", str(robot), *paths)
+    assert result.code == ExitCode.USAGE, result.err
+    said, err = " ".join(result.out.split()), " ".join(result.err.split())
+    assert "wave.json: 1 keyframe, 0.5 s, moves shoulder: fits the robot" in said, said  # (the others still checked)
+    # Each named with what is wrong, in the words play uses for the same file (less its "nothing was sent").
+    for path in (missing, folder, broken):
+        played = cli("play", str(robot), str(path))
+        assert played.code == ExitCode.USAGE, played.err
+        words = " ".join(played.err.split()).removeprefix("error: ").split(" (nothing was sent)")[0]
+        assert f"error: {words}" in err, (words, err)
+    assert f"MOTION.json {missing}: no such file" in err, err
+    assert f"{broken}: not valid JSON" in err, err
+    assert (
+        f"4 of 5 motions: 1 was not found, 1 is not readable, 1 is not a motion file and 1 does not fit {robot}"
+    ) in err, err
+
+    result = cli("check", str(robot), *paths, "--json")
+    assert result.code == ExitCode.USAGE, result.err
+    motions = {Path(m["file"]).name: m for m in result.json()["motions"]}
+    assert {name: m["problem"] for name, m in motions.items() if not m["fits"]} == {
+        "gone.json": "not found",
+        "folder.json": "not readable",
+        "broken.json": "not a motion file",
+        "beyond.json": "does not fit",
+    }, motions
+    assert motions["gone.json"]["fits"] is None and "no such file" in motions["gone.json"]["error"], motions
+    assert motions["beyond.json"]["fits"] is False and motions["wave.json"]["fits"] is True, motions
+    assert "problem" not in motions["wave.json"], motions
+
+    # One kind alone is said as before.
+    result = cli("check", str(robot), str(missing))
+    assert result.code == ExitCode.USAGE, result.err
+    assert "1 of 1 motion was not found" in " ".join(result.err.split()), result.err

@@ -11,14 +11,31 @@ from ..user_files import check_backup_room, empty_path
 from ._settings import CliError, ExitCode, Settings
 
 
-def _refuse(what: str, path: str, why: str) -> CliError:
+class InputPathError(CliError):
+    """An input file that cannot be read (exit code 2): ``missing`` when there is no file at the path (or no
+    path), else it is there but cannot be read (a directory, no permission)."""
+
+    def __init__(self, message: str, *, missing: bool) -> None:
+        super().__init__(ExitCode.USAGE, message)
+        self.missing = missing
+
+
+def _said(what: str, path: str, why: str) -> str:
     joined = f"{what}{path}" if what.endswith("=") else f"{what} {path}"  # --port sim://?record=FILE
-    return CliError(ExitCode.USAGE, f"{joined}: {why} (nothing was sent)")
+    return f"{joined}: {why} (nothing was sent)"
+
+
+def _refuse(what: str, path: str, why: str) -> CliError:
+    return CliError(ExitCode.USAGE, _said(what, path, why))
+
+
+def _empty_path_said(what: str) -> str:
+    return f"{what}: the path is empty; give a file name (nothing was sent)"
 
 
 def _refuse_empty(path: str, what: str) -> None:
     if empty_path(path):
-        raise CliError(ExitCode.USAGE, f"{what}: the path is empty; give a file name (nothing was sent)")
+        raise CliError(ExitCode.USAGE, _empty_path_said(what))
 
 
 def check_output_path(path: str, what: str, formats: Collection[str] | None = None) -> Path:
@@ -58,15 +75,16 @@ def check_backup_path(target: Path, what: str) -> None:
 
 
 def check_input_path(path: str, what: str) -> Path:
-    """``path`` if it is a readable file, else a :class:`CliError` (exit code 2)."""
-    _refuse_empty(path, what)
+    """``path`` if it is a readable file, else an :class:`InputPathError` (exit code 2)."""
+    if empty_path(path):
+        raise InputPathError(_empty_path_said(what), missing=True)
     source = Path(path)
     if source.is_dir():
-        raise _refuse(what, path, f"is a directory; give the file ({what}) itself")
+        raise InputPathError(_said(what, path, f"is a directory; give the file ({what}) itself"), missing=False)
     if not source.is_file():
-        raise _refuse(what, path, "no such file")
+        raise InputPathError(_said(what, path, "no such file"), missing=True)
     if not os.access(source, os.R_OK):
-        raise _refuse(what, path, "the file is not readable")
+        raise InputPathError(_said(what, path, "the file is not readable"), missing=False)
     return source
 
 

@@ -8,7 +8,7 @@ what a safety trip does).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, TypeVar
 
 import click
 from rich.markup import escape
@@ -20,7 +20,9 @@ from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
 from ._common import CliError, ExitCode, emit_json, id_ranges, json_option, out
 from ._console import say_error
-from ._robot_common import load_motion_file, load_robot_file
+from ._robot_common import MOTION_FILE_PROBLEMS, MotionFileError, load_motion_file, load_robot_file
+
+Refused = TypeVar("Refused", bound=CliError)
 
 # What a safety trip does, by [safety] action (see the robot-files page).
 TRIP_DOES = {
@@ -85,9 +87,11 @@ def robot_json(description: RobotDescription) -> dict[str, Any]:
     }
 
 
-def motion_json(path: str, motion: Motion | CliError) -> dict[str, Any]:
-    if isinstance(motion, CliError):
-        return {"file": path, "fits": False, "error": motion.message}
+def motion_json(path: str, motion: Motion | MotionFileError) -> dict[str, Any]:
+    if isinstance(motion, MotionFileError):
+        # (a motion not read is not known not to fit: null, not false)
+        fits = False if motion.problem == "does not fit" else None
+        return {"file": path, "fits": fits, "problem": motion.problem, "error": motion.message}
     return {
         "file": path,
         "fits": True,
@@ -143,26 +147,27 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
     ics35 check robot.toml wave.json ...   and each motion: its joints known, every angle within limits
 
     What play, teach and calibrate check before they open anything; a file that breaks a rule is named with
-    its key (exit code 2), each motion that does not fit the robot in turn.
+    its key (exit code 2), then each motion refused: not found, not readable, not a motion file, or not fitting
+    the robot.
     """
     try:
         description = load_robot_file(robot_file)
     except CliError as exc:
         raise _said_of_check(exc) from None
     # Every motion, each on its own: checking the motions taught before a calibration wants each one's verdict.
-    checked: list[tuple[str, Motion | CliError]] = []
+    checked: list[tuple[str, Motion | MotionFileError]] = []
     for path in motion_files:
         try:
             checked.append((path, load_motion_file(path, description)))
-        except CliError as exc:
+        except MotionFileError as exc:
             checked.append((path, _said_of_check(exc)))
-    unfit = [error for _, error in checked if isinstance(error, CliError)]
+    refused = [error.problem for _, error in checked if isinstance(error, MotionFileError)]
     if as_json:
         emit_json({"robot": robot_json(description), "motions": [motion_json(p, m) for p, m in checked]})
     else:
         show_robot(robot_file, description)
         for path, motion in checked:
-            if isinstance(motion, CliError):
+            if isinstance(motion, MotionFileError):
                 say_error(motion)
                 continue
             moves = ", ".join(motion.joints)
@@ -170,13 +175,35 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
                 f"{escape(path)}: {_plural(len(motion.keyframes), 'keyframe')}, {shown(motion.duration)} s, "
                 f"moves {escape(moves)}: fits the robot"
             )
-    if not unfit:
+    if not refused:
         return 0
-    not_fit = "does not fit" if len(unfit) == 1 else "do not fit"
-    raise CliError(ExitCode.USAGE, f"{len(unfit)} of {_plural(len(checked), 'motion')} {not_fit} {robot_file}")
+    raise CliError(
+        ExitCode.USAGE, f"{len(refused)} of {_plural(len(checked), 'motion')}{_refused_text(refused, robot_file)}"
+    )
 
 
-def _said_of_check(error: CliError) -> CliError:
+# What is wrong with the motions check refused, by MotionFileError.problem: said of one, of several.
+_PROBLEM_SAID = {
+    "not found": ("was not found", "were not found"),
+    "not readable": ("is not readable", "are not readable"),
+    "not a motion file": ("is not a motion file", "are not motion files"),
+    "does not fit": ("does not fit {robot}", "do not fit {robot}"),
+}
+
+
+def _refused_text(problems: list[str], robot_file: str) -> str:
+    """What follows "2 of 5 motions" in check's closing error: " do not fit arm.toml" when all of them share a
+    problem, else ": 1 was not found and 1 does not fit arm.toml", a count for each."""
+    counts = {problem: problems.count(problem) for problem in MOTION_FILE_PROBLEMS if problem in problems}
+    said = [
+        f"{count} {_PROBLEM_SAID[problem][count != 1].format(robot=robot_file)}" for problem, count in counts.items()
+    ]
+    if len(said) == 1:
+        return " " + said[0].split(" ", 1)[1]
+    return ": " + ", ".join(said[:-1]) + f" and {said[-1]}"
+
+
+def _said_of_check(error: Refused) -> Refused:
     """``error`` of a file check, said for ``check``: the loaders, shared with the commands that send once their
     files are read, end it with "(nothing was sent)", and check never sends anything."""
     error.message = error.message.removesuffix(" (nothing was sent)")

@@ -45,6 +45,7 @@ from ..robot.motion import MotionError, check_motion
 from ..transports.wire_device import url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
+from ._paths import InputPathError
 
 T = TypeVar("T")
 
@@ -54,6 +55,14 @@ SAFETY_HINTS = (
 )
 
 
+def _usage_error(exc: InvalidArgument, path: str, placeholder: str) -> CliError:
+    # A robot file where the motion goes, or the other way round: the two given in the wrong order.
+    wanted, other = (".toml", ".json") if placeholder.endswith(".toml") else (".json", ".toml")
+    swapped = path.lower().endswith(other) and not path.lower().endswith(wanted)
+    hints = ["the robot file (ROBOT.toml) comes first, then the motion (MOTION.json)"] if swapped else []
+    return CliError(ExitCode.USAGE, f"{exc} (nothing was sent)", *hints)
+
+
 def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
     """``load(path)`` of a checked input file; one that breaks its format (a FileContentError, which
     names the file and key) is a usage error (exit code 2)."""
@@ -61,11 +70,7 @@ def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
     try:
         return load(path)
     except InvalidArgument as exc:
-        # A robot file where the motion goes, or the other way round: the two given in the wrong order.
-        wanted, other = (".toml", ".json") if placeholder.endswith(".toml") else (".json", ".toml")
-        swapped = path.lower().endswith(other) and not path.lower().endswith(wanted)
-        hints = ["the robot file (ROBOT.toml) comes first, then the motion (MOTION.json)"] if swapped else []
-        raise CliError(ExitCode.USAGE, f"{exc} (nothing was sent)", *hints) from None
+        raise _usage_error(exc, path, placeholder) from None
 
 
 def load_robot_file(path: str) -> RobotDescription:
@@ -73,18 +78,36 @@ def load_robot_file(path: str) -> RobotDescription:
     return load_input_file(path, "ROBOT.toml", load_description)
 
 
+# What can be wrong with a motion file given to a robot command, in the order ``ics35 check`` sums them up.
+MOTION_FILE_PROBLEMS = ("not found", "not readable", "not a motion file", "does not fit")
+
+
+class MotionFileError(CliError):
+    """A motion file refused before any port opens (exit code 2); ``problem`` is which of
+    :data:`MOTION_FILE_PROBLEMS`: no file at the path, one that cannot be read, not a motion (not JSON, or
+    breaking the format), or a motion the robot cannot play (a joint it lacks, an angle beyond a limit)."""
+
+    def __init__(self, problem: str, error: CliError) -> None:
+        super().__init__(error.code, error.message, *error.hints)
+        self.problem = problem
+
+
 def load_motion_file(path: str, description: RobotDescription) -> Motion:
     """The motion, checked against the robot's joints and limits before any port opens (a robot that
-    starts frees its joints), or a usage error (exit code 2) naming the file and key."""
-
-    def load(source: str) -> Motion:
-        motion = load_motion(source)
-        check_motion(description, motion, source)
+    starts frees its joints), or a :class:`MotionFileError` (exit code 2) naming the file, and the key."""
+    try:
+        motion = load_input_file(path, "MOTION.json", load_motion)
+    except InputPathError as exc:
+        raise MotionFileError("not found" if exc.missing else "not readable", exc) from None
+    except CliError as exc:
+        raise MotionFileError("not a motion file", exc) from None
+    try:
+        check_motion(description, motion, path)
         if not motion.joints:  # (one taught with every servo silent): play would open no joint, and play nothing
-            raise MotionError(source, "", "the motion moves no joint (every keyframe's pose is empty): nothing to play")
-        return motion
-
-    return load_input_file(path, "MOTION.json", load)
+            raise MotionError(path, "", "the motion moves no joint (every keyframe's pose is empty): nothing to play")
+    except InvalidArgument as exc:
+        raise MotionFileError("does not fit", _usage_error(exc, path, "MOTION.json")) from None
+    return motion
 
 
 def chosen_joints(description: RobotDescription, text: str | None) -> list[str]:

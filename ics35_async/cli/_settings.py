@@ -45,8 +45,9 @@ class ExitCode(enum.IntEnum):
     USAGE = 2
     """Bad argument, nothing sent: ID 32, position 20000 (or 90 without `--deg`), an unknown parameter or
     field, a broken backup file, a `--plot` or `sim://?record=` file that cannot be written (or a taught
-    motion's: it is printed instead), `--plot` without matplotlib, a mistake in a robot or motion file, a
-    motion beyond the robot's limits, a write without `--port`, or a `udev --group` this system does not have."""
+    motion's: it is printed instead), `--plot` without matplotlib, a robot or motion file missing, unreadable
+    or with a mistake, a motion beyond the robot's limits, a write without `--port`, or a `udev --group` this
+    system does not have."""
     PORT = 3
     """The port cannot be opened: missing, permission denied, busy, not a serial port, direction control
     refused by its driver; a bridge (`socket://`, `rfc2217://`) that refuses or drops the connection (what
