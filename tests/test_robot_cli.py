@@ -787,6 +787,39 @@ def test_calibrate_shows_the_limits_as_it_writes_them(calibrating: tuple[Rig, di
     assert rows == written
 
 
+def test_calibrate_shows_each_joints_position_from_the_offset_it_found(
+    calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
+) -> None:
+    # pos° came from the file's old offset, beside the new offset and the limits from it: a joint held at the end
+    # of its range read 20 degrees away from the max beside it.
+    sims, ports = calibrating
+    robot_file = tmp_path / "arm.toml"
+    old = CALIBRATE_FILE.format(**ports).replace("offset = 0.0 ", "offset = 30.0 ") + "offset = -20.0\nreverse = true\n"
+    robot_file.write_text(old)
+    at = in_counts(sims)
+
+    result = run_with_hands(
+        ["calibrate", str(robot_file)],
+        [
+            ("neutral (every joint at 0)", at(NEUTRAL_COUNTS), "\n"),
+            ("whole range", at(TRAVEL_ENDS[0]), ""),
+            (None, at(TRAVEL_ENDS[1]), "\n"),  # (left there: the table at the end shows each joint at that end)
+        ],
+        [sims.upper, sims.lower],
+    )
+    assert result.code == 0, result.err
+    before, after = load_description(str(tmp_path / "arm.toml.bak")), load_description(robot_file)
+    rows = {cells[0]: cells for cells in map(str.split, result.out.splitlines()) if cells[:1] in (["neck"], ["hip"])}
+    for name, row in rows.items():
+        shown = float(row[3])  # joint, line:ID, target°, pos°, ...
+        found = after.joints[name].degrees(TRAVEL_ENDS[1][name])
+        assert shown == pytest.approx(found, abs=0.05), (name, row)
+        assert abs(shown - before.joints[name].degrees(TRAVEL_ENDS[1][name])) > 5, (name, row)  # (the file's old)
+        # Where its range ended: at a limit the table shows beside it (rounded inward, within 0.1 degree).
+        assert min(abs(shown - float(limit)) for limit in row[-2:]) <= 0.1 + 1e-9, (name, row)
+    assert set(rows) == {"neck", "hip"}, result.out
+
+
 def test_calibrate_adds_no_offset_of_zero_to_a_joint_without_one_but_updates_an_offset_there(
     calibrating: tuple[Rig, dict[str, str]], tmp_path: Path
 ) -> None:

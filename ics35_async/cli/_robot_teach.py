@@ -438,6 +438,9 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     names,
                     (("offset°", "min°", "max°"), extra),
                     lost=bool(lost),
+                    # pos° in the frame of the columns on the right, once a neutral is taken: beside the limits
+                    # from the new offset, the file's old one would put a joint at its end away from its limit.
+                    offsets={name: count_angle(servo) for name, servo in neutral.items()},
                 )
 
             def track(frame: RobotFrame | None) -> None:

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from types import TracebackType
 
 from rich import box
@@ -19,7 +20,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ..engine import State
-from ..robot import Robot, RobotFrame
+from ..robot import JointSpec, Robot, RobotFrame
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
 from ._console import TitleInParts, live_view, signed_tenths, title_above, wrapped_at_width
@@ -40,6 +41,13 @@ def cycles_text(frame: RobotFrame) -> str:
     return "cycles " + ", ".join(f"{line} {cycles}" for line, cycles in sorted(frame.line_cycles.items()))
 
 
+def _reframed(spec: JointSpec, degrees: float | None, offset: float | None) -> float | None:
+    """``degrees`` of the joint ``spec`` describes, from ``offset`` (servo degrees) in place of its own."""
+    if degrees is None or offset is None:
+        return degrees
+    return replace(spec, offset=offset).joint_degrees(spec.servo_degrees(degrees))
+
+
 def joint_table(
     robot: Robot,
     title: str,
@@ -47,12 +55,15 @@ def joint_table(
     extra: tuple[Sequence[str], Extra] | None = None,
     *,
     lost: bool = False,
+    offsets: Mapping[str, float] | None = None,
 ) -> Table:
     """One row per joint: where it is, its target, telemetry and state (plus ``extra`` columns).
 
     ``lost``: the robot's lines stopped (a port lost); the joints of each line whose port is gone say
     so (their positions are only the last ones read), the others keep their state.  A joint whose servo is
     offline shows no temperature or current ("-", as its position): the last ones read are not its own now.
+    ``offsets``: servo degrees that read 0 in place of the robot file's, by joint (calibrate's, as found): its
+    ``pos°`` from that offset.
     """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
@@ -88,7 +99,7 @@ def joint_table(
             name,
             f"{spec.line}:{spec.id}",
             "-" if name in robot.untouched or waiting else "free" if target is None else _deg(target),
-            _deg(positions.get(name)),
+            _deg(_reframed(spec, positions.get(name), (offsets or {}).get(name))),
             "-" if silent or seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
             "-" if silent or seen is None or seen.current is None else str(seen.current),
             state,
