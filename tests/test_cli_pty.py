@@ -1265,6 +1265,32 @@ def test_q_typed_on_a_narrow_terminal_leaves_teachs_view_whole_and_its_last_word
     assert "q" not in [line.strip() for line in screen], said
 
 
+def test_teachs_clock_reads_the_motions_time_the_poses_it_records_get(tmp_path: Path) -> None:
+    # The status line's clock counted from when teaching began, the poses' times from the first capture (at
+    # --lead): "pose 2 at 0.6 s" said under a clock past 2 s.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    motion = tmp_path / "wave.json"
+    args = ["teach", str(robot), str(motion), "--yes", "--lead", "0.1"]
+    keys = [
+        ("0 pose(s) captured", b""),
+        (scaled(2.0), b"\r"),  # (posing before the first capture: not motion time)
+        ("1 pose(s) captured", b""),
+        (scaled(0.5), b"\r"),
+        ("2 pose(s) captured", b"q\r"),
+    ]
+    code, written = typed_on_a_terminal(args, keys)
+    screen = [line for line in screen_of(written) if line]
+    said = "\n".join(screen)
+    assert code == 0 and "Traceback" not in written, said
+    taught = [frame["time"] for frame in json.loads(motion.read_text())["keyframes"]]
+    assert f"pose 2 at {taught[1]:.2f} s" in said, said
+    # The view's last status line, drawn after the second capture: the clock read just past that pose's time.
+    clock = [float(m[1]) for line in screen if (m := re.match(r"t= *([\d.]+) s", line))]
+    assert clock, said
+    assert taught[1] - 0.05 <= clock[-1] <= taught[1] + scaled(1.0), (taught, clock, said)
+
+
 MOTION_NAME = "the_walking_gait_of_the_hexapod_on_both_of_its_lines"
 ROBOT_NAME = "hexapod_on_its_two_lines_left_and_right"
 

@@ -224,7 +224,6 @@ def teach(
                 "the joints are free: pose the robot by hand; [bold]Enter[/bold] captures the pose, "
                 "[bold]q[/bold] then Enter ends (Ctrl-C too)"
             )
-            start = time.monotonic()
             watcher = asyncio.ensure_future(watch_lines(robot))
             lost: list[bool] = []
 
@@ -232,7 +231,12 @@ def teach(
                 captured = f"{len(keyframes)} pose(s) captured"
                 if lost:
                     return f"LINE LOST: no more poses; the {captured} are being saved"
-                return f"t={time.monotonic() - start:5.1f} s  {captured}"
+                # The motion's clock, as its poses' times count (from the first capture, at --lead): there is none
+                # before it, while the robot is posed.
+                now = times.now(time.monotonic())
+                if now is None:
+                    return f"t=    - s (the first pose is at {times.lead:g} s)  {captured}"
+                return f"t={now:5.1f} s  {captured}"
 
             title = TitleInParts(("teach:", escape(target.name)), port=None)
 
@@ -326,9 +330,15 @@ class TaughtTimes:
     first: float | None = None
 
     def at(self, now: float) -> float:
+        """The time of a pose captured at ``now`` (``time.monotonic()``); the first one captured sets the clock."""
         if self.first is None:
             self.first = now
         return round(self.lead + now - self.first, 3)
+
+    def now(self, now: float) -> float | None:
+        """The motion's time at ``now`` (``time.monotonic()``), as a pose captured then would get it; ``None``
+        before the first capture (the motion's clock starts with it)."""
+        return None if self.first is None else self.lead + now - self.first
 
 
 async def capture(
