@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import httpx2
@@ -831,7 +832,7 @@ def test_a_file_of_several_servos_without_this_servos_backup_names_those_it_hold
     words = refused.json()["error"]
     assert words == "the file holds the backups of servos 1-3, none of servo 5", words
     silent = post(client, "/api/servo/6/restore", {"doc": doc})
-    assert silent.status_code == 400 and "servo 6: no reply at 115,200 baud, not saved" in silent.json()["error"], (
+    assert silent.status_code == 400 and "servo 6: no reply at 115,200 baud: check" in silent.json()["error"], (
         silent.text
     )
     assert sim.transactions == before
@@ -843,8 +844,8 @@ def test_back_up_all_keeps_the_servos_read_and_names_the_one_that_did_not_answer
     held = backups_in(doc)
     assert sorted(held.servos) == [1, 3] and list(held.not_saved) == [5], doc
     words = held.not_saved[5]
-    # In the Many servos page's words for a servo that does not answer (no bytes, no ID), of a read, not a write.
-    assert words.startswith("no reply at 115,200 baud, not saved: check its power"), words
+    # In the file's words for a servo that does not answer (no bytes, no ID), of a read, not a write.
+    assert words.startswith("no reply at 115,200 baud: check its power"), words
     assert "written" not in words and "raw" not in words and "5" not in words.split(), words
 
 
@@ -857,9 +858,42 @@ def test_back_up_all_keeps_the_servos_read_before_the_port_was_lost_and_names_th
     assert answer.status_code == 200, answer.text
     held = backups_in(answer.json())
     assert list(held.servos) == [1] and sorted(held.not_saved) == [2, 3], held
-    assert held.not_saved[2].startswith("port ") and "lost" in held.not_saved[2], held.not_saved
-    assert held.not_saved[3] == ("not read: the line was lost at servo 2; back them up again once it is back")
+    # The servo the port was lost at, and the one after it: not read, for one cause.
+    assert (
+        held.not_saved[2]
+        == held.not_saved[3]
+        == ("not read: the port was lost at servo 2; back it up again once the port is back")
+    ), held.not_saved
     sim.replug()
+
+
+def test_back_up_all_and_eeprom_dump_say_why_a_servo_is_not_saved_in_the_same_words(
+    serve: Any, cli: Any, sim_line: Any, tmp_path: Path
+) -> None:
+    # One file format, two writers: a silent servo was "no reply at 115200 baud" from ics35 eeprom dump and "no
+    # reply at 115,200 baud, not saved: check its power ..." from Back up all, a lost port "not read: the port was
+    # lost first" and "not read: the line was lost at servo 4; ...".  Servo 2 is silent, servo 4 pulls the plug.
+    client, web_sim = serve((1, 3, 5))
+    web_puller = UnplugsWhenAsked(4, ReadEeprom)
+    web_sim.add_device(web_puller)
+    web_puller.line = web_sim
+    answer = post(client, "/api/many/backup", {"ids": [1, 2, 3, 4, 5]})
+    assert answer.status_code == 200, answer.text
+    from_web = answer.json()["not_saved"]
+
+    cli_puller = UnplugsWhenAsked(4, ReadEeprom)
+    cli_sim, url = sim_line([VirtualServo(1), VirtualServo(3), cli_puller, VirtualServo(5)])
+    cli_puller.line = cli_sim
+    backup = tmp_path / "robot.json"
+    result = cli("--port", url, "--timeout", "0.05", "eeprom", "dump", "1-5", "-o", str(backup))
+    assert result.code == 1, result.err  # (the port lost)
+    from_cli = json.loads(backup.read_text())["not_saved"]
+
+    assert [n["servo_id"] for n in from_web] == [n["servo_id"] for n in from_cli] == [2, 4, 5], (from_web, from_cli)
+    assert from_web == from_cli, (from_web, from_cli)
+    why = {n["servo_id"]: n["why"] for n in from_cli}
+    assert "no reply" in why[2] and "lost" in why[4] and why[4] == why[5], why  # (the two after the loss: one cause)
+    assert "page" not in " ".join(why.values()).lower(), why  # (a file's words, not one screen's)
 
 
 def test_back_up_all_refuses_a_bad_choice_of_servos_before_anything_is_sent(serve: Any) -> None:

@@ -17,13 +17,17 @@ from ..eeprom import Eeprom, Flags
 from ..errors import ClosedByPortLoss, InvalidArgument, MalformedEeprom, PortLost, ReplyError, UnsafeOperation
 from ..policies import EepromPlan, plan_eeprom_write, probe_ids, read_eeprom_agreed
 from ..policies.eeprom_backup import (
+    GARBLED_WHY,
     Backups,
     backup_changes,
     backup_document,
     backup_file_name,
     backups_document,
     backups_in,
+    no_reply_why,
     plan_restores,
+    port_lost_why,
+    read_failed_why,
 )
 from ..user_files import (
     UnreadableText,
@@ -109,7 +113,7 @@ class ImagesRead:
     lost: CliError | None = None
     unread: list[int] = field(default_factory=list)
     garbled: list[int] = field(default_factory=list)  # answered garbled to the probe (two servos on one ID?)
-    failed: list[int] = field(default_factory=list)  # answered the probe, but no two EEPROM reads agreed
+    failed: dict[int, str] = field(default_factory=dict)  # answered the probe, its EEPROM read failed -> why
 
 
 async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
@@ -121,14 +125,14 @@ async def read_images(settings: Settings, ids: list[int]) -> ImagesRead:
             return ImagesRead({ids[0]: await read_eeprom_agreed(bus, ids[0])})
         rate = await probe_ids(bus, ids)
         images: dict[int, Eeprom] = {}
-        failed: list[int] = []
+        failed: dict[int, str] = {}
         garbled = sorted(rate.garbled)
         for n, i in enumerate(rate.answered):
             try:
                 images[i] = await read_eeprom_agreed(bus, i)
             except ReplyError as exc:
                 err.print(f"[yellow]warning:[/yellow] servo {i}: EEPROM read failed: {escape(str(exc))}")
-                failed.append(i)
+                failed[i] = read_failed_why(exc, settings.baud, echo=settings.echo)
             except (PortLost, ClosedByPortLoss) as exc:
                 if not images:
                     raise
@@ -217,10 +221,10 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
             doc = backups_document(
                 [dump_document(image, i, settings) for i, image in images.items()],
                 {
-                    **({} if every_id(ids) else dict.fromkeys(missing, f"no reply at {settings.baud} baud")),
-                    **dict.fromkeys(read.garbled, "answered garbled (two servos sharing an ID, most likely)"),
-                    **dict.fromkeys(read.failed, "answered, but no two reads of its EEPROM agreed"),
-                    **dict.fromkeys(read.unread, "not read: the port was lost first"),
+                    **({} if every_id(ids) else dict.fromkeys(missing, no_reply_why(settings.baud))),
+                    **dict.fromkeys(read.garbled, GARBLED_WHY),
+                    **read.failed,
+                    **(dict.fromkeys(read.unread, port_lost_why(read.unread[0])) if read.unread else {}),
                 },
             )
             kept = write_backup(path, doc)

@@ -4,7 +4,9 @@ One JSON object per servo (format ``ics35-eeprom/1``): the decoded fields,
 the flag names, the raw image and any code ICS 3.5 does not define.  The
 configurator's Back up all puts several servos' in one file (format
 ``ics35-eeproms/1``: each servo's object as it would be alone, and the servos
-asked for that are not in it, with why); :func:`backups_in` reads either kind,
+asked for that are not in it, with why, in the words of :func:`no_reply_why`,
+:func:`read_failed_why`, :func:`port_lost_why` and :data:`GARBLED_WHY`, which
+``ics35 eeprom dump`` uses too); :func:`backups_in` reads either kind,
 and :meth:`Backups.backup_for` picks the backup a servo is restored from.  On the
 way back the whole document is checked before anything is sent (format and
 version, a whole ``raw`` image, every field agreeing with it), and only the
@@ -35,7 +37,7 @@ from typing import Any
 
 from .. import protocol
 from ..eeprom import EEPROM_FIELDS, EEPROM_SIZE, Eeprom
-from ..errors import InvalidArgument, UnsafeOperation
+from ..errors import InvalidArgument, ReplyError, ReplyTimeout, UnsafeOperation
 from ..protocol.wire import id_ranges
 from ..transports import carries_line_settings
 from .eeprom_write import EepromPlan, back_at_rate, check_changes, plan_eeprom_write
@@ -77,6 +79,39 @@ def backups_document(
         "servos": [dict(doc) for doc in servos],
         "not_saved": [{"servo_id": i, "why": why} for i, why in sorted((not_saved or {}).items())],
     }
+
+
+# Why a servo asked for is not in a file of several (its ``not_saved`` words), made here for every writer of the
+# file (``ics35 eeprom dump IDS -o FILE.json``, the configurator's Back up all): the same cause reads the same in
+# the file whichever wrote it, and names no screen or command of one of them.
+
+GARBLED_WHY = "answered garbled: two servos sharing an ID, most likely, or noise on the line"
+"""A servo whose answer to the probe before the reads was garbled."""
+
+
+def no_reply_why(baud: int, *, no_echo: bool = False) -> str:
+    """A servo that did not answer at ``baud``; ``no_echo``: on a line that echoes, not even the echo of the
+    request came back (the adapter or its cable, not the servo)."""
+    if no_echo:
+        return f"no reply at {baud:,} baud, not even the echo of the request: check the adapter and its cable"
+    return f"no reply at {baud:,} baud: check its power, the wiring, its ID and its baud rate"
+
+
+def read_failed_why(error: ReplyError, baud: int, *, echo: bool = True) -> str:
+    """A servo whose EEPROM read ended in ``error`` (at ``baud``; ``echo``: the line echoes what it sends), not a
+    lost port's: no reply (:func:`no_reply_why`), or an answer no backup can be made of, in words naming no
+    servo and showing no bytes."""
+    if isinstance(error, ReplyTimeout):
+        return no_reply_why(baud, no_echo=echo and not error.raw)
+    text = str(error)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
+    what = text.partition(": ")[2].rpartition(" (raw: ")[0] or text
+    return f"answered, but its EEPROM could not be read: {what}"
+
+
+def port_lost_why(at_servo: int) -> str:
+    """A servo not read because the port was lost, at servo ``at_servo`` (the one it was read from then, or one
+    before it)."""
+    return f"not read: the port was lost at servo {at_servo}; back it up again once the port is back"
 
 
 def backup_file_name(ids: Sequence[int]) -> str:

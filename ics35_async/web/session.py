@@ -67,7 +67,14 @@ from ..policies import (
     write_eeprom_plans,
     write_lone_id,
 )
-from ..policies.eeprom_backup import backup_changes, backup_document, backups_document, backups_in
+from ..policies.eeprom_backup import (
+    backup_changes,
+    backup_document,
+    backups_document,
+    backups_in,
+    port_lost_why,
+    read_failed_why,
+)
 from ..protocol import Param
 from ..servo import check_pulse_limits
 from ..transports import carries_line_settings, same_port
@@ -839,11 +846,12 @@ class LineSession:
 
     async def backup_many(self, ids: list[Any]) -> dict[str, Any]:
         """The backups of ``ids``, each read as :meth:`backup` reads one, in one document (policies.eeprom_backup's
-        backups_document), with the servos not saved and why in the Many servos page's words.
+        backups_document), with the servos not saved and why in the file's words (policies.eeprom_backup's, as
+        ``ics35 eeprom dump IDS -o FILE.json`` writes them).
 
         A servo that does not answer, or answers garbled, is left out and the others are read; a lost line ends
-        the reading, the servos after it "not read" (a port back half-way would have read them at another moment
-        with no word of it): what was read before is in the document all the same."""
+        the reading, the servo it was lost at and those after it "not read" (a port back half-way would have read
+        them at another moment with no word of it): what was read before is in the document all the same."""
         checked = list(dict.fromkeys(protocol.check_id(i) for i in ids))  # (each once: a file holds one per servo)
         self.line()  # (no line open: said once, not "lost at servo 1" for the others)
         saved: list[dict[str, Any]] = []
@@ -852,13 +860,11 @@ class LineSession:
             try:
                 saved.append(await self.backup(sid))
             except ReplyError as exc:  # (a ReplyTimeout is an OSError too: this servo's, not the line's)
-                not_saved[sid] = self._many_words(exc, "not saved")
+                not_saved[sid] = read_failed_why(exc, self.config.baud, echo=self.config.echo)
                 if isinstance(exc, ReplyTimeout):
                     self.lost_touch([sid])
-            except (PortLost, BusClosed, SerialPortError, OSError) as exc:
-                not_saved[sid] = error_text(exc)
-                rest = f"not read: the line was lost at servo {sid}; back them up again once it is back"
-                not_saved.update(dict.fromkeys(checked[k + 1 :], rest))
+            except (PortLost, BusClosed, SerialPortError, OSError):
+                not_saved.update(dict.fromkeys(checked[k:], port_lost_why(sid)))
                 break
         return backups_document(saved, not_saved)
 
@@ -908,11 +914,9 @@ class LineSession:
                 results.append({"id": sid, "error": self._many_words(exc), "kind": type(exc).__name__})
         return results
 
-    def _many_words(self, exc: IcsError, undone: str = "nothing written") -> str:
-        """``exc``'s words for the Many servos page, naming no servo and showing no bytes (the Traffic page
-        has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent).
-        ``undone``: what a servo that failed before anything was sent to change it missed (a backup's "not
-        saved")."""
+    def _many_words(self, exc: IcsError) -> str:
+        """``exc``'s words for the Many servos page's edits, naming no servo and showing no bytes (the Traffic page
+        has them): "no reply" with what to check (policies.why_no_reply's checks that need nothing sent)."""
         if isinstance(exc, VerifyError):  # "servo 2 acknowledged the write, then ...": the row names the servo
             return re.sub(r"^servo \d+:? ", "", error_text(exc))
         if not isinstance(exc, ReplyError):
@@ -926,7 +930,7 @@ class LineSession:
             if self.config.echo and not exc.raw:
                 return self._no_reply_words(NoReply(NoReplyCause.NO_ECHO, exc.servo_id, self.config.baud), None)
             return (
-                f"no reply at {self.config.baud:,} baud, {undone}: check its power (6-12 V on the servo "
+                f"no reply at {self.config.baud:,} baud, nothing written: check its power (6-12 V on the servo "
                 "line, not just USB), the wiring and its ID; its Servo page looks for it at the other baud rates"
             )
         text = str(exc)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
@@ -936,7 +940,7 @@ class LineSession:
                 f"{what or text}; it may or may not have been written: open its Servo page to read what it has (the "
                 "bytes are on the Traffic page)"
             )
-        return f"{what or text}; {undone} (the bytes are on the Traffic page)"
+        return f"{what or text}; nothing written (the bytes are on the Traffic page)"
 
     # ------------------------------------------------------------------ torque and motion
 
