@@ -251,6 +251,15 @@ def run_sim(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.parametrize("value", ["inf", "nan", "1e12"])
+def test_a_replug_time_no_timer_can_wait_is_a_usage_error(value: str) -> None:
+    """``--replug-after inf`` served, said the port "comes back in inf s" as it was pulled, then printed a timer
+    thread's ``OverflowError`` traceback."""
+    proc = run_sim("--unplug-after", "0.1", "--replug-after", value)
+    assert proc.returncode == 2, proc.stderr
+    assert "--replug-after" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
 @contextlib.contextmanager
 def serving_sim(*args: str) -> Iterator[subprocess.Popen[str]]:
     """``ics35 sim --ids 1 --fast`` with ``args`` in a process of its own, its output piped (its first line: the

@@ -102,6 +102,36 @@ def test_bad_urls(url: str) -> None:
         parse_url(url)
 
 
+@pytest.mark.parametrize(
+    ("query", "key"),
+    [
+        ("unplug_after=0.1&replug_after=inf", "replug_after"),
+        ("unplug_after=0.1&replug_after=nan", "replug_after"),
+        ("unplug_after=inf", "unplug_after"),
+        ("unplug_after=nan", "unplug_after"),
+        ("unplug_after=0.1&replug_after=1e12", "replug_after"),
+        ("turnaround=inf", "turnaround"),
+        ("late_delay=nan&faults=late:1", "late_delay"),
+        ("tail_delay=inf&faults=tail:1", "tail_delay"),
+        ("eeprom_delay=nan", "eeprom_delay"),
+    ],
+)
+async def test_a_duration_no_timer_can_wait_is_refused_as_the_bus_opens(query: str, key: str) -> None:
+    """``replug_after=inf`` (a port that never comes back, as a user says it) went to a timer thread that died with
+    an ``OverflowError`` traceback once the port was pulled, and ``nan`` replugged at once: each such duration is
+    refused, naming its key, before anything is opened."""
+    with pytest.raises(InvalidArgument, match=f"^{key} "):
+        async with open_bus(f"sim://?ids=1&realtime=1&{query}"):
+            pass
+
+
+@pytest.mark.parametrize("option", ["unplug_after", "replug_after", "turnaround", "tail_delay"])
+@pytest.mark.parametrize("value", [float("inf"), float("nan")])
+def test_a_line_built_in_python_refuses_a_duration_no_timer_can_wait(option: str, value: float) -> None:
+    with pytest.raises(InvalidArgument, match=f"^{option} "):
+        VirtualLine([1], **{option: value})
+
+
 @pytest.mark.parametrize("url", ["sim://?ids=1-2&noisy=3", "sim://?ids=1-2&ics36=0"])
 def test_an_ics36_or_noisy_id_outside_the_urls_ids_is_refused(url: str) -> None:
     with pytest.raises(InvalidArgument, match="no servo of this line is built from ID"):

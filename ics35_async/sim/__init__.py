@@ -32,7 +32,9 @@ factory servos (IDs 0..31) at 115200 bit/s in fast mode.  Keys:
 (1/0), ``follow_baud`` (1/0), ``seed``, ``faults`` (e.g.
 ``drop:0.01,late@3:0.1,tail:0.05``, see :mod:`.faults`), ``turnaround``,
 ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
-``replug_after`` (seconds, or with ``us``/``ms``/``s``), ``tail_bytes``
+``replug_after`` (seconds, or with ``us``/``ms``/``s``; finite, at most what a timer can wait: the port
+pulled ``unplug_after`` seconds after the first connect comes back ``replug_after`` later, 0.2 s by default;
+a long one, ``replug_after=1e6``, keeps it away), ``tail_bytes``
 (what the held-tail fault holds back), ``ics36`` (IDs of servos that speak ICS 3.6),
 ``noisy`` (IDs of servos whose position readings jump at each reply), ``memory`` (IDs of generic devices),
 ``log`` (log size, ``all``), ``record`` (file), ``replay`` (file: serve a

@@ -31,7 +31,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol import BITS_PER_BYTE, WriteEeprom
 from ..transports.usb_timing import Chunks, FtdiAdapter
-from ..units import unknown_options
+from ..units import finite_number, said, shown, unknown_options
 from .devices import NO_ANSWER, DeviceTable, MemorySpec, build_devices
 from .faults import FaultConfig, FaultInjector
 from .framing import CommandFramer
@@ -53,6 +53,28 @@ DEFAULT_TAIL_BYTES = 4
 DEFAULT_TAIL_DELAY = 40e-3
 """The held-tail fault's defaults: what ser2net with Nagle's algorithm did to a
 68-byte EEPROM answer (64 bytes, then 4 about 40 ms later: a delayed ACK)."""
+LONGEST_DELAY = threading.TIMEOUT_MAX
+"""The longest a simulated delay may be, in seconds: what a timer thread can wait (an unplugged port's replug, a
+reply's delivery; about 292 years on Linux, 49 days on Windows).  Longer, or ``inf``, that thread would die with an
+``OverflowError`` as it started waiting."""
+
+
+def check_delay(what: str, value: object) -> float:
+    """``value`` as a simulated delay in seconds: a finite number, not negative, at most :data:`LONGEST_DELAY`.
+
+    Raises:
+        InvalidArgument: it is not, naming ``what``.
+    """
+    number = finite_number(value)
+    if number is None:
+        raise InvalidArgument(f"{what} must be a finite number of seconds, not {said(value)}")
+    if number < 0:
+        raise InvalidArgument(f"{what} must not be negative")
+    if number > LONGEST_DELAY:
+        raise InvalidArgument(
+            f"{what} must be at most {LONGEST_DELAY:g} seconds (what a timer can wait), got {shown(number)}"
+        )
+    return number
 
 
 class LineModelOptions(TypedDict, total=False):
@@ -119,7 +141,8 @@ class LineModel:
             ``baudrate``); ``None`` means IDs 0..31.
 
     Raises:
-        InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.
+        InvalidArgument: an unknown option, a delay that is negative, not finite or longer than a timer can
+            wait (``check_delay``), a bad baud rate, ID or fault spec.
     """
 
     def __init__(self, servos: Iterable[VirtualServo | int] | None = None, **options: Unpack[LineModelOptions]) -> None:
@@ -131,13 +154,12 @@ class LineModel:
         eeprom_write_delay = options.get("eeprom_write_delay", DEFAULT_EEPROM_WRITE_DELAY)
         tail_delay = options.get("tail_delay", DEFAULT_TAIL_DELAY)
         tail_bytes = options.get("tail_bytes", DEFAULT_TAIL_BYTES)
-        for value, what in (
-            (turnaround, "turnaround"),
-            (eeprom_write_delay, "eeprom_write_delay"),
-            (tail_delay, "tail_delay"),
-        ):
-            if value < 0:
-                raise InvalidArgument(f"{what} must not be negative")
+        turnaround = check_delay("turnaround", turnaround)
+        eeprom_write_delay = check_delay("eeprom_write_delay", eeprom_write_delay)
+        tail_delay = check_delay("tail_delay", tail_delay)
+        late_delay = options.get("late_delay")
+        if late_delay is not None:
+            late_delay = check_delay("late_delay", late_delay)
         if isinstance(tail_bytes, bool) or not isinstance(tail_bytes, int) or tail_bytes < 1:
             raise InvalidArgument(f"tail_bytes must be a whole number of bytes >= 1, got {tail_bytes!r}")
         memory, ics36 = options.get("memory"), options.get("ics36", ())
@@ -147,7 +169,7 @@ class LineModel:
         self.echo = options.get("echo", True)
         self.turnaround = turnaround
         self.eeprom_write_delay = eeprom_write_delay
-        self.late_delay = options.get("late_delay")
+        self.late_delay = late_delay
         self.tail_bytes = tail_bytes
         self.tail_delay = tail_delay
         self.noise_gap = options.get("noise_gap", DEFAULT_NOISE_GAP)

@@ -19,6 +19,7 @@ from ..transports.wire_device import url_name
 from ..units import parse_ids
 from .adapter import make_adapter
 from .faults import FaultConfig
+from .model import check_delay
 from .record import ReplayDevice
 from .virtual_line import VirtualLine, named
 
@@ -87,7 +88,12 @@ def _flag(key: str, text: str) -> bool:
 
 
 def parse_seconds(text: str, what: str = "duration") -> float:
-    """``"0.02"``, ``"20ms"``, ``"100us"``, ``"1s"`` -> seconds."""
+    """``"0.02"``, ``"20ms"``, ``"100us"``, ``"1s"`` -> seconds.
+
+    Raises:
+        InvalidArgument: not a number of seconds, or not a delay a timer can wait (negative, ``inf``, ``nan``, too
+            long: see ``check_delay``), naming ``what``.
+    """
     raw = text.strip().lower()
     scale = 1.0
     for suffix, factor in (("us", 1e-6), ("ms", 1e-3), ("s", 1.0)):
@@ -98,9 +104,7 @@ def parse_seconds(text: str, what: str = "duration") -> float:
         value = float(raw) * scale
     except ValueError:
         raise InvalidArgument(f"{what} {text!r} is not a number of seconds (e.g. 0.02, 20ms, 100us)") from None
-    if value < 0:
-        raise InvalidArgument(f"{what} must not be negative")
-    return value
+    return check_delay(what, value)  # (float() takes "inf" and "nan": no timer waits for either)
 
 
 def _int(key: str, text: str) -> int:
@@ -127,7 +131,8 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
     (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
     ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
-    ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed),
+    ``replug_after`` (seconds; ``20ms`` / ``100us`` suffixes allowed; each finite, at most what a timer can
+    wait; ``replug_after`` defaults to 0.2 s),
     ``tail_bytes`` (how many bytes the ``tail`` fault holds back),
     ``ics36`` (IDs of servos that speak ICS 3.6 and answer its position
     read; the others are ICS 3.5; IDs among ``ids``), ``noisy`` (IDs among ``ids`` of servos whose reported

@@ -25,7 +25,7 @@ from ..errors import PortBusy
 from ..transports import HostSide
 from ..units import POSITION_MAX, check_int
 from .devices import VirtualDevice
-from .model import LineModel, LineModelOptions
+from .model import LineModel, LineModelOptions, check_delay
 from .precise_wait import SPIN_MARGIN, Deliverer
 from .virtual_servo import MemoryDevice, VirtualServo
 
@@ -67,7 +67,8 @@ class VirtualLine(LineModel):
         name: registers the line so ``sim://NAME`` reaches this object.
 
     Raises:
-        InvalidArgument: an unknown option, a negative delay, a bad baud rate, ID or fault spec.
+        InvalidArgument: an unknown option, a delay that is negative, not finite or longer than a timer can
+            wait (``check_delay``), a bad baud rate, ID or fault spec.
     """
 
     def __init__(
@@ -83,8 +84,8 @@ class VirtualLine(LineModel):
     ) -> None:
         super().__init__(servos, **options)
         self.follow_host_baud = follow_host_baud
-        self.unplug_after = unplug_after
-        self.replug_after = replug_after
+        self.unplug_after = None if unplug_after is None else check_delay("unplug_after", unplug_after)
+        self.replug_after = check_delay("replug_after", replug_after)
         self.spin_margin = spin_margin
         self.name = name
         self.url_query: str | None = None  # the options of the sim:// URL that made it (see sim.url.open_url)
@@ -296,7 +297,12 @@ class VirtualLine(LineModel):
 
         The host's port is lost with ``exc`` (default: an ``ENODEV`` OSError).  With ``replug_after``
         (wall-clock seconds) the port comes back by itself.
+
+        Raises:
+            InvalidArgument: ``replug_after`` is not a delay a timer can wait (see ``check_delay``).
         """
+        if replug_after is not None:  # here: its timer thread would die of a time it cannot wait, the port gone
+            replug_after = check_delay("replug_after", replug_after)
         with self._lock:
             if not self.plugged:
                 return
@@ -326,7 +332,14 @@ class VirtualLine(LineModel):
             callback(True)
 
     def schedule_unplug(self, after: float, replug_after: float | None = None) -> None:
-        """Unplug ``after`` wall-clock seconds from now, replug ``replug_after`` later."""
+        """Unplug ``after`` wall-clock seconds from now, replug ``replug_after`` later.
+
+        Raises:
+            InvalidArgument: either is not a delay a timer can wait (see ``check_delay``).
+        """
+        after = check_delay("unplug_after", after)
+        if replug_after is not None:
+            replug_after = check_delay("replug_after", replug_after)
 
         def fire() -> None:
             self.unplug(replug_after=replug_after)
