@@ -94,7 +94,8 @@ class BusOptions(TimingOverrides, total=False):
     request fails at once with ``PortLost`` and a stream pauses (it resumes once the port is back);
     to wait for the port, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
     reconnect_backoff: Sequence[float]
-    """Seconds between reopen attempts after a loss; the last repeats (default 0.05, then every 0.1)."""
+    """Seconds between reopen attempts after a loss, at least one (each 0..60); the last repeats (default 0.05, then
+    every 0.1)."""
     max_requests_between: int
     """At most this many requests (1..10000, default 16) run between two of a stream's transactions."""
     direction: str | None
@@ -134,6 +135,9 @@ class Bus:
         backoff = options.get("reconnect_backoff", RECONNECT_BACKOFF)
         if isinstance(backoff, (str, bytes)) or not isinstance(backoff, Iterable):
             raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {backoff!r}")
+        backoff = tuple(check_seconds("reconnect delay", d) for d in backoff)
+        if not backoff:  # (its last delay repeats: an empty one has none to)
+            raise InvalidArgument("reconnect_backoff must hold at least one delay in seconds (its last one repeats)")
         driver = options.get("driver", "auto")
         if driver not in DRIVERS:
             raise InvalidArgument(f"driver must be one of {', '.join(DRIVERS)}, not {driver!r}")
@@ -149,7 +153,7 @@ class Bus:
             transport="thread" if driver == "thread" else transport,
             direction=check_direction(options.get("direction"), port),
             reconnect=check_bool("reconnect", options.get("reconnect", False)),
-            reconnect_backoff=tuple(check_seconds("reconnect delay", d) for d in backoff) or (0.5,),
+            reconnect_backoff=backoff,
         )
         self._engine = LineEngine(
             baudrate=protocol.check_baud(options.get("baudrate", FACTORY_BAUD)),

@@ -105,6 +105,7 @@ BAD_CALLS: list[Any] = [
     ("open_bus backoff int", lambda e: open_bus(e.sim, reconnect_backoff=5)),  # type: ignore[arg-type]
     ("open_bus backoff str", lambda e: open_bus(e.sim, reconnect_backoff="ab")),  # type: ignore[arg-type]
     ("open_bus backoff negative", lambda e: open_bus(e.sim, reconnect_backoff=(-1,))),
+    ("open_bus backoff empty", lambda e: open_bus(e.sim, reconnect_backoff=())),  # (was taken as 0.5 s, said nowhere)
     ("open_bus retries True", lambda e: open_bus(e.sim, retries=True)),
     ("open_bus latency True", lambda e: open_bus(e.sim, adapter_latency=True)),
     ("open_bus echo str", lambda e: open_bus(e.sim, echo="no")),  # type: ignore[arg-type]
