@@ -80,8 +80,8 @@ def run(main: Callable[[], Awaitable[object]], *, backend: Backend = "asyncio") 
 
     Raises:
         InvalidArgument: ``main`` is a coroutine (``run(main())``: pass ``main`` itself) or not callable,
-            an unknown ``backend`` or one not installed (the message names the extra that installs it), or an event loop
-            already runs in this thread; or ``main()`` gave nothing
+            an unknown ``backend`` or one not installed (the message names the extra that installs it), an event loop
+            already runs in this thread, or this is not the main thread; or ``main()`` gave nothing
             to await (``def main()`` for ``async def main()``: said once that call has returned; a program with
             no async code at all runs with :func:`run_blocking`).
     """
@@ -245,9 +245,12 @@ def run_blocking(main: Callable[[], object]) -> int:
 
     Raises:
         InvalidArgument: ``main`` is an async function (``ics35_async.run`` runs it), a coroutine or not
-            callable; or ``main()`` returned an awaitable (said once that call has returned).
+            callable, or this is not the main thread; or ``main()`` returned an awaitable (said once that call has
+            returned).
     """
     _check_plain_function(main)
+    if not stop_signals.active:  # (inside a stop_on_signals of the program's own, that one takes the signals)
+        _check_main_thread("blocking.run()", "in another thread, call main() itself, without them")
     inside = stop_signals.active  # inside a stop_on_signals of the program's own: that one stops the program
     misused: InvalidArgument | None = None  # (raised below, as run_blocking's misuse: not printed as main's error)
     try:
@@ -360,6 +363,17 @@ def _check_run(main: object, backend: str) -> None:
             ) from None
     if _in_event_loop():
         raise InvalidArgument("run() starts its own event loop: inside a running event loop, await main() instead")
+    _check_main_thread("run()", "in another thread, asyncio.run(main()) runs it, without them")
+
+
+def _check_main_thread(taker: str, elsewhere: str) -> None:
+    """``taker`` takes the stop signals, which Python hands to the main thread only (elsewhere ``signal.signal``
+    raises ``ValueError``, an event loop's signal receiver ``RuntimeError``): said before anything runs."""
+    if threading.current_thread() is not threading.main_thread():
+        raise InvalidArgument(
+            f"{taker} takes Ctrl-C, SIGTERM and SIGHUP, which Python hands to the main thread only: call it from the "
+            f"main thread ({elsewhere})"
+        )
 
 
 def check_async_function(fn: object, taker: str, *, with_args: bool = False) -> None:
@@ -730,10 +744,15 @@ def stop_on_signals() -> Iterator[None]:
 
         with stop_on_signals(), blocking.open_bus(port) as bus, bus.stream(ids, on_close="free") as s:
             ...
+
+    Raises:
+        InvalidArgument: this is not the main thread (Python hands signals to the main thread only), outside
+            another ``stop_on_signals`` block.
     """
     if stop_signals.active:  # inside another stop_on_signals: that one stops the program
         yield
         return
+    _check_main_thread("stop_on_signals()", "in another thread, leave it out: the blocking calls work without it")
     previous: dict[int, object] = {}
     stop_signals.unraisablehook = sys.unraisablehook
     try:

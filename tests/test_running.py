@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from collections.abc import AsyncIterator
 from typing import Any
@@ -138,6 +139,40 @@ def test_misuses_of_run_are_said_before_anything_runs() -> None:
 
     with pytest.raises(InvalidArgument, match="inside a running event loop"):
         asyncio.run(inside())
+
+
+def test_run_and_stop_on_signals_outside_the_main_thread_say_so_before_anything_runs() -> None:
+    """Python hands signals to the main thread only: called from another thread (a program whose main thread runs
+    a GUI), ``run``, ``blocking.run`` and ``stop_on_signals`` failed with Python's own ``RuntimeError`` or
+    ``ValueError`` (``set_wakeup_fd only works in main thread``, ``signal only works in main thread``)."""
+    from ics35_async import blocking
+
+    ran: list[str] = []
+    refused: list[BaseException] = []
+
+    async def main() -> None:
+        ran.append("run")
+
+    def plain() -> None:
+        ran.append("blocking.run")
+
+    def within() -> None:
+        with blocking.stop_on_signals():
+            ran.append("stop_on_signals")
+
+    def worker() -> None:
+        for call in (lambda: ics35_async.run(main), lambda: blocking.run(plain), within):
+            try:
+                call()
+            except Exception as exc:
+                refused.append(exc)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join(10)
+    assert ran == []
+    assert [type(exc) for exc in refused] == [InvalidArgument] * 3, refused
+    assert all("main thread" in str(exc) for exc in refused), refused
 
 
 @pytest.mark.parametrize("backend", ["uvloop", "trio"])
