@@ -22,6 +22,7 @@ import os
 import re
 import secrets
 import shutil
+import stat
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -49,11 +50,17 @@ def read_user_text(path: str | Path, expected: str) -> str:
     """The text of the file at ``path``; ``expected`` says what it should be, e.g. ``"a motion is UTF-8 JSON"``.
 
     Raises:
-        UnreadableText: an empty path, no such file, a directory, not readable, binary, or not UTF-8.
+        UnreadableText: an empty path, no such file, a directory, a device (a serial port), not readable, binary,
+            or not UTF-8.
     """
     if empty_path(path):
         raise UnreadableText(f"the path is empty; give a file name ({expected})")
     try:
+        # Looked at before it is opened: a serial port (open_robot("/dev/ttyUSB0"), the port where the robot file
+        # goes) has no end, so reading it would wait for ever, and /dev/zero would fill the memory.  (A pipe ends
+        # when its writer does: a shell's <(...) is read.)
+        if stat.S_ISCHR(mode := os.stat(path).st_mode) or stat.S_ISBLK(mode):
+            raise UnreadableText(f"is a device (a serial port?), not a file ({expected})")
         raw = Path(path).read_bytes()
     except FileNotFoundError:
         raise UnreadableText("no such file") from None

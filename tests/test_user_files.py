@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -44,3 +48,37 @@ def test_an_empty_path_is_named_empty_by_every_reader(tmp_path: Path, monkeypatc
     with pytest.raises(InvalidArgument, match="empty"):
         TransactionRecorder("")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="a pseudo-terminal stands for the serial port")
+@pytest.mark.parametrize(
+    ("program", "said"),
+    [
+        ("from ics35_async.robot import load_description as load", "DescriptionError"),
+        ("from ics35_async.robot import load_motion as load", "MotionError"),
+        ("from ics35_async.blocking import open_robot as load", "DescriptionError"),
+    ],
+)
+def test_a_serial_port_given_for_a_file_is_refused_not_read_for_ever(program: str, said: str) -> None:
+    """``open_robot("/dev/ttyUSB0")``, the port where the robot file goes, read the port as a file: a serial port
+    has no end, so the program waited for ever, saying nothing (``/dev/zero`` filled the memory instead)."""
+    master, slave = os.openpty()
+    port = os.ttyname(slave)
+    try:
+        code = textwrap.dedent(
+            f"""
+            {program}
+            try:
+                load({port!r})
+            except Exception as exc:
+                print(type(exc).__name__, exc)
+            """
+        )
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    except subprocess.TimeoutExpired:
+        pytest.fail("still reading the serial port after 30 s")
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith(f"{said} {port}: ") and "not a file" in done.stdout, done.stdout
