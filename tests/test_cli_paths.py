@@ -60,6 +60,22 @@ def test_an_empty_file_name_is_named_empty(cli: Any, args: list[str]) -> None:
     assert "the path is empty" in result.err and "directory" not in result.err, result.err
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="a pseudo-terminal stands for the serial port")
+@pytest.mark.parametrize("command", [["check"], ["play"], ["calibrate"]])
+def test_a_serial_port_given_for_the_robot_file_is_named_a_device(cli: Any, command: list[str]) -> None:
+    # (the port where the robot file goes) It was "no such file", of a port the user could see was there.
+    master, slave = os.openpty()
+    port = os.ttyname(slave)
+    try:
+        result = cli(*command, port, *(["wave.json"] if command == ["play"] else []))
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert f"{port}: is a device (a serial port?), not a file" in said and "no such file" not in said, said
+
+
 def test_a_sim_record_file_is_written(cli: Any, tmp_path: Path) -> None:
     target = tmp_path / "session.txt"
     assert cli("--port", f"sim://?record={target}", "move", "1", "7600").code == 0

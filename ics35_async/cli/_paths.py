@@ -81,6 +81,8 @@ def check_input_path(path: str, what: str) -> Path:
     source = Path(path)
     if source.is_dir():
         raise InputPathError(_said(what, path, f"is a directory; give the file ({what}) itself"), missing=False)
+    if source.is_char_device() or source.is_block_device():  # (a serial port given where the file goes)
+        raise InputPathError(_said(what, path, "is a device (a serial port?), not a file"), missing=False)
     if not source.is_file():
         raise InputPathError(_said(what, path, "no such file"), missing=True)
     if not os.access(source, os.R_OK):
