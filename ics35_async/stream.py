@@ -1003,8 +1003,11 @@ class Stream(FrameIterator[Frame]):
 
     async def start(self) -> Stream:
         """Start streaming (``async with`` does); BusClosed if closed or the bus is not, InvalidArgument if busy."""
-        if self._closed:
-            raise BusClosed("stream closed")
+        if self._closed:  # (a program in phases: the second `async with stream:` needs a new one)
+            raise BusClosed(
+                "stream closed: a stream runs once; for another run, make a new one as this one was made "
+                "(bus.stream(...), group.stream(...))"
+            )
         if not self._running:
             self._running = True
             try:

@@ -700,6 +700,20 @@ async def test_a_stream_not_started_says_so_at_once_and_one_closed_refuses_targe
             stream.set_target(1, 7000)
 
 
+async def test_a_stream_started_again_after_its_block_says_a_stream_runs_once() -> None:
+    # A program in phases (`async with stream:` twice) got "stream closed", as if the bus had gone.
+    sim = make_sim(range(2))
+    async with open_bus(sim, **FAST) as bus:
+        stream = bus.stream([0, 1])
+        async with stream:
+            await next_frame(stream)
+        with pytest.raises(BusClosed, match=r"a stream runs once; .*bus\.stream\("):
+            async with stream:
+                pass
+        async with bus.stream([0, 1]) as again:  # and the bus is fine
+            assert (await next_frame(again)).positions
+
+
 @pytest.mark.parametrize("driver", ["asyncio", "thread"])
 async def test_losing_the_port_without_reconnect_ends_next_frame_with_port_lost(driver: str) -> None:
     ids = [0, 1, 2, 3]
