@@ -87,6 +87,23 @@ def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
     assert matcher.counts.misattributed == 1 and "call for ReplyTimeout" in matcher.counts.examples[0]
 
 
+def test_the_matcher_keeps_a_misattribution_among_its_examples_after_many_lesser_notes() -> None:
+    # A soak's report keeps ten examples: ten valid replies rejected (counted, not a failure) crowded out the one
+    # misattribution that failed the check, and the report could not say which reply it was.
+    sim = VirtualLine([VirtualServo(3)], faults="drop:1.0", log_size=None)
+    matcher = LogMatcher(sim, is_stream_tx, [3])
+    read = protocol.ReadParam(3, Param.TEMPERATURE)
+    run_line(sim, [read.tx])
+    matcher.drain()
+    for k in range(12):
+        matcher.counts.note(f"seq {k}: valid reply rejected")
+    matcher.add_request(RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
+    matcher.match(final=True)
+    assert matcher.counts.misattributed == 1
+    examples = matcher.counts.examples
+    assert "call for ReplyTimeout" in examples[0] and len(examples) == 11, examples
+
+
 def test_the_matcher_sets_aside_the_entries_of_a_cycle_whose_frame_was_skipped() -> None:
     # Three cycles on the line, the second one's frame skipped (on the burst path a held-up loop is fed several
     # cycles at once and takes the last frame): the third frame's outcomes are the third cycle's entries.

@@ -98,9 +98,17 @@ class MatchCounts:
     failed_probes: int = 0  # offline IDs' probes that failed (in a frame's failed, with no stream entry)
     held_back: int = 0  # stream slots the engine held back after a failure (a frame's not_sent: no stream entry)
     examples: list[str] = field(default_factory=list)
+    serious_examples: int = 0  # the first of examples: what a failed check is about, kept ahead of the rest
 
-    def note(self, text: str) -> None:
-        if len(self.examples) < 10:
+    def note(self, text: str, *, serious: bool = False) -> None:
+        """Keep ``text`` among the examples: ten of each kind, the ``serious`` ones (what fails a check: a reply
+        misattributed, an untyped outcome) first, so that ten notes of what is only counted cannot crowd out the
+        one a failed check needs."""
+        if serious:
+            if self.serious_examples < 10:
+                self.examples.insert(self.serious_examples, text)
+                self.serious_examples += 1
+        elif len(self.examples) - self.serious_examples < 10:
             self.examples.append(text)
 
 
@@ -254,7 +262,7 @@ class LogMatcher:
         self.counts.requests += 1
         if not record.typed:
             self.counts.untyped_outcomes += 1
-            self.counts.note(f"untyped outcome for {record.tx.hex(' ')}: {record.error}")
+            self.counts.note(f"untyped outcome for {record.tx.hex(' ')}: {record.error}", serious=True)
 
     # -- pairing
 
@@ -284,7 +292,8 @@ class LogMatcher:
                 counts.misattributed += 1
                 counts.note(
                     f"seq {seq}: bus returned {value!r}, the bytes {verdict.received.hex(' ')} "
-                    f"call for {verdict.value if verdict.ok else verdict.error} (fault {fault})"
+                    f"call for {verdict.value if verdict.ok else verdict.error} (fault {fault})",
+                    serious=True,
                 )
             elif verdict.source == "stale" and retry_of_previous:
                 # The late reply of this request's previous attempt, taken by its retry: the same
@@ -296,7 +305,8 @@ class LogMatcher:
                 counts.stale_accepted += 1
                 counts.note(
                     f"seq {seq}: accepted {value!r} from an earlier, late reply; the servo answered {clean!r} "
-                    f"to this one (fault {fault}; after seq {seq - 1}: {self.previous.get(seq - 1, '?')})"
+                    f"to this one (fault {fault}; after seq {seq - 1}: {self.previous.get(seq - 1, '?')})",
+                    serious=True,
                 )
             elif verdict.source == "noise":
                 counts.noise_accepted += 1
