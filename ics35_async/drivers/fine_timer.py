@@ -70,22 +70,6 @@ def _libc_timerfd() -> tuple[Callable[[], int], Callable[[int, float], None]] | 
 _BINDING = _libc_timerfd() if sys.platform.startswith("linux") else None
 
 
-TIMER_NAME = "deadline timer"
-"""What ``--version -v`` and doctor call how the line's deadlines are timed."""
-
-
-def fine_deadlines() -> tuple[bool, str]:
-    """Whether the asyncio driver times the line's deadlines on a timerfd here, and what that means, in plain words
-    (for ``--version -v`` and doctor, after :data:`TIMER_NAME`)."""
-    if _BINDING is None:
-        where = "not Linux" if not sys.platform.startswith("linux") else "no timerfd in the C library"
-        return False, f"the event loop's own, in whole milliseconds ({where})"
-    return True, (
-        "a timerfd, to the microsecond (the asyncio driver's: a paced stream's slots and replies given up on; "
-        "the thread and anyio drivers keep their whole milliseconds)"
-    )
-
-
 class FineTimer:
     """One deadline at a time on a ``timerfd``: :meth:`arm` it, watch :attr:`fd` for reading, and call
     :meth:`fired` when it is readable (True: the armed deadline came; False: it was moved or cancelled
