@@ -67,11 +67,13 @@ class ReplyError(IcsError):
 
     ``command`` names the command (e.g. ``"position"``), ``servo_id`` is the
     addressed ID (``None`` for the ID command, which addresses the whole line)
-    and ``raw`` holds every byte received for the transaction, echo included.
+    and ``raw`` holds every byte received for the transaction, echo included; ``reason`` says what went wrong
+    alone (the message is ``"<command> to ID <n>: <reason> (raw: <bytes>)"``).
     """
 
     def __init__(self, message: str, **fields: Unpack[ReplyErrorFields]) -> None:
         command, servo_id = fields["command"], fields["servo_id"]
+        self.reason = message
         self.command = command
         self.servo_id = servo_id
         self.raw = bytes(fields.get("raw", b""))

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 import ics35_async
-from ics35_async import Line, Priority, Stream, open_bus
+from ics35_async import Line, Priority, ReplyTimeout, Stream, open_bus
 from ics35_async.bus import Bus
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.stats import BusStats
@@ -198,3 +198,15 @@ def test_the_api_reference_names_each_of_its_names_not_importable_from_the_packa
         and f"`{name}`" not in opening
     ]
     assert documented and elsewhere == []
+
+
+async def test_a_reply_error_says_what_went_wrong_apart_from_where_and_the_bytes() -> None:
+    # A reply error's message is "<command> to ID <n>: <what> (raw: <bytes>)"; a program (the backup file's words, the
+    # configurator's) that wants only the what took it apart by its punctuation, which a what holding ": " broke.
+    async with open_bus("sim://?ids=3&faults=drop:1.0") as bus:
+        with pytest.raises(ReplyTimeout) as caught:
+            await bus.servo(3).read_temperature()
+    error = caught.value
+    assert error.reason and error.reason in str(error)
+    assert "ID 3" not in error.reason and "raw" not in error.reason
+    assert str(error) == f"{error.command} to ID 3: {error.reason} (raw: {error.raw.hex(' ') or 'nothing'})"

@@ -103,9 +103,7 @@ def read_failed_why(error: ReplyError, baud: int, *, echo: bool = True) -> str:
     servo and showing no bytes."""
     if isinstance(error, ReplyTimeout):
         return no_reply_why(baud, no_echo=echo and not error.raw)
-    text = str(error)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
-    what = text.partition(": ")[2].rpartition(" (raw: ")[0] or text
-    return f"answered, but its EEPROM could not be read: {what}"
+    return f"answered, but its EEPROM could not be read: {error.reason}"
 
 
 def port_lost_why(at_servo: int) -> str:

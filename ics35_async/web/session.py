@@ -933,14 +933,13 @@ class LineSession:
                 f"no reply at {self.config.baud:,} baud, nothing written: check its power (6-12 V on the servo "
                 "line, not just USB), the wiring and its ID; its Servo page looks for it at the other baud rates"
             )
-        text = str(exc)  # "<command> to ID <n>: <what> (raw: <bytes>)": the what
-        what = text.partition(": ")[2].rpartition(" (raw: ")[0]
+        what = exc.reason
         if exc.command == "write_eeprom":  # (garbled, but the write went out: the servo may have taken it)
             return (
-                f"{what or text}; it may or may not have been written: open its Servo page to read what it has (the "
+                f"{what}; it may or may not have been written: open its Servo page to read what it has (the "
                 "bytes are on the Traffic page)"
             )
-        return f"{what or text}; nothing written (the bytes are on the Traffic page)"
+        return f"{what}; nothing written (the bytes are on the Traffic page)"
 
     # ------------------------------------------------------------------ torque and motion
 
