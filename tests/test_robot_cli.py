@@ -1848,18 +1848,24 @@ def unplug_once_its_telemetry_answered(sim: VirtualLine, servo_id: int) -> None:
     threading.Thread(target=run, daemon=True).start()
 
 
+def playing_on_past_offline(sims: Any, tmp_path: Path) -> tuple[Path, Path]:
+    """The rig's robot file and a 2.5 s motion of neck and hip, for a play that goes on past an offline servo."""
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    motion = write_motion(
+        tmp_path / "m.json",
+        {"time": 0.3, "pose": {"neck": 10, "hip": -5}},
+        {"time": 2.5, "pose": {"neck": 20, "hip": -10}},
+    )
+    return robot_file, motion
+
+
 def test_play_shows_no_temperature_or_current_for_a_joint_gone_offline(cli: Any, tmp_path: Path) -> None:
     # With continue_on_offline the motion plays on without a servo unplugged mid-motion: its row said "offline"
     # beside the last temperature and current read from it, shown as if they were current.
     sims = make_rig(safety={"continue_on_offline": True})
     try:
-        robot_file = tmp_path / "robot.toml"
-        robot_file.write_text(dump_description(load_description(sims.description)))
-        motion = write_motion(
-            tmp_path / "m.json",
-            {"time": 0.3, "pose": {"neck": 10, "hip": -5}},
-            {"time": 2.5, "pose": {"neck": 20, "hip": -10}},
-        )
+        robot_file, motion = playing_on_past_offline(sims, tmp_path)
         unplug_once_its_telemetry_answered(sims.lower, JOINTS["hip"]["id"])
         result = cli("play", str(robot_file), str(motion))
     finally:
@@ -1880,13 +1886,7 @@ def test_play_on_past_a_servo_that_came_back_ends_with_its_summary(cli: Any, tmp
     # in the library's words (exit code 1, "until a target is set again"), without its summary of the joints.
     sims = make_rig(safety={"continue_on_offline": True})
     try:
-        robot_file = tmp_path / "robot.toml"
-        robot_file.write_text(dump_description(load_description(sims.description)))
-        motion = write_motion(
-            tmp_path / "m.json",
-            {"time": 0.3, "pose": {"neck": 10, "hip": -5}},
-            {"time": 2.5, "pose": {"neck": 20, "hip": -10}},
-        )
+        robot_file, motion = playing_on_past_offline(sims, tmp_path)
         unplug_and_replug_once_answered(sims.lower, JOINTS["hip"]["id"], 0.5)
         result = cli("play", str(robot_file), str(motion), *(["--loop", "--seconds", "20"] if loop else []))
     finally:
