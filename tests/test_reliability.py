@@ -28,7 +28,7 @@ from ics35_async.sim import FaultConfig, FaultInjector, VirtualLine, VirtualServ
 from ics35_async.sim.faults import NO_FAULTS, Draw
 from tests.support.fuzzing import valid_value
 from tests.support.leaks import non_executor_threads, open_fds, other_tasks
-from tests.support.matcher import LogMatcher, RequestRecord
+from tests.support.matcher import LogMatcher, MatchCounts, RequestRecord
 from tests.support.oracle import FAULT_KINDS, CheckError, Verdict, WirePredictor, chaos_servos, is_stream_tx
 from tests.support.timing import FAST_TIMING, GUARD, NO_TIMEOUTS
 
@@ -76,31 +76,32 @@ def test_the_matcher_flags_a_reply_handed_to_the_wrong_caller() -> None:
     assert matcher.counts.accepted == 4
 
 
-def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
+def a_value_with_no_reply_behind_it(lesser_notes: int = 0) -> MatchCounts:
+    """The matcher's counts after a temperature read whose reply was dropped was taken as answered (127), with
+    ``lesser_notes`` notes of what is only counted (rejected valid replies) noted before it."""
     sim = VirtualLine([VirtualServo(3)], faults="drop:1.0", log_size=None)
     matcher = LogMatcher(sim, is_stream_tx, [3])
     read = protocol.ReadParam(3, Param.TEMPERATURE)
     run_line(sim, [read.tx])
     matcher.drain()
+    for k in range(lesser_notes):
+        matcher.counts.note(f"seq {k}: valid reply rejected")
     matcher.add_request(RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
     matcher.match(final=True)
-    assert matcher.counts.misattributed == 1 and "call for ReplyTimeout" in matcher.counts.examples[0]
+    return matcher.counts
+
+
+def test_the_matcher_flags_a_value_with_no_valid_reply_behind_it() -> None:
+    counts = a_value_with_no_reply_behind_it()
+    assert counts.misattributed == 1 and "call for ReplyTimeout" in counts.examples[0]
 
 
 def test_the_matcher_keeps_a_misattribution_among_its_examples_after_many_lesser_notes() -> None:
     # A soak's report keeps ten examples: ten valid replies rejected (counted, not a failure) crowded out the one
     # misattribution that failed the check, and the report could not say which reply it was.
-    sim = VirtualLine([VirtualServo(3)], faults="drop:1.0", log_size=None)
-    matcher = LogMatcher(sim, is_stream_tx, [3])
-    read = protocol.ReadParam(3, Param.TEMPERATURE)
-    run_line(sim, [read.tx])
-    matcher.drain()
-    for k in range(12):
-        matcher.counts.note(f"seq {k}: valid reply rejected")
-    matcher.add_request(RequestRecord(3, read.tx, 1, True, 127, None, True, 0.0, sim.transactions))
-    matcher.match(final=True)
-    assert matcher.counts.misattributed == 1
-    examples = matcher.counts.examples
+    counts = a_value_with_no_reply_behind_it(lesser_notes=12)
+    assert counts.misattributed == 1
+    examples = counts.examples
     assert "call for ReplyTimeout" in examples[0] and len(examples) == 11, examples
 
 
