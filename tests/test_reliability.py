@@ -484,6 +484,7 @@ def test_the_default_reconnect_backoff_leaves_room_to_resume_within_a_second() -
     assert worst_wait + reopen_and_first_frame < 1.0
 
 
+@pytest.mark.realtime  # its 50 ms bounds are wall-clock: beside the parallel pass's load they were missed once
 @pytest.mark.parametrize(
     ("backoff", "after_replug"),
     [((0.05,), 0.03), (RECONNECT_BACKOFF, 0.03), ((0.05, 0.1, 0.2, 0.4), 0.13)],
