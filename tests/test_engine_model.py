@@ -53,7 +53,19 @@ from tests.support.engine_support import (
 
 PRESENT = (1, 2, 3)
 IDS = (1, 2, 3, 4)
-KINDS = ("clean", "split", "drop", "silent", "late", "very_late", "tail_late", "garble", "echo_garble", "extra_byte")
+KINDS = (
+    "clean",
+    "split",
+    "drop",
+    "silent",
+    "late",
+    "very_late",
+    "tail_late",
+    "garble",
+    "echo_garble",
+    "extra_byte",
+    "stall",
+)
 LATE = {"late", "very_late", "tail_late"}
 
 # The faults that test the engine's judgement most (late replies) come up more often.
@@ -73,13 +85,26 @@ class FaultyServos(Servos):
         self.late_until = -math.inf  # when the last late reply in flight lands
         self.guards_seen = 0
         self.bad_writes: set[int] = set()  # writes whose answer the engine must not accept
+        self.stalled: set[int] = set()  # writes answered late by a stalled far end (whole, in order)
+        self.stall_end = -math.inf  # the far end reads nothing until then
+        self.backlog_until = -math.inf  # when the last write answered after a stall has been answered
 
     def __call__(self, wire: Wire, tx: bytes) -> None:
         engine = wire.engine
         t = wire.now
+        if t < self.stall_end or t < self.backlog_until:
+            self._answer_after_the_stall(wire, tx)
+            return
         guard = engine.counters.guards != self.guards_seen
         self.guards_seen = engine.counters.guards
         kind, u, cuts = self.faults.popleft() if self.faults else ("clean", 0.0, [])
+        if kind == "stall":  # the far end stops reading for up to 0.1 s (see _answer_after_the_stall)
+            if self.late_until > t:
+                kind = "drop"  # (no late reply still to come: kept to what the engine can tell apart)
+            else:
+                self.stall_end = t + 0.1 * u
+                self._answer_after_the_stall(wire, tx)
+                return
         if kind in LATE and (self.late_until > t or (guard and kind == "very_late")):
             kind = "drop"  # see the module docstring: kept to what the engine can tell apart
         if kind == "echo_garble" and not self.echo:
@@ -119,6 +144,20 @@ class FaultyServos(Servos):
             wire.schedule(on_time, reply + b"\xff", tag=k)
         else:
             wire.schedule(on_time, reply, tag=k)
+
+    def _answer_after_the_stall(self, wire: Wire, tx: bytes) -> None:
+        # A far end that stalls (a simulator not scheduled, an adapter or a bridge holding bytes) answers what
+        # was written meanwhile once it runs again: each write's echo and reply together, in the order written.
+        k = len(self.answers)
+        reply, value = self.reply_for(tx)
+        self.answers.append(value)
+        self.stalled.add(k)
+        begin = max(wire.now, self.stall_end, self.backlog_until)
+        answer = (tx if self.echo else b"") + (reply or b"")
+        self.backlog_until = at = begin + wire_time(len(tx) + (len(reply) if reply else 0)) + TURNAROUND
+        self.late_until = max(self.late_until, at)
+        if answer:
+            wire.schedule(at, answer, tag=k)
 
     def _land_very_late(self, wire: Wire, reply: bytes, k: int, land: float, u: float, until: float) -> None:
         # A command that went on the wire in the 0.1-0.2 ms just before (the first after the resync) has its echo
@@ -247,7 +286,7 @@ class LineModel(RuleBasedStateMachine):
         else:
             return
         self.wire.clear_in_flight()
-        self.servos.late_until = -math.inf
+        self.servos.late_until = self.servos.stall_end = self.servos.backlog_until = -math.inf
         self.wire.emit(engine.connected(self.wire.now))
 
     def _check_no_request_delays_a_due_slot(self) -> None:
@@ -320,7 +359,7 @@ class LineModel(RuleBasedStateMachine):
         wire, servos = self.wire, self.servos
         for req in self.requests:
             k = req.write_index
-            if req.state != "failed" or isinstance(req.error, PortLost) or k in servos.bad_writes:
+            if req.state != "failed" or isinstance(req.error, PortLost) or k in servos.bad_writes | servos.stalled:
                 continue
             if servos.answers[k] is None:
                 continue  # nobody there to answer

@@ -14,6 +14,17 @@ sub-command and goes straight on (a silent servo never loops through
 guards), while another read of the guard's own shape gets a guard too, so
 the guard's late reply cannot pass for its answer.
 
+A command whose own echo never came back (a far end that stalls: an adapter
+or a bridge holding bytes, a simulator not yet scheduled) says nothing of the
+line: its echo and reply may still come whole, and with them those of any
+command before it whose echo never came either.  Such commands are remembered
+(``unheard``) until a command's own echo comes back: bytes come in order, so
+nothing older can still come after it.  Until then a command identical to one
+of them would take that one's echo and reply for its own, and gets a guard read
+first; a guard read that fails without its own echo shows nothing either, and
+counts as one of the tries of the command it went before (see the engine), so
+a line that answers nothing still fails that command after its tries.
+
 A command to a servo already found silent (``Timing.SILENT``: a closing
 stream's free to an offline servo) goes without a guard read: its reply
 would only confirm it, so a late one passing for it misleads nobody, while
@@ -26,12 +37,15 @@ from __future__ import annotations
 
 from ..protocol import ReadParam, guard_read
 
+UNHEARD_KEPT = 32  # commands without their echo remembered (a 32-servo stream's cycle); the oldest go first
+
 
 class GuardRule:
-    __slots__ = ("suspect",)
+    __slots__ = ("suspect", "unheard")
 
     def __init__(self) -> None:
         self.suspect: tuple[bytes, ...] = ()  # what a command may start with to fit a reply that may still come
+        self.unheard: tuple[bytes, ...] = ()  # commands sent whose echo has not come back since the last that did
 
     def timed_out(self, tx: bytes, *, heard: bool, was_guard: bool, went_past: bool = False) -> None:
         """A transaction timed out; ``heard``: its echo was right, so a servo may still answer.  ``went_past``: it
@@ -40,9 +54,20 @@ class GuardRule:
             shape = tx[:2] if was_guard else tx[:1]  # a guard is a parameter read: header + sub-command
             self.suspect = (*self.suspect, shape) if went_past else (shape,)
 
+    def echo_came(self, tx: bytes, came: bool) -> None:
+        """A transaction that sent ``tx`` ended; ``came``: its own echo came back (first, or behind bytes
+        that were already on their way), so nothing sent before it can still come after it; only its own
+        bytes, if those were another command's identical ones (see above)."""
+        unheard = self.unheard
+        if came:
+            self.unheard = (tx,) if tx in unheard else ()
+        elif tx not in unheard:
+            self.unheard = (*unheard[1 - UNHEARD_KEPT :], tx) if len(unheard) >= UNHEARD_KEPT else (*unheard, tx)
+
     def before(self, tx: bytes, servo_id: int | None) -> ReadParam | None:
-        """The guard read to send before ``tx``, if it needs one (the suspicion lasts one command)."""
+        """The guard read to send before ``tx``, if it needs one (the suspicion of a late reply lasts one
+        command; that of a command whose echo never came, until an echo comes)."""
         suspect, self.suspect = self.suspect, ()
-        if suspect and servo_id is not None and tx.startswith(suspect):
+        if servo_id is not None and (tx.startswith(suspect) or tx in self.unheard):
             return guard_read(tx, servo_id)
         return None

@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 from ..errors import BusClosed, ClosedByPortLoss, EchoMismatch, IcsError, InvalidArgument, PortLost, ReplyError
 from ..protocol import Timing, wire_time
+from ..protocol.wire import echo_offset
 from .counters import NO_ID, LineCounters, error_counter
 from .guard import GuardRule
 from .link import LinkLatency
@@ -282,6 +283,8 @@ class LineEngine:
             "link_extra_s": self.link.extra,
             "reply_owed": self.link.owed_since != INF,
             "guard_suspect": ", ".join(shape.hex(" ") for shape in self.guard.suspect),
+            # (commands whose echo never came back: sent again, each gets a guard read first; see .guard)
+            "guard_unheard": [tx.hex(" ") for tx in self.guard.unheard],
             "held_back_s": {f"{b:02x}": round(until - now, 6) for b, until in self._held.items() if until > now},
             # (first bytes whose next command gets a guard read once their hold is over, over or not: see _hold)
             "guard_after_hold": sorted(f"{b:02x}" for b in self._guard_after_hold),
@@ -386,6 +389,7 @@ class LineEngine:
             or self._buf
             or self.link.extra
             or self.link.owed_since != INF
+            or self.guard.unheard
             or self._tail_until > self._t_start
         ):
             return None
@@ -694,13 +698,14 @@ class LineEngine:
         # it misleads nobody; the suspicion stays for the command after it.
         if self._guard_after_hold:
             self._guard_after_holds(now)
-        if self.guard.suspect and timing is not SILENT:
-            guard = self.guard.before(tx, servo_id)
+        rule = self.guard
+        if (rule.suspect or rule.unheard) and timing is not SILENT and (req is None or not req.is_guard):
+            guard = rule.before(tx, servo_id)
             if guard is not None:  # a read of another shape first (see .guard)
                 if req is not None:
                     self.queue.push_front(req)
                 self.counters.guards += 1
-                return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard), guard.timing, now)
+                return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard, req, tx), guard.timing, now)
         self.state = BUSY
         self._current = req
         self._current_id = NO_ID if servo_id is None else servo_id
@@ -820,8 +825,11 @@ class LineEngine:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             req = self._current
             due = self._due if self._settling else self.deadline
+            echoed = self._echo_came()
             out = self._failed(error, sid, now)
             self._after_early_failure(req, due, now)
+            if not echoed and isinstance(req, GuardRequest):
+                self._guard_proved_nothing(req, sid, now)
             return out
         over = latency - self._base  # before the next transaction replaces _base
         value = None  # a request's answer, handed over once everything is counted
@@ -874,6 +882,8 @@ class LineEngine:
                 link.succeeded(over)
             if link.owed_since != INF:
                 link.in_step()  # a valid reply: nothing earlier is still owed
+        if self.guard.unheard:
+            self.guard.echo_came(tx, True)  # (its echo came first: see .guard)
         if req is not None:
             req.resolve(value)
         if self.state is BUSY:
@@ -946,7 +956,10 @@ class LineEngine:
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         read_in_slack, only_echo = self._read_in_slack, len(buf) == echo_len  # (before the resync clears buf)
+        echoed = self._echo_came()
         out = self._failed(error, sid, now)
+        if not echoed and isinstance(req, GuardRequest):
+            self._guard_proved_nothing(req, sid, now)
         if read_in_slack:
             # A read in a paced stream's slack timed out with its echo and nothing more: its servo is held back as a
             # stream transaction's is (a retry waits, the stream and other commands go on).  After a partial reply
@@ -1040,6 +1053,31 @@ class LineEngine:
         for first in [first for first, until in after.items() if until <= now]:
             del after[first]
             self.guard.suspect = (*self.guard.suspect, bytes((first,)))
+
+    def _echo_came(self) -> bool:
+        """Did the failing transaction's own echo come back (see .guard)?  Told to the guard rule.  (On a
+        line without echo: taken as come, as nothing could tell.)"""
+        if not self._echo_len:
+            return True
+        came = echo_offset(self._buf, self._tx, 0) >= 0
+        self.guard.echo_came(self._tx, came)
+        return came
+
+    def _guard_proved_nothing(self, guard: GuardRequest, sid: int, now: float) -> None:
+        """A guard read failed without its own echo: the line showed nothing, and the command it went before
+        would need another.  It counts as one of that command's tries (see .guard): a request loses a retry,
+        or fails as a try that got nothing back would; the source's transaction fails so."""
+        protected, tx = guard.protects, guard.protected_tx
+        nothing = timeout_error(protected, sid, tx, bytearray(), len(tx), 0)
+        if protected is None:
+            owner = self._owner if self._owner is self._source else None
+            if owner is not None:
+                owner.fail(nothing, now)
+        elif protected.retries_left > 0:
+            protected.retries_left -= 1
+            self.counters.per_name["retries"][sid] += 1
+        else:
+            protected.reject(nothing)  # (the queue then drops it: nobody waits for it any more)
 
     def _full_deadline(self) -> float:
         """The transaction's deadline with its full allowance (and the link's extra), whatever it waited."""

@@ -99,11 +99,17 @@ class Request:
 
 
 class GuardRequest(Request):
-    """The harmless read the engine slips in after a timeout; nobody waits for it."""
+    """The harmless read the engine slips in after a timeout; nobody waits for it.  ``protects``: the
+    request it goes before (None: the source's transaction), whose tries it may cost (see .guard)."""
 
-    __slots__ = ()
+    __slots__ = ("protected_tx", "protects")
 
     is_guard = True
+
+    def __init__(self, command: Command[Any], protects: Request | None, protected_tx: bytes) -> None:
+        super().__init__(command)
+        self.protects = protects
+        self.protected_tx = protected_tx
 
 
 class RequestQueue:

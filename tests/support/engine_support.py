@@ -388,3 +388,25 @@ class StalledOnce(Servos):
         assert reply is not None
         at = wire.now + protocol.wire_time(len(tx) + len(reply), self.baudrate) + self.turnaround + self.delay
         wire.schedule(at, tx + reply, tag=len(self.answers) - 1)
+
+
+class StalledPipe(Servos):
+    """A far end that stops reading from ``start`` to ``end`` (a pty simulator not scheduled, an adapter or a
+    bridge holding bytes): each write meanwhile is answered at ``end``, echo and reply together, in the order
+    written, each after the one before, as bytes through a pipe come.  Nothing is lost: everything comes late."""
+
+    def __init__(self, ids: Iterable[int], start: float, end: float) -> None:
+        super().__init__(ids)
+        self.start, self.end = start, end
+        self._free_at = 0.0  # when the far end has answered everything written so far
+
+    def __call__(self, wire: Wire, tx: bytes) -> None:
+        reply, value = self.reply_for(tx)
+        self.answers.append(value)
+        begin = self.end if self.start <= wire.now < self.end else wire.now
+        self._free_at = at = (
+            max(begin, self._free_at)
+            + self.turnaround
+            + protocol.wire_time(len(tx) + (len(reply) if reply is not None else 0), self.baudrate)
+        )
+        wire.schedule(at, tx + (reply or b""), tag=len(self.answers) - 1)
