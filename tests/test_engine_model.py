@@ -4,7 +4,8 @@ The model: servos 1..3 answer (4 never does), each answer with a fresh value,
 so a reply taken for the wrong request shows; a fault per transaction (reply
 dropped, no echo either, reply split in chunks, late into the resync, so late
 it lands in the next transaction, its tail held, a parity-marked byte, a wrong
-echo, an extra byte); noise; a stream-like background source; the port lost and
+echo, an extra byte, or the far end stalling: every command written meanwhile
+answered late, whole and in order, on a line with echo); noise; a stream-like background source; the port lost and
 reconnected, or reopened.  Plain calls and simulated time only: no event loop.
 
 Late replies are kept to what the engine can tell apart: a late reply lands in
@@ -99,7 +100,7 @@ class FaultyServos(Servos):
         self.guards_seen = engine.counters.guards
         kind, u, cuts = self.faults.popleft() if self.faults else ("clean", 0.0, [])
         if kind == "stall":  # the far end stops reading for up to 0.1 s (see _answer_after_the_stall)
-            if self.late_until > t:
+            if self.late_until > t or not self.echo:  # (without echo nothing tells a stall from silence: see .guard)
                 kind = "drop"  # (no late reply still to come: kept to what the engine can tell apart)
             else:
                 self.stall_end = t + 0.1 * u

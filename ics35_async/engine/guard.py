@@ -14,16 +14,18 @@ sub-command and goes straight on (a silent servo never loops through
 guards), while another read of the guard's own shape gets a guard too, so
 the guard's late reply cannot pass for its answer.
 
-A command whose own echo never came back (a far end that stalls: an adapter
-or a bridge holding bytes, a simulator not yet scheduled) says nothing of the
-line: its echo and reply may still come whole, and with them those of any
-command before it whose echo never came either.  Such commands are remembered
-(``unheard``) until a command's own echo comes back: bytes come in order, so
-nothing older can still come after it.  Until then a command identical to one
-of them would take that one's echo and reply for its own, and gets a guard read
-first; a guard read that fails without its own echo shows nothing either, and
+A command that got nothing back at all, not even its echo (a far end that
+stalls: an adapter or a bridge holding bytes, a simulator not yet scheduled),
+says nothing of the line: its echo and reply may still come whole, and with
+them those of any command before it that got nothing either.  Such commands are
+remembered (``unheard``) until a command's own echo comes back: bytes come in
+order, so nothing older can still come after it.  Until then a command identical
+to one of them would take that one's echo and reply for its own, and gets a
+guard read first; a guard read that gets nothing back either shows nothing, and
 counts as one of the tries of the command it went before (see the engine), so
-a line that answers nothing still fails that command after its tries.
+a line that answers nothing still fails that command after its tries.  (On a
+line without echo nothing tells a stall from a silent servo: the rule is for
+lines with echo.)
 
 A command to a servo already found silent (``Timing.SILENT``: a closing
 stream's free to an offline servo) goes without a guard read: its reply

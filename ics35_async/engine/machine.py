@@ -169,6 +169,7 @@ class LineEngine:
         self._buf.clear()
         self._allowances.clear()  # wire times depend on the baud rate, which may have changed
         self.link.in_step()  # a fresh port: no reply from before can still arrive
+        self.guard.unheard = ()  # (nor any echo)
         self.answers.reset()
         self._wire.clear()
         self._held.clear()
@@ -1055,19 +1056,28 @@ class LineEngine:
             self.guard.suspect = (*self.guard.suspect, bytes((first,)))
 
     def _echo_came(self) -> bool:
-        """Did the failing transaction's own echo come back (see .guard)?  Told to the guard rule.  (On a
-        line without echo: taken as come, as nothing could tell.)"""
+        """Did anything come back for the failing transaction (see .guard)?  Nothing at all, on a line with echo:
+        the transaction is told to the guard rule as one whose echo never came, and False.  Its own echo (first,
+        or behind bytes that were on their way): told as come.  Other bytes only (a damaged echo, another
+        command's late bytes): the rules for those hold (see .link and _after_early_failure)."""
         if not self._echo_len:
             return True
-        came = echo_offset(self._buf, self._tx, 0) >= 0
-        self.guard.echo_came(self._tx, came)
-        return came
+        tx, buf = self._tx, self._buf
+        if not buf:
+            self.guard.echo_came(tx, False)
+            return False
+        if self.guard.unheard and echo_offset(buf, tx, 0) >= 0:
+            self.guard.echo_came(tx, True)
+        return True
 
     def _guard_proved_nothing(self, guard: GuardRequest, sid: int, now: float) -> None:
-        """A guard read failed without its own echo: the line showed nothing, and the command it went before
-        would need another.  It counts as one of that command's tries (see .guard): a request loses a retry,
-        or fails as a try that got nothing back would; the source's transaction fails so."""
+        """A guard read got nothing back at all, and the command it went before is one that got nothing either
+        (see .guard): it would only get another guard read, and another, on a line that answers nothing.  So the
+        guard counts as one of that command's tries: a request loses a retry, or fails as a try that got nothing
+        back would (taken off the queue: nothing else may end it); the source's transaction fails so."""
         protected, tx = guard.protects, guard.protected_tx
+        if tx not in self.guard.unheard:
+            return  # (a guard for a late reply alone: the command goes next, as it would have)
         nothing = timeout_error(protected, sid, tx, bytearray(), len(tx), 0)
         if protected is None:
             owner = self._owner if self._owner is self._source else None
@@ -1076,8 +1086,8 @@ class LineEngine:
         elif protected.retries_left > 0:
             protected.retries_left -= 1
             self.counters.per_name["retries"][sid] += 1
-        else:
-            protected.reject(nothing)  # (the queue then drops it: nobody waits for it any more)
+        elif self.queue.remove(protected):
+            protected.reject(nothing)
 
     def _full_deadline(self) -> float:
         """The transaction's deadline with its full allowance (and the link's extra), whatever it waited."""

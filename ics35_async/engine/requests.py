@@ -154,6 +154,15 @@ class RequestQueue:
                     return request
         return None
 
+    def remove(self, request: Request) -> bool:
+        """Take ``request`` off the queue (False: it was not on it)."""
+        try:
+            self._levels[request.priority].remove(request)
+        except ValueError:
+            return False
+        self.count -= 1
+        return True
+
     def waiting(self) -> list[Request]:
         """The requests queued, in the order they would go on the line (a copy, for diagnostics)."""
         # list() copies each deque at once (the I/O thread may pop from it meanwhile)
