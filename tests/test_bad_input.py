@@ -99,6 +99,7 @@ BAD_CALLS: list[Any] = [
     ("open_bus transport bogus", lambda e: open_bus(VirtualLine([1]), transport="bogus").open()),
     ("open_bus empty port", lambda e: open_bus("").open()),
     ("open_bus sim url bad ids", lambda e: open_bus("sim://?ids=40").open()),
+    ("open_bus sim url empty ids", lambda e: open_bus("sim://?ids=").open()),  # (was a line of no servos)
     ("BusTiming quiet -1", lambda e: BusTiming(quiet_time=-1)),
     ("BusTiming max_resync inf", lambda e: BusTiming(max_resync=math.inf)),
     ("open_bus timing str", lambda e: open_bus(e.sim, timing="x")),  # type: ignore[arg-type]
@@ -505,6 +506,15 @@ def test_cli_bad_argument_exits_2_with_a_message_and_sends_nothing(args: list[st
         assert "Traceback" not in err
         assert "rror" in err or "Usage" in err, err
         assert sim.transactions == 0
+
+
+@pytest.mark.parametrize("ids", ["", "40"])
+def test_a_sim_url_with_a_bad_id_list_is_a_usage_error_naming_the_key(ids: str) -> None:
+    # --port 'sim://?ids=' scanned a line of no servos and ended "no servo answered" after every rate's wait.
+    code, out, err = run_cli("--port", f"sim://?ids={ids}", "scan")
+    said = " ".join(err.split())
+    assert code == 2 and "Traceback" not in err, err
+    assert "sim URL: ids=" in said and "nothing was sent" in said and out == "", said
 
 
 def test_demo_refuses_a_rate_that_would_move_the_wave_in_steps_and_says_which_option_slows_it() -> None:

@@ -178,7 +178,8 @@ def test_sim_help_names_every_command_its_console_takes(cli: Any) -> None:
     ("args", "says"),
     [
         (["--bogus"], "Error: Unrecognized arguments: --bogus"),
-        (["--ids", "x"], "Error: 'x' is not an ID or a range of IDs"),
+        (["--ids", "x"], "Error: --ids x: 'x' is not an ID or a range of IDs"),
+        (["--ids", ""], "Error: --ids '': no IDs given: write IDs 0..31"),  # (was a line of no servos)
         (["--noisy", "40"], "Error: --noisy 40: the IDs '40' must lie within 0..31"),
         (["--ics36", "x"], "Error: --ics36 x: 'x' is not an ID or a range of IDs"),
         (["--ids", "1-3", "--noisy", "7"], "Error: No servo of this line is built from ID 7 given in noisy"),

@@ -102,6 +102,18 @@ def test_bad_urls(url: str) -> None:
         parse_url(url)
 
 
+@pytest.mark.parametrize("ids", ["", ",", " ", "%20,%20"])
+def test_an_id_list_naming_no_servo_is_refused_naming_the_key_and_what_it_takes(ids: str) -> None:
+    """``sim://?ids=`` (a script's unset variable) opened a line without servos, silently: every command then
+    timed out.  An empty line is asked for in words, ``ids=none``."""
+    with pytest.raises(InvalidArgument) as info:
+        parse_url(f"sim://?ids={ids}")
+    said = str(info.value)
+    assert said.startswith("sim URL: ids="), said
+    assert "0-31" in said and "none" in said, said
+    assert parse_url("sim://?ids=none")[1]["servos"] == []
+
+
 @pytest.mark.parametrize(
     ("query", "key"),
     [

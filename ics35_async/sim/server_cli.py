@@ -152,7 +152,7 @@ def build_parser(
 def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     if args.replay is not None:  # (an empty one, a script's unset variable, is refused, not taken for none)
         return ReplayDevice(args.replay)
-    ids = parse_line_ids(args.ids)
+    ids = option_ids(args.ids, "--ids", parse_line_ids)
     replug_after = parse_seconds(args.replug_after, "--replug-after") if args.replug_after else DEFAULT_REPLUG_AFTER
     options: dict[str, Any] = {}
     if args.turnaround is not None:
@@ -187,14 +187,15 @@ def build_device(args: argparse.Namespace) -> VirtualLine | ReplayDevice:
     return bus
 
 
-def option_ids(text: str | None, option: str) -> list[int]:
-    """The IDs given to ``option`` (none when it is not given), an error naming the option as written."""
+def option_ids(text: str | None, option: str, parse: Callable[[str], list[int]] = parse_ids) -> list[int]:
+    """``parse(text)``, the IDs given to ``option`` (none when it is not given); an error naming the option and
+    the value as written (an empty one quoted, or it would not show)."""
     if text is None:
         return []
     try:
-        return parse_ids(text)
+        return parse(text)
     except InvalidArgument as exc:
-        raise InvalidArgument(f"{option} {text}: {exc}") from None
+        raise InvalidArgument(f"{option} {text if text.strip() else repr(text)}: {exc}") from None
 
 
 def say_unplugs(device: VirtualLine, started: float, say: Callable[[str], None]) -> None:

@@ -9,6 +9,7 @@ command line take.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 from urllib.parse import parse_qs, urlsplit, urlunsplit
 
@@ -119,15 +120,29 @@ def parse_line_ids(text: str) -> list[int]:
     ``1,3,5-7``, or ``none`` for a line without servos (what a scan of an empty line meets).
 
     Raises:
-        InvalidArgument: not IDs 0..31 nor ``none``.
+        InvalidArgument: not IDs 0..31 nor ``none``; or no IDs at all (``ids=``, a script's unset variable):
+            a line without servos is asked for in words, since every command on one times out.
     """
-    return [] if text.strip().lower() == "none" else parse_ids(text)
+    if text.strip().lower() == "none":
+        return []
+    ids = parse_ids(text)
+    if not ids:
+        raise InvalidArgument("no IDs given: write IDs 0..31 (e.g. 0-31 or 1,3,5-7), or none for a line without servos")
+    return ids
+
+
+def _ids(key: str, text: str, parse: Callable[[str], list[int]] = parse_ids) -> list[int]:
+    """``parse(text)``, the IDs given to the URL's ``key``; an error naming the key and the value as written."""
+    try:
+        return parse(text)
+    except InvalidArgument as exc:
+        raise InvalidArgument(f"sim URL: {key}={text!r}: {exc}") from None
 
 
 def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
     """Split ``url``, a ``sim://[NAME][?key=value&...]`` URL, into a name and VirtualLine options.
 
-    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31; ``none``: no servos),
+    Keys: ``ids`` (servo IDs, ``0-31`` / ``1,3,5-7``, default 0-31; ``none``: no servos; none given: refused),
     ``baud`` (default 115200), ``realtime``, ``echo``, ``follow_baud``
     (1/0), ``seed``, ``faults`` (:mod:`.faults` syntax), ``turnaround``,
     ``eeprom_delay``, ``late_delay``, ``tail_delay``, ``unplug_after``,
@@ -159,7 +174,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             raise InvalidArgument(f"sim URL: {key} given more than once")
         value = values[0]
         if key == "ids":
-            options["servos"] = parse_line_ids(value)
+            options["servos"] = _ids(key, value, parse_line_ids)
         elif key == "baud":
             options["baudrate"] = BaudRate.parse(value)
         elif key in ("realtime", "echo"):
@@ -179,12 +194,9 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
         elif key in ("late_delay", "tail_delay", "unplug_after", "replug_after"):
             options[key] = parse_seconds(value, key)
         elif key in ("ics36", "noisy"):
-            try:
-                options[key] = parse_ids(value)
-            except (InvalidArgument, ValueError) as exc:
-                raise InvalidArgument(f"sim URL: {key}={value!r}: {exc}") from None
+            options[key] = _ids(key, value)
         elif key == "memory":
-            options["memory"] = {i: b"" for i in parse_ids(value)}
+            options["memory"] = {i: b"" for i in _ids(key, value)}
         elif key == "log":
             options["log_size"] = None if value == "all" else _int(key, value)
         elif key in ("record", "replay", "adapter"):
