@@ -38,7 +38,7 @@ from .stats import BusStats
 from .tasks import despite_cancellation
 from .transports.direction import check_direction
 from .transports.wire_device import TRANSPORT_KINDS, WireDevice, port_argument
-from .units import check_bool, check_ids, check_int, check_seconds, unknown_options
+from .units import check_bool, check_ids, check_int, finite_number, said, unknown_options
 
 if TYPE_CHECKING:
     from .servo import Device, Servo
@@ -94,8 +94,8 @@ class BusOptions(TimingOverrides, total=False):
     request fails at once with ``PortLost`` and a stream pauses (it resumes once the port is back);
     to wait for the port, see [`Bus.state_change`][ics35_async.bus.Bus.state_change]."""
     reconnect_backoff: Sequence[float]
-    """Seconds between reopen attempts after a loss, at least one (each 0..60); the last repeats (default 0.05, then
-    every 0.1)."""
+    """Seconds between reopen attempts after a loss, at least one (each more than 0, at most 60); the last repeats
+    (default 0.05, then every 0.1)."""
     max_requests_between: int
     """At most this many requests (1..10000, default 16) run between two of a stream's transactions."""
     direction: str | None
@@ -106,6 +106,23 @@ class BusOptions(TimingOverrides, total=False):
 
 # open_bus's names for what the ics35 commands' options of another name set (a program written after them).
 CLI_OPTION_NAMES = {"timeout": "the reply allowance is adapter_latency, in seconds: the ics35 commands' --timeout"}
+
+
+# The longest delay reconnect_backoff takes between two reopen attempts, in seconds.
+_LONGEST_RECONNECT_DELAY = 60.0
+
+
+def _reconnect_delay(delay: object) -> float:
+    """One of ``reconnect_backoff``'s delays: a number of seconds, more than 0 (a 0, the last one repeating, would
+    try the lost port again and again with no pause, holding a core for as long as the port stays away) and at
+    most :data:`_LONGEST_RECONNECT_DELAY`."""
+    number = finite_number(delay)
+    if number is None or not 0 < number <= _LONGEST_RECONNECT_DELAY:
+        raise InvalidArgument(
+            f"reconnect_backoff's delays must each be a number of seconds more than 0 and at most "
+            f"{_LONGEST_RECONNECT_DELAY:g} (with 0 a lost port is tried again with no pause), got {said(delay)}"
+        )
+    return number
 
 
 class Bus:
@@ -135,7 +152,7 @@ class Bus:
         backoff = options.get("reconnect_backoff", RECONNECT_BACKOFF)
         if isinstance(backoff, (str, bytes)) or not isinstance(backoff, Iterable):
             raise InvalidArgument(f"reconnect_backoff must be a sequence of seconds, not {backoff!r}")
-        backoff = tuple(check_seconds("reconnect delay", d) for d in backoff)
+        backoff = tuple(_reconnect_delay(d) for d in backoff)
         if not backoff:  # (its last delay repeats: an empty one has none to)
             raise InvalidArgument("reconnect_backoff must hold at least one delay in seconds (its last one repeats)")
         driver = options.get("driver", "auto")

@@ -38,6 +38,7 @@ from ics35_async import (
     ReplyTimeout,
     Servo,
     UnsafeOperation,
+    blocking,
     open_bus,
     open_robot,
     protocol,
@@ -333,6 +334,33 @@ async def test_a_stream_iterated_with_plain_for_says_how_to_use_it(env: Env) -> 
 async def _entered(block: contextlib.AbstractAsyncContextManager[Any]) -> None:
     async with block:
         pytest.fail("entered")
+
+
+# Every way a program opens a line with reconnect=True, each given ``backoff``.
+def _backoff_openers(backoff: Any) -> dict[str, Callable[[], Any]]:
+    port = "sim://?ids=1"
+    robot_line = {"lines": {"m": {"port": port}}, "joints": {"j": {"line": "m", "id": 1}}}
+    options: dict[str, Any] = {"reconnect": True, "reconnect_backoff": backoff}
+    return {
+        "open_bus": lambda: open_bus(port, **options),
+        "open_robot": lambda: _entered(open_robot(robot_line, **options)),
+        "blocking.open_bus": lambda: blocking.open_bus(port, **options),
+        "blocking.open_robot": lambda: blocking.open_robot(robot_line, **options),
+    }
+
+
+@pytest.mark.parametrize(
+    "backoff", [[0], (0.05, 0), [0.0, 0.1], [-0.1], [math.inf], [math.nan], [61], ["0.1"], [True]], ids=repr
+)
+async def test_a_reconnect_wait_that_is_not_a_positive_finite_time_is_refused_by_every_opener(backoff: Any) -> None:
+    # reconnect_backoff=[0] was taken: a lost port was then tried again and again with no wait between, a loop that
+    # holds a core for as long as the port stays away.  Refused as the empty list is, naming the option.
+    for opener, call in _backoff_openers(backoff).items():
+        with pytest.raises(InvalidArgument, match=r"^reconnect_backoff'?s? ") as info:
+            result = call()
+            if isinstance(result, Awaitable):
+                await result
+        assert "more than 0" in str(info.value), (opener, str(info.value))
 
 
 @pytest.mark.parametrize(
