@@ -46,6 +46,15 @@ def empty_path(path: object) -> bool:
     return isinstance(path, str) and not path.strip()
 
 
+def is_device(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a device node (a serial port, ``/dev/null``), not a file: one has no end to read to."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):  # (nothing there, or a name no path can be: not a device)
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+
+
 def read_user_text(path: str | Path, expected: str) -> str:
     """The text of the file at ``path``; ``expected`` says what it should be, e.g. ``"a motion is UTF-8 JSON"``.
 
@@ -59,7 +68,7 @@ def read_user_text(path: str | Path, expected: str) -> str:
         # Looked at before it is opened: a serial port (open_robot("/dev/ttyUSB0"), the port where the robot file
         # goes) has no end, so reading it would wait for ever, and /dev/zero would fill the memory.  (A pipe ends
         # when its writer does: a shell's <(...) is read.)
-        if stat.S_ISCHR(mode := os.stat(path).st_mode) or stat.S_ISBLK(mode):
+        if is_device(path):
             raise UnreadableText(f"is a device (a serial port?), not a file ({expected})")
         raw = Path(path).read_bytes()
     except FileNotFoundError:

@@ -73,7 +73,26 @@ def test_a_serial_port_given_for_the_robot_file_is_named_a_device(cli: Any, comm
         os.close(master)
     assert result.code == ExitCode.USAGE, result.err
     said = " ".join(result.err.split())
-    assert f"{port}: is a device (a serial port?), not a file" in said and "no such file" not in said, said
+    assert f"{port}: this looks like a port (a device), not a robot file" in said and "no such file" not in said, said
+    assert f'[lines.NAME] table each: port = "{port}"' in said, said
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["check"], ["play", "X", "wave.json"], ["teach", "X", "taught.json"], ["calibrate"], ["web", "--robot", "X"]],
+    ids=lambda command: command[0],
+)
+def test_a_sim_url_given_for_the_robot_file_is_said_to_be_a_port_and_where_it_goes(
+    cli: Any, command: list[str]
+) -> None:
+    # ics35 play sim://x wave.json said "ROBOT.toml sim://x: no such file" (the web page "sim:/x: no such file").
+    args = [arg.replace("X", "sim://x") for arg in command] if "X" in command else [*command, "sim://x"]
+    result = cli(*args)
+    assert result.code == ExitCode.USAGE, result.err
+    said = " ".join(result.err.split())
+    assert "sim://x: this looks like a port (a sim:// URL), not a robot file" in said, said
+    assert '[lines.NAME] table each: port = "sim://x"' in said and "no such file" not in said, said
+    assert "Traceback" not in result.err and result.out == "", result.out
 
 
 def test_a_sim_record_file_is_written(cli: Any, tmp_path: Path) -> None:

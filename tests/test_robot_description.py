@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ics35_async import InvalidArgument, open_robot, units
+from ics35_async import InvalidArgument, blocking, open_robot, units
 from ics35_async.robot import DescriptionError, JointSpec, load_description, parse_description
 from ics35_async.robot.calibration import dump_description
 from ics35_async.sim import VirtualLine
@@ -347,6 +347,48 @@ def test_a_whole_file_written_anew_reads_back_the_same_and_leaves_defaults_out(t
 def test_a_missing_file_is_a_description_error(tmp_path: Path) -> None:
     with pytest.raises(DescriptionError, match=r"nothere\.toml: no such file"):
         load_description(tmp_path / "nothere.toml")
+
+
+PORTS_FOR_FILES = [
+    ("sim://x", "a sim:// URL"),
+    ("sim://arm?ids=1-6", "a sim:// URL"),
+    ("socket://localhost:7777", "a socket:// URL"),
+    ("/dev/ttyUSB-not-plugged-in", "a device path"),
+]
+
+
+@pytest.mark.parametrize(("port", "kind"), PORTS_FOR_FILES)
+def test_open_robot_given_a_port_says_it_takes_a_robot_file_and_where_the_port_goes(port: str, kind: str) -> None:
+    # open_robot("sim://x") said "sim:/x: no such file": a path's reading of the URL, as if a file were missing.
+    async def attempt() -> None:
+        async with open_robot(port):
+            pytest.fail("opened")
+
+    for opener in (lambda: anyio.run(attempt), lambda: blocking.open_robot(port)):
+        with pytest.raises(DescriptionError) as info:
+            opener()
+        said = str(info.value)
+        assert said.startswith(f"{port}: open_robot takes a robot file"), said
+        assert f"this looks like a port ({kind})" in said and "no such file" not in said, said
+        assert f'[lines.NAME] table each: port = "{port}"' in said, said  # where a robot's port goes instead
+        assert f'{{"lines": {{"main": {{"port": "{port}"}}}}, "joints": ' in said, said  # or a mapping's
+
+
+@pytest.mark.parametrize(("port", "kind"), PORTS_FOR_FILES)
+def test_load_description_given_a_port_says_it_looks_like_one(port: str, kind: str) -> None:
+    with pytest.raises(DescriptionError) as info:
+        load_description(port)
+    said = str(info.value)
+    assert said.startswith(f"{port}: this looks like a port ({kind}), not a robot file"), said
+    assert f'port = "{port}"' in said, said
+
+
+def test_a_file_at_a_path_that_reads_like_a_url_is_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # (a path reads sim://x as sim:/x: a robot file there is what was meant, and is read)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sim:").mkdir()
+    (tmp_path / "sim:" / "x").write_text('[lines.m]\nport = "sim://"\n[joints.j]\nline = "m"\nid = 1\n')
+    assert set(load_description("sim://x").joints) == {"j"}
 
 
 @pytest.mark.parametrize(

@@ -52,14 +52,15 @@ def test_an_empty_path_is_named_empty_by_every_reader(tmp_path: Path, monkeypatc
 
 @pytest.mark.skipif(sys.platform == "win32", reason="a pseudo-terminal stands for the serial port")
 @pytest.mark.parametrize(
-    ("program", "said"),
+    ("program", "said", "words"),
     [
-        ("from ics35_async.robot import load_description as load", "DescriptionError"),
-        ("from ics35_async.robot import load_motion as load", "MotionError"),
-        ("from ics35_async.blocking import open_robot as load", "DescriptionError"),
+        # (where a robot file goes, a port is said to be one, and where the port goes instead)
+        ("from ics35_async.robot import load_description as load", "DescriptionError", "looks like a port (a device)"),
+        ("from ics35_async.robot import load_motion as load", "MotionError", "not a file"),
+        ("from ics35_async.blocking import open_robot as load", "DescriptionError", "looks like a port (a device)"),
     ],
 )
-def test_a_serial_port_given_for_a_file_is_refused_not_read_for_ever(program: str, said: str) -> None:
+def test_a_serial_port_given_for_a_file_is_refused_not_read_for_ever(program: str, said: str, words: str) -> None:
     """``open_robot("/dev/ttyUSB0")``, the port where the robot file goes, read the port as a file: a serial port
     has no end, so the program waited for ever, saying nothing (``/dev/zero`` filled the memory instead)."""
     master, slave = os.openpty()
@@ -81,4 +82,4 @@ def test_a_serial_port_given_for_a_file_is_refused_not_read_for_ever(program: st
         os.close(slave)
         os.close(master)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith(f"{said} {port}: ") and "not a file" in done.stdout, done.stdout
+    assert done.stdout.startswith(f"{said} {port}: ") and words in done.stdout, done.stdout

@@ -399,7 +399,8 @@ def open_robot(
             [`RobotOptions`][ics35_async.robot.RobotOptions].
 
     Raises:
-        DescriptionError: the description is not valid (nothing is opened).
+        DescriptionError: the description is not valid (nothing is opened); or ``source`` is a port, not a file
+            (``"sim://arm"``, ``"/dev/ttyUSB0"``): a robot's ports go in its file, one a line.
         InvalidArgument: an unknown or bad option (see [`ics35_async.open_robot`][ics35_async.robot.open_robot]).
         SerialPortError: a line's port cannot be opened.
     """

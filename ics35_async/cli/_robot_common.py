@@ -30,6 +30,7 @@ from ..errors import (
     UnsafeOperation,
 )
 from ..robot import (
+    DescriptionError,
     LineSpec,
     Motion,
     Robot,
@@ -41,6 +42,7 @@ from ..robot import (
     load_motion,
     open_robot,
 )
+from ..robot.description import check_not_a_port
 from ..robot.motion import MotionError, check_motion
 from ..transports.wire_device import url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
@@ -74,7 +76,12 @@ def load_input_file(path: str, placeholder: str, load: Callable[[str], T]) -> T:
 
 
 def load_robot_file(path: str) -> RobotDescription:
-    """The checked description, or a usage error (exit code 2) naming the file and key."""
+    """The checked description, or a usage error (exit code 2) naming the file and key.  A port given for the
+    file (``sim://x``, ``/dev/ttyUSB0``) is said as one, before the checks of a file's path would call it missing."""
+    try:
+        check_not_a_port(path)
+    except DescriptionError as exc:
+        raise _usage_error(exc, path, "ROBOT.toml") from None
     return load_input_file(path, "ROBOT.toml", load_description)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import os
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
@@ -22,8 +23,8 @@ from .. import protocol, units
 from ..eeprom import FACTORY_BAUD
 from ..errors import FileContentError, InvalidArgument
 from ..transports.direction import DIRECTIONS
-from ..transports.wire_device import opens_anew
-from ..user_files import UnreadableText, parse_toml, read_user_text
+from ..transports.wire_device import is_url, opens_anew, url_scheme
+from ..user_files import UnreadableText, is_device, parse_toml, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
 SERVO_DEGREES = units.DEGREES_MAX  # the servo's travel: -135..+135 degrees
@@ -193,13 +194,15 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
     """Read and check a robot description: ``source`` is a TOML file's path, or the same structure as a mapping.
 
     Raises:
-        DescriptionError: the file cannot be read, is not TOML, or breaks a rule of the format.
+        DescriptionError: the file cannot be read, is not TOML, or breaks a rule of the format; or ``source`` is a
+            port (``"sim://arm"``, ``"/dev/ttyUSB0"``), not a file (see :func:`check_not_a_port`).
         InvalidArgument: ``source`` is neither a path nor a mapping.
     """
     if isinstance(source, Mapping):
         return parse_description(source, "<mapping>")
     if not isinstance(source, (str, Path)):
         raise InvalidArgument(f"a robot description is a TOML file's path or a mapping, not {type(source).__name__}")
+    check_not_a_port(source)
     path = Path(source)
     try:
         text = read_user_text(source, "a robot file is UTF-8 TOML")
@@ -210,6 +213,39 @@ def load_description(source: str | Path | Mapping[str, Any]) -> RobotDescription
     except tomllib.TOMLDecodeError as exc:
         raise DescriptionError(str(path), "", f"not valid TOML: {exc}") from None
     return parse_description(data, str(path))
+
+
+def check_not_a_port(source: str | os.PathLike[str], taker: str | None = None) -> None:
+    """Refuse ``source``, given where a robot file goes, when it names a port and no file is there: a URL
+    (``sim://arm``, which a path reads as ``sim:/arm``, a file that is not there), a device path (``/dev/ttyUSB0``
+    unplugged, ``COM3``) or a device (a serial port, which has no end to read to).  The error says where a robot's
+    ports go instead; ``taker`` (``"open_robot"``), when given, is named as what takes the robot file.
+
+    Raises:
+        DescriptionError: ``source`` names a port, not a file; it names ``source`` as given.
+    """
+    text = os.fspath(source)
+    if os.path.isfile(text):  # (a file there, whatever its name reads like, is what was meant)
+        return
+    if is_url(text):
+        scheme = url_scheme(text)
+        kind = f"a {scheme}:// URL" if scheme else "a URL"
+    elif is_device(text):
+        kind = "a device"
+    elif text.startswith("/dev/") or re.fullmatch(r"COM\d+", text, re.IGNORECASE):
+        kind = "a device path"
+    else:
+        return
+    where = f"a robot's ports go in its file, a [lines.NAME] table each: port = {json.dumps(text)}"
+    if taker is None:
+        raise DescriptionError(text, "", f"this looks like a port ({kind}), not a robot file: {where}")
+    mapping = f'{{"lines": {{"main": {{"port": {json.dumps(text)}}}}}, "joints": {{...}}}}'
+    raise DescriptionError(
+        text,
+        "",
+        f"{taker} takes a robot file (or a mapping of the same), and this looks like a port ({kind}): {where}; "
+        f"in a mapping, {mapping}",
+    )
 
 
 class _Reader:

@@ -36,7 +36,7 @@ from ..policies.scan import anyone_there
 from ..protocol import FREE
 from ..stream import ON_CLOSE
 from ..tasks import only_error, task_group
-from .description import JointSpec, LineSpec, RobotDescription, load_description
+from .description import JointSpec, LineSpec, RobotDescription, check_not_a_port, load_description
 from .robot import Robot
 
 T = TypeVar("T")
@@ -146,7 +146,8 @@ def open_robot(
             ``driver="anyio"``), each described in [`RobotOptions`][ics35_async.robot.RobotOptions].
 
     Raises:
-        DescriptionError: the description is not valid (nothing is opened).
+        DescriptionError: the description is not valid (nothing is opened); or ``source`` is a port, not a file
+            (``"sim://arm"``, ``"/dev/ttyUSB0"``): a robot's ports go in its file, one a line.
         InvalidArgument: an unknown or bad option, a ``start_pose`` naming an unknown joint or an
             angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here;
             or a line's port refused as written (a misspelt ``sim://`` option; its message names the line).
@@ -179,6 +180,8 @@ async def _robot_session(
         told = units.unknown_options("open_robot", unknown, RobotOptions.__optional_keys__, CLI_OPTION_NAMES)
         raise InvalidArgument(f"{told} (the robot's own: {own}; and open_bus's)")
     bus_options: BusOptions = options
+    if isinstance(source, (str, os.PathLike)):  # (a port given for the file: said as open_robot's argument)
+        check_not_a_port(source, "open_robot")
     description = source if isinstance(source, RobotDescription) else load_description(source)
     stated = check_start_pose(description, start_pose)
     if on_close not in ON_CLOSE:
