@@ -1330,6 +1330,26 @@ def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
     assert sum(line.startswith(expected[0]) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
 
 
+def test_calibrates_title_wider_than_the_terminal_goes_on_lines_of_its_own_keeping_the_files_name(
+    tmp_path: Path,
+) -> None:
+    # As play's and teach's: calibrate's title was one line cut at the terminal's width, what it says of the
+    # columns on the right lost.  The file's path, wider than the terminal by itself, is cut at its start: its
+    # end names the file.
+    robot = tmp_path / "arm.toml"
+    robot.write_text(CALIBRATED)
+    assert len(str(robot)) > NARROW  # (the scene: a path too wide by itself)
+    code, written = typed_on_a_terminal(["calibrate", str(robot)], [("step 1/2", b"\x03")], columns=NARROW)
+    screen = [line for line in screen_of(written, width=NARROW) if line]
+    said = "\n".join(screen)
+    assert code == 130, said
+    expected = ["calibrate:", "…" + str(robot)[-(NARROW - 1) :], "(on the right: offset, min and max", "as the file"]
+    top = next(k for k, line in enumerate(screen) if line.startswith(expected[0]))
+    assert screen[top : top + 3] == expected[:3] and screen[top + 3].startswith(expected[3]), said
+    assert "…" not in screen[top + 3], said
+    assert sum(line.startswith(expected[0]) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
+
+
 def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:
     # monitor's status line was cut at a narrow terminal's last column (its "Ctrl-C to stop" hint gone), and a key
     # typed there (q, as other programs quit) or the ^C the terminal echoed wrapped to a line of their own: each

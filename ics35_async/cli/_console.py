@@ -60,8 +60,9 @@ class TitleInParts:
     else a line per part (neighbours sharing one where they fit together).  Part ``port`` names the port and its
     rate: cut at its start where it is still too wide, since a port's name tells itself from another's by its end
     (``...-if00-port0``, ``?ids=1-3``) and the rate follows it; the others are cut at their end.  One line cut with
-    an ellipsis lost whatever came last (what the servos are left in, then the rate, then the port).  ``port``
-    ``None``: the title names no port (a robot's views name their files), each part cut at its end."""
+    an ellipsis lost whatever came last (what the servos are left in, then the rate, then the port).  A file's
+    path is told apart by its end too: calibrate's title names the robot file in part ``port``.  ``port``
+    ``None``: every part is cut at its end (play's and teach's titles)."""
 
     parts: tuple[str, ...]
     port: int | None = 0

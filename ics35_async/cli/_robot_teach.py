@@ -436,6 +436,17 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             lines = TypedLines()
             step = ["neutral"]
 
+            # (The file's path cut at its start where it alone is too wide, as a port's name: its end names the file.)
+            title = TitleInParts(
+                (
+                    "calibrate:",
+                    escape(robot_file),
+                    "(on the right: offset, min and max",
+                    "as the file will get them)",
+                ),
+                port=1,
+            )
+
             def summary() -> str:
                 if lost:
                     return f"LINE LOST: calibration cut short, nothing written to {escape(robot_file)}"
@@ -444,7 +455,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             def table() -> Table:
                 return joint_table(
                     robot,
-                    f"calibrate: {escape(robot_file)} (on the right: offset, min and max as the file will get them)",
+                    title.whole,
                     names,
                     (("offset°", "min°", "max°"), extra),
                     lost=bool(lost),
@@ -498,7 +509,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     await watcher  # raises what ended the lines
                 return line
 
-            with Screen(table, summary) as screen:
+            with Screen(table, summary, title) as screen:
                 try:
                     screen.say("the joints are free: pose the robot at its neutral (every joint at 0), then Enter")
                     if await typed("Enter: this is the neutral pose") is None:
