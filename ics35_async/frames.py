@@ -25,6 +25,14 @@ class FrameIterator(Generic[F]):
 
     # What a program that wrote `with` where `async with` goes is told (each stream says how it is used).
     _used_with = "a stream runs in `async with ...`"
+    # How a stream like this one is made, for a program starting it again (each stream says its own).
+    _made_with = "the call that made it"
+
+    def _ran_once(self) -> BusClosed:
+        """What a program starting this stream again after its ``async with`` block is told: that a stream runs
+        once, and how to make another (a program in phases took "stream closed" for its bus or robot gone)."""
+        made = f"make a new one as this one was made ({self._made_with})"
+        return BusClosed(f"stream closed: a stream runs once; for another run, {made}")
 
     if not TYPE_CHECKING:  # (at run time only: a type checker says `with` is wrong itself, and suggests __aenter__)
 

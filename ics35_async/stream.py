@@ -141,6 +141,7 @@ class Stream(FrameIterator[Frame]):
         "a stream runs in `async with bus.stream(...) as stream:`; in code without an event loop, a bus of"
         " `ics35_async.blocking` gives a stream for `with`"
     )
+    _made_with = "bus.stream(...), group.stream(...)"
 
     def __init__(
         self,
@@ -1004,10 +1005,7 @@ class Stream(FrameIterator[Frame]):
     async def start(self) -> Stream:
         """Start streaming (``async with`` does); BusClosed if closed or the bus is not, InvalidArgument if busy."""
         if self._closed:  # (a program in phases: the second `async with stream:` needs a new one)
-            raise BusClosed(
-                "stream closed: a stream runs once; for another run, make a new one as this one was made "
-                "(bus.stream(...), group.stream(...))"
-            )
+            raise self._ran_once()
         if not self._running:
             self._running = True
             try:

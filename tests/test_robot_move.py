@@ -839,6 +839,26 @@ def test_free_hold_and_the_joint_space_stream() -> None:
     run_robot(rig, body)
 
 
+def test_a_robot_stream_started_again_after_its_block_says_a_stream_runs_once() -> None:
+    # A program in phases (`async with stream:` twice on one robot stream) was let in, and its frames then ended at
+    # once (`async for` ran no turn) or raised "robot stream closed": as a bus's stream, it is told to make another.
+    rig = make_rig()
+
+    async def body(robot: Robot) -> None:
+        stream = robot.stream()
+        async with stream:
+            await stream.next_frame()
+        with pytest.raises(BusClosed, match=r"a stream runs once; .*robot\.stream\(\)"):
+            async with stream:
+                pass
+        with pytest.raises(BusClosed, match=r"a stream runs once; .*robot\.stream\(\)"):
+            await stream.next_frame()
+        async with robot.stream() as again:  # and the robot streams on
+            assert (await again.next_frame()).positions
+
+    run_robot(rig, body)
+
+
 def test_a_free_joint_standing_past_its_limit_is_not_thrown_to_the_limit_by_a_motion_or_a_hold() -> None:
     # A free joint turned by hand past its limit (knee: max 20 degrees, at 61) started a motion from the limit:
     # the first command was the limit, which the servo reached at full speed (a 2 s move_to moved it 41 degrees

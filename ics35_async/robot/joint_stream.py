@@ -7,7 +7,6 @@ from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import TYPE_CHECKING
 
-from ..errors import BusClosed
 from ..frames import FrameIterator
 from .frame import RobotFrame
 
@@ -24,6 +23,7 @@ class RobotStream(FrameIterator[RobotFrame]):
     """
 
     _used_with = "a robot's stream runs in `async with robot.stream() as stream:`"
+    _made_with = "robot.stream()"
 
     def __init__(self, robot: Robot) -> None:
         self.robot = robot
@@ -39,7 +39,7 @@ class RobotStream(FrameIterator[RobotFrame]):
             SafetyStop: the safety watch stopped the robot.
         """
         if self._closed:
-            raise BusClosed("robot stream closed")
+            raise self._ran_once()
         frame = await self.robot.wait_frame(self._cycle)
         skipped = frame.cycle - self._cycle - 1 if self._cycle else 0
         self._cycle = frame.cycle
@@ -99,6 +99,8 @@ class RobotStream(FrameIterator[RobotFrame]):
         self._closed = True
 
     async def __aenter__(self) -> RobotStream:
+        if self._closed:  # (a program in phases: the second `async with stream:` needs a new one)
+            raise self._ran_once()
         return self
 
     async def __aexit__(
