@@ -1860,9 +1860,10 @@ def playing_on_past_offline(sims: Any, tmp_path: Path) -> tuple[Path, Path]:
     return robot_file, motion
 
 
-def test_play_shows_no_temperature_or_current_for_a_joint_gone_offline(cli: Any, tmp_path: Path) -> None:
+def test_play_shows_no_target_temperature_or_current_for_a_joint_gone_offline(cli: Any, tmp_path: Path) -> None:
     # With continue_on_offline the motion plays on without a servo unplugged mid-motion: its row said "offline"
-    # beside the last temperature and current read from it, shown as if they were current.
+    # beside the last temperature and current read from it, shown as if they were current, and beside the
+    # motion's target for it, never sent to it (the motion's end, where the servo never went).
     sims = make_rig(safety={"continue_on_offline": True})
     try:
         robot_file, motion = playing_on_past_offline(sims, tmp_path)
@@ -1877,6 +1878,7 @@ def test_play_shows_no_temperature_or_current_for_a_joint_gone_offline(cli: Any,
     # joint, line:ID, target°, pos°, temp, cur, state
     assert rows["hip"][-1] == "offline" and rows["hip"][-3:-1] == ["-", "-"], result.out
     assert re.fullmatch(r"\d+C", rows["neck"][-3]) and rows["neck"][-2].isdigit(), result.out  # (still read)
+    assert rows["hip"][2] == "-" and rows["neck"][2] == "+20.0", result.out  # (the neck's end: sent)
 
 
 @pytest.mark.parametrize("loop", [False, True])

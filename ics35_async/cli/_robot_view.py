@@ -61,7 +61,8 @@ def joint_table(
 
     ``lost``: the robot's lines stopped (a port lost); the joints of each line whose port is gone say
     so (their positions are only the last ones read), the others keep their state.  A joint whose servo is
-    offline shows no temperature or current ("-", as its position): the last ones read are not its own now.
+    offline shows no target, temperature or current ("-", as its position): nothing is sent to it, and the last
+    readings are not its own now.
     ``offsets``: servo degrees that read 0 in place of the robot file's, by joint (calibrate's, as found): its
     ``pos°`` from that offset.
     """
@@ -80,7 +81,8 @@ def joint_table(
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
         # Its servo offline (a trip for it said first, as its state): the last temperature and current read are not
-        # its own now.
+        # its own now, and the stream sends it nothing: a target set meanwhile (a motion playing on past it) never
+        # reached it.
         silent = frame is not None and name in frame.offline
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
@@ -98,7 +100,7 @@ def joint_table(
         cells: list[str | Text] = [
             name,
             f"{spec.line}:{spec.id}",
-            "-" if name in robot.untouched or waiting else "free" if target is None else _deg(target),
+            "-" if name in robot.untouched or waiting or silent else "free" if target is None else _deg(target),
             _deg(_reframed(spec, positions.get(name), (offsets or {}).get(name))),
             "-" if silent or seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
             "-" if silent or seen is None or seen.current is None else str(seen.current),
