@@ -1350,6 +1350,48 @@ def test_calibrates_title_wider_than_the_terminal_goes_on_lines_of_its_own_keepi
     assert sum(line.startswith(expected[0]) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
 
 
+def joint_rows(screen: list[str]) -> list[str]:
+    """The lines of the last joint table on ``screen``: those below its header's rule, up to the line naming the
+    columns left out (or, for a table drawn with its edges, one column in, up to the first line that is not)."""
+    rule = max(k for k, line in enumerate(screen) if line.strip().startswith("───"))
+    edge = screen[rule].startswith(" ")
+    below = range(rule + 1, len(screen))
+    end = next(k for k in below if screen[k].startswith("columns left out: ") or (edge and screen[k][:1] != " "))
+    return [line[edge:] for line in screen[rule + 1 : end]]
+
+
+LONG_NAMES = ["right_shoulder_pitch", "left_ankle_roll", "neck"]
+
+
+@pytest.mark.parametrize("command", ["play", "calibrate"])
+def test_a_robots_joint_table_on_a_narrow_terminal_keeps_every_value_whole(tmp_path: Path, command: str) -> None:
+    # At 50 columns the joint table was cut to fit, every column's values with it: "right…" for any of five
+    # joints, "+2…" for a position of +23.5.  Columns are left out instead (named under the table), then long
+    # joint names wrap after an underscore (calibrate's, with its three columns more).
+    columns = 50
+    if command == "play":  # (the humanoid example, as its file says to run it)
+        args, keys, expected = ["play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json")], [], 0
+        names = list(json.loads((EXAMPLES / "wave.json").read_text())["keyframes"][0]["pose"])
+    else:  # (a robot of few joints: the whole view within the terminal's rows; at step 2, the right columns filled)
+        robot = tmp_path / "arm.toml"
+        joints = "".join(f'[joints.{name}]\nline = "main"\nid = {k}\n' for k, name in enumerate(LONG_NAMES, 1))
+        robot.write_text(f'[lines.main]\nport = "sim://narrow-arm?ids=1-3&realtime=1"\n{joints}')
+        args, keys, expected = ["calibrate", str(robot)], [("step 1/2", b"\r"), ("step 2/2", b"\x03")], 130
+        names = LONG_NAMES
+    code, written = typed_on_a_terminal(args, keys, columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert code == expected and "Traceback" not in written, said
+    rows = joint_rows(screen)
+    assert not any("…" in line for line in rows), said
+    assert all(len(line) <= columns for line in rows), said
+    # Each row begins with its joint's name, or a part of it on a line of its own (a state's words wrapped go on
+    # lines that begin blank): read in order, they spell the joints' names.
+    assert "".join(line.split()[0] for line in rows if not line.startswith(" ")) == "".join(names), said
+    if command == "calibrate":
+        assert "right_shoulder_pitch" not in said, said  # (the scene: a name wrapped)
+
+
 def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:
     # monitor's status line was cut at a narrow terminal's last column (its "Ctrl-C to stop" hint gone), and a key
     # typed there (q, as other programs quit) or the ^C the terminal echoed wrapped to a line of their own: each

@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 import json
+import re
 import sys
 import weakref
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NoReturn
 
 import click
+from rich.cells import cell_len
 from rich.console import Console, ConsoleOptions, Group, RenderableType, RenderResult
 from rich.file_proxy import FileProxy
 from rich.live import Live
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.segment import Segment
 from rich.table import Table
@@ -72,19 +76,119 @@ class TitleInParts:
         return " ".join(self.parts)
 
 
-def title_above(table: Table, in_parts: TitleInParts | None = None) -> Group:
+def title_above(table: Table | FittedTable, in_parts: TitleInParts | None = None) -> Group:
     """``table`` for a live view: its title taken off it and drawn on a line of its own above it, cut with an
     ellipsis at the terminal's width where it is wider (``in_parts``: the title in parts, see
     :class:`TitleInParts`).  A table's own title is laid out at the table's width, often narrower than the
     title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a
     port's or a file's name cut short reads as another's).  (A table printed whole, into a log, keeps its
     title.)"""
-    title, table.title = table.title, None
+    inner = table.table if isinstance(table, FittedTable) else table
+    title, inner.title = inner.title, None
     if in_parts is not None:
         return Group(_TitleLines(in_parts), table)
     if title is None:
         return Group(table)
     return Group(_cut_at_width(Text.from_markup(title) if isinstance(title, str) else title), table)
+
+
+class FittedTable:
+    """``table`` drawn at the width it is given with each of its values whole.  rich fits a table wider than the
+    terminal by cutting every column's values short ("right…" for any of five joints, "+2…" for a position of
+    +23.5), each then reading as another's or as nothing.  Here a table too wide loses its edges (the blank
+    lines and columns around it), then the columns ``leave_out`` names in turn until the rest fits (those left
+    out named under the table), then its first column's values (names) wrap after their underscores, and only
+    then do the values give way.  The table's columns that may wrap (words) do; the others should be
+    ``no_wrap``, or rich cuts them before this does anything."""
+
+    def __init__(self, table: Table, leave_out: Sequence[str]) -> None:
+        self.table = table
+        self.leave_out = leave_out
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        width = options.max_width
+        unlimited = options.update_width(1_000_000)
+        # Measured on the rows holding each column's widest value alone: as wide as the whole table, measured in a
+        # fraction of its time (a live view draws it ten times a second, on the loop that streams).
+        widest = _widest_rows(self.table)
+
+        def excess(left_out: Sequence[str] | None, names_width: int | None = None) -> int:
+            narrowed = _narrowed(self.table, left_out, names_width, widest)
+            return Measurement.get(console, unlimited, narrowed).minimum - width
+
+        if excess(None) <= 0:
+            yield self.table
+            return
+        headers = [str(column.header) for column in self.table.columns]
+        left_out: list[str] = []
+        for header in (header for header in self.leave_out if header in headers):
+            if excess(left_out) <= 0:
+                break
+            left_out.append(header)
+        names_width = None
+        if (over := excess(left_out)) > 0 and self.table.columns:
+            longest = max((cell_len(str(cell)) for cell in self.table.columns[0].cells), default=0)
+            names_width = max(1, longest - over)
+        yield _narrowed(self.table, left_out, names_width)
+
+
+def _widest_rows(table: Table) -> list[int]:
+    """The rows of ``table`` holding each column's longest value and its longest word (what its width is
+    measured by, as its cells' text goes: a value drawn otherwise is not looked at)."""
+
+    def text(cell: object) -> str:
+        return cell.plain if isinstance(cell, Text) else cell if isinstance(cell, str) else ""
+
+    rows: set[int] = set()
+    for column in table.columns:
+        texts = [text(cell) for cell in column.cells]
+        for size in (cell_len, lambda value: max(map(cell_len, value.split()), default=0)):
+            if texts:
+                rows.add(max(range(len(texts)), key=lambda k: size(texts[k])))
+    return sorted(rows)
+
+
+def _narrowed(
+    table: Table, left_out: Sequence[str] | None, names_width: int | None, rows: Sequence[int] | None = None
+) -> Table:
+    """``table`` without its edges and the columns ``left_out`` (named in its caption), or as it is with ``None``;
+    ``names_width``: its first column's values wrapped after their underscores at that width; ``rows``: only
+    those rows."""
+    kept = range(len(table.rows)) if rows is None else rows
+    narrowed = copy.copy(table)
+    narrowed.columns, narrowed.rows = [], [table.rows[k] for k in kept]
+    for column in table.columns:
+        if left_out is not None and str(column.header) in left_out:
+            continue
+        every = list(column.cells)
+        cells = [every[k] for k in kept]
+        if names_width is not None and not narrowed.columns:
+            cells = [
+                "\n".join(_wrapped_after_underscores(cell, names_width)) if isinstance(cell, str) else cell
+                for cell in cells
+            ]
+        narrowed.columns.append(replace(column, _index=len(narrowed.columns), _cells=cells))
+    if left_out is not None:
+        narrowed.show_edge = False
+    if left_out:
+        narrowed.caption = wrapped_at_width(Text(f"columns left out: {', '.join(left_out)}"))
+        narrowed.caption_justify = "left"
+        narrowed.caption_style = "dim"
+    return narrowed
+
+
+def _wrapped_after_underscores(name: str, width: int) -> list[str]:
+    """``name`` in lines of ``width`` cells at most, broken after its underscores (``right_shoulder_`` /
+    ``pitch``), a part wider than that by itself folded."""
+    lines: list[str] = []
+    for part in re.split(r"(?<=_)", name):
+        while part:
+            if lines and cell_len(lines[-1]) + cell_len(part) <= width:
+                lines[-1] += part
+                break
+            lines.append(part[:width])
+            part = part[width:]
+    return lines
 
 
 def _cut_at_width(text: Text) -> Text:

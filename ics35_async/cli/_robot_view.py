@@ -21,12 +21,21 @@ from rich.text import Text
 
 from ..engine import State
 from ..robot import JointSpec, Robot, RobotFrame
+from ..robot.description import SERVO_DEGREES
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import TitleInParts, live_view, signed_tenths, title_above, wrapped_at_width
+from ._console import FittedTable, TitleInParts, live_view, signed_tenths, title_above, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
+# The columns a terminal too narrow for the whole table goes without, in turn: the servo behind each joint (the
+# robot file says it), then the telemetry (a trip says itself in the state), then the target (calibrate's joints
+# are all free).  The joint's name, its position, its state and calibrate's columns stay.
+LEAVE_OUT = ("line:ID", "cur", "temp", "target°")
 _GONE = (State.LOST, State.CLOSED, State.DRAINING)  # a line's port lost (reconnecting or for good)
+
+
+# A joint's widest angle: a servo's end from an offset at its other end.
+_WIDEST_ANGLE = signed_tenths(-2 * SERVO_DEGREES)
 
 
 def _deg(value: float | None) -> str:
@@ -67,11 +76,17 @@ def joint_table(
     ``pos°`` from that offset.
     """
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
-    for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state"):
-        table.add_column(name, justify="left" if name == "joint" else "right", style="bold" if name == "joint" else "")
-    if extra is not None:
-        for name in extra[0]:
-            table.add_column(name, justify="right")
+    # Only the state (words) wraps: a name or a number cut short reads as another (see FittedTable).  An angle's
+    # column is as wide as a joint's widest angle from the start: on a narrow terminal, a joint turning past
+    # +99.9 would leave a column out, and turning back bring it back.
+    for name in ("joint", "line:ID", "target°", "pos°", "temp", "cur", "state", *(extra[0] if extra else ())):
+        table.add_column(
+            name,
+            justify="left" if name == "joint" else "right",
+            style="bold" if name == "joint" else "",
+            no_wrap=name != "state",
+            min_width=len(_WIDEST_ANGLE) if name.endswith("°") else None,
+        )
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
     gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
@@ -152,7 +167,9 @@ class Screen:
     def _lines(self, hint: str) -> Group:
         said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
         return Group(
-            title_above(self.render(), self.title), *said, wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip()))
+            title_above(FittedTable(self.render(), LEAVE_OUT), self.title),
+            *said,
+            wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())),
         )
 
     def __enter__(self) -> Screen:
@@ -179,5 +196,5 @@ class Screen:
             self._live.refresh()
             self._live.stop()
         else:
-            out.print(self.render())
+            out.print(FittedTable(self.render(), LEAVE_OUT))
             out.print(self.summary())
