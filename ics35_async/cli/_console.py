@@ -98,8 +98,8 @@ class FittedTable:
     +23.5), each then reading as another's or as nothing.  Here a table too wide loses its edges (the blank
     lines and columns around it), then the columns ``leave_out`` names in turn until the rest fits (those left
     out named under the table), then its first column's values (names) wrap after their underscores, and only
-    then do the values give way.  The table's columns that may wrap (words) do; the others should be
-    ``no_wrap``, or rich cuts them before this does anything."""
+    then (on a terminal narrower still) do the values give way.  The table's columns that may wrap (words) do;
+    the others should be ``no_wrap``, or rich cuts them before this does anything."""
 
     def __init__(self, table: Table, leave_out: Sequence[str]) -> None:
         self.table = table
@@ -127,8 +127,12 @@ class FittedTable:
             left_out.append(header)
         names_width = None
         if (over := excess(left_out)) > 0 and self.table.columns:
-            longest = max((cell_len(str(cell)) for cell in self.table.columns[0].cells), default=0)
-            names_width = max(1, longest - over)
+            names = [str(cell) for cell in self.table.columns[0].cells]
+            longest = max(map(cell_len, names), default=0)
+            # (Not narrower than a name's longest part: a name folded mid-word, as much as a value cut short, reads
+            # as another; on a terminal narrower still, rich cuts the values.)
+            parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
+            names_width = max(parts, longest - over)
         yield _narrowed(self.table, left_out, names_width)
 
 
@@ -177,17 +181,20 @@ def _narrowed(
     return narrowed
 
 
+def _name_parts(name: str) -> list[str]:
+    """``name`` broken after its underscores: ``right_``, ``shoulder_``, ``pitch``."""
+    return re.split(r"(?<=_)", name)
+
+
 def _wrapped_after_underscores(name: str, width: int) -> list[str]:
-    """``name`` in lines of ``width`` cells at most, broken after its underscores (``right_shoulder_`` /
-    ``pitch``), a part wider than that by itself folded."""
+    """``name`` in lines of ``width`` cells at most where its parts fit, broken after its underscores
+    (``right_shoulder_`` / ``pitch``)."""
     lines: list[str] = []
-    for part in re.split(r"(?<=_)", name):
-        while part:
-            if lines and cell_len(lines[-1]) + cell_len(part) <= width:
-                lines[-1] += part
-                break
-            lines.append(part[:width])
-            part = part[width:]
+    for part in _name_parts(name):
+        if lines and cell_len(lines[-1]) + cell_len(part) <= width:
+            lines[-1] += part
+        else:
+            lines.append(part)
     return lines
 
 
