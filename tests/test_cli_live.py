@@ -155,6 +155,67 @@ def test_monitor_json_that_loses_its_port_still_ends_with_a_final_line(cli: Any)
     docs = [json.loads(line) for line in result.out.splitlines()]
     assert docs and docs[-1]["final"] is True, result.out
     assert docs[-1]["servos"]["1"]["position"] is not None and docs[-1]["cycle"] > 0, docs[-1]
+    # (and the option that keeps watching through a lost port: the person learns of it where they need it)
+    assert "--reconnect" in " ".join(result.err.split()), result.err
+
+
+def cycle_of(summary: str) -> int:
+    """The cycle a live view's status line names."""
+    found = re.search(r"\bcycle (\d+)", summary)
+    assert found is not None, summary
+    return int(found.group(1))
+
+
+@pytest.mark.parametrize("json_lines", [False, True], ids=["log", "json"])
+def test_monitor_with_reconnect_waits_for_a_lost_port_and_carries_on_once_it_is_back(
+    cli: Any, sim_line: Any, json_lines: bool
+) -> None:
+    # A loose cable ended the view (exit 1).  With --reconnect it stays: it says the port is lost and that it
+    # waits for it, shows no readings meanwhile (the last ones would pass for live ones), and carries on.
+    sim, url = sim_line([1, 2], realtime=True)
+    ended = threading.Event()
+    away = scaled(2.5)  # (two of the lines said once a second, at least)
+
+    def unplug_then_plug_back() -> None:  # (once the stream runs: by what the command has sent, not by the clock)
+        while not ended.is_set() and len(sim.log_since(0)) < 40:
+            time.sleep(0.01)
+        sim.unplug()  # (it stays out until plugged back)
+        ended.wait(away)
+        sim.replug()
+
+    plugging = threading.Thread(target=unplug_then_plug_back)
+    plugging.start()
+    try:
+        seconds = f"{away + scaled(3):g}"
+        json_option = ["--json"] if json_lines else []
+        result = cli("--port", url, "monitor", "1-2", "--free", "--reconnect", "--seconds", seconds, *json_option)
+    finally:
+        ended.set()
+        plugging.join()
+    assert result.code == 0, result.err
+    assert sim.unplug_count == 1, "the port was never unplugged"
+    if json_lines:
+        docs = [json.loads(line) for line in result.out.splitlines()]
+        lost = [k for k, doc in enumerate(docs) if doc["port_lost"]]
+        assert lost, result.out
+        for k in lost:
+            for servo in docs[k]["servos"].values():
+                assert [servo[key] for key in ("position", "current", "temperature")] == [None] * 3, docs[k]
+        last = docs[-1]
+        assert last["final"] is True and last["port_lost"] is False and last["reconnects"] == 1, last
+        assert last["cycle"] > docs[lost[-1]]["cycle"], last
+        assert all(last["servos"][sid]["position"] is not None for sid in ("1", "2")), last
+        return
+    summaries = [line for line in result.out.splitlines() if line.startswith("t=")]
+    lost = [k for k, line in enumerate(summaries) if "port lost" in line]
+    assert lost, result.out
+    for k in lost:
+        assert "waiting for it to come back" in summaries[k] and "answering" not in summaries[k], summaries[k]
+    after = summaries[lost[-1] + 1 :]
+    assert after and "answering 2/2" in after[-1] and "reconnects 1" in after[-1], result.out
+    assert cycle_of(after[-1]) > cycle_of(summaries[lost[-1]]), result.out
+    rows = [line.split() for line in result.out.splitlines() if line.split()[:1] in (["1"], ["2"])]
+    assert len(rows) == 2 and all("-" not in row and "lost" not in row for row in rows), result.out
 
 
 def test_a_servo_gone_offline_has_no_readings_in_monitor_json(cli: Any, sim_line: Any) -> None:

@@ -1434,6 +1434,47 @@ def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_
     assert sum(line.endswith(("baud", how)) for line in screen) == (1 if len(f"{head} {how}") <= columns else 2), said
 
 
+def monitor_through_a_lost_port(pty_sim: Any, replug_after: float, keys: list[Any], columns: int) -> tuple[int, str]:
+    """``monitor 1-2 --free --reconnect`` on a terminal, on a pty simulator whose port is pulled out by the traffic
+    (not by the clock: a loaded machine can take longer than any fixed delay to start the command) and comes back
+    ``replug_after`` seconds later; ``keys`` as :func:`typed_on_a_terminal`'s.  The exit code and the bytes."""
+    # (seed 1: the first unplug comes once the stream runs, after the start's probes)
+    server = pty_sim("--ids", "1-2", "--faults", "unplug@1:0.01", "--seed", "1", "--replug-after", f"{replug_after:g}")
+    args = ["--port", server.path, *ANSWERED, "monitor", "1-2", "--free", "--reconnect"]
+    return typed_on_a_terminal(args, keys, columns=columns)
+
+
+def test_monitor_with_reconnect_says_the_port_is_lost_and_carries_on_once_it_is_back(pty_sim: Any) -> None:
+    # A loose cable ended the view.  With --reconnect it stays: the rows show no readings (the last ones would
+    # pass for live ones), the status line says the port is lost and that it waits, and the view carries on.
+    waiting = "waiting for it to come back"
+    keys = [(waiting, b""), ("reconnects 1", b"\x03")]
+    code, written = monitor_through_a_lost_port(pty_sim, scaled(1.0), keys, 120)
+    assert code == 0 and "Traceback" not in written, "\n".join(screen_of(written))
+    while_lost = [line for line in screen_of(written[: written.index(waiting) + len(waiting)]) if line]
+    said = "\n".join(while_lost)
+    rows = {line.split()[0]: line.split() for line in while_lost if line.split()[0] in ("1", "2")}
+    assert [rows[sid][1:] for sid in ("1", "2")] == [["-", "-", "-", "-", "lost"]] * 2, said
+    status = while_lost[-1]
+    assert status.startswith("t=") and "port lost" in status and "answering" not in status, said
+    # Back: the rows are read again, every servo answering (also if the port was pulled out once more since).
+    back = written[written.index(waiting) :]
+    assert "answering 2/2" in back and "reconnects 1" in back, "\n".join(screen_of(written))
+
+
+def test_ctrl_c_while_monitor_waits_for_its_lost_port_ends_it_as_ever(pty_sim: Any) -> None:
+    # (the port gone for good; a terminal narrower than the status line)
+    keys = [("port lost", b""), (scaled(0.3), b"\x03")]
+    code, written = monitor_through_a_lost_port(pty_sim, 1e6, keys, NARROW)
+    screen = [line for line in screen_of(written, width=NARROW) if line]
+    said = "\n".join(screen)
+    assert code == 0 and "Traceback" not in written and "error:" not in said, said
+    rows = {line.split()[0]: line.split() for line in screen if line.split()[0] in ("1", "2")}
+    assert [rows[sid][-1] for sid in ("1", "2")] == ["lost", "lost"], said
+    status = " ".join(screen[next(k for k, line in enumerate(screen) if line.startswith("t=")) :])
+    assert "port lost" in status and "waiting" not in status, said  # (it waits no more: it has ended)
+
+
 # IDs 4-20 answer nothing on this line: each costs the whole --timeout of the request asking it.
 ASKING_SILENT_IDS = ["--port", "sim://?ids=1-3", "--timeout", "5", "monitor", "1-20", "--free"]
 

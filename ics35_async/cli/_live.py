@@ -21,7 +21,8 @@ from rich.text import Text
 
 from .. import protocol
 from ..bus import Bus
-from ..errors import BusClosed, IcsError, PortLost
+from ..engine import State
+from ..errors import BusClosed, ClosedByPortLoss, IcsError, PortLost
 from ..frames import Frame
 from ..policies import ALL_IDS, StreamPlan
 from ..stream import Stream, StreamOptions
@@ -59,6 +60,8 @@ class LiveOptions:
     as_json: bool = False
     plot: str | None = None
     free_at_end: bool = True  # every streamed servo goes free at the end (not when they are only watched)
+    # A lost port waited for, the bus reconnecting (monitor --reconnect); None: the command has no --reconnect.
+    reconnect: bool | None = None
 
 
 async def run_live(
@@ -96,15 +99,37 @@ async def run_live(
 
     def render(final: bool = False, hint: str = "   Ctrl-C to stop") -> None:
         state.refresh_stats(stream)
+        waiting = not final and not state.stopped_by_signal  # (a lost port is still waited for)
         if options.as_json:
             emit_json({**state.snapshot(telemetry), "final": final})
         elif live is not None:
             hint = "" if final else hint
-            status = wrapped_at_width(Text(state.summary(telemetry) + hint))
+            status = wrapped_at_width(Text(state.summary(telemetry, waiting=waiting) + hint))
             live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title), status))
             live.refresh()
         elif not final:
-            out.print(state.summary(telemetry))
+            out.print(state.summary(telemetry, waiting=waiting))
+
+    async def next_frame() -> Frame:
+        """The stream's next frame.  With --reconnect a lost port pauses the stream until it is back: meanwhile
+        the view stays, drawn as often as ever, and says so."""
+        if not options.reconnect:
+            return await stream.next_frame()
+        nonlocal last_render
+        while True:
+            pause = asyncio.timeout(render_every)
+            try:
+                async with pause:
+                    return await stream.next_frame()
+            except TimeoutError:
+                if not pause.expired():
+                    raise  # (the line's own, or --seconds up)
+            now = loop.time()
+            if bus.state is State.LOST:
+                state.port_lost(now - start, telemetry)
+            if now - last_render >= render_every:
+                last_render = now
+                render()
 
     # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
     commanded = [i for i in ids if i not in watch] if options.with_targets and options.free_at_end else []
@@ -125,7 +150,7 @@ async def run_live(
                         timer = asyncio.timeout(None)
                         async with timer:
                             while True:
-                                frame = await stream.next_frame()
+                                frame = await next_frame()
                                 now = loop.time()
                                 elapsed = now - start
                                 state.update(frame, elapsed, stream)
@@ -160,7 +185,7 @@ async def run_live(
                         state.elapsed = max(state.elapsed, loop.time() - start)
                         telemetry.stop()
                         if options.free_at_end:
-                            done = await _free_all(stream, [i for i in ids if i not in watch], state)
+                            done = await _free_all(bus, stream, [i for i in ids if i not in watch], state)
                             freed = freed or done
                             state.freed = done
             except (IcsError, OSError) as exc:
@@ -168,9 +193,13 @@ async def run_live(
                     # A log of the lines is told the run is over, with the readings it ended on (the error
                     # itself goes to stderr).
                     render(final=True)
+                lost = isinstance(exc, (PortLost, ClosedByPortLoss, OSError))
                 if not freed:
-                    lost = isinstance(exc, (PortLost, OSError))
                     raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
+                if lost and options.reconnect is False:
+                    error = line_error(settings, exc)
+                    error.hints.append("--reconnect keeps watching through a lost port: it waits for it to come back")
+                    raise error from None
                 raise
             if not freed:
                 failure = CliError(ExitCode.COMMUNICATION, "the servos did not confirm the free command at the end")
@@ -182,12 +211,14 @@ async def run_live(
     return state, telemetry, recorder
 
 
-async def _free_all(stream: Stream, ids: list[int], state: LiveState) -> bool:
+async def _free_all(bus: Bus, stream: Stream, ids: list[int], state: LiveState) -> bool:
     """Send free to ``ids`` through the stream and wait for one full cycle to carry it; whether one did."""
     if not ids:
         # (Every ID watched: nothing to carry.  On a line where nothing answers a cycle of offline IDs takes a whole
         # allowance each, and two of them were waited for with nothing to free.)
         return True
+    if bus.state is State.LOST:  # (reconnecting: no cycle runs to carry it, and a stop must not wait for the port)
+        return False
     with contextlib.suppress(IcsError):
         stream.free(ids)
         state.targets.update(dict.fromkeys(ids, protocol.FREE))

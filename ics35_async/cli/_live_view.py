@@ -39,9 +39,12 @@ class LiveState:
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
     freed: bool = False  # the free at the end reached every streamed servo (a whole cycle carried it)
+    lost_at: float | None = None  # seconds in when the port was found lost, while it is (the bus reconnecting)
+    reconnects: int = 0  # times the port came back
     window: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=400))
 
     def update(self, frame: Frame, elapsed: float, stream: Stream) -> None:
+        self.lost_at = None  # (a frame is a cycle run: the port is there)
         self.positions.update(frame.positions)
         self.answered_ever.update(frame.positions)
         self.failed = frame.failed
@@ -54,21 +57,42 @@ class LiveState:
         (t0, c0), (t1, c1) = self.window[0], self.window[-1]
         self.rate_now = (c1 - c0) / (t1 - t0) if t1 > t0 else 0.0
 
+    def port_lost(self, elapsed: float, telemetry: Telemetry) -> None:
+        """The port is lost, the bus reconnecting (``--reconnect``): nothing read before says where the servos are
+        now (a hand may move them, a power cut restart them), so no reading is shown until one is read again, and
+        no rate, none being run."""
+        if self.lost_at is None:
+            self.lost_at = elapsed
+        self.elapsed = elapsed
+        self.positions.clear()
+        self.window.clear()
+        self.rate_now = 0.0
+        telemetry.forget()
+
     def refresh_stats(self, stream: Stream) -> None:
         stats = stream.stats
         self.rate_avg = stats.rate_hz
         self.position_errors = dict(stats.failures)
+        self.reconnects = stream.bus.stats.reconnects
 
-    def summary(self, telemetry: Telemetry) -> str:
+    def summary(self, telemetry: Telemetry, *, waiting: bool = True) -> str:
+        """The status line; ``waiting``: the command is still running (not stopping or ended), so a lost port is
+        still waited for."""
         # Before the first cycle has ended nothing is known: no servo is counted as answering yet.
         answering = len(self.ids) - len(self.failed | self.offline) if self.cycle else 0
         limit = f"/{self.seconds:g}" if self.seconds else ""
         errors = sum(self.position_errors.values()) + sum(telemetry.errors.values())
+        head = f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}"
+        if self.lost_at is not None:
+            lost = f"port lost for {self.elapsed - self.lost_at:.1f} s"
+            return f"{head}  {lost}{': waiting for it to come back' if waiting else ''}  errors {errors}"
         # The rate asked beside the rate reached: "35.8 Hz" alone leaves the reader to remember whether it is short.
         asked = f" of {self.rate_asked:g}" if self.rate_asked is not None else ""
+        # (the port's comings back, counted, so that a loose cable is seen also once it no longer is)
+        back = f"  reconnects {self.reconnects}" if self.reconnects else ""
         return (
-            f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}  rate {self.rate_now:5.1f}{asked} Hz "
-            f"(avg {self.rate_avg:5.1f})  answering {answering}/{len(self.ids)}  errors {errors}"
+            f"{head}  rate {self.rate_now:5.1f}{asked} Hz (avg {self.rate_avg:5.1f})  "
+            f"answering {answering}/{len(self.ids)}  errors {errors}{back}"
         )
 
     def table(self, telemetry: Telemetry, with_targets: bool) -> Table:
@@ -102,16 +126,19 @@ class LiveState:
 
     def readings(self, sid: int, telemetry: Telemetry) -> tuple[int | None, int | None, int | None]:
         """Position, raw current and raw temperature to show for ``sid`` (None: none to show)."""
-        # An offline servo's last readings no longer say what it does (a hand or gravity may move it): none shown.
-        if sid in self.offline:
+        # An offline servo's last readings no longer say what it does (a hand or gravity may move it): none shown;
+        # nor any while the port is lost.
+        if sid in self.offline or self.lost_at is not None:
             return None, None, None
         return self.positions.get(sid), telemetry.current.get(sid), telemetry.temperature.get(sid)
 
     def _cells(self, sid: int, telemetry: Telemetry, with_targets: bool) -> list[str | Text]:
         pos, cur, temp = self.readings(sid, telemetry)
         errors = self.position_errors.get(sid, 0) + telemetry.errors.get(sid, 0)
-        if sid in self.offline:
-            state: str | Text = Text("off", style="red")
+        if self.lost_at is not None:
+            state: str | Text = Text("lost", style="red")
+        elif sid in self.offline:
+            state = Text("off", style="red")
         elif sid in self.failed:
             state = Text(f"{errors}!", style="yellow")
         else:
@@ -152,5 +179,7 @@ class LiveState:
             "rate_hz": round(self.rate_now, 2),
             "rate_avg_hz": round(self.rate_avg, 2),
             "rate_asked_hz": self.rate_asked,
+            "port_lost": self.lost_at is not None,
+            "reconnects": self.reconnects,
             "servos": {str(sid): servo(sid) for sid in self.ids},
         }

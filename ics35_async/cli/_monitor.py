@@ -35,6 +35,12 @@ from ._telemetry import Telemetry
     is_flag=True,
     help="Read ICS 3.5 servos with the free command: they go limp (and stay free at the end).",
 )
+@click.option(
+    "--reconnect",
+    is_flag=True,
+    help="Keep watching through a lost port (an adapter unplugged, a loose cable): the view says so, waits for "
+    "it and carries on once it is back (without it, a lost port ends the command, exit 1).",
+)
 @stream_options
 @json_option
 @click.pass_context
@@ -43,6 +49,7 @@ def monitor(
     ids: list[int] | None,
     seconds: float | None,
     free_servos: bool,
+    reconnect: bool,
     rate: float | None,
     per_cycle: int,
     plot: str | None,
@@ -56,18 +63,26 @@ def monitor(
     for position.  With only ICS 3.5 servos and no --free, monitor refuses
     (exit 5) and sends nothing (also beside IDs that do not answer).  IDS:
     1-12, 0,3,5, all (the IDs that answer; also the default).  --json prints
-    one JSON line per second.
+    one JSON line per second.  With --reconnect a lost port is waited for (the
+    rows show no readings meanwhile) and the view carries on once it is back.
     """
     settings = settings_of(ctx)
     shown = live_port(settings, plot)
     options = LiveOptions(
-        seconds, rate, per_cycle, with_targets=False, as_json=as_json, plot=plot, free_at_end=free_servos
+        seconds,
+        rate,
+        per_cycle,
+        with_targets=False,
+        as_json=as_json,
+        plot=plot,
+        free_at_end=free_servos,
+        reconnect=reconnect,
     )
 
     asking = AskingIds(settings, as_json)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
-        async with settings.bus() as bus:
+        async with settings.bus(reconnect=reconnect) as bus:
             if ids and not every_id(ids):
                 chosen = ids
             else:

@@ -201,8 +201,16 @@ class Settings:
             with contextlib.suppress(KeyError):
                 sim.named(name).close()
 
-    def bus(self, baud: int | None = None, *, timeout: float | None = None, retries: int | None = None) -> Bus:
-        """A not-yet-open bus with these settings (``async with`` it)."""
+    def bus(
+        self,
+        baud: int | None = None,
+        *,
+        timeout: float | None = None,
+        retries: int | None = None,
+        reconnect: bool = False,
+    ) -> Bus:
+        """A not-yet-open bus with these settings (``async with`` it); ``reconnect``: a port lost once it is open is
+        reopened when it comes back (the library's reconnect and its schedule)."""
         from ..bus import open_bus
 
         return open_bus(
@@ -213,6 +221,7 @@ class Settings:
             direction=self.direction,
             retries=self.retries if retries is None else retries,
             adapter_latency=self.timeout if timeout is None else timeout,
+            reconnect=reconnect,
         )
 
 

@@ -74,6 +74,12 @@ class Telemetry:
                 self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
 
+    def forget(self) -> None:
+        """Drop the readings so far (the port lost: they are no longer the servos' now); read again from the next
+        round on."""
+        self.current.clear()
+        self.temperature.clear()
+
     def stop(self) -> None:
         """No more reads; those still queued are withdrawn (one on the wire finishes there, its value dropped).
         The stream's last cycles, a free going out as a command ends, must not wait behind them: a read of a
