@@ -117,7 +117,8 @@ async def run_live(
             return await stream.next_frame()
         nonlocal last_render
         while True:
-            pause = asyncio.timeout(render_every)
+            # (a tenth of a second, also where the view is drawn once a second: the loss is told from when it was)
+            pause = asyncio.timeout(LOST_PORT_LOOK)
             try:
                 async with pause:
                     return await stream.next_frame()
@@ -283,6 +284,9 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
         )
     return answered
 
+
+# Seconds between looks at the port while no frame comes (--reconnect): how late a loss is told.
+LOST_PORT_LOOK = 0.1
 
 # Seconds: a reply allowance (--timeout) a person notices when Ctrl-C waits it out.
 NOTICEABLE_WAIT = 0.2
