@@ -218,6 +218,32 @@ def test_monitor_with_reconnect_waits_for_a_lost_port_and_carries_on_once_it_is_
     assert len(rows) == 2 and all("-" not in row and "lost" not in row for row in rows), result.out
 
 
+def test_monitor_that_ends_while_it_waits_for_its_lost_port_says_it_was_lost_not_that_it_waits(
+    cli: Any, sim_line: Any
+) -> None:
+    # (--seconds up with the port gone for good: the table and the status line a log ends with)
+    sim, url = sim_line([1, 2], realtime=True)
+    ended = threading.Event()
+
+    def unplug() -> None:
+        while not ended.is_set() and len(sim.log_since(0)) < 40:
+            time.sleep(0.01)
+        sim.unplug()
+
+    unplugging = threading.Thread(target=unplug)
+    unplugging.start()
+    try:
+        result = cli("--port", url, "monitor", "1-2", "--free", "--reconnect", "--seconds", f"{scaled(2):g}")
+    finally:
+        ended.set()
+        unplugging.join()
+    assert result.code == 0, result.err
+    last = result.out.splitlines()[-1]
+    assert "port lost for" in last and "waiting" not in last, result.out
+    rows = [line.split() for line in result.out.splitlines() if line.split()[:1] in (["1"], ["2"])]
+    assert [row[1:] for row in rows] == [["-", "-", "-", "-", "lost"]] * 2, result.out
+
+
 def test_a_servo_gone_offline_has_no_readings_in_monitor_json(cli: Any, sim_line: Any) -> None:
     # As in the table: a log of the JSON lines took the last readings of an unplugged servo, repeated each
     # second, for where it was and what it drew.

@@ -99,16 +99,15 @@ async def run_live(
 
     def render(final: bool = False, hint: str = "   Ctrl-C to stop") -> None:
         state.refresh_stats(stream)
-        waiting = not final and not state.stopped_by_signal  # (a lost port is still waited for)
         if options.as_json:
             emit_json({**state.snapshot(telemetry), "final": final})
         elif live is not None:
             hint = "" if final else hint
-            status = wrapped_at_width(Text(state.summary(telemetry, waiting=waiting) + hint))
+            status = wrapped_at_width(Text(state.summary(telemetry) + hint))
             live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title), status))
             live.refresh()
         elif not final:
-            out.print(state.summary(telemetry, waiting=waiting))
+            out.print(state.summary(telemetry))
 
     async def next_frame() -> Frame:
         """The stream's next frame.  With --reconnect a lost port pauses the stream until it is back: meanwhile
@@ -184,6 +183,7 @@ async def run_live(
                     finally:
                         # The run's time, not its last frame's (the next one may have been due after the time was up).
                         state.elapsed = max(state.elapsed, loop.time() - start)
+                        state.ended = True
                         telemetry.stop()
                         if options.free_at_end:
                             done = await _free_all(bus, stream, [i for i in ids if i not in watch], state)

@@ -38,6 +38,7 @@ class LiveState:
     answered_ever: set[int] = field(default_factory=set)
     no_position: dict[int, str] = field(default_factory=dict)  # IDs not streamed, and why
     stopped_by_signal: bool = False  # Ctrl-C, SIGTERM or SIGHUP (see _signals): the normal way to stop
+    ended: bool = False  # the stream's frames are over (the time up, a stop signal, an error)
     freed: bool = False  # the free at the end reached every streamed servo (a whole cycle carried it)
     lost_at: float | None = None  # seconds in when the port was found lost, while it is (the bus reconnecting)
     reconnects: int = 0  # times the port came back
@@ -75,9 +76,7 @@ class LiveState:
         self.position_errors = dict(stats.failures)
         self.reconnects = stream.bus.stats.reconnects
 
-    def summary(self, telemetry: Telemetry, *, waiting: bool = True) -> str:
-        """The status line; ``waiting``: the command is still running (not stopping or ended), so a lost port is
-        still waited for."""
+    def summary(self, telemetry: Telemetry) -> str:
         # Before the first cycle has ended nothing is known: no servo is counted as answering yet.
         answering = len(self.ids) - len(self.failed | self.offline) if self.cycle else 0
         limit = f"/{self.seconds:g}" if self.seconds else ""
@@ -85,6 +84,7 @@ class LiveState:
         head = f"t={self.elapsed:5.1f}{limit} s  cycle {self.cycle}"
         if self.lost_at is not None:
             lost = f"port lost for {self.elapsed - self.lost_at:.1f} s"
+            waiting = not (self.ended or self.stopped_by_signal)  # (once stopping, it waits no more)
             return f"{head}  {lost}{': waiting for it to come back' if waiting else ''}  errors {errors}"
         # The rate asked beside the rate reached: "35.8 Hz" alone leaves the reader to remember whether it is short.
         asked = f" of {self.rate_asked:g}" if self.rate_asked is not None else ""
