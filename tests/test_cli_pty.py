@@ -1438,8 +1438,8 @@ def monitor_through_a_lost_port(pty_sim: Any, replug_after: float, keys: list[An
     """``monitor 1-2 --free --reconnect`` on a terminal, on a pty simulator whose port is pulled out by the traffic
     (not by the clock: a loaded machine can take longer than any fixed delay to start the command) and comes back
     ``replug_after`` seconds later; ``keys`` as :func:`typed_on_a_terminal`'s.  The exit code and the bytes."""
-    # (seed 1: the first unplug comes once the stream runs, after the start's probes)
-    server = pty_sim("--ids", "1-2", "--faults", "unplug@1:0.01", "--seed", "1", "--replug-after", f"{replug_after:g}")
+    # (seed 5: the first unplug comes dozens of cycles into the stream, well after the start's probes)
+    server = pty_sim("--ids", "1-2", "--faults", "unplug@1:0.01", "--seed", "5", "--replug-after", f"{replug_after:g}")
     args = ["--port", server.path, *ANSWERED, "monitor", "1-2", "--free", "--reconnect"]
     return typed_on_a_terminal(args, keys, columns=columns)
 
