@@ -375,9 +375,9 @@ def test_monitor_of_listed_ids_on_a_line_where_nothing_answers_says_what_it_asks
         started.append(time.monotonic())
         return True
 
-    args = ["--port", "sim://listed-silent?ids=", "--timeout", str(allowance), "monitor", "1-6", "--seconds", "0.1"]
+    args = ["--port", "sim://listed-silent?ids=none", "--timeout", str(allowance), "monitor", "1-6", "--seconds", "0.1"]
     code, shown = typed_on_a_terminal(
-        args, [("asking IDs 1-6 on sim://listed-silent?ids= at 115200 baud", b""), (now, b"")]
+        args, [("asking IDs 1-6 on sim://listed-silent?ids=none at 115200 baud", b""), (now, b"")]
     )
     took = time.monotonic() - started[0]
     screen = " ".join(" ".join(screen_of(shown)).split())
@@ -399,7 +399,7 @@ def test_monitor_stopped_on_a_line_where_nothing_answers_ends_within_its_search_
         typed.append(time.monotonic())
         return True
 
-    args = ["--port", "sim://stop-silent?ids=", "--timeout", str(allowance), "monitor", "1-4", "--free"]
+    args = ["--port", "sim://stop-silent?ids=none", "--timeout", str(allowance), "monitor", "1-4", "--free"]
     code, shown = typed_on_a_terminal(args, [("answering 0/4", b""), (now, b"\x03")])
     took = time.monotonic() - typed[0]
     screen = " ".join(" ".join(screen_of(shown)).split())

@@ -1484,11 +1484,11 @@ ASKING_SILENT_IDS = ["--port", "sim://?ids=1-3", "--timeout", "5", "monitor", "1
     [
         (ASKING_SILENT_IDS, "asking IDs 1-20", "asking IDs 1-20"),
         # (a line where nothing answers: each probe of the scan waits the whole --timeout)
-        (["--port", "sim://?ids=", "--timeout", "5", "monitor", "--free"], "no IDs given: scanning", "scanning"),
-        (["--port", "sim://?ids=", "--timeout", "5", "demo"], "no IDs given: scanning", "scanning"),
+        (["--port", "sim://?ids=none", "--timeout", "5", "monitor", "--free"], "no IDs given: scanning", "scanning"),
+        (["--port", "sim://?ids=none", "--timeout", "5", "demo"], "no IDs given: scanning", "scanning"),
         # ("all": the servos that answer, found by the same scan, which said nothing: seconds of a blank screen)
-        (["--port", "sim://?ids=", "--timeout", "5", "monitor", "all", "--free"], "scanning sim://", "scanning"),
-        (["--port", "sim://?ids=", "--timeout", "5", "demo", "--ids", "all"], "scanning sim://", "scanning"),
+        (["--port", "sim://?ids=none", "--timeout", "5", "monitor", "all", "--free"], "scanning sim://", "scanning"),
+        (["--port", "sim://?ids=none", "--timeout", "5", "demo", "--ids", "all"], "scanning sim://", "scanning"),
         # (demo asked nothing first: its stream's first cycles asked IDs 4-20 at the whole --timeout each, three
         # cycles before leaving them out, the terminal blank, and a press waited for each cycle that carried the
         # free: minutes)
@@ -1532,7 +1532,7 @@ def test_ctrl_c_during_a_scan_on_a_narrow_terminal_takes_its_progress_bar_off_th
     # On a terminal narrower than the bar's line it fills the width, the cursor past its last column: the ^C
     # the terminal echoed wrapped to a line of its own, and the bar, cleared from one line too low, stayed on the
     # screen above an empty line.
-    args = ["--port", "sim://?ids=", "--timeout", "5", *command]
+    args = ["--port", "sim://?ids=none", "--timeout", "5", *command]
     code, written = typed_on_a_terminal(args, [("/32", b""), (scaled(0.3), b"\x03")], columns=NARROW)
     screen = [line for line in screen_of(written, width=NARROW)]
     said = "\n".join(screen)

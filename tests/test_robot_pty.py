@@ -340,7 +340,7 @@ def test_teach_quits_at_once_with_a_line_where_nothing_answers(tmp_path: Path, k
     # whole allowance (as it must: its reply could still come), and the quit's free to it waits that out.
     robot.write_text(
         ROBOT.format(port=f"sim://teach-quit-main-{key[0]}?ids=1-3")
-        + f'\n[lines.legs]\nport = "sim://teach-quit-{key[0]}?ids="\n'
+        + f'\n[lines.legs]\nport = "sim://teach-quit-{key[0]}?ids=none"\n'
         + "".join(f'\n[joints.leg{i}]\nline = "legs"\nid = {i}\n' for i in legs)
     )
     typed: list[float] = []
