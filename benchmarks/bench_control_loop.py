@@ -10,6 +10,8 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
   simulator's ``late`` fault with ``late_delay=0.03``, as in the simulated-time column (its
   default, a reply held until the host's next command, ties the reply to what the host does);
 * offline: one of the 12 servos missing;
+* clean, pollers and faults again with the asyncio driver's deadlines on the event loop's own timers (whole
+  milliseconds) instead of its timerfd (``ics35_async.drivers.fine_timer``): what the finer timer buys;
 * busy loop: two coroutines doing ~0.1 ms of Python work between yields (a web server
   under load), beside the stream on the asyncio driver and on the thread driver (each on its
   default path: the compiled one where it is built), and on the thread driver's ordinary path
@@ -48,11 +50,13 @@ import statistics
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 from bench_common import burst_setting, progress
 
 from ics35_async import Bus, BusTiming, open_bus
+from ics35_async.drivers import asyncio_driver
 from ics35_async.engine.timing import TimingOverrides
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
@@ -76,11 +80,31 @@ BUSY_THREAD = {  # ICS35_BURST for each
     "busy thread, anyio driver under trio, ordinary path": "0",
     "busy thread, anyio driver under trio, compiled path": "1",
 }
-SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *BUSY, *BUSY_THREAD)
+LOOP_TIMERS = {  # the scenario each runs, with the asyncio driver's deadlines on the loop's own timers
+    "clean, loop timers": "clean",
+    "pollers, loop timers": "pollers",
+    "faults, loop timers": "faults",
+}
+SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *LOOP_TIMERS, *BUSY, *BUSY_THREAD)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
+@contextlib.contextmanager
+def loop_timers() -> Iterator[None]:
+    """The asyncio driver without its fine timer (ics35_async.drivers.fine_timer): its deadlines on the event
+    loop's own timers, whole milliseconds in epoll (what it does where the system has no timerfd)."""
+    before = asyncio_driver.open_fine_timer
+    asyncio_driver.open_fine_timer = lambda: None
+    try:
+        yield
+    finally:
+        asyncio_driver.open_fine_timer = before
+
+
 async def measure(scenario: str, seconds: float) -> dict[str, Any]:
+    if scenario in LOOP_TIMERS:
+        with loop_timers():
+            return await measure(LOOP_TIMERS[scenario], seconds)
     present = IDS[:-1] if scenario == "offline" else IDS
     sim = VirtualLine(
         [VirtualServo(i, baud_rate=BAUD) for i in present],
@@ -211,7 +235,7 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
     for scenario in SCENARIOS:
         progress(f"control loop: {scenario}, {seconds:g} s")
         row: dict[str, Any] = {"scenario": scenario, "measured": measure_in_its_library(scenario, seconds)}
-        if scenario != "pollers" and scenario not in BUSY and scenario not in BUSY_THREAD:  # (not simulated)
+        if scenario not in ("pollers", *LOOP_TIMERS, *BUSY, *BUSY_THREAD):  # (not simulated)
             row["simulated"] = simulated(scenario)
         rows.append(row)
     return {"servos": len(IDS), "rate_hz": RATE_HZ, "baud": BAUD, "seconds": seconds, "rows": rows}
@@ -228,7 +252,7 @@ def print_table(result: dict[str, Any]) -> None:
         m = row["measured"]
         s = row.get("simulated")
         sim = f"{s['rate_hz']:.1f} Hz, {s['interval_p99_ms']:.1f} / {s['interval_max_ms']:.1f} ms" if s else "-"
-        reads = f"{m['reads_per_s']:,.0f}" if row["scenario"] == "pollers" else "-"
+        reads = f"{m['reads_per_s']:,.0f}" if row["scenario"].startswith("pollers") else "-"
         if row["scenario"] in BUSY or row["scenario"] in BUSY_THREAD:
             reads = f"{m['work_per_s']:,.0f} work/s, {m['frames_seen']} frames seen"
         lag = "-" if m["slot_lag_p50_ms"] is None else f"{m['slot_lag_p50_ms']:.2f}"

@@ -277,10 +277,21 @@ class Bus:
     def describe(self) -> dict[str, object]:
         """A snapshot of the line for a diagnostic dump: the port, the driver and what the engine is
         doing (:meth:`LineEngine.describe <ics35_async.engine.LineEngine.describe>`: the transaction on
-        the wire, the queued requests, the next deadline), and ``burst_path``: whether the port open now
-        runs streams on the burst path (see ``ics35 --version -v``).  Plain values; safe to call at any time."""
-        bursts = self._driver is not None and self._driver.burst is not None
-        return {"port": str(self.port), "driver": self.driver, "burst_path": bursts, **self._engine.describe(now())}
+        the wire, the queued requests, the next deadline), ``burst_path``: whether the port open now
+        runs streams on the burst path (see ``ics35 --version -v``), and ``fine_deadlines``: whether the
+        line's deadlines (a paced stream's slots, a reply given up on) fire to the microsecond, on a Linux
+        ``timerfd``, rather than on the event loop's millisecond timers (the asyncio driver on Linux, under
+        asyncio and uvloop).  Plain values; safe to call at any time."""
+        driver = self._driver
+        bursts = driver is not None and driver.burst is not None
+        fine = driver is not None and driver.fine_deadlines
+        return {
+            "port": str(self.port),
+            "driver": self.driver,
+            "burst_path": bursts,
+            "fine_deadlines": fine,
+            **self._engine.describe(now()),
+        }
 
     @property
     def driver(self) -> str:

@@ -396,6 +396,17 @@ def test_version_with_verbose_and_doctor_say_which_path_runs(env: str | None) ->
     assert plain.stdout.strip().startswith("ics35, version") and "burst" not in plain.stdout
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a timerfd is Linux's")
+def test_version_with_verbose_and_doctor_say_how_deadlines_are_timed() -> None:
+    for args in (["--version", "-v"], ["doctor"]):
+        done = subprocess.run([sys.executable, "-m", "ics35_async.cli", *args], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        (said,) = [ln for ln in done.stdout.splitlines() if ln.startswith("deadline timer:")]
+        assert said.startswith("deadline timer: a timerfd, to the microsecond ("), said
+    done = subprocess.run([sys.executable, "-m", "ics35_async.cli", "doctor", "--json"], capture_output=True, text=True)
+    assert json.loads(done.stdout)["fine_deadlines"] is True
+
+
 @pytest.mark.pty
 def test_doctor_and_the_log_say_which_path_a_given_line_takes(monkeypatch: pytest.MonkeyPatch) -> None:
     # The helper runs on a serial port's descriptor: not for a sim:// URL, nor with --transport thread.

@@ -98,7 +98,8 @@ class LazyGroup(click.Group):
 
 
 def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
-    """The version; with -v also the Python, the platform, the I/O path that runs and whether the engine is compiled."""
+    """The version; with -v also the Python, the platform, the I/O path that runs, whether the engine is compiled and
+    how deadlines are timed."""
     if not value or ctx.resilient_parsing:
         return
     click.echo(f"ics35, version {__version__}")
@@ -108,10 +109,12 @@ def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> 
 
         from ..compiled import ENGINE_NAME, engine_compiled
         from ..drivers.burst import PATH_NAME, burst_path
+        from ..drivers.fine_timer import TIMER_NAME, fine_deadlines
 
         click.echo(f"Python {platform.python_version()} ({platform.python_implementation()}), {platform.platform()}")
         click.echo(f"{PATH_NAME}: {burst_path()[1]}")
         click.echo(f"{ENGINE_NAME}: {engine_compiled()[1]}")
+        click.echo(f"{TIMER_NAME}: {fine_deadlines()[1]}")
     ctx.exit()
 
 

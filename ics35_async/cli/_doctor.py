@@ -17,6 +17,7 @@ from ..diagnose import Finding
 from ..diagnose.line_report import LineReport, measure_round_trips
 from ..diagnose.system import SystemReport, check_system
 from ..drivers.burst import PATH_NAME, burst_path, line_path
+from ..drivers.fine_timer import TIMER_NAME, fine_deadlines
 from ..errors import IcsError
 from ..transports import carries_line_settings
 from ..transports.listing import SerialPortInfo, adapter_name, list_serial_ports
@@ -200,6 +201,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
             "burst_path": burst_on,
             "io_path": burst_text,
             "compiled_engine": engine_compiled()[0],
+            "fine_deadlines": fine_deadlines()[0],
         }
         line_part = line.to_dict() if line is not None else {}
         report.update(
@@ -220,6 +222,7 @@ def doctor(ctx: click.Context, ids: list[int], samples: int | None, system_root:
         shown = [f for f in findings if failure is None or f.problem != failure.message]
         out.print(f"{PATH_NAME}: {escape(burst_text)}")
         out.print(f"{ENGINE_NAME}: {escape(engine_compiled()[1])}")
+        out.print(f"{TIMER_NAME}: {escape(fine_deadlines()[1])}")
         print_report(system, line, shown, simulated)
     if failure is not None:
         raise failure

@@ -30,6 +30,7 @@ from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
 from .core import INF, STALL, CallerRequest, LoopDriver, settle_future
+from .fine_timer import FineTimer, open_fine_timer
 from .settings import LineSettings
 
 IDLE = State.IDLE
@@ -43,7 +44,8 @@ class AsyncioDriver(LoopDriver):
     def __init__(self, engine: LineEngine, port: str | WireDevice, settings: LineSettings) -> None:
         super().__init__(engine, port, settings)
         self._loop_thread = threading.get_ident()
-        self._timer: asyncio.TimerHandle | asyncio.Handle | None = None
+        self._timer: asyncio.TimerHandle | asyncio.Handle | FineTimer | None = None
+        self._fine: FineTimer | None = None  # deadlines to the microsecond where the system has it (see .fine_timer)
         self._second_look = -1.0  # the deadline whose expiry waits for one more I/O poll
         self._writing = False  # a writer waits for a tty to take what a partial write left
         self._reading = False  # the loop's reader watches the tty (not while a burst's executor reads it)
@@ -54,6 +56,9 @@ class AsyncioDriver(LoopDriver):
 
     async def open(self) -> None:
         port = await self._open()
+        self._fine = open_fine_timer()
+        if self._fine is not None:
+            self.loop.add_reader(self._fine.fd, self._fine_fired)
         self._connected(port)
         self._supervise()
 
@@ -64,6 +69,20 @@ class AsyncioDriver(LoopDriver):
             await self._end_supervisor()
             self._drop_port()
             self._release_idle()
+            self._close_fine_timer()
+
+    @property
+    def fine_deadlines(self) -> bool:
+        return self._fine is not None
+
+    def _close_fine_timer(self) -> None:
+        fine, self._fine = self._fine, None
+        if fine is not None:
+            if self._timer is fine:
+                self._timer = None
+            with contextlib.suppress(RuntimeError):  # (the loop closed under an unclosed bus: nothing to remove)
+                self.loop.remove_reader(fine.fd)
+            fine.close()
 
     # ------------------------------------------------------------------ waiting on the port
 
@@ -163,16 +182,28 @@ class AsyncioDriver(LoopDriver):
     def _arm(self) -> None:
         if self.bursting:  # the executor keeps the deadlines until the burst is fed
             return
-        if self._timer is not None:
-            self._timer.cancel()
         deadline = self.engine.deadline
         self._waiting_until = deadline
+        fine = self._fine
+        if fine is not None and now() < deadline < INF:
+            if self._timer is not None and self._timer is not fine:
+                self._timer.cancel()
+            fine.arm(deadline)  # (moves it, if armed: one system call)
+            self._timer = fine
+            return
+        if self._timer is not None:
+            self._timer.cancel()
         if deadline <= now():
             # Due already (the engine gives a caller the line's next turn with a deadline of now): a timer would
             # come back a millisecond later on uvloop, whose loop time is whole milliseconds, and the line idle.
             self._timer = self.loop.call_soon(self._on_timer)
         else:
             self._timer = self.loop.call_at(deadline, self._on_timer)
+
+    def _fine_fired(self) -> None:
+        fine = self._fine
+        if fine is not None and fine.fired() and self._timer is fine:
+            self._on_timer()
 
     def cancel_timer(self) -> None:
         if self._timer is not None:

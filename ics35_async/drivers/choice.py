@@ -28,6 +28,10 @@ class Driver(Protocol):
     name: str
     burst: BurstRunner | None  # the port open now runs streams on the burst path (see .burst)
 
+    @property
+    def fine_deadlines(self) -> bool:
+        """Its deadlines fire to the microsecond (see .fine_timer), not on the loop's millisecond timers."""
+
     async def open(self) -> None: ...
 
     async def reopen(self, baudrate: int) -> None: ...

@@ -279,6 +279,12 @@ class DriverCore:
         # lock); the other drivers run it on one and hold nothing.
         self.lock: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
 
+    @property
+    def fine_deadlines(self) -> bool:
+        """Whether its deadlines fire to the microsecond (see .fine_timer), not on the millisecond timers of its
+        loop (or the whole milliseconds of ``poll``)."""
+        return False
+
     # ------------------------------------------------------------------ a driver's own part
 
     def _watch(self, port: Port) -> None:
