@@ -826,10 +826,10 @@ class LineEngine:
                 link.judge(buf, tx, echo_len, self._expect, self._t_first, self._t_start + self._base)
             req = self._current
             due = self._due if self._settling else self.deadline
-            echoed = self._echo_came()
+            anything = self._note_what_came()
             out = self._failed(error, sid, now)
             self._after_early_failure(req, due, now)
-            if not echoed and isinstance(req, GuardRequest):
+            if not anything and isinstance(req, GuardRequest):
                 self._guard_proved_nothing(req, sid, now)
             return out
         over = latency - self._base  # before the next transaction replaces _base
@@ -957,9 +957,9 @@ class LineEngine:
             # allowance of every transaction; the scan treats it as a slow servo instead.)
             link.owe(due, tx, len(buf), echo_len, self._expect)
         read_in_slack, only_echo = self._read_in_slack, len(buf) == echo_len  # (before the resync clears buf)
-        echoed = self._echo_came()
+        anything = self._note_what_came()
         out = self._failed(error, sid, now)
-        if not echoed and isinstance(req, GuardRequest):
+        if not anything and isinstance(req, GuardRequest):
             self._guard_proved_nothing(req, sid, now)
         if read_in_slack:
             # A read in a paced stream's slack timed out with its echo and nothing more: its servo is held back as a
@@ -1055,11 +1055,11 @@ class LineEngine:
             del after[first]
             self.guard.suspect = (*self.guard.suspect, bytes((first,)))
 
-    def _echo_came(self) -> bool:
-        """Did anything come back for the failing transaction (see .guard)?  Nothing at all, on a line with echo:
-        the transaction is told to the guard rule as one whose echo never came, and False.  Its own echo (first,
-        or behind bytes that were on their way): told as come.  Other bytes only (a damaged echo, another
-        command's late bytes): the rules for those hold (see .link and _after_early_failure)."""
+    def _note_what_came(self) -> bool:
+        """Tell the guard rule what came back for the failing transaction (see .guard), and whether anything did.
+        Nothing at all, on a line with echo: a command whose echo never came (False).  Its own echo (first, or
+        behind bytes that were on their way): its echo came.  Other bytes only (a damaged echo, another command's
+        late bytes): nothing told, the rules for those hold (see .link and _after_early_failure)."""
         if not self._echo_len:
             return True
         tx, buf = self._tx, self._buf
@@ -1079,6 +1079,8 @@ class LineEngine:
         if tx not in self.guard.unheard:
             return  # (a guard for a late reply alone: the command goes next, as it would have)
         nothing = timeout_error(protected, sid, tx, bytearray(), len(tx), 0)
+        if protected is not None and protected.abandoned():
+            return  # (its caller gave up: the queue drops it)
         if protected is None:
             owner = self._owner if self._owner is self._source else None
             if owner is not None:
