@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import replace
 from pathlib import Path
@@ -433,3 +434,15 @@ def test_no_count_sent_for_an_angle_within_the_limits_is_past_them(
         sent = joint.joint_degrees(units.position_to_degrees(joint.position(angle)))
         assert joint.min - 1e-9 <= sent <= joint.max + 1e-9, (angle, sent)
         assert abs(sent - angle) <= 1 / units.COUNTS_PER_DEGREE + 1e-9  # still the nearest count inside
+
+
+def test_a_robot_file_given_through_a_pipe_is_read_not_taken_for_a_port() -> None:
+    # A shell's <(...) hands the program /dev/fd/N: a pipe, whose name starts as a device path's does.
+    read_end, write_end = os.pipe()
+    os.write(write_end, b'[lines.main]\nport = "sim://a"\n[joints.x]\nline = "main"\nid = 1\n')
+    os.close(write_end)
+    try:
+        robot = load_description(f"/dev/fd/{read_end}")
+    finally:
+        os.close(read_end)
+    assert list(robot.joints) == ["x"]

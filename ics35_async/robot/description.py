@@ -225,8 +225,8 @@ def check_not_a_port(source: str | os.PathLike[str], taker: str | None = None) -
         DescriptionError: ``source`` names a port, not a file; it names ``source`` as given.
     """
     text = os.fspath(source)
-    if os.path.isfile(text):  # (a file there, whatever its name reads like, is what was meant)
-        return
+    if os.path.exists(text) and not is_device(text):
+        return  # (a file or a pipe there, a shell's <(...), whatever its name reads like, is what was meant)
     if is_url(text):
         scheme = url_scheme(text)
         kind = f"a {scheme}:// URL" if scheme else "a URL"
