@@ -109,12 +109,17 @@ async def run_live(
         elif not final:
             out.print(state.summary(telemetry))
 
+    def draw_if_due(now: float) -> None:
+        nonlocal last_render
+        if now - last_render >= render_every:
+            last_render = now
+            render()
+
     async def next_frame() -> Frame:
         """The stream's next frame.  With --reconnect a lost port pauses the stream until it is back: meanwhile
         the view stays, drawn as often as ever, and says so."""
         if not options.reconnect:
             return await stream.next_frame()
-        nonlocal last_render
         while True:
             # (a tenth of a second, also where the view is drawn once a second: the loss is told from when it was)
             pause = asyncio.timeout(LOST_PORT_LOOK)
@@ -123,13 +128,11 @@ async def run_live(
                     return await stream.next_frame()
             except TimeoutError:
                 if not pause.expired():
-                    raise  # (the line's own, or --seconds up)
+                    raise  # (a ReplyTimeout: the line's own)
             now = loop.time()
             if bus.state is State.LOST:
                 state.port_lost(now - start, telemetry)
-            if now - last_render >= render_every:
-                last_render = now
-                render()
+            draw_if_due(now)
 
     # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
     commanded = [i for i in ids if i not in watch] if options.with_targets and options.free_at_end else []
@@ -161,9 +164,7 @@ async def run_live(
                                 telemetry.after_frame(frame.unanswered)
                                 if options.plot:
                                     recorder.add(elapsed, frame)
-                                if now - last_render >= render_every:
-                                    last_render = now
-                                    render()
+                                draw_if_due(now)
                                 if deadline is not None and timer.when() is None:
                                     timer.reschedule(deadline)  # (if already past, it fires at the next wait)
                     except TimeoutError:

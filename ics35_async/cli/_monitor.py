@@ -39,7 +39,7 @@ from ._telemetry import Telemetry
     "--reconnect",
     is_flag=True,
     help="Keep watching through a lost port (an adapter unplugged, a loose cable): the view says so, waits for "
-    "it and carries on once it is back (without it, a lost port ends the command, exit 1).",
+    "it and carries on once it is back (without it, a lost port ends the command with an error).",
 )
 @stream_options
 @json_option
