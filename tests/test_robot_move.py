@@ -1078,6 +1078,9 @@ def test_a_robot_frame_is_plain_json_for_a_log_or_a_web_page() -> None:
     run_robot(rig, body)
 
 
+# (Whether a failure holds its servo back depends on the stream's learnt wait, which the real answers' times set: in
+# the parallel pass's load it reached the allowance in every run of a make test now and then.)
+@pytest.mark.realtime
 def test_a_robot_frame_tells_the_failed_joints_that_were_sent_nothing() -> None:
     # A stream's frame says which failed IDs were sent nothing (held back while a late reply could still come);
     # the robot's frame merged them into `failed` and dropped the difference: lining robot frames up with the
