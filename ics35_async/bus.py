@@ -528,6 +528,8 @@ class Bus:
             InvalidArgument: not a command, a bad ``priority`` or ``retries``, or a call from another
                 event loop than the one the bus was opened in.
             BusClosed: the bus is not open.
+            PortLost: the port is lost and the bus reconnects (``reconnect``): a request fails at once until
+                it is back (``state_change()`` waits for that).
         """
         if not isinstance(command, Command):
             raise InvalidArgument(f"not a command: {command!r}")

@@ -16,7 +16,8 @@ from typing import Any
 import pytest
 
 from ics35_async.cli import ExitCode
-from ics35_async.sim import VirtualServo
+from ics35_async.sim import VirtualLine, VirtualServo
+from ics35_async.sim.faults import NO_FAULTS, Draw, FaultInjector
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import scaled
 
@@ -218,8 +219,73 @@ def test_monitor_with_reconnect_waits_for_a_lost_port_and_carries_on_once_it_is_
     assert len(rows) == 2 and all("-" not in row and "lost" not in row for row in rows), result.out
 
 
-# (The unplug comes a second in and 40 transactions of a real-time simulator in: after 40 alone it came now and then
-# while monitor still asked its IDs, where a loss fails at once.)
+@pytest.mark.parametrize("ids", ["1-2", "all"], ids=["named", "scanned"])
+def test_monitor_with_reconnect_rides_out_a_port_lost_while_it_asks_its_ids(cli: Any, sim_line: Any, ids: str) -> None:
+    # A loss before the view began ended the command at once (exit 4), --reconnect or not: the first transaction
+    # pulls the port here, and it comes back by itself.
+    sim, url = sim_line([1, 2], realtime=True, faults="unplug:1", replug_after=scaled(0.3))
+    sim.add_listener(lambda plugged: setattr(sim, "faults", FaultInjector()))  # (once: the port stays back)
+    result = cli("--port", url, "--timeout", "0.05", "monitor", ids, "--free", "--reconnect", "--seconds", "1")
+    assert result.code == 0, result.err
+    assert sim.unplug_count == 1
+    said = [line for line in result.err.splitlines() if "port is lost" in line]
+    assert len(said) == 1 and "waiting for it to come back" in said[0], result.err
+    assert "the port is back" in result.err, result.err
+    summary = [line for line in result.out.splitlines() if line.startswith("t=")][-1]
+    assert "answering 2/2" in summary and "reconnects 1" in summary, result.out
+
+
+class UnplugInTheStream(FaultInjector):
+    """Pulls the port at the ``k``-th transaction after the stream's first (monitor --free streams the free
+    command), once."""
+
+    def __init__(self, sim: VirtualLine, k: int) -> None:
+        super().__init__()
+        self.sim, self.k, self.pulled = sim, k, False
+
+    def draw(self, servo_id: int | None) -> Draw:
+        log = [t.command for t in self.sim.log]  # (called under the line's lock: the transactions before this one)
+        if self.pulled or "free" not in log or len(log) - log.index("free") != self.k:
+            return NO_FAULTS
+        self.pulled = True
+        return Draw(echo=False, reply=None, noise=False, unplug=True)
+
+
+# Each transaction of a cycle (two frees, then telemetry's reads): a loss right after a frame came, before
+# telemetry queued its reads, ended the command with the loss's error, --reconnect or not (the request raised).
+@pytest.mark.parametrize("k", range(1, 8))
+def test_monitor_with_reconnect_rides_out_a_port_lost_at_any_transaction_of_its_first_cycles(
+    cli: Any, sim_line: Any, k: int
+) -> None:
+    sim, url = sim_line([1, 2], realtime=True, replug_after=scaled(0.2))
+    sim.faults = UnplugInTheStream(sim, k)
+    result = cli("--port", url, "--timeout", "0.05", "monitor", "1-2", "--free", "--reconnect", "--seconds", "0.8")
+    assert result.code == 0, result.err
+    assert sim.unplug_count == 1
+    summary = [line for line in result.out.splitlines() if line.startswith("t=")][-1]
+    assert "answering 2/2" in summary and "reconnects 1" in summary, result.out
+
+
+def test_monitor_without_reconnect_fails_at_a_port_lost_while_it_asks_its_ids_and_names_the_option(
+    cli: Any, sim_line: Any
+) -> None:
+    _, url = sim_line([1, 2], realtime=True, faults="unplug:1", replug_after=scaled(0.3))
+    result = cli("--port", url, "--timeout", "0.05", "monitor", "1-2", "--free", "--seconds", "1")
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "lost: the simulated port was unplugged" in result.err and "--reconnect keeps" in result.err, result.err
+
+
+def test_monitor_with_reconnect_whose_port_stays_lost_while_it_asks_ends_at_seconds(cli: Any, sim_line: Any) -> None:
+    # (no cycle ran: an error, not a table of nothing; and --seconds ends the wait, not only Ctrl-C)
+    _, url = sim_line([1, 2], realtime=True, faults="unplug:1", replug_after=scaled(30))
+    started = time.monotonic()
+    result = cli("--port", url, "--timeout", "0.05", "monitor", "1-2", "--free", "--reconnect", "--seconds", "0.5")
+    assert time.monotonic() - started < scaled(10), result.err
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    assert "did not come back" in result.err and "--seconds" in result.err, result.err
+
+
+# (The unplug comes a second in and 40 transactions of a real-time simulator in.)
 @pytest.mark.realtime
 def test_monitor_that_ends_while_it_waits_for_its_lost_port_says_it_was_lost_not_that_it_waits(
     cli: Any, sim_line: Any

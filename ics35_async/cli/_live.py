@@ -10,7 +10,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Callable, Iterator, Sequence
+import time
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -49,6 +50,7 @@ from ._settings import stream_warnings_said
 from ._telemetry import Telemetry
 
 TargetFunction = Callable[[float, Frame], dict[int, int]]
+T = TypeVar("T")
 
 
 @dataclass
@@ -200,7 +202,7 @@ async def run_live(
                     raise still_holding(settings, commanded, line_error(settings, exc), line_lost=lost) from None
                 if lost and options.reconnect is False:
                     error = line_error(settings, exc)
-                    error.hints.append("--reconnect keeps watching through a lost port: it waits for it to come back")
+                    error.hints.append(RECONNECT_HINT)
                     raise error from None
                 raise
             if not freed:
@@ -286,6 +288,9 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
     return answered
 
 
+# What a lost port's error adds where the command has --reconnect and it was not given.
+RECONNECT_HINT = "--reconnect keeps watching through a lost port: it waits for it to come back"
+
 # Seconds between looks at the port while no frame comes (--reconnect): how late a loss is told.
 LOST_PORT_LOOK = 0.1
 
@@ -301,10 +306,17 @@ class AskingIds:
     (the bus's close: its late reply must not reach the port's next command), so with a --timeout of seconds the
     press is answered at once with what it waits for, and that a second Ctrl-C leaves without waiting."""
 
-    def __init__(self, settings: Settings, quiet: bool) -> None:
+    def __init__(
+        self, settings: Settings, quiet: bool, *, reconnect: bool | None = None, seconds: float | None = None
+    ) -> None:
         self.settings = settings
         self.quiet = quiet
         self.asking: str | None = None  # what was being asked when the command ended
+        # --reconnect (None: the command has no such option); --seconds, from now, ends a wait for a lost port.
+        self.reconnect = reconnect
+        self.deadline = None if seconds is None else time.monotonic() + seconds
+        self.seconds = seconds
+        self.waiting_for_port = False
 
     @contextlib.contextmanager
     def while_asking(self, what: str) -> Iterator[None]:
@@ -314,7 +326,7 @@ class AskingIds:
             yield
         except asyncio.CancelledError:
             timeout = self.settings.timeout
-            if not self.quiet and timeout >= NOTICEABLE_WAIT:
+            if not self.quiet and timeout >= NOTICEABLE_WAIT and not self.waiting_for_port:
                 clear_echoed_ctrl_c()  # (not after the ^C the terminal echoed)
                 err.print(
                     f"stopping: waiting out the request on the wire (up to {timeout:g} s, --timeout) so that its "
@@ -322,6 +334,42 @@ class AskingIds:
                 )
             raise
         self.asking = None
+
+    async def ask(self, bus: Bus, what: str, asking: Callable[[], Awaitable[T]]) -> T:
+        """``asking()``, the asking of ``what`` (:meth:`while_asking`).  With --reconnect a port lost meanwhile is
+        waited for (said, and that it is back) and the asking starts again: the transactions in flight were lost
+        with the port, and nothing asked moves a servo (the free command of --free only frees it once more); an
+        answer from before the loss may be another adapter's servos'.  --seconds ends the wait with the loss's
+        error (no cycle ran: no table to show).  Without --reconnect the error names it."""
+        with self.while_asking(what):
+            while True:
+                try:
+                    return await asking()
+                except (PortLost, ClosedByPortLoss) as exc:
+                    if not self.reconnect or bus.state is State.CLOSED:
+                        error = line_error(self.settings, exc)
+                        if self.reconnect is False:
+                            error.hints.append(RECONNECT_HINT)
+                        raise error from None
+                    await self._wait_for_port(bus, exc, what)
+
+    async def _wait_for_port(self, bus: Bus, lost: IcsError, what: str) -> None:
+        err.print(f"the port is lost while {what}: waiting for it to come back (--reconnect; Ctrl-C ends)")
+        self.waiting_for_port = True  # (a Ctrl-C meanwhile has no request on the wire to wait out)
+        while bus.state is State.LOST:
+            left = None if self.deadline is None else self.deadline - time.monotonic()
+            if left is not None and left <= 0:
+                error = line_error(self.settings, lost)
+                error.message += (
+                    f"; it did not come back within --seconds ({self.seconds:g} s) while {what}, before a first cycle"
+                )
+                raise error
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(bus.state_change(), left)
+        self.waiting_for_port = False
+        if bus.state is State.CLOSED:
+            raise line_error(self.settings, lost)
+        err.print(f"the port is back: {what} again")
 
     def last_words(self, error: CliError) -> CliError:
         """``error``, an interruption while asking, saying what was asked and that nothing moved or was freed."""

@@ -64,7 +64,8 @@ def monitor(
     (exit 5) and sends nothing (also beside IDs that do not answer).  IDS:
     1-12, 0,3,5, all (the IDs that answer; also the default).  --json prints
     one JSON line per second.  With --reconnect a lost port is waited for (the
-    rows show no readings meanwhile) and the view carries on once it is back.
+    rows show no readings meanwhile) and the view carries on once it is back;
+    lost while the IDs are asked, they are asked again once it is back.
     """
     settings = settings_of(ctx)
     shown = live_port(settings, plot)
@@ -79,22 +80,26 @@ def monitor(
         reconnect=reconnect,
     )
 
-    asking = AskingIds(settings, as_json)
+    asking = AskingIds(settings, as_json, reconnect=reconnect, seconds=seconds)
 
     async def body() -> tuple[LiveState, Telemetry, Recorder]:
         async with settings.bus(reconnect=reconnect) as bus:
             if ids and not every_id(ids):
                 chosen = ids
             else:
-                with asking.while_asking("scanning"):
-                    chosen = await discover(bus, settings, shown, as_json, asked_all=bool(ids))
+                chosen = await asking.ask(
+                    bus, "scanning", lambda: discover(bus, settings, shown, as_json, asked_all=bool(ids))
+                )
             if chosen is ids and not as_json:
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
                 # said, as a scan says it scans, so a wait of seconds is not a blank terminal (nor a log silent
                 # about what came before its first line).
                 err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
-            with asking.while_asking(f"asking IDs {id_ranges(chosen)}"):
-                plan = await policies.plan_position_stream(bus, chosen, free_ics35=free_servos)
+            plan = await asking.ask(
+                bus,
+                f"asking IDs {id_ranges(chosen)}",
+                lambda: policies.plan_position_stream(bus, chosen, free_ics35=free_servos),
+            )
             freed = plan.free
             missing = dict.fromkeys(plan.left_out, NO_READ_35)
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).

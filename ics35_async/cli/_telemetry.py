@@ -17,7 +17,7 @@ from collections.abc import Callable, Collection, Sequence
 
 from .. import protocol
 from ..bus import Bus, Priority
-from ..errors import ReplyError
+from ..errors import PortLost, ReplyError
 from ..protocol import Param
 
 
@@ -70,7 +70,13 @@ class Telemetry:
             chosen.append(sid)
         for sid in chosen:
             for param, store in ((Param.CURRENT, self.current), (Param.TEMPERATURE, self.temperature)):
-                fut = asyncio.ensure_future(self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW))
+                try:
+                    handle = self.bus.submit(protocol.ReadParam(sid, param), priority=Priority.LOW)
+                except PortLost:
+                    # Lost since the frame came (reconnecting: a request fails at once): the round is skipped, the
+                    # stream's frames stop until the port is back, and the rounds go on from the next one then.
+                    return
+                fut = asyncio.ensure_future(handle)
                 self._reads.add(fut)
                 fut.add_done_callback(self._done_callback(sid, store))
 
