@@ -1301,14 +1301,17 @@ ROBOT_NAME = "hexapod_on_its_two_lines_left_and_right"
         # (each part fits the terminal, the whole does not: a line each, neighbours sharing one where they fit)
         ("teach", f"{MOTION_NAME}.json", ["teach:", f"{MOTION_NAME}.json"]),
         ("play", MOTION_NAME, [f"play {MOTION_NAME}", f"on {ROBOT_NAME}: 2 joint(s)"]),
-        # (a part wider than the terminal by itself: cut at its end, with an ellipsis)
-        ("teach", f"a_long_motion_for_{MOTION_NAME}.json", ["teach:", f"a_long_motion_for_{MOTION_NAME}"[:59] + "…"]),
+        # (a part wider than the terminal by itself: a name cut at its end, a file's cut at its start, since its
+        # end names it; each with an ellipsis)
+        ("teach", f"a_long_motion_for_{MOTION_NAME}.json", ["teach:", "…" + f"for_{MOTION_NAME}.json"[-59:]]),
         ("play", f"a_long_motion_for_{MOTION_NAME}", [f"play a_long_motion_for_{MOTION_NAME}"[:59] + "…"]),
+        # (a motion without a name: its file's path, after "play")
+        ("play", None, ["play", "…" + f"/{MOTION_NAME}_v2.json"[-59:], f"on {ROBOT_NAME}: 2 joint(s)"]),
     ],
-    ids=["teach", "play", "teach-too-wide", "play-too-wide"],
+    ids=["teach", "play", "teach-too-wide", "play-too-wide", "play-unnamed-file-too-wide"],
 )
 def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
-    tmp_path: Path, command: str, motion: str, expected: list[str]
+    tmp_path: Path, command: str, motion: str | None, expected: list[str]
 ) -> None:
     # As monitor's and demo's: a title wider than the terminal was cut with an ellipsis, what came last lost (the
     # robot, the joints played); its parts go on lines of their own, each cut only where it alone is too wide.
@@ -1317,9 +1320,10 @@ def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
     if command == "teach":
         args, keys = ["teach", str(robot), str(tmp_path / motion), "--yes"], [("0 pose(s) captured", b"q\r")]
     else:
-        played = tmp_path / "motion.json"
+        played = tmp_path / ("motion.json" if motion is not None else f"{MOTION_NAME}_v2.json")
         keyframes = [{"time": 0.5, "pose": {"a": 5, "b": 5}}]
-        played.write_text(json.dumps({"format": "ics35-motion", "version": 1, "name": motion, "keyframes": keyframes}))
+        named = {"name": motion} if motion is not None else {}
+        played.write_text(json.dumps({"format": "ics35-motion", "version": 1, **named, "keyframes": keyframes}))
         args, keys = ["play", str(robot), str(played), "--start-pose", "a=0,b=0"], []
     code, written = typed_on_a_terminal(args, keys, columns=NARROW)
     screen = [line for line in screen_of(written, width=NARROW) if line]
@@ -1327,7 +1331,7 @@ def test_a_robot_views_title_wider_than_the_terminal_goes_on_lines_of_its_own(
     assert code == (5 if command == "teach" else 0), said  # (teach refused: no pose captured)
     top = next(k for k, line in enumerate(screen) if line.startswith(expected[0]))
     assert screen[top : top + len(expected)] == expected, said
-    assert sum(line.startswith(expected[0]) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
+    assert screen.count(expected[-1]) == 1, said  # (drawn once: no redraw left it twice)
 
 
 def test_calibrates_title_wider_than_the_terminal_goes_on_lines_of_its_own_keeping_the_files_name(

@@ -61,15 +61,14 @@ def wrapped_at_width(text: Text) -> Text:
 @dataclass(frozen=True)
 class TitleInParts:
     """A live view's title in parts (rich markup), joined by spaces: drawn whole where the terminal is wide enough,
-    else a line per part (neighbours sharing one where they fit together).  Part ``port`` names the port and its
-    rate: cut at its start where it is still too wide, since a port's name tells itself from another's by its end
-    (``...-if00-port0``, ``?ids=1-3``) and the rate follows it; the others are cut at their end.  One line cut with
-    an ellipsis lost whatever came last (what the servos are left in, then the rate, then the port).  A file's
-    path is told apart by its end too: calibrate's title names the robot file in part ``port``.  ``port``
-    ``None``: every part is cut at its end (play's and teach's titles)."""
+    else a line per part (neighbours sharing one where they fit together).  A part too wide by itself is cut with
+    an ellipsis: at its start where its index is in ``cut_at_start``, since a port's or a file's name tells itself
+    from another's by its end (``...-if00-port0``, ``?ids=1-3``, ``.../walk_v2.json``); the others (words, a
+    motion's name) at their end.  One line cut with an ellipsis lost whatever came last (what the servos are
+    left in, then the rate, then the port)."""
 
     parts: tuple[str, ...]
-    port: int | None = 0
+    cut_at_start: frozenset[int] = frozenset({0})
 
     @property
     def whole(self) -> str:
@@ -217,7 +216,7 @@ class _TitleLines:
             if lines and lines[-1].cell_len + 1 + part.cell_len <= width:
                 lines[-1] = Text(" ").join([lines[-1], part])
                 continue
-            if k == self.title.port and part.cell_len > width:
+            if k in self.title.cut_at_start and part.cell_len > width:
                 part = Text("…").append_text(part[len(part) - max(0, width - 1) :])
             lines.append(part)
         for line in lines:

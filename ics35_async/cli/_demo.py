@@ -165,7 +165,9 @@ def demo(
                 )
                 confirm(question, yes, "nothing moved")
             where = f"{escape(shown)} at {settings.baud} baud"
-            title = TitleInParts((f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), port=1)
+            title = TitleInParts(
+                (f"demo: wave on {len(chosen)} servo(s),", where, "(left free at the end)"), frozenset({1})
+            )
             state = LiveState(chosen, title, seconds)
             started.append(state)
             # The silent IDs start out of the stream's cycle, probed as any servo that stops answering.

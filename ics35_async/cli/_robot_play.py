@@ -132,11 +132,16 @@ def play(
     except InvalidArgument as exc:
         raise CliError(ExitCode.USAGE, f"{motion_file}: {exc} (nothing was sent)") from None
     note_ports(settings, robot_file)
-    name = description.name or robot_file
-    title = TitleInParts(
-        (f"play {escape(motion.name or motion_file)}", f"on {escape(name)}:", f"{len(motion.joints)} joint(s)"),
-        port=None,
-    )
+    # A motion and a robot are named by their names, else by their files' paths: a name is cut at its end where it
+    # alone is too wide, a path at its start (its end names the file), after its word.
+    parts = [f"play {escape(motion.name)}"] if motion.name else ["play", escape(motion_file)]
+    paths = set() if motion.name else {1}
+    if description.name:
+        parts.append(f"on {escape(description.name)}:")
+    else:
+        parts += ["on", f"{escape(robot_file)}:"]
+        paths.add(len(parts) - 1)
+    title = TitleInParts((*parts, f"{len(motion.joints)} joint(s)"), frozenset(paths))
     began = time.monotonic()
     passes = 0
     played = 0.0  # seconds into the motion when it stopped

@@ -238,7 +238,7 @@ def teach(
                     return f"t=    - s (the first pose is at {times.lead:g} s)  {captured}"
                 return f"t={now:5.1f} s  {captured}"
 
-            title = TitleInParts(("teach:", escape(target.name)), port=None)
+            title = TitleInParts(("teach:", escape(target.name)), frozenset({1}))
 
             def table() -> Table:
                 return joint_table(robot, title.whole, names, lost=bool(lost))
@@ -436,7 +436,6 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
             lines = TypedLines()
             step = ["neutral"]
 
-            # (The file's path cut at its start where it alone is too wide, as a port's name: its end names the file.)
             title = TitleInParts(
                 (
                     "calibrate:",
@@ -444,7 +443,7 @@ def calibrate(ctx: click.Context, robot_file: str, joints: str | None, yes: bool
                     "(on the right: offset, min and max",
                     "as the file will get them)",
                 ),
-                port=1,
+                frozenset({1}),
             )
 
             def summary() -> str:
