@@ -100,7 +100,8 @@ class Request:
 
 class GuardRequest(Request):
     """The harmless read the engine slips in after a timeout; nobody waits for it.  ``protects``: the
-    request it goes before (None: the source's transaction), whose tries it may cost (see .guard)."""
+    request it goes before (None: the source's transaction), whose tries it may cost (see .guard);
+    ``protected_tx``: the bytes that one sends (kept here: a source's transaction has no request to hold them)."""
 
     __slots__ = ("protected_tx", "protects")
 
