@@ -12,6 +12,8 @@ their wire time at 1.25 Mbit/s, servos answering after 100 us):
 * offline: one of the 12 servos missing;
 * clean, pollers and faults again with the asyncio driver's deadlines on the event loop's own timers (whole
   milliseconds) instead of its timerfd (``ics35_async.drivers.fine_timer``): what the finer timer buys;
+* clean on the thread driver over a pty (its I/O thread polls the tty: the simulator in its own process, as
+  for the busy rows below), with its timerfd and again on ``poll``'s whole milliseconds alone;
 * busy loop: two coroutines doing ~0.1 ms of Python work between yields (a web server
   under load), beside the stream on the asyncio driver and on the thread driver (each on its
   default path: the compiled one where it is built), and on the thread driver's ordinary path
@@ -56,7 +58,7 @@ from typing import Any
 from bench_common import burst_setting, progress
 
 from ics35_async import Bus, BusTiming, open_bus
-from ics35_async.drivers import asyncio_driver
+from ics35_async.drivers import asyncio_driver, thread_driver
 from ics35_async.engine.timing import TimingOverrides
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.launch import serving
@@ -80,25 +82,41 @@ BUSY_THREAD = {  # ICS35_BURST for each
     "busy thread, anyio driver under trio, ordinary path": "0",
     "busy thread, anyio driver under trio, compiled path": "1",
 }
-LOOP_TIMERS = {  # the scenario each runs, with the asyncio driver's deadlines on the loop's own timers
+ON_A_PTY = "clean, thread driver, pty"  # (its I/O thread polls a tty: whole milliseconds but for its timerfd)
+LOOP_TIMERS = {  # the scenario each runs, with the driver's deadlines on the loop's own timers or poll's milliseconds
     "clean, loop timers": "clean",
     "pollers, loop timers": "pollers",
     "faults, loop timers": "faults",
+    f"{ON_A_PTY}, whole milliseconds": ON_A_PTY,
 }
-SCENARIOS = ("clean", "pollers", "faults", "faults, quiet 5 ms", "offline", *LOOP_TIMERS, *BUSY, *BUSY_THREAD)
+SCENARIOS = (
+    "clean",
+    "pollers",
+    "faults",
+    "faults, quiet 5 ms",
+    "offline",
+    ON_A_PTY,
+    *LOOP_TIMERS,
+    *BUSY,
+    *BUSY_THREAD,
+)
 QUIET_5MS = "faults, quiet 5 ms"  # the same faults with open_bus(..., quiet_time=0.005)
 
 
 @contextlib.contextmanager
 def loop_timers() -> Iterator[None]:
-    """The asyncio driver without its fine timer (ics35_async.drivers.fine_timer): its deadlines on the event
-    loop's own timers, whole milliseconds in epoll (what it does where the system has no timerfd)."""
-    before = getattr(asyncio_driver, "open_fine_timer")  # noqa: B009 (the name the driver calls, not exported)
-    setattr(asyncio_driver, "open_fine_timer", lambda: None)  # noqa: B010
+    """The drivers without their fine timer (ics35_async.drivers.fine_timer): the asyncio driver's deadlines on
+    the event loop's own timers, whole milliseconds in epoll, the thread driver's on poll's whole milliseconds
+    (what they do where the system has no timerfd)."""
+    drivers = (asyncio_driver, thread_driver)
+    before = [getattr(driver, "open_fine_timer") for driver in drivers]  # noqa: B009 (the name each calls)
+    for driver in drivers:
+        setattr(driver, "open_fine_timer", lambda: None)  # noqa: B010
     try:
         yield
     finally:
-        setattr(asyncio_driver, "open_fine_timer", before)  # noqa: B010
+        for driver, made in zip(drivers, before, strict=True):
+            setattr(driver, "open_fine_timer", made)  # noqa: B010
 
 
 async def measure(scenario: str, seconds: float) -> dict[str, Any]:
@@ -121,8 +139,8 @@ async def measure(scenario: str, seconds: float) -> dict[str, Any]:
     if scenario.endswith("switch 0.5 ms"):
         sys.setswitchinterval(0.0005)
     try:
-        if scenario in BUSY or scenario in BUSY_THREAD:
-            setting = BUSY_THREAD[scenario] if scenario in BUSY_THREAD else BUSY[scenario]
+        if scenario in BUSY or scenario in BUSY_THREAD or scenario == ON_A_PTY:
+            setting = BUSY_THREAD.get(scenario, BUSY.get(scenario))
             path = burst_setting(setting) if setting is not None else contextlib.nullcontext()
             with serving(["--ids", f"{IDS[0]}-{IDS[-1]}", "--baud", str(BAUD)]) as pty, path:
                 async with open_bus(pty, baudrate=BAUD, driver=driver) as bus:
@@ -235,7 +253,7 @@ def run(seconds: float = 5.0) -> dict[str, Any]:
     for scenario in SCENARIOS:
         progress(f"control loop: {scenario}, {seconds:g} s")
         row: dict[str, Any] = {"scenario": scenario, "measured": measure_in_its_library(scenario, seconds)}
-        if scenario not in ("pollers", *LOOP_TIMERS, *BUSY, *BUSY_THREAD):  # (not simulated)
+        if scenario not in ("pollers", ON_A_PTY, *LOOP_TIMERS, *BUSY, *BUSY_THREAD):  # (not simulated)
             row["simulated"] = simulated(scenario)
         rows.append(row)
     return {"servos": len(IDS), "rate_hz": RATE_HZ, "baud": BAUD, "seconds": seconds, "rows": rows}

@@ -280,8 +280,9 @@ class Bus:
         the wire, the queued requests, the next deadline), ``burst_path``: whether the port open now
         runs streams on the burst path (see ``ics35 --version -v``), and ``fine_deadlines``: whether the
         line's deadlines (a paced stream's slots, a reply given up on) fire to the microsecond, on a Linux
-        ``timerfd``, rather than on the event loop's millisecond timers (the asyncio driver on Linux, under
-        asyncio and uvloop).  Plain values; safe to call at any time."""
+        ``timerfd``, rather than on the event loop's millisecond timers or ``poll``'s whole milliseconds (the
+        asyncio driver on Linux, under asyncio and uvloop; the thread driver on a tty on Linux).  Plain values;
+        safe to call at any time."""
         driver = self._driver
         bursts = driver is not None and driver.burst is not None
         fine = driver is not None and driver.fine_deadlines

@@ -107,3 +107,28 @@ async def test_the_asyncio_driver_judges_its_deadlines_on_it(anyio_backend: Any,
                 pass
         assert await bus.servo(1).read_temperature() > 0
     assert open_descriptors() <= before  # the timer's descriptor closed with the bus
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize(
+    ("anyio_backend", "driver", "fine"),
+    [("asyncio", "asyncio", True), ("asyncio", "thread", True), ("trio", "anyio", False)],
+    indirect=["anyio_backend"],
+)
+async def test_the_drivers_on_a_tty_judge_their_deadlines_on_it(
+    anyio_backend: Any, driver: str, fine: bool, pty_sim: Any
+) -> None:
+    # The thread driver's I/O thread polls a tty: poll counts whole milliseconds, so its deadlines (a reply given
+    # up on, a paced stream's slot) came up to a millisecond late, as the event loops' timers do.
+    path = pty_sim("--ids", "1").path
+    before = open_descriptors()
+    async with open_bus(path, driver=driver, **FAST) as bus:
+        assert bus.describe()["fine_deadlines"] is fine
+        with pytest.raises(ReplyTimeout):  # no servo at ID 2: its reply given up on at the deadline
+            await bus.servo(2).read_temperature()
+        async with bus.stream([1], rate_hz=200) as stream:
+            first = (await stream.next_frame()).cycle
+            while (await stream.next_frame()).cycle < first + 5:
+                pass
+        assert await bus.servo(1).read_temperature() > 0
+    assert open_descriptors() <= before

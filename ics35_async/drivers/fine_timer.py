@@ -6,10 +6,12 @@ paced stream's cycle starting up to a millisecond after its slot (half of one at
 reply given up on a millisecond late, each costing the line that time.  A ``timerfd`` set to the
 deadline itself (``CLOCK_MONOTONIC``, the clock the drivers give the engine: :mod:`.clock`) turns
 readable when the kernel's timer fires, within tens of microseconds; the loop wakes for it as for input.
+The thread driver's I/O thread, which ``poll``s a tty in whole milliseconds, watches one for a deadline's
+last millisecond (see .thread_driver).
 
 Linux only (the C library's ``timerfd_create`` through ``ctypes``, as ``os.timerfd_create`` comes only with
 Python 3.13); elsewhere, or where it cannot be had, :func:`open_fine_timer` gives None and the driver keeps the
-loop's timers.
+loop's timers (or ``poll``'s milliseconds, rounded up).
 """
 
 from __future__ import annotations
@@ -75,14 +77,14 @@ TIMER_NAME = "deadline timer"
 
 
 def fine_deadlines() -> tuple[bool, str]:
-    """Whether the asyncio driver times the line's deadlines on a timerfd here, and what that means, in plain words
+    """Whether the drivers time the line's deadlines on a timerfd here, and what that means, in plain words
     (for ``--version -v`` and doctor, after :data:`TIMER_NAME`)."""
     if _BINDING is None:
         where = "not Linux" if not sys.platform.startswith("linux") else "no timerfd in the C library"
         return False, f"the event loop's own, in whole milliseconds ({where})"
     return True, (
-        "a timerfd, to the microsecond (the asyncio driver's: a paced stream's slots and replies given up on; "
-        "the thread and anyio drivers keep their whole milliseconds)"
+        "a timerfd, to the microsecond (the asyncio driver's, and the thread driver's on a tty: a paced stream's "
+        "slots and replies given up on; the anyio driver keeps its whole milliseconds)"
     )
 
 

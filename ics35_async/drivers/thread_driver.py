@@ -49,6 +49,7 @@ from ..transports.wire_device import WireDevice
 from .burst import BurstRunner, open_runner
 from .clock import now
 from .core import INF, CallerRequest, LoopDriver, settle_future
+from .fine_timer import open_fine_timer
 from .settings import LineSettings
 
 log = logging.getLogger("ics35_async")
@@ -72,7 +73,8 @@ class _Run:
 
 
 class _TtyWait:
-    """Waits on a tty: ``poll`` on its descriptor and a wake-up pipe (and POLLOUT while a write is pending)."""
+    """Waits on a tty: ``poll`` on its descriptor and a wake-up pipe (and POLLOUT while a write is pending), and
+    on a ``timerfd`` for the last millisecond before a deadline where the system has one (see .fine_timer)."""
 
     def __init__(self, port: TtyPort) -> None:
         self.port = port
@@ -83,12 +85,14 @@ class _TtyWait:
         self._poll = select.poll()
         self._poll.register(port.fd, select.POLLIN)
         self._poll.register(self._wake_r, select.POLLIN)
+        self.fine = open_fine_timer()
+        if self.fine is not None:
+            self._poll.register(self.fine.fd, select.POLLIN)
         self._burst_poll: select.poll | None = None  # the burst's done_fd and the wake-up pipe (not the port)
         self._closed = False
 
     def wait(self, timeout: float | None) -> bytes:
-        # poll counts whole milliseconds: round up, so a deadline is never judged early.
-        events = self._poll.poll(None if timeout is None else math.ceil(timeout * 1000))
+        events = self._poll.poll(self._poll_ms(timeout))
         fd = self.port.fd
         if len(events) == 1 and events[0][1] == select.POLLIN and events[0][0] == fd:
             return self.port.read()  # the usual case: the reply, and nothing else
@@ -101,10 +105,29 @@ class _TtyWait:
                     self.writable = True
                 if mask & (select.POLLIN | select.POLLHUP | select.POLLERR):
                     data = self.port.read()
+            elif self.fine is not None and polled == self.fine.fd:
+                self.fine.fired()  # (the thread looks at the clock itself: a deadline moved since is not due)
             else:
                 with contextlib.suppress(BlockingIOError):
                     os.read(self._wake_r, 512)
         return data
+
+    def _poll_ms(self, timeout: float | None) -> int | None:
+        """What to give ``poll``, which counts whole milliseconds, for a wait of ``timeout`` seconds.  A deadline
+        less than one away goes to the timer, which fires to the microsecond; one further is waited up to its
+        last whole millisecond, and the thread, woken with nothing, looks again (so only a wait that reaches its
+        deadline costs the timer's system call: a reply that comes in time costs none).  Without a timer the
+        wait is rounded up, so a deadline is never judged early, up to a millisecond late."""
+        if timeout is None:
+            return None
+        fine = self.fine
+        if fine is None or timeout <= 0.0:
+            return math.ceil(timeout * 1000)
+        whole = math.floor(timeout * 1000)
+        if whole >= 1:
+            return whole
+        fine.arm(now() + timeout)
+        return 2  # (the timer wakes it first: this only bounds a wait it would not end)
 
     def watch_bursts(self, done_fd: int) -> None:
         """The port's burst runner tells on ``done_fd`` (see .burst): taken once, as the runner opens (read
@@ -143,6 +166,8 @@ class _TtyWait:
             for fd in (self._wake_r, self._wake_w):
                 with contextlib.suppress(OSError):
                     os.close(fd)
+            if self.fine is not None:
+                self.fine.close()
 
 
 class _DeviceWait:
@@ -223,6 +248,12 @@ class ThreadDriver(LoopDriver):
         self._write_error: tuple[Port, OSError] | None = None  # from a write in the caller's thread
         self._unsettled: set[CallerRequest] = set()  # outcomes handed to the loop's thread, not yet settled there
         self._unsettled_before: set[CallerRequest] = set()  # those of them the previous look found
+
+    @property
+    def fine_deadlines(self) -> bool:
+        # (On a tty; an in-process device's condition and a pyserial port's read keep their own waits.)
+        wait = self._wait
+        return isinstance(wait, _TtyWait) and wait.fine is not None
 
     # ------------------------------------------------------------------ life cycle (the loop's side)
 
