@@ -150,6 +150,14 @@ def test_an_ics36_or_noisy_id_outside_the_urls_ids_is_refused(url: str) -> None:
         open_url(url)
 
 
+def test_a_log_size_below_zero_is_refused_in_words() -> None:
+    """``log=-1`` was passed on to the log's deque, which raised a bare ValueError ("maxlen must be
+    non-negative"), naming neither the option nor what it takes."""
+    for build in (lambda: open_url("sim://?log=-1"), lambda: VirtualLine([1], log_size=-1)):
+        with pytest.raises(InvalidArgument, match=r"^log_size must be a whole number of transactions >= 0"):
+            build()
+
+
 def test_named_line_is_shared_until_closed() -> None:
     bus = open_url("sim://robot?ids=1-2")
     assert isinstance(bus, VirtualLine)
