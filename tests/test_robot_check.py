@@ -6,7 +6,11 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from ics35_async.cli import ExitCode
+from ics35_async.errors import InvalidArgument
+from ics35_async.sim import open_url
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -98,6 +102,19 @@ def test_a_robot_file_that_breaks_a_rule_is_refused_naming_its_key(cli: Any, tmp
     assert result.code == ExitCode.USAGE, result.err
     assert "joints.wrist.id" in result.err and "arm.toml" in result.err, result.err
     assert "Traceback" not in result.err
+
+
+@pytest.mark.parametrize("port", ["sim://?ids=", "sim://?idz=1-3", "sim://?ids=1-4&ics36=7"])
+def test_a_sim_port_the_simulator_would_refuse_is_named_with_its_reason(cli: Any, tmp_path: Path, port: str) -> None:
+    """check passed a robot file whose line names a sim:// URL the simulator refuses (an empty ID list, a misspelt
+    option): the builder learnt it only from play, at the open.  check says so, in the simulator's own words."""
+    with pytest.raises(InvalidArgument) as at_open:
+        open_url(port)
+    result = cli("check", str(robot_file(tmp_path, port)))
+    assert result.code == ExitCode.USAGE, (result.out, result.err)
+    said = " ".join(result.err.split())
+    assert f"arm.toml: lines.main.port: {json.dumps(port)} is refused: {at_open.value}" in said, said
+    assert "Traceback" not in said and "nothing was sent" not in said and not result.out, (result.out, said)
 
 
 def test_the_example_humanoid_and_its_wave_fit(cli: Any) -> None:

@@ -1611,15 +1611,16 @@ def test_a_robot_file_whose_sim_url_has_a_typo_is_a_usage_error_naming_its_line(
     cli: Any, rig: tuple[Rig, Path], tmp_path: Path
 ) -> None:
     # A misspelt option in a line's sim:// URL ended play with a traceback (the command reads the file's simulated
-    # lines before it opens them) and exit code 1.
+    # lines before it opens them) and exit code 1; it is refused as the file is read, naming the line's port.
     sims, robot_file = rig
-    sims.description["lines"]["lower"]["port"] = "sim://robot-cli-typo?ids=1-3&realtme=1"
-    robot_file.write_text(dump_description(load_description(sims.description)))
+    typo = "sim://robot-cli-typo?ids=1-3&realtme=1"
+    good = dump_description(load_description(sims.description))
+    robot_file.write_text(good.replace(json.dumps(sims.description["lines"]["lower"]["port"]), json.dumps(typo)))
     motion = write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": 5}})
     result = cli("play", str(robot_file), str(motion))
     assert result.code == ExitCode.USAGE, result.err
     said = " ".join(result.err.split())
-    assert f"{robot_file}: line lower: sim URL: unknown option 'realtme'" in said, said
+    assert f"{robot_file}: lines.lower.port: \"{typo}\" is refused: sim URL: unknown option 'realtme'" in said, said
     assert "Traceback" not in result.err
     assert sims.upper.transactions == 0
 

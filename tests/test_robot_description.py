@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import tomllib
@@ -17,7 +18,7 @@ from hypothesis import strategies as st
 from ics35_async import InvalidArgument, blocking, open_robot, units
 from ics35_async.robot import DescriptionError, JointSpec, load_description, parse_description
 from ics35_async.robot.calibration import dump_description
-from ics35_async.sim import VirtualLine
+from ics35_async.sim import VirtualLine, open_url
 from tests.support.timing import FAST
 
 GOOD = """\
@@ -271,6 +272,43 @@ def test_each_mistake_names_the_file_and_key_and_opens_nothing(
     finally:
         for sim in sims:
             sim.close()
+
+
+# sim:// ports the simulator refuses as it opens them: an empty ID list (ids=none is a line without servos), a
+# misspelt option, an option refused only with the others (an ics36 servo not among the IDs), a log size below 0.
+REFUSED_SIM_PORTS = [
+    "sim://?ids=",
+    "sim://?idz=1-3",
+    "sim://?ids=1-2&ics36=5",
+    "sim://?ids=1&tail_bytes=0",
+    "sim://?log=-1",
+    "sim://?ids=1&replay=motion.rec",
+]
+
+
+@pytest.mark.parametrize("port", REFUSED_SIM_PORTS)
+def test_a_sim_port_the_simulator_refuses_is_refused_with_the_file_naming_its_key(tmp_path: Path, port: str) -> None:
+    """A robot file whose line names a sim:// URL the simulator refuses was read as good (ics35 check passed it);
+    open_robot refused it only as it opened the lines, after the ones before it.  It is refused as the file is read,
+    in the simulator's own words, and no line is opened."""
+    with pytest.raises(InvalidArgument) as at_open:
+        open_url(port)
+    path = write(
+        tmp_path,
+        f'[lines.arm]\nport = "sim://?ids=1"\n[lines.main]\nport = "{port}"\n'
+        '[joints.x]\nline = "arm"\nid = 1\n[joints.y]\nline = "main"\nid = 1\n',
+    )
+    with pytest.raises(DescriptionError) as caught:
+        load_description(path)
+    assert caught.value.key == "lines.main.port"
+    assert str(caught.value) == f"{path}: lines.main.port: {json.dumps(port)} is refused: {at_open.value}"
+
+    async def try_open() -> None:
+        async with open_robot(path, **FAST):
+            pytest.fail("opened a robot from a bad file")
+
+    with pytest.raises(DescriptionError):
+        anyio.run(try_open)
 
 
 # A user's trial: `rate_hz = 1e9` was told as "got 1e+09", `rate_hz = true` as "not True", and the allowed range only

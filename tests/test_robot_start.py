@@ -19,7 +19,7 @@ from ics35_async import BusClosed, InvalidArgument, PortLost, PortNotFound, Robo
 from ics35_async.cli._robot_view import joint_table
 from ics35_async.errors import error_text
 from ics35_async.protocol import FREE, ReadEeprom, ReadPosition
-from ics35_async.robot import Segment, Trajectory, startup
+from ics35_async.robot import DescriptionError, Segment, Trajectory, startup
 from ics35_async.sim import VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
 from tests.support.robot_rig import (
@@ -1006,13 +1006,20 @@ def test_a_line_whose_port_is_missing_with_reconnect_says_reconnecting_does_not_
     assert refused.errno == errno.ENOENT
 
 
-@pytest.mark.parametrize("port", ["sim://robot-start-typo?ids=1-3&realtme=1", "socket://legs-pi"])
-def test_a_line_whose_port_is_refused_as_written_is_named_by_the_robots_line(port: str) -> None:
-    # A port the open refuses as written (a misspelt sim:// option, a bridge URL without its TCP port): the port's
-    # own words alone ("sim URL: unknown option 'realtme'") did not say which line of the robot file it was.
-    refused, rig = open_refused(port, InvalidArgument)
+def test_a_line_whose_port_is_refused_as_written_is_named_by_the_robots_line() -> None:
+    # A port the open refuses as written (a bridge URL without its TCP port): the port's own words alone did not
+    # say which line of the robot file it was.
+    refused, rig = open_refused("socket://legs-pi", InvalidArgument)
     assert str(refused).startswith("<mapping>: line lower: "), refused
     assert rig.upper.transactions == 0  # (the upper line, opened first, was closed without a word sent)
+
+
+def test_a_sim_port_the_simulator_refuses_is_named_by_its_key_before_a_line_opens() -> None:
+    # A misspelt sim:// option was refused only as the lines opened, the ones before it opened first; the
+    # simulator's own check refuses it as the description is read, naming the key.
+    refused, _ = open_refused("sim://robot-start-typo?ids=1-3&realtme=1", DescriptionError)
+    assert str(refused).startswith("<mapping>: lines.lower.port: "), refused
+    assert "sim URL: unknown option 'realtme'" in str(refused), refused
 
 
 @pytest.mark.filterwarnings("ignore:.*did not answer:ics35_async.robot.RobotWarning")

@@ -23,7 +23,7 @@ from .. import protocol, units
 from ..eeprom import FACTORY_BAUD
 from ..errors import FileContentError, InvalidArgument
 from ..transports.direction import DIRECTIONS
-from ..transports.wire_device import is_url, opens_anew, url_scheme
+from ..transports.wire_device import check_url, is_url, opens_anew, url_scheme
 from ..user_files import UnreadableText, is_device, parse_toml, read_user_text
 
 SAFETY_ACTIONS = ("free", "hold", "stop")
@@ -406,6 +406,10 @@ def _lines(source: str, value: object) -> dict[str, LineSpec]:
         if direction is not None and direction not in DIRECTIONS:
             raise r.error("direction", f"must be one of {', '.join(DIRECTIONS)}, got {direction!r}")
         r.done()
+        try:  # (a port the simulator refuses, told as the file is read: not at the open, after the lines before it)
+            check_url(port)
+        except InvalidArgument as exc:
+            raise r.error("port", f"{_toml_said(port)} is refused: {exc}") from None
         if port in ports and not opens_anew(port):
             raise r.error("port", f"{port!r} is already the port of lines.{ports[port]}")
         ports[port] = name

@@ -150,7 +150,8 @@ def open_robot(
             (``"sim://arm"``, ``"/dev/ttyUSB0"``): a robot's ports go in its file, one a line.
         InvalidArgument: an unknown or bad option, a ``start_pose`` naming an unknown joint or an
             angle outside its limits, or a per-line option (``baudrate``, ``echo``, ``retries``) given here;
-            or a line's port refused as written (a misspelt ``sim://`` option; its message names the line).
+            or a line's port refused as written at its open (a ``socket://`` URL without its TCP port; its message
+            names the line: a ``sim://`` port the simulator refuses is a DescriptionError).
         SerialPortError: a line's port cannot be opened (its message names the line; a servo that does not
             answer is not an error: its joint starts free and, with ``check_limits``, gets a warning).  At once,
             ``reconnect=True`` or not: it rides out a port lost once its line is open, not one missing (a
@@ -200,7 +201,7 @@ async def _robot_session(
                 await stack.enter_async_context(bus)
             except SerialPortError as exc:
                 raise _on_line(exc, description.source, name) from exc
-            except InvalidArgument as exc:  # a port refused as written (a misspelt sim:// option, no TCP port)
+            except InvalidArgument as exc:  # a port refused as written (a bridge URL without its TCP port)
                 raise InvalidArgument(f"{description.source}: line {name}: {exc}") from exc
         group = BusGroup(buses)
         robot = block.robot = Robot(description, group)

@@ -1,6 +1,7 @@
 """``sim://`` URLs: their syntax, and the device one names.
 
-:func:`open_url` is what the core calls for a ``sim://`` port;
+:func:`open_url` is what the core calls for a ``sim://`` port, :func:`check_url` what checks one without
+opening it;
 :func:`parse_url` splits a URL into a line name and :class:`VirtualLine`
 options (:func:`named_url` gives an unnamed one a name);
 :func:`parse_seconds` reads the durations both the URL and the pty server's
@@ -55,12 +56,28 @@ def open_url(url: str) -> WireDevice:
             return line
     replay = options.pop("replay", None)
     if replay is not None:
-        if options:
-            raise InvalidArgument(f"sim URL: replay= takes no other options, got {', '.join(sorted(options))}")
         return ReplayDevice(replay)
     line = VirtualLine(name=name, **options)
     line.url_query = query
     return line
+
+
+def check_url(url: str) -> None:
+    """Refuse ``url`` as :func:`open_url` refuses it, opening nothing: what checks a robot file's ``sim://``
+    ports as the file is read (``ics35 check``), so a port the simulator refuses is told before any line opens.
+
+    The options are checked by what opening checks them with: :func:`parse_url`, then the line built from them
+    (an unnamed one, reachable by no URL, writing no recording), which checks them together (an ``ics36`` ID
+    among ``ids``, ...).  What only an opening meets is left to it: a replay file missing, a recording's file
+    that cannot be written, a named line open already with other options.
+
+    Raises:
+        InvalidArgument: what :func:`open_url` raises for a URL, a key or a value.
+    """
+    _, options = parse_url(url)
+    if "replay" not in options:
+        options.pop("record", None)
+        VirtualLine(**options).close()
 
 
 def url_options(url: str) -> str:
@@ -211,4 +228,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
             raise InvalidArgument("sim URL: adapter= models the time the host waits: it needs realtime=1")
         options["adapter"] = adapter
         options["realtime"] = True
+    others = sorted(key for key in query if key != "replay")
+    if "replay" in query and others:
+        raise InvalidArgument(f"sim URL: replay= takes no other options, got {', '.join(others)}")
     return name, options

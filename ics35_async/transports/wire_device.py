@@ -113,6 +113,13 @@ def asks_nothing(port: object) -> bool:
 
 # Schemes whose device factory lives in a module loaded on first use: "module:function".
 _LAZY_SCHEMES = {"sim": "ics35_async.sim.url:open_url"}
+# What checks a URL of such a scheme as written, opening nothing (see check_url): "module:function".
+_URL_CHECKS = {"sim": "ics35_async.sim.url:check_url"}
+
+
+def _loaded(target: str) -> Callable[[str], object]:
+    module, _, name = target.partition(":")
+    return cast(Callable[[str], object], getattr(importlib.import_module(module), name))
 
 
 # What a program that passed no port (an unset variable, an empty argument) is told to pass instead.
@@ -145,7 +152,21 @@ def device_factory(scheme: str) -> WireDeviceFactory | None:
     scheme = scheme.lower()
     factory = _URL_SCHEMES.get(scheme)
     if factory is None and scheme in _LAZY_SCHEMES:
-        module, _, name = _LAZY_SCHEMES[scheme].partition(":")
-        factory = cast(WireDeviceFactory, getattr(importlib.import_module(module), name))
+        factory = cast(WireDeviceFactory, _loaded(_LAZY_SCHEMES[scheme]))
         _URL_SCHEMES[scheme] = factory
     return factory
+
+
+def check_url(port: str) -> None:
+    """Refuse ``port`` when opening it would refuse it as written, opening nothing: a ``sim://`` URL the
+    simulator refuses (an empty ID list, a misspelt option), by the simulator's own check.  Anything else passes:
+    a device path, or another URL (``socket://``), is known good or bad only by opening it.  Here, below the
+    robot layer and the simulator, so that a robot file's ports are checked as it is read (the robot layer may not
+    import the simulator); the simulator is loaded only for a ``sim://`` port.
+
+    Raises:
+        InvalidArgument: what opening ``port`` raises for what it says.
+    """
+    check = _URL_CHECKS.get(url_scheme(port))
+    if check is not None:
+        _loaded(check)(port)
