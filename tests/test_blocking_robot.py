@@ -208,6 +208,24 @@ def test_positions_and_untouched_read_as_the_async_robots_do() -> None:
         rig.close()
 
 
+def test_unreached_names_the_joints_whose_servo_is_offline_as_the_async_robot_does() -> None:
+    # The joints a view shows no target or readings for (their servo offline: sent nothing), as `ics35 play`'s live
+    # table and the configurator's Robot page show them: a snapshot of the async robot's, for a program's own view.
+    rig = make_rig({"continue_on_offline": True})
+    try:
+        with blocking.open_robot(rig.description, start_pose={"hip": 5.0}, **FAST) as robot:
+            assert robot.unreached == frozenset()
+            rig.lower.remove_servo(JOINTS["hip"]["id"])
+            end = time.monotonic() + GUARD
+            while robot.unreached != {"hip"}:
+                assert time.monotonic() < end, robot.unreached
+                time.sleep(0.01)
+            assert robot.unreached == robot.async_robot.unreached
+            assert robot.targets["hip"] == 5.0  # (what it was asked stays: its target is not sent, not gone)
+    finally:
+        rig.close()
+
+
 def test_on_close_free_frees_every_joint() -> None:
     rig = make_rig()
     try:

@@ -587,6 +587,25 @@ def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_
         expect(shoulder.locator("input[type=range]")).to_have_value("-25")
 
 
+def test_an_offline_joints_target_is_shown_as_not_sent_as_the_live_table_shows_it(
+    browser: Browser, tmp_path: Path
+) -> None:
+    # A joint whose servo stopped answering (continue_on_offline: the watch lets the robot play on) is sent nothing,
+    # but its row showed its target as if it were held there; `ics35 play`'s live table shows "-" for it.
+    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
+        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
+        elbow = p.locator("tr[data-joint='elbow']")
+        expect(elbow.locator(".target")).not_to_have_text("-")
+        held = elbow.locator("input[type=range]").input_value()
+        line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        expect(elbow.locator(".target")).to_have_text("-")
+        for cell in (".temp", ".current"):
+            expect(elbow.locator(cell)).to_have_text("-")
+        expect(elbow.locator("input[type=range]")).to_have_value(held)  # (its slider stays at the target it had)
+        expect(p.locator("tr[data-joint='shoulder'] .target")).not_to_have_text("-")
+
+
 def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_moved_again(
     browser: Browser, tmp_path: Path
 ) -> None:

@@ -298,6 +298,12 @@ class BlockingRobot(LoopOwner[Robot]):
         return self._loop.read(_untouched_of, self._async)
 
     @property
+    def unreached(self) -> frozenset[str]:
+        """The joints whose servo is offline as of the newest frame, sent nothing: a view shows no target or
+        readings for them (see ``Robot.unreached``)."""
+        return self._loop.read(_unreached_of, self._async)
+
+    @property
     def tripped(self) -> dict[str, SafetyStop]:
         """Joints whose safety stop still stands (see ``Robot.tripped``; :meth:`reset_trip`)."""
         return self._loop.read(_tripped_of, self._async)
@@ -353,6 +359,10 @@ def _positions_of(robot: Robot) -> dict[str, float]:
 
 def _untouched_of(robot: Robot) -> frozenset[str]:
     return frozenset(robot.untouched)
+
+
+def _unreached_of(robot: Robot) -> frozenset[str]:
+    return robot.unreached
 
 
 def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:

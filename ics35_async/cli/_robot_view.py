@@ -89,16 +89,14 @@ def joint_table(
         )
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
+    unreached = robot.unreached
     gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
     for name in joints or list(robot.joints):
         spec = robot.joints[name]
         seen = robot.telemetry.get(name)
         target = robot.targets.get(name)
         waiting = False  # held since its line or its servo came back: sent nothing, its target is not this one
-        # Its servo offline (a trip for it said first, as its state): the last temperature and current read are not
-        # its own now, and the stream sends it nothing: a target set meanwhile (a motion playing on past it) never
-        # reached it.
-        silent = frame is not None and name in frame.offline
+        silent = name in unreached  # (its servo offline: no target, temperature or current of its own now)
         if spec.line in gone:
             state: str | Text = Text("LINE LOST", style="bold red")
         elif name in robot.tripped:

@@ -174,6 +174,16 @@ class Robot:
         return {by_key[k]: why for k, why in self._gstream.held.items() if k in by_key}
 
     @property
+    def unreached(self) -> frozenset[str]:
+        """The joints whose servo is offline as of the newest frame: their stream sends them nothing, so a target
+        set meanwhile (a motion playing on past one) never reached them, and the temperature and current last
+        read are not theirs now.  A view of the robot shows neither for them ("-": ``ics35 play``'s live table,
+        the configurator's Robot page), where :attr:`targets` keeps what they were asked; once a servo answers
+        again its joint is :attr:`held`."""
+        frame = self._latest
+        return frozenset() if frame is None else frame.offline
+
+    @property
     def telemetry(self) -> dict[str, JointTelemetry]:
         """The newest temperature and current of every joint (read by the safety watch)."""
         return self.watch.telemetry

@@ -315,6 +315,9 @@ class RobotSession:
         robot = self.robot
         frame = None if robot is None else robot.latest
         telemetry = {} if robot is None else robot.telemetry
+        # Sent nothing, their servo offline: no target went out, no reading is theirs now (the robot's rule, as
+        # `ics35 play`'s live table follows it); their targets stay, where their sliders stand.
+        unreached = frozenset() if robot is None else robot.unreached
         tripped = {} if robot is None else robot.tripped
         # Sent nothing since their servo answered again (or their line came back), and why: the target they
         # had is not where they are (restarted, free and elsewhere), so the page says so beside it.
@@ -325,7 +328,7 @@ class RobotSession:
         joints = []
         for name, spec in self.description.joints.items():
             offline = frame is not None and name in frame.offline
-            t = None if offline else telemetry.get(name)  # (what was read before it went silent is not now)
+            t = None if name in unreached else telemetry.get(name)
             stop = tripped.get(name)
             joints.append(
                 {
@@ -339,6 +342,7 @@ class RobotSession:
                     "temperature_c": None if t is None else _round(t.temperature_c),
                     "current": None if t is None else t.current,
                     "offline": offline,
+                    "unreached": name in unreached,
                     "tripped": None if stop is None else str(stop),
                     "held": held.get(name),
                 }
