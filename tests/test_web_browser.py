@@ -31,7 +31,7 @@ import pytest
 if not sys.platform.startswith("linux"):
     pytest.skip("the simulated pty and Debian's chromium: Linux only", allow_module_level=True)
 
-from playwright.sync_api import Browser, Page, Request, Route, expect
+from playwright.sync_api import Browser, Locator, Page, Request, Route, expect
 
 from ics35_async.units import degrees_to_position
 from tests.support.browser_pages import (
@@ -587,22 +587,31 @@ def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_
         expect(shoulder.locator("input[type=range]")).to_have_value("-25")
 
 
+@contextlib.contextmanager
+def elbow_gone_offline(browser: Browser, tmp_path: Path) -> Iterator[tuple[PtyLine, Page, Locator, Any, str]]:
+    """The arm of :func:`arm_with_motion_on`, played on past a servo gone offline (``continue_on_offline``), its
+    elbow held and then its servo unplugged: the line, the page, the elbow's row, its servo (off the line) and
+    where the elbow's slider stood before."""
+    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
+        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
+        elbow = p.locator("tr[data-joint='elbow']")
+        expect(elbow.locator(".target")).not_to_have_text("-")
+        slider = elbow.locator("input[type=range]").input_value()
+        servo = line.sim.remove_servo(2)
+        expect(elbow.locator(".angle")).to_have_text("offline")
+        yield line, p, elbow, servo, slider
+
+
 def test_an_offline_joints_target_is_shown_as_not_sent_as_the_live_table_shows_it(
     browser: Browser, tmp_path: Path
 ) -> None:
     # A joint whose servo stopped answering (continue_on_offline: the watch lets the robot play on) is sent nothing,
     # but its row showed its target as if it were held there; `ics35 play`'s live table shows "-" for it.
-    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
-        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
-        elbow = p.locator("tr[data-joint='elbow']")
-        expect(elbow.locator(".target")).not_to_have_text("-")
-        held = elbow.locator("input[type=range]").input_value()
-        line.sim.remove_servo(2)
-        expect(elbow.locator(".angle")).to_have_text("offline")
+    with elbow_gone_offline(browser, tmp_path) as (_, p, elbow, _, slider):
         expect(elbow.locator(".target")).to_have_text("-")
         for cell in (".temp", ".current"):
             expect(elbow.locator(cell)).to_have_text("-")
-        expect(elbow.locator("input[type=range]")).to_have_value(held)  # (its slider stays at the target it had)
+        expect(elbow.locator("input[type=range]")).to_have_value(slider)  # (at the target it had)
         expect(p.locator("tr[data-joint='shoulder'] .target")).not_to_have_text("-")
 
 
@@ -614,11 +623,7 @@ def test_a_joint_held_since_its_servo_answered_again_is_freed_from_its_row_and_m
     # state line, in the library's words ("set its target (set_targets) or free it first"), and the page had no
     # way out but Free all (every joint limp).  The refusal is the move's answer now, in the page's words, and
     # the joint's row has a Free button: freed (read where it stands), it moves again from there.
-    with arm_with_motion_on(browser, tmp_path, "[safety]\ncontinue_on_offline = true\n") as (line, p):
-        until(lambda: not line.sim.servo(2).free, "the elbow was never held")
-        elbow = p.locator("tr[data-joint='elbow']")
-        servo = line.sim.remove_servo(2)
-        expect(elbow.locator(".angle")).to_have_text("offline")
+    with elbow_gone_offline(browser, tmp_path) as (line, p, elbow, servo, _):
         line.sim.add_device(servo)
         expect(elbow.locator(".target")).to_contain_text("held: rejoined")
         target = servo.target
