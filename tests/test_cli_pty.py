@@ -1367,25 +1367,45 @@ def joint_rows(screen: list[str]) -> list[str]:
 LONG_NAMES = ["right_shoulder_pitch", "left_ankle_roll", "neck"]
 
 
-@pytest.mark.parametrize("command", ["play", "calibrate"])
-def test_a_robots_joint_table_on_a_narrow_terminal_keeps_every_value_whole(tmp_path: Path, command: str) -> None:
+def calibrating_on_a_narrow_terminal(tmp_path: Path, names: list[str], columns: int) -> tuple[list[str], str]:
+    """``calibrate`` on a robot of joints ``names`` at ``columns`` columns, stopped at step 2 (its right columns
+    filled): the lines on the screen, and the bytes written."""
+    robot = tmp_path / "arm.toml"
+    joints = "".join(f'[joints.{name}]\nline = "main"\nid = {k}\n' for k, name in enumerate(names, 1))
+    robot.write_text(f'[lines.main]\nport = "sim://narrow-arm?ids=1-{len(names)}&realtime=1"\n{joints}')
+    keys = [("step 1/2", b"\r"), ("step 2/2", b"\x03")]
+    code, written = typed_on_a_terminal(["calibrate", str(robot)], keys, columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    assert code == 130 and "Traceback" not in written, "\n".join(screen)
+    return screen, written
+
+
+@pytest.mark.parametrize(
+    ("command", "names"),
+    [
+        ("play", []),
+        ("calibrate", LONG_NAMES),
+        ("calibrate", [name.replace("_", "-") for name in LONG_NAMES]),
+    ],
+    ids=["play", "calibrate", "calibrate-hyphens"],
+)
+def test_a_robots_joint_table_on_a_narrow_terminal_keeps_every_value_whole(
+    tmp_path: Path, command: str, names: list[str]
+) -> None:
     # At 50 columns the joint table was cut to fit, every column's values with it: "right…" for any of five
     # joints, "+2…" for a position of +23.5.  Columns are left out instead (named under the table), then long
-    # joint names wrap after an underscore (calibrate's, with its three columns more).
+    # joint names wrap after an underscore or a hyphen (calibrate's, with its three columns more): a name with
+    # hyphens was not wrapped, so a column that fits was cut ("offse…") and the name with it.
     columns = 50
     if command == "play":  # (the humanoid example, as its file says to run it)
-        args, keys, expected = ["play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json")], [], 0
+        args = ["play", str(EXAMPLES / "humanoid.toml"), str(EXAMPLES / "wave.json")]
+        code, written = typed_on_a_terminal(args, [], columns=columns)
+        screen = [line for line in screen_of(written, width=columns) if line]
+        assert code == 0 and "Traceback" not in written, "\n".join(screen)
         names = list(json.loads((EXAMPLES / "wave.json").read_text())["keyframes"][0]["pose"])
     else:  # (a robot of few joints: the whole view within the terminal's rows; at step 2, the right columns filled)
-        robot = tmp_path / "arm.toml"
-        joints = "".join(f'[joints.{name}]\nline = "main"\nid = {k}\n' for k, name in enumerate(LONG_NAMES, 1))
-        robot.write_text(f'[lines.main]\nport = "sim://narrow-arm?ids=1-3&realtime=1"\n{joints}')
-        args, keys, expected = ["calibrate", str(robot)], [("step 1/2", b"\r"), ("step 2/2", b"\x03")], 130
-        names = LONG_NAMES
-    code, written = typed_on_a_terminal(args, keys, columns=columns)
-    screen = [line for line in screen_of(written, width=columns) if line]
+        screen, written = calibrating_on_a_narrow_terminal(tmp_path, names, columns)
     said = "\n".join(screen)
-    assert code == expected and "Traceback" not in written, said
     rows = joint_rows(screen)
     assert not any("…" in line for line in rows), said
     assert all(len(line) <= columns for line in rows), said
@@ -1393,7 +1413,24 @@ def test_a_robots_joint_table_on_a_narrow_terminal_keeps_every_value_whole(tmp_p
     # lines that begin blank): read in order, they spell the joints' names.
     assert "".join(line.split()[0] for line in rows if not line.startswith(" ")) == "".join(names), said
     if command == "calibrate":
-        assert "right_shoulder_pitch" not in said, said  # (the scene: a name wrapped)
+        assert names[0] not in said, said  # (the scene: a name wrapped)
+        assert screen[screen.index(rows[0]) - 2].split()[-4:] == ["state", "offset°", "min°", "max°"], said
+
+
+def test_a_joint_name_too_long_to_wrap_is_cut_with_an_ellipsis_before_any_value_is(tmp_path: Path) -> None:
+    # A name with no underscore or hyphen to wrap after, wider than the terminal leaves it: rich cut it and the
+    # values beside it ("offse…", a column left out that fits), each then reading as another.  The name alone is
+    # cut, with an ellipsis, and every value and column that fits stays whole.
+    columns = 50
+    names = ["rightshoulderpitchjoint", "neck"]
+    screen, _ = calibrating_on_a_narrow_terminal(tmp_path, names, columns)
+    said = "\n".join(screen)
+    rows = joint_rows(screen)
+    assert screen[screen.index(rows[0]) - 2].split()[-4:] == ["state", "offset°", "min°", "max°"], said
+    first, second = (row.split() for row in rows)
+    assert first[0].endswith("…") and names[0].startswith(first[0][:-1]) and len(first[0]) >= 8, said
+    assert second[0] == "neck", said
+    assert not any("…" in cell for row in (first[1:], second[1:]) for cell in row), said
 
 
 def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_status_line_complete() -> None:

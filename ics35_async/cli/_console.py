@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 from typing import Any, NoReturn
 
 import click
-from rich.cells import cell_len
+from rich.cells import cell_len, set_cell_size
 from rich.console import Console, ConsoleOptions, Group, RenderableType, RenderResult
 from rich.file_proxy import FileProxy
 from rich.live import Live
@@ -96,9 +96,11 @@ class FittedTable:
     terminal by cutting every column's values short ("right…" for any of five joints, "+2…" for a position of
     +23.5), each then reading as another's or as nothing.  Here a table too wide loses its edges (the blank
     lines and columns around it), then the columns ``leave_out`` names in turn until the rest fits (those left
-    out named under the table), then its first column's values (names) wrap after their underscores, and only
-    then (on a terminal narrower still) do the values give way.  The table's columns that may wrap (words) do;
-    the others should be ``no_wrap``, or rich cuts them before this does anything."""
+    out named under the table), then its first column's values (names) wrap after their underscores and hyphens,
+    then a part of a name still too wide is cut with an ellipsis (down to :data:`SHORTEST_CUT_NAME` cells: the
+    ellipsis says it is cut, where a value cut reads as another), and only then (on a terminal narrower still) do
+    the values give way.  The table's columns that may wrap (words) do; the others should be ``no_wrap``, or rich
+    cuts them before this does anything."""
 
     def __init__(self, table: Table, leave_out: Sequence[str]) -> None:
         self.table = table
@@ -128,10 +130,10 @@ class FittedTable:
         if (over := excess(left_out)) > 0 and self.table.columns:
             names = [str(cell) for cell in self.table.columns[0].cells]
             longest = max(map(cell_len, names), default=0)
-            # (Not narrower than a name's longest part: a name folded mid-word, as much as a value cut short, reads
-            # as another; on a terminal narrower still, rich cuts the values.)
+            # (A part cut no shorter than SHORTEST_CUT_NAME, nor a part as short as that at all: an ID's number
+            # is never cut; on a terminal narrower still, rich cuts the values.)
             parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
-            names_width = max(parts, longest - over)
+            names_width = max(min(parts, SHORTEST_CUT_NAME), longest - over)
         yield _narrowed(self.table, left_out, names_width)
 
 
@@ -155,7 +157,7 @@ def _narrowed(
     table: Table, left_out: Sequence[str] | None, names_width: int | None, rows: Sequence[int] | None = None
 ) -> Table:
     """``table`` without its edges and the columns ``left_out`` (named in its caption), or as it is with ``None``;
-    ``names_width``: its first column's values wrapped after their underscores at that width; ``rows``: only
+    ``names_width``: its first column's values wrapped at that width (:func:`_wrapped_name`); ``rows``: only
     those rows."""
     kept = range(len(table.rows)) if rows is None else rows
     narrowed = copy.copy(table)
@@ -166,10 +168,7 @@ def _narrowed(
         every = list(column.cells)
         cells = [every[k] for k in kept]
         if names_width is not None and not narrowed.columns:
-            cells = [
-                "\n".join(_wrapped_after_underscores(cell, names_width)) if isinstance(cell, str) else cell
-                for cell in cells
-            ]
+            cells = [_wrapped_name(cell, names_width) if isinstance(cell, str) else cell for cell in cells]
         narrowed.columns.append(replace(column, _index=len(narrowed.columns), _cells=cells))
     if left_out is not None:
         narrowed.show_edge = False
@@ -180,21 +179,26 @@ def _narrowed(
     return narrowed
 
 
+# The fewest cells a name in a table's first column is cut to (with its ellipsis) where it does not fit whole:
+# fewer say too little of which it is; a value cut then instead (rich's) says so with its own ellipsis.
+SHORTEST_CUT_NAME = 8
+
+
 def _name_parts(name: str) -> list[str]:
-    """``name`` broken after its underscores: ``right_``, ``shoulder_``, ``pitch``."""
-    return re.split(r"(?<=_)", name)
+    """``name`` broken after its underscores and hyphens: ``right_``, ``shoulder-``, ``pitch``."""
+    return re.split(r"(?<=[_-])", name)
 
 
-def _wrapped_after_underscores(name: str, width: int) -> list[str]:
-    """``name`` in lines of ``width`` cells at most where its parts fit, broken after its underscores
-    (``right_shoulder_`` / ``pitch``)."""
+def _wrapped_name(name: str, width: int) -> str:
+    """``name`` in lines of ``width`` cells at most, broken after its underscores and hyphens
+    (``right_shoulder_`` / ``pitch``); a part wider than ``width`` by itself cut with an ellipsis there."""
     lines: list[str] = []
     for part in _name_parts(name):
         if lines and cell_len(lines[-1]) + cell_len(part) <= width:
             lines[-1] += part
         else:
-            lines.append(part)
-    return lines
+            lines.append(part if cell_len(part) <= width else set_cell_size(part, width - 1) + "…")
+    return "\n".join(lines)
 
 
 def _cut_at_width(text: Text) -> Text:

@@ -117,6 +117,7 @@ def typed_on_a_terminal(
     timeout: float = 60,
     stdout: Path | None = None,
     columns: int = 120,
+    rows: int = 40,
     env: dict[str, str] | None = None,
     script: str | None = None,
 ) -> tuple[int, str]:
@@ -125,8 +126,8 @@ def typed_on_a_terminal(
     a shell runs it: for each ``(when, key)`` it waits until ``when`` (a phrase) is on the screen, or for
     ``when`` seconds (an :class:`Unread`'s reading nothing), or until ``when()`` is true (e.g. a line in the
     ``stdout`` file), then types ``key`` (``b"\\x03"`` is Ctrl-C: the terminal echoes ``^C`` and sends SIGINT).
-    ``stdout``: a file for stdout instead (``ics35 ... > FILE``); ``columns``: the terminal's width; ``env``: more
-    environment variables.  Returns the exit code and everything written to the terminal."""
+    ``stdout``: a file for stdout instead (``ics35 ... > FILE``); ``columns`` and ``rows``: the terminal's width and
+    height; ``env``: more environment variables.  Returns the exit code and everything written to the terminal."""
     import fcntl
     import struct
     import subprocess
@@ -135,7 +136,7 @@ def typed_on_a_terminal(
     import time
 
     master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, columns, 0, 0))
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, columns, 0, 0))
 
     def own_terminal() -> None:
         os.setsid()
