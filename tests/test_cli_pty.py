@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from ics35_async.robot import load_description
 from ics35_async.sim import serving
 from tests.support.cli_runs import PRESS_AT_A_CALL, run_process
 from tests.support.terminal import TerminalOutput, Unread, screen_of, typed_on_a_terminal
@@ -1450,6 +1451,54 @@ def test_keys_typed_on_a_narrow_terminal_leave_monitors_view_whole_and_its_statu
     # (its last words "errors N": the count is the machine's load, a realtime simulator's replies late under it)
     assert status[-2] == "errors" and status[-1].isdigit() and "answering" in status, said
     assert "Ctrl-C to stop" in " ".join(written.split()), said  # (the hint, as the view ran: wrapped, not cut)
+
+
+def view_drawn_last(written: str, columns: int, title: str) -> list[str]:
+    """The lines of the last live view drawn whole before the first Ctrl-C was typed (its ``^C`` echoed, maybe in
+    the middle of a redraw), from its title's first line (starting with ``title``) on, up to its last line."""
+    before = written[: written.index("^C")]
+    redraw = before.rindex("\r\x1b[2K\x1b[1A")  # (the redraw under way: it goes back up over the view)
+    screen = screen_of(before[:redraw], width=columns)
+    top = max(k for k, line in enumerate(screen) if line.startswith(title))
+    end = max(k for k, line in enumerate(screen) if line)
+    return screen[top : end + 1]
+
+
+@pytest.mark.parametrize("command", ["calibrate", "monitor", "demo"])
+def test_a_live_view_taller_than_the_terminal_cuts_its_table_and_keeps_its_status_line(
+    tmp_path: Path, command: str
+) -> None:
+    # A humanoid's 17 joints (20 servos for monitor and demo) on a terminal of 16 rows: rich cut the view's bottom
+    # lines ("..." in their place), the status line that says what is happening and how to stop among them; or,
+    # where it let the view run past the terminal's top (monitor, demo), each redraw left its title once more
+    # above.  The table loses its last rows for a line saying how many more there are; the status line stays.
+    columns, rows = 80, 16
+    if command == "calibrate":
+        robot = tmp_path / "humanoid.toml"
+        robot.write_text((EXAMPLES / "humanoid.toml").read_text())
+        names = list(load_description(robot).joints)
+        args, title, status, noun = ["calibrate", str(robot)], "calibrate:", "step 1/2", "joints"
+    else:
+        names = [str(sid) for sid in range(1, 21)]
+        args = ["--port", "sim://?ids=1-20&realtime=1", command, *(["1-20", "--free"] if command == "monitor" else [])]
+        title, status, noun = command, "Ctrl-C to stop", "servos"
+    keys = [(title, b""), (scaled(1.5), b"\x03")]
+    code, written = typed_on_a_terminal(args, keys, columns=columns, rows=rows)
+    assert code == (130 if command == "calibrate" else 0), "\n".join(screen_of(written, width=columns))
+    assert "Traceback" not in written, "\n".join(screen_of(written, width=columns))
+    view = view_drawn_last(written, columns, title)
+    said = "\n".join(view)
+    assert len(view) < rows, said  # (and the cursor resting on the line below)
+    assert status in " ".join(" ".join(view[-3:]).split()), said
+    more = [(k, int(m[1])) for k, line in enumerate(view) if (m := re.match(rf"… (\d+) more {noun}\b", line))]
+    assert len(more) == 1, said
+    cut, hidden = more[0]
+    # The rows shown, each starting with its name (monitor's and demo's: an ID, in each half of a row of two).
+    firsts = [half.split()[0] for line in view[:cut] for half in line.split("│") if half.strip()]
+    shown = [first for first in firsts if first in names]
+    assert shown and len(shown) + hidden == len(names), said
+    # (its last drawing, once it stops, is the whole table: the terminal scrolls and keeps it)
+    assert all(name in written[written.index("^C") :] for name in names[-2:]), said
 
 
 @pytest.mark.parametrize("columns", [120, 50, 40, 30])

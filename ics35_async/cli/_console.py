@@ -75,20 +75,79 @@ class TitleInParts:
         return " ".join(self.parts)
 
 
-def title_above(table: Table | FittedTable, in_parts: TitleInParts | None = None) -> Group:
-    """``table`` for a live view: its title taken off it and drawn on a line of its own above it, cut with an
-    ellipsis at the terminal's width where it is wider (``in_parts``: the title in parts, see
-    :class:`TitleInParts`).  A table's own title is laid out at the table's width, often narrower than the
-    title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with nothing to say so (a
-    port's or a file's name cut short reads as another's).  (A table printed whole, into a log, keeps its
-    title.)"""
-    inner = table.table if isinstance(table, FittedTable) else table
-    title, inner.title = inner.title, None
-    if in_parts is not None:
-        return Group(_TitleLines(in_parts), table)
-    if title is None:
-        return Group(table)
-    return Group(_cut_at_width(Text.from_markup(title) if isinstance(title, str) else title), table)
+class LiveTable:
+    """A live view: ``table`` fitted to the terminal's width (a :class:`FittedTable`, leaving out ``leave_out``'s
+    columns in turn), its title on lines of its own above it (``title``: in parts, see :class:`TitleInParts`; else
+    the table's own, cut with an ellipsis at the terminal's width), and ``below`` (a status line, a note) under
+    it, all within the height it is drawn at (a live view's: the terminal's rows, see :class:`_Drawn`).  Where
+    they do not fit, the table loses its last rows for a line saying how many more ``noun`` there are: rich cut
+    the view's last lines, the status line (what is happening, how to stop) among them, or let it run past the
+    terminal's top (each redraw then left its title on the screen once more).
+
+    The title goes above the table, not in it: a table's own title is laid out at the table's width, often
+    narrower than the title, and as the consoles soft-wrap, rich cuts it at the terminal's last column with
+    nothing to say so (a port's or a file's name cut short reads as another's).  (A table printed whole, into a
+    log, keeps its title.)"""
+
+    def __init__(
+        self,
+        table: Table,
+        title: TitleInParts | None,
+        below: Sequence[RenderableType],
+        *,
+        leave_out: Sequence[str] = (),
+        noun: str = "rows",
+    ) -> None:
+        self.table = table
+        self.title = title
+        self.below = below
+        self.leave_out = leave_out
+        self.noun = noun
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        title, self.table.title = self.table.title, None
+        above: list[RenderableType] = []
+        if self.title is not None:
+            above.append(_TitleLines(self.title))
+        elif title is not None:
+            above.append(_cut_at_width(Text.from_markup(title) if isinstance(title, str) else title))
+
+        def lines(*renderables: RenderableType) -> list[list[Segment]]:
+            return console.render_lines(Group(*renderables), options, pad=False) if renderables else []
+
+        head, tail = lines(*above), lines(*self.below)
+        room = options.max_height - len(head) - len(tail)
+        fitted = FittedTable(self.table, self.leave_out).fitted(console, options)
+        body = lines(fitted)
+        kept = len(fitted.rows)
+        while len(body) > room and kept > 0:
+            # (A row is a line at least: as many rows off as lines too many, and one more for the line saying so
+            # the first time; a row of wrapped names is more, which the next turn sees.)
+            kept = max(0, kept - (len(body) - room) - (kept == len(fitted.rows)))
+            body = lines(_first_rows(fitted, kept, self.noun))
+        for line in [*head, *body, *tail]:
+            yield from line
+            yield Segment.line()
+
+
+def _first_rows(table: Table, kept: int, noun: str) -> Table:
+    """``table``'s first ``kept`` rows, a line under them saying how many ``noun`` the others hold (the values in
+    the columns named as its first one: two a row in monitor's table of many servos)."""
+    first = str(table.columns[0].header) if table.columns else ""
+    hidden = sum(
+        1
+        for column in table.columns
+        if str(column.header) == first
+        for cell in list(column.cells)[kept:]
+        if (cell.plain if isinstance(cell, Text) else str(cell)).strip()
+    )
+    cut = _narrowed(table, None, None, range(kept))
+    more = Text(f"… {hidden} more {noun}: a taller terminal shows them")
+    if table.caption is not None:  # (the columns left out, named under it)
+        more.append("\n").append(table.caption)
+    cut.caption = wrapped_at_width(more)
+    cut.caption_justify, cut.caption_style = "left", "dim"
+    return cut
 
 
 class FittedTable:
@@ -107,6 +166,10 @@ class FittedTable:
         self.leave_out = leave_out
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        yield self.fitted(console, options)
+
+    def fitted(self, console: Console, options: ConsoleOptions) -> Table:
+        """The table as drawn at ``options``' width: itself where it fits, else narrowed."""
         width = options.max_width
         unlimited = options.update_width(1_000_000)
         # Measured on the rows holding each column's widest value alone: as wide as the whole table, measured in a
@@ -118,8 +181,7 @@ class FittedTable:
             return Measurement.get(console, unlimited, narrowed).minimum - width
 
         if excess(None) <= 0:
-            yield self.table
-            return
+            return self.table
         headers = [str(column.header) for column in self.table.columns]
         left_out: list[str] = []
         for header in (header for header in self.leave_out if header in headers):
@@ -134,7 +196,7 @@ class FittedTable:
             # is never cut; on a terminal narrower still, rich cuts the values.)
             parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
             names_width = max(min(parts, SHORTEST_CUT_NAME), longest - over)
-        yield _narrowed(self.table, left_out, names_width)
+        return _narrowed(self.table, left_out, names_width)
 
 
 def _widest_rows(table: Table) -> list[int]:
@@ -228,14 +290,18 @@ class _TitleLines:
 
 
 class _Drawn:
-    """What a live view draws of ``renderable``: with ``resting``, an empty line below it (see :class:`_LiveView`)."""
+    """What a live view draws of ``renderable``: with ``resting``, an empty line below it (see :class:`_LiveView`),
+    ``renderable`` drawn within the terminal's rows but that one (a :class:`LiveTable`); without (its last
+    drawing, as it stops), whole: the terminal scrolls, and keeps what went past its top."""
 
     def __init__(self, renderable: RenderableType, *, resting: bool) -> None:
         self.renderable = renderable
         self.resting = resting
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
-        yield self.renderable
+        within = options.copy()
+        within.max_height = options.max_height - 1 if self.resting else sys.maxsize
+        yield from console.render(self.renderable, within)
         if self.resting:
             yield Segment.line()
 

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import click
-from rich.console import Group
 from rich.markup import escape
 from rich.text import Text
 
@@ -42,7 +41,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import ids_argument, live_view, scan_progress, title_above, wrapped_at_width
+from ._console import LiveTable, ids_argument, live_view, scan_progress, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -106,7 +105,7 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            live.update(Group(title_above(state.table(telemetry, options.with_targets), state.title), status))
+            live.update(LiveTable(state.table(telemetry, options.with_targets), state.title, [status], noun="servos"))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))

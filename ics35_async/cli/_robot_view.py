@@ -15,7 +15,6 @@ from types import TracebackType
 
 from rich import box
 from rich.cells import cell_len
-from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
@@ -24,7 +23,7 @@ from ..robot import JointSpec, Robot, RobotFrame
 from ..robot.description import SERVO_DEGREES
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import FittedTable, TitleInParts, live_view, signed_tenths, title_above, wrapped_at_width
+from ._console import FittedTable, LiveTable, TitleInParts, live_view, signed_tenths, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 # The columns a terminal too narrow for the whole table goes without, in turn: the servo behind each joint (the
@@ -162,13 +161,10 @@ class Screen:
             out.file.write(f"\x1b[{rows}A")
             out.file.flush()
 
-    def _lines(self, hint: str) -> Group:
+    def _lines(self, hint: str) -> LiveTable:
         said = [wrapped_at_width(Text.from_markup(self._said))] if self._said else []
-        return Group(
-            title_above(FittedTable(self.render(), LEAVE_OUT), self.title),
-            *said,
-            wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip())),
-        )
+        status = wrapped_at_width(Text(f"{self.summary()}   {hint}".rstrip()))
+        return LiveTable(self.render(), self.title, [*said, status], leave_out=LEAVE_OUT, noun="joints")
 
     def __enter__(self) -> Screen:
         if self._live is not None:

@@ -150,7 +150,7 @@ def typed_on_a_terminal(
         stdout=slave if output is None else output,
         stderr=slave,
         preexec_fn=own_terminal,
-        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns), **(env or {})},
+        env={**os.environ, "TERM": "xterm", "COLUMNS": str(columns), "LINES": str(rows), **(env or {})},
     )
     os.close(slave)
     screen = TerminalOutput(master)
