@@ -398,6 +398,27 @@ def test_a_reader_that_leaves_the_pipe_ends_monitor_quietly(json_lines: bool) ->
     assert "closed sim://" in err, err
 
 
+@pytest.mark.parametrize("command", [["monitor", "1-20", "--free"], ["demo", "--ids", "1-20"]], ids=["monitor", "demo"])
+def test_a_live_commands_table_into_a_log_is_printed_whole_whatever_columns_says(command: list[str]) -> None:
+    # `COLUMNS=50 ics35 monitor 1-20 | tee log`: the table at the end was laid out at 50 columns, every value cut
+    # ("7…", "+…").  A log is read later, in a wider window or a file: the whole table goes in it.
+    proc = subprocess.run(
+        [sys.executable, "-m", "ics35_async.cli", "--port", "sim://?ids=1-20", *command, "--seconds", "1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "50"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    header = next(line for line in lines if line.split()[:1] == ["ID"])
+    half = ["ID", "target°" if command[0] == "demo" else "pos", "pos°", "cur", "temp", "err"]
+    assert header.split() == [*half, "│", *half], proc.stdout
+    rows = [line for line in lines if re.match(r" *\d+ ", line)]
+    assert len(rows) == 10 and not any("…" in line for line in rows), proc.stdout
+    assert all(len(line.split()) == 13 for line in rows), proc.stdout
+
+
 @pytest.mark.parametrize("command", [["monitor", "1-4", "--free"], ["demo", "--ids", "1-4"]], ids=["monitor", "demo"])
 def test_a_live_command_into_a_pipe_reads_in_the_order_things_happened(command: list[str]) -> None:
     # `ics35 monitor 1-4 2>&1 | cat`: its "t=" lines came first, its title only with the table at the end, and the

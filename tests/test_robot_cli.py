@@ -2070,3 +2070,20 @@ def test_play_with_a_line_lost_as_the_robot_opens_says_what_the_open_left(
     said = " ".join(result.err.split())
     assert "lost" in said and "the motion stopped there" not in said and "last targets" not in said, said
     assert "the port was lost as the robot opened: " in said, said
+
+
+def test_calibrates_table_into_a_log_is_printed_whole(cli_process: Any, tmp_path: Path) -> None:
+    # `ics35 calibrate robot.toml | tee log` (or CI): the table printed at the end was fitted to 80 columns, as on a
+    # terminal of 80, the joints' line:ID left out.  A log is read later, in a wider window or a file: every
+    # column is in it, as monitor's.
+    robot = tmp_path / "humanoid.toml"
+    robot.write_text((EXAMPLES / "humanoid.toml").read_text())
+    proc = cli_process("calibrate", str(robot), stdin="\n\n", columns=80)
+    assert "columns left out" not in proc.stdout, proc.stdout
+    lines = proc.stdout.splitlines()
+    header = next(line for line in lines if line.split()[:1] == ["joint"])
+    assert header.split() == ["joint", "line:ID", "target°", "pos°", "temp", "cur", "state", "offset°", "min°", "max°"]
+    joints = load_description(robot).joints
+    rows = {cells[0]: cells for cells in map(str.split, lines) if cells[:1] and cells[0] in joints}
+    assert len(rows) == 17 and all(len(cells) == 10 for cells in rows.values()), proc.stdout
+    assert rows["left_ankle_roll"][1] == "legs:10", proc.stdout

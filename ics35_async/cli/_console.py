@@ -19,6 +19,7 @@ from rich.file_proxy import FileProxy
 from rich.live import Live
 from rich.markup import escape
 from rich.measure import Measurement
+from rich.padding import Padding
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.segment import Segment
 from rich.table import Table
@@ -150,6 +151,29 @@ def _first_rows(table: Table, kept: int, noun: str) -> Table:
     return cut
 
 
+def printed_table(table: Table, leave_out: Sequence[str] = (), *, indent: int = 0) -> RenderableType:
+    """``table`` to print on stdout, ``indent`` spaces in.  On a terminal, fitted to its width (a
+    :class:`FittedTable`, leaving out ``leave_out``'s columns in turn); into a log (a pipe, a file, CI), whole at its
+    own width, whatever the terminal's or ``COLUMNS``: a log is read later, in a wider window or an editor, where
+    a column left out or a value cut to fit is lost for good."""
+    if out.is_terminal:
+        return Padding(FittedTable(table, leave_out), (0, 0, 0, indent), expand=False)
+    return _AtItsOwnWidth(Padding(table, (0, 0, 0, indent), expand=False))
+
+
+class _AtItsOwnWidth:
+    """``renderable`` drawn as wide as it is, whatever the console's width."""
+
+    def __init__(self, renderable: RenderableType) -> None:
+        self.renderable = renderable
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        yield from console.render(self.renderable, options.update_width(_UNLIMITED))
+
+
+_UNLIMITED = 1_000_000  # cells: a width no table reaches
+
+
 class FittedTable:
     """``table`` drawn at the width it is given with each of its values whole.  rich fits a table wider than the
     terminal by cutting every column's values short ("right…" for any of five joints, "+2…" for a position of
@@ -171,7 +195,7 @@ class FittedTable:
     def fitted(self, console: Console, options: ConsoleOptions) -> Table:
         """The table as drawn at ``options``' width: itself where it fits, else narrowed."""
         width = options.max_width
-        unlimited = options.update_width(1_000_000)
+        unlimited = options.update_width(_UNLIMITED)
         # Measured on the rows holding each column's widest value alone: as wide as the whole table, measured in a
         # fraction of its time (a live view draws it ten times a second, on the loop that streams).
         widest = _widest_rows(self.table)

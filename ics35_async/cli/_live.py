@@ -41,7 +41,7 @@ from ._common import (
     none_of_them_answered,
     out,
 )
-from ._console import LiveTable, ids_argument, live_view, scan_progress, wrapped_at_width
+from ._console import LiveTable, ids_argument, live_view, printed_table, scan_progress, wrapped_at_width
 from ._live_view import LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
@@ -405,7 +405,7 @@ def final_report(
         recorder.write(options.plot, plot_title)
         err.print(f"plot written to {escape(options.plot)}")
     if not options.as_json and not out.is_terminal:
-        out.print(state.table(telemetry, options.with_targets))
+        out.print(printed_table(state.table(telemetry, options.with_targets)))
         out.print(state.summary(telemetry))
     # Stopped by Ctrl-C before any cycle ended, nothing is known of the servos: no error for that.
     asked = state.cycle > 0 or not state.stopped_by_signal

@@ -1,8 +1,8 @@
 """The live joint table of play, teach and calibrate.
 
 On a terminal it redraws in place (rich Live) ten times a second; anywhere
-else (CI, pipes) a one-line summary is printed every second and the table
-once at the end, so logs stay readable.
+else (CI, pipes) a one-line summary is printed every second and the whole
+table once at the end, so logs stay readable.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from ..robot import JointSpec, Robot, RobotFrame
 from ..robot.description import SERVO_DEGREES
 from ..terminal import clear_echoed_ctrl_c
 from ._common import err, out
-from ._console import FittedTable, LiveTable, TitleInParts, live_view, signed_tenths, wrapped_at_width
+from ._console import LiveTable, TitleInParts, live_view, printed_table, signed_tenths, wrapped_at_width
 
 Extra = Callable[[str], Sequence[str]]
 # The columns a terminal too narrow for the whole table goes without, in turn: the servo behind each joint (the
@@ -190,5 +190,5 @@ class Screen:
             self._live.refresh()
             self._live.stop()
         else:
-            out.print(FittedTable(self.render(), LEAVE_OUT))
+            out.print(printed_table(self.render()))
             out.print(self.summary())

@@ -66,15 +66,18 @@ def run_in_process(
     return result
 
 
-def run_process(*args: str, stdin: str = "", timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    """``python -m ics35_async.cli ARGS...`` as a user's shell runs it (100 columns); a traceback fails the test."""
+def run_process(
+    *args: str, stdin: str = "", timeout: float = 60, columns: int = 100
+) -> subprocess.CompletedProcess[str]:
+    """``python -m ics35_async.cli ARGS...`` as a user's shell runs it (``COLUMNS``: 100); a traceback fails the
+    test."""
     proc = subprocess.run(
         [sys.executable, "-m", "ics35_async.cli", *args],
         input=stdin,
         capture_output=True,
         text=True,
         timeout=timeout,
-        env={**os.environ, "COLUMNS": "100"},
+        env={**os.environ, "COLUMNS": str(columns)},
     )
     assert "Traceback" not in proc.stderr, proc.stderr
     return proc
