@@ -1501,6 +1501,25 @@ def test_a_live_view_taller_than_the_terminal_cuts_its_table_and_keeps_its_statu
     assert all(name in written[written.index("^C") :] for name in names[-2:]), said
 
 
+@pytest.mark.parametrize("command", ["monitor", "demo"])
+def test_a_live_table_of_many_servos_on_a_narrow_terminal_keeps_every_value_whole(command: str) -> None:
+    # Past 16 servos the table shows two a row, 65 columns and more: at 50 rich cut every value to fit ("7…" for a
+    # position of 7500, "+…" for an angle).  As the robot commands' table: columns are left out in turn (in both
+    # halves, named under the table), the values left whole.
+    columns = 50
+    args = ["--port", "sim://?ids=1-20&realtime=1", command, *(["1-20", "--free"] if command == "monitor" else [])]
+    code, written = typed_on_a_terminal(args, [("Ctrl-C", b""), (scaled(0.5), b"\x03")], columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert code == 0 and "Traceback" not in written, said
+    rows = joint_rows(screen)
+    assert len(rows) == 10 and not any("…" in line for line in rows), said
+    assert all(len(line) <= columns for line in rows), said
+    header = screen[screen.index(rows[0]) - 2].split()
+    assert header[:2] == ["ID", "target°" if command == "demo" else "pos°"] and header.count("ID") == 2, said
+    assert [line.split("│")[1].split()[0] for line in rows] == [str(sid) for sid in range(11, 21)], said
+
+
 @pytest.mark.parametrize("columns", [120, 50, 40, 30])
 def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_and_its_rate(columns: int) -> None:
     # The title is wider than the table below it: it is drawn at the terminal's width, not the table's.  On a

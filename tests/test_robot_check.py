@@ -10,7 +10,10 @@ import pytest
 
 from ics35_async.cli import ExitCode
 from ics35_async.errors import InvalidArgument
+from ics35_async.robot import load_description
 from ics35_async.sim import open_url
+from tests.support.cli_runs import run_process
+from tests.support.terminal import screen_of, typed_on_a_terminal
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -205,3 +208,40 @@ def test_a_motion_file_missing_or_broken_is_said_so_not_that_it_does_not_fit(cli
     result = cli("check", str(robot), str(missing))
     assert result.code == ExitCode.USAGE, result.err
     assert "1 of 1 motion was not found" in " ".join(result.err.split()), result.err
+
+
+def check_table_rows(lines: list[str]) -> list[str]:
+    """The lines of check's joint table among ``lines``: below its header, up to the line naming the columns left
+    out or the safety's."""
+    top = next(k for k, line in enumerate(lines) if line.split()[:1] == ["joint"])
+    end = next(k for k in range(top + 1, len(lines)) if lines[k].lstrip().startswith(("columns left out", "safety:")))
+    return lines[top + 1 : end]
+
+
+def test_the_joint_table_on_a_narrow_terminal_keeps_every_value_whole() -> None:
+    # At 50 columns rich fitted the table by cutting every column's values: "right_s…" for any of four joints,
+    # "revers…", "offse…".  As the live views' table: the joints' line left out (named under the table), then
+    # long names wrapped after an underscore.
+    columns = 50
+    humanoid = load_description(EXAMPLES / "humanoid.toml")
+    code, written = typed_on_a_terminal(["check", str(EXAMPLES / "humanoid.toml")], [], columns=columns)
+    screen = [line for line in screen_of(written, width=columns) if line]
+    said = "\n".join(screen)
+    assert code == 0 and "Traceback" not in written, said
+    rows = check_table_rows(screen)
+    assert not any("…" in line for line in rows) and all(len(line) <= columns for line in rows), said
+    assert "".join(line.split()[0] for line in rows) == "".join(humanoid.joints), said
+    reversed_ = sum(joint.reverse for joint in humanoid.joints.values())
+    assert sum(line.split().count("reversed") for line in rows) == reversed_, said
+    assert "  columns left out: line" in screen, said
+
+
+def test_the_joint_table_into_a_log_is_printed_whole() -> None:
+    # (`COLUMNS=50 ics35 check robot.toml > log`: as the live commands' logs, the whole table at its own width)
+    proc = run_process("check", str(EXAMPLES / "humanoid.toml"), columns=50)
+    assert proc.returncode == 0, proc.stderr
+    rows = check_table_rows(proc.stdout.splitlines())
+    assert not any("…" in line for line in rows) and "columns left out" not in proc.stdout, proc.stdout
+    joints = load_description(EXAMPLES / "humanoid.toml").joints
+    assert [line.split()[0] for line in rows] == list(joints), proc.stdout
+    assert [line.split()[1:3] for line in rows] == [[joint.line, str(joint.id)] for joint in joints.values()], rows

@@ -42,7 +42,7 @@ from ._common import (
     out,
 )
 from ._console import LiveTable, ids_argument, live_view, printed_table, scan_progress, wrapped_at_width
-from ._live_view import LiveState
+from ._live_view import LEAVE_OUT, LiveState
 from ._plot import Recorder, check_plot_path
 from ._runner import line_error
 from ._settings import stream_warnings_said
@@ -105,7 +105,8 @@ async def run_live(
         elif live is not None:
             hint = "" if final else hint
             status = wrapped_at_width(Text(state.summary(telemetry) + hint))
-            live.update(LiveTable(state.table(telemetry, options.with_targets), state.title, [status], noun="servos"))
+            table = state.table(telemetry, options.with_targets)
+            live.update(LiveTable(table, state.title, [status], leave_out=LEAVE_OUT, noun="servos"))
             live.refresh()
         elif not final:
             out.print(state.summary(telemetry))

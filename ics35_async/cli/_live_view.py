@@ -17,6 +17,11 @@ from ..stream import Stream
 from ._console import TitleInParts, current_json, signed_tenths, temperature_json
 from ._telemetry import Telemetry
 
+# The columns a terminal too narrow for the whole table goes without, in turn (from both halves of a row of two
+# servos): the raw position (its angle stays), then the telemetry (a servo's trouble shows in its err), then
+# demo's target.  The ID, its angle and its errors stay.
+LEAVE_OUT = ("pos", "cur", "temp", "target°")
+
 
 @dataclass
 class LiveState:

@@ -12,17 +12,19 @@ from typing import Any, TypeVar
 
 import click
 from rich.markup import escape
-from rich.padding import Padding
 from rich.table import Table
 
 from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
 from ._common import CliError, ExitCode, emit_json, id_ranges, json_option, out
-from ._console import say_error
+from ._console import printed_table, say_error
 from ._robot_common import MOTION_FILE_PROBLEMS, MotionFileError, load_motion_file, load_robot_file
 
 Refused = TypeVar("Refused", bound=CliError)
+
+# The column of the joint table a terminal too narrow for it goes without: each line's IDs are named above it.
+LEAVE_OUT = ("line",)
 
 # What a safety trip does, by [safety] action (see the robot-files page).
 TRIP_DOES = {
@@ -110,11 +112,12 @@ def show_robot(path: str, description: RobotDescription) -> None:
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
         ids = id_ranges(joint.id for joint in description.joints_on(line.name))
         out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, IDs {ids}")
+    # (no value wraps: a terminal too narrow leaves the line out, then wraps the names: see FittedTable)
     table = Table(box=None, pad_edge=False)
     for heading in ("joint", "line", "ID", "reverse"):
-        table.add_column(heading)
+        table.add_column(heading, no_wrap=True)
     for heading in ("offset°", "min°", "max°"):  # (numbers to the right: their rows end where the table does)
-        table.add_column(heading, justify="right")
+        table.add_column(heading, justify="right", no_wrap=True)
     for joint in joints.values():
         table.add_row(
             escape(joint.name),
@@ -125,7 +128,7 @@ def show_robot(path: str, description: RobotDescription) -> None:
             shown(joint.min),
             shown(joint.max),
         )
-    out.print(Padding(table, (0, 0, 0, 2), expand=False))
+    out.print(printed_table(table, LEAVE_OUT, indent=2))
     whole = [joint.name for joint in joints.values() if _whole_travel(joint)]
     if whole:
         out.print(
