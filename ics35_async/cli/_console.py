@@ -99,32 +99,30 @@ class LiveTable:
         leave_out: Sequence[str] = (),
         noun: str = "rows",
     ) -> None:
+        own, table.title = table.title, None
         self.table = table
-        self.title = title
+        self.above: list[RenderableType] = []
+        if title is not None:
+            self.above.append(_TitleLines(title))
+        elif own is not None:
+            self.above.append(_cut_at_width(Text.from_markup(own) if isinstance(own, str) else own))
         self.below = below
         self.leave_out = leave_out
         self.noun = noun
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
-        title, self.table.title = self.table.title, None
-        above: list[RenderableType] = []
-        if self.title is not None:
-            above.append(_TitleLines(self.title))
-        elif title is not None:
-            above.append(_cut_at_width(Text.from_markup(title) if isinstance(title, str) else title))
-
         def lines(*renderables: RenderableType) -> list[list[Segment]]:
             return console.render_lines(Group(*renderables), options, pad=False) if renderables else []
 
-        head, tail = lines(*above), lines(*self.below)
+        head, tail = lines(*self.above), lines(*self.below)
         room = options.max_height - len(head) - len(tail)
         fitted = FittedTable(self.table, self.leave_out).fitted(console, options)
         body = lines(fitted)
-        kept = len(fitted.rows)
+        kept = every = len(fitted.rows)
         while len(body) > room and kept > 0:
             # (A row is a line at least: as many rows off as lines too many, and one more for the line saying so
             # the first time; a row of wrapped names is more, which the next turn sees.)
-            kept = max(0, kept - (len(body) - room) - (kept == len(fitted.rows)))
+            kept = max(0, kept - (len(body) - room) - (1 if kept == every else 0))
             body = lines(_first_rows(fitted, kept, self.noun))
         for line in [*head, *body, *tail]:
             yield from line
