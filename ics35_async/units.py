@@ -144,6 +144,12 @@ def unknown_options(what: str, unknown: Iterable[str], known: Iterable[str], mea
     return f"unknown {what} option(s): {', '.join(told)}"
 
 
+def plain_count(text: str) -> int | None:
+    """``text`` as a whole number written in plain digits (``"12"``), else None: int() also reads ``"1_2"`` (12:
+    a ``"1-2"`` mistyped), ``"+3"`` and other scripts' digits."""
+    return int(text) if text.isascii() and text.isdigit() else None
+
+
 def parse_ids(text: str) -> list[int]:
     """``text`` such as ``"0-31"``, ``"1,3,5-7"`` or ``"1 2 5-7"`` -> the sorted unique IDs it names (none for ``""``).
 
@@ -155,11 +161,10 @@ def parse_ids(text: str) -> list[int]:
         if not part:
             continue
         low_text, dash, high_text = part.partition("-")
-        try:
-            low = int(low_text)
-            high = int(high_text) if dash else low
-        except ValueError:
-            raise InvalidArgument(f"{part!r} is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7)") from None
+        low = plain_count(low_text)
+        high = plain_count(high_text) if dash else low
+        if low is None or high is None:
+            raise InvalidArgument(f"{part!r} is not an ID or a range of IDs (write e.g. 3, 1-12 or 0,4,7)")
         if low > high:
             raise InvalidArgument(f"the range {part!r} runs backwards")
         if not 0 <= low <= high <= 31:

@@ -50,6 +50,9 @@ from tests.support.sim_servos import CtrlCWhenAsked, UnplugsWhenAsked
         ["set", "1", "current", "10"],
         ["free", "1-40"],
         ["info", "abc"],
+        ["info", "1_0"],  # (int() reads 10: a "1-0"... mistyped, never an ID)
+        ["free", "1_3"],
+        ["monitor", "1_3"],
         ["eeprom", "set", "1", "colour=3"],
         ["eeprom", "set", "1", "speed=300"],
         ["eeprom", "set", "1", "stretch_gain=61"],

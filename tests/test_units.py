@@ -248,7 +248,8 @@ def test_id_lists_are_parsed_in_one_place_for_the_cli_and_the_simulator() -> Non
     assert sim_parse_ids is parse_ids
     assert parse_ids("5-7, 1 3,1") == [1, 3, 5, 6, 7] and parse_ids("2 - 4") == [2, 3, 4] and parse_ids("") == []
     assert parse_id_list("all") == list(range(32)) and parse_id_list("0,31") == [0, 31]
-    for bad in ("3-1", "x", "31-32", "-1", "1-"):
+    # (Python's int() reads "1_3" as 13, a "1-3" mistyped: a line of servo 13 for one of three)
+    for bad in ("3-1", "x", "31-32", "-1", "1-", "1_3", "+3", "1-+3", "\u0663"):
         with pytest.raises(InvalidArgument):
             parse_ids(bad)
     with pytest.raises(InvalidArgument, match="no IDs"):

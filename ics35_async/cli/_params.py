@@ -13,7 +13,7 @@ from ..eeprom import BaudRate
 from ..errors import InvalidArgument
 from ..protocol.wire import ALL_BAUDS as ALL_BAUDS  # (re-exported to the commands: _common)
 from ..protocol.wire import ALL_IDS
-from ..units import parse_ids
+from ..units import parse_ids, plain_count
 from ._settings import Settings
 
 T = TypeVar("T")
@@ -42,10 +42,10 @@ class ServoIdType(click.ParamType[int]):
         if isinstance(value, int) and not isinstance(value, bool):
             candidate: object = value
         else:
-            try:
-                candidate = int(str(value), 10)
-            except ValueError:
+            number = plain_count(str(value).strip())
+            if number is None:
                 self.fail(f"{value!r} is not a servo ID (0..31)", param, ctx)
+            candidate = number
         try:
             return protocol.check_id(candidate)
         except InvalidArgument:
