@@ -279,3 +279,17 @@ def test_the_built_in_simulators_servos_run_at_the_baud_rate_the_command_is_give
         assert "115200" not in result.err + result.out, result.err + result.out
     if command[:2] == ["eeprom", "dump"]:
         assert result.json()["baud"] == 625000 and result.json()["fields"]["baud_rate"] == 625000
+
+
+def test_a_wrong_id_is_said_asked_at_every_rate_as_each_is_tried() -> None:
+    # `ics35 --port sim://?ids=1-3 info 5`, an ID nobody has: the search of the other rates said "no answer at 115200
+    # baud" before each of them ("trying 625000", then again "trying 1250000", as if 625000 had not been asked), and
+    # the error named 115200 alone once all three had gone unanswered.
+    from tests.support.terminal import screen_of, typed_on_a_terminal
+
+    code, shown = typed_on_a_terminal(["--port", "sim://?ids=1-3", "--timeout", "0.05", "info", "5"], [])
+    screen = " ".join(" ".join(screen_of(shown)).split())
+    assert code == ExitCode.NO_REPLY, screen
+    tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 625000 baud either: trying 1250000 baud ..."
+    assert tried in screen, screen
+    assert "error: servo 5 did not answer on sim://?ids=1-3 at 115200 baud, nor at 625000 or 1250000 baud" in screen

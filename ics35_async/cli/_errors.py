@@ -153,9 +153,12 @@ def trying_rates(settings: Settings) -> Callable[[int], None]:
 
     from ..policies import trying_rate
 
+    told: list[int] = []
+
     def tell(baud: int) -> None:
         if err.is_terminal:
-            err.print(trying_rate(settings.baud, baud))
+            err.print(trying_rate(settings.baud, baud, told[-1] if told else None))
+        told.append(baud)
 
     return tell
 
@@ -209,9 +212,12 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
         )
     # An ID command names no servo: whatever is on the line may answer it.
     what = f"servo {exc.servo_id} did not answer" if exc.servo_id is not None else "nothing answered the ID command"
+    # Where the other rates were asked too (each said as it was tried), the error names them: the line's rate
+    # alone read as if they had not been.
+    elsewhere = finding.nothing_elsewhere()
     return CliError(
         ExitCode.NO_REPLY,
-        f"{what} on {settings.port} at {settings.baud} baud",
+        f"{what} on {settings.port} at {settings.baud} baud" + (f", {elsewhere}" if elsewhere else ""),
         *link_hints(settings),
         *NO_REPLY_HINTS,
     )

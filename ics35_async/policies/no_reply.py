@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from ..errors import IcsError, ReplyTimeout
 from .failure_kinds import LineOpener, answers_short_read
-from .scan import RateCallback, other_bauds, servo_rates
+from .scan import RateCallback, other_bauds, rates_in_words, servo_rates
 
 
 class NoReplyCause(enum.Enum):
@@ -54,6 +54,14 @@ class NoReply:
     # Whether the other rates were tried.  False: an earlier check found the cause (NO_ECHO, LONG_REPLY_LOST),
     # the caller did not allow them (``other_rates=False``), or the command names no servo.
     rates_tried: bool = False
+    searched: tuple[int, ...] = ()  # the other rates asked, in order (a link that ignores rates asks none)
+
+    def nothing_elsewhere(self) -> str | None:
+        """When the other rates were asked and the servo answered at none: that, in words to follow what did not
+        answer at the line's rate (``nor at 625000 or 1250000 baud``); None otherwise."""
+        if self.cause is not NoReplyCause.UNKNOWN or not self.searched:
+            return None
+        return f"nor at {rates_in_words(self.searched)} baud"
 
 
 async def why_no_reply(
@@ -83,12 +91,19 @@ async def why_no_reply(
         return NoReply(NoReplyCause.LONG_REPLY_LOST, servo_id, baud)
     if not other_rates:
         return NoReply(NoReplyCause.UNKNOWN, servo_id, baud)
+    searched: list[int] = []
+
+    def asking(other: int) -> None:
+        searched.append(other)
+        if on_rate is not None:
+            on_rate(other)
+
     try:
-        found = await servo_rates(open_at, servo_id, other_bauds([baud]), on_rate=on_rate)
+        found = await servo_rates(open_at, servo_id, other_bauds([baud]), on_rate=asking)
     except (IcsError, OSError):
         found = ()
     cause = NoReplyCause.OTHER_RATE if found else NoReplyCause.UNKNOWN
-    return NoReply(cause, servo_id, baud, rates=found, rates_tried=True)
+    return NoReply(cause, servo_id, baud, rates=found, rates_tried=True, searched=tuple(searched))
 
 
 async def _answers_short_read(open_at: LineOpener, baud: int, servo_id: int) -> bool:

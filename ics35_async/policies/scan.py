@@ -85,10 +85,14 @@ ProbeCallback = Callable[[int], None]  # called with the number of IDs just fini
 RateCallback = Callable[[int], object]  # called with the baud rate a search of other rates tries next
 
 
-def trying_rate(line_baud: int, baud: int) -> str:
+def trying_rate(line_baud: int, baud: int, previous: int | None = None) -> str:
     """What a search of the other rates (``on_rate``) tells a person as it tries ``baud``, nothing having answered
-    at the line's rate ``line_baud``: each rate may cost a whole reply allowance, so the wait is said."""
-    return f"no answer at {line_baud} baud: trying {baud} baud ..."
+    at the line's rate ``line_baud``: each rate may cost a whole reply allowance, so the wait is said.  ``previous``:
+    the other rate tried just before, which nothing answered either (said as such: a line saying only the line's
+    rate again reads as if that rate had been skipped)."""
+    if previous is None:
+        return f"no answer at {line_baud} baud: trying {baud} baud ..."
+    return f"no answer at {previous} baud either: trying {baud} baud ..."
 
 
 @dataclass(frozen=True)
@@ -472,8 +476,13 @@ class RateSearch:
         or 1250000 baud``, to follow what did not answer at the line's rate); None otherwise."""
         if self.found or not self.tried:
             return None
-        *first, last = (str(rate) for rate in self.tried)
-        return f"nor any device at {', '.join(first) + ' or ' if first else ''}{last} baud"
+        return f"nor any device at {rates_in_words(self.tried)} baud"
+
+
+def rates_in_words(rates: Sequence[int]) -> str:
+    """``rates`` as a sentence names them: ``625000 or 1250000``, ``115200, 625000 or 1250000``."""
+    *first, last = (str(rate) for rate in rates)
+    return f"{', '.join(first) + ' or ' if first else ''}{last}"
 
 
 async def search_other_rates(
