@@ -24,7 +24,7 @@ from rich.table import Table
 
 from ics35_async import PortLost, open_robot
 from ics35_async.cli import ExitCode, main
-from ics35_async.cli._robot_common import lost_line_hint
+from ics35_async.cli._robot_common import lost_line_hint, other_lines_hint
 from ics35_async.cli._robot_teach import TaughtTimes, capture
 from ics35_async.cli._robot_view import Screen
 from ics35_async.cli._settings import Settings
@@ -1605,6 +1605,49 @@ def test_a_robot_command_names_the_line_whose_adapter_is_missing(
     # (play opens the joints its motion moves: of those, the neck alone is on the upper line)
     others = "neck" if command == "play" else "neck,shoulder,elbow"
     assert f"--joints can open only the joints on the other line meanwhile: --joints {others}" in said, said
+
+
+@pytest.mark.parametrize("command", ["teach", "play"])
+def test_a_robot_command_whose_adapters_are_all_missing_offers_no_joints_of_another_missing_one(
+    cli: Any, rig: tuple[Rig, Path], tmp_path: Path, command: str
+) -> None:
+    # A robot file given its adapters' names before they were plugged in: the error named the first line's missing
+    # port, then offered "--joints can open only the joints on the other line meanwhile", whose port was missing
+    # too (the command it made failed the same way).  The other line's port is named as missing as well instead.
+    sims, robot_file = rig
+    missing = {name: str(tmp_path / "nothing" / name) for name in ("upper", "lower")}
+    for name, port in missing.items():
+        sims.description["lines"][name]["port"] = port
+    robot_file.write_text(dump_description(load_description(sims.description)))
+    files = {
+        "teach": [str(tmp_path / "taught.json")],
+        "play": [str(write_motion(tmp_path / "m.json", {"time": 0.2, "pose": {"neck": 20, "hip": 5}}))],
+    }[command]
+    result = cli(command, str(robot_file), *files, "--yes" if command != "play" else "--speed=1")
+    assert result.code == ExitCode.PORT, result.err
+    said = " ".join(result.err.split())
+    first = next(name for name in missing if f"line {name}: no serial port at '{missing[name]}'" in said)
+    (other,) = set(missing) - {first}
+    assert "--joints" not in said, said
+    assert f"the port of line {other}, {missing[other]}, is not there either" in said, said
+
+
+def test_of_three_lines_two_missing_the_joints_offered_are_the_third_lines_named_as_such(tmp_path: Path) -> None:
+    # (Three lines, the arms' and the legs' adapters not plugged in: --joints offers the head's line alone, by name.)
+    from ics35_async.errors import PortNotFound
+
+    ports = {"arms": str(tmp_path / "arms"), "head": "sim://three-lines-head?ids=1", "legs": str(tmp_path / "legs")}
+    description = load_description(
+        {
+            "lines": {name: {"port": port} for name, port in ports.items()},
+            "joints": {f"{name}_joint": {"line": name, "id": 1} for name in ports},
+        }
+    )
+    failed = PortNotFound(2, f"no serial port at {ports['arms']!r}")
+    assert other_lines_hint(description, failed) == [
+        f"the port of line legs, {ports['legs']}, is not there either",
+        "--joints can open only the joints on line head meanwhile: --joints head_joint",
+    ]
 
 
 def test_a_robot_file_whose_sim_url_has_a_typo_is_a_usage_error_naming_its_line(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import os
 import shlex
 import sys
 import threading
@@ -44,7 +45,7 @@ from ..robot import (
 )
 from ..robot.description import check_not_a_port
 from ..robot.motion import MotionError, check_motion
-from ..transports.wire_device import url_scheme
+from ..transports.wire_device import is_url, url_scheme
 from ._common import NO_REPLY_HINTS, CliError, ExitCode, Settings, check_input_path, err, run_loop, translate
 from ._console import ids_argument
 from ._paths import InputPathError
@@ -264,14 +265,29 @@ def _line_of(description: RobotDescription, exc: IcsError) -> LineSpec | None:
     return max(lines, key=lambda spec: len(spec.port)) if lines else None  # (one port's name may start another's)
 
 
+def _not_there(port: str) -> bool:
+    """Whether ``port`` is a device path with nothing at it (an adapter not plugged in), as known without opening
+    it; a URL, or a name that is no path (``COM3``), is not known to be missing."""
+    return not is_url(port) and os.path.isabs(port) and not os.path.exists(port)
+
+
 def other_lines_hint(description: RobotDescription, exc: IcsError) -> list[str]:
-    """For a line whose port could not be opened: the ``--joints`` that opens the robot's other lines meanwhile."""
+    """For a line whose port could not be opened: the robot's other lines whose device path is not there either
+    (a file given its adapters' names before they were plugged in), and the ``--joints`` that opens the rest of
+    them meanwhile (one offering the joints of a line whose port is missing too would fail the same way)."""
     line = _line_of(description, exc)
-    others = [name for name, joint in description.joints.items() if line is not None and joint.line != line.name]
-    if not others:
+    if line is None:
         return []
-    where = "the other line" if len(description.lines) == 2 else "the other lines"
-    return [f"--joints can open only the joints on {where} meanwhile: --joints {','.join(others)}"]
+    gone = [spec.name for spec in description.lines.values() if spec.name != line.name and _not_there(spec.port)]
+    hints = [f"the port of line {name}, {description.lines[name].port}, is not there either" for name in gone]
+    others = [name for name, joint in description.joints.items() if joint.line not in (line.name, *gone)]
+    if others:
+        where = "the other line" if len(description.lines) == 2 else "the other lines"
+        if gone:
+            still = sorted({description.joints[name].line for name in others})
+            where = f"line{'s' if len(still) > 1 else ''} {', '.join(still)}"
+        hints.append(f"--joints can open only the joints on {where} meanwhile: --joints {','.join(others)}")
+    return hints
 
 
 def lost_line_hint(
