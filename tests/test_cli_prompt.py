@@ -212,3 +212,14 @@ def test_sigterm_still_ends_the_question_of_a_command_started_ignoring_sigint() 
             proc.kill()
             proc.wait()
     assert code == 143 and "nothing was written" in rest, rest
+
+
+def test_demos_question_names_the_servos_the_scan_found_as_ranges() -> None:
+    # `ics35 demo` on a line of 32 servos asked "Move servo(s) 0, 1, 2, 3, ..., 31 (every servo the scan found)": three
+    # lines of numbers on an 80-column terminal to read before the [y/N].
+    with serving(["--ids", "0-31", "--fast"]) as path:
+        args = ["--port", path, "--timeout", "0.05", "demo", "--seconds", "1"]
+        code, written = typed_on_a_terminal(args, [("[y/N]", b"n\r")], columns=80)
+    screen = " ".join(" ".join(screen_of(written, width=80)).split())
+    assert code == 5, screen
+    assert "Move servo(s) 0-31 (every servo the scan found) in a 15° wave" in screen, screen

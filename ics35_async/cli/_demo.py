@@ -20,7 +20,6 @@ from ._common import (
     err,
     every_id,
     id_ranges,
-    ids_text,
     out,
     run,
     seconds_option,
@@ -160,7 +159,7 @@ def demo(
             if ids is None and not settings.is_sim:
                 # Nobody named these servos: a robot's joints may collide, so ask first.
                 question = (
-                    f"Move servo(s) {ids_text(chosen)} (every servo the scan found) in a {swing:g}° wave (they go "
+                    f"Move servo(s) {id_ranges(chosen)} (every servo the scan found) in a {swing:g}° wave (they go "
                     "limp as it starts and when it ends)?"
                 )
                 confirm(question, yes, "nothing moved")
