@@ -1528,21 +1528,23 @@ def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_
     # terminal narrower than the title it was cut at the last column ("... at 115200" read as the whole title),
     # then with an ellipsis, which at 40 columns took what the servos are left in and, with a longer port's name,
     # the line's rate: each part goes on a line of its own, the port's name cut at its start if it must be (its
-    # end, and the rate after it, are what tell one port from another).
+    # end, and the rate after it, are what tell one port from another), and the command's name kept before it (a
+    # cut at the start of "monitor PORT" left "…or /tmp/...", as demo's title does not).
     args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
     _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
     screen = [line for line in screen_of(written, width=columns) if line]
     said = "\n".join(screen)
     assert "Traceback" not in written, said
-    head, how = "monitor sim://?ids=1-3&realtime=1 at 115200 baud", "(ICS 3.5 servos free)"
-    top = next(k for k, line in enumerate(screen) if line.endswith(("baud", how)) and "scanning" not in line)
-    if len(f"{head} {how}") <= columns:
-        assert screen[top] == f"{head} {how}", said
-    else:
-        shown = head if len(head) <= columns else "…" + head[-(columns - 1) :]
-        assert screen[top : top + 2] == [shown, how], said
-        assert shown.endswith("realtime=1 at 115200 baud"), said
-    assert sum(line.endswith(("baud", how)) for line in screen) == (1 if len(f"{head} {how}") <= columns else 2), said
+    lead, port, how = "monitor", "sim://?ids=1-3&realtime=1 at 115200 baud", "(ICS 3.5 servos free)"
+    expected = {
+        120: [f"{lead} {port} {how}"],
+        50: [f"{lead} {port}", how],
+        40: [lead, port, how],
+        30: [lead, "…" + port[-29:], how],
+    }[columns]
+    top = next(k for k, line in enumerate(screen) if line.startswith("monitor") and "scanning" not in line)
+    assert screen[top : top + len(expected)] == expected, said
+    assert sum(line.startswith("monitor") for line in screen) == 1, said  # (drawn once: no redraw left it twice)
 
 
 def monitor_through_a_lost_port(pty_sim: Any, replug_after: float, keys: list[Any], columns: int) -> tuple[int, str]:

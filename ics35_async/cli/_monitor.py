@@ -117,7 +117,8 @@ def monitor(
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",
                 )
             how = "ICS 3.5 servos free" if freed else "torque left alone"
-            title = TitleInParts((f"monitor {escape(shown)} at {settings.baud} baud", f"({how})"))
+            # (The command's name a part of its own, as demo's: a port's name too wide is cut at its start, not it.)
+            title = TitleInParts(("monitor", f"{escape(shown)} at {settings.baud} baud", f"({how})"), frozenset({1}))
             state = LiveState(chosen, title, seconds)
             state.no_position = missing
             if missing and not as_json:
