@@ -1516,9 +1516,12 @@ def test_a_live_table_of_many_servos_on_a_narrow_terminal_keeps_every_value_whol
     assert len(rows) == 10 and not any("…" in line for line in rows), said
     assert all(len(line) <= columns for line in rows), said
     header = screen[screen.index(rows[0]) - 2].split()
-    assert header[:2] == ["ID", "pos°"] and header.count("ID") == 2, said  # (the angle read kept: what is there)
+    assert header[0] == "ID" and "pos°" in header and header.count("ID") == 2, said  # (the angle read: kept)
     left_out = " ".join(screen[screen.index(rows[-1]) + 1 :])
-    assert left_out.startswith("columns left out: ") and ("target°" in left_out) is (command == "demo"), said
+    assert left_out.startswith("columns left out: "), said
+    # (demo's target° goes last, where its values are wide: a wave's first angles, or "free" as it stops, fit)
+    targets = ("target°" in header) + ("target°" in left_out.split("t=")[0])
+    assert targets == (command == "demo"), said
     assert [line.split("│")[1].split()[0] for line in rows] == [str(sid) for sid in range(11, 21)], said
 
 
