@@ -1773,7 +1773,8 @@ async def test_the_line_pages_search_of_the_other_rates_says_which_it_tries_in_t
         report = await session.scan()
         watcher.cancel()
         assert report["servos"] == [] and report["answers_at"] is None, report
-        assert said == [trying_rate(115200, 625000), trying_rate(115200, 1250000)], said
+        # (the second names the rate before it: "at 115200 baud" again read as if 625000 had been skipped)
+        assert said == [trying_rate(115200, 625000), trying_rate(115200, 1250000, 625000)], said
         assert "trying 625000 baud" in said[0]
         assert session.status()["searching"] is None
     finally:

@@ -176,6 +176,7 @@ class LineSession:
         self.found: list[FoundServo] = []
         self.progress = ScanProgress()
         self.searching: str | None = None  # the rate a search of the other rates tries now, in words (its on_rate)
+        self._tried: int | None = None  # the other rate that search tried before it (nothing answered there)
         self.exclusive = asyncio.Lock()
         self.traffic = TrafficLog()
         self.live: LiveView | None = None
@@ -531,11 +532,13 @@ class LineSession:
     def _trying(self, baud: int) -> None:
         """A search of the other rates' progress (its ``on_rate``): said in the status the pages show, as the
         command line prints it (each rate may cost a whole reply allowance)."""
-        self.searching = trying_rate(self.config.baud, baud)
+        self.searching = trying_rate(self.config.baud, baud, self._tried)
+        self._tried = baud
 
     @contextlib.contextmanager
     def _searching(self) -> Iterator[None]:
         """Around a search of the other rates: once it has ended, the status no longer names a rate it tries."""
+        self._tried = None
         try:
             yield
         finally:
