@@ -282,7 +282,7 @@ def test_monitor_with_reconnect_whose_port_stays_lost_while_it_asks_ends_at_seco
     result = cli("--port", url, "--timeout", "0.05", "monitor", "1-2", "--free", "--reconnect", "--seconds", "0.5")
     assert time.monotonic() - started < scaled(10), result.err
     assert result.code == ExitCode.COMMUNICATION, result.err
-    assert "did not come back" in result.err and "--seconds" in result.err, result.err
+    assert "was not back when --seconds" in result.err and "--seconds" in result.err, result.err
 
 
 # (The unplug comes a second in and 40 transactions of a real-time simulator in.)

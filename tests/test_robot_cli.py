@@ -1632,6 +1632,21 @@ def test_a_robot_command_whose_adapters_are_all_missing_offers_no_joints_of_anot
     assert f"the port of line {other}, {missing[other]}, is not there either" in said, said
 
 
+def test_a_line_whose_port_is_busy_names_a_missing_one_as_missing_not_missing_either(tmp_path: Path) -> None:
+    # ("either" said of a line beside one whose port was there, only busy or not a serial port)
+    from ics35_async.errors import PortBusy
+
+    ports = {"arms": str(tmp_path / "arms"), "legs": str(tmp_path / "legs")}
+    description = load_description(
+        {
+            "lines": {name: {"port": port} for name, port in ports.items()},
+            "joints": {f"{name}_joint": {"line": name, "id": 1} for name in ports},
+        }
+    )
+    busy = PortBusy(16, f"port {ports['arms']!r} is busy")
+    assert other_lines_hint(description, busy) == [f"the port of line legs, {ports['legs']}, is not there"]
+
+
 def test_of_three_lines_two_missing_the_joints_offered_are_the_third_lines_named_as_such(tmp_path: Path) -> None:
     # (Three lines, the arms' and the legs' adapters not plugged in: --joints offers the head's line alone, by name.)
     from ics35_async.errors import PortNotFound

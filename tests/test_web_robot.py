@@ -526,7 +526,7 @@ def test_an_offline_joint_shows_no_temperature_or_current(robot: Any) -> None:
     assert elbow["temperature_c"] is None and elbow["current"] is None, elbow
 
 
-def test_an_offline_joint_is_said_unreached_its_target_kept_for_its_slider(tmp_path: Path) -> None:
+def test_an_offline_joint_is_said_offline_its_target_kept_for_its_slider(tmp_path: Path) -> None:
     # Its target was sent as if it went out: the page showed it, where `ics35 play`'s live table shows "-" (the
     # robot sends an offline servo nothing).  The robot says which joints nothing reaches; the page follows it.
     with arm_page(tmp_path, "[safety]\ncontinue_on_offline = true\n") as (client, line):
@@ -534,12 +534,12 @@ def test_an_offline_joint_is_said_unreached_its_target_kept_for_its_slider(tmp_p
         assert post(client, "/api/robot/move", {"pose": {"elbow": 40}, "duration": 0.1}).status_code == 200
         wait_for(lambda: line.servo(2).target == degrees_to_position(40))
         shoulder, elbow = client.get("/api/robot").json()["joints"]
-        assert not shoulder["unreached"] and not elbow["unreached"], (shoulder, elbow)
+        assert not shoulder["offline"] and not elbow["offline"], (shoulder, elbow)
         line.remove_servo(2)
         wait_for(lambda: client.get("/api/robot").json()["joints"][1]["offline"])
         shoulder, elbow = client.get("/api/robot").json()["joints"]
-        assert elbow["unreached"] and elbow["target"] == 40.0, elbow
-        assert not shoulder["unreached"], shoulder
+        assert elbow["offline"] and elbow["target"] == 40.0, elbow
+        assert not shoulder["offline"], shoulder
         post(client, "/api/robot/free")
 
 

@@ -69,7 +69,7 @@ class TitleInParts:
     left in, then the rate, then the port)."""
 
     parts: tuple[str, ...]
-    cut_at_start: frozenset[int] = frozenset({0})
+    cut_at_start: frozenset[int] = frozenset()
 
     @property
     def whole(self) -> str:
@@ -129,9 +129,10 @@ class LiveTable:
             yield Segment.line()
 
 
-def _first_rows(table: Table, kept: int, noun: str) -> Table:
-    """``table``'s first ``kept`` rows, a line under them saying how many ``noun`` the others hold (the values in
-    the columns named as its first one: two a row in monitor's table of many servos)."""
+def _first_rows(table: Table, kept: int, noun: str) -> RenderableType:
+    """``table``'s first ``kept`` rows, and a line under it saying how many ``noun`` the others hold (the values in
+    the columns named as its first one: two a row in monitor's table of many servos), at the view's width (as the
+    table's caption it wrapped at the table's, a line more that cost a row)."""
     first = str(table.columns[0].header) if table.columns else ""
     hidden = sum(
         1
@@ -140,13 +141,9 @@ def _first_rows(table: Table, kept: int, noun: str) -> Table:
         for cell in list(column.cells)[kept:]
         if (cell.plain if isinstance(cell, Text) else str(cell)).strip()
     )
-    cut = _narrowed(table, None, None, range(kept))
-    more = Text(f"… {hidden} more {noun}: a taller terminal shows them")
-    if table.caption is not None:  # (the columns left out, named under it)
-        more.append("\n").append(table.caption)
-    cut.caption = wrapped_at_width(more)
-    cut.caption_justify, cut.caption_style = "left", "dim"
-    return cut
+    cut = _narrowed(table, None, None, range(kept))  # (its caption, the columns left out, kept)
+    counted = noun if hidden != 1 else noun.removesuffix("s")
+    return Group(cut, wrapped_at_width(Text(f"… {hidden} more {counted}: a taller terminal shows them", style="dim")))
 
 
 def printed_table(table: Table, leave_out: Sequence[str] = (), *, indent: int = 0) -> RenderableType:
@@ -214,8 +211,8 @@ class FittedTable:
         if (over := excess(left_out)) > 0 and self.table.columns:
             names = [str(cell) for cell in self.table.columns[0].cells]
             longest = max(map(cell_len, names), default=0)
-            # (A part cut no shorter than SHORTEST_CUT_NAME, nor a part as short as that at all: an ID's number
-            # is never cut; on a terminal narrower still, rich cuts the values.)
+            # (Names are cut to no fewer than SHORTEST_CUT_NAME cells, and one shorter than that not at all, so an
+            # ID's number is never cut; on a terminal narrower still, rich cuts the values.)
             parts = max((cell_len(part) for name in names for part in _name_parts(name)), default=1)
             names_width = max(min(parts, SHORTEST_CUT_NAME), longest - over)
         return _narrowed(self.table, left_out, names_width)

@@ -335,16 +335,16 @@ class AskingIds:
             raise
         self.asking = None
 
-    async def ask(self, bus: Bus, what: str, asking: Callable[[], Awaitable[T]]) -> T:
-        """``asking()``, the asking of ``what`` (:meth:`while_asking`).  With --reconnect a port lost meanwhile is
+    async def ask(self, bus: Bus, what: str, request: Callable[[], Awaitable[T]]) -> T:
+        """``request()``, the asking of ``what`` (:meth:`while_asking`).  With --reconnect a port lost meanwhile is
         waited for (said, and that it is back) and the asking starts again: the transactions in flight were lost
-        with the port, and nothing asked moves a servo (the free command of --free only frees it once more); an
-        answer from before the loss may be another adapter's servos'.  --seconds ends the wait with the loss's
-        error (no cycle ran: no table to show).  Without --reconnect the error names it."""
+        with the port, nothing asked moves or frees a servo, and an answer from before the loss may be another
+        adapter's servos'.  --seconds, counted from the command's start, ends the wait with the loss's error (no
+        cycle ran: no table to show).  Without --reconnect the error names it."""
         with self.while_asking(what):
             while True:
                 try:
-                    return await asking()
+                    return await request()
                 except (PortLost, ClosedByPortLoss) as exc:
                     if not self.reconnect or bus.state is State.CLOSED:
                         error = line_error(self.settings, exc)
@@ -355,13 +355,15 @@ class AskingIds:
 
     async def _wait_for_port(self, bus: Bus, lost: IcsError, what: str) -> None:
         err.print(f"the port is lost while {what}: waiting for it to come back (--reconnect; Ctrl-C ends)")
-        self.waiting_for_port = True  # (a Ctrl-C meanwhile has no request on the wire to wait out)
+        # (A Ctrl-C meanwhile has no request on the wire to wait out: read by while_asking's handler, so left set
+        # where the wait ends by an exception.)
+        self.waiting_for_port = True
         while bus.state is State.LOST:
             left = None if self.deadline is None else self.deadline - time.monotonic()
             if left is not None and left <= 0:
                 error = line_error(self.settings, lost)
                 error.message += (
-                    f"; it did not come back within --seconds ({self.seconds:g} s) while {what}, before a first cycle"
+                    f"; it was not back when --seconds ({self.seconds:g} s) ran out, while {what}, before a first cycle"
                 )
                 raise error
             with contextlib.suppress(TimeoutError):

@@ -26,6 +26,7 @@ from ..errors import (
     IcsError,
     InvalidArgument,
     PortLost,
+    PortNotFound,
     ReplyTimeout,
     SerialPortError,
     UnsafeOperation,
@@ -279,7 +280,8 @@ def other_lines_hint(description: RobotDescription, exc: IcsError) -> list[str]:
     if line is None:
         return []
     gone = [spec.name for spec in description.lines.values() if spec.name != line.name and _not_there(spec.port)]
-    hints = [f"the port of line {name}, {description.lines[name].port}, is not there either" for name in gone]
+    either = " either" if isinstance(exc, PortNotFound) else ""  # (not for a port busy, refused or not a tty)
+    hints = [f"the port of line {name}, {description.lines[name].port}, is not there{either}" for name in gone]
     others = [name for name, joint in description.joints.items() if joint.line not in (line.name, *gone)]
     if others:
         where = "the other line" if len(description.lines) == 2 else "the other lines"

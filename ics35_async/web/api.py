@@ -41,6 +41,7 @@ from ..policies.eeprom_backup import backup_file_name
 from ..protocol import MAX_ID
 from ..robot.safety import SafetyStop
 from ..transports.listing import kondo_usb_without_port, list_serial_ports
+from ..units import plain_count
 from ..user_files import parse_json
 from .joints import RobotSession
 from .live import LIVE_RATE_HZ
@@ -148,10 +149,10 @@ async def body(request: Request) -> dict[str, Any]:
 
 def servo_id(request: Request) -> int:
     text = request.path_params["servo_id"]
-    # (isascii: str.isdigit takes other scripts' digits, which int() reads or refuses in its own words)
-    if not (text.isascii() and text.isdigit()) or not 0 <= int(text) <= MAX_ID:
+    number = plain_count(text)
+    if number is None or not 0 <= number <= MAX_ID:
         raise InvalidArgument(f"servo ID {text!r} is not 0..{MAX_ID}")
-    return int(text)
+    return number
 
 
 def int_of(data: dict[str, Any], key: str) -> int:

@@ -147,12 +147,12 @@ class RobotSession:
             lost = ", ".join(self.lost_pose)
             done = "hold their last targets" if lost_joints == "hold" else "start free"
             said = [f"{lost} {done}"] if lost else []
-            unreached, self._free_at_reopen = self._free_at_reopen, []
-            if unreached:
+            free_now, self._free_at_reopen = self._free_at_reopen, []
+            if free_now:
                 # Free all was asked while their line was lost: an ICS 3.6 joint read at the open keeps its torque.
                 with contextlib.suppress(IcsError):
-                    await robot.free(unreached)
-                said.append(f"{', '.join(unreached)} freed, as Free all asked")
+                    await robot.free(free_now)
+                said.append(f"{', '.join(free_now)} freed, as Free all asked")
             self.outcome = "; ".join(["reconnected", *said])
             self.start_pose, self.lost_pose, self.lost_lines = pose, {}, []
 
@@ -327,7 +327,6 @@ class RobotSession:
         targets = self.last_targets if kept is None else kept.targets
         joints = []
         for name, spec in self.description.joints.items():
-            offline = frame is not None and name in frame.offline
             t = None if name in unreached else telemetry.get(name)
             stop = tripped.get(name)
             joints.append(
@@ -341,8 +340,7 @@ class RobotSession:
                     "target": _round(targets.get(name)),
                     "temperature_c": None if t is None else _round(t.temperature_c),
                     "current": None if t is None else t.current,
-                    "offline": offline,
-                    "unreached": name in unreached,
+                    "offline": name in unreached,  # (the page shows "-" for its target, sent nothing)
                     "tripped": None if stop is None else str(stop),
                     "held": held.get(name),
                 }

@@ -993,7 +993,7 @@ function onRobot(r) {
     // Rebuilt only when the hold changes: a button replaced under the pointer would lose its click.
     const target = row.querySelector(".target");
     // Unreached (its servo offline): no target went out, whatever it was asked ("-", as `ics35 play` shows it).
-    const shown = (j.unreached ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    const shown = (j.offline ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
     if (target.dataset.shown !== shown) {
       target.dataset.shown = shown;
       target.replaceChildren(shown, ...(j.held ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
@@ -1038,7 +1038,7 @@ function sliderAt(j) {
 // switch, a motion playing, the angles read). Shown as a robot stopped by a lost line is, its joints at their last
 // targets, with nothing to reconnect to.
 function robotGone(why = "the configurator's server is gone") {
-  const joints = state.robot.joints.map((j) => ({ ...j, position: null, offline: false, unreached: false, temperature_c: null, current: null }));
+  const joints = state.robot.joints.map((j) => ({ ...j, position: null, offline: false, temperature_c: null, current: null }));
   onRobot({ ...state.robot, open: false, cycle: null, motion_enabled: false, playing: null, reconnect_choice: null, joints,
     error: `${why}: nothing here is read or sent (the joints keep their last commands)` });
   $("#robot-reopen").hidden = true;
