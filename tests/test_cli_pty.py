@@ -1534,20 +1534,27 @@ def test_monitors_title_spans_the_terminal_and_on_a_narrower_one_keeps_the_port_
     # end, and the rate after it, are what tell one port from another), and the command's name kept before it (a
     # cut at the start of "monitor PORT" left "…or /tmp/...", as demo's title does not).
     args = ["--port", "sim://?ids=1-3&realtime=1", "monitor", "1-3", "--free", "--seconds", "60"]
+    assert_live_title(args, columns, ("monitor", "(ICS 3.5 servos free)"), 50)
+
+
+def assert_live_title(args: list[str], columns: int, ends: tuple[str, str], two_lines: int) -> None:
+    """A live command's title (``ends``: its part before the port and the one after it) drawn once, at ``columns``:
+    whole at 120, on two lines at the width ``two_lines`` names (the lead and the port sharing one), a line a part
+    at 40, the port's name cut at its start at 30."""
     _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
     screen = [line for line in screen_of(written, width=columns) if line]
     said = "\n".join(screen)
     assert "Traceback" not in written, said
-    lead, port, how = "monitor", "sim://?ids=1-3&realtime=1 at 115200 baud", "(ICS 3.5 servos free)"
+    (lead, after), port = ends, "sim://?ids=1-3&realtime=1 at 115200 baud"
     expected = {
-        120: [f"{lead} {port} {how}"],
-        50: [f"{lead} {port}", how],
-        40: [lead, port, how],
-        30: [lead, "…" + port[-29:], how],
+        120: [f"{lead} {port} {after}"],
+        two_lines: [f"{lead} {port}", after],
+        40: [lead, port, after],
+        30: [lead, "…" + port[-29:], after],
     }[columns]
-    top = next(k for k, line in enumerate(screen) if line.startswith("monitor") and "scanning" not in line)
+    top = next(k for k, line in enumerate(screen) if line.startswith(lead) and "scanning" not in line)
     assert screen[top : top + len(expected)] == expected, said
-    assert sum(line.startswith("monitor") for line in screen) == 1, said  # (drawn once: no redraw left it twice)
+    assert sum(line.startswith(lead) for line in screen) == 1, said  # (drawn once: no redraw left it twice)
 
 
 def monitor_through_a_lost_port(pty_sim: Any, replug_after: float, keys: list[Any], columns: int) -> tuple[int, str]:
@@ -1680,17 +1687,4 @@ def test_demos_title_on_a_narrower_terminal_keeps_the_port_its_rate_and_what_the
     # built-in …", the port and its rate gone.  As monitor's, its parts go on lines of their own where the whole
     # does not fit (neighbours sharing one where they fit), the port's name cut at its start if it must be.
     args = ["--port", "sim://?ids=1-3&realtime=1", "demo", "--ids", "1-3", "--seconds", "60"]
-    _, written = typed_on_a_terminal(args, [("cycle", b"\x03")], columns=columns)
-    screen = [line for line in screen_of(written, width=columns) if line]
-    said = "\n".join(screen)
-    assert "Traceback" not in written, said
-    lead, port, left = "demo: wave on 3 servo(s),", "sim://?ids=1-3&realtime=1 at 115200 baud", "(left free at the end)"
-    expected = {
-        120: [f"{lead} {port} {left}"],
-        70: [f"{lead} {port}", left],
-        40: [lead, port, left],
-        30: [lead, "…" + port[-29:], left],
-    }[columns]
-    top = next(k for k, line in enumerate(screen) if line.startswith("demo: wave"))
-    assert screen[top : top + len(expected)] == expected, said
-    assert sum(line.startswith("demo: wave") for line in screen) == 1, said  # (drawn once: no redraw left it twice)
+    assert_live_title(args, columns, ("demo: wave on 3 servo(s),", "(left free at the end)"), 70)
