@@ -408,7 +408,9 @@ def test_motion_a_closed_tab_switched_on_goes_off_on_the_server_and_a_jog_is_ref
     with web_server_page(browser, line) as p:
         open_servo_page(p, 1)
         p.check("#motion-switch")
-        until(lambda: servo.target == 8000, "enable motion never held servo 1")
+        # (the servo holds once the command is on the wire; motion is on once its answer came: the page's jog says so)
+        expect(p.locator("#jog-plus")).to_be_enabled()
+        assert servo.target == 8000
         base, api = p.url.split("#")[0], p.context.request  # (the tab's cookie, without the tab)
         assert api.get(base + "api/status").json()["motion_on"] == [1]
         p.close()  # the tab closed, its switch on: no page is left to say motion is on
@@ -426,7 +428,8 @@ def motion_switched_off_by_a_lost_port(p: Page, line: PtyLine) -> None:
     servo = line.sim.servo(1)
     open_servo_page(p, 1)
     p.check("#motion-switch")
-    until(lambda: not servo.free, "enable motion never held servo 1")
+    expect(p.locator("#jog-plus")).to_be_enabled()  # (motion on: the server's answer came)
+    assert not servo.free
     line.sim.unplug()
     expect(p.locator("#lost-banner")).to_be_visible()
     line.sim.replug()
