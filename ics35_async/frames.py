@@ -64,8 +64,9 @@ class Frame:
 
     ``positions`` (0..16383) and ``timestamps`` (``time.monotonic()`` of each reply) hold the
     IDs that answered this cycle; ``failed`` the IDs in the cycle that did not (their
-    transaction failed, or was held back after a failure while its late reply could still come:
-    those, sent nothing this cycle, are in ``not_sent`` too);
+    transaction failed, or was held back after a failure while its late reply could still come, or its
+    guard read got nothing back on a line that had answered its previous command with nothing either:
+    those two, sent nothing this cycle, are in ``not_sent`` too);
     ``offline`` the IDs currently out of the cycle (an ID whose failure this cycle took it out is in
     both, in this frame).  ``skipped`` counts the
     frames this consumer missed since its previous one.
@@ -187,7 +188,7 @@ class GroupFrame:
     target is set again."""
     not_sent: frozenset[tuple[str, int]] = frozenset()
     """The servos of ``failed`` sent nothing in their line's cycle: held back after a failure while its late reply
-    could still come (see :attr:`Frame.not_sent`)."""
+    could still come, or failed by their guard read (see :attr:`Frame.not_sent`)."""
 
     def degrees(self) -> dict[tuple[str, int], float]:
         """The positions of this frame in degrees, by ``(line, id)`` (7500 counts is 0 degrees)."""

@@ -591,10 +591,12 @@ class Stream(FrameIterator[Frame]):
             self._publish(now)
         return None
 
-    def _fail(self, exc: ReplyError, now: float) -> None:
+    def _fail(self, exc: ReplyError, now: float, sent: bool) -> None:
         k = self._cur
         if k < 0:
             return
+        if not sent:  # (failed by the guard read before it: its frame lists it as sent nothing, as a held one)
+            self._not_sent.append(self.ids[k])
         self._failures[k] += 1
         self._fail_run[k] += 1
         if type(self._cur_reader) is protocol.ReadParam:

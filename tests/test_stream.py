@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import itertools
 import json
+import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
@@ -42,7 +43,7 @@ from ics35_async import (
 )
 from ics35_async.bus import Bus
 from ics35_async.protocol import FREE, ReadParam, position_tx
-from ics35_async.sim import Transaction, VirtualLine, VirtualServo
+from ics35_async.sim import PtyServer, Transaction, VirtualLine, VirtualServo
 from ics35_async.stream import RATE_CHECK_CYCLES, RATE_KEPT_WINDOWS
 from tests.conftest import every_backend
 from tests.support.timing import FAST, GUARD, NO_TIMEOUTS, PATIENT, REAL_TIME
@@ -1988,3 +1989,47 @@ async def test_a_frame_tells_the_failed_ids_that_were_sent_nothing() -> None:
     assert all(frame.not_sent <= {3} for frame in frames)
     check_frames(frames, sim, ids)
     assert frames[0].to_dict()["not_sent"] == sorted(frames[0].not_sent)
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pty simulator needs Linux")
+async def test_a_frame_tells_an_id_failed_by_its_guard_read_on_a_silent_line_was_sent_nothing() -> None:
+    # A line that sends nothing back, not even the echo (a simulator held up by a loaded machine, an adapter that
+    # stalls): each ID's command times out unheard, and its next one gets a guard read first.  A guard read that
+    # gets nothing back too counts as that command's try, and the command is not sent: its frame lists the ID as
+    # failed, and must say it was sent nothing.  (Lining frames up with the log, the chaos soak's oracle took the
+    # ID's next command for this one and put every later value of that ID one cycle off.)
+    ids = [1, 2, 3]
+    sim = make_sim(ids)
+    server = PtyServer(sim)
+    path = str(server.open())
+    serving = threading.Thread(target=server.serve, daemon=True)
+    serving.start()
+    try:
+        async with await open_bus(path, **FAST, retries=0) as bus:
+            counters = bus._engine.counters  # (the holder reads them from its thread: ints, in place)
+            # (paced, so that the test takes every frame)
+            async with bus.stream(ids, rate_hz=200, offline_after=100) as stream:
+                frames = [await next_frame(stream) for _ in range(3)]
+                with sim._lock:  # the server thread waits here: nothing comes back, not even the echo
+                    guards = counters.guards
+                    deadline = time.monotonic() + GUARD
+                    while counters.guards < guards + 2 and time.monotonic() < deadline:
+                        await asyncio.sleep(0.001)
+                    # (the frames published meanwhile: every one, so each cycle is checked)
+                    frames += [await next_frame(stream) for _ in range(2)]
+                frames += [await next_frame(stream) for _ in range(20)]
+    finally:
+        server.stop()
+        serving.join(GUARD)
+        server.close()
+    assert any(f.failed - f.not_sent for f in frames)  # (what this is about: IDs failed on the silent line)
+    assert [f.cycle for f in frames] == list(range(1, len(frames) + 1))  # (every frame: each cycle is checked)
+    # Each frame's commands, in the log in turn (a cycle whose IDs all went unsent has none).  Over a pty the
+    # replies the held simulator logged came too late: the commands that went out are what a frame tells.
+    log, seen = position_log(sim), 0
+    for frame in frames:
+        told = sorted(set(frame.positions) | (frame.failed - frame.not_sent))
+        went, seen = log[seen : seen + len(told)], seen + len(told)
+        assert [t.servo_id for t in went] == told, (frame, went)
+        assert frame.positions == {t.servo_id: t.value for t in went if t.servo_id in frame.positions}, frame

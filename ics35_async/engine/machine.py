@@ -853,7 +853,7 @@ class LineEngine:
                 due = self._due if self._settling else self.deadline
                 out = self._fault(rejected, sid, now)
                 self._after_early_failure(None, due, now)
-                source.fail(rejected, now)
+                source.fail(rejected, now, True)
                 return out
             if over <= 0:  # (a reply later than the full allowance is a fault the link's extra caught, not a norm)
                 self.answers.answered(latency - self._wire_time(len(tx) + self._expect - echo_len))
@@ -993,7 +993,7 @@ class LineEngine:
         owner = self._owner if self._owner is self._source else None
         out = self._fault(error, sid, now)  # counted before the stream hears (it may publish a frame)
         if owner is not None:
-            owner.fail(error, now)
+            owner.fail(error, now, True)
         return out
 
     def _after_early_failure(self, req: Request | None, due: float, now: float) -> None:
@@ -1084,7 +1084,7 @@ class LineEngine:
         if protected is None:
             owner = self._owner if self._owner is self._source else None
             if owner is not None:
-                owner.fail(nothing, now)
+                owner.fail(nothing, now, False)  # (its offer never went: its frame says so)
         elif protected.retries_left > 0:
             protected.retries_left -= 1
             self.counters.per_name["retries"][sid] += 1

@@ -33,7 +33,7 @@ class BackgroundSource(Protocol):
     ``complete`` gets the receive buffer and the reply's offset in it (after
     the echo) and returns ``None`` or the error that made the reply invalid;
     it changes nothing when it returns an error: the engine counts the fault,
-    then calls ``fail`` with it, as it does for a timeout or echo fault (so a
+    then calls ``fail`` with it, as it does for a timeout or echo fault, or for an offer failed unsent (so a
     frame published from ``fail`` comes with its transactions counted).  ``line_closed`` is told when
     the line closes for good (or loses its port with reconnect off); ``line_resumed`` when it
     comes back after a lost port.  ``probing_silent`` is asked as the source is detached with its
@@ -58,7 +58,11 @@ class BackgroundSource(Protocol):
 
     def complete(self, buf: bytearray, offset: int, now: float) -> ReplyError | None: ...
 
-    def fail(self, exc: ReplyError, now: float) -> None: ...
+    def fail(self, exc: ReplyError, now: float, sent: bool) -> None:
+        """The transaction just offered failed with ``exc``.  ``sent`` False: it never went on the wire (the
+        guard read before it got nothing back, on a line that answered nothing to it either, and counts as its
+        try: see ``LineEngine._guard_proved_nothing``)."""
+        ...
 
     def skip(self, now: float) -> None:
         """The transaction just offered was not sent (see above): move on as after a failure, counting none."""
@@ -101,7 +105,7 @@ class BoundSource:
 
     next_transaction: Callable[[float], tuple[bytes, int, int] | None]
     complete: Callable[[bytearray, int, float], ReplyError | None]
-    fail: Callable[[ReplyError, float], None]
+    fail: Callable[[ReplyError, float, bool], None]
     line_closed: Callable[[IcsError], None]
     _wake_at: Callable[[], float]
     slot_due: Callable[[float], float | None]

@@ -41,7 +41,8 @@ class RobotFrame:
     live."""
     not_sent: frozenset[str] = frozenset()
     """The joints of :attr:`failed` that were sent nothing in their line's newest cycle: held back after a failure
-    while its late reply could still come (see ``Frame.not_sent``), where the others' commands went out."""
+    while its late reply could still come, or failed by their guard read (see ``Frame.not_sent``), where the
+    others' commands went out."""
     lost: frozenset[str] = frozenset()
     """The joints on a line whose port is lost now (opened with ``reconnect=True``: its bus reconnecting), until
     the frame that says it is back (:attr:`resumed`): their servos keep their last command, the motions have

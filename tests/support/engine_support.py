@@ -335,7 +335,7 @@ class FakeSource:
         self.k += 1
         return None
 
-    def fail(self, exc: ReplyError, now: float) -> None:
+    def fail(self, exc: ReplyError, now: float, sent: bool) -> None:
         self.failures.append(exc)
         self.k += 1
 

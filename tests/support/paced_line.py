@@ -72,7 +72,7 @@ class PacedCycle:
         self.pos += 1
         return None
 
-    def fail(self, exc: ReplyError, now: float) -> None:
+    def fail(self, exc: ReplyError, now: float, sent: bool) -> None:
         self.failed += 1
         self.pos += 1
 
