@@ -76,7 +76,8 @@ class IdStats:
     bad_replies: int = 0
     """Transactions whose reply was whole but wrong (header, length, checksum or value)."""
     retries: int = 0
-    """Retries of idempotent requests after a failure."""
+    """Times an idempotent request's command went again after a failure (a try spent by a guard read that got
+    nothing back, on a line that had sent nothing back to the command either, is not one: the command did not go)."""
     bytes_tx: int = 0
     """Bytes written."""
     bytes_rx: int = 0

@@ -709,7 +709,11 @@ class LineEngine:
                 return self._begin(guard.tx, guard.reply_len, servo_id, GuardRequest(guard, req, tx), guard.timing, now)
         self.state = BUSY
         self._current = req
-        self._current_id = NO_ID if servo_id is None else servo_id
+        self._current_id = sid = NO_ID if servo_id is None else servo_id
+        if req is not None:
+            if req.sent:  # a retry: counted as it goes (a try a guard read spent never went again)
+                self.counters.per_name["retries"][sid] += 1
+            req.sent = True
         self._tx = tx
         echo_len = len(tx) if self.echo else 0
         self._echo_len = echo_len
@@ -1086,8 +1090,7 @@ class LineEngine:
             if owner is not None:
                 owner.fail(nothing, now, False)  # (its offer never went: its frame says so)
         elif protected.retries_left > 0:
-            protected.retries_left -= 1
-            self.counters.per_name["retries"][sid] += 1
+            protected.retries_left -= 1  # (no retry counted: the command did not go again, see _begin)
         elif self.queue.remove(protected):
             protected.reject(nothing)
 
@@ -1122,7 +1125,6 @@ class LineEngine:
         closing = self.state is State.DRAINING
         if req.retries_left > 0 and not req.abandoned() and not closing:
             req.retries_left -= 1
-            self.counters.per_name["retries"][sid] += 1
             self.queue.push_front(req)
             return self._fault(error, sid, now)
         out = self._fault(error, sid, now)  # counted before the caller hears, as a success is

@@ -56,7 +56,7 @@ class Request:
     tests read.
     """
 
-    __slots__ = ("command", "error", "priority", "retries_left", "state", "value")
+    __slots__ = ("command", "error", "priority", "retries_left", "sent", "state", "value")
 
     is_guard = False
 
@@ -65,6 +65,7 @@ class Request:
         self.priority = priority
         # Retrying a command that moves or writes could act twice: only idempotent ones retry.
         self.retries_left = retries if command.idempotent else 0
+        self.sent = False  # its command has gone on the wire (each time after the first is a retry: counted)
         self.state = "queued"  # queued -> done | failed | cancelled
         self.value: Any = None
         self.error: IcsError | None = None
