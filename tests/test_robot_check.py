@@ -204,10 +204,23 @@ def test_a_motion_file_missing_or_broken_is_said_so_not_that_it_does_not_fit(cli
     assert motions["beyond.json"]["fits"] is False and motions["wave.json"]["fits"] is True, motions
     assert "problem" not in motions["wave.json"], motions
 
-    # One kind alone is said as before.
-    result = cli("check", str(robot), str(missing))
-    assert result.code == ExitCode.USAGE, result.err
-    assert "1 of 1 motion was not found" in " ".join(result.err.split()), result.err
+
+def test_a_single_motion_refused_is_said_once(cli: Any, tmp_path: Path) -> None:
+    # "error: MOTION.json gone.json: no such file" was followed by "error: 1 of 1 motion was not found": the same
+    # news twice.  With one motion its own error is the verdict; the count is for several.
+    robot = robot_file(tmp_path)
+    missing = tmp_path / "gone.json"
+    beyond = motion_file(tmp_path / "beyond.json", {"wrist": 40})
+    for path, words in ((missing, f"MOTION.json {missing}: no such file"), (beyond, "40 degrees is outside")):
+        result = cli("check", str(robot), str(path))
+        assert result.code == ExitCode.USAGE, result.err
+        err = " ".join(result.err.split())
+        assert words in err, err
+        assert err.count("error:") == 1 and err.count(path.name) == 1, err
+        assert "arm.toml: robot arm, 1 line, 3 joints" in " ".join(result.out.split()), result.out
+        result = cli("check", str(robot), str(path), "--json")
+        assert result.code == ExitCode.USAGE, result.err
+        assert [m["fits"] for m in result.json()["motions"]] == [None if path == missing else False], result.out
 
 
 def check_table_rows(lines: list[str]) -> list[str]:

@@ -171,7 +171,8 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
         show_robot(robot_file, description)
         for path, motion in checked:
             if isinstance(motion, MotionFileError):
-                say_error(motion)
+                if len(checked) > 1:  # (one alone is said last, as the verdict)
+                    say_error(motion)
                 continue
             moves = ", ".join(motion.joints)
             out.print(
@@ -180,6 +181,9 @@ def check(robot_file: str, motion_files: tuple[str, ...], as_json: bool) -> int:
             )
     if not refused:
         return 0
+    only = checked[0][1]
+    if len(checked) == 1 and isinstance(only, MotionFileError):
+        raise only  # its own error is the verdict: "1 of 1 motion was not found" would say it again
     raise CliError(
         ExitCode.USAGE, f"{len(refused)} of {_plural(len(checked), 'motion')}{_refused_text(refused, robot_file)}"
     )
