@@ -38,6 +38,7 @@ from ._common import (
     temperature_text,
     translate,
 )
+from ._console import print_heading
 from ._eeprom_view import eeprom_table
 from ._targets import parse_target, refuse_outside_pulse_limits
 
@@ -58,6 +59,11 @@ async def probe_ids(
 
 # What info and monitor say of a servo with no position: the library's reason, and what to do.
 NO_READ_35 = f"{policies.NO_READ_ICS35}; pass --free"
+
+
+# Whose values the EEPROM table shows, beside `get`'s (RAM): a `set` since power-up shows in RAM only, and the RAM
+# stretch is on its own scale (half stretch_gain).
+INFO_EEPROM_TITLE = "EEPROM (loaded into RAM at power-up; ics35 get reads RAM, where stretch is half stretch_gain)"
 
 
 @click.command()
@@ -139,7 +145,8 @@ def info(ctx: click.Context, servo_id: int, free_servo: bool, no_position: bool,
     live.add_row("current", f"{current_text(got['current'])}  ({units.CURRENT_NOTE})")
     live.add_row("temperature", f"{temperature_text(got['temperature'])}  ({units.TEMPERATURE_NOTE})")
     out.print(live)
-    out.print(eeprom_table(eeprom))
+    print_heading(INFO_EEPROM_TITLE)  # (above the table: a title is cut at the table's width)
+    out.print(eeprom_table(eeprom, title=""))
     return 0
 
 
@@ -277,8 +284,13 @@ WRITE_PARAMS: dict[str, Param] = {
     "temperature-limit": Param.TEMPERATURE,
 }
 _PARAM_NOTES = {
-    "stretch": "holding gain {}..{}".format(*protocol.WRITE_RANGES[Param.STRETCH]),
-    "speed": "{}..{}".format(*protocol.WRITE_RANGES[Param.SPEED]),
+    # (scan and info show the EEPROM's values, loaded at power-up: where each number comes from, said beside it)
+    "stretch": "holding gain {}..{}, half the scale of the EEPROM's stretch_gain that scan and info show".format(
+        *protocol.WRITE_RANGES[Param.STRETCH]
+    ),
+    "speed": "{}..{}; scan and info show the EEPROM's speed, loaded at power-up".format(
+        *protocol.WRITE_RANGES[Param.SPEED]
+    ),
     "current": f"measured; {units.CURRENT_NOTE}",
     "temperature": f"measured; {units.TEMPERATURE_NOTE}",
 }
@@ -364,7 +376,7 @@ def get(ctx: click.Context, servo_id: int, param: str, as_json: bool) -> int:
         )
         return 0
     shown = {"current": current_text, "temperature": temperature_text}.get(param, str)(value)
-    out.print(f"servo {servo_id} {param} = {shown}  (RAM; {_PARAM_NOTES[param]})")
+    out.print(f"servo {servo_id} {param} = {shown}  (RAM, now; {_PARAM_NOTES[param]})")
     return 0
 
 

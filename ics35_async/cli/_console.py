@@ -59,6 +59,12 @@ def wrapped_at_width(text: Text) -> Text:
     return text
 
 
+def print_heading(line: str) -> None:
+    """``line`` (plain text: what a table shows) printed above its table, wrapped between its words on a terminal,
+    whole into a log.  Not the table's title: rich cuts a title at the table's width ("...in their EEPROM (l")."""
+    out.print(Text(line), soft_wrap=not out.is_terminal)
+
+
 @dataclass(frozen=True)
 class TitleInParts:
     """A live view's title in parts (rich markup), joined by spaces: drawn whole where the terminal is wide enough,

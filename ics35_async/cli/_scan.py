@@ -36,7 +36,7 @@ from ._common import (
     translate,
     yes_option,
 )
-from ._console import scan_progress
+from ._console import print_heading, printed_table, scan_progress
 from ._eeprom_view import baud_text, flags_text
 
 # --------------------------------------------------------------------------- scan
@@ -67,10 +67,22 @@ def baud_cell(s: FoundServo) -> str:
     return f"{s.baud}?" if s.rate_unconfirmed else str(s.baud)
 
 
+# The columns of the scan's table a terminal too narrow for it goes without, in turn (named under the table): the
+# limits first, kept whole by `ics35 info ID` and `ics35 eeprom dump ID --table`.
+LEAVE_OUT = ("pulse range", "T-limit", "I-limit", "offset")
+
+# Whose settings the table shows: the EEPROM's, which the servo loads into RAM at power-up; `get` reads RAM, where a
+# `set` since then shows, and where the stretch is on its own scale (half the EEPROM's stretch_gain).
+EEPROM_TITLE = "servos found, with the settings in their EEPROM (loaded into RAM at power-up; ics35 get reads RAM)"
+
+
+def scan_heading(servos: Sequence[FoundServo]) -> str:
+    """What goes above the scan's table (not its title: rich cuts a title at the table's width)."""
+    return "servos found" if all(s.eeprom is None for s in servos) else EEPROM_TITLE
+
+
 def scan_table(servos: Sequence[FoundServo]) -> Table:
-    table = Table(
-        title="servos found", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True
-    )
+    table = Table(box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     if all(s.eeprom is None for s in servos):
         table.add_column("ID", justify="right")
         table.add_column("baud", justify="right")
@@ -78,8 +90,9 @@ def scan_table(servos: Sequence[FoundServo]) -> Table:
         for s in servos:
             table.add_row(str(s.servo_id), baud_cell(s), "rate unconfirmed" if s.rate_unconfirmed else "")
         return table
-    for name in ("ID", "baud", "stretch", "speed", "I-limit", "T-limit", "pulse range", "offset"):
-        table.add_column(name, justify="right")
+    # (values whole, never cut: a terminal too narrow leaves columns out instead, see printed_table)
+    for name in ("ID", "baud", "stretch_gain", "speed", "I-limit", "T-limit", "pulse range", "offset"):
+        table.add_column(name, justify="right", no_wrap=True)
     table.add_column("flags")
     for s in servos:
         e = s.eeprom
@@ -229,7 +242,8 @@ def scan(
         scan_json(settings, bauds, report)
     else:
         if report.servos:
-            out.print(scan_table(report.servos))
+            print_heading(scan_heading(report.servos))
+            out.print(printed_table(scan_table(report.servos), LEAVE_OUT))
         scan_notes(named, report)
     if report.lost is not None:  # what was found is shown above; then the loss, not "no servo answered"
         failure = translate(settings, report.lost)
