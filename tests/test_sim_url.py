@@ -153,9 +153,25 @@ def test_an_ics36_or_noisy_id_outside_the_urls_ids_is_refused(url: str) -> None:
 def test_a_log_size_below_zero_is_refused_in_words() -> None:
     """``log=-1`` was passed on to the log's deque, which raised a bare ValueError ("maxlen must be
     non-negative"), naming neither the option nor what it takes."""
-    for build in (lambda: open_url("sim://?log=-1"), lambda: VirtualLine([1], log_size=-1)):
-        with pytest.raises(InvalidArgument, match=r"^log_size must be a whole number of transactions >= 0"):
-            build()
+    with pytest.raises(InvalidArgument, match=r"^log_size must be a whole number of transactions >= 0"):
+        VirtualLine([1], log_size=-1)
+
+
+@pytest.mark.parametrize("value", ["-1", "-20"])
+def test_a_urls_log_below_zero_is_refused_naming_the_urls_own_option(value: str) -> None:
+    # The URL's refusal named log_size, the Python argument, which the user never typed.
+    for refuse in (lambda: parse_url(f"sim://?log={value}"), lambda: open_url(f"sim://?log={value}")):
+        with pytest.raises(InvalidArgument) as refused:
+            refuse()
+        said = str(refused.value)
+        assert said.startswith(f"sim URL: log={value!r}: "), said
+        assert "log_size" not in said and ">= 0" in said and "all" in said, said
+
+
+def test_the_cli_names_the_urls_log_option(cli: Any) -> None:
+    result = cli("--port", "sim://?log=-1", "get", "1", "stretch")
+    assert result.code == 2, result.err
+    assert "log='-1'" in result.err and "log_size" not in result.err, result.err
 
 
 def test_named_line_is_shared_until_closed() -> None:

@@ -181,8 +181,7 @@ class LineModel:
         if log_size is not None and (isinstance(log_size, bool) or not isinstance(log_size, int) or log_size < 0):
             # (the deque's own refusal, "maxlen must be non-negative", named neither the option nor what it takes)
             raise InvalidArgument(
-                f"log_size must be a whole number of transactions >= 0 (0: no log; None, log=all in a sim:// URL: "
-                f"every one), got {log_size!r}"
+                f"log_size must be a whole number of transactions >= 0 (0: no log; None: every one), got {log_size!r}"
             )
         self.log: deque[Transaction] = deque(maxlen=log_size)
         self._log_enabled = log_size != 0

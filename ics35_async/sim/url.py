@@ -132,6 +132,17 @@ def _int(key: str, text: str) -> int:
         raise InvalidArgument(f"sim URL: {key}={text!r} is not an integer") from None
 
 
+def _log_size(key: str, text: str) -> int:
+    """``log=``'s number of transactions, refused here in the URL's words: the line's own refusal names its Python
+    argument, log_size, which a URL's user never typed."""
+    size = _int(key, text)
+    if size < 0:
+        raise InvalidArgument(
+            f"sim URL: {key}={text!r}: the log keeps a whole number of transactions >= 0 (0: no log; all: every one)"
+        )
+    return size
+
+
 def parse_line_ids(text: str) -> list[int]:
     """The servo IDs a simulated line holds, as ``ids=`` and ``ics35 sim --ids`` take them: ``0-31`` /
     ``1,3,5-7``, or ``none`` for a line without servos (what a scan of an empty line meets).
@@ -215,7 +226,7 @@ def parse_url(url: str) -> tuple[str | None, dict[str, Any]]:
         elif key == "memory":
             options["memory"] = {i: b"" for i in _ids(key, value)}
         elif key == "log":
-            options["log_size"] = None if value == "all" else _int(key, value)
+            options["log_size"] = None if value == "all" else _log_size(key, value)
         elif key in ("record", "replay", "adapter"):
             options[key] = value
         elif key == "latency_timer":
