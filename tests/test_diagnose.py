@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from ics35_async.cli import ExitCode
 from ics35_async.diagnose.line_report import LineReport, suspect_latency_timer
 from ics35_async.diagnose.system import check_system, holders
 from ics35_async.diagnose.udev import rules_text, serial_group
@@ -643,3 +644,38 @@ def test_doctors_search_of_the_other_rates_says_which_it_tries_on_a_terminal() -
     assert code == ExitCode.WRONG_BAUD, screen
     tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 625000 baud either: trying 1250000 baud ..."
     assert tried in screen and "--baud 1250000" in screen, screen
+
+
+ADAPTER_WORDS = ("lsusb", "ftdi_sio", "latency_timer", "USB vendor 165C", "udev")
+
+
+@pytest.mark.pty
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the system checks read Linux's files")
+def test_doctor_and_ports_on_a_pseudo_terminal_say_so_and_give_no_adapter_advice(cli: Any, pty_sim: Any) -> None:
+    # On `ics35 sim`'s pty (a /dev/pts/N, behind its link) doctor and ports told a newcomer of USB adapters: no
+    # Kondo adapter plugged in, ftdi_sio, lsusb, udev rules.  A pty has no adapter: a simulator or a bridge.
+    sim = pty_sim("--ids", "1", "--fast")
+    for port in (sim.path, os.path.realpath(sim.path)):
+        result = cli("--port", port, "doctor", "--ids", "1", "--samples", "10", "--json")
+        assert result.code == 0, result.err
+        findings = result.json()["findings"]
+        (pty,) = [f for f in findings if f["check"] == "pty"]
+        assert pty["severity"] == "info" and "pseudo-terminal" in pty["problem"], pty
+        assert "ics35 sim" in pty["problem"] and "socat" in pty["problem"], pty
+        assert not [f for f in findings if f["check"] in ("adapter", "latency_timer", "grabber", "wsl")], findings
+        assert result.json()["pseudo_terminal"] is True
+
+        text = cli("--port", port, "doctor", "--ids", "1", "--samples", "10")
+        assert text.code == 0, text.err
+        said = " ".join((text.out + text.err).split())
+        assert f"{port} is a pseudo-terminal" in said, said
+        assert not [w for w in ADAPTER_WORDS if w in said], said
+
+        listed = cli("--port", port, "ports")
+        assert listed.code in (0, ExitCode.PORT), listed.err  # (a machine may have no serial port at all)
+        said = " ".join(listed.err.split())
+        assert f"{port} is a pseudo-terminal" in said, said
+        assert not [w for w in ADAPTER_WORDS if w in said], said
+        notes = cli("--port", port, "ports", "--json").json()["notes"]
+        assert any("pseudo-terminal" in note for note in notes), notes
+        assert not [n for n in notes if any(w in n for w in ADAPTER_WORDS)], notes

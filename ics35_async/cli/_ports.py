@@ -13,7 +13,7 @@ from ..diagnose.system import missing_adapter_notes
 from ..transports import adapter_advice
 from ..transports.listing import SerialPortInfo, adapter_name, kondo_usb_without_port, list_serial_ports
 from ..transports.platforms import latency_timer_advice, port_names_hint
-from ._common import CliError, ExitCode, emit_json, err, json_option, out
+from ._common import CliError, ExitCode, emit_json, err, json_option, out, settings_of
 
 
 def ports_table(found: list[SerialPortInfo]) -> Table:
@@ -33,9 +33,10 @@ def ports_table(found: list[SerialPortInfo]) -> Table:
     return table
 
 
-def notes(found: list[SerialPortInfo], unbound: list[str]) -> list[str]:
-    """What to do next: a Kondo adapter missing (as doctor says it), or an FTDI latency timer to set."""
-    said = missing_adapter_notes(found, unbound, linux=sys.platform.startswith("linux"))
+def notes(found: list[SerialPortInfo], unbound: list[str], port: str | None = None) -> list[str]:
+    """What to do next: a Kondo adapter missing (as doctor says it), or an FTDI latency timer to set; with
+    ``port`` (--port or ICS35_PORT) a pseudo-terminal, what it is instead of a missing adapter."""
+    said = missing_adapter_notes(found, unbound, linux=sys.platform.startswith("linux"), port=port)
     for p in found:
         if not p.ftdi_based:
             continue
@@ -48,7 +49,8 @@ def notes(found: list[SerialPortInfo], unbound: list[str]) -> list[str]:
 
 @click.command()
 @json_option
-def ports(as_json: bool) -> int:
+@click.pass_context
+def ports(ctx: click.Context, as_json: bool) -> int:
     """List serial ports with their USB IDs, marking Kondo adapters (USB vendor 165C).
 
     Exit code 3 when there is no serial port at all.  On Linux, an ICS USB
@@ -60,7 +62,8 @@ def ports(as_json: bool) -> int:
     except Exception as exc:  # pyserial's platform backend failed: say so, no traceback
         raise CliError(ExitCode.PORT, f"cannot list serial ports: {exc}") from None
     unbound = kondo_usb_without_port()
-    said = notes(found, unbound)
+    settings = settings_of(ctx)
+    said = notes(found, unbound, None if settings.port_defaulted else settings.port)
     if as_json:
         emit_json({"ports": [p.to_dict() for p in found], "kondo_without_port": unbound, "notes": said})
     elif found:

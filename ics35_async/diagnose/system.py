@@ -25,7 +25,7 @@ from ..transports.listing import (
     kondo_usb_without_port,
     linux_adapter_steps,
 )
-from ..transports.platforms import latency_timer_advice, port_names_hint
+from ..transports.platforms import is_pty_name, latency_timer_advice, port_names_hint
 from ..transports.wire_device import is_url
 from .findings import Finding
 from .udev import system_groups
@@ -59,6 +59,7 @@ class SystemReport:
     tty: str | None = None
     kondo_adapter: bool | None = None
     timer_read_open: bool = False  # latency_timer_ms was read with the port open
+    pseudo_terminal: bool = False  # the checked port is a pty: no adapter behind it to advise about
 
     def timer_while_open(self, root: str | Path = "/") -> None:
         """Read the port's latency timer again, with the port open (by this program, which asked the driver for
@@ -79,11 +80,35 @@ class SystemReport:
             "ports": [p.to_dict() for p in self.ports],
             "kondo_without_port": self.kondo_without_port,
             "latency_timer_ms": self.latency_timer_ms,
+            "pseudo_terminal": self.pseudo_terminal,
         }
 
 
 def _below(root: Path, path: str) -> Path:
     return root / path.lstrip("/")
+
+
+def is_pseudo_terminal(port: str | None, root: str | Path = "/") -> bool:
+    """Whether ``port`` (a device path, or a link to one such as ``ics35 sim``'s) is a pty slave below ``root``:
+    by its resolved name, without opening it."""
+    if not port or is_url(port):
+        return False
+    real = Path(os.path.realpath(_below(Path(root), port)))
+    try:
+        inside = real.relative_to(os.path.realpath(root))
+    except ValueError:
+        return False
+    return is_pty_name("/" + inside.as_posix())
+
+
+def pseudo_terminal_finding(port: str) -> Finding:
+    """What a pty port is, said in place of the adapter checks, which mean nothing for it."""
+    return Finding(
+        "pty",
+        "info",
+        f"{port} is a pseudo-terminal: a simulator (ics35 sim) or a bridge (socat, ser2net, a virtual machine's "
+        "serial port), not a USB adapter; the adapter's checks (its driver, its timer) are skipped",
+    )
 
 
 def read_latency_timer(root: Path, tty: str) -> int | None:
@@ -339,8 +364,13 @@ def missing_adapter(
     return found
 
 
-def missing_adapter_notes(ports: list[SerialPortInfo], unbound: list[str], *, linux: bool) -> list[str]:
-    """:func:`missing_adapter`'s findings, one line each: ``ics35 ports``'s notes and the web page's."""
+def missing_adapter_notes(
+    ports: list[SerialPortInfo], unbound: list[str], *, linux: bool, port: str | None = None
+) -> list[str]:
+    """:func:`missing_adapter`'s findings, one line each: ``ics35 ports``'s notes and the web page's.  With
+    ``port`` (the one in use) a pseudo-terminal, what it is instead: no adapter is missing behind it."""
+    if port is not None and is_pseudo_terminal(port):
+        return [pseudo_terminal_finding(port).problem]
     return [f"{f.problem}: {f.fix}" for f in missing_adapter(ports, unbound, linux=linux)]
 
 
@@ -365,6 +395,17 @@ def check_system(
     device = port if port and not is_url(port) and not port.upper().startswith("COM") else None
     if linux:
         report.kondo_without_port = kondo_usb_without_port(_below(root, "/sys"))
+    if device is not None and is_pseudo_terminal(device, root):
+        # (a simulator's or a bridge's pty: who may open it and who holds it still matter, adapters do not)
+        report.pseudo_terminal = True
+        report.device = device
+        report.findings.append(pseudo_terminal_finding(device))
+        if linux:
+            uid = os.geteuid() if uid is None else uid
+            gids = set(os.getgroups()) | {os.getegid()} if gids is None else gids
+            report.findings += check_port_access(root, device, uid=uid, gids=gids)
+            report.findings += check_holders(root, device, own_pid=own_pid)
+        return report
     # (A port on a board's own UART or a PC's serial port needs no USB adapter: none missing is no news.)
     on_usb = device is None or not linux or _on_usb(root, os.path.basename(os.path.realpath(_below(root, device))))
     report.findings += missing_adapter(report.ports, report.kondo_without_port, linux=linux, usb_port=on_usb)
