@@ -157,9 +157,10 @@ def test_a_log_size_below_zero_is_refused_in_words() -> None:
         VirtualLine([1], log_size=-1)
 
 
-@pytest.mark.parametrize("value", ["-1", "-20"])
-def test_a_urls_log_below_zero_is_refused_naming_the_urls_own_option(value: str) -> None:
-    # The URL's refusal named log_size, the Python argument, which the user never typed.
+@pytest.mark.parametrize("value", ["-1", "-20", "abc", "1.5", "every"])
+def test_a_urls_log_not_a_size_is_refused_naming_the_urls_own_option(value: str) -> None:
+    # The URL's refusal named log_size, the Python argument, which the user never typed; a word other than all
+    # was "not an integer", as if all were not taken.
     for refuse in (lambda: parse_url(f"sim://?log={value}"), lambda: open_url(f"sim://?log={value}")):
         with pytest.raises(InvalidArgument) as refused:
             refuse()

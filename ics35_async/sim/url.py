@@ -135,7 +135,10 @@ def _int(key: str, text: str) -> int:
 def _log_size(key: str, text: str) -> int:
     """``log=``'s number of transactions, refused here in the URL's words: the line's own refusal names its Python
     argument, log_size, which a URL's user never typed."""
-    size = _int(key, text)
+    try:
+        size = int(text)
+    except ValueError:
+        size = -1  # (not a number: refused as one below zero is, in words that name all)
     if size < 0:
         raise InvalidArgument(
             f"sim URL: {key}={text!r}: the log keeps a whole number of transactions >= 0 (0: no log; all: every one)"
