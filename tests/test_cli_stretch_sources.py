@@ -51,3 +51,16 @@ def test_the_scan_table_keeps_every_value_whole_on_a_terminal(columns: int) -> N
         assert all("3500-11500" in row for row in rows), said
     else:
         assert "columns left out:" in said, said
+
+
+@pytest.mark.parametrize("quick", [[], ["--quick"]])
+def test_the_scan_table_into_a_log_keeps_every_value_whole(cli: Any, sim_line: Any, quick: list[str]) -> None:
+    # Into a log (a pipe, a file) the table is drawn at its own width: --quick's table, with its empty note
+    # column, came out with its rates cut ("1152…").
+    _, url = sim_line([1, 2])
+    result = cli("--port", url, "scan", "--bauds", "115200", "--ids", "0-3", *quick)
+    assert result.code == 0, result.err
+    said = [line.split() for line in result.out.splitlines()]
+    rows = [words for words in said if words[:1] in (["1"], ["2"]) and "servo(s)" not in words]
+    assert [row[:2] for row in rows] == [["1", "115200"], ["2", "115200"]], result.out
+    assert "…" not in result.out, result.out

@@ -84,8 +84,9 @@ def scan_heading(servos: Sequence[FoundServo]) -> str:
 def scan_table(servos: Sequence[FoundServo]) -> Table:
     table = Table(box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     if all(s.eeprom is None for s in servos):
-        table.add_column("ID", justify="right")
-        table.add_column("baud", justify="right")
+        # (values whole: a column that may wrap, beside an empty one, was cut even at a log's unlimited width)
+        table.add_column("ID", justify="right", no_wrap=True)
+        table.add_column("baud", justify="right", no_wrap=True)
         table.add_column("")
         for s in servos:
             table.add_row(str(s.servo_id), baud_cell(s), "rate unconfirmed" if s.rate_unconfirmed else "")
