@@ -150,6 +150,8 @@ class LogMatcher:
         self.stream_entries: dict[int, deque[tuple[int, Verdict, Any, str | None, bytes]]] = {i: deque() for i in ids}
         # Per ID, each stream outcome (ok, value, when) in cycle order, or SKIPPED for a cycle whose frame was skipped
         self.stream_outcomes: dict[int, deque[tuple[bool, Any, float] | None]] = {i: deque() for i in ids}
+        # Per ID, its last stream entry paired with an outcome: (tx, whether the bus took a value; None: skipped)
+        self.last_stream: dict[int, tuple[bytes, bool | None]] = {}
         self.last_cycle = 0  # of the frames added
         self.offline: frozenset[int] = frozenset()  # the IDs offline in the last frame added
         self.request_entries: dict[int, deque[tuple[int, bytes, Verdict, Any, str | None]]] = {
@@ -327,12 +329,14 @@ class LogMatcher:
         for sid, entries in self.stream_entries.items():
             outcomes = self.stream_outcomes[sid]
             while entries and outcomes:
-                seq, verdict, clean, fault, _ = entries.popleft()
+                seq, verdict, clean, fault, tx = entries.popleft()
                 outcome = outcomes.popleft()
                 if outcome is SKIPPED:
                     self.counts.skipped_cycle_entries += 1
+                    self.last_stream[sid] = (tx, None)
                     continue
                 ok, value, when = outcome
+                self.last_stream[sid] = (tx, ok)
                 self._settle(seq, verdict, clean, fault, ok, value, when)
             if outcomes and final:
                 raise CheckError(f"ID {sid}: {len(outcomes)} stream outcomes with no log entry")
