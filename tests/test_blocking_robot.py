@@ -226,6 +226,26 @@ def test_unreached_names_the_joints_whose_servo_is_offline_as_the_async_robot_do
         rig.close()
 
 
+def test_uncommanded_names_the_joints_only_read_and_those_offline_as_the_async_robot_does() -> None:
+    # The joints no target of the program's reaches, which a view shows "-" for (not "free": nothing freed them):
+    # the ICS 3.6 ones only read since the open (torque as found) and those whose servo is offline (sent nothing).
+    rig = make_rig({"continue_on_offline": True}, ics36=(1,))  # neck and hip (ID 1 of each line): read, not freed
+    try:
+        with blocking.open_robot(rig.description, **FAST) as robot:
+            assert robot.uncommanded == {"neck", "hip"}
+            robot.move_to({"neck": 15.0}, duration=0.05)
+            assert robot.uncommanded == {"hip"}
+            rig.upper.remove_servo(JOINTS["neck"]["id"])
+            end = time.monotonic() + GUARD
+            while robot.uncommanded != {"neck", "hip"}:
+                assert time.monotonic() < end, robot.uncommanded
+                time.sleep(0.01)
+            assert robot.uncommanded == robot.async_robot.uncommanded
+            assert robot.targets["neck"] == 15.0  # (asked, not sent: its target stays)
+    finally:
+        rig.close()
+
+
 def test_on_close_free_frees_every_joint() -> None:
     rig = make_rig()
     try:

@@ -522,10 +522,12 @@ def test_for_an_ics35_servo_the_servo_page_says_what_its_reported_position_is(pa
 
 
 @contextlib.contextmanager
-def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[tuple[PtyLine, Page]]:
-    """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90) on a line of its own with ``safety`` (the
-    robot file's table), served by ``ics35 web --robot``: its Robot page with motion switched on."""
-    line = PtyLine((1, 2))
+def arm_robot_page(
+    browser: Browser, folder: Path, safety: str = "", ics36: tuple[int, ...] = ()
+) -> Iterator[tuple[PtyLine, Page]]:
+    """A two-joint arm (shoulder, servo 1; elbow, servo 2, -90..90; the IDs ``ics36`` speaking ICS 3.6) on a line
+    of its own with ``safety`` (the robot file's table), served by ``ics35 web --robot``: its Robot page."""
+    line = PtyLine((1, 2), ics36)
     robot = folder / "arm.toml"
     robot.write_text(
         f'[lines.arm]\nport = "{line.path}"\n[joints.shoulder]\nline = "arm"\nid = 1\n'
@@ -533,6 +535,13 @@ def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[
     )
     with web_server_page(browser, line, ["--robot", str(robot)]) as p:
         p.click("#robot-link")
+        yield line, p
+
+
+@contextlib.contextmanager
+def arm_with_motion_on(browser: Browser, folder: Path, safety: str) -> Iterator[tuple[PtyLine, Page]]:
+    """The arm of :func:`arm_robot_page` with ``safety``, its Robot page with motion switched on."""
+    with arm_robot_page(browser, folder, safety) as (line, p):
         p.check("#robot-motion")
         expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
         yield line, p
@@ -585,6 +594,20 @@ def test_the_robot_pages_sliders_show_where_their_joints_are_and_a_refusal_goes_
         until(lambda: line.sim.servo(1).free, "the shoulder was never freed")
         line.sim.servo(1).move_by_hand(degrees_to_position(-25))
         expect(shoulder.locator("input[type=range]")).to_have_value("-25")
+
+
+def test_an_ics36_joint_only_read_shows_no_target_as_the_live_table_shows_it(browser: Browser, tmp_path: Path) -> None:
+    # An ICS 3.6 joint is read at the open and left as it was found (its torque unknown, no target sent): its row
+    # said "free", where `ics35 play`'s live table shows "-".  An ICS 3.5 joint, freed to be read, is free.
+    with arm_robot_page(browser, tmp_path, ics36=(2,)) as (_, p):
+        shoulder, elbow = p.locator("tr[data-joint='shoulder']"), p.locator("tr[data-joint='elbow']")
+        expect(elbow.locator(".angle")).not_to_have_text("-")  # (read: the robot is streaming)
+        expect(elbow.locator(".target")).to_have_text("-")
+        expect(shoulder.locator(".target")).to_have_text("free")
+        p.check("#robot-motion")  # (both held where they stand: a target each)
+        expect(p.locator("#robot-state")).to_contain_text("joints hold where they stand")
+        for row in (shoulder, elbow):
+            expect(row.locator(".target")).not_to_have_text(re.compile(r"^(-|free)$"))
 
 
 @contextlib.contextmanager

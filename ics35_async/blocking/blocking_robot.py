@@ -304,6 +304,12 @@ class BlockingRobot(LoopOwner[Robot]):
         return self._loop.read(_unreached_of, self._async)
 
     @property
+    def uncommanded(self) -> frozenset[str]:
+        """The joints no target of the program's reaches now, only read or offline: a view shows "-" for their
+        target (see ``Robot.uncommanded``)."""
+        return self._loop.read(_uncommanded_of, self._async)
+
+    @property
     def tripped(self) -> dict[str, SafetyStop]:
         """Joints whose safety stop still stands (see ``Robot.tripped``; :meth:`reset_trip`)."""
         return self._loop.read(_tripped_of, self._async)
@@ -363,6 +369,10 @@ def _untouched_of(robot: Robot) -> frozenset[str]:
 
 def _unreached_of(robot: Robot) -> frozenset[str]:
     return robot.unreached
+
+
+def _uncommanded_of(robot: Robot) -> frozenset[str]:
+    return robot.uncommanded
 
 
 def _tripped_of(robot: Robot) -> dict[str, SafetyStop]:

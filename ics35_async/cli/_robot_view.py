@@ -89,6 +89,7 @@ def joint_table(
     frame = robot.latest
     positions = dict(frame.positions) if frame else {}
     unreached = robot.unreached
+    uncommanded = robot.uncommanded  # ("-" for their target: only read, or offline; the Robot page's rule too)
     gone = {line for line, bus in robot.group.buses.items() if bus.state in _GONE} if lost else set()
     for name in joints or list(robot.joints):
         spec = robot.joints[name]
@@ -112,7 +113,7 @@ def joint_table(
         cells: list[str | Text] = [
             name,
             f"{spec.line}:{spec.id}",
-            "-" if name in robot.untouched or waiting or silent else "free" if target is None else _deg(target),
+            "-" if name in uncommanded or waiting else "free" if target is None else _deg(target),
             _deg(_reframed(spec, positions.get(name), (offsets or {}).get(name))),
             "-" if silent or seen is None or seen.temperature_c is None else f"{seen.temperature_c:.0f}C",
             "-" if silent or seen is None or seen.current is None else str(seen.current),

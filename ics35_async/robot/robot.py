@@ -184,6 +184,15 @@ class Robot:
         return frozenset() if frame is None else frame.offline
 
     @property
+    def uncommanded(self) -> frozenset[str]:
+        """The joints no target of the program's reaches now: the :attr:`untouched` (ICS 3.6, only read since the
+        robot opened: their torque as found) and the :attr:`unreached` (their servo offline).  A view of the robot
+        shows "-" for their target, no target set (``ics35 play``'s live table, the configurator's Robot page),
+        where a ``None`` in :attr:`targets` of any other joint is "free" (sent the free command, or freed to be
+        read)."""
+        return frozenset(self.untouched) | self.unreached
+
+    @property
     def telemetry(self) -> dict[str, JointTelemetry]:
         """The newest temperature and current of every joint (read by the safety watch)."""
         return self.watch.telemetry

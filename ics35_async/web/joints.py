@@ -58,6 +58,7 @@ class RobotSession:
         self.lost_pose: dict[str, float] = {}
         self.lost_lines: list[str] = []
         self.last_targets: dict[str, float | None] = {}  # each joint's last command when a lost line ended the robot
+        self.last_uncommanded: frozenset[str] = frozenset()  # and those no target reached then (Robot.uncommanded)
         self.ics36: set[str] = set()  # joints seen answering ICS 3.6's position read (read at an open)
         self.kept_trips: list[SafetyStop] = []  # the stops the next open's robot is told of (see _carry_on_from)
         self.robot: Robot | None = None
@@ -169,7 +170,7 @@ class RobotSession:
                     robot.trip(SafetyStop(str(stop), joint=stop.joint, reason=stop.reason, action="free"))
                 self.robot, self.error, self.warnings = robot, None, list(robot.warnings)
                 self.kept_trips = []
-                self.last_targets = {}
+                self.last_targets, self.last_uncommanded = {}, frozenset()
                 opened.set()
                 asked = asyncio.ensure_future(closing.wait())
                 ended = asyncio.ensure_future(robot.wait_end())
@@ -221,6 +222,7 @@ class RobotSession:
         held = robot.held
         targets = robot.targets
         self.last_targets = targets  # what the page shows until Reconnect (each joint keeps it)
+        self.last_uncommanded = robot.uncommanded
         # (a line back by itself since keeps its place: its joints are held, sent nothing, until Reconnect)
         self.lost_lines = self._in_order({*self.lost_lines, *robot.lost_lines})
         # A current trip of a joint the watch freed stands until the person's Reset (a free servo draws nothing, so
@@ -325,6 +327,9 @@ class RobotSession:
         # (the robot a lost line stopped: its targets as they are now, a joint freed since included)
         kept = robot or self._stopped_robot
         targets = self.last_targets if kept is None else kept.targets
+        # No target set ("-": only read, torque as found; or offline), where another joint's None is "free": the
+        # robot's rule, as `ics35 play`'s live table follows it.
+        uncommanded = self.last_uncommanded if kept is None else kept.uncommanded
         joints = []
         for name, spec in self.description.joints.items():
             t = None if name in unreached else telemetry.get(name)
@@ -340,7 +345,8 @@ class RobotSession:
                     "target": _round(targets.get(name)),
                     "temperature_c": None if t is None else _round(t.temperature_c),
                     "current": None if t is None else t.current,
-                    "offline": name in unreached,  # (the page shows "-" for its target, sent nothing)
+                    "offline": name in unreached,
+                    "uncommanded": name in uncommanded,  # (the page shows "-" for its target)
                     "tripped": None if stop is None else str(stop),
                     "held": held.get(name),
                 }

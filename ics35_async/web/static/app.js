@@ -992,8 +992,9 @@ function onRobot(r) {
     // Its Free button: the page's way out of a hold (its servo then read where it stands, and moved from there).
     // Rebuilt only when the hold changes: a button replaced under the pointer would lose its click.
     const target = row.querySelector(".target");
-    // Unreached (its servo offline): no target went out, whatever it was asked ("-", as `ics35 play` shows it).
-    const shown = (j.offline ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
+    // Uncommanded (only read, its torque as found; or its servo offline): no target went out, whatever it was
+    // asked ("-", as `ics35 play` shows it); another joint with none was sent its free.
+    const shown = (j.uncommanded ? "-" : j.target ?? "free") + (j.held ? ` (held: ${j.held}, sent nothing)` : "");
     if (target.dataset.shown !== shown) {
       target.dataset.shown = shown;
       target.replaceChildren(shown, ...(j.held ? [" ", el("button", { class: "free-joint", title: "torque off for this joint: it is read where it stands, and a move starts from there", onclick: () => freeJoint(j.name).catch(() => {}) }, "Free")] : []));
