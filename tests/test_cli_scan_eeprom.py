@@ -11,10 +11,11 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.eeprom import BaudRate, Eeprom, Flags
 from ics35_async.policies.eeprom_backup import backup_document, backups_document
-from ics35_async.protocol import ReadEeprom
+from ics35_async.protocol import ReadEeprom, ReadParam
 from ics35_async.sim import VirtualServo
 from ics35_async.sim.virtual_servo import NO_REPLY
 from tests.support.cli_runs import edit_backup
+from tests.support.sim_servos import UnplugsWhenAsked
 
 
 def with_flags(servo: VirtualServo, flags: int) -> VirtualServo:
@@ -237,6 +238,23 @@ def test_no_advice_of_a_rate_the_eeprom_contradicts(cli: Any, sim_line: Any) -> 
     _, url = sim_line([VirtualServo(2, baud_rate=1250000)])
     result = cli("--port", url, "--timeout", "0.005", "get", "2", "speed")
     assert result.code == ExitCode.WRONG_BAUD and "--baud 1250000" in result.err
+
+
+def test_a_rate_the_search_could_not_ask_is_not_named_as_one_the_servo_did_not_answer_at(
+    cli: Any, sim_line: Any
+) -> None:
+    # The port lost as servo 5 was asked at 625000 (it answers there, its answer never back): the error said
+    # "nor at 625000 baud", as if it had been asked there and stayed silent, and nothing of 1250000, never asked.
+    puller = UnplugsWhenAsked(5, ReadParam, baud_rate=625000)
+    sim, url = sim_line([puller])
+    puller.line = sim
+    result = cli("--port", url, "--timeout", "0.005", "get", "5", "speed")
+    assert result.code == ExitCode.NO_REPLY, result.err
+    said = " ".join(result.err.split())
+    assert "nor at" not in said, said
+    assert (
+        "servo 5 did not answer on " in said and "at 115200 baud (625000 and 1250000 baud could not be tried)" in said
+    )
 
 
 # --------------------------------------------------------------------------- finding 7: ID change

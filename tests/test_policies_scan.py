@@ -309,6 +309,28 @@ async def test_a_search_of_the_other_rates_says_which_it_tried_and_where_a_devic
         await search_other_rates(opener(empty), [9600])
 
 
+async def test_a_rate_whose_ask_raised_is_not_said_asked_and_unanswered(lines: Any) -> None:
+    # Why a servo did not answer: its search of the other rates listed each rate it began to ask as asked and not
+    # answered, one whose ask raised too (the port lost as the servo was asked there, its answer never back), and
+    # the words said "nor at 625000 baud".  Only a rate asked to its end is said so; the others could not be tried.
+    from ics35_async.errors import ReplyTimeout
+    from ics35_async.policies import NoReplyCause, why_no_reply
+
+    puller = UnplugsWhenAsked(1, ReadParam, baud_rate=625000)  # (answers at 625000, pulling the port as it hears)
+    sim = lines([puller])
+    puller.line = sim
+    async with open_bus(sim, **FAST) as bus:
+        with pytest.raises(ReplyTimeout) as unanswered:
+            await bus.request(ReadParam(1, Param.STRETCH), retries=0)
+    told: list[int] = []
+    finding = await why_no_reply(unanswered.value, opener(sim), 115200, on_rate=told.append)
+    assert told == [625000] and sim.unplug_count == 1  # (asked there: the port went as it was)
+    assert finding.cause is NoReplyCause.UNKNOWN and finding.rates_tried
+    assert finding.searched == () and finding.nothing_elsewhere() is None, finding
+    assert finding.not_searched == (625000, 1250000), finding
+    assert finding.not_searched_in_words() == "625000 and 1250000 baud could not be tried"
+
+
 @pytest.mark.parametrize("seed", range(4))
 async def test_a_cut_reply_is_garbled_and_no_reply_is_silence(lines: Any, seed: int) -> None:
     sim = lines([VirtualServo(2)], faults="truncate@2:1.0", seed=seed)

@@ -24,7 +24,7 @@ from starlette.websockets import WebSocketDisconnect
 from ics35_async import Eeprom
 from ics35_async.errors import ReplyHeaderError, ReplyTimeout
 from ics35_async.policies.eeprom_backup import backups_in
-from ics35_async.protocol import ReadEeprom, WriteEeprom
+from ics35_async.protocol import ReadEeprom, ReadParam, WriteEeprom
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.web import LineConfig, LineSession, create_app
 from ics35_async.web.live import LIVE_RATE_HZ
@@ -1440,6 +1440,19 @@ def test_a_servo_at_another_rate_is_named_with_the_rate_to_reopen_the_line_at(se
     # Nowhere: no rate named, but what to check.
     nowhere = client.get("/api/servo/9/eeprom").json()
     assert "answers_at" not in nowhere and "no other baud rate" in nowhere["error"] and "power" in nowhere["error"]
+
+
+def test_a_rate_the_search_could_not_ask_is_said_not_tried_not_one_the_servo_is_silent_at(serve: Any) -> None:
+    # The port lost as servo 5 was asked at 625000 (it answers there, its answer never back): the page said it
+    # answered "at no other baud rate", the rates it never heard from taken for rates it is silent at.
+    client, sim = serve((1,))
+    puller = UnplugsWhenAsked(5, ReadParam, baud_rate=625000, replug_after=0.05)
+    sim.add_device(puller)
+    puller.line = sim
+    answer = client.get("/api/servo/5/eeprom").json()
+    assert sim.unplug_count == 1 and "answers_at" not in answer, answer
+    assert "no other baud rate" not in answer["error"], answer
+    assert "625,000 and 1,250,000 baud could not be tried" in answer["error"], answer
 
 
 def test_while_a_live_plot_runs_other_rates_are_not_tried_and_the_message_says_so(serve: Any) -> None:

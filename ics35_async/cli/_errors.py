@@ -215,9 +215,13 @@ def no_reply_error(settings: Settings, exc: errors.ReplyTimeout) -> CliError:
     # Where the other rates were asked too (each said as it was tried), the error names them: the line's rate
     # alone read as if they had not been.
     elsewhere = finding.nothing_elsewhere()
+    # A rate the search could not ask (the port lost as it was asked there) is said apart: not one it is silent at.
+    untried = finding.not_searched_in_words()
     return CliError(
         ExitCode.NO_REPLY,
-        f"{what} on {settings.port} at {settings.baud} baud" + (f", {elsewhere}" if elsewhere else ""),
+        f"{what} on {settings.port} at {settings.baud} baud"
+        + (f", {elsewhere}" if elsewhere else "")
+        + (f" ({untried})" if untried else ""),
         *link_hints(settings),
         *NO_REPLY_HINTS,
     )

@@ -17,7 +17,10 @@ Step 3 reopens the port at each other rate, so a caller whose line others use
 at the same time (a robot streaming on it, a live stream) passes
 ``other_rates=False``: the finding then says the other rates were not tried.
 A port that cannot be opened again, or a rate the adapter cannot do, only
-leaves that check out: the finding never raises for the line's sake.
+leaves that check out: the finding never raises for the line's sake.  It names
+such rates apart (:attr:`NoReply.not_searched`), with a rate whose ask raised
+(the port lost as the servo was asked there), never among the rates the servo
+was asked at and did not answer (:attr:`NoReply.searched`).
 """
 
 from __future__ import annotations
@@ -54,14 +57,26 @@ class NoReply:
     # Whether the other rates were tried.  False: an earlier check found the cause (NO_ECHO, LONG_REPLY_LOST),
     # the caller did not allow them (``other_rates=False``), or the command names no servo.
     rates_tried: bool = False
-    searched: tuple[int, ...] = ()  # the other rates asked, in order (a link that ignores rates asks none)
+    # The other rates asked, in order, each ask run to its end (a link that ignores rates asks none).
+    searched: tuple[int, ...] = ()
+    # The other rates that could not be asked, in order: the port could not be opened at them, or an ask raised
+    # (the port lost as the servo was asked: no answer could come back), which ended the search there.
+    not_searched: tuple[int, ...] = ()
 
     def nothing_elsewhere(self) -> str | None:
-        """When the other rates were asked and the servo answered at none: that, in words to follow what did not
+        """When other rates were asked and the servo answered at none: that, in words to follow what did not
         answer at the line's rate (``nor at 625000 or 1250000 baud``); None otherwise."""
         if self.cause is not NoReplyCause.UNKNOWN or not self.searched:
             return None
         return f"nor at {rates_in_words(self.searched)} baud"
+
+    def not_searched_in_words(self) -> str | None:
+        """The other rates that could not be asked, in words (``625000 and 1250000 baud could not be tried``), for
+        a person not to take them for rates the servo does not answer at; None when there are none."""
+        if not self.not_searched:
+            return None
+        *first, last = (str(rate) for rate in self.not_searched)
+        return f"{', '.join(first) + ' and ' if first else ''}{last} baud could not be tried"
 
 
 async def why_no_reply(
@@ -92,18 +107,23 @@ async def why_no_reply(
     if not other_rates:
         return NoReply(NoReplyCause.UNKNOWN, servo_id, baud)
     searched: list[int] = []
-
-    def asking(other: int) -> None:
-        searched.append(other)
-        if on_rate is not None:
-            on_rate(other)
-
+    not_searched: list[int] = []
     try:
-        found = await servo_rates(open_at, servo_id, other_bauds([baud]), on_rate=asking)
+        found = await servo_rates(
+            open_at, servo_id, other_bauds([baud]), on_rate=on_rate, tried=searched, not_tried=not_searched
+        )
     except (IcsError, OSError):
         found = ()
     cause = NoReplyCause.OTHER_RATE if found else NoReplyCause.UNKNOWN
-    return NoReply(cause, servo_id, baud, rates=found, rates_tried=True, searched=tuple(searched))
+    return NoReply(
+        cause,
+        servo_id,
+        baud,
+        rates=found,
+        rates_tried=True,
+        searched=tuple(searched),
+        not_searched=tuple(not_searched),
+    )
 
 
 async def _answers_short_read(open_at: LineOpener, baud: int, servo_id: int) -> bool:

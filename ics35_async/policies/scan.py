@@ -439,25 +439,40 @@ async def _rates_where(
     answers: Callable[[Line, int], Awaitable[bool]],
     on_rate: RateCallback | None,
     tried: list[int] | None = None,
+    not_tried: list[int] | None = None,
 ) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``answers(line, baud)`` is True, the line opened there with
-    ``open_at(baud)`` (``on_rate(baud)`` told first, and the rate added to ``tried``).  A rate the port cannot be
-    opened at is left out; on a line that ignores rates none is offered (every rate is the far end's one rate)."""
+    ``open_at(baud)`` (``on_rate(baud)`` told first, and the rate added to ``tried`` once its ask has run to its
+    end).  A rate the port cannot be opened at is left out (added to ``not_tried``); an ask that raises ends the
+    search with its error, that rate and those after it added to ``not_tried`` (no answer could come back from
+    them: they were not asked).  On a line that ignores rates none is offered, nor added to either (every rate is
+    the far end's one rate)."""
     found: list[int] = []
     skipped: dict[int, IcsError] = {}
-    for baud in _check_bauds(bauds):
-        async with contextlib.AsyncExitStack() as stack:
-            line = await _open_or_skip(stack, open_at, baud, skipped)
-            if line is None:
-                continue
-            if not carries_line_settings(getattr(line, "port", None)):
-                return ()
-            if on_rate is not None:
-                on_rate(baud)
-            if tried is not None:
-                tried.append(baud)
-            if await answers(line, baud):
-                found.append(baud)
+    asked: list[int] = []
+    checked = _check_bauds(bauds)
+    try:
+        for baud in checked:
+            async with contextlib.AsyncExitStack() as stack:
+                line = await _open_or_skip(stack, open_at, baud, skipped)
+                if line is None:
+                    continue
+                if not carries_line_settings(getattr(line, "port", None)):
+                    return ()
+                if on_rate is not None:
+                    on_rate(baud)
+                answered = await answers(line, baud)
+                asked.append(baud)
+                if tried is not None:
+                    tried.append(baud)
+                if answered:
+                    found.append(baud)
+    except BaseException:
+        if not_tried is not None:
+            not_tried.extend(baud for baud in checked if baud not in asked)
+        raise
+    if not_tried is not None:
+        not_tried.extend(skipped)
     return tuple(found)
 
 
@@ -529,7 +544,13 @@ async def device_rates(
 
 
 async def servo_rates(
-    open_at: LineOpener, servo_id: int, bauds: Iterable[int], *, on_rate: RateCallback | None = None
+    open_at: LineOpener,
+    servo_id: int,
+    bauds: Iterable[int],
+    *,
+    on_rate: RateCallback | None = None,
+    tried: list[int] | None = None,
+    not_tried: list[int] | None = None,
 ) -> tuple[int, ...]:
     """The rates among ``bauds`` at which ``servo_id`` answers and its EEPROM names that rate.
 
@@ -539,6 +560,8 @@ async def servo_rates(
     opens the line at a rate, as for :func:`scan`; ``on_rate`` as for
     :func:`device_rates`.  The servo is asked once at each rate (see the module's search rule); one that
     answers has its EEPROM read until two reads agree (see :func:`~.scan_units.read_eeprom_agreed`).
+    ``tried`` gets each rate whose ask ran to its end; ``not_tried`` each rate that could not be asked (the port
+    not opened at it, or an ask that raised, which ends the search with its error: that rate and those after it).
 
     Raises:
         InvalidArgument: ``servo_id`` is not 0..31.
@@ -553,4 +576,4 @@ async def servo_rates(
         image = await read_eeprom_or_error(line, servo_id)
         return isinstance(image, Eeprom) and int(image.baud_rate) == baud
 
-    return await _rates_where(open_at, bauds, answers, on_rate)
+    return await _rates_where(open_at, bauds, answers, on_rate, tried, not_tried)

@@ -166,6 +166,12 @@ def _how_far(report: ServoWriteReport | None) -> dict[str, bool]:
     return {}
 
 
+def _rates_said(rates: tuple[int, ...], last_joined_by: str) -> str:
+    """``rates`` as the page's sentences name them: ``625,000 and 1,250,000`` (``last_joined_by``: "and", "or")."""
+    *first, last = (f"{rate:,}" for rate in rates)
+    return f"{', '.join(first) + f' {last_joined_by} ' if first else ''}{last}"
+
+
 class LineSession:
     """The line the pages work on (one per server)."""
 
@@ -659,7 +665,7 @@ class LineSession:
                         )
                 finally:
                     await self._back_at(bus, baud)
-                if finding.rates_tried:
+                if finding.rates_tried and not finding.not_searched:  # (a rate not asked: looked for again)
                     self._looked[key] = finding
                 elif looked is not None and finding.cause is NoReplyCause.UNKNOWN:
                     finding, not_tried, looked_before = looked, None, True
@@ -709,6 +715,11 @@ class LineSession:
         checks = "check its power (6-12 V on the servo line, not just USB), the wiring and its ID"
         if not_tried is not None:
             return f"ID {sid} did not answer at {baud} baud; {not_tried}; else {checks}"
+        if finding.not_searched:
+            # (not "at no other baud rate": a rate the search could not ask, the port lost there, said apart)
+            nor = f", nor at {_rates_said(finding.searched, 'or')} baud" if finding.searched else ""
+            untried = f"{_rates_said(finding.not_searched, 'and')} baud could not be tried"
+            return f"ID {sid} did not answer on {port} at {baud} baud{nor} ({untried}): {checks}"
         if looked_before:
             return (
                 f"ID {sid} did not answer on {port} at {baud} baud, and at no other baud rate when it was looked for "
