@@ -18,6 +18,7 @@ import pytest
 from ics35_async.cli import ExitCode
 from ics35_async.sim import VirtualLine, VirtualServo
 from ics35_async.sim.faults import NO_FAULTS, Draw, FaultInjector
+from tests.support.sim_servos import UnplugsWhenAsked, free_command
 from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import scaled
 
@@ -283,6 +284,25 @@ def test_monitor_with_reconnect_whose_port_stays_lost_while_it_asks_ends_at_seco
     assert time.monotonic() - started < scaled(10), result.err
     assert result.code == ExitCode.COMMUNICATION, result.err
     assert "was not back when --seconds" in result.err and "--seconds" in result.err, result.err
+
+
+@pytest.mark.timeout(scaled(60))  # (it waited for the port without end: Ctrl-C alone ended it)
+def test_monitor_with_reconnect_whose_port_is_lost_in_its_first_cycle_for_good_ends_at_seconds(
+    cli: Any, sim_line: Any
+) -> None:
+    # The IDs known, the port went in the stream's first cycle and stayed out: --seconds was set at the first frame,
+    # which never came.  It bounds the run: counted from when the IDs are known, it ends the wait with the loss's
+    # error (no cycle ran: an error, not a table of nothing).
+    puller = UnplugsWhenAsked(1, free_command)  # (the stream's first transaction: monitor --free streams the free)
+    sim, url = sim_line([puller, VirtualServo(2)], realtime=True)
+    puller.line = sim
+    started = time.monotonic()
+    result = cli("--port", url, "--timeout", "0.05", "monitor", "1-2", "--free", "--reconnect", "--seconds", "0.5")
+    assert time.monotonic() - started < scaled(10), result.err
+    assert sim.unplug_count == 1
+    assert result.code == ExitCode.COMMUNICATION, result.err
+    said = " ".join(result.err.split())
+    assert "lost" in said and "was not back when --seconds (0.5 s) ran out, before a first cycle" in said, said
 
 
 # (The unplug comes a second in and 40 transactions of a real-time simulator in.)

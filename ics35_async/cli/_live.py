@@ -134,6 +134,9 @@ async def run_live(
             now = loop.time()
             if bus.state is State.LOST:
                 state.port_lost(now - start, telemetry)
+                # (--seconds is set at the first frame, where the port is lost before it: it bounds this wait too)
+                if not state.cycle and deadline is not None and now >= deadline:
+                    raise not_back_in_time(settings, PortLost(f"port {settings.port} lost"), options.seconds)
             draw_if_due(now)
 
     # Servos sent targets hold them until a free reaches them (monitor's are only read: by freeing, or watched).
@@ -152,6 +155,7 @@ async def run_live(
                         # cancellation when a frame arrives at the same moment.  --seconds counts from the
                         # start but is set once the first cycle has ended: before it nothing is known of the
                         # servos (a slow adapter or a loaded machine can take longer than a short --seconds).
+                        # A port lost before then is waited for until --seconds runs out (next_frame).
                         timer = asyncio.timeout(None)
                         async with timer:
                             while True:
@@ -298,6 +302,15 @@ LOST_PORT_LOOK = 0.1
 NOTICEABLE_WAIT = 0.2
 
 
+def not_back_in_time(settings: Settings, lost: IcsError, seconds: float | None, when: str = "") -> CliError:
+    """The error of a port ``lost`` before a live command's first cycle (``when``: what it was doing) and not back
+    when --seconds ran out (``seconds``): no cycle ran, so there is no table to show."""
+    error = line_error(settings, lost)
+    error.message += f"; it was not back when --seconds ({seconds:g} s) ran out, {when + ', ' if when else ''}"
+    error.message += "before a first cycle"
+    return error
+
+
 class AskingIds:
     """A live command's asking of its IDs before its view begins (a scan, each named ID's probe), for a Ctrl-C
     there: it ends the command with what was being asked, and that nothing sent moved or freed a servo.
@@ -361,11 +374,7 @@ class AskingIds:
         while bus.state is State.LOST:
             left = None if self.deadline is None else self.deadline - time.monotonic()
             if left is not None and left <= 0:
-                error = line_error(self.settings, lost)
-                error.message += (
-                    f"; it was not back when --seconds ({self.seconds:g} s) ran out, while {what}, before a first cycle"
-                )
-                raise error
+                raise not_back_in_time(self.settings, lost, self.seconds, f"while {what}")
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(bus.state_change(), left)
         self.waiting_for_port = False

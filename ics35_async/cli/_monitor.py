@@ -28,7 +28,12 @@ from ._telemetry import Telemetry
 
 @click.command()
 @click.argument("ids", metavar="[IDS]", type=ID_LIST, required=False)
-@seconds_option("--seconds", "Stop after this long, but not before a first cycle has ended (default: Ctrl-C).", low=0.1)
+@seconds_option(
+    "--seconds",
+    "Stop after this long, counted from when the IDs are known, but not before a first cycle has ended (default: "
+    "Ctrl-C); with --reconnect a port lost before that first cycle is waited for no longer (an error).",
+    low=0.1,
+)
 @click.option(
     "--free",
     "free_servos",
