@@ -324,7 +324,7 @@ def test_a_dump_cut_by_an_unplug_keeps_what_it_read(
     err = " ".join(result.err.split())
     assert "unplugged" in err and "Traceback" not in err
     if ids == "all":  # the servos on the line: those read and those the loss left unread
-        assert "4 servo(s) answered at 115200 baud: IDs 1, 2, 3, 4" in err
+        assert "4 servos answered at 115200 baud: IDs 1, 2, 3, 4" in err
     else:
         assert "no answer from ID(s) 5: not saved" in err
     if output == "dir":

@@ -293,3 +293,35 @@ def test_a_wrong_id_is_said_asked_at_every_rate_as_each_is_tried() -> None:
     tried = "no answer at 115200 baud: trying 625000 baud ... no answer at 625000 baud either: trying 1250000 baud ..."
     assert tried in screen, screen
     assert "error: servo 5 did not answer on sim://?ids=1-3 at 115200 baud, nor at 625000 or 1250000 baud" in screen
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["monitor", "1", "--free", "--seconds", "0.2"], ["demo", "--ids", "1", "--seconds", "0.2"]],
+    ids=lambda command: command[0],
+)
+def test_one_id_asked_is_said_in_the_singular(cli: Any, command: list[str]) -> None:
+    # `monitor 1` said "asking IDs 1 on ...".
+    result = cli("--port", "sim://?ids=1", *command)
+    assert result.code == 0, result.err
+    assert "asking ID 1 on sim://?ids=1 at 115200 baud ..." in result.err and "IDs 1 " not in result.err, result.err
+
+
+def test_one_id_that_cannot_be_read_without_going_limp_is_named_as_one(cli: Any) -> None:
+    # `monitor 1` without --free on an ICS 3.5 servo said "no servo among 1 can report its position ...".
+    result = cli("--port", "sim://?ids=1", "monitor", "1", "--seconds", "0.2")
+    assert result.code == ExitCode.REFUSED, result.err
+    said = " ".join(result.err.split())
+    assert "no servo at ID 1 can report its position without going limp" in said and "among 1 " not in said, said
+
+
+def test_one_servo_in_a_dump_of_all_and_in_a_robot_files_line_is_named_as_one(cli: Any, tmp_path: Path) -> None:
+    # "1 servo(s) answered at 115200 baud: IDs 3"; check's "line main: ..., IDs 1".
+    dumped = cli("--port", "sim://?ids=3", "eeprom", "dump", "all", "-o", f"{tmp_path}/backup/")
+    assert dumped.code == 0, dumped.err
+    assert "1 servo answered at 115200 baud: ID 3 (" in " ".join(dumped.err.split()), dumped.err
+    robot = tmp_path / "one.toml"
+    robot.write_text('[lines.main]\nport = "sim://"\n\n[joints.neck]\nline = "main"\nid = 1\n')
+    shown = cli("check", str(robot))
+    assert shown.code == 0, shown.err
+    assert "115200 baud, as fast as the line goes, ID 1" in " ".join(shown.out.split()), shown.out

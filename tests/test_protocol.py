@@ -988,3 +988,11 @@ def test_command_interface_the_engine_uses() -> None:
     assert (cmd.tx, cmd.reply_len, cmd.echo_len, cmd.servo_id) == (h("A3 02"), 3, 2, 3)
     assert (cmd.timing, cmd.idempotent, cmd.name) == (Timing.NORMAL, True, "read_speed")
     assert cmd.parse(h("23 02 1E")) == 30
+
+
+def test_ids_are_named_in_the_singular_for_one_and_read_once_from_an_iterator() -> None:
+    from ics35_async.protocol.wire import ids_named, no_servo_among
+
+    assert ids_named(iter([3])) == "ID 3" and ids_named(i for i in (1, 2, 5)) == "IDs 1, 2, 5"
+    assert ids_named(range(4, 32)) == "IDs 4-31"
+    assert no_servo_among(iter([1])) == "no servo at ID 1" and no_servo_among(iter([1, 2])) == "no servo among 1, 2"

@@ -28,6 +28,8 @@ from rich.text import Text
 from .. import units
 from ..protocol.wire import id_ranges as id_ranges
 from ..protocol.wire import id_runs as id_runs
+from ..protocol.wire import ids_named as ids_named
+from ..protocol.wire import no_servo_among as no_servo_among
 from ..terminal import clear_after_ctrl_c, clear_echoed_ctrl_c, keep_output_at_ctrl_c, whole_writes
 from ._settings import CliError, ExitCode, Settings
 from ._signals import same_stop_for_a_moment

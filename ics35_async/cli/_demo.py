@@ -20,6 +20,7 @@ from ._common import (
     err,
     every_id,
     id_ranges,
+    ids_named,
     out,
     run,
     seconds_option,
@@ -147,8 +148,8 @@ def demo(
                     # Each named ID is asked first, as a scan asks (a short wait each once a servo has answered):
                     # streamed unasked, an ID where no servo is cost the stream's first cycles its whole --timeout
                     # each, three cycles before the stream left it out (the terminal blank meanwhile).
-                    err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
-                    with asking.while_asking(f"asking IDs {id_ranges(chosen)}"):
+                    err.print(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
+                    with asking.while_asking(f"asking {ids_named(chosen)}"):
                         answered, garbled = await probe_ids(bus, chosen)
                     # (none answering: streamed as they are, the run's end says so and looks at other rates)
                     if answered:

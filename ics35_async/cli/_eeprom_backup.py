@@ -202,7 +202,8 @@ def dump(ctx: click.Context, ids: list[int], output: str | None, as_table: bool,
         if every_id(ids):  # "all": the servos on the line, whichever they are
             answered = sorted([*images, *read.unread, *read.garbled, *read.failed])
             err.print(
-                f"{len(answered)} servo(s) answered at {settings.baud} baud: IDs {ids_text(answered)} (a servo "
+                f"{len(answered)} servo{'' if len(answered) == 1 else 's'} answered at {settings.baud} baud: "
+                f"{'ID' if len(answered) == 1 else 'IDs'} {ids_text(answered)} (a servo "
                 f"at another rate does not: {settings.command_line('scan')} finds every rate)"
             )
         else:

@@ -11,7 +11,7 @@ from ..policies.failure_kinds import echo_setting_wrong, id0_top_bit_differs
 from ..transports import carries_line_settings
 from ..transports.platforms import misnamed_port_hints, permission_hint, port_group, port_names_hint
 from ..transports.wire_device import is_url, url_scheme
-from ._console import err, id_ranges
+from ._console import err, no_servo_among
 from ._loop import run_loop
 from ._settings import CliError, ExitCode, Settings
 
@@ -236,14 +236,14 @@ def none_of_them_answered(settings: Settings, ids: Sequence[int]) -> CliError:
     rate = _rate_elsewhere(
         settings, lambda open_at, others, on_rate: servo_rates(open_at, ids[0], others, on_rate=on_rate)
     )
-    which = id_ranges(ids)  # (32 IDs in one short line: 0-31)
+    none = no_servo_among(ids)  # (32 IDs in one short line: 0-31)
     if rate is not None:
         return CliError(
             ExitCode.WRONG_BAUD,
-            f"no servo among {which} answered at {settings.baud} baud, but servo {ids[0]} does at {rate} baud",
+            f"{none} answered at {settings.baud} baud, but servo {ids[0]} does at {rate} baud",
             f"pass --baud {rate}",
         )
-    return CliError(ExitCode.NO_REPLY, f"no servo among {which} answered", *NO_REPLY_HINTS)
+    return CliError(ExitCode.NO_REPLY, f"{none} answered", *NO_REPLY_HINTS)
 
 
 def nothing_answered(settings: Settings, where: str, *, silent: bool) -> CliError:

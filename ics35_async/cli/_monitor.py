@@ -13,8 +13,9 @@ from ._common import (
     ExitCode,
     err,
     every_id,
-    id_ranges,
+    ids_named,
     json_option,
+    no_servo_among,
     run,
     seconds_option,
     settings_of,
@@ -99,10 +100,10 @@ def monitor(
                 # Before the first cycle each ID is asked, on a line where nothing answers a whole --timeout each:
                 # said, as a scan says it scans, so a wait of seconds is not a blank terminal (nor a log silent
                 # about what came before its first line).
-                err.print(f"asking IDs {id_ranges(chosen)} on {escape(shown)} at {settings.baud} baud ...")
+                err.print(f"asking {ids_named(chosen)} on {escape(shown)} at {settings.baud} baud ...")
             plan = await asking.ask(
                 bus,
-                f"asking IDs {id_ranges(chosen)}",
+                f"asking {ids_named(chosen)}",
                 lambda: policies.plan_position_stream(bus, chosen, free_ics35=free_servos),
             )
             freed = plan.free
@@ -110,13 +111,12 @@ def monitor(
             # Only ICS 3.5 servos (and, streamed, IDs that answer nothing: the stream would watch them alone).
             silent = plan.streamed if plan.left_out and set(plan.streamed) <= set(plan.silent) else []
             if not plan.streamed or silent:
-                which = f"{id_ranges(plan.left_out)} speak" if silent else "they speak"
-                absent = (
-                    f", and no answer from ID{'s' if len(silent) > 1 else ''} {id_ranges(silent)}" if silent else ""
-                )
+                one = len(plan.left_out) == 1
+                which = f"{ids_named(plan.left_out) if silent else 'it' if one else 'they'} speak{'s' if one else ''}"
+                absent = f", and no answer from {ids_named(silent)}" if silent else ""
                 raise CliError(
                     ExitCode.REFUSED,
-                    f"no servo among {id_ranges(chosen)} can report its position without going limp: {which} "
+                    f"{no_servo_among(chosen)} can report its position without going limp: {which} "
                     f"ICS 3.5, which reads a position only with the free command{absent} (nothing was sent that "
                     "moves or frees them)",
                     "pass --free to read ICS 3.5 servos with the free command (they go limp)",

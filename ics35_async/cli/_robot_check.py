@@ -17,7 +17,7 @@ from rich.table import Table
 from ..robot import Motion, RobotDescription
 from ..robot.description import SERVO_DEGREES, JointSpec, SafetySpec
 from ..units import shown
-from ._common import CliError, ExitCode, emit_json, id_ranges, json_option, out
+from ._common import CliError, ExitCode, emit_json, ids_named, json_option, out
 from ._console import printed_table, say_error
 from ._robot_common import MOTION_FILE_PROBLEMS, MotionFileError, load_motion_file, load_robot_file
 
@@ -110,8 +110,8 @@ def show_robot(path: str, description: RobotDescription) -> None:
     out.print(f"{escape(path)}: {called}{counts} (no port opened)")
     for line in lines.values():
         rate = f"{shown(line.rate_hz)} cycles/s" if line.rate_hz is not None else "as fast as the line goes"
-        ids = id_ranges(joint.id for joint in description.joints_on(line.name))
-        out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, IDs {ids}")
+        ids = ids_named(joint.id for joint in description.joints_on(line.name))
+        out.print(f"  line {escape(line.name)}: {escape(line.port)} at {line.baudrate} baud, {rate}, {ids}")
     # (no value wraps: a terminal too narrow leaves the line out, then wraps the names: see FittedTable)
     table = Table(box=None, pad_edge=False)
     for heading in ("joint", "line", "ID", "reverse"):

@@ -92,6 +92,18 @@ def id_ranges(ids: Iterable[int]) -> str:
     return ", ".join(f"{r[0]}-{r[-1]}" if len(r) >= 3 else ", ".join(map(str, r)) for r in id_runs(ids)) or "none"
 
 
+def ids_named(ids: Iterable[int]) -> str:
+    """``ID 4`` or ``IDs 0, 4-31`` (:func:`id_ranges`): one ID is no plural ("asking IDs 1")."""
+    listed = list(ids)  # (an iterator is read once)
+    return f"ID {listed[0]}" if len(set(listed)) == 1 else f"IDs {id_ranges(listed)}"
+
+
+def no_servo_among(ids: Iterable[int]) -> str:
+    """``no servo among 1-4`` or, of one ID, ``no servo at ID 1`` (not "among 1")."""
+    listed = list(ids)
+    return f"no servo at ID {listed[0]}" if len(set(listed)) == 1 else f"no servo among {id_ranges(listed)}"
+
+
 def check_retries(retries: object) -> int:
     return check_int("retries", retries, 0, MAX_RETRIES)
 
