@@ -7,11 +7,14 @@ import socket
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
+from ics35_async.cli import ExitCode
 from ics35_async.sim import serving
 from tests.support.cli_runs import run_process
+from tests.support.terminal import screen_of, typed_on_a_terminal
 from tests.support.timing import PATIENT_OPTION, REAL_TIME_OPTION
 
 pytestmark = [
@@ -88,3 +91,14 @@ def test_scan_with_an_empty_port_is_a_usage_error() -> None:
     proc = ics35("", "scan", "--quick")
     assert proc.returncode == 2, proc.stderr
     assert "port must not be empty" in proc.stderr and "skipped" not in proc.stderr
+
+
+@pytest.mark.parametrize("command", [["scan"], ["scan", "--quick"], ["monitor"]], ids=" ".join)
+def test_a_missing_port_is_said_before_any_progress_bar_is_drawn(tmp_path: Path, command: list[str]) -> None:
+    # `ics35 --port /dev/ttyUSB9 scan` on a terminal drew "scanning 115200 baud ━━━ 0/96" before the port's error:
+    # a scan looked begun on a port that was never opened.
+    missing = tmp_path / "ttyUSB9"
+    code, shown = typed_on_a_terminal(["--port", str(missing), *command], [])
+    assert code == ExitCode.PORT, shown
+    assert "scanning" not in shown and "━" not in shown, shown
+    assert f"no serial port at '{missing}'" in " ".join(" ".join(screen_of(shown)).split()), shown

@@ -8,7 +8,7 @@ import json
 import re
 import sys
 import weakref
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, NoReturn
 
@@ -359,11 +359,33 @@ class _ScanBar(Progress):
             self._stopping = False
 
 
+class ScanSteps:
+    """A scan's progress bar as the scan hears of it: :meth:`advance` with the probes each step finished (the
+    library's ``on_probe``), :meth:`line_open` once the port has opened.  The bar is drawn from then on: drawn
+    at once, it stood above the error of a port that never opened (``scanning 115200 baud ━━━ 0/96``), a scan
+    seemingly under way."""
+
+    def __init__(self, bar: _ScanBar, bauds: Sequence[int], ids: int) -> None:
+        self._bar = bar
+        self._bauds = bauds
+        self._ids = ids
+        self._done = 0
+        self._task = bar.add_task(f"scanning {bauds[0]:>7} baud", total=len(bauds) * ids)
+
+    def line_open(self) -> None:
+        if not self._bar.live.is_started:
+            self._bar.start()
+
+    def advance(self, n: int) -> None:
+        self._done += n
+        rate = self._bauds[min(self._done // self._ids, len(self._bauds) - 1)]
+        self._bar.update(self._task, advance=n, description=f"scanning {rate:>7} baud")
+
+
 @contextlib.contextmanager
-def scan_progress(bauds: Sequence[int], ids: int, *, show: bool = True) -> Iterator[Callable[[int], None]]:
+def scan_progress(bauds: Sequence[int], ids: int, *, show: bool = True) -> Iterator[ScanSteps]:
     """A scan's progress on a terminal (stderr), gone once it ends: ``scanning 115200 baud``, a bar and the probes
-    done of ``ids`` at each of ``bauds``.  Yields the callback that hears how many probes each step finished (the
-    library's ``on_probe``)."""
+    done of ``ids`` at each of ``bauds``, drawn once the line is open (see :class:`ScanSteps`)."""
     progress = _ScanBar(
         TextColumn("[progress.description]{task.description}"),
         BarColumn(),
@@ -373,17 +395,11 @@ def scan_progress(bauds: Sequence[int], ids: int, *, show: bool = True) -> Itera
         disable=not show or not err.is_terminal,
     )
     _live_views.add(progress)
-    with progress:
-        task = progress.add_task(f"scanning {bauds[0]:>7} baud", total=len(bauds) * ids)
-        done = 0
-
-        def advance(n: int) -> None:
-            nonlocal done
-            done += n
-            rate = bauds[min(done // ids, len(bauds) - 1)]
-            progress.update(task, advance=n, description=f"scanning {rate:>7} baud")
-
-        yield advance
+    try:
+        yield ScanSteps(progress, bauds, ids)
+    finally:
+        if progress.live.is_started:  # (never drawn: the port did not open)
+            progress.stop()
 
 
 class _LiveView(Live):

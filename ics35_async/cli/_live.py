@@ -274,8 +274,9 @@ async def discover(bus: Bus, settings: Settings, shown: str, quiet: bool, *, ask
         # (Said first, whatever was asked: on a line where IDs stay silent the scan takes a --timeout each, and a
         # log keeps this line where the terminal's progress bar is gone once the scan ends.)
         err.print(f"{'' if asked_all else 'no IDs given: '}scanning {escape(shown)} at {settings.baud} baud ...")
-    with scan_progress([settings.baud], len(ALL_IDS), show=not quiet) as advance:
-        answered, garbled = await probe_ids(bus, ALL_IDS, on_probe=advance)
+    with scan_progress([settings.baud], len(ALL_IDS), show=not quiet) as steps:
+        steps.line_open()  # (the command's line, opened before)
+        answered, garbled = await probe_ids(bus, ALL_IDS, on_probe=steps.advance)
     where = f"{shown} at {settings.baud} baud"
     if not answered and garbled:  # new servos, all at ID 0: not the unpowered line NobodyAnswered tells of
         raise answered_garbled(settings, where, [(settings.baud, i) for i in garbled])

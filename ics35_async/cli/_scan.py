@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import AsyncIterator, Sequence
 from dataclasses import replace
 
 import click
@@ -11,6 +12,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from .. import policies
+from ..bus import Bus
 from ..errors import ReplyError
 from ..policies import FoundServo, IdSurvey, Refusal, ScanReport, echo_setting_wrong
 from ..transports import rate_blind_note
@@ -51,15 +53,16 @@ async def scan_with_progress(
     timeout: float | None,
     show_progress: bool,
 ) -> ScanReport:
-    """The library's scan, opening the port at each rate, with a progress bar on a terminal."""
-    with scan_progress(bauds, len(ids), show=show_progress) as advance:
-        return await policies.scan(
-            lambda baud: settings.bus(baud, timeout=timeout),
-            bauds=bauds,
-            ids=ids,
-            read_eeprom=read_eeprom,
-            on_probe=advance,
-        )
+    """The library's scan, opening the port at each rate, with a progress bar on a terminal once it has opened."""
+    with scan_progress(bauds, len(ids), show=show_progress) as steps:
+
+        @contextlib.asynccontextmanager
+        async def open_at(baud: int) -> AsyncIterator[Bus]:
+            async with settings.bus(baud, timeout=timeout) as bus:
+                steps.line_open()
+                yield bus
+
+        return await policies.scan(open_at, bauds=bauds, ids=ids, read_eeprom=read_eeprom, on_probe=steps.advance)
 
 
 def baud_cell(s: FoundServo) -> str:
